@@ -1,0 +1,189 @@
+//! The `grid-gen` command line: argument parsing, diagnostic rendering and exit codes.
+//! All the work is in the `grid-gen` library.
+
+use std::io::{IsTerminal, Write};
+use std::path::{Path, PathBuf};
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use codespan_reporting::diagnostic::{Diagnostic as Report, Label};
+use codespan_reporting::files::SimpleFile;
+use codespan_reporting::term::{self, termcolor};
+use grid_gen::info::Info;
+use grid_gen::{Diagnostic, Model, Severity};
+
+/// Generates robot-specific rigid-body dynamics and their analytical gradients from a URDF.
+///
+/// With no subcommand, reads ROBOT.urdf and prints a summary of the model: joints in
+/// model order, tree levels and gradient sparsity.
+#[derive(Parser)]
+#[command(name = "grid-gen", version, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+struct Cli {
+    #[command(subcommand)]
+    command: Option<Command>,
+    /// The robot description.
+    #[arg(value_name = "ROBOT.urdf", required = true)]
+    urdf: Option<PathBuf>,
+    #[command(flatten)]
+    load: LoadArgs,
+}
+
+#[derive(clap::Args)]
+struct LoadArgs {
+    /// Treat warnings (such as physically implausible inertias) as errors.
+    #[arg(long, global = true)]
+    strict: bool,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print the model: joint order, types, parents, tree levels, gradient sparsity.
+    Info {
+        /// The robot description.
+        #[arg(value_name = "ROBOT.urdf")]
+        urdf: PathBuf,
+        /// Print stable JSON instead of text (fields documented in the README).
+        #[arg(long)]
+        json: bool,
+    },
+    /// Evaluate the reference dynamics on states from a JSON file and print JSON.
+    ///
+    /// Input: {"states": [{"q": [...], "qd": [...], "qdd": [...], "tau": [...]}]} in model
+    /// order (qdd and tau optional). Output: per state rnea, drnea_dq, drnea_dqd (with qdd),
+    /// M, Minv, fd, dfd_dq, dfd_dqd (with tau); matrices row-major, [i][j] = ∂out_i/∂in_j.
+    Eval {
+        /// The robot description.
+        #[arg(value_name = "ROBOT.urdf")]
+        urdf: PathBuf,
+        /// The states to evaluate.
+        #[arg(long, value_name = "STATES.json")]
+        states: PathBuf,
+        /// Gravity in the root frame, m/s².
+        #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, default_value = "0,0,-9.81", allow_hyphen_values = true)]
+        gravity: [f64; 3],
+    },
+}
+
+fn parse_gravity(s: &str) -> Result<[f64; 3], String> {
+    let parts: Vec<&str> = s.split(',').collect();
+    if parts.len() != 3 {
+        return Err(format!("expected three comma-separated numbers such as 0,0,-9.81, found `{s}`"));
+    }
+    let mut g = [0.0; 3];
+    for (slot, p) in g.iter_mut().zip(parts) {
+        *slot = p.trim().parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(|| format!("`{p}` is not a finite number"))?;
+    }
+    Ok(g)
+}
+
+/// Renders diagnostics with source excerpts; colour only on a terminal.
+fn render(path: &str, source: &str, diagnostics: &[Diagnostic]) {
+    let file = SimpleFile::new(path, source);
+    let choice = if std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none() { termcolor::ColorChoice::Auto } else { termcolor::ColorChoice::Never };
+    let writer = termcolor::StandardStream::stderr(choice);
+    let config = term::Config::default();
+    for d in diagnostics {
+        let mut report = match d.severity {
+            Severity::Error => Report::error(),
+            Severity::Warning => Report::warning(),
+        }
+        .with_message(&d.message);
+        if let Some(span) = &d.span {
+            report = report.with_labels(vec![Label::primary((), span.clone()).with_message(&d.label)]);
+        } else if !d.label.is_empty() {
+            report = report.with_notes(vec![d.label.clone()]);
+        }
+        if let Some(help) = &d.help {
+            report.notes.push(format!("help: {help}"));
+        }
+        // A failed write to stderr leaves nothing better to do.
+        let _ = term::emit(&mut writer.lock(), &config, &file, &report);
+    }
+}
+
+fn fail(message: impl std::fmt::Display) -> ExitCode {
+    eprintln!("error: {message}");
+    ExitCode::from(1)
+}
+
+/// Reads and loads a URDF, rendering every diagnostic; `None` after an error.
+fn load(path: &Path, strict: bool) -> Result<Model, ExitCode> {
+    let shown = path.display().to_string();
+    let text = match std::fs::read(path) {
+        Ok(bytes) => match String::from_utf8(bytes) {
+            Ok(t) => t,
+            Err(_) => return Err(fail(format!("{shown}: the file is not UTF-8 text"))),
+        },
+        Err(e) => return Err(fail(format!("cannot read {shown}: {e}"))),
+    };
+    match Model::from_urdf_str(&shown, &text, strict) {
+        Ok((model, warnings)) => {
+            render(&shown, &text, &warnings);
+            Ok(model)
+        }
+        Err(e) => {
+            render(&shown, &text, &e.diagnostics);
+            Err(ExitCode::from(1))
+        }
+    }
+}
+
+fn print(text: &str) -> ExitCode {
+    let mut out = std::io::stdout().lock();
+    match out.write_all(text.as_bytes()).and_then(|_| out.flush()) {
+        Ok(()) => ExitCode::SUCCESS,
+        // A closed pipe (`| head`) is not a failure of ours.
+        Err(e) if e.kind() == std::io::ErrorKind::BrokenPipe => ExitCode::SUCCESS,
+        Err(e) => fail(format!("cannot write output: {e}")),
+    }
+}
+
+fn run(cli: Cli) -> ExitCode {
+    let strict = cli.load.strict;
+    match cli.command {
+        None => {
+            let path = cli.urdf.expect("clap requires the URDF without a subcommand");
+            match load(&path, strict) {
+                Ok(model) => print(&Info::new(&model).to_text()),
+                Err(code) => code,
+            }
+        }
+        Some(Command::Info { urdf, json }) => match load(&urdf, strict) {
+            Ok(model) => {
+                let info = Info::new(&model);
+                if json {
+                    print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))
+                } else {
+                    print(&info.to_text())
+                }
+            }
+            Err(code) => code,
+        },
+        Some(Command::Eval { urdf, states, gravity }) => {
+            let model = match load(&urdf, strict) {
+                Ok(m) => m,
+                Err(code) => return code,
+            };
+            let text = match std::fs::read_to_string(&states) {
+                Ok(t) => t,
+                Err(e) => return fail(format!("cannot read {}: {e}", states.display())),
+            };
+            let result = grid_gen::eval::parse_states(&text).and_then(|file| grid_gen::eval::evaluate(&model, &file, gravity));
+            match result {
+                Ok(out) => print(&(serde_json::to_string(&out).expect("results serialise") + "\n")),
+                Err(e) => fail(format!("{}: {e}", states.display())),
+            }
+        }
+    }
+}
+
+fn main() -> ExitCode {
+    match Cli::try_parse() {
+        Ok(cli) => run(cli),
+        Err(e) => {
+            let _ = e.print();
+            // clap: 0 for --help/--version, 2 for usage errors.
+            ExitCode::from(e.exit_code() as u8)
+        }
+    }
+}

@@ -1,0 +1,119 @@
+//! `grid-gen eval`: the reference dynamics on a batch of states given as JSON.
+
+use serde::{Deserialize, Serialize};
+
+use crate::model::Model;
+use crate::reference;
+
+/// One input state; vectors in model order.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct State {
+    pub q: Vec<f64>,
+    pub qd: Vec<f64>,
+    #[serde(default)]
+    pub qdd: Option<Vec<f64>>,
+    #[serde(default)]
+    pub tau: Option<Vec<f64>>,
+}
+
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct StatesFile {
+    pub states: Vec<State>,
+}
+
+type Matrix = Vec<Vec<f64>>;
+
+/// Results for one state. Entries that need `qdd` (RNEA and its gradient) or `tau`
+/// (forward dynamics and its gradient) are present only when those were given.
+#[derive(Clone, Debug, Serialize)]
+pub struct Output {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rnea: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drnea_dq: Option<Matrix>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drnea_dqd: Option<Matrix>,
+    #[serde(rename = "M")]
+    pub m: Matrix,
+    #[serde(rename = "Minv")]
+    pub minv: Matrix,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fd: Option<Vec<f64>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dfd_dq: Option<Matrix>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dfd_dqd: Option<Matrix>,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct EvalOutput {
+    pub joint_names: Vec<String>,
+    pub states: Vec<Output>,
+}
+
+/// A states file that cannot be evaluated.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error("cannot read the states file: {0}")]
+    Json(#[from] serde_json::Error),
+    #[error("state {index}: `{field}` has {found} entries, the robot has {expected} joints")]
+    Length { index: usize, field: &'static str, found: usize, expected: usize },
+    #[error("state {index}: `{field}[{entry}]` is not finite")]
+    NotFinite { index: usize, field: &'static str, entry: usize },
+}
+
+fn rows(m: &nalgebra::DMatrix<f64>) -> Matrix {
+    m.row_iter().map(|r| r.iter().copied().collect()).collect()
+}
+
+/// Parses a states file (see [`StatesFile`]).
+pub fn parse_states(json: &str) -> Result<StatesFile, EvalError> {
+    Ok(serde_json::from_str(json)?)
+}
+
+/// Checks every state's lengths and values against the model.
+pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
+    let n = model.nv();
+    for (index, s) in file.states.iter().enumerate() {
+        let fields = [("q", Some(&s.q)), ("qd", Some(&s.qd)), ("qdd", s.qdd.as_ref()), ("tau", s.tau.as_ref())];
+        for (field, v) in fields {
+            let Some(v) = v else { continue };
+            if v.len() != n {
+                return Err(EvalError::Length { index, field, found: v.len(), expected: n });
+            }
+            if let Some(entry) = v.iter().position(|x| !x.is_finite()) {
+                return Err(EvalError::NotFinite { index, field, entry });
+            }
+        }
+    }
+    Ok(())
+}
+
+/// Evaluates the reference dynamics on every state.
+pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<EvalOutput, EvalError> {
+    check_states(model, file)?;
+    let states = file
+        .states
+        .iter()
+        .map(|s| {
+            let (rnea, drnea_dq, drnea_dqd) = match &s.qdd {
+                Some(qdd) => {
+                    let (dq, dqd) = reference::rnea_derivatives(model, &s.q, &s.qd, qdd, gravity);
+                    (Some(reference::rnea(model, &s.q, &s.qd, qdd, gravity)), Some(rows(&dq)), Some(rows(&dqd)))
+                }
+                None => (None, None, None),
+            };
+            let (fd, dfd_dq, dfd_dqd) = match &s.tau {
+                Some(tau) => {
+                    let (qdd, dq, dqd) = reference::forward_dynamics_derivatives(model, &s.q, &s.qd, tau, gravity);
+                    (Some(qdd), Some(rows(&dq)), Some(rows(&dqd)))
+                }
+                None => (None, None, None),
+            };
+            Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv: rows(&reference::minv(model, &s.q)), fd, dfd_dq, dfd_dqd }
+        })
+        .collect();
+    Ok(EvalOutput { joint_names: model.joints.iter().map(|j| j.name.clone()).collect(), states })
+}

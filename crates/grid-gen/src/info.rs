@@ -1,0 +1,81 @@
+//! The model summary behind `grid-gen info`, in a stable JSON shape (documented in the
+//! README; fields are only ever added).
+
+use serde::Serialize;
+
+use crate::model::{Count, JointType, Model};
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Mimic {
+    pub joint: String,
+    pub mimics: String,
+    pub multiplier: f64,
+    pub offset: f64,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Sparsity {
+    /// ∂v/∂q, ∂v/∂q̇, ∂a/∂q, ∂a/∂q̇ per body and joint: nonzero when the joint is an
+    /// ancestor of the body or its own (GRiD's count: iiwa 28 of 49).
+    pub dv_dq: Count,
+    /// ∂f/∂q per body and ∂c/∂q, ∂c/∂q̇ per joint pair: nonzero when the two lie on one
+    /// root-to-leaf path.
+    pub dc_dq: Count,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Info {
+    pub robot: String,
+    pub root_link: String,
+    pub nv: usize,
+    /// Movable joints in model order (depth-first pre-order, children in document order).
+    pub joint_names: Vec<String>,
+    pub joint_types: Vec<JointType>,
+    /// Index of each joint's parent joint, `null` for children of the fixed root.
+    pub parents: Vec<Option<usize>>,
+    /// Joint indices at each tree depth.
+    pub levels: Vec<Vec<usize>>,
+    /// Joints with a `<mimic>`; grid-gen treats them as independent (as Pinocchio does).
+    pub mimic: Vec<Mimic>,
+    pub sparsity: Sparsity,
+}
+
+impl Info {
+    pub fn new(model: &Model) -> Self {
+        Info {
+            robot: model.name.clone(),
+            root_link: model.root_link.clone(),
+            nv: model.nv(),
+            joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
+            joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
+            parents: model.joints.iter().map(|j| j.parent).collect(),
+            levels: model.levels(),
+            mimic: model
+                .joints
+                .iter()
+                .filter_map(|j| {
+                    j.mimic.as_ref().map(|(m, mult, off)| Mimic { joint: j.name.clone(), mimics: m.clone(), multiplier: *mult, offset: *off })
+                })
+                .collect(),
+            sparsity: Sparsity { dv_dq: model.motion_sparsity(), dc_dq: model.force_sparsity() },
+        }
+    }
+
+    /// A short human-readable summary.
+    pub fn to_text(&self) -> String {
+        let mut s = format!("robot `{}`: {} movable joints, root link `{}`\n", self.robot, self.nv, self.root_link);
+        s.push_str("joints (model order):\n");
+        for (i, name) in self.joint_names.iter().enumerate() {
+            let parent = self.parents[i].map_or("root".to_string(), |p| format!("{p}"));
+            s.push_str(&format!("  {i:>3}  {name}  ({}, parent {parent})\n", self.joint_types[i].as_str()));
+        }
+        s.push_str(&format!("levels: {}\n", self.levels.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>().join(" ")));
+        let d = &self.sparsity;
+        s.push_str(&format!("sparsity: dv/dq {} of {} nonzero, dc/dq {} of {}\n", d.dv_dq.nonzero, d.dv_dq.total, d.dc_dq.nonzero, d.dc_dq.total));
+        for m in &self.mimic {
+            s.push_str(&format!("note: joint `{}` mimics `{}`; it is treated as an independent joint\n", m.joint, m.mimics));
+        }
+        s
+    }
+}
+

@@ -1,0 +1,378 @@
+//! The robot model every later stage reads: movable joints in topological order, their
+//! tree transforms, axes and lumped spatial inertias, tree levels and sparsity masks.
+//!
+//! Order: a depth-first pre-order walk from the root link, visiting each link's child
+//! joints in document order. Fixed joints are merged into their parent body. Pre-order
+//! makes every subtree a contiguous range of joint indices (`subtree_end`), which the
+//! M⁻¹ recursion and the emitters rely on.
+
+use nalgebra::{Matrix3, SymmetricEigen, Vector3};
+use serde::Serialize;
+
+use crate::diagnostic::{Diagnostic, LoadError, Severity};
+use crate::spatial::rpy_matrix;
+use crate::urdf::{self, JointKind, Pose, Tree, Urdf};
+
+/// A rigid transform: `rot` holds the child frame's axes in parent coordinates and `pos`
+/// its origin in parent coordinates.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Transform {
+    pub rot: [[f64; 3]; 3],
+    pub pos: [f64; 3],
+}
+
+impl Transform {
+    pub fn identity() -> Self {
+        Transform { rot: Matrix3::identity().into(), pos: [0.0; 3] }
+    }
+
+    fn from_pose(p: &Pose) -> Self {
+        Transform::from_parts(rpy_matrix(p.rpy), Vector3::from(p.xyz))
+    }
+
+    pub fn rot_matrix(&self) -> Matrix3<f64> {
+        Matrix3::from_fn(|i, j| self.rot[i][j])
+    }
+
+    pub fn pos_vector(&self) -> Vector3<f64> {
+        Vector3::from(self.pos)
+    }
+
+    fn from_parts(r: Matrix3<f64>, p: Vector3<f64>) -> Self {
+        Transform { rot: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)])), pos: p.into() }
+    }
+
+    /// `self * other`: `other` is expressed in `self`'s child frame.
+    fn compose(&self, other: &Transform) -> Transform {
+        let r = self.rot_matrix();
+        Transform::from_parts(r * other.rot_matrix(), r * other.pos_vector() + self.pos_vector())
+    }
+}
+
+/// Rigid-body inertia about a body frame's origin, in that frame: additive, so fixed
+/// children are lumped by summing.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Inertia {
+    pub mass: f64,
+    /// First moment of mass, `mass * com`.
+    pub h: [f64; 3],
+    /// Rotational inertia about the frame origin (row-major, symmetric).
+    pub i_origin: [[f64; 3]; 3],
+}
+
+impl Inertia {
+    pub fn zero() -> Self {
+        Inertia { mass: 0.0, h: [0.0; 3], i_origin: [[0.0; 3]; 3] }
+    }
+
+    fn add(&mut self, o: &Inertia) {
+        self.mass += o.mass;
+        for k in 0..3 {
+            self.h[k] += o.h[k];
+            for l in 0..3 {
+                self.i_origin[k][l] += o.i_origin[k][l];
+            }
+        }
+    }
+
+    pub fn i_origin_matrix(&self) -> Matrix3<f64> {
+        Matrix3::from_fn(|i, j| self.i_origin[i][j])
+    }
+}
+
+/// Movable joint types after validation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum JointType {
+    Revolute,
+    Continuous,
+    Prismatic,
+}
+
+impl JointType {
+    pub fn as_str(self) -> &'static str {
+        match self {
+            JointType::Revolute => "revolute",
+            JointType::Continuous => "continuous",
+            JointType::Prismatic => "prismatic",
+        }
+    }
+
+    /// Revolute and continuous joints rotate; prismatic joints translate.
+    pub fn is_rotation(self) -> bool {
+        !matches!(self, JointType::Prismatic)
+    }
+}
+
+/// One movable joint and the body it carries.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Joint {
+    pub name: String,
+    pub joint_type: JointType,
+    /// Index of the parent joint, `None` when the parent body is the fixed root.
+    pub parent: Option<usize>,
+    /// Pose of the joint frame (at q = 0) in the parent body's frame.
+    pub tree: Transform,
+    /// Unit axis in the joint frame.
+    pub axis: [f64; 3],
+    /// Inertia of the body this joint moves, with fixed children lumped in, in the joint frame.
+    pub inertia: Inertia,
+    /// Depth in the tree (children of the root are at level 0).
+    pub level: usize,
+    /// One past the last joint of this joint's subtree (pre-order makes it a range).
+    pub subtree_end: usize,
+    /// `(lower, upper)` from `<limit>`, if present.
+    pub limit: Option<(f64, f64)>,
+    /// `<dynamics>` damping and friction (not part of the rigid-body terms).
+    pub damping: f64,
+    pub friction: f64,
+    /// `<mimic>`: (joint, multiplier, offset). Treated as an independent joint.
+    pub mimic: Option<(String, f64, f64)>,
+}
+
+/// A fixed-base robot ready for the dynamics.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Model {
+    pub name: String,
+    pub root_link: String,
+    pub joints: Vec<Joint>,
+}
+
+/// How many entries of an `nv x nv` matrix are not structurally zero.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct Count {
+    pub nonzero: usize,
+    pub total: usize,
+}
+
+impl Model {
+    /// Parses, checks and builds the model from URDF text. Warnings come back with the
+    /// model; with `strict`, a warning is an error.
+    pub fn from_urdf_str(path: &str, text: &str, strict: bool) -> Result<(Model, Vec<Diagnostic>), LoadError> {
+        let (urdf, tree, mut diags) = urdf::load(path, text)?;
+        let built = build(&urdf, &tree, &mut diags);
+        let failed = diags.iter().any(|d| d.severity == Severity::Error || (strict && d.severity == Severity::Warning));
+        match built {
+            Some(model) if !failed => Ok((model, diags)),
+            _ => {
+                if strict {
+                    for d in &mut diags {
+                        d.severity = Severity::Error;
+                    }
+                }
+                Err(LoadError { path: path.to_string(), source_text: text.to_string(), diagnostics: diags })
+            }
+        }
+    }
+
+    pub fn nv(&self) -> usize {
+        self.joints.len()
+    }
+
+    /// Whether `a` is `i` or one of its ancestors.
+    pub fn is_ancestor_or_self(&self, a: usize, i: usize) -> bool {
+        a <= i && i < self.joints[a].subtree_end
+    }
+
+    /// Ancestors of `i` from the root down, `i` included.
+    pub fn ancestors(&self, i: usize) -> Vec<usize> {
+        let mut chain = vec![i];
+        let mut j = i;
+        while let Some(p) = self.joints[j].parent {
+            chain.push(p);
+            j = p;
+        }
+        chain.reverse();
+        chain
+    }
+
+    /// Joint indices at each depth.
+    pub fn levels(&self) -> Vec<Vec<usize>> {
+        let depth = self.joints.iter().map(|j| j.level + 1).max().unwrap_or(0);
+        let mut levels = vec![Vec::new(); depth];
+        for (i, j) in self.joints.iter().enumerate() {
+            levels[j.level].push(i);
+        }
+        levels
+    }
+
+    /// Nonzero pattern of ∂v_i/∂q_j (and ∂a_i/∂q_j): j an ancestor of i or i itself.
+    pub fn motion_sparsity(&self) -> Count {
+        let n = self.nv();
+        let nonzero = (0..n).flat_map(|i| (0..n).map(move |j| (i, j))).filter(|&(i, j)| self.is_ancestor_or_self(j, i)).count();
+        Count { nonzero, total: n * n }
+    }
+
+    /// Nonzero pattern of ∂f_i/∂q_j and ∂c_i/∂q_j: i and j on one root-to-leaf path.
+    pub fn force_sparsity(&self) -> Count {
+        let n = self.nv();
+        let nonzero = (0..n)
+            .flat_map(|i| (0..n).map(move |j| (i, j)))
+            .filter(|&(i, j)| self.is_ancestor_or_self(j, i) || self.is_ancestor_or_self(i, j))
+            .count();
+        Count { nonzero, total: n * n }
+    }
+}
+
+fn link_inertia(inertial: &urdf::Inertial, in_body: &Transform) -> Inertia {
+    let m = inertial.mass;
+    let [ixx, ixy, ixz, iyy, iyz, izz] = inertial.inertia;
+    let ic = Matrix3::new(ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz);
+    let frame = in_body.compose(&Transform::from_pose(&inertial.origin));
+    let r = frame.rot_matrix();
+    let c = frame.pos_vector();
+    let i_origin = r * ic * r.transpose() + (Matrix3::identity() * c.dot(&c) - c * c.transpose()) * m;
+    Inertia { mass: m, h: (c * m).into(), i_origin: std::array::from_fn(|i| std::array::from_fn(|j| i_origin[(i, j)])) }
+}
+
+/// Warns about inertias no rigid body can have: not positive semi-definite, or breaking
+/// the triangle inequality of principal moments (I1 + I2 ≥ I3).
+fn check_inertia(link: &urdf::Link, diags: &mut Vec<Diagnostic>) {
+    let Some(inertial) = &link.inertial else { return };
+    if inertial.mass < 0.0 {
+        diags.push(
+            Diagnostic::error(format!("link `{}` has negative mass {}", link.name, inertial.mass), Some(inertial.mass_span.clone()), "mass must be zero or positive")
+                .with_help("correct <mass value=\"...\">"),
+        );
+        return;
+    }
+    let [ixx, ixy, ixz, iyy, iyz, izz] = inertial.inertia;
+    let ic = Matrix3::new(ixx, ixy, ixz, ixy, iyy, iyz, ixz, iyz, izz);
+    let mut e: Vec<f64> = SymmetricEigen::new(ic).eigenvalues.iter().copied().collect();
+    e.sort_by(f64::total_cmp);
+    // A relative tolerance: URDF inertias are printed with 4 to 17 digits.
+    let tol = 1e-9 * e.iter().map(|x| x.abs()).sum::<f64>();
+    if e[0] < -tol {
+        diags.push(
+            Diagnostic::warning(
+                format!("link `{}` has an inertia that is not positive semi-definite (smallest principal moment {:.3e})", link.name, e[0]),
+                Some(inertial.inertia_span.clone()),
+                "physically implausible inertia",
+            )
+            .with_help("check the signs of the products of inertia; the dynamics use the values as written"),
+        );
+    } else if e[0] + e[1] < e[2] - tol {
+        diags.push(
+            Diagnostic::warning(
+                format!("link `{}` breaks the triangle inequality of principal moments ({:.4e} + {:.4e} < {:.4e})", link.name, e[0], e[1], e[2]),
+                Some(inertial.inertia_span.clone()),
+                "physically implausible inertia",
+            )
+            .with_help("no rigid body has these moments; the dynamics use the values as written"),
+        );
+    }
+}
+
+/// One step of the depth-first walk (an explicit stack: deep chains must not overflow).
+enum Step {
+    /// Lump a link into `body` (None: the fixed root body) at pose `in_body`, then walk on.
+    Visit { link: usize, body: Option<usize>, in_body: Transform },
+    /// Create the model joint for URDF joint `joint`.
+    Open { joint: usize, parent: Option<usize>, tree: Transform },
+    /// The subtree of model joint `body` is complete.
+    Close { body: usize },
+}
+
+fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Option<Model> {
+    for link in &urdf.links {
+        check_inertia(link, diags);
+    }
+    let mut joints: Vec<Joint> = Vec::new();
+    // URDF joint index of each model joint, for located errors.
+    let mut source: Vec<usize> = Vec::new();
+    let mut stack = vec![Step::Visit { link: tree.root, body: None, in_body: Transform::identity() }];
+    while let Some(step) = stack.pop() {
+        match step {
+            Step::Visit { link, body, in_body } => {
+                // The root body is fixed: its inertia never enters the dynamics.
+                if let (Some(b), Some(inertial)) = (body, &urdf.links[link].inertial) {
+                    if inertial.mass >= 0.0 {
+                        let inertia = link_inertia(inertial, &in_body);
+                        joints[b].inertia.add(&inertia);
+                    }
+                }
+                // Pushed in reverse so that children are walked in document order.
+                for &j in tree.child_joints[link].iter().rev() {
+                    let origin = in_body.compose(&Transform::from_pose(&urdf.joints[j].origin));
+                    if urdf.joints[j].kind == JointKind::Fixed {
+                        stack.push(Step::Visit { link: tree.joint_links[j].1, body, in_body: origin });
+                    } else {
+                        stack.push(Step::Open { joint: j, parent: body, tree: origin });
+                    }
+                }
+            }
+            Step::Open { joint: j, parent, tree: tree_transform } => {
+                let uj = &urdf.joints[j];
+                let norm = (uj.axis[0].powi(2) + uj.axis[1].powi(2) + uj.axis[2].powi(2)).sqrt();
+                if norm < 1e-12 {
+                    diags.push(
+                        Diagnostic::error(format!("joint `{}` has a zero axis", uj.name), Some(uj.axis_span.clone()), "the axis has no direction")
+                            .with_help("give a nonzero <axis xyz=\"...\">; it is normalised"),
+                    );
+                }
+                let index = joints.len();
+                joints.push(Joint {
+                    name: uj.name.clone(),
+                    joint_type: match uj.kind {
+                        JointKind::Revolute => JointType::Revolute,
+                        JointKind::Continuous => JointType::Continuous,
+                        _ => JointType::Prismatic,
+                    },
+                    parent,
+                    tree: tree_transform,
+                    axis: if norm < 1e-12 { [0.0, 0.0, 1.0] } else { uj.axis.map(|a| a / norm) },
+                    inertia: Inertia::zero(),
+                    level: parent.map_or(0, |p| joints[p].level + 1),
+                    subtree_end: index + 1,
+                    limit: uj.limit,
+                    damping: uj.damping,
+                    friction: uj.friction,
+                    mimic: uj.mimic.as_ref().map(|m| (m.joint.clone(), m.multiplier, m.offset)),
+                });
+                source.push(j);
+                stack.push(Step::Close { body: index });
+                stack.push(Step::Visit { link: tree.joint_links[j].1, body: Some(index), in_body: Transform::identity() });
+            }
+            Step::Close { body } => joints[body].subtree_end = joints.len(),
+        }
+    }
+    check_massless(&joints, &source, urdf, diags);
+    Some(Model { name: urdf.name.clone(), root_link: urdf.links[tree.root].name.clone(), joints })
+}
+
+/// Every movable joint must move some inertia, or M is singular: S_iᵀ Ic_i S_i > 0 with
+/// Ic_i the composite inertia of its subtree.
+fn check_massless(joints: &[Joint], source: &[usize], urdf: &Urdf, diags: &mut Vec<Diagnostic>) {
+    use crate::spatial::{plux, spatial_inertia};
+    let n = joints.len();
+    let mut ic: Vec<_> = joints.iter().map(|j| spatial_inertia(j.inertia.mass, &Vector3::from(j.inertia.h), &j.inertia.i_origin_matrix())).collect();
+    let mut mass: Vec<f64> = joints.iter().map(|j| j.inertia.mass).collect();
+    for i in (0..n).rev() {
+        if let Some(p) = joints[i].parent {
+            // At q = 0 the joint transform is the tree transform.
+            let x = plux(&joints[i].tree.rot_matrix().transpose(), &joints[i].tree.pos_vector());
+            let add = x.transpose() * ic[i] * x;
+            ic[p] += add;
+            mass[p] += mass[i];
+        }
+        let a = Vector3::from(joints[i].axis);
+        let mut s = nalgebra::Vector6::zeros();
+        if joints[i].joint_type.is_rotation() {
+            s.fixed_rows_mut::<3>(0).copy_from(&a);
+        } else {
+            s.fixed_rows_mut::<3>(3).copy_from(&a);
+        }
+        let d = (s.transpose() * ic[i] * s)[0];
+        // Below this no double-precision factorisation of M is meaningful.
+        if d <= 1e-12 {
+            let uj = &urdf.joints[source[i]];
+            let child = &uj.child;
+            let (message, help) = if mass[i] <= 0.0 {
+                (format!("joint `{}` moves only massless links (`{child}` and below)", uj.name), format!("give `{child}` or a link below it an <inertial> with positive mass, or make the joint fixed"))
+            } else {
+                (format!("joint `{}` moves no inertia about its axis", uj.name), format!("the links from `{child}` down have their mass on the axis and no rotational inertia; give them an <inertia>"))
+            };
+            diags.push(Diagnostic::error(message, Some(uj.span.clone()), "the mass matrix would be singular").with_help(help));
+        }
+    }
+}

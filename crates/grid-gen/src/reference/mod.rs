@@ -1,0 +1,77 @@
+//! Reference dynamics in f64: plain loops over links, written to be checked against the
+//! literature line by line. This is the oracle for every generated backend, so it shares
+//! nothing with them but the [`Model`].
+//!
+//! Notation follows Featherstone (2008): `X[i]` is `iXλ(i)`, the motion transform from
+//! the parent body to body i at the current q; `S[i]` the joint's motion subspace.
+
+mod crba;
+mod fd;
+mod minv;
+mod rnea;
+mod rnea_derivatives;
+
+pub use crba::crba;
+pub use fd::{forward_dynamics, forward_dynamics_derivatives};
+pub use minv::minv;
+pub use rnea::rnea;
+pub use rnea_derivatives::rnea_derivatives;
+
+use nalgebra::{Matrix3, Vector3};
+
+use crate::model::{Joint, Model};
+use crate::spatial::{axis_angle, plux, spatial_inertia, Mat6, Vec6};
+
+/// Gravity used when none is given: (0, 0, -9.81) m/s² in the root frame.
+pub const DEFAULT_GRAVITY: [f64; 3] = [0.0, 0.0, -9.81];
+
+/// The joint's motion subspace S (a unit twist) in its own frame.
+pub fn motion_subspace(joint: &Joint) -> Vec6 {
+    let a = Vector3::from(joint.axis);
+    let mut s = Vec6::zeros();
+    if joint.joint_type.is_rotation() {
+        s.fixed_rows_mut::<3>(0).copy_from(&a);
+    } else {
+        s.fixed_rows_mut::<3>(3).copy_from(&a);
+    }
+    s
+}
+
+/// `iXλ(q_i) = X_J(q_i) X_T`: the tree transform, then the joint motion.
+pub fn joint_transform(joint: &Joint, qi: f64) -> Mat6 {
+    let x_tree = plux(&joint.tree.rot_matrix().transpose(), &joint.tree.pos_vector());
+    let a = Vector3::from(joint.axis);
+    let x_joint = if joint.joint_type.is_rotation() {
+        plux(&axis_angle(&a, qi).transpose(), &Vector3::zeros())
+    } else {
+        plux(&Matrix3::identity(), &(a * qi))
+    };
+    x_joint * x_tree
+}
+
+/// The spatial inertia of body i in its own frame.
+pub fn body_inertia(joint: &Joint) -> Mat6 {
+    spatial_inertia(joint.inertia.mass, &Vector3::from(joint.inertia.h), &joint.inertia.i_origin_matrix())
+}
+
+/// Per-body transforms, subspaces and inertias at `q`.
+pub(crate) struct Kinematics {
+    pub x: Vec<Mat6>,
+    pub s: Vec<Vec6>,
+    pub inertia: Vec<Mat6>,
+}
+
+impl Kinematics {
+    pub fn new(model: &Model, q: &[f64]) -> Self {
+        Kinematics {
+            x: model.joints.iter().zip(q).map(|(j, &qi)| joint_transform(j, qi)).collect(),
+            s: model.joints.iter().map(motion_subspace).collect(),
+            inertia: model.joints.iter().map(body_inertia).collect(),
+        }
+    }
+}
+
+/// The root's spatial acceleration that stands in for gravity: a_0 = -g.
+pub(crate) fn root_acceleration(gravity: [f64; 3]) -> Vec6 {
+    Vec6::new(0.0, 0.0, 0.0, -gravity[0], -gravity[1], -gravity[2])
+}

@@ -1,0 +1,37 @@
+//! Recursive Newton-Euler: inverse dynamics `c = M(q) q̈ + C(q, q̇) q̇ + g(q)`
+//! (Featherstone 2008, table 5.1).
+
+use super::{root_acceleration, Kinematics};
+use crate::model::Model;
+use crate::spatial::{crf, crm, Vec6};
+
+/// Joint forces needed for accelerations `qdd` at `(q, qd)`, with gravity `gravity`.
+pub fn rnea(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> Vec<f64> {
+    let n = model.nv();
+    let k = Kinematics::new(model, q);
+    let a0 = root_acceleration(gravity);
+    let mut v = vec![Vec6::zeros(); n];
+    let mut a = vec![Vec6::zeros(); n];
+    let mut f = vec![Vec6::zeros(); n];
+    // Forward pass: velocities, accelerations, body forces.
+    for i in 0..n {
+        let (v_parent, a_parent) = match model.joints[i].parent {
+            Some(p) => (v[p], a[p]),
+            None => (Vec6::zeros(), a0),
+        };
+        let vj = k.s[i] * qd[i];
+        v[i] = k.x[i] * v_parent + vj;
+        a[i] = k.x[i] * a_parent + k.s[i] * qdd[i] + crm(&v[i]) * vj;
+        f[i] = k.inertia[i] * a[i] + crf(&v[i]) * (k.inertia[i] * v[i]);
+    }
+    // Backward pass: project onto the joint, pass the rest to the parent.
+    let mut tau = vec![0.0; n];
+    for i in (0..n).rev() {
+        tau[i] = k.s[i].dot(&f[i]);
+        if let Some(p) = model.joints[i].parent {
+            let fp = k.x[i].transpose() * f[i];
+            f[p] += fp;
+        }
+    }
+    tau
+}
