@@ -75,3 +75,23 @@ impl Kinematics {
 pub(crate) fn root_acceleration(gravity: [f64; 3]) -> Vec6 {
     Vec6::new(0.0, 0.0, 0.0, -gravity[0], -gravity[1], -gravity[2])
 }
+
+/// Pose of every body frame (the child link frame of each movable joint) in the root
+/// link's frame at `q`: the rotation (child axes in root coordinates) and the origin.
+pub fn forward_kinematics(model: &Model, q: &[f64]) -> Vec<(Matrix3<f64>, Vector3<f64>)> {
+    let mut poses: Vec<(Matrix3<f64>, Vector3<f64>)> = Vec::with_capacity(model.nv());
+    for (joint, &qi) in model.joints.iter().zip(q) {
+        let (r_parent, p_parent) = match joint.parent {
+            Some(p) => poses[p],
+            None => (Matrix3::identity(), Vector3::zeros()),
+        };
+        let a = Vector3::from(joint.axis);
+        let (r_joint, p_joint) = if joint.joint_type.is_rotation() { (axis_angle(&a, qi), Vector3::zeros()) } else { (Matrix3::identity(), a * qi) };
+        let r_tree = joint.tree.rot_matrix();
+        let p_tree = joint.tree.pos_vector();
+        let r = r_parent * r_tree * r_joint;
+        let p = p_parent + r_parent * (p_tree + r_tree * p_joint);
+        poses.push((r, p));
+    }
+    poses
+}

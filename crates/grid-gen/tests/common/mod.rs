@@ -1,0 +1,86 @@
+//! Shared helpers for the integration tests: robots, fixtures, error norms.
+#![allow(dead_code)]
+
+use std::path::PathBuf;
+
+use grid_gen::Model;
+use nalgebra::DMatrix;
+
+/// The repository root (fixtures and robots live there, not in the crate).
+pub fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+/// Every robot in `robots/`, by file stem.
+pub fn robots() -> Vec<String> {
+    let mut names: Vec<String> = std::fs::read_dir(repo().join("robots"))
+        .expect("robots/ exists")
+        .filter_map(|e| {
+            let p = e.ok()?.path();
+            if p.extension()? != "urdf" { return None; }
+            Some(p.file_stem()?.to_string_lossy().into_owned())
+        })
+        .collect();
+    names.sort();
+    names
+}
+
+pub fn load(robot: &str) -> Model {
+    let path = repo().join("robots").join(format!("{robot}.urdf"));
+    let text = std::fs::read_to_string(&path).expect("robot file");
+    Model::from_urdf_str(&path.display().to_string(), &text, false).map_err(|e| e.render_plain()).expect("bundled robots load").0
+}
+
+pub fn fixture(name: &str) -> serde_json::Value {
+    let path = repo().join("tests/fixtures").join(name);
+    serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e} (run scripts/make_fixtures.py)", path.display()))).expect("fixture JSON")
+}
+
+pub fn vec_of(v: &serde_json::Value) -> Vec<f64> {
+    v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
+}
+
+pub fn mat_of(v: &serde_json::Value) -> DMatrix<f64> {
+    let rows: Vec<Vec<f64>> = v.as_array().expect("array").iter().map(vec_of).collect();
+    let n = rows.len();
+    let m = rows.first().map_or(0, |r| r.len());
+    DMatrix::from_fn(n, m, |i, j| rows[i][j])
+}
+
+/// ‖a − b‖_max / ‖b‖_max: the relative error in the max-abs norm used by every test.
+pub fn rel_err(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
+    assert_eq!(a.shape(), b.shape());
+    let scale = b.amax();
+    let diff = (a - b).amax();
+    if scale == 0.0 {
+        diff
+    } else {
+        diff / scale
+    }
+}
+
+pub fn col(v: &[f64]) -> DMatrix<f64> {
+    DMatrix::from_column_slice(v.len(), 1, v)
+}
+
+/// A small deterministic generator (SplitMix64), so tests need no RNG crate.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [lo, hi).
+    pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
+    }
+
+    pub fn vec(&mut self, n: usize, lo: f64, hi: f64) -> Vec<f64> {
+        (0..n).map(|_| self.uniform(lo, hi)).collect()
+    }
+}

@@ -1,0 +1,142 @@
+#!/usr/bin/env python3
+"""Writes the reference fixtures under tests/fixtures/ from independent tools.
+
+For each robot in robots/:
+  <robot>.pinocchio.json  Pinocchio (the `pin` wheel) on random and extreme states:
+                          RNEA, its derivatives, M, M^-1, ABA and its derivatives.
+  <robot>.yourdfpy.json   yourdfpy's reading of the tree: joint names, types, parents,
+                          origins, axes, and link poses at random configurations.
+
+Everything is stored in the tool's own joint order with joint names, so that the Rust
+tests match by name and never borrow grid-gen's ordering. Seeded: rerunning gives the
+same files (for the same pin/yourdfpy versions, recorded in each file).
+
+Usage: python3 scripts/make_fixtures.py   (needs `pip install pin yourdfpy`)
+"""
+import json
+import pathlib
+import sys
+
+import numpy as np
+import pinocchio as pin
+import yourdfpy
+
+ROOT = pathlib.Path(__file__).resolve().parent.parent
+ROBOTS = ROOT / "robots"
+OUT = ROOT / "tests" / "fixtures"
+RANDOM_STATES = 10
+
+
+def movable_joints(model):
+    """(name, idx_q, nq, idx_v, lower, upper) for every 1-DoF joint, in Pinocchio order."""
+    out = []
+    for jid in range(1, model.njoints):
+        j = model.joints[jid]
+        assert j.nv == 1, f"{model.names[jid]}: nv={j.nv}"
+        lo = model.lowerPositionLimit[j.idx_q] if j.nq == 1 else -np.pi
+        hi = model.upperPositionLimit[j.idx_q] if j.nq == 1 else np.pi
+        # Limits of +-1e5 (Atlas) or missing limits mean "unlimited": sample in [-pi, pi].
+        if not np.isfinite(lo) or not np.isfinite(hi) or hi - lo > 100 or hi <= lo:
+            lo, hi = -np.pi, np.pi
+        out.append((model.names[jid], j.idx_q, j.nq, j.idx_v, lo, hi))
+    return out
+
+
+def to_pin_q(model, joints, angles):
+    q = np.zeros(model.nq)
+    for (name, iq, nq, iv, lo, hi), a in zip(joints, angles):
+        if nq == 2:  # continuous joints are stored as (cos, sin)
+            q[iq], q[iq + 1] = np.cos(a), np.sin(a)
+        else:
+            q[iq] = a
+    return q
+
+
+def states(joints, rng):
+    n = len(joints)
+    lo = np.array([j[4] for j in joints])
+    hi = np.array([j[5] for j in joints])
+    out = []
+    for _ in range(RANDOM_STATES):
+        out.append(("random", rng.uniform(lo, hi), rng.normal(size=n), rng.normal(size=n), rng.normal(size=n) * 10))
+    out.append(("zero", np.zeros(n), np.zeros(n), np.zeros(n), np.zeros(n)))
+    out.append(("lower limits", lo.copy(), rng.normal(size=n), rng.normal(size=n), rng.normal(size=n)))
+    out.append(("upper limits", hi.copy(), rng.normal(size=n), rng.normal(size=n), rng.normal(size=n)))
+    for speed in (1e-8, 1e3):
+        out.append((f"speed {speed:g}", rng.uniform(lo, hi), rng.normal(size=n) * speed, rng.normal(size=n) * speed, rng.normal(size=n) * speed))
+    return out
+
+
+def mat(m):
+    return [[float(x) for x in row] for row in np.asarray(m)]
+
+
+def pinocchio_fixture(path, rng):
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    joints = movable_joints(model)
+    perm = [j[3] for j in joints]  # idx_v of each joint in listing order
+    sel = lambda v: np.asarray(v)[perm]
+    selm = lambda m: np.asarray(m)[np.ix_(perm, perm)]
+    records = []
+    for kind, ang, qd, qdd, tau in states(joints, rng):
+        q = to_pin_q(model, joints, ang)
+        v = np.zeros(model.nv); a = np.zeros(model.nv); t = np.zeros(model.nv)
+        v[perm] = qd; a[perm] = qdd; t[perm] = tau
+        rnea = pin.rnea(model, data, q, v, a).copy()
+        dq, dv, _ = pin.computeRNEADerivatives(model, data, q, v, a)
+        dq, dv = dq.copy(), dv.copy()
+        M = pin.crba(model, data, q).copy()
+        M = np.triu(M) + np.triu(M, 1).T
+        Mi = pin.computeMinverse(model, data, q).copy()
+        Mi = np.triu(Mi) + np.triu(Mi, 1).T
+        fd = pin.aba(model, data, q, v, t).copy()
+        pin.computeABADerivatives(model, data, q, v, t)
+        records.append({
+            "kind": kind, "q": [float(x) for x in ang], "qd": [float(x) for x in qd],
+            "qdd": [float(x) for x in qdd], "tau": [float(x) for x in tau],
+            "rnea": [float(x) for x in sel(rnea)], "drnea_dq": mat(selm(dq)), "drnea_dqd": mat(selm(dv)),
+            "M": mat(selm(M)), "Minv": mat(selm(Mi)), "fd": [float(x) for x in sel(fd)],
+            "dfd_dq": mat(selm(data.ddq_dq)), "dfd_dqd": mat(selm(data.ddq_dv)),
+        })
+    return {
+        "tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear],
+        "joint_names": [j[0] for j in joints], "states": records,
+    }
+
+
+def yourdfpy_fixture(path, rng):
+    robot = yourdfpy.URDF.load(str(path), load_meshes=False, build_scene_graph=True, build_collision_scene_graph=False)
+    joints = []
+    for j in robot.robot.joints:
+        joints.append({
+            "name": j.name, "type": j.type, "parent": j.parent, "child": j.child,
+            "origin": mat(j.origin if j.origin is not None else np.eye(4)),
+            "axis": [float(x) for x in (j.axis if j.axis is not None else [1, 0, 0])],
+        })
+    actuated = robot.actuated_joint_names
+    poses = []
+    for _ in range(5):
+        cfg = rng.uniform(-1.5, 1.5, size=len(actuated))
+        robot.update_cfg(dict(zip(actuated, cfg)))
+        links = {link: mat(robot.get_transform(link, robot.base_link)) for link in robot.link_map}
+        poses.append({"q": dict(zip(actuated, [float(x) for x in cfg])), "link_poses": links})
+    return {"tool": f"yourdfpy {yourdfpy.__version__ if hasattr(yourdfpy, '__version__') else ''}".strip(),
+            "robot": robot.robot.name, "base_link": robot.base_link, "joints": joints, "configurations": poses}
+
+
+def main():
+    OUT.mkdir(parents=True, exist_ok=True)
+    only = set(sys.argv[1:])
+    for path in sorted(ROBOTS.glob("*.urdf")):
+        if only and path.stem not in only:
+            continue
+        rng = np.random.default_rng(sum(path.stem.encode()))  # stable seed per robot
+        for suffix, make in (("pinocchio", pinocchio_fixture), ("yourdfpy", yourdfpy_fixture)):
+            data = make(path, rng)
+            (OUT / f"{path.stem}.{suffix}.json").write_text(json.dumps(data, indent=None) + "\n")
+            print(f"wrote {path.stem}.{suffix}.json")
+
+
+if __name__ == "__main__":
+    main()
