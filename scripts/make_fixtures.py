@@ -11,7 +11,11 @@ Everything is stored in the tool's own joint order with joint names, so that the
 tests match by name and never borrow grid-gen's ordering. Seeded: rerunning gives the
 same files (for the same pin/yourdfpy versions, recorded in each file).
 
-Usage: python3 scripts/make_fixtures.py   (needs `pip install pin yourdfpy`)
+Usage: python3 scripts/make_fixtures.py [--check] [ROBOT...]   (needs `pip install pin yourdfpy`)
+
+--check recomputes every fixture and compares it with the checked-in file instead of
+writing: strings exactly, numbers per array to 1e-12 relative in the max norm (the
+same library on another CPU may round differently in the last bits).
 """
 import json
 import pathlib
@@ -125,17 +129,60 @@ def yourdfpy_fixture(path, rng):
             "robot": robot.robot.name, "base_link": robot.base_link, "joints": joints, "configurations": poses}
 
 
+def differences(new, old, where=""):
+    """Yields where two fixtures differ beyond round-off."""
+    if isinstance(new, dict):
+        if not isinstance(old, dict) or set(new) != set(old):
+            yield f"{where}: keys differ"
+            return
+        for k in new:
+            yield from differences(new[k], old[k], f"{where}.{k}")
+    elif isinstance(new, list) and new and all(isinstance(x, (int, float, list)) for x in new) and not any(isinstance(x, dict) for x in new):
+        try:
+            a, b = np.array(new, dtype=float), np.array(old, dtype=float)
+        except (ValueError, TypeError):
+            yield f"{where}: shapes differ"
+            return
+        if a.shape != b.shape:
+            yield f"{where}: shapes differ"
+        elif a.size and np.max(np.abs(a - b)) > 1e-12 * max(np.max(np.abs(b)), 1e-300):
+            yield f"{where}: values differ by {np.max(np.abs(a - b)):.3e}"
+    elif isinstance(new, list):
+        if not isinstance(old, list) or len(new) != len(old):
+            yield f"{where}: lengths differ"
+            return
+        for i, (x, y) in enumerate(zip(new, old)):
+            yield from differences(x, y, f"{where}[{i}]")
+    elif new != old and not (isinstance(new, str) and where.endswith(".tool")):
+        yield f"{where}: {new!r} != {old!r}"
+
+
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
-    only = set(sys.argv[1:])
+    args = sys.argv[1:]
+    check = "--check" in args
+    only = set(a for a in args if a != "--check")
+    failed = False
     for path in sorted(ROBOTS.glob("*.urdf")):
         if only and path.stem not in only:
             continue
         rng = np.random.default_rng(sum(path.stem.encode()))  # stable seed per robot
         for suffix, make in (("pinocchio", pinocchio_fixture), ("yourdfpy", yourdfpy_fixture)):
             data = make(path, rng)
-            (OUT / f"{path.stem}.{suffix}.json").write_text(json.dumps(data, indent=None) + "\n")
-            print(f"wrote {path.stem}.{suffix}.json")
+            target = OUT / f"{path.stem}.{suffix}.json"
+            if check:
+                old = json.loads(target.read_text()) if target.exists() else None
+                diffs = list(differences(json.loads(json.dumps(data)), old)) if old is not None else ["missing"]
+                if diffs:
+                    failed = True
+                    print(f"{target.name}: stale: " + "; ".join(diffs[:5]), file=sys.stderr)
+                else:
+                    print(f"{target.name}: up to date")
+            else:
+                target.write_text(json.dumps(data, indent=None) + "\n")
+                print(f"wrote {target.name}")
+    if failed:
+        sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 
 
 if __name__ == "__main__":

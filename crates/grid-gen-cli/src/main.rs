@@ -79,7 +79,8 @@ fn parse_gravity(s: &str) -> Result<[f64; 3], String> {
 /// Renders diagnostics with source excerpts; colour only on a terminal.
 fn render(path: &str, source: &str, diagnostics: &[Diagnostic]) {
     let file = SimpleFile::new(path, source);
-    let choice = if std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none() { termcolor::ColorChoice::Auto } else { termcolor::ColorChoice::Never };
+    let choice =
+        if std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none() { termcolor::ColorChoice::Auto } else { termcolor::ColorChoice::Never };
     let writer = termcolor::StandardStream::stderr(choice);
     let config = term::Config::default();
     for d in diagnostics {

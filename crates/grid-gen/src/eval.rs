@@ -9,12 +9,68 @@ use crate::reference;
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct State {
+    #[serde(deserialize_with = "numbers")]
     pub q: Vec<f64>,
+    #[serde(deserialize_with = "numbers")]
     pub qd: Vec<f64>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "some_numbers")]
     pub qdd: Option<Vec<f64>>,
-    #[serde(default)]
+    #[serde(default, deserialize_with = "some_numbers")]
     pub tau: Option<Vec<f64>>,
+}
+
+/// A number, or one of the strings that [`quote_non_finite`] makes of NaN and infinities.
+#[derive(Deserialize)]
+#[serde(untagged)]
+enum Number {
+    Finite(f64),
+    Named(String),
+}
+
+fn numbers<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error> {
+    let raw: Vec<Number> = Deserialize::deserialize(d)?;
+    raw.into_iter()
+        .map(|n| match n {
+            Number::Finite(x) => Ok(x),
+            Number::Named(s) => match s.as_str() {
+                "NaN" => Ok(f64::NAN),
+                "Infinity" => Ok(f64::INFINITY),
+                "-Infinity" => Ok(f64::NEG_INFINITY),
+                _ => Err(serde::de::Error::custom(format!("expected a number, found the string `{s}`"))),
+            },
+        })
+        .collect()
+}
+
+fn some_numbers<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Option<Vec<f64>>, D::Error> {
+    numbers(d).map(Some)
+}
+
+/// Python's `json.dump` writes NaN and infinities as bare `NaN`, `Infinity`,
+/// `-Infinity`, which are not JSON. Quoting them outside strings lets the state checks
+/// name the offending entry instead of failing on a syntax error.
+fn quote_non_finite(json: &str) -> String {
+    let mut out = String::with_capacity(json.len());
+    let mut in_string = false;
+    let mut escaped = false;
+    let mut rest = json;
+    while let Some(c) = rest.chars().next() {
+        if in_string {
+            in_string = escaped || c != '"';
+            escaped = !escaped && c == '\\';
+        } else if c == '"' {
+            in_string = true;
+        } else if let Some(word) = ["-Infinity", "Infinity", "NaN"].into_iter().find(|w| rest.starts_with(w)) {
+            out.push('"');
+            out.push_str(word);
+            out.push('"');
+            rest = &rest[word.len()..];
+            continue;
+        }
+        out.push(c);
+        rest = &rest[c.len_utf8()..];
+    }
+    out
 }
 
 #[derive(Clone, Debug, Deserialize)]
@@ -68,9 +124,10 @@ fn rows(m: &nalgebra::DMatrix<f64>) -> Matrix {
     m.row_iter().map(|r| r.iter().copied().collect()).collect()
 }
 
-/// Parses a states file (see [`StatesFile`]).
+/// Parses a states file (see [`StatesFile`]); bare `NaN`/`Infinity` are read so that
+/// [`check_states`] can point at them.
 pub fn parse_states(json: &str) -> Result<StatesFile, EvalError> {
-    Ok(serde_json::from_str(json)?)
+    Ok(serde_json::from_str(&quote_non_finite(json))?)
 }
 
 /// Checks every state's lengths and values against the model.

@@ -53,9 +53,7 @@ impl Info {
             mimic: model
                 .joints
                 .iter()
-                .filter_map(|j| {
-                    j.mimic.as_ref().map(|(m, mult, off)| Mimic { joint: j.name.clone(), mimics: m.clone(), multiplier: *mult, offset: *off })
-                })
+                .filter_map(|j| j.mimic.as_ref().map(|(m, mult, off)| Mimic { joint: j.name.clone(), mimics: m.clone(), multiplier: *mult, offset: *off }))
                 .collect(),
             sparsity: Sparsity { dv_dq: model.motion_sparsity(), dc_dq: model.force_sparsity() },
         }
@@ -78,4 +76,3 @@ impl Info {
         s
     }
 }
-

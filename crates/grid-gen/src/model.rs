@@ -206,10 +206,8 @@ impl Model {
     /// Nonzero pattern of ∂f_i/∂q_j and ∂c_i/∂q_j: i and j on one root-to-leaf path.
     pub fn force_sparsity(&self) -> Count {
         let n = self.nv();
-        let nonzero = (0..n)
-            .flat_map(|i| (0..n).map(move |j| (i, j)))
-            .filter(|&(i, j)| self.is_ancestor_or_self(j, i) || self.is_ancestor_or_self(i, j))
-            .count();
+        let nonzero =
+            (0..n).flat_map(|i| (0..n).map(move |j| (i, j))).filter(|&(i, j)| self.is_ancestor_or_self(j, i) || self.is_ancestor_or_self(i, j)).count();
         Count { nonzero, total: n * n }
     }
 }
@@ -231,8 +229,12 @@ fn check_inertia(link: &urdf::Link, diags: &mut Vec<Diagnostic>) {
     let Some(inertial) = &link.inertial else { return };
     if inertial.mass < 0.0 {
         diags.push(
-            Diagnostic::error(format!("link `{}` has negative mass {}", link.name, inertial.mass), Some(inertial.mass_span.clone()), "mass must be zero or positive")
-                .with_help("correct <mass value=\"...\">"),
+            Diagnostic::error(
+                format!("link `{}` has negative mass {}", link.name, inertial.mass),
+                Some(inertial.mass_span.clone()),
+                "mass must be zero or positive",
+            )
+            .with_help("correct <mass value=\"...\">"),
         );
         return;
     }
@@ -368,9 +370,15 @@ fn check_massless(joints: &[Joint], source: &[usize], urdf: &Urdf, diags: &mut V
             let uj = &urdf.joints[source[i]];
             let child = &uj.child;
             let (message, help) = if mass[i] <= 0.0 {
-                (format!("joint `{}` moves only massless links (`{child}` and below)", uj.name), format!("give `{child}` or a link below it an <inertial> with positive mass, or make the joint fixed"))
+                (
+                    format!("joint `{}` moves only massless links (`{child}` and below)", uj.name),
+                    format!("give `{child}` or a link below it an <inertial> with positive mass, or make the joint fixed"),
+                )
             } else {
-                (format!("joint `{}` moves no inertia about its axis", uj.name), format!("the links from `{child}` down have their mass on the axis and no rotational inertia; give them an <inertia>"))
+                (
+                    format!("joint `{}` moves no inertia about its axis", uj.name),
+                    format!("the links from `{child}` down have their mass on the axis and no rotational inertia; give them an <inertia>"),
+                )
             };
             diags.push(Diagnostic::error(message, Some(uj.span.clone()), "the mass matrix would be singular").with_help(help));
         }

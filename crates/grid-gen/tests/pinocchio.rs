@@ -24,7 +24,8 @@ fn reference_matches_pinocchio_on_every_robot() {
         let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
         assert_eq!(names.len(), model.nv(), "{robot}: joint count");
         // perm[k] = our index of Pinocchio's k-th joint.
-        let perm: Vec<usize> = names.iter().map(|n| model.joints.iter().position(|j| j.name == *n).unwrap_or_else(|| panic!("{robot}: no joint {n}"))).collect();
+        let perm: Vec<usize> =
+            names.iter().map(|n| model.joints.iter().position(|j| j.name == *n).unwrap_or_else(|| panic!("{robot}: no joint {n}"))).collect();
         let ours = |v: &[f64]| {
             let mut out = vec![0.0; v.len()];
             for (k, &i) in perm.iter().enumerate() {

@@ -41,11 +41,7 @@ pub fn motion_subspace(joint: &Joint) -> Vec6 {
 pub fn joint_transform(joint: &Joint, qi: f64) -> Mat6 {
     let x_tree = plux(&joint.tree.rot_matrix().transpose(), &joint.tree.pos_vector());
     let a = Vector3::from(joint.axis);
-    let x_joint = if joint.joint_type.is_rotation() {
-        plux(&axis_angle(&a, qi).transpose(), &Vector3::zeros())
-    } else {
-        plux(&Matrix3::identity(), &(a * qi))
-    };
+    let x_joint = if joint.joint_type.is_rotation() { plux(&axis_angle(&a, qi).transpose(), &Vector3::zeros()) } else { plux(&Matrix3::identity(), &(a * qi)) };
     x_joint * x_tree
 }
 

@@ -193,14 +193,7 @@ impl Parser<'_> {
                 None => ok = false,
             }
         }
-        ok.then(|| Inertial {
-            span: tag_span(node),
-            origin,
-            mass,
-            mass_span: tag_span(mass_node),
-            inertia,
-            inertia_span: tag_span(inertia_node),
-        })
+        ok.then(|| Inertial { span: tag_span(node), origin, mass, mass_span: tag_span(mass_node), inertia, inertia_span: tag_span(inertia_node) })
     }
 
     fn required_child<'n>(&mut self, node: Node<'n, 'n>, name: &str) -> Option<Node<'n, 'n>> {
@@ -226,8 +219,12 @@ impl Parser<'_> {
             "fixed" => JointKind::Fixed,
             "floating" | "planar" | "spherical" => {
                 self.diags.push(
-                    Diagnostic::error(format!("joint `{name}` has type `{ty}`, which is not supported"), Some(Self::attr_span(node, "type")), "unsupported joint type")
-                        .with_help("supported joint types are revolute, continuous, prismatic and fixed; a floating base is planned but not built yet"),
+                    Diagnostic::error(
+                        format!("joint `{name}` has type `{ty}`, which is not supported"),
+                        Some(Self::attr_span(node, "type")),
+                        "unsupported joint type",
+                    )
+                    .with_help("supported joint types are revolute, continuous, prismatic and fixed; a floating base is planned but not built yet"),
                 );
                 return None;
             }
@@ -304,7 +301,8 @@ pub(crate) fn parse(text: &str) -> (Option<Urdf>, Vec<Diagnostic>) {
             let span = at..(at + 1).min(text.len()).max(at);
             return (
                 None,
-                vec![Diagnostic::error(format!("malformed XML: {e}"), Some(span), "the XML parser stopped here").with_help("fix the XML syntax; a URDF is one <robot> element")],
+                vec![Diagnostic::error(format!("malformed XML: {e}"), Some(span), "the XML parser stopped here")
+                    .with_help("fix the XML syntax; a URDF is one <robot> element")],
             );
         }
     };

@@ -22,7 +22,10 @@ pub struct Tree {
 pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
     let mut diags = Vec::new();
     if urdf.links.is_empty() {
-        diags.push(Diagnostic::error(format!("robot `{}` has no links", urdf.name), Some(urdf.span.clone()), "no <link> inside").with_help("add at least one <link name=\"...\">"));
+        diags.push(
+            Diagnostic::error(format!("robot `{}` has no links", urdf.name), Some(urdf.span.clone()), "no <link> inside")
+                .with_help("add at least one <link name=\"...\">"),
+        );
         return Err(diags);
     }
     let mut link_index: HashMap<&str, usize> = HashMap::new();
@@ -54,14 +57,22 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
         let child = link_index.get(joint.child.as_str()).copied();
         if parent.is_none() {
             diags.push(
-                Diagnostic::error(format!("joint `{}` names unknown parent link `{}`", joint.name, joint.parent), Some(joint.parent_span.clone()), format!("no <link name=\"{}\"> in this robot", joint.parent))
-                    .with_help("correct the name or add the missing <link>"),
+                Diagnostic::error(
+                    format!("joint `{}` names unknown parent link `{}`", joint.name, joint.parent),
+                    Some(joint.parent_span.clone()),
+                    format!("no <link name=\"{}\"> in this robot", joint.parent),
+                )
+                .with_help("correct the name or add the missing <link>"),
             );
         }
         if child.is_none() {
             diags.push(
-                Diagnostic::error(format!("joint `{}` names unknown child link `{}`", joint.name, joint.child), Some(joint.child_span.clone()), format!("no <link name=\"{}\"> in this robot", joint.child))
-                    .with_help("correct the name or add the missing <link>"),
+                Diagnostic::error(
+                    format!("joint `{}` names unknown child link `{}`", joint.name, joint.child),
+                    Some(joint.child_span.clone()),
+                    format!("no <link name=\"{}\"> in this robot", joint.child),
+                )
+                .with_help("correct the name or add the missing <link>"),
             );
         }
         let (Some(p), Some(c)) = (parent, child) else {
@@ -70,8 +81,12 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
         };
         if let Some(other) = parent_joint[c] {
             diags.push(
-                Diagnostic::error(format!("link `{}` has two parents", joint.child), Some(joint.child_span.clone()), format!("joint `{}` already makes `{}` its child", urdf.joints[other].name, joint.child))
-                    .with_help("a URDF is a tree: each link may be the child of one joint only (closed loops are not supported)"),
+                Diagnostic::error(
+                    format!("link `{}` has two parents", joint.child),
+                    Some(joint.child_span.clone()),
+                    format!("joint `{}` already makes `{}` its child", urdf.joints[other].name, joint.child),
+                )
+                .with_help("a URDF is a tree: each link may be the child of one joint only (closed loops are not supported)"),
             );
         } else {
             parent_joint[c] = Some(j);
@@ -81,8 +96,12 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
         if let Some(m) = &joint.mimic {
             if !joint_names.contains_key(m.joint.as_str()) {
                 diags.push(
-                    Diagnostic::error(format!("joint `{}` mimics unknown joint `{}`", joint.name, m.joint), Some(joint.span.clone()), "the <mimic> names no joint of this robot")
-                        .with_help("correct the name in <mimic joint=\"...\">"),
+                    Diagnostic::error(
+                        format!("joint `{}` mimics unknown joint `{}`", joint.name, m.joint),
+                        Some(joint.span.clone()),
+                        "the <mimic> names no joint of this robot",
+                    )
+                    .with_help("correct the name in <mimic joint=\"...\">"),
                 );
             }
         }
@@ -104,8 +123,12 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
         _ => {
             let names: Vec<String> = roots.iter().map(|&r| format!("`{}`", urdf.links[r].name)).collect();
             diags.push(
-                Diagnostic::error(format!("the robot has {} root links: {}", roots.len(), names.join(", ")), Some(urdf.links[roots[1]].span.clone()), "this link is not connected to the first root")
-                    .with_help("connect every link to one tree with joints (a URDF has exactly one root link)"),
+                Diagnostic::error(
+                    format!("the robot has {} root links: {}", roots.len(), names.join(", ")),
+                    Some(urdf.links[roots[1]].span.clone()),
+                    "this link is not connected to the first root",
+                )
+                .with_help("connect every link to one tree with joints (a URDF has exactly one root link)"),
             );
             return Err(diags);
         }
@@ -120,8 +143,12 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
     if let Some(l) = (0..n).find(|&l| !reached[l]) {
         let j = parent_joint[l].expect("non-root links have a parent joint");
         diags.push(
-            Diagnostic::error(format!("joints form a cycle through link `{}`", urdf.links[l].name), Some(urdf.joints[j].span.clone()), "this joint is part of the cycle")
-                .with_help("a URDF is a tree: remove the joint that closes the loop"),
+            Diagnostic::error(
+                format!("joints form a cycle through link `{}`", urdf.links[l].name),
+                Some(urdf.joints[j].span.clone()),
+                "this joint is part of the cycle",
+            )
+            .with_help("a URDF is a tree: remove the joint that closes the loop"),
         );
         return Err(diags);
     }

@@ -17,7 +17,9 @@ pub fn robots() -> Vec<String> {
         .expect("robots/ exists")
         .filter_map(|e| {
             let p = e.ok()?.path();
-            if p.extension()? != "urdf" { return None; }
+            if p.extension()? != "urdf" {
+                return None;
+            }
             Some(p.file_stem()?.to_string_lossy().into_owned())
         })
         .collect();
@@ -33,7 +35,8 @@ pub fn load(robot: &str) -> Model {
 
 pub fn fixture(name: &str) -> serde_json::Value {
     let path = repo().join("tests/fixtures").join(name);
-    serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e} (run scripts/make_fixtures.py)", path.display()))).expect("fixture JSON")
+    serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e} (run scripts/make_fixtures.py)", path.display())))
+        .expect("fixture JSON")
 }
 
 pub fn vec_of(v: &serde_json::Value) -> Vec<f64> {

@@ -1,0 +1,98 @@
+//! The command line end to end: exit codes, `info --json`'s documented fields, and `eval`
+//! returning exactly what the library's reference computes.
+
+use std::path::PathBuf;
+use std::process::{Command, Output};
+
+fn repo() -> PathBuf {
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+}
+
+fn grid_gen(args: &[&str]) -> Output {
+    Command::new(env!("CARGO_BIN_EXE_grid-gen")).current_dir(repo()).args(args).env("NO_COLOR", "1").output().unwrap()
+}
+
+fn json(out: &Output) -> serde_json::Value {
+    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)))
+}
+
+#[test]
+fn exit_codes() {
+    assert_eq!(grid_gen(&["robots/grid_iiwa.urdf"]).status.code(), Some(0));
+    assert_eq!(grid_gen(&["--help"]).status.code(), Some(0));
+    assert_eq!(grid_gen(&["info", "--help"]).status.code(), Some(0));
+    assert_eq!(grid_gen(&[]).status.code(), Some(2), "no URDF is a usage error");
+    assert_eq!(grid_gen(&["info", "robots/grid_iiwa.urdf", "--bogus"]).status.code(), Some(2));
+    assert_eq!(grid_gen(&["eval", "robots/grid_iiwa.urdf", "--states", "x.json", "--gravity", "1,2"]).status.code(), Some(2));
+    let missing = grid_gen(&["robots/no_such_robot.urdf"]);
+    assert_eq!(missing.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&missing.stderr).contains("cannot read robots/no_such_robot.urdf"));
+    assert_eq!(grid_gen(&["tests/diagnostics/cycle.urdf"]).status.code(), Some(1));
+}
+
+#[test]
+fn summary_names_joints_levels_and_sparsity() {
+    let out = grid_gen(&["robots/grid_hyq.urdf"]);
+    let text = String::from_utf8(out.stdout).unwrap();
+    assert!(text.starts_with("robot `hyq`: 12 movable joints, root link `base_link_0`\n"), "{text}");
+    assert!(text.contains("    0  lf_haa_joint  (revolute, parent root)\n"), "{text}");
+    assert!(text.contains("levels: [0, 3, 6, 9] [1, 4, 7, 10] [2, 5, 8, 11]\n"), "{text}");
+    assert!(text.contains("sparsity: dv/dq 24 of 144 nonzero, dc/dq 36 of 144\n"), "{text}");
+}
+
+#[test]
+fn info_json_has_the_documented_fields() {
+    // GRiD's published counts of nonzero dv/dq columns (iiwa 28/49, HyQ 24/144, Atlas 150/900).
+    for (robot, nv, nonzero) in [("grid_iiwa", 7, 28), ("grid_hyq", 12, 24), ("grid_atlas", 30, 150)] {
+        let v = json(&grid_gen(&["info", &format!("robots/{robot}.urdf"), "--json"]));
+        assert_eq!(v["nv"], nv);
+        assert_eq!(v["joint_names"].as_array().unwrap().len(), nv);
+        assert_eq!(v["joint_types"].as_array().unwrap().len(), nv);
+        assert_eq!(v["parents"].as_array().unwrap().len(), nv);
+        assert_eq!(v["sparsity"]["dv_dq"]["nonzero"], nonzero);
+        assert_eq!(v["sparsity"]["dv_dq"]["total"], nv * nv);
+        let levels: usize = v["levels"].as_array().unwrap().iter().map(|l| l.as_array().unwrap().len()).sum();
+        assert_eq!(levels, nv);
+    }
+    let panda = json(&grid_gen(&["info", "robots/panda.urdf", "--json"]));
+    assert_eq!(panda["mimic"][0]["joint"], "panda_finger_joint2");
+    assert_eq!(panda["mimic"][0]["mimics"], "panda_finger_joint1");
+    assert_eq!(panda["joint_types"][8], "prismatic");
+}
+
+#[test]
+fn eval_prints_the_reference_and_omits_what_was_not_asked() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let states = dir.join("states.json");
+    std::fs::write(&states, r#"{"states": [{"q": [0.1, -0.4], "qd": [0.5, 2], "qdd": [1, -1]}, {"q": [0, 1], "qd": [0, 0], "tau": [0.1, 0.2]}]}"#).unwrap();
+    let urdf = "robots/double_pendulum_continuous.urdf";
+    let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap(), "--gravity", "0,-9.81,0"]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let v = json(&out);
+    assert_eq!(v["joint_names"], serde_json::json!(["joint1", "joint2"]));
+    let s0 = &v["states"][0];
+    let s1 = &v["states"][1];
+    assert!(s0.get("rnea").is_some() && s0.get("drnea_dq").is_some() && s0.get("fd").is_none());
+    assert!(s1.get("rnea").is_none() && s1.get("fd").is_some() && s1.get("dfd_dqd").is_some());
+
+    let text = std::fs::read_to_string(repo().join(urdf)).unwrap();
+    let (model, _) = grid_gen::Model::from_urdf_str(urdf, &text, false).unwrap();
+    let g = [0.0, -9.81, 0.0];
+    let rnea = grid_gen::reference::rnea(&model, &[0.1, -0.4], &[0.5, 2.0], &[1.0, -1.0], g);
+    assert_eq!(s0["rnea"], serde_json::json!(rnea), "JSON round-trips f64 exactly");
+    let (_, dq, _) = grid_gen::reference::forward_dynamics_derivatives(&model, &[0.0, 1.0], &[0.0, 0.0], &[0.1, 0.2], g);
+    assert_eq!(s1["dfd_dq"][0][1].as_f64().unwrap(), dq[(0, 1)], "row-major: [i][j] = d out_i / d in_j");
+
+    std::fs::write(&states, r#"{"states": [{"q": [0, 0], "qd": [0, 0]}, {"q": [0, 0, 0], "qd": [0, 0]}]}"#).unwrap();
+    let bad = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("state 1: `q` has 3 entries, the robot has 2 joints"), "{}", String::from_utf8_lossy(&bad.stderr));
+
+    // Python's json.dump writes NaN bare; the error still names the entry.
+    std::fs::write(&states, r#"{"states": [{"q": [0, 0], "qd": [0, NaN]}]}"#).unwrap();
+    let nan = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
+    assert_eq!(nan.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&nan.stderr).contains("state 0: `qd[1]` is not finite"), "{}", String::from_utf8_lossy(&nan.stderr));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

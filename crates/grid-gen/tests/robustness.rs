@@ -1,0 +1,104 @@
+//! No input may panic the front end: arbitrary bytes, and real robot descriptions with
+//! random edits (deleted or repeated spans, numbers replaced by hostile tokens). When an
+//! edited robot still loads, the summary and the reference dynamics must run too.
+
+mod common;
+
+use grid_gen::{info::Info, reference, Model};
+use proptest::prelude::*;
+
+fn robots_text() -> Vec<String> {
+    common::robots().iter().map(|r| std::fs::read_to_string(common::repo().join("robots").join(format!("{r}.urdf"))).unwrap()).collect()
+}
+
+/// Loads and, if that succeeds, exercises everything downstream of the model.
+fn exercise(text: &str) {
+    match Model::from_urdf_str("fuzz.urdf", text, false) {
+        Ok((model, _)) => {
+            let _ = Info::new(&model).to_text();
+            let n = model.nv();
+            let q = vec![0.3; n];
+            let _ = reference::rnea_derivatives(&model, &q, &q, &q, reference::DEFAULT_GRAVITY);
+            let _ = reference::forward_dynamics_derivatives(&model, &q, &q, &q, reference::DEFAULT_GRAVITY);
+        }
+        Err(e) => {
+            assert!(!e.diagnostics.is_empty(), "a failure carries at least one diagnostic");
+            let _ = e.render_plain();
+        }
+    }
+}
+
+const TOKENS: &[&str] = &["", "nan", "inf", "-1", "0", "1e308", "-1e-320", "x", "1 2", "\"", "<", "&amp;", "fixed", "floating", "base", "1 0 0 0"];
+
+#[derive(Debug, Clone)]
+enum Edit {
+    Delete(usize, usize),
+    Repeat(usize, usize),
+    Token(usize, usize),
+}
+
+fn apply(text: &str, edits: &[Edit]) -> String {
+    let mut s = text.as_bytes().to_vec();
+    for e in edits {
+        let len = s.len().max(1);
+        match *e {
+            Edit::Delete(at, n) => {
+                let a = at % len;
+                let b = (a + n % 64).min(s.len());
+                s.drain(a..b);
+            }
+            Edit::Repeat(at, n) => {
+                let a = at % len;
+                let b = (a + n % 400).min(s.len());
+                let piece = s[a..b].to_vec();
+                s.splice(b..b, piece);
+            }
+            Edit::Token(at, t) => {
+                // Replace the quoted value that contains `at` with a hostile token.
+                let a = at % len;
+                let Some(open) = s[..a].iter().rposition(|&c| c == b'"') else { continue };
+                let Some(close) = s[a..].iter().position(|&c| c == b'"') else { continue };
+                s.splice(open + 1..a + close, TOKENS[t % TOKENS.len()].bytes());
+            }
+        }
+    }
+    String::from_utf8_lossy(&s).into_owned()
+}
+
+fn edit() -> impl Strategy<Value = Edit> {
+    prop_oneof![
+        (any::<usize>(), any::<usize>()).prop_map(|(a, n)| Edit::Delete(a, n)),
+        (any::<usize>(), any::<usize>()).prop_map(|(a, n)| Edit::Repeat(a, n)),
+        (any::<usize>(), any::<usize>()).prop_map(|(a, t)| Edit::Token(a, t)),
+    ]
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 512, failure_persistence: None, ..ProptestConfig::default() })]
+
+    #[test]
+    fn arbitrary_bytes_never_panic(bytes in proptest::collection::vec(any::<u8>(), 0..512)) {
+        exercise(&String::from_utf8_lossy(&bytes));
+    }
+
+    #[test]
+    fn mutated_robots_never_panic(robot in 0usize..64, edits in proptest::collection::vec(edit(), 1..6)) {
+        let texts = robots_text();
+        exercise(&apply(&texts[robot % texts.len()], &edits));
+    }
+}
+
+#[test]
+fn deep_chains_do_not_overflow_the_stack() {
+    let mut s = String::from("<robot name=\"chain\"><link name=\"l0\"/>");
+    for i in 1..=20_000 {
+        s.push_str(&format!(
+            "<link name=\"l{i}\"><inertial><mass value=\"1\"/><inertia ixx=\"1\" ixy=\"0\" ixz=\"0\" iyy=\"1\" iyz=\"0\" izz=\"1\"/></inertial></link>\
+             <joint name=\"j{i}\" type=\"fixed\"><parent link=\"l{}\"/><child link=\"l{i}\"/></joint>",
+            i - 1
+        ));
+    }
+    s.push_str("</robot>");
+    let (model, _) = Model::from_urdf_str("chain.urdf", &s, false).unwrap();
+    assert_eq!(model.nv(), 0);
+}

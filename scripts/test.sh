@@ -1,0 +1,31 @@
+#!/usr/bin/env bash
+# Runs every test of grid-gen. Installs what it needs where it can; with CI set, a tool
+# that is missing and cannot be installed is a failure, never a silent skip.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+
+say() { printf '\n== %s\n' "$*"; }
+die() { printf 'error: %s\n' "$*" >&2; exit 1; }
+
+say "toolchain"
+command -v cargo >/dev/null || die "cargo is required (https://rustup.rs)"
+command -v python3 >/dev/null || die "python3 is required for the Pinocchio/yourdfpy fixture check"
+cargo --version
+
+say "python packages (pin, yourdfpy) for the fixture check"
+if ! python3 -c "import pinocchio, yourdfpy" 2>/dev/null; then
+    python3 -m pip install --quiet "pin==4.1.0" "yourdfpy==0.0.60" \
+        || die "could not install pin and yourdfpy with pip; they check the fixtures against Pinocchio"
+fi
+python3 -c "import pinocchio, yourdfpy; print('pinocchio', pinocchio.__version__)" || die "pin/yourdfpy do not import"
+
+say "formatting"
+cargo fmt --all -- --check || die "run cargo fmt"
+
+say "cargo test (workspace)"
+cargo test --workspace --all-targets
+
+say "fixtures are what Pinocchio and yourdfpy compute"
+python3 scripts/make_fixtures.py --check
+
+say "all tests passed"
