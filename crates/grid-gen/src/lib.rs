@@ -7,6 +7,7 @@
 pub mod diagnostic;
 pub mod eval;
 pub mod info;
+pub mod ir;
 pub mod model;
 pub mod reference;
 pub mod spatial;

@@ -1,0 +1,372 @@
+//! The algorithms run symbolically over the model: RNEA, ∇RNEA, CRBA, the direct M⁻¹,
+//! forward dynamics and ∇FD, recorded into a [`Graph`]. The same recursions as
+//! `reference`, written over (E, r) transforms and structural sparsity: a gradient column
+//! is only built where the model says it can be nonzero (`dense` turns that off, for the
+//! "before specialisation" counts).
+
+use super::graph::{Graph, Id, Input, Stage};
+use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
+use crate::model::Model;
+
+/// Row-major n x n matrix of nodes.
+pub type Mat = Vec<Vec<Id>>;
+
+pub struct Dynamics<'a> {
+    pub g: Graph,
+    model: &'a Model,
+    gravity: [f64; 3],
+    x: Vec<Xform>,
+    s: Vec<Sv>,
+    inertia: Vec<SymInertia>,
+}
+
+/// The RNEA quantities the gradient needs.
+pub struct Rnea {
+    pub c: Vec<Id>,
+    v: Vec<Sv>,
+    xv: Vec<Sv>,
+    xa: Vec<Sv>,
+    iv: Vec<Sv>,
+    /// Body forces after the backward pass (children included).
+    f: Vec<Sv>,
+}
+
+impl<'a> Dynamics<'a> {
+    /// Records the joint transforms (sin/cos, E, r) for every joint.
+    pub fn new(model: &'a Model, gravity: [f64; 3], specialise: bool) -> Self {
+        let mut g = Graph::new(specialise);
+        let mut x = Vec::new();
+        let mut s = Vec::new();
+        let mut inertia = Vec::new();
+        for i in 0..model.nv() {
+            g.at(Some(i), Stage::Transform, model.joints[i].level);
+            x.push(joint_xform(&mut g, model, i));
+            s.push(subspace(&mut g, &model.joints[i]));
+            inertia.push(SymInertia::new(&mut g, &model.joints[i].inertia));
+        }
+        Dynamics { g, model, gravity, x, s, inertia }
+    }
+
+    fn n(&self) -> usize {
+        self.model.nv()
+    }
+
+    fn dense(&self) -> bool {
+        !self.g.specialising()
+    }
+
+    pub fn inputs(&mut self, input: Input) -> Vec<Id> {
+        (0..self.n()).map(|i| self.g.input(input, i)).collect()
+    }
+
+    pub fn zeros(&mut self) -> Vec<Id> {
+        (0..self.n()).map(|_| self.g.constant(0.0)).collect()
+    }
+
+    fn at(&mut self, i: usize, stage: Stage) {
+        self.g.at(Some(i), stage, self.model.joints[i].level);
+    }
+
+    /// Gradient columns of v_i, a_i that can be nonzero: ancestors of i and i.
+    fn motion_cols(&self, i: usize) -> Vec<usize> {
+        if self.dense() {
+            (0..self.n()).collect()
+        } else {
+            self.model.ancestors(i)
+        }
+    }
+
+    /// Gradient columns of f_i that can be nonzero: ancestors, i, and its subtree.
+    fn force_cols(&self, i: usize) -> Vec<usize> {
+        if self.dense() {
+            (0..self.n()).collect()
+        } else {
+            let mut cols = self.model.ancestors(i);
+            cols.extend(i + 1..self.model.joints[i].subtree_end);
+            cols
+        }
+    }
+
+    /// RNEA (Featherstone table 5.1) at symbolic q̇, q̈.
+    pub fn rnea(&mut self, qd: &[Id], qdd: &[Id]) -> Rnea {
+        let n = self.n();
+        let g = &mut self.g;
+        let z = sp::zero(g);
+        let a0 = [z[0], z[1], z[2], g.constant(-self.gravity[0]), g.constant(-self.gravity[1]), g.constant(-self.gravity[2])];
+        let (mut v, mut xv, mut xa, mut a, mut f, mut iv) = (vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n]);
+        for i in 0..n {
+            self.g.at(Some(i), Stage::Forward, self.model.joints[i].level);
+            let g = &mut self.g;
+            let (vp, ap) = match self.model.joints[i].parent {
+                Some(p) => (v[p], a[p]),
+                None => (z, a0),
+            };
+            xv[i] = self.x[i].apply(g, &vp);
+            xa[i] = self.x[i].apply(g, &ap);
+            let vj = sp::scale(g, &self.s[i], qd[i]);
+            v[i] = sp::add(g, &xv[i], &vj);
+            let sa = sp::scale(g, &self.s[i], qdd[i]);
+            let cv = sp::crm(g, &v[i], &vj);
+            let t = sp::add(g, &xa[i], &sa);
+            a[i] = sp::add(g, &t, &cv);
+            iv[i] = self.inertia[i].apply(g, &v[i]);
+            let ia = self.inertia[i].apply(g, &a[i]);
+            let vf = sp::crf(g, &v[i], &iv[i]);
+            f[i] = sp::add(g, &ia, &vf);
+        }
+        let mut c = vec![z[0]; n];
+        for i in (0..n).rev() {
+            self.at(i, Stage::Backward);
+            let g = &mut self.g;
+            c[i] = sp::dot(g, &self.s[i], &f[i]);
+            if let Some(p) = self.model.joints[i].parent {
+                let fp = self.x[i].apply_t(g, &f[i]);
+                f[p] = sp::add(g, &f[p], &fp);
+            }
+        }
+        Rnea { c, v, xv, xa, iv, f }
+    }
+
+    /// `(∂c/∂q, ∂c/∂q̇)` (Carpentier & Mansard 2018, as in `reference::rnea_derivatives`),
+    /// column u of body i built only where it can be nonzero.
+    pub fn rnea_grad(&mut self, r: &Rnea, qd: &[Id]) -> (Mat, Mat) {
+        let n = self.n();
+        let z = sp::zero(&mut self.g);
+        let none = || vec![None::<Sv>; n];
+        let (mut dv_q, mut dv_qd, mut da_q, mut da_qd) = (vec![none(); n], vec![none(); n], vec![none(); n], vec![none(); n]);
+        let (mut df_q, mut df_qd) = (vec![none(); n], vec![none(); n]);
+        for i in 0..n {
+            self.at(i, Stage::Forward);
+            let parent = self.model.joints[i].parent;
+            let cols = self.motion_cols(i);
+            let g = &mut self.g;
+            let vj = sp::scale(g, &self.s[i], qd[i]);
+            for u in cols {
+                let from = |m: &Vec<Vec<Option<Sv>>>, g: &mut Graph| match parent.and_then(|p| m[p][u]) {
+                    Some(col) => self.x[i].apply(g, &col),
+                    None => z,
+                };
+                let mut dvq = from(&dv_q, g);
+                let mut dvqd = from(&dv_qd, g);
+                let mut daq = from(&da_q, g);
+                let mut daqd = from(&da_qd, g);
+                if u == i {
+                    let t = sp::crm(g, &r.xv[i], &self.s[i]);
+                    dvq = sp::add(g, &dvq, &t);
+                    dvqd = sp::add(g, &dvqd, &self.s[i]);
+                    let t = sp::crm(g, &r.xa[i], &self.s[i]);
+                    daq = sp::add(g, &daq, &t);
+                    let t = sp::crm(g, &r.v[i], &self.s[i]);
+                    daqd = sp::add(g, &daqd, &t);
+                }
+                let t = sp::crm(g, &dvq, &vj);
+                daq = sp::add(g, &daq, &t);
+                let t = sp::crm(g, &dvqd, &vj);
+                daqd = sp::add(g, &daqd, &t);
+                for (dv, da, df) in [(dvq, daq, &mut df_q[i][u]), (dvqd, daqd, &mut df_qd[i][u])] {
+                    let ida = self.inertia[i].apply(g, &da);
+                    let idv = self.inertia[i].apply(g, &dv);
+                    let t1 = sp::crf(g, &dv, &r.iv[i]);
+                    let t2 = sp::crf(g, &r.v[i], &idv);
+                    let t = sp::add(g, &ida, &t1);
+                    *df = Some(sp::add(g, &t, &t2));
+                }
+                dv_q[i][u] = Some(dvq);
+                dv_qd[i][u] = Some(dvqd);
+                da_q[i][u] = Some(daq);
+                da_qd[i][u] = Some(daqd);
+            }
+        }
+        let zero = self.g.constant(0.0);
+        let (mut dc_q, mut dc_qd) = (vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
+        for i in (0..n).rev() {
+            self.at(i, Stage::Backward);
+            let cols = self.force_cols(i);
+            let g = &mut self.g;
+            for &u in &cols {
+                for (df, dc) in [(&df_q, &mut dc_q), (&df_qd, &mut dc_qd)] {
+                    if let Some(col) = df[i][u] {
+                        dc[i][u] = sp::dot(g, &self.s[i], &col);
+                    }
+                }
+            }
+            if let Some(p) = self.model.joints[i].parent {
+                for &u in &cols {
+                    for df in [&mut df_q, &mut df_qd] {
+                        if let Some(col) = df[i][u] {
+                            let moved = self.x[i].apply_t(g, &col);
+                            df[p][u] = Some(match df[p][u] {
+                                Some(old) => sp::add(g, &old, &moved),
+                                None => moved,
+                            });
+                        }
+                    }
+                }
+                // iXλᵀ (S_i ×* f_i) in the q_i column.
+                let sf = sp::crf(g, &self.s[i], &r.f[i]);
+                let moved = self.x[i].apply_t(g, &sf);
+                let old = df_q[p][i].unwrap_or(z);
+                df_q[p][i] = Some(sp::add(g, &old, &moved));
+            }
+        }
+        (dc_q, dc_qd)
+    }
+
+    fn composite_start(&mut self) -> Vec<[[Id; 6]; 6]> {
+        (0..self.n()).map(|i| self.inertia[i].to_matrix(&mut self.g)).collect()
+    }
+
+    /// CRBA (Featherstone table 6.2).
+    pub fn mass_matrix(&mut self) -> Mat {
+        let n = self.n();
+        let mut ic = self.composite_start();
+        for i in (0..n).rev() {
+            self.at(i, Stage::Backward);
+            if let Some(p) = self.model.joints[i].parent {
+                let add = sp::congruence(&mut self.g, &self.x[i], &ic[i]);
+                ic[p] = add6(&mut self.g, &ic[p], &add);
+            }
+        }
+        let zero = self.g.constant(0.0);
+        let mut m = vec![vec![zero; n]; n];
+        for i in 0..n {
+            self.at(i, Stage::Forward);
+            let g = &mut self.g;
+            let mut f = sp::mat6_vec(g, &ic[i], &self.s[i]);
+            m[i][i] = sp::dot(g, &self.s[i], &f);
+            let mut j = i;
+            while let Some(p) = self.model.joints[j].parent {
+                f = self.x[j].apply_t(g, &f);
+                j = p;
+                m[i][j] = sp::dot(g, &f, &self.s[j]);
+                m[j][i] = m[i][j];
+            }
+        }
+        m
+    }
+
+    /// The direct O(n²) M⁻¹ of `reference::minv`.
+    pub fn minv(&mut self) -> Mat {
+        let n = self.n();
+        let mut ia = self.composite_start();
+        let z = sp::zero(&mut self.g);
+        let zero = z[0];
+        let mut f: Vec<Vec<Option<Sv>>> = vec![vec![None; n]; n];
+        let mut u = vec![z; n];
+        let mut dinv = vec![zero; n];
+        let mut minv: Vec<Vec<Option<Id>>> = vec![vec![None; n]; n];
+        for i in (0..n).rev() {
+            self.at(i, Stage::Backward);
+            let end = self.model.joints[i].subtree_end;
+            let g = &mut self.g;
+            u[i] = sp::mat6_vec(g, &ia[i], &self.s[i]);
+            let d = sp::dot(g, &self.s[i], &u[i]);
+            let one = g.constant(1.0);
+            dinv[i] = g.div(one, d);
+            minv[i][i] = Some(dinv[i]);
+            for j in i + 1..end {
+                if let Some(col) = f[i][j] {
+                    let sf = sp::dot(g, &self.s[i], &col);
+                    let t = g.mul(dinv[i], sf);
+                    minv[i][j] = Some(g.neg(t));
+                }
+            }
+            if let Some(p) = self.model.joints[i].parent {
+                for j in i..end {
+                    let um = sp::scale(g, &u[i], minv[i][j].unwrap_or(zero));
+                    let col = match f[i][j] {
+                        Some(c) => sp::add(g, &c, &um),
+                        None => um,
+                    };
+                    let moved = self.x[i].apply_t(g, &col);
+                    f[p][j] = Some(match f[p][j] {
+                        Some(old) => sp::add(g, &old, &moved),
+                        None => moved,
+                    });
+                }
+                let mut ia_a = ia[i];
+                for r in 0..6 {
+                    for c in r..6 {
+                        let ud = g.mul(u[i][r], dinv[i]);
+                        let t = g.mul(ud, u[i][c]);
+                        ia_a[r][c] = g.sub(ia[i][r][c], t);
+                        ia_a[c][r] = ia_a[r][c];
+                    }
+                }
+                let add = sp::congruence(g, &self.x[i], &ia_a);
+                ia[p] = add6(g, &ia[p], &add);
+            }
+        }
+        let mut pacc: Vec<Vec<Option<Sv>>> = vec![vec![None; n]; n];
+        for i in 0..n {
+            self.at(i, Stage::Forward);
+            let g = &mut self.g;
+            for j in i..n {
+                let xp = match self.model.joints[i].parent.and_then(|p| pacc[p][j]) {
+                    Some(col) => {
+                        let xp = self.x[i].apply(g, &col);
+                        let ux = sp::dot(g, &u[i], &xp);
+                        let t = g.mul(dinv[i], ux);
+                        let old = minv[i][j].unwrap_or(zero);
+                        minv[i][j] = Some(g.sub(old, t));
+                        xp
+                    }
+                    None => z,
+                };
+                let sm = sp::scale(g, &self.s[i], minv[i][j].unwrap_or(zero));
+                pacc[i][j] = Some(sp::add(g, &xp, &sm));
+            }
+        }
+        (0..n).map(|i| (0..n).map(|j| minv[i.min(j)][i.max(j)].unwrap_or(zero)).collect()).collect()
+    }
+
+    /// `q̈ = M⁻¹ (τ − c(q, q̇, 0))`, returning q̈ and M⁻¹.
+    pub fn fd(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat) {
+        let n = self.n();
+        let zeros = self.zeros();
+        let bias = self.rnea(qd, &zeros).c;
+        let mi = self.minv();
+        self.g.at(None, Stage::Combine, 0);
+        let rhs: Vec<Id> = (0..n).map(|j| self.g.sub(tau[j], bias[j])).collect();
+        let qdd = (0..n).map(|i| self.g.dot(&mi[i], &rhs)).collect();
+        (qdd, mi)
+    }
+
+    /// `∂q̈/∂u = −M⁻¹ ∂c/∂u` at the q̈ of [`Self::fd`], reusing its M⁻¹ and (through
+    /// sharing) its transforms and velocities.
+    pub fn fd_grad(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
+        let n = self.n();
+        let (qdd, mi) = self.fd(qd, tau);
+        let r = self.rnea(qd, &qdd);
+        let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
+        self.g.at(None, Stage::Combine, 0);
+        let product = |dc: &Mat, g: &mut Graph| -> Mat {
+            (0..n)
+                .map(|i| {
+                    (0..n)
+                        .map(|k| {
+                            let col: Vec<Id> = (0..n).map(|j| dc[j][k]).collect();
+                            let d = g.dot(&mi[i], &col);
+                            g.neg(d)
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let dq = product(&dc_q, &mut self.g);
+        let dqd = product(&dc_qd, &mut self.g);
+        (qdd, dq, dqd)
+    }
+}
+
+/// Sum of two symmetric 6x6 matrices, built once per upper-triangle entry.
+fn add6(g: &mut Graph, a: &[[Id; 6]; 6], b: &[[Id; 6]; 6]) -> [[Id; 6]; 6] {
+    let mut out = *a;
+    for r in 0..6 {
+        for c in r..6 {
+            out[r][c] = g.add(a[r][c], b[r][c]);
+            out[c][r] = out[r][c];
+        }
+    }
+    out
+}

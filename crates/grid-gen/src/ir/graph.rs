@@ -1,0 +1,299 @@
+//! The kernel IR: a scalar dataflow graph in SSA form. Nodes are created in topological
+//! order (operands always have smaller ids). When specialising, every constructor folds
+//! constants and shares identical nodes (hash-consing), so that constant folding and
+//! common-subexpression elimination happen once, here, for every backend.
+
+use std::collections::HashMap;
+
+/// A node of the graph.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct Id(pub u32);
+
+/// The kernel inputs, one scalar per joint each.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Input {
+    Q,
+    Qd,
+    Qdd,
+    Tau,
+}
+
+impl Input {
+    pub fn name(self) -> &'static str {
+        match self {
+            Input::Q => "q",
+            Input::Qd => "qd",
+            Input::Qdd => "qdd",
+            Input::Tau => "tau",
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Op {
+    Input(Input, u16),
+    Const(f64),
+    Add(Id, Id),
+    Sub(Id, Id),
+    Mul(Id, Id),
+    Div(Id, Id),
+    Neg(Id),
+    Sin(Id),
+    Cos(Id),
+}
+
+impl Op {
+    pub fn operands(&self) -> impl Iterator<Item = Id> {
+        let (a, b) = match *self {
+            Op::Input(..) | Op::Const(_) => (None, None),
+            Op::Add(a, b) | Op::Sub(a, b) | Op::Mul(a, b) | Op::Div(a, b) => (Some(a), Some(b)),
+            Op::Neg(a) | Op::Sin(a) | Op::Cos(a) => (Some(a), None),
+        };
+        a.into_iter().chain(b)
+    }
+}
+
+/// Which step of which algorithm a node belongs to, for scheduling and op counts.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Stage {
+    /// sin/cos and joint transforms: independent of the serial chain.
+    Transform,
+    /// Forward (root to leaves) passes.
+    Forward,
+    /// Backward (leaves to root) passes.
+    Backward,
+    /// Dense products after the passes (M⁻¹ τ, −M⁻¹ ∂c/∂u).
+    Combine,
+}
+
+/// A node and where it comes from: the joint (link) it was computed for, if any, the
+/// stage, and that joint's tree level.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Node {
+    pub op: Op,
+    pub link: Option<u16>,
+    pub stage: Stage,
+    pub level: u16,
+}
+
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+enum Key {
+    Input(Input, u16),
+    Const(u64),
+    Bin(u8, Id, Id),
+    Un(u8, Id),
+}
+
+/// The graph under construction. With `specialise` off it records the algorithm as a
+/// general-purpose implementation would run it (no folding, no sharing), which gives the
+/// "before specialisation" op counts.
+pub struct Graph {
+    pub nodes: Vec<Node>,
+    shared: HashMap<Key, Id>,
+    specialise: bool,
+    here: (Option<u16>, Stage, u16),
+}
+
+impl Graph {
+    pub fn new(specialise: bool) -> Self {
+        Graph { nodes: Vec::new(), shared: HashMap::new(), specialise, here: (None, Stage::Transform, 0) }
+    }
+
+    pub fn specialising(&self) -> bool {
+        self.specialise
+    }
+
+    /// Tags the nodes created from now on.
+    pub fn at(&mut self, link: Option<usize>, stage: Stage, level: usize) {
+        self.here = (link.map(|l| l as u16), stage, level as u16);
+    }
+
+    pub fn op(&self, id: Id) -> Op {
+        self.nodes[id.0 as usize].op
+    }
+
+    fn push(&mut self, op: Op, key: Option<Key>) -> Id {
+        if let Some(k) = key {
+            if let Some(&id) = self.shared.get(&k) {
+                return id;
+            }
+        }
+        let id = Id(self.nodes.len() as u32);
+        let (link, stage, level) = self.here;
+        self.nodes.push(Node { op, link, stage, level });
+        if let Some(k) = key {
+            self.shared.insert(k, id);
+        }
+        id
+    }
+
+    fn key(&self, k: Key) -> Option<Key> {
+        self.specialise.then_some(k)
+    }
+
+    pub fn input(&mut self, input: Input, joint: usize) -> Id {
+        // Inputs are shared even when not specialising: they are loads, not operations.
+        self.push(Op::Input(input, joint as u16), Some(Key::Input(input, joint as u16)))
+    }
+
+    pub fn constant(&mut self, c: f64) -> Id {
+        let c = if c == 0.0 { 0.0 } else { c }; // one zero: -0.0 and 0.0 fold alike
+        let key = self.key(Key::Const(c.to_bits()));
+        self.push(Op::Const(c), key)
+    }
+
+    pub fn value(&self, id: Id) -> Option<f64> {
+        match self.op(id) {
+            Op::Const(c) if self.specialise => Some(c),
+            _ => None,
+        }
+    }
+
+    fn is(&self, id: Id, c: f64) -> bool {
+        self.value(id) == Some(c)
+    }
+
+    /// A folded constant, unless folding would leave f64's range (then the op stays).
+    fn folded(&mut self, c: f64) -> Option<Id> {
+        c.is_finite().then(|| self.constant(c))
+    }
+
+    pub fn add(&mut self, a: Id, b: Id) -> Id {
+        if self.specialise {
+            if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
+                if let Some(id) = self.folded(x + y) {
+                    return id;
+                }
+            }
+            if self.is(a, 0.0) {
+                return b;
+            }
+            if self.is(b, 0.0) {
+                return a;
+            }
+            if let Op::Neg(nb) = self.op(b) {
+                return self.sub(a, nb);
+            }
+            if let Op::Neg(na) = self.op(a) {
+                return self.sub(b, na);
+            }
+        }
+        let (x, y) = if a <= b { (a, b) } else { (b, a) };
+        let key = self.key(Key::Bin(0, x, y));
+        self.push(Op::Add(x, y), key)
+    }
+
+    pub fn sub(&mut self, a: Id, b: Id) -> Id {
+        if self.specialise {
+            if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
+                if let Some(id) = self.folded(x - y) {
+                    return id;
+                }
+            }
+            if self.is(b, 0.0) {
+                return a;
+            }
+            if self.is(a, 0.0) {
+                return self.neg(b);
+            }
+            if a == b {
+                return self.constant(0.0);
+            }
+            if let Op::Neg(nb) = self.op(b) {
+                return self.add(a, nb);
+            }
+        }
+        let key = self.key(Key::Bin(1, a, b));
+        self.push(Op::Sub(a, b), key)
+    }
+
+    pub fn mul(&mut self, a: Id, b: Id) -> Id {
+        if self.specialise {
+            if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
+                if let Some(id) = self.folded(x * y) {
+                    return id;
+                }
+            }
+            if self.is(a, 0.0) || self.is(b, 0.0) {
+                return self.constant(0.0);
+            }
+            if self.is(a, 1.0) {
+                return b;
+            }
+            if self.is(b, 1.0) {
+                return a;
+            }
+            if self.is(a, -1.0) {
+                return self.neg(b);
+            }
+            if self.is(b, -1.0) {
+                return self.neg(a);
+            }
+            // Signs move outwards so that x·(−y) and −(x·y) are shared.
+            if let Op::Neg(na) = self.op(a) {
+                let m = self.mul(na, b);
+                return self.neg(m);
+            }
+            if let Op::Neg(nb) = self.op(b) {
+                let m = self.mul(a, nb);
+                return self.neg(m);
+            }
+        }
+        let (x, y) = if a <= b { (a, b) } else { (b, a) };
+        let key = self.key(Key::Bin(2, x, y));
+        self.push(Op::Mul(x, y), key)
+    }
+
+    pub fn div(&mut self, a: Id, b: Id) -> Id {
+        if self.specialise {
+            if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
+                if y != 0.0 {
+                    if let Some(id) = self.folded(x / y) {
+                        return id;
+                    }
+                }
+            }
+            if self.is(b, 1.0) {
+                return a;
+            }
+        }
+        let key = self.key(Key::Bin(3, a, b));
+        self.push(Op::Div(a, b), key)
+    }
+
+    pub fn neg(&mut self, a: Id) -> Id {
+        if self.specialise {
+            if let Some(x) = self.value(a) {
+                return self.constant(-x);
+            }
+            if let Op::Neg(x) = self.op(a) {
+                return x;
+            }
+        }
+        let key = self.key(Key::Un(0, a));
+        self.push(Op::Neg(a), key)
+    }
+
+    pub fn sin(&mut self, a: Id) -> Id {
+        let key = self.key(Key::Un(1, a));
+        self.push(Op::Sin(a), key)
+    }
+
+    pub fn cos(&mut self, a: Id) -> Id {
+        let key = self.key(Key::Un(2, a));
+        self.push(Op::Cos(a), key)
+    }
+
+    /// Σ aᵢ bᵢ, skipping structural zeros.
+    pub fn dot(&mut self, a: &[Id], b: &[Id]) -> Id {
+        let mut acc: Option<Id> = None;
+        for (&x, &y) in a.iter().zip(b) {
+            let p = self.mul(x, y);
+            acc = Some(match acc {
+                Some(s) => self.add(s, p),
+                None => p,
+            });
+        }
+        acc.unwrap_or_else(|| self.constant(0.0))
+    }
+}

@@ -1,0 +1,266 @@
+//! Symbolic spatial algebra over graph nodes, [angular; linear] like the reference.
+//! Transforms are kept as Featherstone's (E, r) pair, never as 6x6 matrices, so that a
+//! product costs what its nonzero entries cost.
+
+use super::graph::{Graph, Id};
+use crate::model::{Inertia, Joint, Model};
+
+pub type V3 = [Id; 3];
+pub type Sv = [Id; 6];
+
+/// Model constants within this distance of 0 or ±1 are taken as exact: they are the
+/// round-off of rpy angles like π/2 written in decimal (cos(1.570796326794897) = 6e-17).
+/// The change is below 1e-15 relative, far under every tolerance, and turns rotations
+/// by multiples of π/2 into sparse permutations.
+pub const SNAP: f64 = 1e-15;
+
+pub fn snap(x: f64) -> f64 {
+    if x.abs() <= SNAP {
+        0.0
+    } else if (x.abs() - 1.0).abs() <= SNAP {
+        x.signum()
+    } else {
+        x
+    }
+}
+
+/// A model constant (snapped when specialising).
+pub fn k(g: &mut Graph, x: f64) -> Id {
+    let x = if g.specialising() { snap(x) } else { x };
+    g.constant(x)
+}
+
+pub fn zero(g: &mut Graph) -> Sv {
+    let z = g.constant(0.0);
+    [z; 6]
+}
+
+fn ang(v: &Sv) -> V3 {
+    [v[0], v[1], v[2]]
+}
+
+fn lin(v: &Sv) -> V3 {
+    [v[3], v[4], v[5]]
+}
+
+fn join(a: V3, b: V3) -> Sv {
+    [a[0], a[1], a[2], b[0], b[1], b[2]]
+}
+
+pub fn cross(g: &mut Graph, a: &V3, b: &V3) -> V3 {
+    let mut out = [a[0]; 3];
+    for i in 0..3 {
+        let (j, k) = ((i + 1) % 3, (i + 2) % 3);
+        let p = g.mul(a[j], b[k]);
+        let q = g.mul(a[k], b[j]);
+        out[i] = g.sub(p, q);
+    }
+    out
+}
+
+fn add3(g: &mut Graph, a: &V3, b: &V3) -> V3 {
+    std::array::from_fn(|i| g.add(a[i], b[i]))
+}
+
+fn sub3(g: &mut Graph, a: &V3, b: &V3) -> V3 {
+    std::array::from_fn(|i| g.sub(a[i], b[i]))
+}
+
+pub fn add(g: &mut Graph, a: &Sv, b: &Sv) -> Sv {
+    std::array::from_fn(|i| g.add(a[i], b[i]))
+}
+
+pub fn sub(g: &mut Graph, a: &Sv, b: &Sv) -> Sv {
+    std::array::from_fn(|i| g.sub(a[i], b[i]))
+}
+
+pub fn scale(g: &mut Graph, a: &Sv, s: Id) -> Sv {
+    std::array::from_fn(|i| g.mul(a[i], s))
+}
+
+pub fn dot(g: &mut Graph, a: &Sv, b: &Sv) -> Id {
+    g.dot(a, b)
+}
+
+/// `iXλ` as (E, r): `X m = [E ω; E (v − r × ω)]`.
+pub struct Xform {
+    pub e: [[Id; 3]; 3],
+    pub r: V3,
+}
+
+fn mat_vec(g: &mut Graph, e: &[[Id; 3]; 3], v: &V3) -> V3 {
+    std::array::from_fn(|i| g.dot(&e[i], v))
+}
+
+fn mat_t_vec(g: &mut Graph, e: &[[Id; 3]; 3], v: &V3) -> V3 {
+    std::array::from_fn(|i| {
+        let col = [e[0][i], e[1][i], e[2][i]];
+        g.dot(&col, v)
+    })
+}
+
+impl Xform {
+    /// `X m` for a motion vector.
+    pub fn apply(&self, g: &mut Graph, m: &Sv) -> Sv {
+        let w = ang(m);
+        let rw = cross(g, &self.r, &w);
+        let v = sub3(g, &lin(m), &rw);
+        join(mat_vec(g, &self.e, &w), mat_vec(g, &self.e, &v))
+    }
+
+    /// `Xᵀ f` for a force vector: [Eᵀ n + r × Eᵀ f; Eᵀ f].
+    pub fn apply_t(&self, g: &mut Graph, f: &Sv) -> Sv {
+        let ef = mat_t_vec(g, &self.e, &lin(f));
+        let en = mat_t_vec(g, &self.e, &ang(f));
+        let rf = cross(g, &self.r, &ef);
+        join(add3(g, &en, &rf), ef)
+    }
+}
+
+/// `v × m` (motion cross product).
+pub fn crm(g: &mut Graph, v: &Sv, m: &Sv) -> Sv {
+    let (w, vl) = (ang(v), lin(v));
+    let a = cross(g, &w, &ang(m));
+    let b1 = cross(g, &w, &lin(m));
+    let b2 = cross(g, &vl, &ang(m));
+    join(a, add3(g, &b1, &b2))
+}
+
+/// `v ×* f` (force cross product).
+pub fn crf(g: &mut Graph, v: &Sv, f: &Sv) -> Sv {
+    let (w, vl) = (ang(v), lin(v));
+    let a1 = cross(g, &w, &ang(f));
+    let a2 = cross(g, &vl, &lin(f));
+    let b = cross(g, &w, &lin(f));
+    join(add3(g, &a1, &a2), b)
+}
+
+/// A body's spatial inertia as constants: [I_o, h×; −h×, m 1].
+pub struct SymInertia {
+    i: [[Id; 3]; 3],
+    h: V3,
+    m: Id,
+}
+
+impl SymInertia {
+    pub fn new(g: &mut Graph, inertia: &Inertia) -> Self {
+        SymInertia {
+            i: std::array::from_fn(|r| std::array::from_fn(|c| k(g, inertia.i_origin[r][c]))),
+            h: std::array::from_fn(|r| k(g, inertia.h[r])),
+            m: k(g, inertia.mass),
+        }
+    }
+
+    /// `I v = [I_o ω + h × v; m v − h × ω]`.
+    pub fn apply(&self, g: &mut Graph, v: &Sv) -> Sv {
+        let (w, vl) = (ang(v), lin(v));
+        let iw = mat_vec(g, &self.i, &w);
+        let hv = cross(g, &self.h, &vl);
+        let hw = cross(g, &self.h, &w);
+        let mv: V3 = std::array::from_fn(|r| g.mul(self.m, vl[r]));
+        join(add3(g, &iw, &hv), sub3(g, &mv, &hw))
+    }
+
+    /// `I + Δ`, for composite and articulated inertias: returned as a full symmetric 6x6.
+    pub fn to_matrix(&self, g: &mut Graph) -> [[Id; 6]; 6] {
+        let z = g.constant(0.0);
+        let mut out = [[z; 6]; 6];
+        let hx = skew(g, &self.h);
+        for r in 0..3 {
+            for c in 0..3 {
+                out[r][c] = self.i[r][c];
+                out[r][c + 3] = hx[r][c];
+                out[r + 3][c] = hx[c][r];
+            }
+            out[r + 3][r + 3] = self.m;
+        }
+        out
+    }
+}
+
+fn skew(g: &mut Graph, v: &V3) -> [[Id; 3]; 3] {
+    let z = g.constant(0.0);
+    let n: V3 = std::array::from_fn(|i| g.neg(v[i]));
+    [[z, n[2], v[1]], [v[2], z, n[0]], [n[1], v[0], z]]
+}
+
+/// A general 6x6 (composite or articulated inertia) times a vector.
+pub fn mat6_vec(g: &mut Graph, m: &[[Id; 6]; 6], v: &Sv) -> Sv {
+    std::array::from_fn(|i| g.dot(&m[i], v))
+}
+
+/// `Xᵀ A X` for a symmetric 6x6 A, by columns: X e_j, then A, then Xᵀ.
+pub fn congruence(g: &mut Graph, x: &Xform, a: &[[Id; 6]; 6]) -> [[Id; 6]; 6] {
+    let z = g.constant(0.0);
+    let one = g.constant(1.0);
+    let mut out = [[z; 6]; 6];
+    for j in 0..6 {
+        let mut e = [z; 6];
+        e[j] = one;
+        let xe = x.apply(g, &e);
+        let axe = mat6_vec(g, a, &xe);
+        let col = x.apply_t(g, &axe);
+        for i in 0..6 {
+            out[i][j] = col[i];
+        }
+    }
+    // Exactly symmetric: take the upper triangle.
+    for i in 0..6 {
+        for j in 0..i {
+            out[i][j] = out[j][i];
+        }
+    }
+    out
+}
+
+/// The joint's motion subspace S as constants.
+pub fn subspace(g: &mut Graph, joint: &Joint) -> Sv {
+    let z = g.constant(0.0);
+    let mut s = [z; 6];
+    let off = if joint.joint_type.is_rotation() { 0 } else { 3 };
+    for i in 0..3 {
+        s[off + i] = k(g, joint.axis[i]);
+    }
+    s
+}
+
+/// `iXλ(q_i) = X_J(q_i) X_T` with E = E_J E_T built once per joint. Rotation entries are
+/// `α cos q + β sin q + γ` with α = δ − a aᵀ, β = −[a]× (transposed), γ = a aᵀ, so that an
+/// axis-aligned joint leaves exact zeros and ones (Rodrigues, R = c I + s [a]× + (1 − c) a aᵀ).
+pub fn joint_xform(g: &mut Graph, model: &Model, i: usize) -> Xform {
+    let joint = &model.joints[i];
+    let tree_r = joint.tree.rot;
+    // E_T = Rᵀ (rows of E_T are columns of R); r_T = position.
+    let et: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| k(g, tree_r[c][r])));
+    let rt: V3 = std::array::from_fn(|r| k(g, joint.tree.pos[r]));
+    let q = g.input(super::graph::Input::Q, i);
+    let a = joint.axis;
+    if joint.joint_type.is_rotation() {
+        let (s, c) = (g.sin(q), g.cos(q));
+        let ax = [[0.0, -a[2], a[1]], [a[2], 0.0, -a[0]], [-a[1], a[0], 0.0]];
+        // E_J = R(a, q)ᵀ: entry (r, c) is R[c][r].
+        let ej: [[Id; 3]; 3] = std::array::from_fn(|r| {
+            std::array::from_fn(|cc| {
+                let delta = if r == cc { 1.0 } else { 0.0 };
+                let alpha = k(g, delta - a[cc] * a[r]);
+                let beta = k(g, ax[cc][r]);
+                let gamma = k(g, a[cc] * a[r]);
+                let t1 = g.mul(alpha, c);
+                let t2 = g.mul(beta, s);
+                let t = g.add(t1, t2);
+                g.add(t, gamma)
+            })
+        });
+        let e = std::array::from_fn(|r| std::array::from_fn(|cc| g.dot(&ej[r], &[et[0][cc], et[1][cc], et[2][cc]])));
+        Xform { e, r: rt }
+    } else {
+        // Prismatic: E = E_T, r = r_T + E_Tᵀ a q.
+        let aq: V3 = std::array::from_fn(|r| {
+            let ar = k(g, a[r]);
+            g.mul(ar, q)
+        });
+        let shift = mat_t_vec(g, &et, &aq);
+        let r = add3(g, &rt, &shift);
+        Xform { e: et, r }
+    }
+}
