@@ -14,8 +14,8 @@ use grid_gen::{Diagnostic, Model, Severity};
 
 /// Generates robot-specific rigid-body dynamics and their analytical gradients from a URDF.
 ///
-/// With no subcommand, reads ROBOT.urdf and prints a summary of the model: joints in
-/// model order, tree levels and gradient sparsity.
+/// With no subcommand, reads ROBOT.urdf and writes the generated code into the folder
+/// given by -o (one `<robot>.rs` module); without -o it prints a summary of the model.
 #[derive(Parser)]
 #[command(name = "grid-gen", version, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
 struct Cli {
@@ -24,8 +24,24 @@ struct Cli {
     /// The robot description.
     #[arg(value_name = "ROBOT.urdf", required = true)]
     urdf: Option<PathBuf>,
+    /// Folder to write the generated files into (created if needed).
+    #[arg(short = 'o', long = "out", value_name = "DIR")]
+    out: Option<PathBuf>,
+    /// Backends to emit, comma-separated (available: rust).
+    #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "rust", value_parser = parse_target)]
+    emit: Vec<grid_gen::generate::Target>,
+    /// Write nothing; exit 1 if any file would change (for CI freshness checks).
+    #[arg(long, requires = "out")]
+    check: bool,
+    /// Gravity in the root frame, m/s², compiled into the generated code.
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, default_value = "0,0,-9.81", allow_hyphen_values = true)]
+    gravity: [f64; 3],
     #[command(flatten)]
     load: LoadArgs,
+}
+
+fn parse_target(s: &str) -> Result<grid_gen::generate::Target, String> {
+    grid_gen::generate::Target::parse(s).ok_or_else(|| format!("unknown backend `{s}`; available: {}", grid_gen::generate::Target::ALL.join(", ")))
 }
 
 #[derive(clap::Args)]
@@ -139,14 +155,50 @@ fn print(text: &str) -> ExitCode {
     }
 }
 
+fn generate(model: &Model, dir: &Path, targets: Vec<grid_gen::generate::Target>, gravity: [f64; 3], check: bool) -> ExitCode {
+    use grid_gen::generate::{self as g, FileStatus};
+    let options = g::Options { gravity, targets, ..g::Options::default() };
+    let files = match g::generate(model, &options) {
+        Ok(f) => f,
+        Err(e) => return fail(e),
+    };
+    let statuses = match g::write_files(dir, &files, check) {
+        Ok(s) => s,
+        Err(e) => return fail(format!("cannot write into {}: {e}", dir.display())),
+    };
+    let mut report = String::new();
+    let mut stale = false;
+    for (path, status) in statuses {
+        let what = match status {
+            FileStatus::Unchanged => "unchanged",
+            FileStatus::Written => "wrote",
+            FileStatus::Stale => {
+                stale = true;
+                "would change"
+            }
+        };
+        report.push_str(&format!("{what} {}\n", path.display()));
+    }
+    let code = print(&report);
+    if stale {
+        eprintln!("error: generated files are out of date; rerun without --check");
+        return ExitCode::from(1);
+    }
+    code
+}
+
 fn run(cli: Cli) -> ExitCode {
     let strict = cli.load.strict;
     match cli.command {
         None => {
             let path = cli.urdf.expect("clap requires the URDF without a subcommand");
-            match load(&path, strict) {
-                Ok(model) => print(&Info::new(&model).to_text()),
-                Err(code) => code,
+            let model = match load(&path, strict) {
+                Ok(model) => model,
+                Err(code) => return code,
+            };
+            match cli.out {
+                None => print(&(Info::new(&model).to_text() + "(pass -o DIR to generate code)\n")),
+                Some(dir) => generate(&model, &dir, cli.emit, cli.gravity, cli.check),
             }
         }
         Some(Command::Info { urdf, json }) => match load(&urdf, strict) {

@@ -3,7 +3,9 @@
 
 use serde::Serialize;
 
+use crate::ir::{self, KernelStats};
 use crate::model::{Count, JointType, Model};
+use crate::reference::DEFAULT_GRAVITY;
 
 #[derive(Clone, Debug, Serialize)]
 pub struct Mimic {
@@ -38,6 +40,10 @@ pub struct Info {
     /// Joints with a `<mimic>`; grid-gen treats them as independent (as Pinocchio does).
     pub mimic: Vec<Mimic>,
     pub sparsity: Sparsity,
+    /// Operations of every generated kernel before specialisation (the general dense
+    /// algorithm, as a library runs it) and after (constants folded, structural zeros and
+    /// shared subexpressions removed), with the critical-path depth; default gravity.
+    pub ops: Vec<KernelStats>,
 }
 
 impl Info {
@@ -56,6 +62,7 @@ impl Info {
                 .filter_map(|j| j.mimic.as_ref().map(|(m, mult, off)| Mimic { joint: j.name.clone(), mimics: m.clone(), multiplier: *mult, offset: *off }))
                 .collect(),
             sparsity: Sparsity { dv_dq: model.motion_sparsity(), dc_dq: model.force_sparsity() },
+            ops: ir::stats(model, DEFAULT_GRAVITY),
         }
     }
 
@@ -70,6 +77,22 @@ impl Info {
         s.push_str(&format!("levels: {}\n", self.levels.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>().join(" ")));
         let d = &self.sparsity;
         s.push_str(&format!("sparsity: dv/dq {} of {} nonzero, dc/dq {} of {}\n", d.dv_dq.nonzero, d.dv_dq.total, d.dc_dq.nonzero, d.dc_dq.total));
+        s.push_str("operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth):\n");
+        for k in &self.ops {
+            let a = &k.after;
+            s.push_str(&format!(
+                "  {:<12} {:>8} -> {:>7}   {}/{}/{}/{}/{}   depth {}\n",
+                k.kernel,
+                k.before.total(),
+                a.total(),
+                a.add,
+                a.mul,
+                a.div,
+                a.neg,
+                a.trig,
+                a.depth
+            ));
+        }
         for m in &self.mimic {
             s.push_str(&format!("note: joint `{}` mimics `{}`; it is treated as an independent joint\n", m.joint, m.mimics));
         }

@@ -5,7 +5,9 @@
 //! every failure is a value carrying located [`Diagnostic`]s.
 
 pub mod diagnostic;
+pub mod emit;
 pub mod eval;
+pub mod generate;
 pub mod info;
 pub mod ir;
 pub mod model;

@@ -1,0 +1,40 @@
+//! The generated Rust kernels for every robot in `robots/`, as checked in under
+//! `generated/<robot>/`. One module per robot; see any module's `rnea`, `rnea_grad`,
+//! `mass_matrix`, `minv`, `fd`, `fd_grad`.
+
+/// Runs `$body` once per robot module, with `$m` bound to the module and `$stem` to the
+/// robot's file stem in `robots/`.
+#[macro_export]
+macro_rules! for_each_robot {
+    ($mac:ident) => {
+        $mac!(double_pendulum_continuous, "double_pendulum_continuous");
+        $mac!(grid_atlas, "grid_atlas");
+        $mac!(grid_hyq, "grid_hyq");
+        $mac!(grid_iiwa, "grid_iiwa");
+        $mac!(panda, "panda");
+        $mac!(rbd_benchmarks_iiwa, "rbd_benchmarks_iiwa");
+        $mac!(ur5, "ur5");
+    };
+}
+
+pub mod double_pendulum_continuous {
+    include!("../../../generated/double_pendulum_continuous/robot_2dof_planar.rs");
+}
+pub mod grid_atlas {
+    include!("../../../generated/grid_atlas/atlas.rs");
+}
+pub mod grid_hyq {
+    include!("../../../generated/grid_hyq/hyq.rs");
+}
+pub mod grid_iiwa {
+    include!("../../../generated/grid_iiwa/iiwa14.rs");
+}
+pub mod panda {
+    include!("../../../generated/panda/panda.rs");
+}
+pub mod rbd_benchmarks_iiwa {
+    include!("../../../generated/rbd_benchmarks_iiwa/lbr_iiwa.rs");
+}
+pub mod ur5 {
+    include!("../../../generated/ur5/ur5.rs");
+}
