@@ -96,3 +96,36 @@ fn eval_prints_the_reference_and_omits_what_was_not_asked() {
     assert!(String::from_utf8_lossy(&nan.stderr).contains("state 0: `qd[1]` is not finite"), "{}", String::from_utf8_lossy(&nan.stderr));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+#[test]
+fn generate_writes_checks_and_reports_op_counts() {
+    // The checked-in kernels are fresh by the CLI's own --check too.
+    let fresh = grid_gen(&["robots/grid_iiwa.urdf", "-o", "generated/grid_iiwa", "--check"]);
+    assert_eq!(fresh.status.code(), Some(0), "{}", String::from_utf8_lossy(&fresh.stderr));
+    assert!(String::from_utf8_lossy(&fresh.stdout).contains("unchanged generated/grid_iiwa/iiwa14.rs"));
+
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-gen-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    let d = dir.to_str().unwrap();
+    let stale = grid_gen(&["robots/ur5.urdf", "-o", d, "--check"]);
+    assert_eq!(stale.status.code(), Some(1));
+    assert!(!dir.exists(), "--check writes nothing");
+    let wrote = grid_gen(&["robots/ur5.urdf", "-o", d, "--emit", "rust"]);
+    assert_eq!(wrote.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&wrote.stdout).starts_with("wrote "));
+    assert_eq!(std::fs::read_to_string(dir.join("ur5.rs")).unwrap(), std::fs::read_to_string(repo().join("generated/ur5/ur5.rs")).unwrap());
+    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check"]).status.code(), Some(0));
+    // A different gravity is a different module.
+    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gravity", "0,0,-1.62"]).status.code(), Some(1));
+    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--emit", "cuda"]).status.code(), Some(2));
+    std::fs::remove_dir_all(&dir).unwrap();
+
+    let v = json(&grid_gen(&["info", "robots/grid_iiwa.urdf", "--json"]));
+    let kernels: Vec<&str> = v["ops"].as_array().unwrap().iter().map(|k| k["kernel"].as_str().unwrap()).collect();
+    assert_eq!(kernels, ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]);
+    for k in v["ops"].as_array().unwrap() {
+        for field in ["add", "mul", "div", "neg", "trig", "depth"] {
+            assert!(k["after"][field].is_u64() && k["before"][field].is_u64(), "{k}");
+        }
+    }
+}

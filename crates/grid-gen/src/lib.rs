@@ -4,6 +4,7 @@
 //! stages, the kernel IR and its emitters). The library never prints and never exits;
 //! every failure is a value carrying located [`Diagnostic`]s.
 
+pub mod builder;
 pub mod diagnostic;
 pub mod emit;
 pub mod eval;
@@ -15,5 +16,6 @@ pub mod reference;
 pub mod spatial;
 pub mod urdf;
 
+pub use builder::{BuildError, Builder};
 pub use diagnostic::{Diagnostic, LoadError, Severity};
 pub use model::Model;

@@ -1,0 +1,149 @@
+//! `build.rs` integration in the style of prost-build: configure a [`Builder`], then one
+//! terminal call generates the module into `OUT_DIR`.
+//!
+//! ```no_run
+//! // build.rs
+//! fn main() -> Result<(), grid_gen::BuildError> {
+//!     grid_gen::Builder::new()
+//!         .urdf("robots/iiwa.urdf")
+//!         .file_name("robot.rs")
+//!         .compile()?;
+//!     Ok(())
+//! }
+//! ```
+//!
+//! ```ignore
+//! // src/main.rs
+//! mod robot {
+//!     include!(concat!(env!("OUT_DIR"), "/robot.rs"));
+//! }
+//! let (qdd, dqdd_dq, dqdd_dqd) = robot::fd_grad(&q, &qd, &tau);
+//! ```
+
+use std::fmt;
+use std::path::{Path, PathBuf};
+
+use crate::diagnostic::LoadError;
+use crate::generate::{generate, module_name, write_files, GenerateError, Options};
+use crate::model::Model;
+
+/// Why a build script could not generate the kernels. `Debug` prints the same text as
+/// `Display`, so `fn main() -> Result<(), BuildError>` shows cargo a readable message.
+pub enum BuildError {
+    NoUrdf,
+    NoOutDir,
+    Read(PathBuf, std::io::Error),
+    Load(Box<LoadError>),
+    Generate(GenerateError),
+    Write(PathBuf, std::io::Error),
+    BadFileName(String),
+}
+
+impl fmt::Display for BuildError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        match self {
+            BuildError::NoUrdf => write!(f, "grid-gen: no URDF given; call Builder::urdf(\"path/to/robot.urdf\")"),
+            BuildError::NoOutDir => write!(f, "grid-gen: OUT_DIR is not set (not running under cargo); call Builder::out_dir(...)"),
+            BuildError::Read(p, e) => write!(f, "grid-gen: cannot read {}: {e}", p.display()),
+            BuildError::Load(e) => write!(f, "grid-gen: {} is not a usable robot description:\n{}", e.path, e.render_plain()),
+            BuildError::Generate(e) => write!(f, "grid-gen: {e}"),
+            BuildError::Write(p, e) => write!(f, "grid-gen: cannot write {}: {e}", p.display()),
+            BuildError::BadFileName(n) => write!(f, "grid-gen: file name `{n}` must be a plain `*.rs` name without folders"),
+        }
+    }
+}
+
+impl fmt::Debug for BuildError {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        fmt::Display::fmt(self, f)
+    }
+}
+
+impl std::error::Error for BuildError {}
+
+/// Generates robot kernels from a build script.
+#[derive(Clone, Debug, Default)]
+pub struct Builder {
+    urdf: Option<PathBuf>,
+    out_dir: Option<PathBuf>,
+    file_name: Option<String>,
+    options: Options,
+    strict: bool,
+    quiet: bool,
+}
+
+impl Builder {
+    pub fn new() -> Self {
+        Builder::default()
+    }
+
+    /// The robot description (relative paths are relative to the crate, as in build.rs).
+    /// Cargo is told to rerun the build script when it changes.
+    pub fn urdf(&mut self, path: impl AsRef<Path>) -> &mut Self {
+        self.urdf = Some(path.as_ref().to_path_buf());
+        self
+    }
+
+    /// Where to write; default `$OUT_DIR`.
+    pub fn out_dir(&mut self, dir: impl AsRef<Path>) -> &mut Self {
+        self.out_dir = Some(dir.as_ref().to_path_buf());
+        self
+    }
+
+    /// Name of the generated file; default `<robot>.rs` from the URDF's robot name made an
+    /// identifier. Must be a plain `*.rs` name.
+    pub fn file_name(&mut self, name: impl Into<String>) -> &mut Self {
+        self.file_name = Some(name.into());
+        self
+    }
+
+    /// Gravity in the root frame, m/s², compiled in; default (0, 0, -9.81).
+    pub fn gravity(&mut self, gravity: [f64; 3]) -> &mut Self {
+        self.options.gravity = gravity;
+        self
+    }
+
+    /// Refuse URDFs with warnings (such as physically implausible inertias).
+    pub fn strict(&mut self, strict: bool) -> &mut Self {
+        self.strict = strict;
+        self
+    }
+
+    /// Most statements per generated function (default 2500): lower compiles faster per
+    /// function, higher gives the optimiser more room.
+    pub fn chunk_size(&mut self, statements: usize) -> &mut Self {
+        self.options.rust.chunk = statements.max(1);
+        self
+    }
+
+    /// Do not print `cargo:` directives (for use outside build scripts).
+    pub fn quiet(&mut self, quiet: bool) -> &mut Self {
+        self.quiet = quiet;
+        self
+    }
+
+    /// Reads the URDF, generates the Rust module, writes it if its contents changed, and
+    /// returns its path. In a build script this prints `cargo:rerun-if-changed=<urdf>`
+    /// (cargo's protocol, the only output of the library) unless [`Builder::quiet`].
+    pub fn compile(&self) -> Result<PathBuf, BuildError> {
+        let urdf = self.urdf.as_ref().ok_or(BuildError::NoUrdf)?;
+        if !self.quiet {
+            println!("cargo:rerun-if-changed={}", urdf.display());
+        }
+        let out_dir = match &self.out_dir {
+            Some(d) => d.clone(),
+            None => std::env::var_os("OUT_DIR").map(PathBuf::from).ok_or(BuildError::NoOutDir)?,
+        };
+        let text = std::fs::read_to_string(urdf).map_err(|e| BuildError::Read(urdf.clone(), e))?;
+        let (model, _warnings) = Model::from_urdf_str(&urdf.display().to_string(), &text, self.strict).map_err(|e| BuildError::Load(Box::new(e)))?;
+        let mut files = generate(&model, &self.options).map_err(BuildError::Generate)?;
+        let name = self.file_name.clone().unwrap_or_else(|| format!("{}.rs", module_name(&model)));
+        if name.contains(['/', '\\']) || name.starts_with('.') || !name.ends_with(".rs") {
+            return Err(BuildError::BadFileName(name));
+        }
+        files.retain(|f| f.name.ends_with(".rs"));
+        files[0].name = name;
+        let written = write_files(&out_dir, &files[..1], false).map_err(|e| BuildError::Write(out_dir.clone(), e))?;
+        Ok(written[0].0.clone())
+    }
+}

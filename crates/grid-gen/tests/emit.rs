@@ -1,0 +1,99 @@
+//! The Rust emitter's contract: a snapshot of the chunked output for a small robot (so an
+//! emitter change shows up as a readable diff), names from the URDF that cannot inject
+//! code or escape the output folder, `Builder` errors that name the URDF problem, and
+//! `--check` exit codes.
+
+mod common;
+
+use common::*;
+use grid_gen::generate::{generate, Options};
+use grid_gen::Builder;
+
+/// The double pendulum with at most 40 statements per function, so that the multi-
+/// function path (scratch slots, parts) is in the snapshot.
+#[test]
+fn chunked_snapshot_of_a_small_robot() {
+    let model = load("double_pendulum_continuous");
+    let mut options = Options::default();
+    options.rust.chunk = 40;
+    let got = generate(&model, &options).unwrap().remove(0).contents;
+    let path = repo().join("tests/snapshots/double_pendulum_chunk40.rs");
+    if std::env::var_os("GRID_GEN_BLESS").is_some() {
+        std::fs::write(&path, &got).unwrap();
+    }
+    let want = std::fs::read_to_string(&path).unwrap_or_default();
+    assert!(got == want, "snapshot differs; GRID_GEN_BLESS=1 cargo test -p grid-gen --test emit, then review `git diff tests/snapshots`");
+}
+
+const HOSTILE: &str = r#"<robot name="../../evil&quot;); std::process::exit(1); (&quot;">
+  <link name="base"/>
+  <link name="a"><inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link>
+  <joint name="j&quot;]; fn x() {} //&#10;*/ \" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 1 1"/></joint>
+</robot>"#;
+
+#[test]
+fn urdf_names_cannot_inject_code_or_paths() {
+    let (model, _) = grid_gen::Model::from_urdf_str("hostile.urdf", HOSTILE, false).unwrap();
+    let file = generate(&model, &Options::default()).unwrap().remove(0);
+    assert_eq!(file.name, "______evil____std__process__exit_1_____.rs");
+    // The code parses, and its only items are the ones grid-gen writes.
+    let parsed = syn::parse_file(&file.contents).unwrap();
+    let names: Vec<String> = parsed
+        .items
+        .iter()
+        .filter_map(|i| match i {
+            syn::Item::Const(c) => Some(c.ident.to_string()),
+            syn::Item::Fn(f) => Some(f.sig.ident.to_string()),
+            syn::Item::Trait(t) => Some(t.ident.to_string()),
+            syn::Item::Impl(_) => None,
+            _ => Some("unexpected item".to_string()),
+        })
+        .collect();
+    assert_eq!(names, ["ROBOT", "NV", "JOINT_NAMES", "PARENTS", "GRAVITY", "Real", "rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]);
+    // The names survive exactly as string values.
+    let lit = |name: &str| -> Vec<String> {
+        parsed
+            .items
+            .iter()
+            .find_map(|i| match i {
+                syn::Item::Const(c) if c.ident == name => Some(c.expr.clone()),
+                _ => None,
+            })
+            .map(|e| match *e {
+                syn::Expr::Lit(syn::ExprLit { lit: syn::Lit::Str(s), .. }) => vec![s.value()],
+                syn::Expr::Array(a) => {
+                    a.elems.iter().map(|e| if let syn::Expr::Lit(syn::ExprLit { lit: syn::Lit::Str(s), .. }) = e { s.value() } else { panic!() }).collect()
+                }
+                _ => panic!("not a literal"),
+            })
+            .unwrap()
+    };
+    assert_eq!(lit("ROBOT"), [model.name.clone()]);
+    assert_eq!(lit("JOINT_NAMES"), [model.joints[0].name.clone()]);
+    // Comments only carry escaped names: no raw newline from the URDF.
+    assert!(file.contents.lines().filter(|l| l.starts_with("//")).all(|l| !l.contains("fn x()")));
+}
+
+#[test]
+fn builder_writes_once_and_names_urdf_problems() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-builder-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    let urdf = repo().join("robots/grid_iiwa.urdf");
+    let path = Builder::new().urdf(&urdf).out_dir(&dir).quiet(true).compile().unwrap();
+    assert_eq!(path, dir.join("iiwa14.rs"));
+    let first = std::fs::metadata(&path).unwrap().modified().unwrap();
+    std::thread::sleep(std::time::Duration::from_millis(20));
+    Builder::new().urdf(&urdf).out_dir(&dir).quiet(true).compile().unwrap();
+    assert_eq!(std::fs::metadata(&path).unwrap().modified().unwrap(), first, "unchanged contents are not rewritten");
+
+    let bad = repo().join("tests/diagnostics/unknown_parent.urdf");
+    let err = Builder::new().urdf(&bad).out_dir(&dir).quiet(true).compile().unwrap_err().to_string();
+    assert!(err.contains("unknown_parent.urdf:4:36: error: joint `j1` names unknown parent link `bsae`"), "{err}");
+    assert!(err.contains("help: correct the name or add the missing <link>"), "{err}");
+    let err = Builder::new().urdf(&urdf).out_dir(&dir).file_name("../x.rs").quiet(true).compile().unwrap_err().to_string();
+    assert!(err.contains("must be a plain `*.rs` name"), "{err}");
+    let err = Builder::new().out_dir(&dir).compile().unwrap_err().to_string();
+    assert!(err.contains("no URDF given"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
