@@ -1,0 +1,57 @@
+// Times Pinocchio's computeRNEADerivatives and computeABADerivatives (fixed base, f64) on
+// a model that Pinocchio's Python bindings built from a URDF and saved as text
+// (pinocchio.Model.saveToText; the wheel ships no urdfdom headers), for the side-by-side comparison in scripts/bench.sh. Built from Pinocchio's
+// headers with -O3 (see scripts/bench.sh). Prints one JSON line per robot:
+// {"robot": ..., "nv": ..., "rnea_derivatives_ns": ..., "aba_derivatives_ns": ..., "rnea_ns": ..., "aba_ns": ...}
+#include <algorithm>
+#include <chrono>
+#include <cstdio>
+#include <vector>
+
+#include "pinocchio/algorithm/aba-derivatives.hpp"
+#include "pinocchio/algorithm/aba.hpp"
+#include "pinocchio/algorithm/joint-configuration.hpp"
+#include "pinocchio/algorithm/rnea-derivatives.hpp"
+#include "pinocchio/algorithm/rnea.hpp"
+#include "pinocchio/multibody.hpp"
+#include "pinocchio/serialization.hpp"
+
+using Clock = std::chrono::steady_clock;
+
+// Median over `rounds` of the mean time per call over `iters` calls, in ns.
+template <typename F>
+double time_ns(F&& f, int iters, int rounds) {
+  std::vector<double> samples;
+  for (int r = 0; r < rounds; ++r) {
+    auto t0 = Clock::now();
+    for (int i = 0; i < iters; ++i) f(i);
+    auto t1 = Clock::now();
+    samples.push_back(std::chrono::duration<double, std::nano>(t1 - t0).count() / iters);
+  }
+  std::sort(samples.begin(), samples.end());
+  return samples[samples.size() / 2];
+}
+
+int main(int argc, char** argv) {
+  for (int a = 1; a < argc; ++a) {
+    pinocchio::Model model;
+    model.loadFromText(argv[a]);
+    pinocchio::Data data(model);
+    const int K = 64;  // distinct states, cycled, so nothing is cached between calls
+    std::vector<Eigen::VectorXd> q(K), v(K), acc(K), tau(K);
+    for (int k = 0; k < K; ++k) {
+      q[k] = pinocchio::randomConfiguration(model, -Eigen::VectorXd::Ones(model.nq), Eigen::VectorXd::Ones(model.nq));
+      v[k] = Eigen::VectorXd::Random(model.nv);
+      acc[k] = Eigen::VectorXd::Random(model.nv);
+      tau[k] = Eigen::VectorXd::Random(model.nv);
+    }
+    const int iters = 2000, rounds = 15;
+    double rd = time_ns([&](int i) { pinocchio::computeRNEADerivatives(model, data, q[i % K], v[i % K], acc[i % K]); }, iters, rounds);
+    double ad = time_ns([&](int i) { pinocchio::computeABADerivatives(model, data, q[i % K], v[i % K], tau[i % K]); }, iters, rounds);
+    double r = time_ns([&](int i) { pinocchio::rnea(model, data, q[i % K], v[i % K], acc[i % K]); }, iters, rounds);
+    double ab = time_ns([&](int i) { pinocchio::aba(model, data, q[i % K], v[i % K], tau[i % K]); }, iters, rounds);
+    std::printf("{\"robot\": \"%s\", \"nv\": %d, \"rnea_derivatives_ns\": %.1f, \"aba_derivatives_ns\": %.1f, \"rnea_ns\": %.1f, \"aba_ns\": %.1f}\n", argv[a],
+                model.nv, rd, ad, r, ab);
+  }
+  return 0;
+}

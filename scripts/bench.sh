@@ -1,0 +1,25 @@
+#!/usr/bin/env bash
+# Reproduces every speed figure in the README, side by side in one run on this machine:
+#   1. Pinocchio's computeRNEADerivatives / computeABADerivatives (and rnea, aba), built
+#      from the headers of the `pin` wheel with g++ -O3 (bench/pinocchio_bench.cpp);
+#   2. the criterion benchmarks of the generated kernels and the reference
+#      (crates/grid-gen-kernels/benches/kernels.rs);
+#   3. a table of times and ratios (scripts/bench_report.py), written to target/bench-report.md.
+# Needs: pip install pin==4.1.0; apt-get install libeigen3-dev g++.
+set -euo pipefail
+cd "$(dirname "$0")/.."
+PREFIX=$(python3 -c "import pinocchio, pathlib; p = pathlib.Path(pinocchio.__file__).resolve(); print(next(x for x in p.parents if (x / 'cmeel.prefix').exists()) / 'cmeel.prefix')")
+test -d /usr/include/eigen3 || { echo "error: Eigen headers missing: apt-get install libeigen3-dev" >&2; exit 1; }
+mkdir -p target/bench
+ROBOTS="grid_iiwa grid_hyq grid_atlas"
+for r in $ROBOTS; do
+    python3 -c "import pinocchio as pin; pin.buildModelFromUrdf('robots/$r.urdf').saveToText('target/bench/$r.pinmodel')"
+done
+# Pinocchio's own build defines these (see its exported CMake targets).
+g++ -O3 -DNDEBUG -std=c++17 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS -DBOOST_MPL_LIMIT_LIST_SIZE=30 \
+    -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 -DBOOST_FUSION_INVOKE_MAX_ARITY=12 \
+    -I"$PREFIX/include" -I/usr/include/eigen3 bench/pinocchio_bench.cpp -o target/bench/pinocchio_bench \
+    -L"$PREFIX/lib" -lpinocchio_default -lboost_filesystem -lboost_serialization -Wl,-rpath,"$PREFIX/lib"
+target/bench/pinocchio_bench $(for r in $ROBOTS; do echo target/bench/$r.pinmodel; done) | tee target/bench/pinocchio.jsonl
+cargo bench -p grid-gen-kernels --bench kernels
+python3 scripts/bench_report.py target/bench/pinocchio.jsonl target/criterion | tee target/bench-report.md

@@ -1,0 +1,29 @@
+#!/usr/bin/env python3
+"""Prints the README's speed table from one run of scripts/bench.sh: Pinocchio's times
+(JSON lines from bench/pinocchio_bench.cpp) and criterion's estimates (median, ns)."""
+import json
+import pathlib
+import sys
+
+pin_file, criterion = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
+pin = {pathlib.Path(json.loads(l)["robot"]).stem: json.loads(l) for l in pin_file.read_text().splitlines() if l.strip()}
+
+
+def ns(robot, name):
+    est = json.loads((criterion / robot / name.replace("/", "_") / "new" / "estimates.json").read_text())
+    return est["median"]["point_estimate"]
+
+
+def fmt(t):
+    return f"{t / 1000:.2f} µs" if t >= 1000 else f"{t:.0f} ns"
+
+
+print("| robot | kernel | generated | reference | Pinocchio | vs reference | vs Pinocchio |")
+print("|---|---|---|---|---|---|---|")
+pairs = {"rnea": "rnea_ns", "rnea_grad": "rnea_derivatives_ns", "mass_matrix": None, "minv": None, "fd": "aba_ns", "fd_grad": "aba_derivatives_ns"}
+for robot in ["grid_iiwa", "grid_hyq", "grid_atlas"]:
+    for kernel, pin_key in pairs.items():
+        g = ns(robot, f"generated/{kernel}")
+        r = ns(robot, f"reference/{kernel}")
+        p = pin[robot][pin_key] if pin_key else None
+        print(f"| {robot} | {kernel} | {fmt(g)} | {fmt(r)} | {fmt(p) if p else '-'} | {r / g:.1f}x | {f'{p / g:.1f}x' if p else '-'} |")
