@@ -4,7 +4,8 @@
 //
 // Everything in this module is specialised to one robot. Vectors are `[T; NV]` in the order of
 // `JOINT_NAMES`; matrices are `[[T; NV]; NV]`, row-major, `m[i][j] = d out_i / d in_j`. `T` is `f64`
-// or `f32` (see [`Real`]). Gravity is fixed at generation time (`GRAVITY`).
+// or `f32` (see [`Real`]), or `Lanes<N>` for N states per call. Gravity is fixed at generation
+// time (`GRAVITY`).
 //
 // - `rnea(q, qd, qdd) -> c`: inverse dynamics `c = M(q) qdd + C(q, qd) qd + g(q)`.
 // - `rnea_grad(q, qd, qdd) -> (dc_dq, dc_dqd)`: its analytical gradient.
@@ -84,6 +85,77 @@ impl Real for f32 {
     #[inline(always)]
     fn cos(self) -> Self {
         f32::cos(self)
+    }
+}
+/// `N` states evaluated by one call, one per lane (`q[j].0[l]` is joint j of state l), for
+/// sweeping many knot points: every lane runs exactly the f64 operations of a scalar call,
+/// so results are bit-identical, and the compiler can put the lanes in SIMD registers.
+#[derive(Clone, Copy, Debug, PartialEq)]
+#[allow(dead_code)]
+pub struct Lanes<const N: usize>(pub [f64; N]);
+impl<const N: usize> core::ops::Add for Lanes<N> {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, b: Self) -> Self {
+        let mut out = self.0;
+        for (o, b) in out.iter_mut().zip(b.0) {
+            *o = *o + b;
+        }
+        Lanes(out)
+    }
+}
+impl<const N: usize> core::ops::Sub for Lanes<N> {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, b: Self) -> Self {
+        let mut out = self.0;
+        for (o, b) in out.iter_mut().zip(b.0) {
+            *o = *o - b;
+        }
+        Lanes(out)
+    }
+}
+impl<const N: usize> core::ops::Mul for Lanes<N> {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, b: Self) -> Self {
+        let mut out = self.0;
+        for (o, b) in out.iter_mut().zip(b.0) {
+            *o = *o * b;
+        }
+        Lanes(out)
+    }
+}
+impl<const N: usize> core::ops::Div for Lanes<N> {
+    type Output = Self;
+    #[inline(always)]
+    fn div(self, b: Self) -> Self {
+        let mut out = self.0;
+        for (o, b) in out.iter_mut().zip(b.0) {
+            *o = *o / b;
+        }
+        Lanes(out)
+    }
+}
+impl<const N: usize> core::ops::Neg for Lanes<N> {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        Lanes(self.0.map(|x| -x))
+    }
+}
+impl<const N: usize> Real for Lanes<N> {
+    #[inline(always)]
+    fn k(x: f64) -> Self {
+        Lanes([x; N])
+    }
+    #[inline(always)]
+    fn sin(self) -> Self {
+        Lanes(self.0.map(f64::sin))
+    }
+    #[inline(always)]
+    fn cos(self) -> Self {
+        Lanes(self.0.map(f64::cos))
     }
 }
 /// Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.

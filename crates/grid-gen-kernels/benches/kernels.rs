@@ -71,6 +71,37 @@ macro_rules! bench_robot {
                 black_box(k::fd_grad(&x[0], &x[1], &x[2]))
             })
         });
+        // N states per call in `Lanes<N>`: time per call, divided by N in the report.
+        let l2: Vec<[[k::Lanes<2>; N]; 3]> = (0..STATES)
+            .map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| k::Lanes(std::array::from_fn(|l| state(j + l * STATES, i, salt))))))
+            .collect();
+        let l4: Vec<[[k::Lanes<4>; N]; 3]> = (0..STATES)
+            .map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| k::Lanes(std::array::from_fn(|l| state(j + l * STATES, i, salt))))))
+            .collect();
+        group.bench_function("generated/rnea_grad_lanes2", |b| {
+            b.iter(|| {
+                let x = &l2[next()];
+                black_box(k::rnea_grad(&x[0], &x[1], &x[2]))
+            })
+        });
+        group.bench_function("generated/fd_grad_lanes2", |b| {
+            b.iter(|| {
+                let x = &l2[next()];
+                black_box(k::fd_grad(&x[0], &x[1], &x[2]))
+            })
+        });
+        group.bench_function("generated/rnea_grad_lanes4", |b| {
+            b.iter(|| {
+                let x = &l4[next()];
+                black_box(k::rnea_grad(&x[0], &x[1], &x[2]))
+            })
+        });
+        group.bench_function("generated/fd_grad_lanes4", |b| {
+            b.iter(|| {
+                let x = &l4[next()];
+                black_box(k::fd_grad(&x[0], &x[1], &x[2]))
+            })
+        });
         group.bench_function("reference/rnea", |b| {
             b.iter(|| {
                 let x = &v[next()];

@@ -107,34 +107,67 @@ macro_rules! run_kernels {
 
 macro_rules! robot_test {
     ($m:ident, $stem:literal) => {
-        #[test]
-        fn $m() {
-            let model = load($stem);
-            assert_eq!(grid_gen_kernels::$m::NV, model.nv());
-            let names: Vec<&str> = model.joints.iter().map(|j| j.name.as_str()).collect();
-            assert_eq!(grid_gen_kernels::$m::JOINT_NAMES.to_vec(), names);
-            let mut rng = Rng(7);
-            let mut worst = [0.0f64; 2];
-            for (label, q, qd, u) in states(&model, &mut rng) {
-                let want = reference_outputs(&model, &q, &qd, &u);
-                let got64 = run_kernels!($m, f64, &q, &qd, &u);
-                for ((name, got), want) in NAMES.iter().zip(&got64).zip(&want) {
-                    let e = rel(got, want);
-                    assert!(e <= F64_TOL, "{} f64 {label}: {name} relative error {e:.2e}", $stem);
-                }
-                // f32: the reference at the f32-rounded state.
-                let r = |v: &Vec<f64>| v.iter().map(|&x| x as f32 as f64).collect::<Vec<_>>();
-                let (q, qd, u) = (r(&q), r(&qd), r(&u));
-                let want = reference_outputs(&model, &q, &qd, &u);
-                let got32 = run_kernels!($m, f32, &q, &qd, &u);
-                for (i, ((name, got), want)) in NAMES.iter().zip(&got32).zip(&want).enumerate() {
-                    let e = rel(got, want);
-                    let tol = if THROUGH_MINV[i] { F32_MINV } else { F32_DIRECT };
-                    worst[usize::from(THROUGH_MINV[i])] = worst[usize::from(THROUGH_MINV[i])].max(e);
-                    assert!(e <= tol, "{} f32 {label}: {name} relative error {e:.2e} > {tol:e}", $stem);
+        mod $m {
+            use super::*;
+
+            /// Four states in one `Lanes<4>` call give bit-identical results to four scalar calls.
+            #[test]
+            fn lanes_are_bit_identical_to_scalar_calls() {
+                use grid_gen_kernels::$m as k;
+                let model = load($stem);
+                let mut rng = Rng(9);
+                let st: Vec<_> = states(&model, &mut rng).into_iter().take(4).collect();
+                let lane = |f: &dyn Fn(&(String, Vec<f64>, Vec<f64>, Vec<f64>)) -> &Vec<f64>| -> [k::Lanes<4>; k::NV] {
+                    std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| f(&st[l])[j])))
+                };
+                let (q, qd, u) = (lane(&|s| &s.1), lane(&|s| &s.2), lane(&|s| &s.3));
+                let (lq, lqd) = k::rnea_grad(&q, &qd, &u);
+                let (lqdd, lfq, lfqd) = k::fd_grad(&q, &qd, &u);
+                for (l, s) in st.iter().enumerate() {
+                    let arr = |v: &Vec<f64>| -> [f64; k::NV] { std::array::from_fn(|i| v[i]) };
+                    let (dq, dqd) = k::rnea_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
+                    let (qdd, fq, fqd) = k::fd_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
+                    for i in 0..k::NV {
+                        assert_eq!(lqdd[i].0[l].to_bits(), qdd[i].to_bits());
+                        for j in 0..k::NV {
+                            assert_eq!(lq[i][j].0[l].to_bits(), dq[i][j].to_bits());
+                            assert_eq!(lqd[i][j].0[l].to_bits(), dqd[i][j].to_bits());
+                            assert_eq!(lfq[i][j].0[l].to_bits(), fq[i][j].to_bits());
+                            assert_eq!(lfqd[i][j].0[l].to_bits(), fqd[i][j].to_bits());
+                        }
+                    }
                 }
             }
-            eprintln!("{}: worst f32 error {:.2e} direct, {:.2e} through Minv", $stem, worst[0], worst[1]);
+
+            #[test]
+            fn f64_and_f32_match_the_reference() {
+                let model = load($stem);
+                assert_eq!(grid_gen_kernels::$m::NV, model.nv());
+                let names: Vec<&str> = model.joints.iter().map(|j| j.name.as_str()).collect();
+                assert_eq!(grid_gen_kernels::$m::JOINT_NAMES.to_vec(), names);
+                let mut rng = Rng(7);
+                let mut worst = [0.0f64; 2];
+                for (label, q, qd, u) in states(&model, &mut rng) {
+                    let want = reference_outputs(&model, &q, &qd, &u);
+                    let got64 = run_kernels!($m, f64, &q, &qd, &u);
+                    for ((name, got), want) in NAMES.iter().zip(&got64).zip(&want) {
+                        let e = rel(got, want);
+                        assert!(e <= F64_TOL, "{} f64 {label}: {name} relative error {e:.2e}", $stem);
+                    }
+                    // f32: the reference at the f32-rounded state.
+                    let r = |v: &Vec<f64>| v.iter().map(|&x| x as f32 as f64).collect::<Vec<_>>();
+                    let (q, qd, u) = (r(&q), r(&qd), r(&u));
+                    let want = reference_outputs(&model, &q, &qd, &u);
+                    let got32 = run_kernels!($m, f32, &q, &qd, &u);
+                    for (i, ((name, got), want)) in NAMES.iter().zip(&got32).zip(&want).enumerate() {
+                        let e = rel(got, want);
+                        let tol = if THROUGH_MINV[i] { F32_MINV } else { F32_DIRECT };
+                        worst[usize::from(THROUGH_MINV[i])] = worst[usize::from(THROUGH_MINV[i])].max(e);
+                        assert!(e <= tol, "{} f32 {label}: {name} relative error {e:.2e} > {tol:e}", $stem);
+                    }
+                }
+                eprintln!("{}: worst f32 error {:.2e} direct, {:.2e} through Minv", $stem, worst[0], worst[1]);
+            }
         }
     };
 }

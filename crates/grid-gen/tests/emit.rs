@@ -45,11 +45,12 @@ fn urdf_names_cannot_inject_code_or_paths() {
             syn::Item::Const(c) => Some(c.ident.to_string()),
             syn::Item::Fn(f) => Some(f.sig.ident.to_string()),
             syn::Item::Trait(t) => Some(t.ident.to_string()),
+            syn::Item::Struct(t) => Some(t.ident.to_string()),
             syn::Item::Impl(_) => None,
             _ => Some("unexpected item".to_string()),
         })
         .collect();
-    assert_eq!(names, ["ROBOT", "NV", "JOINT_NAMES", "PARENTS", "GRAVITY", "Real", "rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]);
+    assert_eq!(names, ["ROBOT", "NV", "JOINT_NAMES", "PARENTS", "GRAVITY", "Real", "Lanes", "rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]);
     // The names survive exactly as string values.
     let lit = |name: &str| -> Vec<String> {
         parsed
