@@ -97,44 +97,28 @@ impl<const N: usize> core::ops::Add for Lanes<N> {
     type Output = Self;
     #[inline(always)]
     fn add(self, b: Self) -> Self {
-        let mut out = self.0;
-        for (o, b) in out.iter_mut().zip(b.0) {
-            *o = *o + b;
-        }
-        Lanes(out)
+        Lanes(core::array::from_fn(|l| self.0[l] + b.0[l]))
     }
 }
 impl<const N: usize> core::ops::Sub for Lanes<N> {
     type Output = Self;
     #[inline(always)]
     fn sub(self, b: Self) -> Self {
-        let mut out = self.0;
-        for (o, b) in out.iter_mut().zip(b.0) {
-            *o = *o - b;
-        }
-        Lanes(out)
+        Lanes(core::array::from_fn(|l| self.0[l] - b.0[l]))
     }
 }
 impl<const N: usize> core::ops::Mul for Lanes<N> {
     type Output = Self;
     #[inline(always)]
     fn mul(self, b: Self) -> Self {
-        let mut out = self.0;
-        for (o, b) in out.iter_mut().zip(b.0) {
-            *o = *o * b;
-        }
-        Lanes(out)
+        Lanes(core::array::from_fn(|l| self.0[l] * b.0[l]))
     }
 }
 impl<const N: usize> core::ops::Div for Lanes<N> {
     type Output = Self;
     #[inline(always)]
     fn div(self, b: Self) -> Self {
-        let mut out = self.0;
-        for (o, b) in out.iter_mut().zip(b.0) {
-            *o = *o / b;
-        }
-        Lanes(out)
+        Lanes(core::array::from_fn(|l| self.0[l] / b.0[l]))
     }
 }
 impl<const N: usize> core::ops::Neg for Lanes<N> {

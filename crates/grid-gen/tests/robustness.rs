@@ -20,6 +20,13 @@ fn exercise(text: &str) {
             let q = vec![0.3; n];
             let _ = reference::rnea_derivatives(&model, &q, &q, &q, reference::DEFAULT_GRAVITY);
             let _ = reference::forward_dynamics_derivatives(&model, &q, &q, &q, reference::DEFAULT_GRAVITY);
+            // Generation too (small robots only, to keep the test quick): an error is
+            // fine, a panic is not.
+            if n <= 7 {
+                if let Ok(files) = grid_gen::generate::generate(&model, &grid_gen::generate::Options::default()) {
+                    assert!(files.iter().all(|f| !f.name.contains(['/', '\\']) && f.name.ends_with(".rs")));
+                }
+            }
         }
         Err(e) => {
             assert!(!e.diagnostics.is_empty(), "a failure carries at least one diagnostic");
@@ -86,6 +93,16 @@ proptest! {
         let texts = robots_text();
         exercise(&apply(&texts[robot % texts.len()], &edits));
     }
+}
+
+#[test]
+fn overflowing_numbers_are_an_error_not_a_literal() {
+    let text = r#"<robot name="big"><link name="base"/>
+      <link name="a"><inertial><origin xyz="1e200 0 0"/><mass value="1e300"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+      <joint name="j" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/></joint></robot>"#;
+    let (model, _) = Model::from_urdf_str("big.urdf", text, false).unwrap();
+    let err = grid_gen::generate::generate(&model, &grid_gen::generate::Options::default()).unwrap_err().to_string();
+    assert!(err.contains("overflows f64"), "{err}");
 }
 
 #[test]

@@ -270,11 +270,7 @@ impl<const N: usize> core::ops::Add for Lanes<N> {
     type Output = Self;
     #[inline(always)]
     fn add(self, b: Self) -> Self {
-        let mut out = self.0;
-        for (o, b) in out.iter_mut().zip(b.0) {
-            *o = *o + b;
-        }
-        Lanes(out)
+        Lanes(core::array::from_fn(|l| self.0[l] + b.0[l]))
     }
 }
 
@@ -282,11 +278,7 @@ impl<const N: usize> core::ops::Sub for Lanes<N> {
     type Output = Self;
     #[inline(always)]
     fn sub(self, b: Self) -> Self {
-        let mut out = self.0;
-        for (o, b) in out.iter_mut().zip(b.0) {
-            *o = *o - b;
-        }
-        Lanes(out)
+        Lanes(core::array::from_fn(|l| self.0[l] - b.0[l]))
     }
 }
 
@@ -294,11 +286,7 @@ impl<const N: usize> core::ops::Mul for Lanes<N> {
     type Output = Self;
     #[inline(always)]
     fn mul(self, b: Self) -> Self {
-        let mut out = self.0;
-        for (o, b) in out.iter_mut().zip(b.0) {
-            *o = *o * b;
-        }
-        Lanes(out)
+        Lanes(core::array::from_fn(|l| self.0[l] * b.0[l]))
     }
 }
 
@@ -306,11 +294,7 @@ impl<const N: usize> core::ops::Div for Lanes<N> {
     type Output = Self;
     #[inline(always)]
     fn div(self, b: Self) -> Self {
-        let mut out = self.0;
-        for (o, b) in out.iter_mut().zip(b.0) {
-            *o = *o / b;
-        }
-        Lanes(out)
+        Lanes(core::array::from_fn(|l| self.0[l] / b.0[l]))
     }
 }
 
