@@ -20,7 +20,10 @@ fi
 python3 -c "import pinocchio, yourdfpy; print('pinocchio', pinocchio.__version__)" || die "pin/yourdfpy do not import"
 
 say "formatting"
-cargo fmt --all -- --check || die "run cargo fmt"
+if ! cargo fmt --version >/dev/null 2>&1; then
+    rustup component add rustfmt || die "rustfmt is missing and could not be installed (rustup component add rustfmt)"
+fi
+cargo fmt --all -- --check || die "code is not formatted: run cargo fmt --all"
 
 say "cargo test (workspace)"
 cargo test --workspace --all-targets
