@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use std::fmt::Write;
 
 use super::names::string_literal;
-use crate::ir::{Id, Input, Kernel, Op};
+use crate::ir::{Id, Kernel, Op};
 use crate::model::Model;
 
 /// The public API, described once for the file's doc comments and the README.
@@ -341,10 +341,4 @@ pub fn emit(model: &Model, kernels: &[Kernel], gravity: [f64; 3], options: &Rust
     }
     let file = syn::parse_file(&out)?;
     Ok(prettyplease::unparse(&file))
-}
-
-/// Inputs a kernel reads, for documentation.
-pub fn signature(k: &Kernel) -> String {
-    let args: Vec<&str> = k.inputs.iter().map(|i: &Input| i.name()).collect();
-    format!("{}({})", k.name, args.join(", "))
 }

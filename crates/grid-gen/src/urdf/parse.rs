@@ -103,12 +103,11 @@ fn tag_span(node: Node) -> Range<usize> {
     r.start..end.max(r.start)
 }
 
-struct Parser<'a> {
+struct Parser {
     diags: Vec<Diagnostic>,
-    _text: &'a str,
 }
 
-impl Parser<'_> {
+impl Parser {
     fn attr_span(node: Node, name: &str) -> Range<usize> {
         node.attribute_node(name).map_or_else(|| tag_span(node), |a| a.range())
     }
@@ -307,7 +306,7 @@ pub(crate) fn parse(text: &str) -> (Option<Urdf>, Vec<Diagnostic>) {
         }
     };
     let root = doc.root_element();
-    let mut p = Parser { diags: Vec::new(), _text: text };
+    let mut p = Parser { diags: Vec::new() };
     if root.tag_name().name() != "robot" {
         p.diags.push(
             Diagnostic::error(format!("the root element is <{}>, not <robot>", root.tag_name().name()), Some(tag_span(root)), "expected <robot>")
