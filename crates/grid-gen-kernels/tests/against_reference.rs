@@ -8,6 +8,11 @@
 //!   kernel's f32 arithmetic is measured. RNEA, its gradient and M: ≤ F32_DIRECT; anything
 //!   through M⁻¹: ≤ F32_MINV (see the constants for why).
 
+// The robots, the seeded generator and the error norm of grid-gen's own tests.
+#[path = "../../grid-gen/tests/common/mod.rs"]
+mod common;
+
+use common::{load, rel_err as rel, Rng};
 use grid_gen::{reference, Model};
 use nalgebra::DMatrix;
 
@@ -20,41 +25,18 @@ const F32_DIRECT: f64 = 1e-5;
 /// 1.6e-5 on the rbd-benchmarks iiwa; Pinocchio in f32 reaches 1e-5 to 1e-4 here).
 const F32_MINV: f64 = 1e-4;
 
-fn repo() -> std::path::PathBuf {
-    std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
-}
-
-fn load(stem: &str) -> Model {
-    let path = repo().join("robots").join(format!("{stem}.urdf"));
-    Model::from_urdf_str(stem, &std::fs::read_to_string(path).unwrap(), false).unwrap().0
-}
-
-struct Rng(u64);
-impl Rng {
-    fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        lo + (hi - lo) * (((z ^ (z >> 31)) >> 11) as f64 / (1u64 << 53) as f64)
-    }
-    fn vec(&mut self, n: usize, scale: f64) -> Vec<f64> {
-        (0..n).map(|_| self.uniform(-scale, scale)).collect()
-    }
-}
-
 /// (label, q, qd, u) where u is q̈ for RNEA and τ for FD.
 fn states(model: &Model, rng: &mut Rng) -> Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>)> {
     let n = model.nv();
-    let mut out: Vec<_> = (0..6).map(|i| (format!("random {i}"), rng.vec(n, 3.1), rng.vec(n, 3.0), rng.vec(n, 3.0))).collect();
+    let mut out: Vec<_> = (0..6).map(|i| (format!("random {i}"), rng.vec(n, -3.1, 3.1), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0))).collect();
     let limit = |lo: bool| {
         model.joints.iter().map(|j| j.limit.map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h }).clamp(-1e3, 1e3)).collect::<Vec<_>>()
     };
     out.push(("zero".into(), vec![0.0; n], vec![0.0; n], vec![0.0; n]));
-    out.push(("lower limits".into(), limit(true), rng.vec(n, 1.0), rng.vec(n, 1.0)));
-    out.push(("upper limits".into(), limit(false), rng.vec(n, 1.0), rng.vec(n, 1.0)));
+    out.push(("lower limits".into(), limit(true), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)));
+    out.push(("upper limits".into(), limit(false), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)));
     for s in [1e-8, 1e3] {
-        out.push((format!("speed {s:e}"), rng.vec(n, 3.1), rng.vec(n, s), rng.vec(n, s)));
+        out.push((format!("speed {s:e}"), rng.vec(n, -3.1, 3.1), rng.vec(n, -s, s), rng.vec(n, -s, s)));
     }
     out
 }
@@ -81,15 +63,6 @@ fn reference_outputs(m: &Model, q: &[f64], qd: &[f64], u: &[f64]) -> Vec<DMatrix
 const NAMES: [&str; 9] = ["rnea", "rnea_grad.dc_dq", "rnea_grad.dc_dqd", "mass_matrix", "minv", "fd", "fd_grad.qdd", "fd_grad.dqdd_dq", "fd_grad.dqdd_dqd"];
 /// Outputs computed through M⁻¹.
 const THROUGH_MINV: [bool; 9] = [false, false, false, false, true, true, true, true, true];
-
-fn rel(a: &DMatrix<f64>, b: &DMatrix<f64>) -> f64 {
-    let s = b.amax();
-    if s == 0.0 {
-        (a - b).amax()
-    } else {
-        (a - b).amax() / s
-    }
-}
 
 /// Calls every kernel of module `$m` in scalar type `$t` and returns the outputs as f64.
 macro_rules! run_kernels {

@@ -338,35 +338,23 @@ fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Option<Model>
             Step::Close { body } => joints[body].subtree_end = joints.len(),
         }
     }
-    check_massless(&joints, &source, urdf, diags);
-    Some(Model { name: urdf.name.clone(), root_link: urdf.links[tree.root].name.clone(), joints })
+    let model = Model { name: urdf.name.clone(), root_link: urdf.links[tree.root].name.clone(), joints };
+    check_massless(&model, &source, urdf, diags);
+    Some(model)
 }
 
-/// Every movable joint must move some inertia, or M is singular: S_iᵀ Ic_i S_i > 0 with
-/// Ic_i the composite inertia of its subtree.
-fn check_massless(joints: &[Joint], source: &[usize], urdf: &Urdf, diags: &mut Vec<Diagnostic>) {
-    use crate::spatial::{plux, spatial_inertia};
-    let n = joints.len();
-    let mut ic: Vec<_> = joints.iter().map(|j| spatial_inertia(j.inertia.mass, &Vector3::from(j.inertia.h), &j.inertia.i_origin_matrix())).collect();
-    let mut mass: Vec<f64> = joints.iter().map(|j| j.inertia.mass).collect();
+/// Every movable joint must move some inertia, or M is singular: M_ii = S_iᵀ Ic_i S_i > 0,
+/// with Ic_i the composite inertia of its subtree (checked at q = 0 with the reference CRBA).
+fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<Diagnostic>) {
+    let n = model.nv();
+    let m = crate::reference::crba(model, &vec![0.0; n]);
+    let mut mass: Vec<f64> = model.joints.iter().map(|j| j.inertia.mass).collect();
     for i in (0..n).rev() {
-        if let Some(p) = joints[i].parent {
-            // At q = 0 the joint transform is the tree transform.
-            let x = plux(&joints[i].tree.rot_matrix().transpose(), &joints[i].tree.pos_vector());
-            let add = x.transpose() * ic[i] * x;
-            ic[p] += add;
+        if let Some(p) = model.joints[i].parent {
             mass[p] += mass[i];
         }
-        let a = Vector3::from(joints[i].axis);
-        let mut s = nalgebra::Vector6::zeros();
-        if joints[i].joint_type.is_rotation() {
-            s.fixed_rows_mut::<3>(0).copy_from(&a);
-        } else {
-            s.fixed_rows_mut::<3>(3).copy_from(&a);
-        }
-        let d = (s.transpose() * ic[i] * s)[0];
         // Below this no double-precision factorisation of M is meaningful.
-        if d <= 1e-12 {
+        if m[(i, i)] <= 1e-12 {
             let uj = &urdf.joints[source[i]];
             let child = &uj.child;
             let (message, help) = if mass[i] <= 0.0 {
