@@ -19,6 +19,20 @@ if ! python3 -c "import pinocchio, yourdfpy" 2>/dev/null; then
 fi
 python3 -c "import pinocchio, yourdfpy; print('pinocchio', pinocchio.__version__)" || die "pin/yourdfpy do not import"
 
+say "lavapipe (software Vulkan) so the WGSL kernels run through wgpu without a GPU"
+if ! ldconfig -p 2>/dev/null | grep -q libvulkan.so.1 || ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then
+    if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+        (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mesa-vulkan-drivers libvulkan1 >/dev/null) \
+            || die "could not install mesa-vulkan-drivers and libvulkan1 (lavapipe) with apt-get"
+    elif [ -n "${CI:-}" ]; then
+        die "lavapipe is missing: install mesa-vulkan-drivers and libvulkan1 (Debian) to run the WGSL kernels"
+    else
+        echo "warning: lavapipe is missing and cannot be installed here; the WGSL run test will say it skipped"
+    fi
+fi
+# Mesa warns on every run without it.
+export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
+
 say "formatting"
 if ! cargo fmt --version >/dev/null 2>&1; then
     rustup component add rustfmt || die "rustfmt is missing and could not be installed (rustup component add rustfmt)"

@@ -27,7 +27,7 @@ struct Cli {
     /// Folder to write the generated files into (created if needed).
     #[arg(short = 'o', long = "out", value_name = "DIR")]
     out: Option<PathBuf>,
-    /// Backends to emit, comma-separated (available: rust).
+    /// Backends to emit, comma-separated (available: rust, wgsl).
     #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "rust", value_parser = parse_target)]
     emit: Vec<grid_gen::generate::Target>,
     /// Write nothing; exit 1 if any file would change (for CI freshness checks).
@@ -41,7 +41,8 @@ struct Cli {
 }
 
 fn parse_target(s: &str) -> Result<grid_gen::generate::Target, String> {
-    grid_gen::generate::Target::parse(s).ok_or_else(|| format!("unknown backend `{s}`; available: {}", grid_gen::generate::Target::ALL.join(", ")))
+    grid_gen::generate::Target::parse(s)
+        .ok_or_else(|| format!("unknown backend `{s}`; available: {}", grid_gen::generate::Target::ALL.map(|t| t.name()).join(", ")))
 }
 
 #[derive(clap::Args)]

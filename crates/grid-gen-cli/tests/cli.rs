@@ -129,3 +129,54 @@ fn generate_writes_checks_and_reports_op_counts() {
         }
     }
 }
+
+/// A serial chain of `n` revolute links with alternating axes, written to a temporary file.
+fn chain_urdf(n: usize) -> PathBuf {
+    let mut s = String::from("<robot name=\"chain\"><link name=\"l0\"/>");
+    for i in 1..=n {
+        let axis = ["1 0 0", "0 1 0", "0 0 1"][i % 3];
+        s.push_str(&format!(
+            "<link name=\"l{i}\"><inertial><origin xyz=\"0 0 0.05\"/><mass value=\"1\"/><inertia ixx=\"0.01\" ixy=\"0\" ixz=\"0\" iyy=\"0.01\" iyz=\"0\" izz=\"0.01\"/></inertial></link>\
+             <joint name=\"j{i}\" type=\"revolute\"><parent link=\"l{}\"/><child link=\"l{i}\"/><origin xyz=\"0 0 0.1\"/><axis xyz=\"{axis}\"/><limit lower=\"-3\" upper=\"3\" effort=\"1\" velocity=\"1\"/></joint>",
+            i - 1
+        ));
+    }
+    s.push_str("</robot>");
+    let path = std::env::temp_dir().join(format!("grid-gen-chain{n}-{}.urdf", std::process::id()));
+    std::fs::write(&path, s).unwrap();
+    path
+}
+
+/// `info --json` on 400- and 1000-link chains with the address space limited to 2 GiB
+/// (`ulimit -v`): it must finish, list the kernels it could count and say why it skipped
+/// the others, never abort on an allocation. Generation on the 1000-link chain stops
+/// with a clear error instead of exhausting memory.
+#[test]
+fn huge_chains_stay_within_two_gib() {
+    for n in [400, 1000] {
+        let path = chain_urdf(n);
+        let start = std::time::Instant::now();
+        let script = format!("ulimit -v 2097152 && exec \"$0\" info {} --json", path.display());
+        let out = Command::new("sh").arg("-c").arg(script).arg(env!("CARGO_BIN_EXE_grid-gen")).output().unwrap();
+        let elapsed = start.elapsed();
+        assert_eq!(out.status.code(), Some(0), "chain{n}: {}", String::from_utf8_lossy(&out.stderr));
+        let info = json(&out);
+        assert_eq!(info["nv"], n);
+        let counted = info["ops"].as_array().unwrap().len();
+        let skipped = info["ops_skipped"].as_array().unwrap();
+        assert_eq!(counted + skipped.len(), 6, "chain{n}: every kernel is counted or skipped");
+        assert!(skipped.iter().any(|s| s["kernel"] == "fd_grad"), "chain{n}: fd_grad is over the op-count limit");
+        assert!(skipped.iter().all(|s| !s["reason"].as_str().unwrap().is_empty()));
+        eprintln!("chain{n}: info in {elapsed:.1?}, {counted} kernels counted");
+        if n == 1000 {
+            let dir = std::env::temp_dir().join(format!("grid-gen-chain-out-{}", std::process::id()));
+            let script = format!("ulimit -v 2097152 && exec \"$0\" {} -o {}", path.display(), dir.display());
+            let out = Command::new("sh").arg("-c").arg(script).arg(env!("CARGO_BIN_EXE_grid-gen")).output().unwrap();
+            let err = String::from_utf8_lossy(&out.stderr);
+            assert_eq!(out.status.code(), Some(1), "{err}");
+            assert!(err.contains("needs more than 10000000 IR nodes"), "{err}");
+            assert!(!dir.join("chain.rs").exists(), "nothing is written");
+        }
+        std::fs::remove_file(&path).unwrap();
+    }
+}

@@ -8,12 +8,8 @@
 //!   kernel's f32 arithmetic is measured. RNEA, its gradient and M: ≤ F32_DIRECT; anything
 //!   through M⁻¹: ≤ F32_MINV (see the constants for why).
 
-// The robots, the seeded generator and the error norm of grid-gen's own tests.
-#[path = "../../grid-gen/tests/common/mod.rs"]
-mod common;
-
-use common::{load, rel_err as rel, Rng};
 use grid_gen::{reference, Model};
+use grid_gen_test_support::{load, rel_err as rel, Rng};
 use nalgebra::DMatrix;
 
 const F64_TOL: f64 = 1e-12;

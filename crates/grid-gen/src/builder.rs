@@ -24,7 +24,7 @@ use std::fmt;
 use std::path::{Path, PathBuf};
 
 use crate::diagnostic::LoadError;
-use crate::generate::{generate, module_name, write_files, GenerateError, Options};
+use crate::generate::{generate, write_files, GenerateError, Options, Target};
 use crate::model::Model;
 
 /// Why a build script could not generate the kernels. `Debug` prints the same text as
@@ -37,6 +37,7 @@ pub enum BuildError {
     Generate(GenerateError),
     Write(PathBuf, std::io::Error),
     BadFileName(String),
+    NoTargets,
 }
 
 impl fmt::Display for BuildError {
@@ -49,6 +50,7 @@ impl fmt::Display for BuildError {
             BuildError::Generate(e) => write!(f, "grid-gen: {e}"),
             BuildError::Write(p, e) => write!(f, "grid-gen: cannot write {}: {e}", p.display()),
             BuildError::BadFileName(n) => write!(f, "grid-gen: file name `{n}` must be a plain `*.rs` name without folders"),
+            BuildError::NoTargets => write!(f, "grid-gen: no targets selected; call Builder::emit(&[Target::Rust])"),
         }
     }
 }
@@ -90,8 +92,21 @@ impl Builder {
         self
     }
 
-    /// Name of the generated file; default `<robot>.rs` from the URDF's robot name made an
-    /// identifier. Must be a plain `*.rs` name.
+    /// Which backends to run (default: Rust only); each writes its own file.
+    ///
+    /// ```no_run
+    /// # fn main() -> Result<(), grid_gen::BuildError> {
+    /// use grid_gen::generate::Target;
+    /// grid_gen::Builder::new().urdf("robots/iiwa.urdf").emit(&[Target::Rust]).compile()?;
+    /// # Ok(()) }
+    /// ```
+    pub fn emit(&mut self, targets: &[Target]) -> &mut Self {
+        self.options.targets = targets.to_vec();
+        self
+    }
+
+    /// Name of the generated Rust file; default `<robot>.rs` from the URDF's robot name
+    /// made an identifier. Must be a plain `*.rs` name.
     pub fn file_name(&mut self, name: impl Into<String>) -> &mut Self {
         self.file_name = Some(name.into());
         self
@@ -122,10 +137,14 @@ impl Builder {
         self
     }
 
-    /// Reads the URDF, generates the Rust module, writes it if its contents changed, and
-    /// returns its path. In a build script this prints `cargo:rerun-if-changed=<urdf>`
-    /// (cargo's protocol, the only output of the library) unless [`Builder::quiet`].
-    pub fn compile(&self) -> Result<PathBuf, BuildError> {
+    /// Reads the URDF, generates the selected targets' files, writes each if its contents
+    /// changed, and returns their paths in [`Target::ALL`] order. In a build script this
+    /// prints `cargo:rerun-if-changed=<urdf>` (cargo's protocol, the only output of the
+    /// library) unless [`Builder::quiet`].
+    pub fn compile(&self) -> Result<Vec<PathBuf>, BuildError> {
+        if self.options.targets.is_empty() {
+            return Err(BuildError::NoTargets);
+        }
         let urdf = self.urdf.as_ref().ok_or(BuildError::NoUrdf)?;
         if !self.quiet {
             println!("cargo:rerun-if-changed={}", urdf.display());
@@ -136,14 +155,16 @@ impl Builder {
         };
         let text = std::fs::read_to_string(urdf).map_err(|e| BuildError::Read(urdf.clone(), e))?;
         let (model, _warnings) = Model::from_urdf_str(&urdf.display().to_string(), &text, self.strict).map_err(|e| BuildError::Load(Box::new(e)))?;
-        let mut files = generate(&model, &self.options).map_err(BuildError::Generate)?;
-        let name = self.file_name.clone().unwrap_or_else(|| format!("{}.rs", module_name(&model)));
-        if name.contains(['/', '\\']) || name.starts_with('.') || !name.ends_with(".rs") {
-            return Err(BuildError::BadFileName(name));
+        if let Some(name) = &self.file_name {
+            if name.contains(['/', '\\']) || name.starts_with('.') || !name.ends_with(".rs") {
+                return Err(BuildError::BadFileName(name.clone()));
+            }
         }
-        files.retain(|f| f.name.ends_with(".rs"));
-        files[0].name = name;
-        let written = write_files(&out_dir, &files[..1], false).map_err(|e| BuildError::Write(out_dir.clone(), e))?;
-        Ok(written[0].0.clone())
+        let mut files = generate(&model, &self.options).map_err(BuildError::Generate)?;
+        if let (Some(name), Some(rust)) = (&self.file_name, files.iter_mut().find(|f| f.name.ends_with(".rs"))) {
+            rust.name = name.clone();
+        }
+        let written = write_files(&out_dir, &files, false).map_err(|e| BuildError::Write(out_dir.clone(), e))?;
+        Ok(written.into_iter().map(|(path, _)| path).collect())
     }
 }

@@ -3,9 +3,8 @@
 
 use serde::Serialize;
 
-use crate::ir::{self, KernelStats};
-use crate::model::{Count, JointType, Model};
-use crate::reference::DEFAULT_GRAVITY;
+use crate::ir::{self, KernelStats, Skipped};
+use crate::model::{Count, JointType, Model, DEFAULT_GRAVITY};
 
 #[derive(Clone, Debug, Serialize)]
 pub struct Mimic {
@@ -43,7 +42,11 @@ pub struct Info {
     /// Operations of every generated kernel before specialisation (the general dense
     /// algorithm, as a library runs it) and after (constants folded, structural zeros and
     /// shared subexpressions removed), with the critical-path depth; default gravity.
+    /// Each graph is built under a node limit ([`ir::STATS_MAX_NODES`]), so the summary
+    /// costs bounded time and memory on any robot; kernels over it are in `ops_skipped`.
     pub ops: Vec<KernelStats>,
+    /// Kernels left out of `ops`, each with the reason.
+    pub ops_skipped: Vec<Skipped>,
 }
 
 impl Info {
@@ -62,8 +65,16 @@ impl Info {
                 .filter_map(|j| j.mimic.as_ref().map(|(m, mult, off)| Mimic { joint: j.name.clone(), mimics: m.clone(), multiplier: *mult, offset: *off }))
                 .collect(),
             sparsity: Sparsity { dv_dq: model.motion_sparsity(), dc_dq: model.force_sparsity() },
-            ops: ir::stats(model, DEFAULT_GRAVITY),
+            ops: Vec::new(),
+            ops_skipped: Vec::new(),
         }
+        .with_ops(ir::stats(model, DEFAULT_GRAVITY, ir::STATS_MAX_NODES))
+    }
+
+    fn with_ops(mut self, stats: ir::Stats) -> Self {
+        self.ops = stats.ops;
+        self.ops_skipped = stats.skipped;
+        self
     }
 
     /// A short human-readable summary.
@@ -82,7 +93,7 @@ impl Info {
             let a = &k.after;
             s.push_str(&format!(
                 "  {:<12} {:>8} -> {:>7}   {}/{}/{}/{}/{}   depth {}\n",
-                k.kernel,
+                k.kernel.name(),
                 k.before.total(),
                 a.total(),
                 a.add,
@@ -92,6 +103,9 @@ impl Info {
                 a.trig,
                 a.depth
             ));
+        }
+        for k in &self.ops_skipped {
+            s.push_str(&format!("  {:<12} not counted: {}\n", k.kernel.name(), k.reason));
         }
         for m in &self.mimic {
             s.push_str(&format!("note: joint `{}` mimics `{}`; it is treated as an independent joint\n", m.joint, m.mimics));

@@ -9,9 +9,13 @@
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 
-use crate::diagnostic::{Diagnostic, LoadError, Severity};
+use crate::diagnostic::Diagnostic;
 use crate::spatial::rpy_matrix;
 use crate::urdf::{self, JointKind, Pose, Tree, Urdf};
+
+/// Gravity used when none is given: (0, 0, -9.81) m/s² in the root frame. Every default
+/// gravity in grid-gen (reference, IR, generation, CLI) is this constant.
+pub const DEFAULT_GRAVITY: [f64; 3] = [0.0, 0.0, -9.81];
 
 /// A rigid transform: `rot` holds the child frame's axes in parent coordinates and `pos`
 /// its origin in parent coordinates.
@@ -146,25 +150,6 @@ pub struct Count {
 }
 
 impl Model {
-    /// Parses, checks and builds the model from URDF text. Warnings come back with the
-    /// model; with `strict`, a warning is an error.
-    pub fn from_urdf_str(path: &str, text: &str, strict: bool) -> Result<(Model, Vec<Diagnostic>), LoadError> {
-        let (urdf, tree, mut diags) = urdf::load(path, text)?;
-        let built = build(&urdf, &tree, &mut diags);
-        let failed = diags.iter().any(|d| d.severity == Severity::Error || (strict && d.severity == Severity::Warning));
-        match built {
-            Some(model) if !failed => Ok((model, diags)),
-            _ => {
-                if strict {
-                    for d in &mut diags {
-                        d.severity = Severity::Error;
-                    }
-                }
-                Err(LoadError { path: path.to_string(), source_text: text.to_string(), diagnostics: diags })
-            }
-        }
-    }
-
     pub fn nv(&self) -> usize {
         self.joints.len()
     }
@@ -275,7 +260,9 @@ enum Step {
     Close { body: usize },
 }
 
-fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Option<Model> {
+/// Builds the model from a checked URDF tree; also returns, for each model joint, the
+/// index of the URDF joint it comes from (for located errors in later checks).
+pub(crate) fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Option<(Model, Vec<usize>)> {
     for link in &urdf.links {
         check_inertia(link, diags);
     }
@@ -339,36 +326,5 @@ fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Option<Model>
         }
     }
     let model = Model { name: urdf.name.clone(), root_link: urdf.links[tree.root].name.clone(), joints };
-    check_massless(&model, &source, urdf, diags);
-    Some(model)
-}
-
-/// Every movable joint must move some inertia, or M is singular: M_ii = S_iᵀ Ic_i S_i > 0,
-/// with Ic_i the composite inertia of its subtree (checked at q = 0 with the reference CRBA).
-fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<Diagnostic>) {
-    let n = model.nv();
-    let m = crate::reference::crba(model, &vec![0.0; n]);
-    let mut mass: Vec<f64> = model.joints.iter().map(|j| j.inertia.mass).collect();
-    for i in (0..n).rev() {
-        if let Some(p) = model.joints[i].parent {
-            mass[p] += mass[i];
-        }
-        // Below this no double-precision factorisation of M is meaningful.
-        if m[(i, i)] <= 1e-12 {
-            let uj = &urdf.joints[source[i]];
-            let child = &uj.child;
-            let (message, help) = if mass[i] <= 0.0 {
-                (
-                    format!("joint `{}` moves only massless links (`{child}` and below)", uj.name),
-                    format!("give `{child}` or a link below it an <inertial> with positive mass, or make the joint fixed"),
-                )
-            } else {
-                (
-                    format!("joint `{}` moves no inertia about its axis", uj.name),
-                    format!("the links from `{child}` down have their mass on the axis and no rotational inertia; give them an <inertia>"),
-                )
-            };
-            diags.push(Diagnostic::error(message, Some(uj.span.clone()), "the mass matrix would be singular").with_help(help));
-        }
-    }
+    Some((model, source))
 }

@@ -3,11 +3,9 @@
 //! code or escape the output folder, `Builder` errors that name the URDF problem, and
 //! `--check` exit codes.
 
-mod common;
-
-use common::*;
 use grid_gen::generate::{generate, Options};
 use grid_gen::Builder;
+use grid_gen_test_support::*;
 
 /// The double pendulum with at most 40 statements per function, so that the multi-
 /// function path (scratch slots, parts) is in the snapshot.
@@ -81,12 +79,13 @@ fn builder_writes_once_and_names_urdf_problems() {
     let _ = std::fs::remove_dir_all(&dir);
     std::fs::create_dir_all(&dir).unwrap();
     let urdf = repo().join("robots/grid_iiwa.urdf");
-    let path = Builder::new().urdf(&urdf).out_dir(&dir).quiet(true).compile().unwrap();
-    assert_eq!(path, dir.join("iiwa14.rs"));
-    let first = std::fs::metadata(&path).unwrap().modified().unwrap();
+    let paths = Builder::new().urdf(&urdf).out_dir(&dir).quiet(true).compile().unwrap();
+    assert_eq!(paths, vec![dir.join("iiwa14.rs")]);
+    let path = &paths[0];
+    let first = std::fs::metadata(path).unwrap().modified().unwrap();
     std::thread::sleep(std::time::Duration::from_millis(20));
     Builder::new().urdf(&urdf).out_dir(&dir).quiet(true).compile().unwrap();
-    assert_eq!(std::fs::metadata(&path).unwrap().modified().unwrap(), first, "unchanged contents are not rewritten");
+    assert_eq!(std::fs::metadata(path).unwrap().modified().unwrap(), first, "unchanged contents are not rewritten");
 
     let bad = repo().join("tests/diagnostics/unknown_parent.urdf");
     let err = Builder::new().urdf(&bad).out_dir(&dir).quiet(true).compile().unwrap_err().to_string();
@@ -96,5 +95,7 @@ fn builder_writes_once_and_names_urdf_problems() {
     assert!(err.contains("must be a plain `*.rs` name"), "{err}");
     let err = Builder::new().out_dir(&dir).compile().unwrap_err().to_string();
     assert!(err.contains("no URDF given"), "{err}");
+    let err = Builder::new().urdf(&urdf).out_dir(&dir).emit(&[]).quiet(true).compile().unwrap_err().to_string();
+    assert!(err.contains("no targets selected"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

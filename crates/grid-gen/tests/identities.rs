@@ -2,10 +2,8 @@
 //! differences, and the identities ∂c/∂q̈ = M, M M⁻¹ = I and FD(q, q̇, RNEA(q, q̇, q̈)) = q̈,
 //! on random states of every bundled robot and with a non-default gravity.
 
-mod common;
-
-use common::*;
 use grid_gen::reference;
+use grid_gen_test_support::*;
 use nalgebra::DMatrix;
 
 const GRAVITIES: [[f64; 3]; 2] = [reference::DEFAULT_GRAVITY, [1.5, -2.0, -9.0]];

@@ -4,10 +4,9 @@
 //! model constants within 1e-15 of 0 or ±1; see `ir::spatial::SNAP`). The unspecialised
 //! (dense) graphs are checked too, at the same tolerance.
 
-mod common;
-
-use common::*;
-use grid_gen::{ir, reference, Model};
+use grid_gen::ir::{self, Input, KernelKind, LowerOptions, Shape};
+use grid_gen::{reference, Model};
+use grid_gen_test_support::*;
 use nalgebra::DMatrix;
 
 const TOL: f64 = 1e-12;
@@ -17,32 +16,42 @@ fn as_mat(v: &[f64], n: usize) -> DMatrix<f64> {
 }
 
 /// Every kernel output next to what the reference says it should be.
-fn compare(model: &Model, g: [f64; 3], specialise: bool, q: &[f64], qd: &[f64], u: &[f64]) -> Vec<(String, f64)> {
+fn compare(model: &Model, g: [f64; 3], options: &LowerOptions, q: &[f64], qd: &[f64], u: &[f64]) -> Vec<(String, f64)> {
     let n = model.nv();
+    let module = ir::lower(model, g, options).expect("bundled robots lower");
     let mut errs = Vec::new();
-    for name in ir::KERNELS {
-        let k = ir::build(model, g, name, specialise);
-        let third = if k.inputs.contains(&ir::Input::Tau) || k.inputs.contains(&ir::Input::Qdd) { u } else { &[][..] };
-        let args: Vec<&[f64]> = [q, qd, third].into_iter().take(k.inputs.len()).collect();
-        let out = k.eval(&args);
-        let want: Vec<DMatrix<f64>> = match name {
-            "rnea" => vec![col(&reference::rnea(model, q, qd, u, g))],
-            "rnea_grad" => {
+    for f in &module.functions {
+        let args: Vec<&[f64]> = f
+            .inputs()
+            .iter()
+            .map(|i| {
+                if *i == Input::Q {
+                    q
+                } else if *i == Input::Qd {
+                    qd
+                } else {
+                    u
+                }
+            })
+            .collect();
+        let out = f.eval(&args);
+        let want: Vec<DMatrix<f64>> = match f.kind {
+            KernelKind::Rnea => vec![col(&reference::rnea(model, q, qd, u, g))],
+            KernelKind::RneaGrad => {
                 let (a, b) = reference::rnea_derivatives(model, q, qd, u, g);
                 vec![a, b]
             }
-            "mass_matrix" => vec![reference::crba(model, q)],
-            "minv" => vec![reference::minv(model, q)],
-            "fd" => vec![col(&reference::forward_dynamics(model, q, qd, u, g))],
-            "fd_grad" => {
+            KernelKind::MassMatrix => vec![reference::crba(model, q)],
+            KernelKind::Minv => vec![reference::minv(model, q)],
+            KernelKind::Fd => vec![col(&reference::forward_dynamics(model, q, qd, u, g))],
+            KernelKind::FdGrad => {
                 let (a, b, c) = reference::forward_dynamics_derivatives(model, q, qd, u, g);
                 vec![col(&a), b, c]
             }
-            _ => unreachable!(),
         };
-        for ((o, got), want) in k.outputs.iter().zip(&out).zip(&want) {
-            let got = if o.matrix { as_mat(got, n) } else { col(got) };
-            errs.push((format!("{name}.{}", o.name), rel_err(&got, want)));
+        for ((o, got), want) in f.outputs.iter().zip(&out).zip(&want) {
+            let got = if o.shape == Shape::Matrix { as_mat(got, n) } else { col(got) };
+            errs.push((format!("{}.{}", f.kind, o.name), rel_err(&got, want)));
         }
     }
     errs
@@ -58,7 +67,7 @@ fn specialised_ir_matches_the_reference() {
         for g in [reference::DEFAULT_GRAVITY, [0.3, 1.0, -9.0]] {
             for _ in 0..3 {
                 let (q, qd, u) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
-                for (what, e) in compare(&model, g, true, &q, &qd, &u) {
+                for (what, e) in compare(&model, g, &LowerOptions::default(), &q, &qd, &u) {
                     assert!(e <= TOL, "{robot}: {what} relative error {e:.2e}");
                     worst = worst.max(e);
                 }
@@ -75,8 +84,13 @@ fn dense_ir_matches_the_reference() {
         let model = load(robot);
         let n = model.nv();
         let (q, qd, u) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
-        for (what, e) in compare(&model, reference::DEFAULT_GRAVITY, false, &q, &qd, &u) {
-            assert!(e <= TOL, "{robot}: {what} relative error {e:.2e}");
+        // Each option on its own, and both off (the general dense algorithm).
+        let partial =
+            [LowerOptions { fold: false, ..LowerOptions::default() }, LowerOptions { sparse: false, ..LowerOptions::default() }, LowerOptions::general()];
+        for options in &partial {
+            for (what, e) in compare(&model, reference::DEFAULT_GRAVITY, options, &q, &qd, &u) {
+                assert!(e <= TOL, "{robot} {options:?}: {what} relative error {e:.2e}");
+            }
         }
     }
 }
@@ -84,7 +98,10 @@ fn dense_ir_matches_the_reference() {
 #[test]
 fn specialisation_removes_work_and_keeps_depth_bounded() {
     let model = load("grid_atlas");
-    for s in ir::stats(&model, reference::DEFAULT_GRAVITY) {
+    let stats = ir::stats(&model, reference::DEFAULT_GRAVITY, ir::STATS_MAX_NODES);
+    assert!(stats.skipped.is_empty(), "Atlas fits the op-count limit: {:?}", stats.skipped);
+    assert_eq!(stats.ops.len(), KernelKind::ALL.len());
+    for s in stats.ops {
         assert!(s.after.total() < s.before.total(), "{}: {:?} vs {:?}", s.kernel, s.after, s.before);
     }
 }

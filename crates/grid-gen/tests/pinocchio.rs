@@ -6,10 +6,8 @@
 //! works in the world frame), so they differ by round-off amplified by the condition of
 //! M for the outputs through M⁻¹.
 
-mod common;
-
-use common::*;
 use grid_gen::reference;
+use grid_gen_test_support::*;
 use nalgebra::DMatrix;
 
 const TOL: f64 = 1e-10;

@@ -2,13 +2,14 @@
 //! random edits (deleted or repeated spans, numbers replaced by hostile tokens). When an
 //! edited robot still loads, the summary and the reference dynamics must run too.
 
-mod common;
-
 use grid_gen::{info::Info, reference, Model};
 use proptest::prelude::*;
 
 fn robots_text() -> Vec<String> {
-    common::robots().iter().map(|r| std::fs::read_to_string(common::repo().join("robots").join(format!("{r}.urdf"))).unwrap()).collect()
+    grid_gen_test_support::robots()
+        .iter()
+        .map(|r| std::fs::read_to_string(grid_gen_test_support::repo().join("robots").join(format!("{r}.urdf"))).unwrap())
+        .collect()
 }
 
 /// Loads and, if that succeeds, exercises everything downstream of the model.

@@ -4,10 +4,8 @@
 //! tree transforms). Tolerance 1e-12 absolute on unit rotations and metre-scale
 //! positions: both sides compose a handful of f64 rotations.
 
-mod common;
-
-use common::*;
 use grid_gen::{reference, spatial::rpy_matrix};
+use grid_gen_test_support::*;
 
 const TOL: f64 = 1e-12;
 

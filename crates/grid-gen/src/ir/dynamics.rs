@@ -1,8 +1,11 @@
 //! The algorithms run symbolically over the model: RNEA, ∇RNEA, CRBA, the direct M⁻¹,
 //! forward dynamics and ∇FD, recorded into a [`Graph`]. The same recursions as
 //! `reference`, written over (E, r) transforms and structural sparsity: a gradient column
-//! is only built where the model says it can be nonzero (`dense` turns that off, for the
-//! "before specialisation" counts).
+//! is only built where the model says it can be nonzero (`sparse` off turns that off, for
+//! the "before specialisation" counts).
+//!
+//! Every per-body loop stops once the graph is exhausted (see [`Graph`]), so that a robot
+//! too large for the node limit costs at most one body's work past the limit.
 
 use super::graph::{Graph, Id, Input, Stage};
 use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
@@ -11,8 +14,9 @@ use crate::model::Model;
 /// Row-major n x n matrix of nodes.
 pub type Mat = Vec<Vec<Id>>;
 
-pub struct Dynamics<'a> {
+pub(crate) struct Dynamics<'a> {
     pub g: Graph,
+    sparse: bool,
     model: &'a Model,
     gravity: [f64; 3],
     x: Vec<Xform>,
@@ -21,7 +25,7 @@ pub struct Dynamics<'a> {
 }
 
 /// The RNEA quantities the gradient needs.
-pub struct Rnea {
+pub(crate) struct Rnea {
     pub c: Vec<Id>,
     v: Vec<Sv>,
     xv: Vec<Sv>,
@@ -33,8 +37,8 @@ pub struct Rnea {
 
 impl<'a> Dynamics<'a> {
     /// Records the joint transforms (sin/cos, E, r) for every joint.
-    pub fn new(model: &'a Model, gravity: [f64; 3], specialise: bool) -> Self {
-        let mut g = Graph::new(specialise);
+    pub fn new(model: &'a Model, gravity: [f64; 3], fold: bool, sparse: bool, limit: usize) -> Self {
+        let mut g = Graph::new(fold, limit);
         let mut x = Vec::new();
         let mut s = Vec::new();
         let mut inertia = Vec::new();
@@ -44,7 +48,7 @@ impl<'a> Dynamics<'a> {
             s.push(subspace(&mut g, &model.joints[i]));
             inertia.push(SymInertia::new(&mut g, &model.joints[i].inertia));
         }
-        Dynamics { g, model, gravity, x, s, inertia }
+        Dynamics { g, sparse, model, gravity, x, s, inertia }
     }
 
     fn n(&self) -> usize {
@@ -52,7 +56,11 @@ impl<'a> Dynamics<'a> {
     }
 
     fn dense(&self) -> bool {
-        !self.g.specialising()
+        !self.sparse
+    }
+
+    fn exhausted(&self) -> bool {
+        self.g.exhausted()
     }
 
     pub fn inputs(&mut self, input: Input) -> Vec<Id> {
@@ -95,6 +103,9 @@ impl<'a> Dynamics<'a> {
         let a0 = [z[0], z[1], z[2], g.constant(-self.gravity[0]), g.constant(-self.gravity[1]), g.constant(-self.gravity[2])];
         let (mut v, mut xv, mut xa, mut a, mut f, mut iv) = (vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n]);
         for i in 0..n {
+            if self.exhausted() {
+                break;
+            }
             self.g.at(Some(i), Stage::Forward, self.model.joints[i].level);
             let g = &mut self.g;
             let (vp, ap) = match self.model.joints[i].parent {
@@ -136,6 +147,9 @@ impl<'a> Dynamics<'a> {
         let (mut dv_q, mut dv_qd, mut da_q, mut da_qd) = (vec![none(); n], vec![none(); n], vec![none(); n], vec![none(); n]);
         let (mut df_q, mut df_qd) = (vec![none(); n], vec![none(); n]);
         for i in 0..n {
+            if self.exhausted() {
+                break;
+            }
             self.at(i, Stage::Forward);
             let parent = self.model.joints[i].parent;
             let cols = self.motion_cols(i);
@@ -180,6 +194,9 @@ impl<'a> Dynamics<'a> {
         let zero = self.g.constant(0.0);
         let (mut dc_q, mut dc_qd) = (vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
         for i in (0..n).rev() {
+            if self.exhausted() {
+                break;
+            }
             self.at(i, Stage::Backward);
             let cols = self.force_cols(i);
             let g = &mut self.g;
@@ -230,6 +247,9 @@ impl<'a> Dynamics<'a> {
         let zero = self.g.constant(0.0);
         let mut m = vec![vec![zero; n]; n];
         for i in 0..n {
+            if self.exhausted() {
+                break;
+            }
             self.at(i, Stage::Forward);
             let g = &mut self.g;
             let mut f = sp::mat6_vec(g, &ic[i], &self.s[i]);
@@ -256,6 +276,9 @@ impl<'a> Dynamics<'a> {
         let mut dinv = vec![zero; n];
         let mut minv: Vec<Vec<Option<Id>>> = vec![vec![None; n]; n];
         for i in (0..n).rev() {
+            if self.exhausted() {
+                break;
+            }
             self.at(i, Stage::Backward);
             let end = self.model.joints[i].subtree_end;
             let g = &mut self.g;
@@ -299,6 +322,9 @@ impl<'a> Dynamics<'a> {
         }
         let mut pacc: Vec<Vec<Option<Sv>>> = vec![vec![None; n]; n];
         for i in 0..n {
+            if self.exhausted() {
+                break;
+            }
             self.at(i, Stage::Forward);
             let g = &mut self.g;
             for j in i..n {
@@ -327,6 +353,9 @@ impl<'a> Dynamics<'a> {
         let bias = self.rnea(qd, &zeros).c;
         let mi = self.minv();
         self.g.at(None, Stage::Combine, 0);
+        if self.exhausted() {
+            return (self.zeros(), mi);
+        }
         let rhs: Vec<Id> = (0..n).map(|j| self.g.sub(tau[j], bias[j])).collect();
         let qdd = (0..n).map(|i| self.g.dot(&mi[i], &rhs)).collect();
         (qdd, mi)
@@ -343,6 +372,9 @@ impl<'a> Dynamics<'a> {
         let product = |dc: &Mat, g: &mut Graph| -> Mat {
             (0..n)
                 .map(|i| {
+                    if g.exhausted() {
+                        return vec![Id(0); n];
+                    }
                     (0..n)
                         .map(|k| {
                             let col: Vec<Id> = (0..n).map(|j| dc[j][k]).collect();

@@ -1,7 +1,9 @@
-//! The kernel IR: a scalar dataflow graph in SSA form. Nodes are created in topological
-//! order (operands always have smaller ids). When specialising, every constructor folds
-//! constants and shares identical nodes (hash-consing), so that constant folding and
-//! common-subexpression elimination happen once, here, for every backend.
+//! The graph builder of the kernel IR: a scalar dataflow graph in SSA form, under
+//! construction. Nodes are created in topological order (operands always have smaller
+//! ids). With folding on, every constructor folds constants and shares identical nodes
+//! (hash-consing), so that constant folding and common-subexpression elimination happen
+//! once, here, for every backend. Backends never see this type: `ir::lower` freezes it
+//! into a [`crate::ir::Function`].
 
 use std::collections::HashMap;
 
@@ -84,23 +86,38 @@ enum Key {
     Un(u8, Id),
 }
 
-/// The graph under construction. With `specialise` off it records the algorithm as a
+/// The graph under construction. With `fold` off it records the algorithm as a
 /// general-purpose implementation would run it (no folding, no sharing), which gives the
 /// "before specialisation" op counts.
-pub struct Graph {
+///
+/// The graph holds at most `limit` nodes. Past that it stops recording (every constructor
+/// returns node 0) and [`Graph::exhausted`] turns true; the algorithms check it at their
+/// per-body loops and stop, and lowering reports the kernel as too large instead of
+/// running out of memory.
+pub(crate) struct Graph {
     pub nodes: Vec<Node>,
     shared: HashMap<Key, Id>,
-    specialise: bool,
+    fold: bool,
     here: (Option<u16>, Stage, u16),
+    limit: usize,
+    exhausted: bool,
 }
 
 impl Graph {
-    pub fn new(specialise: bool) -> Self {
-        Graph { nodes: Vec::new(), shared: HashMap::new(), specialise, here: (None, Stage::Transform, 0) }
+    pub fn new(fold: bool, limit: usize) -> Self {
+        // Node 0 always exists, so the placeholder id handed out when exhausted is valid.
+        let mut g = Graph { nodes: Vec::new(), shared: HashMap::new(), fold, here: (None, Stage::Transform, 0), limit: limit.max(1), exhausted: false };
+        g.constant(0.0);
+        g
     }
 
-    pub fn specialising(&self) -> bool {
-        self.specialise
+    pub fn folding(&self) -> bool {
+        self.fold
+    }
+
+    /// Whether the node limit was reached (the graph is then incomplete).
+    pub fn exhausted(&self) -> bool {
+        self.exhausted
     }
 
     /// Tags the nodes created from now on.
@@ -118,6 +135,10 @@ impl Graph {
                 return id;
             }
         }
+        if self.nodes.len() >= self.limit {
+            self.exhausted = true;
+            return Id(0);
+        }
         let id = Id(self.nodes.len() as u32);
         let (link, stage, level) = self.here;
         self.nodes.push(Node { op, link, stage, level });
@@ -128,7 +149,7 @@ impl Graph {
     }
 
     fn key(&self, k: Key) -> Option<Key> {
-        self.specialise.then_some(k)
+        self.fold.then_some(k)
     }
 
     pub fn input(&mut self, input: Input, joint: usize) -> Id {
@@ -144,7 +165,7 @@ impl Graph {
 
     pub fn value(&self, id: Id) -> Option<f64> {
         match self.op(id) {
-            Op::Const(c) if self.specialise => Some(c),
+            Op::Const(c) if self.fold => Some(c),
             _ => None,
         }
     }
@@ -159,7 +180,7 @@ impl Graph {
     }
 
     pub fn add(&mut self, a: Id, b: Id) -> Id {
-        if self.specialise {
+        if self.fold {
             if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
                 if let Some(id) = self.folded(x + y) {
                     return id;
@@ -184,7 +205,7 @@ impl Graph {
     }
 
     pub fn sub(&mut self, a: Id, b: Id) -> Id {
-        if self.specialise {
+        if self.fold {
             if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
                 if let Some(id) = self.folded(x - y) {
                     return id;
@@ -208,7 +229,7 @@ impl Graph {
     }
 
     pub fn mul(&mut self, a: Id, b: Id) -> Id {
-        if self.specialise {
+        if self.fold {
             if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
                 if let Some(id) = self.folded(x * y) {
                     return id;
@@ -245,7 +266,7 @@ impl Graph {
     }
 
     pub fn div(&mut self, a: Id, b: Id) -> Id {
-        if self.specialise {
+        if self.fold {
             if let (Some(x), Some(y)) = (self.value(a), self.value(b)) {
                 if y != 0.0 {
                     if let Some(id) = self.folded(x / y) {
@@ -262,7 +283,7 @@ impl Graph {
     }
 
     pub fn neg(&mut self, a: Id) -> Id {
-        if self.specialise {
+        if self.fold {
             if let Some(x) = self.value(a) {
                 return self.constant(-x);
             }
@@ -295,5 +316,82 @@ impl Graph {
             });
         }
         acc.unwrap_or_else(|| self.constant(0.0))
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    fn folding() -> (Graph, Id, Id) {
+        let mut g = Graph::new(true, 1000);
+        let (x, y) = (g.input(Input::Q, 0), g.input(Input::Qd, 0));
+        (g, x, y)
+    }
+
+    #[test]
+    fn constants_fold_and_identities_vanish() {
+        let (mut g, x, _) = folding();
+        let (two, three) = (g.constant(2.0), g.constant(3.0));
+        let five = g.add(two, three);
+        assert_eq!(g.value(five), Some(5.0));
+        let (zero, one, minus_one) = (g.constant(0.0), g.constant(1.0), g.constant(-1.0));
+        assert_eq!(g.add(x, zero), x);
+        assert_eq!(g.sub(x, zero), x);
+        assert_eq!(g.mul(x, one), x);
+        assert_eq!(g.div(x, one), x);
+        let m = g.mul(x, zero);
+        assert_eq!(g.value(m), Some(0.0));
+        let nx = g.mul(x, minus_one);
+        assert_eq!(g.op(nx), Op::Neg(x));
+        assert_eq!(g.neg(nx), x, "double negation folds");
+        let d = g.sub(x, x);
+        assert_eq!(g.value(d), Some(0.0));
+        assert_eq!(g.constant(-0.0), g.constant(0.0), "one zero");
+    }
+
+    #[test]
+    fn identical_nodes_are_shared_and_signs_move_out() {
+        let (mut g, x, y) = folding();
+        let a = g.mul(x, y);
+        assert_eq!(g.mul(y, x), a, "commutative operands are ordered");
+        let ny = g.neg(y);
+        let b = g.mul(x, ny);
+        assert_eq!(g.op(b), Op::Neg(a), "x·(−y) is −(x·y)");
+        let s = g.add(x, ny);
+        assert_eq!(g.op(s), Op::Sub(x, y), "x + (−y) is x − y");
+        let c = g.sin(x);
+        assert_eq!(g.sin(x), c);
+    }
+
+    #[test]
+    fn folding_never_produces_an_infinite_constant() {
+        let (mut g, _, _) = folding();
+        let big = g.constant(1e300);
+        let p = g.mul(big, big);
+        assert!(matches!(g.op(p), Op::Mul(..)), "the overflowing product stays an operation");
+    }
+
+    #[test]
+    fn without_folding_nothing_is_shared() {
+        let mut g = Graph::new(false, 1000);
+        let x = g.input(Input::Q, 0);
+        let zero = g.constant(0.0);
+        assert_ne!(g.add(x, zero), x);
+        let (p, q) = (g.mul(x, x), g.mul(x, x));
+        assert_ne!(p, q);
+    }
+
+    #[test]
+    fn the_node_limit_stops_recording() {
+        let mut g = Graph::new(true, 4);
+        let x = g.input(Input::Q, 0);
+        let y = g.input(Input::Qd, 0);
+        let a = g.mul(x, y);
+        assert!(!g.exhausted());
+        let b = g.add(a, x);
+        assert!(g.exhausted());
+        assert_eq!(b, Id(0));
+        assert_eq!(g.nodes.len(), 4);
     }
 }

@@ -1,184 +1,173 @@
-//! Kernels: one graph per public function (`rnea`, `rnea_grad`, `mass_matrix`, `minv`,
-//! `fd`, `fd_grad`), with named outputs, dead nodes removed, and op counts.
+//! The kernels grid-gen generates: each [`KernelKind`] owns its name, inputs, output
+//! shapes and documentation, so that no other file matches on kernel names.
 
-use serde::Serialize;
+use super::dynamics::{Dynamics, Mat};
+use super::graph::{Id, Input};
 
-use super::dynamics::Dynamics;
-use super::graph::{Graph, Id, Input, Op};
-use crate::model::Model;
+/// The shape of a kernel output.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Shape {
+    /// One value per joint.
+    Vector,
+    /// `nv x nv`, row-major, `[i][j] = ∂out_i/∂in_j`.
+    Matrix,
+}
 
-/// A named result: a vector of `nv` or a row-major `nv x nv` matrix.
-#[derive(Clone, Debug)]
-pub struct Output {
+impl Shape {
+    /// Number of scalars for a robot with `nv` joints.
+    pub fn len(self, nv: usize) -> usize {
+        match self {
+            Shape::Vector => nv,
+            Shape::Matrix => nv * nv,
+        }
+    }
+}
+
+/// A named output of a kernel.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct OutputSpec {
     pub name: &'static str,
-    pub matrix: bool,
-    pub ids: Vec<Id>,
+    pub shape: Shape,
 }
 
-/// One function to emit.
-pub struct Kernel {
-    pub name: &'static str,
-    pub inputs: Vec<Input>,
-    pub outputs: Vec<Output>,
-    pub graph: Graph,
-    /// `live[id]`: the node contributes to an output.
-    pub live: Vec<bool>,
+/// One generated function.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum KernelKind {
+    Rnea,
+    RneaGrad,
+    MassMatrix,
+    Minv,
+    Fd,
+    FdGrad,
 }
 
-/// The kernels every backend emits, in this order.
-pub const KERNELS: [&str; 6] = ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"];
+impl KernelKind {
+    /// Every kernel, in the order backends emit them.
+    pub const ALL: [KernelKind; 6] = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd, KernelKind::FdGrad];
 
-fn flat(m: Vec<Vec<Id>>) -> Vec<Id> {
-    m.into_iter().flatten().collect()
-}
-
-/// Builds kernel `name` (one of [`KERNELS`]). With `specialise` off, records the
-/// general dense algorithm instead (for op counts only).
-pub fn build(model: &Model, gravity: [f64; 3], name: &'static str, specialise: bool) -> Kernel {
-    use Input::*;
-    let mut d = Dynamics::new(model, gravity, specialise);
-    let (inputs, outputs) = match name {
-        "rnea" => {
-            let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
-            let r = d.rnea(&qd, &qdd);
-            (vec![Q, Qd, Qdd], vec![Output { name: "c", matrix: false, ids: r.c }])
-        }
-        "rnea_grad" => {
-            let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
-            let r = d.rnea(&qd, &qdd);
-            let (dq, dqd) = d.rnea_grad(&r, &qd);
-            (vec![Q, Qd, Qdd], vec![Output { name: "dc_dq", matrix: true, ids: flat(dq) }, Output { name: "dc_dqd", matrix: true, ids: flat(dqd) }])
-        }
-        "mass_matrix" => (vec![Q], vec![Output { name: "m", matrix: true, ids: flat(d.mass_matrix()) }]),
-        "minv" => (vec![Q], vec![Output { name: "minv", matrix: true, ids: flat(d.minv()) }]),
-        "fd" => {
-            let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
-            let (qdd, _) = d.fd(&qd, &tau);
-            (vec![Q, Qd, Tau], vec![Output { name: "qdd", matrix: false, ids: qdd }])
-        }
-        "fd_grad" => {
-            let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
-            let (qdd, dq, dqd) = d.fd_grad(&qd, &tau);
-            (
-                vec![Q, Qd, Tau],
-                vec![
-                    Output { name: "qdd", matrix: false, ids: qdd },
-                    Output { name: "dqdd_dq", matrix: true, ids: flat(dq) },
-                    Output { name: "dqdd_dqd", matrix: true, ids: flat(dqd) },
-                ],
-            )
-        }
-        other => unreachable!("unknown kernel {other}"),
-    };
-    let graph = d.g;
-    let live = liveness(&graph, &outputs);
-    Kernel { name, inputs, outputs, graph, live }
-}
-
-/// Marks the nodes that reach an output (dead-code elimination).
-fn liveness(g: &Graph, outputs: &[Output]) -> Vec<bool> {
-    let mut live = vec![false; g.nodes.len()];
-    for o in outputs {
-        for id in &o.ids {
-            live[id.0 as usize] = true;
+    /// The function's name in every backend.
+    pub fn name(self) -> &'static str {
+        match self {
+            KernelKind::Rnea => "rnea",
+            KernelKind::RneaGrad => "rnea_grad",
+            KernelKind::MassMatrix => "mass_matrix",
+            KernelKind::Minv => "minv",
+            KernelKind::Fd => "fd",
+            KernelKind::FdGrad => "fd_grad",
         }
     }
-    for i in (0..g.nodes.len()).rev() {
-        if live[i] {
-            for operand in g.nodes[i].op.operands() {
-                live[operand.0 as usize] = true;
+
+    pub fn parse(name: &str) -> Option<KernelKind> {
+        KernelKind::ALL.into_iter().find(|k| k.name() == name)
+    }
+
+    /// The inputs, in argument order; each has one scalar per joint.
+    pub fn inputs(self) -> &'static [Input] {
+        use Input::*;
+        match self {
+            KernelKind::Rnea | KernelKind::RneaGrad => &[Q, Qd, Qdd],
+            KernelKind::MassMatrix | KernelKind::Minv => &[Q],
+            KernelKind::Fd | KernelKind::FdGrad => &[Q, Qd, Tau],
+        }
+    }
+
+    /// The outputs, in return order.
+    pub fn outputs(self) -> &'static [OutputSpec] {
+        use Shape::*;
+        match self {
+            KernelKind::Rnea => &[OutputSpec { name: "c", shape: Vector }],
+            KernelKind::RneaGrad => &[OutputSpec { name: "dc_dq", shape: Matrix }, OutputSpec { name: "dc_dqd", shape: Matrix }],
+            KernelKind::MassMatrix => &[OutputSpec { name: "m", shape: Matrix }],
+            KernelKind::Minv => &[OutputSpec { name: "minv", shape: Matrix }],
+            KernelKind::Fd => &[OutputSpec { name: "qdd", shape: Vector }],
+            KernelKind::FdGrad => {
+                &[OutputSpec { name: "qdd", shape: Vector }, OutputSpec { name: "dqdd_dq", shape: Matrix }, OutputSpec { name: "dqdd_dqd", shape: Matrix }]
             }
         }
     }
-    live
-}
 
-/// Arithmetic operations of a kernel.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
-pub struct OpCounts {
-    /// Additions and subtractions.
-    pub add: usize,
-    pub mul: usize,
-    pub div: usize,
-    pub neg: usize,
-    /// sin and cos.
-    pub trig: usize,
-    /// Longest chain of dependent operations.
-    pub depth: usize,
-}
+    /// One sentence for the function's doc comment.
+    pub fn doc(self) -> &'static str {
+        match self {
+            KernelKind::Rnea => "Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.",
+            KernelKind::RneaGrad => "Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.",
+            KernelKind::MassMatrix => "The joint-space inertia matrix M(q) (CRBA).",
+            KernelKind::Minv => "M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.",
+            KernelKind::Fd => "Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.",
+            KernelKind::FdGrad => "Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.",
+        }
+    }
 
-impl OpCounts {
-    pub fn total(&self) -> usize {
-        self.add + self.mul + self.div + self.neg + self.trig
+    /// What the function computes, for the API summary at the top of generated files
+    /// (the text after `name(inputs) -> outputs: `; continuation lines are indented).
+    pub fn summary(self) -> &'static str {
+        match self {
+            KernelKind::Rnea => "inverse dynamics `c = M(q) qdd + C(q, qd) qd + g(q)`.",
+            KernelKind::RneaGrad => "its analytical gradient.",
+            KernelKind::MassMatrix => "the joint-space inertia matrix M(q).",
+            KernelKind::Minv => "M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).",
+            KernelKind::Fd => "forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`.",
+            KernelKind::FdGrad => "forward dynamics and its gradient\n  `-M^-1 dc/du` at the computed qdd, sharing M^-1 and the RNEA pass.",
+        }
+    }
+
+    /// `name(inputs) -> outputs`, as the API summaries write it.
+    pub fn signature(self) -> String {
+        let args: Vec<&str> = self.inputs().iter().map(|i| i.name()).collect();
+        let outs: Vec<&str> = self.outputs().iter().map(|o| o.name).collect();
+        let ret = if outs.len() == 1 { outs[0].to_string() } else { format!("({})", outs.join(", ")) };
+        format!("{}({}) -> {ret}", self.name(), args.join(", "))
+    }
+
+    /// Kernels whose graph contains this one's (a superset of its work): if this kernel is
+    /// too large to lower, so are they.
+    pub fn contained_in(self) -> &'static [KernelKind] {
+        use KernelKind::*;
+        match self {
+            Rnea => &[RneaGrad, Fd, FdGrad],
+            RneaGrad => &[FdGrad],
+            MassMatrix => &[],
+            Minv => &[Fd, FdGrad],
+            Fd => &[FdGrad],
+            FdGrad => &[],
+        }
+    }
+
+    /// Records the kernel's algorithm into `d`'s graph; one node list per output.
+    pub(crate) fn record(self, d: &mut Dynamics) -> Vec<Vec<Id>> {
+        use Input::*;
+        fn flat(m: Mat) -> Vec<Id> {
+            m.into_iter().flatten().collect()
+        }
+        match self {
+            KernelKind::Rnea => {
+                let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
+                vec![d.rnea(&qd, &qdd).c]
+            }
+            KernelKind::RneaGrad => {
+                let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
+                let r = d.rnea(&qd, &qdd);
+                let (dq, dqd) = d.rnea_grad(&r, &qd);
+                vec![flat(dq), flat(dqd)]
+            }
+            KernelKind::MassMatrix => vec![flat(d.mass_matrix())],
+            KernelKind::Minv => vec![flat(d.minv())],
+            KernelKind::Fd => {
+                let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
+                vec![d.fd(&qd, &tau).0]
+            }
+            KernelKind::FdGrad => {
+                let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
+                let (qdd, dq, dqd) = d.fd_grad(&qd, &tau);
+                vec![qdd, flat(dq), flat(dqd)]
+            }
+        }
     }
 }
 
-impl Kernel {
-    pub fn counts(&self) -> OpCounts {
-        let mut c = OpCounts::default();
-        let mut depth = vec![0usize; self.graph.nodes.len()];
-        for (i, node) in self.graph.nodes.iter().enumerate() {
-            if !self.live[i] {
-                continue;
-            }
-            let below = node.op.operands().map(|o| depth[o.0 as usize]).max().unwrap_or(0);
-            let is_op = !matches!(node.op, Op::Input(..) | Op::Const(_));
-            depth[i] = below + usize::from(is_op);
-            c.depth = c.depth.max(depth[i]);
-            match node.op {
-                Op::Add(..) | Op::Sub(..) => c.add += 1,
-                Op::Mul(..) => c.mul += 1,
-                Op::Div(..) => c.div += 1,
-                Op::Neg(_) => c.neg += 1,
-                Op::Sin(_) | Op::Cos(_) => c.trig += 1,
-                Op::Input(..) | Op::Const(_) => {}
-            }
-        }
-        c
-    }
-}
-
-/// Op counts of every kernel, before (general dense algorithm) and after specialisation.
-#[derive(Clone, Debug, Serialize)]
-pub struct KernelStats {
-    pub kernel: &'static str,
-    pub before: OpCounts,
-    pub after: OpCounts,
-}
-
-pub fn stats(model: &Model, gravity: [f64; 3]) -> Vec<KernelStats> {
-    KERNELS
-        .iter()
-        .map(|&name| KernelStats { kernel: name, before: build(model, gravity, name, false).counts(), after: build(model, gravity, name, true).counts() })
-        .collect()
-}
-
-impl Kernel {
-    /// Interprets the graph in f64: `inputs` in the order of `self.inputs`, each of length
-    /// nv. Returns each output's values (matrices row-major). Used to check the IR itself,
-    /// before any backend prints it.
-    pub fn eval(&self, inputs: &[&[f64]]) -> Vec<Vec<f64>> {
-        let mut val = vec![0.0; self.graph.nodes.len()];
-        for (i, node) in self.graph.nodes.iter().enumerate() {
-            if !self.live[i] {
-                continue;
-            }
-            let v = |id: Id| val[id.0 as usize];
-            val[i] = match node.op {
-                Op::Input(which, j) => {
-                    let slot = self.inputs.iter().position(|&x| x == which).expect("kernel input");
-                    inputs[slot][j as usize]
-                }
-                Op::Const(c) => c,
-                Op::Add(a, b) => v(a) + v(b),
-                Op::Sub(a, b) => v(a) - v(b),
-                Op::Mul(a, b) => v(a) * v(b),
-                Op::Div(a, b) => v(a) / v(b),
-                Op::Neg(a) => -v(a),
-                Op::Sin(a) => v(a).sin(),
-                Op::Cos(a) => v(a).cos(),
-            };
-        }
-        self.outputs.iter().map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect()).collect()
+impl std::fmt::Display for KernelKind {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        f.write_str(self.name())
     }
 }

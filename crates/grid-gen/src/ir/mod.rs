@@ -1,10 +1,22 @@
-//! The kernel IR: the dynamics algorithms run symbolically over one robot, as scalar
-//! dataflow graphs that every backend prints.
+//! The kernel IR: the dynamics algorithms run symbolically over one robot into scalar
+//! dataflow graphs, lowered once into a [`Module`] that every backend reads.
+//!
+//! `graph` (the hash-consing builder), `spatial` and `dynamics` (the algorithms) are
+//! private to lowering; backends see [`Module`], [`Function`], the node types, and the
+//! target-neutral [`schedule`].
 
-pub mod dynamics;
-pub mod graph;
-pub mod kernel;
-pub mod spatial;
+mod dynamics;
+mod graph;
+mod kernel;
+mod module;
+pub mod schedule;
+mod spatial;
+mod stats;
+mod validate;
 
-pub use graph::{Graph, Id, Input, Node, Op, Stage};
-pub use kernel::{build, stats, Kernel, KernelStats, OpCounts, Output, KERNELS};
+pub use graph::{Id, Input, Node, Op, Stage};
+pub use kernel::{KernelKind, OutputSpec, Shape};
+pub use module::{lower, lower_function, Function, LowerError, LowerOptions, Module, Output, Robot, DEFAULT_MAX_NODES};
+pub use spatial::SNAP;
+pub use stats::{stats, KernelStats, OpCounts, Skipped, Stats, STATS_MAX_NODES};
+pub use validate::{validate, ValidationError};

@@ -24,9 +24,9 @@ pub fn snap(x: f64) -> f64 {
     }
 }
 
-/// A model constant (snapped when specialising).
+/// A model constant (snapped when folding).
 pub fn k(g: &mut Graph, x: f64) -> Id {
-    let x = if g.specialising() { snap(x) } else { x };
+    let x = if g.folding() { snap(x) } else { x };
     g.constant(x)
 }
 
@@ -68,10 +68,6 @@ fn sub3(g: &mut Graph, a: &V3, b: &V3) -> V3 {
 
 pub fn add(g: &mut Graph, a: &Sv, b: &Sv) -> Sv {
     std::array::from_fn(|i| g.add(a[i], b[i]))
-}
-
-pub fn sub(g: &mut Graph, a: &Sv, b: &Sv) -> Sv {
-    std::array::from_fn(|i| g.sub(a[i], b[i]))
 }
 
 pub fn scale(g: &mut Graph, a: &Sv, s: Id) -> Sv {

@@ -22,8 +22,7 @@ use nalgebra::{Matrix3, Vector3};
 use crate::model::{Joint, Model};
 use crate::spatial::{axis_angle, plux, spatial_inertia, Mat6, Vec6};
 
-/// Gravity used when none is given: (0, 0, -9.81) m/s² in the root frame.
-pub const DEFAULT_GRAVITY: [f64; 3] = [0.0, 0.0, -9.81];
+pub use crate::model::DEFAULT_GRAVITY;
 
 /// The joint's motion subspace S (a unit twist) in its own frame.
 pub fn motion_subspace(joint: &Joint) -> Vec6 {

@@ -1,5 +1,5 @@
-//! Shared helpers for the integration tests: robots, fixtures, error norms.
-#![allow(dead_code)]
+//! Helpers shared by every test crate of grid-gen: the bundled robots, the fixtures,
+//! the error norm and a seeded generator.
 
 use std::path::PathBuf;
 
@@ -8,7 +8,7 @@ use nalgebra::DMatrix;
 
 /// The repository root (fixtures and robots live there, not in the crate).
 pub fn repo() -> PathBuf {
-    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..")
+    PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../..").canonicalize().expect("repository root")
 }
 
 /// Every robot in `robots/`, by file stem.

@@ -1,28 +1,28 @@
 //! The Rust backend: straight-line, sparsity-specialised code, generic over f32 and f64,
 //! split into functions of at most `chunk` statements (rustc's time grows faster than
-//! linearly in the size of one function).
+//! linearly in the size of one function; the split is the IR's [`Chunks`]).
 
 use std::collections::HashMap;
 use std::fmt::Write;
 
-use super::names::string_literal;
-use crate::ir::{Id, Kernel, Op};
-use crate::model::Model;
+use super::names::{identifier, string_literal};
+use super::{BackError, GeneratedFile};
+use crate::ir::schedule::Chunks;
+use crate::ir::{Function, Id, KernelKind, Module, Op, Shape};
 
-/// The public API, described once for the file's doc comments and the README.
-pub const API_DOC: &str = "\
-/// Everything in this module is specialised to one robot. Vectors are `[T; NV]` in the order of
-/// `JOINT_NAMES`; matrices are `[[T; NV]; NV]`, row-major, `m[i][j] = d out_i / d in_j`. `T` is `f64`
-/// or `f32` (see [`Real`]), or `Lanes<N>` for N states per call. Gravity is fixed at generation
-/// time (`GRAVITY`).
-///
-/// - `rnea(q, qd, qdd) -> c`: inverse dynamics `c = M(q) qdd + C(q, qd) qd + g(q)`.
-/// - `rnea_grad(q, qd, qdd) -> (dc_dq, dc_dqd)`: its analytical gradient.
-/// - `mass_matrix(q) -> m`: the joint-space inertia matrix M(q).
-/// - `minv(q) -> minv`: M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).
-/// - `fd(q, qd, tau) -> qdd`: forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`.
-/// - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics and its gradient
-///   `-M^-1 dc/du` at the computed qdd, sharing M^-1 and the RNEA pass.";
+/// The public API of a module with `kernels`, for the file's header.
+fn api_doc(kernels: impl Iterator<Item = KernelKind>) -> String {
+    let mut s = String::from(
+        "Everything in this module is specialised to one robot. Vectors are `[T; NV]` in the order of\n\
+         `JOINT_NAMES`; matrices are `[[T; NV]; NV]`, row-major, `m[i][j] = d out_i / d in_j`. `T` is `f64`\n\
+         or `f32` (see [`Real`]), or `Lanes<N>` for N states per call. Gravity is fixed at generation\n\
+         time (`GRAVITY`).\n\n",
+    );
+    for k in kernels {
+        let _ = writeln!(s, "- `{}`: {}", k.signature(), k.summary());
+    }
+    s
+}
 
 /// Options of the Rust backend.
 #[derive(Clone, Debug)]
@@ -48,77 +48,16 @@ fn literal(c: f64) -> String {
     }
 }
 
-/// What one kernel's code refers to for each live node.
-struct Names {
-    /// Chunk that defines each node (None: constant or input, printed inline).
-    chunk: Vec<Option<usize>>,
-    /// Scratch slot of nodes used outside their chunk.
-    slot: HashMap<Id, usize>,
-    slots: usize,
-}
-
-fn plan(k: &Kernel, chunk_size: usize) -> (Vec<Vec<Id>>, Names) {
-    let mut chunks: Vec<Vec<Id>> = vec![Vec::new()];
-    let mut chunk = vec![None; k.graph.nodes.len()];
-    for (i, node) in k.graph.nodes.iter().enumerate() {
-        if !k.live[i] || matches!(node.op, Op::Const(_) | Op::Input(..)) {
-            continue;
-        }
-        if chunks.last().unwrap().len() >= chunk_size {
-            chunks.push(Vec::new());
-        }
-        chunks.last_mut().unwrap().push(Id(i as u32));
-        chunk[i] = Some(chunks.len() - 1);
-    }
-    // Last chunk that reads each node.
-    let mut last_use: HashMap<Id, usize> = HashMap::new();
-    for (c, ids) in chunks.iter().enumerate() {
-        for id in ids {
-            for o in k.graph.nodes[id.0 as usize].op.operands() {
-                if chunk[o.0 as usize].is_some_and(|d| d < c) {
-                    last_use.insert(o, c);
-                }
-            }
-        }
-    }
-    // Scratch slots, reused once a value's last reader has run.
-    let mut free: Vec<usize> = Vec::new();
-    let mut slots = 0;
-    let mut slot = HashMap::new();
-    let mut live_until: Vec<(usize, usize)> = Vec::new();
-    for (c, ids) in chunks.iter().enumerate() {
-        live_until.retain(|&(s, until)| {
-            let keep = until >= c;
-            if !keep {
-                free.push(s);
-            }
-            keep
-        });
-        free.sort_unstable_by(|a, b| b.cmp(a));
-        for id in ids {
-            if let Some(&until) = last_use.get(id) {
-                let s = free.pop().unwrap_or_else(|| {
-                    slots += 1;
-                    slots - 1
-                });
-                slot.insert(*id, s);
-                live_until.push((s, until));
-            }
-        }
-    }
-    (chunks, Names { chunk, slot, slots })
-}
-
-fn operand(k: &Kernel, names: &Names, here: usize, id: Id) -> String {
-    match k.graph.op(id) {
+fn operand(k: &Function, names: &Chunks, here: usize, id: Id) -> String {
+    match k.op(id) {
         Op::Const(c) => format!("T::k({})", literal(c)),
         Op::Input(which, j) => format!("{}[{j}]", which.name()),
-        _ if names.chunk[id.0 as usize] == Some(here) => format!("t{}", id.0),
-        _ => format!("s[{}]", names.slot[&id]),
+        _ if names.chunk_of[id.0 as usize] == Some(here as u32) => format!("t{}", id.0),
+        _ => format!("s[{}]", names.slot[id.0 as usize].expect("values read by a later chunk have a slot")),
     }
 }
 
-fn expression(k: &Kernel, names: &Names, here: usize, op: Op) -> String {
+fn expression(k: &Function, names: &Chunks, here: usize, op: Op) -> String {
     let o = |id| operand(k, names, here, id);
     match op {
         Op::Add(a, b) => format!("{} + {}", o(a), o(b)),
@@ -132,41 +71,29 @@ fn expression(k: &Kernel, names: &Names, here: usize, op: Op) -> String {
     }
 }
 
-fn output_type(matrix: bool) -> &'static str {
-    if matrix {
-        "[[T; NV]; NV]"
-    } else {
-        "[T; NV]"
+fn output_type(shape: Shape) -> &'static str {
+    match shape {
+        Shape::Matrix => "[[T; NV]; NV]",
+        Shape::Vector => "[T; NV]",
     }
 }
 
-fn output_place(k: &Kernel, out: usize, flat: usize, nv: usize) -> String {
+fn output_place(k: &Function, out: usize, flat: usize, nv: usize) -> String {
     let o = &k.outputs[out];
-    if o.matrix {
+    if o.shape == Shape::Matrix {
         format!("{}[{}][{}]", o.name, flat / nv, flat % nv)
     } else {
         format!("{}[{flat}]", o.name)
     }
 }
 
-/// Doc comment of each kernel.
-fn kernel_doc(name: &str) -> &'static str {
-    match name {
-        "rnea" => "Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.",
-        "rnea_grad" => "Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.",
-        "mass_matrix" => "The joint-space inertia matrix M(q) (CRBA).",
-        "minv" => "M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.",
-        "fd" => "Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.",
-        "fd_grad" => "Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.",
-        _ => "",
-    }
-}
-
-fn emit_kernel(out: &mut String, k: &Kernel, nv: usize, options: &RustOptions) {
-    let (chunks, names) = plan(k, options.chunk.max(1));
-    let args: Vec<String> = k.inputs.iter().map(|i| format!("{}: &[T; NV]", i.name())).collect();
-    let arg_names: Vec<&str> = k.inputs.iter().map(|i| i.name()).collect();
-    let ret: Vec<&str> = k.outputs.iter().map(|o| output_type(o.matrix)).collect();
+fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions) {
+    let names = Chunks::new(k, options.chunk);
+    let chunks = &names.chunks;
+    let name = k.kind.name();
+    let args: Vec<String> = k.inputs().iter().map(|i| format!("{}: &[T; NV]", i.name())).collect();
+    let arg_names: Vec<&str> = k.inputs().iter().map(|i| i.name()).collect();
+    let ret: Vec<&str> = k.outputs.iter().map(|o| output_type(o.shape)).collect();
     let ret_type = if ret.len() == 1 { ret[0].to_string() } else { format!("({})", ret.join(", ")) };
     let ret_value =
         if k.outputs.len() == 1 { k.outputs[0].name.to_string() } else { format!("({})", k.outputs.iter().map(|o| o.name).collect::<Vec<_>>().join(", ")) };
@@ -177,7 +104,7 @@ fn emit_kernel(out: &mut String, k: &Kernel, nv: usize, options: &RustOptions) {
     for (oi, o) in k.outputs.iter().enumerate() {
         for (flat, &id) in o.ids.iter().enumerate() {
             let place = output_place(k, oi, flat, nv);
-            match k.graph.op(id) {
+            match k.op(id) {
                 // Outputs start at zero; structural zeros need no store.
                 Op::Const(c) if c == 0.0 => {}
                 Op::Const(_) | Op::Input(..) => inline_outputs.push((place, id)),
@@ -193,8 +120,8 @@ fn emit_kernel(out: &mut String, k: &Kernel, nv: usize, options: &RustOptions) {
             }
         }
         for &id in ids {
-            let _ = writeln!(b, "let t{} = {};", id.0, expression(k, &names, c, k.graph.op(id)));
-            if let Some(s) = names.slot.get(&id) {
+            let _ = writeln!(b, "let t{} = {};", id.0, expression(k, &names, c, k.op(id)));
+            if let Some(s) = names.slot[id.0 as usize] {
                 let _ = writeln!(b, "s[{s}] = t{};", id.0);
             }
             for place in sinks.get(&id).into_iter().flatten() {
@@ -204,11 +131,11 @@ fn emit_kernel(out: &mut String, k: &Kernel, nv: usize, options: &RustOptions) {
         b
     };
 
-    let _ = writeln!(out, "/// {}", kernel_doc(k.name));
+    let _ = writeln!(out, "/// {}", k.kind.doc());
     let _ = writeln!(out, "#[inline]\n#[allow(clippy::all, unused_variables, dead_code)]");
-    let _ = writeln!(out, "pub fn {}<T: Real>({}) -> {ret_type} {{", k.name, args.join(", "));
+    let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
     for o in &k.outputs {
-        let init = if o.matrix { "[[T::k(0.0); NV]; NV]" } else { "[T::k(0.0); NV]" };
+        let init = if o.shape == Shape::Matrix { "[[T::k(0.0); NV]; NV]" } else { "[T::k(0.0); NV]" };
         let _ = writeln!(out, "let mut {} = {init};", o.name);
     }
     if chunks.len() == 1 {
@@ -217,15 +144,15 @@ fn emit_kernel(out: &mut String, k: &Kernel, nv: usize, options: &RustOptions) {
         let _ = writeln!(out, "let mut s = [T::k(0.0); {}];", names.slots);
         let outs: Vec<String> = k.outputs.iter().map(|o| format!("&mut {}", o.name)).collect();
         for c in 0..chunks.len() {
-            let _ = writeln!(out, "{}_part{c}({}, &mut s, {});", k.name, arg_names.join(", "), outs.join(", "));
+            let _ = writeln!(out, "{name}_part{c}({}, &mut s, {});", arg_names.join(", "), outs.join(", "));
         }
     }
     let _ = writeln!(out, "{ret_value}\n}}\n");
     if chunks.len() > 1 {
-        let outs: Vec<String> = k.outputs.iter().map(|o| format!("{}: &mut {}", o.name, output_type(o.matrix))).collect();
+        let outs: Vec<String> = k.outputs.iter().map(|o| format!("{}: &mut {}", o.name, output_type(o.shape))).collect();
         for (c, ids) in chunks.iter().enumerate() {
             let _ = writeln!(out, "#[inline(never)]\n#[allow(clippy::all, unused_variables)]");
-            let _ = writeln!(out, "fn {}_part{c}<T: Real>({}, s: &mut [T; {}], {}) {{", k.name, args.join(", "), names.slots, outs.join(", "));
+            let _ = writeln!(out, "fn {name}_part{c}<T: Real>({}, s: &mut [T; {}], {}) {{", args.join(", "), names.slots, outs.join(", "));
             out.push_str(&body(c, ids));
             out.push_str("}\n\n");
         }
@@ -314,15 +241,17 @@ impl<const N: usize> Real for Lanes<N> {
 }
 "#;
 
-/// The whole module for one robot, formatted. `kernels` in [`crate::ir::KERNELS`] order.
-pub fn emit(model: &Model, kernels: &[Kernel], gravity: [f64; 3], options: &RustOptions) -> Result<String, syn::Error> {
-    let nv = model.nv();
+/// The Rust file for `module`: `<stem>.rs`, formatted, with its header.
+pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, BackError> {
+    let robot = &module.robot;
+    let nv = robot.nv();
+    let gravity = module.gravity;
     let mut out = String::new();
-    let _ = writeln!(out, "/// The robot's name in its URDF.\n#[allow(dead_code)]\npub const ROBOT: &str = {};", string_literal(&model.name));
+    let _ = writeln!(out, "/// The robot's name in its URDF.\n#[allow(dead_code)]\npub const ROBOT: &str = {};", string_literal(&robot.name));
     let _ = writeln!(out, "/// Number of movable joints (and of entries in every vector).\n#[allow(dead_code)]\npub const NV: usize = {nv};");
-    let names: Vec<String> = model.joints.iter().map(|j| string_literal(&j.name)).collect();
+    let names: Vec<String> = robot.joint_names.iter().map(|n| string_literal(n)).collect();
     let _ = writeln!(out, "/// Movable joints in model order: depth-first from the root, children in document order.\n#[allow(dead_code)]\npub const JOINT_NAMES: [&str; NV] = [{}];", names.join(", "));
-    let parents: Vec<String> = model.joints.iter().map(|j| j.parent.map_or("None".into(), |p| format!("Some({p})"))).collect();
+    let parents: Vec<String> = robot.parents.iter().map(|p| p.map_or("None".into(), |p| format!("Some({p})"))).collect();
     let _ = writeln!(
         out,
         "/// Parent joint of each joint (`None`: the fixed root).\n#[allow(dead_code)]\npub const PARENTS: [Option<usize>; NV] = [{}];",
@@ -336,9 +265,22 @@ pub fn emit(model: &Model, kernels: &[Kernel], gravity: [f64; 3], options: &Rust
         literal(gravity[2])
     );
     out.push_str(PRELUDE);
-    for k in kernels {
+    for k in &module.functions {
         emit_kernel(&mut out, k, nv, options);
     }
-    let file = syn::parse_file(&out)?;
-    Ok(prettyplease::unparse(&file))
+    let file = syn::parse_file(&out).map_err(|e| BackError::RustUnparsable(e.to_string()))?;
+    let code = prettyplease::unparse(&file);
+    let stem = identifier(&robot.name);
+    let api: String =
+        api_doc(module.functions.iter().map(|f| f.kind)).lines().map(|l| if l.is_empty() { "//\n".to_string() } else { format!("// {l}\n") }).collect();
+    let header = format!(
+        "// @generated by grid-gen {} from the URDF of robot {} ({} joints). Do not edit:\n\
+         // regenerate with `grid-gen ROBOT.urdf -o DIR` or grid_gen::Builder in build.rs.\n\
+         // Use it with `mod {stem} {{ include!(\"{stem}.rs\"); }}`.\n\
+         //\n{api}\n",
+        env!("CARGO_PKG_VERSION"),
+        string_literal(&robot.name),
+        nv,
+    );
+    Ok(GeneratedFile { name: format!("{stem}.rs"), contents: header + &code })
 }

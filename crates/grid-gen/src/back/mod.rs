@@ -1,0 +1,54 @@
+//! Backends: each reads an [`ir::Module`](crate::ir::Module) (and the shared namer) and
+//! returns its own files, headers included. Adding a target is one folder here and one
+//! variant of [`Target`].
+
+pub mod names;
+pub mod rust;
+pub mod wgsl;
+
+/// One output file: a name (no folders) and its contents.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GeneratedFile {
+    pub name: String,
+    pub contents: String,
+}
+
+/// The targets grid-gen can emit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub enum Target {
+    Rust,
+    Wgsl,
+}
+
+impl Target {
+    pub const ALL: [Target; 2] = [Target::Rust, Target::Wgsl];
+
+    /// The name used by `--emit`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Target::Rust => "rust",
+            Target::Wgsl => "wgsl",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Target> {
+        Target::ALL.into_iter().find(|t| t.name() == s)
+    }
+
+    /// The file each target writes for a robot whose file stem is `stem`.
+    pub fn file_name(self, stem: &str) -> String {
+        match self {
+            Target::Rust => format!("{stem}.rs"),
+            Target::Wgsl => format!("{stem}.wgsl"),
+        }
+    }
+}
+
+/// Why a backend could not print a module.
+#[derive(Debug, thiserror::Error)]
+pub enum BackError {
+    #[error("internal error: the Rust backend produced code that does not parse: {0}")]
+    RustUnparsable(String),
+    #[error("robot `{robot}`: the constant {value} is out of f32's range, so the WGSL (f32) kernels cannot hold it")]
+    WgslRange { robot: String, value: f64 },
+}

@@ -1,0 +1,228 @@
+//! The IR module: the one value every backend reads. [`lower`] runs the chosen kernels'
+//! algorithms over a model into graphs, freezes each (dead nodes removed, ids renumbered)
+//! and validates it; the result carries the robot's metadata and the gravity it was
+//! lowered with, so nothing downstream needs the [`Model`].
+
+use super::dynamics::Dynamics;
+use super::graph::{Graph, Id, Input, Node, Op};
+use super::kernel::{KernelKind, Shape};
+use super::validate::{validate, ValidationError};
+use crate::model::{JointType, Model};
+
+/// Default node limit of one kernel's graph: about 1 GB while lowering, and far beyond
+/// what any backend compiles in reasonable time (Atlas's `fd_grad` has 0.2 million).
+pub const DEFAULT_MAX_NODES: usize = 10_000_000;
+
+/// How to lower.
+#[derive(Clone, Debug, PartialEq)]
+pub struct LowerOptions {
+    /// Fold constants, share identical subexpressions and snap model constants within
+    /// 1e-15 of 0 and ±1 (see `ir::spatial::SNAP`). Off: the algorithm as a general
+    /// library runs it, for the "before" op counts.
+    pub fold: bool,
+    /// Build gradient columns only where the tree says they can be nonzero. Off: every
+    /// column, as a dense implementation computes them.
+    pub sparse: bool,
+    /// Which kernels, emitted in [`KernelKind::ALL`] order whatever the order here.
+    pub kernels: Vec<KernelKind>,
+    /// Most nodes one kernel's graph may have; past it lowering stops with
+    /// [`LowerError::TooLarge`] instead of exhausting memory.
+    pub max_nodes: usize,
+}
+
+impl Default for LowerOptions {
+    fn default() -> Self {
+        LowerOptions { fold: true, sparse: true, kernels: KernelKind::ALL.to_vec(), max_nodes: DEFAULT_MAX_NODES }
+    }
+}
+
+impl LowerOptions {
+    /// The general dense algorithm: no folding, no sharing, every gradient column.
+    pub fn general() -> Self {
+        LowerOptions { fold: false, sparse: false, ..LowerOptions::default() }
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, thiserror::Error)]
+pub enum LowerError {
+    #[error("gravity must be finite, got {0:?}")]
+    Gravity([f64; 3]),
+    #[error(
+        "robot `{robot}` ({nv} joints): kernel `{kernel}` needs more than {limit} IR nodes (the limit); \
+         its code would be too large to compile. Generate fewer kernels, or a model with fewer joints"
+    )]
+    TooLarge { robot: String, nv: usize, kernel: KernelKind, limit: usize },
+    #[error("robot `{robot}`: a constant of the dynamics overflows f64 ({value}); check the URDF for huge masses, inertias or lengths")]
+    NotFinite { robot: String, value: f64 },
+    #[error("internal error: kernel `{kernel}` failed IR validation: {error}")]
+    Invalid { kernel: KernelKind, error: ValidationError },
+}
+
+/// What the backends need to know about the robot.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Robot {
+    /// The URDF's robot name, verbatim (backends escape it).
+    pub name: String,
+    /// Movable joints in model order.
+    pub joint_names: Vec<String>,
+    pub joint_types: Vec<JointType>,
+    /// Parent joint of each joint, `None` for children of the fixed root.
+    pub parents: Vec<Option<usize>>,
+}
+
+impl Robot {
+    pub fn nv(&self) -> usize {
+        self.joint_names.len()
+    }
+}
+
+/// A named output of a function: the nodes holding its values (matrices row-major).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Output {
+    pub name: &'static str,
+    pub shape: Shape,
+    pub ids: Vec<Id>,
+}
+
+/// One frozen kernel: every node is live, ids are dense and in topological order.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Function {
+    pub kind: KernelKind,
+    pub nodes: Vec<Node>,
+    pub outputs: Vec<Output>,
+}
+
+/// The lowered robot: every backend's only input.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Module {
+    pub robot: Robot,
+    pub gravity: [f64; 3],
+    pub options: LowerOptions,
+    pub functions: Vec<Function>,
+}
+
+impl Module {
+    pub fn function(&self, kind: KernelKind) -> Option<&Function> {
+        self.functions.iter().find(|f| f.kind == kind)
+    }
+}
+
+/// Lowers the requested kernels of `model`.
+pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result<Module, LowerError> {
+    let robot = Robot {
+        name: model.name.clone(),
+        joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
+        joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
+        parents: model.joints.iter().map(|j| j.parent).collect(),
+    };
+    let mut functions = Vec::new();
+    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)) {
+        functions.push(lower_function(model, gravity, kind, options)?);
+    }
+    Ok(Module { robot, gravity, options: options.clone(), functions })
+}
+
+/// Lowers one kernel.
+pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions) -> Result<Function, LowerError> {
+    if gravity.iter().any(|g| !g.is_finite()) {
+        return Err(LowerError::Gravity(gravity));
+    }
+    let mut d = Dynamics::new(model, gravity, options.fold, options.sparse, options.max_nodes);
+    let outputs = kind.record(&mut d);
+    if d.g.exhausted() {
+        return Err(LowerError::TooLarge { robot: model.name.clone(), nv: model.nv(), kernel: kind, limit: options.max_nodes });
+    }
+    let f = freeze(kind, &d.g, outputs);
+    for node in &f.nodes {
+        if let Op::Const(c) = node.op {
+            if !c.is_finite() {
+                return Err(LowerError::NotFinite { robot: model.name.clone(), value: c });
+            }
+        }
+    }
+    validate(&f, model.nv()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
+    Ok(f)
+}
+
+/// Keeps the nodes that reach an output, renumbered in their original order.
+fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>) -> Function {
+    let mut live = vec![false; g.nodes.len()];
+    for id in outputs.iter().flatten() {
+        live[id.0 as usize] = true;
+    }
+    for i in (0..g.nodes.len()).rev() {
+        if live[i] {
+            for operand in g.nodes[i].op.operands() {
+                live[operand.0 as usize] = true;
+            }
+        }
+    }
+    let mut new_id = vec![Id(u32::MAX); g.nodes.len()];
+    let mut nodes = Vec::with_capacity(live.iter().filter(|&&l| l).count());
+    for (i, node) in g.nodes.iter().enumerate() {
+        if !live[i] {
+            continue;
+        }
+        new_id[i] = Id(nodes.len() as u32);
+        let m = |id: Id| new_id[id.0 as usize];
+        let op = match node.op {
+            Op::Add(a, b) => Op::Add(m(a), m(b)),
+            Op::Sub(a, b) => Op::Sub(m(a), m(b)),
+            Op::Mul(a, b) => Op::Mul(m(a), m(b)),
+            Op::Div(a, b) => Op::Div(m(a), m(b)),
+            Op::Neg(a) => Op::Neg(m(a)),
+            Op::Sin(a) => Op::Sin(m(a)),
+            Op::Cos(a) => Op::Cos(m(a)),
+            op @ (Op::Input(..) | Op::Const(_)) => op,
+        };
+        nodes.push(Node { op, ..*node });
+    }
+    let outputs = kind
+        .outputs()
+        .iter()
+        .zip(outputs)
+        .map(|(spec, ids)| Output { name: spec.name, shape: spec.shape, ids: ids.into_iter().map(|id| new_id[id.0 as usize]).collect() })
+        .collect();
+    Function { kind, nodes, outputs }
+}
+
+impl Function {
+    pub fn inputs(&self) -> &'static [Input] {
+        self.kind.inputs()
+    }
+
+    pub fn op(&self, id: Id) -> Op {
+        self.nodes[id.0 as usize].op
+    }
+
+    /// Whether a node is an operation (not a constant or an input, which backends print
+    /// inline).
+    pub fn is_operation(&self, id: Id) -> bool {
+        !matches!(self.op(id), Op::Const(_) | Op::Input(..))
+    }
+
+    /// Interprets the function in f64: `inputs` in the order of [`Function::inputs`],
+    /// each of length nv. Returns each output's values (matrices row-major). This checks
+    /// the IR itself, and is the oracle every backend's output is compared with.
+    pub fn eval(&self, inputs: &[&[f64]]) -> Vec<Vec<f64>> {
+        let mut val = vec![0.0; self.nodes.len()];
+        for (i, node) in self.nodes.iter().enumerate() {
+            let v = |id: Id| val[id.0 as usize];
+            val[i] = match node.op {
+                Op::Input(which, j) => {
+                    let slot = self.inputs().iter().position(|&x| x == which).expect("validated input");
+                    inputs[slot][j as usize]
+                }
+                Op::Const(c) => c,
+                Op::Add(a, b) => v(a) + v(b),
+                Op::Sub(a, b) => v(a) - v(b),
+                Op::Mul(a, b) => v(a) * v(b),
+                Op::Div(a, b) => v(a) / v(b),
+                Op::Neg(a) => -v(a),
+                Op::Sin(a) => v(a).sin(),
+                Op::Cos(a) => v(a).cos(),
+            };
+        }
+        self.outputs.iter().map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect()).collect()
+    }
+}

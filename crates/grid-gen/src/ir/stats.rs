@@ -1,0 +1,117 @@
+//! Operation counts of lowered functions, and the bounded "before and after
+//! specialisation" comparison behind `grid-gen info`.
+
+use serde::Serialize;
+
+use super::graph::Op;
+use super::kernel::KernelKind;
+use super::module::{lower_function, Function, LowerError, LowerOptions};
+use crate::model::Model;
+
+/// Arithmetic operations of a kernel.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct OpCounts {
+    /// Additions and subtractions.
+    pub add: usize,
+    pub mul: usize,
+    pub div: usize,
+    pub neg: usize,
+    /// sin and cos.
+    pub trig: usize,
+    /// Longest chain of dependent operations.
+    pub depth: usize,
+}
+
+impl OpCounts {
+    pub fn total(&self) -> usize {
+        self.add + self.mul + self.div + self.neg + self.trig
+    }
+}
+
+impl Function {
+    pub fn counts(&self) -> OpCounts {
+        let mut c = OpCounts::default();
+        let mut depth = vec![0usize; self.nodes.len()];
+        for (i, node) in self.nodes.iter().enumerate() {
+            let below = node.op.operands().map(|o| depth[o.0 as usize]).max().unwrap_or(0);
+            let is_op = !matches!(node.op, Op::Input(..) | Op::Const(_));
+            depth[i] = below + usize::from(is_op);
+            c.depth = c.depth.max(depth[i]);
+            match node.op {
+                Op::Add(..) | Op::Sub(..) => c.add += 1,
+                Op::Mul(..) => c.mul += 1,
+                Op::Div(..) => c.div += 1,
+                Op::Neg(_) => c.neg += 1,
+                Op::Sin(_) | Op::Cos(_) => c.trig += 1,
+                Op::Input(..) | Op::Const(_) => {}
+            }
+        }
+        c
+    }
+}
+
+/// Op counts of one kernel, before (general dense algorithm) and after specialisation.
+#[derive(Clone, Debug, Serialize)]
+pub struct KernelStats {
+    pub kernel: KernelKind,
+    pub before: OpCounts,
+    pub after: OpCounts,
+}
+
+/// A kernel left out of [`Stats`] because one of its graphs exceeds the node limit.
+#[derive(Clone, Debug, Serialize)]
+pub struct Skipped {
+    pub kernel: KernelKind,
+    pub reason: String,
+}
+
+#[derive(Clone, Debug, Serialize)]
+pub struct Stats {
+    pub ops: Vec<KernelStats>,
+    pub skipped: Vec<Skipped>,
+}
+
+/// Node limit of each graph that [`stats`] builds by default: a few seconds and a few
+/// hundred MB at most (Atlas's largest, the dense `fd_grad`, has about 1.1 million).
+pub const STATS_MAX_NODES: usize = 2_000_000;
+
+/// Counts every kernel specialised and as the general algorithm, each graph built under
+/// `max_nodes`. A kernel whose graph would be larger is listed as skipped, and so is
+/// every kernel that contains it, without building them: time and memory stay bounded
+/// whatever the robot.
+pub fn stats(model: &Model, gravity: [f64; 3], max_nodes: usize) -> Stats {
+    let mut out = Stats { ops: Vec::new(), skipped: Vec::new() };
+    let mut too_large: Vec<(KernelKind, KernelKind)> = Vec::new();
+    for kind in KernelKind::ALL {
+        if let Some((_, inner)) = too_large.iter().find(|(k, _)| *k == kind) {
+            out.skipped.push(Skipped { kernel: kind, reason: format!("contains `{inner}`, which is over the node limit") });
+            continue;
+        }
+        let mut counts = [OpCounts::default(); 2];
+        let mut failed = None;
+        for (slot, base) in counts.iter_mut().zip([LowerOptions::default(), LowerOptions::general()]) {
+            let options = LowerOptions { max_nodes, ..base };
+            match lower_function(model, gravity, kind, &options) {
+                Ok(f) => *slot = f.counts(),
+                Err(e) => {
+                    failed = Some(e);
+                    break;
+                }
+            }
+        }
+        match failed {
+            None => out.ops.push(KernelStats { kernel: kind, after: counts[0], before: counts[1] }),
+            Some(e) => {
+                let reason = match e {
+                    LowerError::TooLarge { limit, .. } => {
+                        too_large.extend(kind.contained_in().iter().map(|&k| (k, kind)));
+                        format!("over {limit} IR nodes, the limit for op counts")
+                    }
+                    other => other.to_string(),
+                };
+                out.skipped.push(Skipped { kernel: kind, reason });
+            }
+        }
+    }
+    out
+}

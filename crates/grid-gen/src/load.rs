@@ -1,0 +1,61 @@
+//! Loading a robot: URDF text to a checked [`Model`], with every diagnostic. This is
+//! the one place that runs the reference dynamics during loading (the massless-joint
+//! check), so that `model` does not depend on `reference` (which depends on `model`).
+
+use crate::diagnostic::{Diagnostic, LoadError, Severity};
+use crate::model::{build, Model};
+use crate::urdf::{self, Urdf};
+
+impl Model {
+    /// Parses, checks and builds the model from URDF text. Warnings come back with the
+    /// model; with `strict`, a warning is an error.
+    pub fn from_urdf_str(path: &str, text: &str, strict: bool) -> Result<(Model, Vec<Diagnostic>), LoadError> {
+        let (urdf, tree, mut diags) = urdf::load(path, text)?;
+        let built = build(&urdf, &tree, &mut diags).map(|(model, source)| {
+            check_massless(&model, &source, &urdf, &mut diags);
+            model
+        });
+        let failed = diags.iter().any(|d| d.severity == Severity::Error || (strict && d.severity == Severity::Warning));
+        match built {
+            Some(model) if !failed => Ok((model, diags)),
+            _ => {
+                if strict {
+                    for d in &mut diags {
+                        d.severity = Severity::Error;
+                    }
+                }
+                Err(LoadError { path: path.to_string(), source_text: text.to_string(), diagnostics: diags })
+            }
+        }
+    }
+}
+
+/// Every movable joint must move some inertia, or M is singular: M_ii = S_iᵀ Ic_i S_i > 0,
+/// with Ic_i the composite inertia of its subtree (checked at q = 0 with the reference CRBA).
+fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<Diagnostic>) {
+    let n = model.nv();
+    let m = crate::reference::crba(model, &vec![0.0; n]);
+    let mut mass: Vec<f64> = model.joints.iter().map(|j| j.inertia.mass).collect();
+    for i in (0..n).rev() {
+        if let Some(p) = model.joints[i].parent {
+            mass[p] += mass[i];
+        }
+        // Below this no double-precision factorisation of M is meaningful.
+        if m[(i, i)] <= 1e-12 {
+            let uj = &urdf.joints[source[i]];
+            let child = &uj.child;
+            let (message, help) = if mass[i] <= 0.0 {
+                (
+                    format!("joint `{}` moves only massless links (`{child}` and below)", uj.name),
+                    format!("give `{child}` or a link below it an <inertial> with positive mass, or make the joint fixed"),
+                )
+            } else {
+                (
+                    format!("joint `{}` moves no inertia about its axis", uj.name),
+                    format!("the links from `{child}` down have their mass on the axis and no rotational inertia; give them an <inertia>"),
+                )
+            };
+            diags.push(Diagnostic::error(message, Some(uj.span.clone()), "the mass matrix would be singular").with_help(help));
+        }
+    }
+}
