@@ -120,6 +120,14 @@ fn generate_writes_checks_and_reports_op_counts() {
     assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--emit", "cuda"]).status.code(), Some(2));
     std::fs::remove_dir_all(&dir).unwrap();
 
+    // Both backends in one run, each file as checked in.
+    let wrote = grid_gen(&["robots/grid_iiwa.urdf", "-o", d, "--emit", "rust,wgsl"]);
+    assert_eq!(wrote.status.code(), Some(0), "{}", String::from_utf8_lossy(&wrote.stderr));
+    for file in ["iiwa14.rs", "iiwa14.wgsl"] {
+        assert_eq!(std::fs::read_to_string(dir.join(file)).unwrap(), std::fs::read_to_string(repo().join("generated/grid_iiwa").join(file)).unwrap(), "{file}");
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+
     let v = json(&grid_gen(&["info", "robots/grid_iiwa.urdf", "--json"]));
     let kernels: Vec<&str> = v["ops"].as_array().unwrap().iter().map(|k| k["kernel"].as_str().unwrap()).collect();
     assert_eq!(kernels, ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]);

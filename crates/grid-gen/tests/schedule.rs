@@ -57,6 +57,12 @@ fn check(f: &Function, p: &Phases, budget: usize) {
     assert!(p.slots <= budget);
     let mut seen = vec![0; f.nodes.len()];
     let mut holder: Vec<Option<Id>> = vec![None; p.slots];
+    let mut pos = vec![usize::MAX; f.nodes.len()];
+    for list in p.phases.iter().flatten() {
+        for (k, id) in list.iter().enumerate() {
+            pos[id.0 as usize] = k;
+        }
+    }
     for (pi, phase) in p.phases.iter().enumerate() {
         assert_eq!(phase.len(), p.workers);
         for (w, list) in phase.iter().enumerate() {
@@ -66,7 +72,7 @@ fn check(f: &Function, p: &Phases, budget: usize) {
                     let Some(po) = p.place[o.0 as usize] else { continue };
                     if po.phase as usize == pi {
                         assert_eq!(po.worker as usize, w, "same-phase operand on another worker");
-                        assert!(list[..k].contains(&o), "same-phase operand computed earlier in the list");
+                        assert!(pos[o.0 as usize] < k, "same-phase operand computed earlier in the list");
                     } else {
                         assert!((po.phase as usize) < pi, "operand from a later phase");
                         let s = p.slot[o.0 as usize].expect("value read in a later phase has a slot");
