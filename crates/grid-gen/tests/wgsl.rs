@@ -204,13 +204,31 @@ fn kernels_run_through_wgpu_and_match_the_reference() {
             let mut worst = 0.0f64;
             for (s, state) in states.iter().enumerate() {
                 let want = reference_outputs(f.kind, &model, state);
+                // The IR interpreter on the same graph: the backend prints it faithfully.
+                let interpreted = f.eval(
+                    &f.inputs()
+                        .iter()
+                        .map(|i| {
+                            if *i == grid_gen::ir::Input::Q {
+                                &state[0][..]
+                            } else if *i == grid_gen::ir::Input::Qd {
+                                &state[1][..]
+                            } else {
+                                &state[2][..]
+                            }
+                        })
+                        .collect::<Vec<_>>(),
+                );
                 let mut base = 0;
-                for (o, want) in f.outputs.iter().zip(&want) {
+                for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
                     let vals: Vec<f64> = (base..base + o.shape.len(nv)).map(|k| got[k * n + s] as f64).collect();
                     assert!(vals.iter().all(|v| v.is_finite()), "{robot} {}.{} state {s}: a value was not written", f.kind, o.name);
                     let got = if o.shape == Shape::Matrix { DMatrix::from_row_slice(nv, nv, &vals) } else { col(&vals) };
                     let e = rel_err(&got, want);
                     assert!(e <= tol, "{robot} {}.{} state {s}: relative error {e:.2e} > {tol:e}", f.kind, o.name);
+                    let ir_got = if o.shape == Shape::Matrix { DMatrix::from_row_slice(nv, nv, ir_vals) } else { col(ir_vals) };
+                    let e_ir = rel_err(&got, &ir_got);
+                    assert!(e_ir <= tol, "{robot} {}.{} state {s}: {e_ir:.2e} from the IR interpreter", f.kind, o.name);
                     worst = worst.max(e);
                     base += o.shape.len(nv);
                 }
