@@ -3,7 +3,8 @@
 
 use std::path::PathBuf;
 
-use grid_gen::Model;
+use grid_gen::ir::{Input, KernelKind, Shape};
+use grid_gen::{reference, Model};
 use nalgebra::DMatrix;
 
 /// The repository root (fixtures and robots live there, not in the crate).
@@ -85,5 +86,45 @@ impl Rng {
 
     pub fn vec(&mut self, n: usize, lo: f64, hi: f64) -> Vec<f64> {
         (0..n).map(|_| self.uniform(lo, hi)).collect()
+    }
+}
+
+/// The reference's values of kernel `kind`, in the kernel's output order; `u` is q̈ for
+/// the RNEA kernels and τ for the forward-dynamics ones.
+pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64], u: &[f64], g: [f64; 3]) -> Vec<DMatrix<f64>> {
+    match kind {
+        KernelKind::Rnea => vec![col(&reference::rnea(model, q, qd, u, g))],
+        KernelKind::RneaGrad => {
+            let (a, b) = reference::rnea_derivatives(model, q, qd, u, g);
+            vec![a, b]
+        }
+        KernelKind::MassMatrix => vec![reference::crba(model, q)],
+        KernelKind::Minv => vec![reference::minv(model, q)],
+        KernelKind::Fd => vec![col(&reference::forward_dynamics(model, q, qd, u, g))],
+        KernelKind::FdGrad => {
+            let (a, b, c) = reference::forward_dynamics_derivatives(model, q, qd, u, g);
+            vec![col(&a), b, c]
+        }
+    }
+}
+
+/// A kernel's arguments in its order, from q, q̇ and u (q̈ or τ, whichever it takes).
+pub fn kernel_args<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f64]) -> Vec<&'a [f64]> {
+    inputs
+        .iter()
+        .map(|i| match i {
+            Input::Q => q,
+            Input::Qd => qd,
+            Input::Qdd | Input::Tau => u,
+        })
+        .collect()
+}
+
+/// One output's values as the reference shapes it: an nv × nv matrix (from row-major
+/// values) or a column.
+pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
+    match shape {
+        Shape::Matrix => DMatrix::from_row_slice(nv, nv, values),
+        Shape::Vector => col(values),
     }
 }

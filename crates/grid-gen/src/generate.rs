@@ -3,7 +3,6 @@
 
 use std::path::{Path, PathBuf};
 
-use crate::back::names::identifier;
 use crate::back::rust::{self, RustOptions};
 use crate::back::wgsl::{self, WgslOptions};
 pub use crate::back::{BackError, GeneratedFile, Target};
@@ -38,11 +37,6 @@ pub enum GenerateError {
     Lower(#[from] LowerError),
     #[error(transparent)]
     Back(#[from] BackError),
-}
-
-/// The file stem for a robot: its URDF name made a safe identifier.
-pub fn module_name(model: &Model) -> String {
-    identifier(&model.name)
 }
 
 /// Generates every requested file for `model`, in [`Target::ALL`] order. Deterministic:

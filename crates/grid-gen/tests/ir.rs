@@ -4,16 +4,11 @@
 //! model constants within 1e-15 of 0 or ±1; see `ir::spatial::SNAP`). The unspecialised
 //! (dense) graphs are checked too, at the same tolerance.
 
-use grid_gen::ir::{self, Input, KernelKind, LowerOptions, Shape};
+use grid_gen::ir::{self, KernelKind, LowerOptions};
 use grid_gen::{reference, Model};
 use grid_gen_test_support::*;
-use nalgebra::DMatrix;
 
 const TOL: f64 = 1e-12;
-
-fn as_mat(v: &[f64], n: usize) -> DMatrix<f64> {
-    DMatrix::from_row_slice(n, n, v)
-}
 
 /// Every kernel output next to what the reference says it should be.
 fn compare(model: &Model, g: [f64; 3], options: &LowerOptions, q: &[f64], qd: &[f64], u: &[f64]) -> Vec<(String, f64)> {
@@ -21,36 +16,10 @@ fn compare(model: &Model, g: [f64; 3], options: &LowerOptions, q: &[f64], qd: &[
     let module = ir::lower(model, g, options).expect("bundled robots lower");
     let mut errs = Vec::new();
     for f in &module.functions {
-        let args: Vec<&[f64]> = f
-            .inputs()
-            .iter()
-            .map(|i| {
-                if *i == Input::Q {
-                    q
-                } else if *i == Input::Qd {
-                    qd
-                } else {
-                    u
-                }
-            })
-            .collect();
-        let out = f.eval(&args);
-        let want: Vec<DMatrix<f64>> = match f.kind {
-            KernelKind::Rnea => vec![col(&reference::rnea(model, q, qd, u, g))],
-            KernelKind::RneaGrad => {
-                let (a, b) = reference::rnea_derivatives(model, q, qd, u, g);
-                vec![a, b]
-            }
-            KernelKind::MassMatrix => vec![reference::crba(model, q)],
-            KernelKind::Minv => vec![reference::minv(model, q)],
-            KernelKind::Fd => vec![col(&reference::forward_dynamics(model, q, qd, u, g))],
-            KernelKind::FdGrad => {
-                let (a, b, c) = reference::forward_dynamics_derivatives(model, q, qd, u, g);
-                vec![col(&a), b, c]
-            }
-        };
+        let out = f.eval(&kernel_args(f.inputs(), q, qd, u));
+        let want = reference_outputs(f.kind, model, q, qd, u, g);
         for ((o, got), want) in f.outputs.iter().zip(&out).zip(&want) {
-            let got = if o.shape == Shape::Matrix { as_mat(got, n) } else { col(got) };
+            let got = output_matrix(o.shape, n, got);
             errs.push((format!("{}.{}", f.kind, o.name), rel_err(&got, want)));
         }
     }

@@ -17,10 +17,9 @@
 //! `fd_grad` pipeline, so it is left to naga validation here.
 
 use grid_gen::generate::{generate, Options, Target};
-use grid_gen::ir::{KernelKind, Shape};
+use grid_gen::ir::KernelKind;
 use grid_gen::{reference, Model};
 use grid_gen_test_support::*;
-use nalgebra::DMatrix;
 use wgpu::util::DeviceExt;
 
 const DIRECT: f64 = 1e-5;
@@ -156,24 +155,6 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
     out.into_iter().map(|[q, qd, u]| [round(q), round(qd), round(u)]).collect()
 }
 
-fn reference_outputs(kind: KernelKind, m: &Model, [q, qd, u]: &[Vec<f64>; 3]) -> Vec<DMatrix<f64>> {
-    let g = reference::DEFAULT_GRAVITY;
-    match kind {
-        KernelKind::Rnea => vec![col(&reference::rnea(m, q, qd, u, g))],
-        KernelKind::RneaGrad => {
-            let (a, b) = reference::rnea_derivatives(m, q, qd, u, g);
-            vec![a, b]
-        }
-        KernelKind::MassMatrix => vec![reference::crba(m, q)],
-        KernelKind::Minv => vec![reference::minv(m, q)],
-        KernelKind::Fd => vec![col(&reference::forward_dynamics(m, q, qd, u, g))],
-        KernelKind::FdGrad => {
-            let (a, b, c) = reference::forward_dynamics_derivatives(m, q, qd, u, g);
-            vec![col(&a), b, c]
-        }
-    }
-}
-
 #[test]
 fn kernels_run_through_wgpu_and_match_the_reference() {
     let Some(gpu) = gpu() else { return };
@@ -196,38 +177,24 @@ fn kernels_run_through_wgpu_and_match_the_reference() {
                 .find_map(|l| l.strip_prefix(&format!("const {}_SCRATCH: u32 = ", f.kind.name().to_uppercase())))
                 .and_then(|r| r.trim_end_matches("u;").parse::<usize>().ok())
                 .expect("scratch size constant");
-            let sizes: Vec<usize> = f.outputs.iter().map(|o| o.shape.len(nv)).collect();
-            let total: usize = sizes.iter().sum();
+            let total: usize = f.outputs.iter().map(|o| o.shape.len(nv)).sum();
             let t0 = std::time::Instant::now();
             let got = gpu.run(&module, f.kind, scratch, n, [&inputs[0], &inputs[1], &inputs[2]], total);
             let tol = if matches!(f.kind, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad) { THROUGH_MINV } else { DIRECT };
             let mut worst = 0.0f64;
             for (s, state) in states.iter().enumerate() {
-                let want = reference_outputs(f.kind, &model, state);
+                let [q, qd, u] = state;
+                let want = reference_outputs(f.kind, &model, q, qd, u, reference::DEFAULT_GRAVITY);
                 // The IR interpreter on the same graph: the backend prints it faithfully.
-                let interpreted = f.eval(
-                    &f.inputs()
-                        .iter()
-                        .map(|i| {
-                            if *i == grid_gen::ir::Input::Q {
-                                &state[0][..]
-                            } else if *i == grid_gen::ir::Input::Qd {
-                                &state[1][..]
-                            } else {
-                                &state[2][..]
-                            }
-                        })
-                        .collect::<Vec<_>>(),
-                );
+                let interpreted = f.eval(&kernel_args(f.inputs(), q, qd, u));
                 let mut base = 0;
                 for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
                     let vals: Vec<f64> = (base..base + o.shape.len(nv)).map(|k| got[k * n + s] as f64).collect();
                     assert!(vals.iter().all(|v| v.is_finite()), "{robot} {}.{} state {s}: a value was not written", f.kind, o.name);
-                    let got = if o.shape == Shape::Matrix { DMatrix::from_row_slice(nv, nv, &vals) } else { col(&vals) };
+                    let got = output_matrix(o.shape, nv, &vals);
                     let e = rel_err(&got, want);
                     assert!(e <= tol, "{robot} {}.{} state {s}: relative error {e:.2e} > {tol:e}", f.kind, o.name);
-                    let ir_got = if o.shape == Shape::Matrix { DMatrix::from_row_slice(nv, nv, ir_vals) } else { col(ir_vals) };
-                    let e_ir = rel_err(&got, &ir_got);
+                    let e_ir = rel_err(&got, &output_matrix(o.shape, nv, ir_vals));
                     assert!(e_ir <= tol, "{robot} {}.{} state {s}: {e_ir:.2e} from the IR interpreter", f.kind, o.name);
                     worst = worst.max(e);
                     base += o.shape.len(nv);

@@ -97,7 +97,6 @@ pub struct Function {
 pub struct Module {
     pub robot: Robot,
     pub gravity: [f64; 3],
-    pub options: LowerOptions,
     pub functions: Vec<Function>,
 }
 
@@ -119,7 +118,7 @@ pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result
     for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)) {
         functions.push(lower_function(model, gravity, kind, options)?);
     }
-    Ok(Module { robot, gravity, options: options.clone(), functions })
+    Ok(Module { robot, gravity, functions })
 }
 
 /// Lowers one kernel.

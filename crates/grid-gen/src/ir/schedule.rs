@@ -42,45 +42,53 @@ impl Chunks {
             }
             chunk_of[i] = Some((chunks.len() - 1) as u32);
         }
-        // The last chunk that reads each node from an earlier chunk.
-        let mut last_use: Vec<Option<u32>> = vec![None; f.nodes.len()];
-        for (c, ids) in chunks.iter().enumerate() {
-            for id in ids {
-                for o in f.op(*id).operands() {
-                    if chunk_of[o.0 as usize].is_some_and(|d| (d as usize) < c) {
-                        last_use[o.0 as usize] = Some(c as u32);
-                    }
-                }
-            }
-        }
-        let mut slot = vec![None; f.nodes.len()];
-        let mut free: Vec<u32> = Vec::new();
-        let mut slots = 0u32;
-        let mut live_until: Vec<(u32, u32)> = Vec::new();
-        for (c, ids) in chunks.iter().enumerate() {
-            let c = c as u32;
-            live_until.retain(|&(s, until)| {
-                let keep = until >= c;
-                if !keep {
-                    free.push(s);
-                }
-                keep
-            });
-            // Lowest free slot first, for stable, compact numbering.
-            free.sort_unstable_by(|a, b| b.cmp(a));
-            for id in ids {
-                if let Some(until) = last_use[id.0 as usize] {
-                    let s = free.pop().unwrap_or_else(|| {
-                        slots += 1;
-                        slots - 1
-                    });
-                    slot[id.0 as usize] = Some(s);
-                    live_until.push((s, until));
-                }
-            }
-        }
-        Chunks { chunks, chunk_of, slot, slots: slots as usize }
+        let (slot, slots) = assign_slots(f, &chunk_of, &chunks);
+        Chunks { chunks, chunk_of, slot, slots }
     }
+}
+
+/// Slots for the values read in a later step than the one that computes them, given each
+/// node's step (`None`: constants and inputs) and the nodes of each step in order. A slot
+/// is reused only by a value written in a step after the last step that reads its
+/// previous value, so no step both reads and overwrites a slot; free slots are taken
+/// lowest first, for stable, compact numbering. Returns each node's slot and the count.
+fn assign_slots(f: &Function, step_of: &[Option<u32>], steps: &[Vec<Id>]) -> (Vec<Option<u32>>, usize) {
+    let mut last_read: Vec<Option<u32>> = vec![None; f.nodes.len()];
+    for (i, node) in f.nodes.iter().enumerate() {
+        let Some(si) = step_of[i] else { continue };
+        for o in node.op.operands() {
+            if step_of[o.0 as usize].is_some_and(|so| so < si) {
+                let r = &mut last_read[o.0 as usize];
+                *r = Some(r.map_or(si, |x| x.max(si)));
+            }
+        }
+    }
+    let mut slot = vec![None; f.nodes.len()];
+    let mut slots = 0u32;
+    let mut free: Vec<u32> = Vec::new();
+    let mut busy: Vec<(u32, u32)> = Vec::new();
+    for (step, ids) in steps.iter().enumerate() {
+        let step = step as u32;
+        busy.retain(|&(s, until)| {
+            let keep = until >= step;
+            if !keep {
+                free.push(s);
+            }
+            keep
+        });
+        free.sort_unstable_by(|a, b| b.cmp(a));
+        for id in ids {
+            if let Some(until) = last_read[id.0 as usize] {
+                let s = free.pop().unwrap_or_else(|| {
+                    slots += 1;
+                    slots - 1
+                });
+                slot[id.0 as usize] = Some(s);
+                busy.push((s, until));
+            }
+        }
+    }
+    (slot, slots as usize)
 }
 
 /// Where one operation runs.
@@ -201,48 +209,13 @@ impl Phases {
             phases.push(lists);
         }
 
-        // Shared slots: values read in a later phase, by first phase written.
-        let mut last_read = vec![None::<u32>; n];
-        for (i, node) in f.nodes.iter().enumerate() {
-            let Some(pi) = place[i] else { continue };
-            for o in node.op.operands() {
-                if let Some(po) = place[o.0 as usize] {
-                    if po.phase < pi.phase {
-                        let r = &mut last_read[o.0 as usize];
-                        *r = Some(r.map_or(pi.phase, |x: u32| x.max(pi.phase)));
-                    }
-                }
-            }
+        let phase_of: Vec<Option<u32>> = place.iter().map(|p| p.map(|p| p.phase)).collect();
+        let in_phase: Vec<Vec<Id>> = phases.iter().map(|lists| lists.iter().flatten().copied().collect()).collect();
+        let (slot, slots) = assign_slots(f, &phase_of, &in_phase);
+        if slots > max_slots {
+            return Err(ScheduleError::OverBudget { kernel: f.kind.name(), needed: slots, budget: max_slots });
         }
-        let mut slot = vec![None; n];
-        let mut slots = 0u32;
-        let mut free: Vec<u32> = Vec::new();
-        let mut busy: Vec<(u32, u32)> = Vec::new();
-        for (p, lists) in phases.iter().enumerate() {
-            let p = p as u32;
-            busy.retain(|&(s, until)| {
-                let keep = until >= p;
-                if !keep {
-                    free.push(s);
-                }
-                keep
-            });
-            free.sort_unstable_by(|a, b| b.cmp(a));
-            for id in lists.iter().flatten() {
-                if let Some(until) = last_read[id.0 as usize] {
-                    let s = free.pop().unwrap_or_else(|| {
-                        slots += 1;
-                        slots - 1
-                    });
-                    slot[id.0 as usize] = Some(s);
-                    busy.push((s, until));
-                }
-            }
-        }
-        if slots as usize > max_slots {
-            return Err(ScheduleError::OverBudget { kernel: f.kind.name(), needed: slots as usize, budget: max_slots });
-        }
-        Ok(Phases { workers, phases, place, slot, slots: slots as usize })
+        Ok(Phases { workers, phases, place, slot, slots })
     }
 
     /// The longest list of each phase, summed: the schedule's length in operations.

@@ -6,7 +6,7 @@ use std::collections::HashMap;
 use std::fmt::Write;
 
 use super::names::{identifier, string_literal};
-use super::{BackError, GeneratedFile};
+use super::{BackError, GeneratedFile, Target};
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id, KernelKind, Module, Op, Shape};
 
@@ -282,5 +282,5 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
         string_literal(&robot.name),
         nv,
     );
-    Ok(GeneratedFile { name: format!("{stem}.rs"), contents: header + &code })
+    Ok(GeneratedFile { name: Target::Rust.file_name(&stem), contents: header + &code })
 }

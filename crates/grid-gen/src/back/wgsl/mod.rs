@@ -10,7 +10,7 @@
 use std::fmt::Write;
 
 use super::names::{comment_text, identifier};
-use super::{BackError, GeneratedFile};
+use super::{BackError, GeneratedFile, Target};
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id, Input, Module, Op};
 
@@ -171,5 +171,5 @@ pub fn emit(module: &Module, options: &WgslOptions) -> Result<GeneratedFile, Bac
     for f in &module.functions {
         emit_function(&mut out, f, nv, options, &robot.name)?;
     }
-    Ok(GeneratedFile { name: format!("{stem}.wgsl"), contents: out })
+    Ok(GeneratedFile { name: Target::Wgsl.file_name(&stem), contents: out })
 }
