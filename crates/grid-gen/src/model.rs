@@ -127,6 +127,8 @@ pub struct Joint {
     pub subtree_end: usize,
     /// `(lower, upper)` from `<limit>`, if present.
     pub limit: Option<(f64, f64)>,
+    /// `<limit velocity>` (rad/s or m/s), when given and positive.
+    pub velocity_limit: Option<f64>,
     /// `<dynamics>` damping and friction (not part of the rigid-body terms).
     pub damping: f64,
     pub friction: f64,
@@ -314,6 +316,7 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Op
                     level: parent.map_or(0, |p| joints[p].level + 1),
                     subtree_end: index + 1,
                     limit: uj.limit,
+                    velocity_limit: uj.velocity,
                     damping: uj.damping,
                     friction: uj.friction,
                     mimic: uj.mimic.as_ref().map(|m| (m.joint.clone(), m.multiplier, m.offset)),

@@ -6,6 +6,7 @@
 //! target-neutral [`schedule`].
 
 mod dynamics;
+pub mod fixed;
 mod graph;
 mod kernel;
 mod module;

@@ -68,6 +68,11 @@ pub struct Robot {
     pub joint_types: Vec<JointType>,
     /// Parent joint of each joint, `None` for children of the fixed root.
     pub parents: Vec<Option<usize>>,
+    /// `<limit lower upper>` of each joint, when given (the fixed-point range analysis
+    /// bounds prismatic positions with it).
+    pub limits: Vec<Option<(f64, f64)>>,
+    /// `<limit velocity>` of each joint, when given and positive.
+    pub velocity_limits: Vec<Option<f64>>,
 }
 
 impl Robot {
@@ -113,6 +118,8 @@ pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result
         joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
         joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
         parents: model.joints.iter().map(|j| j.parent).collect(),
+        limits: model.joints.iter().map(|j| j.limit).collect(),
+        velocity_limits: model.joints.iter().map(|j| j.velocity_limit).collect(),
     };
     let mut functions = Vec::new();
     for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)) {

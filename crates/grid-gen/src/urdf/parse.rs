@@ -71,6 +71,8 @@ pub struct Joint {
     pub axis: [f64; 3],
     pub axis_span: Range<usize>,
     pub limit: Option<(f64, f64)>,
+    /// `<limit velocity>` when positive (URDF writes 0 for "not given" in practice).
+    pub velocity: Option<f64>,
     pub damping: f64,
     pub friction: f64,
     pub mimic: Option<Mimic>,
@@ -247,13 +249,14 @@ impl Parser {
             None => [1.0, 0.0, 0.0],
         };
         let axis_span = axis_node.map_or(span.clone(), |a| Self::attr_span(a, "xyz"));
-        let limit = match child(node, "limit") {
+        let (limit, velocity) = match child(node, "limit") {
             Some(l) => {
                 let lo = self.numbers::<1>(l, "lower", Some([0.0]))?[0];
                 let hi = self.numbers::<1>(l, "upper", Some([0.0]))?[0];
-                Some((lo, hi))
+                let v = self.numbers::<1>(l, "velocity", Some([0.0]))?[0];
+                (Some((lo, hi)), (v > 0.0).then_some(v))
             }
-            None => None,
+            None => (None, None),
         };
         let (damping, friction) = match child(node, "dynamics") {
             Some(d) => (self.numbers::<1>(d, "damping", Some([0.0]))?[0], self.numbers::<1>(d, "friction", Some([0.0]))?[0]),
@@ -279,6 +282,7 @@ impl Parser {
             axis,
             axis_span,
             limit,
+            velocity,
             damping,
             friction,
             mimic,

@@ -1,0 +1,168 @@
+//! Range and rounding-error analysis of a datapath. Interval arithmetic from the input
+//! bounds gives every node's range (so the integer bits are shown sufficient), and a
+//! forward worst-case error bound per node: for `x̂ = x + ex`, `ŷ = y + ey`,
+//! `|x̂ŷ − xy| ≤ |x||ey| + |y||ex| + |ex||ey|`, plus the product's rounding; sums add
+//! their operands' bounds. Both are rigorous (no overflow occurs inside the bounds, and
+//! the fixed-point result is within the bound of the exact one) but conservative:
+//! intervals do not know that sin² + cos² = 1, so a rotation's |a|+|b| replaces
+//! √(a²+b²) at every joint and ranges grow along the chain faster than the true values.
+//! First-order affine arithmetic (one noise symbol per port) was tried and bounded no
+//! node of the bundled robots tighter: the dynamics are multilinear in the joints'
+//! sin/cos, so every product of two joints' terms falls into the nonlinear remainder. The README reports the bound beside the measured error.
+
+use super::{Datapath, FixedError, Format, HwOp, Port, Rounding, MAX_WIDTH};
+use crate::ir::{Input, Robot};
+
+/// Joint speed bound when the URDF gives no `<limit velocity>` (rad/s or m/s); a fast
+/// industrial arm's joints stay under it (the iiwa's limits are 1.5 to 3.1 rad/s; GRiD's
+/// URDFs write 10 or 12).
+pub const DEFAULT_QD_MAX: f64 = 10.0;
+/// Joint acceleration bound (rad/s² or m/s²); no URDF field gives one. Ten times what
+/// industrial arms are rated for (the iiwa: about 10 rad/s²), to leave room for MPC
+/// iterates far from feasible.
+pub const DEFAULT_QDD_MAX: f64 = 100.0;
+/// Prismatic position bound (m) when the joint has no `<limit>`.
+pub const DEFAULT_Q_MAX: f64 = 2.0;
+
+/// The inputs' declared ranges, per joint (symmetric magnitudes, except positions).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Bounds {
+    pub q: Vec<(f64, f64)>,
+    pub qd: Vec<f64>,
+    pub qdd: Vec<f64>,
+}
+
+impl Bounds {
+    /// From the URDF's limits, overridden for every joint by `qd_max` / `qdd_max` when
+    /// given; the defaults above otherwise.
+    pub fn new(robot: &Robot, qd_max: Option<f64>, qdd_max: Option<f64>) -> Bounds {
+        let nv = robot.nv();
+        Bounds {
+            q: (0..nv).map(|j| robot.limits[j].filter(|(lo, hi)| lo < hi).unwrap_or((-DEFAULT_Q_MAX, DEFAULT_Q_MAX))).collect(),
+            qd: (0..nv).map(|j| qd_max.or(robot.velocity_limits[j]).unwrap_or(DEFAULT_QD_MAX)).collect(),
+            qdd: vec![qdd_max.unwrap_or(DEFAULT_QDD_MAX); nv],
+        }
+    }
+
+    /// Whether a state lies inside the bounds (positions are only bounded where a
+    /// datapath uses them directly, for prismatic joints).
+    pub fn contains(&self, qd: &[f64], qdd: &[f64]) -> bool {
+        qd.iter().zip(&self.qd).all(|(v, b)| v.abs() <= *b) && qdd.iter().zip(&self.qdd).all(|(v, b)| v.abs() <= *b)
+    }
+
+    fn port(&self, p: Port) -> (f64, f64) {
+        match p {
+            Port::Sin(_) | Port::Cos(_) => (-1.0, 1.0),
+            Port::Value(Input::Q, j) => self.q[j as usize],
+            Port::Value(Input::Qd, j) => (-self.qd[j as usize], self.qd[j as usize]),
+            Port::Value(Input::Qdd, j) => (-self.qdd[j as usize], self.qdd[j as usize]),
+            // No datapath kernel takes torques; unbounded makes any that did fail the check.
+            Port::Value(Input::Tau, _) => (f64::NEG_INFINITY, f64::INFINITY),
+        }
+    }
+}
+
+/// What the analysis found for one format.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Analysis {
+    /// Range of each node's exact value.
+    pub lo: Vec<f64>,
+    pub hi: Vec<f64>,
+    /// Bound on |fixed − exact| of each node.
+    pub err: Vec<f64>,
+    /// Largest magnitude any node's fixed-point value can reach (range plus error).
+    pub needed: f64,
+    /// Largest error bound over the outputs' non-zero entries.
+    pub output_error: f64,
+}
+
+/// Widens a bound computed in f64 so that its own rounding cannot make it too small.
+fn up(x: f64) -> f64 {
+    x * (1.0 + 8.0 * f64::EPSILON) + f64::MIN_POSITIVE
+}
+
+/// Analyses `dp` for inputs within `bounds`, with `frac` fraction bits and `rounding`
+/// (the width does not change either result, as long as nothing saturates).
+pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) -> Analysis {
+    let format = Format { width: MAX_WIDTH, frac, rounding };
+    let ulp = format.ulp();
+    let n = dp.nodes.len();
+    let (mut lo, mut hi, mut err) = (vec![0.0f64; n], vec![0.0f64; n], vec![0.0f64; n]);
+    for (i, op) in dp.nodes.iter().enumerate() {
+        let (l, h, e) = match *op {
+            HwOp::Port(p) => {
+                let (l, h) = bounds.port(dp.ports[p as usize]);
+                (l, h, ulp / 2.0)
+            }
+            HwOp::Const(c) => (c, c, (c - format.to_f64(format.quantize(c).0)).abs()),
+            HwOp::Add(a, b) => (lo[a.0 as usize] + lo[b.0 as usize], hi[a.0 as usize] + hi[b.0 as usize], err[a.0 as usize] + err[b.0 as usize]),
+            HwOp::Sub(a, b) => (lo[a.0 as usize] - hi[b.0 as usize], hi[a.0 as usize] - lo[b.0 as usize], err[a.0 as usize] + err[b.0 as usize]),
+            HwOp::Neg(a) => (-hi[a.0 as usize], -lo[a.0 as usize], err[a.0 as usize]),
+            HwOp::Mul(a, b) => {
+                let (al, ah, bl, bh) = (lo[a.0 as usize], hi[a.0 as usize], lo[b.0 as usize], hi[b.0 as usize]);
+                let p = [al * bl, al * bh, ah * bl, ah * bh];
+                let l = p.iter().copied().fold(f64::INFINITY, f64::min);
+                let h = p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
+                // 0 · ∞ from an unbounded port: the product is unbounded.
+                let (l, h) = if l.is_nan() || h.is_nan() { (f64::NEG_INFINITY, f64::INFINITY) } else { (l, h) };
+                let (ea, eb) = (err[a.0 as usize], err[b.0 as usize]);
+                let (ma, mb) = (al.abs().max(ah.abs()), bl.abs().max(bh.abs()));
+                (l, h, ma * eb + mb * ea + ea * eb + format.product_error())
+            }
+        };
+        lo[i] = if l == 0.0 { 0.0 } else { l - up(l.abs()) + l.abs() };
+        hi[i] = if h == 0.0 { 0.0 } else { h + up(h.abs()) - h.abs() };
+        err[i] = up(e);
+    }
+    let needed = (0..n).map(|i| lo[i].abs().max(hi[i].abs()) + err[i]).fold(0.0, f64::max);
+    let output_error = dp.nonzero_outputs().iter().map(|&(_, _, id)| err[id.0 as usize]).fold(0.0, f64::max);
+    Analysis { lo, hi, err, needed, output_error }
+}
+
+impl Analysis {
+    /// Error unless every value fits `format` (then no node can saturate for inputs
+    /// within the bounds).
+    pub fn check(&self, dp: &Datapath, format: &Format) -> Result<(), FixedError> {
+        if self.needed.is_finite() && self.needed <= format.max_value() {
+            Ok(())
+        } else {
+            Err(FixedError::Range { kernel: dp.kernel.to_string(), width: format.width, frac: format.frac, needed: self.needed, max: format.max_value() })
+        }
+    }
+}
+
+/// The narrowest width that holds `needed` with `frac` fraction bits, if any ≤ 64.
+pub fn width_for(needed: f64, frac: u32) -> Option<u32> {
+    (frac + 1..=MAX_WIDTH).find(|&w| Format { width: w, frac, rounding: Rounding::Truncate }.max_value() >= needed)
+}
+
+/// The narrowest format whose analysed output error is at most `max_error`: the fewest
+/// fraction bits that meet it, then the fewest integer bits that hold every value.
+pub fn choose_format(dp: &Datapath, bounds: &Bounds, rounding: Rounding, max_error: f64) -> Result<(Format, Analysis), FixedError> {
+    if !(max_error.is_finite() && max_error > 0.0) {
+        return Err(FixedError::BadMaxError(max_error));
+    }
+    let mut best = None;
+    for frac in 0..MAX_WIDTH - 1 {
+        let a = analyse(dp, bounds, frac, rounding);
+        let Some(width) = width_for(a.needed, frac) else {
+            // More fraction bits only need more width: nothing further fits.
+            break;
+        };
+        if a.output_error <= max_error {
+            return Ok((Format { width, frac, rounding }, a));
+        }
+        best = Some((a.output_error, width, frac));
+    }
+    let (best, width, frac) = best.unwrap_or((f64::INFINITY, MAX_WIDTH, 0));
+    Err(FixedError::Unreachable { kernel: dp.kernel.to_string(), max_error, best, width, frac })
+}
+
+/// The format of width `width` with as many fraction bits as the analysed range allows.
+pub fn format_for_width(dp: &Datapath, bounds: &Bounds, rounding: Rounding, width: u32) -> Option<(Format, Analysis)> {
+    (0..width).rev().find_map(|frac| {
+        let a = analyse(dp, bounds, frac, rounding);
+        let f = Format { width, frac, rounding };
+        (a.needed <= f.max_value()).then_some((f, a))
+    })
+}

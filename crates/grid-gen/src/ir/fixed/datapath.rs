@@ -1,0 +1,203 @@
+//! The datapath view of a kernel: the IR function with sin q and cos q turned into input
+//! ports (the host computes them, as in robomorphic computing), and only +, −, ×, negation
+//! and constants left. The software model, the analysis and the Verilog backend read this.
+
+use super::FixedError;
+use crate::ir::{Function, Id, Input, Op, Shape};
+
+/// A node of the datapath.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+pub struct HwId(pub u32);
+
+/// What an input port carries, for joint `j`.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub enum Port {
+    Sin(u16),
+    Cos(u16),
+    /// `q`, `qd`, `qdd` or `tau` itself (prismatic positions, speeds, accelerations).
+    Value(Input, u16),
+}
+
+impl Port {
+    pub fn joint(self) -> usize {
+        match self {
+            Port::Sin(j) | Port::Cos(j) | Port::Value(_, j) => j as usize,
+        }
+    }
+
+    /// `sin_q`, `cos_q`, `qd`, …: the port's name before the joint.
+    pub fn prefix(self) -> &'static str {
+        match self {
+            Port::Sin(_) => "sin_q",
+            Port::Cos(_) => "cos_q",
+            Port::Value(i, _) => i.name(),
+        }
+    }
+}
+
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum HwOp {
+    /// Input port number `n` of [`Datapath::ports`].
+    Port(u32),
+    Const(f64),
+    Add(HwId, HwId),
+    Sub(HwId, HwId),
+    Mul(HwId, HwId),
+    Neg(HwId),
+}
+
+impl HwOp {
+    pub fn operands(&self) -> impl Iterator<Item = HwId> {
+        let (a, b) = match *self {
+            HwOp::Port(_) | HwOp::Const(_) => (None, None),
+            HwOp::Add(a, b) | HwOp::Sub(a, b) | HwOp::Mul(a, b) => (Some(a), Some(b)),
+            HwOp::Neg(a) => (Some(a), None),
+        };
+        a.into_iter().chain(b)
+    }
+
+    /// Whether the node is an arithmetic unit (not a port or constant).
+    pub fn is_operation(&self) -> bool {
+        !matches!(self, HwOp::Port(_) | HwOp::Const(_))
+    }
+
+    /// Whether a multiplier computes it (the others need an adder).
+    pub fn is_mul(&self) -> bool {
+        matches!(self, HwOp::Mul(..))
+    }
+}
+
+/// One output of the kernel, with all its entries (structural zeros included: they are
+/// the constant 0 node).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DatapathOutput {
+    pub name: &'static str,
+    pub shape: Shape,
+    pub ids: Vec<HwId>,
+}
+
+/// A kernel as a fixed-point datapath: nodes in topological order, every node live.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Datapath {
+    pub kernel: &'static str,
+    pub nv: usize,
+    pub ports: Vec<Port>,
+    pub nodes: Vec<HwOp>,
+    pub outputs: Vec<DatapathOutput>,
+}
+
+impl Datapath {
+    /// Converts a frozen IR function; fails on division and on sin/cos of anything but
+    /// an input position.
+    pub fn new(f: &Function, nv: usize) -> Result<Datapath, FixedError> {
+        let unsupported = || FixedError::Unsupported { kernel: f.kind.name().to_string() };
+        // Which nodes a datapath computes: those reachable from an output, where sin/cos
+        // of q stop the walk (they become ports).
+        let mut live = vec![false; f.nodes.len()];
+        for o in &f.outputs {
+            for id in &o.ids {
+                live[id.0 as usize] = true;
+            }
+        }
+        for i in (0..f.nodes.len()).rev() {
+            if !live[i] {
+                continue;
+            }
+            match f.nodes[i].op {
+                Op::Sin(a) | Op::Cos(a) => {
+                    if !matches!(f.op(a), Op::Input(Input::Q, _)) {
+                        return Err(unsupported());
+                    }
+                }
+                Op::Div(..) => return Err(unsupported()),
+                op => op.operands().for_each(|o| live[o.0 as usize] = true),
+            }
+        }
+        let mut ports = Vec::new();
+        let mut nodes = Vec::new();
+        let mut new_id = vec![HwId(u32::MAX); f.nodes.len()];
+        for (i, node) in f.nodes.iter().enumerate() {
+            if !live[i] {
+                continue;
+            }
+            let m = |id: Id| new_id[id.0 as usize];
+            let mut port = |p: Port| {
+                ports.push(p);
+                HwOp::Port(ports.len() as u32 - 1)
+            };
+            let op = match node.op {
+                Op::Input(input, j) => port(Port::Value(input, j)),
+                Op::Sin(a) | Op::Cos(a) => {
+                    let Op::Input(_, j) = f.op(a) else { unreachable!("checked above") };
+                    port(if matches!(node.op, Op::Sin(_)) { Port::Sin(j) } else { Port::Cos(j) })
+                }
+                Op::Const(c) => HwOp::Const(c),
+                Op::Add(a, b) => HwOp::Add(m(a), m(b)),
+                Op::Sub(a, b) => HwOp::Sub(m(a), m(b)),
+                Op::Mul(a, b) => HwOp::Mul(m(a), m(b)),
+                Op::Neg(a) => HwOp::Neg(m(a)),
+                Op::Div(..) => unreachable!("checked above"),
+            };
+            new_id[i] = HwId(nodes.len() as u32);
+            nodes.push(op);
+        }
+        let outputs = f
+            .outputs
+            .iter()
+            .map(|o| DatapathOutput { name: o.name, shape: o.shape, ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect() })
+            .collect();
+        Ok(Datapath { kernel: f.kind.name(), nv, ports, nodes, outputs })
+    }
+
+    pub fn op(&self, id: HwId) -> HwOp {
+        self.nodes[id.0 as usize]
+    }
+
+    /// Whether an output entry is structurally zero (no port is emitted for it).
+    pub fn is_zero(&self, id: HwId) -> bool {
+        self.op(id) == HwOp::Const(0.0)
+    }
+
+    /// Every output entry that is not structurally zero: (output index, entry index, node).
+    pub fn nonzero_outputs(&self) -> Vec<(usize, usize, HwId)> {
+        let mut out = Vec::new();
+        for (k, o) in self.outputs.iter().enumerate() {
+            for (e, &id) in o.ids.iter().enumerate() {
+                if !self.is_zero(id) {
+                    out.push((k, e, id));
+                }
+            }
+        }
+        out
+    }
+
+    /// Dependence depth of each node: 0 for ports and constants, else one more than its
+    /// deepest operand.
+    pub fn depths(&self) -> Vec<u32> {
+        let mut depth = vec![0u32; self.nodes.len()];
+        for (i, op) in self.nodes.iter().enumerate() {
+            if op.is_operation() {
+                depth[i] = 1 + op.operands().map(|a| depth[a.0 as usize]).max().unwrap_or(0);
+            }
+        }
+        depth
+    }
+
+    /// (multiplications, additions/subtractions/negations).
+    pub fn op_counts(&self) -> (usize, usize) {
+        let muls = self.nodes.iter().filter(|o| o.is_mul()).count();
+        let adds = self.nodes.iter().filter(|o| o.is_operation() && !o.is_mul()).count();
+        (muls, adds)
+    }
+
+    /// Multiplications with a constant operand (cheaper in hardware: shift-and-add).
+    pub fn constant_muls(&self) -> usize {
+        self.nodes
+            .iter()
+            .filter(|o| match o {
+                HwOp::Mul(a, b) => matches!(self.op(*a), HwOp::Const(_)) || matches!(self.op(*b), HwOp::Const(_)),
+                _ => false,
+            })
+            .count()
+    }
+}
