@@ -4,6 +4,7 @@
 use std::path::{Path, PathBuf};
 
 use crate::back::rust::{self, RustOptions};
+use crate::back::verilog::{self, VerilogOptions};
 use crate::back::wgsl::{self, WgslOptions};
 pub use crate::back::{BackError, GeneratedFile, Target};
 use crate::ir::{self, LowerError, LowerOptions};
@@ -17,6 +18,7 @@ pub struct Options {
     pub lower: LowerOptions,
     pub rust: RustOptions,
     pub wgsl: WgslOptions,
+    pub verilog: VerilogOptions,
 }
 
 impl Default for Options {
@@ -27,6 +29,7 @@ impl Default for Options {
             lower: LowerOptions::default(),
             rust: RustOptions::default(),
             wgsl: WgslOptions::default(),
+            verilog: VerilogOptions::default(),
         }
     }
 }
@@ -53,6 +56,7 @@ pub fn emit(module: &ir::Module, options: &Options) -> Result<Vec<GeneratedFile>
         match target {
             Target::Rust => files.push(rust::emit(module, &options.rust)?),
             Target::Wgsl => files.push(wgsl::emit(module, &options.wgsl)?),
+            Target::Verilog => files.extend(verilog::emit(module, &options.verilog)?),
         }
     }
     Ok(files)

@@ -4,6 +4,7 @@
 
 pub mod names;
 pub mod rust;
+pub mod verilog;
 pub mod wgsl;
 
 /// One output file: a name (no folders) and its contents.
@@ -18,16 +19,18 @@ pub struct GeneratedFile {
 pub enum Target {
     Rust,
     Wgsl,
+    Verilog,
 }
 
 impl Target {
-    pub const ALL: [Target; 2] = [Target::Rust, Target::Wgsl];
+    pub const ALL: [Target; 3] = [Target::Rust, Target::Wgsl, Target::Verilog];
 
     /// The name used by `--emit`.
     pub fn name(self) -> &'static str {
         match self {
             Target::Rust => "rust",
             Target::Wgsl => "wgsl",
+            Target::Verilog => "verilog",
         }
     }
 
@@ -35,11 +38,13 @@ impl Target {
         Target::ALL.into_iter().find(|t| t.name() == s)
     }
 
-    /// The file each target writes for a robot whose file stem is `stem`.
+    /// The file each single-file target writes for a robot whose file stem is `stem`
+    /// (Verilog writes `<stem>_<kernel>.v` and `<stem>_<kernel>_tb.v` per kernel).
     pub fn file_name(self, stem: &str) -> String {
         match self {
             Target::Rust => format!("{stem}.rs"),
             Target::Wgsl => format!("{stem}.wgsl"),
+            Target::Verilog => format!("{stem}_<kernel>.v"),
         }
     }
 }
@@ -51,4 +56,12 @@ pub enum BackError {
     RustUnparsable(String),
     #[error("robot `{robot}`: the constant {value} is out of f32's range, so the WGSL (f32) kernels cannot hold it")]
     WgslRange { robot: String, value: f64 },
+    #[error("Verilog: {0}")]
+    Fixed(crate::ir::fixed::FixedError),
+    #[error("Verilog: no datapath kernel selected (available: rnea, rnea_grad, mass_matrix)")]
+    VerilogNoKernels,
+    #[error("Verilog: kernel `{0}` was not lowered")]
+    VerilogMissing(crate::ir::KernelKind),
+    #[error("Verilog: {0}")]
+    VerilogArch(String),
 }

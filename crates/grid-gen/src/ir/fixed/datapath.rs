@@ -141,11 +141,8 @@ impl Datapath {
             new_id[i] = HwId(nodes.len() as u32);
             nodes.push(op);
         }
-        let outputs = f
-            .outputs
-            .iter()
-            .map(|o| DatapathOutput { name: o.name, shape: o.shape, ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect() })
-            .collect();
+        let outputs =
+            f.outputs.iter().map(|o| DatapathOutput { name: o.name, shape: o.shape, ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect() }).collect();
         Ok(Datapath { kernel: f.kind.name(), nv, ports, nodes, outputs })
     }
 

@@ -1,0 +1,311 @@
+//! The Verilog backend: each datapath kernel (`rnea_grad`, `mass_matrix`; `rnea` on
+//! request) as a synthesisable Verilog-2005 fixed-point netlist with a `clk`/`rst`,
+//! `in_valid`/`in_ready`/`out_valid` handshake and a sticky `overflow` flag, plus a
+//! testbench. sin q and cos q are inputs (computed by the host, as in robomorphic
+//! computing); only structurally non-zero outputs are ports. Two architectures:
+//! `pipelined` (every IR node its own operator, registers every K levels of depth, one
+//! state per clock) and `shared` (the graph list-scheduled onto M multipliers and A
+//! adders under a generated controller).
+
+mod cells;
+mod pipelined;
+mod ports;
+mod schedule;
+mod shared;
+pub mod sim;
+mod testbench;
+
+use serde::Serialize;
+
+use super::names::{comment_text, identifier};
+use super::{BackError, GeneratedFile};
+use crate::ir::fixed::{analyse, choose_format, Analysis, Bounds, Datapath, FixedError, Format, Rounding};
+use crate::ir::{KernelKind, Module};
+pub use ports::PortNames;
+pub use schedule::SharedSchedule;
+
+/// How the datapath is built.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+#[serde(tag = "arch", rename_all = "snake_case")]
+pub enum Arch {
+    /// Every operation its own unit; pipeline registers every `stage_depth` levels.
+    Pipelined { stage_depth: u32 },
+    /// `multipliers` multipliers and `adders` adders (add, subtract, negate) shared over
+    /// the graph by a list schedule.
+    Shared { multipliers: usize, adders: usize },
+}
+
+impl Arch {
+    pub fn name(&self) -> &'static str {
+        match self {
+            Arch::Pipelined { .. } => "pipelined",
+            Arch::Shared { .. } => "shared",
+        }
+    }
+}
+
+/// The number format: given, or the narrowest that the analysis shows meets an error.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum FormatChoice {
+    Fixed {
+        width: u32,
+        frac: u32,
+    },
+    /// Fewest fraction bits whose analysed error bound on every output is at most
+    /// `max_error` (absolute, in the outputs' units), then fewest integer bits.
+    Auto {
+        max_error: f64,
+    },
+}
+
+/// Default `--max-error`: a thousandth of a newton-metre per radian (or per rad/s) on
+/// each gradient entry, far below what MPC solvers resolve.
+pub const DEFAULT_MAX_ERROR: f64 = 1e-3;
+/// Default `--stage-depth`: a multiplier and three adds between registers.
+pub const DEFAULT_STAGE_DEPTH: u32 = 4;
+/// Default shared units.
+pub const DEFAULT_MULTIPLIERS: usize = 8;
+pub const DEFAULT_ADDERS: usize = 8;
+
+/// The kernels `--emit verilog` builds by default: the gradient and M (the host forms
+/// M⁻¹ and ∂q̈ = −M⁻¹ ∂c, as robomorphic computing does).
+pub const DEFAULT_KERNELS: [KernelKind; 2] = [KernelKind::RneaGrad, KernelKind::MassMatrix];
+
+/// Options of the Verilog backend.
+#[derive(Clone, Debug, PartialEq)]
+pub struct VerilogOptions {
+    pub format: FormatChoice,
+    pub rounding: Rounding,
+    pub arch: Arch,
+    /// Override every joint's speed bound (else the URDF's `<limit velocity>`, else
+    /// [`crate::ir::fixed::DEFAULT_QD_MAX`]).
+    pub qd_max: Option<f64>,
+    /// Override every joint's acceleration bound (else [`crate::ir::fixed::DEFAULT_QDD_MAX`]).
+    pub qdd_max: Option<f64>,
+    /// Which of the module's kernels to build (those without division).
+    pub kernels: Vec<KernelKind>,
+}
+
+impl Default for VerilogOptions {
+    fn default() -> Self {
+        VerilogOptions {
+            format: FormatChoice::Auto { max_error: DEFAULT_MAX_ERROR },
+            rounding: Rounding::HalfUp,
+            arch: Arch::Pipelined { stage_depth: DEFAULT_STAGE_DEPTH },
+            qd_max: None,
+            qdd_max: None,
+            kernels: DEFAULT_KERNELS.to_vec(),
+        }
+    }
+}
+
+/// Resources and timing of one netlist, as `info --json` reports them.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct NetlistStats {
+    pub kernel: KernelKind,
+    #[serde(flatten)]
+    pub arch: Arch,
+    /// `WIDTH.FRAC`.
+    pub format: String,
+    pub rounding: Rounding,
+    /// Multiplier units (pipelined: one per product, of which `constant_multipliers`
+    /// have a constant operand).
+    pub multipliers: usize,
+    pub constant_multipliers: usize,
+    /// Adder/subtractor units (negation included).
+    pub adders: usize,
+    /// Data registers (each WIDTH bits), control excluded.
+    pub registers: usize,
+    /// Clock edges from the edge that takes a state to the one that raises `out_valid`.
+    pub latency_cycles: usize,
+    /// Clock cycles between successive states.
+    pub cycles_per_state: usize,
+    /// Non-zero output ports.
+    pub outputs: usize,
+    /// Analysed worst-case |fixed − exact| over the outputs, for inputs within the bounds.
+    pub error_bound: f64,
+    /// Largest magnitude the analysis allows any value (must be ≤ the format's maximum).
+    pub range_bound: f64,
+}
+
+/// One kernel planned for hardware: the datapath, its format and analysis, its names.
+#[derive(Clone, Debug)]
+pub struct Netlist {
+    pub kind: KernelKind,
+    pub datapath: Datapath,
+    pub format: Format,
+    pub analysis: Analysis,
+    pub bounds: Bounds,
+    pub arch: Arch,
+    /// Verilog module name of the top.
+    pub top: String,
+    pub names: PortNames,
+    /// The shared architecture's schedule.
+    pub schedule: Option<SharedSchedule>,
+}
+
+/// Builds each requested kernel's datapath, picks or checks its format, and schedules it.
+pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, BackError> {
+    let kernels: Vec<KernelKind> = KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)).collect();
+    if kernels.is_empty() {
+        return Err(BackError::VerilogNoKernels);
+    }
+    match options.arch {
+        Arch::Pipelined { stage_depth: 0 } => return Err(BackError::VerilogArch("--stage-depth must be at least 1".into())),
+        Arch::Shared { multipliers, adders } if multipliers == 0 || adders == 0 => {
+            return Err(BackError::VerilogArch("--multipliers and --adders must be at least 1".into()))
+        }
+        _ => {}
+    }
+    let stem = identifier(&module.robot.name);
+    let bounds = Bounds::new(&module.robot, options.qd_max, options.qdd_max);
+    let mut out = Vec::new();
+    for kind in kernels {
+        let f = module.function(kind).ok_or(BackError::VerilogMissing(kind))?;
+        let datapath = Datapath::new(f, module.robot.nv()).map_err(BackError::Fixed)?;
+        let (format, analysis) = match options.format {
+            FormatChoice::Fixed { width, frac } => {
+                let format = Format::new(width, frac, options.rounding).map_err(BackError::Fixed)?;
+                let analysis = analyse(&datapath, &bounds, frac, options.rounding);
+                analysis.check(&datapath, &format).map_err(BackError::Fixed)?;
+                (format, analysis)
+            }
+            FormatChoice::Auto { max_error } => choose_format(&datapath, &bounds, options.rounding, max_error).map_err(BackError::Fixed)?,
+        };
+        let schedule = match options.arch {
+            Arch::Shared { multipliers, adders } => Some(SharedSchedule::new(&datapath, multipliers, adders)),
+            Arch::Pipelined { .. } => None,
+        };
+        let names = PortNames::new(&module.robot, &datapath);
+        out.push(Netlist {
+            kind,
+            datapath,
+            format,
+            analysis,
+            bounds: bounds.clone(),
+            arch: options.arch,
+            top: format!("{stem}_{}", kind.name()),
+            names,
+            schedule,
+        });
+    }
+    Ok(out)
+}
+
+impl Netlist {
+    pub fn stats(&self) -> NetlistStats {
+        let dp = &self.datapath;
+        let (muls, adds) = dp.op_counts();
+        let (multipliers, constant_multipliers, adders, registers, latency_cycles, cycles_per_state) = match (&self.arch, &self.schedule) {
+            (Arch::Shared { multipliers, adders }, Some(s)) => (*multipliers, 0, *adders, s.registers, s.cycles + 1, s.cycles + 1),
+            (Arch::Pipelined { stage_depth }, _) => {
+                let p = pipelined::Stages::new(dp, *stage_depth);
+                (muls, dp.constant_muls(), adds, p.registers(), p.count as usize + 1, 1)
+            }
+            (Arch::Shared { .. }, None) => unreachable!("planned with a schedule"),
+        };
+        NetlistStats {
+            kernel: self.kind,
+            arch: self.arch,
+            format: self.format.label(),
+            rounding: self.format.rounding,
+            multipliers,
+            constant_multipliers,
+            adders,
+            registers,
+            latency_cycles,
+            cycles_per_state,
+            outputs: dp.nonzero_outputs().len(),
+            error_bound: self.analysis.output_error,
+            range_bound: self.analysis.needed,
+        }
+    }
+
+    /// The netlist file's name and the testbench's.
+    pub fn file_names(&self) -> (String, String) {
+        (format!("{}.v", self.top), format!("{}_tb.v", self.top))
+    }
+
+    /// The netlist (cells and top module) as Verilog-2005.
+    pub fn verilog(&self, robot: &crate::ir::Robot) -> String {
+        let mut out = self.header(robot);
+        out.push_str(&cells::cells(&self.top, &self.format));
+        match self.arch {
+            Arch::Pipelined { stage_depth } => out.push_str(&pipelined::top(self, stage_depth)),
+            Arch::Shared { .. } => out.push_str(&shared::top(self)),
+        }
+        out
+    }
+
+    /// The self-checking-free testbench: reads states from a hex file and writes outputs.
+    pub fn testbench(&self) -> String {
+        testbench::testbench(self)
+    }
+
+    fn header(&self, robot: &crate::ir::Robot) -> String {
+        let s = self.stats();
+        let mut h = String::new();
+        h.push_str(&format!("// Generated by grid-gen {} from robot \"{}\". Do not edit.\n", env!("CARGO_PKG_VERSION"), comment_text(&robot.name)));
+        h.push_str(&format!("// {}: {}\n", self.kind.name(), comment_text(self.kind.doc())));
+        h.push_str(&format!(
+            "// Signed fixed point {} ({} bits, {} after the point; multipliers {}; every result saturates and sets `overflow`).\n",
+            self.format.label(),
+            self.format.width,
+            self.format.frac,
+            match self.format.rounding {
+                Rounding::Truncate => "truncate (keep the high bits)",
+                Rounding::HalfUp => "round half up",
+            }
+        ));
+        match self.arch {
+            Arch::Pipelined { stage_depth } => h.push_str(&format!(
+                "// Architecture: pipelined, registers every {stage_depth} levels; one state per clock, latency {} clocks.\n",
+                s.latency_cycles
+            )),
+            Arch::Shared { multipliers, adders } => {
+                h.push_str(&format!("// Architecture: shared, {multipliers} multipliers and {adders} adders; one state every {} clocks.\n", s.cycles_per_state))
+            }
+        }
+        h.push_str(&format!(
+            "// Units: {} multipliers ({} by a constant), {} adders, {} data registers.\n",
+            s.multipliers, s.constant_multipliers, s.adders, s.registers
+        ));
+        h.push_str(&format!(
+            "// Analysed for |qd| <= {}, |qdd| <= {} (per joint, in order): every value within {:.6e}; every output within {:.6e} of exact.\n",
+            list(&self.bounds.qd),
+            list(&self.bounds.qdd),
+            s.range_bound,
+            s.error_bound
+        ));
+        h.push_str("//\n// Ports (inputs and outputs raw two's complement, value = raw * 2^-FRAC; outputs valid while out_valid is high):\n");
+        h.push_str(&self.names.doc(robot));
+        h.push('\n');
+        h
+    }
+}
+
+fn list(v: &[f64]) -> String {
+    let all_same = v.windows(2).all(|w| w[0] == w[1]);
+    if all_same && !v.is_empty() {
+        format!("{}", v[0])
+    } else {
+        format!("[{}]", v.iter().map(|x| format!("{x}")).collect::<Vec<_>>().join(", "))
+    }
+}
+
+/// Every file of the Verilog target: each netlist and its testbench.
+pub fn emit(module: &Module, options: &VerilogOptions) -> Result<Vec<GeneratedFile>, BackError> {
+    let mut files = Vec::new();
+    for n in plan(module, options)? {
+        let (v, tb) = n.file_names();
+        files.push(GeneratedFile { name: v, contents: n.verilog(&module.robot) });
+        files.push(GeneratedFile { name: tb, contents: n.testbench() });
+    }
+    Ok(files)
+}
+
+impl From<FixedError> for BackError {
+    fn from(e: FixedError) -> Self {
+        BackError::Fixed(e)
+    }
+}

@@ -1,0 +1,149 @@
+//! The pipelined architecture: every datapath node its own operator, pipeline registers
+//! after every `stage_depth` levels of dependence depth, one state accepted per clock.
+//! A value computed in stage t and read in stage s > t travels through registers
+//! `p<t>_n<id>` … `p<s-1>_n<id>`; inputs are registered on entry (stage 0) and outputs
+//! leave from the last stage's registers. The overflow flag travels with the data.
+
+use std::fmt::Write;
+
+use super::cells::literal;
+use super::Netlist;
+use crate::ir::fixed::{Datapath, HwId, HwOp};
+
+/// Which stage computes each node, and the last stage that needs its value.
+pub struct Stages {
+    /// 0 for ports and constants.
+    pub stage: Vec<u32>,
+    /// Stages after the input registers (at least 1).
+    pub count: u32,
+    /// For ports and operations: one past the last stage whose registers hold the value
+    /// (the value is registered at the end of stages `stage..last`).
+    pub last: Vec<u32>,
+}
+
+impl Stages {
+    pub fn new(dp: &Datapath, stage_depth: u32) -> Stages {
+        let stage: Vec<u32> = dp.depths().iter().map(|d| d.div_ceil(stage_depth)).collect();
+        let count = stage.iter().copied().max().unwrap_or(0).max(1);
+        let mut last = stage.clone();
+        for (i, op) in dp.nodes.iter().enumerate() {
+            for a in op.operands() {
+                let a = a.0 as usize;
+                if stage[i] > stage[a] {
+                    last[a] = last[a].max(stage[i]);
+                }
+            }
+        }
+        for (_, id) in dp.nonzero_outputs().into_iter().map(|(_, _, id)| ((), id)) {
+            last[id.0 as usize] = count + 1;
+        }
+        for (i, op) in dp.nodes.iter().enumerate() {
+            if matches!(op, HwOp::Const(_)) {
+                last[i] = stage[i];
+            }
+        }
+        Stages { stage, count, last }
+    }
+
+    /// Data registers: one per value per stage boundary it crosses.
+    pub fn registers(&self) -> usize {
+        self.stage.iter().zip(&self.last).map(|(s, l)| l.saturating_sub(*s) as usize).sum()
+    }
+}
+
+/// How a node is read in stage `s`.
+fn operand(n: &Netlist, st: &Stages, x: HwId, s: u32) -> String {
+    let i = x.0 as usize;
+    match n.datapath.op(x) {
+        HwOp::Const(c) => literal(n.format.quantize(c).0, n.format.width),
+        _ if st.stage[i] == s => format!("n{i}"),
+        _ => format!("p{}_n{i}", s - 1),
+    }
+}
+
+/// The top module.
+pub fn top(n: &Netlist, stage_depth: u32) -> String {
+    let dp = &n.datapath;
+    let st = Stages::new(dp, stage_depth);
+    let w = n.format.width;
+    let s_max = st.count;
+    let mut v = String::new();
+    let _ = writeln!(v, "module {} (", n.top);
+    let _ = writeln!(v, "    input  wire clk,\n    input  wire rst,\n    input  wire in_valid,\n    output wire in_ready,");
+    for name in &n.names.inputs {
+        let _ = writeln!(v, "    input  wire signed [{}:0] {name},", w - 1);
+    }
+    let _ = writeln!(v, "    output wire out_valid,");
+    for (name, _) in &n.names.outputs {
+        let _ = writeln!(v, "    output wire signed [{}:0] {name},", w - 1);
+    }
+    let _ = writeln!(v, "    output wire overflow\n);");
+    let _ = writeln!(v, "    assign in_ready = 1'b1;");
+    let _ = writeln!(v, "    reg [{s_max}:0] valid;");
+    let _ = writeln!(v, "    always @(posedge clk) valid <= rst ? {}'d0 : {{valid[{}:0], in_valid}};", s_max + 1, s_max - 1);
+    let _ = writeln!(v, "    wire ovf0 = 1'b0;");
+
+    // Registers, declared once; filled in one clocked block per stage below.
+    let mut regs = String::new();
+    for (i, (&s, &l)) in st.stage.iter().zip(&st.last).enumerate() {
+        for t in s..l {
+            let _ = writeln!(regs, "    reg signed [{}:0] p{t}_n{i};", w - 1);
+        }
+    }
+    v.push_str(&regs);
+
+    let register_from = |v: &mut String, t: u32| {
+        // Registers at the end of stage t.
+        let _ = writeln!(v, "    always @(posedge clk) begin");
+        for (i, (&s, &l)) in st.stage.iter().zip(&st.last).enumerate() {
+            if t < s || t >= l {
+                continue;
+            }
+            let src = match (t == s, dp.nodes[i]) {
+                (true, HwOp::Port(p)) => n.names.inputs[p as usize].clone(),
+                (true, _) => format!("n{i}"),
+                (false, _) => format!("p{}_n{i}", t - 1),
+            };
+            let _ = writeln!(v, "        p{t}_n{i} <= {src};");
+        }
+        let _ = writeln!(v, "    end");
+    };
+    let _ = writeln!(v, "\n    // stage 0: input registers");
+    register_from(&mut v, 0);
+
+    for s in 1..=s_max {
+        let _ = writeln!(v, "\n    // stage {s}");
+        let mut flags = Vec::new();
+        for (i, op) in dp.nodes.iter().enumerate() {
+            if st.stage[i] != s || !op.is_operation() {
+                continue;
+            }
+            let _ = writeln!(v, "    wire signed [{}:0] n{i};\n    wire o{i};", w - 1);
+            let (cell, a, b, sub) = match *op {
+                HwOp::Add(a, b) => ("add", operand(n, &st, a, s), operand(n, &st, b, s), Some("1'b0")),
+                HwOp::Sub(a, b) => ("add", operand(n, &st, a, s), operand(n, &st, b, s), Some("1'b1")),
+                HwOp::Neg(a) => ("add", literal(0, w), operand(n, &st, a, s), Some("1'b1")),
+                HwOp::Mul(a, b) => ("mul", operand(n, &st, a, s), operand(n, &st, b, s), None),
+                HwOp::Port(_) | HwOp::Const(_) => unreachable!("operations only"),
+            };
+            let sub = sub.map_or(String::new(), |s| format!(", .sub({s})"));
+            let _ = writeln!(v, "    {}_{cell} u{i} (.a({a}), .b({b}){sub}, .y(n{i}), .ovf(o{i}));", n.top);
+            flags.push(format!("o{i}"));
+        }
+        let _ = writeln!(v, "    reg ovf{s};");
+        let any = if flags.is_empty() { "1'b0".to_string() } else { format!("(|{{{}}})", flags.join(", ")) };
+        let _ = writeln!(v, "    always @(posedge clk) ovf{s} <= ovf{} | {any};", s - 1);
+        register_from(&mut v, s);
+    }
+
+    let _ = writeln!(v, "\n    assign out_valid = valid[{s_max}];\n    assign overflow = ovf{s_max};");
+    for (name, id) in &n.names.outputs {
+        let src = match dp.op(*id) {
+            HwOp::Const(c) => literal(n.format.quantize(c).0, w),
+            _ => format!("p{s_max}_n{}", id.0),
+        };
+        let _ = writeln!(v, "    assign {name} = {src};");
+    }
+    let _ = writeln!(v, "endmodule");
+    v
+}

@@ -1,0 +1,165 @@
+//! The shared architecture's schedule: a cycle-by-cycle list schedule of the datapath on
+//! M multipliers and A adders (every operation one cycle, results registered), priority
+//! to the longest path to an output, then register allocation by live interval so that
+//! a register is reused once its value's last reader has run.
+
+use std::cmp::Reverse;
+use std::collections::BinaryHeap;
+
+use crate::ir::fixed::{Datapath, HwOp};
+
+/// Which unit runs an operation.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Unit {
+    Mul(usize),
+    Add(usize),
+}
+
+/// Where and when every operation runs, and where every value lives.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SharedSchedule {
+    /// Cycles of computation per state (the load cycle excluded).
+    pub cycles: usize,
+    /// (cycle, unit) of each operation; `None` for ports and constants.
+    pub slot: Vec<Option<(usize, Unit)>>,
+    /// Register of each port and operation; `None` for constants.
+    pub reg: Vec<Option<usize>>,
+    /// Data registers.
+    pub registers: usize,
+}
+
+impl SharedSchedule {
+    pub fn new(dp: &Datapath, multipliers: usize, adders: usize) -> SharedSchedule {
+        let n = dp.nodes.len();
+        let mut users: Vec<Vec<usize>> = vec![Vec::new(); n];
+        let mut waiting = vec![0usize; n];
+        for (i, op) in dp.nodes.iter().enumerate() {
+            for a in op.operands() {
+                if dp.op(a).is_operation() {
+                    users[a.0 as usize].push(i);
+                    waiting[i] += 1;
+                }
+            }
+        }
+        // Longest path (in operations) from each node to the end.
+        let mut height = vec![0usize; n];
+        for i in (0..n).rev() {
+            if dp.nodes[i].is_operation() {
+                height[i] = 1 + users[i].iter().map(|&u| height[u]).max().unwrap_or(0);
+            }
+        }
+        let mut ready: [BinaryHeap<(usize, Reverse<usize>)>; 2] = [BinaryHeap::new(), BinaryHeap::new()];
+        let kind = |i: usize| usize::from(!dp.nodes[i].is_mul());
+        for i in 0..n {
+            if dp.nodes[i].is_operation() && waiting[i] == 0 {
+                ready[kind(i)].push((height[i], Reverse(i)));
+            }
+        }
+        let mut slot = vec![None; n];
+        let mut left = dp.nodes.iter().filter(|o| o.is_operation()).count();
+        let mut cycle = 0;
+        let units = [multipliers, adders];
+        while left > 0 {
+            let mut next = Vec::new();
+            for (k, heap) in ready.iter_mut().enumerate() {
+                for u in 0..units[k] {
+                    let Some((_, Reverse(i))) = heap.pop() else { break };
+                    slot[i] = Some((cycle, if k == 0 { Unit::Mul(u) } else { Unit::Add(u) }));
+                    left -= 1;
+                    for &s in &users[i] {
+                        waiting[s] -= 1;
+                        if waiting[s] == 0 {
+                            next.push(s);
+                        }
+                    }
+                }
+            }
+            for s in next {
+                ready[kind(s)].push((height[s], Reverse(s)));
+            }
+            cycle += 1;
+        }
+        let cycles = cycle.max(1);
+
+        // Live intervals: defined at the end of its cycle (ports: on the load edge, -1),
+        // last read in the cycle of its last user; outputs are held to the end.
+        let mut last_use: Vec<isize> = vec![-1; n];
+        for (i, op) in dp.nodes.iter().enumerate() {
+            if let Some((c, _)) = slot[i] {
+                for a in op.operands() {
+                    last_use[a.0 as usize] = last_use[a.0 as usize].max(c as isize);
+                }
+            }
+        }
+        for (_, _, id) in dp.nonzero_outputs() {
+            last_use[id.0 as usize] = cycles as isize;
+        }
+        let def = |i: usize| -> isize {
+            match (dp.nodes[i], slot[i]) {
+                (HwOp::Port(_), _) => -1,
+                (_, Some((c, _))) => c as isize,
+                _ => unreachable!("constants are not allocated"),
+            }
+        };
+        let mut order: Vec<usize> = (0..n).filter(|&i| !matches!(dp.nodes[i], HwOp::Const(_))).collect();
+        order.sort_by_key(|&i| (def(i), i));
+        let mut free: BinaryHeap<Reverse<(isize, usize)>> = BinaryHeap::new();
+        let mut reg = vec![None; n];
+        let mut registers = 0;
+        for i in order {
+            let d = def(i);
+            let r = match free.peek() {
+                Some(&Reverse((from, r))) if from <= d => {
+                    free.pop();
+                    r
+                }
+                _ => {
+                    registers += 1;
+                    registers - 1
+                }
+            };
+            reg[i] = Some(r);
+            // A value nobody reads (a port only sin/cos would have used) frees at once.
+            free.push(Reverse((last_use[i].max(d), r)));
+        }
+        SharedSchedule { cycles, slot, reg, registers }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::ir::fixed::HwId;
+
+    /// A small graph: (p0 * p1) + (p0 * 3), then negated.
+    fn graph() -> Datapath {
+        use HwOp::*;
+        let nodes = vec![Port(0), Port(1), Const(3.0), Mul(HwId(0), HwId(1)), Mul(HwId(0), HwId(2)), Add(HwId(3), HwId(4)), Neg(HwId(5))];
+        Datapath {
+            kernel: "test",
+            nv: 1,
+            ports: vec![crate::ir::fixed::Port::Sin(0), crate::ir::fixed::Port::Cos(0)],
+            nodes,
+            outputs: vec![crate::ir::fixed::DatapathOutput { name: "c", shape: crate::ir::Shape::Vector, ids: vec![HwId(6)] }],
+        }
+    }
+
+    #[test]
+    fn one_multiplier_serialises_the_products() {
+        let s = SharedSchedule::new(&graph(), 1, 1);
+        assert_eq!(s.cycles, 4);
+        let c = |i: usize| s.slot[i].unwrap().0;
+        assert_ne!(c(3), c(4));
+        assert!(c(5) > c(3).max(c(4)) && c(6) > c(5));
+    }
+
+    #[test]
+    fn registers_are_reused_after_the_last_read() {
+        let s = SharedSchedule::new(&graph(), 2, 1);
+        assert_eq!(s.cycles, 3);
+        // Ports (2 registers) die in cycle 0 when both products read them, so the
+        // products reuse them; the sum and the negation reuse again.
+        assert_eq!(s.registers, 2);
+        assert!(s.reg[2].is_none());
+    }
+}

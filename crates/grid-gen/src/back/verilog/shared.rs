@@ -1,0 +1,135 @@
+//! The shared architecture's top module: M multiplier and A adder cells whose operands a
+//! cycle counter selects (one `case` per cycle), a register file written from the cells'
+//! results, and a controller: idle → load the inputs on `in_valid` → run the schedule's
+//! cycles → raise `out_valid` for one clock. The overflow flag is sticky over a state.
+
+use std::fmt::Write;
+
+use super::cells::literal;
+use super::schedule::Unit;
+use super::Netlist;
+use crate::ir::fixed::{HwId, HwOp};
+
+fn unit_name(u: Unit) -> String {
+    match u {
+        Unit::Mul(k) => format!("m{k}"),
+        Unit::Add(k) => format!("a{k}"),
+    }
+}
+
+/// The top module.
+pub fn top(n: &Netlist) -> String {
+    let dp = &n.datapath;
+    let s = n.schedule.as_ref().expect("shared netlists are planned with a schedule");
+    let w = n.format.width;
+    let (muls, adds) = match n.arch {
+        super::Arch::Shared { multipliers, adders } => (multipliers, adders),
+        super::Arch::Pipelined { .. } => unreachable!("shared architecture"),
+    };
+    let counter_bits = usize::BITS - s.cycles.leading_zeros();
+    let read = |x: HwId| -> String {
+        match dp.op(x) {
+            HwOp::Const(c) => literal(n.format.quantize(c).0, w),
+            _ => format!("r{}", s.reg[x.0 as usize].expect("allocated")),
+        }
+    };
+    let zero = literal(0, w);
+
+    let mut v = String::new();
+    let _ = writeln!(v, "module {} (", n.top);
+    let _ = writeln!(v, "    input  wire clk,\n    input  wire rst,\n    input  wire in_valid,\n    output wire in_ready,");
+    for name in &n.names.inputs {
+        let _ = writeln!(v, "    input  wire signed [{}:0] {name},", w - 1);
+    }
+    let _ = writeln!(v, "    output wire out_valid,");
+    for (name, _) in &n.names.outputs {
+        let _ = writeln!(v, "    output wire signed [{}:0] {name},", w - 1);
+    }
+    let _ = writeln!(v, "    output wire overflow\n);");
+    let _ = writeln!(v, "    reg busy, done, ovf;\n    reg [{}:0] cyc;", counter_bits - 1);
+    for r in 0..s.registers {
+        let _ = writeln!(v, "    reg signed [{}:0] r{r};", w - 1);
+    }
+    let units: Vec<Unit> = (0..muls).map(Unit::Mul).chain((0..adds).map(Unit::Add)).collect();
+    for &u in &units {
+        let m = unit_name(u);
+        let _ = writeln!(v, "    reg signed [{wm}:0] {m}_a, {m}_b;\n    wire signed [{wm}:0] {m}_y;\n    wire {m}_o;", wm = w - 1);
+        match u {
+            Unit::Mul(_) => {
+                let _ = writeln!(v, "    {}_mul u{m} (.a({m}_a), .b({m}_b), .y({m}_y), .ovf({m}_o));", n.top);
+            }
+            Unit::Add(_) => {
+                let _ = writeln!(v, "    reg {m}_s;\n    {}_add u{m} (.a({m}_a), .b({m}_b), .sub({m}_s), .y({m}_y), .ovf({m}_o));", n.top);
+            }
+        }
+    }
+
+    // Operations by cycle.
+    let mut by_cycle: Vec<Vec<(usize, Unit)>> = vec![Vec::new(); s.cycles];
+    for (i, slot) in s.slot.iter().enumerate() {
+        if let Some((c, u)) = slot {
+            by_cycle[*c].push((i, *u));
+        }
+    }
+
+    let _ = writeln!(v, "\n    // Operand selection.\n    always @(*) begin");
+    for &u in &units {
+        let m = unit_name(u);
+        let _ = write!(v, "        {m}_a = {zero}; {m}_b = {zero};");
+        if matches!(u, Unit::Add(_)) {
+            let _ = write!(v, " {m}_s = 1'b0;");
+        }
+        v.push('\n');
+    }
+    let _ = writeln!(v, "        case (cyc)");
+    for (c, ops) in by_cycle.iter().enumerate() {
+        let _ = write!(v, "            {counter_bits}'d{c}: begin");
+        for &(i, u) in ops {
+            let m = unit_name(u);
+            let (a, b, sub) = match dp.nodes[i] {
+                HwOp::Add(a, b) => (read(a), read(b), Some(false)),
+                HwOp::Sub(a, b) => (read(a), read(b), Some(true)),
+                HwOp::Neg(a) => (zero.clone(), read(a), Some(true)),
+                HwOp::Mul(a, b) => (read(a), read(b), None),
+                HwOp::Port(_) | HwOp::Const(_) => unreachable!("operations only"),
+            };
+            let _ = write!(v, " {m}_a = {a}; {m}_b = {b};");
+            if sub == Some(true) {
+                let _ = write!(v, " {m}_s = 1'b1;");
+            }
+        }
+        let _ = writeln!(v, " end");
+    }
+    let _ = writeln!(v, "            default: ;\n        endcase\n    end");
+
+    let _ = writeln!(v, "\n    // Controller and register file.\n    always @(posedge clk) begin");
+    let _ = writeln!(v, "        if (rst) begin\n            busy <= 1'b0; done <= 1'b0; ovf <= 1'b0; cyc <= {counter_bits}'d0;\n        end else begin");
+    let _ = writeln!(v, "            done <= 1'b0;\n            if (!busy) begin\n                if (in_valid) begin");
+    let _ = writeln!(v, "                    busy <= 1'b1; cyc <= {counter_bits}'d0; ovf <= 1'b0;");
+    for (i, op) in dp.nodes.iter().enumerate() {
+        if let HwOp::Port(p) = op {
+            let _ = writeln!(v, "                    r{} <= {};", s.reg[i].expect("allocated"), n.names.inputs[*p as usize]);
+        }
+    }
+    let _ = writeln!(v, "                end\n            end else begin");
+    let flags: Vec<String> = units.iter().map(|&u| format!("{}_o", unit_name(u))).collect();
+    let _ = writeln!(v, "                ovf <= ovf | {};", flags.join(" | "));
+    let _ = writeln!(v, "                case (cyc)");
+    for (c, ops) in by_cycle.iter().enumerate() {
+        let _ = write!(v, "                    {counter_bits}'d{c}: begin");
+        for &(i, u) in ops {
+            let _ = write!(v, " r{} <= {}_y;", s.reg[i].expect("allocated"), unit_name(u));
+        }
+        let _ = writeln!(v, " end");
+    }
+    let _ = writeln!(v, "                    default: ;\n                endcase");
+    let _ = writeln!(v, "                if (cyc == {counter_bits}'d{}) begin busy <= 1'b0; done <= 1'b1; end", s.cycles - 1);
+    let _ = writeln!(v, "                cyc <= cyc + 1'b1;\n            end\n        end\n    end");
+
+    let _ = writeln!(v, "\n    assign in_ready = !busy;\n    assign out_valid = done;\n    assign overflow = ovf;");
+    for (name, id) in &n.names.outputs {
+        let _ = writeln!(v, "    assign {name} = {};", read(*id));
+    }
+    let _ = writeln!(v, "endmodule");
+    v
+}

@@ -1,0 +1,134 @@
+//! Runs a netlist's testbench under Icarus Verilog (`iverilog` + `vvp`, Debian package
+//! `iverilog`) on raw input values and reads back the raw outputs and overflow flags.
+//! Used by `grid-gen eval --backend verilog` and by the tests.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+use std::sync::atomic::{AtomicUsize, Ordering};
+
+use super::testbench::MAX_STATES;
+use super::Netlist;
+use crate::ir::Robot;
+
+#[derive(Debug, thiserror::Error)]
+pub enum SimError {
+    #[error("Icarus Verilog is not installed (`iverilog` and `vvp` not found on PATH); install the Debian package `iverilog`")]
+    NoSimulator,
+    #[error("simulation scratch files: {0}")]
+    Io(#[from] std::io::Error),
+    #[error("`{step}` failed: {stderr}")]
+    Failed { step: &'static str, stderr: String },
+    #[error("the testbench wrote unexpected output: {0}")]
+    Output(String),
+}
+
+/// The outputs of one simulated state: every non-zero output entry (raw, in
+/// [`super::PortNames`] order) and the overflow flag.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct SimResult {
+    pub outputs: Vec<i64>,
+    pub overflow: bool,
+}
+
+/// Whether `iverilog` can be run.
+pub fn available() -> bool {
+    Command::new("iverilog").arg("-V").output().map(|o| o.status.success()).unwrap_or(false)
+}
+
+struct Scratch(PathBuf);
+
+impl Drop for Scratch {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.0);
+    }
+}
+
+fn run(step: &'static str, cmd: &mut Command) -> Result<String, SimError> {
+    let out = cmd.output().map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { SimError::NoSimulator } else { SimError::Io(e) })?;
+    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
+    if !out.status.success() {
+        return Err(SimError::Failed { step, stderr: format!("{}{}", stdout, String::from_utf8_lossy(&out.stderr)) });
+    }
+    Ok(stdout)
+}
+
+/// Compiles the netlist and its testbench once, then simulates `ports` (one raw vector
+/// per state, in port order), in batches of the testbench's capacity.
+pub fn simulate(netlist: &Netlist, robot: &Robot, ports: &[Vec<i64>]) -> Result<Vec<SimResult>, SimError> {
+    static NEXT: AtomicUsize = AtomicUsize::new(0);
+    let dir = std::env::temp_dir().join(format!("grid-gen-sim-{}-{}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
+    std::fs::create_dir_all(&dir)?;
+    let scratch = Scratch(dir);
+    let (v, tb) = netlist.file_names();
+    std::fs::write(scratch.0.join(&v), netlist.verilog(robot))?;
+    std::fs::write(scratch.0.join(&tb), netlist.testbench())?;
+    let image = scratch.0.join("sim.vvp");
+    run(
+        "iverilog",
+        Command::new("iverilog")
+            .arg("-g2005")
+            .arg("-o")
+            .arg(&image)
+            .arg("-s")
+            .arg(format!("{}_tb", netlist.top))
+            .arg(scratch.0.join(&v))
+            .arg(scratch.0.join(&tb)),
+    )?;
+    let mut results = Vec::with_capacity(ports.len());
+    for batch in ports.chunks(MAX_STATES) {
+        results.extend(simulate_batch(netlist, &scratch.0, &image, batch)?);
+    }
+    Ok(results)
+}
+
+fn simulate_batch(netlist: &Netlist, dir: &Path, image: &Path, batch: &[Vec<i64>]) -> Result<Vec<SimResult>, SimError> {
+    let w = netlist.format.width;
+    let mask = if w == 64 { u64::MAX } else { (1u64 << w) - 1 };
+    let mut hex = String::new();
+    for state in batch {
+        for &x in state {
+            hex.push_str(&format!("{:x}\n", x as u64 & mask));
+        }
+    }
+    let (inp, outp) = (dir.join("in.hex"), dir.join("out.txt"));
+    std::fs::write(&inp, hex)?;
+    let stdout = run(
+        "vvp",
+        Command::new("vvp")
+            .arg("-n")
+            .arg(image)
+            .arg(format!("+n={}", batch.len()))
+            .arg(format!("+in={}", inp.display()))
+            .arg(format!("+out={}", outp.display())),
+    )?;
+    if stdout.contains("timeout") || stdout.contains("usage") {
+        return Err(SimError::Output(stdout));
+    }
+    let text = std::fs::read_to_string(&outp)?;
+    let expected = netlist.names.outputs.len();
+    let sign = |raw: u64| -> i64 {
+        if w == 64 {
+            raw as i64
+        } else {
+            ((raw << (64 - w)) as i64) >> (64 - w)
+        }
+    };
+    let results: Vec<SimResult> = text
+        .lines()
+        .map(|line| {
+            let fields: Vec<&str> = line.split_whitespace().collect();
+            if fields.len() != expected + 1 {
+                return Err(SimError::Output(format!("a line has {} fields, expected {}", fields.len(), expected + 1)));
+            }
+            let outputs = fields[..expected]
+                .iter()
+                .map(|f| u64::from_str_radix(f, 16).map(sign).map_err(|_| SimError::Output(format!("`{f}` is not a hex value (x or z in the netlist?)"))))
+                .collect::<Result<Vec<i64>, _>>()?;
+            Ok(SimResult { outputs, overflow: fields[expected] == "1" })
+        })
+        .collect::<Result<_, _>>()?;
+    if results.len() != batch.len() {
+        return Err(SimError::Output(format!("{} states in, {} out", batch.len(), results.len())));
+    }
+    Ok(results)
+}
