@@ -27,7 +27,7 @@ struct Cli {
     /// Folder to write the generated files into (created if needed).
     #[arg(short = 'o', long = "out", value_name = "DIR")]
     out: Option<PathBuf>,
-    /// Backends to emit, comma-separated (available: rust, wgsl).
+    /// Backends to emit, comma-separated (available: rust, wgsl, verilog).
     #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "rust", value_parser = parse_target)]
     emit: Vec<grid_gen::generate::Target>,
     /// Write nothing; exit 1 if any file would change (for CI freshness checks).
@@ -38,6 +38,74 @@ struct Cli {
     gravity: [f64; 3],
     #[command(flatten)]
     load: LoadArgs,
+    #[command(flatten)]
+    verilog: VerilogArgs,
+}
+
+/// The fixed-point datapath's options (`--emit verilog`, `eval --backend verilog`).
+#[derive(clap::Args, Clone)]
+struct VerilogArgs {
+    /// Verilog number format: `WIDTH.FRAC` (signed, e.g. 32.16), or `auto` for the
+    /// narrowest format whose analysed error meets --max-error.
+    #[arg(long, value_name = "WIDTH.FRAC|auto", default_value = "auto", global = true)]
+    fixed: String,
+    /// With --fixed auto: the largest absolute error allowed on any output entry.
+    #[arg(long, value_name = "E", default_value_t = grid_gen::back::verilog::DEFAULT_MAX_ERROR, global = true)]
+    max_error: f64,
+    /// How multipliers drop fraction bits: truncate (robomorphic's choice) or half-up.
+    #[arg(long, value_name = "MODE", default_value = "half-up", value_parser = parse_rounding, global = true)]
+    rounding: grid_gen::ir::fixed::Rounding,
+    /// Datapath architecture: pipelined (one state per clock) or shared (M multipliers,
+    /// A adders, list-scheduled).
+    #[arg(long, value_name = "ARCH", default_value = "pipelined", value_parser = ["pipelined", "shared"], global = true)]
+    arch: String,
+    /// Pipelined: levels of dependence depth between pipeline registers.
+    #[arg(long, value_name = "K", default_value_t = grid_gen::back::verilog::DEFAULT_STAGE_DEPTH, global = true)]
+    stage_depth: u32,
+    /// Shared: number of multipliers.
+    #[arg(long, value_name = "M", default_value_t = grid_gen::back::verilog::DEFAULT_MULTIPLIERS, global = true)]
+    multipliers: usize,
+    /// Shared: number of adders.
+    #[arg(long, value_name = "A", default_value_t = grid_gen::back::verilog::DEFAULT_ADDERS, global = true)]
+    adders: usize,
+    /// Speed bound of every joint for the range analysis (default: the URDF's
+    /// `<limit velocity>`, else 10).
+    #[arg(long, value_name = "V", global = true)]
+    qd_max: Option<f64>,
+    /// Acceleration bound of every joint for the range analysis (default 100).
+    #[arg(long, value_name = "A", global = true)]
+    qdd_max: Option<f64>,
+}
+
+fn parse_rounding(s: &str) -> Result<grid_gen::ir::fixed::Rounding, String> {
+    grid_gen::ir::fixed::Rounding::parse(s).ok_or_else(|| format!("unknown rounding `{s}`; available: truncate, half-up"))
+}
+
+impl VerilogArgs {
+    fn options(&self) -> Result<grid_gen::back::verilog::VerilogOptions, String> {
+        use grid_gen::back::verilog::{Arch, FormatChoice, VerilogOptions};
+        let format = if self.fixed == "auto" {
+            FormatChoice::Auto { max_error: self.max_error }
+        } else {
+            let (w, f) = self.fixed.split_once('.').ok_or_else(|| format!("--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`", self.fixed))?;
+            match (w.parse(), f.parse()) {
+                (Ok(width), Ok(frac)) => FormatChoice::Fixed { width, frac },
+                _ => return Err(format!("--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`", self.fixed)),
+            }
+        };
+        for (name, v) in [("--qd-max", self.qd_max), ("--qdd-max", self.qdd_max)] {
+            if let Some(v) = v {
+                if !(v.is_finite() && v > 0.0) {
+                    return Err(format!("{name} must be a positive finite number, got {v}"));
+                }
+            }
+        }
+        let arch = match self.arch.as_str() {
+            "shared" => Arch::Shared { multipliers: self.multipliers, adders: self.adders },
+            _ => Arch::Pipelined { stage_depth: self.stage_depth },
+        };
+        Ok(VerilogOptions { format, rounding: self.rounding, arch, qd_max: self.qd_max, qdd_max: self.qdd_max, ..VerilogOptions::default() })
+    }
 }
 
 fn parse_target(s: &str) -> Result<grid_gen::generate::Target, String> {
@@ -78,6 +146,11 @@ enum Command {
         /// Gravity in the root frame, m/s².
         #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, default_value = "0,0,-9.81", allow_hyphen_values = true)]
         gravity: [f64; 3],
+        /// `reference` (f64, every key) or `verilog`: simulate the rnea_grad and
+        /// mass_matrix netlists under Icarus Verilog (keys drnea_dq, drnea_dqd, M, plus
+        /// each netlist's overflow flag), with the Verilog options below.
+        #[arg(long, value_name = "BACKEND", default_value = "reference", value_parser = ["reference", "verilog"])]
+        backend: String,
     },
 }
 
@@ -156,9 +229,13 @@ fn print(text: &str) -> ExitCode {
     }
 }
 
-fn generate(model: &Model, dir: &Path, targets: Vec<grid_gen::generate::Target>, gravity: [f64; 3], check: bool) -> ExitCode {
+fn generate(model: &Model, dir: &Path, targets: Vec<grid_gen::generate::Target>, gravity: [f64; 3], check: bool, verilog: &VerilogArgs) -> ExitCode {
     use grid_gen::generate::{self as g, FileStatus};
-    let options = g::Options { gravity, targets, ..g::Options::default() };
+    let verilog = match verilog.options() {
+        Ok(v) => v,
+        Err(e) => return fail(e),
+    };
+    let options = g::Options { gravity, targets, verilog, ..g::Options::default() };
     let files = match g::generate(model, &options) {
         Ok(f) => f,
         Err(e) => return fail(e),
@@ -199,7 +276,7 @@ fn run(cli: Cli) -> ExitCode {
             };
             match cli.out {
                 None => print(&(Info::new(&model).to_text() + "(pass -o DIR to generate code)\n")),
-                Some(dir) => generate(&model, &dir, cli.emit, cli.gravity, cli.check),
+                Some(dir) => generate(&model, &dir, cli.emit, cli.gravity, cli.check, &cli.verilog),
             }
         }
         Some(Command::Info { urdf, json }) => match load(&urdf, strict) {
@@ -213,7 +290,7 @@ fn run(cli: Cli) -> ExitCode {
             }
             Err(code) => code,
         },
-        Some(Command::Eval { urdf, states, gravity }) => {
+        Some(Command::Eval { urdf, states, gravity, backend }) => {
             let model = match load(&urdf, strict) {
                 Ok(m) => m,
                 Err(code) => return code,
@@ -222,8 +299,21 @@ fn run(cli: Cli) -> ExitCode {
                 Ok(t) => t,
                 Err(e) => return fail(format!("cannot read {}: {e}", states.display())),
             };
-            let result = grid_gen::eval::parse_states(&text).and_then(|file| grid_gen::eval::evaluate(&model, &file, gravity));
-            match result {
+            let file = match grid_gen::eval::parse_states(&text) {
+                Ok(f) => f,
+                Err(e) => return fail(format!("{}: {e}", states.display())),
+            };
+            if backend == "verilog" {
+                let options = match cli.verilog.options() {
+                    Ok(v) => v,
+                    Err(e) => return fail(e),
+                };
+                return match grid_gen::eval::evaluate_verilog(&model, &file, gravity, &options) {
+                    Ok(out) => print(&(serde_json::to_string(&out).expect("results serialise") + "\n")),
+                    Err(e) => fail(format!("{}: {e}", states.display())),
+                };
+            }
+            match grid_gen::eval::evaluate(&model, &file, gravity) {
                 Ok(out) => print(&(serde_json::to_string(&out).expect("results serialise") + "\n")),
                 Err(e) => fail(format!("{}: {e}", states.display())),
             }

@@ -174,3 +174,89 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
         .collect();
     Ok(EvalOutput { joint_names: model.joints.iter().map(|j| j.name.clone()).collect(), states })
 }
+
+/// Results of the Verilog netlists for one state: the keys of [`Output`] that the
+/// datapath kernels compute, in f64 (raw · 2^-FRAC), and whether each kernel's netlist
+/// raised `overflow` (or an input did not fit its format), in which case its numbers are
+/// saturated and wrong.
+#[derive(Clone, Debug, Serialize)]
+pub struct VerilogOutput {
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drnea_dq: Option<Matrix>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drnea_dqd: Option<Matrix>,
+    #[serde(rename = "M")]
+    pub m: Matrix,
+    pub overflow: std::collections::BTreeMap<&'static str, bool>,
+}
+
+/// Each netlist's kernel, format and architecture, for the JSON's header.
+#[derive(Clone, Debug, Serialize)]
+pub struct VerilogEvalOutput {
+    pub joint_names: Vec<String>,
+    pub netlists: Vec<crate::back::verilog::NetlistStats>,
+    pub states: Vec<VerilogOutput>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum VerilogEvalError {
+    #[error(transparent)]
+    States(#[from] EvalError),
+    #[error(transparent)]
+    Lower(#[from] crate::ir::LowerError),
+    #[error(transparent)]
+    Back(#[from] crate::back::BackError),
+    #[error(transparent)]
+    Sim(#[from] crate::back::verilog::sim::SimError),
+}
+
+/// Simulates the `rnea_grad` and `mass_matrix` netlists (built with `options`, whose
+/// kernel list is ignored) on every state; `rnea_grad` only where `qdd` is given.
+pub fn evaluate_verilog(
+    model: &Model,
+    file: &StatesFile,
+    gravity: [f64; 3],
+    options: &crate::back::verilog::VerilogOptions,
+) -> Result<VerilogEvalOutput, VerilogEvalError> {
+    use crate::back::verilog::{plan, sim, DEFAULT_KERNELS};
+    use crate::ir::{self, fixed::quantize_ports, KernelKind, LowerOptions};
+    check_states(model, file)?;
+    let nv = model.nv();
+    let module = ir::lower(model, gravity, &LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), ..LowerOptions::default() })?;
+    let netlists = plan(&module, &crate::back::verilog::VerilogOptions { kernels: DEFAULT_KERNELS.to_vec(), ..options.clone() })?;
+    let mut states: Vec<VerilogOutput> =
+        file.states.iter().map(|_| VerilogOutput { drnea_dq: None, drnea_dqd: None, m: Vec::new(), overflow: Default::default() }).collect();
+    for n in &netlists {
+        let chosen: Vec<usize> = (0..file.states.len()).filter(|&i| n.kind != KernelKind::RneaGrad || file.states[i].qdd.is_some()).collect();
+        let mut input_overflow = Vec::new();
+        let ports: Vec<Vec<i64>> = chosen
+            .iter()
+            .map(|&i| {
+                let s = &file.states[i];
+                let qdd = s.qdd.clone().unwrap_or_else(|| vec![0.0; nv]);
+                let (p, o) = quantize_ports(&n.datapath, &n.format, &s.q, &s.qd, &qdd, &[]);
+                input_overflow.push(o);
+                p
+            })
+            .collect();
+        let results = sim::simulate(n, &module.robot, &ports)?;
+        for ((&i, r), in_o) in chosen.iter().zip(results).zip(input_overflow) {
+            // Every entry, structural zeros included, row-major per output.
+            let mut outs: Vec<Vec<f64>> = n.datapath.outputs.iter().map(|o| vec![0.0; o.ids.len()]).collect();
+            for ((o, e, _), raw) in n.datapath.nonzero_outputs().into_iter().zip(&r.outputs) {
+                outs[o][e] = n.format.to_f64(*raw);
+            }
+            let matrix = |v: &[f64]| v.chunks(nv).map(|row| row.to_vec()).collect::<Matrix>();
+            let st = &mut states[i];
+            match n.kind {
+                KernelKind::RneaGrad => {
+                    st.drnea_dq = Some(matrix(&outs[0]));
+                    st.drnea_dqd = Some(matrix(&outs[1]));
+                }
+                _ => st.m = matrix(&outs[0]),
+            }
+            st.overflow.insert(n.kind.name(), r.overflow || in_o);
+        }
+    }
+    Ok(VerilogEvalOutput { joint_names: module.robot.joint_names.clone(), netlists: netlists.iter().map(|n| n.stats()).collect(), states })
+}

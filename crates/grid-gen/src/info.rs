@@ -3,6 +3,7 @@
 
 use serde::Serialize;
 
+use crate::back::verilog::{plan, Arch, NetlistStats, VerilogOptions, DEFAULT_ADDERS, DEFAULT_KERNELS, DEFAULT_MULTIPLIERS, DEFAULT_STAGE_DEPTH};
 use crate::ir::{self, KernelStats, Skipped};
 use crate::model::{Count, JointType, Model, DEFAULT_GRAVITY};
 
@@ -47,6 +48,13 @@ pub struct Info {
     pub ops: Vec<KernelStats>,
     /// Kernels left out of `ops`, each with the reason.
     pub ops_skipped: Vec<Skipped>,
+    /// The Verilog netlists `--emit verilog` builds with default options (format by
+    /// `--fixed auto --max-error 1e-3`), in both architectures: units, registers, cycles,
+    /// format and analysed error bound.
+    pub verilog: Vec<NetlistStats>,
+    /// Why `verilog` is empty, when it is.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub verilog_skipped: Option<String>,
 }
 
 impl Info {
@@ -67,8 +75,29 @@ impl Info {
             sparsity: Sparsity { dv_dq: model.motion_sparsity(), dc_dq: model.force_sparsity() },
             ops: Vec::new(),
             ops_skipped: Vec::new(),
+            verilog: Vec::new(),
+            verilog_skipped: None,
         }
         .with_ops(ir::stats(model, DEFAULT_GRAVITY, ir::STATS_MAX_NODES))
+        .with_verilog(model)
+    }
+
+    fn with_verilog(mut self, model: &Model) -> Self {
+        let lower = ir::LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), max_nodes: ir::STATS_MAX_NODES, ..ir::LowerOptions::default() };
+        let result = ir::lower(model, DEFAULT_GRAVITY, &lower).map_err(|e| e.to_string()).and_then(|module| {
+            let mut all = Vec::new();
+            let archs = [Arch::Pipelined { stage_depth: DEFAULT_STAGE_DEPTH }, Arch::Shared { multipliers: DEFAULT_MULTIPLIERS, adders: DEFAULT_ADDERS }];
+            for arch in archs {
+                let netlists = plan(&module, &VerilogOptions { arch, ..VerilogOptions::default() }).map_err(|e| e.to_string())?;
+                all.extend(netlists.iter().map(|n| n.stats()));
+            }
+            Ok(all)
+        });
+        match result {
+            Ok(v) => self.verilog = v,
+            Err(e) => self.verilog_skipped = Some(e),
+        }
+        self
     }
 
     fn with_ops(mut self, stats: ir::Stats) -> Self {
@@ -106,6 +135,26 @@ impl Info {
         }
         for k in &self.ops_skipped {
             s.push_str(&format!("  {:<12} not counted: {}\n", k.kernel.name(), k.reason));
+        }
+        if !self.verilog.is_empty() {
+            s.push_str("verilog netlists (default options; multipliers/adders/registers, cycles per state, latency, format, error bound):\n");
+        }
+        for v in &self.verilog {
+            s.push_str(&format!(
+                "  {:<12} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  error <= {:.1e}\n",
+                v.kernel.name(),
+                v.arch,
+                v.multipliers,
+                v.adders,
+                v.registers,
+                v.cycles_per_state,
+                v.latency_cycles,
+                v.format,
+                v.error_bound
+            ));
+        }
+        if let Some(why) = &self.verilog_skipped {
+            s.push_str(&format!("verilog netlists not planned: {why}\n"));
         }
         for m in &self.mimic {
             s.push_str(&format!("note: joint `{}` mimics `{}`; it is treated as an independent joint\n", m.joint, m.mimics));

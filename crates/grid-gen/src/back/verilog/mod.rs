@@ -25,8 +25,7 @@ pub use ports::PortNames;
 pub use schedule::SharedSchedule;
 
 /// How the datapath is built.
-#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
-#[serde(tag = "arch", rename_all = "snake_case")]
+#[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Arch {
     /// Every operation its own unit; pipeline registers every `stage_depth` levels.
     Pipelined { stage_depth: u32 },
@@ -103,8 +102,11 @@ impl Default for VerilogOptions {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct NetlistStats {
     pub kernel: KernelKind,
-    #[serde(flatten)]
-    pub arch: Arch,
+    /// `pipelined` or `shared`.
+    pub arch: &'static str,
+    /// Pipelined: levels of depth between registers.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stage_depth: Option<u32>,
     /// `WIDTH.FRAC`.
     pub format: String,
     pub rounding: Rounding,
@@ -206,7 +208,11 @@ impl Netlist {
         };
         NetlistStats {
             kernel: self.kind,
-            arch: self.arch,
+            arch: self.arch.name(),
+            stage_depth: match self.arch {
+                Arch::Pipelined { stage_depth } => Some(stage_depth),
+                Arch::Shared { .. } => None,
+            },
             format: self.format.label(),
             rounding: self.format.rounding,
             multipliers,
