@@ -1,7 +1,9 @@
 //! The checked-in kernels under `generated/<robot>/` are exactly what grid-gen generates
 //! now, for every robot in `robots/`, and generating twice gives the same bytes. Every
 //! robot has its Rust module; the robots in [`WGSL_ROBOTS`] also have their WGSL shader
-//! (the others' shaders add size, not information, to a review).
+//! (the others' shaders add size, not information, to a review), and the robots in
+//! [`VERILOG_ROBOTS`] their default Verilog netlists and testbenches (a fully pipelined
+//! iiwa gradient is 1.4 MB of instances: readable in a simulator, not in a review).
 //!
 //! Refresh after an intended change: `GRID_GEN_BLESS=1 cargo test -p grid-gen --test generated_fresh`
 //! (or `grid-gen robots/<robot>.urdf -o generated/<robot>` per robot), then review the diff.
@@ -11,6 +13,9 @@ use grid_gen_test_support::*;
 
 /// Robots whose WGSL is checked in: a 7-joint chain and a 12-joint, four-branch tree.
 const WGSL_ROBOTS: [&str; 2] = ["grid_iiwa", "grid_hyq"];
+
+/// Robots whose Verilog is checked in (default options: pipelined, `--fixed auto`).
+const VERILOG_ROBOTS: [&str; 1] = ["double_pendulum_continuous"];
 
 #[test]
 fn checked_in_kernels_are_fresh() {
@@ -26,7 +31,13 @@ fn checked_in_kernels_are_fresh() {
     assert_eq!(dirs, robots(), "generated/ holds one folder per robot in robots/");
     for robot in robots() {
         let model = load(&robot);
-        let targets = if WGSL_ROBOTS.contains(&robot.as_str()) { vec![Target::Rust, Target::Wgsl] } else { vec![Target::Rust] };
+        let mut targets = vec![Target::Rust];
+        if WGSL_ROBOTS.contains(&robot.as_str()) {
+            targets.push(Target::Wgsl);
+        }
+        if VERILOG_ROBOTS.contains(&robot.as_str()) {
+            targets.push(Target::Verilog);
+        }
         let options = Options { targets, ..Options::default() };
         let files = generate(&model, &options).unwrap();
         let again = generate(&model, &options).unwrap();
