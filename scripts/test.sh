@@ -30,6 +30,20 @@ if ! ldconfig -p 2>/dev/null | grep -q libvulkan.so.1 || ! ls /usr/share/vulkan/
         echo "warning: lavapipe is missing and cannot be installed here; the WGSL run test will say it skipped"
     fi
 fi
+
+say "Icarus Verilog and Yosys, to simulate and synthesise the Verilog netlists"
+if ! command -v iverilog >/dev/null || ! command -v vvp >/dev/null || ! command -v yosys >/dev/null; then
+    if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+        (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq iverilog yosys >/dev/null) \
+            || die "could not install iverilog and yosys with apt-get"
+    elif [ -n "${CI:-}" ]; then
+        die "iverilog and yosys are missing: install the Debian packages iverilog and yosys"
+    else
+        echo "warning: iverilog/yosys are missing and cannot be installed here; the Verilog tests will say they skipped"
+    fi
+fi
+command -v iverilog >/dev/null && iverilog -V 2>&1 | head -1
+command -v yosys >/dev/null && yosys -V
 # Mesa warns on every run without it.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 

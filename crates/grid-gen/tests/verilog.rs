@@ -31,20 +31,29 @@ fn module(robot: &str) -> (grid_gen::Model, Module) {
 }
 
 /// States within the bounds: random ones, then the corners (every speed and acceleration
-/// at plus or minus its bound, positions at ±π and 0).
+/// at plus or minus its bound, angles at ±π and 0). Positions the datapath takes
+/// directly (prismatic joints) stay within their declared range.
 fn states(n: &Netlist, nv: usize, count: usize, seed: u64) -> Vec<[Vec<f64>; 3]> {
+    use grid_gen::ir::{fixed::Port, Input};
     let mut rng = Rng(seed);
     let b = &n.bounds;
+    let linear: Vec<usize> = n.datapath.ports.iter().filter_map(|p| if let Port::Value(Input::Q, j) = p { Some(*j as usize) } else { None }).collect();
+    let clamp = |mut q: Vec<f64>| {
+        for &j in &linear {
+            q[j] = q[j].clamp(b.q[j].0, b.q[j].1);
+        }
+        q
+    };
     let mut out = Vec::new();
     for _ in 0..count {
-        let q = rng.vec(nv, -std::f64::consts::PI, std::f64::consts::PI);
+        let q = clamp(rng.vec(nv, -std::f64::consts::PI, std::f64::consts::PI));
         let qd = (0..nv).map(|j| rng.uniform(-b.qd[j], b.qd[j])).collect();
         let qdd = (0..nv).map(|j| rng.uniform(-b.qdd[j], b.qdd[j])).collect();
         out.push([q, qd, qdd]);
     }
     for corner in 0..4 {
         let s = if corner % 2 == 0 { 1.0 } else { -1.0 };
-        let q = vec![if corner < 2 { std::f64::consts::PI } else { 0.0 } * s; nv];
+        let q = clamp(vec![if corner < 2 { std::f64::consts::PI } else { 0.0 } * s; nv]);
         let qd = (0..nv).map(|j| s * b.qd[j]).collect();
         let qdd = (0..nv).map(|j| if j % 2 == 0 { s } else { -s } * b.qdd[j]).collect();
         out.push([q, qd, qdd]);
@@ -174,4 +183,144 @@ fn rounding_modes_differ_in_the_bits() {
     let ports: Vec<Vec<i64>> = st.iter().map(|[q, qd, qdd]| quantize_ports(&t.datapath, &t.format, q, qd, qdd, &[]).0).collect();
     let (a, b) = (sim::simulate(&t, &m.robot, &ports).unwrap(), sim::simulate(&h, &m.robot, &ports).unwrap());
     assert_ne!(a, b);
+}
+
+fn yosys_available() -> bool {
+    std::process::Command::new("yosys").arg("-V").output().map(|o| o.status.success()).unwrap_or(false)
+}
+
+/// Runs Yosys's generic `synth` (hierarchical: each cell module is mapped once) on a
+/// netlist and returns the `stat -top` report; fails on errors, latches or `check`
+/// problems.
+fn synthesise(n: &Netlist, robot: &grid_gen::ir::Robot) -> String {
+    let dir = std::env::temp_dir().join(format!("grid-gen-yosys-{}-{}-{}", std::process::id(), n.top, n.arch.name()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let v = dir.join(n.file_names().0);
+    std::fs::write(&v, n.verilog(robot)).unwrap();
+    let stat = dir.join("stat.txt");
+    let script = format!(
+        "read_verilog {}; synth -top {top}; select -assert-none t:$dlatch t:$_DLATCH_*; tee -q -o {} stat -top {top}; check -assert",
+        v.display(),
+        stat.display(),
+        top = n.top
+    );
+    let out = std::process::Command::new("yosys").arg("-q").arg("-p").arg(&script).output().unwrap();
+    assert!(out.status.success(), "{}: yosys failed:\n{}{}", n.top, String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let report = std::fs::read_to_string(&stat).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    report
+}
+
+/// The number after `name` on the last line of `report` that starts with it.
+fn count(report: &str, name: &str) -> usize {
+    report
+        .lines()
+        .rev()
+        .find_map(|l| {
+            let mut f = l.split_whitespace();
+            (f.next() == Some(name)).then(|| f.next().unwrap().parse().unwrap())
+        })
+        .unwrap_or(0)
+}
+
+/// Yosys synthesises the iiwa netlists without latches or errors, with exactly the
+/// multiplier and adder instances the generator reports, and the flip-flops of its
+/// registers. (The shared rnea_grad netlist is left out: its one-case-per-cycle operand
+/// multiplexers did not finish Yosys's `opt_muxtree` in 6 minutes; see the README.)
+#[test]
+fn yosys_synthesises_the_iiwa_netlists() {
+    if !tool_or_skip("Yosys", yosys_available()) {
+        return;
+    }
+    let (_, m) = module("grid_iiwa");
+    // (Full-width formats from `--fixed auto`: 58.35 for rnea_grad, 31.22 for M.)
+    let cases = [(BOTH[0], vec![KernelKind::RneaGrad, KernelKind::MassMatrix]), (BOTH[1], vec![KernelKind::MassMatrix])];
+    for (arch, kernels) in cases {
+        for n in plan(&m, &VerilogOptions { arch, kernels, ..VerilogOptions::default() }).unwrap() {
+            let report = synthesise(&n, &m.robot);
+            let s = n.stats();
+            assert_eq!(count(&report, &format!("{}_mul", n.top)), s.multipliers, "{}: multiplier instances", n.top);
+            assert_eq!(count(&report, &format!("{}_add", n.top)), s.adders, "{}: adder instances", n.top);
+            let totals = report.split("=== design hierarchy ===").nth(1).expect("stat -top prints the hierarchy");
+            let flops: usize = totals
+                .lines()
+                .filter_map(|l| {
+                    let mut f = l.split_whitespace();
+                    let name = f.next()?;
+                    (name.starts_with("$_DFF") || name.starts_with("$_SDFF")).then(|| f.next()?.parse::<usize>().ok()).flatten()
+                })
+                .sum();
+            let data = s.registers * n.format.width as usize;
+            // Control: the pipelined valid and overflow bits, or the shared busy/done/
+            // overflow bits and the cycle counter.
+            assert!(flops >= data && flops <= data + 2 * s.latency_cycles + 16, "{}: {flops} flip-flops for {data} data bits", n.top);
+            eprintln!(
+                "{} {}: {} cells, {flops} flip-flops, {} multipliers, {} adders",
+                n.top,
+                n.arch.name(),
+                totals
+                    .lines()
+                    .filter(|l| l.contains("Number of cells:"))
+                    .filter_map(|l| l.split_whitespace().last()?.parse::<usize>().ok())
+                    .last()
+                    .unwrap_or(0),
+                s.multipliers,
+                s.adders
+            );
+        }
+    }
+}
+
+/// A robot the project never saw, with joint and robot names that are Verilog keywords,
+/// backslashes (Verilog's escaped identifiers), spaces, comment closers and unicode:
+/// the netlists compile and simulate, ports are plain identifiers, and
+/// `eval --backend verilog` (the library call behind it) returns the software model's
+/// numbers, within the analysed bound of the reference.
+#[test]
+fn hostile_names_and_an_unseen_robot_through_eval() {
+    if !tool_or_skip("Icarus Verilog (iverilog)", sim::available()) {
+        return;
+    }
+    let urdf = r#"<robot name="module \evil */ endmodule">
+      <link name="base"/>
+      <link name="a"><inertial><origin xyz="0.1 0.02 -0.3" rpy="0.3 0.1 0"/><mass value="2.5"/><inertia ixx="0.03" ixy="0.001" ixz="0" iyy="0.02" iyz="0.002" izz="0.01"/></inertial></link>
+      <link name="b"><inertial><origin xyz="0 0.2 0"/><mass value="1.2"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.004" iyz="0" izz="0.01"/></inertial></link>
+      <link name="c"><inertial><mass value="0.4"/><inertia ixx="0.001" ixy="0" ixz="0" iyy="0.001" iyz="0" izz="0.001"/></inertial></link>
+      <joint name="module" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/><limit lower="-3" upper="3" velocity="4" effort="1"/></joint>
+      <joint name="wire\ x */ endmodule // ü" type="revolute"><parent link="a"/><child link="b"/><origin xyz="0 0 0.4" rpy="0.2 0 0.1"/><axis xyz="0 1 1"/></joint>
+      <joint name="output" type="prismatic"><parent link="b"/><child link="c"/><origin xyz="0 0.3 0"/><axis xyz="1 0 0"/><limit lower="-0.5" upper="0.5" velocity="1" effort="1"/></joint>
+    </robot>"#;
+    let (model, _) = grid_gen::Model::from_urdf_str("hostile.urdf", urdf, false).unwrap();
+    let m = ir::lower(&model, GRAVITY, &LowerOptions { kernels: vec![KernelKind::RneaGrad, KernelKind::MassMatrix], ..LowerOptions::default() }).unwrap();
+    for arch in BOTH {
+        for n in plan(&m, &VerilogOptions { arch, ..VerilogOptions::default() }).unwrap() {
+            assert_eq!(n.top, format!("module__evil____endmodule_{}", n.datapath.kernel));
+            for name in n.names.inputs.iter().chain(n.names.outputs.iter().map(|(s, _)| s)) {
+                assert!(name.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_'), "port `{name}`");
+            }
+            let text = n.verilog(&m.robot);
+            // Names reach only line comments (escaped, one line each); code lines never see them.
+            let code: Vec<&str> = text.lines().filter(|l| !l.trim_start().starts_with("//")).collect();
+            assert!(code.iter().all(|l| !l.contains('\\') && !l.contains("*/")), "a name reached the code");
+            let states = states(&n, model.nv(), 15, 11);
+            check_netlist(&model, &m, &n, &states);
+        }
+    }
+    // Through the `eval --backend verilog` path: the same bits as the software model.
+    let json = r#"{"states": [{"q": [0.4, -1.2, 0.3], "qd": [1.5, -2.0, 0.5], "qdd": [3.0, -1.0, 2.0]}]}"#;
+    let file = grid_gen::eval::parse_states(json).unwrap();
+    let out = grid_gen::eval::evaluate_verilog(&model, &file, GRAVITY, &VerilogOptions::default()).unwrap();
+    let netlists = plan(&m, &VerilogOptions::default()).unwrap();
+    let s = &file.states[0];
+    for n in &netlists {
+        let (ports, _) = quantize_ports(&n.datapath, &n.format, &s.q, &s.qd, s.qdd.as_ref().unwrap(), &[]);
+        let run = n.datapath.run(&n.format, &ports);
+        let got: Vec<f64> = match n.kind {
+            KernelKind::RneaGrad => out.states[0].drnea_dq.iter().chain(out.states[0].drnea_dqd.iter()).flatten().flatten().copied().collect(),
+            _ => out.states[0].m.iter().flatten().copied().collect(),
+        };
+        let want: Vec<f64> = run.outputs.iter().flatten().map(|&r| n.format.to_f64(r)).collect();
+        assert_eq!(got, want, "{}: eval --backend verilog differs from the software model", n.top);
+        assert_eq!(out.states[0].overflow[n.kind.name()], false);
+    }
 }
