@@ -1,0 +1,91 @@
+//! The README's fixed-point trade table: for iiwa and HyQ `rnea_grad`, each WIDTH with
+//! the most FRAC bits the range analysis allows, the largest error measured by the
+//! bit-exact software model over random states within the bounds (against the f64
+//! datapath, which equals the reference to 1e-12), the analysed bound, units, and the
+//! shared architecture's cycles per state at M = 8, 32, 128; then robomorphic's Q16.16
+//! with truncation on the same states. Run: `cargo run --release --example verilog_trade`.
+
+use grid_gen::back::verilog::SharedSchedule;
+use grid_gen::ir::fixed::{format_for_width, quantize_ports, Bounds, Datapath, Format, Port, Rounding};
+use grid_gen::ir::{self, Input, KernelKind, LowerOptions};
+
+fn main() {
+    for robot in ["grid_iiwa", "grid_hyq"] {
+        let text = std::fs::read_to_string(format!("robots/{robot}.urdf")).expect("run from the repository root");
+        let (model, _) = grid_gen::Model::from_urdf_str(robot, &text, false).expect("bundled robot loads");
+        let m = ir::lower(&model, [0.0, 0.0, -9.81], &LowerOptions { kernels: vec![KernelKind::RneaGrad], ..LowerOptions::default() }).expect("lowers");
+        let dp = Datapath::new(&m.functions[0], m.robot.nv()).expect("datapath");
+        let bounds = Bounds::new(&m.robot, None, None);
+        let nv = m.robot.nv();
+        // Deterministic states within the bounds.
+        let mut seed = 0x9e3779b97f4a7c15u64;
+        let mut uniform = move || {
+            seed ^= seed << 13;
+            seed ^= seed >> 7;
+            seed ^= seed << 17;
+            (seed >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0
+        };
+        let states: Vec<[Vec<f64>; 3]> = (0..200)
+            .map(|_| {
+                let q = (0..nv).map(|_| std::f64::consts::PI * uniform()).collect();
+                let qd = (0..nv).map(|j| bounds.qd[j] * uniform()).collect();
+                let qdd = (0..nv).map(|j| bounds.qdd[j] * uniform()).collect();
+                [q, qd, qdd]
+            })
+            .collect();
+        let exact: Vec<Vec<f64>> = states
+            .iter()
+            .map(|[q, qd, qdd]| {
+                let ports: Vec<f64> = dp
+                    .ports
+                    .iter()
+                    .map(|p| match *p {
+                        Port::Sin(j) => q[j as usize].sin(),
+                        Port::Cos(j) => q[j as usize].cos(),
+                        Port::Value(Input::Qd, j) => qd[j as usize],
+                        Port::Value(Input::Qdd, j) => qdd[j as usize],
+                        Port::Value(_, j) => q[j as usize],
+                    })
+                    .collect();
+                let v = dp.values_f64(&ports);
+                dp.outputs.iter().flat_map(|o| o.ids.iter().map(|id| v[id.0 as usize])).collect()
+            })
+            .collect();
+        let measure = |f: &Format| -> (f64, usize) {
+            let mut worst = 0.0f64;
+            let mut overflows = 0;
+            for ([q, qd, qdd], ex) in states.iter().zip(&exact) {
+                let (p, o) = quantize_ports(&dp, f, q, qd, qdd, &[]);
+                let run = dp.run(f, &p);
+                overflows += usize::from(o || run.overflow);
+                for (raw, e) in run.outputs.iter().flatten().zip(ex) {
+                    worst = worst.max((f.to_f64(*raw) - e).abs());
+                }
+            }
+            (worst, overflows)
+        };
+        let (muls, adds) = dp.op_counts();
+        println!("{robot} rnea_grad: {muls} multipliers ({} by a constant), {adds} adders pipelined; {} per link", dp.constant_muls(), muls / nv);
+        let cycles: Vec<String> = [8, 32, 128].iter().map(|&k| format!("M=A={k}: {}", SharedSchedule::new(&dp, k, k).cycles + 1)).collect();
+        println!("  shared cycles per state: {}", cycles.join(", "));
+        println!("  | WIDTH.FRAC | measured max error | analysed bound |");
+        for width in [16, 24, 32, 40, 48, 56, 64] {
+            for rounding in Rounding::ALL {
+                match format_for_width(&dp, &bounds, rounding, width) {
+                    Some((f, a)) => {
+                        let (worst, over) = measure(&f);
+                        println!("  | {} {} | {worst:.2e} | {:.2e} | overflows {over}/200", f.label(), rounding.name(), a.output_error);
+                    }
+                    None => println!("  | {width}.- {} | the analysed range needs more than {width} bits | |", rounding.name()),
+                }
+            }
+        }
+        let q16 = Format::new(32, 16, Rounding::Truncate).expect("valid");
+        let (worst, over) = measure(&q16);
+        println!(
+            "  robomorphic Q16.16 truncate: measured max error {worst:.2e}, {over}/200 states overflow (analysed range needs {:.2e}, Q16.16 holds {:.2e})",
+            ir::fixed::analyse(&dp, &bounds, 16, Rounding::Truncate).needed,
+            q16.max_value()
+        );
+    }
+}
