@@ -42,8 +42,9 @@ if ! command -v iverilog >/dev/null || ! command -v vvp >/dev/null || ! command 
         echo "warning: iverilog/yosys are missing and cannot be installed here; the Verilog tests will say they skipped"
     fi
 fi
-command -v iverilog >/dev/null && iverilog -V 2>&1 | head -1
-command -v yosys >/dev/null && yosys -V
+# sed reads to the end, so iverilog never sees a closed pipe (pipefail would fail on it).
+if command -v iverilog >/dev/null; then iverilog -V 2>&1 | sed -n 1p; fi
+if command -v yosys >/dev/null; then yosys -V; fi
 # Mesa warns on every run without it.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 
