@@ -87,10 +87,10 @@ impl VerilogArgs {
         let format = if self.fixed == "auto" {
             FormatChoice::Auto { max_error: self.max_error }
         } else {
-            let (w, f) = self.fixed.split_once('.').ok_or_else(|| format!("--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`", self.fixed))?;
-            match (w.parse(), f.parse()) {
-                (Ok(width), Ok(frac)) => FormatChoice::Fixed { width, frac },
-                _ => return Err(format!("--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`", self.fixed)),
+            match grid_gen::ir::fixed::Format::parse(&self.fixed, self.rounding) {
+                Some(Ok(f)) => FormatChoice::Fixed { width: f.width, frac: f.frac },
+                Some(Err(e)) => return Err(format!("--fixed: {e}")),
+                None => return Err(format!("--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`", self.fixed)),
             }
         };
         for (name, v) in [("--qd-max", self.qd_max), ("--qdd-max", self.qdd_max)] {

@@ -75,18 +75,13 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
         })
         .collect();
     let simulated = sim::simulate(n, &m.robot, &ports).unwrap_or_else(|e| panic!("{}: {e}", n.top));
+    let nonzero = dp.nonzero_outputs();
+    assert_eq!(n.names.outputs.iter().map(|(_, id)| *id).collect::<Vec<_>>(), nonzero.iter().map(|&(_, _, id)| id).collect::<Vec<_>>());
     let mut worst = 0.0f64;
     for (k, ([q, qd, qdd], hw)) in states.iter().zip(&simulated).enumerate() {
         let run = dp.run(&n.format, &ports[k]);
-        let model_nonzero: Vec<i64> = n
-            .names
-            .outputs
-            .iter()
-            .map(|(_, id)| {
-                let (o, e, _) = dp.nonzero_outputs().into_iter().find(|(_, _, x)| x == id).unwrap();
-                run.outputs[o][e]
-            })
-            .collect();
+        // The netlist's output ports are the non-zero entries, in this order.
+        let model_nonzero: Vec<i64> = nonzero.iter().map(|&(o, e, _)| run.outputs[o][e]).collect();
         assert_eq!(hw.outputs, model_nonzero, "{} state {k}: simulator and software model differ", n.top);
         assert!(!hw.overflow && !run.overflow, "{} state {k}: overflow inside the analysed bounds", n.top);
         let reference = reference_outputs(n.kind, model, q, qd, qdd, GRAVITY);
@@ -102,7 +97,7 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
             }
         }
     }
-    eprintln!("{} {} {}: worst error {worst:.3e}, analysed bound {:.3e}", n.top, n.arch.name(), n.format.label(), n.analysis.output_error);
+    eprintln!("{} {} {}: worst error {worst:.3e}, analysed bound {:.3e}", n.top, n.arch().name(), n.format.label(), n.analysis.output_error);
 }
 
 fn run_robot(robot: &str, archs: &[Arch], count: usize) {
@@ -160,7 +155,7 @@ fn states_outside_the_bounds_raise_overflow() {
         let qdd = vec![0.0; nv];
         let (ports, input_overflow) = quantize_ports(&n.datapath, &n.format, &q, &qd, &qdd, &[]);
         assert!(!input_overflow);
-        let hw = sim::simulate(n, &m.robot, &[ports.clone()]).unwrap();
+        let hw = sim::simulate(n, &m.robot, std::slice::from_ref(&ports)).unwrap();
         let run = n.datapath.run(&n.format, &ports);
         assert!(run.overflow, "{}: the model did not saturate at qd = {fast}", n.top);
         assert!(hw[0].overflow, "{}: the netlist did not raise overflow at qd = {fast}", n.top);
@@ -193,7 +188,7 @@ fn yosys_available() -> bool {
 /// netlist and returns the `stat -top` report; fails on errors, latches or `check`
 /// problems.
 fn synthesise(n: &Netlist, robot: &grid_gen::ir::Robot) -> String {
-    let dir = std::env::temp_dir().join(format!("grid-gen-yosys-{}-{}-{}", std::process::id(), n.top, n.arch.name()));
+    let dir = std::env::temp_dir().join(format!("grid-gen-yosys-{}-{}-{}", std::process::id(), n.top, n.arch().name()));
     std::fs::create_dir_all(&dir).unwrap();
     let v = dir.join(n.file_names().0);
     std::fs::write(&v, n.verilog(robot)).unwrap();
@@ -257,12 +252,12 @@ fn yosys_synthesises_the_iiwa_netlists() {
             eprintln!(
                 "{} {}: {} cells, {flops} flip-flops, {} multipliers, {} adders",
                 n.top,
-                n.arch.name(),
+                n.arch().name(),
                 totals
                     .lines()
                     .filter(|l| l.contains("Number of cells:"))
                     .filter_map(|l| l.split_whitespace().last()?.parse::<usize>().ok())
-                    .last()
+                    .next_back()
                     .unwrap_or(0),
                 s.multipliers,
                 s.adders
@@ -321,6 +316,6 @@ fn hostile_names_and_an_unseen_robot_through_eval() {
         };
         let want: Vec<f64> = run.outputs.iter().flatten().map(|&r| n.format.to_f64(r)).collect();
         assert_eq!(got, want, "{}: eval --backend verilog differs from the software model", n.top);
-        assert_eq!(out.states[0].overflow[n.kind.name()], false);
+        assert!(!out.states[0].overflow[n.kind.name()]);
     }
 }

@@ -38,13 +38,13 @@ impl Target {
         Target::ALL.into_iter().find(|t| t.name() == s)
     }
 
-    /// The file each single-file target writes for a robot whose file stem is `stem`
-    /// (Verilog writes `<stem>_<kernel>.v` and `<stem>_<kernel>_tb.v` per kernel).
+    /// The file a target writes for the file stem `stem` (Verilog writes one per module:
+    /// `<robot>_<kernel>.v` and its testbench `<robot>_<kernel>_tb.v`).
     pub fn file_name(self, stem: &str) -> String {
         match self {
             Target::Rust => format!("{stem}.rs"),
             Target::Wgsl => format!("{stem}.wgsl"),
-            Target::Verilog => format!("{stem}_<kernel>.v"),
+            Target::Verilog => format!("{stem}.v"),
         }
     }
 }

@@ -18,9 +18,10 @@ mod testbench;
 use serde::Serialize;
 
 use super::names::{comment_text, identifier};
-use super::{BackError, GeneratedFile};
+use super::{BackError, GeneratedFile, Target};
 use crate::ir::fixed::{analyse, choose_format, Analysis, Bounds, Datapath, FixedError, Format, Rounding};
 use crate::ir::{KernelKind, Module};
+pub use pipelined::Stages;
 pub use ports::PortNames;
 pub use schedule::SharedSchedule;
 
@@ -138,12 +139,17 @@ pub struct Netlist {
     pub format: Format,
     pub analysis: Analysis,
     pub bounds: Bounds,
-    pub arch: Arch,
     /// Verilog module name of the top.
     pub top: String,
     pub names: PortNames,
-    /// The shared architecture's schedule.
-    pub schedule: Option<SharedSchedule>,
+    pub layout: Layout,
+}
+
+/// Where each operation sits in time, by architecture (each carries its parameters).
+#[derive(Clone, Debug)]
+pub enum Layout {
+    Pipelined(Stages),
+    Shared(SharedSchedule),
 }
 
 /// Builds each requested kernel's datapath, picks or checks its format, and schedules it.
@@ -164,54 +170,48 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, B
     let mut out = Vec::new();
     for kind in kernels {
         let f = module.function(kind).ok_or(BackError::VerilogMissing(kind))?;
-        let datapath = Datapath::new(f, module.robot.nv()).map_err(BackError::Fixed)?;
+        let datapath = Datapath::new(f, module.robot.nv())?;
         let (format, analysis) = match options.format {
             FormatChoice::Fixed { width, frac } => {
-                let format = Format::new(width, frac, options.rounding).map_err(BackError::Fixed)?;
+                let format = Format::new(width, frac, options.rounding)?;
                 let analysis = analyse(&datapath, &bounds, frac, options.rounding);
-                analysis.check(&datapath, &format).map_err(BackError::Fixed)?;
+                analysis.check(&datapath, &format)?;
                 (format, analysis)
             }
-            FormatChoice::Auto { max_error } => choose_format(&datapath, &bounds, options.rounding, max_error).map_err(BackError::Fixed)?,
+            FormatChoice::Auto { max_error } => choose_format(&datapath, &bounds, options.rounding, max_error)?,
         };
-        let schedule = match options.arch {
-            Arch::Shared { multipliers, adders } => Some(SharedSchedule::new(&datapath, multipliers, adders)),
-            Arch::Pipelined { .. } => None,
+        let layout = match options.arch {
+            Arch::Shared { multipliers, adders } => Layout::Shared(SharedSchedule::new(&datapath, multipliers, adders)),
+            Arch::Pipelined { stage_depth } => Layout::Pipelined(Stages::new(&datapath, stage_depth)),
         };
         let names = PortNames::new(&module.robot, &datapath);
-        out.push(Netlist {
-            kind,
-            datapath,
-            format,
-            analysis,
-            bounds: bounds.clone(),
-            arch: options.arch,
-            top: format!("{stem}_{}", kind.name()),
-            names,
-            schedule,
-        });
+        out.push(Netlist { kind, datapath, format, analysis, bounds: bounds.clone(), top: format!("{stem}_{}", kind.name()), names, layout });
     }
     Ok(out)
 }
 
 impl Netlist {
+    /// The architecture and its parameters.
+    pub fn arch(&self) -> Arch {
+        match &self.layout {
+            Layout::Pipelined(st) => Arch::Pipelined { stage_depth: st.stage_depth },
+            Layout::Shared(s) => Arch::Shared { multipliers: s.multipliers, adders: s.adders },
+        }
+    }
+
     pub fn stats(&self) -> NetlistStats {
         let dp = &self.datapath;
         let (muls, adds) = dp.op_counts();
-        let (multipliers, constant_multipliers, adders, registers, latency_cycles, cycles_per_state) = match (&self.arch, &self.schedule) {
-            (Arch::Shared { multipliers, adders }, Some(s)) => (*multipliers, 0, *adders, s.registers, s.cycles + 1, s.cycles + 1),
-            (Arch::Pipelined { stage_depth }, _) => {
-                let p = pipelined::Stages::new(dp, *stage_depth);
-                (muls, dp.constant_muls(), adds, p.registers(), p.count as usize + 1, 1)
-            }
-            (Arch::Shared { .. }, None) => unreachable!("planned with a schedule"),
+        let (multipliers, constant_multipliers, adders, registers, latency_cycles, cycles_per_state) = match &self.layout {
+            Layout::Shared(s) => (s.multipliers, 0, s.adders, s.registers, s.cycles + 1, s.cycles + 1),
+            Layout::Pipelined(st) => (muls, dp.constant_muls(), adds, st.registers(), st.count as usize + 1, 1),
         };
         NetlistStats {
             kernel: self.kind,
-            arch: self.arch.name(),
-            stage_depth: match self.arch {
-                Arch::Pipelined { stage_depth } => Some(stage_depth),
-                Arch::Shared { .. } => None,
+            arch: self.arch().name(),
+            stage_depth: match &self.layout {
+                Layout::Pipelined(st) => Some(st.stage_depth),
+                Layout::Shared(_) => None,
             },
             format: self.format.label(),
             rounding: self.format.rounding,
@@ -229,18 +229,35 @@ impl Netlist {
 
     /// The netlist file's name and the testbench's.
     pub fn file_names(&self) -> (String, String) {
-        (format!("{}.v", self.top), format!("{}_tb.v", self.top))
+        (Target::Verilog.file_name(&self.top), Target::Verilog.file_name(&format!("{}_tb", self.top)))
     }
 
     /// The netlist (cells and top module) as Verilog-2005.
     pub fn verilog(&self, robot: &crate::ir::Robot) -> String {
         let mut out = self.header(robot);
         out.push_str(&cells::cells(&self.top, &self.format));
-        match self.arch {
-            Arch::Pipelined { stage_depth } => out.push_str(&pipelined::top(self, stage_depth)),
-            Arch::Shared { .. } => out.push_str(&shared::top(self)),
+        match &self.layout {
+            Layout::Pipelined(st) => out.push_str(&pipelined::top(self, st)),
+            Layout::Shared(s) => out.push_str(&shared::top(self, s)),
         }
         out
+    }
+
+    /// `module <top> (` … `);`: the handshake, the input ports, `out_valid`, the output
+    /// ports and `overflow`, in the order the header documents.
+    fn module_ports(&self) -> String {
+        let w = self.format.width;
+        let mut v = format!("module {} (\n", self.top);
+        v.push_str("    input  wire clk,\n    input  wire rst,\n    input  wire in_valid,\n    output wire in_ready,\n");
+        for name in &self.names.inputs {
+            v.push_str(&format!("    input  wire signed [{}:0] {name},\n", w - 1));
+        }
+        v.push_str("    output wire out_valid,\n");
+        for (name, _) in &self.names.outputs {
+            v.push_str(&format!("    output wire signed [{}:0] {name},\n", w - 1));
+        }
+        v.push_str("    output wire overflow\n);\n");
+        v
     }
 
     /// The self-checking-free testbench: reads states from a hex file and writes outputs.
@@ -263,7 +280,7 @@ impl Netlist {
                 Rounding::HalfUp => "round half up",
             }
         ));
-        match self.arch {
+        match self.arch() {
             Arch::Pipelined { stage_depth } => h.push_str(&format!(
                 "// Architecture: pipelined, registers every {stage_depth} levels; one state per clock, latency {} clocks.\n",
                 s.latency_cycles

@@ -11,7 +11,10 @@ use super::Netlist;
 use crate::ir::fixed::{Datapath, HwId, HwOp};
 
 /// Which stage computes each node, and the last stage that needs its value.
+#[derive(Clone, Debug, PartialEq)]
 pub struct Stages {
+    /// Levels of dependence depth per stage.
+    pub stage_depth: u32,
     /// 0 for ports and constants.
     pub stage: Vec<u32>,
     /// Stages after the input registers (at least 1).
@@ -34,7 +37,7 @@ impl Stages {
                 }
             }
         }
-        for (_, id) in dp.nonzero_outputs().into_iter().map(|(_, _, id)| ((), id)) {
+        for (_, _, id) in dp.nonzero_outputs() {
             last[id.0 as usize] = count + 1;
         }
         for (i, op) in dp.nodes.iter().enumerate() {
@@ -42,7 +45,7 @@ impl Stages {
                 last[i] = stage[i];
             }
         }
-        Stages { stage, count, last }
+        Stages { stage_depth, stage, count, last }
     }
 
     /// Data registers: one per value per stage boundary it crosses.
@@ -62,22 +65,12 @@ fn operand(n: &Netlist, st: &Stages, x: HwId, s: u32) -> String {
 }
 
 /// The top module.
-pub fn top(n: &Netlist, stage_depth: u32) -> String {
+pub fn top(n: &Netlist, st: &Stages) -> String {
     let dp = &n.datapath;
-    let st = Stages::new(dp, stage_depth);
     let w = n.format.width;
     let s_max = st.count;
     let mut v = String::new();
-    let _ = writeln!(v, "module {} (", n.top);
-    let _ = writeln!(v, "    input  wire clk,\n    input  wire rst,\n    input  wire in_valid,\n    output wire in_ready,");
-    for name in &n.names.inputs {
-        let _ = writeln!(v, "    input  wire signed [{}:0] {name},", w - 1);
-    }
-    let _ = writeln!(v, "    output wire out_valid,");
-    for (name, _) in &n.names.outputs {
-        let _ = writeln!(v, "    output wire signed [{}:0] {name},", w - 1);
-    }
-    let _ = writeln!(v, "    output wire overflow\n);");
+    v.push_str(&n.module_ports());
     let _ = writeln!(v, "    assign in_ready = 1'b1;");
     let _ = writeln!(v, "    reg [{s_max}:0] valid;");
     let _ = writeln!(v, "    always @(posedge clk) valid <= rst ? {}'d0 : {{valid[{}:0], in_valid}};", s_max + 1, s_max - 1);
@@ -120,10 +113,10 @@ pub fn top(n: &Netlist, stage_depth: u32) -> String {
             }
             let _ = writeln!(v, "    wire signed [{}:0] n{i};\n    wire o{i};", w - 1);
             let (cell, a, b, sub) = match *op {
-                HwOp::Add(a, b) => ("add", operand(n, &st, a, s), operand(n, &st, b, s), Some("1'b0")),
-                HwOp::Sub(a, b) => ("add", operand(n, &st, a, s), operand(n, &st, b, s), Some("1'b1")),
-                HwOp::Neg(a) => ("add", literal(0, w), operand(n, &st, a, s), Some("1'b1")),
-                HwOp::Mul(a, b) => ("mul", operand(n, &st, a, s), operand(n, &st, b, s), None),
+                HwOp::Add(a, b) => ("add", operand(n, st, a, s), operand(n, st, b, s), Some("1'b0")),
+                HwOp::Sub(a, b) => ("add", operand(n, st, a, s), operand(n, st, b, s), Some("1'b1")),
+                HwOp::Neg(a) => ("add", literal(0, w), operand(n, st, a, s), Some("1'b1")),
+                HwOp::Mul(a, b) => ("mul", operand(n, st, a, s), operand(n, st, b, s), None),
                 HwOp::Port(_) | HwOp::Const(_) => unreachable!("operations only"),
             };
             let sub = sub.map_or(String::new(), |s| format!(", .sub({s})"));

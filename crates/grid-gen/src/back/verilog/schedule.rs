@@ -18,6 +18,9 @@ pub enum Unit {
 /// Where and when every operation runs, and where every value lives.
 #[derive(Clone, Debug, PartialEq)]
 pub struct SharedSchedule {
+    /// The units it was scheduled on.
+    pub multipliers: usize,
+    pub adders: usize,
     /// Cycles of computation per state (the load cycle excluded).
     pub cycles: usize,
     /// (cycle, unit) of each operation; `None` for ports and constants.
@@ -122,7 +125,7 @@ impl SharedSchedule {
             // A value nobody reads (a port only sin/cos would have used) frees at once.
             free.push(Reverse((last_use[i].max(d), r)));
         }
-        SharedSchedule { cycles, slot, reg, registers }
+        SharedSchedule { multipliers, adders, cycles, slot, reg, registers }
     }
 }
 

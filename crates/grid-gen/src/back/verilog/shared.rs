@@ -6,7 +6,7 @@
 use std::fmt::Write;
 
 use super::cells::literal;
-use super::schedule::Unit;
+use super::schedule::{SharedSchedule, Unit};
 use super::Netlist;
 use crate::ir::fixed::{HwId, HwOp};
 
@@ -18,14 +18,10 @@ fn unit_name(u: Unit) -> String {
 }
 
 /// The top module.
-pub fn top(n: &Netlist) -> String {
+pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
     let dp = &n.datapath;
-    let s = n.schedule.as_ref().expect("shared netlists are planned with a schedule");
     let w = n.format.width;
-    let (muls, adds) = match n.arch {
-        super::Arch::Shared { multipliers, adders } => (multipliers, adders),
-        super::Arch::Pipelined { .. } => unreachable!("shared architecture"),
-    };
+    let (muls, adds) = (s.multipliers, s.adders);
     let counter_bits = usize::BITS - s.cycles.leading_zeros();
     let read = |x: HwId| -> String {
         match dp.op(x) {
@@ -36,16 +32,7 @@ pub fn top(n: &Netlist) -> String {
     let zero = literal(0, w);
 
     let mut v = String::new();
-    let _ = writeln!(v, "module {} (", n.top);
-    let _ = writeln!(v, "    input  wire clk,\n    input  wire rst,\n    input  wire in_valid,\n    output wire in_ready,");
-    for name in &n.names.inputs {
-        let _ = writeln!(v, "    input  wire signed [{}:0] {name},", w - 1);
-    }
-    let _ = writeln!(v, "    output wire out_valid,");
-    for (name, _) in &n.names.outputs {
-        let _ = writeln!(v, "    output wire signed [{}:0] {name},", w - 1);
-    }
-    let _ = writeln!(v, "    output wire overflow\n);");
+    v.push_str(&n.module_ports());
     let _ = writeln!(v, "    reg busy, done, ovf;\n    reg [{}:0] cyc;", counter_bits - 1);
     for r in 0..s.registers {
         let _ = writeln!(v, "    reg signed [{}:0] r{r};", w - 1);

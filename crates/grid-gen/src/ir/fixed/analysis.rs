@@ -76,9 +76,10 @@ pub struct Analysis {
     pub output_error: f64,
 }
 
-/// Widens a bound computed in f64 so that its own rounding cannot make it too small.
-fn up(x: f64) -> f64 {
-    x * (1.0 + 8.0 * f64::EPSILON) + f64::MIN_POSITIVE
+/// How far a value computed in f64 may be from the exact one: widening each bound by it
+/// keeps the f64 rounding of the analysis itself from making a bound too tight.
+fn slack(x: f64) -> f64 {
+    x.abs() * 8.0 * f64::EPSILON + f64::MIN_POSITIVE
 }
 
 /// Analyses `dp` for inputs within `bounds`, with `frac` fraction bits and `rounding`
@@ -110,9 +111,10 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
                 (l, h, ma * eb + mb * ea + ea * eb + format.product_error())
             }
         };
-        lo[i] = if l == 0.0 { 0.0 } else { l - up(l.abs()) + l.abs() };
-        hi[i] = if h == 0.0 { 0.0 } else { h + up(h.abs()) - h.abs() };
-        err[i] = up(e);
+        // Exact zeros (structural zeros) stay exact.
+        lo[i] = if l == 0.0 { 0.0 } else { l - slack(l) };
+        hi[i] = if h == 0.0 { 0.0 } else { h + slack(h) };
+        err[i] = e + slack(e);
     }
     let needed = (0..n).map(|i| lo[i].abs().max(hi[i].abs()) + err[i]).fold(0.0, f64::max);
     let output_error = dp.nonzero_outputs().iter().map(|&(_, _, id)| err[id.0 as usize]).fold(0.0, f64::max);

@@ -114,13 +114,8 @@ impl Format {
         if !scaled.is_finite() {
             return (if scaled > 0.0 { self.max_raw() } else { self.min_raw() }, true);
         }
-        if scaled > self.max_raw() as f64 {
-            (self.max_raw(), true)
-        } else if scaled < self.min_raw() as f64 {
-            (self.min_raw(), true)
-        } else {
-            (scaled as i64, false)
-        }
+        // `as` saturates at i128's range, far beyond any format's.
+        self.saturate(scaled as i128)
     }
 
     pub fn to_f64(&self, raw: i64) -> f64 {
@@ -158,7 +153,7 @@ mod tests {
         assert_eq!(f.quantize(8.0), (127, true));
         assert_eq!(f.quantize(-8.0), (-128, false));
         assert_eq!(f.quantize(-9.0), (-128, true));
-        assert_eq!(f.quantize(f64::NAN).1, true);
+        assert!(f.quantize(f64::NAN).1);
     }
 
     #[test]
