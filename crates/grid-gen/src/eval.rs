@@ -260,3 +260,76 @@ pub fn evaluate_verilog(
     }
     Ok(VerilogEvalOutput { joint_names: module.robot.joint_names.clone(), netlists: netlists.iter().map(|n| n.stats()).collect(), states })
 }
+
+/// Why [`evaluate_with`] failed: the states, or the backend that ran the kernels.
+#[derive(Debug, thiserror::Error)]
+pub enum BackendEvalError<E: std::error::Error + 'static> {
+    #[error(transparent)]
+    States(#[from] EvalError),
+    #[error(transparent)]
+    Backend(E),
+}
+
+/// The JSON of [`evaluate`], with the kernels run by a backend: `run(kind, q, qd, u)`
+/// takes state-major inputs (`q[s * nv + j]`; `u` is q̈ or τ, empty for kernels without
+/// it) and returns the kernel's outputs concatenated per state (`out[s * len + k]`,
+/// matrices row-major), as the generated kernels lay them out. rnea and rnea_grad run on
+/// the states with `qdd`, fd_grad (whose outputs give fd) on those with `tau`.
+pub fn evaluate_with<E: std::error::Error + 'static>(
+    model: &Model,
+    file: &StatesFile,
+    mut run: impl FnMut(crate::ir::KernelKind, &[f64], &[f64], &[f64]) -> Result<Vec<f64>, E>,
+) -> Result<EvalOutput, BackendEvalError<E>> {
+    use crate::ir::KernelKind;
+    check_states(model, file)?;
+    let nv = model.nv();
+    let matrix = |v: &[f64]| v.chunks(nv.max(1)).map(|r| r.to_vec()).collect::<Matrix>();
+    let mut states: Vec<Output> = file
+        .states
+        .iter()
+        .map(|_| Output { rnea: None, drnea_dq: None, drnea_dqd: None, m: Vec::new(), minv: Vec::new(), fd: None, dfd_dq: None, dfd_dqd: None })
+        .collect();
+    let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {
+        chosen.iter().flat_map(|&i| pick(&file.states[i]).map(|v| v.as_slice()).unwrap_or(&[]).iter().copied()).collect()
+    };
+    let all: Vec<usize> = (0..file.states.len()).collect();
+    let with_qdd: Vec<usize> = all.iter().copied().filter(|&i| file.states[i].qdd.is_some()).collect();
+    let with_tau: Vec<usize> = all.iter().copied().filter(|&i| file.states[i].tau.is_some()).collect();
+    let plan: [(KernelKind, &[usize], &dyn Fn(&State) -> Option<&Vec<f64>>); 5] = [
+        (KernelKind::Rnea, &with_qdd, &|s: &State| s.qdd.as_ref()),
+        (KernelKind::RneaGrad, &with_qdd, &|s: &State| s.qdd.as_ref()),
+        (KernelKind::MassMatrix, &all, &|_: &State| None),
+        (KernelKind::Minv, &all, &|_: &State| None),
+        (KernelKind::FdGrad, &with_tau, &|s: &State| s.tau.as_ref()),
+    ];
+    for (kind, chosen, u) in plan {
+        if chosen.is_empty() {
+            continue;
+        }
+        let velocity = !matches!(kind, KernelKind::MassMatrix | KernelKind::Minv);
+        let q = flat(chosen, &|s: &State| Some(&s.q));
+        let qd = if velocity { flat(chosen, &|s: &State| Some(&s.qd)) } else { Vec::new() };
+        let out = run(kind, &q, &qd, &flat(chosen, u)).map_err(BackendEvalError::Backend)?;
+        let per = out.len() / chosen.len();
+        for (k, &i) in chosen.iter().enumerate() {
+            let values = &out[k * per..(k + 1) * per];
+            let st = &mut states[i];
+            let m = nv * nv;
+            match kind {
+                KernelKind::Rnea => st.rnea = Some(values.to_vec()),
+                KernelKind::RneaGrad => {
+                    st.drnea_dq = Some(matrix(&values[..m]));
+                    st.drnea_dqd = Some(matrix(&values[m..2 * m]));
+                }
+                KernelKind::MassMatrix => st.m = matrix(values),
+                KernelKind::Minv => st.minv = matrix(values),
+                _ => {
+                    st.fd = Some(values[..nv].to_vec());
+                    st.dfd_dq = Some(matrix(&values[nv..nv + m]));
+                    st.dfd_dqd = Some(matrix(&values[nv + m..nv + 2 * m]));
+                }
+            }
+        }
+    }
+    Ok(EvalOutput { joint_names: model.joints.iter().map(|j| j.name.clone()).collect(), states })
+}

@@ -54,8 +54,10 @@ impl Target {
 pub enum BackError {
     #[error("internal error: the Rust backend produced code that does not parse: {0}")]
     RustUnparsable(String),
-    #[error("robot `{robot}`: the constant {value} is out of f32's range, so the WGSL (f32) kernels cannot hold it")]
+    #[error("robot `{robot}`: the constant {value} is out of f32's range, so the WGSL f32 kernels cannot hold it (try --precision f64)")]
     WgslRange { robot: String, value: f64 },
+    #[error("WGSL: {0}")]
+    WgslOption(String),
     #[error("Verilog: {0}")]
     Fixed(crate::ir::fixed::FixedError),
     #[error("Verilog: no datapath kernel selected (available: rnea, rnea_grad, mass_matrix)")]

@@ -1,60 +1,209 @@
-//! The WGSL backend, `thread` strategy: one compute invocation per state, straight-line
-//! f32 code, every kernel an entry point over a batch of N states. Each kernel is split
-//! into helper functions of at most `chunk` operations (the IR's [`Chunks`]), because
-//! naga's WGSL front end (and so wgpu's `create_shader_module`) is quadratic in the
-//! expressions of one function: 10k `let`s parse in about 1 s, the same as ten functions
-//! of 1k in 0.16 s (measured, see DESIGN.md). Values that cross helpers go through a
-//! per-state scratch storage buffer rather than a large per-invocation array, which
-//! lavapipe compiles very slowly.
+//! The WGSL backend: every kernel a compute entry point over a batch of N states, in two
+//! strategies (one invocation per state, or one workgroup per state), f32 or f64, with
+//! WGSL's built-in sin/cos or an accurate in-kernel reduction and polynomial.
+
+mod cooperative;
+mod thread;
+mod trig;
 
 use std::fmt::Write;
 
+use serde::Serialize;
+
 use super::names::{comment_text, identifier};
 use super::{BackError, GeneratedFile, Target};
-use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id, Input, Module, Op};
+
+/// Invocation layout of the entry points.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Strategy {
+    /// One invocation per state, straight-line code: throughput at large N.
+    Thread,
+    /// One workgroup per state, the graph spread over its invocations in
+    /// barrier-separated phases (GRiD's scheme): latency at small N.
+    Cooperative,
+}
+
+impl Strategy {
+    pub const ALL: [Strategy; 2] = [Strategy::Thread, Strategy::Cooperative];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Strategy::Thread => "thread",
+            Strategy::Cooperative => "cooperative",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Strategy> {
+        Strategy::ALL.into_iter().find(|x| x.name() == s)
+    }
+
+    /// The entry point of kernel `name` under this strategy.
+    pub fn entry(self, name: &str) -> String {
+        match self {
+            Strategy::Thread => name.to_string(),
+            Strategy::Cooperative => format!("{name}_coop"),
+        }
+    }
+}
+
+/// Floating-point type of the kernels.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Precision {
+    /// WebGPU's only universal float.
+    F32,
+    /// Needs the adapter feature `SHADER_F64` (wgpu's name; not in core WebGPU).
+    F64,
+}
+
+impl Precision {
+    pub fn name(self) -> &'static str {
+        match self {
+            Precision::F32 => "f32",
+            Precision::F64 => "f64",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Precision> {
+        [Precision::F32, Precision::F64].into_iter().find(|x| x.name() == s)
+    }
+
+    pub fn bytes(self) -> usize {
+        match self {
+            Precision::F32 => 4,
+            Precision::F64 => 8,
+        }
+    }
+}
+
+/// How sin and cos of q are computed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "lowercase")]
+pub enum Trig {
+    /// WGSL's `sin`/`cos`: fast, but the WebGPU spec allows an absolute error of 2^-11 on
+    /// [-π, π] and says nothing outside it. f32 only (Vulkan's GLSL.std.450 has no f64
+    /// sine).
+    Builtin,
+    /// Cody–Waite reduction by π/2 and minimax polynomials on [-π/4, π/4] (see `trig.rs`):
+    /// about 1 ulp, the same on every adapter.
+    Accurate,
+}
+
+impl Trig {
+    pub fn name(self) -> &'static str {
+        match self {
+            Trig::Builtin => "builtin",
+            Trig::Accurate => "accurate",
+        }
+    }
+
+    pub fn parse(s: &str) -> Option<Trig> {
+        [Trig::Builtin, Trig::Accurate].into_iter().find(|x| x.name() == s)
+    }
+}
+
+/// WebGPU's default `maxComputeWorkgroupStorageSize` (bytes). naga and wgpu do not check
+/// it, so the cooperative strategy keeps its `var<workgroup>` arrays under it and spills
+/// the rest to the storage scratch buffer.
+pub const WORKGROUP_STORAGE_LIMIT: usize = 16384;
+/// WebGPU's default `maxComputeInvocationsPerWorkgroup`.
+pub const MAX_INVOCATIONS: u32 = 256;
 
 /// Options of the WGSL backend.
 #[derive(Clone, Debug)]
 pub struct WgslOptions {
-    /// Most operations in one WGSL function.
+    /// Most operations in one WGSL function (naga's parser is quadratic in one function).
     pub chunk: usize,
-    /// Invocations per workgroup (WebGPU's default limit is 256).
+    /// Thread strategy: invocations (= states) per workgroup.
     pub workgroup_size: u32,
+    /// Cooperative strategy: invocations sharing one state.
+    pub workers: u32,
+    pub strategies: Vec<Strategy>,
+    pub precision: Precision,
+    pub trig: Trig,
 }
 
 impl Default for WgslOptions {
     fn default() -> Self {
-        WgslOptions { chunk: 1000, workgroup_size: 64 }
+        WgslOptions { chunk: 1000, workgroup_size: 64, workers: 64, strategies: Strategy::ALL.to_vec(), precision: Precision::F32, trig: Trig::Accurate }
+    }
+}
+
+/// What one entry point costs, for `info --json` and the runtime (which reads the same
+/// figures back from the file's `// entry:` lines).
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct EntryStats {
+    pub entry: String,
+    pub kernel: &'static str,
+    pub strategy: Strategy,
+    /// Output values per state (structural zeros included).
+    pub outputs: usize,
+    /// Words of the storage scratch buffer per state.
+    pub scratch: usize,
+    pub workgroup_size: u32,
+    pub states_per_workgroup: u32,
+    pub workgroup_bytes: usize,
+    /// Barrier-separated phases (cooperative) or 1.
+    pub phases: usize,
+    /// `let`s and stores.
+    pub statements: usize,
+    pub functions: usize,
+}
+
+impl EntryStats {
+    /// The machine-readable header line the runtime parses.
+    fn header_line(&self) -> String {
+        format!(
+            "// entry: {} kernel={} strategy={} outputs={} scratch={} workgroup_size={} states_per_workgroup={} workgroup_bytes={} phases={} statements={} functions={}",
+            self.entry,
+            self.kernel,
+            self.strategy.name(),
+            self.outputs,
+            self.scratch,
+            self.workgroup_size,
+            self.states_per_workgroup,
+            self.workgroup_bytes,
+            self.phases,
+            self.statements,
+            self.functions
+        )
     }
 }
 
 /// The buffer layout, described once for the file header and the README.
 pub const LAYOUT_DOC: &str = "\
 Every entry point shares one bind group (group 0), so one pipeline layout serves all:
-  binding 0  uniform  Params { n: u32 }            number of states N in the batch
-  binding 1  storage, read        q:   array<f32>  q[j * N + s] is joint j of state s
-  binding 2  storage, read        qd:  array<f32>  same layout (unused by mass_matrix, minv)
-  binding 3  storage, read        u:   array<f32>  qdd (rnea, rnea_grad) or tau (fd, fd_grad)
-  binding 4  storage, read_write  out: array<f32>  out[k * N + s]: value k of state s, the
+  binding 0  uniform  Params { n: u32 }             number of states N in this dispatch
+  binding 1  storage, read        q:   array<real>  q[j * N + s] is joint j of state s
+  binding 2  storage, read        qd:  array<real>  same layout (unused by mass_matrix, minv)
+  binding 3  storage, read        u:   array<real>  qdd (rnea, rnea_grad) or tau (fd, fd_grad)
+  binding 4  storage, read_write  out: array<real>  out[k * N + s]: value k of state s, the
              kernel's outputs concatenated in order, matrices row-major ([i][j] = d out_i / d in_j)
-  binding 5  storage, read_write  scratch: array<f32>  scratch[k * N + s], <KERNEL>_SCRATCH values
-             per state (at least one word: bind a 4-byte buffer when it is 0)
-Structure-of-arrays, so neighbouring invocations touch neighbouring words. Dispatch
-ceil(N / WORKGROUP_SIZE) workgroups in x; an invocation past N does nothing. Every output
-value is written, structural zeros included. Arithmetic is f32; sin and cos are WGSL's
-built-ins, whose accuracy the WebGPU spec leaves to the implementation (absolute error
-2^-11 on [-pi, pi] is allowed).";
+  binding 5  storage, read_write  scratch: array<real>  scratch[k * N + s], `scratch` words per
+             state (see the entry lines; bind at least one word when it is 0)
+Structure-of-arrays, so neighbouring invocations touch neighbouring words. `real` is the
+precision below. Thread entry points (`<kernel>`): dispatch ceil(N / workgroup_size)
+workgroups in x. Cooperative entry points (`<kernel>_coop`): dispatch N workgroups in x,
+one state each. At most 65535 workgroups per dispatch: split larger batches into
+dispatches of their own buffers. A state past N does nothing. Every output value is
+written, structural zeros included.";
 
-/// WGSL's f32 literal for a constant, or an error if f32 cannot hold it.
-fn literal(c: f64, robot: &str) -> Result<String, BackError> {
-    let x = c as f32;
-    if !x.is_finite() {
-        return Err(BackError::WgslRange { robot: robot.to_string(), value: c });
-    }
-    // `{:?}` prints the shortest text that reads back as the same f32.
-    let s = format!("{x:?}");
-    Ok(if x < 0.0 { format!("({s}f)") } else { format!("{s}f") })
+/// WGSL's literal for a constant in `precision`, or an error if it cannot hold it.
+fn literal(c: f64, precision: Precision, robot: &str) -> Result<String, BackError> {
+    // `{:?}` prints the shortest text that reads back as the same value.
+    let (s, neg) = match precision {
+        Precision::F32 => {
+            let x = c as f32;
+            if !x.is_finite() {
+                return Err(BackError::WgslRange { robot: robot.to_string(), value: c });
+            }
+            (format!("{x:?}f"), x < 0.0)
+        }
+        Precision::F64 => (format!("{c:?}lf"), c < 0.0),
+    };
+    Ok(if neg { format!("({s})") } else { s })
 }
 
 fn input_buffer(input: Input) -> &'static str {
@@ -65,19 +214,36 @@ fn input_buffer(input: Input) -> &'static str {
     }
 }
 
-fn operand(f: &Function, c: &Chunks, here: u32, id: Id, robot: &str) -> Result<String, BackError> {
+/// The expression of operation `id`, given how to name each operand.
+fn expression(f: &Function, id: Id, trig: Trig, mut o: impl FnMut(Id) -> Result<String, BackError>) -> Result<String, BackError> {
+    let (sin, cos) = match trig {
+        Trig::Builtin => ("sin", "cos"),
+        Trig::Accurate => ("gg_sin", "gg_cos"),
+    };
     Ok(match f.op(id) {
-        Op::Const(k) => literal(k, robot)?,
-        Op::Input(which, j) => format!("{}[{j}u * n + s]", input_buffer(which)),
-        _ if c.chunk_of[id.0 as usize] == Some(here) => format!("t{}", id.0),
-        _ => format!("scratch[{}u * n + s]", c.slot[id.0 as usize].expect("values read by a later chunk have a slot")),
+        Op::Add(a, b) => format!("{} + {}", o(a)?, o(b)?),
+        Op::Sub(a, b) => format!("{} - {}", o(a)?, o(b)?),
+        Op::Mul(a, b) => format!("{} * {}", o(a)?, o(b)?),
+        Op::Div(a, b) => format!("{} / {}", o(a)?, o(b)?),
+        Op::Neg(a) => format!("-({})", o(a)?),
+        Op::Sin(a) => format!("{sin}({})", o(a)?),
+        Op::Cos(a) => format!("{cos}({})", o(a)?),
+        Op::Const(_) | Op::Input(..) => unreachable!("schedules hold operations only"),
     })
 }
 
-fn emit_function(out: &mut String, f: &Function, nv: usize, options: &WgslOptions, robot: &str) -> Result<(), BackError> {
-    let c = Chunks::new(f, options.chunk);
-    let name = f.kind.name();
-    // Output index of every value: stores after the node that computes it.
+/// Constants and inputs printed inline; `None` for operations.
+fn leaf(f: &Function, id: Id, precision: Precision, robot: &str) -> Result<Option<String>, BackError> {
+    Ok(match f.op(id) {
+        Op::Const(k) => Some(literal(k, precision, robot)?),
+        Op::Input(which, j) => Some(format!("{}[{j}u * n + s]", input_buffer(which))),
+        _ => None,
+    })
+}
+
+/// Output index of every operation's value (stores follow the node), and the outputs that
+/// are constants or inputs.
+fn output_stores(f: &Function, nv: usize) -> (Vec<Vec<usize>>, Vec<(usize, Id)>, usize) {
     let mut stores: Vec<Vec<usize>> = vec![Vec::new(); f.nodes.len()];
     let mut inline = Vec::new();
     let mut base = 0;
@@ -91,51 +257,34 @@ fn emit_function(out: &mut String, f: &Function, nv: usize, options: &WgslOption
         }
         base += o.shape.len(nv);
     }
-    let _ = writeln!(out, "// {}\nconst {}_SCRATCH: u32 = {}u;\n", f.kind.doc(), name.to_uppercase(), c.slots);
-    for (ci, ids) in c.chunks.iter().enumerate() {
-        let _ = writeln!(out, "fn {name}_part{ci}(s: u32, n: u32) {{");
-        if ci == 0 {
-            for (k, id) in &inline {
-                let _ = writeln!(out, "    out[{k}u * n + s] = {};", operand(f, &c, 0, *id, robot)?);
-            }
-        }
-        for &id in ids {
-            let o = |x: Id| operand(f, &c, ci as u32, x, robot);
-            let e = match f.op(id) {
-                Op::Add(a, b) => format!("{} + {}", o(a)?, o(b)?),
-                Op::Sub(a, b) => format!("{} - {}", o(a)?, o(b)?),
-                Op::Mul(a, b) => format!("{} * {}", o(a)?, o(b)?),
-                Op::Div(a, b) => format!("{} / {}", o(a)?, o(b)?),
-                Op::Neg(a) => format!("-({})", o(a)?),
-                Op::Sin(a) => format!("sin({})", o(a)?),
-                Op::Cos(a) => format!("cos({})", o(a)?),
-                Op::Const(_) | Op::Input(..) => unreachable!("chunks hold operations only"),
-            };
-            let _ = writeln!(out, "    let t{} = {e};", id.0);
-            if let Some(slot) = c.slot[id.0 as usize] {
-                let _ = writeln!(out, "    scratch[{slot}u * n + s] = t{};", id.0);
-            }
-            for k in &stores[id.0 as usize] {
-                let _ = writeln!(out, "    out[{k}u * n + s] = t{};", id.0);
-            }
-        }
-        let _ = writeln!(out, "}}\n");
-    }
-    let _ = writeln!(out, "@compute @workgroup_size({})", options.workgroup_size);
-    let _ = writeln!(out, "fn {name}(@builtin(global_invocation_id) gid: vec3<u32>) {{");
-    let _ = writeln!(out, "    let n = params.n;\n    let s = gid.x;\n    if (s >= n) {{\n        return;\n    }}");
-    for ci in 0..c.chunks.len() {
-        let _ = writeln!(out, "    {name}_part{ci}(s, n);");
-    }
-    let _ = writeln!(out, "}}\n");
-    Ok(())
+    (stores, inline, base)
 }
 
-/// The WGSL file for `module`: `<stem>.wgsl`, every kernel an entry point.
+/// The WGSL file for `module`: `<stem>.wgsl`, every kernel an entry point per strategy.
 pub fn emit(module: &Module, options: &WgslOptions) -> Result<GeneratedFile, BackError> {
+    emit_with_stats(module, options).map(|(file, _)| file)
+}
+
+/// [`emit`], and what each entry point costs.
+pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(GeneratedFile, Vec<EntryStats>), BackError> {
     let robot = &module.robot;
     let nv = robot.nv();
     let stem = identifier(&robot.name);
+    check_options(options)?;
+    if options.precision == Precision::F64 && options.trig == Trig::Builtin {
+        return Err(BackError::WgslOption("f64 kernels need --wgsl-trig accurate (Vulkan has no f64 sine)".into()));
+    }
+    let mut body = String::new();
+    let mut stats = Vec::new();
+    for f in &module.functions {
+        for &strategy in &options.strategies {
+            let s = match strategy {
+                Strategy::Thread => thread::emit(&mut body, f, nv, options, &robot.name)?,
+                Strategy::Cooperative => cooperative::emit(&mut body, f, nv, options, &robot.name)?,
+            };
+            stats.push(s);
+        }
+    }
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -151,25 +300,48 @@ pub fn emit(module: &Module, options: &WgslOptions) -> Result<GeneratedFile, Bac
     for (j, name) in robot.joint_names.iter().enumerate() {
         let _ = writeln!(out, "//   {j:>3}  {}", comment_text(name));
     }
-    let _ = writeln!(out, "//\n// Entry points and output values per state:");
+    let _ = writeln!(out, "//\n// Kernels and output values per state:");
     for f in &module.functions {
         let parts: Vec<String> = f.outputs.iter().map(|o| format!("{} ({})", o.name, o.shape.len(nv))).collect();
         let _ = writeln!(out, "//   {}: {}", f.kind.signature(), parts.join(", "));
     }
     let _ = writeln!(
         out,
-        "\nstruct Params {{\n    n: u32,\n}}\n\n\
-         const NV: u32 = {nv}u;\nconst WORKGROUP_SIZE: u32 = {}u;\n\n\
-         @group(0) @binding(0) var<uniform> params: Params;\n\
-         @group(0) @binding(1) var<storage, read> q: array<f32>;\n\
-         @group(0) @binding(2) var<storage, read> qd: array<f32>;\n\
-         @group(0) @binding(3) var<storage, read> u: array<f32>;\n\
-         @group(0) @binding(4) var<storage, read_write> out: array<f32>;\n\
-         @group(0) @binding(5) var<storage, read_write> scratch: array<f32>;\n",
-        options.workgroup_size
+        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n// precision: {}\n// trig: {}",
+        options.precision.name(),
+        options.trig.name()
     );
-    for f in &module.functions {
-        emit_function(&mut out, f, nv, options, &robot.name)?;
+    for s in &stats {
+        let _ = writeln!(out, "{}", s.header_line());
     }
-    Ok(GeneratedFile { name: Target::Wgsl.file_name(&stem), contents: out })
+    let _ = writeln!(
+        out,
+        "\nalias real = {};\n\nstruct Params {{\n    n: u32,\n}}\n\n\
+         @group(0) @binding(0) var<uniform> params: Params;\n\
+         @group(0) @binding(1) var<storage, read> q: array<real>;\n\
+         @group(0) @binding(2) var<storage, read> qd: array<real>;\n\
+         @group(0) @binding(3) var<storage, read> u: array<real>;\n\
+         @group(0) @binding(4) var<storage, read_write> out: array<real>;\n\
+         @group(0) @binding(5) var<storage, read_write> scratch: array<real>;\n",
+        options.precision.name()
+    );
+    if options.trig == Trig::Accurate {
+        out.push_str(&trig::source(options.precision));
+        out.push('\n');
+    }
+    out.push_str(&body);
+    Ok((GeneratedFile { name: Target::Wgsl.file_name(&stem), contents: out }, stats))
+}
+
+fn check_options(options: &WgslOptions) -> Result<(), BackError> {
+    let bad = |what: String| Err(BackError::WgslOption(what));
+    if options.strategies.is_empty() {
+        return bad("no strategy selected (available: thread, cooperative)".into());
+    }
+    for (name, v) in [("workgroup size", options.workgroup_size), ("cooperative workers", options.workers)] {
+        if v == 0 || v > MAX_INVOCATIONS {
+            return bad(format!("{name} {v} is outside 1..={MAX_INVOCATIONS} (WebGPU's default maxComputeInvocationsPerWorkgroup)"));
+        }
+    }
+    Ok(())
 }

@@ -1,0 +1,76 @@
+//! Reads the `// nv:`, `// precision:` and `// entry:` lines that the WGSL backend writes
+//! at the top of every shader (the contract between the generator and this runtime).
+
+use grid_gen::back::wgsl::{Precision, Strategy};
+
+/// One entry point as the header describes it.
+#[derive(Clone, Debug, PartialEq)]
+pub struct EntryInfo {
+    pub entry: String,
+    pub kernel: String,
+    pub strategy: Strategy,
+    pub outputs: usize,
+    pub scratch: usize,
+    pub workgroup_size: u32,
+    pub states_per_workgroup: u32,
+    pub workgroup_bytes: usize,
+    pub phases: usize,
+}
+
+#[derive(Clone, Debug, PartialEq)]
+pub struct ShaderInfo {
+    pub nv: usize,
+    pub precision: Precision,
+    pub entries: Vec<EntryInfo>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum HeaderError {
+    #[error("the header has no `// {0}:` line (was it written by grid-gen's WGSL backend?)")]
+    Missing(&'static str),
+    #[error("header line `{line}`: {why}")]
+    Bad { line: String, why: String },
+}
+
+impl ShaderInfo {
+    pub fn parse(source: &str) -> Result<ShaderInfo, HeaderError> {
+        let mut nv = None;
+        let mut precision = None;
+        let mut entries = Vec::new();
+        // The header ends at the first line that is not a comment.
+        for line in source.lines().take_while(|l| l.starts_with("//")) {
+            let bad = |why: &str| HeaderError::Bad { line: line.to_string(), why: why.to_string() };
+            if let Some(v) = line.strip_prefix("// nv: ") {
+                nv = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
+            } else if let Some(v) = line.strip_prefix("// precision: ") {
+                precision = Some(Precision::parse(v.trim()).ok_or_else(|| bad("unknown precision"))?);
+            } else if let Some(v) = line.strip_prefix("// entry: ") {
+                let mut words = v.split_whitespace();
+                let entry = words.next().ok_or_else(|| bad("no name"))?.to_string();
+                let mut field = std::collections::HashMap::new();
+                for w in words {
+                    let (k, v) = w.split_once('=').ok_or_else(|| bad("expected key=value"))?;
+                    field.insert(k, v);
+                }
+                let get = |k: &str| field.get(k).copied().ok_or_else(|| bad(&format!("no `{k}`")));
+                let num = |k: &str| get(k)?.parse::<usize>().map_err(|_| bad(&format!("`{k}` is not a count")));
+                entries.push(EntryInfo {
+                    kernel: get("kernel")?.to_string(),
+                    strategy: Strategy::parse(get("strategy")?).ok_or_else(|| bad("unknown strategy"))?,
+                    outputs: num("outputs")?,
+                    scratch: num("scratch")?,
+                    workgroup_size: num("workgroup_size")? as u32,
+                    states_per_workgroup: num("states_per_workgroup")?.max(1) as u32,
+                    workgroup_bytes: num("workgroup_bytes")?,
+                    phases: num("phases")?,
+                    entry,
+                });
+            }
+        }
+        Ok(ShaderInfo { nv: nv.ok_or(HeaderError::Missing("nv"))?, precision: precision.ok_or(HeaderError::Missing("precision"))?, entries })
+    }
+
+    pub fn entry(&self, name: &str) -> Option<&EntryInfo> {
+        self.entries.iter().find(|e| e.entry == name)
+    }
+}

@@ -1,0 +1,409 @@
+//! Runs grid-gen's generated WGSL kernels through wgpu, headless: picks an adapter, loads
+//! a generated shader (reading its `// entry:` header lines), uploads a batch of states,
+//! dispatches (several dispatches, each with its own buffers, when a batch exceeds 65,535
+//! workgroups or the adapter's buffer limits) and reads the results back.
+
+pub mod bench;
+mod header;
+
+use std::sync::Arc;
+use std::time::{Duration, Instant};
+
+pub use grid_gen::back::wgsl::{Precision, Strategy};
+pub use header::{EntryInfo, HeaderError, ShaderInfo};
+use wgpu::util::DeviceExt;
+
+/// What went wrong, with what to do about it.
+#[derive(Debug, thiserror::Error)]
+pub enum GpuError {
+    #[error(
+        "no WebGPU adapter found ({0}); on Debian or Ubuntu install Mesa's software Vulkan driver (lavapipe) with `apt-get install mesa-vulkan-drivers libvulkan1`, or a GPU's Vulkan driver"
+    )]
+    NoAdapter(String),
+    #[error("no adapter's name contains `{wanted}` (WGPU_ADAPTER_NAME); available: {available}")]
+    NoSuchAdapter { wanted: String, available: String },
+    #[error("the adapter `{0}` has no SHADER_F64 feature, so it cannot run f64 kernels; generate with --precision f32")]
+    NoF64(String),
+    #[error("cannot open a device on `{adapter}`: {reason}")]
+    Device { adapter: String, reason: String },
+    #[error("not a grid-gen shader: {0}")]
+    Header(#[from] HeaderError),
+    #[error("the shader has no entry point `{entry}`; it has: {available}")]
+    NoEntry { entry: String, available: String },
+    #[error("wgpu rejected the shader: {0}")]
+    Shader(String),
+    #[error("wgpu rejected the `{entry}` pipeline: {reason}")]
+    Pipeline { entry: String, reason: String },
+    #[error("`{field}` has {found} values; {n} states of {nv} joints need {expected}")]
+    Length { field: &'static str, found: usize, n: usize, nv: usize, expected: usize },
+    #[error("the dispatch failed: {0}")]
+    Dispatch(String),
+}
+
+/// A device on the first adapter (or the one whose name contains `WGPU_ADAPTER_NAME`),
+/// with the adapter's own limits and, where the adapter has it, SHADER_F64.
+pub struct Gpu {
+    device: wgpu::Device,
+    queue: wgpu::Queue,
+    layout: wgpu::BindGroupLayout,
+    pipeline_layout: wgpu::PipelineLayout,
+    adapter: wgpu::AdapterInfo,
+    limits: wgpu::Limits,
+    f64: bool,
+}
+
+/// A loaded shader: the module and what its header says.
+pub struct Shader {
+    module: wgpu::ShaderModule,
+    pub info: ShaderInfo,
+}
+
+/// One entry point's compute pipeline.
+pub struct Kernel {
+    pipeline: wgpu::ComputePipeline,
+    pub entry: EntryInfo,
+    pub precision: Precision,
+    pub nv: usize,
+    /// Time wgpu took to build the pipeline (the driver's compile).
+    pub build_time: Duration,
+}
+
+struct Chunk {
+    states: usize,
+    /// Held for the batch's lifetime; the bind group refers to them.
+    _inputs: [wgpu::Buffer; 3],
+    out: wgpu::Buffer,
+    read: wgpu::Buffer,
+    group: wgpu::BindGroup,
+    groups: u32,
+}
+
+/// A batch uploaded for one kernel: dispatch it any number of times, read it back.
+pub struct Batch<'k> {
+    kernel: &'k Kernel,
+    n: usize,
+    chunks: Vec<Chunk>,
+}
+
+fn layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
+    wgpu::BindGroupLayoutEntry {
+        binding,
+        visibility: wgpu::ShaderStages::COMPUTE,
+        ty: wgpu::BindingType::Buffer { ty, has_dynamic_offset: false, min_binding_size: None },
+        count: None,
+    }
+}
+
+fn adapter_name(info: &wgpu::AdapterInfo) -> String {
+    format!("{} ({:?}, {})", info.name, info.backend, info.driver)
+}
+
+impl Gpu {
+    pub fn new() -> Result<Gpu, GpuError> {
+        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        let adapter = match std::env::var("WGPU_ADAPTER_NAME") {
+            Ok(wanted) if !wanted.is_empty() => {
+                let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+                let lower = wanted.to_lowercase();
+                let names: Vec<String> = adapters.iter().map(|a| adapter_name(&a.get_info())).collect();
+                match adapters.into_iter().find(|a| a.get_info().name.to_lowercase().contains(&lower)) {
+                    Some(a) => a,
+                    None if names.is_empty() => return Err(GpuError::NoAdapter("none enumerated".into())),
+                    None => return Err(GpuError::NoSuchAdapter { wanted, available: names.join("; ") }),
+                }
+            }
+            _ => pollster::block_on(
+                instance.request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() }),
+            )
+            .map_err(|e| GpuError::NoAdapter(e.to_string()))?,
+        };
+        let info = adapter.get_info();
+        let f64 = adapter.features().contains(wgpu::Features::SHADER_F64);
+        // WebGPU's default limits, except the buffer sizes, which bound the batch. (With
+        // all of lavapipe's own limits, its first dispatch of iiwa's fd_grad took 250 s
+        // instead of 9: measured, cause not traced.)
+        let best = adapter.limits();
+        let limits = wgpu::Limits {
+            max_storage_buffer_binding_size: best.max_storage_buffer_binding_size,
+            max_buffer_size: best.max_buffer_size,
+            ..wgpu::Limits::default()
+        };
+        let features = if f64 { wgpu::Features::SHADER_F64 } else { wgpu::Features::empty() };
+        let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
+            label: Some("grid-gen"),
+            required_features: features,
+            required_limits: limits.clone(),
+            ..Default::default()
+        }))
+        .map_err(|e| GpuError::Device { adapter: adapter_name(&info), reason: e.to_string() })?;
+        // Errors are caught with error scopes; anything else is a bug to report, not a
+        // reason to abort the host program.
+        device.on_uncaptured_error(Arc::new(|e| eprintln!("grid-gen-wgpu: uncaptured wgpu error: {e}")));
+        use wgpu::BufferBindingType::{Storage, Uniform};
+        let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
+            label: Some("grid-gen"),
+            entries: &[
+                layout_entry(0, Uniform),
+                layout_entry(1, Storage { read_only: true }),
+                layout_entry(2, Storage { read_only: true }),
+                layout_entry(3, Storage { read_only: true }),
+                layout_entry(4, Storage { read_only: false }),
+                layout_entry(5, Storage { read_only: false }),
+            ],
+        });
+        let pipeline_layout =
+            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("grid-gen"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
+        Ok(Gpu { device, queue, layout, pipeline_layout, adapter: info, limits, f64 })
+    }
+
+    /// The adapter's name, backend and driver.
+    pub fn adapter(&self) -> String {
+        adapter_name(&self.adapter)
+    }
+
+    pub fn has_f64(&self) -> bool {
+        self.f64
+    }
+
+    /// Parses the header and creates the shader module (naga parses and validates it).
+    pub fn load(&self, source: &str) -> Result<Shader, GpuError> {
+        let info = ShaderInfo::parse(source)?;
+        if info.precision == Precision::F64 && !self.f64 {
+            return Err(GpuError::NoF64(self.adapter()));
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let module =
+            self.device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("grid-gen"), source: wgpu::ShaderSource::Wgsl(source.into()) });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Shader(e.to_string()));
+        }
+        Ok(Shader { module, info })
+    }
+
+    /// Builds the compute pipeline of one entry point.
+    pub fn kernel(&self, shader: &Shader, entry: &str) -> Result<Kernel, GpuError> {
+        let info = shader.info.entry(entry).ok_or_else(|| GpuError::NoEntry {
+            entry: entry.to_string(),
+            available: shader.info.entries.iter().map(|e| e.entry.as_str()).collect::<Vec<_>>().join(", "),
+        })?;
+        let start = Instant::now();
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+            label: Some(entry),
+            layout: Some(&self.pipeline_layout),
+            module: &shader.module,
+            entry_point: Some(entry),
+            compilation_options: Default::default(),
+            cache: None,
+        });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Pipeline { entry: entry.to_string(), reason: e.to_string() });
+        }
+        Ok(Kernel { pipeline, entry: info.clone(), precision: shader.info.precision, nv: shader.info.nv, build_time: start.elapsed() })
+    }
+
+    /// States per dispatch: at most 65,535 workgroups, and every buffer within the
+    /// adapter's binding and buffer limits.
+    fn chunk_states(&self, k: &Kernel) -> usize {
+        let e = &k.entry;
+        let word = k.precision.bytes() as u64;
+        let widest = (e.outputs.max(e.scratch).max(k.nv).max(1)) as u64 * word;
+        let bytes = (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
+        let by_memory = (bytes / widest).max(1) as usize;
+        let by_groups = self.limits.max_compute_workgroups_per_dimension as usize * e.states_per_workgroup as usize;
+        by_memory.min(by_groups).max(1)
+    }
+
+    /// Uploads N states for `kernel`. Inputs are state-major (`q[s * nv + j]`); `u` is q̈
+    /// for rnea and rnea_grad, τ for fd and fd_grad, and ignored (may be empty) by
+    /// mass_matrix and minv, as is `qd`. N = 0 is a no-op batch.
+    pub fn upload<'k>(&self, kernel: &'k Kernel, q: &[f64], qd: &[f64], u: &[f64]) -> Result<Batch<'k>, GpuError> {
+        let nv = kernel.nv;
+        let n = if nv == 0 { 0 } else { q.len() / nv };
+        let uses_velocity = !matches!(kernel.entry.kernel.as_str(), "mass_matrix" | "minv");
+        let check = |field: &'static str, x: &[f64], needed: bool| {
+            if (needed || !x.is_empty()) && x.len() != n * nv || q.len() != n * nv {
+                return Err(GpuError::Length { field, found: x.len(), n, nv, expected: n * nv });
+            }
+            Ok(())
+        };
+        check("q", q, true)?;
+        check("qd", qd, uses_velocity)?;
+        check("u", u, uses_velocity)?;
+        let per = self.chunk_states(kernel);
+        let mut chunks = Vec::new();
+        let mut start = 0;
+        while start < n {
+            let m = per.min(n - start);
+            chunks.push(self.chunk(kernel, start, m, [q, qd, u])?);
+            start += m;
+        }
+        Ok(Batch { kernel, n, chunks })
+    }
+
+    fn chunk(&self, k: &Kernel, start: usize, m: usize, inputs: [&[f64]; 3]) -> Result<Chunk, GpuError> {
+        let d = &self.device;
+        let nv = k.nv;
+        let bytes = |x: Vec<f64>| -> Vec<u8> {
+            match k.precision {
+                Precision::F32 => x.into_iter().flat_map(|v| (v as f32).to_le_bytes()).collect(),
+                Precision::F64 => x.into_iter().flat_map(|v| v.to_le_bytes()).collect(),
+            }
+        };
+        // Joint-major within the chunk: x[j * m + i].
+        let soa = |x: &[f64]| -> Vec<f64> {
+            if x.is_empty() {
+                return vec![0.0];
+            }
+            (0..nv).flat_map(|j| (0..m).map(move |i| x[(start + i) * nv + j])).collect::<Vec<f64>>()
+        };
+        let init = |data: Vec<u8>, usage| d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: None, contents: &data, usage });
+        let scope = d.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
+        let mut params = vec![0u8; 16];
+        params[..4].copy_from_slice(&(m as u32).to_le_bytes());
+        let params = init(params, wgpu::BufferUsages::UNIFORM);
+        let inputs = inputs.map(|x| init(bytes(soa(x)), wgpu::BufferUsages::STORAGE));
+        let word = k.precision.bytes() as u64;
+        let out_bytes = (k.entry.outputs * m).max(1) as u64 * word;
+        // NaN everywhere, so a value the kernel fails to write cannot pass for a result.
+        let out = init(bytes(vec![f64::NAN; (k.entry.outputs * m).max(1)]), wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
+        let scratch = d.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: (k.entry.scratch * m).max(1) as u64 * word,
+            usage: wgpu::BufferUsages::STORAGE,
+            mapped_at_creation: false,
+        });
+        let read = d.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: out_bytes,
+            usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
+            mapped_at_creation: false,
+        });
+        let entries: Vec<wgpu::BindGroupEntry> = [&params, &inputs[0], &inputs[1], &inputs[2], &out, &scratch]
+            .iter()
+            .enumerate()
+            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+            .collect();
+        let group = d.create_bind_group(&wgpu::BindGroupDescriptor { label: None, layout: &self.layout, entries: &entries });
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Dispatch(format!("cannot allocate the buffers of {m} states: {e}")));
+        }
+        let groups = m.div_ceil(k.entry.states_per_workgroup as usize) as u32;
+        Ok(Chunk { states: m, _inputs: inputs, out, read, group, groups })
+    }
+
+    /// Runs the uploaded batch and waits for it to finish.
+    pub fn dispatch(&self, batch: &Batch) -> Result<(), GpuError> {
+        if batch.chunks.is_empty() {
+            return Ok(());
+        }
+        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            pass.set_pipeline(&batch.kernel.pipeline);
+            for c in &batch.chunks {
+                pass.set_bind_group(0, &c.group, &[]);
+                pass.dispatch_workgroups(c.groups, 1, 1);
+            }
+        }
+        self.queue.submit([encoder.finish()]);
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Dispatch(e.to_string()))?;
+        if let Some(e) = pollster::block_on(scope.pop()) {
+            return Err(GpuError::Dispatch(e.to_string()));
+        }
+        Ok(())
+    }
+
+    /// Copies the results back: `out[s * outputs + k]`, value k of state s, in f64.
+    pub fn read(&self, batch: &Batch) -> Result<Vec<f64>, GpuError> {
+        let k = batch.kernel;
+        let outputs = k.entry.outputs;
+        let mut result = vec![0.0; batch.n * outputs];
+        let mut encoder = self.device.create_command_encoder(&Default::default());
+        for c in &batch.chunks {
+            encoder.copy_buffer_to_buffer(&c.out, 0, &c.read, 0, c.read.size());
+        }
+        self.queue.submit([encoder.finish()]);
+        for c in &batch.chunks {
+            c.read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
+        }
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Dispatch(e.to_string()))?;
+        let mut start = 0;
+        for c in &batch.chunks {
+            {
+                let view = c.read.slice(..).get_mapped_range().map_err(|e| GpuError::Dispatch(e.to_string()))?;
+                let values: Vec<f64> = match k.precision {
+                    Precision::F32 => view.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64).collect(),
+                    Precision::F64 => view.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))).collect(),
+                };
+                for i in 0..c.states {
+                    for o in 0..outputs {
+                        result[(start + i) * outputs + o] = values[o * c.states + i];
+                    }
+                }
+            }
+            c.read.unmap();
+            start += c.states;
+        }
+        Ok(result)
+    }
+
+    /// Upload, dispatch and read back in one call.
+    pub fn run(&self, kernel: &Kernel, q: &[f64], qd: &[f64], u: &[f64]) -> Result<Vec<f64>, GpuError> {
+        let batch = self.upload(kernel, q, qd, u)?;
+        self.dispatch(&batch)?;
+        self.read(&batch)
+    }
+}
+
+impl Batch<'_> {
+    pub fn len(&self) -> usize {
+        self.n
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.n == 0
+    }
+
+    /// Dispatches (one per 65,535 workgroups or per buffer limit) the batch takes.
+    pub fn dispatches(&self) -> usize {
+        self.chunks.len()
+    }
+}
+
+/// Why `eval --backend wgsl` failed.
+#[derive(Debug, thiserror::Error)]
+pub enum EvalError {
+    #[error(transparent)]
+    Generate(#[from] grid_gen::generate::GenerateError),
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error(transparent)]
+    Eval(#[from] grid_gen::eval::BackendEvalError<GpuError>),
+}
+
+/// `grid-gen eval --backend wgsl`: generates the WGSL of `model` with `options`, runs
+/// every kernel under `strategy` on `gpu`, and returns exactly the JSON of
+/// [`grid_gen::eval::evaluate`] (same keys, model order).
+pub fn evaluate(
+    gpu: &Gpu,
+    model: &grid_gen::Model,
+    file: &grid_gen::eval::StatesFile,
+    gravity: [f64; 3],
+    options: &grid_gen::back::wgsl::WgslOptions,
+    strategy: Strategy,
+) -> Result<grid_gen::eval::EvalOutput, EvalError> {
+    use grid_gen::ir::KernelKind;
+    grid_gen::eval::check_states(model, file).map_err(grid_gen::eval::BackendEvalError::States)?;
+    let kernels = vec![KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::FdGrad];
+    let lower = grid_gen::ir::LowerOptions { kernels, ..Default::default() };
+    let module = grid_gen::ir::lower(model, gravity, &lower).map_err(grid_gen::generate::GenerateError::from)?;
+    let wgsl = grid_gen::back::wgsl::WgslOptions { strategies: vec![strategy], ..options.clone() };
+    let source = grid_gen::back::wgsl::emit(&module, &wgsl).map_err(grid_gen::generate::GenerateError::from)?;
+    let shader = gpu.load(&source.contents)?;
+    Ok(grid_gen::eval::evaluate_with(model, file, |kind, q, qd, u| {
+        let kernel = gpu.kernel(&shader, &strategy.entry(kind.name()))?;
+        gpu.run(&kernel, q, qd, u)
+    })?)
+}

@@ -1,0 +1,228 @@
+//! The WGSL backend and this runtime: every robot's shader validated by naga, and the
+//! kernels run through wgpu (lavapipe, Mesa's software Vulkan driver, when there is no
+//! GPU) on random and extreme states, both strategies, against the reference dynamics.
+//!
+//! Tolerances (‖Δ‖max / ‖ref‖max per output; the reference runs in f64 at the
+//! f32-rounded state, so only the shader's arithmetic is measured), the bounds of the Rust
+//! backend's f32 tests, which run the same graphs:
+//! - f32, RNEA, its gradient and M: ≤ 1e-5 (ε = 6e-8 times O(10·depth) rounded products,
+//!   and about two digits of cancellation in the Coriolis terms at speeds of 1e3);
+//! - f32, through M⁻¹: ≤ 1e-4 (the error grows with cond(M), 1e2 to 1e4 for these robots);
+//! - f64: ≤ 1e-12 (ε = 1.1e-16 times the same growth, as the Rust f64 kernels).
+//!
+//! With `CI` set, a machine without a Vulkan adapter fails these tests (scripts/test.sh
+//! installs lavapipe); elsewhere they say so and check only the naga validation.
+//!
+//! The runs cover the double pendulum, iiwa and HyQ (a chain and a tree); lavapipe takes
+//! 90 s to build UR5's `fd_grad` pipeline, so the other robots are validated by naga only,
+//! as are the cooperative `fd_grad` pipelines of iiwa and HyQ (see
+//! [`COOP_TOO_SLOW_ON_LAVAPIPE`]).
+
+use grid_gen::back::wgsl::{Precision, Strategy, Trig, WgslOptions};
+use grid_gen::generate::{generate, Options, Target};
+use grid_gen::ir::KernelKind;
+use grid_gen::{reference, Model};
+use grid_gen_test_support::*;
+use grid_gen_wgpu::{Gpu, GpuError};
+
+const DIRECT: f64 = 1e-5;
+const THROUGH_MINV: f64 = 1e-4;
+const F64_TOL: f64 = 1e-12;
+
+/// Cooperative pipelines that lavapipe's LLVM takes minutes to build on 2 cores (one
+/// `switch` per phase over 64 invocations; iiwa's `rnea_grad_coop` already takes 13 s).
+/// They run here for the double pendulum only; on iiwa and HyQ they are validated by
+/// naga here and run on a GPU by `grid-gen bench` (README).
+const COOP_TOO_SLOW_ON_LAVAPIPE: &[KernelKind] = &[KernelKind::FdGrad];
+
+fn wgsl(model: &Model, wgsl: WgslOptions) -> String {
+    let options = Options { targets: vec![Target::Wgsl], wgsl, ..Options::default() };
+    generate(model, &options).unwrap().remove(0).contents
+}
+
+fn naga_validate(name: &str, source: &str) -> std::time::Duration {
+    let start = std::time::Instant::now();
+    let module = naga::front::wgsl::parse_str(source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));
+    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::FLOAT64)
+        .validate(&module)
+        .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));
+    start.elapsed()
+}
+
+#[test]
+fn every_robot_validates_with_naga() {
+    for robot in robots() {
+        let model = load(&robot);
+        let source = wgsl(&model, WgslOptions::default());
+        let t = naga_validate(&robot, &source);
+        eprintln!("{robot}: {} lines, naga parse + validate {t:.2?}", source.lines().count());
+    }
+    // The other precision and trigonometry, on a chain and a tree.
+    for robot in ["grid_iiwa", "grid_hyq"] {
+        let model = load(robot);
+        for (precision, trig) in [(Precision::F64, Trig::Accurate), (Precision::F32, Trig::Builtin)] {
+            let source = wgsl(&model, WgslOptions { precision, trig, ..WgslOptions::default() });
+            let t = naga_validate(robot, &source);
+            eprintln!("{robot} {} {}: naga parse + validate {t:.2?}", precision.name(), trig.name());
+        }
+    }
+}
+
+/// The adapter, or `None` (with a note) where there is none and `CI` is not set.
+fn gpu() -> Option<Gpu> {
+    match Gpu::new() {
+        Ok(g) => {
+            eprintln!("adapter: {}", g.adapter());
+            Some(g)
+        }
+        Err(e) => {
+            assert!(std::env::var_os("CI").is_none(), "{e}");
+            eprintln!("SKIPPED running the WGSL kernels: {e}");
+            None
+        }
+    }
+}
+
+/// Random states and extremes: zero, both joint limits, speeds 1e-8 and 1e3; rounded to
+/// f32 so both precisions see the same inputs.
+fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
+    let n = model.nv();
+    let round = |v: Vec<f64>| v.into_iter().map(|x| x as f32 as f64).collect::<Vec<_>>();
+    let limit = |lo: bool| {
+        model.joints.iter().map(|j| j.limit.map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h }).clamp(-1e3, 1e3)).collect::<Vec<_>>()
+    };
+    let mut out: Vec<[Vec<f64>; 3]> = (0..32).map(|_| [rng.vec(n, -3.1, 3.1), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0)]).collect();
+    out.push([vec![0.0; n], vec![0.0; n], vec![0.0; n]]);
+    out.push([limit(true), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)]);
+    out.push([limit(false), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)]);
+    for s in [1e-8, 1e3] {
+        out.push([rng.vec(n, -3.1, 3.1), rng.vec(n, -s, s), rng.vec(n, -s, s)]);
+    }
+    out.into_iter().map(|[q, qd, u]| [round(q), round(qd), round(u)]).collect()
+}
+
+/// Runs every kernel of `robot` under each strategy and checks each state's outputs
+/// against the reference and the IR interpreter.
+fn check_robot(gpu: &Gpu, robot: &str, options: WgslOptions, strategies: &[Strategy], skip_coop: &[KernelKind], rng: &mut Rng) {
+    let model = load(robot);
+    let nv = model.nv();
+    let f64 = options.precision == Precision::F64;
+    let source = wgsl(&model, WgslOptions { strategies: strategies.to_vec(), ..options.clone() });
+    let shader = gpu.load(&source).unwrap_or_else(|e| panic!("{robot}: {e}"));
+    let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+    let states = states(&model, rng);
+    let n = states.len(); // 37: not a multiple of the workgroup size
+    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let (q, qd, u) = (flat(0), flat(1), flat(2));
+    for f in &lowered.functions {
+        for &strategy in strategies {
+            if strategy == Strategy::Cooperative && skip_coop.contains(&f.kind) {
+                continue;
+            }
+            let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name())).unwrap();
+            let t0 = std::time::Instant::now();
+            let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
+            let ran = t0.elapsed();
+            let total = kernel.entry.outputs;
+            assert_eq!(got.len(), n * total);
+            let tol = match (f64, f.kind) {
+                (true, _) => F64_TOL,
+                (false, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad) => THROUGH_MINV,
+                _ => DIRECT,
+            };
+            let what = format!("{robot} {} {} {}", kernel.entry.entry, options.precision.name(), options.trig.name());
+            let mut worst = 0.0f64;
+            for (s, [q, qd, u]) in states.iter().enumerate() {
+                let want = reference_outputs(f.kind, &model, q, qd, u, reference::DEFAULT_GRAVITY);
+                // The IR interpreter on the same graph: the backend prints it faithfully.
+                let interpreted = f.eval(&kernel_args(f.inputs(), q, qd, u));
+                let mut base = s * total;
+                for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
+                    let vals = &got[base..base + o.shape.len(nv)];
+                    assert!(vals.iter().all(|v| v.is_finite()), "{what}.{} state {s}: a value was not written", o.name);
+                    let got = output_matrix(o.shape, nv, vals);
+                    let e = rel_err(&got, want);
+                    assert!(e <= tol, "{what}.{} state {s}: relative error {e:.2e} > {tol:e}", o.name);
+                    let e_ir = rel_err(&got, &output_matrix(o.shape, nv, ir_vals));
+                    assert!(e_ir <= tol, "{what}.{} state {s}: {e_ir:.2e} from the IR interpreter", o.name);
+                    worst = worst.max(e);
+                    base += o.shape.len(nv);
+                }
+            }
+            eprintln!("{what}: worst relative error {worst:.2e} over {n} states; pipeline {:.1?}, run {ran:.1?}", kernel.build_time);
+        }
+    }
+}
+
+#[test]
+fn kernels_run_through_wgpu_and_match_the_reference() {
+    let Some(gpu) = gpu() else { return };
+    let mut rng = Rng(41);
+    check_robot(&gpu, "double_pendulum_continuous", WgslOptions::default(), &Strategy::ALL, &[], &mut rng);
+    for robot in ["grid_iiwa", "grid_hyq"] {
+        check_robot(&gpu, robot, WgslOptions::default(), &Strategy::ALL, COOP_TOO_SLOW_ON_LAVAPIPE, &mut rng);
+    }
+    // WGSL's built-in sin/cos instead of the accurate ones.
+    check_robot(&gpu, "grid_iiwa", WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() }, &[Strategy::Thread], &[], &mut rng);
+}
+
+#[test]
+fn f64_kernels_match_the_reference_to_1e_12() {
+    let Some(gpu) = gpu() else { return };
+    if !gpu.has_f64() {
+        assert!(std::env::var_os("CI").is_none(), "the adapter {} has no SHADER_F64 (lavapipe has it)", gpu.adapter());
+        eprintln!("SKIPPED f64: the adapter {} has no SHADER_F64", gpu.adapter());
+        return;
+    }
+    let mut rng = Rng(43);
+    for robot in ["double_pendulum_continuous", "grid_hyq"] {
+        check_robot(&gpu, robot, WgslOptions { precision: Precision::F64, ..WgslOptions::default() }, &Strategy::ALL, COOP_TOO_SLOW_ON_LAVAPIPE, &mut rng);
+    }
+}
+
+#[test]
+fn batch_sizes_nan_and_dispatch_splitting() {
+    let Some(gpu) = gpu() else { return };
+    let model = load("double_pendulum_continuous");
+    let nv = model.nv();
+    let shader = gpu.load(&wgsl(&model, WgslOptions::default())).unwrap();
+    let mut rng = Rng(47);
+    for strategy in Strategy::ALL {
+        let kernel = gpu.kernel(&shader, &strategy.entry("rnea")).unwrap();
+        // N = 0: a no-op that returns nothing.
+        assert!(gpu.run(&kernel, &[], &[], &[]).unwrap().is_empty());
+        // Wrong lengths: an error naming the field.
+        let e = gpu.run(&kernel, &[0.0; 4], &[0.0; 3], &[0.0; 4]).unwrap_err();
+        assert!(matches!(e, GpuError::Length { field: "qd", .. }), "{e}");
+        // One state, and a NaN in state 1 of 3 that leaves states 0 and 2 exact.
+        let q = rng.vec(3 * nv, -3.0, 3.0);
+        let qd = rng.vec(3 * nv, -3.0, 3.0);
+        let u = rng.vec(3 * nv, -3.0, 3.0);
+        let one = gpu.run(&kernel, &q[..nv], &qd[..nv], &u[..nv]).unwrap();
+        let mut poisoned = q.clone();
+        poisoned[nv] = f64::NAN;
+        let three = gpu.run(&kernel, &poisoned, &qd, &u).unwrap();
+        assert_eq!(&three[..nv], &one[..], "{strategy:?}: state 0 changed");
+        assert!(three[nv..2 * nv].iter().all(|x| x.is_nan()), "{strategy:?}: NaN did not reach state 1's result");
+        let last = gpu.run(&kernel, &q[2 * nv..], &qd[2 * nv..], &u[2 * nv..]).unwrap();
+        assert_eq!(&three[2 * nv..], &last[..], "{strategy:?}: state 2 changed");
+    }
+    // Past 65,535 workgroups: the cooperative strategy takes one workgroup per state, so
+    // 70,000 states need two dispatches; states on both sides of the split are checked.
+    let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry("mass_matrix")).unwrap();
+    let n = 70_000;
+    let q = rng.vec(n * nv, -3.0, 3.0);
+    let batch = gpu.upload(&kernel, &q, &[], &[]).unwrap();
+    assert_eq!(batch.dispatches(), 2);
+    gpu.dispatch(&batch).unwrap();
+    let got = gpu.read(&batch).unwrap();
+    let mut worst = 0.0f64;
+    for s in (0..n).step_by(97).chain([65_534, 65_535, 65_536, n - 1]) {
+        let qs: Vec<f64> = q[s * nv..(s + 1) * nv].iter().map(|&x| x as f32 as f64).collect();
+        let want = reference::crba(&model, &qs);
+        let e = rel_err(&output_matrix(grid_gen::ir::Shape::Matrix, nv, &got[s * nv * nv..(s + 1) * nv * nv]), &want);
+        assert!(e <= DIRECT, "state {s}: {e:.2e}");
+        worst = worst.max(e);
+    }
+    eprintln!("70,000 states in {} dispatches: worst relative error {worst:.2e}", batch.dispatches());
+}
