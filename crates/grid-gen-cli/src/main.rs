@@ -40,6 +40,44 @@ struct Cli {
     load: LoadArgs,
     #[command(flatten)]
     verilog: VerilogArgs,
+    #[command(flatten)]
+    wgsl: WgslArgs,
+}
+
+/// The WGSL kernels' options (`--emit wgsl`, `eval --backend wgsl`, `bench`).
+#[derive(clap::Args, Clone)]
+struct WgslArgs {
+    /// WGSL strategy: thread (one invocation per state), cooperative (one workgroup per
+    /// state), or both (emit both entry points; eval runs thread, bench times both).
+    #[arg(long, value_name = "S", default_value = "both", value_parser = ["thread", "cooperative", "both"], global = true)]
+    wgsl_strategy: String,
+    /// WGSL float type: f32 (every adapter) or f64 (adapters with SHADER_F64).
+    #[arg(long, value_name = "P", default_value = "f32", value_parser = ["f32", "f64"], global = true)]
+    precision: String,
+    /// WGSL sin/cos: accurate (in-kernel reduction and polynomial, ~1 ulp) or builtin
+    /// (WGSL's, accuracy up to the implementation; f32 only).
+    #[arg(long, value_name = "T", default_value = "accurate", value_parser = ["accurate", "builtin"], global = true)]
+    wgsl_trig: String,
+    /// WGSL cooperative strategy: invocations per state (1 to 256).
+    #[arg(long, value_name = "W", default_value_t = 64, global = true)]
+    wgsl_workers: u32,
+}
+
+impl WgslArgs {
+    fn options(&self) -> grid_gen::back::wgsl::WgslOptions {
+        use grid_gen::back::wgsl::{Precision, Strategy, Trig, WgslOptions};
+        let strategies = match self.wgsl_strategy.as_str() {
+            "both" => Strategy::ALL.to_vec(),
+            s => vec![Strategy::parse(s).unwrap_or(Strategy::Thread)],
+        };
+        WgslOptions {
+            strategies,
+            precision: Precision::parse(&self.precision).unwrap_or(Precision::F32),
+            trig: Trig::parse(&self.wgsl_trig).unwrap_or(Trig::Accurate),
+            workers: self.wgsl_workers,
+            ..WgslOptions::default()
+        }
+    }
 }
 
 /// The fixed-point datapath's options (`--emit verilog`, `eval --backend verilog`).
@@ -146,11 +184,35 @@ enum Command {
         /// Gravity in the root frame, m/s².
         #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, default_value = "0,0,-9.81", allow_hyphen_values = true)]
         gravity: [f64; 3],
-        /// `reference` (f64, every key) or `verilog`: simulate the rnea_grad and
-        /// mass_matrix netlists under Icarus Verilog (keys drnea_dq, drnea_dqd, M, plus
-        /// each netlist's overflow flag), with the Verilog options below.
-        #[arg(long, value_name = "BACKEND", default_value = "reference", value_parser = ["reference", "verilog"])]
+        /// `reference` (f64, every key); `wgsl`: run the WGSL kernels on the first
+        /// adapter (or the one WGPU_ADAPTER_NAME names), same keys, with the WGSL options;
+        /// or `verilog`: simulate the rnea_grad and mass_matrix netlists under Icarus
+        /// Verilog (keys drnea_dq, drnea_dqd, M, plus each netlist's overflow flag), with
+        /// the Verilog options.
+        #[arg(long, value_name = "BACKEND", default_value = "reference", value_parser = ["reference", "wgsl", "verilog"])]
         backend: String,
+    },
+    /// Time the WGSL kernels on batches of seeded random states (GPU or lavapipe).
+    ///
+    /// Prints, per kernel, strategy and batch size N: microseconds per batch for the
+    /// dispatch alone (inputs on the device) and for the round trip (upload, dispatch,
+    /// read back), and states per second (medians of repeated runs).
+    Bench {
+        /// The robot description.
+        #[arg(value_name = "ROBOT.urdf")]
+        urdf: PathBuf,
+        /// Only `wgsl` (the Rust kernels are timed by `cargo bench -p grid-gen-kernels`).
+        #[arg(long, value_name = "BACKEND", default_value = "wgsl", value_parser = ["wgsl"])]
+        backend: String,
+        /// Batch sizes.
+        #[arg(long, value_name = "N,...", value_delimiter = ',', default_value = "1,16,128,1024,16384")]
+        batch: Vec<usize>,
+        /// Kernels to time.
+        #[arg(long, value_name = "K,...", value_delimiter = ',', default_value = "rnea_grad,fd_grad")]
+        kernels: Vec<String>,
+        /// Time spent repeating each measurement (at least 5 runs each).
+        #[arg(long, value_name = "S", default_value_t = 0.5)]
+        seconds: f64,
     },
 }
 
@@ -229,13 +291,21 @@ fn print(text: &str) -> ExitCode {
     }
 }
 
-fn generate(model: &Model, dir: &Path, targets: Vec<grid_gen::generate::Target>, gravity: [f64; 3], check: bool, verilog: &VerilogArgs) -> ExitCode {
+fn generate(
+    model: &Model,
+    dir: &Path,
+    targets: Vec<grid_gen::generate::Target>,
+    gravity: [f64; 3],
+    check: bool,
+    verilog: &VerilogArgs,
+    wgsl: &WgslArgs,
+) -> ExitCode {
     use grid_gen::generate::{self as g, FileStatus};
     let verilog = match verilog.options() {
         Ok(v) => v,
         Err(e) => return fail(e),
     };
-    let options = g::Options { gravity, targets, verilog, ..g::Options::default() };
+    let options = g::Options { gravity, targets, verilog, wgsl: wgsl.options(), ..g::Options::default() };
     let files = match g::generate(model, &options) {
         Ok(f) => f,
         Err(e) => return fail(e),
@@ -276,7 +346,7 @@ fn run(cli: Cli) -> ExitCode {
             };
             match cli.out {
                 None => print(&(Info::new(&model).to_text() + "(pass -o DIR to generate code)\n")),
-                Some(dir) => generate(&model, &dir, cli.emit, cli.gravity, cli.check, &cli.verilog),
+                Some(dir) => generate(&model, &dir, cli.emit, cli.gravity, cli.check, &cli.verilog, &cli.wgsl),
             }
         }
         Some(Command::Info { urdf, json }) => match load(&urdf, strict) {
@@ -288,6 +358,10 @@ fn run(cli: Cli) -> ExitCode {
                     print(&info.to_text())
                 }
             }
+            Err(code) => code,
+        },
+        Some(Command::Bench { urdf, backend: _, batch, kernels, seconds }) => match load(&urdf, strict) {
+            Ok(model) => bench(&model, &cli.wgsl, &batch, &kernels, seconds),
             Err(code) => code,
         },
         Some(Command::Eval { urdf, states, gravity, backend }) => {
@@ -303,6 +377,19 @@ fn run(cli: Cli) -> ExitCode {
                 Ok(f) => f,
                 Err(e) => return fail(format!("{}: {e}", states.display())),
             };
+            if backend == "wgsl" {
+                let gpu = match grid_gen_wgpu::Gpu::new() {
+                    Ok(g) => g,
+                    Err(e) => return fail(e),
+                };
+                let options = cli.wgsl.options();
+                let strategy =
+                    if cli.wgsl.wgsl_strategy == "cooperative" { grid_gen::back::wgsl::Strategy::Cooperative } else { grid_gen::back::wgsl::Strategy::Thread };
+                return match grid_gen_wgpu::evaluate(&gpu, &model, &file, gravity, &options, strategy) {
+                    Ok(out) => print(&(serde_json::to_string(&out).expect("results serialise") + "\n")),
+                    Err(e) => fail(format!("{}: {e}", states.display())),
+                };
+            }
             if backend == "verilog" {
                 let options = match cli.verilog.options() {
                     Ok(v) => v,
@@ -319,6 +406,96 @@ fn run(cli: Cli) -> ExitCode {
             }
         }
     }
+}
+
+fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], seconds: f64) -> ExitCode {
+    use std::fmt::Write as _;
+    let mut lower = grid_gen::ir::LowerOptions { kernels: Vec::new(), ..Default::default() };
+    for k in kernels {
+        match grid_gen::ir::KernelKind::parse(k) {
+            Some(kind) => lower.kernels.push(kind),
+            None => return fail(format!("--kernels: unknown kernel `{k}`; available: rnea, rnea_grad, mass_matrix, minv, fd, fd_grad")),
+        }
+    }
+    if !(seconds.is_finite() && seconds > 0.0) {
+        return fail("--seconds must be a positive number");
+    }
+    let gpu = match grid_gen_wgpu::Gpu::new() {
+        Ok(g) => g,
+        Err(e) => return fail(e),
+    };
+    let options = wgsl.options();
+    let module = match grid_gen::ir::lower(model, grid_gen::model::DEFAULT_GRAVITY, &lower) {
+        Ok(m) => m,
+        Err(e) => return fail(e),
+    };
+    let source = match grid_gen::back::wgsl::emit(&module, &options) {
+        Ok(f) => f.contents,
+        Err(e) => return fail(e),
+    };
+    let t = std::time::Instant::now();
+    let shader = match gpu.load(&source) {
+        Ok(s) => s,
+        Err(e) => return fail(e),
+    };
+    let mut report = format!(
+        "adapter: {}\nrobot: {} ({} joints), {}, trig {}; shader module {:.2?}\n",
+        gpu.adapter(),
+        module.robot.name,
+        module.robot.nv(),
+        options.precision.name(),
+        options.trig.name(),
+        t.elapsed()
+    );
+    let _ = writeln!(
+        report,
+        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16}",
+        "kernel", "strategy", "N", "disp", "us/batch", "us/state", "states/s", "round-trip us"
+    );
+    let nv = module.robot.nv();
+    let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+    let mut uniform = move |lo: f64, hi: f64| {
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        lo + (hi - lo) * ((rng >> 11) as f64 / (1u64 << 53) as f64)
+    };
+    let largest = batch.iter().copied().max().unwrap_or(0);
+    let q: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.1, 3.1)).collect();
+    let qd: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
+    let u: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
+    let budget = std::time::Duration::from_secs_f64(seconds);
+    for f in &module.functions {
+        for &strategy in &options.strategies {
+            let kernel = match gpu.kernel(&shader, &strategy.entry(f.kind.name())) {
+                Ok(k) => k,
+                Err(e) => return fail(e),
+            };
+            let _ = writeln!(report, "{} {}: pipeline built in {:.2?}", kernel.entry.entry, strategy.name(), kernel.build_time);
+            for &n in batch {
+                let m = n * nv;
+                match grid_gen_wgpu::bench::time(&gpu, &kernel, &q[..m], &qd[..m], &u[..m], budget) {
+                    Ok(t) => {
+                        let us = t.dispatch.as_secs_f64() * 1e6;
+                        let _ = writeln!(
+                            report,
+                            "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1}",
+                            f.kind.name(),
+                            strategy.name(),
+                            n,
+                            t.dispatches,
+                            us,
+                            us / n.max(1) as f64,
+                            n as f64 / t.dispatch.as_secs_f64(),
+                            t.round_trip.as_secs_f64() * 1e6
+                        );
+                    }
+                    Err(e) => return fail(e),
+                }
+            }
+        }
+    }
+    print(&report)
 }
 
 fn main() -> ExitCode {

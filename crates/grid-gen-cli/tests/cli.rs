@@ -188,3 +188,89 @@ fn huge_chains_stay_within_two_gib() {
         std::fs::remove_file(&path).unwrap();
     }
 }
+
+/// Whether a WebGPU adapter is there; with `CI` set its absence fails the test.
+fn adapter_or_skip(out: &Output) -> bool {
+    let err = String::from_utf8_lossy(&out.stderr);
+    if out.status.code() == Some(1) && err.contains("no WebGPU adapter") {
+        assert!(std::env::var_os("CI").is_none(), "{err}");
+        eprintln!("SKIPPED: {err}");
+        return false;
+    }
+    true
+}
+
+/// `eval --backend wgsl` prints the same keys, in the same order, as the reference, on a
+/// robot the checked-in kernels do not include (a 3-joint chain written here), within
+/// the f32 bounds of the WGSL tests (1e-5 direct, 1e-4 through M⁻¹; relative, max-abs).
+#[test]
+fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-wgsl-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let urdf = chain_urdf(3);
+    let states = dir.join("states.json");
+    std::fs::write(
+        &states,
+        r#"{"states": [{"q": [0.3, -1.2, 2.0], "qd": [0.5, 1.5, -2.5], "qdd": [1.0, -0.5, 0.25], "tau": [2.0, -1.0, 0.5]},
+                      {"q": [-2.5, 0.1, 1.0], "qd": [-0.2, 0.0, 3.0]}]}"#,
+    )
+    .unwrap();
+    let (u, s) = (urdf.to_str().unwrap(), states.to_str().unwrap());
+    let reference = grid_gen(&["eval", u, "--states", s]);
+    assert_eq!(reference.status.code(), Some(0), "{}", String::from_utf8_lossy(&reference.stderr));
+    for strategy in ["thread", "cooperative"] {
+        let out = grid_gen(&["eval", u, "--states", s, "--backend", "wgsl", "--wgsl-strategy", strategy]);
+        if !adapter_or_skip(&out) {
+            return;
+        }
+        assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+        let (want, got) = (json(&reference), json(&out));
+        assert_eq!(want["joint_names"], got["joint_names"]);
+        for (ws, gs) in want["states"].as_array().unwrap().iter().zip(got["states"].as_array().unwrap()) {
+            let (wo, go) = (ws.as_object().unwrap(), gs.as_object().unwrap());
+            assert_eq!(wo.keys().collect::<Vec<_>>(), go.keys().collect::<Vec<_>>(), "{strategy}: keys differ");
+            for (key, w) in wo {
+                let flat = |v: &serde_json::Value| -> Vec<f64> {
+                    match v {
+                        serde_json::Value::Array(a) => a
+                            .iter()
+                            .flat_map(|x| x.as_array().map_or_else(|| vec![x.as_f64().unwrap()], |r| r.iter().map(|y| y.as_f64().unwrap()).collect()))
+                            .collect(),
+                        _ => panic!("{key}: not an array"),
+                    }
+                };
+                let (w, g) = (flat(w), flat(&go[key]));
+                let scale = w.iter().fold(0.0f64, |m, x| m.max(x.abs())).max(f64::MIN_POSITIVE);
+                let err = w.iter().zip(&g).fold(0.0f64, |m, (a, b)| m.max((a - b).abs())) / scale;
+                let tol = if ["Minv", "fd", "dfd_dq", "dfd_dqd"].contains(&key.as_str()) { 1e-4 } else { 1e-5 };
+                assert!(err <= tol, "{strategy} {key}: relative error {err:.2e} > {tol:e}");
+            }
+        }
+    }
+}
+
+#[test]
+fn bench_prints_a_row_per_kernel_strategy_and_batch() {
+    let out = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--batch", "1,100", "--kernels", "rnea,mass_matrix", "--seconds", "0.01"]);
+    if !adapter_or_skip(&out) {
+        return;
+    }
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    for kernel in ["rnea", "mass_matrix"] {
+        for strategy in ["thread", "cooperative"] {
+            for n in ["1", "100"] {
+                let row = text.lines().find(|l| {
+                    let w: Vec<&str> = l.split_whitespace().collect();
+                    w.len() == 8 && w[0] == kernel && w[1] == strategy && w[2] == n
+                });
+                let row = row.unwrap_or_else(|| panic!("no row for {kernel} {strategy} {n}:\n{text}"));
+                let per_s: f64 = row.split_whitespace().nth(6).unwrap().parse().unwrap();
+                assert!(per_s > 0.0 && per_s.is_finite(), "{row}");
+            }
+        }
+    }
+    let bad = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--kernels", "nope"]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown kernel `nope`"));
+}

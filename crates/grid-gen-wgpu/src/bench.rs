@@ -15,6 +15,8 @@ pub struct Timing {
     /// Median time of upload + dispatch + read back.
     pub round_trip: Duration,
     pub repetitions: usize,
+    /// Dispatches the batch takes.
+    pub dispatches: usize,
 }
 
 /// Median of `f`'s time over repetitions: at least `min_reps`, and until `budget` is
@@ -38,5 +40,5 @@ pub fn time(gpu: &Gpu, kernel: &Kernel, q: &[f64], qd: &[f64], u: &[f64], budget
     gpu.dispatch(&batch)?;
     let (dispatch, repetitions) = median(5, budget, || gpu.dispatch(&batch))?;
     let (round_trip, _) = median(5, budget, || gpu.run(kernel, q, qd, u).map(|_| ()))?;
-    Ok(Timing { states: batch.len(), dispatch, round_trip, repetitions })
+    Ok(Timing { states: batch.len(), dispatch, round_trip, repetitions, dispatches: batch.dispatches() })
 }
