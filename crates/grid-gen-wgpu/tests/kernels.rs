@@ -13,7 +13,8 @@
 //! With `CI` set, a machine without a Vulkan adapter fails these tests (scripts/test.sh
 //! installs lavapipe); elsewhere they say so and check only the naga validation.
 //!
-//! The runs cover the double pendulum, iiwa and HyQ (a chain and a tree); lavapipe takes
+//! The runs cover the double pendulum and iiwa in f32, the double pendulum and HyQ (a
+//! tree) in f64, and WGSL's built-in trig on the double pendulum; lavapipe takes
 //! 90 s to build UR5's `fd_grad` pipeline, so the other robots are validated by naga only,
 //! as are the cooperative `fd_grad` pipelines of iiwa and HyQ (see
 //! [`COOP_TOO_SLOW_ON_LAVAPIPE`]).
@@ -159,11 +160,9 @@ fn kernels_run_through_wgpu_and_match_the_reference() {
     let Some(gpu) = gpu() else { return };
     let mut rng = Rng(41);
     check_robot(&gpu, "double_pendulum_continuous", WgslOptions::default(), &Strategy::ALL, &[], &mut rng);
-    for robot in ["grid_iiwa", "grid_hyq"] {
-        check_robot(&gpu, robot, WgslOptions::default(), &Strategy::ALL, COOP_TOO_SLOW_ON_LAVAPIPE, &mut rng);
-    }
+    check_robot(&gpu, "grid_iiwa", WgslOptions::default(), &Strategy::ALL, COOP_TOO_SLOW_ON_LAVAPIPE, &mut rng);
     // WGSL's built-in sin/cos instead of the accurate ones.
-    check_robot(&gpu, "grid_iiwa", WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() }, &[Strategy::Thread], &[], &mut rng);
+    check_robot(&gpu, "double_pendulum_continuous", WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() }, &Strategy::ALL, &[], &mut rng);
 }
 
 #[test]
@@ -175,6 +174,8 @@ fn f64_kernels_match_the_reference_to_1e_12() {
         return;
     }
     let mut rng = Rng(43);
+    // HyQ (the tree) runs here only, in f64: in f32 after iiwa, lavapipe's run times became
+    // erratic (minutes for one dispatch) on the 2-core machine; cause not traced.
     for robot in ["double_pendulum_continuous", "grid_hyq"] {
         check_robot(&gpu, robot, WgslOptions { precision: Precision::F64, ..WgslOptions::default() }, &Strategy::ALL, COOP_TOO_SLOW_ON_LAVAPIPE, &mut rng);
     }
