@@ -3,15 +3,15 @@
 module robot_2dof_planar_mass_matrix_tb;
     reg clk = 1'b0, rst = 1'b1, in_valid = 1'b0;
     wire in_ready, out_valid, overflow;
-    reg signed [13:0] sin_q_1_joint2;
-    reg signed [13:0] cos_q_1_joint2;
-    wire signed [13:0] m_0_0;
-    wire signed [13:0] m_0_1;
-    wire signed [13:0] m_1_0;
-    wire signed [13:0] m_1_1;
+    reg signed [14:0] sin_q_1_joint2;
+    reg signed [14:0] cos_q_1_joint2;
+    wire signed [14:0] m_0_0;
+    wire signed [14:0] m_0_1;
+    wire signed [14:0] m_1_0;
+    wire signed [14:0] m_1_1;
     robot_2dof_planar_mass_matrix dut (.clk(clk), .rst(rst), .in_valid(in_valid), .in_ready(in_ready), .sin_q_1_joint2(sin_q_1_joint2), .cos_q_1_joint2(cos_q_1_joint2), .out_valid(out_valid), .m_0_0(m_0_0), .m_0_1(m_0_1), .m_1_0(m_1_0), .m_1_1(m_1_1), .overflow(overflow));
     always #5 clk = ~clk;
-    reg [13:0] mem [0:8191];
+    reg [14:0] mem [0:8191];
     reg [8*4096-1:0] in_path, out_path;
     integer n, sent, got, fd, cycles, limit;
     initial begin

@@ -243,7 +243,7 @@ pub fn rnea_grad<T: Real>(
 ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
     let mut dc_dq = [[T::k(0.0); NV]; NV];
     let mut dc_dqd = [[T::k(0.0); NV]; NV];
-    let mut s = [T::k(0.0); 37];
+    let mut s = [T::k(0.0); 26];
     rnea_grad_part0(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
     rnea_grad_part1(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
     rnea_grad_part2(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
@@ -256,7 +256,7 @@ fn rnea_grad_part0<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     qdd: &[T; NV],
-    s: &mut [T; 37],
+    s: &mut [T; 26],
     dc_dq: &mut [[T; NV]; NV],
     dc_dqd: &mut [[T; NV]; NV],
 ) {
@@ -279,47 +279,42 @@ fn rnea_grad_part0<T: Real>(
     let t23 = t17 - t22;
     let t24 = t8 * t23;
     let t25 = t7 * t18;
-    s[6] = t25;
     let t26 = t24 + t25;
-    s[7] = t26;
+    s[6] = t26;
     let t27 = t7 * t23;
     let t28 = t8 * t18;
-    s[8] = t28;
     let t29 = t28 - t27;
+    s[7] = t29;
     let t30 = qd[0] + qd[1];
-    s[9] = t30;
     let t31 = qd[1] * t21;
-    s[10] = t31;
     let t32 = qd[1] * t20;
     let t33 = qdd[0] + qdd[1];
     let t34 = t26 + t31;
     let t35 = t29 + t32;
-    s[11] = t35;
     let t36 = T::k(0.0335304944) * t30;
+    s[8] = t36;
     let t37 = T::k(6.43853298e-11) * t30;
-    s[12] = t37;
     let t38 = T::k(0.33238) * t20;
-    s[13] = t38;
+    s[9] = t38;
     let t39 = -t38;
     let t40 = T::k(0.33238) * t21;
-    s[14] = t40;
+    s[10] = t40;
     let t41 = t39 - t36;
-    s[15] = t41;
+    s[11] = t41;
     let t42 = t37 + t40;
-    s[16] = t42;
+    s[12] = t42;
     let t43 = T::k(0.0335304944) * t33;
     let t44 = T::k(6.43853298e-11) * t33;
     let t45 = T::k(0.33238) * t34;
     let t46 = T::k(0.33238) * t35;
-    s[17] = t46;
     let t47 = t45 - t43;
     let t48 = t44 + t46;
     let t49 = t30 * t42;
     let t50 = t30 * t41;
     let t51 = t47 - t49;
-    s[18] = t51;
+    s[13] = t51;
     let t52 = t48 + t50;
-    s[19] = t52;
+    s[14] = t52;
 }
 #[inline(never)]
 #[allow(clippy::all, unused_variables)]
@@ -327,64 +322,62 @@ fn rnea_grad_part1<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     qdd: &[T; NV],
-    s: &mut [T; 37],
+    s: &mut [T; 26],
     dc_dq: &mut [[T; NV]; NV],
     dc_dqd: &mut [[T; NV]; NV],
 ) {
-    let t53 = s[0] * s[18];
-    s[20] = t53;
-    let t54 = s[1] * s[19];
-    s[21] = t54;
-    let t55 = T::k(5.801760809999999e-7) * s[2];
-    let t56 = -t55;
-    let t57 = T::k(0.00961628436) * s[3];
-    let t58 = t56 - t57;
-    s[22] = t58;
-    let t60 = s[1] * T::k(-0.1);
-    let t61 = s[0] * T::k(-0.1);
-    let t62 = s[0] * s[2];
-    let t63 = s[8] - t62;
-    let t64 = -s[6];
-    let t65 = s[1] * s[2];
-    let t66 = t64 - t65;
-    let t67 = qd[1] * t61;
-    let t68 = qd[1] * t60;
-    let t69 = T::k(6.43853298e-11) * t66;
-    let t70 = T::k(0.0335304944) * t63;
-    let t71 = t69 - t70;
-    s[23] = t71;
-    dc_dq[1][0] = t71;
-    let t72 = T::k(0.33238) * t63;
-    s[24] = t72;
-    let t73 = T::k(0.33238) * t66;
-    s[25] = t73;
-    let t74 = T::k(6.43853298e-11) * t68;
-    let t75 = T::k(0.0335304944) * t67;
-    let t76 = t75 - t74;
-    s[26] = t76;
-    let t77 = T::k(0.33238) * t67;
-    let t78 = -t77;
-    s[27] = t78;
-    let t79 = T::k(0.33238) * t68;
-    s[28] = t79;
-    let t81 = T::k(0.33238) * t60;
-    let t82 = T::k(0.33238) * t61;
-    let t83 = -t82;
-    let t84 = t81 - T::k(0.0335304944);
-    let t85 = t83 - T::k(-6.43853298e-11);
-    let t86 = s[16] * t60;
-    let t87 = s[15] * t61;
-    let t88 = t86 + t87;
-    s[29] = t88;
-    let t89 = s[4] * t85;
-    let t90 = -t89;
-    let t91 = s[5] * t84;
-    let t92 = t90 - t91;
-    s[30] = t92;
-    let t93 = s[9] * t85;
-    s[31] = t93;
-    let t94 = s[9] * t84;
-    s[32] = t94;
+    let t53 = qd[0] * s[4];
+    let t54 = qd[0] * s[5];
+    let t55 = s[7] - t53;
+    let t56 = t54 - s[6];
+    let t58 = -s[8];
+    let t59 = t58 - s[9];
+    s[15] = t59;
+    let t60 = T::k(6.43853298e-11) * s[4];
+    s[16] = t60;
+    let t61 = T::k(0.0335304944) * s[5];
+    let t62 = t61 - t60;
+    let t63 = T::k(2.0) * t62;
+    s[17] = t63;
+    let t65 = t60 - t61;
+    let t66 = T::k(6.43853298e-11) * t56;
+    let t67 = T::k(0.0335304944) * t55;
+    let t68 = t66 - t67;
+    let t69 = T::k(0.33238) * t55;
+    let t70 = T::k(0.33238) * t56;
+    let t71 = -s[12];
+    let t72 = s[4] * t59;
+    let t73 = s[5] * s[12];
+    let t74 = t72 - t73;
+    let t75 = s[4] * s[11];
+    let t76 = t73 - t75;
+    let t77 = t65 + t65;
+    let t78 = s[10] + s[10];
+    let t79 = s[9] + s[9];
+    let t80 = t71 - s[12];
+    let t81 = s[11] + t59;
+    let t82 = t63 + t77;
+    s[18] = t82;
+    let t83 = t78 + t80;
+    s[19] = t83;
+    let t84 = t79 + t81;
+    s[20] = t84;
+    let t85 = t74 + t76;
+    let t86 = t68 + t85;
+    s[21] = t86;
+    let t87 = t69 - s[14];
+    s[22] = t87;
+    let t88 = s[13] + t70;
+    s[23] = t88;
+    let t89 = t59 - s[11];
+    s[24] = t89;
+    let t90 = t55 * T::k(-0.0335304944);
+    let t91 = t66 + t90;
+    let t92 = s[4] * t89;
+    let t93 = t91 + t92;
+    dc_dq[1][1] = t93;
+    let t94 = s[5] * T::k(-0.0335304944);
+    s[25] = t94;
 }
 #[inline(never)]
 #[allow(clippy::all, unused_variables)]
@@ -392,63 +385,58 @@ fn rnea_grad_part2<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     qdd: &[T; NV],
-    s: &mut [T; 37],
+    s: &mut [T; 26],
     dc_dq: &mut [[T; NV]; NV],
     dc_dqd: &mut [[T; NV]; NV],
 ) {
-    let t95 = s[26] + s[29];
-    let t96 = s[27] - s[16];
-    let t97 = s[15] - s[28];
-    let t98 = s[30] + t95;
-    s[2] = t98;
-    dc_dqd[1][0] = t98;
-    let t99 = t96 - s[31];
-    s[3] = t99;
-    let t100 = s[32] + t97;
-    s[6] = t100;
-    let t101 = -s[7];
-    let t102 = t101 - s[10];
-    let t103 = T::k(6.43853298e-11) * t102;
-    let t104 = T::k(0.0335304944) * s[11];
-    let t105 = t103 - t104;
-    let t106 = T::k(0.33238) * t102;
-    let t107 = T::k(6.43853298e-11) * s[4];
-    let t108 = T::k(0.0335304944) * s[5];
-    let t109 = t107 - t108;
-    let t110 = s[5] * s[16];
-    let t111 = s[4] * s[15];
-    let t112 = t110 - t111;
-    let t113 = s[4] * s[13];
-    let t114 = -t113;
-    let t115 = s[5] * s[14];
-    let t116 = t114 - t115;
-    let t117 = s[9] * s[13];
-    let t118 = s[9] * s[14];
-    let t119 = t105 + t112;
-    let t120 = t116 + t119;
-    s[8] = t120;
-    dc_dq[1][1] = t120;
-    let t121 = s[17] - t117;
-    s[18] = t121;
-    let t122 = t106 + t118;
-    s[19] = t122;
-    let t124 = -t107;
-    let t125 = s[5] * T::k(-0.0335304944);
-    let t126 = t124 - t125;
-    let t127 = s[9] * T::k(-0.0335304944);
-    let t128 = s[14] - s[16];
-    let t129 = s[13] + s[15];
-    let t130 = t109 + t126;
-    s[33] = t130;
-    dc_dqd[1][1] = t130;
-    let t131 = t128 - s[12];
-    s[34] = t131;
-    let t132 = t127 + t129;
-    s[35] = t132;
-    let t133 = s[1] * s[24];
-    let t134 = s[0] * s[25];
-    let t135 = t133 - t134;
-    s[36] = t135;
+    let t95 = s[16] + s[25];
+    let t96 = t95 + t95;
+    let t97 = s[17] + t96;
+    dc_dqd[1][1] = t97;
+    let t98 = s[1] * T::k(-0.0335304944);
+    let t99 = s[0] * T::k(6.43853298e-11);
+    let t100 = t98 - t99;
+    let t101 = s[0] * T::k(-0.0335304944);
+    let t102 = s[1] * T::k(6.43853298e-11);
+    let t103 = t101 + t102;
+    s[4] = t103;
+    let t104 = s[1] * s[19];
+    let t105 = s[0] * s[20];
+    let t106 = t104 - t105;
+    let t107 = T::k(0.1) * t106;
+    let t108 = s[18] - t107;
+    dc_dqd[0][1] = t108;
+    let t109 = s[1] * s[22];
+    let t110 = s[0] * s[23];
+    let t111 = t109 - t110;
+    let t112 = T::k(0.1) * t111;
+    let t113 = s[21] - t112;
+    dc_dq[0][1] = t113;
+    let t114 = s[0] * s[24];
+    let t115 = T::k(0.1) * t114;
+    let t116 = s[17] + t115;
+    dc_dqd[1][0] = t116;
+    let t117 = s[0] * T::k(0.0335304944);
+    let t118 = t102 - t117;
+    let t119 = s[1] * T::k(0.0335304944);
+    let t120 = t99 + t119;
+    let t122 = t120 + T::k(0.033238000000000004);
+    let t123 = T::k(5.801760809999999e-7) + t118;
+    let t124 = T::k(0.00961628436) + t122;
+    let t125 = s[0] * s[15];
+    let t126 = s[1] * s[12];
+    let t127 = t125 + t126;
+    let t128 = T::k(0.1) * t127;
+    let t129 = T::k(2.0) * t128;
+    let t130 = s[17] + t129;
+    dc_dqd[0][0] = t130;
+    let t131 = s[2] * t123;
+    let t132 = s[3] * t124;
+    let t133 = -t132;
+    let t134 = t133 - t131;
+    dc_dq[0][0] = t134;
+    let t135 = s[3] * t100;
+    s[5] = t135;
 }
 #[inline(never)]
 #[allow(clippy::all, unused_variables)]
@@ -456,36 +444,13 @@ fn rnea_grad_part3<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     qdd: &[T; NV],
-    s: &mut [T; 37],
+    s: &mut [T; 26],
     dc_dq: &mut [[T; NV]; NV],
     dc_dqd: &mut [[T; NV]; NV],
 ) {
-    let t136 = T::k(0.1) * s[36];
-    let t137 = s[23] - t136;
-    let t138 = s[22] + t137;
-    dc_dq[0][0] = t138;
-    let t139 = s[1] * s[3];
-    let t140 = s[0] * s[6];
-    let t141 = t139 - t140;
-    let t142 = T::k(0.1) * t141;
-    let t143 = s[2] - t142;
-    dc_dqd[0][0] = t143;
-    let t144 = s[1] * s[18];
-    let t145 = s[0] * s[19];
-    let t146 = t144 - t145;
-    let t147 = T::k(0.1) * t146;
-    let t148 = s[8] - t147;
-    let t149 = s[1] * s[34];
-    let t150 = s[0] * s[35];
-    let t151 = t149 - t150;
-    let t152 = T::k(0.1) * t151;
-    let t153 = s[33] - t152;
-    dc_dqd[0][1] = t153;
-    let t154 = -s[21];
-    let t155 = t154 - s[20];
-    let t156 = T::k(0.1) * t155;
-    let t157 = t148 - t156;
-    dc_dq[0][1] = t157;
+    let t136 = s[2] * s[4];
+    let t137 = s[5] - t136;
+    dc_dq[1][0] = t137;
 }
 /// The joint-space inertia matrix M(q) (CRBA).
 #[inline]
@@ -495,30 +460,21 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     m[1][1] = T::k(0.004557856275072);
     let t3 = q[1].sin();
     let t4 = q[1].cos();
-    let t10 = t4 * T::k(-0.1);
-    let t11 = t3 * T::k(-0.1);
-    let t12 = T::k(-0.0335304944) * t10;
-    let t13 = T::k(0.004557856275072) + t12;
-    let t14 = T::k(6.43853298e-11) * t11;
-    let t15 = t13 - t14;
-    let t16 = T::k(0.33238) * t10;
-    let t17 = T::k(-0.0335304944) + t16;
-    let t18 = T::k(0.33238) * t11;
-    let t19 = T::k(6.43853298e-11) - t18;
-    let t20 = t4 * t17;
-    let t21 = t3 * t19;
-    let t22 = t20 - t21;
-    let t23 = T::k(0.1) * t22;
-    let t24 = t15 - t23;
-    let t25 = t4 * T::k(-0.0335304944);
-    let t26 = t3 * T::k(6.43853298e-11);
-    let t27 = t25 - t26;
-    let t28 = T::k(0.0007545716336328686) + t24;
-    m[0][0] = t28;
-    let t29 = T::k(0.1) * t27;
-    let t30 = T::k(0.004557856275072) - t29;
-    m[0][1] = t30;
-    m[1][0] = t30;
+    let t8 = t3 * T::k(6.43853298e-11);
+    let t9 = t4 * T::k(0.0335304944);
+    let t10 = t8 + t9;
+    let t12 = T::k(0.1) * t10;
+    let t13 = T::k(-3.8305498717999996e-5) + t12;
+    let t15 = t13 * T::k(2.0);
+    let t17 = t15 + T::k(0.007958267272508);
+    let t18 = T::k(0.0007545716336328686) + t17;
+    m[0][0] = t18;
+    let t20 = t4 * T::k(-0.0335304944);
+    let t21 = t20 - t8;
+    let t22 = T::k(0.1) * t21;
+    let t23 = T::k(0.004557856275072) - t22;
+    m[0][1] = t23;
+    m[1][0] = t23;
     m
 }
 /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
@@ -722,7 +678,7 @@ pub fn fd_grad<T: Real>(
     let mut qdd = [T::k(0.0); NV];
     let mut dqdd_dq = [[T::k(0.0); NV]; NV];
     let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-    let mut s = [T::k(0.0); 40];
+    let mut s = [T::k(0.0); 37];
     fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
     fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
     fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
@@ -737,7 +693,7 @@ fn fd_grad_part0<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     tau: &[T; NV],
-    s: &mut [T; 40],
+    s: &mut [T; 37],
     qdd: &mut [T; NV],
     dqdd_dq: &mut [[T; NV]; NV],
     dqdd_dqd: &mut [[T; NV]; NV],
@@ -762,50 +718,48 @@ fn fd_grad_part0<T: Real>(
     let t27 = t9 * t25;
     s[6] = t27;
     let t28 = t10 * t20;
-    s[7] = t28;
     let t29 = t9 * t21;
-    s[8] = t29;
+    s[7] = t29;
     let t30 = t28 + t29;
     let t31 = t9 * t20;
     let t32 = t10 * t21;
-    s[9] = t32;
+    s[8] = t32;
     let t33 = t32 - t31;
-    s[10] = t33;
     let t34 = qd[0] + qd[1];
-    s[11] = t34;
+    s[9] = t34;
     let t35 = qd[1] * t27;
-    s[12] = t35;
+    s[10] = t35;
     let t36 = qd[1] * t26;
-    s[13] = t36;
+    s[11] = t36;
     let t37 = t30 + t35;
     let t38 = t33 + t36;
     let t39 = T::k(0.0335304944) * t34;
+    s[12] = t39;
     let t40 = T::k(6.43853298e-11) * t34;
-    s[14] = t40;
     let t41 = T::k(0.33238) * t26;
-    s[15] = t41;
+    s[13] = t41;
     let t42 = -t41;
     let t43 = T::k(0.33238) * t27;
-    s[16] = t43;
+    s[14] = t43;
     let t44 = t42 - t39;
-    s[17] = t44;
+    s[15] = t44;
     let t45 = t40 + t43;
-    s[18] = t45;
+    s[16] = t45;
     let t46 = T::k(6.43853298e-11) * t38;
     let t47 = T::k(0.0335304944) * t37;
     let t48 = t46 - t47;
-    s[19] = t48;
+    s[17] = t48;
     let t49 = T::k(0.33238) * t37;
-    s[20] = t49;
+    s[18] = t49;
     let t50 = T::k(0.33238) * t38;
-    s[21] = t50;
+    s[19] = t50;
     let t51 = t26 * t45;
     let t52 = -t51;
     let t53 = t27 * t44;
     let t54 = t52 - t53;
-    s[22] = t54;
+    s[20] = t54;
     let t55 = t34 * t45;
-    s[23] = t55;
+    s[21] = t55;
 }
 #[inline(never)]
 #[allow(clippy::all, unused_variables)]
@@ -813,60 +767,59 @@ fn fd_grad_part1<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     tau: &[T; NV],
-    s: &mut [T; 40],
+    s: &mut [T; 37],
     qdd: &mut [T; NV],
     dqdd_dq: &mut [[T; NV]; NV],
     dqdd_dqd: &mut [[T; NV]; NV],
 ) {
-    let t56 = s[11] * s[17];
-    s[24] = t56;
-    let t57 = s[19] + s[22];
-    s[25] = t57;
-    let t58 = s[20] - s[23];
-    let t59 = s[21] + t56;
+    let t56 = s[9] * s[15];
+    s[22] = t56;
+    let t57 = s[17] + s[20];
+    s[23] = t57;
+    let t58 = s[18] - s[21];
+    let t59 = s[19] + t56;
     let t60 = s[1] * t58;
     let t61 = s[0] * t59;
     let t62 = t60 - t61;
     let t63 = T::k(0.1) * t62;
     let t64 = t57 - t63;
     let t65 = s[4] + t64;
-    s[26] = t65;
-    let t71 = s[1] * T::k(-7.356637062775817);
-    let t72 = s[0] * T::k(1.4126230823060104e-8);
-    let t73 = t71 - t72;
-    let t74 = T::k(0.1) * t73;
-    let t75 = T::k(1.0) - t74;
-    let t79 = s[1] * T::k(-0.1);
-    s[27] = t79;
-    let t80 = s[0] * T::k(-0.1);
-    s[28] = t80;
-    let t81 = T::k(0.08570832216376303) * t79;
-    let t82 = T::k(4.736595035057242e-10) * t80;
-    let t83 = t81 - t82;
-    let t84 = T::k(4.736595035057242e-10) * t79;
-    let t85 = T::k(0.33238) * t80;
-    let t86 = -t85;
-    s[29] = t86;
-    let t87 = t84 - t85;
-    let t88 = s[1] * t83;
-    let t89 = s[0] * t87;
-    let t90 = t88 - t89;
-    let t91 = T::k(0.1) * t90;
-    let t92 = T::k(0.0007545716336328686) - t91;
-    let t93 = T::k(1.0) / t92;
-    s[30] = t93;
-    let t94 = t75 * t93;
-    s[31] = t94;
-    let t95 = T::k(0.1) * t94;
-    let t96 = s[1] * t95;
-    let t97 = s[0] * t95;
-    let t98 = T::k(0.004557856275072) * t94;
-    let t99 = T::k(-0.0335304944) * t96;
-    let t100 = t99 - t98;
-    let t101 = T::k(6.43853298e-11) * t97;
-    let t102 = t100 - t101;
-    let t103 = T::k(219.4013895236754) * t102;
-    s[32] = t103;
+    s[24] = t65;
+    let t70 = s[1] * T::k(-7.356637062775817);
+    let t71 = s[0] * T::k(1.4126230823060104e-8);
+    let t72 = t70 - t71;
+    let t73 = T::k(0.1) * t72;
+    let t74 = T::k(1.0) - t73;
+    let t78 = s[1] * T::k(-0.1);
+    let t79 = s[0] * T::k(-0.1);
+    let t80 = T::k(0.08570832216376303) * t78;
+    let t81 = T::k(4.736595035057242e-10) * t79;
+    let t82 = t80 - t81;
+    let t83 = T::k(4.736595035057242e-10) * t78;
+    let t84 = T::k(0.33238) * t79;
+    let t85 = t83 - t84;
+    let t86 = s[1] * t82;
+    let t87 = s[0] * t85;
+    let t88 = t86 - t87;
+    let t89 = T::k(0.1) * t88;
+    let t90 = s[1] * T::k(0.0335304944);
+    s[25] = t90;
+    let t92 = s[0] * T::k(0.0335304944);
+    s[26] = t92;
+    let t93 = T::k(0.0007545716336328686) - t89;
+    let t94 = T::k(1.0) / t93;
+    s[27] = t94;
+    let t95 = t74 * t94;
+    s[28] = t95;
+    let t96 = T::k(0.1) * t95;
+    let t97 = s[1] * t96;
+    let t98 = s[0] * t96;
+    let t99 = T::k(0.004557856275072) * t95;
+    let t100 = T::k(-0.0335304944) * t97;
+    let t101 = t100 - t99;
+    let t102 = T::k(6.43853298e-11) * t98;
+    let t103 = t101 - t102;
+    s[29] = t103;
 }
 #[inline(never)]
 #[allow(clippy::all, unused_variables)]
@@ -874,65 +827,64 @@ fn fd_grad_part2<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     tau: &[T; NV],
-    s: &mut [T; 40],
+    s: &mut [T; 37],
     qdd: &mut [T; NV],
     dqdd_dq: &mut [[T; NV]; NV],
     dqdd_dqd: &mut [[T; NV]; NV],
 ) {
-    let t104 = T::k(219.4013895236754) - s[32];
-    s[4] = t104;
-    let t105 = tau[0] - s[26];
-    let t106 = tau[1] - s[25];
-    let t107 = s[30] * t105;
-    let t108 = s[31] * t106;
-    let t109 = t107 - t108;
-    qdd[0] = t109;
-    let t110 = s[31] * t105;
-    let t111 = t104 * t106;
-    let t112 = t111 - t110;
-    qdd[1] = t112;
-    let t113 = T::k(0.1) * t109;
-    let t114 = s[2] - t113;
-    let t115 = s[1] * t114;
-    let t116 = s[8] + t115;
-    s[19] = t116;
-    let t117 = s[0] * t114;
-    let t118 = s[9] - t117;
-    let t119 = t109 + t112;
-    let t120 = s[12] + t116;
-    let t121 = s[13] + t118;
-    s[20] = t121;
-    let t122 = T::k(0.0335304944) * t119;
-    let t123 = T::k(6.43853298e-11) * t119;
-    let t124 = T::k(0.33238) * t120;
+    let t104 = T::k(219.4013895236754) * s[29];
+    let t105 = T::k(219.4013895236754) - t104;
+    s[4] = t105;
+    let t106 = tau[0] - s[24];
+    let t107 = tau[1] - s[23];
+    let t108 = s[27] * t106;
+    let t109 = s[28] * t107;
+    let t110 = t108 - t109;
+    qdd[0] = t110;
+    let t111 = s[28] * t106;
+    let t112 = t105 * t107;
+    let t113 = t112 - t111;
+    qdd[1] = t113;
+    let t114 = T::k(0.1) * t110;
+    let t115 = s[2] - t114;
+    let t116 = s[1] * t115;
+    let t117 = s[7] + t116;
+    let t118 = s[0] * t115;
+    let t119 = s[8] - t118;
+    let t120 = t110 + t113;
+    let t121 = s[10] + t117;
+    let t122 = s[11] + t119;
+    let t123 = T::k(0.0335304944) * t120;
+    let t124 = T::k(6.43853298e-11) * t120;
     let t125 = T::k(0.33238) * t121;
-    s[21] = t125;
-    let t126 = t124 - t122;
-    let t127 = t123 + t125;
-    let t128 = t126 - s[23];
-    let t129 = s[24] + t127;
-    let t130 = s[0] * t128;
-    s[22] = t130;
-    let t131 = s[1] * t129;
-    s[33] = t131;
-    let t132 = T::k(5.801760809999999e-7) * s[2];
-    let t133 = -t132;
-    let t134 = T::k(0.00961628436) * s[3];
-    let t135 = t133 - t134;
-    s[34] = t135;
-    let t136 = -s[8];
-    let t137 = t136 - s[7];
-    s[35] = t137;
-    let t138 = qd[1] * s[28];
-    s[36] = t138;
-    let t139 = qd[1] * s[27];
-    s[37] = t139;
-    let t140 = T::k(6.43853298e-11) * t137;
-    let t141 = T::k(0.0335304944) * s[10];
-    let t142 = t140 - t141;
-    s[38] = t142;
-    let t143 = T::k(0.33238) * s[10];
-    s[39] = t143;
+    let t126 = T::k(0.33238) * t122;
+    let t127 = t125 - t123;
+    let t128 = t124 + t126;
+    let t129 = t127 - s[21];
+    s[9] = t129;
+    let t130 = s[22] + t128;
+    s[17] = t130;
+    let t131 = qd[0] * s[5];
+    let t132 = qd[0] * s[6];
+    let t133 = t119 - t131;
+    s[18] = t133;
+    let t134 = t132 - t117;
+    s[19] = t134;
+    let t136 = -s[12];
+    let t137 = t136 - s[13];
+    s[20] = t137;
+    let t138 = T::k(6.43853298e-11) * s[5];
+    s[30] = t138;
+    let t139 = T::k(0.0335304944) * s[6];
+    let t140 = t139 - t138;
+    let t141 = T::k(2.0) * t140;
+    s[31] = t141;
+    let t142 = t138 - t139;
+    s[32] = t142;
+    let t143 = T::k(6.43853298e-11) * t134;
+    s[33] = t143;
+    let t144 = T::k(0.0335304944) * t133;
+    s[34] = t144;
 }
 #[inline(never)]
 #[allow(clippy::all, unused_variables)]
@@ -940,62 +892,63 @@ fn fd_grad_part3<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     tau: &[T; NV],
-    s: &mut [T; 40],
+    s: &mut [T; 37],
     qdd: &mut [T; NV],
     dqdd_dq: &mut [[T; NV]; NV],
     dqdd_dqd: &mut [[T; NV]; NV],
 ) {
-    let t144 = T::k(0.33238) * s[35];
-    s[2] = t144;
-    let t145 = T::k(6.43853298e-11) * s[37];
-    let t146 = T::k(0.0335304944) * s[36];
-    let t147 = t146 - t145;
-    let t148 = T::k(0.33238) * s[36];
-    let t149 = -t148;
-    let t150 = T::k(0.33238) * s[37];
-    let t151 = T::k(0.33238) * s[27];
-    let t152 = t151 - T::k(0.0335304944);
-    let t153 = s[29] - T::k(-6.43853298e-11);
-    let t154 = s[18] * s[27];
-    let t155 = s[17] * s[28];
-    let t156 = t154 + t155;
-    let t157 = s[5] * t153;
-    let t158 = -t157;
-    let t159 = s[6] * t152;
-    let t160 = t158 - t159;
-    let t161 = s[11] * t153;
-    let t162 = s[11] * t152;
-    let t163 = t147 + t156;
-    let t164 = t149 - s[18];
-    let t165 = s[17] - t150;
-    let t166 = t160 + t163;
-    s[3] = t166;
-    let t167 = t164 - t161;
-    s[7] = t167;
-    let t168 = t162 + t165;
-    s[8] = t168;
-    let t169 = -s[19];
-    let t170 = t169 - s[12];
-    let t171 = T::k(6.43853298e-11) * t170;
-    let t172 = T::k(0.0335304944) * s[20];
-    let t173 = t171 - t172;
-    s[9] = t173;
-    let t174 = T::k(0.33238) * t170;
-    s[10] = t174;
-    let t175 = T::k(6.43853298e-11) * s[5];
-    s[13] = t175;
-    let t176 = T::k(0.0335304944) * s[6];
+    let t145 = s[33] - s[34];
+    let t146 = T::k(0.33238) * s[18];
+    let t147 = T::k(0.33238) * s[19];
+    let t148 = -s[16];
+    let t149 = s[5] * s[20];
+    let t150 = s[6] * s[16];
+    let t151 = t149 - t150;
+    let t152 = s[5] * s[15];
+    let t153 = t150 - t152;
+    let t154 = s[32] + s[32];
+    let t155 = s[14] + s[14];
+    let t156 = s[13] + s[13];
+    let t157 = t148 - s[16];
+    let t158 = s[15] + s[20];
+    let t159 = s[31] + t154;
+    s[7] = t159;
+    let t160 = t155 + t157;
+    let t161 = t156 + t158;
+    let t162 = t151 + t153;
+    let t163 = t145 + t162;
+    s[8] = t163;
+    let t164 = t146 - s[17];
+    s[10] = t164;
+    let t165 = s[9] + t147;
+    s[11] = t165;
+    let t166 = s[20] - s[15];
+    s[12] = t166;
+    let t167 = T::k(-0.0335304944) * s[18];
+    let t168 = s[33] + t167;
+    let t169 = s[5] * t166;
+    let t170 = t168 + t169;
+    s[21] = t170;
+    let t171 = s[6] * T::k(-0.0335304944);
+    let t172 = s[30] + t171;
+    let t173 = t172 + t172;
+    let t174 = s[31] + t173;
+    s[22] = t174;
+    let t175 = s[1] * T::k(-0.0335304944);
+    let t176 = s[0] * T::k(6.43853298e-11);
+    s[23] = t176;
     let t177 = t175 - t176;
-    s[23] = t177;
-    let t178 = s[6] * s[18];
-    let t179 = s[5] * s[17];
-    let t180 = t178 - t179;
-    s[24] = t180;
-    let t181 = s[5] * s[15];
-    let t182 = -t181;
-    s[25] = t182;
-    let t183 = s[6] * s[16];
-    s[26] = t183;
+    s[24] = t177;
+    let t178 = s[0] * T::k(-0.0335304944);
+    let t179 = s[1] * T::k(6.43853298e-11);
+    s[29] = t179;
+    let t180 = t178 + t179;
+    s[35] = t180;
+    let t181 = s[1] * t160;
+    let t182 = s[0] * t161;
+    let t183 = t181 - t182;
+    let t184 = T::k(0.1) * t183;
+    s[36] = t184;
 }
 #[inline(never)]
 #[allow(clippy::all, unused_variables)]
@@ -1003,58 +956,58 @@ fn fd_grad_part4<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     tau: &[T; NV],
-    s: &mut [T; 40],
+    s: &mut [T; 37],
     qdd: &mut [T; NV],
     dqdd_dq: &mut [[T; NV]; NV],
     dqdd_dqd: &mut [[T; NV]; NV],
 ) {
-    let t184 = s[25] - s[26];
-    let t185 = s[11] * s[15];
-    let t186 = s[11] * s[16];
-    let t187 = s[9] + s[24];
-    let t188 = t184 + t187;
-    s[5] = t188;
-    let t189 = s[21] - t185;
-    let t190 = s[10] + t186;
-    let t191 = -s[13];
-    let t192 = s[6] * T::k(-0.0335304944);
-    let t193 = t191 - t192;
-    let t194 = s[11] * T::k(-0.0335304944);
-    let t195 = s[16] - s[18];
-    let t196 = s[15] + s[17];
-    let t197 = s[23] + t193;
-    s[12] = t197;
-    let t198 = t195 - s[14];
-    let t199 = t194 + t196;
-    let t200 = s[1] * s[39];
-    let t201 = s[0] * s[2];
-    let t202 = t200 - t201;
-    let t203 = T::k(0.1) * t202;
-    let t204 = s[38] - t203;
-    let t205 = s[34] + t204;
-    s[19] = t205;
-    let t206 = s[1] * s[7];
-    let t207 = s[0] * s[8];
-    let t208 = t206 - t207;
-    let t209 = T::k(0.1) * t208;
-    let t210 = s[3] - t209;
-    s[20] = t210;
-    let t211 = s[1] * t189;
-    let t212 = s[0] * t190;
-    let t213 = t211 - t212;
-    let t214 = T::k(0.1) * t213;
-    let t215 = t188 - t214;
-    s[27] = t215;
-    let t216 = s[1] * t198;
-    let t217 = s[0] * t199;
+    let t185 = s[7] - s[36];
+    s[5] = t185;
+    let t186 = s[1] * s[10];
+    let t187 = s[0] * s[11];
+    let t188 = t186 - t187;
+    let t189 = T::k(0.1) * t188;
+    let t190 = s[8] - t189;
+    let t191 = s[0] * s[12];
+    let t192 = T::k(0.1) * t191;
+    let t193 = s[31] + t192;
+    s[6] = t193;
+    let t194 = s[29] - s[26];
+    let t195 = s[25] + s[23];
+    let t196 = T::k(0.033238000000000004) + t195;
+    let t197 = T::k(5.801760809999999e-7) + t194;
+    let t198 = T::k(0.00961628436) + t196;
+    let t199 = s[0] * s[20];
+    let t200 = s[1] * s[16];
+    let t201 = t199 + t200;
+    let t202 = T::k(0.1) * t201;
+    let t203 = T::k(2.0) * t202;
+    let t204 = s[31] + t203;
+    s[9] = t204;
+    let t205 = s[2] * t197;
+    let t206 = s[3] * t198;
+    let t207 = -t206;
+    let t208 = t207 - t205;
+    let t209 = s[3] * s[24];
+    let t210 = s[2] * s[35];
+    let t211 = t209 - t210;
+    let t212 = s[27] * t208;
+    let t213 = s[28] * t211;
+    let t214 = t212 - t213;
+    let t215 = -t214;
+    dqdd_dq[0][0] = t215;
+    let t216 = s[27] * t190;
+    let t217 = s[28] * s[21];
     let t218 = t216 - t217;
-    let t219 = T::k(0.1) * t218;
-    let t220 = t197 - t219;
-    s[28] = t220;
-    let t221 = -s[33];
-    let t222 = t221 - s[22];
-    let t223 = T::k(0.1) * t222;
-    s[29] = t223;
+    let t219 = -t218;
+    dqdd_dq[0][1] = t219;
+    let t220 = s[28] * t208;
+    let t221 = s[4] * t211;
+    let t222 = t221 - t220;
+    let t223 = -t222;
+    dqdd_dq[1][0] = t223;
+    let t224 = s[28] * t190;
+    s[13] = t224;
 }
 #[inline(never)]
 #[allow(clippy::all, unused_variables)]
@@ -1062,50 +1015,33 @@ fn fd_grad_part5<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     tau: &[T; NV],
-    s: &mut [T; 40],
+    s: &mut [T; 37],
     qdd: &mut [T; NV],
     dqdd_dq: &mut [[T; NV]; NV],
     dqdd_dqd: &mut [[T; NV]; NV],
 ) {
-    let t224 = s[27] - s[29];
-    let t225 = s[30] * s[19];
-    let t226 = s[31] * s[38];
-    let t227 = t225 - t226;
-    let t228 = -t227;
-    dqdd_dq[0][0] = t228;
-    let t229 = s[30] * t224;
-    let t230 = s[31] * s[5];
-    let t231 = t229 - t230;
-    let t232 = -t231;
-    dqdd_dq[0][1] = t232;
-    let t233 = s[31] * s[19];
-    let t234 = s[4] * s[38];
-    let t235 = t234 - t233;
-    let t236 = -t235;
-    dqdd_dq[1][0] = t236;
-    let t237 = s[31] * t224;
-    let t238 = s[4] * s[5];
-    let t239 = t238 - t237;
-    let t240 = -t239;
-    dqdd_dq[1][1] = t240;
-    let t241 = s[30] * s[20];
-    let t242 = s[31] * s[3];
-    let t243 = t241 - t242;
-    let t244 = -t243;
-    dqdd_dqd[0][0] = t244;
-    let t245 = s[30] * s[28];
-    let t246 = s[31] * s[12];
-    let t247 = t245 - t246;
-    let t248 = -t247;
-    dqdd_dqd[0][1] = t248;
-    let t249 = s[31] * s[20];
-    let t250 = s[4] * s[3];
-    let t251 = t250 - t249;
-    let t252 = -t251;
-    dqdd_dqd[1][0] = t252;
-    let t253 = s[31] * s[28];
-    let t254 = s[4] * s[12];
-    let t255 = t254 - t253;
-    let t256 = -t255;
-    dqdd_dqd[1][1] = t256;
+    let t225 = s[4] * s[21];
+    let t226 = t225 - s[13];
+    let t227 = -t226;
+    dqdd_dq[1][1] = t227;
+    let t228 = s[27] * s[9];
+    let t229 = s[28] * s[6];
+    let t230 = t228 - t229;
+    let t231 = -t230;
+    dqdd_dqd[0][0] = t231;
+    let t232 = s[27] * s[5];
+    let t233 = s[28] * s[22];
+    let t234 = t232 - t233;
+    let t235 = -t234;
+    dqdd_dqd[0][1] = t235;
+    let t236 = s[28] * s[9];
+    let t237 = s[4] * s[6];
+    let t238 = t237 - t236;
+    let t239 = -t238;
+    dqdd_dqd[1][0] = t239;
+    let t240 = s[28] * s[5];
+    let t241 = s[4] * s[22];
+    let t242 = t241 - t240;
+    let t243 = -t242;
+    dqdd_dqd[1][1] = t243;
 }

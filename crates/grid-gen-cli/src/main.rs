@@ -36,6 +36,11 @@ struct Cli {
     /// Gravity in the root frame, m/s², compiled into the generated code.
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, default_value = "0,0,-9.81", allow_hyphen_values = true)]
     gravity: [f64; 3],
+    /// How to build the RNEA gradient (rnea_grad, fd_grad): `idsva` (Singh, Russell &
+    /// Wensing 2022), `columns` (Carpentier & Mansard 2018), or `auto`, the one with fewer
+    /// operations for this robot (`info` says which).
+    #[arg(long, value_name = "FORM", default_value = "auto", value_parser = ["auto", "columns", "idsva"])]
+    gradient: String,
     #[command(flatten)]
     load: LoadArgs,
     #[command(flatten)]
@@ -296,6 +301,7 @@ fn generate(
     dir: &Path,
     targets: Vec<grid_gen::generate::Target>,
     gravity: [f64; 3],
+    gradient: grid_gen::ir::Gradient,
     check: bool,
     verilog: &VerilogArgs,
     wgsl: &WgslArgs,
@@ -305,7 +311,8 @@ fn generate(
         Ok(v) => v,
         Err(e) => return fail(e),
     };
-    let options = g::Options { gravity, targets, verilog, wgsl: wgsl.options(), ..g::Options::default() };
+    let lower = grid_gen::ir::LowerOptions { gradient, ..Default::default() };
+    let options = g::Options { gravity, targets, lower, verilog, wgsl: wgsl.options(), ..g::Options::default() };
     let files = match g::generate(model, &options) {
         Ok(f) => f,
         Err(e) => return fail(e),
@@ -346,7 +353,10 @@ fn run(cli: Cli) -> ExitCode {
             };
             match cli.out {
                 None => print(&(Info::new(&model).to_text() + "(pass -o DIR to generate code)\n")),
-                Some(dir) => generate(&model, &dir, cli.emit, cli.gravity, cli.check, &cli.verilog, &cli.wgsl),
+                Some(dir) => {
+                    let gradient = grid_gen::ir::Gradient::parse(&cli.gradient).expect("clap checks the value");
+                    generate(&model, &dir, cli.emit, cli.gravity, gradient, cli.check, &cli.verilog, &cli.wgsl)
+                }
             }
         }
         Some(Command::Info { urdf, json }) => match load(&urdf, strict) {

@@ -118,6 +118,13 @@ impl Builder {
         self
     }
 
+    /// The RNEA gradient's formulation (default [`crate::ir::Gradient::Auto`]: the one with fewer
+    /// operations for this robot).
+    pub fn gradient(&mut self, gradient: crate::ir::Gradient) -> &mut Self {
+        self.options.lower.gradient = gradient;
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias).
     pub fn strict(&mut self, strict: bool) -> &mut Self {
         self.strict = strict;

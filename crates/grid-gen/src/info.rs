@@ -117,11 +117,11 @@ impl Info {
         s.push_str(&format!("levels: {}\n", self.levels.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>().join(" ")));
         let d = &self.sparsity;
         s.push_str(&format!("sparsity: dv/dq {} of {} nonzero, dc/dq {} of {}\n", d.dv_dq.nonzero, d.dv_dq.total, d.dc_dq.nonzero, d.dc_dq.total));
-        s.push_str("operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth):\n");
+        s.push_str("operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth; the gradient formulation picked):\n");
         for k in &self.ops {
             let a = &k.after;
             s.push_str(&format!(
-                "  {:<12} {:>8} -> {:>7}   {}/{}/{}/{}/{}   depth {}\n",
+                "  {:<12} {:>8} -> {:>7}   {}/{}/{}/{}/{}   depth {}{}\n",
                 k.kernel.name(),
                 k.before.total(),
                 a.total(),
@@ -130,7 +130,8 @@ impl Info {
                 a.div,
                 a.neg,
                 a.trig,
-                a.depth
+                a.depth,
+                k.gradient.map_or(String::new(), |g| format!("   gradient: {}", g.name()))
             ));
         }
         for k in &self.ops_skipped {

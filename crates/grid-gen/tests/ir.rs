@@ -4,7 +4,7 @@
 //! model constants within 1e-15 of 0 or ±1; see `ir::spatial::SNAP`). The unspecialised
 //! (dense) graphs are checked too, at the same tolerance.
 
-use grid_gen::ir::{self, KernelKind, LowerOptions};
+use grid_gen::ir::{self, Gradient, KernelKind, LowerOptions};
 use grid_gen::{reference, Model};
 use grid_gen_test_support::*;
 
@@ -44,6 +44,22 @@ fn specialised_ir_matches_the_reference() {
         }
     }
     eprintln!("specialised IR: worst relative error {worst:.2e}");
+}
+
+#[test]
+fn both_gradient_formulations_match_the_reference() {
+    let mut rng = Rng(13);
+    for robot in robots() {
+        let model = load(&robot);
+        let n = model.nv();
+        for gradient in [Gradient::Columns, Gradient::Idsva] {
+            let options = LowerOptions { kernels: vec![KernelKind::RneaGrad, KernelKind::FdGrad], gradient, ..LowerOptions::default() };
+            let (q, qd, u) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
+            for (what, e) in compare(&model, [0.3, 1.0, -9.0], &options, &q, &qd, &u) {
+                assert!(e <= TOL, "{robot} {gradient:?}: {what} relative error {e:.2e}");
+            }
+        }
+    }
 }
 
 #[test]

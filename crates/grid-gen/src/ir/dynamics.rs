@@ -8,6 +8,7 @@
 //! too large for the node limit costs at most one body's work past the limit.
 
 use super::graph::{Graph, Id, Input, Stage};
+use super::kernel::Gradient;
 use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
 use crate::model::Model;
 
@@ -16,6 +17,8 @@ pub type Mat = Vec<Vec<Id>>;
 
 pub(crate) struct Dynamics<'a> {
     pub g: Graph,
+    /// Which formulation [`Self::rnea_grad`] records (never `Auto` here).
+    pub gradient: Gradient,
     sparse: bool,
     model: &'a Model,
     gravity: [f64; 3],
@@ -48,7 +51,7 @@ impl<'a> Dynamics<'a> {
             s.push(subspace(&mut g, &model.joints[i]));
             inertia.push(SymInertia::new(&mut g, &model.joints[i].inertia));
         }
-        Dynamics { g, sparse, model, gravity, x, s, inertia }
+        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia }
     }
 
     fn n(&self) -> usize {
@@ -138,9 +141,17 @@ impl<'a> Dynamics<'a> {
         Rnea { c, v, xv, xa, iv, f }
     }
 
+    /// `(∂c/∂q, ∂c/∂q̇)` in the chosen formulation.
+    pub fn rnea_grad(&mut self, r: &Rnea, qd: &[Id]) -> (Mat, Mat) {
+        match self.gradient {
+            Gradient::Idsva => self.rnea_grad_idsva(r),
+            Gradient::Columns | Gradient::Auto => self.rnea_grad_columns(r, qd),
+        }
+    }
+
     /// `(∂c/∂q, ∂c/∂q̇)` (Carpentier & Mansard 2018, as in `reference::rnea_derivatives`),
     /// column u of body i built only where it can be nonzero.
-    pub fn rnea_grad(&mut self, r: &Rnea, qd: &[Id]) -> (Mat, Mat) {
+    fn rnea_grad_columns(&mut self, r: &Rnea, qd: &[Id]) -> (Mat, Mat) {
         let n = self.n();
         let z = sp::zero(&mut self.g);
         let none = || vec![None::<Sv>; n];
@@ -229,19 +240,113 @@ impl<'a> Dynamics<'a> {
         (dc_q, dc_qd)
     }
 
+    /// `(∂c/∂q, ∂c/∂q̇)` by IDSVA (Singh, Russell & Wensing, "Efficient Analytical
+    /// Derivatives of Rigid-Body Dynamics using Spatial Vector Algebra", RA-L 2022,
+    /// Algorithm 1; `ID_derivatives.m` of spatial_v2_extended), in body coordinates.
+    ///
+    /// The paper's composite `B^C` is kept as `D^C + (H^C)×̄` (its symmetric part is the
+    /// rate of the composite inertia, inertia-shaped; the rest is the composite momentum
+    /// H^C, so `B^C s = D^C s + s ×* H^C` and `B^Cᵀ s = D^C s − s ×* H^C`). Each joint
+    /// computes its four force vectors t1..t4 once, in its own frame; they are carried
+    /// up to every ancestor with one Xᵀ each, where six dot products give the pair's
+    /// four entries. Dot products pair a motion with a force, so any common frame gives
+    /// the paper's world-frame values.
+    pub fn rnea_grad_idsva(&mut self, r: &Rnea) -> (Mat, Mat) {
+        let n = self.n();
+        let zero = self.g.constant(0.0);
+        let (mut dc_q, mut dc_qd) = (vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
+        // Ψ̇ = v_λ × S, Ψ̈ = a_λ × S + v_λ × Ψ̇ (a_λ carries gravity); the paper's
+        // Ṡ + Ψ̇ term for q̇ is 2Ψ̇ for one-dof joints (S × S = 0).
+        let mut sd = Vec::with_capacity(n);
+        let mut sdd = Vec::with_capacity(n);
+        for i in 0..n {
+            if self.exhausted() {
+                return (dc_q, dc_qd);
+            }
+            self.at(i, Stage::Forward);
+            let g = &mut self.g;
+            let d = sp::crm(g, &r.xv[i], &self.s[i]);
+            let t1 = sp::crm(g, &r.xa[i], &self.s[i]);
+            let t2 = sp::crm(g, &r.xv[i], &d);
+            sdd.push(sp::add(g, &t1, &t2));
+            sd.push(d);
+        }
+        // Composites of the subtree, in the body's frame: inertia, its rate, momentum.
+        let mut ic: Vec<SymInertia> = self.inertia.clone();
+        let mut dc: Vec<SymInertia> = Vec::with_capacity(n);
+        for i in 0..n {
+            self.at(i, Stage::Forward);
+            dc.push(self.inertia[i].rate(&mut self.g, &r.v[i]));
+        }
+        let mut hc: Vec<Sv> = r.iv.clone();
+        // t1..t4 of every joint, in the frame of the last ancestor reached.
+        let mut t: Vec<[Sv; 4]> = vec![[[zero; 6]; 4]; n];
+        for i in (0..n).rev() {
+            if self.exhausted() {
+                break;
+            }
+            self.at(i, Stage::Backward);
+            let end = self.model.joints[i].subtree_end;
+            let g = &mut self.g;
+            let s = &self.s[i];
+            let is = ic[i].apply(g, s);
+            let isd = ic[i].apply(g, &sd[i]);
+            let isdd = ic[i].apply(g, &sdd[i]);
+            let ds = dc[i].apply(g, s);
+            let dsd = dc[i].apply(g, &sd[i]);
+            let sh = sp::crf(g, s, &hc[i]);
+            let sdh = sp::crf(g, &sd[i], &hc[i]);
+            let sf = sp::crf(g, s, &r.f[i]);
+            let isd2 = sp::add(g, &isd, &isd);
+            let t2 = sp::add(g, &ds, &sh);
+            let t2 = sp::add(g, &t2, &isd2);
+            let t3 = sp::add(g, &dsd, &sdh);
+            let t3 = sp::add(g, &t3, &isdd);
+            let t3 = sp::add(g, &t3, &sf);
+            let t4 = sp::sub(g, &ds, &sh);
+            t[i] = [is, t2, t3, t4];
+            for j in i..end {
+                let [t1, t2, t3, t4] = t[j];
+                if j != i {
+                    dc_q[i][j] = sp::dot(g, s, &t3);
+                    dc_qd[i][j] = sp::dot(g, s, &t2);
+                }
+                let a = sp::dot(g, &t1, &sdd[i]);
+                let b = sp::dot(g, &t4, &sd[i]);
+                dc_q[j][i] = g.add(a, b);
+                let a = sp::dot(g, &t1, &sd[i]);
+                let a2 = g.add(a, a);
+                let b = sp::dot(g, &t4, s);
+                dc_qd[j][i] = g.add(a2, b);
+            }
+            if let Some(p) = self.model.joints[i].parent {
+                for tj in &mut t[i..end] {
+                    *tj = tj.map(|v| self.x[i].apply_t(g, &v));
+                }
+                let up = ic[i].to_parent(g, &self.x[i]);
+                ic[p] = ic[p].add(g, &up);
+                let up = dc[i].to_parent(g, &self.x[i]);
+                dc[p] = dc[p].add(g, &up);
+                let up = self.x[i].apply_t(g, &hc[i]);
+                hc[p] = sp::add(g, &hc[p], &up);
+            }
+        }
+        (dc_q, dc_qd)
+    }
+
     fn composite_start(&mut self) -> Vec<[[Id; 6]; 6]> {
         (0..self.n()).map(|i| self.inertia[i].to_matrix(&mut self.g)).collect()
     }
 
-    /// CRBA (Featherstone table 6.2).
+    /// CRBA (Featherstone table 6.2), composites kept inertia-shaped.
     pub fn mass_matrix(&mut self) -> Mat {
         let n = self.n();
-        let mut ic = self.composite_start();
+        let mut ic = self.inertia.clone();
         for i in (0..n).rev() {
             self.at(i, Stage::Backward);
             if let Some(p) = self.model.joints[i].parent {
-                let add = sp::congruence(&mut self.g, &self.x[i], &ic[i]);
-                ic[p] = add6(&mut self.g, &ic[p], &add);
+                let up = ic[i].to_parent(&mut self.g, &self.x[i]);
+                ic[p] = ic[p].add(&mut self.g, &up);
             }
         }
         let zero = self.g.constant(0.0);
@@ -252,7 +357,7 @@ impl<'a> Dynamics<'a> {
             }
             self.at(i, Stage::Forward);
             let g = &mut self.g;
-            let mut f = sp::mat6_vec(g, &ic[i], &self.s[i]);
+            let mut f = ic[i].apply(g, &self.s[i]);
             m[i][i] = sp::dot(g, &self.s[i], &f);
             let mut j = i;
             while let Some(p) = self.model.joints[j].parent {

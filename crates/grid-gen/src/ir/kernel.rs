@@ -30,6 +30,40 @@ pub struct OutputSpec {
     pub shape: Shape,
 }
 
+/// How the IR builds the RNEA gradient (and so `fd_grad`'s).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Gradient {
+    /// Whichever of the two has fewer operations for this robot and kernel.
+    #[default]
+    Auto,
+    /// One RNEA-like pass per gradient column (Carpentier & Mansard 2018): cheapest on
+    /// short, branchy trees.
+    Columns,
+    /// IDSVA (Singh, Russell & Wensing 2022), per-joint work done once and four force
+    /// vectors per (joint, ancestor) pair: cheapest on long chains.
+    Idsva,
+}
+
+impl Gradient {
+    pub fn name(self) -> &'static str {
+        match self {
+            Gradient::Auto => "auto",
+            Gradient::Columns => "columns",
+            Gradient::Idsva => "idsva",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Gradient> {
+        [Gradient::Auto, Gradient::Columns, Gradient::Idsva].into_iter().find(|g| g.name() == name)
+    }
+
+    /// Whether a kernel's graph holds the RNEA gradient.
+    pub fn applies_to(kind: KernelKind) -> bool {
+        matches!(kind, KernelKind::RneaGrad | KernelKind::FdGrad)
+    }
+}
+
 /// One generated function.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
 #[serde(rename_all = "snake_case")]

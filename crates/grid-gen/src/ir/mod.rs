@@ -16,7 +16,7 @@ mod stats;
 mod validate;
 
 pub use graph::{Id, Input, Node, Op, Stage};
-pub use kernel::{KernelKind, OutputSpec, Shape};
+pub use kernel::{Gradient, KernelKind, OutputSpec, Shape};
 pub use module::{lower, lower_function, Function, LowerError, LowerOptions, Module, Output, Robot, DEFAULT_MAX_NODES};
 pub use spatial::SNAP;
 pub use stats::{stats, KernelStats, OpCounts, Skipped, Stats, STATS_MAX_NODES};

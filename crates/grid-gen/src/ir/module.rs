@@ -5,7 +5,7 @@
 
 use super::dynamics::Dynamics;
 use super::graph::{Graph, Id, Input, Node, Op};
-use super::kernel::{KernelKind, Shape};
+use super::kernel::{Gradient, KernelKind, Shape};
 use super::validate::{validate, ValidationError};
 use crate::model::{JointType, Model};
 
@@ -28,18 +28,20 @@ pub struct LowerOptions {
     /// Most nodes one kernel's graph may have; past it lowering stops with
     /// [`LowerError::TooLarge`] instead of exhausting memory.
     pub max_nodes: usize,
+    /// The RNEA gradient's formulation (`rnea_grad`, `fd_grad`).
+    pub gradient: Gradient,
 }
 
 impl Default for LowerOptions {
     fn default() -> Self {
-        LowerOptions { fold: true, sparse: true, kernels: KernelKind::ALL.to_vec(), max_nodes: DEFAULT_MAX_NODES }
+        LowerOptions { fold: true, sparse: true, kernels: KernelKind::ALL.to_vec(), max_nodes: DEFAULT_MAX_NODES, gradient: Gradient::Auto }
     }
 }
 
 impl LowerOptions {
     /// The general dense algorithm: no folding, no sharing, every gradient column.
     pub fn general() -> Self {
-        LowerOptions { fold: false, sparse: false, ..LowerOptions::default() }
+        LowerOptions { fold: false, sparse: false, gradient: Gradient::Columns, ..LowerOptions::default() }
     }
 }
 
@@ -93,6 +95,8 @@ pub struct Output {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Function {
     pub kind: KernelKind,
+    /// The RNEA gradient's formulation, for the kernels that hold one.
+    pub gradient: Option<Gradient>,
     pub nodes: Vec<Node>,
     pub outputs: Vec<Output>,
 }
@@ -133,12 +137,25 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
     if gravity.iter().any(|g| !g.is_finite()) {
         return Err(LowerError::Gravity(gravity));
     }
-    let mut d = Dynamics::new(model, gravity, options.fold, options.sparse, options.max_nodes);
-    let outputs = kind.record(&mut d);
-    if d.g.exhausted() {
-        return Err(LowerError::TooLarge { robot: model.name.clone(), nv: model.nv(), kernel: kind, limit: options.max_nodes });
-    }
-    let f = freeze(kind, &d.g, outputs);
+    let f = match options.gradient {
+        Gradient::Auto if Gradient::applies_to(kind) => {
+            let columns = record(model, gravity, kind, options, Gradient::Columns);
+            let idsva = record(model, gravity, kind, options, Gradient::Idsva);
+            match (columns, idsva) {
+                (Ok(a), Ok(b)) => {
+                    if b.nodes.len() < a.nodes.len() {
+                        b
+                    } else {
+                        a
+                    }
+                }
+                (Ok(f), Err(_)) | (Err(_), Ok(f)) => f,
+                (Err(e), Err(_)) => return Err(e),
+            }
+        }
+        Gradient::Auto => record(model, gravity, kind, options, Gradient::Columns)?,
+        form => record(model, gravity, kind, options, form)?,
+    };
     for node in &f.nodes {
         if let Op::Const(c) = node.op {
             if !c.is_finite() {
@@ -147,6 +164,19 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
         }
     }
     validate(&f, model.nv()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
+    Ok(f)
+}
+
+/// Runs one kernel's algorithm with one gradient formulation and freezes its graph.
+fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions, gradient: Gradient) -> Result<Function, LowerError> {
+    let mut d = Dynamics::new(model, gravity, options.fold, options.sparse, options.max_nodes);
+    d.gradient = gradient;
+    let outputs = kind.record(&mut d);
+    if d.g.exhausted() {
+        return Err(LowerError::TooLarge { robot: model.name.clone(), nv: model.nv(), kernel: kind, limit: options.max_nodes });
+    }
+    let mut f = freeze(kind, &d.g, outputs);
+    f.gradient = Gradient::applies_to(kind).then_some(gradient);
     Ok(f)
 }
 
@@ -189,7 +219,7 @@ fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>) -> Function {
         .zip(outputs)
         .map(|(spec, ids)| Output { name: spec.name, shape: spec.shape, ids: ids.into_iter().map(|id| new_id[id.0 as usize]).collect() })
         .collect();
-    Function { kind, nodes, outputs }
+    Function { kind, nodes, outputs, gradient: None }
 }
 
 impl Function {

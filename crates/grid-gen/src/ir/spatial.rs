@@ -70,6 +70,10 @@ pub fn add(g: &mut Graph, a: &Sv, b: &Sv) -> Sv {
     std::array::from_fn(|i| g.add(a[i], b[i]))
 }
 
+pub fn sub(g: &mut Graph, a: &Sv, b: &Sv) -> Sv {
+    std::array::from_fn(|i| g.sub(a[i], b[i]))
+}
+
 pub fn scale(g: &mut Graph, a: &Sv, s: Id) -> Sv {
     std::array::from_fn(|i| g.mul(a[i], s))
 }
@@ -131,7 +135,11 @@ pub fn crf(g: &mut Graph, v: &Sv, f: &Sv) -> Sv {
     join(add3(g, &a1, &a2), b)
 }
 
-/// A body's spatial inertia as constants: [I_o, h×; −h×, m 1].
+/// A matrix of rigid-body-inertia shape, [I_o, h×; −h×, m 1] (10 parameters): a body's
+/// inertia as constants, or a composite inertia or its rate as graph nodes. The shape
+/// is closed under sums and frame changes, which is why the gradient keeps composites
+/// in it instead of as general 6x6 matrices (10 entries to move, not 36).
+#[derive(Clone, Copy)]
 pub struct SymInertia {
     i: [[Id; 3]; 3],
     h: V3,
@@ -145,6 +153,87 @@ impl SymInertia {
             h: std::array::from_fn(|r| k(g, inertia.h[r])),
             m: k(g, inertia.mass),
         }
+    }
+
+    /// `a + b`.
+    pub fn add(&self, g: &mut Graph, b: &SymInertia) -> SymInertia {
+        let mut i = self.i;
+        for r in 0..3 {
+            for c in r..3 {
+                i[r][c] = g.add(self.i[r][c], b.i[r][c]);
+                i[c][r] = i[r][c];
+            }
+        }
+        SymInertia { i, h: add3(g, &self.h, &b.h), m: g.add(self.m, b.m) }
+    }
+
+    /// `Xᵀ I X` for X = iXλ = (E, r): the same matrix in the parent's frame. With h' = Eᵀh,
+    /// `h_λ = m r + h'` and `I_λ = Eᵀ I_o E + m (r·r 1 − r rᵀ) − (h' rᵀ + r h'ᵀ) + 2 (r·h') 1`
+    /// (the parallel-axis theorem with the first moment; Featherstone, RBDA §2.13). Linear
+    /// in (m, h, I_o), so it holds for rates and composites as for bodies.
+    pub fn to_parent(&self, g: &mut Graph, x: &Xform) -> SymInertia {
+        let e = &x.e;
+        let hp = mat_t_vec(g, e, &self.h);
+        // J E, then Eᵀ (J E) on the upper triangle.
+        let je: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| g.dot(&self.i[r], &[e[0][c], e[1][c], e[2][c]])));
+        let rr = g.dot(&x.r, &x.r);
+        let rh = g.dot(&x.r, &hp);
+        let two = g.constant(2.0);
+        let rh2 = g.mul(two, rh);
+        let mut i = self.i;
+        for a in 0..3 {
+            for b in a..3 {
+                let rot = g.dot(&[e[0][a], e[1][a], e[2][a]], &[je[0][b], je[1][b], je[2][b]]);
+                let rab = g.mul(x.r[a], x.r[b]);
+                let geo = if a == b { g.sub(rr, rab) } else { g.neg(rab) };
+                let mg = g.mul(self.m, geo);
+                let t1 = g.mul(hp[a], x.r[b]);
+                let t2 = g.mul(x.r[a], hp[b]);
+                let hr = g.add(t1, t2);
+                let mut v = g.add(rot, mg);
+                v = g.sub(v, hr);
+                if a == b {
+                    v = g.add(v, rh2);
+                }
+                i[a][b] = v;
+                i[b][a] = v;
+            }
+        }
+        let mr: V3 = std::array::from_fn(|k| g.mul(self.m, x.r[k]));
+        SymInertia { i, h: add3(g, &mr, &hp), m: self.m }
+    }
+
+    /// `v ×* I − I v×`: the rate of change of this inertia carried with velocity v, again
+    /// inertia-shaped, with mass rate 0, `ḣ = ω × h + m v_lin` and
+    /// `İ_o = ω×I_o − I_o ω× − (v_lin× h× + h× v_lin×)`.
+    pub fn rate(&self, g: &mut Graph, v: &Sv) -> SymInertia {
+        let (w, vl) = (ang(v), lin(v));
+        let wh = cross(g, &w, &self.h);
+        let mv: V3 = std::array::from_fn(|r| g.mul(self.m, vl[r]));
+        let h = add3(g, &wh, &mv);
+        let wx = skew(g, &w);
+        // A = ω× I_o; ω×I_o − I_o ω× = A + Aᵀ (I_o symmetric).
+        let a: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| g.dot(&wx[r], &[self.i[0][c], self.i[1][c], self.i[2][c]])));
+        // v× h× + h× v× = h vᵀ + v hᵀ − 2 (v·h) 1.
+        let vh = g.dot(&vl, &self.h);
+        let two = g.constant(2.0);
+        let vh2 = g.mul(two, vh);
+        let mut i = self.i;
+        for r in 0..3 {
+            for c in r..3 {
+                let t = g.add(a[r][c], a[c][r]);
+                let p1 = g.mul(self.h[r], vl[c]);
+                let p2 = g.mul(vl[r], self.h[c]);
+                let p = g.add(p1, p2);
+                let mut x = g.sub(t, p);
+                if r == c {
+                    x = g.add(x, vh2);
+                }
+                i[r][c] = x;
+                i[c][r] = x;
+            }
+        }
+        SymInertia { i, h, m: g.constant(0.0) }
     }
 
     /// `I v = [I_o ω + h × v; m v − h × ω]`.

@@ -4,7 +4,7 @@
 use serde::Serialize;
 
 use super::graph::Op;
-use super::kernel::KernelKind;
+use super::kernel::{Gradient, KernelKind};
 use super::module::{lower_function, Function, LowerError, LowerOptions};
 use crate::model::Model;
 
@@ -56,6 +56,10 @@ pub struct KernelStats {
     pub kernel: KernelKind,
     pub before: OpCounts,
     pub after: OpCounts,
+    /// The RNEA gradient's formulation in the specialised kernel, where it has one (the
+    /// general algorithm is always `columns`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub gradient: Option<Gradient>,
 }
 
 /// A kernel left out of [`Stats`] because one of its graphs exceeds the node limit.
@@ -88,11 +92,15 @@ pub fn stats(model: &Model, gravity: [f64; 3], max_nodes: usize) -> Stats {
             continue;
         }
         let mut counts = [OpCounts::default(); 2];
+        let mut gradient = None;
         let mut failed = None;
         for (slot, base) in counts.iter_mut().zip([LowerOptions::default(), LowerOptions::general()]) {
             let options = LowerOptions { max_nodes, ..base };
             match lower_function(model, gravity, kind, &options) {
-                Ok(f) => *slot = f.counts(),
+                Ok(f) => {
+                    *slot = f.counts();
+                    gradient = gradient.or(f.gradient);
+                }
                 Err(e) => {
                     failed = Some(e);
                     break;
@@ -100,7 +108,7 @@ pub fn stats(model: &Model, gravity: [f64; 3], max_nodes: usize) -> Stats {
             }
         }
         match failed {
-            None => out.ops.push(KernelStats { kernel: kind, after: counts[0], before: counts[1] }),
+            None => out.ops.push(KernelStats { kernel: kind, after: counts[0], before: counts[1], gradient }),
             Some(e) => {
                 let reason = match e {
                     LowerError::TooLarge { limit, .. } => {

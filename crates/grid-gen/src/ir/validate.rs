@@ -60,6 +60,7 @@ mod tests {
     fn function(nodes: Vec<Op>, out: Vec<u32>) -> Function {
         Function {
             kind: KernelKind::Rnea,
+            gradient: None,
             nodes: nodes.into_iter().map(node).collect(),
             outputs: vec![Output { name: "c", shape: Shape::Vector, ids: out.into_iter().map(Id).collect() }],
         }
