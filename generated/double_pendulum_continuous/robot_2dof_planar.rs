@@ -42,11 +42,18 @@ pub trait Real: Copy + core::ops::Add<
     fn k(x: f64) -> Self;
     fn sin(self) -> Self;
     fn cos(self) -> Self;
+    /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
+    /// instruction it would be a slow library call).
+    fn mul_add(self, a: Self, b: Self) -> Self;
 }
 impl Real for f64 {
     #[inline(always)]
     fn k(x: f64) -> Self {
         x
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        f64::mul_add(self, a, b)
     }
     #[inline(always)]
     fn sin(self) -> Self {
@@ -63,6 +70,10 @@ impl Real for f32 {
         x as f32
     }
     #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        f32::mul_add(self, a, b)
+    }
+    #[inline(always)]
     fn sin(self) -> Self {
         f32::sin(self)
     }
@@ -72,8 +83,9 @@ impl Real for f32 {
     }
 }
 /// `N` states evaluated by one call, one per lane (`q[j].0[l]` is joint j of state l), for
-/// sweeping many knot points: every lane runs exactly the f64 operations of a scalar call,
-/// so results are bit-identical, and the compiler can put the lanes in SIMD registers.
+/// sweeping many knot points: every lane runs exactly the f64 operations of a scalar call
+/// (of the same copy, `portable` or `fma`), so results are bit-identical, and the compiler
+/// can put the lanes in SIMD registers (ymm in the `fma` copy: 4 lanes per instruction).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[allow(dead_code)]
 pub struct Lanes<const N: usize>(pub [f64; N]);
@@ -118,6 +130,10 @@ impl<const N: usize> Real for Lanes<N> {
         Lanes([x; N])
     }
     #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        Lanes(core::array::from_fn(|l| self.0[l].mul_add(a.0[l], b.0[l])))
+    }
+    #[inline(always)]
     fn sin(self) -> Self {
         Lanes(self.0.map(f64::sin))
     }
@@ -126,623 +142,1203 @@ impl<const N: usize> Real for Lanes<N> {
         Lanes(self.0.map(f64::cos))
     }
 }
-/// Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.
+/// Whether this CPU runs the [`fma`] copy (x86-64 with AVX2 and FMA, detected once and
+/// cached by std).
 #[inline]
-#[allow(clippy::all, unused_variables, dead_code)]
+#[allow(dead_code)]
+pub fn has_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    { std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") }
+    #[cfg(not(target_arch = "x86_64"))] { false }
+}
+/// Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.
+///
+/// Runs [`fma::rnea`] where [`has_fma`], else [`portable::rnea`].
+#[inline]
+#[allow(dead_code)]
 pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
-    let mut c = [T::k(0.0); NV];
-    let t1 = q[0].sin();
-    let t2 = q[0].cos();
-    let t8 = q[1].sin();
-    let t9 = q[1].cos();
-    let t19 = t1 * T::k(9.81);
-    let t20 = t2 * T::k(9.81);
-    let t21 = T::k(0.0007545716336328686) * qdd[0];
-    let t22 = T::k(5.801760809999999e-7) * t20;
-    let t23 = T::k(0.00961628436) * t19;
-    let t24 = t22 - t23;
-    let t25 = t21 + t24;
-    let t26 = T::k(0.1) * qd[0];
-    let t27 = t9 * t26;
-    let t28 = t8 * t26;
-    let t29 = T::k(0.1) * qdd[0];
-    let t30 = t19 - t29;
-    let t31 = t9 * t30;
-    let t32 = t8 * t20;
-    let t33 = t31 + t32;
-    let t34 = t8 * t30;
-    let t35 = t9 * t20;
-    let t36 = t35 - t34;
-    let t37 = qd[0] + qd[1];
-    let t38 = qd[1] * t28;
-    let t39 = qd[1] * t27;
-    let t40 = qdd[0] + qdd[1];
-    let t41 = t33 + t38;
-    let t42 = t36 + t39;
-    let t43 = T::k(0.0335304944) * t37;
-    let t44 = T::k(6.43853298e-11) * t37;
-    let t45 = T::k(0.33238) * t27;
-    let t46 = -t45;
-    let t47 = T::k(0.33238) * t28;
-    let t48 = t46 - t43;
-    let t49 = t44 + t47;
-    let t50 = T::k(0.004557856275072) * t40;
-    let t51 = T::k(6.43853298e-11) * t42;
-    let t52 = T::k(0.0335304944) * t41;
-    let t53 = t51 - t52;
-    let t54 = T::k(0.0335304944) * t40;
-    let t55 = T::k(6.43853298e-11) * t40;
-    let t56 = T::k(0.33238) * t41;
-    let t57 = T::k(0.33238) * t42;
-    let t58 = t50 + t53;
-    let t59 = t56 - t54;
-    let t60 = t55 + t57;
-    let t61 = t27 * t49;
-    let t62 = -t61;
-    let t63 = t28 * t48;
-    let t64 = t62 - t63;
-    let t65 = t37 * t49;
-    let t66 = t37 * t48;
-    let t67 = t58 + t64;
-    c[1] = t67;
-    let t68 = t59 - t65;
-    let t69 = t60 + t66;
-    let t70 = t9 * t68;
-    let t71 = t8 * t69;
-    let t72 = t70 - t71;
-    let t73 = T::k(0.1) * t72;
-    let t74 = t67 - t73;
-    let t75 = t25 + t74;
-    c[0] = t75;
-    c
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        return unsafe { fma::rnea(q, qd, qdd) };
+    }
+    portable::rnea(q, qd, qdd)
 }
 /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
+///
+/// Runs [`fma::rnea_grad`] where [`has_fma`], else [`portable::rnea_grad`].
 #[inline]
-#[allow(clippy::all, unused_variables, dead_code)]
+#[allow(dead_code)]
 pub fn rnea_grad<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     qdd: &[T; NV],
 ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
-    let mut dc_dq = [[T::k(0.0); NV]; NV];
-    let mut dc_dqd = [[T::k(0.0); NV]; NV];
-    let t1 = q[0].sin();
-    let t2 = q[0].cos();
-    let t7 = q[1].sin();
-    let t8 = q[1].cos();
-    let t17 = t1 * T::k(9.81);
-    let t18 = t2 * T::k(9.81);
-    let t19 = T::k(0.1) * qd[0];
-    let t20 = t8 * t19;
-    let t21 = t7 * t19;
-    let t22 = T::k(0.1) * qdd[0];
-    let t23 = t17 - t22;
-    let t24 = t8 * t23;
-    let t25 = t7 * t18;
-    let t26 = t24 + t25;
-    let t27 = t7 * t23;
-    let t28 = t8 * t18;
-    let t29 = t28 - t27;
-    let t30 = qd[0] + qd[1];
-    let t31 = qd[1] * t21;
-    let t32 = qd[1] * t20;
-    let t33 = qdd[0] + qdd[1];
-    let t34 = t26 + t31;
-    let t35 = t29 + t32;
-    let t36 = T::k(0.0335304944) * t30;
-    let t37 = T::k(6.43853298e-11) * t30;
-    let t38 = T::k(0.33238) * t20;
-    let t39 = -t38;
-    let t40 = T::k(0.33238) * t21;
-    let t41 = t39 - t36;
-    let t42 = t37 + t40;
-    let t43 = T::k(0.0335304944) * t33;
-    let t44 = T::k(6.43853298e-11) * t33;
-    let t45 = T::k(0.33238) * t34;
-    let t46 = T::k(0.33238) * t35;
-    let t47 = t45 - t43;
-    let t48 = t44 + t46;
-    let t49 = t30 * t42;
-    let t50 = t30 * t41;
-    let t51 = t47 - t49;
-    let t52 = t48 + t50;
-    let t53 = qd[0] * t20;
-    let t54 = qd[0] * t21;
-    let t55 = t29 - t53;
-    let t56 = t54 - t26;
-    let t58 = -t36;
-    let t59 = t58 - t38;
-    let t60 = T::k(6.43853298e-11) * t20;
-    let t61 = T::k(0.0335304944) * t21;
-    let t62 = t61 - t60;
-    let t63 = T::k(2.0) * t62;
-    let t65 = t60 - t61;
-    let t66 = T::k(6.43853298e-11) * t56;
-    let t67 = T::k(0.0335304944) * t55;
-    let t68 = t66 - t67;
-    let t69 = T::k(0.33238) * t55;
-    let t70 = T::k(0.33238) * t56;
-    let t71 = -t42;
-    let t72 = t20 * t59;
-    let t73 = t21 * t42;
-    let t74 = t72 - t73;
-    let t75 = t20 * t41;
-    let t76 = t73 - t75;
-    let t77 = t65 + t65;
-    let t78 = t40 + t40;
-    let t79 = t38 + t38;
-    let t80 = t71 - t42;
-    let t81 = t41 + t59;
-    let t82 = t63 + t77;
-    let t83 = t78 + t80;
-    let t84 = t79 + t81;
-    let t85 = t74 + t76;
-    let t86 = t68 + t85;
-    let t87 = t69 - t52;
-    let t88 = t51 + t70;
-    let t89 = t59 - t41;
-    let t90 = t55 * T::k(-0.0335304944);
-    let t91 = t66 + t90;
-    let t92 = t20 * t89;
-    let t93 = t91 + t92;
-    dc_dq[1][1] = t93;
-    let t94 = t21 * T::k(-0.0335304944);
-    let t95 = t60 + t94;
-    let t96 = t95 + t95;
-    let t97 = t63 + t96;
-    dc_dqd[1][1] = t97;
-    let t98 = t8 * T::k(-0.0335304944);
-    let t99 = t7 * T::k(6.43853298e-11);
-    let t100 = t98 - t99;
-    let t101 = t7 * T::k(-0.0335304944);
-    let t102 = t8 * T::k(6.43853298e-11);
-    let t103 = t101 + t102;
-    let t104 = t8 * t83;
-    let t105 = t7 * t84;
-    let t106 = t104 - t105;
-    let t107 = T::k(0.1) * t106;
-    let t108 = t82 - t107;
-    dc_dqd[0][1] = t108;
-    let t109 = t8 * t87;
-    let t110 = t7 * t88;
-    let t111 = t109 - t110;
-    let t112 = T::k(0.1) * t111;
-    let t113 = t86 - t112;
-    dc_dq[0][1] = t113;
-    let t114 = t7 * t89;
-    let t115 = T::k(0.1) * t114;
-    let t116 = t63 + t115;
-    dc_dqd[1][0] = t116;
-    let t117 = t7 * T::k(0.0335304944);
-    let t118 = t102 - t117;
-    let t119 = t8 * T::k(0.0335304944);
-    let t120 = t99 + t119;
-    let t122 = t120 + T::k(0.033238000000000004);
-    let t123 = T::k(5.801760809999999e-7) + t118;
-    let t124 = T::k(0.00961628436) + t122;
-    let t125 = t7 * t59;
-    let t126 = t8 * t42;
-    let t127 = t125 + t126;
-    let t128 = T::k(0.1) * t127;
-    let t129 = T::k(2.0) * t128;
-    let t130 = t63 + t129;
-    dc_dqd[0][0] = t130;
-    let t131 = t17 * t123;
-    let t132 = t18 * t124;
-    let t133 = -t132;
-    let t134 = t133 - t131;
-    dc_dq[0][0] = t134;
-    let t135 = t18 * t100;
-    let t136 = t17 * t103;
-    let t137 = t135 - t136;
-    dc_dq[1][0] = t137;
-    (dc_dq, dc_dqd)
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        return unsafe { fma::rnea_grad(q, qd, qdd) };
+    }
+    portable::rnea_grad(q, qd, qdd)
 }
 /// The joint-space inertia matrix M(q) (CRBA).
+///
+/// Runs [`fma::mass_matrix`] where [`has_fma`], else [`portable::mass_matrix`].
 #[inline]
-#[allow(clippy::all, unused_variables, dead_code)]
+#[allow(dead_code)]
 pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
-    let mut m = [[T::k(0.0); NV]; NV];
-    m[1][1] = T::k(0.004557856275072);
-    let t3 = q[1].sin();
-    let t4 = q[1].cos();
-    let t8 = t3 * T::k(6.43853298e-11);
-    let t9 = t4 * T::k(0.0335304944);
-    let t10 = t8 + t9;
-    let t12 = T::k(0.1) * t10;
-    let t13 = T::k(-3.8305498717999996e-5) + t12;
-    let t15 = t13 * T::k(2.0);
-    let t17 = t15 + T::k(0.007958267272508);
-    let t18 = T::k(0.0007545716336328686) + t17;
-    m[0][0] = t18;
-    let t20 = t4 * T::k(-0.0335304944);
-    let t21 = t20 - t8;
-    let t22 = T::k(0.1) * t21;
-    let t23 = T::k(0.004557856275072) - t22;
-    m[0][1] = t23;
-    m[1][0] = t23;
-    m
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        return unsafe { fma::mass_matrix(q) };
+    }
+    portable::mass_matrix(q)
 }
 /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
+///
+/// Runs [`fma::minv`] where [`has_fma`], else [`portable::minv`].
 #[inline]
-#[allow(clippy::all, unused_variables, dead_code)]
+#[allow(dead_code)]
 pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
-    let mut minv = [[T::k(0.0); NV]; NV];
-    let t4 = q[1].sin();
-    let t5 = q[1].cos();
-    let t13 = t5 * T::k(-7.356637062775817);
-    let t14 = t4 * T::k(1.4126230823060104e-8);
-    let t15 = t13 - t14;
-    let t16 = T::k(0.1) * t15;
-    let t17 = T::k(1.0) - t16;
-    let t21 = t5 * T::k(-0.1);
-    let t22 = t4 * T::k(-0.1);
-    let t23 = T::k(0.08570832216376303) * t21;
-    let t24 = T::k(4.736595035057242e-10) * t22;
-    let t25 = t23 - t24;
-    let t26 = T::k(4.736595035057242e-10) * t21;
-    let t27 = T::k(0.33238) * t22;
-    let t28 = t26 - t27;
-    let t29 = t5 * t25;
-    let t30 = t4 * t28;
-    let t31 = t29 - t30;
-    let t32 = T::k(0.1) * t31;
-    let t33 = T::k(0.0007545716336328686) - t32;
-    let t34 = T::k(1.0) / t33;
-    minv[0][0] = t34;
-    let t35 = t17 * t34;
-    let t36 = -t35;
-    minv[0][1] = t36;
-    minv[1][0] = t36;
-    let t37 = T::k(0.1) * t35;
-    let t38 = t5 * t37;
-    let t39 = t4 * t37;
-    let t40 = T::k(0.004557856275072) * t35;
-    let t41 = T::k(-0.0335304944) * t38;
-    let t42 = t41 - t40;
-    let t43 = T::k(6.43853298e-11) * t39;
-    let t44 = t42 - t43;
-    let t45 = T::k(219.4013895236754) * t44;
-    let t46 = T::k(219.4013895236754) - t45;
-    minv[1][1] = t46;
-    minv
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        return unsafe { fma::minv(q) };
+    }
+    portable::minv(q)
 }
 /// Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.
+///
+/// Runs [`fma::fd`] where [`has_fma`], else [`portable::fd`].
 #[inline]
-#[allow(clippy::all, unused_variables, dead_code)]
+#[allow(dead_code)]
 pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
-    let mut qdd = [T::k(0.0); NV];
-    let t2 = q[0].sin();
-    let t3 = q[0].cos();
-    let t9 = q[1].sin();
-    let t10 = q[1].cos();
-    let t20 = t2 * T::k(9.81);
-    let t21 = t3 * T::k(9.81);
-    let t22 = T::k(5.801760809999999e-7) * t21;
-    let t23 = T::k(0.00961628436) * t20;
-    let t24 = t22 - t23;
-    let t25 = T::k(0.1) * qd[0];
-    let t26 = t10 * t25;
-    let t27 = t9 * t25;
-    let t28 = t10 * t20;
-    let t29 = t9 * t21;
-    let t30 = t28 + t29;
-    let t31 = t9 * t20;
-    let t32 = t10 * t21;
-    let t33 = t32 - t31;
-    let t34 = qd[0] + qd[1];
-    let t35 = qd[1] * t27;
-    let t36 = qd[1] * t26;
-    let t37 = t30 + t35;
-    let t38 = t33 + t36;
-    let t39 = T::k(0.0335304944) * t34;
-    let t40 = T::k(6.43853298e-11) * t34;
-    let t41 = T::k(0.33238) * t26;
-    let t42 = -t41;
-    let t43 = T::k(0.33238) * t27;
-    let t44 = t42 - t39;
-    let t45 = t40 + t43;
-    let t46 = T::k(6.43853298e-11) * t38;
-    let t47 = T::k(0.0335304944) * t37;
-    let t48 = t46 - t47;
-    let t49 = T::k(0.33238) * t37;
-    let t50 = T::k(0.33238) * t38;
-    let t51 = t26 * t45;
-    let t52 = -t51;
-    let t53 = t27 * t44;
-    let t54 = t52 - t53;
-    let t55 = t34 * t45;
-    let t56 = t34 * t44;
-    let t57 = t48 + t54;
-    let t58 = t49 - t55;
-    let t59 = t50 + t56;
-    let t60 = t10 * t58;
-    let t61 = t9 * t59;
-    let t62 = t60 - t61;
-    let t63 = T::k(0.1) * t62;
-    let t64 = t57 - t63;
-    let t65 = t24 + t64;
-    let t70 = t10 * T::k(-7.356637062775817);
-    let t71 = t9 * T::k(1.4126230823060104e-8);
-    let t72 = t70 - t71;
-    let t73 = T::k(0.1) * t72;
-    let t74 = T::k(1.0) - t73;
-    let t78 = t10 * T::k(-0.1);
-    let t79 = t9 * T::k(-0.1);
-    let t80 = T::k(0.08570832216376303) * t78;
-    let t81 = T::k(4.736595035057242e-10) * t79;
-    let t82 = t80 - t81;
-    let t83 = T::k(4.736595035057242e-10) * t78;
-    let t84 = T::k(0.33238) * t79;
-    let t85 = t83 - t84;
-    let t86 = t10 * t82;
-    let t87 = t9 * t85;
-    let t88 = t86 - t87;
-    let t89 = T::k(0.1) * t88;
-    let t90 = T::k(0.0007545716336328686) - t89;
-    let t91 = T::k(1.0) / t90;
-    let t92 = t74 * t91;
-    let t93 = T::k(0.1) * t92;
-    let t94 = t10 * t93;
-    let t95 = t9 * t93;
-    let t96 = T::k(0.004557856275072) * t92;
-    let t97 = T::k(-0.0335304944) * t94;
-    let t98 = t97 - t96;
-    let t99 = T::k(6.43853298e-11) * t95;
-    let t100 = t98 - t99;
-    let t101 = T::k(219.4013895236754) * t100;
-    let t102 = T::k(219.4013895236754) - t101;
-    let t103 = tau[0] - t65;
-    let t104 = tau[1] - t57;
-    let t105 = t91 * t103;
-    let t106 = t92 * t104;
-    let t107 = t105 - t106;
-    qdd[0] = t107;
-    let t108 = t92 * t103;
-    let t109 = t102 * t104;
-    let t110 = t109 - t108;
-    qdd[1] = t110;
-    qdd
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        return unsafe { fma::fd(q, qd, tau) };
+    }
+    portable::fd(q, qd, tau)
 }
 /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.
+///
+/// Runs [`fma::fd_grad`] where [`has_fma`], else [`portable::fd_grad`].
 #[inline]
-#[allow(clippy::all, unused_variables, dead_code)]
+#[allow(dead_code)]
 pub fn fd_grad<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
     tau: &[T; NV],
 ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
-    let mut qdd = [T::k(0.0); NV];
-    let mut dqdd_dq = [[T::k(0.0); NV]; NV];
-    let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-    let t2 = q[0].sin();
-    let t3 = q[0].cos();
-    let t9 = q[1].sin();
-    let t10 = q[1].cos();
-    let t20 = t2 * T::k(9.81);
-    let t21 = t3 * T::k(9.81);
-    let t22 = T::k(5.801760809999999e-7) * t21;
-    let t23 = T::k(0.00961628436) * t20;
-    let t24 = t22 - t23;
-    let t25 = T::k(0.1) * qd[0];
-    let t26 = t10 * t25;
-    let t27 = t9 * t25;
-    let t28 = t10 * t20;
-    let t29 = t9 * t21;
-    let t30 = t28 + t29;
-    let t31 = t9 * t20;
-    let t32 = t10 * t21;
-    let t33 = t32 - t31;
-    let t34 = qd[0] + qd[1];
-    let t35 = qd[1] * t27;
-    let t36 = qd[1] * t26;
-    let t37 = t30 + t35;
-    let t38 = t33 + t36;
-    let t39 = T::k(0.0335304944) * t34;
-    let t40 = T::k(6.43853298e-11) * t34;
-    let t41 = T::k(0.33238) * t26;
-    let t42 = -t41;
-    let t43 = T::k(0.33238) * t27;
-    let t44 = t42 - t39;
-    let t45 = t40 + t43;
-    let t46 = T::k(6.43853298e-11) * t38;
-    let t47 = T::k(0.0335304944) * t37;
-    let t48 = t46 - t47;
-    let t49 = T::k(0.33238) * t37;
-    let t50 = T::k(0.33238) * t38;
-    let t51 = t26 * t45;
-    let t52 = -t51;
-    let t53 = t27 * t44;
-    let t54 = t52 - t53;
-    let t55 = t34 * t45;
-    let t56 = t34 * t44;
-    let t57 = t48 + t54;
-    let t58 = t49 - t55;
-    let t59 = t50 + t56;
-    let t60 = t10 * t58;
-    let t61 = t9 * t59;
-    let t62 = t60 - t61;
-    let t63 = T::k(0.1) * t62;
-    let t64 = t57 - t63;
-    let t65 = t24 + t64;
-    let t70 = t10 * T::k(-7.356637062775817);
-    let t71 = t9 * T::k(1.4126230823060104e-8);
-    let t72 = t70 - t71;
-    let t73 = T::k(0.1) * t72;
-    let t74 = T::k(1.0) - t73;
-    let t78 = t10 * T::k(-0.1);
-    let t79 = t9 * T::k(-0.1);
-    let t80 = T::k(0.08570832216376303) * t78;
-    let t81 = T::k(4.736595035057242e-10) * t79;
-    let t82 = t80 - t81;
-    let t83 = T::k(4.736595035057242e-10) * t78;
-    let t84 = T::k(0.33238) * t79;
-    let t85 = t83 - t84;
-    let t86 = t10 * t82;
-    let t87 = t9 * t85;
-    let t88 = t86 - t87;
-    let t89 = T::k(0.1) * t88;
-    let t90 = t10 * T::k(0.0335304944);
-    let t92 = t9 * T::k(0.0335304944);
-    let t93 = T::k(0.0007545716336328686) - t89;
-    let t94 = T::k(1.0) / t93;
-    let t95 = t74 * t94;
-    let t96 = T::k(0.1) * t95;
-    let t97 = t10 * t96;
-    let t98 = t9 * t96;
-    let t99 = T::k(0.004557856275072) * t95;
-    let t100 = T::k(-0.0335304944) * t97;
-    let t101 = t100 - t99;
-    let t102 = T::k(6.43853298e-11) * t98;
-    let t103 = t101 - t102;
-    let t104 = T::k(219.4013895236754) * t103;
-    let t105 = T::k(219.4013895236754) - t104;
-    let t106 = tau[0] - t65;
-    let t107 = tau[1] - t57;
-    let t108 = t94 * t106;
-    let t109 = t95 * t107;
-    let t110 = t108 - t109;
-    qdd[0] = t110;
-    let t111 = t95 * t106;
-    let t112 = t105 * t107;
-    let t113 = t112 - t111;
-    qdd[1] = t113;
-    let t114 = T::k(0.1) * t110;
-    let t115 = t20 - t114;
-    let t116 = t10 * t115;
-    let t117 = t29 + t116;
-    let t118 = t9 * t115;
-    let t119 = t32 - t118;
-    let t120 = t110 + t113;
-    let t121 = t35 + t117;
-    let t122 = t36 + t119;
-    let t123 = T::k(0.0335304944) * t120;
-    let t124 = T::k(6.43853298e-11) * t120;
-    let t125 = T::k(0.33238) * t121;
-    let t126 = T::k(0.33238) * t122;
-    let t127 = t125 - t123;
-    let t128 = t124 + t126;
-    let t129 = t127 - t55;
-    let t130 = t56 + t128;
-    let t131 = qd[0] * t26;
-    let t132 = qd[0] * t27;
-    let t133 = t119 - t131;
-    let t134 = t132 - t117;
-    let t136 = -t39;
-    let t137 = t136 - t41;
-    let t138 = T::k(6.43853298e-11) * t26;
-    let t139 = T::k(0.0335304944) * t27;
-    let t140 = t139 - t138;
-    let t141 = T::k(2.0) * t140;
-    let t142 = t138 - t139;
-    let t143 = T::k(6.43853298e-11) * t134;
-    let t144 = T::k(0.0335304944) * t133;
-    let t145 = t143 - t144;
-    let t146 = T::k(0.33238) * t133;
-    let t147 = T::k(0.33238) * t134;
-    let t148 = -t45;
-    let t149 = t26 * t137;
-    let t150 = t27 * t45;
-    let t151 = t149 - t150;
-    let t152 = t26 * t44;
-    let t153 = t150 - t152;
-    let t154 = t142 + t142;
-    let t155 = t43 + t43;
-    let t156 = t41 + t41;
-    let t157 = t148 - t45;
-    let t158 = t44 + t137;
-    let t159 = t141 + t154;
-    let t160 = t155 + t157;
-    let t161 = t156 + t158;
-    let t162 = t151 + t153;
-    let t163 = t145 + t162;
-    let t164 = t146 - t130;
-    let t165 = t129 + t147;
-    let t166 = t137 - t44;
-    let t167 = T::k(-0.0335304944) * t133;
-    let t168 = t143 + t167;
-    let t169 = t26 * t166;
-    let t170 = t168 + t169;
-    let t171 = t27 * T::k(-0.0335304944);
-    let t172 = t138 + t171;
-    let t173 = t172 + t172;
-    let t174 = t141 + t173;
-    let t175 = t10 * T::k(-0.0335304944);
-    let t176 = t9 * T::k(6.43853298e-11);
-    let t177 = t175 - t176;
-    let t178 = t9 * T::k(-0.0335304944);
-    let t179 = t10 * T::k(6.43853298e-11);
-    let t180 = t178 + t179;
-    let t181 = t10 * t160;
-    let t182 = t9 * t161;
-    let t183 = t181 - t182;
-    let t184 = T::k(0.1) * t183;
-    let t185 = t159 - t184;
-    let t186 = t10 * t164;
-    let t187 = t9 * t165;
-    let t188 = t186 - t187;
-    let t189 = T::k(0.1) * t188;
-    let t190 = t163 - t189;
-    let t191 = t9 * t166;
-    let t192 = T::k(0.1) * t191;
-    let t193 = t141 + t192;
-    let t194 = t179 - t92;
-    let t195 = t90 + t176;
-    let t196 = T::k(0.033238000000000004) + t195;
-    let t197 = T::k(5.801760809999999e-7) + t194;
-    let t198 = T::k(0.00961628436) + t196;
-    let t199 = t9 * t137;
-    let t200 = t10 * t45;
-    let t201 = t199 + t200;
-    let t202 = T::k(0.1) * t201;
-    let t203 = T::k(2.0) * t202;
-    let t204 = t141 + t203;
-    let t205 = t20 * t197;
-    let t206 = t21 * t198;
-    let t207 = -t206;
-    let t208 = t207 - t205;
-    let t209 = t21 * t177;
-    let t210 = t20 * t180;
-    let t211 = t209 - t210;
-    let t212 = t94 * t208;
-    let t213 = t95 * t211;
-    let t214 = t212 - t213;
-    let t215 = -t214;
-    dqdd_dq[0][0] = t215;
-    let t216 = t94 * t190;
-    let t217 = t95 * t170;
-    let t218 = t216 - t217;
-    let t219 = -t218;
-    dqdd_dq[0][1] = t219;
-    let t220 = t95 * t208;
-    let t221 = t105 * t211;
-    let t222 = t221 - t220;
-    let t223 = -t222;
-    dqdd_dq[1][0] = t223;
-    let t224 = t95 * t190;
-    let t225 = t105 * t170;
-    let t226 = t225 - t224;
-    let t227 = -t226;
-    dqdd_dq[1][1] = t227;
-    let t228 = t94 * t204;
-    let t229 = t95 * t193;
-    let t230 = t228 - t229;
-    let t231 = -t230;
-    dqdd_dqd[0][0] = t231;
-    let t232 = t94 * t185;
-    let t233 = t95 * t174;
-    let t234 = t232 - t233;
-    let t235 = -t234;
-    dqdd_dqd[0][1] = t235;
-    let t236 = t95 * t204;
-    let t237 = t105 * t193;
-    let t238 = t237 - t236;
-    let t239 = -t238;
-    dqdd_dqd[1][0] = t239;
-    let t240 = t95 * t185;
-    let t241 = t105 * t174;
-    let t242 = t241 - t240;
-    let t243 = -t242;
-    dqdd_dqd[1][1] = t243;
-    (qdd, dqdd_dq, dqdd_dqd)
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        return unsafe { fma::fd_grad(q, qd, tau) };
+    }
+    portable::fd_grad(q, qd, tau)
+}
+/// The kernels for any target: separate multiplies and adds.
+pub mod portable {
+    use super::*;
+    /// Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.
+    #[inline]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
+        let mut c = [T::k(0.0); NV];
+        let t1 = q[0].sin();
+        let t2 = q[0].cos();
+        let t8 = q[1].sin();
+        let t9 = q[1].cos();
+        let t19 = t1 * T::k(9.81);
+        let t20 = t2 * T::k(9.81);
+        let t21 = T::k(0.0007545716336328686) * qdd[0];
+        let t22 = T::k(5.801760809999999e-7) * t20;
+        let t23 = T::k(0.00961628436) * t19;
+        let t24 = t22 - t23;
+        let t25 = t21 + t24;
+        let t26 = T::k(0.1) * qd[0];
+        let t27 = t9 * t26;
+        let t28 = t8 * t26;
+        let t29 = T::k(0.1) * qdd[0];
+        let t30 = t19 - t29;
+        let t31 = t9 * t30;
+        let t32 = t8 * t20;
+        let t33 = t31 + t32;
+        let t34 = t8 * t30;
+        let t35 = t9 * t20;
+        let t36 = t35 - t34;
+        let t37 = qd[0] + qd[1];
+        let t38 = qd[1] * t28;
+        let t39 = qd[1] * t27;
+        let t40 = qdd[0] + qdd[1];
+        let t41 = t33 + t38;
+        let t42 = t36 + t39;
+        let t43 = T::k(0.0335304944) * t37;
+        let t44 = T::k(6.43853298e-11) * t37;
+        let t45 = T::k(0.33238) * t27;
+        let t46 = -t45;
+        let t47 = T::k(0.33238) * t28;
+        let t48 = t46 - t43;
+        let t49 = t44 + t47;
+        let t50 = T::k(0.004557856275072) * t40;
+        let t51 = T::k(6.43853298e-11) * t42;
+        let t52 = T::k(0.0335304944) * t41;
+        let t53 = t51 - t52;
+        let t54 = T::k(0.0335304944) * t40;
+        let t55 = T::k(6.43853298e-11) * t40;
+        let t56 = T::k(0.33238) * t41;
+        let t57 = T::k(0.33238) * t42;
+        let t58 = t50 + t53;
+        let t59 = t56 - t54;
+        let t60 = t55 + t57;
+        let t61 = t27 * t49;
+        let t62 = -t61;
+        let t63 = t28 * t48;
+        let t64 = t62 - t63;
+        let t65 = t37 * t49;
+        let t66 = t37 * t48;
+        let t67 = t58 + t64;
+        c[1] = t67;
+        let t68 = t59 - t65;
+        let t69 = t60 + t66;
+        let t70 = t9 * t68;
+        let t71 = t8 * t69;
+        let t72 = t70 - t71;
+        let t73 = T::k(0.1) * t72;
+        let t74 = t67 - t73;
+        let t75 = t25 + t74;
+        c[0] = t75;
+        c
+    }
+    /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
+    #[inline]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn rnea_grad<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+    ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
+        let mut dc_dq = [[T::k(0.0); NV]; NV];
+        let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        let t1 = q[0].sin();
+        let t2 = q[0].cos();
+        let t7 = q[1].sin();
+        let t8 = q[1].cos();
+        let t17 = t1 * T::k(9.81);
+        let t18 = t2 * T::k(9.81);
+        let t19 = T::k(0.1) * qd[0];
+        let t20 = t8 * t19;
+        let t21 = t7 * t19;
+        let t22 = T::k(0.1) * qdd[0];
+        let t23 = t17 - t22;
+        let t24 = t8 * t23;
+        let t25 = t7 * t18;
+        let t26 = t24 + t25;
+        let t27 = t7 * t23;
+        let t28 = t8 * t18;
+        let t29 = t28 - t27;
+        let t30 = qd[0] + qd[1];
+        let t31 = qd[1] * t21;
+        let t32 = qd[1] * t20;
+        let t33 = qdd[0] + qdd[1];
+        let t34 = t26 + t31;
+        let t35 = t29 + t32;
+        let t36 = T::k(0.0335304944) * t30;
+        let t37 = T::k(6.43853298e-11) * t30;
+        let t38 = T::k(0.33238) * t20;
+        let t39 = -t38;
+        let t40 = T::k(0.33238) * t21;
+        let t41 = t39 - t36;
+        let t42 = t37 + t40;
+        let t43 = T::k(0.0335304944) * t33;
+        let t44 = T::k(6.43853298e-11) * t33;
+        let t45 = T::k(0.33238) * t34;
+        let t46 = T::k(0.33238) * t35;
+        let t47 = t45 - t43;
+        let t48 = t44 + t46;
+        let t49 = t30 * t42;
+        let t50 = t30 * t41;
+        let t51 = t47 - t49;
+        let t52 = t48 + t50;
+        let t53 = qd[0] * t20;
+        let t54 = qd[0] * t21;
+        let t55 = t29 - t53;
+        let t56 = t54 - t26;
+        let t58 = -t36;
+        let t59 = t58 - t38;
+        let t60 = T::k(6.43853298e-11) * t20;
+        let t61 = T::k(0.0335304944) * t21;
+        let t62 = t61 - t60;
+        let t63 = T::k(2.0) * t62;
+        let t65 = t60 - t61;
+        let t66 = T::k(6.43853298e-11) * t56;
+        let t67 = T::k(0.0335304944) * t55;
+        let t68 = t66 - t67;
+        let t69 = T::k(0.33238) * t55;
+        let t70 = T::k(0.33238) * t56;
+        let t71 = -t42;
+        let t72 = t20 * t59;
+        let t73 = t21 * t42;
+        let t74 = t72 - t73;
+        let t75 = t20 * t41;
+        let t76 = t73 - t75;
+        let t77 = t65 + t65;
+        let t78 = t40 + t40;
+        let t79 = t38 + t38;
+        let t80 = t71 - t42;
+        let t81 = t41 + t59;
+        let t82 = t63 + t77;
+        let t83 = t78 + t80;
+        let t84 = t79 + t81;
+        let t85 = t74 + t76;
+        let t86 = t68 + t85;
+        let t87 = t69 - t52;
+        let t88 = t51 + t70;
+        let t89 = t59 - t41;
+        let t90 = t55 * T::k(-0.0335304944);
+        let t91 = t66 + t90;
+        let t92 = t20 * t89;
+        let t93 = t91 + t92;
+        dc_dq[1][1] = t93;
+        let t94 = t21 * T::k(-0.0335304944);
+        let t95 = t60 + t94;
+        let t96 = t95 + t95;
+        let t97 = t63 + t96;
+        dc_dqd[1][1] = t97;
+        let t98 = t8 * T::k(-0.0335304944);
+        let t99 = t7 * T::k(6.43853298e-11);
+        let t100 = t98 - t99;
+        let t101 = t7 * T::k(-0.0335304944);
+        let t102 = t8 * T::k(6.43853298e-11);
+        let t103 = t101 + t102;
+        let t104 = t8 * t83;
+        let t105 = t7 * t84;
+        let t106 = t104 - t105;
+        let t107 = T::k(0.1) * t106;
+        let t108 = t82 - t107;
+        dc_dqd[0][1] = t108;
+        let t109 = t8 * t87;
+        let t110 = t7 * t88;
+        let t111 = t109 - t110;
+        let t112 = T::k(0.1) * t111;
+        let t113 = t86 - t112;
+        dc_dq[0][1] = t113;
+        let t114 = t7 * t89;
+        let t115 = T::k(0.1) * t114;
+        let t116 = t63 + t115;
+        dc_dqd[1][0] = t116;
+        let t117 = t7 * T::k(0.0335304944);
+        let t118 = t102 - t117;
+        let t119 = t8 * T::k(0.0335304944);
+        let t120 = t99 + t119;
+        let t122 = t120 + T::k(0.033238000000000004);
+        let t123 = T::k(5.801760809999999e-7) + t118;
+        let t124 = T::k(0.00961628436) + t122;
+        let t125 = t7 * t59;
+        let t126 = t8 * t42;
+        let t127 = t125 + t126;
+        let t128 = T::k(0.1) * t127;
+        let t129 = T::k(2.0) * t128;
+        let t130 = t63 + t129;
+        dc_dqd[0][0] = t130;
+        let t131 = t17 * t123;
+        let t132 = t18 * t124;
+        let t133 = -t132;
+        let t134 = t133 - t131;
+        dc_dq[0][0] = t134;
+        let t135 = t18 * t100;
+        let t136 = t17 * t103;
+        let t137 = t135 - t136;
+        dc_dq[1][0] = t137;
+        (dc_dq, dc_dqd)
+    }
+    /// The joint-space inertia matrix M(q) (CRBA).
+    #[inline]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
+        let mut m = [[T::k(0.0); NV]; NV];
+        m[1][1] = T::k(0.004557856275072);
+        let t3 = q[1].sin();
+        let t4 = q[1].cos();
+        let t8 = t3 * T::k(6.43853298e-11);
+        let t9 = t4 * T::k(0.0335304944);
+        let t10 = t8 + t9;
+        let t12 = T::k(0.1) * t10;
+        let t13 = T::k(-3.8305498717999996e-5) + t12;
+        let t15 = t13 * T::k(2.0);
+        let t17 = t15 + T::k(0.007958267272508);
+        let t18 = T::k(0.0007545716336328686) + t17;
+        m[0][0] = t18;
+        let t20 = t4 * T::k(-0.0335304944);
+        let t21 = t20 - t8;
+        let t22 = T::k(0.1) * t21;
+        let t23 = T::k(0.004557856275072) - t22;
+        m[0][1] = t23;
+        m[1][0] = t23;
+        m
+    }
+    /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
+    #[inline]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
+        let mut minv = [[T::k(0.0); NV]; NV];
+        let t4 = q[1].sin();
+        let t5 = q[1].cos();
+        let t13 = t5 * T::k(-7.356637062775817);
+        let t14 = t4 * T::k(1.4126230823060104e-8);
+        let t15 = t13 - t14;
+        let t16 = T::k(0.1) * t15;
+        let t17 = T::k(1.0) - t16;
+        let t21 = t5 * T::k(-0.1);
+        let t22 = t4 * T::k(-0.1);
+        let t23 = T::k(0.08570832216376303) * t21;
+        let t24 = T::k(4.736595035057242e-10) * t22;
+        let t25 = t23 - t24;
+        let t26 = T::k(4.736595035057242e-10) * t21;
+        let t27 = T::k(0.33238) * t22;
+        let t28 = t26 - t27;
+        let t29 = t5 * t25;
+        let t30 = t4 * t28;
+        let t31 = t29 - t30;
+        let t32 = T::k(0.1) * t31;
+        let t33 = T::k(0.0007545716336328686) - t32;
+        let t34 = T::k(1.0) / t33;
+        minv[0][0] = t34;
+        let t35 = t17 * t34;
+        let t36 = -t35;
+        minv[0][1] = t36;
+        minv[1][0] = t36;
+        let t37 = T::k(0.1) * t35;
+        let t38 = t5 * t37;
+        let t39 = t4 * t37;
+        let t40 = T::k(0.004557856275072) * t35;
+        let t41 = T::k(-0.0335304944) * t38;
+        let t42 = t41 - t40;
+        let t43 = T::k(6.43853298e-11) * t39;
+        let t44 = t42 - t43;
+        let t45 = T::k(219.4013895236754) * t44;
+        let t46 = T::k(219.4013895236754) - t45;
+        minv[1][1] = t46;
+        minv
+    }
+    /// Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.
+    #[inline]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
+        let mut qdd = [T::k(0.0); NV];
+        let t2 = q[0].sin();
+        let t3 = q[0].cos();
+        let t9 = q[1].sin();
+        let t10 = q[1].cos();
+        let t20 = t2 * T::k(9.81);
+        let t21 = t3 * T::k(9.81);
+        let t22 = T::k(5.801760809999999e-7) * t21;
+        let t23 = T::k(0.00961628436) * t20;
+        let t24 = t22 - t23;
+        let t25 = T::k(0.1) * qd[0];
+        let t26 = t10 * t25;
+        let t27 = t9 * t25;
+        let t28 = t10 * t20;
+        let t29 = t9 * t21;
+        let t30 = t28 + t29;
+        let t31 = t9 * t20;
+        let t32 = t10 * t21;
+        let t33 = t32 - t31;
+        let t34 = qd[0] + qd[1];
+        let t35 = qd[1] * t27;
+        let t36 = qd[1] * t26;
+        let t37 = t30 + t35;
+        let t38 = t33 + t36;
+        let t39 = T::k(0.0335304944) * t34;
+        let t40 = T::k(6.43853298e-11) * t34;
+        let t41 = T::k(0.33238) * t26;
+        let t42 = -t41;
+        let t43 = T::k(0.33238) * t27;
+        let t44 = t42 - t39;
+        let t45 = t40 + t43;
+        let t46 = T::k(6.43853298e-11) * t38;
+        let t47 = T::k(0.0335304944) * t37;
+        let t48 = t46 - t47;
+        let t49 = T::k(0.33238) * t37;
+        let t50 = T::k(0.33238) * t38;
+        let t51 = t26 * t45;
+        let t52 = -t51;
+        let t53 = t27 * t44;
+        let t54 = t52 - t53;
+        let t55 = t34 * t45;
+        let t56 = t34 * t44;
+        let t57 = t48 + t54;
+        let t58 = t49 - t55;
+        let t59 = t50 + t56;
+        let t60 = t10 * t58;
+        let t61 = t9 * t59;
+        let t62 = t60 - t61;
+        let t63 = T::k(0.1) * t62;
+        let t64 = t57 - t63;
+        let t65 = t24 + t64;
+        let t70 = t10 * T::k(-7.356637062775817);
+        let t71 = t9 * T::k(1.4126230823060104e-8);
+        let t72 = t70 - t71;
+        let t73 = T::k(0.1) * t72;
+        let t74 = T::k(1.0) - t73;
+        let t78 = t10 * T::k(-0.1);
+        let t79 = t9 * T::k(-0.1);
+        let t80 = T::k(0.08570832216376303) * t78;
+        let t81 = T::k(4.736595035057242e-10) * t79;
+        let t82 = t80 - t81;
+        let t83 = T::k(4.736595035057242e-10) * t78;
+        let t84 = T::k(0.33238) * t79;
+        let t85 = t83 - t84;
+        let t86 = t10 * t82;
+        let t87 = t9 * t85;
+        let t88 = t86 - t87;
+        let t89 = T::k(0.1) * t88;
+        let t90 = T::k(0.0007545716336328686) - t89;
+        let t91 = T::k(1.0) / t90;
+        let t92 = t74 * t91;
+        let t93 = T::k(0.1) * t92;
+        let t94 = t10 * t93;
+        let t95 = t9 * t93;
+        let t96 = T::k(0.004557856275072) * t92;
+        let t97 = T::k(-0.0335304944) * t94;
+        let t98 = t97 - t96;
+        let t99 = T::k(6.43853298e-11) * t95;
+        let t100 = t98 - t99;
+        let t101 = T::k(219.4013895236754) * t100;
+        let t102 = T::k(219.4013895236754) - t101;
+        let t103 = tau[0] - t65;
+        let t104 = tau[1] - t57;
+        let t105 = t91 * t103;
+        let t106 = t92 * t104;
+        let t107 = t105 - t106;
+        qdd[0] = t107;
+        let t108 = t92 * t103;
+        let t109 = t102 * t104;
+        let t110 = t109 - t108;
+        qdd[1] = t110;
+        qdd
+    }
+    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.
+    #[inline]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn fd_grad<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+    ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
+        let mut qdd = [T::k(0.0); NV];
+        let mut dqdd_dq = [[T::k(0.0); NV]; NV];
+        let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        let t2 = q[0].sin();
+        let t3 = q[0].cos();
+        let t9 = q[1].sin();
+        let t10 = q[1].cos();
+        let t20 = t2 * T::k(9.81);
+        let t21 = t3 * T::k(9.81);
+        let t22 = T::k(5.801760809999999e-7) * t21;
+        let t23 = T::k(0.00961628436) * t20;
+        let t24 = t22 - t23;
+        let t25 = T::k(0.1) * qd[0];
+        let t26 = t10 * t25;
+        let t27 = t9 * t25;
+        let t28 = t10 * t20;
+        let t29 = t9 * t21;
+        let t30 = t28 + t29;
+        let t31 = t9 * t20;
+        let t32 = t10 * t21;
+        let t33 = t32 - t31;
+        let t34 = qd[0] + qd[1];
+        let t35 = qd[1] * t27;
+        let t36 = qd[1] * t26;
+        let t37 = t30 + t35;
+        let t38 = t33 + t36;
+        let t39 = T::k(0.0335304944) * t34;
+        let t40 = T::k(6.43853298e-11) * t34;
+        let t41 = T::k(0.33238) * t26;
+        let t42 = -t41;
+        let t43 = T::k(0.33238) * t27;
+        let t44 = t42 - t39;
+        let t45 = t40 + t43;
+        let t46 = T::k(6.43853298e-11) * t38;
+        let t47 = T::k(0.0335304944) * t37;
+        let t48 = t46 - t47;
+        let t49 = T::k(0.33238) * t37;
+        let t50 = T::k(0.33238) * t38;
+        let t51 = t26 * t45;
+        let t52 = -t51;
+        let t53 = t27 * t44;
+        let t54 = t52 - t53;
+        let t55 = t34 * t45;
+        let t56 = t34 * t44;
+        let t57 = t48 + t54;
+        let t58 = t49 - t55;
+        let t59 = t50 + t56;
+        let t60 = t10 * t58;
+        let t61 = t9 * t59;
+        let t62 = t60 - t61;
+        let t63 = T::k(0.1) * t62;
+        let t64 = t57 - t63;
+        let t65 = t24 + t64;
+        let t70 = t10 * T::k(-7.356637062775817);
+        let t71 = t9 * T::k(1.4126230823060104e-8);
+        let t72 = t70 - t71;
+        let t73 = T::k(0.1) * t72;
+        let t74 = T::k(1.0) - t73;
+        let t78 = t10 * T::k(-0.1);
+        let t79 = t9 * T::k(-0.1);
+        let t80 = T::k(0.08570832216376303) * t78;
+        let t81 = T::k(4.736595035057242e-10) * t79;
+        let t82 = t80 - t81;
+        let t83 = T::k(4.736595035057242e-10) * t78;
+        let t84 = T::k(0.33238) * t79;
+        let t85 = t83 - t84;
+        let t86 = t10 * t82;
+        let t87 = t9 * t85;
+        let t88 = t86 - t87;
+        let t89 = T::k(0.1) * t88;
+        let t90 = t10 * T::k(0.0335304944);
+        let t92 = t9 * T::k(0.0335304944);
+        let t93 = T::k(0.0007545716336328686) - t89;
+        let t94 = T::k(1.0) / t93;
+        let t95 = t74 * t94;
+        let t96 = T::k(0.1) * t95;
+        let t97 = t10 * t96;
+        let t98 = t9 * t96;
+        let t99 = T::k(0.004557856275072) * t95;
+        let t100 = T::k(-0.0335304944) * t97;
+        let t101 = t100 - t99;
+        let t102 = T::k(6.43853298e-11) * t98;
+        let t103 = t101 - t102;
+        let t104 = T::k(219.4013895236754) * t103;
+        let t105 = T::k(219.4013895236754) - t104;
+        let t106 = tau[0] - t65;
+        let t107 = tau[1] - t57;
+        let t108 = t94 * t106;
+        let t109 = t95 * t107;
+        let t110 = t108 - t109;
+        qdd[0] = t110;
+        let t111 = t95 * t106;
+        let t112 = t105 * t107;
+        let t113 = t112 - t111;
+        qdd[1] = t113;
+        let t114 = T::k(0.1) * t110;
+        let t115 = t20 - t114;
+        let t116 = t10 * t115;
+        let t117 = t29 + t116;
+        let t118 = t9 * t115;
+        let t119 = t32 - t118;
+        let t120 = t110 + t113;
+        let t121 = t35 + t117;
+        let t122 = t36 + t119;
+        let t123 = T::k(0.0335304944) * t120;
+        let t124 = T::k(6.43853298e-11) * t120;
+        let t125 = T::k(0.33238) * t121;
+        let t126 = T::k(0.33238) * t122;
+        let t127 = t125 - t123;
+        let t128 = t124 + t126;
+        let t129 = t127 - t55;
+        let t130 = t56 + t128;
+        let t131 = qd[0] * t26;
+        let t132 = qd[0] * t27;
+        let t133 = t119 - t131;
+        let t134 = t132 - t117;
+        let t136 = -t39;
+        let t137 = t136 - t41;
+        let t138 = T::k(6.43853298e-11) * t26;
+        let t139 = T::k(0.0335304944) * t27;
+        let t140 = t139 - t138;
+        let t141 = T::k(2.0) * t140;
+        let t142 = t138 - t139;
+        let t143 = T::k(6.43853298e-11) * t134;
+        let t144 = T::k(0.0335304944) * t133;
+        let t145 = t143 - t144;
+        let t146 = T::k(0.33238) * t133;
+        let t147 = T::k(0.33238) * t134;
+        let t148 = -t45;
+        let t149 = t26 * t137;
+        let t150 = t27 * t45;
+        let t151 = t149 - t150;
+        let t152 = t26 * t44;
+        let t153 = t150 - t152;
+        let t154 = t142 + t142;
+        let t155 = t43 + t43;
+        let t156 = t41 + t41;
+        let t157 = t148 - t45;
+        let t158 = t44 + t137;
+        let t159 = t141 + t154;
+        let t160 = t155 + t157;
+        let t161 = t156 + t158;
+        let t162 = t151 + t153;
+        let t163 = t145 + t162;
+        let t164 = t146 - t130;
+        let t165 = t129 + t147;
+        let t166 = t137 - t44;
+        let t167 = T::k(-0.0335304944) * t133;
+        let t168 = t143 + t167;
+        let t169 = t26 * t166;
+        let t170 = t168 + t169;
+        let t171 = t27 * T::k(-0.0335304944);
+        let t172 = t138 + t171;
+        let t173 = t172 + t172;
+        let t174 = t141 + t173;
+        let t175 = t10 * T::k(-0.0335304944);
+        let t176 = t9 * T::k(6.43853298e-11);
+        let t177 = t175 - t176;
+        let t178 = t9 * T::k(-0.0335304944);
+        let t179 = t10 * T::k(6.43853298e-11);
+        let t180 = t178 + t179;
+        let t181 = t10 * t160;
+        let t182 = t9 * t161;
+        let t183 = t181 - t182;
+        let t184 = T::k(0.1) * t183;
+        let t185 = t159 - t184;
+        let t186 = t10 * t164;
+        let t187 = t9 * t165;
+        let t188 = t186 - t187;
+        let t189 = T::k(0.1) * t188;
+        let t190 = t163 - t189;
+        let t191 = t9 * t166;
+        let t192 = T::k(0.1) * t191;
+        let t193 = t141 + t192;
+        let t194 = t179 - t92;
+        let t195 = t90 + t176;
+        let t196 = T::k(0.033238000000000004) + t195;
+        let t197 = T::k(5.801760809999999e-7) + t194;
+        let t198 = T::k(0.00961628436) + t196;
+        let t199 = t9 * t137;
+        let t200 = t10 * t45;
+        let t201 = t199 + t200;
+        let t202 = T::k(0.1) * t201;
+        let t203 = T::k(2.0) * t202;
+        let t204 = t141 + t203;
+        let t205 = t20 * t197;
+        let t206 = t21 * t198;
+        let t207 = -t206;
+        let t208 = t207 - t205;
+        let t209 = t21 * t177;
+        let t210 = t20 * t180;
+        let t211 = t209 - t210;
+        let t212 = t94 * t208;
+        let t213 = t95 * t211;
+        let t214 = t212 - t213;
+        let t215 = -t214;
+        dqdd_dq[0][0] = t215;
+        let t216 = t94 * t190;
+        let t217 = t95 * t170;
+        let t218 = t216 - t217;
+        let t219 = -t218;
+        dqdd_dq[0][1] = t219;
+        let t220 = t95 * t208;
+        let t221 = t105 * t211;
+        let t222 = t221 - t220;
+        let t223 = -t222;
+        dqdd_dq[1][0] = t223;
+        let t224 = t95 * t190;
+        let t225 = t105 * t170;
+        let t226 = t225 - t224;
+        let t227 = -t226;
+        dqdd_dq[1][1] = t227;
+        let t228 = t94 * t204;
+        let t229 = t95 * t193;
+        let t230 = t228 - t229;
+        let t231 = -t230;
+        dqdd_dqd[0][0] = t231;
+        let t232 = t94 * t185;
+        let t233 = t95 * t174;
+        let t234 = t232 - t233;
+        let t235 = -t234;
+        dqdd_dqd[0][1] = t235;
+        let t236 = t95 * t204;
+        let t237 = t105 * t193;
+        let t238 = t237 - t236;
+        let t239 = -t238;
+        dqdd_dqd[1][0] = t239;
+        let t240 = t95 * t185;
+        let t241 = t105 * t174;
+        let t242 = t241 - t240;
+        let t243 = -t242;
+        dqdd_dqd[1][1] = t243;
+        (qdd, dqdd_dq, dqdd_dqd)
+    }
+}
+/// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).
+/// Calling them on a CPU without those features is undefined behaviour; the functions
+/// at the top of the module check first.
+#[cfg(target_arch = "x86_64")]
+pub mod fma {
+    use super::*;
+    /// Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
+        let mut c = [T::k(0.0); NV];
+        let t1 = q[0].sin();
+        let t2 = q[0].cos();
+        let t8 = q[1].sin();
+        let t9 = q[1].cos();
+        let t19 = t1 * T::k(9.81);
+        let t20 = t2 * T::k(9.81);
+        let t23 = T::k(0.00961628436) * t19;
+        let t24 = T::mul_add(T::k(5.801760809999999e-7), t20, -t23);
+        let t25 = T::mul_add(T::k(0.0007545716336328686), qdd[0], t24);
+        let t26 = T::k(0.1) * qd[0];
+        let t27 = t9 * t26;
+        let t28 = t8 * t26;
+        let t30 = T::mul_add(-T::k(0.1), qdd[0], t19);
+        let t32 = t8 * t20;
+        let t33 = T::mul_add(t9, t30, t32);
+        let t34 = t8 * t30;
+        let t36 = T::mul_add(t9, t20, -t34);
+        let t37 = qd[0] + qd[1];
+        let t40 = qdd[0] + qdd[1];
+        let t41 = T::mul_add(qd[1], t28, t33);
+        let t42 = T::mul_add(qd[1], t27, t36);
+        let t45 = T::k(0.33238) * t27;
+        let t46 = -t45;
+        let t47 = T::k(0.33238) * t28;
+        let t48 = T::mul_add(-T::k(0.0335304944), t37, t46);
+        let t49 = T::mul_add(T::k(6.43853298e-11), t37, t47);
+        let t52 = T::k(0.0335304944) * t41;
+        let t53 = T::mul_add(T::k(6.43853298e-11), t42, -t52);
+        let t54 = T::k(0.0335304944) * t40;
+        let t57 = T::k(0.33238) * t42;
+        let t58 = T::mul_add(T::k(0.004557856275072), t40, t53);
+        let t59 = T::mul_add(T::k(0.33238), t41, -t54);
+        let t60 = T::mul_add(T::k(6.43853298e-11), t40, t57);
+        let t61 = t27 * t49;
+        let t62 = -t61;
+        let t64 = T::mul_add(-t28, t48, t62);
+        let t67 = t58 + t64;
+        c[1] = t67;
+        let t68 = T::mul_add(-t37, t49, t59);
+        let t69 = T::mul_add(t37, t48, t60);
+        let t71 = t8 * t69;
+        let t72 = T::mul_add(t9, t68, -t71);
+        let t74 = T::mul_add(-T::k(0.1), t72, t67);
+        let t75 = t25 + t74;
+        c[0] = t75;
+        c
+    }
+    /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn rnea_grad<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+    ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
+        let mut dc_dq = [[T::k(0.0); NV]; NV];
+        let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        let t1 = q[0].sin();
+        let t2 = q[0].cos();
+        let t7 = q[1].sin();
+        let t8 = q[1].cos();
+        let t17 = t1 * T::k(9.81);
+        let t18 = t2 * T::k(9.81);
+        let t19 = T::k(0.1) * qd[0];
+        let t20 = t8 * t19;
+        let t21 = t7 * t19;
+        let t23 = T::mul_add(-T::k(0.1), qdd[0], t17);
+        let t25 = t7 * t18;
+        let t26 = T::mul_add(t8, t23, t25);
+        let t27 = t7 * t23;
+        let t29 = T::mul_add(t8, t18, -t27);
+        let t30 = qd[0] + qd[1];
+        let t33 = qdd[0] + qdd[1];
+        let t34 = T::mul_add(qd[1], t21, t26);
+        let t35 = T::mul_add(qd[1], t20, t29);
+        let t36 = T::k(0.0335304944) * t30;
+        let t38 = T::k(0.33238) * t20;
+        let t39 = -t38;
+        let t40 = T::k(0.33238) * t21;
+        let t41 = t39 - t36;
+        let t42 = T::mul_add(T::k(6.43853298e-11), t30, t40);
+        let t43 = T::k(0.0335304944) * t33;
+        let t46 = T::k(0.33238) * t35;
+        let t47 = T::mul_add(T::k(0.33238), t34, -t43);
+        let t48 = T::mul_add(T::k(6.43853298e-11), t33, t46);
+        let t51 = T::mul_add(-t30, t42, t47);
+        let t52 = T::mul_add(t30, t41, t48);
+        let t55 = T::mul_add(-qd[0], t20, t29);
+        let t56 = T::mul_add(qd[0], t21, -t26);
+        let t58 = -t36;
+        let t59 = t58 - t38;
+        let t60 = T::k(6.43853298e-11) * t20;
+        let t61 = T::k(0.0335304944) * t21;
+        let t62 = t61 - t60;
+        let t63 = T::k(2.0) * t62;
+        let t65 = t60 - t61;
+        let t66 = T::k(6.43853298e-11) * t56;
+        let t68 = T::mul_add(-T::k(0.0335304944), t55, t66);
+        let t71 = -t42;
+        let t73 = t21 * t42;
+        let t74 = T::mul_add(t20, t59, -t73);
+        let t76 = T::mul_add(-t20, t41, t73);
+        let t77 = t65 + t65;
+        let t78 = t40 + t40;
+        let t79 = t38 + t38;
+        let t80 = t71 - t42;
+        let t81 = t41 + t59;
+        let t82 = t63 + t77;
+        let t83 = t78 + t80;
+        let t84 = t79 + t81;
+        let t85 = t74 + t76;
+        let t86 = t68 + t85;
+        let t87 = T::mul_add(T::k(0.33238), t55, -t52);
+        let t88 = T::mul_add(T::k(0.33238), t56, t51);
+        let t89 = t59 - t41;
+        let t91 = T::mul_add(t55, T::k(-0.0335304944), t66);
+        let t93 = T::mul_add(t20, t89, t91);
+        dc_dq[1][1] = t93;
+        let t95 = T::mul_add(t21, T::k(-0.0335304944), t60);
+        let t96 = t95 + t95;
+        let t97 = t63 + t96;
+        dc_dqd[1][1] = t97;
+        let t99 = t7 * T::k(6.43853298e-11);
+        let t100 = T::mul_add(t8, T::k(-0.0335304944), -t99);
+        let t102 = t8 * T::k(6.43853298e-11);
+        let t103 = T::mul_add(t7, T::k(-0.0335304944), t102);
+        let t105 = t7 * t84;
+        let t106 = T::mul_add(t8, t83, -t105);
+        let t108 = T::mul_add(-T::k(0.1), t106, t82);
+        dc_dqd[0][1] = t108;
+        let t110 = t7 * t88;
+        let t111 = T::mul_add(t8, t87, -t110);
+        let t113 = T::mul_add(-T::k(0.1), t111, t86);
+        dc_dq[0][1] = t113;
+        let t114 = t7 * t89;
+        let t116 = T::mul_add(T::k(0.1), t114, t63);
+        dc_dqd[1][0] = t116;
+        let t118 = T::mul_add(-t7, T::k(0.0335304944), t102);
+        let t120 = T::mul_add(t8, T::k(0.0335304944), t99);
+        let t122 = t120 + T::k(0.033238000000000004);
+        let t123 = T::k(5.801760809999999e-7) + t118;
+        let t124 = T::k(0.00961628436) + t122;
+        let t126 = t8 * t42;
+        let t127 = T::mul_add(t7, t59, t126);
+        let t128 = T::k(0.1) * t127;
+        let t130 = T::mul_add(T::k(2.0), t128, t63);
+        dc_dqd[0][0] = t130;
+        let t132 = t18 * t124;
+        let t133 = -t132;
+        let t134 = T::mul_add(-t17, t123, t133);
+        dc_dq[0][0] = t134;
+        let t136 = t17 * t103;
+        let t137 = T::mul_add(t18, t100, -t136);
+        dc_dq[1][0] = t137;
+        (dc_dq, dc_dqd)
+    }
+    /// The joint-space inertia matrix M(q) (CRBA).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
+        let mut m = [[T::k(0.0); NV]; NV];
+        m[1][1] = T::k(0.004557856275072);
+        let t3 = q[1].sin();
+        let t4 = q[1].cos();
+        let t8 = t3 * T::k(6.43853298e-11);
+        let t10 = T::mul_add(t4, T::k(0.0335304944), t8);
+        let t13 = T::mul_add(T::k(0.1), t10, T::k(-3.8305498717999996e-5));
+        let t17 = T::mul_add(t13, T::k(2.0), T::k(0.007958267272508));
+        let t18 = T::k(0.0007545716336328686) + t17;
+        m[0][0] = t18;
+        let t21 = T::mul_add(t4, T::k(-0.0335304944), -t8);
+        let t23 = T::mul_add(-T::k(0.1), t21, T::k(0.004557856275072));
+        m[0][1] = t23;
+        m[1][0] = t23;
+        m
+    }
+    /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
+        let mut minv = [[T::k(0.0); NV]; NV];
+        let t4 = q[1].sin();
+        let t5 = q[1].cos();
+        let t14 = t4 * T::k(1.4126230823060104e-8);
+        let t15 = T::mul_add(t5, T::k(-7.356637062775817), -t14);
+        let t17 = T::mul_add(-T::k(0.1), t15, T::k(1.0));
+        let t21 = t5 * T::k(-0.1);
+        let t22 = t4 * T::k(-0.1);
+        let t24 = T::k(4.736595035057242e-10) * t22;
+        let t25 = T::mul_add(T::k(0.08570832216376303), t21, -t24);
+        let t27 = T::k(0.33238) * t22;
+        let t28 = T::mul_add(T::k(4.736595035057242e-10), t21, -t27);
+        let t30 = t4 * t28;
+        let t31 = T::mul_add(t5, t25, -t30);
+        let t33 = T::mul_add(-T::k(0.1), t31, T::k(0.0007545716336328686));
+        let t34 = T::k(1.0) / t33;
+        minv[0][0] = t34;
+        let t35 = t17 * t34;
+        let t36 = -t35;
+        minv[0][1] = t36;
+        minv[1][0] = t36;
+        let t37 = T::k(0.1) * t35;
+        let t38 = t5 * t37;
+        let t39 = t4 * t37;
+        let t40 = T::k(0.004557856275072) * t35;
+        let t42 = T::mul_add(T::k(-0.0335304944), t38, -t40);
+        let t44 = T::mul_add(-T::k(6.43853298e-11), t39, t42);
+        let t46 = T::mul_add(-T::k(219.4013895236754), t44, T::k(219.4013895236754));
+        minv[1][1] = t46;
+        minv
+    }
+    /// Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
+        let mut qdd = [T::k(0.0); NV];
+        let t2 = q[0].sin();
+        let t3 = q[0].cos();
+        let t9 = q[1].sin();
+        let t10 = q[1].cos();
+        let t20 = t2 * T::k(9.81);
+        let t21 = t3 * T::k(9.81);
+        let t23 = T::k(0.00961628436) * t20;
+        let t24 = T::mul_add(T::k(5.801760809999999e-7), t21, -t23);
+        let t25 = T::k(0.1) * qd[0];
+        let t26 = t10 * t25;
+        let t27 = t9 * t25;
+        let t29 = t9 * t21;
+        let t30 = T::mul_add(t10, t20, t29);
+        let t31 = t9 * t20;
+        let t33 = T::mul_add(t10, t21, -t31);
+        let t34 = qd[0] + qd[1];
+        let t37 = T::mul_add(qd[1], t27, t30);
+        let t38 = T::mul_add(qd[1], t26, t33);
+        let t41 = T::k(0.33238) * t26;
+        let t42 = -t41;
+        let t43 = T::k(0.33238) * t27;
+        let t44 = T::mul_add(-T::k(0.0335304944), t34, t42);
+        let t45 = T::mul_add(T::k(6.43853298e-11), t34, t43);
+        let t47 = T::k(0.0335304944) * t37;
+        let t48 = T::mul_add(T::k(6.43853298e-11), t38, -t47);
+        let t51 = t26 * t45;
+        let t52 = -t51;
+        let t54 = T::mul_add(-t27, t44, t52);
+        let t55 = t34 * t45;
+        let t56 = t34 * t44;
+        let t57 = t48 + t54;
+        let t58 = T::mul_add(T::k(0.33238), t37, -t55);
+        let t59 = T::mul_add(T::k(0.33238), t38, t56);
+        let t61 = t9 * t59;
+        let t62 = T::mul_add(t10, t58, -t61);
+        let t64 = T::mul_add(-T::k(0.1), t62, t57);
+        let t65 = t24 + t64;
+        let t71 = t9 * T::k(1.4126230823060104e-8);
+        let t72 = T::mul_add(t10, T::k(-7.356637062775817), -t71);
+        let t74 = T::mul_add(-T::k(0.1), t72, T::k(1.0));
+        let t78 = t10 * T::k(-0.1);
+        let t79 = t9 * T::k(-0.1);
+        let t81 = T::k(4.736595035057242e-10) * t79;
+        let t82 = T::mul_add(T::k(0.08570832216376303), t78, -t81);
+        let t84 = T::k(0.33238) * t79;
+        let t85 = T::mul_add(T::k(4.736595035057242e-10), t78, -t84);
+        let t87 = t9 * t85;
+        let t88 = T::mul_add(t10, t82, -t87);
+        let t90 = T::mul_add(-T::k(0.1), t88, T::k(0.0007545716336328686));
+        let t91 = T::k(1.0) / t90;
+        let t92 = t74 * t91;
+        let t93 = T::k(0.1) * t92;
+        let t94 = t10 * t93;
+        let t95 = t9 * t93;
+        let t96 = T::k(0.004557856275072) * t92;
+        let t98 = T::mul_add(T::k(-0.0335304944), t94, -t96);
+        let t100 = T::mul_add(-T::k(6.43853298e-11), t95, t98);
+        let t102 = T::mul_add(-T::k(219.4013895236754), t100, T::k(219.4013895236754));
+        let t103 = tau[0] - t65;
+        let t104 = tau[1] - t57;
+        let t106 = t92 * t104;
+        let t107 = T::mul_add(t91, t103, -t106);
+        qdd[0] = t107;
+        let t108 = t92 * t103;
+        let t110 = T::mul_add(t102, t104, -t108);
+        qdd[1] = t110;
+        qdd
+    }
+    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, dead_code)]
+    pub fn fd_grad<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+    ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
+        let mut qdd = [T::k(0.0); NV];
+        let mut dqdd_dq = [[T::k(0.0); NV]; NV];
+        let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        let t2 = q[0].sin();
+        let t3 = q[0].cos();
+        let t9 = q[1].sin();
+        let t10 = q[1].cos();
+        let t20 = t2 * T::k(9.81);
+        let t21 = t3 * T::k(9.81);
+        let t23 = T::k(0.00961628436) * t20;
+        let t24 = T::mul_add(T::k(5.801760809999999e-7), t21, -t23);
+        let t25 = T::k(0.1) * qd[0];
+        let t26 = t10 * t25;
+        let t27 = t9 * t25;
+        let t29 = t9 * t21;
+        let t30 = T::mul_add(t10, t20, t29);
+        let t32 = t10 * t21;
+        let t33 = T::mul_add(-t9, t20, t32);
+        let t34 = qd[0] + qd[1];
+        let t35 = qd[1] * t27;
+        let t36 = qd[1] * t26;
+        let t37 = t30 + t35;
+        let t38 = t33 + t36;
+        let t39 = T::k(0.0335304944) * t34;
+        let t41 = T::k(0.33238) * t26;
+        let t42 = -t41;
+        let t43 = T::k(0.33238) * t27;
+        let t44 = t42 - t39;
+        let t45 = T::mul_add(T::k(6.43853298e-11), t34, t43);
+        let t47 = T::k(0.0335304944) * t37;
+        let t48 = T::mul_add(T::k(6.43853298e-11), t38, -t47);
+        let t51 = t26 * t45;
+        let t52 = -t51;
+        let t54 = T::mul_add(-t27, t44, t52);
+        let t55 = t34 * t45;
+        let t56 = t34 * t44;
+        let t57 = t48 + t54;
+        let t58 = T::mul_add(T::k(0.33238), t37, -t55);
+        let t59 = T::mul_add(T::k(0.33238), t38, t56);
+        let t61 = t9 * t59;
+        let t62 = T::mul_add(t10, t58, -t61);
+        let t64 = T::mul_add(-T::k(0.1), t62, t57);
+        let t65 = t24 + t64;
+        let t71 = t9 * T::k(1.4126230823060104e-8);
+        let t72 = T::mul_add(t10, T::k(-7.356637062775817), -t71);
+        let t74 = T::mul_add(-T::k(0.1), t72, T::k(1.0));
+        let t78 = t10 * T::k(-0.1);
+        let t79 = t9 * T::k(-0.1);
+        let t81 = T::k(4.736595035057242e-10) * t79;
+        let t82 = T::mul_add(T::k(0.08570832216376303), t78, -t81);
+        let t84 = T::k(0.33238) * t79;
+        let t85 = T::mul_add(T::k(4.736595035057242e-10), t78, -t84);
+        let t87 = t9 * t85;
+        let t88 = T::mul_add(t10, t82, -t87);
+        let t93 = T::mul_add(-T::k(0.1), t88, T::k(0.0007545716336328686));
+        let t94 = T::k(1.0) / t93;
+        let t95 = t74 * t94;
+        let t96 = T::k(0.1) * t95;
+        let t97 = t10 * t96;
+        let t98 = t9 * t96;
+        let t99 = T::k(0.004557856275072) * t95;
+        let t101 = T::mul_add(T::k(-0.0335304944), t97, -t99);
+        let t103 = T::mul_add(-T::k(6.43853298e-11), t98, t101);
+        let t105 = T::mul_add(-T::k(219.4013895236754), t103, T::k(219.4013895236754));
+        let t106 = tau[0] - t65;
+        let t107 = tau[1] - t57;
+        let t109 = t95 * t107;
+        let t110 = T::mul_add(t94, t106, -t109);
+        qdd[0] = t110;
+        let t111 = t95 * t106;
+        let t113 = T::mul_add(t105, t107, -t111);
+        qdd[1] = t113;
+        let t115 = T::mul_add(-T::k(0.1), t110, t20);
+        let t117 = T::mul_add(t10, t115, t29);
+        let t119 = T::mul_add(-t9, t115, t32);
+        let t120 = t110 + t113;
+        let t121 = t35 + t117;
+        let t122 = t36 + t119;
+        let t123 = T::k(0.0335304944) * t120;
+        let t126 = T::k(0.33238) * t122;
+        let t127 = T::mul_add(T::k(0.33238), t121, -t123);
+        let t128 = T::mul_add(T::k(6.43853298e-11), t120, t126);
+        let t129 = t127 - t55;
+        let t130 = t56 + t128;
+        let t133 = T::mul_add(-qd[0], t26, t119);
+        let t134 = T::mul_add(qd[0], t27, -t117);
+        let t136 = -t39;
+        let t137 = t136 - t41;
+        let t138 = T::k(6.43853298e-11) * t26;
+        let t139 = T::k(0.0335304944) * t27;
+        let t140 = t139 - t138;
+        let t141 = T::k(2.0) * t140;
+        let t142 = t138 - t139;
+        let t143 = T::k(6.43853298e-11) * t134;
+        let t145 = T::mul_add(-T::k(0.0335304944), t133, t143);
+        let t148 = -t45;
+        let t150 = t27 * t45;
+        let t151 = T::mul_add(t26, t137, -t150);
+        let t153 = T::mul_add(-t26, t44, t150);
+        let t154 = t142 + t142;
+        let t155 = t43 + t43;
+        let t156 = t41 + t41;
+        let t157 = t148 - t45;
+        let t158 = t44 + t137;
+        let t159 = t141 + t154;
+        let t160 = t155 + t157;
+        let t161 = t156 + t158;
+        let t162 = t151 + t153;
+        let t163 = t145 + t162;
+        let t164 = T::mul_add(T::k(0.33238), t133, -t130);
+        let t165 = T::mul_add(T::k(0.33238), t134, t129);
+        let t166 = t137 - t44;
+        let t168 = T::mul_add(T::k(-0.0335304944), t133, t143);
+        let t170 = T::mul_add(t26, t166, t168);
+        let t172 = T::mul_add(t27, T::k(-0.0335304944), t138);
+        let t173 = t172 + t172;
+        let t174 = t141 + t173;
+        let t176 = t9 * T::k(6.43853298e-11);
+        let t177 = T::mul_add(t10, T::k(-0.0335304944), -t176);
+        let t179 = t10 * T::k(6.43853298e-11);
+        let t180 = T::mul_add(t9, T::k(-0.0335304944), t179);
+        let t182 = t9 * t161;
+        let t183 = T::mul_add(t10, t160, -t182);
+        let t185 = T::mul_add(-T::k(0.1), t183, t159);
+        let t187 = t9 * t165;
+        let t188 = T::mul_add(t10, t164, -t187);
+        let t190 = T::mul_add(-T::k(0.1), t188, t163);
+        let t191 = t9 * t166;
+        let t193 = T::mul_add(T::k(0.1), t191, t141);
+        let t194 = T::mul_add(-t9, T::k(0.0335304944), t179);
+        let t195 = T::mul_add(t10, T::k(0.0335304944), t176);
+        let t196 = T::k(0.033238000000000004) + t195;
+        let t197 = T::k(5.801760809999999e-7) + t194;
+        let t198 = T::k(0.00961628436) + t196;
+        let t200 = t10 * t45;
+        let t201 = T::mul_add(t9, t137, t200);
+        let t202 = T::k(0.1) * t201;
+        let t204 = T::mul_add(T::k(2.0), t202, t141);
+        let t206 = t21 * t198;
+        let t207 = -t206;
+        let t208 = T::mul_add(-t20, t197, t207);
+        let t210 = t20 * t180;
+        let t211 = T::mul_add(t21, t177, -t210);
+        let t213 = t95 * t211;
+        let t214 = T::mul_add(t94, t208, -t213);
+        let t215 = -t214;
+        dqdd_dq[0][0] = t215;
+        let t217 = t95 * t170;
+        let t218 = T::mul_add(t94, t190, -t217);
+        let t219 = -t218;
+        dqdd_dq[0][1] = t219;
+        let t220 = t95 * t208;
+        let t222 = T::mul_add(t105, t211, -t220);
+        let t223 = -t222;
+        dqdd_dq[1][0] = t223;
+        let t224 = t95 * t190;
+        let t226 = T::mul_add(t105, t170, -t224);
+        let t227 = -t226;
+        dqdd_dq[1][1] = t227;
+        let t229 = t95 * t193;
+        let t230 = T::mul_add(t94, t204, -t229);
+        let t231 = -t230;
+        dqdd_dqd[0][0] = t231;
+        let t233 = t95 * t174;
+        let t234 = T::mul_add(t94, t185, -t233);
+        let t235 = -t234;
+        dqdd_dqd[0][1] = t235;
+        let t236 = t95 * t204;
+        let t238 = T::mul_add(t105, t193, -t236);
+        let t239 = -t238;
+        dqdd_dqd[1][0] = t239;
+        let t240 = t95 * t185;
+        let t242 = T::mul_add(t105, t174, -t240);
+        let t243 = -t242;
+        dqdd_dqd[1][1] = t243;
+        (qdd, dqdd_dq, dqdd_dqd)
+    }
 }

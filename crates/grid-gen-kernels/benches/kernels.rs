@@ -47,6 +47,18 @@ macro_rules! bench_robot {
                 black_box(k::rnea_grad(&x[0], &x[1], &x[2]))
             })
         });
+        group.bench_function("generated/portable/rnea_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::portable::rnea_grad(&x[0], &x[1], &x[2]))
+            })
+        });
+        group.bench_function("generated/portable/fd_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::portable::fd_grad(&x[0], &x[1], &x[2]))
+            })
+        });
         group.bench_function("generated/mass_matrix", |b| {
             b.iter(|| {
                 let x = &s[next()];

@@ -1,5 +1,7 @@
 //! Every checked-in kernel, compiled and run, against the reference dynamics, in f64 and
-//! f32, on random and extreme states (zero, both joint limits, speeds 1e-8 and 1e3).
+//! f32, on random and extreme states (zero, both joint limits, speeds 1e-8 and 1e3): both
+//! machine-code copies, `portable` and `fma` (fused multiply-adds round once where the
+//! portable copy rounds twice; the same tolerances hold for both).
 //!
 //! Norm: ‖generated − reference‖max / ‖reference‖max per output matrix or vector.
 //! - f64: ≤ 1e-12. The generated code reorders sums, folds constants and snaps model
@@ -60,17 +62,34 @@ const NAMES: [&str; 9] = ["rnea", "rnea_grad.dc_dq", "rnea_grad.dc_dqd", "mass_m
 /// Outputs computed through M⁻¹.
 const THROUGH_MINV: [bool; 9] = [false, false, false, false, true, true, true, true, true];
 
-/// Calls every kernel of module `$m` in scalar type `$t` and returns the outputs as f64.
+/// Whether the `fma` copies run here. Without AVX2 and FMA they cannot; with `CI` set that
+/// fails the run rather than leaving half the generated code untested.
+fn fma_runs() -> bool {
+    let has = grid_gen_kernels::grid_iiwa::has_fma();
+    if !has {
+        assert!(std::env::var_os("CI").is_none(), "this CPU has no AVX2+FMA, so the generated `fma` copies cannot be tested; CI needs an x86-64-v3 machine");
+        eprintln!("note: this CPU has no AVX2+FMA; only the portable copies were tested");
+    }
+    has
+}
+
+/// Calls every kernel of copy `$copy` (`portable` or `fma`) of module `$m` in scalar type
+/// `$t` and returns the outputs as f64.
 macro_rules! run_kernels {
-    ($m:ident, $t:ty, $q:expr, $qd:expr, $u:expr) => {{
+    ($m:ident, $copy:ident, $t:ty, $q:expr, $qd:expr, $u:expr) => {{
         use grid_gen_kernels::$m as k;
+        use k::$copy as c;
         let arr = |v: &[f64]| -> [$t; k::NV] { std::array::from_fn(|i| v[i] as $t) };
         let (q, qd, u) = (arr($q), arr($qd), arr($u));
         let v = |x: [$t; k::NV]| DMatrix::from_iterator(k::NV, 1, x.iter().map(|&y| y as f64));
         let m = |x: [[$t; k::NV]; k::NV]| DMatrix::from_fn(k::NV, k::NV, |i, j| x[i][j] as f64);
-        let (dq, dqd) = k::rnea_grad(&q, &qd, &u);
-        let (qdd, fq, fqd) = k::fd_grad(&q, &qd, &u);
-        vec![v(k::rnea(&q, &qd, &u)), m(dq), m(dqd), m(k::mass_matrix(&q)), m(k::minv(&q)), v(k::fd(&q, &qd, &u)), v(qdd), m(fq), m(fqd)]
+        // SAFETY: the fma copy is only called after `fma_runs()` (the portable one needs none).
+        #[allow(unused_unsafe)]
+        unsafe {
+            let (dq, dqd) = c::rnea_grad(&q, &qd, &u);
+            let (qdd, fq, fqd) = c::fd_grad(&q, &qd, &u);
+            vec![v(c::rnea(&q, &qd, &u)), m(dq), m(dqd), m(c::mass_matrix(&q)), m(c::minv(&q)), v(c::fd(&q, &qd, &u)), v(qdd), m(fq), m(fqd)]
+        }
     }};
 }
 
@@ -79,7 +98,8 @@ macro_rules! robot_test {
         mod $m {
             use super::*;
 
-            /// Four states in one `Lanes<4>` call give bit-identical results to four scalar calls.
+            /// Four states in one `Lanes<4>` call give bit-identical results to four scalar
+            /// calls of the same copy (the dispatcher's, and the portable one).
             #[test]
             fn lanes_are_bit_identical_to_scalar_calls() {
                 use grid_gen_kernels::$m as k;
@@ -90,22 +110,29 @@ macro_rules! robot_test {
                     std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| f(&st[l])[j])))
                 };
                 let (q, qd, u) = (lane(&|s| &s.1), lane(&|s| &s.2), lane(&|s| &s.3));
-                let (lq, lqd) = k::rnea_grad(&q, &qd, &u);
-                let (lqdd, lfq, lfqd) = k::fd_grad(&q, &qd, &u);
-                for (l, s) in st.iter().enumerate() {
-                    let arr = |v: &Vec<f64>| -> [f64; k::NV] { std::array::from_fn(|i| v[i]) };
-                    let (dq, dqd) = k::rnea_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
-                    let (qdd, fq, fqd) = k::fd_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
-                    for i in 0..k::NV {
-                        assert_eq!(lqdd[i].0[l].to_bits(), qdd[i].to_bits());
-                        for j in 0..k::NV {
-                            assert_eq!(lq[i][j].0[l].to_bits(), dq[i][j].to_bits());
-                            assert_eq!(lqd[i][j].0[l].to_bits(), dqd[i][j].to_bits());
-                            assert_eq!(lfq[i][j].0[l].to_bits(), fq[i][j].to_bits());
-                            assert_eq!(lfqd[i][j].0[l].to_bits(), fqd[i][j].to_bits());
+                macro_rules! check {
+                    ($c:path) => {{
+                        use $c as c;
+                        let (lq, lqd) = c::rnea_grad(&q, &qd, &u);
+                        let (lqdd, lfq, lfqd) = c::fd_grad(&q, &qd, &u);
+                        for (l, s) in st.iter().enumerate() {
+                            let arr = |v: &Vec<f64>| -> [f64; k::NV] { std::array::from_fn(|i| v[i]) };
+                            let (dq, dqd) = c::rnea_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
+                            let (qdd, fq, fqd) = c::fd_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
+                            for i in 0..k::NV {
+                                assert_eq!(lqdd[i].0[l].to_bits(), qdd[i].to_bits());
+                                for j in 0..k::NV {
+                                    assert_eq!(lq[i][j].0[l].to_bits(), dq[i][j].to_bits());
+                                    assert_eq!(lqd[i][j].0[l].to_bits(), dqd[i][j].to_bits());
+                                    assert_eq!(lfq[i][j].0[l].to_bits(), fq[i][j].to_bits());
+                                    assert_eq!(lfqd[i][j].0[l].to_bits(), fqd[i][j].to_bits());
+                                }
+                            }
                         }
-                    }
+                    }};
                 }
+                check!(k);
+                check!(k::portable);
             }
 
             #[test]
@@ -114,30 +141,42 @@ macro_rules! robot_test {
                 assert_eq!(grid_gen_kernels::$m::NV, model.nv());
                 let names: Vec<&str> = model.joints.iter().map(|j| j.name.as_str()).collect();
                 assert_eq!(grid_gen_kernels::$m::JOINT_NAMES.to_vec(), names);
-                let mut rng = Rng(7);
-                let mut worst = [0.0f64; 2];
-                let mut worst64 = 0.0f64;
-                for (label, q, qd, u) in states(&model, &mut rng) {
-                    let want = reference_outputs(&model, &q, &qd, &u);
-                    let got64 = run_kernels!($m, f64, &q, &qd, &u);
-                    for ((name, got), want) in NAMES.iter().zip(&got64).zip(&want) {
-                        let e = rel(got, want);
-                        assert!(e <= F64_TOL, "{} f64 {label}: {name} relative error {e:.2e}", $stem);
-                        worst64 = worst64.max(e);
+                let fma = fma_runs();
+                for copy in ["portable", "fma"] {
+                    if copy == "fma" && !fma {
+                        continue;
                     }
-                    // f32: the reference at the f32-rounded state.
-                    let r = |v: &Vec<f64>| v.iter().map(|&x| x as f32 as f64).collect::<Vec<_>>();
-                    let (q, qd, u) = (r(&q), r(&qd), r(&u));
-                    let want = reference_outputs(&model, &q, &qd, &u);
-                    let got32 = run_kernels!($m, f32, &q, &qd, &u);
-                    for (i, ((name, got), want)) in NAMES.iter().zip(&got32).zip(&want).enumerate() {
-                        let e = rel(got, want);
-                        let tol = if THROUGH_MINV[i] { F32_MINV } else { F32_DIRECT };
-                        worst[usize::from(THROUGH_MINV[i])] = worst[usize::from(THROUGH_MINV[i])].max(e);
-                        assert!(e <= tol, "{} f32 {label}: {name} relative error {e:.2e} > {tol:e}", $stem);
+                    let run = |t32: bool, q: &[f64], qd: &[f64], u: &[f64]| match (copy, t32) {
+                        ("portable", false) => run_kernels!($m, portable, f64, q, qd, u),
+                        ("portable", true) => run_kernels!($m, portable, f32, q, qd, u),
+                        (_, false) => run_kernels!($m, fma, f64, q, qd, u),
+                        (_, true) => run_kernels!($m, fma, f32, q, qd, u),
+                    };
+                    let mut rng = Rng(7);
+                    let mut worst = [0.0f64; 2];
+                    let mut worst64 = 0.0f64;
+                    for (label, q, qd, u) in states(&model, &mut rng) {
+                        let want = reference_outputs(&model, &q, &qd, &u);
+                        let got64 = run(false, &q, &qd, &u);
+                        for ((name, got), want) in NAMES.iter().zip(&got64).zip(&want) {
+                            let e = rel(got, want);
+                            assert!(e <= F64_TOL, "{} {copy} f64 {label}: {name} relative error {e:.2e}", $stem);
+                            worst64 = worst64.max(e);
+                        }
+                        // f32: the reference at the f32-rounded state.
+                        let r = |v: &Vec<f64>| v.iter().map(|&x| x as f32 as f64).collect::<Vec<_>>();
+                        let (q, qd, u) = (r(&q), r(&qd), r(&u));
+                        let want = reference_outputs(&model, &q, &qd, &u);
+                        let got32 = run(true, &q, &qd, &u);
+                        for (i, ((name, got), want)) in NAMES.iter().zip(&got32).zip(&want).enumerate() {
+                            let e = rel(got, want);
+                            let tol = if THROUGH_MINV[i] { F32_MINV } else { F32_DIRECT };
+                            worst[usize::from(THROUGH_MINV[i])] = worst[usize::from(THROUGH_MINV[i])].max(e);
+                            assert!(e <= tol, "{} {copy} f32 {label}: {name} relative error {e:.2e} > {tol:e}", $stem);
+                        }
                     }
+                    eprintln!("{} {copy}: worst f64 error {worst64:.2e}; worst f32 error {:.2e} direct, {:.2e} through Minv", $stem, worst[0], worst[1]);
                 }
-                eprintln!("{}: worst f64 error {worst64:.2e}; worst f32 error {:.2e} direct, {:.2e} through Minv", $stem, worst[0], worst[1]);
             }
         }
     };

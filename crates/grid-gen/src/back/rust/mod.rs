@@ -57,6 +57,70 @@ fn operand(k: &Function, names: &Chunks, here: usize, id: Id) -> String {
     }
 }
 
+/// The machine-code copy a function is emitted for.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Copy {
+    /// Any target: separate multiplies and adds, the default x86-64 instruction set.
+    Portable,
+    /// x86-64 with AVX2 and FMA: three-operand instructions, ymm registers for
+    /// `Lanes<4>`, and `mul_add` where a product is used once, by an addition.
+    Fma,
+}
+
+impl Copy {
+    /// The attribute every function of the copy carries.
+    fn attribute(self) -> &'static str {
+        match self {
+            Copy::Portable => "",
+            Copy::Fma => "#[target_feature(enable = \"avx2,fma\")]\n",
+        }
+    }
+}
+
+/// Products that the FMA copy fuses into the one addition or subtraction that reads
+/// them: used once, not an output, and in the same chunk as that use.
+fn fusable(k: &Function, names: &Chunks) -> Vec<bool> {
+    let mut uses = vec![0u32; k.nodes.len()];
+    for node in &k.nodes {
+        for o in node.op.operands() {
+            uses[o.0 as usize] += 1;
+        }
+    }
+    for o in &k.outputs {
+        for id in &o.ids {
+            uses[id.0 as usize] += 2;
+        }
+    }
+    (0..k.nodes.len()).map(|i| matches!(k.nodes[i].op, Op::Mul(..)) && uses[i] == 1 && names.slot[i].is_none()).collect()
+}
+
+/// `a * b + c` as one rounding: `T::mul_add(a, b, c)`.
+fn fused(k: &Function, names: &Chunks, here: usize, op: Op, fuse: &[bool]) -> Option<String> {
+    let o = |id| operand(k, names, here, id);
+    let product = |id: Id| match k.op(id) {
+        Op::Mul(x, y) if fuse[id.0 as usize] => Some((x, y)),
+        _ => None,
+    };
+    match op {
+        Op::Add(a, b) => {
+            if let Some((x, y)) = product(a) {
+                Some(format!("T::mul_add({}, {}, {})", o(x), o(y), o(b)))
+            } else {
+                product(b).map(|(x, y)| format!("T::mul_add({}, {}, {})", o(x), o(y), o(a)))
+            }
+        }
+        // a - x y = (-x) y + a (negation is exact); x y - b = x y + (-b).
+        Op::Sub(a, b) => {
+            if let Some((x, y)) = product(b) {
+                Some(format!("T::mul_add(-{}, {}, {})", o(x), o(y), o(a)))
+            } else {
+                product(a).map(|(x, y)| format!("T::mul_add({}, {}, -{})", o(x), o(y), o(b)))
+            }
+        }
+        _ => None,
+    }
+}
+
 fn expression(k: &Function, names: &Chunks, here: usize, op: Op) -> String {
     let o = |id| operand(k, names, here, id);
     match op {
@@ -87,8 +151,20 @@ fn output_place(k: &Function, out: usize, flat: usize, nv: usize) -> String {
     }
 }
 
-fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions) {
+fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions, copy: Copy) {
     let names = Chunks::new(k, options.chunk);
+    let fuse = if copy == Copy::Fma { fusable(k, &names) } else { vec![false; k.nodes.len()] };
+    // A product is dropped only where its one user fuses it.
+    let mut dropped = vec![false; k.nodes.len()];
+    for node in &k.nodes {
+        if let Op::Add(a, b) | Op::Sub(a, b) = node.op {
+            if fuse[a.0 as usize] {
+                dropped[a.0 as usize] = true;
+            } else if fuse[b.0 as usize] {
+                dropped[b.0 as usize] = true;
+            }
+        }
+    }
     let chunks = &names.chunks;
     let name = k.kind.name();
     let args: Vec<String> = k.inputs().iter().map(|i| format!("{}: &[T; NV]", i.name())).collect();
@@ -120,7 +196,11 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions)
             }
         }
         for &id in ids {
-            let _ = writeln!(b, "let t{} = {};", id.0, expression(k, &names, c, k.op(id)));
+            if dropped[id.0 as usize] {
+                continue;
+            }
+            let expr = fused(k, &names, c, k.op(id), &dropped).unwrap_or_else(|| expression(k, &names, c, k.op(id)));
+            let _ = writeln!(b, "let t{} = {expr};", id.0);
             if let Some(s) = names.slot[id.0 as usize] {
                 let _ = writeln!(b, "s[{s}] = t{};", id.0);
             }
@@ -131,8 +211,9 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions)
         b
     };
 
+    let attr = copy.attribute();
     let _ = writeln!(out, "/// {}", k.kind.doc());
-    let _ = writeln!(out, "#[inline]\n#[allow(clippy::all, unused_variables, dead_code)]");
+    let _ = writeln!(out, "#[inline]\n{attr}#[allow(clippy::all, unused_variables, dead_code)]");
     let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
     for o in &k.outputs {
         let init = if o.shape == Shape::Matrix { "[[T::k(0.0); NV]; NV]" } else { "[T::k(0.0); NV]" };
@@ -151,12 +232,43 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions)
     if chunks.len() > 1 {
         let outs: Vec<String> = k.outputs.iter().map(|o| format!("{}: &mut {}", o.name, output_type(o.shape))).collect();
         for (c, ids) in chunks.iter().enumerate() {
-            let _ = writeln!(out, "#[inline(never)]\n#[allow(clippy::all, unused_variables)]");
+            let _ = writeln!(out, "#[inline(never)]\n{attr}#[allow(clippy::all, unused_variables)]");
             let _ = writeln!(out, "fn {name}_part{c}<T: Real>({}, s: &mut [T; {}], {}) {{", args.join(", "), names.slots, outs.join(", "));
             out.push_str(&body(c, ids));
             out.push_str("}\n\n");
         }
     }
+}
+
+const DISPATCH_DOC: &str = r#"
+/// Whether this CPU runs the [`fma`] copy (x86-64 with AVX2 and FMA, detected once and
+/// cached by std).
+#[inline]
+#[allow(dead_code)]
+pub fn has_fma() -> bool {
+    #[cfg(target_arch = "x86_64")]
+    {
+        std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma")
+    }
+    #[cfg(not(target_arch = "x86_64"))]
+    {
+        false
+    }
+}
+"#;
+
+/// The public kernel: the FMA copy where the CPU has it, else the portable one.
+fn emit_dispatcher(out: &mut String, k: &Function) {
+    let name = k.kind.name();
+    let args: Vec<String> = k.inputs().iter().map(|i| format!("{}: &[T; NV]", i.name())).collect();
+    let arg_names: Vec<&str> = k.inputs().iter().map(|i| i.name()).collect();
+    let ret: Vec<&str> = k.outputs.iter().map(|o| output_type(o.shape)).collect();
+    let ret_type = if ret.len() == 1 { ret[0].to_string() } else { format!("({})", ret.join(", ")) };
+    let call = arg_names.join(", ");
+    let _ = writeln!(out, "/// {}\n///\n/// Runs [`fma::{name}`] where [`has_fma`], else [`portable::{name}`].", k.kind.doc());
+    let _ = writeln!(out, "#[inline]\n#[allow(dead_code)]\npub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
+    let _ = writeln!(out, "#[cfg(target_arch = \"x86_64\")]\nif has_fma() {{\n// SAFETY: the CPU has AVX2 and FMA (checked just above).\nreturn unsafe {{ fma::{name}({call}) }};\n}}");
+    let _ = writeln!(out, "portable::{name}({call})\n}}\n");
 }
 
 const PRELUDE: &str = r#"
@@ -166,11 +278,16 @@ pub trait Real: Copy + core::ops::Add<Output = Self> + core::ops::Sub<Output = S
     fn k(x: f64) -> Self;
     fn sin(self) -> Self;
     fn cos(self) -> Self;
+    /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
+    /// instruction it would be a slow library call).
+    fn mul_add(self, a: Self, b: Self) -> Self;
 }
 
 impl Real for f64 {
     #[inline(always)]
     fn k(x: f64) -> Self { x }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self { f64::mul_add(self, a, b) }
     #[inline(always)]
     fn sin(self) -> Self { f64::sin(self) }
     #[inline(always)]
@@ -181,14 +298,17 @@ impl Real for f32 {
     #[inline(always)]
     fn k(x: f64) -> Self { x as f32 }
     #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self { f32::mul_add(self, a, b) }
+    #[inline(always)]
     fn sin(self) -> Self { f32::sin(self) }
     #[inline(always)]
     fn cos(self) -> Self { f32::cos(self) }
 }
 
 /// `N` states evaluated by one call, one per lane (`q[j].0[l]` is joint j of state l), for
-/// sweeping many knot points: every lane runs exactly the f64 operations of a scalar call,
-/// so results are bit-identical, and the compiler can put the lanes in SIMD registers.
+/// sweeping many knot points: every lane runs exactly the f64 operations of a scalar call
+/// (of the same copy, `portable` or `fma`), so results are bit-identical, and the compiler
+/// can put the lanes in SIMD registers (ymm in the `fma` copy: 4 lanes per instruction).
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[allow(dead_code)]
 pub struct Lanes<const N: usize>(pub [f64; N]);
@@ -235,6 +355,8 @@ impl<const N: usize> Real for Lanes<N> {
     #[inline(always)]
     fn k(x: f64) -> Self { Lanes([x; N]) }
     #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self { Lanes(core::array::from_fn(|l| self.0[l].mul_add(a.0[l], b.0[l]))) }
+    #[inline(always)]
     fn sin(self) -> Self { Lanes(self.0.map(f64::sin)) }
     #[inline(always)]
     fn cos(self) -> Self { Lanes(self.0.map(f64::cos)) }
@@ -265,9 +387,23 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
         literal(gravity[2])
     );
     out.push_str(PRELUDE);
+    out.push_str(DISPATCH_DOC);
     for k in &module.functions {
-        emit_kernel(&mut out, k, nv, options);
+        emit_dispatcher(&mut out, k);
     }
+    out.push_str("/// The kernels for any target: separate multiplies and adds.\npub mod portable {\nuse super::*;\n");
+    for k in &module.functions {
+        emit_kernel(&mut out, k, nv, options, Copy::Portable);
+    }
+    out.push_str(
+        "}\n/// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).\n\
+         /// Calling them on a CPU without those features is undefined behaviour; the functions\n\
+         /// at the top of the module check first.\n#[cfg(target_arch = \"x86_64\")]\npub mod fma {\nuse super::*;\n",
+    );
+    for k in &module.functions {
+        emit_kernel(&mut out, k, nv, options, Copy::Fma);
+    }
+    out.push_str("}\n");
     let file = syn::parse_file(&out).map_err(|e| BackError::RustUnparsable(e.to_string()))?;
     let code = prettyplease::unparse(&file);
     let stem = identifier(&robot.name);
