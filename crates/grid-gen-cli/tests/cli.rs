@@ -118,6 +118,11 @@ fn generate_writes_checks_and_reports_op_counts() {
     // A different gravity is a different module.
     assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gravity", "0,0,-1.62"]).status.code(), Some(1));
     assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--emit", "cuda"]).status.code(), Some(2));
+    // The checked-in UR5 uses IDSVA (auto's pick); `--gradient idsva` is the same file,
+    // `columns` another one, and an unknown formulation is a usage error.
+    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", "idsva"]).status.code(), Some(0));
+    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", "columns"]).status.code(), Some(1));
+    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--gradient", "rnea"]).status.code(), Some(2));
     std::fs::remove_dir_all(&dir).unwrap();
 
     // Both backends in one run, each file as checked in.
@@ -135,6 +140,9 @@ fn generate_writes_checks_and_reports_op_counts() {
         for field in ["add", "mul", "div", "neg", "trig", "depth"] {
             assert!(k["after"][field].is_u64() && k["before"][field].is_u64(), "{k}");
         }
+        // The gradient kernels name their formulation; the others have none.
+        let has_gradient = matches!(k["kernel"].as_str(), Some("rnea_grad" | "fd_grad"));
+        assert_eq!(k["gradient"].as_str(), has_gradient.then_some("idsva"), "{k}");
     }
 }
 
