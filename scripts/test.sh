@@ -12,12 +12,19 @@ command -v cargo >/dev/null || die "cargo is required (https://rustup.rs)"
 command -v python3 >/dev/null || die "python3 is required for the Pinocchio/yourdfpy fixture check"
 cargo --version
 
-say "python packages (pin, yourdfpy) for the fixture check"
-if ! python3 -c "import pinocchio, yourdfpy" 2>/dev/null; then
-    python3 -m pip install --quiet "pin==4.1.0" "yourdfpy==0.0.60" \
-        || die "could not install pin and yourdfpy with pip; they check the fixtures against Pinocchio"
+say "python packages (pin, yourdfpy) for the fixture check, in target/python"
+# A virtual environment under target/ leaves the user's Python alone; it sees packages
+# already installed system-wide (no download then) and installs what is missing into itself.
+VENV=target/python
+if [ ! -x "$VENV/bin/python" ]; then
+    python3 -m venv --system-site-packages "$VENV" || die "could not create a virtual environment in $VENV (Debian: apt-get install python3-venv)"
 fi
-python3 -c "import pinocchio, yourdfpy; print('pinocchio', pinocchio.__version__)" || die "pin/yourdfpy do not import"
+PY="$VENV/bin/python"
+if ! "$PY" -c "import pinocchio, yourdfpy" 2>/dev/null; then
+    "$PY" -m pip install --quiet "pin==4.1.0" "yourdfpy==0.0.60" \
+        || die "could not install pin and yourdfpy with pip into $VENV; they check the fixtures against Pinocchio"
+fi
+"$PY" -c "import pinocchio, yourdfpy; print('pinocchio', pinocchio.__version__)" || die "pin/yourdfpy do not import"
 
 say "lavapipe (software Vulkan) so the WGSL kernels run through wgpu without a GPU"
 if ! ldconfig -p 2>/dev/null | grep -q libvulkan.so.1 || ! ls /usr/share/vulkan/icd.d/lvp_icd*.json >/dev/null 2>&1; then
@@ -58,6 +65,8 @@ say "cargo test (workspace)"
 cargo test --workspace --all-targets
 
 say "fixtures are what Pinocchio and yourdfpy compute"
-python3 scripts/make_fixtures.py --check
+"$PY" scripts/make_fixtures.py --check
 
 say "all tests passed"
+echo "Tests print their measured figures (errors against their tolerances, sizes, timings);"
+echo "cargo hides them for passing tests: add -- --nocapture to a cargo test command to see them."

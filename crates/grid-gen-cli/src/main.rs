@@ -5,7 +5,7 @@ use std::io::{IsTerminal, Write};
 use std::path::{Path, PathBuf};
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{CommandFactory, Parser, Subcommand};
 use codespan_reporting::diagnostic::{Diagnostic as Report, Label};
 use codespan_reporting::files::SimpleFile;
 use codespan_reporting::term::{self, termcolor};
@@ -14,25 +14,32 @@ use grid_gen::{Diagnostic, Model, Severity};
 
 /// Generates robot-specific rigid-body dynamics and their analytical gradients from a URDF.
 ///
-/// With no subcommand, reads ROBOT.urdf and writes the generated code into the folder
-/// given by -o (one `<robot>.rs` module); without -o it prints a summary of the model.
+/// `grid-gen ROBOT.urdf -o DIR` writes the generated code into DIR (one `<robot>.rs`
+/// module by default); `grid-gen ROBOT.urdf` prints a summary of the model. Both are
+/// short for `grid-gen generate ...`. Options shown here apply to every command.
 #[derive(Parser)]
-#[command(name = "grid-gen", version, args_conflicts_with_subcommands = true, subcommand_negates_reqs = true)]
+#[command(
+    name = "grid-gen",
+    version,
+    subcommand_required = true,
+    arg_required_else_help = true,
+    override_usage = "grid-gen [OPTIONS] <ROBOT.urdf> [-o DIR]    (same as `grid-gen generate ...`)\n       grid-gen [OPTIONS] <COMMAND>"
+)]
 struct Cli {
     #[command(subcommand)]
-    command: Option<Command>,
-    /// The robot description.
-    #[arg(value_name = "ROBOT.urdf", required = true)]
-    urdf: Option<PathBuf>,
-    /// Folder to write the generated files into (created if needed).
-    #[arg(short = 'o', long = "out", value_name = "DIR")]
-    out: Option<PathBuf>,
-    /// Backends to emit, comma-separated (available: rust, wgsl, verilog).
-    #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "rust", value_parser = parse_target)]
-    emit: Vec<grid_gen::generate::Target>,
-    /// Write nothing; exit 1 if any file would change (for CI freshness checks).
-    #[arg(long, requires = "out")]
-    check: bool,
+    command: Command,
+    #[command(flatten)]
+    load: LoadArgs,
+    #[command(flatten)]
+    verilog: VerilogArgs,
+    #[command(flatten)]
+    wgsl: WgslArgs,
+}
+
+/// What the generated kernels compute with: shared by `generate` and `info`, so the
+/// summary counts the operations of the code that would be written.
+#[derive(clap::Args, Clone)]
+struct KernelArgs {
     /// Gravity in the root frame, m/s², compiled into the generated code.
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, default_value = "0,0,-9.81", allow_hyphen_values = true)]
     gravity: [f64; 3],
@@ -41,12 +48,12 @@ struct Cli {
     /// operations for this robot (`info` says which).
     #[arg(long, value_name = "FORM", default_value = "auto", value_parser = ["auto", "columns", "idsva"])]
     gradient: String,
-    #[command(flatten)]
-    load: LoadArgs,
-    #[command(flatten)]
-    verilog: VerilogArgs,
-    #[command(flatten)]
-    wgsl: WgslArgs,
+}
+
+impl KernelArgs {
+    fn gradient(&self) -> grid_gen::ir::Gradient {
+        grid_gen::ir::Gradient::parse(&self.gradient).unwrap_or(grid_gen::ir::Gradient::Auto)
+    }
 }
 
 /// The WGSL kernels' options (`--emit wgsl`, `eval --backend wgsl`, `bench`).
@@ -165,7 +172,26 @@ struct LoadArgs {
 
 #[derive(Subcommand)]
 enum Command {
-    /// Print the model: joint order, types, parents, tree levels, gradient sparsity.
+    /// Write the generated code into -o DIR, or print the model's summary without -o (the
+    /// default command: `grid-gen ROBOT.urdf ...` runs it).
+    Generate {
+        /// The robot description.
+        #[arg(value_name = "ROBOT.urdf")]
+        urdf: PathBuf,
+        /// Folder to write the generated files into (created if needed).
+        #[arg(short = 'o', long = "out", value_name = "DIR")]
+        out: Option<PathBuf>,
+        /// Backends to emit, comma-separated (available: rust, wgsl, verilog).
+        #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "rust", value_parser = parse_target)]
+        emit: Vec<grid_gen::generate::Target>,
+        /// Write nothing; exit 1 if any file would change (for CI freshness checks).
+        #[arg(long, requires = "out")]
+        check: bool,
+        #[command(flatten)]
+        kernel: KernelArgs,
+    },
+    /// Print the model: joint order, types, parents, tree levels, gradient sparsity,
+    /// operations per kernel, Verilog netlist sizes.
     Info {
         /// The robot description.
         #[arg(value_name = "ROBOT.urdf")]
@@ -173,6 +199,8 @@ enum Command {
         /// Print stable JSON instead of text (fields documented in the README).
         #[arg(long)]
         json: bool,
+        #[command(flatten)]
+        kernel: KernelArgs,
     },
     /// Evaluate the reference dynamics on states from a JSON file and print JSON.
     ///
@@ -345,23 +373,19 @@ fn generate(
 fn run(cli: Cli) -> ExitCode {
     let strict = cli.load.strict;
     match cli.command {
-        None => {
-            let path = cli.urdf.expect("clap requires the URDF without a subcommand");
-            let model = match load(&path, strict) {
+        Command::Generate { urdf, out, emit, check, kernel } => {
+            let model = match load(&urdf, strict) {
                 Ok(model) => model,
                 Err(code) => return code,
             };
-            match cli.out {
-                None => print(&(Info::new(&model).to_text() + "(pass -o DIR to generate code)\n")),
-                Some(dir) => {
-                    let gradient = grid_gen::ir::Gradient::parse(&cli.gradient).expect("clap checks the value");
-                    generate(&model, &dir, cli.emit, cli.gravity, gradient, cli.check, &cli.verilog, &cli.wgsl)
-                }
+            match out {
+                None => print(&(Info::with_options(&model, kernel.gravity, kernel.gradient()).to_text() + "(pass -o DIR to generate code)\n")),
+                Some(dir) => generate(&model, &dir, emit, kernel.gravity, kernel.gradient(), check, &cli.verilog, &cli.wgsl),
             }
         }
-        Some(Command::Info { urdf, json }) => match load(&urdf, strict) {
+        Command::Info { urdf, json, kernel } => match load(&urdf, strict) {
             Ok(model) => {
-                let info = Info::new(&model);
+                let info = Info::with_options(&model, kernel.gravity, kernel.gradient());
                 if json {
                     print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))
                 } else {
@@ -370,11 +394,11 @@ fn run(cli: Cli) -> ExitCode {
             }
             Err(code) => code,
         },
-        Some(Command::Bench { urdf, backend: _, batch, kernels, seconds }) => match load(&urdf, strict) {
+        Command::Bench { urdf, backend: _, batch, kernels, seconds } => match load(&urdf, strict) {
             Ok(model) => bench(&model, &cli.wgsl, &batch, &kernels, seconds),
             Err(code) => code,
         },
-        Some(Command::Eval { urdf, states, gravity, backend }) => {
+        Command::Eval { urdf, states, gravity, backend } => {
             let model = match load(&urdf, strict) {
                 Ok(m) => m,
                 Err(code) => return code,
@@ -508,8 +532,59 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
     print(&report)
 }
 
+/// `grid-gen ROBOT.urdf ...` is short for `grid-gen generate ROBOT.urdf ...`: inserts
+/// `generate` when the first positional argument is not a command. A first argument that
+/// is no file and looks like a mistyped command is reported as such (clap alone would
+/// read it as the URDF and complain about the real one).
+fn with_default_command(args: Vec<std::ffi::OsString>) -> Result<Vec<std::ffi::OsString>, String> {
+    let cli = Cli::command();
+    let mut commands: Vec<String> = cli.get_subcommands().map(|c| c.get_name().to_string()).collect();
+    commands.push("help".into());
+    // Options that take a value, in any command, so their values are not taken for the URDF.
+    let mut valued = Vec::new();
+    for c in std::iter::once(&cli).chain(cli.get_subcommands()) {
+        for a in c.get_arguments().filter(|a| a.get_action().takes_values() && !a.is_positional()) {
+            valued.extend(a.get_long().map(|l| format!("--{l}")));
+            valued.extend(a.get_short().map(|s| format!("-{s}")));
+        }
+    }
+    let mut i = 1;
+    let first = loop {
+        let Some(arg) = args.get(i).map(|a| a.to_string_lossy()) else { return Ok(args) };
+        if arg == "--" {
+            break i + 1;
+        } else if arg.starts_with('-') && arg.len() > 1 {
+            i += if valued.iter().any(|v| *v == arg) { 2 } else { 1 };
+        } else {
+            break i;
+        }
+    };
+    let Some(word) = args.get(first).map(|a| a.to_string_lossy().into_owned()) else { return Ok(args) };
+    if commands.contains(&word) {
+        return Ok(args);
+    }
+    if !Path::new(&word).exists() {
+        if let Some(near) = commands.iter().find(|c| strsim::jaro(c, &word) > 0.8) {
+            return Err(format!(
+                "error: unrecognized command '{word}' (and no such file)\n\n  tip: a similar command exists: '{near}'\n\nUsage: {}\n\nFor more information, try '--help'.",
+                cli.clone().render_usage().to_string().trim_start_matches("Usage: ")
+            ));
+        }
+    }
+    let mut out = args;
+    out.insert(1, "generate".into());
+    Ok(out)
+}
+
 fn main() -> ExitCode {
-    match Cli::try_parse() {
+    let args = match with_default_command(std::env::args_os().collect()) {
+        Ok(a) => a,
+        Err(message) => {
+            eprintln!("{message}");
+            return ExitCode::from(2);
+        }
+    };
+    match Cli::try_parse_from(args) {
         Ok(cli) => run(cli),
         Err(e) => {
             let _ = e.print();

@@ -282,3 +282,79 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown kernel `nope`"));
 }
+
+fn stderr(out: &Output) -> String {
+    String::from_utf8_lossy(&out.stderr).into_owned()
+}
+
+/// Issue 11, item 5: what a new user tripped over on the command line.
+#[test]
+fn what_a_new_user_tripped_over() {
+    // Global options work before the command too; `--strict` really is strict there (Atlas
+    // has implausible inertias, a warning).
+    assert_eq!(grid_gen(&["--strict", "info", "robots/grid_iiwa.urdf"]).status.code(), Some(0));
+    assert_eq!(grid_gen(&["--strict", "info", "robots/grid_atlas.urdf"]).status.code(), Some(1));
+    assert_eq!(grid_gen(&["--strict", "robots/grid_atlas.urdf"]).status.code(), Some(1));
+    assert_eq!(grid_gen(&["info", "robots/grid_atlas.urdf"]).status.code(), Some(0));
+    // `generate` is the default command and can be named.
+    assert_eq!(grid_gen(&["generate", "robots/grid_iiwa.urdf"]).stdout, grid_gen(&["robots/grid_iiwa.urdf"]).stdout);
+    // A mistyped command is named as one, with the suggestion.
+    let typo = grid_gen(&["infoo", "robots/grid_iiwa.urdf"]);
+    assert_eq!(typo.status.code(), Some(2));
+    assert!(stderr(&typo).contains("unrecognized command 'infoo'") && stderr(&typo).contains("a similar command exists: 'info'"), "{}", stderr(&typo));
+    // A mistyped flag gets clap's suggestion, before or after the URDF.
+    for args in [&["robots/grid_iiwa.urdf", "--gravty", "0,0,1"][..], &["--gravty", "0,0,1", "robots/grid_iiwa.urdf"]] {
+        let flag = grid_gen(args);
+        assert_eq!(flag.status.code(), Some(2));
+        assert!(stderr(&flag).contains("a similar argument exists: '--gravity'"), "{}", stderr(&flag));
+    }
+    // The top-level usage shows the options.
+    let bare = grid_gen(&[]);
+    let text = String::from_utf8_lossy(&bare.stdout).into_owned() + &stderr(&bare);
+    assert!(text.contains("Usage: grid-gen [OPTIONS] <ROBOT.urdf>") && text.contains("grid-gen [OPTIONS] <COMMAND>"), "{text}");
+    // The summary counts the operations of the code that --gravity would generate: zero
+    // gravity folds the gravity terms away.
+    let ops = |args: &[&str]| -> u64 {
+        let v = json(&grid_gen(args));
+        v["ops"].as_array().unwrap().iter().find(|k| k["kernel"] == "rnea").map(|k| k["after"]["mul"].as_u64().unwrap()).unwrap()
+    };
+    let default = ops(&["info", "robots/grid_iiwa.urdf", "--json"]);
+    let zero = ops(&["info", "robots/grid_iiwa.urdf", "--json", "--gravity", "0,0,0"]);
+    assert!(zero < default, "zero gravity: {zero} multiplications, default {default}");
+    let summary = String::from_utf8_lossy(&grid_gen(&["robots/grid_iiwa.urdf", "--gravity", "0,0,0"]).stdout).into_owned();
+    assert!(summary.contains("gravity: 0, 0, 0 m/s²"), "{summary}");
+
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-newuser-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    // One movable joint is singular.
+    let single = dir.join("single.urdf");
+    std::fs::write(
+        &single,
+        r#"<robot name="one"><link name="base"/><link name="arm"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+<joint name="j" type="revolute"><parent link="base"/><child link="arm"/><axis xyz="0 0 1"/><limit lower="-1" upper="1" effort="1" velocity="1"/></joint></robot>"#,
+    )
+    .unwrap();
+    let one = String::from_utf8_lossy(&grid_gen(&[single.to_str().unwrap()]).stdout).into_owned();
+    assert!(one.contains("robot `one`: 1 movable joint,"), "{one}");
+    // -o naming an existing file says so.
+    let file = dir.join("a_file");
+    std::fs::write(&file, "x").unwrap();
+    let out = grid_gen(&["robots/ur5.urdf", "-o", file.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("not a directory"), "{}", stderr(&out));
+    // Two URDFs whose robots share a name do not overwrite each other in one folder.
+    let ur5 = std::fs::read_to_string(repo().join("robots/ur5.urdf")).unwrap();
+    let (a, b) = (dir.join("ur5_a.urdf"), dir.join("ur5_b.urdf"));
+    std::fs::write(&a, &ur5).unwrap();
+    std::fs::write(&b, &ur5).unwrap();
+    let out_dir = dir.join("out");
+    let o = out_dir.to_str().unwrap();
+    assert_eq!(grid_gen(&[a.to_str().unwrap(), "-o", o]).status.code(), Some(0));
+    let clash = grid_gen(&[b.to_str().unwrap(), "-o", o]);
+    assert_eq!(clash.status.code(), Some(1));
+    assert!(stderr(&clash).contains("generated from ur5_a.urdf, not ur5_b.urdf"), "{}", stderr(&clash));
+    assert!(std::fs::read_to_string(out_dir.join("ur5.rs")).unwrap().contains("// source: ur5_a.urdf"), "the first robot's file is kept");
+    assert_eq!(grid_gen(&[a.to_str().unwrap(), "-o", o]).status.code(), Some(0), "regenerating from the same file is fine");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -5,7 +5,7 @@
 //! // build.rs
 //! fn main() -> Result<(), grid_gen::BuildError> {
 //!     grid_gen::Builder::new()
-//!         .urdf("robots/iiwa.urdf")
+//!         .urdf("robots/grid_iiwa.urdf")
 //!         .file_name("robot.rs")
 //!         .compile()?;
 //!     Ok(())
@@ -97,7 +97,7 @@ impl Builder {
     /// ```no_run
     /// # fn main() -> Result<(), grid_gen::BuildError> {
     /// use grid_gen::generate::Target;
-    /// grid_gen::Builder::new().urdf("robots/iiwa.urdf").emit(&[Target::Rust]).compile()?;
+    /// grid_gen::Builder::new().urdf("robots/grid_iiwa.urdf").emit(&[Target::Rust]).compile()?;
     /// # Ok(()) }
     /// ```
     pub fn emit(&mut self, targets: &[Target]) -> &mut Self {
@@ -125,7 +125,9 @@ impl Builder {
         self
     }
 
-    /// Refuse URDFs with warnings (such as physically implausible inertias).
+    /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
+    /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
+    /// warnings are printed as `cargo:warning=` lines and generation goes on.
     pub fn strict(&mut self, strict: bool) -> &mut Self {
         self.strict = strict;
         self
@@ -138,7 +140,8 @@ impl Builder {
         self
     }
 
-    /// Do not print `cargo:` directives (for use outside build scripts).
+    /// Do not print `cargo:` directives (`rerun-if-changed`, and `warning` for each URDF
+    /// warning), for use outside build scripts.
     pub fn quiet(&mut self, quiet: bool) -> &mut Self {
         self.quiet = quiet;
         self
@@ -146,8 +149,9 @@ impl Builder {
 
     /// Reads the URDF, generates the selected targets' files, writes each if its contents
     /// changed, and returns their paths in [`Target::ALL`] order. In a build script this
-    /// prints `cargo:rerun-if-changed=<urdf>` (cargo's protocol, the only output of the
-    /// library) unless [`Builder::quiet`].
+    /// prints `cargo:rerun-if-changed=<urdf>` and a `cargo:warning=` line per line of each
+    /// URDF warning (cargo's protocol, the only output of the library) unless
+    /// [`Builder::quiet`].
     pub fn compile(&self) -> Result<Vec<PathBuf>, BuildError> {
         if self.options.targets.is_empty() {
             return Err(BuildError::NoTargets);
@@ -161,7 +165,13 @@ impl Builder {
             None => std::env::var_os("OUT_DIR").map(PathBuf::from).ok_or(BuildError::NoOutDir)?,
         };
         let text = std::fs::read_to_string(urdf).map_err(|e| BuildError::Read(urdf.clone(), e))?;
-        let (model, _warnings) = Model::from_urdf_str(&urdf.display().to_string(), &text, self.strict).map_err(|e| BuildError::Load(Box::new(e)))?;
+        let shown = urdf.display().to_string();
+        let (model, warnings) = Model::from_urdf_str(&shown, &text, self.strict).map_err(|e| BuildError::Load(Box::new(e)))?;
+        if !self.quiet {
+            for line in cargo_warnings(&shown, &text, &warnings) {
+                println!("{line}");
+            }
+        }
         if let Some(name) = &self.file_name {
             if name.contains(['/', '\\']) || name.starts_with('.') || !name.ends_with(".rs") {
                 return Err(BuildError::BadFileName(name.clone()));
@@ -173,5 +183,27 @@ impl Builder {
         }
         let written = write_files(&out_dir, &files, false).map_err(|e| BuildError::Write(out_dir.clone(), e))?;
         Ok(written.into_iter().map(|(path, _)| path).collect())
+    }
+}
+
+/// The URDF's warnings as `cargo:warning=` lines, which cargo shows to the user (one line
+/// each); without them a build script would hide what `grid-gen info` reports.
+fn cargo_warnings(path: &str, text: &str, warnings: &[crate::Diagnostic]) -> Vec<String> {
+    warnings.iter().flat_map(|w| w.render_plain(path, text).lines().map(|l| format!("cargo:warning={l}")).collect::<Vec<_>>()).collect()
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn urdf_warnings_become_cargo_warning_lines() {
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/diagnostics/mimic_unknown.urdf");
+        let text = std::fs::read_to_string(path).unwrap();
+        let (_, warnings) = crate::Model::from_urdf_str("mimic_unknown.urdf", &text, false).unwrap();
+        let lines = super::cargo_warnings("mimic_unknown.urdf", &text, &warnings);
+        assert!(
+            lines[0].starts_with("cargo:warning=mimic_unknown.urdf:4:") && lines[0].ends_with("warning: joint `j1` mimics unknown joint `j0`"),
+            "{lines:?}"
+        );
+        assert!(lines.len() > 1 && lines.iter().all(|l| l.starts_with("cargo:warning=") && !l.contains('\n')), "{lines:?}");
     }
 }

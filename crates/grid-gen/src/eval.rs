@@ -93,8 +93,9 @@ pub struct Output {
     pub drnea_dqd: Option<Matrix>,
     #[serde(rename = "M")]
     pub m: Matrix,
-    #[serde(rename = "Minv")]
-    pub minv: Matrix,
+    /// Absent when M is singular ([`Model::singular`]).
+    #[serde(rename = "Minv", skip_serializing_if = "Option::is_none")]
+    pub minv: Option<Matrix>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub fd: Option<Vec<f64>>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -118,6 +119,8 @@ pub enum EvalError {
     Length { index: usize, field: &'static str, found: usize, expected: usize },
     #[error("state {index}: `{field}[{entry}]` is not finite")]
     NotFinite { index: usize, field: &'static str, entry: usize },
+    #[error("state {index}: `tau` asks for forward dynamics, which needs M⁻¹, and M is singular (joint `{joint}` moves no inertia); leave `tau` out")]
+    Singular { index: usize, joint: String },
 }
 
 fn rows(m: &nalgebra::DMatrix<f64>) -> Matrix {
@@ -144,6 +147,9 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
                 return Err(EvalError::NotFinite { index, field, entry });
             }
         }
+        if let (Some(joint), Some(_)) = (&model.singular, &s.tau) {
+            return Err(EvalError::Singular { index, joint: joint.clone() });
+        }
     }
     Ok(())
 }
@@ -169,7 +175,8 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
                 }
                 None => (None, None, None),
             };
-            Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv: rows(&reference::minv(model, &s.q)), fd, dfd_dq, dfd_dqd }
+            let minv = model.singular.is_none().then(|| rows(&reference::minv(model, &s.q)));
+            Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv, fd, dfd_dq, dfd_dqd }
         })
         .collect();
     Ok(EvalOutput { joint_names: model.joints.iter().map(|j| j.name.clone()).collect(), states })
@@ -287,7 +294,7 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
     let mut states: Vec<Output> = file
         .states
         .iter()
-        .map(|_| Output { rnea: None, drnea_dq: None, drnea_dqd: None, m: Vec::new(), minv: Vec::new(), fd: None, dfd_dq: None, dfd_dqd: None })
+        .map(|_| Output { rnea: None, drnea_dq: None, drnea_dqd: None, m: Vec::new(), minv: None, fd: None, dfd_dq: None, dfd_dqd: None })
         .collect();
     let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {
         chosen.iter().flat_map(|&i| pick(&file.states[i]).map(|v| v.as_slice()).unwrap_or(&[]).iter().copied()).collect()
@@ -299,7 +306,7 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
         (KernelKind::Rnea, &with_qdd, &|s: &State| s.qdd.as_ref()),
         (KernelKind::RneaGrad, &with_qdd, &|s: &State| s.qdd.as_ref()),
         (KernelKind::MassMatrix, &all, &|_: &State| None),
-        (KernelKind::Minv, &all, &|_: &State| None),
+        (KernelKind::Minv, if model.singular.is_some() { &[] } else { &all }, &|_: &State| None),
         (KernelKind::FdGrad, &with_tau, &|s: &State| s.tau.as_ref()),
     ];
     for (kind, chosen, u) in plan {
@@ -322,7 +329,7 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
                     st.drnea_dqd = Some(matrix(&values[m..2 * m]));
                 }
                 KernelKind::MassMatrix => st.m = matrix(values),
-                KernelKind::Minv => st.minv = matrix(values),
+                KernelKind::Minv => st.minv = Some(matrix(values)),
                 _ => {
                     st.fd = Some(values[..nv].to_vec());
                     st.dfd_dq = Some(matrix(&values[nv..nv + m]));

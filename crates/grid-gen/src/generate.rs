@@ -73,11 +73,32 @@ pub enum FileStatus {
 
 /// Writes `files` into `dir` (created if needed), rewriting only files whose contents
 /// change; with `check`, writes nothing and reports which would change. File names come
-/// from the namer and never contain a path separator; a name that does is refused.
+/// from the namer and never contain a path separator; a name that does is refused. A
+/// file whose header names another source URDF (two robots with the same name sent to
+/// one folder) is refused before anything is written.
 pub fn write_files(dir: &Path, files: &[GeneratedFile], check: bool) -> std::io::Result<Vec<(PathBuf, FileStatus)>> {
+    use std::io::{Error, ErrorKind};
     for f in files {
         if f.name.is_empty() || f.name.contains(['/', '\\']) || f.name.starts_with('.') {
-            return Err(std::io::Error::new(std::io::ErrorKind::InvalidInput, format!("refusing to write `{}`: not a plain file name", f.name)));
+            return Err(Error::new(ErrorKind::InvalidInput, format!("refusing to write `{}`: not a plain file name", f.name)));
+        }
+    }
+    if dir.exists() && !dir.is_dir() {
+        return Err(Error::new(ErrorKind::NotADirectory, "it exists and is not a directory"));
+    }
+    for f in files {
+        let Ok(old) = std::fs::read_to_string(dir.join(&f.name)) else { continue };
+        if let (Some(was), Some(now)) = (crate::back::source_of(&old), crate::back::source_of(&f.contents)) {
+            if was != now {
+                return Err(Error::new(
+                    ErrorKind::AlreadyExists,
+                    format!(
+                        "`{}` there was generated from {was}, not {now}: two robots with the same name would overwrite each other; \
+                         choose another folder, or delete the file to replace it",
+                        f.name
+                    ),
+                ));
+            }
         }
     }
     if !check {

@@ -30,6 +30,8 @@ pub struct Info {
     pub robot: String,
     pub root_link: String,
     pub nv: usize,
+    /// Gravity in the root frame (m/s²) the op counts and netlists were built with.
+    pub gravity: [f64; 3],
     /// Movable joints in model order (depth-first pre-order, children in document order).
     pub joint_names: Vec<String>,
     pub joint_types: Vec<JointType>,
@@ -42,7 +44,7 @@ pub struct Info {
     pub sparsity: Sparsity,
     /// Operations of every generated kernel before specialisation (the general dense
     /// algorithm, as a library runs it) and after (constants folded, structural zeros and
-    /// shared subexpressions removed), with the critical-path depth; default gravity.
+    /// shared subexpressions removed), with the critical-path depth; with `gravity`.
     /// Each graph is built under a node limit ([`ir::STATS_MAX_NODES`]), so the summary
     /// costs bounded time and memory on any robot; kernels over it are in `ops_skipped`.
     pub ops: Vec<KernelStats>,
@@ -58,11 +60,18 @@ pub struct Info {
 }
 
 impl Info {
+    /// The summary with default gravity and the gradient formulation picked by op count.
     pub fn new(model: &Model) -> Self {
+        Info::with_options(model, DEFAULT_GRAVITY, ir::Gradient::Auto)
+    }
+
+    /// The summary of the kernels generated with this gravity and gradient formulation.
+    pub fn with_options(model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
         Info {
             robot: model.name.clone(),
             root_link: model.root_link.clone(),
             nv: model.nv(),
+            gravity,
             joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
             joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
             parents: model.joints.iter().map(|j| j.parent).collect(),
@@ -78,13 +87,13 @@ impl Info {
             verilog: Vec::new(),
             verilog_skipped: None,
         }
-        .with_ops(ir::stats(model, DEFAULT_GRAVITY, ir::STATS_MAX_NODES))
-        .with_verilog(model)
+        .with_ops(ir::stats(model, gravity, gradient, ir::STATS_MAX_NODES))
+        .with_verilog(model, gravity, gradient)
     }
 
-    fn with_verilog(mut self, model: &Model) -> Self {
-        let lower = ir::LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), max_nodes: ir::STATS_MAX_NODES, ..ir::LowerOptions::default() };
-        let result = ir::lower(model, DEFAULT_GRAVITY, &lower).map_err(|e| e.to_string()).and_then(|module| {
+    fn with_verilog(mut self, model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
+        let lower = ir::LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), max_nodes: ir::STATS_MAX_NODES, gradient, ..ir::LowerOptions::default() };
+        let result = ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|module| {
             let mut all = Vec::new();
             let archs = [Arch::Pipelined { stage_depth: DEFAULT_STAGE_DEPTH }, Arch::Shared { multipliers: DEFAULT_MULTIPLIERS, adders: DEFAULT_ADDERS }];
             for arch in archs {
@@ -108,7 +117,10 @@ impl Info {
 
     /// A short human-readable summary.
     pub fn to_text(&self) -> String {
-        let mut s = format!("robot `{}`: {} movable joints, root link `{}`\n", self.robot, self.nv, self.root_link);
+        let joints = if self.nv == 1 { "joint" } else { "joints" };
+        let mut s = format!("robot `{}`: {} movable {joints}, root link `{}`\n", self.robot, self.nv, self.root_link);
+        let [gx, gy, gz] = self.gravity;
+        s.push_str(&format!("gravity: {gx}, {gy}, {gz} m/s²\n"));
         s.push_str("joints (model order):\n");
         for (i, name) in self.joint_names.iter().enumerate() {
             let parent = self.parents[i].map_or("root".to_string(), |p| format!("{p}"));

@@ -11,8 +11,9 @@ impl Model {
     /// model; with `strict`, a warning is an error.
     pub fn from_urdf_str(path: &str, text: &str, strict: bool) -> Result<(Model, Vec<Diagnostic>), LoadError> {
         let (urdf, tree, mut diags) = urdf::load(path, text)?;
-        let built = build(&urdf, &tree, &mut diags).map(|(model, source)| {
-            check_massless(&model, &source, &urdf, &mut diags);
+        let built = build(&urdf, &tree, &mut diags).map(|(mut model, source)| {
+            model.singular = check_massless(&model, &source, &urdf, &mut diags);
+            model.source = std::path::Path::new(path).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
             model
         });
         let failed = diags.iter().any(|d| d.severity == Severity::Error || (strict && d.severity == Severity::Warning));
@@ -32,7 +33,10 @@ impl Model {
 
 /// Every movable joint must move some inertia, or M is singular: M_ii = S_iᵀ Ic_i S_i > 0,
 /// with Ic_i the composite inertia of its subtree (checked at q = 0 with the reference CRBA).
-fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<Diagnostic>) {
+/// A joint that does not is a warning (example-robot-data's `romeo.urdf` has one): RNEA,
+/// its gradient and M are still right. Returns the first such joint's name.
+fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<Diagnostic>) -> Option<String> {
+    let mut singular = None;
     let n = model.nv();
     let m = crate::reference::crba(model, &vec![0.0; n]);
     let mut mass: Vec<f64> = model.joints.iter().map(|j| j.inertia.mass).collect();
@@ -55,7 +59,10 @@ fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<
                     format!("the links from `{child}` down have their mass on the axis and no rotational inertia; give them an <inertia>"),
                 )
             };
-            diags.push(Diagnostic::error(message, Some(uj.span.clone()), "the mass matrix would be singular").with_help(help));
+            let help = format!("{help}; until then rnea, rnea_grad and mass_matrix are generated, and minv, fd and fd_grad (which need M⁻¹) are not");
+            diags.push(Diagnostic::warning(message, Some(uj.span.clone()), "the mass matrix is singular").with_help(help));
+            singular = Some(uj.name.clone());
         }
     }
+    singular
 }

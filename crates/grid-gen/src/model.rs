@@ -140,6 +140,12 @@ pub struct Joint {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Model {
     pub name: String,
+    /// The URDF's file name without folders (empty when it came from no file); generated
+    /// headers name it.
+    pub source: String,
+    /// When M is singular (a joint moves no inertia), that joint's name: the kernels that
+    /// need M⁻¹ (`minv`, `fd`, `fd_grad`) are not generated or evaluated; the rest are.
+    pub singular: Option<String>,
     pub root_link: String,
     pub joints: Vec<Joint>,
 }
@@ -328,6 +334,6 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Op
             Step::Close { body } => joints[body].subtree_end = joints.len(),
         }
     }
-    let model = Model { name: urdf.name.clone(), root_link: urdf.links[tree.root].name.clone(), joints };
+    let model = Model { name: urdf.name.clone(), source: String::new(), singular: None, root_link: urdf.links[tree.root].name.clone(), joints };
     Some((model, source))
 }

@@ -31,7 +31,8 @@ const HOSTILE: &str = r#"<robot name="../../evil&quot;); std::process::exit(1); 
 
 #[test]
 fn urdf_names_cannot_inject_code_or_paths() {
-    let (model, _) = grid_gen::Model::from_urdf_str("hostile.urdf", HOSTILE, false).unwrap();
+    // The file name is written into the header too.
+    let (model, _) = grid_gen::Model::from_urdf_str("x/h.urdf\n}\nfn y() {}\n//", HOSTILE, false).unwrap();
     let file = generate(&model, &Options::default()).unwrap().remove(0);
     assert_eq!(file.name, "______evil____std__process__exit_1_____.rs");
     // The code parses, and its only items are the ones grid-gen writes.
@@ -104,8 +105,43 @@ fn urdf_names_cannot_inject_code_or_paths() {
     };
     assert_eq!(lit("ROBOT"), [model.name.clone()]);
     assert_eq!(lit("JOINT_NAMES"), [model.joints[0].name.clone()]);
-    // Comments only carry escaped names: no raw newline from the URDF.
+    // Comments only carry escaped names: no raw newline from the URDF or its file name.
     assert!(file.contents.lines().filter(|l| l.starts_with("//")).all(|l| !l.contains("fn x()")));
+    // The file name (the last path component: `h.urdf`, a newline, `}`, ...) is escaped
+    // onto one comment line.
+    assert_eq!(grid_gen::back::source_of(&file.contents), Some("h.urdf\\u{a}}\\u{a}fn y() {}\\u{a}"));
+}
+
+/// A robot whose joints are all fixed still gets every kernel (of size zero), and the
+/// module compiles without a single rustc warning.
+#[test]
+fn a_robot_without_movable_joints_compiles_without_warnings() {
+    let urdf = r#"<robot name="statue">
+  <link name="base"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+  <link name="head"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+  <joint name="neck" type="fixed"><parent link="base"/><child link="head"/></joint>
+</robot>"#;
+    let (model, _) = grid_gen::Model::from_urdf_str("statue.urdf", urdf, false).unwrap();
+    let file = generate(&model, &Options::default()).unwrap().remove(0);
+    let dir = std::env::temp_dir().join(format!("grid-gen-statue-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("statue.rs"), &file.contents).unwrap();
+    std::fs::write(
+        dir.join("lib.rs"),
+        "mod statue { include!(\"statue.rs\"); }\n\
+         pub fn all() -> usize { let z: [f64; 0] = []; statue::rnea(&z, &z, &z); statue::rnea_grad(&z, &z, &z); statue::mass_matrix(&z); \
+         statue::minv(&z); statue::fd(&z, &z, &z); statue::fd_grad(&z, &z, &z); statue::NV }\n",
+    )
+    .unwrap();
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let out = std::process::Command::new(rustc)
+        .args(["--edition", "2021", "--crate-type", "lib", "--emit", "metadata", "-D", "warnings", "--out-dir"])
+        .arg(&dir)
+        .arg(dir.join("lib.rs"))
+        .output()
+        .unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
 }
 
 #[test]

@@ -83,10 +83,47 @@ fn dense_ir_matches_the_reference() {
 #[test]
 fn specialisation_removes_work_and_keeps_depth_bounded() {
     let model = load("grid_atlas");
-    let stats = ir::stats(&model, reference::DEFAULT_GRAVITY, ir::STATS_MAX_NODES);
+    let stats = ir::stats(&model, reference::DEFAULT_GRAVITY, ir::Gradient::Auto, ir::STATS_MAX_NODES);
     assert!(stats.skipped.is_empty(), "Atlas fits the op-count limit: {:?}", stats.skipped);
     assert_eq!(stats.ops.len(), KernelKind::ALL.len());
     for s in stats.ops {
         assert!(s.after.total() < s.before.total(), "{}: {:?} vs {:?}", s.kernel, s.after, s.before);
     }
+}
+
+/// Issue 11, item 4: a joint that moves only massless links makes M singular. Loading
+/// warns; RNEA, its gradient and M are still lowered (and right), the kernels that need
+/// M⁻¹ are left out everywhere: the module, `info`, the generated Rust and `eval`.
+#[test]
+fn a_singular_mass_matrix_blocks_only_the_kernels_that_need_its_inverse() {
+    let path = repo().join("tests/diagnostics/massless_subtree.urdf");
+    let text = std::fs::read_to_string(&path).unwrap();
+    let (model, warnings) = Model::from_urdf_str("massless_subtree.urdf", &text, false).expect("a singular M is a warning");
+    assert!(warnings.iter().any(|w| w.message.contains("joint `j2` moves only massless links")), "{warnings:?}");
+    assert!(Model::from_urdf_str("massless_subtree.urdf", &text, true).is_err(), "--strict refuses it");
+    assert_eq!(model.singular.as_deref(), Some("j2"));
+    let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+    let kinds: Vec<KernelKind> = module.functions.iter().map(|f| f.kind).collect();
+    assert_eq!(kinds, [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix]);
+    let mut rng = Rng(17);
+    let n = model.nv();
+    for _ in 0..3 {
+        let (q, qd, u) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
+        for (what, e) in compare(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default(), &q, &qd, &u) {
+            assert!(e <= TOL, "{what} relative error {e:.2e}");
+        }
+    }
+    let err = ir::lower_function(&model, reference::DEFAULT_GRAVITY, KernelKind::FdGrad, &LowerOptions::default()).unwrap_err().to_string();
+    assert!(err.contains("needs M⁻¹, and M is singular (joint `j2`"), "{err}");
+    let info = grid_gen::info::Info::new(&model);
+    let skipped: Vec<&str> = info.ops_skipped.iter().map(|s| s.kernel.name()).collect();
+    assert_eq!(skipped, ["minv", "fd", "fd_grad"]);
+    let rust = grid_gen::generate::generate(&model, &grid_gen::generate::Options::default()).unwrap().remove(0).contents;
+    assert!(rust.contains("pub fn mass_matrix<") && !rust.contains("pub fn minv<") && !rust.contains("pub fn fd<"));
+    let states = grid_gen::eval::parse_states(r#"{"states": [{"q": [0.1, 0.2], "qd": [0.3, 0.4], "qdd": [1, 2]}]}"#).unwrap();
+    let out = serde_json::to_value(grid_gen::eval::evaluate(&model, &states, reference::DEFAULT_GRAVITY).unwrap()).unwrap();
+    assert!(out["states"][0]["M"].is_array() && out["states"][0]["drnea_dq"].is_array() && out["states"][0].get("Minv").is_none(), "{out}");
+    let with_tau = grid_gen::eval::parse_states(r#"{"states": [{"q": [0, 0], "qd": [0, 0], "tau": [1, 2]}]}"#).unwrap();
+    let err = grid_gen::eval::evaluate(&model, &with_tau, reference::DEFAULT_GRAVITY).unwrap_err().to_string();
+    assert!(err.contains("state 0: `tau` asks for forward dynamics, which needs M⁻¹, and M is singular (joint `j2`"), "{err}");
 }

@@ -7,6 +7,26 @@ pub mod rust;
 pub mod verilog;
 pub mod wgsl;
 
+/// Starts the header line that names the URDF file a generated file came from;
+/// [`crate::generate::write_files`] reads it back so that two robots sharing a name never
+/// silently overwrite each other's files in one folder.
+pub const SOURCE_PREFIX: &str = "// source: ";
+
+/// The header line naming `source` (the URDF's file name, escaped like every name in a
+/// comment), or nothing when the model has no file.
+pub fn source_line(source: &str) -> String {
+    if source.is_empty() {
+        String::new()
+    } else {
+        format!("{SOURCE_PREFIX}{}\n", names::comment_text(source))
+    }
+}
+
+/// The source named in a generated file's header, if it has one.
+pub fn source_of(contents: &str) -> Option<&str> {
+    contents.lines().take(16).find_map(|l| l.strip_prefix(SOURCE_PREFIX))
+}
+
 /// One output file: a name (no folders) and its contents.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct GeneratedFile {

@@ -154,6 +154,11 @@ impl KernelKind {
         format!("{}({}) -> {ret}", self.name(), args.join(", "))
     }
 
+    /// Whether the kernel needs M⁻¹, so cannot exist for a robot whose M is singular.
+    pub fn needs_minv(self) -> bool {
+        matches!(self, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad)
+    }
+
     /// Kernels whose graph contains this one's (a superset of its work): if this kernel is
     /// too large to lower, so are they.
     pub fn contained_in(self) -> &'static [KernelKind] {

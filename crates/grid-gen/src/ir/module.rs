@@ -56,6 +56,8 @@ pub enum LowerError {
     TooLarge { robot: String, nv: usize, kernel: KernelKind, limit: usize },
     #[error("robot `{robot}`: a constant of the dynamics overflows f64 ({value}); check the URDF for huge masses, inertias or lengths")]
     NotFinite { robot: String, value: f64 },
+    #[error("robot `{robot}`: kernel `{kernel}` needs M⁻¹, and M is singular (joint `{joint}` moves no inertia)")]
+    Singular { robot: String, kernel: KernelKind, joint: String },
     #[error("internal error: kernel `{kernel}` failed IR validation: {error}")]
     Invalid { kernel: KernelKind, error: ValidationError },
 }
@@ -65,6 +67,8 @@ pub enum LowerError {
 pub struct Robot {
     /// The URDF's robot name, verbatim (backends escape it).
     pub name: String,
+    /// The URDF's file name (see [`Model::source`]).
+    pub source: String,
     /// Movable joints in model order.
     pub joint_names: Vec<String>,
     pub joint_types: Vec<JointType>,
@@ -119,6 +123,7 @@ impl Module {
 pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result<Module, LowerError> {
     let robot = Robot {
         name: model.name.clone(),
+        source: model.source.clone(),
         joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
         joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
         parents: model.joints.iter().map(|j| j.parent).collect(),
@@ -126,7 +131,8 @@ pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result
         velocity_limits: model.joints.iter().map(|j| j.velocity_limit).collect(),
     };
     let mut functions = Vec::new();
-    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)) {
+    // A singular M leaves out the kernels that need M⁻¹ (the load warning says so).
+    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k) && !(model.singular.is_some() && k.needs_minv())) {
         functions.push(lower_function(model, gravity, kind, options)?);
     }
     Ok(Module { robot, gravity, functions })
@@ -136,6 +142,9 @@ pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result
 pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions) -> Result<Function, LowerError> {
     if gravity.iter().any(|g| !g.is_finite()) {
         return Err(LowerError::Gravity(gravity));
+    }
+    if let (Some(joint), true) = (&model.singular, kind.needs_minv()) {
+        return Err(LowerError::Singular { robot: model.name.clone(), kernel: kind, joint: joint.clone() });
     }
     let f = match options.gradient {
         Gradient::Auto if Gradient::applies_to(kind) => {

@@ -82,8 +82,9 @@ pub const STATS_MAX_NODES: usize = 2_000_000;
 /// Counts every kernel specialised and as the general algorithm, each graph built under
 /// `max_nodes`. A kernel whose graph would be larger is listed as skipped, and so is
 /// every kernel that contains it, without building them: time and memory stay bounded
-/// whatever the robot.
-pub fn stats(model: &Model, gravity: [f64; 3], max_nodes: usize) -> Stats {
+/// whatever the robot. `gradient` picks the specialised graphs' RNEA-gradient formulation
+/// (the general count is always the column formulation, as a library runs it).
+pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: usize) -> Stats {
     let mut out = Stats { ops: Vec::new(), skipped: Vec::new() };
     let mut too_large: Vec<(KernelKind, KernelKind)> = Vec::new();
     for kind in KernelKind::ALL {
@@ -92,14 +93,14 @@ pub fn stats(model: &Model, gravity: [f64; 3], max_nodes: usize) -> Stats {
             continue;
         }
         let mut counts = [OpCounts::default(); 2];
-        let mut gradient = None;
+        let mut picked = None;
         let mut failed = None;
-        for (slot, base) in counts.iter_mut().zip([LowerOptions::default(), LowerOptions::general()]) {
+        for (slot, base) in counts.iter_mut().zip([LowerOptions { gradient, ..LowerOptions::default() }, LowerOptions::general()]) {
             let options = LowerOptions { max_nodes, ..base };
             match lower_function(model, gravity, kind, &options) {
                 Ok(f) => {
                     *slot = f.counts();
-                    gradient = gradient.or(f.gradient);
+                    picked = picked.or(f.gradient);
                 }
                 Err(e) => {
                     failed = Some(e);
@@ -108,7 +109,7 @@ pub fn stats(model: &Model, gravity: [f64; 3], max_nodes: usize) -> Stats {
             }
         }
         match failed {
-            None => out.ops.push(KernelStats { kernel: kind, after: counts[0], before: counts[1], gradient }),
+            None => out.ops.push(KernelStats { kernel: kind, after: counts[0], before: counts[1], gradient: picked }),
             Some(e) => {
                 let reason = match e {
                     LowerError::TooLarge { limit, .. } => {

@@ -22,10 +22,36 @@ pub fn load(path: &str, text: &str) -> Result<(Urdf, Tree, Vec<Diagnostic>), Loa
         return Err(fail(diags));
     }
     match check_tree(&urdf) {
-        Ok(tree) => Ok((urdf, tree, diags)),
+        Ok(tree) => {
+            unknown_mimic_targets(&urdf, &mut diags);
+            Ok((urdf, tree, diags))
+        }
         Err(more) => {
             diags.extend(more);
             Err(fail(diags))
+        }
+    }
+}
+
+/// A `<mimic>` naming no joint of the robot is a warning, not an error: urdfdom and
+/// Pinocchio accept such files (example-robot-data's `alex_psyonic_hands.urdf` is one),
+/// and grid-gen models mimic joints as independent joints, so nothing depends on the
+/// target.
+fn unknown_mimic_targets(urdf: &Urdf, diags: &mut Vec<Diagnostic>) {
+    for joint in &urdf.joints {
+        let Some(m) = &joint.mimic else { continue };
+        if !urdf.joints.iter().any(|j| j.name == m.joint) {
+            diags.push(
+                Diagnostic::warning(
+                    format!("joint `{}` mimics unknown joint `{}`", joint.name, m.joint),
+                    Some(m.span.clone()),
+                    "the <mimic> names no joint of this robot",
+                )
+                .with_help(format!(
+                    "`{}` is modelled as an independent joint, as urdfdom and Pinocchio do; correct the name in <mimic joint=\"...\"> if it is a typo",
+                    joint.name
+                )),
+            );
         }
     }
 }

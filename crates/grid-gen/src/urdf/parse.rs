@@ -53,6 +53,8 @@ impl JointKind {
 #[derive(Clone, Debug, PartialEq)]
 pub struct Mimic {
     pub joint: String,
+    /// The `<mimic>` element.
+    pub span: Range<usize>,
     pub multiplier: f64,
     pub offset: f64,
 }
@@ -265,6 +267,7 @@ impl Parser {
         let mimic = match child(node, "mimic") {
             Some(m) => Some(Mimic {
                 joint: self.required(m, "joint")?.to_string(),
+                span: tag_span(m),
                 multiplier: self.numbers::<1>(m, "multiplier", Some([1.0]))?[0],
                 offset: self.numbers::<1>(m, "offset", Some([0.0]))?[0],
             }),

@@ -93,18 +93,6 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
             child_joints[p].push(j);
         }
         joint_links.push((p, c));
-        if let Some(m) = &joint.mimic {
-            if !joint_names.contains_key(m.joint.as_str()) {
-                diags.push(
-                    Diagnostic::error(
-                        format!("joint `{}` mimics unknown joint `{}`", joint.name, m.joint),
-                        Some(joint.span.clone()),
-                        "the <mimic> names no joint of this robot",
-                    )
-                    .with_help("correct the name in <mimic joint=\"...\">"),
-                );
-            }
-        }
     }
     if !diags.is_empty() {
         return Err(diags);
