@@ -250,15 +250,26 @@ impl Function {
     /// each of length nv. Returns each output's values (matrices row-major). This checks
     /// the IR itself, and is the oracle every backend's output is compared with.
     pub fn eval(&self, inputs: &[&[f64]]) -> Vec<Vec<f64>> {
-        let mut val = vec![0.0; self.nodes.len()];
+        self.eval_as::<f64>(inputs)
+    }
+
+    /// The graph in double-double arithmetic (about 106 bits; [`super::precise`]): the
+    /// graph's own rounding becomes negligible, so this is the true value of what the
+    /// graph computes from its f64 inputs and constants.
+    pub fn eval_dd(&self, inputs: &[&[f64]]) -> Vec<Vec<super::precise::Dd>> {
+        self.eval_as::<super::precise::Dd>(inputs)
+    }
+
+    fn eval_as<T: EvalNumber>(&self, inputs: &[&[f64]]) -> Vec<Vec<T>> {
+        let mut val = vec![T::from_f64(0.0); self.nodes.len()];
         for (i, node) in self.nodes.iter().enumerate() {
             let v = |id: Id| val[id.0 as usize];
             val[i] = match node.op {
                 Op::Input(which, j) => {
                     let slot = self.inputs().iter().position(|&x| x == which).expect("validated input");
-                    inputs[slot][j as usize]
+                    T::from_f64(inputs[slot][j as usize])
                 }
-                Op::Const(c) => c,
+                Op::Const(c) => T::from_f64(c),
                 Op::Add(a, b) => v(a) + v(b),
                 Op::Sub(a, b) => v(a) - v(b),
                 Op::Mul(a, b) => v(a) * v(b),
@@ -269,5 +280,43 @@ impl Function {
             };
         }
         self.outputs.iter().map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect()).collect()
+    }
+}
+
+/// The number types the IR interpreter runs in.
+trait EvalNumber:
+    Copy
+    + core::ops::Add<Output = Self>
+    + core::ops::Sub<Output = Self>
+    + core::ops::Mul<Output = Self>
+    + core::ops::Div<Output = Self>
+    + core::ops::Neg<Output = Self>
+{
+    fn from_f64(x: f64) -> Self;
+    fn sin(self) -> Self;
+    fn cos(self) -> Self;
+}
+
+impl EvalNumber for f64 {
+    fn from_f64(x: f64) -> Self {
+        x
+    }
+    fn sin(self) -> Self {
+        f64::sin(self)
+    }
+    fn cos(self) -> Self {
+        f64::cos(self)
+    }
+}
+
+impl EvalNumber for super::precise::Dd {
+    fn from_f64(x: f64) -> Self {
+        super::precise::Dd::new(x)
+    }
+    fn sin(self) -> Self {
+        self.sin_cos().0
+    }
+    fn cos(self) -> Self {
+        self.sin_cos().1
     }
 }
