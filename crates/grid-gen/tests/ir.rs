@@ -189,5 +189,19 @@ fn f64_against_the_double_double_reference() {
         let eig = m.symmetric_eigenvalues();
         let cond = eig.max() / eig.min();
         eprintln!("{name}: fd_grad in f64 against double-double: generated graph {kernel_worst:.1e}, reference algorithms {reference_worst:.1e} (cond(M) at q = 0.3: {cond:.1e})");
+        // Extremes (issue 10, item 5): angles up to ±1e3 rad, speeds 1e3 and 1e-8.
+        let mut extreme_worst = 0.0f64;
+        for (qs, vs) in [(1e3, 1e3), (1e3, 1e-8), (3.0, 1e3)] {
+            let (q, qd, tau) = (rng.vec(n, -qs, qs), rng.vec(n, -vs, vs), rng.vec(n, -3.0, 3.0));
+            let f = exact.function(KernelKind::FdGrad).unwrap();
+            let args = kernel_args(f.inputs(), &q, &qd, &tau);
+            let truth = f.eval_dd(&args);
+            let got = fast.function(KernelKind::FdGrad).unwrap().eval(&args);
+            for (k, o) in f.outputs.iter().enumerate() {
+                let want = output_matrix(o.shape, n, &truth[k].iter().map(|x| x.to_f64()).collect::<Vec<_>>());
+                extreme_worst = extreme_worst.max(rel_err(&output_matrix(o.shape, n, &got[k]), &want));
+            }
+        }
+        eprintln!("{name}: the same at angles up to ±1e3 rad and speeds 1e3 or 1e-8: {extreme_worst:.1e}");
     }
 }
