@@ -148,16 +148,7 @@ fn generate_writes_checks_and_reports_op_counts() {
 
 /// A serial chain of `n` revolute links with alternating axes, written to a temporary file.
 fn chain_urdf(n: usize) -> PathBuf {
-    let mut s = String::from("<robot name=\"chain\"><link name=\"l0\"/>");
-    for i in 1..=n {
-        let axis = ["1 0 0", "0 1 0", "0 0 1"][i % 3];
-        s.push_str(&format!(
-            "<link name=\"l{i}\"><inertial><origin xyz=\"0 0 0.05\"/><mass value=\"1\"/><inertia ixx=\"0.01\" ixy=\"0\" ixz=\"0\" iyy=\"0.01\" iyz=\"0\" izz=\"0.01\"/></inertial></link>\
-             <joint name=\"j{i}\" type=\"revolute\"><parent link=\"l{}\"/><child link=\"l{i}\"/><origin xyz=\"0 0 0.1\"/><axis xyz=\"{axis}\"/><limit lower=\"-3\" upper=\"3\" effort=\"1\" velocity=\"1\"/></joint>",
-            i - 1
-        ));
-    }
-    s.push_str("</robot>");
+    let s = grid_gen_test_support::chain_urdf(n);
     let path = std::env::temp_dir().join(format!("grid-gen-chain{n}-{}.urdf", std::process::id()));
     std::fs::write(&path, s).unwrap();
     path

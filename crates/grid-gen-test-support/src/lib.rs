@@ -28,6 +28,22 @@ pub fn robots() -> Vec<String> {
     names
 }
 
+/// The URDF of a serial chain of `n` equal links (1 kg, 0.1 m), axes cycling x, y, z:
+/// cond(M) grows quickly with `n`, and so does every graph.
+pub fn chain_urdf(n: usize) -> String {
+    let mut s = String::from("<robot name=\"chain\"><link name=\"l0\"/>");
+    for i in 1..=n {
+        let axis = ["1 0 0", "0 1 0", "0 0 1"][i % 3];
+        s.push_str(&format!(
+            "<link name=\"l{i}\"><inertial><origin xyz=\"0 0 0.05\"/><mass value=\"1\"/><inertia ixx=\"0.01\" ixy=\"0\" ixz=\"0\" iyy=\"0.01\" iyz=\"0\" izz=\"0.01\"/></inertial></link>\
+             <joint name=\"j{i}\" type=\"revolute\"><parent link=\"l{}\"/><child link=\"l{i}\"/><origin xyz=\"0 0 0.1\"/><axis xyz=\"{axis}\"/><limit lower=\"-3\" upper=\"3\" effort=\"1\" velocity=\"1\"/></joint>",
+            i - 1
+        ));
+    }
+    s.push_str("</robot>");
+    s
+}
+
 pub fn load(robot: &str) -> Model {
     let path = repo().join("robots").join(format!("{robot}.urdf"));
     let text = std::fs::read_to_string(&path).expect("robot file");

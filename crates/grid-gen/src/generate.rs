@@ -86,9 +86,11 @@ pub fn write_files(dir: &Path, files: &[GeneratedFile], check: bool) -> std::io:
     if dir.exists() && !dir.is_dir() {
         return Err(Error::new(ErrorKind::NotADirectory, "it exists and is not a directory"));
     }
-    for f in files {
-        let Ok(old) = std::fs::read_to_string(dir.join(&f.name)) else { continue };
-        if let (Some(was), Some(now)) = (crate::back::source_of(&old), crate::back::source_of(&f.contents)) {
+    // Each existing file is read once: for its source here, and below to skip rewriting it.
+    let olds: Vec<Option<Vec<u8>>> = files.iter().map(|f| std::fs::read(dir.join(&f.name)).ok()).collect();
+    for (f, old) in files.iter().zip(&olds) {
+        let Some(old) = old.as_deref().and_then(|o| std::str::from_utf8(o).ok()) else { continue };
+        if let (Some(was), Some(now)) = (crate::back::source_of(old), crate::back::source_of(&f.contents)) {
             if was != now {
                 return Err(Error::new(
                     ErrorKind::AlreadyExists,
@@ -105,9 +107,9 @@ pub fn write_files(dir: &Path, files: &[GeneratedFile], check: bool) -> std::io:
         std::fs::create_dir_all(dir)?;
     }
     let mut out = Vec::new();
-    for f in files {
+    for (f, old) in files.iter().zip(olds) {
         let path = dir.join(&f.name);
-        let same = std::fs::read(&path).map(|old| old == f.contents.as_bytes()).unwrap_or(false);
+        let same = old.is_some_and(|old| old == f.contents.as_bytes());
         let status = match (same, check) {
             (true, _) => FileStatus::Unchanged,
             (false, true) => FileStatus::Stale,

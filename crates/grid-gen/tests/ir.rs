@@ -128,20 +128,8 @@ fn a_singular_mass_matrix_blocks_only_the_kernels_that_need_its_inverse() {
     assert!(err.contains("state 0: `tau` asks for forward dynamics, which needs M⁻¹, and M is singular (joint `j2`"), "{err}");
 }
 
-/// A serial chain of `n` links with equal links and axes cycling x, y, z (cond(M) grows
-/// quickly with `n`).
 fn chain(n: usize) -> Model {
-    let mut s = String::from("<robot name=\"chain\"><link name=\"l0\"/>");
-    for i in 1..=n {
-        let axis = ["1 0 0", "0 1 0", "0 0 1"][i % 3];
-        s.push_str(&format!(
-            "<link name=\"l{i}\"><inertial><origin xyz=\"0 0 0.05\"/><mass value=\"1\"/><inertia ixx=\"0.01\" ixy=\"0\" ixz=\"0\" iyy=\"0.01\" iyz=\"0\" izz=\"0.01\"/></inertial></link>\
-             <joint name=\"j{i}\" type=\"revolute\"><parent link=\"l{}\"/><child link=\"l{i}\"/><origin xyz=\"0 0 0.1\"/><axis xyz=\"{axis}\"/></joint>",
-            i - 1
-        ));
-    }
-    s.push_str("</robot>");
-    Model::from_urdf_str("chain.urdf", &s, false).unwrap().0
+    Model::from_urdf_str("chain.urdf", &chain_urdf(n), false).unwrap().0
 }
 
 /// Issue 10's first step: the IR evaluated in double-double (about 106 bits) as the

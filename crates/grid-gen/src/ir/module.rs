@@ -131,9 +131,13 @@ pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result
         velocity_limits: model.joints.iter().map(|j| j.velocity_limit).collect(),
     };
     let mut functions = Vec::new();
-    // A singular M leaves out the kernels that need M⁻¹ (the load warning says so).
-    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k) && !(model.singular.is_some() && k.needs_minv())) {
-        functions.push(lower_function(model, gravity, kind, options)?);
+    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)) {
+        match lower_function(model, gravity, kind, options) {
+            Ok(f) => functions.push(f),
+            // A singular M leaves out the kernels that need M⁻¹ (the load warning says so).
+            Err(LowerError::Singular { .. }) => {}
+            Err(e) => return Err(e),
+        }
     }
     Ok(Module { robot, gravity, functions })
 }
