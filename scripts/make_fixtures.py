@@ -6,6 +6,9 @@ For each robot in robots/:
                           RNEA, its derivatives, M, M^-1, ABA and its derivatives.
   <robot>.yourdfpy.json   yourdfpy's reading of the tree: joint names, types, parents,
                           origins, axes, and link poses at random configurations.
+and chain100.urdf with chain100.pinocchio.json: a 100-link chain (cond(M) ~ 1e5) and
+Pinocchio's ABA and ABA derivatives at two states, so the tests can measure both
+against the double-double value and hold grid-gen to Pinocchio's accuracy (issue 10).
 
 Everything is stored in the tool's own joint order with joint names, so that the Rust
 tests match by name and never borrow grid-gen's ordering. Seeded: rerunning gives the
@@ -129,14 +132,43 @@ def yourdfpy_fixture(path, rng):
             "robot": robot.robot.name, "base_link": robot.base_link, "joints": joints, "configurations": poses}
 
 
-def differences(new, old, where=""):
+CHAIN_LINKS = 100
+CHAIN_STATES = 2
+
+
+def chain_urdf(n):
+    """The same text as grid_gen_test_support::chain_urdf(n) (a Rust test checks it)."""
+    s = '<robot name="chain"><link name="l0"/>'
+    for i in range(1, n + 1):
+        axis = ["1 0 0", "0 1 0", "0 0 1"][i % 3]
+        s += (f'<link name="l{i}"><inertial><origin xyz="0 0 0.05"/><mass value="1"/><inertia ixx="0.01" ixy="0" ixz="0" iyy="0.01" iyz="0" izz="0.01"/></inertial></link>'
+              f'<joint name="j{i}" type="revolute"><parent link="l{i - 1}"/><child link="l{i}"/><origin xyz="0 0 0.1"/><axis xyz="{axis}"/><limit lower="-3" upper="3" effort="1" velocity="1"/></joint>')
+    return s + "</robot>"
+
+
+def chain_fixture(path, rng):
+    model = pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    assert model.nq == model.nv == CHAIN_LINKS
+    records = []
+    for _ in range(CHAIN_STATES):
+        q, v, tau = (rng.uniform(-3, 3, size=model.nv) for _ in range(3))
+        fd = pin.aba(model, data, q, v, tau).copy()
+        pin.computeABADerivatives(model, data, q, v, tau)
+        records.append({"q": [float(x) for x in q], "qd": [float(x) for x in v], "tau": [float(x) for x in tau],
+                        "fd": [float(x) for x in fd], "dfd_dq": mat(data.ddq_dq), "dfd_dqd": mat(data.ddq_dv)})
+    return {"tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear],
+            "joint_names": [model.names[j] for j in range(1, model.njoints)], "states": records}
+
+
+def differences(new, old, where="", tol=1e-12):
     """Yields where two fixtures differ beyond round-off."""
     if isinstance(new, dict):
         if not isinstance(old, dict) or set(new) != set(old):
             yield f"{where}: keys differ"
             return
         for k in new:
-            yield from differences(new[k], old[k], f"{where}.{k}")
+            yield from differences(new[k], old[k], f"{where}.{k}", tol)
     elif isinstance(new, list) and new and all(isinstance(x, (int, float, list)) for x in new) and not any(isinstance(x, dict) for x in new):
         try:
             a, b = np.array(new, dtype=float), np.array(old, dtype=float)
@@ -145,16 +177,46 @@ def differences(new, old, where=""):
             return
         if a.shape != b.shape:
             yield f"{where}: shapes differ"
-        elif a.size and np.max(np.abs(a - b)) > 1e-12 * max(np.max(np.abs(b)), 1e-300):
+        elif a.size and np.max(np.abs(a - b)) > tol * max(np.max(np.abs(b)), 1e-300):
             yield f"{where}: values differ by {np.max(np.abs(a - b)):.3e}"
     elif isinstance(new, list):
         if not isinstance(old, list) or len(new) != len(old):
             yield f"{where}: lengths differ"
             return
         for i, (x, y) in enumerate(zip(new, old)):
-            yield from differences(x, y, f"{where}[{i}]")
+            yield from differences(x, y, f"{where}[{i}]", tol)
     elif new != old and not (isinstance(new, str) and where.endswith(".tool")):
         yield f"{where}: {new!r} != {old!r}"
+
+
+def report(target, data, check, tol):
+    """Writes `data` to `target`, or with `check` compares; returns whether it was stale."""
+    if not check:
+        target.write_text(data if isinstance(data, str) else json.dumps(data, indent=None) + "\n")
+        print(f"wrote {target.name}")
+        return False
+    if not target.exists():
+        diffs = ["missing"]
+    elif isinstance(data, str):
+        diffs = [] if target.read_text() == data else ["text differs"]
+    else:
+        diffs = list(differences(json.loads(json.dumps(data)), json.loads(target.read_text()), tol=tol))
+    if diffs:
+        print(f"{target.name}: stale: " + "; ".join(diffs[:5]), file=sys.stderr)
+        return True
+    print(f"{target.name}: up to date")
+    return False
+
+
+def chain_fixtures(check):
+    urdf = OUT / f"chain{CHAIN_LINKS}.urdf"
+    stale = report(urdf, chain_urdf(CHAIN_LINKS) + "\n", check, 0)
+    # Pinocchio's own rounding, amplified by cond(M) ~ 3e5 on this chain, may move the last
+    # ~5 digits on another CPU: compare to 1e-9 here, not 1e-12.
+    if not urdf.exists():
+        return True
+    data = chain_fixture(urdf, np.random.default_rng(CHAIN_LINKS))
+    return report(OUT / f"chain{CHAIN_LINKS}.pinocchio.json", data, check, 1e-9) or stale
 
 
 def main():
@@ -169,18 +231,9 @@ def main():
         rng = np.random.default_rng(sum(path.stem.encode()))  # stable seed per robot
         for suffix, make in (("pinocchio", pinocchio_fixture), ("yourdfpy", yourdfpy_fixture)):
             data = make(path, rng)
-            target = OUT / f"{path.stem}.{suffix}.json"
-            if check:
-                old = json.loads(target.read_text()) if target.exists() else None
-                diffs = list(differences(json.loads(json.dumps(data)), old)) if old is not None else ["missing"]
-                if diffs:
-                    failed = True
-                    print(f"{target.name}: stale: " + "; ".join(diffs[:5]), file=sys.stderr)
-                else:
-                    print(f"{target.name}: up to date")
-            else:
-                target.write_text(json.dumps(data, indent=None) + "\n")
-                print(f"wrote {target.name}")
+            failed |= report(OUT / f"{path.stem}.{suffix}.json", data, check, 1e-12)
+    if not only or "chain100" in only:
+        failed |= chain_fixtures(check)
     if failed:
         sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 

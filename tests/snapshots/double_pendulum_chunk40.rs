@@ -12,9 +12,10 @@
 // - `rnea_grad(q, qd, qdd) -> (dc_dq, dc_dqd)`: its analytical gradient.
 // - `mass_matrix(q) -> m`: the joint-space inertia matrix M(q).
 // - `minv(q) -> minv`: M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).
-// - `fd(q, qd, tau) -> qdd`: forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`.
-// - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics and its gradient
-//   `-M^-1 dc/du` at the computed qdd, sharing M^-1 and the RNEA pass.
+// - `fd(q, qd, tau) -> qdd`: forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`,
+//   by the O(nv) articulated-body algorithm.
+// - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics (articulated-body algorithm) and its
+//   gradient `-M^-1 dc/du` at that qdd, sharing the articulated inertias with M^-1.
 
 /// The robot's name in its URDF.
 #[allow(dead_code)]
@@ -205,7 +206,7 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     }
     portable::minv(q)
 }
-/// Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.
+/// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
 ///
 /// Runs [`fma::fd`] where [`has_fma`], else [`portable::fd`].
 #[inline]
@@ -217,7 +218,7 @@ pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     }
     portable::fd(q, qd, tau)
 }
-/// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.
+/// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
 ///
 /// Runs [`fma::fd_grad`] where [`has_fma`], else [`portable::fd_grad`].
 #[inline]
@@ -631,7 +632,7 @@ pub mod portable {
         minv[1][1] = t46;
         minv
     }
-    /// Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.
+    /// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
@@ -652,55 +653,55 @@ pub mod portable {
         qdd: &mut [T; NV],
     ) {
         let t2 = q[0].sin();
+        s[0] = t2;
         let t3 = q[0].cos();
-        let t9 = q[1].sin();
-        s[0] = t9;
-        let t10 = q[1].cos();
-        s[1] = t10;
-        let t20 = t2 * T::k(9.81);
-        let t21 = t3 * T::k(9.81);
-        let t22 = T::k(5.801760809999999e-7) * t21;
-        let t23 = T::k(0.00961628436) * t20;
-        let t24 = t22 - t23;
-        s[2] = t24;
-        let t25 = T::k(0.1) * qd[0];
-        let t26 = t10 * t25;
-        let t27 = t9 * t25;
-        let t28 = t10 * t20;
-        let t29 = t9 * t21;
-        let t30 = t28 + t29;
-        let t31 = t9 * t20;
-        let t32 = t10 * t21;
-        let t33 = t32 - t31;
-        let t34 = qd[0] + qd[1];
-        s[3] = t34;
-        let t35 = qd[1] * t27;
-        let t36 = qd[1] * t26;
-        let t37 = t30 + t35;
-        let t38 = t33 + t36;
-        let t39 = T::k(0.0335304944) * t34;
-        let t40 = T::k(6.43853298e-11) * t34;
-        let t41 = T::k(0.33238) * t26;
-        let t42 = -t41;
-        let t43 = T::k(0.33238) * t27;
-        let t44 = t42 - t39;
-        s[4] = t44;
-        let t45 = t40 + t43;
-        let t46 = T::k(6.43853298e-11) * t38;
-        let t47 = T::k(0.0335304944) * t37;
-        let t48 = t46 - t47;
-        s[5] = t48;
-        let t49 = T::k(0.33238) * t37;
-        s[6] = t49;
-        let t50 = T::k(0.33238) * t38;
-        s[7] = t50;
-        let t51 = t26 * t45;
-        let t52 = -t51;
-        let t53 = t27 * t44;
-        let t54 = t52 - t53;
-        s[8] = t54;
-        let t55 = t34 * t45;
-        s[9] = t55;
+        s[1] = t3;
+        let t8 = q[1].sin();
+        s[2] = t8;
+        let t9 = q[1].cos();
+        s[3] = t9;
+        let t18 = T::k(0.1) * qd[0];
+        let t19 = t9 * t18;
+        let t20 = t8 * t18;
+        let t21 = qd[0] + qd[1];
+        let t22 = qd[1] * t20;
+        s[4] = t22;
+        let t23 = qd[1] * t19;
+        s[5] = t23;
+        let t24 = T::k(0.0335304944) * t21;
+        let t25 = T::k(6.43853298e-11) * t21;
+        let t26 = T::k(0.33238) * t19;
+        let t27 = -t26;
+        let t28 = T::k(0.33238) * t20;
+        let t29 = t27 - t24;
+        let t30 = t25 + t28;
+        let t31 = t19 * t30;
+        let t32 = -t31;
+        let t33 = t20 * t29;
+        let t34 = t32 - t33;
+        let t35 = t21 * t30;
+        let t36 = t21 * t29;
+        let t40 = tau[1] - t34;
+        s[6] = t40;
+        let t43 = t22 * T::k(0.08570832216376303);
+        let t44 = t23 * T::k(4.736595035057242e-10);
+        let t45 = t43 + t44;
+        let t46 = t22 * T::k(4.736595035057242e-10);
+        let t47 = T::k(0.33238) * t23;
+        let t48 = t46 + t47;
+        let t49 = T::k(219.4013895236754) * t40;
+        let t50 = T::k(0.004557856275072) * t49;
+        let t51 = T::k(-0.0335304944) * t49;
+        let t52 = T::k(6.43853298e-11) * t49;
+        let t53 = t45 - t35;
+        let t54 = t36 + t48;
+        let t55 = t34 + t50;
+        s[7] = t55;
+        let t56 = t51 + t53;
+        let t57 = t52 + t54;
+        s[8] = t57;
+        let t58 = t9 * t56;
+        s[9] = t58;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -711,51 +712,51 @@ pub mod portable {
         s: &mut [T; 15],
         qdd: &mut [T; NV],
     ) {
-        let t56 = s[3] * s[4];
-        let t57 = s[5] + s[8];
-        s[10] = t57;
-        let t58 = s[6] - s[9];
-        let t59 = s[7] + t56;
-        let t60 = s[1] * t58;
-        let t61 = s[0] * t59;
-        let t62 = t60 - t61;
-        let t63 = T::k(0.1) * t62;
-        let t64 = t57 - t63;
-        let t65 = s[2] + t64;
-        s[11] = t65;
-        let t70 = s[1] * T::k(-7.356637062775817);
-        let t71 = s[0] * T::k(1.4126230823060104e-8);
-        let t72 = t70 - t71;
-        let t73 = T::k(0.1) * t72;
-        let t74 = T::k(1.0) - t73;
-        let t78 = s[1] * T::k(-0.1);
-        let t79 = s[0] * T::k(-0.1);
-        let t80 = T::k(0.08570832216376303) * t78;
-        let t81 = T::k(4.736595035057242e-10) * t79;
-        let t82 = t80 - t81;
-        let t83 = T::k(4.736595035057242e-10) * t78;
-        let t84 = T::k(0.33238) * t79;
-        let t85 = t83 - t84;
-        let t86 = s[1] * t82;
-        let t87 = s[0] * t85;
-        let t88 = t86 - t87;
-        let t89 = T::k(0.1) * t88;
-        let t90 = T::k(0.0007545716336328686) - t89;
-        let t91 = T::k(1.0) / t90;
-        s[12] = t91;
-        let t92 = t74 * t91;
-        s[13] = t92;
+        let t59 = s[2] * s[8];
+        let t60 = s[9] - t59;
+        let t61 = T::k(0.1) * t60;
+        let t62 = s[7] - t61;
+        let t64 = s[3] * T::k(-0.1);
+        let t65 = s[2] * T::k(-0.1);
+        let t66 = T::k(0.08570832216376303) * t64;
+        let t67 = T::k(4.736595035057242e-10) * t65;
+        let t68 = t66 - t67;
+        let t69 = T::k(4.736595035057242e-10) * t64;
+        let t70 = T::k(0.33238) * t65;
+        let t71 = t69 - t70;
+        let t72 = s[3] * t68;
+        let t73 = s[2] * t71;
+        let t74 = t72 - t73;
+        let t75 = T::k(0.1) * t74;
+        let t76 = s[3] * T::k(0.08570832216376303);
+        let t77 = s[2] * T::k(4.736595035057242e-10);
+        let t78 = t76 - t77;
+        let t79 = s[3] * T::k(4.736595035057242e-10);
+        let t80 = s[2] * T::k(0.33238);
+        let t81 = t79 - t80;
+        let t82 = s[3] * t78;
+        let t83 = s[2] * t81;
+        let t84 = t82 - t83;
+        let t85 = T::k(0.1) * t84;
+        let t86 = s[2] * T::k(0.08570832216376303);
+        let t87 = t79 + t86;
+        let t88 = s[3] * T::k(0.33238);
+        let t89 = t77 + t88;
+        let t90 = s[3] * t87;
+        let t91 = s[2] * t89;
+        let t92 = t90 - t91;
         let t93 = T::k(0.1) * t92;
-        let t94 = s[1] * t93;
-        let t95 = s[0] * t93;
-        let t96 = T::k(0.004557856275072) * t92;
-        let t97 = T::k(-0.0335304944) * t94;
-        let t98 = t97 - t96;
-        let t99 = T::k(6.43853298e-11) * t95;
-        let t100 = t98 - t99;
-        let t101 = T::k(219.4013895236754) * t100;
-        let t102 = T::k(219.4013895236754) - t101;
-        s[14] = t102;
+        let t94 = T::k(0.0007545716336328686) - t75;
+        let t95 = T::k(-0.00961628436) - t85;
+        s[10] = t95;
+        let t96 = T::k(5.801760809999999e-7) - t93;
+        s[11] = t96;
+        let t97 = T::k(1.0) / t94;
+        s[12] = t97;
+        let t98 = tau[0] - t62;
+        s[13] = t98;
+        let t100 = s[0] * T::k(9.81);
+        s[14] = t100;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -766,18 +767,33 @@ pub mod portable {
         s: &mut [T; 15],
         qdd: &mut [T; NV],
     ) {
-        let t103 = tau[0] - s[11];
-        let t104 = tau[1] - s[10];
-        let t105 = s[12] * t103;
-        let t106 = s[13] * t104;
-        let t107 = t105 - t106;
-        qdd[0] = t107;
-        let t108 = s[13] * t103;
-        let t109 = s[14] * t104;
-        let t110 = t109 - t108;
-        qdd[1] = t110;
+        let t101 = s[1] * T::k(9.81);
+        let t102 = s[10] * s[14];
+        let t103 = s[11] * t101;
+        let t104 = t102 + t103;
+        let t105 = s[13] - t104;
+        let t106 = s[12] * t105;
+        qdd[0] = t106;
+        let t107 = T::k(0.1) * t106;
+        let t108 = s[14] - t107;
+        let t109 = s[3] * t108;
+        let t110 = s[2] * t101;
+        let t111 = t109 + t110;
+        let t112 = s[2] * t108;
+        let t113 = s[3] * t101;
+        let t114 = t113 - t112;
+        let t115 = s[4] + t111;
+        let t116 = s[5] + t114;
+        let t117 = T::k(0.004557856275072) * t106;
+        let t118 = T::k(-0.0335304944) * t115;
+        let t119 = t117 + t118;
+        let t120 = T::k(6.43853298e-11) * t116;
+        let t121 = t119 + t120;
+        let t122 = s[6] - t121;
+        let t123 = T::k(219.4013895236754) * t122;
+        qdd[1] = t123;
     }
-    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.
+    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd_grad<T: Real>(
@@ -788,13 +804,14 @@ pub mod portable {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 37];
+        let mut s = [T::k(0.0); 39];
         fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part4(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part5(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_part6(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
     }
     #[inline(never)]
@@ -803,73 +820,70 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
         let t2 = q[0].sin();
+        s[0] = t2;
         let t3 = q[0].cos();
+        s[1] = t3;
         let t9 = q[1].sin();
-        s[0] = t9;
+        s[2] = t9;
         let t10 = q[1].cos();
-        s[1] = t10;
-        let t20 = t2 * T::k(9.81);
-        s[2] = t20;
-        let t21 = t3 * T::k(9.81);
-        s[3] = t21;
-        let t22 = T::k(5.801760809999999e-7) * t21;
-        let t23 = T::k(0.00961628436) * t20;
-        let t24 = t22 - t23;
-        s[4] = t24;
-        let t25 = T::k(0.1) * qd[0];
-        let t26 = t10 * t25;
-        s[5] = t26;
-        let t27 = t9 * t25;
-        s[6] = t27;
-        let t28 = t10 * t20;
-        let t29 = t9 * t21;
-        s[7] = t29;
-        let t30 = t28 + t29;
-        let t31 = t9 * t20;
-        let t32 = t10 * t21;
-        s[8] = t32;
-        let t33 = t32 - t31;
-        let t34 = qd[0] + qd[1];
-        s[9] = t34;
-        let t35 = qd[1] * t27;
-        s[10] = t35;
-        let t36 = qd[1] * t26;
-        s[11] = t36;
-        let t37 = t30 + t35;
-        let t38 = t33 + t36;
-        let t39 = T::k(0.0335304944) * t34;
-        s[12] = t39;
-        let t40 = T::k(6.43853298e-11) * t34;
-        let t41 = T::k(0.33238) * t26;
-        s[13] = t41;
-        let t42 = -t41;
-        let t43 = T::k(0.33238) * t27;
-        s[14] = t43;
-        let t44 = t42 - t39;
-        s[15] = t44;
-        let t45 = t40 + t43;
-        s[16] = t45;
-        let t46 = T::k(6.43853298e-11) * t38;
-        let t47 = T::k(0.0335304944) * t37;
-        let t48 = t46 - t47;
-        s[17] = t48;
-        let t49 = T::k(0.33238) * t37;
-        s[18] = t49;
-        let t50 = T::k(0.33238) * t38;
-        s[19] = t50;
-        let t51 = t26 * t45;
-        let t52 = -t51;
-        let t53 = t27 * t44;
-        let t54 = t52 - t53;
-        s[20] = t54;
-        let t55 = t34 * t45;
-        s[21] = t55;
+        s[3] = t10;
+        let t19 = T::k(0.1) * qd[0];
+        let t20 = t10 * t19;
+        s[4] = t20;
+        let t21 = t9 * t19;
+        s[5] = t21;
+        let t22 = qd[0] + qd[1];
+        let t23 = qd[1] * t21;
+        s[6] = t23;
+        let t24 = qd[1] * t20;
+        s[7] = t24;
+        let t25 = T::k(0.0335304944) * t22;
+        s[8] = t25;
+        let t26 = T::k(6.43853298e-11) * t22;
+        let t27 = T::k(0.33238) * t20;
+        s[9] = t27;
+        let t28 = -t27;
+        let t29 = T::k(0.33238) * t21;
+        s[10] = t29;
+        let t30 = t28 - t25;
+        s[11] = t30;
+        let t31 = t26 + t29;
+        s[12] = t31;
+        let t32 = t20 * t31;
+        let t33 = -t32;
+        let t34 = t21 * t30;
+        let t35 = t33 - t34;
+        let t36 = t22 * t31;
+        s[13] = t36;
+        let t37 = t22 * t30;
+        s[14] = t37;
+        let t41 = tau[1] - t35;
+        s[15] = t41;
+        let t46 = t23 * T::k(0.08570832216376303);
+        let t47 = t24 * T::k(4.736595035057242e-10);
+        let t48 = t46 + t47;
+        let t49 = t23 * T::k(4.736595035057242e-10);
+        let t50 = T::k(0.33238) * t24;
+        let t51 = t49 + t50;
+        let t52 = T::k(219.4013895236754) * t41;
+        let t53 = T::k(0.004557856275072) * t52;
+        let t54 = T::k(-0.0335304944) * t52;
+        let t55 = T::k(6.43853298e-11) * t52;
+        let t56 = t48 - t36;
+        let t57 = t37 + t51;
+        let t58 = t35 + t53;
+        s[16] = t58;
+        let t59 = t54 + t56;
+        let t60 = t55 + t57;
+        s[17] = t60;
+        let t61 = t10 * t59;
+        s[18] = t61;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -877,59 +891,57 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t56 = s[9] * s[15];
-        s[22] = t56;
-        let t57 = s[17] + s[20];
-        s[23] = t57;
-        let t58 = s[18] - s[21];
-        let t59 = s[19] + t56;
-        let t60 = s[1] * t58;
-        let t61 = s[0] * t59;
-        let t62 = t60 - t61;
-        let t63 = T::k(0.1) * t62;
-        let t64 = t57 - t63;
-        let t65 = s[4] + t64;
-        s[24] = t65;
-        let t70 = s[1] * T::k(-7.356637062775817);
-        let t71 = s[0] * T::k(1.4126230823060104e-8);
-        let t72 = t70 - t71;
-        let t73 = T::k(0.1) * t72;
-        let t74 = T::k(1.0) - t73;
-        let t78 = s[1] * T::k(-0.1);
-        let t79 = s[0] * T::k(-0.1);
-        let t80 = T::k(0.08570832216376303) * t78;
-        let t81 = T::k(4.736595035057242e-10) * t79;
-        let t82 = t80 - t81;
-        let t83 = T::k(4.736595035057242e-10) * t78;
-        let t84 = T::k(0.33238) * t79;
-        let t85 = t83 - t84;
-        let t86 = s[1] * t82;
-        let t87 = s[0] * t85;
-        let t88 = t86 - t87;
-        let t89 = T::k(0.1) * t88;
-        let t90 = s[1] * T::k(0.0335304944);
-        s[25] = t90;
-        let t92 = s[0] * T::k(0.0335304944);
-        s[26] = t92;
-        let t93 = T::k(0.0007545716336328686) - t89;
-        let t94 = T::k(1.0) / t93;
-        s[27] = t94;
-        let t95 = t74 * t94;
-        s[28] = t95;
-        let t96 = T::k(0.1) * t95;
-        let t97 = s[1] * t96;
-        let t98 = s[0] * t96;
-        let t99 = T::k(0.004557856275072) * t95;
-        let t100 = T::k(-0.0335304944) * t97;
-        let t101 = t100 - t99;
-        let t102 = T::k(6.43853298e-11) * t98;
-        let t103 = t101 - t102;
-        s[29] = t103;
+        let t62 = s[2] * s[17];
+        let t63 = s[18] - t62;
+        let t64 = T::k(0.1) * t63;
+        let t65 = s[16] - t64;
+        s[19] = t65;
+        let t67 = s[3] * T::k(-0.1);
+        let t68 = s[2] * T::k(-0.1);
+        let t69 = T::k(0.08570832216376303) * t67;
+        let t70 = T::k(4.736595035057242e-10) * t68;
+        let t71 = t69 - t70;
+        let t72 = T::k(4.736595035057242e-10) * t67;
+        let t73 = T::k(0.33238) * t68;
+        let t74 = t72 - t73;
+        let t75 = s[3] * t71;
+        let t76 = s[2] * t74;
+        let t77 = t75 - t76;
+        let t78 = T::k(0.1) * t77;
+        let t79 = s[3] * T::k(0.0335304944);
+        s[20] = t79;
+        let t81 = s[2] * T::k(0.0335304944);
+        s[21] = t81;
+        let t82 = s[3] * T::k(0.08570832216376303);
+        let t83 = s[2] * T::k(4.736595035057242e-10);
+        let t84 = t82 - t83;
+        let t85 = s[3] * T::k(4.736595035057242e-10);
+        let t86 = s[2] * T::k(0.33238);
+        let t87 = t85 - t86;
+        let t88 = s[3] * t84;
+        let t89 = s[2] * t87;
+        let t90 = t88 - t89;
+        let t91 = T::k(0.1) * t90;
+        let t92 = s[2] * T::k(0.08570832216376303);
+        let t93 = t85 + t92;
+        let t94 = s[3] * T::k(0.33238);
+        let t95 = t83 + t94;
+        let t96 = s[3] * t93;
+        let t97 = s[2] * t95;
+        let t98 = t96 - t97;
+        let t99 = T::k(0.1) * t98;
+        let t100 = T::k(0.0007545716336328686) - t78;
+        let t101 = T::k(-0.00961628436) - t91;
+        s[22] = t101;
+        let t102 = T::k(5.801760809999999e-7) - t99;
+        s[23] = t102;
+        let t103 = T::k(1.0) / t100;
+        s[24] = t103;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -937,64 +949,62 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t104 = T::k(219.4013895236754) * s[29];
-        let t105 = T::k(219.4013895236754) - t104;
-        s[4] = t105;
-        let t106 = tau[0] - s[24];
-        let t107 = tau[1] - s[23];
-        let t108 = s[27] * t106;
-        let t109 = s[28] * t107;
-        let t110 = t108 - t109;
-        qdd[0] = t110;
-        let t111 = s[28] * t106;
-        let t112 = t105 * t107;
-        let t113 = t112 - t111;
-        qdd[1] = t113;
-        let t114 = T::k(0.1) * t110;
-        let t115 = s[2] - t114;
-        let t116 = s[1] * t115;
-        let t117 = s[7] + t116;
-        let t118 = s[0] * t115;
-        let t119 = s[8] - t118;
-        let t120 = t110 + t113;
-        let t121 = s[10] + t117;
-        let t122 = s[11] + t119;
-        let t123 = T::k(0.0335304944) * t120;
-        let t124 = T::k(6.43853298e-11) * t120;
-        let t125 = T::k(0.33238) * t121;
-        let t126 = T::k(0.33238) * t122;
-        let t127 = t125 - t123;
-        let t128 = t124 + t126;
-        let t129 = t127 - s[21];
-        s[9] = t129;
-        let t130 = s[22] + t128;
-        s[17] = t130;
-        let t131 = qd[0] * s[5];
-        let t132 = qd[0] * s[6];
-        let t133 = t119 - t131;
-        s[18] = t133;
-        let t134 = t132 - t117;
-        s[19] = t134;
-        let t136 = -s[12];
-        let t137 = t136 - s[13];
-        s[20] = t137;
-        let t138 = T::k(6.43853298e-11) * s[5];
-        s[30] = t138;
-        let t139 = T::k(0.0335304944) * s[6];
-        let t140 = t139 - t138;
-        let t141 = T::k(2.0) * t140;
-        s[31] = t141;
-        let t142 = t138 - t139;
-        s[32] = t142;
-        let t143 = T::k(6.43853298e-11) * t134;
-        s[33] = t143;
-        let t144 = T::k(0.0335304944) * t133;
-        s[34] = t144;
+        let t104 = tau[0] - s[19];
+        let t106 = s[0] * T::k(9.81);
+        s[16] = t106;
+        let t107 = s[1] * T::k(9.81);
+        s[17] = t107;
+        let t108 = s[22] * t106;
+        let t109 = s[23] * t107;
+        let t110 = t108 + t109;
+        let t111 = t104 - t110;
+        let t112 = s[24] * t111;
+        qdd[0] = t112;
+        let t113 = T::k(0.1) * t112;
+        let t114 = t106 - t113;
+        let t115 = s[3] * t114;
+        let t116 = s[2] * t107;
+        let t117 = t115 + t116;
+        s[18] = t117;
+        let t118 = s[2] * t114;
+        let t119 = s[3] * t107;
+        let t120 = t119 - t118;
+        s[25] = t120;
+        let t121 = s[6] + t117;
+        s[26] = t121;
+        let t122 = s[7] + t120;
+        s[27] = t122;
+        let t123 = T::k(0.004557856275072) * t112;
+        let t124 = T::k(-0.0335304944) * t121;
+        let t125 = t123 + t124;
+        let t126 = T::k(6.43853298e-11) * t122;
+        let t127 = t125 + t126;
+        let t128 = s[15] - t127;
+        let t129 = T::k(219.4013895236754) * t128;
+        qdd[1] = t129;
+        let t130 = t112 + t129;
+        s[28] = t130;
+        let t131 = s[3] * T::k(-7.356637062775817);
+        let t132 = s[2] * T::k(1.4126230823060104e-8);
+        let t133 = t131 - t132;
+        let t134 = T::k(0.1) * t133;
+        let t135 = T::k(1.0) - t134;
+        let t136 = s[24] * t135;
+        s[29] = t136;
+        let t137 = T::k(0.1) * t136;
+        let t138 = s[3] * t137;
+        let t139 = s[2] * t137;
+        let t140 = T::k(0.004557856275072) * t136;
+        let t141 = T::k(-0.0335304944) * t138;
+        let t142 = t141 - t140;
+        let t143 = T::k(6.43853298e-11) * t139;
+        let t144 = t142 - t143;
+        s[30] = t144;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -1002,63 +1012,67 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t145 = s[33] - s[34];
-        let t146 = T::k(0.33238) * s[18];
-        let t147 = T::k(0.33238) * s[19];
-        let t148 = -s[16];
-        let t149 = s[5] * s[20];
-        let t150 = s[6] * s[16];
-        let t151 = t149 - t150;
-        let t152 = s[5] * s[15];
-        let t153 = t150 - t152;
-        let t154 = s[32] + s[32];
-        let t155 = s[14] + s[14];
-        let t156 = s[13] + s[13];
-        let t157 = t148 - s[16];
-        let t158 = s[15] + s[20];
-        let t159 = s[31] + t154;
-        s[7] = t159;
-        let t160 = t155 + t157;
-        let t161 = t156 + t158;
-        let t162 = t151 + t153;
-        let t163 = t145 + t162;
-        s[8] = t163;
-        let t164 = t146 - s[17];
-        s[10] = t164;
-        let t165 = s[9] + t147;
-        s[11] = t165;
-        let t166 = s[20] - s[15];
-        s[12] = t166;
-        let t167 = T::k(-0.0335304944) * s[18];
-        let t168 = s[33] + t167;
-        let t169 = s[5] * t166;
-        let t170 = t168 + t169;
-        s[21] = t170;
-        let t171 = s[6] * T::k(-0.0335304944);
-        let t172 = s[30] + t171;
-        let t173 = t172 + t172;
-        let t174 = s[31] + t173;
-        s[22] = t174;
-        let t175 = s[1] * T::k(-0.0335304944);
-        let t176 = s[0] * T::k(6.43853298e-11);
-        s[23] = t176;
-        let t177 = t175 - t176;
-        s[24] = t177;
-        let t178 = s[0] * T::k(-0.0335304944);
-        let t179 = s[1] * T::k(6.43853298e-11);
-        s[29] = t179;
-        let t180 = t178 + t179;
-        s[35] = t180;
-        let t181 = s[1] * t160;
-        let t182 = s[0] * t161;
-        let t183 = t181 - t182;
-        let t184 = T::k(0.1) * t183;
-        s[36] = t184;
+        let t145 = T::k(219.4013895236754) * s[30];
+        let t146 = T::k(219.4013895236754) - t145;
+        s[0] = t146;
+        let t147 = T::k(0.0335304944) * s[28];
+        let t148 = T::k(6.43853298e-11) * s[28];
+        let t149 = T::k(0.33238) * s[26];
+        let t150 = T::k(0.33238) * s[27];
+        let t151 = t149 - t147;
+        let t152 = t148 + t150;
+        let t153 = t151 - s[13];
+        s[1] = t153;
+        let t154 = s[14] + t152;
+        s[6] = t154;
+        let t155 = qd[0] * s[4];
+        let t156 = qd[0] * s[5];
+        let t157 = s[25] - t155;
+        s[7] = t157;
+        let t158 = t156 - s[18];
+        let t160 = -s[8];
+        let t161 = t160 - s[9];
+        s[15] = t161;
+        let t162 = T::k(6.43853298e-11) * s[4];
+        s[19] = t162;
+        let t163 = T::k(0.0335304944) * s[5];
+        let t164 = t163 - t162;
+        let t165 = T::k(2.0) * t164;
+        s[22] = t165;
+        let t166 = t162 - t163;
+        let t167 = T::k(6.43853298e-11) * t158;
+        s[23] = t167;
+        let t168 = T::k(0.0335304944) * t157;
+        let t169 = t167 - t168;
+        s[31] = t169;
+        let t170 = T::k(0.33238) * t157;
+        s[32] = t170;
+        let t171 = T::k(0.33238) * t158;
+        s[33] = t171;
+        let t172 = -s[12];
+        let t173 = s[4] * t161;
+        let t174 = s[5] * s[12];
+        let t175 = t173 - t174;
+        s[34] = t175;
+        let t176 = s[4] * s[11];
+        let t177 = t174 - t176;
+        s[35] = t177;
+        let t178 = t166 + t166;
+        let t179 = s[10] + s[10];
+        let t180 = s[9] + s[9];
+        let t181 = t172 - s[12];
+        let t182 = s[11] + t161;
+        let t183 = t165 + t178;
+        s[36] = t183;
+        let t184 = t179 + t181;
+        s[37] = t184;
+        let t185 = t180 + t182;
+        s[38] = t185;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -1066,58 +1080,61 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t185 = s[7] - s[36];
-        s[5] = t185;
-        let t186 = s[1] * s[10];
-        let t187 = s[0] * s[11];
-        let t188 = t186 - t187;
-        let t189 = T::k(0.1) * t188;
-        let t190 = s[8] - t189;
-        let t191 = s[0] * s[12];
-        let t192 = T::k(0.1) * t191;
-        let t193 = s[31] + t192;
-        s[6] = t193;
-        let t194 = s[29] - s[26];
-        let t195 = s[25] + s[23];
-        let t196 = T::k(0.033238000000000004) + t195;
-        let t197 = T::k(5.801760809999999e-7) + t194;
-        let t198 = T::k(0.00961628436) + t196;
-        let t199 = s[0] * s[20];
-        let t200 = s[1] * s[16];
-        let t201 = t199 + t200;
-        let t202 = T::k(0.1) * t201;
-        let t203 = T::k(2.0) * t202;
-        let t204 = s[31] + t203;
-        s[9] = t204;
-        let t205 = s[2] * t197;
-        let t206 = s[3] * t198;
-        let t207 = -t206;
-        let t208 = t207 - t205;
-        let t209 = s[3] * s[24];
-        let t210 = s[2] * s[35];
-        let t211 = t209 - t210;
-        let t212 = s[27] * t208;
-        let t213 = s[28] * t211;
-        let t214 = t212 - t213;
-        let t215 = -t214;
-        dqdd_dq[0][0] = t215;
-        let t216 = s[27] * t190;
-        let t217 = s[28] * s[21];
-        let t218 = t216 - t217;
-        let t219 = -t218;
-        dqdd_dq[0][1] = t219;
-        let t220 = s[28] * t208;
-        let t221 = s[4] * t211;
-        let t222 = t221 - t220;
-        let t223 = -t222;
-        dqdd_dq[1][0] = t223;
-        let t224 = s[28] * t190;
-        s[13] = t224;
+        let t186 = s[34] + s[35];
+        let t187 = s[31] + t186;
+        let t188 = s[32] - s[6];
+        let t189 = s[1] + s[33];
+        let t190 = s[15] - s[11];
+        let t191 = T::k(-0.0335304944) * s[7];
+        let t192 = s[23] + t191;
+        let t193 = s[4] * t190;
+        let t194 = t192 + t193;
+        s[8] = t194;
+        let t195 = s[5] * T::k(-0.0335304944);
+        let t196 = s[19] + t195;
+        let t197 = t196 + t196;
+        let t198 = s[22] + t197;
+        s[9] = t198;
+        let t199 = s[3] * T::k(-0.0335304944);
+        let t200 = s[2] * T::k(6.43853298e-11);
+        let t201 = t199 - t200;
+        s[10] = t201;
+        let t202 = s[2] * T::k(-0.0335304944);
+        let t203 = s[3] * T::k(6.43853298e-11);
+        let t204 = t202 + t203;
+        s[13] = t204;
+        let t205 = s[3] * s[37];
+        let t206 = s[2] * s[38];
+        let t207 = t205 - t206;
+        let t208 = T::k(0.1) * t207;
+        let t209 = s[36] - t208;
+        s[14] = t209;
+        let t210 = s[3] * t188;
+        let t211 = s[2] * t189;
+        let t212 = t210 - t211;
+        let t213 = T::k(0.1) * t212;
+        let t214 = t187 - t213;
+        s[18] = t214;
+        let t215 = s[2] * t190;
+        let t216 = T::k(0.1) * t215;
+        let t217 = s[22] + t216;
+        s[25] = t217;
+        let t218 = t203 - s[21];
+        let t219 = s[20] + t200;
+        let t220 = T::k(0.033238000000000004) + t219;
+        let t221 = T::k(5.801760809999999e-7) + t218;
+        s[26] = t221;
+        let t222 = T::k(0.00961628436) + t220;
+        s[27] = t222;
+        let t223 = s[2] * s[15];
+        let t224 = s[3] * s[12];
+        let t225 = t223 + t224;
+        s[28] = t225;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -1125,35 +1142,75 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t225 = s[4] * s[21];
-        let t226 = t225 - s[13];
-        let t227 = -t226;
-        dqdd_dq[1][1] = t227;
-        let t228 = s[27] * s[9];
-        let t229 = s[28] * s[6];
-        let t230 = t228 - t229;
+        let t226 = T::k(0.1) * s[28];
+        let t227 = T::k(2.0) * t226;
+        let t228 = s[22] + t227;
+        let t229 = s[16] * s[26];
+        let t230 = s[17] * s[27];
         let t231 = -t230;
-        dqdd_dqd[0][0] = t231;
-        let t232 = s[27] * s[5];
-        let t233 = s[28] * s[22];
-        let t234 = t232 - t233;
-        let t235 = -t234;
-        dqdd_dqd[0][1] = t235;
-        let t236 = s[28] * s[9];
-        let t237 = s[4] * s[6];
-        let t238 = t237 - t236;
+        let t232 = t231 - t229;
+        let t233 = s[17] * s[10];
+        let t234 = s[16] * s[13];
+        let t235 = t233 - t234;
+        let t236 = s[24] * t232;
+        let t237 = s[29] * t235;
+        let t238 = t236 - t237;
         let t239 = -t238;
-        dqdd_dqd[1][0] = t239;
-        let t240 = s[28] * s[5];
-        let t241 = s[4] * s[22];
-        let t242 = t241 - t240;
+        dqdd_dq[0][0] = t239;
+        let t240 = s[24] * s[18];
+        let t241 = s[29] * s[8];
+        let t242 = t240 - t241;
         let t243 = -t242;
-        dqdd_dqd[1][1] = t243;
+        dqdd_dq[0][1] = t243;
+        let t244 = s[29] * t232;
+        let t245 = s[0] * t235;
+        let t246 = t245 - t244;
+        let t247 = -t246;
+        dqdd_dq[1][0] = t247;
+        let t248 = s[29] * s[18];
+        let t249 = s[0] * s[8];
+        let t250 = t249 - t248;
+        let t251 = -t250;
+        dqdd_dq[1][1] = t251;
+        let t252 = s[24] * t228;
+        let t253 = s[29] * s[25];
+        let t254 = t252 - t253;
+        let t255 = -t254;
+        dqdd_dqd[0][0] = t255;
+        let t256 = s[24] * s[14];
+        let t257 = s[29] * s[9];
+        let t258 = t256 - t257;
+        let t259 = -t258;
+        dqdd_dqd[0][1] = t259;
+        let t260 = s[29] * t228;
+        let t261 = s[0] * s[25];
+        let t262 = t261 - t260;
+        let t263 = -t262;
+        dqdd_dqd[1][0] = t263;
+        let t264 = s[29] * s[14];
+        s[1] = t264;
+        let t265 = s[0] * s[9];
+        s[2] = t265;
+    }
+    #[inline(never)]
+    #[allow(clippy::all, unused_variables, unused_mut)]
+    fn fd_grad_part6<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        s: &mut [T; 39],
+        qdd: &mut [T; NV],
+        dqdd_dq: &mut [[T; NV]; NV],
+        dqdd_dqd: &mut [[T; NV]; NV],
+    ) {
+        let t266 = s[2] - s[1];
+        let t267 = -t266;
+        dqdd_dqd[1][1] = t267;
     }
 }
 /// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).
@@ -1504,7 +1561,7 @@ pub mod fma {
         minv[1][1] = t46;
         minv
     }
-    /// Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.
+    /// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
     #[inline]
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
@@ -1527,46 +1584,45 @@ pub mod fma {
         qdd: &mut [T; NV],
     ) {
         let t2 = q[0].sin();
+        s[0] = t2;
         let t3 = q[0].cos();
-        let t9 = q[1].sin();
-        s[0] = t9;
-        let t10 = q[1].cos();
-        s[1] = t10;
-        let t20 = t2 * T::k(9.81);
-        let t21 = t3 * T::k(9.81);
-        let t23 = T::k(0.00961628436) * t20;
-        let t24 = T::mul_add(T::k(5.801760809999999e-7), t21, -t23);
-        s[2] = t24;
-        let t25 = T::k(0.1) * qd[0];
-        let t26 = t10 * t25;
-        let t27 = t9 * t25;
-        let t29 = t9 * t21;
-        let t30 = T::mul_add(t10, t20, t29);
-        let t31 = t9 * t20;
-        let t33 = T::mul_add(t10, t21, -t31);
-        let t34 = qd[0] + qd[1];
-        s[3] = t34;
-        let t37 = T::mul_add(qd[1], t27, t30);
-        let t38 = T::mul_add(qd[1], t26, t33);
-        let t41 = T::k(0.33238) * t26;
-        let t42 = -t41;
-        let t43 = T::k(0.33238) * t27;
-        let t44 = T::mul_add(-T::k(0.0335304944), t34, t42);
-        s[4] = t44;
-        let t45 = T::mul_add(T::k(6.43853298e-11), t34, t43);
-        let t47 = T::k(0.0335304944) * t37;
-        let t48 = T::mul_add(T::k(6.43853298e-11), t38, -t47);
-        s[5] = t48;
-        let t49 = T::k(0.33238) * t37;
-        s[6] = t49;
-        let t50 = T::k(0.33238) * t38;
-        s[7] = t50;
-        let t51 = t26 * t45;
-        let t52 = -t51;
-        let t54 = T::mul_add(-t27, t44, t52);
-        s[8] = t54;
-        let t55 = t34 * t45;
-        s[9] = t55;
+        s[1] = t3;
+        let t8 = q[1].sin();
+        s[2] = t8;
+        let t9 = q[1].cos();
+        s[3] = t9;
+        let t18 = T::k(0.1) * qd[0];
+        let t19 = t9 * t18;
+        let t20 = t8 * t18;
+        let t21 = qd[0] + qd[1];
+        let t22 = qd[1] * t20;
+        s[4] = t22;
+        let t23 = qd[1] * t19;
+        s[5] = t23;
+        let t26 = T::k(0.33238) * t19;
+        let t27 = -t26;
+        let t28 = T::k(0.33238) * t20;
+        let t29 = T::mul_add(-T::k(0.0335304944), t21, t27);
+        let t30 = T::mul_add(T::k(6.43853298e-11), t21, t28);
+        let t31 = t19 * t30;
+        let t32 = -t31;
+        let t34 = T::mul_add(-t20, t29, t32);
+        let t40 = tau[1] - t34;
+        s[6] = t40;
+        let t44 = t23 * T::k(4.736595035057242e-10);
+        let t45 = T::mul_add(t22, T::k(0.08570832216376303), t44);
+        let t47 = T::k(0.33238) * t23;
+        let t48 = T::mul_add(t22, T::k(4.736595035057242e-10), t47);
+        let t49 = T::k(219.4013895236754) * t40;
+        let t53 = T::mul_add(-t21, t30, t45);
+        let t54 = T::mul_add(t21, t29, t48);
+        let t55 = T::mul_add(T::k(0.004557856275072), t49, t34);
+        s[7] = t55;
+        let t56 = T::mul_add(T::k(-0.0335304944), t49, t53);
+        let t57 = T::mul_add(T::k(6.43853298e-11), t49, t54);
+        s[8] = t57;
+        let t58 = t9 * t56;
+        s[9] = t58;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1578,39 +1634,37 @@ pub mod fma {
         s: &mut [T; 15],
         qdd: &mut [T; NV],
     ) {
-        let t57 = s[5] + s[8];
-        s[10] = t57;
-        let t58 = s[6] - s[9];
-        let t59 = T::mul_add(s[3], s[4], s[7]);
-        let t61 = s[0] * t59;
-        let t62 = T::mul_add(s[1], t58, -t61);
-        let t64 = T::mul_add(-T::k(0.1), t62, t57);
-        let t65 = s[2] + t64;
-        s[11] = t65;
-        let t71 = s[0] * T::k(1.4126230823060104e-8);
-        let t72 = T::mul_add(s[1], T::k(-7.356637062775817), -t71);
-        let t74 = T::mul_add(-T::k(0.1), t72, T::k(1.0));
-        let t78 = s[1] * T::k(-0.1);
-        let t79 = s[0] * T::k(-0.1);
-        let t81 = T::k(4.736595035057242e-10) * t79;
-        let t82 = T::mul_add(T::k(0.08570832216376303), t78, -t81);
-        let t84 = T::k(0.33238) * t79;
-        let t85 = T::mul_add(T::k(4.736595035057242e-10), t78, -t84);
-        let t87 = s[0] * t85;
-        let t88 = T::mul_add(s[1], t82, -t87);
-        let t90 = T::mul_add(-T::k(0.1), t88, T::k(0.0007545716336328686));
-        let t91 = T::k(1.0) / t90;
-        s[12] = t91;
-        let t92 = t74 * t91;
-        s[13] = t92;
-        let t93 = T::k(0.1) * t92;
-        let t94 = s[1] * t93;
-        let t95 = s[0] * t93;
-        let t96 = T::k(0.004557856275072) * t92;
-        let t98 = T::mul_add(T::k(-0.0335304944), t94, -t96);
-        let t100 = T::mul_add(-T::k(6.43853298e-11), t95, t98);
-        let t102 = T::mul_add(-T::k(219.4013895236754), t100, T::k(219.4013895236754));
-        s[14] = t102;
+        let t60 = T::mul_add(-s[2], s[8], s[9]);
+        let t62 = T::mul_add(-T::k(0.1), t60, s[7]);
+        let t64 = s[3] * T::k(-0.1);
+        let t65 = s[2] * T::k(-0.1);
+        let t67 = T::k(4.736595035057242e-10) * t65;
+        let t68 = T::mul_add(T::k(0.08570832216376303), t64, -t67);
+        let t70 = T::k(0.33238) * t65;
+        let t71 = T::mul_add(T::k(4.736595035057242e-10), t64, -t70);
+        let t73 = s[2] * t71;
+        let t74 = T::mul_add(s[3], t68, -t73);
+        let t77 = s[2] * T::k(4.736595035057242e-10);
+        let t78 = T::mul_add(s[3], T::k(0.08570832216376303), -t77);
+        let t79 = s[3] * T::k(4.736595035057242e-10);
+        let t81 = T::mul_add(-s[2], T::k(0.33238), t79);
+        let t83 = s[2] * t81;
+        let t84 = T::mul_add(s[3], t78, -t83);
+        let t87 = T::mul_add(s[2], T::k(0.08570832216376303), t79);
+        let t89 = T::mul_add(s[3], T::k(0.33238), t77);
+        let t91 = s[2] * t89;
+        let t92 = T::mul_add(s[3], t87, -t91);
+        let t94 = T::mul_add(-T::k(0.1), t74, T::k(0.0007545716336328686));
+        let t95 = T::mul_add(-T::k(0.1), t84, T::k(-0.00961628436));
+        s[10] = t95;
+        let t96 = T::mul_add(-T::k(0.1), t92, T::k(5.801760809999999e-7));
+        s[11] = t96;
+        let t97 = T::k(1.0) / t94;
+        s[12] = t97;
+        let t98 = tau[0] - t62;
+        s[13] = t98;
+        let t100 = s[0] * T::k(9.81);
+        s[14] = t100;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1622,16 +1676,27 @@ pub mod fma {
         s: &mut [T; 15],
         qdd: &mut [T; NV],
     ) {
-        let t103 = tau[0] - s[11];
-        let t104 = tau[1] - s[10];
-        let t106 = s[13] * t104;
-        let t107 = T::mul_add(s[12], t103, -t106);
-        qdd[0] = t107;
-        let t108 = s[13] * t103;
-        let t110 = T::mul_add(s[14], t104, -t108);
-        qdd[1] = t110;
+        let t101 = s[1] * T::k(9.81);
+        let t103 = s[11] * t101;
+        let t104 = T::mul_add(s[10], s[14], t103);
+        let t105 = s[13] - t104;
+        let t106 = s[12] * t105;
+        qdd[0] = t106;
+        let t108 = T::mul_add(-T::k(0.1), t106, s[14]);
+        let t110 = s[2] * t101;
+        let t111 = T::mul_add(s[3], t108, t110);
+        let t112 = s[2] * t108;
+        let t114 = T::mul_add(s[3], t101, -t112);
+        let t115 = s[4] + t111;
+        let t116 = s[5] + t114;
+        let t118 = T::k(-0.0335304944) * t115;
+        let t119 = T::mul_add(T::k(0.004557856275072), t106, t118);
+        let t121 = T::mul_add(T::k(6.43853298e-11), t116, t119);
+        let t122 = s[6] - t121;
+        let t123 = T::k(219.4013895236754) * t122;
+        qdd[1] = t123;
     }
-    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.
+    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
     #[inline]
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
@@ -1643,13 +1708,14 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 37];
+        let mut s = [T::k(0.0); 39];
         fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part4(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part5(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_part6(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
     }
     #[inline(never)]
@@ -1659,67 +1725,63 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
         let t2 = q[0].sin();
+        s[0] = t2;
         let t3 = q[0].cos();
+        s[1] = t3;
         let t9 = q[1].sin();
-        s[0] = t9;
+        s[2] = t9;
         let t10 = q[1].cos();
-        s[1] = t10;
-        let t20 = t2 * T::k(9.81);
-        s[2] = t20;
-        let t21 = t3 * T::k(9.81);
-        s[3] = t21;
-        let t23 = T::k(0.00961628436) * t20;
-        let t24 = T::mul_add(T::k(5.801760809999999e-7), t21, -t23);
-        s[4] = t24;
-        let t25 = T::k(0.1) * qd[0];
-        let t26 = t10 * t25;
-        s[5] = t26;
-        let t27 = t9 * t25;
-        s[6] = t27;
-        let t29 = t9 * t21;
-        s[7] = t29;
-        let t30 = T::mul_add(t10, t20, t29);
-        let t32 = t10 * t21;
-        s[8] = t32;
-        let t33 = T::mul_add(-t9, t20, t32);
-        let t34 = qd[0] + qd[1];
-        s[9] = t34;
-        let t35 = qd[1] * t27;
-        s[10] = t35;
-        let t36 = qd[1] * t26;
-        s[11] = t36;
-        let t37 = t30 + t35;
-        let t38 = t33 + t36;
-        let t39 = T::k(0.0335304944) * t34;
-        s[12] = t39;
-        let t41 = T::k(0.33238) * t26;
-        s[13] = t41;
-        let t42 = -t41;
-        let t43 = T::k(0.33238) * t27;
-        s[14] = t43;
-        let t44 = t42 - t39;
-        s[15] = t44;
-        let t45 = T::mul_add(T::k(6.43853298e-11), t34, t43);
-        s[16] = t45;
-        let t47 = T::k(0.0335304944) * t37;
-        let t48 = T::mul_add(T::k(6.43853298e-11), t38, -t47);
-        s[17] = t48;
-        let t49 = T::k(0.33238) * t37;
-        s[18] = t49;
-        let t50 = T::k(0.33238) * t38;
-        s[19] = t50;
-        let t51 = t26 * t45;
-        let t52 = -t51;
-        let t54 = T::mul_add(-t27, t44, t52);
-        s[20] = t54;
-        let t55 = t34 * t45;
-        s[21] = t55;
+        s[3] = t10;
+        let t19 = T::k(0.1) * qd[0];
+        let t20 = t10 * t19;
+        s[4] = t20;
+        let t21 = t9 * t19;
+        s[5] = t21;
+        let t22 = qd[0] + qd[1];
+        let t23 = qd[1] * t21;
+        s[6] = t23;
+        let t24 = qd[1] * t20;
+        s[7] = t24;
+        let t25 = T::k(0.0335304944) * t22;
+        s[8] = t25;
+        let t27 = T::k(0.33238) * t20;
+        s[9] = t27;
+        let t28 = -t27;
+        let t29 = T::k(0.33238) * t21;
+        s[10] = t29;
+        let t30 = t28 - t25;
+        s[11] = t30;
+        let t31 = T::mul_add(T::k(6.43853298e-11), t22, t29);
+        s[12] = t31;
+        let t32 = t20 * t31;
+        let t33 = -t32;
+        let t35 = T::mul_add(-t21, t30, t33);
+        let t36 = t22 * t31;
+        s[13] = t36;
+        let t37 = t22 * t30;
+        s[14] = t37;
+        let t41 = tau[1] - t35;
+        s[15] = t41;
+        let t47 = t24 * T::k(4.736595035057242e-10);
+        let t48 = T::mul_add(t23, T::k(0.08570832216376303), t47);
+        let t50 = T::k(0.33238) * t24;
+        let t51 = T::mul_add(t23, T::k(4.736595035057242e-10), t50);
+        let t52 = T::k(219.4013895236754) * t41;
+        let t56 = t48 - t36;
+        let t57 = t37 + t51;
+        let t58 = T::mul_add(T::k(0.004557856275072), t52, t35);
+        s[16] = t58;
+        let t59 = T::mul_add(T::k(-0.0335304944), t52, t56);
+        let t60 = T::mul_add(T::k(6.43853298e-11), t52, t57);
+        s[17] = t60;
+        let t61 = t10 * t59;
+        s[18] = t61;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1728,49 +1790,43 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t56 = s[9] * s[15];
-        s[22] = t56;
-        let t57 = s[17] + s[20];
-        s[23] = t57;
-        let t58 = s[18] - s[21];
-        let t59 = s[19] + t56;
-        let t61 = s[0] * t59;
-        let t62 = T::mul_add(s[1], t58, -t61);
-        let t64 = T::mul_add(-T::k(0.1), t62, t57);
-        let t65 = s[4] + t64;
-        s[24] = t65;
-        let t71 = s[0] * T::k(1.4126230823060104e-8);
-        let t72 = T::mul_add(s[1], T::k(-7.356637062775817), -t71);
-        let t74 = T::mul_add(-T::k(0.1), t72, T::k(1.0));
-        let t78 = s[1] * T::k(-0.1);
-        let t79 = s[0] * T::k(-0.1);
-        let t81 = T::k(4.736595035057242e-10) * t79;
-        let t82 = T::mul_add(T::k(0.08570832216376303), t78, -t81);
-        let t84 = T::k(0.33238) * t79;
-        let t85 = T::mul_add(T::k(4.736595035057242e-10), t78, -t84);
-        let t87 = s[0] * t85;
-        let t88 = T::mul_add(s[1], t82, -t87);
-        let t90 = s[1] * T::k(0.0335304944);
-        s[25] = t90;
-        let t92 = s[0] * T::k(0.0335304944);
-        s[26] = t92;
-        let t93 = T::mul_add(-T::k(0.1), t88, T::k(0.0007545716336328686));
-        let t94 = T::k(1.0) / t93;
-        s[27] = t94;
-        let t95 = t74 * t94;
-        s[28] = t95;
-        let t96 = T::k(0.1) * t95;
-        let t97 = s[1] * t96;
-        let t98 = s[0] * t96;
-        let t99 = T::k(0.004557856275072) * t95;
-        let t101 = T::mul_add(T::k(-0.0335304944), t97, -t99);
-        let t103 = T::mul_add(-T::k(6.43853298e-11), t98, t101);
-        s[29] = t103;
+        let t63 = T::mul_add(-s[2], s[17], s[18]);
+        let t65 = T::mul_add(-T::k(0.1), t63, s[16]);
+        s[19] = t65;
+        let t67 = s[3] * T::k(-0.1);
+        let t68 = s[2] * T::k(-0.1);
+        let t70 = T::k(4.736595035057242e-10) * t68;
+        let t71 = T::mul_add(T::k(0.08570832216376303), t67, -t70);
+        let t73 = T::k(0.33238) * t68;
+        let t74 = T::mul_add(T::k(4.736595035057242e-10), t67, -t73);
+        let t76 = s[2] * t74;
+        let t77 = T::mul_add(s[3], t71, -t76);
+        let t79 = s[3] * T::k(0.0335304944);
+        s[20] = t79;
+        let t81 = s[2] * T::k(0.0335304944);
+        s[21] = t81;
+        let t83 = s[2] * T::k(4.736595035057242e-10);
+        let t84 = T::mul_add(s[3], T::k(0.08570832216376303), -t83);
+        let t85 = s[3] * T::k(4.736595035057242e-10);
+        let t87 = T::mul_add(-s[2], T::k(0.33238), t85);
+        let t89 = s[2] * t87;
+        let t90 = T::mul_add(s[3], t84, -t89);
+        let t93 = T::mul_add(s[2], T::k(0.08570832216376303), t85);
+        let t95 = T::mul_add(s[3], T::k(0.33238), t83);
+        let t97 = s[2] * t95;
+        let t98 = T::mul_add(s[3], t93, -t97);
+        let t100 = T::mul_add(-T::k(0.1), t77, T::k(0.0007545716336328686));
+        let t101 = T::mul_add(-T::k(0.1), t90, T::k(-0.00961628436));
+        s[22] = t101;
+        let t102 = T::mul_add(-T::k(0.1), t98, T::k(5.801760809999999e-7));
+        s[23] = t102;
+        let t103 = T::k(1.0) / t100;
+        s[24] = t103;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1779,54 +1835,52 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t105 = T::mul_add(-T::k(219.4013895236754), s[29], T::k(219.4013895236754));
-        s[4] = t105;
-        let t106 = tau[0] - s[24];
-        let t107 = tau[1] - s[23];
-        let t109 = s[28] * t107;
-        let t110 = T::mul_add(s[27], t106, -t109);
-        qdd[0] = t110;
-        let t111 = s[28] * t106;
-        let t113 = T::mul_add(t105, t107, -t111);
-        qdd[1] = t113;
-        let t115 = T::mul_add(-T::k(0.1), t110, s[2]);
-        let t117 = T::mul_add(s[1], t115, s[7]);
-        let t119 = T::mul_add(-s[0], t115, s[8]);
-        let t120 = t110 + t113;
-        let t121 = s[10] + t117;
-        let t122 = s[11] + t119;
-        let t123 = T::k(0.0335304944) * t120;
-        let t126 = T::k(0.33238) * t122;
-        let t127 = T::mul_add(T::k(0.33238), t121, -t123);
-        let t128 = T::mul_add(T::k(6.43853298e-11), t120, t126);
-        let t129 = t127 - s[21];
-        s[9] = t129;
-        let t130 = s[22] + t128;
-        s[17] = t130;
-        let t133 = T::mul_add(-qd[0], s[5], t119);
-        s[18] = t133;
-        let t134 = T::mul_add(qd[0], s[6], -t117);
-        s[19] = t134;
-        let t136 = -s[12];
-        let t137 = t136 - s[13];
-        s[20] = t137;
-        let t138 = T::k(6.43853298e-11) * s[5];
-        s[30] = t138;
-        let t139 = T::k(0.0335304944) * s[6];
-        let t140 = t139 - t138;
-        let t141 = T::k(2.0) * t140;
-        s[31] = t141;
-        let t142 = t138 - t139;
-        s[32] = t142;
-        let t143 = T::k(6.43853298e-11) * t134;
-        s[33] = t143;
-        let t144 = T::k(0.0335304944) * t133;
-        s[34] = t144;
+        let t104 = tau[0] - s[19];
+        let t106 = s[0] * T::k(9.81);
+        s[16] = t106;
+        let t107 = s[1] * T::k(9.81);
+        s[17] = t107;
+        let t109 = s[23] * t107;
+        let t110 = T::mul_add(s[22], t106, t109);
+        let t111 = t104 - t110;
+        let t112 = s[24] * t111;
+        qdd[0] = t112;
+        let t114 = T::mul_add(-T::k(0.1), t112, t106);
+        let t116 = s[2] * t107;
+        let t117 = T::mul_add(s[3], t114, t116);
+        s[18] = t117;
+        let t118 = s[2] * t114;
+        let t120 = T::mul_add(s[3], t107, -t118);
+        s[25] = t120;
+        let t121 = s[6] + t117;
+        s[26] = t121;
+        let t122 = s[7] + t120;
+        s[27] = t122;
+        let t124 = T::k(-0.0335304944) * t121;
+        let t125 = T::mul_add(T::k(0.004557856275072), t112, t124);
+        let t127 = T::mul_add(T::k(6.43853298e-11), t122, t125);
+        let t128 = s[15] - t127;
+        let t129 = T::k(219.4013895236754) * t128;
+        qdd[1] = t129;
+        let t130 = t112 + t129;
+        s[28] = t130;
+        let t132 = s[2] * T::k(1.4126230823060104e-8);
+        let t133 = T::mul_add(s[3], T::k(-7.356637062775817), -t132);
+        let t135 = T::mul_add(-T::k(0.1), t133, T::k(1.0));
+        let t136 = s[24] * t135;
+        s[29] = t136;
+        let t137 = T::k(0.1) * t136;
+        let t138 = s[3] * t137;
+        let t139 = s[2] * t137;
+        let t140 = T::k(0.004557856275072) * t136;
+        let t142 = T::mul_add(T::k(-0.0335304944), t138, -t140);
+        let t144 = T::mul_add(-T::k(6.43853298e-11), t139, t142);
+        s[30] = t144;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1835,53 +1889,59 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t145 = s[33] - s[34];
-        let t148 = -s[16];
-        let t150 = s[6] * s[16];
-        let t151 = T::mul_add(s[5], s[20], -t150);
-        let t153 = T::mul_add(-s[5], s[15], t150);
-        let t154 = s[32] + s[32];
-        let t155 = s[14] + s[14];
-        let t156 = s[13] + s[13];
-        let t157 = t148 - s[16];
-        let t158 = s[15] + s[20];
-        let t159 = s[31] + t154;
-        s[7] = t159;
-        let t160 = t155 + t157;
-        let t161 = t156 + t158;
-        let t162 = t151 + t153;
-        let t163 = t145 + t162;
-        s[8] = t163;
-        let t164 = T::mul_add(T::k(0.33238), s[18], -s[17]);
-        s[10] = t164;
-        let t165 = T::mul_add(T::k(0.33238), s[19], s[9]);
-        s[11] = t165;
-        let t166 = s[20] - s[15];
-        s[12] = t166;
-        let t168 = T::mul_add(T::k(-0.0335304944), s[18], s[33]);
-        let t170 = T::mul_add(s[5], t166, t168);
-        s[21] = t170;
-        let t172 = T::mul_add(s[6], T::k(-0.0335304944), s[30]);
-        let t173 = t172 + t172;
-        let t174 = s[31] + t173;
-        s[22] = t174;
-        let t176 = s[0] * T::k(6.43853298e-11);
-        s[23] = t176;
-        let t177 = T::mul_add(s[1], T::k(-0.0335304944), -t176);
-        s[24] = t177;
-        let t179 = s[1] * T::k(6.43853298e-11);
-        s[29] = t179;
-        let t180 = T::mul_add(s[0], T::k(-0.0335304944), t179);
-        s[35] = t180;
-        let t182 = s[0] * t161;
-        let t183 = T::mul_add(s[1], t160, -t182);
-        let t184 = T::k(0.1) * t183;
-        s[36] = t184;
+        let t146 = T::mul_add(-T::k(219.4013895236754), s[30], T::k(219.4013895236754));
+        s[0] = t146;
+        let t147 = T::k(0.0335304944) * s[28];
+        let t150 = T::k(0.33238) * s[27];
+        let t151 = T::mul_add(T::k(0.33238), s[26], -t147);
+        let t152 = T::mul_add(T::k(6.43853298e-11), s[28], t150);
+        let t153 = t151 - s[13];
+        s[1] = t153;
+        let t154 = s[14] + t152;
+        s[6] = t154;
+        let t157 = T::mul_add(-qd[0], s[4], s[25]);
+        s[7] = t157;
+        let t158 = T::mul_add(qd[0], s[5], -s[18]);
+        let t160 = -s[8];
+        let t161 = t160 - s[9];
+        s[15] = t161;
+        let t162 = T::k(6.43853298e-11) * s[4];
+        s[19] = t162;
+        let t163 = T::k(0.0335304944) * s[5];
+        let t164 = t163 - t162;
+        let t165 = T::k(2.0) * t164;
+        s[22] = t165;
+        let t166 = t162 - t163;
+        let t167 = T::k(6.43853298e-11) * t158;
+        s[23] = t167;
+        let t169 = T::mul_add(-T::k(0.0335304944), t157, t167);
+        s[31] = t169;
+        let t170 = T::k(0.33238) * t157;
+        s[32] = t170;
+        let t171 = T::k(0.33238) * t158;
+        s[33] = t171;
+        let t172 = -s[12];
+        let t174 = s[5] * s[12];
+        let t175 = T::mul_add(s[4], t161, -t174);
+        s[34] = t175;
+        let t177 = T::mul_add(-s[4], s[11], t174);
+        s[35] = t177;
+        let t178 = t166 + t166;
+        let t179 = s[10] + s[10];
+        let t180 = s[9] + s[9];
+        let t181 = t172 - s[12];
+        let t182 = s[11] + t161;
+        let t183 = t165 + t178;
+        s[36] = t183;
+        let t184 = t179 + t181;
+        s[37] = t184;
+        let t185 = t180 + t182;
+        s[38] = t185;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1890,48 +1950,50 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t185 = s[7] - s[36];
-        s[5] = t185;
-        let t187 = s[0] * s[11];
-        let t188 = T::mul_add(s[1], s[10], -t187);
-        let t190 = T::mul_add(-T::k(0.1), t188, s[8]);
-        let t191 = s[0] * s[12];
-        let t193 = T::mul_add(T::k(0.1), t191, s[31]);
-        s[6] = t193;
-        let t194 = s[29] - s[26];
-        let t195 = s[25] + s[23];
-        let t196 = T::k(0.033238000000000004) + t195;
-        let t197 = T::k(5.801760809999999e-7) + t194;
-        let t198 = T::k(0.00961628436) + t196;
-        let t200 = s[1] * s[16];
-        let t201 = T::mul_add(s[0], s[20], t200);
-        let t202 = T::k(0.1) * t201;
-        let t204 = T::mul_add(T::k(2.0), t202, s[31]);
-        s[9] = t204;
-        let t206 = s[3] * t198;
-        let t207 = -t206;
-        let t208 = T::mul_add(-s[2], t197, t207);
-        let t210 = s[2] * s[35];
-        let t211 = T::mul_add(s[3], s[24], -t210);
-        let t213 = s[28] * t211;
-        let t214 = T::mul_add(s[27], t208, -t213);
-        let t215 = -t214;
-        dqdd_dq[0][0] = t215;
-        let t217 = s[28] * s[21];
-        let t218 = T::mul_add(s[27], t190, -t217);
-        let t219 = -t218;
-        dqdd_dq[0][1] = t219;
-        let t220 = s[28] * t208;
-        let t222 = T::mul_add(s[4], t211, -t220);
-        let t223 = -t222;
-        dqdd_dq[1][0] = t223;
-        let t224 = s[28] * t190;
-        s[13] = t224;
+        let t186 = s[34] + s[35];
+        let t187 = s[31] + t186;
+        let t188 = s[32] - s[6];
+        let t189 = s[1] + s[33];
+        let t190 = s[15] - s[11];
+        let t192 = T::mul_add(T::k(-0.0335304944), s[7], s[23]);
+        let t194 = T::mul_add(s[4], t190, t192);
+        s[8] = t194;
+        let t196 = T::mul_add(s[5], T::k(-0.0335304944), s[19]);
+        let t197 = t196 + t196;
+        let t198 = s[22] + t197;
+        s[9] = t198;
+        let t200 = s[2] * T::k(6.43853298e-11);
+        let t201 = T::mul_add(s[3], T::k(-0.0335304944), -t200);
+        s[10] = t201;
+        let t203 = s[3] * T::k(6.43853298e-11);
+        let t204 = T::mul_add(s[2], T::k(-0.0335304944), t203);
+        s[13] = t204;
+        let t206 = s[2] * s[38];
+        let t207 = T::mul_add(s[3], s[37], -t206);
+        let t209 = T::mul_add(-T::k(0.1), t207, s[36]);
+        s[14] = t209;
+        let t211 = s[2] * t189;
+        let t212 = T::mul_add(s[3], t188, -t211);
+        let t214 = T::mul_add(-T::k(0.1), t212, t187);
+        s[18] = t214;
+        let t215 = s[2] * t190;
+        let t217 = T::mul_add(T::k(0.1), t215, s[22]);
+        s[25] = t217;
+        let t218 = t203 - s[21];
+        let t219 = s[20] + t200;
+        let t220 = T::k(0.033238000000000004) + t219;
+        let t221 = T::k(5.801760809999999e-7) + t218;
+        s[26] = t221;
+        let t222 = T::k(0.00961628436) + t220;
+        s[27] = t222;
+        let t224 = s[3] * s[12];
+        let t225 = T::mul_add(s[2], s[15], t224);
+        s[28] = t225;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1940,29 +2002,65 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 37],
+        s: &mut [T; 39],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t226 = T::mul_add(s[4], s[21], -s[13]);
-        let t227 = -t226;
-        dqdd_dq[1][1] = t227;
-        let t229 = s[28] * s[6];
-        let t230 = T::mul_add(s[27], s[9], -t229);
+        let t226 = T::k(0.1) * s[28];
+        let t228 = T::mul_add(T::k(2.0), t226, s[22]);
+        let t230 = s[17] * s[27];
         let t231 = -t230;
-        dqdd_dqd[0][0] = t231;
-        let t233 = s[28] * s[22];
-        let t234 = T::mul_add(s[27], s[5], -t233);
-        let t235 = -t234;
-        dqdd_dqd[0][1] = t235;
-        let t236 = s[28] * s[9];
-        let t238 = T::mul_add(s[4], s[6], -t236);
+        let t232 = T::mul_add(-s[16], s[26], t231);
+        let t234 = s[16] * s[13];
+        let t235 = T::mul_add(s[17], s[10], -t234);
+        let t237 = s[29] * t235;
+        let t238 = T::mul_add(s[24], t232, -t237);
         let t239 = -t238;
-        dqdd_dqd[1][0] = t239;
-        let t240 = s[28] * s[5];
-        let t242 = T::mul_add(s[4], s[22], -t240);
+        dqdd_dq[0][0] = t239;
+        let t241 = s[29] * s[8];
+        let t242 = T::mul_add(s[24], s[18], -t241);
         let t243 = -t242;
-        dqdd_dqd[1][1] = t243;
+        dqdd_dq[0][1] = t243;
+        let t244 = s[29] * t232;
+        let t246 = T::mul_add(s[0], t235, -t244);
+        let t247 = -t246;
+        dqdd_dq[1][0] = t247;
+        let t248 = s[29] * s[18];
+        let t250 = T::mul_add(s[0], s[8], -t248);
+        let t251 = -t250;
+        dqdd_dq[1][1] = t251;
+        let t253 = s[29] * s[25];
+        let t254 = T::mul_add(s[24], t228, -t253);
+        let t255 = -t254;
+        dqdd_dqd[0][0] = t255;
+        let t257 = s[29] * s[9];
+        let t258 = T::mul_add(s[24], s[14], -t257);
+        let t259 = -t258;
+        dqdd_dqd[0][1] = t259;
+        let t260 = s[29] * t228;
+        let t262 = T::mul_add(s[0], s[25], -t260);
+        let t263 = -t262;
+        dqdd_dqd[1][0] = t263;
+        let t264 = s[29] * s[14];
+        s[1] = t264;
+        let t265 = s[0] * s[9];
+        s[2] = t265;
+    }
+    #[inline(never)]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut)]
+    fn fd_grad_part6<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        s: &mut [T; 39],
+        qdd: &mut [T; NV],
+        dqdd_dq: &mut [[T; NV]; NV],
+        dqdd_dqd: &mut [[T; NV]; NV],
+    ) {
+        let t266 = s[2] - s[1];
+        let t267 = -t266;
+        dqdd_dqd[1][1] = t267;
     }
 }

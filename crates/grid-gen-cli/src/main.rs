@@ -225,6 +225,43 @@ enum Command {
         #[arg(long, value_name = "BACKEND", default_value = "reference", value_parser = ["reference", "wgsl", "verilog"])]
         backend: String,
     },
+    /// Measure each kernel's error per number format against the double-double value
+    /// of its graph, with cond(M) over the states.
+    ///
+    /// Formats: f64 and f32 (what the generated Rust computes), fixed (the Verilog
+    /// datapath's bit-exact model in the --fixed/--rounding/--max-error format; also
+    /// fixed:WIDTH.FRAC and fixed:auto), wgsl (the WGSL kernels on the first adapter, with
+    /// the WGSL options). Error per state: max|Δ| / max|true| over each output, the worst
+    /// output; the table gives the median and largest over the states.
+    Accuracy {
+        /// The robot description.
+        #[arg(value_name = "ROBOT.urdf")]
+        urdf: PathBuf,
+        /// States to measure on (the format of `eval`); without it, --random states.
+        #[arg(long, value_name = "STATES.json", conflicts_with_all = ["random", "seed"])]
+        states: Option<PathBuf>,
+        /// Number of seeded random states: q within the joint limits, q̇ and q̈ within the
+        /// fixed-point bounds (--qd-max, --qdd-max), τ = RNEA at another such q̈.
+        #[arg(long, value_name = "N", default_value_t = 100)]
+        random: usize,
+        /// Seed of the random states.
+        #[arg(long, value_name = "S", default_value_t = 1)]
+        seed: u64,
+        /// Number formats, comma-separated: f64, f32, fixed, fixed:WIDTH.FRAC, fixed:auto, wgsl.
+        #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "f64,f32,fixed")]
+        formats: Vec<String>,
+        /// Kernels to measure (default: every kernel the robot has).
+        #[arg(long, value_name = "K,...", value_delimiter = ',')]
+        kernels: Vec<String>,
+        /// Print JSON instead of the table.
+        #[arg(long)]
+        json: bool,
+        /// Also write the error-against-operations figure as SVG.
+        #[arg(long, value_name = "FILE.svg")]
+        plot: Option<PathBuf>,
+        #[command(flatten)]
+        kernel: KernelArgs,
+    },
     /// Time the WGSL kernels on batches of seeded random states (GPU or lavapipe).
     ///
     /// Prints, per kernel, strategy and batch size N: microseconds per batch for the
@@ -398,6 +435,10 @@ fn run(cli: Cli) -> ExitCode {
             Ok(model) => bench(&model, &cli.wgsl, &batch, &kernels, seconds),
             Err(code) => code,
         },
+        Command::Accuracy { urdf, states, random, seed, formats, kernels, json, plot, kernel } => match load(&urdf, strict) {
+            Ok(model) => accuracy(&model, &cli.verilog, &cli.wgsl, AccuracyArgs { states, random, seed, formats, kernels, json, plot, kernel }),
+            Err(code) => code,
+        },
         Command::Eval { urdf, states, gravity, backend } => {
             let model = match load(&urdf, strict) {
                 Ok(m) => m,
@@ -439,6 +480,107 @@ fn run(cli: Cli) -> ExitCode {
                 Err(e) => fail(format!("{}: {e}", states.display())),
             }
         }
+    }
+}
+
+struct AccuracyArgs {
+    states: Option<PathBuf>,
+    random: usize,
+    seed: u64,
+    formats: Vec<String>,
+    kernels: Vec<String>,
+    json: bool,
+    plot: Option<PathBuf>,
+    kernel: KernelArgs,
+}
+
+fn accuracy(model: &Model, verilog: &VerilogArgs, wgsl: &WgslArgs, args: AccuracyArgs) -> ExitCode {
+    use grid_gen::accuracy::{self, Backend, NumberFormat};
+    let gravity = args.kernel.gravity;
+    let (file, source) = match &args.states {
+        Some(path) => {
+            let parsed = std::fs::read_to_string(path).map_err(|e| e.to_string()).and_then(|t| grid_gen::eval::parse_states(&t).map_err(|e| e.to_string()));
+            match parsed {
+                Ok(f) => (f, path.display().to_string()),
+                Err(e) => return fail(format!("{}: {e}", path.display())),
+            }
+        }
+        None => (accuracy::random_states(model, gravity, args.random, args.seed, verilog.qd_max, verilog.qdd_max), format!("random, seed {}", args.seed)),
+    };
+    let kernels = if args.kernels.is_empty() {
+        accuracy::default_kernels(model)
+    } else {
+        let mut out = Vec::new();
+        for k in &args.kernels {
+            match grid_gen::ir::KernelKind::ALL.into_iter().find(|x| x.name() == k) {
+                Some(kind) => out.push(kind),
+                None => return fail(format!("--kernels: unknown kernel `{k}`; available: {}", grid_gen::ir::KernelKind::ALL.map(|x| x.name()).join(", "))),
+            }
+        }
+        out
+    };
+    let mut formats = Vec::new();
+    let mut want_wgsl = false;
+    for f in &args.formats {
+        let parsed = match f.as_str() {
+            "wgsl" => {
+                want_wgsl = true;
+                continue;
+            }
+            "fixed" => NumberFormat::parse(&format!("fixed:{}", verilog.fixed), verilog.rounding, verilog.max_error),
+            other => NumberFormat::parse(other, verilog.rounding, verilog.max_error),
+        };
+        match parsed {
+            Ok(p) => formats.push(p),
+            Err(e) => return fail(format!("--formats: {e}; available: f64, f32, fixed, fixed:WIDTH.FRAC, fixed:auto, wgsl")),
+        }
+    }
+    let gpu = if want_wgsl {
+        match grid_gen_wgpu::Gpu::new() {
+            Ok(g) => Some(g),
+            Err(e) => return fail(e),
+        }
+    } else {
+        None
+    };
+    let mut backends = Vec::new();
+    if let Some(gpu) = &gpu {
+        use grid_gen::back::wgsl::Strategy;
+        let options = wgsl.options();
+        let strategy = if wgsl.wgsl_strategy == "cooperative" { Strategy::Cooperative } else { Strategy::Thread };
+        let lower = grid_gen::ir::LowerOptions { kernels: kernels.clone(), gradient: args.kernel.gradient(), ..Default::default() };
+        let source = grid_gen::ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|m| {
+            grid_gen::back::wgsl::emit(&m, &grid_gen::back::wgsl::WgslOptions { strategies: vec![strategy], ..options.clone() }).map_err(|e| e.to_string())
+        });
+        let shader = match source.and_then(|s| gpu.load(&s.contents).map_err(|e| e.to_string())) {
+            Ok(s) => s,
+            Err(e) => return fail(format!("wgsl: {e}")),
+        };
+        let adapter = gpu.adapter();
+        let short = adapter.split(" (").next().unwrap_or(&adapter);
+        let label = format!("wgsl {} {} on {short}", wgsl.precision, strategy.name());
+        backends.push(Backend {
+            label,
+            run: Box::new(move |kind, q, qd, u| {
+                let kernel = gpu.kernel(&shader, &strategy.entry(kind.name())).map_err(|e| e.to_string())?;
+                gpu.run(&kernel, q, qd, u).map_err(|e| e.to_string())
+            }),
+        });
+    }
+    let options = accuracy::Options { kernels, formats, gravity, gradient: args.kernel.gradient(), qd_max: verilog.qd_max, qdd_max: verilog.qdd_max };
+    let report = match accuracy::measure(model, &file, &source, &options, &mut backends) {
+        Ok(r) => r,
+        Err(e) => return fail(e),
+    };
+    if let Some(path) = &args.plot {
+        if let Err(e) = std::fs::write(path, accuracy::svg(&report)) {
+            return fail(format!("cannot write {}: {e}", path.display()));
+        }
+    }
+    if args.json {
+        print(&(serde_json::to_string_pretty(&report).expect("report serialises") + "\n"))
+    } else {
+        print(&report.to_text())
     }
 }
 

@@ -349,3 +349,43 @@ fn what_a_new_user_tripped_over() {
     assert_eq!(grid_gen(&[a.to_str().unwrap(), "-o", o]).status.code(), Some(0), "regenerating from the same file is fine");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `accuracy`: a row per kernel and format in text and JSON, the SVG written, the WGSL
+/// kernels measured on the adapter next to the CPU formats, and bad arguments named.
+#[test]
+fn accuracy_measures_every_format_and_plots() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-accuracy-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let plot = dir.join("trade.svg");
+    let out = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--random", "5", "--json", "--plot", plot.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let report = json(&out);
+    assert_eq!(report["states"], 5);
+    let rows = report["rows"].as_array().unwrap();
+    assert_eq!(rows.len(), 6 * 3, "six kernels in f64, f32 and the --fixed format");
+    for r in rows.iter().filter(|r| r["format"] == "f64") {
+        assert!(r["error"]["max"].as_f64().unwrap() <= 1e-12, "{r}");
+    }
+    assert!(std::fs::read_to_string(&plot).unwrap().starts_with("<svg"));
+    let text = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--random", "3", "--kernels", "rnea_grad", "--formats", "f64,fixed:32.16"]);
+    let text = String::from_utf8(text.stdout).unwrap();
+    assert!(text.contains("cond(M): median") && text.contains("rnea_grad    fixed 32.16 half-up"), "{text}");
+    let bad = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--formats", "f16"]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown number format `f16`"));
+    let bad = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--kernels", "aba"]);
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown kernel `aba`"));
+    let gpu = grid_gen(&["accuracy", "robots/double_pendulum_continuous.urdf", "--random", "4", "--formats", "f32,wgsl", "--json"]);
+    if adapter_or_skip(&gpu) {
+        assert_eq!(gpu.status.code(), Some(0), "{}", String::from_utf8_lossy(&gpu.stderr));
+        let report = json(&gpu);
+        let wgsl: Vec<_> = report["rows"].as_array().unwrap().iter().filter(|r| r["format"].as_str().unwrap().starts_with("wgsl f32 thread on ")).collect();
+        assert_eq!(wgsl.len(), 6);
+        for r in wgsl {
+            // The WGSL tests' f32 bounds, from f64 states (1e-5 direct, 1e-4 through M⁻¹).
+            let tol = if ["minv", "fd", "fd_grad"].contains(&r["kernel"].as_str().unwrap()) { 1e-4 } else { 1e-5 };
+            assert!(r["error"]["max"].as_f64().unwrap() <= tol, "{r}");
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

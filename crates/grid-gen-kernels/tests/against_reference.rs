@@ -135,6 +135,38 @@ macro_rules! robot_test {
                 check!(k::portable);
             }
 
+            /// The portable copy computes exactly the IR's graph: bit for bit in f64 and in
+            /// f32 (inputs and constants rounded to f32), so what `grid-gen accuracy`
+            /// measures by interpreting the graph is what this code returns.
+            #[test]
+            fn the_portable_copy_is_the_ir_bit_for_bit() {
+                let model = load($stem);
+                let n = model.nv();
+                let module = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &grid_gen::ir::LowerOptions::default()).unwrap();
+                let mut rng = Rng(17);
+                for (label, q, qd, u) in states(&model, &mut rng).into_iter().take(3) {
+                    let mut want64 = Vec::new();
+                    let mut want32 = Vec::new();
+                    for f in &module.functions {
+                        let args = grid_gen_test_support::kernel_args(f.inputs(), &q, &qd, &u);
+                        for (o, v) in f.outputs.iter().zip(f.eval(&args)) {
+                            want64.push(grid_gen_test_support::output_matrix(o.shape, n, &v));
+                        }
+                        for (o, v) in f.outputs.iter().zip(f.eval_f32(&args)) {
+                            want32.push(grid_gen_test_support::output_matrix(o.shape, n, &v.iter().map(|&x| f64::from(x)).collect::<Vec<_>>()));
+                        }
+                    }
+                    for (t, got, want) in
+                        [("f64", run_kernels!($m, portable, f64, &q, &qd, &u), want64), ("f32", run_kernels!($m, portable, f32, &q, &qd, &u), want32)]
+                    {
+                        for ((name, g), w) in NAMES.iter().zip(&got).zip(&want) {
+                            let same = g.iter().zip(w.iter()).all(|(a, b)| a.to_bits() == b.to_bits());
+                            assert!(same, "{} {t} {label}: {name} differs from the IR's value", $stem);
+                        }
+                    }
+                }
+            }
+
             #[test]
             fn f64_and_f32_match_the_reference() {
                 let model = load($stem);

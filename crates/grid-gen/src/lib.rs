@@ -4,6 +4,7 @@
 //! with the reference dynamics (`reference`) beside it as the oracle. The library never
 //! prints and never exits; every failure is a value carrying located [`Diagnostic`]s.
 
+pub mod accuracy;
 pub mod back;
 pub mod builder;
 pub mod diagnostic;

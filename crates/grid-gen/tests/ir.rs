@@ -138,18 +138,16 @@ fn chain(n: usize) -> Model {
 /// the f64 model (to about 1e-30 relative, times the growth of its graph). Against it:
 /// the specialised f64 graph (what the generated kernels compute, up to their own
 /// operation order) and the reference algorithms in f64. Checked: the double-double
-/// value agrees with both to the f64 tolerances of this file's other tests on the
-/// bundled robots; the errors printed are measurements (issue 10 compares them with
-/// Pinocchio's), with the bound asserted only on the well-conditioned robots.
+/// value agrees with both to the f64 tolerance of this file's other tests, at random
+/// and extreme states, on two bundled robots and a 30-link chain (cond(M) ~ 1e4); the
+/// 100-link chain is measured against Pinocchio in the next test.
 #[test]
 fn f64_against_the_double_double_reference() {
     let g = reference::DEFAULT_GRAVITY;
     let mut rng = Rng(29);
     let unfolded = LowerOptions { fold: false, kernels: vec![KernelKind::Fd, KernelKind::FdGrad], ..LowerOptions::default() };
     let folded = LowerOptions { kernels: vec![KernelKind::Fd, KernelKind::FdGrad], ..LowerOptions::default() };
-    for (name, model, asserted) in
-        [("grid_iiwa", load("grid_iiwa"), true), ("grid_hyq", load("grid_hyq"), true), ("chain30", chain(30), false), ("chain100", chain(100), false)]
-    {
+    for (name, model) in [("grid_iiwa", load("grid_iiwa")), ("grid_hyq", load("grid_hyq")), ("chain30", chain(30))] {
         let n = model.nv();
         let exact = ir::lower(&model, g, &unfolded).unwrap();
         let fast = ir::lower(&model, g, &folded).unwrap();
@@ -168,9 +166,7 @@ fn f64_against_the_double_double_reference() {
                 let r = rel_err(&reference_outputs[k], &want);
                 kernel_worst = kernel_worst.max(e);
                 reference_worst = reference_worst.max(r);
-                if asserted {
-                    assert!(e <= TOL && r <= TOL, "{name} {}: kernel {e:.1e}, reference {r:.1e}", o.name);
-                }
+                assert!(e <= TOL && r <= TOL, "{name} {}: kernel {e:.1e}, reference {r:.1e}", o.name);
             }
         }
         let m = reference::crba(&model, &vec![0.3; n]);
@@ -187,9 +183,53 @@ fn f64_against_the_double_double_reference() {
             let got = fast.function(KernelKind::FdGrad).unwrap().eval(&args);
             for (k, o) in f.outputs.iter().enumerate() {
                 let want = output_matrix(o.shape, n, &truth[k].iter().map(|x| x.to_f64()).collect::<Vec<_>>());
-                extreme_worst = extreme_worst.max(rel_err(&output_matrix(o.shape, n, &got[k]), &want));
+                let e = rel_err(&output_matrix(o.shape, n, &got[k]), &want);
+                assert!(e <= TOL, "{name} {} at extreme angles or speeds: {e:.1e}", o.name);
+                extreme_worst = extreme_worst.max(e);
             }
         }
         eprintln!("{name}: the same at angles up to ±1e3 rad and speeds 1e3 or 1e-8: {extreme_worst:.1e}");
+    }
+}
+
+/// Issue 10, item 3's goal: forward dynamics and its gradient in f64 no less accurate than
+/// Pinocchio's `aba` and `computeABADerivatives`, on a 100-link chain (cond(M) ~ 1e5, where
+/// q̈ = M⁻¹ (τ − c) made ∂q̈/∂q 1000x worse than Pinocchio). Both are measured against the
+/// double-double value of the unfolded graph at the fixture's states; the assertion is
+/// that grid-gen's error is at most Pinocchio's, per output and state.
+#[test]
+fn forward_dynamics_as_accurate_as_pinocchio_on_a_100_link_chain() {
+    let n = 100;
+    let path = repo().join("tests/fixtures/chain100.urdf");
+    let text = std::fs::read_to_string(&path).expect("tests/fixtures/chain100.urdf (run scripts/make_fixtures.py)");
+    assert_eq!(text.trim_end(), chain_urdf(n), "{} is not chain_urdf(100): rerun scripts/make_fixtures.py", path.display());
+    let model = chain(n);
+    let fx = fixture("chain100.pinocchio.json");
+    let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|x| x.as_str().unwrap()).collect();
+    assert_eq!(names, model.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>(), "Pinocchio's joint order is grid-gen's on a chain");
+    let g = reference::DEFAULT_GRAVITY;
+    assert_eq!(vec_of(&fx["gravity"]), g.to_vec());
+    let kinds = vec![KernelKind::FdGrad];
+    let exact = ir::lower(&model, g, &LowerOptions { fold: false, kernels: kinds.clone(), ..LowerOptions::default() }).unwrap();
+    let fast = ir::lower(&model, g, &LowerOptions { kernels: kinds, ..LowerOptions::default() }).unwrap();
+    let (exact, fast) = (exact.function(KernelKind::FdGrad).unwrap(), fast.function(KernelKind::FdGrad).unwrap());
+    for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
+        let (q, qd, tau) = (vec_of(&st["q"]), vec_of(&st["qd"]), vec_of(&st["tau"]));
+        let args = kernel_args(exact.inputs(), &q, &qd, &tau);
+        let truth: Vec<Vec<f64>> = exact.eval_dd(&args).into_iter().map(|o| o.into_iter().map(|x| x.to_f64()).collect()).collect();
+        let got = fast.eval(&args);
+        let (qdd, dq, dqd) = reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
+        let pinocchio = [col(&vec_of(&st["fd"])), mat_of(&st["dfd_dq"]), mat_of(&st["dfd_dqd"])];
+        let reference_outputs = [col(&qdd), dq, dqd];
+        for (k, o) in exact.outputs.iter().enumerate() {
+            let want = output_matrix(o.shape, n, &truth[k]);
+            let e = rel_err(&output_matrix(o.shape, n, &got[k]), &want);
+            let r = rel_err(&reference_outputs[k], &want);
+            let p = rel_err(&pinocchio[k], &want);
+            eprintln!("chain100 state {s} {}: against double-double, generated graph {e:.1e}, reference algorithms {r:.1e}, Pinocchio {p:.1e}", o.name);
+            assert!(e <= p, "chain100 state {s} {}: generated {e:.1e}, Pinocchio {p:.1e}", o.name);
+            // The reference is every other test's oracle at TOL; it must stay within it.
+            assert!(r <= TOL, "chain100 state {s} {}: reference algorithms {r:.1e}", o.name);
+        }
     }
 }

@@ -128,8 +128,10 @@ impl KernelKind {
             KernelKind::RneaGrad => "Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.",
             KernelKind::MassMatrix => "The joint-space inertia matrix M(q) (CRBA).",
             KernelKind::Minv => "M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.",
-            KernelKind::Fd => "Forward dynamics: `qdd = M^-1 (tau - c(q, qd, 0))`.",
-            KernelKind::FdGrad => "Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)` with `dqdd/du = -M^-1 dc/du` at that qdd.",
+            KernelKind::Fd => "Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).",
+            KernelKind::FdGrad => {
+                "Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd."
+            }
         }
     }
 
@@ -141,8 +143,10 @@ impl KernelKind {
             KernelKind::RneaGrad => "its analytical gradient.",
             KernelKind::MassMatrix => "the joint-space inertia matrix M(q).",
             KernelKind::Minv => "M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).",
-            KernelKind::Fd => "forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`.",
-            KernelKind::FdGrad => "forward dynamics and its gradient\n  `-M^-1 dc/du` at the computed qdd, sharing M^-1 and the RNEA pass.",
+            KernelKind::Fd => "forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`,\n  by the O(nv) articulated-body algorithm.",
+            KernelKind::FdGrad => {
+                "forward dynamics (articulated-body algorithm) and its\n  gradient `-M^-1 dc/du` at that qdd, sharing the articulated inertias with M^-1."
+            }
         }
     }
 
@@ -194,7 +198,7 @@ impl KernelKind {
             KernelKind::Minv => vec![flat(d.minv())],
             KernelKind::Fd => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
-                vec![d.fd(&qd, &tau).0]
+                vec![d.aba(&qd, &tau)]
             }
             KernelKind::FdGrad => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));

@@ -82,6 +82,18 @@ pub struct Robot {
 }
 
 impl Robot {
+    pub fn of(model: &Model) -> Robot {
+        Robot {
+            name: model.name.clone(),
+            source: model.source.clone(),
+            joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
+            joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
+            parents: model.joints.iter().map(|j| j.parent).collect(),
+            limits: model.joints.iter().map(|j| j.limit).collect(),
+            velocity_limits: model.joints.iter().map(|j| j.velocity_limit).collect(),
+        }
+    }
+
     pub fn nv(&self) -> usize {
         self.joint_names.len()
     }
@@ -121,15 +133,7 @@ impl Module {
 
 /// Lowers the requested kernels of `model`.
 pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result<Module, LowerError> {
-    let robot = Robot {
-        name: model.name.clone(),
-        source: model.source.clone(),
-        joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
-        joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
-        parents: model.joints.iter().map(|j| j.parent).collect(),
-        limits: model.joints.iter().map(|j| j.limit).collect(),
-        velocity_limits: model.joints.iter().map(|j| j.velocity_limit).collect(),
-    };
+    let robot = Robot::of(model);
     let mut functions = Vec::new();
     for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)) {
         match lower_function(model, gravity, kind, options) {
@@ -264,6 +268,13 @@ impl Function {
         self.eval_as::<super::precise::Dd>(inputs)
     }
 
+    /// The graph in f32, from the f64 inputs rounded to f32, every constant rounded to
+    /// f32, in node order: the operations the generated kernels' portable copy runs for
+    /// `T = f32` (the `fma` copy fuses some of them).
+    pub fn eval_f32(&self, inputs: &[&[f64]]) -> Vec<Vec<f32>> {
+        self.eval_as::<f32>(inputs)
+    }
+
     fn eval_as<T: EvalNumber>(&self, inputs: &[&[f64]]) -> Vec<Vec<T>> {
         let mut val = vec![T::from_f64(0.0); self.nodes.len()];
         for (i, node) in self.nodes.iter().enumerate() {
@@ -310,6 +321,18 @@ impl EvalNumber for f64 {
     }
     fn cos(self) -> Self {
         f64::cos(self)
+    }
+}
+
+impl EvalNumber for f32 {
+    fn from_f64(x: f64) -> Self {
+        x as f32
+    }
+    fn sin(self) -> Self {
+        f32::sin(self)
+    }
+    fn cos(self) -> Self {
+        f32::cos(self)
     }
 }
 

@@ -5,12 +5,14 @@
 //! Notation follows Featherstone (2008): `X[i]` is `iXλ(i)`, the motion transform from
 //! the parent body to body i at the current q; `S[i]` the joint's motion subspace.
 
+mod aba;
 mod crba;
 mod fd;
 mod minv;
 mod rnea;
 mod rnea_derivatives;
 
+pub use aba::aba;
 pub use crba::crba;
 pub use fd::{forward_dynamics, forward_dynamics_derivatives};
 pub use minv::minv;

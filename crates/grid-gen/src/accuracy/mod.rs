@@ -1,0 +1,353 @@
+//! `grid-gen accuracy`: every kernel's error in each number format, measured against the
+//! double-double value of its graph (issue 10), with cond(M) over the states: the
+//! speed/accuracy trade, measured rather than assumed.
+//!
+//! The true value is the kernel's graph lowered without constant folding (so every model
+//! constant is the f64 the model holds) and evaluated in double-double ([`crate::ir::Dd`],
+//! about 106 bits): the exact dynamics of the f64 model at the f64 state. Each format runs
+//! the folded graph that the backends emit: f64 and f32 as the generated Rust's portable
+//! copy computes it, fixed point through the Verilog datapath's bit-exact model, and any
+//! other backend (WGSL on an adapter) through a caller-supplied runner.
+
+mod plot;
+mod states;
+
+use serde::Serialize;
+
+pub use plot::svg;
+pub use states::{random_states, Rng};
+
+use crate::eval::{check_states, EvalError, State, StatesFile};
+use crate::ir::fixed::{choose_format, quantize_ports, Bounds, Datapath, FixedError, Format, Rounding};
+use crate::ir::{self, Function, Gradient, Input, KernelKind, LowerError, LowerOptions};
+use crate::model::Model;
+use crate::reference;
+
+/// A number format to measure.
+#[derive(Clone, Debug, PartialEq)]
+pub enum NumberFormat {
+    F64,
+    F32,
+    /// Signed fixed point through the Verilog datapath's bit-exact model.
+    Fixed(Format),
+    /// For each kernel, the narrowest fixed-point format whose analysed error bound meets
+    /// `max_error` on the input bounds: what `--emit verilog --fixed auto` builds.
+    FixedAuto {
+        max_error: f64,
+        rounding: Rounding,
+    },
+}
+
+impl NumberFormat {
+    pub fn label(&self) -> String {
+        match self {
+            NumberFormat::F64 => "f64".into(),
+            NumberFormat::F32 => "f32".into(),
+            NumberFormat::Fixed(f) => format!("fixed {}.{} {}", f.width, f.frac, f.rounding.name()),
+            NumberFormat::FixedAuto { max_error, rounding } => format!("fixed auto ≤{max_error:e} {}", rounding.name()),
+        }
+    }
+
+    /// `f64`, `f32`, `fixed:WIDTH.FRAC` or `fixed:auto` (with `rounding` and, for auto,
+    /// `max_error`).
+    pub fn parse(s: &str, rounding: Rounding, max_error: f64) -> Result<NumberFormat, String> {
+        match s {
+            "f64" => Ok(NumberFormat::F64),
+            "f32" => Ok(NumberFormat::F32),
+            "fixed:auto" => Ok(NumberFormat::FixedAuto { max_error, rounding }),
+            _ => match s.strip_prefix("fixed:").and_then(|f| Format::parse(f, rounding)) {
+                Some(Ok(f)) => Ok(NumberFormat::Fixed(f)),
+                Some(Err(e)) => Err(e.to_string()),
+                None => Err(format!("unknown number format `{s}`; available: f64, f32, fixed:WIDTH.FRAC (e.g. fixed:32.16), fixed:auto")),
+            },
+        }
+    }
+}
+
+/// Runs one kernel on a batch through another backend: `(kind, q, qd, u)` state-major
+/// (`u` is q̈ or τ, empty for kernels without it), outputs concatenated per state.
+pub type Runner<'a> = dyn FnMut(KernelKind, &[f64], &[f64], &[f64]) -> Result<Vec<f64>, String> + 'a;
+
+/// A backend measured next to the number formats, e.g. WGSL on a GPU.
+pub struct Backend<'a> {
+    pub label: String,
+    pub run: Box<Runner<'a>>,
+}
+
+/// Median and largest of a set of values.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Spread {
+    pub median: f64,
+    pub max: f64,
+}
+
+impl Spread {
+    fn of(values: &mut [f64]) -> Option<Spread> {
+        if values.is_empty() {
+            return None;
+        }
+        values.sort_by(f64::total_cmp);
+        let n = values.len();
+        let median = if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) };
+        Some(Spread { median, max: values[n - 1] })
+    }
+}
+
+/// One kernel in one format.
+#[derive(Clone, Debug, Serialize)]
+pub struct Row {
+    pub kernel: KernelKind,
+    pub format: String,
+    /// `fixed:auto`: the `WIDTH.FRAC` the analysis chose for this kernel.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fixed: Option<String>,
+    /// Operations of the graph this format runs (a proxy for time; the times of the
+    /// generated kernels are measured by `scripts/bench.sh`).
+    pub ops: usize,
+    /// States the kernel ran on (those with q̈ for the RNEA kernels, with τ for `fd*`).
+    pub states: usize,
+    /// Relative error per state, `max |Δ| / max |true|` over each output, the worst
+    /// output taken: median and largest over the states without overflow.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<Spread>,
+    /// The largest absolute error of any entry over those states (what the fixed-point
+    /// analysis bounds, `--max-error`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub max_abs_error: Option<f64>,
+    /// Fixed point: states whose datapath saturated (their numbers are excluded above).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub overflowed: Option<usize>,
+    /// Why there is no error (the format cannot run this kernel).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub skipped: Option<String>,
+}
+
+/// Everything `grid-gen accuracy` prints.
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub robot: String,
+    pub nv: usize,
+    pub gravity: [f64; 3],
+    pub states: usize,
+    /// Where the states came from.
+    pub source: String,
+    /// cond(M) = λmax / λmin over the states (infinite where M is singular).
+    pub cond_m: Option<Spread>,
+    pub rows: Vec<Row>,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum AccuracyError {
+    #[error(transparent)]
+    States(#[from] EvalError),
+    #[error(transparent)]
+    Lower(#[from] LowerError),
+    #[error("{label}, kernel `{kernel}`: {message}")]
+    Backend { label: String, kernel: KernelKind, message: String },
+    #[error("kernel `{kernel}`: {error}")]
+    Fixed { kernel: KernelKind, error: FixedError },
+}
+
+/// The kernels `accuracy` measures by default: all six, less those M's singularity blocks.
+pub fn default_kernels(model: &Model) -> Vec<KernelKind> {
+    KernelKind::ALL.into_iter().filter(|k| model.singular.is_none() || !k.needs_minv()).collect()
+}
+
+/// The input `u` of a kernel at a state: q̈ for the RNEA kernels, τ for `fd*`, none else.
+fn u_of(kind: KernelKind, s: &State) -> Option<Option<&Vec<f64>>> {
+    match kind.inputs().get(2) {
+        Some(Input::Qdd) => Some(s.qdd.as_ref()),
+        Some(Input::Tau) => Some(s.tau.as_ref()),
+        _ => None,
+    }
+}
+
+/// What to measure.
+#[derive(Clone, Debug)]
+pub struct Options {
+    pub kernels: Vec<KernelKind>,
+    pub formats: Vec<NumberFormat>,
+    pub gravity: [f64; 3],
+    pub gradient: Gradient,
+    /// Input bounds for `fixed:auto` (as `--qd-max` / `--qdd-max` of the Verilog backend).
+    pub qd_max: Option<f64>,
+    pub qdd_max: Option<f64>,
+}
+
+/// Measures every kernel of `options` in each format (and backend) on `file`'s states.
+pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &Options, backends: &mut [Backend]) -> Result<Report, AccuracyError> {
+    check_states(model, file)?;
+    let (nv, gravity, kernels, formats) = (model.nv(), options.gravity, &options.kernels, &options.formats);
+    let lower = LowerOptions { kernels: kernels.clone(), gradient: options.gradient, ..LowerOptions::default() };
+    let exact = ir::lower(model, gravity, &LowerOptions { fold: false, ..lower.clone() })?;
+    let fast = ir::lower(model, gravity, &lower)?;
+    let bounds = Bounds::new(&fast.robot, options.qd_max, options.qdd_max);
+    let mut rows = Vec::new();
+    for &kind in kernels.iter() {
+        let (Some(exact_f), Some(f)) = (exact.function(kind), fast.function(kind)) else { continue };
+        let chosen: Vec<&State> = file.states.iter().filter(|s| !matches!(u_of(kind, s), Some(None))).collect();
+        let args: Vec<[&[f64]; 3]> = chosen.iter().map(|s| [&s.q[..], &s.qd[..], u_of(kind, s).flatten().map_or(&[][..], |v| &v[..])]).collect();
+        let inputs = |a: &[&'a [f64]; 3]| kernel_inputs(f, a);
+        let truth: Vec<Vec<Vec<f64>>> =
+            args.iter().map(|a| exact_f.eval_dd(&inputs(a)).into_iter().map(|o| o.into_iter().map(|x| x.to_f64()).collect()).collect()).collect();
+        let ops = f.nodes.iter().enumerate().filter(|(i, _)| f.is_operation(ir::Id(*i as u32))).count();
+        let row = |format: String, fixed: Option<String>, errors: Option<Vec<(f64, f64)>>, overflowed: Option<usize>, skipped: Option<String>| Row {
+            kernel: kind,
+            format,
+            fixed,
+            ops,
+            states: chosen.len(),
+            error: errors.as_ref().and_then(|e| Spread::of(&mut e.iter().map(|x| x.0).collect::<Vec<_>>())),
+            max_abs_error: errors.as_ref().filter(|e| !e.is_empty()).map(|e| e.iter().map(|x| x.1).fold(0.0, f64::max)),
+            overflowed,
+            skipped,
+        };
+        for format in formats.iter() {
+            match format {
+                NumberFormat::F64 => {
+                    let e = args.iter().zip(&truth).map(|(a, t)| error(&f.eval(&inputs(a)), t)).collect();
+                    rows.push(row(format.label(), None, Some(e), None, None));
+                }
+                NumberFormat::F32 => {
+                    let e = args.iter().zip(&truth).map(|(a, t)| error(&widen(f.eval_f32(&inputs(a))), t)).collect();
+                    rows.push(row(format.label(), None, Some(e), None, None));
+                }
+                NumberFormat::Fixed(_) | NumberFormat::FixedAuto { .. } => {
+                    let dp = match Datapath::new(f, nv) {
+                        Ok(dp) => dp,
+                        Err(FixedError::Unsupported { .. }) => {
+                            let why = "it divides; the fixed-point datapath has +, −, × only (rnea, rnea_grad, mass_matrix)";
+                            rows.push(row(format.label(), None, None, None, Some(why.into())));
+                            continue;
+                        }
+                        Err(error) => return Err(AccuracyError::Fixed { kernel: kind, error }),
+                    };
+                    let fmt = match format {
+                        NumberFormat::FixedAuto { max_error, rounding } => {
+                            choose_format(&dp, &bounds, *rounding, *max_error).map_err(|error| AccuracyError::Fixed { kernel: kind, error })?.0
+                        }
+                        NumberFormat::Fixed(fmt) => *fmt,
+                        _ => unreachable!("matched above"),
+                    };
+                    let (mut errors, mut overflowed) = (Vec::new(), 0);
+                    for (s, t) in chosen.iter().zip(&truth) {
+                        let zeros = vec![0.0; nv];
+                        let qdd = s.qdd.as_ref().unwrap_or(&zeros);
+                        let tau = s.tau.as_ref().unwrap_or(&zeros);
+                        let (ports, input_overflow) = quantize_ports(&dp, &fmt, &s.q, &s.qd, qdd, tau);
+                        let run = dp.run(&fmt, &ports);
+                        if run.overflow || input_overflow {
+                            overflowed += 1;
+                            continue;
+                        }
+                        let got: Vec<Vec<f64>> = run.outputs.iter().map(|o| o.iter().map(|&r| fmt.to_f64(r)).collect()).collect();
+                        errors.push(error(&got, t));
+                    }
+                    let auto = matches!(format, NumberFormat::FixedAuto { .. }).then(|| format!("{}.{}", fmt.width, fmt.frac));
+                    rows.push(row(format.label(), auto, Some(errors), Some(overflowed), None));
+                }
+            }
+        }
+        for b in backends.iter_mut() {
+            let flat = |k: usize| -> Vec<f64> { args.iter().flat_map(|a| a[k].iter().copied()).collect() };
+            let velocity = f.inputs().contains(&Input::Qd);
+            let out = (b.run)(kind, &flat(0), &if velocity { flat(1) } else { Vec::new() }, &flat(2)).map_err(|message| AccuracyError::Backend {
+                label: b.label.clone(),
+                kernel: kind,
+                message,
+            })?;
+            let per = out.len() / chosen.len().max(1);
+            let e = truth
+                .iter()
+                .enumerate()
+                .map(|(k, t)| {
+                    let mut values = &out[k * per..(k + 1) * per];
+                    let got: Vec<Vec<f64>> = t
+                        .iter()
+                        .map(|o| {
+                            let (head, rest) = values.split_at(o.len());
+                            values = rest;
+                            head.to_vec()
+                        })
+                        .collect();
+                    error(&got, t)
+                })
+                .collect();
+            rows.push(row(b.label.clone(), None, Some(e), None, None));
+        }
+    }
+    let mut conds: Vec<f64> = file
+        .states
+        .iter()
+        .map(|s| {
+            let eig = reference::crba(model, &s.q).symmetric_eigenvalues();
+            if eig.min() > 0.0 {
+                eig.max() / eig.min()
+            } else {
+                f64::INFINITY
+            }
+        })
+        .collect();
+    Ok(Report { robot: model.name.clone(), nv, gravity, states: file.states.len(), source: source.to_string(), cond_m: Spread::of(&mut conds), rows })
+}
+
+/// The arguments of `f` in its input order, from `[q, q̇, u]`.
+fn kernel_inputs<'a>(f: &Function, a: &[&'a [f64]; 3]) -> Vec<&'a [f64]> {
+    f.inputs()
+        .iter()
+        .map(|i| {
+            if *i == Input::Q {
+                a[0]
+            } else if *i == Input::Qd {
+                a[1]
+            } else {
+                a[2]
+            }
+        })
+        .collect()
+}
+
+fn widen(out: Vec<Vec<f32>>) -> Vec<Vec<f64>> {
+    out.into_iter().map(|o| o.into_iter().map(f64::from).collect()).collect()
+}
+
+/// The worst output's `max |got − true| / max |true|` (absolute where the truth is 0),
+/// and the largest absolute error of any entry.
+fn error(got: &[Vec<f64>], truth: &[Vec<f64>]) -> (f64, f64) {
+    got.iter().zip(truth).fold((0.0f64, 0.0f64), |(rel, abs), (g, t)| {
+        let scale = t.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+        let diff = g.iter().zip(t).fold(0.0f64, |m, (a, b)| m.max((a - b).abs()));
+        (rel.max(if scale > 0.0 { diff / scale } else { diff }), abs.max(diff))
+    })
+}
+
+impl Report {
+    /// The table `grid-gen accuracy` prints.
+    pub fn to_text(&self) -> String {
+        let mut s = format!(
+            "accuracy of `{}` ({} joints) on {} states ({}): relative error max|Δ| / max|true| per output (worst output), \
+             against the double-double value of each kernel's graph\n",
+            self.robot, self.nv, self.states, self.source
+        );
+        if let Some(c) = self.cond_m {
+            s += &format!("cond(M): median {:.1e}, max {:.1e}\n", c.median, c.max);
+        }
+        s += &format!("{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}\n", "kernel", "format", "ops", "states", "median", "max");
+        for r in &self.rows {
+            let (median, max) = r.error.map_or(("-".to_string(), "-".to_string()), |e| (format!("{:.1e}", e.median), format!("{:.1e}", e.max)));
+            let format = match &r.fixed {
+                Some(f) => format!("{} = {f}", r.format),
+                None => r.format.clone(),
+            };
+            s += &format!("{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}", r.kernel.name(), format, r.ops, r.states, median, max);
+            if let Some(o) = r.overflowed.filter(|&o| o > 0) {
+                s += &format!("   {o} of {} states overflowed (excluded)", r.states);
+            }
+            if let Some(why) = &r.skipped {
+                s += &format!("   not run: {why}");
+            }
+            s.push('\n');
+        }
+        s
+    }
+}

@@ -1,0 +1,60 @@
+//! Seeded random states for `accuracy --random N --seed S`, inside the bounds the
+//! fixed-point analysis assumes, so every format is measured where it claims to work.
+
+use crate::eval::{State, StatesFile};
+use crate::ir::fixed::Bounds;
+use crate::ir::Robot;
+use crate::model::Model;
+use crate::reference;
+
+/// A small deterministic generator (SplitMix64, Steele, Lea & Flood 2014), so that a seed
+/// gives the same states on every machine without an RNG crate.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    /// Uniform in [lo, hi).
+    pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
+        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
+    }
+
+    pub fn vec(&mut self, n: usize, lo: f64, hi: f64) -> Vec<f64> {
+        (0..n).map(|_| self.uniform(lo, hi)).collect()
+    }
+}
+
+/// `n` states: q uniform within each joint's limits (±π where a joint has none, or
+/// limits wider than 100, as Atlas's ±1e5), q̇ and q̈ uniform within the fixed-point
+/// analysis's default bounds (the URDF's velocity limits, else its defaults), and
+/// τ = RNEA(q, q̇, q̈′) for another such q̈′, so that forward dynamics answers a plausible
+/// acceleration. `qd_max` / `qdd_max` override the bounds as in the Verilog backend.
+pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_max: Option<f64>, qdd_max: Option<f64>) -> StatesFile {
+    let bounds = Bounds::new(&Robot::of(model), qd_max, qdd_max);
+    let mut rng = Rng(seed);
+    let nv = model.nv();
+    let states = (0..n)
+        .map(|_| {
+            let q: Vec<f64> = model
+                .joints
+                .iter()
+                .map(|j| {
+                    let (lo, hi) = j.limit.filter(|(lo, hi)| lo < hi && hi - lo <= 100.0).unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
+                    rng.uniform(lo, hi)
+                })
+                .collect();
+            let qd: Vec<f64> = bounds.qd.iter().map(|&b| rng.uniform(-b, b)).collect();
+            let qdd: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();
+            let other: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();
+            let tau = (model.singular.is_none() && nv > 0).then(|| reference::rnea(model, &q, &qd, &other, gravity));
+            State { q, qd, qdd: Some(qdd), tau }
+        })
+        .collect();
+    StatesFile { states }
+}
