@@ -44,6 +44,30 @@ pub fn chain_urdf(n: usize) -> String {
     s
 }
 
+/// A serial chain of `n` links tapering geometrically from the root to the tip: mass from
+/// 1 kg down to 1/`mass_ratio`, length from 0.1 m down to 0.1/`length_ratio` (slender
+/// rods, centre of mass mid-link, axes cycling x, y, z). cond(M) grows with both ratios:
+/// the near-singular M of issue 10's extremes suite.
+pub fn tapered_chain_urdf(n: usize, mass_ratio: f64, length_ratio: f64) -> String {
+    let mut s = String::from("<robot name=\"tapered\"><link name=\"l0\"/>");
+    let (mut parent_length, span) = (0.1, (n.max(2) - 1) as f64);
+    for i in 1..=n {
+        let t = (i - 1) as f64 / span;
+        let (m, l) = (mass_ratio.powf(-t), 0.1 * length_ratio.powf(-t));
+        let (axial, transverse) = (m * l * l / 1200.0, m * l * l / 12.0);
+        let axis = ["1 0 0", "0 1 0", "0 0 1"][i % 3];
+        s.push_str(&format!(
+            "<link name=\"l{i}\"><inertial><origin xyz=\"0 0 {:e}\"/><mass value=\"{m:e}\"/><inertia ixx=\"{transverse:e}\" ixy=\"0\" ixz=\"0\" iyy=\"{transverse:e}\" iyz=\"0\" izz=\"{axial:e}\"/></inertial></link>\
+             <joint name=\"j{i}\" type=\"revolute\"><parent link=\"l{}\"/><child link=\"l{i}\"/><origin xyz=\"0 0 {parent_length:e}\"/><axis xyz=\"{axis}\"/><limit lower=\"-3\" upper=\"3\" effort=\"1\" velocity=\"1\"/></joint>",
+            l / 2.0,
+            i - 1
+        ));
+        parent_length = l;
+    }
+    s.push_str("</robot>");
+    s
+}
+
 pub fn load(robot: &str) -> Model {
     let path = repo().join("robots").join(format!("{robot}.urdf"));
     let text = std::fs::read_to_string(&path).expect("robot file");

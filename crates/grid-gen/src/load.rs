@@ -39,13 +39,16 @@ fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<
     let mut singular = None;
     let n = model.nv();
     let m = crate::reference::crba(model, &vec![0.0; n]);
+    let scale = (0..n).map(|i| m[(i, i)]).fold(0.0, f64::max);
     let mut mass: Vec<f64> = model.joints.iter().map(|j| j.inertia.mass).collect();
     for i in (0..n).rev() {
         if let Some(p) = model.joints[i].parent {
             mass[p] += mass[i];
         }
-        // Below this no double-precision factorisation of M is meaningful.
-        if m[(i, i)] <= 1e-12 {
+        // Relative to M's largest diagonal entry, so a small robot is not a singular one:
+        // below n·ε of it, M_ii is rounding noise at M's scale, cond(M) ≥ max M_jj / M_ii
+        // exceeds 1/(n·ε), and no double-precision factorisation of M is meaningful.
+        if m[(i, i)] <= n as f64 * f64::EPSILON * scale {
             let uj = &urdf.joints[source[i]];
             let child = &uj.child;
             let (message, help) = if mass[i] <= 0.0 {
