@@ -6,6 +6,8 @@ For each robot in robots/:
                           RNEA, its derivatives, M, M^-1, ABA and its derivatives.
   <robot>.yourdfpy.json   yourdfpy's reading of the tree: joint names, types, parents,
                           origins, axes, and link poses at random configurations.
+<robot>.<scene>.pinocchio.json: the same, for a robot in a scene of examples/scenes/
+                          (Pinocchio's buildReducedModel for locks, payload inertias added).
 and chain100.urdf with chain100.pinocchio.json: a 100-link chain (cond(M) ~ 1e5) and
 Pinocchio's ABA and ABA derivatives at two states, so the tests can measure both
 against the double-double value and hold grid-gen to Pinocchio's accuracy (issue 10).
@@ -23,6 +25,7 @@ same library on another CPU may round differently in the last bits).
 import json
 import pathlib
 import sys
+import tomllib
 
 import numpy as np
 import pinocchio as pin
@@ -79,7 +82,10 @@ def mat(m):
 
 
 def pinocchio_fixture(path, rng):
-    model = pin.buildModelFromUrdf(str(path))
+    return pinocchio_fixture_of(pin.buildModelFromUrdf(str(path)), rng)
+
+
+def pinocchio_fixture_of(model, rng):
     data = model.createData()
     joints = movable_joints(model)
     perm = [j[3] for j in joints]  # idx_v of each joint in listing order
@@ -110,6 +116,46 @@ def pinocchio_fixture(path, rng):
         "tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear],
         "joint_names": [j[0] for j in joints], "states": records,
     }
+
+
+SCENES = [("grid_iiwa", "iiwa_wrist_locked")]
+
+
+def scene_model(urdf, scene_file):
+    """The robot in a grid-gen scene, built the Pinocchio way: buildReducedModel for
+    [lock], payloads appended to the inertia of the joint that carries the link's frame."""
+    model = pin.buildModelFromUrdf(str(urdf))
+    scene = tomllib.loads(scene_file.read_text())
+    assert not scene.get("keep") and not scene.get("drop"), "Pinocchio has no subtree removal; those scenes are tested against edited URDFs"
+    q0 = pin.neutral(model)
+    locked = []
+    for name, value in scene.get("lock", {}).items():
+        jid = model.getJointId(name)
+        j = model.joints[jid]
+        if j.nq == 2:
+            q0[j.idx_q], q0[j.idx_q + 1] = np.cos(value), np.sin(value)
+        else:
+            q0[j.idx_q] = value
+        locked.append(jid)
+    reduced = pin.buildReducedModel(model, locked, q0)
+    payloads = scene.get("payload", [])
+    for p in [payloads] if isinstance(payloads, dict) else payloads:
+        frame = reduced.frames[reduced.getFrameId(p["link"])]
+        ixx, ixy, ixz, iyy, iyz, izz = p.get("inertia", [0.0] * 6)
+        inertia = pin.Inertia(p["mass"], np.array(p.get("com", [0.0] * 3)), np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]]))
+        reduced.inertias[frame.parentJoint] = reduced.inertias[frame.parentJoint] + frame.placement.act(inertia)
+    if "gravity" in scene:
+        reduced.gravity.linear = np.array(scene["gravity"])
+    return reduced
+
+
+def scene_fixtures(check):
+    stale = False
+    for robot, scene in SCENES:
+        model = scene_model(ROBOTS / f"{robot}.urdf", ROOT / "examples" / "scenes" / f"{scene}.toml")
+        data = pinocchio_fixture_of(model, np.random.default_rng(sum(scene.encode())))
+        stale |= report(OUT / f"{robot}.{scene}.pinocchio.json", data, check, 1e-12)
+    return stale
 
 
 def yourdfpy_fixture(path, rng):
@@ -234,6 +280,8 @@ def main():
             failed |= report(OUT / f"{path.stem}.{suffix}.json", data, check, 1e-12)
     if not only or "chain100" in only:
         failed |= chain_fixtures(check)
+    if not only or "scenes" in only:
+        failed |= scene_fixtures(check)
     if failed:
         sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 

@@ -168,6 +168,10 @@ struct LoadArgs {
     /// Treat warnings (such as physically implausible inertias) as errors.
     #[arg(long, global = true)]
     strict: bool,
+    /// A scene file (TOML): joints to lock, links to keep or drop, payloads, gravity, the
+    /// kernels to generate; applied to the model for every command (README, Scenes).
+    #[arg(long, value_name = "SCENE.toml", global = true)]
+    scene: Option<PathBuf>,
 }
 
 #[derive(Subcommand)]
@@ -329,8 +333,21 @@ fn fail(message: impl std::fmt::Display) -> ExitCode {
     ExitCode::from(1)
 }
 
-/// Reads and loads a URDF, rendering every diagnostic; `None` after an error.
-fn load(path: &Path, strict: bool) -> Result<Model, ExitCode> {
+/// Reads and loads a URDF in the scene of `--scene` (if any), rendering every
+/// diagnostic; the exit code after an error.
+fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCode> {
+    let scene = match &args.scene {
+        None => grid_gen::Scene::default(),
+        Some(p) => {
+            let parsed = std::fs::read_to_string(p).map_err(|e| format!("cannot read scene {}: {e}", p.display()));
+            match parsed.and_then(|t| grid_gen::Scene::parse(&p.display().to_string(), &t).map_err(|e| e.to_string())) {
+                Ok(s) => s,
+                Err(e) => return Err(fail(e)),
+            }
+        }
+    };
+    let scene_path = args.scene.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
+    let strict = args.strict;
     let shown = path.display().to_string();
     let text = match std::fs::read(path) {
         Ok(bytes) => match String::from_utf8(bytes) {
@@ -339,10 +356,10 @@ fn load(path: &Path, strict: bool) -> Result<Model, ExitCode> {
         },
         Err(e) => return Err(fail(format!("cannot read {shown}: {e}"))),
     };
-    match Model::from_urdf_str(&shown, &text, strict) {
+    match Model::from_urdf_str_in_scene(&shown, &text, strict, &scene, &scene_path) {
         Ok((model, warnings)) => {
             render(&shown, &text, &warnings);
-            Ok(model)
+            Ok((model, scene))
         }
         Err(e) => {
             render(&shown, &text, &e.diagnostics);
@@ -367,6 +384,7 @@ fn generate(
     targets: Vec<grid_gen::generate::Target>,
     gravity: [f64; 3],
     gradient: grid_gen::ir::Gradient,
+    kernels: Option<Vec<grid_gen::ir::KernelKind>>,
     check: bool,
     verilog: &VerilogArgs,
     wgsl: &WgslArgs,
@@ -376,7 +394,10 @@ fn generate(
         Ok(v) => v,
         Err(e) => return fail(e),
     };
-    let lower = grid_gen::ir::LowerOptions { gradient, ..Default::default() };
+    let mut lower = grid_gen::ir::LowerOptions { gradient, ..Default::default() };
+    if let Some(k) = kernels {
+        lower.kernels = k;
+    }
     let options = g::Options { gravity, targets, lower, verilog, wgsl: wgsl.options(), ..g::Options::default() };
     let files = match g::generate(model, &options) {
         Ok(f) => f,
@@ -408,21 +429,24 @@ fn generate(
 }
 
 fn run(cli: Cli) -> ExitCode {
-    let strict = cli.load.strict;
     match cli.command {
         Command::Generate { urdf, out, emit, check, kernel } => {
-            let model = match load(&urdf, strict) {
-                Ok(model) => model,
+            let (model, scene) = match load(&urdf, &cli.load) {
+                Ok(loaded) => loaded,
                 Err(code) => return code,
             };
+            let gravity = scene.gravity.unwrap_or(kernel.gravity);
             match out {
-                None => print(&(Info::with_options(&model, kernel.gravity, kernel.gradient()).to_text() + "(pass -o DIR to generate code)\n")),
-                Some(dir) => generate(&model, &dir, emit, kernel.gravity, kernel.gradient(), check, &cli.verilog, &cli.wgsl),
+                None => print(&(Info::with_options(&model, gravity, kernel.gradient()).to_text() + "(pass -o DIR to generate code)\n")),
+                Some(dir) => {
+                    let kernels = scene.kernels().unwrap_or_default();
+                    generate(&model, &dir, emit, gravity, kernel.gradient(), kernels, check, &cli.verilog, &cli.wgsl)
+                }
             }
         }
-        Command::Info { urdf, json, kernel } => match load(&urdf, strict) {
-            Ok(model) => {
-                let info = Info::with_options(&model, kernel.gravity, kernel.gradient());
+        Command::Info { urdf, json, kernel } => match load(&urdf, &cli.load) {
+            Ok((model, scene)) => {
+                let info = Info::with_options(&model, scene.gravity.unwrap_or(kernel.gravity), kernel.gradient());
                 if json {
                     print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))
                 } else {
@@ -431,19 +455,22 @@ fn run(cli: Cli) -> ExitCode {
             }
             Err(code) => code,
         },
-        Command::Bench { urdf, backend: _, batch, kernels, seconds } => match load(&urdf, strict) {
-            Ok(model) => bench(&model, &cli.wgsl, &batch, &kernels, seconds),
+        Command::Bench { urdf, backend: _, batch, kernels, seconds } => match load(&urdf, &cli.load) {
+            Ok((model, _)) => bench(&model, &cli.wgsl, &batch, &kernels, seconds),
             Err(code) => code,
         },
-        Command::Accuracy { urdf, states, random, seed, formats, kernels, json, plot, kernel } => match load(&urdf, strict) {
-            Ok(model) => accuracy(&model, &cli.verilog, &cli.wgsl, AccuracyArgs { states, random, seed, formats, kernels, json, plot, kernel }),
+        Command::Accuracy { urdf, states, random, seed, formats, kernels, json, plot, kernel } => match load(&urdf, &cli.load) {
+            Ok((model, scene)) => {
+                accuracy(&model, &scene, &cli.verilog, &cli.wgsl, AccuracyArgs { states, random, seed, formats, kernels, json, plot, kernel })
+            }
             Err(code) => code,
         },
         Command::Eval { urdf, states, gravity, backend } => {
-            let model = match load(&urdf, strict) {
-                Ok(m) => m,
+            let (model, scene) = match load(&urdf, &cli.load) {
+                Ok(loaded) => loaded,
                 Err(code) => return code,
             };
+            let gravity = scene.gravity.unwrap_or(gravity);
             let text = match std::fs::read_to_string(&states) {
                 Ok(t) => t,
                 Err(e) => return fail(format!("cannot read {}: {e}", states.display())),
@@ -494,9 +521,9 @@ struct AccuracyArgs {
     kernel: KernelArgs,
 }
 
-fn accuracy(model: &Model, verilog: &VerilogArgs, wgsl: &WgslArgs, args: AccuracyArgs) -> ExitCode {
+fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl: &WgslArgs, args: AccuracyArgs) -> ExitCode {
     use grid_gen::accuracy::{self, Backend, NumberFormat};
-    let gravity = args.kernel.gravity;
+    let gravity = scene.gravity.unwrap_or(args.kernel.gravity);
     let (file, source) = match &args.states {
         Some(path) => {
             let parsed = std::fs::read_to_string(path).map_err(|e| e.to_string()).and_then(|t| grid_gen::eval::parse_states(&t).map_err(|e| e.to_string()));
@@ -508,7 +535,11 @@ fn accuracy(model: &Model, verilog: &VerilogArgs, wgsl: &WgslArgs, args: Accurac
         None => (accuracy::random_states(model, gravity, args.random, args.seed, verilog.qd_max, verilog.qdd_max), format!("random, seed {}", args.seed)),
     };
     let kernels = if args.kernels.is_empty() {
-        accuracy::default_kernels(model)
+        let all = accuracy::default_kernels(model);
+        match scene.kernels() {
+            Ok(Some(wanted)) => all.into_iter().filter(|k| wanted.contains(k)).collect(),
+            _ => all,
+        }
     } else {
         let mut out = Vec::new();
         for k in &args.kernels {

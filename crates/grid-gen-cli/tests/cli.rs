@@ -53,6 +53,27 @@ fn info_json_has_the_documented_fields() {
         assert_eq!(v["sparsity"]["dv_dq"]["total"], nv * nv);
         let levels: usize = v["levels"].as_array().unwrap().iter().map(|l| l.as_array().unwrap().len()).sum();
         assert_eq!(levels, nv);
+        // Every kernel in both WGSL strategies, cooperative ones within WebGPU's 16 KiB of
+        // workgroup memory, and the same figures the shader file's `// entry:` lines carry.
+        let wgsl = v["wgsl"].as_array().unwrap();
+        assert_eq!(wgsl.len(), 12, "{robot}: six kernels, two strategies");
+        assert!(v.get("wgsl_skipped").is_none());
+        for e in wgsl {
+            assert!(e["statements"].as_u64().unwrap() > 0 && e["functions"].as_u64().unwrap() > 0, "{e}");
+            assert!(e["workgroup_bytes"].as_u64().unwrap() <= 16384, "{e}");
+            if e["strategy"] == "thread" {
+                assert_eq!(e["workgroup_bytes"], 0);
+            }
+        }
+        if robot != "grid_atlas" {
+            let shader =
+                std::fs::read_to_string(repo().join("generated").join(robot).join(if robot == "grid_iiwa" { "iiwa14.wgsl" } else { "hyq.wgsl" })).unwrap();
+            for e in wgsl {
+                let line = format!("// entry: {} kernel={} ", e["entry"].as_str().unwrap(), e["kernel"].as_str().unwrap());
+                let header = shader.lines().find(|l| l.starts_with(&line)).unwrap_or_else(|| panic!("{robot}: no `{line}` in the shader"));
+                assert!(header.contains(&format!(" statements={} functions={}", e["statements"], e["functions"])), "{header} vs {e}");
+            }
+        }
     }
     let panda = json(&grid_gen(&["info", "robots/panda.urdf", "--json"]));
     assert_eq!(panda["mimic"][0]["joint"], "panda_finger_joint2");
@@ -387,5 +408,37 @@ fn accuracy_measures_every_format_and_plots() {
             assert!(r["error"]["max"].as_f64().unwrap() <= tol, "{r}");
         }
     }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `--scene` (before or after the command) reaches every command: the summary and `info`
+/// see the reduced robot and the scene's gravity, `generate` writes only the scene's
+/// kernels, `accuracy` measures only those; a bad scene is an error naming it.
+#[test]
+fn a_scene_reduces_every_command() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-scene-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let scene = dir.join("scene.toml");
+    std::fs::write(&scene, "outputs = [\"rnea_grad\"]\ngravity = [0.0, 0.0, -1.62]\n[lock]\niiwa_joint_7 = 0.3\n").unwrap();
+    let s = scene.to_str().unwrap();
+    let info = grid_gen(&["--scene", s, "info", "robots/grid_iiwa.urdf", "--json"]);
+    assert_eq!(info.status.code(), Some(0), "{}", String::from_utf8_lossy(&info.stderr));
+    let info = json(&info);
+    assert_eq!(info["nv"], 6);
+    assert_eq!(info["gravity"], serde_json::json!([0.0, 0.0, -1.62]));
+    let out = dir.join("out");
+    let gen = grid_gen(&["robots/grid_iiwa.urdf", "-o", out.to_str().unwrap(), "--scene", s]);
+    assert_eq!(gen.status.code(), Some(0), "{}", String::from_utf8_lossy(&gen.stderr));
+    let code = std::fs::read_to_string(out.join("iiwa14.rs")).unwrap();
+    assert!(code.contains("pub fn rnea_grad<") && !code.contains("pub fn fd_grad<") && !code.contains("pub fn minv<"));
+    assert!(code.contains("NV: usize = 6") && code.contains("-1.62"));
+    let acc = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--random", "3", "--scene", s, "--json"]);
+    assert_eq!(acc.status.code(), Some(0), "{}", String::from_utf8_lossy(&acc.stderr));
+    let rows = json(&acc)["rows"].as_array().unwrap().clone();
+    assert!(!rows.is_empty() && rows.iter().all(|r| r["kernel"] == "rnea_grad"), "{rows:?}");
+    std::fs::write(&scene, "[lock]\niiwa_joint_9 = 0.3\n").unwrap();
+    let bad = grid_gen(&["info", "robots/grid_iiwa.urdf", "--scene", s]);
+    assert_eq!(bad.status.code(), Some(1));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("[lock] names joint `iiwa_joint_9`, which robot `iiwa14` does not have"));
     std::fs::remove_dir_all(&dir).unwrap();
 }

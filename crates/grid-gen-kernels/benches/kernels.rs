@@ -170,12 +170,43 @@ macro_rules! bench_lanes {
     }};
 }
 
+/// The gradients of a robot in a scene (`examples/scenes/`), under the same state protocol:
+/// `grid_iiwa.iiwa_wrist_locked/generated/fd_grad` against `grid_iiwa/generated/fd_grad`.
+macro_rules! bench_scene {
+    ($c:expr, $m:ident, $name:literal) => {{
+        use grid_gen_kernels::scenes::$m as k;
+        const N: usize = k::NV;
+        let s: Vec<[[f64; N]; 3]> = (0..STATES).map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt)))).collect();
+        let mut group = $c.benchmark_group($name);
+        let mut j = 0usize;
+        let mut next = || {
+            j = (j + 1) % STATES;
+            j
+        };
+        group.bench_function("generated/rnea_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::rnea_grad(&x[0], &x[1], &x[2]))
+            })
+        });
+        group.bench_function("generated/fd_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::fd_grad(&x[0], &x[1], &x[2]))
+            })
+        });
+        group.finish();
+    }};
+}
+
 fn kernels(c: &mut Criterion) {
     bench_robot!(c, grid_iiwa, "grid_iiwa");
     bench_robot!(c, grid_hyq, "grid_hyq");
     bench_robot!(c, grid_atlas, "grid_atlas");
     bench_lanes!(c, grid_iiwa, "grid_iiwa");
     bench_lanes!(c, grid_hyq, "grid_hyq");
+    bench_scene!(c, grid_iiwa_wrist_locked, "grid_iiwa.iiwa_wrist_locked");
+    bench_scene!(c, grid_hyq_front_legs, "grid_hyq.hyq_front_legs");
 }
 
 criterion_group! {

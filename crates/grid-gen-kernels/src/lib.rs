@@ -38,3 +38,16 @@ pub mod rbd_benchmarks_iiwa {
 pub mod ur5 {
     include!("../../../generated/ur5/ur5.rs");
 }
+
+/// Robots in the scenes of `examples/scenes/` (issue 10's scene specialisation), as
+/// checked in under `generated/scenes/`: benchmarked beside the full robots.
+pub mod scenes {
+    /// iiwa with joints 5 to 7 locked and a 2 kg tool: `rnea_grad` and `fd_grad` only.
+    pub mod grid_iiwa_wrist_locked {
+        include!("../../../generated/scenes/grid_iiwa.iiwa_wrist_locked/iiwa14.rs");
+    }
+    /// HyQ without its hind legs.
+    pub mod grid_hyq_front_legs {
+        include!("../../../generated/scenes/grid_hyq.hyq_front_legs/hyq.rs");
+    }
+}

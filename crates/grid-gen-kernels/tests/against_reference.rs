@@ -215,3 +215,38 @@ macro_rules! robot_test {
 }
 
 grid_gen_kernels::for_each_robot!(robot_test);
+
+/// The checked-in scene kernels (`generated/scenes/`) against the reference on the scene's
+/// model, f64, at F64_TOL: the scene reaches the generated code, not only the model.
+#[test]
+fn scene_kernels_match_the_reference_on_the_scene_model() {
+    let scene_model = |robot: &str, scene: &str| {
+        let root = grid_gen_test_support::repo();
+        let text = std::fs::read_to_string(root.join("examples/scenes").join(format!("{scene}.toml"))).unwrap();
+        let parsed = grid_gen::Scene::parse(scene, &text).unwrap();
+        let urdf = std::fs::read_to_string(root.join("robots").join(format!("{robot}.urdf"))).unwrap();
+        Model::from_urdf_str_in_scene(robot, &urdf, false, &parsed, scene).unwrap().0
+    };
+    macro_rules! check {
+        ($m:ident, $robot:literal, $scene:literal) => {{
+            use grid_gen_kernels::scenes::$m as k;
+            let model = scene_model($robot, $scene);
+            assert_eq!(k::NV, model.nv());
+            let mut rng = Rng(23);
+            for (label, q, qd, u) in states(&model, &mut rng) {
+                let arr = |v: &[f64]| -> [f64; k::NV] { std::array::from_fn(|i| v[i]) };
+                let m = |x: [[f64; k::NV]; k::NV]| DMatrix::from_fn(k::NV, k::NV, |i, j| x[i][j]);
+                let want = reference_outputs(&model, &q, &qd, &u);
+                let (dq, dqd) = k::rnea_grad(&arr(&q), &arr(&qd), &arr(&u));
+                let (qdd, fq, fqd) = k::fd_grad(&arr(&q), &arr(&qd), &arr(&u));
+                let got = [(1, m(dq)), (2, m(dqd)), (6, DMatrix::from_column_slice(k::NV, 1, &qdd)), (7, m(fq)), (8, m(fqd))];
+                for (i, g) in got {
+                    let e = rel(&g, &want[i]);
+                    assert!(e <= F64_TOL, "{} in {}, {label}: {} relative error {e:.2e}", $robot, $scene, NAMES[i]);
+                }
+            }
+        }};
+    }
+    check!(grid_iiwa_wrist_locked, "grid_iiwa", "iiwa_wrist_locked");
+    check!(grid_hyq_front_legs, "grid_hyq", "hyq_front_legs");
+}

@@ -26,6 +26,7 @@ use std::path::{Path, PathBuf};
 use crate::diagnostic::LoadError;
 use crate::generate::{generate, write_files, GenerateError, Options, Target};
 use crate::model::Model;
+use crate::scene::Scene;
 
 /// Why a build script could not generate the kernels. `Debug` prints the same text as
 /// `Display`, so `fn main() -> Result<(), BuildError>` shows cargo a readable message.
@@ -38,6 +39,7 @@ pub enum BuildError {
     Write(PathBuf, std::io::Error),
     BadFileName(String),
     NoTargets,
+    Scene(crate::scene::SceneError),
 }
 
 impl fmt::Display for BuildError {
@@ -51,6 +53,7 @@ impl fmt::Display for BuildError {
             BuildError::Write(p, e) => write!(f, "grid-gen: cannot write {}: {e}", p.display()),
             BuildError::BadFileName(n) => write!(f, "grid-gen: file name `{n}` must be a plain `*.rs` name without folders"),
             BuildError::NoTargets => write!(f, "grid-gen: no targets selected; call Builder::emit(&[Target::Rust])"),
+            BuildError::Scene(e) => write!(f, "grid-gen: {e}"),
         }
     }
 }
@@ -70,6 +73,7 @@ pub struct Builder {
     out_dir: Option<PathBuf>,
     file_name: Option<String>,
     options: Options,
+    scene: Option<PathBuf>,
     strict: bool,
     quiet: bool,
 }
@@ -125,6 +129,14 @@ impl Builder {
         self
     }
 
+    /// A scene file (TOML; see [`crate::scene`]): locked joints, kept or dropped subtrees,
+    /// payloads, gravity (which replaces [`Builder::gravity`]) and the kernels to
+    /// generate. Cargo is told to rerun the build script when it changes.
+    pub fn scene(&mut self, path: impl AsRef<Path>) -> &mut Self {
+        self.scene = Some(path.as_ref().to_path_buf());
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
@@ -166,7 +178,24 @@ impl Builder {
         };
         let text = std::fs::read_to_string(urdf).map_err(|e| BuildError::Read(urdf.clone(), e))?;
         let shown = urdf.display().to_string();
-        let (model, warnings) = Model::from_urdf_str(&shown, &text, self.strict).map_err(|e| BuildError::Load(Box::new(e)))?;
+        let (scene, scene_path) = match &self.scene {
+            None => (Scene::default(), String::new()),
+            Some(p) => {
+                if !self.quiet {
+                    println!("cargo:rerun-if-changed={}", p.display());
+                }
+                let t = std::fs::read_to_string(p).map_err(|e| BuildError::Read(p.clone(), e))?;
+                (Scene::parse(&p.display().to_string(), &t).map_err(BuildError::Scene)?, p.display().to_string())
+            }
+        };
+        let (model, warnings) = Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path).map_err(|e| BuildError::Load(Box::new(e)))?;
+        let mut options = self.options.clone();
+        if let Some(g) = scene.gravity {
+            options.gravity = g;
+        }
+        if let Some(k) = scene.kernels().map_err(|message| BuildError::Scene(crate::scene::SceneError { path: scene_path.clone(), message }))? {
+            options.lower.kernels = k;
+        }
         if !self.quiet {
             for line in cargo_warnings(&shown, &text, &warnings) {
                 println!("{line}");
@@ -177,7 +206,7 @@ impl Builder {
                 return Err(BuildError::BadFileName(name.clone()));
             }
         }
-        let mut files = generate(&model, &self.options).map_err(BuildError::Generate)?;
+        let mut files = generate(&model, &options).map_err(BuildError::Generate)?;
         if let (Some(name), Some(rust)) = (&self.file_name, files.iter_mut().find(|f| f.name.ends_with(".rs"))) {
             rust.name = name.clone();
         }
@@ -194,6 +223,25 @@ fn cargo_warnings(path: &str, text: &str, warnings: &[crate::Diagnostic]) -> Vec
 
 #[cfg(test)]
 mod tests {
+    #[test]
+    fn a_scene_reaches_the_generated_module() {
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
+        let out = std::env::temp_dir().join(format!("grid-gen-builder-scene-{}", std::process::id()));
+        let written = crate::Builder::new()
+            .urdf(format!("{root}/robots/grid_iiwa.urdf"))
+            .scene(format!("{root}/examples/scenes/iiwa_wrist_locked.toml"))
+            .out_dir(&out)
+            .quiet(true)
+            .compile()
+            .unwrap();
+        let code = std::fs::read_to_string(&written[0]).unwrap();
+        assert!(code.contains("NV: usize = 4") && code.contains("pub fn fd_grad<") && !code.contains("pub fn minv<"));
+        assert!(code.contains("// source: grid_iiwa.urdf in scene iiwa_wrist_locked.toml"));
+        let bad = crate::Builder::new().urdf(format!("{root}/robots/grid_iiwa.urdf")).scene("/nonexistent.toml").out_dir(&out).quiet(true).compile();
+        assert!(bad.unwrap_err().to_string().contains("cannot read /nonexistent.toml"));
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+
     #[test]
     fn urdf_warnings_become_cargo_warning_lines() {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/diagnostics/mimic_unknown.urdf");

@@ -4,6 +4,7 @@
 use serde::Serialize;
 
 use crate::back::verilog::{plan, Arch, NetlistStats, VerilogOptions, DEFAULT_ADDERS, DEFAULT_KERNELS, DEFAULT_MULTIPLIERS, DEFAULT_STAGE_DEPTH};
+use crate::back::wgsl::{emit_with_stats, EntryStats, WgslOptions};
 use crate::ir::{self, KernelStats, Skipped};
 use crate::model::{Count, JointType, Model, DEFAULT_GRAVITY};
 
@@ -57,7 +58,17 @@ pub struct Info {
     /// Why `verilog` is empty, when it is.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub verilog_skipped: Option<String>,
+    /// Each entry point `--emit wgsl` writes with default options (f32, both strategies):
+    /// statements, functions, workgroup size and bytes, phases, scratch words.
+    pub wgsl: Vec<EntryStats>,
+    /// Why `wgsl` is empty or lacks kernels, when it does.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub wgsl_skipped: Option<String>,
 }
+
+/// The most operations × depth per kernel that `info` plans WGSL entry points for
+/// (Atlas's `fd_grad`: 2.1e7).
+pub const WGSL_STATS_MAX_WORK: usize = 50_000_000;
 
 impl Info {
     /// The summary with default gravity and the gradient formulation picked by op count.
@@ -86,12 +97,48 @@ impl Info {
             ops_skipped: Vec::new(),
             verilog: Vec::new(),
             verilog_skipped: None,
+            wgsl: Vec::new(),
+            wgsl_skipped: None,
         }
         .with_ops(ir::stats(model, gravity, gradient, ir::STATS_MAX_NODES))
         .with_verilog(model, gravity, gradient)
+        .with_wgsl(model, gravity, gradient)
     }
 
+    /// Only the kernels `ops` counted: the others are over the node limit already, and
+    /// lowering them again to find out would cost the time the limit exists to bound.
+    /// Kernels whose operations times depth exceed [`WGSL_STATS_MAX_WORK`] are left out too:
+    /// the cooperative strategy's phases grow with depth, and a 400-link chain's `rnea`
+    /// alone took 19 s to plan (`--emit wgsl` still writes them).
+    fn with_wgsl(mut self, model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
+        let (kernels, large): (Vec<&KernelStats>, Vec<&KernelStats>) = self.ops.iter().partition(|k| k.after.total() * k.after.depth <= WGSL_STATS_MAX_WORK);
+        let mut left_out: Vec<String> = self.ops_skipped.iter().map(|k| format!("{} (see ops_skipped)", k.kernel.name())).collect();
+        left_out.extend(large.iter().map(|k| format!("{} (operations × depth over {WGSL_STATS_MAX_WORK:e}; `--emit wgsl` writes it)", k.kernel.name())));
+        if !left_out.is_empty() {
+            self.wgsl_skipped = Some(left_out.join(", "));
+        }
+        let kernels: Vec<ir::KernelKind> = kernels.iter().map(|k| k.kernel).collect();
+        if kernels.is_empty() {
+            return self;
+        }
+        let lower = ir::LowerOptions { kernels, max_nodes: ir::STATS_MAX_NODES, gradient, ..ir::LowerOptions::default() };
+        let result = ir::lower(model, gravity, &lower)
+            .map_err(|e| e.to_string())
+            .and_then(|module| emit_with_stats(&module, &WgslOptions::default()).map_err(|e| e.to_string()));
+        match result {
+            Ok((_, stats)) => self.wgsl = stats,
+            Err(e) => self.wgsl_skipped = Some(e),
+        }
+        self
+    }
+
+    /// Like [`Self::with_wgsl`], only for kernels `ops` counted: one over the node limit
+    /// is reported without lowering it a second time.
     fn with_verilog(mut self, model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
+        if let Some(k) = self.ops_skipped.iter().find(|k| DEFAULT_KERNELS.contains(&k.kernel)) {
+            self.verilog_skipped = Some(format!("kernel `{}` was not counted: {}", k.kernel.name(), k.reason));
+            return self;
+        }
         let lower = ir::LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), max_nodes: ir::STATS_MAX_NODES, gradient, ..ir::LowerOptions::default() };
         let result = ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|module| {
             let mut all = Vec::new();
@@ -168,6 +215,18 @@ impl Info {
         }
         if let Some(why) = &self.verilog_skipped {
             s.push_str(&format!("verilog netlists not planned: {why}\n"));
+        }
+        if !self.wgsl.is_empty() {
+            s.push_str("wgsl entry points (default options, f32; statements, functions, workgroup size, workgroup bytes, phases):\n");
+        }
+        for e in &self.wgsl {
+            s.push_str(&format!(
+                "  {:<20} {:>7} stmts {:>4} fns  workgroup {:>3}  {:>6} bytes  {:>4} phases\n",
+                e.entry, e.statements, e.functions, e.workgroup_size, e.workgroup_bytes, e.phases
+            ));
+        }
+        if let Some(why) = &self.wgsl_skipped {
+            s.push_str(&format!("wgsl entry points not planned: {why}\n"));
         }
         for m in &self.mimic {
             s.push_str(&format!("note: joint `{}` mimics `{}`; it is treated as an independent joint\n", m.joint, m.mimics));

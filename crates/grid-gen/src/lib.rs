@@ -15,9 +15,11 @@ pub mod ir;
 mod load;
 pub mod model;
 pub mod reference;
+pub mod scene;
 pub mod spatial;
 pub mod urdf;
 
 pub use builder::{BuildError, Builder};
 pub use diagnostic::{Diagnostic, LoadError, Severity};
 pub use model::Model;
+pub use scene::Scene;

@@ -4,16 +4,31 @@
 
 use crate::diagnostic::{Diagnostic, LoadError, Severity};
 use crate::model::{build, Model};
+use crate::scene::{self, Scene};
 use crate::urdf::{self, Urdf};
 
 impl Model {
     /// Parses, checks and builds the model from URDF text. Warnings come back with the
     /// model; with `strict`, a warning is an error.
     pub fn from_urdf_str(path: &str, text: &str, strict: bool) -> Result<(Model, Vec<Diagnostic>), LoadError> {
+        Model::from_urdf_str_in_scene(path, text, strict, &Scene::default(), "")
+    }
+
+    /// As [`Model::from_urdf_str`], with `scene` (read from `scene_path`) applied: locked
+    /// joints merged as fixed, subtrees kept or dropped, payloads added. A name the scene
+    /// uses that the URDF lacks is an error.
+    pub fn from_urdf_str_in_scene(path: &str, text: &str, strict: bool, scene: &Scene, scene_path: &str) -> Result<(Model, Vec<Diagnostic>), LoadError> {
         let (urdf, tree, mut diags) = urdf::load(path, text)?;
-        let built = build(&urdf, &tree, &mut diags).map(|(mut model, source)| {
+        let edits = scene::resolve(scene, scene_path, &urdf, &tree, &mut diags);
+        let built = build(&urdf, &tree, &edits, &mut diags).map(|(mut model, source)| {
             model.singular = check_massless(&model, &source, &urdf, &mut diags);
-            model.source = std::path::Path::new(path).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
+            let file_name = |p: &str| std::path::Path::new(p).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
+            model.source = file_name(path);
+            // Generated files name their scene too: the same robot in another scene is
+            // another model, and `write_files` must not let one overwrite the other.
+            if !scene.is_empty() && !scene_path.is_empty() {
+                model.source = format!("{} in scene {}", model.source, file_name(scene_path));
+            }
             model
         });
         let failed = diags.iter().any(|d| d.severity == Severity::Error || (strict && d.severity == Severity::Warning));

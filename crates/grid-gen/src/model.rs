@@ -10,7 +10,8 @@ use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 
 use crate::diagnostic::Diagnostic;
-use crate::spatial::rpy_matrix;
+use crate::scene::Edits;
+use crate::spatial::{axis_angle, rpy_matrix};
 use crate::urdf::{self, JointKind, Pose, Tree, Urdf};
 
 /// Gravity used when none is given: (0, 0, -9.81) m/s² in the root frame. Every default
@@ -258,6 +259,17 @@ fn check_inertia(link: &urdf::Link, diags: &mut Vec<Diagnostic>) {
     }
 }
 
+/// The motion of URDF joint `j` at position `value`: a rotation about its (normalised)
+/// axis, or a translation along it.
+fn joint_motion(j: &urdf::Joint, value: f64) -> Transform {
+    let a = Vector3::from(j.axis);
+    let a = if a.norm() < 1e-12 { Vector3::z() } else { a.normalize() };
+    match j.kind {
+        JointKind::Prismatic => Transform::from_parts(Matrix3::identity(), a * value),
+        _ => Transform::from_parts(axis_angle(&a, value), Vector3::zeros()),
+    }
+}
+
 /// One step of the depth-first walk (an explicit stack: deep chains must not overflow).
 enum Step {
     /// Lump a link into `body` (None: the fixed root body) at pose `in_body`, then walk on.
@@ -270,7 +282,7 @@ enum Step {
 
 /// Builds the model from a checked URDF tree; also returns, for each model joint, the
 /// index of the URDF joint it comes from (for located errors in later checks).
-pub(crate) fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Option<(Model, Vec<usize>)> {
+pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, diags: &mut Vec<Diagnostic>) -> Option<(Model, Vec<usize>)> {
     for link in &urdf.links {
         check_inertia(link, diags);
     }
@@ -282,17 +294,27 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Op
         match step {
             Step::Visit { link, body, in_body } => {
                 // The root body is fixed: its inertia never enters the dynamics.
-                if let (Some(b), Some(inertial)) = (body, &urdf.links[link].inertial) {
-                    if inertial.mass >= 0.0 {
-                        let inertia = link_inertia(inertial, &in_body);
-                        joints[b].inertia.add(&inertia);
+                if let Some(b) = body {
+                    for inertial in urdf.links[link].inertial.iter().chain(&edits.payload[link]) {
+                        if inertial.mass >= 0.0 {
+                            let inertia = link_inertia(inertial, &in_body);
+                            joints[b].inertia.add(&inertia);
+                        }
                     }
                 }
                 // Pushed in reverse so that children are walked in document order.
                 for &j in tree.child_joints[link].iter().rev() {
+                    let child = tree.joint_links[j].1;
+                    if edits.dropped[child] {
+                        continue;
+                    }
                     let origin = in_body.compose(&Transform::from_pose(&urdf.joints[j].origin));
                     if urdf.joints[j].kind == JointKind::Fixed {
-                        stack.push(Step::Visit { link: tree.joint_links[j].1, body, in_body: origin });
+                        stack.push(Step::Visit { link: child, body, in_body: origin });
+                    } else if let Some(value) = edits.locked[j] {
+                        // A locked joint is a fixed one at its locked position.
+                        let motion = joint_motion(&urdf.joints[j], value);
+                        stack.push(Step::Visit { link: child, body, in_body: origin.compose(&motion) });
                     } else {
                         stack.push(Step::Open { joint: j, parent: body, tree: origin });
                     }

@@ -17,6 +17,10 @@ const WGSL_ROBOTS: [&str; 2] = ["grid_iiwa", "grid_hyq"];
 /// Robots whose Verilog is checked in (default options: pipelined, `--fixed auto`).
 const VERILOG_ROBOTS: [&str; 1] = ["double_pendulum_continuous"];
 
+/// Robots in a scene of `examples/scenes/`, whose Rust modules are checked in under
+/// `generated/scenes/<robot>.<scene>/` (benchmarked against the full robots').
+pub const SCENES: [(&str, &str); 2] = [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_front_legs")];
+
 #[test]
 fn checked_in_kernels_are_fresh() {
     let bless = std::env::var_os("GRID_GEN_BLESS").is_some();
@@ -24,7 +28,7 @@ fn checked_in_kernels_are_fresh() {
     let mut dirs: Vec<String> = std::fs::read_dir(repo().join("generated"))
         .unwrap()
         .filter_map(|e| e.ok())
-        .filter(|e| e.path().is_dir())
+        .filter(|e| e.path().is_dir() && e.file_name() != "scenes")
         .map(|e| e.file_name().to_string_lossy().into_owned())
         .collect();
     dirs.sort();
@@ -53,6 +57,34 @@ fn checked_in_kernels_are_fresh() {
         let mut present: Vec<String> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
         present.sort();
         assert_eq!(present, expected, "{robot}: no stray files in generated/{robot}");
+    }
+    for (robot, scene) in SCENES {
+        let text = std::fs::read_to_string(repo().join("examples/scenes").join(format!("{scene}.toml"))).unwrap();
+        let parsed = grid_gen::Scene::parse(scene, &text).unwrap();
+        let urdf = repo().join("robots").join(format!("{robot}.urdf"));
+        let model = grid_gen::Model::from_urdf_str_in_scene(
+            &urdf.display().to_string(),
+            &std::fs::read_to_string(&urdf).unwrap(),
+            false,
+            &parsed,
+            &format!("{scene}.toml"),
+        )
+        .unwrap()
+        .0;
+        let mut options = Options::default();
+        if let Some(k) = parsed.kernels().unwrap() {
+            options.lower.kernels = k;
+        }
+        if let Some(g) = parsed.gravity {
+            options.gravity = g;
+        }
+        let files = generate(&model, &options).unwrap();
+        let dir = repo().join("generated/scenes").join(format!("{robot}.{scene}"));
+        for (path, status) in write_files(&dir, &files, !bless).unwrap() {
+            if status == FileStatus::Stale {
+                stale.push(path.display().to_string());
+            }
+        }
     }
     assert!(stale.is_empty(), "stale generated files (GRID_GEN_BLESS=1 cargo test -p grid-gen --test generated_fresh to refresh):\n{}", stale.join("\n"));
 }

@@ -1,0 +1,259 @@
+//! Scene specialisation (issue 10, item 6): what a user's scene fixes about the robot,
+//! read from a TOML file and applied while the model is built, so that every kernel of
+//! every backend shrinks with it: joints locked at a value (merged as fixed joints, as
+//! Pinocchio's `buildReducedModel` does), subtrees kept or dropped, payloads added to
+//! links, gravity, and the kernels to generate.
+//!
+//! ```toml
+//! outputs = ["rnea_grad", "fd_grad"]   # kernels to generate (default: all)
+//! gravity = [0.0, 0.0, -9.81]          # replaces --gravity
+//! drop = ["left_gripper_base"]         # these links and everything below them go
+//! keep = ["right_arm_base"]            # only these subtrees (and the path to them) stay
+//!
+//! [lock]                               # joint = position (rad or m): becomes fixed
+//! torso_joint = 0.0
+//!
+//! [[payload]]                          # or [payload] for one
+//! link = "right_gripper"
+//! mass = 1.5                           # kg
+//! com = [0.0, 0.0, 0.1]                # m, in the link frame
+//! inertia = [0.01, 0.0, 0.0, 0.01, 0.0, 0.01]   # ixx ixy ixz iyy iyz izz about the com
+//! ```
+
+use std::collections::BTreeMap;
+
+use serde::Deserialize;
+
+use crate::diagnostic::Diagnostic;
+use crate::ir::KernelKind;
+use crate::urdf::{Inertial, JointKind, Pose, Tree, Urdf};
+
+/// A scene file's contents (see the module documentation for the format).
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Scene {
+    /// Joints held at a position: each becomes a fixed joint there.
+    #[serde(default)]
+    pub lock: BTreeMap<String, f64>,
+    /// Links whose subtrees are modelled, with the links on their paths from the root;
+    /// every other link is left out. Empty: every link.
+    #[serde(default)]
+    pub keep: Vec<String>,
+    /// Links left out, with everything below them.
+    #[serde(default)]
+    pub drop: Vec<String>,
+    /// Gravity in the root frame, m/s²; replaces `--gravity` and `Builder::gravity`.
+    pub gravity: Option<[f64; 3]>,
+    /// Rigid bodies added to links.
+    #[serde(default, deserialize_with = "one_or_many")]
+    pub payload: Vec<Payload>,
+    /// The kernels to generate and measure (default: all).
+    pub outputs: Option<Vec<String>>,
+}
+
+/// A rigid body carried by a link.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct Payload {
+    pub link: String,
+    /// kg.
+    pub mass: f64,
+    /// Centre of mass in the link frame, m.
+    #[serde(default)]
+    pub com: [f64; 3],
+    /// `ixx, ixy, ixz, iyy, iyz, izz` about the centre of mass, link axes, kg·m².
+    #[serde(default)]
+    pub inertia: [f64; 6],
+}
+
+fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<Payload>, D::Error> {
+    #[derive(Deserialize)]
+    #[serde(untagged)]
+    enum OneOrMany {
+        One(Payload),
+        Many(Vec<Payload>),
+    }
+    Ok(match OneOrMany::deserialize(d)? {
+        OneOrMany::One(p) => vec![p],
+        OneOrMany::Many(v) => v,
+    })
+}
+
+/// A scene file that cannot be read.
+#[derive(Debug, thiserror::Error)]
+#[error("scene `{path}`: {message}")]
+pub struct SceneError {
+    pub path: String,
+    pub message: String,
+}
+
+impl Scene {
+    /// Parses a scene file's text; `path` names it in errors.
+    pub fn parse(path: &str, text: &str) -> Result<Scene, SceneError> {
+        let scene: Scene = toml::from_str(text).map_err(|e| SceneError { path: path.to_string(), message: e.to_string().trim_end().to_string() })?;
+        let err = |message: String| Err(SceneError { path: path.to_string(), message });
+        if let Some(g) = scene.gravity {
+            if g.iter().any(|x| !x.is_finite()) {
+                return err(format!("gravity {g:?} is not finite"));
+            }
+        }
+        for (joint, value) in &scene.lock {
+            if !value.is_finite() {
+                return err(format!("[lock] {joint} = {value} is not finite"));
+            }
+        }
+        for p in &scene.payload {
+            let finite = p.mass.is_finite() && p.com.iter().chain(&p.inertia).all(|x| x.is_finite());
+            if !finite || p.mass < 0.0 {
+                return err(format!("payload on `{}`: mass, com and inertia must be finite and the mass not negative", p.link));
+            }
+        }
+        scene.kernels().map_err(|message| SceneError { path: path.to_string(), message })?;
+        Ok(scene)
+    }
+
+    /// The kernels `outputs` names, in generation order; `None` when it names none.
+    pub fn kernels(&self) -> Result<Option<Vec<KernelKind>>, String> {
+        let Some(names) = &self.outputs else { return Ok(None) };
+        let mut kinds = Vec::new();
+        for name in names {
+            match KernelKind::ALL.into_iter().find(|k| k.name() == name) {
+                Some(k) => kinds.push(k),
+                None => return Err(format!("outputs: unknown kernel `{name}`; available: {}", KernelKind::ALL.map(|k| k.name()).join(", "))),
+            }
+        }
+        Ok(Some(KernelKind::ALL.into_iter().filter(|k| kinds.contains(k)).collect()))
+    }
+
+    pub fn is_empty(&self) -> bool {
+        *self == Scene::default()
+    }
+}
+
+/// A scene resolved against one URDF: what the model builder does differently.
+pub(crate) struct Edits {
+    /// Per URDF joint: the position it is locked at.
+    pub locked: Vec<Option<f64>>,
+    /// Per URDF link: left out (with its subtree).
+    pub dropped: Vec<bool>,
+    /// Per URDF link: payloads, as inertials in the link frame.
+    pub payload: Vec<Vec<Inertial>>,
+}
+
+impl Edits {
+    pub fn none(urdf: &Urdf) -> Edits {
+        Edits { locked: vec![None; urdf.joints.len()], dropped: vec![false; urdf.links.len()], payload: vec![Vec::new(); urdf.links.len()] }
+    }
+}
+
+/// Checks every name the scene uses against the URDF and resolves them; a name the robot
+/// does not have is an error naming the scene file, the key and what exists.
+pub(crate) fn resolve(scene: &Scene, scene_path: &str, urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Edits {
+    let mut edits = Edits::none(urdf);
+    let link_index = |name: &str| urdf.links.iter().position(|l| l.name == name);
+    let some_names = |names: Vec<&str>| {
+        let shown: Vec<&str> = names.iter().take(12).copied().collect();
+        format!("{}{}", shown.join(", "), if names.len() > 12 { ", ..." } else { "" })
+    };
+    let unknown_link = |key: &str, name: &str| {
+        Diagnostic::error(format!("scene `{scene_path}`: {key} names link `{name}`, which robot `{}` does not have", urdf.name), None, "unknown link")
+            .with_help(format!("links: {}", some_names(urdf.links.iter().map(|l| l.name.as_str()).collect())))
+    };
+    for (name, &value) in &scene.lock {
+        match urdf.joints.iter().position(|j| &j.name == name) {
+            None => diags.push(
+                Diagnostic::error(
+                    format!("scene `{scene_path}`: [lock] names joint `{name}`, which robot `{}` does not have", urdf.name),
+                    None,
+                    "unknown joint",
+                )
+                .with_help(format!(
+                    "movable joints: {}",
+                    some_names(urdf.joints.iter().filter(|j| j.kind != JointKind::Fixed).map(|j| j.name.as_str()).collect())
+                )),
+            ),
+            Some(j) if urdf.joints[j].kind == JointKind::Fixed => diags.push(Diagnostic::warning(
+                format!("scene `{scene_path}`: [lock] names `{name}`, which is fixed already"),
+                Some(urdf.joints[j].span.clone()),
+                "already fixed",
+            )),
+            Some(j) => {
+                let joint = &urdf.joints[j];
+                if let (Some((lo, hi)), false) = (joint.limit, joint.kind == JointKind::Continuous) {
+                    if value < lo || value > hi {
+                        diags.push(Diagnostic::warning(
+                            format!("scene `{scene_path}`: [lock] holds `{name}` at {value}, outside its limits [{lo}, {hi}]"),
+                            Some(joint.span.clone()),
+                            "locked outside the limits",
+                        ));
+                    }
+                }
+                edits.locked[j] = Some(value);
+            }
+        }
+    }
+    // The parent link of each link, for the paths that `keep` retains.
+    let mut parent_link = vec![None; urdf.links.len()];
+    for &(p, c) in &tree.joint_links {
+        parent_link[c] = Some(p);
+    }
+    let subtree = |root: usize, mark: &mut Vec<bool>| {
+        let mut stack = vec![root];
+        while let Some(l) = stack.pop() {
+            mark[l] = true;
+            stack.extend(tree.child_joints[l].iter().map(|&j| tree.joint_links[j].1));
+        }
+    };
+    if !scene.keep.is_empty() {
+        let mut kept = vec![false; urdf.links.len()];
+        for name in &scene.keep {
+            match link_index(name) {
+                None => diags.push(unknown_link("keep", name)),
+                Some(l) => {
+                    subtree(l, &mut kept);
+                    let mut up = parent_link[l];
+                    while let Some(p) = up {
+                        kept[p] = true;
+                        up = parent_link[p];
+                    }
+                }
+            }
+        }
+        edits.dropped = kept.iter().map(|k| !k).collect();
+    }
+    for name in &scene.drop {
+        match link_index(name) {
+            None => diags.push(unknown_link("drop", name)),
+            Some(l) if l == tree.root => diags.push(
+                Diagnostic::error(format!("scene `{scene_path}`: drop names the root link `{name}`, which would leave no robot"), None, "root link dropped")
+                    .with_help("drop the links below it instead"),
+            ),
+            Some(l) => subtree(l, &mut edits.dropped),
+        }
+    }
+    for p in &scene.payload {
+        match link_index(&p.link) {
+            None => diags.push(unknown_link("payload", &p.link)),
+            Some(l) => {
+                if l == tree.root {
+                    diags.push(Diagnostic::warning(
+                        format!("scene `{scene_path}`: the payload on `{}` sits on the fixed root link and changes no dynamics", p.link),
+                        None,
+                        "payload on the root",
+                    ));
+                }
+                let span = urdf.links[l].span.clone();
+                let inertial = Inertial {
+                    span: span.clone(),
+                    origin: Pose { xyz: p.com, rpy: [0.0; 3] },
+                    mass: p.mass,
+                    mass_span: span.clone(),
+                    inertia: p.inertia,
+                    inertia_span: span,
+                };
+                edits.payload[l].push(inertial);
+            }
+        }
+    }
+    edits
+}

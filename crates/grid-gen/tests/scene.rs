@@ -1,0 +1,144 @@
+//! Scenes (issue 10, item 6), beside the Pinocchio comparison in `pinocchio.rs`: each
+//! reduction equals the robot written without it (a dropped subtree is the URDF without
+//! those elements, a lock is a fixed joint at that position, a payload is a fixed child
+//! link carrying it), every name is checked, and the kernels of a scene model agree with
+//! the reference as on any robot.
+
+use grid_gen::ir::{self, KernelKind, LowerOptions};
+use grid_gen::{reference, Model, Scene};
+use grid_gen_test_support::*;
+
+/// A base with two branches: a1 → a2 (revolute about z, then y) and b1 → b2.
+/// `with_b` writes branch b; `extra` is appended inside <robot>.
+fn tree_urdf(with_b: bool, a2_joint: &str, extra: &str) -> String {
+    let link = |name: &str, m: f64| {
+        format!("<link name=\"{name}\"><inertial><origin xyz=\"0.01 0.02 0.05\" rpy=\"0.1 0 0\"/><mass value=\"{m}\"/><inertia ixx=\"0.02\" ixy=\"0.001\" ixz=\"0\" iyy=\"0.03\" iyz=\"0\" izz=\"0.01\"/></inertial></link>")
+    };
+    let joint = |name: &str, parent: &str, child: &str, axis: &str| {
+        format!("<joint name=\"{name}\" type=\"revolute\"><parent link=\"{parent}\"/><child link=\"{child}\"/><origin xyz=\"0 0.1 0.2\" rpy=\"0 0 0\"/><axis xyz=\"{axis}\"/><limit lower=\"-2\" upper=\"2\" effort=\"1\" velocity=\"1\"/></joint>")
+    };
+    let mut s = String::from("<robot name=\"tree\"><link name=\"base\"/>");
+    s += &link("a1", 2.0);
+    s += &joint("ja1", "base", "a1", "0 0 1");
+    s += &link("a2", 1.0);
+    s += a2_joint;
+    if with_b {
+        s += &link("b1", 1.5);
+        s += &joint("jb1", "base", "b1", "1 0 0");
+        s += &link("b2", 0.5);
+        s += &joint("jb2", "b1", "b2", "0 1 0");
+    }
+    s += extra;
+    s + "</robot>"
+}
+
+const A2_REVOLUTE: &str = "<joint name=\"ja2\" type=\"revolute\"><parent link=\"a1\"/><child link=\"a2\"/><origin xyz=\"0 0.1 0.2\"/><axis xyz=\"0 0 1\"/><limit lower=\"-2\" upper=\"2\" effort=\"1\" velocity=\"1\"/></joint>";
+
+fn in_scene(urdf: &str, scene: &str) -> Result<(Model, Vec<grid_gen::Diagnostic>), String> {
+    let scene = Scene::parse("scene.toml", scene).map_err(|e| e.to_string())?;
+    Model::from_urdf_str_in_scene("tree.urdf", urdf, false, &scene, "scene.toml").map_err(|e| e.render_plain())
+}
+
+fn plain(urdf: &str) -> Model {
+    Model::from_urdf_str("tree.urdf", urdf, false).map_err(|e| e.render_plain()).unwrap().0
+}
+
+/// Same joints, and the same dynamics at a few states to 1e-14 (the payload and lock
+/// paths compose transforms in another order than the URDF's fixed joints).
+fn assert_same(a: &Model, b: &Model, what: &str) {
+    let names = |m: &Model| m.joints.iter().map(|j| j.name.clone()).collect::<Vec<_>>();
+    assert_eq!(names(a), names(b), "{what}: joints");
+    let n = a.nv();
+    let mut rng = Rng(3);
+    for _ in 0..3 {
+        let (q, qd, qdd) = (rng.vec(n, -2.0, 2.0), rng.vec(n, -2.0, 2.0), rng.vec(n, -2.0, 2.0));
+        let g = reference::DEFAULT_GRAVITY;
+        let pairs = [
+            (col(&reference::rnea(a, &q, &qd, &qdd, g)), col(&reference::rnea(b, &q, &qd, &qdd, g))),
+            (reference::crba(a, &q), reference::crba(b, &q)),
+            (reference::rnea_derivatives(a, &q, &qd, &qdd, g).0, reference::rnea_derivatives(b, &q, &qd, &qdd, g).0),
+        ];
+        for (x, y) in pairs {
+            assert!(rel_err(&x, &y) <= 1e-14, "{what}: {:.2e}", rel_err(&x, &y));
+        }
+    }
+}
+
+#[test]
+fn dropping_a_subtree_is_the_urdf_without_it() {
+    let (dropped, _) = in_scene(&tree_urdf(true, A2_REVOLUTE, ""), "drop = [\"b1\"]").unwrap();
+    assert_same(&dropped, &plain(&tree_urdf(false, A2_REVOLUTE, "")), "drop b1");
+    let (only_b2, _) = in_scene(&tree_urdf(true, A2_REVOLUTE, ""), "drop = [\"b2\", \"a1\"]").unwrap();
+    assert_eq!(only_b2.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>(), ["jb1"]);
+}
+
+#[test]
+fn keep_models_the_path_to_a_link_and_its_subtree() {
+    let (kept, _) = in_scene(&tree_urdf(true, A2_REVOLUTE, ""), "keep = [\"a2\"]").unwrap();
+    assert_same(&kept, &plain(&tree_urdf(false, A2_REVOLUTE, "")), "keep a2");
+    let (both, _) = in_scene(&tree_urdf(true, A2_REVOLUTE, ""), "keep = [\"a1\", \"b2\"]").unwrap();
+    assert_eq!(both.nv(), 4, "both paths and subtrees");
+}
+
+#[test]
+fn a_lock_is_a_fixed_joint_at_that_position() {
+    // ja2 rotates about z: locked at 0.7, it is a fixed joint whose origin turns by 0.7 rad.
+    let (locked, _) = in_scene(&tree_urdf(true, A2_REVOLUTE, ""), "[lock]\nja2 = 0.7").unwrap();
+    let fixed = "<joint name=\"ja2\" type=\"fixed\"><parent link=\"a1\"/><child link=\"a2\"/><origin xyz=\"0 0.1 0.2\" rpy=\"0 0 0.7\"/></joint>";
+    assert_same(&locked, &plain(&tree_urdf(true, fixed, "")), "lock ja2");
+}
+
+#[test]
+fn a_payload_is_a_fixed_child_carrying_it() {
+    let scene = "[[payload]]\nlink = \"a2\"\nmass = 0.8\ncom = [0.05, -0.02, 0.1]\ninertia = [0.004, 0.0005, 0.0, 0.003, 0.0, 0.002]\n";
+    let (loaded, _) = in_scene(&tree_urdf(true, A2_REVOLUTE, ""), scene).unwrap();
+    let tool = "<link name=\"tool\"><inertial><origin xyz=\"0.05 -0.02 0.1\"/><mass value=\"0.8\"/><inertia ixx=\"0.004\" ixy=\"0.0005\" ixz=\"0\" iyy=\"0.003\" iyz=\"0\" izz=\"0.002\"/></inertial></link>\
+                <joint name=\"tool_mount\" type=\"fixed\"><parent link=\"a2\"/><child link=\"tool\"/></joint>";
+    assert_same(&loaded, &plain(&tree_urdf(true, A2_REVOLUTE, tool)), "payload on a2");
+}
+
+#[test]
+fn every_name_is_checked_and_bad_scenes_are_named() {
+    let urdf = tree_urdf(true, A2_REVOLUTE, "");
+    for (scene, expected) in [
+        ("[lock]\nnope = 1.0", "scene `scene.toml`: [lock] names joint `nope`, which robot `tree` does not have"),
+        ("drop = [\"nope\"]", "scene `scene.toml`: drop names link `nope`, which robot `tree` does not have"),
+        ("keep = [\"nope\"]", "scene `scene.toml`: keep names link `nope`, which robot `tree` does not have"),
+        ("drop = [\"base\"]", "drop names the root link `base`, which would leave no robot"),
+        ("[payload]\nlink = \"nope\"\nmass = 1.0", "payload names link `nope`"),
+        ("lokc = 1", "unknown field `lokc`"),
+        ("outputs = [\"aba\"]", "outputs: unknown kernel `aba`; available: rnea, rnea_grad"),
+        ("[payload]\nlink = \"a2\"\nmass = -1.0", "must be finite and the mass not negative"),
+        ("gravity = [0.0, 0.0]", "gravity"),
+    ] {
+        let err = in_scene(&urdf, scene).unwrap_err();
+        assert!(err.contains(expected), "{scene:?}: {err}");
+    }
+    // Warnings: outside the limits, already fixed; --strict refuses them.
+    let (_, warnings) = in_scene(&urdf, "[lock]\nja2 = 3.0").unwrap();
+    assert!(warnings.iter().any(|w| w.message.contains("holds `ja2` at 3, outside its limits [-2, 2]")), "{warnings:?}");
+    let scene = Scene::parse("scene.toml", "[lock]\nja2 = 3.0").unwrap();
+    assert!(Model::from_urdf_str_in_scene("tree.urdf", &urdf, true, &scene, "scene.toml").is_err());
+}
+
+#[test]
+fn kernels_of_a_scene_model_match_the_reference() {
+    let text = std::fs::read_to_string(repo().join("examples/scenes/iiwa_wrist_locked.toml")).unwrap();
+    let scene = Scene::parse("iiwa_wrist_locked.toml", &text).unwrap();
+    assert_eq!(scene.kernels().unwrap(), Some(vec![KernelKind::RneaGrad, KernelKind::FdGrad]));
+    let urdf = std::fs::read_to_string(repo().join("robots/grid_iiwa.urdf")).unwrap();
+    let model = Model::from_urdf_str_in_scene("grid_iiwa.urdf", &urdf, false, &scene, "iiwa_wrist_locked.toml").unwrap().0;
+    assert_eq!(model.nv(), 4);
+    let g = scene.gravity.unwrap_or(reference::DEFAULT_GRAVITY);
+    let module = ir::lower(&model, g, &LowerOptions { kernels: scene.kernels().unwrap().unwrap(), ..LowerOptions::default() }).unwrap();
+    assert_eq!(module.functions.iter().map(|f| f.kind).collect::<Vec<_>>(), [KernelKind::RneaGrad, KernelKind::FdGrad]);
+    let mut rng = Rng(8);
+    let (q, qd, u) = (rng.vec(4, -2.0, 2.0), rng.vec(4, -2.0, 2.0), rng.vec(4, -2.0, 2.0));
+    for f in &module.functions {
+        let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &u));
+        for ((o, got), want) in f.outputs.iter().zip(&got).zip(reference_outputs(f.kind, &model, &q, &qd, &u, g)) {
+            let e = rel_err(&output_matrix(o.shape, 4, got), &want);
+            assert!(e <= 1e-12, "{} {}: {e:.2e}", f.kind, o.name);
+        }
+    }
+}
