@@ -118,7 +118,7 @@ def pinocchio_fixture_of(model, rng):
     }
 
 
-SCENES = [("grid_iiwa", "iiwa_wrist_locked")]
+SCENES = [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_knees_locked")]
 
 
 def scene_model(urdf, scene_file):

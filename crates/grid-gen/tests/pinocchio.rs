@@ -31,7 +31,7 @@ fn reference_matches_pinocchio_on_every_robot() {
 fn scenes_match_pinocchio_reduced_models() {
     let mut failures = Vec::new();
     let mut checked = 0;
-    for (robot, scene) in [("grid_iiwa", "iiwa_wrist_locked")] {
+    for (robot, scene) in [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_knees_locked")] {
         let scene_path = repo().join("examples/scenes").join(format!("{scene}.toml"));
         let parsed = grid_gen::Scene::parse(scene, &std::fs::read_to_string(&scene_path).unwrap()).unwrap();
         let urdf = repo().join("robots").join(format!("{robot}.urdf"));
