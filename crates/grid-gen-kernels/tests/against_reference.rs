@@ -220,17 +220,10 @@ grid_gen_kernels::for_each_robot!(robot_test);
 /// model, f64, at F64_TOL: the scene reaches the generated code, not only the model.
 #[test]
 fn scene_kernels_match_the_reference_on_the_scene_model() {
-    let scene_model = |robot: &str, scene: &str| {
-        let root = grid_gen_test_support::repo();
-        let text = std::fs::read_to_string(root.join("examples/scenes").join(format!("{scene}.toml"))).unwrap();
-        let parsed = grid_gen::Scene::parse(scene, &text).unwrap();
-        let urdf = std::fs::read_to_string(root.join("robots").join(format!("{robot}.urdf"))).unwrap();
-        Model::from_urdf_str_in_scene(robot, &urdf, false, &parsed, scene).unwrap().0
-    };
     macro_rules! check {
         ($m:ident, $robot:literal, $scene:literal) => {{
             use grid_gen_kernels::scenes::$m as k;
-            let model = scene_model($robot, $scene);
+            let (model, _) = grid_gen_test_support::load_in_scene($robot, $scene);
             assert_eq!(k::NV, model.nv());
             let mut rng = Rng(23);
             for (label, q, qd, u) in states(&model, &mut rng) {

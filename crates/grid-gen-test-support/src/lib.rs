@@ -68,6 +68,19 @@ pub fn tapered_chain_urdf(n: usize, mass_ratio: f64, length_ratio: f64) -> Strin
     s
 }
 
+/// A bundled robot in a scene of `examples/scenes/`, with the scene (its source names
+/// both files, as `grid-gen --scene` writes it).
+pub fn load_in_scene(robot: &str, scene: &str) -> (Model, grid_gen::Scene) {
+    let scene_file = format!("{scene}.toml");
+    let text = std::fs::read_to_string(repo().join("examples/scenes").join(&scene_file)).expect("scene file");
+    let parsed = grid_gen::Scene::parse(&scene_file, &text).unwrap_or_else(|e| panic!("{e}"));
+    let path = repo().join("robots").join(format!("{robot}.urdf"));
+    let urdf = std::fs::read_to_string(&path).expect("robot file");
+    let model =
+        Model::from_urdf_str_in_scene(&path.display().to_string(), &urdf, false, &parsed, &scene_file).map_err(|e| e.render_plain()).expect("scene loads").0;
+    (model, parsed)
+}
+
 pub fn load(robot: &str) -> Model {
     let path = repo().join("robots").join(format!("{robot}.urdf"));
     let text = std::fs::read_to_string(&path).expect("robot file");

@@ -59,18 +59,7 @@ fn checked_in_kernels_are_fresh() {
         assert_eq!(present, expected, "{robot}: no stray files in generated/{robot}");
     }
     for (robot, scene) in SCENES {
-        let text = std::fs::read_to_string(repo().join("examples/scenes").join(format!("{scene}.toml"))).unwrap();
-        let parsed = grid_gen::Scene::parse(scene, &text).unwrap();
-        let urdf = repo().join("robots").join(format!("{robot}.urdf"));
-        let model = grid_gen::Model::from_urdf_str_in_scene(
-            &urdf.display().to_string(),
-            &std::fs::read_to_string(&urdf).unwrap(),
-            false,
-            &parsed,
-            &format!("{scene}.toml"),
-        )
-        .unwrap()
-        .0;
+        let (model, parsed) = load_in_scene(robot, scene);
         let mut options = Options::default();
         if let Some(k) = parsed.kernels().unwrap() {
             options.lower.kernels = k;

@@ -32,10 +32,7 @@ fn scenes_match_pinocchio_reduced_models() {
     let mut failures = Vec::new();
     let mut checked = 0;
     for (robot, scene) in [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_knees_locked")] {
-        let scene_path = repo().join("examples/scenes").join(format!("{scene}.toml"));
-        let parsed = grid_gen::Scene::parse(scene, &std::fs::read_to_string(&scene_path).unwrap()).unwrap();
-        let urdf = repo().join("robots").join(format!("{robot}.urdf"));
-        let model = grid_gen::Model::from_urdf_str_in_scene(robot, &std::fs::read_to_string(urdf).unwrap(), false, &parsed, scene).unwrap().0;
+        let (model, _) = load_in_scene(robot, scene);
         checked += compare(&format!("{robot} in {scene}"), &model, &fixture(&format!("{robot}.{scene}.pinocchio.json")), &mut failures);
     }
     assert!(checked > 100, "only {checked} comparisons");

@@ -123,11 +123,8 @@ fn every_name_is_checked_and_bad_scenes_are_named() {
 
 #[test]
 fn kernels_of_a_scene_model_match_the_reference() {
-    let text = std::fs::read_to_string(repo().join("examples/scenes/iiwa_wrist_locked.toml")).unwrap();
-    let scene = Scene::parse("iiwa_wrist_locked.toml", &text).unwrap();
+    let (model, scene) = load_in_scene("grid_iiwa", "iiwa_wrist_locked");
     assert_eq!(scene.kernels().unwrap(), Some(vec![KernelKind::RneaGrad, KernelKind::FdGrad]));
-    let urdf = std::fs::read_to_string(repo().join("robots/grid_iiwa.urdf")).unwrap();
-    let model = Model::from_urdf_str_in_scene("grid_iiwa.urdf", &urdf, false, &scene, "iiwa_wrist_locked.toml").unwrap().0;
     assert_eq!(model.nv(), 4);
     let g = scene.gravity.unwrap_or(reference::DEFAULT_GRAVITY);
     let module = ir::lower(&model, g, &LowerOptions { kernels: scene.kernels().unwrap().unwrap(), ..LowerOptions::default() }).unwrap();
