@@ -96,6 +96,43 @@ proptest! {
     }
 }
 
+fn scenes_text() -> Vec<(String, String)> {
+    ["grid_iiwa/iiwa_wrist_locked", "grid_hyq/hyq_front_legs", "grid_hyq/hyq_knees_locked"]
+        .iter()
+        .map(|rs| {
+            let (robot, scene) = rs.split_once('/').unwrap();
+            let root = grid_gen_test_support::repo();
+            (
+                std::fs::read_to_string(root.join("robots").join(format!("{robot}.urdf"))).unwrap(),
+                std::fs::read_to_string(root.join("examples/scenes").join(format!("{scene}.toml"))).unwrap(),
+            )
+        })
+        .collect()
+}
+
+proptest! {
+    #![proptest_config(ProptestConfig { cases: 256, failure_persistence: None, ..ProptestConfig::default() })]
+
+    /// A scene file with random edits is read, refused with a message, or applied; when it
+    /// applies, the summary and the reference dynamics of the reduced robot run.
+    #[test]
+    fn mutated_scenes_never_panic(which in 0usize..3, edits in proptest::collection::vec(edit(), 1..6)) {
+        let (urdf, scene) = &scenes_text()[which];
+        let text = apply(scene, &edits);
+        match grid_gen::Scene::parse("fuzz.toml", &text) {
+            Err(e) => prop_assert!(e.to_string().starts_with("scene `fuzz.toml`: ")),
+            Ok(parsed) => match Model::from_urdf_str_in_scene("robot.urdf", urdf, false, &parsed, "fuzz.toml") {
+                Ok((model, _)) => {
+                    let _ = Info::new(&model).to_text();
+                    let q = vec![0.3; model.nv()];
+                    let _ = reference::rnea_derivatives(&model, &q, &q, &q, parsed.gravity.unwrap_or(reference::DEFAULT_GRAVITY));
+                }
+                Err(e) => prop_assert!(!e.diagnostics.is_empty()),
+            },
+        }
+    }
+}
+
 #[test]
 fn overflowing_numbers_are_an_error_not_a_literal() {
     let text = r#"<robot name="big"><link name="base"/>
