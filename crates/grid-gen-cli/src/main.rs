@@ -260,9 +260,14 @@ enum Command {
         /// Print JSON instead of the table.
         #[arg(long)]
         json: bool,
-        /// Also write the error-against-operations figure as SVG.
+        /// Also write the error-against-cost figure as SVG (cost: time per call with
+        /// --time, else operations per call).
         #[arg(long, value_name = "FILE.svg")]
         plot: Option<PathBuf>,
+        /// Also time the f64 and f32 kernels (the portable copy, whose numbers are the ones
+        /// measured): compiles them with rustc, as `bench --backend rust`.
+        #[arg(long)]
+        time: bool,
         #[command(flatten)]
         kernel: KernelArgs,
     },
@@ -275,8 +280,10 @@ enum Command {
         /// The robot description.
         #[arg(value_name = "ROBOT.urdf")]
         urdf: PathBuf,
-        /// Only `wgsl` (the Rust kernels are timed by `cargo bench -p grid-gen-kernels`).
-        #[arg(long, value_name = "BACKEND", default_value = "wgsl", value_parser = ["wgsl"])]
+        /// `wgsl`, or `rust`: the generated Rust kernels compiled with `rustc -C
+        /// opt-level=3` and timed per call, f64 and f32, portable and dispatching copies
+        /// (--batch and --seconds do not apply).
+        #[arg(long, value_name = "BACKEND", default_value = "wgsl", value_parser = ["wgsl", "rust"])]
         backend: String,
         /// Batch sizes.
         #[arg(long, value_name = "N,...", value_delimiter = ',', default_value = "1,16,128,1024,16384")]
@@ -455,13 +462,14 @@ fn run(cli: Cli) -> ExitCode {
             }
             Err(code) => code,
         },
-        Command::Bench { urdf, backend: _, batch, kernels, seconds } => match load(&urdf, &cli.load) {
+        Command::Bench { urdf, backend, batch, kernels, seconds } => match load(&urdf, &cli.load) {
+            Ok((model, scene)) if backend == "rust" => bench_rust(&model, &scene, &kernels),
             Ok((model, _)) => bench(&model, &cli.wgsl, &batch, &kernels, seconds),
             Err(code) => code,
         },
-        Command::Accuracy { urdf, states, random, seed, formats, kernels, json, plot, kernel } => match load(&urdf, &cli.load) {
+        Command::Accuracy { urdf, states, random, seed, formats, kernels, json, plot, time, kernel } => match load(&urdf, &cli.load) {
             Ok((model, scene)) => {
-                accuracy(&model, &scene, &cli.verilog, &cli.wgsl, AccuracyArgs { states, random, seed, formats, kernels, json, plot, kernel })
+                accuracy(&model, &scene, &cli.verilog, &cli.wgsl, AccuracyArgs { states, random, seed, formats, kernels, json, plot, time, kernel })
             }
             Err(code) => code,
         },
@@ -518,6 +526,7 @@ struct AccuracyArgs {
     kernels: Vec<String>,
     json: bool,
     plot: Option<PathBuf>,
+    time: bool,
     kernel: KernelArgs,
 }
 
@@ -599,10 +608,17 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
         });
     }
     let options = accuracy::Options { kernels, formats, gravity, gradient: args.kernel.gradient(), qd_max: verilog.qd_max, qdd_max: verilog.qdd_max };
-    let report = match accuracy::measure(model, &file, &source, &options, &mut backends) {
+    let mut report = match accuracy::measure(model, &file, &source, &options, &mut backends) {
         Ok(r) => r,
         Err(e) => return fail(e),
     };
+    if args.time {
+        eprintln!("compiling the kernels with rustc to time them...");
+        match time_kernels(model, gravity, args.kernel.gradient(), &options.kernels) {
+            Ok(times) => report.add_times(&times),
+            Err(e) => return fail(e),
+        }
+    }
     if let Some(path) = &args.plot {
         if let Err(e) = std::fs::write(path, accuracy::svg(&report)) {
             return fail(format!("cannot write {}: {e}", path.display()));
@@ -613,6 +629,54 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
     } else {
         print(&report.to_text())
     }
+}
+
+/// Times the generated Rust kernels in a scratch folder under the system's temp folder.
+fn time_kernels(
+    model: &Model,
+    gravity: [f64; 3],
+    gradient: grid_gen::ir::Gradient,
+    kernels: &[grid_gen::ir::KernelKind],
+) -> Result<Vec<grid_gen::timing::KernelTime>, grid_gen::timing::TimingError> {
+    let work = std::env::temp_dir().join(format!("grid-gen-time-{}", std::process::id()));
+    let result = grid_gen::timing::time_rust_kernels(model, gravity, gradient, kernels, &grid_gen::timing::rustc(), &work);
+    // The folder holds only what this call wrote; failing to remove it changes nothing.
+    let _ = std::fs::remove_dir_all(&work);
+    result
+}
+
+fn bench_rust(model: &Model, scene: &grid_gen::Scene, kernels: &[String]) -> ExitCode {
+    let mut kinds = Vec::new();
+    for k in kernels {
+        match grid_gen::ir::KernelKind::parse(k) {
+            Some(kind) => kinds.push(kind),
+            None => return fail(format!("--kernels: unknown kernel `{k}`; available: rnea, rnea_grad, mass_matrix, minv, fd, fd_grad")),
+        }
+    }
+    eprintln!("compiling the kernels with rustc -C opt-level=3...");
+    let gravity = scene.gravity.unwrap_or(grid_gen::model::DEFAULT_GRAVITY);
+    let times = match time_kernels(model, gravity, grid_gen::ir::Gradient::Auto, &kinds) {
+        Ok(t) => t,
+        Err(e) => return fail(e),
+    };
+    let mut out = format!(
+        "{:<12} {:>14} {:>14} {:>14} {:>14}   (ns per call, one state, median of 15)\n",
+        "kernel", "f64 portable", "f64 dispatch", "f32 portable", "f32 dispatch"
+    );
+    for kind in kinds {
+        let cell = |scalar: &str, copy: &str| {
+            times.iter().find(|t| t.kernel == kind && t.scalar == scalar && t.copy == copy).map_or("-".to_string(), |t| format!("{:.0}", t.ns_per_call))
+        };
+        out += &format!(
+            "{:<12} {:>14} {:>14} {:>14} {:>14}\n",
+            kind.name(),
+            cell("f64", "portable"),
+            cell("f64", "dispatch"),
+            cell("f32", "portable"),
+            cell("f32", "dispatch")
+        );
+    }
+    print(&out)
 }
 
 fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], seconds: f64) -> ExitCode {

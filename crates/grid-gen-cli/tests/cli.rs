@@ -442,3 +442,24 @@ fn a_scene_reduces_every_command() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("[lock] names joint `iiwa_joint_9`, which robot `iiwa14` does not have"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `bench --backend rust` and `accuracy --time` compile the generated kernels of a robot
+/// with rustc and time them: a row per kernel with four positive times, and the times
+/// beside the f64 and f32 errors. (Times are not compared: that is for benchmarks.)
+#[test]
+fn rust_kernels_are_compiled_and_timed() {
+    let out = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--backend", "rust", "--kernels", "rnea,fd_grad"]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let text = String::from_utf8(out.stdout).unwrap();
+    for kernel in ["rnea", "fd_grad"] {
+        let row = text.lines().find(|l| l.starts_with(&format!("{kernel} "))).unwrap_or_else(|| panic!("no {kernel} row in\n{text}"));
+        let times: Vec<f64> = row.split_whitespace().skip(1).map(|x| x.parse().unwrap()).collect();
+        assert!(times.len() == 4 && times.iter().all(|t| *t > 0.0), "{row}");
+    }
+    let acc = grid_gen(&["accuracy", "robots/double_pendulum_continuous.urdf", "--random", "4", "--formats", "f64,f32,fixed", "--time", "--json"]);
+    assert_eq!(acc.status.code(), Some(0), "{}", String::from_utf8_lossy(&acc.stderr));
+    for r in json(&acc)["rows"].as_array().unwrap() {
+        let float = r["format"] == "f64" || r["format"] == "f32";
+        assert_eq!(r["time_ns"].as_f64().is_some_and(|t| t > 0.0), float, "{r}");
+    }
+}

@@ -17,6 +17,7 @@ pub mod model;
 pub mod reference;
 pub mod scene;
 pub mod spatial;
+pub mod timing;
 pub mod urdf;
 
 pub use builder::{BuildError, Builder};

@@ -117,6 +117,10 @@ pub struct Row {
     /// Fixed point: states whose datapath saturated (their numbers are excluded above).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub overflowed: Option<usize>,
+    /// Time per call of the generated Rust kernel in this format (portable copy), when
+    /// measured (`accuracy --time`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub time_ns: Option<f64>,
     /// Why there is no error (the format cannot run this kernel).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub skipped: Option<String>,
@@ -212,6 +216,7 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
             error: errors.as_ref().and_then(|e| Spread::of(&mut e.iter().map(|x| x.0).collect::<Vec<_>>())),
             max_abs_error: errors.as_ref().filter(|e| !e.is_empty()).map(|e| e.iter().map(|x| x.1).fold(0.0, f64::max)),
             overflowed,
+            time_ns: None,
             skipped,
         };
         for format in formats.iter() {
@@ -337,6 +342,18 @@ fn error(got: &[Vec<f64>], truth: &[Vec<f64>]) -> (f64, f64) {
 }
 
 impl Report {
+    /// Puts each f64 and f32 row's time per call (portable copy) beside its error.
+    pub fn add_times(&mut self, times: &[crate::timing::KernelTime]) {
+        for r in &mut self.rows {
+            let scalar = match r.format.as_str() {
+                "f64" => "f64",
+                "f32" => "f32",
+                _ => continue,
+            };
+            r.time_ns = times.iter().find(|t| t.kernel == r.kernel && t.scalar == scalar && t.copy == "portable").map(|t| t.ns_per_call);
+        }
+    }
+
     /// The table `grid-gen accuracy` prints.
     pub fn to_text(&self) -> String {
         let mut s = format!(
@@ -350,7 +367,9 @@ impl Report {
         if let Some(b) = self.bound_through_minv {
             s += &format!("worst-case bound through M⁻¹ (10·nv·u·cond(M) at the largest cond(M)): f64 {:.1e}, f32 {:.1e}\n", b.f64, b.f32);
         }
-        s += &format!("{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}\n", "kernel", "format", "ops", "states", "median", "max");
+        let timed = self.rows.iter().any(|r| r.time_ns.is_some());
+        s += &format!("{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}", "kernel", "format", "ops", "states", "median", "max");
+        s += if timed { "   ns/call (portable)\n" } else { "\n" };
         for r in &self.rows {
             let (median, max) = r.error.map_or(("-".to_string(), "-".to_string()), |e| (format!("{:.1e}", e.median), format!("{:.1e}", e.max)));
             let format = match &r.fixed {
@@ -358,6 +377,9 @@ impl Report {
                 None => r.format.clone(),
             };
             s += &format!("{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}", r.kernel.name(), format, r.ops, r.states, median, max);
+            if let Some(t) = r.time_ns {
+                s += &format!("   {t:>9.0}");
+            }
             if let Some(o) = r.overflowed.filter(|&o| o > 0) {
                 s += &format!("   {o} of {} states overflowed (excluded)", r.states);
             }

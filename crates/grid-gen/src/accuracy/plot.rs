@@ -1,5 +1,5 @@
-//! The `--plot` figure of `grid-gen accuracy`: error against cost, one point per kernel
-//! and format, on log-log axes, as a self-contained SVG (no plotting crate: the figure
+//! The `--plot` figure of `grid-gen accuracy`: error against cost (time or operations per
+//! call), one point per kernel and format, on log-log axes, as a self-contained SVG (no plotting crate: the figure
 //! is a few dozen elements).
 
 use super::Report;
@@ -27,8 +27,12 @@ fn decades(lo: f64, hi: f64) -> (i32, i32) {
 }
 
 /// Error (median as a dot, a bar up to the largest) against operations per call.
+/// Error against time per call where the report has times (`accuracy --time`: f64 and
+/// f32 only), else against operations per call.
 pub fn svg(report: &Report) -> String {
-    let points: Vec<_> = report.rows.iter().filter_map(|r| r.error.map(|e| (r, e))).filter(|(r, _)| r.ops > 0).collect();
+    let timed = report.rows.iter().any(|r| r.time_ns.is_some());
+    let cost = |r: &super::Row| if timed { r.time_ns.unwrap_or(0.0) } else { r.ops as f64 };
+    let points: Vec<_> = report.rows.iter().filter_map(|r| r.error.map(|e| (r, e))).filter(|(r, _)| cost(r) > 0.0).collect();
     let mut formats: Vec<&str> = Vec::new();
     for (r, _) in &points {
         if !formats.contains(&r.format.as_str()) {
@@ -46,8 +50,9 @@ pub fn svg(report: &Report) -> String {
     let mut s = format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{W}\" height=\"{H}\" viewBox=\"0 0 {W} {H}\" font-family=\"sans-serif\" font-size=\"11\">\n\
          <rect width=\"{W}\" height=\"{H}\" fill=\"white\"/>\n\
-         <text x=\"{LEFT}\" y=\"22\" font-size=\"13\">{}: error against operations per call, {} states</text>\n",
+         <text x=\"{LEFT}\" y=\"22\" font-size=\"13\">{}: error against {}, {} states</text>\n",
         xml(&report.robot),
+        if timed { "time per call" } else { "operations per call" },
         report.states
     );
     for d in x_lo..=x_hi {
@@ -68,15 +73,16 @@ pub fn svg(report: &Report) -> String {
         );
     }
     s += &format!(
-        "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">operations per call (the generated graph)</text>\n\
+        "<text x=\"{:.1}\" y=\"{:.1}\" text-anchor=\"middle\">{}</text>\n\
          <text transform=\"translate(16 {:.1}) rotate(-90)\" text-anchor=\"middle\">relative error (dot: median, bar: largest)</text>\n",
         (LEFT + W - RIGHT) / 2.0,
         H - 12.0,
+        if timed { "time per call, ns (generated Rust, portable copy)" } else { "operations per call (the generated graph)" },
         (TOP + H - BOTTOM) / 2.0
     );
     for (r, e) in &points {
         let colour = COLOURS[formats.iter().position(|f| *f == r.format).unwrap_or(0) % COLOURS.len()];
-        let (x, y, top) = (px(r.ops as f64), py(e.median), py(e.max));
+        let (x, y, top) = (px(cost(r)), py(e.median), py(e.max));
         s += &format!(
             "<line x1=\"{x:.1}\" y1=\"{y:.1}\" x2=\"{x:.1}\" y2=\"{top:.1}\" stroke=\"{colour}\"/><circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"4\" fill=\"{colour}\"><title>{} {}: median {:.1e}, max {:.1e}</title></circle>\
              <text x=\"{:.1}\" y=\"{:.1}\" fill=\"{colour}\">{}</text>\n",

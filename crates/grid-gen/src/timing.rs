@@ -1,0 +1,193 @@
+//! Times the generated Rust kernels of any robot: the module is generated, compiled with
+//! `rustc -C opt-level=3` beside a small timing program (generated files need no crate),
+//! run, and its medians read back. `grid-gen bench --backend rust` and
+//! `grid-gen accuracy --time` use it, so the speed of a format sits beside its accuracy.
+//!
+//! Protocol, as the criterion benchmarks (`crates/grid-gen-kernels/benches`): 64 fixed
+//! pseudo-random states cycled, one state per call; each sample runs enough calls to
+//! take 2 ms; the median of 15 samples is reported. One thread. Absolute times on a
+//! shared machine are noise: compare within one run.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use serde::Serialize;
+
+use crate::generate::{generate, GenerateError, Options, Target};
+use crate::ir::{Gradient, KernelKind, LowerOptions};
+use crate::model::Model;
+
+/// One kernel's time per call.
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct KernelTime {
+    pub kernel: KernelKind,
+    /// `f64` or `f32`.
+    pub scalar: &'static str,
+    /// `portable` (no FMA; what `accuracy` measures bit for bit) or `dispatch` (the
+    /// public function: the `fma` copy where the CPU has AVX2 and FMA).
+    pub copy: &'static str,
+    pub ns_per_call: f64,
+}
+
+#[derive(Debug, thiserror::Error)]
+pub enum TimingError {
+    #[error(transparent)]
+    Generate(#[from] GenerateError),
+    #[error("cannot write the timing program into {0}: {1}")]
+    Io(PathBuf, std::io::Error),
+    #[error("cannot run `{0}` ({1}); timing the Rust kernels needs a Rust compiler: install one from https://rustup.rs, or set RUSTC")]
+    NoRustc(String, std::io::Error),
+    #[error("rustc could not compile the generated kernels:\n{0}")]
+    Compile(String),
+    #[error("the timing program failed: {0}")]
+    Run(String),
+}
+
+/// The timing program for `kernels` of a module whose file is `robot.rs`.
+fn program(kernels: &[KernelKind]) -> String {
+    let mut calls = String::new();
+    for k in kernels {
+        let name = k.name();
+        let args = if k.inputs().len() == 1 { "&x[0]" } else { "&x[0], &x[1], &x[2]" };
+        for (scalar, states) in [("f64", "s64"), ("f32", "s32")] {
+            for (copy, path) in [("portable", "robot::portable::"), ("dispatch", "robot::")] {
+                let _ =
+                    writeln!(calls, "    println!(\"{name} {scalar} {copy} {{}}\", time(|j| {{ let x = &{states}[j]; black_box({path}{name}({args})); }}));");
+            }
+        }
+    }
+    format!(
+        r#"#![allow(dead_code, clippy::all)]
+mod robot {{
+    include!("robot.rs");
+}}
+use std::hint::black_box;
+use std::time::Instant;
+
+const STATES: usize = 64;
+
+fn state(k: usize, i: usize, salt: usize) -> f64 {{
+    (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) - 1.0
+}}
+
+fn time<F: FnMut(usize)>(mut f: F) -> f64 {{
+    let mut reps = 1usize;
+    loop {{
+        let t = Instant::now();
+        for r in 0..reps {{
+            f(r % STATES);
+        }}
+        if t.elapsed().as_secs_f64() > 2e-3 || reps > 1 << 30 {{
+            break;
+        }}
+        reps *= 2;
+    }}
+    let mut samples: Vec<f64> = (0..15)
+        .map(|_| {{
+            let t = Instant::now();
+            for r in 0..reps {{
+                f(r % STATES);
+            }}
+            t.elapsed().as_secs_f64() * 1e9 / reps as f64
+        }})
+        .collect();
+    samples.sort_by(f64::total_cmp);
+    samples[7]
+}}
+
+fn main() {{
+    const N: usize = robot::NV;
+    let s64: Vec<[[f64; N]; 3]> = (0..STATES).map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt)))).collect();
+    let s32: Vec<[[f32; N]; 3]> = s64.iter().map(|x| x.map(|v| v.map(|y| y as f32))).collect();
+{calls}}}
+"#
+    )
+}
+
+/// The Rust compiler to use: `$RUSTC` (as cargo sets it), else `rustc` on the path.
+pub fn rustc() -> String {
+    std::env::var("RUSTC").unwrap_or_else(|_| "rustc".to_string())
+}
+
+/// Generates `model`'s Rust kernels (`kernels`, with `gravity` and `gradient`), compiles
+/// them with `rustc` in `work` (a folder this call may fill and leaves behind), and times
+/// each in f64 and f32, portable and dispatching copies.
+pub fn time_rust_kernels(
+    model: &Model,
+    gravity: [f64; 3],
+    gradient: Gradient,
+    kernels: &[KernelKind],
+    rustc: &str,
+    work: &Path,
+) -> Result<Vec<KernelTime>, TimingError> {
+    let options = Options {
+        gravity,
+        targets: vec![Target::Rust],
+        lower: LowerOptions { kernels: kernels.to_vec(), gradient, ..LowerOptions::default() },
+        ..Options::default()
+    };
+    let files = generate(model, &options)?;
+    let module = files.into_iter().find(|f| f.name.ends_with(".rs")).expect("the Rust target writes a .rs file");
+    // Kernels the model cannot have (M singular) are not in the module.
+    let present: Vec<KernelKind> = kernels.iter().copied().filter(|k| module.contents.contains(&format!("pub fn {}<", k.name()))).collect();
+    let io = |e| TimingError::Io(work.to_path_buf(), e);
+    std::fs::create_dir_all(work).map_err(io)?;
+    std::fs::write(work.join("robot.rs"), &module.contents).map_err(io)?;
+    std::fs::write(work.join("main.rs"), program(&present)).map_err(io)?;
+    let exe = work.join(if cfg!(windows) { "time_kernels.exe" } else { "time_kernels" });
+    let out = Command::new(rustc)
+        .args(["--edition", "2021", "-C", "opt-level=3", "-C", "debuginfo=0", "--crate-name", "time_kernels", "-o"])
+        .arg(&exe)
+        .arg(work.join("main.rs"))
+        .output()
+        .map_err(|e| TimingError::NoRustc(rustc.to_string(), e))?;
+    if !out.status.success() {
+        let err = String::from_utf8_lossy(&out.stderr);
+        let tail: Vec<&str> = err.lines().rev().take(30).collect();
+        return Err(TimingError::Compile(tail.into_iter().rev().collect::<Vec<_>>().join("\n")));
+    }
+    let run = Command::new(&exe).output().map_err(|e| TimingError::Run(e.to_string()))?;
+    if !run.status.success() {
+        return Err(TimingError::Run(String::from_utf8_lossy(&run.stderr).into_owned()));
+    }
+    let text = String::from_utf8_lossy(&run.stdout);
+    let mut times = Vec::new();
+    for line in text.lines() {
+        let parts: Vec<&str> = line.split_whitespace().collect();
+        let parsed = match parts.as_slice() {
+            [k, s, c, ns] => KernelKind::ALL.into_iter().find(|x| x.name() == *k).zip(ns.parse::<f64>().ok()).map(|(kernel, ns)| KernelTime {
+                kernel,
+                scalar: if *s == "f32" { "f32" } else { "f64" },
+                copy: if *c == "portable" { "portable" } else { "dispatch" },
+                ns_per_call: ns,
+            }),
+            _ => None,
+        };
+        times.push(parsed.ok_or_else(|| TimingError::Run(format!("unexpected output line `{line}`")))?);
+    }
+    Ok(times)
+}
+
+#[cfg(test)]
+mod tests {
+    #[test]
+    fn a_missing_compiler_is_named_with_what_to_install() {
+        let model = crate::Model::from_urdf_str(
+            "one.urdf",
+            r#"<robot name="one"><link name="a"/><link name="b"><inertial><mass value="1"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
+               <joint name="j" type="revolute"><parent link="a"/><child link="b"/><axis xyz="0 0 1"/></joint></robot>"#,
+            false,
+        )
+        .unwrap()
+        .0;
+        let work = std::env::temp_dir().join(format!("grid-gen-timing-test-{}", std::process::id()));
+        let err = super::time_rust_kernels(&model, [0.0, 0.0, -9.81], crate::ir::Gradient::Auto, &[crate::ir::KernelKind::Rnea], "/nonexistent/rustc", &work)
+            .unwrap_err()
+            .to_string();
+        assert!(err.starts_with("cannot run `/nonexistent/rustc`") && err.contains("https://rustup.rs"), "{err}");
+        // The program it would have compiled is there, for a user to build by hand.
+        assert!(std::fs::read_to_string(work.join("main.rs")).unwrap().contains("println!(\"rnea f64 portable {}\""));
+        std::fs::remove_dir_all(&work).unwrap();
+    }
+}
