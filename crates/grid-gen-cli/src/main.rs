@@ -550,14 +550,10 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
             _ => all,
         }
     } else {
-        let mut out = Vec::new();
-        for k in &args.kernels {
-            match grid_gen::ir::KernelKind::ALL.into_iter().find(|x| x.name() == k) {
-                Some(kind) => out.push(kind),
-                None => return fail(format!("--kernels: unknown kernel `{k}`; available: {}", grid_gen::ir::KernelKind::ALL.map(|x| x.name()).join(", "))),
-            }
+        match parse_kernels(&args.kernels) {
+            Ok(k) => k,
+            Err(code) => return code,
         }
-        out
     };
     let mut formats = Vec::new();
     let mut want_wgsl = false;
@@ -631,6 +627,17 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
     }
 }
 
+/// The kernels a `--kernels` list names, or the exit code after naming the unknown one.
+fn parse_kernels(names: &[String]) -> Result<Vec<grid_gen::ir::KernelKind>, ExitCode> {
+    use grid_gen::ir::KernelKind;
+    names
+        .iter()
+        .map(|k| {
+            KernelKind::parse(k).ok_or_else(|| fail(format!("--kernels: unknown kernel `{k}`; available: {}", KernelKind::ALL.map(|x| x.name()).join(", "))))
+        })
+        .collect()
+}
+
 /// Times the generated Rust kernels in a scratch folder under the system's temp folder.
 fn time_kernels(
     model: &Model,
@@ -646,13 +653,10 @@ fn time_kernels(
 }
 
 fn bench_rust(model: &Model, scene: &grid_gen::Scene, kernels: &[String]) -> ExitCode {
-    let mut kinds = Vec::new();
-    for k in kernels {
-        match grid_gen::ir::KernelKind::parse(k) {
-            Some(kind) => kinds.push(kind),
-            None => return fail(format!("--kernels: unknown kernel `{k}`; available: rnea, rnea_grad, mass_matrix, minv, fd, fd_grad")),
-        }
-    }
+    let kinds = match parse_kernels(kernels) {
+        Ok(k) => k,
+        Err(code) => return code,
+    };
     eprintln!("compiling the kernels with rustc -C opt-level=3...");
     let gravity = scene.gravity.unwrap_or(grid_gen::model::DEFAULT_GRAVITY);
     let times = match time_kernels(model, gravity, grid_gen::ir::Gradient::Auto, &kinds) {
@@ -681,13 +685,10 @@ fn bench_rust(model: &Model, scene: &grid_gen::Scene, kernels: &[String]) -> Exi
 
 fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], seconds: f64) -> ExitCode {
     use std::fmt::Write as _;
-    let mut lower = grid_gen::ir::LowerOptions { kernels: Vec::new(), ..Default::default() };
-    for k in kernels {
-        match grid_gen::ir::KernelKind::parse(k) {
-            Some(kind) => lower.kernels.push(kind),
-            None => return fail(format!("--kernels: unknown kernel `{k}`; available: rnea, rnea_grad, mass_matrix, minv, fd, fd_grad")),
-        }
-    }
+    let lower = match parse_kernels(kernels) {
+        Ok(kernels) => grid_gen::ir::LowerOptions { kernels, ..Default::default() },
+        Err(code) => return code,
+    };
     if !(seconds.is_finite() && seconds > 0.0) {
         return fail("--seconds must be a positive number");
     }

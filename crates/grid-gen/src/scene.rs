@@ -117,7 +117,7 @@ impl Scene {
         let Some(names) = &self.outputs else { return Ok(None) };
         let mut kinds = Vec::new();
         for name in names {
-            match KernelKind::ALL.into_iter().find(|k| k.name() == name) {
+            match KernelKind::parse(name) {
                 Some(k) => kinds.push(k),
                 None => return Err(format!("outputs: unknown kernel `{name}`; available: {}", KernelKind::ALL.map(|k| k.name()).join(", "))),
             }

@@ -156,7 +156,7 @@ pub fn time_rust_kernels(
     for line in text.lines() {
         let parts: Vec<&str> = line.split_whitespace().collect();
         let parsed = match parts.as_slice() {
-            [k, s, c, ns] => KernelKind::ALL.into_iter().find(|x| x.name() == *k).zip(ns.parse::<f64>().ok()).map(|(kernel, ns)| KernelTime {
+            [k, s, c, ns] => KernelKind::parse(k).zip(ns.parse::<f64>().ok()).map(|(kernel, ns)| KernelTime {
                 kernel,
                 scalar: if *s == "f32" { "f32" } else { "f64" },
                 copy: if *c == "portable" { "portable" } else { "dispatch" },

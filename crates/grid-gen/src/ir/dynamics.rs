@@ -70,6 +70,14 @@ impl<'a> Dynamics<'a> {
         (0..self.n()).map(|i| self.g.input(input, i)).collect()
     }
 
+    /// The root's spatial acceleration that stands in for gravity: a₀ = −g (Featherstone
+    /// 2008, §5.3), shared by RNEA and ABA.
+    fn root_acceleration(&mut self) -> Sv {
+        let z = sp::zero(&mut self.g);
+        let g = &mut self.g;
+        [z[0], z[1], z[2], g.constant(-self.gravity[0]), g.constant(-self.gravity[1]), g.constant(-self.gravity[2])]
+    }
+
     fn at(&mut self, i: usize, stage: Stage) {
         self.g.at(Some(i), stage, self.model.joints[i].level);
     }
@@ -97,9 +105,8 @@ impl<'a> Dynamics<'a> {
     /// RNEA (Featherstone table 5.1) at symbolic q̇, q̈.
     pub fn rnea(&mut self, qd: &[Id], qdd: &[Id]) -> Rnea {
         let n = self.n();
-        let g = &mut self.g;
-        let z = sp::zero(g);
-        let a0 = [z[0], z[1], z[2], g.constant(-self.gravity[0]), g.constant(-self.gravity[1]), g.constant(-self.gravity[2])];
+        let z = sp::zero(&mut self.g);
+        let a0 = self.root_acceleration();
         let (mut v, mut xv, mut xa, mut a, mut f, mut iv) = (vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n]);
         for i in 0..n {
             if self.exhausted() {
@@ -485,7 +492,7 @@ impl<'a> Dynamics<'a> {
                 ia[p] = add6(g, &ia[p], &add);
             }
         }
-        let a0 = [z[0], z[1], z[2], self.g.constant(-self.gravity[0]), self.g.constant(-self.gravity[1]), self.g.constant(-self.gravity[2])];
+        let a0 = self.root_acceleration();
         let mut a = vec![z; n];
         let mut qdd = vec![z[0]; n];
         for i in 0..n {
