@@ -207,6 +207,8 @@ fn kernels(c: &mut Criterion) {
     bench_lanes!(c, grid_hyq, "grid_hyq");
     bench_scene!(c, grid_iiwa_wrist_locked, "grid_iiwa.iiwa_wrist_locked");
     bench_scene!(c, grid_hyq_front_legs, "grid_hyq.hyq_front_legs");
+    bench_scene!(c, grid_iiwa_static, "grid_iiwa.iiwa_static");
+    bench_scene!(c, grid_hyq_lf_columns, "grid_hyq.hyq_lf_columns");
 }
 
 criterion_group! {

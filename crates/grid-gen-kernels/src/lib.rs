@@ -50,4 +50,12 @@ pub mod scenes {
     pub mod grid_hyq_front_legs {
         include!("../../../generated/scenes/grid_hyq.hyq_front_legs/hyq.rs");
     }
+    /// iiwa held still (`static = true`): no velocity terms, `qd` ignored.
+    pub mod grid_iiwa_static {
+        include!("../../../generated/scenes/grid_iiwa.iiwa_static/iiwa14.rs");
+    }
+    /// HyQ, gradient columns of the front-left leg only.
+    pub mod grid_hyq_lf_columns {
+        include!("../../../generated/scenes/grid_hyq.hyq_lf_columns/hyq.rs");
+    }
 }

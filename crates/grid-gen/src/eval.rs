@@ -119,12 +119,28 @@ pub enum EvalError {
     Length { index: usize, field: &'static str, found: usize, expected: usize },
     #[error("state {index}: `{field}[{entry}]` is not finite")]
     NotFinite { index: usize, field: &'static str, entry: usize },
+    #[error("state {index}: `qd[{entry}]` is {value}, and the scene is static (`static = true`: q̇ = 0 is assumed and the kernels ignore `qd`); give q̇ = 0 or leave `static` out")]
+    NotStatic { index: usize, entry: usize, value: f64 },
     #[error("state {index}: `tau` asks for forward dynamics, which needs M⁻¹, and M is singular (joint `{joint}` moves no inertia); leave `tau` out")]
     Singular { index: usize, joint: String },
 }
 
 fn rows(m: &nalgebra::DMatrix<f64>) -> Matrix {
     m.row_iter().map(|r| r.iter().copied().collect()).collect()
+}
+
+/// A gradient as the scene's kernels give it: the entries the scene does not read are 0
+/// ([`crate::model::Specialisation`]).
+fn gradient_rows(model: &Model, m: &nalgebra::DMatrix<f64>) -> Matrix {
+    let mut out = rows(m);
+    for (i, row) in out.iter_mut().enumerate() {
+        for (j, x) in row.iter_mut().enumerate() {
+            if !model.specialisation.keeps(i, j) {
+                *x = 0.0;
+            }
+        }
+    }
+    out
 }
 
 /// Parses a states file (see [`StatesFile`]); bare `NaN`/`Infinity` are read so that
@@ -147,6 +163,9 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
                 return Err(EvalError::NotFinite { index, field, entry });
             }
         }
+        if let (true, Some(entry)) = (model.specialisation.static_velocity, s.qd.iter().position(|&x| x != 0.0)) {
+            return Err(EvalError::NotStatic { index, entry, value: s.qd[entry] });
+        }
         if let (Some(joint), Some(_)) = (&model.singular, &s.tau) {
             return Err(EvalError::Singular { index, joint: joint.clone() });
         }
@@ -164,14 +183,14 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
             let (rnea, drnea_dq, drnea_dqd) = match &s.qdd {
                 Some(qdd) => {
                     let (dq, dqd) = reference::rnea_derivatives(model, &s.q, &s.qd, qdd, gravity);
-                    (Some(reference::rnea(model, &s.q, &s.qd, qdd, gravity)), Some(rows(&dq)), Some(rows(&dqd)))
+                    (Some(reference::rnea(model, &s.q, &s.qd, qdd, gravity)), Some(gradient_rows(model, &dq)), Some(gradient_rows(model, &dqd)))
                 }
                 None => (None, None, None),
             };
             let (fd, dfd_dq, dfd_dqd) = match &s.tau {
                 Some(tau) => {
                     let (qdd, dq, dqd) = reference::forward_dynamics_derivatives(model, &s.q, &s.qd, tau, gravity);
-                    (Some(qdd), Some(rows(&dq)), Some(rows(&dqd)))
+                    (Some(qdd), Some(gradient_rows(model, &dq)), Some(gradient_rows(model, &dqd)))
                 }
                 None => (None, None, None),
             };

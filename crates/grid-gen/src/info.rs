@@ -43,6 +43,13 @@ pub struct Info {
     /// Joints with a `<mimic>`; grid-gen treats them as independent (as Pinocchio does).
     pub mimic: Vec<Mimic>,
     pub sparsity: Sparsity,
+    /// The scene's `static = true`: q̇ = 0 assumed, `qd` ignored by every kernel.
+    #[serde(rename = "static")]
+    pub static_velocity: bool,
+    /// The scene's `[gradient]` rows and columns (joint names; `null`: all), the only
+    /// gradient entries computed.
+    pub gradient_rows: Option<Vec<String>>,
+    pub gradient_columns: Option<Vec<String>>,
     /// Operations of every generated kernel before specialisation (the general dense
     /// algorithm, as a library runs it) and after (constants folded, structural zeros and
     /// shared subexpressions removed), with the critical-path depth; with `gravity`.
@@ -78,6 +85,7 @@ impl Info {
 
     /// The summary of the kernels generated with this gravity and gradient formulation.
     pub fn with_options(model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
+        let names = |set: &Option<Vec<usize>>| set.as_ref().map(|v| v.iter().map(|&j| model.joints[j].name.clone()).collect());
         Info {
             robot: model.name.clone(),
             root_link: model.root_link.clone(),
@@ -93,6 +101,9 @@ impl Info {
                 .filter_map(|j| j.mimic.as_ref().map(|(m, mult, off)| Mimic { joint: j.name.clone(), mimics: m.clone(), multiplier: *mult, offset: *off }))
                 .collect(),
             sparsity: Sparsity { dv_dq: model.motion_sparsity(), dc_dq: model.force_sparsity() },
+            static_velocity: model.specialisation.static_velocity,
+            gradient_rows: names(&model.specialisation.rows),
+            gradient_columns: names(&model.specialisation.columns),
             ops: Vec::new(),
             ops_skipped: Vec::new(),
             verilog: Vec::new(),
@@ -176,6 +187,13 @@ impl Info {
         s.push_str(&format!("levels: {}\n", self.levels.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>().join(" ")));
         let d = &self.sparsity;
         s.push_str(&format!("sparsity: dv/dq {} of {} nonzero, dc/dq {} of {}\n", d.dv_dq.nonzero, d.dv_dq.total, d.dc_dq.nonzero, d.dc_dq.total));
+        if self.static_velocity {
+            s.push_str("static scene: qd = 0 assumed, velocity terms compiled out, `qd` ignored\n");
+        }
+        if self.gradient_rows.is_some() || self.gradient_columns.is_some() {
+            let show = |v: &Option<Vec<String>>| v.as_ref().map_or("all".to_string(), |v| v.join(", "));
+            s.push_str(&format!("gradient entries computed: rows {}; columns {} (the rest are 0)\n", show(&self.gradient_rows), show(&self.gradient_columns)));
+        }
         s.push_str("operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth; the gradient formulation picked):\n");
         for k in &self.ops {
             let a = &k.after;

@@ -22,6 +22,7 @@ impl Model {
         let edits = scene::resolve(scene, scene_path, &urdf, &tree, &mut diags);
         let built = build(&urdf, &tree, &edits, &mut diags).map(|(mut model, source)| {
             model.singular = check_massless(&model, &source, &urdf, &mut diags);
+            model.specialisation = scene::specialise(scene, scene_path, &urdf, &model, &mut diags);
             let file_name = |p: &str| std::path::Path::new(p).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
             model.source = file_name(path);
             // Generated files name their scene too: the same robot in another scene is

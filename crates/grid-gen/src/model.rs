@@ -149,6 +149,46 @@ pub struct Model {
     pub singular: Option<String>,
     pub root_link: String,
     pub joints: Vec<Joint>,
+    /// What a scene fixes about the state and the outputs (default: nothing).
+    pub specialisation: Specialisation,
+}
+
+/// What a scene fixes beyond the robot itself (issue 10, item 6): lowering reads it, so
+/// the kernels of every backend shrink with it while keeping their signatures.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct Specialisation {
+    /// `static = true`: q̇ = 0 is known. Every kernel ignores its `qd` argument (the
+    /// velocity terms are folded away), and `eval` refuses a state whose q̇ is not 0.
+    pub static_velocity: bool,
+    /// Rows of the gradient matrices (`dc_dq`, `dc_dqd`, `dqdd_dq`, `dqdd_dqd`) that are
+    /// computed, as model joint indices; every other row is written as 0. `None`: all.
+    pub rows: Option<Vec<usize>>,
+    /// Columns of the gradient matrices that are computed, as rows are. `None`: all.
+    pub columns: Option<Vec<usize>>,
+}
+
+impl Specialisation {
+    /// Whether entry `(i, j)` of a gradient matrix is computed.
+    pub fn keeps(&self, i: usize, j: usize) -> bool {
+        self.rows.as_ref().is_none_or(|r| r.contains(&i)) && self.columns.as_ref().is_none_or(|c| c.contains(&j))
+    }
+
+    /// Whether some gradient entries are not computed.
+    pub fn selects(&self) -> bool {
+        self.rows.is_some() || self.columns.is_some()
+    }
+
+    /// Zeroes the entries of a row-major `nv x nv` gradient that are not computed, so
+    /// that a reference answer reads as the kernels' does.
+    pub fn mask(&self, nv: usize, m: &mut [f64]) {
+        if self.selects() {
+            for (k, x) in m.iter_mut().enumerate() {
+                if !self.keeps(k / nv, k % nv) {
+                    *x = 0.0;
+                }
+            }
+        }
+    }
 }
 
 /// How many entries of an `nv x nv` matrix are not structurally zero.
@@ -356,6 +396,13 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, diags: &mut Vec<Dia
             Step::Close { body } => joints[body].subtree_end = joints.len(),
         }
     }
-    let model = Model { name: urdf.name.clone(), source: String::new(), singular: None, root_link: urdf.links[tree.root].name.clone(), joints };
+    let model = Model {
+        name: urdf.name.clone(),
+        source: String::new(),
+        singular: None,
+        root_link: urdf.links[tree.root].name.clone(),
+        joints,
+        specialisation: Specialisation::default(),
+    };
     Some((model, source))
 }

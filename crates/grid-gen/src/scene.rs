@@ -13,6 +13,12 @@
 //! [lock]                               # joint = position (rad or m): becomes fixed
 //! torso_joint = 0.0
 //!
+//! static = true                        # q̇ = 0 is known: kernels ignore `qd`
+//!
+//! [gradient]                           # gradient entries needed (default: all)
+//! rows = ["right_s0"]                  # by joint: the rows computed
+//! columns = ["right_s0", "right_s1"]   # the columns computed; the rest are written 0
+//!
 //! [[payload]]                          # or [payload] for one
 //! link = "right_gripper"
 //! mass = 1.5                           # kg
@@ -26,6 +32,7 @@ use serde::Deserialize;
 
 use crate::diagnostic::Diagnostic;
 use crate::ir::KernelKind;
+use crate::model::{Model, Specialisation};
 use crate::urdf::{Inertial, JointKind, Pose, Tree, Urdf};
 
 /// A scene file's contents (see the module documentation for the format).
@@ -49,6 +56,25 @@ pub struct Scene {
     pub payload: Vec<Payload>,
     /// The kernels to generate and measure (default: all).
     pub outputs: Option<Vec<String>>,
+    /// q̇ = 0 is known (a robot holding still, a statics or quasi-static study): the
+    /// velocity terms vanish and every kernel ignores its `qd` argument.
+    #[serde(default, rename = "static")]
+    pub static_velocity: bool,
+    /// Which rows and columns of the gradient matrices are needed.
+    #[serde(default)]
+    pub gradient: GradientEntries,
+}
+
+/// `[gradient]`: the entries of `dc_dq`, `dc_dqd`, `dqdd_dq` and `dqdd_dqd` a task reads,
+/// by joint name; the others are not computed and are written as 0. A row is the output
+/// joint (the force or acceleration of that joint), a column the joint differentiated by.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct GradientEntries {
+    /// Rows computed (default: all).
+    pub rows: Option<Vec<String>>,
+    /// Columns computed (default: all).
+    pub columns: Option<Vec<String>>,
 }
 
 /// A rigid body carried by a link.
@@ -256,4 +282,45 @@ pub(crate) fn resolve(scene: &Scene, scene_path: &str, urdf: &Urdf, tree: &Tree,
         }
     }
     edits
+}
+
+/// Resolves the scene's facts about the state and the outputs against the built model
+/// (whose joints are what remains after the locks, keeps and drops): a `[gradient]` joint
+/// that is not one of the model's movable joints is an error naming it and why.
+pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, diags: &mut Vec<Diagnostic>) -> Specialisation {
+    let mut resolve = |key: &str, names: &Option<Vec<String>>| -> Option<Vec<usize>> {
+        let names = names.as_ref()?;
+        let mut picked = Vec::new();
+        for name in names {
+            match model.joints.iter().position(|j| &j.name == name) {
+                Some(i) => picked.push(i),
+                None => {
+                    let why = if scene.lock.contains_key(name) {
+                        "locked by the scene's [lock]".to_string()
+                    } else if let Some(j) = urdf.joints.iter().find(|j| &j.name == name) {
+                        if j.kind == JointKind::Fixed {
+                            "a fixed joint".to_string()
+                        } else {
+                            "left out by the scene's keep or drop".to_string()
+                        }
+                    } else {
+                        format!("not a joint of robot `{}`", urdf.name)
+                    };
+                    diags.push(
+                        Diagnostic::error(format!("scene `{scene_path}`: [gradient] {key} names `{name}`, which is {why}"), None, "not a movable joint")
+                            .with_help(format!(
+                                "movable joints of the scene's model: {}",
+                                model.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>().join(", ")
+                            )),
+                    );
+                }
+            }
+        }
+        picked.sort_unstable();
+        picked.dedup();
+        Some(picked)
+    };
+    let rows = resolve("rows", &scene.gradient.rows);
+    let columns = resolve("columns", &scene.gradient.columns);
+    Specialisation { static_velocity: scene.static_velocity, rows, columns }
 }

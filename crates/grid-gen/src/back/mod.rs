@@ -22,6 +22,28 @@ pub fn source_line(source: &str) -> String {
     }
 }
 
+/// Header comment lines saying what the scene fixes (empty when nothing): a user reading
+/// the file must see that `qd` is ignored or that some gradient entries are written 0.
+pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
+    let spec = &robot.specialisation;
+    let mut out = String::new();
+    if spec.static_velocity {
+        out.push_str("// Static scene: qd = 0 is assumed, the velocity terms are compiled out and every `qd` argument is ignored.\n");
+    }
+    let names = |set: &Option<Vec<usize>>| match set {
+        None => "all".to_string(),
+        Some(v) => v.iter().map(|&j| names::comment_text(&robot.joint_names[j])).collect::<Vec<_>>().join(", "),
+    };
+    if spec.selects() {
+        out.push_str(&format!(
+            "// Gradient entries computed (the scene's [gradient]): rows {}; columns {}. Every other entry of dc_dq, dc_dqd, dqdd_dq and dqdd_dqd is written 0.\n",
+            names(&spec.rows),
+            names(&spec.columns)
+        ));
+    }
+    out
+}
+
 /// The source named in a generated file's header, if it has one.
 pub fn source_of(contents: &str) -> Option<&str> {
     contents.lines().take(16).find_map(|l| l.strip_prefix(SOURCE_PREFIX))

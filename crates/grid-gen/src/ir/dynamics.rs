@@ -67,6 +67,10 @@ impl<'a> Dynamics<'a> {
     }
 
     pub fn inputs(&mut self, input: Input) -> Vec<Id> {
+        if input == Input::Qd && self.model.specialisation.static_velocity {
+            // A static scene: q̇ = 0 is a constant, and folding removes every velocity term.
+            return (0..self.n()).map(|_| self.g.constant(0.0)).collect();
+        }
         (0..self.n()).map(|i| self.g.input(input, i)).collect()
     }
 

@@ -79,6 +79,8 @@ pub struct Robot {
     pub limits: Vec<Option<(f64, f64)>>,
     /// `<limit velocity>` of each joint, when given and positive.
     pub velocity_limits: Vec<Option<f64>>,
+    /// What the scene fixes: q̇ = 0, the gradient entries computed.
+    pub specialisation: crate::model::Specialisation,
 }
 
 impl Robot {
@@ -91,6 +93,7 @@ impl Robot {
             parents: model.joints.iter().map(|j| j.parent).collect(),
             limits: model.joints.iter().map(|j| j.limit).collect(),
             velocity_limits: model.joints.iter().map(|j| j.velocity_limit).collect(),
+            specialisation: model.specialisation.clone(),
         }
     }
 
@@ -188,7 +191,23 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
 fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions, gradient: Gradient) -> Result<Function, LowerError> {
     let mut d = Dynamics::new(model, gravity, options.fold, options.sparse, options.max_nodes);
     d.gradient = gradient;
-    let outputs = kind.record(&mut d);
+    let mut outputs = kind.record(&mut d);
+    let spec = &model.specialisation;
+    if Gradient::applies_to(kind) && spec.selects() {
+        // Entries the scene does not read become 0, and freezing drops the work that fed
+        // only them.
+        let zero = d.g.constant(0.0);
+        let nv = model.nv();
+        for (ids, out) in outputs.iter_mut().zip(kind.outputs()) {
+            if out.shape == Shape::Matrix {
+                for (k, id) in ids.iter_mut().enumerate() {
+                    if !spec.keeps(k / nv, k % nv) {
+                        *id = zero;
+                    }
+                }
+            }
+        }
+    }
     if d.g.exhausted() {
         return Err(LowerError::TooLarge { robot: model.name.clone(), nv: model.nv(), kernel: kind, limit: options.max_nodes });
     }

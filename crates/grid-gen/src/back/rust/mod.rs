@@ -431,7 +431,7 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
         env!("CARGO_PKG_VERSION"),
         string_literal(&robot.name),
         nv,
-        crate::back::source_line(&robot.source),
+        crate::back::source_line(&robot.source) + &crate::back::specialisation_lines(robot),
     );
     Ok(GeneratedFile { name: Target::Rust.file_name(&stem), contents: header + &code })
 }

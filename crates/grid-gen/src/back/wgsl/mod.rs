@@ -292,7 +292,7 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
          // regenerate with `grid-gen ROBOT.urdf -o DIR --emit wgsl`.\n{}//",
         env!("CARGO_PKG_VERSION"),
         comment_text(&robot.name),
-        crate::back::source_line(&robot.source),
+        crate::back::source_line(&robot.source) + &crate::back::specialisation_lines(robot),
     );
     for line in LAYOUT_DOC.lines() {
         let _ = writeln!(out, "// {line}");

@@ -39,7 +39,10 @@ impl Bounds {
         let nv = robot.nv();
         Bounds {
             q: (0..nv).map(|j| robot.limits[j].filter(|(lo, hi)| lo < hi).unwrap_or((-DEFAULT_Q_MAX, DEFAULT_Q_MAX))).collect(),
-            qd: (0..nv).map(|j| qd_max.or(robot.velocity_limits[j]).unwrap_or(DEFAULT_QD_MAX)).collect(),
+            // A static scene holds q̇ at 0 (its kernels never read it).
+            qd: (0..nv)
+                .map(|j| if robot.specialisation.static_velocity { 0.0 } else { qd_max.or(robot.velocity_limits[j]).unwrap_or(DEFAULT_QD_MAX) })
+                .collect(),
             qdd: vec![qdd_max.unwrap_or(DEFAULT_QDD_MAX); nv],
         }
     }
