@@ -1,6 +1,6 @@
 #!/usr/bin/env bash
 # Writes docs/accuracy/<robot>.txt and .svg for every bundled robot: `grid-gen accuracy`
-# on 100 seeded random states in f64, f32 and the --fixed format (default: auto, the
+# on 100 seeded random states in f64, f32, mixed precision (targets 1e-6 and 1e-12) and the --fixed format (default: auto, the
 # narrowest format whose analysed error bound is 1e-3), against the double-double value,
 # with the f64 and f32 kernels compiled by rustc and timed (--time).
 # With --wgsl, also the WGSL kernels (f32) on the first adapter (lavapipe without a GPU).
@@ -8,7 +8,7 @@
 # fusing); the times are not.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-formats="f64,f32,fixed"
+formats="f64,f32,mixed:1e-6,mixed,fixed"
 [ "${1:-}" = "--wgsl" ] && formats="$formats,wgsl"
 cargo build -q --release -p grid-gen-cli
 mkdir -p docs/accuracy

@@ -610,7 +610,13 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
     };
     if args.time {
         eprintln!("compiling the kernels with rustc to time them...");
-        match time_kernels(model, gravity, args.kernel.gradient(), &options.kernels) {
+        let mixed = match accuracy::mixed_kernels(model, &options) {
+            Ok(m) => m,
+            Err(e) => return fail(e),
+        };
+        let mixed: Vec<grid_gen::timing::MixedKernel> =
+            mixed.iter().map(|(label, function, wide)| grid_gen::timing::MixedKernel { label: label.clone(), function, wide }).collect();
+        match time_kernels(model, gravity, args.kernel.gradient(), &options.kernels, &mixed) {
             Ok(times) => report.add_times(&times),
             Err(e) => return fail(e),
         }
@@ -644,9 +650,10 @@ fn time_kernels(
     gravity: [f64; 3],
     gradient: grid_gen::ir::Gradient,
     kernels: &[grid_gen::ir::KernelKind],
+    mixed: &[grid_gen::timing::MixedKernel],
 ) -> Result<Vec<grid_gen::timing::KernelTime>, grid_gen::timing::TimingError> {
     let work = std::env::temp_dir().join(format!("grid-gen-time-{}", std::process::id()));
-    let result = grid_gen::timing::time_rust_kernels(model, gravity, gradient, kernels, &grid_gen::timing::rustc(), &work);
+    let result = grid_gen::timing::time_rust_kernels_with_mixed(model, gravity, gradient, kernels, mixed, &grid_gen::timing::rustc(), &work);
     // The folder holds only what this call wrote; failing to remove it changes nothing.
     let _ = std::fs::remove_dir_all(&work);
     result
@@ -659,7 +666,7 @@ fn bench_rust(model: &Model, scene: &grid_gen::Scene, kernels: &[String]) -> Exi
     };
     eprintln!("compiling the kernels with rustc -C opt-level=3...");
     let gravity = scene.gravity.unwrap_or(grid_gen::model::DEFAULT_GRAVITY);
-    let times = match time_kernels(model, gravity, grid_gen::ir::Gradient::Auto, &kinds) {
+    let times = match time_kernels(model, gravity, grid_gen::ir::Gradient::Auto, &kinds, &[]) {
         Ok(t) => t,
         Err(e) => return fail(e),
     };

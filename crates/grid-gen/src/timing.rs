@@ -22,8 +22,8 @@ use crate::model::Model;
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct KernelTime {
     pub kernel: KernelKind,
-    /// `f64` or `f32`.
-    pub scalar: &'static str,
+    /// `f64`, `f32`, or a mixed-precision plan's label (`mixed ≤1e-12`).
+    pub scalar: String,
     /// `portable` (no FMA; what `accuracy` measures bit for bit) or `dispatch` (the
     /// public function: the `fma` copy where the CPU has AVX2 and FMA).
     pub copy: &'static str,
@@ -44,9 +44,41 @@ pub enum TimingError {
     Run(String),
 }
 
-/// The timing program for `kernels` of a module whose file is `robot.rs`.
-fn program(kernels: &[KernelKind]) -> String {
+/// A mixed-precision kernel to time beside the generic ones: the function and which of
+/// its nodes run in f64 ([`crate::ir::precision::Plan::wide`]), under `label`.
+pub struct MixedKernel<'a> {
+    pub label: String,
+    pub function: &'a crate::ir::Function,
+    pub wide: &'a [bool],
+}
+
+/// The module of mixed-precision kernels, `mixed{i}::NAME` for the i-th of `mixed`.
+fn mixed_module(nv: usize, mixed: &[MixedKernel]) -> String {
+    let mut out = String::new();
+    for (i, m) in mixed.iter().enumerate() {
+        let _ = writeln!(
+            out,
+            "pub mod mixed{i} {{
+const NV: usize = {nv};"
+        );
+        crate::back::rust::emit_mixed_kernel(&mut out, m.function, nv, &crate::back::rust::RustOptions::default(), m.wide);
+        out.push_str(
+            "}
+",
+        );
+    }
+    out
+}
+
+/// The timing program for `kernels` of a module whose file is `robot.rs`, and the
+/// mixed kernels of `mixed.rs`.
+fn program(kernels: &[KernelKind], mixed: &[MixedKernel]) -> String {
     let mut calls = String::new();
+    for (i, m) in mixed.iter().enumerate() {
+        let name = m.function.kind.name();
+        let args = if m.function.inputs().len() == 1 { "&x[0]" } else { "&x[0], &x[1], &x[2]" };
+        let _ = writeln!(calls, "    println!(\"{name} {i} mixed {{}}\", time(|j| {{ let x = &s64[j]; black_box(mixed::mixed{i}::{name}({args})); }}));");
+    }
     for k in kernels {
         let name = k.name();
         let args = if k.inputs().len() == 1 { "&x[0]" } else { "&x[0], &x[1], &x[2]" };
@@ -61,6 +93,9 @@ fn program(kernels: &[KernelKind]) -> String {
         r#"#![allow(dead_code, clippy::all)]
 mod robot {{
     include!("robot.rs");
+}}
+mod mixed {{
+    include!("mixed.rs");
 }}
 use std::hint::black_box;
 use std::time::Instant;
@@ -121,6 +156,20 @@ pub fn time_rust_kernels(
     rustc: &str,
     work: &Path,
 ) -> Result<Vec<KernelTime>, TimingError> {
+    time_rust_kernels_with_mixed(model, gravity, gradient, kernels, &[], rustc, work)
+}
+
+/// [`time_rust_kernels`], and the `mixed` kernels (one state per call, f64 in and out;
+/// their `copy` is `portable`: they are not FMA-dispatched).
+pub fn time_rust_kernels_with_mixed(
+    model: &Model,
+    gravity: [f64; 3],
+    gradient: Gradient,
+    kernels: &[KernelKind],
+    mixed: &[MixedKernel],
+    rustc: &str,
+    work: &Path,
+) -> Result<Vec<KernelTime>, TimingError> {
     let options = Options {
         gravity,
         targets: vec![Target::Rust],
@@ -134,7 +183,8 @@ pub fn time_rust_kernels(
     let io = |e| TimingError::Io(work.to_path_buf(), e);
     std::fs::create_dir_all(work).map_err(io)?;
     std::fs::write(work.join("robot.rs"), &module.contents).map_err(io)?;
-    std::fs::write(work.join("main.rs"), program(&present)).map_err(io)?;
+    std::fs::write(work.join("mixed.rs"), mixed_module(model.nv(), mixed)).map_err(io)?;
+    std::fs::write(work.join("main.rs"), program(&present, mixed)).map_err(io)?;
     let exe = work.join(if cfg!(windows) { "time_kernels.exe" } else { "time_kernels" });
     let out = Command::new(rustc)
         .args(["--edition", "2021", "-C", "opt-level=3", "-C", "debuginfo=0", "--crate-name", "time_kernels", "-o"])
@@ -156,9 +206,18 @@ pub fn time_rust_kernels(
     for line in text.lines() {
         let parts: Vec<&str> = line.split_whitespace().collect();
         let parsed = match parts.as_slice() {
+            [k, i, "mixed", ns] => {
+                let m = i.parse::<usize>().ok().and_then(|i| mixed.get(i));
+                KernelKind::parse(k).zip(m).zip(ns.parse::<f64>().ok()).map(|((kernel, m), ns)| KernelTime {
+                    kernel,
+                    scalar: m.label.clone(),
+                    copy: "portable",
+                    ns_per_call: ns,
+                })
+            }
             [k, s, c, ns] => KernelKind::parse(k).zip(ns.parse::<f64>().ok()).map(|(kernel, ns)| KernelTime {
                 kernel,
-                scalar: if *s == "f32" { "f32" } else { "f64" },
+                scalar: if *s == "f32" { "f32" } else { "f64" }.to_string(),
                 copy: if *c == "portable" { "portable" } else { "dispatch" },
                 ns_per_call: ns,
             }),

@@ -36,6 +36,38 @@ pub enum NumberFormat {
         max_error: f64,
         rounding: Rounding,
     },
+    /// f32 except the nodes the first-order error analysis puts in f64 to bound each
+    /// output's relative error by `target` ([`crate::ir::precision`]), planned at
+    /// [`MIXED_PLAN_STATES`] states of their own (not the measured ones).
+    Mixed {
+        target: f64,
+    },
+}
+
+/// States the mixed-precision plan is analysed at: seeded random states
+/// ([`random_states`], seed [`MIXED_PLAN_SEED`]), apart from the states it is measured on.
+pub const MIXED_PLAN_STATES: usize = 16;
+pub const MIXED_PLAN_SEED: u64 = 0x6d69_7865_64;
+
+/// The mixed-precision target of a bare `mixed`: f64-like accuracy, 1e-12 relative.
+pub const DEFAULT_MIXED_TARGET: f64 = 1e-12;
+
+/// Plans a kernel's mixed precision (see [`NumberFormat::Mixed`]).
+pub fn mixed_plan(model: &Model, gravity: [f64; 3], f: &Function, target: f64) -> crate::ir::precision::Plan {
+    let states = random_states(model, gravity, MIXED_PLAN_STATES, MIXED_PLAN_SEED, None, None);
+    let inputs: Vec<Vec<Vec<f64>>> = states
+        .states
+        .iter()
+        .filter_map(|s| {
+            let u = match u_of(f.kind, s) {
+                None => &[][..],
+                Some(Some(u)) => &u[..],
+                Some(None) => return None,
+            };
+            Some(kernel_inputs(f, &[&s.q[..], &s.qd[..], u]).into_iter().map(|v| v.to_vec()).collect())
+        })
+        .collect();
+    crate::ir::precision::plan(f, &inputs, target)
 }
 
 impl NumberFormat {
@@ -45,6 +77,7 @@ impl NumberFormat {
             NumberFormat::F32 => "f32".into(),
             NumberFormat::Fixed(f) => format!("fixed {}.{} {}", f.width, f.frac, f.rounding.name()),
             NumberFormat::FixedAuto { max_error, rounding } => format!("fixed auto ≤{max_error:e} {}", rounding.name()),
+            NumberFormat::Mixed { target } => format!("mixed ≤{target:e}"),
         }
     }
 
@@ -55,13 +88,40 @@ impl NumberFormat {
             "f64" => Ok(NumberFormat::F64),
             "f32" => Ok(NumberFormat::F32),
             "fixed:auto" => Ok(NumberFormat::FixedAuto { max_error, rounding }),
+            "mixed" => Ok(NumberFormat::Mixed { target: DEFAULT_MIXED_TARGET }),
+            _ if s.starts_with("mixed:") => match s["mixed:".len()..].parse::<f64>() {
+                Ok(t) if t > 0.0 && t.is_finite() => Ok(NumberFormat::Mixed { target: t }),
+                _ => Err(format!("`{s}`: mixed:TARGET takes a positive relative error, e.g. mixed:1e-10")),
+            },
             _ => match s.strip_prefix("fixed:").and_then(|f| Format::parse(f, rounding)) {
                 Some(Ok(f)) => Ok(NumberFormat::Fixed(f)),
                 Some(Err(e)) => Err(e.to_string()),
-                None => Err(format!("unknown number format `{s}`; available: f64, f32, fixed:WIDTH.FRAC (e.g. fixed:32.16), fixed:auto")),
+                None => Err(format!(
+                    "unknown number format `{s}`; available: f64, f32, mixed, mixed:TARGET (e.g. mixed:1e-10), fixed:WIDTH.FRAC (e.g. fixed:32.16), fixed:auto"
+                )),
             },
         }
     }
+}
+
+/// Every (mixed format, kernel) pair of `options`: the row label, the folded kernel and its
+/// plan's f64 nodes, as [`measure`] runs them (for timing the emitted mixed Rust).
+pub fn mixed_kernels(model: &Model, options: &Options) -> Result<Vec<(String, Function, Vec<bool>)>, LowerError> {
+    let targets: Vec<(String, f64)> =
+        options.formats.iter().filter_map(|f| if let NumberFormat::Mixed { target } = f { Some((f.label(), *target)) } else { None }).collect();
+    if targets.is_empty() {
+        return Ok(Vec::new());
+    }
+    let lower = LowerOptions { kernels: options.kernels.clone(), gradient: options.gradient, ..LowerOptions::default() };
+    let module = ir::lower(model, options.gravity, &lower)?;
+    let mut out = Vec::new();
+    for (label, target) in targets {
+        for f in &module.functions {
+            let plan = mixed_plan(model, options.gravity, f, target);
+            out.push((label.clone(), f.clone(), plan.wide));
+        }
+    }
+    Ok(out)
 }
 
 /// Runs one kernel on a batch through another backend: `(kind, q, qd, u)` state-major
@@ -114,6 +174,10 @@ pub struct Row {
     /// analysis bounds, `--max-error`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub max_abs_error: Option<f64>,
+    /// Mixed precision: the operations the plan runs in f64, as `W of N in f64`, and the
+    /// analysis's first-order bound at the planning states.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub mixed: Option<String>,
     /// Fixed point: states whose datapath saturated (their numbers are excluded above).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub overflowed: Option<usize>,
@@ -216,6 +280,7 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
             error: errors.as_ref().and_then(|e| Spread::of(&mut e.iter().map(|x| x.0).collect::<Vec<_>>())),
             max_abs_error: errors.as_ref().filter(|e| !e.is_empty()).map(|e| e.iter().map(|x| x.1).fold(0.0, f64::max)),
             overflowed,
+            mixed: None,
             time_ns: None,
             skipped,
         };
@@ -228,6 +293,14 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
                 NumberFormat::F32 => {
                     let e = args.iter().zip(&truth).map(|(a, t)| error(&widen(f.eval_f32(&inputs(a))), t)).collect();
                     rows.push(row(format.label(), None, Some(e), None, None));
+                }
+                NumberFormat::Mixed { target } => {
+                    let plan = mixed_plan(model, gravity, f, *target);
+                    let e = args.iter().zip(&truth).map(|(a, t)| error(&f.eval_mixed(&inputs(a), &plan.wide), t)).collect();
+                    let (wide, all) = plan.wide_operations(f);
+                    let mut r = row(format.label(), None, Some(e), None, None);
+                    r.mixed = Some(format!("{wide} of {all} ops in f64, bound {:.1e} (all f32: {:.1e})", plan.bound, plan.all_f32_bound));
+                    rows.push(r);
                 }
                 NumberFormat::Fixed(_) | NumberFormat::FixedAuto { .. } => {
                     let dp = match Datapath::new(f, nv) {
@@ -346,8 +419,8 @@ impl Report {
     pub fn add_times(&mut self, times: &[crate::timing::KernelTime]) {
         for r in &mut self.rows {
             let scalar = match r.format.as_str() {
-                "f64" => "f64",
-                "f32" => "f32",
+                "f64" | "f32" => r.format.as_str(),
+                f if f.starts_with("mixed") => f,
                 _ => continue,
             };
             r.time_ns = times.iter().find(|t| t.kernel == r.kernel && t.scalar == scalar && t.copy == "portable").map(|t| t.ns_per_call);
@@ -382,6 +455,9 @@ impl Report {
             }
             if let Some(o) = r.overflowed.filter(|&o| o > 0) {
                 s += &format!("   {o} of {} states overflowed (excluded)", r.states);
+            }
+            if let Some(m) = &r.mixed {
+                s += &format!("   {m}");
             }
             if let Some(why) = &r.skipped {
                 s += &format!("   not run: {why}");

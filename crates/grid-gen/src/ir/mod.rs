@@ -11,6 +11,7 @@ mod graph;
 mod kernel;
 mod module;
 pub mod precise;
+pub mod precision;
 pub mod schedule;
 mod spatial;
 mod stats;

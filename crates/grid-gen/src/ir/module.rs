@@ -294,15 +294,27 @@ impl Function {
         self.eval_as::<f32>(inputs)
     }
 
+    /// Every node's value in f64 (the graph's intermediate values, for the analyses).
+    pub fn eval_nodes(&self, inputs: &[&[f64]]) -> Vec<f64> {
+        self.node_values::<f64>(inputs)
+    }
+
+    /// Where an input sits in the argument list.
+    pub(crate) fn input_slot(&self, which: Input) -> usize {
+        self.inputs().iter().position(|&x| x == which).expect("validated input")
+    }
+
     fn eval_as<T: EvalNumber>(&self, inputs: &[&[f64]]) -> Vec<Vec<T>> {
+        let val = self.node_values::<T>(inputs);
+        self.outputs.iter().map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect()).collect()
+    }
+
+    fn node_values<T: EvalNumber>(&self, inputs: &[&[f64]]) -> Vec<T> {
         let mut val = vec![T::from_f64(0.0); self.nodes.len()];
         for (i, node) in self.nodes.iter().enumerate() {
             let v = |id: Id| val[id.0 as usize];
             val[i] = match node.op {
-                Op::Input(which, j) => {
-                    let slot = self.inputs().iter().position(|&x| x == which).expect("validated input");
-                    T::from_f64(inputs[slot][j as usize])
-                }
+                Op::Input(which, j) => T::from_f64(inputs[self.input_slot(which)][j as usize]),
                 Op::Const(c) => T::from_f64(c),
                 Op::Add(a, b) => v(a) + v(b),
                 Op::Sub(a, b) => v(a) - v(b),
@@ -313,7 +325,7 @@ impl Function {
                 Op::Cos(a) => v(a).cos(),
             };
         }
-        self.outputs.iter().map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect()).collect()
+        val
     }
 }
 

@@ -2,8 +2,12 @@
 //! split into functions of at most `chunk` statements (rustc's time grows faster than
 //! linearly in the size of one function; the split is the IR's [`Chunks`]).
 
+mod mixed;
+
 use std::collections::HashMap;
 use std::fmt::Write;
+
+pub use mixed::emit_mixed_kernel;
 
 use super::names::{identifier, string_literal};
 use super::{BackError, GeneratedFile, Target};
