@@ -2,7 +2,7 @@
 # Writes docs/accuracy/<robot>.txt and .svg for every bundled robot: `grid-gen accuracy`
 # on 100 seeded random states in f64, f32, mixed precision (targets 1e-6 and 1e-12) and the --fixed format (default: auto, the
 # narrowest format whose analysed error bound is 1e-3), against the double-double value,
-# with the f64 and f32 kernels compiled by rustc and timed (--time).
+# with the f64, f32 and mixed kernels compiled by rustc and timed (--time).
 # With --wgsl, also the WGSL kernels (f32) on the first adapter (lavapipe without a GPU).
 # The errors are deterministic apart from the WGSL rows (the adapter's sin/cos and
 # fusing); the times are not.

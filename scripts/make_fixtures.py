@@ -85,7 +85,8 @@ def pinocchio_fixture(path, rng):
     return pinocchio_fixture_of(pin.buildModelFromUrdf(str(path)), rng)
 
 
-def pinocchio_fixture_of(model, rng):
+def pinocchio_fixture_of(model, rng, static=False):
+    """`static`: every state at q̇ = 0 (a scene's `static = true`)."""
     data = model.createData()
     joints = movable_joints(model)
     perm = [j[3] for j in joints]  # idx_v of each joint in listing order
@@ -93,6 +94,8 @@ def pinocchio_fixture_of(model, rng):
     selm = lambda m: np.asarray(m)[np.ix_(perm, perm)]
     records = []
     for kind, ang, qd, qdd, tau in states(joints, rng):
+        if static:
+            qd = np.zeros_like(qd)
         q = to_pin_q(model, joints, ang)
         v = np.zeros(model.nv); a = np.zeros(model.nv); t = np.zeros(model.nv)
         v[perm] = qd; a[perm] = qdd; t[perm] = tau
@@ -118,7 +121,7 @@ def pinocchio_fixture_of(model, rng):
     }
 
 
-SCENES = [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_knees_locked")]
+SCENES = [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_knees_locked"), ("grid_iiwa", "iiwa_static")]
 
 
 def scene_model(urdf, scene_file):
@@ -152,8 +155,10 @@ def scene_model(urdf, scene_file):
 def scene_fixtures(check):
     stale = False
     for robot, scene in SCENES:
-        model = scene_model(ROBOTS / f"{robot}.urdf", ROOT / "examples" / "scenes" / f"{scene}.toml")
-        data = pinocchio_fixture_of(model, np.random.default_rng(sum(scene.encode())))
+        scene_file = ROOT / "examples" / "scenes" / f"{scene}.toml"
+        model = scene_model(ROBOTS / f"{robot}.urdf", scene_file)
+        static = tomllib.loads(scene_file.read_text()).get("static", False)
+        data = pinocchio_fixture_of(model, np.random.default_rng(sum(scene.encode())), static)
         stale |= report(OUT / f"{robot}.{scene}.pinocchio.json", data, check, 1e-12)
     return stale
 

@@ -86,3 +86,86 @@ fn compare(robot: &str, model: &grid_gen::Model, fx: &serde_json::Value, failure
     }
     checked
 }
+
+/// The scenes that change the kernels rather than the model (`static`, `[gradient]`),
+/// their generated graphs (not the reference, which knows nothing of them) against
+/// Pinocchio: `iiwa_static` against Pinocchio at v = 0 (fixture written with q̇ = 0)
+/// while the kernels are handed a random nonzero q̇, which they must ignore;
+/// `hyq_lf_columns` against Pinocchio's full HyQ, the entries outside the columns 0.
+#[test]
+fn static_and_gradient_scenes_match_pinocchio() {
+    use grid_gen::ir::{self, Input, KernelKind, LowerOptions};
+    let mut failures = Vec::new();
+    let mut checked = 0;
+    for (robot, scene, fixture_name) in
+        [("grid_iiwa", "iiwa_static", "grid_iiwa.iiwa_static.pinocchio.json"), ("grid_hyq", "hyq_lf_columns", "grid_hyq.pinocchio.json")]
+    {
+        let (model, _) = load_in_scene(robot, scene);
+        let spec = model.specialisation.clone();
+        let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+        let fx = fixture(fixture_name);
+        let n = model.nv();
+        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let perm: Vec<usize> = names.iter().map(|name| model.joints.iter().position(|j| j.name == *name).unwrap()).collect();
+        let ours = |v: &[f64]| {
+            let mut out = vec![0.0; v.len()];
+            for (k, &i) in perm.iter().enumerate() {
+                out[i] = v[k];
+            }
+            out
+        };
+        // Pinocchio's answer in our joint order, the entries the scene does not read 0.
+        let theirs = |st: &serde_json::Value, key: &str, shape: ir::Shape| -> DMatrix<f64> {
+            match shape {
+                ir::Shape::Vector => col(&ours(&vec_of(&st[key]))),
+                ir::Shape::Matrix => {
+                    let m = mat_of(&st[key]);
+                    let gradient = key.starts_with('d');
+                    DMatrix::from_fn(n, n, |a, b| {
+                        let (i, j) = (perm.iter().position(|&p| p == a).unwrap(), perm.iter().position(|&p| p == b).unwrap());
+                        if gradient && !spec.keeps(a, b) {
+                            0.0
+                        } else {
+                            m[(i, j)]
+                        }
+                    })
+                }
+            }
+        };
+        let mut rng = Rng(17);
+        for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
+            let q = ours(&vec_of(&st["q"]));
+            let qd = if spec.static_velocity {
+                assert!(vec_of(&st["qd"]).iter().all(|&x| x == 0.0), "the static fixture is at rest");
+                rng.vec(n, -1.0, 1.0)
+            } else {
+                ours(&vec_of(&st["qd"]))
+            };
+            for f in &module.functions {
+                let u = match f.inputs().get(2) {
+                    Some(Input::Qdd) => ours(&vec_of(&st["qdd"])),
+                    Some(Input::Tau) => ours(&vec_of(&st["tau"])),
+                    _ => Vec::new(),
+                };
+                let keys: &[&str] = match f.kind {
+                    KernelKind::Rnea => &["rnea"],
+                    KernelKind::RneaGrad => &["drnea_dq", "drnea_dqd"],
+                    KernelKind::MassMatrix => &["M"],
+                    KernelKind::Minv => &["Minv"],
+                    KernelKind::Fd => &["fd"],
+                    KernelKind::FdGrad => &["fd", "dfd_dq", "dfd_dqd"],
+                };
+                let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &u));
+                for ((o, got), key) in f.outputs.iter().zip(&got).zip(keys) {
+                    checked += 1;
+                    let e = rel_err(&output_matrix(o.shape, n, got), &theirs(st, key, o.shape));
+                    if !(e <= TOL) {
+                        failures.push(format!("{robot} in {scene} state {s} ({}): {} {key} relative error {e:.2e}", st["kind"], f.kind));
+                    }
+                }
+            }
+        }
+    }
+    assert!(checked > 200, "only {checked} comparisons");
+    assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+}

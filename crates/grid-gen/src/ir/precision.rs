@@ -130,6 +130,32 @@ pub fn plan(f: &Function, states: &[Vec<Vec<f64>>], target: f64) -> Plan {
         wide[k] = true;
         bound -= F32_UNIT_ROUNDOFF * weight[k];
     }
+    // An f32 operation between f64 neighbours only would cost two conversions and save
+    // nothing: it joins them (the bound can only fall). Repeated to a fixed point.
+    let mut users: Vec<Vec<usize>> = vec![Vec::new(); f.nodes.len()];
+    for (i, node) in f.nodes.iter().enumerate() {
+        for o in node.op.operands() {
+            users[o.0 as usize].push(i);
+        }
+    }
+    let is_op = |i: usize| f.is_operation(Id(i as u32));
+    loop {
+        let mut changed = false;
+        for i in 0..f.nodes.len() {
+            if !is_op(i) || wide[i] {
+                continue;
+            }
+            let operands_wide = f.nodes[i].op.operands().filter(|o| is_op(o.0 as usize)).all(|o| wide[o.0 as usize]);
+            if operands_wide && !users[i].is_empty() && users[i].iter().all(|&u| wide[u]) {
+                wide[i] = true;
+                bound -= F32_UNIT_ROUNDOFF * weight[i];
+                changed = true;
+            }
+        }
+        if !changed {
+            break;
+        }
+    }
     Plan { wide, bound: bound.max(0.0), all_f32_bound }
 }
 
