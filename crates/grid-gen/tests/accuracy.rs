@@ -102,14 +102,14 @@ fn random_states_are_seeded_and_inside_the_bounds() {
 
 #[test]
 fn the_plot_has_a_point_per_measured_row_and_escapes_names() {
-    let urdf = chain_urdf(2).replace("name=\"chain\"", "name=\"a&lt;b&amp;c\"");
+    let urdf = chain_urdf(2).replace("name=\"chain\"", "name=\"a&lt;b&amp;c ≤ \"");
     let model = Model::from_urdf_str("x.urdf", &urdf, false).unwrap().0;
-    assert_eq!(model.name, "a<b&c");
+    assert_eq!(model.name, "a<b&c ≤ ");
     let states = accuracy::random_states(&model, reference::DEFAULT_GRAVITY, 4, 1, None, None);
     let report = accuracy::measure(&model, &states, "test", &options(&model), &mut []).unwrap();
     let svg = accuracy::svg(&report);
     assert!(svg.starts_with("<svg ") && svg.trim_end().ends_with("</svg>"));
-    assert!(svg.contains("a&lt;b&amp;c") && !svg.contains("a<b"), "the robot name is escaped");
+    assert!(svg.contains("a&lt;b&amp;c &#x2264; ") && !svg.contains("a<b"), "the robot name is escaped");
     let measured = report.rows.iter().filter(|r| r.error.is_some()).count();
     let legend = 4;
     assert_eq!(svg.matches("<circle").count(), measured + legend);

@@ -3,7 +3,6 @@
 //! is a few dozen elements).
 
 use super::Report;
-use crate::back::names::comment_text;
 
 const W: f64 = 760.0;
 const H: f64 = 480.0;
@@ -14,9 +13,23 @@ const BOTTOM: f64 = 50.0;
 /// Colour-blind-safe palette (Okabe & Ito 2008), one colour per format.
 const COLOURS: [&str; 8] = ["#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#000000"];
 
-/// Escapes text for SVG element content and attributes.
+/// Escapes text for SVG element content and attributes: markup characters as entities,
+/// other non-ASCII characters as numeric references (so `≤` shows as itself), control
+/// characters, which XML 1.0 forbids even as references, as U+FFFD.
 fn xml(s: &str) -> String {
-    comment_text(s).replace('&', "&amp;").replace('<', "&lt;").replace('>', "&gt;").replace('"', "&quot;")
+    let mut out = String::with_capacity(s.len());
+    for c in s.chars() {
+        match c {
+            '&' => out.push_str("&amp;"),
+            '<' => out.push_str("&lt;"),
+            '>' => out.push_str("&gt;"),
+            '"' => out.push_str("&quot;"),
+            c if c.is_control() => out.push_str("&#xFFFD;"),
+            c if !c.is_ascii() => out.push_str(&format!("&#x{:X};", c as u32)),
+            c => out.push(c),
+        }
+    }
+    out
 }
 
 /// Powers of ten spanning `[lo, hi]` (both positive).
