@@ -2,14 +2,34 @@
 //! the most FRAC bits the range analysis allows, the largest error measured by the
 //! bit-exact software model over random states within the bounds (against the f64
 //! datapath, which equals the reference to 1e-12), the analysed bound, units, and the
-//! shared architecture's cycles per state at M = 8, 32, 128; then robomorphic's Q16.16
-//! with truncation on the same states. Run: `cargo run --release --example verilog_trade`.
+//! shared architecture's cycles per state at M = 8, 32, 128, and (with Yosys) the gates
+//! of one multiplier and one adder cell after generic `synth`, times the units; then
+//! robomorphic's Q16.16 with truncation on the same states. Run: `cargo run --release --example verilog_trade`.
 
 use grid_gen::back::verilog::SharedSchedule;
 use grid_gen::ir::fixed::{format_for_width, quantize_ports, Bounds, Datapath, Format, Port, Rounding};
 use grid_gen::ir::{self, Input, KernelKind, LowerOptions};
 
+/// Gates of the `kind` cell (`mul` or `add`) of format `f` after Yosys's generic `synth`.
+fn cell_gates(f: &Format, kind: &str) -> usize {
+    let dir = std::env::temp_dir().join(format!("grid-gen-trade-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).expect("temp dir");
+    let v = dir.join("cells.v");
+    std::fs::write(&v, grid_gen::back::verilog::cell_modules("t", f)).expect("write");
+    let stat = dir.join("stat.txt");
+    let script = format!("read_verilog {}; synth -top t_{kind}; tee -q -o {} stat", v.display(), stat.display());
+    let out = std::process::Command::new("yosys").arg("-q").arg("-p").arg(&script).output().expect("yosys runs");
+    assert!(out.status.success(), "yosys: {}", String::from_utf8_lossy(&out.stderr));
+    let report = std::fs::read_to_string(&stat).expect("stat");
+    let _ = std::fs::remove_dir_all(&dir);
+    report.lines().find_map(|l| l.trim().strip_prefix("Number of cells:").map(|n| n.trim().parse().expect("a count"))).expect("stat prints the cells")
+}
+
 fn main() {
+    let yosys = std::process::Command::new("yosys").arg("-V").output().is_ok_and(|o| o.status.success());
+    if !yosys {
+        eprintln!("yosys is not installed (Debian package `yosys`): the gate counts are left out");
+    }
     for robot in ["grid_iiwa", "grid_hyq"] {
         let text = std::fs::read_to_string(format!("robots/{robot}.urdf")).expect("run from the repository root");
         let (model, _) = grid_gen::Model::from_urdf_str(robot, &text, false).expect("bundled robot loads");
@@ -74,7 +94,15 @@ fn main() {
                 match format_for_width(&dp, &bounds, rounding, width) {
                     Some((f, a)) => {
                         let (worst, over) = measure(&f);
-                        println!("  | {} {} | {worst:.2e} | {:.2e} | overflows {over}/200", f.label(), rounding.name(), a.output_error);
+                        // Yosys gates of one multiplier and one adder cell at this format:
+                        // what hierarchical synthesis counts per instance.
+                        let gates = if rounding == Rounding::HalfUp && yosys {
+                            let (m, a) = (cell_gates(&f, "mul"), cell_gates(&f, "add"));
+                            format!(" | mul cell {m} gates, add cell {a}; all units {}", m * muls + a * adds)
+                        } else {
+                            String::new()
+                        };
+                        println!("  | {} {} | {worst:.2e} | {:.2e} | overflows {over}/200{gates}", f.label(), rounding.name(), a.output_error);
                     }
                     None => println!("  | {width}.- {} | the analysed range needs more than {width} bits | |", rounding.name()),
                 }
