@@ -610,12 +610,8 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
     };
     if args.time {
         eprintln!("compiling the kernels with rustc to time them...");
-        let mixed = match accuracy::mixed_kernels(model, &options) {
-            Ok(m) => m,
-            Err(e) => return fail(e),
-        };
         let mixed: Vec<grid_gen::timing::MixedKernel> =
-            mixed.iter().map(|(label, function, wide)| grid_gen::timing::MixedKernel { label: label.clone(), function, wide }).collect();
+            report.mixed.iter().map(|m| grid_gen::timing::MixedKernel { label: m.label.clone(), function: &m.function, wide: &m.wide }).collect();
         match time_kernels(model, gravity, args.kernel.gradient(), &options.kernels, &mixed) {
             Ok(times) => report.add_times(&times),
             Err(e) => return fail(e),

@@ -1,5 +1,6 @@
 //! Which stages of `minv`, `fd` and `fd_grad` the mixed-precision plans keep in f64, per
-//! bundled robot and target (the README's mixed-precision section quotes it):
+//! bundled robot and target, and how many operands cross between f32 and f64 (each a
+//! conversion) (the README's mixed-precision section quotes it):
 //! `cargo run --release -p grid-gen --example mixed_stages`.
 
 use grid_gen::ir::{self, KernelKind, LowerOptions};
@@ -14,10 +15,12 @@ fn main() {
                 // Operations per stage: (in f64, all).
                 let plan = grid_gen::accuracy::mixed_plan(&model, g, f, target);
                 let mut by: std::collections::BTreeMap<String, (usize, usize)> = Default::default();
+                let mut conversions = 0;
                 for (i, n) in f.nodes.iter().enumerate() {
                     if !f.is_operation(ir::Id(i as u32)) {
                         continue;
                     }
+                    conversions += n.op.operands().filter(|&o| f.is_operation(o) && plan.wide[o.0 as usize] != plan.wide[i]).count();
                     let e = by.entry(format!("{:?}", n.stage)).or_default();
                     e.1 += 1;
                     if plan.wide[i] {
@@ -25,7 +28,7 @@ fn main() {
                     }
                 }
                 let (w, a) = plan.wide_operations(f);
-                println!("{robot} {} {target:e}: {w}/{a} {:?}", f.kind, by);
+                println!("{robot} {} {target:e}: {w}/{a} in f64, {conversions} conversions, by stage {:?}", f.kind, by);
             }
         }
     }

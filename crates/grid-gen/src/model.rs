@@ -177,18 +177,6 @@ impl Specialisation {
     pub fn selects(&self) -> bool {
         self.rows.is_some() || self.columns.is_some()
     }
-
-    /// Zeroes the entries of a row-major `nv x nv` gradient that are not computed, so
-    /// that a reference answer reads as the kernels' does.
-    pub fn mask(&self, nv: usize, m: &mut [f64]) {
-        if self.selects() {
-            for (k, x) in m.iter_mut().enumerate() {
-                if !self.keeps(k / nv, k % nv) {
-                    *x = 0.0;
-                }
-            }
-        }
-    }
 }
 
 /// How many entries of an `nv x nv` matrix are not structurally zero.

@@ -2,7 +2,7 @@
 //! planned at, the interpreter agrees with the pure formats at its two ends, and the
 //! emitted mixed Rust, compiled with rustc, computes the interpreter's numbers bit for bit.
 
-use grid_gen::accuracy::{mixed_plan, random_states, MIXED_PLAN_SEED};
+use grid_gen::accuracy::{kernel_states, mixed_plan, random_states, MIXED_PLAN_SEED};
 use grid_gen::ir::{self, Function, KernelKind, LowerOptions};
 use grid_gen::{reference, Model};
 use grid_gen_test_support::*;
@@ -13,14 +13,9 @@ const THROUGH_MINV: [KernelKind; 3] = [KernelKind::Minv, KernelKind::Fd, KernelK
 /// Each kernel's inputs at `n` random states of seed `seed` (not the planning seed).
 fn inputs(model: &Model, f: &Function, n: usize, seed: u64) -> Vec<Vec<Vec<f64>>> {
     assert_ne!(seed, MIXED_PLAN_SEED);
-    random_states(model, G, n, seed, None, None)
-        .states
-        .iter()
-        .map(|s| {
-            let u = if f.kind == KernelKind::Minv { &[][..] } else { &s.tau.as_ref().unwrap()[..] };
-            kernel_args(f.inputs(), &s.q, &s.qd, u).into_iter().map(|v| v.to_vec()).collect()
-        })
-        .collect()
+    let states = kernel_states(f, &random_states(model, G, n, seed, None, None));
+    assert_eq!(states.len(), n);
+    states
 }
 
 fn refs(v: &[Vec<f64>]) -> Vec<&[f64]> {

@@ -55,8 +55,13 @@ pub const DEFAULT_MIXED_TARGET: f64 = 1e-12;
 /// Plans a kernel's mixed precision (see [`NumberFormat::Mixed`]).
 pub fn mixed_plan(model: &Model, gravity: [f64; 3], f: &Function, target: f64) -> crate::ir::precision::Plan {
     let states = random_states(model, gravity, MIXED_PLAN_STATES, MIXED_PLAN_SEED, None, None);
-    let inputs: Vec<Vec<Vec<f64>>> = states
-        .states
+    crate::ir::precision::plan(f, &kernel_states(f, &states), target)
+}
+
+/// `f`'s arguments (in its input order) at each state of `file` that has the input it
+/// needs (q̈ for the RNEA kernels, τ for `fd*`).
+pub fn kernel_states(f: &Function, file: &StatesFile) -> Vec<Vec<Vec<f64>>> {
+    file.states
         .iter()
         .filter_map(|s| {
             let u = match u_of(f.kind, s) {
@@ -66,8 +71,7 @@ pub fn mixed_plan(model: &Model, gravity: [f64; 3], f: &Function, target: f64) -
             };
             Some(kernel_inputs(f, &[&s.q[..], &s.qd[..], u]).into_iter().map(|v| v.to_vec()).collect())
         })
-        .collect();
-    crate::ir::precision::plan(f, &inputs, target)
+        .collect()
 }
 
 impl NumberFormat {
@@ -102,26 +106,6 @@ impl NumberFormat {
             },
         }
     }
-}
-
-/// Every (mixed format, kernel) pair of `options`: the row label, the folded kernel and its
-/// plan's f64 nodes, as [`measure`] runs them (for timing the emitted mixed Rust).
-pub fn mixed_kernels(model: &Model, options: &Options) -> Result<Vec<(String, Function, Vec<bool>)>, LowerError> {
-    let targets: Vec<(String, f64)> =
-        options.formats.iter().filter_map(|f| if let NumberFormat::Mixed { target } = f { Some((f.label(), *target)) } else { None }).collect();
-    if targets.is_empty() {
-        return Ok(Vec::new());
-    }
-    let lower = LowerOptions { kernels: options.kernels.clone(), gradient: options.gradient, ..LowerOptions::default() };
-    let module = ir::lower(model, options.gravity, &lower)?;
-    let mut out = Vec::new();
-    for (label, target) in targets {
-        for f in &module.functions {
-            let plan = mixed_plan(model, options.gravity, f, target);
-            out.push((label.clone(), f.clone(), plan.wide));
-        }
-    }
-    Ok(out)
 }
 
 /// Runs one kernel on a batch through another backend: `(kind, q, qd, u)` state-major
@@ -207,6 +191,19 @@ pub struct Report {
     /// format has no digits it can promise; the measured errors are usually far smaller.
     pub bound_through_minv: Option<Bounds2>,
     pub rows: Vec<Row>,
+    /// The mixed-precision kernels measured, as planned, for timing the emitted Rust
+    /// (`accuracy --time`) without planning them again.
+    #[serde(skip)]
+    pub mixed: Vec<MixedKernel>,
+}
+
+/// One (mixed format, kernel) pair of a [`Report`]: the row's format label, the folded
+/// kernel and its plan's f64 nodes.
+#[derive(Clone, Debug)]
+pub struct MixedKernel {
+    pub label: String,
+    pub function: Function,
+    pub wide: Vec<bool>,
 }
 
 /// [`Report::bound_through_minv`] per float format.
@@ -263,6 +260,7 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
     let fast = ir::lower(model, gravity, &lower)?;
     let bounds = Bounds::new(&fast.robot, options.qd_max, options.qdd_max);
     let mut rows = Vec::new();
+    let mut mixed = Vec::new();
     for &kind in kernels.iter() {
         let (Some(exact_f), Some(f)) = (exact.function(kind), fast.function(kind)) else { continue };
         let chosen: Vec<&State> = file.states.iter().filter(|s| !matches!(u_of(kind, s), Some(None))).collect();
@@ -301,6 +299,7 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
                     let mut r = row(format.label(), None, Some(e), None, None);
                     r.mixed = Some(format!("{wide} of {all} ops in f64, bound {:.1e} (all f32: {:.1e})", plan.bound, plan.all_f32_bound));
                     rows.push(r);
+                    mixed.push(MixedKernel { label: format.label(), function: f.clone(), wide: plan.wide });
                 }
                 NumberFormat::Fixed(_) | NumberFormat::FixedAuto { .. } => {
                     let dp = match Datapath::new(f, nv) {
@@ -381,7 +380,7 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
     let cond_m = Spread::of(&mut conds);
     let bound = |u: f64, c: f64| (10.0 * nv as f64 * u * c).min(f64::MAX);
     let bound_through_minv = cond_m.map(|c| Bounds2 { f64: bound(f64::EPSILON / 2.0, c.max), f32: bound(f32::EPSILON as f64 / 2.0, c.max) });
-    Ok(Report { robot: model.name.clone(), nv, gravity, states: file.states.len(), source: source.to_string(), cond_m, bound_through_minv, rows })
+    Ok(Report { robot: model.name.clone(), nv, gravity, states: file.states.len(), source: source.to_string(), cond_m, bound_through_minv, rows, mixed })
 }
 
 /// The arguments of `f` in its input order, from `[q, q̇, u]`.

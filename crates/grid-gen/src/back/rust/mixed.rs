@@ -6,7 +6,7 @@
 
 use std::fmt::Write;
 
-use super::{literal, output_place, output_type, RustOptions};
+use super::{literal, output_stores, output_type, return_value, RustOptions};
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id, Op, Shape};
 
@@ -70,20 +70,8 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, nv: usize, options: &Ru
     let arg_names: Vec<&str> = k.inputs().iter().map(|i| i.name()).collect();
     let types: Vec<String> = k.outputs.iter().map(|o| output_type(o.shape).replace('T', "f64")).collect();
     let ret_type = if types.len() == 1 { types[0].clone() } else { format!("({})", types.join(", ")) };
-    let ret_value =
-        if k.outputs.len() == 1 { k.outputs[0].name.to_string() } else { format!("({})", k.outputs.iter().map(|o| o.name).collect::<Vec<_>>().join(", ")) };
-    let mut sinks: Vec<Vec<String>> = vec![Vec::new(); k.nodes.len()];
-    let mut inline_outputs = Vec::new();
-    for (oi, o) in k.outputs.iter().enumerate() {
-        for (flat, &id) in o.ids.iter().enumerate() {
-            let place = output_place(k, oi, flat, nv);
-            match k.op(id) {
-                Op::Const(c) if c == 0.0 => {}
-                Op::Const(_) | Op::Input(..) => inline_outputs.push((place, id)),
-                _ => sinks[id.0 as usize].push(place),
-            }
-        }
-    }
+    let ret_value = return_value(k);
+    let (inline_outputs, sinks) = output_stores(k, nv);
     let body = |c: usize, ids: &[Id]| -> String {
         let mut b = String::new();
         if c == 0 {
@@ -98,7 +86,7 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, nv: usize, options: &Ru
             if let Some(s) = names.slot[i] {
                 let _ = writeln!(b, "s[{s}] = {widened};");
             }
-            for place in &sinks[i] {
+            for place in sinks.get(&id).into_iter().flatten() {
                 let _ = writeln!(b, "{place} = {widened};");
             }
         }

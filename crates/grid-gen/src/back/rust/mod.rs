@@ -155,6 +155,34 @@ fn output_place(k: &Function, out: usize, flat: usize, nv: usize) -> String {
     }
 }
 
+/// The function's return expression: its output, or the tuple of its outputs.
+fn return_value(k: &Function) -> String {
+    if k.outputs.len() == 1 {
+        k.outputs[0].name.to_string()
+    } else {
+        format!("({})", k.outputs.iter().map(|o| o.name).collect::<Vec<_>>().join(", "))
+    }
+}
+
+/// Where output values are stored: output places that take a constant or an input
+/// (written once, up front), and for each computed node the places that take its value.
+/// Outputs start at zero, so structural zeros need no store.
+fn output_stores(k: &Function, nv: usize) -> (Vec<(String, Id)>, HashMap<Id, Vec<String>>) {
+    let mut sinks: HashMap<Id, Vec<String>> = HashMap::new();
+    let mut inline_outputs = Vec::new();
+    for (oi, o) in k.outputs.iter().enumerate() {
+        for (flat, &id) in o.ids.iter().enumerate() {
+            let place = output_place(k, oi, flat, nv);
+            match k.op(id) {
+                Op::Const(c) if c == 0.0 => {}
+                Op::Const(_) | Op::Input(..) => inline_outputs.push((place, id)),
+                _ => sinks.entry(id).or_default().push(place),
+            }
+        }
+    }
+    (inline_outputs, sinks)
+}
+
 fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions, copy: Copy) {
     let names = Chunks::new(k, options.chunk);
     let fuse = if copy == Copy::Fma { fusable(k, &names) } else { vec![false; k.nodes.len()] };
@@ -172,23 +200,8 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions,
     let chunks = &names.chunks;
     let name = k.kind.name();
     let Signature { args, arg_names, ret_type } = Signature::of(k);
-    let ret_value =
-        if k.outputs.len() == 1 { k.outputs[0].name.to_string() } else { format!("({})", k.outputs.iter().map(|o| o.name).collect::<Vec<_>>().join(", ")) };
-
-    // Where each node's value must be stored as an output.
-    let mut sinks: HashMap<Id, Vec<String>> = HashMap::new();
-    let mut inline_outputs = Vec::new();
-    for (oi, o) in k.outputs.iter().enumerate() {
-        for (flat, &id) in o.ids.iter().enumerate() {
-            let place = output_place(k, oi, flat, nv);
-            match k.op(id) {
-                // Outputs start at zero; structural zeros need no store.
-                Op::Const(c) if c == 0.0 => {}
-                Op::Const(_) | Op::Input(..) => inline_outputs.push((place, id)),
-                _ => sinks.entry(id).or_default().push(place),
-            }
-        }
-    }
+    let ret_value = return_value(k);
+    let (inline_outputs, sinks) = output_stores(k, nv);
     let body = |c: usize, ids: &[Id]| -> String {
         let mut b = String::new();
         if c == 0 {
