@@ -6,6 +6,8 @@ For each robot in robots/:
                           RNEA, its derivatives, M, M^-1, ABA and its derivatives.
   <robot>.yourdfpy.json   yourdfpy's reading of the tree: joint names, types, parents,
                           origins, axes, and link poses at random configurations.
+<robot>.floating.pinocchio.json: the same with a free-flyer base (Pinocchio's
+                          JointModelFreeFlyer; grid-gen's --floating-base), for FLOATING.
 <robot>.<scene>.pinocchio.json: the same, for a robot in a scene of examples/scenes/
                           (Pinocchio's buildReducedModel for locks, payload inertias added).
 and chain100.urdf with chain100.pinocchio.json: a 100-link chain (cond(M) ~ 1e5) and
@@ -119,6 +121,90 @@ def pinocchio_fixture_of(model, rng, static=False):
         "tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear],
         "joint_names": [j[0] for j in joints], "states": records,
     }
+
+
+FLOATING = ["grid_hyq", "grid_atlas", "grid_iiwa", "ur5"]
+FREE_FLYER = ["vx", "vy", "vz", "wx", "wy", "wz"]
+
+
+def floating_fixture(path, rng):
+    """The robot on a free-flyer (`buildModelFromUrdf(path, JointModelFreeFlyer())`, grid-gen's
+    `--floating-base`): `base` holds q's first seven entries [x, y, z, qx, qy, qz, qw]; `q` the
+    joint angles after it, in listing order; velocities and every matrix list the free-flyer's
+    six coordinates first as root_joint_vx ... root_joint_wz. Random base poses (uniform
+    rotations), an upside-down base, and large base speeds."""
+    model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
+    data = model.createData()
+    assert model.names[1] == "root_joint" and model.joints[1].nv == 6
+    joints = [j for j in movable_joints_after_base(model)]
+    perm = list(range(6)) + [j[3] for j in joints]
+    sel = lambda v: np.asarray(v)[perm]
+    selm = lambda m: np.asarray(m)[np.ix_(perm, perm)]
+    n = len(joints)
+    lo = np.array([j[4] for j in joints])
+    hi = np.array([j[5] for j in joints])
+    cases = []
+    for _ in range(RANDOM_STATES):
+        cases.append(("random", pin.Quaternion(pin.SE3.Random().rotation).coeffs(), 1.0))
+    cases.append(("upside down", np.array([1.0, 0.0, 0.0, 0.0]), 1.0))
+    cases.append(("base speed 1e3", pin.Quaternion(pin.SE3.Random().rotation).coeffs(), 1e3))
+    records = []
+    for kind, quat, speed in cases:
+        quat = np.asarray(quat, dtype=float) / np.linalg.norm(quat)
+        base = np.concatenate([rng.normal(size=3), quat])
+        ang = rng.uniform(lo, hi)
+        qd = rng.normal(size=6 + n); qd[:6] *= speed
+        qdd = rng.normal(size=6 + n); qdd[:6] *= speed
+        tau = rng.normal(size=6 + n) * 10
+        q = np.zeros(model.nq)
+        q[:7] = base
+        q[7:] = to_pin_q(model, joints, ang)[7:]
+        v = np.zeros(model.nv); a = np.zeros(model.nv); t = np.zeros(model.nv)
+        v[perm] = qd; a[perm] = qdd; t[perm] = tau
+        rnea = pin.rnea(model, data, q, v, a).copy()
+        dq, dv, _ = pin.computeRNEADerivatives(model, data, q, v, a)
+        dq, dv = dq.copy(), dv.copy()
+        M = pin.crba(model, data, q).copy()
+        M = np.triu(M) + np.triu(M, 1).T
+        Mi = pin.computeMinverse(model, data, q).copy()
+        Mi = np.triu(Mi) + np.triu(Mi, 1).T
+        fd = pin.aba(model, data, q, v, t).copy()
+        pin.computeABADerivatives(model, data, q, v, t)
+        records.append({
+            "kind": kind, "base": [float(x) for x in base], "q": [float(x) for x in ang], "qd": [float(x) for x in qd],
+            "qdd": [float(x) for x in qdd], "tau": [float(x) for x in tau],
+            "rnea": [float(x) for x in sel(rnea)], "drnea_dq": mat(selm(dq)), "drnea_dqd": mat(selm(dv)),
+            "M": mat(selm(M)), "Minv": mat(selm(Mi)), "fd": [float(x) for x in sel(fd)],
+            "dfd_dq": mat(selm(data.ddq_dq)), "dfd_dqd": mat(selm(data.ddq_dv)),
+        })
+    return {
+        "tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear],
+        "joint_names": [f"root_joint_{c}" for c in FREE_FLYER] + [j[0] for j in joints], "states": records,
+    }
+
+
+def movable_joints_after_base(model):
+    """movable_joints() for the joints after a free-flyer (joint 1)."""
+    out = []
+    for jid in range(2, model.njoints):
+        j = model.joints[jid]
+        assert j.nv == 1, f"{model.names[jid]}: nv={j.nv}"
+        lo = model.lowerPositionLimit[j.idx_q] if j.nq == 1 else -np.pi
+        hi = model.upperPositionLimit[j.idx_q] if j.nq == 1 else np.pi
+        if not np.isfinite(lo) or not np.isfinite(hi) or hi - lo > 100 or hi <= lo:
+            lo, hi = -np.pi, np.pi
+        out.append((model.names[jid], j.idx_q, j.nq, j.idx_v, lo, hi))
+    return out
+
+
+def floating_fixtures(check):
+    stale = False
+    for robot in FLOATING:
+        # pin.SE3.Random draws from Eigen's generator: seed it too, so reruns are identical.
+        pin.seed(sum(robot.encode()))
+        data = floating_fixture(ROBOTS / f"{robot}.urdf", np.random.default_rng(sum(robot.encode()) + 1))
+        stale |= report(OUT / f"{robot}.floating.pinocchio.json", data, check, 1e-12)
+    return stale
 
 
 SCENES = [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_knees_locked"), ("grid_iiwa", "iiwa_static")]
@@ -287,6 +373,8 @@ def main():
         failed |= chain_fixtures(check)
     if not only or "scenes" in only:
         failed |= scene_fixtures(check)
+    if not only or "floating" in only:
+        failed |= floating_fixtures(check)
     if failed:
         sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 

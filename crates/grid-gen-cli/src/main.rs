@@ -172,6 +172,10 @@ struct LoadArgs {
     /// kernels to generate; applied to the model for every command (README, Scenes).
     #[arg(long, value_name = "SCENE.toml", global = true)]
     scene: Option<PathBuf>,
+    /// Put a free-flyer between the world and the root link (Pinocchio's conventions:
+    /// q = [x, y, z, qx, qy, qz, qw, joints...], velocities and gradients in the base frame).
+    #[arg(long, global = true)]
+    floating_base: bool,
 }
 
 #[derive(Subcommand)]
@@ -353,6 +357,8 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
             }
         }
     };
+    let mut scene = scene;
+    scene.floating_base |= args.floating_base;
     let scene_path = args.scene.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
     let strict = args.strict;
     let shown = path.display().to_string();

@@ -87,6 +87,14 @@ pub fn load(robot: &str) -> Model {
     Model::from_urdf_str(&path.display().to_string(), &text, false).map_err(|e| e.render_plain()).expect("bundled robots load").0
 }
 
+/// A bundled robot on a floating base (`--floating-base`).
+pub fn load_floating(robot: &str) -> Model {
+    let path = repo().join("robots").join(format!("{robot}.urdf"));
+    let text = std::fs::read_to_string(&path).expect("robot file");
+    let scene = grid_gen::Scene { floating_base: true, ..grid_gen::Scene::default() };
+    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).expect("bundled robots load").0
+}
+
 pub fn fixture(name: &str) -> serde_json::Value {
     let path = repo().join("tests/fixtures").join(name);
     serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e} (run scripts/make_fixtures.py)", path.display())))

@@ -75,6 +75,7 @@ pub struct Builder {
     options: Options,
     scene: Option<PathBuf>,
     strict: bool,
+    floating_base: bool,
     quiet: bool,
 }
 
@@ -137,6 +138,15 @@ impl Builder {
         self
     }
 
+    /// Put a free-flyer between the world and the URDF's root link (a floating base, as
+    /// Pinocchio's `JointModelFreeFlyer`): q becomes `[x, y, z, qx, qy, qz, qw, joints…]`
+    /// and the kernels' first six velocity coordinates are the base's linear and angular
+    /// velocity in its own frame. Same as `floating_base = true` in a scene.
+    pub fn floating_base(&mut self, floating: bool) -> &mut Self {
+        self.floating_base = floating;
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
@@ -188,6 +198,8 @@ impl Builder {
                 (Scene::parse(&p.display().to_string(), &t).map_err(BuildError::Scene)?, p.display().to_string())
             }
         };
+        let mut scene = scene;
+        scene.floating_base |= self.floating_base;
         let (model, warnings) = Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path).map_err(|e| BuildError::Load(Box::new(e)))?;
         let mut options = self.options.clone();
         if let Some(g) = scene.gravity {

@@ -117,6 +117,16 @@ pub enum EvalError {
     Json(#[from] serde_json::Error),
     #[error("state {index}: `{field}` has {found} entries, the robot has {expected} joints")]
     Length { index: usize, field: &'static str, found: usize, expected: usize },
+    #[error(
+        "state {index}: `q` has {found} entries, expected {expected}: the floating base's position and quaternion \
+         `[x, y, z, qx, qy, qz, qw]`, then one per joint after the base (nq = nv + 1, Pinocchio's layout)"
+    )]
+    FloatingLength { index: usize, found: usize, expected: usize },
+    #[error(
+        "state {index}: the base quaternion `q[3..7]` has norm {norm}, not 1 (more than {QUATERNION_TOLERANCE:e} off): \
+         is it stored `[qx, qy, qz, qw]`, after the position `[x, y, z]`?"
+    )]
+    Quaternion { index: usize, norm: f64 },
     #[error("state {index}: `{field}[{entry}]` is not finite")]
     NotFinite { index: usize, field: &'static str, entry: usize },
     #[error("state {index}: `qd[{entry}]` is {value}, and the scene is static (`static = true`: q̇ = 0 is assumed and the kernels ignore `qd`); give q̇ = 0 or leave `static` out")]
@@ -149,6 +159,13 @@ pub fn parse_states(json: &str) -> Result<StatesFile, EvalError> {
     Ok(serde_json::from_str(&quote_non_finite(json))?)
 }
 
+/// How far from 1 the norm of a floating base's quaternion may be. Within it, the
+/// quaternion is used normalised (the kernels and the reference rotate by q/|q|, which is
+/// exact for any nonzero q); beyond it, it is an error, since a quaternion that far from
+/// unit is a wrong layout or an uninitialised state rather than drift (f32 storage and
+/// integrators drift by ~1e-7 per step).
+pub const QUATERNION_TOLERANCE: f64 = 1e-3;
+
 /// Checks every state's lengths and values against the model.
 pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
     let n = model.nv();
@@ -156,11 +173,20 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         let fields = [("q", Some(&s.q)), ("qd", Some(&s.qd)), ("qdd", s.qdd.as_ref()), ("tau", s.tau.as_ref())];
         for (field, v) in fields {
             let Some(v) = v else { continue };
-            if v.len() != n {
+            if field == "q" && model.floating && v.len() != model.nq() {
+                return Err(EvalError::FloatingLength { index, found: v.len(), expected: model.nq() });
+            }
+            if v.len() != n && !(field == "q" && model.floating) {
                 return Err(EvalError::Length { index, field, found: v.len(), expected: n });
             }
             if let Some(entry) = v.iter().position(|x| !x.is_finite()) {
                 return Err(EvalError::NotFinite { index, field, entry });
+            }
+        }
+        if model.floating {
+            let norm = s.q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+            if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
+                return Err(EvalError::Quaternion { index, norm });
             }
         }
         if let (true, Some(entry)) = (model.specialisation.static_velocity, s.qd.iter().position(|&x| x != 0.0)) {
@@ -297,7 +323,7 @@ pub enum BackendEvalError<E: std::error::Error + 'static> {
 }
 
 /// The JSON of [`evaluate`], with the kernels run by a backend: `run(kind, q, qd, u)`
-/// takes state-major inputs (`q[s * nv + j]`; `u` is q̈ or τ, empty for kernels without
+/// takes state-major inputs (`q[s * nq + j]`, `qd[s * nv + j]`; `u` is q̈ or τ, empty for kernels without
 /// it) and returns the kernel's outputs concatenated per state (`out[s * len + k]`,
 /// matrices row-major), as the generated kernels lay them out. rnea and rnea_grad run on
 /// the states with `qdd`, fd_grad (whose outputs give fd) on those with `tau`.

@@ -20,7 +20,7 @@ impl Model {
     pub fn from_urdf_str_in_scene(path: &str, text: &str, strict: bool, scene: &Scene, scene_path: &str) -> Result<(Model, Vec<Diagnostic>), LoadError> {
         let (urdf, tree, mut diags) = urdf::load(path, text)?;
         let edits = scene::resolve(scene, scene_path, &urdf, &tree, &mut diags);
-        let built = build(&urdf, &tree, &edits, &mut diags).map(|(mut model, source)| {
+        let built = build(&urdf, &tree, &edits, scene.floating_base, &mut diags).map(|(mut model, source)| {
             model.singular = check_massless(&model, &source, &urdf, &mut diags);
             model.specialisation = scene::specialise(scene, scene_path, &urdf, &model, &mut diags);
             let file_name = |p: &str| std::path::Path::new(p).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
@@ -51,10 +51,10 @@ impl Model {
 /// with Ic_i the composite inertia of its subtree (checked at q = 0 with the reference CRBA).
 /// A joint that does not is a warning (example-robot-data's `romeo.urdf` has one): RNEA,
 /// its gradient and M are still right. Returns the first such joint's name.
-fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<Diagnostic>) -> Option<String> {
+fn check_massless(model: &Model, source: &[Option<usize>], urdf: &Urdf, diags: &mut Vec<Diagnostic>) -> Option<String> {
     let mut singular = None;
     let n = model.nv();
-    let m = crate::reference::crba(model, &vec![0.0; n]);
+    let m = crate::reference::crba(model, &model.neutral_q());
     let scale = (0..n).map(|i| m[(i, i)]).fold(0.0, f64::max);
     let mut mass: Vec<f64> = model.joints.iter().map(|j| j.inertia.mass).collect();
     for i in (0..n).rev() {
@@ -65,7 +65,17 @@ fn check_massless(model: &Model, source: &[usize], urdf: &Urdf, diags: &mut Vec<
         // below n·ε of it, M_ii is rounding noise at M's scale, cond(M) ≥ max M_jj / M_ii
         // exceeds 1/(n·ε), and no double-precision factorisation of M is meaningful.
         if m[(i, i)] <= n as f64 * f64::EPSILON * scale {
-            let uj = &urdf.joints[source[i]];
+            let Some(uj) = source[i].map(|j| &urdf.joints[j]) else {
+                // `--floating-base`'s free-flyer: the whole robot is massless.
+                if singular.is_none() {
+                    diags.push(
+                        Diagnostic::warning(format!("the floating base `{}` moves no inertia", model.joints[i].name), None, "the mass matrix is singular")
+                            .with_help("give the robot's links <inertial> elements with positive mass; until then minv, fd and fd_grad are not generated"),
+                    );
+                    singular = Some(model.joints[i].name.clone());
+                }
+                continue;
+            };
             let child = &uj.child;
             let (message, help) = if mass[i] <= 0.0 {
                 (

@@ -5,6 +5,15 @@
 //! joints in document order. Fixed joints are merged into their parent body. Pre-order
 //! makes every subtree a contiguous range of joint indices (`subtree_end`), which the
 //! M⁻¹ recursion and the emitters rely on.
+//!
+//! A floating base (issue 11) is six model joints at the front, [`FREE_FLYER`]: three
+//! prismatic and three revolute joints along the base's own axes, massless but the last,
+//! which carries the root link. Held at their zero position, their motion subspaces are
+//! the columns of the identity in the base frame, so their velocities are Pinocchio's
+//! free-flyer velocity (linear, then angular, in the base frame) and derivatives taken
+//! along them are Pinocchio's tangent-space derivatives (`q ⊕ ε = q · exp(ε)`, first
+//! order). The base's pose comes from q's first seven entries (position, quaternion) and
+//! enters as the first of them's joint transform.
 
 use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
@@ -85,6 +94,22 @@ impl Inertia {
     }
 }
 
+/// The free-flyer's six coordinates, in Pinocchio's velocity order (`JointModelFreeFlyer`:
+/// linear velocity, then angular velocity, both in the base frame): the suffix each
+/// model joint's name gets, its type and its axis.
+pub const FREE_FLYER: [(&str, JointType, [f64; 3]); 6] = [
+    ("vx", JointType::Prismatic, [1.0, 0.0, 0.0]),
+    ("vy", JointType::Prismatic, [0.0, 1.0, 0.0]),
+    ("vz", JointType::Prismatic, [0.0, 0.0, 1.0]),
+    ("wx", JointType::Continuous, [1.0, 0.0, 0.0]),
+    ("wy", JointType::Continuous, [0.0, 1.0, 0.0]),
+    ("wz", JointType::Continuous, [0.0, 0.0, 1.0]),
+];
+
+/// The free-flyer's name when `--floating-base` adds it (Pinocchio's name for the root
+/// joint `buildModelFromUrdf` adds).
+pub const ROOT_JOINT: &str = "root_joint";
+
 /// Movable joint types after validation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "lowercase")]
@@ -149,6 +174,9 @@ pub struct Model {
     pub singular: Option<String>,
     pub root_link: String,
     pub joints: Vec<Joint>,
+    /// A floating base: `joints[..6]` are the free-flyer ([`FREE_FLYER`]) and q is
+    /// `[x, y, z, qx, qy, qz, qw, joints[6..]…]` (nq = nv + 1, Pinocchio's layout).
+    pub floating: bool,
     /// What a scene fixes about the state and the outputs (default: nothing).
     pub specialisation: Specialisation,
 }
@@ -189,6 +217,40 @@ pub struct Count {
 impl Model {
     pub fn nv(&self) -> usize {
         self.joints.len()
+    }
+
+    /// Entries of q: nv, or nv + 1 with a floating base (a quaternion for three angles).
+    pub fn nq(&self) -> usize {
+        self.joints.len() + usize::from(self.floating)
+    }
+
+    /// Where joint `i`'s position is in q; `None` for the free-flyer's six coordinates,
+    /// which are always at zero (the base pose is q's first seven entries instead).
+    pub fn q_index(&self, i: usize) -> Option<usize> {
+        match self.floating {
+            true if i < FREE_FLYER.len() => None,
+            true => Some(i + 1),
+            false => Some(i),
+        }
+    }
+
+    /// Whether joint `i` is one of the free-flyer's six coordinates. The algorithms treat
+    /// the six as one 6-dof joint whose parent is the root (Pinocchio's free-flyer): no
+    /// velocity-product term `v × S q̇` (the base's acceleration is q̈ itself), and in the
+    /// gradients the parent's velocity is 0 and its acceleration the root's, and moving
+    /// one of them does not turn the force the others transmit. Taking the chain of six
+    /// literally would add those terms, which belong to a different parametrisation.
+    pub fn is_free_flyer(&self, i: usize) -> bool {
+        self.floating && i < FREE_FLYER.len()
+    }
+
+    /// q at every joint's zero position (with a floating base: at the origin, unrotated).
+    pub fn neutral_q(&self) -> Vec<f64> {
+        let mut q = vec![0.0; self.nq()];
+        if self.floating {
+            q[6] = 1.0;
+        }
+        q
     }
 
     /// Whether `a` is `i` or one of its ancestors.
@@ -304,20 +366,27 @@ enum Step {
     Visit { link: usize, body: Option<usize>, in_body: Transform },
     /// Create the model joint for URDF joint `joint`.
     Open { joint: usize, parent: Option<usize>, tree: Transform },
+    /// Create the free-flyer `name` at `tree`, carrying `link` (see [`FREE_FLYER`]).
+    Free { name: String, link: usize, tree: Transform },
     /// The subtree of model joint `body` is complete.
     Close { body: usize },
 }
 
-/// Builds the model from a checked URDF tree; also returns, for each model joint, the
-/// index of the URDF joint it comes from (for located errors in later checks).
-pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, diags: &mut Vec<Diagnostic>) -> Option<(Model, Vec<usize>)> {
+/// Builds the model from a checked URDF tree, with a free-flyer under the root link when
+/// `floating_base`; also returns, for each model joint, the index of the URDF joint it
+/// comes from (for located errors in later checks; `None` for `--floating-base`'s).
+pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, floating_base: bool, diags: &mut Vec<Diagnostic>) -> Option<(Model, Vec<Option<usize>>)> {
     for link in &urdf.links {
         check_inertia(link, diags);
     }
     let mut joints: Vec<Joint> = Vec::new();
     // URDF joint index of each model joint, for located errors.
-    let mut source: Vec<usize> = Vec::new();
-    let mut stack = vec![Step::Visit { link: tree.root, body: None, in_body: Transform::identity() }];
+    let mut source: Vec<Option<usize>> = Vec::new();
+    let mut floating = floating_base;
+    let mut stack = vec![match floating_base {
+        true => Step::Free { name: ROOT_JOINT.to_string(), link: tree.root, tree: Transform::identity() },
+        false => Step::Visit { link: tree.root, body: None, in_body: Transform::identity() },
+    }];
     while let Some(step) = stack.pop() {
         match step {
             Step::Visit { link, body, in_body } => {
@@ -330,13 +399,31 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, diags: &mut Vec<Dia
                         }
                     }
                 }
-                // Pushed in reverse so that children are walked in document order.
-                for &j in tree.child_joints[link].iter().rev() {
+                // Pushed in reverse so that children are walked in document order, and a
+                // floating joint last, so that the free-flyer is model joints 0 to 5.
+                let floating_last = tree.child_joints[link].iter().rev().filter(|&&j| urdf.joints[j].kind != JointKind::Floating).chain(
+                    tree.child_joints[link].iter().filter(|&&j| urdf.joints[j].kind == JointKind::Floating),
+                );
+                for &j in floating_last {
                     let child = tree.joint_links[j].1;
                     if edits.dropped[child] {
                         continue;
                     }
                     let origin = in_body.compose(&Transform::from_pose(&urdf.joints[j].origin));
+                    if urdf.joints[j].kind == JointKind::Floating {
+                        let uj = &urdf.joints[j];
+                        if link != tree.root || floating {
+                            let why = if floating { "a robot has at most one floating base" } else { "only the root link can carry a floating joint" };
+                            diags.push(
+                                Diagnostic::error(format!("floating joint `{}` is not supported here", uj.name), Some(uj.span.clone()), why)
+                                    .with_help("a floating joint must join the root link (e.g. `world`) to the base; with `--floating-base`, leave it out of the URDF"),
+                            );
+                            continue;
+                        }
+                        floating = true;
+                        stack.push(Step::Free { name: uj.name.clone(), link: child, tree: origin });
+                        continue;
+                    }
                     if urdf.joints[j].kind == JointKind::Fixed {
                         stack.push(Step::Visit { link: child, body, in_body: origin });
                     } else if let Some(value) = edits.locked[j] {
@@ -377,9 +464,34 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, diags: &mut Vec<Dia
                     friction: uj.friction,
                     mimic: uj.mimic.as_ref().map(|m| (m.joint.clone(), m.multiplier, m.offset)),
                 });
-                source.push(j);
+                source.push(Some(j));
                 stack.push(Step::Close { body: index });
                 stack.push(Step::Visit { link: tree.joint_links[j].1, body: Some(index), in_body: Transform::identity() });
+            }
+            Step::Free { name, link, tree: tree_transform } => {
+                for (k, &(suffix, joint_type, axis)) in FREE_FLYER.iter().enumerate() {
+                    joints.push(Joint {
+                        name: format!("{name}_{suffix}"),
+                        joint_type,
+                        parent: k.checked_sub(1),
+                        tree: if k == 0 { tree_transform } else { Transform::identity() },
+                        axis,
+                        inertia: Inertia::zero(),
+                        level: k,
+                        subtree_end: k + 1,
+                        limit: None,
+                        velocity_limit: None,
+                        damping: 0.0,
+                        friction: 0.0,
+                        mimic: None,
+                    });
+                    source.push(None);
+                }
+                // Closed last-pushed-first: every free-flyer joint's subtree is the robot.
+                for k in 0..FREE_FLYER.len() {
+                    stack.push(Step::Close { body: k });
+                }
+                stack.push(Step::Visit { link, body: Some(FREE_FLYER.len() - 1), in_body: Transform::identity() });
             }
             Step::Close { body } => joints[body].subtree_end = joints.len(),
         }
@@ -390,6 +502,7 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, diags: &mut Vec<Dia
         singular: None,
         root_link: urdf.links[tree.root].name.clone(),
         joints,
+        floating,
         specialisation: Specialisation::default(),
     };
     Some((model, source))

@@ -14,6 +14,7 @@
 //! torso_joint = 0.0
 //!
 //! static = true                        # q̇ = 0 is known: kernels ignore `qd`
+//! floating_base = true                 # a free-flyer under the root link (--floating-base)
 //!
 //! [gradient]                           # gradient entries needed (default: all)
 //! rows = ["right_s0"]                  # by joint: the rows computed
@@ -63,6 +64,9 @@ pub struct Scene {
     /// Which rows and columns of the gradient matrices are needed.
     #[serde(default)]
     pub gradient: GradientEntries,
+    /// A free-flyer between the world and the root link (as `--floating-base`).
+    #[serde(default)]
+    pub floating_base: bool,
 }
 
 /// `[gradient]`: the entries of `dc_dq`, `dc_dqd`, `dqdd_dq` and `dqdd_dqd` a task reads,
@@ -203,6 +207,10 @@ pub(crate) fn resolve(scene: &Scene, scene_path: &str, urdf: &Urdf, tree: &Tree,
                 Some(urdf.joints[j].span.clone()),
                 "already fixed",
             )),
+            Some(j) if urdf.joints[j].kind == JointKind::Floating => diags.push(
+                Diagnostic::error(format!("scene `{scene_path}`: [lock] names floating joint `{name}`"), Some(urdf.joints[j].span.clone()), "a floating joint cannot be locked at one value")
+                    .with_help("to model the robot with a fixed base, make the joint fixed in the URDF"),
+            ),
             Some(j) => {
                 let joint = &urdf.joints[j];
                 if let (Some((lo, hi)), false) = (joint.limit, joint.kind == JointKind::Continuous) {

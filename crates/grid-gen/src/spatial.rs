@@ -65,3 +65,22 @@ pub fn spatial_inertia(mass: f64, h: &Vector3<f64>, i_origin: &Matrix3<f64>) -> 
     x.fixed_view_mut::<3, 3>(3, 3).copy_from(&(Matrix3::identity() * mass));
     x
 }
+
+/// The rotation of quaternion `[x, y, z, w]` (Pinocchio's and Eigen's storage order),
+/// scaled by 1/|q|² so that a slightly non-unit quaternion gives the rotation of its
+/// normalised self (Eigen's `toRotationMatrix` formula with s = 2/|q|²).
+pub fn quaternion_matrix(q: [f64; 4]) -> Matrix3<f64> {
+    let [x, y, z, w] = q;
+    let s = 2.0 / (x * x + y * y + z * z + w * w);
+    Matrix3::new(
+        1.0 - s * (y * y + z * z),
+        s * (x * y - z * w),
+        s * (x * z + y * w),
+        s * (x * y + z * w),
+        1.0 - s * (x * x + z * z),
+        s * (y * z - x * w),
+        s * (x * z - y * w),
+        s * (y * z + x * w),
+        1.0 - s * (x * x + y * y),
+    )
+}

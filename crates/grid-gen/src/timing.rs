@@ -53,15 +53,17 @@ pub struct MixedKernel<'a> {
 }
 
 /// The module of mixed-precision kernels, `mixed{i}::NAME` for the i-th of `mixed`.
-fn mixed_module(nv: usize, mixed: &[MixedKernel]) -> String {
+fn mixed_module(nv: usize, nq: usize, mixed: &[MixedKernel]) -> String {
     let mut out = String::new();
     for (i, m) in mixed.iter().enumerate() {
         let _ = writeln!(
             out,
             "pub mod mixed{i} {{
-const NV: usize = {nv};"
+const NV: usize = {nv};
+#[allow(dead_code)]
+const NQ: usize = {nq};"
         );
-        crate::back::rust::emit_mixed_kernel(&mut out, m.function, nv, &crate::back::rust::RustOptions::default(), m.wide);
+        crate::back::rust::emit_mixed_kernel(&mut out, m.function, nv, "NQ", &crate::back::rust::RustOptions::default(), m.wide);
         out.push_str(
             "}
 ",
@@ -72,16 +74,16 @@ const NV: usize = {nv};"
 
 /// The timing program for `kernels` of a module whose file is `robot.rs`, and the
 /// mixed kernels of `mixed.rs`.
-fn program(kernels: &[KernelKind], mixed: &[MixedKernel]) -> String {
+fn program(kernels: &[KernelKind], mixed: &[MixedKernel], nq: usize) -> String {
     let mut calls = String::new();
     for (i, m) in mixed.iter().enumerate() {
         let name = m.function.kind.name();
-        let args = if m.function.inputs().len() == 1 { "&x[0]" } else { "&x[0], &x[1], &x[2]" };
+        let args = if m.function.inputs().len() == 1 { "&x.0" } else { "&x.0, &x.1[0], &x.1[1]" };
         let _ = writeln!(calls, "    println!(\"{name} {i} mixed {{}}\", time(|j| {{ let x = &s64[j]; black_box(mixed::mixed{i}::{name}({args})); }}));");
     }
     for k in kernels {
         let name = k.name();
-        let args = if k.inputs().len() == 1 { "&x[0]" } else { "&x[0], &x[1], &x[2]" };
+        let args = if k.inputs().len() == 1 { "&x.0" } else { "&x.0, &x.1[0], &x.1[1]" };
         for (scalar, states) in [("f64", "s64"), ("f32", "s32")] {
             for (copy, path) in [("portable", "robot::portable::"), ("dispatch", "robot::")] {
                 let _ =
@@ -133,8 +135,12 @@ fn time<F: FnMut(usize)>(mut f: F) -> f64 {{
 
 fn main() {{
     const N: usize = robot::NV;
-    let s64: Vec<[[f64; N]; 3]> = (0..STATES).map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt)))).collect();
-    let s32: Vec<[[f32; N]; 3]> = s64.iter().map(|x| x.map(|v| v.map(|y| y as f32))).collect();
+    // q (nq entries: a floating base's quaternion is normalised by the kernels), then q̇, and q̈ or τ.
+    const NQ: usize = {nq};
+    let s64: Vec<([f64; NQ], [[f64; N]; 2])> = (0..STATES)
+        .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1)))))
+        .collect();
+    let s32: Vec<([f32; NQ], [[f32; N]; 2])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)))).collect();
 {calls}}}
 "#
     )
@@ -183,8 +189,8 @@ pub fn time_rust_kernels_with_mixed(
     let io = |e| TimingError::Io(work.to_path_buf(), e);
     std::fs::create_dir_all(work).map_err(io)?;
     std::fs::write(work.join("robot.rs"), &module.contents).map_err(io)?;
-    std::fs::write(work.join("mixed.rs"), mixed_module(model.nv(), mixed)).map_err(io)?;
-    std::fs::write(work.join("main.rs"), program(&present, mixed)).map_err(io)?;
+    std::fs::write(work.join("mixed.rs"), mixed_module(model.nv(), model.nq(), mixed)).map_err(io)?;
+    std::fs::write(work.join("main.rs"), program(&present, mixed, model.nq())).map_err(io)?;
     let exe = work.join(if cfg!(windows) { "time_kernels.exe" } else { "time_kernels" });
     let out = Command::new(rustc)
         .args(["--edition", "2021", "-C", "opt-level=3", "-C", "debuginfo=0", "--crate-name", "time_kernels", "-o"])

@@ -10,7 +10,7 @@
 use super::graph::{Graph, Id, Input, Stage};
 use super::kernel::Gradient;
 use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
-use crate::model::Model;
+use crate::model::{Model, FREE_FLYER};
 
 /// Row-major n x n matrix of nodes.
 pub type Mat = Vec<Vec<Id>>;
@@ -127,9 +127,17 @@ impl<'a> Dynamics<'a> {
             let vj = sp::scale(g, &self.s[i], qd[i]);
             v[i] = sp::add(g, &xv[i], &vj);
             let sa = sp::scale(g, &self.s[i], qdd[i]);
-            let cv = sp::crm(g, &v[i], &vj);
             let t = sp::add(g, &xa[i], &sa);
-            a[i] = sp::add(g, &t, &cv);
+            if self.model.is_free_flyer(i) {
+                // One 6-dof joint at the root (`Model::is_free_flyer`): no velocity-product
+                // term, and the gradients see the root's v = 0 and a₀ as its parent's.
+                a[i] = t;
+                xv[i] = z;
+                xa[i] = xa[0];
+            } else {
+                let cv = sp::crm(g, &v[i], &vj);
+                a[i] = sp::add(g, &t, &cv);
+            }
             iv[i] = self.inertia[i].apply(g, &v[i]);
             let ia = self.inertia[i].apply(g, &a[i]);
             let vf = sp::crf(g, &v[i], &iv[i]);
@@ -170,6 +178,7 @@ impl<'a> Dynamics<'a> {
             }
             self.at(i, Stage::Forward);
             let parent = self.model.joints[i].parent;
+            let free = self.model.is_free_flyer(i);
             let cols = self.motion_cols(i);
             let g = &mut self.g;
             let vj = sp::scale(g, &self.s[i], qd[i]);
@@ -188,13 +197,17 @@ impl<'a> Dynamics<'a> {
                     dvqd = sp::add(g, &dvqd, &self.s[i]);
                     let t = sp::crm(g, &r.xa[i], &self.s[i]);
                     daq = sp::add(g, &daq, &t);
-                    let t = sp::crm(g, &r.v[i], &self.s[i]);
+                    if !free {
+                        let t = sp::crm(g, &r.v[i], &self.s[i]);
+                        daqd = sp::add(g, &daqd, &t);
+                    }
+                }
+                if !free {
+                    let t = sp::crm(g, &dvq, &vj);
+                    daq = sp::add(g, &daq, &t);
+                    let t = sp::crm(g, &dvqd, &vj);
                     daqd = sp::add(g, &daqd, &t);
                 }
-                let t = sp::crm(g, &dvq, &vj);
-                daq = sp::add(g, &daq, &t);
-                let t = sp::crm(g, &dvqd, &vj);
-                daqd = sp::add(g, &daqd, &t);
                 for (dv, da, df) in [(dvq, daq, &mut df_q[i][u]), (dvqd, daqd, &mut df_qd[i][u])] {
                     let ida = self.inertia[i].apply(g, &da);
                     let idv = self.inertia[i].apply(g, &dv);
@@ -237,11 +250,13 @@ impl<'a> Dynamics<'a> {
                         }
                     }
                 }
-                // iXλᵀ (S_i ×* f_i) in the q_i column.
-                let sf = sp::crf(g, &self.s[i], &r.f[i]);
-                let moved = self.x[i].apply_t(g, &sf);
-                let old = df_q[p][i].unwrap_or(z);
-                df_q[p][i] = Some(sp::add(g, &old, &moved));
+                // iXλᵀ (S_i ×* f_i) in the q_i column (not between the free-flyer's six).
+                if !self.model.is_free_flyer(i) {
+                    let sf = sp::crf(g, &self.s[i], &r.f[i]);
+                    let moved = self.x[i].apply_t(g, &sf);
+                    let old = df_q[p][i].unwrap_or(z);
+                    df_q[p][i] = Some(sp::add(g, &old, &moved));
+                }
             }
         }
         (dc_q, dc_qd)
@@ -303,13 +318,24 @@ impl<'a> Dynamics<'a> {
             let dsd = dc[i].apply(g, &sd[i]);
             let sh = sp::crf(g, s, &hc[i]);
             let sdh = sp::crf(g, &sd[i], &hc[i]);
-            let sf = sp::crf(g, s, &r.f[i]);
-            let isd2 = sp::add(g, &isd, &isd);
+            // The free-flyer's six are one joint (`Model::is_free_flyer`): Ṡ + Ψ̇ is
+            // v_base × S (Ψ̇ = 0 with the root as parent), and no S ×* f term between them.
+            let free = self.model.is_free_flyer(i).then(|| sp::crm(g, &r.v[FREE_FLYER.len() - 1], s));
+            let isd2 = match free {
+                Some(sdot) => ic[i].apply(g, &sdot),
+                None => sp::add(g, &isd, &isd),
+            };
             let t2 = sp::add(g, &ds, &sh);
             let t2 = sp::add(g, &t2, &isd2);
             let t3 = sp::add(g, &dsd, &sdh);
             let t3 = sp::add(g, &t3, &isdd);
-            let t3 = sp::add(g, &t3, &sf);
+            let t3 = match free {
+                Some(_) => t3,
+                None => {
+                    let sf = sp::crf(g, s, &r.f[i]);
+                    sp::add(g, &t3, &sf)
+                }
+            };
             let t4 = sp::sub(g, &ds, &sh);
             t[i] = [is, t2, t3, t4];
             for j in i..end {
@@ -321,8 +347,13 @@ impl<'a> Dynamics<'a> {
                 let a = sp::dot(g, &t1, &sdd[i]);
                 let b = sp::dot(g, &t4, &sd[i]);
                 dc_q[j][i] = g.add(a, b);
-                let a = sp::dot(g, &t1, &sd[i]);
-                let a2 = g.add(a, a);
+                let a2 = match free {
+                    Some(sdot) => sp::dot(g, &t1, &sdot),
+                    None => {
+                        let a = sp::dot(g, &t1, &sd[i]);
+                        g.add(a, a)
+                    }
+                };
                 let b = sp::dot(g, &t4, s);
                 dc_qd[j][i] = g.add(a2, b);
             }
@@ -468,7 +499,7 @@ impl<'a> Dynamics<'a> {
             let xv = self.x[i].apply(g, &vp);
             let vj = sp::scale(g, &self.s[i], qd[i]);
             v[i] = sp::add(g, &xv, &vj);
-            c[i] = sp::crm(g, &v[i], &vj);
+            c[i] = if self.model.is_free_flyer(i) { z } else { sp::crm(g, &v[i], &vj) };
             let iv = self.inertia[i].apply(g, &v[i]);
             pa[i] = sp::crf(g, &v[i], &iv);
         }

@@ -81,6 +81,9 @@ pub struct Robot {
     pub velocity_limits: Vec<Option<f64>>,
     /// What the scene fixes: q̇ = 0, the gradient entries computed.
     pub specialisation: crate::model::Specialisation,
+    /// A floating base: joints 0..6 are the free-flyer and q has nv + 1 entries
+    /// (`[x, y, z, qx, qy, qz, qw, …]`, see [`crate::model::Model::floating`]).
+    pub floating: bool,
 }
 
 impl Robot {
@@ -94,11 +97,26 @@ impl Robot {
             limits: model.joints.iter().map(|j| j.limit).collect(),
             velocity_limits: model.joints.iter().map(|j| j.velocity_limit).collect(),
             specialisation: model.specialisation.clone(),
+            floating: model.floating,
         }
     }
 
     pub fn nv(&self) -> usize {
         self.joint_names.len()
+    }
+
+    /// Entries of q (nv, or nv + 1 with a floating base).
+    pub fn nq(&self) -> usize {
+        self.nv() + usize::from(self.floating)
+    }
+
+    /// Entries of one input: q has nq, the others nv.
+    pub fn input_len(&self, input: Input) -> usize {
+        if input == Input::Q {
+            self.nq()
+        } else {
+            self.nv()
+        }
     }
 }
 
@@ -183,7 +201,7 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
             }
         }
     }
-    validate(&f, model.nv()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
+    validate(&f, model.nv(), model.nq()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
     Ok(f)
 }
 

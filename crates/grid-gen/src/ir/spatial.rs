@@ -318,7 +318,8 @@ pub fn joint_xform(g: &mut Graph, model: &Model, i: usize) -> Xform {
     // E_T = Rᵀ (rows of E_T are columns of R); r_T = position.
     let et: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| k(g, tree_r[c][r])));
     let rt: V3 = std::array::from_fn(|r| k(g, joint.tree.pos[r]));
-    let q = g.input(super::graph::Input::Q, i);
+    let Some(qi) = model.q_index(i) else { return free_flyer_xform(g, i, et, rt) };
+    let q = g.input(super::graph::Input::Q, qi);
     let a = joint.axis;
     if joint.joint_type.is_rotation() {
         let (s, c) = (g.sin(q), g.cos(q));
@@ -348,4 +349,43 @@ pub fn joint_xform(g: &mut Graph, model: &Model, i: usize) -> Xform {
         let r = add3(g, &rt, &shift);
         Xform { e: et, r }
     }
+}
+
+/// A free-flyer joint's transform (see [`crate::model`]): the six are at their zero
+/// position, and the first carries the base pose, `X_pose X_T` = plux(E_p E_T, r_T + E_Tᵀ p)
+/// with E_p = Rᵀ from q's quaternion (entries 3..7, `[qx, qy, qz, qw]`, scaled by 1/|q|²
+/// as in `spatial::quaternion_matrix`) and p from entries 0..3.
+fn free_flyer_xform(g: &mut Graph, i: usize, et: [[Id; 3]; 3], rt: V3) -> Xform {
+    if i > 0 {
+        return Xform { e: et, r: rt };
+    }
+    let input = |g: &mut Graph, k: usize| g.input(super::graph::Input::Q, k);
+    let p: V3 = std::array::from_fn(|k| input(g, k));
+    let [x, y, z, w] = std::array::from_fn(|k| input(g, 3 + k));
+    let norm2 = g.dot(&[x, y, z, w], &[x, y, z, w]);
+    let two = k(g, 2.0);
+    let s = g.div(two, norm2);
+    let one = k(g, 1.0);
+    // s·(a·b ± c·d) and 1 − s·(a² + b²): the entries of R (Eigen's toRotationMatrix).
+    let pair = |g: &mut Graph, a: Id, b: Id, c: Id, d: Id, plus: bool| {
+        let ab = g.mul(a, b);
+        let cd = g.mul(c, d);
+        let t = if plus { g.add(ab, cd) } else { g.sub(ab, cd) };
+        g.mul(s, t)
+    };
+    let diag = |g: &mut Graph, a: Id, b: Id| {
+        let t = g.dot(&[a, b], &[a, b]);
+        let t = g.mul(s, t);
+        g.sub(one, t)
+    };
+    let r = [
+        [diag(g, y, z), pair(g, x, y, z, w, false), pair(g, x, z, y, w, true)],
+        [pair(g, x, y, z, w, true), diag(g, x, z), pair(g, y, z, x, w, false)],
+        [pair(g, x, z, y, w, false), pair(g, y, z, x, w, true), diag(g, x, y)],
+    ];
+    // E = E_p E_T with E_p = Rᵀ: entry (a, b) = Σ_c R[c][a] E_T[c][b].
+    let e = std::array::from_fn(|a| std::array::from_fn(|b| g.dot(&[r[0][a], r[1][a], r[2][a]], &[et[0][b], et[1][b], et[2][b]])));
+    let shift = mat_t_vec(g, &et, &p);
+    let r = add3(g, &rt, &shift);
+    Xform { e, r }
 }

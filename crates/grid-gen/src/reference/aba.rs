@@ -17,7 +17,8 @@ pub fn aba(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3])
         let v_parent = model.joints[i].parent.map_or(Vec6::zeros(), |p| v[p]);
         let vj = k.s[i] * qd[i];
         v[i] = k.x[i] * v_parent + vj;
-        c[i] = crm(&v[i]) * vj;
+        // The free-flyer's acceleration is q̈ itself (see `Model::is_free_flyer`).
+        c[i] = if model.is_free_flyer(i) { Vec6::zeros() } else { crm(&v[i]) * vj };
         pa[i] = crf(&v[i]) * (k.inertia[i] * v[i]);
     }
     // Articulated inertias and bias forces, leaves to root.

@@ -22,7 +22,7 @@ pub use rnea_derivatives::rnea_derivatives;
 use nalgebra::{Matrix3, Vector3};
 
 use crate::model::{Joint, Model};
-use crate::spatial::{axis_angle, plux, spatial_inertia, Mat6, Vec6};
+use crate::spatial::{axis_angle, plux, quaternion_matrix, spatial_inertia, Mat6, Vec6};
 
 pub use crate::model::DEFAULT_GRAVITY;
 
@@ -46,6 +46,27 @@ pub fn joint_transform(joint: &Joint, qi: f64) -> Mat6 {
     x_joint * x_tree
 }
 
+/// Joint i's `iXλ(i)` at `q` (length nq): with a floating base, the free-flyer's first
+/// joint carries the base pose (`X_pose X_T`, the pose from q's position and quaternion)
+/// and the six are at their zero position (see [`crate::model`]).
+pub fn model_joint_transform(model: &Model, i: usize, q: &[f64]) -> Mat6 {
+    let joint = &model.joints[i];
+    match model.q_index(i) {
+        Some(k) => joint_transform(joint, q[k]),
+        None if i == 0 => {
+            let (r, p) = base_pose(q);
+            plux(&r.transpose(), &p) * joint_transform(joint, 0.0)
+        }
+        None => joint_transform(joint, 0.0),
+    }
+}
+
+/// The floating base's pose from q's first seven entries: the rotation of the normalised
+/// quaternion `[qx, qy, qz, qw]` (base axes in the parent frame) and the position.
+pub fn base_pose(q: &[f64]) -> (Matrix3<f64>, Vector3<f64>) {
+    (quaternion_matrix([q[3], q[4], q[5], q[6]]), Vector3::new(q[0], q[1], q[2]))
+}
+
 /// The spatial inertia of body i in its own frame.
 pub fn body_inertia(joint: &Joint) -> Mat6 {
     spatial_inertia(joint.inertia.mass, &Vector3::from(joint.inertia.h), &joint.inertia.i_origin_matrix())
@@ -61,7 +82,7 @@ pub(crate) struct Kinematics {
 impl Kinematics {
     pub fn new(model: &Model, q: &[f64]) -> Self {
         Kinematics {
-            x: model.joints.iter().zip(q).map(|(j, &qi)| joint_transform(j, qi)).collect(),
+            x: (0..model.nv()).map(|i| model_joint_transform(model, i, q)).collect(),
             s: model.joints.iter().map(motion_subspace).collect(),
             inertia: model.joints.iter().map(body_inertia).collect(),
         }
@@ -77,11 +98,25 @@ pub(crate) fn root_acceleration(gravity: [f64; 3]) -> Vec6 {
 /// link's frame at `q`: the rotation (child axes in root coordinates) and the origin.
 pub fn forward_kinematics(model: &Model, q: &[f64]) -> Vec<(Matrix3<f64>, Vector3<f64>)> {
     let mut poses: Vec<(Matrix3<f64>, Vector3<f64>)> = Vec::with_capacity(model.nv());
-    for (joint, &qi) in model.joints.iter().zip(q) {
+    for (i, joint) in model.joints.iter().enumerate() {
         let (r_parent, p_parent) = match joint.parent {
             Some(p) => poses[p],
             None => (Matrix3::identity(), Vector3::zeros()),
         };
+        let Some(k) = model.q_index(i) else {
+            // The free-flyer: the pose after the first joint's origin, then at rest.
+            let (r, p) = match i {
+                0 => {
+                    let (rb, pb) = base_pose(q);
+                    let (rt, pt) = (joint.tree.rot_matrix(), joint.tree.pos_vector());
+                    (r_parent * rt * rb, p_parent + r_parent * (pt + rt * pb))
+                }
+                _ => (r_parent, p_parent),
+            };
+            poses.push((r, p));
+            continue;
+        };
+        let qi = q[k];
         let a = Vector3::from(joint.axis);
         let (r_joint, p_joint) = if joint.joint_type.is_rotation() { (axis_angle(&a, qi), Vector3::zeros()) } else { (Matrix3::identity(), a * qi) };
         let r_tree = joint.tree.rot_matrix();

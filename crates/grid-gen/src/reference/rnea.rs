@@ -21,7 +21,10 @@ pub fn rnea(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]
         };
         let vj = k.s[i] * qd[i];
         v[i] = k.x[i] * v_parent + vj;
-        a[i] = k.x[i] * a_parent + k.s[i] * qdd[i] + crm(&v[i]) * vj;
+        a[i] = k.x[i] * a_parent + k.s[i] * qdd[i];
+        if !model.is_free_flyer(i) {
+            a[i] += crm(&v[i]) * vj;
+        }
         f[i] = k.inertia[i] * a[i] + crf(&v[i]) * (k.inertia[i] * v[i]);
     }
     // Backward pass: project onto the joint, pass the rest to the parent.

@@ -28,7 +28,14 @@ pub fn rnea_derivatives(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravi
         let xa = k.x[i] * a_parent;
         let vj = s * qd[i];
         v[i] = xv + vj;
-        a[i] = xa + s * qdd[i] + crm(&v[i]) * vj;
+        // The free-flyer is one joint at the root (see `Model::is_free_flyer`): no
+        // velocity-product term, and its derivative terms see the root's v = 0 and a₀.
+        let free = model.is_free_flyer(i);
+        a[i] = xa + s * qdd[i];
+        if !free {
+            a[i] += crm(&v[i]) * vj;
+        }
+        let (xv, xa) = if free { (Vec6::zeros(), k.x[0] * a0) } else { (xv, xa) };
         let iv = k.inertia[i] * v[i];
         f[i] = k.inertia[i] * a[i] + crf(&v[i]) * iv;
 
@@ -44,12 +51,14 @@ pub fn rnea_derivatives(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravi
         col = dv_dqd[i].column(i) + s;
         dv_dqd[i].set_column(i, &col);
         // ∂a_i = iXλ ∂a_λ + ∂v_i × S_i q̇_i + {(iXλ a_λ) × S_i for q_i; v_i × S_i for q̇_i}.
-        da_dq[i] -= crm(&vj) * &dv_dq[i];
-        da_dqd[i] -= crm(&vj) * &dv_dqd[i];
+        if !free {
+            da_dq[i] -= crm(&vj) * &dv_dq[i];
+            da_dqd[i] -= crm(&vj) * &dv_dqd[i];
+            col = da_dqd[i].column(i) + crm(&v[i]) * s;
+            da_dqd[i].set_column(i, &col);
+        }
         col = da_dq[i].column(i) + crm(&xa) * s;
         da_dq[i].set_column(i, &col);
-        col = da_dqd[i].column(i) + crm(&v[i]) * s;
-        da_dqd[i].set_column(i, &col);
         // ∂f_i = I ∂a_i + v_i ×* (I ∂v_i) + ∂v_i ×* (I v_i), the last one column by column.
         for (dv, da, df) in [(&dv_dq[i], &da_dq[i], &mut df_dq[i]), (&dv_dqd[i], &da_dqd[i], &mut df_dqd[i])] {
             *df = &k.inertia[i] * da + crf(&v[i]) * (&k.inertia[i] * dv);
@@ -75,9 +84,11 @@ pub fn rnea_derivatives(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravi
             df_dq[p] += dp;
             let dpd = &xt * &df_dqd[i];
             df_dqd[p] += dpd;
-            let extra = xt * (crf(&s) * f[i]);
-            let col = df_dq[p].column(i) + extra;
-            df_dq[p].set_column(i, &col);
+            if !model.is_free_flyer(i) {
+                let extra = xt * (crf(&s) * f[i]);
+                let col = df_dq[p].column(i) + extra;
+                df_dq[p].set_column(i, &col);
+            }
             let fp = k.x[i].transpose() * f[i];
             f[p] += fp;
         }

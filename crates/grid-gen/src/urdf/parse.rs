@@ -37,6 +37,8 @@ pub enum JointKind {
     Continuous,
     Prismatic,
     Fixed,
+    /// Six degrees of freedom: only between the root link and the base (a floating base).
+    Floating,
 }
 
 impl JointKind {
@@ -46,6 +48,7 @@ impl JointKind {
             JointKind::Continuous => "continuous",
             JointKind::Prismatic => "prismatic",
             JointKind::Fixed => "fixed",
+            JointKind::Floating => "floating",
         }
     }
 }
@@ -220,14 +223,15 @@ impl Parser {
             "continuous" => JointKind::Continuous,
             "prismatic" => JointKind::Prismatic,
             "fixed" => JointKind::Fixed,
-            "floating" | "planar" | "spherical" => {
+            "floating" => JointKind::Floating,
+            "planar" | "spherical" => {
                 self.diags.push(
                     Diagnostic::error(
                         format!("joint `{name}` has type `{ty}`, which is not supported"),
                         Some(Self::attr_span(node, "type")),
                         "unsupported joint type",
                     )
-                    .with_help("supported joint types are revolute, continuous, prismatic and fixed; a floating base is planned but not built yet"),
+                    .with_help("supported joint types are revolute, continuous, prismatic, fixed and floating (at the root)"),
                 );
                 return None;
             }

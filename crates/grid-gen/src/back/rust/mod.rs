@@ -183,7 +183,7 @@ fn output_stores(k: &Function, nv: usize) -> (Vec<(String, Id)>, HashMap<Id, Vec
     (inline_outputs, sinks)
 }
 
-fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions, copy: Copy) {
+fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: &RustOptions, copy: Copy) {
     let names = Chunks::new(k, options.chunk);
     let fuse = if copy == Copy::Fma { fusable(k, &names) } else { vec![false; k.nodes.len()] };
     // A product is dropped only where its one user fuses it.
@@ -199,7 +199,7 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, options: &RustOptions,
     }
     let chunks = &names.chunks;
     let name = k.kind.name();
-    let Signature { args, arg_names, ret_type } = Signature::of(k);
+    let Signature { args, arg_names, ret_type } = Signature::of(k, q_len);
     let ret_value = return_value(k);
     let (inline_outputs, sinks) = output_stores(k, nv);
     let body = |c: usize, ids: &[Id]| -> String {
@@ -280,20 +280,39 @@ struct Signature {
 }
 
 impl Signature {
-    fn of(k: &Function) -> Self {
+    /// `q_len`: the length constant of q, `NV`, or `NQ` with a floating base.
+    fn of(k: &Function, q_len: &str) -> Self {
         let ret: Vec<&str> = k.outputs.iter().map(|o| output_type(o.shape)).collect();
         Signature {
-            args: k.inputs().iter().map(|i| format!("{}: &[T; NV]", i.name())).collect(),
+            args: k.inputs().iter().map(|i| format!("{}: &[T; {}]", i.name(), input_len(*i, q_len))).collect(),
             arg_names: k.inputs().iter().map(|i| i.name()).collect(),
             ret_type: if ret.len() == 1 { ret[0].to_string() } else { format!("({})", ret.join(", ")) },
         }
     }
 }
 
+/// The length constant of an input: q's is `q_len` (`NQ` with a floating base).
+pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
+    if input == crate::ir::Input::Q {
+        q_len
+    } else {
+        "NV"
+    }
+}
+
+/// The length constant of q in a module for `robot`.
+pub(super) fn q_len(robot: &crate::ir::Robot) -> &'static str {
+    if robot.floating {
+        "NQ"
+    } else {
+        "NV"
+    }
+}
+
 /// The public kernel: the FMA copy where the CPU has it, else the portable one.
-fn emit_dispatcher(out: &mut String, k: &Function) {
+fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str) {
     let name = k.kind.name();
-    let Signature { args, arg_names, ret_type } = Signature::of(k);
+    let Signature { args, arg_names, ret_type } = Signature::of(k, q_len);
     let call = arg_names.join(", ");
     let _ = writeln!(out, "/// {}\n///\n/// Runs [`fma::{name}`] where [`has_fma`], else [`portable::{name}`].", k.kind.doc());
     let _ = writeln!(out, "#[inline]\n#[allow(dead_code)]\npub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
@@ -402,6 +421,14 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
     let mut out = String::new();
     let _ = writeln!(out, "/// The robot's name in its URDF.\n#[allow(dead_code)]\npub const ROBOT: &str = {};", string_literal(&robot.name));
     let _ = writeln!(out, "/// Number of movable joints (and of entries in every vector).\n#[allow(dead_code)]\npub const NV: usize = {nv};");
+    if robot.floating {
+        let _ = writeln!(
+            out,
+            "/// Entries of q: the floating base's position and quaternion `[x, y, z, qx, qy, qz, qw]`, then the\n\
+             /// joints after the base's six velocity coordinates (Pinocchio's free-flyer layout).\n#[allow(dead_code)]\npub const NQ: usize = {};",
+            robot.nq()
+        );
+    }
     let names: Vec<String> = robot.joint_names.iter().map(|n| string_literal(n)).collect();
     let _ = writeln!(out, "/// Movable joints in model order: depth-first from the root, children in document order.\n#[allow(dead_code)]\npub const JOINT_NAMES: [&str; NV] = [{}];", names.join(", "));
     let parents: Vec<String> = robot.parents.iter().map(|p| p.map_or("None".into(), |p| format!("Some({p})"))).collect();
@@ -420,11 +447,11 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
     out.push_str(PRELUDE);
     out.push_str(DISPATCH_DOC);
     for k in &module.functions {
-        emit_dispatcher(&mut out, k);
+        emit_dispatcher(&mut out, k, q_len(robot));
     }
     out.push_str("/// The kernels for any target: separate multiplies and adds.\npub mod portable {\nuse super::*;\n");
     for k in &module.functions {
-        emit_kernel(&mut out, k, nv, options, Copy::Portable);
+        emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Portable);
     }
     out.push_str(
         "}\n/// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).\n\
@@ -432,7 +459,7 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
          /// at the top of the module check first.\n#[cfg(target_arch = \"x86_64\")]\npub mod fma {\nuse super::*;\n",
     );
     for k in &module.functions {
-        emit_kernel(&mut out, k, nv, options, Copy::Fma);
+        emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Fma);
     }
     out.push_str("}\n");
     let file = syn::parse_file(&out).map_err(|e| BackError::RustUnparsable(e.to_string()))?;
