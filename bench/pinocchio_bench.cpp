@@ -1,4 +1,4 @@
-// Times Pinocchio's computeRNEADerivatives and computeABADerivatives (fixed base, f64) on
+// Times Pinocchio's computeRNEADerivatives and computeABADerivatives (f64; fixed base, or a free-flyer) on
 // a model that Pinocchio's Python bindings built from a URDF and saved as text
 // (pinocchio.Model.saveToText; the wheel ships no urdfdom headers), for the side-by-side comparison in scripts/bench.sh. Built from Pinocchio's
 // headers with -O3 (see scripts/bench.sh). Prints one JSON line per robot:

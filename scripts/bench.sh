@@ -15,6 +15,9 @@ ROBOTS="grid_iiwa grid_hyq grid_atlas"
 for r in $ROBOTS; do
     python3 -c "import pinocchio as pin; pin.buildModelFromUrdf('robots/$r.urdf').saveToText('target/bench/$r.pinmodel')"
 done
+# HyQ on a free-flyer (grid-gen's --floating-base, the scene examples/scenes/hyq_floating.toml).
+python3 -c "import pinocchio as pin; pin.buildModelFromUrdf('robots/grid_hyq.urdf', pin.JointModelFreeFlyer()).saveToText('target/bench/grid_hyq_floating.pinmodel')"
+MODELS="$(for r in $ROBOTS; do echo target/bench/$r.pinmodel; done) target/bench/grid_hyq_floating.pinmodel"
 # Pinocchio's own build defines these (see its exported CMake targets). Built twice, for
 # the default target and with -march=native; the report takes the faster of the two per
 # algorithm, so Pinocchio gets the same wide instructions as our FMA copy.
@@ -27,7 +30,7 @@ for variant in default native; do
         -L"$PREFIX/lib" -lpinocchio_default -lboost_filesystem -lboost_serialization -Wl,-rpath,"$PREFIX/lib"
 done
 for variant in default native; do
-    target/bench/pinocchio_bench_$variant $(for r in $ROBOTS; do echo target/bench/$r.pinmodel; done) | sed "s/^{/{\"variant\": \"$variant\", /"
+    target/bench/pinocchio_bench_$variant $MODELS | sed "s/^{/{\"variant\": \"$variant\", /"
 done | tee target/bench/pinocchio.jsonl
 cargo bench -p grid-gen-kernels --bench kernels
 python3 scripts/bench_report.py target/bench/pinocchio.jsonl target/criterion | tee target/bench-report.md

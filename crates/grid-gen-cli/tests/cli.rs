@@ -463,3 +463,42 @@ fn rust_kernels_are_compiled_and_timed() {
         assert_eq!(r["time_ns"].as_f64().is_some_and(|t| t > 0.0), float, "{r}");
     }
 }
+
+/// `--floating-base` (issue 11): `info --json` gives nq and the free-flyer's joints, the
+/// summary says so, `eval` takes the long q and names a wrong one, and generation writes
+/// `NQ` and `q: &[T; NQ]`.
+#[test]
+fn floating_base_from_the_command_line() {
+    let urdf = "robots/grid_hyq.urdf";
+    let v = json(&grid_gen(&["--floating-base", "info", urdf, "--json"]));
+    assert_eq!((v["nv"].as_u64(), v["nq"].as_u64(), v["floating_base"].as_bool()), (Some(18), Some(19), Some(true)));
+    assert_eq!(v["joint_names"][0], "root_joint_vx");
+    assert_eq!(v["joint_names"][5], "root_joint_wz");
+    let fixed = json(&grid_gen(&["info", urdf, "--json"]));
+    assert_eq!((fixed["nq"].as_u64(), fixed["floating_base"].as_bool()), (Some(12), Some(false)));
+    let summary = grid_gen(&[urdf, "--floating-base"]);
+    assert!(String::from_utf8_lossy(&summary.stdout).contains("floating base: joints 0-5 are the free-flyer"), "{}", String::from_utf8_lossy(&summary.stdout));
+
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-floating-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let states = dir.join("states.json");
+    let mut q = vec![0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0];
+    q.extend([0.2; 12]);
+    std::fs::write(&states, format!(r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#, [0.1; 18], [0.0; 18])).unwrap();
+    let out = grid_gen(&["eval", urdf, "--floating-base", "--states", states.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    assert_eq!(json(&out)["states"][0]["drnea_dq"].as_array().unwrap().len(), 18);
+    // The fixed-base robot refuses the long q, and the floating one a short q.
+    let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
+    assert!(stderr(&out).contains("`q` has 19 entries, the robot has 12 joints"), "{}", stderr(&out));
+    std::fs::write(&states, format!(r#"{{"states": [{{"q": {:?}, "qd": {:?}}}]}}"#, [0.0; 18], [0.0; 18])).unwrap();
+    let out = grid_gen(&["eval", urdf, "--floating-base", "--states", states.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("`q` has 18 entries, expected 19: the floating base's position and quaternion"), "{}", stderr(&out));
+
+    let out = grid_gen(&[urdf, "--floating-base", "-o", dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let code = std::fs::read_to_string(dir.join("hyq.rs")).unwrap();
+    assert!(code.contains("pub const NQ: usize = 19;") && code.contains("q: &[T; NQ]") && code.contains("// Floating base (Pinocchio's free-flyer)"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

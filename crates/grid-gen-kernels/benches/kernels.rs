@@ -176,7 +176,10 @@ macro_rules! bench_scene {
     ($c:expr, $m:ident, $name:literal) => {{
         use grid_gen_kernels::scenes::$m as k;
         const N: usize = k::NV;
-        let s: Vec<[[f64; N]; 3]> = (0..STATES).map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt)))).collect();
+        // q has NQ entries (a floating base's quaternion: the kernels normalise it).
+        let s: Vec<([f64; k::NQ], [[f64; N]; 2])> = (0..STATES)
+            .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1)))))
+            .collect();
         let mut group = $c.benchmark_group($name);
         let mut j = 0usize;
         let mut next = || {
@@ -186,13 +189,13 @@ macro_rules! bench_scene {
         group.bench_function("generated/rnea_grad", |b| {
             b.iter(|| {
                 let x = &s[next()];
-                black_box(k::rnea_grad(&x[0], &x[1], &x[2]))
+                black_box(k::rnea_grad(&x.0, &x.1[0], &x.1[1]))
             })
         });
         group.bench_function("generated/fd_grad", |b| {
             b.iter(|| {
                 let x = &s[next()];
-                black_box(k::fd_grad(&x[0], &x[1], &x[2]))
+                black_box(k::fd_grad(&x.0, &x.1[0], &x.1[1]))
             })
         });
         group.finish();
@@ -209,6 +212,7 @@ fn kernels(c: &mut Criterion) {
     bench_scene!(c, grid_hyq_front_legs, "grid_hyq.hyq_front_legs");
     bench_scene!(c, grid_iiwa_static, "grid_iiwa.iiwa_static");
     bench_scene!(c, grid_hyq_lf_columns, "grid_hyq.hyq_lf_columns");
+    bench_scene!(c, grid_hyq_floating, "grid_hyq.hyq_floating");
 }
 
 criterion_group! {

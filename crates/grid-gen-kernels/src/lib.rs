@@ -58,4 +58,9 @@ pub mod scenes {
     pub mod grid_hyq_lf_columns {
         include!("../../../generated/scenes/grid_hyq.hyq_lf_columns/hyq.rs");
     }
+    /// HyQ on a floating base (`floating_base = true`, as `--floating-base`): q has
+    /// `NQ` = 19 entries, the rest `NV` = 18.
+    pub mod grid_hyq_floating {
+        include!("../../../generated/scenes/grid_hyq.hyq_floating/hyq.rs");
+    }
 }

@@ -252,3 +252,59 @@ fn scene_kernels_match_the_reference_on_the_scene_model() {
     check!(grid_iiwa_static, "grid_iiwa", "iiwa_static");
     check!(grid_hyq_lf_columns, "grid_hyq", "hyq_lf_columns");
 }
+
+/// HyQ on a floating base (`generated/scenes/grid_hyq.hyq_floating/`): every kernel, both
+/// copies, f64 and f32, against the reference (held to Pinocchio's free-flyer by
+/// grid-gen's tests/pinocchio.rs) at the fixed-base tolerances, on the usual states each
+/// with a random base pose (the zero state unrotated at the origin).
+#[test]
+fn floating_base_kernels_match_the_reference() {
+    use grid_gen_kernels::scenes::grid_hyq_floating as k;
+    let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_floating");
+    assert!(model.floating && k::NV == model.nv() && k::NQ == model.nq());
+    let mut rng = Rng(29);
+    let mut worst = [0.0f64; 2];
+    for (label, per_joint, qd, u) in states(&model, &mut rng) {
+        let base = if label == "zero" { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] } else { rng.base_pose() };
+        let q = model.q_from_joints(&per_joint, base);
+        for (f32, tol_direct, tol_minv) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
+            // The f32 run's reference is at the f32-rounded state.
+            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let (q, qd, u) = (r(&q), r(&qd), r(&u));
+            let want = reference_outputs(&model, &q, &qd, &u);
+            macro_rules! run {
+                ($t:ty, $path:path) => {{
+                    use $path as c;
+                    let qa: [$t; k::NQ] = std::array::from_fn(|i| q[i] as $t);
+                    let va = |v: &[f64]| -> [$t; k::NV] { std::array::from_fn(|i| v[i] as $t) };
+                    let (qd, u) = (va(&qd), va(&u));
+                    let m = |x: [[$t; k::NV]; k::NV]| DMatrix::from_fn(k::NV, k::NV, |i, j| x[i][j] as f64);
+                    let v = |x: [$t; k::NV]| DMatrix::from_fn(k::NV, 1, |i, _| x[i] as f64);
+                    let (dq, dqd) = c::rnea_grad(&qa, &qd, &u);
+                    let (qdd, fq, fqd) = c::fd_grad(&qa, &qd, &u);
+                    [v(c::rnea(&qa, &qd, &u)), m(dq), m(dqd), m(c::mass_matrix(&qa)), m(c::minv(&qa)), v(c::fd(&qa, &qd, &u)), v(qdd), m(fq), m(fqd)]
+                }};
+            }
+            let mut copies = vec![("portable", if f32 { run!(f32, k::portable) } else { run!(f64, k::portable) })];
+            if fma_runs() {
+                // SAFETY: fma_runs() checked AVX2 and FMA.
+                copies.push(("fma", unsafe {
+                    if f32 {
+                        run!(f32, k::fma)
+                    } else {
+                        run!(f64, k::fma)
+                    }
+                }));
+            }
+            for (copy, got) in copies {
+                for (i, g) in got.iter().enumerate() {
+                    let tol = if THROUGH_MINV[i] { tol_minv } else { tol_direct };
+                    let e = rel(g, &want[i]);
+                    worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
+                    assert!(e <= tol, "HyQ floating {copy} {}, {label}: {} relative error {e:.2e} > {tol:e}", if f32 { "f32" } else { "f64" }, NAMES[i]);
+                }
+            }
+        }
+    }
+    println!("HyQ floating base: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+}

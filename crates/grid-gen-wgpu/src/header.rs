@@ -20,6 +20,8 @@ pub struct EntryInfo {
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShaderInfo {
     pub nv: usize,
+    /// Entries of q per state: `// nq:` (a floating base), else nv.
+    pub nq: usize,
     pub precision: Precision,
     pub entries: Vec<EntryInfo>,
 }
@@ -35,6 +37,7 @@ pub enum HeaderError {
 impl ShaderInfo {
     pub fn parse(source: &str) -> Result<ShaderInfo, HeaderError> {
         let mut nv = None;
+        let mut nq = None;
         let mut precision = None;
         let mut entries = Vec::new();
         // The header ends at the first line that is not a comment.
@@ -42,6 +45,8 @@ impl ShaderInfo {
             let bad = |why: &str| HeaderError::Bad { line: line.to_string(), why: why.to_string() };
             if let Some(v) = line.strip_prefix("// nv: ") {
                 nv = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
+            } else if let Some(v) = line.strip_prefix("// nq: ") {
+                nq = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
             } else if let Some(v) = line.strip_prefix("// precision: ") {
                 precision = Some(Precision::parse(v.trim()).ok_or_else(|| bad("unknown precision"))?);
             } else if let Some(v) = line.strip_prefix("// entry: ") {
@@ -67,7 +72,8 @@ impl ShaderInfo {
                 });
             }
         }
-        Ok(ShaderInfo { nv: nv.ok_or(HeaderError::Missing("nv"))?, precision: precision.ok_or(HeaderError::Missing("precision"))?, entries })
+        let nv = nv.ok_or(HeaderError::Missing("nv"))?;
+        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), precision: precision.ok_or(HeaderError::Missing("precision"))?, entries })
     }
 
     pub fn entry(&self, name: &str) -> Option<&EntryInfo> {

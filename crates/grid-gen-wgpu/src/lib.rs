@@ -34,8 +34,8 @@ pub enum GpuError {
     Shader(String),
     #[error("wgpu rejected the `{entry}` pipeline: {reason}")]
     Pipeline { entry: String, reason: String },
-    #[error("`{field}` has {found} values; {n} states of {nv} joints need {expected}")]
-    Length { field: &'static str, found: usize, n: usize, nv: usize, expected: usize },
+    #[error("`{field}` has {found} values; {n} states of {per} entries need {expected}")]
+    Length { field: &'static str, found: usize, n: usize, per: usize, expected: usize },
     #[error("the dispatch failed: {0}")]
     Dispatch(String),
 }
@@ -64,6 +64,8 @@ pub struct Kernel {
     pub entry: EntryInfo,
     pub precision: Precision,
     pub nv: usize,
+    /// Entries of q per state (nv + 1 with a floating base).
+    pub nq: usize,
     /// Time wgpu took to build the pipeline (the driver's compile).
     pub build_time: Duration,
 }
@@ -199,7 +201,7 @@ impl Gpu {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Pipeline { entry: entry.to_string(), reason: e.to_string() });
         }
-        Ok(Kernel { pipeline, entry: info.clone(), precision: shader.info.precision, nv: shader.info.nv, build_time: start.elapsed() })
+        Ok(Kernel { pipeline, entry: info.clone(), precision: shader.info.precision, nv: shader.info.nv, nq: shader.info.nq, build_time: start.elapsed() })
     }
 
     /// States per dispatch: at most 65,535 workgroups, and every buffer within the
@@ -207,29 +209,30 @@ impl Gpu {
     fn chunk_states(&self, k: &Kernel) -> usize {
         let e = &k.entry;
         let word = k.precision.bytes() as u64;
-        let widest = (e.outputs.max(e.scratch).max(k.nv).max(1)) as u64 * word;
+        let widest = (e.outputs.max(e.scratch).max(k.nq).max(1)) as u64 * word;
         let bytes = (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
         let by_memory = (bytes / widest).max(1) as usize;
         let by_groups = self.limits.max_compute_workgroups_per_dimension as usize * e.states_per_workgroup as usize;
         by_memory.min(by_groups).max(1)
     }
 
-    /// Uploads N states for `kernel`. Inputs are state-major (`q[s * nv + j]`); `u` is q̈
+    /// Uploads N states for `kernel`. Inputs are state-major (`q[s * nq + j]`, the others
+    /// `[s * nv + j]`; nq = nv but with a floating base); `u` is q̈
     /// for rnea and rnea_grad, τ for fd and fd_grad, and ignored (may be empty) by
     /// mass_matrix and minv, as is `qd`. N = 0 is a no-op batch.
     pub fn upload<'k>(&self, kernel: &'k Kernel, q: &[f64], qd: &[f64], u: &[f64]) -> Result<Batch<'k>, GpuError> {
-        let nv = kernel.nv;
-        let n = if nv == 0 { 0 } else { q.len() / nv };
+        let (nv, nq) = (kernel.nv, kernel.nq);
+        let n = if nq == 0 { 0 } else { q.len() / nq };
         let uses_velocity = !matches!(kernel.entry.kernel.as_str(), "mass_matrix" | "minv");
-        let check = |field: &'static str, x: &[f64], needed: bool| {
-            if (needed || !x.is_empty()) && x.len() != n * nv || q.len() != n * nv {
-                return Err(GpuError::Length { field, found: x.len(), n, nv, expected: n * nv });
+        let check = |field: &'static str, x: &[f64], needed: bool, per: usize| {
+            if (needed || !x.is_empty()) && x.len() != n * per || q.len() != n * nq {
+                return Err(GpuError::Length { field, found: x.len(), n, per, expected: n * per });
             }
             Ok(())
         };
-        check("q", q, true)?;
-        check("qd", qd, uses_velocity)?;
-        check("u", u, uses_velocity)?;
+        check("q", q, true, nq)?;
+        check("qd", qd, uses_velocity, nv)?;
+        check("u", u, uses_velocity, nv)?;
         let per = self.chunk_states(kernel);
         let mut chunks = Vec::new();
         let mut start = 0;
@@ -243,7 +246,6 @@ impl Gpu {
 
     fn chunk(&self, k: &Kernel, start: usize, m: usize, inputs: [&[f64]; 3]) -> Result<Chunk, GpuError> {
         let d = &self.device;
-        let nv = k.nv;
         let bytes = |x: Vec<f64>| -> Vec<u8> {
             match k.precision {
                 Precision::F32 => x.into_iter().flat_map(|v| (v as f32).to_le_bytes()).collect(),
@@ -251,18 +253,19 @@ impl Gpu {
             }
         };
         // Joint-major within the chunk: x[j * m + i].
-        let soa = |x: &[f64]| -> Vec<f64> {
+        let soa = |x: &[f64], per: usize| -> Vec<f64> {
             if x.is_empty() {
                 return vec![0.0];
             }
-            (0..nv).flat_map(|j| (0..m).map(move |i| x[(start + i) * nv + j])).collect::<Vec<f64>>()
+            (0..per).flat_map(|j| (0..m).map(move |i| x[(start + i) * per + j])).collect::<Vec<f64>>()
         };
         let init = |data: Vec<u8>, usage| d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: None, contents: &data, usage });
         let scope = d.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let mut params = vec![0u8; 16];
         params[..4].copy_from_slice(&(m as u32).to_le_bytes());
         let params = init(params, wgpu::BufferUsages::UNIFORM);
-        let inputs = inputs.map(|x| init(bytes(soa(x)), wgpu::BufferUsages::STORAGE));
+        let [q, qd, u] = inputs;
+        let inputs = [(q, k.nq), (qd, k.nv), (u, k.nv)].map(|(x, per)| init(bytes(soa(x, per)), wgpu::BufferUsages::STORAGE));
         let word = k.precision.bytes() as u64;
         let out_bytes = (k.entry.outputs * m).max(1) as u64 * word;
         // NaN everywhere, so a value the kernel fails to write cannot pass for a result.

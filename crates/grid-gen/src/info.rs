@@ -31,6 +31,12 @@ pub struct Info {
     pub robot: String,
     pub root_link: String,
     pub nv: usize,
+    /// Entries of q: nv, or nv + 1 with a floating base (position and quaternion
+    /// `[x, y, z, qx, qy, qz, qw]` first, Pinocchio's layout).
+    pub nq: usize,
+    /// A floating base: joints 0 to 5 are the free-flyer's velocity coordinates (linear,
+    /// then angular, in the base frame).
+    pub floating_base: bool,
     /// Gravity in the root frame (m/s²) the op counts and netlists were built with.
     pub gravity: [f64; 3],
     /// Movable joints in model order (depth-first pre-order, children in document order).
@@ -90,6 +96,8 @@ impl Info {
             robot: model.name.clone(),
             root_link: model.root_link.clone(),
             nv: model.nv(),
+            nq: model.nq(),
+            floating_base: model.floating,
             gravity,
             joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
             joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
@@ -187,6 +195,12 @@ impl Info {
         s.push_str(&format!("levels: {}\n", self.levels.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>().join(" ")));
         let d = &self.sparsity;
         s.push_str(&format!("sparsity: dv/dq {} of {} nonzero, dc/dq {} of {}\n", d.dv_dq.nonzero, d.dv_dq.total, d.dc_dq.nonzero, d.dc_dq.total));
+        if self.floating_base {
+            s.push_str(&format!(
+                "floating base: joints 0-5 are the free-flyer (base velocity, linear then angular, in the base frame); q has nq = {} entries, [x, y, z, qx, qy, qz, qw] then joints 6.. at q[j + 1]\n",
+                self.nq
+            ));
+        }
         if self.static_velocity {
             s.push_str("static scene: qd = 0 assumed, velocity terms compiled out, `qd` ignored\n");
         }

@@ -244,6 +244,21 @@ impl Model {
         self.floating && i < FREE_FLYER.len()
     }
 
+    /// q from one value per joint (length nv; the free-flyer's six are ignored) and, with
+    /// a floating base, the base pose `[x, y, z, qx, qy, qz, qw]` (ignored without one).
+    pub fn q_from_joints(&self, per_joint: &[f64], base: [f64; 7]) -> Vec<f64> {
+        let mut q = self.neutral_q();
+        if self.floating {
+            q[..7].copy_from_slice(&base);
+        }
+        for (i, &x) in per_joint.iter().enumerate().take(self.nv()) {
+            if let Some(k) = self.q_index(i) {
+                q[k] = x;
+            }
+        }
+        q
+    }
+
     /// q at every joint's zero position (with a floating base: at the origin, unrotated).
     pub fn neutral_q(&self) -> Vec<f64> {
         let mut q = vec![0.0; self.nq()];
@@ -401,9 +416,11 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, floating_base: bool
                 }
                 // Pushed in reverse so that children are walked in document order, and a
                 // floating joint last, so that the free-flyer is model joints 0 to 5.
-                let floating_last = tree.child_joints[link].iter().rev().filter(|&&j| urdf.joints[j].kind != JointKind::Floating).chain(
-                    tree.child_joints[link].iter().filter(|&&j| urdf.joints[j].kind == JointKind::Floating),
-                );
+                let floating_last = tree.child_joints[link]
+                    .iter()
+                    .rev()
+                    .filter(|&&j| urdf.joints[j].kind != JointKind::Floating)
+                    .chain(tree.child_joints[link].iter().filter(|&&j| urdf.joints[j].kind == JointKind::Floating));
                 for &j in floating_last {
                     let child = tree.joint_links[j].1;
                     if edits.dropped[child] {
@@ -414,10 +431,9 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, floating_base: bool
                         let uj = &urdf.joints[j];
                         if link != tree.root || floating {
                             let why = if floating { "a robot has at most one floating base" } else { "only the root link can carry a floating joint" };
-                            diags.push(
-                                Diagnostic::error(format!("floating joint `{}` is not supported here", uj.name), Some(uj.span.clone()), why)
-                                    .with_help("a floating joint must join the root link (e.g. `world`) to the base; with `--floating-base`, leave it out of the URDF"),
-                            );
+                            diags.push(Diagnostic::error(format!("floating joint `{}` is not supported here", uj.name), Some(uj.span.clone()), why).with_help(
+                                "a floating joint must join the root link (e.g. `world`) to the base; with `--floating-base`, leave it out of the URDF",
+                            ));
                             continue;
                         }
                         floating = true;

@@ -208,8 +208,12 @@ pub(crate) fn resolve(scene: &Scene, scene_path: &str, urdf: &Urdf, tree: &Tree,
                 "already fixed",
             )),
             Some(j) if urdf.joints[j].kind == JointKind::Floating => diags.push(
-                Diagnostic::error(format!("scene `{scene_path}`: [lock] names floating joint `{name}`"), Some(urdf.joints[j].span.clone()), "a floating joint cannot be locked at one value")
-                    .with_help("to model the robot with a fixed base, make the joint fixed in the URDF"),
+                Diagnostic::error(
+                    format!("scene `{scene_path}`: [lock] names floating joint `{name}`"),
+                    Some(urdf.joints[j].span.clone()),
+                    "a floating joint cannot be locked at one value",
+                )
+                .with_help("to model the robot with a fixed base, make the joint fixed in the URDF"),
             ),
             Some(j) => {
                 let joint = &urdf.joints[j];

@@ -69,6 +69,7 @@ fn urdf_names_cannot_inject_code_or_paths() {
         [
             "ROBOT",
             "NV",
+            "NQ",
             "JOINT_NAMES",
             "PARENTS",
             "GRAVITY",

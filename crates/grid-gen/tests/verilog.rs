@@ -8,7 +8,7 @@ use grid_gen::back::verilog::{plan, sim, Arch, FormatChoice, Netlist, VerilogOpt
 use grid_gen::ir::fixed::quantize_ports;
 use grid_gen::ir::fixed::Rounding;
 use grid_gen::ir::{self, KernelKind, LowerOptions, Module};
-use grid_gen_test_support::{load, reference_outputs, Rng};
+use grid_gen_test_support::{load, load_floating, reference_outputs, Rng};
 
 const GRAVITY: [f64; 3] = [0.0, 0.0, -9.81];
 
@@ -24,7 +24,10 @@ fn tool_or_skip(name: &str, available: bool) -> bool {
 }
 
 fn module(robot: &str) -> (grid_gen::Model, Module) {
-    let model = load(robot);
+    lowered(load(robot))
+}
+
+fn lowered(model: grid_gen::Model) -> (grid_gen::Model, Module) {
     let kernels = vec![KernelKind::RneaGrad, KernelKind::MassMatrix];
     let m = ir::lower(&model, GRAVITY, &LowerOptions { kernels, ..LowerOptions::default() }).unwrap();
     (model, m)
@@ -33,7 +36,9 @@ fn module(robot: &str) -> (grid_gen::Model, Module) {
 /// States within the bounds: random ones, then the corners (every speed and acceleration
 /// at plus or minus its bound, angles at ±π and 0). Positions the datapath takes
 /// directly (prismatic joints) stay within their declared range.
-fn states(n: &Netlist, nv: usize, count: usize, seed: u64) -> Vec<[Vec<f64>; 3]> {
+/// A floating base gets a random pose, upside down at the corners.
+fn states(n: &Netlist, model: &grid_gen::Model, count: usize, seed: u64) -> Vec<[Vec<f64>; 3]> {
+    let nv = model.nv();
     use grid_gen::ir::{fixed::Port, Input};
     let mut rng = Rng(seed);
     let b = &n.bounds;
@@ -46,14 +51,16 @@ fn states(n: &Netlist, nv: usize, count: usize, seed: u64) -> Vec<[Vec<f64>; 3]>
     };
     let mut out = Vec::new();
     for _ in 0..count {
-        let q = clamp(rng.vec(nv, -std::f64::consts::PI, std::f64::consts::PI));
+        let angles = rng.vec(nv, -std::f64::consts::PI, std::f64::consts::PI);
+        let base = if model.floating { rng.base_pose() } else { [0.0; 7] };
+        let q = clamp(model.q_from_joints(&angles, base));
         let qd = (0..nv).map(|j| rng.uniform(-b.qd[j], b.qd[j])).collect();
         let qdd = (0..nv).map(|j| rng.uniform(-b.qdd[j], b.qdd[j])).collect();
         out.push([q, qd, qdd]);
     }
     for corner in 0..4 {
         let s = if corner % 2 == 0 { 1.0 } else { -1.0 };
-        let q = clamp(vec![if corner < 2 { std::f64::consts::PI } else { 0.0 } * s; nv]);
+        let q = clamp(model.q_from_joints(&vec![if corner < 2 { std::f64::consts::PI } else { 0.0 } * s; nv], [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]));
         let qd = (0..nv).map(|j| s * b.qd[j]).collect();
         let qdd = (0..nv).map(|j| if j % 2 == 0 { s } else { -s } * b.qdd[j]).collect();
         out.push([q, qd, qdd]);
@@ -101,14 +108,18 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
 }
 
 fn run_robot(robot: &str, archs: &[Arch], count: usize) {
+    run_model(load(robot), archs, count)
+}
+
+fn run_model(model: grid_gen::Model, archs: &[Arch], count: usize) {
     if !tool_or_skip("Icarus Verilog (iverilog)", sim::available()) {
         return;
     }
-    let (model, m) = module(robot);
+    let (model, m) = lowered(model);
     for &arch in archs {
         let netlists = plan(&m, &VerilogOptions { arch, ..VerilogOptions::default() }).unwrap();
         for n in &netlists {
-            let states = states(n, model.nv(), count, 7);
+            let states = states(n, &model, count, 7);
             check_netlist(&model, &m, n, &states);
         }
     }
@@ -119,6 +130,16 @@ const BOTH: [Arch; 2] = [Arch::Pipelined { stage_depth: 4 }, Arch::Shared { mult
 #[test]
 fn double_pendulum_bit_exact_and_within_bound() {
     run_robot("double_pendulum_continuous", &BOTH, 40);
+}
+
+/// A floating base (issue 11): the quaternion enters as four `q` ports and the host's
+/// `quat_scale` = 2/|q|² (the datapath has no divider, as it has no sine); random base
+/// poses and an upside-down one, both architectures.
+#[test]
+fn floating_double_pendulum_bit_exact_and_within_bound() {
+    let model = load_floating("double_pendulum_continuous");
+    assert!(model.floating);
+    run_model(model, &BOTH, 40);
 }
 
 #[test]
@@ -174,7 +195,7 @@ fn rounding_modes_differ_in_the_bits() {
     let build =
         |rounding| plan(&m, &VerilogOptions { format: fixed, rounding, kernels: vec![KernelKind::RneaGrad], ..VerilogOptions::default() }).unwrap().remove(0);
     let (t, h) = (build(Rounding::Truncate), build(Rounding::HalfUp));
-    let st = states(&t, model.nv(), 10, 3);
+    let st = states(&t, &model, 10, 3);
     let ports: Vec<Vec<i64>> = st.iter().map(|[q, qd, qdd]| quantize_ports(&t.datapath, &t.format, q, qd, qdd, &[]).0).collect();
     let (a, b) = (sim::simulate(&t, &m.robot, &ports).unwrap(), sim::simulate(&h, &m.robot, &ports).unwrap());
     assert_ne!(a, b);
@@ -313,7 +334,7 @@ fn hostile_names_and_an_unseen_robot_through_eval() {
             // Names reach only line comments (escaped, one line each); code lines never see them.
             let code: Vec<&str> = text.lines().filter(|l| !l.trim_start().starts_with("//")).collect();
             assert!(code.iter().all(|l| !l.contains('\\') && !l.contains("*/")), "a name reached the code");
-            let states = states(&n, model.nv(), 15, 11);
+            let states = states(&n, &model, 15, 11);
             check_netlist(&model, &m, &n, &states);
         }
     }

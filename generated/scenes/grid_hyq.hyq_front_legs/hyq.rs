@@ -23,6 +23,9 @@ pub const ROBOT: &str = "hyq";
 /// Number of movable joints (and of entries in every vector).
 #[allow(dead_code)]
 pub const NV: usize = 6;
+/// Entries of q: `NV` (a fixed base).
+#[allow(dead_code)]
+pub const NQ: usize = 6;
 /// Movable joints in model order: depth-first from the root, children in document order.
 #[allow(dead_code)]
 pub const JOINT_NAMES: [&str; NV] = [

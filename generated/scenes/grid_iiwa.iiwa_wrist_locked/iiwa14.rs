@@ -18,6 +18,9 @@ pub const ROBOT: &str = "iiwa14";
 /// Number of movable joints (and of entries in every vector).
 #[allow(dead_code)]
 pub const NV: usize = 4;
+/// Entries of q: `NV` (a fixed base).
+#[allow(dead_code)]
+pub const NQ: usize = 4;
 /// Movable joints in model order: depth-first from the root, children in document order.
 #[allow(dead_code)]
 pub const JOINT_NAMES: [&str; NV] = [

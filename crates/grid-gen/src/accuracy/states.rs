@@ -28,9 +28,25 @@ impl Rng {
     pub fn vec(&mut self, n: usize, lo: f64, hi: f64) -> Vec<f64> {
         (0..n).map(|_| self.uniform(lo, hi)).collect()
     }
+
+    /// A uniformly distributed unit quaternion `[x, y, z, w]` (Shoemake, "Uniform random
+    /// rotations", Graphics Gems III, 1992).
+    pub fn unit_quaternion(&mut self) -> [f64; 4] {
+        let (u1, u2, u3) = (self.uniform(0.0, 1.0), self.uniform(0.0, 1.0), self.uniform(0.0, 1.0));
+        let tau = std::f64::consts::TAU;
+        let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
+        [a * (tau * u2).sin(), a * (tau * u2).cos(), b * (tau * u3).sin(), b * (tau * u3).cos()]
+    }
+
+    /// A floating base's pose: position uniform in [-1, 1) m per axis, a uniform rotation.
+    pub fn base_pose(&mut self) -> [f64; 7] {
+        let [x, y, z] = [self.uniform(-1.0, 1.0), self.uniform(-1.0, 1.0), self.uniform(-1.0, 1.0)];
+        let [qx, qy, qz, qw] = self.unit_quaternion();
+        [x, y, z, qx, qy, qz, qw]
+    }
 }
 
-/// `n` states: q uniform within each joint's limits (±π where a joint has none, or
+/// `n` states: a floating base's pose uniform ([`Rng::base_pose`]), q uniform within each joint's limits (±π where a joint has none, or
 /// limits wider than 100, as Atlas's ±1e5), q̇ and q̈ uniform within the fixed-point
 /// analysis's default bounds (the URDF's velocity limits, else its defaults), and
 /// τ = RNEA(q, q̇, q̈′) for another such q̈′, so that forward dynamics answers a plausible
@@ -41,7 +57,7 @@ pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_m
     let nv = model.nv();
     let states = (0..n)
         .map(|_| {
-            let q: Vec<f64> = model
+            let per_joint: Vec<f64> = model
                 .joints
                 .iter()
                 .map(|j| {
@@ -49,6 +65,10 @@ pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_m
                     rng.uniform(lo, hi)
                 })
                 .collect();
+            // With a floating base, a random pose too (drawn only then: fixed-base states
+            // stay what they were for a seed).
+            let base = if model.floating { rng.base_pose() } else { [0.0; 7] };
+            let q = model.q_from_joints(&per_joint, base);
             let qd: Vec<f64> = bounds.qd.iter().map(|&b| rng.uniform(-b, b)).collect();
             let qdd: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();
             let other: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();

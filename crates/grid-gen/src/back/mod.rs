@@ -27,6 +27,15 @@ pub fn source_line(source: &str) -> String {
 pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
     let spec = &robot.specialisation;
     let mut out = String::new();
+    if robot.floating {
+        out.push_str(&format!(
+            "// Floating base (Pinocchio's free-flyer): q = [x, y, z, qx, qy, qz, qw, joints 6..] ({} entries; the quaternion is
+             // normalised); joints 0-5 are the base's linear and angular velocity in its own frame; gradients are
+             // with respect to the tangent space at q, the base first.
+",
+            robot.nq()
+        ));
+    }
     if spec.static_velocity {
         out.push_str("// Static scene: qd = 0 is assumed, the velocity terms are compiled out and every `qd` argument is ignored.\n");
     }

@@ -127,15 +127,15 @@ impl<'a> Dynamics<'a> {
             let vj = sp::scale(g, &self.s[i], qd[i]);
             v[i] = sp::add(g, &xv[i], &vj);
             let sa = sp::scale(g, &self.s[i], qdd[i]);
-            let t = sp::add(g, &xa[i], &sa);
             if self.model.is_free_flyer(i) {
                 // One 6-dof joint at the root (`Model::is_free_flyer`): no velocity-product
                 // term, and the gradients see the root's v = 0 and a₀ as its parent's.
-                a[i] = t;
+                a[i] = sp::add(g, &xa[i], &sa);
                 xv[i] = z;
                 xa[i] = xa[0];
             } else {
                 let cv = sp::crm(g, &v[i], &vj);
+                let t = sp::add(g, &xa[i], &sa);
                 a[i] = sp::add(g, &t, &cv);
             }
             iv[i] = self.inertia[i].apply(g, &v[i]);

@@ -421,14 +421,14 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
     let mut out = String::new();
     let _ = writeln!(out, "/// The robot's name in its URDF.\n#[allow(dead_code)]\npub const ROBOT: &str = {};", string_literal(&robot.name));
     let _ = writeln!(out, "/// Number of movable joints (and of entries in every vector).\n#[allow(dead_code)]\npub const NV: usize = {nv};");
-    if robot.floating {
-        let _ = writeln!(
-            out,
-            "/// Entries of q: the floating base's position and quaternion `[x, y, z, qx, qy, qz, qw]`, then the\n\
-             /// joints after the base's six velocity coordinates (Pinocchio's free-flyer layout).\n#[allow(dead_code)]\npub const NQ: usize = {};",
-            robot.nq()
-        );
-    }
+    let nq_doc = match robot.floating {
+        true => {
+            "Entries of q: the floating base's position and quaternion `[x, y, z, qx, qy, qz, qw]`, then the\n\
+                 /// joints after the base's six velocity coordinates (Pinocchio's free-flyer layout)."
+        }
+        false => "Entries of q: `NV` (a fixed base).",
+    };
+    let _ = writeln!(out, "/// {nq_doc}\n#[allow(dead_code)]\npub const NQ: usize = {};", robot.nq());
     let names: Vec<String> = robot.joint_names.iter().map(|n| string_literal(n)).collect();
     let _ = writeln!(out, "/// Movable joints in model order: depth-first from the root, children in document order.\n#[allow(dead_code)]\npub const JOINT_NAMES: [&str; NV] = [{}];", names.join(", "));
     let parents: Vec<String> = robot.parents.iter().map(|p| p.map_or("None".into(), |p| format!("Some({p})"))).collect();

@@ -1,11 +1,12 @@
-//! Port names of a netlist: inputs `<sin_q|cos_q|q|qd|qdd>_<joint index>_<joint name>`,
+//! Port names of a netlist: inputs `<sin_q|cos_q|q|qd|qdd>_<index>_<joint name>` (the
+//! index into the input: q's for sin, cos and q) and a floating base's `quat_scale`,
 //! outputs `<output>_<row>_<column>` for the non-zero entries only. Joint names go through
 //! the shared namer (`[a-z0-9_]`, never a reserved word); the joint index keeps them
 //! unique whatever the names are.
 
 use crate::back::names::{comment_text, identifier};
-use crate::ir::fixed::{Datapath, HwId};
-use crate::ir::{Robot, Shape};
+use crate::ir::fixed::{Datapath, HwId, Port};
+use crate::ir::{Input, Robot, Shape};
 
 /// The names of a datapath's ports, in port order (inputs) and output order.
 #[derive(Clone, Debug, PartialEq)]
@@ -16,9 +17,24 @@ pub struct PortNames {
     pub outputs: Vec<(String, HwId)>,
 }
 
+/// An input port's name. q-indexed ports (sin, cos, q) name the joint at that q entry;
+/// with a floating base, q[0..7] are the base's `x y z qx qy qz qw` and joint j ≥ 6 is
+/// q[j + 1].
+fn input_name(robot: &Robot, p: Port) -> String {
+    const BASE: [&str; 7] = ["base_x", "base_y", "base_z", "base_qx", "base_qy", "base_qz", "base_qw"];
+    let q_indexed = matches!(p, Port::Sin(_) | Port::Cos(_) | Port::Value(Input::Q, _));
+    let k = p.joint();
+    match p {
+        Port::QuatScale => "quat_scale".to_string(),
+        _ if q_indexed && robot.floating && k < BASE.len() => format!("{}_{k}_{}", p.prefix(), BASE[k]),
+        _ if q_indexed && robot.floating => format!("{}_{k}_{}", p.prefix(), identifier(&robot.joint_names[k - 1])),
+        _ => format!("{}_{k}_{}", p.prefix(), identifier(&robot.joint_names[k])),
+    }
+}
+
 impl PortNames {
     pub fn new(robot: &Robot, dp: &Datapath) -> PortNames {
-        let inputs = dp.ports.iter().map(|p| format!("{}_{}_{}", p.prefix(), p.joint(), identifier(&robot.joint_names[p.joint()]))).collect();
+        let inputs = dp.ports.iter().map(|&p| input_name(robot, p)).collect();
         let outputs = dp
             .nonzero_outputs()
             .into_iter()

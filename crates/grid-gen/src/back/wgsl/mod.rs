@@ -306,9 +306,18 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
         let parts: Vec<String> = f.outputs.iter().map(|o| format!("{} ({})", o.name, o.shape.len(nv))).collect();
         let _ = writeln!(out, "//   {}: {}", f.kind.signature(), parts.join(", "));
     }
+    if robot.floating {
+        let _ = writeln!(
+            out,
+            "//\n// Floating base: q has nq = nv + 1 entries per state, the base's position and quaternion\n\
+             // [x, y, z, qx, qy, qz, qw] (q[0..7]), then the joints after the free-flyer's six velocity\n\
+             // coordinates (joint j >= 6 at q[j + 1]); qd, u and the outputs have nv per state."
+        );
+    }
     let _ = writeln!(
         out,
-        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n// precision: {}\n// trig: {}",
+        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}// precision: {}\n// trig: {}",
+        if robot.floating { format!("// nq: {}\n", robot.nq()) } else { String::new() },
         options.precision.name(),
         options.trig.name()
     );

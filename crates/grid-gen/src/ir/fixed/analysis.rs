@@ -37,8 +37,22 @@ impl Bounds {
     /// given; the defaults above otherwise.
     pub fn new(robot: &Robot, qd_max: Option<f64>, qdd_max: Option<f64>) -> Bounds {
         let nv = robot.nv();
+        let joint_q = |j: usize| robot.limits[j].filter(|(lo, hi)| lo < hi).unwrap_or((-DEFAULT_Q_MAX, DEFAULT_Q_MAX));
+        // With a floating base, q's entries: position (read by no datapath: gravity does
+        // not depend on it), the quaternion (within `eval`'s tolerance of unit), then the
+        // joints after the free-flyer.
+        let q = match robot.floating {
+            false => (0..nv).map(joint_q).collect(),
+            true => {
+                let unit = 1.0 + crate::eval::QUATERNION_TOLERANCE;
+                let mut q = vec![(-DEFAULT_Q_MAX, DEFAULT_Q_MAX); 3];
+                q.extend([(-unit, unit); 4]);
+                q.extend((crate::model::FREE_FLYER.len()..nv).map(joint_q));
+                q
+            }
+        };
         Bounds {
-            q: (0..nv).map(|j| robot.limits[j].filter(|(lo, hi)| lo < hi).unwrap_or((-DEFAULT_Q_MAX, DEFAULT_Q_MAX))).collect(),
+            q,
             // A static scene holds q̇ at 0 (its kernels never read it).
             qd: (0..nv)
                 .map(|j| if robot.specialisation.static_velocity { 0.0 } else { qd_max.or(robot.velocity_limits[j]).unwrap_or(DEFAULT_QD_MAX) })
@@ -56,6 +70,10 @@ impl Bounds {
     fn port(&self, p: Port) -> (f64, f64) {
         match p {
             Port::Sin(_) | Port::Cos(_) => (-1.0, 1.0),
+            Port::QuatScale => {
+                let t = crate::eval::QUATERNION_TOLERANCE;
+                (2.0 / (1.0 + t).powi(2), 2.0 / (1.0 - t).powi(2))
+            }
             Port::Value(Input::Q, j) => self.q[j as usize],
             Port::Value(Input::Qd, j) => (-self.qd[j as usize], self.qd[j as usize]),
             Port::Value(Input::Qdd, j) => (-self.qdd[j as usize], self.qdd[j as usize]),

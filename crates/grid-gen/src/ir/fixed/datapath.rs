@@ -14,14 +14,21 @@ pub struct HwId(pub u32);
 pub enum Port {
     Sin(u16),
     Cos(u16),
-    /// `q`, `qd`, `qdd` or `tau` itself (prismatic positions, speeds, accelerations).
+    /// `q`, `qd`, `qdd` or `tau` itself (prismatic positions, speeds, accelerations, a
+    /// floating base's quaternion entries).
     Value(Input, u16),
+    /// A floating base's quaternion scale `2 / |q[3..7]|²`, which normalises it: like sin
+    /// and cos, a division the host computes (the datapath has no divider).
+    QuatScale,
 }
 
 impl Port {
+    /// The entry of its input it reads: a q index for `Sin`, `Cos` and `Value(Q, _)`
+    /// (nq entries with a floating base), a joint for the others; 3 for `QuatScale`.
     pub fn joint(self) -> usize {
         match self {
             Port::Sin(j) | Port::Cos(j) | Port::Value(_, j) => j as usize,
+            Port::QuatScale => 3,
         }
     }
 
@@ -31,6 +38,7 @@ impl Port {
             Port::Sin(_) => "sin_q",
             Port::Cos(_) => "cos_q",
             Port::Value(i, _) => i.name(),
+            Port::QuatScale => "quat_scale",
         }
     }
 }
@@ -109,6 +117,7 @@ impl Datapath {
                         return Err(unsupported());
                     }
                 }
+                Op::Div(a, b) if is_quat_scale(f, a, b) => {}
                 Op::Div(..) => return Err(unsupported()),
                 op => op.operands().for_each(|o| live[o.0 as usize] = true),
             }
@@ -136,7 +145,7 @@ impl Datapath {
                 Op::Sub(a, b) => HwOp::Sub(m(a), m(b)),
                 Op::Mul(a, b) => HwOp::Mul(m(a), m(b)),
                 Op::Neg(a) => HwOp::Neg(m(a)),
-                Op::Div(..) => unreachable!("checked above"),
+                Op::Div(..) => port(Port::QuatScale),
             };
             new_id[i] = HwId(nodes.len() as u32);
             nodes.push(op);
@@ -197,4 +206,17 @@ impl Datapath {
             })
             .count()
     }
+}
+
+/// Whether `a / b` is a floating base's quaternion scale `2 / (qx² + qy² + qz² + qw²)`
+/// (see `ir::spatial::free_flyer_xform`): 2 over something that reads only q[3..7].
+fn is_quat_scale(f: &Function, a: Id, b: Id) -> bool {
+    fn quaternion_only(f: &Function, id: Id) -> bool {
+        match f.op(id) {
+            Op::Input(Input::Q, j) => (3..7).contains(&j),
+            Op::Add(x, y) | Op::Mul(x, y) => quaternion_only(f, x) && quaternion_only(f, y),
+            _ => false,
+        }
+    }
+    matches!(f.op(a), Op::Const(c) if c == 2.0) && quaternion_only(f, b)
 }

@@ -23,6 +23,7 @@ pub fn quantize_ports(dp: &Datapath, format: &Format, q: &[f64], qd: &[f64], qdd
             let x = match p {
                 Port::Sin(j) => q[j as usize].sin(),
                 Port::Cos(j) => q[j as usize].cos(),
+                Port::QuatScale => 2.0 / q[3..7].iter().map(|x| x * x).sum::<f64>(),
                 Port::Value(input, j) => {
                     let v = match input {
                         Input::Q => q,

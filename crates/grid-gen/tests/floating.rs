@@ -1,0 +1,125 @@
+//! Floating base (issue 11, item 1), beyond the Pinocchio comparison in tests/pinocchio.rs:
+//! the three ways to ask for one agree, what cannot be a floating base is a located error,
+//! `eval` checks q's length and the quaternion, a slightly non-unit quaternion is
+//! normalised, and the base's position does not enter the dynamics.
+
+use grid_gen::eval::{evaluate, parse_states, EvalError};
+use grid_gen::{reference, Model, Scene};
+use grid_gen_test_support::*;
+
+fn hyq_text() -> String {
+    std::fs::read_to_string(repo().join("robots/grid_hyq.urdf")).unwrap()
+}
+
+/// HyQ's URDF with a `world` link and a floating joint `float` to its root link.
+fn hyq_with_floating_joint(origin: &str) -> String {
+    hyq_text().replacen(
+        "<link name=\"base_link_0\">",
+        &format!("<link name=\"world\"/><joint name=\"float\" type=\"floating\"><parent link=\"world\"/><child link=\"base_link_0\"/>{origin}</joint><link name=\"base_link_0\">"),
+        1,
+    )
+}
+
+fn errors(text: &str, scene: &Scene) -> String {
+    match Model::from_urdf_str_in_scene("robot.urdf", text, false, scene, "scene.toml") {
+        Ok(_) => panic!("loaded"),
+        Err(e) => e.render_plain(),
+    }
+}
+
+#[test]
+fn a_urdf_floating_joint_is_the_floating_base_flag() {
+    let flag = load_floating("grid_hyq");
+    let (joint, _) = Model::from_urdf_str("hyq.urdf", &hyq_with_floating_joint(""), false).unwrap();
+    assert!(joint.floating && joint.nv() == flag.nv() && joint.nq() == 19);
+    assert_eq!(flag.joints[0].name, "root_joint_vx");
+    assert_eq!(joint.joints[5].name, "float_wz");
+    let mut rng = Rng(5);
+    let g = reference::DEFAULT_GRAVITY;
+    for _ in 0..5 {
+        let q = flag.q_from_joints(&rng.vec(18, -3.0, 3.0), rng.base_pose());
+        let (qd, qdd) = (rng.vec(18, -2.0, 2.0), rng.vec(18, -2.0, 2.0));
+        // The same computation on the same model: identical to the bit.
+        assert_eq!(reference::rnea_derivatives(&flag, &q, &qd, &qdd, g), reference::rnea_derivatives(&joint, &q, &qd, &qdd, g));
+        assert_eq!(reference::crba(&flag, &q), reference::crba(&joint, &q));
+    }
+    // A joint origin places the free-flyer's reference frame: the base pose q is then
+    // relative to it, so with the origin rotated by 90° about x, gravity in the base frame
+    // is that of the base rotated by the same amount under the plain flag.
+    let (rotated, _) = Model::from_urdf_str("hyq.urdf", &hyq_with_floating_joint(r#"<origin xyz="1 2 3" rpy="1.5707963267948966 0 0"/>"#), false).unwrap();
+    let s = std::f64::consts::FRAC_1_SQRT_2;
+    let (ident, turned) = ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, s, 0.0, 0.0, s]);
+    let joints = rng.vec(18, -3.0, 3.0);
+    let zero = vec![0.0; 18];
+    let a = reference::rnea(&rotated, &rotated.q_from_joints(&joints, ident), &zero, &zero, g);
+    let b = reference::rnea(&flag, &flag.q_from_joints(&joints, turned), &zero, &zero, g);
+    assert!(rel_err(&col(&a), &col(&b)) < 1e-14, "{a:?} vs {b:?}");
+}
+
+#[test]
+fn what_cannot_be_a_floating_base_is_a_located_error() {
+    let none = Scene::default();
+    // Below the root link.
+    let deep = hyq_text().replacen(
+        "<link name=\"lf_hipassembly\">",
+        "<link name=\"extra\"/><joint name=\"deep\" type=\"floating\"><parent link=\"lf_hipassembly\"/><child link=\"extra\"/></joint><link name=\"lf_hipassembly\">",
+        1,
+    );
+    let e = errors(&deep, &none);
+    assert!(e.contains("floating joint `deep` is not supported here") && e.contains("only the root link can carry a floating joint"), "{e}");
+    // A floating joint and --floating-base.
+    let both = Scene { floating_base: true, ..Scene::default() };
+    let e = errors(&hyq_with_floating_joint(""), &both);
+    assert!(e.contains("floating joint `float`") && e.contains("at most one floating base"), "{e}");
+    // Locking one.
+    let lock = Scene { lock: [("float".to_string(), 0.0)].into_iter().collect(), ..Scene::default() };
+    let e = errors(&hyq_with_floating_joint(""), &lock);
+    assert!(e.contains("[lock] names floating joint `float`"), "{e}");
+}
+
+#[test]
+fn eval_checks_the_length_and_the_quaternion() {
+    let model = load_floating("grid_hyq");
+    let g = reference::DEFAULT_GRAVITY;
+    let state = |q: &[f64]| format!(r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#, vec![0.5; 18], vec![0.1; 18]);
+    let mut q = model.q_from_joints(&[0.3; 18], [0.1, 0.2, 0.3, 0.5, 0.5, 0.5, 0.5]);
+    let out = evaluate(&model, &parse_states(&state(&q)).unwrap(), g).unwrap();
+    assert_eq!(out.states[0].rnea.as_ref().unwrap(), &reference::rnea(&model, &q, &[0.5; 18], &[0.1; 18], g));
+    // nv entries instead of nq.
+    let e = evaluate(&model, &parse_states(&state(&q[..18])).unwrap(), g).unwrap_err();
+    assert!(matches!(e, EvalError::FloatingLength { index: 0, found: 18, expected: 19 }), "{e}");
+    assert!(e.to_string().contains("[x, y, z, qx, qy, qz, qw]"), "{e}");
+    // A quaternion far from unit (here: all zero, a missing orientation) is refused...
+    let mut zero = q.clone();
+    zero[3..7].copy_from_slice(&[0.0; 4]);
+    let e = evaluate(&model, &parse_states(&state(&zero)).unwrap(), g).unwrap_err();
+    assert!(matches!(e, EvalError::Quaternion { index: 0, .. }), "{e}");
+    // ... a slightly non-unit one (within 1e-3) is used normalised: the same dynamics as
+    // the unit quaternion, to rounding.
+    let unit = reference::rnea(&model, &q, &[0.5; 18], &[0.1; 18], g);
+    for x in &mut q[3..7] {
+        *x *= 1.0 + 9e-4;
+    }
+    let out = evaluate(&model, &parse_states(&state(&q)).unwrap(), g).unwrap();
+    let scaled = out.states[0].rnea.as_ref().unwrap();
+    assert!(rel_err(&col(scaled), &col(&unit)) < 1e-14, "{scaled:?} vs {unit:?}");
+}
+
+/// Gravity is uniform: moving the base changes nothing, and no kernel reads x, y, z.
+#[test]
+fn the_base_position_does_not_enter() {
+    use grid_gen::ir::{self, Input, LowerOptions, Op};
+    let model = load_floating("grid_iiwa");
+    let mut rng = Rng(9);
+    let joints = rng.vec(model.nv(), -3.0, 3.0);
+    let [_, _, _, qx, qy, qz, qw] = rng.base_pose();
+    let g = reference::DEFAULT_GRAVITY;
+    let (qd, qdd) = (rng.vec(model.nv(), -1.0, 1.0), rng.vec(model.nv(), -1.0, 1.0));
+    let here = reference::rnea_derivatives(&model, &model.q_from_joints(&joints, [0.0, 0.0, 0.0, qx, qy, qz, qw]), &qd, &qdd, g);
+    let there = reference::rnea_derivatives(&model, &model.q_from_joints(&joints, [5.0, -7.0, 100.0, qx, qy, qz, qw]), &qd, &qdd, g);
+    assert_eq!(here, there);
+    let module = ir::lower(&model, g, &LowerOptions::default()).unwrap();
+    for f in &module.functions {
+        assert!(f.nodes.iter().all(|n| !matches!(n.op, Op::Input(Input::Q, 0..=2))), "{} reads the base position", f.kind.name());
+    }
+}
