@@ -29,10 +29,9 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
     let mut out = String::new();
     if robot.floating {
         out.push_str(&format!(
-            "// Floating base (Pinocchio's free-flyer): q = [x, y, z, qx, qy, qz, qw, joints 6..] ({} entries; the quaternion is
-             // normalised); joints 0-5 are the base's linear and angular velocity in its own frame; gradients are
-             // with respect to the tangent space at q, the base first.
-",
+            "// Floating base (Pinocchio's free-flyer): q = [x, y, z, qx, qy, qz, qw, joints 6..] ({} entries; the quaternion is\n\
+             // normalised); joints 0-5 are the base's linear and angular velocity in its own frame; gradients are\n\
+             // with respect to the tangent space at q, the base first.\n",
             robot.nq()
         ));
     }
