@@ -124,6 +124,9 @@ def pinocchio_fixture_of(model, rng, static=False):
 
 
 FLOATING = ["grid_hyq", "grid_atlas", "grid_iiwa", "ur5"]
+# Two more legged robots, for the floating base only (test fixtures, not bundled robots):
+# example-robot-data 6.0.0's solo12.urdf and go2.urdf (BSD-2, tests/fixtures/LICENSE.example-robot-data).
+FLOATING_FIXTURE_ROBOTS = ["solo12", "go2"]
 FREE_FLYER = ["vx", "vy", "vz", "wx", "wy", "wz"]
 
 
@@ -199,10 +202,11 @@ def movable_joints_after_base(model):
 
 def floating_fixtures(check):
     stale = False
-    for robot in FLOATING:
+    for robot in FLOATING + FLOATING_FIXTURE_ROBOTS:
+        urdf = (ROBOTS if robot in FLOATING else OUT) / f"{robot}.urdf"
         # pin.SE3.Random draws from Eigen's generator: seed it too, so reruns are identical.
         pin.seed(sum(robot.encode()))
-        data = floating_fixture(ROBOTS / f"{robot}.urdf", np.random.default_rng(sum(robot.encode()) + 1))
+        data = floating_fixture(urdf, np.random.default_rng(sum(robot.encode()) + 1))
         stale |= report(OUT / f"{robot}.floating.pinocchio.json", data, check, 1e-12)
     return stale
 
