@@ -255,6 +255,16 @@ mod tests {
     }
 
     #[test]
+    fn floating_base_reaches_the_generated_module() {
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
+        let out = std::env::temp_dir().join(format!("grid-gen-builder-floating-{}", std::process::id()));
+        let written = crate::Builder::new().urdf(format!("{root}/robots/grid_hyq.urdf")).floating_base(true).out_dir(&out).quiet(true).compile().unwrap();
+        let code = std::fs::read_to_string(&written[0]).unwrap();
+        assert!(code.contains("NV: usize = 18") && code.contains("NQ: usize = 19") && code.contains("q: &[T; NQ]") && code.contains("qd: &[T; NV]"));
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+
+    #[test]
     fn urdf_warnings_become_cargo_warning_lines() {
         let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/diagnostics/mimic_unknown.urdf");
         let text = std::fs::read_to_string(path).unwrap();
