@@ -7,8 +7,8 @@
 //! robomorphic's Q16.16 with truncation on the same states. Run: `cargo run --release --example verilog_trade`.
 
 use grid_gen::back::verilog::SharedSchedule;
-use grid_gen::ir::fixed::{format_for_width, quantize_ports, Bounds, Datapath, Format, Port, Rounding};
-use grid_gen::ir::{self, Input, KernelKind, LowerOptions};
+use grid_gen::ir::fixed::{format_for_width, port_values, quantize_ports, Bounds, Datapath, Format, Rounding};
+use grid_gen::ir::{self, KernelKind, LowerOptions};
 
 /// Gates of the `kind` cell (`mul` or `add`) of format `f` after Yosys's generic `synth`.
 fn cell_gates(f: &Format, kind: &str) -> usize {
@@ -56,17 +56,7 @@ fn main() {
         let exact: Vec<Vec<f64>> = states
             .iter()
             .map(|[q, qd, qdd]| {
-                let ports: Vec<f64> = dp
-                    .ports
-                    .iter()
-                    .map(|p| match *p {
-                        Port::Sin(j) => q[j as usize].sin(),
-                        Port::Cos(j) => q[j as usize].cos(),
-                        Port::Value(Input::Qd, j) => qd[j as usize],
-                        Port::Value(Input::Qdd, j) => qdd[j as usize],
-                        Port::Value(_, j) => q[j as usize],
-                    })
-                    .collect();
+                let ports = port_values(&dp, q, qd, qdd, &[]);
                 let v = dp.values_f64(&ports);
                 dp.outputs.iter().flat_map(|o| o.ids.iter().map(|id| v[id.0 as usize])).collect()
             })

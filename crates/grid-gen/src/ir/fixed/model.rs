@@ -12,28 +12,35 @@ pub struct Run {
     pub overflow: bool,
 }
 
-/// The raw value of each port for one state, as the host computes it: sin and cos in f64,
-/// then every value rounded to nearest. The flag says a value did not fit.
+/// The exact value of each port for one state, as the host computes it in f64: sin and
+/// cos of q, a floating base's quaternion scale, the inputs themselves.
+pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64]) -> Vec<f64> {
+    dp.ports
+        .iter()
+        .map(|&p| match p {
+            Port::Sin(j) => q[j as usize].sin(),
+            Port::Cos(j) => q[j as usize].cos(),
+            Port::QuatScale => 2.0 / q[3..7].iter().map(|x| x * x).sum::<f64>(),
+            Port::Value(input, j) => {
+                let v = match input {
+                    Input::Q => q,
+                    Input::Qd => qd,
+                    Input::Qdd => qdd,
+                    Input::Tau => tau,
+                };
+                v[j as usize]
+            }
+        })
+        .collect()
+}
+
+/// The raw value of each port for one state ([`port_values`] rounded to nearest). The
+/// flag says a value did not fit.
 pub fn quantize_ports(dp: &Datapath, format: &Format, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64]) -> (Vec<i64>, bool) {
     let mut overflow = false;
-    let raw = dp
-        .ports
-        .iter()
-        .map(|&p| {
-            let x = match p {
-                Port::Sin(j) => q[j as usize].sin(),
-                Port::Cos(j) => q[j as usize].cos(),
-                Port::QuatScale => 2.0 / q[3..7].iter().map(|x| x * x).sum::<f64>(),
-                Port::Value(input, j) => {
-                    let v = match input {
-                        Input::Q => q,
-                        Input::Qd => qd,
-                        Input::Qdd => qdd,
-                        Input::Tau => tau,
-                    };
-                    v[j as usize]
-                }
-            };
+    let raw = port_values(dp, q, qd, qdd, tau)
+        .into_iter()
+        .map(|x| {
             let (r, o) = format.quantize(x);
             overflow |= o;
             r
