@@ -39,10 +39,11 @@ OUT = ROOT / "tests" / "fixtures"
 RANDOM_STATES = 10
 
 
-def movable_joints(model):
-    """(name, idx_q, nq, idx_v, lower, upper) for every 1-DoF joint, in Pinocchio order."""
+def movable_joints(model, first=1):
+    """(name, idx_q, nq, idx_v, lower, upper) for every 1-DoF joint from joint `first` on
+    (2: after a free-flyer), in Pinocchio order."""
     out = []
-    for jid in range(1, model.njoints):
+    for jid in range(first, model.njoints):
         j = model.joints[jid]
         assert j.nv == 1, f"{model.names[jid]}: nv={j.nv}"
         lo = model.lowerPositionLimit[j.idx_q] if j.nq == 1 else -np.pi
@@ -83,6 +84,30 @@ def mat(m):
     return [[float(x) for x in row] for row in np.asarray(m)]
 
 
+def pinocchio_record(model, data, q, perm, qd, qdd, tau):
+    """Pinocchio's outputs at (q, qd, qdd) and (q, qd, tau), vectors and matrices in listing
+    order (`perm[k]` is the idx_v of the k-th listed coordinate)."""
+    sel = lambda v: np.asarray(v)[perm]
+    selm = lambda m: np.asarray(m)[np.ix_(perm, perm)]
+    v = np.zeros(model.nv); a = np.zeros(model.nv); t = np.zeros(model.nv)
+    v[perm] = qd; a[perm] = qdd; t[perm] = tau
+    rnea = pin.rnea(model, data, q, v, a).copy()
+    dq, dv, _ = pin.computeRNEADerivatives(model, data, q, v, a)
+    dq, dv = dq.copy(), dv.copy()
+    M = pin.crba(model, data, q).copy()
+    M = np.triu(M) + np.triu(M, 1).T
+    Mi = pin.computeMinverse(model, data, q).copy()
+    Mi = np.triu(Mi) + np.triu(Mi, 1).T
+    fd = pin.aba(model, data, q, v, t).copy()
+    pin.computeABADerivatives(model, data, q, v, t)
+    return {
+        "qd": [float(x) for x in qd], "qdd": [float(x) for x in qdd], "tau": [float(x) for x in tau],
+        "rnea": [float(x) for x in sel(rnea)], "drnea_dq": mat(selm(dq)), "drnea_dqd": mat(selm(dv)),
+        "M": mat(selm(M)), "Minv": mat(selm(Mi)), "fd": [float(x) for x in sel(fd)],
+        "dfd_dq": mat(selm(data.ddq_dq)), "dfd_dqd": mat(selm(data.ddq_dv)),
+    }
+
+
 def pinocchio_fixture(path, rng):
     return pinocchio_fixture_of(pin.buildModelFromUrdf(str(path)), rng)
 
@@ -92,31 +117,12 @@ def pinocchio_fixture_of(model, rng, static=False):
     data = model.createData()
     joints = movable_joints(model)
     perm = [j[3] for j in joints]  # idx_v of each joint in listing order
-    sel = lambda v: np.asarray(v)[perm]
-    selm = lambda m: np.asarray(m)[np.ix_(perm, perm)]
     records = []
     for kind, ang, qd, qdd, tau in states(joints, rng):
         if static:
             qd = np.zeros_like(qd)
         q = to_pin_q(model, joints, ang)
-        v = np.zeros(model.nv); a = np.zeros(model.nv); t = np.zeros(model.nv)
-        v[perm] = qd; a[perm] = qdd; t[perm] = tau
-        rnea = pin.rnea(model, data, q, v, a).copy()
-        dq, dv, _ = pin.computeRNEADerivatives(model, data, q, v, a)
-        dq, dv = dq.copy(), dv.copy()
-        M = pin.crba(model, data, q).copy()
-        M = np.triu(M) + np.triu(M, 1).T
-        Mi = pin.computeMinverse(model, data, q).copy()
-        Mi = np.triu(Mi) + np.triu(Mi, 1).T
-        fd = pin.aba(model, data, q, v, t).copy()
-        pin.computeABADerivatives(model, data, q, v, t)
-        records.append({
-            "kind": kind, "q": [float(x) for x in ang], "qd": [float(x) for x in qd],
-            "qdd": [float(x) for x in qdd], "tau": [float(x) for x in tau],
-            "rnea": [float(x) for x in sel(rnea)], "drnea_dq": mat(selm(dq)), "drnea_dqd": mat(selm(dv)),
-            "M": mat(selm(M)), "Minv": mat(selm(Mi)), "fd": [float(x) for x in sel(fd)],
-            "dfd_dq": mat(selm(data.ddq_dq)), "dfd_dqd": mat(selm(data.ddq_dv)),
-        })
+        records.append({"kind": kind, "q": [float(x) for x in ang], **pinocchio_record(model, data, q, perm, qd, qdd, tau)})
     return {
         "tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear],
         "joint_names": [j[0] for j in joints], "states": records,
@@ -139,10 +145,8 @@ def floating_fixture(path, rng):
     model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer())
     data = model.createData()
     assert model.names[1] == "root_joint" and model.joints[1].nv == 6
-    joints = [j for j in movable_joints_after_base(model)]
+    joints = movable_joints(model, first=2)
     perm = list(range(6)) + [j[3] for j in joints]
-    sel = lambda v: np.asarray(v)[perm]
-    selm = lambda m: np.asarray(m)[np.ix_(perm, perm)]
     n = len(joints)
     lo = np.array([j[4] for j in joints])
     hi = np.array([j[5] for j in joints])
@@ -162,42 +166,11 @@ def floating_fixture(path, rng):
         q = np.zeros(model.nq)
         q[:7] = base
         q[7:] = to_pin_q(model, joints, ang)[7:]
-        v = np.zeros(model.nv); a = np.zeros(model.nv); t = np.zeros(model.nv)
-        v[perm] = qd; a[perm] = qdd; t[perm] = tau
-        rnea = pin.rnea(model, data, q, v, a).copy()
-        dq, dv, _ = pin.computeRNEADerivatives(model, data, q, v, a)
-        dq, dv = dq.copy(), dv.copy()
-        M = pin.crba(model, data, q).copy()
-        M = np.triu(M) + np.triu(M, 1).T
-        Mi = pin.computeMinverse(model, data, q).copy()
-        Mi = np.triu(Mi) + np.triu(Mi, 1).T
-        fd = pin.aba(model, data, q, v, t).copy()
-        pin.computeABADerivatives(model, data, q, v, t)
-        records.append({
-            "kind": kind, "base": [float(x) for x in base], "q": [float(x) for x in ang], "qd": [float(x) for x in qd],
-            "qdd": [float(x) for x in qdd], "tau": [float(x) for x in tau],
-            "rnea": [float(x) for x in sel(rnea)], "drnea_dq": mat(selm(dq)), "drnea_dqd": mat(selm(dv)),
-            "M": mat(selm(M)), "Minv": mat(selm(Mi)), "fd": [float(x) for x in sel(fd)],
-            "dfd_dq": mat(selm(data.ddq_dq)), "dfd_dqd": mat(selm(data.ddq_dv)),
-        })
+        records.append({"kind": kind, "base": [float(x) for x in base], "q": [float(x) for x in ang], **pinocchio_record(model, data, q, perm, qd, qdd, tau)})
     return {
         "tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear],
         "joint_names": [f"root_joint_{c}" for c in FREE_FLYER] + [j[0] for j in joints], "states": records,
     }
-
-
-def movable_joints_after_base(model):
-    """movable_joints() for the joints after a free-flyer (joint 1)."""
-    out = []
-    for jid in range(2, model.njoints):
-        j = model.joints[jid]
-        assert j.nv == 1, f"{model.names[jid]}: nv={j.nv}"
-        lo = model.lowerPositionLimit[j.idx_q] if j.nq == 1 else -np.pi
-        hi = model.upperPositionLimit[j.idx_q] if j.nq == 1 else np.pi
-        if not np.isfinite(lo) or not np.isfinite(hi) or hi - lo > 100 or hi <= lo:
-            lo, hi = -np.pi, np.pi
-        out.append((model.names[jid], j.idx_q, j.nq, j.idx_v, lo, hi))
-    return out
 
 
 def floating_fixtures(check):

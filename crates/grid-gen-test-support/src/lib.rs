@@ -89,10 +89,14 @@ pub fn load(robot: &str) -> Model {
 
 /// A bundled robot on a floating base (`--floating-base`).
 pub fn load_floating(robot: &str) -> Model {
-    let path = repo().join("robots").join(format!("{robot}.urdf"));
-    let text = std::fs::read_to_string(&path).expect("robot file");
+    load_floating_urdf(&repo().join("robots").join(format!("{robot}.urdf")))
+}
+
+/// The robot of a URDF file on a floating base (`--floating-base`).
+pub fn load_floating_urdf(path: &std::path::Path) -> Model {
+    let text = std::fs::read_to_string(path).expect("robot file");
     let scene = grid_gen::Scene { floating_base: true, ..grid_gen::Scene::default() };
-    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).expect("bundled robots load").0
+    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).expect("the robot loads").0
 }
 
 pub fn fixture(name: &str) -> serde_json::Value {

@@ -102,6 +102,17 @@ fn gpu() -> Option<(std::sync::MutexGuard<'static, ()>, Gpu)> {
     }
 }
 
+/// [`gpu`], when the adapter runs f64 shaders; with `CI` set, one that does not fails.
+fn gpu_f64() -> Option<(std::sync::MutexGuard<'static, ()>, Gpu)> {
+    let (serial, gpu) = gpu()?;
+    if !gpu.has_f64() {
+        assert!(std::env::var_os("CI").is_none(), "the adapter {} has no SHADER_F64 (lavapipe has it)", gpu.adapter());
+        eprintln!("SKIPPED f64: the adapter {} has no SHADER_F64", gpu.adapter());
+        return None;
+    }
+    Some((serial, gpu))
+}
+
 /// Random states and extremes: zero, both joint limits, speeds 1e-8 and 1e3; rounded to
 /// f32 so both precisions see the same inputs.
 fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
@@ -208,12 +219,7 @@ fn kernels_run_through_wgpu_and_match_the_reference() {
 
 #[test]
 fn f64_kernels_match_the_reference_to_1e_12() {
-    let Some((_serial, gpu)) = gpu() else { return };
-    if !gpu.has_f64() {
-        assert!(std::env::var_os("CI").is_none(), "the adapter {} has no SHADER_F64 (lavapipe has it)", gpu.adapter());
-        eprintln!("SKIPPED f64: the adapter {} has no SHADER_F64", gpu.adapter());
-        return;
-    }
+    let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(43);
     // HyQ (the tree) runs in f64 only: in f32 on lavapipe its dispatches take seconds to
     // minutes (measured 2026-11-23, serialised: `rnea` 1.0 s, `rnea_coop` 48.5 s for 37
@@ -234,12 +240,7 @@ fn f64_kernels_match_the_reference_to_1e_12() {
 /// on HyQ above), though within the f32 tolerance (4.2e-7).
 #[test]
 fn floating_base_kernels_match_the_reference() {
-    let Some((_serial, gpu)) = gpu() else { return };
-    if !gpu.has_f64() {
-        assert!(std::env::var_os("CI").is_none(), "the adapter {} has no SHADER_F64 (lavapipe has it)", gpu.adapter());
-        eprintln!("SKIPPED f64: the adapter {} has no SHADER_F64", gpu.adapter());
-        return;
-    }
+    let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(53);
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
     let kernels = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd];

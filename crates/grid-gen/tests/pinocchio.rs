@@ -87,6 +87,57 @@ fn compare(robot: &str, model: &grid_gen::Model, fx: &serde_json::Value, failure
     checked
 }
 
+/// A fixture's listing order (Pinocchio's, by name) against the model's joint order.
+struct Order {
+    /// `perm[k]`: our index of the fixture's k-th coordinate.
+    perm: Vec<usize>,
+    /// `inv[i]`: the fixture's index of our coordinate i.
+    inv: Vec<usize>,
+}
+
+impl Order {
+    fn new(robot: &str, model: &grid_gen::Model, fx: &serde_json::Value) -> Order {
+        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        assert_eq!(names.len(), model.nv(), "{robot}: joint count");
+        let perm: Vec<usize> =
+            names.iter().map(|name| model.joints.iter().position(|j| j.name == *name).unwrap_or_else(|| panic!("{robot}: no joint {name}"))).collect();
+        let mut inv = vec![0; perm.len()];
+        for (k, &i) in perm.iter().enumerate() {
+            inv[i] = k;
+        }
+        Order { perm, inv }
+    }
+
+    /// A fixture vector in our order.
+    fn ours(&self, v: &[f64]) -> Vec<f64> {
+        self.inv.iter().map(|&k| v[k]).collect()
+    }
+
+    /// Fixture entry `key` of state `st` in our order.
+    fn theirs(&self, st: &serde_json::Value, key: &str, shape: grid_gen::ir::Shape) -> DMatrix<f64> {
+        match shape {
+            grid_gen::ir::Shape::Vector => col(&self.ours(&vec_of(&st[key]))),
+            grid_gen::ir::Shape::Matrix => {
+                let m = mat_of(&st[key]);
+                DMatrix::from_fn(m.nrows(), m.ncols(), |a, b| m[(self.inv[a], self.inv[b])])
+            }
+        }
+    }
+}
+
+/// The fixture keys of a kernel's outputs, in output order.
+fn fixture_keys(kind: grid_gen::ir::KernelKind) -> &'static [&'static str] {
+    use grid_gen::ir::KernelKind;
+    match kind {
+        KernelKind::Rnea => &["rnea"],
+        KernelKind::RneaGrad => &["drnea_dq", "drnea_dqd"],
+        KernelKind::MassMatrix => &["M"],
+        KernelKind::Minv => &["Minv"],
+        KernelKind::Fd => &["fd"],
+        KernelKind::FdGrad => &["fd", "dfd_dq", "dfd_dqd"],
+    }
+}
+
 /// The scenes that change the kernels rather than the model (`static`, `[gradient]`),
 /// their generated graphs (not the reference, which knows nothing of them) against
 /// Pinocchio: `iiwa_static` against Pinocchio at v = 0 (fixture written with q̇ = 0)
@@ -94,7 +145,7 @@ fn compare(robot: &str, model: &grid_gen::Model, fx: &serde_json::Value, failure
 /// `hyq_lf_columns` against Pinocchio's full HyQ, the entries outside the columns 0.
 #[test]
 fn static_and_gradient_scenes_match_pinocchio() {
-    use grid_gen::ir::{self, Input, KernelKind, LowerOptions};
+    use grid_gen::ir::{self, Input, LowerOptions};
     let mut failures = Vec::new();
     let mut checked = 0;
     for (robot, scene, fixture_name) in
@@ -105,31 +156,14 @@ fn static_and_gradient_scenes_match_pinocchio() {
         let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
         let fx = fixture(fixture_name);
         let n = model.nv();
-        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
-        let perm: Vec<usize> = names.iter().map(|name| model.joints.iter().position(|j| j.name == *name).unwrap()).collect();
-        let ours = |v: &[f64]| {
-            let mut out = vec![0.0; v.len()];
-            for (k, &i) in perm.iter().enumerate() {
-                out[i] = v[k];
-            }
-            out
-        };
+        let order = Order::new(robot, &model, &fx);
+        let ours = |v: &[f64]| order.ours(v);
         // Pinocchio's answer in our joint order, the entries the scene does not read 0.
         let theirs = |st: &serde_json::Value, key: &str, shape: ir::Shape| -> DMatrix<f64> {
+            let m = order.theirs(st, key, shape);
             match shape {
-                ir::Shape::Vector => col(&ours(&vec_of(&st[key]))),
-                ir::Shape::Matrix => {
-                    let m = mat_of(&st[key]);
-                    let gradient = key.starts_with('d');
-                    DMatrix::from_fn(n, n, |a, b| {
-                        let (i, j) = (perm.iter().position(|&p| p == a).unwrap(), perm.iter().position(|&p| p == b).unwrap());
-                        if gradient && !spec.keeps(a, b) {
-                            0.0
-                        } else {
-                            m[(i, j)]
-                        }
-                    })
-                }
+                ir::Shape::Matrix if key.starts_with('d') => DMatrix::from_fn(n, n, |a, b| if spec.keeps(a, b) { m[(a, b)] } else { 0.0 }),
+                _ => m,
             }
         };
         let mut rng = Rng(17);
@@ -147,14 +181,7 @@ fn static_and_gradient_scenes_match_pinocchio() {
                     Some(Input::Tau) => ours(&vec_of(&st["tau"])),
                     _ => Vec::new(),
                 };
-                let keys: &[&str] = match f.kind {
-                    KernelKind::Rnea => &["rnea"],
-                    KernelKind::RneaGrad => &["drnea_dq", "drnea_dqd"],
-                    KernelKind::MassMatrix => &["M"],
-                    KernelKind::Minv => &["Minv"],
-                    KernelKind::Fd => &["fd"],
-                    KernelKind::FdGrad => &["fd", "dfd_dq", "dfd_dqd"],
-                };
+                let keys = fixture_keys(f.kind);
                 let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &u));
                 for ((o, got), key) in f.outputs.iter().zip(&got).zip(keys) {
                     checked += 1;
@@ -180,44 +207,22 @@ fn static_and_gradient_scenes_match_pinocchio() {
 /// its own (its block of M is the robot's total mass and inertia).
 #[test]
 fn floating_base_matches_pinocchio_free_flyer() {
-    use grid_gen::ir::{self, Gradient, Input, KernelKind, LowerOptions};
+    use grid_gen::ir::{self, Gradient, Input, LowerOptions};
     let mut failures = Vec::new();
     let mut checked = 0;
     let mut worst = 0.0f64;
-    let fixture_robot = |name: &str| {
-        // Test-only legged robots (example-robot-data's, tests/fixtures/LICENSE.example-robot-data).
-        let path = repo().join("tests/fixtures").join(format!("{name}.urdf"));
-        let text = std::fs::read_to_string(&path).unwrap();
-        let scene = grid_gen::Scene { floating_base: true, ..grid_gen::Scene::default() };
-        grid_gen::Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).unwrap().0
-    };
     for robot in ["grid_hyq", "grid_atlas", "grid_iiwa", "ur5", "solo12", "go2"] {
-        let model = if robot.starts_with("grid_") || robot == "ur5" { load_floating(robot) } else { fixture_robot(robot) };
+        // Solo-12 and Go2 are test-only robots (tests/fixtures/LICENSE.example-robot-data).
+        let model = match robot {
+            "solo12" | "go2" => load_floating_urdf(&repo().join("tests/fixtures").join(format!("{robot}.urdf"))),
+            _ => load_floating(robot),
+        };
         assert!(model.floating && model.nq() == model.nv() + 1);
         let fx = fixture(&format!("{robot}.floating.pinocchio.json"));
         let n = model.nv();
-        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
-        assert_eq!(names.len(), n, "{robot}: joint count");
-        let perm: Vec<usize> =
-            names.iter().map(|name| model.joints.iter().position(|j| j.name == *name).unwrap_or_else(|| panic!("{robot}: no joint {name}"))).collect();
-        assert_eq!(perm[..6], [0, 1, 2, 3, 4, 5], "{robot}: the free-flyer comes first");
-        let ours = |v: &[f64]| {
-            let mut out = vec![0.0; v.len()];
-            for (k, &i) in perm.iter().enumerate() {
-                out[i] = v[k];
-            }
-            out
-        };
-        let theirs = |st: &serde_json::Value, key: &str, shape: ir::Shape| -> DMatrix<f64> {
-            match shape {
-                ir::Shape::Vector => col(&ours(&vec_of(&st[key]))),
-                ir::Shape::Matrix => {
-                    let m = mat_of(&st[key]);
-                    let inv: Vec<usize> = (0..n).map(|a| perm.iter().position(|&p| p == a).unwrap()).collect();
-                    DMatrix::from_fn(n, n, |a, b| m[(inv[a], inv[b])])
-                }
-            }
-        };
+        let order = Order::new(robot, &model, &fx);
+        assert_eq!(order.perm[..6], [0, 1, 2, 3, 4, 5], "{robot}: the free-flyer comes first");
+        let (ours, theirs) = (|v: &[f64]| order.ours(v), |st: &serde_json::Value, key: &str, shape| order.theirs(st, key, shape));
         let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
             .into_iter()
             .map(|gradient| ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions { gradient, ..LowerOptions::default() }).unwrap())
@@ -228,7 +233,7 @@ fn floating_base_matches_pinocchio_free_flyer() {
             let mut q = vec_of(&st["base"]);
             q.resize(model.nq(), 0.0);
             for (k, &a) in vec_of(&st["q"]).iter().enumerate() {
-                q[perm[6 + k] + 1] = a;
+                q[order.perm[6 + k] + 1] = a;
             }
             let (qd, qdd, tau) = (ours(&vec_of(&st["qd"])), ours(&vec_of(&st["qdd"])), ours(&vec_of(&st["tau"])));
             let (dq, dqd) = reference::rnea_derivatives(&model, &q, &qd, &qdd, g);
@@ -251,14 +256,7 @@ fn floating_base_matches_pinocchio_free_flyer() {
                         Some(Input::Tau) => tau.clone(),
                         _ => Vec::new(),
                     };
-                    let keys: &[&str] = match f.kind {
-                        KernelKind::Rnea => &["rnea"],
-                        KernelKind::RneaGrad => &["drnea_dq", "drnea_dqd"],
-                        KernelKind::MassMatrix => &["M"],
-                        KernelKind::Minv => &["Minv"],
-                        KernelKind::Fd => &["fd"],
-                        KernelKind::FdGrad => &["fd", "dfd_dq", "dfd_dqd"],
-                    };
+                    let keys = fixture_keys(f.kind);
                     let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &u));
                     for ((o, got), key) in f.outputs.iter().zip(&got).zip(keys) {
                         let form = f.gradient.map_or(String::new(), |g| format!(" ({})", g.name()));
