@@ -176,6 +176,15 @@ struct LoadArgs {
     /// q = [x, y, z, qx, qy, qz, qw, joints...], velocities and gradients in the base frame).
     #[arg(long, global = true)]
     floating_base: bool,
+    /// How <mimic> joints are modelled: `independent` (the default, as urdfdom and
+    /// Pinocchio's default) or `coupled` (q_m = multiplier * q + offset, no coordinate of
+    /// their own; Pinocchio's mimic=True).
+    #[arg(long, value_name = "MODE", global = true, value_parser = parse_mimic)]
+    mimic: Option<grid_gen::MimicMode>,
+}
+
+fn parse_mimic(s: &str) -> Result<grid_gen::MimicMode, String> {
+    grid_gen::MimicMode::parse(s).ok_or_else(|| format!("unknown mimic mode `{s}`; available: independent, coupled"))
 }
 
 #[derive(Subcommand)]
@@ -359,6 +368,9 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
     };
     let mut scene = scene;
     scene.floating_base |= args.floating_base;
+    if let Some(mode) = args.mimic {
+        scene.mimic = mode;
+    }
     let scene_path = args.scene.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
     let strict = args.strict;
     let shown = path.display().to_string();

@@ -76,6 +76,7 @@ pub struct Builder {
     scene: Option<PathBuf>,
     strict: bool,
     floating_base: bool,
+    mimic: Option<crate::MimicMode>,
     quiet: bool,
 }
 
@@ -147,6 +148,13 @@ impl Builder {
         self
     }
 
+    /// How `<mimic>` joints are modelled (default: independent, or the scene's `mimic`):
+    /// coupled mimic joints follow their joint and have no coordinate of their own.
+    pub fn mimic(&mut self, mode: crate::MimicMode) -> &mut Self {
+        self.mimic = Some(mode);
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
@@ -200,6 +208,9 @@ impl Builder {
         };
         let mut scene = scene;
         scene.floating_base |= self.floating_base;
+        if let Some(mode) = self.mimic {
+            scene.mimic = mode;
+        }
         let (model, warnings) = Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path).map_err(|e| BuildError::Load(Box::new(e)))?;
         let mut options = self.options.clone();
         if let Some(g) = scene.gravity {

@@ -224,7 +224,7 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
             Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv, fd, dfd_dq, dfd_dqd }
         })
         .collect();
-    Ok(EvalOutput { joint_names: model.joints.iter().map(|j| j.name.clone()).collect(), states })
+    Ok(EvalOutput { joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(), states })
 }
 
 /// Results of the Verilog netlists for one state: the keys of [`Output`] that the
@@ -383,5 +383,5 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
             }
         }
     }
-    Ok(EvalOutput { joint_names: model.joints.iter().map(|j| j.name.clone()).collect(), states })
+    Ok(EvalOutput { joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(), states })
 }

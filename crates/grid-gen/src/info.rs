@@ -39,15 +39,20 @@ pub struct Info {
     pub floating_base: bool,
     /// Gravity in the root frame (m/s²) the op counts and netlists were built with.
     pub gravity: [f64; 3],
-    /// Movable joints in model order (depth-first pre-order, children in document order).
+    /// Movable joints in model order (depth-first pre-order, children in document order),
+    /// one per coordinate.
     pub joint_names: Vec<String>,
     pub joint_types: Vec<JointType>,
     /// Index of each joint's parent joint, `null` for children of the fixed root.
     pub parents: Vec<Option<usize>>,
-    /// Joint indices at each tree depth.
+    /// Joint (coordinate) indices at each tree depth.
     pub levels: Vec<Vec<usize>>,
-    /// Joints with a `<mimic>`; grid-gen treats them as independent (as Pinocchio does).
+    /// Joints with a `<mimic>`: independent joints by default (as urdfdom and Pinocchio's
+    /// default), coupled when `mimic_coupled`.
     pub mimic: Vec<Mimic>,
+    /// `--mimic coupled`: every mimic joint whose target is movable follows it and has no
+    /// coordinate, so `joint_names` (and nv) leave it out.
+    pub mimic_coupled: bool,
     pub sparsity: Sparsity,
     /// The scene's `static = true`: q̇ = 0 assumed, `qd` ignored by every kernel.
     #[serde(rename = "static")]
@@ -91,7 +96,8 @@ impl Info {
 
     /// The summary of the kernels generated with this gravity and gradient formulation.
     pub fn with_options(model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
-        let names = |set: &Option<Vec<usize>>| set.as_ref().map(|v| v.iter().map(|&j| model.joints[j].name.clone()).collect());
+        let coordinates = model.coordinate_joints();
+        let names = |set: &Option<Vec<usize>>| set.as_ref().map(|v| v.iter().map(|&k| model.joints[coordinates[k]].name.clone()).collect());
         Info {
             robot: model.name.clone(),
             root_link: model.root_link.clone(),
@@ -99,10 +105,15 @@ impl Info {
             nq: model.nq(),
             floating_base: model.floating,
             gravity,
-            joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
-            joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
-            parents: model.joints.iter().map(|j| j.parent).collect(),
-            levels: model.levels(),
+            joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(),
+            joint_types: model.coordinate_joints().iter().map(|&i| model.joints[i].joint_type).collect(),
+            parents: model.coordinate_parents(),
+            levels: model
+                .levels()
+                .into_iter()
+                .map(|level| level.into_iter().filter(|&i| model.coupling(i).is_none()).map(|i| model.coordinate_of(i)).collect())
+                .collect(),
+            mimic_coupled: !model.coupling.iter().all(Option::is_none),
             mimic: model
                 .joints
                 .iter()
@@ -201,6 +212,15 @@ impl Info {
                 self.nq
             ));
         }
+        if self.mimic_coupled {
+            let coupled: Vec<String> = self
+                .mimic
+                .iter()
+                .filter(|m| !self.joint_names.contains(&m.joint))
+                .map(|m| format!("{} = {} * {} + {}", m.joint, m.multiplier, m.mimics, m.offset))
+                .collect();
+            s.push_str(&format!("coupled mimic joints (no coordinate of their own): {}\n", coupled.join(", ")));
+        }
         if self.static_velocity {
             s.push_str("static scene: qd = 0 assumed, velocity terms compiled out, `qd` ignored\n");
         }
@@ -260,8 +280,9 @@ impl Info {
         if let Some(why) = &self.wgsl_skipped {
             s.push_str(&format!("wgsl entry points not planned: {why}\n"));
         }
-        for m in &self.mimic {
-            s.push_str(&format!("note: joint `{}` mimics `{}`; it is treated as an independent joint\n", m.joint, m.mimics));
+        // Coupled ones were listed above; an independent one is worth a note.
+        for m in self.mimic.iter().filter(|m| self.joint_names.contains(&m.joint)) {
+            s.push_str(&format!("note: joint `{}` mimics `{}`; it is treated as an independent joint (--mimic coupled couples it)\n", m.joint, m.mimics));
         }
         s
     }

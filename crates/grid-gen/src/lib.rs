@@ -23,4 +23,4 @@ pub mod urdf;
 pub use builder::{BuildError, Builder};
 pub use diagnostic::{Diagnostic, LoadError, Severity};
 pub use model::Model;
-pub use scene::Scene;
+pub use scene::{MimicMode, Scene};

@@ -20,7 +20,7 @@ impl Model {
     pub fn from_urdf_str_in_scene(path: &str, text: &str, strict: bool, scene: &Scene, scene_path: &str) -> Result<(Model, Vec<Diagnostic>), LoadError> {
         let (urdf, tree, mut diags) = urdf::load(path, text)?;
         let edits = scene::resolve(scene, scene_path, &urdf, &tree, &mut diags);
-        let built = build(&urdf, &tree, &edits, scene.floating_base, &mut diags).map(|(mut model, source)| {
+        let built = build(&urdf, &tree, &edits, scene.floating_base, scene.mimic == crate::scene::MimicMode::Coupled, &mut diags).map(|(mut model, source)| {
             model.singular = check_massless(&model, &source, &urdf, &mut diags);
             model.specialisation = scene::specialise(scene, scene_path, &urdf, &model, &mut diags);
             let file_name = |p: &str| std::path::Path::new(p).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
@@ -57,14 +57,19 @@ fn check_massless(model: &Model, source: &[Option<usize>], urdf: &Urdf, diags: &
     let m = crate::reference::crba(model, &model.neutral_q());
     let scale = (0..n).map(|i| m[(i, i)]).fold(0.0, f64::max);
     let mut mass: Vec<f64> = model.joints.iter().map(|j| j.inertia.mass).collect();
-    for i in (0..n).rev() {
+    for i in (0..model.njoints()).rev() {
         if let Some(p) = model.joints[i].parent {
             mass[p] += mass[i];
         }
+        // A coupled mimic joint's inertia is in its coordinate's M_kk.
+        if model.coupling(i).is_some() {
+            continue;
+        }
+        let k = model.coordinate_of(i);
         // Relative to M's largest diagonal entry, so a small robot is not a singular one:
         // below n·ε of it, M_ii is rounding noise at M's scale, cond(M) ≥ max M_jj / M_ii
         // exceeds 1/(n·ε), and no double-precision factorisation of M is meaningful.
-        if m[(i, i)] <= n as f64 * f64::EPSILON * scale {
+        if m[(k, k)] <= n as f64 * f64::EPSILON * scale {
             let Some(uj) = source[i].map(|j| &urdf.joints[j]) else {
                 // `--floating-base`'s free-flyer: the whole robot is massless.
                 if singular.is_none() {

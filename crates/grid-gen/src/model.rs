@@ -158,8 +158,21 @@ pub struct Joint {
     /// `<dynamics>` damping and friction (not part of the rigid-body terms).
     pub damping: f64,
     pub friction: f64,
-    /// `<mimic>`: (joint, multiplier, offset). Treated as an independent joint.
+    /// `<mimic>`: (joint, multiplier, offset). An independent joint unless the model
+    /// couples mimic joints ([`Model::coupling`]).
     pub mimic: Option<(String, f64, f64)>,
+}
+
+/// A mimic joint modelled as coupled (`--mimic coupled`, issue 11): its position is
+/// `multiplier · q_of + offset`, its velocity and acceleration `multiplier` times those
+/// of joint `of`, and it has no coordinate of its own (Pinocchio's `JointModelMimic`,
+/// `buildModelFromUrdf(..., mimic=True)`).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct Coupling {
+    /// The model joint it follows, never itself coupled (chains are composed).
+    pub of: usize,
+    pub multiplier: f64,
+    pub offset: f64,
 }
 
 /// A fixed-base robot ready for the dynamics.
@@ -177,6 +190,11 @@ pub struct Model {
     /// A floating base: `joints[..6]` are the free-flyer ([`FREE_FLYER`]) and q is
     /// `[x, y, z, qx, qy, qz, qw, joints[6..]…]` (nq = nv + 1, Pinocchio's layout).
     pub floating: bool,
+    /// For each joint, whether it is a coupled mimic joint (`--mimic coupled`); empty or
+    /// all `None` when mimic joints are independent (the default). A coupled joint has
+    /// no coordinate: q, q̇, q̈, τ and the matrices have one entry per *coordinate*, the
+    /// joints that are not coupled, in model order ([`Model::coordinate_joints`]).
+    pub coupling: Vec<Option<Coupling>>,
     /// What a scene fixes about the state and the outputs (default: nothing).
     pub specialisation: Specialisation,
 }
@@ -189,7 +207,8 @@ pub struct Specialisation {
     /// velocity terms are folded away), and `eval` refuses a state whose q̇ is not 0.
     pub static_velocity: bool,
     /// Rows of the gradient matrices (`dc_dq`, `dc_dqd`, `dqdd_dq`, `dqdd_dqd`) that are
-    /// computed, as model joint indices; every other row is written as 0. `None`: all.
+    /// computed, as coordinate indices (model joint indices unless mimic joints are coupled);
+    /// every other row is written as 0. `None`: all.
     pub rows: Option<Vec<usize>>,
     /// Columns of the gradient matrices that are computed, as rows are. `None`: all.
     pub columns: Option<Vec<usize>>,
@@ -215,23 +234,73 @@ pub struct Count {
 }
 
 impl Model {
+    /// Degrees of freedom: entries of q̇, q̈ and τ (the model's joints less the coupled
+    /// mimic joints).
     pub fn nv(&self) -> usize {
+        self.joints.len() - self.coupling.iter().filter(|c| c.is_some()).count()
+    }
+
+    /// Model joints (bodies), coupled mimic joints included: what the algorithms loop over.
+    pub fn njoints(&self) -> usize {
         self.joints.len()
     }
 
     /// Entries of q: nv, or nv + 1 with a floating base (a quaternion for three angles).
     pub fn nq(&self) -> usize {
-        self.joints.len() + usize::from(self.floating)
+        self.nv() + usize::from(self.floating)
     }
 
-    /// Where joint `i`'s position is in q; `None` for the free-flyer's six coordinates,
-    /// which are always at zero (the base pose is q's first seven entries instead).
-    pub fn q_index(&self, i: usize) -> Option<usize> {
+    /// Joint `i`'s coupling, when it is a coupled mimic joint.
+    pub fn coupling(&self, i: usize) -> Option<Coupling> {
+        self.coupling.get(i).copied().flatten()
+    }
+
+    /// The joint of each coordinate: every joint that is not a coupled mimic, in order.
+    pub fn coordinate_joints(&self) -> Vec<usize> {
+        (0..self.njoints()).filter(|&i| self.coupling(i).is_none()).collect()
+    }
+
+    /// The coordinate joint `i` moves with: its own, or for a coupled mimic joint the
+    /// coordinate of the joint it follows.
+    pub fn coordinate_of(&self, i: usize) -> usize {
+        let own = self.coupling(i).map_or(i, |c| c.of);
+        (0..own).filter(|&j| self.coupling(j).is_none()).count()
+    }
+
+    /// Each coordinate's parent coordinate: that of its joint's nearest ancestor that is
+    /// not a coupled mimic (`None` under the root).
+    pub fn coordinate_parents(&self) -> Vec<Option<usize>> {
+        let coordinate_parent = |j: usize| {
+            let mut p = self.joints[j].parent;
+            while let Some(a) = p.filter(|&a| self.coupling(a).is_some()) {
+                p = self.joints[a].parent;
+            }
+            p.map(|a| self.coordinate_of(a))
+        };
+        self.coordinate_joints().into_iter().map(coordinate_parent).collect()
+    }
+
+    /// Joint `i`'s velocity per unit of its coordinate's: 1, or a coupled joint's multiplier.
+    pub fn multiplier(&self, i: usize) -> f64 {
+        self.coupling(i).map_or(1.0, |c| c.multiplier)
+    }
+
+    /// Where coordinate `k`'s position is in q; `None` for the free-flyer's six
+    /// coordinates, which are always at zero (the base pose is q's first seven entries
+    /// instead).
+    pub fn q_index(&self, k: usize) -> Option<usize> {
         match self.floating {
-            true if i < FREE_FLYER.len() => None,
-            true => Some(i + 1),
-            false => Some(i),
+            true if k < FREE_FLYER.len() => None,
+            true => Some(k + 1),
+            false => Some(k),
         }
+    }
+
+    /// Joint `i`'s position as `(q index, multiplier, offset)`: `q[index] · multiplier +
+    /// offset` (1 and 0 unless it is a coupled mimic joint); `None` for the free-flyer.
+    pub fn joint_q(&self, i: usize) -> Option<(usize, f64, f64)> {
+        let k = self.q_index(self.coordinate_of(i))?;
+        Some(self.coupling(i).map_or((k, 1.0, 0.0), |c| (k, c.multiplier, c.offset)))
     }
 
     /// Whether joint `i` is one of the free-flyer's six coordinates. The algorithms treat
@@ -244,7 +313,7 @@ impl Model {
         self.floating && i < FREE_FLYER.len()
     }
 
-    /// q from one value per joint (length nv; the free-flyer's six are ignored) and, with
+    /// q from one value per coordinate (length nv; the free-flyer's six are ignored) and, with
     /// a floating base, the base pose `[x, y, z, qx, qy, qz, qw]` (ignored without one).
     pub fn q_from_joints(&self, per_joint: &[f64], base: [f64; 7]) -> Vec<f64> {
         let mut q = self.neutral_q();
@@ -297,14 +366,14 @@ impl Model {
 
     /// Nonzero pattern of ∂v_i/∂q_j (and ∂a_i/∂q_j): j an ancestor of i or i itself.
     pub fn motion_sparsity(&self) -> Count {
-        let n = self.nv();
+        let n = self.njoints();
         let nonzero = (0..n).flat_map(|i| (0..n).map(move |j| (i, j))).filter(|&(i, j)| self.is_ancestor_or_self(j, i)).count();
         Count { nonzero, total: n * n }
     }
 
     /// Nonzero pattern of ∂f_i/∂q_j and ∂c_i/∂q_j: i and j on one root-to-leaf path.
     pub fn force_sparsity(&self) -> Count {
-        let n = self.nv();
+        let n = self.njoints();
         let nonzero =
             (0..n).flat_map(|i| (0..n).map(move |j| (i, j))).filter(|&(i, j)| self.is_ancestor_or_self(j, i) || self.is_ancestor_or_self(i, j)).count();
         Count { nonzero, total: n * n }
@@ -390,7 +459,14 @@ enum Step {
 /// Builds the model from a checked URDF tree, with a free-flyer under the root link when
 /// `floating_base`; also returns, for each model joint, the index of the URDF joint it
 /// comes from (for located errors in later checks; `None` for `--floating-base`'s).
-pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, floating_base: bool, diags: &mut Vec<Diagnostic>) -> Option<(Model, Vec<Option<usize>>)> {
+pub(crate) fn build(
+    urdf: &Urdf,
+    tree: &Tree,
+    edits: &Edits,
+    floating_base: bool,
+    mimic_coupled: bool,
+    diags: &mut Vec<Diagnostic>,
+) -> Option<(Model, Vec<Option<usize>>)> {
     for link in &urdf.links {
         check_inertia(link, diags);
     }
@@ -512,6 +588,7 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, floating_base: bool
             Step::Close { body } => joints[body].subtree_end = joints.len(),
         }
     }
+    let coupling = if mimic_coupled { couple(urdf, &joints, &source, diags) } else { Vec::new() };
     let model = Model {
         name: urdf.name.clone(),
         source: String::new(),
@@ -519,7 +596,67 @@ pub(crate) fn build(urdf: &Urdf, tree: &Tree, edits: &Edits, floating_base: bool
         root_link: urdf.links[tree.root].name.clone(),
         joints,
         floating,
+        coupling,
         specialisation: Specialisation::default(),
     };
     Some((model, source))
+}
+
+/// `--mimic coupled`: each mimic joint follows the joint its `<mimic>` names, composed
+/// through chains of mimics (`m₁ (m₂ q + o₂) + o₁`). A target that is not a movable joint
+/// of the model (fixed, locked or left out by a scene), or a cycle, is an error at the
+/// `<mimic>`; an unknown name was warned about while loading and stays independent.
+fn couple(urdf: &Urdf, joints: &[Joint], source: &[Option<usize>], diags: &mut Vec<Diagnostic>) -> Vec<Option<Coupling>> {
+    let index = |name: &str| joints.iter().position(|j| j.name == name);
+    let span = |i: usize| source[i].and_then(|j| urdf.joints[j].mimic.as_ref()).map(|m| m.span.clone());
+    // A mimic of a name the URDF lacks was warned about and stays independent.
+    let mimics = |i: usize| joints[i].mimic.as_ref().filter(|(t, ..)| urdf.joints.iter().any(|j| &j.name == t));
+    let mut coupling = vec![None; joints.len()];
+    for (i, joint) in joints.iter().enumerate() {
+        if mimics(i).is_none() {
+            continue;
+        }
+        let (mut multiplier, mut offset) = (1.0, 0.0);
+        let mut at = i;
+        let mut seen = vec![i];
+        let of = loop {
+            let Some((target, m, o)) = mimics(at) else { break Some(at) };
+            // Composing: the joint so far is `multiplier · q_at + offset`, q_at = m q + o.
+            offset += multiplier * o;
+            multiplier *= m;
+            match index(target) {
+                Some(t) if seen.contains(&t) => {
+                    diags.push(
+                        Diagnostic::error(format!("mimic joints form a cycle through `{}`", joint.name), span(i), "a mimic joint cannot follow itself")
+                            .with_help("with --mimic coupled, every chain of <mimic> elements must end at a joint that mimics none"),
+                    );
+                    break None;
+                }
+                Some(t) => {
+                    seen.push(t);
+                    at = t;
+                }
+                None => {
+                    let why = match urdf.joints.iter().find(|j| &j.name == target) {
+                        Some(j) if j.kind == JointKind::Fixed => "a fixed joint",
+                        Some(_) => "locked or left out by the scene",
+                        None => "not a joint of this robot",
+                    };
+                    diags.push(
+                        Diagnostic::error(
+                            format!("joint `{}` mimics `{target}`, which is {why}", joints[at].name),
+                            span(at),
+                            "the mimicked joint has no coordinate",
+                        )
+                        .with_help("--mimic coupled needs the mimicked joint movable; lock the mimic joint too, or use --mimic independent"),
+                    );
+                    break None;
+                }
+            }
+        };
+        if let Some(of) = of {
+            coupling[i] = Some(Coupling { of, multiplier, offset });
+        }
+    }
+    coupling
 }

@@ -15,6 +15,7 @@
 //!
 //! static = true                        # q̇ = 0 is known: kernels ignore `qd`
 //! floating_base = true                 # a free-flyer under the root link (--floating-base)
+//! mimic = "coupled"                    # <mimic> joints follow their joint (--mimic coupled)
 //!
 //! [gradient]                           # gradient entries needed (default: all)
 //! rows = ["right_s0"]                  # by joint: the rows computed
@@ -67,6 +68,37 @@ pub struct Scene {
     /// A free-flyer between the world and the root link (as `--floating-base`).
     #[serde(default)]
     pub floating_base: bool,
+    /// How `<mimic>` joints are modelled (as `--mimic`).
+    #[serde(default)]
+    pub mimic: MimicMode,
+}
+
+/// How `<mimic>` joints are modelled.
+#[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
+#[serde(rename_all = "lowercase")]
+pub enum MimicMode {
+    /// Each is a joint with its own coordinate, as urdfdom and Pinocchio's default
+    /// `buildModelFromUrdf` do: the dynamics are those of the robot without the mimic
+    /// constraint, and the caller enforces it.
+    #[default]
+    Independent,
+    /// Each follows its joint, `q_m = multiplier · q + offset`, and has no coordinate
+    /// (Pinocchio's `buildModelFromUrdf(..., mimic=True)`): one entry fewer in q, q̇, q̈,
+    /// τ and every matrix per mimic joint.
+    Coupled,
+}
+
+impl MimicMode {
+    pub fn name(self) -> &'static str {
+        match self {
+            MimicMode::Independent => "independent",
+            MimicMode::Coupled => "coupled",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<MimicMode> {
+        [MimicMode::Independent, MimicMode::Coupled].into_iter().find(|m| m.name() == name)
+    }
 }
 
 /// `[gradient]`: the entries of `dc_dq`, `dc_dqd`, `dqdd_dq` and `dqdd_dqd` a task reads,
@@ -305,7 +337,15 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
         let mut picked = Vec::new();
         for name in names {
             match model.joints.iter().position(|j| &j.name == name) {
-                Some(i) => picked.push(i),
+                Some(i) if model.coupling(i).is_none() => picked.push(model.coordinate_of(i)),
+                Some(i) => diags.push(
+                    Diagnostic::error(
+                        format!("scene `{scene_path}`: [gradient] {key} names `{name}`, a coupled mimic joint"),
+                        None,
+                        "a coupled mimic joint has no coordinate",
+                    )
+                    .with_help(format!("name the joint it follows, `{}`", model.joints[model.coupling(i).map_or(i, |c| c.of)].name)),
+                ),
                 None => {
                     let why = if scene.lock.contains_key(name) {
                         "locked by the scene's [lock]".to_string()
@@ -322,7 +362,7 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
                         Diagnostic::error(format!("scene `{scene_path}`: [gradient] {key} names `{name}`, which is {why}"), None, "not a movable joint")
                             .with_help(format!(
                                 "movable joints of the scene's model: {}",
-                                model.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>().join(", ")
+                                model.coordinate_joints().iter().map(|&i| model.joints[i].name.as_str()).collect::<Vec<_>>().join(", ")
                             )),
                     );
                 }

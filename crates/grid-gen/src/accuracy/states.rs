@@ -58,8 +58,9 @@ pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_m
     let states = (0..n)
         .map(|_| {
             let per_joint: Vec<f64> = model
-                .joints
-                .iter()
+                .coordinate_joints()
+                .into_iter()
+                .map(|i| &model.joints[i])
                 .map(|j| {
                     let (lo, hi) = j.limit.filter(|(lo, hi)| lo < hi && hi - lo <= 100.0).unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
                     rng.uniform(lo, hi)

@@ -35,6 +35,14 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
             robot.nq()
         ));
     }
+    if !robot.coupled.is_empty() {
+        let coupled: Vec<String> =
+            robot.coupled.iter().map(|(m, of, mult, off)| format!("{} = {mult:?} * {} + {off:?}", names::comment_text(m), names::comment_text(of))).collect();
+        out.push_str(&format!(
+            "// Coupled mimic joints (no coordinate of their own; q, qd, qdd, tau and the matrices leave them out): {}.\n",
+            coupled.join(", ")
+        ));
+    }
     if spec.static_velocity {
         out.push_str("// Static scene: qd = 0 is assumed, the velocity terms are compiled out and every `qd` argument is ignored.\n");
     }

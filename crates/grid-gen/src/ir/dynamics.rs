@@ -12,6 +12,8 @@ use super::kernel::Gradient;
 use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
 use crate::model::{Model, FREE_FLYER};
 
+mod coupled;
+
 /// Row-major n x n matrix of nodes.
 pub type Mat = Vec<Vec<Id>>;
 
@@ -45,7 +47,7 @@ impl<'a> Dynamics<'a> {
         let mut x = Vec::new();
         let mut s = Vec::new();
         let mut inertia = Vec::new();
-        for i in 0..model.nv() {
+        for i in 0..model.njoints() {
             g.at(Some(i), Stage::Transform, model.joints[i].level);
             x.push(joint_xform(&mut g, model, i));
             s.push(subspace(&mut g, &model.joints[i]));
@@ -54,8 +56,10 @@ impl<'a> Dynamics<'a> {
         Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia }
     }
 
+    /// Model joints (bodies): what the recursions loop over. The kernels' inputs and
+    /// outputs have one entry per coordinate instead (fewer with coupled mimic joints).
     fn n(&self) -> usize {
-        self.model.nv()
+        self.model.njoints()
     }
 
     fn dense(&self) -> bool {
@@ -66,12 +70,14 @@ impl<'a> Dynamics<'a> {
         self.g.exhausted()
     }
 
+    /// One node per coordinate of a velocity-sized input.
     pub fn inputs(&mut self, input: Input) -> Vec<Id> {
+        let nv = self.model.nv();
         if input == Input::Qd && self.model.specialisation.static_velocity {
             // A static scene: q̇ = 0 is a constant, and folding removes every velocity term.
-            return (0..self.n()).map(|_| self.g.constant(0.0)).collect();
+            return (0..nv).map(|_| self.g.constant(0.0)).collect();
         }
-        (0..self.n()).map(|i| self.g.input(input, i)).collect()
+        (0..nv).map(|i| self.g.input(input, i)).collect()
     }
 
     /// The root's spatial acceleration that stands in for gravity: a₀ = −g (Featherstone
@@ -478,6 +484,42 @@ impl<'a> Dynamics<'a> {
         (0..n).map(|i| (0..n).map(|j| minv[i.min(j)][i.max(j)].unwrap_or(zero)).collect()).collect()
     }
 
+    /// M⁻¹ per coordinate: [`Self::minv`], projected onto the mimic constraints when
+    /// some joint is coupled.
+    pub fn minv_coordinates(&mut self) -> Mat {
+        let mi = self.minv();
+        if !self.coupled() {
+            return mi;
+        }
+        self.g.at(None, Stage::Combine, 0);
+        let k = self.constraints(&mi);
+        self.project_minv(&mi, &k)
+    }
+
+    /// Forward dynamics per coordinate: [`Self::aba`], or with coupled mimic joints the
+    /// unconstrained ABA under `τ_joints = Pᵀ τ` projected onto the constraints.
+    pub fn fd(&mut self, qd: &[Id], tau: &[Id]) -> Vec<Id> {
+        if !self.coupled() {
+            return self.aba(qd, tau);
+        }
+        self.fd_minv(qd, tau).0
+    }
+
+    /// q̈ and M⁻¹ per coordinate, sharing the constraint terms.
+    fn fd_minv(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat) {
+        if !self.coupled() {
+            let qdd = self.aba(qd, tau);
+            return (qdd, self.minv());
+        }
+        let (qd, tau) = (self.expand(qd), self.place(tau));
+        let a = self.aba(&qd, &tau);
+        let mi = self.minv();
+        self.g.at(None, Stage::Combine, 0);
+        let k = self.constraints(&mi);
+        let qdd = self.project_acceleration(&a, &k);
+        (qdd, self.project_minv(&mi, &k))
+    }
+
     /// Forward dynamics by the articulated-body algorithm (Featherstone 2008, table 7.1),
     /// O(n). Its articulated inertias, U and D⁻¹ are recorded exactly as [`Self::minv`]
     /// records them, so `fd_grad` shares them. Why not `M⁻¹ (τ − c)`: with cond(M) = 1e5
@@ -551,12 +593,15 @@ impl<'a> Dynamics<'a> {
     /// `∂q̈/∂u = −M⁻¹ ∂c/∂u` at the q̈ of [`Self::aba`] (Carpentier & Mansard 2018, eq. 9;
     /// Pinocchio's `computeABADerivatives`), sharing through hash-consing ABA's
     /// articulated inertias with M⁻¹ and its velocities with the RNEA pass.
+    /// Per-coordinate inputs and outputs: with coupled mimic joints q̈ and M⁻¹ are the
+    /// constrained ones and the gradient `−M⁻¹ Gᵀ (∂c/∂u) G`.
     pub fn fd_grad(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
-        let n = self.n();
-        let qdd = self.aba(qd, tau);
-        let mi = self.minv();
-        let r = self.rnea(qd, &qdd);
-        let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
+        let n = self.model.nv();
+        let (qdd, mi) = self.fd_minv(qd, tau);
+        let (qd, qdd_joints) = (self.expand(qd), self.expand(&qdd));
+        let r = self.rnea(&qd, &qdd_joints);
+        let (dc_q, dc_qd) = self.rnea_grad(&r, &qd);
+        let (dc_q, dc_qd) = (self.reduce_matrix(dc_q), self.reduce_matrix(dc_qd));
         self.g.at(None, Stage::Combine, 0);
         let product = |dc: &Mat, g: &mut Graph| -> Mat {
             (0..n)

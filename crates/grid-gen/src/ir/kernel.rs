@@ -183,22 +183,30 @@ impl KernelKind {
         fn flat(m: Mat) -> Vec<Id> {
             m.into_iter().flatten().collect()
         }
+        // Inputs and outputs are per coordinate; the recursions run per joint. `expand`
+        // and `reduce` map between the two (the identity unless mimic joints are coupled).
         match self {
             KernelKind::Rnea => {
                 let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
-                vec![d.rnea(&qd, &qdd).c]
+                let (qd, qdd) = (d.expand(&qd), d.expand(&qdd));
+                let c = d.rnea(&qd, &qdd).c;
+                vec![d.reduce(&c)]
             }
             KernelKind::RneaGrad => {
                 let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
+                let (qd, qdd) = (d.expand(&qd), d.expand(&qdd));
                 let r = d.rnea(&qd, &qdd);
                 let (dq, dqd) = d.rnea_grad(&r, &qd);
-                vec![flat(dq), flat(dqd)]
+                vec![flat(d.reduce_matrix(dq)), flat(d.reduce_matrix(dqd))]
             }
-            KernelKind::MassMatrix => vec![flat(d.mass_matrix())],
-            KernelKind::Minv => vec![flat(d.minv())],
+            KernelKind::MassMatrix => {
+                let m = d.mass_matrix();
+                vec![flat(d.reduce_matrix(m))]
+            }
+            KernelKind::Minv => vec![flat(d.minv_coordinates())],
             KernelKind::Fd => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
-                vec![d.aba(&qd, &tau)]
+                vec![d.fd(&qd, &tau)]
             }
             KernelKind::FdGrad => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));

@@ -69,7 +69,7 @@ pub struct Robot {
     pub name: String,
     /// The URDF's file name (see [`Model::source`]).
     pub source: String,
-    /// Movable joints in model order.
+    /// Movable joints in model order, one per coordinate (coupled mimic joints have none).
     pub joint_names: Vec<String>,
     pub joint_types: Vec<JointType>,
     /// Parent joint of each joint, `None` for children of the fixed root.
@@ -81,6 +81,9 @@ pub struct Robot {
     pub velocity_limits: Vec<Option<f64>>,
     /// What the scene fixes: q̇ = 0, the gradient entries computed.
     pub specialisation: crate::model::Specialisation,
+    /// Coupled mimic joints (`--mimic coupled`), which have no coordinate: `(joint, the
+    /// joint it follows, multiplier, offset)`, its position `multiplier · q + offset`.
+    pub coupled: Vec<(String, String, f64, f64)>,
     /// A floating base: joints 0..6 are the free-flyer and q has nv + 1 entries
     /// (`[x, y, z, qx, qy, qz, qw, …]`, see [`crate::model::Model::floating`]).
     pub floating: bool,
@@ -88,15 +91,20 @@ pub struct Robot {
 
 impl Robot {
     pub fn of(model: &Model) -> Robot {
+        // One entry per coordinate: coupled mimic joints have none.
+        let joints: Vec<&crate::model::Joint> = model.coordinate_joints().into_iter().map(|i| &model.joints[i]).collect();
         Robot {
             name: model.name.clone(),
             source: model.source.clone(),
-            joint_names: model.joints.iter().map(|j| j.name.clone()).collect(),
-            joint_types: model.joints.iter().map(|j| j.joint_type).collect(),
-            parents: model.joints.iter().map(|j| j.parent).collect(),
-            limits: model.joints.iter().map(|j| j.limit).collect(),
-            velocity_limits: model.joints.iter().map(|j| j.velocity_limit).collect(),
+            joint_names: joints.iter().map(|j| j.name.clone()).collect(),
+            joint_types: joints.iter().map(|j| j.joint_type).collect(),
+            parents: model.coordinate_parents(),
+            limits: joints.iter().map(|j| j.limit).collect(),
+            velocity_limits: joints.iter().map(|j| j.velocity_limit).collect(),
             specialisation: model.specialisation.clone(),
+            coupled: (0..model.njoints())
+                .filter_map(|i| model.coupling(i).map(|c| (model.joints[i].name.clone(), model.joints[c.of].name.clone(), c.multiplier, c.offset)))
+                .collect(),
             floating: model.floating,
         }
     }

@@ -318,8 +318,17 @@ pub fn joint_xform(g: &mut Graph, model: &Model, i: usize) -> Xform {
     // E_T = Rᵀ (rows of E_T are columns of R); r_T = position.
     let et: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| k(g, tree_r[c][r])));
     let rt: V3 = std::array::from_fn(|r| k(g, joint.tree.pos[r]));
-    let Some(qi) = model.q_index(i) else { return free_flyer_xform(g, i, et, rt) };
-    let q = g.input(super::graph::Input::Q, qi);
+    let Some((qi, multiplier, offset)) = model.joint_q(i) else { return free_flyer_xform(g, i, et, rt) };
+    let mut q = g.input(super::graph::Input::Q, qi);
+    // A coupled mimic joint: q_m = multiplier · q + offset.
+    if multiplier != 1.0 {
+        let m = k(g, multiplier);
+        q = g.mul(m, q);
+    }
+    if offset != 0.0 {
+        let o = k(g, offset);
+        q = g.add(q, o);
+    }
     let a = joint.axis;
     if joint.joint_type.is_rotation() {
         let (s, c) = (g.sin(q), g.cos(q));

@@ -1,13 +1,24 @@
 //! The articulated-body algorithm: forward dynamics in O(n) (Featherstone 2008, table 7.1),
 //! as Pinocchio's `aba`. More accurate than `M⁻¹ (τ − c)` when M is ill-conditioned.
 
+use super::coupled::{expand, place, project_acceleration};
+use super::minv::minv_joints;
 use super::{root_acceleration, Kinematics};
 use crate::model::Model;
 use crate::spatial::{crf, crm, Vec6};
 
 /// Joint accelerations under torques `tau` at `(q, qd)`, with gravity `gravity`.
 pub fn aba(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]) -> Vec<f64> {
-    let n = model.nv();
+    let a = aba_joints(model, q, &expand(model, qd), &place(model, tau), gravity);
+    if model.nv() == model.njoints() {
+        return a;
+    }
+    project_acceleration(model, a, &minv_joints(model, q))
+}
+
+/// [`aba`] with a q̇, τ and q̈ per model joint, before the mimic constraints (see `coupled`).
+fn aba_joints(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]) -> Vec<f64> {
+    let n = model.njoints();
     let k = Kinematics::new(model, q);
     let mut v = vec![Vec6::zeros(); n];
     let mut c = vec![Vec6::zeros(); n];

@@ -3,12 +3,18 @@
 
 use nalgebra::DMatrix;
 
+use super::coupled::reduce_matrix;
 use super::Kinematics;
 use crate::model::Model;
 
 /// The symmetric mass matrix at `q`.
 pub fn crba(model: &Model, q: &[f64]) -> DMatrix<f64> {
-    let n = model.nv();
+    reduce_matrix(model, &crba_joints(model, q))
+}
+
+/// [`crba`] with a row and column per model joint (see `coupled`).
+fn crba_joints(model: &Model, q: &[f64]) -> DMatrix<f64> {
+    let n = model.njoints();
     let k = Kinematics::new(model, q);
     let mut ic = k.inertia.clone();
     for i in (0..n).rev() {

@@ -9,13 +9,20 @@
 
 use nalgebra::{DMatrix, Matrix6xX};
 
+use super::coupled::project_inverse;
 use super::Kinematics;
 use crate::model::Model;
 use crate::spatial::Vec6;
 
 /// M⁻¹(q), symmetric.
 pub fn minv(model: &Model, q: &[f64]) -> DMatrix<f64> {
-    let n = model.nv();
+    project_inverse(model, minv_joints(model, q))
+}
+
+/// [`minv`] with a row and column per model joint, before the mimic constraints (see
+/// `coupled`).
+pub(crate) fn minv_joints(model: &Model, q: &[f64]) -> DMatrix<f64> {
+    let n = model.njoints();
     let k = Kinematics::new(model, q);
     let mut ia = k.inertia.clone();
     let mut f = vec![Matrix6xX::<f64>::zeros(n); n];

@@ -6,6 +6,7 @@
 //! the parent body to body i at the current q; `S[i]` the joint's motion subspace.
 
 mod aba;
+pub mod coupled;
 mod crba;
 mod fd;
 mod minv;
@@ -51,8 +52,8 @@ pub fn joint_transform(joint: &Joint, qi: f64) -> Mat6 {
 /// and the six are at their zero position (see [`crate::model`]).
 pub fn model_joint_transform(model: &Model, i: usize, q: &[f64]) -> Mat6 {
     let joint = &model.joints[i];
-    match model.q_index(i) {
-        Some(k) => joint_transform(joint, q[k]),
+    match model.joint_q(i) {
+        Some((k, m, o)) => joint_transform(joint, m * q[k] + o),
         None if i == 0 => {
             let (r, p) = base_pose(q);
             plux(&r.transpose(), &p) * joint_transform(joint, 0.0)
@@ -82,7 +83,7 @@ pub(crate) struct Kinematics {
 impl Kinematics {
     pub fn new(model: &Model, q: &[f64]) -> Self {
         Kinematics {
-            x: (0..model.nv()).map(|i| model_joint_transform(model, i, q)).collect(),
+            x: (0..model.njoints()).map(|i| model_joint_transform(model, i, q)).collect(),
             s: model.joints.iter().map(motion_subspace).collect(),
             inertia: model.joints.iter().map(body_inertia).collect(),
         }
@@ -97,13 +98,13 @@ pub(crate) fn root_acceleration(gravity: [f64; 3]) -> Vec6 {
 /// Pose of every body frame (the child link frame of each movable joint) in the root
 /// link's frame at `q`: the rotation (child axes in root coordinates) and the origin.
 pub fn forward_kinematics(model: &Model, q: &[f64]) -> Vec<(Matrix3<f64>, Vector3<f64>)> {
-    let mut poses: Vec<(Matrix3<f64>, Vector3<f64>)> = Vec::with_capacity(model.nv());
+    let mut poses: Vec<(Matrix3<f64>, Vector3<f64>)> = Vec::with_capacity(model.njoints());
     for (i, joint) in model.joints.iter().enumerate() {
         let (r_parent, p_parent) = match joint.parent {
             Some(p) => poses[p],
             None => (Matrix3::identity(), Vector3::zeros()),
         };
-        let Some(k) = model.q_index(i) else {
+        let Some((k, m, o)) = model.joint_q(i) else {
             // The free-flyer: the pose after the first joint's origin, then at rest.
             let (r, p) = match i {
                 0 => {
@@ -116,7 +117,7 @@ pub fn forward_kinematics(model: &Model, q: &[f64]) -> Vec<(Matrix3<f64>, Vector
             poses.push((r, p));
             continue;
         };
-        let qi = q[k];
+        let qi = m * q[k] + o;
         let a = Vector3::from(joint.axis);
         let (r_joint, p_joint) = if joint.joint_type.is_rotation() { (axis_angle(&a, qi), Vector3::zeros()) } else { (Matrix3::identity(), a * qi) };
         let r_tree = joint.tree.rot_matrix();

@@ -1,13 +1,20 @@
 //! Recursive Newton-Euler: inverse dynamics `c = M(q) q̈ + C(q, q̇) q̇ + g(q)`
 //! (Featherstone 2008, table 5.1).
 
+use super::coupled::{expand, reduce};
 use super::{root_acceleration, Kinematics};
 use crate::model::Model;
 use crate::spatial::{crf, crm, Vec6};
 
 /// Joint forces needed for accelerations `qdd` at `(q, qd)`, with gravity `gravity`.
 pub fn rnea(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> Vec<f64> {
-    let n = model.nv();
+    let (qd, qdd) = (expand(model, qd), expand(model, qdd));
+    reduce(model, &rnea_joints(model, q, &qd, &qdd, gravity))
+}
+
+/// [`rnea`] with one q̇, q̈ and force per model joint (see `coupled`).
+fn rnea_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> Vec<f64> {
+    let n = model.njoints();
     let k = Kinematics::new(model, q);
     let a0 = root_acceleration(gravity);
     let mut v = vec![Vec6::zeros(); n];

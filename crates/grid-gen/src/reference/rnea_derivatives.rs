@@ -4,13 +4,20 @@
 
 use nalgebra::{DMatrix, Matrix6xX};
 
+use super::coupled::{expand, reduce_matrix};
 use super::{root_acceleration, Kinematics};
 use crate::model::Model;
 use crate::spatial::{crf, crm, Vec6};
 
 /// `(∂c/∂q, ∂c/∂q̇)` at `(q, qd, qdd)`, row-major: entry (i, j) is ∂c_i/∂u_j.
 pub fn rnea_derivatives(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> (DMatrix<f64>, DMatrix<f64>) {
-    let n = model.nv();
+    let (dq, dqd) = rnea_derivatives_joints(model, q, &expand(model, qd), &expand(model, qdd), gravity);
+    (reduce_matrix(model, &dq), reduce_matrix(model, &dqd))
+}
+
+/// [`rnea_derivatives`] per model joint (see `coupled`).
+fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> (DMatrix<f64>, DMatrix<f64>) {
+    let n = model.njoints();
     let k = Kinematics::new(model, q);
     let a0 = root_acceleration(gravity);
     let zero = Matrix6xX::<f64>::zeros(n);

@@ -54,7 +54,7 @@ pub const MAX_WIDTH: u32 = 64;
 pub enum FixedError {
     #[error("fixed-point format {width}.{frac}: need 2 <= WIDTH <= {MAX_WIDTH} and FRAC < WIDTH")]
     BadFormat { width: u32, frac: u32 },
-    #[error("kernel `{kernel}` divides (or takes sin/cos of a computed value); the fixed-point datapath supports +, −, × only. Verilog is emitted for rnea, rnea_grad and mass_matrix")]
+    #[error("kernel `{kernel}` divides (or takes sin/cos of a computed value, as a coupled mimic joint with a multiplier or offset does); the fixed-point datapath supports +, −, × only. Verilog is emitted for rnea, rnea_grad and mass_matrix")]
     Unsupported { kernel: String },
     #[error(
         "format {width}.{frac} cannot hold kernel `{kernel}`: the analysis bounds a value by {needed:.4e}, above the largest representable {max:.4e}; \
