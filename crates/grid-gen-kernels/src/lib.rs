@@ -63,4 +63,9 @@ pub mod scenes {
     pub mod grid_hyq_floating {
         include!("../../../generated/scenes/grid_hyq.hyq_floating/hyq.rs");
     }
+    /// The Panda with its fingers coupled (`mimic = "coupled"`, as `--mimic coupled`):
+    /// `NV` = 8, the second finger follows the first.
+    pub mod panda_mimic {
+        include!("../../../generated/scenes/panda.panda_mimic/panda.rs");
+    }
 }

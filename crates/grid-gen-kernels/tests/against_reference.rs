@@ -28,7 +28,12 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<(String, Vec<f64>, Vec<f64>, Vec<
     let n = model.nv();
     let mut out: Vec<_> = (0..6).map(|i| (format!("random {i}"), rng.vec(n, -3.1, 3.1), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0))).collect();
     let limit = |lo: bool| {
-        model.joints.iter().map(|j| j.limit.map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h }).clamp(-1e3, 1e3)).collect::<Vec<_>>()
+        model
+            .coordinate_joints()
+            .into_iter()
+            .map(|i| &model.joints[i])
+            .map(|j| j.limit.map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h }).clamp(-1e3, 1e3))
+            .collect::<Vec<_>>()
     };
     out.push(("zero".into(), vec![0.0; n], vec![0.0; n], vec![0.0; n]));
     out.push(("lower limits".into(), limit(true), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)));
@@ -76,8 +81,8 @@ fn fma_runs() -> bool {
 /// Calls every kernel of copy `$copy` (`portable` or `fma`) of module `$m` in scalar type
 /// `$t` and returns the outputs as f64.
 macro_rules! run_kernels {
-    ($m:ident, $copy:ident, $t:ty, $q:expr, $qd:expr, $u:expr) => {{
-        use grid_gen_kernels::$m as k;
+    ($($m:ident)::+, $copy:ident, $t:ty, $q:expr, $qd:expr, $u:expr) => {{
+        use grid_gen_kernels::$($m)::+ as k;
         use k::$copy as c;
         let arr = |v: &[f64]| -> [$t; k::NV] { std::array::from_fn(|i| v[i] as $t) };
         let (q, qd, u) = (arr($q), arr($qd), arr($u));
@@ -307,4 +312,43 @@ fn floating_base_kernels_match_the_reference() {
         }
     }
     println!("HyQ floating base: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+}
+
+/// The Panda with coupled fingers (`generated/scenes/panda.panda_mimic/`, issue 11 item 3):
+/// every kernel, both copies, f64 and f32, against the reference (held to Pinocchio's mimic
+/// model by grid-gen's tests/pinocchio.rs) at the fixed-base tolerances.
+#[test]
+fn coupled_mimic_kernels_match_the_reference() {
+    use grid_gen_kernels::scenes::panda_mimic as k;
+    let (model, _) = grid_gen_test_support::load_in_scene("panda", "panda_mimic");
+    assert!(k::NV == model.nv() && model.njoints() == k::NV + 1);
+    let mut rng = Rng(31);
+    let mut worst = [0.0f64; 2];
+    for (label, q, qd, u) in states(&model, &mut rng) {
+        for (f32, tol_direct, tol_minv) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
+            // The f32 run's reference is at the f32-rounded state.
+            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let (q, qd, u) = (r(&q), r(&qd), r(&u));
+            let want = reference_outputs(&model, &q, &qd, &u);
+            let mut copies = vec![(
+                "portable",
+                if f32 { run_kernels!(scenes::panda_mimic, portable, f32, &q, &qd, &u) } else { run_kernels!(scenes::panda_mimic, portable, f64, &q, &qd, &u) },
+            )];
+            if fma_runs() {
+                copies.push((
+                    "fma",
+                    if f32 { run_kernels!(scenes::panda_mimic, fma, f32, &q, &qd, &u) } else { run_kernels!(scenes::panda_mimic, fma, f64, &q, &qd, &u) },
+                ));
+            }
+            for (copy, got) in copies {
+                for (i, g) in got.iter().enumerate() {
+                    let tol = if THROUGH_MINV[i] { tol_minv } else { tol_direct };
+                    let e = rel(g, &want[i]);
+                    worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
+                    assert!(e <= tol, "Panda coupled {copy} {}, {label}: {} relative error {e:.2e} > {tol:e}", if f32 { "f32" } else { "f64" }, NAMES[i]);
+                }
+            }
+        }
+    }
+    println!("Panda with coupled fingers: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
 }

@@ -19,12 +19,13 @@ const VERILOG_ROBOTS: [&str; 1] = ["double_pendulum_continuous"];
 
 /// Robots in a scene of `examples/scenes/`, whose Rust modules are checked in under
 /// `generated/scenes/<robot>.<scene>/` (benchmarked against the full robots').
-pub const SCENES: [(&str, &str); 5] = [
+pub const SCENES: [(&str, &str); 6] = [
     ("grid_iiwa", "iiwa_wrist_locked"),
     ("grid_hyq", "hyq_front_legs"),
     ("grid_iiwa", "iiwa_static"),
     ("grid_hyq", "hyq_lf_columns"),
     ("grid_hyq", "hyq_floating"),
+    ("panda", "panda_mimic"),
 ];
 
 #[test]

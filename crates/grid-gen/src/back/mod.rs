@@ -39,7 +39,8 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
         let coupled: Vec<String> =
             robot.coupled.iter().map(|(m, of, mult, off)| format!("{} = {mult:?} * {} + {off:?}", names::comment_text(m), names::comment_text(of))).collect();
         out.push_str(&format!(
-            "// Coupled mimic joints (no coordinate of their own; q, qd, qdd, tau and the matrices leave them out): {}.\n",
+            "// Coupled mimic joints (no coordinate of their own; q, qd, qdd, tau and the matrices leave them out): {}.\n\
+             // minv, fd and fd_grad project the tree's M^-1 and articulated-body qdd onto the mimic constraints.\n",
             coupled.join(", ")
         ));
     }
