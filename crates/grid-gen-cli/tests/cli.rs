@@ -502,3 +502,37 @@ fn floating_base_from_the_command_line() {
     assert!(code.contains("pub const NQ: usize = 19;") && code.contains("q: &[T; NQ]") && code.contains("// Floating base (Pinocchio's free-flyer)"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `--mimic coupled` (issue 11): the Panda's second finger loses its coordinate in `info`,
+/// `eval` and the generated module; an unknown mode is a usage error naming the modes.
+#[test]
+fn mimic_coupled_from_the_command_line() {
+    let urdf = "robots/panda.urdf";
+    let v = json(&grid_gen(&["--mimic", "coupled", "info", urdf, "--json"]));
+    assert_eq!((v["nv"].as_u64(), v["mimic_coupled"].as_bool()), (Some(8), Some(true)));
+    assert!(!v["joint_names"].as_array().unwrap().iter().any(|n| n == "panda_finger_joint2"));
+    let independent = json(&grid_gen(&["info", urdf, "--json"]));
+    assert_eq!((independent["nv"].as_u64(), independent["mimic_coupled"].as_bool()), (Some(9), Some(false)));
+    let summary = grid_gen(&[urdf, "--mimic", "coupled"]);
+    assert!(String::from_utf8_lossy(&summary.stdout)
+        .contains("coupled mimic joints (no coordinate of their own): panda_finger_joint2 = 1 * panda_finger_joint1 + 0"));
+
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-mimic-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let states = dir.join("states.json");
+    std::fs::write(&states, format!(r#"{{"states": [{{"q": {:?}, "qd": {:?}, "qdd": {:?}, "tau": {:?}}}]}}"#, [0.1; 8], [0.2; 8], [0.3; 8], [0.4; 8])).unwrap();
+    let out = grid_gen(&["eval", urdf, "--mimic", "coupled", "--states", states.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let e = json(&out);
+    assert_eq!(e["joint_names"].as_array().unwrap().len(), 8);
+    assert_eq!(e["states"][0]["dfd_dq"].as_array().unwrap().len(), 8);
+    let out = grid_gen(&[urdf, "--mimic", "coupled", "-o", dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let code = std::fs::read_to_string(dir.join("panda.rs")).unwrap();
+    assert!(code.contains("pub const NV: usize = 8;") && code.contains("// Coupled mimic joints"));
+    std::fs::remove_dir_all(&dir).unwrap();
+
+    let bad = grid_gen(&["--mimic", "both", "info", urdf]);
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(stderr(&bad).contains("unknown mimic mode `both`; available: independent, coupled"), "{}", stderr(&bad));
+}

@@ -1,6 +1,7 @@
 //! Data-driven diagnostic tests: each `tests/diagnostics/<case>.urdf` is run through
 //! `grid-gen info` and its exit code and rendered stderr are compared with
-//! `<case>.stderr`. A case whose name ends in `_strict` runs with `--strict`.
+//! `<case>.stderr`. A case whose name ends in `_strict` runs with `--strict`, one ending in
+//! `_coupled` with `--mimic coupled`.
 //!
 //! After an intended change of wording, refresh the expectations with
 //! `GRID_GEN_BLESS=1 cargo test -p grid-gen-cli --test diagnostics` and review the diff.
@@ -27,6 +28,9 @@ fn rendered_diagnostics_match_expectations() {
         cmd.current_dir(repo()).arg("info").arg(&rel).env("NO_COLOR", "1");
         if stem.ends_with("_strict") {
             cmd.arg("--strict");
+        }
+        if stem.ends_with("_coupled") {
+            cmd.args(["--mimic", "coupled"]);
         }
         let out = cmd.output().unwrap();
         let got = format!("exit: {}\n{}", out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stderr));

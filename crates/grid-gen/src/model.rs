@@ -639,6 +639,7 @@ fn couple(urdf: &Urdf, joints: &[Joint], source: &[Option<usize>], diags: &mut V
                 None => {
                     let why = match urdf.joints.iter().find(|j| &j.name == target) {
                         Some(j) if j.kind == JointKind::Fixed => "a fixed joint",
+                        Some(j) if j.kind == JointKind::Floating => "the floating base",
                         Some(_) => "locked or left out by the scene",
                         None => "not a joint of this robot",
                     };
