@@ -209,7 +209,7 @@ fn static_and_gradient_scenes_match_pinocchio() {
 /// its own (its block of M is the robot's total mass and inertia).
 #[test]
 fn floating_base_matches_pinocchio_free_flyer() {
-    use grid_gen::ir::{self, Gradient, Input, LowerOptions};
+    use grid_gen::ir::{self, Gradient, LowerOptions};
     let mut failures = Vec::new();
     let mut checked = 0;
     let mut worst = 0.0f64;
@@ -221,15 +221,12 @@ fn floating_base_matches_pinocchio_free_flyer() {
         };
         assert!(model.floating && model.nq() == model.nv() + 1);
         let fx = fixture(&format!("{robot}.floating.pinocchio.json"));
-        let n = model.nv();
         let order = Order::new(robot, &model, &fx);
         assert_eq!(order.perm[..6], [0, 1, 2, 3, 4, 5], "{robot}: the free-flyer comes first");
-        let (ours, theirs) = (|v: &[f64]| order.ours(v), |st: &serde_json::Value, key: &str, shape| order.theirs(st, key, shape));
         let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
             .into_iter()
             .map(|gradient| ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions { gradient, ..LowerOptions::default() }).unwrap())
             .collect();
-        let g = reference::DEFAULT_GRAVITY;
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
             // q: the base's seven entries, then each joint after the free-flyer at its model index + 1.
             let mut q = vec_of(&st["base"]);
@@ -237,36 +234,7 @@ fn floating_base_matches_pinocchio_free_flyer() {
             for (k, &a) in vec_of(&st["q"]).iter().enumerate() {
                 q[order.perm[6 + k] + 1] = a;
             }
-            let (qd, qdd, tau) = (ours(&vec_of(&st["qd"])), ours(&vec_of(&st["qdd"])), ours(&vec_of(&st["tau"])));
-            let (dq, dqd) = reference::rnea_derivatives(&model, &q, &qd, &qdd, g);
-            let (fd, dfd_dq, dfd_dqd) = reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
-            let mut results = vec![
-                ("reference rnea".to_string(), col(&reference::rnea(&model, &q, &qd, &qdd, g)), theirs(st, "rnea", ir::Shape::Vector)),
-                ("reference drnea_dq".into(), dq, theirs(st, "drnea_dq", ir::Shape::Matrix)),
-                ("reference drnea_dqd".into(), dqd, theirs(st, "drnea_dqd", ir::Shape::Matrix)),
-                ("reference M".into(), reference::crba(&model, &q), theirs(st, "M", ir::Shape::Matrix)),
-                ("reference Minv".into(), reference::minv(&model, &q), theirs(st, "Minv", ir::Shape::Matrix)),
-                ("reference fd".into(), col(&fd), theirs(st, "fd", ir::Shape::Vector)),
-                ("reference aba".into(), col(&reference::aba(&model, &q, &qd, &tau, g)), theirs(st, "fd", ir::Shape::Vector)),
-                ("reference dfd_dq".into(), dfd_dq, theirs(st, "dfd_dq", ir::Shape::Matrix)),
-                ("reference dfd_dqd".into(), dfd_dqd, theirs(st, "dfd_dqd", ir::Shape::Matrix)),
-            ];
-            for module in &modules {
-                for f in &module.functions {
-                    let u = match f.inputs().get(2) {
-                        Some(Input::Qdd) => qdd.clone(),
-                        Some(Input::Tau) => tau.clone(),
-                        _ => Vec::new(),
-                    };
-                    let keys = fixture_keys(f.kind);
-                    let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &u));
-                    for ((o, got), key) in f.outputs.iter().zip(&got).zip(keys) {
-                        let form = f.gradient.map_or(String::new(), |g| format!(" ({})", g.name()));
-                        results.push((format!("{}{form} {key}", f.kind.name()), output_matrix(o.shape, n, got), theirs(st, key, o.shape)));
-                    }
-                }
-            }
-            for (what, got, want) in results {
+            for (what, got, want) in everything(&model, &modules, &order, st, &q) {
                 checked += 1;
                 let e = rel_err(&got, &want);
                 worst = worst.max(e);
@@ -292,7 +260,7 @@ fn floating_base_matches_pinocchio_free_flyer() {
 /// conditioned as the mimic joints' block of M⁻¹).
 #[test]
 fn coupled_mimic_matches_pinocchio_mimic() {
-    use grid_gen::ir::{self, Gradient, Input, LowerOptions};
+    use grid_gen::ir::{self, Gradient, LowerOptions};
     let mut failures = Vec::new();
     let mut checked = 0;
     let mut worst = 0.0f64;
@@ -300,44 +268,13 @@ fn coupled_mimic_matches_pinocchio_mimic() {
         let model = load_coupled_urdf(&path);
         assert_eq!(model.njoints() - model.nv(), coupled, "{robot}: coupled mimic joints");
         let fx = fixture(&format!("{robot}.mimic.pinocchio.json"));
-        let n = model.nv();
         let order = Order::new(robot, &model, &fx);
-        let (ours, theirs) = (|v: &[f64]| order.ours(v), |st: &serde_json::Value, key: &str, shape| order.theirs(st, key, shape));
         let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
             .into_iter()
             .map(|gradient| ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions { gradient, ..LowerOptions::default() }).unwrap())
             .collect();
-        let g = reference::DEFAULT_GRAVITY;
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
-            let (q, qd, qdd, tau) = (ours(&vec_of(&st["q"])), ours(&vec_of(&st["qd"])), ours(&vec_of(&st["qdd"])), ours(&vec_of(&st["tau"])));
-            let (dq, dqd) = reference::rnea_derivatives(&model, &q, &qd, &qdd, g);
-            let (fd, dfd_dq, dfd_dqd) = reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
-            let mut results = vec![
-                ("reference rnea".to_string(), col(&reference::rnea(&model, &q, &qd, &qdd, g)), theirs(st, "rnea", ir::Shape::Vector)),
-                ("reference drnea_dq".into(), dq, theirs(st, "drnea_dq", ir::Shape::Matrix)),
-                ("reference drnea_dqd".into(), dqd, theirs(st, "drnea_dqd", ir::Shape::Matrix)),
-                ("reference M".into(), reference::crba(&model, &q), theirs(st, "M", ir::Shape::Matrix)),
-                ("reference Minv".into(), reference::minv(&model, &q), theirs(st, "Minv", ir::Shape::Matrix)),
-                ("reference fd".into(), col(&fd), theirs(st, "fd", ir::Shape::Vector)),
-                ("reference aba".into(), col(&reference::aba(&model, &q, &qd, &tau, g)), theirs(st, "fd", ir::Shape::Vector)),
-                ("reference dfd_dq".into(), dfd_dq, theirs(st, "dfd_dq", ir::Shape::Matrix)),
-                ("reference dfd_dqd".into(), dfd_dqd, theirs(st, "dfd_dqd", ir::Shape::Matrix)),
-            ];
-            for module in &modules {
-                for f in &module.functions {
-                    let u = match f.inputs().get(2) {
-                        Some(Input::Qdd) => qdd.clone(),
-                        Some(Input::Tau) => tau.clone(),
-                        _ => Vec::new(),
-                    };
-                    let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &u));
-                    for ((o, got), key) in f.outputs.iter().zip(&got).zip(fixture_keys(f.kind)) {
-                        let form = f.gradient.map_or(String::new(), |g| format!(" ({})", g.name()));
-                        results.push((format!("{}{form} {key}", f.kind.name()), output_matrix(o.shape, n, got), theirs(st, key, o.shape)));
-                    }
-                }
-            }
-            for (what, got, want) in results {
+            for (what, got, want) in everything(&model, &modules, &order, st, &order.ours(&vec_of(&st["q"]))) {
                 checked += 1;
                 let e = rel_err(&got, &want);
                 worst = worst.max(e);
@@ -350,4 +287,47 @@ fn coupled_mimic_matches_pinocchio_mimic() {
     println!("coupled mimic joints: {checked} comparisons with Pinocchio's mimic model, worst relative error {worst:.2e}");
     assert!(checked > 700, "only {checked} comparisons");
     assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+}
+
+/// Every output of the reference and of each module's kernel graphs at fixture state `st`
+/// (q given in our layout), beside the fixture's: `(what, ours, Pinocchio's)`.
+fn everything(
+    model: &grid_gen::Model,
+    modules: &[grid_gen::ir::Module],
+    order: &Order,
+    st: &serde_json::Value,
+    q: &[f64],
+) -> Vec<(String, DMatrix<f64>, DMatrix<f64>)> {
+    use grid_gen::ir::{Input, Shape};
+    let g = reference::DEFAULT_GRAVITY;
+    let (qd, qdd, tau) = (order.ours(&vec_of(&st["qd"])), order.ours(&vec_of(&st["qdd"])), order.ours(&vec_of(&st["tau"])));
+    let theirs = |key: &str, shape| order.theirs(st, key, shape);
+    let (dq, dqd) = reference::rnea_derivatives(model, q, &qd, &qdd, g);
+    let (fd, dfd_dq, dfd_dqd) = reference::forward_dynamics_derivatives(model, q, &qd, &tau, g);
+    let mut results = vec![
+        ("reference rnea".to_string(), col(&reference::rnea(model, q, &qd, &qdd, g)), theirs("rnea", Shape::Vector)),
+        ("reference drnea_dq".into(), dq, theirs("drnea_dq", Shape::Matrix)),
+        ("reference drnea_dqd".into(), dqd, theirs("drnea_dqd", Shape::Matrix)),
+        ("reference M".into(), reference::crba(model, q), theirs("M", Shape::Matrix)),
+        ("reference Minv".into(), reference::minv(model, q), theirs("Minv", Shape::Matrix)),
+        ("reference fd".into(), col(&fd), theirs("fd", Shape::Vector)),
+        ("reference aba".into(), col(&reference::aba(model, q, &qd, &tau, g)), theirs("fd", Shape::Vector)),
+        ("reference dfd_dq".into(), dfd_dq, theirs("dfd_dq", Shape::Matrix)),
+        ("reference dfd_dqd".into(), dfd_dqd, theirs("dfd_dqd", Shape::Matrix)),
+    ];
+    for module in modules {
+        for f in &module.functions {
+            let u = match f.inputs().get(2) {
+                Some(Input::Qdd) => qdd.clone(),
+                Some(Input::Tau) => tau.clone(),
+                _ => Vec::new(),
+            };
+            let got = f.eval(&kernel_args(f.inputs(), q, &qd, &u));
+            for ((o, got), key) in f.outputs.iter().zip(&got).zip(fixture_keys(f.kind)) {
+                let form = f.gradient.map_or(String::new(), |g| format!(" ({})", g.name()));
+                results.push((format!("{}{form} {key}", f.kind.name()), output_matrix(o.shape, model.nv(), got), theirs(key, o.shape)));
+            }
+        }
+    }
+    results
 }
