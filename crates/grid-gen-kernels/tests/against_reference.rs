@@ -63,6 +63,18 @@ fn reference_outputs(m: &Model, q: &[f64], qd: &[f64], u: &[f64]) -> Vec<DMatrix
     ]
 }
 
+/// Each copy's outputs against `want` at `(direct, through M⁻¹)` tolerances, raising `worst`.
+fn check_copies<G: AsRef<[DMatrix<f64>]>>(at: &str, copies: Vec<(&str, G)>, want: &[DMatrix<f64>], (tol_direct, tol_minv): (f64, f64), worst: &mut f64) {
+    for (copy, got) in copies {
+        for (i, g) in got.as_ref().iter().enumerate() {
+            let tol = if THROUGH_MINV[i] { tol_minv } else { tol_direct };
+            let e = rel(g, &want[i]);
+            *worst = worst.max(e);
+            assert!(e <= tol, "{at} ({copy}): {} relative error {e:.2e} > {tol:e}", NAMES[i]);
+        }
+    }
+}
+
 const NAMES: [&str; 9] = ["rnea", "rnea_grad.dc_dq", "rnea_grad.dc_dqd", "mass_matrix", "minv", "fd", "fd_grad.qdd", "fd_grad.dqdd_dq", "fd_grad.dqdd_dqd"];
 /// Outputs computed through M⁻¹.
 const THROUGH_MINV: [bool; 9] = [false, false, false, false, true, true, true, true, true];
@@ -301,14 +313,13 @@ fn floating_base_kernels_match_the_reference() {
                     }
                 }));
             }
-            for (copy, got) in copies {
-                for (i, g) in got.iter().enumerate() {
-                    let tol = if THROUGH_MINV[i] { tol_minv } else { tol_direct };
-                    let e = rel(g, &want[i]);
-                    worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
-                    assert!(e <= tol, "HyQ floating {copy} {}, {label}: {} relative error {e:.2e} > {tol:e}", if f32 { "f32" } else { "f64" }, NAMES[i]);
-                }
-            }
+            check_copies(
+                &format!("HyQ floating {}, {label}", if f32 { "f32" } else { "f64" }),
+                copies,
+                &want,
+                (tol_direct, tol_minv),
+                &mut worst[usize::from(f32)],
+            );
         }
     }
     println!("HyQ floating base: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
@@ -340,14 +351,13 @@ fn coupled_mimic_kernels_match_the_reference() {
                     if f32 { run_kernels!(scenes::panda_mimic, fma, f32, &q, &qd, &u) } else { run_kernels!(scenes::panda_mimic, fma, f64, &q, &qd, &u) },
                 ));
             }
-            for (copy, got) in copies {
-                for (i, g) in got.iter().enumerate() {
-                    let tol = if THROUGH_MINV[i] { tol_minv } else { tol_direct };
-                    let e = rel(g, &want[i]);
-                    worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
-                    assert!(e <= tol, "Panda coupled {copy} {}, {label}: {} relative error {e:.2e} > {tol:e}", if f32 { "f32" } else { "f64" }, NAMES[i]);
-                }
-            }
+            check_copies(
+                &format!("Panda coupled {}, {label}", if f32 { "f32" } else { "f64" }),
+                copies,
+                &want,
+                (tol_direct, tol_minv),
+                &mut worst[usize::from(f32)],
+            );
         }
     }
     println!("Panda with coupled fingers: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);

@@ -113,7 +113,7 @@ impl Info {
                 .into_iter()
                 .map(|level| level.into_iter().filter(|&i| model.coupling(i).is_none()).map(|i| model.coordinate_of(i)).collect())
                 .collect(),
-            mimic_coupled: !model.coupling.iter().all(Option::is_none),
+            mimic_coupled: model.has_coupled(),
             mimic: model
                 .joints
                 .iter()

@@ -190,8 +190,8 @@ pub struct Model {
     /// A floating base: `joints[..6]` are the free-flyer ([`FREE_FLYER`]) and q is
     /// `[x, y, z, qx, qy, qz, qw, joints[6..]…]` (nq = nv + 1, Pinocchio's layout).
     pub floating: bool,
-    /// For each joint, whether it is a coupled mimic joint (`--mimic coupled`); empty or
-    /// all `None` when mimic joints are independent (the default). A coupled joint has
+    /// For each joint, whether it is a coupled mimic joint (`--mimic coupled`); empty when
+    /// no joint is coupled (`build` never leaves it all `None`). A coupled joint has
     /// no coordinate: q, q̇, q̈, τ and the matrices have one entry per *coordinate*, the
     /// joints that are not coupled, in model order ([`Model::coordinate_joints`]).
     pub coupling: Vec<Option<Coupling>>,
@@ -250,6 +250,11 @@ impl Model {
         self.nv() + usize::from(self.floating)
     }
 
+    /// Whether some joint is a coupled mimic (then coordinates and joints differ).
+    pub fn has_coupled(&self) -> bool {
+        self.coupling.iter().any(Option::is_some)
+    }
+
     /// Joint `i`'s coupling, when it is a coupled mimic joint.
     pub fn coupling(&self, i: usize) -> Option<Coupling> {
         self.coupling.get(i).copied().flatten()
@@ -263,6 +268,10 @@ impl Model {
     /// The coordinate joint `i` moves with: its own, or for a coupled mimic joint the
     /// coordinate of the joint it follows.
     pub fn coordinate_of(&self, i: usize) -> usize {
+        // `build` leaves `coupling` empty when nothing is coupled: the common case is O(1).
+        if self.coupling.is_empty() {
+            return i;
+        }
         let own = self.coupling(i).map_or(i, |c| c.of);
         (0..own).filter(|&j| self.coupling(j).is_none()).count()
     }
@@ -588,7 +597,10 @@ pub(crate) fn build(
             Step::Close { body } => joints[body].subtree_end = joints.len(),
         }
     }
-    let coupling = if mimic_coupled { couple(urdf, &joints, &source, diags) } else { Vec::new() };
+    let mut coupling = if mimic_coupled { couple(urdf, &joints, &source, diags) } else { Vec::new() };
+    if coupling.iter().all(Option::is_none) {
+        coupling.clear();
+    }
     let model = Model {
         name: urdf.name.clone(),
         source: String::new(),

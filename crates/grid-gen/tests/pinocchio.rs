@@ -210,9 +210,7 @@ fn static_and_gradient_scenes_match_pinocchio() {
 #[test]
 fn floating_base_matches_pinocchio_free_flyer() {
     use grid_gen::ir::{self, Gradient, LowerOptions};
-    let mut failures = Vec::new();
-    let mut checked = 0;
-    let mut worst = 0.0f64;
+    let mut tally = Tally::default();
     for robot in ["grid_hyq", "grid_atlas", "grid_iiwa", "ur5", "solo12", "go2"] {
         // Solo-12 and Go2 are test-only robots (tests/fixtures/LICENSE.example-robot-data).
         let model = match robot {
@@ -234,19 +232,10 @@ fn floating_base_matches_pinocchio_free_flyer() {
             for (k, &a) in vec_of(&st["q"]).iter().enumerate() {
                 q[order.perm[6 + k] + 1] = a;
             }
-            for (what, got, want) in everything(&model, &modules, &order, st, &q) {
-                checked += 1;
-                let e = rel_err(&got, &want);
-                worst = worst.max(e);
-                if !(e <= TOL) {
-                    failures.push(format!("{robot} floating state {s} ({}): {what} relative error {e:.2e}", st["kind"]));
-                }
-            }
+            tally.add(&format!("{robot} floating state {s} ({})", st["kind"]), everything(&model, &modules, &order, st, &q));
         }
     }
-    println!("floating base: {checked} comparisons with Pinocchio's free-flyer, worst relative error {worst:.2e}");
-    assert!(checked > 1800, "only {checked} comparisons");
-    assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+    tally.finish("floating base: comparisons with Pinocchio's free-flyer", 1800);
 }
 
 /// Coupled mimic joints (issue 11, item 3): `--mimic coupled` against Pinocchio's mimic
@@ -261,9 +250,7 @@ fn floating_base_matches_pinocchio_free_flyer() {
 #[test]
 fn coupled_mimic_matches_pinocchio_mimic() {
     use grid_gen::ir::{self, Gradient, LowerOptions};
-    let mut failures = Vec::new();
-    let mut checked = 0;
-    let mut worst = 0.0f64;
+    let mut tally = Tally::default();
     for (robot, path, coupled) in [("panda", repo().join("robots/panda.urdf"), 1), ("mimic_arm", repo().join("tests/fixtures/mimic_arm.urdf"), 3)] {
         let model = load_coupled_urdf(&path);
         assert_eq!(model.njoints() - model.nv(), coupled, "{robot}: coupled mimic joints");
@@ -274,19 +261,10 @@ fn coupled_mimic_matches_pinocchio_mimic() {
             .map(|gradient| ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions { gradient, ..LowerOptions::default() }).unwrap())
             .collect();
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
-            for (what, got, want) in everything(&model, &modules, &order, st, &order.ours(&vec_of(&st["q"]))) {
-                checked += 1;
-                let e = rel_err(&got, &want);
-                worst = worst.max(e);
-                if !(e <= TOL) {
-                    failures.push(format!("{robot} coupled state {s} ({}): {what} relative error {e:.2e}", st["kind"]));
-                }
-            }
+            tally.add(&format!("{robot} coupled state {s} ({})", st["kind"]), everything(&model, &modules, &order, st, &order.ours(&vec_of(&st["q"]))));
         }
     }
-    println!("coupled mimic joints: {checked} comparisons with Pinocchio's mimic model, worst relative error {worst:.2e}");
-    assert!(checked > 700, "only {checked} comparisons");
-    assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+    tally.finish("coupled mimic joints: comparisons with Pinocchio's mimic model", 700);
 }
 
 /// Every output of the reference and of each module's kernel graphs at fixture state `st`
@@ -330,4 +308,33 @@ fn everything(
         }
     }
     results
+}
+
+/// Comparisons against a fixture at [`TOL`]: how many, the worst, and each one above.
+#[derive(Default)]
+struct Tally {
+    checked: usize,
+    worst: f64,
+    failures: Vec<String>,
+}
+
+impl Tally {
+    fn add(&mut self, at: &str, results: Vec<(String, DMatrix<f64>, DMatrix<f64>)>) {
+        for (what, got, want) in results {
+            self.checked += 1;
+            let e = rel_err(&got, &want);
+            self.worst = self.worst.max(e);
+            if !(e <= TOL) {
+                self.failures.push(format!("{at}: {what} relative error {e:.2e}"));
+            }
+        }
+    }
+
+    /// Prints the count and worst error, and fails on any above TOL or fewer than `min`.
+    fn finish(self, what: &str, min: usize) {
+        let Tally { checked, worst, failures } = self;
+        println!("{what}: {checked}, worst relative error {worst:.2e}");
+        assert!(checked > min, "only {checked} comparisons");
+        assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+    }
 }

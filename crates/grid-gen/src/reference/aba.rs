@@ -10,7 +10,7 @@ use crate::spatial::{crf, crm, Vec6};
 /// Joint accelerations under torques `tau` at `(q, qd)`, with gravity `gravity`.
 pub fn aba(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]) -> Vec<f64> {
     let a = aba_joints(model, q, &expand(model, qd), &place(model, tau), gravity);
-    if model.nv() == model.njoints() {
+    if !model.has_coupled() {
         return a;
     }
     project_acceleration(model, a, &minv_joints(model, q))

@@ -18,11 +18,17 @@ use crate::model::Model;
 
 /// Per-joint values from per-coordinate ones: `G x` (velocities, accelerations).
 pub fn expand(model: &Model, x: &[f64]) -> Vec<f64> {
+    if !model.has_coupled() {
+        return x.to_vec();
+    }
     (0..model.njoints()).map(|i| model.multiplier(i) * x[model.coordinate_of(i)]).collect()
 }
 
 /// Per-coordinate forces from per-joint ones: `Gᵀ c`.
 pub fn reduce(model: &Model, c: &[f64]) -> Vec<f64> {
+    if !model.has_coupled() {
+        return c.to_vec();
+    }
     let mut out = vec![0.0; model.nv()];
     for (i, ci) in c.iter().enumerate() {
         out[model.coordinate_of(i)] += model.multiplier(i) * ci;
@@ -31,9 +37,13 @@ pub fn reduce(model: &Model, c: &[f64]) -> Vec<f64> {
 }
 
 /// `Gᵀ D G` for a joint-level matrix.
-pub fn reduce_matrix(model: &Model, d: &DMatrix<f64>) -> DMatrix<f64> {
+pub fn reduce_matrix(model: &Model, d: DMatrix<f64>) -> DMatrix<f64> {
+    // Without a coupled joint G = I: skip the two dense products (O(n³) on a long chain).
+    if !model.has_coupled() {
+        return d;
+    }
     let g = coupling_matrix(model);
-    g.transpose() * d * g
+    g.transpose() * d * &g
 }
 
 fn coupling_matrix(model: &Model) -> DMatrix<f64> {
@@ -69,7 +79,7 @@ fn pick(model: &Model, full: &DMatrix<f64>) -> DMatrix<f64> {
 
 /// The coordinates' M⁻¹ from the joint-level M⁻¹.
 pub fn project_inverse(model: &Model, minv_joints: DMatrix<f64>) -> DMatrix<f64> {
-    if model.nv() == model.njoints() {
+    if !model.has_coupled() {
         return minv_joints;
     }
     let (w, s_inv) = correction(model, &minv_joints);
@@ -79,6 +89,9 @@ pub fn project_inverse(model: &Model, minv_joints: DMatrix<f64>) -> DMatrix<f64>
 
 /// Per-joint forces from per-coordinate ones: `Pᵀ τ` (the coordinate's joint takes it).
 pub fn place(model: &Model, tau: &[f64]) -> Vec<f64> {
+    if !model.has_coupled() {
+        return tau.to_vec();
+    }
     let mut out = vec![0.0; model.njoints()];
     for (k, &i) in model.coordinate_joints().iter().enumerate() {
         out[i] = tau[k];

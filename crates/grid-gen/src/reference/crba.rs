@@ -9,7 +9,7 @@ use crate::model::Model;
 
 /// The symmetric mass matrix at `q`.
 pub fn crba(model: &Model, q: &[f64]) -> DMatrix<f64> {
-    reduce_matrix(model, &crba_joints(model, q))
+    reduce_matrix(model, crba_joints(model, q))
 }
 
 /// [`crba`] with a row and column per model joint (see `coupled`).

@@ -12,7 +12,7 @@ use crate::spatial::{crf, crm, Vec6};
 /// `(∂c/∂q, ∂c/∂q̇)` at `(q, qd, qdd)`, row-major: entry (i, j) is ∂c_i/∂u_j.
 pub fn rnea_derivatives(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> (DMatrix<f64>, DMatrix<f64>) {
     let (dq, dqd) = rnea_derivatives_joints(model, q, &expand(model, qd), &expand(model, qdd), gravity);
-    (reduce_matrix(model, &dq), reduce_matrix(model, &dqd))
+    (reduce_matrix(model, dq), reduce_matrix(model, dqd))
 }
 
 /// [`rnea_derivatives`] per model joint (see `coupled`).

@@ -18,7 +18,7 @@ pub(crate) struct Constraints {
 impl Dynamics<'_> {
     /// Whether some joint is a coupled mimic (inputs and outputs are smaller than the tree).
     pub fn coupled(&self) -> bool {
-        self.model.nv() < self.n()
+        self.model.has_coupled()
     }
 
     /// Per-joint q̇ or q̈ from per-coordinate values, `G x` (see `reference::coupled`):
@@ -65,7 +65,7 @@ impl Dynamics<'_> {
 
     /// `Gᵀ D G` for a joint-level matrix (the same matrix when no joint is coupled).
     pub fn reduce_matrix(&mut self, d: Mat) -> Mat {
-        if self.model.nv() == self.n() {
+        if !self.coupled() {
             return d;
         }
         let columns: Mat = d.iter().map(|row| self.reduce(row)).collect();
