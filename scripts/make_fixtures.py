@@ -10,6 +10,8 @@ For each robot in robots/:
                           JointModelFreeFlyer; grid-gen's --floating-base), for FLOATING.
 <robot>.mimic.pinocchio.json: the same with mimic joints coupled (grid-gen's --mimic
                           coupled; Pinocchio's mimic=True), for the Panda and mimic_arm.urdf.
+ball_arm.urdf with ball_arm[.floating].pinocchio.json: spherical joints (a grid-gen
+                          extension of URDF) against Pinocchio's JointModelSpherical.
 <robot>.<scene>.pinocchio.json: the same, for a robot in a scene of examples/scenes/
                           (Pinocchio's buildReducedModel for locks, payload inertias added).
 and chain100.urdf with chain100.pinocchio.json: a 100-link chain (cond(M) ~ 1e5) and
@@ -304,6 +306,109 @@ def mimic_fixtures(check):
     return stale
 
 
+# Spherical joints (issue 11, item 2): ball_arm, a synthetic tree written here (URDF has no
+# spherical type; grid-gen reads `type="spherical"` as an extension), with a spherical joint
+# on the root, one between moving bodies and one at a leaf. Pinocchio's model of it is built
+# joint by joint from the same table with JointModelSpherical, not from the URDF.
+# (name, type, parent link, child link, xyz, rpy, axis, mass, com)
+BALL_ARM = [
+    ("shoulder", "spherical", "base", "l1", (0, 0, 0.1), (0.1, 0.2, 0.3), None, 1.2, (0.01, 0.02, 0.1)),
+    ("elbow", "revolute", "l1", "l2", (0.05, 0, 0.3), (0.2, 0, 0), (0, 1, 0), 0.9, (0.1, 0.0, 0.02)),
+    ("wrist", "spherical", "l2", "l3", (0.3, 0, 0), (0, 0.3, 0), None, 0.6, (0.05, 0.01, 0.0)),
+    ("hand", "revolute", "l3", "l4", (0.2, 0, 0), (0, 0, 0.4), (0, 0.6, 0.8), 0.4, (0.02, 0.02, 0.02)),
+    ("slide", "prismatic", "l1", "l5", (0, 0.1, 0.2), (0, 0, 0), (0, 0, 1), 0.5, (0.0, 0.03, 0.0)),
+    ("tip", "spherical", "l5", "l6", (0, 0.1, 0), (0.3, 0, 0), None, 0.3, (0.01, 0.0, 0.01)),
+]
+BALL_INERTIA = (0.02, 0.03, 0.025, 0.001, -0.002, 0.0015)  # ixx iyy izz ixy ixz iyz
+BALL_INERTIAL_RPY = (0.1, -0.2, 0.3)
+# The base link's mass and centre of mass: on a free-flyer, a massless base under a
+# spherical joint would make M singular (two rotations of the same bodies about one point).
+BALL_BASE = (2.0, (0.0, 0.0, 0.05))
+SPHERICAL = ["wx", "wy", "wz"]
+
+
+def ball_arm_urdf():
+    ixx, iyy, izz, ixy, ixz, iyz = BALL_INERTIA
+    out = ['<?xml version="1.0"?>\n<robot name="ball_arm">\n']
+    links = [(name, child, m, com) for name, kind, parent, child, xyz, rpy, axis, m, com in BALL_ARM]
+    for name, child, m, com in [(None, "base", *BALL_BASE)] + links:
+        if name:
+            _, kind, parent, _, xyz, rpy, axis, _, _ = next(j for j in BALL_ARM if j[0] == name)
+            out.append(f'  <joint name="{name}" type="{kind}">\n    <parent link="{parent}"/>\n    <child link="{child}"/>\n'
+                       f'    <origin xyz="{xyz[0]} {xyz[1]} {xyz[2]}" rpy="{rpy[0]} {rpy[1]} {rpy[2]}"/>\n')
+            if axis:
+                out.append(f'    <axis xyz="{axis[0]} {axis[1]} {axis[2]}"/>\n    <limit lower="-2" upper="2" effort="10" velocity="5"/>\n')
+            out.append("  </joint>\n")
+        r = BALL_INERTIAL_RPY
+        out.append(f'  <link name="{child}">\n    <inertial>\n      <origin xyz="{com[0]} {com[1]} {com[2]}" rpy="{r[0]} {r[1]} {r[2]}"/>\n'
+                   f'      <mass value="{m}"/>\n      <inertia ixx="{ixx}" iyy="{iyy}" izz="{izz}" ixy="{ixy}" ixz="{ixz}" iyz="{iyz}"/>\n'
+                   f'    </inertial>\n  </link>\n')
+    out.append("</robot>\n")
+    return "".join(out)
+
+
+def ball_arm_model(floating):
+    """Pinocchio's model of BALL_ARM, joint by joint (optionally on a free-flyer, as
+    grid-gen's --floating-base): the coordinate names in order, and the model."""
+    model = pin.Model()
+    ixx, iyy, izz, ixy, ixz, iyz = BALL_INERTIA
+    ic = np.array([[ixx, ixy, ixz], [ixy, iyy, iyz], [ixz, iyz, izz]])
+    rc = pin.rpy.rpyToMatrix(*BALL_INERTIAL_RPY)
+    joint_of = {"base": 0}
+    names = []
+    inertia = lambda m, com: pin.Inertia(m, np.array(com, dtype=float), rc @ ic @ rc.T)
+    if floating:
+        joint_of["base"] = model.addJoint(0, pin.JointModelFreeFlyer(), pin.SE3.Identity(), "root_joint")
+        model.appendBodyToJoint(joint_of["base"], inertia(*BALL_BASE), pin.SE3.Identity())
+        names += [f"root_joint_{c}" for c in FREE_FLYER]
+    for name, kind, parent, child, xyz, rpy, axis, m, com in BALL_ARM:
+        placement = pin.SE3(pin.rpy.rpyToMatrix(*rpy), np.array(xyz, dtype=float))
+        if kind == "spherical":
+            jm = pin.JointModelSpherical()
+            names += [f"{name}_{c}" for c in SPHERICAL]
+        else:
+            a = np.array(axis, dtype=float) / np.linalg.norm(axis)
+            jm = pin.JointModelRevoluteUnaligned(a) if kind == "revolute" else pin.JointModelPrismaticUnaligned(a)
+            names.append(name)
+        jid = model.addJoint(joint_of[parent], jm, placement, name)
+        model.appendBodyToJoint(jid, inertia(m, com), pin.SE3.Identity())
+        joint_of[child] = jid
+    return names, model
+
+
+def ball_fixture(floating, rng):
+    """Spherical joints against JointModelSpherical: `q` is Pinocchio's whole q (each
+    quaternion [qx, qy, qz, qw] at its joint's idx_q, which is grid-gen's layout too), the
+    rest as in every fixture. Random rotations (uniform: normalised 4-d Gaussians),
+    unrotated joints, half turns (w = 0), and speeds of 1e3."""
+    names, model = ball_arm_model(floating)
+    data = model.createData()
+    cases = [("random", 1.0, None)] * RANDOM_STATES + [("unrotated", 1.0, (0, 0, 0, 1)), ("half turn", 1.0, (1, 0, 0, 0)), ("speed 1e3", 1e3, None)]
+    records = []
+    for kind, speed, quat in cases:
+        q = np.zeros(model.nq)
+        for jid in range(1, model.njoints):
+            j = model.joints[jid]
+            if j.nq == 4 or j.nq == 7:
+                x = np.array(quat, dtype=float) if quat else rng.normal(size=4)
+                q[j.idx_q + j.nq - 4:j.idx_q + j.nq] = x / np.linalg.norm(x)
+                if j.nq == 7:
+                    q[j.idx_q:j.idx_q + 3] = rng.normal(size=3)
+            else:
+                q[j.idx_q] = rng.uniform(-2, 2)
+        qd, qdd, tau = rng.normal(size=model.nv) * speed, rng.normal(size=model.nv) * speed, rng.normal(size=model.nv) * 10
+        records.append({"kind": kind, "q": [float(x) for x in q], **pinocchio_record(model, data, q, list(range(model.nv)), qd, qdd, tau)})
+    return {"tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear], "joint_names": names, "states": records}
+
+
+def ball_fixtures(check):
+    stale = report(OUT / "ball_arm.urdf", ball_arm_urdf(), check, 0)
+    for floating in (False, True):
+        data = ball_fixture(floating, np.random.default_rng(3 + floating))
+        stale |= report(OUT / f"ball_arm{'.floating' if floating else ''}.pinocchio.json", data, check, 1e-12)
+    return stale
+
+
 SCENES = [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_knees_locked"), ("grid_iiwa", "iiwa_static")]
 
 
@@ -474,6 +579,8 @@ def main():
         failed |= floating_fixtures(check)
     if not only or "mimic" in only:
         failed |= mimic_fixtures(check)
+    if not only or "spherical" in only:
+        failed |= ball_fixtures(check)
     if failed:
         sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 

@@ -99,6 +99,13 @@ pub fn load_floating_urdf(path: &std::path::Path) -> Model {
     Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).expect("the robot loads").0
 }
 
+/// The robot of a URDF file, on a fixed base or a floating one.
+pub fn load_urdf(path: &std::path::Path, floating_base: bool) -> Model {
+    let text = std::fs::read_to_string(path).expect("robot file");
+    let scene = grid_gen::Scene { floating_base, ..grid_gen::Scene::default() };
+    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).expect("the robot loads").0
+}
+
 /// A URDF with its mimic joints coupled (`--mimic coupled`).
 pub fn load_coupled_urdf(path: &std::path::Path) -> Model {
     let text = std::fs::read_to_string(path).expect("robot file");

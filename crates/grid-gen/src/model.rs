@@ -106,6 +106,10 @@ pub const FREE_FLYER: [(&str, JointType, [f64; 3]); 6] = [
     ("wz", JointType::Continuous, [0.0, 0.0, 1.0]),
 ];
 
+/// A spherical joint's three coordinates (Pinocchio's `JointModelSpherical`: the angular
+/// velocity in the child frame): the suffix each model joint's name gets and its axis.
+pub const SPHERICAL: [(&str, [f64; 3]); 3] = [("wx", [1.0, 0.0, 0.0]), ("wy", [0.0, 1.0, 0.0]), ("wz", [0.0, 0.0, 1.0])];
+
 /// The free-flyer's name when `--floating-base` adds it (Pinocchio's name for the root
 /// joint `buildModelFromUrdf` adds).
 pub const ROOT_JOINT: &str = "root_joint";
@@ -190,6 +194,10 @@ pub struct Model {
     /// A floating base: `joints[..6]` are the free-flyer ([`FREE_FLYER`]) and q is
     /// `[x, y, z, qx, qy, qz, qw, joints[6..]…]` (nq = nv + 1, Pinocchio's layout).
     pub floating: bool,
+    /// Spherical joints (issue 11, item 2): the first of the three model joints each one
+    /// is ([`SPHERICAL`], like the free-flyer's six: revolute about the joint frame's
+    /// axes, held at zero, the first carrying the quaternion's rotation). In model order.
+    pub spherical: Vec<usize>,
     /// For each joint, whether it is a coupled mimic joint (`--mimic coupled`); empty when
     /// no joint is coupled (`build` never leaves it all `None`). A coupled joint has
     /// no coordinate: q, q̇, q̈, τ and the matrices have one entry per *coordinate*, the
@@ -245,9 +253,51 @@ impl Model {
         self.joints.len()
     }
 
-    /// Entries of q: nv, or nv + 1 with a floating base (a quaternion for three angles).
+    /// Entries of q: nv, plus one for a floating base and one per spherical joint (a
+    /// quaternion for three angles).
     pub fn nq(&self) -> usize {
-        self.nv() + usize::from(self.floating)
+        self.nv() + usize::from(self.floating) + self.spherical.len()
+    }
+
+    /// The model joints of the multi-dof joint that joint `i` is part of: the free-flyer's
+    /// six, or a spherical joint's three. The algorithms treat each as one joint
+    /// (Pinocchio's `JointModelFreeFlyer` / `JointModelSpherical`), not as a chain of
+    /// one-dof joints: the chain's velocity-product terms `v × S q̇` between its members
+    /// belong to another parametrisation (Euler-angle rates), and so do its derivatives.
+    /// What replaces them, with `u = X v_parent` the parent's velocity in the joint frame
+    /// and `v_J` the joint's own velocity: one velocity product `u × v_J` at the last member
+    /// (zero at the root, where u = 0); in the gradients, every member sees the parent's
+    /// velocity and acceleration (not its predecessor's in the chain), the last member's
+    /// ∂a/∂q̇ over all members' columns, and no `S ×* f` term between members.
+    pub fn group(&self, i: usize) -> Option<std::ops::Range<usize>> {
+        if self.is_free_flyer(i) {
+            return Some(0..FREE_FLYER.len());
+        }
+        self.spherical.iter().find(|&&s| s <= i && i < s + SPHERICAL.len()).map(|&s| s..s + SPHERICAL.len())
+    }
+
+    /// Whether joint `i` is part of a multi-dof joint whose parent is the fixed root (the
+    /// free-flyer, or a spherical joint on the root): its parent's velocity is 0, so no
+    /// velocity-product term is needed at all.
+    pub fn in_root_group(&self, i: usize) -> bool {
+        self.group(i).is_some_and(|g| self.joints[g.start].parent.is_none())
+    }
+
+    /// The members of joint `i`'s multi-dof joint when its parent is a moving body.
+    pub fn inner_group(&self, i: usize) -> Option<std::ops::Range<usize>> {
+        self.group(i).filter(|g| self.joints[g.start].parent.is_some())
+    }
+
+    /// Multi-dof joints before model joint `i`: each adds one entry to q.
+    fn quaternions_before(&self, i: usize) -> usize {
+        usize::from(self.floating && i >= FREE_FLYER.len()) + self.spherical.iter().filter(|&&s| s < i).count()
+    }
+
+    /// Where in q the multi-dof joint whose first model joint is `first` keeps its pose:
+    /// the free-flyer's `[x, y, z, qx, qy, qz, qw]`, a spherical joint's `[qx, qy, qz, qw]`
+    /// (Pinocchio's layout: each joint's entries at its `idx_q`, in model order).
+    pub fn group_q(&self, first: usize) -> usize {
+        self.coordinate_of(first) + self.quaternions_before(first)
     }
 
     /// Whether some joint is a coupled mimic (then coordinates and joints differ).
@@ -294,19 +344,22 @@ impl Model {
         self.coupling(i).map_or(1.0, |c| c.multiplier)
     }
 
-    /// Where coordinate `k`'s position is in q; `None` for the free-flyer's six
-    /// coordinates, which are always at zero (the base pose is q's first seven entries
-    /// instead).
+    /// Where coordinate `k`'s position is in q; `None` for the coordinates of a multi-dof
+    /// joint, which are always at zero (its pose is in q at [`Model::group_q`] instead).
     pub fn q_index(&self, k: usize) -> Option<usize> {
-        match self.floating {
-            true if k < FREE_FLYER.len() => None,
-            true => Some(k + 1),
-            false => Some(k),
+        if !self.floating && self.spherical.is_empty() {
+            return Some(k);
+        }
+        let j = if self.coupling.is_empty() { k } else { self.coordinate_joints()[k] };
+        match self.group(j) {
+            Some(_) => None,
+            None => Some(k + self.quaternions_before(j)),
         }
     }
 
     /// Joint `i`'s position as `(q index, multiplier, offset)`: `q[index] · multiplier +
-    /// offset` (1 and 0 unless it is a coupled mimic joint); `None` for the free-flyer.
+    /// offset` (1 and 0 unless it is a coupled mimic joint); `None` for the members of a
+    /// multi-dof joint.
     pub fn joint_q(&self, i: usize) -> Option<(usize, f64, f64)> {
         let k = self.q_index(self.coordinate_of(i))?;
         Some(self.coupling(i).map_or((k, 1.0, 0.0), |c| (k, c.multiplier, c.offset)))
@@ -337,13 +390,24 @@ impl Model {
         q
     }
 
-    /// q at every joint's zero position (with a floating base: at the origin, unrotated).
+    /// q at every joint's zero position (a floating base at the origin, unrotated; every
+    /// spherical joint unrotated).
     pub fn neutral_q(&self) -> Vec<f64> {
         let mut q = vec![0.0; self.nq()];
         if self.floating {
             q[6] = 1.0;
         }
+        for &s in &self.spherical {
+            q[self.group_q(s) + 3] = 1.0;
+        }
         q
+    }
+
+    /// Where each quaternion is in q (`[qx, qy, qz, qw]`): the floating base's at 3, then
+    /// each spherical joint's.
+    pub fn quaternions(&self) -> Vec<usize> {
+        let base = self.floating.then_some(3);
+        base.into_iter().chain(self.spherical.iter().map(|&s| self.group_q(s))).collect()
     }
 
     /// Whether `a` is `i` or one of its ancestors.
@@ -483,6 +547,7 @@ pub(crate) fn build(
     // URDF joint index of each model joint, for located errors.
     let mut source: Vec<Option<usize>> = Vec::new();
     let mut floating = floating_base;
+    let mut spherical = Vec::new();
     let mut stack = vec![match floating_base {
         true => Step::Free { name: ROOT_JOINT.to_string(), link: tree.root, tree: Transform::identity() },
         false => Step::Visit { link: tree.root, body: None, in_body: Transform::identity() },
@@ -535,6 +600,42 @@ pub(crate) fn build(
                         stack.push(Step::Open { joint: j, parent: body, tree: origin });
                     }
                 }
+            }
+            Step::Open { joint: j, parent, tree: tree_transform } if urdf.joints[j].kind == JointKind::Spherical => {
+                let uj = &urdf.joints[j];
+                if mimic_coupled && uj.mimic.is_some() {
+                    diags.push(
+                        Diagnostic::error(
+                            format!("spherical joint `{}` has a <mimic>", uj.name),
+                            uj.mimic.as_ref().map(|m| m.span.clone()),
+                            "a spherical joint cannot be coupled",
+                        )
+                        .with_help("--mimic coupled couples one-dof joints; remove the <mimic>, or use --mimic independent"),
+                    );
+                }
+                let first = joints.len();
+                for (k, &(suffix, axis)) in SPHERICAL.iter().enumerate() {
+                    let parent = if k == 0 { parent } else { Some(first + k - 1) };
+                    joints.push(Joint {
+                        name: format!("{}_{suffix}", uj.name),
+                        joint_type: JointType::Continuous,
+                        parent,
+                        tree: if k == 0 { tree_transform } else { Transform::identity() },
+                        axis,
+                        inertia: Inertia::zero(),
+                        level: parent.map_or(0, |p| joints[p].level + 1),
+                        subtree_end: first + k + 1,
+                        limit: None,
+                        velocity_limit: uj.velocity,
+                        damping: uj.damping,
+                        friction: uj.friction,
+                        mimic: None,
+                    });
+                    source.push(Some(j));
+                    stack.push(Step::Close { body: first + k });
+                }
+                spherical.push(first);
+                stack.push(Step::Visit { link: tree.joint_links[j].1, body: Some(first + SPHERICAL.len() - 1), in_body: Transform::identity() });
             }
             Step::Open { joint: j, parent, tree: tree_transform } => {
                 let uj = &urdf.joints[j];
@@ -608,6 +709,7 @@ pub(crate) fn build(
         root_link: urdf.links[tree.root].name.clone(),
         joints,
         floating,
+        spherical,
         coupling,
         specialisation: Specialisation::default(),
     };
@@ -652,6 +754,7 @@ fn couple(urdf: &Urdf, joints: &[Joint], source: &[Option<usize>], diags: &mut V
                     let why = match urdf.joints.iter().find(|j| &j.name == target) {
                         Some(j) if j.kind == JointKind::Fixed => "a fixed joint",
                         Some(j) if j.kind == JointKind::Floating => "the floating base",
+                        Some(j) if j.kind == JointKind::Spherical => "a spherical joint",
                         Some(_) => "locked or left out by the scene",
                         None => "not a joint of this robot",
                     };

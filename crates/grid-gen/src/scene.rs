@@ -247,6 +247,14 @@ pub(crate) fn resolve(scene: &Scene, scene_path: &str, urdf: &Urdf, tree: &Tree,
                 )
                 .with_help("to model the robot with a fixed base, make the joint fixed in the URDF"),
             ),
+            Some(j) if urdf.joints[j].kind == JointKind::Spherical => diags.push(
+                Diagnostic::error(
+                    format!("scene `{scene_path}`: [lock] names spherical joint `{name}`"),
+                    Some(urdf.joints[j].span.clone()),
+                    "a spherical joint cannot be locked at one value",
+                )
+                .with_help("to hold it, make the joint fixed in the URDF with the rotation in its <origin rpy>"),
+            ),
             Some(j) => {
                 let joint = &urdf.joints[j];
                 if let (Some((lo, hi)), false) = (joint.limit, joint.kind == JointKind::Continuous) {
@@ -352,6 +360,8 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
                     } else if let Some(j) = urdf.joints.iter().find(|j| &j.name == name) {
                         if j.kind == JointKind::Fixed {
                             "a fixed joint".to_string()
+                        } else if j.kind == JointKind::Spherical {
+                            format!("a spherical joint: name its coordinates `{name}_wx`, `{name}_wy`, `{name}_wz`")
                         } else {
                             "left out by the scene's keep or drop".to_string()
                         }

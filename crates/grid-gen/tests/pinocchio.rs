@@ -267,6 +267,35 @@ fn coupled_mimic_matches_pinocchio_mimic() {
     tally.finish("coupled mimic joints: comparisons with Pinocchio's mimic model", 700);
 }
 
+/// Spherical joints (issue 11, item 2; `type="spherical"`, a grid-gen extension of URDF)
+/// against Pinocchio's `JointModelSpherical` (scripts/make_fixtures.py, `ball_fixture`) on
+/// ball_arm: one on the root, one between moving bodies, one at a leaf, on a fixed base and
+/// on a free-flyer; random rotations, unrotated, half turns (w = 0) and speeds of 1e3. The
+/// reference and every kernel's graph in both gradient formulations, at the fixed-base
+/// robots' 1e-10: a spherical joint adds no conditioning of its own.
+#[test]
+fn spherical_joints_match_pinocchio_spherical() {
+    use grid_gen::ir::{self, Gradient, LowerOptions};
+    let mut tally = Tally::default();
+    for floating in [false, true] {
+        let robot = if floating { "ball_arm.floating" } else { "ball_arm" };
+        let model = load_urdf(&repo().join("tests/fixtures/ball_arm.urdf"), floating);
+        assert_eq!((model.spherical.len(), model.nq()), (3, model.nv() + 3 + usize::from(floating)), "{robot}: q's size");
+        let fx = fixture(&format!("{robot}.pinocchio.json"));
+        let order = Order::new(robot, &model, &fx);
+        // q is Pinocchio's whole q, which is in grid-gen's layout when the orders agree.
+        assert!(order.perm.iter().enumerate().all(|(k, &p)| k == p), "{robot}: Pinocchio's model is built in grid-gen's order");
+        let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
+            .into_iter()
+            .map(|gradient| ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions { gradient, ..LowerOptions::default() }).unwrap())
+            .collect();
+        for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
+            tally.add(&format!("{robot} state {s} ({})", st["kind"]), everything(&model, &modules, &order, st, &vec_of(&st["q"])));
+        }
+    }
+    tally.finish("spherical joints: comparisons with Pinocchio's JointModelSpherical", 600);
+}
+
 /// Every output of the reference and of each module's kernel graphs at fixture state `st`
 /// (q given in our layout), beside the fixture's: `(what, ours, Pinocchio's)`.
 fn everything(

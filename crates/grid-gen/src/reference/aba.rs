@@ -3,9 +3,9 @@
 
 use super::coupled::{expand, place, project_acceleration};
 use super::minv::minv_joints;
-use super::{root_acceleration, Kinematics};
+use super::{root_acceleration, velocity_product, Kinematics};
 use crate::model::Model;
-use crate::spatial::{crf, crm, Vec6};
+use crate::spatial::{crf, Vec6};
 
 /// Joint accelerations under torques `tau` at `(q, qd)`, with gravity `gravity`.
 pub fn aba(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]) -> Vec<f64> {
@@ -23,13 +23,13 @@ fn aba_joints(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 
     let mut v = vec![Vec6::zeros(); n];
     let mut c = vec![Vec6::zeros(); n];
     let mut pa = vec![Vec6::zeros(); n];
+    let mut xv = vec![Vec6::zeros(); n];
     // Velocities, velocity-product accelerations c, bias forces pA.
     for i in 0..n {
         let v_parent = model.joints[i].parent.map_or(Vec6::zeros(), |p| v[p]);
-        let vj = k.s[i] * qd[i];
-        v[i] = k.x[i] * v_parent + vj;
-        // The free-flyer's acceleration is q̈ itself (see `Model::is_free_flyer`).
-        c[i] = if model.is_free_flyer(i) { Vec6::zeros() } else { crm(&v[i]) * vj };
+        xv[i] = k.x[i] * v_parent;
+        v[i] = xv[i] + k.s[i] * qd[i];
+        c[i] = velocity_product(model, i, &k, &v, &xv, qd);
         pa[i] = crf(&v[i]) * (k.inertia[i] * v[i]);
     }
     // Articulated inertias and bias forces, leaves to root.

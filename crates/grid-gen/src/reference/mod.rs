@@ -23,7 +23,7 @@ pub use rnea_derivatives::rnea_derivatives;
 use nalgebra::{Matrix3, Vector3};
 
 use crate::model::{Joint, Model};
-use crate::spatial::{axis_angle, plux, quaternion_matrix, spatial_inertia, Mat6, Vec6};
+use crate::spatial::{axis_angle, crm, plux, quaternion_matrix, spatial_inertia, Mat6, Vec6};
 
 pub use crate::model::DEFAULT_GRAVITY;
 
@@ -47,18 +47,44 @@ pub fn joint_transform(joint: &Joint, qi: f64) -> Mat6 {
     x_joint * x_tree
 }
 
-/// Joint i's `iXλ(i)` at `q` (length nq): with a floating base, the free-flyer's first
-/// joint carries the base pose (`X_pose X_T`, the pose from q's position and quaternion)
-/// and the six are at their zero position (see [`crate::model`]).
+/// Joint i's `iXλ(i)` at `q` (length nq): the first member of a multi-dof joint carries
+/// its pose (`X_pose X_T`: the free-flyer's from q's position and quaternion, a spherical
+/// joint's rotation from its quaternion) and every member is at its zero position (see
+/// [`crate::model`]).
 pub fn model_joint_transform(model: &Model, i: usize, q: &[f64]) -> Mat6 {
     let joint = &model.joints[i];
     match model.joint_q(i) {
         Some((k, m, o)) => joint_transform(joint, m * q[k] + o),
-        None if i == 0 => {
-            let (r, p) = base_pose(q);
-            plux(&r.transpose(), &p) * joint_transform(joint, 0.0)
+        None => match group_pose(model, i, q) {
+            Some((r, p)) => plux(&r.transpose(), &p) * joint_transform(joint, 0.0),
+            None => joint_transform(joint, 0.0),
+        },
+    }
+}
+
+/// The pose a multi-dof joint's first member `i` carries: the floating base's, or a
+/// spherical joint's rotation; `None` for every other joint.
+fn group_pose(model: &Model, i: usize, q: &[f64]) -> Option<(Matrix3<f64>, Vector3<f64>)> {
+    let first = model.group(i).filter(|g| g.start == i)?;
+    if model.is_free_flyer(first.start) {
+        return Some(base_pose(q));
+    }
+    let k = model.group_q(i);
+    Some((quaternion_matrix([q[k], q[k + 1], q[k + 2], q[k + 3]]), Vector3::zeros()))
+}
+
+/// The velocity-product acceleration of joint i: `v_i × S_i q̇_i` (Featherstone 2008,
+/// table 5.1), and for a multi-dof joint (see [`Model::group`]) `u × v_J` at its last
+/// member only, u the parent's velocity in the joint frame (`xv` of its first member) and
+/// v_J its members' `S q̇` together: zero at the root, where u = 0.
+pub(crate) fn velocity_product(model: &Model, i: usize, k: &Kinematics, v: &[Vec6], xv: &[Vec6], qd: &[f64]) -> Vec6 {
+    match model.group(i) {
+        None => crm(&v[i]) * (k.s[i] * qd[i]),
+        Some(g) if i + 1 == g.end && model.joints[g.start].parent.is_some() => {
+            let vj: Vec6 = g.clone().map(|m| k.s[m] * qd[m]).sum();
+            crm(&xv[g.start]) * vj
         }
-        None => joint_transform(joint, 0.0),
+        Some(_) => Vec6::zeros(),
     }
 }
 
@@ -105,14 +131,13 @@ pub fn forward_kinematics(model: &Model, q: &[f64]) -> Vec<(Matrix3<f64>, Vector
             None => (Matrix3::identity(), Vector3::zeros()),
         };
         let Some((k, m, o)) = model.joint_q(i) else {
-            // The free-flyer: the pose after the first joint's origin, then at rest.
-            let (r, p) = match i {
-                0 => {
-                    let (rb, pb) = base_pose(q);
+            // A multi-dof joint: the pose after the first member's origin, then at rest.
+            let (r, p) = match group_pose(model, i, q) {
+                Some((rb, pb)) => {
                     let (rt, pt) = (joint.tree.rot_matrix(), joint.tree.pos_vector());
                     (r_parent * rt * rb, p_parent + r_parent * (pt + rt * pb))
                 }
-                _ => (r_parent, p_parent),
+                None => (r_parent, p_parent),
             };
             poses.push((r, p));
             continue;

@@ -2,9 +2,9 @@
 //! (Featherstone 2008, table 5.1).
 
 use super::coupled::{expand, reduce};
-use super::{root_acceleration, Kinematics};
+use super::{root_acceleration, velocity_product, Kinematics};
 use crate::model::Model;
-use crate::spatial::{crf, crm, Vec6};
+use crate::spatial::{crf, Vec6};
 
 /// Joint forces needed for accelerations `qdd` at `(q, qd)`, with gravity `gravity`.
 pub fn rnea(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> Vec<f64> {
@@ -20,18 +20,16 @@ fn rnea_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64;
     let mut v = vec![Vec6::zeros(); n];
     let mut a = vec![Vec6::zeros(); n];
     let mut f = vec![Vec6::zeros(); n];
+    let mut xv = vec![Vec6::zeros(); n];
     // Forward pass: velocities, accelerations, body forces.
     for i in 0..n {
         let (v_parent, a_parent) = match model.joints[i].parent {
             Some(p) => (v[p], a[p]),
             None => (Vec6::zeros(), a0),
         };
-        let vj = k.s[i] * qd[i];
-        v[i] = k.x[i] * v_parent + vj;
-        a[i] = k.x[i] * a_parent + k.s[i] * qdd[i];
-        if !model.is_free_flyer(i) {
-            a[i] += crm(&v[i]) * vj;
-        }
+        xv[i] = k.x[i] * v_parent;
+        v[i] = xv[i] + k.s[i] * qd[i];
+        a[i] = k.x[i] * a_parent + k.s[i] * qdd[i] + velocity_product(model, i, &k, &v, &xv, qd);
         f[i] = k.inertia[i] * a[i] + crf(&v[i]) * (k.inertia[i] * v[i]);
     }
     // Backward pass: project onto the joint, pass the rest to the parent.

@@ -5,7 +5,7 @@
 use nalgebra::{DMatrix, Matrix6xX};
 
 use super::coupled::{expand, reduce_matrix};
-use super::{root_acceleration, Kinematics};
+use super::{root_acceleration, velocity_product, Kinematics};
 use crate::model::Model;
 use crate::spatial::{crf, crm, Vec6};
 
@@ -25,24 +25,25 @@ fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gr
     // d?_dq[i] and d?_dqd[i]: 6 x n, column u = derivative with respect to q_u or q̇_u.
     let (mut dv_dq, mut da_dq, mut df_dq) = (vec![zero.clone(); n], vec![zero.clone(); n], vec![zero.clone(); n]);
     let (mut dv_dqd, mut da_dqd, mut df_dqd) = (vec![zero.clone(); n], vec![zero.clone(); n], vec![zero.clone(); n]);
+    let (mut xvs, mut xas) = (vec![Vec6::zeros(); n], vec![Vec6::zeros(); n]);
     for i in 0..n {
         let s = k.s[i];
         let (v_parent, a_parent, parent) = match model.joints[i].parent {
             Some(p) => (v[p], a[p], Some(p)),
             None => (Vec6::zeros(), a0, None),
         };
-        let xv = k.x[i] * v_parent;
-        let xa = k.x[i] * a_parent;
-        let vj = s * qd[i];
-        v[i] = xv + vj;
-        // The free-flyer is one joint at the root (see `Model::is_free_flyer`): no
-        // velocity-product term, and its derivative terms see the root's v = 0 and a₀.
-        let free = model.is_free_flyer(i);
-        a[i] = xa + s * qdd[i];
-        if !free {
-            a[i] += crm(&v[i]) * vj;
-        }
-        let (xv, xa) = if free { (Vec6::zeros(), k.x[0] * a0) } else { (xv, xa) };
+        xvs[i] = k.x[i] * v_parent;
+        xas[i] = k.x[i] * a_parent;
+        v[i] = xvs[i] + s * qd[i];
+        a[i] = xas[i] + s * qdd[i] + velocity_product(model, i, &k, &v, &xvs, qd);
+        // A multi-dof joint is one joint (see `Model::group`): its members' derivative
+        // terms see the parent's velocity and acceleration, and only its last member has
+        // a velocity-product term (none at the root).
+        let group = model.group(i);
+        let first = group.as_ref().map_or(i, |g| g.start);
+        let (xv, xa) = (xvs[first], xas[first]);
+        let product = group.as_ref().is_none_or(|g| i + 1 == g.end && model.joints[g.start].parent.is_some());
+        let vj: Vec6 = group.clone().unwrap_or(i..i + 1).map(|m| k.s[m] * qd[m]).sum();
         let iv = k.inertia[i] * v[i];
         f[i] = k.inertia[i] * a[i] + crf(&v[i]) * iv;
 
@@ -57,12 +58,16 @@ fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gr
         dv_dq[i].set_column(i, &col);
         col = dv_dqd[i].column(i) + s;
         dv_dqd[i].set_column(i, &col);
-        // ∂a_i = iXλ ∂a_λ + ∂v_i × S_i q̇_i + {(iXλ a_λ) × S_i for q_i; v_i × S_i for q̇_i}.
-        if !free {
+        // ∂a_i = iXλ ∂a_λ + ∂v_i × S_i q̇_i + {(iXλ a_λ) × S_i for q_i; v_i × S_i for q̇_i};
+        // a multi-dof joint's last member: ∂u × v_J, and v_i × S_k for each member's q̇_k
+        // (∂(u × v_J)/∂q̇_k = u × S_k once ∂v_i's S_k is taken back out).
+        if product {
             da_dq[i] -= crm(&vj) * &dv_dq[i];
             da_dqd[i] -= crm(&vj) * &dv_dqd[i];
-            col = da_dqd[i].column(i) + crm(&v[i]) * s;
-            da_dqd[i].set_column(i, &col);
+            for m in group.clone().unwrap_or(i..i + 1) {
+                col = da_dqd[i].column(m) + crm(&v[i]) * k.s[m];
+                da_dqd[i].set_column(m, &col);
+            }
         }
         col = da_dq[i].column(i) + crm(&xa) * s;
         da_dq[i].set_column(i, &col);
@@ -91,10 +96,17 @@ fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gr
             df_dq[p] += dp;
             let dpd = &xt * &df_dqd[i];
             df_dqd[p] += dpd;
-            if !model.is_free_flyer(i) {
-                let extra = xt * (crf(&s) * f[i]);
-                let col = df_dq[p].column(i) + extra;
-                df_dq[p].set_column(i, &col);
+            // For a multi-dof joint, at its first member for every member's column (between
+            // members the frames coincide and S is constant: no such term).
+            let members = match model.group(i) {
+                None => i..i + 1,
+                Some(g) if g.start == i => g,
+                Some(_) => i..i,
+            };
+            for m in members {
+                let extra = &xt * (crf(&k.s[m]) * f[i]);
+                let col = df_dq[p].column(m) + extra;
+                df_dq[p].set_column(m, &col);
             }
             let fp = k.x[i].transpose() * f[i];
             f[p] += fp;

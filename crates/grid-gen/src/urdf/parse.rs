@@ -39,6 +39,11 @@ pub enum JointKind {
     Fixed,
     /// Six degrees of freedom: only between the root link and the base (a floating base).
     Floating,
+    /// Three rotational degrees of freedom about the joint origin (issue 11): not in the
+    /// URDF specification (urdfdom rejects it), a grid-gen extension with the conventions
+    /// of Pinocchio's `JointModelSpherical` (a quaternion in q, the angular velocity in
+    /// the child frame in q̇). `<axis>` and `<limit>` are ignored.
+    Spherical,
 }
 
 impl JointKind {
@@ -49,6 +54,7 @@ impl JointKind {
             JointKind::Prismatic => "prismatic",
             JointKind::Fixed => "fixed",
             JointKind::Floating => "floating",
+            JointKind::Spherical => "spherical",
         }
     }
 }
@@ -224,21 +230,22 @@ impl Parser {
             "prismatic" => JointKind::Prismatic,
             "fixed" => JointKind::Fixed,
             "floating" => JointKind::Floating,
-            "planar" | "spherical" => {
+            "spherical" => JointKind::Spherical,
+            "planar" => {
                 self.diags.push(
                     Diagnostic::error(
                         format!("joint `{name}` has type `{ty}`, which is not supported"),
                         Some(Self::attr_span(node, "type")),
                         "unsupported joint type",
                     )
-                    .with_help("supported joint types are revolute, continuous, prismatic, fixed and floating (at the root)"),
+                    .with_help("supported joint types are revolute, continuous, prismatic, fixed, floating (at the root) and spherical"),
                 );
                 return None;
             }
             other => {
                 self.diags.push(
                     Diagnostic::error(format!("joint `{name}` has unknown type `{other}`"), Some(Self::attr_span(node, "type")), "not a URDF joint type")
-                        .with_help("supported joint types are revolute, continuous, prismatic and fixed"),
+                        .with_help("supported joint types are revolute, continuous, prismatic, fixed, floating (at the root) and spherical"),
                 );
                 return None;
             }
