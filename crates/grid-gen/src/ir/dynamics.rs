@@ -10,7 +10,7 @@
 use super::graph::{Graph, Id, Input, Stage};
 use super::kernel::Gradient;
 use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
-use crate::model::{Model, FREE_FLYER};
+use crate::model::Model;
 
 mod coupled;
 
@@ -133,12 +133,22 @@ impl<'a> Dynamics<'a> {
             let vj = sp::scale(g, &self.s[i], qd[i]);
             v[i] = sp::add(g, &xv[i], &vj);
             let sa = sp::scale(g, &self.s[i], qdd[i]);
-            if self.model.is_free_flyer(i) {
-                // One 6-dof joint at the root (`Model::is_free_flyer`): no velocity-product
-                // term, and the gradients see the root's v = 0 and a₀ as its parent's.
+            if let Some(group) = self.model.group(i) {
+                // One multi-dof joint (`Model::group`): the gradients see its parent's
+                // velocity and acceleration at every member, and its velocity product
+                // u × v_J is at the last member (none at the root, where u = 0).
                 a[i] = sp::add(g, &xa[i], &sa);
-                xv[i] = z;
-                xa[i] = xa[0];
+                if self.model.in_root_group(i) {
+                    xv[i] = z;
+                } else {
+                    xv[i] = xv[group.start];
+                    if i + 1 == group.end {
+                        let vjs = velocity_of(g, &self.s, qd, group.clone());
+                        let cv = sp::crm(g, &xv[i], &vjs);
+                        a[i] = sp::add(g, &a[i], &cv);
+                    }
+                }
+                xa[i] = xa[group.start];
             } else {
                 let cv = sp::crm(g, &v[i], &vj);
                 let t = sp::add(g, &xa[i], &sa);
@@ -184,10 +194,14 @@ impl<'a> Dynamics<'a> {
             }
             self.at(i, Stage::Forward);
             let parent = self.model.joints[i].parent;
-            let free = self.model.is_free_flyer(i);
+            let group = self.model.group(i);
+            // The velocity product's joint velocity: S_i q̇_i, a multi-dof joint's v_J at its
+            // last member (with a moving parent), none at its other members.
+            let product = group.as_ref().is_none_or(|m| i + 1 == m.end && !self.model.in_root_group(i));
+            let members = group.clone().unwrap_or(i..i + 1);
             let cols = self.motion_cols(i);
             let g = &mut self.g;
-            let vj = sp::scale(g, &self.s[i], qd[i]);
+            let vj = velocity_of(g, &self.s, qd, members.clone());
             for u in cols {
                 let from = |m: &Vec<Vec<Option<Sv>>>, g: &mut Graph| match parent.and_then(|p| m[p][u]) {
                     Some(col) => self.x[i].apply(g, &col),
@@ -203,12 +217,12 @@ impl<'a> Dynamics<'a> {
                     dvqd = sp::add(g, &dvqd, &self.s[i]);
                     let t = sp::crm(g, &r.xa[i], &self.s[i]);
                     daq = sp::add(g, &daq, &t);
-                    if !free {
-                        let t = sp::crm(g, &r.v[i], &self.s[i]);
-                        daqd = sp::add(g, &daqd, &t);
-                    }
                 }
-                if !free {
+                if product && members.contains(&u) {
+                    let t = sp::crm(g, &r.v[i], &self.s[u]);
+                    daqd = sp::add(g, &daqd, &t);
+                }
+                if product {
                     let t = sp::crm(g, &dvq, &vj);
                     daq = sp::add(g, &daq, &t);
                     let t = sp::crm(g, &dvqd, &vj);
@@ -256,12 +270,18 @@ impl<'a> Dynamics<'a> {
                         }
                     }
                 }
-                // iXλᵀ (S_i ×* f_i) in the q_i column (not between the free-flyer's six).
-                if !self.model.is_free_flyer(i) {
-                    let sf = sp::crf(g, &self.s[i], &r.f[i]);
+                // iXλᵀ (S_i ×* f_i) in the q_i column; for a multi-dof joint at its first
+                // member in every member's column (between members: none).
+                let members = match self.model.group(i) {
+                    None => i..i + 1,
+                    Some(m) if m.start == i => m,
+                    Some(_) => i..i,
+                };
+                for m in members {
+                    let sf = sp::crf(g, &self.s[m], &r.f[i]);
                     let moved = self.x[i].apply_t(g, &sf);
-                    let old = df_q[p][i].unwrap_or(z);
-                    df_q[p][i] = Some(sp::add(g, &old, &moved));
+                    let old = df_q[p][m].unwrap_or(z);
+                    df_q[p][m] = Some(sp::add(g, &old, &moved));
                 }
             }
         }
@@ -309,6 +329,9 @@ impl<'a> Dynamics<'a> {
         let mut hc: Vec<Sv> = r.iv.clone();
         // t1..t4 of every joint, in the frame of the last ancestor reached.
         let mut t: Vec<[Sv; 4]> = vec![[[zero; 6]; 4]; n];
+        // A multi-dof joint's members: t3 without S ×* f, for the pairs between members
+        // (in their common frame).
+        let mut t3_inner: Vec<Sv> = vec![[zero; 6]; n];
         for i in (0..n).rev() {
             if self.exhausted() {
                 break;
@@ -324,9 +347,19 @@ impl<'a> Dynamics<'a> {
             let dsd = dc[i].apply(g, &sd[i]);
             let sh = sp::crf(g, s, &hc[i]);
             let sdh = sp::crf(g, &sd[i], &hc[i]);
-            // The free-flyer's six are one joint (`Model::is_free_flyer`): Ṡ + Ψ̇ is
-            // v_base × S (Ψ̇ = 0 with the root as parent), and no S ×* f term between them.
-            let free = self.model.is_free_flyer(i).then(|| sp::crm(g, &r.v[FREE_FLYER.len() - 1], s));
+            // A multi-dof joint is one joint (`Model::group`): Ṡ + Ψ̇ is v_J × S + Ψ̇ (not
+            // 2Ψ̇: S_k × S_m ≠ 0), with v_J the last member's velocity; Ψ̇ = 0 at the root;
+            // and no S ×* f term between members.
+            let group = self.model.group(i);
+            let root_group = self.model.in_root_group(i);
+            let free = group.clone().map(|m| {
+                let sdot = sp::crm(g, &r.v[m.end - 1], s);
+                if root_group {
+                    sdot
+                } else {
+                    sp::add(g, &sd[i], &sdot)
+                }
+            });
             let isd2 = match free {
                 Some(sdot) => ic[i].apply(g, &sdot),
                 None => sp::add(g, &isd, &isd),
@@ -335,9 +368,10 @@ impl<'a> Dynamics<'a> {
             let t2 = sp::add(g, &t2, &isd2);
             let t3 = sp::add(g, &dsd, &sdh);
             let t3 = sp::add(g, &t3, &isdd);
-            let t3 = match free {
-                Some(_) => t3,
-                None => {
+            t3_inner[i] = t3;
+            let t3 = match root_group {
+                true => t3,
+                false => {
                     let sf = sp::crf(g, s, &r.f[i]);
                     sp::add(g, &t3, &sf)
                 }
@@ -347,7 +381,8 @@ impl<'a> Dynamics<'a> {
             for j in i..end {
                 let [t1, t2, t3, t4] = t[j];
                 if j != i {
-                    dc_q[i][j] = sp::dot(g, s, &t3);
+                    let inner = group.as_ref().is_some_and(|m| m.contains(&j));
+                    dc_q[i][j] = sp::dot(g, s, if inner { &t3_inner[j] } else { &t3 });
                     dc_qd[i][j] = sp::dot(g, s, &t2);
                 }
                 let a = sp::dot(g, &t1, &sdd[i]);
@@ -529,7 +564,7 @@ impl<'a> Dynamics<'a> {
     pub fn aba(&mut self, qd: &[Id], tau: &[Id]) -> Vec<Id> {
         let n = self.n();
         let z = sp::zero(&mut self.g);
-        let (mut v, mut c, mut pa) = (vec![z; n], vec![z; n], vec![z; n]);
+        let (mut v, mut c, mut pa, mut xv) = (vec![z; n], vec![z; n], vec![z; n], vec![z; n]);
         for i in 0..n {
             if self.exhausted() {
                 break;
@@ -538,10 +573,17 @@ impl<'a> Dynamics<'a> {
             let g = &mut self.g;
             let vp = self.model.joints[i].parent.map_or(z, |p| v[p]);
             // The same nodes as `rnea`'s velocity pass, so fd_grad shares them.
-            let xv = self.x[i].apply(g, &vp);
+            xv[i] = self.x[i].apply(g, &vp);
             let vj = sp::scale(g, &self.s[i], qd[i]);
-            v[i] = sp::add(g, &xv, &vj);
-            c[i] = if self.model.is_free_flyer(i) { z } else { sp::crm(g, &v[i], &vj) };
+            v[i] = sp::add(g, &xv[i], &vj);
+            c[i] = match self.model.group(i) {
+                None => sp::crm(g, &v[i], &vj),
+                Some(m) if i + 1 == m.end && !self.model.in_root_group(i) => {
+                    let vjs = velocity_of(g, &self.s, qd, m.clone());
+                    sp::crm(g, &xv[m.start], &vjs)
+                }
+                Some(_) => z,
+            };
             let iv = self.inertia[i].apply(g, &v[i]);
             pa[i] = sp::crf(g, &v[i], &iv);
         }
@@ -623,6 +665,19 @@ impl<'a> Dynamics<'a> {
         let dqd = product(&dc_qd, &mut self.g);
         (qdd, dq, dqd)
     }
+}
+
+/// `Σ S_m q̇_m` over joints `members`: one joint's `S q̇`, or a multi-dof joint's v_J.
+fn velocity_of(g: &mut Graph, s: &[Sv], qd: &[Id], members: std::ops::Range<usize>) -> Sv {
+    let mut out: Option<Sv> = None;
+    for m in members {
+        let vj = sp::scale(g, &s[m], qd[m]);
+        out = Some(match out {
+            Some(o) => sp::add(g, &o, &vj),
+            None => vj,
+        });
+    }
+    out.expect("a joint has at least one member")
 }
 
 /// ABA's pivot at one body: `U = IA S` and `D⁻¹ = 1 / (Sᵀ U)`.

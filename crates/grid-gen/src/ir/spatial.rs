@@ -318,7 +318,7 @@ pub fn joint_xform(g: &mut Graph, model: &Model, i: usize) -> Xform {
     // E_T = Rᵀ (rows of E_T are columns of R); r_T = position.
     let et: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| k(g, tree_r[c][r])));
     let rt: V3 = std::array::from_fn(|r| k(g, joint.tree.pos[r]));
-    let Some((qi, multiplier, offset)) = model.joint_q(i) else { return free_flyer_xform(g, i, et, rt) };
+    let Some((qi, multiplier, offset)) = model.joint_q(i) else { return group_xform(g, model, i, et, rt) };
     let mut q = g.input(super::graph::Input::Q, qi);
     // A coupled mimic joint: q_m = multiplier · q + offset.
     if multiplier != 1.0 {
@@ -360,17 +360,20 @@ pub fn joint_xform(g: &mut Graph, model: &Model, i: usize) -> Xform {
     }
 }
 
-/// A free-flyer joint's transform (see [`crate::model`]): the six are at their zero
-/// position, and the first carries the base pose, `X_pose X_T` = plux(E_p E_T, r_T + E_Tᵀ p)
-/// with E_p = Rᵀ from q's quaternion (entries 3..7, `[qx, qy, qz, qw]`, scaled by 1/|q|²
-/// as in `spatial::quaternion_matrix`) and p from entries 0..3.
-fn free_flyer_xform(g: &mut Graph, i: usize, et: [[Id; 3]; 3], rt: V3) -> Xform {
-    if i > 0 {
+/// The transform of a multi-dof joint's member (see [`crate::model`]): every member is at
+/// its zero position, and the first carries the joint's pose, `X_pose X_T` =
+/// plux(E_p E_T, r_T + E_Tᵀ p) with E_p = Rᵀ from q's quaternion (`[qx, qy, qz, qw]`,
+/// scaled by 1/|q|² as in `spatial::quaternion_matrix`) and p the free-flyer's position
+/// (q's entries 0..3; a spherical joint has none).
+fn group_xform(g: &mut Graph, model: &Model, i: usize, et: [[Id; 3]; 3], rt: V3) -> Xform {
+    if model.group(i).is_none_or(|m| m.start != i) {
         return Xform { e: et, r: rt };
     }
     let input = |g: &mut Graph, k: usize| g.input(super::graph::Input::Q, k);
-    let p: V3 = std::array::from_fn(|k| input(g, k));
-    let [x, y, z, w] = std::array::from_fn(|k| input(g, 3 + k));
+    let free = model.is_free_flyer(i);
+    let at = if free { 3 } else { model.group_q(i) };
+    let p: Option<V3> = free.then(|| std::array::from_fn(|k| input(g, k)));
+    let [x, y, z, w] = std::array::from_fn(|k| input(g, at + k));
     let norm2 = g.dot(&[x, y, z, w], &[x, y, z, w]);
     let two = k(g, 2.0);
     let s = g.div(two, norm2);
@@ -394,7 +397,12 @@ fn free_flyer_xform(g: &mut Graph, i: usize, et: [[Id; 3]; 3], rt: V3) -> Xform 
     ];
     // E = E_p E_T with E_p = Rᵀ: entry (a, b) = Σ_c R[c][a] E_T[c][b].
     let e = std::array::from_fn(|a| std::array::from_fn(|b| g.dot(&[r[0][a], r[1][a], r[2][a]], &[et[0][b], et[1][b], et[2][b]])));
-    let shift = mat_t_vec(g, &et, &p);
-    let r = add3(g, &rt, &shift);
+    let r = match p {
+        Some(p) => {
+            let shift = mat_t_vec(g, &et, &p);
+            add3(g, &rt, &shift)
+        }
+        None => rt,
+    };
     Xform { e, r }
 }
