@@ -123,10 +123,20 @@ pub enum EvalError {
     )]
     FloatingLength { index: usize, found: usize, expected: usize },
     #[error(
+        "state {index}: `q` has {found} entries, expected {expected}: one per joint, with a quaternion `[qx, qy, qz, qw]` \
+         for each spherical joint ({layout}) (Pinocchio's layout)"
+    )]
+    SphericalLength { index: usize, found: usize, expected: usize, layout: String },
+    #[error(
         "state {index}: the base quaternion `q[3..7]` has norm {norm}, not 1 (more than {QUATERNION_TOLERANCE:e} off): \
          is it stored `[qx, qy, qz, qw]`, after the position `[x, y, z]`?"
     )]
     Quaternion { index: usize, norm: f64 },
+    #[error(
+        "state {index}: the quaternion of spherical joint `{joint}`, `q[{at}..{end}]`, has norm {norm}, not 1 (more than \
+         {QUATERNION_TOLERANCE:e} off): is it stored `[qx, qy, qz, qw]`?", end = at + 4
+    )]
+    SphericalQuaternion { index: usize, joint: String, at: usize, norm: f64 },
     #[error("state {index}: `{field}[{entry}]` is not finite")]
     NotFinite { index: usize, field: &'static str, entry: usize },
     #[error("state {index}: `qd[{entry}]` is {value}, and the scene is static (`static = true`: q̇ = 0 is assumed and the kernels ignore `qd`); give q̇ = 0 or leave `static` out")]
@@ -159,12 +169,25 @@ pub fn parse_states(json: &str) -> Result<StatesFile, EvalError> {
     Ok(serde_json::from_str(&quote_non_finite(json))?)
 }
 
-/// How far from 1 the norm of a floating base's quaternion may be. Within it, the
+/// How far from 1 the norm of a quaternion (a floating base's, a spherical joint's) may be. Within it, the
 /// quaternion is used normalised (the kernels and the reference rotate by q/|q|, which is
 /// exact for any nonzero q); beyond it, it is an error, since a quaternion that far from
 /// unit is a wrong layout or an uninitialised state rather than drift (f32 storage and
 /// integrators drift by ~1e-7 per step).
 pub const QUATERNION_TOLERANCE: f64 = 1e-3;
+
+/// A spherical joint's URDF name (its first model joint's, less the `_wx`).
+fn spherical_name(model: &Model, first: usize) -> String {
+    let name = &model.joints[first].name;
+    name.strip_suffix("_wx").unwrap_or(name).to_string()
+}
+
+/// Where each spherical joint's quaternion is in q, for an error message.
+fn spherical_layout(model: &Model) -> String {
+    let base = if model.floating { "the floating base's `[x, y, z, qx, qy, qz, qw]` at q[0..7]; " } else { "" };
+    let joints: Vec<String> = model.spherical.iter().map(|&s| format!("`{}` at q[{}..{}]", spherical_name(model, s), model.group_q(s), model.group_q(s) + 4)).collect();
+    format!("{base}{}", joints.join(", "))
+}
 
 /// Checks every state's lengths and values against the model.
 pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
@@ -173,10 +196,13 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         let fields = [("q", Some(&s.q)), ("qd", Some(&s.qd)), ("qdd", s.qdd.as_ref()), ("tau", s.tau.as_ref())];
         for (field, v) in fields {
             let Some(v) = v else { continue };
+            if field == "q" && !model.spherical.is_empty() && v.len() != model.nq() {
+                return Err(EvalError::SphericalLength { index, found: v.len(), expected: model.nq(), layout: spherical_layout(model) });
+            }
             if field == "q" && model.floating && v.len() != model.nq() {
                 return Err(EvalError::FloatingLength { index, found: v.len(), expected: model.nq() });
             }
-            if v.len() != n && !(field == "q" && model.floating) {
+            if v.len() != n && !(field == "q" && model.nq() != n) {
                 return Err(EvalError::Length { index, field, found: v.len(), expected: n });
             }
             if let Some(entry) = v.iter().position(|x| !x.is_finite()) {
@@ -187,6 +213,13 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
             let norm = s.q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
             if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
                 return Err(EvalError::Quaternion { index, norm });
+            }
+        }
+        for &first in &model.spherical {
+            let at = model.group_q(first);
+            let norm = s.q[at..at + 4].iter().map(|x| x * x).sum::<f64>().sqrt();
+            if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
+                return Err(EvalError::SphericalQuaternion { index, joint: spherical_name(model, first), at, norm });
             }
         }
         if let (true, Some(entry)) = (model.specialisation.static_velocity, s.qd.iter().position(|&x| x != 0.0)) {

@@ -26,14 +26,25 @@ pub struct Sparsity {
     pub dc_dq: Count,
 }
 
+/// One spherical joint in [`Info`].
+#[derive(Clone, Debug, Serialize)]
+pub struct SphericalInfo {
+    pub joint: String,
+    /// Where its quaternion `[qx, qy, qz, qw]` starts in q.
+    pub q_index: usize,
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct Info {
     pub robot: String,
     pub root_link: String,
     pub nv: usize,
-    /// Entries of q: nv, or nv + 1 with a floating base (position and quaternion
-    /// `[x, y, z, qx, qy, qz, qw]` first, Pinocchio's layout).
+    /// Entries of q: nv, plus one with a floating base (position and quaternion
+    /// `[x, y, z, qx, qy, qz, qw]` first, Pinocchio's layout) and one per spherical joint.
     pub nq: usize,
+    /// Spherical joints: each one's name and where its quaternion `[qx, qy, qz, qw]` is in q
+    /// (its coordinates are `<name>_wx`, `_wy`, `_wz`, its angular velocity in its frame).
+    pub spherical: Vec<SphericalInfo>,
     /// A floating base: joints 0 to 5 are the free-flyer's velocity coordinates (linear,
     /// then angular, in the base frame).
     pub floating_base: bool,
@@ -104,6 +115,7 @@ impl Info {
             nv: model.nv(),
             nq: model.nq(),
             floating_base: model.floating,
+            spherical: crate::ir::Robot::of(model).spherical.into_iter().map(|(joint, q_index)| SphericalInfo { joint, q_index }).collect(),
             gravity,
             joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(),
             joint_types: model.coordinate_joints().iter().map(|&i| model.joints[i].joint_type).collect(),
@@ -209,6 +221,14 @@ impl Info {
         if self.floating_base {
             s.push_str(&format!(
                 "floating base: joints 0-5 are the free-flyer (base velocity, linear then angular, in the base frame); q has nq = {} entries, [x, y, z, qx, qy, qz, qw] then joints 6.. at q[j + 1]\n",
+                self.nq
+            ));
+        }
+        if !self.spherical.is_empty() {
+            let joints: Vec<String> = self.spherical.iter().map(|s| format!("{} (q[{}..{}])", s.joint, s.q_index, s.q_index + 4)).collect();
+            s.push_str(&format!(
+                "spherical joints: {}; each a quaternion [qx, qy, qz, qw] in q and three coordinates <name>_wx, _wy, _wz; q has nq = {} entries\n",
+                joints.join(", "),
                 self.nq
             ));
         }

@@ -69,7 +69,12 @@ pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_m
             // With a floating base, a random pose too (drawn only then: fixed-base states
             // stay what they were for a seed).
             let base = if model.floating { rng.base_pose() } else { [0.0; 7] };
-            let q = model.q_from_joints(&per_joint, base);
+            let mut q = model.q_from_joints(&per_joint, base);
+            // Each spherical joint: a uniform rotation (drawn only for robots that have one).
+            for &first in &model.spherical {
+                let at = model.group_q(first);
+                q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+            }
             let qd: Vec<f64> = bounds.qd.iter().map(|&b| rng.uniform(-b, b)).collect();
             let qdd: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();
             let other: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();

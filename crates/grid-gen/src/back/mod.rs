@@ -35,6 +35,16 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
             robot.nq()
         ));
     }
+    if !robot.spherical.is_empty() {
+        let joints: Vec<String> = robot.spherical.iter().map(|(name, at)| format!("{} at q[{at}..{}]", names::comment_text(name), at + 4)).collect();
+        out.push_str(&format!(
+            "// Spherical joints (Pinocchio's JointModelSpherical), each a quaternion [qx, qy, qz, qw] in q (normalised): {}.\n\
+             // Each has three coordinates <name>_wx, _wy, _wz, its angular velocity in its own frame; gradients are with\n\
+             // respect to the tangent space at q. q has {} entries.\n",
+            joints.join(", "),
+            robot.nq()
+        ));
+    }
     if !robot.coupled.is_empty() {
         let coupled: Vec<String> =
             robot.coupled.iter().map(|(m, of, mult, off)| format!("{} = {mult:?} * {} + {off:?}", names::comment_text(m), names::comment_text(of))).collect();

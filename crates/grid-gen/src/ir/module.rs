@@ -87,6 +87,12 @@ pub struct Robot {
     /// A floating base: joints 0..6 are the free-flyer and q has nv + 1 entries
     /// (`[x, y, z, qx, qy, qz, qw, …]`, see [`crate::model::Model::floating`]).
     pub floating: bool,
+    /// Spherical joints: their URDF name and where their quaternion `[qx, qy, qz, qw]` is
+    /// in q (see [`crate::model::Model::spherical`]).
+    pub spherical: Vec<(String, usize)>,
+    /// The coordinate whose position each entry of q holds; `None` for the floating
+    /// base's pose and the quaternions.
+    pub q_coordinates: Vec<Option<usize>>,
 }
 
 impl Robot {
@@ -106,6 +112,20 @@ impl Robot {
                 .filter_map(|i| model.coupling(i).map(|c| (model.joints[i].name.clone(), model.joints[c.of].name.clone(), c.multiplier, c.offset)))
                 .collect(),
             floating: model.floating,
+            spherical: model
+                .spherical
+                .iter()
+                .map(|&s| (model.joints[s].name.strip_suffix("_wx").unwrap_or(&model.joints[s].name).to_string(), model.group_q(s)))
+                .collect(),
+            q_coordinates: {
+                let mut at = vec![None; model.nq()];
+                for k in 0..model.nv() {
+                    if let Some(i) = model.q_index(k) {
+                        at[i] = Some(k);
+                    }
+                }
+                at
+            },
         }
     }
 
@@ -113,9 +133,24 @@ impl Robot {
         self.joint_names.len()
     }
 
-    /// Entries of q (nv, or nv + 1 with a floating base).
+    /// Entries of q (nv, plus one for a floating base and one per spherical joint).
     pub fn nq(&self) -> usize {
-        self.nv() + usize::from(self.floating)
+        self.nv() + usize::from(self.floating) + self.spherical.len()
+    }
+
+    /// The name of q's entry `k`: its joint's, the base's `base_x` … `base_qw`, or a
+    /// spherical joint's `<name>_qx` … `<name>_qw`.
+    pub fn q_name(&self, k: usize) -> String {
+        const BASE: [&str; 7] = ["base_x", "base_y", "base_z", "base_qx", "base_qy", "base_qz", "base_qw"];
+        const QUATERNION: [&str; 4] = ["qx", "qy", "qz", "qw"];
+        if let Some(c) = self.q_coordinates[k] {
+            return self.joint_names[c].clone();
+        }
+        if self.floating && k < BASE.len() {
+            return BASE[k].to_string();
+        }
+        let (name, at) = self.spherical.iter().find(|(_, at)| (*at..at + 4).contains(&k)).expect("every q entry has an owner");
+        format!("{name}_{}", QUATERNION[k - at])
     }
 
     /// Entries of one input: q has nq, the others nv.

@@ -302,7 +302,7 @@ pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
 
 /// The length constant of q in a module for `robot`.
 pub(super) fn q_len(robot: &crate::ir::Robot) -> &'static str {
-    if robot.floating {
+    if robot.nq() != robot.nv() {
         "NQ"
     } else {
         "NV"
@@ -421,12 +421,16 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
     let mut out = String::new();
     let _ = writeln!(out, "/// The robot's name in its URDF.\n#[allow(dead_code)]\npub const ROBOT: &str = {};", string_literal(&robot.name));
     let _ = writeln!(out, "/// Number of movable joints (and of entries in every vector).\n#[allow(dead_code)]\npub const NV: usize = {nv};");
-    let nq_doc = match robot.floating {
-        true => {
+    let nq_doc = match (robot.floating, robot.spherical.is_empty()) {
+        (true, true) => {
             "Entries of q: the floating base's position and quaternion `[x, y, z, qx, qy, qz, qw]`, then the\n\
                  /// joints after the base's six velocity coordinates (Pinocchio's free-flyer layout)."
         }
-        false => "Entries of q: `NV` (a fixed base).",
+        (false, true) => "Entries of q: `NV` (a fixed base).",
+        (_, false) => {
+            "Entries of q: one per coordinate, but four (a quaternion `[qx, qy, qz, qw]`) for each spherical\n\
+                 /// joint's three and seven for a floating base's six (Pinocchio's layout; see the file header)."
+        }
     };
     let _ = writeln!(out, "/// {nq_doc}\n#[allow(dead_code)]\npub const NQ: usize = {};", robot.nq());
     let names: Vec<String> = robot.joint_names.iter().map(|n| string_literal(n)).collect();

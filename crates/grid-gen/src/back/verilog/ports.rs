@@ -1,5 +1,5 @@
 //! Port names of a netlist: inputs `<sin_q|cos_q|q|qd|qdd>_<index>_<joint name>` (the
-//! index into the input: q's for sin, cos and q) and a floating base's `quat_scale`,
+//! index into the input: q's for sin, cos and q) and each quaternion's `quat_scale…`,
 //! outputs `<output>_<row>_<column>` for the non-zero entries only. Joint names go through
 //! the shared namer (`[a-z0-9_]`, never a reserved word); the joint index keeps them
 //! unique whatever the names are.
@@ -17,17 +17,16 @@ pub struct PortNames {
     pub outputs: Vec<(String, HwId)>,
 }
 
-/// An input port's name. q-indexed ports (sin, cos, q) name the joint at that q entry;
-/// with a floating base, q[0..7] are the base's `x y z qx qy qz qw` and joint j ≥ 6 is
-/// q[j + 1].
+/// An input port's name. q-indexed ports (sin, cos, q) name the q entry (`Robot::q_name`:
+/// a joint, the floating base's `base_x` … `base_qw`, a spherical joint's `<name>_qx` …);
+/// a spherical joint's quaternion scale is `quat_scale_<k>_<name>`, the base's `quat_scale`.
 fn input_name(robot: &Robot, p: Port) -> String {
-    const BASE: [&str; 7] = ["base_x", "base_y", "base_z", "base_qx", "base_qy", "base_qz", "base_qw"];
     let q_indexed = matches!(p, Port::Sin(_) | Port::Cos(_) | Port::Value(Input::Q, _));
     let k = p.joint();
     match p {
-        Port::QuatScale => "quat_scale".to_string(),
-        _ if q_indexed && robot.floating && k < BASE.len() => format!("{}_{k}_{}", p.prefix(), BASE[k]),
-        _ if q_indexed && robot.floating => format!("{}_{k}_{}", p.prefix(), identifier(&robot.joint_names[k - 1])),
+        Port::QuatScale(3) if robot.floating => "quat_scale".to_string(),
+        Port::QuatScale(_) => format!("quat_scale_{k}_{}", identifier(robot.q_name(k).strip_suffix("_qx").unwrap_or_default())),
+        _ if q_indexed => format!("{}_{k}_{}", p.prefix(), identifier(&robot.q_name(k))),
         _ => format!("{}_{k}_{}", p.prefix(), identifier(&robot.joint_names[k])),
     }
 }

@@ -317,7 +317,7 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
     let _ = writeln!(
         out,
         "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}// precision: {}\n// trig: {}",
-        if robot.floating { format!("// nq: {}\n", robot.nq()) } else { String::new() },
+        if robot.nq() != robot.nv() { format!("// nq: {}\n", robot.nq()) } else { String::new() },
         options.precision.name(),
         options.trig.name()
     );

@@ -41,16 +41,15 @@ impl Bounds {
         // With a floating base, q's entries: position (read by no datapath: gravity does
         // not depend on it), the quaternion (within `eval`'s tolerance of unit), then the
         // joints after the free-flyer.
-        let q = match robot.floating {
-            false => (0..nv).map(joint_q).collect(),
-            true => {
-                let unit = 1.0 + crate::eval::QUATERNION_TOLERANCE;
-                let mut q = vec![(-DEFAULT_Q_MAX, DEFAULT_Q_MAX); 3];
-                q.extend([(-unit, unit); 4]);
-                q.extend((crate::model::FREE_FLYER.len()..nv).map(joint_q));
-                q
-            }
-        };
+        // Spherical joints' quaternions likewise.
+        let unit = 1.0 + crate::eval::QUATERNION_TOLERANCE;
+        let q = (0..robot.nq())
+            .map(|k| match robot.q_coordinates[k] {
+                Some(c) => joint_q(c),
+                None if robot.floating && k < 3 => (-DEFAULT_Q_MAX, DEFAULT_Q_MAX),
+                None => (-unit, unit),
+            })
+            .collect();
         Bounds {
             q,
             // A static scene holds q̇ at 0 (its kernels never read it).
@@ -70,7 +69,7 @@ impl Bounds {
     fn port(&self, p: Port) -> (f64, f64) {
         match p {
             Port::Sin(_) | Port::Cos(_) => (-1.0, 1.0),
-            Port::QuatScale => {
+            Port::QuatScale(_) => {
                 let t = crate::eval::QUATERNION_TOLERANCE;
                 (2.0 / (1.0 + t).powi(2), 2.0 / (1.0 - t).powi(2))
             }

@@ -17,18 +17,19 @@ pub enum Port {
     /// `q`, `qd`, `qdd` or `tau` itself (prismatic positions, speeds, accelerations, a
     /// floating base's quaternion entries).
     Value(Input, u16),
-    /// A floating base's quaternion scale `2 / |q[3..7]|²`, which normalises it: like sin
-    /// and cos, a division the host computes (the datapath has no divider).
-    QuatScale,
+    /// A quaternion's scale `2 / |q[k..k + 4]|²` (the floating base's, k = 3, or a
+    /// spherical joint's), which normalises it: like sin and cos, a division the host
+    /// computes (the datapath has no divider).
+    QuatScale(u16),
 }
 
 impl Port {
     /// The entry of its input it reads: a q index for `Sin`, `Cos` and `Value(Q, _)`
-    /// (nq entries with a floating base), a joint for the others; 3 for `QuatScale`.
+    /// (nq entries with a floating base), a joint for the others; the quaternion's first
+    /// q index for `QuatScale`.
     pub fn joint(self) -> usize {
         match self {
-            Port::Sin(j) | Port::Cos(j) | Port::Value(_, j) => j as usize,
-            Port::QuatScale => 3,
+            Port::Sin(j) | Port::Cos(j) | Port::Value(_, j) | Port::QuatScale(j) => j as usize,
         }
     }
 
@@ -38,7 +39,7 @@ impl Port {
             Port::Sin(_) => "sin_q",
             Port::Cos(_) => "cos_q",
             Port::Value(i, _) => i.name(),
-            Port::QuatScale => "quat_scale",
+            Port::QuatScale(_) => "quat_scale",
         }
     }
 }
@@ -117,7 +118,7 @@ impl Datapath {
                         return Err(unsupported());
                     }
                 }
-                Op::Div(a, b) if is_quat_scale(f, a, b) => {}
+                Op::Div(a, b) if quat_scale(f, a, b).is_some() => {}
                 Op::Div(..) => return Err(unsupported()),
                 op => op.operands().for_each(|o| live[o.0 as usize] = true),
             }
@@ -145,7 +146,7 @@ impl Datapath {
                 Op::Sub(a, b) => HwOp::Sub(m(a), m(b)),
                 Op::Mul(a, b) => HwOp::Mul(m(a), m(b)),
                 Op::Neg(a) => HwOp::Neg(m(a)),
-                Op::Div(..) => port(Port::QuatScale),
+                Op::Div(a, b) => port(Port::QuatScale(quat_scale(f, a, b).expect("checked above"))),
             };
             new_id[i] = HwId(nodes.len() as u32);
             nodes.push(op);
@@ -208,15 +209,25 @@ impl Datapath {
     }
 }
 
-/// Whether `a / b` is a floating base's quaternion scale `2 / (qx² + qy² + qz² + qw²)`
-/// (see `ir::spatial::free_flyer_xform`): 2 over something that reads only q[3..7].
-fn is_quat_scale(f: &Function, a: Id, b: Id) -> bool {
-    fn quaternion_only(f: &Function, id: Id) -> bool {
+/// Whether `a / b` is a quaternion's scale `2 / (qx² + qy² + qz² + qw²)` (see
+/// `ir::spatial::group_xform`): 2 over a sum of products of the four entries q[k..k + 4];
+/// returns k, the least q index read.
+fn quat_scale(f: &Function, a: Id, b: Id) -> Option<u16> {
+    fn q_inputs(f: &Function, id: Id, out: &mut Vec<u16>) -> bool {
         match f.op(id) {
-            Op::Input(Input::Q, j) => (3..7).contains(&j),
-            Op::Add(x, y) | Op::Mul(x, y) => quaternion_only(f, x) && quaternion_only(f, y),
+            Op::Input(Input::Q, j) => {
+                out.push(j);
+                true
+            }
+            Op::Add(x, y) | Op::Mul(x, y) => q_inputs(f, x, out) && q_inputs(f, y, out),
             _ => false,
         }
     }
-    matches!(f.op(a), Op::Const(c) if c == 2.0) && quaternion_only(f, b)
+    let mut read = Vec::new();
+    if !matches!(f.op(a), Op::Const(c) if c == 2.0) || !q_inputs(f, b, &mut read) {
+        return None;
+    }
+    read.sort_unstable();
+    read.dedup();
+    (read.len() == 4 && read[3] == read[0] + 3).then_some(read[0])
 }

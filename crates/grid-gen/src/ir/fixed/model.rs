@@ -20,7 +20,7 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64
         .map(|&p| match p {
             Port::Sin(j) => q[j as usize].sin(),
             Port::Cos(j) => q[j as usize].cos(),
-            Port::QuatScale => 2.0 / q[3..7].iter().map(|x| x * x).sum::<f64>(),
+            Port::QuatScale(k) => 2.0 / q[k as usize..k as usize + 4].iter().map(|x| x * x).sum::<f64>(),
             Port::Value(input, j) => {
                 let v = match input {
                     Input::Q => q,
