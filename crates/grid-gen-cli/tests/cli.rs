@@ -503,6 +503,46 @@ fn floating_base_from_the_command_line() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// Spherical joints (issue 11): `info --json` lists them with their quaternions' places
+/// in q, `eval` takes the long q and names a non-unit quaternion's joint, and generation
+/// writes `NQ`.
+#[test]
+fn spherical_joints_from_the_command_line() {
+    let urdf = "tests/fixtures/ball_arm.urdf";
+    let v = json(&grid_gen(&["info", urdf, "--json"]));
+    assert_eq!((v["nv"].as_u64(), v["nq"].as_u64()), (Some(12), Some(15)));
+    assert_eq!(v["spherical"][1]["joint"], "wrist");
+    assert_eq!(v["spherical"][1]["q_index"].as_u64(), Some(5));
+    assert_eq!(v["joint_names"][4], "wrist_wx");
+
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-spherical-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let states = dir.join("states.json");
+    // shoulder's quaternion, elbow, wrist's, hand, slide, tip's: every rotation the identity.
+    let mut q = vec![0.0, 0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 1.0, 0.2, 0.1, 0.0, 0.0, 0.0, 1.0];
+    let write = |q: &[f64]| std::fs::write(&states, format!(r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#, [0.1; 12], [0.0; 12])).unwrap();
+    write(&q);
+    let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert_eq!(json(&out)["states"][0]["drnea_dq"].as_array().unwrap().len(), 12);
+    q[8] = 0.5;
+    write(&q);
+    let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("the quaternion of spherical joint `wrist`, `q[5..9]`, has norm 0.5"), "{}", stderr(&out));
+    write(&q[..12]);
+    let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
+    assert!(stderr(&out).contains("`q` has 12 entries, expected 15: one per joint, with a quaternion"), "{}", stderr(&out));
+
+    let out = grid_gen(&[urdf, "-o", dir.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    let code = std::fs::read_to_string(dir.join("ball_arm.rs")).unwrap();
+    assert!(
+        code.contains("pub const NQ: usize = 15;") && code.contains("q: &[T; NQ]") && code.contains("// Spherical joints (Pinocchio's JointModelSpherical)")
+    );
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
 /// `--mimic coupled` (issue 11): the Panda's second finger loses its coordinate in `info`,
 /// `eval` and the generated module; an unknown mode is a usage error naming the modes.
 #[test]

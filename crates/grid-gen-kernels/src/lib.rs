@@ -39,6 +39,15 @@ pub mod ur5 {
     include!("../../../generated/ur5/ur5.rs");
 }
 
+/// Test robots that use grid-gen's extensions of URDF, as checked in under
+/// `generated/fixtures/`: compiled here so that their kernels are run in the tests.
+pub mod fixtures {
+    /// `tests/fixtures/ball_arm.urdf`: three spherical joints (issue 11).
+    pub mod ball_arm {
+        include!("../../../generated/fixtures/ball_arm/ball_arm.rs");
+    }
+}
+
 /// Robots in the scenes of `examples/scenes/` (issue 10's scene specialisation), as
 /// checked in under `generated/scenes/`: benchmarked beside the full robots.
 pub mod scenes {

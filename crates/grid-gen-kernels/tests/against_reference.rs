@@ -325,6 +325,65 @@ fn floating_base_kernels_match_the_reference() {
     println!("HyQ floating base: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
 }
 
+/// Spherical joints (`generated/fixtures/ball_arm/`, issue 11 item 2): ball_arm's three
+/// (on the root, between moving bodies, at a leaf), every kernel, both copies, f64 and f32,
+/// uniform random rotations, against the reference (held to Pinocchio's
+/// `JointModelSpherical` by grid-gen's tests/pinocchio.rs) at the fixed-base tolerances.
+#[test]
+fn spherical_kernels_match_the_reference() {
+    use grid_gen_kernels::fixtures::ball_arm as k;
+    let model = grid_gen_test_support::load_urdf(&grid_gen_test_support::repo().join("tests/fixtures/ball_arm.urdf"), false);
+    assert!(model.spherical.len() == 3 && k::NV == model.nv() && k::NQ == model.nq());
+    let mut rng = Rng(31);
+    let mut worst = [0.0f64; 2];
+    for (label, per_joint, qd, u) in states(&model, &mut rng) {
+        let mut q = model.q_from_joints(&per_joint, [0.0; 7]);
+        if label != "zero" {
+            for &first in &model.spherical {
+                let at = model.group_q(first);
+                q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+            }
+        }
+        for (f32, tol_direct, tol_minv) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
+            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let (q, qd, u) = (r(&q), r(&qd), r(&u));
+            let want = reference_outputs(&model, &q, &qd, &u);
+            macro_rules! run {
+                ($t:ty, $path:path) => {{
+                    use $path as c;
+                    let qa: [$t; k::NQ] = std::array::from_fn(|i| q[i] as $t);
+                    let va = |v: &[f64]| -> [$t; k::NV] { std::array::from_fn(|i| v[i] as $t) };
+                    let (qd, u) = (va(&qd), va(&u));
+                    let m = |x: [[$t; k::NV]; k::NV]| DMatrix::from_fn(k::NV, k::NV, |i, j| x[i][j] as f64);
+                    let v = |x: [$t; k::NV]| DMatrix::from_fn(k::NV, 1, |i, _| x[i] as f64);
+                    let (dq, dqd) = c::rnea_grad(&qa, &qd, &u);
+                    let (qdd, fq, fqd) = c::fd_grad(&qa, &qd, &u);
+                    [v(c::rnea(&qa, &qd, &u)), m(dq), m(dqd), m(c::mass_matrix(&qa)), m(c::minv(&qa)), v(c::fd(&qa, &qd, &u)), v(qdd), m(fq), m(fqd)]
+                }};
+            }
+            let mut copies = vec![("portable", if f32 { run!(f32, k::portable) } else { run!(f64, k::portable) })];
+            if fma_runs() {
+                // SAFETY: fma_runs() checked AVX2 and FMA.
+                copies.push(("fma", unsafe {
+                    if f32 {
+                        run!(f32, k::fma)
+                    } else {
+                        run!(f64, k::fma)
+                    }
+                }));
+            }
+            check_copies(
+                &format!("ball_arm {}, {label}", if f32 { "f32" } else { "f64" }),
+                copies,
+                &want,
+                (tol_direct, tol_minv),
+                &mut worst[usize::from(f32)],
+            );
+        }
+    }
+    println!("ball_arm spherical joints: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+}
+
 /// The Panda with coupled fingers (`generated/scenes/panda.panda_mimic/`, issue 11 item 3):
 /// every kernel, both copies, f64 and f32, against the reference (held to Pinocchio's mimic
 /// model by grid-gen's tests/pinocchio.rs) at the fixed-base tolerances.

@@ -185,7 +185,8 @@ fn spherical_name(model: &Model, first: usize) -> String {
 /// Where each spherical joint's quaternion is in q, for an error message.
 fn spherical_layout(model: &Model) -> String {
     let base = if model.floating { "the floating base's `[x, y, z, qx, qy, qz, qw]` at q[0..7]; " } else { "" };
-    let joints: Vec<String> = model.spherical.iter().map(|&s| format!("`{}` at q[{}..{}]", spherical_name(model, s), model.group_q(s), model.group_q(s) + 4)).collect();
+    let joints: Vec<String> =
+        model.spherical.iter().map(|&s| format!("`{}` at q[{}..{}]", spherical_name(model, s), model.group_q(s), model.group_q(s) + 4)).collect();
     format!("{base}{}", joints.join(", "))
 }
 

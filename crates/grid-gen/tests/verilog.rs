@@ -53,7 +53,11 @@ fn states(n: &Netlist, model: &grid_gen::Model, count: usize, seed: u64) -> Vec<
     for _ in 0..count {
         let angles = rng.vec(nv, -std::f64::consts::PI, std::f64::consts::PI);
         let base = if model.floating { rng.base_pose() } else { [0.0; 7] };
-        let q = clamp(model.q_from_joints(&angles, base));
+        let mut q = clamp(model.q_from_joints(&angles, base));
+        for &first in &model.spherical {
+            let at = model.group_q(first);
+            q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+        }
         let qd = (0..nv).map(|j| rng.uniform(-b.qd[j], b.qd[j])).collect();
         let qdd = (0..nv).map(|j| rng.uniform(-b.qdd[j], b.qdd[j])).collect();
         out.push([q, qd, qdd]);
@@ -139,6 +143,25 @@ fn double_pendulum_bit_exact_and_within_bound() {
 fn floating_double_pendulum_bit_exact_and_within_bound() {
     let model = load_floating("double_pendulum_continuous");
     assert!(model.floating);
+    run_model(model, &BOTH, 40);
+}
+
+/// A spherical joint (issue 11): its quaternion enters as four `q` ports with its own
+/// `quat_scale_<k>_<name>`; random rotations and unrotated ones at the corners, both
+/// architectures. One spherical joint at the leaf of a pendulum: the interval analysis
+/// bounds a rotation built from a quaternion loosely (entries in [-3, 1] and ±4 where
+/// they lie in [-1, 1]), so nesting several widens the formats until none fits.
+#[test]
+fn spherical_pendulum_bit_exact_and_within_bound() {
+    let urdf = r#"<robot name="ball_pendulum">
+  <link name="base"/>
+  <joint name="hip" type="continuous"><parent link="base"/><child link="upper"/><axis xyz="0 1 0"/><limit effort="1" velocity="3"/></joint>
+  <link name="upper"><inertial><origin xyz="0 0 -0.25"/><mass value="1"/><inertia ixx="0.02" iyy="0.02" izz="0.001" ixy="0" ixz="0" iyz="0"/></inertial></link>
+  <joint name="ball" type="spherical"><parent link="upper"/><child link="lower"/><origin xyz="0 0 -0.5" rpy="0.1 0 0.2"/></joint>
+  <link name="lower"><inertial><origin xyz="0.01 0 -0.2"/><mass value="0.5"/><inertia ixx="0.01" iyy="0.012" izz="0.002" ixy="0.001" ixz="0" iyz="0"/></inertial></link>
+</robot>"#;
+    let model = grid_gen::Model::from_urdf_str("ball_pendulum.urdf", urdf, false).map_err(|e| e.render_plain()).unwrap().0;
+    assert_eq!((model.spherical.len(), model.nq()), (1, 5));
     run_model(model, &BOTH, 40);
 }
 
