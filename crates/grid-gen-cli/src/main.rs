@@ -73,6 +73,16 @@ struct WgslArgs {
     /// WGSL cooperative strategy: invocations per state (1 to 256).
     #[arg(long, value_name = "W", default_value_t = 64, global = true)]
     wgsl_workers: u32,
+    /// WGSL thread strategy: most operations per dispatch; a larger kernel runs as several
+    /// entry points (stages) in order, so no driver compiles more in one pipeline (0: no
+    /// split).
+    #[arg(long, value_name = "OPS", default_value_t = grid_gen::back::wgsl::DEFAULT_STAGE, global = true)]
+    wgsl_stage: usize,
+    /// WGSL cooperative strategy: the same, by whole phases (0, the default: one dispatch,
+    /// values between phases in workgroup memory; lavapipe compiles large kernels faster
+    /// split, e.g. 1000).
+    #[arg(long, value_name = "OPS", default_value_t = 0, global = true)]
+    wgsl_coop_stage: usize,
 }
 
 impl WgslArgs {
@@ -87,6 +97,8 @@ impl WgslArgs {
             precision: Precision::parse(&self.precision).unwrap_or(Precision::F32),
             trig: Trig::parse(&self.wgsl_trig).unwrap_or(Trig::Accurate),
             workers: self.wgsl_workers,
+            stage: self.wgsl_stage,
+            coop_stage: self.wgsl_coop_stage,
             ..WgslOptions::default()
         }
     }

@@ -15,6 +15,8 @@ pub struct EntryInfo {
     pub states_per_workgroup: u32,
     pub workgroup_bytes: usize,
     pub phases: usize,
+    /// Dispatches in order: entry points `<entry>_stage<k>` when more than one.
+    pub stages: usize,
 }
 
 #[derive(Clone, Debug, PartialEq)]
@@ -68,6 +70,8 @@ impl ShaderInfo {
                     states_per_workgroup: num("states_per_workgroup")?.max(1) as u32,
                     workgroup_bytes: num("workgroup_bytes")?,
                     phases: num("phases")?,
+                    // Absent from shaders written before stages existed: one dispatch.
+                    stages: if field.contains_key("stages") { num("stages")?.max(1) } else { 1 },
                     entry,
                 });
             }

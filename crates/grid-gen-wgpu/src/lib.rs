@@ -58,15 +58,16 @@ pub struct Shader {
     pub info: ShaderInfo,
 }
 
-/// One entry point's compute pipeline.
+/// One entry point's compute pipelines: one per stage, dispatched in order.
 pub struct Kernel {
-    pipeline: wgpu::ComputePipeline,
+    pipelines: Vec<wgpu::ComputePipeline>,
     pub entry: EntryInfo,
     pub precision: Precision,
     pub nv: usize,
     /// Entries of q per state (nv + 1 with a floating base).
     pub nq: usize,
-    /// Time wgpu took to build the pipeline (the driver's compile).
+    /// Time wgpu took to build the pipelines (some drivers, lavapipe among them, compile
+    /// at the first dispatch instead).
     pub build_time: Duration,
 }
 
@@ -102,7 +103,14 @@ fn adapter_name(info: &wgpu::AdapterInfo) -> String {
 
 impl Gpu {
     pub fn new() -> Result<Gpu, GpuError> {
-        let instance = wgpu::Instance::new(wgpu::InstanceDescriptor::new_without_display_handle_from_env());
+        // Release-build flags in every build: wgpu's debug-build default adds DEBUG, with
+        // which naga writes a source location into the SPIR-V of every pipeline by
+        // counting lines from the top of the WGSL text for each statement, quadratic in the
+        // file (a test binary spent minutes per Atlas kernel there; measured 2026-11-24).
+        // WGPU_DEBUG=1 and WGPU_VALIDATION=1 still turn them on.
+        let mut desc = wgpu::InstanceDescriptor::new_without_display_handle();
+        desc.flags = wgpu::InstanceFlags::VALIDATION_INDIRECT_CALL;
+        let instance = wgpu::Instance::new(desc.with_env());
         let adapter = match std::env::var("WGPU_ADAPTER_NAME") {
             Ok(wanted) if !wanted.is_empty() => {
                 let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
@@ -189,19 +197,24 @@ impl Gpu {
             available: shader.info.entries.iter().map(|e| e.entry.as_str()).collect::<Vec<_>>().join(", "),
         })?;
         let start = Instant::now();
-        let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
-            label: Some(entry),
-            layout: Some(&self.pipeline_layout),
-            module: &shader.module,
-            entry_point: Some(entry),
-            compilation_options: Default::default(),
-            cache: None,
-        });
-        if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(GpuError::Pipeline { entry: entry.to_string(), reason: e.to_string() });
+        let mut pipelines = Vec::new();
+        for k in 0..info.stages {
+            let name = if info.stages == 1 { entry.to_string() } else { format!("{entry}_stage{k}") };
+            let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
+            let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
+                label: Some(&name),
+                layout: Some(&self.pipeline_layout),
+                module: &shader.module,
+                entry_point: Some(&name),
+                compilation_options: Default::default(),
+                cache: None,
+            });
+            if let Some(e) = pollster::block_on(scope.pop()) {
+                return Err(GpuError::Pipeline { entry: name, reason: e.to_string() });
+            }
+            pipelines.push(pipeline);
         }
-        Ok(Kernel { pipeline, entry: info.clone(), precision: shader.info.precision, nv: shader.info.nv, nq: shader.info.nq, build_time: start.elapsed() })
+        Ok(Kernel { pipelines, entry: info.clone(), precision: shader.info.precision, nv: shader.info.nv, nq: shader.info.nq, build_time: start.elapsed() })
     }
 
     /// States per dispatch: at most 65,535 workgroups, and every buffer within the
@@ -303,11 +316,15 @@ impl Gpu {
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
+            // wgpu orders dispatches that share a written buffer, so each stage sees the
+            // scratch values of the one before.
             let mut pass = encoder.begin_compute_pass(&Default::default());
-            pass.set_pipeline(&batch.kernel.pipeline);
-            for c in &batch.chunks {
-                pass.set_bind_group(0, &c.group, &[]);
-                pass.dispatch_workgroups(c.groups, 1, 1);
+            for pipeline in &batch.kernel.pipelines {
+                pass.set_pipeline(pipeline);
+                for c in &batch.chunks {
+                    pass.set_bind_group(0, &c.group, &[]);
+                    pass.dispatch_workgroups(c.groups, 1, 1);
+                }
             }
         }
         self.queue.submit([encoder.finish()]);

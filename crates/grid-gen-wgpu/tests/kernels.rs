@@ -13,11 +13,15 @@
 //! With `CI` set, a machine without a Vulkan adapter fails these tests (scripts/test.sh
 //! installs lavapipe); elsewhere they say so and check only the naga validation.
 //!
-//! The runs cover the double pendulum and iiwa in f32, the double pendulum and HyQ (a
-//! tree) in f64, and WGSL's built-in trig on the double pendulum; lavapipe takes
-//! 90 s to build UR5's `fd_grad` pipeline, so the other robots are validated by naga only,
-//! as are the cooperative `fd_grad` pipelines of iiwa and HyQ (see
-//! [`COOP_TOO_SLOW_ON_LAVAPIPE`]).
+//! The runs cover every bundled robot in f32 with one invocation per state (Atlas's
+//! `fd_grad` too: kernels run as dispatches of at most 1000 operations, which lavapipe
+//! compiles in linear time); the cooperative strategy on the double pendulum and iiwa in
+//! f32 and on HyQ in f64, and WGSL's built-in trig on the double pendulum. lavapipe
+//! compiles a pipeline at its first dispatch, about 0.5 ms per statement with one
+//! invocation per state but 2 to 3 ms with the cooperative strategy's per-invocation
+//! branches (measured 2026-11-24), so the other robots' cooperative kernels (about 160k
+//! statements without Atlas, 300k with) are validated by naga here and run on a GPU by
+//! `grid-gen bench` (README), as is HyQ's cooperative `fd_grad` ([`COOP_TOO_SLOW_ON_LAVAPIPE`]).
 
 use grid_gen::back::wgsl::{Precision, Strategy, Trig, WgslOptions};
 use grid_gen::generate::{generate, Options, Target};
@@ -30,10 +34,8 @@ const DIRECT: f64 = 1e-5;
 const THROUGH_MINV: f64 = 1e-4;
 const F64_TOL: f64 = 1e-12;
 
-/// Cooperative pipelines that lavapipe's LLVM takes minutes to build on 2 cores (one
-/// `switch` per phase over 64 invocations; iiwa's `rnea_grad_coop` already takes 13 s).
-/// They run here for the double pendulum only; on iiwa and HyQ they are validated by
-/// naga here and run on a GPU by `grid-gen bench` (README).
+/// Cooperative pipelines left out of the f64 run on HyQ: its `fd_grad_coop` (about 15k
+/// statements once loads are hoisted) would add about 40 s of lavapipe compile.
 const COOP_TOO_SLOW_ON_LAVAPIPE: &[KernelKind] = &[KernelKind::FdGrad];
 
 fn wgsl(model: &Model, wgsl: WgslOptions) -> String {
@@ -183,7 +185,10 @@ fn check_model(
 ) {
     let nv = model.nv();
     let f64 = options.precision == Precision::F64;
-    let source = wgsl(model, WgslOptions { strategies: strategies.to_vec(), ..options.clone() });
+    // Cooperative kernels in stages of 1000 operations: lavapipe compiles them in a third
+    // of the time (the default, one dispatch, computes the same: see
+    // `stages_compute_what_one_dispatch_computes`).
+    let source = wgsl(model, WgslOptions { strategies: strategies.to_vec(), coop_stage: 1000, ..options.clone() });
     let shader = gpu.load(&source).unwrap_or_else(|e| panic!("{robot}: {e}"));
     let lowered = grid_gen::ir::lower(model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
     let states = states(model, rng);
@@ -235,7 +240,7 @@ fn kernels_run_through_wgpu_and_match_the_reference() {
     let Some((_serial, gpu)) = gpu() else { return };
     let mut rng = Rng(41);
     check_robot(&gpu, "double_pendulum_continuous", WgslOptions::default(), &Strategy::ALL, &[], &mut rng);
-    check_robot(&gpu, "grid_iiwa", WgslOptions::default(), &Strategy::ALL, COOP_TOO_SLOW_ON_LAVAPIPE, &mut rng);
+    check_robot(&gpu, "grid_iiwa", WgslOptions::default(), &Strategy::ALL, &[], &mut rng);
     // WGSL's built-in sin/cos instead of the accurate ones.
     check_robot(&gpu, "double_pendulum_continuous", WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() }, &Strategy::ALL, &[], &mut rng);
 }
@@ -244,11 +249,88 @@ fn kernels_run_through_wgpu_and_match_the_reference() {
 fn f64_kernels_match_the_reference_to_1e_12() {
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(43);
-    // HyQ (the tree) runs in f64 only: in f32 on lavapipe its dispatches take seconds to
-    // minutes (measured 2026-11-23, serialised: `rnea` 1.0 s, `rnea_coop` 48.5 s for 37
-    // states, against 5 ms and 28 ms in f64); cause not traced. It ran in f32 on the H100.
+    // HyQ (the tree) in f64 here and in f32 below. (Its f32 dispatches once seemed
+    // 200 times slower than f64 ones on lavapipe; lavapipe compiles at the first dispatch
+    // and keeps compiled shaders in Mesa's disk cache, and the f64 ones were cached.)
     for robot in ["double_pendulum_continuous", "grid_hyq"] {
         check_robot(&gpu, robot, WgslOptions { precision: Precision::F64, ..WgslOptions::default() }, &Strategy::ALL, COOP_TOO_SLOW_ON_LAVAPIPE, &mut rng);
+    }
+}
+
+/// Every bundled robot, every kernel, one invocation per state, f32 (the runs above
+/// cover the double pendulum and iiwa in both strategies): Atlas's `fd_grad`, 85k
+/// statements in 66 dispatches, included (about 90 s of lavapipe compile).
+#[test]
+fn every_bundled_robot_runs_with_one_invocation_per_state() {
+    let Some((_serial, gpu)) = gpu() else { return };
+    let mut rng = Rng(71);
+    for robot in robots().iter().filter(|r| !["double_pendulum_continuous", "grid_iiwa"].contains(&r.as_str())) {
+        check_robot(&gpu, robot, WgslOptions::default(), &[Strategy::Thread], &[], &mut rng);
+    }
+}
+
+/// A kernel split into dispatches (stages) computes what it computes in one dispatch:
+/// the same operations in the same order, values crossing stages through the scratch
+/// buffer; both strategies, stages small enough that values cross several of them (and,
+/// cooperative, that workgroup slots move to scratch). Not bit for bit: SPIR-V from naga
+/// lets the driver fuse `a * b + c` into one FMA, which it cannot do across a value that
+/// went through memory, so where the stage (and helper) boundaries fall changes some
+/// roundings (measured on lavapipe: thread `rnea_grad` in 12 stages differs in the last
+/// bits). So each state's outputs agree within the f32 bounds above, relative to the
+/// state's largest output; cooperative ones bit for bit.
+#[test]
+fn stages_compute_what_one_dispatch_computes() {
+    let Some((_serial, gpu)) = gpu() else { return };
+    // The double pendulum in stages of 25 operations: many stages for little lavapipe
+    // time (iiwa's cooperative `rnea_grad` as one dispatch took minutes to compile).
+    let model = load("double_pendulum_continuous");
+    let nv = model.nv();
+    let mut rng = Rng(73);
+    let states = states(&model, &mut rng);
+    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let (q, qd, u) = (flat(0), flat(1), flat(2));
+    for strategy in Strategy::ALL {
+        for kind in [KernelKind::RneaGrad, KernelKind::FdGrad] {
+            let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
+            let module = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+            let run = |stage: usize| {
+                let options = WgslOptions { stage, coop_stage: stage, strategies: vec![strategy], ..WgslOptions::default() };
+                let (file, stats) = grid_gen::back::wgsl::emit_with_stats(&module, &options).unwrap();
+                let shader = gpu.load(&file.contents).unwrap();
+                let kernel = gpu.kernel(&shader, &strategy.entry(kind.name())).unwrap();
+                (stats[0].clone(), gpu.run(&kernel, &q, &qd, &u).unwrap())
+            };
+            let (one, whole) = run(0);
+            let (split, staged) = run(25);
+            assert_eq!(one.stages, 1);
+            assert!(split.stages >= 4, "{kind:?} {strategy:?}: {} stages", split.stages);
+            if strategy == Strategy::Cooperative {
+                assert!(split.scratch > one.scratch && split.workgroup_bytes < one.workgroup_bytes, "{kind:?}: slots crossing stages leave workgroup memory");
+            }
+            assert_eq!(whole.len(), states.len() * one.outputs);
+            assert!(whole.iter().all(|x| x.is_finite()), "{kind:?} {strategy:?}");
+            // Cooperative stages end at phase boundaries, where values already go through
+            // memory: the same bits.
+            let tol = match (strategy, kind) {
+                (Strategy::Cooperative, _) => 0.0,
+                (_, KernelKind::FdGrad) => THROUGH_MINV,
+                _ => DIRECT,
+            };
+            let mut worst = 0.0f64;
+            for (a, b) in whole.chunks(one.outputs).zip(staged.chunks(one.outputs)) {
+                let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
+                let diff = a.iter().zip(b).fold(0.0f64, |m, (x, y)| m.max((x - y).abs()));
+                worst = worst.max(diff / scale);
+            }
+            assert!(worst <= tol, "{kind:?} {strategy:?}: {} stages differ from one dispatch by {worst:.2e} > {tol:e}", split.stages);
+            eprintln!(
+                "double pendulum {} {}: {} stages against 1 dispatch: {worst:.2e} relative ({} states, nv {nv})",
+                kind.name(),
+                strategy.name(),
+                split.stages,
+                states.len()
+            );
+        }
     }
 }
 

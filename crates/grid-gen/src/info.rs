@@ -289,12 +289,12 @@ impl Info {
             s.push_str(&format!("verilog netlists not planned: {why}\n"));
         }
         if !self.wgsl.is_empty() {
-            s.push_str("wgsl entry points (default options, f32; statements, functions, workgroup size, workgroup bytes, phases):\n");
+            s.push_str("wgsl entry points (default options, f32; statements, functions, workgroup size, workgroup bytes, phases, dispatches):\n");
         }
         for e in &self.wgsl {
             s.push_str(&format!(
-                "  {:<20} {:>7} stmts {:>4} fns  workgroup {:>3}  {:>6} bytes  {:>4} phases\n",
-                e.entry, e.statements, e.functions, e.workgroup_size, e.workgroup_bytes, e.phases
+                "  {:<20} {:>7} stmts {:>4} fns  workgroup {:>3}  {:>6} bytes  {:>4} phases  {:>2} dispatches\n",
+                e.entry, e.statements, e.functions, e.workgroup_size, e.workgroup_bytes, e.phases, e.stages
             ));
         }
         if let Some(why) = &self.wgsl_skipped {

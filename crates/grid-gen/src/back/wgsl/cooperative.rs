@@ -5,11 +5,13 @@
 //! ([`WORKGROUP_STORAGE_LIMIT`]; naga and wgpu do not check it), and in the storage
 //! scratch buffer past that (with a `storageBarrier` between phases). Each phase's
 //! worker lists are grouped into helper functions of at most `chunk` operations (naga's
-//! parser is quadratic in one function's size).
+//! parser is quadratic in one function's size). A kernel over [`WgslOptions::coop_stage`]
+//! operations runs as several dispatches (stages) of consecutive phases; a slot whose
+//! value crosses a stage lives in the scratch buffer.
 
 use std::fmt::Write;
 
-use super::{expression, leaf, output_stores, EntryStats, Strategy, WgslOptions, WORKGROUP_STORAGE_LIMIT};
+use super::{block, output_stores, EntryStats, Strategy, WgslOptions, WORKGROUP_STORAGE_LIMIT};
 use crate::back::BackError;
 use crate::ir::schedule::Phases;
 use crate::ir::{Function, Id};
@@ -18,37 +20,22 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
     let p = Phases::new(f, options.workers as usize, usize::MAX).map_err(|e| BackError::WgslOption(e.to_string()))?;
     let name = Strategy::Cooperative.entry(f.kind.name());
     let budget = WORKGROUP_STORAGE_LIMIT / options.precision.bytes();
-    let in_workgroup = p.slots.min(budget);
-    let spilled = p.slots - in_workgroup;
+    let stages = group_phases(&p, options.coop_stage);
+    let (home, in_workgroup, spilled) = slot_homes(f, &p, &stages, budget);
     let wg = format!("{name}_wg");
     let (stores, inline, outputs) = output_stores(f, nv);
     let slot_ref = |slot: u32| -> String {
-        let slot = slot as usize;
-        if slot < budget {
-            format!("{wg}[{slot}u]")
-        } else {
-            format!("scratch[{}u * n + s]", slot - budget)
+        match home[slot as usize] {
+            Home::Workgroup(k) => format!("{wg}[{k}u]"),
+            Home::Scratch(k) => format!("scratch[{k}u * n + s]"),
         }
-    };
-    let operand = |phase: u32, worker: u32, id: Id| -> Result<String, BackError> {
-        Ok(match leaf(f, id, options.precision, robot)? {
-            Some(s) => s,
-            None => {
-                let at = p.place[id.0 as usize].expect("every operation is placed");
-                if at.phase == phase && at.worker == worker {
-                    format!("t{}", id.0)
-                } else {
-                    slot_ref(p.slot[id.0 as usize].expect("values read in a later phase have a slot"))
-                }
-            }
-        })
     };
     let _ = writeln!(out, "// {} One workgroup of {} invocations per state, {} phases.", f.kind.doc(), options.workers, p.phases.len());
     if in_workgroup > 0 {
         let _ = writeln!(out, "var<workgroup> {wg}: array<real, {in_workgroup}>;");
     }
     let mut statements = 0;
-    let mut functions = 1;
+    let mut functions = stages.len();
     // calls[phase]: the helper functions of that phase.
     let mut calls: Vec<Vec<String>> = Vec::new();
     for (pi, lists) in p.phases.iter().enumerate() {
@@ -74,25 +61,10 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
             let _ = writeln!(out, "fn {fname}(w: u32, s: u32, n: u32) {{\n    switch w {{");
             for &w in workers {
                 let _ = writeln!(out, "        case {w}u: {{");
-                if pi == 0 && w == 0 {
-                    for (k, id) in &inline {
-                        let _ = writeln!(out, "            out[{k}u * n + s] = {};", operand(0, 0, *id)?);
-                        statements += 1;
-                    }
-                }
-                for &id in &lists[w] {
-                    let e = expression(f, id, options.trig, |x| operand(pi as u32, w as u32, x))?;
-                    let _ = writeln!(out, "            let t{} = {e};", id.0);
-                    statements += 1;
-                    if let Some(slot) = p.slot[id.0 as usize] {
-                        let _ = writeln!(out, "            {} = t{};", slot_ref(slot), id.0);
-                        statements += 1;
-                    }
-                    for k in &stores[id.0 as usize] {
-                        let _ = writeln!(out, "            out[{k}u * n + s] = t{};", id.0);
-                        statements += 1;
-                    }
-                }
+                let here = |id: Id| p.place[id.0 as usize].is_some_and(|at| at.phase == pi as u32 && at.worker == w as u32);
+                let slot = |id: Id| p.slot[id.0 as usize].map(slot_ref);
+                let inline = if pi == 0 && w == 0 { &inline[..] } else { &[] };
+                statements += block(out, f, options, robot, "            ", &lists[w], inline, here, slot, &stores)?;
                 let _ = writeln!(out, "        }}");
             }
             let _ = writeln!(out, "        default: {{}}\n    }}\n}}\n");
@@ -101,21 +73,24 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
         }
         calls.push(names);
     }
-    let _ = writeln!(out, "@compute @workgroup_size({})", options.workers);
-    let _ = writeln!(out, "fn {name}(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {{");
-    // s and n are workgroup-uniform, so the early return keeps the barriers in uniform
-    // control flow.
-    let _ = writeln!(out, "    let n = params.n;\n    let s = wid.x;\n    if (s >= n) {{\n        return;\n    }}");
     let barrier = if spilled > 0 { "    workgroupBarrier();\n    storageBarrier();" } else { "    workgroupBarrier();" };
-    for (pi, names) in calls.iter().enumerate() {
-        if pi > 0 {
-            let _ = writeln!(out, "{barrier}");
+    for (k, phases) in stages.iter().enumerate() {
+        let entry = if stages.len() == 1 { name.clone() } else { format!("{name}_stage{k}") };
+        let _ = writeln!(out, "@compute @workgroup_size({})", options.workers);
+        let _ = writeln!(out, "fn {entry}(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {{");
+        // s and n are workgroup-uniform, so the early return keeps the barriers in uniform
+        // control flow.
+        let _ = writeln!(out, "    let n = params.n;\n    let s = wid.x;\n    if (s >= n) {{\n        return;\n    }}");
+        for pi in phases.clone() {
+            if pi > phases.start {
+                let _ = writeln!(out, "{barrier}");
+            }
+            for fname in &calls[pi] {
+                let _ = writeln!(out, "    {fname}(w, s, n);");
+            }
         }
-        for fname in names {
-            let _ = writeln!(out, "    {fname}(w, s, n);");
-        }
+        let _ = writeln!(out, "}}\n");
     }
-    let _ = writeln!(out, "}}\n");
     Ok(EntryStats {
         entry: name,
         kernel: f.kind.name(),
@@ -126,7 +101,72 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
         states_per_workgroup: 1,
         workgroup_bytes: in_workgroup * options.precision.bytes(),
         phases: p.phases.len(),
+        stages: stages.len(),
         statements,
         functions,
     })
+}
+
+/// Consecutive phases grouped into stages of at most `stage` operations (at least one
+/// phase each; 0: one stage), as ranges of phase indices.
+fn group_phases(p: &Phases, stage: usize) -> Vec<std::ops::Range<usize>> {
+    let mut stages = vec![0..0];
+    let mut size = 0;
+    for (pi, lists) in p.phases.iter().enumerate() {
+        let ops: usize = lists.iter().map(Vec::len).sum();
+        let last = stages.len() - 1;
+        if stage > 0 && size > 0 && size + ops > stage {
+            stages.push(pi..pi + 1);
+            size = 0;
+        } else {
+            stages[last].end = pi + 1;
+        }
+        size += ops;
+    }
+    stages
+}
+
+/// Where a shared slot lives.
+#[derive(Clone, Copy)]
+enum Home {
+    Workgroup(usize),
+    Scratch(usize),
+}
+
+/// Each slot's home: workgroup memory, lowest slots first, up to `budget` words, unless
+/// a value in it is read in a later stage than the one that writes it (workgroup memory
+/// does not outlive a dispatch); the rest in the scratch buffer. Returns the homes and
+/// the words of each kind.
+fn slot_homes(f: &Function, p: &Phases, stages: &[std::ops::Range<usize>], budget: usize) -> (Vec<Home>, usize, usize) {
+    let mut stage_of_phase = vec![0; p.phases.len()];
+    for (k, r) in stages.iter().enumerate() {
+        for pi in r.clone() {
+            stage_of_phase[pi] = k;
+        }
+    }
+    let mut crosses = vec![false; p.slots];
+    for (i, node) in f.nodes.iter().enumerate() {
+        let Some(at) = p.place[i] else { continue };
+        for o in node.op.operands() {
+            if let (Some(from), Some(slot)) = (p.place[o.0 as usize], p.slot[o.0 as usize]) {
+                if stage_of_phase[from.phase as usize] != stage_of_phase[at.phase as usize] {
+                    crosses[slot as usize] = true;
+                }
+            }
+        }
+    }
+    let (mut workgroup, mut scratch) = (0, 0);
+    let homes = crosses
+        .iter()
+        .map(|&crossing| {
+            if !crossing && workgroup < budget {
+                workgroup += 1;
+                Home::Workgroup(workgroup - 1)
+            } else {
+                scratch += 1;
+                Home::Scratch(scratch - 1)
+            }
+        })
+        .collect();
+    (homes, workgroup, scratch)
 }

@@ -111,11 +111,31 @@ pub const WORKGROUP_STORAGE_LIMIT: usize = 16384;
 /// WebGPU's default `maxComputeInvocationsPerWorkgroup`.
 pub const MAX_INVOCATIONS: u32 = 256;
 
+/// Default most operations per dispatch ([`WgslOptions::stage`]).
+/// lavapipe compiled UR5's thread `fd_grad` (5.8k statements) in 6.5 s as one dispatch,
+/// 5.2 s in stages of 4000 operations, 3.5 s of 2000, 2.6 s of 1000 and 3.5 s of 500
+/// (the helpers shrink with the stage, and the dispatches multiply); measured 2026-11-24,
+/// Mesa 22.3 on 2 cores, shader cache off. On a GPU each extra dispatch costs a few µs
+/// of launch: `--wgsl-stage 0` keeps every kernel in one.
+pub const DEFAULT_STAGE: usize = 1000;
+
 /// Options of the WGSL backend.
 #[derive(Clone, Debug)]
 pub struct WgslOptions {
     /// Most operations in one WGSL function (naga's parser is quadratic in one function).
     pub chunk: usize,
+    /// Thread strategy: most operations in one dispatch. A kernel over it becomes several
+    /// entry points (stages) run in order on one bind group, values crossing them in the
+    /// scratch buffer, because drivers compile a pipeline as one function after inlining
+    /// and lavapipe's compiler is superlinear in its size (see `stages` in
+    /// [`LAYOUT_DOC`]). 0: every kernel in one dispatch.
+    pub stage: usize,
+    /// Cooperative strategy: the same, by whole phases. 0 by default: a value crossing a
+    /// stage must leave workgroup memory for the scratch buffer and every stage is one more
+    /// launch, which is what this strategy exists to avoid on a GPU; lavapipe compiles its
+    /// large kernels faster split (UR5's `rnea_grad_coop`: 69 s whole, 24 s in stages of
+    /// 1000; measured 2026-11-24).
+    pub coop_stage: usize,
     /// Thread strategy: invocations (= states) per workgroup.
     pub workgroup_size: u32,
     /// Cooperative strategy: invocations sharing one state.
@@ -127,7 +147,16 @@ pub struct WgslOptions {
 
 impl Default for WgslOptions {
     fn default() -> Self {
-        WgslOptions { chunk: 1000, workgroup_size: 64, workers: 64, strategies: Strategy::ALL.to_vec(), precision: Precision::F32, trig: Trig::Accurate }
+        WgslOptions {
+            chunk: 1000,
+            stage: DEFAULT_STAGE,
+            coop_stage: 0,
+            workgroup_size: 64,
+            workers: 64,
+            strategies: Strategy::ALL.to_vec(),
+            precision: Precision::F32,
+            trig: Trig::Accurate,
+        }
     }
 }
 
@@ -147,6 +176,8 @@ pub struct EntryStats {
     pub workgroup_bytes: usize,
     /// Barrier-separated phases (cooperative) or 1.
     pub phases: usize,
+    /// Dispatches, one entry point each (`<entry>_stage<k>` when more than one).
+    pub stages: usize,
     /// `let`s and stores.
     pub statements: usize,
     pub functions: usize,
@@ -156,7 +187,7 @@ impl EntryStats {
     /// The machine-readable header line the runtime parses.
     fn header_line(&self) -> String {
         format!(
-            "// entry: {} kernel={} strategy={} outputs={} scratch={} workgroup_size={} states_per_workgroup={} workgroup_bytes={} phases={} statements={} functions={}",
+            "// entry: {} kernel={} strategy={} outputs={} scratch={} workgroup_size={} states_per_workgroup={} workgroup_bytes={} phases={} stages={} statements={} functions={}",
             self.entry,
             self.kernel,
             self.strategy.name(),
@@ -166,6 +197,7 @@ impl EntryStats {
             self.states_per_workgroup,
             self.workgroup_bytes,
             self.phases,
+            self.stages,
             self.statements,
             self.functions
         )
@@ -186,7 +218,9 @@ Every entry point shares one bind group (group 0), so one pipeline layout serves
 Structure-of-arrays, so neighbouring invocations touch neighbouring words. `real` is the
 precision below. Thread entry points (`<kernel>`): dispatch ceil(N / workgroup_size)
 workgroups in x. Cooperative entry points (`<kernel>_coop`): dispatch N workgroups in x,
-one state each. At most 65535 workgroups per dispatch: split larger batches into
+one state each. An entry with stages=K > 1 is K entry points `<entry>_stage0` .. `_stage<K-1>`,
+dispatched in that order on the same bind group and workgroup count (values cross stages in
+scratch); K = 1 is the entry point `<entry>` itself. At most 65535 workgroups per dispatch: split larger batches into
 dispatches of their own buffers. A state past N does nothing. Every output value is
 written, structural zeros included.";
 
@@ -239,6 +273,74 @@ fn leaf(f: &Function, id: Id, precision: Precision, robot: &str) -> Result<Optio
         Op::Input(which, j) => Some(format!("{}[{j}u * n + s]", input_buffer(which))),
         _ => None,
     })
+}
+
+/// One straight-line block of operations (a thread helper, or one worker's list in a
+/// cooperative phase), printed loads first and stores last, so no load follows a store:
+/// a driver's compiler then never has to prove a load independent of the stores before
+/// it. With them interleaved, lavapipe's LLVM took seconds per thousand operations
+/// (UR5's thread `rnea_grad`, 210 scratch stores among 655 loads: 4.0 s to compile, then
+/// 1.3 s in this order; `fd_grad` 9.3 s, then 2.6 s; measured 2026-11-24). The order is
+/// free because a block never reads a slot it writes (the schedules' slot rule).
+/// `local(id)`: the value is computed in this block; `slot(id)`: the memory that holds a
+/// value read by a later block; `outputs`: output stores of each node; `inline`: output
+/// values that are inputs or constants, written by this block. Returns the statements.
+#[allow(clippy::too_many_arguments)]
+fn block(
+    out: &mut String,
+    f: &Function,
+    options: &WgslOptions,
+    robot: &str,
+    indent: &str,
+    ids: &[Id],
+    inline: &[(usize, Id)],
+    local: impl Fn(Id) -> bool,
+    slot: impl Fn(Id) -> Option<String>,
+    outputs: &[Vec<usize>],
+) -> Result<usize, BackError> {
+    let operand = |id: Id| -> Result<String, BackError> {
+        Ok(match f.op(id) {
+            Op::Const(_) => leaf(f, id, options.precision, robot)?.unwrap_or_default(),
+            _ => format!("t{}", id.0),
+        })
+    };
+    let mut statements = 0;
+    let mut loaded = std::collections::BTreeSet::new();
+    let reads = ids.iter().flat_map(|&id| f.op(id).operands()).chain(inline.iter().map(|&(_, id)| id));
+    for x in reads {
+        let load = match f.op(x) {
+            Op::Const(_) => None,
+            Op::Input(..) => leaf(f, x, options.precision, robot)?,
+            _ if local(x) => None,
+            _ => Some(slot(x).expect("values read by a later block have a slot")),
+        };
+        if let Some(load) = load {
+            if loaded.insert(x.0) {
+                let _ = writeln!(out, "{indent}let t{} = {load};", x.0);
+                statements += 1;
+            }
+        }
+    }
+    let mut tail = Vec::new();
+    for (k, id) in inline {
+        tail.push(format!("{indent}out[{k}u * n + s] = {};", operand(*id)?));
+    }
+    for &id in ids {
+        let e = expression(f, id, options.trig, operand)?;
+        let _ = writeln!(out, "{indent}let t{} = {e};", id.0);
+        statements += 1;
+        if let Some(place) = slot(id) {
+            tail.push(format!("{indent}{place} = t{};", id.0));
+        }
+        for k in &outputs[id.0 as usize] {
+            tail.push(format!("{indent}out[{k}u * n + s] = t{};", id.0));
+        }
+    }
+    statements += tail.len();
+    for line in tail {
+        let _ = writeln!(out, "{line}");
+    }
+    Ok(statements)
 }
 
 /// Output index of every operation's value (stores follow the node), and the outputs that

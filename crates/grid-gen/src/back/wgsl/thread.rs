@@ -4,58 +4,43 @@
 //! the expressions of one function: 10k `let`s parse in about 1 s, the same as ten
 //! functions of 1k in 0.16 s (measured, see DESIGN.md). Values that cross helpers go
 //! through the per-state scratch storage buffer rather than a large per-invocation array,
-//! which lavapipe compiles very slowly.
+//! which lavapipe compiles very slowly. The same scratch lets a kernel over
+//! [`WgslOptions::stage`] operations run as several dispatches (stages) of consecutive
+//! helpers, so a driver never compiles more than that in one pipeline.
 
 use std::fmt::Write;
 
-use super::{expression, leaf, output_stores, EntryStats, Strategy, WgslOptions};
+use super::{block, output_stores, EntryStats, Strategy, WgslOptions};
 use crate::back::BackError;
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id};
 
 pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOptions, robot: &str) -> Result<EntryStats, BackError> {
-    let c = Chunks::new(f, options.chunk);
+    // A helper never spans two stages, so stages smaller than `chunk` shrink the helpers.
+    let c = Chunks::new(f, if options.stage > 0 { options.chunk.min(options.stage) } else { options.chunk });
     let name = Strategy::Thread.entry(f.kind.name());
     let (stores, inline, outputs) = output_stores(f, nv);
-    let operand = |here: u32, id: Id| -> Result<String, BackError> {
-        Ok(match leaf(f, id, options.precision, robot)? {
-            Some(s) => s,
-            None if c.chunk_of[id.0 as usize] == Some(here) => format!("t{}", id.0),
-            None => format!("scratch[{}u * n + s]", c.slot[id.0 as usize].expect("values read by a later chunk have a slot")),
-        })
-    };
     let mut statements = 0;
     let _ = writeln!(out, "// {} One invocation per state.", f.kind.doc());
     for (ci, ids) in c.chunks.iter().enumerate() {
         let _ = writeln!(out, "fn {name}_part{ci}(s: u32, n: u32) {{");
-        if ci == 0 {
-            for (k, id) in &inline {
-                let _ = writeln!(out, "    out[{k}u * n + s] = {};", operand(0, *id)?);
-                statements += 1;
-            }
-        }
-        for &id in ids {
-            let e = expression(f, id, options.trig, |x| operand(ci as u32, x))?;
-            let _ = writeln!(out, "    let t{} = {e};", id.0);
-            statements += 1;
-            if let Some(slot) = c.slot[id.0 as usize] {
-                let _ = writeln!(out, "    scratch[{slot}u * n + s] = t{};", id.0);
-                statements += 1;
-            }
-            for k in &stores[id.0 as usize] {
-                let _ = writeln!(out, "    out[{k}u * n + s] = t{};", id.0);
-                statements += 1;
-            }
+        let here = |id: Id| c.chunk_of[id.0 as usize] == Some(ci as u32);
+        let slot = |id: Id| c.slot[id.0 as usize].map(|k| format!("scratch[{k}u * n + s]"));
+        let inline = if ci == 0 { &inline[..] } else { &[] };
+        statements += block(out, f, options, robot, "    ", ids, inline, here, slot, &stores)?;
+        let _ = writeln!(out, "}}\n");
+    }
+    let stages = group_chunks(&c.chunks, options.stage);
+    for (k, parts) in stages.iter().enumerate() {
+        let entry = if stages.len() == 1 { name.clone() } else { format!("{name}_stage{k}") };
+        let _ = writeln!(out, "@compute @workgroup_size({})", options.workgroup_size);
+        let _ = writeln!(out, "fn {entry}(@builtin(global_invocation_id) gid: vec3<u32>) {{");
+        let _ = writeln!(out, "    let n = params.n;\n    let s = gid.x;\n    if (s >= n) {{\n        return;\n    }}");
+        for ci in parts.clone() {
+            let _ = writeln!(out, "    {name}_part{ci}(s, n);");
         }
         let _ = writeln!(out, "}}\n");
     }
-    let _ = writeln!(out, "@compute @workgroup_size({})", options.workgroup_size);
-    let _ = writeln!(out, "fn {name}(@builtin(global_invocation_id) gid: vec3<u32>) {{");
-    let _ = writeln!(out, "    let n = params.n;\n    let s = gid.x;\n    if (s >= n) {{\n        return;\n    }}");
-    for ci in 0..c.chunks.len() {
-        let _ = writeln!(out, "    {name}_part{ci}(s, n);");
-    }
-    let _ = writeln!(out, "}}\n");
     Ok(EntryStats {
         entry: name,
         kernel: f.kind.name(),
@@ -66,7 +51,26 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
         states_per_workgroup: options.workgroup_size,
         workgroup_bytes: 0,
         phases: 1,
+        stages: stages.len(),
         statements,
-        functions: c.chunks.len() + 1,
+        functions: c.chunks.len() + stages.len(),
     })
+}
+
+/// Consecutive chunks grouped into stages of at most `stage` operations (at least one
+/// chunk each; 0: one stage), as ranges of chunk indices.
+fn group_chunks(chunks: &[Vec<Id>], stage: usize) -> Vec<std::ops::Range<usize>> {
+    let mut stages = vec![0..0];
+    let mut size = 0;
+    for (ci, chunk) in chunks.iter().enumerate() {
+        let last = stages.len() - 1;
+        if stage > 0 && size > 0 && size + chunk.len() > stage {
+            stages.push(ci..ci + 1);
+            size = 0;
+        } else {
+            stages[last].end = ci + 1;
+        }
+        size += chunk.len();
+    }
+    stages
 }
