@@ -754,8 +754,8 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
     );
     let _ = writeln!(
         report,
-        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16}",
-        "kernel", "strategy", "N", "disp", "us/batch", "us/state", "states/s", "round-trip us"
+        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14}",
+        "kernel", "strategy", "N", "disp", "us/batch", "us/state", "states/s", "round-trip us", "device us"
     );
     let nv = module.robot.nv();
     let mut rng = 0x9E37_79B9_7F4A_7C15u64;
@@ -784,7 +784,7 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
                         let us = t.dispatch.as_secs_f64() * 1e6;
                         let _ = writeln!(
                             report,
-                            "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1}",
+                            "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1} {:>14}",
                             f.kind.name(),
                             strategy.name(),
                             n,
@@ -792,7 +792,8 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
                             us,
                             us / n.max(1) as f64,
                             n as f64 / t.dispatch.as_secs_f64(),
-                            t.round_trip.as_secs_f64() * 1e6
+                            t.round_trip.as_secs_f64() * 1e6,
+                            t.device.map_or("-".to_string(), |d| format!("{:.1}", d.as_secs_f64() * 1e6))
                         );
                     }
                     Err(e) => return fail(e),

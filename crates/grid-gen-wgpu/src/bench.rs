@@ -1,7 +1,8 @@
 //! Timing of one kernel on a batch, for `grid-gen bench`: the median over repetitions of
 //! the dispatch alone (inputs already on the device, waiting for completion) and of the
 //! whole round trip (upload, dispatch, read back), so both throughput and the latency a
-//! host sees are reported.
+//! host sees are reported; and, where the adapter has timestamp queries, the device's own
+//! time for the compute pass, which a one-state latency is about.
 
 use std::time::{Duration, Instant};
 
@@ -10,8 +11,12 @@ use crate::{Gpu, GpuError, Kernel};
 #[derive(Clone, Copy, Debug)]
 pub struct Timing {
     pub states: usize,
-    /// Median time of one dispatch of the whole batch.
+    /// Median time of one dispatch of the whole batch, submission to completion as the
+    /// host sees it.
     pub dispatch: Duration,
+    /// Median time the device spent in the compute pass by its own clock (timestamp
+    /// queries), where the adapter has them.
+    pub device: Option<Duration>,
     /// Median time of upload + dispatch + read back.
     pub round_trip: Duration,
     pub repetitions: usize,
@@ -39,6 +44,15 @@ pub fn time(gpu: &Gpu, kernel: &Kernel, q: &[f64], qd: &[f64], u: &[f64], budget
     let batch = gpu.upload(kernel, q, qd, u)?;
     gpu.dispatch(&batch)?;
     let (dispatch, repetitions) = median(5, budget, || gpu.dispatch(&batch))?;
+    let mut device = Vec::new();
+    for _ in 0..repetitions.min(100) {
+        match gpu.dispatch_timed(&batch)? {
+            Some(t) => device.push(t),
+            None => break,
+        }
+    }
+    device.sort();
+    let device = device.get(device.len() / 2).copied();
     let (round_trip, _) = median(5, budget, || gpu.run(kernel, q, qd, u).map(|_| ()))?;
-    Ok(Timing { states: batch.len(), dispatch, round_trip, repetitions, dispatches: batch.dispatches() })
+    Ok(Timing { states: batch.len(), dispatch, device, round_trip, repetitions, dispatches: batch.dispatches() })
 }

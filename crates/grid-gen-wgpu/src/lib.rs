@@ -50,6 +50,8 @@ pub struct Gpu {
     adapter: wgpu::AdapterInfo,
     limits: wgpu::Limits,
     f64: bool,
+    /// The adapter has TIMESTAMP_QUERY: [`Gpu::dispatch_timed`] reads the device's clock.
+    timestamps: bool,
 }
 
 /// A loaded shader: the module and what its header says.
@@ -138,7 +140,11 @@ impl Gpu {
             max_buffer_size: best.max_buffer_size,
             ..wgpu::Limits::default()
         };
-        let features = if f64 { wgpu::Features::SHADER_F64 } else { wgpu::Features::empty() };
+        let timestamps = adapter.features().contains(wgpu::Features::TIMESTAMP_QUERY);
+        let mut features = if f64 { wgpu::Features::SHADER_F64 } else { wgpu::Features::empty() };
+        if timestamps {
+            features |= wgpu::Features::TIMESTAMP_QUERY;
+        }
         let (device, queue) = pollster::block_on(adapter.request_device(&wgpu::DeviceDescriptor {
             label: Some("grid-gen"),
             required_features: features,
@@ -163,7 +169,7 @@ impl Gpu {
         });
         let pipeline_layout =
             device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("grid-gen"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
-        Ok(Gpu { device, queue, layout, pipeline_layout, adapter: info, limits, f64 })
+        Ok(Gpu { device, queue, layout, pipeline_layout, adapter: info, limits, f64, timestamps })
     }
 
     /// The adapter's name, backend and driver.
@@ -310,15 +316,51 @@ impl Gpu {
 
     /// Runs the uploaded batch and waits for it to finish.
     pub fn dispatch(&self, batch: &Batch) -> Result<(), GpuError> {
+        self.dispatch_with(batch, None)
+    }
+
+    /// [`Gpu::dispatch`], and the time the device spent in the compute pass by its own
+    /// clock (timestamps written at the start and end of the pass), which leaves out the
+    /// host's submission and wait; `None` where the adapter has no TIMESTAMP_QUERY.
+    pub fn dispatch_timed(&self, batch: &Batch) -> Result<Option<Duration>, GpuError> {
+        if !self.timestamps || batch.chunks.is_empty() {
+            self.dispatch(batch)?;
+            return Ok(None);
+        }
+        let d = &self.device;
+        let set = d.create_query_set(&wgpu::QuerySetDescriptor { label: None, ty: wgpu::QueryType::Timestamp, count: 2 });
+        let buffer = |usage| d.create_buffer(&wgpu::BufferDescriptor { label: None, size: 16, usage, mapped_at_creation: false });
+        let resolve = buffer(wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC);
+        let read = buffer(wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
+        self.dispatch_with(batch, Some((&set, &resolve, &read)))?;
+        read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
+        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Dispatch(e.to_string()))?;
+        let ticks = {
+            let view = read.slice(..).get_mapped_range().map_err(|e| GpuError::Dispatch(e.to_string()))?;
+            let word = |k: usize| u64::from_le_bytes(view[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]));
+            word(1).saturating_sub(word(0))
+        };
+        read.unmap();
+        Ok(Some(Duration::from_nanos((ticks as f64 * self.queue.get_timestamp_period() as f64) as u64)))
+    }
+
+    /// Encodes every stage over every chunk in one compute pass, with timestamps at its
+    /// ends resolved into the given buffers when asked, submits and waits.
+    fn dispatch_with(&self, batch: &Batch, timestamps: Option<(&wgpu::QuerySet, &wgpu::Buffer, &wgpu::Buffer)>) -> Result<(), GpuError> {
         if batch.chunks.is_empty() {
             return Ok(());
         }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let mut encoder = self.device.create_command_encoder(&Default::default());
         {
+            let timestamp_writes = timestamps.map(|(set, _, _)| wgpu::ComputePassTimestampWrites {
+                query_set: set,
+                beginning_of_pass_write_index: Some(0),
+                end_of_pass_write_index: Some(1),
+            });
             // wgpu orders dispatches that share a written buffer, so each stage sees the
             // scratch values of the one before.
-            let mut pass = encoder.begin_compute_pass(&Default::default());
+            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
             for pipeline in &batch.kernel.pipelines {
                 pass.set_pipeline(pipeline);
                 for c in &batch.chunks {
@@ -326,6 +368,10 @@ impl Gpu {
                     pass.dispatch_workgroups(c.groups, 1, 1);
                 }
             }
+        }
+        if let Some((set, resolve, read)) = timestamps {
+            encoder.resolve_query_set(set, 0..2, resolve, 0);
+            encoder.copy_buffer_to_buffer(resolve, 0, read, 0, 16);
         }
         self.queue.submit([encoder.finish()]);
         self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Dispatch(e.to_string()))?;
