@@ -91,13 +91,47 @@ fn fma_runs() -> bool {
 }
 
 /// Calls every kernel of copy `$copy` (`portable` or `fma`) of module `$m` in scalar type
+
+/// Every kernel of the checked-in module `$m`, both copies, f64 and f32 (the f32 run's
+/// reference at the f32-rounded state), on `$states` (label, q, qd, u) against the
+/// reference on `$model` at the fixed-base tolerances; prints the worst errors under `$name`.
+macro_rules! check_module {
+    ($($m:ident)::+, $model:expr, $name:expr, $states:expr) => {{
+        let mut worst = [0.0f64; 2];
+        for (label, q, qd, u) in $states {
+            for (f32, tol_direct, tol_minv) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
+                let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+                let (q, qd, u) = (r(&q), r(&qd), r(&u));
+                let want = reference_outputs($model, &q, &qd, &u);
+                let mut copies = vec![(
+                    "portable",
+                    if f32 { run_kernels!($($m)::+, portable, f32, &q, &qd, &u) } else { run_kernels!($($m)::+, portable, f64, &q, &qd, &u) },
+                )];
+                if fma_runs() {
+                    copies.push(("fma", if f32 { run_kernels!($($m)::+, fma, f32, &q, &qd, &u) } else { run_kernels!($($m)::+, fma, f64, &q, &qd, &u) }));
+                }
+                check_copies(
+                    &format!("{} {}, {label}", $name, if f32 { "f32" } else { "f64" }),
+                    copies,
+                    &want,
+                    (tol_direct, tol_minv),
+                    &mut worst[usize::from(f32)],
+                );
+            }
+        }
+        println!("{}: worst relative error f64 {:.2e}, f32 {:.2e}", $name, worst[0], worst[1]);
+    }};
+}
+
 /// `$t` and returns the outputs as f64.
 macro_rules! run_kernels {
     ($($m:ident)::+, $copy:ident, $t:ty, $q:expr, $qd:expr, $u:expr) => {{
         use grid_gen_kernels::$($m)::+ as k;
         use k::$copy as c;
         let arr = |v: &[f64]| -> [$t; k::NV] { std::array::from_fn(|i| v[i] as $t) };
-        let (q, qd, u) = (arr($q), arr($qd), arr($u));
+        // q has NQ entries (NV + 1 per quaternion: a floating base, spherical joints).
+        let q: [$t; k::NQ] = std::array::from_fn(|i| $q[i] as $t);
+        let (qd, u) = (arr($qd), arr($u));
         let v = |x: [$t; k::NV]| DMatrix::from_iterator(k::NV, 1, x.iter().map(|&y| y as f64));
         let m = |x: [[$t; k::NV]; k::NV]| DMatrix::from_fn(k::NV, k::NV, |i, j| x[i][j] as f64);
         // SAFETY: the fma copy is only called after `fma_runs()` (the portable one needs none).
@@ -280,49 +314,14 @@ fn floating_base_kernels_match_the_reference() {
     let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_floating");
     assert!(model.floating && k::NV == model.nv() && k::NQ == model.nq());
     let mut rng = Rng(29);
-    let mut worst = [0.0f64; 2];
-    for (label, per_joint, qd, u) in states(&model, &mut rng) {
-        let base = if label == "zero" { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] } else { rng.base_pose() };
-        let q = model.q_from_joints(&per_joint, base);
-        for (f32, tol_direct, tol_minv) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
-            // The f32 run's reference is at the f32-rounded state.
-            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
-            let (q, qd, u) = (r(&q), r(&qd), r(&u));
-            let want = reference_outputs(&model, &q, &qd, &u);
-            macro_rules! run {
-                ($t:ty, $path:path) => {{
-                    use $path as c;
-                    let qa: [$t; k::NQ] = std::array::from_fn(|i| q[i] as $t);
-                    let va = |v: &[f64]| -> [$t; k::NV] { std::array::from_fn(|i| v[i] as $t) };
-                    let (qd, u) = (va(&qd), va(&u));
-                    let m = |x: [[$t; k::NV]; k::NV]| DMatrix::from_fn(k::NV, k::NV, |i, j| x[i][j] as f64);
-                    let v = |x: [$t; k::NV]| DMatrix::from_fn(k::NV, 1, |i, _| x[i] as f64);
-                    let (dq, dqd) = c::rnea_grad(&qa, &qd, &u);
-                    let (qdd, fq, fqd) = c::fd_grad(&qa, &qd, &u);
-                    [v(c::rnea(&qa, &qd, &u)), m(dq), m(dqd), m(c::mass_matrix(&qa)), m(c::minv(&qa)), v(c::fd(&qa, &qd, &u)), v(qdd), m(fq), m(fqd)]
-                }};
-            }
-            let mut copies = vec![("portable", if f32 { run!(f32, k::portable) } else { run!(f64, k::portable) })];
-            if fma_runs() {
-                // SAFETY: fma_runs() checked AVX2 and FMA.
-                copies.push(("fma", unsafe {
-                    if f32 {
-                        run!(f32, k::fma)
-                    } else {
-                        run!(f64, k::fma)
-                    }
-                }));
-            }
-            check_copies(
-                &format!("HyQ floating {}, {label}", if f32 { "f32" } else { "f64" }),
-                copies,
-                &want,
-                (tol_direct, tol_minv),
-                &mut worst[usize::from(f32)],
-            );
-        }
-    }
-    println!("HyQ floating base: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+    let states: Vec<_> = states(&model, &mut rng)
+        .into_iter()
+        .map(|(label, per_joint, qd, u)| {
+            let base = if label == "zero" { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] } else { rng.base_pose() };
+            (label, model.q_from_joints(&per_joint, base), qd, u)
+        })
+        .collect();
+    check_module!(scenes::grid_hyq_floating, &model, "HyQ floating", states);
 }
 
 /// Spherical joints (`generated/fixtures/ball_arm/`, issue 11 item 2): ball_arm's three
@@ -335,53 +334,20 @@ fn spherical_kernels_match_the_reference() {
     let model = grid_gen_test_support::load_urdf(&grid_gen_test_support::repo().join("tests/fixtures/ball_arm.urdf"), false);
     assert!(model.spherical.len() == 3 && k::NV == model.nv() && k::NQ == model.nq());
     let mut rng = Rng(31);
-    let mut worst = [0.0f64; 2];
-    for (label, per_joint, qd, u) in states(&model, &mut rng) {
-        let mut q = model.q_from_joints(&per_joint, [0.0; 7]);
-        if label != "zero" {
-            for &first in &model.spherical {
-                let at = model.group_q(first);
-                q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+    let states: Vec<_> = states(&model, &mut rng)
+        .into_iter()
+        .map(|(label, per_joint, qd, u)| {
+            let mut q = model.q_from_joints(&per_joint, [0.0; 7]);
+            if label != "zero" {
+                for &first in &model.spherical {
+                    let at = model.group_q(first);
+                    q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+                }
             }
-        }
-        for (f32, tol_direct, tol_minv) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
-            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
-            let (q, qd, u) = (r(&q), r(&qd), r(&u));
-            let want = reference_outputs(&model, &q, &qd, &u);
-            macro_rules! run {
-                ($t:ty, $path:path) => {{
-                    use $path as c;
-                    let qa: [$t; k::NQ] = std::array::from_fn(|i| q[i] as $t);
-                    let va = |v: &[f64]| -> [$t; k::NV] { std::array::from_fn(|i| v[i] as $t) };
-                    let (qd, u) = (va(&qd), va(&u));
-                    let m = |x: [[$t; k::NV]; k::NV]| DMatrix::from_fn(k::NV, k::NV, |i, j| x[i][j] as f64);
-                    let v = |x: [$t; k::NV]| DMatrix::from_fn(k::NV, 1, |i, _| x[i] as f64);
-                    let (dq, dqd) = c::rnea_grad(&qa, &qd, &u);
-                    let (qdd, fq, fqd) = c::fd_grad(&qa, &qd, &u);
-                    [v(c::rnea(&qa, &qd, &u)), m(dq), m(dqd), m(c::mass_matrix(&qa)), m(c::minv(&qa)), v(c::fd(&qa, &qd, &u)), v(qdd), m(fq), m(fqd)]
-                }};
-            }
-            let mut copies = vec![("portable", if f32 { run!(f32, k::portable) } else { run!(f64, k::portable) })];
-            if fma_runs() {
-                // SAFETY: fma_runs() checked AVX2 and FMA.
-                copies.push(("fma", unsafe {
-                    if f32 {
-                        run!(f32, k::fma)
-                    } else {
-                        run!(f64, k::fma)
-                    }
-                }));
-            }
-            check_copies(
-                &format!("ball_arm {}, {label}", if f32 { "f32" } else { "f64" }),
-                copies,
-                &want,
-                (tol_direct, tol_minv),
-                &mut worst[usize::from(f32)],
-            );
-        }
-    }
-    println!("ball_arm spherical joints: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+            (label, q, qd, u)
+        })
+        .collect();
+    check_module!(fixtures::ball_arm, &model, "ball_arm", states);
 }
 
 /// The Panda with coupled fingers (`generated/scenes/panda.panda_mimic/`, issue 11 item 3):
@@ -393,31 +359,5 @@ fn coupled_mimic_kernels_match_the_reference() {
     let (model, _) = grid_gen_test_support::load_in_scene("panda", "panda_mimic");
     assert!(k::NV == model.nv() && model.njoints() == k::NV + 1);
     let mut rng = Rng(31);
-    let mut worst = [0.0f64; 2];
-    for (label, q, qd, u) in states(&model, &mut rng) {
-        for (f32, tol_direct, tol_minv) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
-            // The f32 run's reference is at the f32-rounded state.
-            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
-            let (q, qd, u) = (r(&q), r(&qd), r(&u));
-            let want = reference_outputs(&model, &q, &qd, &u);
-            let mut copies = vec![(
-                "portable",
-                if f32 { run_kernels!(scenes::panda_mimic, portable, f32, &q, &qd, &u) } else { run_kernels!(scenes::panda_mimic, portable, f64, &q, &qd, &u) },
-            )];
-            if fma_runs() {
-                copies.push((
-                    "fma",
-                    if f32 { run_kernels!(scenes::panda_mimic, fma, f32, &q, &qd, &u) } else { run_kernels!(scenes::panda_mimic, fma, f64, &q, &qd, &u) },
-                ));
-            }
-            check_copies(
-                &format!("Panda coupled {}, {label}", if f32 { "f32" } else { "f64" }),
-                copies,
-                &want,
-                (tol_direct, tol_minv),
-                &mut worst[usize::from(f32)],
-            );
-        }
-    }
-    println!("Panda with coupled fingers: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+    check_module!(scenes::panda_mimic, &model, "Panda coupled", states(&model, &mut rng));
 }

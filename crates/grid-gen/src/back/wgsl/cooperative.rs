@@ -11,7 +11,7 @@
 
 use std::fmt::Write;
 
-use super::{block, output_stores, EntryStats, Strategy, WgslOptions, WORKGROUP_STORAGE_LIMIT};
+use super::{block, output_stores, stages, EntryStats, Strategy, WgslOptions, WORKGROUP_STORAGE_LIMIT};
 use crate::back::BackError;
 use crate::ir::schedule::Phases;
 use crate::ir::{Function, Id};
@@ -20,7 +20,7 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
     let p = Phases::new(f, options.workers as usize, usize::MAX).map_err(|e| BackError::WgslOption(e.to_string()))?;
     let name = Strategy::Cooperative.entry(f.kind.name());
     let budget = WORKGROUP_STORAGE_LIMIT / options.precision.bytes();
-    let stages = group_phases(&p, options.coop_stage);
+    let stages = stages(p.phases.iter().map(|lists| lists.iter().map(Vec::len).sum()), options.coop_stage);
     let (home, in_workgroup, spilled) = slot_homes(f, &p, &stages, budget);
     let wg = format!("{name}_wg");
     let (stores, inline, outputs) = output_stores(f, nv);
@@ -105,25 +105,6 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
         statements,
         functions,
     })
-}
-
-/// Consecutive phases grouped into stages of at most `stage` operations (at least one
-/// phase each; 0: one stage), as ranges of phase indices.
-fn group_phases(p: &Phases, stage: usize) -> Vec<std::ops::Range<usize>> {
-    let mut stages = vec![0..0];
-    let mut size = 0;
-    for (pi, lists) in p.phases.iter().enumerate() {
-        let ops: usize = lists.iter().map(Vec::len).sum();
-        let last = stages.len() - 1;
-        if stage > 0 && size > 0 && size + ops > stage {
-            stages.push(pi..pi + 1);
-            size = 0;
-        } else {
-            stages[last].end = pi + 1;
-        }
-        size += ops;
-    }
-    stages
 }
 
 /// Where a shared slot lives.

@@ -343,6 +343,25 @@ fn block(
     Ok(statements)
 }
 
+/// Consecutive steps (thread helpers or cooperative phases) of the given operation counts
+/// grouped into stages of at most `limit` operations, at least one step each (0: one
+/// stage), as ranges of step indices.
+fn stages(sizes: impl Iterator<Item = usize>, limit: usize) -> Vec<std::ops::Range<usize>> {
+    let mut stages = vec![0..0];
+    let mut size = 0;
+    for (k, ops) in sizes.enumerate() {
+        let last = stages.len() - 1;
+        if limit > 0 && size > 0 && size + ops > limit {
+            stages.push(k..k + 1);
+            size = 0;
+        } else {
+            stages[last].end = k + 1;
+        }
+        size += ops;
+    }
+    stages
+}
+
 /// Output index of every operation's value (stores follow the node), and the outputs that
 /// are constants or inputs.
 fn output_stores(f: &Function, nv: usize) -> (Vec<Vec<usize>>, Vec<(usize, Id)>, usize) {

@@ -10,7 +10,7 @@
 
 use std::fmt::Write;
 
-use super::{block, output_stores, EntryStats, Strategy, WgslOptions};
+use super::{block, output_stores, stages, EntryStats, Strategy, WgslOptions};
 use crate::back::BackError;
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id};
@@ -30,7 +30,7 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
         statements += block(out, f, options, robot, "    ", ids, inline, here, slot, &stores)?;
         let _ = writeln!(out, "}}\n");
     }
-    let stages = group_chunks(&c.chunks, options.stage);
+    let stages = stages(c.chunks.iter().map(Vec::len), options.stage);
     for (k, parts) in stages.iter().enumerate() {
         let entry = if stages.len() == 1 { name.clone() } else { format!("{name}_stage{k}") };
         let _ = writeln!(out, "@compute @workgroup_size({})", options.workgroup_size);
@@ -55,22 +55,4 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
         statements,
         functions: c.chunks.len() + stages.len(),
     })
-}
-
-/// Consecutive chunks grouped into stages of at most `stage` operations (at least one
-/// chunk each; 0: one stage), as ranges of chunk indices.
-fn group_chunks(chunks: &[Vec<Id>], stage: usize) -> Vec<std::ops::Range<usize>> {
-    let mut stages = vec![0..0];
-    let mut size = 0;
-    for (ci, chunk) in chunks.iter().enumerate() {
-        let last = stages.len() - 1;
-        if stage > 0 && size > 0 && size + chunk.len() > stage {
-            stages.push(ci..ci + 1);
-            size = 0;
-        } else {
-            stages[last].end = ci + 1;
-        }
-        size += chunk.len();
-    }
-    stages
 }
