@@ -13,15 +13,15 @@
 //! With `CI` set, a machine without a Vulkan adapter fails these tests (scripts/test.sh
 //! installs lavapipe); elsewhere they say so and check only the naga validation.
 //!
-//! The runs cover every bundled robot in f32 with one invocation per state (Atlas's
-//! `fd_grad` too: kernels run as dispatches of at most 1000 operations, which lavapipe
-//! compiles in linear time); the cooperative strategy on the double pendulum and iiwa in
-//! f32 and on HyQ in f64, and WGSL's built-in trig on the double pendulum. lavapipe
-//! compiles a pipeline at its first dispatch, about 0.5 ms per statement with one
-//! invocation per state but 2 to 3 ms with the cooperative strategy's per-invocation
-//! branches (measured 2026-11-24), so the other robots' cooperative kernels (about 160k
-//! statements without Atlas, 300k with) are validated by naga here and run on a GPU by
-//! `grid-gen bench` (README), as is HyQ's cooperative `fd_grad` ([`COOP_TOO_SLOW_ON_LAVAPIPE`]).
+//! The runs cover every kernel of every bundled robot in f32 with one invocation per state
+//! (Atlas's `fd_grad` too, as dispatches of at most 1000 operations, which lavapipe
+//! compiles in linear time), every bundled robot in the cooperative strategy but not every
+//! kernel ([`coop_kernels`]), HyQ also in f64 in both strategies, and WGSL's built-in trig
+//! on the double pendulum. lavapipe compiles a pipeline at its first dispatch: about
+//! 0.5 ms per statement with one invocation per state, 4 to 12 ms with the cooperative
+//! strategy's per-invocation branches (LLVM builds a coroutine frame across every barrier
+//! and runs the 64 invocations' cases under masks), even in stages of 250 operations
+//! ([`COOP_STAGE`]).
 
 use grid_gen::back::wgsl::{Precision, Strategy, Trig, WgslOptions};
 use grid_gen::generate::{generate, Options, Target};
@@ -34,9 +34,15 @@ const DIRECT: f64 = 1e-5;
 const THROUGH_MINV: f64 = 1e-4;
 const F64_TOL: f64 = 1e-12;
 
-/// Cooperative pipelines left out of the f64 run on HyQ: its `fd_grad_coop` (about 15k
-/// statements once loads are hoisted) would add about 40 s of lavapipe compile.
-const COOP_TOO_SLOW_ON_LAVAPIPE: &[KernelKind] = &[KernelKind::FdGrad];
+/// The cooperative kernels run here in stages of this many operations (whole phases).
+/// lavapipe's compile time grows with the barriers in one pipeline times its size (LLVM
+/// builds a coroutine frame across every barrier): all six cooperative kernels of iiwa
+/// took 160 s to compile and run in stages of 1000, 66 s in stages of 250 and 54 s of 100;
+/// UR5's 109, 43 and 40 s (measured 2026-11-24, `grid-gen bench --batch 1
+/// --wgsl-coop-stage`, Mesa's shader cache off). 250 keeps a few phases per stage, so
+/// values still pass between phases through workgroup memory; the default (one dispatch)
+/// computes the same bits (`stages_compute_what_one_dispatch_computes`).
+const COOP_STAGE: usize = 250;
 
 fn wgsl(model: &Model, wgsl: WgslOptions) -> String {
     let options = Options { targets: vec![Target::Wgsl], wgsl, ..Options::default() };
@@ -167,28 +173,15 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
 
 /// Runs every kernel of `robot` under each strategy and checks each state's outputs
 /// against the reference and the IR interpreter.
-fn check_robot(gpu: &Gpu, robot: &str, options: WgslOptions, strategies: &[Strategy], skip_coop: &[KernelKind], rng: &mut Rng) {
-    check_model(gpu, robot, &load(robot), &KernelKind::ALL, options, strategies, skip_coop, rng)
+fn check_robot(gpu: &Gpu, robot: &str, options: WgslOptions, strategies: &[Strategy], rng: &mut Rng) {
+    check_model(gpu, robot, &load(robot), &KernelKind::ALL, options, strategies, rng)
 }
 
 /// [`check_robot`] on a model, for the `kernels` only.
-#[allow(clippy::too_many_arguments)]
-fn check_model(
-    gpu: &Gpu,
-    robot: &str,
-    model: &Model,
-    kernels: &[KernelKind],
-    options: WgslOptions,
-    strategies: &[Strategy],
-    skip_coop: &[KernelKind],
-    rng: &mut Rng,
-) {
+fn check_model(gpu: &Gpu, robot: &str, model: &Model, kernels: &[KernelKind], options: WgslOptions, strategies: &[Strategy], rng: &mut Rng) {
     let nv = model.nv();
     let f64 = options.precision == Precision::F64;
-    // Cooperative kernels in stages of 1000 operations: lavapipe compiles them in a third
-    // of the time (the default, one dispatch, computes the same: see
-    // `stages_compute_what_one_dispatch_computes`).
-    let source = wgsl(model, WgslOptions { strategies: strategies.to_vec(), coop_stage: 1000, ..options.clone() });
+    let source = wgsl(model, WgslOptions { strategies: strategies.to_vec(), coop_stage: COOP_STAGE, ..options.clone() });
     let shader = gpu.load(&source).unwrap_or_else(|e| panic!("{robot}: {e}"));
     let lowered = grid_gen::ir::lower(model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
     let states = states(model, rng);
@@ -197,9 +190,6 @@ fn check_model(
     let (q, qd, u) = (flat(0), flat(1), flat(2));
     for f in lowered.functions.iter().filter(|f| kernels.contains(&f.kind)) {
         for &strategy in strategies {
-            if strategy == Strategy::Cooperative && skip_coop.contains(&f.kind) {
-                continue;
-            }
             let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name())).unwrap();
             let t0 = std::time::Instant::now();
             let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
@@ -239,10 +229,10 @@ fn check_model(
 fn kernels_run_through_wgpu_and_match_the_reference() {
     let Some((_serial, gpu)) = gpu() else { return };
     let mut rng = Rng(41);
-    check_robot(&gpu, "double_pendulum_continuous", WgslOptions::default(), &Strategy::ALL, &[], &mut rng);
-    check_robot(&gpu, "grid_iiwa", WgslOptions::default(), &Strategy::ALL, &[], &mut rng);
+    check_robot(&gpu, "double_pendulum_continuous", WgslOptions::default(), &Strategy::ALL, &mut rng);
+    check_robot(&gpu, "grid_iiwa", WgslOptions::default(), &Strategy::ALL, &mut rng);
     // WGSL's built-in sin/cos instead of the accurate ones.
-    check_robot(&gpu, "double_pendulum_continuous", WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() }, &Strategy::ALL, &[], &mut rng);
+    check_robot(&gpu, "double_pendulum_continuous", WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() }, &Strategy::ALL, &mut rng);
 }
 
 #[test]
@@ -252,9 +242,13 @@ fn f64_kernels_match_the_reference_to_1e_12() {
     // HyQ (the tree) in f64 here and in f32 below. (Its f32 dispatches once seemed
     // 200 times slower than f64 ones on lavapipe; lavapipe compiles at the first dispatch
     // and keeps compiled shaders in Mesa's disk cache, and the f64 ones were cached.)
-    for robot in ["double_pendulum_continuous", "grid_hyq"] {
-        check_robot(&gpu, robot, WgslOptions { precision: Precision::F64, ..WgslOptions::default() }, &Strategy::ALL, COOP_TOO_SLOW_ON_LAVAPIPE, &mut rng);
-    }
+    let f64 = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
+    check_robot(&gpu, "double_pendulum_continuous", f64.clone(), &Strategy::ALL, &mut rng);
+    // HyQ's cooperative `fd_grad` is left out (125 s of lavapipe compile in f32, above).
+    let hyq = load("grid_hyq");
+    check_model(&gpu, "grid_hyq", &hyq, &KernelKind::ALL, f64.clone(), &[Strategy::Thread], &mut rng);
+    let coop = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd];
+    check_model(&gpu, "grid_hyq", &hyq, &coop, f64, &[Strategy::Cooperative], &mut rng);
 }
 
 /// Every bundled robot, every kernel, one invocation per state, f32 (the runs above
@@ -265,7 +259,36 @@ fn every_bundled_robot_runs_with_one_invocation_per_state() {
     let Some((_serial, gpu)) = gpu() else { return };
     let mut rng = Rng(71);
     for robot in robots().iter().filter(|r| !["double_pendulum_continuous", "grid_iiwa"].contains(&r.as_str())) {
-        check_robot(&gpu, robot, WgslOptions::default(), &[Strategy::Thread], &[], &mut rng);
+        check_robot(&gpu, robot, WgslOptions::default(), &[Strategy::Thread], &mut rng);
+    }
+}
+
+/// The cooperative kernels [`every_bundled_robot_runs_cooperatively`] runs for a robot.
+/// All six for the double pendulum, iiwa (both above) and UR5; HyQ's gradients run in f64
+/// (`rnea_grad`); for the other robots the gradient kernels, and Atlas's `minv` and `fd`,
+/// are validated by naga only. Measured on 2026-11-24 (f32, stages of 250, the machine
+/// also compiling), running all six for every robot but Atlas took 11 minutes: HyQ's
+/// `rnea_grad` 67 s and `fd_grad` 125 s, Panda's 69 and 94 s, rbd_benchmarks_iiwa's 44 and
+/// 50 s, Atlas's `rnea` and `mass_matrix` 30 and 39 s; Atlas's other four kernels, 130k
+/// operations, would take longer than all of those. That run passed, every kernel within
+/// the bounds above (worst 1.9e-6, Panda `fd_grad`).
+fn coop_kernels(robot: &str) -> &'static [KernelKind] {
+    use KernelKind::*;
+    match robot {
+        "double_pendulum_continuous" | "grid_iiwa" | "ur5" => &KernelKind::ALL,
+        "grid_atlas" => &[Rnea, MassMatrix],
+        _ => &[Rnea, MassMatrix, Minv, Fd],
+    }
+}
+
+/// Every bundled robot in the cooperative strategy, f32, the kernels of [`coop_kernels`]
+/// (the double pendulum and iiwa run above).
+#[test]
+fn every_bundled_robot_runs_cooperatively() {
+    let Some((_serial, gpu)) = gpu() else { return };
+    let mut rng = Rng(79);
+    for robot in robots().iter().filter(|r| !["double_pendulum_continuous", "grid_iiwa"].contains(&r.as_str())) {
+        check_model(&gpu, robot, &load(robot), coop_kernels(robot), WgslOptions::default(), &[Strategy::Cooperative], &mut rng);
     }
 }
 
@@ -349,7 +372,7 @@ fn floating_base_kernels_match_the_reference() {
     let mut rng = Rng(53);
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
     let kernels = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd];
-    check_model(&gpu, "grid_hyq floating", &load_floating("grid_hyq"), &kernels, options, &[Strategy::Thread], &[], &mut rng);
+    check_model(&gpu, "grid_hyq floating", &load_floating("grid_hyq"), &kernels, options, &[Strategy::Thread], &mut rng);
 }
 
 /// Coupled mimic joints (issue 11): mimic_arm (`tests/fixtures/mimic_arm.urdf`, three
@@ -366,7 +389,7 @@ fn coupled_mimic_kernels_match_the_reference() {
     let model = load_coupled_urdf(&repo().join("tests/fixtures/mimic_arm.urdf"));
     assert_eq!((model.nv(), model.njoints()), (4, 7));
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
-    check_model(&gpu, "mimic_arm coupled", &model, &KernelKind::ALL, options, &[Strategy::Thread], &[], &mut rng);
+    check_model(&gpu, "mimic_arm coupled", &model, &KernelKind::ALL, options, &[Strategy::Thread], &mut rng);
 }
 
 /// Spherical joints (issue 11): an arm with one on the root and one between moving
@@ -401,7 +424,7 @@ fn spherical_kernels_match_the_reference() {
     let model = Model::from_urdf_str("ball_chain.urdf", &urdf, false).map_err(|e| e.render_plain()).unwrap().0;
     assert_eq!((model.nv(), model.nq()), (7, 9));
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
-    check_model(&gpu, "ball_chain", &model, &KernelKind::ALL, options, &[Strategy::Thread], &[], &mut rng);
+    check_model(&gpu, "ball_chain", &model, &KernelKind::ALL, options, &[Strategy::Thread], &mut rng);
 }
 
 #[test]
