@@ -205,7 +205,7 @@ impl Gpu {
         let start = Instant::now();
         let mut pipelines = Vec::new();
         for k in 0..info.stages {
-            let name = if info.stages == 1 { entry.to_string() } else { format!("{entry}_stage{k}") };
+            let name = grid_gen::back::wgsl::stage_entry(entry, k, info.stages);
             let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
             let pipeline = self.device.create_compute_pipeline(&wgpu::ComputePipelineDescriptor {
                 label: Some(&name),

@@ -75,7 +75,7 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
     }
     let barrier = if spilled > 0 { "    workgroupBarrier();\n    storageBarrier();" } else { "    workgroupBarrier();" };
     for (k, phases) in stages.iter().enumerate() {
-        let entry = if stages.len() == 1 { name.clone() } else { format!("{name}_stage{k}") };
+        let entry = super::stage_entry(&name, k, stages.len());
         let _ = writeln!(out, "@compute @workgroup_size({})", options.workers);
         let _ = writeln!(out, "fn {entry}(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {{");
         // s and n are workgroup-uniform, so the early return keeps the barriers in uniform

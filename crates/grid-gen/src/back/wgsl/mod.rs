@@ -343,6 +343,17 @@ fn block(
     Ok(statements)
 }
 
+/// The entry point of stage `k` of an entry split into `stages` dispatches: the entry's own
+/// name when it is one dispatch, else `<entry>_stage<k>`. The emitters and the runtime
+/// (which reads `stages=` from the header) both name stages with this.
+pub fn stage_entry(entry: &str, k: usize, stages: usize) -> String {
+    if stages == 1 {
+        entry.to_string()
+    } else {
+        format!("{entry}_stage{k}")
+    }
+}
+
 /// Consecutive steps (thread helpers or cooperative phases) of the given operation counts
 /// grouped into stages of at most `limit` operations, at least one step each (0: one
 /// stage), as ranges of step indices.

@@ -32,7 +32,7 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
     }
     let stages = stages(c.chunks.iter().map(Vec::len), options.stage);
     for (k, parts) in stages.iter().enumerate() {
-        let entry = if stages.len() == 1 { name.clone() } else { format!("{name}_stage{k}") };
+        let entry = super::stage_entry(&name, k, stages.len());
         let _ = writeln!(out, "@compute @workgroup_size({})", options.workgroup_size);
         let _ = writeln!(out, "fn {entry}(@builtin(global_invocation_id) gid: vec3<u32>) {{");
         let _ = writeln!(out, "    let n = params.n;\n    let s = gid.x;\n    if (s >= n) {{\n        return;\n    }}");
