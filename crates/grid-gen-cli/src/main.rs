@@ -216,6 +216,11 @@ enum Command {
         /// Write nothing; exit 1 if any file would change (for CI freshness checks).
         #[arg(long, requires = "out")]
         check: bool,
+        /// Also emit the Rust module's `avx512` copy, run first on CPUs with AVX-512 F and VL
+        /// (half again the module's size and compile time; results bit-identical to the
+        /// `fma` copy; README, Speed).
+        #[arg(long)]
+        avx512: bool,
         #[command(flatten)]
         kernel: KernelArgs,
     },
@@ -423,6 +428,7 @@ fn generate(
     gradient: grid_gen::ir::Gradient,
     kernels: Option<Vec<grid_gen::ir::KernelKind>>,
     check: bool,
+    avx512: bool,
     verilog: &VerilogArgs,
     wgsl: &WgslArgs,
 ) -> ExitCode {
@@ -435,7 +441,8 @@ fn generate(
     if let Some(k) = kernels {
         lower.kernels = k;
     }
-    let options = g::Options { gravity, targets, lower, verilog, wgsl: wgsl.options(), ..g::Options::default() };
+    let rust = grid_gen::back::rust::RustOptions { avx512, ..Default::default() };
+    let options = g::Options { gravity, targets, lower, verilog, wgsl: wgsl.options(), rust, ..g::Options::default() };
     let files = match g::generate(model, &options) {
         Ok(f) => f,
         Err(e) => return fail(e),
@@ -467,7 +474,7 @@ fn generate(
 
 fn run(cli: Cli) -> ExitCode {
     match cli.command {
-        Command::Generate { urdf, out, emit, check, kernel } => {
+        Command::Generate { urdf, out, emit, check, avx512, kernel } => {
             let (model, scene) = match load(&urdf, &cli.load) {
                 Ok(loaded) => loaded,
                 Err(code) => return code,
@@ -477,7 +484,7 @@ fn run(cli: Cli) -> ExitCode {
                 None => print(&(Info::with_options(&model, gravity, kernel.gradient()).to_text() + "(pass -o DIR to generate code)\n")),
                 Some(dir) => {
                     let kernels = scene.kernels().unwrap_or_default();
-                    generate(&model, &dir, emit, gravity, kernel.gradient(), kernels, check, &cli.verilog, &cli.wgsl)
+                    generate(&model, &dir, emit, gravity, kernel.gradient(), kernels, check, avx512, &cli.verilog, &cli.wgsl)
                 }
             }
         }
@@ -697,23 +704,48 @@ fn bench_rust(model: &Model, scene: &grid_gen::Scene, kernels: &[String]) -> Exi
         Err(e) => return fail(e),
     };
     let mut out = format!(
-        "{:<12} {:>14} {:>14} {:>14} {:>14}   (ns per call, one state, median of 15)\n",
-        "kernel", "f64 portable", "f64 dispatch", "f32 portable", "f32 dispatch"
+        "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}   (ns per call, one state, median of 15; dispatch runs the {} copy here)\n",
+        "kernel",
+        "f64 portable",
+        "f64 fma",
+        "f64 dispatch",
+        "f32 portable",
+        "f32 fma",
+        "f32 dispatch",
+        dispatched_copy()
     );
     for kind in kinds {
         let cell = |scalar: &str, copy: &str| {
             times.iter().find(|t| t.kernel == kind && t.scalar == scalar && t.copy == copy).map_or("-".to_string(), |t| format!("{:.0}", t.ns_per_call))
         };
         out += &format!(
-            "{:<12} {:>14} {:>14} {:>14} {:>14}\n",
+            "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}\n",
             kind.name(),
             cell("f64", "portable"),
+            cell("f64", "fma"),
             cell("f64", "dispatch"),
             cell("f32", "portable"),
+            cell("f32", "fma"),
             cell("f32", "dispatch")
         );
     }
     print(&out)
+}
+
+/// The machine-code copy the generated dispatchers pick on this CPU (the same test as
+/// their `has_avx512` and `has_fma`).
+fn dispatched_copy() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let fma = std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+        if fma && std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") {
+            return "avx512";
+        }
+        if fma {
+            return "fma";
+        }
+    }
+    "portable"
 }
 
 fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], seconds: f64) -> ExitCode {

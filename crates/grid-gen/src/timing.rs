@@ -24,8 +24,9 @@ pub struct KernelTime {
     pub kernel: KernelKind,
     /// `f64`, `f32`, or a mixed-precision plan's label (`mixed ≤1e-12`).
     pub scalar: String,
-    /// `portable` (no FMA; what `accuracy` measures bit for bit) or `dispatch` (the
-    /// public function: the `fma` copy where the CPU has AVX2 and FMA).
+    /// `portable` (no FMA; what `accuracy` measures bit for bit), `dispatch` (the public
+    /// function: the `avx512` copy where the CPU has AVX-512, else the `fma` copy where it
+    /// has AVX2 and FMA), or `fma` (timed only where `dispatch` is the `avx512` copy).
     pub copy: &'static str,
     pub ns_per_call: f64,
 }
@@ -89,6 +90,12 @@ fn program(kernels: &[KernelKind], mixed: &[MixedKernel], nq: usize) -> String {
                 let _ =
                     writeln!(calls, "    println!(\"{name} {scalar} {copy} {{}}\", time(|j| {{ let x = &{states}[j]; black_box({path}{name}({args})); }}));");
             }
+            // Where the dispatcher picks the avx512 copy, the fma copy beside it shows what
+            // AVX-512 buys.
+            let _ = writeln!(
+                calls,
+                "    #[cfg(target_arch = \"x86_64\")]\n    if robot::has_avx512() {{ println!(\"{name} {scalar} fma {{}}\", time(|j| {{ let x = &{states}[j]; black_box(unsafe {{ robot::fma::{name}({args}) }}); }})); }}"
+            );
         }
     }
     format!(
@@ -179,6 +186,9 @@ pub fn time_rust_kernels_with_mixed(
     let options = Options {
         gravity,
         targets: vec![Target::Rust],
+        // With the avx512 copy, so that on an AVX-512 CPU `dispatch` is the fastest copy
+        // and `fma` is timed beside it.
+        rust: crate::back::rust::RustOptions { avx512: true, ..Default::default() },
         lower: LowerOptions { kernels: kernels.to_vec(), gradient, ..LowerOptions::default() },
         ..Options::default()
     };
@@ -224,7 +234,11 @@ pub fn time_rust_kernels_with_mixed(
             [k, s, c, ns] => KernelKind::parse(k).zip(ns.parse::<f64>().ok()).map(|(kernel, ns)| KernelTime {
                 kernel,
                 scalar: if *s == "f32" { "f32" } else { "f64" }.to_string(),
-                copy: if *c == "portable" { "portable" } else { "dispatch" },
+                copy: match *c {
+                    "portable" => "portable",
+                    "fma" => "fma",
+                    _ => "dispatch",
+                },
                 ns_per_call: ns,
             }),
             _ => None,

@@ -171,3 +171,77 @@ fn builder_writes_once_and_names_urdf_problems() {
     assert!(err.contains("no targets selected"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// The opt-in `avx512` copy (`--avx512`, `RustOptions::avx512`) runs the `fma` copy's
+/// operations, so on a CPU with AVX-512 its outputs must equal the `fma` copy's bit for bit,
+/// in f64, f32 and `Lanes<4>`/`Lanes<8>`, and the dispatcher must return the same. UR5's
+/// gradients, so that the chunked path (scratch slots, parts) is compiled too. Without
+/// AVX-512 here the module is still compiled (and its dispatcher run), and the test says
+/// the copy did not run: a CPU feature cannot be installed.
+#[test]
+fn the_avx512_copy_matches_the_fma_copy_bit_for_bit() {
+    let model = load("ur5");
+    let options = Options {
+        targets: vec![grid_gen::generate::Target::Rust],
+        lower: grid_gen::ir::LowerOptions { kernels: vec![grid_gen::ir::KernelKind::RneaGrad, grid_gen::ir::KernelKind::FdGrad], ..Default::default() },
+        rust: grid_gen::back::rust::RustOptions { avx512: true, ..Default::default() },
+        ..Options::default()
+    };
+    let file = generate(&model, &options).unwrap().remove(0);
+    assert!(file.contents.contains("pub mod avx512") && file.contents.contains("pub fn has_avx512()"));
+    let default = generate(&model, &Options { rust: Default::default(), ..options.clone() }).unwrap().remove(0);
+    assert!(!default.contents.contains("avx512"), "the avx512 copy is opt-in");
+    let dir = std::env::temp_dir().join(format!("grid-gen-avx512-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("robot.rs"), &file.contents).unwrap();
+    std::fs::write(
+        dir.join("main.rs"),
+        r#"mod robot { include!("robot.rs"); }
+use robot::*;
+fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }
+fn bits<T: core::fmt::Debug>(x: T) -> String { format!("{x:?}") }
+macro_rules! same {
+    ($t:ty, $lift:expr) => {{
+        for k in 0..8 {
+            let x: [[$t; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| $lift(k, i, s)));
+            let a = unsafe { (bits(fma::rnea_grad(&x[0], &x[1], &x[2])), bits(fma::fd_grad(&x[0], &x[1], &x[2]))) };
+            let b = unsafe { (bits(avx512::rnea_grad(&x[0], &x[1], &x[2])), bits(avx512::fd_grad(&x[0], &x[1], &x[2]))) };
+            let c = (bits(rnea_grad(&x[0], &x[1], &x[2])), bits(fd_grad(&x[0], &x[1], &x[2])));
+            assert!(a == b && b == c, "{} state {k}: the avx512 copy differs from the fma copy", stringify!($t));
+        }
+    }};
+}
+fn main() {
+    if !has_avx512() {
+        let _ = fd_grad(&[0.1f64; NV], &[0.2; NV], &[0.3; NV]);
+        println!("no AVX-512");
+        return;
+    }
+    same!(f64, |k: usize, i: usize, s: usize| state(k, i, s));
+    same!(f32, |k: usize, i: usize, s: usize| state(k, i, s) as f32);
+    same!(Lanes<4>, |k: usize, i: usize, s: usize| Lanes(std::array::from_fn(|l| state(k * 4 + l, i, s))));
+    same!(Lanes<8>, |k: usize, i: usize, s: usize| Lanes(std::array::from_fn(|l| state(k * 8 + l, i, s))));
+    println!("same");
+}
+"#,
+    )
+    .unwrap();
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let exe = dir.join("avx512_check");
+    let out = std::process::Command::new(rustc)
+        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
+        .arg(&exe)
+        .arg(dir.join("main.rs"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let run = std::process::Command::new(&exe).output().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let said = String::from_utf8_lossy(&run.stdout).trim().to_string();
+    match said.as_str() {
+        "same" => println!("ur5: the avx512 copy equals the fma copy bit for bit (f64, f32, Lanes<4>, Lanes<8>)"),
+        "no AVX-512" => eprintln!("note: this CPU has no AVX-512 F and VL; the avx512 copy was compiled but not run"),
+        other => panic!("unexpected output `{other}`"),
+    }
+}
