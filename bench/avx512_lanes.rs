@@ -1,0 +1,59 @@
+//! Per-state time of the gradients in each machine-code copy (portable, fma, avx512) and
+//! lane width (one state, Lanes<4>, Lanes<8>), interleaved over three rounds; compiled by
+//! scripts/bench_avx512.sh beside a module generated with --avx512 (robot.rs). Protocol
+//! as timing.rs: 64 fixed states cycled, samples of at least 2 ms, median of 15.
+#![allow(dead_code, unused_unsafe, clippy::all)]
+mod robot { include!("robot.rs"); }
+use robot::Lanes;
+use std::hint::black_box;
+use std::time::Instant;
+const STATES: usize = 64;
+const N: usize = robot::NV;
+fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) - 1.0 }
+fn time<F: FnMut(usize)>(mut f: F) -> f64 {
+    let mut reps = 1usize;
+    loop { let t = Instant::now(); for r in 0..reps { f(r % STATES); } if t.elapsed().as_secs_f64() > 2e-3 { break; } reps *= 2; }
+    let mut s: Vec<f64> = (0..15).map(|_| { let t = Instant::now(); for r in 0..reps { f(r % STATES); } t.elapsed().as_secs_f64() * 1e9 / reps as f64 }).collect();
+    s.sort_by(f64::total_cmp); s[7]
+}
+fn lanes<const L: usize>(s: &[[[f64; N]; 3]], j: usize) -> [[Lanes<L>; N]; 3] {
+    std::array::from_fn(|a| std::array::from_fn(|i| Lanes(std::array::from_fn(|l| s[(j * L + l) % STATES][a][i]))))
+}
+fn main() {
+    let s: Vec<[[f64; N]; 3]> = (0..STATES).map(|j| std::array::from_fn(|a| std::array::from_fn(|i| state(j, i, a)))).collect();
+    let l4: Vec<_> = (0..STATES).map(|j| lanes::<4>(&s, j)).collect();
+    let l8: Vec<_> = (0..STATES).map(|j| lanes::<8>(&s, j)).collect();
+    if !robot::has_avx512() {
+        eprintln!("this CPU has no AVX-512 F and VL: nothing to compare");
+        std::process::exit(1);
+    }
+    // The copies compute the same operations, and a lane what one state computes: check
+    // that before timing them.
+    // SAFETY: the CPU has AVX-512 F and VL, AVX2 and FMA (checked above).
+    let (a, b, c) = unsafe {
+        (
+            robot::fma::fd_grad(&s[3][0], &s[3][1], &s[3][2]),
+            robot::avx512::fd_grad(&s[3][0], &s[3][1], &s[3][2]),
+            robot::avx512::fd_grad(&l8[0][0], &l8[0][1], &l8[0][2]),
+        )
+    };
+    for i in 0..N {
+        for j in 0..N {
+            assert!(a.1[i][j].to_bits() == b.1[i][j].to_bits(), "the fma and avx512 copies differ");
+            assert!(c.1[i][j].0[3].to_bits() == b.1[i][j].to_bits(), "lane 3 of Lanes<8> differs from one state");
+        }
+    }
+    println!("round copy kernel states/call ns/state");
+    for round in 0..3 {
+        macro_rules! t { ($label:expr, $m:ident, $k:ident, $st:expr, $per:expr) => {{
+            let ns = time(|j| { let x = &$st[j]; black_box(unsafe { robot::$m::$k(&x[0], &x[1], &x[2]) }); }) / $per as f64;
+            println!("{round} {:>8} {:>10} {:>8} {:8.1}", stringify!($m), stringify!($k), $label, ns);
+        }}}
+        t!("f64", portable, fd_grad, s, 1); t!("f64", fma, fd_grad, s, 1); t!("f64", avx512, fd_grad, s, 1);
+        t!("L4", fma, fd_grad, l4, 4); t!("L4", avx512, fd_grad, l4, 4);
+        t!("L8", fma, fd_grad, l8, 8); t!("L8", avx512, fd_grad, l8, 8);
+        t!("f64", portable, rnea_grad, s, 1); t!("f64", fma, rnea_grad, s, 1); t!("f64", avx512, rnea_grad, s, 1);
+        t!("L4", fma, rnea_grad, l4, 4); t!("L4", avx512, rnea_grad, l4, 4);
+        t!("L8", fma, rnea_grad, l8, 8); t!("L8", avx512, rnea_grad, l8, 8);
+    }
+}
