@@ -1220,6 +1220,9 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        let mut pm = [[T::k(0.0); NV]; NV];
+        let mut pd0 = [[T::k(0.0); NV]; NV];
+        let mut pd1 = [[T::k(0.0); NV]; NV];
         let t2 = q[0].sin();
         let t3 = q[0].cos();
         let t9 = q[1].sin();
@@ -1277,6 +1280,7 @@ pub mod fma {
         let t101 = T::mul_add(-T::k(0.1), t90, T::k(-0.00961628436));
         let t102 = T::mul_add(-T::k(0.1), t98, T::k(5.801760809999999e-7));
         let t103 = T::k(1.0) / t100;
+        pm[0][0] = t103;
         let t104 = tau[0] - t65;
         let t106 = t2 * T::k(9.81);
         let t107 = t3 * T::k(9.81);
@@ -1303,6 +1307,8 @@ pub mod fma {
         let t133 = T::mul_add(t10, T::k(-7.356637062775817), -t132);
         let t135 = T::mul_add(-T::k(0.1), t133, T::k(1.0));
         let t136 = t103 * t135;
+        pm[0][1] = -t136;
+        pm[1][0] = -t136;
         let t137 = T::k(0.1) * t136;
         let t138 = t10 * t137;
         let t139 = t9 * t137;
@@ -1310,6 +1316,7 @@ pub mod fma {
         let t142 = T::mul_add(T::k(-0.0335304944), t138, -t140);
         let t144 = T::mul_add(-T::k(6.43853298e-11), t139, t142);
         let t146 = T::mul_add(-T::k(219.4013895236754), t144, T::k(219.4013895236754));
+        pm[1][1] = t146;
         let t147 = T::k(0.0335304944) * t130;
         let t150 = T::k(0.33238) * t122;
         let t151 = T::mul_add(T::k(0.33238), t121, -t147);
@@ -1346,9 +1353,11 @@ pub mod fma {
         let t190 = t161 - t30;
         let t192 = T::mul_add(T::k(-0.0335304944), t157, t167);
         let t194 = T::mul_add(t20, t190, t192);
+        pd0[1][1] = t194;
         let t196 = T::mul_add(t21, T::k(-0.0335304944), t162);
         let t197 = t196 + t196;
         let t198 = t165 + t197;
+        pd1[1][1] = t198;
         let t200 = t9 * T::k(6.43853298e-11);
         let t201 = T::mul_add(t10, T::k(-0.0335304944), -t200);
         let t203 = t10 * T::k(6.43853298e-11);
@@ -1356,11 +1365,14 @@ pub mod fma {
         let t206 = t9 * t185;
         let t207 = T::mul_add(t10, t184, -t206);
         let t209 = T::mul_add(-T::k(0.1), t207, t183);
+        pd1[0][1] = t209;
         let t211 = t9 * t189;
         let t212 = T::mul_add(t10, t188, -t211);
         let t214 = T::mul_add(-T::k(0.1), t212, t187);
+        pd0[0][1] = t214;
         let t215 = t9 * t190;
         let t217 = T::mul_add(T::k(0.1), t215, t165);
+        pd1[1][0] = t217;
         let t218 = T::mul_add(-t9, T::k(0.0335304944), t203);
         let t219 = T::mul_add(t10, T::k(0.0335304944), t200);
         let t220 = T::k(0.033238000000000004) + t219;
@@ -1370,43 +1382,29 @@ pub mod fma {
         let t225 = T::mul_add(t9, t161, t224);
         let t226 = T::k(0.1) * t225;
         let t228 = T::mul_add(T::k(2.0), t226, t165);
+        pd1[0][0] = t228;
         let t230 = t107 * t222;
         let t231 = -t230;
         let t232 = T::mul_add(-t106, t221, t231);
+        pd0[0][0] = t232;
         let t234 = t106 * t204;
         let t235 = T::mul_add(t107, t201, -t234);
-        let t237 = t136 * t235;
-        let t238 = T::mul_add(t103, t232, -t237);
-        let t239 = -t238;
-        dqdd_dq[0][0] = t239;
-        let t241 = t136 * t194;
-        let t242 = T::mul_add(t103, t214, -t241);
-        let t243 = -t242;
-        dqdd_dq[0][1] = t243;
-        let t244 = t136 * t232;
-        let t246 = T::mul_add(t146, t235, -t244);
-        let t247 = -t246;
-        dqdd_dq[1][0] = t247;
-        let t248 = t136 * t214;
-        let t250 = T::mul_add(t146, t194, -t248);
-        let t251 = -t250;
-        dqdd_dq[1][1] = t251;
-        let t253 = t136 * t217;
-        let t254 = T::mul_add(t103, t228, -t253);
-        let t255 = -t254;
-        dqdd_dqd[0][0] = t255;
-        let t257 = t136 * t198;
-        let t258 = T::mul_add(t103, t209, -t257);
-        let t259 = -t258;
-        dqdd_dqd[0][1] = t259;
-        let t260 = t136 * t228;
-        let t262 = T::mul_add(t146, t217, -t260);
-        let t263 = -t262;
-        dqdd_dqd[1][0] = t263;
-        let t264 = t136 * t209;
-        let t266 = T::mul_add(t146, t198, -t264);
-        let t267 = -t266;
-        dqdd_dqd[1][1] = t267;
+        pd0[1][0] = t235;
+        for i in 0..NV {
+            let mut r0 = [T::k(0.0); NV];
+            let mut r1 = [T::k(0.0); NV];
+            for j in 0..NV {
+                let m = pm[i][j];
+                for c in 0..NV {
+                    r0[c] = T::mul_add(m, pd0[j][c], r0[c]);
+                    r1[c] = T::mul_add(m, pd1[j][c], r1[c]);
+                }
+            }
+            for c in 0..NV {
+                dqdd_dq[i][c] = -r0[c];
+                dqdd_dqd[i][c] = -r1[c];
+            }
+        }
         (qdd, dqdd_dq, dqdd_dqd)
     }
 }

@@ -1711,14 +1711,109 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        let mut pm = [[T::k(0.0); NV]; NV];
+        let mut pd0 = [[T::k(0.0); NV]; NV];
+        let mut pd1 = [[T::k(0.0); NV]; NV];
         let mut s = [T::k(0.0); 39];
-        fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part4(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part5(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part6(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_part0(
+            q,
+            qd,
+            tau,
+            &mut s,
+            &mut qdd,
+            &mut dqdd_dq,
+            &mut dqdd_dqd,
+            &mut pm,
+            &mut pd0,
+            &mut pd1,
+        );
+        fd_grad_part1(
+            q,
+            qd,
+            tau,
+            &mut s,
+            &mut qdd,
+            &mut dqdd_dq,
+            &mut dqdd_dqd,
+            &mut pm,
+            &mut pd0,
+            &mut pd1,
+        );
+        fd_grad_part2(
+            q,
+            qd,
+            tau,
+            &mut s,
+            &mut qdd,
+            &mut dqdd_dq,
+            &mut dqdd_dqd,
+            &mut pm,
+            &mut pd0,
+            &mut pd1,
+        );
+        fd_grad_part3(
+            q,
+            qd,
+            tau,
+            &mut s,
+            &mut qdd,
+            &mut dqdd_dq,
+            &mut dqdd_dqd,
+            &mut pm,
+            &mut pd0,
+            &mut pd1,
+        );
+        fd_grad_part4(
+            q,
+            qd,
+            tau,
+            &mut s,
+            &mut qdd,
+            &mut dqdd_dq,
+            &mut dqdd_dqd,
+            &mut pm,
+            &mut pd0,
+            &mut pd1,
+        );
+        fd_grad_part5(
+            q,
+            qd,
+            tau,
+            &mut s,
+            &mut qdd,
+            &mut dqdd_dq,
+            &mut dqdd_dqd,
+            &mut pm,
+            &mut pd0,
+            &mut pd1,
+        );
+        fd_grad_part6(
+            q,
+            qd,
+            tau,
+            &mut s,
+            &mut qdd,
+            &mut dqdd_dq,
+            &mut dqdd_dqd,
+            &mut pm,
+            &mut pd0,
+            &mut pd1,
+        );
+        for i in 0..NV {
+            let mut r0 = [T::k(0.0); NV];
+            let mut r1 = [T::k(0.0); NV];
+            for j in 0..NV {
+                let m = pm[i][j];
+                for c in 0..NV {
+                    r0[c] = T::mul_add(m, pd0[j][c], r0[c]);
+                    r1[c] = T::mul_add(m, pd1[j][c], r1[c]);
+                }
+            }
+            for c in 0..NV {
+                dqdd_dq[i][c] = -r0[c];
+                dqdd_dqd[i][c] = -r1[c];
+            }
+        }
         (qdd, dqdd_dq, dqdd_dqd)
     }
     #[inline(never)]
@@ -1732,6 +1827,9 @@ pub mod fma {
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
+        pm: &mut [[T; NV]; NV],
+        pd0: &mut [[T; NV]; NV],
+        pd1: &mut [[T; NV]; NV],
     ) {
         let t2 = q[0].sin();
         s[0] = t2;
@@ -1797,6 +1895,9 @@ pub mod fma {
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
+        pm: &mut [[T; NV]; NV],
+        pd0: &mut [[T; NV]; NV],
+        pd1: &mut [[T; NV]; NV],
     ) {
         let t63 = T::mul_add(-s[2], s[17], s[18]);
         let t65 = T::mul_add(-T::k(0.1), t63, s[16]);
@@ -1830,6 +1931,7 @@ pub mod fma {
         s[23] = t102;
         let t103 = T::k(1.0) / t100;
         s[24] = t103;
+        pm[0][0] = t103;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1842,6 +1944,9 @@ pub mod fma {
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
+        pm: &mut [[T; NV]; NV],
+        pd0: &mut [[T; NV]; NV],
+        pd1: &mut [[T; NV]; NV],
     ) {
         let t104 = tau[0] - s[19];
         let t106 = s[0] * T::k(9.81);
@@ -1877,6 +1982,8 @@ pub mod fma {
         let t135 = T::mul_add(-T::k(0.1), t133, T::k(1.0));
         let t136 = s[24] * t135;
         s[29] = t136;
+        pm[0][1] = -t136;
+        pm[1][0] = -t136;
         let t137 = T::k(0.1) * t136;
         let t138 = s[3] * t137;
         let t139 = s[2] * t137;
@@ -1896,9 +2003,13 @@ pub mod fma {
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
+        pm: &mut [[T; NV]; NV],
+        pd0: &mut [[T; NV]; NV],
+        pd1: &mut [[T; NV]; NV],
     ) {
         let t146 = T::mul_add(-T::k(219.4013895236754), s[30], T::k(219.4013895236754));
         s[0] = t146;
+        pm[1][1] = t146;
         let t147 = T::k(0.0335304944) * s[28];
         let t150 = T::k(0.33238) * s[27];
         let t151 = T::mul_add(T::k(0.33238), s[26], -t147);
@@ -1957,6 +2068,9 @@ pub mod fma {
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
+        pm: &mut [[T; NV]; NV],
+        pd0: &mut [[T; NV]; NV],
+        pd1: &mut [[T; NV]; NV],
     ) {
         let t186 = s[34] + s[35];
         let t187 = s[31] + t186;
@@ -1966,10 +2080,12 @@ pub mod fma {
         let t192 = T::mul_add(T::k(-0.0335304944), s[7], s[23]);
         let t194 = T::mul_add(s[4], t190, t192);
         s[8] = t194;
+        pd0[1][1] = t194;
         let t196 = T::mul_add(s[5], T::k(-0.0335304944), s[19]);
         let t197 = t196 + t196;
         let t198 = s[22] + t197;
         s[9] = t198;
+        pd1[1][1] = t198;
         let t200 = s[2] * T::k(6.43853298e-11);
         let t201 = T::mul_add(s[3], T::k(-0.0335304944), -t200);
         s[10] = t201;
@@ -1980,13 +2096,16 @@ pub mod fma {
         let t207 = T::mul_add(s[3], s[37], -t206);
         let t209 = T::mul_add(-T::k(0.1), t207, s[36]);
         s[14] = t209;
+        pd1[0][1] = t209;
         let t211 = s[2] * t189;
         let t212 = T::mul_add(s[3], t188, -t211);
         let t214 = T::mul_add(-T::k(0.1), t212, t187);
         s[18] = t214;
+        pd0[0][1] = t214;
         let t215 = s[2] * t190;
         let t217 = T::mul_add(T::k(0.1), t215, s[22]);
         s[25] = t217;
+        pd1[1][0] = t217;
         let t218 = t203 - s[21];
         let t219 = s[20] + t200;
         let t220 = T::k(0.033238000000000004) + t219;
@@ -2009,46 +2128,20 @@ pub mod fma {
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
+        pm: &mut [[T; NV]; NV],
+        pd0: &mut [[T; NV]; NV],
+        pd1: &mut [[T; NV]; NV],
     ) {
         let t226 = T::k(0.1) * s[28];
         let t228 = T::mul_add(T::k(2.0), t226, s[22]);
+        pd1[0][0] = t228;
         let t230 = s[17] * s[27];
         let t231 = -t230;
         let t232 = T::mul_add(-s[16], s[26], t231);
+        pd0[0][0] = t232;
         let t234 = s[16] * s[13];
         let t235 = T::mul_add(s[17], s[10], -t234);
-        let t237 = s[29] * t235;
-        let t238 = T::mul_add(s[24], t232, -t237);
-        let t239 = -t238;
-        dqdd_dq[0][0] = t239;
-        let t241 = s[29] * s[8];
-        let t242 = T::mul_add(s[24], s[18], -t241);
-        let t243 = -t242;
-        dqdd_dq[0][1] = t243;
-        let t244 = s[29] * t232;
-        let t246 = T::mul_add(s[0], t235, -t244);
-        let t247 = -t246;
-        dqdd_dq[1][0] = t247;
-        let t248 = s[29] * s[18];
-        let t250 = T::mul_add(s[0], s[8], -t248);
-        let t251 = -t250;
-        dqdd_dq[1][1] = t251;
-        let t253 = s[29] * s[25];
-        let t254 = T::mul_add(s[24], t228, -t253);
-        let t255 = -t254;
-        dqdd_dqd[0][0] = t255;
-        let t257 = s[29] * s[9];
-        let t258 = T::mul_add(s[24], s[14], -t257);
-        let t259 = -t258;
-        dqdd_dqd[0][1] = t259;
-        let t260 = s[29] * t228;
-        let t262 = T::mul_add(s[0], s[25], -t260);
-        let t263 = -t262;
-        dqdd_dqd[1][0] = t263;
-        let t264 = s[29] * s[14];
-        s[1] = t264;
-        let t265 = s[0] * s[9];
-        s[2] = t265;
+        pd0[1][0] = t235;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -2061,9 +2154,8 @@ pub mod fma {
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t266 = s[2] - s[1];
-        let t267 = -t266;
-        dqdd_dqd[1][1] = t267;
-    }
+        pm: &mut [[T; NV]; NV],
+        pd0: &mut [[T; NV]; NV],
+        pd1: &mut [[T; NV]; NV],
+    ) {}
 }

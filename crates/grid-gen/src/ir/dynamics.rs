@@ -27,6 +27,8 @@ pub(crate) struct Dynamics<'a> {
     x: Vec<Xform>,
     s: Vec<Sv>,
     inertia: Vec<SymInertia>,
+    /// Set by [`Self::fd_grad`]: the operands of its dense product.
+    pub product: Option<super::module::DenseProduct>,
 }
 
 /// The RNEA quantities the gradient needs.
@@ -53,7 +55,7 @@ impl<'a> Dynamics<'a> {
             s.push(subspace(&mut g, &model.joints[i]));
             inertia.push(SymInertia::new(&mut g, &model.joints[i].inertia));
         }
-        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia }
+        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia, product: None }
     }
 
     /// Model joints (bodies): what the recursions loop over. The kernels' inputs and
@@ -663,6 +665,8 @@ impl<'a> Dynamics<'a> {
         };
         let dq = product(&dc_q, &mut self.g);
         let dqd = product(&dc_qd, &mut self.g);
+        let flat = |m: &Mat| m.iter().flatten().map(|&id| super::module::Operand::Node(id)).collect::<Vec<_>>();
+        self.product = Some(super::module::DenseProduct { minv: flat(&mi), dc: vec![flat(&dc_q), flat(&dc_qd)], outputs: vec![1, 2] });
         (qdd, dq, dqd)
     }
 }

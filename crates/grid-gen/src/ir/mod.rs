@@ -19,7 +19,7 @@ mod validate;
 
 pub use graph::{Id, Input, Node, Op, Stage};
 pub use kernel::{Gradient, KernelKind, OutputSpec, Shape};
-pub use module::{lower, lower_function, Function, LowerError, LowerOptions, Module, Output, Robot, DEFAULT_MAX_NODES};
+pub use module::{lower, lower_function, DenseProduct, Function, LowerError, LowerOptions, Module, Operand, Output, Robot, DEFAULT_MAX_NODES};
 pub use precise::Dd;
 pub use spatial::SNAP;
 pub use stats::{stats, KernelStats, OpCounts, Skipped, Stats, STATS_MAX_NODES};

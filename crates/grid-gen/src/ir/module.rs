@@ -179,6 +179,29 @@ pub struct Function {
     pub gradient: Option<Gradient>,
     pub nodes: Vec<Node>,
     pub outputs: Vec<Output>,
+    /// `fd_grad`'s `∂q̈/∂u = −M⁻¹ ∂c/∂u`, as its operands: the graph holds the product
+    /// itself (the `Combine` stage), which every backend may run as it is; a backend may
+    /// instead multiply these matrices (the Rust backend's vectorised loop). `None` where a
+    /// scene selects entries.
+    pub product: Option<DenseProduct>,
+}
+
+/// The operands of a dense product `out_k = −minv · dc_k` over the outputs `outputs[k]`
+/// (row-major nv x nv matrices).
+#[derive(Clone, Debug, PartialEq)]
+pub struct DenseProduct {
+    pub minv: Vec<Operand>,
+    pub dc: Vec<Vec<Operand>>,
+    /// Index in [`Function::outputs`] of each product, in the order of `dc`.
+    pub outputs: Vec<usize>,
+}
+
+/// One entry of a [`DenseProduct`] operand: a node's value, its negation, or a constant.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Operand {
+    Node(Id),
+    Neg(Id),
+    Const(f64),
 }
 
 /// The lowered robot: every backend's only input.
@@ -272,13 +295,14 @@ fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOpt
     if d.g.exhausted() {
         return Err(LowerError::TooLarge { robot: model.name.clone(), nv: model.nv(), kernel: kind, limit: options.max_nodes });
     }
-    let mut f = freeze(kind, &d.g, outputs);
+    let product = if spec.selects() { None } else { d.product.take() };
+    let mut f = freeze(kind, &d.g, outputs, product);
     f.gradient = Gradient::applies_to(kind).then_some(gradient);
     Ok(f)
 }
 
 /// Keeps the nodes that reach an output, renumbered in their original order.
-fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>) -> Function {
+fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>, product: Option<DenseProduct>) -> Function {
     let mut live = vec![false; g.nodes.len()];
     for id in outputs.iter().flatten() {
         live[id.0 as usize] = true;
@@ -316,7 +340,30 @@ fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>) -> Function {
         .zip(outputs)
         .map(|(spec, ids)| Output { name: spec.name, shape: spec.shape, ids: ids.into_iter().map(|id| new_id[id.0 as usize]).collect() })
         .collect();
-    Function { kind, nodes, outputs, gradient: None }
+    // Folding can leave an operand unread (a product with a constant folded, or a negation
+    // moved out of the product): a constant keeps its value and a dead negation of a live
+    // node becomes that node negated; any other dead operand gives up the descriptor.
+    let entry = |id: Operand| -> Option<Operand> {
+        let Operand::Node(id) = id else { return Some(id) };
+        let live_id = |id: Id| Some(new_id[id.0 as usize]).filter(|n| n.0 != u32::MAX);
+        if let Some(n) = live_id(id) {
+            return Some(Operand::Node(n));
+        }
+        match g.nodes[id.0 as usize].op {
+            Op::Const(c) => Some(Operand::Const(c)),
+            Op::Neg(x) => match g.nodes[x.0 as usize].op {
+                Op::Const(c) => Some(Operand::Const(-c)),
+                _ => live_id(x).map(Operand::Neg),
+            },
+            _ => None,
+        }
+    };
+    let remap = |ids: &[Operand]| -> Option<Vec<Operand>> { ids.iter().map(|&id| entry(id)).collect() };
+    let product = product.and_then(|p| {
+        let dc = p.dc.iter().map(|m| remap(m)).collect::<Option<Vec<_>>>()?;
+        Some(DenseProduct { minv: remap(&p.minv)?, dc, outputs: p.outputs })
+    });
+    Function { kind, nodes, outputs, gradient: None, product }
 }
 
 impl Function {

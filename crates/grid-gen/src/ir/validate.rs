@@ -63,6 +63,7 @@ mod tests {
             gradient: None,
             nodes: nodes.into_iter().map(node).collect(),
             outputs: vec![Output { name: "c", shape: Shape::Vector, ids: out.into_iter().map(Id).collect() }],
+            product: None,
         }
     }
 
