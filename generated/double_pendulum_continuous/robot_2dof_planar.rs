@@ -1307,8 +1307,8 @@ pub mod fma {
         let t133 = T::mul_add(t10, T::k(-7.356637062775817), -t132);
         let t135 = T::mul_add(-T::k(0.1), t133, T::k(1.0));
         let t136 = t103 * t135;
-        pm[0][1] = -t136;
-        pm[1][0] = -t136;
+        pm[0][1] = t136;
+        pm[1][0] = t136;
         let t137 = T::k(0.1) * t136;
         let t138 = t10 * t137;
         let t139 = t9 * t137;
@@ -1390,6 +1390,8 @@ pub mod fma {
         let t234 = t106 * t204;
         let t235 = T::mul_add(t107, t201, -t234);
         pd0[1][0] = t235;
+        pm[0][1] = -pm[0][1];
+        pm[1][0] = -pm[1][0];
         for i in 0..NV {
             let mut r0 = [T::k(0.0); NV];
             let mut r1 = [T::k(0.0); NV];

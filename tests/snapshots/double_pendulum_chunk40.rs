@@ -1799,6 +1799,8 @@ pub mod fma {
             &mut pd0,
             &mut pd1,
         );
+        pm[0][1] = -pm[0][1];
+        pm[1][0] = -pm[1][0];
         for i in 0..NV {
             let mut r0 = [T::k(0.0); NV];
             let mut r1 = [T::k(0.0); NV];
@@ -1982,8 +1984,8 @@ pub mod fma {
         let t135 = T::mul_add(-T::k(0.1), t133, T::k(1.0));
         let t136 = s[24] * t135;
         s[29] = t136;
-        pm[0][1] = -t136;
-        pm[1][0] = -t136;
+        pm[0][1] = t136;
+        pm[1][0] = t136;
         let t137 = T::k(0.1) * t136;
         let t138 = s[3] * t137;
         let t139 = s[2] * t137;

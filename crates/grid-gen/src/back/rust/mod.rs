@@ -255,26 +255,27 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
     let name = k.kind.name();
     let Signature { args, arg_names, ret_type } = Signature::of(k, q_len);
     let ret_value = return_value(k);
-    let (inline_outputs, sinks) = output_stores(k, nv);
+    let (mut inline_outputs, mut sinks) = output_stores(k, nv);
     let operand_mats = looped.map(operand_names).unwrap_or_default();
-    // Stores into the looped product's operand matrices: `place = ` or `place = -`.
-    let mut operand_consts: Vec<(String, f64)> = Vec::new();
-    let mut operand_leaves: Vec<(String, Id)> = Vec::new();
-    let mut operand_sinks: HashMap<Id, Vec<String>> = HashMap::new();
+    // The operands reach their matrices as outputs do; negations and constants the graph
+    // no longer holds are written just before the loop (`fixups`).
+    let mut fixups = Vec::new();
     if let Some(p) = looped {
         for (m, ids) in operand_mats.iter().zip(std::iter::once(&p.minv).chain(&p.dc)) {
             for (flat, o) in ids.iter().enumerate() {
                 let place = format!("{m}[{}][{}]", flat / nv, flat % nv);
-                // The matrices start at zero; a negated operand is stored negated.
+                // The matrices start at zero.
                 match *o {
                     Operand::Const(c) if c == 0.0 => {}
-                    Operand::Const(c) => operand_consts.push((place, c)),
+                    Operand::Const(c) => fixups.push(format!("{place} = T::k({});", literal(c))),
                     Operand::Node(id) | Operand::Neg(id) => {
-                        let place = if matches!(o, Operand::Neg(_)) { format!("{place} = -") } else { format!("{place} = ") };
                         match k.op(id) {
-                            Op::Const(c) if c == 0.0 => {}
-                            Op::Const(_) | Op::Input(..) => operand_leaves.push((place, id)),
-                            _ => operand_sinks.entry(id).or_default().push(place),
+                            Op::Const(c) if c == 0.0 => continue,
+                            Op::Const(_) | Op::Input(..) => inline_outputs.push((place.clone(), id)),
+                            _ => sinks.entry(id).or_default().push(place.clone()),
+                        }
+                        if matches!(o, Operand::Neg(_)) {
+                            fixups.push(format!("{place} = -{place};"));
                         }
                     }
                 }
@@ -286,12 +287,6 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
         if c == 0 {
             for (place, id) in &inline_outputs {
                 let _ = writeln!(b, "{place} = {};", operand(k, &names, 0, *id));
-            }
-            for (place, id) in &operand_leaves {
-                let _ = writeln!(b, "{place}{};", operand(k, &names, 0, *id));
-            }
-            for (place, c) in &operand_consts {
-                let _ = writeln!(b, "{place} = T::k({});", literal(*c));
             }
         }
         for &id in ids {
@@ -305,9 +300,6 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
             }
             for place in sinks.get(&id).into_iter().flatten() {
                 let _ = writeln!(b, "{place} = t{};", id.0);
-            }
-            for place in operand_sinks.get(&id).into_iter().flatten() {
-                let _ = writeln!(b, "{place}t{};", id.0);
             }
         }
         b
@@ -334,7 +326,7 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
         }
     }
     if let Some(p) = looped {
-        emit_product_loop(out, k, p, &operand_mats, nv);
+        emit_product_loop(out, k, p, &operand_mats, &fixups, nv);
     }
     let _ = writeln!(out, "{ret_value}\n}}\n");
     if chunks.len() > 1 {
@@ -353,11 +345,14 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
     }
 }
 
-/// `out_k = −M⁻¹ · dc_k` over rows of M⁻¹, the column index innermost so that the compiler
-/// vectorises it; each entry sums its terms in the graph's order (j = 0, 1, ...), with
+/// The operand matrices' `fixups`, then `out_k = −M⁻¹ · dc_k` over rows of M⁻¹, the
+/// column index innermost so that the compiler vectorises it; each entry sums its terms in the graph's order (j = 0, 1, ...), with
 /// `mul_add`. Entries the graph holds as constants (structural zeros) are written back
 /// after the loop.
-fn emit_product_loop(out: &mut String, k: &Function, p: &DenseProduct, mats: &[String], nv: usize) {
+fn emit_product_loop(out: &mut String, k: &Function, p: &DenseProduct, mats: &[String], fixups: &[String], nv: usize) {
+    for f in fixups {
+        let _ = writeln!(out, "{f}");
+    }
     let accs: Vec<String> = (0..p.dc.len()).map(|i| format!("r{i}")).collect();
     let _ = writeln!(out, "for i in 0..NV {{");
     for a in &accs {
