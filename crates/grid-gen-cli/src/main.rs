@@ -789,7 +789,9 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
         "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14}",
         "kernel", "strategy", "N", "disp", "us/batch", "us/state", "states/s", "round-trip us", "device us"
     );
-    let nv = module.robot.nv();
+    // q has nq entries per state (a floating base's or spherical joint's quaternion, which
+    // the kernels scale by 1/|q|²), velocities and torques nv.
+    let (nq, nv) = (module.robot.nq(), module.robot.nv());
     let mut rng = 0x9E37_79B9_7F4A_7C15u64;
     let mut uniform = move |lo: f64, hi: f64| {
         rng ^= rng << 13;
@@ -798,7 +800,7 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
         lo + (hi - lo) * ((rng >> 11) as f64 / (1u64 << 53) as f64)
     };
     let largest = batch.iter().copied().max().unwrap_or(0);
-    let q: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.1, 3.1)).collect();
+    let q: Vec<f64> = (0..largest * nq).map(|_| uniform(-3.1, 3.1)).collect();
     let qd: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
     let u: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
     let budget = std::time::Duration::from_secs_f64(seconds);
@@ -811,7 +813,7 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
             let _ = writeln!(report, "{} {}: pipeline built in {:.2?}", kernel.entry.entry, strategy.name(), kernel.build_time);
             for &n in batch {
                 let m = n * nv;
-                match grid_gen_wgpu::bench::time(&gpu, &kernel, &q[..m], &qd[..m], &u[..m], budget) {
+                match grid_gen_wgpu::bench::time(&gpu, &kernel, &q[..n * nq], &qd[..m], &u[..m], budget) {
                     Ok(t) => {
                         let us = t.dispatch.as_secs_f64() * 1e6;
                         let _ = writeln!(

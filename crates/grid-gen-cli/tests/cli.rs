@@ -293,6 +293,27 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
             }
         }
     }
+    // A floating base: q has nq = nv + 1 entries per state (the base's quaternion).
+    let floating = grid_gen(&[
+        "bench",
+        "robots/grid_hyq.urdf",
+        "--scene",
+        "examples/scenes/hyq_floating.toml",
+        "--batch",
+        "2",
+        "--kernels",
+        "rnea",
+        "--wgsl-strategy",
+        "thread",
+        "--seconds",
+        "0.01",
+    ]);
+    assert_eq!(floating.status.code(), Some(0), "{}", stderr(&floating));
+    assert!(
+        String::from_utf8_lossy(&floating.stdout).lines().any(|l| l.starts_with("rnea ") && l.contains(" thread ")),
+        "{}",
+        String::from_utf8_lossy(&floating.stdout)
+    );
     let bad = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--kernels", "nope"]);
     assert_eq!(bad.status.code(), Some(1));
     assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown kernel `nope`"));
