@@ -807,14 +807,13 @@ pub mod portable {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 39];
+        let mut s = [T::k(0.0); 29];
         fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part4(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part5(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part6(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
     }
     #[inline(never)]
@@ -823,7 +822,7 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
@@ -832,61 +831,61 @@ pub mod portable {
         s[0] = t2;
         let t3 = q[0].cos();
         s[1] = t3;
-        let t9 = q[1].sin();
-        s[2] = t9;
-        let t10 = q[1].cos();
-        s[3] = t10;
-        let t19 = T::k(0.1) * qd[0];
-        let t20 = t10 * t19;
-        s[4] = t20;
-        let t21 = t9 * t19;
-        s[5] = t21;
-        let t22 = qd[0] + qd[1];
-        let t23 = qd[1] * t21;
-        s[6] = t23;
-        let t24 = qd[1] * t20;
-        s[7] = t24;
-        let t25 = T::k(0.0335304944) * t22;
-        s[8] = t25;
-        let t26 = T::k(6.43853298e-11) * t22;
-        let t27 = T::k(0.33238) * t20;
-        s[9] = t27;
-        let t28 = -t27;
-        let t29 = T::k(0.33238) * t21;
-        s[10] = t29;
-        let t30 = t28 - t25;
-        s[11] = t30;
-        let t31 = t26 + t29;
-        s[12] = t31;
-        let t32 = t20 * t31;
-        let t33 = -t32;
-        let t34 = t21 * t30;
-        let t35 = t33 - t34;
-        let t36 = t22 * t31;
-        s[13] = t36;
-        let t37 = t22 * t30;
-        s[14] = t37;
-        let t41 = tau[1] - t35;
-        s[15] = t41;
-        let t46 = t23 * T::k(0.08570832216376303);
-        let t47 = t24 * T::k(4.736595035057242e-10);
-        let t48 = t46 + t47;
-        let t49 = t23 * T::k(4.736595035057242e-10);
-        let t50 = T::k(0.33238) * t24;
-        let t51 = t49 + t50;
-        let t52 = T::k(219.4013895236754) * t41;
-        let t53 = T::k(0.004557856275072) * t52;
-        let t54 = T::k(-0.0335304944) * t52;
-        let t55 = T::k(6.43853298e-11) * t52;
-        let t56 = t48 - t36;
-        let t57 = t37 + t51;
-        let t58 = t35 + t53;
-        s[16] = t58;
+        let t10 = q[1].sin();
+        s[2] = t10;
+        let t11 = q[1].cos();
+        s[3] = t11;
+        let t20 = T::k(0.1) * qd[0];
+        let t21 = t11 * t20;
+        s[4] = t21;
+        let t22 = t10 * t20;
+        s[5] = t22;
+        let t23 = qd[0] + qd[1];
+        let t24 = qd[1] * t22;
+        s[6] = t24;
+        let t25 = qd[1] * t21;
+        s[7] = t25;
+        let t26 = T::k(0.0335304944) * t23;
+        s[8] = t26;
+        let t27 = T::k(6.43853298e-11) * t23;
+        let t28 = T::k(0.33238) * t21;
+        s[9] = t28;
+        let t29 = -t28;
+        let t30 = T::k(0.33238) * t22;
+        s[10] = t30;
+        let t31 = t29 - t26;
+        s[11] = t31;
+        let t32 = t27 + t30;
+        s[12] = t32;
+        let t33 = t21 * t32;
+        let t34 = -t33;
+        let t35 = t22 * t31;
+        let t36 = t34 - t35;
+        let t37 = t23 * t32;
+        s[13] = t37;
+        let t38 = t23 * t31;
+        s[14] = t38;
+        let t42 = tau[1] - t36;
+        s[15] = t42;
+        let t45 = t24 * T::k(0.08570832216376303);
+        let t46 = t25 * T::k(4.736595035057242e-10);
+        let t47 = t45 + t46;
+        let t48 = t24 * T::k(4.736595035057242e-10);
+        let t49 = T::k(0.33238) * t25;
+        let t50 = t48 + t49;
+        let t51 = T::k(219.4013895236754) * t42;
+        let t52 = T::k(0.004557856275072) * t51;
+        let t53 = T::k(-0.0335304944) * t51;
+        let t54 = T::k(6.43853298e-11) * t51;
+        let t55 = t47 - t37;
+        let t56 = t38 + t50;
+        let t57 = t36 + t52;
+        s[16] = t57;
+        let t58 = t53 + t55;
         let t59 = t54 + t56;
-        let t60 = t55 + t57;
-        s[17] = t60;
-        let t61 = t10 * t59;
-        s[18] = t61;
+        s[17] = t59;
+        let t60 = t11 * t58;
+        s[18] = t60;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -894,57 +893,57 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t62 = s[2] * s[17];
-        let t63 = s[18] - t62;
-        let t64 = T::k(0.1) * t63;
-        let t65 = s[16] - t64;
-        s[19] = t65;
-        let t67 = s[3] * T::k(-0.1);
-        let t68 = s[2] * T::k(-0.1);
-        let t69 = T::k(0.08570832216376303) * t67;
-        let t70 = T::k(4.736595035057242e-10) * t68;
-        let t71 = t69 - t70;
-        let t72 = T::k(4.736595035057242e-10) * t67;
-        let t73 = T::k(0.33238) * t68;
-        let t74 = t72 - t73;
-        let t75 = s[3] * t71;
-        let t76 = s[2] * t74;
-        let t77 = t75 - t76;
-        let t78 = T::k(0.1) * t77;
-        let t79 = s[3] * T::k(0.0335304944);
-        s[20] = t79;
-        let t81 = s[2] * T::k(0.0335304944);
-        s[21] = t81;
-        let t82 = s[3] * T::k(0.08570832216376303);
-        let t83 = s[2] * T::k(4.736595035057242e-10);
-        let t84 = t82 - t83;
-        let t85 = s[3] * T::k(4.736595035057242e-10);
-        let t86 = s[2] * T::k(0.33238);
-        let t87 = t85 - t86;
-        let t88 = s[3] * t84;
-        let t89 = s[2] * t87;
-        let t90 = t88 - t89;
-        let t91 = T::k(0.1) * t90;
-        let t92 = s[2] * T::k(0.08570832216376303);
-        let t93 = t85 + t92;
-        let t94 = s[3] * T::k(0.33238);
-        let t95 = t83 + t94;
-        let t96 = s[3] * t93;
-        let t97 = s[2] * t95;
-        let t98 = t96 - t97;
-        let t99 = T::k(0.1) * t98;
-        let t100 = T::k(0.0007545716336328686) - t78;
-        let t101 = T::k(-0.00961628436) - t91;
-        s[22] = t101;
-        let t102 = T::k(5.801760809999999e-7) - t99;
-        s[23] = t102;
-        let t103 = T::k(1.0) / t100;
-        s[24] = t103;
+        let t61 = s[2] * s[17];
+        let t62 = s[18] - t61;
+        let t63 = T::k(0.1) * t62;
+        let t64 = s[16] - t63;
+        s[19] = t64;
+        let t66 = s[3] * T::k(-0.1);
+        let t67 = s[2] * T::k(-0.1);
+        let t68 = T::k(0.08570832216376303) * t66;
+        let t69 = T::k(4.736595035057242e-10) * t67;
+        let t70 = t68 - t69;
+        let t71 = T::k(4.736595035057242e-10) * t66;
+        let t72 = T::k(0.33238) * t67;
+        let t73 = t71 - t72;
+        let t74 = s[3] * t70;
+        let t75 = s[2] * t73;
+        let t76 = t74 - t75;
+        let t77 = T::k(0.1) * t76;
+        let t78 = s[3] * T::k(0.0335304944);
+        s[20] = t78;
+        let t80 = s[2] * T::k(0.0335304944);
+        s[21] = t80;
+        let t81 = s[3] * T::k(0.08570832216376303);
+        let t82 = s[2] * T::k(4.736595035057242e-10);
+        let t83 = t81 - t82;
+        let t84 = s[3] * T::k(4.736595035057242e-10);
+        let t85 = s[2] * T::k(0.33238);
+        let t86 = t84 - t85;
+        let t87 = s[3] * t83;
+        let t88 = s[2] * t86;
+        let t89 = t87 - t88;
+        let t90 = T::k(0.1) * t89;
+        let t91 = s[2] * T::k(0.08570832216376303);
+        let t92 = t84 + t91;
+        let t93 = s[3] * T::k(0.33238);
+        let t94 = t82 + t93;
+        let t95 = s[3] * t92;
+        let t96 = s[2] * t94;
+        let t97 = t95 - t96;
+        let t98 = T::k(0.1) * t97;
+        let t99 = T::k(0.0007545716336328686) - t77;
+        let t100 = T::k(-0.00961628436) - t90;
+        s[22] = t100;
+        let t101 = T::k(5.801760809999999e-7) - t98;
+        s[23] = t101;
+        let t102 = T::k(1.0) / t99;
+        s[24] = t102;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -952,62 +951,60 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t104 = tau[0] - s[19];
-        let t106 = s[0] * T::k(9.81);
-        s[16] = t106;
-        let t107 = s[1] * T::k(9.81);
-        s[17] = t107;
-        let t108 = s[22] * t106;
-        let t109 = s[23] * t107;
-        let t110 = t108 + t109;
-        let t111 = t104 - t110;
-        let t112 = s[24] * t111;
-        qdd[0] = t112;
-        let t113 = T::k(0.1) * t112;
-        let t114 = t106 - t113;
-        let t115 = s[3] * t114;
-        let t116 = s[2] * t107;
-        let t117 = t115 + t116;
-        s[18] = t117;
-        let t118 = s[2] * t114;
-        let t119 = s[3] * t107;
-        let t120 = t119 - t118;
-        s[25] = t120;
-        let t121 = s[6] + t117;
-        s[26] = t121;
-        let t122 = s[7] + t120;
-        s[27] = t122;
-        let t123 = T::k(0.004557856275072) * t112;
-        let t124 = T::k(-0.0335304944) * t121;
-        let t125 = t123 + t124;
-        let t126 = T::k(6.43853298e-11) * t122;
-        let t127 = t125 + t126;
-        let t128 = s[15] - t127;
-        let t129 = T::k(219.4013895236754) * t128;
-        qdd[1] = t129;
-        let t130 = t112 + t129;
-        s[28] = t130;
-        let t131 = s[3] * T::k(-7.356637062775817);
-        let t132 = s[2] * T::k(1.4126230823060104e-8);
-        let t133 = t131 - t132;
-        let t134 = T::k(0.1) * t133;
-        let t135 = T::k(1.0) - t134;
-        let t136 = s[24] * t135;
-        s[29] = t136;
-        let t137 = T::k(0.1) * t136;
-        let t138 = s[3] * t137;
-        let t139 = s[2] * t137;
-        let t140 = T::k(0.004557856275072) * t136;
-        let t141 = T::k(-0.0335304944) * t138;
-        let t142 = t141 - t140;
-        let t143 = T::k(6.43853298e-11) * t139;
-        let t144 = t142 - t143;
-        s[30] = t144;
+        let t103 = tau[0] - s[19];
+        let t105 = s[0] * T::k(9.81);
+        s[16] = t105;
+        let t106 = s[1] * T::k(9.81);
+        s[17] = t106;
+        let t107 = s[22] * t105;
+        let t108 = s[23] * t106;
+        let t109 = t107 + t108;
+        let t110 = t103 - t109;
+        let t111 = s[24] * t110;
+        qdd[0] = t111;
+        let t112 = T::k(0.1) * t111;
+        let t113 = t105 - t112;
+        let t114 = s[3] * t113;
+        let t115 = s[2] * t106;
+        let t116 = t114 + t115;
+        let t117 = s[2] * t113;
+        let t118 = s[3] * t106;
+        let t119 = t118 - t117;
+        let t120 = s[6] + t116;
+        let t121 = s[7] + t119;
+        let t122 = T::k(0.004557856275072) * t111;
+        let t123 = T::k(-0.0335304944) * t120;
+        let t124 = t122 + t123;
+        let t125 = T::k(6.43853298e-11) * t121;
+        let t126 = t124 + t125;
+        let t127 = s[15] - t126;
+        let t128 = T::k(219.4013895236754) * t127;
+        qdd[1] = t128;
+        let t129 = t111 + t128;
+        let t130 = T::k(0.0335304944) * t129;
+        let t131 = T::k(6.43853298e-11) * t129;
+        let t132 = T::k(0.33238) * t120;
+        let t133 = T::k(0.33238) * t121;
+        let t134 = t132 - t130;
+        let t135 = t131 + t133;
+        let t136 = t134 - s[13];
+        s[18] = t136;
+        let t137 = s[14] + t135;
+        s[25] = t137;
+        let t138 = qd[0] * s[4];
+        let t139 = qd[0] * s[5];
+        let t140 = t119 - t138;
+        s[26] = t140;
+        let t141 = t139 - t116;
+        s[27] = t141;
+        let t143 = -s[8];
+        let t144 = t143 - s[9];
+        s[28] = t144;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -1015,67 +1012,63 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t145 = T::k(219.4013895236754) * s[30];
-        let t146 = T::k(219.4013895236754) - t145;
-        s[0] = t146;
-        let t147 = T::k(0.0335304944) * s[28];
-        let t148 = T::k(6.43853298e-11) * s[28];
-        let t149 = T::k(0.33238) * s[26];
-        let t150 = T::k(0.33238) * s[27];
-        let t151 = t149 - t147;
-        let t152 = t148 + t150;
-        let t153 = t151 - s[13];
-        s[1] = t153;
-        let t154 = s[14] + t152;
-        s[6] = t154;
-        let t155 = qd[0] * s[4];
-        let t156 = qd[0] * s[5];
-        let t157 = s[25] - t155;
-        s[7] = t157;
-        let t158 = t156 - s[18];
-        let t160 = -s[8];
-        let t161 = t160 - s[9];
-        s[15] = t161;
-        let t162 = T::k(6.43853298e-11) * s[4];
-        s[19] = t162;
-        let t163 = T::k(0.0335304944) * s[5];
-        let t164 = t163 - t162;
-        let t165 = T::k(2.0) * t164;
-        s[22] = t165;
-        let t166 = t162 - t163;
-        let t167 = T::k(6.43853298e-11) * t158;
-        s[23] = t167;
-        let t168 = T::k(0.0335304944) * t157;
-        let t169 = t167 - t168;
-        s[31] = t169;
-        let t170 = T::k(0.33238) * t157;
-        s[32] = t170;
-        let t171 = T::k(0.33238) * t158;
-        s[33] = t171;
-        let t172 = -s[12];
-        let t173 = s[4] * t161;
-        let t174 = s[5] * s[12];
-        let t175 = t173 - t174;
-        s[34] = t175;
-        let t176 = s[4] * s[11];
-        let t177 = t174 - t176;
-        s[35] = t177;
-        let t178 = t166 + t166;
-        let t179 = s[10] + s[10];
-        let t180 = s[9] + s[9];
-        let t181 = t172 - s[12];
-        let t182 = s[11] + t161;
-        let t183 = t165 + t178;
-        s[36] = t183;
-        let t184 = t179 + t181;
-        s[37] = t184;
-        let t185 = t180 + t182;
-        s[38] = t185;
+        let t145 = T::k(6.43853298e-11) * s[4];
+        let t146 = T::k(0.0335304944) * s[5];
+        let t147 = t146 - t145;
+        let t148 = T::k(2.0) * t147;
+        s[0] = t148;
+        let t149 = t145 - t146;
+        let t150 = T::k(6.43853298e-11) * s[27];
+        let t151 = T::k(0.0335304944) * s[26];
+        let t152 = t150 - t151;
+        let t153 = T::k(0.33238) * s[26];
+        let t154 = T::k(0.33238) * s[27];
+        let t155 = -s[12];
+        let t156 = s[4] * s[28];
+        let t157 = s[5] * s[12];
+        let t158 = t156 - t157;
+        let t159 = s[4] * s[11];
+        let t160 = t157 - t159;
+        let t161 = t149 + t149;
+        let t162 = s[10] + s[10];
+        let t163 = s[9] + s[9];
+        let t164 = t155 - s[12];
+        let t165 = s[11] + s[28];
+        let t166 = t148 + t161;
+        s[1] = t166;
+        let t167 = t162 + t164;
+        s[6] = t167;
+        let t168 = t163 + t165;
+        s[7] = t168;
+        let t169 = t158 + t160;
+        let t170 = t152 + t169;
+        s[8] = t170;
+        let t171 = t153 - s[25];
+        s[13] = t171;
+        let t172 = s[18] + t154;
+        s[14] = t172;
+        let t173 = s[28] - s[11];
+        s[15] = t173;
+        let t174 = T::k(-0.0335304944) * s[26];
+        let t175 = t150 + t174;
+        let t176 = s[4] * t173;
+        let t177 = t175 + t176;
+        s[19] = t177;
+        let t178 = s[5] * T::k(-0.0335304944);
+        let t179 = t145 + t178;
+        let t180 = t179 + t179;
+        let t181 = t148 + t180;
+        s[22] = t181;
+        let t182 = s[3] * T::k(-0.0335304944);
+        let t183 = s[2] * T::k(6.43853298e-11);
+        s[23] = t183;
+        let t184 = t182 - t183;
+        s[24] = t184;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -1083,61 +1076,60 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t186 = s[34] + s[35];
-        let t187 = s[31] + t186;
-        let t188 = s[32] - s[6];
-        let t189 = s[1] + s[33];
-        let t190 = s[15] - s[11];
-        let t191 = T::k(-0.0335304944) * s[7];
-        let t192 = s[23] + t191;
-        let t193 = s[4] * t190;
-        let t194 = t192 + t193;
-        s[8] = t194;
-        let t195 = s[5] * T::k(-0.0335304944);
-        let t196 = s[19] + t195;
-        let t197 = t196 + t196;
-        let t198 = s[22] + t197;
-        s[9] = t198;
-        let t199 = s[3] * T::k(-0.0335304944);
-        let t200 = s[2] * T::k(6.43853298e-11);
-        let t201 = t199 - t200;
-        s[10] = t201;
-        let t202 = s[2] * T::k(-0.0335304944);
-        let t203 = s[3] * T::k(6.43853298e-11);
-        let t204 = t202 + t203;
-        s[13] = t204;
-        let t205 = s[3] * s[37];
-        let t206 = s[2] * s[38];
-        let t207 = t205 - t206;
-        let t208 = T::k(0.1) * t207;
-        let t209 = s[36] - t208;
-        s[14] = t209;
-        let t210 = s[3] * t188;
-        let t211 = s[2] * t189;
-        let t212 = t210 - t211;
-        let t213 = T::k(0.1) * t212;
-        let t214 = t187 - t213;
-        s[18] = t214;
-        let t215 = s[2] * t190;
-        let t216 = T::k(0.1) * t215;
-        let t217 = s[22] + t216;
-        s[25] = t217;
-        let t218 = t203 - s[21];
-        let t219 = s[20] + t200;
-        let t220 = T::k(0.033238000000000004) + t219;
-        let t221 = T::k(5.801760809999999e-7) + t218;
-        s[26] = t221;
-        let t222 = T::k(0.00961628436) + t220;
-        s[27] = t222;
-        let t223 = s[2] * s[15];
-        let t224 = s[3] * s[12];
-        let t225 = t223 + t224;
-        s[28] = t225;
+        let t185 = s[2] * T::k(-0.0335304944);
+        let t186 = s[3] * T::k(6.43853298e-11);
+        let t187 = t185 + t186;
+        let t188 = T::k(0.1) * s[24];
+        let t189 = T::k(0.004557856275072) - t188;
+        s[4] = t189;
+        let t190 = s[3] * s[6];
+        let t191 = s[2] * s[7];
+        let t192 = t190 - t191;
+        let t193 = T::k(0.1) * t192;
+        let t194 = s[1] - t193;
+        s[5] = t194;
+        let t195 = s[3] * s[13];
+        let t196 = s[2] * s[14];
+        let t197 = t195 - t196;
+        let t198 = T::k(0.1) * t197;
+        let t199 = s[8] - t198;
+        s[9] = t199;
+        let t200 = s[2] * s[15];
+        let t201 = T::k(0.1) * t200;
+        let t202 = s[0] + t201;
+        s[10] = t202;
+        let t203 = t186 - s[21];
+        let t204 = s[20] + s[23];
+        let t206 = T::k(0.1) * t204;
+        let t207 = T::k(-3.8305498717999996e-5) + t206;
+        let t208 = T::k(2.0) * t207;
+        let t210 = t208 + T::k(0.007958267272508);
+        let t211 = T::k(0.033238000000000004) + t204;
+        let t212 = T::k(0.0007545716336328686) + t210;
+        s[11] = t212;
+        let t213 = T::k(5.801760809999999e-7) + t203;
+        let t214 = T::k(0.00961628436) + t211;
+        let t215 = s[2] * s[28];
+        let t216 = s[3] * s[12];
+        let t217 = t215 + t216;
+        let t218 = T::k(0.1) * t217;
+        let t219 = T::k(2.0) * t218;
+        let t220 = s[0] + t219;
+        s[18] = t220;
+        let t221 = s[16] * t213;
+        let t222 = s[17] * t214;
+        let t223 = -t222;
+        let t224 = t223 - t221;
+        s[25] = t224;
+        let t225 = s[17] * s[24];
+        s[26] = t225;
+        let t226 = s[16] * t187;
+        s[27] = t226;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -1145,75 +1137,48 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t226 = T::k(0.1) * s[28];
-        let t227 = T::k(2.0) * t226;
-        let t228 = s[22] + t227;
-        let t229 = s[16] * s[26];
-        let t230 = s[17] * s[27];
-        let t231 = -t230;
-        let t232 = t231 - t229;
-        let t233 = s[17] * s[10];
-        let t234 = s[16] * s[13];
-        let t235 = t233 - t234;
-        let t236 = s[24] * t232;
-        let t237 = s[29] * t235;
-        let t238 = t236 - t237;
-        let t239 = -t238;
-        dqdd_dq[0][0] = t239;
-        let t240 = s[24] * s[18];
-        let t241 = s[29] * s[8];
-        let t242 = t240 - t241;
-        let t243 = -t242;
-        dqdd_dq[0][1] = t243;
-        let t244 = s[29] * t232;
-        let t245 = s[0] * t235;
-        let t246 = t245 - t244;
-        let t247 = -t246;
-        dqdd_dq[1][0] = t247;
-        let t248 = s[29] * s[18];
-        let t249 = s[0] * s[8];
-        let t250 = t249 - t248;
-        let t251 = -t250;
-        dqdd_dq[1][1] = t251;
-        let t252 = s[24] * t228;
-        let t253 = s[29] * s[25];
-        let t254 = t252 - t253;
-        let t255 = -t254;
-        dqdd_dqd[0][0] = t255;
-        let t256 = s[24] * s[14];
-        let t257 = s[29] * s[9];
-        let t258 = t256 - t257;
-        let t259 = -t258;
-        dqdd_dqd[0][1] = t259;
-        let t260 = s[29] * t228;
-        let t261 = s[0] * s[25];
-        let t262 = t261 - t260;
-        let t263 = -t262;
-        dqdd_dqd[1][0] = t263;
-        let t264 = s[29] * s[14];
-        s[1] = t264;
-        let t265 = s[0] * s[9];
-        s[2] = t265;
-    }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part6<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut [T; 39],
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t266 = s[2] - s[1];
-        let t267 = -t266;
-        dqdd_dqd[1][1] = t267;
+        let t227 = s[26] - s[27];
+        let t229 = s[4] * T::k(-219.4013895236754);
+        let t230 = s[4] * t229;
+        let t231 = s[11] + t230;
+        let t232 = T::k(-1.0) / t231;
+        let t233 = t227 * t229;
+        let t234 = s[25] + t233;
+        let t235 = t232 * t234;
+        dqdd_dq[0][0] = t235;
+        let t236 = t227 * T::k(-219.4013895236754);
+        let t237 = t229 * t235;
+        let t238 = t236 + t237;
+        dqdd_dq[1][0] = t238;
+        let t239 = s[19] * t229;
+        let t240 = s[9] + t239;
+        let t241 = t232 * t240;
+        dqdd_dq[0][1] = t241;
+        let t242 = s[19] * T::k(-219.4013895236754);
+        let t243 = t229 * t241;
+        let t244 = t242 + t243;
+        dqdd_dq[1][1] = t244;
+        let t245 = s[10] * t229;
+        let t246 = s[18] + t245;
+        let t247 = t232 * t246;
+        dqdd_dqd[0][0] = t247;
+        let t248 = s[10] * T::k(-219.4013895236754);
+        let t249 = t229 * t247;
+        let t250 = t248 + t249;
+        dqdd_dqd[1][0] = t250;
+        let t251 = s[22] * t229;
+        let t252 = s[5] + t251;
+        let t253 = t232 * t252;
+        dqdd_dqd[0][1] = t253;
+        let t254 = s[22] * T::k(-219.4013895236754);
+        let t255 = t229 * t253;
+        let t256 = t254 + t255;
+        dqdd_dqd[1][1] = t256;
     }
 }
 /// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).
@@ -1711,111 +1676,13 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut pm = [[T::k(0.0); NV]; NV];
-        let mut pd0 = [[T::k(0.0); NV]; NV];
-        let mut pd1 = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 39];
-        fd_grad_part0(
-            q,
-            qd,
-            tau,
-            &mut s,
-            &mut qdd,
-            &mut dqdd_dq,
-            &mut dqdd_dqd,
-            &mut pm,
-            &mut pd0,
-            &mut pd1,
-        );
-        fd_grad_part1(
-            q,
-            qd,
-            tau,
-            &mut s,
-            &mut qdd,
-            &mut dqdd_dq,
-            &mut dqdd_dqd,
-            &mut pm,
-            &mut pd0,
-            &mut pd1,
-        );
-        fd_grad_part2(
-            q,
-            qd,
-            tau,
-            &mut s,
-            &mut qdd,
-            &mut dqdd_dq,
-            &mut dqdd_dqd,
-            &mut pm,
-            &mut pd0,
-            &mut pd1,
-        );
-        fd_grad_part3(
-            q,
-            qd,
-            tau,
-            &mut s,
-            &mut qdd,
-            &mut dqdd_dq,
-            &mut dqdd_dqd,
-            &mut pm,
-            &mut pd0,
-            &mut pd1,
-        );
-        fd_grad_part4(
-            q,
-            qd,
-            tau,
-            &mut s,
-            &mut qdd,
-            &mut dqdd_dq,
-            &mut dqdd_dqd,
-            &mut pm,
-            &mut pd0,
-            &mut pd1,
-        );
-        fd_grad_part5(
-            q,
-            qd,
-            tau,
-            &mut s,
-            &mut qdd,
-            &mut dqdd_dq,
-            &mut dqdd_dqd,
-            &mut pm,
-            &mut pd0,
-            &mut pd1,
-        );
-        fd_grad_part6(
-            q,
-            qd,
-            tau,
-            &mut s,
-            &mut qdd,
-            &mut dqdd_dq,
-            &mut dqdd_dqd,
-            &mut pm,
-            &mut pd0,
-            &mut pd1,
-        );
-        pm[0][1] = -pm[0][1];
-        pm[1][0] = -pm[1][0];
-        for i in 0..NV {
-            let mut r0 = [T::k(0.0); NV];
-            let mut r1 = [T::k(0.0); NV];
-            for j in 0..NV {
-                let m = pm[i][j];
-                for c in 0..NV {
-                    r0[c] = T::mul_add(m, pd0[j][c], r0[c]);
-                    r1[c] = T::mul_add(m, pd1[j][c], r1[c]);
-                }
-            }
-            for c in 0..NV {
-                dqdd_dq[i][c] = -r0[c];
-                dqdd_dqd[i][c] = -r1[c];
-            }
-        }
+        let mut s = [T::k(0.0); 29];
+        fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_part4(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_part5(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
     }
     #[inline(never)]
@@ -1825,66 +1692,63 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
-        pm: &mut [[T; NV]; NV],
-        pd0: &mut [[T; NV]; NV],
-        pd1: &mut [[T; NV]; NV],
     ) {
         let t2 = q[0].sin();
         s[0] = t2;
         let t3 = q[0].cos();
         s[1] = t3;
-        let t9 = q[1].sin();
-        s[2] = t9;
-        let t10 = q[1].cos();
-        s[3] = t10;
-        let t19 = T::k(0.1) * qd[0];
-        let t20 = t10 * t19;
-        s[4] = t20;
-        let t21 = t9 * t19;
-        s[5] = t21;
-        let t22 = qd[0] + qd[1];
-        let t23 = qd[1] * t21;
-        s[6] = t23;
-        let t24 = qd[1] * t20;
-        s[7] = t24;
-        let t25 = T::k(0.0335304944) * t22;
-        s[8] = t25;
-        let t27 = T::k(0.33238) * t20;
-        s[9] = t27;
-        let t28 = -t27;
-        let t29 = T::k(0.33238) * t21;
-        s[10] = t29;
-        let t30 = t28 - t25;
-        s[11] = t30;
-        let t31 = T::mul_add(T::k(6.43853298e-11), t22, t29);
-        s[12] = t31;
-        let t32 = t20 * t31;
-        let t33 = -t32;
-        let t35 = T::mul_add(-t21, t30, t33);
-        let t36 = t22 * t31;
-        s[13] = t36;
-        let t37 = t22 * t30;
-        s[14] = t37;
-        let t41 = tau[1] - t35;
-        s[15] = t41;
-        let t47 = t24 * T::k(4.736595035057242e-10);
-        let t48 = T::mul_add(t23, T::k(0.08570832216376303), t47);
-        let t50 = T::k(0.33238) * t24;
-        let t51 = T::mul_add(t23, T::k(4.736595035057242e-10), t50);
-        let t52 = T::k(219.4013895236754) * t41;
-        let t56 = t48 - t36;
-        let t57 = t37 + t51;
-        let t58 = T::mul_add(T::k(0.004557856275072), t52, t35);
-        s[16] = t58;
-        let t59 = T::mul_add(T::k(-0.0335304944), t52, t56);
-        let t60 = T::mul_add(T::k(6.43853298e-11), t52, t57);
-        s[17] = t60;
-        let t61 = t10 * t59;
-        s[18] = t61;
+        let t10 = q[1].sin();
+        s[2] = t10;
+        let t11 = q[1].cos();
+        s[3] = t11;
+        let t20 = T::k(0.1) * qd[0];
+        let t21 = t11 * t20;
+        s[4] = t21;
+        let t22 = t10 * t20;
+        s[5] = t22;
+        let t23 = qd[0] + qd[1];
+        let t24 = qd[1] * t22;
+        s[6] = t24;
+        let t25 = qd[1] * t21;
+        s[7] = t25;
+        let t26 = T::k(0.0335304944) * t23;
+        s[8] = t26;
+        let t28 = T::k(0.33238) * t21;
+        s[9] = t28;
+        let t29 = -t28;
+        let t30 = T::k(0.33238) * t22;
+        s[10] = t30;
+        let t31 = t29 - t26;
+        s[11] = t31;
+        let t32 = T::mul_add(T::k(6.43853298e-11), t23, t30);
+        s[12] = t32;
+        let t33 = t21 * t32;
+        let t34 = -t33;
+        let t36 = T::mul_add(-t22, t31, t34);
+        let t37 = t23 * t32;
+        s[13] = t37;
+        let t38 = t23 * t31;
+        s[14] = t38;
+        let t42 = tau[1] - t36;
+        s[15] = t42;
+        let t46 = t25 * T::k(4.736595035057242e-10);
+        let t47 = T::mul_add(t24, T::k(0.08570832216376303), t46);
+        let t49 = T::k(0.33238) * t25;
+        let t50 = T::mul_add(t24, T::k(4.736595035057242e-10), t49);
+        let t51 = T::k(219.4013895236754) * t42;
+        let t55 = t47 - t37;
+        let t56 = t38 + t50;
+        let t57 = T::mul_add(T::k(0.004557856275072), t51, t36);
+        s[16] = t57;
+        let t58 = T::mul_add(T::k(-0.0335304944), t51, t55);
+        let t59 = T::mul_add(T::k(6.43853298e-11), t51, t56);
+        s[17] = t59;
+        let t60 = t11 * t58;
+        s[18] = t60;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1893,47 +1757,43 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
-        pm: &mut [[T; NV]; NV],
-        pd0: &mut [[T; NV]; NV],
-        pd1: &mut [[T; NV]; NV],
     ) {
-        let t63 = T::mul_add(-s[2], s[17], s[18]);
-        let t65 = T::mul_add(-T::k(0.1), t63, s[16]);
-        s[19] = t65;
-        let t67 = s[3] * T::k(-0.1);
-        let t68 = s[2] * T::k(-0.1);
-        let t70 = T::k(4.736595035057242e-10) * t68;
-        let t71 = T::mul_add(T::k(0.08570832216376303), t67, -t70);
-        let t73 = T::k(0.33238) * t68;
-        let t74 = T::mul_add(T::k(4.736595035057242e-10), t67, -t73);
-        let t76 = s[2] * t74;
-        let t77 = T::mul_add(s[3], t71, -t76);
-        let t79 = s[3] * T::k(0.0335304944);
-        s[20] = t79;
-        let t81 = s[2] * T::k(0.0335304944);
-        s[21] = t81;
-        let t83 = s[2] * T::k(4.736595035057242e-10);
-        let t84 = T::mul_add(s[3], T::k(0.08570832216376303), -t83);
-        let t85 = s[3] * T::k(4.736595035057242e-10);
-        let t87 = T::mul_add(-s[2], T::k(0.33238), t85);
-        let t89 = s[2] * t87;
-        let t90 = T::mul_add(s[3], t84, -t89);
-        let t93 = T::mul_add(s[2], T::k(0.08570832216376303), t85);
-        let t95 = T::mul_add(s[3], T::k(0.33238), t83);
-        let t97 = s[2] * t95;
-        let t98 = T::mul_add(s[3], t93, -t97);
-        let t100 = T::mul_add(-T::k(0.1), t77, T::k(0.0007545716336328686));
-        let t101 = T::mul_add(-T::k(0.1), t90, T::k(-0.00961628436));
-        s[22] = t101;
-        let t102 = T::mul_add(-T::k(0.1), t98, T::k(5.801760809999999e-7));
-        s[23] = t102;
-        let t103 = T::k(1.0) / t100;
-        s[24] = t103;
-        pm[0][0] = t103;
+        let t62 = T::mul_add(-s[2], s[17], s[18]);
+        let t64 = T::mul_add(-T::k(0.1), t62, s[16]);
+        s[19] = t64;
+        let t66 = s[3] * T::k(-0.1);
+        let t67 = s[2] * T::k(-0.1);
+        let t69 = T::k(4.736595035057242e-10) * t67;
+        let t70 = T::mul_add(T::k(0.08570832216376303), t66, -t69);
+        let t72 = T::k(0.33238) * t67;
+        let t73 = T::mul_add(T::k(4.736595035057242e-10), t66, -t72);
+        let t75 = s[2] * t73;
+        let t76 = T::mul_add(s[3], t70, -t75);
+        let t78 = s[3] * T::k(0.0335304944);
+        s[20] = t78;
+        let t80 = s[2] * T::k(0.0335304944);
+        s[21] = t80;
+        let t82 = s[2] * T::k(4.736595035057242e-10);
+        let t83 = T::mul_add(s[3], T::k(0.08570832216376303), -t82);
+        let t84 = s[3] * T::k(4.736595035057242e-10);
+        let t86 = T::mul_add(-s[2], T::k(0.33238), t84);
+        let t88 = s[2] * t86;
+        let t89 = T::mul_add(s[3], t83, -t88);
+        let t92 = T::mul_add(s[2], T::k(0.08570832216376303), t84);
+        let t94 = T::mul_add(s[3], T::k(0.33238), t82);
+        let t96 = s[2] * t94;
+        let t97 = T::mul_add(s[3], t92, -t96);
+        let t99 = T::mul_add(-T::k(0.1), t76, T::k(0.0007545716336328686));
+        let t100 = T::mul_add(-T::k(0.1), t89, T::k(-0.00961628436));
+        s[22] = t100;
+        let t101 = T::mul_add(-T::k(0.1), t97, T::k(5.801760809999999e-7));
+        s[23] = t101;
+        let t102 = T::k(1.0) / t99;
+        s[24] = t102;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1942,57 +1802,50 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
-        pm: &mut [[T; NV]; NV],
-        pd0: &mut [[T; NV]; NV],
-        pd1: &mut [[T; NV]; NV],
     ) {
-        let t104 = tau[0] - s[19];
-        let t106 = s[0] * T::k(9.81);
-        s[16] = t106;
-        let t107 = s[1] * T::k(9.81);
-        s[17] = t107;
-        let t109 = s[23] * t107;
-        let t110 = T::mul_add(s[22], t106, t109);
-        let t111 = t104 - t110;
-        let t112 = s[24] * t111;
-        qdd[0] = t112;
-        let t114 = T::mul_add(-T::k(0.1), t112, t106);
-        let t116 = s[2] * t107;
-        let t117 = T::mul_add(s[3], t114, t116);
-        s[18] = t117;
-        let t118 = s[2] * t114;
-        let t120 = T::mul_add(s[3], t107, -t118);
-        s[25] = t120;
-        let t121 = s[6] + t117;
-        s[26] = t121;
-        let t122 = s[7] + t120;
-        s[27] = t122;
-        let t124 = T::k(-0.0335304944) * t121;
-        let t125 = T::mul_add(T::k(0.004557856275072), t112, t124);
-        let t127 = T::mul_add(T::k(6.43853298e-11), t122, t125);
-        let t128 = s[15] - t127;
-        let t129 = T::k(219.4013895236754) * t128;
-        qdd[1] = t129;
-        let t130 = t112 + t129;
-        s[28] = t130;
-        let t132 = s[2] * T::k(1.4126230823060104e-8);
-        let t133 = T::mul_add(s[3], T::k(-7.356637062775817), -t132);
-        let t135 = T::mul_add(-T::k(0.1), t133, T::k(1.0));
-        let t136 = s[24] * t135;
-        s[29] = t136;
-        pm[0][1] = t136;
-        pm[1][0] = t136;
-        let t137 = T::k(0.1) * t136;
-        let t138 = s[3] * t137;
-        let t139 = s[2] * t137;
-        let t140 = T::k(0.004557856275072) * t136;
-        let t142 = T::mul_add(T::k(-0.0335304944), t138, -t140);
-        let t144 = T::mul_add(-T::k(6.43853298e-11), t139, t142);
-        s[30] = t144;
+        let t103 = tau[0] - s[19];
+        let t105 = s[0] * T::k(9.81);
+        s[16] = t105;
+        let t106 = s[1] * T::k(9.81);
+        s[17] = t106;
+        let t108 = s[23] * t106;
+        let t109 = T::mul_add(s[22], t105, t108);
+        let t110 = t103 - t109;
+        let t111 = s[24] * t110;
+        qdd[0] = t111;
+        let t113 = T::mul_add(-T::k(0.1), t111, t105);
+        let t115 = s[2] * t106;
+        let t116 = T::mul_add(s[3], t113, t115);
+        let t117 = s[2] * t113;
+        let t119 = T::mul_add(s[3], t106, -t117);
+        let t120 = s[6] + t116;
+        let t121 = s[7] + t119;
+        let t123 = T::k(-0.0335304944) * t120;
+        let t124 = T::mul_add(T::k(0.004557856275072), t111, t123);
+        let t126 = T::mul_add(T::k(6.43853298e-11), t121, t124);
+        let t127 = s[15] - t126;
+        let t128 = T::k(219.4013895236754) * t127;
+        qdd[1] = t128;
+        let t129 = t111 + t128;
+        let t130 = T::k(0.0335304944) * t129;
+        let t133 = T::k(0.33238) * t121;
+        let t134 = T::mul_add(T::k(0.33238), t120, -t130);
+        let t135 = T::mul_add(T::k(6.43853298e-11), t129, t133);
+        let t136 = t134 - s[13];
+        s[18] = t136;
+        let t137 = s[14] + t135;
+        s[25] = t137;
+        let t140 = T::mul_add(-qd[0], s[4], t119);
+        s[26] = t140;
+        let t141 = T::mul_add(qd[0], s[5], -t116);
+        s[27] = t141;
+        let t143 = -s[8];
+        let t144 = t143 - s[9];
+        s[28] = t144;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -2001,63 +1854,54 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
-        pm: &mut [[T; NV]; NV],
-        pd0: &mut [[T; NV]; NV],
-        pd1: &mut [[T; NV]; NV],
     ) {
-        let t146 = T::mul_add(-T::k(219.4013895236754), s[30], T::k(219.4013895236754));
-        s[0] = t146;
-        pm[1][1] = t146;
-        let t147 = T::k(0.0335304944) * s[28];
-        let t150 = T::k(0.33238) * s[27];
-        let t151 = T::mul_add(T::k(0.33238), s[26], -t147);
-        let t152 = T::mul_add(T::k(6.43853298e-11), s[28], t150);
-        let t153 = t151 - s[13];
-        s[1] = t153;
-        let t154 = s[14] + t152;
-        s[6] = t154;
-        let t157 = T::mul_add(-qd[0], s[4], s[25]);
-        s[7] = t157;
-        let t158 = T::mul_add(qd[0], s[5], -s[18]);
-        let t160 = -s[8];
-        let t161 = t160 - s[9];
-        s[15] = t161;
-        let t162 = T::k(6.43853298e-11) * s[4];
-        s[19] = t162;
-        let t163 = T::k(0.0335304944) * s[5];
-        let t164 = t163 - t162;
-        let t165 = T::k(2.0) * t164;
-        s[22] = t165;
-        let t166 = t162 - t163;
-        let t167 = T::k(6.43853298e-11) * t158;
-        s[23] = t167;
-        let t169 = T::mul_add(-T::k(0.0335304944), t157, t167);
-        s[31] = t169;
-        let t170 = T::k(0.33238) * t157;
-        s[32] = t170;
-        let t171 = T::k(0.33238) * t158;
-        s[33] = t171;
-        let t172 = -s[12];
-        let t174 = s[5] * s[12];
-        let t175 = T::mul_add(s[4], t161, -t174);
-        s[34] = t175;
-        let t177 = T::mul_add(-s[4], s[11], t174);
-        s[35] = t177;
-        let t178 = t166 + t166;
-        let t179 = s[10] + s[10];
-        let t180 = s[9] + s[9];
-        let t181 = t172 - s[12];
-        let t182 = s[11] + t161;
-        let t183 = t165 + t178;
-        s[36] = t183;
-        let t184 = t179 + t181;
-        s[37] = t184;
-        let t185 = t180 + t182;
-        s[38] = t185;
+        let t145 = T::k(6.43853298e-11) * s[4];
+        let t146 = T::k(0.0335304944) * s[5];
+        let t147 = t146 - t145;
+        let t148 = T::k(2.0) * t147;
+        s[0] = t148;
+        let t149 = t145 - t146;
+        let t150 = T::k(6.43853298e-11) * s[27];
+        let t152 = T::mul_add(-T::k(0.0335304944), s[26], t150);
+        let t155 = -s[12];
+        let t157 = s[5] * s[12];
+        let t158 = T::mul_add(s[4], s[28], -t157);
+        let t160 = T::mul_add(-s[4], s[11], t157);
+        let t161 = t149 + t149;
+        let t162 = s[10] + s[10];
+        let t163 = s[9] + s[9];
+        let t164 = t155 - s[12];
+        let t165 = s[11] + s[28];
+        let t166 = t148 + t161;
+        s[1] = t166;
+        let t167 = t162 + t164;
+        s[6] = t167;
+        let t168 = t163 + t165;
+        s[7] = t168;
+        let t169 = t158 + t160;
+        let t170 = t152 + t169;
+        s[8] = t170;
+        let t171 = T::mul_add(T::k(0.33238), s[26], -s[25]);
+        s[13] = t171;
+        let t172 = T::mul_add(T::k(0.33238), s[27], s[18]);
+        s[14] = t172;
+        let t173 = s[28] - s[11];
+        s[15] = t173;
+        let t175 = T::mul_add(T::k(-0.0335304944), s[26], t150);
+        let t177 = T::mul_add(s[4], t173, t175);
+        s[19] = t177;
+        let t179 = T::mul_add(s[5], T::k(-0.0335304944), t145);
+        let t180 = t179 + t179;
+        let t181 = t148 + t180;
+        s[22] = t181;
+        let t183 = s[2] * T::k(6.43853298e-11);
+        s[23] = t183;
+        let t184 = T::mul_add(s[3], T::k(-0.0335304944), -t183);
+        s[24] = t184;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -2066,58 +1910,48 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
-        pm: &mut [[T; NV]; NV],
-        pd0: &mut [[T; NV]; NV],
-        pd1: &mut [[T; NV]; NV],
     ) {
-        let t186 = s[34] + s[35];
-        let t187 = s[31] + t186;
-        let t188 = s[32] - s[6];
-        let t189 = s[1] + s[33];
-        let t190 = s[15] - s[11];
-        let t192 = T::mul_add(T::k(-0.0335304944), s[7], s[23]);
-        let t194 = T::mul_add(s[4], t190, t192);
-        s[8] = t194;
-        pd0[1][1] = t194;
-        let t196 = T::mul_add(s[5], T::k(-0.0335304944), s[19]);
-        let t197 = t196 + t196;
-        let t198 = s[22] + t197;
-        s[9] = t198;
-        pd1[1][1] = t198;
-        let t200 = s[2] * T::k(6.43853298e-11);
-        let t201 = T::mul_add(s[3], T::k(-0.0335304944), -t200);
-        s[10] = t201;
-        let t203 = s[3] * T::k(6.43853298e-11);
-        let t204 = T::mul_add(s[2], T::k(-0.0335304944), t203);
-        s[13] = t204;
-        let t206 = s[2] * s[38];
-        let t207 = T::mul_add(s[3], s[37], -t206);
-        let t209 = T::mul_add(-T::k(0.1), t207, s[36]);
-        s[14] = t209;
-        pd1[0][1] = t209;
-        let t211 = s[2] * t189;
-        let t212 = T::mul_add(s[3], t188, -t211);
-        let t214 = T::mul_add(-T::k(0.1), t212, t187);
-        s[18] = t214;
-        pd0[0][1] = t214;
-        let t215 = s[2] * t190;
-        let t217 = T::mul_add(T::k(0.1), t215, s[22]);
-        s[25] = t217;
-        pd1[1][0] = t217;
-        let t218 = t203 - s[21];
-        let t219 = s[20] + t200;
-        let t220 = T::k(0.033238000000000004) + t219;
-        let t221 = T::k(5.801760809999999e-7) + t218;
-        s[26] = t221;
-        let t222 = T::k(0.00961628436) + t220;
-        s[27] = t222;
-        let t224 = s[3] * s[12];
-        let t225 = T::mul_add(s[2], s[15], t224);
-        s[28] = t225;
+        let t186 = s[3] * T::k(6.43853298e-11);
+        let t187 = T::mul_add(s[2], T::k(-0.0335304944), t186);
+        let t189 = T::mul_add(-T::k(0.1), s[24], T::k(0.004557856275072));
+        s[4] = t189;
+        let t191 = s[2] * s[7];
+        let t192 = T::mul_add(s[3], s[6], -t191);
+        let t194 = T::mul_add(-T::k(0.1), t192, s[1]);
+        s[5] = t194;
+        let t196 = s[2] * s[14];
+        let t197 = T::mul_add(s[3], s[13], -t196);
+        let t199 = T::mul_add(-T::k(0.1), t197, s[8]);
+        s[9] = t199;
+        let t200 = s[2] * s[15];
+        let t202 = T::mul_add(T::k(0.1), t200, s[0]);
+        s[10] = t202;
+        let t203 = t186 - s[21];
+        let t204 = s[20] + s[23];
+        let t207 = T::mul_add(T::k(0.1), t204, T::k(-3.8305498717999996e-5));
+        let t210 = T::mul_add(T::k(2.0), t207, T::k(0.007958267272508));
+        let t211 = T::k(0.033238000000000004) + t204;
+        let t212 = T::k(0.0007545716336328686) + t210;
+        s[11] = t212;
+        let t213 = T::k(5.801760809999999e-7) + t203;
+        let t214 = T::k(0.00961628436) + t211;
+        let t216 = s[3] * s[12];
+        let t217 = T::mul_add(s[2], s[28], t216);
+        let t218 = T::k(0.1) * t217;
+        let t220 = T::mul_add(T::k(2.0), t218, s[0]);
+        s[18] = t220;
+        let t222 = s[17] * t214;
+        let t223 = -t222;
+        let t224 = T::mul_add(-s[16], t213, t223);
+        s[25] = t224;
+        let t225 = s[17] * s[24];
+        s[26] = t225;
+        let t226 = s[16] * t187;
+        s[27] = t226;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -2126,38 +1960,38 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 39],
+        s: &mut [T; 29],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
-        pm: &mut [[T; NV]; NV],
-        pd0: &mut [[T; NV]; NV],
-        pd1: &mut [[T; NV]; NV],
     ) {
-        let t226 = T::k(0.1) * s[28];
-        let t228 = T::mul_add(T::k(2.0), t226, s[22]);
-        pd1[0][0] = t228;
-        let t230 = s[17] * s[27];
-        let t231 = -t230;
-        let t232 = T::mul_add(-s[16], s[26], t231);
-        pd0[0][0] = t232;
-        let t234 = s[16] * s[13];
-        let t235 = T::mul_add(s[17], s[10], -t234);
-        pd0[1][0] = t235;
+        let t227 = s[26] - s[27];
+        let t229 = s[4] * T::k(-219.4013895236754);
+        let t231 = T::mul_add(s[4], t229, s[11]);
+        let t232 = T::k(-1.0) / t231;
+        let t234 = T::mul_add(t227, t229, s[25]);
+        let t235 = t232 * t234;
+        dqdd_dq[0][0] = t235;
+        let t237 = t229 * t235;
+        let t238 = T::mul_add(t227, T::k(-219.4013895236754), t237);
+        dqdd_dq[1][0] = t238;
+        let t240 = T::mul_add(s[19], t229, s[9]);
+        let t241 = t232 * t240;
+        dqdd_dq[0][1] = t241;
+        let t243 = t229 * t241;
+        let t244 = T::mul_add(s[19], T::k(-219.4013895236754), t243);
+        dqdd_dq[1][1] = t244;
+        let t246 = T::mul_add(s[10], t229, s[18]);
+        let t247 = t232 * t246;
+        dqdd_dqd[0][0] = t247;
+        let t249 = t229 * t247;
+        let t250 = T::mul_add(s[10], T::k(-219.4013895236754), t249);
+        dqdd_dqd[1][0] = t250;
+        let t252 = T::mul_add(s[22], t229, s[5]);
+        let t253 = t232 * t252;
+        dqdd_dqd[0][1] = t253;
+        let t255 = t229 * t253;
+        let t256 = T::mul_add(s[22], T::k(-219.4013895236754), t255);
+        dqdd_dqd[1][1] = t256;
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part6<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut [T; 39],
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-        pm: &mut [[T; NV]; NV],
-        pd0: &mut [[T; NV]; NV],
-        pd1: &mut [[T; NV]; NV],
-    ) {}
 }

@@ -131,6 +131,13 @@ impl Builder {
         self
     }
 
+    /// How `fd_grad` applies M⁻¹ (default [`crate::ir::Solve::Auto`]: the route with fewer
+    /// operations; `info` says which).
+    pub fn solve(&mut self, solve: crate::ir::Solve) -> &mut Self {
+        self.options.lower.solve = solve;
+        self
+    }
+
     /// A scene file (TOML; see [`crate::scene`]): locked joints, kept or dropped subtrees,
     /// payloads, gravity (which replaces [`Builder::gravity`]) and the kernels to
     /// generate. Cargo is told to rerun the build script when it changes.

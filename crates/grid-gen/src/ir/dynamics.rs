@@ -8,7 +8,7 @@
 //! too large for the node limit costs at most one body's work past the limit.
 
 use super::graph::{Graph, Id, Input, Stage};
-use super::kernel::Gradient;
+use super::kernel::{Gradient, Solve};
 use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
 use crate::model::Model;
 
@@ -29,6 +29,9 @@ pub(crate) struct Dynamics<'a> {
     inertia: Vec<SymInertia>,
     /// Set by [`Self::fd_grad`]: the operands of its dense product.
     pub product: Option<super::module::DenseProduct>,
+    /// How [`Self::fd_grad`] applies M⁻¹ to ∂c/∂u (`Auto` runs `Minv`); after recording,
+    /// the route it took.
+    pub solve: Solve,
 }
 
 /// The RNEA quantities the gradient needs.
@@ -55,7 +58,7 @@ impl<'a> Dynamics<'a> {
             s.push(subspace(&mut g, &model.joints[i]));
             inertia.push(SymInertia::new(&mut g, &model.joints[i].inertia));
         }
-        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia, product: None }
+        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia, product: None, solve: Solve::Minv }
     }
 
     /// Model joints (bodies): what the recursions loop over. The kernels' inputs and
@@ -640,6 +643,11 @@ impl<'a> Dynamics<'a> {
     /// Per-coordinate inputs and outputs: with coupled mimic joints q̈ and M⁻¹ are the
     /// constrained ones and the gradient `−M⁻¹ Gᵀ (∂c/∂u) G`.
     pub fn fd_grad(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
+        if self.solve == Solve::Ltdl && !self.coupled() {
+            return self.fd_grad_ltdl(qd, tau);
+        }
+        // The constrained M⁻¹ of coupled mimic joints comes from the direct route.
+        self.solve = Solve::Minv;
         let n = self.model.nv();
         let (qdd, mi) = self.fd_minv(qd, tau);
         let (qd, qdd_joints) = (self.expand(qd), self.expand(&qdd));
@@ -667,6 +675,83 @@ impl<'a> Dynamics<'a> {
         let dqd = product(&dc_qd, &mut self.g);
         let flat = |m: &Mat| m.iter().flatten().map(|&id| super::module::Operand::Node(id)).collect::<Vec<_>>();
         self.product = Some(super::module::DenseProduct { minv: flat(&mi), dc: vec![flat(&dc_q), flat(&dc_qd)], outputs: vec![1, 2] });
+        (qdd, dq, dqd)
+    }
+}
+
+impl Dynamics<'_> {
+    /// [`Self::fd_grad`] by [`Solve::Ltdl`]: q̈ by ABA, ∂c/∂u at q̈, M by CRBA (whose
+    /// composites, `IC S` vectors and their moves to the ancestors are the IDSVA
+    /// gradient's own nodes, shared by hash-consing), then `−M⁻¹ ∂c/∂u` by the
+    /// factorisation. Zero entries of ∂c/∂u (joints on different branches) fold away, so
+    /// each column's solves touch only the joints it can reach.
+    fn fd_grad_ltdl(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
+        let n = self.n();
+        let qdd = self.aba(qd, tau);
+        let r = self.rnea(qd, &qdd);
+        let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
+        let mut m = self.mass_matrix();
+        if self.exhausted() {
+            return (qdd, dc_q, dc_qd);
+        }
+        self.g.at(None, Stage::Combine, 0);
+        let parent = |j: usize| self.model.joints[j].parent;
+        let g = &mut self.g;
+        // LTDL (Featherstone 2005, table 2): M's lower triangle becomes L (unit diagonal
+        // implied) and its diagonal D, in place, rows visited leaves first. One division
+        // per joint, −1/D_k: the solves' diagonal step takes it as it is (the minus sign of
+        // −M⁻¹), and L's entries are −(M_ki · −1/D_k), whose negations the graph moves
+        // into the subtractions that read them (no node is left for them).
+        let minus_one = g.constant(-1.0);
+        let mut neg_dinv = vec![minus_one; n];
+        for k in (0..n).rev() {
+            neg_dinv[k] = g.div(minus_one, m[k][k]);
+            let mut i = parent(k);
+            while let Some(ii) = i {
+                let p = g.mul(m[k][ii], neg_dinv[k]);
+                let a = g.neg(p);
+                let mut j = Some(ii);
+                while let Some(jj) = j {
+                    let t = g.mul(a, m[k][jj]);
+                    m[ii][jj] = g.sub(m[ii][jj], t);
+                    j = parent(jj);
+                }
+                m[k][ii] = a;
+                i = parent(ii);
+            }
+        }
+        let solve = |g: &mut Graph, dc: &Mat| -> Mat {
+            let mut out = vec![vec![Id(0); n]; n];
+            for c in 0..n {
+                let mut b: Vec<Id> = (0..n).map(|row| dc[row][c]).collect();
+                // Lᵀ y = b, leaves first; then z = −D⁻¹ y; then L x = z, root first.
+                for k in (0..n).rev() {
+                    let mut j = parent(k);
+                    while let Some(jj) = j {
+                        let t = g.mul(m[k][jj], b[k]);
+                        b[jj] = g.sub(b[jj], t);
+                        j = parent(jj);
+                    }
+                }
+                for k in 0..n {
+                    b[k] = g.mul(b[k], neg_dinv[k]);
+                }
+                for k in 0..n {
+                    let mut j = parent(k);
+                    while let Some(jj) = j {
+                        let t = g.mul(m[k][jj], b[jj]);
+                        b[k] = g.sub(b[k], t);
+                        j = parent(jj);
+                    }
+                }
+                for (row, x) in b.into_iter().enumerate() {
+                    out[row][c] = x;
+                }
+            }
+            out
+        };
+        let dq = solve(g, &dc_q);
+        let dqd = solve(g, &dc_qd);
         (qdd, dq, dqd)
     }
 }

@@ -64,6 +64,39 @@ impl Gradient {
     }
 }
 
+/// How `fd_grad` forms `−M⁻¹ ∂c/∂u`.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Solve {
+    /// Whichever of the two has fewer operations for this robot, `Ltdl` only on trees at
+    /// most [`super::LTDL_MAX_DEPTH`] joints deep (see there).
+    #[default]
+    Auto,
+    /// The direct M⁻¹ (shared with ABA's articulated inertias), then a dense product:
+    /// n² + 2n³ multiplications on a chain, what Pinocchio does.
+    Minv,
+    /// M's branch-induced sparse factorisation M = Lᵀ D L and two sparse triangular solves
+    /// per column (Featherstone, "Efficient factorization of the joint-space inertia
+    /// matrix for branched kinematic trees", IJRR 2005): the work follows each joint's
+    /// depth, so a branched tree (Atlas's limbs, HyQ's legs) pays for its limbs
+    /// separately; on a chain it is the same count as `Minv`.
+    Ltdl,
+}
+
+impl Solve {
+    pub fn name(self) -> &'static str {
+        match self {
+            Solve::Auto => "auto",
+            Solve::Minv => "minv",
+            Solve::Ltdl => "ltdl",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Solve> {
+        [Solve::Auto, Solve::Minv, Solve::Ltdl].into_iter().find(|s| s.name() == name)
+    }
+}
+
 /// One generated function.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
 #[serde(rename_all = "snake_case")]

@@ -5,7 +5,7 @@
 
 use super::dynamics::Dynamics;
 use super::graph::{Graph, Id, Input, Node, Op};
-use super::kernel::{Gradient, KernelKind, Shape};
+use super::kernel::{Gradient, KernelKind, Shape, Solve};
 use super::validate::{validate, ValidationError};
 use crate::model::{JointType, Model};
 
@@ -30,18 +30,20 @@ pub struct LowerOptions {
     pub max_nodes: usize,
     /// The RNEA gradient's formulation (`rnea_grad`, `fd_grad`).
     pub gradient: Gradient,
+    /// How `fd_grad` applies M⁻¹.
+    pub solve: Solve,
 }
 
 impl Default for LowerOptions {
     fn default() -> Self {
-        LowerOptions { fold: true, sparse: true, kernels: KernelKind::ALL.to_vec(), max_nodes: DEFAULT_MAX_NODES, gradient: Gradient::Auto }
+        LowerOptions { fold: true, sparse: true, kernels: KernelKind::ALL.to_vec(), max_nodes: DEFAULT_MAX_NODES, gradient: Gradient::Auto, solve: Solve::Auto }
     }
 }
 
 impl LowerOptions {
     /// The general dense algorithm: no folding, no sharing, every gradient column.
     pub fn general() -> Self {
-        LowerOptions { fold: false, sparse: false, gradient: Gradient::Columns, ..LowerOptions::default() }
+        LowerOptions { fold: false, sparse: false, gradient: Gradient::Columns, solve: Solve::Minv, ..LowerOptions::default() }
     }
 }
 
@@ -177,6 +179,8 @@ pub struct Function {
     pub kind: KernelKind,
     /// The RNEA gradient's formulation, for the kernels that hold one.
     pub gradient: Option<Gradient>,
+    /// How `fd_grad` applies M⁻¹ (`None` for the other kernels).
+    pub solve: Option<Solve>,
     pub nodes: Vec<Node>,
     pub outputs: Vec<Output>,
     /// `fd_grad`'s `∂q̈/∂u = −M⁻¹ ∂c/∂u`, as its operands: the graph holds the product
@@ -241,24 +245,42 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
     if let (Some(joint), true) = (&model.singular, kind.needs_minv()) {
         return Err(LowerError::Singular { robot: model.name.clone(), kernel: kind, joint: joint.clone() });
     }
-    let f = match options.gradient {
-        Gradient::Auto if Gradient::applies_to(kind) => {
-            let columns = record(model, gravity, kind, options, Gradient::Columns);
-            let idsva = record(model, gravity, kind, options, Gradient::Idsva);
-            match (columns, idsva) {
-                (Ok(a), Ok(b)) => {
-                    if b.nodes.len() < a.nodes.len() {
-                        b
-                    } else {
-                        a
+    // Every candidate formulation is recorded and the one with the fewest nodes kept
+    // (the first on a tie: columns before idsva, the direct M⁻¹ before LTDL).
+    let gradients: &[Gradient] = match options.gradient {
+        Gradient::Auto if Gradient::applies_to(kind) => &[Gradient::Columns, Gradient::Idsva],
+        Gradient::Auto => &[Gradient::Columns],
+        form => std::slice::from_ref(match form {
+            Gradient::Columns => &Gradient::Columns,
+            _ => &Gradient::Idsva,
+        }),
+    };
+    let solves: &[Solve] = match options.solve {
+        _ if kind != KernelKind::FdGrad => &[Solve::Minv],
+        Solve::Auto if ltdl_is_accurate(model) => &[Solve::Minv, Solve::Ltdl],
+        Solve::Auto | Solve::Minv => &[Solve::Minv],
+        Solve::Ltdl => &[Solve::Ltdl],
+    };
+    let mut best: Option<Function> = None;
+    let mut first_error = None;
+    for &gradient in gradients {
+        for &solve in solves {
+            match record(model, gravity, kind, options, gradient, solve) {
+                Ok(f) => {
+                    if best.as_ref().is_none_or(|b| f.nodes.len() < b.nodes.len()) {
+                        best = Some(f);
                     }
                 }
-                (Ok(f), Err(_)) | (Err(_), Ok(f)) => f,
-                (Err(e), Err(_)) => return Err(e),
+                Err(e) => {
+                    first_error.get_or_insert(e);
+                }
             }
         }
-        Gradient::Auto => record(model, gravity, kind, options, Gradient::Columns)?,
-        form => record(model, gravity, kind, options, form)?,
+    }
+    let f = match (best, first_error) {
+        (Some(f), _) => f,
+        (None, Some(e)) => return Err(e),
+        (None, None) => unreachable!("at least one candidate is recorded"),
     };
     for node in &f.nodes {
         if let Op::Const(c) = node.op {
@@ -271,10 +293,26 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
     Ok(f)
 }
 
-/// Runs one kernel's algorithm with one gradient formulation and freezes its graph.
-fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions, gradient: Gradient) -> Result<Function, LowerError> {
+/// The most joints on one path from the root for which `fd_grad` may use [`Solve::Ltdl`].
+/// Forming M and factorising it loses accuracy with cond(M), which grows with a chain's
+/// length, where the direct M⁻¹ (ABA's articulated inertias) does not: measured against
+/// double-double values of the same graphs on `chain_urdf(n)` (three random states, the
+/// worse of ∂q̈/∂q and ∂q̈/∂q̇, relative max-abs), LTDL's error is the direct route's up
+/// to 30 links (1.0e-13 both), 2.2x it at 50 (6.0e-13 against 2.7e-13) and 3.3x at 100
+/// (3.0e-12), where it would also lose the comparison with Pinocchio
+/// (`forward_dynamics_as_accurate_as_pinocchio_on_a_100_link_chain`).
+pub const LTDL_MAX_DEPTH: usize = 50;
+
+fn ltdl_is_accurate(model: &Model) -> bool {
+    model.joints.iter().all(|j| j.level < LTDL_MAX_DEPTH)
+}
+
+/// Runs one kernel's algorithm with one gradient formulation and M⁻¹ route and freezes
+/// its graph.
+fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions, gradient: Gradient, solve: Solve) -> Result<Function, LowerError> {
     let mut d = Dynamics::new(model, gravity, options.fold, options.sparse, options.max_nodes);
     d.gradient = gradient;
+    d.solve = solve;
     let mut outputs = kind.record(&mut d);
     let spec = &model.specialisation;
     if Gradient::applies_to(kind) && spec.selects() {
@@ -298,6 +336,8 @@ fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOpt
     let product = if spec.selects() { None } else { d.product.take() };
     let mut f = freeze(kind, &d.g, outputs, product);
     f.gradient = Gradient::applies_to(kind).then_some(gradient);
+    f.solve = (kind == KernelKind::FdGrad).then_some(d.solve);
+    debug_assert_ne!(f.solve, Some(Solve::Auto));
     Ok(f)
 }
 
@@ -363,7 +403,7 @@ fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>, product: Option<De
         let dc = p.dc.iter().map(|m| remap(m)).collect::<Option<Vec<_>>>()?;
         Some(DenseProduct { minv: remap(&p.minv)?, dc, outputs: p.outputs })
     });
-    Function { kind, nodes, outputs, gradient: None, product }
+    Function { kind, nodes, outputs, gradient: None, solve: None, product }
 }
 
 impl Function {

@@ -4,7 +4,7 @@
 use serde::Serialize;
 
 use super::graph::Op;
-use super::kernel::{Gradient, KernelKind};
+use super::kernel::{Gradient, KernelKind, Solve};
 use super::module::{lower_function, Function, LowerError, LowerOptions};
 use crate::model::Model;
 
@@ -60,6 +60,9 @@ pub struct KernelStats {
     /// general algorithm is always `columns`).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub gradient: Option<Gradient>,
+    /// How the specialised `fd_grad` applies M⁻¹ (picked by operation count).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub solve: Option<Solve>,
 }
 
 /// A kernel left out of [`Stats`] because one of its graphs exceeds the node limit.
@@ -94,6 +97,7 @@ pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: us
         }
         let mut counts = [OpCounts::default(); 2];
         let mut picked = None;
+        let mut solve = None;
         let mut failed = None;
         for (slot, base) in counts.iter_mut().zip([LowerOptions { gradient, ..LowerOptions::default() }, LowerOptions::general()]) {
             let options = LowerOptions { max_nodes, ..base };
@@ -101,6 +105,7 @@ pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: us
                 Ok(f) => {
                     *slot = f.counts();
                     picked = picked.or(f.gradient);
+                    solve = solve.or(f.solve);
                 }
                 Err(e) => {
                     failed = Some(e);
@@ -109,7 +114,7 @@ pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: us
             }
         }
         match failed {
-            None => out.ops.push(KernelStats { kernel: kind, after: counts[0], before: counts[1], gradient: picked }),
+            None => out.ops.push(KernelStats { kernel: kind, after: counts[0], before: counts[1], gradient: picked, solve }),
             Some(e) => {
                 let reason = match e {
                     LowerError::TooLarge { limit, .. } => {

@@ -61,6 +61,7 @@ mod tests {
         Function {
             kind: KernelKind::Rnea,
             gradient: None,
+            solve: None,
             nodes: nodes.into_iter().map(node).collect(),
             outputs: vec![Output { name: "c", shape: Shape::Vector, ids: out.into_iter().map(Id).collect() }],
             product: None,
