@@ -807,13 +807,12 @@ pub mod portable {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 29];
+        let mut s = [T::k(0.0); 40];
         fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part4(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part5(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
     }
     #[inline(never)]
@@ -822,69 +821,69 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t2 = q[0].sin();
-        s[0] = t2;
-        let t3 = q[0].cos();
-        s[1] = t3;
-        let t10 = q[1].sin();
-        s[2] = t10;
-        let t11 = q[1].cos();
-        s[3] = t11;
-        let t20 = T::k(0.1) * qd[0];
-        let t21 = t11 * t20;
-        s[4] = t21;
-        let t22 = t10 * t20;
-        s[5] = t22;
-        let t23 = qd[0] + qd[1];
-        let t24 = qd[1] * t22;
-        s[6] = t24;
-        let t25 = qd[1] * t21;
-        s[7] = t25;
-        let t26 = T::k(0.0335304944) * t23;
-        s[8] = t26;
-        let t27 = T::k(6.43853298e-11) * t23;
-        let t28 = T::k(0.33238) * t21;
-        s[9] = t28;
-        let t29 = -t28;
-        let t30 = T::k(0.33238) * t22;
-        s[10] = t30;
-        let t31 = t29 - t26;
-        s[11] = t31;
-        let t32 = t27 + t30;
-        s[12] = t32;
-        let t33 = t21 * t32;
-        let t34 = -t33;
-        let t35 = t22 * t31;
-        let t36 = t34 - t35;
-        let t37 = t23 * t32;
-        s[13] = t37;
-        let t38 = t23 * t31;
-        s[14] = t38;
-        let t42 = tau[1] - t36;
-        s[15] = t42;
-        let t45 = t24 * T::k(0.08570832216376303);
-        let t46 = t25 * T::k(4.736595035057242e-10);
-        let t47 = t45 + t46;
-        let t48 = t24 * T::k(4.736595035057242e-10);
-        let t49 = T::k(0.33238) * t25;
-        let t50 = t48 + t49;
-        let t51 = T::k(219.4013895236754) * t42;
-        let t52 = T::k(0.004557856275072) * t51;
-        let t53 = T::k(-0.0335304944) * t51;
-        let t54 = T::k(6.43853298e-11) * t51;
-        let t55 = t47 - t37;
-        let t56 = t38 + t50;
-        let t57 = t36 + t52;
-        s[16] = t57;
-        let t58 = t53 + t55;
-        let t59 = t54 + t56;
+        let t1 = q[0].sin();
+        let t2 = q[0].cos();
+        let t9 = q[1].sin();
+        s[0] = t9;
+        let t10 = q[1].cos();
+        s[1] = t10;
+        let t19 = t10 * T::k(6.43853298e-11);
+        let t20 = t9 * T::k(0.0335304944);
+        let t21 = t19 - t20;
+        let t22 = t9 * T::k(6.43853298e-11);
+        let t23 = t10 * T::k(0.0335304944);
+        let t24 = t22 + t23;
+        let t26 = T::k(0.1) * t24;
+        let t27 = T::k(-3.8305498717999996e-5) + t26;
+        let t29 = t27 * T::k(2.0);
+        let t31 = t29 + T::k(0.007958267272508);
+        let t33 = t24 + T::k(0.033238000000000004);
+        let t34 = T::k(0.0007545716336328686) + t31;
+        s[2] = t34;
+        let t35 = T::k(5.801760809999999e-7) + t21;
+        s[3] = t35;
+        let t36 = T::k(0.00961628436) + t33;
+        s[4] = t36;
+        let t38 = t10 * T::k(-0.0335304944);
+        let t39 = t38 - t22;
+        s[5] = t39;
+        let t40 = t9 * T::k(-0.0335304944);
+        let t41 = t19 + t40;
+        s[6] = t41;
+        let t42 = T::k(0.1) * t39;
+        let t43 = T::k(0.004557856275072) - t42;
+        s[7] = t43;
+        let t45 = t1 * T::k(9.81);
+        s[8] = t45;
+        let t46 = t2 * T::k(9.81);
+        s[9] = t46;
+        let t47 = T::k(5.801760809999999e-7) * t46;
+        let t48 = T::k(0.00961628436) * t45;
+        let t49 = t47 - t48;
+        s[10] = t49;
+        let t50 = T::k(0.1) * qd[0];
+        let t51 = t10 * t50;
+        s[11] = t51;
+        let t52 = t9 * t50;
+        s[12] = t52;
+        let t53 = t10 * t45;
+        let t54 = t9 * t46;
+        s[13] = t54;
+        let t55 = t53 + t54;
+        s[14] = t55;
+        let t56 = t9 * t45;
+        let t57 = t10 * t46;
+        s[15] = t57;
+        let t58 = t57 - t56;
+        s[16] = t58;
+        let t59 = qd[0] + qd[1];
         s[17] = t59;
-        let t60 = t11 * t58;
+        let t60 = qd[1] * t52;
         s[18] = t60;
     }
     #[inline(never)]
@@ -893,57 +892,64 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t61 = s[2] * s[17];
-        let t62 = s[18] - t61;
-        let t63 = T::k(0.1) * t62;
-        let t64 = s[16] - t63;
-        s[19] = t64;
-        let t66 = s[3] * T::k(-0.1);
-        let t67 = s[2] * T::k(-0.1);
-        let t68 = T::k(0.08570832216376303) * t66;
-        let t69 = T::k(4.736595035057242e-10) * t67;
-        let t70 = t68 - t69;
-        let t71 = T::k(4.736595035057242e-10) * t66;
-        let t72 = T::k(0.33238) * t67;
+        let t61 = qd[1] * s[11];
+        s[19] = t61;
+        let t62 = s[14] + s[18];
+        let t63 = s[16] + t61;
+        let t64 = T::k(0.0335304944) * s[17];
+        s[20] = t64;
+        let t65 = T::k(6.43853298e-11) * s[17];
+        let t66 = T::k(0.33238) * s[11];
+        s[21] = t66;
+        let t67 = -t66;
+        let t68 = T::k(0.33238) * s[12];
+        s[22] = t68;
+        let t69 = t67 - t64;
+        s[23] = t69;
+        let t70 = t65 + t68;
+        s[24] = t70;
+        let t71 = T::k(6.43853298e-11) * t63;
+        let t72 = T::k(0.0335304944) * t62;
         let t73 = t71 - t72;
-        let t74 = s[3] * t70;
-        let t75 = s[2] * t73;
-        let t76 = t74 - t75;
-        let t77 = T::k(0.1) * t76;
-        let t78 = s[3] * T::k(0.0335304944);
-        s[20] = t78;
-        let t80 = s[2] * T::k(0.0335304944);
-        s[21] = t80;
-        let t81 = s[3] * T::k(0.08570832216376303);
-        let t82 = s[2] * T::k(4.736595035057242e-10);
-        let t83 = t81 - t82;
-        let t84 = s[3] * T::k(4.736595035057242e-10);
-        let t85 = s[2] * T::k(0.33238);
-        let t86 = t84 - t85;
-        let t87 = s[3] * t83;
-        let t88 = s[2] * t86;
-        let t89 = t87 - t88;
-        let t90 = T::k(0.1) * t89;
-        let t91 = s[2] * T::k(0.08570832216376303);
-        let t92 = t84 + t91;
-        let t93 = s[3] * T::k(0.33238);
-        let t94 = t82 + t93;
-        let t95 = s[3] * t92;
-        let t96 = s[2] * t94;
-        let t97 = t95 - t96;
-        let t98 = T::k(0.1) * t97;
-        let t99 = T::k(0.0007545716336328686) - t77;
-        let t100 = T::k(-0.00961628436) - t90;
-        s[22] = t100;
-        let t101 = T::k(5.801760809999999e-7) - t98;
-        s[23] = t101;
-        let t102 = T::k(1.0) / t99;
-        s[24] = t102;
+        let t74 = T::k(0.33238) * t62;
+        let t75 = T::k(0.33238) * t63;
+        let t76 = s[11] * t70;
+        let t77 = -t76;
+        let t78 = s[12] * t69;
+        let t79 = t77 - t78;
+        let t80 = s[17] * t70;
+        s[25] = t80;
+        let t81 = s[17] * t69;
+        s[26] = t81;
+        let t82 = t73 + t79;
+        let t83 = t74 - t80;
+        let t84 = t75 + t81;
+        let t85 = s[1] * t83;
+        let t86 = s[0] * t84;
+        let t87 = t85 - t86;
+        let t88 = T::k(0.1) * t87;
+        let t89 = t82 - t88;
+        let t90 = s[10] + t89;
+        let t92 = s[7] * T::k(-219.4013895236754);
+        s[27] = t92;
+        let t93 = s[7] * t92;
+        let t94 = s[2] + t93;
+        let t95 = T::k(-1.0) / t94;
+        s[28] = t95;
+        let t96 = t90 - tau[0];
+        let t97 = t82 - tau[1];
+        let t98 = t92 * t97;
+        let t99 = t96 + t98;
+        let t100 = t95 * t99;
+        s[29] = t100;
+        qdd[0] = t100;
+        let t101 = T::k(-219.4013895236754) * t97;
+        s[30] = t101;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -951,60 +957,67 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t103 = tau[0] - s[19];
-        let t105 = s[0] * T::k(9.81);
-        s[16] = t105;
-        let t106 = s[1] * T::k(9.81);
-        s[17] = t106;
-        let t107 = s[22] * t105;
-        let t108 = s[23] * t106;
-        let t109 = t107 + t108;
-        let t110 = t103 - t109;
-        let t111 = s[24] * t110;
-        qdd[0] = t111;
-        let t112 = T::k(0.1) * t111;
-        let t113 = t105 - t112;
-        let t114 = s[3] * t113;
-        let t115 = s[2] * t106;
-        let t116 = t114 + t115;
-        let t117 = s[2] * t113;
-        let t118 = s[3] * t106;
-        let t119 = t118 - t117;
-        let t120 = s[6] + t116;
-        let t121 = s[7] + t119;
-        let t122 = T::k(0.004557856275072) * t111;
-        let t123 = T::k(-0.0335304944) * t120;
-        let t124 = t122 + t123;
-        let t125 = T::k(6.43853298e-11) * t121;
-        let t126 = t124 + t125;
-        let t127 = s[15] - t126;
-        let t128 = T::k(219.4013895236754) * t127;
-        qdd[1] = t128;
-        let t129 = t111 + t128;
-        let t130 = T::k(0.0335304944) * t129;
-        let t131 = T::k(6.43853298e-11) * t129;
-        let t132 = T::k(0.33238) * t120;
-        let t133 = T::k(0.33238) * t121;
-        let t134 = t132 - t130;
-        let t135 = t131 + t133;
-        let t136 = t134 - s[13];
-        s[18] = t136;
-        let t137 = s[14] + t135;
-        s[25] = t137;
-        let t138 = qd[0] * s[4];
-        let t139 = qd[0] * s[5];
-        let t140 = t119 - t138;
-        s[26] = t140;
-        let t141 = t139 - t116;
-        s[27] = t141;
-        let t143 = -s[8];
-        let t144 = t143 - s[9];
-        s[28] = t144;
+        let t102 = s[27] * s[29];
+        let t103 = s[30] + t102;
+        qdd[1] = t103;
+        let t104 = T::k(0.1) * s[29];
+        let t105 = s[8] - t104;
+        let t106 = s[1] * t105;
+        let t107 = s[13] + t106;
+        let t108 = s[0] * t105;
+        let t109 = s[15] - t108;
+        let t110 = s[29] + t103;
+        let t111 = s[18] + t107;
+        let t112 = s[19] + t109;
+        let t113 = T::k(0.0335304944) * t110;
+        let t114 = T::k(6.43853298e-11) * t110;
+        let t115 = T::k(0.33238) * t111;
+        let t116 = T::k(0.33238) * t112;
+        let t117 = t115 - t113;
+        let t118 = t114 + t116;
+        let t119 = t117 - s[25];
+        s[2] = t119;
+        let t120 = s[26] + t118;
+        s[7] = t120;
+        let t121 = qd[0] * s[11];
+        let t122 = qd[0] * s[12];
+        let t123 = t109 - t121;
+        s[10] = t123;
+        let t124 = t122 - t107;
+        let t125 = -s[20];
+        let t126 = t125 - s[21];
+        s[14] = t126;
+        let t127 = T::k(6.43853298e-11) * s[11];
+        s[16] = t127;
+        let t128 = T::k(0.0335304944) * s[12];
+        let t129 = t128 - t127;
+        let t130 = T::k(2.0) * t129;
+        s[17] = t130;
+        let t131 = t127 - t128;
+        s[31] = t131;
+        let t132 = T::k(6.43853298e-11) * t124;
+        s[32] = t132;
+        let t133 = T::k(0.0335304944) * t123;
+        let t134 = t132 - t133;
+        s[33] = t134;
+        let t135 = T::k(0.33238) * t123;
+        s[34] = t135;
+        let t136 = T::k(0.33238) * t124;
+        s[35] = t136;
+        let t137 = -s[24];
+        s[36] = t137;
+        let t138 = s[11] * t126;
+        let t139 = s[12] * s[24];
+        s[37] = t139;
+        let t140 = t138 - t139;
+        s[38] = t140;
+        let t141 = s[11] * s[23];
+        s[39] = t141;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -1012,63 +1025,57 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t145 = T::k(6.43853298e-11) * s[4];
-        let t146 = T::k(0.0335304944) * s[5];
-        let t147 = t146 - t145;
-        let t148 = T::k(2.0) * t147;
-        s[0] = t148;
-        let t149 = t145 - t146;
-        let t150 = T::k(6.43853298e-11) * s[27];
-        let t151 = T::k(0.0335304944) * s[26];
-        let t152 = t150 - t151;
-        let t153 = T::k(0.33238) * s[26];
-        let t154 = T::k(0.33238) * s[27];
-        let t155 = -s[12];
-        let t156 = s[4] * s[28];
-        let t157 = s[5] * s[12];
-        let t158 = t156 - t157;
-        let t159 = s[4] * s[11];
-        let t160 = t157 - t159;
-        let t161 = t149 + t149;
-        let t162 = s[10] + s[10];
-        let t163 = s[9] + s[9];
-        let t164 = t155 - s[12];
-        let t165 = s[11] + s[28];
-        let t166 = t148 + t161;
-        s[1] = t166;
-        let t167 = t162 + t164;
-        s[6] = t167;
-        let t168 = t163 + t165;
-        s[7] = t168;
-        let t169 = t158 + t160;
-        let t170 = t152 + t169;
-        s[8] = t170;
-        let t171 = t153 - s[25];
-        s[13] = t171;
-        let t172 = s[18] + t154;
-        s[14] = t172;
-        let t173 = s[28] - s[11];
-        s[15] = t173;
-        let t174 = T::k(-0.0335304944) * s[26];
-        let t175 = t150 + t174;
-        let t176 = s[4] * t173;
-        let t177 = t175 + t176;
-        s[19] = t177;
-        let t178 = s[5] * T::k(-0.0335304944);
-        let t179 = t145 + t178;
-        let t180 = t179 + t179;
-        let t181 = t148 + t180;
-        s[22] = t181;
-        let t182 = s[3] * T::k(-0.0335304944);
-        let t183 = s[2] * T::k(6.43853298e-11);
-        s[23] = t183;
-        let t184 = t182 - t183;
-        s[24] = t184;
+        let t142 = s[37] - s[39];
+        let t143 = s[31] + s[31];
+        let t144 = s[22] + s[22];
+        let t145 = s[21] + s[21];
+        let t146 = s[36] - s[24];
+        let t147 = s[23] + s[14];
+        let t148 = s[17] + t143;
+        let t149 = t144 + t146;
+        let t150 = t145 + t147;
+        let t151 = s[38] + t142;
+        let t152 = s[33] + t151;
+        let t153 = s[34] - s[7];
+        let t154 = s[2] + s[35];
+        let t155 = s[14] - s[23];
+        let t156 = T::k(-0.0335304944) * s[10];
+        let t157 = s[32] + t156;
+        let t158 = s[11] * t155;
+        let t159 = t157 + t158;
+        s[13] = t159;
+        let t160 = T::k(-0.0335304944) * s[12];
+        let t161 = s[16] + t160;
+        let t162 = t161 + t161;
+        let t163 = s[17] + t162;
+        s[15] = t163;
+        let t164 = s[1] * t149;
+        let t165 = s[0] * t150;
+        let t166 = t164 - t165;
+        let t167 = T::k(0.1) * t166;
+        let t168 = t148 - t167;
+        s[18] = t168;
+        let t169 = s[1] * t153;
+        let t170 = s[0] * t154;
+        let t171 = t169 - t170;
+        let t172 = T::k(0.1) * t171;
+        let t173 = t152 - t172;
+        s[19] = t173;
+        let t174 = s[0] * t155;
+        let t175 = T::k(0.1) * t174;
+        let t176 = s[17] + t175;
+        s[20] = t176;
+        let t177 = s[0] * s[14];
+        let t178 = s[1] * s[24];
+        let t179 = t177 + t178;
+        let t180 = T::k(0.1) * t179;
+        let t181 = T::k(2.0) * t180;
+        s[25] = t181;
     }
     #[inline(never)]
     #[allow(clippy::all, unused_variables, unused_mut)]
@@ -1076,109 +1083,51 @@ pub mod portable {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t185 = s[2] * T::k(-0.0335304944);
-        let t186 = s[3] * T::k(6.43853298e-11);
-        let t187 = t185 + t186;
-        let t188 = T::k(0.1) * s[24];
-        let t189 = T::k(0.004557856275072) - t188;
-        s[4] = t189;
-        let t190 = s[3] * s[6];
-        let t191 = s[2] * s[7];
-        let t192 = t190 - t191;
-        let t193 = T::k(0.1) * t192;
-        let t194 = s[1] - t193;
-        s[5] = t194;
-        let t195 = s[3] * s[13];
-        let t196 = s[2] * s[14];
-        let t197 = t195 - t196;
-        let t198 = T::k(0.1) * t197;
-        let t199 = s[8] - t198;
-        s[9] = t199;
-        let t200 = s[2] * s[15];
-        let t201 = T::k(0.1) * t200;
-        let t202 = s[0] + t201;
-        s[10] = t202;
-        let t203 = t186 - s[21];
-        let t204 = s[20] + s[23];
-        let t206 = T::k(0.1) * t204;
-        let t207 = T::k(-3.8305498717999996e-5) + t206;
-        let t208 = T::k(2.0) * t207;
-        let t210 = t208 + T::k(0.007958267272508);
-        let t211 = T::k(0.033238000000000004) + t204;
-        let t212 = T::k(0.0007545716336328686) + t210;
-        s[11] = t212;
-        let t213 = T::k(5.801760809999999e-7) + t203;
-        let t214 = T::k(0.00961628436) + t211;
-        let t215 = s[2] * s[28];
-        let t216 = s[3] * s[12];
-        let t217 = t215 + t216;
-        let t218 = T::k(0.1) * t217;
-        let t219 = T::k(2.0) * t218;
-        let t220 = s[0] + t219;
-        s[18] = t220;
-        let t221 = s[16] * t213;
-        let t222 = s[17] * t214;
-        let t223 = -t222;
-        let t224 = t223 - t221;
-        s[25] = t224;
-        let t225 = s[17] * s[24];
-        s[26] = t225;
-        let t226 = s[16] * t187;
-        s[27] = t226;
-    }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part5<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut [T; 29],
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t227 = s[26] - s[27];
-        let t229 = s[4] * T::k(-219.4013895236754);
-        let t230 = s[4] * t229;
-        let t231 = s[11] + t230;
-        let t232 = T::k(-1.0) / t231;
-        let t233 = t227 * t229;
-        let t234 = s[25] + t233;
-        let t235 = t232 * t234;
-        dqdd_dq[0][0] = t235;
-        let t236 = t227 * T::k(-219.4013895236754);
-        let t237 = t229 * t235;
-        let t238 = t236 + t237;
-        dqdd_dq[1][0] = t238;
-        let t239 = s[19] * t229;
-        let t240 = s[9] + t239;
-        let t241 = t232 * t240;
-        dqdd_dq[0][1] = t241;
-        let t242 = s[19] * T::k(-219.4013895236754);
-        let t243 = t229 * t241;
-        let t244 = t242 + t243;
-        dqdd_dq[1][1] = t244;
-        let t245 = s[10] * t229;
-        let t246 = s[18] + t245;
-        let t247 = t232 * t246;
-        dqdd_dqd[0][0] = t247;
-        let t248 = s[10] * T::k(-219.4013895236754);
-        let t249 = t229 * t247;
-        let t250 = t248 + t249;
-        dqdd_dqd[1][0] = t250;
-        let t251 = s[22] * t229;
-        let t252 = s[5] + t251;
-        let t253 = t232 * t252;
-        dqdd_dqd[0][1] = t253;
-        let t254 = s[22] * T::k(-219.4013895236754);
-        let t255 = t229 * t253;
-        let t256 = t254 + t255;
-        dqdd_dqd[1][1] = t256;
+        let t182 = s[17] + s[25];
+        let t183 = s[3] * s[8];
+        let t184 = s[4] * s[9];
+        let t185 = -t184;
+        let t186 = t185 - t183;
+        let t187 = s[5] * s[9];
+        let t188 = s[6] * s[8];
+        let t189 = t187 - t188;
+        let t190 = s[27] * t189;
+        let t191 = t186 + t190;
+        let t192 = s[28] * t191;
+        dqdd_dq[0][0] = t192;
+        let t193 = T::k(-219.4013895236754) * t189;
+        let t194 = s[27] * t192;
+        let t195 = t193 + t194;
+        dqdd_dq[1][0] = t195;
+        let t196 = s[27] * s[13];
+        let t197 = s[19] + t196;
+        let t198 = s[28] * t197;
+        dqdd_dq[0][1] = t198;
+        let t199 = T::k(-219.4013895236754) * s[13];
+        let t200 = s[27] * t198;
+        let t201 = t199 + t200;
+        dqdd_dq[1][1] = t201;
+        let t202 = s[27] * s[20];
+        let t203 = t182 + t202;
+        let t204 = s[28] * t203;
+        dqdd_dqd[0][0] = t204;
+        let t205 = T::k(-219.4013895236754) * s[20];
+        let t206 = s[27] * t204;
+        let t207 = t205 + t206;
+        dqdd_dqd[1][0] = t207;
+        let t208 = s[27] * s[15];
+        let t209 = s[18] + t208;
+        let t210 = s[28] * t209;
+        dqdd_dqd[0][1] = t210;
+        let t211 = T::k(-219.4013895236754) * s[15];
+        let t212 = s[27] * t210;
+        let t213 = t211 + t212;
+        dqdd_dqd[1][1] = t213;
     }
 }
 /// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).
@@ -1676,13 +1625,12 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 29];
+        let mut s = [T::k(0.0); 40];
         fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part4(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part5(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
     }
     #[inline(never)]
@@ -1692,62 +1640,59 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t2 = q[0].sin();
-        s[0] = t2;
-        let t3 = q[0].cos();
-        s[1] = t3;
-        let t10 = q[1].sin();
-        s[2] = t10;
-        let t11 = q[1].cos();
-        s[3] = t11;
-        let t20 = T::k(0.1) * qd[0];
-        let t21 = t11 * t20;
-        s[4] = t21;
-        let t22 = t10 * t20;
-        s[5] = t22;
-        let t23 = qd[0] + qd[1];
-        let t24 = qd[1] * t22;
-        s[6] = t24;
-        let t25 = qd[1] * t21;
-        s[7] = t25;
-        let t26 = T::k(0.0335304944) * t23;
-        s[8] = t26;
-        let t28 = T::k(0.33238) * t21;
-        s[9] = t28;
-        let t29 = -t28;
-        let t30 = T::k(0.33238) * t22;
-        s[10] = t30;
-        let t31 = t29 - t26;
-        s[11] = t31;
-        let t32 = T::mul_add(T::k(6.43853298e-11), t23, t30);
-        s[12] = t32;
-        let t33 = t21 * t32;
-        let t34 = -t33;
-        let t36 = T::mul_add(-t22, t31, t34);
-        let t37 = t23 * t32;
-        s[13] = t37;
-        let t38 = t23 * t31;
-        s[14] = t38;
-        let t42 = tau[1] - t36;
-        s[15] = t42;
-        let t46 = t25 * T::k(4.736595035057242e-10);
-        let t47 = T::mul_add(t24, T::k(0.08570832216376303), t46);
-        let t49 = T::k(0.33238) * t25;
-        let t50 = T::mul_add(t24, T::k(4.736595035057242e-10), t49);
-        let t51 = T::k(219.4013895236754) * t42;
-        let t55 = t47 - t37;
-        let t56 = t38 + t50;
-        let t57 = T::mul_add(T::k(0.004557856275072), t51, t36);
-        s[16] = t57;
-        let t58 = T::mul_add(T::k(-0.0335304944), t51, t55);
-        let t59 = T::mul_add(T::k(6.43853298e-11), t51, t56);
+        let t1 = q[0].sin();
+        let t2 = q[0].cos();
+        let t9 = q[1].sin();
+        s[0] = t9;
+        let t10 = q[1].cos();
+        s[1] = t10;
+        let t19 = t10 * T::k(6.43853298e-11);
+        let t21 = T::mul_add(-t9, T::k(0.0335304944), t19);
+        let t22 = t9 * T::k(6.43853298e-11);
+        let t24 = T::mul_add(t10, T::k(0.0335304944), t22);
+        let t27 = T::mul_add(T::k(0.1), t24, T::k(-3.8305498717999996e-5));
+        let t31 = T::mul_add(t27, T::k(2.0), T::k(0.007958267272508));
+        let t33 = t24 + T::k(0.033238000000000004);
+        let t34 = T::k(0.0007545716336328686) + t31;
+        s[2] = t34;
+        let t35 = T::k(5.801760809999999e-7) + t21;
+        s[3] = t35;
+        let t36 = T::k(0.00961628436) + t33;
+        s[4] = t36;
+        let t39 = T::mul_add(t10, T::k(-0.0335304944), -t22);
+        s[5] = t39;
+        let t41 = T::mul_add(t9, T::k(-0.0335304944), t19);
+        s[6] = t41;
+        let t43 = T::mul_add(-T::k(0.1), t39, T::k(0.004557856275072));
+        s[7] = t43;
+        let t45 = t1 * T::k(9.81);
+        s[8] = t45;
+        let t46 = t2 * T::k(9.81);
+        s[9] = t46;
+        let t48 = T::k(0.00961628436) * t45;
+        let t49 = T::mul_add(T::k(5.801760809999999e-7), t46, -t48);
+        s[10] = t49;
+        let t50 = T::k(0.1) * qd[0];
+        let t51 = t10 * t50;
+        s[11] = t51;
+        let t52 = t9 * t50;
+        s[12] = t52;
+        let t54 = t9 * t46;
+        s[13] = t54;
+        let t55 = T::mul_add(t10, t45, t54);
+        s[14] = t55;
+        let t57 = t10 * t46;
+        s[15] = t57;
+        let t58 = T::mul_add(-t9, t45, t57);
+        s[16] = t58;
+        let t59 = qd[0] + qd[1];
         s[17] = t59;
-        let t60 = t11 * t58;
+        let t60 = qd[1] * t52;
         s[18] = t60;
     }
     #[inline(never)]
@@ -1757,43 +1702,55 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t62 = T::mul_add(-s[2], s[17], s[18]);
-        let t64 = T::mul_add(-T::k(0.1), t62, s[16]);
-        s[19] = t64;
-        let t66 = s[3] * T::k(-0.1);
-        let t67 = s[2] * T::k(-0.1);
-        let t69 = T::k(4.736595035057242e-10) * t67;
-        let t70 = T::mul_add(T::k(0.08570832216376303), t66, -t69);
-        let t72 = T::k(0.33238) * t67;
-        let t73 = T::mul_add(T::k(4.736595035057242e-10), t66, -t72);
-        let t75 = s[2] * t73;
-        let t76 = T::mul_add(s[3], t70, -t75);
-        let t78 = s[3] * T::k(0.0335304944);
-        s[20] = t78;
-        let t80 = s[2] * T::k(0.0335304944);
-        s[21] = t80;
-        let t82 = s[2] * T::k(4.736595035057242e-10);
-        let t83 = T::mul_add(s[3], T::k(0.08570832216376303), -t82);
-        let t84 = s[3] * T::k(4.736595035057242e-10);
-        let t86 = T::mul_add(-s[2], T::k(0.33238), t84);
-        let t88 = s[2] * t86;
-        let t89 = T::mul_add(s[3], t83, -t88);
-        let t92 = T::mul_add(s[2], T::k(0.08570832216376303), t84);
-        let t94 = T::mul_add(s[3], T::k(0.33238), t82);
-        let t96 = s[2] * t94;
-        let t97 = T::mul_add(s[3], t92, -t96);
-        let t99 = T::mul_add(-T::k(0.1), t76, T::k(0.0007545716336328686));
-        let t100 = T::mul_add(-T::k(0.1), t89, T::k(-0.00961628436));
-        s[22] = t100;
-        let t101 = T::mul_add(-T::k(0.1), t97, T::k(5.801760809999999e-7));
-        s[23] = t101;
-        let t102 = T::k(1.0) / t99;
-        s[24] = t102;
+        let t61 = qd[1] * s[11];
+        s[19] = t61;
+        let t62 = s[14] + s[18];
+        let t63 = s[16] + t61;
+        let t64 = T::k(0.0335304944) * s[17];
+        s[20] = t64;
+        let t66 = T::k(0.33238) * s[11];
+        s[21] = t66;
+        let t67 = -t66;
+        let t68 = T::k(0.33238) * s[12];
+        s[22] = t68;
+        let t69 = t67 - t64;
+        s[23] = t69;
+        let t70 = T::mul_add(T::k(6.43853298e-11), s[17], t68);
+        s[24] = t70;
+        let t72 = T::k(0.0335304944) * t62;
+        let t73 = T::mul_add(T::k(6.43853298e-11), t63, -t72);
+        let t76 = s[11] * t70;
+        let t77 = -t76;
+        let t79 = T::mul_add(-s[12], t69, t77);
+        let t80 = s[17] * t70;
+        s[25] = t80;
+        let t81 = s[17] * t69;
+        s[26] = t81;
+        let t82 = t73 + t79;
+        let t83 = T::mul_add(T::k(0.33238), t62, -t80);
+        let t84 = T::mul_add(T::k(0.33238), t63, t81);
+        let t86 = s[0] * t84;
+        let t87 = T::mul_add(s[1], t83, -t86);
+        let t89 = T::mul_add(-T::k(0.1), t87, t82);
+        let t90 = s[10] + t89;
+        let t92 = s[7] * T::k(-219.4013895236754);
+        s[27] = t92;
+        let t94 = T::mul_add(s[7], t92, s[2]);
+        let t95 = T::k(-1.0) / t94;
+        s[28] = t95;
+        let t96 = t90 - tau[0];
+        let t97 = t82 - tau[1];
+        let t99 = T::mul_add(t92, t97, t96);
+        let t100 = t95 * t99;
+        s[29] = t100;
+        qdd[0] = t100;
+        let t101 = T::k(-219.4013895236754) * t97;
+        s[30] = t101;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1802,50 +1759,57 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t103 = tau[0] - s[19];
-        let t105 = s[0] * T::k(9.81);
-        s[16] = t105;
-        let t106 = s[1] * T::k(9.81);
-        s[17] = t106;
-        let t108 = s[23] * t106;
-        let t109 = T::mul_add(s[22], t105, t108);
-        let t110 = t103 - t109;
-        let t111 = s[24] * t110;
-        qdd[0] = t111;
-        let t113 = T::mul_add(-T::k(0.1), t111, t105);
-        let t115 = s[2] * t106;
-        let t116 = T::mul_add(s[3], t113, t115);
-        let t117 = s[2] * t113;
-        let t119 = T::mul_add(s[3], t106, -t117);
-        let t120 = s[6] + t116;
-        let t121 = s[7] + t119;
-        let t123 = T::k(-0.0335304944) * t120;
-        let t124 = T::mul_add(T::k(0.004557856275072), t111, t123);
-        let t126 = T::mul_add(T::k(6.43853298e-11), t121, t124);
-        let t127 = s[15] - t126;
-        let t128 = T::k(219.4013895236754) * t127;
-        qdd[1] = t128;
-        let t129 = t111 + t128;
-        let t130 = T::k(0.0335304944) * t129;
-        let t133 = T::k(0.33238) * t121;
-        let t134 = T::mul_add(T::k(0.33238), t120, -t130);
-        let t135 = T::mul_add(T::k(6.43853298e-11), t129, t133);
-        let t136 = t134 - s[13];
-        s[18] = t136;
-        let t137 = s[14] + t135;
-        s[25] = t137;
-        let t140 = T::mul_add(-qd[0], s[4], t119);
-        s[26] = t140;
-        let t141 = T::mul_add(qd[0], s[5], -t116);
-        s[27] = t141;
-        let t143 = -s[8];
-        let t144 = t143 - s[9];
-        s[28] = t144;
+        let t103 = T::mul_add(s[27], s[29], s[30]);
+        qdd[1] = t103;
+        let t105 = T::mul_add(-T::k(0.1), s[29], s[8]);
+        let t107 = T::mul_add(s[1], t105, s[13]);
+        let t109 = T::mul_add(-s[0], t105, s[15]);
+        let t110 = s[29] + t103;
+        let t111 = s[18] + t107;
+        let t112 = s[19] + t109;
+        let t113 = T::k(0.0335304944) * t110;
+        let t116 = T::k(0.33238) * t112;
+        let t117 = T::mul_add(T::k(0.33238), t111, -t113);
+        let t118 = T::mul_add(T::k(6.43853298e-11), t110, t116);
+        let t119 = t117 - s[25];
+        s[2] = t119;
+        let t120 = s[26] + t118;
+        s[7] = t120;
+        let t123 = T::mul_add(-qd[0], s[11], t109);
+        s[10] = t123;
+        let t124 = T::mul_add(qd[0], s[12], -t107);
+        let t125 = -s[20];
+        let t126 = t125 - s[21];
+        s[14] = t126;
+        let t127 = T::k(6.43853298e-11) * s[11];
+        s[16] = t127;
+        let t128 = T::k(0.0335304944) * s[12];
+        let t129 = t128 - t127;
+        let t130 = T::k(2.0) * t129;
+        s[17] = t130;
+        let t131 = t127 - t128;
+        s[31] = t131;
+        let t132 = T::k(6.43853298e-11) * t124;
+        s[32] = t132;
+        let t134 = T::mul_add(-T::k(0.0335304944), t123, t132);
+        s[33] = t134;
+        let t135 = T::k(0.33238) * t123;
+        s[34] = t135;
+        let t136 = T::k(0.33238) * t124;
+        s[35] = t136;
+        let t137 = -s[24];
+        s[36] = t137;
+        let t139 = s[12] * s[24];
+        s[37] = t139;
+        let t140 = T::mul_add(s[11], t126, -t139);
+        s[38] = t140;
+        let t141 = s[11] * s[23];
+        s[39] = t141;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1854,54 +1818,48 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t145 = T::k(6.43853298e-11) * s[4];
-        let t146 = T::k(0.0335304944) * s[5];
-        let t147 = t146 - t145;
-        let t148 = T::k(2.0) * t147;
-        s[0] = t148;
-        let t149 = t145 - t146;
-        let t150 = T::k(6.43853298e-11) * s[27];
-        let t152 = T::mul_add(-T::k(0.0335304944), s[26], t150);
-        let t155 = -s[12];
-        let t157 = s[5] * s[12];
-        let t158 = T::mul_add(s[4], s[28], -t157);
-        let t160 = T::mul_add(-s[4], s[11], t157);
-        let t161 = t149 + t149;
-        let t162 = s[10] + s[10];
-        let t163 = s[9] + s[9];
-        let t164 = t155 - s[12];
-        let t165 = s[11] + s[28];
-        let t166 = t148 + t161;
-        s[1] = t166;
-        let t167 = t162 + t164;
-        s[6] = t167;
-        let t168 = t163 + t165;
-        s[7] = t168;
-        let t169 = t158 + t160;
-        let t170 = t152 + t169;
-        s[8] = t170;
-        let t171 = T::mul_add(T::k(0.33238), s[26], -s[25]);
-        s[13] = t171;
-        let t172 = T::mul_add(T::k(0.33238), s[27], s[18]);
-        s[14] = t172;
-        let t173 = s[28] - s[11];
-        s[15] = t173;
-        let t175 = T::mul_add(T::k(-0.0335304944), s[26], t150);
-        let t177 = T::mul_add(s[4], t173, t175);
-        s[19] = t177;
-        let t179 = T::mul_add(s[5], T::k(-0.0335304944), t145);
-        let t180 = t179 + t179;
-        let t181 = t148 + t180;
-        s[22] = t181;
-        let t183 = s[2] * T::k(6.43853298e-11);
-        s[23] = t183;
-        let t184 = T::mul_add(s[3], T::k(-0.0335304944), -t183);
-        s[24] = t184;
+        let t142 = s[37] - s[39];
+        let t143 = s[31] + s[31];
+        let t144 = s[22] + s[22];
+        let t145 = s[21] + s[21];
+        let t146 = s[36] - s[24];
+        let t147 = s[23] + s[14];
+        let t148 = s[17] + t143;
+        let t149 = t144 + t146;
+        let t150 = t145 + t147;
+        let t151 = s[38] + t142;
+        let t152 = s[33] + t151;
+        let t153 = s[34] - s[7];
+        let t154 = s[2] + s[35];
+        let t155 = s[14] - s[23];
+        let t157 = T::mul_add(T::k(-0.0335304944), s[10], s[32]);
+        let t159 = T::mul_add(s[11], t155, t157);
+        s[13] = t159;
+        let t161 = T::mul_add(T::k(-0.0335304944), s[12], s[16]);
+        let t162 = t161 + t161;
+        let t163 = s[17] + t162;
+        s[15] = t163;
+        let t165 = s[0] * t150;
+        let t166 = T::mul_add(s[1], t149, -t165);
+        let t168 = T::mul_add(-T::k(0.1), t166, t148);
+        s[18] = t168;
+        let t170 = s[0] * t154;
+        let t171 = T::mul_add(s[1], t153, -t170);
+        let t173 = T::mul_add(-T::k(0.1), t171, t152);
+        s[19] = t173;
+        let t174 = s[0] * t155;
+        let t176 = T::mul_add(T::k(0.1), t174, s[17]);
+        s[20] = t176;
+        let t178 = s[1] * s[24];
+        let t179 = T::mul_add(s[0], s[14], t178);
+        let t180 = T::k(0.1) * t179;
+        let t181 = T::k(2.0) * t180;
+        s[25] = t181;
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1910,88 +1868,40 @@ pub mod fma {
         q: &[T; NV],
         qd: &[T; NV],
         tau: &[T; NV],
-        s: &mut [T; 29],
+        s: &mut [T; 40],
         qdd: &mut [T; NV],
         dqdd_dq: &mut [[T; NV]; NV],
         dqdd_dqd: &mut [[T; NV]; NV],
     ) {
-        let t186 = s[3] * T::k(6.43853298e-11);
-        let t187 = T::mul_add(s[2], T::k(-0.0335304944), t186);
-        let t189 = T::mul_add(-T::k(0.1), s[24], T::k(0.004557856275072));
-        s[4] = t189;
-        let t191 = s[2] * s[7];
-        let t192 = T::mul_add(s[3], s[6], -t191);
-        let t194 = T::mul_add(-T::k(0.1), t192, s[1]);
-        s[5] = t194;
-        let t196 = s[2] * s[14];
-        let t197 = T::mul_add(s[3], s[13], -t196);
-        let t199 = T::mul_add(-T::k(0.1), t197, s[8]);
-        s[9] = t199;
-        let t200 = s[2] * s[15];
-        let t202 = T::mul_add(T::k(0.1), t200, s[0]);
-        s[10] = t202;
-        let t203 = t186 - s[21];
-        let t204 = s[20] + s[23];
-        let t207 = T::mul_add(T::k(0.1), t204, T::k(-3.8305498717999996e-5));
-        let t210 = T::mul_add(T::k(2.0), t207, T::k(0.007958267272508));
-        let t211 = T::k(0.033238000000000004) + t204;
-        let t212 = T::k(0.0007545716336328686) + t210;
-        s[11] = t212;
-        let t213 = T::k(5.801760809999999e-7) + t203;
-        let t214 = T::k(0.00961628436) + t211;
-        let t216 = s[3] * s[12];
-        let t217 = T::mul_add(s[2], s[28], t216);
-        let t218 = T::k(0.1) * t217;
-        let t220 = T::mul_add(T::k(2.0), t218, s[0]);
-        s[18] = t220;
-        let t222 = s[17] * t214;
-        let t223 = -t222;
-        let t224 = T::mul_add(-s[16], t213, t223);
-        s[25] = t224;
-        let t225 = s[17] * s[24];
-        s[26] = t225;
-        let t226 = s[16] * t187;
-        s[27] = t226;
-    }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part5<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut [T; 29],
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t227 = s[26] - s[27];
-        let t229 = s[4] * T::k(-219.4013895236754);
-        let t231 = T::mul_add(s[4], t229, s[11]);
-        let t232 = T::k(-1.0) / t231;
-        let t234 = T::mul_add(t227, t229, s[25]);
-        let t235 = t232 * t234;
-        dqdd_dq[0][0] = t235;
-        let t237 = t229 * t235;
-        let t238 = T::mul_add(t227, T::k(-219.4013895236754), t237);
-        dqdd_dq[1][0] = t238;
-        let t240 = T::mul_add(s[19], t229, s[9]);
-        let t241 = t232 * t240;
-        dqdd_dq[0][1] = t241;
-        let t243 = t229 * t241;
-        let t244 = T::mul_add(s[19], T::k(-219.4013895236754), t243);
-        dqdd_dq[1][1] = t244;
-        let t246 = T::mul_add(s[10], t229, s[18]);
-        let t247 = t232 * t246;
-        dqdd_dqd[0][0] = t247;
-        let t249 = t229 * t247;
-        let t250 = T::mul_add(s[10], T::k(-219.4013895236754), t249);
-        dqdd_dqd[1][0] = t250;
-        let t252 = T::mul_add(s[22], t229, s[5]);
-        let t253 = t232 * t252;
-        dqdd_dqd[0][1] = t253;
-        let t255 = t229 * t253;
-        let t256 = T::mul_add(s[22], T::k(-219.4013895236754), t255);
-        dqdd_dqd[1][1] = t256;
+        let t182 = s[17] + s[25];
+        let t184 = s[4] * s[9];
+        let t185 = -t184;
+        let t186 = T::mul_add(-s[3], s[8], t185);
+        let t188 = s[6] * s[8];
+        let t189 = T::mul_add(s[5], s[9], -t188);
+        let t191 = T::mul_add(s[27], t189, t186);
+        let t192 = s[28] * t191;
+        dqdd_dq[0][0] = t192;
+        let t194 = s[27] * t192;
+        let t195 = T::mul_add(T::k(-219.4013895236754), t189, t194);
+        dqdd_dq[1][0] = t195;
+        let t197 = T::mul_add(s[27], s[13], s[19]);
+        let t198 = s[28] * t197;
+        dqdd_dq[0][1] = t198;
+        let t200 = s[27] * t198;
+        let t201 = T::mul_add(T::k(-219.4013895236754), s[13], t200);
+        dqdd_dq[1][1] = t201;
+        let t203 = T::mul_add(s[27], s[20], t182);
+        let t204 = s[28] * t203;
+        dqdd_dqd[0][0] = t204;
+        let t206 = s[27] * t204;
+        let t207 = T::mul_add(T::k(-219.4013895236754), s[20], t206);
+        dqdd_dqd[1][0] = t207;
+        let t209 = T::mul_add(s[27], s[15], s[18]);
+        let t210 = s[28] * t209;
+        dqdd_dqd[0][1] = t210;
+        let t212 = s[27] * t210;
+        let t213 = T::mul_add(T::k(-219.4013895236754), s[15], t212);
+        dqdd_dqd[1][1] = t213;
     }
 }

@@ -9,7 +9,7 @@ fn main() {
     let mut names: Vec<_> =
         std::fs::read_dir(&robots).expect("robots/").filter_map(|e| e.ok()).map(|e| e.path()).filter(|p| p.extension().is_some_and(|x| x == "urdf")).collect();
     names.sort();
-    let mut routes = String::from("\n| robot | `fd_grad`, direct M⁻¹ | `fd_grad`, LTDL | auto picks |\n|---|---:|---:|---|\n");
+    let mut routes = String::from("\n| robot | `fd_grad`, minv | `fd_grad`, ltdl | `fd_grad`, crba | auto picks |\n|---|---:|---:|---:|---|\n");
     println!("| robot | kernel | columns | idsva | auto picks |");
     println!("|---|---|---:|---:|---|");
     for path in names {
@@ -28,8 +28,9 @@ fn main() {
             if kind == KernelKind::FdGrad {
                 let (m, _, _) = ops(Gradient::Auto, Solve::Minv);
                 let (l, _, _) = ops(Gradient::Auto, Solve::Ltdl);
+                let (c, _, _) = ops(Gradient::Auto, Solve::Crba);
                 let (_, _, route) = ops(Gradient::Auto, Solve::Auto);
-                routes += &format!("| {} | {m} | {l} | {} |\n", model.name, route.map_or("-", |s| s.name()));
+                routes += &format!("| {} | {m} | {l} | {c} | {} |\n", model.name, route.map_or("-", |s| s.name()));
             }
         }
     }

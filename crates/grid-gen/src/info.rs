@@ -248,7 +248,9 @@ impl Info {
             let show = |v: &Option<Vec<String>>| v.as_ref().map_or("all".to_string(), |v| v.join(", "));
             s.push_str(&format!("gradient entries computed: rows {}; columns {} (the rest are 0)\n", show(&self.gradient_rows), show(&self.gradient_columns)));
         }
-        s.push_str("operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth; the gradient formulation and fd_grad's M⁻¹ route picked):\n");
+        s.push_str(
+            "operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth; the gradient formulation and fd_grad's solve picked):\n",
+        );
         for k in &self.ops {
             let a = &k.after;
             s.push_str(&format!(
@@ -263,7 +265,7 @@ impl Info {
                 a.trig,
                 a.depth,
                 k.gradient.map_or(String::new(), |g| format!("   gradient: {}", g.name()))
-                    + &k.solve.map_or(String::new(), |m| format!(", M⁻¹ by {}", m.name()))
+                    + &k.solve.map_or(String::new(), |m| format!(", solve: {}", m.name()))
             ));
         }
         for k in &self.ops_skipped {

@@ -259,7 +259,7 @@ fn the_looped_product_matches_the_portable_copy() {
     let file = generate(&model, &options).unwrap().remove(0);
     assert!(file.contents.contains("r0[c] = T::mul_add(m, pd0[j][c], r0[c]);"), "the fma copy loops over the product");
     let auto = generate(&model, &Options { lower: Default::default(), ..options.clone() }).unwrap().remove(0);
-    assert!(!auto.contents.contains("pd0[j][c]"), "auto takes LTDL on iiwa, which has no dense product");
+    assert!(!auto.contents.contains("pd0[j][c]"), "auto factorises M on iiwa (no dense product)");
     let dir = std::env::temp_dir().join(format!("grid-gen-looped-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     std::fs::write(dir.join("robot.rs"), &file.contents).unwrap();

@@ -643,7 +643,7 @@ impl<'a> Dynamics<'a> {
     /// Per-coordinate inputs and outputs: with coupled mimic joints q̈ and M⁻¹ are the
     /// constrained ones and the gradient `−M⁻¹ Gᵀ (∂c/∂u) G`.
     pub fn fd_grad(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
-        if self.solve == Solve::Ltdl && !self.coupled() {
+        if matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled() {
             return self.fd_grad_ltdl(qd, tau);
         }
         // The constrained M⁻¹ of coupled mimic joints comes from the direct route.
@@ -680,28 +680,65 @@ impl<'a> Dynamics<'a> {
 }
 
 impl Dynamics<'_> {
-    /// [`Self::fd_grad`] by [`Solve::Ltdl`]: q̈ by ABA, ∂c/∂u at q̈, M by CRBA (whose
+    /// [`Self::fd_grad`] by [`Solve::Ltdl`] (q̈ by ABA) or [`Solve::Crba`] (q̈ from the
+    /// factorisation, `−M⁻¹ (c(q, q̇, 0) − τ)`): ∂c/∂u at q̈, M by CRBA (whose
     /// composites, `IC S` vectors and their moves to the ancestors are the IDSVA
     /// gradient's own nodes, shared by hash-consing), then `−M⁻¹ ∂c/∂u` by the
     /// factorisation. Zero entries of ∂c/∂u (joints on different branches) fold away, so
     /// each column's solves touch only the joints it can reach.
     fn fd_grad_ltdl(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
         let n = self.n();
-        let qdd = self.aba(qd, tau);
+        let zero = self.g.constant(0.0);
+        let (qdd, f) = if self.solve == Solve::Crba {
+            let m = self.mass_matrix();
+            let bias = self.rnea(qd, &vec![zero; n]).c;
+            if self.exhausted() {
+                return (bias, vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
+            }
+            let f = self.ltdl(m);
+            self.g.at(None, Stage::Combine, 0);
+            let b: Vec<Id> = (0..n).map(|i| self.g.sub(bias[i], tau[i])).collect();
+            (f.solve(&mut self.g, self.model, b), f)
+        } else {
+            let qdd = self.aba(qd, tau);
+            let m = self.mass_matrix();
+            if self.exhausted() {
+                return (qdd, vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
+            }
+            (qdd, self.ltdl(m))
+        };
         let r = self.rnea(qd, &qdd);
         let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
-        let mut m = self.mass_matrix();
         if self.exhausted() {
             return (qdd, dc_q, dc_qd);
         }
         self.g.at(None, Stage::Combine, 0);
+        let g = &mut self.g;
+        let mut solve = |dc: &Mat| -> Mat {
+            let mut out = vec![vec![Id(0); n]; n];
+            for c in 0..n {
+                let x = f.solve(g, self.model, (0..n).map(|row| dc[row][c]).collect());
+                for (row, x) in x.into_iter().enumerate() {
+                    out[row][c] = x;
+                }
+            }
+            out
+        };
+        let dq = solve(&dc_q);
+        let dqd = solve(&dc_qd);
+        (qdd, dq, dqd)
+    }
+
+    /// LTDL (Featherstone 2005, table 2): M's lower triangle becomes L (unit diagonal
+    /// implied) and its diagonal D, rows visited leaves first. One division per joint,
+    /// −1/D_k: the solves' diagonal step takes it as it is (the minus sign of −M⁻¹), and
+    /// L's entries are −(M_ki · −1/D_k), whose negations the graph moves into the
+    /// subtractions that read them (no node is left for them).
+    fn ltdl(&mut self, mut m: Mat) -> Ltdl {
+        let n = self.n();
+        self.g.at(None, Stage::Combine, 0);
         let parent = |j: usize| self.model.joints[j].parent;
         let g = &mut self.g;
-        // LTDL (Featherstone 2005, table 2): M's lower triangle becomes L (unit diagonal
-        // implied) and its diagonal D, in place, rows visited leaves first. One division
-        // per joint, −1/D_k: the solves' diagonal step takes it as it is (the minus sign of
-        // −M⁻¹), and L's entries are −(M_ki · −1/D_k), whose negations the graph moves
-        // into the subtractions that read them (no node is left for them).
         let minus_one = g.constant(-1.0);
         let mut neg_dinv = vec![minus_one; n];
         for k in (0..n).rev() {
@@ -720,39 +757,43 @@ impl Dynamics<'_> {
                 i = parent(ii);
             }
         }
-        let solve = |g: &mut Graph, dc: &Mat| -> Mat {
-            let mut out = vec![vec![Id(0); n]; n];
-            for c in 0..n {
-                let mut b: Vec<Id> = (0..n).map(|row| dc[row][c]).collect();
-                // Lᵀ y = b, leaves first; then z = −D⁻¹ y; then L x = z, root first.
-                for k in (0..n).rev() {
-                    let mut j = parent(k);
-                    while let Some(jj) = j {
-                        let t = g.mul(m[k][jj], b[k]);
-                        b[jj] = g.sub(b[jj], t);
-                        j = parent(jj);
-                    }
-                }
-                for k in 0..n {
-                    b[k] = g.mul(b[k], neg_dinv[k]);
-                }
-                for k in 0..n {
-                    let mut j = parent(k);
-                    while let Some(jj) = j {
-                        let t = g.mul(m[k][jj], b[jj]);
-                        b[k] = g.sub(b[k], t);
-                        j = parent(jj);
-                    }
-                }
-                for (row, x) in b.into_iter().enumerate() {
-                    out[row][c] = x;
-                }
+        Ltdl { l: m, neg_dinv }
+    }
+}
+
+/// M = Lᵀ D L, as [`Dynamics::ltdl`] leaves it: L below the diagonal (row k, the
+/// ancestors of k), and −1/D.
+struct Ltdl {
+    l: Mat,
+    neg_dinv: Vec<Id>,
+}
+
+impl Ltdl {
+    /// −M⁻¹ b: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`, `L x = z` root first. Zero entries
+    /// of b fold away, so a column touches only the joints it can reach.
+    fn solve(&self, g: &mut Graph, model: &Model, mut b: Vec<Id>) -> Vec<Id> {
+        let parent = |j: usize| model.joints[j].parent;
+        let n = b.len();
+        for k in (0..n).rev() {
+            let mut j = parent(k);
+            while let Some(jj) = j {
+                let t = g.mul(self.l[k][jj], b[k]);
+                b[jj] = g.sub(b[jj], t);
+                j = parent(jj);
             }
-            out
-        };
-        let dq = solve(g, &dc_q);
-        let dqd = solve(g, &dc_qd);
-        (qdd, dq, dqd)
+        }
+        for k in 0..n {
+            b[k] = g.mul(b[k], self.neg_dinv[k]);
+        }
+        for k in 0..n {
+            let mut j = parent(k);
+            while let Some(jj) = j {
+                let t = g.mul(self.l[k][jj], b[jj]);
+                b[k] = g.sub(b[k], t);
+                j = parent(jj);
+            }
+        }
+        b
     }
 }
 

@@ -64,23 +64,28 @@ impl Gradient {
     }
 }
 
-/// How `fd_grad` forms `−M⁻¹ ∂c/∂u`.
+/// How `fd_grad` gets q̈ and forms `−M⁻¹ ∂c/∂u`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Solve {
-    /// Whichever of the two has fewer operations for this robot, `Ltdl` only on trees at
-    /// most [`super::LTDL_MAX_DEPTH`] joints deep (see there).
+    /// Whichever has fewer operations for this robot, `Ltdl` only on trees at most
+    /// [`super::LTDL_MAX_DEPTH`] joints deep and `Crba` at most [`super::CRBA_MAX_DEPTH`]
+    /// (see there: both trade accuracy for operations on deep chains).
     #[default]
     Auto,
-    /// The direct M⁻¹ (shared with ABA's articulated inertias), then a dense product:
-    /// n² + 2n³ multiplications on a chain, what Pinocchio does.
+    /// q̈ by ABA; the direct M⁻¹ (shared with ABA's articulated inertias), then a dense
+    /// product: n² + 2n³ multiplications on a chain, what Pinocchio does.
     Minv,
-    /// M's branch-induced sparse factorisation M = Lᵀ D L and two sparse triangular solves
-    /// per column (Featherstone, "Efficient factorization of the joint-space inertia
-    /// matrix for branched kinematic trees", IJRR 2005): the work follows each joint's
-    /// depth, so a branched tree (Atlas's limbs, HyQ's legs) pays for its limbs
-    /// separately; on a chain it is the same count as `Minv`.
+    /// q̈ by ABA; M's branch-induced sparse factorisation M = Lᵀ D L and two sparse
+    /// triangular solves per column (Featherstone, "Efficient factorization of the
+    /// joint-space inertia matrix for branched kinematic trees", IJRR 2005): the work
+    /// follows each joint's depth, so a branched tree (Atlas's limbs, HyQ's legs) pays
+    /// for its limbs separately; on a chain it is the same count as `Minv`.
     Ltdl,
+    /// As `Ltdl`, and q̈ too from the factorisation, `q̈ = M⁻¹ (τ − c(q, q̇, 0))` with c by
+    /// RNEA (whose velocities the gradient's RNEA shares): no ABA. Fewer operations, and
+    /// a q̈ that loses accuracy with cond(M) where ABA's does not.
+    Crba,
 }
 
 impl Solve {
@@ -89,11 +94,12 @@ impl Solve {
             Solve::Auto => "auto",
             Solve::Minv => "minv",
             Solve::Ltdl => "ltdl",
+            Solve::Crba => "crba",
         }
     }
 
     pub fn parse(name: &str) -> Option<Solve> {
-        [Solve::Auto, Solve::Minv, Solve::Ltdl].into_iter().find(|s| s.name() == name)
+        [Solve::Auto, Solve::Minv, Solve::Ltdl, Solve::Crba].into_iter().find(|s| s.name() == name)
     }
 }
 
