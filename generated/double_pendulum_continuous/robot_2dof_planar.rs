@@ -14,8 +14,8 @@
 // - `minv(q) -> minv`: M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).
 // - `fd(q, qd, tau) -> qdd`: forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`,
 //   by the O(nv) articulated-body algorithm.
-// - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics (articulated-body algorithm) and its
-//   gradient `-M^-1 dc/du` at that qdd, sharing the articulated inertias with M^-1.
+// - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics and its gradient `-M^-1 dc/du`
+//   at that qdd (the function's doc says how qdd and M^-1 are formed).
 
 /// The robot's name in its URDF.
 #[allow(dead_code)]
@@ -221,7 +221,7 @@ pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     }
     portable::fd(q, qd, tau)
 }
-/// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
+/// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
 ///
 /// Runs [`fma::fd_grad`] where [`has_fma`], else [`portable::fd_grad`].
 #[inline]
@@ -633,7 +633,7 @@ pub mod portable {
         qdd[1] = t123;
         qdd
     }
-    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
+    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd_grad<T: Real>(
@@ -1158,7 +1158,7 @@ pub mod fma {
         qdd[1] = t123;
         qdd
     }
-    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
+    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]

@@ -42552,7 +42552,7 @@ fn fd_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_inde
     fd_coop_p8_0(w, s, n);
 }
 
-// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd. One invocation per state.
+// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass). One invocation per state.
 fn fd_grad_part0(s: u32, n: u32) {
     let t3 = q[0u * n + s];
     let t9 = q[1u * n + s];
@@ -50252,7 +50252,7 @@ fn fd_grad_stage5(@builtin(global_invocation_id) gid: vec3<u32>) {
     fd_grad_part5(s, n);
 }
 
-// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd. One workgroup of 64 invocations per state, 10 phases.
+// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass). One workgroup of 64 invocations per state, 10 phases.
 var<workgroup> fd_grad_coop_wg: array<real, 1296>;
 fn fd_grad_coop_p0_0(w: u32, s: u32, n: u32) {
     switch w {

@@ -30124,7 +30124,7 @@ fn fd_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_inde
     fd_coop_p14_0(w, s, n);
 }
 
-// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd. One invocation per state.
+// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass). One invocation per state.
 fn fd_grad_part0(s: u32, n: u32) {
     let t4 = q[1u * n + s];
     let t17 = q[2u * n + s];
@@ -36962,7 +36962,7 @@ fn fd_grad_stage5(@builtin(global_invocation_id) gid: vec3<u32>) {
     fd_grad_part5(s, n);
 }
 
-// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd. One workgroup of 64 invocations per state, 14 phases.
+// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass). One workgroup of 64 invocations per state, 14 phases.
 var<workgroup> fd_grad_coop_wg: array<real, 825>;
 fn fd_grad_coop_p0_0(w: u32, s: u32, n: u32) {
     switch w {

@@ -9,8 +9,8 @@
 // time (`GRAVITY`).
 //
 // - `rnea_grad(q, qd, qdd) -> (dc_dq, dc_dqd)`: its analytical gradient.
-// - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics (articulated-body algorithm) and its
-//   gradient `-M^-1 dc/du` at that qdd, sharing the articulated inertias with M^-1.
+// - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics and its gradient `-M^-1 dc/du`
+//   at that qdd (the function's doc says how qdd and M^-1 are formed).
 
 /// The robot's name in its URDF.
 #[allow(dead_code)]
@@ -173,7 +173,7 @@ pub fn rnea_grad<T: Real>(
     }
     portable::rnea_grad(q, qd, qdd)
 }
-/// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
+/// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
 ///
 /// Runs [`fma::fd_grad`] where [`has_fma`], else [`portable::fd_grad`].
 #[inline]
@@ -1604,7 +1604,7 @@ pub mod portable {
         dc_dqd[0][0] = t1427;
         (dc_dq, dc_dqd)
     }
-    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
+    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd_grad<T: Real>(
@@ -4530,7 +4530,7 @@ pub mod fma {
         dc_dqd[0][0] = t1427;
         (dc_dq, dc_dqd)
     }
-    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd.
+    /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]

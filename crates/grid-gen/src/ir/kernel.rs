@@ -101,6 +101,15 @@ impl Solve {
     pub fn parse(name: &str) -> Option<Solve> {
         [Solve::Auto, Solve::Minv, Solve::Ltdl, Solve::Crba].into_iter().find(|s| s.name() == name)
     }
+
+    /// How a kernel recorded with this solve gets q̈ and M⁻¹, for its doc comment.
+    pub fn doc(self) -> &'static str {
+        match self {
+            Solve::Auto | Solve::Minv => "qdd by the articulated-body algorithm, M^-1 by the direct recursion.",
+            Solve::Ltdl => "qdd by the articulated-body algorithm, M^-1 applied through M's sparse factorisation `M = L^T D L`.",
+            Solve::Crba => "qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).",
+        }
+    }
 }
 
 /// One generated function.
@@ -168,9 +177,7 @@ impl KernelKind {
             KernelKind::MassMatrix => "The joint-space inertia matrix M(q) (CRBA).",
             KernelKind::Minv => "M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.",
             KernelKind::Fd => "Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).",
-            KernelKind::FdGrad => {
-                "Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, qdd by the articulated-body algorithm and `dqdd/du = -M^-1 dc/du` at that qdd."
-            }
+            KernelKind::FdGrad => "Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd.",
         }
     }
 
@@ -183,9 +190,7 @@ impl KernelKind {
             KernelKind::MassMatrix => "the joint-space inertia matrix M(q).",
             KernelKind::Minv => "M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).",
             KernelKind::Fd => "forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`,\n  by the O(nv) articulated-body algorithm.",
-            KernelKind::FdGrad => {
-                "forward dynamics (articulated-body algorithm) and its\n  gradient `-M^-1 dc/du` at that qdd, sharing the articulated inertias with M^-1."
-            }
+            KernelKind::FdGrad => "forward dynamics and its gradient `-M^-1 dc/du`\n  at that qdd (the function's doc says how qdd and M^-1 are formed).",
         }
     }
 

@@ -416,6 +416,14 @@ fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>, product: Option<De
 }
 
 impl Function {
+    /// The kernel's doc sentence, with how this graph gets q̈ and M⁻¹ where it has a solve.
+    pub fn doc(&self) -> String {
+        match self.solve {
+            Some(solve) => format!("{} {}", self.kind.doc(), solve.doc()),
+            None => self.kind.doc().to_string(),
+        }
+    }
+
     pub fn inputs(&self) -> &'static [Input] {
         self.kind.inputs()
     }

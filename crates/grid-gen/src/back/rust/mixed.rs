@@ -92,7 +92,7 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str,
         }
         b
     };
-    let _ = writeln!(out, "/// {} Mixed precision.", k.kind.doc());
+    let _ = writeln!(out, "/// {} Mixed precision.", k.doc());
     let _ = writeln!(out, "#[allow(clippy::all, unused_variables, unused_mut, unused_parens, dead_code)]");
     let _ = writeln!(out, "pub fn {name}({}) -> {ret_type} {{", args.join(", "));
     for o in &k.outputs {

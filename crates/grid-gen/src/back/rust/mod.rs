@@ -306,7 +306,7 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
     };
 
     let attr = copy.attribute();
-    let _ = writeln!(out, "/// {}", k.kind.doc());
+    let _ = writeln!(out, "/// {}", k.doc());
     let _ = writeln!(out, "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]");
     let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
     for o in &k.outputs {
@@ -442,10 +442,10 @@ fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool) {
         let _ = writeln!(
             out,
             "/// {}\n///\n/// Runs [`avx512::{name}`] where [`has_avx512`], else [`fma::{name}`] where [`has_fma`] (the same\n/// results, bit for bit), else [`portable::{name}`].",
-            k.kind.doc()
+            k.doc()
         );
     } else {
-        let _ = writeln!(out, "/// {}\n///\n/// Runs [`fma::{name}`] where [`has_fma`], else [`portable::{name}`].", k.kind.doc());
+        let _ = writeln!(out, "/// {}\n///\n/// Runs [`fma::{name}`] where [`has_fma`], else [`portable::{name}`].", k.doc());
     }
     let _ = writeln!(out, "#[inline]\n#[allow(dead_code)]\npub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
     if avx512 {

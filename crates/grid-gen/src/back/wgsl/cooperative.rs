@@ -30,7 +30,7 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
             Home::Scratch(k) => format!("scratch[{k}u * n + s]"),
         }
     };
-    let _ = writeln!(out, "// {} One workgroup of {} invocations per state, {} phases.", f.kind.doc(), options.workers, p.phases.len());
+    let _ = writeln!(out, "// {} One workgroup of {} invocations per state, {} phases.", f.doc(), options.workers, p.phases.len());
     if in_workgroup > 0 {
         let _ = writeln!(out, "var<workgroup> {wg}: array<real, {in_workgroup}>;");
     }

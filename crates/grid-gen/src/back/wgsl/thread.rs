@@ -21,7 +21,7 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
     let name = Strategy::Thread.entry(f.kind.name());
     let (stores, inline, outputs) = output_stores(f, nv);
     let mut statements = 0;
-    let _ = writeln!(out, "// {} One invocation per state.", f.kind.doc());
+    let _ = writeln!(out, "// {} One invocation per state.", f.doc());
     for (ci, ids) in c.chunks.iter().enumerate() {
         let _ = writeln!(out, "fn {name}_part{ci}(s: u32, n: u32) {{");
         let here = |id: Id| c.chunk_of[id.0 as usize] == Some(ci as u32);
