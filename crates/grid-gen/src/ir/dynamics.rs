@@ -29,8 +29,8 @@ pub(crate) struct Dynamics<'a> {
     inertia: Vec<SymInertia>,
     /// Set by [`Self::fd_grad`]: the operands of its dense product.
     pub product: Option<super::module::DenseProduct>,
-    /// How [`Self::fd_grad`] applies M⁻¹ to ∂c/∂u (`Auto` runs `Minv`); after recording,
-    /// the route it took.
+    /// How [`Self::fd_grad`] gets q̈ and applies M⁻¹ to ∂c/∂u (`Auto` runs `Minv`); after
+    /// recording, the solve it took.
     pub solve: Solve,
 }
 
@@ -689,24 +689,18 @@ impl Dynamics<'_> {
     fn fd_grad_ltdl(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
         let n = self.n();
         let zero = self.g.constant(0.0);
-        let (qdd, f) = if self.solve == Solve::Crba {
-            let m = self.mass_matrix();
-            let bias = self.rnea(qd, &vec![zero; n]).c;
-            if self.exhausted() {
-                return (bias, vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
-            }
-            let f = self.ltdl(m);
-            self.g.at(None, Stage::Combine, 0);
+        let m = self.mass_matrix();
+        // q̈ by ABA, or the bias forces c(q, q̇, 0) that the factorisation turns into q̈.
+        let by_aba = (self.solve == Solve::Ltdl).then(|| self.aba(qd, tau));
+        let bias = if by_aba.is_none() { self.rnea(qd, &vec![zero; n]).c } else { Vec::new() };
+        if self.exhausted() {
+            return (vec![zero; n], vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
+        }
+        let f = self.ltdl(m);
+        let qdd = by_aba.unwrap_or_else(|| {
             let b: Vec<Id> = (0..n).map(|i| self.g.sub(bias[i], tau[i])).collect();
-            (f.solve(&mut self.g, self.model, b), f)
-        } else {
-            let qdd = self.aba(qd, tau);
-            let m = self.mass_matrix();
-            if self.exhausted() {
-                return (qdd, vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
-            }
-            (qdd, self.ltdl(m))
-        };
+            f.solve(&mut self.g, self.model, b)
+        });
         let r = self.rnea(qd, &qdd);
         let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
         if self.exhausted() {
@@ -737,24 +731,20 @@ impl Dynamics<'_> {
     fn ltdl(&mut self, mut m: Mat) -> Ltdl {
         let n = self.n();
         self.g.at(None, Stage::Combine, 0);
-        let parent = |j: usize| self.model.joints[j].parent;
         let g = &mut self.g;
         let minus_one = g.constant(-1.0);
         let mut neg_dinv = vec![minus_one; n];
         for k in (0..n).rev() {
             neg_dinv[k] = g.div(minus_one, m[k][k]);
-            let mut i = parent(k);
-            while let Some(ii) = i {
-                let p = g.mul(m[k][ii], neg_dinv[k]);
+            let up = strict_ancestors(self.model, k);
+            for (at, &i) in up.iter().enumerate() {
+                let p = g.mul(m[k][i], neg_dinv[k]);
                 let a = g.neg(p);
-                let mut j = Some(ii);
-                while let Some(jj) = j {
-                    let t = g.mul(a, m[k][jj]);
-                    m[ii][jj] = g.sub(m[ii][jj], t);
-                    j = parent(jj);
+                for &j in &up[at..] {
+                    let t = g.mul(a, m[k][j]);
+                    m[i][j] = g.sub(m[i][j], t);
                 }
-                m[k][ii] = a;
-                i = parent(ii);
+                m[k][i] = a;
             }
         }
         Ltdl { l: m, neg_dinv }
@@ -772,29 +762,33 @@ impl Ltdl {
     /// −M⁻¹ b: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`, `L x = z` root first. Zero entries
     /// of b fold away, so a column touches only the joints it can reach.
     fn solve(&self, g: &mut Graph, model: &Model, mut b: Vec<Id>) -> Vec<Id> {
-        let parent = |j: usize| model.joints[j].parent;
         let n = b.len();
         for k in (0..n).rev() {
-            let mut j = parent(k);
-            while let Some(jj) = j {
-                let t = g.mul(self.l[k][jj], b[k]);
-                b[jj] = g.sub(b[jj], t);
-                j = parent(jj);
+            for j in strict_ancestors(model, k) {
+                let t = g.mul(self.l[k][j], b[k]);
+                b[j] = g.sub(b[j], t);
             }
         }
         for k in 0..n {
             b[k] = g.mul(b[k], self.neg_dinv[k]);
         }
         for k in 0..n {
-            let mut j = parent(k);
-            while let Some(jj) = j {
-                let t = g.mul(self.l[k][jj], b[jj]);
+            for j in strict_ancestors(model, k) {
+                let t = g.mul(self.l[k][j], b[j]);
                 b[k] = g.sub(b[k], t);
-                j = parent(jj);
             }
         }
         b
     }
+}
+
+/// The ancestors of joint k, nearest first, k excluded: the order the factorisation and
+/// the solves visit them.
+fn strict_ancestors(model: &Model, k: usize) -> Vec<usize> {
+    let mut up = model.ancestors(k);
+    up.pop();
+    up.reverse();
+    up
 }
 
 /// `Σ S_m q̇_m` over joints `members`: one joint's `S q̇`, or a multi-dof joint's v_J.

@@ -98,10 +98,6 @@ impl Solve {
         }
     }
 
-    pub fn parse(name: &str) -> Option<Solve> {
-        [Solve::Auto, Solve::Minv, Solve::Ltdl, Solve::Crba].into_iter().find(|s| s.name() == name)
-    }
-
     /// How a kernel recorded with this solve gets q̈ and M⁻¹, for its doc comment.
     pub fn doc(self) -> &'static str {
         match self {

@@ -30,7 +30,7 @@ pub struct LowerOptions {
     pub max_nodes: usize,
     /// The RNEA gradient's formulation (`rnea_grad`, `fd_grad`).
     pub gradient: Gradient,
-    /// How `fd_grad` applies M⁻¹.
+    /// How `fd_grad` gets q̈ and applies M⁻¹.
     pub solve: Solve,
 }
 
@@ -179,7 +179,7 @@ pub struct Function {
     pub kind: KernelKind,
     /// The RNEA gradient's formulation, for the kernels that hold one.
     pub gradient: Option<Gradient>,
-    /// How `fd_grad` applies M⁻¹ (`None` for the other kernels).
+    /// How `fd_grad` got q̈ and applied M⁻¹ (`None` for the other kernels).
     pub solve: Option<Solve>,
     pub nodes: Vec<Node>,
     pub outputs: Vec<Output>,
@@ -246,14 +246,11 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
         return Err(LowerError::Singular { robot: model.name.clone(), kernel: kind, joint: joint.clone() });
     }
     // Every candidate formulation is recorded and the one with the fewest nodes kept
-    // (the first on a tie: columns before idsva, the direct M⁻¹ before LTDL).
+    // (the first on a tie: columns before idsva; minv before ltdl before crba).
     let gradients: &[Gradient] = match options.gradient {
         Gradient::Auto if Gradient::applies_to(kind) => &[Gradient::Columns, Gradient::Idsva],
-        Gradient::Auto => &[Gradient::Columns],
-        form => std::slice::from_ref(match form {
-            Gradient::Columns => &Gradient::Columns,
-            _ => &Gradient::Idsva,
-        }),
+        Gradient::Auto | Gradient::Columns => &[Gradient::Columns],
+        Gradient::Idsva => &[Gradient::Idsva],
     };
     let depth = model.joints.iter().map(|j| j.level + 1).max().unwrap_or(0);
     let solves: &[Solve] = match options.solve {
