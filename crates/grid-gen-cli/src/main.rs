@@ -78,11 +78,6 @@ struct WgslArgs {
     /// split).
     #[arg(long, value_name = "OPS", default_value_t = grid_gen::back::wgsl::DEFAULT_STAGE, global = true)]
     wgsl_stage: usize,
-    /// WGSL cooperative strategy: the same, by whole phases (0, the default: one dispatch,
-    /// values between phases in workgroup memory; lavapipe compiles large kernels faster
-    /// split, e.g. 1000).
-    #[arg(long, value_name = "OPS", default_value_t = 0, global = true)]
-    wgsl_coop_stage: usize,
 }
 
 impl WgslArgs {
@@ -98,7 +93,6 @@ impl WgslArgs {
             trig: Trig::parse(&self.wgsl_trig).unwrap_or(Trig::Accurate),
             workers: self.wgsl_workers,
             stage: self.wgsl_stage,
-            coop_stage: self.wgsl_coop_stage,
             ..WgslOptions::default()
         }
     }

@@ -26,6 +26,10 @@ pub struct ShaderInfo {
     pub nq: usize,
     pub precision: Precision,
     pub entries: Vec<EntryInfo>,
+    /// The cooperative entries' operation tables (binding 6) and constants (binding 7),
+    /// from the `// prog:` and `// konst:` lines at the end of the file.
+    pub prog: Vec<u32>,
+    pub konst: Vec<f64>,
 }
 
 #[derive(Debug, thiserror::Error)]
@@ -42,6 +46,7 @@ impl ShaderInfo {
         let mut nq = None;
         let mut precision = None;
         let mut entries = Vec::new();
+        let mut tables = None;
         // The header ends at the first line that is not a comment.
         for line in source.lines().take_while(|l| l.starts_with("//")) {
             let bad = |why: &str| HeaderError::Bad { line: line.to_string(), why: why.to_string() };
@@ -49,6 +54,13 @@ impl ShaderInfo {
                 nv = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
             } else if let Some(v) = line.strip_prefix("// nq: ") {
                 nq = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
+            } else if let Some(v) = line.strip_prefix("// tables: ") {
+                let mut counts = [0usize; 2];
+                for (k, key) in ["prog=", "konst="].iter().enumerate() {
+                    let word = v.split_whitespace().find_map(|w| w.strip_prefix(key)).ok_or_else(|| bad(&format!("no `{key}`")))?;
+                    counts[k] = word.parse().map_err(|_| bad(&format!("`{key}` is not a count")))?;
+                }
+                tables = Some(counts);
             } else if let Some(v) = line.strip_prefix("// precision: ") {
                 precision = Some(Precision::parse(v.trim()).ok_or_else(|| bad("unknown precision"))?);
             } else if let Some(v) = line.strip_prefix("// entry: ") {
@@ -77,10 +89,47 @@ impl ShaderInfo {
             }
         }
         let nv = nv.ok_or(HeaderError::Missing("nv"))?;
-        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), precision: precision.ok_or(HeaderError::Missing("precision"))?, entries })
+        let precision = precision.ok_or(HeaderError::Missing("precision"))?;
+        // Shaders written before the tables existed have neither the line nor a
+        // cooperative entry that needs them.
+        let (prog, konst) = match tables {
+            Some([words, values]) => read_tables(source, words, values, precision)?,
+            None => (Vec::new(), Vec::new()),
+        };
+        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), precision, entries, prog, konst })
     }
 
     pub fn entry(&self, name: &str) -> Option<&EntryInfo> {
         self.entries.iter().find(|e| e.entry == name)
     }
+}
+
+/// The `// prog:` (hex words) and `// konst:` (decimal values, read in the shader's
+/// precision so they round-trip exactly) lines, checked against the header's counts.
+fn read_tables(source: &str, words: usize, values: usize, precision: Precision) -> Result<(Vec<u32>, Vec<f64>), HeaderError> {
+    let mut prog = Vec::with_capacity(words);
+    let mut konst = Vec::with_capacity(values);
+    for line in source.lines() {
+        let bad = |why: &str| HeaderError::Bad { line: line.chars().take(80).collect(), why: why.to_string() };
+        if let Some(v) = line.strip_prefix("// prog: ") {
+            for w in v.split_whitespace() {
+                prog.push(u32::from_str_radix(w, 16).map_err(|_| bad("not a hex word"))?);
+            }
+        } else if let Some(v) = line.strip_prefix("// konst: ") {
+            for w in v.split_whitespace() {
+                let x = match precision {
+                    Precision::F32 => w.parse::<f32>().map(f64::from),
+                    Precision::F64 => w.parse::<f64>(),
+                };
+                konst.push(x.map_err(|_| bad("not a number"))?);
+            }
+        }
+    }
+    if prog.len() != words || konst.len() != values {
+        return Err(HeaderError::Bad {
+            line: format!("// tables: prog={words} konst={values}"),
+            why: format!("the file's `// prog:` and `// konst:` lines hold {} words and {} values", prog.len(), konst.len()),
+        });
+    }
+    Ok((prog, konst))
 }

@@ -54,10 +54,13 @@ pub struct Gpu {
     timestamps: bool,
 }
 
-/// A loaded shader: the module and what its header says.
+/// A loaded shader: the module, what its header says, and its cooperative tables on
+/// the device.
 pub struct Shader {
     module: wgpu::ShaderModule,
     pub info: ShaderInfo,
+    /// Bindings 6 (`prog`) and 7 (`konst`).
+    tables: [wgpu::Buffer; 2],
 }
 
 /// One entry point's compute pipelines: one per stage, dispatched in order.
@@ -71,6 +74,8 @@ pub struct Kernel {
     /// Time wgpu took to build the pipelines (some drivers, lavapipe among them, compile
     /// at the first dispatch instead).
     pub build_time: Duration,
+    /// The shader's bindings 6 and 7.
+    tables: [wgpu::Buffer; 2],
 }
 
 struct Chunk {
@@ -165,6 +170,8 @@ impl Gpu {
                 layout_entry(3, Storage { read_only: true }),
                 layout_entry(4, Storage { read_only: false }),
                 layout_entry(5, Storage { read_only: false }),
+                layout_entry(6, Storage { read_only: true }),
+                layout_entry(7, Storage { read_only: true }),
             ],
         });
         let pipeline_layout =
@@ -193,7 +200,18 @@ impl Gpu {
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Shader(e.to_string()));
         }
-        Ok(Shader { module, info })
+        // Storage bindings cannot be empty: one zero word where a shader has no tables.
+        let words: Vec<u8> = if info.prog.is_empty() { vec![0; 4] } else { info.prog.iter().flat_map(|w| w.to_le_bytes()).collect() };
+        let values = if info.konst.is_empty() { vec![0.0] } else { info.konst.clone() };
+        let init = |data: &[u8]| {
+            self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: Some("grid-gen tables"),
+                contents: data,
+                usage: wgpu::BufferUsages::STORAGE,
+            })
+        };
+        let tables = [init(&words), init(&to_bytes(values, info.precision))];
+        Ok(Shader { module, info, tables })
     }
 
     /// Builds the compute pipeline of one entry point.
@@ -220,7 +238,15 @@ impl Gpu {
             }
             pipelines.push(pipeline);
         }
-        Ok(Kernel { pipelines, entry: info.clone(), precision: shader.info.precision, nv: shader.info.nv, nq: shader.info.nq, build_time: start.elapsed() })
+        Ok(Kernel {
+            pipelines,
+            entry: info.clone(),
+            precision: shader.info.precision,
+            nv: shader.info.nv,
+            nq: shader.info.nq,
+            build_time: start.elapsed(),
+            tables: shader.tables.clone(),
+        })
     }
 
     /// States per dispatch: at most 65,535 workgroups, and every buffer within the
@@ -265,12 +291,7 @@ impl Gpu {
 
     fn chunk(&self, k: &Kernel, start: usize, m: usize, inputs: [&[f64]; 3]) -> Result<Chunk, GpuError> {
         let d = &self.device;
-        let bytes = |x: Vec<f64>| -> Vec<u8> {
-            match k.precision {
-                Precision::F32 => x.into_iter().flat_map(|v| (v as f32).to_le_bytes()).collect(),
-                Precision::F64 => x.into_iter().flat_map(|v| v.to_le_bytes()).collect(),
-            }
-        };
+        let bytes = |x: Vec<f64>| to_bytes(x, k.precision);
         // Joint-major within the chunk: x[j * m + i].
         let soa = |x: &[f64], per: usize| -> Vec<f64> {
             if x.is_empty() {
@@ -301,7 +322,7 @@ impl Gpu {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let entries: Vec<wgpu::BindGroupEntry> = [&params, &inputs[0], &inputs[1], &inputs[2], &out, &scratch]
+        let entries: Vec<wgpu::BindGroupEntry> = [&params, &inputs[0], &inputs[1], &inputs[2], &out, &scratch, &k.tables[0], &k.tables[1]]
             .iter()
             .enumerate()
             .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
@@ -420,6 +441,14 @@ impl Gpu {
         let batch = self.upload(kernel, q, qd, u)?;
         self.dispatch(&batch)?;
         self.read(&batch)
+    }
+}
+
+/// Values as the device's words in `precision`.
+fn to_bytes(x: Vec<f64>, precision: Precision) -> Vec<u8> {
+    match precision {
+        Precision::F32 => x.into_iter().flat_map(|v| (v as f32).to_le_bytes()).collect(),
+        Precision::F64 => x.into_iter().flat_map(|v| v.to_le_bytes()).collect(),
     }
 }
 

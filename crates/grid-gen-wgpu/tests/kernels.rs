@@ -13,15 +13,13 @@
 //! With `CI` set, a machine without a Vulkan adapter fails these tests (scripts/test.sh
 //! installs lavapipe); elsewhere they say so and check only the naga validation.
 //!
-//! The runs cover every kernel of every bundled robot in f32 with one invocation per state
-//! (Atlas's `fd_grad` too, as dispatches of at most 1000 operations, which lavapipe
-//! compiles in linear time), every bundled robot in the cooperative strategy but not every
-//! kernel ([`coop_kernels`]), HyQ also in f64 in both strategies, and WGSL's built-in trig
-//! on the double pendulum. lavapipe compiles a pipeline at its first dispatch: about
-//! 0.5 ms per statement with one invocation per state, 4 to 12 ms with the cooperative
-//! strategy's per-invocation branches (LLVM builds a coroutine frame across every barrier
-//! and runs the 64 invocations' cases under masks), even in stages of 250 operations
-//! ([`COOP_STAGE`]).
+//! The runs cover every kernel of every bundled robot in f32 in both strategies (Atlas's
+//! `fd_grad` too: with one invocation per state as dispatches of at most 1000
+//! operations, which lavapipe compiles in linear time), HyQ also in f64 in both
+//! strategies, a floating base, coupled mimics and spherical joints in f64, and WGSL's
+//! built-in trig on the double pendulum. lavapipe compiles a pipeline at its first
+//! dispatch: about 0.5 ms per statement with one invocation per state; the cooperative
+//! entries are a table walked by the same short loop for every kernel, a few ms each.
 
 use grid_gen::back::wgsl::{Precision, Strategy, Trig, WgslOptions};
 use grid_gen::generate::{generate, Options, Target};
@@ -33,16 +31,6 @@ use grid_gen_wgpu::{Gpu, GpuError};
 const DIRECT: f64 = 1e-5;
 const THROUGH_MINV: f64 = 1e-4;
 const F64_TOL: f64 = 1e-12;
-
-/// The cooperative kernels run here in stages of this many operations (whole phases).
-/// lavapipe's compile time grows with the barriers in one pipeline times its size (LLVM
-/// builds a coroutine frame across every barrier): all six cooperative kernels of iiwa
-/// took 160 s to compile and run in stages of 1000, 66 s in stages of 250 and 54 s of 100;
-/// UR5's 109, 43 and 40 s (measured 2026-11-24, `grid-gen bench --batch 1
-/// --wgsl-coop-stage`, Mesa's shader cache off). 250 keeps a few phases per stage, so
-/// values still pass between phases through workgroup memory; the default (one dispatch)
-/// computes the same bits (`stages_compute_what_one_dispatch_computes`).
-const COOP_STAGE: usize = 250;
 
 fn wgsl(model: &Model, wgsl: WgslOptions) -> String {
     let options = Options { targets: vec![Target::Wgsl], wgsl, ..Options::default() };
@@ -181,7 +169,7 @@ fn check_robot(gpu: &Gpu, robot: &str, options: WgslOptions, strategies: &[Strat
 fn check_model(gpu: &Gpu, robot: &str, model: &Model, kernels: &[KernelKind], options: WgslOptions, strategies: &[Strategy], rng: &mut Rng) {
     let nv = model.nv();
     let f64 = options.precision == Precision::F64;
-    let source = wgsl(model, WgslOptions { strategies: strategies.to_vec(), coop_stage: COOP_STAGE, ..options.clone() });
+    let source = wgsl(model, WgslOptions { strategies: strategies.to_vec(), ..options.clone() });
     let shader = gpu.load(&source).unwrap_or_else(|e| panic!("{robot}: {e}"));
     let lowered = grid_gen::ir::lower(model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
     let states = states(model, rng);
@@ -244,11 +232,7 @@ fn f64_kernels_match_the_reference_to_1e_12() {
     // and keeps compiled shaders in Mesa's disk cache, and the f64 ones were cached.)
     let f64 = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
     check_robot(&gpu, "double_pendulum_continuous", f64.clone(), &Strategy::ALL, &mut rng);
-    // HyQ's cooperative `fd_grad` is left out (125 s of lavapipe compile in f32, above).
-    let hyq = load("grid_hyq");
-    check_model(&gpu, "grid_hyq", &hyq, &KernelKind::ALL, f64.clone(), &[Strategy::Thread], &mut rng);
-    let coop = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd];
-    check_model(&gpu, "grid_hyq", &hyq, &coop, f64, &[Strategy::Cooperative], &mut rng);
+    check_robot(&gpu, "grid_hyq", f64, &Strategy::ALL, &mut rng);
 }
 
 /// Every bundled robot, every kernel, one invocation per state, f32 (the runs above
@@ -263,61 +247,45 @@ fn every_bundled_robot_runs_with_one_invocation_per_state() {
     }
 }
 
-/// The cooperative kernels [`every_bundled_robot_runs_cooperatively`] runs for a robot.
-/// All six for the double pendulum, iiwa (both above) and UR5; HyQ's gradients run in f64
-/// (`rnea_grad`); for the other robots the gradient kernels, and Atlas's `minv` and `fd`,
-/// are validated by naga only. Measured on 2026-11-24 (f32, stages of 250, the machine
-/// also compiling), running all six for every robot but Atlas took 11 minutes: HyQ's
-/// `rnea_grad` 67 s and `fd_grad` 125 s, Panda's 69 and 94 s, rbd_benchmarks_iiwa's 44 and
-/// 50 s, Atlas's `rnea` and `mass_matrix` 30 and 39 s; Atlas's other four kernels, 130k
-/// operations, would take longer than all of those. That run passed, every kernel within
-/// the bounds above (worst 1.9e-6, Panda `fd_grad`).
-fn coop_kernels(robot: &str) -> &'static [KernelKind] {
-    use KernelKind::*;
-    match robot {
-        "double_pendulum_continuous" | "grid_iiwa" | "ur5" => &KernelKind::ALL,
-        "grid_atlas" => &[Rnea, MassMatrix],
-        _ => &[Rnea, MassMatrix, Minv, Fd],
-    }
-}
-
-/// Every bundled robot in the cooperative strategy, f32, the kernels of [`coop_kernels`]
-/// (the double pendulum and iiwa run above).
+/// Every bundled robot in the cooperative strategy, f32, every kernel (the double
+/// pendulum and iiwa run above), Atlas's too: the table-driven kernels compile in
+/// milliseconds on lavapipe, where the unrolled ones took 4 to 12 ms per statement.
 #[test]
 fn every_bundled_robot_runs_cooperatively() {
     let Some((_serial, gpu)) = gpu() else { return };
     let mut rng = Rng(79);
     for robot in robots().iter().filter(|r| !["double_pendulum_continuous", "grid_iiwa"].contains(&r.as_str())) {
-        check_model(&gpu, robot, &load(robot), coop_kernels(robot), WgslOptions::default(), &[Strategy::Cooperative], &mut rng);
+        check_model(&gpu, robot, &load(robot), &KernelKind::ALL, WgslOptions::default(), &[Strategy::Cooperative], &mut rng);
     }
 }
 
 /// A kernel split into dispatches (stages) computes what it computes in one dispatch:
 /// the same operations in the same order, values crossing stages through the scratch
-/// buffer; both strategies, stages small enough that values cross several of them (and,
-/// cooperative, that workgroup slots move to scratch). Not bit for bit: SPIR-V from naga
+/// buffer, stages small enough that values cross several of them. One invocation per
+/// state only: a cooperative entry is always one dispatch. Not bit for bit: SPIR-V from naga
 /// lets the driver fuse `a * b + c` into one FMA, which it cannot do across a value that
 /// went through memory, so where the stage (and helper) boundaries fall changes some
 /// roundings (measured on lavapipe: thread `rnea_grad` in 12 stages differs in the last
 /// bits). So each state's outputs agree within the f32 bounds above, relative to the
-/// state's largest output; cooperative ones bit for bit.
+/// state's largest output.
 #[test]
 fn stages_compute_what_one_dispatch_computes() {
     let Some((_serial, gpu)) = gpu() else { return };
     // The double pendulum in stages of 25 operations: many stages for little lavapipe
-    // time (iiwa's cooperative `rnea_grad` as one dispatch took minutes to compile).
+    // time.
     let model = load("double_pendulum_continuous");
     let nv = model.nv();
     let mut rng = Rng(73);
     let states = states(&model, &mut rng);
     let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
     let (q, qd, u) = (flat(0), flat(1), flat(2));
-    for strategy in Strategy::ALL {
+    let strategy = Strategy::Thread;
+    {
         for kind in [KernelKind::RneaGrad, KernelKind::FdGrad] {
             let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
             let module = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
             let run = |stage: usize| {
-                let options = WgslOptions { stage, coop_stage: stage, strategies: vec![strategy], ..WgslOptions::default() };
+                let options = WgslOptions { stage, strategies: vec![strategy], ..WgslOptions::default() };
                 let (file, stats) = grid_gen::back::wgsl::emit_with_stats(&module, &options).unwrap();
                 let shader = gpu.load(&file.contents).unwrap();
                 let kernel = gpu.kernel(&shader, &strategy.entry(kind.name())).unwrap();
@@ -327,18 +295,9 @@ fn stages_compute_what_one_dispatch_computes() {
             let (split, staged) = run(25);
             assert_eq!(one.stages, 1);
             assert!(split.stages >= 4, "{kind:?} {strategy:?}: {} stages", split.stages);
-            if strategy == Strategy::Cooperative {
-                assert!(split.scratch > one.scratch && split.workgroup_bytes < one.workgroup_bytes, "{kind:?}: slots crossing stages leave workgroup memory");
-            }
             assert_eq!(whole.len(), states.len() * one.outputs);
             assert!(whole.iter().all(|x| x.is_finite()), "{kind:?} {strategy:?}");
-            // Cooperative stages end at phase boundaries, where values already go through
-            // memory: the same bits.
-            let tol = match (strategy, kind) {
-                (Strategy::Cooperative, _) => 0.0,
-                (_, KernelKind::FdGrad) => THROUGH_MINV,
-                _ => DIRECT,
-            };
+            let tol = if kind == KernelKind::FdGrad { THROUGH_MINV } else { DIRECT };
             let mut worst = 0.0f64;
             for (a, b) in whole.chunks(one.outputs).zip(staged.chunks(one.outputs)) {
                 let scale = a.iter().fold(0.0f64, |m, x| m.max(x.abs()));
@@ -360,28 +319,27 @@ fn stages_compute_what_one_dispatch_computes() {
 /// A floating base (issue 11): q has nq = nv + 1 entries per state, the runtime reads
 /// `// nq:` from the header. HyQ on a free-flyer, one invocation per state, in f64,
 /// against the reference (which tests/pinocchio.rs holds to Pinocchio's free-flyer) at
-/// the fixed-base tolerance: every kernel but `fd_grad`, whose pipeline (37,860
-/// statements) lavapipe had not built after 6 minutes (measured 2026-11-23; the others
-/// build in 0.2 to 6.6 s and run 37 states in 7 to 21 ms). naga validates it above, and
-/// `fd`, whose graph `fd_grad` extends, runs here. Not f32 on lavapipe: the floating
-/// iiwa's f32 `rnea_grad` took 137 s for 37 states there (the slow f32 dispatches noted
-/// on HyQ above), though within the f32 tolerance (4.2e-7).
+/// the fixed-base tolerance: every kernel cooperatively, and every kernel but `fd_grad`
+/// with one invocation per state, whose straight-line pipeline (37,860 statements)
+/// lavapipe had not built after 6 minutes (measured 2026-11-23; the others build in 0.2
+/// to 6.6 s and run 37 states in 7 to 21 ms); the table-driven cooperative `fd_grad` runs
+/// the same graph.
 #[test]
 fn floating_base_kernels_match_the_reference() {
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(53);
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
     let kernels = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd];
-    check_model(&gpu, "grid_hyq floating", &load_floating("grid_hyq"), &kernels, options, &[Strategy::Thread], &mut rng);
+    let hyq = load_floating("grid_hyq");
+    check_model(&gpu, "grid_hyq floating", &hyq, &kernels, options.clone(), &[Strategy::Thread], &mut rng);
+    check_model(&gpu, "grid_hyq floating", &hyq, &KernelKind::ALL, options, &[Strategy::Cooperative], &mut rng);
 }
 
 /// Coupled mimic joints (issue 11): mimic_arm (`tests/fixtures/mimic_arm.urdf`, three
 /// mimics with multipliers −0.7, 1.5 and 2 and offsets) in f64, every kernel, one
 /// invocation per state, against the reference (which tests/pinocchio.rs holds to
 /// Pinocchio's mimic model) at the fixed-base tolerance: the kernels take 4 coordinates for
-/// 7 joints. Thread strategy only: both strategies passed once (2026-11-24, worst 1.5e-14)
-/// but the cooperative dispatches took 370 s of lavapipe time (`fd_grad_coop` 160 s,
-/// `rnea_grad_coop` 131 s for 37 states), against 3.5 s for these.
+/// 7 joints. Both strategies.
 #[test]
 fn coupled_mimic_kernels_match_the_reference() {
     let Some((_serial, gpu)) = gpu_f64() else { return };
@@ -389,7 +347,7 @@ fn coupled_mimic_kernels_match_the_reference() {
     let model = load_coupled_urdf(&repo().join("tests/fixtures/mimic_arm.urdf"));
     assert_eq!((model.nv(), model.njoints()), (4, 7));
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
-    check_model(&gpu, "mimic_arm coupled", &model, &KernelKind::ALL, options, &[Strategy::Thread], &mut rng);
+    check_model(&gpu, "mimic_arm coupled", &model, &KernelKind::ALL, options, &Strategy::ALL, &mut rng);
 }
 
 /// Spherical joints (issue 11): an arm with one on the root and one between moving
@@ -397,8 +355,8 @@ fn coupled_mimic_kernels_match_the_reference() {
 /// tests/pinocchio.rs holds to Pinocchio's `JointModelSpherical`, on 7 coordinates instead
 /// of 12), in f64, every kernel, one invocation per state, against the reference at the
 /// fixed-base tolerance; random rotations of every quaternion, rounded to f32 (not quite
-/// unit: kernels and reference both normalise). Thread strategy only, for lavapipe's time:
-/// ball_arm's own `rnea_grad` took 115 s of lavapipe time; naga checks ball_arm above.
+/// unit: kernels and reference both normalise). Both strategies; naga checks ball_arm
+/// above.
 #[test]
 fn spherical_kernels_match_the_reference() {
     let Some((_serial, gpu)) = gpu_f64() else { return };
@@ -424,7 +382,7 @@ fn spherical_kernels_match_the_reference() {
     let model = Model::from_urdf_str("ball_chain.urdf", &urdf, false).map_err(|e| e.render_plain()).unwrap().0;
     assert_eq!((model.nv(), model.nq()), (7, 9));
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
-    check_model(&gpu, "ball_chain", &model, &KernelKind::ALL, options, &[Strategy::Thread], &mut rng);
+    check_model(&gpu, "ball_chain", &model, &KernelKind::ALL, options, &Strategy::ALL, &mut rng);
 }
 
 #[test]

@@ -1,96 +1,232 @@
 //! The `cooperative` strategy (GRiD's scheme, on the IR's list scheduler [`Phases`]): one
 //! workgroup per state; the kernel's operations are spread over the workgroup's
-//! invocations in barrier-separated phases. A value read in a later phase lives in a
-//! `var<workgroup>` slot while the slots fit WebGPU's default 16 KiB of workgroup storage
-//! ([`WORKGROUP_STORAGE_LIMIT`]; naga and wgpu do not check it), and in the storage
-//! scratch buffer past that (with a `storageBarrier` between phases). Each phase's
-//! worker lists are grouped into helper functions of at most `chunk` operations (naga's
-//! parser is quadratic in one function's size). A kernel over [`WgslOptions::coop_stage`]
-//! operations runs as several dispatches (stages) of consecutive phases; a slot whose
-//! value crosses a stage lives in the scratch buffer.
+//! invocations in barrier-separated phases. The operations are not unrolled into WGSL:
+//! they are a table (binding 6, `prog`) that a short interpreter loop in the entry point
+//! walks, each invocation its own list per phase, with the constants in binding 7
+//! (`konst`). Unrolled per-invocation code (a `switch` over 64 invocations per phase, as
+//! this strategy was first built) took lavapipe's LLVM 4 to 12 ms per statement to compile
+//! (coroutine frames across every barrier, each case run under masks): minutes per
+//! gradient, hours for Atlas. The interpreter is the same few dozen statements for every
+//! robot, so every pipeline compiles in well under a second, and neighbouring invocations
+//! run the same loop rather than different `switch` cases.
+//!
+//! Every value lives in a slot from the phase that writes it to the last phase that reads
+//! it (a slot is reused only after that phase, so no phase both reads and overwrites one):
+//! `var<workgroup>` memory while the slots fit WebGPU's default 16 KiB of workgroup storage
+//! ([`WORKGROUP_STORAGE_LIMIT`]; naga and wgpu do not check it), the storage scratch
+//! buffer past that (with a `storageBarrier` between phases).
 
+use std::collections::{BTreeSet, HashMap};
 use std::fmt::Write;
 
-use super::{block, output_stores, stages, EntryStats, Strategy, WgslOptions, WORKGROUP_STORAGE_LIMIT};
+use super::{output_stores, EntryStats, Precision, Strategy, Tables, Trig, WgslOptions, WORKGROUP_STORAGE_LIMIT};
 use crate::back::BackError;
 use crate::ir::schedule::Phases;
-use crate::ir::{Function, Id};
+use crate::ir::{Function, Id, Input, Op};
 
-pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOptions, robot: &str) -> Result<EntryStats, BackError> {
-    let p = Phases::new(f, options.workers as usize, usize::MAX).map_err(|e| BackError::WgslOption(e.to_string()))?;
+/// Operation codes of the table (bits 24..32 of an instruction's first word).
+const ADD: u32 = 0;
+const SUB: u32 = 1;
+const MUL: u32 = 2;
+const DIV: u32 = 3;
+const NEG: u32 = 4;
+const SIN: u32 = 5;
+const COS: u32 = 6;
+const COPY: u32 = 7;
+
+/// Address tags (bits 28..32 of an address; the index is the low 28 bits).
+const WORKGROUP: u32 = 0;
+const SCRATCH: u32 = 1;
+const KONST: u32 = 2;
+const Q: u32 = 3;
+const QD: u32 = 4;
+const U: u32 = 5;
+const INDEX_BITS: u32 = 28;
+
+/// Words per instruction: `op << 24 | destination slot`, then the two operand addresses.
+/// A destination is a slot (below 2^24; its home is decided from the slot number) or,
+/// for `COPY`, an output index.
+const WORDS: usize = 3;
+
+fn address(tag: u32, index: usize, robot: &str) -> Result<u32, BackError> {
+    if index >= 1 << INDEX_BITS {
+        return Err(BackError::WgslOption(format!("robot \"{robot}\": a cooperative table index {index} does not fit in {INDEX_BITS} bits")));
+    }
+    Ok(tag << INDEX_BITS | index as u32)
+}
+
+pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOptions, robot: &str, tables: &mut Tables) -> Result<EntryStats, BackError> {
+    let workers = options.workers as usize;
+    let p = Phases::new(f, workers, usize::MAX).map_err(|e| BackError::WgslOption(e.to_string()))?;
     let name = Strategy::Cooperative.entry(f.kind.name());
-    let budget = WORKGROUP_STORAGE_LIMIT / options.precision.bytes();
-    let stages = stages(p.phases.iter().map(|lists| lists.iter().map(Vec::len).sum()), options.coop_stage);
-    let (home, in_workgroup, spilled) = slot_homes(f, &p, &stages, budget);
-    let wg = format!("{name}_wg");
     let (stores, inline, outputs) = output_stores(f, nv);
-    let slot_ref = |slot: u32| -> String {
-        match home[slot as usize] {
-            Home::Workgroup(k) => format!("{wg}[{k}u]"),
-            Home::Scratch(k) => format!("scratch[{k}u * n + s]"),
+    // Phase 0 exists even for a kernel with no operations, for the inline stores.
+    let phases = p.phases.len().max(1);
+
+    // Each operation's slot: from its phase to the last phase that reads it.
+    let mut last = vec![0usize; f.nodes.len()];
+    for (i, node) in f.nodes.iter().enumerate() {
+        if let Some(at) = p.place[i] {
+            last[i] = last[i].max(at.phase as usize);
+            for o in node.op.operands() {
+                last[o.0 as usize] = last[o.0 as usize].max(at.phase as usize);
+            }
+        }
+    }
+    let mut by_phase: Vec<Vec<usize>> = vec![Vec::new(); phases];
+    for (i, at) in p.place.iter().enumerate() {
+        if let Some(at) = at {
+            by_phase[at.phase as usize].push(i);
+        }
+    }
+    let mut slot = vec![u32::MAX; f.nodes.len()];
+    let mut free: BTreeSet<u32> = BTreeSet::new();
+    // (last phase, slot) of the slots in use; the lowest free slot first keeps the most
+    // used slots in workgroup memory.
+    let mut busy: BTreeSet<(usize, u32)> = BTreeSet::new();
+    let mut slots = 0u32;
+    for (phase, ids) in by_phase.iter().enumerate() {
+        while let Some(&(end, s)) = busy.first() {
+            if end >= phase {
+                break;
+            }
+            busy.pop_first();
+            free.insert(s);
+        }
+        for &i in ids {
+            let s = free.pop_first().unwrap_or_else(|| {
+                slots += 1;
+                slots - 1
+            });
+            slot[i] = s;
+            busy.insert((last[i], s));
+        }
+    }
+    let budget = (WORKGROUP_STORAGE_LIMIT / options.precision.bytes()) as u32;
+    let in_workgroup = slots.min(budget) as usize;
+    let spilled = slots.saturating_sub(budget) as usize;
+    if slots >= 1 << 24 {
+        return Err(BackError::WgslOption(format!("robot \"{robot}\": {} needs {slots} slots, more than the table's 2^24", f.kind.name())));
+    }
+
+    let operand = |id: Id, tables: &mut Tables| -> Result<u32, BackError> {
+        match f.op(id) {
+            Op::Const(c) => address(KONST, tables.konst.get(c, options.precision, robot)?, robot),
+            Op::Input(which, j) => {
+                let tag = match which {
+                    Input::Q => Q,
+                    Input::Qd => QD,
+                    Input::Qdd | Input::Tau => U,
+                };
+                address(tag, j as usize, robot)
+            }
+            _ => match slot[id.0 as usize] as usize {
+                k if k < in_workgroup => address(WORKGROUP, k, robot),
+                k => address(SCRATCH, k - in_workgroup, robot),
+            },
         }
     };
-    let _ = writeln!(out, "// {} One workgroup of {} invocations per state, {} phases.", f.doc(), options.workers, p.phases.len());
-    if in_workgroup > 0 {
-        let _ = writeln!(out, "var<workgroup> {wg}: array<real, {in_workgroup}>;");
-    }
-    let mut statements = 0;
-    let mut functions = stages.len();
-    // calls[phase]: the helper functions of that phase.
-    let mut calls: Vec<Vec<String>> = Vec::new();
-    for (pi, lists) in p.phases.iter().enumerate() {
-        // Group consecutive workers' lists into functions of at most `chunk` operations.
-        let mut groups: Vec<Vec<usize>> = vec![Vec::new()];
-        let mut size = 0;
-        for (w, list) in lists.iter().enumerate() {
-            if list.is_empty() && !(pi == 0 && w == 0 && !inline.is_empty()) {
-                continue;
-            }
-            if size > 0 && size + list.len() > options.chunk {
-                groups.push(Vec::new());
-                size = 0;
-            }
-            size += list.len();
-            if let Some(g) = groups.last_mut() {
-                g.push(w);
+    // The instruction lists, phase by phase, worker by worker.
+    let mut lists: Vec<Vec<Vec<[u32; WORDS]>>> = vec![vec![Vec::new(); workers]; phases];
+    for (pi, phase) in p.phases.iter().enumerate() {
+        for (w, ids) in phase.iter().enumerate() {
+            for &id in ids {
+                let (code, a, b) = match f.op(id) {
+                    Op::Add(a, b) => (ADD, a, b),
+                    Op::Sub(a, b) => (SUB, a, b),
+                    Op::Mul(a, b) => (MUL, a, b),
+                    Op::Div(a, b) => (DIV, a, b),
+                    Op::Neg(a) => (NEG, a, a),
+                    Op::Sin(a) => (SIN, a, a),
+                    Op::Cos(a) => (COS, a, a),
+                    Op::Const(_) | Op::Input(..) => unreachable!("schedules hold operations only"),
+                };
+                let (a, b) = (operand(a, tables)?, operand(b, tables)?);
+                lists[pi][w].push([code << 24 | slot[id.0 as usize], a, b]);
+                let me = operand(id, tables)?;
+                for &k in &stores[id.0 as usize] {
+                    lists[pi][w].push([COPY << 24 | k as u32, me, me]);
+                }
             }
         }
-        let mut names = Vec::new();
-        for (gi, workers) in groups.iter().enumerate().filter(|(_, g)| !g.is_empty()) {
-            let fname = format!("{name}_p{pi}_{gi}");
-            let _ = writeln!(out, "fn {fname}(w: u32, s: u32, n: u32) {{\n    switch w {{");
-            for &w in workers {
-                let _ = writeln!(out, "        case {w}u: {{");
-                let here = |id: Id| p.place[id.0 as usize].is_some_and(|at| at.phase == pi as u32 && at.worker == w as u32);
-                let slot = |id: Id| p.slot[id.0 as usize].map(slot_ref);
-                let inline = if pi == 0 && w == 0 { &inline[..] } else { &[] };
-                statements += block(out, f, options, robot, "            ", &lists[w], inline, here, slot, &stores)?;
-                let _ = writeln!(out, "        }}");
-            }
-            let _ = writeln!(out, "        default: {{}}\n    }}\n}}\n");
-            functions += 1;
-            names.push(fname);
-        }
-        calls.push(names);
     }
-    let barrier = if spilled > 0 { "    workgroupBarrier();\n    storageBarrier();" } else { "    workgroupBarrier();" };
-    for (k, phases) in stages.iter().enumerate() {
-        let entry = super::stage_entry(&name, k, stages.len());
-        let _ = writeln!(out, "@compute @workgroup_size({})", options.workers);
-        let _ = writeln!(out, "fn {entry}(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {{");
-        // s and n are workgroup-uniform, so the early return keeps the barriers in uniform
-        // control flow.
-        let _ = writeln!(out, "    let n = params.n;\n    let s = wid.x;\n    if (s >= n) {{\n        return;\n    }}");
-        for pi in phases.clone() {
-            if pi > phases.start {
-                let _ = writeln!(out, "{barrier}");
-            }
-            for fname in &calls[pi] {
-                let _ = writeln!(out, "    {fname}(w, s, n);");
-            }
-        }
-        let _ = writeln!(out, "}}\n");
+    // Outputs that are constants or inputs: spread over phase 0's workers.
+    for (n, &(k, id)) in inline.iter().enumerate() {
+        let a = operand(id, tables)?;
+        lists[0][n % workers].push([COPY << 24 | k as u32, a, a]);
     }
+
+    // The table: phases * workers + 1 start offsets (absolute word indices into `prog`),
+    // then the instructions.
+    let base = tables.prog.len();
+    let mut at = base + phases * workers + 1;
+    let mut starts = Vec::with_capacity(phases * workers + 1);
+    for phase in &lists {
+        for list in phase {
+            starts.push(at as u32);
+            at += list.len() * WORDS;
+        }
+    }
+    starts.push(at as u32);
+    if at > u32::MAX as usize {
+        return Err(BackError::WgslOption(format!("robot \"{robot}\": the cooperative tables exceed 2^32 words")));
+    }
+    tables.prog.extend(starts);
+    let mut instructions = 0;
+    for phase in &lists {
+        for list in phase {
+            instructions += list.len();
+            tables.prog.extend(list.iter().flatten());
+        }
+    }
+
+    let wg = format!("{name}_wg");
+    let (sin, cos) = match options.trig {
+        Trig::Builtin => ("sin", "cos"),
+        Trig::Accurate => ("gg_sin", "gg_cos"),
+    };
+    let zero = match options.precision {
+        Precision::F32 => "0.0f",
+        Precision::F64 => "0.0lf",
+    };
+    let _ = writeln!(
+        out,
+        "// {} One workgroup of {workers} invocations per state, {phases} phases; its {instructions} \
+         operations are a table at prog[{base}..{at}] (phase p's list for invocation w starts at \
+         prog[{base} + p * {workers} + w] and ends where the next begins; 3 words each).",
+        f.doc()
+    );
+    let _ = writeln!(out, "var<workgroup> {wg}: array<real, {}>;\n", in_workgroup.max(1));
+    // The operand read and result write, by the address's tag.
+    let _ = writeln!(
+        out,
+        "fn {name}_read(a: u32, s: u32, n: u32) -> real {{\n    let i = a & {mask}u;\n    switch (a >> {INDEX_BITS}u) {{\n        \
+         case {WORKGROUP}u: {{ return {wg}[i]; }}\n        case {SCRATCH}u: {{ return scratch[i * n + s]; }}\n        \
+         case {KONST}u: {{ return konst[i]; }}\n        case {Q}u: {{ return q[i * n + s]; }}\n        \
+         case {QD}u: {{ return qd[i * n + s]; }}\n        default: {{ return u[i * n + s]; }}\n    }}\n}}\n",
+        mask = (1u32 << INDEX_BITS) - 1
+    );
+    let _ = writeln!(
+        out,
+        "fn {name}_step(k: u32, s: u32, n: u32) {{\n    let w0 = prog[k];\n    \
+         let x = {name}_read(prog[k + 1u], s, n);\n    let y = {name}_read(prog[k + 2u], s, n);\n    \
+         let d = w0 & 16777215u;\n    var v = {zero};\n    switch (w0 >> 24u) {{\n        \
+         case {ADD}u: {{ v = x + y; }}\n        case {SUB}u: {{ v = x - y; }}\n        case {MUL}u: {{ v = x * y; }}\n        \
+         case {DIV}u: {{ v = x / y; }}\n        case {NEG}u: {{ v = -x; }}\n        case {SIN}u: {{ v = {sin}(x); }}\n        \
+         case {COS}u: {{ v = {cos}(x); }}\n        default: {{\n            out[d * n + s] = x;\n            return;\n        }}\n    }}\n    \
+         if (d < {in_workgroup}u) {{\n        {wg}[d] = v;\n    }} else {{\n        scratch[(d - {in_workgroup}u) * n + s] = v;\n    }}\n}}\n"
+    );
+    let barrier = if spilled > 0 { "        workgroupBarrier();\n        storageBarrier();" } else { "        workgroupBarrier();" };
+    let _ = writeln!(out, "@compute @workgroup_size({workers})");
+    let _ = writeln!(out, "fn {name}(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {{");
+    // s and n are workgroup-uniform, so the early return keeps the barriers in uniform
+    // control flow.
+    let _ = writeln!(
+        out,
+        "    let n = params.n;\n    let s = wid.x;\n    if (s >= n) {{\n        return;\n    }}\n    \
+         for (var p = 0u; p < {phases}u; p++) {{\n        let r = {base}u + p * {workers}u + w;\n        \
+         let end = prog[r + 1u];\n        for (var k = prog[r]; k < end; k += 3u) {{\n            {name}_step(k, s, n);\n        }}\n{barrier}\n    }}\n}}\n"
+    );
     Ok(EntryStats {
         entry: name,
         kernel: f.kind.name(),
@@ -99,55 +235,39 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
         scratch: spilled,
         workgroup_size: options.workers,
         states_per_workgroup: 1,
-        workgroup_bytes: in_workgroup * options.precision.bytes(),
-        phases: p.phases.len(),
-        stages: stages.len(),
-        statements,
-        functions,
+        workgroup_bytes: in_workgroup.max(1) * options.precision.bytes(),
+        phases,
+        stages: 1,
+        statements: instructions,
+        functions: 3,
     })
 }
 
-/// Where a shared slot lives.
-#[derive(Clone, Copy)]
-enum Home {
-    Workgroup(usize),
-    Scratch(usize),
+/// The constants of every cooperative entry of one shader, deduplicated by their bits in
+/// the shader's precision.
+#[derive(Default)]
+pub(super) struct Constants {
+    pub values: Vec<f64>,
+    index: HashMap<u64, usize>,
 }
 
-/// Each slot's home: workgroup memory, lowest slots first, up to `budget` words, unless
-/// a value in it is read in a later stage than the one that writes it (workgroup memory
-/// does not outlive a dispatch); the rest in the scratch buffer. Returns the homes and
-/// the words of each kind.
-fn slot_homes(f: &Function, p: &Phases, stages: &[std::ops::Range<usize>], budget: usize) -> (Vec<Home>, usize, usize) {
-    let mut stage_of_phase = vec![0; p.phases.len()];
-    for (k, r) in stages.iter().enumerate() {
-        for pi in r.clone() {
-            stage_of_phase[pi] = k;
-        }
-    }
-    let mut crosses = vec![false; p.slots];
-    for (i, node) in f.nodes.iter().enumerate() {
-        let Some(at) = p.place[i] else { continue };
-        for o in node.op.operands() {
-            if let (Some(from), Some(slot)) = (p.place[o.0 as usize], p.slot[o.0 as usize]) {
-                if stage_of_phase[from.phase as usize] != stage_of_phase[at.phase as usize] {
-                    crosses[slot as usize] = true;
+impl Constants {
+    pub fn get(&mut self, c: f64, precision: Precision, robot: &str) -> Result<usize, BackError> {
+        let c = match precision {
+            Precision::F32 => {
+                let x = c as f32;
+                if !x.is_finite() {
+                    return Err(BackError::WgslRange { robot: robot.to_string(), value: c });
                 }
+                x as f64
             }
+            Precision::F64 => c,
+        };
+        let next = self.values.len();
+        let k = *self.index.entry(c.to_bits()).or_insert(next);
+        if k == next {
+            self.values.push(c);
         }
+        Ok(k)
     }
-    let (mut workgroup, mut scratch) = (0, 0);
-    let homes = crosses
-        .iter()
-        .map(|&crossing| {
-            if !crossing && workgroup < budget {
-                workgroup += 1;
-                Home::Workgroup(workgroup - 1)
-            } else {
-                scratch += 1;
-                Home::Scratch(scratch - 1)
-            }
-        })
-        .collect();
-    (homes, workgroup, scratch)
 }

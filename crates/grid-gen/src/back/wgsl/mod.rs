@@ -130,12 +130,6 @@ pub struct WgslOptions {
     /// and lavapipe's compiler is superlinear in its size (see `stages` in
     /// [`LAYOUT_DOC`]). 0: every kernel in one dispatch.
     pub stage: usize,
-    /// Cooperative strategy: the same, by whole phases. 0 by default: a value crossing a
-    /// stage must leave workgroup memory for the scratch buffer and every stage is one more
-    /// launch, which is what this strategy exists to avoid on a GPU; lavapipe compiles its
-    /// large kernels faster split (UR5's `rnea_grad_coop`: 69 s whole, 24 s in stages of
-    /// 1000; measured 2026-11-24).
-    pub coop_stage: usize,
     /// Thread strategy: invocations (= states) per workgroup.
     pub workgroup_size: u32,
     /// Cooperative strategy: invocations sharing one state.
@@ -150,7 +144,6 @@ impl Default for WgslOptions {
         WgslOptions {
             chunk: 1000,
             stage: DEFAULT_STAGE,
-            coop_stage: 0,
             workgroup_size: 64,
             workers: 64,
             strategies: Strategy::ALL.to_vec(),
@@ -178,7 +171,8 @@ pub struct EntryStats {
     pub phases: usize,
     /// Dispatches, one entry point each (`<entry>_stage<k>` when more than one).
     pub stages: usize,
-    /// `let`s and stores.
+    /// `let`s and stores (thread); operations and output copies in the table
+    /// (cooperative, whose WGSL is the same few dozen statements for every kernel).
     pub statements: usize,
     pub functions: usize,
 }
@@ -215,12 +209,16 @@ Every entry point shares one bind group (group 0), so one pipeline layout serves
              kernel's outputs concatenated in order, matrices row-major ([i][j] = d out_i / d in_j)
   binding 5  storage, read_write  scratch: array<real>  scratch[k * N + s], `scratch` words per
              state (see the entry lines; bind at least one word when it is 0)
+  binding 6  storage, read        prog:  array<u32>   the cooperative entry points' operation
+             tables: the words of the `// prog:` lines at the end of this file, in order
+  binding 7  storage, read        konst: array<real>  their constants: the `// konst:` lines
+             (bind at least one word each when the `// tables:` line gives 0)
 Structure-of-arrays, so neighbouring invocations touch neighbouring words. `real` is the
 precision below. Thread entry points (`<kernel>`): dispatch ceil(N / workgroup_size)
 workgroups in x. Cooperative entry points (`<kernel>_coop`): dispatch N workgroups in x,
 one state each. An entry with stages=K > 1 is K entry points `<entry>_stage0` .. `_stage<K-1>`,
 dispatched in that order on the same bind group and workgroup count (values cross stages in
-scratch); K = 1 is the entry point `<entry>` itself. At most 65535 workgroups per dispatch: split larger batches into
+scratch); K = 1 is the entry point `<entry>` itself (every cooperative entry). At most 65535 workgroups per dispatch: split larger batches into
 dispatches of their own buffers. A state past N does nothing. Every output value is
 written, structural zeros included.";
 
@@ -408,11 +406,12 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
     }
     let mut body = String::new();
     let mut stats = Vec::new();
+    let mut tables = Tables::default();
     for f in &module.functions {
         for &strategy in &options.strategies {
             let s = match strategy {
                 Strategy::Thread => thread::emit(&mut body, f, nv, options, &robot.name)?,
-                Strategy::Cooperative => cooperative::emit(&mut body, f, nv, options, &robot.name)?,
+                Strategy::Cooperative => cooperative::emit(&mut body, f, nv, options, &robot.name, &mut tables)?,
             };
             stats.push(s);
         }
@@ -453,6 +452,7 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
         options.precision.name(),
         options.trig.name()
     );
+    let _ = writeln!(out, "// tables: prog={} konst={}", tables.prog.len(), tables.konst.values.len());
     for s in &stats {
         let _ = writeln!(out, "{}", s.header_line());
     }
@@ -464,7 +464,9 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
          @group(0) @binding(2) var<storage, read> qd: array<real>;\n\
          @group(0) @binding(3) var<storage, read> u: array<real>;\n\
          @group(0) @binding(4) var<storage, read_write> out: array<real>;\n\
-         @group(0) @binding(5) var<storage, read_write> scratch: array<real>;\n",
+         @group(0) @binding(5) var<storage, read_write> scratch: array<real>;\n\
+         @group(0) @binding(6) var<storage, read> prog: array<u32>;\n\
+         @group(0) @binding(7) var<storage, read> konst: array<real>;\n",
         options.precision.name()
     );
     if options.trig == Trig::Accurate {
@@ -472,7 +474,41 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
         out.push('\n');
     }
     out.push_str(&body);
+    tables.write(&mut out, options.precision);
     Ok((GeneratedFile { name: Target::Wgsl.file_name(&stem), contents: out }, stats))
+}
+
+/// The cooperative entry points' operation tables and constants (bindings 6 and 7),
+/// shared by the whole shader.
+#[derive(Default)]
+struct Tables {
+    prog: Vec<u32>,
+    konst: cooperative::Constants,
+}
+
+impl Tables {
+    /// The `// prog:` and `// konst:` lines at the end of the file, which the runtime (or
+    /// any host) uploads as they are.
+    fn write(&self, out: &mut String, precision: Precision) {
+        if self.prog.is_empty() {
+            return;
+        }
+        let _ = writeln!(out, "// The cooperative entry points' tables: binding 6 (prog, u32 in hex) and binding 7 (konst).");
+        for words in self.prog.chunks(16) {
+            let words: Vec<String> = words.iter().map(|w| format!("{w:x}")).collect();
+            let _ = writeln!(out, "// prog: {}", words.join(" "));
+        }
+        for values in self.konst.values.chunks(8) {
+            let values: Vec<String> = values
+                .iter()
+                .map(|&c| match precision {
+                    Precision::F32 => format!("{:?}", c as f32),
+                    Precision::F64 => format!("{c:?}"),
+                })
+                .collect();
+            let _ = writeln!(out, "// konst: {}", values.join(" "));
+        }
+    }
 }
 
 fn check_options(options: &WgslOptions) -> Result<(), BackError> {
