@@ -167,6 +167,22 @@ fn check_robot(gpu: &Gpu, robot: &str, options: WgslOptions, strategies: &[Strat
 
 /// [`check_robot`] on a model, for the `kernels` only.
 fn check_model(gpu: &Gpu, robot: &str, model: &Model, kernels: &[KernelKind], options: WgslOptions, strategies: &[Strategy], rng: &mut Rng) {
+    check_model_within(gpu, robot, model, kernels, options, strategies, rng, F64_TOL)
+}
+
+/// [`check_model`], f64 outputs held to the reference within `f64_reference` (and to the
+/// IR interpreter, which runs the same graph, within [`F64_TOL`] still).
+#[allow(clippy::too_many_arguments)]
+fn check_model_within(
+    gpu: &Gpu,
+    robot: &str,
+    model: &Model,
+    kernels: &[KernelKind],
+    options: WgslOptions,
+    strategies: &[Strategy],
+    rng: &mut Rng,
+    f64_reference: f64,
+) {
     let nv = model.nv();
     let f64 = options.precision == Precision::F64;
     let source = wgsl(model, WgslOptions { strategies: strategies.to_vec(), ..options.clone() });
@@ -184,13 +200,13 @@ fn check_model(gpu: &Gpu, robot: &str, model: &Model, kernels: &[KernelKind], op
             let ran = t0.elapsed();
             let total = kernel.entry.outputs;
             assert_eq!(got.len(), n * total);
-            let tol = match (f64, f.kind) {
-                (true, _) => F64_TOL,
-                (false, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad) => THROUGH_MINV,
-                _ => DIRECT,
+            let (tol, ir_tol) = match (f64, f.kind) {
+                (true, _) => (f64_reference, F64_TOL),
+                (false, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad) => (THROUGH_MINV, THROUGH_MINV),
+                _ => (DIRECT, DIRECT),
             };
             let what = format!("{robot} {} {} {}", kernel.entry.entry, options.precision.name(), options.trig.name());
-            let mut worst = 0.0f64;
+            let (mut worst, mut worst_ir, mut graph) = (0.0f64, 0.0f64, 0.0f64);
             for (s, [q, qd, u]) in states.iter().enumerate() {
                 let want = reference_outputs(f.kind, model, q, qd, u, reference::DEFAULT_GRAVITY);
                 // The IR interpreter on the same graph: the backend prints it faithfully.
@@ -203,12 +219,18 @@ fn check_model(gpu: &Gpu, robot: &str, model: &Model, kernels: &[KernelKind], op
                     let e = rel_err(&got, want);
                     assert!(e <= tol, "{what}.{} state {s}: relative error {e:.2e} > {tol:e}", o.name);
                     let e_ir = rel_err(&got, &output_matrix(o.shape, nv, ir_vals));
-                    assert!(e_ir <= tol, "{what}.{} state {s}: {e_ir:.2e} from the IR interpreter", o.name);
+                    assert!(e_ir <= ir_tol, "{what}.{} state {s}: {e_ir:.2e} from the IR interpreter", o.name);
                     worst = worst.max(e);
+                    worst_ir = worst_ir.max(e_ir);
+                    let e_graph = rel_err(&output_matrix(o.shape, nv, ir_vals), want);
+                    graph = graph.max(e_graph);
                     base += o.shape.len(nv);
                 }
             }
-            eprintln!("{what}: worst relative error {worst:.2e} over {n} states; pipeline {:.1?}, run {ran:.1?}", kernel.build_time);
+            eprintln!(
+                "{what}: worst relative error {worst:.2e} over {n} states ({worst_ir:.2e} from the IR interpreter, whose own is {graph:.2e}); pipeline {:.1?}, run {ran:.1?}",
+                kernel.build_time
+            );
         }
     }
 }
@@ -223,16 +245,18 @@ fn kernels_run_through_wgpu_and_match_the_reference() {
     check_robot(&gpu, "double_pendulum_continuous", WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() }, &Strategy::ALL, &mut rng);
 }
 
+/// Every bundled robot in f64, every kernel, both strategies but Atlas's thread entries
+/// (lavapipe compiles straight-line f64 code at about 1 ms per statement, a few minutes
+/// for Atlas's 150k; its f32 thread entries run below, its f64 cooperative ones here).
 #[test]
 fn f64_kernels_match_the_reference_to_1e_12() {
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(43);
-    // HyQ (the tree) in f64 here and in f32 below. (Its f32 dispatches once seemed
-    // 200 times slower than f64 ones on lavapipe; lavapipe compiles at the first dispatch
-    // and keeps compiled shaders in Mesa's disk cache, and the f64 ones were cached.)
     let f64 = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
-    check_robot(&gpu, "double_pendulum_continuous", f64.clone(), &Strategy::ALL, &mut rng);
-    check_robot(&gpu, "grid_hyq", f64, &Strategy::ALL, &mut rng);
+    for robot in robots() {
+        let strategies: &[Strategy] = if robot == "grid_atlas" { &[Strategy::Cooperative] } else { &Strategy::ALL };
+        check_robot(&gpu, &robot, f64.clone(), strategies, &mut rng);
+    }
 }
 
 /// Every bundled robot, every kernel, one invocation per state, f32 (the runs above
@@ -332,7 +356,14 @@ fn floating_base_kernels_match_the_reference() {
     let kernels = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd];
     let hyq = load_floating("grid_hyq");
     check_model(&gpu, "grid_hyq floating", &hyq, &kernels, options.clone(), &[Strategy::Thread], &mut rng);
-    check_model(&gpu, "grid_hyq floating", &hyq, &KernelKind::ALL, options, &[Strategy::Cooperative], &mut rng);
+    check_model(&gpu, "grid_hyq floating", &hyq, &KernelKind::ALL, options.clone(), &[Strategy::Cooperative], &mut rng);
+    // Atlas on a free-flyer: its base block (150 kg) beside the hands' links makes M far
+    // worse conditioned than the fixed-base robots' (cond ≤ 2e3, tests/accuracy.rs), and
+    // its f64 fd_grad graph itself is 9.9e-13 from the reference here (measured), so the reference
+    // bound is the 1e-10 that tests/pinocchio.rs holds floating robots to; the kernels are
+    // still held to the graph they run at 1e-12.
+    let atlas = load_floating("grid_atlas");
+    check_model_within(&gpu, "grid_atlas floating", &atlas, &KernelKind::ALL, options, &[Strategy::Cooperative], &mut rng, 1e-10);
 }
 
 /// Coupled mimic joints (issue 11): mimic_arm (`tests/fixtures/mimic_arm.urdf`, three
