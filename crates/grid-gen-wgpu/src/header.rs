@@ -133,3 +133,59 @@ fn read_tables(source: &str, words: usize, values: usize, precision: Precision) 
     }
     Ok((prog, konst))
 }
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use grid_gen::back::wgsl::{emit_with_stats, WgslOptions};
+
+    fn shader(precision: Precision) -> String {
+        let model = grid_gen_test_support::load("double_pendulum_continuous");
+        let module = grid_gen::ir::lower(&model, grid_gen::reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+        emit_with_stats(&module, &WgslOptions { precision, ..WgslOptions::default() }).unwrap().0.contents
+    }
+
+    #[test]
+    fn the_tables_round_trip_in_both_precisions() {
+        for precision in [Precision::F32, Precision::F64] {
+            let text = shader(precision);
+            let info = ShaderInfo::parse(&text).unwrap();
+            assert_eq!(info.entries.len(), 12);
+            // The cooperative entries' tables tile prog in order, each starting with its
+            // phases * workers + 1 list offsets, the first just past them, the last at its
+            // end (the ranges the generated comments give).
+            let ranges: Vec<(usize, usize)> = text
+                .lines()
+                .filter_map(|l| l.split_once("a table at prog[")?.1.split_once(']')?.0.split_once(".."))
+                .map(|(a, b)| (a.parse().unwrap(), b.parse().unwrap()))
+                .collect();
+            let coop: Vec<&EntryInfo> = info.entries.iter().filter(|e| e.strategy == Strategy::Cooperative).collect();
+            assert_eq!(ranges.len(), coop.len());
+            let mut at = 0;
+            for ((a, b), e) in ranges.into_iter().zip(coop) {
+                assert_eq!(a, at, "{}", e.entry);
+                let starts = e.phases * e.workgroup_size as usize + 1;
+                assert_eq!(info.prog[a] as usize, a + starts, "{}", e.entry);
+                assert_eq!(info.prog[a + starts - 1] as usize, b, "{}", e.entry);
+                at = b;
+            }
+            assert_eq!(at, info.prog.len());
+            if precision == Precision::F32 {
+                assert!(info.konst.iter().all(|&c| c as f32 as f64 == c));
+            }
+        }
+    }
+
+    #[test]
+    fn a_damaged_table_is_a_clear_error() {
+        let text = shader(Precision::F32);
+        let cut: String = text.lines().filter(|l| !l.starts_with("// konst: ")).map(|l| format!("{l}\n")).collect();
+        let e = ShaderInfo::parse(&cut).unwrap_err().to_string();
+        assert!(e.contains("prog=") && e.contains("values"), "{e}");
+        let bad = text.replacen("// prog: ", "// prog: zz ", 1);
+        let e = ShaderInfo::parse(&bad).unwrap_err().to_string();
+        assert!(e.contains("not a hex word"), "{e}");
+        let e = ShaderInfo::parse("// precision: f32\nfn main() {}").unwrap_err().to_string();
+        assert!(e.contains("`// nv:`"), "{e}");
+    }
+}
