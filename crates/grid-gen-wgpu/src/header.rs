@@ -151,9 +151,10 @@ mod tests {
             let text = shader(precision);
             let info = ShaderInfo::parse(&text).unwrap();
             assert_eq!(info.entries.len(), 12);
-            // The cooperative entries' tables tile prog in order, each starting with its
-            // phases * workers + 1 list offsets, the first just past them, the last at its
-            // end (the ranges the generated comments give).
+            // The cooperative entries' tables tile prog in order, each a head of (offset,
+            // steps) per phase, the first block just past it, each block `steps` rows of
+            // one instruction (3 words) per invocation, the last ending the table (the
+            // ranges the generated comments give).
             let ranges: Vec<(usize, usize)> = text
                 .lines()
                 .filter_map(|l| l.split_once("a table at prog[")?.1.split_once(']')?.0.split_once(".."))
@@ -164,9 +165,12 @@ mod tests {
             let mut at = 0;
             for ((a, b), e) in ranges.into_iter().zip(coop) {
                 assert_eq!(a, at, "{}", e.entry);
-                let starts = e.phases * e.workgroup_size as usize + 1;
-                assert_eq!(info.prog[a] as usize, a + starts, "{}", e.entry);
-                assert_eq!(info.prog[a + starts - 1] as usize, b, "{}", e.entry);
+                let mut block = a + 2 * e.phases;
+                for p in 0..e.phases {
+                    assert_eq!(info.prog[a + 2 * p] as usize, block, "{} phase {p}", e.entry);
+                    block += info.prog[a + 2 * p + 1] as usize * e.workgroup_size as usize * 3;
+                }
+                assert_eq!(block, b, "{}", e.entry);
                 at = b;
             }
             assert_eq!(at, info.prog.len());

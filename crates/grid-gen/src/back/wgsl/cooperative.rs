@@ -1,14 +1,14 @@
-//! The `cooperative` strategy (GRiD's scheme, on the IR's list scheduler [`Phases`]): one
-//! workgroup per state; the kernel's operations are spread over the workgroup's
-//! invocations in barrier-separated phases. The operations are not unrolled into WGSL:
+//! The `cooperative` strategy (GRiD's scheme): one workgroup per state; the kernel's
+//! operations are spread over the workgroup's invocations in barrier-separated phases,
+//! one phase per level of the dataflow graph. The operations are not unrolled into WGSL:
 //! they are a table (binding 6, `prog`) that a short interpreter loop in the entry point
-//! walks, each invocation its own list per phase, with the constants in binding 7
+//! walks, each invocation its share of each phase, with the constants in binding 7
 //! (`konst`). Unrolled per-invocation code (a `switch` over 64 invocations per phase, as
 //! this strategy was first built) took lavapipe's LLVM 4 to 12 ms per statement to compile
 //! (coroutine frames across every barrier, each case run under masks): minutes per
 //! gradient, hours for Atlas. The interpreter is the same few dozen statements for every
-//! robot, so every pipeline compiles in well under a second, and neighbouring invocations
-//! run the same loop rather than different `switch` cases.
+//! robot, so every pipeline compiles in milliseconds, and neighbouring invocations run
+//! the same loop (and mostly the same operation) rather than different `switch` cases.
 //!
 //! Every value lives in a slot from the phase that writes it to the last phase that reads
 //! it (a slot is reused only after that phase, so no phase both reads and overwrites one):
@@ -21,7 +21,6 @@ use std::fmt::Write;
 
 use super::{output_stores, EntryStats, Precision, Strategy, Tables, Trig, WgslOptions, WORKGROUP_STORAGE_LIMIT};
 use crate::back::BackError;
-use crate::ir::schedule::Phases;
 use crate::ir::{Function, Id, Input, Op};
 
 /// Operation codes of the table (bits 24..32 of an instruction's first word).
@@ -33,6 +32,8 @@ const NEG: u32 = 4;
 const SIN: u32 = 5;
 const COS: u32 = 6;
 const COPY: u32 = 7;
+/// Does nothing: pads an invocation's list to its phase's longest.
+const NOP: u32 = 8;
 
 /// Address tags (bits 28..32 of an address; the index is the low 28 bits).
 const WORKGROUP: u32 = 0;
@@ -57,37 +58,53 @@ fn address(tag: u32, index: usize, robot: &str) -> Result<u32, BackError> {
 
 pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOptions, robot: &str, tables: &mut Tables) -> Result<EntryStats, BackError> {
     let workers = options.workers as usize;
-    let p = Phases::new(f, workers, usize::MAX).map_err(|e| BackError::WgslOption(e.to_string()))?;
     let name = Strategy::Cooperative.entry(f.kind.name());
     let (stores, inline, outputs) = output_stores(f, nv);
-    // Phase 0 exists even for a kernel with no operations, for the inline stores.
-    let phases = p.phases.len().max(1);
+    let nodes = f.nodes.len();
 
-    // Each operation's slot: from its phase to the last phase that reads it.
-    let mut last = vec![0usize; f.nodes.len()];
+    // Level scheduling: an operation runs in the phase one past its latest operand's
+    // (inputs and constants are ready at phase 0), and an output copy in the phase after
+    // its value's; each phase's instructions are spread over the invocations in turn.
+    // The phases are the graph's depth, each as many steps as its width needs. (The IR's
+    // list scheduler, `Phases`, which keeps a chain of dependent operations on one
+    // invocation to save barriers, was this strategy's first schedule: iiwa's fd_grad took
+    // 14 phases but 2464 steps, 1563 of them one invocation's chain in the last phase;
+    // by levels it is 138 phases of 169 steps.)
+    let mut phase = vec![usize::MAX; nodes];
     for (i, node) in f.nodes.iter().enumerate() {
-        if let Some(at) = p.place[i] {
-            last[i] = last[i].max(at.phase as usize);
-            for o in node.op.operands() {
-                last[o.0 as usize] = last[o.0 as usize].max(at.phase as usize);
-            }
+        if node.op.operands().any(|o| o.0 as usize >= i) {
+            return Err(BackError::WgslOption(format!("{}: node {i} reads a later node (the IR is built in dependence order)", f.kind.name())));
+        }
+        if f.is_operation(Id(i as u32)) {
+            phase[i] = node.op.operands().filter(|o| phase[o.0 as usize] != usize::MAX).map(|o| phase[o.0 as usize] + 1).max().unwrap_or(0);
         }
     }
+    let copies_after = |i: usize| if stores[i].is_empty() { 0 } else { 1 };
+    let phases = (0..nodes).filter(|&i| phase[i] != usize::MAX).map(|i| phase[i] + 1 + copies_after(i)).max().unwrap_or(0).max(1);
+
+    // Each operation's slot: from its phase to the last phase that reads it (its copies
+    // included). A slot is reused only by a value written in a later phase than that, so
+    // no phase both reads and overwrites one.
+    let mut last = vec![0usize; nodes];
     let mut by_phase: Vec<Vec<usize>> = vec![Vec::new(); phases];
-    for (i, at) in p.place.iter().enumerate() {
-        if let Some(at) = at {
-            by_phase[at.phase as usize].push(i);
+    for (i, node) in f.nodes.iter().enumerate() {
+        if phase[i] != usize::MAX {
+            last[i] = last[i].max(phase[i] + copies_after(i));
+            for o in node.op.operands() {
+                last[o.0 as usize] = last[o.0 as usize].max(phase[i]);
+            }
+            by_phase[phase[i]].push(i);
         }
     }
-    let mut slot = vec![u32::MAX; f.nodes.len()];
+    let mut slot = vec![u32::MAX; nodes];
     let mut free: BTreeSet<u32> = BTreeSet::new();
     // (last phase, slot) of the slots in use; the lowest free slot first keeps the most
     // used slots in workgroup memory.
     let mut busy: BTreeSet<(usize, u32)> = BTreeSet::new();
     let mut slots = 0u32;
-    for (phase, ids) in by_phase.iter().enumerate() {
+    for (p, ids) in by_phase.iter().enumerate() {
         while let Some(&(end, s)) = busy.first() {
-            if end >= phase {
+            if end >= p {
                 break;
             }
             busy.pop_first();
@@ -126,58 +143,64 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
             },
         }
     };
-    // The instruction lists, phase by phase, worker by worker.
-    let mut lists: Vec<Vec<Vec<[u32; WORDS]>>> = vec![vec![Vec::new(); workers]; phases];
-    for (pi, phase) in p.phases.iter().enumerate() {
-        for (w, ids) in phase.iter().enumerate() {
-            for &id in ids {
-                let (code, a, b) = match f.op(id) {
-                    Op::Add(a, b) => (ADD, a, b),
-                    Op::Sub(a, b) => (SUB, a, b),
-                    Op::Mul(a, b) => (MUL, a, b),
-                    Op::Div(a, b) => (DIV, a, b),
-                    Op::Neg(a) => (NEG, a, a),
-                    Op::Sin(a) => (SIN, a, a),
-                    Op::Cos(a) => (COS, a, a),
-                    Op::Const(_) | Op::Input(..) => unreachable!("schedules hold operations only"),
-                };
-                let (a, b) = (operand(a, tables)?, operand(b, tables)?);
-                lists[pi][w].push([code << 24 | slot[id.0 as usize], a, b]);
-                let me = operand(id, tables)?;
-                for &k in &stores[id.0 as usize] {
-                    lists[pi][w].push([COPY << 24 | k as u32, me, me]);
-                }
-            }
+    // Each phase's instructions.
+    let mut lists: Vec<Vec<[u32; WORDS]>> = vec![Vec::new(); phases];
+    for (i, &p) in phase.iter().enumerate() {
+        if p == usize::MAX {
+            continue;
+        }
+        let id = Id(i as u32);
+        let (code, a, b) = match f.op(id) {
+            Op::Add(a, b) => (ADD, a, b),
+            Op::Sub(a, b) => (SUB, a, b),
+            Op::Mul(a, b) => (MUL, a, b),
+            Op::Div(a, b) => (DIV, a, b),
+            Op::Neg(a) => (NEG, a, a),
+            Op::Sin(a) => (SIN, a, a),
+            Op::Cos(a) => (COS, a, a),
+            Op::Const(_) | Op::Input(..) => unreachable!("only operations have a phase"),
+        };
+        let (a, b) = (operand(a, tables)?, operand(b, tables)?);
+        lists[p].push([code << 24 | slot[i], a, b]);
+        let me = operand(id, tables)?;
+        for &k in &stores[i] {
+            lists[p + 1].push([COPY << 24 | k as u32, me, me]);
         }
     }
-    // Outputs that are constants or inputs: spread over phase 0's workers.
-    for (n, &(k, id)) in inline.iter().enumerate() {
+    // Outputs that are constants or inputs: in phase 0.
+    for &(k, id) in &inline {
         let a = operand(id, tables)?;
-        lists[0][n % workers].push([COPY << 24 | k as u32, a, a]);
+        lists[0].push([COPY << 24 | k as u32, a, a]);
+    }
+    // Neighbouring invocations run the same operation where they can (one branch of the
+    // interpreter's switch per warp instead of several).
+    for list in &mut lists {
+        list.sort_by_key(|ins| ins[0] >> 24);
     }
 
-    // The table: phases * workers + 1 start offsets (absolute word indices into `prog`),
-    // then the instructions.
+    // The table: for each phase its block's offset (an absolute word index into `prog`)
+    // and its steps, then the blocks. Block p holds its instructions in turn over the
+    // invocations (instruction j of the phase goes to invocation j % workers, at step
+    // j / workers), so neighbouring invocations fetch neighbouring words, padded with NOP
+    // to whole steps.
     let base = tables.prog.len();
-    let mut at = base + phases * workers + 1;
-    let mut starts = Vec::with_capacity(phases * workers + 1);
-    for phase in &lists {
-        for list in phase {
-            starts.push(at as u32);
-            at += list.len() * WORDS;
-        }
+    let mut at = base + 2 * phases;
+    let mut head = Vec::with_capacity(2 * phases);
+    for list in &lists {
+        let steps = list.len().div_ceil(workers);
+        head.extend([at as u32, steps as u32]);
+        at += steps * workers * WORDS;
     }
-    starts.push(at as u32);
     if at > u32::MAX as usize {
         return Err(BackError::WgslOption(format!("robot \"{robot}\": the cooperative tables exceed 2^32 words")));
     }
-    tables.prog.extend(starts);
+    tables.prog.extend(head);
     let mut instructions = 0;
-    for phase in &lists {
-        for list in phase {
-            instructions += list.len();
-            tables.prog.extend(list.iter().flatten());
-        }
+    for list in &lists {
+        instructions += list.len();
+        let padded = list.len().div_ceil(workers) * workers;
+        tables.prog.extend(list.iter().flatten());
+        tables.prog.extend(std::iter::repeat_n([NOP << 24, 0, 0], padded - list.len()).flatten());
     }
 
     let wg = format!("{name}_wg");
@@ -192,8 +215,9 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
     let _ = writeln!(
         out,
         "// {} One workgroup of {workers} invocations per state, {phases} phases; its {instructions} \
-         operations are a table at prog[{base}..{at}] (phase p's list for invocation w starts at \
-         prog[{base} + p * {workers} + w] and ends where the next begins; 3 words each).",
+         operations are a table at prog[{base}..{at}] (phase p's block starts at prog[{base} + 2 * p] \
+         and has prog[{base} + 2 * p + 1] steps of {workers} instructions of 3 words, invocation w's \
+         at (step * {workers} + w) * 3).",
         f.doc()
     );
     let _ = writeln!(out, "var<workgroup> {wg}: array<real, {}>;\n", in_workgroup.max(1));
@@ -213,7 +237,7 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
          let d = w0 & 16777215u;\n    var v = {zero};\n    switch (w0 >> 24u) {{\n        \
          case {ADD}u: {{ v = x + y; }}\n        case {SUB}u: {{ v = x - y; }}\n        case {MUL}u: {{ v = x * y; }}\n        \
          case {DIV}u: {{ v = x / y; }}\n        case {NEG}u: {{ v = -x; }}\n        case {SIN}u: {{ v = {sin}(x); }}\n        \
-         case {COS}u: {{ v = {cos}(x); }}\n        default: {{\n            out[d * n + s] = x;\n            return;\n        }}\n    }}\n    \
+         case {COS}u: {{ v = {cos}(x); }}\n        case {COPY}u: {{\n            out[d * n + s] = x;\n            return;\n        }}\n        default: {{ return; }}\n    }}\n    \
          if (d < {in_workgroup}u) {{\n        {wg}[d] = v;\n    }} else {{\n        scratch[(d - {in_workgroup}u) * n + s] = v;\n    }}\n}}\n"
     );
     let barrier = if spilled > 0 { "        workgroupBarrier();\n        storageBarrier();" } else { "        workgroupBarrier();" };
@@ -224,8 +248,9 @@ pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOpti
     let _ = writeln!(
         out,
         "    let n = params.n;\n    let s = wid.x;\n    if (s >= n) {{\n        return;\n    }}\n    \
-         for (var p = 0u; p < {phases}u; p++) {{\n        let r = {base}u + p * {workers}u + w;\n        \
-         let end = prog[r + 1u];\n        for (var k = prog[r]; k < end; k += 3u) {{\n            {name}_step(k, s, n);\n        }}\n{barrier}\n    }}\n}}\n"
+         for (var p = 0u; p < {phases}u; p++) {{\n        let at = prog[{base}u + 2u * p] + 3u * w;\n        \
+         let steps = prog[{base}u + 2u * p + 1u];\n        for (var k = 0u; k < steps; k++) {{\n            {name}_step(at + k * {stride}u, s, n);\n        }}\n{barrier}\n    }}\n}}\n",
+        stride = workers * WORDS
     );
     Ok(EntryStats {
         entry: name,
