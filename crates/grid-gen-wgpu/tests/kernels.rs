@@ -416,6 +416,42 @@ fn spherical_kernels_match_the_reference() {
     check_model(&gpu, "ball_chain", &model, &KernelKind::ALL, options, &Strategy::ALL, &mut rng);
 }
 
+/// The cooperative schedule deals each phase's operations to however many invocations
+/// there are; each operation is the same rounded arithmetic on the same operands wherever
+/// it runs, so 1, 7 (not a power of two) and 256 (WebGPU's most) invocations per state
+/// give the 64-invocation results bit for bit, on iiwa's gradients (and a one-joint chain,
+/// whose phases are narrower than any workgroup, matches the reference).
+#[test]
+fn cooperative_results_do_not_depend_on_the_workgroup_size() {
+    let Some((_serial, gpu)) = gpu() else { return };
+    let model = load("grid_iiwa");
+    let mut rng = Rng(83);
+    let states = states(&model, &mut rng);
+    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let (q, qd, u) = (flat(0), flat(1), flat(2));
+    for kind in [KernelKind::RneaGrad, KernelKind::FdGrad] {
+        let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
+        let module = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+        let run = |workers: u32| {
+            let options = WgslOptions { workers, strategies: vec![Strategy::Cooperative], ..WgslOptions::default() };
+            let (file, stats) = grid_gen::back::wgsl::emit_with_stats(&module, &options).unwrap();
+            let shader = gpu.load(&file.contents).unwrap();
+            let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry(kind.name())).unwrap();
+            (stats[0].clone(), gpu.run(&kernel, &q, &qd, &u).unwrap())
+        };
+        let (base, want) = run(64);
+        assert!(want.iter().all(|x| x.is_finite()), "{kind:?}");
+        for workers in [1, 7, 256] {
+            let (stats, got) = run(workers);
+            assert_eq!(stats.phases, base.phases, "{kind:?}: the levels do not depend on the workers");
+            assert!(got == want, "{kind:?}: {workers} invocations per state differ from 64");
+            eprintln!("iiwa {}: {workers} invocations per state = 64, bit for bit ({} phases)", kind.name(), stats.phases);
+        }
+    }
+    let one = Model::from_urdf_str("chain1.urdf", &chain_urdf(1), false).map_err(|e| e.render_plain()).unwrap().0;
+    check_model(&gpu, "one-joint chain", &one, &KernelKind::ALL, WgslOptions::default(), &[Strategy::Cooperative], &mut rng);
+}
+
 #[test]
 fn batch_sizes_nan_and_dispatch_splitting() {
     let Some((_serial, gpu)) = gpu() else { return };
