@@ -2,8 +2,9 @@
 //! into functions of bounded size with scratch slots for the values that cross them (Rust
 //! and WGSL's thread strategy), and [`Phases`] places the operations on P parallel
 //! workers in barrier-separated phases, with shared slots for the values that cross
-//! workers or phases, under a slot budget (WGSL's cooperative strategy, and later the
-//! Verilog backend's resource-shared datapath).
+//! workers or phases, under a slot budget. (WGSL's cooperative strategy was built on
+//! `Phases` and now schedules by graph levels of its own, which measured far shorter on
+//! the robots' gradients; `Phases` has no caller in the backends today.)
 
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;

@@ -278,16 +278,7 @@ pub(super) struct Constants {
 
 impl Constants {
     pub fn get(&mut self, c: f64, precision: Precision, robot: &str) -> Result<usize, BackError> {
-        let c = match precision {
-            Precision::F32 => {
-                let x = c as f32;
-                if !x.is_finite() {
-                    return Err(BackError::WgslRange { robot: robot.to_string(), value: c });
-                }
-                x as f64
-            }
-            Precision::F64 => c,
-        };
+        let c = super::rounded(c, precision, robot)?;
         let next = self.values.len();
         let k = *self.index.entry(c.to_bits()).or_insert(next);
         if k == next {

@@ -225,17 +225,21 @@ written, structural zeros included.";
 /// WGSL's literal for a constant in `precision`, or an error if it cannot hold it.
 fn literal(c: f64, precision: Precision, robot: &str) -> Result<String, BackError> {
     // `{:?}` prints the shortest text that reads back as the same value.
-    let (s, neg) = match precision {
-        Precision::F32 => {
-            let x = c as f32;
-            if !x.is_finite() {
-                return Err(BackError::WgslRange { robot: robot.to_string(), value: c });
-            }
-            (format!("{x:?}f"), x < 0.0)
-        }
-        Precision::F64 => (format!("{c:?}lf"), c < 0.0),
+    let x = rounded(c, precision, robot)?;
+    let s = match precision {
+        Precision::F32 => format!("{:?}f", x as f32),
+        Precision::F64 => format!("{x:?}lf"),
     };
-    Ok(if neg { format!("({s})") } else { s })
+    Ok(if x < 0.0 { format!("({s})") } else { s })
+}
+
+/// Constant `c` as `precision` holds it, or an error if it cannot (an f32 overflow).
+fn rounded(c: f64, precision: Precision, robot: &str) -> Result<f64, BackError> {
+    match precision {
+        Precision::F32 if !(c as f32).is_finite() => Err(BackError::WgslRange { robot: robot.to_string(), value: c }),
+        Precision::F32 => Ok(c as f32 as f64),
+        Precision::F64 => Ok(c),
+    }
 }
 
 fn input_buffer(input: Input) -> &'static str {
