@@ -10,6 +10,9 @@ For each robot in robots/:
                           JointModelFreeFlyer; grid-gen's --floating-base), for FLOATING.
 <robot>.mimic.pinocchio.json: the same with mimic joints coupled (grid-gen's --mimic
                           coupled; Pinocchio's mimic=True), for the Panda and mimic_arm.urdf.
+<robot>[.floating].frames.pinocchio.json: frame placements, Jacobians, velocities and
+                          classical accelerations of chosen links (FRAMES), in the three
+                          reference frames.
 ball_arm.urdf with ball_arm[.floating].pinocchio.json: spherical joints (a grid-gen
                           extension of URDF) against Pinocchio's JointModelSpherical.
 <robot>.<scene>.pinocchio.json: the same, for a robot in a scene of examples/scenes/
@@ -558,6 +561,82 @@ def chain_fixtures(check):
     return report(OUT / f"chain{CHAIN_LINKS}.pinocchio.json", data, check, 1e-9) or stale
 
 
+# Frames: (robot, floating, link names). BODY frames of buildModelFromUrdf, named after the
+# links; links merged by fixed joints (UR5's tool0, go2's feet, the Panda's TCP) included.
+FRAMES = [
+    ("grid_iiwa", False, ["iiwa_link_7", "iiwa_link_0", "base"]),
+    ("grid_hyq", False, ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]),
+    ("grid_hyq", True, ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg", "base_link_0"]),
+    ("grid_atlas", False, ["l_hand", "r_hand", "l_foot", "r_foot"]),
+    ("grid_atlas", True, ["l_hand", "r_hand", "l_foot", "r_foot"]),
+    ("ur5", False, ["tool0", "ee_link", "world"]),
+    ("panda", False, ["panda_hand_tcp", "panda_leftfinger"]),
+    ("go2", True, ["FL_foot", "FR_foot", "RL_foot", "RR_foot"]),
+]
+REFERENCE_FRAMES = {"local": pin.LOCAL, "world": pin.WORLD, "local_world_aligned": pin.LOCAL_WORLD_ALIGNED}
+
+
+def frames_fixture(path, floating, names, rng):
+    """Frame kinematics at random, limit, large-angle (±1e3 rad) and fast (1e3) states:
+    per frame, framesForwardKinematics' translation and rotation, getFrameJacobian in the three
+    reference frames (rows [linear; angular], columns in listing order), getFrameVelocity and
+    getFrameClassicalAcceleration in the three. With `floating`, `base` holds q's first seven
+    entries and the free-flyer's six coordinates are listed first, as in the floating fixtures."""
+    model = pin.buildModelFromUrdf(str(path), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(path))
+    data = model.createData()
+    joints = movable_joints(model, first=2 if floating else 1)
+    perm = (list(range(6)) if floating else []) + [j[3] for j in joints]
+    ids = [model.getFrameId(n, pin.BODY) for n in names]
+    assert all(i < model.nframes for i in ids), names
+    n = len(joints)
+    cases = states(joints, rng)
+    cases.append(("large angles", rng.uniform(-1e3, 1e3, size=n), rng.normal(size=n), rng.normal(size=n), None))
+    records = []
+    for kind, ang, qd, qdd, _ in cases:
+        q = to_pin_q(model, joints, ang)
+        record = {"kind": kind, "q": [float(x) for x in ang]}
+        speed = 1e3 if kind == "speed 1000" else 1.0
+        if floating:
+            quat = pin.Quaternion(pin.SE3.Random().rotation).coeffs()
+            base = np.concatenate([rng.normal(size=3), quat / np.linalg.norm(quat)])
+            q[:7] = base
+            record["base"] = [float(x) for x in base]
+            qd = np.concatenate([rng.normal(size=6) * speed, qd])
+            qdd = np.concatenate([rng.normal(size=6) * speed, qdd])
+        v = np.zeros(model.nv); a = np.zeros(model.nv)
+        v[perm] = qd; a[perm] = qdd
+        record["qd"] = [float(x) for x in qd]
+        record["qdd"] = [float(x) for x in qdd]
+        pin.forwardKinematics(model, data, q, v, a)
+        pin.updateFramePlacements(model, data)
+        pin.computeJointJacobians(model, data, q)
+        frames = {}
+        for name, fid in zip(names, ids):
+            oMf = data.oMf[fid]
+            frames[name] = {
+                "translation": [float(x) for x in oMf.translation],
+                "rotation": mat(oMf.rotation),
+                "jacobian": {k: mat(pin.getFrameJacobian(model, data, fid, rf)[:, perm]) for k, rf in REFERENCE_FRAMES.items()},
+                "velocity": {k: [float(x) for x in pin.getFrameVelocity(model, data, fid, rf).vector] for k, rf in REFERENCE_FRAMES.items()},
+                "classical_acceleration": {k: [float(x) for x in pin.getFrameClassicalAcceleration(model, data, fid, rf).linear] for k, rf in REFERENCE_FRAMES.items()},
+            }
+        record["frames"] = frames
+        records.append(record)
+    listed = ([f"root_joint_{c}" for c in FREE_FLYER] if floating else []) + [j[0] for j in joints]
+    return {"tool": f"pinocchio {pin.__version__}", "joint_names": listed, "frames": names, "states": records}
+
+
+def frames_fixtures(check):
+    stale = False
+    for robot, floating, names in FRAMES:
+        urdf = (ROBOTS if (ROBOTS / f"{robot}.urdf").exists() else OUT) / f"{robot}.urdf"
+        seed = sum(robot.encode()) + 7 + floating
+        pin.seed(seed)
+        data = frames_fixture(urdf, floating, names, np.random.default_rng(seed))
+        stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.frames.pinocchio.json", data, check, 1e-12)
+    return stale
+
+
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     args = sys.argv[1:]
@@ -581,6 +660,8 @@ def main():
         failed |= mimic_fixtures(check)
     if not only or "spherical" in only:
         failed |= ball_fixtures(check)
+    if not only or "frames" in only:
+        failed |= frames_fixtures(check)
     if failed:
         sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 

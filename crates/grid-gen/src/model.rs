@@ -203,8 +203,55 @@ pub struct Model {
     /// no coordinate: q, q̇, q̈, τ and the matrices have one entry per *coordinate*, the
     /// joints that are not coupled, in model order ([`Model::coordinate_joints`]).
     pub coupling: Vec<Option<Coupling>>,
+    /// Every URDF link the model keeps, as a named frame of the body that carries it, in
+    /// the order the model walks them (depth-first from the root, children in document order).
+    pub frames: Vec<Frame>,
     /// What a scene fixes about the state and the outputs (default: nothing).
     pub specialisation: Specialisation,
+}
+
+/// A URDF link as a frame: the moving body it is fixed in (after fixed and locked joints
+/// are merged) and its constant placement there. Pinocchio's `BODY` frames of
+/// `buildModelFromUrdf` are the same frames, named after the links.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Frame {
+    /// The link's name.
+    pub name: String,
+    /// The model joint whose body carries the link; `None` for the fixed root body
+    /// (Pinocchio's `universe`).
+    pub body: Option<usize>,
+    /// The link frame in the body's (joint's) frame.
+    pub placement: Transform,
+}
+
+/// The axes and reference point a frame quantity is expressed in
+/// (`pinocchio::ReferenceFrame`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ReferenceFrame {
+    /// The frame's own axes, at its origin.
+    Local,
+    /// The world's axes, at the world's origin (a spatial quantity of the body).
+    World,
+    /// The world's axes, at the frame's origin: what position costs and point contacts use.
+    #[default]
+    LocalWorldAligned,
+}
+
+impl ReferenceFrame {
+    pub const ALL: [ReferenceFrame; 3] = [ReferenceFrame::Local, ReferenceFrame::World, ReferenceFrame::LocalWorldAligned];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ReferenceFrame::Local => "local",
+            ReferenceFrame::World => "world",
+            ReferenceFrame::LocalWorldAligned => "local_world_aligned",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<ReferenceFrame> {
+        ReferenceFrame::ALL.into_iter().find(|r| r.name() == name)
+    }
 }
 
 /// What a scene fixes beyond the robot itself (issue 10, item 6): lowering reads it, so
@@ -220,6 +267,11 @@ pub struct Specialisation {
     pub rows: Option<Vec<usize>>,
     /// Columns of the gradient matrices that are computed, as rows are. `None`: all.
     pub columns: Option<Vec<usize>>,
+    /// The frames the frame kernels compute, as indices into [`Model::frames`], in the
+    /// order asked for. Empty: no frame kernels.
+    pub frames: Vec<usize>,
+    /// The reference frame of the frame kernels' Jacobian, velocity and acceleration.
+    pub reference: ReferenceFrame,
 }
 
 impl Specialisation {
@@ -410,6 +462,16 @@ impl Model {
         base.into_iter().chain(self.spherical.iter().map(|&s| self.group_q(s))).collect()
     }
 
+    /// The frame named `name`.
+    pub fn frame(&self, name: &str) -> Option<usize> {
+        self.frames.iter().position(|f| f.name == name)
+    }
+
+    /// The frames the frame kernels compute ([`Specialisation::frames`]).
+    pub fn selected_frames(&self) -> impl Iterator<Item = &Frame> {
+        self.specialisation.frames.iter().map(|&f| &self.frames[f])
+    }
+
     /// Whether `a` is `i` or one of its ancestors.
     pub fn is_ancestor_or_self(&self, a: usize, i: usize) -> bool {
         a <= i && i < self.joints[a].subtree_end
@@ -548,6 +610,7 @@ pub(crate) fn build(
     let mut source: Vec<Option<usize>> = Vec::new();
     let mut floating = floating_base;
     let mut spherical = Vec::new();
+    let mut frames = Vec::new();
     let mut stack = vec![match floating_base {
         true => Step::Free { name: ROOT_JOINT.to_string(), link: tree.root, tree: Transform::identity() },
         false => Step::Visit { link: tree.root, body: None, in_body: Transform::identity() },
@@ -555,6 +618,7 @@ pub(crate) fn build(
     while let Some(step) = stack.pop() {
         match step {
             Step::Visit { link, body, in_body } => {
+                frames.push(Frame { name: urdf.links[link].name.clone(), body, placement: in_body });
                 // The root body is fixed: its inertia never enters the dynamics.
                 if let Some(b) = body {
                     for inertial in urdf.links[link].inertial.iter().chain(&edits.payload[link]) {
@@ -711,6 +775,7 @@ pub(crate) fn build(
         floating,
         spherical,
         coupling,
+        frames,
         specialisation: Specialisation::default(),
     };
     Some((model, source))

@@ -21,6 +21,10 @@
 //! rows = ["right_s0"]                  # by joint: the rows computed
 //! columns = ["right_s0", "right_s1"]   # the columns computed; the rest are written 0
 //!
+//! [frames]                             # frames the frame kernels compute (link names)
+//! names = ["iiwa_link_7"]
+//! reference = "local_world_aligned"    # or "local", "world" (Pinocchio's ReferenceFrame)
+//!
 //! [[payload]]                          # or [payload] for one
 //! link = "right_gripper"
 //! mass = 1.5                           # kg
@@ -34,7 +38,7 @@ use serde::Deserialize;
 
 use crate::diagnostic::Diagnostic;
 use crate::ir::KernelKind;
-use crate::model::{Model, Specialisation};
+use crate::model::{Model, ReferenceFrame, Specialisation};
 use crate::urdf::{Inertial, JointKind, Pose, Tree, Urdf};
 
 /// A scene file's contents (see the module documentation for the format).
@@ -71,6 +75,21 @@ pub struct Scene {
     /// How `<mimic>` joints are modelled (as `--mimic`).
     #[serde(default)]
     pub mimic: MimicMode,
+    /// The frames the frame kernels compute (as `--frames`).
+    #[serde(default)]
+    pub frames: FramesSection,
+}
+
+/// `[frames]`: the links whose placement, Jacobian, velocity and acceleration the frame
+/// kernels compute, and the reference frame they are expressed in.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FramesSection {
+    /// Link names, in the order the kernels' outputs list them. Empty: no frame kernels.
+    #[serde(default)]
+    pub names: Vec<String>,
+    /// Default `local_world_aligned`.
+    pub reference: Option<ReferenceFrame>,
 }
 
 /// How `<mimic>` joints are modelled.
@@ -384,5 +403,59 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
     };
     let rows = resolve("rows", &scene.gradient.rows);
     let columns = resolve("columns", &scene.gradient.columns);
-    Specialisation { static_velocity: scene.static_velocity, rows, columns }
+    let frames = select_frames(scene, scene_path, urdf, model, diags);
+    Specialisation { static_velocity: scene.static_velocity, rows, columns, frames, reference: scene.frames.reference.unwrap_or_default() }
+}
+
+/// Resolves `[frames] names` (or `--frames`) against the model's frames: an unknown name
+/// is an error that lists the closest link names, a link the scene removed one that says
+/// which scene entry removed it.
+fn select_frames(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, diags: &mut Vec<Diagnostic>) -> Vec<usize> {
+    let mut picked = Vec::new();
+    let whence = if scene_path.is_empty() { "--frames".to_string() } else { format!("scene `{scene_path}`: [frames]") };
+    for name in &scene.frames.names {
+        if let Some(f) = model.frame(name) {
+            if picked.contains(&f) {
+                diags.push(Diagnostic::error(format!("{whence} names frame `{name}` twice"), None, "duplicate frame").with_help("name each frame once"));
+            }
+            picked.push(f);
+            continue;
+        }
+        let message = match urdf.links.iter().position(|l| &l.name == name) {
+            Some(l) => {
+                let by = if scene.drop.iter().any(|d| removes(urdf, d, l)) {
+                    format!("`drop = [..., \"{}\"]`", scene.drop.iter().find(|d| removes(urdf, d, l)).expect("found above"))
+                } else {
+                    "`keep`, which does not keep it".to_string()
+                };
+                format!("{whence} names link `{name}`, which the scene removes (by {by})")
+            }
+            None => {
+                let joint = urdf.joints.iter().any(|j| &j.name == name);
+                let what = if joint { "a joint, not a link: frames are link names" } else { "not a link of this robot" };
+                format!("{whence} names `{name}`, which is {what}")
+            }
+        };
+        diags.push(Diagnostic::error(message, None, "unknown frame").with_help(format!("closest frames: {}", closest(name, model))));
+    }
+    picked
+}
+
+/// Whether dropping link `dropped` removes link `l` (it is `l` or an ancestor of it).
+fn removes(urdf: &Urdf, dropped: &str, l: usize) -> bool {
+    let mut at = Some(l);
+    while let Some(x) = at {
+        if urdf.links[x].name == dropped {
+            return true;
+        }
+        at = urdf.joints.iter().find(|j| j.child == urdf.links[x].name).and_then(|j| urdf.links.iter().position(|k| k.name == j.parent));
+    }
+    false
+}
+
+/// The model's five frame names nearest to `name` by edit distance.
+fn closest(name: &str, model: &Model) -> String {
+    let mut names: Vec<(usize, &str)> = model.frames.iter().map(|f| (strsim::levenshtein(name, &f.name), f.name.as_str())).collect();
+    names.sort();
+    names.iter().take(5).map(|(_, n)| *n).collect::<Vec<_>>().join(", ")
 }
