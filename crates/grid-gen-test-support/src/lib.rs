@@ -165,7 +165,49 @@ pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64],
             let (a, b, c) = reference::forward_dynamics_derivatives(model, q, qd, u, g);
             vec![col(&a), b, c]
         }
+        _ => reference_frames(kind, model, q, qd, u).iter().map(|v| col(v)).collect(),
     }
+}
+
+/// The reference's values of a frame kernel's outputs, flat in the kernel's layout (per
+/// frame: translation and row-major rotation; the row-major 6 × nv Jacobian; the velocity;
+/// the classical acceleration), for the model's selected frames and reference frame.
+pub fn reference_frames(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64], qdd: &[f64]) -> Vec<Vec<f64>> {
+    let rf = model.specialisation.reference;
+    let frames: Vec<_> = model.selected_frames().collect();
+    match kind {
+        KernelKind::FramePlacement => {
+            let (mut t, mut r) = (Vec::new(), Vec::new());
+            for f in &frames {
+                let (rot, p) = reference::frame_placement(model, q, f);
+                t.extend(p.iter());
+                r.extend((0..9).map(|k| rot[(k / 3, k % 3)]));
+            }
+            vec![t, r]
+        }
+        KernelKind::FrameJacobian => {
+            let nv = model.nv();
+            let j = frames
+                .iter()
+                .flat_map(|f| {
+                    let j = reference::frame_jacobian(model, q, f, rf);
+                    (0..6 * nv).map(move |k| j[(k / nv, k % nv)])
+                })
+                .collect();
+            vec![j]
+        }
+        KernelKind::FrameVelocity => vec![frames.iter().flat_map(|f| reference::frame_velocity(model, q, qd, f, rf)).collect()],
+        KernelKind::FrameAcceleration => vec![frames.iter().flat_map(|f| reference::frame_classical_acceleration(model, q, qd, qdd, f, rf)).collect()],
+        _ => panic!("{kind} is not a frame kernel"),
+    }
+}
+
+/// A model with frames selected (by link name), in one reference frame.
+pub fn with_frames(model: &Model, names: &[&str], rf: grid_gen::model::ReferenceFrame) -> Model {
+    let mut m = model.clone();
+    m.specialisation.frames = names.iter().map(|n| m.frame(n).unwrap_or_else(|| panic!("no frame {n}"))).collect();
+    m.specialisation.reference = rf;
+    m
 }
 
 /// A kernel's arguments in its order, from q, q̇ and u (q̈ or τ, whichever it takes).
@@ -185,6 +227,6 @@ pub fn kernel_args<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f6
 pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
     match shape {
         Shape::Matrix => DMatrix::from_row_slice(nv, nv, values),
-        Shape::Vector => col(values),
+        Shape::Vector | Shape::PerFrame(_) | Shape::FrameJacobian => col(values),
     }
 }

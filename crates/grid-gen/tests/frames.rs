@@ -236,3 +236,67 @@ fn every_link_is_a_frame_and_a_scene_removes_them() {
     let e = load_error("grid_iiwa", scene(&["iiwa_link_7", "iiwa_link_7"], &[]));
     assert!(e.contains("names frame `iiwa_link_7` twice"), "{e}");
 }
+
+/// The frame kernels' IR graphs against the reference: every reference frame, fixed and
+/// floating bases, spherical and coupled mimic joints, a fixed frame on the root, a static
+/// scene (q̇ ignored).
+#[test]
+fn frame_kernels_match_the_reference() {
+    use grid_gen::ir::{self, KernelKind, LowerOptions};
+    let fixtures = repo().join("tests/fixtures");
+    let cases: Vec<(&str, Model, Vec<&str>)> = vec![
+        ("iiwa", load("grid_iiwa"), vec!["iiwa_link_7", "iiwa_link_3", "base"]),
+        ("hyq floating", load_floating("grid_hyq"), vec!["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg", "base_link_0"]),
+        ("ur5", load("ur5"), vec!["tool0", "world"]),
+        ("ball_arm floating", load_urdf(&fixtures.join("ball_arm.urdf"), true), vec!["l4", "l6", "base"]),
+        ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf")), vec!["l3", "l6", "l7"]),
+        ("go2 floating", load_urdf(&fixtures.join("go2.urdf"), true), vec!["FL_foot", "RR_foot"]),
+    ];
+    let mut rng = Rng(31);
+    let mut worst: f64 = 0.0;
+    for (name, model, frames) in &cases {
+        for rf in ReferenceFrame::ALL {
+            let m = with_frames(model, frames, rf);
+            let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+            let kinds: Vec<KernelKind> = module.functions.iter().map(|f| f.kind).filter(|k| k.is_frame()).collect();
+            assert_eq!(kinds.len(), 4, "{name}: every frame kernel is generated");
+            let nv = m.nv();
+            for _ in 0..3 {
+                let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+                for &s in &m.spherical {
+                    let at = m.group_q(s);
+                    q[at..at + 4].copy_from_slice(&rng.vec(4, -1.0, 1.0));
+                }
+                let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -2.0, 2.0));
+                for f in module.functions.iter().filter(|f| f.kind.is_frame()) {
+                    let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &qdd));
+                    let want = reference_frames(f.kind, &m, &q, &qd, &qdd);
+                    for ((o, got), want) in f.outputs.iter().zip(&got).zip(&want) {
+                        let e = rel_err(&col(got), &col(want));
+                        worst = worst.max(e);
+                        // Both are f64 evaluations of the same kinematics in another order:
+                        // 1e-13 is a few hundred ulps of the largest entry.
+                        assert!(e < 1e-13, "{name} {} {} {}: {e:.2e}", rf.name(), f.kind, o.name);
+                    }
+                }
+            }
+        }
+    }
+    println!("worst frame kernel against the reference: {worst:.2e} (bound 1e-13)");
+    // No frames asked, no frame kernels.
+    let module = ir::lower(&load("grid_iiwa"), reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+    assert!(module.functions.iter().all(|f| !f.kind.is_frame()));
+}
+
+/// A tool frame on a 7-joint arm costs what its chain costs: iiwa's flange Jacobian (in
+/// LOCAL_WORLD_ALIGNED) in far fewer operations than one RNEA.
+#[test]
+fn a_frame_kernel_costs_its_chain() {
+    use grid_gen::ir::{self, KernelKind, LowerOptions};
+    let m = with_frames(&load("grid_iiwa"), &["iiwa_link_7"], ReferenceFrame::LocalWorldAligned);
+    let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+    let ops = |k: KernelKind| module.function(k).unwrap().nodes.iter().filter(|n| !matches!(n.op, ir::Op::Const(_) | ir::Op::Input(..))).count();
+    let (jac, rnea) = (ops(KernelKind::FrameJacobian), ops(KernelKind::Rnea));
+    println!("iiwa flange: frame_jacobian {jac} operations, placement {}, rnea {rnea}", ops(KernelKind::FramePlacement));
+    assert!(jac < rnea, "frame_jacobian {jac} operations, rnea {rnea}");
+}

@@ -13,6 +13,7 @@ use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
 use crate::model::Model;
 
 mod coupled;
+mod frames;
 
 /// Row-major n x n matrix of nodes.
 pub type Mat = Vec<Vec<Id>>;
@@ -40,6 +41,8 @@ pub(crate) struct Rnea {
     v: Vec<Sv>,
     xv: Vec<Sv>,
     xa: Vec<Sv>,
+    /// Body accelerations (gravity's a₀ included).
+    a: Vec<Sv>,
     iv: Vec<Sv>,
     /// Body forces after the backward pass (children included).
     f: Vec<Sv>,
@@ -174,7 +177,7 @@ impl<'a> Dynamics<'a> {
                 f[p] = sp::add(g, &f[p], &fp);
             }
         }
-        Rnea { c, v, xv, xa, iv, f }
+        Rnea { c, v, xv, xa, a, iv, f }
     }
 
     /// `(∂c/∂q, ∂c/∂q̇)` in the chosen formulation.

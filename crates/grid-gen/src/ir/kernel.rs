@@ -11,14 +11,32 @@ pub enum Shape {
     Vector,
     /// `nv x nv`, row-major, `[i][j] = ∂out_i/∂in_j`.
     Matrix,
+    /// This many values per requested frame, frame-major.
+    PerFrame(usize),
+    /// A `6 x nv` Jacobian per requested frame, frame-major, each row-major, rows
+    /// [linear; angular] (Pinocchio's order).
+    FrameJacobian,
 }
 
 impl Shape {
-    /// Number of scalars for a robot with `nv` joints.
-    pub fn len(self, nv: usize) -> usize {
+    /// Number of scalars for a robot with `nv` coordinates and `nframes` requested frames.
+    pub fn len(self, nv: usize, nframes: usize) -> usize {
         match self {
             Shape::Vector => nv,
             Shape::Matrix => nv * nv,
+            Shape::PerFrame(k) => k * nframes,
+            Shape::FrameJacobian => 6 * nv * nframes,
+        }
+    }
+
+    /// The index of each dimension of entry `flat`, outermost first (`[i]`, `[i][j]` or
+    /// `[frame][i]`, `[frame][row][column]`), as backends that keep the shape index it.
+    pub fn index(self, flat: usize, nv: usize) -> Vec<usize> {
+        match self {
+            Shape::Vector => vec![flat],
+            Shape::Matrix => vec![flat / nv, flat % nv],
+            Shape::PerFrame(k) => vec![flat / k, flat % k],
+            Shape::FrameJacobian => vec![flat / (6 * nv), (flat / nv) % 6, flat % nv],
         }
     }
 }
@@ -118,11 +136,36 @@ pub enum KernelKind {
     Minv,
     Fd,
     FdGrad,
+    FramePlacement,
+    FrameJacobian,
+    FrameVelocity,
+    FrameAcceleration,
 }
 
 impl KernelKind {
-    /// Every kernel, in the order backends emit them.
-    pub const ALL: [KernelKind; 6] = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd, KernelKind::FdGrad];
+    /// Every kernel, in the order backends emit them. The frame kernels exist only for a
+    /// model with requested frames ([`KernelKind::is_frame`]).
+    pub const ALL: [KernelKind; 10] = [
+        KernelKind::Rnea,
+        KernelKind::RneaGrad,
+        KernelKind::MassMatrix,
+        KernelKind::Minv,
+        KernelKind::Fd,
+        KernelKind::FdGrad,
+        KernelKind::FramePlacement,
+        KernelKind::FrameJacobian,
+        KernelKind::FrameVelocity,
+        KernelKind::FrameAcceleration,
+    ];
+
+    /// The dynamics kernels, those every robot has.
+    pub const DYNAMICS: [KernelKind; 6] =
+        [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd, KernelKind::FdGrad];
+
+    /// Whether the kernel computes frame quantities (and so exists only when frames are asked for).
+    pub fn is_frame(self) -> bool {
+        matches!(self, KernelKind::FramePlacement | KernelKind::FrameJacobian | KernelKind::FrameVelocity | KernelKind::FrameAcceleration)
+    }
 
     /// The function's name in every backend.
     pub fn name(self) -> &'static str {
@@ -133,6 +176,10 @@ impl KernelKind {
             KernelKind::Minv => "minv",
             KernelKind::Fd => "fd",
             KernelKind::FdGrad => "fd_grad",
+            KernelKind::FramePlacement => "frame_placement",
+            KernelKind::FrameJacobian => "frame_jacobian",
+            KernelKind::FrameVelocity => "frame_velocity",
+            KernelKind::FrameAcceleration => "frame_acceleration",
         }
     }
 
@@ -145,8 +192,10 @@ impl KernelKind {
         use Input::*;
         match self {
             KernelKind::Rnea | KernelKind::RneaGrad => &[Q, Qd, Qdd],
-            KernelKind::MassMatrix | KernelKind::Minv => &[Q],
+            KernelKind::MassMatrix | KernelKind::Minv | KernelKind::FramePlacement | KernelKind::FrameJacobian => &[Q],
             KernelKind::Fd | KernelKind::FdGrad => &[Q, Qd, Tau],
+            KernelKind::FrameVelocity => &[Q, Qd],
+            KernelKind::FrameAcceleration => &[Q, Qd, Qdd],
         }
     }
 
@@ -162,6 +211,10 @@ impl KernelKind {
             KernelKind::FdGrad => {
                 &[OutputSpec { name: "qdd", shape: Vector }, OutputSpec { name: "dqdd_dq", shape: Matrix }, OutputSpec { name: "dqdd_dqd", shape: Matrix }]
             }
+            KernelKind::FramePlacement => &[OutputSpec { name: "translation", shape: PerFrame(3) }, OutputSpec { name: "rotation", shape: PerFrame(9) }],
+            KernelKind::FrameJacobian => &[OutputSpec { name: "jacobian", shape: FrameJacobian }],
+            KernelKind::FrameVelocity => &[OutputSpec { name: "velocity", shape: PerFrame(6) }],
+            KernelKind::FrameAcceleration => &[OutputSpec { name: "acceleration", shape: PerFrame(3) }],
         }
     }
 
@@ -174,6 +227,10 @@ impl KernelKind {
             KernelKind::Minv => "M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.",
             KernelKind::Fd => "Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).",
             KernelKind::FdGrad => "Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd.",
+            KernelKind::FramePlacement => "Each frame's world placement: translation, and rotation (frame axes in world coordinates, row-major), as Pinocchio's `framesForwardKinematics`.",
+            KernelKind::FrameJacobian => "Each frame's Jacobian, 6 x nv, rows [linear; angular], in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameJacobian`).",
+            KernelKind::FrameVelocity => "Each frame's spatial velocity [linear; angular] in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameVelocity`).",
+            KernelKind::FrameAcceleration => "Each frame's classical acceleration (linear, with `w x v`) in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameClassicalAcceleration`); at qdd = 0, the drift `dJ/dt qd`.",
         }
     }
 
@@ -187,6 +244,10 @@ impl KernelKind {
             KernelKind::Minv => "M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).",
             KernelKind::Fd => "forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`,\n  by the O(nv) articulated-body algorithm.",
             KernelKind::FdGrad => "forward dynamics and its gradient `-M^-1 dc/du`\n  at that qdd (the function's doc says how qdd and M^-1 are formed).",
+            KernelKind::FramePlacement => "each frame's world translation and rotation.",
+            KernelKind::FrameJacobian => "each frame's 6 x nv Jacobian in `REFERENCE_FRAME`.",
+            KernelKind::FrameVelocity => "each frame's spatial velocity in `REFERENCE_FRAME`.",
+            KernelKind::FrameAcceleration => "each frame's classical acceleration in `REFERENCE_FRAME`.",
         }
     }
 
@@ -213,7 +274,7 @@ impl KernelKind {
             MassMatrix => &[],
             Minv => &[Fd, FdGrad],
             Fd => &[FdGrad],
-            FdGrad => &[],
+            FdGrad | FramePlacement | FrameJacobian | FrameVelocity | FrameAcceleration => &[],
         }
     }
 
@@ -252,6 +313,21 @@ impl KernelKind {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
                 let (qdd, dq, dqd) = d.fd_grad(&qd, &tau);
                 vec![qdd, flat(dq), flat(dqd)]
+            }
+            KernelKind::FramePlacement => {
+                let (t, r) = d.frame_placements();
+                vec![t, r]
+            }
+            KernelKind::FrameJacobian => vec![d.frame_jacobians()],
+            KernelKind::FrameVelocity => {
+                let qd = d.inputs(Qd);
+                let qd = d.expand(&qd);
+                vec![d.frame_velocities(&qd)]
+            }
+            KernelKind::FrameAcceleration => {
+                let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
+                let (qd, qdd) = (d.expand(&qd), d.expand(&qdd));
+                vec![d.frame_accelerations(&qd, &qdd)]
             }
         }
     }

@@ -95,6 +95,10 @@ pub struct Robot {
     /// The coordinate whose position each entry of q holds; `None` for the floating
     /// base's pose and the quaternions.
     pub q_coordinates: Vec<Option<usize>>,
+    /// The frames the frame kernels compute, in output order (link names).
+    pub frames: Vec<String>,
+    /// The reference frame of the frame kernels' Jacobian, velocity and acceleration.
+    pub reference: crate::model::ReferenceFrame,
 }
 
 impl Robot {
@@ -128,7 +132,14 @@ impl Robot {
                 }
                 at
             },
+            frames: model.selected_frames().map(|f| f.name.clone()).collect(),
+            reference: model.specialisation.reference,
         }
+    }
+
+    /// Frames the frame kernels compute.
+    pub fn nframes(&self) -> usize {
+        self.frames.len()
     }
 
     pub fn nv(&self) -> usize {
@@ -226,7 +237,9 @@ impl Module {
 pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result<Module, LowerError> {
     let robot = Robot::of(model);
     let mut functions = Vec::new();
-    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)) {
+    // No frames asked, no frame kernels.
+    let no_frames = model.specialisation.frames.is_empty();
+    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k) && !(k.is_frame() && no_frames)) {
         match lower_function(model, gravity, kind, options) {
             Ok(f) => functions.push(f),
             // A singular M leaves out the kernels that need M⁻¹ (the load warning says so).
@@ -289,7 +302,7 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
             }
         }
     }
-    validate(&f, model.nv(), model.nq()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
+    validate(&f, model.nv(), model.nq(), model.specialisation.frames.len()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
     Ok(f)
 }
 

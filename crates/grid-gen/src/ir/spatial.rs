@@ -58,11 +58,11 @@ pub fn cross(g: &mut Graph, a: &V3, b: &V3) -> V3 {
     out
 }
 
-fn add3(g: &mut Graph, a: &V3, b: &V3) -> V3 {
+pub fn add3(g: &mut Graph, a: &V3, b: &V3) -> V3 {
     std::array::from_fn(|i| g.add(a[i], b[i]))
 }
 
-fn sub3(g: &mut Graph, a: &V3, b: &V3) -> V3 {
+pub fn sub3(g: &mut Graph, a: &V3, b: &V3) -> V3 {
     std::array::from_fn(|i| g.sub(a[i], b[i]))
 }
 
@@ -88,11 +88,11 @@ pub struct Xform {
     pub r: V3,
 }
 
-fn mat_vec(g: &mut Graph, e: &[[Id; 3]; 3], v: &V3) -> V3 {
+pub fn mat_vec(g: &mut Graph, e: &[[Id; 3]; 3], v: &V3) -> V3 {
     std::array::from_fn(|i| g.dot(&e[i], v))
 }
 
-fn mat_t_vec(g: &mut Graph, e: &[[Id; 3]; 3], v: &V3) -> V3 {
+pub fn mat_t_vec(g: &mut Graph, e: &[[Id; 3]; 3], v: &V3) -> V3 {
     std::array::from_fn(|i| {
         let col = [e[0][i], e[1][i], e[2][i]];
         g.dot(&col, v)

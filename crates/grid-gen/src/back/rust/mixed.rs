@@ -8,7 +8,7 @@ use std::fmt::Write;
 
 use super::{literal, output_stores, output_type, return_value, RustOptions};
 use crate::ir::schedule::Chunks;
-use crate::ir::{Function, Id, Op, Shape};
+use crate::ir::{Function, Id, Op};
 
 /// One kernel's mixed function: `pub fn NAME(q: &[f64; NV], ...) -> outputs` (f64), with
 /// its `_part` functions where the kernel is split. `wide[i]`: node i is f64. The caller
@@ -96,7 +96,7 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str,
     let _ = writeln!(out, "#[allow(clippy::all, unused_variables, unused_mut, unused_parens, dead_code)]");
     let _ = writeln!(out, "pub fn {name}({}) -> {ret_type} {{", args.join(", "));
     for o in &k.outputs {
-        let init = if o.shape == Shape::Matrix { "[[0.0f64; NV]; NV]" } else { "[0.0f64; NV]" };
+        let init = super::array_of(o.shape, "0.0f64");
         let _ = writeln!(out, "let mut {} = {init};", o.name);
     }
     let chunks = &names.chunks;

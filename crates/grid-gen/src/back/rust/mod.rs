@@ -149,20 +149,25 @@ fn expression(k: &Function, names: &Chunks, here: usize, op: Op) -> String {
     }
 }
 
-fn output_type(shape: Shape) -> &'static str {
+/// An output's array type with elements `t`: `[t; NV]`, `[[t; NV]; NV]`, and per frame
+/// `[[t; K]; NF]` or `[[[t; NV]; 6]; NF]`.
+pub(super) fn array_of(shape: Shape, t: &str) -> String {
     match shape {
-        Shape::Matrix => "[[T; NV]; NV]",
-        Shape::Vector => "[T; NV]",
+        Shape::Vector => format!("[{t}; NV]"),
+        Shape::Matrix => format!("[[{t}; NV]; NV]"),
+        Shape::PerFrame(k) => format!("[[{t}; {k}]; NF]"),
+        Shape::FrameJacobian => format!("[[[{t}; NV]; 6]; NF]"),
     }
+}
+
+fn output_type(shape: Shape) -> String {
+    array_of(shape, "T")
 }
 
 fn output_place(k: &Function, out: usize, flat: usize, nv: usize) -> String {
     let o = &k.outputs[out];
-    if o.shape == Shape::Matrix {
-        format!("{}[{}][{}]", o.name, flat / nv, flat % nv)
-    } else {
-        format!("{}[{flat}]", o.name)
-    }
+    let index: String = o.shape.index(flat, nv).iter().map(|i| format!("[{i}]")).collect();
+    format!("{}{index}", o.name)
 }
 
 /// The function's return expression: its output, or the tuple of its outputs.
@@ -310,7 +315,7 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
     let _ = writeln!(out, "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]");
     let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
     for o in &k.outputs {
-        let init = if o.shape == Shape::Matrix { "[[T::k(0.0); NV]; NV]" } else { "[T::k(0.0); NV]" };
+        let init = array_of(o.shape, "T::k(0.0)");
         let _ = writeln!(out, "let mut {} = {init};", o.name);
     }
     for m in &operand_mats {
@@ -405,11 +410,11 @@ struct Signature {
 impl Signature {
     /// `q_len`: the length constant of q, `NV`, or `NQ` with a floating base.
     fn of(k: &Function, q_len: &str) -> Self {
-        let ret: Vec<&str> = k.outputs.iter().map(|o| output_type(o.shape)).collect();
+        let ret: Vec<String> = k.outputs.iter().map(|o| output_type(o.shape)).collect();
         Signature {
             args: k.inputs().iter().map(|i| format!("{}: &[T; {}]", i.name(), input_len(*i, q_len))).collect(),
             arg_names: k.inputs().iter().map(|i| i.name()).collect(),
-            ret_type: if ret.len() == 1 { ret[0].to_string() } else { format!("({})", ret.join(", ")) },
+            ret_type: if ret.len() == 1 { ret[0].clone() } else { format!("({})", ret.join(", ")) },
         }
     }
 }
@@ -595,6 +600,18 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
         "/// Parent joint of each joint (`None`: the fixed root).\n#[allow(dead_code)]\npub const PARENTS: [Option<usize>; NV] = [{}];",
         parents.join(", ")
     );
+    if !robot.frames.is_empty() {
+        let frames: Vec<String> = robot.frames.iter().map(|n| string_literal(n)).collect();
+        let _ = writeln!(
+            out,
+            "/// Number of frames the frame kernels compute.\n#[allow(dead_code)]\npub const NF: usize = {};\n\
+             /// The frames (URDF link names), in the order of the frame kernels' outputs.\n#[allow(dead_code)]\npub const FRAME_NAMES: [&str; NF] = [{}];\n\
+             /// The reference frame of the Jacobian, velocity and acceleration (Pinocchio's `ReferenceFrame`).\n#[allow(dead_code)]\npub const REFERENCE_FRAME: &str = {};",
+            frames.len(),
+            frames.join(", "),
+            string_literal(robot.reference.name())
+        );
+    }
     let _ = writeln!(
         out,
         "/// Gravity in the root frame, m/s^2, fixed at generation time.\n#[allow(dead_code)]\npub const GRAVITY: [f64; 3] = [{}, {}, {}];",

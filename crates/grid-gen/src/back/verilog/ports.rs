@@ -6,7 +6,7 @@
 
 use crate::back::names::{comment_text, identifier};
 use crate::ir::fixed::{Datapath, HwId, Port};
-use crate::ir::{Input, Robot, Shape};
+use crate::ir::{Input, Robot};
 
 /// The names of a datapath's ports, in port order (inputs) and output order.
 #[derive(Clone, Debug, PartialEq)]
@@ -39,10 +39,8 @@ impl PortNames {
             .into_iter()
             .map(|(k, e, id)| {
                 let o = &dp.outputs[k];
-                let name = match o.shape {
-                    Shape::Vector => format!("{}_{e}", o.name),
-                    Shape::Matrix => format!("{}_{}_{}", o.name, e / dp.nv, e % dp.nv),
-                };
+                let index: Vec<String> = o.shape.index(e, dp.nv).iter().map(|i| i.to_string()).collect();
+                let name = format!("{}_{}", o.name, index.join("_"));
                 (name, id)
             })
             .collect();

@@ -56,10 +56,10 @@ fn address(tag: u32, index: usize, robot: &str) -> Result<u32, BackError> {
     Ok(tag << INDEX_BITS | index as u32)
 }
 
-pub(super) fn emit(out: &mut String, f: &Function, nv: usize, options: &WgslOptions, robot: &str, tables: &mut Tables) -> Result<EntryStats, BackError> {
+pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot: &str, tables: &mut Tables) -> Result<EntryStats, BackError> {
     let workers = options.workers as usize;
     let name = Strategy::Cooperative.entry(f.kind.name());
-    let (stores, inline, outputs) = output_stores(f, nv);
+    let (stores, inline, outputs) = output_stores(f);
     let nodes = f.nodes.len();
 
     // Level scheduling: an operation runs in the phase one past its latest operand's

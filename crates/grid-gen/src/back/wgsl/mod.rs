@@ -377,7 +377,7 @@ fn stages(sizes: impl Iterator<Item = usize>, limit: usize) -> Vec<std::ops::Ran
 
 /// Output index of every operation's value (stores follow the node), and the outputs that
 /// are constants or inputs.
-fn output_stores(f: &Function, nv: usize) -> (Vec<Vec<usize>>, Vec<(usize, Id)>, usize) {
+fn output_stores(f: &Function) -> (Vec<Vec<usize>>, Vec<(usize, Id)>, usize) {
     let mut stores: Vec<Vec<usize>> = vec![Vec::new(); f.nodes.len()];
     let mut inline = Vec::new();
     let mut base = 0;
@@ -389,7 +389,7 @@ fn output_stores(f: &Function, nv: usize) -> (Vec<Vec<usize>>, Vec<(usize, Id)>,
                 inline.push((base + k, id));
             }
         }
-        base += o.shape.len(nv);
+        base += o.ids.len();
     }
     (stores, inline, base)
 }
@@ -414,8 +414,8 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
     for f in &module.functions {
         for &strategy in &options.strategies {
             let s = match strategy {
-                Strategy::Thread => thread::emit(&mut body, f, nv, options, &robot.name)?,
-                Strategy::Cooperative => cooperative::emit(&mut body, f, nv, options, &robot.name, &mut tables)?,
+                Strategy::Thread => thread::emit(&mut body, f, options, &robot.name)?,
+                Strategy::Cooperative => cooperative::emit(&mut body, f, options, &robot.name, &mut tables)?,
             };
             stats.push(s);
         }
@@ -438,7 +438,7 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
     }
     let _ = writeln!(out, "//\n// Kernels and output values per state:");
     for f in &module.functions {
-        let parts: Vec<String> = f.outputs.iter().map(|o| format!("{} ({})", o.name, o.shape.len(nv))).collect();
+        let parts: Vec<String> = f.outputs.iter().map(|o| format!("{} ({})", o.name, o.ids.len())).collect();
         let _ = writeln!(out, "//   {}: {}", f.kind.signature(), parts.join(", "));
     }
     if robot.floating {

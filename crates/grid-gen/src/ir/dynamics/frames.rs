@@ -1,0 +1,252 @@
+//! The frame kernels, recorded symbolically: world placements by forward kinematics over
+//! the (E, r) transforms, Jacobian columns as the screws of the joints on a frame's path
+//! (so a frame costs what its chain costs, and axis-aligned joints cost nothing to turn),
+//! velocities and classical accelerations from RNEA's forward pass without gravity.
+//! Conventions are Pinocchio's, as in `reference::frames`: 6-vectors [linear; angular].
+
+use super::super::graph::{Graph, Id, Stage};
+use super::super::spatial::{self as sp, k, Sv, V3};
+use super::Dynamics;
+use crate::model::{Frame, ReferenceFrame};
+
+/// A rotation (columns: a frame's axes in world coordinates) and a position.
+type Pose = ([[Id; 3]; 3], V3);
+
+fn ang(v: &Sv) -> V3 {
+    [v[0], v[1], v[2]]
+}
+
+fn lin(v: &Sv) -> V3 {
+    [v[3], v[4], v[5]]
+}
+
+/// `Rᵀ v`.
+fn t_apply(g: &mut Graph, r: &[[Id; 3]; 3], v: &V3) -> V3 {
+    sp::mat_t_vec(g, r, v)
+}
+
+/// A model transform's entries as constants (snapped when folding).
+fn constant_pose(g: &mut Graph, frame: &Frame) -> Pose {
+    let r = std::array::from_fn(|i| std::array::from_fn(|j| k(g, frame.placement.rot[i][j])));
+    let p = std::array::from_fn(|i| k(g, frame.placement.pos[i]));
+    (r, p)
+}
+
+impl Dynamics<'_> {
+    /// The world pose of every body: `R_i = R_λ E_iᵀ`, `p_i = p_λ + R_λ r_i`.
+    fn world_poses(&mut self) -> Vec<Pose> {
+        let g = &mut self.g;
+        let (zero, one) = (g.constant(0.0), g.constant(1.0));
+        let identity = [[one, zero, zero], [zero, one, zero], [zero, zero, one]];
+        let mut poses: Vec<Pose> = Vec::with_capacity(self.model.njoints());
+        for i in 0..self.model.njoints() {
+            self.g.at(Some(i), Stage::Transform, self.model.joints[i].level);
+            let (rp, pp) = self.model.joints[i].parent.map_or((identity, [zero; 3]), |p| poses[p]);
+            let x = &self.x[i];
+            let g = &mut self.g;
+            // R_λ Eᵀ: entry (a, b) = row a of R_λ · row b of E.
+            let r = std::array::from_fn(|a| std::array::from_fn(|b| g.dot(&rp[a], &x.e[b])));
+            let shift = sp::mat_vec(g, &rp, &x.r);
+            let p = sp::add3(g, &pp, &shift);
+            poses.push((r, p));
+        }
+        poses
+    }
+
+    /// The world pose of a frame: its body's, composed with its constant placement.
+    fn frame_pose(&mut self, poses: &[Pose], frame: &Frame) -> Pose {
+        let (rl, pl) = constant_pose(&mut self.g, frame);
+        let g = &mut self.g;
+        match frame.body {
+            None => (rl, pl),
+            Some(b) => {
+                let (rb, pb) = poses[b];
+                let r = std::array::from_fn(|a| std::array::from_fn(|c| g.dot(&rb[a], &[rl[0][c], rl[1][c], rl[2][c]])));
+                let shift = sp::mat_vec(g, &rb, &pl);
+                (r, sp::add3(g, &pb, &shift))
+            }
+        }
+    }
+
+    /// Frame work happens after the forward pass, at the frame's body.
+    fn at_frame(&mut self, frame: &Frame) {
+        let level = frame.body.map_or(0, |b| self.model.joints[b].level);
+        self.g.at(frame.body, Stage::Forward, level);
+    }
+
+    fn selected(&self) -> Vec<Frame> {
+        self.model.selected_frames().cloned().collect()
+    }
+
+    /// Per frame: world translation (3) and rotation (9, row-major).
+    pub fn frame_placements(&mut self) -> (Vec<Id>, Vec<Id>) {
+        let poses = self.world_poses();
+        let (mut t, mut r) = (Vec::new(), Vec::new());
+        for frame in self.selected() {
+            self.at_frame(&frame);
+            let (rf, pf) = self.frame_pose(&poses, &frame);
+            t.extend(pf);
+            r.extend(rf.into_iter().flatten());
+        }
+        (t, r)
+    }
+
+    /// Per frame: the 6 x nv Jacobian, row-major, rows [linear; angular], in the model's
+    /// reference frame. Column of joint j (a screw of axis `w = R_j a_j` through `p_j`):
+    /// `[w × (p_f − p_j); w]` at the frame (LOCAL_WORLD_ALIGNED), `[p_j × w; w]` at the world
+    /// origin (WORLD), the former turned into the frame's axes (LOCAL); a prismatic joint's
+    /// is `[R_j a_j; 0]`. A coupled mimic joint adds its multiple to its coordinate's column.
+    pub fn frame_jacobians(&mut self) -> Vec<Id> {
+        let rf = self.model.specialisation.reference;
+        let poses = self.world_poses();
+        let nv = self.model.nv();
+        let zero = self.g.constant(0.0);
+        let mut out = Vec::new();
+        for frame in self.selected() {
+            self.at_frame(&frame);
+            let (r_f, p_f) = self.frame_pose(&poses, &frame);
+            let mut cols = vec![[zero; 6]; nv];
+            for j in frame.body.map(|b| self.model.ancestors(b)).unwrap_or_default() {
+                let joint = &self.model.joints[j];
+                let g = &mut self.g;
+                let (r_j, p_j) = poses[j];
+                let axis: V3 = std::array::from_fn(|i| k(g, joint.axis[i]));
+                let w = sp::mat_vec(g, &r_j, &axis);
+                let (l, a) = if joint.joint_type.is_rotation() {
+                    let l = match rf {
+                        ReferenceFrame::World => sp::cross(g, &p_j, &w),
+                        _ => {
+                            let d = sp::sub3(g, &p_f, &p_j);
+                            sp::cross(g, &w, &d)
+                        }
+                    };
+                    (l, w)
+                } else {
+                    (w, [zero; 3])
+                };
+                let (l, a) = match rf {
+                    ReferenceFrame::Local => (t_apply(g, &r_f, &l), t_apply(g, &r_f, &a)),
+                    _ => (l, a),
+                };
+                let c = self.model.coordinate_of(j);
+                let m = self.model.multiplier(j);
+                let col = [l[0], l[1], l[2], a[0], a[1], a[2]];
+                for (row, &x) in col.iter().enumerate() {
+                    let x = if m == 1.0 {
+                        x
+                    } else {
+                        let m = k(g, m);
+                        g.mul(m, x)
+                    };
+                    cols[c][row] = g.add(cols[c][row], x);
+                }
+            }
+            for row in 0..6 {
+                out.extend(cols.iter().map(|c| c[row]));
+            }
+        }
+        out
+    }
+
+    /// The bodies' velocities and accelerations without gravity (RNEA's forward pass at
+    /// a₀ = 0), per model joint.
+    fn motion(&mut self, qd: &[Id], qdd: &[Id]) -> (Vec<Sv>, Vec<Sv>) {
+        let gravity = std::mem::replace(&mut self.gravity, [0.0; 3]);
+        let r = self.rnea(qd, qdd);
+        self.gravity = gravity;
+        (r.v, r.a)
+    }
+
+    /// A body's motion `m` ([angular; linear], body axes) at the point `at` (body axes):
+    /// `(linear, angular)`, the linear part `m.lin + m.ang × at`.
+    fn at_point(g: &mut Graph, m: &Sv, at: &V3) -> (V3, V3) {
+        let w = ang(m);
+        let c = sp::cross(g, &w, at);
+        (sp::add3(g, &lin(m), &c), w)
+    }
+
+    /// Per frame: the spatial velocity [linear; angular] in the model's reference frame.
+    pub fn frame_velocities(&mut self, qd: &[Id]) -> Vec<Id> {
+        let rf = self.model.specialisation.reference;
+        let zeros: Vec<Id> = (0..qd.len()).map(|_| self.g.constant(0.0)).collect();
+        let (v, _) = self.motion(qd, &zeros);
+        let poses = self.world_poses();
+        let zero = self.g.constant(0.0);
+        let mut out = Vec::new();
+        for frame in self.selected() {
+            self.at_frame(&frame);
+            let Some(b) = frame.body else {
+                out.extend([zero; 6]);
+                continue;
+            };
+            let (rl, pl) = constant_pose(&mut self.g, &frame);
+            let (r_b, p_b) = poses[b];
+            let g = &mut self.g;
+            let (l, a) = match rf {
+                ReferenceFrame::Local => {
+                    let (l, a) = Self::at_point(g, &v[b], &pl);
+                    (t_apply(g, &rl, &l), t_apply(g, &rl, &a))
+                }
+                ReferenceFrame::LocalWorldAligned => {
+                    let (l, a) = Self::at_point(g, &v[b], &pl);
+                    (sp::mat_vec(g, &r_b, &l), sp::mat_vec(g, &r_b, &a))
+                }
+                ReferenceFrame::World => {
+                    let a = sp::mat_vec(g, &r_b, &ang(&v[b]));
+                    let l = sp::mat_vec(g, &r_b, &lin(&v[b]));
+                    let c = sp::cross(g, &p_b, &a);
+                    (sp::add3(g, &l, &c), a)
+                }
+            };
+            out.extend(l.into_iter().chain(a));
+        }
+        out
+    }
+
+    /// Per frame: the classical acceleration (3) in the model's reference frame: the
+    /// spatial acceleration's linear part plus `ω × v`, at the frame's origin (LOCAL,
+    /// LOCAL_WORLD_ALIGNED) or the world's (WORLD), as `getFrameClassicalAcceleration`.
+    pub fn frame_accelerations(&mut self, qd: &[Id], qdd: &[Id]) -> Vec<Id> {
+        let rf = self.model.specialisation.reference;
+        let (v, a) = self.motion(qd, qdd);
+        let poses = self.world_poses();
+        let zero = self.g.constant(0.0);
+        let mut out = Vec::new();
+        for frame in self.selected() {
+            self.at_frame(&frame);
+            let Some(b) = frame.body else {
+                out.extend([zero; 3]);
+                continue;
+            };
+            let (rl, pl) = constant_pose(&mut self.g, &frame);
+            let (r_b, p_b) = poses[b];
+            let g = &mut self.g;
+            let c = match rf {
+                ReferenceFrame::Local | ReferenceFrame::LocalWorldAligned => {
+                    let (vl, w) = Self::at_point(g, &v[b], &pl);
+                    let (al, _) = Self::at_point(g, &a[b], &pl);
+                    let wv = sp::cross(g, &w, &vl);
+                    let c = sp::add3(g, &al, &wv);
+                    match rf {
+                        ReferenceFrame::Local => t_apply(g, &rl, &c),
+                        _ => sp::mat_vec(g, &r_b, &c),
+                    }
+                }
+                ReferenceFrame::World => {
+                    let w = sp::mat_vec(g, &r_b, &ang(&v[b]));
+                    let alpha = sp::mat_vec(g, &r_b, &ang(&a[b]));
+                    let vl = sp::mat_vec(g, &r_b, &lin(&v[b]));
+                    let al = sp::mat_vec(g, &r_b, &lin(&a[b]));
+                    let pw = sp::cross(g, &p_b, &w);
+                    let vo = sp::add3(g, &vl, &pw);
+                    let pa = sp::cross(g, &p_b, &alpha);
+                    let ao = sp::add3(g, &al, &pa);
+                    let wv = sp::cross(g, &w, &vo);
+                    sp::add3(g, &ao, &wv)
+                }
+            };
+            out.extend(c);
+        }
+        out
+    }
+}
