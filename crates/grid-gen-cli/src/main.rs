@@ -187,6 +187,19 @@ struct LoadArgs {
     /// their own; Pinocchio's mimic=True).
     #[arg(long, value_name = "MODE", global = true, value_parser = parse_mimic)]
     mimic: Option<grid_gen::MimicMode>,
+    /// Frames (URDF link names, comma-separated) whose placement, Jacobian, velocity and
+    /// classical acceleration the frame kernels compute and `eval` reports; replaces the
+    /// scene's `[frames] names`.
+    #[arg(long, value_name = "LINK,...", value_delimiter = ',', global = true)]
+    frames: Vec<String>,
+    /// The frame kernels' reference frame (Pinocchio's ReferenceFrame): local, world or
+    /// local_world_aligned (the default).
+    #[arg(long, value_name = "RF", global = true, value_parser = parse_reference_frame)]
+    reference_frame: Option<grid_gen::model::ReferenceFrame>,
+}
+
+fn parse_reference_frame(s: &str) -> Result<grid_gen::model::ReferenceFrame, String> {
+    grid_gen::model::ReferenceFrame::parse(s).ok_or_else(|| format!("unknown reference frame `{s}`; available: local, world, local_world_aligned"))
 }
 
 fn parse_mimic(s: &str) -> Result<grid_gen::MimicMode, String> {
@@ -381,6 +394,12 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
     scene.floating_base |= args.floating_base;
     if let Some(mode) = args.mimic {
         scene.mimic = mode;
+    }
+    if !args.frames.is_empty() {
+        scene.frames.names = args.frames.clone();
+    }
+    if let Some(rf) = args.reference_frame {
+        scene.frames.reference = Some(rf);
     }
     let scene_path = args.scene.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
     let strict = args.strict;

@@ -263,12 +263,16 @@ impl Gpu {
 
     /// Uploads N states for `kernel`. Inputs are state-major (`q[s * nq + j]`, the others
     /// `[s * nv + j]`; nq = nv but with a floating base); `u` is q̈
-    /// for rnea and rnea_grad, τ for fd and fd_grad, and ignored (may be empty) by
-    /// mass_matrix and minv, as is `qd`. N = 0 is a no-op batch.
+    /// for rnea, rnea_grad and frame_acceleration, τ for fd and fd_grad; a kernel that
+    /// does not read `qd` or `u` ignores it (it may be empty). N = 0 is a no-op batch.
     pub fn upload<'k>(&self, kernel: &'k Kernel, q: &[f64], qd: &[f64], u: &[f64]) -> Result<Batch<'k>, GpuError> {
         let (nv, nq) = (kernel.nv, kernel.nq);
         let n = if nq == 0 { 0 } else { q.len() / nq };
-        let uses_velocity = !matches!(kernel.entry.kernel.as_str(), "mass_matrix" | "minv");
+        // What the kernel reads, by its kind's inputs (an unknown name reads everything).
+        use grid_gen::ir::{Input, KernelKind};
+        let kind = KernelKind::parse(&kernel.entry.kernel);
+        let takes = |i: Input| kind.is_none_or(|k| k.inputs().contains(&i));
+        let (uses_qd, uses_u) = (takes(Input::Qd), takes(Input::Qdd) || takes(Input::Tau));
         let check = |field: &'static str, x: &[f64], needed: bool, per: usize| {
             if (needed || !x.is_empty()) && x.len() != n * per || q.len() != n * nq {
                 return Err(GpuError::Length { field, found: x.len(), n, per, expected: n * per });
@@ -276,8 +280,8 @@ impl Gpu {
             Ok(())
         };
         check("q", q, true, nq)?;
-        check("qd", qd, uses_velocity, nv)?;
-        check("u", u, uses_velocity, nv)?;
+        check("qd", qd, uses_qd, nv)?;
+        check("u", u, uses_u, nv)?;
         let per = self.chunk_states(kernel);
         let mut chunks = Vec::new();
         let mut start = 0;
@@ -491,7 +495,8 @@ pub fn evaluate(
 ) -> Result<grid_gen::eval::EvalOutput, EvalError> {
     use grid_gen::ir::KernelKind;
     grid_gen::eval::check_states(model, file).map_err(grid_gen::eval::BackendEvalError::States)?;
-    let kernels = vec![KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::FdGrad];
+    let mut kernels = vec![KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::FdGrad];
+    kernels.extend(KernelKind::ALL.into_iter().filter(|k| k.is_frame()));
     let lower = grid_gen::ir::LowerOptions { kernels, ..Default::default() };
     let module = grid_gen::ir::lower(model, gravity, &lower).map_err(grid_gen::generate::GenerateError::from)?;
     let wgsl = grid_gen::back::wgsl::WgslOptions { strategies: vec![strategy], ..options.clone() };

@@ -1,5 +1,7 @@
 //! `grid-gen eval`: the reference dynamics on a batch of states given as JSON.
 
+use std::collections::BTreeMap;
+
 use serde::{Deserialize, Serialize};
 
 use crate::model::Model;
@@ -102,6 +104,56 @@ pub struct Output {
     pub dfd_dq: Option<Matrix>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dfd_dqd: Option<Matrix>,
+    /// The selected frames' kinematics, by link name (absent when no frames were asked for).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub frames: Option<BTreeMap<String, FrameOutput>>,
+}
+
+/// One frame's kinematics at a state, in Pinocchio's conventions: 6-vectors and Jacobian
+/// rows [linear; angular], Jacobian columns in model (velocity) order; each quantity keyed
+/// by reference frame (`local`, `world`, `local_world_aligned`).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct FrameOutput {
+    /// World position of the frame's origin.
+    pub translation: Vec<f64>,
+    /// The frame's axes in world coordinates (rows of the rotation matrix).
+    pub rotation: Matrix,
+    /// 6 × nv.
+    pub jacobian: BTreeMap<&'static str, Matrix>,
+    /// The spatial velocity (local and local_world_aligned).
+    pub velocity: BTreeMap<&'static str, Vec<f64>>,
+    /// The classical acceleration of the frame's origin, when the state has `qdd` (local
+    /// and local_world_aligned).
+    #[serde(skip_serializing_if = "BTreeMap::is_empty")]
+    pub classical_acceleration: BTreeMap<&'static str, Vec<f64>>,
+}
+
+/// The reference's frame kinematics of the model's selected frames at one state.
+fn frame_outputs(model: &Model, s: &State) -> Option<BTreeMap<String, FrameOutput>> {
+    use crate::model::ReferenceFrame;
+    if model.specialisation.frames.is_empty() {
+        return None;
+    }
+    let mut out = BTreeMap::new();
+    for f in model.selected_frames() {
+        let (r, p) = reference::frame_placement(model, &s.q, f);
+        let mut o = FrameOutput {
+            translation: p.iter().copied().collect(),
+            rotation: rows(&nalgebra::DMatrix::from_fn(3, 3, |i, j| r[(i, j)])),
+            ..FrameOutput::default()
+        };
+        for rf in ReferenceFrame::ALL {
+            o.jacobian.insert(rf.name(), rows(&reference::frame_jacobian(model, &s.q, f, rf)));
+        }
+        for rf in [ReferenceFrame::Local, ReferenceFrame::LocalWorldAligned] {
+            o.velocity.insert(rf.name(), reference::frame_velocity(model, &s.q, &s.qd, f, rf).to_vec());
+            if let Some(qdd) = &s.qdd {
+                o.classical_acceleration.insert(rf.name(), reference::frame_classical_acceleration(model, &s.q, &s.qd, qdd, f, rf).to_vec());
+            }
+        }
+        out.insert(f.name.clone(), o);
+    }
+    Some(out)
 }
 
 #[derive(Clone, Debug, Serialize)]
@@ -255,7 +307,8 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
                 None => (None, None, None),
             };
             let minv = model.singular.is_none().then(|| rows(&reference::minv(model, &s.q)));
-            Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv, fd, dfd_dq, dfd_dqd }
+            let frames = frame_outputs(model, s);
+            Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv, fd, dfd_dq, dfd_dqd, frames }
         })
         .collect();
     Ok(EvalOutput { joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(), states })
@@ -373,7 +426,7 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
     let mut states: Vec<Output> = file
         .states
         .iter()
-        .map(|_| Output { rnea: None, drnea_dq: None, drnea_dqd: None, m: Vec::new(), minv: None, fd: None, dfd_dq: None, dfd_dqd: None })
+        .map(|_| Output { rnea: None, drnea_dq: None, drnea_dqd: None, m: Vec::new(), minv: None, fd: None, dfd_dq: None, dfd_dqd: None, frames: None })
         .collect();
     let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {
         chosen.iter().flat_map(|&i| pick(&file.states[i]).map(|v| v.as_slice()).unwrap_or(&[]).iter().copied()).collect()
@@ -413,6 +466,45 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
                     st.fd = Some(values[..nv].to_vec());
                     st.dfd_dq = Some(matrix(&values[nv..nv + m]));
                     st.dfd_dqd = Some(matrix(&values[nv + m..nv + 2 * m]));
+                }
+            }
+        }
+    }
+    // The frame kernels compute in the model's one reference frame: that key alone.
+    let names: Vec<String> = model.selected_frames().map(|f| f.name.clone()).collect();
+    let rf = model.specialisation.reference.name();
+    let frame_plan: [(KernelKind, &[usize]); 4] =
+        [(KernelKind::FramePlacement, &all), (KernelKind::FrameJacobian, &all), (KernelKind::FrameVelocity, &all), (KernelKind::FrameAcceleration, &with_qdd)];
+    for (kind, chosen) in frame_plan {
+        if names.is_empty() || chosen.is_empty() {
+            continue;
+        }
+        let q = flat(chosen, &|s: &State| Some(&s.q));
+        let qd = if kind == KernelKind::FramePlacement || kind == KernelKind::FrameJacobian { Vec::new() } else { flat(chosen, &|s: &State| Some(&s.qd)) };
+        let u = if kind == KernelKind::FrameAcceleration { flat(chosen, &|s: &State| s.qdd.as_ref()) } else { Vec::new() };
+        let out = run(kind, &q, &qd, &u).map_err(BackendEvalError::Backend)?;
+        let per = out.len() / chosen.len();
+        let nf = names.len();
+        for (k, &i) in chosen.iter().enumerate() {
+            let values = &out[k * per..(k + 1) * per];
+            let frames = states[i].frames.get_or_insert_with(|| names.iter().map(|n| (n.clone(), FrameOutput::default())).collect());
+            for (f, name) in names.iter().enumerate() {
+                let o = frames.get_mut(name).expect("inserted above");
+                match kind {
+                    KernelKind::FramePlacement => {
+                        o.translation = values[3 * f..3 * f + 3].to_vec();
+                        o.rotation = values[3 * nf + 9 * f..3 * nf + 9 * f + 9].chunks(3).map(|r| r.to_vec()).collect();
+                    }
+                    KernelKind::FrameJacobian => {
+                        let j = &values[6 * nv * f..6 * nv * (f + 1)];
+                        o.jacobian.insert(rf, j.chunks(nv.max(1)).map(|r| r.to_vec()).collect());
+                    }
+                    KernelKind::FrameVelocity => {
+                        o.velocity.insert(rf, values[6 * f..6 * f + 6].to_vec());
+                    }
+                    _ => {
+                        o.classical_acceleration.insert(rf, values[3 * f..3 * f + 3].to_vec());
+                    }
                 }
             }
         }

@@ -34,6 +34,19 @@ pub struct SphericalInfo {
     pub q_index: usize,
 }
 
+/// One frame (URDF link) in [`Info`].
+#[derive(Clone, Debug, Serialize)]
+pub struct FrameInfo {
+    pub name: String,
+    /// The joint whose body carries the link (a free-flyer's or spherical joint's own name,
+    /// as Pinocchio names it); `null` for the fixed root body.
+    pub parent_joint: Option<String>,
+    /// The link's origin in that joint's frame.
+    pub translation: [f64; 3],
+    /// The link's axes in that joint's frame (rows of the rotation matrix).
+    pub rotation: [[f64; 3]; 3],
+}
+
 #[derive(Clone, Debug, Serialize)]
 pub struct Info {
     pub robot: String,
@@ -45,6 +58,12 @@ pub struct Info {
     /// Spherical joints: each one's name and where its quaternion `[qx, qy, qz, qw]` is in q
     /// (its coordinates are `<name>_wx`, `_wy`, `_wz`, its angular velocity in its frame).
     pub spherical: Vec<SphericalInfo>,
+    /// Every URDF link the model keeps, as a frame of the body that carries it.
+    pub frames: Vec<FrameInfo>,
+    /// The frames the frame kernels compute (`--frames`, `[frames] names`), and their
+    /// reference frame.
+    pub selected_frames: Vec<String>,
+    pub reference_frame: crate::model::ReferenceFrame,
     /// A floating base: joints 0 to 5 are the free-flyer's velocity coordinates (linear,
     /// then angular, in the base frame).
     pub floating_base: bool,
@@ -95,6 +114,16 @@ pub struct Info {
     pub wgsl_skipped: Option<String>,
 }
 
+/// The name of the joint that moves body `b`: a multi-dof joint's own name (the free-flyer's
+/// `root_joint`, a spherical joint's), not its members'.
+fn joint_name(model: &Model, b: usize) -> String {
+    let name = &model.joints[b].name;
+    match model.group(b) {
+        Some(g) => model.joints[g.start].name.rsplit_once('_').map_or(name.clone(), |(n, _)| n.to_string()),
+        None => name.clone(),
+    }
+}
+
 /// The most operations × depth per kernel that `info` plans WGSL entry points for
 /// (Atlas's `fd_grad`: 2.1e7).
 pub const WGSL_STATS_MAX_WORK: usize = 50_000_000;
@@ -116,6 +145,18 @@ impl Info {
             nq: model.nq(),
             floating_base: model.floating,
             spherical: crate::ir::Robot::of(model).spherical.into_iter().map(|(joint, q_index)| SphericalInfo { joint, q_index }).collect(),
+            frames: model
+                .frames
+                .iter()
+                .map(|f| FrameInfo {
+                    name: f.name.clone(),
+                    parent_joint: f.body.map(|b| joint_name(model, b)),
+                    translation: f.placement.pos,
+                    rotation: f.placement.rot,
+                })
+                .collect(),
+            selected_frames: model.selected_frames().map(|f| f.name.clone()).collect(),
+            reference_frame: model.specialisation.reference,
             gravity,
             joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(),
             joint_types: model.coordinate_joints().iter().map(|&i| model.joints[i].joint_type).collect(),
@@ -232,6 +273,11 @@ impl Info {
                 joints.join(", "),
                 self.nq
             ));
+        }
+        let frames: Vec<String> = self.frames.iter().map(|f| format!("{} ({})", f.name, f.parent_joint.as_deref().unwrap_or("root"))).collect();
+        s.push_str(&format!("frames (links, with the joint whose body carries them): {}\n", frames.join(", ")));
+        if !self.selected_frames.is_empty() {
+            s.push_str(&format!("frame kernels compute: {} (reference frame {})\n", self.selected_frames.join(", "), self.reference_frame.name()));
         }
         if self.mimic_coupled {
             let coupled: Vec<String> = self

@@ -227,7 +227,7 @@ pub enum AccuracyError {
 
 /// The kernels `accuracy` measures by default: all six, less those M's singularity blocks.
 pub fn default_kernels(model: &Model) -> Vec<KernelKind> {
-    KernelKind::ALL.into_iter().filter(|k| model.singular.is_none() || !k.needs_minv()).collect()
+    KernelKind::for_model(model).into_iter().filter(|k| model.singular.is_none() || !k.needs_minv()).collect()
 }
 
 /// The input `u` of a kernel at a state: q̈ for the RNEA kernels, τ for `fd*`, none else.

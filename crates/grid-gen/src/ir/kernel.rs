@@ -162,6 +162,13 @@ impl KernelKind {
     pub const DYNAMICS: [KernelKind; 6] =
         [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd, KernelKind::FdGrad];
 
+    /// The kernels a model has, in [`KernelKind::ALL`] order: the dynamics kernels, and the
+    /// frame kernels when it asks for frames.
+    pub fn for_model(model: &crate::model::Model) -> Vec<KernelKind> {
+        let frames = !model.specialisation.frames.is_empty();
+        KernelKind::ALL.into_iter().filter(|k| frames || !k.is_frame()).collect()
+    }
+
     /// Whether the kernel computes frame quantities (and so exists only when frames are asked for).
     pub fn is_frame(self) -> bool {
         matches!(self, KernelKind::FramePlacement | KernelKind::FrameJacobian | KernelKind::FrameVelocity | KernelKind::FrameAcceleration)

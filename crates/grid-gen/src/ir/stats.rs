@@ -90,7 +90,7 @@ pub const STATS_MAX_NODES: usize = 2_000_000;
 pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: usize) -> Stats {
     let mut out = Stats { ops: Vec::new(), skipped: Vec::new() };
     let mut too_large: Vec<(KernelKind, KernelKind)> = Vec::new();
-    for kind in KernelKind::ALL {
+    for kind in KernelKind::for_model(model) {
         if let Some((_, inner)) = too_large.iter().find(|(k, _)| *k == kind) {
             out.skipped.push(Skipped { kernel: kind, reason: format!("contains `{inner}`, which is over the node limit") });
             continue;
