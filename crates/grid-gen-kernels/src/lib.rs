@@ -77,4 +77,12 @@ pub mod scenes {
     pub mod panda_mimic {
         include!("../../../generated/scenes/panda.panda_mimic/panda.rs");
     }
+    /// iiwa's flange as a frame: the four frame kernels, LOCAL_WORLD_ALIGNED.
+    pub mod grid_iiwa_tool_frame {
+        include!("../../../generated/scenes/grid_iiwa.iiwa_tool_frame/iiwa14.rs");
+    }
+    /// Floating HyQ's four lower legs as frames: the four frame kernels.
+    pub mod grid_hyq_feet_floating {
+        include!("../../../generated/scenes/grid_hyq.hyq_feet_floating/hyq.rs");
+    }
 }

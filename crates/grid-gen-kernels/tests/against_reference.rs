@@ -361,3 +361,66 @@ fn coupled_mimic_kernels_match_the_reference() {
     let mut rng = Rng(31);
     check_module!(scenes::panda_mimic, &model, "Panda coupled", states(&model, &mut rng));
 }
+
+/// The frame kernels of `$m` (`portable` or `fma` copy `$copy`, scalar `$t`) as flat f64
+/// vectors in the reference's layout: translation, rotation, Jacobian, velocity, acceleration.
+macro_rules! run_frames {
+    ($m:ident, $copy:ident, $t:ty, $q:expr, $qd:expr, $u:expr) => {{
+        use grid_gen_kernels::scenes::$m as k;
+        use k::$copy as c;
+        let q: [$t; k::NQ] = std::array::from_fn(|i| $q[i] as $t);
+        let qd: [$t; k::NV] = std::array::from_fn(|i| $qd[i] as $t);
+        let u: [$t; k::NV] = std::array::from_fn(|i| $u[i] as $t);
+        // The `fma` copy's functions are `unsafe` (they need the CPU features checked above).
+        #[allow(unused_unsafe)]
+        let ((t, r), j, v, a) = unsafe { (c::frame_placement(&q), c::frame_jacobian(&q), c::frame_velocity(&q, &qd), c::frame_acceleration(&q, &qd, &u)) };
+        let f = |x: &[$t]| x.iter().map(|&y| y as f64).collect::<Vec<f64>>();
+        vec![f(t.as_flattened()), f(r.as_flattened()), f(j.as_flattened().as_flattened()), f(v.as_flattened()), f(a.as_flattened())]
+    }};
+}
+
+/// The checked-in frame kernels (`generated/scenes/grid_iiwa.iiwa_tool_frame/`, floating
+/// `grid_hyq.hyq_feet_floating/`), both copies, f64 and f32, against the reference frame
+/// kinematics (held to Pinocchio by grid-gen's tests/frames.rs) on the usual states, each
+/// floating one with a random base pose. Tolerances: f64 1e-12 as every kernel; f32 1e-5
+/// (F32_DIRECT: forward kinematics sums a chain of rounded rotations, no M⁻¹).
+#[test]
+fn frame_kernels_match_the_reference() {
+    use grid_gen::ir::KernelKind::*;
+    use grid_gen_test_support::{col, reference_frames};
+    macro_rules! check {
+        ($m:ident, $robot:literal, $scene:literal) => {{
+            let (model, _) = grid_gen_test_support::load_in_scene($robot, $scene);
+            let k_nf = grid_gen_kernels::scenes::$m::NF;
+            assert_eq!(k_nf, model.specialisation.frames.len());
+            let mut rng = Rng(37);
+            let mut worst = [0.0f64; 2];
+            for (label, per_joint, qd, u) in states(&model, &mut rng) {
+                let base = if label == "zero" { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] } else { rng.base_pose() };
+                let q = model.q_from_joints(&per_joint, base);
+                for (f32, tol) in [(false, F64_TOL), (true, F32_DIRECT)] {
+                    let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+                    let (q, qd, u) = (r(&q), r(&qd), r(&u));
+                    let want: Vec<Vec<f64>> = [FramePlacement, FrameJacobian, FrameVelocity, FrameAcceleration]
+                        .into_iter()
+                        .flat_map(|kind| reference_frames(kind, &model, &q, &qd, &u))
+                        .collect();
+                    let mut copies = vec![("portable", if f32 { run_frames!($m, portable, f32, q, qd, u) } else { run_frames!($m, portable, f64, q, qd, u) })];
+                    if fma_runs() {
+                        copies.push(("fma", if f32 { run_frames!($m, fma, f32, q, qd, u) } else { run_frames!($m, fma, f64, q, qd, u) }));
+                    }
+                    for (copy, got) in copies {
+                        for (i, name) in ["translation", "rotation", "jacobian", "velocity", "acceleration"].iter().enumerate() {
+                            let e = rel(&col(&got[i]), &col(&want[i]));
+                            worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
+                            assert!(e <= tol, "{} {label} ({copy}, f32 {f32}): {name} relative error {e:.2e} > {tol:e}", $scene);
+                        }
+                    }
+                }
+            }
+            println!("{}: worst relative error f64 {:.2e}, f32 {:.2e}", $scene, worst[0], worst[1]);
+        }};
+    }
+    check!(grid_iiwa_tool_frame, "grid_iiwa", "iiwa_tool_frame");
+    check!(grid_hyq_feet_floating, "grid_hyq", "hyq_feet_floating");
+}

@@ -19,13 +19,15 @@ const VERILOG_ROBOTS: [&str; 1] = ["double_pendulum_continuous"];
 
 /// Robots in a scene of `examples/scenes/`, whose Rust modules are checked in under
 /// `generated/scenes/<robot>.<scene>/` (benchmarked against the full robots').
-pub const SCENES: [(&str, &str); 6] = [
+pub const SCENES: [(&str, &str); 8] = [
     ("grid_iiwa", "iiwa_wrist_locked"),
     ("grid_hyq", "hyq_front_legs"),
     ("grid_iiwa", "iiwa_static"),
     ("grid_hyq", "hyq_lf_columns"),
     ("grid_hyq", "hyq_floating"),
     ("panda", "panda_mimic"),
+    ("grid_iiwa", "iiwa_tool_frame"),
+    ("grid_hyq", "hyq_feet_floating"),
 ];
 
 /// Test robots (not bundled: they use grid-gen's extensions of URDF) whose Rust modules

@@ -45,6 +45,16 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
             robot.nq()
         ));
     }
+    if !robot.frames.is_empty() {
+        let frames: Vec<String> = robot.frames.iter().map(|n| names::comment_text(n)).collect();
+        out.push_str(&format!(
+            "// Frames (URDF links), in the order of every frame output ([.; NF]): {}. Jacobians (6 x nv, rows\n\
+             // [linear; angular]), velocities ([linear; angular]) and classical accelerations in {} (Pinocchio's\n\
+             // ReferenceFrame); rotations row-major, the frame's axes in world coordinates.\n",
+            frames.join(", "),
+            robot.reference.name().to_uppercase()
+        ));
+    }
     if !robot.coupled.is_empty() {
         let coupled: Vec<String> =
             robot.coupled.iter().map(|(m, of, mult, off)| format!("{} = {mult:?} * {} + {off:?}", names::comment_text(m), names::comment_text(of))).collect();
