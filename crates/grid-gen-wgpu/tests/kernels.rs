@@ -213,7 +213,7 @@ fn check_model_within(
                 let interpreted = f.eval(&kernel_args(f.inputs(), q, qd, u));
                 let mut base = s * total;
                 for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
-                    let vals = &got[base..base + o.shape.len(nv)];
+                    let vals = &got[base..base + o.ids.len()];
                     assert!(vals.iter().all(|v| v.is_finite()), "{what}.{} state {s}: a value was not written", o.name);
                     let got = output_matrix(o.shape, nv, vals);
                     let e = rel_err(&got, want);
@@ -224,7 +224,7 @@ fn check_model_within(
                     worst_ir = worst_ir.max(e_ir);
                     let e_graph = rel_err(&output_matrix(o.shape, nv, ir_vals), want);
                     graph = graph.max(e_graph);
-                    base += o.shape.len(nv);
+                    base += o.ids.len();
                 }
             }
             eprintln!(
@@ -497,4 +497,27 @@ fn batch_sizes_nan_and_dispatch_splitting() {
         worst = worst.max(e);
     }
     eprintln!("70,000 states in {} dispatches: worst relative error {worst:.2e}", batch.dispatches());
+}
+
+/// The frame kernels (placement, Jacobian, velocity, classical acceleration) in every
+/// reference frame, both strategies, f32 and f64, against the reference (held to Pinocchio
+/// by grid-gen's tests/frames.rs): iiwa's flange and a fixed root frame, and floating
+/// HyQ's four lower legs. Frames add no M⁻¹, so f32 is held to the direct tolerance.
+#[test]
+fn frame_kernels_match_the_reference() {
+    use grid_gen::model::ReferenceFrame;
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(61);
+    let frames: Vec<KernelKind> = KernelKind::ALL.into_iter().filter(|k| k.is_frame()).collect();
+    let iiwa = load("grid_iiwa");
+    let hyq = load_floating("grid_hyq");
+    for rf in ReferenceFrame::ALL {
+        for precision in [Precision::F32, Precision::F64] {
+            let options = WgslOptions { precision, ..WgslOptions::default() };
+            let model = with_frames(&iiwa, &["iiwa_link_7", "base"], rf);
+            check_model(&gpu, &format!("iiwa frames {}", rf.name()), &model, &frames, options.clone(), &Strategy::ALL, &mut rng);
+            let model = with_frames(&hyq, &["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"], rf);
+            check_model(&gpu, &format!("hyq floating frames {}", rf.name()), &model, &frames, options, &Strategy::ALL, &mut rng);
+        }
+    }
 }
