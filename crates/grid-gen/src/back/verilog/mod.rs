@@ -71,8 +71,9 @@ pub const DEFAULT_MULTIPLIERS: usize = 8;
 pub const DEFAULT_ADDERS: usize = 8;
 
 /// The kernels `--emit verilog` builds by default: the gradient and M (the host forms
-/// M⁻¹ and ∂q̈ = −M⁻¹ ∂c, as robomorphic computing does).
-pub const DEFAULT_KERNELS: [KernelKind; 2] = [KernelKind::RneaGrad, KernelKind::MassMatrix];
+/// M⁻¹ and ∂q̈ = −M⁻¹ ∂c, as robomorphic computing does), and the frame Jacobian when
+/// frames are asked for (the kernel an FPGA controller runs at kHz rates).
+pub const DEFAULT_KERNELS: [KernelKind; 3] = [KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::FrameJacobian];
 
 /// Options of the Verilog backend.
 #[derive(Clone, Debug, PartialEq)]
@@ -157,7 +158,9 @@ pub enum Layout {
 
 /// Builds each requested kernel's datapath, picks or checks its format, and schedules it.
 pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, BackError> {
-    let kernels: Vec<KernelKind> = KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k)).collect();
+    // A frame kernel exists only where frames were asked for: without them it is not built.
+    let kernels: Vec<KernelKind> =
+        KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k) && !(k.is_frame() && module.function(*k).is_none())).collect();
     if kernels.is_empty() {
         return Err(BackError::VerilogNoKernels);
     }
