@@ -611,3 +611,57 @@ fn mimic_coupled_from_the_command_line() {
     assert_eq!(bad.status.code(), Some(2));
     assert!(stderr(&bad).contains("unknown mimic mode `both`; available: independent, coupled"), "{}", stderr(&bad));
 }
+
+/// The issue's user story: `eval go2.urdf --floating-base --frames FL_foot,...` gives each
+/// state the four feet's kinematics with the documented keys, equal to the library's
+/// reference (which tests/frames.rs holds to Pinocchio); `info --json` lists every link as a
+/// frame with its joint; a misspelt frame is an error that suggests the right name.
+#[test]
+fn eval_and_info_report_frames() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-frames-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let states = dir.join("s.json");
+    let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";
+    let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
+    std::fs::write(&states, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {qd}}}, {{"q": {q}, "qd": {qd}}}]}}"#)).unwrap();
+    let feet = "FL_foot,FR_foot,RL_foot,RR_foot";
+    let out = grid_gen(&["eval", "tests/fixtures/go2.urdf", "--floating-base", "--frames", feet, "--states", states.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let v = json(&out);
+    let text = std::fs::read_to_string(repo().join("tests/fixtures/go2.urdf")).unwrap();
+    let scene = grid_gen::Scene { floating_base: true, ..Default::default() };
+    let model = grid_gen::Model::from_urdf_str_in_scene("go2.urdf", &text, false, &scene, "").unwrap().0;
+    let parse = |s: &str| -> Vec<f64> { serde_json::from_str(s).unwrap() };
+    let (qv, qdv) = (parse(q), parse(qd));
+    for name in feet.split(',') {
+        let f = &v["states"][0]["frames"][name];
+        let frame = &model.frames[model.frame(name).unwrap()];
+        let (_, p) = grid_gen::reference::frame_placement(&model, &qv, frame);
+        let nums = |x: &serde_json::Value| -> Vec<f64> { x.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect() };
+        // serde_json reads floats back to within an ulp (no `float_roundtrip`).
+        let close = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-15 * y.abs().max(1.0));
+        assert!(close(&nums(&f["translation"]), p.as_slice()), "{name}");
+        let j = &f["jacobian"];
+        for rf in ["local", "world", "local_world_aligned"] {
+            assert_eq!(j[rf].as_array().unwrap().len(), 6);
+            assert_eq!(j[rf][0].as_array().unwrap().len(), 18);
+        }
+        let lwa = grid_gen::reference::frame_classical_acceleration(&model, &qv, &qdv, &qdv, frame, grid_gen::model::ReferenceFrame::LocalWorldAligned);
+        assert!(close(&nums(&f["classical_acceleration"]["local_world_aligned"]), &lwa), "{name}");
+        assert_eq!(f["velocity"]["local"].as_array().unwrap().len(), 6);
+        // Without qdd, no acceleration.
+        assert!(v["states"][1]["frames"][name].get("classical_acceleration").is_none());
+    }
+    let info = json(&grid_gen(&["info", "tests/fixtures/go2.urdf", "--floating-base", "--json", "--frames", "FL_foot"]));
+    let frames = info["frames"].as_array().unwrap();
+    let foot = frames.iter().find(|f| f["name"] == "FL_foot").unwrap();
+    assert_eq!(foot["parent_joint"], "FL_calf_joint");
+    assert_eq!(frames.iter().find(|f| f["name"] == "base").unwrap()["parent_joint"], "root_joint");
+    assert_eq!(info["selected_frames"], serde_json::json!(["FL_foot"]));
+    assert!(info["ops"].as_array().unwrap().iter().any(|k| k["kernel"] == "frame_jacobian"));
+    let bad = grid_gen(&["eval", "tests/fixtures/go2.urdf", "--floating-base", "--frames", "FL_fot", "--states", states.to_str().unwrap()]);
+    assert_eq!(bad.status.code(), Some(1));
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("--frames names `FL_fot`, which is not a link of this robot") && err.contains("closest frames: FL_foot"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

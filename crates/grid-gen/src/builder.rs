@@ -77,6 +77,8 @@ pub struct Builder {
     strict: bool,
     floating_base: bool,
     mimic: Option<crate::MimicMode>,
+    frames: Vec<String>,
+    reference_frame: Option<crate::model::ReferenceFrame>,
     quiet: bool,
 }
 
@@ -162,6 +164,21 @@ impl Builder {
         self
     }
 
+    /// Frames (URDF link names) the frame kernels compute: `frame_placement`,
+    /// `frame_jacobian`, `frame_velocity`, `frame_acceleration` (replaces the scene's
+    /// `[frames] names`; none: no frame kernels). An unknown name fails the build with the
+    /// closest link names.
+    pub fn frames<S: AsRef<str>>(&mut self, names: &[S]) -> &mut Self {
+        self.frames = names.iter().map(|n| n.as_ref().to_string()).collect();
+        self
+    }
+
+    /// The frame kernels' reference frame (default `LocalWorldAligned`, or the scene's).
+    pub fn reference_frame(&mut self, rf: crate::model::ReferenceFrame) -> &mut Self {
+        self.reference_frame = Some(rf);
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
@@ -226,6 +243,12 @@ impl Builder {
         if let Some(mode) = self.mimic {
             scene.mimic = mode;
         }
+        if !self.frames.is_empty() {
+            scene.frames.names = self.frames.clone();
+        }
+        if let Some(rf) = self.reference_frame {
+            scene.frames.reference = Some(rf);
+        }
         let (model, warnings) = Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path).map_err(|e| BuildError::Load(Box::new(e)))?;
         let mut options = self.options.clone();
         if let Some(g) = scene.gravity {
@@ -287,6 +310,27 @@ mod tests {
         let written = crate::Builder::new().urdf(format!("{root}/robots/grid_hyq.urdf")).floating_base(true).out_dir(&out).quiet(true).compile().unwrap();
         let code = std::fs::read_to_string(&written[0]).unwrap();
         assert!(code.contains("NV: usize = 18") && code.contains("NQ: usize = 19") && code.contains("q: &[T; NQ]") && code.contains("qd: &[T; NV]"));
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+
+    #[test]
+    fn frames_reach_the_generated_module() {
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
+        let out = std::env::temp_dir().join(format!("grid-gen-builder-frames-{}", std::process::id()));
+        let urdf = format!("{root}/robots/ur5.urdf");
+        let written = crate::Builder::new()
+            .urdf(&urdf)
+            .frames(&["tool0"])
+            .reference_frame(crate::model::ReferenceFrame::Local)
+            .out_dir(&out)
+            .quiet(true)
+            .compile()
+            .unwrap();
+        let code = std::fs::read_to_string(&written[0]).unwrap();
+        assert!(code.contains("pub const FRAME_NAMES: [&str; NF] = [\"tool0\"]") && code.contains("REFERENCE_FRAME: &str = \"local\""));
+        assert!(code.contains("pub fn frame_jacobian<T: Real>(q: &[T; NV]) -> [[[T; NV]; 6]; NF]"));
+        let bad = crate::Builder::new().urdf(&urdf).frames(&["tool1"]).out_dir(&out).quiet(true).compile().unwrap_err().to_string();
+        assert!(bad.contains("`tool1`, which is not a link of this robot") && bad.contains("closest frames: tool0"), "{bad}");
         std::fs::remove_dir_all(&out).unwrap();
     }
 
