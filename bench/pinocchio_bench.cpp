@@ -3,14 +3,22 @@
 // (pinocchio.Model.saveToText; the wheel ships no urdfdom headers), for the side-by-side comparison in scripts/bench.sh. Built from Pinocchio's
 // headers with -O3 (see scripts/bench.sh). Prints one JSON line per robot:
 // {"robot": ..., "nv": ..., "rnea_derivatives_ns": ..., "aba_derivatives_ns": ..., "rnea_ns": ..., "aba_ns": ...}
+// An argument `MODEL:LINK,LINK,...` times the frame functions instead, for those BODY frames, in
+// LOCAL_WORLD_ALIGNED: {"robot": ..., "frames": [...], "frame_jacobian_ns": ..., "frame_acceleration_ns": ...},
+// computeJointJacobians + getFrameJacobian per frame, and forwardKinematics(q, v, a) +
+// getFrameClassicalAcceleration per frame (what a contact constraint or a frame cost calls).
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
+#include <string>
 #include <vector>
 
 #include "pinocchio/algorithm/aba-derivatives.hpp"
 #include "pinocchio/algorithm/aba.hpp"
+#include "pinocchio/algorithm/frames.hpp"
+#include "pinocchio/algorithm/jacobian.hpp"
 #include "pinocchio/algorithm/joint-configuration.hpp"
+#include "pinocchio/algorithm/kinematics.hpp"
 #include "pinocchio/algorithm/rnea-derivatives.hpp"
 #include "pinocchio/algorithm/rnea.hpp"
 #include "pinocchio/multibody.hpp"
@@ -34,8 +42,20 @@ double time_ns(F&& f, int iters, int rounds) {
 
 int main(int argc, char** argv) {
   for (int a = 1; a < argc; ++a) {
+    std::string arg(argv[a]);
+    std::string path = arg.substr(0, arg.find(':'));
+    std::vector<std::string> names;
+    if (arg.find(':') != std::string::npos) {
+      std::string list = arg.substr(arg.find(':') + 1);
+      for (size_t at = 0; at <= list.size();) {
+        size_t end = list.find(',', at);
+        if (end == std::string::npos) end = list.size();
+        names.push_back(list.substr(at, end - at));
+        at = end + 1;
+      }
+    }
     pinocchio::Model model;
-    model.loadFromText(argv[a]);
+    model.loadFromText(path);
     pinocchio::Data data(model);
     const int K = 64;  // distinct states, cycled, so nothing is cached between calls
     std::vector<Eigen::VectorXd> q(K), v(K), acc(K), tau(K);
@@ -46,6 +66,31 @@ int main(int argc, char** argv) {
       tau[k] = Eigen::VectorXd::Random(model.nv);
     }
     const int iters = 2000, rounds = 15;
+    if (!names.empty()) {
+      std::vector<pinocchio::FrameIndex> ids;
+      for (auto& n : names) ids.push_back(model.getFrameId(n, pinocchio::BODY));
+      pinocchio::Data::Matrix6x J(6, model.nv);
+      Eigen::Vector3d sink = Eigen::Vector3d::Zero();
+      double jac = time_ns(
+          [&](int i) {
+            pinocchio::computeJointJacobians(model, data, q[i % K]);
+            for (auto id : ids) {
+              J.setZero();
+              pinocchio::getFrameJacobian(model, data, id, pinocchio::LOCAL_WORLD_ALIGNED, J);
+              sink[0] += J(0, 0);
+            }
+          },
+          iters, rounds);
+      double acc_ns = time_ns(
+          [&](int i) {
+            pinocchio::forwardKinematics(model, data, q[i % K], v[i % K], acc[i % K]);
+            for (auto id : ids) sink += pinocchio::getFrameClassicalAcceleration(model, data, id, pinocchio::LOCAL_WORLD_ALIGNED).linear();
+          },
+          iters, rounds);
+      std::printf("{\"robot\": \"%s\", \"frames\": %zu, \"frame_jacobian_ns\": %.1f, \"frame_acceleration_ns\": %.1f, \"sink\": %g}\n", path.c_str(), ids.size(), jac,
+                  acc_ns, sink.sum());
+      continue;
+    }
     double rd = time_ns([&](int i) { pinocchio::computeRNEADerivatives(model, data, q[i % K], v[i % K], acc[i % K]); }, iters, rounds);
     double ad = time_ns([&](int i) { pinocchio::computeABADerivatives(model, data, q[i % K], v[i % K], tau[i % K]); }, iters, rounds);
     double r = time_ns([&](int i) { pinocchio::rnea(model, data, q[i % K], v[i % K], acc[i % K]); }, iters, rounds);

@@ -18,6 +18,9 @@ done
 # HyQ on a free-flyer (grid-gen's --floating-base, the scene examples/scenes/hyq_floating.toml).
 python3 -c "import pinocchio as pin; pin.buildModelFromUrdf('robots/grid_hyq.urdf', pin.JointModelFreeFlyer()).saveToText('target/bench/grid_hyq_floating.pinmodel')"
 MODELS="$(for r in $ROBOTS; do echo target/bench/$r.pinmodel; done) target/bench/grid_hyq_floating.pinmodel"
+# Frames (the scenes examples/scenes/iiwa_tool_frame.toml and hyq_feet_floating.toml):
+# MODEL:LINK,... times getFrameJacobian and getFrameClassicalAcceleration for those links.
+MODELS="$MODELS target/bench/grid_iiwa.pinmodel:iiwa_link_7 target/bench/grid_hyq_floating.pinmodel:lf_lowerleg,rf_lowerleg,lh_lowerleg,rh_lowerleg"
 # Pinocchio's own build defines these (see its exported CMake targets). Built twice, for
 # the default target and with -march=native; the report takes the faster of the two per
 # algorithm, so Pinocchio gets the same wide instructions as our FMA copy.

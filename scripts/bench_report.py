@@ -50,3 +50,18 @@ for group, pin_robot in [("grid_hyq.hyq_floating", "grid_hyq_floating")]:
         g = ns(group, f"generated/{kernel}")
         p = pin[pin_robot][pin_key]
         print(f"| {group} (floating base) | {kernel} | {fmt(g)} | - | {fmt(p)} | - | {p / g:.1f}x |")
+
+# Frames: the frame scenes' kernels (every frame of the scene per call, LOCAL_WORLD_ALIGNED)
+# against Pinocchio's computeJointJacobians + getFrameJacobian and forwardKinematics(q, v, a)
+# + getFrameClassicalAcceleration for the same frames.
+print()
+print("| scene | kernel | generated | Pinocchio | vs Pinocchio |")
+print("|---|---|---|---|---|")
+for group, pin_robot in [("grid_iiwa.iiwa_tool_frame", "grid_iiwa"), ("grid_hyq.hyq_feet_floating", "grid_hyq_floating")]:
+    for kernel in ("frame_jacobian", "frame_acceleration"):
+        try:
+            g = ns(group, f"generated/{kernel}")
+        except FileNotFoundError:
+            continue
+        p = pin.get(pin_robot, {}).get(f"{kernel}_ns")
+        print(f"| {group} | {kernel} | {fmt(g)} | {fmt(p) if p else '-'} | {f'{p / g:.1f}x' if p else '-'} |")

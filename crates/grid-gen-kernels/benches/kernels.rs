@@ -202,7 +202,44 @@ macro_rules! bench_scene {
     }};
 }
 
+/// The frame kernels of a frame scene (`examples/scenes/iiwa_tool_frame.toml`,
+/// `hyq_feet_floating.toml`): `frame_jacobian` and `frame_acceleration`, every frame of the
+/// scene per call, under the same state protocol.
+macro_rules! bench_frames {
+    ($c:expr, $m:ident, $name:literal) => {{
+        use grid_gen_kernels::scenes::$m as k;
+        const N: usize = k::NV;
+        let s: Vec<([f64; k::NQ], [[f64; N]; 2])> = (0..STATES)
+            .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1)))))
+            .collect();
+        let mut group = $c.benchmark_group($name);
+        let mut j = 0usize;
+        let mut next = || {
+            j = (j + 1) % STATES;
+            j
+        };
+        group.bench_function("generated/frame_jacobian", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::frame_jacobian(&x.0))
+            })
+        });
+        group.bench_function("generated/frame_acceleration", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::frame_acceleration(&x.0, &x.1[0], &x.1[1]))
+            })
+        });
+        group.finish();
+    }};
+}
+
 fn kernels(c: &mut Criterion) {
+    if std::env::var_os("GRID_GEN_BENCH_FRAMES_ONLY").is_some() {
+        bench_frames!(c, grid_iiwa_tool_frame, "grid_iiwa.iiwa_tool_frame");
+        bench_frames!(c, grid_hyq_feet_floating, "grid_hyq.hyq_feet_floating");
+        return;
+    }
     bench_robot!(c, grid_iiwa, "grid_iiwa");
     bench_robot!(c, grid_hyq, "grid_hyq");
     bench_robot!(c, grid_atlas, "grid_atlas");
@@ -213,6 +250,8 @@ fn kernels(c: &mut Criterion) {
     bench_scene!(c, grid_iiwa_static, "grid_iiwa.iiwa_static");
     bench_scene!(c, grid_hyq_lf_columns, "grid_hyq.hyq_lf_columns");
     bench_scene!(c, grid_hyq_floating, "grid_hyq.hyq_floating");
+    bench_frames!(c, grid_iiwa_tool_frame, "grid_iiwa.iiwa_tool_frame");
+    bench_frames!(c, grid_hyq_feet_floating, "grid_hyq.hyq_feet_floating");
 }
 
 criterion_group! {
