@@ -424,3 +424,43 @@ fn frame_kernels_match_the_reference() {
     check!(grid_iiwa_tool_frame, "grid_iiwa", "iiwa_tool_frame");
     check!(grid_hyq_feet_floating, "grid_hyq", "hyq_feet_floating");
 }
+
+/// `frame_acceleration_grad` of the frame scenes, both copies, f64: against the IR
+/// interpreter of the same graph (itself held to central differences of the reference by
+/// grid-gen's tests/frames.rs): the portable copy bit for bit, the `fma` copy within 1e-12
+/// (fused multiply-adds round once where the graph rounds twice).
+#[test]
+fn frame_acceleration_grad_matches_its_graph() {
+    use grid_gen::ir::{self, KernelKind, LowerOptions};
+    macro_rules! check {
+        ($m:ident, $robot:literal, $scene:literal) => {{
+            use grid_gen_kernels::scenes::$m as k;
+            let (model, _) = grid_gen_test_support::load_in_scene($robot, $scene);
+            let lower = LowerOptions { kernels: vec![KernelKind::FrameAccelerationGrad], ..LowerOptions::default() };
+            let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+            let f = module.function(KernelKind::FrameAccelerationGrad).unwrap();
+            let mut rng = Rng(43);
+            for (label, per_joint, qd, u) in states(&model, &mut rng) {
+                let q = model.q_from_joints(&per_joint, rng.base_pose());
+                let want = f.eval(&[&q, &qd, &u]);
+                let qa: [f64; k::NQ] = std::array::from_fn(|i| q[i]);
+                let qda: [f64; k::NV] = std::array::from_fn(|i| qd[i]);
+                let ua: [f64; k::NV] = std::array::from_fn(|i| u[i]);
+                let flat = |x: ([[[f64; k::NV]; 3]; k::NF], [[[f64; k::NV]; 3]; k::NF], [[[f64; k::NV]; 3]; k::NF])| {
+                    [x.0.as_flattened().as_flattened().to_vec(), x.1.as_flattened().as_flattened().to_vec(), x.2.as_flattened().as_flattened().to_vec()]
+                };
+                let portable = flat(k::portable::frame_acceleration_grad(&qa, &qda, &ua));
+                assert_eq!(portable.to_vec(), want, "{} {label}: the portable copy is the graph", $scene);
+                if fma_runs() {
+                    let fma = flat(unsafe { k::fma::frame_acceleration_grad(&qa, &qda, &ua) });
+                    for (o, (g, w)) in fma.iter().zip(&want).enumerate() {
+                        let e = rel(&grid_gen_test_support::col(g), &grid_gen_test_support::col(w));
+                        assert!(e <= F64_TOL, "{} {label} output {o} (fma): {e:.2e}", $scene);
+                    }
+                }
+            }
+        }};
+    }
+    check!(grid_iiwa_tool_frame, "grid_iiwa", "iiwa_tool_frame");
+    check!(grid_hyq_feet_floating, "grid_hyq", "hyq_feet_floating");
+}

@@ -198,7 +198,7 @@ pub fn reference_frames(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64], 
         }
         KernelKind::FrameVelocity => vec![frames.iter().flat_map(|f| reference::frame_velocity(model, q, qd, f, rf)).collect()],
         KernelKind::FrameAcceleration => vec![frames.iter().flat_map(|f| reference::frame_classical_acceleration(model, q, qd, qdd, f, rf)).collect()],
-        _ => panic!("{kind} is not a frame kernel"),
+        _ => panic!("{kind} has no reference (frame_acceleration_grad is checked against central differences in tests/frames.rs)"),
     }
 }
 
@@ -227,6 +227,6 @@ pub fn kernel_args<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f6
 pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
     match shape {
         Shape::Matrix => DMatrix::from_row_slice(nv, nv, values),
-        Shape::Vector | Shape::PerFrame(_) | Shape::FrameJacobian => col(values),
+        Shape::Vector | Shape::PerFrame(_) | Shape::FrameMatrix(_) => col(values),
     }
 }

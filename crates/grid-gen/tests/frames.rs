@@ -3,6 +3,7 @@
 //! robots, against central differences where Pinocchio has no fixture (spherical and
 //! coupled mimic joints), and the bad-input errors.
 
+use grid_gen::ir::KernelKind;
 use grid_gen::model::ReferenceFrame;
 use grid_gen::{reference, Model, Scene};
 use grid_gen_test_support::*;
@@ -242,7 +243,7 @@ fn every_link_is_a_frame_and_a_scene_removes_them() {
 /// scene (q̇ ignored).
 #[test]
 fn frame_kernels_match_the_reference() {
-    use grid_gen::ir::{self, KernelKind, LowerOptions};
+    use grid_gen::ir::{self, LowerOptions};
     let fixtures = repo().join("tests/fixtures");
     let cases: Vec<(&str, Model, Vec<&str>)> = vec![
         ("iiwa", load("grid_iiwa"), vec!["iiwa_link_7", "iiwa_link_3", "base"]),
@@ -259,7 +260,7 @@ fn frame_kernels_match_the_reference() {
             let m = with_frames(model, frames, rf);
             let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
             let kinds: Vec<KernelKind> = module.functions.iter().map(|f| f.kind).filter(|k| k.is_frame()).collect();
-            assert_eq!(kinds.len(), 4, "{name}: every frame kernel is generated");
+            assert_eq!(kinds.len(), 5, "{name}: every frame kernel is generated");
             let nv = m.nv();
             for _ in 0..3 {
                 let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
@@ -268,7 +269,7 @@ fn frame_kernels_match_the_reference() {
                     q[at..at + 4].copy_from_slice(&rng.vec(4, -1.0, 1.0));
                 }
                 let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -2.0, 2.0));
-                for f in module.functions.iter().filter(|f| f.kind.is_frame()) {
+                for f in module.functions.iter().filter(|f| f.kind.is_frame() && f.kind != KernelKind::FrameAccelerationGrad) {
                     let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &qdd));
                     let want = reference_frames(f.kind, &m, &q, &qd, &qdd);
                     for ((o, got), want) in f.outputs.iter().zip(&got).zip(&want) {
@@ -292,11 +293,83 @@ fn frame_kernels_match_the_reference() {
 /// LOCAL_WORLD_ALIGNED) in far fewer operations than one RNEA.
 #[test]
 fn a_frame_kernel_costs_its_chain() {
-    use grid_gen::ir::{self, KernelKind, LowerOptions};
+    use grid_gen::ir::{self, LowerOptions};
     let m = with_frames(&load("grid_iiwa"), &["iiwa_link_7"], ReferenceFrame::LocalWorldAligned);
     let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
     let ops = |k: KernelKind| module.function(k).unwrap().nodes.iter().filter(|n| !matches!(n.op, ir::Op::Const(_) | ir::Op::Input(..))).count();
     let (jac, rnea) = (ops(KernelKind::FrameJacobian), ops(KernelKind::Rnea));
     println!("iiwa flange: frame_jacobian {jac} operations, placement {}, rnea {rnea}", ops(KernelKind::FramePlacement));
     assert!(jac < rnea, "frame_jacobian {jac} operations, rnea {rnea}");
+}
+
+/// `frame_acceleration_grad` (forward-mode derivative of the acceleration's graph) against
+/// central differences of the reference's classical acceleration: along each coordinate on
+/// the manifold (`integrate`), and along q̇ and q̈, in the three reference frames, on fixed,
+/// floating, spherical and coupled-mimic models.
+#[test]
+fn frame_acceleration_derivatives_match_central_differences() {
+    use grid_gen::ir::{self, LowerOptions};
+    let fixtures = repo().join("tests/fixtures");
+    let cases: Vec<(&str, Model, Vec<&str>)> = vec![
+        ("iiwa", load("grid_iiwa"), vec!["iiwa_link_7"]),
+        ("hyq floating", load_floating("grid_hyq"), vec!["lf_lowerleg", "rh_lowerleg"]),
+        ("ball_arm floating", load_urdf(&fixtures.join("ball_arm.urdf"), true), vec!["l4", "l6"]),
+        ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf")), vec!["l3", "l7"]),
+    ];
+    let mut rng = Rng(41);
+    let mut worst: f64 = 0.0;
+    for (name, model, frames) in &cases {
+        for rf in ReferenceFrame::ALL {
+            let m = with_frames(model, frames, rf);
+            let kinds = vec![KernelKind::FrameAccelerationGrad];
+            let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions { kernels: kinds, ..LowerOptions::default() }).unwrap();
+            let f = module.function(KernelKind::FrameAccelerationGrad).unwrap();
+            let nv = m.nv();
+            let nf = frames.len();
+            for _ in 0..2 {
+                let mut q = m.q_from_joints(&rng.vec(nv, -2.0, 2.0), rng.base_pose());
+                for &s in &m.spherical {
+                    let at = m.group_q(s);
+                    q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+                }
+                let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -2.0, 2.0));
+                let got = f.eval(&[&q, &qd, &qdd]);
+                let acc = |q: &[f64], qd: &[f64], qdd: &[f64]| -> Vec<f64> {
+                    m.selected_frames().flat_map(|fr| reference::frame_classical_acceleration(&m, q, qd, qdd, fr, rf)).collect()
+                };
+                // h = 1e-6: the truncation (h² times the third derivative) and the round-off
+                // (ε |a| / h) both stay far under the 1e-7 bound.
+                let h = 1e-6;
+                for (which, out) in got.iter().enumerate() {
+                    let mut fd = vec![0.0; 3 * nf * nv];
+                    for k in 0..nv {
+                        let mut e = vec![0.0; nv];
+                        e[k] = h;
+                        let (plus, minus) = match which {
+                            0 => {
+                                let qp = integrate(&m, &q, &e);
+                                e[k] = -h;
+                                (acc(&qp, &qd, &qdd), acc(&integrate(&m, &q, &e), &qd, &qdd))
+                            }
+                            1 => {
+                                let add = |s: f64| qd.iter().zip(&e).map(|(a, b)| a + s * b).collect::<Vec<_>>();
+                                (acc(&q, &add(1.0), &qdd), acc(&q, &add(-1.0), &qdd))
+                            }
+                            _ => {
+                                let add = |s: f64| qdd.iter().zip(&e).map(|(a, b)| a + s * b).collect::<Vec<_>>();
+                                (acc(&q, &qd, &add(1.0)), acc(&q, &qd, &add(-1.0)))
+                            }
+                        };
+                        for row in 0..3 * nf {
+                            fd[row * nv + k] = (plus[row] - minus[row]) / (2.0 * h);
+                        }
+                    }
+                    let e = rel_err(&col(out), &col(&fd));
+                    worst = worst.max(e);
+                    assert!(e < 1e-7, "{name} {} output {which}: {e:.2e} from central differences", rf.name());
+                }
+            }
+        }
+    }
+    println!("worst frame_acceleration_grad against central differences: {worst:.2e} (bound 1e-7)");
 }

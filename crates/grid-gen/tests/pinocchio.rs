@@ -123,6 +123,7 @@ impl Order {
                 let m = mat_of(&st[key]);
                 DMatrix::from_fn(m.nrows(), m.ncols(), |a, b| m[(self.inv[a], self.inv[b])])
             }
+            other => panic!("no dynamics fixture has {other:?} outputs (frames: tests/frames.rs)"),
         }
     }
 }
@@ -137,6 +138,7 @@ fn fixture_keys(kind: grid_gen::ir::KernelKind) -> &'static [&'static str] {
         KernelKind::Minv => &["Minv"],
         KernelKind::Fd => &["fd"],
         KernelKind::FdGrad => &["fd", "dfd_dq", "dfd_dqd"],
+        frame => panic!("{frame}: the frame kernels are checked in tests/frames.rs"),
     }
 }
 

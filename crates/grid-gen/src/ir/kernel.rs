@@ -13,9 +13,9 @@ pub enum Shape {
     Matrix,
     /// This many values per requested frame, frame-major.
     PerFrame(usize),
-    /// A `6 x nv` Jacobian per requested frame, frame-major, each row-major, rows
-    /// [linear; angular] (Pinocchio's order).
-    FrameJacobian,
+    /// A `rows x nv` matrix per requested frame, frame-major, each row-major: a Jacobian
+    /// (6 rows, [linear; angular] in Pinocchio's order) or a derivative of a 3-vector.
+    FrameMatrix(usize),
 }
 
 impl Shape {
@@ -25,7 +25,7 @@ impl Shape {
             Shape::Vector => nv,
             Shape::Matrix => nv * nv,
             Shape::PerFrame(k) => k * nframes,
-            Shape::FrameJacobian => 6 * nv * nframes,
+            Shape::FrameMatrix(r) => r * nv * nframes,
         }
     }
 
@@ -36,7 +36,7 @@ impl Shape {
             Shape::Vector => vec![flat],
             Shape::Matrix => vec![flat / nv, flat % nv],
             Shape::PerFrame(k) => vec![flat / k, flat % k],
-            Shape::FrameJacobian => vec![flat / (6 * nv), (flat / nv) % 6, flat % nv],
+            Shape::FrameMatrix(r) => vec![flat / (r * nv), (flat / nv) % r, flat % nv],
         }
     }
 }
@@ -140,12 +140,13 @@ pub enum KernelKind {
     FrameJacobian,
     FrameVelocity,
     FrameAcceleration,
+    FrameAccelerationGrad,
 }
 
 impl KernelKind {
     /// Every kernel, in the order backends emit them. The frame kernels exist only for a
     /// model with requested frames ([`KernelKind::is_frame`]).
-    pub const ALL: [KernelKind; 10] = [
+    pub const ALL: [KernelKind; 11] = [
         KernelKind::Rnea,
         KernelKind::RneaGrad,
         KernelKind::MassMatrix,
@@ -156,6 +157,7 @@ impl KernelKind {
         KernelKind::FrameJacobian,
         KernelKind::FrameVelocity,
         KernelKind::FrameAcceleration,
+        KernelKind::FrameAccelerationGrad,
     ];
 
     /// The dynamics kernels, those every robot has.
@@ -171,7 +173,14 @@ impl KernelKind {
 
     /// Whether the kernel computes frame quantities (and so exists only when frames are asked for).
     pub fn is_frame(self) -> bool {
-        matches!(self, KernelKind::FramePlacement | KernelKind::FrameJacobian | KernelKind::FrameVelocity | KernelKind::FrameAcceleration)
+        matches!(
+            self,
+            KernelKind::FramePlacement
+                | KernelKind::FrameJacobian
+                | KernelKind::FrameVelocity
+                | KernelKind::FrameAcceleration
+                | KernelKind::FrameAccelerationGrad
+        )
     }
 
     /// The function's name in every backend.
@@ -187,6 +196,7 @@ impl KernelKind {
             KernelKind::FrameJacobian => "frame_jacobian",
             KernelKind::FrameVelocity => "frame_velocity",
             KernelKind::FrameAcceleration => "frame_acceleration",
+            KernelKind::FrameAccelerationGrad => "frame_acceleration_grad",
         }
     }
 
@@ -202,7 +212,7 @@ impl KernelKind {
             KernelKind::MassMatrix | KernelKind::Minv | KernelKind::FramePlacement | KernelKind::FrameJacobian => &[Q],
             KernelKind::Fd | KernelKind::FdGrad => &[Q, Qd, Tau],
             KernelKind::FrameVelocity => &[Q, Qd],
-            KernelKind::FrameAcceleration => &[Q, Qd, Qdd],
+            KernelKind::FrameAcceleration | KernelKind::FrameAccelerationGrad => &[Q, Qd, Qdd],
         }
     }
 
@@ -219,9 +229,14 @@ impl KernelKind {
                 &[OutputSpec { name: "qdd", shape: Vector }, OutputSpec { name: "dqdd_dq", shape: Matrix }, OutputSpec { name: "dqdd_dqd", shape: Matrix }]
             }
             KernelKind::FramePlacement => &[OutputSpec { name: "translation", shape: PerFrame(3) }, OutputSpec { name: "rotation", shape: PerFrame(9) }],
-            KernelKind::FrameJacobian => &[OutputSpec { name: "jacobian", shape: FrameJacobian }],
+            KernelKind::FrameJacobian => &[OutputSpec { name: "jacobian", shape: FrameMatrix(6) }],
             KernelKind::FrameVelocity => &[OutputSpec { name: "velocity", shape: PerFrame(6) }],
             KernelKind::FrameAcceleration => &[OutputSpec { name: "acceleration", shape: PerFrame(3) }],
+            KernelKind::FrameAccelerationGrad => &[
+                OutputSpec { name: "dacc_dq", shape: FrameMatrix(3) },
+                OutputSpec { name: "dacc_dqd", shape: FrameMatrix(3) },
+                OutputSpec { name: "dacc_dqdd", shape: FrameMatrix(3) },
+            ],
         }
     }
 
@@ -238,6 +253,7 @@ impl KernelKind {
             KernelKind::FrameJacobian => "Each frame's Jacobian, 6 x nv, rows [linear; angular], in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameJacobian`).",
             KernelKind::FrameVelocity => "Each frame's spatial velocity [linear; angular] in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameVelocity`).",
             KernelKind::FrameAcceleration => "Each frame's classical acceleration (linear, with `w x v`) in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameClassicalAcceleration`); at qdd = 0, the drift `dJ/dt qd`.",
+            KernelKind::FrameAccelerationGrad => "The classical acceleration's derivatives `(dacc/dq, dacc/dqd, dacc/dqdd)`, 3 x nv per frame, row-major, `dq` in the tangent space (forward-mode differentiation of `frame_acceleration`'s graph).",
         }
     }
 
@@ -255,6 +271,7 @@ impl KernelKind {
             KernelKind::FrameJacobian => "each frame's 6 x nv Jacobian in `REFERENCE_FRAME`.",
             KernelKind::FrameVelocity => "each frame's spatial velocity in `REFERENCE_FRAME`.",
             KernelKind::FrameAcceleration => "each frame's classical acceleration in `REFERENCE_FRAME`.",
+            KernelKind::FrameAccelerationGrad => "its derivatives, 3 x nv per frame.",
         }
     }
 
@@ -281,7 +298,7 @@ impl KernelKind {
             MassMatrix => &[],
             Minv => &[Fd, FdGrad],
             Fd => &[FdGrad],
-            FdGrad | FramePlacement | FrameJacobian | FrameVelocity | FrameAcceleration => &[],
+            FdGrad | FramePlacement | FrameJacobian | FrameVelocity | FrameAcceleration | FrameAccelerationGrad => &[],
         }
     }
 
@@ -335,6 +352,13 @@ impl KernelKind {
                 let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
                 let (qd, qdd) = (d.expand(&qd), d.expand(&qdd));
                 vec![d.frame_accelerations(&qd, &qdd)]
+            }
+            KernelKind::FrameAccelerationGrad => {
+                let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
+                let (xqd, xqdd) = (d.expand(&qd), d.expand(&qdd));
+                let acc = d.frame_accelerations(&xqd, &xqdd);
+                let (dq, dqd, dqdd) = d.frame_acceleration_grads(&acc);
+                vec![dq, dqd, dqdd]
             }
         }
     }

@@ -15,6 +15,7 @@ pub mod precision;
 pub mod schedule;
 mod spatial;
 mod stats;
+mod tangent;
 mod validate;
 
 pub use graph::{Id, Input, Node, Op, Stage};

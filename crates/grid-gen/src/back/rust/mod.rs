@@ -156,7 +156,7 @@ pub(super) fn array_of(shape: Shape, t: &str) -> String {
         Shape::Vector => format!("[{t}; NV]"),
         Shape::Matrix => format!("[[{t}; NV]; NV]"),
         Shape::PerFrame(k) => format!("[[{t}; {k}]; NF]"),
-        Shape::FrameJacobian => format!("[[[{t}; NV]; 6]; NF]"),
+        Shape::FrameMatrix(r) => format!("[[[{t}; NV]; {r}]; NF]"),
     }
 }
 

@@ -4,7 +4,7 @@
 //! velocities and classical accelerations from RNEA's forward pass without gravity.
 //! Conventions are Pinocchio's, as in `reference::frames`: 6-vectors [linear; angular].
 
-use super::super::graph::{Graph, Id, Stage};
+use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::spatial::{self as sp, k, Sv, V3};
 use super::Dynamics;
 use crate::model::{Frame, ReferenceFrame};
@@ -248,5 +248,86 @@ impl Dynamics<'_> {
             out.extend(c);
         }
         out
+    }
+
+    /// The tangents of q's entries along coordinate `k`'s direction: 1 on its own entry, and
+    /// for a multi-dof joint's coordinate the first-order change of the pose under
+    /// `q ⊕ ε = q · exp(ε)` (Pinocchio's `integrate`): a free-flyer's linear coordinate moves
+    /// the position by `R e_k`, an angular one turns the quaternion by `½ q ⊗ (e_k, 0)`.
+    fn q_seeds(&mut self, k: usize) -> Vec<(Input, usize, Id)> {
+        if let Some(i) = self.model.q_index(k) {
+            let one = self.g.constant(1.0);
+            return vec![(Input::Q, i, one)];
+        }
+        let joint = self.model.coordinate_joints()[k];
+        let group = self.model.group(joint).expect("a coordinate without a q entry is a multi-dof joint's");
+        let member = joint - group.start;
+        let free = self.model.is_free_flyer(group.start);
+        let at = if free { 3 } else { self.model.group_q(group.start) };
+        let g = &mut self.g;
+        let [x, y, z, w] = std::array::from_fn(|c| g.input(Input::Q, at + c));
+        if free && member < 3 {
+            // Column `member` of the quaternion's rotation, scaled by 2/|q|² as the kernels build it.
+            let norm2 = g.dot(&[x, y, z, w], &[x, y, z, w]);
+            let two = g.constant(2.0);
+            let s = g.div(two, norm2);
+            let one = g.constant(1.0);
+            let pair = |g: &mut Graph, a: Id, b: Id, c: Id, d: Id, plus: bool| {
+                let ab = g.mul(a, b);
+                let cd = g.mul(c, d);
+                let t = if plus { g.add(ab, cd) } else { g.sub(ab, cd) };
+                g.mul(s, t)
+            };
+            let diag = |g: &mut Graph, a: Id, b: Id| {
+                let t = g.dot(&[a, b], &[a, b]);
+                let t = g.mul(s, t);
+                g.sub(one, t)
+            };
+            let column = match member {
+                0 => [diag(g, y, z), pair(g, x, y, z, w, true), pair(g, x, z, y, w, false)],
+                1 => [pair(g, x, y, z, w, false), diag(g, x, z), pair(g, y, z, x, w, true)],
+                _ => [pair(g, x, z, y, w, true), pair(g, y, z, x, w, false), diag(g, x, y)],
+            };
+            return (0..3).map(|r| (Input::Q, r, column[r])).collect();
+        }
+        let axis = if free { member - 3 } else { member };
+        // ½ (w e_a + v × e_a, −v · e_a) with v = (x, y, z).
+        let half = g.constant(0.5);
+        let v = [x, y, z];
+        let mut dv = [g.constant(0.0); 4];
+        dv[axis] = g.mul(half, w);
+        let (b, c) = ((axis + 1) % 3, (axis + 2) % 3);
+        // (v × e_a)_b = v_c, (v × e_a)_c = −v_b.
+        dv[b] = g.mul(half, v[c]);
+        let t = g.mul(half, v[b]);
+        dv[c] = g.neg(t);
+        let t = g.mul(half, v[axis]);
+        dv[3] = g.neg(t);
+        (0..4).map(|e| (Input::Q, at + e, dv[e])).collect()
+    }
+
+    /// The derivatives of the frames' classical accelerations `acc` (3 per frame) with
+    /// respect to q (in the tangent space), q̇ and q̈: each 3 × nv per frame, row-major,
+    /// frame-major, by forward-mode differentiation of their graph.
+    pub fn frame_acceleration_grads(&mut self, acc: &[Id]) -> (Vec<Id>, Vec<Id>, Vec<Id>) {
+        let nv = self.model.nv();
+        let nf = acc.len() / 3;
+        let mut columns: [Vec<Vec<Id>>; 3] = Default::default();
+        for k in 0..nv {
+            if self.exhausted() {
+                break;
+            }
+            let seeds = self.q_seeds(k);
+            columns[0].push(self.g.tangent(acc, &seeds));
+            let one = self.g.constant(1.0);
+            columns[1].push(self.g.tangent(acc, &[(Input::Qd, k, one)]));
+            columns[2].push(self.g.tangent(acc, &[(Input::Qdd, k, one)]));
+        }
+        if self.exhausted() {
+            let z = self.g.constant(0.0);
+            return (vec![z; 3 * nv * nf], vec![z; 3 * nv * nf], vec![z; 3 * nv * nf]);
+        }
+        let layout = |cols: &Vec<Vec<Id>>| -> Vec<Id> { (0..3 * nf).flat_map(|row| (0..nv).map(move |k| cols[k][row])).collect() };
+        (layout(&columns[0]), layout(&columns[1]), layout(&columns[2]))
     }
 }
