@@ -190,7 +190,11 @@ def floating_fixtures(check):
         # pin.SE3.Random draws from Eigen's generator: seed it too, so reruns are identical.
         pin.seed(sum(robot.encode()))
         data = floating_fixture(urdf, np.random.default_rng(sum(robot.encode()) + 1))
-        stale |= report(OUT / f"{robot}.floating.pinocchio.json", data, check, 1e-12)
+        # Pinocchio's own last-bit rounding differs across CPUs (glibc picks its sin/cos by
+        # CPU features) and M's conditioning amplifies it: UR5 on a free-flyer (cond(M) 7.1e3
+        # at state 7) recomputes M⁻¹ 2.4e-12 apart on an Intel Xeon from the file written on
+        # an AMD EPYC. 1e-10 is still the bar every comparison with these files is held to.
+        stale |= report(OUT / f"{robot}.floating.pinocchio.json", data, check, 1e-10)
     return stale
 
 

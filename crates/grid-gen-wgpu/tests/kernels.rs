@@ -521,3 +521,33 @@ fn frame_kernels_match_the_reference() {
         }
     }
 }
+
+/// `frame_acceleration_grad` on lavapipe, both strategies, f64: against the IR interpreter
+/// of the same graph (held to central differences of the reference by grid-gen's
+/// tests/frames.rs) at the f64 tolerance, floating HyQ's four lower legs.
+#[test]
+fn frame_acceleration_grad_matches_its_graph() {
+    use grid_gen::model::ReferenceFrame;
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(67);
+    let model = with_frames(&load_floating("grid_hyq"), &["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"], ReferenceFrame::LocalWorldAligned);
+    let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
+    let shader = gpu.load(&wgsl(&model, options)).unwrap();
+    let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+    let f = lowered.function(KernelKind::FrameAccelerationGrad).unwrap();
+    let states = states(&model, &mut rng);
+    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    for strategy in Strategy::ALL {
+        let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name())).unwrap();
+        let got = gpu.run(&kernel, &flat(0), &flat(1), &flat(2)).unwrap();
+        let per = kernel.entry.outputs;
+        let mut worst: f64 = 0.0;
+        for (s, [q, qd, qdd]) in states.iter().enumerate() {
+            let want: Vec<f64> = f.eval(&[q, qd, qdd]).concat();
+            let e = rel_err(&col(&got[s * per..(s + 1) * per]), &col(&want));
+            worst = worst.max(e);
+            assert!(e <= F64_TOL, "{} state {s}: {e:.2e}", kernel.entry.entry);
+        }
+        println!("{}: worst {worst:.2e} from the IR interpreter over {} states", kernel.entry.entry, states.len());
+    }
+}

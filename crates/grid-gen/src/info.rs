@@ -298,10 +298,12 @@ impl Info {
         s.push_str(
             "operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth; the gradient formulation and fd_grad's solve picked):\n",
         );
+        // Names pad to the longest (12 without frame kernels, whose names are longer).
+        let w = self.ops.iter().map(|k| k.kernel.name().len()).chain(self.verilog.iter().map(|v| v.kernel.name().len())).max().unwrap_or(0).max(12);
         for k in &self.ops {
             let a = &k.after;
             s.push_str(&format!(
-                "  {:<12} {:>8} -> {:>7}   {}/{}/{}/{}/{}   depth {}{}\n",
+                "  {:<w$} {:>8} -> {:>7}   {}/{}/{}/{}/{}   depth {}{}\n",
                 k.kernel.name(),
                 k.before.total(),
                 a.total(),
@@ -316,14 +318,14 @@ impl Info {
             ));
         }
         for k in &self.ops_skipped {
-            s.push_str(&format!("  {:<12} not counted: {}\n", k.kernel.name(), k.reason));
+            s.push_str(&format!("  {:<w$} not counted: {}\n", k.kernel.name(), k.reason));
         }
         if !self.verilog.is_empty() {
             s.push_str("verilog netlists (default options; multipliers/adders/registers, cycles per state, latency, format, error bound):\n");
         }
         for v in &self.verilog {
             s.push_str(&format!(
-                "  {:<12} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  error <= {:.1e}\n",
+                "  {:<w$} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  error <= {:.1e}\n",
                 v.kernel.name(),
                 v.arch,
                 v.multipliers,
@@ -341,9 +343,10 @@ impl Info {
         if !self.wgsl.is_empty() {
             s.push_str("wgsl entry points (default options, f32; statements, functions, workgroup size, workgroup bytes, phases, dispatches):\n");
         }
+        let ew = self.wgsl.iter().map(|e| e.entry.len()).max().unwrap_or(0).max(20);
         for e in &self.wgsl {
             s.push_str(&format!(
-                "  {:<20} {:>7} stmts {:>4} fns  workgroup {:>3}  {:>6} bytes  {:>4} phases  {:>2} dispatches\n",
+                "  {:<ew$} {:>7} stmts {:>4} fns  workgroup {:>3}  {:>6} bytes  {:>4} phases  {:>2} dispatches\n",
                 e.entry, e.statements, e.functions, e.workgroup_size, e.workgroup_bytes, e.phases, e.stages
             ));
         }
