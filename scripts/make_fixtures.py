@@ -12,7 +12,8 @@ For each robot in robots/:
                           coupled; Pinocchio's mimic=True), for the Panda and mimic_arm.urdf.
 <robot>[.floating].frames.pinocchio.json: frame placements, Jacobians, velocities and
                           classical accelerations of chosen links (FRAMES), in the three
-                          reference frames.
+                          reference frames, and the classical acceleration's derivatives
+                          in LOCAL (from getFrameAccelerationDerivatives).
 ball_arm.urdf with ball_arm[.floating].pinocchio.json: spherical joints (a grid-gen
                           extension of URDF) against Pinocchio's JointModelSpherical.
 <robot>.<scene>.pinocchio.json: the same, for a robot in a scene of examples/scenes/
@@ -623,6 +624,21 @@ def frames_fixture(path, floating, names, rng):
                 "jacobian": {k: mat(pin.getFrameJacobian(model, data, fid, rf)[:, perm]) for k, rf in REFERENCE_FRAMES.items()},
                 "velocity": {k: [float(x) for x in pin.getFrameVelocity(model, data, fid, rf).vector] for k, rf in REFERENCE_FRAMES.items()},
                 "classical_acceleration": {k: [float(x) for x in pin.getFrameClassicalAcceleration(model, data, fid, rf).linear] for k, rf in REFERENCE_FRAMES.items()},
+            }
+        # getFrameAccelerationDerivatives gives the spatial acceleration's derivatives (and
+        # the velocity's in q); the classical acceleration a_lin + w x v_lin composes them:
+        # d/dq = da_lin/dq + [w]x dv_lin/dq - [v_lin]x dw/dq, d/dv likewise with J = da/da.
+        # In LOCAL only, where the quantity is the frame's own (no rotation of the axes).
+        pin.computeForwardKinematicsDerivatives(model, data, q, v, a)
+        for name, fid in zip(names, ids):
+            v_dq, a_dq, a_dv, a_da = (np.asarray(m).copy() for m in pin.getFrameAccelerationDerivatives(model, data, fid, pin.LOCAL))
+            vel = pin.getFrameVelocity(model, data, fid, pin.LOCAL)
+            w, vl = vel.angular, vel.linear
+            skew = lambda x: np.array([[0, -x[2], x[1]], [x[2], 0, -x[0]], [-x[1], x[0], 0]])
+            dq = a_dq[:3] + skew(w) @ v_dq[:3] - skew(vl) @ v_dq[3:]
+            dv = a_dv[:3] + skew(w) @ a_da[:3] - skew(vl) @ a_da[3:]
+            frames[name]["classical_acceleration_derivatives_local"] = {
+                "dq": mat(dq[:, perm]), "dqd": mat(dv[:, perm]), "dqdd": mat(a_da[:3][:, perm]),
             }
         record["frames"] = frames
         records.append(record)

@@ -373,3 +373,53 @@ fn frame_acceleration_derivatives_match_central_differences() {
     }
     println!("worst frame_acceleration_grad against central differences: {worst:.2e} (bound 1e-7)");
 }
+
+/// `frame_acceleration_grad` in LOCAL against Pinocchio: `getFrameAccelerationDerivatives`
+/// composed into the classical acceleration's derivatives by `scripts/make_fixtures.py`, on
+/// every frames fixture (fixed and floating bases, every state), at Pinocchio's 1e-10.
+#[test]
+fn frame_acceleration_derivatives_match_pinocchio() {
+    use grid_gen::ir::{self, LowerOptions};
+    let mut checked = 0;
+    let mut worst: f64 = 0.0;
+    for (name, path, floating) in CASES {
+        let fx = fixture(&format!("{name}.pinocchio.json"));
+        let frames: Vec<&str> = fx["frames"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let model = with_frames(&load_urdf(&repo().join(path), floating), &frames, ReferenceFrame::Local);
+        let lower = LowerOptions { kernels: vec![KernelKind::FrameAccelerationGrad], ..LowerOptions::default() };
+        let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+        let f = module.function(KernelKind::FrameAccelerationGrad).unwrap();
+        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+        let perm: Vec<usize> = names.iter().map(|n| coordinates.iter().position(|c| c == n).unwrap()).collect();
+        let nv = model.nv();
+        let ours = |v: &[f64]| {
+            let mut o = vec![0.0; nv];
+            for (k, &i) in perm.iter().enumerate() {
+                o[i] = v[k];
+            }
+            o
+        };
+        for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
+            let angles = vec_of(&st["q"]);
+            let per = if floating { [vec![0.0; 6], angles].concat() } else { angles };
+            let base: [f64; 7] = if floating { vec_of(&st["base"]).try_into().unwrap() } else { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] };
+            let q = model.q_from_joints(&ours(&per), base);
+            let got = f.eval(&[&q, &ours(&vec_of(&st["qd"])), &ours(&vec_of(&st["qdd"]))]);
+            for (fi, frame) in frames.iter().enumerate() {
+                let want = &st["frames"][*frame]["classical_acceleration_derivatives_local"];
+                for (o, key) in ["dq", "dqd", "dqdd"].iter().enumerate() {
+                    let theirs = mat_of(&want[*key]);
+                    let theirs = DMatrix::from_fn(3, nv, |r, c| theirs[(r, perm.iter().position(|&i| i == c).unwrap())]);
+                    let mine = DMatrix::from_row_slice(3, nv, &got[o][fi * 3 * nv..(fi + 1) * 3 * nv]);
+                    let e = rel_err(&mine, &theirs);
+                    worst = worst.max(e);
+                    checked += 1;
+                    assert!(e <= TOL, "{name} state {s} ({}) {frame}: {key} relative error {e:.2e}", st["kind"]);
+                }
+            }
+        }
+    }
+    println!("{checked} acceleration derivatives against Pinocchio, worst {worst:.2e} (tolerance {TOL:e})");
+    assert!(checked > 1000, "only {checked} comparisons");
+}
