@@ -464,3 +464,36 @@ fn frame_acceleration_grad_matches_its_graph() {
     check!(grid_iiwa_tool_frame, "grid_iiwa", "iiwa_tool_frame");
     check!(grid_hyq_feet_floating, "grid_hyq", "hyq_feet_floating");
 }
+
+/// Four states in one `Lanes<4>` call of floating HyQ's frame kernels give bit-identical
+/// results to four scalar calls (the dispatcher's copy and the portable one).
+#[test]
+fn frame_kernel_lanes_are_bit_identical_to_scalar_calls() {
+    use grid_gen_kernels::scenes::grid_hyq_feet_floating as k;
+    let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_feet_floating");
+    let mut rng = Rng(47);
+    let st: Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> =
+        states(&model, &mut rng).into_iter().take(4).map(|(_, per, qd, u)| (model.q_from_joints(&per, rng.base_pose()), qd, u)).collect();
+    let q: [k::Lanes<4>; k::NQ] = std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].0[j])));
+    let qd: [k::Lanes<4>; k::NV] = std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].1[j])));
+    let u: [k::Lanes<4>; k::NV] = std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].2[j])));
+    macro_rules! check {
+        ($c:path) => {{
+            use $c as c;
+            let lj = c::frame_jacobian(&q);
+            let la = c::frame_acceleration(&q, &qd, &u);
+            for (l, s) in st.iter().enumerate() {
+                let sq: [f64; k::NQ] = std::array::from_fn(|i| s.0[i]);
+                let sqd: [f64; k::NV] = std::array::from_fn(|i| s.1[i]);
+                let su: [f64; k::NV] = std::array::from_fn(|i| s.2[i]);
+                let (j, a) = (c::frame_jacobian(&sq), c::frame_acceleration(&sq, &sqd, &su));
+                let lanes_j: Vec<u64> = lj.as_flattened().as_flattened().iter().map(|x| x.0[l].to_bits()).collect();
+                let lanes_a: Vec<u64> = la.as_flattened().iter().map(|x| x.0[l].to_bits()).collect();
+                assert_eq!(lanes_j, j.as_flattened().as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>(), "lane {l}: jacobian");
+                assert_eq!(lanes_a, a.as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>(), "lane {l}: acceleration");
+            }
+        }};
+    }
+    check!(k);
+    check!(k::portable);
+}
