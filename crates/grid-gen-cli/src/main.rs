@@ -247,7 +247,9 @@ enum Command {
     ///
     /// Input: {"states": [{"q": [...], "qd": [...], "qdd": [...], "tau": [...]}]} in model
     /// order (qdd and tau optional). Output: per state rnea, drnea_dq, drnea_dqd (with qdd),
-    /// M, Minv, fd, dfd_dq, dfd_dqd (with tau); matrices row-major, [i][j] = ∂out_i/∂in_j.
+    /// M, Minv, fd, dfd_dq, dfd_dqd (with tau); matrices row-major, [i][j] = ∂out_i/∂in_j;
+    /// with --frames, frames.LINK: translation, rotation, jacobian, velocity and (with qdd)
+    /// classical_acceleration, in Pinocchio's reference frames (README, Frames).
     Eval {
         /// The robot description.
         #[arg(value_name = "ROBOT.urdf")]
