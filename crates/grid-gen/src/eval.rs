@@ -167,8 +167,10 @@ pub struct EvalOutput {
 pub enum EvalError {
     #[error("cannot read the states file: {0}")]
     Json(#[from] serde_json::Error),
-    #[error("state {index}: `{field}` has {found} entries, the robot has {expected} joints")]
-    Length { index: usize, field: &'static str, found: usize, expected: usize },
+    #[error("state {index}: `{field}` has {found} entries, the robot has {expected} {unit}")]
+    Length { index: usize, field: &'static str, found: usize, expected: usize, unit: &'static str },
+    #[error("the states file is a bare array: write it as an object, {{\"states\": [{{\"q\": [...], \"qd\": [...]}}, ...]}}")]
+    BareArray,
     #[error(
         "state {index}: `q` has {found} entries, expected {expected}: the floating base's position and quaternion \
          `[x, y, z, qx, qy, qz, qw]`, then one per joint after the base (nq = nv + 1, Pinocchio's layout)"
@@ -218,6 +220,9 @@ fn gradient_rows(model: &Model, m: &nalgebra::DMatrix<f64>) -> Matrix {
 /// Parses a states file (see [`StatesFile`]); bare `NaN`/`Infinity` are read so that
 /// [`check_states`] can point at them.
 pub fn parse_states(json: &str) -> Result<StatesFile, EvalError> {
+    if json.trim_start().starts_with('[') {
+        return Err(EvalError::BareArray);
+    }
     Ok(serde_json::from_str(&quote_non_finite(json))?)
 }
 
@@ -256,7 +261,14 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
                 return Err(EvalError::FloatingLength { index, found: v.len(), expected: model.nq() });
             }
             if v.len() != n && !(field == "q" && model.nq() != n) {
-                return Err(EvalError::Length { index, field, found: v.len(), expected: n });
+                // q has one entry per joint here; the others one per velocity coordinate,
+                // which a floating base's six make more than its joints.
+                let unit = match (field, model.floating) {
+                    ("q", _) => "joints",
+                    (_, true) => "velocity coordinates (nv: the floating base's six, then one per joint)",
+                    _ => "joints (one velocity coordinate each)",
+                };
+                return Err(EvalError::Length { index, field, found: v.len(), expected: n, unit });
             }
             if let Some(entry) = v.iter().position(|x| !x.is_finite()) {
                 return Err(EvalError::NotFinite { index, field, entry });

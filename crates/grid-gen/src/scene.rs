@@ -160,6 +160,32 @@ fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<Payload>, D
     })
 }
 
+/// Top-level keys of a scene file: in TOML they must come before the first `[table]`, or
+/// they belong to it.
+const TOP_LEVEL: [&str; 7] = ["outputs", "gravity", "drop", "keep", "static", "floating_base", "mimic"];
+
+/// When a scene fails to parse: a top-level key written after a table header (`static =
+/// true` after `[lock]` reads as a joint to lock), as the reason.
+fn misplaced_key(text: &str) -> Option<String> {
+    let mut table = None;
+    for (n, line) in text.lines().enumerate() {
+        let line = line.trim();
+        if line.starts_with('[') {
+            table = Some(line.trim_matches(|c| c == '[' || c == ']').trim().to_string());
+            continue;
+        }
+        let key = line.split('=').next().map(str::trim).unwrap_or("");
+        if let (Some(t), true) = (&table, line.contains('=') && TOP_LEVEL.contains(&key)) {
+            return Some(format!(
+                "line {}: `{key}` is a top-level key, but it comes after `[{t}]`, so TOML reads it as part of that table; \
+                 move it above the first [table] header",
+                n + 1
+            ));
+        }
+    }
+    None
+}
+
 /// A scene file that cannot be read.
 #[derive(Debug, thiserror::Error)]
 #[error("scene `{path}`: {message}")]
@@ -171,7 +197,7 @@ pub struct SceneError {
 impl Scene {
     /// Parses a scene file's text; `path` names it in errors.
     pub fn parse(path: &str, text: &str) -> Result<Scene, SceneError> {
-        let scene: Scene = toml::from_str(text).map_err(|e| SceneError { path: path.to_string(), message: e.to_string().trim_end().to_string() })?;
+        let scene: Scene = toml::from_str(text).map_err(|e| SceneError { path: path.to_string(), message: misplaced_key(text).unwrap_or_else(|| e.to_string().trim_end().to_string()) })?;
         let err = |message: String| Err(SceneError { path: path.to_string(), message });
         if let Some(g) = scene.gravity {
             if g.iter().any(|x| !x.is_finite()) {

@@ -15,7 +15,16 @@ use crate::diagnostic::{Diagnostic, LoadError, Severity};
 /// Parses and checks a URDF; on success returns it with the tree it describes and any
 /// warnings. Never panics, whatever the input.
 pub fn load(path: &str, text: &str) -> Result<(Urdf, Tree, Vec<Diagnostic>), LoadError> {
-    let fail = |diagnostics: Vec<Diagnostic>| LoadError { path: path.to_string(), source_text: text.to_string(), diagnostics };
+    let fail = |mut diagnostics: Vec<Diagnostic>| {
+        // A xacro file is not URDF until xacro expands its macros; say so, whatever broke.
+        if path.ends_with(".xacro") || text.contains("xmlns:xacro") {
+            diagnostics.push(
+                Diagnostic::error(format!("{path} is a xacro file (macros, not URDF)"), None, "xacro is not expanded here")
+                    .with_help("expand it first: `xacro robot.urdf.xacro > robot.urdf` (ROS's xacro, or `pip install xacro`)"),
+            );
+        }
+        LoadError { path: path.to_string(), source_text: text.to_string(), diagnostics }
+    };
     let (urdf, mut diags) = parse::parse(text);
     let Some(urdf) = urdf else { return Err(fail(diags)) };
     if diags.iter().any(|d| d.severity == Severity::Error) {
