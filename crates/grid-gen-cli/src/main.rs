@@ -310,9 +310,10 @@ enum Command {
         #[command(flatten)]
         kernel: KernelArgs,
     },
-    /// Time the WGSL kernels on batches of seeded random states (GPU or lavapipe).
+    /// Time the generated kernels: WGSL on batches of states (GPU or lavapipe), or with
+    /// --backend rust the Rust kernels per call on this CPU.
     ///
-    /// Prints, per kernel, strategy and batch size N: microseconds per batch for the
+    /// WGSL prints, per kernel, strategy and batch size N: microseconds per batch for the
     /// dispatch alone (inputs on the device) and for the round trip (upload, dispatch,
     /// read back), and states per second (medians of repeated runs).
     Bench {
@@ -547,6 +548,8 @@ fn run(cli: Cli) -> ExitCode {
                 let options = cli.wgsl.options();
                 let strategy =
                     if cli.wgsl.wgsl_strategy == "cooperative" { grid_gen::back::wgsl::Strategy::Cooperative } else { grid_gen::back::wgsl::Strategy::Thread };
+                // Which adapter and number type the JSON comes from (stdout stays JSON).
+                eprintln!("eval: WGSL on `{}`, {}, {} strategy", gpu.adapter(), options.precision.name(), strategy.name());
                 return match grid_gen_wgpu::evaluate(&gpu, &model, &file, gravity, &options, strategy) {
                     Ok(out) => print(&(serde_json::to_string(&out).expect("results serialise") + "\n")),
                     Err(e) => fail(format!("{}: {e}", states.display())),
@@ -620,7 +623,13 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
         };
         match parsed {
             Ok(p) => formats.push(p),
-            Err(e) => return fail(format!("--formats: {e}; available: f64, f32, fixed, fixed:WIDTH.FRAC, fixed:auto, wgsl")),
+            // One list of what exists, here (the library's message names only the problem).
+            Err(e) => {
+                return fail(format!(
+                    "--formats: {e}; available: f64, f32, mixed, mixed:TARGET (e.g. mixed:1e-10), fixed (the Verilog options' format), \
+                     fixed:WIDTH.FRAC (e.g. fixed:32.16), fixed:auto, wgsl"
+                ))
+            }
         }
     }
     let gpu = if want_wgsl {
@@ -670,7 +679,12 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
         }
     }
     if let Some(path) = &args.plot {
-        if let Err(e) = std::fs::write(path, accuracy::svg(&report)) {
+        // As `-o` does, the plot's folder is created.
+        let written = match path.parent().filter(|p| !p.as_os_str().is_empty()) {
+            Some(dir) => std::fs::create_dir_all(dir).and_then(|_| std::fs::write(path, accuracy::svg(&report))),
+            None => std::fs::write(path, accuracy::svg(&report)),
+        };
+        if let Err(e) = written {
             return fail(format!("cannot write {}: {e}", path.display()));
         }
     }
@@ -898,6 +912,11 @@ fn with_default_command(args: Vec<std::ffi::OsString>) -> Result<Vec<std::ffi::O
 }
 
 fn main() -> ExitCode {
+    // Mesa's Vulkan loader prints `XDG_RUNTIME_DIR is invalid or not set` on every adapter
+    // query without it (DESIGN.md); nothing of ours reads it.
+    if std::env::var_os("XDG_RUNTIME_DIR").is_none() {
+        std::env::set_var("XDG_RUNTIME_DIR", std::env::temp_dir());
+    }
     let args = match with_default_command(std::env::args_os().collect()) {
         Ok(a) => a,
         Err(message) => {

@@ -244,6 +244,16 @@ fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
             return;
         }
         assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+        // stderr names the adapter, the number type and the strategy, and nothing from Mesa
+        // about XDG_RUNTIME_DIR even where it is unset.
+        let quiet = Command::new(env!("CARGO_BIN_EXE_grid-gen"))
+            .current_dir(repo())
+            .args(["eval", u, "--states", s, "--backend", "wgsl", "--wgsl-strategy", strategy])
+            .env_remove("XDG_RUNTIME_DIR")
+            .output()
+            .unwrap();
+        let err = String::from_utf8_lossy(&quiet.stderr);
+        assert!(err.contains("eval: WGSL on `") && err.contains(&format!("f32, {strategy} strategy")) && !err.contains("XDG_RUNTIME_DIR"), "{err}");
         let (want, got) = (json(&reference), json(&out));
         assert_eq!(want["joint_names"], got["joint_names"]);
         for (ws, gs) in want["states"].as_array().unwrap().iter().zip(got["states"].as_array().unwrap()) {
@@ -417,7 +427,15 @@ fn accuracy_measures_every_format_and_plots() {
     assert!(text.contains("cond(M): median") && text.contains("rnea_grad    fixed 32.16 half-up"), "{text}");
     let bad = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--formats", "f16"]);
     assert_eq!(bad.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown number format `f16`"));
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert!(err.contains("unknown number format `f16`") && err.matches("available").count() == 1, "one list of the formats: {err}");
+    // --plot creates its folder, as -o does.
+    let plot_dir = std::env::temp_dir().join(format!("grid-gen-plot-{}", std::process::id()));
+    let nested = plot_dir.join("plots/x.svg");
+    let out = grid_gen(&["accuracy", "robots/double_pendulum_continuous.urdf", "--random", "2", "--formats", "f64", "--plot", nested.to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(std::fs::read_to_string(&nested).unwrap().starts_with("<svg"));
+    std::fs::remove_dir_all(&plot_dir).unwrap();
     let bad = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--kernels", "aba"]);
     assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown kernel `aba`"));
     let gpu = grid_gen(&["accuracy", "robots/double_pendulum_continuous.urdf", "--random", "4", "--formats", "f32,wgsl", "--json"]);

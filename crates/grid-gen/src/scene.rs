@@ -197,7 +197,8 @@ pub struct SceneError {
 impl Scene {
     /// Parses a scene file's text; `path` names it in errors.
     pub fn parse(path: &str, text: &str) -> Result<Scene, SceneError> {
-        let scene: Scene = toml::from_str(text).map_err(|e| SceneError { path: path.to_string(), message: misplaced_key(text).unwrap_or_else(|| e.to_string().trim_end().to_string()) })?;
+        let scene: Scene = toml::from_str(text)
+            .map_err(|e| SceneError { path: path.to_string(), message: misplaced_key(text).unwrap_or_else(|| e.to_string().trim_end().to_string()) })?;
         let err = |message: String| Err(SceneError { path: path.to_string(), message });
         if let Some(g) = scene.gravity {
             if g.iter().any(|x| !x.is_finite()) {

@@ -100,9 +100,7 @@ impl NumberFormat {
             _ => match s.strip_prefix("fixed:").and_then(|f| Format::parse(f, rounding)) {
                 Some(Ok(f)) => Ok(NumberFormat::Fixed(f)),
                 Some(Err(e)) => Err(e.to_string()),
-                None => Err(format!(
-                    "unknown number format `{s}`; available: f64, f32, mixed, mixed:TARGET (e.g. mixed:1e-10), fixed:WIDTH.FRAC (e.g. fixed:32.16), fixed:auto"
-                )),
+                None => Err(format!("unknown number format `{s}`")),
             },
         }
     }
