@@ -530,7 +530,11 @@ fn floating_base_from_the_command_line() {
     let fixed = json(&grid_gen(&["info", urdf, "--json"]));
     assert_eq!((fixed["nq"].as_u64(), fixed["floating_base"].as_bool()), (Some(12), Some(false)));
     let summary = grid_gen(&[urdf, "--floating-base"]);
-    assert!(String::from_utf8_lossy(&summary.stdout).contains("floating base: joints 0-5 are the free-flyer"), "{}", String::from_utf8_lossy(&summary.stdout));
+    let text = String::from_utf8_lossy(&summary.stdout);
+    assert!(text.contains("floating base: joints 0-5 are the free-flyer"), "{text}");
+    // One joint as Pinocchio names it, with its six velocity coordinates.
+    assert!(text.contains("  0-5  root_joint  (free-flyer, Pinocchio's JointModelFreeFlyer; velocity coordinates root_joint_vx,"), "{text}");
+    assert!(!text.contains("    0  root_joint_vx"), "{text}");
 
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-floating-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();

@@ -253,7 +253,19 @@ impl Info {
         let [gx, gy, gz] = self.gravity;
         s.push_str(&format!("gravity: {gx}, {gy}, {gz} m/s²\n"));
         s.push_str("joints (model order):\n");
-        for (i, name) in self.joint_names.iter().enumerate() {
+        // A free-flyer is one joint to a Pinocchio user (`root_joint`), six velocity
+        // coordinates to the kernels: one line, naming both.
+        let skip = if self.floating_base {
+            let name = self.joint_names[0].strip_suffix("_vx").unwrap_or(&self.joint_names[0]);
+            s.push_str(&format!(
+                "  0-5  {name}  (free-flyer, Pinocchio's JointModelFreeFlyer; velocity coordinates {}, linear then angular in the base frame)\n",
+                self.joint_names[..6].join(", ")
+            ));
+            6
+        } else {
+            0
+        };
+        for (i, name) in self.joint_names.iter().enumerate().skip(skip) {
             let parent = self.parents[i].map_or("root".to_string(), |p| format!("{p}"));
             s.push_str(&format!("  {i:>3}  {name}  ({}, parent {parent})\n", self.joint_types[i].as_str()));
         }
