@@ -426,6 +426,25 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
     }
 }
 
+/// What a scene changed about the robot, for the text summaries (empty without a scene).
+fn scene_lines(scene: &grid_gen::Scene) -> String {
+    let mut s = String::new();
+    if !scene.lock.is_empty() {
+        let locked: Vec<String> = scene.lock.iter().map(|(j, v)| format!("{j} = {v}")).collect();
+        s.push_str(&format!("scene: locked (fixed at these positions): {}\n", locked.join(", ")));
+    }
+    if !scene.keep.is_empty() {
+        s.push_str(&format!("scene: kept only the subtrees of {} (and the paths to them)\n", scene.keep.join(", ")));
+    }
+    if !scene.drop.is_empty() {
+        s.push_str(&format!("scene: dropped {} with everything below\n", scene.drop.join(", ")));
+    }
+    for p in &scene.payload {
+        s.push_str(&format!("scene: payload of {} kg on {}, com {:?} (link frame), inertia {:?} about the com\n", p.mass, p.link, p.com, p.inertia));
+    }
+    s
+}
+
 fn print(text: &str) -> ExitCode {
     let mut out = std::io::stdout().lock();
     match out.write_all(text.as_bytes()).and_then(|_| out.flush()) {
@@ -497,7 +516,7 @@ fn run(cli: Cli) -> ExitCode {
             };
             let gravity = scene.gravity.unwrap_or(kernel.gravity);
             match out {
-                None => print(&(Info::with_options(&model, gravity, kernel.gradient()).to_text() + "(pass -o DIR to generate code)\n")),
+                None => print(&(Info::with_options(&model, gravity, kernel.gradient()).to_text() + &scene_lines(&scene) + "(pass -o DIR to generate code)\n")),
                 Some(dir) => {
                     let kernels = scene.kernels().unwrap_or_default();
                     generate(&model, &dir, emit, gravity, kernel.gradient(), kernels, check, avx512, &cli.verilog, &cli.wgsl)
@@ -510,7 +529,7 @@ fn run(cli: Cli) -> ExitCode {
                 if json {
                     print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))
                 } else {
-                    print(&info.to_text())
+                    print(&(info.to_text() + &scene_lines(&scene)))
                 }
             }
             Err(code) => code,

@@ -463,6 +463,9 @@ fn a_scene_reduces_every_command() {
     let scene = dir.join("scene.toml");
     std::fs::write(&scene, "outputs = [\"rnea_grad\"]\ngravity = [0.0, 0.0, -1.62]\n[lock]\niiwa_joint_7 = 0.3\n").unwrap();
     let s = scene.to_str().unwrap();
+    // The text summary says what the scene changed.
+    let text = grid_gen(&["--scene", s, "robots/grid_iiwa.urdf"]);
+    assert!(String::from_utf8_lossy(&text.stdout).contains("scene: locked (fixed at these positions): iiwa_joint_7 = 0.3\n"));
     let info = grid_gen(&["--scene", s, "info", "robots/grid_iiwa.urdf", "--json"]);
     assert_eq!(info.status.code(), Some(0), "{}", String::from_utf8_lossy(&info.stderr));
     let info = json(&info);
