@@ -113,4 +113,19 @@ fn the_plot_has_a_point_per_measured_row_and_escapes_names() {
     let measured = report.rows.iter().filter(|r| r.error.is_some()).count();
     let legend = 4;
     assert_eq!(svg.matches("<circle").count(), measured + legend);
+    // The axes follow the data: times of 0.5 to 3 ns (under any operation count)
+    // and an error of 7.5e-18 (under the old 1e-17 floor) are drawn inside the plot area.
+    let mut timed = report.clone();
+    for (k, r) in timed.rows.iter_mut().enumerate() {
+        r.time_ns = Some(0.5 + 0.5 * (k % 6) as f64);
+        if let Some(e) = r.error.as_mut() {
+            e.median = 7.5e-18;
+        }
+    }
+    let svg = accuracy::svg(&timed);
+    let number = |s: &str, key: &str| -> f64 { s.split(key).nth(1).unwrap().split('"').next().unwrap().parse().unwrap() };
+    for point in svg.split("<line x1=").skip(1).filter(|l| l.contains("<circle cx=\"")) {
+        let (cx, cy) = (number(point, "<circle cx=\""), number(point, "cy=\""));
+        assert!((70.0..=550.0).contains(&cx) && (40.0..430.0).contains(&cy), "point at ({cx}, {cy}) outside the plot area");
+    }
 }

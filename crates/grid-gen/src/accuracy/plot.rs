@@ -52,10 +52,13 @@ pub fn svg(report: &Report) -> String {
             formats.push(&r.format);
         }
     }
-    // Errors of exactly 0 (a kernel that is exact in a format) sit on the bottom axis.
-    let floor = 1e-17;
+    // Errors of exactly 0 (a kernel that is exact in a format) sit on the bottom axis, a
+    // decade under the smallest nonzero error, so that no measured point is pinned to it.
+    let smallest = points.iter().flat_map(|(_, e)| [e.median, e.max]).filter(|&x| x > 0.0).fold(f64::INFINITY, f64::min);
+    let floor = if smallest.is_finite() { smallest / 10.0 } else { 1e-17 };
+    // The axis spans the cost actually drawn: time per call with `--time`, else operations.
     let (x_lo, x_hi) =
-        decades(points.iter().map(|(r, _)| r.ops as f64).fold(f64::INFINITY, f64::min).min(1e6), points.iter().map(|(r, _)| r.ops as f64).fold(1.0, f64::max));
+        decades(points.iter().map(|(r, _)| cost(r)).fold(f64::INFINITY, f64::min).min(1e6), points.iter().map(|(r, _)| cost(r)).fold(1.0, f64::max));
     let (y_lo, y_hi) =
         decades(points.iter().map(|(_, e)| e.median.max(floor)).fold(1.0, f64::min), points.iter().map(|(_, e)| e.max.max(floor)).fold(floor * 10.0, f64::max));
     let px = |x: f64| LEFT + (x.log10() - x_lo as f64) / (x_hi - x_lo) as f64 * (W - LEFT - RIGHT);
