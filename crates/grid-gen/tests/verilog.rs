@@ -166,8 +166,9 @@ fn spherical_pendulum_bit_exact_and_within_bound() {
     run_model(model, &BOTH, 40);
 }
 
-/// The frame Jacobian (LOCAL_WORLD_ALIGNED, the default) of iiwa's flange and UR5's tool0
-/// (a link merged by fixed joints): a short datapath fed sin q and cos q, bit-exact in
+/// The frame Jacobian (LOCAL_WORLD_ALIGNED, the default) of iiwa's flange, UR5's tool0
+/// (a link merged by fixed joints) and a floating double pendulum's tip (the base pose
+/// enters as q ports, random poses): a short datapath fed sin q and cos q, bit-exact in
 /// simulation and within its analysed bound of the reference, both architectures.
 #[test]
 fn frame_jacobians_bit_exact_and_within_bound() {
@@ -175,8 +176,9 @@ fn frame_jacobians_bit_exact_and_within_bound() {
         return;
     }
     use grid_gen::model::ReferenceFrame;
-    for (robot, frame) in [("grid_iiwa", "iiwa_link_7"), ("ur5", "tool0")] {
-        let model = grid_gen_test_support::with_frames(&load(robot), &[frame], ReferenceFrame::LocalWorldAligned);
+    let cases = [(load("grid_iiwa"), "iiwa_link_7"), (load("ur5"), "tool0"), (load_floating("double_pendulum_continuous"), "link2")];
+    for (robot, frame) in cases {
+        let model = grid_gen_test_support::with_frames(&robot, &[frame], ReferenceFrame::LocalWorldAligned);
         let m = ir::lower(&model, GRAVITY, &LowerOptions { kernels: vec![KernelKind::FrameJacobian], ..LowerOptions::default() }).unwrap();
         for arch in BOTH {
             let netlists = plan(&m, &VerilogOptions { arch, kernels: vec![KernelKind::FrameJacobian], ..VerilogOptions::default() }).unwrap();
