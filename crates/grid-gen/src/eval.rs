@@ -233,17 +233,11 @@ pub fn parse_states(json: &str) -> Result<StatesFile, EvalError> {
 /// integrators drift by ~1e-7 per step).
 pub const QUATERNION_TOLERANCE: f64 = 1e-3;
 
-/// A spherical joint's URDF name (its first model joint's, less the `_wx`).
-fn spherical_name(model: &Model, first: usize) -> String {
-    let name = &model.joints[first].name;
-    name.strip_suffix("_wx").unwrap_or(name).to_string()
-}
-
 /// Where each spherical joint's quaternion is in q, for an error message.
 fn spherical_layout(model: &Model) -> String {
     let base = if model.floating { "the floating base's `[x, y, z, qx, qy, qz, qw]` at q[0..7]; " } else { "" };
     let joints: Vec<String> =
-        model.spherical.iter().map(|&s| format!("`{}` at q[{}..{}]", spherical_name(model, s), model.group_q(s), model.group_q(s) + 4)).collect();
+        model.spherical.iter().map(|&s| format!("`{}` at q[{}..{}]", model.joint_name(s), model.group_q(s), model.group_q(s) + 4)).collect();
     format!("{base}{}", joints.join(", "))
 }
 
@@ -284,7 +278,7 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
             let at = model.group_q(first);
             let norm = s.q[at..at + 4].iter().map(|x| x * x).sum::<f64>().sqrt();
             if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
-                return Err(EvalError::SphericalQuaternion { index, joint: spherical_name(model, first), at, norm });
+                return Err(EvalError::SphericalQuaternion { index, joint: model.joint_name(first).to_string(), at, norm });
             }
         }
         if let (true, Some(entry)) = (model.specialisation.static_velocity, s.qd.iter().position(|&x| x != 0.0)) {

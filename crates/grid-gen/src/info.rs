@@ -114,16 +114,6 @@ pub struct Info {
     pub wgsl_skipped: Option<String>,
 }
 
-/// The name of the joint that moves body `b`: a multi-dof joint's own name (the free-flyer's
-/// `root_joint`, a spherical joint's), not its members'.
-fn joint_name(model: &Model, b: usize) -> String {
-    let name = &model.joints[b].name;
-    match model.group(b) {
-        Some(g) => model.joints[g.start].name.rsplit_once('_').map_or(name.clone(), |(n, _)| n.to_string()),
-        None => name.clone(),
-    }
-}
-
 /// The most operations × depth per kernel that `info` plans WGSL entry points for
 /// (Atlas's `fd_grad`: 2.1e7).
 pub const WGSL_STATS_MAX_WORK: usize = 50_000_000;
@@ -150,7 +140,7 @@ impl Info {
                 .iter()
                 .map(|f| FrameInfo {
                     name: f.name.clone(),
-                    parent_joint: f.body.map(|b| joint_name(model, b)),
+                    parent_joint: f.body.map(|b| model.joint_name(b).to_string()),
                     translation: f.placement.pos,
                     rotation: f.placement.rot,
                 })

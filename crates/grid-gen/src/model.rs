@@ -462,6 +462,16 @@ impl Model {
         base.into_iter().chain(self.spherical.iter().map(|&s| self.group_q(s))).collect()
     }
 
+    /// The name of the joint that moves body `i`, as Pinocchio names it: a multi-dof joint's
+    /// own name (the free-flyer's `root_joint`, a spherical joint's), not its members'
+    /// (`<name>_vx` ... `<name>_wz`, see [`FREE_FLYER`] and [`SPHERICAL`]).
+    pub fn joint_name(&self, i: usize) -> &str {
+        let Some(g) = self.group(i) else { return &self.joints[i].name };
+        let first = &self.joints[g.start].name;
+        let suffix = if self.is_free_flyer(g.start) { FREE_FLYER[0].0 } else { SPHERICAL[0].0 };
+        first.strip_suffix(suffix).and_then(|n| n.strip_suffix('_')).unwrap_or(first)
+    }
+
     /// The frame named `name`.
     pub fn frame(&self, name: &str) -> Option<usize> {
         self.frames.iter().position(|f| f.name == name)

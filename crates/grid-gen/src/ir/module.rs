@@ -118,11 +118,7 @@ impl Robot {
                 .filter_map(|i| model.coupling(i).map(|c| (model.joints[i].name.clone(), model.joints[c.of].name.clone(), c.multiplier, c.offset)))
                 .collect(),
             floating: model.floating,
-            spherical: model
-                .spherical
-                .iter()
-                .map(|&s| (model.joints[s].name.strip_suffix("_wx").unwrap_or(&model.joints[s].name).to_string(), model.group_q(s)))
-                .collect(),
+            spherical: model.spherical.iter().map(|&s| (model.joint_name(s).to_string(), model.group_q(s))).collect(),
             q_coordinates: {
                 let mut at = vec![None; model.nq()];
                 for k in 0..model.nv() {

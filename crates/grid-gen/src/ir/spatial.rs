@@ -365,15 +365,10 @@ pub fn joint_xform(g: &mut Graph, model: &Model, i: usize) -> Xform {
 /// plux(E_p E_T, r_T + E_Tᵀ p) with E_p = Rᵀ from q's quaternion (`[qx, qy, qz, qw]`,
 /// scaled by 1/|q|² as in `spatial::quaternion_matrix`) and p the free-flyer's position
 /// (q's entries 0..3; a spherical joint has none).
-fn group_xform(g: &mut Graph, model: &Model, i: usize, et: [[Id; 3]; 3], rt: V3) -> Xform {
-    if model.group(i).is_none_or(|m| m.start != i) {
-        return Xform { e: et, r: rt };
-    }
-    let input = |g: &mut Graph, k: usize| g.input(super::graph::Input::Q, k);
-    let free = model.is_free_flyer(i);
-    let at = if free { 3 } else { model.group_q(i) };
-    let p: Option<V3> = free.then(|| std::array::from_fn(|k| input(g, k)));
-    let [x, y, z, w] = std::array::from_fn(|k| input(g, at + k));
+/// The rotation of quaternion `[x, y, z, w]` (axes of the rotated frame in the parent's,
+/// row-major), scaled by s = 2/|q|² as `spatial::quaternion_matrix` (Eigen's
+/// `toRotationMatrix`), so that a slightly non-unit quaternion rotates as its normalised self.
+pub fn quaternion_rotation(g: &mut Graph, [x, y, z, w]: [Id; 4]) -> [[Id; 3]; 3] {
     let norm2 = g.dot(&[x, y, z, w], &[x, y, z, w]);
     let two = k(g, 2.0);
     let s = g.div(two, norm2);
@@ -390,11 +385,23 @@ fn group_xform(g: &mut Graph, model: &Model, i: usize, et: [[Id; 3]; 3], rt: V3)
         let t = g.mul(s, t);
         g.sub(one, t)
     };
-    let r = [
+    [
         [diag(g, y, z), pair(g, x, y, z, w, false), pair(g, x, z, y, w, true)],
         [pair(g, x, y, z, w, true), diag(g, x, z), pair(g, y, z, x, w, false)],
         [pair(g, x, z, y, w, false), pair(g, y, z, x, w, true), diag(g, x, y)],
-    ];
+    ]
+}
+
+fn group_xform(g: &mut Graph, model: &Model, i: usize, et: [[Id; 3]; 3], rt: V3) -> Xform {
+    if model.group(i).is_none_or(|m| m.start != i) {
+        return Xform { e: et, r: rt };
+    }
+    let input = |g: &mut Graph, k: usize| g.input(super::graph::Input::Q, k);
+    let free = model.is_free_flyer(i);
+    let at = if free { 3 } else { model.group_q(i) };
+    let p: Option<V3> = free.then(|| std::array::from_fn(|k| input(g, k)));
+    let [x, y, z, w] = std::array::from_fn(|k| input(g, at + k));
+    let r = quaternion_rotation(g, [x, y, z, w]);
     // E = E_p E_T with E_p = Rᵀ: entry (a, b) = Σ_c R[c][a] E_T[c][b].
     let e = std::array::from_fn(|a| std::array::from_fn(|b| g.dot(&[r[0][a], r[1][a], r[2][a]], &[et[0][b], et[1][b], et[2][b]])));
     let r = match p {

@@ -267,27 +267,9 @@ impl Dynamics<'_> {
         let g = &mut self.g;
         let [x, y, z, w] = std::array::from_fn(|c| g.input(Input::Q, at + c));
         if free && member < 3 {
-            // Column `member` of the quaternion's rotation, scaled by 2/|q|² as the kernels build it.
-            let norm2 = g.dot(&[x, y, z, w], &[x, y, z, w]);
-            let two = g.constant(2.0);
-            let s = g.div(two, norm2);
-            let one = g.constant(1.0);
-            let pair = |g: &mut Graph, a: Id, b: Id, c: Id, d: Id, plus: bool| {
-                let ab = g.mul(a, b);
-                let cd = g.mul(c, d);
-                let t = if plus { g.add(ab, cd) } else { g.sub(ab, cd) };
-                g.mul(s, t)
-            };
-            let diag = |g: &mut Graph, a: Id, b: Id| {
-                let t = g.dot(&[a, b], &[a, b]);
-                let t = g.mul(s, t);
-                g.sub(one, t)
-            };
-            let column = match member {
-                0 => [diag(g, y, z), pair(g, x, y, z, w, true), pair(g, x, z, y, w, false)],
-                1 => [pair(g, x, y, z, w, false), diag(g, x, z), pair(g, y, z, x, w, true)],
-                _ => [pair(g, x, z, y, w, true), pair(g, y, z, x, w, false), diag(g, x, y)],
-            };
+            // Column `member` of the rotation the kernels build (hash-consing shares its nodes).
+            let r = sp::quaternion_rotation(g, [x, y, z, w]);
+            let column = [r[0][member], r[1][member], r[2][member]];
             return (0..3).map(|r| (Input::Q, r, column[r])).collect();
         }
         let axis = if free { member - 3 } else { member };
