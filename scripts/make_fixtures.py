@@ -657,6 +657,135 @@ def frames_fixtures(check):
     return stale
 
 
+# The discrete step (Crocoddyl's schemes composed from Pinocchio's aba,
+# computeABADerivatives, integrate and dIntegrate): (robot, floating, dt).
+STEPS = [("grid_iiwa", False, 0.01), ("grid_hyq", True, 0.01), ("ball_arm", True, 0.02)]
+SCHEMES = ["semi_implicit_euler", "explicit_euler", "rk4"]
+
+
+def step_model(robot, floating):
+    """The model, grid-gen's coordinate names, the idx_v of each listed coordinate, and the
+    idx_q of each of grid-gen's q entries (its layout: the base's seven, then each listed
+    coordinate's angle; spherical joints' quaternions where Pinocchio keeps them)."""
+    if robot == "ball_arm":
+        names, model = ball_arm_model(floating)
+        return model, names, list(range(model.nv)), list(range(model.nq))
+    urdf = ROBOTS / f"{robot}.urdf"
+    model = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(urdf))
+    joints = movable_joints(model, first=2 if floating else 1)
+    assert all(j[2] == 1 for j in joints), "one q entry per listed joint"
+    names = ([f"root_joint_{c}" for c in FREE_FLYER] if floating else []) + [j[0] for j in joints]
+    perm = (list(range(6)) if floating else []) + [j[3] for j in joints]
+    qidx = (list(range(7)) if floating else []) + [j[1] for j in joints]
+    return model, names, perm, qidx
+
+
+def step_record(model, data, q, v, tau, dt, scheme, act):
+    """(q+, v+, A, B) in Pinocchio's own order; `act` the idx_v of the actuated coordinates."""
+    nv = model.nv
+
+    def f(q, v):
+        a = pin.aba(model, data, q, v, tau).copy()
+        pin.computeABADerivatives(model, data, q, v, tau)
+        mi = np.triu(data.Minv) + np.triu(data.Minv, 1).T
+        return a, data.ddq_dq.copy(), data.ddq_dv.copy(), mi[:, act].copy()
+
+    def jint(q, dx):
+        jx, jdx = np.eye(2 * nv), np.eye(2 * nv)
+        jx[:nv, :nv] = pin.dIntegrate(model, q, dx[:nv], pin.ARG0)
+        jdx[:nv, :nv] = pin.dIntegrate(model, q, dx[:nv], pin.ARG1)
+        return jx, jdx
+
+    nu = len(act)
+    if scheme != "rk4":
+        a, da_dq, da_dv, da_du = f(q, v)
+        v1 = v + dt * a
+        dq = dt * (v1 if scheme == "semi_implicit_euler" else v)
+        jq = pin.dIntegrate(model, q, dq, pin.ARG0)
+        jv = pin.dIntegrate(model, q, dq, pin.ARG1)
+        avq, avv, bv = dt * da_dq, np.eye(nv) + dt * da_dv, dt * da_du
+        if scheme == "semi_implicit_euler":
+            aqq, aqv, bq = jq + dt * jv @ avq, dt * jv @ avv, dt * jv @ bv
+        else:
+            aqq, aqv, bq = jq, dt * jv, np.zeros((nv, nu))
+        return pin.integrate(model, q, dq), v1, np.block([[aqq, aqv], [avq, avv]]), np.vstack([bq, bv])
+    # Crocoddyl's IntegratedActionModelRK4 (calc and calcDiff).
+    dx, dx_dx, dx_du = np.zeros(2 * nv), np.zeros((2 * nv, 2 * nv)), np.zeros((2 * nv, nu))
+    k_prev = dk_dx_prev = dk_du_prev = None
+    for i, (c, w) in enumerate([(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)]):
+        if i == 0:
+            yq, yv, dy_dx, dy_du = q, v, np.eye(2 * nv), np.zeros((2 * nv, nu))
+        else:
+            d = c * dt * k_prev
+            yq, yv = pin.integrate(model, q, d[:nv]), v + d[nv:]
+            jx, jdx = jint(q, d)
+            dy_dx, dy_du = jx + c * dt * jdx @ dk_dx_prev, c * dt * jdx @ dk_du_prev
+        a, da_dq, da_dv, da_du = f(yq, yv)
+        df = np.block([[np.zeros((nv, nv)), np.eye(nv)], [da_dq, da_dv]])
+        dk_dx, dk_du = df @ dy_dx, df @ dy_du
+        dk_du[nv:] += da_du
+        k_prev = np.concatenate([yv, a])
+        dx += w * dt / 6 * k_prev
+        dx_dx += w * dt / 6 * dk_dx
+        dx_du += w * dt / 6 * dk_du
+        dk_dx_prev, dk_du_prev = dk_dx, dk_du
+    jx, jdx = jint(q, dx)
+    return pin.integrate(model, q, dx[:nv]), v + dx[nv:], jx + jdx @ dx_dx, jdx @ dx_du
+
+
+def step_fixture(robot, floating, dt, rng):
+    """Random states (uniform base rotations and joint quaternions), a fast one (speeds of
+    30 rad/s, so that dt q̇ turns the base by a few tenths of a radian) and a still one; τ on
+    the actuated coordinates (all but the free-flyer's six). Per scheme: q+ in grid-gen's q
+    layout, q̇+, A (2nv x 2nv) and B (2nv x nu), rows and columns [δq; δq̇] in listing order."""
+    model, names, perm, qidx = step_model(robot, floating)
+    data = model.createData()
+    nv = model.nv
+    actuated = [k for k in range(nv) if not (floating and k < 6)]
+    records = []
+    for kind, speed in [("random", 1.0)] * 6 + [("fast", 30.0), ("still", 0.0)]:
+        q = pin.randomConfiguration(model, -np.ones(model.nq) * 2, np.ones(model.nq) * 2) if robot == "ball_arm" else None
+        if q is None:
+            q = pin.neutral(model)
+            for jid in range(2 if floating else 1, model.njoints):
+                j = model.joints[jid]
+                lo, hi = model.lowerPositionLimit[j.idx_q], model.upperPositionLimit[j.idx_q]
+                q[j.idx_q] = rng.uniform(lo, hi) if np.isfinite(lo) and np.isfinite(hi) and hi - lo < 100 else rng.uniform(-np.pi, np.pi)
+            if floating:
+                quat = rng.normal(size=4)
+                q[:7] = np.concatenate([rng.normal(size=3), quat / np.linalg.norm(quat)])
+        listed_v = rng.normal(size=nv) * speed
+        listed_tau = np.zeros(nv)
+        listed_tau[actuated] = rng.normal(size=len(actuated)) * 10
+        v, tau = np.zeros(nv), np.zeros(nv)
+        v[perm], tau[perm] = listed_v, listed_tau
+        act = [perm[k] for k in actuated]
+        record = {"kind": kind, "q": [float(q[i]) for i in qidx], "qd": [float(x) for x in listed_v], "tau": [float(x) for x in listed_tau]}
+        for scheme in SCHEMES:
+            q1, v1, a, b = step_record(model, data, q, v, tau, dt, scheme, act)
+            record[scheme] = {
+                "q_next": [float(q1[i]) for i in qidx], "qd_next": [float(x) for x in np.asarray(v1)[perm]],
+                "A": mat(np.asarray(a)[np.ix_(perm + [nv + p for p in perm], perm + [nv + p for p in perm])]),
+                "B": mat(np.asarray(b)[perm + [nv + p for p in perm], :]),
+            }
+        records.append(record)
+    return {
+        "tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear], "dt": dt,
+        "joint_names": names, "actuated": [names[k] for k in actuated], "states": records,
+    }
+
+
+def step_fixtures(check):
+    stale = False
+    for robot, floating, dt in STEPS:
+        seed = sum(robot.encode()) + 31 + floating
+        pin.seed(seed)
+        np.random.seed(seed)
+        data = step_fixture(robot, floating, dt, np.random.default_rng(seed))
+        stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.step.pinocchio.json", data, check, 1e-10)
+    return stale
+
+
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     args = sys.argv[1:]
@@ -682,6 +811,8 @@ def main():
         failed |= ball_fixtures(check)
     if not only or "frames" in only:
         failed |= frames_fixtures(check)
+    if not only or "step" in only:
+        failed |= step_fixtures(check)
     if failed:
         sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 

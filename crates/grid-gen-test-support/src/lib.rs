@@ -150,7 +150,8 @@ pub fn col(v: &[f64]) -> DMatrix<f64> {
 pub use grid_gen::accuracy::Rng;
 
 /// The reference's values of kernel `kind`, in the kernel's output order; `u` is q̈ for
-/// the RNEA kernels and τ for the forward-dynamics ones.
+/// the RNEA kernels, τ for the forward-dynamics ones and the actuated joints' τ (nu
+/// entries) for the step kernels.
 pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64], u: &[f64], g: [f64; 3]) -> Vec<DMatrix<f64>> {
     match kind {
         KernelKind::Rnea => vec![col(&reference::rnea(model, q, qd, u, g))],
@@ -165,8 +166,34 @@ pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64],
             let (a, b, c) = reference::forward_dynamics_derivatives(model, q, qd, u, g);
             vec![col(&a), b, c]
         }
+        KernelKind::Step | KernelKind::StepGrad => {
+            let step = model.specialisation.step.expect("a model with a step");
+            let tau = actuated_tau(model, u);
+            if kind == KernelKind::Step {
+                let (q1, v1) = reference::step(model, q, qd, &tau, g, step);
+                return vec![col(&q1), col(&v1)];
+            }
+            let d = reference::step_derivatives(model, q, qd, &tau, g, step, &model.actuated());
+            vec![col(&d.q_next), col(&d.qd_next), d.a, d.b]
+        }
         _ => reference_frames(kind, model, q, qd, u).iter().map(|v| col(v)).collect(),
     }
+}
+
+/// τ per coordinate from the actuated joints' forces (0 on the others).
+pub fn actuated_tau(model: &Model, u: &[f64]) -> Vec<f64> {
+    let mut tau = vec![0.0; model.nv()];
+    for (&c, &t) in model.actuated().iter().zip(u) {
+        tau[c] = t;
+    }
+    tau
+}
+
+/// A model that takes a step.
+pub fn with_step(model: &Model, scheme: grid_gen::model::Scheme, dt: f64) -> Model {
+    let mut m = model.clone();
+    m.specialisation.step = Some(grid_gen::model::Step { scheme, dt });
+    m
 }
 
 /// The reference's values of a frame kernel's outputs, flat in the kernel's layout (per
@@ -217,7 +244,7 @@ pub fn kernel_args<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f6
         .map(|i| match i {
             Input::Q => q,
             Input::Qd => qd,
-            Input::Qdd | Input::Tau => u,
+            Input::Qdd | Input::Tau | Input::TauActuated => u,
         })
         .collect()
 }
@@ -227,6 +254,8 @@ pub fn kernel_args<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f6
 pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
     match shape {
         Shape::Matrix => DMatrix::from_row_slice(nv, nv, values),
-        Shape::Vector | Shape::PerFrame(_) | Shape::FrameMatrix(_) => col(values),
+        Shape::StateMatrix => DMatrix::from_row_slice(2 * nv, 2 * nv, values),
+        Shape::StateInput => DMatrix::from_row_slice(2 * nv, values.len() / (2 * nv).max(1), values),
+        Shape::Vector | Shape::PerFrame(_) | Shape::FrameMatrix(_) | Shape::Config => col(values),
     }
 }

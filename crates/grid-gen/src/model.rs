@@ -254,6 +254,59 @@ impl ReferenceFrame {
     }
 }
 
+/// How the step kernels integrate one time step (Crocoddyl's integrated action models).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Scheme {
+    /// Symplectic Euler, Crocoddyl's default: `qd+ = qd + dt qdd`, `q+ = q ⊕ dt qd+`.
+    #[default]
+    SemiImplicitEuler,
+    /// `qd+ = qd + dt qdd`, `q+ = q ⊕ dt qd`.
+    ExplicitEuler,
+    /// Classical Runge-Kutta on the manifold, as Crocoddyl's `IntegratedActionModelRK4`:
+    /// four stages `k_i = (qd_i, qdd_i)` at `x ⊕ c_i dt k_(i-1)`, then
+    /// `x+ = x ⊕ dt (k_1 + 2 k_2 + 2 k_3 + k_4) / 6`.
+    Rk4,
+}
+
+impl Scheme {
+    pub const ALL: [Scheme; 3] = [Scheme::SemiImplicitEuler, Scheme::ExplicitEuler, Scheme::Rk4];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Scheme::SemiImplicitEuler => "semi_implicit_euler",
+            Scheme::ExplicitEuler => "explicit_euler",
+            Scheme::Rk4 => "rk4",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Scheme> {
+        Scheme::ALL.into_iter().find(|s| s.name() == name)
+    }
+}
+
+/// The discrete step the step kernels take: the scheme and the time step, a constant
+/// folded into the kernels.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct Step {
+    pub scheme: Scheme,
+    /// Seconds; finite and positive.
+    pub dt: f64,
+}
+
+/// One block of the configuration space, as Pinocchio's joints integrate it: a scalar
+/// coordinate adds, a free-flyer moves on SE(3) and a spherical joint on SO(3).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum LieBlock {
+    /// Coordinate `v` (one entry of q̇) at q's entry `q`.
+    Scalar { v: usize, q: usize },
+    /// The free-flyer: q̇'s entries `0..6` (linear then angular, local), q's `0..7`
+    /// (position, then the quaternion `[x, y, z, w]`).
+    FreeFlyer,
+    /// A spherical joint: q̇'s entries `v..v + 3`, its quaternion at q's `q..q + 4`.
+    Spherical { v: usize, q: usize },
+}
+
 /// What a scene fixes beyond the robot itself (issue 10, item 6): lowering reads it, so
 /// the kernels of every backend shrink with it while keeping their signatures.
 #[derive(Clone, Debug, Default, PartialEq)]
@@ -272,6 +325,11 @@ pub struct Specialisation {
     pub frames: Vec<usize>,
     /// The reference frame of the frame kernels' Jacobian, velocity and acceleration.
     pub reference: ReferenceFrame,
+    /// The step the step kernels take; `None`: no step kernels.
+    pub step: Option<Step>,
+    /// The actuated coordinates (the columns of the step's B and the entries of its τ), in
+    /// coordinate order. `None`: every coordinate but a floating base's six.
+    pub actuated: Option<Vec<usize>>,
 }
 
 impl Specialisation {
@@ -307,6 +365,45 @@ impl Model {
 
     /// Entries of q: nv, plus one for a floating base and one per spherical joint (a
     /// quaternion for three angles).
+    /// The actuated coordinates, in coordinate order ([`Specialisation::actuated`]).
+    pub fn actuated(&self) -> Vec<usize> {
+        match &self.specialisation.actuated {
+            Some(a) => a.clone(),
+            None => (0..self.nv()).filter(|&k| !(self.floating && k < FREE_FLYER.len())).collect(),
+        }
+    }
+
+    /// Entries of the step kernels' τ: the actuated coordinates.
+    pub fn nu(&self) -> usize {
+        self.actuated().len()
+    }
+
+    /// The configuration space's blocks, in coordinate order: how `integrate` and its
+    /// derivatives act on q and the tangent space.
+    pub fn lie_blocks(&self) -> Vec<LieBlock> {
+        let joints = self.coordinate_joints();
+        let mut blocks = Vec::new();
+        let mut k = 0;
+        while k < joints.len() {
+            let j = joints[k];
+            match self.group(j) {
+                Some(_) if self.is_free_flyer(j) => {
+                    blocks.push(LieBlock::FreeFlyer);
+                    k += FREE_FLYER.len();
+                }
+                Some(m) => {
+                    blocks.push(LieBlock::Spherical { v: k, q: self.group_q(m.start) });
+                    k += SPHERICAL.len();
+                }
+                None => {
+                    blocks.push(LieBlock::Scalar { v: k, q: self.q_index(k).expect("a one-dof coordinate has a q entry") });
+                    k += 1;
+                }
+            }
+        }
+        blocks
+    }
+
     pub fn nq(&self) -> usize {
         self.nv() + usize::from(self.floating) + self.spherical.len()
     }
@@ -590,7 +687,7 @@ fn joint_motion(j: &urdf::Joint, value: f64) -> Transform {
 }
 
 /// One step of the depth-first walk (an explicit stack: deep chains must not overflow).
-enum Step {
+enum Walk {
     /// Lump a link into `body` (None: the fixed root body) at pose `in_body`, then walk on.
     Visit { link: usize, body: Option<usize>, in_body: Transform },
     /// Create the model joint for URDF joint `joint`.
@@ -622,12 +719,12 @@ pub(crate) fn build(
     let mut spherical = Vec::new();
     let mut frames = Vec::new();
     let mut stack = vec![match floating_base {
-        true => Step::Free { name: ROOT_JOINT.to_string(), link: tree.root, tree: Transform::identity() },
-        false => Step::Visit { link: tree.root, body: None, in_body: Transform::identity() },
+        true => Walk::Free { name: ROOT_JOINT.to_string(), link: tree.root, tree: Transform::identity() },
+        false => Walk::Visit { link: tree.root, body: None, in_body: Transform::identity() },
     }];
     while let Some(step) = stack.pop() {
         match step {
-            Step::Visit { link, body, in_body } => {
+            Walk::Visit { link, body, in_body } => {
                 frames.push(Frame { name: urdf.links[link].name.clone(), body, placement: in_body });
                 // The root body is fixed: its inertia never enters the dynamics.
                 if let Some(b) = body {
@@ -661,21 +758,21 @@ pub(crate) fn build(
                             continue;
                         }
                         floating = true;
-                        stack.push(Step::Free { name: uj.name.clone(), link: child, tree: origin });
+                        stack.push(Walk::Free { name: uj.name.clone(), link: child, tree: origin });
                         continue;
                     }
                     if urdf.joints[j].kind == JointKind::Fixed {
-                        stack.push(Step::Visit { link: child, body, in_body: origin });
+                        stack.push(Walk::Visit { link: child, body, in_body: origin });
                     } else if let Some(value) = edits.locked[j] {
                         // A locked joint is a fixed one at its locked position.
                         let motion = joint_motion(&urdf.joints[j], value);
-                        stack.push(Step::Visit { link: child, body, in_body: origin.compose(&motion) });
+                        stack.push(Walk::Visit { link: child, body, in_body: origin.compose(&motion) });
                     } else {
-                        stack.push(Step::Open { joint: j, parent: body, tree: origin });
+                        stack.push(Walk::Open { joint: j, parent: body, tree: origin });
                     }
                 }
             }
-            Step::Open { joint: j, parent, tree: tree_transform } if urdf.joints[j].kind == JointKind::Spherical => {
+            Walk::Open { joint: j, parent, tree: tree_transform } if urdf.joints[j].kind == JointKind::Spherical => {
                 let uj = &urdf.joints[j];
                 if mimic_coupled && uj.mimic.is_some() {
                     diags.push(
@@ -706,12 +803,12 @@ pub(crate) fn build(
                         mimic: None,
                     });
                     source.push(Some(j));
-                    stack.push(Step::Close { body: first + k });
+                    stack.push(Walk::Close { body: first + k });
                 }
                 spherical.push(first);
-                stack.push(Step::Visit { link: tree.joint_links[j].1, body: Some(first + SPHERICAL.len() - 1), in_body: Transform::identity() });
+                stack.push(Walk::Visit { link: tree.joint_links[j].1, body: Some(first + SPHERICAL.len() - 1), in_body: Transform::identity() });
             }
-            Step::Open { joint: j, parent, tree: tree_transform } => {
+            Walk::Open { joint: j, parent, tree: tree_transform } => {
                 let uj = &urdf.joints[j];
                 let norm = (uj.axis[0].powi(2) + uj.axis[1].powi(2) + uj.axis[2].powi(2)).sqrt();
                 if norm < 1e-12 {
@@ -741,10 +838,10 @@ pub(crate) fn build(
                     mimic: uj.mimic.as_ref().map(|m| (m.joint.clone(), m.multiplier, m.offset)),
                 });
                 source.push(Some(j));
-                stack.push(Step::Close { body: index });
-                stack.push(Step::Visit { link: tree.joint_links[j].1, body: Some(index), in_body: Transform::identity() });
+                stack.push(Walk::Close { body: index });
+                stack.push(Walk::Visit { link: tree.joint_links[j].1, body: Some(index), in_body: Transform::identity() });
             }
-            Step::Free { name, link, tree: tree_transform } => {
+            Walk::Free { name, link, tree: tree_transform } => {
                 for (k, &(suffix, joint_type, axis)) in FREE_FLYER.iter().enumerate() {
                     joints.push(Joint {
                         name: format!("{name}_{suffix}"),
@@ -765,11 +862,11 @@ pub(crate) fn build(
                 }
                 // Closed last-pushed-first: every free-flyer joint's subtree is the robot.
                 for k in 0..FREE_FLYER.len() {
-                    stack.push(Step::Close { body: k });
+                    stack.push(Walk::Close { body: k });
                 }
-                stack.push(Step::Visit { link, body: Some(FREE_FLYER.len() - 1), in_body: Transform::identity() });
+                stack.push(Walk::Visit { link, body: Some(FREE_FLYER.len() - 1), in_body: Transform::identity() });
             }
-            Step::Close { body } => joints[body].subtree_end = joints.len(),
+            Walk::Close { body } => joints[body].subtree_end = joints.len(),
         }
     }
     let mut coupling = if mimic_coupled { couple(urdf, &joints, &source, diags) } else { Vec::new() };

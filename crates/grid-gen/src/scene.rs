@@ -25,6 +25,13 @@
 //! names = ["iiwa_link_7"]
 //! reference = "local_world_aligned"    # or "local", "world" (Pinocchio's ReferenceFrame)
 //!
+//! [step]                               # the step kernels: one time step and [A | B]
+//! scheme = "semi_implicit_euler"       # or "explicit_euler", "rk4" (eval only)
+//! dt = 0.01                            # s, folded into the kernels
+//!
+//! [actuation]                          # the step's tau and B's columns (default: every
+//! joints = ["lf_haa_joint"]            # joint but a floating base; multi-dof by name)
+//!
 //! [[payload]]                          # or [payload] for one
 //! link = "right_gripper"
 //! mass = 1.5                           # kg
@@ -78,6 +85,29 @@ pub struct Scene {
     /// The frames the frame kernels compute (as `--frames`).
     #[serde(default)]
     pub frames: FramesSection,
+    /// The discrete step the step kernels take (as `--step` and `--dt`).
+    pub step: Option<StepSection>,
+    /// The actuated joints: the step's τ and B's columns.
+    pub actuation: Option<ActuationSection>,
+}
+
+/// `[step]`: the step kernels' scheme and time step.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct StepSection {
+    /// Default `semi_implicit_euler`.
+    pub scheme: Option<crate::model::Scheme>,
+    /// Seconds, finite and positive; required.
+    pub dt: Option<f64>,
+}
+
+/// `[actuation]`: the joints with a motor.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ActuationSection {
+    /// Joint names (a free-flyer's `root_joint` or a spherical joint's own name stands for
+    /// all its coordinates), listed in any order; B's columns follow the model's order.
+    pub joints: Vec<String>,
 }
 
 /// `[frames]`: the links whose placement, Jacobian, velocity and acceleration the frame
@@ -431,7 +461,65 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
     let rows = resolve("rows", &scene.gradient.rows);
     let columns = resolve("columns", &scene.gradient.columns);
     let frames = select_frames(scene, scene_path, urdf, model, diags);
-    Specialisation { static_velocity: scene.static_velocity, rows, columns, frames, reference: scene.frames.reference.unwrap_or_default() }
+    let step = select_step(scene, scene_path, diags);
+    let actuated = scene.actuation.as_ref().map(|a| select_actuated(&a.joints, scene_path, model, diags));
+    Specialisation { static_velocity: scene.static_velocity, rows, columns, frames, reference: scene.frames.reference.unwrap_or_default(), step, actuated }
+}
+
+/// `[step]` (or `--step`, `--dt`): a scheme and a finite, positive time step.
+fn select_step(scene: &Scene, scene_path: &str, diags: &mut Vec<Diagnostic>) -> Option<crate::model::Step> {
+    let s = scene.step.as_ref()?;
+    let whence = if scene_path.is_empty() { "--step".to_string() } else { format!("scene `{scene_path}`: [step]") };
+    let scheme = s.scheme.unwrap_or_default();
+    let Some(dt) = s.dt else {
+        diags.push(Diagnostic::error(format!("{whence} has no time step"), None, "no dt").with_help("give `dt = 0.01` in [step], or `--dt 0.01`"));
+        return None;
+    };
+    if !(dt.is_finite() && dt > 0.0) {
+        diags.push(Diagnostic::error(format!("{whence}: dt = {dt} is not a finite, positive number of seconds"), None, "bad dt").with_help("a time step such as `dt = 0.01`"));
+        return None;
+    }
+    if scene.static_velocity {
+        diags.push(
+            Diagnostic::error(format!("{whence} with `static = true`: a step moves the robot, so q̇ is not known to be 0"), None, "step in a static scene")
+                .with_help("drop `static = true` or the step"),
+        );
+        return None;
+    }
+    Some(crate::model::Step { scheme, dt })
+}
+
+/// `[actuation] joints`: each name is a coordinate's joint, or a multi-dof joint's own name
+/// for all its coordinates; an unknown or repeated name is an error.
+fn select_actuated(names: &[String], scene_path: &str, model: &Model, diags: &mut Vec<Diagnostic>) -> Vec<usize> {
+    let whence = if scene_path.is_empty() { "--actuated".to_string() } else { format!("scene `{scene_path}`: [actuation] joints") };
+    let coordinates = model.coordinate_joints();
+    let mut picked = Vec::new();
+    for name in names {
+        let found: Vec<usize> = coordinates
+            .iter()
+            .enumerate()
+            .filter(|(_, &j)| model.joints[j].name == *name || (model.group(j).is_some() && model.joint_name(j) == name))
+            .map(|(k, _)| k)
+            .collect();
+        if found.is_empty() {
+            let mut known: Vec<&str> = coordinates.iter().map(|&j| model.joint_name(j)).collect();
+            known.dedup();
+            let mut by_distance: Vec<(usize, &str)> = known.iter().map(|k| (strsim::levenshtein(name, k), *k)).collect();
+            by_distance.sort();
+            let closest: Vec<&str> = by_distance.iter().take(5).map(|(_, k)| *k).collect();
+            diags.push(
+                Diagnostic::error(format!("{whence} names `{name}`, which is not a movable joint of the model"), None, "unknown joint")
+                    .with_help(format!("closest joints: {}", closest.join(", "))),
+            );
+        } else if found.iter().any(|k| picked.contains(k)) {
+            diags.push(Diagnostic::error(format!("{whence} names joint `{name}` twice"), None, "duplicate joint").with_help("name each joint once"));
+        } else {
+            picked.extend(found);
+        }
+    }
+    picked.sort_unstable();
+    picked
 }
 
 /// Resolves `[frames] names` (or `--frames`) against the model's frames: an unknown name

@@ -13,6 +13,7 @@ use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
 use crate::model::Model;
 
 mod coupled;
+mod step;
 mod frames;
 
 /// Row-major n x n matrix of nodes.
@@ -646,8 +647,15 @@ impl<'a> Dynamics<'a> {
     /// Per-coordinate inputs and outputs: with coupled mimic joints q̈ and M⁻¹ are the
     /// constrained ones and the gradient `−M⁻¹ Gᵀ (∂c/∂u) G`.
     pub fn fd_grad(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
+        let (qdd, dq, dqd, _) = self.fd_grad_minv(qd, tau, &[]);
+        (qdd, dq, dqd)
+    }
+
+    /// [`Self::fd_grad`], and `∂q̈/∂τ` for the coordinates `columns`: those columns of
+    /// M⁻¹, from the route that formed `∂q̈/∂u` (M⁻¹ itself, or its factorisation's solves).
+    pub fn fd_grad_minv(&mut self, qd: &[Id], tau: &[Id], columns: &[usize]) -> (Vec<Id>, Mat, Mat, Mat) {
         if matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled() {
-            return self.fd_grad_ltdl(qd, tau);
+            return self.fd_grad_ltdl(qd, tau, columns);
         }
         // The constrained M⁻¹ of coupled mimic joints comes from the direct route.
         self.solve = Solve::Minv;
@@ -678,7 +686,8 @@ impl<'a> Dynamics<'a> {
         let dqd = product(&dc_qd, &mut self.g);
         let flat = |m: &Mat| m.iter().flatten().map(|&id| super::module::Operand::Node(id)).collect::<Vec<_>>();
         self.product = Some(super::module::DenseProduct { minv: flat(&mi), dc: vec![flat(&dc_q), flat(&dc_qd)], outputs: vec![1, 2] });
-        (qdd, dq, dqd)
+        let picked = mi.iter().map(|row| columns.iter().map(|&c| row[c]).collect()).collect();
+        (qdd, dq, dqd, picked)
     }
 }
 
@@ -689,7 +698,7 @@ impl Dynamics<'_> {
     /// gradient's own nodes, shared by hash-consing), then `−M⁻¹ ∂c/∂u` by the
     /// factorisation. Zero entries of ∂c/∂u (joints on different branches) fold away, so
     /// each column's solves touch only the joints it can reach.
-    fn fd_grad_ltdl(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
+    fn fd_grad_ltdl(&mut self, qd: &[Id], tau: &[Id], columns: &[usize]) -> (Vec<Id>, Mat, Mat, Mat) {
         let n = self.n();
         let zero = self.g.constant(0.0);
         let m = self.mass_matrix();
@@ -697,7 +706,7 @@ impl Dynamics<'_> {
         let by_aba = (self.solve == Solve::Ltdl).then(|| self.aba(qd, tau));
         let bias = if by_aba.is_none() { self.rnea(qd, &vec![zero; n]).c } else { Vec::new() };
         if self.exhausted() {
-            return (vec![zero; n], vec![vec![zero; n]; n], vec![vec![zero; n]; n]);
+            return (vec![zero; n], vec![vec![zero; n]; n], vec![vec![zero; n]; n], vec![vec![zero; columns.len()]; n]);
         }
         let f = self.ltdl(m);
         let qdd = by_aba.unwrap_or_else(|| {
@@ -707,7 +716,7 @@ impl Dynamics<'_> {
         let r = self.rnea(qd, &qdd);
         let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
         if self.exhausted() {
-            return (qdd, dc_q, dc_qd);
+            return (qdd, dc_q, dc_qd, vec![vec![zero; columns.len()]; n]);
         }
         self.g.at(None, Stage::Combine, 0);
         let g = &mut self.g;
@@ -723,7 +732,17 @@ impl Dynamics<'_> {
         };
         let dq = solve(&dc_q);
         let dqd = solve(&dc_qd);
-        (qdd, dq, dqd)
+        // M⁻¹ e_c = −(−M⁻¹ e_c).
+        let mut picked = vec![vec![zero; columns.len()]; n];
+        for (at, &c) in columns.iter().enumerate() {
+            let one = self.g.constant(1.0);
+            let mut e = vec![zero; n];
+            e[c] = one;
+            for (row, x) in f.solve(&mut self.g, self.model, e).into_iter().enumerate() {
+                picked[row][at] = self.g.neg(x);
+            }
+        }
+        (qdd, dq, dqd, picked)
     }
 
     /// LTDL (Featherstone 2005, table 2): M's lower triangle becomes L (unit diagonal

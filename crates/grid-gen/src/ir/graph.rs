@@ -11,13 +11,16 @@ use std::collections::HashMap;
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub struct Id(pub u32);
 
-/// The kernel inputs, one scalar per joint each.
+/// The kernel inputs: q has nq entries, the actuated forces nu, the others one per
+/// coordinate (nv).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub enum Input {
     Q,
     Qd,
     Qdd,
     Tau,
+    /// The step kernels' τ: the actuated coordinates' forces only (named `tau` too).
+    TauActuated,
 }
 
 impl Input {
@@ -26,7 +29,16 @@ impl Input {
             Input::Q => "q",
             Input::Qd => "qd",
             Input::Qdd => "qdd",
-            Input::Tau => "tau",
+            Input::Tau | Input::TauActuated => "tau",
+        }
+    }
+
+    /// Entries of the input for a robot of these sizes.
+    pub fn len(self, dims: &crate::ir::Dims) -> usize {
+        match self {
+            Input::Q => dims.nq,
+            Input::TauActuated => dims.nu,
+            Input::Qd | Input::Qdd | Input::Tau => dims.nv,
         }
     }
 }

@@ -4,6 +4,19 @@
 use super::dynamics::{Dynamics, Mat};
 use super::graph::{Id, Input};
 
+/// A robot's sizes, which the kernels' inputs and outputs are measured in.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct Dims {
+    /// Entries of q.
+    pub nq: usize,
+    /// Coordinates: entries of q̇, q̈ and τ.
+    pub nv: usize,
+    /// Actuated coordinates: entries of the step kernels' τ.
+    pub nu: usize,
+    /// Requested frames.
+    pub nframes: usize,
+}
+
 /// The shape of a kernel output.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Shape {
@@ -16,24 +29,36 @@ pub enum Shape {
     /// A `rows x nv` matrix per requested frame, frame-major, each row-major: a Jacobian
     /// (6 rows, [linear; angular] in Pinocchio's order) or a derivative of a 3-vector.
     FrameMatrix(usize),
+    /// A configuration, nq entries (the step's q⁺).
+    Config,
+    /// `2nv x 2nv`, row-major, rows and columns `[δq; δq̇]` (the step's A).
+    StateMatrix,
+    /// `2nv x nu`, row-major (the step's B).
+    StateInput,
 }
 
 impl Shape {
-    /// Number of scalars for a robot with `nv` coordinates and `nframes` requested frames.
-    pub fn len(self, nv: usize, nframes: usize) -> usize {
+    /// Number of scalars for a robot of sizes `d`.
+    pub fn len(self, d: &Dims) -> usize {
         match self {
-            Shape::Vector => nv,
-            Shape::Matrix => nv * nv,
-            Shape::PerFrame(k) => k * nframes,
-            Shape::FrameMatrix(r) => r * nv * nframes,
+            Shape::Vector => d.nv,
+            Shape::Matrix => d.nv * d.nv,
+            Shape::PerFrame(k) => k * d.nframes,
+            Shape::FrameMatrix(r) => r * d.nv * d.nframes,
+            Shape::Config => d.nq,
+            Shape::StateMatrix => 4 * d.nv * d.nv,
+            Shape::StateInput => 2 * d.nv * d.nu,
         }
     }
 
     /// The index of each dimension of entry `flat`, outermost first (`[i]`, `[i][j]` or
     /// `[frame][i]`, `[frame][row][column]`), as backends that keep the shape index it.
-    pub fn index(self, flat: usize, nv: usize) -> Vec<usize> {
+    pub fn index(self, flat: usize, d: &Dims) -> Vec<usize> {
+        let nv = d.nv;
         match self {
-            Shape::Vector => vec![flat],
+            Shape::Vector | Shape::Config => vec![flat],
+            Shape::StateMatrix => vec![flat / (2 * nv), flat % (2 * nv)],
+            Shape::StateInput => vec![flat / d.nu.max(1), flat % d.nu.max(1)],
             Shape::Matrix => vec![flat / nv, flat % nv],
             Shape::PerFrame(k) => vec![flat / k, flat % k],
             Shape::FrameMatrix(r) => vec![flat / (r * nv), (flat / nv) % r, flat % nv],
@@ -78,7 +103,7 @@ impl Gradient {
 
     /// Whether a kernel's graph holds the RNEA gradient.
     pub fn applies_to(kind: KernelKind) -> bool {
-        matches!(kind, KernelKind::RneaGrad | KernelKind::FdGrad)
+        matches!(kind, KernelKind::RneaGrad | KernelKind::FdGrad | KernelKind::StepGrad)
     }
 }
 
@@ -141,12 +166,15 @@ pub enum KernelKind {
     FrameVelocity,
     FrameAcceleration,
     FrameAccelerationGrad,
+    Step,
+    StepGrad,
 }
 
 impl KernelKind {
     /// Every kernel, in the order backends emit them. The frame kernels exist only for a
-    /// model with requested frames ([`KernelKind::is_frame`]).
-    pub const ALL: [KernelKind; 11] = [
+    /// model with requested frames ([`KernelKind::is_frame`]), the step kernels only for one
+    /// with a step ([`KernelKind::is_step`]).
+    pub const ALL: [KernelKind; 13] = [
         KernelKind::Rnea,
         KernelKind::RneaGrad,
         KernelKind::MassMatrix,
@@ -158,6 +186,8 @@ impl KernelKind {
         KernelKind::FrameVelocity,
         KernelKind::FrameAcceleration,
         KernelKind::FrameAccelerationGrad,
+        KernelKind::Step,
+        KernelKind::StepGrad,
     ];
 
     /// The dynamics kernels, those every robot has.
@@ -167,8 +197,23 @@ impl KernelKind {
     /// The kernels a model has, in [`KernelKind::ALL`] order: the dynamics kernels, and the
     /// frame kernels when it asks for frames.
     pub fn for_model(model: &crate::model::Model) -> Vec<KernelKind> {
-        let frames = !model.specialisation.frames.is_empty();
-        KernelKind::ALL.into_iter().filter(|k| frames || !k.is_frame()).collect()
+        KernelKind::ALL.into_iter().filter(|k| k.exists_for(&model.specialisation)).collect()
+    }
+
+    /// Whether a model so specialised has this kernel: the frame kernels need frames, the
+    /// step kernels a step.
+    pub fn exists_for(self, spec: &crate::model::Specialisation) -> bool {
+        (!self.is_frame() || !spec.frames.is_empty()) && (!self.is_step() || spec.step.is_some())
+    }
+
+    /// Whether the kernel takes a discrete step (and so exists only when one is asked for).
+    pub fn is_step(self) -> bool {
+        matches!(self, KernelKind::Step | KernelKind::StepGrad)
+    }
+
+    /// Whether the kernel's graph holds `fd_grad`'s (and so its choice of solve).
+    pub fn holds_fd_grad(self) -> bool {
+        matches!(self, KernelKind::FdGrad | KernelKind::StepGrad)
     }
 
     /// Whether the kernel computes frame quantities (and so exists only when frames are asked for).
@@ -197,6 +242,8 @@ impl KernelKind {
             KernelKind::FrameVelocity => "frame_velocity",
             KernelKind::FrameAcceleration => "frame_acceleration",
             KernelKind::FrameAccelerationGrad => "frame_acceleration_grad",
+            KernelKind::Step => "step",
+            KernelKind::StepGrad => "step_grad",
         }
     }
 
@@ -204,7 +251,7 @@ impl KernelKind {
         KernelKind::ALL.into_iter().find(|k| k.name() == name)
     }
 
-    /// The inputs, in argument order; each has one scalar per joint.
+    /// The inputs, in argument order ([`Input::len`] says their lengths).
     pub fn inputs(self) -> &'static [Input] {
         use Input::*;
         match self {
@@ -213,6 +260,7 @@ impl KernelKind {
             KernelKind::Fd | KernelKind::FdGrad => &[Q, Qd, Tau],
             KernelKind::FrameVelocity => &[Q, Qd],
             KernelKind::FrameAcceleration | KernelKind::FrameAccelerationGrad => &[Q, Qd, Qdd],
+            KernelKind::Step | KernelKind::StepGrad => &[Q, Qd, TauActuated],
         }
     }
 
@@ -237,6 +285,13 @@ impl KernelKind {
                 OutputSpec { name: "dacc_dqd", shape: FrameMatrix(3) },
                 OutputSpec { name: "dacc_dqdd", shape: FrameMatrix(3) },
             ],
+            KernelKind::Step => &[OutputSpec { name: "q_next", shape: Config }, OutputSpec { name: "qd_next", shape: Vector }],
+            KernelKind::StepGrad => &[
+                OutputSpec { name: "q_next", shape: Config },
+                OutputSpec { name: "qd_next", shape: Vector },
+                OutputSpec { name: "a", shape: StateMatrix },
+                OutputSpec { name: "b", shape: StateInput },
+            ],
         }
     }
 
@@ -254,6 +309,8 @@ impl KernelKind {
             KernelKind::FrameVelocity => "Each frame's spatial velocity [linear; angular] in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameVelocity`).",
             KernelKind::FrameAcceleration => "Each frame's classical acceleration (linear, with `w x v`) in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameClassicalAcceleration`); at qdd = 0, the drift `dJ/dt qd`.",
             KernelKind::FrameAccelerationGrad => "The classical acceleration's derivatives `(dacc/dq, dacc/dqd, dacc/dqdd)`, 3 x nv per frame, row-major, `dq` in the tangent space (forward-mode differentiation of `frame_acceleration`'s graph).",
+            KernelKind::Step => "One step of `STEP_SCHEME` over `DT` seconds from `(q, qd)` under the actuated joints' forces `tau` (`ACTUATED`): `(q_next, qd_next)`, q on the manifold (Pinocchio's `integrate`).",
+            KernelKind::StepGrad => "The step and its linearisation: `(q_next, qd_next, A, B)`, A = d(q_next, qd_next)/d(q, qd) (2NV x 2NV), B = d(q_next, qd_next)/d tau (2NV x NU), row-major, rows and columns `[dq; dqd]` in the tangent space (Pinocchio's `dIntegrate`).",
         }
     }
 
@@ -272,6 +329,8 @@ impl KernelKind {
             KernelKind::FrameVelocity => "each frame's spatial velocity in `REFERENCE_FRAME`.",
             KernelKind::FrameAcceleration => "each frame's classical acceleration in `REFERENCE_FRAME`.",
             KernelKind::FrameAccelerationGrad => "its derivatives, 3 x nv per frame.",
+            KernelKind::Step => "one step of `STEP_SCHEME` over `DT` seconds, q on the manifold.",
+            KernelKind::StepGrad => "the step and its linearisation `[A | B]` in the tangent space.",
         }
     }
 
@@ -285,7 +344,7 @@ impl KernelKind {
 
     /// Whether the kernel needs M⁻¹, so cannot exist for a robot whose M is singular.
     pub fn needs_minv(self) -> bool {
-        matches!(self, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad)
+        matches!(self, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad | KernelKind::Step | KernelKind::StepGrad)
     }
 
     /// Kernels whose graph contains this one's (a superset of its work): if this kernel is
@@ -293,12 +352,14 @@ impl KernelKind {
     pub fn contained_in(self) -> &'static [KernelKind] {
         use KernelKind::*;
         match self {
-            Rnea => &[RneaGrad, Fd, FdGrad],
-            RneaGrad => &[FdGrad],
+            Rnea => &[RneaGrad, Fd, FdGrad, Step, StepGrad],
+            RneaGrad => &[FdGrad, StepGrad],
             MassMatrix => &[],
-            Minv => &[Fd, FdGrad],
-            Fd => &[FdGrad],
-            FdGrad | FramePlacement | FrameJacobian | FrameVelocity | FrameAcceleration | FrameAccelerationGrad => &[],
+            Minv => &[Fd, FdGrad, Step, StepGrad],
+            Fd => &[FdGrad, Step, StepGrad],
+            FdGrad => &[StepGrad],
+            Step => &[StepGrad],
+            StepGrad | FramePlacement | FrameJacobian | FrameVelocity | FrameAcceleration | FrameAccelerationGrad => &[],
         }
     }
 
@@ -359,6 +420,17 @@ impl KernelKind {
                 let acc = d.frame_accelerations(&xqd, &xqdd);
                 let (dq, dqd, dqdd) = d.frame_acceleration_grads(&acc);
                 vec![dq, dqd, dqdd]
+            }
+            KernelKind::Step | KernelKind::StepGrad => {
+                let step = d.step_spec();
+                let (qd, tau) = (d.inputs(Qd), d.actuated_inputs());
+                if self == KernelKind::Step {
+                    let (q, v) = d.step(&qd, &tau, step.scheme, step.dt);
+                    vec![q, v]
+                } else {
+                    let (q, v, a, b) = d.step_grad(&qd, &tau, step.scheme, step.dt);
+                    vec![q, v, a, b]
+                }
             }
         }
     }

@@ -19,7 +19,7 @@ mod tangent;
 mod validate;
 
 pub use graph::{Id, Input, Node, Op, Stage};
-pub use kernel::{Gradient, KernelKind, OutputSpec, Shape, Solve};
+pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve};
 pub use module::{lower, lower_function, DenseProduct, Function, LowerError, LowerOptions, Module, Operand, Output, Robot, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH};
 pub use precise::Dd;
 pub use spatial::SNAP;

@@ -99,6 +99,8 @@ pub struct Robot {
     pub frames: Vec<String>,
     /// The reference frame of the frame kernels' Jacobian, velocity and acceleration.
     pub reference: crate::model::ReferenceFrame,
+    /// The actuated coordinates, the entries of the step kernels' τ.
+    pub actuated: Vec<usize>,
 }
 
 impl Robot {
@@ -130,7 +132,18 @@ impl Robot {
             },
             frames: model.selected_frames().map(|f| f.name.clone()).collect(),
             reference: model.specialisation.reference,
+            actuated: model.actuated(),
         }
+    }
+
+    /// Actuated coordinates: entries of the step kernels' τ.
+    pub fn nu(&self) -> usize {
+        self.actuated.len()
+    }
+
+    /// The robot's sizes.
+    pub fn dims(&self) -> crate::ir::Dims {
+        crate::ir::Dims { nq: self.nq(), nv: self.nv(), nu: self.nu(), nframes: self.nframes() }
     }
 
     /// Frames the frame kernels compute.
@@ -162,13 +175,9 @@ impl Robot {
         format!("{name}_{}", QUATERNION[k - at])
     }
 
-    /// Entries of one input: q has nq, the others nv.
+    /// Entries of one input: q has nq, the step's τ nu, the others nv.
     pub fn input_len(&self, input: Input) -> usize {
-        if input == Input::Q {
-            self.nq()
-        } else {
-            self.nv()
-        }
+        input.len(&self.dims())
     }
 }
 
@@ -223,6 +232,16 @@ pub struct Module {
     pub functions: Vec<Function>,
 }
 
+impl Function {
+    /// The sizes an output index needs, read off this function's outputs for a robot
+    /// with `nv` coordinates (nq and nframes are not needed to index).
+    pub fn dims(&self, nv: usize) -> crate::ir::Dims {
+        let len = |s: Shape| self.outputs.iter().find(|o| o.shape == s).map(|o| o.ids.len());
+        let nu = len(Shape::StateInput).map_or(0, |l| l / (2 * nv).max(1));
+        crate::ir::Dims { nq: len(Shape::Config).unwrap_or(nv), nv, nu, nframes: 0 }
+    }
+}
+
 impl Module {
     pub fn function(&self, kind: KernelKind) -> Option<&Function> {
         self.functions.iter().find(|f| f.kind == kind)
@@ -233,9 +252,8 @@ impl Module {
 pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result<Module, LowerError> {
     let robot = Robot::of(model);
     let mut functions = Vec::new();
-    // No frames asked, no frame kernels.
-    let no_frames = model.specialisation.frames.is_empty();
-    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k) && !(k.is_frame() && no_frames)) {
+    // No frames asked, no frame kernels; no step, no step kernels.
+    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k) && k.exists_for(&model.specialisation)) {
         match lower_function(model, gravity, kind, options) {
             Ok(f) => functions.push(f),
             // A singular M leaves out the kernels that need M⁻¹ (the load warning says so).
@@ -263,7 +281,7 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
     };
     let depth = model.joints.iter().map(|j| j.level + 1).max().unwrap_or(0);
     let solves: &[Solve] = match options.solve {
-        _ if kind != KernelKind::FdGrad => &[Solve::Minv],
+        _ if !kind.holds_fd_grad() => &[Solve::Minv],
         Solve::Auto if depth <= CRBA_MAX_DEPTH => &[Solve::Minv, Solve::Ltdl, Solve::Crba],
         Solve::Auto if depth <= LTDL_MAX_DEPTH => &[Solve::Minv, Solve::Ltdl],
         Solve::Auto | Solve::Minv => &[Solve::Minv],
@@ -298,7 +316,7 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
             }
         }
     }
-    validate(&f, model.nv(), model.nq(), model.specialisation.frames.len()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
+    validate(&f, &Robot::of(model).dims()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
     Ok(f)
 }
 
@@ -351,7 +369,7 @@ fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOpt
     let product = if spec.selects() { None } else { d.product.take() };
     let mut f = freeze(kind, &d.g, outputs, product);
     f.gradient = Gradient::applies_to(kind).then_some(gradient);
-    f.solve = (kind == KernelKind::FdGrad).then_some(d.solve);
+    f.solve = kind.holds_fd_grad().then_some(d.solve);
     debug_assert_ne!(f.solve, Some(Solve::Auto));
     Ok(f)
 }

@@ -10,13 +10,21 @@ impl Graph {
     /// The derivatives of `outputs` along the direction whose input tangents `seeds` lists
     /// (`(input, entry, tangent node)`; every other input entry has tangent 0).
     pub fn tangent(&mut self, outputs: &[Id], seeds: &[(Input, usize, Id)]) -> Vec<Id> {
+        self.tangent_at(outputs, seeds, &[])
+    }
+
+    /// [`Graph::tangent`] with the tangents of some nodes given (`(node, tangent)`): what
+    /// those nodes depend on is not followed, so the derivative is the partial one that
+    /// holds them at their values (the step's `∂(q ⊕ w)/∂q` at fixed `w`).
+    pub fn tangent_at(&mut self, outputs: &[Id], seeds: &[(Input, usize, Id)], nodes: &[(Id, Id)]) -> Vec<Id> {
         let n = self.nodes.len();
+        let given: std::collections::HashMap<usize, Id> = nodes.iter().map(|&(x, t)| (x.0 as usize, t)).collect();
         let mut live = vec![false; n];
         for o in outputs {
             live[o.0 as usize] = true;
         }
         for i in (0..n).rev() {
-            if live[i] {
+            if live[i] && !given.contains_key(&i) {
                 for operand in self.nodes[i].op.operands() {
                     live[operand.0 as usize] = true;
                 }
@@ -26,6 +34,10 @@ impl Graph {
         let mut dt = vec![zero; n];
         for i in 0..n {
             if !live[i] {
+                continue;
+            }
+            if let Some(&t) = given.get(&i) {
+                dt[i] = t;
                 continue;
             }
             let d = |x: Id| dt[x.0 as usize];

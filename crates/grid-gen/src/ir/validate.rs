@@ -2,7 +2,7 @@
 //! come before their users, constants are finite, inputs are kernel inputs within the
 //! robot's joints, outputs have their declared length and point at existing nodes.
 
-use super::graph::{Id, Input, Op};
+use super::graph::{Id, Op};
 use super::module::Function;
 
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
@@ -19,8 +19,8 @@ pub enum ValidationError {
     OutputRange { output: &'static str, node: u32 },
 }
 
-/// Checks `f` for a robot with `nv` joints, `nq` entries of q and `nframes` requested frames.
-pub fn validate(f: &Function, nv: usize, nq: usize, nframes: usize) -> Result<(), ValidationError> {
+/// Checks `f` for a robot of sizes `dims`.
+pub fn validate(f: &Function, dims: &crate::ir::Dims) -> Result<(), ValidationError> {
     for (i, node) in f.nodes.iter().enumerate() {
         let i = i as u32;
         for Id(o) in node.op.operands() {
@@ -30,14 +30,14 @@ pub fn validate(f: &Function, nv: usize, nq: usize, nframes: usize) -> Result<()
         }
         match node.op {
             Op::Const(value) if !value.is_finite() => return Err(ValidationError::NotFinite { node: i, value }),
-            Op::Input(input, joint) if !f.inputs().contains(&input) || joint as usize >= if input == Input::Q { nq } else { nv } => {
+            Op::Input(input, joint) if !f.inputs().contains(&input) || joint as usize >= input.len(dims) => {
                 return Err(ValidationError::BadInput { node: i, input: input.name(), joint })
             }
             _ => {}
         }
     }
     for o in &f.outputs {
-        let expected = o.shape.len(nv, nframes);
+        let expected = o.shape.len(dims);
         if o.ids.len() != expected {
             return Err(ValidationError::OutputLength { output: o.name, got: o.ids.len(), expected });
         }
@@ -52,6 +52,10 @@ pub fn validate(f: &Function, nv: usize, nq: usize, nframes: usize) -> Result<()
 mod tests {
     use super::*;
     use crate::ir::{KernelKind, Node, Output, Shape, Stage};
+
+    fn dims(n: usize) -> crate::ir::Dims {
+        crate::ir::Dims { nq: n, nv: n, nu: n, nframes: 0 }
+    }
 
     fn node(op: Op) -> Node {
         Node { op, link: None, stage: Stage::Forward, level: 0 }
@@ -71,23 +75,23 @@ mod tests {
     #[test]
     fn accepts_a_well_formed_function() {
         let f = function(vec![Op::Input(crate::ir::Input::Qd, 0), Op::Const(2.0), Op::Mul(Id(0), Id(1))], vec![2]);
-        assert_eq!(validate(&f, 1, 1, 0), Ok(()));
+        assert_eq!(validate(&f, &dims(1)), Ok(()));
     }
 
     #[test]
     fn rejects_each_kind_of_defect() {
         use crate::ir::Input;
         let f = function(vec![Op::Const(1.0), Op::Add(Id(1), Id(0))], vec![1]);
-        assert_eq!(validate(&f, 1, 1, 0), Err(ValidationError::OperandOrder { node: 1, operand: 1 }));
+        assert_eq!(validate(&f, &dims(1)), Err(ValidationError::OperandOrder { node: 1, operand: 1 }));
         let f = function(vec![Op::Const(f64::INFINITY)], vec![0]);
-        assert!(matches!(validate(&f, 1, 1, 0), Err(ValidationError::NotFinite { node: 0, .. })));
+        assert!(matches!(validate(&f, &dims(1)), Err(ValidationError::NotFinite { node: 0, .. })));
         let f = function(vec![Op::Input(Input::Tau, 0)], vec![0]);
-        assert!(matches!(validate(&f, 1, 1, 0), Err(ValidationError::BadInput { .. })));
+        assert!(matches!(validate(&f, &dims(1)), Err(ValidationError::BadInput { .. })));
         let f = function(vec![Op::Input(Input::Q, 3)], vec![0]);
-        assert!(matches!(validate(&f, 2, 2, 0), Err(ValidationError::BadInput { joint: 3, .. })));
+        assert!(matches!(validate(&f, &dims(2)), Err(ValidationError::BadInput { joint: 3, .. })));
         let f = function(vec![Op::Const(1.0)], vec![0]);
-        assert_eq!(validate(&f, 2, 2, 0), Err(ValidationError::OutputLength { output: "c", got: 1, expected: 2 }));
+        assert_eq!(validate(&f, &dims(2)), Err(ValidationError::OutputLength { output: "c", got: 1, expected: 2 }));
         let f = function(vec![Op::Const(1.0)], vec![5]);
-        assert_eq!(validate(&f, 1, 1, 0), Err(ValidationError::OutputRange { output: "c", node: 5 }));
+        assert_eq!(validate(&f, &dims(1)), Err(ValidationError::OutputRange { output: "c", node: 5 }));
     }
 }

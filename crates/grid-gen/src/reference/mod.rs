@@ -13,6 +13,7 @@ mod frames;
 mod minv;
 mod rnea;
 mod rnea_derivatives;
+mod step;
 
 pub use aba::aba;
 pub use crba::crba;
@@ -21,6 +22,7 @@ pub use frames::{frame_classical_acceleration, frame_jacobian, frame_placement, 
 pub use minv::minv;
 pub use rnea::rnea;
 pub use rnea_derivatives::rnea_derivatives;
+pub use step::{d_integrate, integrate, step, step_derivatives, StepDerivatives};
 
 use nalgebra::{Matrix3, Vector3};
 

@@ -157,6 +157,9 @@ pub(super) fn array_of(shape: Shape, t: &str) -> String {
         Shape::Matrix => format!("[[{t}; NV]; NV]"),
         Shape::PerFrame(k) => format!("[[{t}; {k}]; NF]"),
         Shape::FrameMatrix(r) => format!("[[[{t}; NV]; {r}]; NF]"),
+        Shape::Config => format!("[{t}; NQ]"),
+        Shape::StateMatrix => format!("[[{t}; NX]; NX]"),
+        Shape::StateInput => format!("[[{t}; NU]; NX]"),
     }
 }
 
@@ -164,9 +167,9 @@ fn output_type(shape: Shape) -> String {
     array_of(shape, "T")
 }
 
-fn output_place(k: &Function, out: usize, flat: usize, nv: usize) -> String {
+fn output_place(k: &Function, out: usize, flat: usize, dims: &crate::ir::Dims) -> String {
     let o = &k.outputs[out];
-    let index: String = o.shape.index(flat, nv).iter().map(|i| format!("[{i}]")).collect();
+    let index: String = o.shape.index(flat, dims).iter().map(|i| format!("[{i}]")).collect();
     format!("{}{index}", o.name)
 }
 
@@ -183,11 +186,12 @@ fn return_value(k: &Function) -> String {
 /// (written once, up front), and for each computed node the places that take its value.
 /// Outputs start at zero, so structural zeros need no store.
 fn output_stores(k: &Function, nv: usize) -> (Vec<(String, Id)>, HashMap<Id, Vec<String>>) {
+    let dims = &k.dims(nv);
     let mut sinks: HashMap<Id, Vec<String>> = HashMap::new();
     let mut inline_outputs = Vec::new();
     for (oi, o) in k.outputs.iter().enumerate() {
         for (flat, &id) in o.ids.iter().enumerate() {
-            let place = output_place(k, oi, flat, nv);
+            let place = output_place(k, oi, flat, dims);
             match k.op(id) {
                 Op::Const(c) if c == 0.0 => {}
                 Op::Const(_) | Op::Input(..) => inline_outputs.push((place, id)),
@@ -419,12 +423,13 @@ impl Signature {
     }
 }
 
-/// The length constant of an input: q's is `q_len` (`NQ` with a floating base).
+/// The length constant of an input: q's is `q_len` (`NQ` with a floating base), the
+/// step's τ `NU`.
 pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
-    if input == crate::ir::Input::Q {
-        q_len
-    } else {
-        "NV"
+    match input {
+        crate::ir::Input::Q => q_len,
+        crate::ir::Input::TauActuated => "NU",
+        _ => "NV",
     }
 }
 
@@ -610,6 +615,21 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
             frames.len(),
             frames.join(", "),
             string_literal(robot.reference.name())
+        );
+    }
+    if let Some(step) = robot.specialisation.step {
+        let actuated: Vec<String> = robot.actuated.iter().map(|&c| string_literal(&robot.joint_names[c])).collect();
+        let _ = writeln!(
+            out,
+            "/// Entries of the step kernels' `tau`: the actuated joints.\n#[allow(dead_code)]\npub const NU: usize = {};\n\
+             /// The actuated joints, in the order of the step kernels' `tau` and B's columns.\n#[allow(dead_code)]\npub const ACTUATED: [&str; NU] = [{}];\n\
+             /// Rows and columns of the step's A: the state's tangent `[dq; dqd]`.\n#[allow(dead_code)]\npub const NX: usize = 2 * NV;\n\
+             /// The step kernels' time step, s, fixed at generation time.\n#[allow(dead_code)]\npub const DT: f64 = {};\n\
+             /// The step kernels' integration scheme (Crocoddyl's integrated action models).\n#[allow(dead_code)]\npub const STEP_SCHEME: &str = {};",
+            actuated.len(),
+            actuated.join(", "),
+            literal(step.dt),
+            string_literal(step.scheme.name())
         );
     }
     let _ = writeln!(

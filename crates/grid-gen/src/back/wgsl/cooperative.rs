@@ -133,7 +133,7 @@ pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot:
                 let tag = match which {
                     Input::Q => Q,
                     Input::Qd => QD,
-                    Input::Qdd | Input::Tau => U,
+                    Input::Qdd | Input::Tau | Input::TauActuated => U,
                 };
                 address(tag, j as usize, robot)
             }

@@ -246,7 +246,7 @@ fn input_buffer(input: Input) -> &'static str {
     match input {
         Input::Q => "q",
         Input::Qd => "qd",
-        Input::Qdd | Input::Tau => "u",
+        Input::Qdd | Input::Tau | Input::TauActuated => "u",
     }
 }
 

@@ -254,7 +254,7 @@ impl Dynamics<'_> {
     /// for a multi-dof joint's coordinate the first-order change of the pose under
     /// `q ⊕ ε = q · exp(ε)` (Pinocchio's `integrate`): a free-flyer's linear coordinate moves
     /// the position by `R e_k`, an angular one turns the quaternion by `½ q ⊗ (e_k, 0)`.
-    fn q_seeds(&mut self, k: usize) -> Vec<(Input, usize, Id)> {
+    pub(super) fn q_seeds(&mut self, k: usize) -> Vec<(Input, usize, Id)> {
         if let Some(i) = self.model.q_index(k) {
             let one = self.g.constant(1.0);
             return vec![(Input::Q, i, one)];

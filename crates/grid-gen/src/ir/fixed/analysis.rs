@@ -77,7 +77,7 @@ impl Bounds {
             Port::Value(Input::Qd, j) => (-self.qd[j as usize], self.qd[j as usize]),
             Port::Value(Input::Qdd, j) => (-self.qdd[j as usize], self.qdd[j as usize]),
             // No datapath kernel takes torques; unbounded makes any that did fail the check.
-            Port::Value(Input::Tau, _) => (f64::NEG_INFINITY, f64::INFINITY),
+            Port::Value(Input::Tau | Input::TauActuated, _) => (f64::NEG_INFINITY, f64::INFINITY),
         }
     }
 }

@@ -26,7 +26,7 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64
                     Input::Q => q,
                     Input::Qd => qd,
                     Input::Qdd => qdd,
-                    Input::Tau => tau,
+                    Input::Tau | Input::TauActuated => tau,
                 };
                 v[j as usize]
             }

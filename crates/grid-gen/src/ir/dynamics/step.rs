@@ -1,0 +1,309 @@
+//! The step kernels, recorded symbolically: one discrete step `x⁺ = x ⊕ dt f(x, τ)` and
+//! its linearisation `[A | B]` in the tangent space, composed from `fd_grad`'s graph and
+//! the configuration space's `integrate` (Pinocchio's conventions, as
+//! `reference::step`).
+//!
+//! The exponentials of a free-flyer and a spherical joint need `sin θ / θ` and its
+//! relatives, which have no branch-free closed form at θ = 0 and the IR has no square
+//! root. They are instead evaluated by scaling and squaring: the Taylor series at
+//! `θ / 2^K`, where nine terms are exact to rounding, then `K` double-angle steps. Every
+//! backend runs it as it runs the rest (adds and multiplies), at about 250 operations a
+//! joint; the result is exact to rounding for rotations of up to `2^K = 64` rad in one
+//! step. `integrate`'s Jacobians are the forward-mode derivatives of that graph.
+
+use super::super::graph::{Graph, Id, Input, Stage};
+use super::super::spatial::{self as sp, k, V3};
+use super::{Dynamics, Mat};
+use crate::model::{LieBlock, Scheme};
+
+/// Double-angle steps of the exponentials' scaling and squaring.
+const DOUBLINGS: i32 = 6;
+/// Terms of each Taylor series at `θ / 2^DOUBLINGS` (up to `y^8`, y = (θ / 64)²): the
+/// first left out is below 2e-17 of the sum for θ ≤ 64 rad.
+const TERMS: usize = 9;
+
+/// `sin φ / φ`, `cos φ`, `(1 − cos φ) / φ²` and `(φ − sin φ) / φ³` at one angle φ.
+#[derive(Clone, Copy)]
+struct Trig {
+    s: Id,
+    c: Id,
+    b: Id,
+    d: Id,
+}
+
+/// `Σ_n (−y)^n / (2n + m)!` by Horner's rule.
+fn series(g: &mut Graph, y: Id, m: u32) -> Id {
+    let factorial = |n: u32| (1..=n).map(f64::from).product::<f64>();
+    let mut acc = k(g, if (TERMS - 1) % 2 == 0 { 1.0 } else { -1.0 } / factorial(2 * (TERMS as u32 - 1) + m));
+    for n in (0..TERMS as u32 - 1).rev() {
+        let t = g.mul(acc, y);
+        let c = k(g, if n % 2 == 0 { 1.0 } else { -1.0 } / factorial(2 * n + m));
+        acc = g.add(c, t);
+    }
+    acc
+}
+
+/// The half angle's [`Trig`] and the full angle's `b`, `d`, for the rotation vector `w`
+/// (θ = |w|), by scaling and squaring.
+fn exp_coefficients(g: &mut Graph, w: &V3) -> (Trig, Id, Id) {
+    let x = g.dot(w, w);
+    let scale = k(g, 0.25f64.powi(DOUBLINGS));
+    let mut y = g.mul(x, scale);
+    let mut t = Trig { s: series(g, y, 1), c: series(g, y, 0), b: series(g, y, 2), d: series(g, y, 3) };
+    let (half, quarter, four) = (k(g, 0.5), k(g, 0.25), k(g, 4.0));
+    // sin 2φ/2φ = S C; cos 2φ = C² − φ² S²; (1 − cos 2φ)/4φ² = S²/2; (2φ − sin 2φ)/8φ³ = (D + S B)/4.
+    let double = |g: &mut Graph, t: Trig, y: Id| {
+        let ss = g.mul(t.s, t.s);
+        let cc = g.mul(t.c, t.c);
+        let yss = g.mul(y, ss);
+        let sb = g.mul(t.s, t.b);
+        let dsb = g.add(t.d, sb);
+        Trig { s: g.mul(t.s, t.c), c: g.sub(cc, yss), b: g.mul(half, ss), d: g.mul(quarter, dsb) }
+    };
+    for _ in 0..DOUBLINGS - 1 {
+        t = double(g, t, y);
+        y = g.mul(four, y);
+    }
+    let full = double(g, t, y);
+    (t, full.b, full.d)
+}
+
+/// The quaternion product `a ⊗ b`, `[x, y, z, w]`.
+fn qmul(g: &mut Graph, a: [Id; 4], b: [Id; 4]) -> [Id; 4] {
+    let (av, bv) = ([a[0], a[1], a[2]], [b[0], b[1], b[2]]);
+    let cr = sp::cross(g, &av, &bv);
+    let v: [Id; 3] = std::array::from_fn(|i| {
+        let x = g.mul(a[3], bv[i]);
+        let y = g.mul(b[3], av[i]);
+        let s = g.add(x, y);
+        g.add(s, cr[i])
+    });
+    let d = g.dot(&av, &bv);
+    let ww = g.mul(a[3], b[3]);
+    [v[0], v[1], v[2], g.sub(ww, d)]
+}
+
+/// `r (3 − |r|²) / 2`: Pinocchio's `firstOrderNormalize`, which keeps a rollout's
+/// quaternions unit.
+fn normalize(g: &mut Graph, r: [Id; 4]) -> [Id; 4] {
+    let n2 = g.dot(&r, &r);
+    let three = k(g, 3.0);
+    let t = g.sub(three, n2);
+    let half = k(g, 0.5);
+    let f = g.mul(half, t);
+    r.map(|x| g.mul(f, x))
+}
+
+/// `q ⊗ exp(w)`, normalised: a quaternion turned by the rotation vector `w` in its own frame.
+fn turn(g: &mut Graph, q: [Id; 4], w: &V3) -> ([Id; 4], Trig, Id, Id) {
+    let (h, b, d) = exp_coefficients(g, w);
+    let half = k(g, 0.5);
+    let s = g.mul(half, h.s);
+    let e = [g.mul(s, w[0]), g.mul(s, w[1]), g.mul(s, w[2]), h.c];
+    let r = qmul(g, q, e);
+    (normalize(g, r), h, b, d)
+}
+
+impl Dynamics<'_> {
+    /// The model's step (the step kernels exist only for a model with one).
+    pub fn step_spec(&self) -> crate::model::Step {
+        self.model.specialisation.step.expect("step kernels are lowered only for a model with a step")
+    }
+
+    /// One node per actuated coordinate's force.
+    pub fn actuated_inputs(&mut self) -> Vec<Id> {
+        (0..self.model.nu()).map(|i| self.g.input(Input::TauActuated, i)).collect()
+    }
+
+    /// τ per coordinate from the actuated coordinates' forces: 0 on the others.
+    fn actuate(&mut self, tau: &[Id]) -> Vec<Id> {
+        let zero = self.g.constant(0.0);
+        let mut full = vec![zero; self.model.nv()];
+        for (&c, &t) in self.model.actuated().iter().zip(tau) {
+            full[c] = t;
+        }
+        full
+    }
+
+    /// `q ⊕ w` (Pinocchio's `integrate`) for the kernel's q and the tangent `w`.
+    fn integrate(&mut self, w: &[Id]) -> Vec<Id> {
+        let g = &mut self.g;
+        let mut out: Vec<Id> = (0..self.model.nq()).map(|i| g.input(Input::Q, i)).collect();
+        for block in self.model.lie_blocks() {
+            match block {
+                LieBlock::Scalar { v, q } => out[q] = g.add(out[q], w[v]),
+                LieBlock::FreeFlyer => {
+                    let quat = [out[3], out[4], out[5], out[6]];
+                    let (lin, ang) = ([w[0], w[1], w[2]], [w[3], w[4], w[5]]);
+                    let (turned, _, b, d) = turn(g, quat, &ang);
+                    // exp6's translation V v = v + B (ω × v) + D (ω × (ω × v)), moved by R(q).
+                    let wv = sp::cross(g, &ang, &lin);
+                    let wwv = sp::cross(g, &ang, &wv);
+                    let shift: V3 = std::array::from_fn(|i| {
+                        let x = g.mul(b, wv[i]);
+                        let y = g.mul(d, wwv[i]);
+                        let s = g.add(x, y);
+                        g.add(lin[i], s)
+                    });
+                    let r = sp::quaternion_rotation(g, quat);
+                    let moved = sp::mat_vec(g, &r, &shift);
+                    for i in 0..3 {
+                        out[i] = g.add(out[i], moved[i]);
+                    }
+                    out[3..7].copy_from_slice(&turned);
+                }
+                LieBlock::Spherical { v, q } => {
+                    let quat = [out[q], out[q + 1], out[q + 2], out[q + 3]];
+                    let (turned, ..) = turn(g, quat, &[w[v], w[v + 1], w[v + 2]]);
+                    out[q..q + 4].copy_from_slice(&turned);
+                }
+            }
+        }
+        out
+    }
+
+    /// The tangent-space change of a quaternion block `r` (unit) under the coordinate
+    /// change `dr`: `2 vec(r* ⊗ dr)`.
+    fn rotation_tangent(g: &mut Graph, r: [Id; 4], dr: [Id; 4]) -> V3 {
+        let conj = {
+            let n: [Id; 3] = std::array::from_fn(|i| g.neg(r[i]));
+            [n[0], n[1], n[2], r[3]]
+        };
+        let p = qmul(g, conj, dr);
+        let two = k(g, 2.0);
+        std::array::from_fn(|i| g.mul(two, p[i]))
+    }
+
+    /// `(∂(q ⊕ w)/∂q, ∂(q ⊕ w)/∂w)` in the tangent space (Pinocchio's `dIntegrate`):
+    /// block-diagonal, 1 on scalar coordinates, the forward-mode derivatives of
+    /// [`Self::integrate`]'s graph (`q_next`) projected onto the tangent space for a
+    /// free-flyer (`δp = R⁺ᵀ dp`, `δθ = 2 vec(r⁺* ⊗ dr⁺)`) and a spherical joint.
+    fn d_integrate(&mut self, w: &[Id], q_next: &[Id]) -> (Mat, Mat) {
+        let nv = self.model.nv();
+        let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
+        let (mut jq, mut jv) = (vec![vec![zero; nv]; nv], vec![vec![zero; nv]; nv]);
+        for block in self.model.lie_blocks() {
+            let (v, q, dims) = match block {
+                LieBlock::Scalar { v, .. } => {
+                    jq[v][v] = one;
+                    jv[v][v] = one;
+                    continue;
+                }
+                LieBlock::FreeFlyer => (0, 0, 6),
+                LieBlock::Spherical { v, q } => (v, q, 3),
+            };
+            let outs: Vec<Id> = q_next[q..q + dims + 1].to_vec();
+            let r = [outs[dims - 3], outs[dims - 2], outs[dims - 1], outs[dims]];
+            let rot = (dims == 6).then(|| sp::quaternion_rotation(&mut self.g, r));
+            let project = |g: &mut Graph, d: Vec<Id>| -> Vec<Id> {
+                let dr = [d[dims - 3], d[dims - 2], d[dims - 1], d[dims]];
+                let mut out = Vec::new();
+                if let Some(rot) = &rot {
+                    out.extend(sp::mat_t_vec(g, rot, &[d[0], d[1], d[2]]));
+                }
+                out.extend(Self::rotation_tangent(g, r, dr));
+                out
+            };
+            for col in 0..dims {
+                if self.exhausted() {
+                    break;
+                }
+                // Along q's direction `col` with w held; along w's entry `col` with q held.
+                let held: Vec<(Id, Id)> = (0..dims).map(|i| (w[v + i], zero)).collect();
+                let seeds = self.q_seeds(v + col);
+                let dq = self.g.tangent_at(&outs, &seeds, &held);
+                let seeded: Vec<(Id, Id)> = (0..dims).map(|i| (w[v + i], if i == col { one } else { zero })).collect();
+                let dw = self.g.tangent_at(&outs, &[], &seeded);
+                let (dq, dw) = (project(&mut self.g, dq), project(&mut self.g, dw));
+                for row in 0..dims {
+                    jq[v + row][v + col] = dq[row];
+                    jv[v + row][v + col] = dw[row];
+                }
+            }
+        }
+        (jq, jv)
+    }
+
+    /// `x⁺ = (q⁺, q̇⁺)` for one step of `scheme` (the Euler schemes) under the actuated
+    /// forces `tau`.
+    pub fn step(&mut self, qd: &[Id], tau: &[Id], scheme: Scheme, dt: f64) -> (Vec<Id>, Vec<Id>) {
+        let tau = self.actuate(tau);
+        let qdd = self.fd(qd, &tau);
+        self.g.at(None, Stage::Combine, 0);
+        let (qd_next, w) = self.euler(qd, &qdd, scheme, dt);
+        (self.integrate(&w), qd_next)
+    }
+
+    /// `q̇⁺ = q̇ + dt q̈` and the tangent that moves q: `dt q̇⁺` (semi-implicit) or `dt q̇`.
+    fn euler(&mut self, qd: &[Id], qdd: &[Id], scheme: Scheme, dt: f64) -> (Vec<Id>, Vec<Id>) {
+        let g = &mut self.g;
+        let h = k(g, dt);
+        let qd_next: Vec<Id> = qd
+            .iter()
+            .zip(qdd)
+            .map(|(&v, &a)| {
+                let t = g.mul(h, a);
+                g.add(v, t)
+            })
+            .collect();
+        let moved = if scheme == Scheme::SemiImplicitEuler { &qd_next } else { qd };
+        let w = moved.iter().map(|&v| g.mul(h, v)).collect();
+        (qd_next, w)
+    }
+
+    /// [`Self::step`] and `(A, B)`, flat and row-major: A is 2nv × 2nv, B 2nv × nu, rows
+    /// and columns `[δq; δq̇]`. With `a_v = dt ∂q̈/∂x`, `b_v = dt M⁻¹ S`:
+    /// semi-implicit `A = [[Jq + dt Jv a_vq, dt Jv (I + a_vv)], [a_vq, I + a_vv]]`,
+    /// `B = [dt Jv b_v; b_v]`; explicit `A = [[Jq, dt Jv], [a_vq, I + a_vv]]`, `B = [0; b_v]`.
+    pub fn step_grad(&mut self, qd: &[Id], tau: &[Id], scheme: Scheme, dt: f64) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
+        let nv = self.model.nv();
+        let actuated = self.model.actuated();
+        let nu = actuated.len();
+        let tau = self.actuate(tau);
+        let (qdd, da_dq, da_dv, minv_s) = self.fd_grad_minv(qd, &tau, &actuated);
+        // The step's products are its own: no backend may rerun fd_grad's as a loop.
+        self.product = None;
+        self.g.at(None, Stage::Combine, 0);
+        let (qd_next, w) = self.euler(qd, &qdd, scheme, dt);
+        let q_next = self.integrate(&w);
+        let (jq, jv) = self.d_integrate(&w, &q_next);
+        let g = &mut self.g;
+        let (zero, one, h) = (g.constant(0.0), g.constant(1.0), k(g, dt));
+        let scale = |g: &mut Graph, m: &Mat| -> Mat { m.iter().map(|row| row.iter().map(|&x| g.mul(h, x)).collect()).collect() };
+        let avq = scale(g, &da_dq);
+        let mut avv = scale(g, &da_dv);
+        for (i, row) in avv.iter_mut().enumerate() {
+            row[i] = g.add(one, row[i]);
+        }
+        let bv = scale(g, &minv_s);
+        // dt Jv X, with Jv block-diagonal (its zeros fold away).
+        let jv_times = |g: &mut Graph, x: &Mat| -> Mat {
+            let cols = x.first().map_or(0, Vec::len);
+            (0..nv)
+                .map(|i| {
+                    (0..cols)
+                        .map(|c| {
+                            let col: Vec<Id> = (0..nv).map(|r| x[r][c]).collect();
+                            let d = g.dot(&jv[i], &col);
+                            g.mul(h, d)
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let (aqq, aqv, bq) = if scheme == Scheme::SemiImplicitEuler {
+            let t = jv_times(g, &avq);
+            let aqq = jq.iter().zip(&t).map(|(a, b)| a.iter().zip(b).map(|(&x, &y)| g.add(x, y)).collect()).collect();
+            (aqq, jv_times(g, &avv), jv_times(g, &bv))
+        } else {
+            (jq, scale(g, &jv), vec![vec![zero; nu]; nv])
+        };
+        let mut a = Vec::with_capacity(4 * nv * nv);
+        for (left, right) in aqq.iter().zip(&aqv).chain(avq.iter().zip(&avv)) {
+            a.extend(left);
+            a.extend(right);
+        }
+        let b = bq.iter().chain(&bv).flatten().copied().collect();
+        (q_next, qd_next, a, b)
+    }
+}

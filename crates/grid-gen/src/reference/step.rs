@@ -1,0 +1,254 @@
+//! One discrete dynamics step and its linearisation `[A | B]` in the tangent space, by
+//! composing the reference forward dynamics with the configuration space's `integrate`
+//! and its derivatives (Pinocchio's `integrate`, `dIntegrate`; Crocoddyl's integrated
+//! action models for the schemes). The exponentials' Jacobians are summed as their
+//! defining series, `Σ (−ad ξ)^k / (k + 1)!`, a route independent of both Pinocchio's
+//! closed forms and the kernels' scaling-and-squaring.
+
+use nalgebra::{DMatrix, Matrix3, UnitQuaternion, Vector3};
+
+use super::{forward_dynamics, forward_dynamics_derivatives, minv};
+use crate::model::{LieBlock, Model, Scheme, Step};
+
+/// `[ω]×`.
+fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
+    Matrix3::new(0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0)
+}
+
+/// `Σ_k (sign · m)^k / (k + 1)!`, summed until the terms stop changing the sum: with
+/// `sign = −1` and `m = ad ξ` the right Jacobian of the exponential (Pinocchio's `Jexp3`,
+/// `Jexp6`), with `sign = 1` and `m = [ω]×` the left one, SO(3)'s `V`.
+fn phi1(m: &DMatrix<f64>, sign: f64) -> DMatrix<f64> {
+    let n = m.nrows();
+    let mut sum = DMatrix::identity(n, n);
+    let mut term = DMatrix::identity(n, n);
+    for k in 1..400 {
+        term = &term * m * (sign / (k as f64 + 1.0));
+        sum += &term;
+        if term.amax() <= f64::EPSILON * 1e-3 * sum.amax() {
+            break;
+        }
+    }
+    sum
+}
+
+fn dyn3(m: &Matrix3<f64>) -> DMatrix<f64> {
+    DMatrix::from_fn(3, 3, |r, c| m[(r, c)])
+}
+
+/// SE(3)'s `ad ξ` for `ξ = (v, ω)` in Pinocchio's [linear; angular] order.
+fn ad6(v: &Vector3<f64>, w: &Vector3<f64>) -> DMatrix<f64> {
+    let mut ad = DMatrix::zeros(6, 6);
+    ad.view_mut((0, 0), (3, 3)).copy_from(&skew(w));
+    ad.view_mut((0, 3), (3, 3)).copy_from(&skew(v));
+    ad.view_mut((3, 3), (3, 3)).copy_from(&skew(w));
+    ad
+}
+
+/// The unit quaternion `[x, y, z, w]` at q's entries `at..at + 4`, normalised.
+fn quaternion(q: &[f64], at: usize) -> UnitQuaternion<f64> {
+    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[at + 3], q[at], q[at + 1], q[at + 2]))
+}
+
+fn store(out: &mut [f64], at: usize, r: &UnitQuaternion<f64>) {
+    let c = r.quaternion().coords;
+    out[at..at + 4].copy_from_slice(&[c[0], c[1], c[2], c[3]]);
+}
+
+/// `q ⊕ v` (Pinocchio's `integrate`): scalar coordinates add; a free-flyer moves by
+/// `exp6(v)` in its own frame, a spherical joint by `exp3(ω)`.
+pub fn integrate(model: &Model, q: &[f64], v: &[f64]) -> Vec<f64> {
+    let mut out = q.to_vec();
+    for block in model.lie_blocks() {
+        match block {
+            LieBlock::Scalar { v: k, q: i } => out[i] = q[i] + v[k],
+            LieBlock::FreeFlyer => {
+                let (lin, w) = (Vector3::new(v[0], v[1], v[2]), Vector3::new(v[3], v[4], v[5]));
+                let r = quaternion(q, 3);
+                let v = phi1(&dyn3(&skew(&w)), 1.0) * DMatrix::from_column_slice(3, 1, lin.as_slice());
+                let shift = r * Vector3::new(v[0], v[1], v[2]);
+                for a in 0..3 {
+                    out[a] = q[a] + shift[a];
+                }
+                store(&mut out, 3, &(r * UnitQuaternion::from_scaled_axis(w)));
+            }
+            LieBlock::Spherical { v: k, q: at } => {
+                let w = Vector3::new(v[k], v[k + 1], v[k + 2]);
+                store(&mut out, at, &(quaternion(q, at) * UnitQuaternion::from_scaled_axis(w)));
+            }
+        }
+    }
+    out
+}
+
+/// `(∂(q ⊕ v)/∂q, ∂(q ⊕ v)/∂v)` in the tangent space, nv × nv and block-diagonal
+/// (Pinocchio's `dIntegrate` with `ARG0` and `ARG1`): for a free-flyer `Ad(exp6(v))⁻¹`
+/// and `Jexp6(v)`, for a spherical joint `exp3(ω)ᵀ` and `Jexp3(ω)`, 1 and 1 otherwise.
+pub fn d_integrate(model: &Model, v: &[f64]) -> (DMatrix<f64>, DMatrix<f64>) {
+    let nv = model.nv();
+    let (mut dq, mut dv) = (DMatrix::zeros(nv, nv), DMatrix::zeros(nv, nv));
+    for block in model.lie_blocks() {
+        match block {
+            LieBlock::Scalar { v: k, .. } => {
+                dq[(k, k)] = 1.0;
+                dv[(k, k)] = 1.0;
+            }
+            LieBlock::FreeFlyer => {
+                let (lin, w) = (Vector3::new(v[0], v[1], v[2]), Vector3::new(v[3], v[4], v[5]));
+                let rt = UnitQuaternion::from_scaled_axis(w).to_rotation_matrix().matrix().transpose();
+                let p = phi1(&dyn3(&skew(&w)), 1.0) * DMatrix::from_column_slice(3, 1, lin.as_slice());
+                let p = Vector3::new(p[0], p[1], p[2]);
+                dq.view_mut((0, 0), (3, 3)).copy_from(&rt);
+                dq.view_mut((0, 3), (3, 3)).copy_from(&(-rt * skew(&p)));
+                dq.view_mut((3, 3), (3, 3)).copy_from(&rt);
+                dv.view_mut((0, 0), (6, 6)).copy_from(&phi1(&ad6(&lin, &w), -1.0));
+            }
+            LieBlock::Spherical { v: k, .. } => {
+                let w = Vector3::new(v[k], v[k + 1], v[k + 2]);
+                let rt = UnitQuaternion::from_scaled_axis(w).to_rotation_matrix().matrix().transpose();
+                dq.view_mut((k, k), (3, 3)).copy_from(&rt);
+                dv.view_mut((k, k), (3, 3)).copy_from(&phi1(&dyn3(&skew(&w)), -1.0));
+            }
+        }
+    }
+    (dq, dv)
+}
+
+/// The next state and `A = ∂x⁺/∂x` (2nv × 2nv), `B = ∂x⁺/∂τ_actuated` (2nv × nu), rows
+/// and columns `[δq; δq̇]` in the tangent space.
+#[derive(Clone, Debug)]
+pub struct StepDerivatives {
+    pub q_next: Vec<f64>,
+    pub qd_next: Vec<f64>,
+    pub a: DMatrix<f64>,
+    pub b: DMatrix<f64>,
+}
+
+/// The state integration `x ⊕ dx` of Crocoddyl's `StateMultibody`: q by `integrate`, q̇
+/// by addition.
+fn state_integrate(model: &Model, q: &[f64], qd: &[f64], dx: &[f64]) -> (Vec<f64>, Vec<f64>) {
+    let nv = model.nv();
+    (integrate(model, q, &dx[..nv]), (0..nv).map(|k| qd[k] + dx[nv + k]).collect())
+}
+
+/// One step from `(q, q̇)` under joint forces `tau` (nv entries) with gravity `gravity`.
+pub fn step(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], step: Step) -> (Vec<f64>, Vec<f64>) {
+    let nv = model.nv();
+    let dt = step.dt;
+    match step.scheme {
+        Scheme::SemiImplicitEuler | Scheme::ExplicitEuler => {
+            let qdd = forward_dynamics(model, q, qd, tau, gravity);
+            let qd_next: Vec<f64> = (0..nv).map(|k| qd[k] + dt * qdd[k]).collect();
+            let moved = if step.scheme == Scheme::SemiImplicitEuler { &qd_next } else { qd };
+            let dq: Vec<f64> = moved.iter().map(|x| dt * x).collect();
+            (integrate(model, q, &dq), qd_next)
+        }
+        Scheme::Rk4 => {
+            let mut dx = vec![0.0; 2 * nv];
+            let mut k_prev: Vec<f64> = Vec::new();
+            for (i, (c, weight)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
+                let (y_q, y_v) = if i == 0 {
+                    (q.to_vec(), qd.to_vec())
+                } else {
+                    let d: Vec<f64> = k_prev.iter().map(|x| c * dt * x).collect();
+                    state_integrate(model, q, qd, &d)
+                };
+                let qdd = forward_dynamics(model, &y_q, &y_v, tau, gravity);
+                k_prev = y_v.iter().chain(&qdd).copied().collect();
+                for (d, k) in dx.iter_mut().zip(&k_prev) {
+                    *d += weight * dt / 6.0 * k;
+                }
+            }
+            state_integrate(model, q, qd, &dx)
+        }
+    }
+}
+
+/// [`step`] and its linearisation; B's columns are the coordinates `actuated`.
+pub fn step_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], step: Step, actuated: &[usize]) -> StepDerivatives {
+    let nv = model.nv();
+    let dt = step.dt;
+    let identity = DMatrix::<f64>::identity(nv, nv);
+    // ∂q̈/∂τ_actuated = M⁻¹ S.
+    let select = |m: &DMatrix<f64>| DMatrix::from_fn(nv, actuated.len(), |r, c| m[(r, actuated[c])]);
+    let assemble = |aqq: DMatrix<f64>, aqv: DMatrix<f64>, avq: DMatrix<f64>, avv: DMatrix<f64>, bq: DMatrix<f64>, bv: DMatrix<f64>| {
+        let mut a = DMatrix::zeros(2 * nv, 2 * nv);
+        a.view_mut((0, 0), (nv, nv)).copy_from(&aqq);
+        a.view_mut((0, nv), (nv, nv)).copy_from(&aqv);
+        a.view_mut((nv, 0), (nv, nv)).copy_from(&avq);
+        a.view_mut((nv, nv), (nv, nv)).copy_from(&avv);
+        let mut b = DMatrix::zeros(2 * nv, actuated.len());
+        b.view_mut((0, 0), (nv, actuated.len())).copy_from(&bq);
+        b.view_mut((nv, 0), (nv, actuated.len())).copy_from(&bv);
+        (a, b)
+    };
+    match step.scheme {
+        Scheme::SemiImplicitEuler | Scheme::ExplicitEuler => {
+            let (qdd, da_dq, da_dv) = forward_dynamics_derivatives(model, q, qd, tau, gravity);
+            let da_du = select(&minv(model, q));
+            let qd_next: Vec<f64> = (0..nv).map(|k| qd[k] + dt * qdd[k]).collect();
+            let (avq, avv, bv) = (&da_dq * dt, &identity + &da_dv * dt, &da_du * dt);
+            let semi = step.scheme == Scheme::SemiImplicitEuler;
+            let moved = if semi { &qd_next } else { qd };
+            let dq: Vec<f64> = moved.iter().map(|x| dt * x).collect();
+            let (jq, jv) = d_integrate(model, &dq);
+            let (aqq, aqv, bq) = if semi {
+                (&jq + &jv * &avq * dt, &jv * &avv * dt, &jv * &bv * dt)
+            } else {
+                (jq, &jv * dt, DMatrix::zeros(nv, actuated.len()))
+            };
+            let (a, b) = assemble(aqq, aqv, avq, avv, bq, bv);
+            StepDerivatives { q_next: integrate(model, q, &dq), qd_next, a, b }
+        }
+        Scheme::Rk4 => rk4_derivatives(model, q, qd, tau, gravity, dt, &select),
+    }
+}
+
+/// RK4's chain rule, stage by stage, as Crocoddyl's `IntegratedActionModelRK4::calcDiff`:
+/// `∂y_i/∂x = J_x(x, dx_i) + J_dx(x, dx_i) c_i dt ∂k_(i−1)/∂x`, `∂k_i/∂x = ∂f/∂y_i ∂y_i/∂x`,
+/// with `J_x`, `J_dx` the state's `Jintegrate` (q's `dIntegrate`, identity for q̇).
+fn rk4_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], dt: f64, select: &dyn Fn(&DMatrix<f64>) -> DMatrix<f64>) -> StepDerivatives {
+    let nv = model.nv();
+    let nu = select(&DMatrix::zeros(nv, nv)).ncols();
+    let state_jacobians = |dx: &[f64]| {
+        let (jq, jv) = d_integrate(model, &dx[..nv]);
+        let (mut jx, mut jdx) = (DMatrix::identity(2 * nv, 2 * nv), DMatrix::identity(2 * nv, 2 * nv));
+        jx.view_mut((0, 0), (nv, nv)).copy_from(&jq);
+        jdx.view_mut((0, 0), (nv, nv)).copy_from(&jv);
+        (jx, jdx)
+    };
+    let mut dx = vec![0.0; 2 * nv];
+    let (mut dx_dx, mut dx_du) = (DMatrix::<f64>::zeros(2 * nv, 2 * nv), DMatrix::<f64>::zeros(2 * nv, nu));
+    let (mut k_prev, mut dk_dx_prev, mut dk_du_prev) = (Vec::new(), DMatrix::zeros(2 * nv, 2 * nv), DMatrix::zeros(2 * nv, nu));
+    for (i, (c, weight)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
+        let (y_q, y_v, dy_dx, dy_du) = if i == 0 {
+            (q.to_vec(), qd.to_vec(), DMatrix::identity(2 * nv, 2 * nv), DMatrix::zeros(2 * nv, nu))
+        } else {
+            let d: Vec<f64> = k_prev.iter().map(|x: &f64| c * dt * x).collect();
+            let (y_q, y_v) = state_integrate(model, q, qd, &d);
+            let (jx, jdx) = state_jacobians(&d);
+            (y_q, y_v, jx + &jdx * &dk_dx_prev * (c * dt), &jdx * &dk_du_prev * (c * dt))
+        };
+        let (qdd, da_dq, da_dv) = forward_dynamics_derivatives(model, &y_q, &y_v, tau, gravity);
+        let da_du = select(&minv(model, &y_q));
+        // ∂f/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
+        let mut df = DMatrix::zeros(2 * nv, 2 * nv);
+        df.view_mut((0, nv), (nv, nv)).fill_with_identity();
+        df.view_mut((nv, 0), (nv, nv)).copy_from(&da_dq);
+        df.view_mut((nv, nv), (nv, nv)).copy_from(&da_dv);
+        let dk_dx = &df * &dy_dx;
+        let mut dk_du = &df * &dy_du;
+        let mut lower = dk_du.view_mut((nv, 0), (nv, nu));
+        lower += &da_du;
+        k_prev = y_v.iter().chain(&qdd).copied().collect();
+        for (d, k) in dx.iter_mut().zip(&k_prev) {
+            *d += weight * dt / 6.0 * k;
+        }
+        dx_dx += &dk_dx * (weight * dt / 6.0);
+        dx_du += &dk_du * (weight * dt / 6.0);
+        (dk_dx_prev, dk_du_prev) = (dk_dx, dk_du);
+    }
+    let (jx, jdx) = state_jacobians(&dx);
+    let (q_next, qd_next) = state_integrate(model, q, qd, &dx);
+    StepDerivatives { q_next, qd_next, a: jx + &jdx * dx_dx, b: &jdx * dx_du }
+}

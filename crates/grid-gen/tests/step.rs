@@ -1,0 +1,284 @@
+//! The discrete step and its linearisation `[A | B]`: the reference against Pinocchio 4.1
+//! compositions (`aba`, `computeABADerivatives`, `integrate`, `dIntegrate`, Crocoddyl's
+//! schemes) on fixed, floating and spherical robots, against central differences on the
+//! manifold for every scheme, the step kernels' IR against the reference, and the
+//! scene's bad inputs.
+
+use grid_gen::ir::{self, KernelKind, LowerOptions};
+use grid_gen::model::{LieBlock, Scheme, Step};
+use grid_gen::{reference, Model, Scene};
+use grid_gen_test_support::*;
+use nalgebra::{DMatrix, UnitQuaternion, Vector3};
+
+/// Pinocchio and the reference compose the same quantities by other routes (Pinocchio's
+/// closed-form Jexp6 against a summed series): 1e-10 relative, the project's bar against
+/// Pinocchio.
+const TOL: f64 = 1e-10;
+
+fn fixture_model(name: &str) -> (Model, bool) {
+    let fixtures = repo().join("tests/fixtures");
+    match name {
+        "grid_iiwa" => (load("grid_iiwa"), false),
+        "grid_hyq.floating" => (load_floating("grid_hyq"), true),
+        "ball_arm.floating" => (load_urdf(&fixtures.join("ball_arm.urdf"), true), true),
+        _ => unreachable!(),
+    }
+}
+
+#[test]
+fn reference_step_matches_pinocchio() {
+    let mut checked = 0;
+    let mut worst: f64 = 0.0;
+    for name in ["grid_iiwa", "grid_hyq.floating", "ball_arm.floating"] {
+        let (model, floating) = fixture_model(name);
+        let fx = fixture(&format!("{name}.step.pinocchio.json"));
+        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+        let perm: Vec<usize> = names.iter().map(|n| coordinates.iter().position(|c| c == n).unwrap_or_else(|| panic!("{name}: {n}"))).collect();
+        let nv = model.nv();
+        let ours = |v: &[f64]| {
+            let mut o = vec![0.0; nv];
+            for (k, &i) in perm.iter().enumerate() {
+                o[i] = v[k];
+            }
+            o
+        };
+        let spherical = !model.spherical.is_empty();
+        // The fixture's q: the base's seven, then the listed joints' angles; ball_arm's is
+        // Pinocchio's (and grid-gen's) whole q.
+        let q_of = |v: &[f64]| {
+            if spherical {
+                return v.to_vec();
+            }
+            let (base, angles) = if floating { (v[..7].try_into().unwrap(), &v[7..]) } else { ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], v) };
+            let per = if floating { [vec![0.0; 6], angles.to_vec()].concat() } else { angles.to_vec() };
+            model.q_from_joints(&ours(&per), base)
+        };
+        let actuated: Vec<usize> = fx["actuated"].as_array().unwrap().iter().map(|n| coordinates.iter().position(|c| *c == n.as_str().unwrap()).unwrap()).collect();
+        assert_eq!(actuated.iter().copied().collect::<std::collections::BTreeSet<_>>(), model.actuated().into_iter().collect(), "{name}: the default actuation");
+        let state_perm: Vec<usize> = perm.iter().copied().chain(perm.iter().map(|&p| nv + p)).collect();
+        let dt = fx["dt"].as_f64().unwrap();
+        let g: [f64; 3] = vec_of(&fx["gravity"]).try_into().unwrap();
+        for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
+            let (q, qd, tau) = (q_of(&vec_of(&st["q"])), ours(&vec_of(&st["qd"])), ours(&vec_of(&st["tau"])));
+            for scheme in Scheme::ALL {
+                let want = &st[scheme.name()];
+                let step = Step { scheme, dt };
+                let d = reference::step_derivatives(&model, &q, &qd, &tau, g, step, &model.actuated());
+                let (q1, v1) = reference::step(&model, &q, &qd, &tau, g, step);
+                let theirs_a = mat_of(&want["A"]);
+                let theirs_a = DMatrix::from_fn(2 * nv, 2 * nv, |r, c| theirs_a[(state_perm.iter().position(|&p| p == r).unwrap(), state_perm.iter().position(|&p| p == c).unwrap())]);
+                // B's columns: the fixture's actuated order, mapped to ours (model order).
+                let theirs_b = mat_of(&want["B"]);
+                let order: Vec<usize> = model.actuated().iter().map(|c| actuated.iter().position(|a| a == c).unwrap()).collect();
+                let theirs_b = DMatrix::from_fn(2 * nv, order.len(), |r, c| theirs_b[(state_perm.iter().position(|&p| p == r).unwrap(), order[c])]);
+                let results = [
+                    ("q_next", col(&d.q_next), col(&q_of(&vec_of(&want["q_next"])))),
+                    ("q_next (step)", col(&q1), col(&q_of(&vec_of(&want["q_next"])))),
+                    ("qd_next", col(&d.qd_next), col(&ours(&vec_of(&want["qd_next"])))),
+                    ("qd_next (step)", col(&v1), col(&ours(&vec_of(&want["qd_next"])))),
+                    ("A", d.a, theirs_a),
+                    ("B", d.b, theirs_b),
+                ];
+                for (what, got, want) in results {
+                    let e = rel_err(&got, &want);
+                    worst = worst.max(e);
+                    checked += 1;
+                    assert!(e < TOL, "{name} state {s} ({}) {}: {what} {e:.2e}", st["kind"], scheme.name());
+                }
+            }
+        }
+    }
+    println!("{checked} step quantities against Pinocchio, worst {worst:.2e} (bound {TOL:.0e})");
+    assert!(checked > 400);
+}
+
+/// `q1 ⊖ q0` (Pinocchio's `difference`): logs of the relative motions.
+fn difference(model: &Model, q0: &[f64], q1: &[f64]) -> Vec<f64> {
+    let quat = |q: &[f64], at: usize| UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[at + 3], q[at], q[at + 1], q[at + 2]));
+    let mut d = vec![0.0; model.nv()];
+    for block in model.lie_blocks() {
+        match block {
+            LieBlock::Scalar { v, q } => d[v] = q1[q] - q0[q],
+            LieBlock::Spherical { v, q } => {
+                let w = (quat(q0, q).inverse() * quat(q1, q)).scaled_axis();
+                d[v..v + 3].copy_from_slice(w.as_slice());
+            }
+            LieBlock::FreeFlyer => {
+                let r0 = quat(q0, 3);
+                let w = (r0.inverse() * quat(q1, 3)).scaled_axis();
+                let p = r0.inverse() * Vector3::new(q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2]);
+                // log6's linear part: V(ω)⁻¹ p with V = Σ [ω]×^k / (k + 1)!.
+                let wx = nalgebra::Matrix3::new(0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0);
+                let (mut v, mut term) = (nalgebra::Matrix3::identity(), nalgebra::Matrix3::identity());
+                for k in 1..60 {
+                    term = term * wx / (k as f64 + 1.0);
+                    v += term;
+                }
+                let lin = v.try_inverse().unwrap() * p;
+                d[..3].copy_from_slice(lin.as_slice());
+                d[3..6].copy_from_slice(w.as_slice());
+            }
+        }
+    }
+    d
+}
+
+/// A and B against central differences of the step on the manifold, every scheme: the
+/// state moved by `x ⊕ ε e_k`, the results compared by `⊖`.
+#[test]
+fn step_derivatives_match_central_differences() {
+    let fixtures = repo().join("tests/fixtures");
+    let cases: Vec<(&str, Model)> = vec![
+        ("iiwa", load("grid_iiwa")),
+        ("hyq floating", load_floating("grid_hyq")),
+        ("ball_arm floating", load_urdf(&fixtures.join("ball_arm.urdf"), true)),
+        ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf"))),
+    ];
+    let g = reference::DEFAULT_GRAVITY;
+    let mut rng = Rng(47);
+    let mut worst: f64 = 0.0;
+    for (name, model) in &cases {
+        let nv = model.nv();
+        let actuated = model.actuated();
+        let mut q = model.q_from_joints(&rng.vec(nv, -2.0, 2.0), rng.base_pose());
+        for &s in &model.spherical {
+            let at = model.group_q(s);
+            let x = rng.vec(4, -1.0, 1.0);
+            let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+            q[at..at + 4].copy_from_slice(&x.iter().map(|v| v / n).collect::<Vec<_>>());
+        }
+        let qd = rng.vec(nv, -3.0, 3.0);
+        let tau = actuated_tau(model, &rng.vec(actuated.len(), -5.0, 5.0));
+        for scheme in Scheme::ALL {
+            let step = Step { scheme, dt: 0.05 };
+            let d = reference::step_derivatives(model, &q, &qd, &tau, g, step, &actuated);
+            let (q1, v1) = reference::step(model, &q, &qd, &tau, g, step);
+            let eps = 1e-6;
+            let tangent = |qa: &[f64], va: &[f64], qb: &[f64], vb: &[f64]| -> Vec<f64> {
+                let mut out = difference(model, &q1, qa);
+                let back = difference(model, &q1, qb);
+                for k in 0..nv {
+                    out[k] = (out[k] - back[k]) / (2.0 * eps);
+                }
+                out.extend((0..nv).map(|k| (va[k] - vb[k]) / (2.0 * eps)));
+                out
+            };
+            let mut num_a = DMatrix::zeros(2 * nv, 2 * nv);
+            for k in 0..2 * nv {
+                let moved = |sign: f64| {
+                    let mut e = vec![0.0; nv];
+                    let mut qd_e = qd.clone();
+                    if k < nv {
+                        e[k] = sign * eps;
+                    } else {
+                        qd_e[k - nv] += sign * eps;
+                    }
+                    reference::step(model, &reference::integrate(model, &q, &e), &qd_e, &tau, g, step)
+                };
+                let ((qa, va), (qb, vb)) = (moved(1.0), moved(-1.0));
+                num_a.set_column(k, &nalgebra::DVector::from_vec(tangent(&qa, &va, &qb, &vb)));
+            }
+            let mut num_b = DMatrix::zeros(2 * nv, actuated.len());
+            for (c, &k) in actuated.iter().enumerate() {
+                let moved = |sign: f64| {
+                    let mut t = tau.clone();
+                    t[k] += sign * eps;
+                    reference::step(model, &q, &qd, &t, g, step)
+                };
+                let ((qa, va), (qb, vb)) = (moved(1.0), moved(-1.0));
+                num_b.set_column(c, &nalgebra::DVector::from_vec(tangent(&qa, &va, &qb, &vb)));
+            }
+            assert!(rel_err(&col(&q1), &col(&d.q_next)) < 1e-14 && rel_err(&col(&v1), &col(&d.qd_next)) < 1e-14, "{name}: step and step_derivatives agree");
+            // Central differences at ε = 1e-6 err by about ε² |f'''| + 1e-16 / ε: 1e-7
+            // relative holds with margin on these states.
+            for (what, got, want) in [("A", &d.a, &num_a), ("B", &d.b, &num_b)] {
+                let e = rel_err(got, want);
+                worst = worst.max(e);
+                assert!(e < 1e-7, "{name} {}: {what} {e:.2e}", scheme.name());
+            }
+        }
+    }
+    println!("worst step derivative against central differences: {worst:.2e} (bound 1e-7)");
+}
+
+/// The step kernels' IR graphs against the reference, both Euler schemes, fixed, floating,
+/// spherical and coupled mimic robots, with the default and a chosen actuation, and every
+/// fd_grad solve (their M⁻¹ columns come from different routes).
+#[test]
+fn step_kernels_match_the_reference() {
+    let fixtures = repo().join("tests/fixtures");
+    let mut hyq_partial = load_floating("grid_hyq");
+    hyq_partial.specialisation.actuated = Some(vec![6, 7, 9, 13]);
+    let cases: Vec<(&str, Model)> = vec![
+        ("iiwa", load("grid_iiwa")),
+        ("hyq floating", load_floating("grid_hyq")),
+        ("hyq floating, four motors", hyq_partial),
+        ("ball_arm floating", load_urdf(&fixtures.join("ball_arm.urdf"), true)),
+        ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf"))),
+    ];
+    let g = reference::DEFAULT_GRAVITY;
+    let mut rng = Rng(53);
+    let mut worst: f64 = 0.0;
+    for (name, model) in &cases {
+        for scheme in [Scheme::SemiImplicitEuler, Scheme::ExplicitEuler] {
+            for solve in [ir::Solve::Minv, ir::Solve::Ltdl] {
+                let m = with_step(model, scheme, 0.01);
+                let options = LowerOptions { kernels: vec![KernelKind::Step, KernelKind::StepGrad], solve, ..LowerOptions::default() };
+                let module = ir::lower(&m, g, &options).unwrap();
+                assert_eq!(module.functions.len(), 2, "{name}: both step kernels");
+                let nv = m.nv();
+                for state in 0..3 {
+                    let speed = if state == 2 { 40.0 } else { 2.0 };
+                    let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+                    for &s in &m.spherical {
+                        let at = m.group_q(s);
+                        let x = rng.vec(4, -1.0, 1.0);
+                        let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+                        q[at..at + 4].copy_from_slice(&x.iter().map(|v| v / n).collect::<Vec<_>>());
+                    }
+                    let qd = rng.vec(nv, -speed, speed);
+                    let u = rng.vec(m.nu(), -10.0, 10.0);
+                    for f in &module.functions {
+                        let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &u));
+                        let want = reference_outputs(f.kind, &m, &q, &qd, &u, g);
+                        for ((o, got), want) in f.outputs.iter().zip(&got).zip(&want) {
+                            let e = rel_err(&output_matrix(o.shape, nv, got), want);
+                            worst = worst.max(e);
+                            // The same f64 dynamics by other routes (scaling and squaring
+                            // against nalgebra's exponential, AD against a summed series).
+                            assert!(e < 1e-12, "{name} {} {solve:?} state {state} {} {}: {e:.2e}", scheme.name(), f.kind, o.name);
+                        }
+                    }
+                }
+            }
+        }
+    }
+    println!("worst step kernel against the reference: {worst:.2e} (bound 1e-12)");
+}
+
+/// A scene's `[step]` and `[actuation]` mistakes are errors that say what is wrong.
+#[test]
+fn bad_steps_are_errors() {
+    let urdf = repo().join("robots/grid_hyq.urdf");
+    let text = std::fs::read_to_string(&urdf).unwrap();
+    let load = |scene: &str| {
+        let scene = Scene::parse("s.toml", scene).expect("parses");
+        Model::from_urdf_str_in_scene(&urdf.display().to_string(), &text, scene.floating_base, &scene, "s.toml").map(|l| l.0).map_err(|e| e.render_plain())
+    };
+    let cases = [
+        ("[step]\nscheme = \"semi_implicit_euler\"\n", "has no time step"),
+        ("[step]\ndt = -0.01\n", "not a finite, positive"),
+        ("static = true\n[step]\ndt = 0.01\n", "with `static = true`"),
+        ("[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_haa\"]\n", "closest joints: lf_haa_joint"),
+        ("[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_haa_joint\", \"lf_haa_joint\"]\n", "twice"),
+    ];
+    for (scene, says) in cases {
+        let err = load(scene).err().unwrap_or_else(|| panic!("{scene:?} loads"));
+        assert!(err.contains(says), "{scene:?}: {err}");
+    }
+    assert!(Scene::parse("s.toml", "[step]\nscheme = \"leapfrog\"\ndt = 0.01\n").is_err(), "an unknown scheme");
+    let m = load("floating_base = true\n[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_kfe_joint\", \"root_joint\"]\n").unwrap();
+    assert_eq!(m.actuated().len(), 7, "root_joint stands for its six coordinates");
+    assert_eq!(m.specialisation.step, Some(Step { scheme: Scheme::SemiImplicitEuler, dt: 0.01 }));
+}
