@@ -196,6 +196,18 @@ struct LoadArgs {
     /// local_world_aligned (the default).
     #[arg(long, value_name = "RF", global = true, value_parser = parse_reference_frame)]
     reference_frame: Option<grid_gen::model::ReferenceFrame>,
+    /// Generate the step kernels (`step`, `step_grad`) and have `eval` report each state's
+    /// next state and [A | B]: semi_implicit_euler (Crocoddyl's default), explicit_euler or
+    /// rk4 (eval only); replaces the scene's `[step] scheme`. Needs a time step (--dt).
+    #[arg(long, value_name = "SCHEME", global = true, value_parser = parse_scheme)]
+    step: Option<grid_gen::model::Scheme>,
+    /// The step's time step in seconds (folded into the kernels); replaces `[step] dt`.
+    #[arg(long, value_name = "SECONDS", global = true)]
+    dt: Option<f64>,
+}
+
+fn parse_scheme(s: &str) -> Result<grid_gen::model::Scheme, String> {
+    grid_gen::model::Scheme::parse(s).ok_or_else(|| format!("unknown step scheme `{s}`; available: semi_implicit_euler, explicit_euler, rk4"))
 }
 
 fn parse_reference_frame(s: &str) -> Result<grid_gen::model::ReferenceFrame, String> {
@@ -403,6 +415,11 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
     }
     if let Some(rf) = args.reference_frame {
         scene.frames.reference = Some(rf);
+    }
+    if args.step.is_some() || args.dt.is_some() {
+        let s = scene.step.get_or_insert_with(Default::default);
+        s.scheme = args.step.or(s.scheme);
+        s.dt = args.dt.or(s.dt);
     }
     let scene_path = args.scene.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
     let strict = args.strict;

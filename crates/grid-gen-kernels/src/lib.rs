@@ -85,4 +85,8 @@ pub mod scenes {
     pub mod grid_hyq_feet_floating {
         include!("../../../generated/scenes/grid_hyq.hyq_feet_floating/hyq.rs");
     }
+    /// Floating HyQ's semi-implicit Euler step of 10 ms and its `[A | B]`, with `fd_grad`.
+    pub mod grid_hyq_step_floating {
+        include!("../../../generated/scenes/grid_hyq.hyq_step_floating/hyq.rs");
+    }
 }

@@ -497,3 +497,65 @@ fn frame_kernel_lanes_are_bit_identical_to_scalar_calls() {
     check!(k);
     check!(k::portable);
 }
+
+/// The checked-in step kernels (`generated/scenes/grid_hyq.hyq_step_floating/`: floating
+/// HyQ, semi-implicit Euler, 10 ms), both copies, f64 and f32, against the reference step
+/// and `[A | B]` (held to Pinocchio's compositions by grid-gen's tests/step.rs), each state
+/// with a random base pose and the twelve leg torques. Tolerances: f64 1e-12 as every
+/// kernel; f32 F32_MINV (B is dt M⁻¹ and A holds dt ∂q̈/∂x, through M⁻¹ as `fd_grad`).
+#[test]
+fn step_kernels_match_the_reference() {
+    use grid_gen::ir::KernelKind::*;
+    use grid_gen_kernels::scenes::grid_hyq_step_floating as k;
+    use grid_gen_test_support::{col, reference_outputs};
+    let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_step_floating");
+    assert_eq!((k::NU, k::DT, k::STEP_SCHEME), (model.nu(), 0.01, "semi_implicit_euler"));
+    let mut rng = Rng(59);
+    let mut worst = [0.0f64; 2];
+    macro_rules! run {
+        ($c:path, $t:ty, $q:expr, $qd:expr, $u:expr) => {{
+            use $c as c;
+            let q: [$t; k::NQ] = std::array::from_fn(|i| $q[i] as $t);
+            let qd: [$t; k::NV] = std::array::from_fn(|i| $qd[i] as $t);
+            let u: [$t; k::NU] = std::array::from_fn(|i| $u[i] as $t);
+            #[allow(unused_unsafe)]
+            let ((q1, v1), (q2, v2, a, b)) = unsafe { (c::step(&q, &qd, &u), c::step_grad(&q, &qd, &u)) };
+            let f = |x: &[$t]| x.iter().map(|&y| y as f64).collect::<Vec<f64>>();
+            // step's q̈ is ABA's; step_grad's may come from M's factorisation (its `solve`).
+            vec![f(&q2), f(&v2), f(a.as_flattened()), f(b.as_flattened()), f(&q1), f(&v1)]
+        }};
+    }
+    // The usual states, but the fastest at 30 rad/s instead of 1e3: at 1e3 rad/s a 10 ms
+    // step turns the base by about 100 rad, past the 64 rad for which the kernels'
+    // exponential is exact to rounding (ir/dynamics/step.rs).
+    let mut cases = states(&model, &mut rng);
+    let fast = cases.iter_mut().find(|c| c.0 == "speed 1e3").expect("a fast state");
+    fast.0 = "speed 30".into();
+    fast.2 = rng.vec(model.nv(), -30.0, 30.0);
+    for (label, per_joint, qd, _) in cases {
+        let q = model.q_from_joints(&per_joint, rng.base_pose());
+        let u = rng.vec(k::NU, -20.0, 20.0);
+        for (f32, tol) in [(false, F64_TOL), (true, F32_MINV)] {
+            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let (q, qd, u) = (r(&q), r(&qd), r(&u));
+            let want = reference_outputs(StepGrad, &model, &q, &qd, &u, model_gravity());
+            let mut copies = vec![("portable", if f32 { run!(k::portable, f32, q, qd, u) } else { run!(k::portable, f64, q, qd, u) })];
+            if fma_runs() {
+                copies.push(("fma", if f32 { run!(k::fma, f32, q, qd, u) } else { run!(k::fma, f64, q, qd, u) }));
+            }
+            for (copy, got) in copies {
+                for (i, name) in ["q_next", "qd_next", "A", "B", "step q_next", "step qd_next"].iter().enumerate() {
+                    let want = col(want[i % 4].transpose().as_slice());
+                    let e = rel(&col(&got[i]), &want);
+                    worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
+                    assert!(e <= tol, "{label} ({copy}, f32 {f32}): {name} relative error {e:.2e} > {tol:e}");
+                }
+            }
+        }
+    }
+    println!("hyq_step_floating: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+}
+
+fn model_gravity() -> [f64; 3] {
+    reference::DEFAULT_GRAVITY
+}

@@ -79,6 +79,8 @@ pub struct Builder {
     mimic: Option<crate::MimicMode>,
     frames: Vec<String>,
     reference_frame: Option<crate::model::ReferenceFrame>,
+    step: Option<crate::model::Step>,
+    actuated: Option<Vec<String>>,
     quiet: bool,
 }
 
@@ -179,6 +181,20 @@ impl Builder {
         self
     }
 
+    /// Generate the step kernels `step` and `step_grad` for this scheme and time step
+    /// (replaces the scene's `[step]`; the Euler schemes only: RK4 is the reference's).
+    pub fn step(&mut self, scheme: crate::model::Scheme, dt: f64) -> &mut Self {
+        self.step = Some(crate::model::Step { scheme, dt });
+        self
+    }
+
+    /// The actuated joints, the step's τ and B's columns (replaces the scene's
+    /// `[actuation] joints`; default every joint but a floating base).
+    pub fn actuated<S: AsRef<str>>(&mut self, joints: &[S]) -> &mut Self {
+        self.actuated = Some(joints.iter().map(|n| n.as_ref().to_string()).collect());
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
@@ -248,6 +264,12 @@ impl Builder {
         }
         if let Some(rf) = self.reference_frame {
             scene.frames.reference = Some(rf);
+        }
+        if let Some(step) = self.step {
+            scene.step = Some(crate::scene::StepSection { scheme: Some(step.scheme), dt: Some(step.dt) });
+        }
+        if let Some(joints) = &self.actuated {
+            scene.actuation = Some(crate::scene::ActuationSection { joints: joints.clone() });
         }
         let (model, warnings) = Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path).map_err(|e| BuildError::Load(Box::new(e)))?;
         let mut options = self.options.clone();

@@ -107,6 +107,29 @@ pub struct Output {
     /// The selected frames' kinematics, by link name (absent when no frames were asked for).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub frames: Option<BTreeMap<String, FrameOutput>>,
+    /// With a step (`--step`, `[step]`) and `tau`: the next state and `[A | B]`.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub step: Option<StepOutput>,
+}
+
+/// One step from a state (see [`crate::reference::step_derivatives`]): q⁺ in q's layout,
+/// q̇⁺, and A (2nv × 2nv), B (2nv × nu), rows and columns `[δq; δq̇]` in the tangent
+/// space, base first; B's columns are the actuated joints in model order.
+#[derive(Clone, Debug, Serialize)]
+pub struct StepOutput {
+    pub q_next: Vec<f64>,
+    pub qd_next: Vec<f64>,
+    #[serde(rename = "A")]
+    pub a: Matrix,
+    #[serde(rename = "B")]
+    pub b: Matrix,
+}
+
+/// The reference's step at one state, when the model has a step and the state a `tau`.
+fn step_output(model: &Model, s: &State, gravity: [f64; 3]) -> Option<StepOutput> {
+    let (step, tau) = (model.specialisation.step?, s.tau.as_ref()?);
+    let d = reference::step_derivatives(model, &s.q, &s.qd, tau, gravity, step, &model.actuated());
+    Some(StepOutput { q_next: d.q_next, qd_next: d.qd_next, a: rows(&d.a), b: rows(&d.b) })
 }
 
 /// One frame's kinematics at a state, in Pinocchio's conventions: 6-vectors and Jacobian
@@ -193,6 +216,11 @@ pub enum EvalError {
     SphericalQuaternion { index: usize, joint: String, at: usize, norm: f64 },
     #[error("state {index}: `{field}[{entry}]` is not finite")]
     NotFinite { index: usize, field: &'static str, entry: usize },
+    #[error(
+        "state {index}: `tau[{entry}]` ({joint}) is {value}, but that joint is not actuated and the step takes only the \
+         actuated joints' forces; give 0 there, or name the joint in the scene's [actuation] joints"
+    )]
+    NotActuated { index: usize, entry: usize, joint: String, value: f64 },
     #[error("state {index}: `qd[{entry}]` is {value}, and the scene is static (`static = true`: q̇ = 0 is assumed and the kernels ignore `qd`); give q̇ = 0 or leave `static` out")]
     NotStatic { index: usize, entry: usize, value: f64 },
     #[error("state {index}: `tau` asks for forward dynamics, which needs M⁻¹, and M is singular (joint `{joint}` moves no inertia); leave `tau` out")]
@@ -287,6 +315,13 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         if let (Some(joint), Some(_)) = (&model.singular, &s.tau) {
             return Err(EvalError::Singular { index, joint: joint.clone() });
         }
+        if let (Some(_), Some(tau)) = (model.specialisation.step, &s.tau) {
+            let actuated = model.actuated();
+            if let Some(entry) = (0..n).find(|k| !actuated.contains(k) && tau[*k] != 0.0) {
+                let joint = model.joints[model.coordinate_joints()[entry]].name.clone();
+                return Err(EvalError::NotActuated { index, entry, joint, value: tau[entry] });
+            }
+        }
     }
     Ok(())
 }
@@ -314,7 +349,8 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
             };
             let minv = model.singular.is_none().then(|| rows(&reference::minv(model, &s.q)));
             let frames = frame_outputs(model, s);
-            Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv, fd, dfd_dq, dfd_dqd, frames }
+            let step = step_output(model, s, gravity);
+            Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv, fd, dfd_dq, dfd_dqd, frames, step }
         })
         .collect();
     Ok(EvalOutput { joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(), states })
@@ -432,7 +468,7 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
     let mut states: Vec<Output> = file
         .states
         .iter()
-        .map(|_| Output { rnea: None, drnea_dq: None, drnea_dqd: None, m: Vec::new(), minv: None, fd: None, dfd_dq: None, dfd_dqd: None, frames: None })
+        .map(|_| Output { rnea: None, drnea_dq: None, drnea_dqd: None, m: Vec::new(), minv: None, fd: None, dfd_dq: None, dfd_dqd: None, frames: None, step: None })
         .collect();
     let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {
         chosen.iter().flat_map(|&i| pick(&file.states[i]).map(|v| v.as_slice()).unwrap_or(&[]).iter().copied()).collect()
