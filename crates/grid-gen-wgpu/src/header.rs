@@ -24,6 +24,8 @@ pub struct ShaderInfo {
     pub nv: usize,
     /// Entries of q per state: `// nq:` (a floating base), else nv.
     pub nq: usize,
+    /// Entries of the step kernels' `u` (the actuated joints' τ): `// nu:`, else nv.
+    pub nu: usize,
     pub precision: Precision,
     pub entries: Vec<EntryInfo>,
     /// The cooperative entries' operation tables (binding 6) and constants (binding 7),
@@ -44,6 +46,7 @@ impl ShaderInfo {
     pub fn parse(source: &str) -> Result<ShaderInfo, HeaderError> {
         let mut nv = None;
         let mut nq = None;
+        let mut nu = None;
         let mut precision = None;
         let mut entries = Vec::new();
         let mut tables = None;
@@ -54,6 +57,8 @@ impl ShaderInfo {
                 nv = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
             } else if let Some(v) = line.strip_prefix("// nq: ") {
                 nq = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
+            } else if let Some(v) = line.strip_prefix("// nu: ") {
+                nu = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
             } else if let Some(v) = line.strip_prefix("// tables: ") {
                 let mut counts = [0usize; 2];
                 for (k, key) in ["prog=", "konst="].iter().enumerate() {
@@ -96,7 +101,7 @@ impl ShaderInfo {
             Some([words, values]) => read_tables(source, words, values, precision)?,
             None => (Vec::new(), Vec::new()),
         };
-        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), precision, entries, prog, konst })
+        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), nu: nu.unwrap_or(nv), precision, entries, prog, konst })
     }
 
     pub fn entry(&self, name: &str) -> Option<&EntryInfo> {

@@ -71,6 +71,8 @@ pub struct Kernel {
     pub nv: usize,
     /// Entries of q per state (nv + 1 with a floating base).
     pub nq: usize,
+    /// Entries of `u` per state: nv, or the actuated joints' count for the step kernels.
+    pub nu: usize,
     /// Time wgpu took to build the pipelines (some drivers, lavapipe among them, compile
     /// at the first dispatch instead).
     pub build_time: Duration,
@@ -244,6 +246,7 @@ impl Gpu {
             precision: shader.info.precision,
             nv: shader.info.nv,
             nq: shader.info.nq,
+            nu: if grid_gen::ir::KernelKind::parse(&info.kernel).is_some_and(|k| k.is_step()) { shader.info.nu } else { shader.info.nv },
             build_time: start.elapsed(),
             tables: shader.tables.clone(),
         })
@@ -272,7 +275,7 @@ impl Gpu {
         use grid_gen::ir::{Input, KernelKind};
         let kind = KernelKind::parse(&kernel.entry.kernel);
         let takes = |i: Input| kind.is_none_or(|k| k.inputs().contains(&i));
-        let (uses_qd, uses_u) = (takes(Input::Qd), takes(Input::Qdd) || takes(Input::Tau));
+        let (uses_qd, uses_u) = (takes(Input::Qd), takes(Input::Qdd) || takes(Input::Tau) || takes(Input::TauActuated));
         let check = |field: &'static str, x: &[f64], needed: bool, per: usize| {
             if (needed || !x.is_empty()) && x.len() != n * per || q.len() != n * nq {
                 return Err(GpuError::Length { field, found: x.len(), n, per, expected: n * per });
@@ -281,7 +284,7 @@ impl Gpu {
         };
         check("q", q, true, nq)?;
         check("qd", qd, uses_qd, nv)?;
-        check("u", u, uses_u, nv)?;
+        check("u", u, uses_u, kernel.nu)?;
         let per = self.chunk_states(kernel);
         let mut chunks = Vec::new();
         let mut start = 0;
@@ -309,7 +312,7 @@ impl Gpu {
         params[..4].copy_from_slice(&(m as u32).to_le_bytes());
         let params = init(params, wgpu::BufferUsages::UNIFORM);
         let [q, qd, u] = inputs;
-        let inputs = [(q, k.nq), (qd, k.nv), (u, k.nv)].map(|(x, per)| init(bytes(soa(x, per)), wgpu::BufferUsages::STORAGE));
+        let inputs = [(q, k.nq), (qd, k.nv), (u, k.nu)].map(|(x, per)| init(bytes(soa(x, per)), wgpu::BufferUsages::STORAGE));
         let word = k.precision.bytes() as u64;
         let out_bytes = (k.entry.outputs * m).max(1) as u64 * word;
         // NaN everywhere, so a value the kernel fails to write cannot pass for a result.

@@ -192,22 +192,27 @@ fn check_model_within(
     let n = states.len(); // 37: not a multiple of the workgroup size
     let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
     let (q, qd, u) = (flat(0), flat(1), flat(2));
+    // The step kernels take the actuated joints' τ: each state's first nu entries of u.
+    let nu = model.nu();
+    let u_step: Vec<f64> = states.iter().flat_map(|s| s[2][..nu].iter().copied()).collect();
     for f in lowered.functions.iter().filter(|f| kernels.contains(&f.kind)) {
+        let u = if f.kind.is_step() { &u_step } else { &u };
         for &strategy in strategies {
             let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name())).unwrap();
             let t0 = std::time::Instant::now();
-            let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
+            let got = gpu.run(&kernel, &q, &qd, u).unwrap();
             let ran = t0.elapsed();
             let total = kernel.entry.outputs;
             assert_eq!(got.len(), n * total);
             let (tol, ir_tol) = match (f64, f.kind) {
                 (true, _) => (f64_reference, F64_TOL),
-                (false, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad) => (THROUGH_MINV, THROUGH_MINV),
+                (false, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad | KernelKind::Step | KernelKind::StepGrad) => (THROUGH_MINV, THROUGH_MINV),
                 _ => (DIRECT, DIRECT),
             };
             let what = format!("{robot} {} {} {}", kernel.entry.entry, options.precision.name(), options.trig.name());
             let (mut worst, mut worst_ir, mut graph) = (0.0f64, 0.0f64, 0.0f64);
             for (s, [q, qd, u]) in states.iter().enumerate() {
+                let u = if f.kind.is_step() { &u[..nu] } else { &u[..] };
                 let want = reference_outputs(f.kind, model, q, qd, u, reference::DEFAULT_GRAVITY);
                 // The IR interpreter on the same graph: the backend prints it faithfully.
                 let interpreted = f.eval(&kernel_args(f.inputs(), q, qd, u));
@@ -364,6 +369,24 @@ fn floating_base_kernels_match_the_reference() {
     // still held to the graph they run at 1e-12.
     let atlas = load_floating("grid_atlas");
     check_model_within(&gpu, "grid_atlas floating", &atlas, &KernelKind::ALL, options, &[Strategy::Cooperative], &mut rng, 1e-10);
+}
+
+/// The step kernels (floating HyQ, semi-implicit Euler, 10 ms; iiwa, explicit Euler) in
+/// f64 against the reference step and `[A | B]`: cooperative entries for HyQ (its
+/// step_grad is 45k statements straight-line, minutes for lavapipe's f64 compiler), both
+/// strategies for iiwa, and f32 thread entries for HyQ's `step`.
+#[test]
+fn step_kernels_match_the_reference() {
+    use grid_gen::model::Scheme;
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(61);
+    let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
+    let steps = [KernelKind::Step, KernelKind::StepGrad];
+    let hyq = with_step(&load_floating("grid_hyq"), Scheme::SemiImplicitEuler, 0.01);
+    check_model(&gpu, "grid_hyq floating step", &hyq, &steps, options.clone(), &[Strategy::Cooperative], &mut rng);
+    let iiwa = with_step(&load("grid_iiwa"), Scheme::ExplicitEuler, 0.005);
+    check_model(&gpu, "grid_iiwa step", &iiwa, &steps, options, &Strategy::ALL, &mut rng);
+    check_model(&gpu, "grid_hyq floating step", &hyq, &[KernelKind::Step], WgslOptions::default(), &[Strategy::Thread], &mut rng);
 }
 
 /// Coupled mimic joints (issue 11): mimic_arm (`tests/fixtures/mimic_arm.urdf`, three

@@ -1,9 +1,10 @@
 //! One discrete dynamics step and its linearisation `[A | B]` in the tangent space, by
 //! composing the reference forward dynamics with the configuration space's `integrate`
 //! and its derivatives (Pinocchio's `integrate`, `dIntegrate`; Crocoddyl's integrated
-//! action models for the schemes). The exponentials' Jacobians are summed as their
-//! defining series, `Σ (−ad ξ)^k / (k + 1)!`, a route independent of both Pinocchio's
-//! closed forms and the kernels' scaling-and-squaring.
+//! action models for the schemes). The exponentials and their Jacobians are closed forms
+//! (nalgebra's quaternion exponential; SO(3)'s Jacobians; Pinocchio's `Jexp6` formula)
+//! with Taylor series where those cancel: a route independent of the kernels' scaling
+//! and squaring and their forward-mode derivatives.
 
 use nalgebra::{DMatrix, Matrix3, UnitQuaternion, Vector3};
 
@@ -15,34 +16,75 @@ fn skew(w: &Vector3<f64>) -> Matrix3<f64> {
     Matrix3::new(0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0)
 }
 
-/// `Σ_k (sign · m)^k / (k + 1)!`, summed until the terms stop changing the sum: with
-/// `sign = −1` and `m = ad ξ` the right Jacobian of the exponential (Pinocchio's `Jexp3`,
-/// `Jexp6`), with `sign = 1` and `m = [ω]×` the left one, SO(3)'s `V`.
-fn phi1(m: &DMatrix<f64>, sign: f64) -> DMatrix<f64> {
-    let n = m.nrows();
-    let mut sum = DMatrix::identity(n, n);
-    let mut term = DMatrix::identity(n, n);
-    for k in 1..400 {
-        term = &term * m * (sign / (k as f64 + 1.0));
-        sum += &term;
-        if term.amax() <= f64::EPSILON * 1e-3 * sum.amax() {
-            break;
+/// `(1 − cos t) / t²` and `(t − sin t) / t³`: their Taylor series below t = 1 (where the
+/// closed forms cancel), the closed forms above.
+fn bc(t: f64) -> (f64, f64) {
+    if t < 1.0 {
+        let y = t * t;
+        let (mut b, mut c, mut term_b, mut term_c) = (0.0, 0.0, 0.5, 1.0 / 6.0);
+        for n in 1..12 {
+            b += term_b;
+            c += term_c;
+            let k = 2.0 * n as f64;
+            term_b *= -y / ((k + 1.0) * (k + 2.0));
+            term_c *= -y / ((k + 2.0) * (k + 3.0));
+        }
+        return (b, c);
+    }
+    let h = (t / 2.0).sin();
+    (2.0 * h * h / (t * t), (t - t.sin()) / (t * t * t))
+}
+
+/// Pinocchio's `Jexp6` coefficients `β = 1/t² − sin t / (2t (1 − cos t))` and `β' / t`:
+/// their series below t = 1 (from `cot x = Σ (−1)^n 2^2n B_2n x^(2n−1) / (2n)!`, x = t/2,
+/// since β = 1/t² − cot(t/2) / (2t)), Pinocchio's closed forms above.
+fn beta(t: f64) -> (f64, f64) {
+    if t >= 1.0 {
+        let (st, ct) = t.sin_cos();
+        let inv = 1.0 / (2.0 * (1.0 - ct));
+        let t2 = t * t;
+        return (1.0 / t2 - st / t * inv, -2.0 / (t2 * t2) + (1.0 + st / t) / t2 * inv);
+    }
+    // Bernoulli numbers B_2n, n = 1..8.
+    const B: [f64; 8] = [1.0 / 6.0, -1.0 / 30.0, 1.0 / 42.0, -1.0 / 30.0, 5.0 / 66.0, -691.0 / 2730.0, 7.0 / 6.0, -3617.0 / 510.0];
+    let (mut b, mut db) = (0.0, 0.0);
+    let mut factorial = 1.0;
+    for (i, bn) in B.iter().enumerate() {
+        let n = i as i32 + 1;
+        factorial *= (2 * n - 1) as f64 * (2 * n) as f64;
+        // cot(t/2)/(2t) has the term (−1)^n 2^2n B_2n (t/2)^(2n−1) / ((2n)! 2t) = (−1)^n B_2n t^(2n−2) / (2n)!.
+        let coefficient = -(-1f64).powi(n) * bn / factorial;
+        b += coefficient * t.powi(2 * n - 2);
+        if n >= 2 {
+            db += coefficient * (2 * n - 2) as f64 * t.powi(2 * n - 4);
         }
     }
-    sum
+    (b, db)
 }
 
-fn dyn3(m: &Matrix3<f64>) -> DMatrix<f64> {
-    DMatrix::from_fn(3, 3, |r, c| m[(r, c)])
+/// `[ω]×`-polynomials: SO(3)'s left Jacobian `V = I + B K + C K²` (exp6's translation),
+/// and its right Jacobian `Jexp3 = I − B K + C K²` (K = [ω]×).
+fn so3_jacobians(w: &Vector3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+    let (b, c) = bc(w.norm());
+    let k = skew(w);
+    let k2 = k * k;
+    (Matrix3::identity() + k * b + k2 * c, Matrix3::identity() - k * b + k2 * c)
 }
 
-/// SE(3)'s `ad ξ` for `ξ = (v, ω)` in Pinocchio's [linear; angular] order.
-fn ad6(v: &Vector3<f64>, w: &Vector3<f64>) -> DMatrix<f64> {
-    let mut ad = DMatrix::zeros(6, 6);
-    ad.view_mut((0, 0), (3, 3)).copy_from(&skew(w));
-    ad.view_mut((0, 3), (3, 3)).copy_from(&skew(v));
-    ad.view_mut((3, 3), (3, 3)).copy_from(&skew(w));
-    ad
+/// SE(3)'s right Jacobian (Pinocchio's `Jexp6`, whose formula this follows), rows and
+/// columns [linear; angular].
+fn jexp6(v: &Vector3<f64>, w: &Vector3<f64>) -> DMatrix<f64> {
+    let (_, jr) = so3_jacobians(w);
+    let (b, db) = beta(w.norm());
+    let t2 = w.norm_squared();
+    let p = jr.transpose() * v;
+    let wtp = w.dot(&p);
+    let j = skew(&p) * 0.5 + w * w.transpose() * (db * wtp) - p * w.transpose() * (t2 * db + 2.0 * b) + Matrix3::identity() * (wtp * b) + w * p.transpose() * b;
+    let mut out = DMatrix::zeros(6, 6);
+    out.view_mut((0, 0), (3, 3)).copy_from(&jr);
+    out.view_mut((3, 3), (3, 3)).copy_from(&jr);
+    out.view_mut((0, 3), (3, 3)).copy_from(&(-jr * j));
+    out
 }
 
 /// The unit quaternion `[x, y, z, w]` at q's entries `at..at + 4`, normalised.
@@ -65,8 +107,7 @@ pub fn integrate(model: &Model, q: &[f64], v: &[f64]) -> Vec<f64> {
             LieBlock::FreeFlyer => {
                 let (lin, w) = (Vector3::new(v[0], v[1], v[2]), Vector3::new(v[3], v[4], v[5]));
                 let r = quaternion(q, 3);
-                let v = phi1(&dyn3(&skew(&w)), 1.0) * DMatrix::from_column_slice(3, 1, lin.as_slice());
-                let shift = r * Vector3::new(v[0], v[1], v[2]);
+                let shift = r * (so3_jacobians(&w).0 * lin);
                 for a in 0..3 {
                     out[a] = q[a] + shift[a];
                 }
@@ -96,18 +137,17 @@ pub fn d_integrate(model: &Model, v: &[f64]) -> (DMatrix<f64>, DMatrix<f64>) {
             LieBlock::FreeFlyer => {
                 let (lin, w) = (Vector3::new(v[0], v[1], v[2]), Vector3::new(v[3], v[4], v[5]));
                 let rt = UnitQuaternion::from_scaled_axis(w).to_rotation_matrix().matrix().transpose();
-                let p = phi1(&dyn3(&skew(&w)), 1.0) * DMatrix::from_column_slice(3, 1, lin.as_slice());
-                let p = Vector3::new(p[0], p[1], p[2]);
+                let p = so3_jacobians(&w).0 * lin;
                 dq.view_mut((0, 0), (3, 3)).copy_from(&rt);
                 dq.view_mut((0, 3), (3, 3)).copy_from(&(-rt * skew(&p)));
                 dq.view_mut((3, 3), (3, 3)).copy_from(&rt);
-                dv.view_mut((0, 0), (6, 6)).copy_from(&phi1(&ad6(&lin, &w), -1.0));
+                dv.view_mut((0, 0), (6, 6)).copy_from(&jexp6(&lin, &w));
             }
             LieBlock::Spherical { v: k, .. } => {
                 let w = Vector3::new(v[k], v[k + 1], v[k + 2]);
                 let rt = UnitQuaternion::from_scaled_axis(w).to_rotation_matrix().matrix().transpose();
                 dq.view_mut((k, k), (3, 3)).copy_from(&rt);
-                dv.view_mut((k, k), (3, 3)).copy_from(&phi1(&dyn3(&skew(&w)), -1.0));
+                dv.view_mut((k, k), (3, 3)).copy_from(&so3_jacobians(&w).1);
             }
         }
     }
