@@ -234,7 +234,53 @@ macro_rules! bench_frames {
     }};
 }
 
+/// The step scene (`examples/scenes/hyq_step_floating.toml`): `step_grad` beside
+/// `fd_grad` of the same module (the step's target: within 1.2x), and `step`, under the
+/// same state protocol; each q's quaternion normalised.
+macro_rules! bench_step {
+    ($c:expr, $m:ident, $name:literal) => {{
+        use grid_gen_kernels::scenes::$m as k;
+        let s: Vec<([f64; k::NQ], [f64; k::NV], [f64; k::NV], [f64; k::NU])> = (0..STATES)
+            .map(|j| {
+                let mut q: [f64; k::NQ] = std::array::from_fn(|i| state(j, i, 0));
+                let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+                q[3..7].iter_mut().for_each(|x| *x /= n);
+                (q, std::array::from_fn(|i| state(j, i, 1)), std::array::from_fn(|i| state(j, i, 2)), std::array::from_fn(|i| state(j, i, 3)))
+            })
+            .collect();
+        let mut group = $c.benchmark_group($name);
+        let mut j = 0usize;
+        let mut next = || {
+            j = (j + 1) % STATES;
+            j
+        };
+        group.bench_function("generated/fd_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::fd_grad(&x.0, &x.1, &x.2))
+            })
+        });
+        group.bench_function("generated/step_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::step_grad(&x.0, &x.1, &x.3))
+            })
+        });
+        group.bench_function("generated/step", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::step(&x.0, &x.1, &x.3))
+            })
+        });
+        group.finish();
+    }};
+}
+
 fn kernels(c: &mut Criterion) {
+    if std::env::var_os("GRID_GEN_BENCH_STEP_ONLY").is_some() {
+        bench_step!(c, grid_hyq_step_floating, "grid_hyq.hyq_step_floating");
+        return;
+    }
     if std::env::var_os("GRID_GEN_BENCH_FRAMES_ONLY").is_some() {
         bench_frames!(c, grid_iiwa_tool_frame, "grid_iiwa.iiwa_tool_frame");
         bench_frames!(c, grid_hyq_feet_floating, "grid_hyq.hyq_feet_floating");
@@ -252,6 +298,7 @@ fn kernels(c: &mut Criterion) {
     bench_scene!(c, grid_hyq_floating, "grid_hyq.hyq_floating");
     bench_frames!(c, grid_iiwa_tool_frame, "grid_iiwa.iiwa_tool_frame");
     bench_frames!(c, grid_hyq_feet_floating, "grid_hyq.hyq_feet_floating");
+    bench_step!(c, grid_hyq_step_floating, "grid_hyq.hyq_step_floating");
 }
 
 criterion_group! {
