@@ -64,6 +64,9 @@ cargo fmt --all -- --check || die "code is not formatted: run cargo fmt --all"
 say "cargo test (workspace)"
 cargo test --workspace --all-targets
 
+say "the step example: 64 knots of floating HyQ rolled out and linearised"
+cargo run -q -p grid-gen-kernels --example hyq_rollout
+
 say "fixtures are what Pinocchio and yourdfpy compute"
 "$PY" scripts/make_fixtures.py --check
 

@@ -468,7 +468,18 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
     let mut states: Vec<Output> = file
         .states
         .iter()
-        .map(|_| Output { rnea: None, drnea_dq: None, drnea_dqd: None, m: Vec::new(), minv: None, fd: None, dfd_dq: None, dfd_dqd: None, frames: None, step: None })
+        .map(|_| Output {
+            rnea: None,
+            drnea_dq: None,
+            drnea_dqd: None,
+            m: Vec::new(),
+            minv: None,
+            fd: None,
+            dfd_dq: None,
+            dfd_dqd: None,
+            frames: None,
+            step: None,
+        })
         .collect();
     let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {
         chosen.iter().flat_map(|&i| pick(&file.states[i]).map(|v| v.as_slice()).unwrap_or(&[]).iter().copied()).collect()

@@ -476,7 +476,10 @@ fn select_step(scene: &Scene, scene_path: &str, diags: &mut Vec<Diagnostic>) -> 
         return None;
     };
     if !(dt.is_finite() && dt > 0.0) {
-        diags.push(Diagnostic::error(format!("{whence}: dt = {dt} is not a finite, positive number of seconds"), None, "bad dt").with_help("a time step such as `dt = 0.01`"));
+        diags.push(
+            Diagnostic::error(format!("{whence}: dt = {dt} is not a finite, positive number of seconds"), None, "bad dt")
+                .with_help("a time step such as `dt = 0.01`"),
+        );
         return None;
     }
     if scene.static_velocity {

@@ -73,18 +73,29 @@ const NQ: usize = {nq};"
     out
 }
 
+/// A call's arguments from a state `x = (q, [q̇, u])`: q alone, q and q̇, or all three, the
+/// step kernels' τ the first NU entries of u.
+fn call_args(inputs: &[crate::ir::Input]) -> &'static str {
+    match inputs {
+        [_] => "&x.0",
+        [_, _] => "&x.0, &x.1[0]",
+        [.., crate::ir::Input::TauActuated] => "&x.0, &x.1[0], x.1[1].first_chunk::<{ robot::NU }>().unwrap()",
+        _ => "&x.0, &x.1[0], &x.1[1]",
+    }
+}
+
 /// The timing program for `kernels` of a module whose file is `robot.rs`, and the
 /// mixed kernels of `mixed.rs`.
 fn program(kernels: &[KernelKind], mixed: &[MixedKernel], nq: usize) -> String {
     let mut calls = String::new();
     for (i, m) in mixed.iter().enumerate() {
         let name = m.function.kind.name();
-        let args = if m.function.inputs().len() == 1 { "&x.0" } else { "&x.0, &x.1[0], &x.1[1]" };
+        let args = call_args(m.function.inputs());
         let _ = writeln!(calls, "    println!(\"{name} {i} mixed {{}}\", time(|j| {{ let x = &s64[j]; black_box(mixed::mixed{i}::{name}({args})); }}));");
     }
     for k in kernels {
         let name = k.name();
-        let args = if k.inputs().len() == 1 { "&x.0" } else { "&x.0, &x.1[0], &x.1[1]" };
+        let args = call_args(k.inputs());
         for (scalar, states) in [("f64", "s64"), ("f32", "s32")] {
             for (copy, path) in [("portable", "robot::portable::"), ("dispatch", "robot::")] {
                 let _ =

@@ -54,8 +54,13 @@ fn reference_step_matches_pinocchio() {
             let per = if floating { [vec![0.0; 6], angles.to_vec()].concat() } else { angles.to_vec() };
             model.q_from_joints(&ours(&per), base)
         };
-        let actuated: Vec<usize> = fx["actuated"].as_array().unwrap().iter().map(|n| coordinates.iter().position(|c| *c == n.as_str().unwrap()).unwrap()).collect();
-        assert_eq!(actuated.iter().copied().collect::<std::collections::BTreeSet<_>>(), model.actuated().into_iter().collect(), "{name}: the default actuation");
+        let actuated: Vec<usize> =
+            fx["actuated"].as_array().unwrap().iter().map(|n| coordinates.iter().position(|c| *c == n.as_str().unwrap()).unwrap()).collect();
+        assert_eq!(
+            actuated.iter().copied().collect::<std::collections::BTreeSet<_>>(),
+            model.actuated().into_iter().collect(),
+            "{name}: the default actuation"
+        );
         let state_perm: Vec<usize> = perm.iter().copied().chain(perm.iter().map(|&p| nv + p)).collect();
         let dt = fx["dt"].as_f64().unwrap();
         let g: [f64; 3] = vec_of(&fx["gravity"]).try_into().unwrap();
@@ -67,7 +72,9 @@ fn reference_step_matches_pinocchio() {
                 let d = reference::step_derivatives(&model, &q, &qd, &tau, g, step, &model.actuated());
                 let (q1, v1) = reference::step(&model, &q, &qd, &tau, g, step);
                 let theirs_a = mat_of(&want["A"]);
-                let theirs_a = DMatrix::from_fn(2 * nv, 2 * nv, |r, c| theirs_a[(state_perm.iter().position(|&p| p == r).unwrap(), state_perm.iter().position(|&p| p == c).unwrap())]);
+                let theirs_a = DMatrix::from_fn(2 * nv, 2 * nv, |r, c| {
+                    theirs_a[(state_perm.iter().position(|&p| p == r).unwrap(), state_perm.iter().position(|&p| p == c).unwrap())]
+                });
                 // B's columns: the fixture's actuated order, mapped to ours (model order).
                 let theirs_b = mat_of(&want["B"]);
                 let order: Vec<usize> = model.actuated().iter().map(|c| actuated.iter().position(|a| a == c).unwrap()).collect();

@@ -13,8 +13,8 @@ use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
 use crate::model::Model;
 
 mod coupled;
-mod step;
 mod frames;
+mod step;
 
 /// Row-major n x n matrix of nodes.
 pub type Mat = Vec<Vec<Id>>;

@@ -232,11 +232,8 @@ pub fn step_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravi
             let moved = if semi { &qd_next } else { qd };
             let dq: Vec<f64> = moved.iter().map(|x| dt * x).collect();
             let (jq, jv) = d_integrate(model, &dq);
-            let (aqq, aqv, bq) = if semi {
-                (&jq + &jv * &avq * dt, &jv * &avv * dt, &jv * &bv * dt)
-            } else {
-                (jq, &jv * dt, DMatrix::zeros(nv, actuated.len()))
-            };
+            let (aqq, aqv, bq) =
+                if semi { (&jq + &jv * &avq * dt, &jv * &avv * dt, &jv * &bv * dt) } else { (jq, &jv * dt, DMatrix::zeros(nv, actuated.len())) };
             let (a, b) = assemble(aqq, aqv, avq, avv, bq, bv);
             StepDerivatives { q_next: integrate(model, q, &dq), qd_next, a, b }
         }
@@ -247,7 +244,15 @@ pub fn step_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravi
 /// RK4's chain rule, stage by stage, as Crocoddyl's `IntegratedActionModelRK4::calcDiff`:
 /// `∂y_i/∂x = J_x(x, dx_i) + J_dx(x, dx_i) c_i dt ∂k_(i−1)/∂x`, `∂k_i/∂x = ∂f/∂y_i ∂y_i/∂x`,
 /// with `J_x`, `J_dx` the state's `Jintegrate` (q's `dIntegrate`, identity for q̇).
-fn rk4_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], dt: f64, select: &dyn Fn(&DMatrix<f64>) -> DMatrix<f64>) -> StepDerivatives {
+fn rk4_derivatives(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    dt: f64,
+    select: &dyn Fn(&DMatrix<f64>) -> DMatrix<f64>,
+) -> StepDerivatives {
     let nv = model.nv();
     let nu = select(&DMatrix::zeros(nv, nv)).ncols();
     let state_jacobians = |dx: &[f64]| {
