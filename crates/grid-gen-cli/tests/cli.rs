@@ -690,3 +690,57 @@ fn eval_and_info_report_frames() {
     assert!(err.contains("--frames names `FL_fot`, which is not a link of this robot") && err.contains("closest frames: FL_foot"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `--step` and `--dt`: `eval` adds each state's step (every scheme, the reference's values),
+/// `info` says what the step kernels take, generating RK4 kernels and a τ on an
+/// unactuated joint are errors that say why.
+#[test]
+fn eval_and_info_report_the_step() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-step-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let states = dir.join("s.json");
+    let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";
+    let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
+    let tau = "[0,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]";
+    std::fs::write(&states, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "tau": {tau}}}, {{"q": {q}, "qd": {qd}}}]}}"#)).unwrap();
+    let text = std::fs::read_to_string(repo().join("tests/fixtures/go2.urdf")).unwrap();
+    let parse = |s: &str| -> Vec<f64> { serde_json::from_str(s).unwrap() };
+    for scheme in grid_gen::model::Scheme::ALL {
+        let out =
+            grid_gen(&["eval", "tests/fixtures/go2.urdf", "--floating-base", "--step", scheme.name(), "--dt", "0.02", "--states", states.to_str().unwrap()]);
+        assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+        let v = json(&out);
+        let step = &v["states"][0]["step"];
+        assert_eq!((step["A"].as_array().unwrap().len(), step["A"][0].as_array().unwrap().len()), (36, 36));
+        assert_eq!((step["B"].as_array().unwrap().len(), step["B"][0].as_array().unwrap().len()), (36, 12), "one column per leg joint");
+        assert!(v["states"][1].get("step").is_none(), "no tau, no step");
+        let scene = grid_gen::Scene { floating_base: true, ..Default::default() };
+        let mut model = grid_gen::Model::from_urdf_str_in_scene("go2.urdf", &text, false, &scene, "").unwrap().0;
+        model.specialisation.step = Some(grid_gen::model::Step { scheme, dt: 0.02 });
+        let d = grid_gen::reference::step_derivatives(
+            &model,
+            &parse(q),
+            &parse(qd),
+            &parse(tau),
+            grid_gen::model::DEFAULT_GRAVITY,
+            model.specialisation.step.unwrap(),
+            &model.actuated(),
+        );
+        let nums = |x: &serde_json::Value| -> Vec<f64> { x.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect() };
+        let close = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-15 * y.abs().max(1.0));
+        assert!(close(&nums(&step["q_next"]), &d.q_next), "{}", scheme.name());
+        assert!(close(&nums(&step["B"][30]), &d.b.row(30).iter().copied().collect::<Vec<_>>()), "{}", scheme.name());
+    }
+    let bad = dir.join("bad.json");
+    std::fs::write(&bad, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "tau": [1,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]}}]}}"#)).unwrap();
+    let out = grid_gen(&["eval", "tests/fixtures/go2.urdf", "--floating-base", "--step", "explicit_euler", "--dt", "0.02", "--states", bad.to_str().unwrap()]);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("not actuated"), "{}", String::from_utf8_lossy(&out.stderr));
+    let out = grid_gen(&["robots/grid_iiwa.urdf", "--step", "rk4", "--dt", "0.01", "-o", dir.join("out").to_str().unwrap()]);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("Euler schemes only"), "{}", String::from_utf8_lossy(&out.stderr));
+    let info = json(&grid_gen(&["info", "robots/grid_iiwa.urdf", "--json", "--step", "semi_implicit_euler", "--dt", "0.01"]));
+    assert_eq!(info["step"], serde_json::json!({"scheme": "semi_implicit_euler", "dt": 0.01}));
+    assert_eq!(info["actuated"].as_array().unwrap().len(), 7);
+    std::fs::remove_dir_all(&dir).ok();
+}

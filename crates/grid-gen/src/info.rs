@@ -64,6 +64,10 @@ pub struct Info {
     /// reference frame.
     pub selected_frames: Vec<String>,
     pub reference_frame: crate::model::ReferenceFrame,
+    /// The step the step kernels take (`--step`, `[step]`), if any.
+    pub step: Option<crate::model::Step>,
+    /// The actuated joints: the step's τ and B's columns, in model order.
+    pub actuated: Vec<String>,
     /// A floating base: joints 0 to 5 are the free-flyer's velocity coordinates (linear,
     /// then angular, in the base frame).
     pub floating_base: bool,
@@ -147,6 +151,8 @@ impl Info {
                 .collect(),
             selected_frames: model.selected_frames().map(|f| f.name.clone()).collect(),
             reference_frame: model.specialisation.reference,
+            step: model.specialisation.step,
+            actuated: model.actuated().iter().map(|&c| model.joints[model.coordinate_joints()[c]].name.clone()).collect(),
             gravity,
             joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(),
             joint_types: model.coordinate_joints().iter().map(|&i| model.joints[i].joint_type).collect(),
@@ -280,6 +286,15 @@ impl Info {
         s.push_str(&format!("frames (links, with the joint whose body carries them): {}\n", frames.join(", ")));
         if !self.selected_frames.is_empty() {
             s.push_str(&format!("frame kernels compute: {} (reference frame {})\n", self.selected_frames.join(", "), self.reference_frame.name()));
+        }
+        if let Some(step) = self.step {
+            s.push_str(&format!(
+                "step kernels: {} over dt = {} s; actuated ({}): {}\n",
+                step.scheme.name(),
+                step.dt,
+                self.actuated.len(),
+                self.actuated.join(", ")
+            ));
         }
         if self.mimic_coupled {
             let coupled: Vec<String> = self
