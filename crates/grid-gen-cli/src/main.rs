@@ -198,7 +198,7 @@ struct LoadArgs {
     reference_frame: Option<grid_gen::model::ReferenceFrame>,
     /// Generate the step kernels (`step`, `step_grad`) and have `eval` report each state's
     /// next state and [A | B]: semi_implicit_euler (Crocoddyl's default), explicit_euler or
-    /// rk4 (eval only); replaces the scene's `[step] scheme`. Needs a time step (--dt).
+    /// rk4; replaces the scene's `[step] scheme`. Needs a time step (--dt).
     #[arg(long, value_name = "SCHEME", global = true, value_parser = parse_scheme)]
     step: Option<grid_gen::model::Scheme>,
     /// The step's time step in seconds (folded into the kernels); replaces `[step] dt`.

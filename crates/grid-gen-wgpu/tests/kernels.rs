@@ -371,8 +371,8 @@ fn floating_base_kernels_match_the_reference() {
     check_model_within(&gpu, "grid_atlas floating", &atlas, &KernelKind::ALL, options, &[Strategy::Cooperative], &mut rng, 1e-10);
 }
 
-/// The step kernels (floating HyQ, semi-implicit Euler, 10 ms; iiwa, explicit Euler) in
-/// f64 against the reference step and `[A | B]`: cooperative entries for HyQ (its
+/// The step kernels (floating HyQ, semi-implicit Euler, 10 ms; iiwa, explicit Euler and
+/// RK4) in f64 against the reference step and `[A | B]`: cooperative entries for HyQ (its
 /// step_grad is 45k statements straight-line, minutes for lavapipe's f64 compiler), both
 /// strategies for iiwa, and f32 thread entries for HyQ's `step`.
 #[test]
@@ -387,6 +387,12 @@ fn step_kernels_match_the_reference() {
     let iiwa = with_step(&load("grid_iiwa"), Scheme::ExplicitEuler, 0.005);
     check_model(&gpu, "grid_iiwa step", &iiwa, &steps, options, &Strategy::ALL, &mut rng);
     check_model(&gpu, "grid_hyq floating step", &hyq, &[KernelKind::Step], WgslOptions::default(), &[Strategy::Thread], &mut rng);
+    // RK4 on iiwa, cooperative, over 0.1 ms: the states include 1e3 rad/s, where a 10 ms RK4
+    // step is far outside the scheme's stability and each stage would multiply rounding by
+    // dt ∂q̈/∂q̇ ~ 1e2 (grid-gen's tests/step.rs); at 0.1 ms it stays stable there.
+    let rk4 = with_step(&load("grid_iiwa"), Scheme::Rk4, 1e-4);
+    let f64_options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
+    check_model(&gpu, "grid_iiwa rk4", &rk4, &steps, f64_options, &[Strategy::Cooperative], &mut rng);
 }
 
 /// Coupled mimic joints (issue 11): mimic_arm (`tests/fixtures/mimic_arm.urdf`, three

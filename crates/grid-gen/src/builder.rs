@@ -182,7 +182,7 @@ impl Builder {
     }
 
     /// Generate the step kernels `step` and `step_grad` for this scheme and time step
-    /// (replaces the scene's `[step]`; the Euler schemes only: RK4 is the reference's).
+    /// (replaces the scene's `[step]`).
     pub fn step(&mut self, scheme: crate::model::Scheme, dt: f64) -> &mut Self {
         self.step = Some(crate::model::Step { scheme, dt });
         self

@@ -26,7 +26,7 @@
 //! reference = "local_world_aligned"    # or "local", "world" (Pinocchio's ReferenceFrame)
 //!
 //! [step]                               # the step kernels: one time step and [A | B]
-//! scheme = "semi_implicit_euler"       # or "explicit_euler", "rk4" (eval only)
+//! scheme = "semi_implicit_euler"       # or "explicit_euler", "rk4"
 //! dt = 0.01                            # s, folded into the kernels
 //!
 //! [actuation]                          # the step's tau and B's columns (default: every

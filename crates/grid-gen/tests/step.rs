@@ -228,7 +228,7 @@ fn step_kernels_match_the_reference() {
     let mut rng = Rng(53);
     let mut worst: f64 = 0.0;
     for (name, model) in &cases {
-        for scheme in [Scheme::SemiImplicitEuler, Scheme::ExplicitEuler] {
+        for scheme in Scheme::ALL {
             for solve in [ir::Solve::Minv, ir::Solve::Ltdl] {
                 let m = with_step(model, scheme, 0.01);
                 let options = LowerOptions { kernels: vec![KernelKind::Step, KernelKind::StepGrad], solve, ..LowerOptions::default() };
@@ -236,8 +236,12 @@ fn step_kernels_match_the_reference() {
                 assert_eq!(module.functions.len(), 2, "{name}: both step kernels");
                 let nv = m.nv();
                 for state in 0..3 {
-                    // The last state spins at 1e3 rad/s: the base turns by 10 rad and more in a step.
-                    let speed = if state == 2 { 1e3 } else { 2.0 };
+                    // The last state spins at 1e3 rad/s: the base turns by 10 rad and more in a
+                    // step. RK4's at 30 rad/s: at 1e3 its 10 ms step is far outside the scheme's
+                    // stability (dt |∂f/∂x| ≫ 2.8), each stage multiplies the previous one's
+                    // rounding by dt ∂q̈/∂q̇ ~ 1e2, and two f64 evaluations drift 1e-10 apart.
+                    let fast = if scheme == Scheme::Rk4 { 30.0 } else { 1e3 };
+                    let speed = if state == 2 { fast } else { 2.0 };
                     let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
                     for &s in &m.spherical {
                         let at = m.group_q(s);
@@ -289,4 +293,60 @@ fn bad_steps_are_errors() {
     let m = load("floating_base = true\n[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_kfe_joint\", \"root_joint\"]\n").unwrap();
     assert_eq!(m.actuated().len(), 7, "root_joint stands for its six coordinates");
     assert_eq!(m.specialisation.step, Some(Step { scheme: Scheme::SemiImplicitEuler, dt: 0.01 }));
+}
+
+/// RK4's generated Rust, compiled with rustc and run: iiwa's `step_grad` (both copies) on
+/// four states against the reference (the checked-in step scene covers the Euler scheme).
+#[test]
+fn rk4_step_grad_compiles_and_matches_the_reference() {
+    use grid_gen::generate::{generate, Options, Target};
+    let model = with_step(&load("grid_iiwa"), Scheme::Rk4, 0.01);
+    let lower = LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() };
+    let file = generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() }).unwrap().remove(0);
+    let dir = std::env::temp_dir().join(format!("grid-gen-rk4-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("robot.rs"), &file.contents).unwrap();
+    std::fs::write(
+        dir.join("main.rs"),
+        r#"mod robot { include!("robot.rs"); }
+use robot::*;
+fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }
+fn main() {
+    for k in 0..4 {
+        let x: [[f64; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s)));
+        let (q, v, a, b) = if has_fma() { unsafe { fma::step_grad(&x[0], &x[1], &x[2]) } } else { portable::step_grad(&x[0], &x[1], &x[2]) };
+        let all: Vec<String> = q.iter().chain(&v).chain(a.as_flattened()).chain(b.as_flattened()).map(|x| format!("{x:?}")).collect();
+        println!("{}", all.join(" "));
+    }
+}
+"#,
+    )
+    .unwrap();
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let exe = dir.join("rk4_check");
+    let out = std::process::Command::new(rustc)
+        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
+        .arg(&exe)
+        .arg(dir.join("main.rs"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let run = std::process::Command::new(&exe).output().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    let state = |k: usize, i: usize, salt: usize| (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5;
+    let nv = model.nv();
+    let mut worst: f64 = 0.0;
+    for (k, line) in String::from_utf8_lossy(&run.stdout).lines().enumerate() {
+        let got: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
+        let x: Vec<Vec<f64>> = (0..3).map(|s| (0..nv).map(|i| state(k, i, s)).collect()).collect();
+        let want = reference_outputs(KernelKind::StepGrad, &model, &x[0], &x[1], &x[2], reference::DEFAULT_GRAVITY);
+        let want: Vec<f64> = want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
+        assert_eq!(got.len(), want.len());
+        let e = rel_err(&col(&got), &col(&want));
+        worst = worst.max(e);
+        // f64 kernels are held to 1e-12 of the reference, as everywhere.
+        assert!(e < 1e-12, "state {k}: {e:.2e}");
+    }
+    println!("iiwa RK4 step_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
 }

@@ -60,11 +60,6 @@ pub enum LowerError {
     NotFinite { robot: String, value: f64 },
     #[error("robot `{robot}`: kernel `{kernel}` needs M⁻¹, and M is singular (joint `{joint}` moves no inertia)")]
     Singular { robot: String, kernel: KernelKind, joint: String },
-    #[error(
-        "robot `{robot}`: the step kernels take the Euler schemes only (semi_implicit_euler, explicit_euler); \
-         rk4's step and [A | B] are in `eval --step rk4` (the reference), not generated"
-    )]
-    Rk4 { robot: String },
     #[error("internal error: kernel `{kernel}` failed IR validation: {error}")]
     Invalid { kernel: KernelKind, error: ValidationError },
 }
@@ -273,9 +268,6 @@ pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result
 pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions) -> Result<Function, LowerError> {
     if gravity.iter().any(|g| !g.is_finite()) {
         return Err(LowerError::Gravity(gravity));
-    }
-    if kind.is_step() && model.specialisation.step.is_some_and(|s| s.scheme == crate::model::Scheme::Rk4) {
-        return Err(LowerError::Rk4 { robot: model.name.clone() });
     }
     if let (Some(joint), true) = (&model.singular, kind.needs_minv()) {
         return Err(LowerError::Singular { robot: model.name.clone(), kernel: kind, joint: joint.clone() });

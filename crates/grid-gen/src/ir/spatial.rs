@@ -313,13 +313,19 @@ pub fn subspace(g: &mut Graph, joint: &Joint) -> Sv {
 /// `α cos q + β sin q + γ` with α = δ − a aᵀ, β = −[a]× (transposed), γ = a aᵀ, so that an
 /// axis-aligned joint leaves exact zeros and ones (Rodrigues, R = c I + s [a]× + (1 − c) a aᵀ).
 pub fn joint_xform(g: &mut Graph, model: &Model, i: usize) -> Xform {
+    joint_xform_at(g, model, i, None)
+}
+
+/// [`joint_xform`] at the configuration `q` (nodes, one per entry of q) instead of the
+/// kernel's input: the step's RK4 stages evaluate the dynamics at `q ⊕ c dt k`.
+pub fn joint_xform_at(g: &mut Graph, model: &Model, i: usize, q_at: Option<&[Id]>) -> Xform {
     let joint = &model.joints[i];
     let tree_r = joint.tree.rot;
     // E_T = Rᵀ (rows of E_T are columns of R); r_T = position.
     let et: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| k(g, tree_r[c][r])));
     let rt: V3 = std::array::from_fn(|r| k(g, joint.tree.pos[r]));
-    let Some((qi, multiplier, offset)) = model.joint_q(i) else { return group_xform(g, model, i, et, rt) };
-    let mut q = g.input(super::graph::Input::Q, qi);
+    let Some((qi, multiplier, offset)) = model.joint_q(i) else { return group_xform(g, model, i, et, rt, q_at) };
+    let mut q = q_at.map_or_else(|| g.input(super::graph::Input::Q, qi), |q| q[qi]);
     // A coupled mimic joint: q_m = multiplier · q + offset.
     if multiplier != 1.0 {
         let m = k(g, multiplier);
@@ -392,11 +398,11 @@ pub fn quaternion_rotation(g: &mut Graph, [x, y, z, w]: [Id; 4]) -> [[Id; 3]; 3]
     ]
 }
 
-fn group_xform(g: &mut Graph, model: &Model, i: usize, et: [[Id; 3]; 3], rt: V3) -> Xform {
+fn group_xform(g: &mut Graph, model: &Model, i: usize, et: [[Id; 3]; 3], rt: V3, q_at: Option<&[Id]>) -> Xform {
     if model.group(i).is_none_or(|m| m.start != i) {
         return Xform { e: et, r: rt };
     }
-    let input = |g: &mut Graph, k: usize| g.input(super::graph::Input::Q, k);
+    let input = |g: &mut Graph, k: usize| q_at.map_or_else(|| g.input(super::graph::Input::Q, k), |q| q[k]);
     let free = model.is_free_flyer(i);
     let at = if free { 3 } else { model.group_q(i) };
     let p: Option<V3> = free.then(|| std::array::from_fn(|k| input(g, k)));

@@ -14,7 +14,7 @@
 //! that of `θ` itself, about ε θ per step, as in a library `sin`). `integrate`'s Jacobians are the forward-mode derivatives of that graph.
 
 use super::super::graph::{Graph, Id, Input, Stage};
-use super::super::spatial::{self as sp, k, V3};
+use super::super::spatial::{self as sp, joint_xform_at, k, V3};
 use super::{Dynamics, Mat};
 use crate::model::{LieBlock, Scheme};
 
@@ -226,10 +226,156 @@ impl Dynamics<'_> {
         (jq, jv)
     }
 
-    /// `x⁺ = (q⁺, q̇⁺)` for one step of `scheme` (the Euler schemes) under the actuated
-    /// forces `tau`.
+    /// Runs `f` with the joint transforms at the configuration `q` (nodes) instead of the
+    /// kernel's input: the dynamics at an RK4 stage's state.
+    fn at_config<R>(&mut self, q: &[Id], f: impl FnOnce(&mut Self) -> R) -> R {
+        let x = (0..self.model.njoints())
+            .map(|i| {
+                self.g.at(Some(i), Stage::Transform, self.model.joints[i].level as usize);
+                joint_xform_at(&mut self.g, self.model, i, Some(q))
+            })
+            .collect();
+        let saved = std::mem::replace(&mut self.x, x);
+        let out = f(self);
+        self.x = saved;
+        out
+    }
+
+    /// `q ⊕ w` for the kernel's q and a state's `x ⊕ dx` (Crocoddyl's `StateMultibody`).
+    fn state_integrate(&mut self, qd: &[Id], dx: &[Id]) -> (Vec<Id>, Vec<Id>) {
+        let nv = self.model.nv();
+        let q = self.integrate(&dx[..nv]);
+        let v = (0..nv).map(|k| self.g.add(qd[k], dx[nv + k])).collect();
+        (q, v)
+    }
+
+    /// RK4's stages as Crocoddyl's `IntegratedActionModelRK4`: `k_i = (v_i, q̈_i)` at
+    /// `y_i = x ⊕ c_i dt k_(i−1)`, `dx = dt (k_1 + 2 k_2 + 2 k_3 + k_4) / 6`. With `grad`,
+    /// each stage's `fd_grad` and the chain rule give `(A, B)` too.
+    fn rk4(&mut self, qd: &[Id], tau: &[Id], dt: f64, grad: bool) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
+        let nv = self.model.nv();
+        let nx = 2 * nv;
+        let actuated = self.model.actuated();
+        let nu = actuated.len();
+        let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
+        let identity = |n: usize| -> Mat { (0..n).map(|i| (0..n).map(|j| if i == j { one } else { zero }).collect()).collect() };
+        let mut dx = vec![zero; nx];
+        let (mut dx_dx, mut dx_du) = (vec![vec![zero; nx]; nx], vec![vec![zero; nu]; nx]);
+        let (mut k_prev, mut dk_dx, mut dk_du): (Vec<Id>, Mat, Mat) = (Vec::new(), Vec::new(), Vec::new());
+        for (i, (c, weight)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
+            if self.exhausted() {
+                break;
+            }
+            let (y_q, y_v, dy_dx, dy_du) = if i == 0 {
+                let q: Vec<Id> = (0..self.model.nq()).map(|j| self.g.input(Input::Q, j)).collect();
+                (q, qd.to_vec(), identity(nx), vec![vec![zero; nu]; nx])
+            } else {
+                let h = k(&mut self.g, c * dt);
+                let d: Vec<Id> = k_prev.iter().map(|&x| self.g.mul(h, x)).collect();
+                let (y_q, y_v) = self.state_integrate(qd, &d);
+                if grad {
+                    let (jq, jv) = self.d_integrate(&d[..nv], &y_q);
+                    let (jx, jdx) = (state_block(&jq, one, zero), state_block(&jv, one, zero));
+                    let t = self.scaled_product(&jdx, &dk_dx, c * dt);
+                    let dy_dx = self.add_mat(&jx, &t);
+                    let dy_du = self.scaled_product(&jdx, &dk_du, c * dt);
+                    (y_q, y_v, dy_dx, dy_du)
+                } else {
+                    (y_q, y_v, Vec::new(), Vec::new())
+                }
+            };
+            let qdd;
+            if grad {
+                let (a, da_dq, da_dv, minv_s) = self.at_config(&y_q, |d| d.fd_grad_minv(&y_v, tau, &actuated));
+                // ∂k/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
+                let df: Mat = (0..nx)
+                    .map(|r| {
+                        (0..nx)
+                            .map(|c| {
+                                if r < nv {
+                                    if c == r + nv {
+                                        one
+                                    } else {
+                                        zero
+                                    }
+                                } else if c < nv {
+                                    da_dq[r - nv][c]
+                                } else {
+                                    da_dv[r - nv][c - nv]
+                                }
+                            })
+                            .collect()
+                    })
+                    .collect();
+                dk_dx = self.scaled_product(&df, &dy_dx, 1.0);
+                dk_du = self.scaled_product(&df, &dy_du, 1.0);
+                for r in 0..nv {
+                    for c in 0..nu {
+                        dk_du[nv + r][c] = self.g.add(dk_du[nv + r][c], minv_s[r][c]);
+                    }
+                }
+                let w = weight * dt / 6.0;
+                let t = self.scaled(&dk_dx, w);
+                dx_dx = self.add_mat(&dx_dx, &t);
+                let t = self.scaled(&dk_du, w);
+                dx_du = self.add_mat(&dx_du, &t);
+                qdd = a;
+            } else {
+                qdd = self.at_config(&y_q, |d| d.fd(&y_v, tau));
+            }
+            k_prev = y_v.iter().chain(&qdd).copied().collect();
+            let w = k(&mut self.g, weight * dt / 6.0);
+            for (d, &kk) in dx.iter_mut().zip(&k_prev) {
+                let t = self.g.mul(w, kk);
+                *d = self.g.add(*d, t);
+            }
+        }
+        self.product = None;
+        let (q_next, qd_next) = self.state_integrate(qd, &dx);
+        if !grad {
+            return (q_next, qd_next, Vec::new(), Vec::new());
+        }
+        let (jq, jv) = self.d_integrate(&dx[..nv], &q_next);
+        let (jx, jdx) = (state_block(&jq, one, zero), state_block(&jv, one, zero));
+        let t = self.scaled_product(&jdx, &dx_dx, 1.0);
+        let a = self.add_mat(&jx, &t);
+        let b = self.scaled_product(&jdx, &dx_du, 1.0);
+        (q_next, qd_next, a.into_iter().flatten().collect(), b.into_iter().flatten().collect())
+    }
+
+    /// `s · x y` (zeros fold away).
+    fn scaled_product(&mut self, x: &Mat, y: &Mat, s: f64) -> Mat {
+        let cols = y.first().map_or(0, Vec::len);
+        let h = k(&mut self.g, s);
+        (0..x.len())
+            .map(|i| {
+                (0..cols)
+                    .map(|c| {
+                        let col: Vec<Id> = (0..y.len()).map(|r| y[r][c]).collect();
+                        let d = self.g.dot(&x[i], &col);
+                        self.g.mul(h, d)
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    fn scaled(&mut self, x: &Mat, s: f64) -> Mat {
+        let h = k(&mut self.g, s);
+        x.iter().map(|row| row.iter().map(|&v| self.g.mul(h, v)).collect()).collect()
+    }
+
+    fn add_mat(&mut self, x: &Mat, y: &Mat) -> Mat {
+        x.iter().zip(y).map(|(a, b)| a.iter().zip(b).map(|(&p, &q)| self.g.add(p, q)).collect()).collect()
+    }
+
+    /// `x⁺ = (q⁺, q̇⁺)` for one step of `scheme` under the actuated forces `tau`.
     pub fn step(&mut self, qd: &[Id], tau: &[Id], scheme: Scheme, dt: f64) -> (Vec<Id>, Vec<Id>) {
         let tau = self.actuate(tau);
+        if scheme == Scheme::Rk4 {
+            let (q, v, _, _) = self.rk4(qd, &tau, dt, false);
+            return (q, v);
+        }
         let qdd = self.fd(qd, &tau);
         self.g.at(None, Stage::Combine, 0);
         let (qd_next, w) = self.euler(qd, &qdd, scheme, dt);
@@ -262,6 +408,9 @@ impl Dynamics<'_> {
         let actuated = self.model.actuated();
         let nu = actuated.len();
         let tau = self.actuate(tau);
+        if scheme == Scheme::Rk4 {
+            return self.rk4(qd, &tau, dt, true);
+        }
         let (qdd, da_dq, da_dv, minv_s) = self.fd_grad_minv(qd, &tau, &actuated);
         // The step's products are its own: no backend may rerun fd_grad's as a loop.
         self.product = None;
@@ -308,4 +457,24 @@ impl Dynamics<'_> {
         let b = bq.iter().chain(&bv).flatten().copied().collect();
         (q_next, qd_next, a, b)
     }
+}
+
+/// The state's block-diagonal Jacobian `[[J, 0], [0, I]]` (q's block `j`, q̇'s identity).
+fn state_block(j: &Mat, one: Id, zero: Id) -> Mat {
+    let nv = j.len();
+    (0..2 * nv)
+        .map(|r| {
+            (0..2 * nv)
+                .map(|c| {
+                    if r < nv && c < nv {
+                        j[r][c]
+                    } else if r == c {
+                        one
+                    } else {
+                        zero
+                    }
+                })
+                .collect()
+        })
+        .collect()
 }
