@@ -7,6 +7,10 @@
 // LOCAL_WORLD_ALIGNED: {"robot": ..., "frames": [...], "frame_jacobian_ns": ..., "frame_acceleration_ns": ...},
 // computeJointJacobians + getFrameJacobian per frame, and forwardKinematics(q, v, a) +
 // getFrameClassicalAcceleration per frame (what a contact constraint or a frame cost calls).
+// An argument `step=DT@MODEL` times the semi-implicit Euler step and its [A | B] composed the way a
+// user of Pinocchio writes it (computeABADerivatives, integrate, dIntegrate twice and the products,
+// every joint but a free-flyer actuated), beside computeABADerivatives alone:
+// {"robot": ..., "step_grad_ns": ..., "aba_derivatives_ns": ...}.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -43,6 +47,11 @@ double time_ns(F&& f, int iters, int rounds) {
 int main(int argc, char** argv) {
   for (int a = 1; a < argc; ++a) {
     std::string arg(argv[a]);
+    double dt = 0.0;
+    if (arg.rfind("step=", 0) == 0) {
+      dt = std::stod(arg.substr(5, arg.find('@') - 5));
+      arg = arg.substr(arg.find('@') + 1);
+    }
     std::string path = arg.substr(0, arg.find(':'));
     std::vector<std::string> names;
     if (arg.find(':') != std::string::npos) {
@@ -66,6 +75,39 @@ int main(int argc, char** argv) {
       tau[k] = Eigen::VectorXd::Random(model.nv);
     }
     const int iters = 2000, rounds = 15;
+    if (dt > 0.0) {
+      const int nv = model.nv;
+      const int first = model.joints[1].nv() == 6 ? 6 : 0;  // a free-flyer is not actuated
+      const int nu = nv - first;
+      Eigen::VectorXd v1(nv), dq(nv), qn(model.nq);
+      Eigen::MatrixXd Jq(nv, nv), Jv(nv, nv), A(2 * nv, 2 * nv), B(2 * nv, nu), Minv(nv, nv);
+      double sink = 0.0;
+      double step = time_ns(
+          [&](int i) {
+            const int k = i % K;
+            pinocchio::computeABADerivatives(model, data, q[k], v[k], tau[k]);
+            Minv = data.Minv;
+            Minv.triangularView<Eigen::StrictlyLower>() = Minv.transpose().triangularView<Eigen::StrictlyLower>();
+            v1 = v[k] + dt * data.ddq;
+            dq = dt * v1;
+            pinocchio::integrate(model, q[k], dq, qn);
+            pinocchio::dIntegrate(model, q[k], dq, Jq, pinocchio::ARG0);
+            pinocchio::dIntegrate(model, q[k], dq, Jv, pinocchio::ARG1);
+            A.bottomLeftCorner(nv, nv) = dt * data.ddq_dq;
+            A.bottomRightCorner(nv, nv) = dt * data.ddq_dv;
+            A.bottomRightCorner(nv, nv).diagonal().array() += 1.0;
+            B.bottomRows(nv) = dt * Minv.rightCols(nu);
+            A.topLeftCorner(nv, nv) = Jq;
+            A.topLeftCorner(nv, nv).noalias() += dt * Jv * A.bottomLeftCorner(nv, nv);
+            A.topRightCorner(nv, nv).noalias() = dt * Jv * A.bottomRightCorner(nv, nv);
+            B.topRows(nv).noalias() = dt * Jv * B.bottomRows(nv);
+            sink += A(0, 0) + B(0, 0) + qn[0];
+          },
+          iters, rounds);
+      double ad = time_ns([&](int i) { pinocchio::computeABADerivatives(model, data, q[i % K], v[i % K], tau[i % K]); }, iters, rounds);
+      std::printf("{\"robot\": \"%s\", \"dt\": %g, \"step_grad_ns\": %.1f, \"aba_derivatives_ns\": %.1f, \"sink\": %g}\n", path.c_str(), dt, step, ad, sink);
+      continue;
+    }
     if (!names.empty()) {
       std::vector<pinocchio::FrameIndex> ids;
       for (auto& n : names) ids.push_back(model.getFrameId(n, pinocchio::BODY));

@@ -21,6 +21,9 @@ MODELS="$(for r in $ROBOTS; do echo target/bench/$r.pinmodel; done) target/bench
 # Frames (the scenes examples/scenes/iiwa_tool_frame.toml and hyq_feet_floating.toml):
 # MODEL:LINK,... times getFrameJacobian and getFrameClassicalAcceleration for those links.
 MODELS="$MODELS target/bench/grid_iiwa.pinmodel:iiwa_link_7 target/bench/grid_hyq_floating.pinmodel:lf_lowerleg,rf_lowerleg,lh_lowerleg,rh_lowerleg"
+# The step (examples/scenes/hyq_step_floating.toml): Pinocchio's composition of the semi-implicit
+# Euler step and its [A | B] over 10 ms.
+MODELS="$MODELS step=0.01@target/bench/grid_hyq_floating.pinmodel"
 # Pinocchio's own build defines these (see its exported CMake targets). Built twice, for
 # the default target and with -march=native; the report takes the faster of the two per
 # algorithm, so Pinocchio gets the same wide instructions as our FMA copy.

@@ -65,3 +65,16 @@ for group, pin_robot in [("grid_iiwa.iiwa_tool_frame", "grid_iiwa"), ("grid_hyq.
             continue
         p = pin.get(pin_robot, {}).get(f"{kernel}_ns")
         print(f"| {group} | {kernel} | {fmt(g)} | {fmt(p) if p else '-'} | {f'{p / g:.1f}x' if p else '-'} |")
+
+# The discrete step (floating HyQ, semi-implicit Euler, 10 ms; examples/scenes/hyq_step_floating.toml):
+# step_grad against Pinocchio's composition (computeABADerivatives, integrate, dIntegrate twice and
+# the products; `step=DT@MODEL` in bench/pinocchio_bench.cpp), and against the module's own fd_grad.
+try:
+    g, f = ns("grid_hyq.hyq_step_floating", "generated/step_grad"), ns("grid_hyq.hyq_step_floating", "generated/fd_grad")
+    p = pin.get("grid_hyq_floating", {}).get("step_grad_ns")
+    print()
+    print("| scene | kernel | generated | its fd_grad | Pinocchio composition | vs fd_grad | vs Pinocchio |")
+    print("|---|---|---|---|---|---|---|")
+    print(f"| grid_hyq.hyq_step_floating | step_grad | {fmt(g)} | {fmt(f)} | {fmt(p) if p else '-'} | {g / f:.2f}x | {f'{p / g:.1f}x' if p else '-'} |")
+except FileNotFoundError:
+    pass
