@@ -204,6 +204,9 @@ struct LoadArgs {
     /// The step's time step in seconds (folded into the kernels); replaces `[step] dt`.
     #[arg(long, value_name = "SECONDS", global = true)]
     dt: Option<f64>,
+    /// `fd_grad` also returns `dqdd_dtau` = M^-1 (the scene's `[fd_grad] minv = true`).
+    #[arg(long, global = true)]
+    fd_grad_minv: bool,
 }
 
 fn parse_scheme(s: &str) -> Result<grid_gen::model::Scheme, String> {
@@ -416,6 +419,7 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
     if let Some(rf) = args.reference_frame {
         scene.frames.reference = Some(rf);
     }
+    scene.fd_grad.minv |= args.fd_grad_minv;
     if args.step.is_some() || args.dt.is_some() {
         let s = scene.step.get_or_insert_with(Default::default);
         s.scheme = args.step.or(s.scheme);

@@ -81,6 +81,7 @@ pub struct Builder {
     reference_frame: Option<crate::model::ReferenceFrame>,
     step: Option<crate::model::Step>,
     actuated: Option<Vec<String>>,
+    fd_grad_minv: bool,
     quiet: bool,
 }
 
@@ -195,6 +196,12 @@ impl Builder {
         self
     }
 
+    /// `fd_grad` also returns `dqdd_dtau = M⁻¹` (as the scene's `[fd_grad] minv = true`).
+    pub fn fd_grad_minv(&mut self, on: bool) -> &mut Self {
+        self.fd_grad_minv = on;
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
@@ -268,6 +275,7 @@ impl Builder {
         if let Some(step) = self.step {
             scene.step = Some(crate::scene::StepSection { scheme: Some(step.scheme), dt: Some(step.dt) });
         }
+        scene.fd_grad.minv |= self.fd_grad_minv;
         if let Some(joints) = &self.actuated {
             scene.actuation = Some(crate::scene::ActuationSection { joints: joints.clone() });
         }

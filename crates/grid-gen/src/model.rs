@@ -330,6 +330,9 @@ pub struct Specialisation {
     /// The actuated coordinates (the columns of the step's B and the entries of its τ), in
     /// coordinate order. `None`: every coordinate but a floating base's six.
     pub actuated: Option<Vec<usize>>,
+    /// `fd_grad` also returns `∂q̈/∂τ = M⁻¹` (`dqdd_dtau`), for users who integrate
+    /// themselves.
+    pub fd_grad_minv: bool,
 }
 
 impl Specialisation {

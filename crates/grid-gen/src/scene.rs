@@ -32,6 +32,9 @@
 //! [actuation]                          # the step's tau and B's columns (default: every
 //! joints = ["lf_haa_joint"]            # joint but a floating base; multi-dof by name)
 //!
+//! [fd_grad]
+//! minv = true                          # fd_grad also returns dqdd_dtau = M^-1
+//!
 //! [[payload]]                          # or [payload] for one
 //! link = "right_gripper"
 //! mass = 1.5                           # kg
@@ -89,6 +92,18 @@ pub struct Scene {
     pub step: Option<StepSection>,
     /// The actuated joints: the step's τ and B's columns.
     pub actuation: Option<ActuationSection>,
+    /// `fd_grad`'s options.
+    #[serde(default)]
+    pub fd_grad: FdGradSection,
+}
+
+/// `[fd_grad]`: what `fd_grad` returns besides `(qdd, dqdd_dq, dqdd_dqd)`.
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct FdGradSection {
+    /// Also `dqdd_dtau = M⁻¹` (as `--fd-grad-minv`).
+    #[serde(default)]
+    pub minv: bool,
 }
 
 /// `[step]`: the step kernels' scheme and time step.
@@ -463,7 +478,16 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
     let frames = select_frames(scene, scene_path, urdf, model, diags);
     let step = select_step(scene, scene_path, diags);
     let actuated = scene.actuation.as_ref().map(|a| select_actuated(&a.joints, scene_path, model, diags));
-    Specialisation { static_velocity: scene.static_velocity, rows, columns, frames, reference: scene.frames.reference.unwrap_or_default(), step, actuated }
+    Specialisation {
+        static_velocity: scene.static_velocity,
+        rows,
+        columns,
+        frames,
+        reference: scene.frames.reference.unwrap_or_default(),
+        step,
+        actuated,
+        fd_grad_minv: scene.fd_grad.minv,
+    }
 }
 
 /// `[step]` (or `--step`, `--dt`): a scheme and a finite, positive time step.

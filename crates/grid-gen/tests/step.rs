@@ -350,3 +350,75 @@ fn main() {
     }
     println!("iiwa RK4 step_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
 }
+
+/// `fd_grad` with `dqdd_dtau` (`[fd_grad] minv = true`): M⁻¹ from the route `fd_grad` took,
+/// both solves, fixed, floating and coupled robots, against the reference's M⁻¹; the other
+/// outputs unchanged; and the generated Rust returns it (compiled by rustc, run).
+#[test]
+fn fd_grad_can_return_minv() {
+    let fixtures = repo().join("tests/fixtures");
+    let cases: Vec<(&str, Model)> = vec![
+        ("iiwa", load("grid_iiwa")),
+        ("hyq floating", load_floating("grid_hyq")),
+        ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf"))),
+    ];
+    let g = reference::DEFAULT_GRAVITY;
+    let mut rng = Rng(67);
+    for (name, model) in &cases {
+        let mut m = model.clone();
+        m.specialisation.fd_grad_minv = true;
+        for solve in [ir::Solve::Minv, ir::Solve::Ltdl] {
+            let options = LowerOptions { kernels: vec![KernelKind::FdGrad], solve, ..LowerOptions::default() };
+            let with = ir::lower(&m, g, &options).unwrap();
+            let without = ir::lower(model, g, &options).unwrap();
+            let f = with.function(KernelKind::FdGrad).unwrap();
+            assert_eq!(f.outputs.iter().map(|o| o.name).collect::<Vec<_>>(), ["qdd", "dqdd_dq", "dqdd_dqd", "dqdd_dtau"]);
+            let nv = m.nv();
+            let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+            let (qd, tau) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -5.0, 5.0));
+            let got = f.eval(&[&q, &qd, &tau]);
+            let plain = without.function(KernelKind::FdGrad).unwrap().eval(&[&q, &qd, &tau]);
+            assert_eq!(&got[..3], &plain[..], "{name}: the other outputs are the same graph's");
+            let e = rel_err(&DMatrix::from_row_slice(nv, nv, &got[3]), &reference::minv(&m, &q));
+            assert!(e < 1e-12, "{name} {solve:?}: dqdd_dtau {e:.2e}");
+        }
+    }
+    let mut m = load("grid_iiwa");
+    m.specialisation.fd_grad_minv = true;
+    let options = grid_gen::generate::Options {
+        targets: vec![grid_gen::generate::Target::Rust],
+        lower: LowerOptions { kernels: vec![KernelKind::FdGrad], ..LowerOptions::default() },
+        ..grid_gen::generate::Options::default()
+    };
+    let file = grid_gen::generate::generate(&m, &options).unwrap().remove(0);
+    assert!(file.contents.contains("`fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd, dqdd_dtau)`"), "the API summary names it");
+    let dir = std::env::temp_dir().join(format!("grid-gen-fdminv-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("robot.rs"), &file.contents).unwrap();
+    std::fs::write(
+        dir.join("main.rs"),
+        r#"mod robot { include!("robot.rs"); }
+fn main() {
+    let q = [0.1, -0.4, 0.3, 1.2, -0.5, 0.6, 0.2];
+    let (_, _, _, minv) = robot::fd_grad(&q, &[0.0; 7], &[0.0; 7]);
+    let all: Vec<String> = minv.as_flattened().iter().map(|x| format!("{x:?}")).collect();
+    println!("{}", all.join(" "));
+}
+"#,
+    )
+    .unwrap();
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let exe = dir.join("fdminv_check");
+    let out = std::process::Command::new(rustc)
+        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
+        .arg(&exe)
+        .arg(dir.join("main.rs"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let run = std::process::Command::new(&exe).output().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    let got: Vec<f64> = String::from_utf8_lossy(&run.stdout).split_whitespace().map(|x| x.parse().unwrap()).collect();
+    let want = reference::minv(&m, &[0.1, -0.4, 0.3, 1.2, -0.5, 0.6, 0.2]);
+    assert!(rel_err(&DMatrix::from_row_slice(7, 7, &got), &want) < 1e-12);
+}

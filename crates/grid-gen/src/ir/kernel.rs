@@ -295,6 +295,16 @@ impl KernelKind {
         }
     }
 
+    /// The outputs of the kernel of a model so specialised: [`Self::outputs`], and
+    /// `fd_grad`'s `dqdd_dtau` when [`crate::model::Specialisation::fd_grad_minv`] asks.
+    pub fn outputs_for(self, spec: &crate::model::Specialisation) -> Vec<OutputSpec> {
+        let mut out = self.outputs().to_vec();
+        if self == KernelKind::FdGrad && spec.fd_grad_minv {
+            out.push(OutputSpec { name: "dqdd_dtau", shape: Shape::Matrix });
+        }
+        out
+    }
+
     /// One sentence for the function's doc comment.
     pub fn doc(self) -> &'static str {
         match self {
@@ -396,6 +406,11 @@ impl KernelKind {
             }
             KernelKind::FdGrad => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
+                if d.wants_fd_grad_minv() {
+                    let all: Vec<usize> = (0..qd.len()).collect();
+                    let (qdd, dq, dqd, minv) = d.fd_grad_minv(&qd, &tau, &all);
+                    return vec![qdd, flat(dq), flat(dqd), flat(minv)];
+                }
                 let (qdd, dq, dqd) = d.fd_grad(&qd, &tau);
                 vec![qdd, flat(dq), flat(dqd)]
             }

@@ -233,6 +233,14 @@ pub struct Module {
 }
 
 impl Function {
+    /// `name(inputs) -> outputs`, as the API summaries write it (this function's outputs).
+    pub fn signature(&self) -> String {
+        let args: Vec<&str> = self.inputs().iter().map(|i| i.name()).collect();
+        let outs: Vec<&str> = self.outputs.iter().map(|o| o.name).collect();
+        let ret = if outs.len() == 1 { outs[0].to_string() } else { format!("({})", outs.join(", ")) };
+        format!("{}({}) -> {ret}", self.kind.name(), args.join(", "))
+    }
+
     /// The sizes an output index needs, read off this function's outputs for a robot
     /// with `nv` coordinates (nq and nframes are not needed to index).
     pub fn dims(&self, nv: usize) -> crate::ir::Dims {
@@ -367,7 +375,7 @@ fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOpt
         return Err(LowerError::TooLarge { robot: model.name.clone(), nv: model.nv(), kernel: kind, limit: options.max_nodes });
     }
     let product = if spec.selects() { None } else { d.product.take() };
-    let mut f = freeze(kind, &d.g, outputs, product);
+    let mut f = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, product);
     f.gradient = Gradient::applies_to(kind).then_some(gradient);
     f.solve = kind.holds_fd_grad().then_some(d.solve);
     debug_assert_ne!(f.solve, Some(Solve::Auto));
@@ -375,7 +383,7 @@ fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOpt
 }
 
 /// Keeps the nodes that reach an output, renumbered in their original order.
-fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>, product: Option<DenseProduct>) -> Function {
+fn freeze(kind: KernelKind, specs: &[crate::ir::OutputSpec], g: &Graph, outputs: Vec<Vec<Id>>, product: Option<DenseProduct>) -> Function {
     let mut live = vec![false; g.nodes.len()];
     for id in outputs.iter().flatten() {
         live[id.0 as usize] = true;
@@ -407,8 +415,7 @@ fn freeze(kind: KernelKind, g: &Graph, outputs: Vec<Vec<Id>>, product: Option<De
         };
         nodes.push(Node { op, ..*node });
     }
-    let outputs = kind
-        .outputs()
+    let outputs = specs
         .iter()
         .zip(outputs)
         .map(|(spec, ids)| Output { name: spec.name, shape: spec.shape, ids: ids.into_iter().map(|id| new_id[id.0 as usize]).collect() })

@@ -439,7 +439,7 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
     let _ = writeln!(out, "//\n// Kernels and output values per state:");
     for f in &module.functions {
         let parts: Vec<String> = f.outputs.iter().map(|o| format!("{} ({})", o.name, o.ids.len())).collect();
-        let _ = writeln!(out, "//   {}: {}", f.kind.signature(), parts.join(", "));
+        let _ = writeln!(out, "//   {}: {}", f.signature(), parts.join(", "));
     }
     if robot.floating {
         let _ = writeln!(

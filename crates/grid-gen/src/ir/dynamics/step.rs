@@ -112,6 +112,11 @@ impl Dynamics<'_> {
         self.model.specialisation.step.expect("step kernels are lowered only for a model with a step")
     }
 
+    /// Whether `fd_grad` also returns M⁻¹.
+    pub fn wants_fd_grad_minv(&self) -> bool {
+        self.model.specialisation.fd_grad_minv
+    }
+
     /// One node per actuated coordinate's force.
     pub fn actuated_inputs(&mut self) -> Vec<Id> {
         (0..self.model.nu()).map(|i| self.g.input(Input::TauActuated, i)).collect()
