@@ -119,6 +119,42 @@ pub fn fixture(name: &str) -> serde_json::Value {
         .expect("fixture JSON")
 }
 
+/// `perm[k]`: the model's coordinate index of the k-th coordinate a fixture lists in
+/// `joint_names` (fixtures keep their tool's joint order, matched here by name).
+pub fn fixture_perm(model: &Model, fx: &serde_json::Value, label: &str) -> Vec<usize> {
+    let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+    fx["joint_names"]
+        .as_array()
+        .expect("joint_names")
+        .iter()
+        .map(|n| n.as_str().expect("a name"))
+        .map(|n| coordinates.iter().position(|c| *c == n).unwrap_or_else(|| panic!("{label}: no coordinate {n}")))
+        .collect()
+}
+
+/// Compiles `main_rs` (which includes `robot.rs`, written from `robot_rs`) with rustc as the
+/// tests do (`-C opt-level=1`, warnings denied), runs it, and returns what it printed; a
+/// failed build or run fails the test with rustc's or the program's message.
+pub fn compile_and_run(label: &str, robot_rs: &str, main_rs: &str) -> String {
+    let dir = std::env::temp_dir().join(format!("grid-gen-{label}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("robot.rs"), robot_rs).unwrap();
+    std::fs::write(dir.join("main.rs"), main_rs).unwrap();
+    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
+    let exe = dir.join(format!("{label}_check"));
+    let out = std::process::Command::new(rustc)
+        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
+        .arg(&exe)
+        .arg(dir.join("main.rs"))
+        .output()
+        .unwrap();
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let run = std::process::Command::new(&exe).output().unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    String::from_utf8_lossy(&run.stdout).into_owned()
+}
+
 pub fn vec_of(v: &serde_json::Value) -> Vec<f64> {
     v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }

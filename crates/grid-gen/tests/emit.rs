@@ -191,11 +191,9 @@ fn the_avx512_copy_matches_the_fma_copy_bit_for_bit() {
     assert!(file.contents.contains("pub mod avx512") && file.contents.contains("pub fn has_avx512()"));
     let default = generate(&model, &Options { rust: Default::default(), ..options.clone() }).unwrap().remove(0);
     assert!(!default.contents.contains("avx512"), "the avx512 copy is opt-in");
-    let dir = std::env::temp_dir().join(format!("grid-gen-avx512-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("robot.rs"), &file.contents).unwrap();
-    std::fs::write(
-        dir.join("main.rs"),
+    let said = compile_and_run(
+        "avx512",
+        &file.contents,
         r#"mod robot { include!("robot.rs"); }
 use robot::*;
 fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }
@@ -224,21 +222,8 @@ fn main() {
     println!("same");
 }
 "#,
-    )
-    .unwrap();
-    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
-    let exe = dir.join("avx512_check");
-    let out = std::process::Command::new(rustc)
-        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
-        .arg(&exe)
-        .arg(dir.join("main.rs"))
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let run = std::process::Command::new(&exe).output().unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let said = String::from_utf8_lossy(&run.stdout).trim().to_string();
+    );
+    let said = said.trim().to_string();
     match said.as_str() {
         "same" => println!("ur5: the avx512 copy equals the fma copy bit for bit (f64, f32, Lanes<4>, Lanes<8>)"),
         "no AVX-512" => eprintln!("note: this CPU has no AVX-512 F and VL; the avx512 copy was compiled but not run"),
@@ -260,11 +245,9 @@ fn the_looped_product_matches_the_portable_copy() {
     assert!(file.contents.contains("r0[c] = T::mul_add(m, pd0[j][c], r0[c]);"), "the fma copy loops over the product");
     let auto = generate(&model, &Options { lower: Default::default(), ..options.clone() }).unwrap().remove(0);
     assert!(!auto.contents.contains("pd0[j][c]"), "auto factorises M on iiwa (no dense product)");
-    let dir = std::env::temp_dir().join(format!("grid-gen-looped-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("robot.rs"), &file.contents).unwrap();
-    std::fs::write(
-        dir.join("main.rs"),
+    let said = compile_and_run(
+        "looped",
+        &file.contents,
         r#"mod robot { include!("robot.rs"); }
 use robot::*;
 fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }
@@ -287,21 +270,8 @@ fn main() {
     println!("{worst:e}");
 }
 "#,
-    )
-    .unwrap();
-    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
-    let exe = dir.join("looped_check");
-    let out = std::process::Command::new(rustc)
-        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
-        .arg(&exe)
-        .arg(dir.join("main.rs"))
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let run = std::process::Command::new(&exe).output().unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
-    let said = String::from_utf8_lossy(&run.stdout).trim().to_string();
+    );
+    let said = said.trim().to_string();
     if said == "no FMA" {
         eprintln!("note: this CPU has no AVX2/FMA; the fma copy was compiled but not run");
         return;

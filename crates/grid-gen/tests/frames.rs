@@ -37,10 +37,8 @@ fn frame_kinematics_match_pinocchio() {
     for (name, path, floating) in CASES {
         let model = load_urdf(&repo().join(path), floating);
         let fx = fixture(&format!("{name}.pinocchio.json"));
-        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
-        let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
         // perm[k]: our index of the fixture's k-th coordinate.
-        let perm: Vec<usize> = names.iter().map(|n| coordinates.iter().position(|c| c == n).unwrap_or_else(|| panic!("{name}: {n}"))).collect();
+        let perm = fixture_perm(&model, &fx, name);
         let nv = model.nv();
         let ours = |v: &[f64]| {
             let mut o = vec![0.0; nv];

@@ -32,9 +32,8 @@ fn reference_step_matches_pinocchio() {
     for name in ["grid_iiwa", "grid_hyq.floating", "ball_arm.floating"] {
         let (model, floating) = fixture_model(name);
         let fx = fixture(&format!("{name}.step.pinocchio.json"));
-        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let perm = fixture_perm(&model, &fx, name);
         let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
-        let perm: Vec<usize> = names.iter().map(|n| coordinates.iter().position(|c| c == n).unwrap_or_else(|| panic!("{name}: {n}"))).collect();
         let nv = model.nv();
         let ours = |v: &[f64]| {
             let mut o = vec![0.0; nv];
@@ -303,11 +302,9 @@ fn rk4_step_grad_compiles_and_matches_the_reference() {
     let model = with_step(&load("grid_iiwa"), Scheme::Rk4, 0.01);
     let lower = LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() };
     let file = generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() }).unwrap().remove(0);
-    let dir = std::env::temp_dir().join(format!("grid-gen-rk4-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("robot.rs"), &file.contents).unwrap();
-    std::fs::write(
-        dir.join("main.rs"),
+    let said = compile_and_run(
+        "rk4",
+        &file.contents,
         r#"mod robot { include!("robot.rs"); }
 use robot::*;
 fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }
@@ -320,24 +317,11 @@ fn main() {
     }
 }
 "#,
-    )
-    .unwrap();
-    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
-    let exe = dir.join("rk4_check");
-    let out = std::process::Command::new(rustc)
-        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
-        .arg(&exe)
-        .arg(dir.join("main.rs"))
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let run = std::process::Command::new(&exe).output().unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    assert!(run.status.success(), "{}", String::from_utf8_lossy(&run.stderr));
+    );
     let state = |k: usize, i: usize, salt: usize| (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5;
     let nv = model.nv();
     let mut worst: f64 = 0.0;
-    for (k, line) in String::from_utf8_lossy(&run.stdout).lines().enumerate() {
+    for (k, line) in said.lines().enumerate() {
         let got: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
         let x: Vec<Vec<f64>> = (0..3).map(|s| (0..nv).map(|i| state(k, i, s)).collect()).collect();
         let want = reference_outputs(KernelKind::StepGrad, &model, &x[0], &x[1], &x[2], reference::DEFAULT_GRAVITY);
@@ -392,11 +376,9 @@ fn fd_grad_can_return_minv() {
     };
     let file = grid_gen::generate::generate(&m, &options).unwrap().remove(0);
     assert!(file.contents.contains("`fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd, dqdd_dtau)`"), "the API summary names it");
-    let dir = std::env::temp_dir().join(format!("grid-gen-fdminv-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(dir.join("robot.rs"), &file.contents).unwrap();
-    std::fs::write(
-        dir.join("main.rs"),
+    let said = compile_and_run(
+        "fdminv",
+        &file.contents,
         r#"mod robot { include!("robot.rs"); }
 fn main() {
     let q = [0.1, -0.4, 0.3, 1.2, -0.5, 0.6, 0.2];
@@ -405,20 +387,8 @@ fn main() {
     println!("{}", all.join(" "));
 }
 "#,
-    )
-    .unwrap();
-    let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
-    let exe = dir.join("fdminv_check");
-    let out = std::process::Command::new(rustc)
-        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
-        .arg(&exe)
-        .arg(dir.join("main.rs"))
-        .output()
-        .unwrap();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
-    let run = std::process::Command::new(&exe).output().unwrap();
-    let _ = std::fs::remove_dir_all(&dir);
-    let got: Vec<f64> = String::from_utf8_lossy(&run.stdout).split_whitespace().map(|x| x.parse().unwrap()).collect();
+    );
+    let got: Vec<f64> = said.split_whitespace().map(|x| x.parse().unwrap()).collect();
     let want = reference::minv(&m, &[0.1, -0.4, 0.3, 1.2, -0.5, 0.6, 0.2]);
     assert!(rel_err(&DMatrix::from_row_slice(7, 7, &got), &want) < 1e-12);
 }

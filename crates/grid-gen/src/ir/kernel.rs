@@ -344,14 +344,6 @@ impl KernelKind {
         }
     }
 
-    /// `name(inputs) -> outputs`, as the API summaries write it.
-    pub fn signature(self) -> String {
-        let args: Vec<&str> = self.inputs().iter().map(|i| i.name()).collect();
-        let outs: Vec<&str> = self.outputs().iter().map(|o| o.name).collect();
-        let ret = if outs.len() == 1 { outs[0].to_string() } else { format!("({})", outs.join(", ")) };
-        format!("{}({}) -> {ret}", self.name(), args.join(", "))
-    }
-
     /// Whether the kernel needs M⁻¹, so cannot exist for a robot whose M is singular.
     pub fn needs_minv(self) -> bool {
         matches!(self, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad | KernelKind::Step | KernelKind::StepGrad)

@@ -237,7 +237,7 @@ pub fn step_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravi
             let (a, b) = assemble(aqq, aqv, avq, avv, bq, bv);
             StepDerivatives { q_next: integrate(model, q, &dq), qd_next, a, b }
         }
-        Scheme::Rk4 => rk4_derivatives(model, q, qd, tau, gravity, dt, &select),
+        Scheme::Rk4 => rk4_derivatives(model, q, qd, tau, gravity, dt, actuated.len(), &select),
     }
 }
 
@@ -251,10 +251,10 @@ fn rk4_derivatives(
     tau: &[f64],
     gravity: [f64; 3],
     dt: f64,
+    nu: usize,
     select: &dyn Fn(&DMatrix<f64>) -> DMatrix<f64>,
 ) -> StepDerivatives {
     let nv = model.nv();
-    let nu = select(&DMatrix::zeros(nv, nv)).ncols();
     let state_jacobians = |dx: &[f64]| {
         let (jq, jv) = d_integrate(model, &dx[..nv]);
         let (mut jx, mut jdx) = (DMatrix::identity(2 * nv, 2 * nv), DMatrix::identity(2 * nv, 2 * nv));
