@@ -670,7 +670,7 @@ def step_model(robot, floating):
     if robot == "ball_arm":
         names, model = ball_arm_model(floating)
         return model, names, list(range(model.nv)), list(range(model.nq))
-    urdf = ROBOTS / f"{robot}.urdf"
+    urdf = (ROBOTS if (ROBOTS / f"{robot}.urdf").exists() else OUT) / f"{robot}.urdf"
     model = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer()) if floating else pin.buildModelFromUrdf(str(urdf))
     joints = movable_joints(model, first=2 if floating else 1)
     assert all(j[2] == 1 for j in joints), "one q entry per listed joint"
@@ -786,6 +786,171 @@ def step_fixtures(check):
     return stale
 
 
+# External forces and contacts (issue 30): (robot, floating, fext joints, contacts).
+# fext is one Force per listed joint in its local frame (Pinocchio's fext); contacts are
+# (frame, "point" | "wrench") with lambda in LOCAL_WORLD_ALIGNED axes at the frame.
+FORCES = [
+    ("grid_iiwa", False, ["iiwa_joint_2", "iiwa_joint_5", "iiwa_joint_7"], [("iiwa_link_7", "point")]),
+    ("grid_hyq", True, "*", [(f"{leg}_lowerleg", "point") for leg in ("lf", "rf", "lh", "rh")]),
+    ("go2", True, ["root_joint"], [(f"{leg}_foot", "point") for leg in ("FL", "FR", "RL", "RR")]),
+    ("grid_atlas", True, ["root_joint", "l_arm_elx"], [("l_foot", "wrench"), ("r_foot", "wrench")]),
+]
+
+
+def contact_fext(model, data, contacts, lam):
+    """The contact forces as Pinocchio fext (one Force per joint, local frames): lambda in
+    LOCAL_WORLD_ALIGNED axes at each frame's origin, moved into the parent joint's frame.
+    Needs data.oMi and data.oMf at q. Also (joint, p, force) per contact: p the frame's
+    origin in the joint frame, force the contact's Force there."""
+    fext = pin.StdVec_Force()
+    for _ in range(model.njoints):
+        fext.append(pin.Force.Zero())
+    parts, at = [], 0
+    for name, kind in contacts:
+        fid = model.getFrameId(name, pin.BODY)
+        jid = model.frames[fid].parentJoint
+        n = 3 if kind == "point" else 6
+        lw = np.concatenate([lam[at:at + n], np.zeros(6 - n)])
+        at += n
+        lwa = pin.SE3(np.eye(3), data.oMf[fid].translation)
+        f = data.oMi[jid].actInv(lwa.act(pin.Force(lw[:3], lw[3:])))
+        fext[jid] = fext[jid] + f
+        parts.append((jid, model.frames[fid].placement.translation.copy(), f, fid, n))
+    return fext, parts
+
+
+def forces_record(model, data, q, v, a, tau, fext_joints, fext_in, contacts, lam):
+    """rnea and aba under fext (local, as given) and contact forces (world-aligned), their
+    derivatives: q and v with fext fixed in the joint frames and lambda fixed in world axes;
+    and d/dfext = -J_local^T, d/dlambda = -J_LWA^T (the qdd ones through M^-1)."""
+    nv = model.nv
+    pin.forwardKinematics(model, data, q)
+    pin.updateFramePlacements(model, data)
+    pin.computeJointJacobians(model, data, q)
+    cf, parts = contact_fext(model, data, contacts, lam)
+    fext = pin.StdVec_Force()
+    for f in cf:
+        fext.append(f)
+    for k, name in enumerate(fext_joints):
+        jid = model.getJointId(name)
+        fext[jid] = fext[jid] + pin.Force(fext_in[6 * k:6 * k + 3], fext_in[6 * k + 3:6 * k + 6])
+    jloc = {jid: pin.getJointJacobian(model, data, jid, pin.LOCAL).copy() for jid in range(1, model.njoints)}
+
+    def world_terms():
+        # Holding lambda in world axes: moving joint u turns the body under the contact's
+        # world-aligned frame, by w (u's axis in the body frame) about the contact point p:
+        # m = Motion(p x w, w), the body-frame force changes by -m x* f, so dtau/dq_u
+        # gains J^T (m x* f) (checked against central differences below).
+        out = np.zeros((nv, nv))
+        for jid, p, f, _, _ in parts:
+            j = jloc[jid]
+            for u in range(nv):
+                w = j[3:, u]
+                if not w.any():
+                    continue
+                out[:, u] += j.T @ pin.Motion(np.cross(p, w), w).cross(f).vector
+        return out
+
+    def rnea_dq(acc):
+        dq, dv, _ = pin.computeRNEADerivatives(model, data, q, v, acc, fext)
+        dq = dq.copy() + world_terms()
+        return dq, dv.copy()
+
+    rnea = pin.rnea(model, data, q, v, a, fext).copy()
+    dq, dv = rnea_dq(a)
+    fd = pin.aba(model, data, q, v, tau, fext).copy()
+    pin.computeABADerivatives(model, data, q, v, tau, fext)
+    abadq, abadv = data.ddq_dq.copy(), data.ddq_dv.copy()
+    mi = pin.computeMinverse(model, data, q).copy()
+    mi = np.triu(mi) + np.triu(mi, 1).T
+    fdq, fdv = rnea_dq(fd)
+    fdq, fdv = -mi @ fdq, -mi @ fdv
+    if not contacts:
+        assert np.allclose(fdq, abadq, rtol=1e-9, atol=1e-9) and np.allclose(fdv, abadv, rtol=1e-9, atol=1e-9)
+    pin.forwardKinematics(model, data, q)
+    pin.updateFramePlacements(model, data)
+    pin.computeJointJacobians(model, data, q)
+    dfext = np.hstack([-jloc[model.getJointId(n)].T for n in fext_joints]) if fext_joints else np.zeros((nv, 0))
+    dlam = np.hstack([-pin.getFrameJacobian(model, data, fid, pin.LOCAL_WORLD_ALIGNED)[:n].T for _, _, _, fid, n in parts]) if parts else np.zeros((nv, 0))
+    return {"rnea": rnea, "drnea_dq": dq, "drnea_dqd": dv, "drnea_dfext": dfext, "drnea_dlambda": dlam,
+            "fd": fd, "dfd_dq": fdq, "dfd_dqd": fdv, "dfd_dfext": mi @ -dfext, "dfd_dlambda": mi @ -dlam}
+
+
+def forces_fixture(robot, floating, fext_joints, contacts, rng):
+    """Random states (uniform base rotations), a still one and a fast one (30 rad/s), each
+    with random fext on the listed joints' bodies (N(0, 10) N and N m) and contact forces
+    (N(0, 50)); q in grid-gen's layout, every vector and matrix in listing order, the
+    columns of the fext and lambda derivatives in the inputs' order."""
+    model, names, perm, qidx = step_model(robot, floating)
+    data = model.createData()
+    nv = model.nv
+    if fext_joints == "*":
+        fext_joints = [model.names[j] for j in range(1, model.njoints)]
+    nlam = sum(3 if k == "point" else 6 for _, k in contacts)
+    records = []
+    for kind, speed in [("random", 1.0)] * 6 + [("still", 0.0), ("fast", 30.0)]:
+        q = pin.neutral(model)
+        for jid in range(2 if floating else 1, model.njoints):
+            j = model.joints[jid]
+            lo, hi = model.lowerPositionLimit[j.idx_q], model.upperPositionLimit[j.idx_q]
+            q[j.idx_q] = rng.uniform(lo, hi) if np.isfinite(lo) and np.isfinite(hi) and hi - lo < 100 else rng.uniform(-np.pi, np.pi)
+        if floating:
+            quat = rng.normal(size=4)
+            q[:7] = np.concatenate([rng.normal(size=3), quat / np.linalg.norm(quat)])
+        lv, la, lt = (rng.normal(size=nv) * speed, rng.normal(size=nv) * max(speed, 1.0), rng.normal(size=nv) * 10)
+        fin, lam = rng.normal(size=6 * len(fext_joints)) * 10, rng.normal(size=nlam) * 50
+        v, a, t = np.zeros(nv), np.zeros(nv), np.zeros(nv)
+        v[perm], a[perm], t[perm] = lv, la, lt
+        out = forces_record(model, data, q, v, a, t, fext_joints, fin, contacts, lam)
+        if kind == "random" and not records:
+            check_world_terms(model, data, q, v, a, fext_joints, fin, contacts, lam, out["drnea_dq"])
+        sel = lambda x: [float(y) for y in np.asarray(x)[perm]]
+        selm = lambda m: mat(np.asarray(m)[np.ix_(perm, perm)])
+        selr = lambda m: mat(np.asarray(m)[perm, :])
+        record = {"kind": kind, "q": [float(q[i]) for i in qidx], "qd": [float(x) for x in lv], "qdd": [float(x) for x in la],
+                  "tau": [float(x) for x in lt], "fext": [float(x) for x in fin], "lambda": [float(x) for x in lam]}
+        for key in ("rnea", "fd"):
+            record[key] = sel(out[key])
+        for key in ("drnea_dq", "drnea_dqd", "dfd_dq", "dfd_dqd"):
+            record[key] = selm(out[key])
+        for key in ("drnea_dfext", "drnea_dlambda", "dfd_dfext", "dfd_dlambda"):
+            record[key] = selr(out[key])
+        records.append(record)
+    return {"tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear], "joint_names": names,
+            "fext": fext_joints, "contacts": [{"frame": f, "type": k} for f, k in contacts], "states": records}
+
+
+def check_world_terms(model, data, q, v, a, fext_joints, fin, contacts, lam, dq):
+    """The lambda-fixed-in-world dtau/dq against central differences on the manifold."""
+    def tau_at(qq):
+        pin.forwardKinematics(model, data, qq)
+        pin.updateFramePlacements(model, data)
+        cf, _ = contact_fext(model, data, contacts, lam)
+        for k, name in enumerate(fext_joints):
+            jid = model.getJointId(name)
+            # fext stays fixed in the joint frame: it is given there.
+            cf[jid] = cf[jid] + pin.Force(fin[6 * k:6 * k + 3], fin[6 * k + 3:6 * k + 6])
+        return pin.rnea(model, data, qq, v, a, cf).copy()
+    h = 1e-6
+    num = np.zeros((model.nv, model.nv))
+    for u in range(model.nv):
+        e = np.zeros(model.nv)
+        e[u] = h
+        num[:, u] = (tau_at(pin.integrate(model, q, e)) - tau_at(pin.integrate(model, q, -e))) / (2 * h)
+    err = np.abs(num - dq).max() / max(1.0, np.abs(dq).max())
+    assert err < 1e-6, f"world-fixed contact derivative off by {err:g}"
+
+
+def forces_fixtures(check):
+    stale = False
+    for robot, floating, fext_joints, contacts in FORCES:
+        seed = sum(robot.encode()) + 53 + floating
+        pin.seed(seed)
+        data = forces_fixture(robot, floating, fext_joints, contacts, np.random.default_rng(seed))
+        stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.forces.pinocchio.json", data, check, 1e-10)
+    return stale
+
+
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     args = sys.argv[1:]
@@ -813,6 +978,8 @@ def main():
         failed |= frames_fixtures(check)
     if not only or "step" in only:
         failed |= step_fixtures(check)
+    if not only or "forces" in only:
+        failed |= forces_fixtures(check)
     if failed:
         sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 

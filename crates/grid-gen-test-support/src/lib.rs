@@ -275,14 +275,31 @@ pub fn with_frames(model: &Model, names: &[&str], rf: grid_gen::model::Reference
 
 /// A kernel's arguments in its order, from q, q̇ and u (q̈ or τ, whichever it takes).
 pub fn kernel_args<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f64]) -> Vec<&'a [f64]> {
+    kernel_args_with(inputs, q, qd, u, reference::External::NONE)
+}
+
+/// [`kernel_args`] for a kernel that may also take external forces and contact forces.
+pub fn kernel_args_with<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f64], ext: reference::External<'a>) -> Vec<&'a [f64]> {
     inputs
         .iter()
         .map(|i| match i {
             Input::Q => q,
             Input::Qd => qd,
             Input::Qdd | Input::Tau | Input::TauActuated => u,
+            Input::Fext => ext.fext,
+            Input::Lambda => ext.lambda,
         })
         .collect()
+}
+
+/// A model whose bodies moved by `fext` joints (Pinocchio's names) take a force, with
+/// contacts at frames.
+pub fn with_forces(model: &Model, fext: &[&str], contacts: &[(&str, grid_gen::model::ContactKind)]) -> Model {
+    let mut m = model.clone();
+    m.specialisation.fext = fext.iter().map(|n| m.body_of_joint(n).unwrap_or_else(|| panic!("no joint {n}"))).collect();
+    m.specialisation.contacts =
+        contacts.iter().map(|&(f, kind)| grid_gen::model::Contact { frame: m.frame(f).unwrap_or_else(|| panic!("no frame {f}")), kind }).collect();
+    m
 }
 
 /// One output's values as the reference shapes it: an nv × nv matrix (from row-major
@@ -292,6 +309,7 @@ pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
         Shape::Matrix => DMatrix::from_row_slice(nv, nv, values),
         Shape::StateMatrix => DMatrix::from_row_slice(2 * nv, 2 * nv, values),
         Shape::StateInput => DMatrix::from_row_slice(2 * nv, values.len() / (2 * nv).max(1), values),
+        Shape::ByFext | Shape::ByLambda => DMatrix::from_row_slice(nv, values.len() / nv.max(1), values),
         Shape::Vector | Shape::PerFrame(_) | Shape::FrameMatrix(_) | Shape::Config => col(values),
     }
 }

@@ -333,6 +333,56 @@ pub struct Specialisation {
     /// `fd_grad` also returns `∂q̈/∂τ = M⁻¹` (`dqdd_dtau`), for users who integrate
     /// themselves.
     pub fd_grad_minv: bool,
+    /// The bodies that take an external force (the dynamics kernels' `fext` input), as
+    /// model joints (a multi-dof joint's last member, the one that carries its body), in
+    /// the order asked for. Empty: no `fext` input.
+    pub fext: Vec<usize>,
+    /// The contacts whose forces λ the dynamics kernels take (their `lambda` input), in the
+    /// order declared. Empty: no `lambda` input.
+    pub contacts: Vec<Contact>,
+}
+
+/// A contact at a frame: the force λ the environment applies there, in
+/// `LOCAL_WORLD_ALIGNED` axes at the frame's origin (Crocoddyl's and GRiD's contact
+/// forces; Pinocchio's `CONTACT_3D` / `CONTACT_6D`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+pub struct Contact {
+    /// Index into [`Model::frames`]; never a frame of the fixed root.
+    pub frame: usize,
+    pub kind: ContactKind,
+}
+
+/// What a contact transmits.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ContactKind {
+    /// A 3-D force at the frame's origin.
+    Point,
+    /// A 6-D wrench `[force; torque]` (Pinocchio's order) at the frame's origin.
+    Wrench,
+}
+
+impl ContactKind {
+    pub const ALL: [ContactKind; 2] = [ContactKind::Point, ContactKind::Wrench];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            ContactKind::Point => "point",
+            ContactKind::Wrench => "wrench",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<ContactKind> {
+        ContactKind::ALL.into_iter().find(|k| k.name() == name)
+    }
+
+    /// Entries of λ.
+    pub fn dim(self) -> usize {
+        match self {
+            ContactKind::Point => 3,
+            ContactKind::Wrench => 6,
+        }
+    }
 }
 
 impl Specialisation {
@@ -379,6 +429,28 @@ impl Model {
     /// Entries of the step kernels' τ: the actuated coordinates.
     pub fn nu(&self) -> usize {
         self.actuated().len()
+    }
+
+    /// Bodies that take an external force ([`Specialisation::fext`]).
+    pub fn nfext(&self) -> usize {
+        self.specialisation.fext.len()
+    }
+
+    /// Entries of the contact forces λ: 3 per point contact, 6 per wrench.
+    pub fn nlambda(&self) -> usize {
+        self.specialisation.contacts.iter().map(|c| c.kind.dim()).sum()
+    }
+
+    /// The body moved by the joint named `name` as Pinocchio names joints (`root_joint`
+    /// for a floating base, a spherical joint's own name): for a multi-dof joint its last
+    /// member, which carries the body.
+    pub fn body_of_joint(&self, name: &str) -> Option<usize> {
+        (0..self.njoints()).find(|&i| self.group(i).is_none_or(|g| i + 1 == g.end) && self.joint_name(i) == name)
+    }
+
+    /// The names [`Model::body_of_joint`] knows, in model order.
+    pub fn body_joint_names(&self) -> Vec<&str> {
+        (0..self.njoints()).filter(|&i| self.group(i).is_none_or(|g| i + 1 == g.end)).map(|i| self.joint_name(i)).collect()
     }
 
     /// The configuration space's blocks, in coordinate order: how `integrate` and its

@@ -35,6 +35,13 @@
 //! [fd_grad]
 //! minv = true                          # fd_grad also returns dqdd_dtau = M^-1
 //!
+//! [external_forces]                    # bodies that take a force `fext` (by the name of
+//! joints = ["lf_kfe_joint"]            # the joint that moves them; "*" for every body)
+//!
+//! [[contact]]                          # a contact force lambda at a frame, in world axes
+//! frame = "lf_lowerleg"                # at the frame's origin (LOCAL_WORLD_ALIGNED)
+//! type = "point"                       # 3-D force; or "wrench", [force; torque]
+//!
 //! [[payload]]                          # or [payload] for one
 //! link = "right_gripper"
 //! mass = 1.5                           # kg
@@ -95,6 +102,33 @@ pub struct Scene {
     /// `fd_grad`'s options.
     #[serde(default)]
     pub fd_grad: FdGradSection,
+    /// The bodies that take an external force (the dynamics kernels' `fext`).
+    #[serde(default)]
+    pub external_forces: ExternalForcesSection,
+    /// Contacts at frames (the dynamics kernels' `lambda`), in the order declared.
+    #[serde(default)]
+    pub contact: Vec<ContactEntry>,
+}
+
+/// `[external_forces]`: the bodies that take a spatial force, each named by the joint that
+/// moves it, as Pinocchio keys `fext` (`root_joint` for a floating base).
+#[derive(Clone, Debug, Default, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ExternalForcesSection {
+    /// Joint names in the order `fext` lists the forces; `"*"` stands for every body.
+    #[serde(default)]
+    pub joints: Vec<String>,
+}
+
+/// `[[contact]]`: a contact at a frame.
+#[derive(Clone, Debug, Deserialize, PartialEq)]
+#[serde(deny_unknown_fields)]
+pub struct ContactEntry {
+    /// A link name (the frames of `[frames]`), not the fixed root's.
+    pub frame: String,
+    /// `point` (3-D force) or `wrench` (6-D).
+    #[serde(rename = "type")]
+    pub kind: crate::model::ContactKind,
 }
 
 /// `[fd_grad]`: what `fd_grad` returns besides `(qdd, dqdd_dq, dqdd_dqd)`.
@@ -478,6 +512,8 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
     let frames = select_frames(scene, scene_path, urdf, model, diags);
     let step = select_step(scene, scene_path, diags);
     let actuated = scene.actuation.as_ref().map(|a| select_actuated(&a.joints, scene_path, model, diags));
+    let fext = select_fext(&scene.external_forces.joints, scene_path, model, diags);
+    let contacts = select_contacts(scene, scene_path, urdf, model, diags);
     Specialisation {
         static_velocity: scene.static_velocity,
         rows,
@@ -487,7 +523,78 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
         step,
         actuated,
         fd_grad_minv: scene.fd_grad.minv,
+        fext,
+        contacts,
     }
+}
+
+/// `[external_forces] joints` (or `--fext`): each name is a joint as Pinocchio names
+/// it (a multi-dof joint by its own name), or `*` for every body; an unknown or repeated
+/// name is an error that lists the closest names.
+fn select_fext(names: &[String], scene_path: &str, model: &Model, diags: &mut Vec<Diagnostic>) -> Vec<usize> {
+    let whence = if scene_path.is_empty() { "--fext".to_string() } else { format!("scene `{scene_path}`: [external_forces] joints") };
+    let known = model.body_joint_names();
+    let mut picked = Vec::new();
+    for name in names {
+        if name == "*" {
+            picked = known.iter().filter_map(|n| model.body_of_joint(n)).collect();
+            if names.len() > 1 {
+                diags.push(
+                    Diagnostic::error(format!("{whence}: `*` names every body, so no other name may follow it"), None, "`*` with names")
+                        .with_help("give `*` alone, or the names"),
+                );
+            }
+            break;
+        }
+        match model.body_of_joint(name) {
+            Some(b) if picked.contains(&b) => {
+                diags.push(Diagnostic::error(format!("{whence} names joint `{name}` twice"), None, "duplicate joint").with_help("name each joint once"))
+            }
+            Some(b) => picked.push(b),
+            None => {
+                let mut by_distance: Vec<(usize, &str)> = known.iter().map(|k| (strsim::levenshtein(name, k), *k)).collect();
+                by_distance.sort();
+                let closest: Vec<&str> = by_distance.iter().take(5).map(|(_, k)| *k).collect();
+                diags.push(
+                    Diagnostic::error(format!("{whence} names `{name}`, which is no joint of the model that moves a body"), None, "unknown joint")
+                        .with_help(format!("closest joints: {}", closest.join(", "))),
+                );
+            }
+        }
+    }
+    picked
+}
+
+/// `[[contact]]` (or `--contact FRAME:TYPE`): each frame must be a frame of a moving body,
+/// named once.
+fn select_contacts(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, diags: &mut Vec<Diagnostic>) -> Vec<crate::model::Contact> {
+    let whence = if scene_path.is_empty() { "--contact".to_string() } else { format!("scene `{scene_path}`: [[contact]]") };
+    let mut picked: Vec<crate::model::Contact> = Vec::new();
+    for entry in &scene.contact {
+        let name = &entry.frame;
+        let Some(frame) = model.frame(name) else {
+            diags.push(unknown_frame(name, &whence, scene, urdf, model));
+            continue;
+        };
+        if model.frames[frame].body.is_none() {
+            diags.push(
+                Diagnostic::error(
+                    format!("{whence} puts a contact on `{name}`, which is fixed to the world: a force there moves nothing"),
+                    None,
+                    "contact on the fixed root",
+                )
+                .with_help("put contacts on frames of moving bodies"),
+            );
+        } else if picked.iter().any(|c| c.frame == frame) {
+            diags.push(
+                Diagnostic::error(format!("{whence} declares a contact at `{name}` twice"), None, "duplicate contact")
+                    .with_help("one contact per frame; a wrench holds both force and torque"),
+            );
+        } else {
+            picked.push(crate::model::Contact { frame, kind: entry.kind });
+        }
+    }
+    picked
 }
 
 /// `[step]` (or `--step`, `--dt`): a scheme and a finite, positive time step.
@@ -563,24 +670,30 @@ fn select_frames(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, di
             picked.push(f);
             continue;
         }
-        let message = match urdf.links.iter().position(|l| &l.name == name) {
-            Some(l) => {
-                let by = if scene.drop.iter().any(|d| removes(urdf, d, l)) {
-                    format!("`drop = [..., \"{}\"]`", scene.drop.iter().find(|d| removes(urdf, d, l)).expect("found above"))
-                } else {
-                    "`keep`, which does not keep it".to_string()
-                };
-                format!("{whence} names link `{name}`, which the scene removes (by {by})")
-            }
-            None => {
-                let joint = urdf.joints.iter().any(|j| &j.name == name);
-                let what = if joint { "a joint, not a link: frames are link names" } else { "not a link of this robot" };
-                format!("{whence} names `{name}`, which is {what}")
-            }
-        };
-        diags.push(Diagnostic::error(message, None, "unknown frame").with_help(format!("closest frames: {}", closest(name, model))));
+        diags.push(unknown_frame(name, &whence, scene, urdf, model));
     }
     picked
+}
+
+/// The error for a frame name that is not one of the model's frames: a link the scene
+/// removed (and by which entry), a joint's name, or no link at all, with the closest names.
+fn unknown_frame(name: &str, whence: &str, scene: &Scene, urdf: &Urdf, model: &Model) -> Diagnostic {
+    let message = match urdf.links.iter().position(|l| l.name == name) {
+        Some(l) => {
+            let by = if scene.drop.iter().any(|d| removes(urdf, d, l)) {
+                format!("`drop = [..., \"{}\"]`", scene.drop.iter().find(|d| removes(urdf, d, l)).expect("found above"))
+            } else {
+                "`keep`, which does not keep it".to_string()
+            };
+            format!("{whence} names link `{name}`, which the scene removes (by {by})")
+        }
+        None => {
+            let joint = urdf.joints.iter().any(|j| j.name == name);
+            let what = if joint { "a joint, not a link: frames are link names" } else { "not a link of this robot" };
+            format!("{whence} names `{name}`, which is {what}")
+        }
+    };
+    Diagnostic::error(message, None, "unknown frame").with_help(format!("closest frames: {}", closest(name, model)))
 }
 
 /// Whether dropping link `dropped` removes link `l` (it is `l` or an ancestor of it).

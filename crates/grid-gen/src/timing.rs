@@ -64,7 +64,7 @@ const NV: usize = {nv};
 #[allow(dead_code)]
 const NQ: usize = {nq};"
         );
-        crate::back::rust::emit_mixed_kernel(&mut out, m.function, nv, "NQ", &crate::back::rust::RustOptions::default(), m.wide);
+        crate::back::rust::emit_mixed_kernel(&mut out, m.function, "NQ", &crate::back::rust::RustOptions::default(), m.wide);
         out.push_str(
             "}
 ",

@@ -13,8 +13,11 @@ use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
 use crate::model::Model;
 
 mod coupled;
+mod forces;
 mod frames;
 mod step;
+
+pub(crate) use forces::{transpose, Forces};
 
 /// Row-major n x n matrix of nodes.
 pub type Mat = Vec<Vec<Id>>;
@@ -34,6 +37,9 @@ pub(crate) struct Dynamics<'a> {
     /// How [`Self::fd_grad`] gets q̈ and applies M⁻¹ to ∂c/∂u (`Auto` runs `Minv`); after
     /// recording, the solve it took.
     pub solve: Solve,
+    /// The external and contact forces on the bodies, once [`Self::load_forces`] has read
+    /// the kernel's force inputs: RNEA subtracts them, ABA adds them to its bias forces.
+    forces: Forces,
 }
 
 /// The RNEA quantities the gradient needs.
@@ -62,7 +68,7 @@ impl<'a> Dynamics<'a> {
             s.push(subspace(&mut g, &model.joints[i]));
             inertia.push(SymInertia::new(&mut g, &model.joints[i].inertia));
         }
-        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia, product: None, solve: Solve::Minv }
+        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia, product: None, solve: Solve::Minv, forces: Forces::default() }
     }
 
     /// Model joints (bodies): what the recursions loop over. The kernels' inputs and
@@ -167,6 +173,9 @@ impl<'a> Dynamics<'a> {
             let ia = self.inertia[i].apply(g, &a[i]);
             let vf = sp::crf(g, &v[i], &iv[i]);
             f[i] = sp::add(g, &ia, &vf);
+            if let Some(fe) = self.forces.on(i) {
+                f[i] = sp::sub(g, &f[i], &fe);
+            }
         }
         let mut c = vec![z[0]; n];
         for i in (0..n).rev() {
@@ -183,10 +192,12 @@ impl<'a> Dynamics<'a> {
 
     /// `(∂c/∂q, ∂c/∂q̇)` in the chosen formulation.
     pub fn rnea_grad(&mut self, r: &Rnea, qd: &[Id]) -> (Mat, Mat) {
-        match self.gradient {
+        let (mut dq, dqd) = match self.gradient {
             Gradient::Idsva => self.rnea_grad_idsva(r),
             Gradient::Columns | Gradient::Auto => self.rnea_grad_columns(r, qd),
-        }
+        };
+        self.add_contact_q_terms(&mut dq);
+        (dq, dqd)
     }
 
     /// `(∂c/∂q, ∂c/∂q̇)` (Carpentier & Mansard 2018, as in `reference::rnea_derivatives`),
@@ -595,6 +606,9 @@ impl<'a> Dynamics<'a> {
             };
             let iv = self.inertia[i].apply(g, &v[i]);
             pa[i] = sp::crf(g, &v[i], &iv);
+            if let Some(fe) = self.forces.on(i) {
+                pa[i] = sp::sub(g, &pa[i], &fe);
+            }
         }
         let mut ia = self.composite_start();
         let (mut u, mut dinv, mut uu) = (vec![z; n], vec![z[0]; n], vec![z[0]; n]);
@@ -646,16 +660,12 @@ impl<'a> Dynamics<'a> {
     /// articulated inertias with M⁻¹ and its velocities with the RNEA pass.
     /// Per-coordinate inputs and outputs: with coupled mimic joints q̈ and M⁻¹ are the
     /// constrained ones and the gradient `−M⁻¹ Gᵀ (∂c/∂u) G`.
-    pub fn fd_grad(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Mat, Mat) {
-        let (qdd, dq, dqd, _) = self.fd_grad_minv(qd, tau, &[]);
-        (qdd, dq, dqd)
-    }
-
-    /// [`Self::fd_grad`], and `∂q̈/∂τ` for the coordinates `columns`: those columns of
-    /// M⁻¹, from the route that formed `∂q̈/∂u` (M⁻¹ itself, or its factorisation's solves).
-    pub fn fd_grad_minv(&mut self, qd: &[Id], tau: &[Id], columns: &[usize]) -> (Vec<Id>, Mat, Mat, Mat) {
+    /// Also `∂q̈/∂τ` for the coordinates `columns` (those columns of M⁻¹),
+    /// and `−M⁻¹ b` for each per-coordinate vector b of `rhs`, both from the route that
+    /// formed `∂q̈/∂u` (M⁻¹ itself, or its factorisation's solves).
+    pub fn fd_grad(&mut self, qd: &[Id], tau: &[Id], columns: &[usize], rhs: &[Vec<Id>]) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
         if matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled() {
-            return self.fd_grad_ltdl(qd, tau, columns);
+            return self.fd_grad_ltdl(qd, tau, columns, rhs);
         }
         // The constrained M⁻¹ of coupled mimic joints comes from the direct route.
         self.solve = Solve::Minv;
@@ -687,7 +697,18 @@ impl<'a> Dynamics<'a> {
         let flat = |m: &Mat| m.iter().flatten().map(|&id| super::module::Operand::Node(id)).collect::<Vec<_>>();
         self.product = Some(super::module::DenseProduct { minv: flat(&mi), dc: vec![flat(&dc_q), flat(&dc_qd)], outputs: vec![1, 2] });
         let picked = mi.iter().map(|row| columns.iter().map(|&c| row[c]).collect()).collect();
-        (qdd, dq, dqd, picked)
+        let solved = rhs
+            .iter()
+            .map(|b| {
+                (0..n)
+                    .map(|i| {
+                        let d = self.g.dot(&mi[i], b);
+                        self.g.neg(d)
+                    })
+                    .collect()
+            })
+            .collect();
+        (qdd, dq, dqd, picked, solved)
     }
 }
 
@@ -698,15 +719,16 @@ impl Dynamics<'_> {
     /// gradient's own nodes, shared by hash-consing), then `−M⁻¹ ∂c/∂u` by the
     /// factorisation. Zero entries of ∂c/∂u (joints on different branches) fold away, so
     /// each column's solves touch only the joints it can reach.
-    fn fd_grad_ltdl(&mut self, qd: &[Id], tau: &[Id], columns: &[usize]) -> (Vec<Id>, Mat, Mat, Mat) {
+    fn fd_grad_ltdl(&mut self, qd: &[Id], tau: &[Id], columns: &[usize], rhs: &[Vec<Id>]) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
         let n = self.n();
         let zero = self.g.constant(0.0);
         let m = self.mass_matrix();
         // q̈ by ABA, or the bias forces c(q, q̇, 0) that the factorisation turns into q̈.
         let by_aba = (self.solve == Solve::Ltdl).then(|| self.aba(qd, tau));
         let bias = if by_aba.is_none() { self.rnea(qd, &vec![zero; n]).c } else { Vec::new() };
+        let empty = |columns: usize| vec![vec![zero; columns]; n];
         if self.exhausted() {
-            return (vec![zero; n], vec![vec![zero; n]; n], vec![vec![zero; n]; n], vec![vec![zero; columns.len()]; n]);
+            return (vec![zero; n], empty(n), empty(n), empty(columns.len()), vec![vec![zero; n]; rhs.len()]);
         }
         let f = self.ltdl(m);
         let qdd = by_aba.unwrap_or_else(|| {
@@ -716,7 +738,7 @@ impl Dynamics<'_> {
         let r = self.rnea(qd, &qdd);
         let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
         if self.exhausted() {
-            return (qdd, dc_q, dc_qd, vec![vec![zero; columns.len()]; n]);
+            return (qdd, dc_q, dc_qd, empty(columns.len()), vec![vec![zero; n]; rhs.len()]);
         }
         self.g.at(None, Stage::Combine, 0);
         let g = &mut self.g;
@@ -742,7 +764,8 @@ impl Dynamics<'_> {
                 picked[row][at] = self.g.neg(x);
             }
         }
-        (qdd, dq, dqd, picked)
+        let solved = rhs.iter().map(|b| f.solve(&mut self.g, self.model, b.clone())).collect();
+        (qdd, dq, dqd, picked, solved)
     }
 
     /// LTDL (Featherstone 2005, table 2): M's lower triangle becomes L (unit diagonal

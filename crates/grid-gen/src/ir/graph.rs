@@ -21,6 +21,10 @@ pub enum Input {
     Tau,
     /// The step kernels' τ: the actuated coordinates' forces only (named `tau` too).
     TauActuated,
+    /// External forces, 6 per body of [`crate::model::Specialisation::fext`].
+    Fext,
+    /// Contact forces, 3 or 6 per contact of [`crate::model::Specialisation::contacts`].
+    Lambda,
 }
 
 impl Input {
@@ -30,6 +34,8 @@ impl Input {
             Input::Qd => "qd",
             Input::Qdd => "qdd",
             Input::Tau | Input::TauActuated => "tau",
+            Input::Fext => "fext",
+            Input::Lambda => "lambda",
         }
     }
 
@@ -38,6 +44,8 @@ impl Input {
         match self {
             Input::Q => dims.nq,
             Input::TauActuated => dims.nu,
+            Input::Fext => 6 * dims.nfext,
+            Input::Lambda => dims.nlambda,
             Input::Qd | Input::Qdd | Input::Tau => dims.nv,
         }
     }

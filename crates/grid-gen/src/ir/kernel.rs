@@ -15,6 +15,10 @@ pub struct Dims {
     pub nu: usize,
     /// Requested frames.
     pub nframes: usize,
+    /// Bodies that take an external force (`fext` has 6 entries per body).
+    pub nfext: usize,
+    /// Entries of the contact forces λ.
+    pub nlambda: usize,
 }
 
 /// The shape of a kernel output.
@@ -35,6 +39,10 @@ pub enum Shape {
     StateMatrix,
     /// `2nv x nu`, row-major (the step's B).
     StateInput,
+    /// `nv x 6 nfext`, row-major: a derivative with respect to `fext`.
+    ByFext,
+    /// `nv x nlambda`, row-major: a derivative with respect to λ.
+    ByLambda,
 }
 
 impl Shape {
@@ -48,6 +56,8 @@ impl Shape {
             Shape::Config => d.nq,
             Shape::StateMatrix => 4 * d.nv * d.nv,
             Shape::StateInput => 2 * d.nv * d.nu,
+            Shape::ByFext => 6 * d.nv * d.nfext,
+            Shape::ByLambda => d.nv * d.nlambda,
         }
     }
 
@@ -59,6 +69,8 @@ impl Shape {
             Shape::Vector | Shape::Config => vec![flat],
             Shape::StateMatrix => vec![flat / (2 * nv), flat % (2 * nv)],
             Shape::StateInput => vec![flat / d.nu.max(1), flat % d.nu.max(1)],
+            Shape::ByFext => vec![flat / (6 * d.nfext).max(1), flat % (6 * d.nfext).max(1)],
+            Shape::ByLambda => vec![flat / d.nlambda.max(1), flat % d.nlambda.max(1)],
             Shape::Matrix => vec![flat / nv, flat % nv],
             Shape::PerFrame(k) => vec![flat / k, flat % k],
             Shape::FrameMatrix(r) => vec![flat / (r * nv), (flat / nv) % r, flat % nv],
@@ -295,14 +307,43 @@ impl KernelKind {
         }
     }
 
-    /// The outputs of the kernel of a model so specialised: [`Self::outputs`], and
-    /// `fd_grad`'s `dqdd_dtau` when [`crate::model::Specialisation::fd_grad_minv`] asks.
+    /// The outputs of the kernel of a model so specialised: [`Self::outputs`], then
+    /// `fd_grad`'s `dqdd_dtau` when [`crate::model::Specialisation::fd_grad_minv`] asks,
+    /// then the derivatives with respect to the forces the kernel takes.
     pub fn outputs_for(self, spec: &crate::model::Specialisation) -> Vec<OutputSpec> {
         let mut out = self.outputs().to_vec();
         if self == KernelKind::FdGrad && spec.fd_grad_minv {
             out.push(OutputSpec { name: "dqdd_dtau", shape: Shape::Matrix });
         }
+        let (fext, lambda) = (!spec.fext.is_empty(), !spec.contacts.is_empty());
+        match self {
+            KernelKind::RneaGrad => {
+                out.extend(fext.then_some(OutputSpec { name: "dc_dfext", shape: Shape::ByFext }));
+                out.extend(lambda.then_some(OutputSpec { name: "dc_dlambda", shape: Shape::ByLambda }));
+            }
+            KernelKind::FdGrad => {
+                out.extend(fext.then_some(OutputSpec { name: "dqdd_dfext", shape: Shape::ByFext }));
+                out.extend(lambda.then_some(OutputSpec { name: "dqdd_dlambda", shape: Shape::ByLambda }));
+            }
+            _ => {}
+        }
         out
+    }
+
+    /// Whether the kernel takes the external and contact forces a model declares.
+    pub fn takes_forces(self) -> bool {
+        matches!(self, KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::Fd | KernelKind::FdGrad)
+    }
+
+    /// The inputs of the kernel of a model so specialised: [`Self::inputs`], then `fext`
+    /// and `lambda` when the model declares them and the kernel takes forces.
+    pub fn inputs_for(self, spec: &crate::model::Specialisation) -> Vec<Input> {
+        let mut inputs = self.inputs().to_vec();
+        if self.takes_forces() {
+            inputs.extend((!spec.fext.is_empty()).then_some(Input::Fext));
+            inputs.extend((!spec.contacts.is_empty()).then_some(Input::Lambda));
+        }
+        inputs
     }
 
     /// One sentence for the function's doc comment.
@@ -373,6 +414,9 @@ impl KernelKind {
         }
         // Inputs and outputs are per coordinate; the recursions run per joint. `expand`
         // and `reduce` map between the two (the identity unless mimic joints are coupled).
+        if self.takes_forces() {
+            d.load_forces();
+        }
         match self {
             KernelKind::Rnea => {
                 let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
@@ -385,7 +429,11 @@ impl KernelKind {
                 let (qd, qdd) = (d.expand(&qd), d.expand(&qdd));
                 let r = d.rnea(&qd, &qdd);
                 let (dq, dqd) = d.rnea_grad(&r, &qd);
-                vec![flat(d.reduce_matrix(dq)), flat(d.reduce_matrix(dqd))]
+                let mut out = vec![flat(d.reduce_matrix(dq)), flat(d.reduce_matrix(dqd))];
+                let (by_fext, by_lambda) = d.force_grads();
+                out.extend(d.declares_fext().then(|| flat(by_fext)));
+                out.extend(d.declares_contacts().then(|| flat(by_lambda)));
+                out
             }
             KernelKind::MassMatrix => {
                 let m = d.mass_matrix();
@@ -398,13 +446,20 @@ impl KernelKind {
             }
             KernelKind::FdGrad => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
-                if d.wants_fd_grad_minv() {
-                    let all: Vec<usize> = (0..qd.len()).collect();
-                    let (qdd, dq, dqd, minv) = d.fd_grad_minv(&qd, &tau, &all);
-                    return vec![qdd, flat(dq), flat(dqd), flat(minv)];
-                }
-                let (qdd, dq, dqd) = d.fd_grad(&qd, &tau);
-                vec![qdd, flat(dq), flat(dqd)]
+                let nv = qd.len();
+                let all: Vec<usize> = if d.wants_fd_grad_minv() { (0..nv).collect() } else { Vec::new() };
+                // ∂q̈/∂(fext, λ) = −M⁻¹ ∂c/∂(fext, λ), by the route that forms ∂q̈/∂u.
+                let (by_fext, by_lambda) = d.force_grads();
+                let columns = |m: &Mat| -> Vec<Vec<Id>> { (0..m.first().map_or(0, Vec::len)).map(|c| m.iter().map(|row| row[c]).collect()).collect() };
+                let (fext_cols, lambda_cols) = (columns(&by_fext), columns(&by_lambda));
+                let rhs: Vec<Vec<Id>> = fext_cols.iter().chain(&lambda_cols).cloned().collect();
+                let (qdd, dq, dqd, minv, solved) = d.fd_grad(&qd, &tau, &all, &rhs);
+                let mut out = vec![qdd, flat(dq), flat(dqd)];
+                out.extend(d.wants_fd_grad_minv().then(|| flat(minv)));
+                let (f, l) = solved.split_at(fext_cols.len());
+                out.extend(d.declares_fext().then(|| flat(super::dynamics::transpose(f.to_vec(), nv))));
+                out.extend(d.declares_contacts().then(|| flat(super::dynamics::transpose(l.to_vec(), nv))));
+                out
             }
             KernelKind::FramePlacement => {
                 let (t, r) = d.frame_placements();

@@ -101,6 +101,10 @@ pub struct Robot {
     pub reference: crate::model::ReferenceFrame,
     /// The actuated coordinates, the entries of the step kernels' τ.
     pub actuated: Vec<usize>,
+    /// The joints (Pinocchio's names) whose bodies take `fext`, in its order.
+    pub fext: Vec<String>,
+    /// The contacts (frame name, kind), in λ's order.
+    pub contacts: Vec<(String, crate::model::ContactKind)>,
 }
 
 impl Robot {
@@ -133,6 +137,8 @@ impl Robot {
             frames: model.selected_frames().map(|f| f.name.clone()).collect(),
             reference: model.specialisation.reference,
             actuated: model.actuated(),
+            fext: model.specialisation.fext.iter().map(|&b| model.joint_name(b).to_string()).collect(),
+            contacts: model.specialisation.contacts.iter().map(|c| (model.frames[c.frame].name.clone(), c.kind)).collect(),
         }
     }
 
@@ -143,7 +149,12 @@ impl Robot {
 
     /// The robot's sizes.
     pub fn dims(&self) -> crate::ir::Dims {
-        crate::ir::Dims { nq: self.nq(), nv: self.nv(), nu: self.nu(), nframes: self.nframes() }
+        crate::ir::Dims { nq: self.nq(), nv: self.nv(), nu: self.nu(), nframes: self.nframes(), nfext: self.specialisation.fext.len(), nlambda: self.nlambda() }
+    }
+
+    /// Entries of the contact forces λ.
+    pub fn nlambda(&self) -> usize {
+        self.specialisation.contacts.iter().map(|c| c.kind.dim()).sum()
     }
 
     /// Frames the frame kernels compute.
@@ -197,6 +208,10 @@ pub struct Function {
     pub gradient: Option<Gradient>,
     /// How `fd_grad` got q̈ and applied M⁻¹ (`None` for the other kernels).
     pub solve: Option<Solve>,
+    /// The arguments, in order ([`KernelKind::inputs_for`]).
+    pub inputs: Vec<Input>,
+    /// The robot's sizes, which the inputs and outputs are measured in.
+    pub dims: crate::ir::Dims,
     pub nodes: Vec<Node>,
     pub outputs: Vec<Output>,
     /// `fd_grad`'s `∂q̈/∂u = −M⁻¹ ∂c/∂u`, as its operands: the graph holds the product
@@ -241,12 +256,20 @@ impl Function {
         format!("{}({}) -> {ret}", self.kind.name(), args.join(", "))
     }
 
-    /// The sizes an output index needs, read off this function's outputs for a robot
-    /// with `nv` coordinates (nq and nframes are not needed to index).
-    pub fn dims(&self, nv: usize) -> crate::ir::Dims {
-        let len = |s: Shape| self.outputs.iter().find(|o| o.shape == s).map(|o| o.ids.len());
-        let nu = len(Shape::StateInput).map_or(0, |l| l / (2 * nv).max(1));
-        crate::ir::Dims { nq: len(Shape::Config).unwrap_or(nv), nv, nu, nframes: 0 }
+    /// Where input `which`'s entry `j` sits when the inputs after q and q̇ are packed into
+    /// one `u` per state (q̈ or τ, then `fext`, then λ), as the WGSL kernels read them.
+    pub fn packed_u(&self, which: Input, j: usize) -> usize {
+        let d = &self.dims;
+        match which {
+            Input::Fext => d.nv + j,
+            Input::Lambda => d.nv + 6 * d.nfext * usize::from(self.inputs.contains(&Input::Fext)) + j,
+            _ => j,
+        }
+    }
+
+    /// Entries of the packed `u` ([`Self::packed_u`]) per state.
+    pub fn packed_u_len(&self) -> usize {
+        self.inputs.iter().filter(|i| !matches!(i, Input::Q | Input::Qd)).map(|i| i.len(&self.dims)).sum()
     }
 }
 
@@ -376,6 +399,8 @@ fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOpt
     }
     let product = if spec.selects() { None } else { d.product.take() };
     let mut f = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, product);
+    f.inputs = kind.inputs_for(spec);
+    f.dims = Robot::of(model).dims();
     f.gradient = Gradient::applies_to(kind).then_some(gradient);
     f.solve = kind.holds_fd_grad().then_some(d.solve);
     debug_assert_ne!(f.solve, Some(Solve::Auto));
@@ -443,7 +468,8 @@ fn freeze(kind: KernelKind, specs: &[crate::ir::OutputSpec], g: &Graph, outputs:
         let dc = p.dc.iter().map(|m| remap(m)).collect::<Option<Vec<_>>>()?;
         Some(DenseProduct { minv: remap(&p.minv)?, dc, outputs: p.outputs })
     });
-    Function { kind, nodes, outputs, gradient: None, solve: None, product }
+    let dims = crate::ir::Dims { nq: 0, nv: 0, nu: 0, nframes: 0, nfext: 0, nlambda: 0 };
+    Function { kind, inputs: kind.inputs().to_vec(), dims, nodes, outputs, gradient: None, solve: None, product }
 }
 
 impl Function {
@@ -455,8 +481,8 @@ impl Function {
         }
     }
 
-    pub fn inputs(&self) -> &'static [Input] {
-        self.kind.inputs()
+    pub fn inputs(&self) -> &[Input] {
+        &self.inputs
     }
 
     pub fn op(&self, id: Id) -> Op {

@@ -54,7 +54,7 @@ mod tests {
     use crate::ir::{KernelKind, Node, Output, Shape, Stage};
 
     fn dims(n: usize) -> crate::ir::Dims {
-        crate::ir::Dims { nq: n, nv: n, nu: n, nframes: 0 }
+        crate::ir::Dims { nq: n, nv: n, nu: n, nframes: 0, nfext: 0, nlambda: 0 }
     }
 
     fn node(op: Op) -> Node {
@@ -64,6 +64,8 @@ mod tests {
     fn function(nodes: Vec<Op>, out: Vec<u32>) -> Function {
         Function {
             kind: KernelKind::Rnea,
+            inputs: KernelKind::Rnea.inputs().to_vec(),
+            dims: dims(1),
             gradient: None,
             solve: None,
             nodes: nodes.into_iter().map(node).collect(),

@@ -2,6 +2,7 @@
 //! as Pinocchio's `aba`. More accurate than `M⁻¹ (τ − c)` when M is ill-conditioned.
 
 use super::coupled::{expand, place, project_acceleration};
+use super::forces::{body_forces, External};
 use super::minv::minv_joints;
 use super::{root_acceleration, velocity_product, Kinematics};
 use crate::model::Model;
@@ -9,7 +10,13 @@ use crate::spatial::{crf, Vec6};
 
 /// Joint accelerations under torques `tau` at `(q, qd)`, with gravity `gravity`.
 pub fn aba(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]) -> Vec<f64> {
-    let a = aba_joints(model, q, &expand(model, qd), &place(model, tau), gravity);
+    aba_with(model, q, qd, tau, gravity, External::NONE)
+}
+
+/// [`aba`] under external forces and contact forces `ext` (Pinocchio's
+/// `aba(model, data, q, v, tau, fext)`).
+pub fn aba_with(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], ext: External) -> Vec<f64> {
+    let a = aba_joints(model, q, &expand(model, qd), &place(model, tau), gravity, &body_forces(model, q, ext));
     if !model.has_coupled() {
         return a;
     }
@@ -17,7 +24,7 @@ pub fn aba(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3])
 }
 
 /// [`aba`] with a q̇, τ and q̈ per model joint, before the mimic constraints (see `coupled`).
-fn aba_joints(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]) -> Vec<f64> {
+fn aba_joints(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], ext: &[Vec6]) -> Vec<f64> {
     let n = model.njoints();
     let k = Kinematics::new(model, q);
     let mut v = vec![Vec6::zeros(); n];
@@ -30,7 +37,7 @@ fn aba_joints(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 
         xv[i] = k.x[i] * v_parent;
         v[i] = xv[i] + k.s[i] * qd[i];
         c[i] = velocity_product(model, i, &k, &v, &xv, qd);
-        pa[i] = crf(&v[i]) * (k.inertia[i] * v[i]);
+        pa[i] = crf(&v[i]) * (k.inertia[i] * v[i]) - ext[i];
     }
     // Articulated inertias and bias forces, leaves to root.
     let mut ia = k.inertia.clone();

@@ -9,19 +9,21 @@ mod aba;
 pub mod coupled;
 mod crba;
 mod fd;
+mod forces;
 mod frames;
 mod minv;
 mod rnea;
 mod rnea_derivatives;
 mod step;
 
-pub use aba::aba;
+pub use aba::{aba, aba_with};
 pub use crba::crba;
-pub use fd::{forward_dynamics, forward_dynamics_derivatives};
+pub use fd::{forward_dynamics, forward_dynamics_derivatives, forward_dynamics_derivatives_with};
+pub use forces::{force_derivatives, External, ForceDerivatives};
 pub use frames::{frame_classical_acceleration, frame_jacobian, frame_placement, frame_velocity};
 pub use minv::minv;
-pub use rnea::rnea;
-pub use rnea_derivatives::rnea_derivatives;
+pub use rnea::{rnea, rnea_with};
+pub use rnea_derivatives::{rnea_derivatives, rnea_derivatives_with};
 pub use step::{d_integrate, integrate, step, step_derivatives, StepDerivatives};
 
 use nalgebra::{Matrix3, Vector3};

@@ -2,18 +2,26 @@
 //! (Featherstone 2008, table 5.1).
 
 use super::coupled::{expand, reduce};
+use super::forces::{body_forces, External};
 use super::{root_acceleration, velocity_product, Kinematics};
 use crate::model::Model;
 use crate::spatial::{crf, Vec6};
 
 /// Joint forces needed for accelerations `qdd` at `(q, qd)`, with gravity `gravity`.
 pub fn rnea(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> Vec<f64> {
-    let (qd, qdd) = (expand(model, qd), expand(model, qdd));
-    reduce(model, &rnea_joints(model, q, &qd, &qdd, gravity))
+    rnea_with(model, q, qd, qdd, gravity, External::NONE)
 }
 
-/// [`rnea`] with one q̇, q̈ and force per model joint (see `coupled`).
-fn rnea_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> Vec<f64> {
+/// [`rnea`] under external forces and contact forces `ext` (subtracted from the bodies'
+/// forces, as Pinocchio's `rnea(model, data, q, v, a, fext)`).
+pub fn rnea_with(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3], ext: External) -> Vec<f64> {
+    let (qd, qdd) = (expand(model, qd), expand(model, qdd));
+    reduce(model, &rnea_joints(model, q, &qd, &qdd, gravity, &body_forces(model, q, ext)))
+}
+
+/// [`rnea`] with one q̇, q̈ and force per model joint (see `coupled`), and one external
+/// force per body in its own frame.
+fn rnea_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3], ext: &[Vec6]) -> Vec<f64> {
     let n = model.njoints();
     let k = Kinematics::new(model, q);
     let a0 = root_acceleration(gravity);
@@ -30,7 +38,7 @@ fn rnea_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64;
         xv[i] = k.x[i] * v_parent;
         v[i] = xv[i] + k.s[i] * qd[i];
         a[i] = k.x[i] * a_parent + k.s[i] * qdd[i] + velocity_product(model, i, &k, &v, &xv, qd);
-        f[i] = k.inertia[i] * a[i] + crf(&v[i]) * (k.inertia[i] * v[i]);
+        f[i] = k.inertia[i] * a[i] + crf(&v[i]) * (k.inertia[i] * v[i]) - ext[i];
     }
     // Backward pass: project onto the joint, pass the rest to the parent.
     let mut tau = vec![0.0; n];

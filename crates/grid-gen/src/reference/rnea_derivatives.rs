@@ -5,18 +5,29 @@
 use nalgebra::{DMatrix, Matrix6xX};
 
 use super::coupled::{expand, reduce_matrix};
+use super::forces::{body_forces, contact_q_terms, External};
 use super::{root_acceleration, velocity_product, Kinematics};
 use crate::model::Model;
 use crate::spatial::{crf, crm, Vec6};
 
 /// `(∂c/∂q, ∂c/∂q̇)` at `(q, qd, qdd)`, row-major: entry (i, j) is ∂c_i/∂u_j.
 pub fn rnea_derivatives(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> (DMatrix<f64>, DMatrix<f64>) {
-    let (dq, dqd) = rnea_derivatives_joints(model, q, &expand(model, qd), &expand(model, qdd), gravity);
+    rnea_derivatives_with(model, q, qd, qdd, gravity, External::NONE)
+}
+
+/// [`rnea_derivatives`] under external forces `ext`: `fext` held fixed in the bodies'
+/// frames (as Pinocchio's `computeRNEADerivatives(..., fext)`), contact forces λ fixed in
+/// their `LOCAL_WORLD_ALIGNED` axes (so ∂(Jᵀ)/∂q · λ is included).
+pub fn rnea_derivatives_with(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3], ext: External) -> (DMatrix<f64>, DMatrix<f64>) {
+    let forces = body_forces(model, q, ext);
+    let (mut dq, dqd) = rnea_derivatives_joints(model, q, &expand(model, qd), &expand(model, qdd), gravity, &forces);
+    dq += contact_q_terms(model, q, ext);
     (reduce_matrix(model, dq), reduce_matrix(model, dqd))
 }
 
-/// [`rnea_derivatives`] per model joint (see `coupled`).
-fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> (DMatrix<f64>, DMatrix<f64>) {
+/// [`rnea_derivatives`] per model joint (see `coupled`), one external force per body in
+/// its own frame, held fixed there.
+fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3], ext: &[Vec6]) -> (DMatrix<f64>, DMatrix<f64>) {
     let n = model.njoints();
     let k = Kinematics::new(model, q);
     let a0 = root_acceleration(gravity);
@@ -45,7 +56,7 @@ fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gr
         let product = group.as_ref().is_none_or(|g| i + 1 == g.end && model.joints[g.start].parent.is_some());
         let vj: Vec6 = group.clone().unwrap_or(i..i + 1).map(|m| k.s[m] * qd[m]).sum();
         let iv = k.inertia[i] * v[i];
-        f[i] = k.inertia[i] * a[i] + crf(&v[i]) * iv;
+        f[i] = k.inertia[i] * a[i] + crf(&v[i]) * iv - ext[i];
 
         // ∂v_i = iXλ ∂v_λ + {(iXλ v_λ) × S_i for q_i; S_i for q̇_i}.
         if let Some(p) = parent {

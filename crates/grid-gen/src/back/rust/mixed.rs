@@ -13,7 +13,7 @@ use crate::ir::{Function, Id, Op};
 /// One kernel's mixed function: `pub fn NAME(q: &[f64; NV], ...) -> outputs` (f64), with
 /// its `_part` functions where the kernel is split. `wide[i]`: node i is f64. The caller
 /// provides `NV` in scope.
-pub fn emit_mixed_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: &RustOptions, wide: &[bool]) {
+pub fn emit_mixed_kernel(out: &mut String, k: &Function, q_len: &str, options: &RustOptions, wide: &[bool]) {
     let names = Chunks::new(k, options.chunk);
     let ty = |id: Id| if wide[id.0 as usize] { "f64" } else { "f32" };
     // A constant or input as written: the f64 the model or the caller holds.
@@ -71,7 +71,7 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str,
     let types: Vec<String> = k.outputs.iter().map(|o| output_type(o.shape).replace('T', "f64")).collect();
     let ret_type = if types.len() == 1 { types[0].clone() } else { format!("({})", types.join(", ")) };
     let ret_value = return_value(k);
-    let (inline_outputs, sinks) = output_stores(k, nv);
+    let (inline_outputs, sinks) = output_stores(k);
     let body = |c: usize, ids: &[Id]| -> String {
         let mut b = String::new();
         if c == 0 {

@@ -160,6 +160,8 @@ pub(super) fn array_of(shape: Shape, t: &str) -> String {
         Shape::Config => format!("[{t}; NQ]"),
         Shape::StateMatrix => format!("[[{t}; NX]; NX]"),
         Shape::StateInput => format!("[[{t}; NU]; NX]"),
+        Shape::ByFext => format!("[[{t}; 6 * NFEXT]; NV]"),
+        Shape::ByLambda => format!("[[{t}; NLAMBDA]; NV]"),
     }
 }
 
@@ -185,8 +187,8 @@ fn return_value(k: &Function) -> String {
 /// Where output values are stored: output places that take a constant or an input
 /// (written once, up front), and for each computed node the places that take its value.
 /// Outputs start at zero, so structural zeros need no store.
-fn output_stores(k: &Function, nv: usize) -> (Vec<(String, Id)>, HashMap<Id, Vec<String>>) {
-    let dims = &k.dims(nv);
+fn output_stores(k: &Function) -> (Vec<(String, Id)>, HashMap<Id, Vec<String>>) {
+    let dims = &k.dims;
     let mut sinks: HashMap<Id, Vec<String>> = HashMap::new();
     let mut inline_outputs = Vec::new();
     for (oi, o) in k.outputs.iter().enumerate() {
@@ -264,7 +266,7 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
     let name = k.kind.name();
     let Signature { args, arg_names, ret_type } = Signature::of(k, q_len);
     let ret_value = return_value(k);
-    let (mut inline_outputs, mut sinks) = output_stores(k, nv);
+    let (mut inline_outputs, mut sinks) = output_stores(k);
     let operand_mats = looped.map(operand_names).unwrap_or_default();
     // The operands reach their matrices as outputs do; negations and constants the graph
     // no longer holds are written just before the loop (`fixups`).
@@ -429,6 +431,8 @@ pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
     match input {
         crate::ir::Input::Q => q_len,
         crate::ir::Input::TauActuated => "NU",
+        crate::ir::Input::Fext => "6 * NFEXT",
+        crate::ir::Input::Lambda => "NLAMBDA",
         _ => "NV",
     }
 }
@@ -630,6 +634,30 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
             actuated.join(", "),
             literal(step.dt),
             string_literal(step.scheme.name())
+        );
+    }
+    if !robot.fext.is_empty() {
+        let names: Vec<String> = robot.fext.iter().map(|n| string_literal(n)).collect();
+        let _ = writeln!(
+            out,
+            "/// Bodies that take an external force: `fext` has 6 entries per body, `[fx, fy, fz, tx, ty, tz]` in the frame of\n\
+             /// the joint that moves it (Pinocchio's `fext`, subtracted in RNEA).\n#[allow(dead_code)]\npub const NFEXT: usize = {};\n\
+             /// The joints (Pinocchio's names) whose bodies take `fext`, in its order.\n#[allow(dead_code)]\npub const FEXT_JOINTS: [&str; NFEXT] = [{}];",
+            names.len(),
+            names.join(", ")
+        );
+    }
+    if !robot.contacts.is_empty() {
+        let frames: Vec<String> = robot.contacts.iter().map(|(n, _)| string_literal(n)).collect();
+        let kinds: Vec<String> = robot.contacts.iter().map(|(_, k)| string_literal(k.name())).collect();
+        let _ = writeln!(
+            out,
+            "/// Entries of the contact forces `lambda`: 3 per point contact, 6 per wrench (`[f; tau]`), in world axes at the\n\
+             /// contact frame's origin (`LOCAL_WORLD_ALIGNED`), the force on the robot.\n#[allow(dead_code)]\npub const NLAMBDA: usize = {};\n\
+             /// The contact frames, in `lambda`'s order, and their kinds (`point` or `wrench`).\n#[allow(dead_code)]\npub const CONTACTS: [(&str, &str); {}] = [{}];",
+            robot.nlambda(),
+            frames.len(),
+            frames.iter().zip(&kinds).map(|(f, k)| format!("({f}, {k})")).collect::<Vec<_>>().join(", ")
         );
     }
     let _ = writeln!(

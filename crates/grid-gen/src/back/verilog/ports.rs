@@ -39,7 +39,7 @@ impl PortNames {
             .into_iter()
             .map(|(k, e, id)| {
                 let o = &dp.outputs[k];
-                let index: Vec<String> = o.shape.index(e, &crate::ir::Dims { nq: dp.nv, nv: dp.nv, nu: 0, nframes: 0 }).iter().map(|i| i.to_string()).collect();
+                let index: Vec<String> = o.shape.index(e, &dp.dims).iter().map(|i| i.to_string()).collect();
                 let name = format!("{}_{}", o.name, index.join("_"));
                 (name, id)
             })

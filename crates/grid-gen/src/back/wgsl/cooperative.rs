@@ -133,9 +133,9 @@ pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot:
                 let tag = match which {
                     Input::Q => Q,
                     Input::Qd => QD,
-                    Input::Qdd | Input::Tau | Input::TauActuated => U,
+                    Input::Qdd | Input::Tau | Input::TauActuated | Input::Fext | Input::Lambda => U,
                 };
-                address(tag, j as usize, robot)
+                address(tag, f.packed_u(which, j as usize), robot)
             }
             _ => match slot[id.0 as usize] as usize {
                 k if k < in_workgroup => address(WORKGROUP, k, robot),

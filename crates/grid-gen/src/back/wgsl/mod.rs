@@ -246,7 +246,7 @@ fn input_buffer(input: Input) -> &'static str {
     match input {
         Input::Q => "q",
         Input::Qd => "qd",
-        Input::Qdd | Input::Tau | Input::TauActuated => "u",
+        Input::Qdd | Input::Tau | Input::TauActuated | Input::Fext | Input::Lambda => "u",
     }
 }
 
@@ -272,7 +272,7 @@ fn expression(f: &Function, id: Id, trig: Trig, mut o: impl FnMut(Id) -> Result<
 fn leaf(f: &Function, id: Id, precision: Precision, robot: &str) -> Result<Option<String>, BackError> {
     Ok(match f.op(id) {
         Op::Const(k) => Some(literal(k, precision, robot)?),
-        Op::Input(which, j) => Some(format!("{}[{j}u * n + s]", input_buffer(which))),
+        Op::Input(which, j) => Some(format!("{}[{}u * n + s]", input_buffer(which), f.packed_u(which, j as usize))),
         _ => None,
     })
 }

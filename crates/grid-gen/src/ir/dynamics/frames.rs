@@ -10,7 +10,7 @@ use super::Dynamics;
 use crate::model::{Frame, ReferenceFrame};
 
 /// A rotation (columns: a frame's axes in world coordinates) and a position.
-type Pose = ([[Id; 3]; 3], V3);
+pub(super) type Pose = ([[Id; 3]; 3], V3);
 
 fn ang(v: &Sv) -> V3 {
     [v[0], v[1], v[2]]
@@ -34,7 +34,7 @@ fn constant_pose(g: &mut Graph, frame: &Frame) -> Pose {
 
 impl Dynamics<'_> {
     /// The world pose of every body: `R_i = R_λ E_iᵀ`, `p_i = p_λ + R_λ r_i`.
-    fn world_poses(&mut self) -> Vec<Pose> {
+    pub(super) fn world_poses(&mut self) -> Vec<Pose> {
         let g = &mut self.g;
         let (zero, one) = (g.constant(0.0), g.constant(1.0));
         let identity = [[one, zero, zero], [zero, one, zero], [zero, zero, one]];

@@ -291,7 +291,7 @@ impl Dynamics<'_> {
             };
             let qdd;
             if grad {
-                let (a, da_dq, da_dv, minv_s) = self.at_config(&y_q, |d| d.fd_grad_minv(&y_v, tau, &actuated));
+                let (a, da_dq, da_dv, minv_s, _) = self.at_config(&y_q, |d| d.fd_grad(&y_v, tau, &actuated, &[]));
                 // ∂k/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
                 let df: Mat = (0..nx)
                     .map(|r| {
@@ -416,7 +416,7 @@ impl Dynamics<'_> {
         if scheme == Scheme::Rk4 {
             return self.rk4(qd, &tau, dt, true);
         }
-        let (qdd, da_dq, da_dv, minv_s) = self.fd_grad_minv(qd, &tau, &actuated);
+        let (qdd, da_dq, da_dv, minv_s, _) = self.fd_grad(qd, &tau, &actuated, &[]);
         // The step's products are its own: no backend may rerun fd_grad's as a loop.
         self.product = None;
         self.g.at(None, Stage::Combine, 0);

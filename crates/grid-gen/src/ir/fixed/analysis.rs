@@ -78,6 +78,8 @@ impl Bounds {
             Port::Value(Input::Qdd, j) => (-self.qdd[j as usize], self.qdd[j as usize]),
             // No datapath kernel takes torques; unbounded makes any that did fail the check.
             Port::Value(Input::Tau | Input::TauActuated, _) => (f64::NEG_INFINITY, f64::INFINITY),
+            // Forces have no bound the model knows (see `Datapath`'s force check).
+            Port::Value(Input::Fext | Input::Lambda, _) => (f64::NEG_INFINITY, f64::INFINITY),
         }
     }
 }

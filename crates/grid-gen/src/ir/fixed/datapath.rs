@@ -90,6 +90,8 @@ pub struct DatapathOutput {
 pub struct Datapath {
     pub kernel: &'static str,
     pub nv: usize,
+    /// The robot's sizes, which the outputs are indexed in.
+    pub dims: crate::ir::Dims,
     pub ports: Vec<Port>,
     pub nodes: Vec<HwOp>,
     pub outputs: Vec<DatapathOutput>,
@@ -100,6 +102,9 @@ impl Datapath {
     /// an input position.
     pub fn new(f: &Function, nv: usize) -> Result<Datapath, FixedError> {
         let unsupported = || FixedError::Unsupported { kernel: f.kind.name().to_string() };
+        if f.inputs.iter().any(|i| matches!(i, crate::ir::Input::Fext | crate::ir::Input::Lambda)) {
+            return Err(FixedError::Forces { kernel: f.kind.name().to_string() });
+        }
         // Which nodes a datapath computes: those reachable from an output, where sin/cos
         // of q stop the walk (they become ports).
         let mut live = vec![false; f.nodes.len()];
@@ -153,7 +158,7 @@ impl Datapath {
         }
         let outputs =
             f.outputs.iter().map(|o| DatapathOutput { name: o.name, shape: o.shape, ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect() }).collect();
-        Ok(Datapath { kernel: f.kind.name(), nv, ports, nodes, outputs })
+        Ok(Datapath { kernel: f.kind.name(), nv, dims: f.dims, ports, nodes, outputs })
     }
 
     pub fn op(&self, id: HwId) -> HwOp {

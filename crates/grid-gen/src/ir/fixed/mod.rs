@@ -65,6 +65,8 @@ pub enum FixedError {
     Unreachable { kernel: String, max_error: f64, best: f64, width: u32, frac: u32 },
     #[error("--max-error must be a positive finite number, got {0}")]
     BadMaxError(f64),
+    #[error("kernel `{kernel}` takes external or contact forces, which the fixed-point datapath does not take yet (it has no bound for them); generate the Verilog without [external_forces] and [[contact]]")]
+    Forces { kernel: String },
 }
 
 impl Format {

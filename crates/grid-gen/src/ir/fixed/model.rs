@@ -27,6 +27,7 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64
                     Input::Qd => qd,
                     Input::Qdd => qdd,
                     Input::Tau | Input::TauActuated => tau,
+                    Input::Fext | Input::Lambda => unreachable!("a datapath takes no forces (Datapath::new)"),
                 };
                 v[j as usize]
             }

@@ -1,0 +1,318 @@
+//! External forces and contact forces (issue 30): the reference against Pinocchio 4.1
+//! (`rnea`, `aba`, `computeRNEADerivatives`, `computeABADerivatives` with `fext`, the
+//! contacts' λ-fixed-in-world terms, `getJointJacobian`, `getFrameJacobian`) on fixed and
+//! floating robots with point and wrench contacts; the λ-fixed q-derivatives against
+//! central differences on the manifold; the kernels' IR against the reference for every
+//! gradient formulation and solve; and the scenes' bad inputs.
+
+use grid_gen::ir::{self, Gradient, KernelKind, LowerOptions, Solve};
+use grid_gen::model::ContactKind;
+use grid_gen::reference::External;
+use grid_gen::{reference, Model, Scene};
+use grid_gen_test_support::*;
+use nalgebra::DMatrix;
+
+/// The project's bar against Pinocchio: the same f64 dynamics by other routes.
+const TOL: f64 = 1e-10;
+
+/// A fixture's robot with its forces declared: fext by Pinocchio's joint names (`*`:
+/// every body), contacts by frame.
+fn fixture_model(name: &str, fx: &serde_json::Value) -> Model {
+    let fixtures = repo().join("tests/fixtures");
+    let model = match name {
+        "grid_iiwa" => load("grid_iiwa"),
+        "grid_hyq.floating" => load_floating("grid_hyq"),
+        "go2.floating" => load_floating_urdf(&fixtures.join("go2.urdf")),
+        "grid_atlas.floating" => load_floating("grid_atlas"),
+        _ => unreachable!(),
+    };
+    let fext: Vec<&str> = fx["fext"].as_array().unwrap().iter().map(|n| n.as_str().unwrap()).collect();
+    let contacts: Vec<(&str, ContactKind)> =
+        fx["contacts"].as_array().unwrap().iter().map(|c| (c["frame"].as_str().unwrap(), ContactKind::parse(c["type"].as_str().unwrap()).unwrap())).collect();
+    with_forces(&model, &fext, &contacts)
+}
+
+const FIXTURES: [&str; 4] = ["grid_iiwa", "grid_hyq.floating", "go2.floating", "grid_atlas.floating"];
+
+/// One fixture state in grid-gen's order: (q, q̇, q̈, τ, fext, λ) and the fixture's
+/// permutation to reorder its matrices' rows and columns.
+struct State {
+    q: Vec<f64>,
+    qd: Vec<f64>,
+    qdd: Vec<f64>,
+    tau: Vec<f64>,
+    fext: Vec<f64>,
+    lambda: Vec<f64>,
+}
+
+fn states(model: &Model, fx: &serde_json::Value, name: &str) -> (Vec<State>, Vec<usize>) {
+    let perm = fixture_perm(model, fx, name);
+    let nv = model.nv();
+    let ours = |v: &[f64]| {
+        let mut o = vec![0.0; nv];
+        for (k, &i) in perm.iter().enumerate() {
+            o[i] = v[k];
+        }
+        o
+    };
+    let q_of = |v: &[f64]| {
+        let (base, angles) = if model.floating { (v[..7].try_into().unwrap(), &v[7..]) } else { ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], v) };
+        let per = if model.floating { [vec![0.0; 6], angles.to_vec()].concat() } else { angles.to_vec() };
+        model.q_from_joints(&ours(&per), base)
+    };
+    let states = fx["states"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|st| State {
+            q: q_of(&vec_of(&st["q"])),
+            qd: ours(&vec_of(&st["qd"])),
+            qdd: ours(&vec_of(&st["qdd"])),
+            tau: ours(&vec_of(&st["tau"])),
+            fext: vec_of(&st["fext"]),
+            lambda: vec_of(&st["lambda"]),
+        })
+        .collect();
+    (states, perm)
+}
+
+/// A fixture matrix with its rows (and, for `square`, columns) in grid-gen's order.
+fn reorder(m: &DMatrix<f64>, perm: &[usize], square: bool) -> DMatrix<f64> {
+    let at = |i: usize| perm.iter().position(|&p| p == i).unwrap();
+    DMatrix::from_fn(m.nrows(), m.ncols(), |r, c| m[(at(r), if square { at(c) } else { c })])
+}
+
+#[test]
+fn reference_forces_match_pinocchio() {
+    let mut worst: f64 = 0.0;
+    let mut checked = 0;
+    for name in FIXTURES {
+        let fx = fixture(&format!("{name}.forces.pinocchio.json"));
+        let model = fixture_model(name, &fx);
+        let g: [f64; 3] = vec_of(&fx["gravity"]).try_into().unwrap();
+        let (states, perm) = states(&model, &fx, name);
+        for (s, (st, want)) in states.iter().zip(fx["states"].as_array().unwrap()).enumerate() {
+            let ext = External { fext: &st.fext, lambda: &st.lambda };
+            let rnea = reference::rnea_with(&model, &st.q, &st.qd, &st.qdd, g, ext);
+            let (dq, dqd) = reference::rnea_derivatives_with(&model, &st.q, &st.qd, &st.qdd, g, ext);
+            let (fd, fdq, fdqd) = reference::forward_dynamics_derivatives_with(&model, &st.q, &st.qd, &st.tau, g, ext);
+            let d = reference::force_derivatives(&model, &st.q);
+            let theirs = |key: &str, square: bool| reorder(&mat_of(&want[key]), &perm, square);
+            let pairs: Vec<(&str, DMatrix<f64>, DMatrix<f64>)> = vec![
+                ("rnea", col(&rnea), reorder(&col(&vec_of(&want["rnea"])), &perm, false)),
+                ("drnea_dq", dq, theirs("drnea_dq", true)),
+                ("drnea_dqd", dqd, theirs("drnea_dqd", true)),
+                ("drnea_dfext", d.dc_dfext, theirs("drnea_dfext", false)),
+                ("drnea_dlambda", d.dc_dlambda, theirs("drnea_dlambda", false)),
+                ("fd", col(&fd), reorder(&col(&vec_of(&want["fd"])), &perm, false)),
+                ("dfd_dq", fdq, theirs("dfd_dq", true)),
+                ("dfd_dqd", fdqd, theirs("dfd_dqd", true)),
+                ("dfd_dfext", d.dqdd_dfext, theirs("dfd_dfext", false)),
+                ("dfd_dlambda", d.dqdd_dlambda, theirs("dfd_dlambda", false)),
+            ];
+            for (what, ours, theirs) in pairs {
+                assert_eq!(ours.shape(), theirs.shape(), "{name} state {s} {what}");
+                let e = rel_err(&ours, &theirs);
+                worst = worst.max(e);
+                assert!(e < TOL, "{name} state {s} {what}: {e:.2e}");
+                checked += 1;
+            }
+        }
+    }
+    assert!(checked >= 4 * 8 * 10, "every fixture state checked ({checked})");
+    println!("worst reference force quantity against Pinocchio: {worst:.2e} over {checked} (bound {TOL:e})");
+}
+
+/// ∂c/∂q with λ fixed in world axes (the `J_bᵀ (m ×* f)` terms) and fext fixed in the
+/// bodies' frames, against central differences of the reference's c on the manifold
+/// (Pinocchio's `integrate`), and ∂c/∂λ, ∂c/∂fext against differences in the forces.
+#[test]
+fn force_derivatives_match_central_differences() {
+    let g = reference::DEFAULT_GRAVITY;
+    let mut worst: f64 = 0.0;
+    for name in FIXTURES {
+        let fx = fixture(&format!("{name}.forces.pinocchio.json"));
+        let model = fixture_model(name, &fx);
+        let (states, _) = states(&model, &fx, name);
+        let st = &states[0];
+        let nv = model.nv();
+        let c = |q: &[f64], fext: &[f64], lambda: &[f64]| reference::rnea_with(&model, q, &st.qd, &st.qdd, g, External { fext, lambda });
+        let (dq, _) = reference::rnea_derivatives_with(&model, &st.q, &st.qd, &st.qdd, g, External { fext: &st.fext, lambda: &st.lambda });
+        // h = 1e-6 balances the O(h²) truncation against rounding of c (~1e3 here).
+        let h = 1e-6;
+        let mut num = DMatrix::zeros(nv, nv);
+        for u in 0..nv {
+            let mut e = vec![0.0; nv];
+            e[u] = h;
+            let plus = c(&reference::integrate(&model, &st.q, &e), &st.fext, &st.lambda);
+            e[u] = -h;
+            let minus = c(&reference::integrate(&model, &st.q, &e), &st.fext, &st.lambda);
+            for i in 0..nv {
+                num[(i, u)] = (plus[i] - minus[i]) / (2.0 * h);
+            }
+        }
+        let e = rel_err(&dq, &num);
+        worst = worst.max(e);
+        assert!(e < 1e-7, "{name}: dc/dq against central differences {e:.2e}");
+        // c is affine in the forces: one-sided differences of size 1 are exact to rounding.
+        let d = reference::force_derivatives(&model, &st.q);
+        for (what, analytic, len) in [("fext", &d.dc_dfext, st.fext.len()), ("lambda", &d.dc_dlambda, st.lambda.len())] {
+            let base = c(&st.q, &st.fext, &st.lambda);
+            let mut num = DMatrix::zeros(nv, len);
+            for k in 0..len {
+                let (mut f, mut l) = (st.fext.clone(), st.lambda.clone());
+                if what == "fext" {
+                    f[k] += 1.0;
+                } else {
+                    l[k] += 1.0;
+                }
+                let moved = c(&st.q, &f, &l);
+                for i in 0..nv {
+                    num[(i, k)] = moved[i] - base[i];
+                }
+            }
+            let e = rel_err(analytic, &num);
+            worst = worst.max(e);
+            assert!(e < 1e-9, "{name}: dc/d{what} {e:.2e}");
+        }
+    }
+    println!("worst force derivative against differences: {worst:.2e}");
+}
+
+/// Random forces for a model: N(0, 10)-sized fext and N(0, 50)-sized λ, uniformly drawn.
+fn random_forces(model: &Model, rng: &mut Rng) -> (Vec<f64>, Vec<f64>) {
+    (rng.vec(6 * model.nfext(), -20.0, 20.0), rng.vec(model.nlambda(), -100.0, 100.0))
+}
+
+/// The dynamics kernels' IR with forces against the reference: every fixture robot, a
+/// coupled mimic arm and a floating spherical arm with fext on their bodies, every
+/// gradient formulation and every fd_grad solve.
+#[test]
+fn force_kernels_match_the_reference() {
+    let fixtures = repo().join("tests/fixtures");
+    let mut cases: Vec<(String, Model)> = FIXTURES
+        .iter()
+        .map(|name| {
+            let fx = fixture(&format!("{name}.forces.pinocchio.json"));
+            (name.to_string(), fixture_model(name, &fx))
+        })
+        .collect();
+    let mimic = load_coupled_urdf(&fixtures.join("mimic_arm.urdf"));
+    let all: Vec<String> = mimic.body_joint_names().iter().map(|s| s.to_string()).collect();
+    let all: Vec<&str> = all.iter().map(String::as_str).collect();
+    cases.push(("mimic_arm coupled".into(), with_forces(&mimic, &all, &[])));
+    let ball = load_urdf(&fixtures.join("ball_arm.urdf"), true);
+    let ball_frames: Vec<String> = ball.frames.iter().filter(|f| f.body.is_some()).map(|f| f.name.clone()).collect();
+    let ball_joints: Vec<String> = ball.body_joint_names().iter().map(|s| s.to_string()).collect();
+    let ball_joints: Vec<&str> = ball_joints.iter().map(String::as_str).collect();
+    let last = ball_frames.last().unwrap().as_str();
+    cases.push(("ball_arm floating".into(), with_forces(&ball, &ball_joints, &[(last, ContactKind::Wrench)])));
+    let g = reference::DEFAULT_GRAVITY;
+    let mut rng = Rng(30);
+    let mut worst: f64 = 0.0;
+    let kernels = vec![KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::Fd, KernelKind::FdGrad];
+    for (name, m) in &cases {
+        for (gradient, solve) in [(Gradient::Columns, Solve::Minv), (Gradient::Idsva, Solve::Ltdl), (Gradient::Columns, Solve::Crba)] {
+            let options = LowerOptions { kernels: kernels.clone(), gradient, solve, ..LowerOptions::default() };
+            let module = ir::lower(m, g, &options).unwrap();
+            let nv = m.nv();
+            for state in 0..2 {
+                let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+                for &s in &m.spherical {
+                    let at = m.group_q(s);
+                    let x = rng.vec(4, -1.0, 1.0);
+                    let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
+                    q[at..at + 4].copy_from_slice(&x.iter().map(|v| v / n).collect::<Vec<_>>());
+                }
+                let (qd, u) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -10.0, 10.0));
+                let (fext, lambda) = random_forces(m, &mut rng);
+                let ext = External { fext: &fext, lambda: &lambda };
+                for f in &module.functions {
+                    assert!(f.inputs().contains(&ir::Input::Fext) == (m.nfext() > 0), "{name} {}: takes fext", f.kind);
+                    let got = f.eval(&kernel_args_with(f.inputs(), &q, &qd, &u, ext));
+                    let want = reference_outputs_with(f.kind, m, &q, &qd, &u, g, ext);
+                    assert_eq!(got.len(), want.len(), "{name} {}: outputs", f.kind);
+                    for ((o, got), want) in f.outputs.iter().zip(&got).zip(&want) {
+                        let got = DMatrix::from_row_slice(want.nrows(), want.ncols(), got);
+                        let e = rel_err(&got, want);
+                        worst = worst.max(e);
+                        // The same f64 dynamics by other routes; Crba's q̈ solves with M
+                        // (cond(M) ~ 1e3 on these robots, see `ir::CRBA_MAX_DEPTH`).
+                        assert!(e < 1e-11, "{name} {gradient:?} {solve:?} state {state} {} {}: {e:.2e}", f.kind, o.name);
+                    }
+                }
+            }
+        }
+    }
+    println!("worst force kernel against the reference: {worst:.2e} (bound 1e-11)");
+}
+
+/// The reference's values of a dynamics kernel under forces, in its output order (the
+/// force derivatives after the usual outputs, when the model declares the forces).
+fn reference_outputs_with(kind: KernelKind, m: &Model, q: &[f64], qd: &[f64], u: &[f64], g: [f64; 3], ext: External) -> Vec<DMatrix<f64>> {
+    let d = reference::force_derivatives(m, q);
+    let mut out = match kind {
+        KernelKind::Rnea => vec![col(&reference::rnea_with(m, q, qd, u, g, ext))],
+        KernelKind::RneaGrad => {
+            let (a, b) = reference::rnea_derivatives_with(m, q, qd, u, g, ext);
+            vec![a, b]
+        }
+        KernelKind::Fd => vec![col(&reference::aba_with(m, q, qd, u, g, ext))],
+        KernelKind::FdGrad => {
+            let (a, b, c) = reference::forward_dynamics_derivatives_with(m, q, qd, u, g, ext);
+            vec![col(&a), b, c]
+        }
+        _ => unreachable!(),
+    };
+    let (by_fext, by_lambda) = match kind {
+        KernelKind::RneaGrad => (d.dc_dfext, d.dc_dlambda),
+        KernelKind::FdGrad => (d.dqdd_dfext, d.dqdd_dlambda),
+        _ => return out,
+    };
+    if m.nfext() > 0 {
+        out.push(by_fext);
+    }
+    if m.nlambda() > 0 {
+        out.push(by_lambda);
+    }
+    out
+}
+
+/// Kernels of a model without forces take no force inputs and have no force outputs.
+#[test]
+fn kernels_without_forces_are_unchanged() {
+    let m = load("grid_iiwa");
+    let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+    for f in &module.functions {
+        assert_eq!(f.inputs(), f.kind.inputs(), "{}", f.kind);
+        assert!(f.outputs.iter().all(|o| !o.name.contains("fext") && !o.name.contains("lambda")), "{}", f.kind);
+    }
+}
+
+/// A scene's `[external_forces]` and `[[contact]]` mistakes are errors that name the entry.
+#[test]
+fn bad_forces_are_errors() {
+    let urdf = repo().join("robots/grid_hyq.urdf");
+    let text = std::fs::read_to_string(&urdf).unwrap();
+    let load = |scene: &str| {
+        let scene = Scene::parse("s.toml", scene).expect("parses");
+        Model::from_urdf_str_in_scene(&urdf.display().to_string(), &text, scene.floating_base, &scene, "s.toml").map(|l| l.0).map_err(|e| e.render_plain())
+    };
+    let cases = [
+        ("[external_forces]\njoints = [\"lf_kfe\"]\n", "closest joints: lf_kfe_joint"),
+        ("[external_forces]\njoints = [\"lf_kfe_joint\", \"lf_kfe_joint\"]\n", "twice"),
+        ("[external_forces]\njoints = [\"*\", \"lf_kfe_joint\"]\n", "`*` names every body"),
+        ("[[contact]]\nframe = \"lf_foot\"\ntype = \"point\"\n", "closest frames"),
+        ("[[contact]]\nframe = \"base_link_0\"\ntype = \"point\"\n", "fixed to the world"),
+        ("[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"wrench\"\n", "twice"),
+        ("drop = [\"lf_lowerleg\"]\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"point\"\n", "which the scene removes"),
+    ];
+    for (scene, says) in cases {
+        let err = load(scene).err().unwrap_or_else(|| panic!("{scene:?} loads"));
+        assert!(err.contains(says), "{scene:?}: {err}");
+    }
+    assert!(Scene::parse("s.toml", "[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"line\"\n").is_err(), "an unknown contact type");
+    let m = load("floating_base = true\n[external_forces]\njoints = [\"*\"]\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"point\"\n").unwrap();
+    assert_eq!(m.nfext(), 13, "`*`: the base and twelve leg bodies");
+    assert_eq!(m.nlambda(), 3);
+}
