@@ -207,6 +207,22 @@ struct LoadArgs {
     /// `fd_grad` also returns `dqdd_dtau` = M^-1 (the scene's `[fd_grad] minv = true`).
     #[arg(long, global = true)]
     fd_grad_minv: bool,
+    /// Bodies that take an external force `fext` in rnea, rnea_grad, fd and fd_grad, by the
+    /// name of the joint that moves them (Pinocchio's names: `root_joint` for a floating
+    /// base), comma-separated, or `*` for every body; replaces `[external_forces] joints`.
+    #[arg(long, value_name = "JOINT,...", value_delimiter = ',', global = true)]
+    fext: Vec<String>,
+    /// Contacts whose forces lambda those kernels take, in world axes at the frame's
+    /// origin: FRAME:point (3-D force) or FRAME:wrench (6-D), comma-separated; replaces
+    /// the scene's `[[contact]]`.
+    #[arg(long, value_name = "FRAME:TYPE,...", value_delimiter = ',', global = true, value_parser = parse_contact)]
+    contact: Vec<grid_gen::ContactEntry>,
+}
+
+fn parse_contact(s: &str) -> Result<grid_gen::ContactEntry, String> {
+    let (frame, kind) = s.rsplit_once(':').ok_or_else(|| format!("`{s}`: write a contact as FRAME:point or FRAME:wrench"))?;
+    let kind = grid_gen::model::ContactKind::parse(kind).ok_or_else(|| format!("`{s}`: unknown contact type `{kind}`; available: point, wrench"))?;
+    Ok(grid_gen::ContactEntry { frame: frame.to_string(), kind })
 }
 
 fn parse_scheme(s: &str) -> Result<grid_gen::model::Scheme, String> {
@@ -420,6 +436,12 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
         scene.frames.reference = Some(rf);
     }
     scene.fd_grad.minv |= args.fd_grad_minv;
+    if !args.fext.is_empty() {
+        scene.external_forces.joints = args.fext.clone();
+    }
+    if !args.contact.is_empty() {
+        scene.contact = args.contact.clone();
+    }
     if args.step.is_some() || args.dt.is_some() {
         let s = scene.step.get_or_insert_with(Default::default);
         s.scheme = args.step.or(s.scheme);

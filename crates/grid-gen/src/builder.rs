@@ -82,6 +82,8 @@ pub struct Builder {
     step: Option<crate::model::Step>,
     actuated: Option<Vec<String>>,
     fd_grad_minv: bool,
+    fext: Option<Vec<String>>,
+    contacts: Option<Vec<(String, crate::model::ContactKind)>>,
     quiet: bool,
 }
 
@@ -202,6 +204,20 @@ impl Builder {
         self
     }
 
+    /// The bodies that take an external force `fext`, by the name of the joint that moves
+    /// them (Pinocchio's names; `"*"` for every body). Replaces `[external_forces] joints`.
+    pub fn external_forces<S: AsRef<str>>(&mut self, joints: &[S]) -> &mut Self {
+        self.fext = Some(joints.iter().map(|n| n.as_ref().to_string()).collect());
+        self
+    }
+
+    /// Contacts at frames (link names), each a point or a wrench; the kernels take their
+    /// forces λ in `LOCAL_WORLD_ALIGNED` axes. Replaces the scene's `[[contact]]`.
+    pub fn contacts<S: AsRef<str>>(&mut self, contacts: &[(S, crate::model::ContactKind)]) -> &mut Self {
+        self.contacts = Some(contacts.iter().map(|(f, k)| (f.as_ref().to_string(), *k)).collect());
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
@@ -278,6 +294,12 @@ impl Builder {
         scene.fd_grad.minv |= self.fd_grad_minv;
         if let Some(joints) = &self.actuated {
             scene.actuation = Some(crate::scene::ActuationSection { joints: joints.clone() });
+        }
+        if let Some(joints) = &self.fext {
+            scene.external_forces.joints = joints.clone();
+        }
+        if let Some(contacts) = &self.contacts {
+            scene.contact = contacts.iter().map(|(frame, kind)| crate::scene::ContactEntry { frame: frame.clone(), kind: *kind }).collect();
         }
         let (model, warnings) = Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path).map_err(|e| BuildError::Load(Box::new(e)))?;
         let mut options = self.options.clone();

@@ -19,6 +19,25 @@ pub struct State {
     pub qdd: Option<Vec<f64>>,
     #[serde(default, deserialize_with = "some_numbers")]
     pub tau: Option<Vec<f64>>,
+    /// External forces `[fx, fy, fz, tx, ty, tz]` in the joint's frame (Pinocchio's
+    /// `fext`), keyed by the name of the joint that moves the body.
+    #[serde(default)]
+    pub fext: BTreeMap<String, Values>,
+    /// Contact forces λ (3 or 6 values, world axes at the frame), keyed by a contact frame
+    /// the scene declares; a declared contact left out has λ = 0.
+    #[serde(default)]
+    pub contacts: BTreeMap<String, Values>,
+}
+
+/// A list of numbers, read as [`State`]'s vectors are (NaN and infinities included, so
+/// that [`check_states`] names them).
+#[derive(Clone, Debug)]
+pub struct Values(pub Vec<f64>);
+
+impl<'de> Deserialize<'de> for Values {
+    fn deserialize<D: serde::Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
+        numbers(d).map(Values)
+    }
 }
 
 /// A number, or one of the strings that [`quote_non_finite`] makes of NaN and infinities.
@@ -110,6 +129,57 @@ pub struct Output {
     /// With a step (`--step`, `[step]`) and `tau`: the next state and `[A | B]`.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub step: Option<StepOutput>,
+    /// With `qdd`: `∂c/∂fext` (nv × 6) for each body with a force (the state's and the
+    /// scene's), keyed by joint.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drnea_dfext: Option<BTreeMap<String, Matrix>>,
+    /// With `tau`: `∂q̈/∂fext`, likewise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dfd_dfext: Option<BTreeMap<String, Matrix>>,
+    /// With `qdd` and contacts declared: `∂c/∂λ` (nv × 3 or 6) per contact frame.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub drnea_dlambda: Option<BTreeMap<String, Matrix>>,
+    /// With `tau` and contacts declared: `∂q̈/∂λ`, likewise.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dfd_dlambda: Option<BTreeMap<String, Matrix>>,
+}
+
+/// A state's forces as the reference takes them: the model with the state's bodies
+/// added to the declared ones, and the flat `fext` and λ.
+fn state_forces(model: &Model, s: &State) -> (Model, Vec<f64>, Vec<f64>) {
+    let mut m = model.clone();
+    for name in s.fext.keys() {
+        let b = model.body_of_joint(name).expect("checked");
+        if !m.specialisation.fext.contains(&b) {
+            m.specialisation.fext.push(b);
+        }
+    }
+    let mut fext = vec![0.0; 6 * m.nfext()];
+    for (j, &b) in m.specialisation.fext.iter().enumerate() {
+        if let Some(v) = s.fext.get(model.joint_name(b)) {
+            fext[6 * j..6 * j + 6].copy_from_slice(&v.0);
+        }
+    }
+    let mut lambda = Vec::with_capacity(m.nlambda());
+    for c in &m.specialisation.contacts {
+        match s.contacts.get(&m.frames[c.frame].name) {
+            Some(v) => lambda.extend(&v.0),
+            None => lambda.extend(vec![0.0; c.kind.dim()]),
+        }
+    }
+    (m, fext, lambda)
+}
+
+/// Splits a derivative's columns by force: 6 per fext body, 3 or 6 per contact.
+fn by_force(m: &nalgebra::DMatrix<f64>, names: &[(String, usize)]) -> BTreeMap<String, Matrix> {
+    let mut at = 0;
+    names
+        .iter()
+        .map(|(name, width)| {
+            at += width;
+            (name.clone(), rows(&m.columns(at - width, *width).into_owned()))
+        })
+        .collect()
 }
 
 /// One step from a state (see [`crate::reference::step_derivatives`]): q⁺ in q's layout,
@@ -225,6 +295,16 @@ pub enum EvalError {
     NotStatic { index: usize, entry: usize, value: f64 },
     #[error("state {index}: `tau` asks for forward dynamics, which needs M⁻¹, and M is singular (joint `{joint}` moves no inertia); leave `tau` out")]
     Singular { index: usize, joint: String },
+    #[error("state {index}: `fext` names `{key}`, which is no joint of the model that moves a body; joints: {known}")]
+    UnknownForce { index: usize, key: String, known: String },
+    #[error("state {index}: `contacts` names `{key}`, which is not a contact the scene declares; declared: {declared} (declare contacts with [[contact]] or --contact FRAME:point)")]
+    UnknownContact { index: usize, key: String, declared: String },
+    #[error("state {index}: `{field}.{key}` has {found} values, expected {expected} ({what})")]
+    ForceLength { index: usize, field: &'static str, key: String, found: usize, expected: usize, what: &'static str },
+    #[error("state {index}: `{field}.{key}[{entry}]` is not finite")]
+    ForceNotFinite { index: usize, field: &'static str, key: String, entry: usize },
+    #[error("external and contact forces are evaluated by the reference only (`eval` without --backend); the generated Rust and WGSL kernels take them, and the tests compare those with the reference")]
+    ForcesOnBackend,
 }
 
 fn rows(m: &nalgebra::DMatrix<f64>) -> Matrix {
@@ -315,12 +395,45 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         if let (Some(joint), Some(_)) = (&model.singular, &s.tau) {
             return Err(EvalError::Singular { index, joint: joint.clone() });
         }
+        check_forces(model, index, s)?;
         if let (Some(_), Some(tau)) = (model.specialisation.step, &s.tau) {
             let actuated = model.actuated();
             if let Some(entry) = (0..n).find(|k| !actuated.contains(k) && tau[*k] != 0.0) {
                 let joint = model.joints[model.coordinate_joints()[entry]].name.clone();
                 return Err(EvalError::NotActuated { index, entry, joint, value: tau[entry] });
             }
+        }
+    }
+    Ok(())
+}
+
+/// A state's `fext` and `contacts`: known keys, the right number of finite values.
+fn check_forces(model: &Model, index: usize, s: &State) -> Result<(), EvalError> {
+    for (key, v) in &s.fext {
+        if model.body_of_joint(key).is_none() {
+            return Err(EvalError::UnknownForce { index, key: key.clone(), known: model.body_joint_names().join(", ") });
+        }
+        if v.0.len() != 6 {
+            return Err(EvalError::ForceLength { index, field: "fext", key: key.clone(), found: v.0.len(), expected: 6, what: "[fx, fy, fz, tx, ty, tz]" });
+        }
+        if let Some(entry) = v.0.iter().position(|x| !x.is_finite()) {
+            return Err(EvalError::ForceNotFinite { index, field: "fext", key: key.clone(), entry });
+        }
+    }
+    let declared: Vec<(&str, crate::model::ContactKind)> =
+        model.specialisation.contacts.iter().map(|c| (model.frames[c.frame].name.as_str(), c.kind)).collect();
+    for (key, v) in &s.contacts {
+        let Some(&(_, kind)) = declared.iter().find(|(n, _)| n == key) else {
+            let names: Vec<&str> = declared.iter().map(|(n, _)| *n).collect();
+            let declared = if names.is_empty() { "none".to_string() } else { names.join(", ") };
+            return Err(EvalError::UnknownContact { index, key: key.clone(), declared });
+        };
+        if v.0.len() != kind.dim() {
+            let what = if kind == crate::model::ContactKind::Point { "a point contact's force [fx, fy, fz]" } else { "a wrench [fx, fy, fz, tx, ty, tz]" };
+            return Err(EvalError::ForceLength { index, field: "contacts", key: key.clone(), found: v.0.len(), expected: kind.dim(), what });
+        }
+        if let Some(entry) = v.0.iter().position(|x| !x.is_finite()) {
+            return Err(EvalError::ForceNotFinite { index, field: "contacts", key: key.clone(), entry });
         }
     }
     Ok(())
@@ -333,16 +446,18 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
         .states
         .iter()
         .map(|s| {
+            let (fm, fext, lambda) = state_forces(model, s);
+            let ext = reference::External { fext: &fext, lambda: &lambda };
             let (rnea, drnea_dq, drnea_dqd) = match &s.qdd {
                 Some(qdd) => {
-                    let (dq, dqd) = reference::rnea_derivatives(model, &s.q, &s.qd, qdd, gravity);
-                    (Some(reference::rnea(model, &s.q, &s.qd, qdd, gravity)), Some(gradient_rows(model, &dq)), Some(gradient_rows(model, &dqd)))
+                    let (dq, dqd) = reference::rnea_derivatives_with(&fm, &s.q, &s.qd, qdd, gravity, ext);
+                    (Some(reference::rnea_with(&fm, &s.q, &s.qd, qdd, gravity, ext)), Some(gradient_rows(model, &dq)), Some(gradient_rows(model, &dqd)))
                 }
                 None => (None, None, None),
             };
             let (fd, dfd_dq, dfd_dqd) = match &s.tau {
                 Some(tau) => {
-                    let (qdd, dq, dqd) = reference::forward_dynamics_derivatives(model, &s.q, &s.qd, tau, gravity);
+                    let (qdd, dq, dqd) = reference::forward_dynamics_derivatives_with(&fm, &s.q, &s.qd, tau, gravity, ext);
                     (Some(qdd), Some(gradient_rows(model, &dq)), Some(gradient_rows(model, &dqd)))
                 }
                 None => (None, None, None),
@@ -350,7 +465,38 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
             let minv = model.singular.is_none().then(|| rows(&reference::minv(model, &s.q)));
             let frames = frame_outputs(model, s);
             let step = step_output(model, s, gravity);
-            Output { rnea, drnea_dq, drnea_dqd, m: rows(&reference::crba(model, &s.q)), minv, fd, dfd_dq, dfd_dqd, frames, step }
+            let mut out = Output {
+                rnea,
+                drnea_dq,
+                drnea_dqd,
+                m: rows(&reference::crba(model, &s.q)),
+                minv,
+                fd,
+                dfd_dq,
+                dfd_dqd,
+                frames,
+                step,
+                drnea_dfext: None,
+                dfd_dfext: None,
+                drnea_dlambda: None,
+                dfd_dlambda: None,
+            };
+            if fm.nfext() + fm.nlambda() > 0 {
+                let d = reference::force_derivatives(&fm, &s.q);
+                let bodies: Vec<(String, usize)> = fm.specialisation.fext.iter().map(|&b| (fm.joint_name(b).to_string(), 6)).collect();
+                let contacts: Vec<(String, usize)> = fm.specialisation.contacts.iter().map(|c| (fm.frames[c.frame].name.clone(), c.kind.dim())).collect();
+                let fext_present = !bodies.is_empty();
+                let lambda_present = !contacts.is_empty();
+                if s.qdd.is_some() {
+                    out.drnea_dfext = fext_present.then(|| by_force(&d.dc_dfext, &bodies));
+                    out.drnea_dlambda = lambda_present.then(|| by_force(&d.dc_dlambda, &contacts));
+                }
+                if s.tau.is_some() {
+                    out.dfd_dfext = fext_present.then(|| by_force(&d.dqdd_dfext, &bodies));
+                    out.dfd_dlambda = lambda_present.then(|| by_force(&d.dqdd_dlambda, &contacts));
+                }
+            }
+            out
         })
         .collect();
     Ok(EvalOutput { joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(), states })
@@ -463,6 +609,9 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
 ) -> Result<EvalOutput, BackendEvalError<E>> {
     use crate::ir::KernelKind;
     check_states(model, file)?;
+    if model.nfext() + model.nlambda() > 0 || file.states.iter().any(|s| !s.fext.is_empty() || !s.contacts.is_empty()) {
+        return Err(EvalError::ForcesOnBackend.into());
+    }
     let nv = model.nv();
     let matrix = |v: &[f64]| v.chunks(nv.max(1)).map(|r| r.to_vec()).collect::<Matrix>();
     let mut states: Vec<Output> = file
@@ -479,6 +628,10 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
             dfd_dqd: None,
             frames: None,
             step: None,
+            drnea_dfext: None,
+            dfd_dfext: None,
+            drnea_dlambda: None,
+            dfd_dlambda: None,
         })
         .collect();
     let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {

@@ -26,6 +26,16 @@ pub struct Sparsity {
     pub dc_dq: Count,
 }
 
+/// A contact the dynamics kernels take a force λ at, in [`Info`].
+#[derive(Clone, Debug, Serialize)]
+pub struct ContactInfo {
+    pub frame: String,
+    #[serde(rename = "type")]
+    pub kind: crate::model::ContactKind,
+    /// Entries of λ: 3 for a point, 6 for a wrench.
+    pub entries: usize,
+}
+
 /// One spherical joint in [`Info`].
 #[derive(Clone, Debug, Serialize)]
 pub struct SphericalInfo {
@@ -68,6 +78,11 @@ pub struct Info {
     pub step: Option<crate::model::Step>,
     /// The actuated joints: the step's τ and B's columns, in model order.
     pub actuated: Vec<String>,
+    /// The joints whose bodies take an external force: `fext` of rnea, rnea_grad, fd and
+    /// fd_grad, 6 entries each, in this order (empty: no `fext` input).
+    pub fext: Vec<String>,
+    /// The contacts whose forces λ those kernels take, in this order.
+    pub contacts: Vec<ContactInfo>,
     /// A floating base: joints 0 to 5 are the free-flyer's velocity coordinates (linear,
     /// then angular, in the base frame).
     pub floating_base: bool,
@@ -153,6 +168,13 @@ impl Info {
             reference_frame: model.specialisation.reference,
             step: model.specialisation.step,
             actuated: model.actuated().iter().map(|&c| model.joints[model.coordinate_joints()[c]].name.clone()).collect(),
+            fext: model.specialisation.fext.iter().map(|&b| model.joint_name(b).to_string()).collect(),
+            contacts: model
+                .specialisation
+                .contacts
+                .iter()
+                .map(|c| ContactInfo { frame: model.frames[c.frame].name.clone(), kind: c.kind, entries: c.kind.dim() })
+                .collect(),
             gravity,
             joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(),
             joint_types: model.coordinate_joints().iter().map(|&i| model.joints[i].joint_type).collect(),
@@ -286,6 +308,13 @@ impl Info {
         s.push_str(&format!("frames (links, with the joint whose body carries them): {}\n", frames.join(", ")));
         if !self.selected_frames.is_empty() {
             s.push_str(&format!("frame kernels compute: {} (reference frame {})\n", self.selected_frames.join(", "), self.reference_frame.name()));
+        }
+        if !self.fext.is_empty() {
+            s.push_str(&format!("rnea, rnea_grad, fd, fd_grad take fext (6 per body, joint frame) on: {}\n", self.fext.join(", ")));
+        }
+        if !self.contacts.is_empty() {
+            let c: Vec<String> = self.contacts.iter().map(|c| format!("{} ({})", c.frame, c.kind.name())).collect();
+            s.push_str(&format!("rnea, rnea_grad, fd, fd_grad take contact forces lambda (world axes at the frame) at: {}\n", c.join(", ")));
         }
         if let Some(step) = self.step {
             s.push_str(&format!(

@@ -23,4 +23,4 @@ pub mod urdf;
 pub use builder::{BuildError, Builder};
 pub use diagnostic::{Diagnostic, LoadError, Severity};
 pub use model::Model;
-pub use scene::{MimicMode, Scene};
+pub use scene::{ContactEntry, MimicMode, Scene};

@@ -316,3 +316,67 @@ fn bad_forces_are_errors() {
     assert_eq!(m.nfext(), 13, "`*`: the base and twelve leg bodies");
     assert_eq!(m.nlambda(), 3);
 }
+
+/// The generated Rust with forces, compiled by rustc and run: floating HyQ with fext on
+/// every body and its four lower legs as point contacts, `rnea_grad` and `fd_grad` (both
+/// copies) on four states against the reference; the module's force constants.
+#[test]
+fn force_kernels_compile_and_match_the_reference() {
+    use grid_gen::generate::{generate, Options, Target};
+    let legs: Vec<String> = ["lf", "rf", "lh", "rh"].iter().map(|l| format!("{l}_lowerleg")).collect();
+    let contacts: Vec<(&str, ContactKind)> = legs.iter().map(|l| (l.as_str(), ContactKind::Point)).collect();
+    let hyq = load_floating("grid_hyq");
+    let all: Vec<String> = hyq.body_joint_names().iter().map(|s| s.to_string()).collect();
+    let all: Vec<&str> = all.iter().map(String::as_str).collect();
+    let model = with_forces(&hyq, &all, &contacts);
+    let lower = LowerOptions { kernels: vec![KernelKind::RneaGrad, KernelKind::FdGrad], ..LowerOptions::default() };
+    let file = generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() }).unwrap().remove(0);
+    for needle in ["pub const NFEXT: usize = 13;", "pub const NLAMBDA: usize = 12;", "(\"lf_lowerleg\", \"point\")", "fext: &[T; 6 * NFEXT]"] {
+        assert!(file.contents.contains(needle), "the module has {needle}");
+    }
+    let said = compile_and_run(
+        "forces",
+        &file.contents,
+        r#"mod robot { include!("robot.rs"); }
+use robot::*;
+fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }
+fn main() {
+    for k in 0..4 {
+        let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
+        let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+        for x in &mut q[3..7] { *x /= n; }
+        let x: [[f64; NV]; 2] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s + 1)));
+        let f: [f64; 6 * NFEXT] = std::array::from_fn(|i| 10.0 * state(k, i, 3));
+        let l: [f64; NLAMBDA] = std::array::from_fn(|i| 50.0 * state(k, i, 4));
+        let (dq, dv, df, dl) = if has_fma() { unsafe { fma::rnea_grad(&q, &x[0], &x[1], &f, &l) } } else { portable::rnea_grad(&q, &x[0], &x[1], &f, &l) };
+        let (a, aq, av, af, al) = portable::fd_grad(&q, &x[0], &x[1], &f, &l);
+        let all: Vec<String> = q.iter().chain(dq.as_flattened()).chain(dv.as_flattened()).chain(df.as_flattened()).chain(dl.as_flattened())
+            .chain(&a).chain(aq.as_flattened()).chain(av.as_flattened()).chain(af.as_flattened()).chain(al.as_flattened()).map(|x| format!("{x:?}")).collect();
+        println!("{}", all.join(" "));
+    }
+}
+"#,
+    );
+    let state = |k: usize, i: usize, salt: usize| (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5;
+    let (nv, nq) = (model.nv(), model.nq());
+    let g = reference::DEFAULT_GRAVITY;
+    let mut worst: f64 = 0.0;
+    for (k, line) in said.lines().enumerate() {
+        let got: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
+        let q = got[..nq].to_vec();
+        let x: Vec<Vec<f64>> = (1..3).map(|s| (0..nv).map(|i| state(k, i, s)).collect()).collect();
+        let fext: Vec<f64> = (0..6 * model.nfext()).map(|i| 10.0 * state(k, i, 3)).collect();
+        let lambda: Vec<f64> = (0..model.nlambda()).map(|i| 50.0 * state(k, i, 4)).collect();
+        let ext = External { fext: &fext, lambda: &lambda };
+        let mut want = reference_outputs_with(KernelKind::RneaGrad, &model, &q, &x[0], &x[1], g, ext);
+        want.extend(reference_outputs_with(KernelKind::FdGrad, &model, &q, &x[0], &x[1], g, ext));
+        let want: Vec<f64> = want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
+        assert_eq!(got.len() - nq, want.len());
+        let e = rel_err(&col(&got[nq..]), &col(&want));
+        worst = worst.max(e);
+        // f64 kernels are held to 1e-12 of the reference, as everywhere.
+        assert!(e < 1e-12, "state {k}: {e:.2e}");
+    }
+    assert_eq!(said.lines().count(), 4);
+    println!("HyQ with forces, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
+}

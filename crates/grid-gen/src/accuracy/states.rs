@@ -79,7 +79,7 @@ pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_m
             let qdd: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();
             let other: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();
             let tau = (model.singular.is_none() && nv > 0).then(|| reference::rnea(model, &q, &qd, &other, gravity));
-            State { q, qd, qdd: Some(qdd), tau }
+            State { q, qd, qdd: Some(qdd), tau, fext: Default::default(), contacts: Default::default() }
         })
         .collect();
     StatesFile { states }
