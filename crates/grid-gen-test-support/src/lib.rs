@@ -216,6 +216,37 @@ pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64],
     }
 }
 
+/// The reference's values of a dynamics kernel under forces, in its output order (the
+/// force derivatives after the usual outputs, when the model declares the forces).
+pub fn reference_outputs_with(kind: KernelKind, m: &Model, q: &[f64], qd: &[f64], u: &[f64], g: [f64; 3], ext: reference::External) -> Vec<DMatrix<f64>> {
+    let d = reference::force_derivatives(m, q);
+    let mut out = match kind {
+        KernelKind::Rnea => vec![col(&reference::rnea_with(m, q, qd, u, g, ext))],
+        KernelKind::RneaGrad => {
+            let (a, b) = reference::rnea_derivatives_with(m, q, qd, u, g, ext);
+            vec![a, b]
+        }
+        KernelKind::Fd => vec![col(&reference::aba_with(m, q, qd, u, g, ext))],
+        KernelKind::FdGrad => {
+            let (a, b, c) = reference::forward_dynamics_derivatives_with(m, q, qd, u, g, ext);
+            vec![col(&a), b, c]
+        }
+        _ => unreachable!(),
+    };
+    let (by_fext, by_lambda) = match kind {
+        KernelKind::RneaGrad => (d.dc_dfext, d.dc_dlambda),
+        KernelKind::FdGrad => (d.dqdd_dfext, d.dqdd_dlambda),
+        _ => return out,
+    };
+    if m.nfext() > 0 {
+        out.push(by_fext);
+    }
+    if m.nlambda() > 0 {
+        out.push(by_lambda);
+    }
+    out
+}
+
 /// τ per coordinate from the actuated joints' forces (0 on the others).
 pub fn actuated_tau(model: &Model, u: &[f64]) -> Vec<f64> {
     let mut tau = vec![0.0; model.nv()];

@@ -26,6 +26,9 @@ pub struct ShaderInfo {
     pub nq: usize,
     /// Entries of the step kernels' `u` (the actuated joints' τ): `// nu:`, else nv.
     pub nu: usize,
+    /// Entries of the forces (`fext`, then λ) that rnea, rnea_grad, fd and fd_grad read
+    /// after q̈ or τ in `u`: `// forces:`, else 0.
+    pub forces: usize,
     pub precision: Precision,
     pub entries: Vec<EntryInfo>,
     /// The cooperative entries' operation tables (binding 6) and constants (binding 7),
@@ -47,6 +50,7 @@ impl ShaderInfo {
         let mut nv = None;
         let mut nq = None;
         let mut nu = None;
+        let mut forces = 0;
         let mut precision = None;
         let mut entries = Vec::new();
         let mut tables = None;
@@ -59,6 +63,8 @@ impl ShaderInfo {
                 nq = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
             } else if let Some(v) = line.strip_prefix("// nu: ") {
                 nu = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
+            } else if let Some(v) = line.strip_prefix("// forces: ") {
+                forces = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// tables: ") {
                 let mut counts = [0usize; 2];
                 for (k, key) in ["prog=", "konst="].iter().enumerate() {
@@ -101,7 +107,7 @@ impl ShaderInfo {
             Some([words, values]) => read_tables(source, words, values, precision)?,
             None => (Vec::new(), Vec::new()),
         };
-        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), nu: nu.unwrap_or(nv), precision, entries, prog, konst })
+        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), nu: nu.unwrap_or(nv), forces, precision, entries, prog, konst })
     }
 
     pub fn entry(&self, name: &str) -> Option<&EntryInfo> {

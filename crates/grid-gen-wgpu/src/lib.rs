@@ -71,7 +71,8 @@ pub struct Kernel {
     pub nv: usize,
     /// Entries of q per state (nv + 1 with a floating base).
     pub nq: usize,
-    /// Entries of `u` per state: nv, or the actuated joints' count for the step kernels.
+    /// Entries of `u` per state: nv, the actuated joints' count for the step kernels, or
+    /// nv plus the forces for the kernels that take them.
     pub nu: usize,
     /// Time wgpu took to build the pipelines (some drivers, lavapipe among them, compile
     /// at the first dispatch instead).
@@ -246,7 +247,11 @@ impl Gpu {
             precision: shader.info.precision,
             nv: shader.info.nv,
             nq: shader.info.nq,
-            nu: if grid_gen::ir::KernelKind::parse(&info.kernel).is_some_and(|k| k.is_step()) { shader.info.nu } else { shader.info.nv },
+            nu: match grid_gen::ir::KernelKind::parse(&info.kernel) {
+                Some(k) if k.is_step() => shader.info.nu,
+                Some(k) if k.takes_forces() => shader.info.nv + shader.info.forces,
+                _ => shader.info.nv,
+            },
             build_time: start.elapsed(),
             tables: shader.tables.clone(),
         })
@@ -266,8 +271,10 @@ impl Gpu {
 
     /// Uploads N states for `kernel`. Inputs are state-major (`q[s * nq + j]`, the others
     /// `[s * nv + j]`; nq = nv but with a floating base); `u` is q̈
-    /// for rnea, rnea_grad and frame_acceleration, τ for fd and fd_grad; a kernel that
-    /// does not read `qd` or `u` ignores it (it may be empty). N = 0 is a no-op batch.
+    /// for rnea, rnea_grad and frame_acceleration, τ for fd and fd_grad, followed in each
+    /// state by `fext` and λ when the shader's robot declares forces (`Kernel::nu` entries
+    /// per state in all); a kernel that does not read `qd` or `u` ignores it (it may be
+    /// empty). N = 0 is a no-op batch.
     pub fn upload<'k>(&self, kernel: &'k Kernel, q: &[f64], qd: &[f64], u: &[f64]) -> Result<Batch<'k>, GpuError> {
         let (nv, nq) = (kernel.nv, kernel.nq);
         let n = if nq == 0 { 0 } else { q.len() / nq };

@@ -580,3 +580,68 @@ fn frame_acceleration_grad_matches_its_graph() {
         println!("{}: worst {worst:.2e} from the IR interpreter over {} states", kernel.entry.entry, states.len());
     }
 }
+
+/// External and contact forces (issue 30): floating HyQ with fext on its base and a knee,
+/// and its four lower legs as point contacts (λ in world axes), in f64, rnea, rnea_grad,
+/// fd and fd_grad, both strategies, 37 states with random forces packed after q̈ or τ in
+/// `u`, against the reference (which tests/forces.rs holds to Pinocchio) and the IR
+/// interpreter; and iiwa in f32 with a tool wrench, at the f32 tolerances.
+#[test]
+fn force_kernels_match_the_reference() {
+    use grid_gen::model::ContactKind;
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(67);
+    let legs: Vec<String> = ["lf", "rf", "lh", "rh"].iter().map(|l| format!("{l}_lowerleg")).collect();
+    let contacts: Vec<(&str, ContactKind)> = legs.iter().map(|l| (l.as_str(), ContactKind::Point)).collect();
+    let hyq = with_forces(&load_floating("grid_hyq"), &["root_joint", "lf_kfe_joint"], &contacts);
+    let iiwa = with_forces(&load("grid_iiwa"), &["iiwa_joint_4"], &[("iiwa_link_7", ContactKind::Wrench)]);
+    let kernels = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::Fd, KernelKind::FdGrad];
+    for (robot, model, precision, strategies) in
+        [("grid_hyq floating, forces", &hyq, Precision::F64, &Strategy::ALL[..]), ("grid_iiwa, forces", &iiwa, Precision::F32, &[Strategy::Cooperative][..])]
+    {
+        let nv = model.nv();
+        let options = WgslOptions { precision, strategies: strategies.to_vec(), ..WgslOptions::default() };
+        let source = wgsl(model, options);
+        assert!(source.contains(&format!("// forces: {}\n", 6 * model.nfext() + model.nlambda())), "{robot}: the header counts the forces");
+        let shader = gpu.load(&source).unwrap_or_else(|e| panic!("{robot}: {e}"));
+        let lowered = grid_gen::ir::lower(model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+        let states = states(model, &mut rng);
+        let forces: Vec<(Vec<f64>, Vec<f64>)> =
+            states.iter().map(|_| (rng.vec(6 * model.nfext(), -20.0, 20.0), rng.vec(model.nlambda(), -100.0, 100.0))).collect();
+        let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+        let (q, qd) = (flat(0), flat(1));
+        let u: Vec<f64> = states.iter().zip(&forces).flat_map(|(s, (f, l))| s[2].iter().chain(f).chain(l).copied().collect::<Vec<_>>()).collect();
+        for f in lowered.functions.iter().filter(|f| kernels.contains(&f.kind)) {
+            for &strategy in strategies {
+                let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name())).unwrap();
+                assert_eq!(kernel.nu, f.packed_u_len(), "{robot} {}: u's width", f.kind);
+                let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
+                let total = kernel.entry.outputs;
+                let tol = match (precision, f.kind) {
+                    (Precision::F64, _) => F64_TOL,
+                    (_, KernelKind::Fd | KernelKind::FdGrad) => THROUGH_MINV,
+                    _ => DIRECT,
+                };
+                let mut worst: f64 = 0.0;
+                for (s, ([q, qd, u], (fext, lambda))) in states.iter().zip(&forces).enumerate() {
+                    let ext = reference::External { fext, lambda };
+                    let want = reference_outputs_with(f.kind, model, q, qd, u, reference::DEFAULT_GRAVITY, ext);
+                    let interpreted = f.eval(&kernel_args_with(f.inputs(), q, qd, u, ext));
+                    assert_eq!(want.len(), f.outputs.len(), "{robot} {}: outputs", f.kind);
+                    let mut base = s * total;
+                    for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
+                        let vals = &got[base..base + o.ids.len()];
+                        let got = output_matrix(o.shape, nv, vals);
+                        let e = rel_err(&got, want);
+                        assert!(e <= tol, "{robot} {} {}.{} state {s}: {e:.2e} > {tol:e}", strategy.entry(""), f.kind, o.name);
+                        let e_ir = rel_err(&got, &output_matrix(o.shape, nv, ir_vals));
+                        assert!(e_ir <= tol, "{robot} {}.{} state {s}: {e_ir:.2e} from the IR interpreter", f.kind, o.name);
+                        worst = worst.max(e);
+                        base += o.ids.len();
+                    }
+                }
+                eprintln!("{robot} {} {}: worst relative error {worst:.2e} over {} states", f.kind, precision.name(), states.len());
+            }
+        }
+    }
+}

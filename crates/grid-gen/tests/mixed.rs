@@ -90,14 +90,7 @@ fn emitted_mixed_rust_computes_the_interpreters_numbers() {
         let (wide, all) = plan.wide_operations(f);
         assert!(wide > 0 && wide < all);
         program += &format!("mod k{i} {{\nconst NV: usize = {};\n", model.nv());
-        grid_gen::back::rust::emit_mixed_kernel(
-            &mut program,
-            f,
-            model.nv(),
-            "NV",
-            &grid_gen::back::rust::RustOptions { chunk: 2500, ..Default::default() },
-            &plan.wide,
-        );
+        grid_gen::back::rust::emit_mixed_kernel(&mut program, f, "NV", &grid_gen::back::rust::RustOptions { chunk: 2500, ..Default::default() }, &plan.wide);
         program += "}\n";
         for s in inputs(&model, f, 3, 13) {
             let args: Vec<String> = s.iter().map(|v| format!("&{:?}", v)).collect();

@@ -141,6 +141,7 @@ mod tests {
         Datapath {
             kernel: "test",
             nv: 1,
+            dims: crate::ir::Dims { nq: 1, nv: 1, nu: 0, nframes: 0, nfext: 0, nlambda: 0 },
             ports: vec![crate::ir::fixed::Port::Sin(0), crate::ir::fixed::Port::Cos(0)],
             nodes,
             outputs: vec![crate::ir::fixed::DatapathOutput { name: "c", shape: crate::ir::Shape::Vector, ids: vec![HwId(6)] }],

@@ -451,10 +451,15 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
     }
     let _ = writeln!(
         out,
-        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}// precision: {}\n// trig: {}",
+        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}// precision: {}\n// trig: {}",
         if robot.nq() != robot.nv() { format!("// nq: {}\n", robot.nq()) } else { String::new() },
         // The step kernels' `u` is the actuated joints' τ.
         if robot.specialisation.step.is_some() { format!("// nu: {}\n", robot.nu()) } else { String::new() },
+        // rnea, rnea_grad, fd and fd_grad read their forces after q̈ or τ in `u`.
+        match 6 * robot.fext.len() + robot.nlambda() {
+            0 => String::new(),
+            n => format!("// forces: {n}\n"),
+        },
         options.precision.name(),
         options.trig.name()
     );
