@@ -212,6 +212,10 @@ struct LoadArgs {
     /// base), comma-separated, or `*` for every body; replaces `[external_forces] joints`.
     #[arg(long, value_name = "JOINT,...", value_delimiter = ',', global = true)]
     fext: Vec<String>,
+    /// rnea_grad and fd_grad do not return d/dfext (the scene's `[external_forces]
+    /// derivatives = false`): the forces cost only their own work.
+    #[arg(long, global = true)]
+    no_fext_derivatives: bool,
     /// Contacts whose forces lambda those kernels take, in world axes at the frame's
     /// origin: FRAME:point (3-D force) or FRAME:wrench (6-D), comma-separated; replaces
     /// the scene's `[[contact]]`.
@@ -438,6 +442,9 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
     scene.fd_grad.minv |= args.fd_grad_minv;
     if !args.fext.is_empty() {
         scene.external_forces.joints = args.fext.clone();
+    }
+    if args.no_fext_derivatives {
+        scene.external_forces.derivatives = Some(false);
     }
     if !args.contact.is_empty() {
         scene.contact = args.contact.clone();

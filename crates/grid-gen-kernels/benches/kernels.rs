@@ -276,7 +276,63 @@ macro_rules! bench_step {
     }};
 }
 
+/// The forces scene (`examples/scenes/hyq_contacts_floating.toml`: fext on all thirteen
+/// bodies, four point contacts, with their derivative outputs) beside the same robot
+/// without forces (`hyq_floating.toml`), `rnea_grad` and `fd_grad`, in one group so the
+/// ratios come from one run (the target: within 1.3x).
+macro_rules! bench_forces {
+    ($c:expr) => {{
+        use grid_gen_kernels::scenes::grid_hyq_contacts_floating as k;
+        use grid_gen_kernels::scenes::grid_hyq_floating as plain;
+        let s: Vec<([f64; k::NQ], [[f64; k::NV]; 2], [f64; 6 * k::NFEXT], [f64; k::NLAMBDA])> = (0..STATES)
+            .map(|j| {
+                (
+                    std::array::from_fn(|i| state(j, i, 0)),
+                    std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))),
+                    std::array::from_fn(|i| 10.0 * state(j, i, 3)),
+                    std::array::from_fn(|i| 50.0 * state(j, i, 4)),
+                )
+            })
+            .collect();
+        let mut group = $c.benchmark_group("grid_hyq.hyq_contacts_floating");
+        let mut j = 0usize;
+        let mut next = || {
+            j = (j + 1) % STATES;
+            j
+        };
+        group.bench_function("generated/rnea_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::rnea_grad(&x.0, &x.1[0], &x.1[1], &x.2, &x.3))
+            })
+        });
+        group.bench_function("without forces/rnea_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(plain::rnea_grad(&x.0, &x.1[0], &x.1[1]))
+            })
+        });
+        group.bench_function("generated/fd_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::fd_grad(&x.0, &x.1[0], &x.1[1], &x.2, &x.3))
+            })
+        });
+        group.bench_function("without forces/fd_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(plain::fd_grad(&x.0, &x.1[0], &x.1[1]))
+            })
+        });
+        group.finish();
+    }};
+}
+
 fn kernels(c: &mut Criterion) {
+    if std::env::var_os("GRID_GEN_BENCH_FORCES_ONLY").is_some() {
+        bench_forces!(c);
+        return;
+    }
     if std::env::var_os("GRID_GEN_BENCH_STEP_ONLY").is_some() {
         bench_step!(c, grid_hyq_step_floating, "grid_hyq.hyq_step_floating");
         return;
@@ -299,6 +355,7 @@ fn kernels(c: &mut Criterion) {
     bench_frames!(c, grid_iiwa_tool_frame, "grid_iiwa.iiwa_tool_frame");
     bench_frames!(c, grid_hyq_feet_floating, "grid_hyq.hyq_feet_floating");
     bench_step!(c, grid_hyq_step_floating, "grid_hyq.hyq_step_floating");
+    bench_forces!(c);
 }
 
 criterion_group! {

@@ -89,4 +89,9 @@ pub mod scenes {
     pub mod grid_hyq_step_floating {
         include!("../../../generated/scenes/grid_hyq.hyq_step_floating/hyq.rs");
     }
+    /// Floating HyQ with fext on every body and its four lower legs as point contacts:
+    /// rnea, rnea_grad, fd and fd_grad with the forces as inputs.
+    pub mod grid_hyq_contacts_floating {
+        include!("../../../generated/scenes/grid_hyq.hyq_contacts_floating/hyq.rs");
+    }
 }

@@ -552,3 +552,68 @@ fn step_kernels_match_the_reference() {
 fn model_gravity() -> [f64; 3] {
     reference::DEFAULT_GRAVITY
 }
+
+/// The checked-in force kernels (`generated/scenes/grid_hyq.hyq_contacts_floating/`:
+/// floating HyQ, fext on all thirteen bodies, four point contacts), both copies, f64 and
+/// f32, against the reference under the same forces (held to Pinocchio by grid-gen's
+/// tests/forces.rs): rnea, rnea_grad with d/dfext and d/dlambda, fd, fd_grad likewise.
+/// Tolerances: f64 1e-12; f32 F32_DIRECT for the RNEA pair, F32_MINV through M⁻¹.
+#[test]
+fn force_kernels_match_the_reference() {
+    use grid_gen::ir::KernelKind::*;
+    use grid_gen_kernels::scenes::grid_hyq_contacts_floating as k;
+    use grid_gen_test_support::{col, reference_outputs_with};
+    let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_contacts_floating");
+    assert_eq!((k::NFEXT, k::NLAMBDA), (13, 12));
+    assert_eq!(k::CONTACTS[0], ("lf_lowerleg", "point"));
+    let mut rng = Rng(71);
+    let mut worst = [0.0f64; 2];
+    macro_rules! run {
+        ($c:path, $t:ty, $q:expr, $qd:expr, $u:expr, $f:expr, $l:expr) => {{
+            use $c as c;
+            let q: [$t; k::NQ] = std::array::from_fn(|i| $q[i] as $t);
+            let qd: [$t; k::NV] = std::array::from_fn(|i| $qd[i] as $t);
+            let u: [$t; k::NV] = std::array::from_fn(|i| $u[i] as $t);
+            let f: [$t; 6 * k::NFEXT] = std::array::from_fn(|i| $f[i] as $t);
+            let l: [$t; k::NLAMBDA] = std::array::from_fn(|i| $l[i] as $t);
+            #[allow(unused_unsafe)]
+            let (c0, (dq, dqd, df, dl), a, (a0, aq, aqd, af, al)) =
+                unsafe { (c::rnea(&q, &qd, &u, &f, &l), c::rnea_grad(&q, &qd, &u, &f, &l), c::fd(&q, &qd, &u, &f, &l), c::fd_grad(&q, &qd, &u, &f, &l)) };
+            let g = |x: &[$t]| x.iter().map(|&y| y as f64).collect::<Vec<f64>>();
+            vec![
+                vec![g(&c0)],
+                vec![g(dq.as_flattened()), g(dqd.as_flattened()), g(df.as_flattened()), g(dl.as_flattened())],
+                vec![g(&a)],
+                vec![g(&a0), g(aq.as_flattened()), g(aqd.as_flattened()), g(af.as_flattened()), g(al.as_flattened())],
+            ]
+        }};
+    }
+    for (label, per_joint, qd, qdd) in states(&model, &mut rng) {
+        let q = model.q_from_joints(&per_joint, rng.base_pose());
+        let (fext, lambda) = (rng.vec(6 * k::NFEXT, -20.0, 20.0), rng.vec(k::NLAMBDA, -100.0, 100.0));
+        for (f32, direct, through) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
+            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let (q, qd, qdd, fext, lambda) = (r(&q), r(&qd), r(&qdd), r(&fext), r(&lambda));
+            let ext = reference::External { fext: &fext, lambda: &lambda };
+            let want: Vec<Vec<nalgebra::DMatrix<f64>>> =
+                [Rnea, RneaGrad, Fd, FdGrad].iter().map(|&kind| reference_outputs_with(kind, &model, &q, &qd, &qdd, model_gravity(), ext)).collect();
+            let mut copies =
+                vec![("portable", if f32 { run!(k::portable, f32, q, qd, qdd, fext, lambda) } else { run!(k::portable, f64, q, qd, qdd, fext, lambda) })];
+            if fma_runs() {
+                copies.push(("fma", if f32 { run!(k::fma, f32, q, qd, qdd, fext, lambda) } else { run!(k::fma, f64, q, qd, qdd, fext, lambda) }));
+            }
+            for (copy, got) in copies {
+                for (kernel, (got, want)) in got.iter().zip(&want).enumerate() {
+                    let tol = if kernel < 2 { direct } else { through };
+                    assert_eq!(got.len(), want.len());
+                    for (o, (got, want)) in got.iter().zip(want).enumerate() {
+                        let e = rel(&col(got), &col(want.transpose().as_slice()));
+                        worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
+                        assert!(e <= tol, "{label} ({copy}, f32 {f32}): kernel {kernel} output {o} relative error {e:.2e} > {tol:e}");
+                    }
+                }
+            }
+        }
+    }
+    println!("hyq_contacts_floating: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+}

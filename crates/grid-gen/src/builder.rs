@@ -83,6 +83,7 @@ pub struct Builder {
     actuated: Option<Vec<String>>,
     fd_grad_minv: bool,
     fext: Option<Vec<String>>,
+    fext_derivatives: Option<bool>,
     contacts: Option<Vec<(String, crate::model::ContactKind)>>,
     quiet: bool,
 }
@@ -211,6 +212,13 @@ impl Builder {
         self
     }
 
+    /// Whether `rnea_grad` and `fd_grad` return `∂/∂fext` (default true; the scene's
+    /// `[external_forces] derivatives`).
+    pub fn external_force_derivatives(&mut self, on: bool) -> &mut Self {
+        self.fext_derivatives = Some(on);
+        self
+    }
+
     /// Contacts at frames (link names), each a point or a wrench; the kernels take their
     /// forces λ in `LOCAL_WORLD_ALIGNED` axes. Replaces the scene's `[[contact]]`.
     pub fn contacts<S: AsRef<str>>(&mut self, contacts: &[(S, crate::model::ContactKind)]) -> &mut Self {
@@ -297,6 +305,9 @@ impl Builder {
         }
         if let Some(joints) = &self.fext {
             scene.external_forces.joints = joints.clone();
+        }
+        if let Some(on) = self.fext_derivatives {
+            scene.external_forces.derivatives = Some(on);
         }
         if let Some(contacts) = &self.contacts {
             scene.contact = contacts.iter().map(|(frame, kind)| crate::scene::ContactEntry { frame: frame.clone(), kind: *kind }).collect();

@@ -337,6 +337,10 @@ pub struct Specialisation {
     /// model joints (a multi-dof joint's last member, the one that carries its body), in
     /// the order asked for. Empty: no `fext` input.
     pub fext: Vec<usize>,
+    /// `rnea_grad` and `fd_grad` do not return `∂/∂fext` (they do by default): a kernel
+    /// that only feels known forces (a disturbance, a payload's push) then pays for the
+    /// forces alone, not for `−M⁻¹ Jᵀ` on every force column.
+    pub no_fext_derivatives: bool,
     /// The contacts whose forces λ the dynamics kernels take (their `lambda` input), in the
     /// order declared. Empty: no `lambda` input.
     pub contacts: Vec<Contact>,

@@ -37,6 +37,7 @@
 //!
 //! [external_forces]                    # bodies that take a force `fext` (by the name of
 //! joints = ["lf_kfe_joint"]            # the joint that moves them; "*" for every body)
+//! derivatives = false                  # no d/dfext outputs (default true)
 //!
 //! [[contact]]                          # a contact force lambda at a frame, in world axes
 //! frame = "lf_lowerleg"                # at the frame's origin (LOCAL_WORLD_ALIGNED)
@@ -118,6 +119,8 @@ pub struct ExternalForcesSection {
     /// Joint names in the order `fext` lists the forces; `"*"` stands for every body.
     #[serde(default)]
     pub joints: Vec<String>,
+    /// Whether `rnea_grad` and `fd_grad` return `∂/∂fext` (default true).
+    pub derivatives: Option<bool>,
 }
 
 /// `[[contact]]`: a contact at a frame.
@@ -524,6 +527,7 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
         actuated,
         fd_grad_minv: scene.fd_grad.minv,
         fext,
+        no_fext_derivatives: !scene.external_forces.derivatives.unwrap_or(true),
         contacts,
     }
 }

@@ -315,7 +315,7 @@ impl KernelKind {
         if self == KernelKind::FdGrad && spec.fd_grad_minv {
             out.push(OutputSpec { name: "dqdd_dtau", shape: Shape::Matrix });
         }
-        let (fext, lambda) = (!spec.fext.is_empty(), !spec.contacts.is_empty());
+        let (fext, lambda) = (!spec.fext.is_empty() && !spec.no_fext_derivatives, !spec.contacts.is_empty());
         match self {
             KernelKind::RneaGrad => {
                 out.extend(fext.then_some(OutputSpec { name: "dc_dfext", shape: Shape::ByFext }));
@@ -431,7 +431,7 @@ impl KernelKind {
                 let (dq, dqd) = d.rnea_grad(&r, &qd);
                 let mut out = vec![flat(d.reduce_matrix(dq)), flat(d.reduce_matrix(dqd))];
                 let (by_fext, by_lambda) = d.force_grads();
-                out.extend(d.declares_fext().then(|| flat(by_fext)));
+                out.extend(d.wants_fext_grads().then(|| flat(by_fext)));
                 out.extend(d.declares_contacts().then(|| flat(by_lambda)));
                 out
             }
@@ -451,13 +451,14 @@ impl KernelKind {
                 // ∂q̈/∂(fext, λ) = −M⁻¹ ∂c/∂(fext, λ), by the route that forms ∂q̈/∂u.
                 let (by_fext, by_lambda) = d.force_grads();
                 let columns = |m: &Mat| -> Vec<Vec<Id>> { (0..m.first().map_or(0, Vec::len)).map(|c| m.iter().map(|row| row[c]).collect()).collect() };
-                let (fext_cols, lambda_cols) = (columns(&by_fext), columns(&by_lambda));
+                let fext_cols = if d.wants_fext_grads() { columns(&by_fext) } else { Vec::new() };
+                let lambda_cols = columns(&by_lambda);
                 let rhs: Vec<Vec<Id>> = fext_cols.iter().chain(&lambda_cols).cloned().collect();
                 let (qdd, dq, dqd, minv, solved) = d.fd_grad(&qd, &tau, &all, &rhs);
                 let mut out = vec![qdd, flat(dq), flat(dqd)];
                 out.extend(d.wants_fd_grad_minv().then(|| flat(minv)));
                 let (f, l) = solved.split_at(fext_cols.len());
-                out.extend(d.declares_fext().then(|| flat(super::dynamics::transpose(f.to_vec(), nv))));
+                out.extend(d.wants_fext_grads().then(|| flat(super::dynamics::transpose(f.to_vec(), nv))));
                 out.extend(d.declares_contacts().then(|| flat(super::dynamics::transpose(l.to_vec(), nv))));
                 out
             }

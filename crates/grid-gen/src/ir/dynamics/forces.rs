@@ -39,9 +39,9 @@ impl Forces {
 }
 
 impl Dynamics<'_> {
-    /// Whether the model's dynamics kernels take `fext`.
-    pub fn declares_fext(&self) -> bool {
-        !self.model.specialisation.fext.is_empty()
+    /// Whether `rnea_grad` and `fd_grad` return `∂/∂fext`.
+    pub fn wants_fext_grads(&self) -> bool {
+        !self.model.specialisation.fext.is_empty() && !self.model.specialisation.no_fext_derivatives
     }
 
     /// Whether the model's dynamics kernels take contact forces λ.
