@@ -745,3 +745,70 @@ fn eval_and_info_report_the_step() {
     assert_eq!(info["actuated"].as_array().unwrap().len(), 7);
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// External and contact forces from the command line (issue 30): `eval` with `fext` and
+/// `contacts` gives the reference's values under them, with the derivatives keyed by joint
+/// and frame; bad entries are errors naming the entry (nothing on stdout); `info` and the
+/// generated module name the forces; `--contact` with an unknown frame is an error.
+#[test]
+fn eval_and_info_report_forces() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-forces-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let states = dir.join("s.json");
+    let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";
+    let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
+    let u = "[0,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]";
+    let forces = r#""fext": {"root_joint": [1, 2, 3, 0.1, 0.2, 0.3]}, "contacts": {"lf_lowerleg": [0, 0, 80], "rh_lowerleg": [5, -3, 70]}"#;
+    std::fs::write(&states, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {u}, "tau": {u}, {forces}}}]}}"#)).unwrap();
+    let contacts = "lf_lowerleg:point,rf_lowerleg:point,lh_lowerleg:point,rh_lowerleg:point";
+    let base = ["eval", "robots/grid_hyq.urdf", "--floating-base", "--contact", contacts, "--states"];
+    let run = |file: &std::path::Path| grid_gen(&[&base[..], &[file.to_str().unwrap()]].concat());
+    let out = run(&states);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let v = json(&out);
+    let s = &v["states"][0];
+    assert_eq!(s["drnea_dfext"]["root_joint"].as_array().unwrap().len(), 18, "nv rows");
+    assert_eq!(s["drnea_dfext"]["root_joint"][0].as_array().unwrap().len(), 6);
+    assert_eq!(s["dfd_dlambda"]["rh_lowerleg"][0].as_array().unwrap().len(), 3, "a point contact's three columns");
+    assert_eq!(s["drnea_dlambda"].as_object().unwrap().len(), 4, "every declared contact");
+    // The same numbers as the reference under the same forces.
+    let text = std::fs::read_to_string(repo().join("robots/grid_hyq.urdf")).unwrap();
+    let scene = grid_gen::Scene::parse(
+        "s.toml",
+        "floating_base = true\n[external_forces]\njoints = [\"root_joint\"]\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"rf_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"lh_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"rh_lowerleg\"\ntype = \"point\"\n",
+    )
+    .unwrap();
+    let model = grid_gen::Model::from_urdf_str_in_scene("grid_hyq.urdf", &text, false, &scene, "s.toml").unwrap().0;
+    let parse = |s: &str| -> Vec<f64> { serde_json::from_str(s).unwrap() };
+    let lambda = [0.0, 0.0, 80.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0, -3.0, 70.0];
+    let ext = grid_gen::reference::External { fext: &[1.0, 2.0, 3.0, 0.1, 0.2, 0.3], lambda: &lambda };
+    let want = grid_gen::reference::rnea_with(&model, &parse(q), &parse(qd), &parse(u), grid_gen::model::DEFAULT_GRAVITY, ext);
+    let got: Vec<f64> = s["rnea"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
+    assert!(got.iter().zip(&want).all(|(a, b)| (a - b).abs() <= 1e-12 * b.abs().max(1.0)), "{got:?} against {want:?}");
+    let bad_cases = [
+        (r#""fext": {"lf_knee": [1, 2, 3, 0, 0, 0]}"#, "`fext` names `lf_knee`"),
+        (r#""fext": {"root_joint": [1, 2, 3]}"#, "`fext.root_joint` has 3 values, expected 6"),
+        (r#""fext": {"root_joint": [1, 2, NaN, 0, 0, 0]}"#, "`fext.root_joint[2]` is not finite"),
+        (r#""contacts": {"lf_hipassembly": [0, 0, 1]}"#, "not a contact the scene declares"),
+        (r#""contacts": {"lf_lowerleg": [0, 0, 1, 0, 0, 0]}"#, "has 6 values, expected 3"),
+    ];
+    for (entry, says) in bad_cases {
+        let bad = dir.join("bad.json");
+        std::fs::write(&bad, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {u}, {entry}}}]}}"#)).unwrap();
+        let out = run(&bad);
+        assert_ne!(out.status.code(), Some(0), "{entry}");
+        assert!(out.stdout.is_empty(), "{entry}: nothing written");
+        assert!(String::from_utf8_lossy(&out.stderr).contains(says), "{entry}: {}", String::from_utf8_lossy(&out.stderr));
+    }
+    let out = grid_gen(&["info", "robots/grid_hyq.urdf", "--floating-base", "--contact", "lf_foot:point"]);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("closest frames"), "{}", String::from_utf8_lossy(&out.stderr));
+    let info = json(&grid_gen(&["info", "robots/grid_hyq.urdf", "--json", "--floating-base", "--fext", "*", "--contact", "lf_lowerleg:wrench"]));
+    assert_eq!(info["fext"].as_array().unwrap().len(), 13);
+    assert_eq!(info["contacts"], serde_json::json!([{"frame": "lf_lowerleg", "type": "wrench", "entries": 6}]));
+    let out = grid_gen(&["robots/grid_iiwa.urdf", "--fext", "iiwa_joint_7", "-o", dir.join("out").to_str().unwrap()]);
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let module = std::fs::read_to_string(dir.join("out/iiwa14.rs")).unwrap();
+    assert!(module.contains("pub const FEXT_JOINTS: [&str; NFEXT] = [\"iiwa_joint_7\"];") && module.contains("dc_dfext"));
+    std::fs::remove_dir_all(&dir).ok();
+}

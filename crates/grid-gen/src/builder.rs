@@ -377,6 +377,33 @@ mod tests {
     }
 
     #[test]
+    fn forces_reach_the_generated_module() {
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
+        let out = std::env::temp_dir().join(format!("grid-gen-builder-forces-{}", std::process::id()));
+        let urdf = format!("{root}/robots/grid_iiwa.urdf");
+        let compile = |derivatives: bool| {
+            let written = crate::Builder::new()
+                .urdf(&urdf)
+                .external_forces(&["iiwa_joint_7"])
+                .external_force_derivatives(derivatives)
+                .contacts(&[("iiwa_link_7", crate::model::ContactKind::Wrench)])
+                .out_dir(&out)
+                .quiet(true)
+                .compile()
+                .unwrap();
+            std::fs::read_to_string(&written[0]).unwrap()
+        };
+        let code = compile(true);
+        assert!(code.contains("pub const NLAMBDA: usize = 6;") && code.contains("[(\"iiwa_link_7\", \"wrench\")]"));
+        assert!(
+            code.contains("fext: &[T; 6 * NFEXT],") && code.contains("lambda: &[T; NLAMBDA]") && code.contains("dqdd_dfext") && code.contains("dqdd_dlambda")
+        );
+        let code = compile(false);
+        assert!(!code.contains("dqdd_dfext") && code.contains("dqdd_dlambda"), "no fext derivatives when asked");
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+
+    #[test]
     fn frames_reach_the_generated_module() {
         let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
         let out = std::env::temp_dir().join(format!("grid-gen-builder-frames-{}", std::process::id()));
