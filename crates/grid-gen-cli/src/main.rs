@@ -131,6 +131,9 @@ struct VerilogArgs {
     /// Acceleration bound of every joint for the range analysis (default 100).
     #[arg(long, value_name = "A", global = true)]
     qdd_max: Option<f64>,
+    /// Bound on every entry of fext and lambda for the range analysis (N, N m; default 1e4).
+    #[arg(long, value_name = "F", global = true)]
+    force_max: Option<f64>,
 }
 
 fn parse_rounding(s: &str) -> Result<grid_gen::ir::fixed::Rounding, String> {
@@ -149,7 +152,7 @@ impl VerilogArgs {
                 None => return Err(format!("--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`", self.fixed)),
             }
         };
-        for (name, v) in [("--qd-max", self.qd_max), ("--qdd-max", self.qdd_max)] {
+        for (name, v) in [("--qd-max", self.qd_max), ("--qdd-max", self.qdd_max), ("--force-max", self.force_max)] {
             if let Some(v) = v {
                 if !(v.is_finite() && v > 0.0) {
                     return Err(format!("{name} must be a positive finite number, got {v}"));
@@ -160,7 +163,15 @@ impl VerilogArgs {
             "shared" => Arch::Shared { multipliers: self.multipliers, adders: self.adders },
             _ => Arch::Pipelined { stage_depth: self.stage_depth },
         };
-        Ok(VerilogOptions { format, rounding: self.rounding, arch, qd_max: self.qd_max, qdd_max: self.qdd_max, ..VerilogOptions::default() })
+        Ok(VerilogOptions {
+            format,
+            rounding: self.rounding,
+            arch,
+            qd_max: self.qd_max,
+            qdd_max: self.qdd_max,
+            force_max: self.force_max,
+            ..VerilogOptions::default()
+        })
     }
 }
 

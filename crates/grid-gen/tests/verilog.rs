@@ -402,3 +402,71 @@ fn hostile_names_and_an_unseen_robot_through_eval() {
         assert!(!out.states[0].overflow[n.kind.name()]);
     }
 }
+
+/// External and contact forces (issue 30) as netlist inputs: UR5's `rnea_grad` with fext on
+/// its wrist body and a point contact at tool0 (λ in world axes), both architectures, the
+/// forces ports named after their body or frame; random states and forces within the
+/// bounds (`--force-max 200`), simulated bit-exact against the software model and within
+/// the analysed bound of the reference under the same forces (held to Pinocchio by
+/// tests/forces.rs).
+#[test]
+fn netlists_take_forces_bit_exact_and_within_bound() {
+    use grid_gen::model::ContactKind;
+    if !tool_or_skip("Icarus Verilog (iverilog)", sim::available()) {
+        return;
+    }
+    let model = grid_gen_test_support::with_forces(&load("ur5"), &["wrist_3_joint"], &[("tool0", ContactKind::Point)]);
+    let m = ir::lower(&model, GRAVITY, &LowerOptions { kernels: vec![KernelKind::RneaGrad], ..LowerOptions::default() }).unwrap();
+    for arch in BOTH {
+        let options = VerilogOptions { arch, force_max: Some(200.0), kernels: vec![KernelKind::RneaGrad], ..VerilogOptions::default() };
+        let n = plan(&m, &options).unwrap().remove(0);
+        assert!(n.names.inputs.iter().any(|p| p == "fext_3_wrist_3_joint_tx"), "{:?}", n.names.inputs);
+        assert!(n.names.inputs.iter().any(|p| p == "lambda_2_tool0_fz"), "{:?}", n.names.inputs);
+        assert_eq!(n.bounds.force, 200.0);
+        let dp = &n.datapath;
+        let mut rng = Rng(83);
+        let nv = model.nv();
+        let cases: Vec<([Vec<f64>; 3], Vec<f64>)> = states(&n, &model, 12, 11)
+            .into_iter()
+            .enumerate()
+            .map(|(k, s)| {
+                // The corners push every force entry to its bound too.
+                let forces = if k >= 12 { vec![if k % 2 == 0 { 200.0 } else { -200.0 }; 9] } else { rng.vec(9, -200.0, 200.0) };
+                (s, forces)
+            })
+            .collect();
+        let ports: Vec<Vec<i64>> = cases
+            .iter()
+            .map(|([q, qd, qdd], f)| {
+                let (p, overflow) = quantize_ports(dp, &n.format, q, qd, qdd, f);
+                assert!(!overflow, "an input within the bounds does not fit {}", n.format.label());
+                p
+            })
+            .collect();
+        let simulated = sim::simulate(&n, &m.robot, &ports).unwrap_or_else(|e| panic!("{}: {e}", n.top));
+        let nonzero = dp.nonzero_outputs();
+        let mut worst = 0.0f64;
+        for (k, (([q, qd, qdd], f), hw)) in cases.iter().zip(&simulated).enumerate() {
+            let run = dp.run(&n.format, &ports[k]);
+            let model_nonzero: Vec<i64> = nonzero.iter().map(|&(o, e, _)| run.outputs[o][e]).collect();
+            assert_eq!(hw.outputs, model_nonzero, "state {k}: simulator and software model differ");
+            assert!(!hw.overflow && !run.overflow, "state {k}: overflow inside the analysed bounds");
+            let ext = grid_gen::reference::External { fext: &f[..6], lambda: &f[6..] };
+            let reference = grid_gen_test_support::reference_outputs_with(KernelKind::RneaGrad, &model, q, qd, qdd, GRAVITY, ext);
+            assert_eq!(reference.len(), dp.outputs.len(), "dc_dq, dc_dqd, dc_dfext, dc_dlambda");
+            for (o, out) in dp.outputs.iter().enumerate() {
+                for (e, id) in out.ids.iter().enumerate() {
+                    let cols = reference[o].ncols();
+                    let exact = reference[o][(e / cols, e % cols)];
+                    let got = n.format.to_f64(run.outputs[o][e]);
+                    let bound = n.analysis.err[id.0 as usize];
+                    let slack = 1e-12 * exact.abs().max(1.0);
+                    assert!((got - exact).abs() <= bound + slack, "state {k} {}[{e}]: {got} vs {exact}, bound {bound:e}", out.name);
+                    worst = worst.max((got - exact).abs());
+                }
+            }
+        }
+        assert_eq!(nv, 6);
+        eprintln!("ur5 with forces {} {}: worst error {worst:.3e}, analysed bound {:.3e}", n.arch().name(), n.format.label(), n.analysis.output_error);
+    }
+}

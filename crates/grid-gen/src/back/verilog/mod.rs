@@ -86,6 +86,8 @@ pub struct VerilogOptions {
     pub qd_max: Option<f64>,
     /// Override every joint's acceleration bound (else [`crate::ir::fixed::DEFAULT_QDD_MAX`]).
     pub qdd_max: Option<f64>,
+    /// Bound on every entry of the forces (else [`crate::ir::fixed::DEFAULT_FORCE_MAX`]).
+    pub force_max: Option<f64>,
     /// Which of the module's kernels to build (those without division).
     pub kernels: Vec<KernelKind>,
 }
@@ -98,6 +100,7 @@ impl Default for VerilogOptions {
             arch: Arch::Pipelined { stage_depth: DEFAULT_STAGE_DEPTH },
             qd_max: None,
             qdd_max: None,
+            force_max: None,
             kernels: DEFAULT_KERNELS.to_vec(),
         }
     }
@@ -172,7 +175,10 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, B
         _ => {}
     }
     let stem = identifier(&module.robot.name);
-    let bounds = Bounds::new(&module.robot, options.qd_max, options.qdd_max);
+    let mut bounds = Bounds::new(&module.robot, options.qd_max, options.qdd_max);
+    if let Some(f) = options.force_max {
+        bounds.force = f;
+    }
     let mut out = Vec::new();
     for kind in kernels {
         let f = module.function(kind).ok_or(BackError::VerilogMissing(kind))?;
@@ -301,8 +307,14 @@ impl Netlist {
             "// Units: {} multipliers ({} by a constant), {} adders, {} data registers.\n",
             s.multipliers, s.constant_multipliers, s.adders, s.registers
         ));
+        // Forces appear in the bounds only where the netlist takes them.
+        let forces = if self.datapath.ports.iter().any(|p| matches!(p, crate::ir::fixed::Port::Value(crate::ir::Input::Fext | crate::ir::Input::Lambda, _))) {
+            format!(", |fext|, |lambda| <= {} per entry", self.bounds.force)
+        } else {
+            String::new()
+        };
         h.push_str(&format!(
-            "// Analysed for |qd| <= {}, |qdd| <= {} (per joint, in order): every value within {:.6e}; every output within {:.6e} of exact.\n",
+            "// Analysed for |qd| <= {}, |qdd| <= {} (per joint, in order){forces}: every value within {:.6e}; every output within {:.6e} of exact.\n",
             list(&self.bounds.qd),
             list(&self.bounds.qdd),
             s.range_bound,

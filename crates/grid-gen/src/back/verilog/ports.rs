@@ -1,5 +1,6 @@
 //! Port names of a netlist: inputs `<sin_q|cos_q|q|qd|qdd>_<index>_<joint name>` (the
-//! index into the input: q's for sin, cos and q) and each quaternion's `quat_scale…`,
+//! index into the input: q's for sin, cos and q), forces `fext_<index>_<joint>_<fx…tz>`
+//! and `lambda_<index>_<frame>_<fx…tz>`, and each quaternion's `quat_scale…`,
 //! outputs `<output>_<row>_<column>` for the non-zero entries only. Joint names go through
 //! the shared namer (`[a-z0-9_]`, never a reserved word); the joint index keeps them
 //! unique whatever the names are.
@@ -17,6 +18,9 @@ pub struct PortNames {
     pub outputs: Vec<(String, HwId)>,
 }
 
+/// The components of a force entry, Pinocchio's order.
+const FORCE_COMPONENTS: [&str; 6] = ["fx", "fy", "fz", "tx", "ty", "tz"];
+
 /// An input port's name. q-indexed ports (sin, cos, q) name the q entry (`Robot::q_name`:
 /// a joint, the floating base's `base_x` … `base_qw`, a spherical joint's `<name>_qx` …);
 /// a spherical joint's quaternion scale is `quat_scale_<k>_<name>`, the base's `quat_scale`.
@@ -27,6 +31,20 @@ fn input_name(robot: &Robot, p: Port) -> String {
         Port::QuatScale(3) if robot.floating => "quat_scale".to_string(),
         Port::QuatScale(_) => format!("quat_scale_{k}_{}", identifier(robot.q_name(k).strip_suffix("_qx").unwrap_or_default())),
         _ if q_indexed => format!("{}_{k}_{}", p.prefix(), identifier(&robot.q_name(k))),
+        // A force entry: the body's joint or the contact's frame, and the component.
+        Port::Value(Input::Fext, _) => format!("fext_{k}_{}_{}", identifier(&robot.fext[k / 6]), FORCE_COMPONENTS[k % 6]),
+        Port::Value(Input::Lambda, _) => {
+            let mut at = 0;
+            let (frame, kind) = robot
+                .contacts
+                .iter()
+                .find(|(_, kind)| {
+                    at += kind.dim();
+                    k < at
+                })
+                .expect("a λ port names a declared contact");
+            format!("lambda_{k}_{}_{}", identifier(frame), FORCE_COMPONENTS[k + kind.dim() - at])
+        }
         _ => format!("{}_{k}_{}", p.prefix(), identifier(&robot.joint_names[k])),
     }
 }

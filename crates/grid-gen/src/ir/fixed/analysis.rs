@@ -21,6 +21,9 @@ pub const DEFAULT_QD_MAX: f64 = 10.0;
 /// industrial arms are rated for (the iiwa: about 10 rad/s²), to leave room for MPC
 /// iterates far from feasible.
 pub const DEFAULT_QDD_MAX: f64 = 100.0;
+/// Bound on every entry of the external and contact forces (N and N m) when none is given:
+/// ten times a 100 kg robot's weight on one contact, as an MPC iterate may ask.
+pub const DEFAULT_FORCE_MAX: f64 = 1e4;
 /// Prismatic position bound (m) when the joint has no `<limit>`.
 pub const DEFAULT_Q_MAX: f64 = 2.0;
 
@@ -30,6 +33,8 @@ pub struct Bounds {
     pub q: Vec<(f64, f64)>,
     pub qd: Vec<f64>,
     pub qdd: Vec<f64>,
+    /// Every entry of `fext` and λ (the kernels that take forces).
+    pub force: f64,
 }
 
 impl Bounds {
@@ -57,6 +62,7 @@ impl Bounds {
                 .map(|j| if robot.specialisation.static_velocity { 0.0 } else { qd_max.or(robot.velocity_limits[j]).unwrap_or(DEFAULT_QD_MAX) })
                 .collect(),
             qdd: vec![qdd_max.unwrap_or(DEFAULT_QDD_MAX); nv],
+            force: DEFAULT_FORCE_MAX,
         }
     }
 
@@ -78,8 +84,7 @@ impl Bounds {
             Port::Value(Input::Qdd, j) => (-self.qdd[j as usize], self.qdd[j as usize]),
             // No datapath kernel takes torques; unbounded makes any that did fail the check.
             Port::Value(Input::Tau | Input::TauActuated, _) => (f64::NEG_INFINITY, f64::INFINITY),
-            // Forces have no bound the model knows (see `Datapath`'s force check).
-            Port::Value(Input::Fext | Input::Lambda, _) => (f64::NEG_INFINITY, f64::INFINITY),
+            Port::Value(Input::Fext | Input::Lambda, _) => (-self.force, self.force),
         }
     }
 }

@@ -102,9 +102,6 @@ impl Datapath {
     /// an input position.
     pub fn new(f: &Function, nv: usize) -> Result<Datapath, FixedError> {
         let unsupported = || FixedError::Unsupported { kernel: f.kind.name().to_string() };
-        if f.inputs.iter().any(|i| matches!(i, crate::ir::Input::Fext | crate::ir::Input::Lambda)) {
-            return Err(FixedError::Forces { kernel: f.kind.name().to_string() });
-        }
         // Which nodes a datapath computes: those reachable from an output, where sin/cos
         // of q stop the walk (they become ports).
         let mut live = vec![false; f.nodes.len()];

@@ -7,7 +7,7 @@ mod analysis;
 mod datapath;
 mod model;
 
-pub use analysis::{analyse, choose_format, format_for_width, width_for, Analysis, Bounds, DEFAULT_QDD_MAX, DEFAULT_QD_MAX, DEFAULT_Q_MAX};
+pub use analysis::{analyse, choose_format, format_for_width, width_for, Analysis, Bounds, DEFAULT_FORCE_MAX, DEFAULT_QDD_MAX, DEFAULT_QD_MAX, DEFAULT_Q_MAX};
 pub use datapath::{Datapath, DatapathOutput, HwId, HwOp, Port};
 pub use model::{port_values, quantize_ports, Run};
 
@@ -65,8 +65,6 @@ pub enum FixedError {
     Unreachable { kernel: String, max_error: f64, best: f64, width: u32, frac: u32 },
     #[error("--max-error must be a positive finite number, got {0}")]
     BadMaxError(f64),
-    #[error("kernel `{kernel}` takes external or contact forces, which the fixed-point datapath does not take yet (it has no bound for them); generate the Verilog without [external_forces] and [[contact]]")]
-    Forces { kernel: String },
 }
 
 impl Format {

@@ -13,8 +13,11 @@ pub struct Run {
 }
 
 /// The exact value of each port for one state, as the host computes it in f64: sin and
-/// cos of q, a floating base's quaternion scale, the inputs themselves.
-pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64]) -> Vec<f64> {
+/// cos of q, a floating base's quaternion scale, the inputs themselves. `rest` holds what
+/// follows q̈: τ for a kernel that takes it (no datapath does), else the forces, `fext`
+/// then λ (empty: none).
+pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f64]) -> Vec<f64> {
+    let lambda_at = 6 * dp.dims.nfext;
     dp.ports
         .iter()
         .map(|&p| match p {
@@ -22,14 +25,14 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64
             Port::Cos(j) => q[j as usize].cos(),
             Port::QuatScale(k) => 2.0 / q[k as usize..k as usize + 4].iter().map(|x| x * x).sum::<f64>(),
             Port::Value(input, j) => {
-                let v = match input {
-                    Input::Q => q,
-                    Input::Qd => qd,
-                    Input::Qdd => qdd,
-                    Input::Tau | Input::TauActuated => tau,
-                    Input::Fext | Input::Lambda => unreachable!("a datapath takes no forces (Datapath::new)"),
+                let (v, at) = match input {
+                    Input::Q => (q, 0),
+                    Input::Qd => (qd, 0),
+                    Input::Qdd => (qdd, 0),
+                    Input::Tau | Input::TauActuated | Input::Fext => (rest, 0),
+                    Input::Lambda => (rest, lambda_at),
                 };
-                v[j as usize]
+                v[at + j as usize]
             }
         })
         .collect()
@@ -37,9 +40,9 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64
 
 /// The raw value of each port for one state ([`port_values`] rounded to nearest). The
 /// flag says a value did not fit.
-pub fn quantize_ports(dp: &Datapath, format: &Format, q: &[f64], qd: &[f64], qdd: &[f64], tau: &[f64]) -> (Vec<i64>, bool) {
+pub fn quantize_ports(dp: &Datapath, format: &Format, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f64]) -> (Vec<i64>, bool) {
     let mut overflow = false;
-    let raw = port_values(dp, q, qd, qdd, tau)
+    let raw = port_values(dp, q, qd, qdd, rest)
         .into_iter()
         .map(|x| {
             let (r, o) = format.quantize(x);
