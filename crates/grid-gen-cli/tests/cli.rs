@@ -800,6 +800,9 @@ fn eval_and_info_report_forces() {
         assert!(out.stdout.is_empty(), "{entry}: nothing written");
         assert!(String::from_utf8_lossy(&out.stderr).contains(says), "{entry}: {}", String::from_utf8_lossy(&out.stderr));
     }
+    let out = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--fext", "iiwa_joint_7"]);
+    assert_ne!(out.status.code(), Some(0));
+    assert!(String::from_utf8_lossy(&out.stderr).contains("does not measure kernels that take external or contact forces yet"));
     let out = grid_gen(&["info", "robots/grid_hyq.urdf", "--floating-base", "--contact", "lf_foot:point"]);
     assert_ne!(out.status.code(), Some(0));
     assert!(String::from_utf8_lossy(&out.stderr).contains("closest frames"), "{}", String::from_utf8_lossy(&out.stderr));

@@ -43,6 +43,8 @@ pub enum TimingError {
     Compile(String),
     #[error("the timing program failed: {0}")]
     Run(String),
+    #[error("`bench --backend rust` does not time kernels that take external or contact forces yet; `GRID_GEN_BENCH_FORCES_ONLY=1 cargo bench -p grid-gen-kernels --bench kernels` times the checked-in forces scene")]
+    Forces,
 }
 
 /// A mixed-precision kernel to time beside the generic ones: the function and which of
@@ -194,6 +196,9 @@ pub fn time_rust_kernels_with_mixed(
     rustc: &str,
     work: &Path,
 ) -> Result<Vec<KernelTime>, TimingError> {
+    if model.nfext() + model.nlambda() > 0 {
+        return Err(TimingError::Forces);
+    }
     let options = Options {
         gravity,
         targets: vec![Target::Rust],

@@ -221,6 +221,8 @@ pub enum AccuracyError {
     Backend { label: String, kernel: KernelKind, message: String },
     #[error("kernel `{kernel}`: {error}")]
     Fixed { kernel: KernelKind, error: FixedError },
+    #[error("`accuracy` does not measure kernels that take external or contact forces yet; leave out --fext, --contact and the scene's [external_forces] and [[contact]] (the forces' own arithmetic is checked against the reference by the tests)")]
+    Forces,
 }
 
 /// The kernels `accuracy` measures by default: all six, less those M's singularity blocks.
@@ -253,6 +255,9 @@ pub struct Options {
 /// Measures every kernel of `options` in each format (and backend) on `file`'s states.
 pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &Options, backends: &mut [Backend]) -> Result<Report, AccuracyError> {
     check_states(model, file)?;
+    if model.nfext() + model.nlambda() > 0 {
+        return Err(AccuracyError::Forces);
+    }
     let (nv, gravity, kernels, formats) = (model.nv(), options.gravity, &options.kernels, &options.formats);
     let lower = LowerOptions { kernels: kernels.clone(), gradient: options.gradient, ..LowerOptions::default() };
     let exact = ir::lower(model, gravity, &LowerOptions { fold: false, ..lower.clone() })?;
