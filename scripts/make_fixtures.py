@@ -733,6 +733,21 @@ def step_record(model, data, q, v, tau, dt, scheme, act):
     return pin.integrate(model, q, dx[:nv]), v + dx[nv:], jx + jdx @ dx_dx, jdx @ dx_du
 
 
+def random_q(model, floating, rng):
+    """Pinocchio's q with each one-dof joint uniform within its limits (±π where it has
+    none, or limits wider than 100) and, on a floating base, a position N(0, 1) and a
+    uniformly random unit quaternion."""
+    q = pin.neutral(model)
+    for jid in range(2 if floating else 1, model.njoints):
+        j = model.joints[jid]
+        lo, hi = model.lowerPositionLimit[j.idx_q], model.upperPositionLimit[j.idx_q]
+        q[j.idx_q] = rng.uniform(lo, hi) if np.isfinite(lo) and np.isfinite(hi) and hi - lo < 100 else rng.uniform(-np.pi, np.pi)
+    if floating:
+        quat = rng.normal(size=4)
+        q[:7] = np.concatenate([rng.normal(size=3), quat / np.linalg.norm(quat)])
+    return q
+
+
 def step_fixture(robot, floating, dt, rng):
     """Random states (uniform base rotations and joint quaternions), a fast one (speeds of
     30 rad/s, so that dt q̇ turns the base by a few tenths of a radian) and a still one; τ on
@@ -746,14 +761,7 @@ def step_fixture(robot, floating, dt, rng):
     for kind, speed in [("random", 1.0)] * 6 + [("fast", 30.0), ("still", 0.0)]:
         q = pin.randomConfiguration(model, -np.ones(model.nq) * 2, np.ones(model.nq) * 2) if robot == "ball_arm" else None
         if q is None:
-            q = pin.neutral(model)
-            for jid in range(2 if floating else 1, model.njoints):
-                j = model.joints[jid]
-                lo, hi = model.lowerPositionLimit[j.idx_q], model.upperPositionLimit[j.idx_q]
-                q[j.idx_q] = rng.uniform(lo, hi) if np.isfinite(lo) and np.isfinite(hi) and hi - lo < 100 else rng.uniform(-np.pi, np.pi)
-            if floating:
-                quat = rng.normal(size=4)
-                q[:7] = np.concatenate([rng.normal(size=3), quat / np.linalg.norm(quat)])
+            q = random_q(model, floating, rng)
         listed_v = rng.normal(size=nv) * speed
         listed_tau = np.zeros(nv)
         listed_tau[actuated] = rng.normal(size=len(actuated)) * 10
@@ -889,14 +897,7 @@ def forces_fixture(robot, floating, fext_joints, contacts, rng):
     nlam = sum(3 if k == "point" else 6 for _, k in contacts)
     records = []
     for kind, speed in [("random", 1.0)] * 6 + [("still", 0.0), ("fast", 30.0)]:
-        q = pin.neutral(model)
-        for jid in range(2 if floating else 1, model.njoints):
-            j = model.joints[jid]
-            lo, hi = model.lowerPositionLimit[j.idx_q], model.upperPositionLimit[j.idx_q]
-            q[j.idx_q] = rng.uniform(lo, hi) if np.isfinite(lo) and np.isfinite(hi) and hi - lo < 100 else rng.uniform(-np.pi, np.pi)
-        if floating:
-            quat = rng.normal(size=4)
-            q[:7] = np.concatenate([rng.normal(size=3), quat / np.linalg.norm(quat)])
+        q = random_q(model, floating, rng)
         lv, la, lt = (rng.normal(size=nv) * speed, rng.normal(size=nv) * max(speed, 1.0), rng.normal(size=nv) * 10)
         fin, lam = rng.normal(size=6 * len(fext_joints)) * 10, rng.normal(size=nlam) * 50
         v, a, t = np.zeros(nv), np.zeros(nv), np.zeros(nv)

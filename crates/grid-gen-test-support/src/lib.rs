@@ -81,6 +81,15 @@ pub fn load_in_scene(robot: &str, scene: &str) -> (Model, grid_gen::Scene) {
     (model, parsed)
 }
 
+/// A bundled robot in a scene given as TOML text (named `s.toml` in messages): the model,
+/// or the rendered error.
+pub fn load_scene_text(robot: &str, scene: &str) -> Result<Model, String> {
+    let urdf = repo().join("robots").join(format!("{robot}.urdf"));
+    let text = std::fs::read_to_string(&urdf).expect("robot file");
+    let scene = grid_gen::Scene::parse("s.toml", scene).expect("the scene parses");
+    Model::from_urdf_str_in_scene(&urdf.display().to_string(), &text, scene.floating_base, &scene, "s.toml").map(|l| l.0).map_err(|e| e.render_plain())
+}
+
 pub fn load(robot: &str) -> Model {
     let path = repo().join("robots").join(format!("{robot}.urdf"));
     let text = std::fs::read_to_string(&path).expect("robot file");

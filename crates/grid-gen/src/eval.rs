@@ -146,12 +146,13 @@ pub struct Output {
 
 /// A state's forces as the reference takes them: the model with the state's bodies
 /// added to the declared ones, and the flat `fext` and λ.
-fn state_forces(model: &Model, s: &State) -> (Model, Vec<f64>, Vec<f64>) {
-    let mut m = model.clone();
+fn state_forces<'m>(model: &'m Model, s: &State) -> (std::borrow::Cow<'m, Model>, Vec<f64>, Vec<f64>) {
+    // A copy of the model only when the state names a body the scene does not declare.
+    let mut m = std::borrow::Cow::Borrowed(model);
     for name in s.fext.keys() {
         let b = model.body_of_joint(name).expect("checked");
         if !m.specialisation.fext.contains(&b) {
-            m.specialisation.fext.push(b);
+            m.to_mut().specialisation.fext.push(b);
         }
     }
     let mut fext = vec![0.0; 6 * m.nfext()];

@@ -220,9 +220,7 @@ fn force_kernels_match_the_reference() {
                 let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
                 for &s in &m.spherical {
                     let at = m.group_q(s);
-                    let x = rng.vec(4, -1.0, 1.0);
-                    let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
-                    q[at..at + 4].copy_from_slice(&x.iter().map(|v| v / n).collect::<Vec<_>>());
+                    q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
                 }
                 let (qd, u) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -10.0, 10.0));
                 let (fext, lambda) = random_forces(m, &mut rng);
@@ -261,12 +259,7 @@ fn kernels_without_forces_are_unchanged() {
 /// A scene's `[external_forces]` and `[[contact]]` mistakes are errors that name the entry.
 #[test]
 fn bad_forces_are_errors() {
-    let urdf = repo().join("robots/grid_hyq.urdf");
-    let text = std::fs::read_to_string(&urdf).unwrap();
-    let load = |scene: &str| {
-        let scene = Scene::parse("s.toml", scene).expect("parses");
-        Model::from_urdf_str_in_scene(&urdf.display().to_string(), &text, scene.floating_base, &scene, "s.toml").map(|l| l.0).map_err(|e| e.render_plain())
-    };
+    let load = |scene: &str| load_scene_text("grid_hyq", scene);
     let cases = [
         ("[external_forces]\njoints = [\"lf_kfe\"]\n", "closest joints: lf_kfe_joint"),
         ("[external_forces]\njoints = [\"lf_kfe_joint\", \"lf_kfe_joint\"]\n", "twice"),

@@ -271,12 +271,7 @@ fn step_kernels_match_the_reference() {
 /// A scene's `[step]` and `[actuation]` mistakes are errors that say what is wrong.
 #[test]
 fn bad_steps_are_errors() {
-    let urdf = repo().join("robots/grid_hyq.urdf");
-    let text = std::fs::read_to_string(&urdf).unwrap();
-    let load = |scene: &str| {
-        let scene = Scene::parse("s.toml", scene).expect("parses");
-        Model::from_urdf_str_in_scene(&urdf.display().to_string(), &text, scene.floating_base, &scene, "s.toml").map(|l| l.0).map_err(|e| e.render_plain())
-    };
+    let load = |scene: &str| load_scene_text("grid_hyq", scene);
     let cases = [
         ("[step]\nscheme = \"semi_implicit_euler\"\n", "has no time step"),
         ("[step]\ndt = -0.01\n", "not a finite, positive"),

@@ -1,7 +1,7 @@
 //! The kernels grid-gen generates: each [`KernelKind`] owns its name, inputs, output
 //! shapes and documentation, so that no other file matches on kernel names.
 
-use super::dynamics::{Dynamics, Mat};
+use super::dynamics::{transpose, Dynamics, Mat};
 use super::graph::{Id, Input};
 
 /// A robot's sizes, which the kernels' inputs and outputs are measured in.
@@ -430,9 +430,10 @@ impl KernelKind {
                 let r = d.rnea(&qd, &qdd);
                 let (dq, dqd) = d.rnea_grad(&r, &qd);
                 let mut out = vec![flat(d.reduce_matrix(dq)), flat(d.reduce_matrix(dqd))];
-                let (by_fext, by_lambda) = d.force_grads();
-                out.extend(d.wants_fext_grads().then(|| flat(by_fext)));
-                out.extend(d.declares_contacts().then(|| flat(by_lambda)));
+                let (by_fext, by_lambda) = d.force_grad_columns();
+                let nv = qd.len();
+                out.extend(d.wants_fext_grads().then(|| flat(transpose(by_fext, nv))));
+                out.extend(d.declares_contacts().then(|| flat(transpose(by_lambda, nv))));
                 out
             }
             KernelKind::MassMatrix => {
@@ -449,17 +450,15 @@ impl KernelKind {
                 let nv = qd.len();
                 let all: Vec<usize> = if d.wants_fd_grad_minv() { (0..nv).collect() } else { Vec::new() };
                 // ∂q̈/∂(fext, λ) = −M⁻¹ ∂c/∂(fext, λ), by the route that forms ∂q̈/∂u.
-                let (by_fext, by_lambda) = d.force_grads();
-                let columns = |m: &Mat| -> Vec<Vec<Id>> { (0..m.first().map_or(0, Vec::len)).map(|c| m.iter().map(|row| row[c]).collect()).collect() };
-                let fext_cols = if d.wants_fext_grads() { columns(&by_fext) } else { Vec::new() };
-                let lambda_cols = columns(&by_lambda);
-                let rhs: Vec<Vec<Id>> = fext_cols.iter().chain(&lambda_cols).cloned().collect();
-                let (qdd, dq, dqd, minv, solved) = d.fd_grad(&qd, &tau, &all, &rhs);
+                let (mut rhs, by_lambda) = d.force_grad_columns();
+                let nfext = rhs.len();
+                rhs.extend(by_lambda);
+                let (qdd, dq, dqd, minv, mut solved) = d.fd_grad(&qd, &tau, &all, &rhs);
                 let mut out = vec![qdd, flat(dq), flat(dqd)];
                 out.extend(d.wants_fd_grad_minv().then(|| flat(minv)));
-                let (f, l) = solved.split_at(fext_cols.len());
-                out.extend(d.wants_fext_grads().then(|| flat(super::dynamics::transpose(f.to_vec(), nv))));
-                out.extend(d.declares_contacts().then(|| flat(super::dynamics::transpose(l.to_vec(), nv))));
+                let by_lambda = solved.split_off(nfext);
+                out.extend(d.wants_fext_grads().then(|| flat(transpose(solved, nv))));
+                out.extend(d.declares_contacts().then(|| flat(transpose(by_lambda, nv))));
                 out
             }
             KernelKind::FramePlacement => {

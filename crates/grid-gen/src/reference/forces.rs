@@ -48,14 +48,14 @@ fn contact_force(rb: &Matrix3<f64>, p: &Vector3<f64>, kind: ContactKind, lambda:
     Vec6::new(n.x, n.y, n.z, f.x, f.y, f.z)
 }
 
-/// Each contact with its body, its frame's origin in the body, and its slice of λ.
-fn contacts<'a>(model: &'a Model, lambda: &'a [f64]) -> impl Iterator<Item = (usize, Vector3<f64>, ContactKind, &'a [f64])> + 'a {
+/// Each contact with its body, its frame's origin in the body, its kind, and where its
+/// entries start in λ.
+fn contacts(model: &Model) -> impl Iterator<Item = (usize, Vector3<f64>, ContactKind, usize)> + '_ {
     let mut at = 0;
     model.specialisation.contacts.iter().map(move |c| {
         let frame = &model.frames[c.frame];
-        let n = c.kind.dim();
-        at += n;
-        (frame.body.expect("contacts are on moving bodies"), frame.placement.pos_vector(), c.kind, &lambda[at - n..at])
+        at += c.kind.dim();
+        (frame.body.expect("contacts are on moving bodies"), frame.placement.pos_vector(), c.kind, at - c.kind.dim())
     })
 }
 
@@ -71,8 +71,8 @@ pub(crate) fn body_forces(model: &Model, q: &[f64], ext: External) -> Vec<Vec6> 
     if !ext.lambda.is_empty() {
         assert_eq!(ext.lambda.len(), model.nlambda(), "lambda has 3 or 6 entries per contact");
         let poses = forward_kinematics(model, q);
-        for (b, p, kind, l) in contacts(model, ext.lambda) {
-            out[b] += contact_force(&poses[b].0, &p, kind, l);
+        for (b, p, kind, at) in contacts(model) {
+            out[b] += contact_force(&poses[b].0, &p, kind, &ext.lambda[at..at + kind.dim()]);
         }
     }
     out
@@ -103,8 +103,8 @@ pub(crate) fn contact_q_terms(model: &Model, q: &[f64], ext: External) -> DMatri
     }
     let k = Kinematics::new(model, q);
     let poses = forward_kinematics(model, q);
-    for (b, p, kind, l) in contacts(model, ext.lambda) {
-        let f = contact_force(&poses[b].0, &p, kind, l);
+    for (b, p, kind, at) in contacts(model) {
+        let f = contact_force(&poses[b].0, &p, kind, &ext.lambda[at..at + kind.dim()]);
         for u in model.ancestors(b) {
             if !model.joints[u].joint_type.is_rotation() {
                 continue;
@@ -153,16 +153,13 @@ pub fn force_derivatives(model: &Model, q: &[f64]) -> ForceDerivatives {
     }
     let mut dc_dlambda = DMatrix::zeros(nv, model.nlambda());
     let poses = forward_kinematics(model, q);
-    let mut at = 0;
-    let ones = vec![0.0; model.nlambda()];
-    for (b, p, kind, _) in contacts(model, &ones) {
+    for (b, p, kind, at) in contacts(model) {
         for c in 0..kind.dim() {
             let mut e = [0.0; 6];
             e[c] = 1.0;
             let w = contact_force(&poses[b].0, &p, ContactKind::Wrench, &e);
             dc_dlambda.set_column(at + c, &nalgebra::DVector::from_vec(column(b, w)));
         }
-        at += kind.dim();
     }
     let (dqdd_dfext, dqdd_dlambda) = if model.singular.is_some() {
         (DMatrix::zeros(0, 0), DMatrix::zeros(0, 0))

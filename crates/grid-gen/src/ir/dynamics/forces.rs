@@ -139,13 +139,14 @@ impl Dynamics<'_> {
         }
     }
 
-    /// `(∂c/∂fext, ∂c/∂λ)` per coordinate, row-major nv x (6 nfext) and nv x nlambda:
-    /// `−J_bᵀ` for each body's force (columns `[fx, fy, fz, tx, ty, tz]`), `−J_cᵀ` for each
+    /// The columns of `(∂c/∂fext, ∂c/∂λ)` per coordinate (nv entries each), in the inputs'
+    /// order: `−J_bᵀ` for each body's force (`[fx, fy, fz, tx, ty, tz]`), `−J_cᵀ` for each
     /// contact (J_c its frame's `LOCAL_WORLD_ALIGNED` Jacobian, the linear rows for a point).
-    pub fn force_grads(&mut self) -> (Mat, Mat) {
-        let spec = self.model.specialisation.clone();
+    /// No fext columns unless [`Self::wants_fext_grads`].
+    pub fn force_grad_columns(&mut self) -> (Vec<Vec<Id>>, Vec<Vec<Id>>) {
+        let bodies = if self.wants_fext_grads() { self.model.specialisation.fext.clone() } else { Vec::new() };
         let mut by_fext: Vec<Vec<Id>> = Vec::new();
-        for &b in &spec.fext {
+        for b in bodies {
             for c in 0..6 {
                 let (zero, minus_one) = (self.g.constant(0.0), self.g.constant(-1.0));
                 let mut w = [zero; 6];
@@ -166,7 +167,7 @@ impl Dynamics<'_> {
                 by_lambda.push(self.reduce(&col));
             }
         }
-        (transpose(by_fext, self.model.nv()), transpose(by_lambda, self.model.nv()))
+        (by_fext, by_lambda)
     }
 }
 
