@@ -426,12 +426,13 @@ impl KernelKind {
             }
             KernelKind::RneaGrad => {
                 let (qd, qdd) = (d.inputs(Qd), d.inputs(Qdd));
+                // Coordinates; the recursions below run per joint (more with coupled mimics).
+                let nv = qd.len();
                 let (qd, qdd) = (d.expand(&qd), d.expand(&qdd));
                 let r = d.rnea(&qd, &qdd);
                 let (dq, dqd) = d.rnea_grad(&r, &qd);
                 let mut out = vec![flat(d.reduce_matrix(dq)), flat(d.reduce_matrix(dqd))];
                 let (by_fext, by_lambda) = d.force_grad_columns();
-                let nv = qd.len();
                 out.extend(d.wants_fext_grads().then(|| flat(transpose(by_fext, nv))));
                 out.extend(d.declares_contacts().then(|| flat(transpose(by_lambda, nv))));
                 out
