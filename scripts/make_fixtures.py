@@ -952,6 +952,92 @@ def forces_fixtures(check):
     return stale
 
 
+# Rigid-contact forward dynamics (Pinocchio's constraintDynamics and
+# computeConstraintDynamicsDerivatives, LOCAL_WORLD_ALIGNED, no Baumgarte correction):
+# (robot, floating, contacts). A quadruped's four feet, a humanoid's two foot wrenches, an
+# arm's tool.
+CONTACTS = [
+    ("grid_hyq", True, [(f"{leg}_lowerleg", "point") for leg in ("lf", "rf", "lh", "rh")]),
+    ("go2", True, [(f"{leg}_foot", "point") for leg in ("FL", "FR", "RL", "RR")]),
+    ("grid_atlas", True, [("l_foot", "wrench"), ("r_foot", "wrench")]),
+    ("grid_iiwa", False, [("iiwa_link_7", "wrench")]),
+]
+
+
+def contact_record(model, data, q, v, tau, contacts):
+    """(qdd, lambda and their derivatives) in Pinocchio's order, lambda stacked per contact
+    as lambda_c."""
+    cms, cds = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
+    for name, kind in contacts:
+        fid = model.getFrameId(name, pin.BODY)
+        frame = model.frames[fid]
+        ct = pin.ContactType.CONTACT_3D if kind == "point" else pin.ContactType.CONTACT_6D
+        cm = pin.RigidConstraintModel(ct, model, frame.parentJoint, frame.placement, pin.LOCAL_WORLD_ALIGNED)
+        cms.append(cm)
+        cds.append(cm.createData())
+    pin.initConstraintDynamics(model, data, cms, cds)
+    qdd = pin.constraintDynamics(model, data, q, v, tau, cms, cds).copy()
+    lam = data.lambda_c.copy()
+    pin.computeConstraintDynamicsDerivatives(model, data, cms, cds)
+    return {"qdd": qdd, "lambda": lam, "dqdd_dq": data.ddq_dq.copy(), "dqdd_dqd": data.ddq_dv.copy(),
+            "dqdd_dtau": data.ddq_dtau.copy(), "dlambda_dq": data.dlambda_dq.copy(),
+            "dlambda_dqd": data.dlambda_dv.copy(), "dlambda_dtau": data.dlambda_dtau.copy()}
+
+
+def check_contact_derivatives(model, data, q, v, tau, contacts, out):
+    """Every derivative against central differences on the manifold (Pinocchio's integrate)."""
+    nv, h = model.nv, 1e-6
+    for key, move in (("dq", lambda e: (pin.integrate(model, q, e), v, tau)), ("dqd", lambda e: (q, v + e, tau)),
+                      ("dtau", lambda e: (q, v, tau + e))):
+        num_a, num_l = np.zeros((nv, nv)), np.zeros((len(out["lambda"]), nv))
+        for u in range(nv):
+            e = np.zeros(nv)
+            e[u] = h
+            p, m = contact_record(model, data, *move(e), contacts), contact_record(model, data, *move(-e), contacts)
+            num_a[:, u] = (p["qdd"] - m["qdd"]) / (2 * h)
+            num_l[:, u] = (p["lambda"] - m["lambda"]) / (2 * h)
+        for name, num in ((f"dqdd_{key}", num_a), (f"dlambda_{key}", num_l)):
+            err = np.abs(num - out[name]).max() / max(1.0, np.abs(out[name]).max())
+            assert err < 1e-6, f"{name} off central differences by {err:g}"
+
+
+def contact_fixture(robot, floating, contacts, rng):
+    """Random states (uniform base rotations), a still one and a fast one (30 rad/s); q in
+    grid-gen's layout, vectors and matrices in listing order, lambda's rows in the
+    contacts' order."""
+    model, names, perm, qidx = step_model(robot, floating)
+    data = model.createData()
+    nv = model.nv
+    records = []
+    for kind, speed in [("random", 1.0)] * 6 + [("still", 0.0), ("fast", 30.0)]:
+        q = random_q(model, floating, rng)
+        lv, lt = rng.normal(size=nv) * speed, rng.normal(size=nv) * 10
+        v, t = np.zeros(nv), np.zeros(nv)
+        v[perm], t[perm] = lv, lt
+        out = contact_record(model, data, q, v, t, contacts)
+        if kind == "random" and not records:
+            check_contact_derivatives(model, data, q, v, t, contacts, out)
+        record = {"kind": kind, "q": [float(q[i]) for i in qidx], "qd": [float(x) for x in lv], "tau": [float(x) for x in lt],
+                  "qdd": [float(x) for x in np.asarray(out["qdd"])[perm]], "lambda": [float(x) for x in out["lambda"]]}
+        for key in ("dqdd_dq", "dqdd_dqd", "dqdd_dtau"):
+            record[key] = mat(np.asarray(out[key])[np.ix_(perm, perm)])
+        for key in ("dlambda_dq", "dlambda_dqd", "dlambda_dtau"):
+            record[key] = mat(np.asarray(out[key])[:, perm])
+        records.append(record)
+    return {"tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear], "joint_names": names,
+            "contacts": [{"frame": f, "type": k} for f, k in contacts], "states": records}
+
+
+def contact_fixtures(check):
+    stale = False
+    for robot, floating, contacts in CONTACTS:
+        seed = sum(robot.encode()) + 71 + floating
+        pin.seed(seed)
+        data = contact_fixture(robot, floating, contacts, np.random.default_rng(seed))
+        stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.contact.pinocchio.json", data, check, 1e-10)
+    return stale
+
+
 def main():
     OUT.mkdir(parents=True, exist_ok=True)
     args = sys.argv[1:]
@@ -981,6 +1067,8 @@ def main():
         failed |= step_fixtures(check)
     if not only or "forces" in only:
         failed |= forces_fixtures(check)
+    if not only or "contact" in only:
+        failed |= contact_fixtures(check)
     if failed:
         sys.exit("fixtures differ from what Pinocchio/yourdfpy compute now: rerun scripts/make_fixtures.py and review")
 

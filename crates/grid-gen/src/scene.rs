@@ -598,6 +598,20 @@ fn select_contacts(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, 
             picked.push(crate::model::Contact { frame, kind: entry.kind });
         }
     }
+    if let Err(set) = crate::reference::check_contact_rank(model, &picked) {
+        let names: Vec<String> = set.iter().map(|&i| format!("`{}`", model.frames[picked[i].frame].name)).collect();
+        diags.push(
+            Diagnostic::error(
+                format!(
+                    "{whence}: the contacts at {} constrain dependent motions (their stacked Jacobian loses rank at every configuration tried), so contact dynamics has no unique contact force",
+                    names.join(", ")
+                ),
+                None,
+                "dependent contacts",
+            )
+            .with_help("drop one of them or make it a point contact: two wrenches on one body, or on bodies one joint apart, fix the same motion"),
+        );
+    }
     picked
 }
 

@@ -6,6 +6,7 @@
 //! the parent body to body i at the current q; `S[i]` the joint's motion subspace.
 
 mod aba;
+mod contact;
 pub mod coupled;
 mod crba;
 mod fd;
@@ -17,6 +18,10 @@ mod rnea_derivatives;
 mod step;
 
 pub use aba::{aba, aba_with};
+pub use contact::{
+    check_contact_rank, contact_acceleration_derivatives, contact_accelerations, contact_fd, contact_fd_derivatives, contact_jacobian, ContactDerivatives,
+    ContactDynamics,
+};
 pub use crba::crba;
 pub use fd::{forward_dynamics, forward_dynamics_derivatives, forward_dynamics_derivatives_with};
 pub use forces::{force_derivatives, External, ForceDerivatives};

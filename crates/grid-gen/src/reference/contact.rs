@@ -1,0 +1,304 @@
+//! Rigid-contact forward dynamics and its derivatives, as Pinocchio's `constraintDynamics`
+//! and `computeConstraintDynamicsDerivatives` with `CONTACT_3D` / `CONTACT_6D` constraints
+//! in `LOCAL_WORLD_ALIGNED` and no Baumgarte correction: the contacts' accelerations are
+//! zero, a point contact's the classical acceleration of its frame's origin, a wrench
+//! contact's the frame's spatial acceleration, both in world axes at the frame's origin.
+//!
+//! The reference solves the whole KKT system `[M Jᵀ; J 0] [q̈; −λ] = [τ − c(q, q̇, 0); −γ]`
+//! by LU, and its derivatives by differentiating the two rows (Carpentier & Budhiraja,
+//! "Analytical derivatives of rigid body dynamics with constraints", 2021): `M ∂q̈ − Jᵀ ∂λ =
+//! −∂c/∂u` (RNEA's derivatives at the solution, λ held in world axes) and `J ∂q̈ =
+//! −∂acc/∂u` at fixed q̈. The kernels use the Schur complement instead, so each checks the
+//! other.
+//!
+//! The contacts' accelerations and their derivatives are written over world-frame screws,
+//! not the body-frame recursion of `frames.rs`: S_a is joint a's unit motion at the world
+//! origin ([angular; linear]), a body's velocity `V = Σ S_a q̇_a` and acceleration
+//! `A = Σ S_a q̈_a + (V_a × S_a) q̇_a` over its ancestors (V_a the velocity of the body joint
+//! a moves; for a multi-dof joint, the body after its last member). Moving coordinate k
+//! along its tangent turns every screw attached downstream of it: `∂S_a/∂δ_k = S_k × S_a`.
+
+use nalgebra::{DMatrix, DVector, Vector3};
+
+use super::coupled::expand;
+use super::forces::External;
+use super::{crba, forward_kinematics, frame_jacobian, rnea_derivatives_with, rnea_with};
+use crate::model::{Contact, ContactKind, Model, ReferenceFrame};
+use crate::spatial::{crm, Vec6};
+
+/// q̈ and the contact forces λ (3 or 6 per contact, world axes at the frame's origin, as
+/// Pinocchio's `lambda_c` and the kernels' `lambda` input).
+#[derive(Clone, Debug)]
+pub struct ContactDynamics {
+    pub qdd: Vec<f64>,
+    pub lambda: Vec<f64>,
+}
+
+/// The derivatives of [`ContactDynamics`], q in the tangent space: `nv x nv` for q̈,
+/// `nlambda x nv` for λ.
+#[derive(Clone, Debug)]
+pub struct ContactDerivatives {
+    pub dqdd_dq: DMatrix<f64>,
+    pub dqdd_dqd: DMatrix<f64>,
+    pub dqdd_dtau: DMatrix<f64>,
+    pub dlambda_dq: DMatrix<f64>,
+    pub dlambda_dqd: DMatrix<f64>,
+    pub dlambda_dtau: DMatrix<f64>,
+}
+
+/// The stacked contact Jacobian, `nlambda x nv`: each contact's `LOCAL_WORLD_ALIGNED`
+/// frame Jacobian, its three linear rows for a point contact.
+pub fn contact_jacobian(model: &Model, contacts: &[Contact], q: &[f64]) -> DMatrix<f64> {
+    let rows: usize = contacts.iter().map(|c| c.kind.dim()).sum();
+    let mut j = DMatrix::zeros(rows, model.nv());
+    let mut at = 0;
+    for c in contacts {
+        let jf = frame_jacobian(model, q, &model.frames[c.frame], ReferenceFrame::LocalWorldAligned);
+        j.rows_mut(at, c.kind.dim()).copy_from(&jf.rows(0, c.kind.dim()));
+        at += c.kind.dim();
+    }
+    j
+}
+
+/// Per model joint: its world screw, and the velocity of the body it moves.
+struct Screws {
+    s: Vec<Vec6>,
+    v: Vec<Vec6>,
+    poses: Vec<(nalgebra::Matrix3<f64>, Vector3<f64>)>,
+}
+
+impl Screws {
+    fn new(model: &Model, q: &[f64], qd: &[f64]) -> Self {
+        let poses = forward_kinematics(model, q);
+        let n = model.njoints();
+        let (mut s, mut v) = (vec![Vec6::zeros(); n], vec![Vec6::zeros(); n]);
+        for a in 0..n {
+            let joint = &model.joints[a];
+            let (r, p) = poses[a];
+            let axis = r * Vector3::from(joint.axis);
+            s[a] = if joint.joint_type.is_rotation() { join(axis, p.cross(&axis)) } else { join(Vector3::zeros(), axis) };
+            v[a] = joint.parent.map_or(Vec6::zeros(), |p| v[p]) + s[a] * qd[a];
+        }
+        Screws { s, v, poses }
+    }
+}
+
+fn join(a: Vector3<f64>, b: Vector3<f64>) -> Vec6 {
+    Vec6::new(a.x, a.y, a.z, b.x, b.y, b.z)
+}
+
+fn ang(x: &Vec6) -> Vector3<f64> {
+    Vector3::new(x[0], x[1], x[2])
+}
+
+fn lin(x: &Vec6) -> Vector3<f64> {
+    Vector3::new(x[3], x[4], x[5])
+}
+
+/// The body joint a moves: a multi-dof joint's last member's.
+fn moved(model: &Model, a: usize) -> usize {
+    model.group(a).map_or(a, |g| g.end - 1)
+}
+
+/// Whether moving joint k turns joint a's screw: k is an ancestor of a, or a member of
+/// a's multi-dof joint (whose screws are fixed in the body after it).
+fn turns(model: &Model, k: usize, a: usize) -> bool {
+    model.is_ancestor_or_self(k, a) || model.group(a).is_some_and(|g| g.contains(&k))
+}
+
+/// One contact's acceleration rows from its body's spatial velocity V and acceleration A
+/// (world, at the origin) and its frame's origin p: a point's classical acceleration
+/// `A_lin + α × p + ω × (v + ω × p)`, a wrench's spatial acceleration `[A_lin + α × p; α]`.
+fn rows(kind: ContactKind, v: &Vec6, a: &Vec6, p: &Vector3<f64>) -> Vec<f64> {
+    let at_p = lin(a) + ang(a).cross(p);
+    match kind {
+        ContactKind::Point => {
+            let w = ang(v);
+            let vp = lin(v) + w.cross(p);
+            (at_p + w.cross(&vp)).iter().copied().collect()
+        }
+        ContactKind::Wrench => at_p.iter().chain(ang(a).iter()).copied().collect(),
+    }
+}
+
+/// The first-order change of [`rows`] under changes dv, da, dp of its arguments.
+fn d_rows(kind: ContactKind, (v, a, p): (&Vec6, &Vec6, &Vector3<f64>), (dv, da, dp): (&Vec6, &Vec6, &Vector3<f64>)) -> Vec<f64> {
+    let d_at_p = lin(da) + ang(da).cross(p) + ang(a).cross(dp);
+    match kind {
+        ContactKind::Point => {
+            let (w, dw) = (ang(v), ang(dv));
+            let vp = lin(v) + w.cross(p);
+            let dvp = lin(dv) + dw.cross(p) + w.cross(dp);
+            (d_at_p + dw.cross(&vp) + w.cross(&dvp)).iter().copied().collect()
+        }
+        ContactKind::Wrench => d_at_p.iter().chain(ang(da).iter()).copied().collect(),
+    }
+}
+
+/// Each contact's body, its frame's origin in world coordinates, and its kind.
+fn contact_points<'a>(model: &'a Model, contacts: &'a [Contact], sc: &'a Screws) -> impl Iterator<Item = (usize, Vector3<f64>, ContactKind)> + 'a {
+    contacts.iter().map(move |c| {
+        let frame = &model.frames[c.frame];
+        let b = frame.body.expect("contacts are on moving bodies");
+        let (r, p) = sc.poses[b];
+        (b, p + r * frame.placement.pos_vector(), c.kind)
+    })
+}
+
+/// The body's spatial acceleration `Σ S_a q̈_a + (V_a × S_a) q̇_a` over its ancestors.
+fn body_acceleration(model: &Model, sc: &Screws, b: usize, qd: &[f64], qdd: &[f64]) -> Vec6 {
+    model.ancestors(b).into_iter().map(|a| sc.s[a] * qdd[a] + crm(&sc.v[moved(model, a)]) * sc.s[a] * qd[a]).sum()
+}
+
+/// The contacts' constrained accelerations at (q, q̇, q̈), stacked as λ is: `J q̈ + γ`.
+pub fn contact_accelerations(model: &Model, contacts: &[Contact], q: &[f64], qd: &[f64], qdd: &[f64]) -> Vec<f64> {
+    let (qd, qdd) = (expand(model, qd), expand(model, qdd));
+    let sc = Screws::new(model, q, &qd);
+    contact_points(model, contacts, &sc).flat_map(|(b, p, kind)| rows(kind, &sc.v[b], &body_acceleration(model, &sc, b, &qd, &qdd), &p)).collect()
+}
+
+/// `(∂acc/∂q, ∂acc/∂q̇)` of [`contact_accelerations`] at fixed q̈, `nlambda x nv` each, q in
+/// the tangent space.
+pub fn contact_acceleration_derivatives(model: &Model, contacts: &[Contact], q: &[f64], qd: &[f64], qdd: &[f64]) -> (DMatrix<f64>, DMatrix<f64>) {
+    let (qd, qdd) = (expand(model, qd), expand(model, qdd));
+    let sc = Screws::new(model, q, &qd);
+    let n = model.njoints();
+    let points: Vec<_> = contact_points(model, contacts, &sc).collect();
+    let nl: usize = contacts.iter().map(|c| c.kind.dim()).sum();
+    let (mut dq, mut dqd) = (DMatrix::zeros(nl, model.nv()), DMatrix::zeros(nl, model.nv()));
+    for k in 0..n {
+        let (col, m) = (model.coordinate_of(k), model.multiplier(k));
+        // Along δ_k: screws downstream turn by S_k ×, velocities follow.
+        let ds: Vec<Vec6> = (0..n).map(|a| if turns(model, k, a) { crm(&sc.s[k]) * sc.s[a] } else { Vec6::zeros() }).collect();
+        let mut dv = vec![Vec6::zeros(); n];
+        for a in 0..n {
+            dv[a] = model.joints[a].parent.map_or(Vec6::zeros(), |p| dv[p]) + ds[a] * qd[a];
+        }
+        // Along q̇_k: the velocities of k's subtree gain S_k.
+        let dv_qd: Vec<Vec6> = (0..n).map(|a| if model.is_ancestor_or_self(k, a) { sc.s[k] } else { Vec6::zeros() }).collect();
+        let mut at = 0;
+        for &(b, p, kind) in &points {
+            let a_b = body_acceleration(model, &sc, b, &qd, &qdd);
+            let moves = model.is_ancestor_or_self(k, b);
+            let mut da = Vec6::zeros();
+            let mut da_qd = Vec6::zeros();
+            for a in model.ancestors(b) {
+                let e = moved(model, a);
+                da += ds[a] * qdd[a] + (crm(&dv[e]) * sc.s[a] + crm(&sc.v[e]) * ds[a]) * qd[a];
+                da_qd += crm(&dv_qd[e]) * sc.s[a] * qd[a];
+            }
+            if moves {
+                da_qd += crm(&sc.v[moved(model, k)]) * sc.s[k];
+            }
+            let dp = if moves { lin(&sc.s[k]) + ang(&sc.s[k]).cross(&p) } else { Vector3::zeros() };
+            let by_q = d_rows(kind, (&sc.v[b], &a_b, &p), (&dv[b], &da, &dp));
+            let by_qd = d_rows(kind, (&sc.v[b], &a_b, &p), (&dv_qd[b], &da_qd, &Vector3::zeros()));
+            for (r, (x, y)) in by_q.into_iter().zip(by_qd).enumerate() {
+                dq[(at + r, col)] += m * x;
+                dqd[(at + r, col)] += m * y;
+            }
+            at += kind.dim();
+        }
+    }
+    (dq, dqd)
+}
+
+/// The KKT matrix `[M Jᵀ; J 0]`, LU-factorised.
+fn kkt(model: &Model, contacts: &[Contact], q: &[f64]) -> (nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>, DMatrix<f64>) {
+    let (nv, j) = (model.nv(), contact_jacobian(model, contacts, q));
+    let nl = j.nrows();
+    let mut k = DMatrix::zeros(nv + nl, nv + nl);
+    k.view_mut((0, 0), (nv, nv)).copy_from(&crba(model, q));
+    k.view_mut((0, nv), (nv, nl)).copy_from(&j.transpose());
+    k.view_mut((nv, 0), (nl, nv)).copy_from(&j);
+    (k.lu(), j)
+}
+
+/// Rigid-contact forward dynamics under `fext` (the model's external forces, as
+/// [`External::fext`]; empty for none): q̈ and λ with every contact's acceleration zero.
+/// `None` when the KKT system is singular (the contacts' Jacobian loses rank at q).
+pub fn contact_fd(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], fext: &[f64]) -> Option<ContactDynamics> {
+    let contacts = &model.specialisation.contacts;
+    let nv = model.nv();
+    let bias = rnea_with(model, q, qd, &vec![0.0; nv], gravity, External { fext, lambda: &[] });
+    let drift = contact_accelerations(model, contacts, q, qd, &vec![0.0; nv]);
+    let (lu, _) = kkt(model, contacts, q);
+    let rhs = DVector::from_iterator(nv + drift.len(), (0..nv).map(|i| tau[i] - bias[i]).chain(drift.iter().map(|g| -g)));
+    let x = lu.solve(&rhs)?;
+    Some(ContactDynamics { qdd: x.rows(0, nv).iter().copied().collect(), lambda: x.rows(nv, drift.len()).iter().map(|l| -l).collect() })
+}
+
+/// [`contact_fd`] and its derivatives, fext held in the bodies' frames (as Pinocchio's
+/// `computeABADerivatives` holds it).
+pub fn contact_fd_derivatives(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    fext: &[f64],
+) -> Option<(ContactDynamics, ContactDerivatives)> {
+    let contacts = &model.specialisation.contacts;
+    let nv = model.nv();
+    let sol = contact_fd(model, q, qd, tau, gravity, fext)?;
+    let nl = sol.lambda.len();
+    let (dc_dq, dc_dqd) = rnea_derivatives_with(model, q, qd, &sol.qdd, gravity, External { fext, lambda: &sol.lambda });
+    let (da_dq, da_dqd) = contact_acceleration_derivatives(model, contacts, q, qd, &sol.qdd);
+    let (lu, _) = kkt(model, contacts, q);
+    let solve = |top: DMatrix<f64>, bottom: DMatrix<f64>| -> Option<(DMatrix<f64>, DMatrix<f64>)> {
+        let mut rhs = DMatrix::zeros(nv + nl, nv);
+        rhs.rows_mut(0, nv).copy_from(&top);
+        rhs.rows_mut(nv, nl).copy_from(&bottom);
+        let x = lu.solve(&rhs)?;
+        Some((x.rows(0, nv).into_owned(), -x.rows(nv, nl).into_owned()))
+    };
+    let (dqdd_dq, dlambda_dq) = solve(-dc_dq, -da_dq)?;
+    let (dqdd_dqd, dlambda_dqd) = solve(-dc_dqd, -da_dqd)?;
+    let (dqdd_dtau, dlambda_dtau) = solve(DMatrix::identity(nv, nv), DMatrix::zeros(nl, nv))?;
+    Some((sol, ContactDerivatives { dqdd_dq, dqdd_dqd, dqdd_dtau, dlambda_dq, dlambda_dqd, dlambda_dtau }))
+}
+
+/// Whether `contacts` constrain independent motions: the rank of their stacked Jacobian at a
+/// few generic configurations. `Err` holds a smallest set of contacts (indices into
+/// `contacts`) whose Jacobian loses rank at every configuration tried (two wrench contacts
+/// on one body, a point contact on a body that moves in fewer than three directions).
+pub fn check_contact_rank(model: &Model, contacts: &[Contact]) -> Result<(), Vec<usize>> {
+    let full = |set: &[usize]| -> bool {
+        let picked: Vec<Contact> = set.iter().map(|&i| contacts[i]).collect();
+        let rows: usize = picked.iter().map(|c| c.kind.dim()).sum();
+        (0..3).any(|seed| {
+            let j = contact_jacobian(model, &picked, &generic_q(model, seed));
+            let sv = j.singular_values();
+            let top = sv.max();
+            // Generic configurations put independent rows' singular values within a few
+            // orders of magnitude of the largest; 1e-9 leaves rounding (1e-16) far below.
+            top > 0.0 && sv.iter().filter(|&&s| s > 1e-9 * top).count() == rows
+        })
+    };
+    let mut set: Vec<usize> = Vec::new();
+    for i in 0..contacts.len() {
+        set.push(i);
+        if !full(&set) {
+            // Drop every earlier contact that is not needed for the loss of rank.
+            let mut at = 0;
+            while at + 1 < set.len() {
+                let mut fewer = set.clone();
+                fewer.remove(at);
+                if full(&fewer) {
+                    at += 1;
+                } else {
+                    set = fewer;
+                }
+            }
+            return Err(set);
+        }
+    }
+    Ok(())
+}
+
+/// A deterministic configuration with no special angles: each scalar coordinate at an
+/// irrational multiple of its index, quaternions of irrational angles.
+fn generic_q(model: &Model, seed: usize) -> Vec<f64> {
+    let v: Vec<f64> = (0..model.nv()).map(|k| (0.7 + 0.618_033_988_749_895 * (k + 7 * seed + 1) as f64).sin() * 1.3).collect();
+    super::integrate(model, &model.neutral_q(), &v)
+}
