@@ -221,6 +221,7 @@ pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64],
             let d = reference::step_derivatives(model, q, qd, &tau, g, step, &model.actuated());
             vec![col(&d.q_next), col(&d.qd_next), d.a, d.b]
         }
+        KernelKind::ContactFd | KernelKind::ContactFdGrad => reference_outputs_with(kind, model, q, qd, u, g, reference::External::NONE),
         _ => reference_frames(kind, model, q, qd, u).iter().map(|v| col(v)).collect(),
     }
 }
@@ -239,6 +240,14 @@ pub fn reference_outputs_with(kind: KernelKind, m: &Model, q: &[f64], qd: &[f64]
         KernelKind::FdGrad => {
             let (a, b, c) = reference::forward_dynamics_derivatives_with(m, q, qd, u, g, ext);
             vec![col(&a), b, c]
+        }
+        KernelKind::ContactFd | KernelKind::ContactFdGrad => {
+            let (s, d) = reference::contact_fd_derivatives(m, q, qd, u, g, ext.fext).expect("independent contacts");
+            let mut out = vec![col(&s.qdd), col(&s.lambda)];
+            if kind == KernelKind::ContactFdGrad {
+                out.extend([d.dqdd_dq, d.dqdd_dqd, d.dqdd_dtau, d.dlambda_dq, d.dlambda_dqd, d.dlambda_dtau]);
+            }
+            return out;
         }
         _ => unreachable!(),
     };
@@ -350,6 +359,7 @@ pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
         Shape::StateMatrix => DMatrix::from_row_slice(2 * nv, 2 * nv, values),
         Shape::StateInput => DMatrix::from_row_slice(2 * nv, values.len() / (2 * nv).max(1), values),
         Shape::ByFext | Shape::ByLambda => DMatrix::from_row_slice(nv, values.len() / nv.max(1), values),
-        Shape::Vector | Shape::PerFrame(_) | Shape::FrameMatrix(_) | Shape::Config => col(values),
+        Shape::LambdaBy => DMatrix::from_row_slice(values.len() / nv.max(1), nv, values),
+        Shape::Vector | Shape::PerFrame(_) | Shape::FrameMatrix(_) | Shape::Config | Shape::Lambda => col(values),
     }
 }

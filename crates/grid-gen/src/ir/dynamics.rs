@@ -12,12 +12,13 @@ use super::kernel::{Gradient, Solve};
 use super::spatial::{self as sp, joint_xform, subspace, Sv, SymInertia, Xform};
 use crate::model::Model;
 
+mod contact;
 mod coupled;
 mod forces;
 mod frames;
 mod step;
 
-pub(crate) use forces::{transpose, Forces};
+pub(crate) use forces::{transpose, Forces, LambdaSource};
 
 /// Row-major n x n matrix of nodes.
 pub type Mat = Vec<Vec<Id>>;

@@ -43,6 +43,10 @@ pub enum Shape {
     ByFext,
     /// `nv x nlambda`, row-major: a derivative with respect to λ.
     ByLambda,
+    /// The contact forces, nlambda entries (contact by contact, 3 or 6 each).
+    Lambda,
+    /// `nlambda x nv`, row-major: a derivative of λ.
+    LambdaBy,
 }
 
 impl Shape {
@@ -57,7 +61,8 @@ impl Shape {
             Shape::StateMatrix => 4 * d.nv * d.nv,
             Shape::StateInput => 2 * d.nv * d.nu,
             Shape::ByFext => 6 * d.nv * d.nfext,
-            Shape::ByLambda => d.nv * d.nlambda,
+            Shape::ByLambda | Shape::LambdaBy => d.nv * d.nlambda,
+            Shape::Lambda => d.nlambda,
         }
     }
 
@@ -66,7 +71,8 @@ impl Shape {
     pub fn index(self, flat: usize, d: &Dims) -> Vec<usize> {
         let nv = d.nv;
         match self {
-            Shape::Vector | Shape::Config => vec![flat],
+            Shape::Vector | Shape::Config | Shape::Lambda => vec![flat],
+            Shape::LambdaBy => vec![flat / nv.max(1), flat % nv.max(1)],
             Shape::StateMatrix => vec![flat / (2 * nv), flat % (2 * nv)],
             Shape::StateInput => vec![flat / d.nu.max(1), flat % d.nu.max(1)],
             Shape::ByFext => vec![flat / (6 * d.nfext).max(1), flat % (6 * d.nfext).max(1)],
@@ -115,7 +121,7 @@ impl Gradient {
 
     /// Whether a kernel's graph holds the RNEA gradient.
     pub fn applies_to(kind: KernelKind) -> bool {
-        matches!(kind, KernelKind::RneaGrad | KernelKind::FdGrad | KernelKind::StepGrad)
+        matches!(kind, KernelKind::RneaGrad | KernelKind::FdGrad | KernelKind::StepGrad | KernelKind::ContactFdGrad)
     }
 }
 
@@ -180,13 +186,16 @@ pub enum KernelKind {
     FrameAccelerationGrad,
     Step,
     StepGrad,
+    ContactFd,
+    ContactFdGrad,
 }
 
 impl KernelKind {
     /// Every kernel, in the order backends emit them. The frame kernels exist only for a
     /// model with requested frames ([`KernelKind::is_frame`]), the step kernels only for one
-    /// with a step ([`KernelKind::is_step`]).
-    pub const ALL: [KernelKind; 13] = [
+    /// with a step ([`KernelKind::is_step`]), the contact kernels only for one with
+    /// contacts ([`KernelKind::is_contact`]).
+    pub const ALL: [KernelKind; 15] = [
         KernelKind::Rnea,
         KernelKind::RneaGrad,
         KernelKind::MassMatrix,
@@ -200,6 +209,8 @@ impl KernelKind {
         KernelKind::FrameAccelerationGrad,
         KernelKind::Step,
         KernelKind::StepGrad,
+        KernelKind::ContactFd,
+        KernelKind::ContactFdGrad,
     ];
 
     /// The dynamics kernels, those every robot has.
@@ -213,9 +224,14 @@ impl KernelKind {
     }
 
     /// Whether a model so specialised has this kernel: the frame kernels need frames, the
-    /// step kernels a step.
+    /// step kernels a step, the contact kernels contacts.
     pub fn exists_for(self, spec: &crate::model::Specialisation) -> bool {
-        (!self.is_frame() || !spec.frames.is_empty()) && (!self.is_step() || spec.step.is_some())
+        (!self.is_frame() || !spec.frames.is_empty()) && (!self.is_step() || spec.step.is_some()) && (!self.is_contact() || !spec.contacts.is_empty())
+    }
+
+    /// Whether the kernel solves rigid-contact dynamics (and so exists only with contacts).
+    pub fn is_contact(self) -> bool {
+        matches!(self, KernelKind::ContactFd | KernelKind::ContactFdGrad)
     }
 
     /// Whether the kernel takes a discrete step (and so exists only when one is asked for).
@@ -225,7 +241,7 @@ impl KernelKind {
 
     /// Whether the kernel's graph holds `fd_grad`'s (and so its choice of solve).
     pub fn holds_fd_grad(self) -> bool {
-        matches!(self, KernelKind::FdGrad | KernelKind::StepGrad)
+        matches!(self, KernelKind::FdGrad | KernelKind::StepGrad | KernelKind::ContactFd | KernelKind::ContactFdGrad)
     }
 
     /// Whether the kernel computes frame quantities (and so exists only when frames are asked for).
@@ -256,6 +272,8 @@ impl KernelKind {
             KernelKind::FrameAccelerationGrad => "frame_acceleration_grad",
             KernelKind::Step => "step",
             KernelKind::StepGrad => "step_grad",
+            KernelKind::ContactFd => "contact_fd",
+            KernelKind::ContactFdGrad => "contact_fd_grad",
         }
     }
 
@@ -273,6 +291,7 @@ impl KernelKind {
             KernelKind::FrameVelocity => &[Q, Qd],
             KernelKind::FrameAcceleration | KernelKind::FrameAccelerationGrad => &[Q, Qd, Qdd],
             KernelKind::Step | KernelKind::StepGrad => &[Q, Qd, TauActuated],
+            KernelKind::ContactFd | KernelKind::ContactFdGrad => &[Q, Qd, Tau],
         }
     }
 
@@ -304,6 +323,17 @@ impl KernelKind {
                 OutputSpec { name: "a", shape: StateMatrix },
                 OutputSpec { name: "b", shape: StateInput },
             ],
+            KernelKind::ContactFd => &[OutputSpec { name: "qdd", shape: Vector }, OutputSpec { name: "lambda", shape: Lambda }],
+            KernelKind::ContactFdGrad => &[
+                OutputSpec { name: "qdd", shape: Vector },
+                OutputSpec { name: "lambda", shape: Lambda },
+                OutputSpec { name: "dqdd_dq", shape: Matrix },
+                OutputSpec { name: "dqdd_dqd", shape: Matrix },
+                OutputSpec { name: "dqdd_dtau", shape: Matrix },
+                OutputSpec { name: "dlambda_dq", shape: LambdaBy },
+                OutputSpec { name: "dlambda_dqd", shape: LambdaBy },
+                OutputSpec { name: "dlambda_dtau", shape: LambdaBy },
+            ],
         }
     }
 
@@ -330,9 +360,10 @@ impl KernelKind {
         out
     }
 
-    /// Whether the kernel takes the external and contact forces a model declares.
+    /// Whether the kernel takes the external and contact forces a model declares (the
+    /// contact kernels take `fext` and solve for λ).
     pub fn takes_forces(self) -> bool {
-        matches!(self, KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::Fd | KernelKind::FdGrad)
+        matches!(self, KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::Fd | KernelKind::FdGrad) || self.is_contact()
     }
 
     /// The inputs of the kernel of a model so specialised: [`Self::inputs`], then `fext`
@@ -341,7 +372,7 @@ impl KernelKind {
         let mut inputs = self.inputs().to_vec();
         if self.takes_forces() {
             inputs.extend((!spec.fext.is_empty()).then_some(Input::Fext));
-            inputs.extend((!spec.contacts.is_empty()).then_some(Input::Lambda));
+            inputs.extend((!spec.contacts.is_empty() && !self.is_contact()).then_some(Input::Lambda));
         }
         inputs
     }
@@ -362,6 +393,8 @@ impl KernelKind {
             KernelKind::FrameAccelerationGrad => "The classical acceleration's derivatives `(dacc/dq, dacc/dqd, dacc/dqdd)`, 3 x nv per frame, row-major, `dq` in the tangent space (forward-mode differentiation of `frame_acceleration`'s graph).",
             KernelKind::Step => "One step of `STEP_SCHEME` over `DT` seconds from `(q, qd)` under the actuated joints' forces `tau` (`ACTUATED`): `(q_next, qd_next)`, q on the manifold (Pinocchio's `integrate`).",
             KernelKind::StepGrad => "The step and its linearisation: `(q_next, qd_next, A, B)`, A = d(q_next, qd_next)/d(q, qd) (2NV x 2NV), B = d(q_next, qd_next)/d tau (2NV x NU), row-major, rows and columns `[dq; dqd]` in the tangent space (Pinocchio's `dIntegrate`).",
+            KernelKind::ContactFd => "Rigid-contact forward dynamics `(qdd, lambda)`: every contact of `CONTACTS` held (a point's classical acceleration, a wrench's spatial acceleration, zero in world axes at the frame), lambda the contacts' forces in world axes at their frames (Pinocchio's `constraintDynamics` with `CONTACT_3D` / `CONTACT_6D` in `LOCAL_WORLD_ALIGNED`, `lambda_c`), through the contact Schur complement `J M^-1 J^T`.",
+            KernelKind::ContactFdGrad => "Rigid-contact forward dynamics and its derivatives `(qdd, lambda, dqdd/dq, dqdd/dqd, dqdd/dtau, dlambda/dq, dlambda/dqd, dlambda/dtau)`, q in the tangent space (Pinocchio's `computeConstraintDynamicsDerivatives`); fext, if any, held in the bodies' frames.",
         }
     }
 
@@ -382,12 +415,14 @@ impl KernelKind {
             KernelKind::FrameAccelerationGrad => "its derivatives, 3 x nv per frame.",
             KernelKind::Step => "one step of `STEP_SCHEME` over `DT` seconds, q on the manifold.",
             KernelKind::StepGrad => "the step and its linearisation `[A | B]` in the tangent space.",
+            KernelKind::ContactFd => "rigid-contact forward dynamics: qdd and the contact forces lambda.",
+            KernelKind::ContactFdGrad => "their derivatives with respect to q, qd and tau.",
         }
     }
 
     /// Whether the kernel needs M⁻¹, so cannot exist for a robot whose M is singular.
     pub fn needs_minv(self) -> bool {
-        matches!(self, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad | KernelKind::Step | KernelKind::StepGrad)
+        matches!(self, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad | KernelKind::Step | KernelKind::StepGrad) || self.is_contact()
     }
 
     /// Kernels whose graph contains this one's (a superset of its work): if this kernel is
@@ -395,14 +430,15 @@ impl KernelKind {
     pub fn contained_in(self) -> &'static [KernelKind] {
         use KernelKind::*;
         match self {
-            Rnea => &[RneaGrad, Fd, FdGrad, Step, StepGrad],
-            RneaGrad => &[FdGrad, StepGrad],
+            Rnea => &[RneaGrad, Fd, FdGrad, Step, StepGrad, ContactFd, ContactFdGrad],
+            RneaGrad => &[FdGrad, StepGrad, ContactFdGrad],
             MassMatrix => &[],
-            Minv => &[Fd, FdGrad, Step, StepGrad],
-            Fd => &[FdGrad, Step, StepGrad],
-            FdGrad => &[StepGrad],
+            Minv => &[Fd, FdGrad, Step, StepGrad, ContactFd, ContactFdGrad],
+            Fd => &[FdGrad, Step, StepGrad, ContactFd, ContactFdGrad],
+            FdGrad => &[StepGrad, ContactFdGrad],
             Step => &[StepGrad],
-            StepGrad | FramePlacement | FrameJacobian | FrameVelocity | FrameAcceleration | FrameAccelerationGrad => &[],
+            ContactFd => &[ContactFdGrad],
+            StepGrad | FramePlacement | FrameJacobian | FrameVelocity | FrameAcceleration | FrameAccelerationGrad | ContactFdGrad => &[],
         }
     }
 
@@ -415,7 +451,7 @@ impl KernelKind {
         // Inputs and outputs are per coordinate; the recursions run per joint. `expand`
         // and `reduce` map between the two (the identity unless mimic joints are coupled).
         if self.takes_forces() {
-            d.load_forces();
+            d.load_forces(if self.is_contact() { super::dynamics::LambdaSource::Unknown } else { super::dynamics::LambdaSource::Inputs });
         }
         match self {
             KernelKind::Rnea => {
@@ -494,6 +530,15 @@ impl KernelKind {
                     let (q, v, a, b) = d.step_grad(&qd, &tau, step.scheme, step.dt);
                     vec![q, v, a, b]
                 }
+            }
+            KernelKind::ContactFd => {
+                let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
+                let c = d.contact_fd(&qd, &tau);
+                vec![c.qdd, c.lambda]
+            }
+            KernelKind::ContactFdGrad => {
+                let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
+                d.contact_fd_grad(&qd, &tau).into_iter().map(|x| x.into_iter().flatten().collect()).collect()
             }
         }
     }

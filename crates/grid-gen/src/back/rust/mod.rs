@@ -162,6 +162,8 @@ pub(super) fn array_of(shape: Shape, t: &str) -> String {
         Shape::StateInput => format!("[[{t}; NU]; NX]"),
         Shape::ByFext => format!("[[{t}; 6 * NFEXT]; NV]"),
         Shape::ByLambda => format!("[[{t}; NLAMBDA]; NV]"),
+        Shape::Lambda => format!("[{t}; NLAMBDA]"),
+        Shape::LambdaBy => format!("[[{t}; NV]; NLAMBDA]"),
     }
 }
 

@@ -10,6 +10,18 @@ use super::super::spatial::{self as sp, k, Sv, V3};
 use super::{Dynamics, Mat};
 use crate::model::ContactKind;
 
+/// Where the contact forces λ come from.
+#[derive(Clone, Debug)]
+pub(crate) enum LambdaSource {
+    /// The kernel's `lambda` input.
+    Inputs,
+    /// Not known yet (the contact kernels solve for them): the contacts' geometry is
+    /// recorded, their forces are not applied.
+    Unknown,
+    /// These nodes, 3 or 6 per contact.
+    Nodes(Vec<Id>),
+}
+
 /// The forces a kernel takes, once read from its inputs.
 #[derive(Clone, Debug, Default)]
 pub(crate) struct Forces {
@@ -49,11 +61,11 @@ impl Dynamics<'_> {
         !self.model.specialisation.contacts.is_empty()
     }
 
-    /// Reads the model's `fext` and `lambda` inputs into per-body forces (nothing when the
-    /// model declares neither): fext is Pinocchio's `[linear; angular]` in the joint's
-    /// frame; λ is in world axes at the contact frame's origin p, so its body sees
-    /// `[p × Rᵀf + Rᵀτ; Rᵀf]`, R the body's world rotation.
-    pub fn load_forces(&mut self) {
+    /// Reads the model's `fext` input and the contact forces λ (from `lambda`) into
+    /// per-body forces (nothing when the model declares neither): fext is Pinocchio's
+    /// `[linear; angular]` in the joint's frame; λ is in world axes at the contact frame's
+    /// origin p, so its body sees `[p × Rᵀf + Rᵀτ; Rᵀf]`, R the body's world rotation.
+    pub fn load_forces(&mut self, lambda: LambdaSource) {
         let spec = &self.model.specialisation;
         if spec.fext.is_empty() && spec.contacts.is_empty() {
             return;
@@ -79,11 +91,18 @@ impl Dynamics<'_> {
                 let b = frame.body.expect("contacts are on moving bodies");
                 self.at(b, super::Stage::Forward);
                 let g = &mut self.g;
-                let lambda: Vec<Id> = (0..c.kind.dim()).map(|i| g.input(Input::Lambda, at + i)).collect();
+                let here: Option<Vec<Id>> = match &lambda {
+                    LambdaSource::Inputs => Some((0..c.kind.dim()).map(|i| g.input(Input::Lambda, at + i)).collect()),
+                    LambdaSource::Unknown => None,
+                    LambdaSource::Nodes(l) => Some(l[at..at + c.kind.dim()].to_vec()),
+                };
                 at += c.kind.dim();
                 let rotation = poses[b].0;
                 let point: V3 = std::array::from_fn(|i| k(g, frame.placement.pos[i]));
-                let force = contact_force(g, &rotation, &point, c.kind, &lambda);
+                let force = match &here {
+                    Some(l) => contact_force(g, &rotation, &point, c.kind, l),
+                    None => sp::zero(g),
+                };
                 let axes = self
                     .model
                     .ancestors(b)
@@ -94,7 +113,9 @@ impl Dynamics<'_> {
                         (u, sp::mat_vec(g, &poses[u].0, &axis))
                     })
                     .collect();
-                add(&mut forces, g, b, force);
+                if here.is_some() {
+                    add(&mut forces, g, b, force);
+                }
                 forces.contacts.push(ContactForce { body: b, kind: c.kind, rotation, point, force, axes });
             }
         }
@@ -144,6 +165,11 @@ impl Dynamics<'_> {
     /// contact (J_c its frame's `LOCAL_WORLD_ALIGNED` Jacobian, the linear rows for a point).
     /// No fext columns unless [`Self::wants_fext_grads`].
     pub fn force_grad_columns(&mut self) -> (Vec<Vec<Id>>, Vec<Vec<Id>>) {
+        (self.fext_columns(), self.lambda_columns())
+    }
+
+    /// The columns of `∂c/∂fext` (see [`Self::force_grad_columns`]).
+    fn fext_columns(&mut self) -> Vec<Vec<Id>> {
         let bodies = if self.wants_fext_grads() { self.model.specialisation.fext.clone() } else { Vec::new() };
         let mut by_fext: Vec<Vec<Id>> = Vec::new();
         for b in bodies {
@@ -155,6 +181,11 @@ impl Dynamics<'_> {
                 by_fext.push(self.reduce(&col));
             }
         }
+        by_fext
+    }
+
+    /// The columns of `∂c/∂λ = −J_cᵀ`, per coordinate (see [`Self::force_grad_columns`]).
+    pub(super) fn lambda_columns(&mut self) -> Vec<Vec<Id>> {
         let mut by_lambda: Vec<Vec<Id>> = Vec::new();
         for c in self.forces.contacts.clone() {
             for i in 0..c.kind.dim() {
@@ -167,7 +198,7 @@ impl Dynamics<'_> {
                 by_lambda.push(self.reduce(&col));
             }
         }
-        (by_fext, by_lambda)
+        by_lambda
     }
 }
 

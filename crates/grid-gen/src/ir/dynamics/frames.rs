@@ -150,7 +150,7 @@ impl Dynamics<'_> {
 
     /// The bodies' velocities and accelerations without gravity (RNEA's forward pass at
     /// a₀ = 0), per model joint.
-    fn motion(&mut self, qd: &[Id], qdd: &[Id]) -> (Vec<Sv>, Vec<Sv>) {
+    pub(super) fn motion(&mut self, qd: &[Id], qdd: &[Id]) -> (Vec<Sv>, Vec<Sv>) {
         let gravity = std::mem::replace(&mut self.gravity, [0.0; 3]);
         let r = self.rnea(qd, qdd);
         self.gravity = gravity;
@@ -159,7 +159,7 @@ impl Dynamics<'_> {
 
     /// A body's motion `m` ([angular; linear], body axes) at the point `at` (body axes):
     /// `(linear, angular)`, the linear part `m.lin + m.ang × at`.
-    fn at_point(g: &mut Graph, m: &Sv, at: &V3) -> (V3, V3) {
+    pub(super) fn at_point(g: &mut Graph, m: &Sv, at: &V3) -> (V3, V3) {
         let w = ang(m);
         let c = sp::cross(g, &w, at);
         (sp::add3(g, &lin(m), &c), w)

@@ -1,0 +1,268 @@
+//! Rigid-contact forward dynamics and its derivatives, recorded symbolically, as
+//! Pinocchio's `constraintDynamics` and `computeConstraintDynamicsDerivatives` (contacts in
+//! `LOCAL_WORLD_ALIGNED`, no Baumgarte correction). The KKT system is solved through the
+//! tree and a small contact Schur complement, never as one dense system:
+//!
+//! - the free acceleration `a₀ = M⁻¹ (τ − c)` (ABA, or M's factorisation),
+//! - `G = M⁻¹ Jᵀ`, one solve per contact row by the route `fd_grad` takes,
+//! - `K = J G` (nλ x nλ, symmetric positive definite for independent contacts), LDLᵀ,
+//! - `λ = −K⁻¹ (J a₀ + γ)`, with `J a₀ + γ` the contacts' acceleration at q̈ = a₀,
+//! - `q̈ = a₀ + G λ`.
+//!
+//! Differentiating `M q̈ + c − τ − Jᵀλ = 0` and `acc(q, q̇, q̈) = 0` (Carpentier & Budhiraja,
+//! "Analytical derivatives of rigid body dynamics with constraints", 2021): with
+//! `F_u = ∂q̈/∂u` at fixed λ (held in world axes, `fd_grad`'s with the contacts' forces as
+//! inputs) and `A_u = ∂acc/∂u` at fixed q̈ (forward-mode over the acceleration's graph),
+//! `∂λ/∂u = −K⁻¹ (J F_u + A_u)` and `∂q̈/∂u = F_u + G ∂λ/∂u`; for τ, `F_τ = M⁻¹`,
+//! `A_τ = 0`, so `J F_τ = Gᵀ`.
+
+use super::super::graph::{Graph, Id, Input, Stage};
+use super::super::kernel::Solve;
+use super::super::spatial::{self as sp, k, V3};
+use super::{Dynamics, LambdaSource, Mat};
+use crate::model::ContactKind;
+
+/// `K = L D Lᵀ`, dense: L strictly below the diagonal, and 1/D.
+struct Ldl {
+    l: Mat,
+    dinv: Vec<Id>,
+}
+
+impl Ldl {
+    /// Factorises the symmetric `k` (only its lower triangle is read).
+    fn new(g: &mut Graph, k: &Mat) -> Self {
+        let n = k.len();
+        let zero = g.constant(0.0);
+        let one = g.constant(1.0);
+        // w[i][j] = L_ij D_j, kept so that each update is one multiplication.
+        let (mut l, mut w, mut dinv) = (vec![vec![zero; n]; n], vec![vec![zero; n]; n], vec![zero; n]);
+        for j in 0..n {
+            let mut d = k[j][j];
+            for p in 0..j {
+                let t = g.mul(l[j][p], w[j][p]);
+                d = g.sub(d, t);
+            }
+            dinv[j] = g.div(one, d);
+            for i in j + 1..n {
+                let mut x = k[i][j];
+                for p in 0..j {
+                    let t = g.mul(l[i][p], w[j][p]);
+                    x = g.sub(x, t);
+                }
+                w[i][j] = x;
+                l[i][j] = g.mul(x, dinv[j]);
+            }
+        }
+        Ldl { l, dinv }
+    }
+
+    /// `K⁻¹ b`.
+    fn solve(&self, g: &mut Graph, mut b: Vec<Id>) -> Vec<Id> {
+        let n = b.len();
+        for i in 0..n {
+            for p in 0..i {
+                let t = g.mul(self.l[i][p], b[p]);
+                b[i] = g.sub(b[i], t);
+            }
+        }
+        for i in 0..n {
+            b[i] = g.mul(b[i], self.dinv[i]);
+        }
+        for i in (0..n).rev() {
+            for p in i + 1..n {
+                let t = g.mul(self.l[p][i], b[p]);
+                b[i] = g.sub(b[i], t);
+            }
+        }
+        b
+    }
+}
+
+/// What [`Dynamics::contact_fd`] leaves for the gradient.
+pub(crate) struct ContactSolution {
+    pub qdd: Vec<Id>,
+    pub lambda: Vec<Id>,
+    /// `−Jᵀ`, one column (nv entries) per entry of λ.
+    neg_jt: Vec<Vec<Id>>,
+    /// `G = M⁻¹ Jᵀ`, one column per entry of λ.
+    g: Vec<Vec<Id>>,
+    k: Ldl,
+}
+
+impl Dynamics<'_> {
+    /// `−M⁻¹ b` per coordinate for each b, by the route [`Self::fd_grad`] takes for its
+    /// right-hand sides (so that the two share their nodes).
+    fn neg_minv_times(&mut self, rhs: &[Vec<Id>]) -> Vec<Vec<Id>> {
+        if matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled() {
+            let m = self.mass_matrix();
+            let f = self.ltdl(m);
+            return rhs.iter().map(|b| f.solve(&mut self.g, self.model, b.clone())).collect();
+        }
+        let mi = self.minv_coordinates();
+        self.g.at(None, Stage::Combine, 0);
+        rhs.iter()
+            .map(|b| {
+                (0..mi.len())
+                    .map(|i| {
+                        let d = self.g.dot(&mi[i], b);
+                        self.g.neg(d)
+                    })
+                    .collect()
+            })
+            .collect()
+    }
+
+    /// The contacts' constrained accelerations at per-joint q̇, q̈, stacked as λ: a point's
+    /// classical acceleration `R_b (a + ω × v)` at its frame's origin, a wrench's spatial
+    /// acceleration `[R_b a; R_b α]` there (world axes, as Pinocchio's `LOCAL_WORLD_ALIGNED`).
+    fn contact_accelerations(&mut self, qd: &[Id], qdd: &[Id]) -> Vec<Id> {
+        let (v, a) = self.motion(qd, qdd);
+        let poses = self.world_poses();
+        let mut out = Vec::new();
+        for c in self.model.specialisation.contacts.clone() {
+            let frame = &self.model.frames[c.frame];
+            let b = frame.body.expect("contacts are on moving bodies");
+            self.at(b, Stage::Forward);
+            let g = &mut self.g;
+            let p: V3 = std::array::from_fn(|i| k(g, frame.placement.pos[i]));
+            let r = poses[b].0;
+            let (al, alpha) = Self::at_point(g, &a[b], &p);
+            match c.kind {
+                ContactKind::Point => {
+                    let (vl, w) = Self::at_point(g, &v[b], &p);
+                    let wv = sp::cross(g, &w, &vl);
+                    let acc = sp::add3(g, &al, &wv);
+                    out.extend(sp::mat_vec(g, &r, &acc));
+                }
+                ContactKind::Wrench => {
+                    out.extend(sp::mat_vec(g, &r, &al));
+                    out.extend(sp::mat_vec(g, &r, &alpha));
+                }
+            }
+        }
+        out
+    }
+
+    /// The free acceleration `a₀ = M⁻¹ (τ − c(q, q̇, 0))` (fext included, no contact force):
+    /// by M's factorisation when the solve is [`Solve::Crba`], by ABA otherwise.
+    fn free_acceleration(&mut self, qd: &[Id], tau: &[Id]) -> Vec<Id> {
+        if self.solve == Solve::Crba && !self.coupled() {
+            let zero = self.g.constant(0.0);
+            let bias = self.rnea(qd, &vec![zero; qd.len()]).c;
+            let m = self.mass_matrix();
+            let f = self.ltdl(m);
+            self.g.at(None, Stage::Combine, 0);
+            let b: Vec<Id> = (0..qd.len()).map(|i| self.g.sub(bias[i], tau[i])).collect();
+            return f.solve(&mut self.g, self.model, b);
+        }
+        self.fd(qd, tau)
+    }
+
+    /// Rigid-contact forward dynamics: q̈ and λ (see the module's documentation). The
+    /// kernel's forces must be loaded with [`LambdaSource::Unknown`].
+    pub fn contact_fd(&mut self, qd: &[Id], tau: &[Id]) -> ContactSolution {
+        let a0 = self.free_acceleration(qd, tau);
+        let neg_jt = self.lambda_columns();
+        let g_cols: Vec<Vec<Id>> = self.neg_minv_times(&neg_jt);
+        let (xqd, xa0) = (self.expand(qd), self.expand(&a0));
+        let bias = self.contact_accelerations(&xqd, &xa0);
+        self.g.at(None, Stage::Combine, 0);
+        let nl = neg_jt.len();
+        let g = &mut self.g;
+        let zero = g.constant(0.0);
+        // K = J G = −(−Jᵀ)ᵀ G, its lower triangle.
+        let mut kmat = vec![vec![zero; nl]; nl];
+        for r in 0..nl {
+            for s in 0..=r {
+                let d = g.dot(&neg_jt[r], &g_cols[s]);
+                kmat[r][s] = g.neg(d);
+                kmat[s][r] = kmat[r][s];
+            }
+        }
+        let k = Ldl::new(g, &kmat);
+        let x = k.solve(g, bias);
+        let lambda: Vec<Id> = x.into_iter().map(|x| g.neg(x)).collect();
+        let qdd = (0..a0.len())
+            .map(|i| {
+                let col: Vec<Id> = g_cols.iter().map(|c| c[i]).collect();
+                let t = g.dot(&col, &lambda);
+                g.add(a0[i], t)
+            })
+            .collect();
+        ContactSolution { qdd, lambda, neg_jt, g: g_cols, k }
+    }
+
+    /// [`Self::contact_fd`] and its derivatives: `(q̈, λ, ∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ, ∂λ/∂q,
+    /// ∂λ/∂q̇, ∂λ/∂τ)`, each as rows (one row for the vectors).
+    pub fn contact_fd_grad(&mut self, qd: &[Id], tau: &[Id]) -> Vec<Mat> {
+        let sol = self.contact_fd(qd, tau);
+        let (nv, nl) = (qd.len(), sol.lambda.len());
+        // ∂q̈/∂u at fixed λ: fd_grad with the solved forces as the contacts' forces; its
+        // q̈ is sol.qdd by ABA (or the factorisation) under them, so its RNEA gradient is
+        // taken at the same point.
+        self.load_forces(LambdaSource::Nodes(sol.lambda.clone()));
+        let all: Vec<usize> = (0..nv).collect();
+        let (_, fq, fqd, minv, _) = self.fd_grad(qd, tau, &all, &[]);
+        // The dense-product annotation describes fd_grad's outputs, not these.
+        self.product = None;
+        // ∂acc/∂u at fixed q̈, by forward-mode over the acceleration's graph with the q̈
+        // nodes held.
+        let (xqd, xqdd) = (self.expand(qd), self.expand(&sol.qdd));
+        let acc = self.contact_accelerations(&xqd, &xqdd);
+        let zero = self.g.constant(0.0);
+        let held: Vec<(Id, Id)> = xqdd.iter().map(|&x| (x, zero)).collect();
+        let (mut aq, mut aqd) = (Vec::with_capacity(nv), Vec::with_capacity(nv));
+        for c in 0..nv {
+            if self.exhausted() {
+                break;
+            }
+            let seeds = self.q_seeds(c);
+            aq.push(self.g.tangent_at(&acc, &seeds, &held));
+            let one = self.g.constant(1.0);
+            aqd.push(self.g.tangent_at(&acc, &[(Input::Qd, c, one)], &held));
+        }
+        self.g.at(None, Stage::Combine, 0);
+        if self.exhausted() {
+            let z = vec![vec![zero; nv]; nv];
+            let zl = vec![vec![zero; nv]; nl];
+            return vec![vec![sol.qdd], vec![sol.lambda], z.clone(), z.clone(), z, zl.clone(), zl.clone(), zl];
+        }
+        let g = &mut self.g;
+        // Per column c of u: dλ = −K⁻¹ (J F e_c + A e_c), dq̈ = F e_c + G dλ; for τ,
+        // J F e_c = J M⁻¹ e_c is row c of G.
+        let (mut outs_q, mut outs_l): (Vec<Mat>, Vec<Mat>) = (Vec::new(), Vec::new());
+        for which in 0..3 {
+            let (mut dq_cols, mut dl_cols) = (Vec::with_capacity(nv), Vec::with_capacity(nv));
+            for c in 0..nv {
+                let f: Vec<Id> = (0..nv).map(|i| [&fq, &fqd, &minv][which][i][c]).collect();
+                let rhs: Vec<Id> = (0..nl)
+                    .map(|r| match which {
+                        2 => sol.g[r][c],
+                        _ => {
+                            let d = g.dot(&sol.neg_jt[r], &f);
+                            let a = if which == 0 { aq[c][r] } else { aqd[c][r] };
+                            g.sub(a, d)
+                        }
+                    })
+                    .collect();
+                let x = sol.k.solve(g, rhs);
+                let dl: Vec<Id> = x.into_iter().map(|x| g.neg(x)).collect();
+                let dq: Vec<Id> = (0..nv)
+                    .map(|i| {
+                        let row: Vec<Id> = sol.g.iter().map(|col| col[i]).collect();
+                        let t = g.dot(&row, &dl);
+                        g.add(f[i], t)
+                    })
+                    .collect();
+                dq_cols.push(dq);
+                dl_cols.push(dl);
+            }
+            outs_q.push(super::transpose(dq_cols, nv));
+            outs_l.push(super::transpose(dl_cols, nl));
+        }
+        let mut out = vec![vec![sol.qdd], vec![sol.lambda]];
+        out.extend(outs_q);
+        out.extend(outs_l);
+        out
+    }
+}
