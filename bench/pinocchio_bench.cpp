@@ -11,6 +11,10 @@
 // user of Pinocchio writes it (computeABADerivatives, integrate, dIntegrate twice and the products,
 // every joint but a free-flyer actuated), beside computeABADerivatives alone:
 // {"robot": ..., "step_grad_ns": ..., "aba_derivatives_ns": ...}.
+// An argument `contact@MODEL:LINK,...` times rigid-contact dynamics with a CONTACT_3D constraint
+// at each of those BODY frames in LOCAL_WORLD_ALIGNED: constraintDynamics, and constraintDynamics
+// followed by computeConstraintDynamicsDerivatives (what `contact_fd_grad` returns):
+// {"robot": ..., "contacts": ..., "contact_fd_ns": ..., "contact_fd_grad_ns": ...}.
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -19,6 +23,8 @@
 
 #include "pinocchio/algorithm/aba-derivatives.hpp"
 #include "pinocchio/algorithm/aba.hpp"
+#include "pinocchio/algorithm/constrained-dynamics-derivatives.hpp"
+#include "pinocchio/algorithm/constrained-dynamics.hpp"
 #include "pinocchio/algorithm/frames.hpp"
 #include "pinocchio/algorithm/jacobian.hpp"
 #include "pinocchio/algorithm/joint-configuration.hpp"
@@ -48,6 +54,11 @@ int main(int argc, char** argv) {
   for (int a = 1; a < argc; ++a) {
     std::string arg(argv[a]);
     double dt = 0.0;
+    bool contact = false;
+    if (arg.rfind("contact@", 0) == 0) {
+      contact = true;
+      arg = arg.substr(8);
+    }
     if (arg.rfind("step=", 0) == 0) {
       dt = std::stod(arg.substr(5, arg.find('@') - 5));
       arg = arg.substr(arg.find('@') + 1);
@@ -106,6 +117,31 @@ int main(int argc, char** argv) {
           iters, rounds);
       double ad = time_ns([&](int i) { pinocchio::computeABADerivatives(model, data, q[i % K], v[i % K], tau[i % K]); }, iters, rounds);
       std::printf("{\"robot\": \"%s\", \"dt\": %g, \"step_grad_ns\": %.1f, \"aba_derivatives_ns\": %.1f, \"sink\": %g}\n", path.c_str(), dt, step, ad, sink);
+      continue;
+    }
+    if (contact) {
+      typedef pinocchio::RigidConstraintModel Cm;
+      typedef pinocchio::RigidConstraintData Cd;
+      PINOCCHIO_STD_VECTOR_WITH_EIGEN_ALLOCATOR(Cm) cms;
+      PINOCCHIO_STD_VECTOR_WITH_EIGEN_ALLOCATOR(Cd) cds;
+      for (auto& n : names) {
+        const auto& frame = model.frames[model.getFrameId(n, pinocchio::BODY)];
+        cms.push_back(Cm(pinocchio::CONTACT_3D, model, frame.parentJoint, frame.placement, pinocchio::LOCAL_WORLD_ALIGNED));
+      }
+      for (auto& cm : cms) cds.push_back(Cd(cm));
+      pinocchio::initConstraintDynamics(model, data, cms, cds);
+      double sink = 0.0;
+      double fd = time_ns(
+          [&](int i) { sink += pinocchio::constraintDynamics(model, data, q[i % K], v[i % K], tau[i % K], cms, cds)[0]; }, iters, rounds);
+      double grad = time_ns(
+          [&](int i) {
+            pinocchio::constraintDynamics(model, data, q[i % K], v[i % K], tau[i % K], cms, cds);
+            pinocchio::computeConstraintDynamicsDerivatives(model, data, cms, cds);
+            sink += data.ddq_dq(0, 0) + data.dlambda_dq(0, 0);
+          },
+          iters, rounds);
+      std::printf("{\"robot\": \"%s\", \"contacts\": %zu, \"contact_fd_ns\": %.1f, \"contact_fd_grad_ns\": %.1f, \"sink\": %g}\n", path.c_str(), cms.size(), fd,
+                  grad, sink);
       continue;
     }
     if (!names.empty()) {

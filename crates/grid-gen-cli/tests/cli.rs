@@ -785,6 +785,21 @@ fn eval_and_info_report_forces() {
     let want = grid_gen::reference::rnea_with(&model, &parse(q), &parse(qd), &parse(u), grid_gen::model::DEFAULT_GRAVITY, ext);
     let got: Vec<f64> = s["rnea"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
     assert!(got.iter().zip(&want).all(|(a, b)| (a - b).abs() <= 1e-12 * b.abs().max(1.0)), "{got:?} against {want:?}");
+    // Rigid-contact dynamics: the reference's, under the state's fext, its λ and q̈
+    // consistent with fd under those forces.
+    let c = &s["contact_fd"];
+    let floats = |v: &serde_json::Value| -> Vec<f64> { v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect() };
+    let fext = [1.0, 2.0, 3.0, 0.1, 0.2, 0.3];
+    let (sol, _) = grid_gen::reference::contact_fd_derivatives(&model, &parse(q), &parse(qd), &parse(u), grid_gen::model::DEFAULT_GRAVITY, &fext).unwrap();
+    assert_eq!(floats(&c["qdd"]), sol.qdd);
+    let lambda: Vec<f64> = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"].iter().flat_map(|f| floats(&c["lambda"][f])).collect();
+    assert_eq!(lambda, sol.lambda);
+    let ext = grid_gen::reference::External { fext: &fext, lambda: &lambda };
+    let fd = grid_gen::reference::aba_with(&model, &parse(q), &parse(qd), &parse(u), grid_gen::model::DEFAULT_GRAVITY, ext);
+    assert!(fd.iter().zip(&sol.qdd).all(|(a, b)| (a - b).abs() <= 1e-9 * b.abs().max(1.0)), "fd under the solved forces is contact_fd's qdd");
+    assert_eq!(c["dlambda_dq"]["lf_lowerleg"].as_array().unwrap().len(), 3, "a point contact's three rows");
+    assert_eq!(c["dlambda_dtau"]["lf_lowerleg"][0].as_array().unwrap().len(), 18, "nv columns");
+    assert_eq!(c["dqdd_dtau"].as_array().unwrap().len(), 18);
     let bad_cases = [
         (r#""fext": {"lf_knee": [1, 2, 3, 0, 0, 0]}"#, "`fext` names `lf_knee`"),
         (r#""fext": {"root_joint": [1, 2, 3]}"#, "`fext.root_joint` has 3 values, expected 6"),

@@ -328,9 +328,57 @@ macro_rules! bench_forces {
     }};
 }
 
+/// Rigid-contact dynamics (`examples/scenes/hyq_standing_floating.toml`: floating HyQ on
+/// four point contacts): `contact_fd` and `contact_fd_grad`, beside `fd_grad` without
+/// contacts (`hyq_floating.toml`) for scale; Pinocchio's `constraintDynamics` and its
+/// derivatives are timed by bench/pinocchio_bench.cpp in the same run of scripts/bench.sh.
+macro_rules! bench_contact {
+    ($c:expr) => {{
+        use grid_gen_kernels::scenes::grid_hyq_floating as plain;
+        use grid_gen_kernels::scenes::grid_hyq_standing_floating as k;
+        let s: Vec<([f64; k::NQ], [[f64; k::NV]; 2])> = (0..STATES)
+            .map(|j| {
+                let mut q: [f64; k::NQ] = std::array::from_fn(|i| state(j, i, 0));
+                let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+                q[3..7].iter_mut().for_each(|x| *x /= n);
+                (q, std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))))
+            })
+            .collect();
+        let mut group = $c.benchmark_group("grid_hyq.hyq_standing_floating");
+        let mut j = 0usize;
+        let mut next = || {
+            j = (j + 1) % STATES;
+            j
+        };
+        group.bench_function("generated/contact_fd", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::contact_fd(&x.0, &x.1[0], &x.1[1]))
+            })
+        });
+        group.bench_function("generated/contact_fd_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(k::contact_fd_grad(&x.0, &x.1[0], &x.1[1]))
+            })
+        });
+        group.bench_function("without contacts/fd_grad", |b| {
+            b.iter(|| {
+                let x = &s[next()];
+                black_box(plain::fd_grad(&x.0, &x.1[0], &x.1[1]))
+            })
+        });
+        group.finish();
+    }};
+}
+
 fn kernels(c: &mut Criterion) {
     if std::env::var_os("GRID_GEN_BENCH_FORCES_ONLY").is_some() {
         bench_forces!(c);
+        return;
+    }
+    if std::env::var_os("GRID_GEN_BENCH_CONTACT_ONLY").is_some() {
+        bench_contact!(c);
         return;
     }
     if std::env::var_os("GRID_GEN_BENCH_STEP_ONLY").is_some() {
@@ -356,6 +404,7 @@ fn kernels(c: &mut Criterion) {
     bench_frames!(c, grid_hyq_feet_floating, "grid_hyq.hyq_feet_floating");
     bench_step!(c, grid_hyq_step_floating, "grid_hyq.hyq_step_floating");
     bench_forces!(c);
+    bench_contact!(c);
 }
 
 criterion_group! {

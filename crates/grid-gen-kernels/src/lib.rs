@@ -94,4 +94,9 @@ pub mod scenes {
     pub mod grid_hyq_contacts_floating {
         include!("../../../generated/scenes/grid_hyq.hyq_contacts_floating/hyq.rs");
     }
+    /// Floating HyQ standing on its four lower legs as rigid point contacts: contact_fd
+    /// and contact_fd_grad (q̈ and the contact forces λ, and their derivatives).
+    pub mod grid_hyq_standing_floating {
+        include!("../../../generated/scenes/grid_hyq.hyq_standing_floating/hyq.rs");
+    }
 }

@@ -617,3 +617,83 @@ fn force_kernels_match_the_reference() {
     }
     println!("hyq_contacts_floating: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
 }
+
+/// The checked-in contact kernels (`generated/scenes/grid_hyq.hyq_standing_floating/`:
+/// floating HyQ on its four lower legs as rigid point contacts), both copies, f64 and f32,
+/// against the reference's full KKT solution (held to Pinocchio's `constraintDynamics` and
+/// `computeConstraintDynamicsDerivatives` by grid-gen's tests/forces.rs).
+/// Tolerances: f64 CONTACT_F64 and f32 CONTACT_F32 (see there).
+#[test]
+fn contact_kernels_match_the_reference() {
+    use grid_gen::ir::KernelKind::*;
+    use grid_gen_kernels::scenes::grid_hyq_standing_floating as k;
+    use grid_gen_test_support::{col, reference_outputs_with};
+    // Through K = J M⁻¹ Jᵀ as well as M⁻¹: the contacts' conditioning (J's smallest
+    // singular value down to 6e-3 of its largest on these states, squared in K) costs
+    // digits over fd_grad's bounds. Measured: f64 1.3e-12, f32 4.9e-4.
+    const CONTACT_F64: f64 = 5e-12;
+    const CONTACT_F32: f64 = 2e-3;
+    let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_standing_floating");
+    assert_eq!(k::NLAMBDA, 12);
+    assert_eq!(k::CONTACTS[3], ("rh_lowerleg", "point"));
+    let mut rng = Rng(72);
+    let mut worst = [0.0f64; 2];
+    macro_rules! run {
+        ($c:path, $t:ty, $q:expr, $qd:expr, $u:expr) => {{
+            use $c as c;
+            let q: [$t; k::NQ] = std::array::from_fn(|i| $q[i] as $t);
+            let qd: [$t; k::NV] = std::array::from_fn(|i| $qd[i] as $t);
+            let u: [$t; k::NV] = std::array::from_fn(|i| $u[i] as $t);
+            #[allow(unused_unsafe)]
+            let ((a, l), (a1, l1, aq, aqd, at, lq, lqd, lt)) = unsafe { (c::contact_fd(&q, &qd, &u), c::contact_fd_grad(&q, &qd, &u)) };
+            let g = |x: &[$t]| x.iter().map(|&y| y as f64).collect::<Vec<f64>>();
+            vec![
+                vec![g(&a), g(&l)],
+                vec![
+                    g(&a1),
+                    g(&l1),
+                    g(aq.as_flattened()),
+                    g(aqd.as_flattened()),
+                    g(at.as_flattened()),
+                    g(lq.as_flattened()),
+                    g(lqd.as_flattened()),
+                    g(lt.as_flattened()),
+                ],
+            ]
+        }};
+    }
+    let mut singular = Vec::new();
+    for (label, per_joint, qd, tau) in states(&model, &mut rng) {
+        let q = model.q_from_joints(&per_joint, rng.base_pose());
+        let tau: Vec<f64> = tau.iter().map(|t| 10.0 * t).collect();
+        // Where the contacts' Jacobian loses rank (legs straight at the zero state), λ has
+        // no unique value: such states are counted, not compared.
+        let sv = reference::contact_jacobian(&model, &model.specialisation.contacts, &q).singular_values();
+        if sv.min() < 1e-8 * sv.max() {
+            singular.push(label);
+            continue;
+        }
+        for (f32, tol) in [(false, CONTACT_F64), (true, CONTACT_F32)] {
+            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let (q, qd, tau) = (r(&q), r(&qd), r(&tau));
+            let want: Vec<Vec<nalgebra::DMatrix<f64>>> =
+                [ContactFd, ContactFdGrad].iter().map(|&kind| reference_outputs_with(kind, &model, &q, &qd, &tau, model_gravity(), reference::External::NONE)).collect();
+            let mut copies = vec![("portable", if f32 { run!(k::portable, f32, q, qd, tau) } else { run!(k::portable, f64, q, qd, tau) })];
+            if fma_runs() {
+                copies.push(("fma", if f32 { run!(k::fma, f32, q, qd, tau) } else { run!(k::fma, f64, q, qd, tau) }));
+            }
+            for (copy, got) in copies {
+                for (kernel, (got, want)) in got.iter().zip(&want).enumerate() {
+                    assert_eq!(got.len(), want.len());
+                    for (o, (got, want)) in got.iter().zip(want).enumerate() {
+                        let e = rel(&col(got), &col(want.transpose().as_slice()));
+                        worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
+                        assert!(e <= tol, "{label} ({copy}, f32 {f32}): kernel {kernel} output {o} relative error {e:.2e} > {tol:e}");
+                    }
+                }
+            }
+        }
+    }
+    assert_eq!(singular, ["zero"], "only the zero state is singular");
+    println!("hyq_standing_floating: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+}

@@ -142,6 +142,64 @@ pub struct Output {
     /// With `tau` and contacts declared: `∂q̈/∂λ`, likewise.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dfd_dlambda: Option<BTreeMap<String, Matrix>>,
+    /// With `tau` and contacts declared: rigid-contact forward dynamics and its
+    /// derivatives (the state's `contacts` are not read: λ is solved for).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub contact_fd: Option<ContactOutput>,
+}
+
+/// Rigid-contact forward dynamics at one state (see [`crate::reference::contact_fd`]):
+/// q̈, λ per contact frame (world axes at the frame, Pinocchio's `lambda_c`), and their
+/// derivatives, q in the tangent space; λ's as `rows x nv` per frame.
+#[derive(Clone, Debug, Serialize)]
+pub struct ContactOutput {
+    pub qdd: Vec<f64>,
+    pub lambda: BTreeMap<String, Vec<f64>>,
+    pub dqdd_dq: Matrix,
+    pub dqdd_dqd: Matrix,
+    pub dqdd_dtau: Matrix,
+    pub dlambda_dq: BTreeMap<String, Matrix>,
+    pub dlambda_dqd: BTreeMap<String, Matrix>,
+    pub dlambda_dtau: BTreeMap<String, Matrix>,
+}
+
+/// The reference's contact dynamics at one state, when the model declares contacts and
+/// the state has a `tau`; an error where the contacts' Jacobian loses rank at the state.
+fn contact_output(fm: &Model, s: &State, index: usize, fext: &[f64], gravity: [f64; 3]) -> Result<Option<ContactOutput>, EvalError> {
+    let Some(tau) = s.tau.as_ref().filter(|_| !fm.specialisation.contacts.is_empty()) else { return Ok(None) };
+    let (sol, d) = reference::contact_fd_derivatives(fm, &s.q, &s.qd, tau, gravity, fext).ok_or(EvalError::ContactsSingular { index })?;
+    if sol.qdd.iter().chain(&sol.lambda).any(|x| !x.is_finite()) {
+        return Err(EvalError::ContactsSingular { index });
+    }
+    let names: Vec<(String, usize)> = fm.specialisation.contacts.iter().map(|c| (fm.frames[c.frame].name.clone(), c.kind.dim())).collect();
+    let per_frame = |m: &nalgebra::DMatrix<f64>| -> BTreeMap<String, Matrix> {
+        let mut at = 0;
+        names
+            .iter()
+            .map(|(name, width)| {
+                at += width;
+                (name.clone(), rows(&m.rows(at - width, *width).into_owned()))
+            })
+            .collect()
+    };
+    let mut at = 0;
+    let lambda = names
+        .iter()
+        .map(|(name, width)| {
+            at += width;
+            (name.clone(), sol.lambda[at - width..at].to_vec())
+        })
+        .collect();
+    Ok(Some(ContactOutput {
+        qdd: sol.qdd,
+        lambda,
+        dqdd_dq: rows(&d.dqdd_dq),
+        dqdd_dqd: rows(&d.dqdd_dqd),
+        dqdd_dtau: rows(&d.dqdd_dtau),
+        dlambda_dq: per_frame(&d.dlambda_dq),
+        dlambda_dqd: per_frame(&d.dlambda_dqd),
+        dlambda_dtau: per_frame(&d.dlambda_dtau),
+    }))
 }
 
 /// A state's forces as the reference takes them: the model with the state's bodies
@@ -306,6 +364,8 @@ pub enum EvalError {
     ForceNotFinite { index: usize, field: &'static str, key: String, entry: usize },
     #[error("external and contact forces are evaluated by the reference only (`eval` without --backend); the generated Rust and WGSL kernels take them, and the tests compare those with the reference")]
     ForcesOnBackend,
+    #[error("state {index}: the contacts' Jacobian loses rank at this configuration, so rigid-contact dynamics has no unique solution (contact_fd); move the state away from the singularity or declare fewer contacts")]
+    ContactsSingular { index: usize },
 }
 
 fn rows(m: &nalgebra::DMatrix<f64>) -> Matrix {
@@ -446,7 +506,8 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
     let states = file
         .states
         .iter()
-        .map(|s| {
+        .enumerate()
+        .map(|(index, s)| {
             let (fm, fext, lambda) = state_forces(model, s);
             let ext = reference::External { fext: &fext, lambda: &lambda };
             let (rnea, drnea_dq, drnea_dqd) = match &s.qdd {
@@ -481,6 +542,7 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
                 dfd_dfext: None,
                 drnea_dlambda: None,
                 dfd_dlambda: None,
+                contact_fd: contact_output(&fm, s, index, &fext, gravity)?,
             };
             if fm.nfext() + fm.nlambda() > 0 {
                 let d = reference::force_derivatives(&fm, &s.q);
@@ -497,9 +559,9 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
                     out.dfd_dlambda = lambda_present.then(|| by_force(&d.dqdd_dlambda, &contacts));
                 }
             }
-            out
+            Ok(out)
         })
-        .collect();
+        .collect::<Result<_, EvalError>>()?;
     Ok(EvalOutput { joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(), states })
 }
 
@@ -633,6 +695,7 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
             dfd_dfext: None,
             drnea_dlambda: None,
             dfd_dlambda: None,
+            contact_fd: None,
         })
         .collect();
     let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {

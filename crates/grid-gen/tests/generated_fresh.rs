@@ -19,7 +19,7 @@ const VERILOG_ROBOTS: [&str; 1] = ["double_pendulum_continuous"];
 
 /// Robots in a scene of `examples/scenes/`, whose Rust modules are checked in under
 /// `generated/scenes/<robot>.<scene>/` (benchmarked against the full robots').
-pub const SCENES: [(&str, &str); 10] = [
+pub const SCENES: [(&str, &str); 11] = [
     ("grid_iiwa", "iiwa_wrist_locked"),
     ("grid_hyq", "hyq_front_legs"),
     ("grid_iiwa", "iiwa_static"),
@@ -30,6 +30,7 @@ pub const SCENES: [(&str, &str); 10] = [
     ("grid_hyq", "hyq_feet_floating"),
     ("grid_hyq", "hyq_step_floating"),
     ("grid_hyq", "hyq_contacts_floating"),
+    ("grid_hyq", "hyq_standing_floating"),
 ];
 
 /// Test robots (not bundled: they use grid-gen's extensions of URDF) whose Rust modules
