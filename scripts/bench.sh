@@ -24,6 +24,9 @@ MODELS="$MODELS target/bench/grid_iiwa.pinmodel:iiwa_link_7 target/bench/grid_hy
 # The step (examples/scenes/hyq_step_floating.toml): Pinocchio's composition of the semi-implicit
 # Euler step and its [A | B] over 10 ms.
 MODELS="$MODELS step=0.01@target/bench/grid_hyq_floating.pinmodel"
+# Rigid contacts (examples/scenes/hyq_standing_floating.toml): constraintDynamics and its
+# derivatives with a CONTACT_3D at each lower leg, LOCAL_WORLD_ALIGNED.
+MODELS="$MODELS contact@target/bench/grid_hyq_floating.pinmodel:lf_lowerleg,rf_lowerleg,lh_lowerleg,rh_lowerleg"
 # Pinocchio's own build defines these (see its exported CMake targets). Built twice, for
 # the default target and with -march=native; the report takes the faster of the two per
 # algorithm, so Pinocchio gets the same wide instructions as our FMA copy.

@@ -78,3 +78,17 @@ try:
     print(f"| grid_hyq.hyq_step_floating | step_grad | {fmt(g)} | {fmt(f)} | {fmt(p) if p else '-'} | {g / f:.2f}x | {f'{p / g:.1f}x' if p else '-'} |")
 except FileNotFoundError:
     pass
+
+# Rigid-contact dynamics (floating HyQ on four point contacts; examples/scenes/hyq_standing_floating.toml):
+# contact_fd and contact_fd_grad against Pinocchio's constraintDynamics and constraintDynamics +
+# computeConstraintDynamicsDerivatives (CONTACT_3D, LOCAL_WORLD_ALIGNED; `contact@MODEL:LINKS`).
+try:
+    print()
+    print("| scene | kernel | generated | Pinocchio | vs Pinocchio |")
+    print("|---|---|---|---|---|")
+    for kernel in ("contact_fd", "contact_fd_grad"):
+        g = ns("grid_hyq.hyq_standing_floating", f"generated/{kernel}")
+        p = pin.get("grid_hyq_floating", {}).get(f"{kernel}_ns")
+        print(f"| grid_hyq.hyq_standing_floating | {kernel} | {fmt(g)} | {fmt(p) if p else '-'} | {f'{p / g:.1f}x' if p else '-'} |")
+except FileNotFoundError:
+    pass

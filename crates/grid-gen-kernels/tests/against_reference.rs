@@ -676,8 +676,10 @@ fn contact_kernels_match_the_reference() {
         for (f32, tol) in [(false, CONTACT_F64), (true, CONTACT_F32)] {
             let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
             let (q, qd, tau) = (r(&q), r(&qd), r(&tau));
-            let want: Vec<Vec<nalgebra::DMatrix<f64>>> =
-                [ContactFd, ContactFdGrad].iter().map(|&kind| reference_outputs_with(kind, &model, &q, &qd, &tau, model_gravity(), reference::External::NONE)).collect();
+            let want: Vec<Vec<nalgebra::DMatrix<f64>>> = [ContactFd, ContactFdGrad]
+                .iter()
+                .map(|&kind| reference_outputs_with(kind, &model, &q, &qd, &tau, model_gravity(), reference::External::NONE))
+                .collect();
             let mut copies = vec![("portable", if f32 { run!(k::portable, f32, q, qd, tau) } else { run!(k::portable, f64, q, qd, tau) })];
             if fma_runs() {
                 copies.push(("fma", if f32 { run!(k::fma, f32, q, qd, tau) } else { run!(k::fma, f64, q, qd, tau) }));

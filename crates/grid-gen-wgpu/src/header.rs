@@ -29,6 +29,9 @@ pub struct ShaderInfo {
     /// Entries of the forces (`fext`, then λ) that rnea, rnea_grad, fd and fd_grad read
     /// after q̈ or τ in `u`: `// forces:`, else 0.
     pub forces: usize,
+    /// Of those, the contact forces λ (`// lambda:`, else 0): the contact kernels solve
+    /// for them, so their `u` holds τ and fext only.
+    pub lambda: usize,
     pub precision: Precision,
     pub entries: Vec<EntryInfo>,
     /// The cooperative entries' operation tables (binding 6) and constants (binding 7),
@@ -51,6 +54,7 @@ impl ShaderInfo {
         let mut nq = None;
         let mut nu = None;
         let mut forces = 0;
+        let mut lambda = 0;
         let mut precision = None;
         let mut entries = Vec::new();
         let mut tables = None;
@@ -65,6 +69,8 @@ impl ShaderInfo {
                 nu = Some(v.trim().parse::<usize>().map_err(|_| bad("not a count"))?);
             } else if let Some(v) = line.strip_prefix("// forces: ") {
                 forces = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
+            } else if let Some(v) = line.strip_prefix("// lambda: ") {
+                lambda = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// tables: ") {
                 let mut counts = [0usize; 2];
                 for (k, key) in ["prog=", "konst="].iter().enumerate() {
@@ -107,7 +113,7 @@ impl ShaderInfo {
             Some([words, values]) => read_tables(source, words, values, precision)?,
             None => (Vec::new(), Vec::new()),
         };
-        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), nu: nu.unwrap_or(nv), forces, precision, entries, prog, konst })
+        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), nu: nu.unwrap_or(nv), forces, lambda, precision, entries, prog, konst })
     }
 
     pub fn entry(&self, name: &str) -> Option<&EntryInfo> {

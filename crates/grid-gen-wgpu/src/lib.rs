@@ -249,6 +249,7 @@ impl Gpu {
             nq: shader.info.nq,
             nu: match grid_gen::ir::KernelKind::parse(&info.kernel) {
                 Some(k) if k.is_step() => shader.info.nu,
+                Some(k) if k.is_contact() => shader.info.nv + shader.info.forces.saturating_sub(shader.info.lambda),
                 Some(k) if k.takes_forces() => shader.info.nv + shader.info.forces,
                 _ => shader.info.nv,
             },

@@ -451,7 +451,7 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
     }
     let _ = writeln!(
         out,
-        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}// precision: {}\n// trig: {}",
+        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}{}// precision: {}\n// trig: {}",
         if robot.nq() != robot.nv() { format!("// nq: {}\n", robot.nq()) } else { String::new() },
         // The step kernels' `u` is the actuated joints' τ.
         if robot.specialisation.step.is_some() { format!("// nu: {}\n", robot.nu()) } else { String::new() },
@@ -459,6 +459,11 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
         match 6 * robot.fext.len() + robot.nlambda() {
             0 => String::new(),
             n => format!("// forces: {n}\n"),
+        },
+        // Of which λ, which the contact kernels solve for instead of reading.
+        match robot.nlambda() {
+            0 => String::new(),
+            n => format!("// lambda: {n}\n"),
         },
         options.precision.name(),
         options.trig.name()
