@@ -179,6 +179,17 @@ fn force_derivatives_match_central_differences() {
     println!("worst force derivative against differences: {worst:.2e}");
 }
 
+/// A random configuration: coordinates in ±3, a random base pose, unit quaternions for
+/// spherical joints.
+fn random_config(m: &Model, rng: &mut Rng) -> Vec<f64> {
+    let mut q = m.q_from_joints(&rng.vec(m.nv(), -3.0, 3.0), rng.base_pose());
+    for &s in &m.spherical {
+        let at = m.group_q(s);
+        q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+    }
+    q
+}
+
 /// Random forces for a model: N(0, 10)-sized fext and N(0, 50)-sized λ, uniformly drawn.
 fn random_forces(model: &Model, rng: &mut Rng) -> (Vec<f64>, Vec<f64>) {
     (rng.vec(6 * model.nfext(), -20.0, 20.0), rng.vec(model.nlambda(), -100.0, 100.0))
@@ -217,11 +228,7 @@ fn force_kernels_match_the_reference() {
             let module = ir::lower(m, g, &options).unwrap();
             let nv = m.nv();
             for state in 0..2 {
-                let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
-                for &s in &m.spherical {
-                    let at = m.group_q(s);
-                    q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
-                }
+                let q = random_config(m, &mut rng);
                 let (qd, u) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -10.0, 10.0));
                 let (fext, lambda) = random_forces(m, &mut rng);
                 let ext = External { fext: &fext, lambda: &lambda };
@@ -404,11 +411,7 @@ fn contact_accelerations_match_frames_and_central_differences() {
     for (name, m) in &cases {
         let contacts = &m.specialisation.contacts;
         let nv = m.nv();
-        let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
-        for &s in &m.spherical {
-            let at = m.group_q(s);
-            q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
-        }
+        let q = random_config(m, &mut rng);
         let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -5.0, 5.0));
         let acc = |q: &[f64], qd: &[f64]| reference::contact_accelerations(m, contacts, q, qd, &qdd);
         let here = acc(&q, &qd);
@@ -479,7 +482,7 @@ fn dependent_contacts_are_errors() {
 }
 
 /// The contact kernels' IR against the reference: the fixture robots' contact sets, a
-/// coupled mimic arm's tool point and a floating spherical arm's tool wrench, with fext
+/// Panda's tool point (its fingers coupled) and a floating spherical arm's tool wrench, with fext
 /// where the model declares it, every gradient formulation and every solve.
 #[test]
 fn contact_kernels_match_the_reference() {
@@ -503,11 +506,7 @@ fn contact_kernels_match_the_reference() {
             assert_eq!(module.functions.len(), 2, "{name}: both contact kernels");
             let nv = m.nv();
             for state in 0..2 {
-                let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
-                for &s in &m.spherical {
-                    let at = m.group_q(s);
-                    q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
-                }
+                let q = random_config(m, &mut rng);
                 let (qd, u) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -10.0, 10.0));
                 let (fext, _) = random_forces(m, &mut rng);
                 let ext = External { fext: &fext, lambda: &[] };

@@ -204,14 +204,14 @@ pub fn contact_acceleration_derivatives(model: &Model, contacts: &[Contact], q: 
 }
 
 /// The KKT matrix `[M Jᵀ; J 0]`, LU-factorised.
-fn kkt(model: &Model, contacts: &[Contact], q: &[f64]) -> (nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn>, DMatrix<f64>) {
+fn kkt(model: &Model, contacts: &[Contact], q: &[f64]) -> nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn> {
     let (nv, j) = (model.nv(), contact_jacobian(model, contacts, q));
     let nl = j.nrows();
     let mut k = DMatrix::zeros(nv + nl, nv + nl);
     k.view_mut((0, 0), (nv, nv)).copy_from(&crba(model, q));
     k.view_mut((0, nv), (nv, nl)).copy_from(&j.transpose());
     k.view_mut((nv, 0), (nl, nv)).copy_from(&j);
-    (k.lu(), j)
+    k.lu()
 }
 
 /// Rigid-contact forward dynamics under `fext` (the model's external forces, as
@@ -222,7 +222,7 @@ pub fn contact_fd(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f
     let nv = model.nv();
     let bias = rnea_with(model, q, qd, &vec![0.0; nv], gravity, External { fext, lambda: &[] });
     let drift = contact_accelerations(model, contacts, q, qd, &vec![0.0; nv]);
-    let (lu, _) = kkt(model, contacts, q);
+    let lu = kkt(model, contacts, q);
     let rhs = DVector::from_iterator(nv + drift.len(), (0..nv).map(|i| tau[i] - bias[i]).chain(drift.iter().map(|g| -g)));
     let x = lu.solve(&rhs)?;
     Some(ContactDynamics { qdd: x.rows(0, nv).iter().copied().collect(), lambda: x.rows(nv, drift.len()).iter().map(|l| -l).collect() })
@@ -244,7 +244,7 @@ pub fn contact_fd_derivatives(
     let nl = sol.lambda.len();
     let (dc_dq, dc_dqd) = rnea_derivatives_with(model, q, qd, &sol.qdd, gravity, External { fext, lambda: &sol.lambda });
     let (da_dq, da_dqd) = contact_acceleration_derivatives(model, contacts, q, qd, &sol.qdd);
-    let (lu, _) = kkt(model, contacts, q);
+    let lu = kkt(model, contacts, q);
     let solve = |top: DMatrix<f64>, bottom: DMatrix<f64>| -> Option<(DMatrix<f64>, DMatrix<f64>)> {
         let mut rhs = DMatrix::zeros(nv + nl, nv);
         rhs.rows_mut(0, nv).copy_from(&top);
