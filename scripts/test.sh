@@ -52,6 +52,18 @@ fi
 # sed reads to the end, so iverilog never sees a closed pipe (pipefail would fail on it).
 if command -v iverilog >/dev/null; then iverilog -V 2>&1 | sed -n 1p; fi
 if command -v yosys >/dev/null; then yosys -V; fi
+say "CMake, a C++ compiler and Eigen, to build and run the C++ example (examples/cpp)"
+if ! command -v cmake >/dev/null || ! command -v c++ >/dev/null || [ ! -f /usr/include/eigen3/Eigen/Dense ]; then
+    if command -v apt-get >/dev/null && [ "$(id -u)" = 0 ]; then
+        (apt-get update -qq && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq cmake g++ libeigen3-dev >/dev/null) \
+            || die "could not install cmake, g++ and libeigen3-dev with apt-get"
+    elif [ -n "${CI:-}" ]; then
+        die "cmake, g++ or Eigen is missing: install the Debian packages cmake g++ libeigen3-dev"
+    else
+        echo "warning: cmake/g++/Eigen are missing and cannot be installed here; the C++ example test will say it skipped"
+    fi
+fi
+if command -v cmake >/dev/null; then cmake --version | sed -n 1p; fi
 # Mesa warns on every run without it.
 export XDG_RUNTIME_DIR="${XDG_RUNTIME_DIR:-/tmp}"
 

@@ -263,7 +263,8 @@ enum Command {
         /// Folder to write the generated files into (created if needed).
         #[arg(short = 'o', long = "out", value_name = "DIR")]
         out: Option<PathBuf>,
-        /// Backends to emit, comma-separated (available: rust, wgsl, verilog).
+        /// Backends to emit, comma-separated (available: rust, wgsl, verilog, c; c writes the
+        /// batch entry points and C ABI `<robot>_c.rs` and the header `<robot>.h`).
         #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "rust", value_parser = parse_target)]
         emit: Vec<grid_gen::generate::Target>,
         /// Write nothing; exit 1 if any file would change (for CI freshness checks).

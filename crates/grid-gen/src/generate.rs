@@ -3,6 +3,7 @@
 
 use std::path::{Path, PathBuf};
 
+use crate::back::c::{self, COptions};
 use crate::back::rust::{self, RustOptions};
 use crate::back::verilog::{self, VerilogOptions};
 use crate::back::wgsl::{self, WgslOptions};
@@ -19,6 +20,7 @@ pub struct Options {
     pub rust: RustOptions,
     pub wgsl: WgslOptions,
     pub verilog: VerilogOptions,
+    pub c: COptions,
 }
 
 impl Default for Options {
@@ -30,6 +32,7 @@ impl Default for Options {
             rust: RustOptions::default(),
             wgsl: WgslOptions::default(),
             verilog: VerilogOptions::default(),
+            c: COptions::default(),
         }
     }
 }
@@ -57,6 +60,7 @@ pub fn emit(module: &ir::Module, options: &Options) -> Result<Vec<GeneratedFile>
             Target::Rust => files.push(rust::emit(module, &options.rust)?),
             Target::Wgsl => files.push(wgsl::emit(module, &options.wgsl)?),
             Target::Verilog => files.extend(verilog::emit(module, &options.verilog)?),
+            Target::C => files.extend(c::emit(module, &options.c)?),
         }
     }
     Ok(files)

@@ -113,6 +113,54 @@ fn urdf_names_cannot_inject_code_or_paths() {
     assert_eq!(grid_gen::back::source_of(&file.contents), Some("h.urdf\\u{a}}\\u{a}fn y() {}\\u{a}"));
 }
 
+/// The C target's files for the hostile robot: the Rust file's only module holds what
+/// grid-gen writes, and a C program that includes the header compiles without a warning
+/// and reads the names back unchanged.
+#[test]
+fn urdf_names_cannot_inject_code_into_the_c_abi() {
+    use grid_gen::generate::Target;
+    let (model, _) = grid_gen::Model::from_urdf_str("x/h.urdf\n*/ int evil;", HOSTILE, false).unwrap();
+    let files = generate(&model, &Options { targets: vec![Target::C], ..Options::default() }).unwrap();
+    let stem = "______evil____std__process__exit_1_____";
+    assert_eq!(files.iter().map(|f| f.name.as_str()).collect::<Vec<_>>(), [format!("{stem}_c.rs"), format!("{stem}.h")]);
+    let parsed = syn::parse_file(&files[0].contents).unwrap();
+    assert_eq!(parsed.items.len(), 1);
+    let syn::Item::Mod(m) = &parsed.items[0] else { panic!("one module") };
+    assert_eq!(m.ident, format!("{stem}_batch"));
+    for item in &m.content.as_ref().unwrap().1 {
+        match item {
+            syn::Item::Use(_) => {}
+            syn::Item::Const(c) => assert!(["GRID_GEN_OK", "GRID_GEN_NULL_POINTER", "GRID_GEN_BAD_LENGTH", "MANIFEST"].contains(&c.ident.to_string().as_str())),
+            syn::Item::Fn(f) => {
+                let name = f.sig.ident.to_string();
+                let kernel =
+                    name.strip_prefix(&format!("robot{stem}_")).unwrap_or(&name).trim_end_matches("_f64").trim_end_matches("_f32").trim_end_matches("_batch");
+                assert!(
+                    ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad", "set_threads", "threads", "manifest"].contains(&kernel),
+                    "unexpected fn {name}"
+                );
+            }
+            _ => panic!("unexpected item"),
+        }
+    }
+    let dir = std::env::temp_dir().join(format!("grid-gen-hostile-c-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join(&files[1].name), &files[1].contents).unwrap();
+    // C reserves names that start with `_`: the C names start with `robot`.
+    let upper = format!("ROBOT{}", stem.to_uppercase());
+    std::fs::write(
+        dir.join("main.c"),
+        format!("#include <stdio.h>\n#include \"{stem}.h\"\nint main(void) {{ fputs({upper}_JOINT_NAMES[0], stdout); return {upper}_NV == 1 ? 0 : 1; }}\n"),
+    )
+    .unwrap();
+    let cc = std::process::Command::new("cc").current_dir(&dir).args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-o", "names", "main.c"]).output().unwrap();
+    assert!(cc.status.success(), "{}", String::from_utf8_lossy(&cc.stderr));
+    let run = std::process::Command::new(dir.join("names")).output().unwrap();
+    std::fs::remove_dir_all(&dir).unwrap();
+    assert!(run.status.success());
+    assert_eq!(String::from_utf8(run.stdout).unwrap(), model.joints[0].name);
+}
+
 /// A robot whose joints are all fixed still gets every kernel (of size zero), and the
 /// module compiles without a single rustc warning.
 #[test]

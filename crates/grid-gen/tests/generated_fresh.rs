@@ -17,6 +17,10 @@ const WGSL_ROBOTS: [&str; 2] = ["grid_iiwa", "grid_hyq"];
 /// Robots whose Verilog is checked in (default options: pipelined, `--fixed auto`).
 const VERILOG_ROBOTS: [&str; 1] = ["double_pendulum_continuous"];
 
+/// Robots whose C ABI (`<robot>_c.rs` and `<robot>.h`) is checked in: iiwa's, which
+/// `examples/iiwa-c` builds into a library and `examples/cpp` links.
+const C_ROBOTS: [&str; 1] = ["grid_iiwa"];
+
 /// Robots in a scene of `examples/scenes/`, whose Rust modules are checked in under
 /// `generated/scenes/<robot>.<scene>/` (benchmarked against the full robots').
 pub const SCENES: [(&str, &str); 11] = [
@@ -58,6 +62,9 @@ fn checked_in_kernels_are_fresh() {
         }
         if VERILOG_ROBOTS.contains(&robot.as_str()) {
             targets.push(Target::Verilog);
+        }
+        if C_ROBOTS.contains(&robot.as_str()) {
+            targets.push(Target::C);
         }
         let options = Options { targets, ..Options::default() };
         let files = generate(&model, &options).unwrap();

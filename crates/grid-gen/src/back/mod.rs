@@ -2,6 +2,7 @@
 //! returns its own files, headers included. Adding a target is one folder here and one
 //! variant of [`Target`].
 
+pub mod c;
 pub mod names;
 pub mod rust;
 pub mod verilog;
@@ -99,10 +100,12 @@ pub enum Target {
     Rust,
     Wgsl,
     Verilog,
+    /// The batch entry points and C ABI (`<robot>_c.rs`) and their header (`<robot>.h`).
+    C,
 }
 
 impl Target {
-    pub const ALL: [Target; 3] = [Target::Rust, Target::Wgsl, Target::Verilog];
+    pub const ALL: [Target; 4] = [Target::Rust, Target::Wgsl, Target::Verilog, Target::C];
 
     /// The name used by `--emit`.
     pub fn name(self) -> &'static str {
@@ -110,6 +113,7 @@ impl Target {
             Target::Rust => "rust",
             Target::Wgsl => "wgsl",
             Target::Verilog => "verilog",
+            Target::C => "c",
         }
     }
 
@@ -124,6 +128,7 @@ impl Target {
             Target::Rust => format!("{stem}.rs"),
             Target::Wgsl => format!("{stem}.wgsl"),
             Target::Verilog => format!("{stem}.v"),
+            Target::C => format!("{stem}_c.rs"),
         }
     }
 }
@@ -133,6 +138,8 @@ impl Target {
 pub enum BackError {
     #[error("internal error: the Rust backend produced code that does not parse: {0}")]
     RustUnparsable(String),
+    #[error("the C target needs at least one precision (f64 or f32)")]
+    NoPrecision,
     #[error("robot `{robot}`: the constant {value} is out of f32's range, so the WGSL f32 kernels cannot hold it (try --precision f64)")]
     WgslRange { robot: String, value: f64 },
     #[error("WGSL: {0}")]

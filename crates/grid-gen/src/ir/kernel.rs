@@ -5,7 +5,7 @@ use super::dynamics::{transpose, Dynamics, Mat};
 use super::graph::{Id, Input};
 
 /// A robot's sizes, which the kernels' inputs and outputs are measured in.
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct Dims {
     /// Entries of q.
     pub nq: usize,

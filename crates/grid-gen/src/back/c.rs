@@ -1,0 +1,387 @@
+//! The C target: batch entry points over slices of states, the `extern "C"` functions
+//! that expose them (f64 and f32, one state or n), and the C header that declares them.
+//!
+//! It writes two files beside the Rust module `<robot>.rs`:
+//! - `<robot>_c.rs`, a module `<robot>_batch` to `include!` in the same Rust module as
+//!   `mod <robot> { include!("<robot>.rs"); }`, in a crate with `crate-type = ["staticlib",
+//!   "cdylib"]` that depends on `grid-gen-runtime` (the rayon pool);
+//! - `<robot>.h`, the header: sizes as macros, names as arrays, one documented prototype
+//!   per kernel, precision and batch.
+//!
+//! Arrays are contiguous, row-major and state-major: state `i`'s `q` starts at
+//! `q + i * NQ`, its `dqdd_dq` at `dqdd_dq + i * NV * NV` — the layout of the Rust arrays
+//! `[[f64; NQ]]` and `[[[f64; NV]; NV]]`, so the C functions pass the caller's memory to
+//! the Rust kernels without copying.
+
+use std::fmt::Write;
+
+use super::names::{comment_text, identifier};
+use super::rust::{array_of, input_len, q_len};
+use super::{BackError, GeneratedFile};
+use crate::ir::{Dims, Function, Module, Shape};
+
+/// Options of the C target.
+#[derive(Clone, Debug)]
+pub struct COptions {
+    /// Emit the f64 entry points.
+    pub f64: bool,
+    /// Emit the f32 entry points.
+    pub f32: bool,
+}
+
+impl Default for COptions {
+    fn default() -> Self {
+        COptions { f64: true, f32: true }
+    }
+}
+
+/// The scalar types emitted: Rust name, C name, suffix.
+fn precisions(options: &COptions) -> Vec<(&'static str, &'static str)> {
+    let mut out = Vec::new();
+    if options.f64 {
+        out.push(("f64", "double"));
+    }
+    if options.f32 {
+        out.push(("f32", "float"));
+    }
+    out
+}
+
+/// A C string literal for any text: printable ASCII as is, but for `"`, `\` and `?`
+/// (trigraphs), and every other byte as a three-digit octal escape (a hex escape would
+/// swallow the digits after it).
+pub fn c_string_literal(text: &str) -> String {
+    let mut out = String::from("\"");
+    for b in text.bytes() {
+        match b {
+            b'"' | b'\\' | b'?' => {
+                out.push('\\');
+                out.push(b as char);
+            }
+            b' '..=b'~' => out.push(b as char),
+            _ => {
+                let _ = write!(out, "\\{b:03o}");
+            }
+        }
+    }
+    out.push('"');
+    out
+}
+
+/// The dimensions of an output for one state, outermost first (a C user's indexing).
+pub fn output_dims(shape: Shape, d: &Dims) -> Vec<usize> {
+    match shape {
+        Shape::Vector => vec![d.nv],
+        Shape::Matrix => vec![d.nv, d.nv],
+        Shape::PerFrame(k) => vec![d.nframes, k],
+        Shape::FrameMatrix(r) => vec![d.nframes, r, d.nv],
+        Shape::Config => vec![d.nq],
+        Shape::StateMatrix => vec![2 * d.nv, 2 * d.nv],
+        Shape::StateInput => vec![2 * d.nv, d.nu],
+        Shape::ByFext => vec![d.nv, 6 * d.nfext],
+        Shape::ByLambda => vec![d.nv, d.nlambda],
+        Shape::Lambda => vec![d.nlambda],
+        Shape::LambdaBy => vec![d.nlambda, d.nv],
+    }
+}
+
+/// The manifest the library returns from `<robot>_manifest()`: what a loader (the Python
+/// package) needs to call every entry point without reading the header.
+fn manifest(module: &Module, options: &COptions) -> String {
+    let robot = &module.robot;
+    let dims = module.functions.first().map(|k| k.dims).unwrap_or_default();
+    let kernels: Vec<serde_json::Value> = module
+        .functions
+        .iter()
+        .map(|k| {
+            serde_json::json!({
+                "name": k.kind.name(),
+                "doc": k.doc(),
+                "inputs": k.inputs().iter().map(|i| serde_json::json!({"name": i.name(), "len": i.len(&k.dims)})).collect::<Vec<_>>(),
+                "outputs": k.outputs.iter().map(|o| serde_json::json!({"name": o.name, "dims": output_dims(o.shape, &k.dims)})).collect::<Vec<_>>(),
+            })
+        })
+        .collect();
+    let manifest = serde_json::json!({
+        "robot": robot.name,
+        "stem": identifier(&robot.name),
+        "grid_gen": env!("CARGO_PKG_VERSION"),
+        "nq": dims.nq,
+        "nv": dims.nv,
+        "nu": dims.nu,
+        "nlambda": dims.nlambda,
+        "nfext": dims.nfext,
+        "floating_base": robot.floating,
+        "joint_names": robot.joint_names,
+        "frames": robot.frames,
+        "reference_frame": robot.reference.name(),
+        "contacts": robot.contacts.iter().map(|(f, k)| serde_json::json!([f, k.name()])).collect::<Vec<_>>(),
+        "gravity": module.gravity,
+        "precisions": precisions(options).iter().map(|p| p.0).collect::<Vec<_>>(),
+        "kernels": kernels,
+    });
+    manifest.to_string()
+}
+
+/// The largest per-state array of a kernel, in scalars: a batch longer than
+/// `isize::MAX / (this * size)` bytes cannot exist, and is a bad length.
+fn largest(k: &Function) -> usize {
+    let inputs = k.inputs().iter().map(|i| i.len(&k.dims));
+    let outputs = k.outputs.iter().map(|o| o.shape.len(&k.dims));
+    inputs.chain(outputs).max().unwrap_or(1).max(1)
+}
+
+fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
+    let robot = &module.robot;
+    let p = c_prefix(stem);
+    let ql = q_len(robot);
+    let mut out = String::new();
+    let _ = writeln!(
+        out,
+        "/// Batches of states over slices, on every core ([`grid_gen_runtime::for_each`]), and the C ABI\n\
+         /// (`extern \"C\"`, declared in `{stem}.h`).\n\
+         #[allow(dead_code, clippy::all)]\npub mod {stem}_batch {{\nuse super::{stem}::*;\nuse grid_gen_runtime::Out;\n"
+    );
+    let _ = writeln!(
+        out,
+        "/// Success.\npub const GRID_GEN_OK: i32 = 0;\n/// A pointer the call needs is null.\npub const GRID_GEN_NULL_POINTER: i32 = 1;\n\
+         /// The batch is longer than any array in memory can be.\npub const GRID_GEN_BAD_LENGTH: i32 = 2;\n\
+         const MANIFEST: &str = {};\n",
+        super::names::string_literal(&(manifest(module, options) + "\0"))
+    );
+    let _ = writeln!(
+        out,
+        "/// Sets the threads a batch runs on (0: every core, the default; 1: the calling thread).\n\
+         #[unsafe(no_mangle)]\npub extern \"C\" fn {p}_set_threads(n: usize) {{\ngrid_gen_runtime::set_threads(n);\n}}\n\n\
+         /// The threads a batch runs on now.\n#[unsafe(no_mangle)]\npub extern \"C\" fn {p}_threads() -> usize {{\ngrid_gen_runtime::threads()\n}}\n\n\
+         /// What this library holds, as JSON (sizes, names, and each kernel's inputs and outputs); static, NUL-terminated.\n\
+         #[unsafe(no_mangle)]\npub extern \"C\" fn {p}_manifest() -> *const core::ffi::c_char {{\nMANIFEST.as_ptr().cast()\n}}\n"
+    );
+    for k in &module.functions {
+        let name = k.kind.name();
+        let inputs = k.inputs();
+        // The safe batch function.
+        let args: Vec<String> = inputs.iter().map(|i| format!("{}: &[[T; {}]]", i.name(), input_len(*i, ql))).collect();
+        let outs: Vec<String> = k.outputs.iter().map(|o| format!("{}: &mut [{}]", o.name, array_of(o.shape, "T"))).collect();
+        let first = inputs[0].name();
+        let lens: Vec<String> = inputs.iter().skip(1).map(|i| i.name()).chain(k.outputs.iter().map(|o| o.name)).map(|n| format!("{n}.len() == n")).collect();
+        let _ = writeln!(
+            out,
+            "/// `{}` for each state: entry `i` of every slice is state `i`. On every core.\n///\n/// # Panics\n/// If the slices' lengths differ.\n\
+             pub fn {name}<T: Real + Send + Sync>({}) {{\nlet n = {first}.len();\nassert!({}, \"{name}: every slice holds one entry per state\");",
+            k.signature(),
+            args.iter().chain(&outs).cloned().collect::<Vec<_>>().join(", "),
+            if lens.is_empty() { "true".to_string() } else { lens.join(" && ") },
+        );
+        for (j, o) in k.outputs.iter().enumerate() {
+            let _ = writeln!(out, "let o{j} = Out({}.as_mut_ptr());", o.name);
+        }
+        let results: Vec<String> = (0..k.outputs.len()).map(|j| format!("r{j}")).collect();
+        let pattern = if results.len() == 1 { results[0].clone() } else { format!("({})", results.join(", ")) };
+        let call: Vec<String> = inputs.iter().map(|i| format!("&{}[i]", i.name())).collect();
+        let writes: String = (0..k.outputs.len()).map(|j| format!("o{j}.write(i, r{j});")).collect();
+        let _ = writeln!(
+            out,
+            "grid_gen_runtime::for_each(n, |range| {{\nfor i in range {{\nlet {pattern} = super::{stem}::{name}({});\n\
+             // SAFETY: i < n, every output's length, and no two ranges meet.\nunsafe {{ {writes} }}\n}}\n}});\n}}\n",
+            call.join(", ")
+        );
+        // The C entry points.
+        for (rt, _) in precisions(options) {
+            let ptr_args: Vec<String> =
+                inputs.iter().map(|i| format!("{}: *const {rt}", i.name())).chain(k.outputs.iter().map(|o| format!("{}: *mut {rt}", o.name))).collect();
+            let all: Vec<&str> = inputs.iter().map(|i| i.name()).chain(k.outputs.iter().map(|o| o.name)).collect();
+            let _ = writeln!(
+                out,
+                "/// `{name}` in {rt} for one state (`{stem}.h`).\n///\n/// # Safety\n/// Each pointer holds one state's array, aligned, and outputs overlap nothing.\n\
+                 #[unsafe(no_mangle)]\npub unsafe extern \"C\" fn {p}_{name}_{rt}({}) -> i32 {{\n// SAFETY: the caller's contract, for n = 1.\nunsafe {{ {p}_{name}_batch_{rt}(1, {}) }}\n}}\n",
+                ptr_args.join(", "),
+                all.join(", ")
+            );
+            let nulls: Vec<String> = all.iter().map(|n| format!("{n}.is_null()")).collect();
+            let _ = writeln!(
+                out,
+                "/// `{name}` in {rt} for `n` states, on every core (`{stem}.h`).\n///\n/// # Safety\n/// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.\n\
+                 #[unsafe(no_mangle)]\npub unsafe extern \"C\" fn {p}_{name}_batch_{rt}(n: usize, {}) -> i32 {{\nif n == 0 {{\nreturn GRID_GEN_OK;\n}}\n\
+                 if {} {{\nreturn GRID_GEN_NULL_POINTER;\n}}\nif n > isize::MAX as usize / ({} * core::mem::size_of::<{rt}>()) {{\nreturn GRID_GEN_BAD_LENGTH;\n}}",
+                ptr_args.join(", "),
+                nulls.join(" || "),
+                largest(k)
+            );
+            let _ = writeln!(out, "// SAFETY: the caller's contract: each pointer holds n states, which fit in memory (checked above).\nunsafe {{");
+            for i in inputs {
+                let _ = writeln!(out, "let {0} = core::slice::from_raw_parts({0}.cast::<[{rt}; {1}]>(), n);", i.name(), input_len(*i, ql));
+            }
+            for o in &k.outputs {
+                let _ = writeln!(out, "let {0} = core::slice::from_raw_parts_mut({0}.cast::<{1}>(), n);", o.name, array_of(o.shape, rt));
+            }
+            let _ = writeln!(out, "self::{name}::<{rt}>({});\n}}\nGRID_GEN_OK\n}}\n", all.join(", "));
+        }
+    }
+    out.push_str("}\n");
+    out
+}
+
+fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
+    let robot = &module.robot;
+    let dims = module.functions.first().map(|k| k.dims).unwrap_or_default();
+    let p = c_prefix(stem);
+    let mac = p.to_uppercase();
+    let mut h = String::new();
+    let _ = writeln!(
+        h,
+        "// @generated by grid-gen {} from the URDF of robot {}. Do not edit:\n// regenerate with `grid-gen ROBOT.urdf --emit rust,c -o DIR`.\n{}//\n\
+         // The C ABI of the kernels in {stem}.rs, built from {stem}_c.rs (see the README, \"From C and C++\").\n\
+         // Arrays are contiguous, row-major and state-major: state i's q starts at q + i * {mac}_NQ, its\n\
+         // dqdd_dq at dqdd_dq + i * {mac}_NV * {mac}_NV; matrices are [i][j] = d out_i / d in_j. Vectors are in\n\
+         // the order of {mac}_JOINT_NAMES. Pointers must be aligned to their scalar; outputs must not overlap\n\
+         // inputs or each other. Every function returns GRID_GEN_OK (0), GRID_GEN_NULL_POINTER when a pointer\n\
+         // is null (nothing is written), or GRID_GEN_BAD_LENGTH when n states cannot fit in memory. n = 0 does\n\
+         // nothing. Batches run on every core (a rayon pool); {p}_set_threads(1) keeps them on the caller's.\n\
+         // Values are not checked: a NaN in gives NaN out.\n",
+        env!("CARGO_PKG_VERSION"),
+        comment_text(&robot.name),
+        crate::back::source_line(&robot.source),
+    );
+    let guard = format!("GRID_GEN_{mac}_H");
+    let _ = writeln!(
+        h,
+        "#ifndef {guard}\n#define {guard}\n\n#include <stddef.h>\n#include <stdint.h>\n\n#ifdef __cplusplus\nextern \"C\" {{\n#endif\n\n\
+         #ifndef GRID_GEN_OK\n#define GRID_GEN_OK 0\n#define GRID_GEN_NULL_POINTER 1\n#define GRID_GEN_BAD_LENGTH 2\n#endif\n"
+    );
+    let _ = writeln!(h, "/* Entries of q (Pinocchio's layout: a floating base's [x, y, z, qx, qy, qz, qw] first). */\n#define {mac}_NQ {}", dims.nq);
+    let _ = writeln!(h, "/* Velocity coordinates: entries of qd, qdd and tau, rows and columns of the matrices. */\n#define {mac}_NV {}", dims.nv);
+    // C has no empty arrays: a robot without movable joints has no name array.
+    if dims.nv > 0 {
+        let joints: Vec<String> = robot.joint_names.iter().map(|n| c_string_literal(n)).collect();
+        let _ =
+            writeln!(h, "/* The coordinates' joints, in model order. */\nstatic const char *const {mac}_JOINT_NAMES[{mac}_NV] = {{{}}};", joints.join(", "));
+    }
+    if dims.nframes > 0 {
+        let frames: Vec<String> = robot.frames.iter().map(|n| c_string_literal(n)).collect();
+        let _ = writeln!(
+            h,
+            "/* Frames the frame kernels compute, in their outputs' order ({} axes). */\n#define {mac}_NF {}\nstatic const char *const {mac}_FRAME_NAMES[{mac}_NF] = {{{}}};",
+            robot.reference.name().to_uppercase(),
+            dims.nframes,
+            frames.join(", ")
+        );
+    }
+    if robot.specialisation.step.is_some() {
+        let _ = writeln!(h, "/* Entries of the step kernels' tau: the actuated joints. */\n#define {mac}_NU {}\n#define {mac}_NX (2 * {mac}_NV)", dims.nu);
+    }
+    if dims.nfext > 0 {
+        let _ = writeln!(
+            h,
+            "/* Bodies that take an external force: fext has 6 entries per body, [f; tau] in its joint's frame. */\n#define {mac}_NFEXT {}",
+            dims.nfext
+        );
+    }
+    if dims.nlambda > 0 {
+        let frames: Vec<String> = robot.contacts.iter().map(|(n, _)| c_string_literal(n)).collect();
+        let _ = writeln!(
+            h,
+            "/* Entries of the contact forces lambda (3 per point, 6 per wrench; LOCAL_WORLD_ALIGNED). */\n#define {mac}_NLAMBDA {}\n\
+             #define {mac}_NCONTACTS {}\nstatic const char *const {mac}_CONTACT_FRAMES[{mac}_NCONTACTS] = {{{}}};",
+            dims.nlambda,
+            frames.len(),
+            frames.join(", ")
+        );
+    }
+    let _ = writeln!(
+        h,
+        "\n/* Sets the threads a batch runs on: 0 for every core (the default), 1 for the calling thread. */\nvoid {p}_set_threads(size_t n);\n\
+         /* The threads a batch runs on now. */\nsize_t {p}_threads(void);\n\
+         /* What the library holds, as JSON: sizes, names, and each kernel's inputs and outputs. Static. */\nconst char *{p}_manifest(void);\n"
+    );
+    let size = |n: &str| format!("{mac}_{n}");
+    let c_len = |len: &str| -> String {
+        // `6 * NFEXT` and the like, in the header's macros.
+        len.split(' ').map(|t| if t.chars().all(|c| c.is_ascii_uppercase()) { size(t) } else { t.to_string() }).collect::<Vec<_>>().join(" ")
+    };
+    for k in &module.functions {
+        let name = k.kind.name();
+        let ins: Vec<String> = k.inputs().iter().map(|i| format!("{}[{}]", i.name(), c_len(input_len(*i, q_len(robot))))).collect();
+        let outs: Vec<String> = k
+            .outputs
+            .iter()
+            .map(|o| {
+                let dims: Vec<String> = shape_macros(o.shape).iter().map(|d| c_len(d)).collect();
+                format!("{}[{}]", o.name, dims.join("]["))
+            })
+            .collect();
+        let _ = writeln!(h, "/* {name}: {}\n * Per state, in: {}.\n * Per state, out: {}. */", k.doc(), ins.join(", "), outs.join(", "));
+        for (rt, ct) in precisions(options) {
+            let params: Vec<String> =
+                k.inputs().iter().map(|i| format!("const {ct} *{}", i.name())).chain(k.outputs.iter().map(|o| format!("{ct} *{}", o.name))).collect();
+            let _ = writeln!(h, "int32_t {p}_{name}_{rt}({});", params.join(", "));
+            let _ = writeln!(h, "int32_t {p}_{name}_batch_{rt}(size_t n, {});", params.join(", "));
+        }
+        h.push('\n');
+    }
+    let _ = writeln!(h, "#ifdef __cplusplus\n}}\n#endif\n\n#endif");
+    h
+}
+
+/// An output's per-state dimensions as the header's size macros (without the prefix).
+fn shape_macros(shape: Shape) -> Vec<String> {
+    let v = |d: &[&str]| d.iter().map(|s| s.to_string()).collect();
+    match shape {
+        Shape::Vector => v(&["NV"]),
+        Shape::Matrix => v(&["NV", "NV"]),
+        Shape::PerFrame(k) => vec!["NF".into(), k.to_string()],
+        Shape::FrameMatrix(r) => vec!["NF".into(), r.to_string(), "NV".into()],
+        Shape::Config => v(&["NQ"]),
+        Shape::StateMatrix => v(&["NX", "NX"]),
+        Shape::StateInput => v(&["NX", "NU"]),
+        Shape::ByFext => v(&["NV", "6 * NFEXT"]),
+        Shape::ByLambda => v(&["NV", "NLAMBDA"]),
+        Shape::Lambda => v(&["NLAMBDA"]),
+        Shape::LambdaBy => v(&["NLAMBDA", "NV"]),
+    }
+}
+
+/// The prefix of the C names: the file stem, or `robot` and the stem where the stem starts
+/// with `_` (C reserves names that start with `__` or `_` and a capital letter).
+pub fn c_prefix(stem: &str) -> String {
+    if stem.starts_with('_') {
+        format!("robot{stem}")
+    } else {
+        stem.to_string()
+    }
+}
+
+/// The C target's two files for `module`: `<stem>_c.rs` and `<stem>.h`.
+pub fn emit(module: &Module, options: &COptions) -> Result<Vec<GeneratedFile>, BackError> {
+    if !options.f64 && !options.f32 {
+        return Err(BackError::NoPrecision);
+    }
+    let stem = identifier(&module.robot.name);
+    let code = emit_rust(module, options, &stem);
+    let file = syn::parse_file(&code).map_err(|e| BackError::RustUnparsable(e.to_string()))?;
+    let header = format!(
+        "// @generated by grid-gen {} from the URDF of robot {}. Do not edit.\n{}// The batch entry points and C ABI of {stem}.rs: `include!` this file beside\n\
+         // `mod {stem} {{ include!(\"{stem}.rs\"); }}` in a crate that depends on grid-gen-runtime;\n\
+         // crate-type = [\"staticlib\", \"cdylib\"] makes the library that {stem}.h declares.\n\n",
+        env!("CARGO_PKG_VERSION"),
+        comment_text(&module.robot.name),
+        crate::back::source_line(&module.robot.source),
+    );
+    Ok(vec![
+        GeneratedFile { name: format!("{stem}_c.rs"), contents: header + &prettyplease::unparse(&file) },
+        GeneratedFile { name: format!("{stem}.h"), contents: emit_header(module, options, &stem) },
+    ])
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn c_strings_escape_everything_that_could_end_or_bend_them() {
+        assert_eq!(c_string_literal("a\"b\\c??=d"), "\"a\\\"b\\\\c\\?\\?=d\"");
+        assert_eq!(c_string_literal("é\n"), "\"\\303\\251\\012\"");
+        // An octal escape never takes more than three digits, so a digit after it stays a digit.
+        assert_eq!(c_string_literal("\u{1}7"), "\"\\0017\"");
+    }
+}
