@@ -85,6 +85,7 @@ pub struct Builder {
     fext: Option<Vec<String>>,
     fext_derivatives: Option<bool>,
     contacts: Option<Vec<(String, crate::model::ContactKind)>>,
+    kernels: Option<Vec<crate::ir::KernelKind>>,
     quiet: bool,
 }
 
@@ -226,6 +227,20 @@ impl Builder {
         self
     }
 
+    /// Which kernels to generate (replaces the scene's `kernels`; default every kernel the
+    /// robot has: frame, force, contact and step kernels where those are declared).
+    pub fn kernels(&mut self, kernels: &[crate::ir::KernelKind]) -> &mut Self {
+        self.kernels = Some(kernels.to_vec());
+        self
+    }
+
+    /// The scalar types of the C target's entry points (default both; a loader that needs
+    /// one halves the library's compile time).
+    pub fn c_precision(&mut self, f64: bool, f32: bool) -> &mut Self {
+        self.options.c = crate::back::c::COptions { f64, f32 };
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
@@ -319,6 +334,9 @@ impl Builder {
         }
         if let Some(k) = scene.kernels().map_err(|message| BuildError::Scene(crate::scene::SceneError { path: scene_path.clone(), message }))? {
             options.lower.kernels = k;
+        }
+        if let Some(k) = &self.kernels {
+            options.lower.kernels = k.clone();
         }
         if !self.quiet {
             for line in cargo_warnings(&shown, &text, &warnings) {

@@ -104,7 +104,7 @@ fn manifest(module: &Module, options: &COptions) -> String {
         .collect();
     let manifest = serde_json::json!({
         "robot": robot.name,
-        "stem": identifier(&robot.name),
+        "prefix": c_prefix(&identifier(&robot.name)),
         "grid_gen": env!("CARGO_PKG_VERSION"),
         "nq": dims.nq,
         "nv": dims.nv,

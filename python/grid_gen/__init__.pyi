@@ -1,0 +1,59 @@
+"""Type stubs for grid_gen: the kernel methods exist when the robot was generated with them."""
+
+import os
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+Array = np.ndarray
+ArrayLike = Any
+
+def cache_dir() -> Path: ...
+def load(
+    urdf: Union[str, os.PathLike],
+    floating_base: bool = False,
+    scene: Optional[Union[str, os.PathLike]] = None,
+    frames: Optional[Sequence[str]] = None,
+    precision: str = "f64",
+    kernels: Optional[Sequence[str]] = None,
+    verbose: bool = True,
+) -> Robot: ...
+
+class Kernel:
+    name: str
+    inputs: Tuple[Tuple[str, int], ...]
+    outputs: Tuple[Tuple[str, Tuple[int, ...]], ...]
+    def __call__(self, *args: ArrayLike, out: Union[None, Array, Sequence[Array]] = None, **kwargs: ArrayLike) -> Any: ...
+
+class Robot:
+    manifest: Dict[str, Any]
+    library: str
+    precision: str
+    dtype: type
+    name: str
+    nq: int
+    nv: int
+    nu: int
+    nlambda: int
+    floating_base: bool
+    joint_names: List[str]
+    frames: List[str]
+    contacts: List[Tuple[str, str]]
+    gravity: Tuple[float, float, float]
+    kernels: Tuple[str, ...]
+    threads: int
+    def rnea(self, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike, *, out: Optional[Array] = None) -> Array:
+        """Inverse dynamics: tau = M(q) qdd + C(q, qd) qd + g(q); (B, nv)."""
+    def rnea_grad(self, q: ArrayLike, qd: ArrayLike, qdd: ArrayLike, *, out: Optional[Sequence[Array]] = None) -> Tuple[Array, Array]:
+        """(dtau_dq, dtau_dqd), each (B, nv, nv), [i][j] = d tau_i / d u_j."""
+    def mass_matrix(self, q: ArrayLike, *, out: Optional[Array] = None) -> Array:
+        """M(q), (B, nv, nv)."""
+    def minv(self, q: ArrayLike, *, out: Optional[Array] = None) -> Array:
+        """M(q)^-1, (B, nv, nv)."""
+    def fd(self, q: ArrayLike, qd: ArrayLike, tau: ArrayLike, *, out: Optional[Array] = None) -> Array:
+        """Forward dynamics qdd, (B, nv)."""
+    def fd_grad(self, q: ArrayLike, qd: ArrayLike, tau: ArrayLike, *, out: Optional[Sequence[Array]] = None) -> Tuple[Array, Array, Array]:
+        """(qdd, dqdd_dq, dqdd_dqd): (B, nv), (B, nv, nv), (B, nv, nv)."""
+    def __getattr__(self, kernel: str) -> Kernel:
+        """The frame, force, contact and step kernels the robot was generated with."""

@@ -1,0 +1,188 @@
+"""From a URDF to a loaded robot library: generate, compile with cargo, cache by content."""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Optional, Sequence
+
+from . import _native
+from ._robot import Robot
+
+_PRECISIONS = ("f64", "f32")
+
+
+def cache_dir() -> Path:
+    """Where compiled robots are kept: $GRID_GEN_CACHE, else $XDG_CACHE_HOME/grid-gen,
+    else ~/.cache/grid-gen. Deleting it is always safe."""
+    if os.environ.get("GRID_GEN_CACHE"):
+        return Path(os.environ["GRID_GEN_CACHE"]).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "grid-gen"
+
+
+_build_id: Optional[str] = None
+
+
+def _generator_id() -> str:
+    """A hash of this package's native generator, so that a new grid-gen never reuses a
+    library an older one compiled (the version number alone does not change with every
+    fix)."""
+    global _build_id
+    if _build_id is None:
+        h = hashlib.sha256(_native.version().encode())
+        with open(_native.__file__, "rb") as f:
+            for block in iter(lambda: f.read(1 << 20), b""):
+                h.update(block)
+        _build_id = h.hexdigest()
+    return _build_id
+
+
+def _cargo() -> str:
+    """The cargo to build with, or a RuntimeError that says what to install."""
+    for candidate in (os.environ.get("CARGO"), shutil.which("cargo"), os.path.expanduser("~/.cargo/bin/cargo")):
+        if candidate and os.path.isfile(candidate) and os.access(candidate, os.X_OK):
+            return candidate
+    raise RuntimeError(
+        "grid_gen.load compiles each robot once with Rust's cargo, which is not on PATH (nor $CARGO, "
+        "nor ~/.cargo/bin). Install Rust with `curl https://sh.rustup.rs -sSf | sh` (https://rustup.rs), "
+        f"then load again; compiled robots are cached in {cache_dir()}."
+    )
+
+
+def _write_if_changed(path: Path, text: str) -> None:
+    if not path.exists() or path.read_text() != text:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text(text)
+
+
+def _runtime_crate(cache: Path) -> Path:
+    """The grid-gen-runtime crate, written from the source this package carries."""
+    root = cache / "runtime"
+    _write_if_changed(
+        root / "Cargo.toml",
+        '[package]\nname = "grid-gen-runtime"\nversion = "0.1.0"\nedition = "2021"\n\n[dependencies]\nrayon = "1"\n',
+    )
+    _write_if_changed(root / "src" / "lib.rs", _native.runtime_source())
+    return root
+
+
+def load(
+    urdf: str | os.PathLike,
+    floating_base: bool = False,
+    scene: Optional[str | os.PathLike] = None,
+    frames: Optional[Sequence[str]] = None,
+    precision: str = "f64",
+    kernels: Optional[Sequence[str]] = None,
+    verbose: bool = True,
+) -> Robot:
+    """Loads a robot's kernels, compiling them on the first load.
+
+    urdf: the robot description. floating_base: put a free-flyer under the root link
+    (Pinocchio's JointModelFreeFlyer; q = [x, y, z, qx, qy, qz, qw, joints]). scene: a
+    grid-gen scene file (TOML: locked joints, payloads, contacts, step, ...). frames: link
+    names for the frame kernels. precision: "f64" or "f32", the scalar of every array the
+    kernels read and write. kernels: which kernels to compile (default all the robot has;
+    fewer compile faster). verbose: say on stderr when a robot is being compiled.
+
+    A compiled robot is cached (see `cache_dir`) under a hash of the URDF, the scene, the
+    options and this grid-gen, and loads again in milliseconds. Raises ValueError for a
+    robot grid-gen cannot use (with the URDF's line and what is wrong), FileNotFoundError
+    for a missing file, RuntimeError when cargo is missing or the build fails.
+    """
+    if precision not in _PRECISIONS:
+        raise ValueError(f"precision must be one of {_PRECISIONS}, not {precision!r}")
+    urdf_path = Path(urdf)
+    if not urdf_path.is_file():
+        raise FileNotFoundError(f"no URDF at {urdf_path}")
+    scene_path = Path(scene) if scene is not None else None
+    if scene_path is not None and not scene_path.is_file():
+        raise FileNotFoundError(f"no scene file at {scene_path}")
+    frames = list(frames) if frames is not None else None
+    kernels = list(kernels) if kernels is not None else None
+    for what, names in (("frames", frames), ("kernels", kernels)):
+        if names is not None and not all(isinstance(n, str) for n in names):
+            raise ValueError(f"{what} must be a list of strings")
+
+    key_source = {
+        "generator": _generator_id(),
+        "urdf": hashlib.sha256(urdf_path.read_bytes()).hexdigest(),
+        "scene": hashlib.sha256(scene_path.read_bytes()).hexdigest() if scene_path else None,
+        "floating_base": bool(floating_base),
+        "frames": frames,
+        "kernels": kernels,
+        "precision": precision,
+    }
+    key = hashlib.sha256(json.dumps(key_source, sort_keys=True).encode()).hexdigest()[:24]
+    cache = cache_dir()
+    lib = cache / "robots" / key / _library_name("robot")
+    if not lib.exists():
+        _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose)
+    prefix = json.loads((lib.parent / "source.json").read_text())["prefix"]
+    return Robot(str(lib), prefix, precision)
+
+
+def _library_name(stem: str) -> str:
+    if sys.platform == "darwin":
+        return f"lib{stem}.dylib"
+    if sys.platform == "win32":
+        return f"{stem}.dll"
+    return f"lib{stem}.so"
+
+
+def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose) -> None:
+    cargo = _cargo()
+    crate = cache / "build" / key
+    src = crate / "src"
+    src.mkdir(parents=True, exist_ok=True)
+    # The generator's errors (a bad URDF, an unknown frame) come before any compiling.
+    files = _native.generate(
+        str(urdf_path),
+        str(src),
+        floating_base=bool(floating_base),
+        scene=str(scene_path) if scene_path else None,
+        frames=frames,
+        kernels=kernels,
+        precision=precision,
+    )
+    module = next(f for f in files if f.endswith(".rs") and not f.endswith("_c.rs"))
+    stem = module[: -len(".rs")]
+    _write_if_changed(
+        src / "lib.rs",
+        f'mod {stem} {{\n    include!("{stem}.rs");\n}}\ninclude!("{stem}_c.rs");\n',
+    )
+    runtime = _runtime_crate(cache)
+    name = f"grid_gen_robot_{key}"
+    _write_if_changed(
+        crate / "Cargo.toml",
+        f'[package]\nname = "{name}"\nversion = "0.1.0"\nedition = "2021"\n\n[lib]\ncrate-type = ["cdylib"]\n\n'
+        f'[dependencies]\ngrid-gen-runtime = {{ path = {json.dumps(str(runtime))} }}\n\n'
+        "[profile.release]\npanic = \"abort\"\n\n[workspace]\n",
+    )
+    if verbose:
+        print(f"grid_gen: compiling {urdf_path.name} (first load of this robot; cached in {cache})", file=sys.stderr, flush=True)
+    # One target folder for every robot, so that rayon and the runtime compile once.
+    cmd = [cargo, "build", "--release", "--manifest-path", str(crate / "Cargo.toml"), "--target-dir", str(cache / "target")]
+    if not verbose:
+        cmd.append("--quiet")
+    run = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=None if verbose else subprocess.PIPE, text=True)
+    if run.returncode != 0:
+        raise RuntimeError(f"cargo could not build {urdf_path.name}'s kernels (in {crate}):\n{run.stderr or ''}{run.stdout}")
+    built = cache / "target" / "release" / _library_name(name)
+    lib.parent.mkdir(parents=True, exist_ok=True)
+    # The C names' prefix (`<prefix>_fd_grad_f64`), and where the library came from.
+    prefix = ("robot" + stem) if stem.startswith("_") else stem
+    source = {"prefix": prefix, "urdf": str(urdf_path.resolve()), "scene": str(scene_path.resolve()) if scene_path else None}
+    source.update(floating_base=bool(floating_base), frames=frames, kernels=kernels, precision=precision)
+    (lib.parent / "source.json").write_text(json.dumps(source, indent=1))
+    # Copy, then rename: a concurrent load sees the whole library or none.
+    fd, tmp = tempfile.mkstemp(dir=lib.parent, suffix=".tmp")
+    os.close(fd)
+    shutil.copyfile(built, tmp)
+    os.replace(tmp, lib)

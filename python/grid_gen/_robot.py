@@ -1,0 +1,150 @@
+"""A loaded robot: its kernels as methods over NumPy batches, through the library's C ABI."""
+
+from __future__ import annotations
+
+import ctypes
+import json
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+
+import numpy as np
+
+Array = np.ndarray
+
+
+class Kernel:
+    """One generated kernel, called on one state (1-D arrays) or a batch (axis 0).
+
+    Arguments are the kernel's inputs in order (or by name); `out=` takes arrays to write
+    the results into (one array, or a tuple for several outputs), each of the exact shape
+    and dtype, C-contiguous and sharing no memory with the inputs. The batch runs on every
+    core with the GIL released (ctypes releases it for the call).
+    """
+
+    def __init__(self, robot: "Robot", spec: Dict[str, Any]):
+        self._robot = robot
+        self.name: str = spec["name"]
+        self.inputs: Tuple[Tuple[str, int], ...] = tuple((i["name"], int(i["len"])) for i in spec["inputs"])
+        self.outputs: Tuple[Tuple[str, Tuple[int, ...]], ...] = tuple((o["name"], tuple(int(d) for d in o["dims"])) for o in spec["outputs"])
+        fn = getattr(robot._lib, f"{robot._prefix}_{self.name}_batch_{robot.precision}")
+        fn.argtypes = [ctypes.c_size_t] + [ctypes.c_void_p] * (len(self.inputs) + len(self.outputs))
+        fn.restype = ctypes.c_int32
+        self._fn = fn
+        args = ", ".join(n for n, _ in self.inputs)
+        outs = ", ".join(n for n, _ in self.outputs)
+        shapes = "; ".join(f"{n}: (B, {l})" for n, l in self.inputs)
+        out_shapes = "; ".join(f"{n}: (B, {', '.join(map(str, d))})" for n, d in self.outputs)
+        self.__doc__ = f"{self.name}({args}) -> {outs}\n\n{spec['doc']}\n\nIn: {shapes}.\nOut: {out_shapes}.\nA 1-D input is one state (no batch axis in the outputs)."
+
+    def __repr__(self) -> str:
+        return f"<grid_gen kernel {self.name} of {self._robot.name}>"
+
+    def __call__(self, *args: Any, out: Union[None, Array, Sequence[Array]] = None, **kwargs: Any):
+        name = self.name
+        robot = self._robot
+        dtype = robot.dtype
+        if len(args) > len(self.inputs):
+            raise TypeError(f"{name}() takes {len(self.inputs)} arguments ({', '.join(n for n, _ in self.inputs)}), got {len(args)}")
+        values = dict(zip((n for n, _ in self.inputs), args))
+        for k, v in kwargs.items():
+            if k not in (n for n, _ in self.inputs):
+                raise TypeError(f"{name}() has no argument {k!r}; its arguments: {', '.join(n for n, _ in self.inputs)}")
+            if k in values:
+                raise TypeError(f"{name}() got {k!r} twice")
+            values[k] = v
+        batch: Optional[int] = None
+        first: Optional[str] = None
+        arrays: List[Array] = []
+        for arg, length in self.inputs:
+            if arg not in values:
+                raise TypeError(f"{name}() is missing its argument {arg!r}")
+            a = np.asarray(values[arg])
+            if a.dtype.kind not in "fiu":
+                raise ValueError(f"{name}: `{arg}` has dtype {a.dtype}; expected real numbers (float64 or float32)")
+            if a.ndim not in (1, 2) or a.shape[-1] != length:
+                raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected ({length},) for one state or (B, {length}) for a batch")
+            b = a.shape[0] if a.ndim == 2 else None
+            if first is None:
+                batch, first = b, arg
+            elif b != batch:
+                want = f"(B, {length}) with B = {batch} as `{first}`" if batch is not None else f"({length},) as `{first}`"
+                raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected {want}")
+            a = np.ascontiguousarray(a, dtype=dtype)
+            if not np.isfinite(a).all():
+                where = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
+                raise ValueError(f"{name}: `{arg}` holds a non-finite value at index {where if len(where) > 1 else where[0]}")
+            arrays.append(a)
+        lead = () if batch is None else (batch,)
+        if out is None:
+            outs = [np.empty(lead + dims, dtype=dtype) for _, dims in self.outputs]
+        else:
+            given = [out] if isinstance(out, np.ndarray) else list(out)
+            if len(given) != len(self.outputs):
+                raise ValueError(f"{name}: out= needs {len(self.outputs)} arrays ({', '.join(n for n, _ in self.outputs)}), got {len(given)}")
+            outs = []
+            for (oname, dims), o in zip(self.outputs, given):
+                want = lead + dims
+                if not isinstance(o, np.ndarray) or o.dtype != dtype or o.shape != want:
+                    what = f"{o.dtype} {o.shape}" if isinstance(o, np.ndarray) else type(o).__name__
+                    raise ValueError(f"{name}: out `{oname}` is {what}; expected a {np.dtype(dtype)} array of shape {want}")
+                if not o.flags.c_contiguous or not o.flags.writeable:
+                    raise ValueError(f"{name}: out `{oname}` must be C-contiguous and writeable")
+                if any(np.may_share_memory(o, x) for x in arrays + outs):
+                    raise ValueError(f"{name}: out `{oname}` shares memory with another argument; pass separate arrays")
+                outs.append(o)
+        n = 1 if batch is None else batch
+        status = self._fn(n, *(a.ctypes.data for a in arrays), *(o.ctypes.data for o in outs))
+        if status != 0:
+            raise RuntimeError(f"{name}: the kernel library returned status {status}")
+        return outs[0] if len(outs) == 1 else tuple(outs)
+
+
+class Robot:
+    """A robot's compiled kernels (from `grid_gen.load`). Each kernel is a method named like
+    it (`rnea`, `rnea_grad`, `mass_matrix`, `minv`, `fd`, `fd_grad`, and the frame, force,
+    contact and step kernels the robot was generated with); `kernels` lists them."""
+
+    def __init__(self, library: str, prefix: str, precision: str):
+        self._lib = ctypes.CDLL(library)
+        self._prefix = prefix
+        manifest_fn = getattr(self._lib, f"{prefix}_manifest")
+        manifest_fn.restype = ctypes.c_char_p
+        manifest_fn.argtypes = []
+        m = json.loads(manifest_fn().decode())
+        self.manifest: Dict[str, Any] = m
+        self.library = library
+        self.precision = precision
+        self.dtype = np.float64 if precision == "f64" else np.float32
+        self.name: str = m["robot"]
+        self.nq: int = m["nq"]
+        self.nv: int = m["nv"]
+        self.nu: int = m["nu"]
+        self.nlambda: int = m["nlambda"]
+        self.floating_base: bool = m["floating_base"]
+        self.joint_names: List[str] = list(m["joint_names"])
+        self.frames: List[str] = list(m["frames"])
+        self.contacts: List[Tuple[str, str]] = [tuple(c) for c in m["contacts"]]
+        self.gravity: Tuple[float, float, float] = tuple(m["gravity"])
+        self.kernels: Tuple[str, ...] = tuple(k["name"] for k in m["kernels"])
+        for spec in m["kernels"]:
+            setattr(self, spec["name"], Kernel(self, spec))
+        self._set_threads = getattr(self._lib, f"{prefix}_set_threads")
+        self._set_threads.argtypes = [ctypes.c_size_t]
+        self._set_threads.restype = None
+        self._threads = getattr(self._lib, f"{prefix}_threads")
+        self._threads.argtypes = []
+        self._threads.restype = ctypes.c_size_t
+
+    @property
+    def threads(self) -> int:
+        """Threads a batch runs on (every core unless set); set 1 to stay on the caller's
+        thread, 0 to go back to every core. Shared by every Robot of this library."""
+        return int(self._threads())
+
+    @threads.setter
+    def threads(self, n: int) -> None:
+        if not isinstance(n, (int, np.integer)) or n < 0:
+            raise ValueError(f"threads must be a non-negative integer, not {n!r}")
+        self._set_threads(int(n))
+
+    def __repr__(self) -> str:
+        return f"<grid_gen robot {self.name}: nq {self.nq}, nv {self.nv}, {self.precision}, kernels {', '.join(self.kernels)}>"

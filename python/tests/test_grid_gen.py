@@ -1,0 +1,264 @@
+"""grid_gen from Python against Pinocchio: bundled robots, a robot the project never saw,
+batches and single states, f64 and f32, and every kind of bad argument.
+
+Run by scripts/test.sh after `pip install ./python`; GRID_GEN_CACHE points the compiled
+robots at target/grid-gen-cache there.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import numpy as np
+import pinocchio as pin
+import pytest
+
+import grid_gen
+
+ROOT = Path(__file__).resolve().parents[2]
+IIWA = ROOT / "robots" / "grid_iiwa.urdf"
+GO2 = ROOT / "tests" / "fixtures" / "go2.urdf"
+
+
+def rel(a, b) -> float:
+    """max |a - b| / max |b|: the error measure of every grid-gen test."""
+    scale = float(np.max(np.abs(b)))
+    return float(np.max(np.abs(a - b))) / (scale if scale > 0 else 1.0)
+
+
+class Pin:
+    """Pinocchio's model of the same URDF, with grid-gen's coordinate order mapped onto it
+    by joint name (both walk the tree depth-first, but nothing here assumes it)."""
+
+    def __init__(self, urdf: Path, robot: grid_gen.Robot):
+        if robot.floating_base:
+            self.model = pin.buildModelFromUrdf(str(urdf), pin.JointModelFreeFlyer())
+        else:
+            self.model = pin.buildModelFromUrdf(str(urdf))
+        self.data = self.model.createData()
+        m = self.model
+        base = 6 if robot.floating_base else 0
+        self.v = list(range(base))
+        self.q = list(range(7 if base else 0))
+        for name in robot.joint_names[base:]:
+            j = m.getJointId(name)
+            assert j < m.njoints, f"Pinocchio has no joint {name}"
+            assert m.joints[j].nv == 1, name
+            self.v.append(m.joints[j].idx_v)
+            self.q.append(m.joints[j].idx_q)
+        assert sorted(self.v) == list(range(m.nv)) and sorted(self.q) == list(range(m.nq))
+
+    def to_pin(self, q, v):
+        qp, vp = np.empty(self.model.nq), np.empty(self.model.nv)
+        qp[self.q] = q
+        vp[self.v] = v
+        return qp, vp
+
+    def vec(self, x):
+        """A Pinocchio vector in grid-gen's order."""
+        return np.asarray(x)[self.v]
+
+    def mat(self, x):
+        return np.asarray(x)[np.ix_(self.v, self.v)]
+
+
+def random_states(robot: grid_gen.Robot, n: int, seed: int):
+    rng = np.random.default_rng(seed)
+    q = rng.uniform(-1.5, 1.5, (n, robot.nq))
+    if robot.floating_base:
+        quat = rng.normal(size=(n, 4))
+        q[:, 3:7] = quat / np.linalg.norm(quat, axis=1, keepdims=True)
+    qd = rng.uniform(-1.0, 1.0, (n, robot.nv))
+    tau = rng.uniform(-10.0, 10.0, (n, robot.nv))
+    return q, qd, tau
+
+
+def check_against_pinocchio(urdf: Path, robot: grid_gen.Robot, n: int, tol: float) -> dict:
+    """Every basic kernel on a batch of n states against Pinocchio; returns the worst errors."""
+    p = Pin(urdf, robot)
+    q, qd, tau = random_states(robot, n, seed=3)
+    qdd, dq, dqd = robot.fd_grad(q, qd, tau)
+    tau_back = robot.rnea(q, qd, qdd)
+    drnea_dq, drnea_dqd = robot.rnea_grad(q, qd, qdd)
+    mass = robot.mass_matrix(q)
+    minv = robot.minv(q)
+    fd = robot.fd(q, qd, tau)
+    worst = dict.fromkeys(["fd_grad", "rnea_grad", "mass_matrix", "minv", "fd", "rnea"], 0.0)
+    for i in range(n):
+        qp, vp = p.to_pin(q[i], qd[i])
+        _, taup = p.to_pin(q[i], tau[i])
+        pin.computeABADerivatives(p.model, p.data, qp, vp, taup)
+        ddq = p.data.ddq.copy()
+        worst["fd_grad"] = max(worst["fd_grad"], rel(qdd[i], p.vec(ddq)), rel(dq[i], p.mat(p.data.ddq_dq)), rel(dqd[i], p.mat(p.data.ddq_dv)))
+        worst["fd"] = max(worst["fd"], rel(fd[i], p.vec(ddq)))
+        _, ap = p.to_pin(q[i], qdd[i])
+        pin.computeRNEADerivatives(p.model, p.data, qp, vp, ap)
+        worst["rnea_grad"] = max(worst["rnea_grad"], rel(drnea_dq[i], p.mat(p.data.dtau_dq)), rel(drnea_dqd[i], p.mat(p.data.dtau_dv)))
+        worst["rnea"] = max(worst["rnea"], rel(tau_back[i], tau[i]))
+        M = pin.crba(p.model, p.data, qp)
+        M = np.triu(M) + np.triu(M, 1).T
+        worst["mass_matrix"] = max(worst["mass_matrix"], rel(mass[i], p.mat(M)))
+        Mi = pin.computeMinverse(p.model, p.data, qp)
+        Mi = np.triu(Mi) + np.triu(Mi, 1).T
+        worst["minv"] = max(worst["minv"], rel(minv[i], p.mat(Mi)))
+    print(f"{robot.name}: worst relative error against Pinocchio over {n} states: " + ", ".join(f"{k} {v:.1e}" for k, v in worst.items()))
+    for k, v in worst.items():
+        assert v < tol, f"{k}: {v:.2e} against Pinocchio (tolerance {tol:.0e})"
+    return worst
+
+
+@pytest.fixture(scope="module")
+def iiwa():
+    return grid_gen.load(IIWA)
+
+
+def test_iiwa_batch_matches_pinocchio(iiwa):
+    assert (iiwa.nq, iiwa.nv) == (7, 7)
+    assert iiwa.joint_names == [f"iiwa_joint_{i}" for i in range(1, 8)]
+    # f64 round-off through M^-1 at random states: measured 2e-13 (fd_grad), 6x below.
+    check_against_pinocchio(IIWA, iiwa, 64, 1e-12)
+
+
+def test_go2_floating_batch_matches_pinocchio():
+    go2 = grid_gen.load(GO2, floating_base=True, kernels=["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"])
+    assert (go2.nq, go2.nv) == (19, 18) and go2.floating_base
+    # Measured 4e-13: a floating base's M^-1 is worse conditioned than iiwa's (light feet
+    # under a heavy trunk), so 1e-11.
+    check_against_pinocchio(GO2, go2, 64, 1e-11)
+
+
+def random_tree_urdf(seed: int) -> str:
+    """A robot nobody bundled: a six-joint tree (revolute and prismatic, random axes,
+    origins, masses and inertias that satisfy the triangle inequality)."""
+    rng = np.random.default_rng(seed)
+    parents = [None, 0, 1, 1, 3, 0]
+    # The base has mass: a massless floating base on one revolute joint would leave its
+    # rotation about that axis undetermined (M singular), here and in Pinocchio.
+    links = ['<link name="base"><inertial><mass value="4"/><inertia ixx="0.05" ixy="0" ixz="0" iyy="0.06" iyz="0" izz="0.07"/></inertial></link>']
+    joints = []
+    for i, parent in enumerate(parents):
+        m = rng.uniform(0.5, 3.0)
+        d = rng.uniform(0.01, 0.1, 3)
+        ixx, iyy, izz = d[1] + d[2], d[0] + d[2], d[0] + d[1]
+        com = " ".join(f"{x:.6f}" for x in rng.uniform(-0.1, 0.1, 3))
+        links.append(
+            f'<link name="l{i}"><inertial><origin xyz="{com}" rpy="0 0 0"/><mass value="{m:.6f}"/>'
+            f'<inertia ixx="{ixx:.6f}" ixy="0.001" ixz="0" iyy="{iyy:.6f}" iyz="0.002" izz="{izz:.6f}"/></inertial></link>'
+        )
+        axis = rng.normal(size=3)
+        axis /= np.linalg.norm(axis)
+        kind = "prismatic" if i == 4 else "revolute"
+        xyz = " ".join(f"{x:.6f}" for x in rng.uniform(-0.3, 0.3, 3))
+        rpy = " ".join(f"{x:.6f}" for x in rng.uniform(-math.pi, math.pi, 3))
+        joints.append(
+            f'<joint name="j{i}" type="{kind}"><parent link="{"base" if parent is None else f"l{parent}"}"/><child link="l{i}"/>'
+            f'<origin xyz="{xyz}" rpy="{rpy}"/><axis xyz="{axis[0]:.6f} {axis[1]:.6f} {axis[2]:.6f}"/>'
+            f'<limit lower="-3" upper="3" effort="100" velocity="10"/></joint>'
+        )
+    return '<robot name="unseen_tree">\n' + "\n".join(links + joints) + "\n</robot>\n"
+
+
+def test_a_robot_nobody_bundled_loads_and_matches_pinocchio(tmp_path):
+    urdf = tmp_path / "unseen_tree.urdf"
+    urdf.write_text(random_tree_urdf(seed=2026))
+    robot = grid_gen.load(urdf, floating_base=True)
+    assert robot.name == "unseen_tree" and robot.nv == 12
+    # Measured 9e-14 (seeded, so the same robot every run); as go2's.
+    check_against_pinocchio(urdf, robot, 64, 1e-11)
+
+
+def test_f32_kernels_follow_f64_within_single_precision(tmp_path, iiwa):
+    f32 = grid_gen.load(IIWA, precision="f32", kernels=["fd_grad"])
+    assert f32.dtype == np.float32 and f32.kernels == ("fd_grad",)
+    q, qd, tau = random_states(iiwa, 64, seed=5)
+    got = f32.fd_grad(q, qd, tau)
+    want = iiwa.fd_grad(q, qd, tau)
+    assert all(g.dtype == np.float32 for g in got)
+    err = max(rel(g.astype(np.float64), w) for g, w in zip(got, want))
+    print(f"iiwa f32 fd_grad against f64: {err:.1e}")
+    # f32 rounding (6e-8) amplified by iiwa's M^-1 (condition number in the hundreds); the
+    # Rust C ABI test measures ~2e-6.
+    assert err < 1e-4
+
+
+def test_one_state_batches_out_and_threads(iiwa):
+    q, qd, tau = random_states(iiwa, 9, seed=8)
+    qdd, dq, dqd = iiwa.fd_grad(q, qd, tau)
+    one = iiwa.fd_grad(q[4], qd[4], tau[4])
+    assert one[0].shape == (7,) and one[1].shape == (7, 7)
+    assert np.array_equal(one[0], qdd[4]) and np.array_equal(one[1], dq[4]) and np.array_equal(one[2], dqd[4])
+    # Any layout and any real dtype is accepted (copied to contiguous f64).
+    assert np.array_equal(iiwa.fd_grad(np.asfortranarray(q), qd.astype(np.float64), tau)[0], qdd)
+    assert np.array_equal(iiwa.fd(q=q, qd=qd, tau=tau), iiwa.fd(q, qd, tau))
+    # out= writes in place and returns the same arrays.
+    outs = (np.empty((9, 7)), np.empty((9, 7, 7)), np.empty((9, 7, 7)))
+    res = iiwa.fd_grad(q, qd, tau, out=outs)
+    assert all(r is o for r, o in zip(res, outs)) and np.array_equal(outs[1], dq)
+    # One thread and every core give the same bits.
+    iiwa.threads = 1
+    assert iiwa.threads == 1
+    single = iiwa.fd_grad(q, qd, tau)
+    iiwa.threads = 0
+    assert all(np.array_equal(a, b) for a, b in zip(single, (qdd, dq, dqd)))
+    # An empty batch is fine.
+    assert iiwa.fd(np.empty((0, 7)), np.empty((0, 7)), np.empty((0, 7))).shape == (0, 7)
+
+
+def test_bad_arguments_raise_value_errors_that_name_them(iiwa):
+    q, qd, tau = random_states(iiwa, 4, seed=1)
+    cases = [
+        (lambda: iiwa.fd_grad(q[:, :6], qd, tau), "`q` has shape (4, 6); expected (7,) for one state or (B, 7)"),
+        (lambda: iiwa.fd_grad(q, qd[:3], tau), "`qd` has shape (3, 7); expected (B, 7) with B = 4 as `q`"),
+        (lambda: iiwa.fd_grad(q, qd[0], tau), "`qd` has shape (7,); expected (B, 7) with B = 4 as `q`"),
+        (lambda: iiwa.fd_grad(q.astype(complex), qd, tau), "`q` has dtype complex128"),
+        (lambda: iiwa.fd_grad(q, qd, np.full((4, 7), "x")), "`tau` has dtype <U1"),
+        (lambda: iiwa.fd_grad(q, np.where(np.eye(4, 7) > 0, np.nan, qd), tau), "`qd` holds a non-finite value at index (0, 0)"),
+        (lambda: iiwa.rnea(q, qd, np.full((4, 7), np.inf)), "`qdd` holds a non-finite value"),
+        (lambda: iiwa.mass_matrix(q, out=np.empty((4, 7, 6))), "out `m` is float64 (4, 7, 6); expected a float64 array of shape (4, 7, 7)"),
+        (lambda: iiwa.mass_matrix(q, out=np.empty((4, 7, 7), dtype=np.float32)), "expected a float64 array"),
+        (lambda: iiwa.fd(q, qd, tau, out=q), "shares memory"),
+        (lambda: iiwa.fd_grad(q, qd, tau, out=(np.empty((4, 7)),)), "out= needs 3 arrays"),
+        (lambda: iiwa.minv(np.zeros((2, 3, 7))), "expected (7,) for one state or (B, 7)"),
+    ]
+    for call, message in cases:
+        with pytest.raises(ValueError) as e:
+            call()
+        assert message in str(e.value), str(e.value)
+    with pytest.raises(TypeError, match="missing its argument 'tau'"):
+        iiwa.fd(q, qd)
+    with pytest.raises(TypeError, match="no argument 'qdd'"):
+        iiwa.fd(q, qd, qdd=tau)
+
+
+def test_bad_robots_and_options_raise_before_compiling(tmp_path):
+    with pytest.raises(FileNotFoundError):
+        grid_gen.load(tmp_path / "missing.urdf")
+    with pytest.raises(ValueError, match="closest"):
+        grid_gen.load(IIWA, frames=["iiwa_link_77"])
+    with pytest.raises(ValueError, match="unknown kernel"):
+        grid_gen.load(IIWA, kernels=["fd_grad", "teleport"])
+    with pytest.raises(ValueError, match="precision"):
+        grid_gen.load(IIWA, precision="f16")
+    broken = tmp_path / "broken.urdf"
+    broken.write_text('<robot name="r">\n  <link name="a"/>\n  <joint name="j" type="revolute"><parent link="a"/><child link="nowhere"/></joint>\n</robot>\n')
+    with pytest.raises(ValueError) as e:
+        grid_gen.load(broken)
+    assert "broken.urdf:3" in str(e.value) and "nowhere" in str(e.value), str(e.value)
+
+
+def test_frames_are_methods_and_names(tmp_path):
+    robot = grid_gen.load(IIWA, frames=["iiwa_link_7"], kernels=["frame_placement", "frame_jacobian"])
+    assert robot.frames == ["iiwa_link_7"] and set(robot.kernels) == {"frame_placement", "frame_jacobian"}
+    p = Pin(IIWA, robot)
+    q, _, _ = random_states(robot, 8, seed=4)
+    jac = robot.frame_jacobian(q)
+    assert jac.shape == (8, 1, 6, 7)
+    fid = p.model.getFrameId("iiwa_link_7")
+    worst = 0.0
+    for i in range(8):
+        qp, _ = p.to_pin(q[i], np.zeros(7))
+        J = pin.computeFrameJacobian(p.model, p.data, qp, fid, pin.LOCAL_WORLD_ALIGNED)
+        worst = max(worst, rel(jac[i, 0], J[:, p.v]))
+    print(f"iiwa frame_jacobian against Pinocchio: {worst:.1e}")
+    assert worst < 1e-12
