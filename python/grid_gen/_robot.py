@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import ctypes
 import json
+import math
 from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
@@ -68,14 +69,41 @@ class Kernel:
             elif b != batch:
                 want = f"(B, {length}) with B = {batch} as `{first}`" if batch is not None else f"({length},) as `{first}`"
                 raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected {want}")
-            a = np.ascontiguousarray(a, dtype=dtype)
-            if not np.isfinite(a).all():
-                where = tuple(int(i) for i in np.argwhere(~np.isfinite(a))[0])
-                raise ValueError(f"{name}: `{arg}` holds a non-finite value at index {where if len(where) > 1 else where[0]}")
             arrays.append(a)
+        n = 1 if batch is None else batch
+        # The inputs, copied into one buffer in the kernel's scalar, input after input (the
+        # C ABI's layout): one finiteness check and one pointer instead of one per input,
+        # which is most of a small call's cost.
+        packed = np.concatenate([a.ravel() for a in arrays], dtype=dtype) if len(arrays) > 1 else np.ascontiguousarray(arrays[0], dtype=dtype).ravel()
+        if not np.isfinite(packed).all():
+            for (arg, _), a in zip(self.inputs, arrays):
+                bad = np.argwhere(~np.isfinite(np.asarray(a, dtype=dtype)))
+                if len(bad):
+                    where = tuple(int(i) for i in bad[0])
+                    raise ValueError(f"{name}: `{arg}` holds a non-finite value at index {where if len(where) > 1 else where[0]}")
+        base = packed.ctypes.data
+        item = packed.itemsize
+        in_ptrs = []
+        offset = 0
+        for _, length in self.inputs:
+            in_ptrs.append(base + offset * item)
+            offset += n * length
         lead = () if batch is None else (batch,)
         if out is None:
-            outs = [np.empty(lead + dims, dtype=dtype) for _, dims in self.outputs]
+            # One allocation for every output, viewed per output.
+            sizes = [n * math.prod(dims) for _, dims in self.outputs]
+            block = np.empty(sum(sizes), dtype=dtype)
+            outs = []
+            start = 0
+            for (_, dims), size in zip(self.outputs, sizes):
+                outs.append(block[start : start + size].reshape(lead + dims))
+                start += size
+            obase = block.ctypes.data
+            out_ptrs = []
+            start = 0
+            for size in sizes:
+                out_ptrs.append(obase + start * item)
+                start += size
         else:
             given = [out] if isinstance(out, np.ndarray) else list(out)
             if len(given) != len(self.outputs):
@@ -91,8 +119,8 @@ class Kernel:
                 if any(np.may_share_memory(o, x) for x in arrays + outs):
                     raise ValueError(f"{name}: out `{oname}` shares memory with another argument; pass separate arrays")
                 outs.append(o)
-        n = 1 if batch is None else batch
-        status = self._fn(n, *(a.ctypes.data for a in arrays), *(o.ctypes.data for o in outs))
+            out_ptrs = [o.ctypes.data for o in outs]
+        status = self._fn(n, *in_ptrs, *out_ptrs)
         if status != 0:
             raise RuntimeError(f"{name}: the kernel library returned status {status}")
         return outs[0] if len(outs) == 1 else tuple(outs)

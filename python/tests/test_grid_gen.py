@@ -262,3 +262,14 @@ def test_frames_are_methods_and_names(tmp_path):
         worst = max(worst, rel(jac[i, 0], J[:, p.v]))
     print(f"iiwa frame_jacobian against Pinocchio: {worst:.1e}")
     assert worst < 1e-12
+
+
+def test_without_cargo_load_says_what_to_install(tmp_path, monkeypatch):
+    # A cache with nothing in it, and no cargo anywhere: PATH empty, $CARGO unset, a home
+    # without ~/.cargo.
+    monkeypatch.setenv("GRID_GEN_CACHE", str(tmp_path / "cache"))
+    monkeypatch.setenv("PATH", str(tmp_path))
+    monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.delenv("CARGO", raising=False)
+    with pytest.raises(RuntimeError, match=r"install Rust .*rustup"):
+        grid_gen.load(IIWA)
