@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Reproduces every speed figure in the README, side by side in one run on this machine:
+# Reproduces every speed figure in the book, side by side in one run on this machine:
 #   1. Pinocchio's computeRNEADerivatives / computeABADerivatives (and rnea, aba), built
 #      from the headers of the `pin` wheel with g++ -O3 (bench/pinocchio_bench.cpp);
 #   2. the criterion benchmarks of the generated kernels and the reference

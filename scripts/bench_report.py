@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""Prints the README's speed table from one run of scripts/bench.sh: Pinocchio's times
+"""Prints the book's speed table from one run of scripts/bench.sh: Pinocchio's times
 (JSON lines from bench/pinocchio_bench.cpp) and criterion's estimates (median, ns)."""
 import json
 import pathlib

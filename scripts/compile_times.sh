@@ -1,7 +1,7 @@
 #!/usr/bin/env bash
 # Measures how long rustc takes to compile each checked-in generated module in release
 # (all six kernels instantiated for f64), one robot at a time, in a scratch crate under
-# target/compile-times/. Prints a markdown table; reproduces the README's compile times.
+# target/compile-times/. Prints a markdown table; reproduces the book's compile times.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 root=$(pwd)

@@ -86,6 +86,19 @@ say "the Python package: pip install ./python, then its tests against Pinocchio"
 # Compiled robots go under target/, not the user's cache.
 GRID_GEN_CACHE="$PWD/target/grid-gen-cache" "$PY" -m pytest -q -s python/tests
 
+say "the book: mdbook build docs/book, and every link in it and in the README"
+# mdBook from crates.io into target/tools (no server or file watcher: the build alone).
+MDBOOK="$(command -v mdbook || true)"
+if [ -z "$MDBOOK" ]; then
+    MDBOOK=target/tools/bin/mdbook
+    if [ ! -x "$MDBOOK" ]; then
+        cargo install --quiet --locked --no-default-features --root target/tools mdbook --version 0.5.4 \
+            || die "could not install mdbook 0.5.4 with cargo (crates.io)"
+    fi
+fi
+"$MDBOOK" build docs/book || die "mdbook build docs/book failed"
+"$PY" scripts/check_links.py || die "broken links in README.md or docs/ (listed above)"
+
 say "fixtures are what Pinocchio and yourdfpy compute"
 "$PY" scripts/make_fixtures.py --check
 

@@ -2,7 +2,7 @@
 // regenerate with `grid-gen ROBOT.urdf --emit rust,c -o DIR`.
 // source: grid_iiwa.urdf
 //
-// The C ABI of the kernels in iiwa14.rs, built from iiwa14_c.rs (see the README, "From C and C++").
+// The C ABI of the kernels in iiwa14.rs, built from iiwa14_c.rs (see the book, "From C, C++ and Python").
 // Arrays are contiguous, row-major and state-major: state i's q starts at q + i * IIWA14_NQ, its
 // dqdd_dq at dqdd_dq + i * IIWA14_NV * IIWA14_NV; matrices are [i][j] = d out_i / d in_j. Vectors are in
 // the order of IIWA14_JOINT_NAMES. Pointers must be aligned to their scalar; outputs must not overlap

@@ -186,7 +186,7 @@ struct LoadArgs {
     #[arg(long, global = true)]
     strict: bool,
     /// A scene file (TOML): joints to lock, links to keep or drop, payloads, gravity, the
-    /// kernels to generate; applied to the model for every command (README, Scenes).
+    /// kernels to generate; applied to the model for every command (the book, Scenes).
     #[arg(long, value_name = "SCENE.toml", global = true)]
     scene: Option<PathBuf>,
     /// Put a free-flyer between the world and the root link (Pinocchio's conventions:
@@ -272,7 +272,7 @@ enum Command {
         check: bool,
         /// Also emit the Rust module's `avx512` copy, run first on CPUs with AVX-512 F and VL
         /// (half again the module's size and compile time; results bit-identical to the
-        /// `fma` copy; README, Speed).
+        /// `fma` copy; the book, Speed).
         #[arg(long)]
         avx512: bool,
         #[command(flatten)]
@@ -284,7 +284,7 @@ enum Command {
         /// The robot description.
         #[arg(value_name = "ROBOT.urdf")]
         urdf: PathBuf,
-        /// Print stable JSON instead of text (fields documented in the README).
+        /// Print stable JSON instead of text (fields documented in the book's command-line reference).
         #[arg(long)]
         json: bool,
         #[command(flatten)]
@@ -296,7 +296,7 @@ enum Command {
     /// order (qdd and tau optional). Output: per state rnea, drnea_dq, drnea_dqd (with qdd),
     /// M, Minv, fd, dfd_dq, dfd_dqd (with tau); matrices row-major, [i][j] = ∂out_i/∂in_j;
     /// with --frames, frames.LINK: translation, rotation, jacobian, velocity and (with qdd)
-    /// classical_acceleration, in Pinocchio's reference frames (README, Frames).
+    /// classical_acceleration, in Pinocchio's reference frames (the book, Frames).
     Eval {
         /// The robot description.
         #[arg(value_name = "ROBOT.urdf")]

@@ -1,6 +1,6 @@
 //! Criterion benchmarks of every generated f64 kernel against the reference dynamics, for
 //! iiwa, HyQ and Atlas. `scripts/bench.sh` runs these beside Pinocchio and prints the
-//! README's table; run alone with `cargo bench -p grid-gen-kernels --bench kernels`.
+//! book's table; run alone with `cargo bench -p grid-gen-kernels --bench kernels`.
 //!
 //! Each iteration cycles through 64 fixed pseudo-random states so that branch predictors
 //! and caches see what an optimiser's sweep over knot points shows them.

@@ -1,5 +1,5 @@
 //! Operation counts of the two RNEA-gradient formulations for each bundled robot, and of
-//! `fd_grad`'s two M⁻¹ routes (the figures of the README's gradient tables):
+//! `fd_grad`'s two M⁻¹ routes (the figures of the book's gradient tables):
 //! `cargo run --release -p grid-gen --example gradient_ops`.
 
 use grid_gen::ir::{self, Gradient, KernelKind, LowerOptions, Solve};

@@ -1,6 +1,6 @@
 //! Which stages of `minv`, `fd` and `fd_grad` the mixed-precision plans keep in f64, per
 //! bundled robot and target, and how many operands cross between f32 and f64 (each a
-//! conversion) (the README's mixed-precision section quotes it):
+//! conversion) (the book's mixed-precision section quotes it):
 //! `cargo run --release -p grid-gen --example mixed_stages`.
 
 use grid_gen::ir::{self, KernelKind, LowerOptions};

@@ -1,4 +1,4 @@
-//! The README's fixed-point trade table: for iiwa and HyQ `rnea_grad`, each WIDTH with
+//! The book's fixed-point trade table: for iiwa and HyQ `rnea_grad`, each WIDTH with
 //! the most FRAC bits the range analysis allows, the largest error measured by the
 //! bit-exact software model over random states within the bounds (against the f64
 //! datapath, which equals the reference to 1e-12), the analysed bound, units, and the

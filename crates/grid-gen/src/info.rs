@@ -1,5 +1,5 @@
 //! The model summary behind `grid-gen info`, in a stable JSON shape (documented in the
-//! README; fields are only ever added).
+//! book; fields are only ever added).
 
 use serde::Serialize;
 

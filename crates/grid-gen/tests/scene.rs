@@ -236,3 +236,19 @@ fn gradient_rows_and_columns_name_movable_joints() {
     let jb2 = m.joints.iter().position(|j| j.name == "jb2").unwrap();
     assert_eq!(m.specialisation.rows, Some(vec![0, jb2]), "model order, once each");
 }
+
+/// The book's scene example (every key at once, `docs/guide/scenes.md`) parses, and its
+/// keys land where the comments say (a new user's copy of it once failed: `static`
+/// written after `[lock]` was read as a joint to lock).
+#[test]
+fn the_books_scene_example_parses() {
+    let page = std::fs::read_to_string(repo().join("docs/guide/scenes.md")).unwrap();
+    let block = page.split("```toml\n").nth(1).unwrap().split("```").next().unwrap();
+    let scene = Scene::parse("scenes.md", block).unwrap();
+    assert!(scene.static_velocity && scene.floating_base && scene.lock.len() == 1 && scene.payload.len() == 1);
+    assert_eq!(scene.outputs.as_deref(), Some(&["rnea_grad".to_string(), "fd_grad".to_string()][..]));
+    // Written after the table, `static` is a joint of `[lock]`, and the error says what went wrong.
+    let misplaced = block.replace("static = true ", "").replace("iiwa_joint_7 = 0.0\n", "iiwa_joint_7 = 0.0\nstatic = true\n");
+    let err = Scene::parse("scenes.md", &misplaced).unwrap_err().to_string();
+    assert!(err.contains("static"), "{err}");
+}

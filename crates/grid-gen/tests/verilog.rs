@@ -296,7 +296,7 @@ fn count(report: &str, name: &str) -> usize {
 /// registers. The shared `rnea_grad` goes through Yosys's word-level synthesis only
 /// (`synth -run begin:fine`, about a minute): mapping its operand multiplexers (224
 /// cycles into 16 operand ports over 340 registers) to 0.9 million gates takes 8 minutes
-/// on the development machine, measured once for the README, too long for every run.
+/// on the development machine, measured once for the book, too long for every run.
 #[test]
 fn yosys_synthesises_the_iiwa_netlists() {
     if !tool_or_skip("Yosys", yosys_available()) {

@@ -29,11 +29,11 @@ fn example_runs_and_matches_the_reference() {
     assert!(close(&parse(lines[3]), &dqd.row(1).iter().copied().collect::<Vec<_>>()), "dqdd_dqd: {}", lines[3]);
 }
 
-/// The README's `src/main.rs` snippet is this example, so the documented code compiles
-/// and runs.
+/// The book's `src/main.rs` snippet (Generated Rust) is this example, so the documented
+/// code compiles and runs.
 #[test]
-fn the_readme_shows_this_main_rs() {
-    let readme = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../README.md")).unwrap();
+fn the_book_shows_this_main_rs() {
+    let page = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/guide/rust.md")).unwrap();
     let main = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/src/main.rs")).unwrap();
-    assert!(readme.contains(&format!("```rust\n// src/main.rs\n{main}```")), "README.md's `// src/main.rs` block differs from examples/iiwa-build/src/main.rs");
+    assert!(page.contains(&format!("```rust\n// src/main.rs\n{main}```")), "docs/guide/rust.md's `// src/main.rs` block differs from examples/iiwa-build/src/main.rs");
 }

@@ -36,7 +36,7 @@ pub struct RustOptions {
     /// Also emit the `avx512` copy (the `fma` copy's operations compiled for AVX-512 F and
     /// VL, dispatched first where the CPU has them). Off by default: it adds half again to
     /// the module's size and release compile time (Atlas: 32 s -> 47 s) for 5-12% on the
-    /// gradients of an AVX-512 CPU (README, Speed).
+    /// gradients of an AVX-512 CPU (the book, Speed).
     pub avx512: bool,
 }
 

@@ -9,7 +9,7 @@
 
 mod cells;
 /// The two arithmetic cell modules of a format (`<top>_mul`, `<top>_add`), for synthesising
-/// one cell on its own (the README's per-width gate counts).
+/// one cell on its own (the book's per-width gate counts).
 pub use cells::cells as cell_modules;
 mod pipelined;
 mod ports;

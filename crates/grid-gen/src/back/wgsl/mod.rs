@@ -198,7 +198,7 @@ impl EntryStats {
     }
 }
 
-/// The buffer layout, described once for the file header and the README.
+/// The buffer layout, described once for the file header and the book.
 pub const LAYOUT_DOC: &str = "\
 Every entry point shares one bind group (group 0), so one pipeline layout serves all:
   binding 0  uniform  Params { n: u32 }             number of states N in this dispatch

@@ -8,7 +8,7 @@
 //! √(a²+b²) at every joint and ranges grow along the chain faster than the true values.
 //! First-order affine arithmetic (one noise symbol per port) was tried and bounded no
 //! node of the bundled robots tighter: the dynamics are multilinear in the joints'
-//! sin/cos, so every product of two joints' terms falls into the nonlinear remainder. The README reports the bound beside the measured error.
+//! sin/cos, so every product of two joints' terms falls into the nonlinear remainder. The book reports the bound beside the measured error.
 
 use super::{Datapath, FixedError, Format, HwOp, Port, Rounding, MAX_WIDTH};
 use crate::ir::{Input, Robot};
