@@ -98,6 +98,7 @@ if [ -z "$MDBOOK" ]; then
 fi
 "$MDBOOK" build docs/book || die "mdbook build docs/book failed"
 "$PY" scripts/check_links.py || die "broken links in README.md or docs/ (listed above)"
+"$PY" scripts/check_figures.py || die "the README's speed table differs from the run it names"
 
 say "fixtures are what Pinocchio and yourdfpy compute"
 "$PY" scripts/make_fixtures.py --check
