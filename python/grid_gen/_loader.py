@@ -167,6 +167,11 @@ def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kern
     )
     if verbose:
         print(f"grid_gen: compiling {urdf_path.name} (first load of this robot; cached in {cache})", file=sys.stderr, flush=True)
+    # Every robot's crate has the same dependencies: the first build's lock file serves the
+    # others, so that cargo does not consult the registry again (and works offline).
+    lock = cache / "Cargo.lock"
+    if lock.exists() and not (crate / "Cargo.lock").exists():
+        shutil.copyfile(lock, crate / "Cargo.lock")
     # One target folder for every robot, so that rayon and the runtime compile once.
     cmd = [cargo, "build", "--release", "--manifest-path", str(crate / "Cargo.toml"), "--target-dir", str(cache / "target")]
     if not verbose:
@@ -174,6 +179,8 @@ def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kern
     run = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=None if verbose else subprocess.PIPE, text=True)
     if run.returncode != 0:
         raise RuntimeError(f"cargo could not build {urdf_path.name}'s kernels (in {crate}):\n{run.stderr or ''}{run.stdout}")
+    if not lock.exists():
+        shutil.copyfile(crate / "Cargo.lock", lock)
     built = cache / "target" / "release" / _library_name(name)
     lib.parent.mkdir(parents=True, exist_ok=True)
     # The C names' prefix (`<prefix>_fd_grad_f64`), and where the library came from.

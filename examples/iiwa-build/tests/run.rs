@@ -35,5 +35,8 @@ fn example_runs_and_matches_the_reference() {
 fn the_book_shows_this_main_rs() {
     let page = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/guide/rust.md")).unwrap();
     let main = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/src/main.rs")).unwrap();
-    assert!(page.contains(&format!("```rust\n// src/main.rs\n{main}```")), "docs/guide/rust.md's `// src/main.rs` block differs from examples/iiwa-build/src/main.rs");
+    assert!(
+        page.contains(&format!("```rust\n// src/main.rs\n{main}```")),
+        "docs/guide/rust.md's `// src/main.rs` block differs from examples/iiwa-build/src/main.rs"
+    );
 }
