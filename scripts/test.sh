@@ -82,7 +82,7 @@ cargo run -q -p grid-gen-kernels --example hyq_rollout
 say "the Python package: pip install ./python, then its tests against Pinocchio"
 # The README's one install command, into the test environment; it builds the native
 # generator with maturin (downloaded by pip) and cargo.
-"$PY" -m pip install --quiet pytest ./python || die "pip install ./python failed (it needs cargo and PyPI for maturin)"
+"$PY" -m pip install --quiet pytest "jax[cpu]" ./python || die "pip install ./python (with pytest and jax for its tests) failed: it needs cargo, and PyPI for maturin"
 # Compiled robots go under target/, not the user's cache.
 GRID_GEN_CACHE="$PWD/target/grid-gen-cache" "$PY" -m pytest -q -s python/tests
 

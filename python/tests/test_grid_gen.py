@@ -8,6 +8,7 @@ robots at target/grid-gen-cache there.
 from __future__ import annotations
 
 import math
+import os
 from pathlib import Path
 
 import numpy as np
@@ -343,3 +344,48 @@ def test_every_kind_of_kernel_through_a_scene(tmp_path, iiwa):
     q_next, qd_next = robot.step(q, qd, tau[:, : robot.nu], np.zeros((n, 6)), np.zeros((n, 6)))[:2] if len(robot.step.inputs) == 5 else robot.step(q, qd, tau[:, : robot.nu])[:2]
     a = robot.fd(q, qd, tau, np.zeros((n, 6)), np.zeros((n, 6)))
     assert rel(qd_next, qd + 0.01 * a) < 1e-12 and rel(q_next, q + 0.01 * (qd + 0.01 * a)) < 1e-12
+
+
+def test_jax_functions_differentiate_with_the_generated_gradients(iiwa):
+    jax = pytest.importorskip("jax") if not os.environ.get("CI") else __import__("jax")
+    jax.config.update("jax_enable_x64", True)
+    import jax.numpy as jnp
+
+    import grid_gen.jax as gj
+
+    dyn = gj.wrap(iiwa)
+    q, qd, tau = random_states(iiwa, 5, seed=12)
+    # Values: jit and vmap give the batch kernel's numbers.
+    assert np.allclose(jax.jit(dyn.fd)(q, qd, tau), iiwa.fd(q, qd, tau), rtol=0, atol=0)
+    assert np.array_equal(jax.vmap(dyn.rnea)(q, qd, iiwa.fd(q, qd, tau)), iiwa.rnea(q, qd, iiwa.fd(q, qd, tau)))
+    # Gradients of a scalar cost against central differences of the kernels themselves.
+    w = np.random.default_rng(1).normal(size=7)
+
+    def cost_fd(q, qd, tau):
+        return jnp.dot(dyn.fd(q, qd, tau), w)
+
+    def cost_rnea(q, qd, qdd):
+        return jnp.dot(dyn.rnea(q, qd, qdd), w)
+
+    h = 1e-6
+    worst = 0.0
+    for cost, plain, args in ((cost_fd, iiwa.fd, (q[0], qd[0], tau[0])), (cost_rnea, iiwa.rnea, (q[1], qd[1], tau[1] / 10))):
+        grads = jax.grad(cost, argnums=(0, 1, 2))(*args)
+        for k in range(3):
+            num = np.zeros(7)
+            for j in range(7):
+                plus = [np.array(a, dtype=float) for a in args]
+                minus = [np.array(a, dtype=float) for a in args]
+                plus[k][j] += h
+                minus[k][j] -= h
+                num[j] = (plain(*plus) @ w - plain(*minus) @ w) / (2 * h)
+            worst = max(worst, rel(np.asarray(grads[k]), num))
+    print(f"grid_gen.jax: grad against central differences {worst:.1e}")
+    # Central differences with h = 1e-6 carry O(h^2) truncation and O(eps/h) rounding: ~1e-9
+    # relative for these magnitudes; an error in a rule would be O(1).
+    assert worst < 1e-6
+    # A batch under vmap of grad.
+    batch = jax.vmap(jax.grad(cost_fd))(q, qd, tau)
+    assert batch.shape == (5, 7) and np.allclose(batch[0], jax.grad(cost_fd)(q[0], qd[0], tau[0]), rtol=1e-14, atol=0)
+    with pytest.raises(ValueError, match="tangent space"):
+        gj.wrap(grid_gen.load(GO2, floating_base=True, kernels=["rnea", "fd"]))

@@ -832,3 +832,14 @@ fn eval_and_info_report_forces() {
     assert!(module.contains("pub const FEXT_JOINTS: [&str; NFEXT] = [\"iiwa_joint_7\"];") && module.contains("dc_dfext"));
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// The book's `info --json` example (`docs/reference/cli.md`) names every top-level field
+/// the command prints (a new user once missed `spherical` there).
+#[test]
+fn the_books_info_json_example_names_every_field() {
+    let out = grid_gen(&["info", "--json", "robots/grid_hyq.urdf"]);
+    let page = std::fs::read_to_string(repo().join("docs/reference/cli.md")).unwrap();
+    let example = page.split("```json\n").nth(1).unwrap().split("```").next().unwrap();
+    let missing: Vec<&String> = json(&out).as_object().unwrap().keys().filter(|k| !example.contains(&format!("\"{k}\":"))).collect();
+    assert!(missing.is_empty(), "docs/reference/cli.md's info --json example lacks {missing:?}");
+}
