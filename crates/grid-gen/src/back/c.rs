@@ -310,7 +310,9 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
                 format!("{}[{}]", o.name, dims.join("]["))
             })
             .collect();
-        let _ = writeln!(h, "/* {name}: {}\n * Per state, in: {}.\n * Per state, out: {}. */", k.doc(), ins.join(", "), outs.join(", "));
+        // The docs are grid-gen's own text, but a `*/` in one must still not end the comment.
+        let doc = k.doc().replace("*/", "*\\/");
+        let _ = writeln!(h, "/* {name}: {doc}\n * Per state, in: {}.\n * Per state, out: {}. */", ins.join(", "), outs.join(", "));
         for (rt, ct) in precisions(options) {
             let params: Vec<String> =
                 k.inputs().iter().map(|i| format!("const {ct} *{}", i.name())).chain(k.outputs.iter().map(|o| format!("{ct} *{}", o.name))).collect();
