@@ -76,6 +76,9 @@ cargo fmt --all -- --check || die "code is not formatted: run cargo fmt --all"
 say "cargo test (workspace)"
 cargo test --workspace --all-targets
 
+say "the CLI without wgpu (cargo install --no-default-features): it must still build"
+cargo check -q -p grid-gen-cli --no-default-features
+
 say "the step example: 64 knots of floating HyQ rolled out and linearised"
 cargo run -q -p grid-gen-kernels --example hyq_rollout
 

@@ -621,6 +621,11 @@ fn run(cli: Cli) -> ExitCode {
                 Ok(f) => f,
                 Err(e) => return fail(format!("{}: {e}", states.display())),
             };
+            #[cfg(not(feature = "wgpu"))]
+            if backend == "wgsl" {
+                return fail(NO_WGPU);
+            }
+            #[cfg(feature = "wgpu")]
             if backend == "wgsl" {
                 let gpu = match grid_gen_wgpu::Gpu::new() {
                     Ok(g) => g,
@@ -667,7 +672,7 @@ struct AccuracyArgs {
 }
 
 fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl: &WgslArgs, args: AccuracyArgs) -> ExitCode {
-    use grid_gen::accuracy::{self, Backend, NumberFormat};
+    use grid_gen::accuracy::{self, NumberFormat};
     let gravity = scene.gravity.unwrap_or(args.kernel.gravity);
     let (file, source) = match &args.states {
         Some(path) => {
@@ -713,6 +718,12 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
             }
         }
     }
+    #[cfg(not(feature = "wgpu"))]
+    if want_wgsl {
+        let _ = wgsl;
+        return fail(NO_WGPU);
+    }
+    #[cfg(feature = "wgpu")]
     let gpu = if want_wgsl {
         match grid_gen_wgpu::Gpu::new() {
             Ok(g) => Some(g),
@@ -721,7 +732,9 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
     } else {
         None
     };
+    #[allow(unused_mut)]
     let mut backends = Vec::new();
+    #[cfg(feature = "wgpu")]
     if let Some(gpu) = &gpu {
         use grid_gen::back::wgsl::Strategy;
         let options = wgsl.options();
@@ -737,7 +750,7 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
         let adapter = gpu.adapter();
         let short = adapter.split(" (").next().unwrap_or(&adapter);
         let label = format!("wgsl {} {} on {short}", wgsl.precision, strategy.name());
-        backends.push(Backend {
+        backends.push(accuracy::Backend {
             label,
             run: Box::new(move |kind, q, qd, u| {
                 let kernel = gpu.kernel(&shader, &strategy.entry(kind.name())).map_err(|e| e.to_string())?;
@@ -858,6 +871,13 @@ fn dispatched_copy() -> &'static str {
     "portable"
 }
 
+/// Without the `wgpu` feature: the WGSL kernels cannot run here.
+#[cfg(not(feature = "wgpu"))]
+fn bench(_: &Model, _: &WgslArgs, _: &[usize], _: &[String], _: f64) -> ExitCode {
+    fail(NO_WGPU)
+}
+
+#[cfg(feature = "wgpu")]
 fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], seconds: f64) -> ExitCode {
     use std::fmt::Write as _;
     let lower = match parse_kernels(kernels) {
@@ -947,6 +967,11 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
     }
     print(&report)
 }
+
+/// What a command that runs WGSL kernels says in a build without the `wgpu` feature.
+#[cfg(not(feature = "wgpu"))]
+const NO_WGPU: &str = "this grid-gen was built without the `wgpu` feature, so it cannot run WGSL kernels \
+     (generating them works); reinstall with default features: cargo install --path crates/grid-gen-cli";
 
 /// `grid-gen ROBOT.urdf ...` is short for `grid-gen generate ROBOT.urdf ...`: inserts
 /// `generate` when the first positional argument is not a command. A first argument that
