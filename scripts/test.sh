@@ -73,7 +73,29 @@ if ! cargo fmt --version >/dev/null 2>&1; then
 fi
 cargo fmt --all -- --check || die "code is not formatted: run cargo fmt --all"
 
-say "cargo test (workspace)"
+say "cargo test (workspace): build"
+cargo test --workspace --all-targets --no-run
+
+# While the tests run (lavapipe and the simulators leave a core idle much of the time), the
+# tools of the later steps build in the background: mdBook, and the Python package (the
+# README's one install command, `pip install ./python`: maturin, downloaded by pip, builds
+# the native generator with cargo). Each logs to target/ and is waited for below.
+mkdir -p target/tools
+MDBOOK="$(command -v mdbook || true)"
+MDBOOK_PID=""
+if [ -z "$MDBOOK" ]; then
+    MDBOOK=target/tools/bin/mdbook
+    if [ ! -x "$MDBOOK" ]; then
+        # No server or file watcher: the build alone.
+        cargo install --quiet --locked --no-default-features --root target/tools mdbook --version 0.5.4 \
+            >target/tools/mdbook-install.log 2>&1 &
+        MDBOOK_PID=$!
+    fi
+fi
+"$PY" -m pip install --quiet pytest "jax[cpu]" ./python >target/tools/python-install.log 2>&1 &
+PYTHON_PID=$!
+
+say "cargo test (workspace): run"
 cargo test --workspace --all-targets
 
 say "the CLI without wgpu (cargo install --no-default-features): it must still build"
@@ -83,21 +105,13 @@ say "the step example: 64 knots of floating HyQ rolled out and linearised"
 cargo run -q -p grid-gen-kernels --example hyq_rollout
 
 say "the Python package: pip install ./python, then its tests against Pinocchio"
-# The README's one install command, into the test environment; it builds the native
-# generator with maturin (downloaded by pip) and cargo.
-"$PY" -m pip install --quiet pytest "jax[cpu]" ./python || die "pip install ./python (with pytest and jax for its tests) failed: it needs cargo, and PyPI for maturin"
+wait "$PYTHON_PID" || { cat target/tools/python-install.log; die "pip install ./python (with pytest and jax for its tests) failed: it needs cargo, and PyPI for maturin"; }
 # Compiled robots go under target/, not the user's cache.
 GRID_GEN_CACHE="$PWD/target/grid-gen-cache" "$PY" -m pytest -q -s python/tests
 
 say "the book: mdbook build docs/book, and every link in it and in the README"
-# mdBook from crates.io into target/tools (no server or file watcher: the build alone).
-MDBOOK="$(command -v mdbook || true)"
-if [ -z "$MDBOOK" ]; then
-    MDBOOK=target/tools/bin/mdbook
-    if [ ! -x "$MDBOOK" ]; then
-        cargo install --quiet --locked --no-default-features --root target/tools mdbook --version 0.5.4 \
-            || die "could not install mdbook 0.5.4 with cargo (crates.io)"
-    fi
+if [ -n "$MDBOOK_PID" ]; then
+    wait "$MDBOOK_PID" || { cat target/tools/mdbook-install.log; die "could not install mdbook 0.5.4 with cargo (crates.io)"; }
 fi
 "$MDBOOK" build docs/book || die "mdbook build docs/book failed"
 "$PY" scripts/check_links.py || die "broken links in README.md or docs/ (listed above)"
