@@ -840,6 +840,7 @@ fn the_books_info_json_example_names_every_field() {
     let out = grid_gen(&["info", "--json", "robots/grid_hyq.urdf"]);
     let page = std::fs::read_to_string(repo().join("docs/reference/cli.md")).unwrap();
     let example = page.split("```json\n").nth(1).unwrap().split("```").next().unwrap();
-    let missing: Vec<&String> = json(&out).as_object().unwrap().keys().filter(|k| !example.contains(&format!("\"{k}\":"))).collect();
+    let fields = json(&out);
+    let missing: Vec<&String> = fields.as_object().unwrap().keys().filter(|k| !example.contains(&format!("\"{k}\":"))).collect();
     assert!(missing.is_empty(), "docs/reference/cli.md's info --json example lacks {missing:?}");
 }
