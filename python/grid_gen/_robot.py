@@ -12,6 +12,16 @@ import numpy as np
 Array = np.ndarray
 
 
+def _pointers(base: int, item: int, n: int, sizes: Sequence[int]) -> List[int]:
+    """The addresses of arrays of n states each, `sizes` scalars per state, laid one after
+    another from `base`."""
+    out = []
+    for size in sizes:
+        out.append(base)
+        base += n * size * item
+    return out
+
+
 class Kernel:
     """One generated kernel, called on one state (1-D arrays) or a batch (axis 0).
 
@@ -30,6 +40,9 @@ class Kernel:
         fn.argtypes = [ctypes.c_size_t] + [ctypes.c_void_p] * (len(self.inputs) + len(self.outputs))
         fn.restype = ctypes.c_int32
         self._fn = fn
+        # Per-state sizes, fixed for the robot: the call multiplies them by the batch.
+        self._in_sizes = tuple(length for _, length in self.inputs)
+        self._out_sizes = tuple(math.prod(dims) for _, dims in self.outputs)
         args = ", ".join(n for n, _ in self.inputs)
         outs = ", ".join(n for n, _ in self.outputs)
         shapes = "; ".join(f"{n}: (B, {l})" for n, l in self.inputs)
@@ -81,29 +94,18 @@ class Kernel:
                 if len(bad):
                     where = tuple(int(i) for i in bad[0])
                     raise ValueError(f"{name}: `{arg}` holds a non-finite value at index {where if len(where) > 1 else where[0]}")
-        base = packed.ctypes.data
         item = packed.itemsize
-        in_ptrs = []
-        offset = 0
-        for _, length in self.inputs:
-            in_ptrs.append(base + offset * item)
-            offset += n * length
+        in_ptrs = _pointers(packed.ctypes.data, item, n, self._in_sizes)
         lead = () if batch is None else (batch,)
         if out is None:
             # One allocation for every output, viewed per output.
-            sizes = [n * math.prod(dims) for _, dims in self.outputs]
-            block = np.empty(sum(sizes), dtype=dtype)
+            block = np.empty(n * sum(self._out_sizes), dtype=dtype)
             outs = []
             start = 0
-            for (_, dims), size in zip(self.outputs, sizes):
-                outs.append(block[start : start + size].reshape(lead + dims))
-                start += size
-            obase = block.ctypes.data
-            out_ptrs = []
-            start = 0
-            for size in sizes:
-                out_ptrs.append(obase + start * item)
-                start += size
+            for (_, dims), size in zip(self.outputs, self._out_sizes):
+                outs.append(block[start : start + n * size].reshape(lead + dims))
+                start += n * size
+            out_ptrs = _pointers(block.ctypes.data, item, n, self._out_sizes)
         else:
             given = [out] if isinstance(out, np.ndarray) else list(out)
             if len(given) != len(self.outputs):

@@ -68,38 +68,30 @@ class Functions:
             # g: (..., n), m: (..., n, k) -> (..., k): the cotangent pulled back through m.
             return jnp.einsum("...i,...ij->...j", g, m)
 
-        @jax.custom_vjp
-        def rnea(q, qd, qdd):
-            return call("rnea", q, qd, qdd)[0]
+        def differentiable(value, grad, matrix, grad_gives_value):
+            """The kernel `value` as a custom_vjp function of three arrays: its rule pulls the
+            cotangent back through `grad`'s two matrices (for the first two arguments) and
+            through `matrix` of q (for the third). `grad_gives_value`: `grad` returns the value
+            first (fd_grad's q̈), so it is not computed twice."""
 
-        def rnea_fwd(q, qd, qdd):
-            (tau,) = call("rnea", q, qd, qdd)
-            dq, dqd = call("rnea_grad", q, qd, qdd)
-            (m,) = call("mass_matrix", q)
-            return tau, (dq, dqd, m)
+            @jax.custom_vjp
+            def f(q, x, y):
+                return call(value, q, x, y)[0]
 
-        def rnea_bwd(res, g):
-            dq, dqd, m = res
-            return vec_mat(g, dq), vec_mat(g, dqd), vec_mat(g, m)
+            def f_fwd(q, x, y):
+                out = call(grad, q, x, y)
+                val, dq, dx = out[:3] if grad_gives_value else (call(value, q, x, y)[0], *out[:2])
+                (m,) = call(matrix, q)
+                return val, (dq, dx, m)
 
-        rnea.defvjp(rnea_fwd, rnea_bwd)
+            def f_bwd(res, g):
+                return tuple(vec_mat(g, m) for m in res)
 
-        @jax.custom_vjp
-        def fd(q, qd, tau):
-            return call("fd", q, qd, tau)[0]
+            f.defvjp(f_fwd, f_bwd)
+            return f
 
-        def fd_fwd(q, qd, tau):
-            qdd, dq, dqd = call("fd_grad", q, qd, tau)[:3]
-            (minv,) = call("minv", q)
-            return qdd, (dq, dqd, minv)
-
-        def fd_bwd(res, g):
-            dq, dqd, minv = res
-            return vec_mat(g, dq), vec_mat(g, dqd), vec_mat(g, minv)
-
-        fd.defvjp(fd_fwd, fd_bwd)
-        self.rnea = rnea
-        self.fd = fd
+        self.rnea = differentiable("rnea", "rnea_grad", "mass_matrix", grad_gives_value=False)
+        self.fd = differentiable("fd", "fd_grad", "minv", grad_gives_value=True)
 
 
 def wrap(robot: Robot) -> Functions:

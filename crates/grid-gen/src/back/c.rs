@@ -18,7 +18,7 @@ use std::fmt::Write;
 use super::names::{comment_text, identifier};
 use super::rust::{array_of, input_len, q_len};
 use super::{BackError, GeneratedFile};
-use crate::ir::{Dims, Function, Module, Shape};
+use crate::ir::{Function, Module, Shape};
 
 /// Options of the C target.
 #[derive(Clone, Debug)]
@@ -68,23 +68,6 @@ pub fn c_string_literal(text: &str) -> String {
     out
 }
 
-/// The dimensions of an output for one state, outermost first (a C user's indexing).
-pub fn output_dims(shape: Shape, d: &Dims) -> Vec<usize> {
-    match shape {
-        Shape::Vector => vec![d.nv],
-        Shape::Matrix => vec![d.nv, d.nv],
-        Shape::PerFrame(k) => vec![d.nframes, k],
-        Shape::FrameMatrix(r) => vec![d.nframes, r, d.nv],
-        Shape::Config => vec![d.nq],
-        Shape::StateMatrix => vec![2 * d.nv, 2 * d.nv],
-        Shape::StateInput => vec![2 * d.nv, d.nu],
-        Shape::ByFext => vec![d.nv, 6 * d.nfext],
-        Shape::ByLambda => vec![d.nv, d.nlambda],
-        Shape::Lambda => vec![d.nlambda],
-        Shape::LambdaBy => vec![d.nlambda, d.nv],
-    }
-}
-
 /// The manifest the library returns from `<robot>_manifest()`: what a loader (the Python
 /// package) needs to call every entry point without reading the header.
 fn manifest(module: &Module, options: &COptions) -> String {
@@ -98,7 +81,7 @@ fn manifest(module: &Module, options: &COptions) -> String {
                 "name": k.kind.name(),
                 "doc": k.doc(),
                 "inputs": k.inputs().iter().map(|i| serde_json::json!({"name": i.name(), "len": i.len(&k.dims)})).collect::<Vec<_>>(),
-                "outputs": k.outputs.iter().map(|o| serde_json::json!({"name": o.name, "dims": output_dims(o.shape, &k.dims)})).collect::<Vec<_>>(),
+                "outputs": k.outputs.iter().map(|o| serde_json::json!({"name": o.name, "dims": o.shape.dims(&k.dims)})).collect::<Vec<_>>(),
             })
         })
         .collect();

@@ -50,20 +50,27 @@ pub enum Shape {
 }
 
 impl Shape {
+    /// The dimensions for a robot of sizes `d`, outermost first (a C or NumPy user's
+    /// indexing: `[nv]`, `[nv, nv]`, `[nframes, rows, nv]`, ...).
+    pub fn dims(self, d: &Dims) -> Vec<usize> {
+        match self {
+            Shape::Vector => vec![d.nv],
+            Shape::Matrix => vec![d.nv, d.nv],
+            Shape::PerFrame(k) => vec![d.nframes, k],
+            Shape::FrameMatrix(r) => vec![d.nframes, r, d.nv],
+            Shape::Config => vec![d.nq],
+            Shape::StateMatrix => vec![2 * d.nv, 2 * d.nv],
+            Shape::StateInput => vec![2 * d.nv, d.nu],
+            Shape::ByFext => vec![d.nv, 6 * d.nfext],
+            Shape::ByLambda => vec![d.nv, d.nlambda],
+            Shape::Lambda => vec![d.nlambda],
+            Shape::LambdaBy => vec![d.nlambda, d.nv],
+        }
+    }
+
     /// Number of scalars for a robot of sizes `d`.
     pub fn len(self, d: &Dims) -> usize {
-        match self {
-            Shape::Vector => d.nv,
-            Shape::Matrix => d.nv * d.nv,
-            Shape::PerFrame(k) => k * d.nframes,
-            Shape::FrameMatrix(r) => r * d.nv * d.nframes,
-            Shape::Config => d.nq,
-            Shape::StateMatrix => 4 * d.nv * d.nv,
-            Shape::StateInput => 2 * d.nv * d.nu,
-            Shape::ByFext => 6 * d.nv * d.nfext,
-            Shape::ByLambda | Shape::LambdaBy => d.nv * d.nlambda,
-            Shape::Lambda => d.nlambda,
-        }
+        self.dims(d).iter().product()
     }
 
     /// The index of each dimension of entry `flat`, outermost first (`[i]`, `[i][j]` or
