@@ -680,13 +680,20 @@ def step_model(robot, floating):
     return model, names, perm, qidx
 
 
-def step_record(model, data, q, v, tau, dt, scheme, act):
-    """(q+, v+, A, B) in Pinocchio's own order; `act` the idx_v of the actuated coordinates."""
+def step_record(model, data, q, v, tau, dt, scheme, act, fext=None, contacts=()):
+    """(q+, v+, A, B) in Pinocchio's own order; `act` the idx_v of the actuated coordinates.
+    The dynamics are aba under `fext` (a StdVec_Force, held over the step) or, with
+    `contacts`, constraintDynamics with them rigid (Crocoddyl's contact dynamics inside its
+    integrated action models)."""
     nv = model.nv
 
     def f(q, v):
-        a = pin.aba(model, data, q, v, tau).copy()
-        pin.computeABADerivatives(model, data, q, v, tau)
+        if contacts:
+            out = contact_record(model, data, q, v, tau, contacts)
+            return out["qdd"], out["dqdd_dq"], out["dqdd_dqd"], np.asarray(out["dqdd_dtau"])[:, act].copy()
+        args = (model, data, q, v, tau) + ((fext,) if fext is not None else ())
+        a = pin.aba(*args).copy()
+        pin.computeABADerivatives(*args)
         mi = np.triu(data.Minv) + np.triu(data.Minv, 1).T
         return a, data.ddq_dq.copy(), data.ddq_dv.copy(), mi[:, act].copy()
 
@@ -748,11 +755,13 @@ def random_q(model, floating, rng):
     return q
 
 
-def step_fixture(robot, floating, dt, rng):
+def step_fixture(robot, floating, dt, rng, fext_joints=(), contacts=()):
     """Random states (uniform base rotations and joint quaternions), a fast one (speeds of
     30 rad/s, so that dt q̇ turns the base by a few tenths of a radian) and a still one; τ on
     the actuated coordinates (all but the free-flyer's six). Per scheme: q+ in grid-gen's q
-    layout, q̇+, A (2nv x 2nv) and B (2nv x nu), rows and columns [δq; δq̇] in listing order."""
+    layout, q̇+, A (2nv x 2nv) and B (2nv x nu), rows and columns [δq; δq̇] in listing order.
+    With `fext_joints`, each state has a random fext on their bodies (N(0, 10), held over
+    the step); with `contacts`, they are rigid."""
     model, names, perm, qidx = step_model(robot, floating)
     data = model.createData()
     nv = model.nv
@@ -769,18 +778,31 @@ def step_fixture(robot, floating, dt, rng):
         v[perm], tau[perm] = listed_v, listed_tau
         act = [perm[k] for k in actuated]
         record = {"kind": kind, "q": [float(q[i]) for i in qidx], "qd": [float(x) for x in listed_v], "tau": [float(x) for x in listed_tau]}
+        fext = None
+        if fext_joints:
+            fin = rng.normal(size=6 * len(fext_joints)) * 10
+            fext = pin.StdVec_Force()
+            for _ in range(model.njoints):
+                fext.append(pin.Force.Zero())
+            for k, name in enumerate(fext_joints):
+                fext[model.getJointId(name)] = pin.Force(fin[6 * k:6 * k + 3], fin[6 * k + 3:6 * k + 6])
+            record["fext"] = [float(x) for x in fin]
         for scheme in SCHEMES:
-            q1, v1, a, b = step_record(model, data, q, v, tau, dt, scheme, act)
+            q1, v1, a, b = step_record(model, data, q, v, tau, dt, scheme, act, fext, contacts)
             record[scheme] = {
                 "q_next": [float(q1[i]) for i in qidx], "qd_next": [float(x) for x in np.asarray(v1)[perm]],
                 "A": mat(np.asarray(a)[np.ix_(perm + [nv + p for p in perm], perm + [nv + p for p in perm])]),
                 "B": mat(np.asarray(b)[perm + [nv + p for p in perm], :]),
             }
         records.append(record)
-    return {
+    out = {
         "tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear], "dt": dt,
         "joint_names": names, "actuated": [names[k] for k in actuated], "states": records,
     }
+    if fext_joints or contacts:
+        out["fext"] = list(fext_joints)
+        out["contacts"] = [{"frame": f, "type": k} for f, k in contacts]
+    return out
 
 
 def step_fixtures(check):
@@ -791,7 +813,24 @@ def step_fixtures(check):
         np.random.seed(seed)
         data = step_fixture(robot, floating, dt, np.random.default_rng(seed))
         stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.step.pinocchio.json", data, check, 1e-10)
+    for label, robot, floating, dt, fext_joints, contacts in FORCED_STEPS:
+        seed = sum(robot.encode()) + 37 + floating + len(label)
+        pin.seed(seed)
+        np.random.seed(seed)
+        data = step_fixture(robot, floating, dt, np.random.default_rng(seed), fext_joints, contacts)
+        stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.{label}.step.pinocchio.json", data, check, 1e-10)
     return stale
+
+
+# Steps under forces: fext held over the step (aba and computeABADerivatives with fext),
+# and rigid contacts (constraintDynamics and its derivatives, as Crocoddyl's contact
+# dynamics inside its integrated action models); Pinocchio's constraintDynamics takes no
+# fext, so the two are separate. (label, robot, floating, dt, fext joints, contacts).
+FORCED_STEPS = [
+    ("fext", "grid_iiwa", False, 0.01, ["iiwa_joint_2", "iiwa_joint_5", "iiwa_joint_7"], []),
+    ("contact", "grid_hyq", True, 0.01, [], [(f"{leg}_lowerleg", "point") for leg in ("lf", "rf", "lh", "rh")]),
+    ("contact", "grid_iiwa", False, 0.01, [], [("iiwa_link_7", "wrench")]),
+]
 
 
 # External forces and contacts (issue 30): (robot, floating, fext joints, contacts).

@@ -725,7 +725,9 @@ fn eval_and_info_report_the_step() {
             grid_gen::model::DEFAULT_GRAVITY,
             model.specialisation.step.unwrap(),
             &model.actuated(),
-        );
+            &[],
+        )
+        .unwrap();
         let nums = |x: &serde_json::Value| -> Vec<f64> { x.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect() };
         let close = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-15 * y.abs().max(1.0));
         assert!(close(&nums(&step["q_next"]), &d.q_next), "{}", scheme.name());

@@ -211,17 +211,9 @@ pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64],
             let (a, b, c) = reference::forward_dynamics_derivatives(model, q, qd, u, g);
             vec![col(&a), b, c]
         }
-        KernelKind::Step | KernelKind::StepGrad => {
-            let step = model.specialisation.step.expect("a model with a step");
-            let tau = actuated_tau(model, u);
-            if kind == KernelKind::Step {
-                let (q1, v1) = reference::step(model, q, qd, &tau, g, step);
-                return vec![col(&q1), col(&v1)];
-            }
-            let d = reference::step_derivatives(model, q, qd, &tau, g, step, &model.actuated());
-            vec![col(&d.q_next), col(&d.qd_next), d.a, d.b]
+        KernelKind::Step | KernelKind::StepGrad | KernelKind::ContactFd | KernelKind::ContactFdGrad => {
+            reference_outputs_with(kind, model, q, qd, u, g, reference::External::NONE)
         }
-        KernelKind::ContactFd | KernelKind::ContactFdGrad => reference_outputs_with(kind, model, q, qd, u, g, reference::External::NONE),
         _ => reference_frames(kind, model, q, qd, u).iter().map(|v| col(v)).collect(),
     }
 }
@@ -229,6 +221,17 @@ pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64],
 /// The reference's values of a dynamics kernel under forces, in its output order (the
 /// force derivatives after the usual outputs, when the model declares the forces).
 pub fn reference_outputs_with(kind: KernelKind, m: &Model, q: &[f64], qd: &[f64], u: &[f64], g: [f64; 3], ext: reference::External) -> Vec<DMatrix<f64>> {
+    if kind.is_step() {
+        // The step solves its contacts' forces (ext.lambda does not enter) and holds fext.
+        let step = m.specialisation.step.expect("a model with a step");
+        let tau = actuated_tau(m, u);
+        if kind == KernelKind::Step {
+            let (q1, v1) = reference::step(m, q, qd, &tau, g, step, ext.fext).expect("independent contacts");
+            return vec![col(&q1), col(&v1)];
+        }
+        let d = reference::step_derivatives(m, q, qd, &tau, g, step, &m.actuated(), ext.fext).expect("independent contacts");
+        return vec![col(&d.q_next), col(&d.qd_next), d.a, d.b];
+    }
     let d = reference::force_derivatives(m, q);
     let mut out = match kind {
         KernelKind::Rnea => vec![col(&reference::rnea_with(m, q, qd, u, g, ext))],

@@ -247,12 +247,9 @@ impl Gpu {
             precision: shader.info.precision,
             nv: shader.info.nv,
             nq: shader.info.nq,
-            nu: match grid_gen::ir::KernelKind::parse(&info.kernel) {
-                Some(k) if k.is_step() => shader.info.nu,
-                Some(k) if k.is_contact() => shader.info.nv + shader.info.forces.saturating_sub(shader.info.lambda),
-                Some(k) if k.takes_forces() => shader.info.nv + shader.info.forces,
-                _ => shader.info.nv,
-            },
+            nu: grid_gen::ir::KernelKind::parse(&info.kernel).map_or(shader.info.nv, |k| {
+                k.u_len(shader.info.nv, shader.info.nu, shader.info.forces, shader.info.lambda)
+            }),
             build_time: start.elapsed(),
             tables: shader.tables.clone(),
         })

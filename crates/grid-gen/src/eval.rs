@@ -254,11 +254,15 @@ pub struct StepOutput {
     pub b: Matrix,
 }
 
-/// The reference's step at one state, when the model has a step and the state a `tau`.
-fn step_output(model: &Model, s: &State, gravity: [f64; 3]) -> Option<StepOutput> {
-    let (step, tau) = (model.specialisation.step?, s.tau.as_ref()?);
-    let d = reference::step_derivatives(model, &s.q, &s.qd, tau, gravity, step, &model.actuated());
-    Some(StepOutput { q_next: d.q_next, qd_next: d.qd_next, a: rows(&d.a), b: rows(&d.b) })
+/// The reference's step at one state, when the model has a step and the state a `tau`:
+/// the state's `fext` held over the step, the model's contacts rigid (their λ solved, so a
+/// state's `contacts` do not enter it).
+fn step_output(model: &Model, s: &State, index: usize, fext: &[f64], gravity: [f64; 3]) -> Result<Option<StepOutput>, EvalError> {
+    let (Some(step), Some(tau)) = (model.specialisation.step, s.tau.as_ref()) else {
+        return Ok(None);
+    };
+    let d = reference::step_derivatives(model, &s.q, &s.qd, tau, gravity, step, &model.actuated(), fext).ok_or(EvalError::ContactsSingular { index })?;
+    Ok(Some(StepOutput { q_next: d.q_next, qd_next: d.qd_next, a: rows(&d.a), b: rows(&d.b) }))
 }
 
 /// One frame's kinematics at a state, in Pinocchio's conventions: 6-vectors and Jacobian
@@ -364,7 +368,7 @@ pub enum EvalError {
     ForceNotFinite { index: usize, field: &'static str, key: String, entry: usize },
     #[error("external and contact forces are evaluated by the reference only (`eval` without --backend); the generated Rust and WGSL kernels take them, and the tests compare those with the reference")]
     ForcesOnBackend,
-    #[error("state {index}: the contacts' Jacobian loses rank at this configuration, so rigid-contact dynamics has no unique solution (contact_fd); move the state away from the singularity or declare fewer contacts")]
+    #[error("state {index}: the contacts' Jacobian loses rank at this configuration, so rigid-contact dynamics has no unique solution (contact_fd, and a step that integrates it); move the state away from the singularity or declare fewer contacts")]
     ContactsSingular { index: usize },
 }
 
@@ -526,7 +530,7 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
             };
             let minv = model.singular.is_none().then(|| rows(&reference::minv(model, &s.q)));
             let frames = frame_outputs(model, s);
-            let step = step_output(model, s, gravity);
+            let step = step_output(&fm, s, index, &fext, gravity)?;
             let mut out = Output {
                 rnea,
                 drnea_dq,

@@ -5,7 +5,7 @@
 //! scene's bad inputs.
 
 use grid_gen::ir::{self, KernelKind, LowerOptions};
-use grid_gen::model::{LieBlock, Scheme, Step};
+use grid_gen::model::{ContactKind, LieBlock, Scheme, Step};
 use grid_gen::{reference, Model, Scene};
 use grid_gen_test_support::*;
 use nalgebra::{DMatrix, UnitQuaternion, Vector3};
@@ -15,23 +15,45 @@ use nalgebra::{DMatrix, UnitQuaternion, Vector3};
 /// Pinocchio.
 const TOL: f64 = 1e-10;
 
-fn fixture_model(name: &str) -> (Model, bool) {
+/// Five-point central differences at h = 1e-4 against the analytical A and B (see
+/// `step_derivatives_match_central_differences`): the x⁺ rounding, ~1e-16 on entries of
+/// order 1, over h leaves ~1e-12 (measured 1.5e-11 worst).
+const TOL_STENCIL: f64 = 1e-10;
+/// The same with rigid contacts: the same ~1e-12 absolute, relative to a B that the
+/// contacts' projection `M⁻¹ − G K⁻¹ Gᵀ` shrinks (iiwa's tool wrench leaves it one free
+/// direction), is up to 1e-8 (measured 9.2e-9).
+const TOL_STENCIL_CONTACT: f64 = 5e-8;
+
+/// The fixture's model, with the fext bodies and contacts the fixture declares.
+fn fixture_model(name: &str, fx: &serde_json::Value) -> (Model, bool) {
     let fixtures = repo().join("tests/fixtures");
-    match name {
+    let (model, floating) = match name.split('.').next().unwrap() {
         "grid_iiwa" => (load("grid_iiwa"), false),
-        "grid_hyq.floating" => (load_floating("grid_hyq"), true),
-        "ball_arm.floating" => (load_urdf(&fixtures.join("ball_arm.urdf"), true), true),
+        "grid_hyq" => (load_floating("grid_hyq"), true),
+        "ball_arm" => (load_urdf(&fixtures.join("ball_arm.urdf"), true), true),
         _ => unreachable!(),
-    }
+    };
+    let names = |key: &str| -> Vec<String> { fx[key].as_array().map_or(Vec::new(), |a| a.iter().map(|n| n.as_str().unwrap().to_string()).collect()) };
+    let fext = names("fext");
+    let contacts: Vec<(String, ContactKind)> = fx["contacts"]
+        .as_array()
+        .map_or(Vec::new(), |a| a.iter().map(|c| (c["frame"].as_str().unwrap().to_string(), ContactKind::parse(c["type"].as_str().unwrap()).unwrap())).collect());
+    let fext: Vec<&str> = fext.iter().map(String::as_str).collect();
+    let contacts: Vec<(&str, ContactKind)> = contacts.iter().map(|(f, k)| (f.as_str(), *k)).collect();
+    (with_forces(&model, &fext, &contacts), floating)
 }
 
+/// Plain steps on fixed, floating and spherical robots; iiwa with fext on three bodies held
+/// over the step; floating HyQ on four rigid point contacts and iiwa with its tool held by
+/// a rigid wrench contact (`constraintDynamics` at every stage).
 #[test]
 fn reference_step_matches_pinocchio() {
     let mut checked = 0;
     let mut worst: f64 = 0.0;
-    for name in ["grid_iiwa", "grid_hyq.floating", "ball_arm.floating"] {
-        let (model, floating) = fixture_model(name);
+    let names = ["grid_iiwa", "grid_hyq.floating", "ball_arm.floating", "grid_iiwa.fext", "grid_hyq.floating.contact", "grid_iiwa.contact"];
+    for name in names {
         let fx = fixture(&format!("{name}.step.pinocchio.json"));
+        let (model, floating) = fixture_model(name, &fx);
         let perm = fixture_perm(&model, &fx, name);
         let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
         let nv = model.nv();
@@ -65,11 +87,12 @@ fn reference_step_matches_pinocchio() {
         let g: [f64; 3] = vec_of(&fx["gravity"]).try_into().unwrap();
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
             let (q, qd, tau) = (q_of(&vec_of(&st["q"])), ours(&vec_of(&st["qd"])), ours(&vec_of(&st["tau"])));
+            let fext = if st["fext"].is_null() { Vec::new() } else { vec_of(&st["fext"]) };
             for scheme in Scheme::ALL {
                 let want = &st[scheme.name()];
                 let step = Step { scheme, dt };
-                let d = reference::step_derivatives(&model, &q, &qd, &tau, g, step, &model.actuated());
-                let (q1, v1) = reference::step(&model, &q, &qd, &tau, g, step);
+                let d = reference::step_derivatives(&model, &q, &qd, &tau, g, step, &model.actuated(), &fext).unwrap();
+                let (q1, v1) = reference::step(&model, &q, &qd, &tau, g, step, &fext).unwrap();
                 let theirs_a = mat_of(&want["A"]);
                 let theirs_a = DMatrix::from_fn(2 * nv, 2 * nv, |r, c| {
                     theirs_a[(state_perm.iter().position(|&p| p == r).unwrap(), state_perm.iter().position(|&p| p == c).unwrap())]
@@ -96,7 +119,7 @@ fn reference_step_matches_pinocchio() {
         }
     }
     println!("{checked} step quantities against Pinocchio, worst {worst:.2e} (bound {TOL:.0e})");
-    assert!(checked > 400);
+    assert!(checked > 800);
 }
 
 /// `q1 ⊖ q0` (Pinocchio's `difference`): logs of the relative motions.
@@ -130,21 +153,39 @@ fn difference(model: &Model, q0: &[f64], q1: &[f64]) -> Vec<f64> {
     d
 }
 
+/// Robots with forces for the step tests: floating HyQ on four rigid point contacts with a
+/// force on its base, iiwa holding its tool by a rigid wrench contact with a force on its
+/// third link, the floating spherical arm with its tip held by a wrench contact.
+fn forced_cases() -> Vec<(&'static str, Model)> {
+    let legs = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"].map(|l| (l, ContactKind::Point));
+    let ball = load_urdf(&repo().join("tests/fixtures/ball_arm.urdf"), true);
+    let tip = ball.frames.iter().rev().find(|f| f.body.is_some()).unwrap().name.clone();
+    vec![
+        ("hyq floating, four point contacts, fext", with_forces(&load_floating("grid_hyq"), &["root_joint"], &legs)),
+        ("iiwa, tool wrench contact, fext", with_forces(&load("grid_iiwa"), &["iiwa_joint_3"], &[("iiwa_link_7", ContactKind::Wrench)])),
+        ("ball_arm floating, tip wrench contact", with_forces(&ball, &[], &[(tip.as_str(), ContactKind::Wrench)])),
+    ]
+}
+
 /// A and B against central differences of the step on the manifold, every scheme: the
-/// state moved by `x ⊕ ε e_k`, the results compared by `⊖`.
+/// state moved by `x ⊕ ε e_k`, the results compared by `⊖`; plain robots, and robots with
+/// fext held over the step and rigid contacts.
 #[test]
 fn step_derivatives_match_central_differences() {
     let fixtures = repo().join("tests/fixtures");
-    let cases: Vec<(&str, Model)> = vec![
+    let mut cases: Vec<(&str, Model)> = vec![
         ("iiwa", load("grid_iiwa")),
         ("hyq floating", load_floating("grid_hyq")),
         ("ball_arm floating", load_urdf(&fixtures.join("ball_arm.urdf"), true)),
         ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf"))),
     ];
+    cases.extend(forced_cases());
     let g = reference::DEFAULT_GRAVITY;
     let mut rng = Rng(47);
     let mut worst: f64 = 0.0;
     for (name, model) in &cases {
+        let fext = rng.vec(6 * model.nfext(), -20.0, 20.0);
+        let fext = fext.as_slice();
         let nv = model.nv();
         let actuated = model.actuated();
         let mut q = model.q_from_joints(&rng.vec(nv, -2.0, 2.0), rng.base_pose());
@@ -158,54 +199,57 @@ fn step_derivatives_match_central_differences() {
         let tau = actuated_tau(model, &rng.vec(actuated.len(), -5.0, 5.0));
         for scheme in Scheme::ALL {
             let step = Step { scheme, dt: 0.05 };
-            let d = reference::step_derivatives(model, &q, &qd, &tau, g, step, &actuated);
-            let (q1, v1) = reference::step(model, &q, &qd, &tau, g, step);
-            let eps = 1e-6;
-            let tangent = |qa: &[f64], va: &[f64], qb: &[f64], vb: &[f64]| -> Vec<f64> {
-                let mut out = difference(model, &q1, qa);
-                let back = difference(model, &q1, qb);
-                for k in 0..nv {
-                    out[k] = (out[k] - back[k]) / (2.0 * eps);
-                }
-                out.extend((0..nv).map(|k| (va[k] - vb[k]) / (2.0 * eps)));
-                out
+            let d = reference::step_derivatives(model, &q, &qd, &tau, g, step, &actuated, fext).unwrap();
+            let (q1, v1) = reference::step(model, &q, &qd, &tau, g, step, fext).unwrap();
+            // The five-point stencil, `(−f(2h) + 8 f(h) − 8 f(−h) + f(−2h)) / 12h`, errs by
+            // about h⁴ |f⁽⁵⁾| / 30 + 1e-16 |f| / h: at h = 1e-4, 1e-12 from rounding. The
+            // three-point one at its best h (~1e-6) leaves ~1e-7 here, because a rigid
+            // wrench contact that leaves iiwa one free direction makes the step's
+            // higher derivatives large.
+            let eps = 1e-4;
+            // The step moved by `h` along one direction, as a tangent at q1: `[q ⊖ q1; q̇]`.
+            let derivative = |at: &dyn Fn(f64) -> (Vec<f64>, Vec<f64>)| -> nalgebra::DVector<f64> {
+                let tangent = |h: f64| {
+                    let (qa, va) = at(h);
+                    let mut t = difference(model, &q1, &qa);
+                    t.extend(va);
+                    nalgebra::DVector::from_vec(t)
+                };
+                (tangent(-2.0 * eps) - tangent(2.0 * eps) + (tangent(eps) - tangent(-eps)) * 8.0) / (12.0 * eps)
             };
             let mut num_a = DMatrix::zeros(2 * nv, 2 * nv);
             for k in 0..2 * nv {
-                let moved = |sign: f64| {
+                let moved = |h: f64| {
                     let mut e = vec![0.0; nv];
                     let mut qd_e = qd.clone();
                     if k < nv {
-                        e[k] = sign * eps;
+                        e[k] = h;
                     } else {
-                        qd_e[k - nv] += sign * eps;
+                        qd_e[k - nv] += h;
                     }
-                    reference::step(model, &reference::integrate(model, &q, &e), &qd_e, &tau, g, step)
+                    reference::step(model, &reference::integrate(model, &q, &e), &qd_e, &tau, g, step, fext).unwrap()
                 };
-                let ((qa, va), (qb, vb)) = (moved(1.0), moved(-1.0));
-                num_a.set_column(k, &nalgebra::DVector::from_vec(tangent(&qa, &va, &qb, &vb)));
+                num_a.set_column(k, &derivative(&moved));
             }
             let mut num_b = DMatrix::zeros(2 * nv, actuated.len());
             for (c, &k) in actuated.iter().enumerate() {
-                let moved = |sign: f64| {
+                let moved = |h: f64| {
                     let mut t = tau.clone();
-                    t[k] += sign * eps;
-                    reference::step(model, &q, &qd, &t, g, step)
+                    t[k] += h;
+                    reference::step(model, &q, &qd, &t, g, step, fext).unwrap()
                 };
-                let ((qa, va), (qb, vb)) = (moved(1.0), moved(-1.0));
-                num_b.set_column(c, &nalgebra::DVector::from_vec(tangent(&qa, &va, &qb, &vb)));
+                num_b.set_column(c, &derivative(&moved));
             }
             assert!(rel_err(&col(&q1), &col(&d.q_next)) < 1e-14 && rel_err(&col(&v1), &col(&d.qd_next)) < 1e-14, "{name}: step and step_derivatives agree");
-            // Central differences at ε = 1e-6 err by about ε² |f'''| + 1e-16 / ε: 1e-7
-            // relative holds with margin on these states.
             for (what, got, want) in [("A", &d.a, &num_a), ("B", &d.b, &num_b)] {
                 let e = rel_err(got, want);
                 worst = worst.max(e);
-                assert!(e < 1e-7, "{name} {}: {what} {e:.2e}", scheme.name());
+                let bound = if model.nlambda() > 0 { TOL_STENCIL_CONTACT } else { TOL_STENCIL };
+                assert!(e < bound, "{name} {}: {what} {e:.2e}", scheme.name());
             }
         }
     }
-    println!("worst step derivative against central differences: {worst:.2e} (bound 1e-7)");
+    println!("worst step derivative against central differences: {worst:.2e} (bounds {TOL_STENCIL:.0e}, {TOL_STENCIL_CONTACT:.0e} with contacts)");
 }
 
 /// The step kernels' IR graphs against the reference, both Euler schemes, fixed, floating,
@@ -268,6 +312,50 @@ fn step_kernels_match_the_reference() {
     println!("worst step kernel against the reference: {worst:.2e} (bound 1e-12)");
 }
 
+/// The step kernels of robots with forces against the reference: fext an input held over
+/// the step, the contacts rigid (no λ input), every scheme, and every solve with the Euler
+/// schemes (RK4 runs the same dynamics at each stage, so one solve there).
+#[test]
+fn forced_step_kernels_match_the_reference() {
+    let g = reference::DEFAULT_GRAVITY;
+    let mut rng = Rng(59);
+    let mut worst: f64 = 0.0;
+    for (name, model) in forced_cases() {
+        for scheme in Scheme::ALL {
+            let solves: &[ir::Solve] = if scheme == Scheme::Rk4 { &[ir::Solve::Ltdl] } else { &[ir::Solve::Minv, ir::Solve::Ltdl, ir::Solve::Crba] };
+            for &solve in solves {
+                let m = with_step(&model, scheme, 0.01);
+                let options = LowerOptions { kernels: vec![KernelKind::Step, KernelKind::StepGrad], solve, ..LowerOptions::default() };
+                let module = ir::lower(&m, g, &options).unwrap();
+                let nv = m.nv();
+                let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+                for &s in &m.spherical {
+                    let at = m.group_q(s);
+                    q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+                }
+                let (qd, u, fext) = (rng.vec(nv, -2.0, 2.0), rng.vec(m.nu(), -10.0, 10.0), rng.vec(6 * m.nfext(), -20.0, 20.0));
+                let ext = reference::External { fext: &fext, lambda: &[] };
+                for f in &module.functions {
+                    assert_eq!(f.inputs().contains(&ir::Input::Fext), m.nfext() > 0, "{name} {}: takes fext", f.kind);
+                    assert!(!f.inputs().contains(&ir::Input::Lambda), "{name} {}: solves for λ", f.kind);
+                    let got = f.eval(&kernel_args_with(f.inputs(), &q, &qd, &u, ext));
+                    let want = reference_outputs_with(f.kind, &m, &q, &qd, &u, g, ext);
+                    assert_eq!(got.len(), want.len(), "{name} {}: outputs", f.kind);
+                    for ((o, got), want) in f.outputs.iter().zip(&got).zip(&want) {
+                        let e = rel_err(&output_matrix(o.shape, nv, got), want);
+                        worst = worst.max(e);
+                        // As `contact_kernels_match_the_reference` (the Schur complement
+                        // against the reference's KKT LU, a digit lost to K's conditioning),
+                        // then integrated.
+                        assert!(e < 5e-11, "{name} {} {solve:?} {} {}: {e:.2e}", scheme.name(), f.kind, o.name);
+                    }
+                }
+            }
+        }
+    }
+    println!("worst forced step kernel against the reference: {worst:.2e} (bound 5e-11)");
+}
+
 /// A scene's `[step]` and `[actuation]` mistakes are errors that say what is wrong.
 #[test]
 fn bad_steps_are_errors() {
@@ -328,6 +416,55 @@ fn main() {
         assert!(e < 1e-12, "state {k}: {e:.2e}");
     }
     println!("iiwa RK4 step_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
+}
+
+/// A forced step's generated Rust, compiled with rustc and run: iiwa holding its tool by a
+/// rigid wrench contact, with fext on its third link, semi-implicit `step_grad` on four
+/// states against the reference.
+#[test]
+fn forced_step_grad_compiles_and_matches_the_reference() {
+    use grid_gen::generate::{generate, Options, Target};
+    let iiwa = with_forces(&load("grid_iiwa"), &["iiwa_joint_3"], &[("iiwa_link_7", ContactKind::Wrench)]);
+    let model = with_step(&iiwa, Scheme::SemiImplicitEuler, 0.01);
+    let lower = LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() };
+    let file = generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() }).unwrap().remove(0);
+    assert!(file.contents.contains("`step_grad(q, qd, tau, fext) -> (q_next, qd_next, a, b)`"), "the API summary names fext and no lambda");
+    let said = compile_and_run(
+        "forcedstep",
+        &file.contents,
+        r#"mod robot { include!("robot.rs"); }
+use robot::*;
+fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }
+fn main() {
+    for k in 0..4 {
+        let x: [[f64; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s)));
+        let fext: [f64; 6 * NFEXT] = std::array::from_fn(|i| 10.0 * state(k, i, 3));
+        let (q, v, a, b) = step_grad(&x[0], &x[1], &x[2], &fext);
+        let all: Vec<String> = q.iter().chain(&v).chain(a.as_flattened()).chain(b.as_flattened()).map(|x| format!("{x:?}")).collect();
+        println!("{}", all.join(" "));
+    }
+}
+"#,
+    );
+    let state = |k: usize, i: usize, salt: usize| (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5;
+    let nv = model.nv();
+    let mut worst: f64 = 0.0;
+    for (k, line) in said.lines().enumerate() {
+        let got: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
+        let x: Vec<Vec<f64>> = (0..3).map(|s| (0..nv).map(|i| state(k, i, s)).collect()).collect();
+        let fext: Vec<f64> = (0..6).map(|i| 10.0 * state(k, i, 3)).collect();
+        let ext = reference::External { fext: &fext, lambda: &[] };
+        let want = reference_outputs_with(KernelKind::StepGrad, &model, &x[0], &x[1], &x[2], reference::DEFAULT_GRAVITY, ext);
+        let want: Vec<f64> = want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
+        assert_eq!(got.len(), want.len());
+        let e = rel_err(&col(&got), &col(&want));
+        worst = worst.max(e);
+        // f64 kernels are held to 1e-12 of the reference, as everywhere (measured 3.7e-15
+        // on these states, whose contact Schur complement is well conditioned).
+        assert!(e < 1e-12, "state {k}: {e:.2e}");
+    }
+    assert_eq!(said.lines().count(), 4);
+    println!("iiwa contact step_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
 }
 
 /// `fd_grad` with `dqdd_dtau` (`[fd_grad] minv = true`): M⁻¹ from the route `fd_grad` took,

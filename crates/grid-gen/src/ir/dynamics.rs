@@ -41,6 +41,10 @@ pub(crate) struct Dynamics<'a> {
     /// The external and contact forces on the bodies, once [`Self::load_forces`] has read
     /// the kernel's force inputs: RNEA subtracts them, ABA adds them to its bias forces.
     forces: Forces,
+    /// The configuration's nodes when the joint transforms were built from nodes other than
+    /// the kernel's q input (an RK4 stage's `q ⊕ dq`), so that derivatives with respect to
+    /// "q" there seed those nodes.
+    config: Option<Vec<Id>>,
 }
 
 /// The RNEA quantities the gradient needs.
@@ -69,7 +73,7 @@ impl<'a> Dynamics<'a> {
             s.push(subspace(&mut g, &model.joints[i]));
             inertia.push(SymInertia::new(&mut g, &model.joints[i].inertia));
         }
-        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia, product: None, solve: Solve::Minv, forces: Forces::default() }
+        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia, product: None, solve: Solve::Minv, forces: Forces::default(), config: None }
     }
 
     /// Model joints (bodies): what the recursions loop over. The kernels' inputs and

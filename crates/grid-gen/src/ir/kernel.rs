@@ -368,9 +368,16 @@ impl KernelKind {
     }
 
     /// Whether the kernel takes the external and contact forces a model declares (the
-    /// contact kernels take `fext` and solve for λ).
+    /// contact and step kernels take `fext` and solve for λ).
     pub fn takes_forces(self) -> bool {
-        matches!(self, KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::Fd | KernelKind::FdGrad) || self.is_contact()
+        matches!(self, KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::Fd | KernelKind::FdGrad) || self.solves_contacts()
+    }
+
+    /// Whether the kernel holds the model's contacts rigid and solves for their forces
+    /// (rather than taking them as the `lambda` input): the contact kernels, and the step
+    /// kernels, which step with `contact_fd` when contacts are declared.
+    pub fn solves_contacts(self) -> bool {
+        self.is_contact() || self.is_step()
     }
 
     /// The inputs of the kernel of a model so specialised: [`Self::inputs`], then `fext`
@@ -379,9 +386,21 @@ impl KernelKind {
         let mut inputs = self.inputs().to_vec();
         if self.takes_forces() {
             inputs.extend((!spec.fext.is_empty()).then_some(Input::Fext));
-            inputs.extend((!spec.contacts.is_empty() && !self.is_contact()).then_some(Input::Lambda));
+            inputs.extend((!spec.contacts.is_empty() && !self.solves_contacts()).then_some(Input::Lambda));
         }
         inputs
+    }
+
+    /// Entries per state of WGSL's `u` buffer, which packs every input after q and q̇:
+    /// the first (q̈, τ or the actuated τ), then the forces the kernel takes. `forces` is
+    /// the model's force entries (6 per fext body, then λ's), `lambda` λ's alone.
+    pub fn u_len(self, nv: usize, nu: usize, forces: usize, lambda: usize) -> usize {
+        let first = if self.is_step() { nu } else { nv };
+        match (self.takes_forces(), self.solves_contacts()) {
+            (false, _) => first,
+            (true, false) => first + forces,
+            (true, true) => first + forces.saturating_sub(lambda),
+        }
     }
 
     /// One sentence for the function's doc comment.
@@ -458,7 +477,7 @@ impl KernelKind {
         // Inputs and outputs are per coordinate; the recursions run per joint. `expand`
         // and `reduce` map between the two (the identity unless mimic joints are coupled).
         if self.takes_forces() {
-            d.load_forces(if self.is_contact() { super::dynamics::LambdaSource::Unknown } else { super::dynamics::LambdaSource::Inputs });
+            d.load_forces(if self.solves_contacts() { super::dynamics::LambdaSource::Unknown } else { super::dynamics::LambdaSource::Inputs });
         }
         match self {
             KernelKind::Rnea => {
@@ -545,7 +564,8 @@ impl KernelKind {
             }
             KernelKind::ContactFdGrad => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
-                d.contact_fd_grad(&qd, &tau).into_iter().map(|x| x.into_iter().flatten().collect()).collect()
+                let all: Vec<usize> = (0..qd.len()).collect();
+                d.contact_fd_grad(&qd, &tau, &all).into_iter().map(|x| x.into_iter().flatten().collect()).collect()
             }
         }
     }

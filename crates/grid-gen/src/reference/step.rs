@@ -5,10 +5,16 @@
 //! (nalgebra's quaternion exponential; SO(3)'s Jacobians; Pinocchio's `Jexp6` formula)
 //! with Taylor series where those cancel: a route independent of the kernels' scaling
 //! and squaring and their forward-mode derivatives.
+//!
+//! The dynamics stepped are the model's: its external forces `fext` held constant over
+//! the step (in the bodies' frames), and its contacts, when it declares any, rigid
+//! (`constraintDynamics`, as Crocoddyl's `DifferentialActionModelContactFwdDynamics`
+//! inside an integrated action model), so that a stage's q̈ and its derivatives are
+//! [`super::contact_fd_derivatives`]'s.
 
 use nalgebra::{DMatrix, Matrix3, UnitQuaternion, Vector3};
 
-use super::{forward_dynamics, forward_dynamics_derivatives, minv};
+use super::{aba_with, contact_fd, contact_fd_derivatives, forward_dynamics_derivatives_with, minv, External};
 use crate::model::{LieBlock, Model, Scheme, Step};
 
 /// `[ω]×`.
@@ -171,13 +177,41 @@ fn state_integrate(model: &Model, q: &[f64], qd: &[f64], dx: &[f64]) -> (Vec<f64
     (integrate(model, q, &dx[..nv]), (0..nv).map(|k| qd[k] + dx[nv + k]).collect())
 }
 
-/// One step from `(q, q̇)` under joint forces `tau` (nv entries) with gravity `gravity`.
-pub fn step(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], step: Step) -> (Vec<f64>, Vec<f64>) {
+/// q̈ at one state: forward dynamics under `fext`, with the model's contacts held rigid
+/// when it declares any. `None` when the contacts' KKT system is singular there.
+fn acceleration(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], fext: &[f64]) -> Option<Vec<f64>> {
+    if model.specialisation.contacts.is_empty() {
+        return Some(aba_with(model, q, qd, tau, gravity, External { fext, lambda: &[] }));
+    }
+    contact_fd(model, q, qd, tau, gravity, fext).map(|c| c.qdd)
+}
+
+/// [`acceleration`] and `(∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`, τ's columns all nv coordinates.
+fn acceleration_derivatives(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    fext: &[f64],
+) -> Option<(Vec<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>)> {
+    if model.specialisation.contacts.is_empty() {
+        let (qdd, dq, dqd) = forward_dynamics_derivatives_with(model, q, qd, tau, gravity, External { fext, lambda: &[] });
+        return Some((qdd, dq, dqd, minv(model, q)));
+    }
+    let (sol, d) = contact_fd_derivatives(model, q, qd, tau, gravity, fext)?;
+    Some((sol.qdd, d.dqdd_dq, d.dqdd_dqd, d.dqdd_dtau))
+}
+
+/// One step from `(q, q̇)` under joint forces `tau` (nv entries) with gravity `gravity` and
+/// the model's external forces `fext` (as [`External::fext`]; empty for none) held over the
+/// step. `None` when the model's contacts are singular at a state the step visits.
+pub fn step(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], step: Step, fext: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
     let nv = model.nv();
     let dt = step.dt;
-    match step.scheme {
+    Some(match step.scheme {
         Scheme::SemiImplicitEuler | Scheme::ExplicitEuler => {
-            let qdd = forward_dynamics(model, q, qd, tau, gravity);
+            let qdd = acceleration(model, q, qd, tau, gravity, fext)?;
             let qd_next: Vec<f64> = (0..nv).map(|k| qd[k] + dt * qdd[k]).collect();
             let moved = if step.scheme == Scheme::SemiImplicitEuler { &qd_next } else { qd };
             let dq: Vec<f64> = moved.iter().map(|x| dt * x).collect();
@@ -193,7 +227,7 @@ pub fn step(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]
                     let d: Vec<f64> = k_prev.iter().map(|x| c * dt * x).collect();
                     state_integrate(model, q, qd, &d)
                 };
-                let qdd = forward_dynamics(model, &y_q, &y_v, tau, gravity);
+                let qdd = acceleration(model, &y_q, &y_v, tau, gravity, fext)?;
                 k_prev = y_v.iter().chain(&qdd).copied().collect();
                 for (d, k) in dx.iter_mut().zip(&k_prev) {
                     *d += weight * dt / 6.0 * k;
@@ -201,11 +235,21 @@ pub fn step(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]
             }
             state_integrate(model, q, qd, &dx)
         }
-    }
+    })
 }
 
 /// [`step`] and its linearisation; B's columns are the coordinates `actuated`.
-pub fn step_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], step: Step, actuated: &[usize]) -> StepDerivatives {
+#[allow(clippy::too_many_arguments)]
+pub fn step_derivatives(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    step: Step,
+    actuated: &[usize],
+    fext: &[f64],
+) -> Option<StepDerivatives> {
     let nv = model.nv();
     let dt = step.dt;
     let identity = DMatrix::<f64>::identity(nv, nv);
@@ -224,8 +268,8 @@ pub fn step_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravi
     };
     match step.scheme {
         Scheme::SemiImplicitEuler | Scheme::ExplicitEuler => {
-            let (qdd, da_dq, da_dv) = forward_dynamics_derivatives(model, q, qd, tau, gravity);
-            let da_du = select(&minv(model, q));
+            let (qdd, da_dq, da_dv, da_dtau) = acceleration_derivatives(model, q, qd, tau, gravity, fext)?;
+            let da_du = select(&da_dtau);
             let qd_next: Vec<f64> = (0..nv).map(|k| qd[k] + dt * qdd[k]).collect();
             let (avq, avv, bv) = (&da_dq * dt, &identity + &da_dv * dt, &da_du * dt);
             let semi = step.scheme == Scheme::SemiImplicitEuler;
@@ -235,25 +279,27 @@ pub fn step_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravi
             let (aqq, aqv, bq) =
                 if semi { (&jq + &jv * &avq * dt, &jv * &avv * dt, &jv * &bv * dt) } else { (jq, &jv * dt, DMatrix::zeros(nv, actuated.len())) };
             let (a, b) = assemble(aqq, aqv, avq, avv, bq, bv);
-            StepDerivatives { q_next: integrate(model, q, &dq), qd_next, a, b }
+            Some(StepDerivatives { q_next: integrate(model, q, &dq), qd_next, a, b })
         }
-        Scheme::Rk4 => rk4_derivatives(model, q, qd, tau, gravity, dt, actuated.len(), &select),
+        Scheme::Rk4 => rk4_derivatives(model, q, qd, tau, gravity, fext, dt, actuated.len(), &select),
     }
 }
 
 /// RK4's chain rule, stage by stage, as Crocoddyl's `IntegratedActionModelRK4::calcDiff`:
 /// `∂y_i/∂x = J_x(x, dx_i) + J_dx(x, dx_i) c_i dt ∂k_(i−1)/∂x`, `∂k_i/∂x = ∂f/∂y_i ∂y_i/∂x`,
 /// with `J_x`, `J_dx` the state's `Jintegrate` (q's `dIntegrate`, identity for q̇).
+#[allow(clippy::too_many_arguments)]
 fn rk4_derivatives(
     model: &Model,
     q: &[f64],
     qd: &[f64],
     tau: &[f64],
     gravity: [f64; 3],
+    fext: &[f64],
     dt: f64,
     nu: usize,
     select: &dyn Fn(&DMatrix<f64>) -> DMatrix<f64>,
-) -> StepDerivatives {
+) -> Option<StepDerivatives> {
     let nv = model.nv();
     let state_jacobians = |dx: &[f64]| {
         let (jq, jv) = d_integrate(model, &dx[..nv]);
@@ -274,8 +320,8 @@ fn rk4_derivatives(
             let (jx, jdx) = state_jacobians(&d);
             (y_q, y_v, jx + &jdx * &dk_dx_prev * (c * dt), &jdx * &dk_du_prev * (c * dt))
         };
-        let (qdd, da_dq, da_dv) = forward_dynamics_derivatives(model, &y_q, &y_v, tau, gravity);
-        let da_du = select(&minv(model, &y_q));
+        let (qdd, da_dq, da_dv, da_dtau) = acceleration_derivatives(model, &y_q, &y_v, tau, gravity, fext)?;
+        let da_du = select(&da_dtau);
         // ∂f/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
         let mut df = DMatrix::zeros(2 * nv, 2 * nv);
         df.view_mut((0, nv), (nv, nv)).fill_with_identity();
@@ -295,5 +341,5 @@ fn rk4_derivatives(
     }
     let (jx, jdx) = state_jacobians(&dx);
     let (q_next, qd_next) = state_integrate(model, q, qd, &dx);
-    StepDerivatives { q_next, qd_next, a: jx + &jdx * dx_dx, b: &jdx * dx_du }
+    Some(StepDerivatives { q_next, qd_next, a: jx + &jdx * dx_dx, b: &jdx * dx_du })
 }

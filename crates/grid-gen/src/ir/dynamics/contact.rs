@@ -16,7 +16,7 @@
 //! `∂λ/∂u = −K⁻¹ (J F_u + A_u)` and `∂q̈/∂u = F_u + G ∂λ/∂u`; for τ, `F_τ = M⁻¹`,
 //! `A_τ = 0`, so `J F_τ = Gᵀ`.
 
-use super::super::graph::{Graph, Id, Input, Stage};
+use super::super::graph::{Graph, Id, Stage};
 use super::super::kernel::Solve;
 use super::super::spatial::{self as sp, k, V3};
 use super::{Dynamics, LambdaSource, Mat};
@@ -193,16 +193,16 @@ impl Dynamics<'_> {
     }
 
     /// [`Self::contact_fd`] and its derivatives: `(q̈, λ, ∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ, ∂λ/∂q,
-    /// ∂λ/∂q̇, ∂λ/∂τ)`, each as rows (one row for the vectors).
-    pub fn contact_fd_grad(&mut self, qd: &[Id], tau: &[Id]) -> Vec<Mat> {
+    /// ∂λ/∂q̇, ∂λ/∂τ)`, each as rows (one row for the vectors); the τ derivatives have one
+    /// column per coordinate of `tau_cols` (the step kernels need only the actuated ones).
+    pub fn contact_fd_grad(&mut self, qd: &[Id], tau: &[Id], tau_cols: &[usize]) -> Vec<Mat> {
         let sol = self.contact_fd(qd, tau);
         let (nv, nl) = (qd.len(), sol.lambda.len());
         // ∂q̈/∂u at fixed λ: fd_grad with the solved forces as the contacts' forces; its
         // q̈ is sol.qdd by ABA (or the factorisation) under them, so its RNEA gradient is
         // taken at the same point.
         self.load_forces(LambdaSource::Nodes(sol.lambda.clone()));
-        let all: Vec<usize> = (0..nv).collect();
-        let (_, fq, fqd, minv, _) = self.fd_grad(qd, tau, &all, &[]);
+        let (_, fq, fqd, minv, _) = self.fd_grad(qd, tau, tau_cols, &[]);
         // The dense-product annotation describes fd_grad's outputs, not these.
         self.product = None;
         // ∂acc/∂u at fixed q̈, by forward-mode over the acceleration's graph with the q̈
@@ -216,28 +216,29 @@ impl Dynamics<'_> {
             if self.exhausted() {
                 break;
             }
-            let seeds = self.q_seeds(c);
-            aq.push(self.g.tangent_at(&acc, &seeds, &held));
-            let one = self.g.constant(1.0);
-            aqd.push(self.g.tangent_at(&acc, &[(Input::Qd, c, one)], &held));
+            let (seeds, given) = self.q_tangents(c, qd, &held);
+            aq.push(self.g.tangent_at(&acc, &seeds, &given));
+            let (seeds, given) = self.qd_tangents(c, qd, &held);
+            aqd.push(self.g.tangent_at(&acc, &seeds, &given));
         }
         self.g.at(None, Stage::Combine, 0);
         if self.exhausted() {
-            let z = vec![vec![zero; nv]; nv];
-            let zl = vec![vec![zero; nv]; nl];
-            return vec![vec![sol.qdd], vec![sol.lambda], z.clone(), z.clone(), z, zl.clone(), zl.clone(), zl];
+            let (z, zt) = (vec![vec![zero; nv]; nv], vec![vec![zero; tau_cols.len()]; nv]);
+            let (zl, zlt) = (vec![vec![zero; nv]; nl], vec![vec![zero; tau_cols.len()]; nl]);
+            return vec![vec![sol.qdd], vec![sol.lambda], z.clone(), z, zt, zl.clone(), zl, zlt];
         }
         let g = &mut self.g;
         // Per column c of u: dλ = −K⁻¹ (J F e_c + A e_c), dq̈ = F e_c + G dλ; for τ,
         // J F e_c = J M⁻¹ e_c is row c of G.
         let (mut outs_q, mut outs_l): (Vec<Mat>, Vec<Mat>) = (Vec::new(), Vec::new());
         for which in 0..3 {
-            let (mut dq_cols, mut dl_cols) = (Vec::with_capacity(nv), Vec::with_capacity(nv));
-            for c in 0..nv {
+            let columns = if which == 2 { tau_cols.len() } else { nv };
+            let (mut dq_cols, mut dl_cols) = (Vec::with_capacity(columns), Vec::with_capacity(columns));
+            for c in 0..columns {
                 let f: Vec<Id> = (0..nv).map(|i| [&fq, &fqd, &minv][which][i][c]).collect();
                 let rhs: Vec<Id> = (0..nl)
                     .map(|r| match which {
-                        2 => sol.g[r][c],
+                        2 => sol.g[r][tau_cols[c]],
                         _ => {
                             let d = g.dot(&sol.neg_jt[r], &f);
                             let a = if which == 0 { aq[c][r] } else { aqd[c][r] };

@@ -254,6 +254,8 @@ impl Dynamics<'_> {
     /// for a multi-dof joint's coordinate the first-order change of the pose under
     /// `q ⊕ ε = q · exp(ε)` (Pinocchio's `integrate`): a free-flyer's linear coordinate moves
     /// the position by `R e_k`, an angular one turns the quaternion by `½ q ⊗ (e_k, 0)`.
+    /// Entries name q's; the tangents are built from the configuration the transforms were
+    /// (an RK4 stage's, see [`Self::q_tangents`]).
     pub(super) fn q_seeds(&mut self, k: usize) -> Vec<(Input, usize, Id)> {
         if let Some(i) = self.model.q_index(k) {
             let one = self.g.constant(1.0);
@@ -265,7 +267,8 @@ impl Dynamics<'_> {
         let free = self.model.is_free_flyer(group.start);
         let at = if free { 3 } else { self.model.group_q(group.start) };
         let g = &mut self.g;
-        let [x, y, z, w] = std::array::from_fn(|c| g.input(Input::Q, at + c));
+        let config = &self.config;
+        let [x, y, z, w] = std::array::from_fn(|c| config.as_ref().map_or_else(|| g.input(Input::Q, at + c), |q| q[at + c]));
         if free && member < 3 {
             // Column `member` of the rotation the kernels build (hash-consing shares its nodes).
             let r = sp::quaternion_rotation(g, [x, y, z, w]);
@@ -286,6 +289,35 @@ impl Dynamics<'_> {
         let t = g.mul(half, v[axis]);
         dv[3] = g.neg(t);
         (0..4).map(|e| (Input::Q, at + e, dv[e])).collect()
+    }
+
+    /// The seeds and given node tangents for a forward-mode derivative along coordinate `k`
+    /// of q, at fixed `qd` (the velocity nodes the recording used) and fixed `held`: seeds
+    /// on the kernel's q input, or, at an RK4 stage, tangents given to the stage's
+    /// configuration and velocity nodes, which stops the derivative at them (the stage's
+    /// dynamics are differentiated at the stage's state, not through it).
+    pub(super) fn q_tangents(&mut self, k: usize, qd: &[Id], held: &[(Id, Id)]) -> (Vec<(Input, usize, Id)>, Vec<(Id, Id)>) {
+        let seeds = self.q_seeds(k);
+        let Some(config) = self.config.clone() else {
+            return (seeds, held.to_vec());
+        };
+        let zero = self.g.constant(0.0);
+        let mut given = held.to_vec();
+        given.extend(config.iter().enumerate().map(|(i, &n)| (n, seeds.iter().find(|s| s.1 == i).map_or(zero, |s| s.2))));
+        given.extend(qd.iter().map(|&n| (n, zero)));
+        (Vec::new(), given)
+    }
+
+    /// [`Self::q_tangents`] along q̇'s entry `k`, at fixed q.
+    pub(super) fn qd_tangents(&mut self, k: usize, qd: &[Id], held: &[(Id, Id)]) -> (Vec<(Input, usize, Id)>, Vec<(Id, Id)>) {
+        let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
+        let Some(config) = self.config.clone() else {
+            return (vec![(Input::Qd, k, one)], held.to_vec());
+        };
+        let mut given = held.to_vec();
+        given.extend(config.iter().map(|&n| (n, zero)));
+        given.extend(qd.iter().enumerate().map(|(i, &n)| (n, if i == k { one } else { zero })));
+        (Vec::new(), given)
     }
 
     /// The derivatives of the frames' classical accelerations `acc` (3 per frame) with

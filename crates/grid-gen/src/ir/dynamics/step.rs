@@ -15,7 +15,7 @@
 
 use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::spatial::{self as sp, joint_xform_at, k, V3};
-use super::{Dynamics, Mat};
+use super::{Dynamics, LambdaSource, Mat};
 use crate::model::{LieBlock, Scheme};
 
 /// Double-angle steps of the exponentials' scaling and squaring.
@@ -232,7 +232,8 @@ impl Dynamics<'_> {
     }
 
     /// Runs `f` with the joint transforms at the configuration `q` (nodes) instead of the
-    /// kernel's input: the dynamics at an RK4 stage's state.
+    /// kernel's input: the dynamics at an RK4 stage's state. The forces are reloaded there
+    /// too (a contact's geometry moves with q; fext, in the bodies' frames, does not).
     fn at_config<R>(&mut self, q: &[Id], f: impl FnOnce(&mut Self) -> R) -> R {
         let x = (0..self.model.njoints())
             .map(|i| {
@@ -241,9 +242,38 @@ impl Dynamics<'_> {
             })
             .collect();
         let saved = std::mem::replace(&mut self.x, x);
+        let config = self.config.replace(q.to_vec());
+        let forces = self.forces.clone();
+        self.load_forces(LambdaSource::Unknown);
         let out = f(self);
         self.x = saved;
+        self.config = config;
+        self.forces = forces;
         out
+    }
+
+    /// The q̈ a step integrates: forward dynamics under the loaded fext, with the model's
+    /// contacts held rigid when it declares any (`contact_fd`, as Crocoddyl's contact
+    /// dynamics inside its integrated action models).
+    fn step_acceleration(&mut self, qd: &[Id], tau: &[Id]) -> Vec<Id> {
+        if self.declares_contacts() {
+            return self.contact_fd(qd, tau).qdd;
+        }
+        self.fd(qd, tau)
+    }
+
+    /// [`Self::step_acceleration`] and `(∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`, τ's columns the
+    /// coordinates `tau_cols`: `contact_fd_grad`'s with contacts, `fd_grad`'s without.
+    fn step_acceleration_grad(&mut self, qd: &[Id], tau: &[Id], tau_cols: &[usize]) -> (Vec<Id>, Mat, Mat, Mat) {
+        if self.declares_contacts() {
+            let mut out = self.contact_fd_grad(qd, tau, tau_cols).into_iter();
+            let qdd = out.next().and_then(|rows| rows.into_iter().next()).unwrap_or_default();
+            let _lambda = out.next();
+            let (dq, dqd, dtau) = (out.next().unwrap_or_default(), out.next().unwrap_or_default(), out.next().unwrap_or_default());
+            return (qdd, dq, dqd, dtau);
+        }
+        let (qdd, dq, dqd, minv, _) = self.fd_grad(qd, tau, tau_cols, &[]);
+        (qdd, dq, dqd, minv)
     }
 
     /// `q ⊕ w` for the kernel's q and a state's `x ⊕ dx` (Crocoddyl's `StateMultibody`).
@@ -291,7 +321,7 @@ impl Dynamics<'_> {
             };
             let qdd;
             if grad {
-                let (a, da_dq, da_dv, minv_s, _) = self.at_config(&y_q, |d| d.fd_grad(&y_v, tau, &actuated, &[]));
+                let (a, da_dq, da_dv, minv_s) = self.at_config(&y_q, |d| d.step_acceleration_grad(&y_v, tau, &actuated));
                 // ∂k/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
                 let df: Mat = (0..nx)
                     .map(|r| {
@@ -326,7 +356,7 @@ impl Dynamics<'_> {
                 dx_du = self.add_mat(&dx_du, &t);
                 qdd = a;
             } else {
-                qdd = self.at_config(&y_q, |d| d.fd(&y_v, tau));
+                qdd = self.at_config(&y_q, |d| d.step_acceleration(&y_v, tau));
             }
             k_prev = y_v.iter().chain(&qdd).copied().collect();
             let w = k(&mut self.g, weight * dt / 6.0);
@@ -381,7 +411,7 @@ impl Dynamics<'_> {
             let (q, v, _, _) = self.rk4(qd, &tau, dt, false);
             return (q, v);
         }
-        let qdd = self.fd(qd, &tau);
+        let qdd = self.step_acceleration(qd, &tau);
         self.g.at(None, Stage::Combine, 0);
         let (qd_next, w) = self.euler(qd, &qdd, scheme, dt);
         (self.integrate(&w), qd_next)
@@ -416,7 +446,7 @@ impl Dynamics<'_> {
         if scheme == Scheme::Rk4 {
             return self.rk4(qd, &tau, dt, true);
         }
-        let (qdd, da_dq, da_dv, minv_s, _) = self.fd_grad(qd, &tau, &actuated, &[]);
+        let (qdd, da_dq, da_dv, minv_s) = self.step_acceleration_grad(qd, &tau, &actuated);
         // The step's products are its own: no backend may rerun fd_grad's as a loop.
         self.product = None;
         self.g.at(None, Stage::Combine, 0);
