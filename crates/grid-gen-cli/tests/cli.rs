@@ -804,6 +804,26 @@ fn eval_and_info_report_forces() {
     assert_eq!(c["dlambda_dq"]["lf_lowerleg"].as_array().unwrap().len(), 3, "a point contact's three rows");
     assert_eq!(c["dlambda_dtau"]["lf_lowerleg"][0].as_array().unwrap().len(), 18, "nv columns");
     assert_eq!(c["dqdd_dtau"].as_array().unwrap().len(), 18);
+    // With a step: the state's fext held over it, the contacts rigid (the state's λ does
+    // not enter), as the reference's step.
+    let out = grid_gen(&[&base[..5], &["--step", "rk4", "--dt", "0.01", "--states", states.to_str().unwrap()]].concat());
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let step = &json(&out)["states"][0]["step"];
+    let mut stepped = model.clone();
+    stepped.specialisation.step = Some(grid_gen::model::Step { scheme: grid_gen::model::Scheme::Rk4, dt: 0.01 });
+    let d = grid_gen::reference::step_derivatives(
+        &stepped,
+        &parse(q),
+        &parse(qd),
+        &parse(u),
+        grid_gen::model::DEFAULT_GRAVITY,
+        stepped.specialisation.step.unwrap(),
+        &stepped.actuated(),
+        &fext,
+    )
+    .unwrap();
+    assert!(close(&floats(&step["qd_next"]), &d.qd_next), "the step's qd_next is the reference's contact step");
+    assert!(close(&floats(&step["B"][20]), &d.b.row(20).iter().copied().collect::<Vec<_>>()), "and its B");
     let bad_cases = [
         (r#""fext": {"lf_knee": [1, 2, 3, 0, 0, 0]}"#, "`fext` names `lf_knee`"),
         (r#""fext": {"root_joint": [1, 2, 3]}"#, "`fext.root_joint` has 3 values, expected 6"),

@@ -665,3 +665,59 @@ fn force_kernels_match_the_reference() {
         }
     }
 }
+
+/// A step under forces: iiwa holding its tool by a rigid wrench contact, with fext on its
+/// fourth link, semi-implicit Euler, f64 cooperative entries; `u` packs the actuated τ and
+/// then fext (no λ: the step solves for it), against the reference step and the IR.
+#[test]
+fn forced_step_kernels_match_the_reference() {
+    use grid_gen::model::ContactKind;
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(71);
+    let iiwa = with_forces(&load("grid_iiwa"), &["iiwa_joint_4"], &[("iiwa_link_7", ContactKind::Wrench)]);
+    let model = with_step(&iiwa, grid_gen::model::Scheme::SemiImplicitEuler, 0.01);
+    let options = WgslOptions { precision: Precision::F64, strategies: vec![Strategy::Cooperative], ..WgslOptions::default() };
+    let shader = gpu.load(&wgsl(&model, options)).unwrap();
+    let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+    let (nv, nu) = (model.nv(), model.nu());
+    let states = states(&model, &mut rng);
+    let fext: Vec<Vec<f64>> = states.iter().map(|_| rng.vec(6, -20.0, 20.0)).collect();
+    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let (q, qd) = (flat(0), flat(1));
+    let u: Vec<f64> = states.iter().zip(&fext).flat_map(|(s, f)| s[2][..nu].iter().chain(f).copied().collect::<Vec<_>>()).collect();
+    for kind in [KernelKind::Step, KernelKind::StepGrad] {
+        let f = lowered.function(kind).unwrap();
+        let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry(kind.name())).unwrap();
+        assert_eq!(kernel.nu, nu + 6, "{kind}: u holds the actuated τ and fext");
+        assert_eq!(kernel.nu, f.packed_u_len(), "{kind}: u's width");
+        let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
+        let total = kernel.entry.outputs;
+        let mut worst: f64 = 0.0;
+        let mut singular = 0;
+        for (s, ([q, qd, u], fext)) in states.iter().zip(&fext).enumerate() {
+            let j = reference::contact_jacobian(&model, &model.specialisation.contacts, q);
+            let sv = j.singular_values();
+            if sv.min() < 1e-8 * sv.max() {
+                // The arm stretched straight (the zero state): λ is not unique.
+                singular += 1;
+                continue;
+            }
+            let ext = reference::External { fext, lambda: &[] };
+            let want = reference_outputs_with(kind, &model, q, qd, &u[..nu], reference::DEFAULT_GRAVITY, ext);
+            let interpreted = f.eval(&kernel_args_with(f.inputs(), q, qd, &u[..nu], ext));
+            let mut base = s * total;
+            for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
+                let got = output_matrix(o.shape, nv, &got[base..base + o.ids.len()]);
+                let e = rel_err(&got, want);
+                // f64 kernels are held to F64_TOL, as everywhere (measured 2.3e-13: these
+                // states' contact Schur complements are well conditioned).
+                assert!(e <= F64_TOL, "{kind}.{} state {s}: {e:.2e}", o.name);
+                assert!(rel_err(&got, &output_matrix(o.shape, nv, ir_vals)) <= F64_TOL, "{kind}.{} state {s}: from the IR", o.name);
+                worst = worst.max(e);
+                base += o.ids.len();
+            }
+        }
+        assert!(singular <= 1, "{kind}: {singular} singular states");
+        eprintln!("grid_iiwa contact step {kind} f64: worst relative error {worst:.2e} over {} states", states.len() - singular);
+    }
+}

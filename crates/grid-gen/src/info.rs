@@ -310,7 +310,7 @@ impl Info {
             s.push_str(&format!("frame kernels compute: {} (reference frame {})\n", self.selected_frames.join(", "), self.reference_frame.name()));
         }
         if !self.fext.is_empty() {
-            s.push_str(&format!("rnea, rnea_grad, fd, fd_grad take fext (6 per body, joint frame) on: {}\n", self.fext.join(", ")));
+            s.push_str(&format!("rnea, rnea_grad, fd, fd_grad and the contact and step kernels take fext (6 per body, joint frame) on: {}\n", self.fext.join(", ")));
         }
         if !self.contacts.is_empty() {
             let c: Vec<String> = self.contacts.iter().map(|c| format!("{} ({})", c.frame, c.kind.name())).collect();
@@ -318,11 +318,13 @@ impl Info {
         }
         if let Some(step) = self.step {
             s.push_str(&format!(
-                "step kernels: {} over dt = {} s; actuated ({}): {}\n",
+                "step kernels: {} over dt = {} s; actuated ({}): {}{}{}\n",
                 step.scheme.name(),
                 step.dt,
                 self.actuated.len(),
-                self.actuated.join(", ")
+                self.actuated.join(", "),
+                if self.fext.is_empty() { "" } else { "; fext held over the step" },
+                if self.contacts.is_empty() { "" } else { "; the contacts held rigid (contact_fd's q̈, lambda solved)" },
             ));
         }
         if self.mimic_coupled {

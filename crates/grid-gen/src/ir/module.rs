@@ -473,12 +473,20 @@ fn freeze(kind: KernelKind, specs: &[crate::ir::OutputSpec], g: &Graph, outputs:
 }
 
 impl Function {
-    /// The kernel's doc sentence, with how this graph gets q̈ and M⁻¹ where it has a solve.
+    /// The kernel's doc sentence, with how this graph gets q̈ and M⁻¹ where it has a solve,
+    /// and, for a step under forces, what it holds.
     pub fn doc(&self) -> String {
-        match self.solve {
+        let mut doc = match self.solve {
             Some(solve) => format!("{} {}", self.kind.doc(), solve.doc()),
             None => self.kind.doc().to_string(),
+        };
+        if self.kind.is_step() && self.dims.nfext > 0 {
+            doc.push_str(" `fext` is held over the step (in the bodies' frames).");
         }
+        if self.kind.is_step() && self.dims.nlambda > 0 {
+            doc.push_str(" The contacts of `CONTACTS` are held rigid: qdd is `contact_fd`'s, lambda solved at each stage's state.");
+        }
+        doc
     }
 
     pub fn inputs(&self) -> &[Input] {
