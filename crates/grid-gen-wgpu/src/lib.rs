@@ -247,9 +247,8 @@ impl Gpu {
             precision: shader.info.precision,
             nv: shader.info.nv,
             nq: shader.info.nq,
-            nu: grid_gen::ir::KernelKind::parse(&info.kernel).map_or(shader.info.nv, |k| {
-                k.u_len(shader.info.nv, shader.info.nu, shader.info.forces, shader.info.lambda)
-            }),
+            nu: grid_gen::ir::KernelKind::parse(&info.kernel)
+                .map_or(shader.info.nv, |k| k.u_len(shader.info.nv, shader.info.nu, shader.info.forces, shader.info.lambda)),
             build_time: start.elapsed(),
             tables: shader.tables.clone(),
         })

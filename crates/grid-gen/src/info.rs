@@ -310,7 +310,10 @@ impl Info {
             s.push_str(&format!("frame kernels compute: {} (reference frame {})\n", self.selected_frames.join(", "), self.reference_frame.name()));
         }
         if !self.fext.is_empty() {
-            s.push_str(&format!("rnea, rnea_grad, fd, fd_grad and the contact and step kernels take fext (6 per body, joint frame) on: {}\n", self.fext.join(", ")));
+            s.push_str(&format!(
+                "rnea, rnea_grad, fd, fd_grad and the contact and step kernels take fext (6 per body, joint frame) on: {}\n",
+                self.fext.join(", ")
+            ));
         }
         if !self.contacts.is_empty() {
             let c: Vec<String> = self.contacts.iter().map(|c| format!("{} ({})", c.frame, c.kind.name())).collect();

@@ -35,9 +35,9 @@ fn fixture_model(name: &str, fx: &serde_json::Value) -> (Model, bool) {
     };
     let names = |key: &str| -> Vec<String> { fx[key].as_array().map_or(Vec::new(), |a| a.iter().map(|n| n.as_str().unwrap().to_string()).collect()) };
     let fext = names("fext");
-    let contacts: Vec<(String, ContactKind)> = fx["contacts"]
-        .as_array()
-        .map_or(Vec::new(), |a| a.iter().map(|c| (c["frame"].as_str().unwrap().to_string(), ContactKind::parse(c["type"].as_str().unwrap()).unwrap())).collect());
+    let contacts: Vec<(String, ContactKind)> = fx["contacts"].as_array().map_or(Vec::new(), |a| {
+        a.iter().map(|c| (c["frame"].as_str().unwrap().to_string(), ContactKind::parse(c["type"].as_str().unwrap()).unwrap())).collect()
+    });
     let fext: Vec<&str> = fext.iter().map(String::as_str).collect();
     let contacts: Vec<(&str, ContactKind)> = contacts.iter().map(|(f, k)| (f.as_str(), *k)).collect();
     (with_forces(&model, &fext, &contacts), floating)

@@ -73,7 +73,20 @@ impl<'a> Dynamics<'a> {
             s.push(subspace(&mut g, &model.joints[i]));
             inertia.push(SymInertia::new(&mut g, &model.joints[i].inertia));
         }
-        Dynamics { g, gradient: Gradient::Columns, sparse, model, gravity, x, s, inertia, product: None, solve: Solve::Minv, forces: Forces::default(), config: None }
+        Dynamics {
+            g,
+            gradient: Gradient::Columns,
+            sparse,
+            model,
+            gravity,
+            x,
+            s,
+            inertia,
+            product: None,
+            solve: Solve::Minv,
+            forces: Forces::default(),
+            config: None,
+        }
     }
 
     /// Model joints (bodies): what the recursions loop over. The kernels' inputs and
