@@ -1,5 +1,5 @@
 #!/usr/bin/env python3
-"""The Python package's speed, side by side in one run (issue 32's figures):
+"""The Python package's speed, side by side in one run:
 
 1. go2 on a floating base, fd_grad, per state, at B = 1, 64, 1024:
    - `rust loop`: the library's own batch loop on one core, called through ctypes with

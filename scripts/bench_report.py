@@ -43,7 +43,7 @@ for robot in ["grid_iiwa", "grid_hyq", "grid_atlas"]:
                 g = ns(robot, f"generated/{kernel}_lanes{lanes}") / lanes
                 print(f"| {robot} | {kernel}, {lanes} states per call (per state) | {fmt(g)} | {fmt(r)} | {fmt(p)} | {r / g:.1f}x | {p / g:.1f}x |")
 
-# Floating base (issue 11): HyQ on a free-flyer, the checked-in scene kernels against
+# Floating base: HyQ on a free-flyer, the checked-in scene kernels against
 # Pinocchio's computeRNEADerivatives / computeABADerivatives with JointModelFreeFlyer.
 for group, pin_robot in [("grid_hyq.hyq_floating", "grid_hyq_floating")]:
     for kernel, pin_key in (("rnea_grad", "rnea_derivatives_ns"), ("fd_grad", "aba_derivatives_ns")):

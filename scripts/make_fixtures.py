@@ -20,7 +20,7 @@ ball_arm.urdf with ball_arm[.floating].pinocchio.json: spherical joints (a grid-
                           (Pinocchio's buildReducedModel for locks, payload inertias added).
 and chain100.urdf with chain100.pinocchio.json: a 100-link chain (cond(M) ~ 1e5) and
 Pinocchio's ABA and ABA derivatives at two states, so the tests can measure both
-against the double-double value and hold grid-gen to Pinocchio's accuracy (issue 10).
+against the double-double value and hold grid-gen to Pinocchio's accuracy.
 
 Everything is stored in the tool's own joint order with joint names, so that the Rust
 tests match by name and never borrow grid-gen's ordering. Seeded: rerunning gives the
@@ -199,7 +199,7 @@ def floating_fixtures(check):
     return stale
 
 
-# --mimic coupled (issue 11, item 3): the Panda's finger (finger_joint2 = finger_joint1) and
+# --mimic coupled: the Panda's finger (finger_joint2 = finger_joint1) and
 # mimic_arm, a synthetic arm written here with revolute and prismatic mimics whose
 # multipliers are not 1 and offsets not 0, on two branches.
 MIMIC = [("panda", ROBOTS / "panda.urdf"), ("mimic_arm", OUT / "mimic_arm.urdf")]
@@ -314,7 +314,7 @@ def mimic_fixtures(check):
     return stale
 
 
-# Spherical joints (issue 11, item 2): ball_arm, a synthetic tree written here (URDF has no
+# Spherical joints: ball_arm, a synthetic tree written here (URDF has no
 # spherical type; grid-gen reads `type="spherical"` as an extension), with a spherical joint
 # on the root, one between moving bodies and one at a leaf. Pinocchio's model of it is built
 # joint by joint from the same table with JointModelSpherical, not from the URDF.
@@ -833,7 +833,7 @@ FORCED_STEPS = [
 ]
 
 
-# External forces and contacts (issue 30): (robot, floating, fext joints, contacts).
+# External forces and contacts: (robot, floating, fext joints, contacts).
 # fext is one Force per listed joint in its local frame (Pinocchio's fext); contacts are
 # (frame, "point" | "wrench") with lambda in LOCAL_WORLD_ALIGNED axes at the frame.
 FORCES = [

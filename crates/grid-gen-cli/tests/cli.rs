@@ -333,7 +333,7 @@ fn stderr(out: &Output) -> String {
     String::from_utf8_lossy(&out.stderr).into_owned()
 }
 
-/// Issue 11, item 5: what a new user tripped over on the command line.
+/// What a new user tripped over on the command line.
 #[test]
 fn what_a_new_user_tripped_over() {
     // Global options work before the command too; `--strict` really is strict there (Atlas
@@ -520,7 +520,7 @@ fn rust_kernels_are_compiled_and_timed() {
     }
 }
 
-/// `--floating-base` (issue 11): `info --json` gives nq and the free-flyer's joints, the
+/// `--floating-base`: `info --json` gives nq and the free-flyer's joints, the
 /// summary says so, `eval` takes the long q and names a wrong one, and generation writes
 /// `NQ` and `q: &[T; NQ]`.
 #[test]
@@ -563,7 +563,7 @@ fn floating_base_from_the_command_line() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// Spherical joints (issue 11): `info --json` lists them with their quaternions' places
+/// Spherical joints: `info --json` lists them with their quaternions' places
 /// in q, `eval` takes the long q and names a non-unit quaternion's joint, and generation
 /// writes `NQ`.
 #[test]
@@ -603,7 +603,7 @@ fn spherical_joints_from_the_command_line() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// `--mimic coupled` (issue 11): the Panda's second finger loses its coordinate in `info`,
+/// `--mimic coupled`: the Panda's second finger loses its coordinate in `info`,
 /// `eval` and the generated module; an unknown mode is a usage error naming the modes.
 #[test]
 fn mimic_coupled_from_the_command_line() {
@@ -637,7 +637,7 @@ fn mimic_coupled_from_the_command_line() {
     assert!(stderr(&bad).contains("unknown mimic mode `both`; available: independent, coupled"), "{}", stderr(&bad));
 }
 
-/// The issue's user story: `eval go2.urdf --floating-base --frames FL_foot,...` gives each
+/// A legged-robot user's first call: `eval go2.urdf --floating-base --frames FL_foot,...` gives each
 /// state the four feet's kinematics with the documented keys, equal to the library's
 /// reference (which tests/frames.rs holds to Pinocchio); `info --json` lists every link as a
 /// frame with its joint; a misspelt frame is an error that suggests the right name.
@@ -748,7 +748,7 @@ fn eval_and_info_report_the_step() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
-/// External and contact forces from the command line (issue 30): `eval` with `fext` and
+/// External and contact forces from the command line: `eval` with `fext` and
 /// `contacts` gives the reference's values under them, with the derivatives keyed by joint
 /// and frame; bad entries are errors naming the entry (nothing on stdout); `info` and the
 /// generated module name the forces; `--contact` with an unknown frame is an error.

@@ -279,7 +279,7 @@ macro_rules! bench_step {
 /// The forces scene (`examples/scenes/hyq_contacts_floating.toml`: fext on all thirteen
 /// bodies, four point contacts, with their derivative outputs) beside the same robot
 /// without forces (`hyq_floating.toml`), `rnea_grad` and `fd_grad`, in one group so the
-/// ratios come from one run (the target: within 1.3x).
+/// ratios come from one run (the target: within 1.3x of the kernels without forces).
 macro_rules! bench_forces {
     ($c:expr) => {{
         use grid_gen_kernels::scenes::grid_hyq_contacts_floating as k;

@@ -42,13 +42,13 @@ pub mod ur5 {
 /// Test robots that use grid-gen's extensions of URDF, as checked in under
 /// `generated/fixtures/`: compiled here so that their kernels are run in the tests.
 pub mod fixtures {
-    /// `tests/fixtures/ball_arm.urdf`: three spherical joints (issue 11).
+    /// `tests/fixtures/ball_arm.urdf`: three spherical joints.
     pub mod ball_arm {
         include!("../../../generated/fixtures/ball_arm/ball_arm.rs");
     }
 }
 
-/// Robots in the scenes of `examples/scenes/` (issue 10's scene specialisation), as
+/// Robots in the scenes of `examples/scenes/` (scene specialisation), as
 /// checked in under `generated/scenes/`: benchmarked beside the full robots.
 pub mod scenes {
     /// iiwa with joints 5 to 7 locked and a 2 kg tool: `rnea_grad` and `fd_grad` only.

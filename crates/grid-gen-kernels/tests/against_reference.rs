@@ -324,7 +324,7 @@ fn floating_base_kernels_match_the_reference() {
     check_module!(scenes::grid_hyq_floating, &model, "HyQ floating", states);
 }
 
-/// Spherical joints (`generated/fixtures/ball_arm/`, issue 11 item 2): ball_arm's three
+/// Spherical joints (`generated/fixtures/ball_arm/`): ball_arm's three
 /// (on the root, between moving bodies, at a leaf), every kernel, both copies, f64 and f32,
 /// uniform random rotations, against the reference (held to Pinocchio's
 /// `JointModelSpherical` by grid-gen's tests/pinocchio.rs) at the fixed-base tolerances.
@@ -350,7 +350,7 @@ fn spherical_kernels_match_the_reference() {
     check_module!(fixtures::ball_arm, &model, "ball_arm", states);
 }
 
-/// The Panda with coupled fingers (`generated/scenes/panda.panda_mimic/`, issue 11 item 3):
+/// The Panda with coupled fingers (`generated/scenes/panda.panda_mimic/`):
 /// every kernel, both copies, f64 and f32, against the reference (held to Pinocchio's mimic
 /// model by grid-gen's tests/pinocchio.rs) at the fixed-base tolerances.
 #[test]

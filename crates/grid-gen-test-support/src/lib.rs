@@ -47,7 +47,7 @@ pub fn chain_urdf(n: usize) -> String {
 /// A serial chain of `n` links tapering geometrically from the root to the tip: mass from
 /// 1 kg down to 1/`mass_ratio`, length from 0.1 m down to 0.1/`length_ratio` (slender
 /// rods, centre of mass mid-link, axes cycling x, y, z). cond(M) grows with both ratios:
-/// the near-singular M of issue 10's extremes suite.
+/// the near-singular M of the extremes suite (`tests/extremes.rs`).
 pub fn tapered_chain_urdf(n: usize, mass_ratio: f64, length_ratio: f64) -> String {
     let mut s = String::from("<robot name=\"tapered\"><link name=\"l0\"/>");
     let (mut parent_length, span) = (0.1, (n.max(2) - 1) as f64);

@@ -345,7 +345,7 @@ fn stages_compute_what_one_dispatch_computes() {
     }
 }
 
-/// A floating base (issue 11): q has nq = nv + 1 entries per state, the runtime reads
+/// A floating base: q has nq = nv + 1 entries per state, the runtime reads
 /// `// nq:` from the header. HyQ on a free-flyer, one invocation per state, in f64,
 /// against the reference (which tests/pinocchio.rs holds to Pinocchio's free-flyer) at
 /// the fixed-base tolerance: every kernel cooperatively, and every kernel but `fd_grad`
@@ -395,7 +395,7 @@ fn step_kernels_match_the_reference() {
     check_model(&gpu, "grid_iiwa rk4", &rk4, &steps, f64_options, &[Strategy::Cooperative], &mut rng);
 }
 
-/// Coupled mimic joints (issue 11): mimic_arm (`tests/fixtures/mimic_arm.urdf`, three
+/// Coupled mimic joints: mimic_arm (`tests/fixtures/mimic_arm.urdf`, three
 /// mimics with multipliers −0.7, 1.5 and 2 and offsets) in f64, every kernel, one
 /// invocation per state, against the reference (which tests/pinocchio.rs holds to
 /// Pinocchio's mimic model) at the fixed-base tolerance: the kernels take 4 coordinates for
@@ -410,7 +410,7 @@ fn coupled_mimic_kernels_match_the_reference() {
     check_model(&gpu, "mimic_arm coupled", &model, &KernelKind::ALL, options, &Strategy::ALL, &mut rng);
 }
 
-/// Spherical joints (issue 11): an arm with one on the root and one between moving
+/// Spherical joints: an arm with one on the root and one between moving
 /// bodies (the layout and algorithms of `tests/fixtures/ball_arm.urdf`, which
 /// tests/pinocchio.rs holds to Pinocchio's `JointModelSpherical`, on 7 coordinates instead
 /// of 12), in f64, every kernel, one invocation per state, against the reference at the
@@ -581,7 +581,7 @@ fn frame_acceleration_grad_matches_its_graph() {
     }
 }
 
-/// External and contact forces (issue 30): floating HyQ with fext on its base and a knee,
+/// External and contact forces: floating HyQ with fext on its base and a knee,
 /// and its four lower legs as point contacts (λ in world axes), in f64, rnea, rnea_grad,
 /// fd and fd_grad, both strategies, 37 states with random forces packed after q̈ or τ in
 /// `u`, against the reference (which tests/forces.rs holds to Pinocchio) and the IR

@@ -6,7 +6,7 @@
 //! makes every subtree a contiguous range of joint indices (`subtree_end`), which the
 //! M⁻¹ recursion and the emitters rely on.
 //!
-//! A floating base (issue 11) is six model joints at the front, [`FREE_FLYER`]: three
+//! A floating base is six model joints at the front, [`FREE_FLYER`]: three
 //! prismatic and three revolute joints along the base's own axes, massless but the last,
 //! which carries the root link. Held at their zero position, their motion subspaces are
 //! the columns of the identity in the base frame, so their velocities are Pinocchio's
@@ -167,7 +167,7 @@ pub struct Joint {
     pub mimic: Option<(String, f64, f64)>,
 }
 
-/// A mimic joint modelled as coupled (`--mimic coupled`, issue 11): its position is
+/// A mimic joint modelled as coupled (`--mimic coupled`): its position is
 /// `multiplier · q_of + offset`, its velocity and acceleration `multiplier` times those
 /// of joint `of`, and it has no coordinate of its own (Pinocchio's `JointModelMimic`,
 /// `buildModelFromUrdf(..., mimic=True)`).
@@ -194,7 +194,7 @@ pub struct Model {
     /// A floating base: `joints[..6]` are the free-flyer ([`FREE_FLYER`]) and q is
     /// `[x, y, z, qx, qy, qz, qw, joints[6..]…]` (nq = nv + 1, Pinocchio's layout).
     pub floating: bool,
-    /// Spherical joints (issue 11, item 2): the first of the three model joints each one
+    /// Spherical joints: the first of the three model joints each one
     /// is ([`SPHERICAL`], like the free-flyer's six: revolute about the joint frame's
     /// axes, held at zero, the first carrying the quaternion's rotation). In model order.
     pub spherical: Vec<usize>,
@@ -307,7 +307,7 @@ pub enum LieBlock {
     Spherical { v: usize, q: usize },
 }
 
-/// What a scene fixes beyond the robot itself (issue 10, item 6): lowering reads it, so
+/// What a scene fixes beyond the robot itself: lowering reads it, so
 /// the kernels of every backend shrink with it while keeping their signatures.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Specialisation {

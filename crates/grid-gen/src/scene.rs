@@ -1,4 +1,4 @@
-//! Scene specialisation (issue 10, item 6): what a user's scene fixes about the robot,
+//! Scene specialisation: what a user's scene fixes about the robot,
 //! read from a TOML file and applied while the model is built, so that every kernel of
 //! every backend shrinks with it: joints locked at a value (merged as fixed joints, as
 //! Pinocchio's `buildReducedModel` does), subtrees kept or dropped, payloads added to

@@ -1,4 +1,4 @@
-//! Issue 10's extremes suite: f64 forward dynamics and its gradient against the
+//! The extremes suite: f64 forward dynamics and its gradient against the
 //! double-double value where the numbers are hardest: near-singular M (chains whose mass
 //! and length taper by up to 1e6 from root to tip), speeds from 1e-8 to 1e4, angles up to
 //! ±1e3 rad, joint limits. Each case prints cond(M), the measured error, and the bound a

@@ -1,4 +1,4 @@
-//! Floating base (issue 11, item 1), beyond the Pinocchio comparison in tests/pinocchio.rs:
+//! Floating base, beyond the Pinocchio comparison in tests/pinocchio.rs:
 //! the three ways to ask for one agree, what cannot be a floating base is a located error,
 //! `eval` checks q's length and the quaternion, a slightly non-unit quaternion is
 //! normalised, and the base's position does not enter the dynamics.

@@ -1,4 +1,4 @@
-//! External forces and contact forces (issue 30): the reference against Pinocchio 4.1
+//! External forces and contact forces: the reference against Pinocchio 4.1
 //! (`rnea`, `aba`, `computeRNEADerivatives`, `computeABADerivatives` with `fext`, the
 //! contacts' λ-fixed-in-world terms, `getJointJacobian`, `getFrameJacobian`) on fixed and
 //! floating robots with point and wrench contacts; the λ-fixed q-derivatives against

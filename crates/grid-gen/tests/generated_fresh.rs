@@ -39,7 +39,7 @@ pub const SCENES: [(&str, &str); 11] = [
 
 /// Test robots (not bundled: they use grid-gen's extensions of URDF) whose Rust modules
 /// are checked in under `generated/fixtures/<robot>/`, so that grid-gen-kernels compiles
-/// and runs them: ball_arm's spherical joints (issue 11).
+/// and runs them: ball_arm's spherical joints.
 pub const FIXTURE_ROBOTS: [&str; 1] = ["ball_arm"];
 
 #[test]

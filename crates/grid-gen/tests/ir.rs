@@ -91,7 +91,7 @@ fn specialisation_removes_work_and_keeps_depth_bounded() {
     }
 }
 
-/// Issue 11, item 4: a joint that moves only massless links makes M singular. Loading
+/// A joint that moves only massless links makes M singular. Loading
 /// warns; RNEA, its gradient and M are still lowered (and right), the kernels that need
 /// M⁻¹ are left out everywhere: the module, `info`, the generated Rust and `eval`.
 #[test]
@@ -132,7 +132,7 @@ fn chain(n: usize) -> Model {
     Model::from_urdf_str("chain.urdf", &chain_urdf(n), false).unwrap().0
 }
 
-/// Issue 10's first step: the IR evaluated in double-double (about 106 bits) as the
+/// The IR evaluated in double-double (about 106 bits) as the
 /// reference. The graph is lowered without constant folding, so every model constant
 /// enters as the f64 the model holds and the double-double result is the true dynamics of
 /// the f64 model (to about 1e-30 relative, times the growth of its graph). Against it:
@@ -173,7 +173,7 @@ fn f64_against_the_double_double_reference() {
         let eig = m.symmetric_eigenvalues();
         let cond = eig.max() / eig.min();
         eprintln!("{name}: fd_grad in f64 against double-double: generated graph {kernel_worst:.1e}, reference algorithms {reference_worst:.1e} (cond(M) at q = 0.3: {cond:.1e})");
-        // Extremes (issue 10, item 5): angles up to ±1e3 rad, speeds 1e3 and 1e-8.
+        // Extremes: angles up to ±1e3 rad, speeds 1e3 and 1e-8.
         let mut extreme_worst = 0.0f64;
         for (qs, vs) in [(1e3, 1e3), (1e3, 1e-8), (3.0, 1e3)] {
             let (q, qd, tau) = (rng.vec(n, -qs, qs), rng.vec(n, -vs, vs), rng.vec(n, -3.0, 3.0));
@@ -192,7 +192,7 @@ fn f64_against_the_double_double_reference() {
     }
 }
 
-/// Issue 10, item 3's goal: forward dynamics and its gradient in f64 no less accurate than
+/// The accuracy goal: forward dynamics and its gradient in f64 no less accurate than
 /// Pinocchio's `aba` and `computeABADerivatives`, on a 100-link chain (cond(M) ~ 1e5, where
 /// q̈ = M⁻¹ (τ − c) made ∂q̈/∂q 1000x worse than Pinocchio). Both are measured against the
 /// double-double value of the unfolded graph at the fixture's states; the assertion is

@@ -1,4 +1,4 @@
-//! Coupled mimic joints (issue 11, item 3), beyond the Pinocchio comparison in
+//! Coupled mimic joints, beyond the Pinocchio comparison in
 //! tests/pinocchio.rs: chains of mimics compose, the coupled dynamics are the independent
 //! robot's restricted to the mimic-consistent states (checked here without Pinocchio),
 //! and what coupling cannot express is a clear error.

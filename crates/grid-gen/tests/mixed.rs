@@ -1,4 +1,4 @@
-//! Mixed precision (issue 10, item 4): the plan meets its target on states it was not
+//! Mixed precision: the plan meets its target on states it was not
 //! planned at, the interpreter agrees with the pure formats at its two ends, and the
 //! emitted mixed Rust, compiled with rustc, computes the interpreter's numbers bit for bit.
 

@@ -23,7 +23,7 @@ fn reference_matches_pinocchio_on_every_robot() {
     assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
 }
 
-/// Scenes (issue 10, item 6) against Pinocchio's own reduction: `[lock]` is
+/// Scenes against Pinocchio's own reduction: `[lock]` is
 /// `buildReducedModel` at the locked positions, a payload is added to the inertia of the
 /// joint carrying the link's frame (scripts/make_fixtures.py, `scene_model`). Same
 /// tolerance: the reduced model is an ordinary model for both.
@@ -201,7 +201,7 @@ fn static_and_gradient_scenes_match_pinocchio() {
     assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
 }
 
-/// Floating base (issue 11, item 1): `--floating-base` against Pinocchio's
+/// Floating base: `--floating-base` against Pinocchio's
 /// `JointModelFreeFlyer` (scripts/make_fixtures.py, `floating_fixture`) on HyQ, Atlas, the
 /// iiwa, the UR5 and two legged robots the project does not bundle (example-robot-data's
 /// Solo-12 and Go2, kept under tests/fixtures): random base poses, an upside-down base,
@@ -240,7 +240,7 @@ fn floating_base_matches_pinocchio_free_flyer() {
     tally.finish("floating base: comparisons with Pinocchio's free-flyer", 1800);
 }
 
-/// Coupled mimic joints (issue 11, item 3): `--mimic coupled` against Pinocchio's mimic
+/// Coupled mimic joints: `--mimic coupled` against Pinocchio's mimic
 /// model (`buildModelFromUrdf(..., mimic=True)`; scripts/make_fixtures.py,
 /// `mimic_fixture`) on the Panda (finger_joint2 = finger_joint1) and mimic_arm (revolute
 /// and prismatic mimics with multipliers -0.7, 1.5, 2 and nonzero offsets, one below
@@ -269,7 +269,7 @@ fn coupled_mimic_matches_pinocchio_mimic() {
     tally.finish("coupled mimic joints: comparisons with Pinocchio's mimic model", 700);
 }
 
-/// Spherical joints (issue 11, item 2; `type="spherical"`, a grid-gen extension of URDF)
+/// Spherical joints (`type="spherical"`, a grid-gen extension of URDF)
 /// against Pinocchio's `JointModelSpherical` (scripts/make_fixtures.py, `ball_fixture`) on
 /// ball_arm: one on the root, one between moving bodies, one at a leaf, on a fixed base and
 /// on a free-flyer; random rotations, unrotated, half turns (w = 0) and speeds of 1e3. The

@@ -1,4 +1,4 @@
-//! Scenes (issue 10, item 6), beside the Pinocchio comparison in `pinocchio.rs`: each
+//! Scenes, beside the Pinocchio comparison in `pinocchio.rs`: each
 //! reduction equals the robot written without it (a dropped subtree is the URDF without
 //! those elements, a lock is a fixed joint at that position, a payload is a fixed child
 //! link carrying it), every name is checked, and the kernels of a scene model agree with

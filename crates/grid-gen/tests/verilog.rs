@@ -137,7 +137,7 @@ fn double_pendulum_bit_exact_and_within_bound() {
     run_robot("double_pendulum_continuous", &BOTH, 40);
 }
 
-/// A floating base (issue 11): the quaternion enters as four `q` ports and the host's
+/// A floating base: the quaternion enters as four `q` ports and the host's
 /// `quat_scale` = 2/|q|² (the datapath has no divider, as it has no sine); random base
 /// poses and an upside-down one, both architectures.
 #[test]
@@ -147,7 +147,7 @@ fn floating_double_pendulum_bit_exact_and_within_bound() {
     run_model(model, &BOTH, 40);
 }
 
-/// A spherical joint (issue 11): its quaternion enters as four `q` ports with its own
+/// A spherical joint: its quaternion enters as four `q` ports with its own
 /// `quat_scale_<k>_<name>`; random rotations and unrotated ones at the corners, both
 /// architectures. One spherical joint at the leaf of a pendulum: the interval analysis
 /// bounds a rotation built from a quaternion loosely (entries in [-3, 1] and ±4 where
@@ -403,7 +403,7 @@ fn hostile_names_and_an_unseen_robot_through_eval() {
     }
 }
 
-/// External and contact forces (issue 30) as netlist inputs: UR5's `rnea_grad` with fext on
+/// External and contact forces as netlist inputs: UR5's `rnea_grad` with fext on
 /// its wrist body and a point contact at tool0 (λ in world axes), both architectures, the
 /// forces ports named after their body or frame; random states and forces within the
 /// bounds (`--force-max 200`), simulated bit-exact against the software model and within

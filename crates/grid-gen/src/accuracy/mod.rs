@@ -1,5 +1,5 @@
 //! `grid-gen accuracy`: every kernel's error in each number format, measured against the
-//! double-double value of its graph (issue 10), with cond(M) over the states: the
+//! double-double value of its graph, with cond(M) over the states: the
 //! speed/accuracy trade, measured rather than assumed.
 //!
 //! The true value is the kernel's graph lowered without constant folding (so every model

@@ -1,6 +1,6 @@
 //! Double-double numbers (about 106 bits), so that the IR can be evaluated as a
 //! high-precision reference and every format's error measured against the true value
-//! rather than against f64 (issue 10).
+//! rather than against f64.
 //!
 //! A value is the unevaluated sum `hi + lo` of two f64 with `|lo| <= ulp(hi) / 2`.
 //! Arithmetic: Knuth's TwoSum and the FMA product, and the double-word algorithms of

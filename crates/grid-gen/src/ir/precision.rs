@@ -1,4 +1,4 @@
-//! Mixed precision (issue 10, item 4): which nodes of a kernel to compute in f64 so that
+//! Mixed precision: which nodes of a kernel to compute in f64 so that
 //! the others can run in f32, chosen by a first-order rounding-error analysis of the
 //! graph at sample states, and the interpreter that runs a kernel so split (the oracle of
 //! the mixed Rust the backend emits).

@@ -1,4 +1,4 @@
-//! External forces in the reference dynamics (issue 30). Two kinds, both turned into one
+//! External forces in the reference dynamics. Two kinds, both turned into one
 //! spatial force per body, in the body's own frame, that RNEA subtracts and ABA adds to
 //! the bias forces (Featherstone 2008, §5.3):
 //!

@@ -39,7 +39,7 @@ pub enum JointKind {
     Fixed,
     /// Six degrees of freedom: only between the root link and the base (a floating base).
     Floating,
-    /// Three rotational degrees of freedom about the joint origin (issue 11): not in the
+    /// Three rotational degrees of freedom about the joint origin: not in the
     /// URDF specification (urdfdom rejects it), a grid-gen extension with the conventions
     /// of Pinocchio's `JointModelSpherical` (a quaternion in q, the angular velocity in
     /// the child frame in q̇). `<axis>` and `<limit>` are ignored.

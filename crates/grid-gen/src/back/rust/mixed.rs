@@ -1,4 +1,4 @@
-//! Mixed-precision Rust (issue 10, item 4): each kernel as one non-generic function whose
+//! Mixed-precision Rust: each kernel as one non-generic function whose
 //! every value is f32 or f64 as a [`crate::ir::precision::Plan`] says, taking and
 //! returning f64. It computes what [`Function::eval_mixed`] computes, bit for bit: a node
 //! runs in its own precision on operands converted to it, and a constant or input is

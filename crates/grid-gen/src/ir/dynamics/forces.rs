@@ -1,4 +1,4 @@
-//! External forces and contact forces, recorded symbolically (issue 30), as
+//! External forces and contact forces, recorded symbolically, as
 //! `reference::forces` computes them: each becomes one spatial force per body in the
 //! body's frame, which RNEA subtracts and ABA adds to its bias forces. A contact's force λ
 //! is fixed in world axes, so the gradient's q-columns gain `J_bᵀ (m ×* f)` (see
