@@ -28,10 +28,19 @@ fn generate(
         "f64" => (true, false),
         "f32" => (false, true),
         "both" => (true, true),
-        other => return Err(PyValueError::new_err(format!("precision must be \"f64\", \"f32\" or \"both\", not {other:?}"))),
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "precision must be \"f64\", \"f32\" or \"both\", not {other:?}"
+            )))
+        }
     };
     let mut b = grid_gen::Builder::new();
-    b.urdf(urdf).out_dir(out_dir).emit(&[Target::Rust, Target::C]).floating_base(floating_base).c_precision(f64, f32).quiet(true);
+    b.urdf(urdf)
+        .out_dir(out_dir)
+        .emit(&[Target::Rust, Target::C])
+        .floating_base(floating_base)
+        .c_precision(f64, f32)
+        .quiet(true);
     if let Some(scene) = scene {
         b.scene(scene);
     }
@@ -42,15 +51,22 @@ fn generate(
         let mut kinds = Vec::new();
         for name in names {
             let kind = grid_gen::ir::KernelKind::parse(name).ok_or_else(|| {
-                let known: Vec<&str> = grid_gen::ir::KernelKind::ALL.iter().map(|k| k.name()).collect();
-                PyValueError::new_err(format!("unknown kernel {name:?}; kernels: {}", known.join(", ")))
+                let known: Vec<&str> =
+                    grid_gen::ir::KernelKind::ALL.iter().map(|k| k.name()).collect();
+                PyValueError::new_err(format!(
+                    "unknown kernel {name:?}; kernels: {}",
+                    known.join(", ")
+                ))
             })?;
             kinds.push(kind);
         }
         b.kernels(&kinds);
     }
     let written = b.compile().map_err(|e| PyValueError::new_err(e.to_string()))?;
-    Ok(written.iter().filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned())).collect())
+    Ok(written
+        .iter()
+        .filter_map(|p| p.file_name().map(|n| n.to_string_lossy().into_owned()))
+        .collect())
 }
 
 /// The source of the `grid-gen-runtime` crate (one file), which every robot's library

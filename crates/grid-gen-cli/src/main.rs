@@ -137,7 +137,8 @@ struct VerilogArgs {
 }
 
 fn parse_rounding(s: &str) -> Result<grid_gen::ir::fixed::Rounding, String> {
-    grid_gen::ir::fixed::Rounding::parse(s).ok_or_else(|| format!("unknown rounding `{s}`; available: truncate, half-up"))
+    grid_gen::ir::fixed::Rounding::parse(s)
+        .ok_or_else(|| format!("unknown rounding `{s}`; available: truncate, half-up"))
 }
 
 impl VerilogArgs {
@@ -149,10 +150,19 @@ impl VerilogArgs {
             match grid_gen::ir::fixed::Format::parse(&self.fixed, self.rounding) {
                 Some(Ok(f)) => FormatChoice::Fixed { width: f.width, frac: f.frac },
                 Some(Err(e)) => return Err(format!("--fixed: {e}")),
-                None => return Err(format!("--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`", self.fixed)),
+                None => {
+                    return Err(format!(
+                        "--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`",
+                        self.fixed
+                    ))
+                }
             }
         };
-        for (name, v) in [("--qd-max", self.qd_max), ("--qdd-max", self.qdd_max), ("--force-max", self.force_max)] {
+        for (name, v) in [
+            ("--qd-max", self.qd_max),
+            ("--qdd-max", self.qdd_max),
+            ("--force-max", self.force_max),
+        ] {
             if let Some(v) = v {
                 if !(v.is_finite() && v > 0.0) {
                     return Err(format!("{name} must be a positive finite number, got {v}"));
@@ -176,8 +186,12 @@ impl VerilogArgs {
 }
 
 fn parse_target(s: &str) -> Result<grid_gen::generate::Target, String> {
-    grid_gen::generate::Target::parse(s)
-        .ok_or_else(|| format!("unknown backend `{s}`; available: {}", grid_gen::generate::Target::ALL.map(|t| t.name()).join(", ")))
+    grid_gen::generate::Target::parse(s).ok_or_else(|| {
+        format!(
+            "unknown backend `{s}`; available: {}",
+            grid_gen::generate::Target::ALL.map(|t| t.name()).join(", ")
+        )
+    })
 }
 
 #[derive(clap::Args)]
@@ -235,21 +249,29 @@ struct LoadArgs {
 }
 
 fn parse_contact(s: &str) -> Result<grid_gen::ContactEntry, String> {
-    let (frame, kind) = s.rsplit_once(':').ok_or_else(|| format!("`{s}`: write a contact as FRAME:point or FRAME:wrench"))?;
-    let kind = grid_gen::model::ContactKind::parse(kind).ok_or_else(|| format!("`{s}`: unknown contact type `{kind}`; available: point, wrench"))?;
+    let (frame, kind) = s
+        .rsplit_once(':')
+        .ok_or_else(|| format!("`{s}`: write a contact as FRAME:point or FRAME:wrench"))?;
+    let kind = grid_gen::model::ContactKind::parse(kind)
+        .ok_or_else(|| format!("`{s}`: unknown contact type `{kind}`; available: point, wrench"))?;
     Ok(grid_gen::ContactEntry { frame: frame.to_string(), kind })
 }
 
 fn parse_scheme(s: &str) -> Result<grid_gen::model::Scheme, String> {
-    grid_gen::model::Scheme::parse(s).ok_or_else(|| format!("unknown step scheme `{s}`; available: semi_implicit_euler, explicit_euler, rk4"))
+    grid_gen::model::Scheme::parse(s).ok_or_else(|| {
+        format!("unknown step scheme `{s}`; available: semi_implicit_euler, explicit_euler, rk4")
+    })
 }
 
 fn parse_reference_frame(s: &str) -> Result<grid_gen::model::ReferenceFrame, String> {
-    grid_gen::model::ReferenceFrame::parse(s).ok_or_else(|| format!("unknown reference frame `{s}`; available: local, world, local_world_aligned"))
+    grid_gen::model::ReferenceFrame::parse(s).ok_or_else(|| {
+        format!("unknown reference frame `{s}`; available: local, world, local_world_aligned")
+    })
 }
 
 fn parse_mimic(s: &str) -> Result<grid_gen::MimicMode, String> {
-    grid_gen::MimicMode::parse(s).ok_or_else(|| format!("unknown mimic mode `{s}`; available: independent, coupled"))
+    grid_gen::MimicMode::parse(s)
+        .ok_or_else(|| format!("unknown mimic mode `{s}`; available: independent, coupled"))
 }
 
 #[derive(Subcommand)]
@@ -284,7 +306,8 @@ enum Command {
         /// The robot description.
         #[arg(value_name = "ROBOT.urdf")]
         urdf: PathBuf,
-        /// Print stable JSON instead of text (fields documented in the book's command-line reference).
+        /// Print stable JSON instead of text (fields documented in the book's command-line
+        /// reference).
         #[arg(long)]
         json: bool,
         #[command(flatten)]
@@ -373,10 +396,20 @@ enum Command {
         #[arg(long, value_name = "BACKEND", default_value = "wgsl", value_parser = ["wgsl", "rust"])]
         backend: String,
         /// Batch sizes.
-        #[arg(long, value_name = "N,...", value_delimiter = ',', default_value = "1,16,128,1024,16384")]
+        #[arg(
+            long,
+            value_name = "N,...",
+            value_delimiter = ',',
+            default_value = "1,16,128,1024,16384"
+        )]
         batch: Vec<usize>,
         /// Kernels to time.
-        #[arg(long, value_name = "K,...", value_delimiter = ',', default_value = "rnea_grad,fd_grad")]
+        #[arg(
+            long,
+            value_name = "K,...",
+            value_delimiter = ',',
+            default_value = "rnea_grad,fd_grad"
+        )]
         kernels: Vec<String>,
         /// Time spent repeating each measurement (at least 5 runs each).
         #[arg(long, value_name = "S", default_value_t = 0.5)]
@@ -387,11 +420,18 @@ enum Command {
 fn parse_gravity(s: &str) -> Result<[f64; 3], String> {
     let parts: Vec<&str> = s.split(',').collect();
     if parts.len() != 3 {
-        return Err(format!("expected three comma-separated numbers such as 0,0,-9.81, found `{s}`"));
+        return Err(format!(
+            "expected three comma-separated numbers such as 0,0,-9.81, found `{s}`"
+        ));
     }
     let mut g = [0.0; 3];
     for (slot, p) in g.iter_mut().zip(parts) {
-        *slot = p.trim().parse::<f64>().ok().filter(|x| x.is_finite()).ok_or_else(|| format!("`{p}` is not a finite number"))?;
+        *slot = p
+            .trim()
+            .parse::<f64>()
+            .ok()
+            .filter(|x| x.is_finite())
+            .ok_or_else(|| format!("`{p}` is not a finite number"))?;
     }
     Ok(g)
 }
@@ -399,8 +439,11 @@ fn parse_gravity(s: &str) -> Result<[f64; 3], String> {
 /// Renders diagnostics with source excerpts; colour only on a terminal.
 fn render(path: &str, source: &str, diagnostics: &[Diagnostic]) {
     let file = SimpleFile::new(path, source);
-    let choice =
-        if std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none() { termcolor::ColorChoice::Auto } else { termcolor::ColorChoice::Never };
+    let choice = if std::io::stderr().is_terminal() && std::env::var_os("NO_COLOR").is_none() {
+        termcolor::ColorChoice::Auto
+    } else {
+        termcolor::ColorChoice::Never
+    };
     let writer = termcolor::StandardStream::stderr(choice);
     let config = term::Config::default();
     for d in diagnostics {
@@ -410,7 +453,8 @@ fn render(path: &str, source: &str, diagnostics: &[Diagnostic]) {
         }
         .with_message(&d.message);
         if let Some(span) = &d.span {
-            report = report.with_labels(vec![Label::primary((), span.clone()).with_message(&d.label)]);
+            report =
+                report.with_labels(vec![Label::primary((), span.clone()).with_message(&d.label)]);
         } else if !d.label.is_empty() {
             report = report.with_notes(vec![d.label.clone()]);
         }
@@ -433,8 +477,11 @@ fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCo
     let scene = match &args.scene {
         None => grid_gen::Scene::default(),
         Some(p) => {
-            let parsed = std::fs::read_to_string(p).map_err(|e| format!("cannot read scene {}: {e}", p.display()));
-            match parsed.and_then(|t| grid_gen::Scene::parse(&p.display().to_string(), &t).map_err(|e| e.to_string())) {
+            let parsed = std::fs::read_to_string(p)
+                .map_err(|e| format!("cannot read scene {}: {e}", p.display()));
+            match parsed.and_then(|t| {
+                grid_gen::Scene::parse(&p.display().to_string(), &t).map_err(|e| e.to_string())
+            }) {
                 Ok(s) => s,
                 Err(e) => return Err(fail(e)),
             }
@@ -496,13 +543,19 @@ fn scene_lines(scene: &grid_gen::Scene) -> String {
         s.push_str(&format!("scene: locked (fixed at these positions): {}\n", locked.join(", ")));
     }
     if !scene.keep.is_empty() {
-        s.push_str(&format!("scene: kept only the subtrees of {} (and the paths to them)\n", scene.keep.join(", ")));
+        s.push_str(&format!(
+            "scene: kept only the subtrees of {} (and the paths to them)\n",
+            scene.keep.join(", ")
+        ));
     }
     if !scene.drop.is_empty() {
         s.push_str(&format!("scene: dropped {} with everything below\n", scene.drop.join(", ")));
     }
     for p in &scene.payload {
-        s.push_str(&format!("scene: payload of {} kg on {}, com {:?} (link frame), inertia {:?} about the com\n", p.mass, p.link, p.com, p.inertia));
+        s.push_str(&format!(
+            "scene: payload of {} kg on {}, com {:?} (link frame), inertia {:?} about the com\n",
+            p.mass, p.link, p.com, p.inertia
+        ));
     }
     s
 }
@@ -539,7 +592,15 @@ fn generate(
         lower.kernels = k;
     }
     let rust = grid_gen::back::rust::RustOptions { avx512, ..Default::default() };
-    let options = g::Options { gravity, targets, lower, verilog, wgsl: wgsl.options(), rust, ..g::Options::default() };
+    let options = g::Options {
+        gravity,
+        targets,
+        lower,
+        verilog,
+        wgsl: wgsl.options(),
+        rust,
+        ..g::Options::default()
+    };
     let files = match g::generate(model, &options) {
         Ok(f) => f,
         Err(e) => return fail(e),
@@ -578,16 +639,35 @@ fn run(cli: Cli) -> ExitCode {
             };
             let gravity = scene.gravity.unwrap_or(kernel.gravity);
             match out {
-                None => print(&(Info::with_options(&model, gravity, kernel.gradient()).to_text() + &scene_lines(&scene) + "(pass -o DIR to generate code)\n")),
+                None => print(
+                    &(Info::with_options(&model, gravity, kernel.gradient()).to_text()
+                        + &scene_lines(&scene)
+                        + "(pass -o DIR to generate code)\n"),
+                ),
                 Some(dir) => {
                     let kernels = scene.kernels().unwrap_or_default();
-                    generate(&model, &dir, emit, gravity, kernel.gradient(), kernels, check, avx512, &cli.verilog, &cli.wgsl)
+                    generate(
+                        &model,
+                        &dir,
+                        emit,
+                        gravity,
+                        kernel.gradient(),
+                        kernels,
+                        check,
+                        avx512,
+                        &cli.verilog,
+                        &cli.wgsl,
+                    )
                 }
             }
         }
         Command::Info { urdf, json, kernel } => match load(&urdf, &cli.load) {
             Ok((model, scene)) => {
-                let info = Info::with_options(&model, scene.gravity.unwrap_or(kernel.gravity), kernel.gradient());
+                let info = Info::with_options(
+                    &model,
+                    scene.gravity.unwrap_or(kernel.gravity),
+                    kernel.gradient(),
+                );
                 if json {
                     print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))
                 } else {
@@ -601,10 +681,25 @@ fn run(cli: Cli) -> ExitCode {
             Ok((model, _)) => bench(&model, &cli.wgsl, &batch, &kernels, seconds),
             Err(code) => code,
         },
-        Command::Accuracy { urdf, states, random, seed, formats, kernels, json, plot, time, kernel } => match load(&urdf, &cli.load) {
-            Ok((model, scene)) => {
-                accuracy(&model, &scene, &cli.verilog, &cli.wgsl, AccuracyArgs { states, random, seed, formats, kernels, json, plot, time, kernel })
-            }
+        Command::Accuracy {
+            urdf,
+            states,
+            random,
+            seed,
+            formats,
+            kernels,
+            json,
+            plot,
+            time,
+            kernel,
+        } => match load(&urdf, &cli.load) {
+            Ok((model, scene)) => accuracy(
+                &model,
+                &scene,
+                &cli.verilog,
+                &cli.wgsl,
+                AccuracyArgs { states, random, seed, formats, kernels, json, plot, time, kernel },
+            ),
             Err(code) => code,
         },
         Command::Eval { urdf, states, gravity, backend } => {
@@ -632,12 +727,24 @@ fn run(cli: Cli) -> ExitCode {
                     Err(e) => return fail(e),
                 };
                 let options = cli.wgsl.options();
-                let strategy =
-                    if cli.wgsl.wgsl_strategy == "cooperative" { grid_gen::back::wgsl::Strategy::Cooperative } else { grid_gen::back::wgsl::Strategy::Thread };
+                let strategy = if cli.wgsl.wgsl_strategy == "cooperative" {
+                    grid_gen::back::wgsl::Strategy::Cooperative
+                } else {
+                    grid_gen::back::wgsl::Strategy::Thread
+                };
                 // Which adapter and number type the JSON comes from (stdout stays JSON).
-                eprintln!("eval: WGSL on `{}`, {}, {} strategy", gpu.adapter(), options.precision.name(), strategy.name());
-                return match grid_gen_wgpu::evaluate(&gpu, &model, &file, gravity, &options, strategy) {
-                    Ok(out) => print(&(serde_json::to_string(&out).expect("results serialise") + "\n")),
+                eprintln!(
+                    "eval: WGSL on `{}`, {}, {} strategy",
+                    gpu.adapter(),
+                    options.precision.name(),
+                    strategy.name()
+                );
+                return match grid_gen_wgpu::evaluate(
+                    &gpu, &model, &file, gravity, &options, strategy,
+                ) {
+                    Ok(out) => {
+                        print(&(serde_json::to_string(&out).expect("results serialise") + "\n"))
+                    }
                     Err(e) => fail(format!("{}: {e}", states.display())),
                 };
             }
@@ -647,7 +754,9 @@ fn run(cli: Cli) -> ExitCode {
                     Err(e) => return fail(e),
                 };
                 return match grid_gen::eval::evaluate_verilog(&model, &file, gravity, &options) {
-                    Ok(out) => print(&(serde_json::to_string(&out).expect("results serialise") + "\n")),
+                    Ok(out) => {
+                        print(&(serde_json::to_string(&out).expect("results serialise") + "\n"))
+                    }
                     Err(e) => fail(format!("{}: {e}", states.display())),
                 };
             }
@@ -671,18 +780,36 @@ struct AccuracyArgs {
     kernel: KernelArgs,
 }
 
-fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl: &WgslArgs, args: AccuracyArgs) -> ExitCode {
+fn accuracy(
+    model: &Model,
+    scene: &grid_gen::Scene,
+    verilog: &VerilogArgs,
+    wgsl: &WgslArgs,
+    args: AccuracyArgs,
+) -> ExitCode {
     use grid_gen::accuracy::{self, NumberFormat};
     let gravity = scene.gravity.unwrap_or(args.kernel.gravity);
     let (file, source) = match &args.states {
         Some(path) => {
-            let parsed = std::fs::read_to_string(path).map_err(|e| e.to_string()).and_then(|t| grid_gen::eval::parse_states(&t).map_err(|e| e.to_string()));
+            let parsed = std::fs::read_to_string(path)
+                .map_err(|e| e.to_string())
+                .and_then(|t| grid_gen::eval::parse_states(&t).map_err(|e| e.to_string()));
             match parsed {
                 Ok(f) => (f, path.display().to_string()),
                 Err(e) => return fail(format!("{}: {e}", path.display())),
             }
         }
-        None => (accuracy::random_states(model, gravity, args.random, args.seed, verilog.qd_max, verilog.qdd_max), format!("random, seed {}", args.seed)),
+        None => (
+            accuracy::random_states(
+                model,
+                gravity,
+                args.random,
+                args.seed,
+                verilog.qd_max,
+                verilog.qdd_max,
+            ),
+            format!("random, seed {}", args.seed),
+        ),
     };
     let kernels = if args.kernels.is_empty() {
         let all = accuracy::default_kernels(model);
@@ -704,7 +831,11 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
                 want_wgsl = true;
                 continue;
             }
-            "fixed" => NumberFormat::parse(&format!("fixed:{}", verilog.fixed), verilog.rounding, verilog.max_error),
+            "fixed" => NumberFormat::parse(
+                &format!("fixed:{}", verilog.fixed),
+                verilog.rounding,
+                verilog.max_error,
+            ),
             other => NumberFormat::parse(other, verilog.rounding, verilog.max_error),
         };
         match parsed {
@@ -738,11 +869,27 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
     if let Some(gpu) = &gpu {
         use grid_gen::back::wgsl::Strategy;
         let options = wgsl.options();
-        let strategy = if wgsl.wgsl_strategy == "cooperative" { Strategy::Cooperative } else { Strategy::Thread };
-        let lower = grid_gen::ir::LowerOptions { kernels: kernels.clone(), gradient: args.kernel.gradient(), ..Default::default() };
-        let source = grid_gen::ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|m| {
-            grid_gen::back::wgsl::emit(&m, &grid_gen::back::wgsl::WgslOptions { strategies: vec![strategy], ..options.clone() }).map_err(|e| e.to_string())
-        });
+        let strategy = if wgsl.wgsl_strategy == "cooperative" {
+            Strategy::Cooperative
+        } else {
+            Strategy::Thread
+        };
+        let lower = grid_gen::ir::LowerOptions {
+            kernels: kernels.clone(),
+            gradient: args.kernel.gradient(),
+            ..Default::default()
+        };
+        let source =
+            grid_gen::ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|m| {
+                grid_gen::back::wgsl::emit(
+                    &m,
+                    &grid_gen::back::wgsl::WgslOptions {
+                        strategies: vec![strategy],
+                        ..options.clone()
+                    },
+                )
+                .map_err(|e| e.to_string())
+            });
         let shader = match source.and_then(|s| gpu.load(&s.contents).map_err(|e| e.to_string())) {
             Ok(s) => s,
             Err(e) => return fail(format!("wgsl: {e}")),
@@ -753,20 +900,35 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
         backends.push(accuracy::Backend {
             label,
             run: Box::new(move |kind, q, qd, u| {
-                let kernel = gpu.kernel(&shader, &strategy.entry(kind.name())).map_err(|e| e.to_string())?;
+                let kernel =
+                    gpu.kernel(&shader, &strategy.entry(kind.name())).map_err(|e| e.to_string())?;
                 gpu.run(&kernel, q, qd, u).map_err(|e| e.to_string())
             }),
         });
     }
-    let options = accuracy::Options { kernels, formats, gravity, gradient: args.kernel.gradient(), qd_max: verilog.qd_max, qdd_max: verilog.qdd_max };
+    let options = accuracy::Options {
+        kernels,
+        formats,
+        gravity,
+        gradient: args.kernel.gradient(),
+        qd_max: verilog.qd_max,
+        qdd_max: verilog.qdd_max,
+    };
     let mut report = match accuracy::measure(model, &file, &source, &options, &mut backends) {
         Ok(r) => r,
         Err(e) => return fail(e),
     };
     if args.time {
         eprintln!("compiling the kernels with rustc to time them...");
-        let mixed: Vec<grid_gen::timing::MixedKernel> =
-            report.mixed.iter().map(|m| grid_gen::timing::MixedKernel { label: m.label.clone(), function: &m.function, wide: &m.wide }).collect();
+        let mixed: Vec<grid_gen::timing::MixedKernel> = report
+            .mixed
+            .iter()
+            .map(|m| grid_gen::timing::MixedKernel {
+                label: m.label.clone(),
+                function: &m.function,
+                wide: &m.wide,
+            })
+            .collect();
         match time_kernels(model, gravity, args.kernel.gradient(), &options.kernels, &mixed) {
             Ok(times) => report.add_times(&times),
             Err(e) => return fail(e),
@@ -775,7 +937,8 @@ fn accuracy(model: &Model, scene: &grid_gen::Scene, verilog: &VerilogArgs, wgsl:
     if let Some(path) = &args.plot {
         // As `-o` does, the plot's folder is created.
         let written = match path.parent().filter(|p| !p.as_os_str().is_empty()) {
-            Some(dir) => std::fs::create_dir_all(dir).and_then(|_| std::fs::write(path, accuracy::svg(&report))),
+            Some(dir) => std::fs::create_dir_all(dir)
+                .and_then(|_| std::fs::write(path, accuracy::svg(&report))),
             None => std::fs::write(path, accuracy::svg(&report)),
         };
         if let Err(e) = written {
@@ -795,7 +958,12 @@ fn parse_kernels(names: &[String]) -> Result<Vec<grid_gen::ir::KernelKind>, Exit
     names
         .iter()
         .map(|k| {
-            KernelKind::parse(k).ok_or_else(|| fail(format!("--kernels: unknown kernel `{k}`; available: {}", KernelKind::ALL.map(|x| x.name()).join(", "))))
+            KernelKind::parse(k).ok_or_else(|| {
+                fail(format!(
+                    "--kernels: unknown kernel `{k}`; available: {}",
+                    KernelKind::ALL.map(|x| x.name()).join(", ")
+                ))
+            })
         })
         .collect()
 }
@@ -809,7 +977,15 @@ fn time_kernels(
     mixed: &[grid_gen::timing::MixedKernel],
 ) -> Result<Vec<grid_gen::timing::KernelTime>, grid_gen::timing::TimingError> {
     let work = std::env::temp_dir().join(format!("grid-gen-time-{}", std::process::id()));
-    let result = grid_gen::timing::time_rust_kernels_with_mixed(model, gravity, gradient, kernels, mixed, &grid_gen::timing::rustc(), &work);
+    let result = grid_gen::timing::time_rust_kernels_with_mixed(
+        model,
+        gravity,
+        gradient,
+        kernels,
+        mixed,
+        &grid_gen::timing::rustc(),
+        &work,
+    );
     // The folder holds only what this call wrote; failing to remove it changes nothing.
     let _ = std::fs::remove_dir_all(&work);
     result
@@ -839,7 +1015,10 @@ fn bench_rust(model: &Model, scene: &grid_gen::Scene, kernels: &[String]) -> Exi
     );
     for kind in kinds {
         let cell = |scalar: &str, copy: &str| {
-            times.iter().find(|t| t.kernel == kind && t.scalar == scalar && t.copy == copy).map_or("-".to_string(), |t| format!("{:.0}", t.ns_per_call))
+            times
+                .iter()
+                .find(|t| t.kernel == kind && t.scalar == scalar && t.copy == copy)
+                .map_or("-".to_string(), |t| format!("{:.0}", t.ns_per_call))
         };
         out += &format!(
             "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}\n",
@@ -861,7 +1040,10 @@ fn dispatched_copy() -> &'static str {
     #[cfg(target_arch = "x86_64")]
     {
         let fma = std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
-        if fma && std::is_x86_feature_detected!("avx512f") && std::is_x86_feature_detected!("avx512vl") {
+        if fma
+            && std::is_x86_feature_detected!("avx512f")
+            && std::is_x86_feature_detected!("avx512vl")
+        {
             return "avx512";
         }
         if fma {
@@ -878,7 +1060,13 @@ fn bench(_: &Model, _: &WgslArgs, _: &[usize], _: &[String], _: f64) -> ExitCode
 }
 
 #[cfg(feature = "wgpu")]
-fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], seconds: f64) -> ExitCode {
+fn bench(
+    model: &Model,
+    wgsl: &WgslArgs,
+    batch: &[usize],
+    kernels: &[String],
+    seconds: f64,
+) -> ExitCode {
     use std::fmt::Write as _;
     let lower = match parse_kernels(kernels) {
         Ok(kernels) => grid_gen::ir::LowerOptions { kernels, ..Default::default() },
@@ -917,7 +1105,15 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
     let _ = writeln!(
         report,
         "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14}",
-        "kernel", "strategy", "N", "disp", "us/batch", "us/state", "states/s", "round-trip us", "device us"
+        "kernel",
+        "strategy",
+        "N",
+        "disp",
+        "us/batch",
+        "us/state",
+        "states/s",
+        "round-trip us",
+        "device us"
     );
     // q has nq entries per state (a floating base's or spherical joint's quaternion, which
     // the kernels scale by 1/|q|²), velocities and torques nv.
@@ -940,10 +1136,23 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
                 Ok(k) => k,
                 Err(e) => return fail(e),
             };
-            let _ = writeln!(report, "{} {}: pipeline built in {:.2?}", kernel.entry.entry, strategy.name(), kernel.build_time);
+            let _ = writeln!(
+                report,
+                "{} {}: pipeline built in {:.2?}",
+                kernel.entry.entry,
+                strategy.name(),
+                kernel.build_time
+            );
             for &n in batch {
                 let m = n * nv;
-                match grid_gen_wgpu::bench::time(&gpu, &kernel, &q[..n * nq], &qd[..m], &u[..m], budget) {
+                match grid_gen_wgpu::bench::time(
+                    &gpu,
+                    &kernel,
+                    &q[..n * nq],
+                    &qd[..m],
+                    &u[..m],
+                    budget,
+                ) {
                     Ok(t) => {
                         let us = t.dispatch.as_secs_f64() * 1e6;
                         let _ = writeln!(
@@ -957,7 +1166,10 @@ fn bench(model: &Model, wgsl: &WgslArgs, batch: &[usize], kernels: &[String], se
                             us / n.max(1) as f64,
                             n as f64 / t.dispatch.as_secs_f64(),
                             t.round_trip.as_secs_f64() * 1e6,
-                            t.device.map_or("-".to_string(), |d| format!("{:.1}", d.as_secs_f64() * 1e6))
+                            t.device.map_or("-".to_string(), |d| format!(
+                                "{:.1}",
+                                d.as_secs_f64() * 1e6
+                            ))
                         );
                     }
                     Err(e) => return fail(e),
@@ -979,7 +1191,8 @@ const NO_WGPU: &str = "this grid-gen was built without the `wgpu` feature, so it
 /// read it as the URDF and complain about the real one).
 fn with_default_command(args: Vec<std::ffi::OsString>) -> Result<Vec<std::ffi::OsString>, String> {
     let cli = Cli::command();
-    let mut commands: Vec<String> = cli.get_subcommands().map(|c| c.get_name().to_string()).collect();
+    let mut commands: Vec<String> =
+        cli.get_subcommands().map(|c| c.get_name().to_string()).collect();
     commands.push("help".into());
     // Options that take a value, in any command, so their values are not taken for the URDF.
     let mut valued = Vec::new();
@@ -1000,7 +1213,9 @@ fn with_default_command(args: Vec<std::ffi::OsString>) -> Result<Vec<std::ffi::O
             break i;
         }
     };
-    let Some(word) = args.get(first).map(|a| a.to_string_lossy().into_owned()) else { return Ok(args) };
+    let Some(word) = args.get(first).map(|a| a.to_string_lossy().into_owned()) else {
+        return Ok(args);
+    };
     if commands.contains(&word) {
         return Ok(args);
     }

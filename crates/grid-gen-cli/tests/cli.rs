@@ -9,11 +9,17 @@ fn repo() -> PathBuf {
 }
 
 fn grid_gen(args: &[&str]) -> Output {
-    Command::new(env!("CARGO_BIN_EXE_grid-gen")).current_dir(repo()).args(args).env("NO_COLOR", "1").output().unwrap()
+    Command::new(env!("CARGO_BIN_EXE_grid-gen"))
+        .current_dir(repo())
+        .args(args)
+        .env("NO_COLOR", "1")
+        .output()
+        .unwrap()
 }
 
 fn json(out: &Output) -> serde_json::Value {
-    serde_json::from_slice(&out.stdout).unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)))
+    serde_json::from_slice(&out.stdout)
+        .unwrap_or_else(|e| panic!("{e}: {}", String::from_utf8_lossy(&out.stdout)))
 }
 
 #[test]
@@ -23,10 +29,17 @@ fn exit_codes() {
     assert_eq!(grid_gen(&["info", "--help"]).status.code(), Some(0));
     assert_eq!(grid_gen(&[]).status.code(), Some(2), "no URDF is a usage error");
     assert_eq!(grid_gen(&["info", "robots/grid_iiwa.urdf", "--bogus"]).status.code(), Some(2));
-    assert_eq!(grid_gen(&["eval", "robots/grid_iiwa.urdf", "--states", "x.json", "--gravity", "1,2"]).status.code(), Some(2));
+    assert_eq!(
+        grid_gen(&["eval", "robots/grid_iiwa.urdf", "--states", "x.json", "--gravity", "1,2"])
+            .status
+            .code(),
+        Some(2)
+    );
     let missing = grid_gen(&["robots/no_such_robot.urdf"]);
     assert_eq!(missing.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&missing.stderr).contains("cannot read robots/no_such_robot.urdf"));
+    assert!(
+        String::from_utf8_lossy(&missing.stderr).contains("cannot read robots/no_such_robot.urdf")
+    );
     assert_eq!(grid_gen(&["tests/diagnostics/cycle.urdf"]).status.code(), Some(1));
 }
 
@@ -34,7 +47,10 @@ fn exit_codes() {
 fn summary_names_joints_levels_and_sparsity() {
     let out = grid_gen(&["robots/grid_hyq.urdf"]);
     let text = String::from_utf8(out.stdout).unwrap();
-    assert!(text.starts_with("robot `hyq`: 12 movable joints, root link `base_link_0`\n"), "{text}");
+    assert!(
+        text.starts_with("robot `hyq`: 12 movable joints, root link `base_link_0`\n"),
+        "{text}"
+    );
     assert!(text.contains("    0  lf_haa_joint  (revolute, parent root)\n"), "{text}");
     assert!(text.contains("levels: [0, 3, 6, 9] [1, 4, 7, 10] [2, 5, 8, 11]\n"), "{text}");
     assert!(text.contains("sparsity: dv/dq 24 of 144 nonzero, dc/dq 36 of 144\n"), "{text}");
@@ -43,7 +59,9 @@ fn summary_names_joints_levels_and_sparsity() {
 #[test]
 fn info_json_has_the_documented_fields() {
     // GRiD's published counts of nonzero dv/dq columns (iiwa 28/49, HyQ 24/144, Atlas 150/900).
-    for (robot, nv, nonzero) in [("grid_iiwa", 7, 28), ("grid_hyq", 12, 24), ("grid_atlas", 30, 150)] {
+    for (robot, nv, nonzero) in
+        [("grid_iiwa", 7, 28), ("grid_hyq", 12, 24), ("grid_atlas", 30, 150)]
+    {
         let v = json(&grid_gen(&["info", &format!("robots/{robot}.urdf"), "--json"]));
         assert_eq!(v["nv"], nv);
         assert_eq!(v["joint_names"].as_array().unwrap().len(), nv);
@@ -51,7 +69,8 @@ fn info_json_has_the_documented_fields() {
         assert_eq!(v["parents"].as_array().unwrap().len(), nv);
         assert_eq!(v["sparsity"]["dv_dq"]["nonzero"], nonzero);
         assert_eq!(v["sparsity"]["dv_dq"]["total"], nv * nv);
-        let levels: usize = v["levels"].as_array().unwrap().iter().map(|l| l.as_array().unwrap().len()).sum();
+        let levels: usize =
+            v["levels"].as_array().unwrap().iter().map(|l| l.as_array().unwrap().len()).sum();
         assert_eq!(levels, nv);
         // Every kernel in both WGSL strategies, cooperative ones within WebGPU's 16 KiB of
         // workgroup memory, and the same figures the shader file's `// entry:` lines carry.
@@ -59,19 +78,41 @@ fn info_json_has_the_documented_fields() {
         assert_eq!(wgsl.len(), 12, "{robot}: six kernels, two strategies");
         assert!(v.get("wgsl_skipped").is_none());
         for e in wgsl {
-            assert!(e["statements"].as_u64().unwrap() > 0 && e["functions"].as_u64().unwrap() > 0, "{e}");
+            assert!(
+                e["statements"].as_u64().unwrap() > 0 && e["functions"].as_u64().unwrap() > 0,
+                "{e}"
+            );
             assert!(e["workgroup_bytes"].as_u64().unwrap() <= 16384, "{e}");
             if e["strategy"] == "thread" {
                 assert_eq!(e["workgroup_bytes"], 0);
             }
         }
         if robot != "grid_atlas" {
-            let shader =
-                std::fs::read_to_string(repo().join("generated").join(robot).join(if robot == "grid_iiwa" { "iiwa14.wgsl" } else { "hyq.wgsl" })).unwrap();
+            let shader = std::fs::read_to_string(
+                repo().join("generated").join(robot).join(if robot == "grid_iiwa" {
+                    "iiwa14.wgsl"
+                } else {
+                    "hyq.wgsl"
+                }),
+            )
+            .unwrap();
             for e in wgsl {
-                let line = format!("// entry: {} kernel={} ", e["entry"].as_str().unwrap(), e["kernel"].as_str().unwrap());
-                let header = shader.lines().find(|l| l.starts_with(&line)).unwrap_or_else(|| panic!("{robot}: no `{line}` in the shader"));
-                assert!(header.contains(&format!(" statements={} functions={}", e["statements"], e["functions"])), "{header} vs {e}");
+                let line = format!(
+                    "// entry: {} kernel={} ",
+                    e["entry"].as_str().unwrap(),
+                    e["kernel"].as_str().unwrap()
+                );
+                let header = shader
+                    .lines()
+                    .find(|l| l.starts_with(&line))
+                    .unwrap_or_else(|| panic!("{robot}: no `{line}` in the shader"));
+                assert!(
+                    header.contains(&format!(
+                        " statements={} functions={}",
+                        e["statements"], e["functions"]
+                    )),
+                    "{header} vs {e}"
+                );
             }
         }
     }
@@ -88,7 +129,8 @@ fn eval_prints_the_reference_and_omits_what_was_not_asked() {
     let states = dir.join("states.json");
     std::fs::write(&states, r#"{"states": [{"q": [0.1, -0.4], "qd": [0.5, 2], "qdd": [1, -1]}, {"q": [0, 1], "qd": [0, 0], "tau": [0.1, 0.2]}]}"#).unwrap();
     let urdf = "robots/double_pendulum_continuous.urdf";
-    let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap(), "--gravity", "0,-9.81,0"]);
+    let out =
+        grid_gen(&["eval", urdf, "--states", states.to_str().unwrap(), "--gravity", "0,-9.81,0"]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let v = json(&out);
     assert_eq!(v["joint_names"], serde_json::json!(["joint1", "joint2"]));
@@ -102,19 +144,42 @@ fn eval_prints_the_reference_and_omits_what_was_not_asked() {
     let g = [0.0, -9.81, 0.0];
     let rnea = grid_gen::reference::rnea(&model, &[0.1, -0.4], &[0.5, 2.0], &[1.0, -1.0], g);
     assert_eq!(s0["rnea"], serde_json::json!(rnea), "JSON round-trips f64 exactly");
-    let (_, dq, _) = grid_gen::reference::forward_dynamics_derivatives(&model, &[0.0, 1.0], &[0.0, 0.0], &[0.1, 0.2], g);
-    assert_eq!(s1["dfd_dq"][0][1].as_f64().unwrap(), dq[(0, 1)], "row-major: [i][j] = d out_i / d in_j");
+    let (_, dq, _) = grid_gen::reference::forward_dynamics_derivatives(
+        &model,
+        &[0.0, 1.0],
+        &[0.0, 0.0],
+        &[0.1, 0.2],
+        g,
+    );
+    assert_eq!(
+        s1["dfd_dq"][0][1].as_f64().unwrap(),
+        dq[(0, 1)],
+        "row-major: [i][j] = d out_i / d in_j"
+    );
 
-    std::fs::write(&states, r#"{"states": [{"q": [0, 0], "qd": [0, 0]}, {"q": [0, 0, 0], "qd": [0, 0]}]}"#).unwrap();
+    std::fs::write(
+        &states,
+        r#"{"states": [{"q": [0, 0], "qd": [0, 0]}, {"q": [0, 0, 0], "qd": [0, 0]}]}"#,
+    )
+    .unwrap();
     let bad = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
     assert_eq!(bad.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("state 1: `q` has 3 entries, the robot has 2 joints"), "{}", String::from_utf8_lossy(&bad.stderr));
+    assert!(
+        String::from_utf8_lossy(&bad.stderr)
+            .contains("state 1: `q` has 3 entries, the robot has 2 joints"),
+        "{}",
+        String::from_utf8_lossy(&bad.stderr)
+    );
 
     // Python's json.dump writes NaN bare; the error still names the entry.
     std::fs::write(&states, r#"{"states": [{"q": [0, 0], "qd": [0, NaN]}]}"#).unwrap();
     let nan = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
     assert_eq!(nan.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&nan.stderr).contains("state 0: `qd[1]` is not finite"), "{}", String::from_utf8_lossy(&nan.stderr));
+    assert!(
+        String::from_utf8_lossy(&nan.stderr).contains("state 0: `qd[1]` is not finite"),
+        "{}",
+        String::from_utf8_lossy(&nan.stderr)
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -123,7 +188,9 @@ fn generate_writes_checks_and_reports_op_counts() {
     // The checked-in kernels are fresh by the CLI's own --check too.
     let fresh = grid_gen(&["robots/grid_iiwa.urdf", "-o", "generated/grid_iiwa", "--check"]);
     assert_eq!(fresh.status.code(), Some(0), "{}", String::from_utf8_lossy(&fresh.stderr));
-    assert!(String::from_utf8_lossy(&fresh.stdout).contains("unchanged generated/grid_iiwa/iiwa14.rs"));
+    assert!(
+        String::from_utf8_lossy(&fresh.stdout).contains("unchanged generated/grid_iiwa/iiwa14.rs")
+    );
 
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-gen-{}", std::process::id()));
     let _ = std::fs::remove_dir_all(&dir);
@@ -134,28 +201,48 @@ fn generate_writes_checks_and_reports_op_counts() {
     let wrote = grid_gen(&["robots/ur5.urdf", "-o", d, "--emit", "rust"]);
     assert_eq!(wrote.status.code(), Some(0));
     assert!(String::from_utf8_lossy(&wrote.stdout).starts_with("wrote "));
-    assert_eq!(std::fs::read_to_string(dir.join("ur5.rs")).unwrap(), std::fs::read_to_string(repo().join("generated/ur5/ur5.rs")).unwrap());
+    assert_eq!(
+        std::fs::read_to_string(dir.join("ur5.rs")).unwrap(),
+        std::fs::read_to_string(repo().join("generated/ur5/ur5.rs")).unwrap()
+    );
     assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check"]).status.code(), Some(0));
     // A different gravity is a different module.
-    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gravity", "0,0,-1.62"]).status.code(), Some(1));
+    assert_eq!(
+        grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gravity", "0,0,-1.62"]).status.code(),
+        Some(1)
+    );
     assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--emit", "cuda"]).status.code(), Some(2));
     // The checked-in UR5 uses IDSVA (auto's pick); `--gradient idsva` is the same file,
     // `columns` another one, and an unknown formulation is a usage error.
-    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", "idsva"]).status.code(), Some(0));
-    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", "columns"]).status.code(), Some(1));
-    assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--gradient", "rnea"]).status.code(), Some(2));
+    assert_eq!(
+        grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", "idsva"]).status.code(),
+        Some(0)
+    );
+    assert_eq!(
+        grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", "columns"]).status.code(),
+        Some(1)
+    );
+    assert_eq!(
+        grid_gen(&["robots/ur5.urdf", "-o", d, "--gradient", "rnea"]).status.code(),
+        Some(2)
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 
     // Both backends in one run, each file as checked in.
     let wrote = grid_gen(&["robots/grid_iiwa.urdf", "-o", d, "--emit", "rust,wgsl"]);
     assert_eq!(wrote.status.code(), Some(0), "{}", String::from_utf8_lossy(&wrote.stderr));
     for file in ["iiwa14.rs", "iiwa14.wgsl"] {
-        assert_eq!(std::fs::read_to_string(dir.join(file)).unwrap(), std::fs::read_to_string(repo().join("generated/grid_iiwa").join(file)).unwrap(), "{file}");
+        assert_eq!(
+            std::fs::read_to_string(dir.join(file)).unwrap(),
+            std::fs::read_to_string(repo().join("generated/grid_iiwa").join(file)).unwrap(),
+            "{file}"
+        );
     }
     std::fs::remove_dir_all(&dir).unwrap();
 
     let v = json(&grid_gen(&["info", "robots/grid_iiwa.urdf", "--json"]));
-    let kernels: Vec<&str> = v["ops"].as_array().unwrap().iter().map(|k| k["kernel"].as_str().unwrap()).collect();
+    let kernels: Vec<&str> =
+        v["ops"].as_array().unwrap().iter().map(|k| k["kernel"].as_str().unwrap()).collect();
     assert_eq!(kernels, ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]);
     for k in v["ops"].as_array().unwrap() {
         for field in ["add", "mul", "div", "neg", "trig", "depth"] {
@@ -185,21 +272,41 @@ fn huge_chains_stay_within_two_gib() {
         let path = chain_urdf(n);
         let start = std::time::Instant::now();
         let script = format!("ulimit -v 2097152 && exec \"$0\" info {} --json", path.display());
-        let out = Command::new("sh").arg("-c").arg(script).arg(env!("CARGO_BIN_EXE_grid-gen")).output().unwrap();
+        let out = Command::new("sh")
+            .arg("-c")
+            .arg(script)
+            .arg(env!("CARGO_BIN_EXE_grid-gen"))
+            .output()
+            .unwrap();
         let elapsed = start.elapsed();
-        assert_eq!(out.status.code(), Some(0), "chain{n}: {}", String::from_utf8_lossy(&out.stderr));
+        assert_eq!(
+            out.status.code(),
+            Some(0),
+            "chain{n}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
         let info = json(&out);
         assert_eq!(info["nv"], n);
         let counted = info["ops"].as_array().unwrap().len();
         let skipped = info["ops_skipped"].as_array().unwrap();
         assert_eq!(counted + skipped.len(), 6, "chain{n}: every kernel is counted or skipped");
-        assert!(skipped.iter().any(|s| s["kernel"] == "fd_grad"), "chain{n}: fd_grad is over the op-count limit");
+        assert!(
+            skipped.iter().any(|s| s["kernel"] == "fd_grad"),
+            "chain{n}: fd_grad is over the op-count limit"
+        );
         assert!(skipped.iter().all(|s| !s["reason"].as_str().unwrap().is_empty()));
         eprintln!("chain{n}: info in {elapsed:.1?}, {counted} kernels counted");
         if n == 1000 {
-            let dir = std::env::temp_dir().join(format!("grid-gen-chain-out-{}", std::process::id()));
-            let script = format!("ulimit -v 2097152 && exec \"$0\" {} -o {}", path.display(), dir.display());
-            let out = Command::new("sh").arg("-c").arg(script).arg(env!("CARGO_BIN_EXE_grid-gen")).output().unwrap();
+            let dir =
+                std::env::temp_dir().join(format!("grid-gen-chain-out-{}", std::process::id()));
+            let script =
+                format!("ulimit -v 2097152 && exec \"$0\" {} -o {}", path.display(), dir.display());
+            let out = Command::new("sh")
+                .arg("-c")
+                .arg(script)
+                .arg(env!("CARGO_BIN_EXE_grid-gen"))
+                .output()
+                .unwrap();
             let err = String::from_utf8_lossy(&out.stderr);
             assert_eq!(out.status.code(), Some(1), "{err}");
             assert!(err.contains("needs more than 10000000 IR nodes"), "{err}");
@@ -239,7 +346,8 @@ fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
     let reference = grid_gen(&["eval", u, "--states", s]);
     assert_eq!(reference.status.code(), Some(0), "{}", String::from_utf8_lossy(&reference.stderr));
     for strategy in ["thread", "cooperative"] {
-        let out = grid_gen(&["eval", u, "--states", s, "--backend", "wgsl", "--wgsl-strategy", strategy]);
+        let out =
+            grid_gen(&["eval", u, "--states", s, "--backend", "wgsl", "--wgsl-strategy", strategy]);
         if !adapter_or_skip(&out) {
             return;
         }
@@ -253,18 +361,34 @@ fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
             .output()
             .unwrap();
         let err = String::from_utf8_lossy(&quiet.stderr);
-        assert!(err.contains("eval: WGSL on `") && err.contains(&format!("f32, {strategy} strategy")) && !err.contains("XDG_RUNTIME_DIR"), "{err}");
+        assert!(
+            err.contains("eval: WGSL on `")
+                && err.contains(&format!("f32, {strategy} strategy"))
+                && !err.contains("XDG_RUNTIME_DIR"),
+            "{err}"
+        );
         let (want, got) = (json(&reference), json(&out));
         assert_eq!(want["joint_names"], got["joint_names"]);
-        for (ws, gs) in want["states"].as_array().unwrap().iter().zip(got["states"].as_array().unwrap()) {
+        for (ws, gs) in
+            want["states"].as_array().unwrap().iter().zip(got["states"].as_array().unwrap())
+        {
             let (wo, go) = (ws.as_object().unwrap(), gs.as_object().unwrap());
-            assert_eq!(wo.keys().collect::<Vec<_>>(), go.keys().collect::<Vec<_>>(), "{strategy}: keys differ");
+            assert_eq!(
+                wo.keys().collect::<Vec<_>>(),
+                go.keys().collect::<Vec<_>>(),
+                "{strategy}: keys differ"
+            );
             for (key, w) in wo {
                 let flat = |v: &serde_json::Value| -> Vec<f64> {
                     match v {
                         serde_json::Value::Array(a) => a
                             .iter()
-                            .flat_map(|x| x.as_array().map_or_else(|| vec![x.as_f64().unwrap()], |r| r.iter().map(|y| y.as_f64().unwrap()).collect()))
+                            .flat_map(|x| {
+                                x.as_array().map_or_else(
+                                    || vec![x.as_f64().unwrap()],
+                                    |r| r.iter().map(|y| y.as_f64().unwrap()).collect(),
+                                )
+                            })
                             .collect(),
                         _ => panic!("{key}: not an array"),
                     }
@@ -272,7 +396,11 @@ fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
                 let (w, g) = (flat(w), flat(&go[key]));
                 let scale = w.iter().fold(0.0f64, |m, x| m.max(x.abs())).max(f64::MIN_POSITIVE);
                 let err = w.iter().zip(&g).fold(0.0f64, |m, (a, b)| m.max((a - b).abs())) / scale;
-                let tol = if ["Minv", "fd", "dfd_dq", "dfd_dqd"].contains(&key.as_str()) { 1e-4 } else { 1e-5 };
+                let tol = if ["Minv", "fd", "dfd_dq", "dfd_dqd"].contains(&key.as_str()) {
+                    1e-4
+                } else {
+                    1e-5
+                };
                 assert!(err <= tol, "{strategy} {key}: relative error {err:.2e} > {tol:e}");
             }
         }
@@ -281,7 +409,16 @@ fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
 
 #[test]
 fn bench_prints_a_row_per_kernel_strategy_and_batch() {
-    let out = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--batch", "1,100", "--kernels", "rnea,mass_matrix", "--seconds", "0.01"]);
+    let out = grid_gen(&[
+        "bench",
+        "robots/double_pendulum_continuous.urdf",
+        "--batch",
+        "1,100",
+        "--kernels",
+        "rnea,mass_matrix",
+        "--seconds",
+        "0.01",
+    ]);
     if !adapter_or_skip(&out) {
         return;
     }
@@ -294,12 +431,16 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
                     let w: Vec<&str> = l.split_whitespace().collect();
                     w.len() == 9 && w[0] == kernel && w[1] == strategy && w[2] == n
                 });
-                let row = row.unwrap_or_else(|| panic!("no row for {kernel} {strategy} {n}:\n{text}"));
+                let row =
+                    row.unwrap_or_else(|| panic!("no row for {kernel} {strategy} {n}:\n{text}"));
                 let per_s: f64 = row.split_whitespace().nth(6).unwrap().parse().unwrap();
                 assert!(per_s > 0.0 && per_s.is_finite(), "{row}");
                 // The device's own time for the pass, or `-` without timestamp queries.
                 let device = row.split_whitespace().nth(8).unwrap();
-                assert!(device == "-" || device.parse::<f64>().is_ok_and(|t| t >= 0.0 && t.is_finite()), "{row}");
+                assert!(
+                    device == "-" || device.parse::<f64>().is_ok_and(|t| t >= 0.0 && t.is_finite()),
+                    "{row}"
+                );
             }
         }
     }
@@ -320,7 +461,9 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
     ]);
     assert_eq!(floating.status.code(), Some(0), "{}", stderr(&floating));
     assert!(
-        String::from_utf8_lossy(&floating.stdout).lines().any(|l| l.starts_with("rnea ") && l.contains(" thread ")),
+        String::from_utf8_lossy(&floating.stdout)
+            .lines()
+            .any(|l| l.starts_with("rnea ") && l.contains(" thread ")),
         "{}",
         String::from_utf8_lossy(&floating.stdout)
     );
@@ -343,31 +486,58 @@ fn what_a_new_user_tripped_over() {
     assert_eq!(grid_gen(&["--strict", "robots/grid_atlas.urdf"]).status.code(), Some(1));
     assert_eq!(grid_gen(&["info", "robots/grid_atlas.urdf"]).status.code(), Some(0));
     // `generate` is the default command and can be named.
-    assert_eq!(grid_gen(&["generate", "robots/grid_iiwa.urdf"]).stdout, grid_gen(&["robots/grid_iiwa.urdf"]).stdout);
+    assert_eq!(
+        grid_gen(&["generate", "robots/grid_iiwa.urdf"]).stdout,
+        grid_gen(&["robots/grid_iiwa.urdf"]).stdout
+    );
     // A mistyped command is named as one, with the suggestion.
     let typo = grid_gen(&["infoo", "robots/grid_iiwa.urdf"]);
     assert_eq!(typo.status.code(), Some(2));
-    assert!(stderr(&typo).contains("unrecognized command 'infoo'") && stderr(&typo).contains("a similar command exists: 'info'"), "{}", stderr(&typo));
+    assert!(
+        stderr(&typo).contains("unrecognized command 'infoo'")
+            && stderr(&typo).contains("a similar command exists: 'info'"),
+        "{}",
+        stderr(&typo)
+    );
     // A mistyped flag gets clap's suggestion, before or after the URDF.
-    for args in [&["robots/grid_iiwa.urdf", "--gravty", "0,0,1"][..], &["--gravty", "0,0,1", "robots/grid_iiwa.urdf"]] {
+    for args in [
+        &["robots/grid_iiwa.urdf", "--gravty", "0,0,1"][..],
+        &["--gravty", "0,0,1", "robots/grid_iiwa.urdf"],
+    ] {
         let flag = grid_gen(args);
         assert_eq!(flag.status.code(), Some(2));
-        assert!(stderr(&flag).contains("a similar argument exists: '--gravity'"), "{}", stderr(&flag));
+        assert!(
+            stderr(&flag).contains("a similar argument exists: '--gravity'"),
+            "{}",
+            stderr(&flag)
+        );
     }
     // The top-level usage shows the options.
     let bare = grid_gen(&[]);
     let text = String::from_utf8_lossy(&bare.stdout).into_owned() + &stderr(&bare);
-    assert!(text.contains("Usage: grid-gen [OPTIONS] <ROBOT.urdf>") && text.contains("grid-gen [OPTIONS] <COMMAND>"), "{text}");
+    assert!(
+        text.contains("Usage: grid-gen [OPTIONS] <ROBOT.urdf>")
+            && text.contains("grid-gen [OPTIONS] <COMMAND>"),
+        "{text}"
+    );
     // The summary counts the operations of the code that --gravity would generate: zero
     // gravity folds the gravity terms away.
     let ops = |args: &[&str]| -> u64 {
         let v = json(&grid_gen(args));
-        v["ops"].as_array().unwrap().iter().find(|k| k["kernel"] == "rnea").map(|k| k["after"]["mul"].as_u64().unwrap()).unwrap()
+        v["ops"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .find(|k| k["kernel"] == "rnea")
+            .map(|k| k["after"]["mul"].as_u64().unwrap())
+            .unwrap()
     };
     let default = ops(&["info", "robots/grid_iiwa.urdf", "--json"]);
     let zero = ops(&["info", "robots/grid_iiwa.urdf", "--json", "--gravity", "0,0,0"]);
     assert!(zero < default, "zero gravity: {zero} multiplications, default {default}");
-    let summary = String::from_utf8_lossy(&grid_gen(&["robots/grid_iiwa.urdf", "--gravity", "0,0,0"]).stdout).into_owned();
+    let summary =
+        String::from_utf8_lossy(&grid_gen(&["robots/grid_iiwa.urdf", "--gravity", "0,0,0"]).stdout)
+            .into_owned();
     assert!(summary.contains("gravity: 0, 0, 0 m/s²"), "{summary}");
 
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-newuser-{}", std::process::id()));
@@ -399,9 +569,20 @@ fn what_a_new_user_tripped_over() {
     assert_eq!(grid_gen(&[a.to_str().unwrap(), "-o", o]).status.code(), Some(0));
     let clash = grid_gen(&[b.to_str().unwrap(), "-o", o]);
     assert_eq!(clash.status.code(), Some(1));
-    assert!(stderr(&clash).contains("generated from ur5_a.urdf, not ur5_b.urdf"), "{}", stderr(&clash));
-    assert!(std::fs::read_to_string(out_dir.join("ur5.rs")).unwrap().contains("// source: ur5_a.urdf"), "the first robot's file is kept");
-    assert_eq!(grid_gen(&[a.to_str().unwrap(), "-o", o]).status.code(), Some(0), "regenerating from the same file is fine");
+    assert!(
+        stderr(&clash).contains("generated from ur5_a.urdf, not ur5_b.urdf"),
+        "{}",
+        stderr(&clash)
+    );
+    assert!(
+        std::fs::read_to_string(out_dir.join("ur5.rs")).unwrap().contains("// source: ur5_a.urdf"),
+        "the first robot's file is kept"
+    );
+    assert_eq!(
+        grid_gen(&[a.to_str().unwrap(), "-o", o]).status.code(),
+        Some(0),
+        "regenerating from the same file is fine"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -412,7 +593,15 @@ fn accuracy_measures_every_format_and_plots() {
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-accuracy-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let plot = dir.join("trade.svg");
-    let out = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--random", "5", "--json", "--plot", plot.to_str().unwrap()]);
+    let out = grid_gen(&[
+        "accuracy",
+        "robots/grid_iiwa.urdf",
+        "--random",
+        "5",
+        "--json",
+        "--plot",
+        plot.to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let report = json(&out);
     assert_eq!(report["states"], 5);
@@ -422,31 +611,72 @@ fn accuracy_measures_every_format_and_plots() {
         assert!(r["error"]["max"].as_f64().unwrap() <= 1e-12, "{r}");
     }
     assert!(std::fs::read_to_string(&plot).unwrap().starts_with("<svg"));
-    let text = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--random", "3", "--kernels", "rnea_grad", "--formats", "f64,fixed:32.16"]);
+    let text = grid_gen(&[
+        "accuracy",
+        "robots/grid_iiwa.urdf",
+        "--random",
+        "3",
+        "--kernels",
+        "rnea_grad",
+        "--formats",
+        "f64,fixed:32.16",
+    ]);
     let text = String::from_utf8(text.stdout).unwrap();
-    assert!(text.contains("cond(M): median") && text.contains("rnea_grad    fixed 32.16 half-up"), "{text}");
+    assert!(
+        text.contains("cond(M): median") && text.contains("rnea_grad    fixed 32.16 half-up"),
+        "{text}"
+    );
     let bad = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--formats", "f16"]);
     assert_eq!(bad.status.code(), Some(1));
     let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(err.contains("unknown number format `f16`") && err.matches("available").count() == 1, "one list of the formats: {err}");
+    assert!(
+        err.contains("unknown number format `f16`") && err.matches("available").count() == 1,
+        "one list of the formats: {err}"
+    );
     // --plot creates its folder, as -o does.
     let plot_dir = std::env::temp_dir().join(format!("grid-gen-plot-{}", std::process::id()));
     let nested = plot_dir.join("plots/x.svg");
-    let out = grid_gen(&["accuracy", "robots/double_pendulum_continuous.urdf", "--random", "2", "--formats", "f64", "--plot", nested.to_str().unwrap()]);
+    let out = grid_gen(&[
+        "accuracy",
+        "robots/double_pendulum_continuous.urdf",
+        "--random",
+        "2",
+        "--formats",
+        "f64",
+        "--plot",
+        nested.to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     assert!(std::fs::read_to_string(&nested).unwrap().starts_with("<svg"));
     std::fs::remove_dir_all(&plot_dir).unwrap();
     let bad = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--kernels", "aba"]);
     assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown kernel `aba`"));
-    let gpu = grid_gen(&["accuracy", "robots/double_pendulum_continuous.urdf", "--random", "4", "--formats", "f32,wgsl", "--json"]);
+    let gpu = grid_gen(&[
+        "accuracy",
+        "robots/double_pendulum_continuous.urdf",
+        "--random",
+        "4",
+        "--formats",
+        "f32,wgsl",
+        "--json",
+    ]);
     if adapter_or_skip(&gpu) {
         assert_eq!(gpu.status.code(), Some(0), "{}", String::from_utf8_lossy(&gpu.stderr));
         let report = json(&gpu);
-        let wgsl: Vec<_> = report["rows"].as_array().unwrap().iter().filter(|r| r["format"].as_str().unwrap().starts_with("wgsl f32 thread on ")).collect();
+        let wgsl: Vec<_> = report["rows"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .filter(|r| r["format"].as_str().unwrap().starts_with("wgsl f32 thread on "))
+            .collect();
         assert_eq!(wgsl.len(), 6);
         for r in wgsl {
             // The WGSL tests' f32 bounds, from f64 states (1e-5 direct, 1e-4 through M⁻¹).
-            let tol = if ["minv", "fd", "fd_grad"].contains(&r["kernel"].as_str().unwrap()) { 1e-4 } else { 1e-5 };
+            let tol = if ["minv", "fd", "fd_grad"].contains(&r["kernel"].as_str().unwrap()) {
+                1e-4
+            } else {
+                1e-5
+            };
             assert!(r["error"]["max"].as_f64().unwrap() <= tol, "{r}");
         }
     }
@@ -461,11 +691,16 @@ fn a_scene_reduces_every_command() {
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-scene-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let scene = dir.join("scene.toml");
-    std::fs::write(&scene, "outputs = [\"rnea_grad\"]\ngravity = [0.0, 0.0, -1.62]\n[lock]\niiwa_joint_7 = 0.3\n").unwrap();
+    std::fs::write(
+        &scene,
+        "outputs = [\"rnea_grad\"]\ngravity = [0.0, 0.0, -1.62]\n[lock]\niiwa_joint_7 = 0.3\n",
+    )
+    .unwrap();
     let s = scene.to_str().unwrap();
     // The text summary says what the scene changed.
     let text = grid_gen(&["--scene", s, "robots/grid_iiwa.urdf"]);
-    assert!(String::from_utf8_lossy(&text.stdout).contains("scene: locked (fixed at these positions): iiwa_joint_7 = 0.3\n"));
+    assert!(String::from_utf8_lossy(&text.stdout)
+        .contains("scene: locked (fixed at these positions): iiwa_joint_7 = 0.3\n"));
     let info = grid_gen(&["--scene", s, "info", "robots/grid_iiwa.urdf", "--json"]);
     assert_eq!(info.status.code(), Some(0), "{}", String::from_utf8_lossy(&info.stderr));
     let info = json(&info);
@@ -475,16 +710,22 @@ fn a_scene_reduces_every_command() {
     let gen = grid_gen(&["robots/grid_iiwa.urdf", "-o", out.to_str().unwrap(), "--scene", s]);
     assert_eq!(gen.status.code(), Some(0), "{}", String::from_utf8_lossy(&gen.stderr));
     let code = std::fs::read_to_string(out.join("iiwa14.rs")).unwrap();
-    assert!(code.contains("pub fn rnea_grad<") && !code.contains("pub fn fd_grad<") && !code.contains("pub fn minv<"));
+    assert!(
+        code.contains("pub fn rnea_grad<")
+            && !code.contains("pub fn fd_grad<")
+            && !code.contains("pub fn minv<")
+    );
     assert!(code.contains("NV: usize = 6") && code.contains("-1.62"));
-    let acc = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--random", "3", "--scene", s, "--json"]);
+    let acc =
+        grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--random", "3", "--scene", s, "--json"]);
     assert_eq!(acc.status.code(), Some(0), "{}", String::from_utf8_lossy(&acc.stderr));
     let rows = json(&acc)["rows"].as_array().unwrap().clone();
     assert!(!rows.is_empty() && rows.iter().all(|r| r["kernel"] == "rnea_grad"), "{rows:?}");
     std::fs::write(&scene, "[lock]\niiwa_joint_9 = 0.3\n").unwrap();
     let bad = grid_gen(&["info", "robots/grid_iiwa.urdf", "--scene", s]);
     assert_eq!(bad.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("[lock] names joint `iiwa_joint_9`, which robot `iiwa14` does not have"));
+    assert!(String::from_utf8_lossy(&bad.stderr)
+        .contains("[lock] names joint `iiwa_joint_9`, which robot `iiwa14` does not have"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -495,12 +736,22 @@ fn a_scene_reduces_every_command() {
 /// errors. (Times are not compared: that is for benchmarks.)
 #[test]
 fn rust_kernels_are_compiled_and_timed() {
-    let out = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--backend", "rust", "--kernels", "rnea,fd_grad"]);
+    let out = grid_gen(&[
+        "bench",
+        "robots/double_pendulum_continuous.urdf",
+        "--backend",
+        "rust",
+        "--kernels",
+        "rnea,fd_grad",
+    ]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let text = String::from_utf8(out.stdout).unwrap();
     let avx512 = text.lines().next().is_some_and(|l| l.contains("dispatch runs the avx512 copy"));
     for kernel in ["rnea", "fd_grad"] {
-        let row = text.lines().find(|l| l.starts_with(&format!("{kernel} "))).unwrap_or_else(|| panic!("no {kernel} row in\n{text}"));
+        let row = text
+            .lines()
+            .find(|l| l.starts_with(&format!("{kernel} ")))
+            .unwrap_or_else(|| panic!("no {kernel} row in\n{text}"));
         let cells: Vec<&str> = row.split_whitespace().skip(1).collect();
         assert_eq!(cells.len(), 6, "{row}");
         for (i, cell) in cells.iter().enumerate() {
@@ -512,7 +763,16 @@ fn rust_kernels_are_compiled_and_timed() {
             }
         }
     }
-    let acc = grid_gen(&["accuracy", "robots/double_pendulum_continuous.urdf", "--random", "4", "--formats", "f64,f32,fixed", "--time", "--json"]);
+    let acc = grid_gen(&[
+        "accuracy",
+        "robots/double_pendulum_continuous.urdf",
+        "--random",
+        "4",
+        "--formats",
+        "f64,f32,fixed",
+        "--time",
+        "--json",
+    ]);
     assert_eq!(acc.status.code(), Some(0), "{}", String::from_utf8_lossy(&acc.stderr));
     for r in json(&acc)["rows"].as_array().unwrap() {
         let float = r["format"] == "f64" || r["format"] == "f32";
@@ -527,7 +787,10 @@ fn rust_kernels_are_compiled_and_timed() {
 fn floating_base_from_the_command_line() {
     let urdf = "robots/grid_hyq.urdf";
     let v = json(&grid_gen(&["--floating-base", "info", urdf, "--json"]));
-    assert_eq!((v["nv"].as_u64(), v["nq"].as_u64(), v["floating_base"].as_bool()), (Some(18), Some(19), Some(true)));
+    assert_eq!(
+        (v["nv"].as_u64(), v["nq"].as_u64(), v["floating_base"].as_bool()),
+        (Some(18), Some(19), Some(true))
+    );
     assert_eq!(v["joint_names"][0], "root_joint_vx");
     assert_eq!(v["joint_names"][5], "root_joint_wz");
     let fixed = json(&grid_gen(&["info", urdf, "--json"]));
@@ -544,22 +807,44 @@ fn floating_base_from_the_command_line() {
     let states = dir.join("states.json");
     let mut q = vec![0.0, 0.0, 0.5, 0.0, 0.0, 0.0, 1.0];
     q.extend([0.2; 12]);
-    std::fs::write(&states, format!(r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#, [0.1; 18], [0.0; 18])).unwrap();
+    std::fs::write(
+        &states,
+        format!(r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#, [0.1; 18], [0.0; 18]),
+    )
+    .unwrap();
     let out = grid_gen(&["eval", urdf, "--floating-base", "--states", states.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     assert_eq!(json(&out)["states"][0]["drnea_dq"].as_array().unwrap().len(), 18);
     // The fixed-base robot refuses the long q, and the floating one a short q.
     let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
-    assert!(stderr(&out).contains("`q` has 19 entries, the robot has 12 joints"), "{}", stderr(&out));
-    std::fs::write(&states, format!(r#"{{"states": [{{"q": {:?}, "qd": {:?}}}]}}"#, [0.0; 18], [0.0; 18])).unwrap();
+    assert!(
+        stderr(&out).contains("`q` has 19 entries, the robot has 12 joints"),
+        "{}",
+        stderr(&out)
+    );
+    std::fs::write(
+        &states,
+        format!(r#"{{"states": [{{"q": {:?}, "qd": {:?}}}]}}"#, [0.0; 18], [0.0; 18]),
+    )
+    .unwrap();
     let out = grid_gen(&["eval", urdf, "--floating-base", "--states", states.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
-    assert!(stderr(&out).contains("`q` has 18 entries, expected 19: the floating base's position and quaternion"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains(
+            "`q` has 18 entries, expected 19: the floating base's position and quaternion"
+        ),
+        "{}",
+        stderr(&out)
+    );
 
     let out = grid_gen(&[urdf, "--floating-base", "-o", dir.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let code = std::fs::read_to_string(dir.join("hyq.rs")).unwrap();
-    assert!(code.contains("pub const NQ: usize = 19;") && code.contains("q: &[T; NQ]") && code.contains("// Floating base (Pinocchio's free-flyer)"));
+    assert!(
+        code.contains("pub const NQ: usize = 19;")
+            && code.contains("q: &[T; NQ]")
+            && code.contains("// Floating base (Pinocchio's free-flyer)")
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -580,7 +865,16 @@ fn spherical_joints_from_the_command_line() {
     let states = dir.join("states.json");
     // shoulder's quaternion, elbow, wrist's, hand, slide, tip's: every rotation the identity.
     let mut q = vec![0.0, 0.0, 0.0, 1.0, 0.3, 0.0, 0.0, 0.0, 1.0, 0.2, 0.1, 0.0, 0.0, 0.0, 1.0];
-    let write = |q: &[f64]| std::fs::write(&states, format!(r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#, [0.1; 12], [0.0; 12])).unwrap();
+    let write = |q: &[f64]| {
+        std::fs::write(
+            &states,
+            format!(
+                r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#,
+                [0.1; 12], [0.0; 12]
+            ),
+        )
+        .unwrap()
+    };
     write(&q);
     let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
@@ -589,16 +883,26 @@ fn spherical_joints_from_the_command_line() {
     write(&q);
     let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(1));
-    assert!(stderr(&out).contains("the quaternion of spherical joint `wrist`, `q[5..9]`, has norm 0.5"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("the quaternion of spherical joint `wrist`, `q[5..9]`, has norm 0.5"),
+        "{}",
+        stderr(&out)
+    );
     write(&q[..12]);
     let out = grid_gen(&["eval", urdf, "--states", states.to_str().unwrap()]);
-    assert!(stderr(&out).contains("`q` has 12 entries, expected 15: one per joint, with a quaternion"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("`q` has 12 entries, expected 15: one per joint, with a quaternion"),
+        "{}",
+        stderr(&out)
+    );
 
     let out = grid_gen(&[urdf, "-o", dir.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let code = std::fs::read_to_string(dir.join("ball_arm.rs")).unwrap();
     assert!(
-        code.contains("pub const NQ: usize = 15;") && code.contains("q: &[T; NQ]") && code.contains("// Spherical joints (Pinocchio's JointModelSpherical)")
+        code.contains("pub const NQ: usize = 15;")
+            && code.contains("q: &[T; NQ]")
+            && code.contains("// Spherical joints (Pinocchio's JointModelSpherical)")
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -612,7 +916,10 @@ fn mimic_coupled_from_the_command_line() {
     assert_eq!((v["nv"].as_u64(), v["mimic_coupled"].as_bool()), (Some(8), Some(true)));
     assert!(!v["joint_names"].as_array().unwrap().iter().any(|n| n == "panda_finger_joint2"));
     let independent = json(&grid_gen(&["info", urdf, "--json"]));
-    assert_eq!((independent["nv"].as_u64(), independent["mimic_coupled"].as_bool()), (Some(9), Some(false)));
+    assert_eq!(
+        (independent["nv"].as_u64(), independent["mimic_coupled"].as_bool()),
+        (Some(9), Some(false))
+    );
     let summary = grid_gen(&[urdf, "--mimic", "coupled"]);
     assert!(String::from_utf8_lossy(&summary.stdout)
         .contains("coupled mimic joints (no coordinate of their own): panda_finger_joint2 = 1 * panda_finger_joint1 + 0"));
@@ -620,7 +927,14 @@ fn mimic_coupled_from_the_command_line() {
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-mimic-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let states = dir.join("states.json");
-    std::fs::write(&states, format!(r#"{{"states": [{{"q": {:?}, "qd": {:?}, "qdd": {:?}, "tau": {:?}}}]}}"#, [0.1; 8], [0.2; 8], [0.3; 8], [0.4; 8])).unwrap();
+    std::fs::write(
+        &states,
+        format!(
+            r#"{{"states": [{{"q": {:?}, "qd": {:?}, "qdd": {:?}, "tau": {:?}}}]}}"#,
+            [0.1; 8], [0.2; 8], [0.3; 8], [0.4; 8]
+        ),
+    )
+    .unwrap();
     let out = grid_gen(&["eval", urdf, "--mimic", "coupled", "--states", states.to_str().unwrap()]);
     assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
     let e = json(&out);
@@ -634,13 +948,17 @@ fn mimic_coupled_from_the_command_line() {
 
     let bad = grid_gen(&["--mimic", "both", "info", urdf]);
     assert_eq!(bad.status.code(), Some(2));
-    assert!(stderr(&bad).contains("unknown mimic mode `both`; available: independent, coupled"), "{}", stderr(&bad));
+    assert!(
+        stderr(&bad).contains("unknown mimic mode `both`; available: independent, coupled"),
+        "{}",
+        stderr(&bad)
+    );
 }
 
-/// A legged-robot user's first call: `eval go2.urdf --floating-base --frames FL_foot,...` gives each
-/// state the four feet's kinematics with the documented keys, equal to the library's
-/// reference (which tests/frames.rs holds to Pinocchio); `info --json` lists every link as a
-/// frame with its joint; a misspelt frame is an error that suggests the right name.
+/// A legged-robot user's first call: `eval go2.urdf --floating-base --frames FL_foot,...` gives
+/// each state the four feet's kinematics with the documented keys, equal to the library's reference
+/// (which tests/frames.rs holds to Pinocchio); `info --json` lists every link as a frame with its
+/// joint; a misspelt frame is an error that suggests the right name.
 #[test]
 fn eval_and_info_report_frames() {
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-frames-{}", std::process::id()));
@@ -648,46 +966,92 @@ fn eval_and_info_report_frames() {
     let states = dir.join("s.json");
     let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";
     let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
-    std::fs::write(&states, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {qd}}}, {{"q": {q}, "qd": {qd}}}]}}"#)).unwrap();
+    std::fs::write(
+        &states,
+        format!(
+            r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {qd}}}, {{"q": {q}, "qd": {qd}}}]}}"#
+        ),
+    )
+    .unwrap();
     let feet = "FL_foot,FR_foot,RL_foot,RR_foot";
-    let out = grid_gen(&["eval", "tests/fixtures/go2.urdf", "--floating-base", "--frames", feet, "--states", states.to_str().unwrap()]);
+    let out = grid_gen(&[
+        "eval",
+        "tests/fixtures/go2.urdf",
+        "--floating-base",
+        "--frames",
+        feet,
+        "--states",
+        states.to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let v = json(&out);
     let text = std::fs::read_to_string(repo().join("tests/fixtures/go2.urdf")).unwrap();
     let scene = grid_gen::Scene { floating_base: true, ..Default::default() };
-    let model = grid_gen::Model::from_urdf_str_in_scene("go2.urdf", &text, false, &scene, "").unwrap().0;
+    let model =
+        grid_gen::Model::from_urdf_str_in_scene("go2.urdf", &text, false, &scene, "").unwrap().0;
     let parse = |s: &str| -> Vec<f64> { serde_json::from_str(s).unwrap() };
     let (qv, qdv) = (parse(q), parse(qd));
     for name in feet.split(',') {
         let f = &v["states"][0]["frames"][name];
         let frame = &model.frames[model.frame(name).unwrap()];
         let (_, p) = grid_gen::reference::frame_placement(&model, &qv, frame);
-        let nums = |x: &serde_json::Value| -> Vec<f64> { x.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect() };
+        let nums = |x: &serde_json::Value| -> Vec<f64> {
+            x.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+        };
         // serde_json reads floats back to within an ulp (no `float_roundtrip`).
-        let close = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-15 * y.abs().max(1.0));
+        let close = |a: &[f64], b: &[f64]| {
+            a.len() == b.len()
+                && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-15 * y.abs().max(1.0))
+        };
         assert!(close(&nums(&f["translation"]), p.as_slice()), "{name}");
         let j = &f["jacobian"];
         for rf in ["local", "world", "local_world_aligned"] {
             assert_eq!(j[rf].as_array().unwrap().len(), 6);
             assert_eq!(j[rf][0].as_array().unwrap().len(), 18);
         }
-        let lwa = grid_gen::reference::frame_classical_acceleration(&model, &qv, &qdv, &qdv, frame, grid_gen::model::ReferenceFrame::LocalWorldAligned);
+        let lwa = grid_gen::reference::frame_classical_acceleration(
+            &model,
+            &qv,
+            &qdv,
+            &qdv,
+            frame,
+            grid_gen::model::ReferenceFrame::LocalWorldAligned,
+        );
         assert!(close(&nums(&f["classical_acceleration"]["local_world_aligned"]), &lwa), "{name}");
         assert_eq!(f["velocity"]["local"].as_array().unwrap().len(), 6);
         // Without qdd, no acceleration.
         assert!(v["states"][1]["frames"][name].get("classical_acceleration").is_none());
     }
-    let info = json(&grid_gen(&["info", "tests/fixtures/go2.urdf", "--floating-base", "--json", "--frames", "FL_foot"]));
+    let info = json(&grid_gen(&[
+        "info",
+        "tests/fixtures/go2.urdf",
+        "--floating-base",
+        "--json",
+        "--frames",
+        "FL_foot",
+    ]));
     let frames = info["frames"].as_array().unwrap();
     let foot = frames.iter().find(|f| f["name"] == "FL_foot").unwrap();
     assert_eq!(foot["parent_joint"], "FL_calf_joint");
     assert_eq!(frames.iter().find(|f| f["name"] == "base").unwrap()["parent_joint"], "root_joint");
     assert_eq!(info["selected_frames"], serde_json::json!(["FL_foot"]));
     assert!(info["ops"].as_array().unwrap().iter().any(|k| k["kernel"] == "frame_jacobian"));
-    let bad = grid_gen(&["eval", "tests/fixtures/go2.urdf", "--floating-base", "--frames", "FL_fot", "--states", states.to_str().unwrap()]);
+    let bad = grid_gen(&[
+        "eval",
+        "tests/fixtures/go2.urdf",
+        "--floating-base",
+        "--frames",
+        "FL_fot",
+        "--states",
+        states.to_str().unwrap(),
+    ]);
     assert_eq!(bad.status.code(), Some(1));
     let err = String::from_utf8_lossy(&bad.stderr);
-    assert!(err.contains("--frames names `FL_fot`, which is not a link of this robot") && err.contains("closest frames: FL_foot"), "{err}");
+    assert!(
+        err.contains("--frames names `FL_fot`, which is not a link of this robot")
+            && err.contains("closest frames: FL_foot"),
+        "{err}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -702,20 +1066,45 @@ fn eval_and_info_report_the_step() {
     let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";
     let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
     let tau = "[0,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]";
-    std::fs::write(&states, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "tau": {tau}}}, {{"q": {q}, "qd": {qd}}}]}}"#)).unwrap();
+    std::fs::write(
+        &states,
+        format!(
+            r#"{{"states": [{{"q": {q}, "qd": {qd}, "tau": {tau}}}, {{"q": {q}, "qd": {qd}}}]}}"#
+        ),
+    )
+    .unwrap();
     let text = std::fs::read_to_string(repo().join("tests/fixtures/go2.urdf")).unwrap();
     let parse = |s: &str| -> Vec<f64> { serde_json::from_str(s).unwrap() };
     for scheme in grid_gen::model::Scheme::ALL {
-        let out =
-            grid_gen(&["eval", "tests/fixtures/go2.urdf", "--floating-base", "--step", scheme.name(), "--dt", "0.02", "--states", states.to_str().unwrap()]);
+        let out = grid_gen(&[
+            "eval",
+            "tests/fixtures/go2.urdf",
+            "--floating-base",
+            "--step",
+            scheme.name(),
+            "--dt",
+            "0.02",
+            "--states",
+            states.to_str().unwrap(),
+        ]);
         assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
         let v = json(&out);
         let step = &v["states"][0]["step"];
-        assert_eq!((step["A"].as_array().unwrap().len(), step["A"][0].as_array().unwrap().len()), (36, 36));
-        assert_eq!((step["B"].as_array().unwrap().len(), step["B"][0].as_array().unwrap().len()), (36, 12), "one column per leg joint");
+        assert_eq!(
+            (step["A"].as_array().unwrap().len(), step["A"][0].as_array().unwrap().len()),
+            (36, 36)
+        );
+        assert_eq!(
+            (step["B"].as_array().unwrap().len(), step["B"][0].as_array().unwrap().len()),
+            (36, 12),
+            "one column per leg joint"
+        );
         assert!(v["states"][1].get("step").is_none(), "no tau, no step");
         let scene = grid_gen::Scene { floating_base: true, ..Default::default() };
-        let mut model = grid_gen::Model::from_urdf_str_in_scene("go2.urdf", &text, false, &scene, "").unwrap().0;
+        let mut model =
+            grid_gen::Model::from_urdf_str_in_scene("go2.urdf", &text, false, &scene, "")
+                .unwrap()
+                .0;
         model.specialisation.step = Some(grid_gen::model::Step { scheme, dt: 0.02 });
         let d = grid_gen::reference::step_derivatives(
             &model,
@@ -728,21 +1117,63 @@ fn eval_and_info_report_the_step() {
             &[],
         )
         .unwrap();
-        let nums = |x: &serde_json::Value| -> Vec<f64> { x.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect() };
-        let close = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-15 * y.abs().max(1.0));
+        let nums = |x: &serde_json::Value| -> Vec<f64> {
+            x.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+        };
+        let close = |a: &[f64], b: &[f64]| {
+            a.len() == b.len()
+                && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-15 * y.abs().max(1.0))
+        };
         assert!(close(&nums(&step["q_next"]), &d.q_next), "{}", scheme.name());
-        assert!(close(&nums(&step["B"][30]), &d.b.row(30).iter().copied().collect::<Vec<_>>()), "{}", scheme.name());
+        assert!(
+            close(&nums(&step["B"][30]), &d.b.row(30).iter().copied().collect::<Vec<_>>()),
+            "{}",
+            scheme.name()
+        );
     }
     let bad = dir.join("bad.json");
     std::fs::write(&bad, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "tau": [1,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]}}]}}"#)).unwrap();
-    let out = grid_gen(&["eval", "tests/fixtures/go2.urdf", "--floating-base", "--step", "explicit_euler", "--dt", "0.02", "--states", bad.to_str().unwrap()]);
+    let out = grid_gen(&[
+        "eval",
+        "tests/fixtures/go2.urdf",
+        "--floating-base",
+        "--step",
+        "explicit_euler",
+        "--dt",
+        "0.02",
+        "--states",
+        bad.to_str().unwrap(),
+    ]);
     assert_ne!(out.status.code(), Some(0));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("not actuated"), "{}", String::from_utf8_lossy(&out.stderr));
-    let out = grid_gen(&["robots/grid_iiwa.urdf", "--step", "rk4", "--dt", "0.01", "-o", dir.join("out").to_str().unwrap()]);
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("not actuated"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let out = grid_gen(&[
+        "robots/grid_iiwa.urdf",
+        "--step",
+        "rk4",
+        "--dt",
+        "0.01",
+        "-o",
+        dir.join("out").to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let module = std::fs::read_to_string(dir.join("out/iiwa14.rs")).unwrap();
-    assert!(module.contains("pub const STEP_SCHEME: &str = \"rk4\";") && module.contains("pub fn step_grad<"));
-    let info = json(&grid_gen(&["info", "robots/grid_iiwa.urdf", "--json", "--step", "semi_implicit_euler", "--dt", "0.01"]));
+    assert!(
+        module.contains("pub const STEP_SCHEME: &str = \"rk4\";")
+            && module.contains("pub fn step_grad<")
+    );
+    let info = json(&grid_gen(&[
+        "info",
+        "robots/grid_iiwa.urdf",
+        "--json",
+        "--step",
+        "semi_implicit_euler",
+        "--dt",
+        "0.01",
+    ]));
     assert_eq!(info["step"], serde_json::json!({"scheme": "semi_implicit_euler", "dt": 0.01}));
     assert_eq!(info["actuated"].as_array().unwrap().len(), 7);
     std::fs::remove_dir_all(&dir).ok();
@@ -761,9 +1192,14 @@ fn eval_and_info_report_forces() {
     let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
     let u = "[0,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]";
     let forces = r#""fext": {"root_joint": [1, 2, 3, 0.1, 0.2, 0.3]}, "contacts": {"lf_lowerleg": [0, 0, 80], "rh_lowerleg": [5, -3, 70]}"#;
-    std::fs::write(&states, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {u}, "tau": {u}, {forces}}}]}}"#)).unwrap();
+    std::fs::write(
+        &states,
+        format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {u}, "tau": {u}, {forces}}}]}}"#),
+    )
+    .unwrap();
     let contacts = "lf_lowerleg:point,rf_lowerleg:point,lh_lowerleg:point,rh_lowerleg:point";
-    let base = ["eval", "robots/grid_hyq.urdf", "--floating-base", "--contact", contacts, "--states"];
+    let base =
+        ["eval", "robots/grid_hyq.urdf", "--floating-base", "--contact", contacts, "--states"];
     let run = |file: &std::path::Path| grid_gen(&[&base[..], &[file.to_str().unwrap()]].concat());
     let out = run(&states);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
@@ -771,7 +1207,11 @@ fn eval_and_info_report_forces() {
     let s = &v["states"][0];
     assert_eq!(s["drnea_dfext"]["root_joint"].as_array().unwrap().len(), 18, "nv rows");
     assert_eq!(s["drnea_dfext"]["root_joint"][0].as_array().unwrap().len(), 6);
-    assert_eq!(s["dfd_dlambda"]["rh_lowerleg"][0].as_array().unwrap().len(), 3, "a point contact's three columns");
+    assert_eq!(
+        s["dfd_dlambda"]["rh_lowerleg"][0].as_array().unwrap().len(),
+        3,
+        "a point contact's three columns"
+    );
     assert_eq!(s["drnea_dlambda"].as_object().unwrap().len(), 4, "every declared contact");
     // The same numbers as the reference under the same forces.
     let text = std::fs::read_to_string(repo().join("robots/grid_hyq.urdf")).unwrap();
@@ -780,37 +1220,85 @@ fn eval_and_info_report_forces() {
         "floating_base = true\n[external_forces]\njoints = [\"root_joint\"]\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"rf_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"lh_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"rh_lowerleg\"\ntype = \"point\"\n",
     )
     .unwrap();
-    let model = grid_gen::Model::from_urdf_str_in_scene("grid_hyq.urdf", &text, false, &scene, "s.toml").unwrap().0;
+    let model =
+        grid_gen::Model::from_urdf_str_in_scene("grid_hyq.urdf", &text, false, &scene, "s.toml")
+            .unwrap()
+            .0;
     let parse = |s: &str| -> Vec<f64> { serde_json::from_str(s).unwrap() };
     let lambda = [0.0, 0.0, 80.0, 0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 5.0, -3.0, 70.0];
-    let ext = grid_gen::reference::External { fext: &[1.0, 2.0, 3.0, 0.1, 0.2, 0.3], lambda: &lambda };
-    let want = grid_gen::reference::rnea_with(&model, &parse(q), &parse(qd), &parse(u), grid_gen::model::DEFAULT_GRAVITY, ext);
+    let ext =
+        grid_gen::reference::External { fext: &[1.0, 2.0, 3.0, 0.1, 0.2, 0.3], lambda: &lambda };
+    let want = grid_gen::reference::rnea_with(
+        &model,
+        &parse(q),
+        &parse(qd),
+        &parse(u),
+        grid_gen::model::DEFAULT_GRAVITY,
+        ext,
+    );
     let got: Vec<f64> = s["rnea"].as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect();
-    assert!(got.iter().zip(&want).all(|(a, b)| (a - b).abs() <= 1e-12 * b.abs().max(1.0)), "{got:?} against {want:?}");
+    assert!(
+        got.iter().zip(&want).all(|(a, b)| (a - b).abs() <= 1e-12 * b.abs().max(1.0)),
+        "{got:?} against {want:?}"
+    );
     // Rigid-contact dynamics: the reference's, under the state's fext, its λ and q̈
     // consistent with fd under those forces.
     let c = &s["contact_fd"];
-    let floats = |v: &serde_json::Value| -> Vec<f64> { v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect() };
+    let floats = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+    };
     let fext = [1.0, 2.0, 3.0, 0.1, 0.2, 0.3];
-    let (sol, _) = grid_gen::reference::contact_fd_derivatives(&model, &parse(q), &parse(qd), &parse(u), grid_gen::model::DEFAULT_GRAVITY, &fext).unwrap();
+    let (sol, _) = grid_gen::reference::contact_fd_derivatives(
+        &model,
+        &parse(q),
+        &parse(qd),
+        &parse(u),
+        grid_gen::model::DEFAULT_GRAVITY,
+        &fext,
+    )
+    .unwrap();
     // serde_json's default float parsing may round the last digit differently.
-    let close = |a: &[f64], b: &[f64]| a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-14 * y.abs().max(1.0));
+    let close = |a: &[f64], b: &[f64]| {
+        a.len() == b.len()
+            && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-14 * y.abs().max(1.0))
+    };
     assert!(close(&floats(&c["qdd"]), &sol.qdd), "contact_fd.qdd is the reference's");
-    let lambda: Vec<f64> = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"].iter().flat_map(|f| floats(&c["lambda"][f])).collect();
+    let lambda: Vec<f64> = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+        .iter()
+        .flat_map(|f| floats(&c["lambda"][f]))
+        .collect();
     assert!(close(&lambda, &sol.lambda), "contact_fd.lambda is the reference's");
     let ext = grid_gen::reference::External { fext: &fext, lambda: &lambda };
-    let fd = grid_gen::reference::aba_with(&model, &parse(q), &parse(qd), &parse(u), grid_gen::model::DEFAULT_GRAVITY, ext);
-    assert!(fd.iter().zip(&sol.qdd).all(|(a, b)| (a - b).abs() <= 1e-9 * b.abs().max(1.0)), "fd under the solved forces is contact_fd's qdd");
-    assert_eq!(c["dlambda_dq"]["lf_lowerleg"].as_array().unwrap().len(), 3, "a point contact's three rows");
+    let fd = grid_gen::reference::aba_with(
+        &model,
+        &parse(q),
+        &parse(qd),
+        &parse(u),
+        grid_gen::model::DEFAULT_GRAVITY,
+        ext,
+    );
+    assert!(
+        fd.iter().zip(&sol.qdd).all(|(a, b)| (a - b).abs() <= 1e-9 * b.abs().max(1.0)),
+        "fd under the solved forces is contact_fd's qdd"
+    );
+    assert_eq!(
+        c["dlambda_dq"]["lf_lowerleg"].as_array().unwrap().len(),
+        3,
+        "a point contact's three rows"
+    );
     assert_eq!(c["dlambda_dtau"]["lf_lowerleg"][0].as_array().unwrap().len(), 18, "nv columns");
     assert_eq!(c["dqdd_dtau"].as_array().unwrap().len(), 18);
     // With a step: the state's fext held over it, the contacts rigid (the state's λ does
     // not enter), as the reference's step.
-    let out = grid_gen(&[&base[..5], &["--step", "rk4", "--dt", "0.01", "--states", states.to_str().unwrap()]].concat());
+    let out = grid_gen(
+        &[&base[..5], &["--step", "rk4", "--dt", "0.01", "--states", states.to_str().unwrap()]]
+            .concat(),
+    );
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let step = &json(&out)["states"][0]["step"];
     let mut stepped = model.clone();
-    stepped.specialisation.step = Some(grid_gen::model::Step { scheme: grid_gen::model::Scheme::Rk4, dt: 0.01 });
+    stepped.specialisation.step =
+        Some(grid_gen::model::Step { scheme: grid_gen::model::Scheme::Rk4, dt: 0.01 });
     let d = grid_gen::reference::step_derivatives(
         &stepped,
         &parse(q),
@@ -822,8 +1310,14 @@ fn eval_and_info_report_forces() {
         &fext,
     )
     .unwrap();
-    assert!(close(&floats(&step["qd_next"]), &d.qd_next), "the step's qd_next is the reference's contact step");
-    assert!(close(&floats(&step["B"][20]), &d.b.row(20).iter().copied().collect::<Vec<_>>()), "and its B");
+    assert!(
+        close(&floats(&step["qd_next"]), &d.qd_next),
+        "the step's qd_next is the reference's contact step"
+    );
+    assert!(
+        close(&floats(&step["B"][20]), &d.b.row(20).iter().copied().collect::<Vec<_>>()),
+        "and its B"
+    );
     let bad_cases = [
         (r#""fext": {"lf_knee": [1, 2, 3, 0, 0, 0]}"#, "`fext` names `lf_knee`"),
         (r#""fext": {"root_joint": [1, 2, 3]}"#, "`fext.root_joint` has 3 values, expected 6"),
@@ -833,25 +1327,65 @@ fn eval_and_info_report_forces() {
     ];
     for (entry, says) in bad_cases {
         let bad = dir.join("bad.json");
-        std::fs::write(&bad, format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {u}, {entry}}}]}}"#)).unwrap();
+        std::fs::write(
+            &bad,
+            format!(r#"{{"states": [{{"q": {q}, "qd": {qd}, "qdd": {u}, {entry}}}]}}"#),
+        )
+        .unwrap();
         let out = run(&bad);
         assert_ne!(out.status.code(), Some(0), "{entry}");
         assert!(out.stdout.is_empty(), "{entry}: nothing written");
-        assert!(String::from_utf8_lossy(&out.stderr).contains(says), "{entry}: {}", String::from_utf8_lossy(&out.stderr));
+        assert!(
+            String::from_utf8_lossy(&out.stderr).contains(says),
+            "{entry}: {}",
+            String::from_utf8_lossy(&out.stderr)
+        );
     }
     let out = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--fext", "iiwa_joint_7"]);
     assert_ne!(out.status.code(), Some(0));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("does not measure kernels that take external or contact forces yet"));
-    let out = grid_gen(&["info", "robots/grid_hyq.urdf", "--floating-base", "--contact", "lf_foot:point"]);
+    assert!(String::from_utf8_lossy(&out.stderr)
+        .contains("does not measure kernels that take external or contact forces yet"));
+    let out = grid_gen(&[
+        "info",
+        "robots/grid_hyq.urdf",
+        "--floating-base",
+        "--contact",
+        "lf_foot:point",
+    ]);
     assert_ne!(out.status.code(), Some(0));
-    assert!(String::from_utf8_lossy(&out.stderr).contains("closest frames"), "{}", String::from_utf8_lossy(&out.stderr));
-    let info = json(&grid_gen(&["info", "robots/grid_hyq.urdf", "--json", "--floating-base", "--fext", "*", "--contact", "lf_lowerleg:wrench"]));
+    assert!(
+        String::from_utf8_lossy(&out.stderr).contains("closest frames"),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let info = json(&grid_gen(&[
+        "info",
+        "robots/grid_hyq.urdf",
+        "--json",
+        "--floating-base",
+        "--fext",
+        "*",
+        "--contact",
+        "lf_lowerleg:wrench",
+    ]));
     assert_eq!(info["fext"].as_array().unwrap().len(), 13);
-    assert_eq!(info["contacts"], serde_json::json!([{"frame": "lf_lowerleg", "type": "wrench", "entries": 6}]));
-    let out = grid_gen(&["robots/grid_iiwa.urdf", "--fext", "iiwa_joint_7", "-o", dir.join("out").to_str().unwrap()]);
+    assert_eq!(
+        info["contacts"],
+        serde_json::json!([{"frame": "lf_lowerleg", "type": "wrench", "entries": 6}])
+    );
+    let out = grid_gen(&[
+        "robots/grid_iiwa.urdf",
+        "--fext",
+        "iiwa_joint_7",
+        "-o",
+        dir.join("out").to_str().unwrap(),
+    ]);
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let module = std::fs::read_to_string(dir.join("out/iiwa14.rs")).unwrap();
-    assert!(module.contains("pub const FEXT_JOINTS: [&str; NFEXT] = [\"iiwa_joint_7\"];") && module.contains("dc_dfext"));
+    assert!(
+        module.contains("pub const FEXT_JOINTS: [&str; NFEXT] = [\"iiwa_joint_7\"];")
+            && module.contains("dc_dfext")
+    );
     std::fs::remove_dir_all(&dir).ok();
 }
 
@@ -863,6 +1397,11 @@ fn the_books_info_json_example_names_every_field() {
     let page = std::fs::read_to_string(repo().join("docs/reference/cli.md")).unwrap();
     let example = page.split("```json\n").nth(1).unwrap().split("```").next().unwrap();
     let fields = json(&out);
-    let missing: Vec<&String> = fields.as_object().unwrap().keys().filter(|k| !example.contains(&format!("\"{k}\":"))).collect();
+    let missing: Vec<&String> = fields
+        .as_object()
+        .unwrap()
+        .keys()
+        .filter(|k| !example.contains(&format!("\"{k}\":")))
+        .collect();
     assert!(missing.is_empty(), "docs/reference/cli.md's info --json example lacks {missing:?}");
 }

@@ -17,7 +17,11 @@ fn repo() -> PathBuf {
 fn rendered_diagnostics_match_expectations() {
     let dir = repo().join("tests/diagnostics");
     let bless = std::env::var_os("GRID_GEN_BLESS").is_some();
-    let mut cases: Vec<PathBuf> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().path()).filter(|p| p.extension().is_some_and(|e| e == "urdf")).collect();
+    let mut cases: Vec<PathBuf> = std::fs::read_dir(&dir)
+        .unwrap()
+        .map(|e| e.unwrap().path())
+        .filter(|p| p.extension().is_some_and(|e| e == "urdf"))
+        .collect();
     cases.sort();
     assert!(cases.len() >= 20, "expected the full set of diagnostic cases");
     let mut mismatches = Vec::new();
@@ -33,7 +37,11 @@ fn rendered_diagnostics_match_expectations() {
             cmd.args(["--mimic", "coupled"]);
         }
         let out = cmd.output().unwrap();
-        let got = format!("exit: {}\n{}", out.status.code().unwrap_or(-1), String::from_utf8_lossy(&out.stderr));
+        let got = format!(
+            "exit: {}\n{}",
+            out.status.code().unwrap_or(-1),
+            String::from_utf8_lossy(&out.stderr)
+        );
         let expected_path = dir.join(format!("{stem}.stderr"));
         if bless {
             std::fs::write(&expected_path, &got).unwrap();
@@ -44,5 +52,10 @@ fn rendered_diagnostics_match_expectations() {
             mismatches.push(format!("--- {stem}: expected\n{want}\n--- got\n{got}"));
         }
     }
-    assert!(mismatches.is_empty(), "{} case(s) differ (GRID_GEN_BLESS=1 to refresh):\n{}", mismatches.len(), mismatches.join("\n"));
+    assert!(
+        mismatches.is_empty(),
+        "{} case(s) differ (GRID_GEN_BLESS=1 to refresh):\n{}",
+        mismatches.len(),
+        mismatches.join("\n")
+    );
 }

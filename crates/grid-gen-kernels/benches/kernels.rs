@@ -13,7 +13,9 @@ use grid_gen::{reference, Model};
 const STATES: usize = 64;
 
 fn load(stem: &str) -> Model {
-    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../../robots").join(format!("{stem}.urdf"));
+    let path = std::path::PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+        .join("../../robots")
+        .join(format!("{stem}.urdf"));
     Model::from_urdf_str(stem, &std::fs::read_to_string(path).unwrap(), false).unwrap().0
 }
 
@@ -26,7 +28,9 @@ macro_rules! bench_robot {
         use grid_gen_kernels::$m as k;
         const N: usize = k::NV;
         let model = load($stem);
-        let s: Vec<[[f64; N]; 3]> = (0..STATES).map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt)))).collect();
+        let s: Vec<[[f64; N]; 3]> = (0..STATES)
+            .map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt))))
+            .collect();
         let v: Vec<[Vec<f64>; 3]> = s.iter().map(|x| x.map(|a| a.to_vec())).collect();
         let g = reference::DEFAULT_GRAVITY;
         let mut group = $c.benchmark_group($stem);
@@ -131,10 +135,22 @@ macro_rules! bench_lanes {
         use grid_gen_kernels::$m as k;
         const N: usize = k::NV;
         let l2: Vec<[[k::Lanes<2>; N]; 3]> = (0..STATES)
-            .map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| k::Lanes(std::array::from_fn(|l| state(j + l * STATES, i, salt))))))
+            .map(|j| {
+                std::array::from_fn(|salt| {
+                    std::array::from_fn(|i| {
+                        k::Lanes(std::array::from_fn(|l| state(j + l * STATES, i, salt)))
+                    })
+                })
+            })
             .collect();
         let l4: Vec<[[k::Lanes<4>; N]; 3]> = (0..STATES)
-            .map(|j| std::array::from_fn(|salt| std::array::from_fn(|i| k::Lanes(std::array::from_fn(|l| state(j + l * STATES, i, salt))))))
+            .map(|j| {
+                std::array::from_fn(|salt| {
+                    std::array::from_fn(|i| {
+                        k::Lanes(std::array::from_fn(|l| state(j + l * STATES, i, salt)))
+                    })
+                })
+            })
             .collect();
         let mut group = $c.benchmark_group($stem);
         let mut j = 0usize;
@@ -178,7 +194,12 @@ macro_rules! bench_scene {
         const N: usize = k::NV;
         // q has NQ entries (a floating base's quaternion: the kernels normalise it).
         let s: Vec<([f64; k::NQ], [[f64; N]; 2])> = (0..STATES)
-            .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1)))))
+            .map(|j| {
+                (
+                    std::array::from_fn(|i| state(j, i, 0)),
+                    std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))),
+                )
+            })
             .collect();
         let mut group = $c.benchmark_group($name);
         let mut j = 0usize;
@@ -210,7 +231,12 @@ macro_rules! bench_frames {
         use grid_gen_kernels::scenes::$m as k;
         const N: usize = k::NV;
         let s: Vec<([f64; k::NQ], [[f64; N]; 2])> = (0..STATES)
-            .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1)))))
+            .map(|j| {
+                (
+                    std::array::from_fn(|i| state(j, i, 0)),
+                    std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))),
+                )
+            })
             .collect();
         let mut group = $c.benchmark_group($name);
         let mut j = 0usize;
@@ -245,7 +271,12 @@ macro_rules! bench_step {
                 let mut q: [f64; k::NQ] = std::array::from_fn(|i| state(j, i, 0));
                 let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
                 q[3..7].iter_mut().for_each(|x| *x /= n);
-                (q, std::array::from_fn(|i| state(j, i, 1)), std::array::from_fn(|i| state(j, i, 2)), std::array::from_fn(|i| state(j, i, 3)))
+                (
+                    q,
+                    std::array::from_fn(|i| state(j, i, 1)),
+                    std::array::from_fn(|i| state(j, i, 2)),
+                    std::array::from_fn(|i| state(j, i, 3)),
+                )
             })
             .collect();
         let mut group = $c.benchmark_group($name);
@@ -284,7 +315,8 @@ macro_rules! bench_forces {
     ($c:expr) => {{
         use grid_gen_kernels::scenes::grid_hyq_contacts_floating as k;
         use grid_gen_kernels::scenes::grid_hyq_floating as plain;
-        let s: Vec<([f64; k::NQ], [[f64; k::NV]; 2], [f64; 6 * k::NFEXT], [f64; k::NLAMBDA])> = (0..STATES)
+        let s: Vec<([f64; k::NQ], [[f64; k::NV]; 2], [f64; 6 * k::NFEXT], [f64; k::NLAMBDA])> = (0
+            ..STATES)
             .map(|j| {
                 (
                     std::array::from_fn(|i| state(j, i, 0)),

@@ -68,13 +68,23 @@ fn main() {
         let g_u: [f64; NU] = std::array::from_fn(|c| (0..NX).map(|r| b[r][c] * p[r]).sum());
         gradient_norm = gradient_norm.max(g_u.iter().map(|x| x * x).sum::<f64>().sqrt());
         let qd_k = states[k].1;
-        p = std::array::from_fn(|c| (0..NX).map(|r| a[r][c] * p[r]).sum::<f64>() + if c < NV { 0.0 } else { qd_k[c - NV] });
+        p = std::array::from_fn(|c| {
+            (0..NX).map(|r| a[r][c] * p[r]).sum::<f64>() + if c < NV { 0.0 } else { qd_k[c - NV] }
+        });
     }
     let backward = start.elapsed();
 
     let (q, _) = states[KNOTS];
-    println!("{KNOTS} knots of {} s: base height {:.4} m -> {:.4} m", hyq::DT, states[0].0[2], q[2]);
-    println!("largest |B_k^T p_(k+1)| = {gradient_norm:.6e}; |p_0| = {:.6e}", p.iter().map(|x| x * x).sum::<f64>().sqrt());
+    println!(
+        "{KNOTS} knots of {} s: base height {:.4} m -> {:.4} m",
+        hyq::DT,
+        states[0].0[2],
+        q[2]
+    );
+    println!(
+        "largest |B_k^T p_(k+1)| = {gradient_norm:.6e}; |p_0| = {:.6e}",
+        p.iter().map(|x| x * x).sum::<f64>().sqrt()
+    );
     let per = |t: std::time::Duration| t.as_secs_f64() * 1e9 / KNOTS as f64;
     println!(
         "per knot: step {:.0} ns (first pass), step_grad {:.0} ns ({:.0} ns on the first pass), backward recursion {:.0} ns (one thread; use --release)",

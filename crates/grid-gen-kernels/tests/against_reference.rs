@@ -26,20 +26,38 @@ const F32_MINV: f64 = 1e-4;
 /// (label, q, qd, u) where u is q̈ for RNEA and τ for FD.
 fn states(model: &Model, rng: &mut Rng) -> Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>)> {
     let n = model.nv();
-    let mut out: Vec<_> = (0..6).map(|i| (format!("random {i}"), rng.vec(n, -3.1, 3.1), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0))).collect();
+    let mut out: Vec<_> = (0..6)
+        .map(|i| {
+            (
+                format!("random {i}"),
+                rng.vec(n, -3.1, 3.1),
+                rng.vec(n, -3.0, 3.0),
+                rng.vec(n, -3.0, 3.0),
+            )
+        })
+        .collect();
     let limit = |lo: bool| {
         model
             .coordinate_joints()
             .into_iter()
             .map(|i| &model.joints[i])
-            .map(|j| j.limit.map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h }).clamp(-1e3, 1e3))
+            .map(|j| {
+                j.limit
+                    .map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h })
+                    .clamp(-1e3, 1e3)
+            })
             .collect::<Vec<_>>()
     };
     out.push(("zero".into(), vec![0.0; n], vec![0.0; n], vec![0.0; n]));
     out.push(("lower limits".into(), limit(true), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)));
     out.push(("upper limits".into(), limit(false), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)));
     for s in [1e-8, 1e3] {
-        out.push((format!("speed {s:e}"), rng.vec(n, -3.1, 3.1), rng.vec(n, -s, s), rng.vec(n, -s, s)));
+        out.push((
+            format!("speed {s:e}"),
+            rng.vec(n, -3.1, 3.1),
+            rng.vec(n, -s, s),
+            rng.vec(n, -s, s),
+        ));
     }
     out
 }
@@ -64,7 +82,13 @@ fn reference_outputs(m: &Model, q: &[f64], qd: &[f64], u: &[f64]) -> Vec<DMatrix
 }
 
 /// Each copy's outputs against `want` at `(direct, through M⁻¹)` tolerances, raising `worst`.
-fn check_copies<G: AsRef<[DMatrix<f64>]>>(at: &str, copies: Vec<(&str, G)>, want: &[DMatrix<f64>], (tol_direct, tol_minv): (f64, f64), worst: &mut f64) {
+fn check_copies<G: AsRef<[DMatrix<f64>]>>(
+    at: &str,
+    copies: Vec<(&str, G)>,
+    want: &[DMatrix<f64>],
+    (tol_direct, tol_minv): (f64, f64),
+    worst: &mut f64,
+) {
     for (copy, got) in copies {
         for (i, g) in got.as_ref().iter().enumerate() {
             let tol = if THROUGH_MINV[i] { tol_minv } else { tol_direct };
@@ -75,7 +99,17 @@ fn check_copies<G: AsRef<[DMatrix<f64>]>>(at: &str, copies: Vec<(&str, G)>, want
     }
 }
 
-const NAMES: [&str; 9] = ["rnea", "rnea_grad.dc_dq", "rnea_grad.dc_dqd", "mass_matrix", "minv", "fd", "fd_grad.qdd", "fd_grad.dqdd_dq", "fd_grad.dqdd_dqd"];
+const NAMES: [&str; 9] = [
+    "rnea",
+    "rnea_grad.dc_dq",
+    "rnea_grad.dc_dqd",
+    "mass_matrix",
+    "minv",
+    "fd",
+    "fd_grad.qdd",
+    "fd_grad.dqdd_dq",
+    "fd_grad.dqdd_dqd",
+];
 /// Outputs computed through M⁻¹.
 const THROUGH_MINV: [bool; 9] = [false, false, false, false, true, true, true, true, true];
 
@@ -286,14 +320,32 @@ fn scene_kernels_match_the_reference_on_the_scene_model() {
                 let qd_ref = if spec.static_velocity { vec![0.0; k::NV] } else { qd.clone() };
                 let mut want = reference_outputs(&model, &q, &qd_ref, &u);
                 for i in [1, 2, 7, 8] {
-                    want[i] = DMatrix::from_fn(k::NV, k::NV, |r, c| if spec.keeps(r, c) { want[i][(r, c)] } else { 0.0 });
+                    want[i] = DMatrix::from_fn(k::NV, k::NV, |r, c| {
+                        if spec.keeps(r, c) {
+                            want[i][(r, c)]
+                        } else {
+                            0.0
+                        }
+                    });
                 }
                 let (dq, dqd) = k::rnea_grad(&arr(&q), &arr(&qd), &arr(&u));
                 let (qdd, fq, fqd) = k::fd_grad(&arr(&q), &arr(&qd), &arr(&u));
-                let got = [(1, m(dq)), (2, m(dqd)), (6, DMatrix::from_column_slice(k::NV, 1, &qdd)), (7, m(fq)), (8, m(fqd))];
+                let got = [
+                    (1, m(dq)),
+                    (2, m(dqd)),
+                    (6, DMatrix::from_column_slice(k::NV, 1, &qdd)),
+                    (7, m(fq)),
+                    (8, m(fqd)),
+                ];
                 for (i, g) in got {
                     let e = rel(&g, &want[i]);
-                    assert!(e <= F64_TOL, "{} in {}, {label}: {} relative error {e:.2e}", $robot, $scene, NAMES[i]);
+                    assert!(
+                        e <= F64_TOL,
+                        "{} in {}, {label}: {} relative error {e:.2e}",
+                        $robot,
+                        $scene,
+                        NAMES[i]
+                    );
                 }
             }
         }};
@@ -317,7 +369,8 @@ fn floating_base_kernels_match_the_reference() {
     let states: Vec<_> = states(&model, &mut rng)
         .into_iter()
         .map(|(label, per_joint, qd, u)| {
-            let base = if label == "zero" { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] } else { rng.base_pose() };
+            let base =
+                if label == "zero" { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] } else { rng.base_pose() };
             (label, model.q_from_joints(&per_joint, base), qd, u)
         })
         .collect();
@@ -331,7 +384,10 @@ fn floating_base_kernels_match_the_reference() {
 #[test]
 fn spherical_kernels_match_the_reference() {
     use grid_gen_kernels::fixtures::ball_arm as k;
-    let model = grid_gen_test_support::load_urdf(&grid_gen_test_support::repo().join("tests/fixtures/ball_arm.urdf"), false);
+    let model = grid_gen_test_support::load_urdf(
+        &grid_gen_test_support::repo().join("tests/fixtures/ball_arm.urdf"),
+        false,
+    );
     assert!(model.spherical.len() == 3 && k::NV == model.nv() && k::NQ == model.nq());
     let mut rng = Rng(31);
     let states: Vec<_> = states(&model, &mut rng)
@@ -373,9 +429,22 @@ macro_rules! run_frames {
         let u: [$t; k::NV] = std::array::from_fn(|i| $u[i] as $t);
         // The `fma` copy's functions are `unsafe` (they need the CPU features checked above).
         #[allow(unused_unsafe)]
-        let ((t, r), j, v, a) = unsafe { (c::frame_placement(&q), c::frame_jacobian(&q), c::frame_velocity(&q, &qd), c::frame_acceleration(&q, &qd, &u)) };
+        let ((t, r), j, v, a) = unsafe {
+            (
+                c::frame_placement(&q),
+                c::frame_jacobian(&q),
+                c::frame_velocity(&q, &qd),
+                c::frame_acceleration(&q, &qd, &u),
+            )
+        };
         let f = |x: &[$t]| x.iter().map(|&y| y as f64).collect::<Vec<f64>>();
-        vec![f(t.as_flattened()), f(r.as_flattened()), f(j.as_flattened().as_flattened()), f(v.as_flattened()), f(a.as_flattened())]
+        vec![
+            f(t.as_flattened()),
+            f(r.as_flattened()),
+            f(j.as_flattened().as_flattened()),
+            f(v.as_flattened()),
+            f(a.as_flattened()),
+        ]
     }};
 }
 
@@ -436,7 +505,10 @@ fn frame_acceleration_grad_matches_its_graph() {
         ($m:ident, $robot:literal, $scene:literal) => {{
             use grid_gen_kernels::scenes::$m as k;
             let (model, _) = grid_gen_test_support::load_in_scene($robot, $scene);
-            let lower = LowerOptions { kernels: vec![KernelKind::FrameAccelerationGrad], ..LowerOptions::default() };
+            let lower = LowerOptions {
+                kernels: vec![KernelKind::FrameAccelerationGrad],
+                ..LowerOptions::default()
+            };
             let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
             let f = module.function(KernelKind::FrameAccelerationGrad).unwrap();
             let mut rng = Rng(43);
@@ -446,11 +518,24 @@ fn frame_acceleration_grad_matches_its_graph() {
                 let qa: [f64; k::NQ] = std::array::from_fn(|i| q[i]);
                 let qda: [f64; k::NV] = std::array::from_fn(|i| qd[i]);
                 let ua: [f64; k::NV] = std::array::from_fn(|i| u[i]);
-                let flat = |x: ([[[f64; k::NV]; 3]; k::NF], [[[f64; k::NV]; 3]; k::NF], [[[f64; k::NV]; 3]; k::NF])| {
-                    [x.0.as_flattened().as_flattened().to_vec(), x.1.as_flattened().as_flattened().to_vec(), x.2.as_flattened().as_flattened().to_vec()]
+                let flat = |x: (
+                    [[[f64; k::NV]; 3]; k::NF],
+                    [[[f64; k::NV]; 3]; k::NF],
+                    [[[f64; k::NV]; 3]; k::NF],
+                )| {
+                    [
+                        x.0.as_flattened().as_flattened().to_vec(),
+                        x.1.as_flattened().as_flattened().to_vec(),
+                        x.2.as_flattened().as_flattened().to_vec(),
+                    ]
                 };
                 let portable = flat(k::portable::frame_acceleration_grad(&qa, &qda, &ua));
-                assert_eq!(portable.to_vec(), want, "{} {label}: the portable copy is the graph", $scene);
+                assert_eq!(
+                    portable.to_vec(),
+                    want,
+                    "{} {label}: the portable copy is the graph",
+                    $scene
+                );
                 if fma_runs() {
                     let fma = flat(unsafe { k::fma::frame_acceleration_grad(&qa, &qda, &ua) });
                     for (o, (g, w)) in fma.iter().zip(&want).enumerate() {
@@ -472,11 +557,17 @@ fn frame_kernel_lanes_are_bit_identical_to_scalar_calls() {
     use grid_gen_kernels::scenes::grid_hyq_feet_floating as k;
     let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_feet_floating");
     let mut rng = Rng(47);
-    let st: Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> =
-        states(&model, &mut rng).into_iter().take(4).map(|(_, per, qd, u)| (model.q_from_joints(&per, rng.base_pose()), qd, u)).collect();
-    let q: [k::Lanes<4>; k::NQ] = std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].0[j])));
-    let qd: [k::Lanes<4>; k::NV] = std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].1[j])));
-    let u: [k::Lanes<4>; k::NV] = std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].2[j])));
+    let st: Vec<(Vec<f64>, Vec<f64>, Vec<f64>)> = states(&model, &mut rng)
+        .into_iter()
+        .take(4)
+        .map(|(_, per, qd, u)| (model.q_from_joints(&per, rng.base_pose()), qd, u))
+        .collect();
+    let q: [k::Lanes<4>; k::NQ] =
+        std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].0[j])));
+    let qd: [k::Lanes<4>; k::NV] =
+        std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].1[j])));
+    let u: [k::Lanes<4>; k::NV] =
+        std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| st[l].2[j])));
     macro_rules! check {
         ($c:path) => {{
             use $c as c;
@@ -487,10 +578,20 @@ fn frame_kernel_lanes_are_bit_identical_to_scalar_calls() {
                 let sqd: [f64; k::NV] = std::array::from_fn(|i| s.1[i]);
                 let su: [f64; k::NV] = std::array::from_fn(|i| s.2[i]);
                 let (j, a) = (c::frame_jacobian(&sq), c::frame_acceleration(&sq, &sqd, &su));
-                let lanes_j: Vec<u64> = lj.as_flattened().as_flattened().iter().map(|x| x.0[l].to_bits()).collect();
-                let lanes_a: Vec<u64> = la.as_flattened().iter().map(|x| x.0[l].to_bits()).collect();
-                assert_eq!(lanes_j, j.as_flattened().as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>(), "lane {l}: jacobian");
-                assert_eq!(lanes_a, a.as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>(), "lane {l}: acceleration");
+                let lanes_j: Vec<u64> =
+                    lj.as_flattened().as_flattened().iter().map(|x| x.0[l].to_bits()).collect();
+                let lanes_a: Vec<u64> =
+                    la.as_flattened().iter().map(|x| x.0[l].to_bits()).collect();
+                assert_eq!(
+                    lanes_j,
+                    j.as_flattened().as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                    "lane {l}: jacobian"
+                );
+                assert_eq!(
+                    lanes_a,
+                    a.as_flattened().iter().map(|x| x.to_bits()).collect::<Vec<_>>(),
+                    "lane {l}: acceleration"
+                );
             }
         }};
     }
@@ -519,7 +620,8 @@ fn step_kernels_match_the_reference() {
             let qd: [$t; k::NV] = std::array::from_fn(|i| $qd[i] as $t);
             let u: [$t; k::NU] = std::array::from_fn(|i| $u[i] as $t);
             #[allow(unused_unsafe)]
-            let ((q1, v1), (q2, v2, a, b)) = unsafe { (c::step(&q, &qd, &u), c::step_grad(&q, &qd, &u)) };
+            let ((q1, v1), (q2, v2, a, b)) =
+                unsafe { (c::step(&q, &qd, &u), c::step_grad(&q, &qd, &u)) };
             let f = |x: &[$t]| x.iter().map(|&y| y as f64).collect::<Vec<f64>>();
             // step's q̈ is ABA's; step_grad's may come from M's factorisation (its `solve`).
             vec![f(&q2), f(&v2), f(a.as_flattened()), f(b.as_flattened()), f(&q1), f(&v1)]
@@ -529,19 +631,37 @@ fn step_kernels_match_the_reference() {
         let q = model.q_from_joints(&per_joint, rng.base_pose());
         let u = rng.vec(k::NU, -20.0, 20.0);
         for (f32, tol) in [(false, F64_TOL), (true, F32_MINV)] {
-            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let r = |v: &[f64]| -> Vec<f64> {
+                v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect()
+            };
             let (q, qd, u) = (r(&q), r(&qd), r(&u));
             let want = reference_outputs(StepGrad, &model, &q, &qd, &u, model_gravity());
-            let mut copies = vec![("portable", if f32 { run!(k::portable, f32, q, qd, u) } else { run!(k::portable, f64, q, qd, u) })];
+            let mut copies = vec![(
+                "portable",
+                if f32 {
+                    run!(k::portable, f32, q, qd, u)
+                } else {
+                    run!(k::portable, f64, q, qd, u)
+                },
+            )];
             if fma_runs() {
-                copies.push(("fma", if f32 { run!(k::fma, f32, q, qd, u) } else { run!(k::fma, f64, q, qd, u) }));
+                copies.push((
+                    "fma",
+                    if f32 { run!(k::fma, f32, q, qd, u) } else { run!(k::fma, f64, q, qd, u) },
+                ));
             }
             for (copy, got) in copies {
-                for (i, name) in ["q_next", "qd_next", "A", "B", "step q_next", "step qd_next"].iter().enumerate() {
+                for (i, name) in ["q_next", "qd_next", "A", "B", "step q_next", "step qd_next"]
+                    .iter()
+                    .enumerate()
+                {
                     let want = col(want[i % 4].transpose().as_slice());
                     let e = rel(&col(&got[i]), &want);
                     worst[usize::from(f32)] = worst[usize::from(f32)].max(e);
-                    assert!(e <= tol, "{label} ({copy}, f32 {f32}): {name} relative error {e:.2e} > {tol:e}");
+                    assert!(
+                        e <= tol,
+                        "{label} ({copy}, f32 {f32}): {name} relative error {e:.2e} > {tol:e}"
+                    );
                 }
             }
         }
@@ -577,30 +697,67 @@ fn force_kernels_match_the_reference() {
             let f: [$t; 6 * k::NFEXT] = std::array::from_fn(|i| $f[i] as $t);
             let l: [$t; k::NLAMBDA] = std::array::from_fn(|i| $l[i] as $t);
             #[allow(unused_unsafe)]
-            let (c0, (dq, dqd, df, dl), a, (a0, aq, aqd, af, al)) =
-                unsafe { (c::rnea(&q, &qd, &u, &f, &l), c::rnea_grad(&q, &qd, &u, &f, &l), c::fd(&q, &qd, &u, &f, &l), c::fd_grad(&q, &qd, &u, &f, &l)) };
+            let (c0, (dq, dqd, df, dl), a, (a0, aq, aqd, af, al)) = unsafe {
+                (
+                    c::rnea(&q, &qd, &u, &f, &l),
+                    c::rnea_grad(&q, &qd, &u, &f, &l),
+                    c::fd(&q, &qd, &u, &f, &l),
+                    c::fd_grad(&q, &qd, &u, &f, &l),
+                )
+            };
             let g = |x: &[$t]| x.iter().map(|&y| y as f64).collect::<Vec<f64>>();
             vec![
                 vec![g(&c0)],
-                vec![g(dq.as_flattened()), g(dqd.as_flattened()), g(df.as_flattened()), g(dl.as_flattened())],
+                vec![
+                    g(dq.as_flattened()),
+                    g(dqd.as_flattened()),
+                    g(df.as_flattened()),
+                    g(dl.as_flattened()),
+                ],
                 vec![g(&a)],
-                vec![g(&a0), g(aq.as_flattened()), g(aqd.as_flattened()), g(af.as_flattened()), g(al.as_flattened())],
+                vec![
+                    g(&a0),
+                    g(aq.as_flattened()),
+                    g(aqd.as_flattened()),
+                    g(af.as_flattened()),
+                    g(al.as_flattened()),
+                ],
             ]
         }};
     }
     for (label, per_joint, qd, qdd) in states(&model, &mut rng) {
         let q = model.q_from_joints(&per_joint, rng.base_pose());
-        let (fext, lambda) = (rng.vec(6 * k::NFEXT, -20.0, 20.0), rng.vec(k::NLAMBDA, -100.0, 100.0));
+        let (fext, lambda) =
+            (rng.vec(6 * k::NFEXT, -20.0, 20.0), rng.vec(k::NLAMBDA, -100.0, 100.0));
         for (f32, direct, through) in [(false, F64_TOL, F64_TOL), (true, F32_DIRECT, F32_MINV)] {
-            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let r = |v: &[f64]| -> Vec<f64> {
+                v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect()
+            };
             let (q, qd, qdd, fext, lambda) = (r(&q), r(&qd), r(&qdd), r(&fext), r(&lambda));
             let ext = reference::External { fext: &fext, lambda: &lambda };
-            let want: Vec<Vec<nalgebra::DMatrix<f64>>> =
-                [Rnea, RneaGrad, Fd, FdGrad].iter().map(|&kind| reference_outputs_with(kind, &model, &q, &qd, &qdd, model_gravity(), ext)).collect();
-            let mut copies =
-                vec![("portable", if f32 { run!(k::portable, f32, q, qd, qdd, fext, lambda) } else { run!(k::portable, f64, q, qd, qdd, fext, lambda) })];
+            let want: Vec<Vec<nalgebra::DMatrix<f64>>> = [Rnea, RneaGrad, Fd, FdGrad]
+                .iter()
+                .map(|&kind| {
+                    reference_outputs_with(kind, &model, &q, &qd, &qdd, model_gravity(), ext)
+                })
+                .collect();
+            let mut copies = vec![(
+                "portable",
+                if f32 {
+                    run!(k::portable, f32, q, qd, qdd, fext, lambda)
+                } else {
+                    run!(k::portable, f64, q, qd, qdd, fext, lambda)
+                },
+            )];
             if fma_runs() {
-                copies.push(("fma", if f32 { run!(k::fma, f32, q, qd, qdd, fext, lambda) } else { run!(k::fma, f64, q, qd, qdd, fext, lambda) }));
+                copies.push((
+                    "fma",
+                    if f32 {
+                        run!(k::fma, f32, q, qd, qdd, fext, lambda)
+                    } else {
+                        run!(k::fma, f64, q, qd, qdd, fext, lambda)
+                    },
+                ));
             }
             for (copy, got) in copies {
                 for (kernel, (got, want)) in got.iter().zip(&want).enumerate() {
@@ -615,7 +772,10 @@ fn force_kernels_match_the_reference() {
             }
         }
     }
-    println!("hyq_contacts_floating: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+    println!(
+        "hyq_contacts_floating: worst relative error f64 {:.2e}, f32 {:.2e}",
+        worst[0], worst[1]
+    );
 }
 
 /// The checked-in contact kernels (`generated/scenes/grid_hyq.hyq_standing_floating/`:
@@ -645,7 +805,8 @@ fn contact_kernels_match_the_reference() {
             let qd: [$t; k::NV] = std::array::from_fn(|i| $qd[i] as $t);
             let u: [$t; k::NV] = std::array::from_fn(|i| $u[i] as $t);
             #[allow(unused_unsafe)]
-            let ((a, l), (a1, l1, aq, aqd, at, lq, lqd, lt)) = unsafe { (c::contact_fd(&q, &qd, &u), c::contact_fd_grad(&q, &qd, &u)) };
+            let ((a, l), (a1, l1, aq, aqd, at, lq, lqd, lt)) =
+                unsafe { (c::contact_fd(&q, &qd, &u), c::contact_fd_grad(&q, &qd, &u)) };
             let g = |x: &[$t]| x.iter().map(|&y| y as f64).collect::<Vec<f64>>();
             vec![
                 vec![g(&a), g(&l)],
@@ -668,21 +829,44 @@ fn contact_kernels_match_the_reference() {
         let tau: Vec<f64> = tau.iter().map(|t| 10.0 * t).collect();
         // Where the contacts' Jacobian loses rank (legs straight at the zero state), λ has
         // no unique value: such states are counted, not compared.
-        let sv = reference::contact_jacobian(&model, &model.specialisation.contacts, &q).singular_values();
+        let sv = reference::contact_jacobian(&model, &model.specialisation.contacts, &q)
+            .singular_values();
         if sv.min() < 1e-8 * sv.max() {
             singular.push(label);
             continue;
         }
         for (f32, tol) in [(false, CONTACT_F64), (true, CONTACT_F32)] {
-            let r = |v: &[f64]| -> Vec<f64> { v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect() };
+            let r = |v: &[f64]| -> Vec<f64> {
+                v.iter().map(|&x| if f32 { x as f32 as f64 } else { x }).collect()
+            };
             let (q, qd, tau) = (r(&q), r(&qd), r(&tau));
             let want: Vec<Vec<nalgebra::DMatrix<f64>>> = [ContactFd, ContactFdGrad]
                 .iter()
-                .map(|&kind| reference_outputs_with(kind, &model, &q, &qd, &tau, model_gravity(), reference::External::NONE))
+                .map(|&kind| {
+                    reference_outputs_with(
+                        kind,
+                        &model,
+                        &q,
+                        &qd,
+                        &tau,
+                        model_gravity(),
+                        reference::External::NONE,
+                    )
+                })
                 .collect();
-            let mut copies = vec![("portable", if f32 { run!(k::portable, f32, q, qd, tau) } else { run!(k::portable, f64, q, qd, tau) })];
+            let mut copies = vec![(
+                "portable",
+                if f32 {
+                    run!(k::portable, f32, q, qd, tau)
+                } else {
+                    run!(k::portable, f64, q, qd, tau)
+                },
+            )];
             if fma_runs() {
-                copies.push(("fma", if f32 { run!(k::fma, f32, q, qd, tau) } else { run!(k::fma, f64, q, qd, tau) }));
+                copies.push((
+                    "fma",
+                    if f32 { run!(k::fma, f32, q, qd, tau) } else { run!(k::fma, f64, q, qd, tau) },
+                ));
             }
             for (copy, got) in copies {
                 for (kernel, (got, want)) in got.iter().zip(&want).enumerate() {
@@ -697,5 +881,8 @@ fn contact_kernels_match_the_reference() {
         }
     }
     assert_eq!(singular, ["zero"], "only the zero state is singular");
-    println!("hyq_standing_floating: worst relative error f64 {:.2e}, f32 {:.2e}", worst[0], worst[1]);
+    println!(
+        "hyq_standing_floating: worst relative error f64 {:.2e}, f32 {:.2e}",
+        worst[0], worst[1]
+    );
 }

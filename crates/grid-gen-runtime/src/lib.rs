@@ -105,7 +105,10 @@ mod tests {
                         seen[i].fetch_add(1, Ordering::Relaxed);
                     }
                 });
-                assert!(seen.iter().all(|s| s.load(Ordering::Relaxed) == 1), "threads {threads}, n {n}");
+                assert!(
+                    seen.iter().all(|s| s.load(Ordering::Relaxed) == 1),
+                    "threads {threads}, n {n}"
+                );
             }
         }
         set_threads(0);

@@ -72,12 +72,21 @@ pub fn tapered_chain_urdf(n: usize, mass_ratio: f64, length_ratio: f64) -> Strin
 /// both files, as `grid-gen --scene` writes it).
 pub fn load_in_scene(robot: &str, scene: &str) -> (Model, grid_gen::Scene) {
     let scene_file = format!("{scene}.toml");
-    let text = std::fs::read_to_string(repo().join("examples/scenes").join(&scene_file)).expect("scene file");
+    let text = std::fs::read_to_string(repo().join("examples/scenes").join(&scene_file))
+        .expect("scene file");
     let parsed = grid_gen::Scene::parse(&scene_file, &text).unwrap_or_else(|e| panic!("{e}"));
     let path = repo().join("robots").join(format!("{robot}.urdf"));
     let urdf = std::fs::read_to_string(&path).expect("robot file");
-    let model =
-        Model::from_urdf_str_in_scene(&path.display().to_string(), &urdf, false, &parsed, &scene_file).map_err(|e| e.render_plain()).expect("scene loads").0;
+    let model = Model::from_urdf_str_in_scene(
+        &path.display().to_string(),
+        &urdf,
+        false,
+        &parsed,
+        &scene_file,
+    )
+    .map_err(|e| e.render_plain())
+    .expect("scene loads")
+    .0;
     (model, parsed)
 }
 
@@ -87,13 +96,24 @@ pub fn load_scene_text(robot: &str, scene: &str) -> Result<Model, String> {
     let urdf = repo().join("robots").join(format!("{robot}.urdf"));
     let text = std::fs::read_to_string(&urdf).expect("robot file");
     let scene = grid_gen::Scene::parse("s.toml", scene).expect("the scene parses");
-    Model::from_urdf_str_in_scene(&urdf.display().to_string(), &text, scene.floating_base, &scene, "s.toml").map(|l| l.0).map_err(|e| e.render_plain())
+    Model::from_urdf_str_in_scene(
+        &urdf.display().to_string(),
+        &text,
+        scene.floating_base,
+        &scene,
+        "s.toml",
+    )
+    .map(|l| l.0)
+    .map_err(|e| e.render_plain())
 }
 
 pub fn load(robot: &str) -> Model {
     let path = repo().join("robots").join(format!("{robot}.urdf"));
     let text = std::fs::read_to_string(&path).expect("robot file");
-    Model::from_urdf_str(&path.display().to_string(), &text, false).map_err(|e| e.render_plain()).expect("bundled robots load").0
+    Model::from_urdf_str(&path.display().to_string(), &text, false)
+        .map_err(|e| e.render_plain())
+        .expect("bundled robots load")
+        .0
 }
 
 /// A bundled robot on a floating base (`--floating-base`).
@@ -105,39 +125,58 @@ pub fn load_floating(robot: &str) -> Model {
 pub fn load_floating_urdf(path: &std::path::Path) -> Model {
     let text = std::fs::read_to_string(path).expect("robot file");
     let scene = grid_gen::Scene { floating_base: true, ..grid_gen::Scene::default() };
-    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).expect("the robot loads").0
+    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "")
+        .map_err(|e| e.render_plain())
+        .expect("the robot loads")
+        .0
 }
 
 /// The robot of a URDF file, on a fixed base or a floating one.
 pub fn load_urdf(path: &std::path::Path, floating_base: bool) -> Model {
     let text = std::fs::read_to_string(path).expect("robot file");
     let scene = grid_gen::Scene { floating_base, ..grid_gen::Scene::default() };
-    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).expect("the robot loads").0
+    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "")
+        .map_err(|e| e.render_plain())
+        .expect("the robot loads")
+        .0
 }
 
 /// A URDF with its mimic joints coupled (`--mimic coupled`).
 pub fn load_coupled_urdf(path: &std::path::Path) -> Model {
     let text = std::fs::read_to_string(path).expect("robot file");
-    let scene = grid_gen::Scene { mimic: grid_gen::MimicMode::Coupled, ..grid_gen::Scene::default() };
-    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "").map_err(|e| e.render_plain()).expect("the robot loads").0
+    let scene =
+        grid_gen::Scene { mimic: grid_gen::MimicMode::Coupled, ..grid_gen::Scene::default() };
+    Model::from_urdf_str_in_scene(&path.display().to_string(), &text, false, &scene, "")
+        .map_err(|e| e.render_plain())
+        .expect("the robot loads")
+        .0
 }
 
 pub fn fixture(name: &str) -> serde_json::Value {
     let path = repo().join("tests/fixtures").join(name);
-    serde_json::from_str(&std::fs::read_to_string(&path).unwrap_or_else(|e| panic!("{}: {e} (run scripts/make_fixtures.py)", path.display())))
-        .expect("fixture JSON")
+    serde_json::from_str(
+        &std::fs::read_to_string(&path)
+            .unwrap_or_else(|e| panic!("{}: {e} (run scripts/make_fixtures.py)", path.display())),
+    )
+    .expect("fixture JSON")
 }
 
 /// `perm[k]`: the model's coordinate index of the k-th coordinate a fixture lists in
 /// `joint_names` (fixtures keep their tool's joint order, matched here by name).
 pub fn fixture_perm(model: &Model, fx: &serde_json::Value, label: &str) -> Vec<usize> {
-    let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+    let coordinates: Vec<&str> =
+        model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
     fx["joint_names"]
         .as_array()
         .expect("joint_names")
         .iter()
         .map(|n| n.as_str().expect("a name"))
-        .map(|n| coordinates.iter().position(|c| *c == n).unwrap_or_else(|| panic!("{label}: no coordinate {n}")))
+        .map(|n| {
+            coordinates
+                .iter()
+                .position(|c| *c == n)
+                .unwrap_or_else(|| panic!("{label}: no coordinate {n}"))
+        })
         .collect()
 }
 
@@ -152,7 +191,17 @@ pub fn compile_and_run(label: &str, robot_rs: &str, main_rs: &str) -> String {
     let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
     let exe = dir.join(format!("{label}_check"));
     let out = std::process::Command::new(rustc)
-        .args(["--edition", "2021", "-C", "opt-level=1", "-C", "debuginfo=0", "-D", "warnings", "-o"])
+        .args([
+            "--edition",
+            "2021",
+            "-C",
+            "opt-level=1",
+            "-C",
+            "debuginfo=0",
+            "-D",
+            "warnings",
+            "-o",
+        ])
         .arg(&exe)
         .arg(dir.join("main.rs"))
         .output()
@@ -197,7 +246,14 @@ pub use grid_gen::accuracy::Rng;
 /// The reference's values of kernel `kind`, in the kernel's output order; `u` is q̈ for
 /// the RNEA kernels, τ for the forward-dynamics ones and the actuated joints' τ (nu
 /// entries) for the step kernels.
-pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64], u: &[f64], g: [f64; 3]) -> Vec<DMatrix<f64>> {
+pub fn reference_outputs(
+    kind: KernelKind,
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    u: &[f64],
+    g: [f64; 3],
+) -> Vec<DMatrix<f64>> {
     match kind {
         KernelKind::Rnea => vec![col(&reference::rnea(model, q, qd, u, g))],
         KernelKind::RneaGrad => {
@@ -211,7 +267,10 @@ pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64],
             let (a, b, c) = reference::forward_dynamics_derivatives(model, q, qd, u, g);
             vec![col(&a), b, c]
         }
-        KernelKind::Step | KernelKind::StepGrad | KernelKind::ContactFd | KernelKind::ContactFdGrad => {
+        KernelKind::Step
+        | KernelKind::StepGrad
+        | KernelKind::ContactFd
+        | KernelKind::ContactFdGrad => {
             reference_outputs_with(kind, model, q, qd, u, g, reference::External::NONE)
         }
         _ => reference_frames(kind, model, q, qd, u).iter().map(|v| col(v)).collect(),
@@ -220,16 +279,26 @@ pub fn reference_outputs(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64],
 
 /// The reference's values of a dynamics kernel under forces, in its output order (the
 /// force derivatives after the usual outputs, when the model declares the forces).
-pub fn reference_outputs_with(kind: KernelKind, m: &Model, q: &[f64], qd: &[f64], u: &[f64], g: [f64; 3], ext: reference::External) -> Vec<DMatrix<f64>> {
+pub fn reference_outputs_with(
+    kind: KernelKind,
+    m: &Model,
+    q: &[f64],
+    qd: &[f64],
+    u: &[f64],
+    g: [f64; 3],
+    ext: reference::External,
+) -> Vec<DMatrix<f64>> {
     if kind.is_step() {
         // The step solves its contacts' forces (ext.lambda does not enter) and holds fext.
         let step = m.specialisation.step.expect("a model with a step");
         let tau = actuated_tau(m, u);
         if kind == KernelKind::Step {
-            let (q1, v1) = reference::step(m, q, qd, &tau, g, step, ext.fext).expect("independent contacts");
+            let (q1, v1) =
+                reference::step(m, q, qd, &tau, g, step, ext.fext).expect("independent contacts");
             return vec![col(&q1), col(&v1)];
         }
-        let d = reference::step_derivatives(m, q, qd, &tau, g, step, &m.actuated(), ext.fext).expect("independent contacts");
+        let d = reference::step_derivatives(m, q, qd, &tau, g, step, &m.actuated(), ext.fext)
+            .expect("independent contacts");
         return vec![col(&d.q_next), col(&d.qd_next), d.a, d.b];
     }
     let d = reference::force_derivatives(m, q);
@@ -245,10 +314,18 @@ pub fn reference_outputs_with(kind: KernelKind, m: &Model, q: &[f64], qd: &[f64]
             vec![col(&a), b, c]
         }
         KernelKind::ContactFd | KernelKind::ContactFdGrad => {
-            let (s, d) = reference::contact_fd_derivatives(m, q, qd, u, g, ext.fext).expect("independent contacts");
+            let (s, d) = reference::contact_fd_derivatives(m, q, qd, u, g, ext.fext)
+                .expect("independent contacts");
             let mut out = vec![col(&s.qdd), col(&s.lambda)];
             if kind == KernelKind::ContactFdGrad {
-                out.extend([d.dqdd_dq, d.dqdd_dqd, d.dqdd_dtau, d.dlambda_dq, d.dlambda_dqd, d.dlambda_dtau]);
+                out.extend([
+                    d.dqdd_dq,
+                    d.dqdd_dqd,
+                    d.dqdd_dtau,
+                    d.dlambda_dq,
+                    d.dlambda_dqd,
+                    d.dlambda_dtau,
+                ]);
             }
             return out;
         }
@@ -287,7 +364,13 @@ pub fn with_step(model: &Model, scheme: grid_gen::model::Scheme, dt: f64) -> Mod
 /// The reference's values of a frame kernel's outputs, flat in the kernel's layout (per
 /// frame: translation and row-major rotation; the row-major 6 × nv Jacobian; the velocity;
 /// the classical acceleration), for the model's selected frames and reference frame.
-pub fn reference_frames(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64], qdd: &[f64]) -> Vec<Vec<f64>> {
+pub fn reference_frames(
+    kind: KernelKind,
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+) -> Vec<Vec<f64>> {
     let rf = model.specialisation.reference;
     let frames: Vec<_> = model.selected_frames().collect();
     match kind {
@@ -320,18 +403,30 @@ pub fn reference_frames(kind: KernelKind, model: &Model, q: &[f64], qd: &[f64], 
 /// A model with frames selected (by link name), in one reference frame.
 pub fn with_frames(model: &Model, names: &[&str], rf: grid_gen::model::ReferenceFrame) -> Model {
     let mut m = model.clone();
-    m.specialisation.frames = names.iter().map(|n| m.frame(n).unwrap_or_else(|| panic!("no frame {n}"))).collect();
+    m.specialisation.frames =
+        names.iter().map(|n| m.frame(n).unwrap_or_else(|| panic!("no frame {n}"))).collect();
     m.specialisation.reference = rf;
     m
 }
 
 /// A kernel's arguments in its order, from q, q̇ and u (q̈ or τ, whichever it takes).
-pub fn kernel_args<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f64]) -> Vec<&'a [f64]> {
+pub fn kernel_args<'a>(
+    inputs: &[Input],
+    q: &'a [f64],
+    qd: &'a [f64],
+    u: &'a [f64],
+) -> Vec<&'a [f64]> {
     kernel_args_with(inputs, q, qd, u, reference::External::NONE)
 }
 
 /// [`kernel_args`] for a kernel that may also take external forces and contact forces.
-pub fn kernel_args_with<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'a [f64], ext: reference::External<'a>) -> Vec<&'a [f64]> {
+pub fn kernel_args_with<'a>(
+    inputs: &[Input],
+    q: &'a [f64],
+    qd: &'a [f64],
+    u: &'a [f64],
+    ext: reference::External<'a>,
+) -> Vec<&'a [f64]> {
     inputs
         .iter()
         .map(|i| match i {
@@ -346,11 +441,21 @@ pub fn kernel_args_with<'a>(inputs: &[Input], q: &'a [f64], qd: &'a [f64], u: &'
 
 /// A model whose bodies moved by `fext` joints (Pinocchio's names) take a force, with
 /// contacts at frames.
-pub fn with_forces(model: &Model, fext: &[&str], contacts: &[(&str, grid_gen::model::ContactKind)]) -> Model {
+pub fn with_forces(
+    model: &Model,
+    fext: &[&str],
+    contacts: &[(&str, grid_gen::model::ContactKind)],
+) -> Model {
     let mut m = model.clone();
-    m.specialisation.fext = fext.iter().map(|n| m.body_of_joint(n).unwrap_or_else(|| panic!("no joint {n}"))).collect();
-    m.specialisation.contacts =
-        contacts.iter().map(|&(f, kind)| grid_gen::model::Contact { frame: m.frame(f).unwrap_or_else(|| panic!("no frame {f}")), kind }).collect();
+    m.specialisation.fext =
+        fext.iter().map(|n| m.body_of_joint(n).unwrap_or_else(|| panic!("no joint {n}"))).collect();
+    m.specialisation.contacts = contacts
+        .iter()
+        .map(|&(f, kind)| grid_gen::model::Contact {
+            frame: m.frame(f).unwrap_or_else(|| panic!("no frame {f}")),
+            kind,
+        })
+        .collect();
     m
 }
 
@@ -360,9 +465,17 @@ pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
     match shape {
         Shape::Matrix => DMatrix::from_row_slice(nv, nv, values),
         Shape::StateMatrix => DMatrix::from_row_slice(2 * nv, 2 * nv, values),
-        Shape::StateInput => DMatrix::from_row_slice(2 * nv, values.len() / (2 * nv).max(1), values),
-        Shape::ByFext | Shape::ByLambda => DMatrix::from_row_slice(nv, values.len() / nv.max(1), values),
+        Shape::StateInput => {
+            DMatrix::from_row_slice(2 * nv, values.len() / (2 * nv).max(1), values)
+        }
+        Shape::ByFext | Shape::ByLambda => {
+            DMatrix::from_row_slice(nv, values.len() / nv.max(1), values)
+        }
         Shape::LambdaBy => DMatrix::from_row_slice(values.len() / nv.max(1), nv, values),
-        Shape::Vector | Shape::PerFrame(_) | Shape::FrameMatrix(_) | Shape::Config | Shape::Lambda => col(values),
+        Shape::Vector
+        | Shape::PerFrame(_)
+        | Shape::FrameMatrix(_)
+        | Shape::Config
+        | Shape::Lambda => col(values),
     }
 }

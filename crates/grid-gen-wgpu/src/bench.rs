@@ -26,7 +26,11 @@ pub struct Timing {
 
 /// Median of `f`'s time over repetitions: at least `min_reps`, and until `budget` is
 /// spent (at most 1000).
-fn median(min_reps: usize, budget: Duration, mut f: impl FnMut() -> Result<(), GpuError>) -> Result<(Duration, usize), GpuError> {
+fn median(
+    min_reps: usize,
+    budget: Duration,
+    mut f: impl FnMut() -> Result<(), GpuError>,
+) -> Result<(Duration, usize), GpuError> {
     let mut times = Vec::new();
     let start = Instant::now();
     while times.len() < min_reps || (start.elapsed() < budget && times.len() < 1000) {
@@ -40,7 +44,14 @@ fn median(min_reps: usize, budget: Duration, mut f: impl FnMut() -> Result<(), G
 
 /// Times `kernel` on the state-major batch `q`, `qd`, `u` (see [`Gpu::upload`]), after
 /// one warm-up run.
-pub fn time(gpu: &Gpu, kernel: &Kernel, q: &[f64], qd: &[f64], u: &[f64], budget: Duration) -> Result<Timing, GpuError> {
+pub fn time(
+    gpu: &Gpu,
+    kernel: &Kernel,
+    q: &[f64],
+    qd: &[f64],
+    u: &[f64],
+    budget: Duration,
+) -> Result<Timing, GpuError> {
     let batch = gpu.upload(kernel, q, qd, u)?;
     gpu.dispatch(&batch)?;
     let (dispatch, repetitions) = median(5, budget, || gpu.dispatch(&batch))?;
@@ -54,5 +65,12 @@ pub fn time(gpu: &Gpu, kernel: &Kernel, q: &[f64], qd: &[f64], u: &[f64], budget
     device.sort();
     let device = device.get(device.len() / 2).copied();
     let (round_trip, _) = median(5, budget, || gpu.run(kernel, q, qd, u).map(|_| ()))?;
-    Ok(Timing { states: batch.len(), dispatch, device, round_trip, repetitions, dispatches: batch.dispatches() })
+    Ok(Timing {
+        states: batch.len(),
+        dispatch,
+        device,
+        round_trip,
+        repetitions,
+        dispatches: batch.dispatches(),
+    })
 }

@@ -74,12 +74,17 @@ impl ShaderInfo {
             } else if let Some(v) = line.strip_prefix("// tables: ") {
                 let mut counts = [0usize; 2];
                 for (k, key) in ["prog=", "konst="].iter().enumerate() {
-                    let word = v.split_whitespace().find_map(|w| w.strip_prefix(key)).ok_or_else(|| bad(&format!("no `{key}`")))?;
-                    counts[k] = word.parse().map_err(|_| bad(&format!("`{key}` is not a count")))?;
+                    let word = v
+                        .split_whitespace()
+                        .find_map(|w| w.strip_prefix(key))
+                        .ok_or_else(|| bad(&format!("no `{key}`")))?;
+                    counts[k] =
+                        word.parse().map_err(|_| bad(&format!("`{key}` is not a count")))?;
                 }
                 tables = Some(counts);
             } else if let Some(v) = line.strip_prefix("// precision: ") {
-                precision = Some(Precision::parse(v.trim()).ok_or_else(|| bad("unknown precision"))?);
+                precision =
+                    Some(Precision::parse(v.trim()).ok_or_else(|| bad("unknown precision"))?);
             } else if let Some(v) = line.strip_prefix("// entry: ") {
                 let mut words = v.split_whitespace();
                 let entry = words.next().ok_or_else(|| bad("no name"))?.to_string();
@@ -89,10 +94,13 @@ impl ShaderInfo {
                     field.insert(k, v);
                 }
                 let get = |k: &str| field.get(k).copied().ok_or_else(|| bad(&format!("no `{k}`")));
-                let num = |k: &str| get(k)?.parse::<usize>().map_err(|_| bad(&format!("`{k}` is not a count")));
+                let num = |k: &str| {
+                    get(k)?.parse::<usize>().map_err(|_| bad(&format!("`{k}` is not a count")))
+                };
                 entries.push(EntryInfo {
                     kernel: get("kernel")?.to_string(),
-                    strategy: Strategy::parse(get("strategy")?).ok_or_else(|| bad("unknown strategy"))?,
+                    strategy: Strategy::parse(get("strategy")?)
+                        .ok_or_else(|| bad("unknown strategy"))?,
                     outputs: num("outputs")?,
                     scratch: num("scratch")?,
                     workgroup_size: num("workgroup_size")? as u32,
@@ -113,7 +121,17 @@ impl ShaderInfo {
             Some([words, values]) => read_tables(source, words, values, precision)?,
             None => (Vec::new(), Vec::new()),
         };
-        Ok(ShaderInfo { nv, nq: nq.unwrap_or(nv), nu: nu.unwrap_or(nv), forces, lambda, precision, entries, prog, konst })
+        Ok(ShaderInfo {
+            nv,
+            nq: nq.unwrap_or(nv),
+            nu: nu.unwrap_or(nv),
+            forces,
+            lambda,
+            precision,
+            entries,
+            prog,
+            konst,
+        })
     }
 
     pub fn entry(&self, name: &str) -> Option<&EntryInfo> {
@@ -123,11 +141,19 @@ impl ShaderInfo {
 
 /// The `// prog:` (hex words) and `// konst:` (decimal values, read in the shader's
 /// precision so they round-trip exactly) lines, checked against the header's counts.
-fn read_tables(source: &str, words: usize, values: usize, precision: Precision) -> Result<(Vec<u32>, Vec<f64>), HeaderError> {
+fn read_tables(
+    source: &str,
+    words: usize,
+    values: usize,
+    precision: Precision,
+) -> Result<(Vec<u32>, Vec<f64>), HeaderError> {
     let mut prog = Vec::with_capacity(words);
     let mut konst = Vec::with_capacity(values);
     for line in source.lines() {
-        let bad = |why: &str| HeaderError::Bad { line: line.chars().take(80).collect(), why: why.to_string() };
+        let bad = |why: &str| HeaderError::Bad {
+            line: line.chars().take(80).collect(),
+            why: why.to_string(),
+        };
         if let Some(v) = line.strip_prefix("// prog: ") {
             for w in v.split_whitespace() {
                 prog.push(u32::from_str_radix(w, 16).map_err(|_| bad("not a hex word"))?);
@@ -145,7 +171,11 @@ fn read_tables(source: &str, words: usize, values: usize, precision: Precision) 
     if prog.len() != words || konst.len() != values {
         return Err(HeaderError::Bad {
             line: format!("// tables: prog={words} konst={values}"),
-            why: format!("the file's `// prog:` and `// konst:` lines hold {} words and {} values", prog.len(), konst.len()),
+            why: format!(
+                "the file's `// prog:` and `// konst:` lines hold {} words and {} values",
+                prog.len(),
+                konst.len()
+            ),
         });
     }
     Ok((prog, konst))
@@ -158,8 +188,13 @@ mod tests {
 
     fn shader(precision: Precision) -> String {
         let model = grid_gen_test_support::load("double_pendulum_continuous");
-        let module = grid_gen::ir::lower(&model, grid_gen::reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
-        emit_with_stats(&module, &WgslOptions { precision, ..WgslOptions::default() }).unwrap().0.contents
+        let module =
+            grid_gen::ir::lower(&model, grid_gen::reference::DEFAULT_GRAVITY, &Default::default())
+                .unwrap();
+        emit_with_stats(&module, &WgslOptions { precision, ..WgslOptions::default() })
+            .unwrap()
+            .0
+            .contents
     }
 
     #[test]
@@ -174,10 +209,13 @@ mod tests {
             // ranges the generated comments give).
             let ranges: Vec<(usize, usize)> = text
                 .lines()
-                .filter_map(|l| l.split_once("a table at prog[")?.1.split_once(']')?.0.split_once(".."))
+                .filter_map(|l| {
+                    l.split_once("a table at prog[")?.1.split_once(']')?.0.split_once("..")
+                })
                 .map(|(a, b)| (a.parse().unwrap(), b.parse().unwrap()))
                 .collect();
-            let coop: Vec<&EntryInfo> = info.entries.iter().filter(|e| e.strategy == Strategy::Cooperative).collect();
+            let coop: Vec<&EntryInfo> =
+                info.entries.iter().filter(|e| e.strategy == Strategy::Cooperative).collect();
             assert_eq!(ranges.len(), coop.len());
             let mut at = 0;
             for ((a, b), e) in ranges.into_iter().zip(coop) {
@@ -200,7 +238,11 @@ mod tests {
     #[test]
     fn a_damaged_table_is_a_clear_error() {
         let text = shader(Precision::F32);
-        let cut: String = text.lines().filter(|l| !l.starts_with("// konst: ")).map(|l| format!("{l}\n")).collect();
+        let cut: String = text
+            .lines()
+            .filter(|l| !l.starts_with("// konst: "))
+            .map(|l| format!("{l}\n"))
+            .collect();
         let e = ShaderInfo::parse(&cut).unwrap_err().to_string();
         assert!(e.contains("prog=") && e.contains("values"), "{e}");
         let bad = text.replacen("// prog: ", "// prog: zz ", 1);

@@ -123,18 +123,28 @@ impl Gpu {
         let instance = wgpu::Instance::new(desc.with_env());
         let adapter = match std::env::var("WGPU_ADAPTER_NAME") {
             Ok(wanted) if !wanted.is_empty() => {
-                let adapters = pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
+                let adapters =
+                    pollster::block_on(instance.enumerate_adapters(wgpu::Backends::all()));
                 let lower = wanted.to_lowercase();
-                let names: Vec<String> = adapters.iter().map(|a| adapter_name(&a.get_info())).collect();
-                match adapters.into_iter().find(|a| a.get_info().name.to_lowercase().contains(&lower)) {
+                let names: Vec<String> =
+                    adapters.iter().map(|a| adapter_name(&a.get_info())).collect();
+                match adapters
+                    .into_iter()
+                    .find(|a| a.get_info().name.to_lowercase().contains(&lower))
+                {
                     Some(a) => a,
-                    None if names.is_empty() => return Err(GpuError::NoAdapter("none enumerated".into())),
-                    None => return Err(GpuError::NoSuchAdapter { wanted, available: names.join("; ") }),
+                    None if names.is_empty() => {
+                        return Err(GpuError::NoAdapter("none enumerated".into()))
+                    }
+                    None => {
+                        return Err(GpuError::NoSuchAdapter { wanted, available: names.join("; ") })
+                    }
                 }
             }
-            _ => pollster::block_on(
-                instance.request_adapter(&wgpu::RequestAdapterOptions { power_preference: wgpu::PowerPreference::HighPerformance, ..Default::default() }),
-            )
+            _ => pollster::block_on(instance.request_adapter(&wgpu::RequestAdapterOptions {
+                power_preference: wgpu::PowerPreference::HighPerformance,
+                ..Default::default()
+            }))
             .map_err(|e| GpuError::NoAdapter(e.to_string()))?,
         };
         let info = adapter.get_info();
@@ -162,7 +172,9 @@ impl Gpu {
         .map_err(|e| GpuError::Device { adapter: adapter_name(&info), reason: e.to_string() })?;
         // Errors are caught with error scopes; anything else is a bug to report, not a
         // reason to abort the host program.
-        device.on_uncaptured_error(Arc::new(|e| eprintln!("grid-gen-wgpu: uncaptured wgpu error: {e}")));
+        device.on_uncaptured_error(Arc::new(|e| {
+            eprintln!("grid-gen-wgpu: uncaptured wgpu error: {e}")
+        }));
         use wgpu::BufferBindingType::{Storage, Uniform};
         let layout = device.create_bind_group_layout(&wgpu::BindGroupLayoutDescriptor {
             label: Some("grid-gen"),
@@ -177,8 +189,11 @@ impl Gpu {
                 layout_entry(7, Storage { read_only: true }),
             ],
         });
-        let pipeline_layout =
-            device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor { label: Some("grid-gen"), bind_group_layouts: &[Some(&layout)], immediate_size: 0 });
+        let pipeline_layout = device.create_pipeline_layout(&wgpu::PipelineLayoutDescriptor {
+            label: Some("grid-gen"),
+            bind_group_layouts: &[Some(&layout)],
+            immediate_size: 0,
+        });
         Ok(Gpu { device, queue, layout, pipeline_layout, adapter: info, limits, f64, timestamps })
     }
 
@@ -198,13 +213,19 @@ impl Gpu {
             return Err(GpuError::NoF64(self.adapter()));
         }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
-        let module =
-            self.device.create_shader_module(wgpu::ShaderModuleDescriptor { label: Some("grid-gen"), source: wgpu::ShaderSource::Wgsl(source.into()) });
+        let module = self.device.create_shader_module(wgpu::ShaderModuleDescriptor {
+            label: Some("grid-gen"),
+            source: wgpu::ShaderSource::Wgsl(source.into()),
+        });
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Shader(e.to_string()));
         }
         // Storage bindings cannot be empty: one zero word where a shader has no tables.
-        let words: Vec<u8> = if info.prog.is_empty() { vec![0; 4] } else { info.prog.iter().flat_map(|w| w.to_le_bytes()).collect() };
+        let words: Vec<u8> = if info.prog.is_empty() {
+            vec![0; 4]
+        } else {
+            info.prog.iter().flat_map(|w| w.to_le_bytes()).collect()
+        };
         let values = if info.konst.is_empty() { vec![0.0] } else { info.konst.clone() };
         let init = |data: &[u8]| {
             self.device.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -221,7 +242,13 @@ impl Gpu {
     pub fn kernel(&self, shader: &Shader, entry: &str) -> Result<Kernel, GpuError> {
         let info = shader.info.entry(entry).ok_or_else(|| GpuError::NoEntry {
             entry: entry.to_string(),
-            available: shader.info.entries.iter().map(|e| e.entry.as_str()).collect::<Vec<_>>().join(", "),
+            available: shader
+                .info
+                .entries
+                .iter()
+                .map(|e| e.entry.as_str())
+                .collect::<Vec<_>>()
+                .join(", "),
         })?;
         let start = Instant::now();
         let mut pipelines = Vec::new();
@@ -247,8 +274,9 @@ impl Gpu {
             precision: shader.info.precision,
             nv: shader.info.nv,
             nq: shader.info.nq,
-            nu: grid_gen::ir::KernelKind::parse(&info.kernel)
-                .map_or(shader.info.nv, |k| k.u_len(shader.info.nv, shader.info.nu, shader.info.forces, shader.info.lambda)),
+            nu: grid_gen::ir::KernelKind::parse(&info.kernel).map_or(shader.info.nv, |k| {
+                k.u_len(shader.info.nv, shader.info.nu, shader.info.forces, shader.info.lambda)
+            }),
             build_time: start.elapsed(),
             tables: shader.tables.clone(),
         })
@@ -260,9 +288,11 @@ impl Gpu {
         let e = &k.entry;
         let word = k.precision.bytes() as u64;
         let widest = (e.outputs.max(e.scratch).max(k.nq).max(1)) as u64 * word;
-        let bytes = (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
+        let bytes =
+            (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
         let by_memory = (bytes / widest).max(1) as usize;
-        let by_groups = self.limits.max_compute_workgroups_per_dimension as usize * e.states_per_workgroup as usize;
+        let by_groups = self.limits.max_compute_workgroups_per_dimension as usize
+            * e.states_per_workgroup as usize;
         by_memory.min(by_groups).max(1)
     }
 
@@ -272,14 +302,21 @@ impl Gpu {
     /// state by `fext` and λ when the shader's robot declares forces (`Kernel::nu` entries
     /// per state in all); a kernel that does not read `qd` or `u` ignores it (it may be
     /// empty). N = 0 is a no-op batch.
-    pub fn upload<'k>(&self, kernel: &'k Kernel, q: &[f64], qd: &[f64], u: &[f64]) -> Result<Batch<'k>, GpuError> {
+    pub fn upload<'k>(
+        &self,
+        kernel: &'k Kernel,
+        q: &[f64],
+        qd: &[f64],
+        u: &[f64],
+    ) -> Result<Batch<'k>, GpuError> {
         let (nv, nq) = (kernel.nv, kernel.nq);
         let n = if nq == 0 { 0 } else { q.len() / nq };
         // What the kernel reads, by its kind's inputs (an unknown name reads everything).
         use grid_gen::ir::{Input, KernelKind};
         let kind = KernelKind::parse(&kernel.entry.kernel);
         let takes = |i: Input| kind.is_none_or(|k| k.inputs().contains(&i));
-        let (uses_qd, uses_u) = (takes(Input::Qd), takes(Input::Qdd) || takes(Input::Tau) || takes(Input::TauActuated));
+        let (uses_qd, uses_u) =
+            (takes(Input::Qd), takes(Input::Qdd) || takes(Input::Tau) || takes(Input::TauActuated));
         let check = |field: &'static str, x: &[f64], needed: bool, per: usize| {
             if (needed || !x.is_empty()) && x.len() != n * per || q.len() != n * nq {
                 return Err(GpuError::Length { field, found: x.len(), n, per, expected: n * per });
@@ -300,7 +337,13 @@ impl Gpu {
         Ok(Batch { kernel, n, chunks })
     }
 
-    fn chunk(&self, k: &Kernel, start: usize, m: usize, inputs: [&[f64]; 3]) -> Result<Chunk, GpuError> {
+    fn chunk(
+        &self,
+        k: &Kernel,
+        start: usize,
+        m: usize,
+        inputs: [&[f64]; 3],
+    ) -> Result<Chunk, GpuError> {
         let d = &self.device;
         let bytes = |x: Vec<f64>| to_bytes(x, k.precision);
         // Joint-major within the chunk: x[j * m + i].
@@ -308,19 +351,31 @@ impl Gpu {
             if x.is_empty() {
                 return vec![0.0];
             }
-            (0..per).flat_map(|j| (0..m).map(move |i| x[(start + i) * per + j])).collect::<Vec<f64>>()
+            (0..per)
+                .flat_map(|j| (0..m).map(move |i| x[(start + i) * per + j]))
+                .collect::<Vec<f64>>()
         };
-        let init = |data: Vec<u8>, usage| d.create_buffer_init(&wgpu::util::BufferInitDescriptor { label: None, contents: &data, usage });
+        let init = |data: Vec<u8>, usage| {
+            d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
+                label: None,
+                contents: &data,
+                usage,
+            })
+        };
         let scope = d.push_error_scope(wgpu::ErrorFilter::OutOfMemory);
         let mut params = vec![0u8; 16];
         params[..4].copy_from_slice(&(m as u32).to_le_bytes());
         let params = init(params, wgpu::BufferUsages::UNIFORM);
         let [q, qd, u] = inputs;
-        let inputs = [(q, k.nq), (qd, k.nv), (u, k.nu)].map(|(x, per)| init(bytes(soa(x, per)), wgpu::BufferUsages::STORAGE));
+        let inputs = [(q, k.nq), (qd, k.nv), (u, k.nu)]
+            .map(|(x, per)| init(bytes(soa(x, per)), wgpu::BufferUsages::STORAGE));
         let word = k.precision.bytes() as u64;
         let out_bytes = (k.entry.outputs * m).max(1) as u64 * word;
         // NaN everywhere, so a value the kernel fails to write cannot pass for a result.
-        let out = init(bytes(vec![f64::NAN; (k.entry.outputs * m).max(1)]), wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC);
+        let out = init(
+            bytes(vec![f64::NAN; (k.entry.outputs * m).max(1)]),
+            wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+        );
         let scratch = d.create_buffer(&wgpu::BufferDescriptor {
             label: None,
             size: (k.entry.scratch * m).max(1) as u64 * word,
@@ -333,14 +388,29 @@ impl Gpu {
             usage: wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST,
             mapped_at_creation: false,
         });
-        let entries: Vec<wgpu::BindGroupEntry> = [&params, &inputs[0], &inputs[1], &inputs[2], &out, &scratch, &k.tables[0], &k.tables[1]]
-            .iter()
-            .enumerate()
-            .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
-            .collect();
-        let group = d.create_bind_group(&wgpu::BindGroupDescriptor { label: None, layout: &self.layout, entries: &entries });
+        let entries: Vec<wgpu::BindGroupEntry> = [
+            &params,
+            &inputs[0],
+            &inputs[1],
+            &inputs[2],
+            &out,
+            &scratch,
+            &k.tables[0],
+            &k.tables[1],
+        ]
+        .iter()
+        .enumerate()
+        .map(|(i, b)| wgpu::BindGroupEntry { binding: i as u32, resource: b.as_entire_binding() })
+        .collect();
+        let group = d.create_bind_group(&wgpu::BindGroupDescriptor {
+            label: None,
+            layout: &self.layout,
+            entries: &entries,
+        });
         if let Some(e) = pollster::block_on(scope.pop()) {
-            return Err(GpuError::Dispatch(format!("cannot allocate the buffers of {m} states: {e}")));
+            return Err(GpuError::Dispatch(format!(
+                "cannot allocate the buffers of {m} states: {e}"
+            )));
         }
         let groups = m.div_ceil(k.entry.states_per_workgroup as usize) as u32;
         Ok(Chunk { states: m, _inputs: inputs, out, read, group, groups })
@@ -360,25 +430,46 @@ impl Gpu {
             return Ok(None);
         }
         let d = &self.device;
-        let set = d.create_query_set(&wgpu::QuerySetDescriptor { label: None, ty: wgpu::QueryType::Timestamp, count: 2 });
-        let buffer = |usage| d.create_buffer(&wgpu::BufferDescriptor { label: None, size: 16, usage, mapped_at_creation: false });
+        let set = d.create_query_set(&wgpu::QuerySetDescriptor {
+            label: None,
+            ty: wgpu::QueryType::Timestamp,
+            count: 2,
+        });
+        let buffer = |usage| {
+            d.create_buffer(&wgpu::BufferDescriptor {
+                label: None,
+                size: 16,
+                usage,
+                mapped_at_creation: false,
+            })
+        };
         let resolve = buffer(wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC);
         let read = buffer(wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
         self.dispatch_with(batch, Some((&set, &resolve, &read)))?;
         read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Dispatch(e.to_string()))?;
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Dispatch(e.to_string()))?;
         let ticks = {
-            let view = read.slice(..).get_mapped_range().map_err(|e| GpuError::Dispatch(e.to_string()))?;
-            let word = |k: usize| u64::from_le_bytes(view[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]));
+            let view =
+                read.slice(..).get_mapped_range().map_err(|e| GpuError::Dispatch(e.to_string()))?;
+            let word =
+                |k: usize| u64::from_le_bytes(view[8 * k..8 * k + 8].try_into().unwrap_or([0; 8]));
             word(1).saturating_sub(word(0))
         };
         read.unmap();
-        Ok(Some(Duration::from_nanos((ticks as f64 * self.queue.get_timestamp_period() as f64) as u64)))
+        Ok(Some(Duration::from_nanos(
+            (ticks as f64 * self.queue.get_timestamp_period() as f64) as u64,
+        )))
     }
 
     /// Encodes every stage over every chunk in one compute pass, with timestamps at its
     /// ends resolved into the given buffers when asked, submits and waits.
-    fn dispatch_with(&self, batch: &Batch, timestamps: Option<(&wgpu::QuerySet, &wgpu::Buffer, &wgpu::Buffer)>) -> Result<(), GpuError> {
+    fn dispatch_with(
+        &self,
+        batch: &Batch,
+        timestamps: Option<(&wgpu::QuerySet, &wgpu::Buffer, &wgpu::Buffer)>,
+    ) -> Result<(), GpuError> {
         if batch.chunks.is_empty() {
             return Ok(());
         }
@@ -392,7 +483,8 @@ impl Gpu {
             });
             // wgpu orders dispatches that share a written buffer, so each stage sees the
             // scratch values of the one before.
-            let mut pass = encoder.begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
+            let mut pass = encoder
+                .begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
             for pipeline in &batch.kernel.pipelines {
                 pass.set_pipeline(pipeline);
                 for c in &batch.chunks {
@@ -406,7 +498,9 @@ impl Gpu {
             encoder.copy_buffer_to_buffer(resolve, 0, read, 0, 16);
         }
         self.queue.submit([encoder.finish()]);
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Dispatch(e.to_string()))?;
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Dispatch(e.to_string()))?;
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Dispatch(e.to_string()));
         }
@@ -426,14 +520,26 @@ impl Gpu {
         for c in &batch.chunks {
             c.read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
         }
-        self.device.poll(wgpu::PollType::wait_indefinitely()).map_err(|e| GpuError::Dispatch(e.to_string()))?;
+        self.device
+            .poll(wgpu::PollType::wait_indefinitely())
+            .map_err(|e| GpuError::Dispatch(e.to_string()))?;
         let mut start = 0;
         for c in &batch.chunks {
             {
-                let view = c.read.slice(..).get_mapped_range().map_err(|e| GpuError::Dispatch(e.to_string()))?;
+                let view = c
+                    .read
+                    .slice(..)
+                    .get_mapped_range()
+                    .map_err(|e| GpuError::Dispatch(e.to_string()))?;
                 let values: Vec<f64> = match k.precision {
-                    Precision::F32 => view.chunks_exact(4).map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64).collect(),
-                    Precision::F64 => view.chunks_exact(8).map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8]))).collect(),
+                    Precision::F32 => view
+                        .chunks_exact(4)
+                        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64)
+                        .collect(),
+                    Precision::F64 => view
+                        .chunks_exact(8)
+                        .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
+                        .collect(),
                 };
                 for i in 0..c.states {
                     for o in 0..outputs {
@@ -448,7 +554,13 @@ impl Gpu {
     }
 
     /// Upload, dispatch and read back in one call.
-    pub fn run(&self, kernel: &Kernel, q: &[f64], qd: &[f64], u: &[f64]) -> Result<Vec<f64>, GpuError> {
+    pub fn run(
+        &self,
+        kernel: &Kernel,
+        q: &[f64],
+        qd: &[f64],
+        u: &[f64],
+    ) -> Result<Vec<f64>, GpuError> {
         let batch = self.upload(kernel, q, qd, u)?;
         self.dispatch(&batch)?;
         self.read(&batch)
@@ -502,12 +614,20 @@ pub fn evaluate(
 ) -> Result<grid_gen::eval::EvalOutput, EvalError> {
     use grid_gen::ir::KernelKind;
     grid_gen::eval::check_states(model, file).map_err(grid_gen::eval::BackendEvalError::States)?;
-    let mut kernels = vec![KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::FdGrad];
+    let mut kernels = vec![
+        KernelKind::Rnea,
+        KernelKind::RneaGrad,
+        KernelKind::MassMatrix,
+        KernelKind::Minv,
+        KernelKind::FdGrad,
+    ];
     kernels.extend(KernelKind::ALL.into_iter().filter(|k| k.is_frame()));
     let lower = grid_gen::ir::LowerOptions { kernels, ..Default::default() };
-    let module = grid_gen::ir::lower(model, gravity, &lower).map_err(grid_gen::generate::GenerateError::from)?;
+    let module = grid_gen::ir::lower(model, gravity, &lower)
+        .map_err(grid_gen::generate::GenerateError::from)?;
     let wgsl = grid_gen::back::wgsl::WgslOptions { strategies: vec![strategy], ..options.clone() };
-    let source = grid_gen::back::wgsl::emit(&module, &wgsl).map_err(grid_gen::generate::GenerateError::from)?;
+    let source = grid_gen::back::wgsl::emit(&module, &wgsl)
+        .map_err(grid_gen::generate::GenerateError::from)?;
     let shader = gpu.load(&source.contents)?;
     Ok(grid_gen::eval::evaluate_with(model, file, |kind, q, qd, u| {
         let kernel = gpu.kernel(&shader, &strategy.entry(kind.name()))?;

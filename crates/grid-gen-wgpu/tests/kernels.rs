@@ -39,10 +39,14 @@ fn wgsl(model: &Model, wgsl: WgslOptions) -> String {
 
 fn naga_validate(name: &str, source: &str) -> std::time::Duration {
     let start = std::time::Instant::now();
-    let module = naga::front::wgsl::parse_str(source).unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));
-    naga::valid::Validator::new(naga::valid::ValidationFlags::all(), naga::valid::Capabilities::FLOAT64)
-        .validate(&module)
+    let module = naga::front::wgsl::parse_str(source)
         .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));
+    naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::FLOAT64,
+    )
+    .validate(&module)
+    .unwrap_or_else(|e| panic!("{name}: {}", e.emit_to_string(source)));
     start.elapsed()
 }
 
@@ -58,14 +62,23 @@ fn every_robot_validates_with_naga() {
     for robot in ["grid_hyq", "grid_atlas"] {
         let model = load_floating(robot);
         for precision in [Precision::F32, Precision::F64] {
-            let source = wgsl(&model, WgslOptions { precision, trig: Trig::Accurate, ..WgslOptions::default() });
-            assert!(source.contains(&format!("// nq: {}\n", model.nq())), "{robot}: the header gives nq");
+            let source = wgsl(
+                &model,
+                WgslOptions { precision, trig: Trig::Accurate, ..WgslOptions::default() },
+            );
+            assert!(
+                source.contains(&format!("// nq: {}\n", model.nq())),
+                "{robot}: the header gives nq"
+            );
             let t = naga_validate(robot, &source);
             eprintln!("{robot} floating {}: naga parse + validate {t:.2?}", precision.name());
         }
     }
     // Coupled mimic joints (the Panda's fingers; mimic_arm's multipliers and offsets).
-    for (name, path) in [("panda coupled", repo().join("robots/panda.urdf")), ("mimic_arm coupled", repo().join("tests/fixtures/mimic_arm.urdf"))] {
+    for (name, path) in [
+        ("panda coupled", repo().join("robots/panda.urdf")),
+        ("mimic_arm coupled", repo().join("tests/fixtures/mimic_arm.urdf")),
+    ] {
         let source = wgsl(&load_coupled_urdf(&path), WgslOptions::default());
         let t = naga_validate(name, &source);
         eprintln!("{name}: naga parse + validate {t:.2?}");
@@ -74,17 +87,25 @@ fn every_robot_validates_with_naga() {
     for floating in [false, true] {
         let model = load_urdf(&repo().join("tests/fixtures/ball_arm.urdf"), floating);
         let source = wgsl(&model, WgslOptions::default());
-        assert!(source.contains(&format!("// nq: {}\n", model.nq())), "ball_arm: the header gives nq");
+        assert!(
+            source.contains(&format!("// nq: {}\n", model.nq())),
+            "ball_arm: the header gives nq"
+        );
         let t = naga_validate("ball_arm", &source);
         eprintln!("ball_arm (floating: {floating}): naga parse + validate {t:.2?}");
     }
     // The other precision and trigonometry, on a chain and a tree.
     for robot in ["grid_iiwa", "grid_hyq"] {
         let model = load(robot);
-        for (precision, trig) in [(Precision::F64, Trig::Accurate), (Precision::F32, Trig::Builtin)] {
+        for (precision, trig) in [(Precision::F64, Trig::Accurate), (Precision::F32, Trig::Builtin)]
+        {
             let source = wgsl(&model, WgslOptions { precision, trig, ..WgslOptions::default() });
             let t = naga_validate(robot, &source);
-            eprintln!("{robot} {} {}: naga parse + validate {t:.2?}", precision.name(), trig.name());
+            eprintln!(
+                "{robot} {} {}: naga parse + validate {t:.2?}",
+                precision.name(),
+                trig.name()
+            );
         }
     }
 }
@@ -116,7 +137,11 @@ fn gpu() -> Option<(std::sync::MutexGuard<'static, ()>, Gpu)> {
 fn gpu_f64() -> Option<(std::sync::MutexGuard<'static, ()>, Gpu)> {
     let (serial, gpu) = gpu()?;
     if !gpu.has_f64() {
-        assert!(std::env::var_os("CI").is_none(), "the adapter {} has no SHADER_F64 (lavapipe has it)", gpu.adapter());
+        assert!(
+            std::env::var_os("CI").is_none(),
+            "the adapter {} has no SHADER_F64 (lavapipe has it)",
+            gpu.adapter()
+        );
         eprintln!("SKIPPED f64: the adapter {} has no SHADER_F64", gpu.adapter());
         return None;
     }
@@ -130,9 +155,17 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
     let round = |v: Vec<f64>| v.into_iter().map(|x| x as f32 as f64).collect::<Vec<_>>();
     let limit = |lo: bool| {
         let coordinates = model.coordinate_joints().into_iter().map(|i| &model.joints[i]);
-        coordinates.map(|j| j.limit.map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h }).clamp(-1e3, 1e3)).collect::<Vec<_>>()
+        coordinates
+            .map(|j| {
+                j.limit
+                    .map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h })
+                    .clamp(-1e3, 1e3)
+            })
+            .collect::<Vec<_>>()
     };
-    let mut out: Vec<[Vec<f64>; 3]> = (0..32).map(|_| [rng.vec(n, -3.1, 3.1), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0)]).collect();
+    let mut out: Vec<[Vec<f64>; 3]> = (0..32)
+        .map(|_| [rng.vec(n, -3.1, 3.1), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0)])
+        .collect();
     out.push([vec![0.0; n], vec![0.0; n], vec![0.0; n]]);
     out.push([limit(true), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)]);
     out.push([limit(false), rng.vec(n, -1.0, 1.0), rng.vec(n, -1.0, 1.0)]);
@@ -145,7 +178,11 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
     out.into_iter()
         .enumerate()
         .map(|(k, [q, qd, u])| {
-            let base = if !model.floating || k == zero { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] } else { rng.base_pose() };
+            let base = if !model.floating || k == zero {
+                [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+            } else {
+                rng.base_pose()
+            };
             let mut q = model.q_from_joints(&q, base);
             // Spherical joints likewise (drawn only for robots that have them).
             for &first in &model.spherical {
@@ -161,12 +198,26 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
 
 /// Runs every kernel of `robot` under each strategy and checks each state's outputs
 /// against the reference and the IR interpreter.
-fn check_robot(gpu: &Gpu, robot: &str, options: WgslOptions, strategies: &[Strategy], rng: &mut Rng) {
+fn check_robot(
+    gpu: &Gpu,
+    robot: &str,
+    options: WgslOptions,
+    strategies: &[Strategy],
+    rng: &mut Rng,
+) {
     check_model(gpu, robot, &load(robot), &KernelKind::ALL, options, strategies, rng)
 }
 
 /// [`check_robot`] on a model, for the `kernels` only.
-fn check_model(gpu: &Gpu, robot: &str, model: &Model, kernels: &[KernelKind], options: WgslOptions, strategies: &[Strategy], rng: &mut Rng) {
+fn check_model(
+    gpu: &Gpu,
+    robot: &str,
+    model: &Model,
+    kernels: &[KernelKind],
+    options: WgslOptions,
+    strategies: &[Strategy],
+    rng: &mut Rng,
+) {
     check_model_within(gpu, robot, model, kernels, options, strategies, rng, F64_TOL)
 }
 
@@ -187,10 +238,12 @@ fn check_model_within(
     let f64 = options.precision == Precision::F64;
     let source = wgsl(model, WgslOptions { strategies: strategies.to_vec(), ..options.clone() });
     let shader = gpu.load(&source).unwrap_or_else(|e| panic!("{robot}: {e}"));
-    let lowered = grid_gen::ir::lower(model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+    let lowered =
+        grid_gen::ir::lower(model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
     let states = states(model, rng);
     let n = states.len(); // 37: not a multiple of the workgroup size
-    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let flat =
+        |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
     let (q, qd, u) = (flat(0), flat(1), flat(2));
     // The step kernels take the actuated joints' τ: each state's first nu entries of u.
     let nu = model.nu();
@@ -206,10 +259,22 @@ fn check_model_within(
             assert_eq!(got.len(), n * total);
             let (tol, ir_tol) = match (f64, f.kind) {
                 (true, _) => (f64_reference, F64_TOL),
-                (false, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad | KernelKind::Step | KernelKind::StepGrad) => (THROUGH_MINV, THROUGH_MINV),
+                (
+                    false,
+                    KernelKind::Minv
+                    | KernelKind::Fd
+                    | KernelKind::FdGrad
+                    | KernelKind::Step
+                    | KernelKind::StepGrad,
+                ) => (THROUGH_MINV, THROUGH_MINV),
                 _ => (DIRECT, DIRECT),
             };
-            let what = format!("{robot} {} {} {}", kernel.entry.entry, options.precision.name(), options.trig.name());
+            let what = format!(
+                "{robot} {} {} {}",
+                kernel.entry.entry,
+                options.precision.name(),
+                options.trig.name()
+            );
             let (mut worst, mut worst_ir, mut graph) = (0.0f64, 0.0f64, 0.0f64);
             for (s, [q, qd, u]) in states.iter().enumerate() {
                 let u = if f.kind.is_step() { &u[..nu] } else { &u[..] };
@@ -219,12 +284,24 @@ fn check_model_within(
                 let mut base = s * total;
                 for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
                     let vals = &got[base..base + o.ids.len()];
-                    assert!(vals.iter().all(|v| v.is_finite()), "{what}.{} state {s}: a value was not written", o.name);
+                    assert!(
+                        vals.iter().all(|v| v.is_finite()),
+                        "{what}.{} state {s}: a value was not written",
+                        o.name
+                    );
                     let got = output_matrix(o.shape, nv, vals);
                     let e = rel_err(&got, want);
-                    assert!(e <= tol, "{what}.{} state {s}: relative error {e:.2e} > {tol:e}", o.name);
+                    assert!(
+                        e <= tol,
+                        "{what}.{} state {s}: relative error {e:.2e} > {tol:e}",
+                        o.name
+                    );
                     let e_ir = rel_err(&got, &output_matrix(o.shape, nv, ir_vals));
-                    assert!(e_ir <= ir_tol, "{what}.{} state {s}: {e_ir:.2e} from the IR interpreter", o.name);
+                    assert!(
+                        e_ir <= ir_tol,
+                        "{what}.{} state {s}: {e_ir:.2e} from the IR interpreter",
+                        o.name
+                    );
                     worst = worst.max(e);
                     worst_ir = worst_ir.max(e_ir);
                     let e_graph = rel_err(&output_matrix(o.shape, nv, ir_vals), want);
@@ -244,10 +321,22 @@ fn check_model_within(
 fn kernels_run_through_wgpu_and_match_the_reference() {
     let Some((_serial, gpu)) = gpu() else { return };
     let mut rng = Rng(41);
-    check_robot(&gpu, "double_pendulum_continuous", WgslOptions::default(), &Strategy::ALL, &mut rng);
+    check_robot(
+        &gpu,
+        "double_pendulum_continuous",
+        WgslOptions::default(),
+        &Strategy::ALL,
+        &mut rng,
+    );
     check_robot(&gpu, "grid_iiwa", WgslOptions::default(), &Strategy::ALL, &mut rng);
     // WGSL's built-in sin/cos instead of the accurate ones.
-    check_robot(&gpu, "double_pendulum_continuous", WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() }, &Strategy::ALL, &mut rng);
+    check_robot(
+        &gpu,
+        "double_pendulum_continuous",
+        WgslOptions { trig: Trig::Builtin, ..WgslOptions::default() },
+        &Strategy::ALL,
+        &mut rng,
+    );
 }
 
 /// Every bundled robot in f64, every kernel, both strategies but Atlas's thread entries
@@ -259,7 +348,8 @@ fn f64_kernels_match_the_reference_to_1e_12() {
     let mut rng = Rng(43);
     let f64 = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
     for robot in robots() {
-        let strategies: &[Strategy] = if robot == "grid_atlas" { &[Strategy::Cooperative] } else { &Strategy::ALL };
+        let strategies: &[Strategy] =
+            if robot == "grid_atlas" { &[Strategy::Cooperative] } else { &Strategy::ALL };
         check_robot(&gpu, &robot, f64.clone(), strategies, &mut rng);
     }
 }
@@ -271,7 +361,10 @@ fn f64_kernels_match_the_reference_to_1e_12() {
 fn every_bundled_robot_runs_with_one_invocation_per_state() {
     let Some((_serial, gpu)) = gpu() else { return };
     let mut rng = Rng(71);
-    for robot in robots().iter().filter(|r| !["double_pendulum_continuous", "grid_iiwa"].contains(&r.as_str())) {
+    for robot in robots()
+        .iter()
+        .filter(|r| !["double_pendulum_continuous", "grid_iiwa"].contains(&r.as_str()))
+    {
         check_robot(&gpu, robot, WgslOptions::default(), &[Strategy::Thread], &mut rng);
     }
 }
@@ -283,8 +376,19 @@ fn every_bundled_robot_runs_with_one_invocation_per_state() {
 fn every_bundled_robot_runs_cooperatively() {
     let Some((_serial, gpu)) = gpu() else { return };
     let mut rng = Rng(79);
-    for robot in robots().iter().filter(|r| !["double_pendulum_continuous", "grid_iiwa"].contains(&r.as_str())) {
-        check_model(&gpu, robot, &load(robot), &KernelKind::ALL, WgslOptions::default(), &[Strategy::Cooperative], &mut rng);
+    for robot in robots()
+        .iter()
+        .filter(|r| !["double_pendulum_continuous", "grid_iiwa"].contains(&r.as_str()))
+    {
+        check_model(
+            &gpu,
+            robot,
+            &load(robot),
+            &KernelKind::ALL,
+            WgslOptions::default(),
+            &[Strategy::Cooperative],
+            &mut rng,
+        );
     }
 }
 
@@ -306,7 +410,8 @@ fn stages_compute_what_one_dispatch_computes() {
     let nv = model.nv();
     let mut rng = Rng(73);
     let states = states(&model, &mut rng);
-    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let flat =
+        |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
     let (q, qd, u) = (flat(0), flat(1), flat(2));
     let strategy = Strategy::Thread;
     {
@@ -314,8 +419,10 @@ fn stages_compute_what_one_dispatch_computes() {
             let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
             let module = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
             let run = |stage: usize| {
-                let options = WgslOptions { stage, strategies: vec![strategy], ..WgslOptions::default() };
-                let (file, stats) = grid_gen::back::wgsl::emit_with_stats(&module, &options).unwrap();
+                let options =
+                    WgslOptions { stage, strategies: vec![strategy], ..WgslOptions::default() };
+                let (file, stats) =
+                    grid_gen::back::wgsl::emit_with_stats(&module, &options).unwrap();
                 let shader = gpu.load(&file.contents).unwrap();
                 let kernel = gpu.kernel(&shader, &strategy.entry(kind.name())).unwrap();
                 (stats[0].clone(), gpu.run(&kernel, &q, &qd, &u).unwrap())
@@ -358,17 +465,48 @@ fn floating_base_kernels_match_the_reference() {
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(53);
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
-    let kernels = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd];
+    let kernels = [
+        KernelKind::Rnea,
+        KernelKind::RneaGrad,
+        KernelKind::MassMatrix,
+        KernelKind::Minv,
+        KernelKind::Fd,
+    ];
     let hyq = load_floating("grid_hyq");
-    check_model(&gpu, "grid_hyq floating", &hyq, &kernels, options.clone(), &[Strategy::Thread], &mut rng);
-    check_model(&gpu, "grid_hyq floating", &hyq, &KernelKind::ALL, options.clone(), &[Strategy::Cooperative], &mut rng);
+    check_model(
+        &gpu,
+        "grid_hyq floating",
+        &hyq,
+        &kernels,
+        options.clone(),
+        &[Strategy::Thread],
+        &mut rng,
+    );
+    check_model(
+        &gpu,
+        "grid_hyq floating",
+        &hyq,
+        &KernelKind::ALL,
+        options.clone(),
+        &[Strategy::Cooperative],
+        &mut rng,
+    );
     // Atlas on a free-flyer: its base block (150 kg) beside the hands' links makes M far
     // worse conditioned than the fixed-base robots' (cond ≤ 2e3, tests/accuracy.rs), and
     // its f64 fd_grad graph itself is 9.9e-13 from the reference here (measured), so the reference
     // bound is the 1e-10 that tests/pinocchio.rs holds floating robots to; the kernels are
     // still held to the graph they run at 1e-12.
     let atlas = load_floating("grid_atlas");
-    check_model_within(&gpu, "grid_atlas floating", &atlas, &KernelKind::ALL, options, &[Strategy::Cooperative], &mut rng, 1e-10);
+    check_model_within(
+        &gpu,
+        "grid_atlas floating",
+        &atlas,
+        &KernelKind::ALL,
+        options,
+        &[Strategy::Cooperative],
+        &mut rng,
+        1e-10,
+    );
 }
 
 /// The step kernels (floating HyQ, semi-implicit Euler, 10 ms; iiwa, explicit Euler and
@@ -383,16 +521,40 @@ fn step_kernels_match_the_reference() {
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
     let steps = [KernelKind::Step, KernelKind::StepGrad];
     let hyq = with_step(&load_floating("grid_hyq"), Scheme::SemiImplicitEuler, 0.01);
-    check_model(&gpu, "grid_hyq floating step", &hyq, &steps, options.clone(), &[Strategy::Cooperative], &mut rng);
+    check_model(
+        &gpu,
+        "grid_hyq floating step",
+        &hyq,
+        &steps,
+        options.clone(),
+        &[Strategy::Cooperative],
+        &mut rng,
+    );
     let iiwa = with_step(&load("grid_iiwa"), Scheme::ExplicitEuler, 0.005);
     check_model(&gpu, "grid_iiwa step", &iiwa, &steps, options, &Strategy::ALL, &mut rng);
-    check_model(&gpu, "grid_hyq floating step", &hyq, &[KernelKind::Step], WgslOptions::default(), &[Strategy::Thread], &mut rng);
+    check_model(
+        &gpu,
+        "grid_hyq floating step",
+        &hyq,
+        &[KernelKind::Step],
+        WgslOptions::default(),
+        &[Strategy::Thread],
+        &mut rng,
+    );
     // RK4 on iiwa, cooperative, over 0.1 ms: the states include 1e3 rad/s, where a 10 ms RK4
     // step is far outside the scheme's stability and each stage would multiply rounding by
     // dt ∂q̈/∂q̇ ~ 1e2 (grid-gen's tests/step.rs); at 0.1 ms it stays stable there.
     let rk4 = with_step(&load("grid_iiwa"), Scheme::Rk4, 1e-4);
     let f64_options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
-    check_model(&gpu, "grid_iiwa rk4", &rk4, &steps, f64_options, &[Strategy::Cooperative], &mut rng);
+    check_model(
+        &gpu,
+        "grid_iiwa rk4",
+        &rk4,
+        &steps,
+        f64_options,
+        &[Strategy::Cooperative],
+        &mut rng,
+    );
 }
 
 /// Coupled mimic joints: mimic_arm (`tests/fixtures/mimic_arm.urdf`, three
@@ -407,7 +569,15 @@ fn coupled_mimic_kernels_match_the_reference() {
     let model = load_coupled_urdf(&repo().join("tests/fixtures/mimic_arm.urdf"));
     assert_eq!((model.nv(), model.njoints()), (4, 7));
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
-    check_model(&gpu, "mimic_arm coupled", &model, &KernelKind::ALL, options, &Strategy::ALL, &mut rng);
+    check_model(
+        &gpu,
+        "mimic_arm coupled",
+        &model,
+        &KernelKind::ALL,
+        options,
+        &Strategy::ALL,
+        &mut rng,
+    );
 }
 
 /// Spherical joints: an arm with one on the root and one between moving
@@ -439,7 +609,10 @@ fn spherical_kernels_match_the_reference() {
         inertial(0.9, 0.02),
         inertial(0.6, 0.0)
     );
-    let model = Model::from_urdf_str("ball_chain.urdf", &urdf, false).map_err(|e| e.render_plain()).unwrap().0;
+    let model = Model::from_urdf_str("ball_chain.urdf", &urdf, false)
+        .map_err(|e| e.render_plain())
+        .unwrap()
+        .0;
     assert_eq!((model.nv(), model.nq()), (7, 9));
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
     check_model(&gpu, "ball_chain", &model, &KernelKind::ALL, options, &Strategy::ALL, &mut rng);
@@ -456,13 +629,18 @@ fn cooperative_results_do_not_depend_on_the_workgroup_size() {
     let model = load("grid_iiwa");
     let mut rng = Rng(83);
     let states = states(&model, &mut rng);
-    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let flat =
+        |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
     let (q, qd, u) = (flat(0), flat(1), flat(2));
     for kind in [KernelKind::RneaGrad, KernelKind::FdGrad] {
         let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
         let module = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
         let run = |workers: u32| {
-            let options = WgslOptions { workers, strategies: vec![Strategy::Cooperative], ..WgslOptions::default() };
+            let options = WgslOptions {
+                workers,
+                strategies: vec![Strategy::Cooperative],
+                ..WgslOptions::default()
+            };
             let (file, stats) = grid_gen::back::wgsl::emit_with_stats(&module, &options).unwrap();
             let shader = gpu.load(&file.contents).unwrap();
             let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry(kind.name())).unwrap();
@@ -472,13 +650,31 @@ fn cooperative_results_do_not_depend_on_the_workgroup_size() {
         assert!(want.iter().all(|x| x.is_finite()), "{kind:?}");
         for workers in [1, 7, 256] {
             let (stats, got) = run(workers);
-            assert_eq!(stats.phases, base.phases, "{kind:?}: the levels do not depend on the workers");
+            assert_eq!(
+                stats.phases, base.phases,
+                "{kind:?}: the levels do not depend on the workers"
+            );
             assert!(got == want, "{kind:?}: {workers} invocations per state differ from 64");
-            eprintln!("iiwa {}: {workers} invocations per state = 64, bit for bit ({} phases)", kind.name(), stats.phases);
+            eprintln!(
+                "iiwa {}: {workers} invocations per state = 64, bit for bit ({} phases)",
+                kind.name(),
+                stats.phases
+            );
         }
     }
-    let one = Model::from_urdf_str("chain1.urdf", &chain_urdf(1), false).map_err(|e| e.render_plain()).unwrap().0;
-    check_model(&gpu, "one-joint chain", &one, &KernelKind::ALL, WgslOptions::default(), &[Strategy::Cooperative], &mut rng);
+    let one = Model::from_urdf_str("chain1.urdf", &chain_urdf(1), false)
+        .map_err(|e| e.render_plain())
+        .unwrap()
+        .0;
+    check_model(
+        &gpu,
+        "one-joint chain",
+        &one,
+        &KernelKind::ALL,
+        WgslOptions::default(),
+        &[Strategy::Cooperative],
+        &mut rng,
+    );
 }
 
 #[test]
@@ -504,7 +700,10 @@ fn batch_sizes_nan_and_dispatch_splitting() {
         poisoned[nv] = f64::NAN;
         let three = gpu.run(&kernel, &poisoned, &qd, &u).unwrap();
         assert_eq!(&three[..nv], &one[..], "{strategy:?}: state 0 changed");
-        assert!(three[nv..2 * nv].iter().all(|x| x.is_nan()), "{strategy:?}: NaN did not reach state 1's result");
+        assert!(
+            three[nv..2 * nv].iter().all(|x| x.is_nan()),
+            "{strategy:?}: NaN did not reach state 1's result"
+        );
         let last = gpu.run(&kernel, &q[2 * nv..], &qd[2 * nv..], &u[2 * nv..]).unwrap();
         assert_eq!(&three[2 * nv..], &last[..], "{strategy:?}: state 2 changed");
     }
@@ -521,11 +720,17 @@ fn batch_sizes_nan_and_dispatch_splitting() {
     for s in (0..n).step_by(97).chain([65_534, 65_535, 65_536, n - 1]) {
         let qs: Vec<f64> = q[s * nv..(s + 1) * nv].iter().map(|&x| x as f32 as f64).collect();
         let want = reference::crba(&model, &qs);
-        let e = rel_err(&output_matrix(grid_gen::ir::Shape::Matrix, nv, &got[s * nv * nv..(s + 1) * nv * nv]), &want);
+        let e = rel_err(
+            &output_matrix(grid_gen::ir::Shape::Matrix, nv, &got[s * nv * nv..(s + 1) * nv * nv]),
+            &want,
+        );
         assert!(e <= DIRECT, "state {s}: {e:.2e}");
         worst = worst.max(e);
     }
-    eprintln!("70,000 states in {} dispatches: worst relative error {worst:.2e}", batch.dispatches());
+    eprintln!(
+        "70,000 states in {} dispatches: worst relative error {worst:.2e}",
+        batch.dispatches()
+    );
 }
 
 /// The frame kernels (placement, Jacobian, velocity, classical acceleration) in every
@@ -537,16 +742,39 @@ fn frame_kernels_match_the_reference() {
     use grid_gen::model::ReferenceFrame;
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(61);
-    let frames: Vec<KernelKind> = KernelKind::ALL.into_iter().filter(|k| k.is_frame() && *k != KernelKind::FrameAccelerationGrad).collect();
+    let frames: Vec<KernelKind> = KernelKind::ALL
+        .into_iter()
+        .filter(|k| k.is_frame() && *k != KernelKind::FrameAccelerationGrad)
+        .collect();
     let iiwa = load("grid_iiwa");
     let hyq = load_floating("grid_hyq");
     for rf in ReferenceFrame::ALL {
         for precision in [Precision::F32, Precision::F64] {
             let options = WgslOptions { precision, ..WgslOptions::default() };
             let model = with_frames(&iiwa, &["iiwa_link_7", "base"], rf);
-            check_model(&gpu, &format!("iiwa frames {}", rf.name()), &model, &frames, options.clone(), &Strategy::ALL, &mut rng);
-            let model = with_frames(&hyq, &["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"], rf);
-            check_model(&gpu, &format!("hyq floating frames {}", rf.name()), &model, &frames, options, &Strategy::ALL, &mut rng);
+            check_model(
+                &gpu,
+                &format!("iiwa frames {}", rf.name()),
+                &model,
+                &frames,
+                options.clone(),
+                &Strategy::ALL,
+                &mut rng,
+            );
+            let model = with_frames(
+                &hyq,
+                &["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"],
+                rf,
+            );
+            check_model(
+                &gpu,
+                &format!("hyq floating frames {}", rf.name()),
+                &model,
+                &frames,
+                options,
+                &Strategy::ALL,
+                &mut rng,
+            );
         }
     }
 }
@@ -559,13 +787,19 @@ fn frame_acceleration_grad_matches_its_graph() {
     use grid_gen::model::ReferenceFrame;
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(67);
-    let model = with_frames(&load_floating("grid_hyq"), &["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"], ReferenceFrame::LocalWorldAligned);
+    let model = with_frames(
+        &load_floating("grid_hyq"),
+        &["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"],
+        ReferenceFrame::LocalWorldAligned,
+    );
     let options = WgslOptions { precision: Precision::F64, ..WgslOptions::default() };
     let shader = gpu.load(&wgsl(&model, options)).unwrap();
-    let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+    let lowered =
+        grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
     let f = lowered.function(KernelKind::FrameAccelerationGrad).unwrap();
     let states = states(&model, &mut rng);
-    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let flat =
+        |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
     for strategy in Strategy::ALL {
         let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name())).unwrap();
         let got = gpu.run(&kernel, &flat(0), &flat(1), &flat(2)).unwrap();
@@ -577,7 +811,11 @@ fn frame_acceleration_grad_matches_its_graph() {
             worst = worst.max(e);
             assert!(e <= F64_TOL, "{} state {s}: {e:.2e}", kernel.entry.entry);
         }
-        println!("{}: worst {worst:.2e} from the IR interpreter over {} states", kernel.entry.entry, states.len());
+        println!(
+            "{}: worst {worst:.2e} from the IR interpreter over {} states",
+            kernel.entry.entry,
+            states.len()
+        );
     }
 }
 
@@ -591,34 +829,58 @@ fn force_kernels_match_the_reference() {
     use grid_gen::model::ContactKind;
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(67);
-    let legs: Vec<String> = ["lf", "rf", "lh", "rh"].iter().map(|l| format!("{l}_lowerleg")).collect();
-    let contacts: Vec<(&str, ContactKind)> = legs.iter().map(|l| (l.as_str(), ContactKind::Point)).collect();
+    let legs: Vec<String> =
+        ["lf", "rf", "lh", "rh"].iter().map(|l| format!("{l}_lowerleg")).collect();
+    let contacts: Vec<(&str, ContactKind)> =
+        legs.iter().map(|l| (l.as_str(), ContactKind::Point)).collect();
     let hyq = with_forces(&load_floating("grid_hyq"), &["root_joint", "lf_kfe_joint"], &contacts);
-    let iiwa = with_forces(&load("grid_iiwa"), &["iiwa_joint_4"], &[("iiwa_link_7", ContactKind::Wrench)]);
+    let iiwa =
+        with_forces(&load("grid_iiwa"), &["iiwa_joint_4"], &[("iiwa_link_7", ContactKind::Wrench)]);
     let kernels = [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::Fd, KernelKind::FdGrad];
     // Rigid-contact dynamics on iiwa's tool wrench (HyQ's are in grid-gen-kernels: its
     // contact_fd_grad would double this shader's size on lavapipe).
     let contact = [KernelKind::ContactFd, KernelKind::ContactFdGrad];
-    for (robot, model, precision, strategies) in
-        [("grid_hyq floating, forces", &hyq, Precision::F64, &Strategy::ALL[..]), ("grid_iiwa, forces", &iiwa, Precision::F32, &[Strategy::Cooperative][..])]
-    {
+    for (robot, model, precision, strategies) in [
+        ("grid_hyq floating, forces", &hyq, Precision::F64, &Strategy::ALL[..]),
+        ("grid_iiwa, forces", &iiwa, Precision::F32, &[Strategy::Cooperative][..]),
+    ] {
         let nv = model.nv();
-        let options = WgslOptions { precision, strategies: strategies.to_vec(), ..WgslOptions::default() };
+        let options =
+            WgslOptions { precision, strategies: strategies.to_vec(), ..WgslOptions::default() };
         let source = wgsl(model, options);
-        assert!(source.contains(&format!("// forces: {}\n", 6 * model.nfext() + model.nlambda())), "{robot}: the header counts the forces");
+        assert!(
+            source.contains(&format!("// forces: {}\n", 6 * model.nfext() + model.nlambda())),
+            "{robot}: the header counts the forces"
+        );
         let shader = gpu.load(&source).unwrap_or_else(|e| panic!("{robot}: {e}"));
-        let lowered = grid_gen::ir::lower(model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+        let lowered =
+            grid_gen::ir::lower(model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
         let states = states(model, &mut rng);
-        let forces: Vec<(Vec<f64>, Vec<f64>)> =
-            states.iter().map(|_| (rng.vec(6 * model.nfext(), -20.0, 20.0), rng.vec(model.nlambda(), -100.0, 100.0))).collect();
-        let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+        let forces: Vec<(Vec<f64>, Vec<f64>)> = states
+            .iter()
+            .map(|_| {
+                (rng.vec(6 * model.nfext(), -20.0, 20.0), rng.vec(model.nlambda(), -100.0, 100.0))
+            })
+            .collect();
+        let flat =
+            |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
         let (q, qd) = (flat(0), flat(1));
-        for f in lowered.functions.iter().filter(|f| kernels.contains(&f.kind) || (contact.contains(&f.kind) && model.nv() < 10)) {
+        for f in lowered
+            .functions
+            .iter()
+            .filter(|f| kernels.contains(&f.kind) || (contact.contains(&f.kind) && model.nv() < 10))
+        {
             // The contact kernels solve for λ: it is no input of theirs.
             let u: Vec<f64> = states
                 .iter()
                 .zip(&forces)
-                .flat_map(|(s, (f_ext, l))| s[2].iter().chain(f_ext).chain(if f.kind.is_contact() { &[][..] } else { &l[..] }).copied().collect::<Vec<_>>())
+                .flat_map(|(s, (f_ext, l))| {
+                    s[2].iter()
+                        .chain(f_ext)
+                        .chain(if f.kind.is_contact() { &[][..] } else { &l[..] })
+                        .copied()
+                        .collect::<Vec<_>>()
+                })
                 .collect();
             for &strategy in strategies {
                 let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name())).unwrap();
@@ -644,7 +906,15 @@ fn force_kernels_match_the_reference() {
                         singular.push(s);
                         continue;
                     }
-                    let want = reference_outputs_with(f.kind, model, q, qd, u, reference::DEFAULT_GRAVITY, ext);
+                    let want = reference_outputs_with(
+                        f.kind,
+                        model,
+                        q,
+                        qd,
+                        u,
+                        reference::DEFAULT_GRAVITY,
+                        ext,
+                    );
                     let interpreted = f.eval(&kernel_args_with(f.inputs(), q, qd, u, ext));
                     assert_eq!(want.len(), f.outputs.len(), "{robot} {}: outputs", f.kind);
                     let mut base = s * total;
@@ -652,15 +922,35 @@ fn force_kernels_match_the_reference() {
                         let vals = &got[base..base + o.ids.len()];
                         let got = output_matrix(o.shape, nv, vals);
                         let e = rel_err(&got, want);
-                        assert!(e <= tol, "{robot} {} {}.{} state {s}: {e:.2e} > {tol:e}", strategy.entry(""), f.kind, o.name);
+                        assert!(
+                            e <= tol,
+                            "{robot} {} {}.{} state {s}: {e:.2e} > {tol:e}",
+                            strategy.entry(""),
+                            f.kind,
+                            o.name
+                        );
                         let e_ir = rel_err(&got, &output_matrix(o.shape, nv, ir_vals));
-                        assert!(e_ir <= tol, "{robot} {}.{} state {s}: {e_ir:.2e} from the IR interpreter", f.kind, o.name);
+                        assert!(
+                            e_ir <= tol,
+                            "{robot} {}.{} state {s}: {e_ir:.2e} from the IR interpreter",
+                            f.kind,
+                            o.name
+                        );
                         worst = worst.max(e);
                         base += o.ids.len();
                     }
                 }
-                assert!(singular.len() <= 1, "{robot} {}: singular contact states {singular:?}", f.kind);
-                eprintln!("{robot} {} {}: worst relative error {worst:.2e} over {} states", f.kind, precision.name(), states.len() - singular.len());
+                assert!(
+                    singular.len() <= 1,
+                    "{robot} {}: singular contact states {singular:?}",
+                    f.kind
+                );
+                eprintln!(
+                    "{robot} {} {}: worst relative error {worst:.2e} over {} states",
+                    f.kind,
+                    precision.name(),
+                    states.len() - singular.len()
+                );
             }
         }
     }
@@ -674,17 +964,28 @@ fn forced_step_kernels_match_the_reference() {
     use grid_gen::model::ContactKind;
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(71);
-    let iiwa = with_forces(&load("grid_iiwa"), &["iiwa_joint_4"], &[("iiwa_link_7", ContactKind::Wrench)]);
+    let iiwa =
+        with_forces(&load("grid_iiwa"), &["iiwa_joint_4"], &[("iiwa_link_7", ContactKind::Wrench)]);
     let model = with_step(&iiwa, grid_gen::model::Scheme::SemiImplicitEuler, 0.01);
-    let options = WgslOptions { precision: Precision::F64, strategies: vec![Strategy::Cooperative], ..WgslOptions::default() };
+    let options = WgslOptions {
+        precision: Precision::F64,
+        strategies: vec![Strategy::Cooperative],
+        ..WgslOptions::default()
+    };
     let shader = gpu.load(&wgsl(&model, options)).unwrap();
-    let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
+    let lowered =
+        grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &Default::default()).unwrap();
     let (nv, nu) = (model.nv(), model.nu());
     let states = states(&model, &mut rng);
     let fext: Vec<Vec<f64>> = states.iter().map(|_| rng.vec(6, -20.0, 20.0)).collect();
-    let flat = |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let flat =
+        |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
     let (q, qd) = (flat(0), flat(1));
-    let u: Vec<f64> = states.iter().zip(&fext).flat_map(|(s, f)| s[2][..nu].iter().chain(f).copied().collect::<Vec<_>>()).collect();
+    let u: Vec<f64> = states
+        .iter()
+        .zip(&fext)
+        .flat_map(|(s, f)| s[2][..nu].iter().chain(f).copied().collect::<Vec<_>>())
+        .collect();
     for kind in [KernelKind::Step, KernelKind::StepGrad] {
         let f = lowered.function(kind).unwrap();
         let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry(kind.name())).unwrap();
@@ -703,7 +1004,15 @@ fn forced_step_kernels_match_the_reference() {
                 continue;
             }
             let ext = reference::External { fext, lambda: &[] };
-            let want = reference_outputs_with(kind, &model, q, qd, &u[..nu], reference::DEFAULT_GRAVITY, ext);
+            let want = reference_outputs_with(
+                kind,
+                &model,
+                q,
+                qd,
+                &u[..nu],
+                reference::DEFAULT_GRAVITY,
+                ext,
+            );
             let interpreted = f.eval(&kernel_args_with(f.inputs(), q, qd, &u[..nu], ext));
             let mut base = s * total;
             for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
@@ -712,12 +1021,19 @@ fn forced_step_kernels_match_the_reference() {
                 // f64 kernels are held to F64_TOL, as everywhere (measured 2.3e-13: these
                 // states' contact Schur complements are well conditioned).
                 assert!(e <= F64_TOL, "{kind}.{} state {s}: {e:.2e}", o.name);
-                assert!(rel_err(&got, &output_matrix(o.shape, nv, ir_vals)) <= F64_TOL, "{kind}.{} state {s}: from the IR", o.name);
+                assert!(
+                    rel_err(&got, &output_matrix(o.shape, nv, ir_vals)) <= F64_TOL,
+                    "{kind}.{} state {s}: from the IR",
+                    o.name
+                );
                 worst = worst.max(e);
                 base += o.ids.len();
             }
         }
         assert!(singular <= 1, "{kind}: {singular} singular states");
-        eprintln!("grid_iiwa contact step {kind} f64: worst relative error {worst:.2e} over {} states", states.len() - singular);
+        eprintln!(
+            "grid_iiwa contact step {kind} f64: worst relative error {worst:.2e} over {} states",
+            states.len() - singular
+        );
     }
 }

@@ -7,9 +7,20 @@ use grid_gen::ir::{self, KernelKind, LowerOptions};
 fn main() {
     for robot in ["grid_iiwa", "grid_hyq", "grid_atlas"] {
         let path = format!("robots/{robot}.urdf");
-        let model = grid_gen::Model::from_urdf_str(&path, &std::fs::read_to_string(&path).unwrap(), false).unwrap().0;
+        let model =
+            grid_gen::Model::from_urdf_str(&path, &std::fs::read_to_string(&path).unwrap(), false)
+                .unwrap()
+                .0;
         let g = [0.0, 0.0, -9.81];
-        let m = ir::lower(&model, g, &LowerOptions { kernels: vec![KernelKind::Minv, KernelKind::Fd, KernelKind::FdGrad], ..Default::default() }).unwrap();
+        let m = ir::lower(
+            &model,
+            g,
+            &LowerOptions {
+                kernels: vec![KernelKind::Minv, KernelKind::Fd, KernelKind::FdGrad],
+                ..Default::default()
+            },
+        )
+        .unwrap();
         for f in &m.functions {
             for target in [1e-6, 1e-9, 1e-12] {
                 // Operations per stage: (in f64, all).
@@ -20,7 +31,11 @@ fn main() {
                     if !f.is_operation(ir::Id(i as u32)) {
                         continue;
                     }
-                    conversions += n.op.operands().filter(|&o| f.is_operation(o) && plan.wide[o.0 as usize] != plan.wide[i]).count();
+                    conversions += n
+                        .op
+                        .operands()
+                        .filter(|&o| f.is_operation(o) && plan.wide[o.0 as usize] != plan.wide[i])
+                        .count();
                     let e = by.entry(format!("{:?}", n.stage)).or_default();
                     e.1 += 1;
                     if plan.wide[i] {

@@ -4,10 +4,13 @@
 //! datapath, which equals the reference to 1e-12), the analysed bound, units, and the
 //! shared architecture's cycles per state at M = 8, 32, 128, and (with Yosys) the gates
 //! of one multiplier and one adder cell after generic `synth`, times the units; then
-//! robomorphic's Q16.16 with truncation on the same states. Run: `cargo run --release --example verilog_trade`.
+//! robomorphic's Q16.16 with truncation on the same states. Run: `cargo run --release --example
+//! verilog_trade`.
 
 use grid_gen::back::verilog::SharedSchedule;
-use grid_gen::ir::fixed::{format_for_width, port_values, quantize_ports, Bounds, Datapath, Format, Rounding};
+use grid_gen::ir::fixed::{
+    format_for_width, port_values, quantize_ports, Bounds, Datapath, Format, Rounding,
+};
 use grid_gen::ir::{self, KernelKind, LowerOptions};
 
 /// Gates of the `kind` cell (`mul` or `add`) of format `f` after Yosys's generic `synth`.
@@ -17,23 +20,45 @@ fn cell_gates(f: &Format, kind: &str) -> usize {
     let v = dir.join("cells.v");
     std::fs::write(&v, grid_gen::back::verilog::cell_modules("t", f)).expect("write");
     let stat = dir.join("stat.txt");
-    let script = format!("read_verilog {}; synth -top t_{kind}; tee -q -o {} stat", v.display(), stat.display());
-    let out = std::process::Command::new("yosys").arg("-q").arg("-p").arg(&script).output().expect("yosys runs");
+    let script = format!(
+        "read_verilog {}; synth -top t_{kind}; tee -q -o {} stat",
+        v.display(),
+        stat.display()
+    );
+    let out = std::process::Command::new("yosys")
+        .arg("-q")
+        .arg("-p")
+        .arg(&script)
+        .output()
+        .expect("yosys runs");
     assert!(out.status.success(), "yosys: {}", String::from_utf8_lossy(&out.stderr));
     let report = std::fs::read_to_string(&stat).expect("stat");
     let _ = std::fs::remove_dir_all(&dir);
-    report.lines().find_map(|l| l.trim().strip_prefix("Number of cells:").map(|n| n.trim().parse().expect("a count"))).expect("stat prints the cells")
+    report
+        .lines()
+        .find_map(|l| {
+            l.trim().strip_prefix("Number of cells:").map(|n| n.trim().parse().expect("a count"))
+        })
+        .expect("stat prints the cells")
 }
 
 fn main() {
-    let yosys = std::process::Command::new("yosys").arg("-V").output().is_ok_and(|o| o.status.success());
+    let yosys =
+        std::process::Command::new("yosys").arg("-V").output().is_ok_and(|o| o.status.success());
     if !yosys {
         eprintln!("yosys is not installed (Debian package `yosys`): the gate counts are left out");
     }
     for robot in ["grid_iiwa", "grid_hyq"] {
-        let text = std::fs::read_to_string(format!("robots/{robot}.urdf")).expect("run from the repository root");
-        let (model, _) = grid_gen::Model::from_urdf_str(robot, &text, false).expect("bundled robot loads");
-        let m = ir::lower(&model, [0.0, 0.0, -9.81], &LowerOptions { kernels: vec![KernelKind::RneaGrad], ..LowerOptions::default() }).expect("lowers");
+        let text = std::fs::read_to_string(format!("robots/{robot}.urdf"))
+            .expect("run from the repository root");
+        let (model, _) =
+            grid_gen::Model::from_urdf_str(robot, &text, false).expect("bundled robot loads");
+        let m = ir::lower(
+            &model,
+            [0.0, 0.0, -9.81],
+            &LowerOptions { kernels: vec![KernelKind::RneaGrad], ..LowerOptions::default() },
+        )
+        .expect("lowers");
         let dp = Datapath::new(&m.functions[0], m.robot.nv()).expect("datapath");
         let bounds = Bounds::new(&m.robot, None, None);
         let nv = m.robot.nv();
@@ -76,7 +101,10 @@ fn main() {
         };
         let (muls, adds) = dp.op_counts();
         println!("{robot} rnea_grad: {muls} multipliers ({} by a constant), {adds} adders pipelined; {} per link", dp.constant_muls(), muls / nv);
-        let cycles: Vec<String> = [8, 32, 128].iter().map(|&k| format!("M=A={k}: {}", SharedSchedule::new(&dp, k, k).cycles + 1)).collect();
+        let cycles: Vec<String> = [8, 32, 128]
+            .iter()
+            .map(|&k| format!("M=A={k}: {}", SharedSchedule::new(&dp, k, k).cycles + 1))
+            .collect();
         println!("  shared cycles per state: {}", cycles.join(", "));
         println!("  | WIDTH.FRAC | measured max error | analysed bound |");
         for width in [16, 24, 32, 40, 48, 56, 64] {
@@ -88,13 +116,24 @@ fn main() {
                         // what hierarchical synthesis counts per instance.
                         let gates = if rounding == Rounding::HalfUp && yosys {
                             let (m, a) = (cell_gates(&f, "mul"), cell_gates(&f, "add"));
-                            format!(" | mul cell {m} gates, add cell {a}; all units {}", m * muls + a * adds)
+                            format!(
+                                " | mul cell {m} gates, add cell {a}; all units {}",
+                                m * muls + a * adds
+                            )
                         } else {
                             String::new()
                         };
-                        println!("  | {} {} | {worst:.2e} | {:.2e} | overflows {over}/200{gates}", f.label(), rounding.name(), a.output_error);
+                        println!(
+                            "  | {} {} | {worst:.2e} | {:.2e} | overflows {over}/200{gates}",
+                            f.label(),
+                            rounding.name(),
+                            a.output_error
+                        );
                     }
-                    None => println!("  | {width}.- {} | the analysed range needs more than {width} bits | |", rounding.name()),
+                    None => println!(
+                        "  | {width}.- {} | the analysed range needs more than {width} bits | |",
+                        rounding.name()
+                    ),
                 }
             }
         }

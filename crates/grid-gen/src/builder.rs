@@ -222,7 +222,10 @@ impl Builder {
 
     /// Contacts at frames (link names), each a point or a wrench; the kernels take their
     /// forces λ in `LOCAL_WORLD_ALIGNED` axes. Replaces the scene's `[[contact]]`.
-    pub fn contacts<S: AsRef<str>>(&mut self, contacts: &[(S, crate::model::ContactKind)]) -> &mut Self {
+    pub fn contacts<S: AsRef<str>>(
+        &mut self,
+        contacts: &[(S, crate::model::ContactKind)],
+    ) -> &mut Self {
         self.contacts = Some(contacts.iter().map(|(f, k)| (f.as_ref().to_string(), *k)).collect());
         self
     }
@@ -297,7 +300,10 @@ impl Builder {
                     println!("cargo:rerun-if-changed={}", p.display());
                 }
                 let t = std::fs::read_to_string(p).map_err(|e| BuildError::Read(p.clone(), e))?;
-                (Scene::parse(&p.display().to_string(), &t).map_err(BuildError::Scene)?, p.display().to_string())
+                (
+                    Scene::parse(&p.display().to_string(), &t).map_err(BuildError::Scene)?,
+                    p.display().to_string(),
+                )
             }
         };
         let mut scene = scene;
@@ -312,7 +318,8 @@ impl Builder {
             scene.frames.reference = Some(rf);
         }
         if let Some(step) = self.step {
-            scene.step = Some(crate::scene::StepSection { scheme: Some(step.scheme), dt: Some(step.dt) });
+            scene.step =
+                Some(crate::scene::StepSection { scheme: Some(step.scheme), dt: Some(step.dt) });
         }
         scene.fd_grad.minv |= self.fd_grad_minv;
         if let Some(joints) = &self.actuated {
@@ -325,14 +332,24 @@ impl Builder {
             scene.external_forces.derivatives = Some(on);
         }
         if let Some(contacts) = &self.contacts {
-            scene.contact = contacts.iter().map(|(frame, kind)| crate::scene::ContactEntry { frame: frame.clone(), kind: *kind }).collect();
+            scene.contact = contacts
+                .iter()
+                .map(|(frame, kind)| crate::scene::ContactEntry {
+                    frame: frame.clone(),
+                    kind: *kind,
+                })
+                .collect();
         }
-        let (model, warnings) = Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path).map_err(|e| BuildError::Load(Box::new(e)))?;
+        let (model, warnings) =
+            Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path)
+                .map_err(|e| BuildError::Load(Box::new(e)))?;
         let mut options = self.options.clone();
         if let Some(g) = scene.gravity {
             options.gravity = g;
         }
-        if let Some(k) = scene.kernels().map_err(|message| BuildError::Scene(crate::scene::SceneError { path: scene_path.clone(), message }))? {
+        if let Some(k) = scene.kernels().map_err(|message| {
+            BuildError::Scene(crate::scene::SceneError { path: scene_path.clone(), message })
+        })? {
             options.lower.kernels = k;
         }
         if let Some(k) = &self.kernels {
@@ -349,10 +366,13 @@ impl Builder {
             }
         }
         let mut files = generate(&model, &options).map_err(BuildError::Generate)?;
-        if let (Some(name), Some(rust)) = (&self.file_name, files.iter_mut().find(|f| f.name.ends_with(".rs"))) {
+        if let (Some(name), Some(rust)) =
+            (&self.file_name, files.iter_mut().find(|f| f.name.ends_with(".rs")))
+        {
             rust.name = name.clone();
         }
-        let written = write_files(&out_dir, &files, false).map_err(|e| BuildError::Write(out_dir.clone(), e))?;
+        let written = write_files(&out_dir, &files, false)
+            .map_err(|e| BuildError::Write(out_dir.clone(), e))?;
         Ok(written.into_iter().map(|(path, _)| path).collect())
     }
 }
@@ -360,7 +380,15 @@ impl Builder {
 /// The URDF's warnings as `cargo:warning=` lines, which cargo shows to the user (one line
 /// each); without them a build script would hide what `grid-gen info` reports.
 fn cargo_warnings(path: &str, text: &str, warnings: &[crate::Diagnostic]) -> Vec<String> {
-    warnings.iter().flat_map(|w| w.render_plain(path, text).lines().map(|l| format!("cargo:warning={l}")).collect::<Vec<_>>()).collect()
+    warnings
+        .iter()
+        .flat_map(|w| {
+            w.render_plain(path, text)
+                .lines()
+                .map(|l| format!("cargo:warning={l}"))
+                .collect::<Vec<_>>()
+        })
+        .collect()
 }
 
 #[cfg(test)]
@@ -368,7 +396,8 @@ mod tests {
     #[test]
     fn a_scene_reaches_the_generated_module() {
         let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
-        let out = std::env::temp_dir().join(format!("grid-gen-builder-scene-{}", std::process::id()));
+        let out =
+            std::env::temp_dir().join(format!("grid-gen-builder-scene-{}", std::process::id()));
         let written = crate::Builder::new()
             .urdf(format!("{root}/robots/grid_iiwa.urdf"))
             .scene(format!("{root}/examples/scenes/iiwa_wrist_locked.toml"))
@@ -377,9 +406,18 @@ mod tests {
             .compile()
             .unwrap();
         let code = std::fs::read_to_string(&written[0]).unwrap();
-        assert!(code.contains("NV: usize = 4") && code.contains("pub fn fd_grad<") && !code.contains("pub fn minv<"));
+        assert!(
+            code.contains("NV: usize = 4")
+                && code.contains("pub fn fd_grad<")
+                && !code.contains("pub fn minv<")
+        );
         assert!(code.contains("// source: grid_iiwa.urdf in scene iiwa_wrist_locked.toml"));
-        let bad = crate::Builder::new().urdf(format!("{root}/robots/grid_iiwa.urdf")).scene("/nonexistent.toml").out_dir(&out).quiet(true).compile();
+        let bad = crate::Builder::new()
+            .urdf(format!("{root}/robots/grid_iiwa.urdf"))
+            .scene("/nonexistent.toml")
+            .out_dir(&out)
+            .quiet(true)
+            .compile();
         assert!(bad.unwrap_err().to_string().contains("cannot read /nonexistent.toml"));
         std::fs::remove_dir_all(&out).unwrap();
     }
@@ -387,17 +425,30 @@ mod tests {
     #[test]
     fn floating_base_reaches_the_generated_module() {
         let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
-        let out = std::env::temp_dir().join(format!("grid-gen-builder-floating-{}", std::process::id()));
-        let written = crate::Builder::new().urdf(format!("{root}/robots/grid_hyq.urdf")).floating_base(true).out_dir(&out).quiet(true).compile().unwrap();
+        let out =
+            std::env::temp_dir().join(format!("grid-gen-builder-floating-{}", std::process::id()));
+        let written = crate::Builder::new()
+            .urdf(format!("{root}/robots/grid_hyq.urdf"))
+            .floating_base(true)
+            .out_dir(&out)
+            .quiet(true)
+            .compile()
+            .unwrap();
         let code = std::fs::read_to_string(&written[0]).unwrap();
-        assert!(code.contains("NV: usize = 18") && code.contains("NQ: usize = 19") && code.contains("q: &[T; NQ]") && code.contains("qd: &[T; NV]"));
+        assert!(
+            code.contains("NV: usize = 18")
+                && code.contains("NQ: usize = 19")
+                && code.contains("q: &[T; NQ]")
+                && code.contains("qd: &[T; NV]")
+        );
         std::fs::remove_dir_all(&out).unwrap();
     }
 
     #[test]
     fn forces_reach_the_generated_module() {
         let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
-        let out = std::env::temp_dir().join(format!("grid-gen-builder-forces-{}", std::process::id()));
+        let out =
+            std::env::temp_dir().join(format!("grid-gen-builder-forces-{}", std::process::id()));
         let urdf = format!("{root}/robots/grid_iiwa.urdf");
         let compile = |derivatives: bool| {
             let written = crate::Builder::new()
@@ -412,19 +463,29 @@ mod tests {
             std::fs::read_to_string(&written[0]).unwrap()
         };
         let code = compile(true);
-        assert!(code.contains("pub const NLAMBDA: usize = 6;") && code.contains("[(\"iiwa_link_7\", \"wrench\")]"));
         assert!(
-            code.contains("fext: &[T; 6 * NFEXT],") && code.contains("lambda: &[T; NLAMBDA]") && code.contains("dqdd_dfext") && code.contains("dqdd_dlambda")
+            code.contains("pub const NLAMBDA: usize = 6;")
+                && code.contains("[(\"iiwa_link_7\", \"wrench\")]")
+        );
+        assert!(
+            code.contains("fext: &[T; 6 * NFEXT],")
+                && code.contains("lambda: &[T; NLAMBDA]")
+                && code.contains("dqdd_dfext")
+                && code.contains("dqdd_dlambda")
         );
         let code = compile(false);
-        assert!(!code.contains("dqdd_dfext") && code.contains("dqdd_dlambda"), "no fext derivatives when asked");
+        assert!(
+            !code.contains("dqdd_dfext") && code.contains("dqdd_dlambda"),
+            "no fext derivatives when asked"
+        );
         std::fs::remove_dir_all(&out).unwrap();
     }
 
     #[test]
     fn frames_reach_the_generated_module() {
         let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
-        let out = std::env::temp_dir().join(format!("grid-gen-builder-frames-{}", std::process::id()));
+        let out =
+            std::env::temp_dir().join(format!("grid-gen-builder-frames-{}", std::process::id()));
         let urdf = format!("{root}/robots/ur5.urdf");
         let written = crate::Builder::new()
             .urdf(&urdf)
@@ -435,23 +496,44 @@ mod tests {
             .compile()
             .unwrap();
         let code = std::fs::read_to_string(&written[0]).unwrap();
-        assert!(code.contains("pub const FRAME_NAMES: [&str; NF] = [\"tool0\"]") && code.contains("REFERENCE_FRAME: &str = \"local\""));
+        assert!(
+            code.contains("pub const FRAME_NAMES: [&str; NF] = [\"tool0\"]")
+                && code.contains("REFERENCE_FRAME: &str = \"local\"")
+        );
         assert!(code.contains("pub fn frame_jacobian<T: Real>(q: &[T; NV]) -> [[[T; NV]; 6]; NF]"));
-        let bad = crate::Builder::new().urdf(&urdf).frames(&["tool1"]).out_dir(&out).quiet(true).compile().unwrap_err().to_string();
-        assert!(bad.contains("`tool1`, which is not a link of this robot") && bad.contains("closest frames: tool0"), "{bad}");
+        let bad = crate::Builder::new()
+            .urdf(&urdf)
+            .frames(&["tool1"])
+            .out_dir(&out)
+            .quiet(true)
+            .compile()
+            .unwrap_err()
+            .to_string();
+        assert!(
+            bad.contains("`tool1`, which is not a link of this robot")
+                && bad.contains("closest frames: tool0"),
+            "{bad}"
+        );
         std::fs::remove_dir_all(&out).unwrap();
     }
 
     #[test]
     fn urdf_warnings_become_cargo_warning_lines() {
-        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/diagnostics/mimic_unknown.urdf");
+        let path =
+            concat!(env!("CARGO_MANIFEST_DIR"), "/../../tests/diagnostics/mimic_unknown.urdf");
         let text = std::fs::read_to_string(path).unwrap();
-        let (_, warnings) = crate::Model::from_urdf_str("mimic_unknown.urdf", &text, false).unwrap();
+        let (_, warnings) =
+            crate::Model::from_urdf_str("mimic_unknown.urdf", &text, false).unwrap();
         let lines = super::cargo_warnings("mimic_unknown.urdf", &text, &warnings);
         assert!(
-            lines[0].starts_with("cargo:warning=mimic_unknown.urdf:4:") && lines[0].ends_with("warning: joint `j1` mimics unknown joint `j0`"),
+            lines[0].starts_with("cargo:warning=mimic_unknown.urdf:4:")
+                && lines[0].ends_with("warning: joint `j1` mimics unknown joint `j0`"),
             "{lines:?}"
         );
-        assert!(lines.len() > 1 && lines.iter().all(|l| l.starts_with("cargo:warning=") && !l.contains('\n')), "{lines:?}");
+        assert!(
+            lines.len() > 1
+                && lines.iter().all(|l| l.starts_with("cargo:warning=") && !l.contains('\n')),
+            "{lines:?}"
+        );
     }
 }

@@ -32,12 +32,32 @@ pub struct Diagnostic {
 }
 
 impl Diagnostic {
-    pub fn error(message: impl Into<String>, span: Option<Range<usize>>, label: impl Into<String>) -> Self {
-        Diagnostic { severity: Severity::Error, message: message.into(), span, label: label.into(), help: None }
+    pub fn error(
+        message: impl Into<String>,
+        span: Option<Range<usize>>,
+        label: impl Into<String>,
+    ) -> Self {
+        Diagnostic {
+            severity: Severity::Error,
+            message: message.into(),
+            span,
+            label: label.into(),
+            help: None,
+        }
     }
 
-    pub fn warning(message: impl Into<String>, span: Option<Range<usize>>, label: impl Into<String>) -> Self {
-        Diagnostic { severity: Severity::Warning, message: message.into(), span, label: label.into(), help: None }
+    pub fn warning(
+        message: impl Into<String>,
+        span: Option<Range<usize>>,
+        label: impl Into<String>,
+    ) -> Self {
+        Diagnostic {
+            severity: Severity::Warning,
+            message: message.into(),
+            span,
+            label: label.into(),
+            help: None,
+        }
     }
 
     pub fn with_help(mut self, help: impl Into<String>) -> Self {
@@ -105,7 +125,11 @@ pub struct LoadError {
 impl LoadError {
     /// All diagnostics rendered with [`Diagnostic::render_plain`].
     pub fn render_plain(&self) -> String {
-        self.diagnostics.iter().map(|d| d.render_plain(&self.path, &self.source_text)).collect::<Vec<_>>().join("")
+        self.diagnostics
+            .iter()
+            .map(|d| d.render_plain(&self.path, &self.source_text))
+            .collect::<Vec<_>>()
+            .join("")
     }
 }
 

@@ -57,7 +57,9 @@ fn numbers<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<f64>, D::Error>
                 "NaN" => Ok(f64::NAN),
                 "Infinity" => Ok(f64::INFINITY),
                 "-Infinity" => Ok(f64::NEG_INFINITY),
-                _ => Err(serde::de::Error::custom(format!("expected a number, found the string `{s}`"))),
+                _ => Err(serde::de::Error::custom(format!(
+                    "expected a number, found the string `{s}`"
+                ))),
             },
         })
         .collect()
@@ -81,7 +83,9 @@ fn quote_non_finite(json: &str) -> String {
             escaped = !escaped && c == '\\';
         } else if c == '"' {
             in_string = true;
-        } else if let Some(word) = ["-Infinity", "Infinity", "NaN"].into_iter().find(|w| rest.starts_with(w)) {
+        } else if let Some(word) =
+            ["-Infinity", "Infinity", "NaN"].into_iter().find(|w| rest.starts_with(w))
+        {
             out.push('"');
             out.push_str(word);
             out.push('"');
@@ -165,13 +169,27 @@ pub struct ContactOutput {
 
 /// The reference's contact dynamics at one state, when the model declares contacts and
 /// the state has a `tau`; an error where the contacts' Jacobian loses rank at the state.
-fn contact_output(fm: &Model, s: &State, index: usize, fext: &[f64], gravity: [f64; 3]) -> Result<Option<ContactOutput>, EvalError> {
-    let Some(tau) = s.tau.as_ref().filter(|_| !fm.specialisation.contacts.is_empty()) else { return Ok(None) };
-    let (sol, d) = reference::contact_fd_derivatives(fm, &s.q, &s.qd, tau, gravity, fext).ok_or(EvalError::ContactsSingular { index })?;
+fn contact_output(
+    fm: &Model,
+    s: &State,
+    index: usize,
+    fext: &[f64],
+    gravity: [f64; 3],
+) -> Result<Option<ContactOutput>, EvalError> {
+    let Some(tau) = s.tau.as_ref().filter(|_| !fm.specialisation.contacts.is_empty()) else {
+        return Ok(None);
+    };
+    let (sol, d) = reference::contact_fd_derivatives(fm, &s.q, &s.qd, tau, gravity, fext)
+        .ok_or(EvalError::ContactsSingular { index })?;
     if sol.qdd.iter().chain(&sol.lambda).any(|x| !x.is_finite()) {
         return Err(EvalError::ContactsSingular { index });
     }
-    let names: Vec<(String, usize)> = fm.specialisation.contacts.iter().map(|c| (fm.frames[c.frame].name.clone(), c.kind.dim())).collect();
+    let names: Vec<(String, usize)> = fm
+        .specialisation
+        .contacts
+        .iter()
+        .map(|c| (fm.frames[c.frame].name.clone(), c.kind.dim()))
+        .collect();
     let per_frame = |m: &nalgebra::DMatrix<f64>| -> BTreeMap<String, Matrix> {
         let mut at = 0;
         names
@@ -204,7 +222,10 @@ fn contact_output(fm: &Model, s: &State, index: usize, fext: &[f64], gravity: [f
 
 /// A state's forces as the reference takes them: the model with the state's bodies
 /// added to the declared ones, and the flat `fext` and λ.
-fn state_forces<'m>(model: &'m Model, s: &State) -> (std::borrow::Cow<'m, Model>, Vec<f64>, Vec<f64>) {
+fn state_forces<'m>(
+    model: &'m Model,
+    s: &State,
+) -> (std::borrow::Cow<'m, Model>, Vec<f64>, Vec<f64>) {
     // A copy of the model only when the state names a body the scene does not declare.
     let mut m = std::borrow::Cow::Borrowed(model);
     for name in s.fext.keys() {
@@ -257,11 +278,27 @@ pub struct StepOutput {
 /// The reference's step at one state, when the model has a step and the state a `tau`:
 /// the state's `fext` held over the step, the model's contacts rigid (their λ solved, so a
 /// state's `contacts` do not enter it).
-fn step_output(model: &Model, s: &State, index: usize, fext: &[f64], gravity: [f64; 3]) -> Result<Option<StepOutput>, EvalError> {
+fn step_output(
+    model: &Model,
+    s: &State,
+    index: usize,
+    fext: &[f64],
+    gravity: [f64; 3],
+) -> Result<Option<StepOutput>, EvalError> {
     let (Some(step), Some(tau)) = (model.specialisation.step, s.tau.as_ref()) else {
         return Ok(None);
     };
-    let d = reference::step_derivatives(model, &s.q, &s.qd, tau, gravity, step, &model.actuated(), fext).ok_or(EvalError::ContactsSingular { index })?;
+    let d = reference::step_derivatives(
+        model,
+        &s.q,
+        &s.qd,
+        tau,
+        gravity,
+        step,
+        &model.actuated(),
+        fext,
+    )
+    .ok_or(EvalError::ContactsSingular { index })?;
     Ok(Some(StepOutput { q_next: d.q_next, qd_next: d.qd_next, a: rows(&d.a), b: rows(&d.b) }))
 }
 
@@ -302,9 +339,14 @@ fn frame_outputs(model: &Model, s: &State) -> Option<BTreeMap<String, FrameOutpu
             o.jacobian.insert(rf.name(), rows(&reference::frame_jacobian(model, &s.q, f, rf)));
         }
         for rf in [ReferenceFrame::Local, ReferenceFrame::LocalWorldAligned] {
-            o.velocity.insert(rf.name(), reference::frame_velocity(model, &s.q, &s.qd, f, rf).to_vec());
+            o.velocity
+                .insert(rf.name(), reference::frame_velocity(model, &s.q, &s.qd, f, rf).to_vec());
             if let Some(qdd) = &s.qdd {
-                o.classical_acceleration.insert(rf.name(), reference::frame_classical_acceleration(model, &s.q, &s.qd, qdd, f, rf).to_vec());
+                o.classical_acceleration.insert(
+                    rf.name(),
+                    reference::frame_classical_acceleration(model, &s.q, &s.qd, qdd, f, rf)
+                        .to_vec(),
+                );
             }
         }
         out.insert(f.name.clone(), o);
@@ -363,7 +405,14 @@ pub enum EvalError {
     #[error("state {index}: `contacts` names `{key}`, which is not a contact the scene declares; declared: {declared} (declare contacts with [[contact]] or --contact FRAME:point)")]
     UnknownContact { index: usize, key: String, declared: String },
     #[error("state {index}: `{field}.{key}` has {found} values, expected {expected} ({what})")]
-    ForceLength { index: usize, field: &'static str, key: String, found: usize, expected: usize, what: &'static str },
+    ForceLength {
+        index: usize,
+        field: &'static str,
+        key: String,
+        found: usize,
+        expected: usize,
+        what: &'static str,
+    },
     #[error("state {index}: `{field}.{key}[{entry}]` is not finite")]
     ForceNotFinite { index: usize, field: &'static str, key: String, entry: usize },
     #[error("external and contact forces are evaluated by the reference only (`eval` without --backend); the generated Rust and WGSL kernels take them, and the tests compare those with the reference")]
@@ -399,18 +448,32 @@ pub fn parse_states(json: &str) -> Result<StatesFile, EvalError> {
     Ok(serde_json::from_str(&quote_non_finite(json))?)
 }
 
-/// How far from 1 the norm of a quaternion (a floating base's, a spherical joint's) may be. Within it, the
-/// quaternion is used normalised (the kernels and the reference rotate by q/|q|, which is
-/// exact for any nonzero q); beyond it, it is an error, since a quaternion that far from
-/// unit is a wrong layout or an uninitialised state rather than drift (f32 storage and
-/// integrators drift by ~1e-7 per step).
+/// How far from 1 the norm of a quaternion (a floating base's, a spherical joint's) may be. Within
+/// it, the quaternion is used normalised (the kernels and the reference rotate by q/|q|, which is
+/// exact for any nonzero q); beyond it, it is an error, since a quaternion that far from unit is a
+/// wrong layout or an uninitialised state rather than drift (f32 storage and integrators drift by
+/// ~1e-7 per step).
 pub const QUATERNION_TOLERANCE: f64 = 1e-3;
 
 /// Where each spherical joint's quaternion is in q, for an error message.
 fn spherical_layout(model: &Model) -> String {
-    let base = if model.floating { "the floating base's `[x, y, z, qx, qy, qz, qw]` at q[0..7]; " } else { "" };
-    let joints: Vec<String> =
-        model.spherical.iter().map(|&s| format!("`{}` at q[{}..{}]", model.joint_name(s), model.group_q(s), model.group_q(s) + 4)).collect();
+    let base = if model.floating {
+        "the floating base's `[x, y, z, qx, qy, qz, qw]` at q[0..7]; "
+    } else {
+        ""
+    };
+    let joints: Vec<String> = model
+        .spherical
+        .iter()
+        .map(|&s| {
+            format!(
+                "`{}` at q[{}..{}]",
+                model.joint_name(s),
+                model.group_q(s),
+                model.group_q(s) + 4
+            )
+        })
+        .collect();
     format!("{base}{}", joints.join(", "))
 }
 
@@ -418,21 +481,37 @@ fn spherical_layout(model: &Model) -> String {
 pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
     let n = model.nv();
     for (index, s) in file.states.iter().enumerate() {
-        let fields = [("q", Some(&s.q)), ("qd", Some(&s.qd)), ("qdd", s.qdd.as_ref()), ("tau", s.tau.as_ref())];
+        let fields = [
+            ("q", Some(&s.q)),
+            ("qd", Some(&s.qd)),
+            ("qdd", s.qdd.as_ref()),
+            ("tau", s.tau.as_ref()),
+        ];
         for (field, v) in fields {
             let Some(v) = v else { continue };
             if field == "q" && !model.spherical.is_empty() && v.len() != model.nq() {
-                return Err(EvalError::SphericalLength { index, found: v.len(), expected: model.nq(), layout: spherical_layout(model) });
+                return Err(EvalError::SphericalLength {
+                    index,
+                    found: v.len(),
+                    expected: model.nq(),
+                    layout: spherical_layout(model),
+                });
             }
             if field == "q" && model.floating && v.len() != model.nq() {
-                return Err(EvalError::FloatingLength { index, found: v.len(), expected: model.nq() });
+                return Err(EvalError::FloatingLength {
+                    index,
+                    found: v.len(),
+                    expected: model.nq(),
+                });
             }
             if v.len() != n && !(field == "q" && model.nq() != n) {
                 // q has one entry per joint here; the others one per velocity coordinate,
                 // which a floating base's six make more than its joints.
                 let unit = match (field, model.floating) {
                     ("q", _) => "joints",
-                    (_, true) => "velocity coordinates (nv: the floating base's six, then one per joint)",
+                    (_, true) => {
+                        "velocity coordinates (nv: the floating base's six, then one per joint)"
+                    }
                     _ => "joints (one velocity coordinate each)",
                 };
                 return Err(EvalError::Length { index, field, found: v.len(), expected: n, unit });
@@ -451,10 +530,17 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
             let at = model.group_q(first);
             let norm = s.q[at..at + 4].iter().map(|x| x * x).sum::<f64>().sqrt();
             if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
-                return Err(EvalError::SphericalQuaternion { index, joint: model.joint_name(first).to_string(), at, norm });
+                return Err(EvalError::SphericalQuaternion {
+                    index,
+                    joint: model.joint_name(first).to_string(),
+                    at,
+                    norm,
+                });
             }
         }
-        if let (true, Some(entry)) = (model.specialisation.static_velocity, s.qd.iter().position(|&x| x != 0.0)) {
+        if let (true, Some(entry)) =
+            (model.specialisation.static_velocity, s.qd.iter().position(|&x| x != 0.0))
+        {
             return Err(EvalError::NotStatic { index, entry, value: s.qd[entry] });
         }
         if let (Some(joint), Some(_)) = (&model.singular, &s.tau) {
@@ -476,17 +562,37 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
 fn check_forces(model: &Model, index: usize, s: &State) -> Result<(), EvalError> {
     for (key, v) in &s.fext {
         if model.body_of_joint(key).is_none() {
-            return Err(EvalError::UnknownForce { index, key: key.clone(), known: model.body_joint_names().join(", ") });
+            return Err(EvalError::UnknownForce {
+                index,
+                key: key.clone(),
+                known: model.body_joint_names().join(", "),
+            });
         }
         if v.0.len() != 6 {
-            return Err(EvalError::ForceLength { index, field: "fext", key: key.clone(), found: v.0.len(), expected: 6, what: "[fx, fy, fz, tx, ty, tz]" });
+            return Err(EvalError::ForceLength {
+                index,
+                field: "fext",
+                key: key.clone(),
+                found: v.0.len(),
+                expected: 6,
+                what: "[fx, fy, fz, tx, ty, tz]",
+            });
         }
         if let Some(entry) = v.0.iter().position(|x| !x.is_finite()) {
-            return Err(EvalError::ForceNotFinite { index, field: "fext", key: key.clone(), entry });
+            return Err(EvalError::ForceNotFinite {
+                index,
+                field: "fext",
+                key: key.clone(),
+                entry,
+            });
         }
     }
-    let declared: Vec<(&str, crate::model::ContactKind)> =
-        model.specialisation.contacts.iter().map(|c| (model.frames[c.frame].name.as_str(), c.kind)).collect();
+    let declared: Vec<(&str, crate::model::ContactKind)> = model
+        .specialisation
+        .contacts
+        .iter()
+        .map(|c| (model.frames[c.frame].name.as_str(), c.kind))
+        .collect();
     for (key, v) in &s.contacts {
         let Some(&(_, kind)) = declared.iter().find(|(n, _)| n == key) else {
             let names: Vec<&str> = declared.iter().map(|(n, _)| *n).collect();
@@ -494,18 +600,38 @@ fn check_forces(model: &Model, index: usize, s: &State) -> Result<(), EvalError>
             return Err(EvalError::UnknownContact { index, key: key.clone(), declared });
         };
         if v.0.len() != kind.dim() {
-            let what = if kind == crate::model::ContactKind::Point { "a point contact's force [fx, fy, fz]" } else { "a wrench [fx, fy, fz, tx, ty, tz]" };
-            return Err(EvalError::ForceLength { index, field: "contacts", key: key.clone(), found: v.0.len(), expected: kind.dim(), what });
+            let what = if kind == crate::model::ContactKind::Point {
+                "a point contact's force [fx, fy, fz]"
+            } else {
+                "a wrench [fx, fy, fz, tx, ty, tz]"
+            };
+            return Err(EvalError::ForceLength {
+                index,
+                field: "contacts",
+                key: key.clone(),
+                found: v.0.len(),
+                expected: kind.dim(),
+                what,
+            });
         }
         if let Some(entry) = v.0.iter().position(|x| !x.is_finite()) {
-            return Err(EvalError::ForceNotFinite { index, field: "contacts", key: key.clone(), entry });
+            return Err(EvalError::ForceNotFinite {
+                index,
+                field: "contacts",
+                key: key.clone(),
+                entry,
+            });
         }
     }
     Ok(())
 }
 
 /// Evaluates the reference dynamics on every state.
-pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<EvalOutput, EvalError> {
+pub fn evaluate(
+    model: &Model,
+    file: &StatesFile,
+    gravity: [f64; 3],
+) -> Result<EvalOutput, EvalError> {
     check_states(model, file)?;
     let states = file
         .states
@@ -516,14 +642,21 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
             let ext = reference::External { fext: &fext, lambda: &lambda };
             let (rnea, drnea_dq, drnea_dqd) = match &s.qdd {
                 Some(qdd) => {
-                    let (dq, dqd) = reference::rnea_derivatives_with(&fm, &s.q, &s.qd, qdd, gravity, ext);
-                    (Some(reference::rnea_with(&fm, &s.q, &s.qd, qdd, gravity, ext)), Some(gradient_rows(model, &dq)), Some(gradient_rows(model, &dqd)))
+                    let (dq, dqd) =
+                        reference::rnea_derivatives_with(&fm, &s.q, &s.qd, qdd, gravity, ext);
+                    (
+                        Some(reference::rnea_with(&fm, &s.q, &s.qd, qdd, gravity, ext)),
+                        Some(gradient_rows(model, &dq)),
+                        Some(gradient_rows(model, &dqd)),
+                    )
                 }
                 None => (None, None, None),
             };
             let (fd, dfd_dq, dfd_dqd) = match &s.tau {
                 Some(tau) => {
-                    let (qdd, dq, dqd) = reference::forward_dynamics_derivatives_with(&fm, &s.q, &s.qd, tau, gravity, ext);
+                    let (qdd, dq, dqd) = reference::forward_dynamics_derivatives_with(
+                        &fm, &s.q, &s.qd, tau, gravity, ext,
+                    );
                     (Some(qdd), Some(gradient_rows(model, &dq)), Some(gradient_rows(model, &dqd)))
                 }
                 None => (None, None, None),
@@ -550,8 +683,18 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
             };
             if fm.nfext() + fm.nlambda() > 0 {
                 let d = reference::force_derivatives(&fm, &s.q);
-                let bodies: Vec<(String, usize)> = fm.specialisation.fext.iter().map(|&b| (fm.joint_name(b).to_string(), 6)).collect();
-                let contacts: Vec<(String, usize)> = fm.specialisation.contacts.iter().map(|c| (fm.frames[c.frame].name.clone(), c.kind.dim())).collect();
+                let bodies: Vec<(String, usize)> = fm
+                    .specialisation
+                    .fext
+                    .iter()
+                    .map(|&b| (fm.joint_name(b).to_string(), 6))
+                    .collect();
+                let contacts: Vec<(String, usize)> = fm
+                    .specialisation
+                    .contacts
+                    .iter()
+                    .map(|c| (fm.frames[c.frame].name.clone(), c.kind.dim()))
+                    .collect();
                 let fext_present = !bodies.is_empty();
                 let lambda_present = !contacts.is_empty();
                 if s.qdd.is_some() {
@@ -566,7 +709,14 @@ pub fn evaluate(model: &Model, file: &StatesFile, gravity: [f64; 3]) -> Result<E
             Ok(out)
         })
         .collect::<Result<_, EvalError>>()?;
-    Ok(EvalOutput { joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(), states })
+    Ok(EvalOutput {
+        joint_names: model
+            .coordinate_joints()
+            .iter()
+            .map(|&i| model.joints[i].name.clone())
+            .collect(),
+        states,
+    })
 }
 
 /// Results of the Verilog netlists for one state: the keys of [`Output`] that the
@@ -616,12 +766,32 @@ pub fn evaluate_verilog(
     use crate::ir::{self, fixed::quantize_ports, KernelKind, LowerOptions};
     check_states(model, file)?;
     let nv = model.nv();
-    let module = ir::lower(model, gravity, &LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), ..LowerOptions::default() })?;
-    let netlists = plan(&module, &crate::back::verilog::VerilogOptions { kernels: DEFAULT_KERNELS.to_vec(), ..options.clone() })?;
-    let mut states: Vec<VerilogOutput> =
-        file.states.iter().map(|_| VerilogOutput { drnea_dq: None, drnea_dqd: None, m: Vec::new(), overflow: Default::default() }).collect();
+    let module = ir::lower(
+        model,
+        gravity,
+        &LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), ..LowerOptions::default() },
+    )?;
+    let netlists = plan(
+        &module,
+        &crate::back::verilog::VerilogOptions {
+            kernels: DEFAULT_KERNELS.to_vec(),
+            ..options.clone()
+        },
+    )?;
+    let mut states: Vec<VerilogOutput> = file
+        .states
+        .iter()
+        .map(|_| VerilogOutput {
+            drnea_dq: None,
+            drnea_dqd: None,
+            m: Vec::new(),
+            overflow: Default::default(),
+        })
+        .collect();
     for n in &netlists {
-        let chosen: Vec<usize> = (0..file.states.len()).filter(|&i| n.kind != KernelKind::RneaGrad || file.states[i].qdd.is_some()).collect();
+        let chosen: Vec<usize> = (0..file.states.len())
+            .filter(|&i| n.kind != KernelKind::RneaGrad || file.states[i].qdd.is_some())
+            .collect();
         let mut input_overflow = Vec::new();
         let ports: Vec<Vec<i64>> = chosen
             .iter()
@@ -636,7 +806,8 @@ pub fn evaluate_verilog(
         let results = sim::simulate(n, &module.robot, &ports)?;
         for ((&i, r), in_o) in chosen.iter().zip(results).zip(input_overflow) {
             // Every entry, structural zeros included, row-major per output.
-            let mut outs: Vec<Vec<f64>> = n.datapath.outputs.iter().map(|o| vec![0.0; o.ids.len()]).collect();
+            let mut outs: Vec<Vec<f64>> =
+                n.datapath.outputs.iter().map(|o| vec![0.0; o.ids.len()]).collect();
             for ((o, e, _), raw) in n.datapath.nonzero_outputs().into_iter().zip(&r.outputs) {
                 outs[o][e] = n.format.to_f64(*raw);
             }
@@ -652,7 +823,11 @@ pub fn evaluate_verilog(
             st.overflow.insert(n.kind.name(), r.overflow || in_o);
         }
     }
-    Ok(VerilogEvalOutput { joint_names: module.robot.joint_names.clone(), netlists: netlists.iter().map(|n| n.stats()).collect(), states })
+    Ok(VerilogEvalOutput {
+        joint_names: module.robot.joint_names.clone(),
+        netlists: netlists.iter().map(|n| n.stats()).collect(),
+        states,
+    })
 }
 
 /// Why [`evaluate_with`] failed: the states, or the backend that ran the kernels.
@@ -665,10 +840,10 @@ pub enum BackendEvalError<E: std::error::Error + 'static> {
 }
 
 /// The JSON of [`evaluate`], with the kernels run by a backend: `run(kind, q, qd, u)`
-/// takes state-major inputs (`q[s * nq + j]`, `qd[s * nv + j]`; `u` is q̈ or τ, empty for kernels without
-/// it) and returns the kernel's outputs concatenated per state (`out[s * len + k]`,
-/// matrices row-major), as the generated kernels lay them out. rnea and rnea_grad run on
-/// the states with `qdd`, fd_grad (whose outputs give fd) on those with `tau`.
+/// takes state-major inputs (`q[s * nq + j]`, `qd[s * nv + j]`; `u` is q̈ or τ, empty for kernels
+/// without it) and returns the kernel's outputs concatenated per state (`out[s * len + k]`,
+/// matrices row-major), as the generated kernels lay them out. rnea and rnea_grad run on the states
+/// with `qdd`, fd_grad (whose outputs give fd) on those with `tau`.
 pub fn evaluate_with<E: std::error::Error + 'static>(
     model: &Model,
     file: &StatesFile,
@@ -676,7 +851,9 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
 ) -> Result<EvalOutput, BackendEvalError<E>> {
     use crate::ir::KernelKind;
     check_states(model, file)?;
-    if model.nfext() + model.nlambda() > 0 || file.states.iter().any(|s| !s.fext.is_empty() || !s.contacts.is_empty()) {
+    if model.nfext() + model.nlambda() > 0
+        || file.states.iter().any(|s| !s.fext.is_empty() || !s.contacts.is_empty())
+    {
         return Err(EvalError::ForcesOnBackend.into());
     }
     let nv = model.nv();
@@ -703,11 +880,18 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
         })
         .collect();
     let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {
-        chosen.iter().flat_map(|&i| pick(&file.states[i]).map(|v| v.as_slice()).unwrap_or(&[]).iter().copied()).collect()
+        chosen
+            .iter()
+            .flat_map(|&i| {
+                pick(&file.states[i]).map(|v| v.as_slice()).unwrap_or(&[]).iter().copied()
+            })
+            .collect()
     };
     let all: Vec<usize> = (0..file.states.len()).collect();
-    let with_qdd: Vec<usize> = all.iter().copied().filter(|&i| file.states[i].qdd.is_some()).collect();
-    let with_tau: Vec<usize> = all.iter().copied().filter(|&i| file.states[i].tau.is_some()).collect();
+    let with_qdd: Vec<usize> =
+        all.iter().copied().filter(|&i| file.states[i].qdd.is_some()).collect();
+    let with_tau: Vec<usize> =
+        all.iter().copied().filter(|&i| file.states[i].tau.is_some()).collect();
     let plan: [(KernelKind, &[usize], &dyn Fn(&State) -> Option<&Vec<f64>>); 5] = [
         (KernelKind::Rnea, &with_qdd, &|s: &State| s.qdd.as_ref()),
         (KernelKind::RneaGrad, &with_qdd, &|s: &State| s.qdd.as_ref()),
@@ -747,27 +931,44 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
     // The frame kernels compute in the model's one reference frame: that key alone.
     let names: Vec<String> = model.selected_frames().map(|f| f.name.clone()).collect();
     let rf = model.specialisation.reference.name();
-    let frame_plan: [(KernelKind, &[usize]); 4] =
-        [(KernelKind::FramePlacement, &all), (KernelKind::FrameJacobian, &all), (KernelKind::FrameVelocity, &all), (KernelKind::FrameAcceleration, &with_qdd)];
+    let frame_plan: [(KernelKind, &[usize]); 4] = [
+        (KernelKind::FramePlacement, &all),
+        (KernelKind::FrameJacobian, &all),
+        (KernelKind::FrameVelocity, &all),
+        (KernelKind::FrameAcceleration, &with_qdd),
+    ];
     for (kind, chosen) in frame_plan {
         if names.is_empty() || chosen.is_empty() {
             continue;
         }
         let q = flat(chosen, &|s: &State| Some(&s.q));
-        let qd = if kind == KernelKind::FramePlacement || kind == KernelKind::FrameJacobian { Vec::new() } else { flat(chosen, &|s: &State| Some(&s.qd)) };
-        let u = if kind == KernelKind::FrameAcceleration { flat(chosen, &|s: &State| s.qdd.as_ref()) } else { Vec::new() };
+        let qd = if kind == KernelKind::FramePlacement || kind == KernelKind::FrameJacobian {
+            Vec::new()
+        } else {
+            flat(chosen, &|s: &State| Some(&s.qd))
+        };
+        let u = if kind == KernelKind::FrameAcceleration {
+            flat(chosen, &|s: &State| s.qdd.as_ref())
+        } else {
+            Vec::new()
+        };
         let out = run(kind, &q, &qd, &u).map_err(BackendEvalError::Backend)?;
         let per = out.len() / chosen.len();
         let nf = names.len();
         for (k, &i) in chosen.iter().enumerate() {
             let values = &out[k * per..(k + 1) * per];
-            let frames = states[i].frames.get_or_insert_with(|| names.iter().map(|n| (n.clone(), FrameOutput::default())).collect());
+            let frames = states[i].frames.get_or_insert_with(|| {
+                names.iter().map(|n| (n.clone(), FrameOutput::default())).collect()
+            });
             for (f, name) in names.iter().enumerate() {
                 let o = frames.get_mut(name).expect("inserted above");
                 match kind {
                     KernelKind::FramePlacement => {
                         o.translation = values[3 * f..3 * f + 3].to_vec();
-                        o.rotation = values[3 * nf + 9 * f..3 * nf + 9 * f + 9].chunks(3).map(|r| r.to_vec()).collect();
+                        o.rotation = values[3 * nf + 9 * f..3 * nf + 9 * f + 9]
+                            .chunks(3)
+                            .map(|r| r.to_vec())
+                            .collect();
                     }
                     KernelKind::FrameJacobian => {
                         let j = &values[6 * nv * f..6 * nv * (f + 1)];
@@ -783,5 +984,12 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
             }
         }
     }
-    Ok(EvalOutput { joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(), states })
+    Ok(EvalOutput {
+        joint_names: model
+            .coordinate_joints()
+            .iter()
+            .map(|&i| model.joints[i].name.clone())
+            .collect(),
+        states,
+    })
 }

@@ -80,21 +80,31 @@ pub enum FileStatus {
 /// from the namer and never contain a path separator; a name that does is refused. A
 /// file whose header names another source URDF (two robots with the same name sent to
 /// one folder) is refused before anything is written.
-pub fn write_files(dir: &Path, files: &[GeneratedFile], check: bool) -> std::io::Result<Vec<(PathBuf, FileStatus)>> {
+pub fn write_files(
+    dir: &Path,
+    files: &[GeneratedFile],
+    check: bool,
+) -> std::io::Result<Vec<(PathBuf, FileStatus)>> {
     use std::io::{Error, ErrorKind};
     for f in files {
         if f.name.is_empty() || f.name.contains(['/', '\\']) || f.name.starts_with('.') {
-            return Err(Error::new(ErrorKind::InvalidInput, format!("refusing to write `{}`: not a plain file name", f.name)));
+            return Err(Error::new(
+                ErrorKind::InvalidInput,
+                format!("refusing to write `{}`: not a plain file name", f.name),
+            ));
         }
     }
     if dir.exists() && !dir.is_dir() {
         return Err(Error::new(ErrorKind::NotADirectory, "it exists and is not a directory"));
     }
     // Each existing file is read once: for its source here, and below to skip rewriting it.
-    let olds: Vec<Option<Vec<u8>>> = files.iter().map(|f| std::fs::read(dir.join(&f.name)).ok()).collect();
+    let olds: Vec<Option<Vec<u8>>> =
+        files.iter().map(|f| std::fs::read(dir.join(&f.name)).ok()).collect();
     for (f, old) in files.iter().zip(&olds) {
         let Some(old) = old.as_deref().and_then(|o| std::str::from_utf8(o).ok()) else { continue };
-        if let (Some(was), Some(now)) = (crate::back::source_of(old), crate::back::source_of(&f.contents)) {
+        if let (Some(was), Some(now)) =
+            (crate::back::source_of(old), crate::back::source_of(&f.contents))
+        {
             if was != now {
                 return Err(Error::new(
                     ErrorKind::AlreadyExists,

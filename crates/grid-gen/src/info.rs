@@ -3,7 +3,10 @@
 
 use serde::Serialize;
 
-use crate::back::verilog::{plan, Arch, NetlistStats, VerilogOptions, DEFAULT_ADDERS, DEFAULT_KERNELS, DEFAULT_MULTIPLIERS, DEFAULT_STAGE_DEPTH};
+use crate::back::verilog::{
+    plan, Arch, NetlistStats, VerilogOptions, DEFAULT_ADDERS, DEFAULT_KERNELS, DEFAULT_MULTIPLIERS,
+    DEFAULT_STAGE_DEPTH,
+};
 use crate::back::wgsl::{emit_with_stats, EntryStats, WgslOptions};
 use crate::ir::{self, KernelStats, Skipped};
 use crate::model::{Count, JointType, Model, DEFAULT_GRAVITY};
@@ -146,14 +149,21 @@ impl Info {
     /// The summary of the kernels generated with this gravity and gradient formulation.
     pub fn with_options(model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
         let coordinates = model.coordinate_joints();
-        let names = |set: &Option<Vec<usize>>| set.as_ref().map(|v| v.iter().map(|&k| model.joints[coordinates[k]].name.clone()).collect());
+        let names = |set: &Option<Vec<usize>>| {
+            set.as_ref()
+                .map(|v| v.iter().map(|&k| model.joints[coordinates[k]].name.clone()).collect())
+        };
         Info {
             robot: model.name.clone(),
             root_link: model.root_link.clone(),
             nv: model.nv(),
             nq: model.nq(),
             floating_base: model.floating,
-            spherical: crate::ir::Robot::of(model).spherical.into_iter().map(|(joint, q_index)| SphericalInfo { joint, q_index }).collect(),
+            spherical: crate::ir::Robot::of(model)
+                .spherical
+                .into_iter()
+                .map(|(joint, q_index)| SphericalInfo { joint, q_index })
+                .collect(),
             frames: model
                 .frames
                 .iter()
@@ -167,28 +177,62 @@ impl Info {
             selected_frames: model.selected_frames().map(|f| f.name.clone()).collect(),
             reference_frame: model.specialisation.reference,
             step: model.specialisation.step,
-            actuated: model.actuated().iter().map(|&c| model.joints[model.coordinate_joints()[c]].name.clone()).collect(),
-            fext: model.specialisation.fext.iter().map(|&b| model.joint_name(b).to_string()).collect(),
+            actuated: model
+                .actuated()
+                .iter()
+                .map(|&c| model.joints[model.coordinate_joints()[c]].name.clone())
+                .collect(),
+            fext: model
+                .specialisation
+                .fext
+                .iter()
+                .map(|&b| model.joint_name(b).to_string())
+                .collect(),
             contacts: model
                 .specialisation
                 .contacts
                 .iter()
-                .map(|c| ContactInfo { frame: model.frames[c.frame].name.clone(), kind: c.kind, entries: c.kind.dim() })
+                .map(|c| ContactInfo {
+                    frame: model.frames[c.frame].name.clone(),
+                    kind: c.kind,
+                    entries: c.kind.dim(),
+                })
                 .collect(),
             gravity,
-            joint_names: model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect(),
-            joint_types: model.coordinate_joints().iter().map(|&i| model.joints[i].joint_type).collect(),
+            joint_names: model
+                .coordinate_joints()
+                .iter()
+                .map(|&i| model.joints[i].name.clone())
+                .collect(),
+            joint_types: model
+                .coordinate_joints()
+                .iter()
+                .map(|&i| model.joints[i].joint_type)
+                .collect(),
             parents: model.coordinate_parents(),
             levels: model
                 .levels()
                 .into_iter()
-                .map(|level| level.into_iter().filter(|&i| model.coupling(i).is_none()).map(|i| model.coordinate_of(i)).collect())
+                .map(|level| {
+                    level
+                        .into_iter()
+                        .filter(|&i| model.coupling(i).is_none())
+                        .map(|i| model.coordinate_of(i))
+                        .collect()
+                })
                 .collect(),
             mimic_coupled: model.has_coupled(),
             mimic: model
                 .joints
                 .iter()
-                .filter_map(|j| j.mimic.as_ref().map(|(m, mult, off)| Mimic { joint: j.name.clone(), mimics: m.clone(), multiplier: *mult, offset: *off }))
+                .filter_map(|j| {
+                    j.mimic.as_ref().map(|(m, mult, off)| Mimic {
+                        joint: j.name.clone(),
+                        mimics: m.clone(),
+                        multiplier: *mult,
+                        offset: *off,
+                    })
+                })
                 .collect(),
             sparsity: Sparsity { dv_dq: model.motion_sparsity(), dc_dq: model.force_sparsity() },
             static_velocity: model.specialisation.static_velocity,
@@ -213,9 +257,19 @@ impl Info {
     /// the IR's list scheduler, whose cost grew with depth (a 400-link chain's `rnea` took
     /// 19 s); its level schedule is linear now, and the bound stays as a cap on `info`'s time.
     fn with_wgsl(mut self, model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
-        let (kernels, large): (Vec<&KernelStats>, Vec<&KernelStats>) = self.ops.iter().partition(|k| k.after.total() * k.after.depth <= WGSL_STATS_MAX_WORK);
-        let mut left_out: Vec<String> = self.ops_skipped.iter().map(|k| format!("{} (see ops_skipped)", k.kernel.name())).collect();
-        left_out.extend(large.iter().map(|k| format!("{} (operations × depth over {WGSL_STATS_MAX_WORK:e}; `--emit wgsl` writes it)", k.kernel.name())));
+        let (kernels, large): (Vec<&KernelStats>, Vec<&KernelStats>) =
+            self.ops.iter().partition(|k| k.after.total() * k.after.depth <= WGSL_STATS_MAX_WORK);
+        let mut left_out: Vec<String> = self
+            .ops_skipped
+            .iter()
+            .map(|k| format!("{} (see ops_skipped)", k.kernel.name()))
+            .collect();
+        left_out.extend(large.iter().map(|k| {
+            format!(
+                "{} (operations × depth over {WGSL_STATS_MAX_WORK:e}; `--emit wgsl` writes it)",
+                k.kernel.name()
+            )
+        }));
         if !left_out.is_empty() {
             self.wgsl_skipped = Some(left_out.join(", "));
         }
@@ -223,10 +277,16 @@ impl Info {
         if kernels.is_empty() {
             return self;
         }
-        let lower = ir::LowerOptions { kernels, max_nodes: ir::STATS_MAX_NODES, gradient, ..ir::LowerOptions::default() };
-        let result = ir::lower(model, gravity, &lower)
-            .map_err(|e| e.to_string())
-            .and_then(|module| emit_with_stats(&module, &WgslOptions::default()).map_err(|e| e.to_string()));
+        let lower = ir::LowerOptions {
+            kernels,
+            max_nodes: ir::STATS_MAX_NODES,
+            gradient,
+            ..ir::LowerOptions::default()
+        };
+        let result =
+            ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|module| {
+                emit_with_stats(&module, &WgslOptions::default()).map_err(|e| e.to_string())
+            });
         match result {
             Ok((_, stats)) => self.wgsl = stats,
             Err(e) => self.wgsl_skipped = Some(e),
@@ -238,19 +298,31 @@ impl Info {
     /// is reported without lowering it a second time.
     fn with_verilog(mut self, model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
         if let Some(k) = self.ops_skipped.iter().find(|k| DEFAULT_KERNELS.contains(&k.kernel)) {
-            self.verilog_skipped = Some(format!("kernel `{}` was not counted: {}", k.kernel.name(), k.reason));
+            self.verilog_skipped =
+                Some(format!("kernel `{}` was not counted: {}", k.kernel.name(), k.reason));
             return self;
         }
-        let lower = ir::LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), max_nodes: ir::STATS_MAX_NODES, gradient, ..ir::LowerOptions::default() };
-        let result = ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|module| {
-            let mut all = Vec::new();
-            let archs = [Arch::Pipelined { stage_depth: DEFAULT_STAGE_DEPTH }, Arch::Shared { multipliers: DEFAULT_MULTIPLIERS, adders: DEFAULT_ADDERS }];
-            for arch in archs {
-                let netlists = plan(&module, &VerilogOptions { arch, ..VerilogOptions::default() }).map_err(|e| e.to_string())?;
-                all.extend(netlists.iter().map(|n| n.stats()));
-            }
-            Ok(all)
-        });
+        let lower = ir::LowerOptions {
+            kernels: DEFAULT_KERNELS.to_vec(),
+            max_nodes: ir::STATS_MAX_NODES,
+            gradient,
+            ..ir::LowerOptions::default()
+        };
+        let result =
+            ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|module| {
+                let mut all = Vec::new();
+                let archs = [
+                    Arch::Pipelined { stage_depth: DEFAULT_STAGE_DEPTH },
+                    Arch::Shared { multipliers: DEFAULT_MULTIPLIERS, adders: DEFAULT_ADDERS },
+                ];
+                for arch in archs {
+                    let netlists =
+                        plan(&module, &VerilogOptions { arch, ..VerilogOptions::default() })
+                            .map_err(|e| e.to_string())?;
+                    all.extend(netlists.iter().map(|n| n.stats()));
+                }
+                Ok(all)
+            });
         match result {
             Ok(v) => self.verilog = v,
             Err(e) => self.verilog_skipped = Some(e),
@@ -267,7 +339,10 @@ impl Info {
     /// A short human-readable summary.
     pub fn to_text(&self) -> String {
         let joints = if self.nv == 1 { "joint" } else { "joints" };
-        let mut s = format!("robot `{}`: {} movable {joints}, root link `{}`\n", self.robot, self.nv, self.root_link);
+        let mut s = format!(
+            "robot `{}`: {} movable {joints}, root link `{}`\n",
+            self.robot, self.nv, self.root_link
+        );
         let [gx, gy, gz] = self.gravity;
         s.push_str(&format!("gravity: {gx}, {gy}, {gz} m/s²\n"));
         s.push_str("joints (model order):\n");
@@ -285,11 +360,20 @@ impl Info {
         };
         for (i, name) in self.joint_names.iter().enumerate().skip(skip) {
             let parent = self.parents[i].map_or("root".to_string(), |p| format!("{p}"));
-            s.push_str(&format!("  {i:>3}  {name}  ({}, parent {parent})\n", self.joint_types[i].as_str()));
+            s.push_str(&format!(
+                "  {i:>3}  {name}  ({}, parent {parent})\n",
+                self.joint_types[i].as_str()
+            ));
         }
-        s.push_str(&format!("levels: {}\n", self.levels.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>().join(" ")));
+        s.push_str(&format!(
+            "levels: {}\n",
+            self.levels.iter().map(|l| format!("{l:?}")).collect::<Vec<_>>().join(" ")
+        ));
         let d = &self.sparsity;
-        s.push_str(&format!("sparsity: dv/dq {} of {} nonzero, dc/dq {} of {}\n", d.dv_dq.nonzero, d.dv_dq.total, d.dc_dq.nonzero, d.dc_dq.total));
+        s.push_str(&format!(
+            "sparsity: dv/dq {} of {} nonzero, dc/dq {} of {}\n",
+            d.dv_dq.nonzero, d.dv_dq.total, d.dc_dq.nonzero, d.dc_dq.total
+        ));
         if self.floating_base {
             s.push_str(&format!(
                 "floating base: joints 0-5 are the free-flyer (base velocity, linear then angular, in the base frame); q has nq = {} entries, [x, y, z, qx, qy, qz, qw] then joints 6.. at q[j + 1]\n",
@@ -297,17 +381,32 @@ impl Info {
             ));
         }
         if !self.spherical.is_empty() {
-            let joints: Vec<String> = self.spherical.iter().map(|s| format!("{} (q[{}..{}])", s.joint, s.q_index, s.q_index + 4)).collect();
+            let joints: Vec<String> = self
+                .spherical
+                .iter()
+                .map(|s| format!("{} (q[{}..{}])", s.joint, s.q_index, s.q_index + 4))
+                .collect();
             s.push_str(&format!(
                 "spherical joints: {}; each a quaternion [qx, qy, qz, qw] in q and three coordinates <name>_wx, _wy, _wz; q has nq = {} entries\n",
                 joints.join(", "),
                 self.nq
             ));
         }
-        let frames: Vec<String> = self.frames.iter().map(|f| format!("{} ({})", f.name, f.parent_joint.as_deref().unwrap_or("root"))).collect();
-        s.push_str(&format!("frames (links, with the joint whose body carries them): {}\n", frames.join(", ")));
+        let frames: Vec<String> = self
+            .frames
+            .iter()
+            .map(|f| format!("{} ({})", f.name, f.parent_joint.as_deref().unwrap_or("root")))
+            .collect();
+        s.push_str(&format!(
+            "frames (links, with the joint whose body carries them): {}\n",
+            frames.join(", ")
+        ));
         if !self.selected_frames.is_empty() {
-            s.push_str(&format!("frame kernels compute: {} (reference frame {})\n", self.selected_frames.join(", "), self.reference_frame.name()));
+            s.push_str(&format!(
+                "frame kernels compute: {} (reference frame {})\n",
+                self.selected_frames.join(", "),
+                self.reference_frame.name()
+            ));
         }
         if !self.fext.is_empty() {
             s.push_str(&format!(
@@ -316,7 +415,8 @@ impl Info {
             ));
         }
         if !self.contacts.is_empty() {
-            let c: Vec<String> = self.contacts.iter().map(|c| format!("{} ({})", c.frame, c.kind.name())).collect();
+            let c: Vec<String> =
+                self.contacts.iter().map(|c| format!("{} ({})", c.frame, c.kind.name())).collect();
             s.push_str(&format!("rnea, rnea_grad, fd, fd_grad take contact forces lambda (world axes at the frame) at: {}\n", c.join(", ")));
         }
         if let Some(step) = self.step {
@@ -327,7 +427,11 @@ impl Info {
                 self.actuated.len(),
                 self.actuated.join(", "),
                 if self.fext.is_empty() { "" } else { "; fext held over the step" },
-                if self.contacts.is_empty() { "" } else { "; the contacts held rigid (contact_fd's q̈, lambda solved)" },
+                if self.contacts.is_empty() {
+                    ""
+                } else {
+                    "; the contacts held rigid (contact_fd's q̈, lambda solved)"
+                },
             ));
         }
         if self.mimic_coupled {
@@ -337,20 +441,35 @@ impl Info {
                 .filter(|m| !self.joint_names.contains(&m.joint))
                 .map(|m| format!("{} = {} * {} + {}", m.joint, m.multiplier, m.mimics, m.offset))
                 .collect();
-            s.push_str(&format!("coupled mimic joints (no coordinate of their own): {}\n", coupled.join(", ")));
+            s.push_str(&format!(
+                "coupled mimic joints (no coordinate of their own): {}\n",
+                coupled.join(", ")
+            ));
         }
         if self.static_velocity {
             s.push_str("static scene: qd = 0 assumed, velocity terms compiled out, `qd` ignored\n");
         }
         if self.gradient_rows.is_some() || self.gradient_columns.is_some() {
-            let show = |v: &Option<Vec<String>>| v.as_ref().map_or("all".to_string(), |v| v.join(", "));
-            s.push_str(&format!("gradient entries computed: rows {}; columns {} (the rest are 0)\n", show(&self.gradient_rows), show(&self.gradient_columns)));
+            let show =
+                |v: &Option<Vec<String>>| v.as_ref().map_or("all".to_string(), |v| v.join(", "));
+            s.push_str(&format!(
+                "gradient entries computed: rows {}; columns {} (the rest are 0)\n",
+                show(&self.gradient_rows),
+                show(&self.gradient_columns)
+            ));
         }
         s.push_str(
             "operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth; the gradient formulation and fd_grad's solve picked):\n",
         );
         // Names pad to the longest (12 without frame kernels, whose names are longer).
-        let w = self.ops.iter().map(|k| k.kernel.name().len()).chain(self.verilog.iter().map(|v| v.kernel.name().len())).max().unwrap_or(0).max(12);
+        let w = self
+            .ops
+            .iter()
+            .map(|k| k.kernel.name().len())
+            .chain(self.verilog.iter().map(|v| v.kernel.name().len()))
+            .max()
+            .unwrap_or(0)
+            .max(12);
         for k in &self.ops {
             let a = &k.after;
             s.push_str(&format!(

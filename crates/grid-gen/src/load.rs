@@ -10,20 +10,43 @@ use crate::urdf::{self, Urdf};
 impl Model {
     /// Parses, checks and builds the model from URDF text. Warnings come back with the
     /// model; with `strict`, a warning is an error.
-    pub fn from_urdf_str(path: &str, text: &str, strict: bool) -> Result<(Model, Vec<Diagnostic>), LoadError> {
+    pub fn from_urdf_str(
+        path: &str,
+        text: &str,
+        strict: bool,
+    ) -> Result<(Model, Vec<Diagnostic>), LoadError> {
         Model::from_urdf_str_in_scene(path, text, strict, &Scene::default(), "")
     }
 
     /// As [`Model::from_urdf_str`], with `scene` (read from `scene_path`) applied: locked
     /// joints merged as fixed, subtrees kept or dropped, payloads added. A name the scene
     /// uses that the URDF lacks is an error.
-    pub fn from_urdf_str_in_scene(path: &str, text: &str, strict: bool, scene: &Scene, scene_path: &str) -> Result<(Model, Vec<Diagnostic>), LoadError> {
+    pub fn from_urdf_str_in_scene(
+        path: &str,
+        text: &str,
+        strict: bool,
+        scene: &Scene,
+        scene_path: &str,
+    ) -> Result<(Model, Vec<Diagnostic>), LoadError> {
         let (urdf, tree, mut diags) = urdf::load(path, text)?;
         let edits = scene::resolve(scene, scene_path, &urdf, &tree, &mut diags);
-        let built = build(&urdf, &tree, &edits, scene.floating_base, scene.mimic == crate::scene::MimicMode::Coupled, &mut diags).map(|(mut model, source)| {
+        let built = build(
+            &urdf,
+            &tree,
+            &edits,
+            scene.floating_base,
+            scene.mimic == crate::scene::MimicMode::Coupled,
+            &mut diags,
+        )
+        .map(|(mut model, source)| {
             model.singular = check_massless(&model, &source, &urdf, &mut diags);
             model.specialisation = scene::specialise(scene, scene_path, &urdf, &model, &mut diags);
-            let file_name = |p: &str| std::path::Path::new(p).file_name().map(|f| f.to_string_lossy().into_owned()).unwrap_or_default();
+            let file_name = |p: &str| {
+                std::path::Path::new(p)
+                    .file_name()
+                    .map(|f| f.to_string_lossy().into_owned())
+                    .unwrap_or_default()
+            };
             model.source = file_name(path);
             // Generated files name their scene too: the same robot in another scene is
             // another model, and `write_files` must not let one overwrite the other.
@@ -32,7 +55,9 @@ impl Model {
             }
             model
         });
-        let failed = diags.iter().any(|d| d.severity == Severity::Error || (strict && d.severity == Severity::Warning));
+        let failed = diags
+            .iter()
+            .any(|d| d.severity == Severity::Error || (strict && d.severity == Severity::Warning));
         match built {
             Some(model) if !failed => Ok((model, diags)),
             _ => {
@@ -41,7 +66,11 @@ impl Model {
                         d.severity = Severity::Error;
                     }
                 }
-                Err(LoadError { path: path.to_string(), source_text: text.to_string(), diagnostics: diags })
+                Err(LoadError {
+                    path: path.to_string(),
+                    source_text: text.to_string(),
+                    diagnostics: diags,
+                })
             }
         }
     }
@@ -51,7 +80,12 @@ impl Model {
 /// with Ic_i the composite inertia of its subtree (checked at q = 0 with the reference CRBA).
 /// A joint that does not is a warning (example-robot-data's `romeo.urdf` has one): RNEA,
 /// its gradient and M are still right. Returns the first such joint's name.
-fn check_massless(model: &Model, source: &[Option<usize>], urdf: &Urdf, diags: &mut Vec<Diagnostic>) -> Option<String> {
+fn check_massless(
+    model: &Model,
+    source: &[Option<usize>],
+    urdf: &Urdf,
+    diags: &mut Vec<Diagnostic>,
+) -> Option<String> {
     let mut singular = None;
     let n = model.nv();
     let m = crate::reference::crba(model, &model.neutral_q());
@@ -94,7 +128,10 @@ fn check_massless(model: &Model, source: &[Option<usize>], urdf: &Urdf, diags: &
                 )
             };
             let help = format!("{help}; until then rnea, rnea_grad and mass_matrix are generated, and minv, fd and fd_grad (which need M⁻¹) are not");
-            diags.push(Diagnostic::warning(message, Some(uj.span.clone()), "the mass matrix is singular").with_help(help));
+            diags.push(
+                Diagnostic::warning(message, Some(uj.span.clone()), "the mass matrix is singular")
+                    .with_help(help),
+            );
             singular = Some(uj.name.clone());
         }
     }

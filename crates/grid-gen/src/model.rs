@@ -53,7 +53,10 @@ impl Transform {
     }
 
     fn from_parts(r: Matrix3<f64>, p: Vector3<f64>) -> Self {
-        Transform { rot: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)])), pos: p.into() }
+        Transform {
+            rot: std::array::from_fn(|i| std::array::from_fn(|j| r[(i, j)])),
+            pos: p.into(),
+        }
     }
 
     /// `self * other`: `other` is expressed in `self`'s child frame.
@@ -108,7 +111,8 @@ pub const FREE_FLYER: [(&str, JointType, [f64; 3]); 6] = [
 
 /// A spherical joint's three coordinates (Pinocchio's `JointModelSpherical`: the angular
 /// velocity in the child frame): the suffix each model joint's name gets and its axis.
-pub const SPHERICAL: [(&str, [f64; 3]); 3] = [("wx", [1.0, 0.0, 0.0]), ("wy", [0.0, 1.0, 0.0]), ("wz", [0.0, 0.0, 1.0])];
+pub const SPHERICAL: [(&str, [f64; 3]); 3] =
+    [("wx", [1.0, 0.0, 0.0]), ("wy", [0.0, 1.0, 0.0]), ("wz", [0.0, 0.0, 1.0])];
 
 /// The free-flyer's name when `--floating-base` adds it (Pinocchio's name for the root
 /// joint `buildModelFromUrdf` adds).
@@ -239,7 +243,8 @@ pub enum ReferenceFrame {
 }
 
 impl ReferenceFrame {
-    pub const ALL: [ReferenceFrame; 3] = [ReferenceFrame::Local, ReferenceFrame::World, ReferenceFrame::LocalWorldAligned];
+    pub const ALL: [ReferenceFrame; 3] =
+        [ReferenceFrame::Local, ReferenceFrame::World, ReferenceFrame::LocalWorldAligned];
 
     pub fn name(self) -> &'static str {
         match self {
@@ -392,7 +397,8 @@ impl ContactKind {
 impl Specialisation {
     /// Whether entry `(i, j)` of a gradient matrix is computed.
     pub fn keeps(&self, i: usize, j: usize) -> bool {
-        self.rows.as_ref().is_none_or(|r| r.contains(&i)) && self.columns.as_ref().is_none_or(|c| c.contains(&j))
+        self.rows.as_ref().is_none_or(|r| r.contains(&i))
+            && self.columns.as_ref().is_none_or(|c| c.contains(&j))
     }
 
     /// Whether some gradient entries are not computed.
@@ -449,12 +455,16 @@ impl Model {
     /// for a floating base, a spherical joint's own name): for a multi-dof joint its last
     /// member, which carries the body.
     pub fn body_of_joint(&self, name: &str) -> Option<usize> {
-        (0..self.njoints()).find(|&i| self.group(i).is_none_or(|g| i + 1 == g.end) && self.joint_name(i) == name)
+        (0..self.njoints())
+            .find(|&i| self.group(i).is_none_or(|g| i + 1 == g.end) && self.joint_name(i) == name)
     }
 
     /// The names [`Model::body_of_joint`] knows, in model order.
     pub fn body_joint_names(&self) -> Vec<&str> {
-        (0..self.njoints()).filter(|&i| self.group(i).is_none_or(|g| i + 1 == g.end)).map(|i| self.joint_name(i)).collect()
+        (0..self.njoints())
+            .filter(|&i| self.group(i).is_none_or(|g| i + 1 == g.end))
+            .map(|i| self.joint_name(i))
+            .collect()
     }
 
     /// The configuration space's blocks, in coordinate order: how `integrate` and its
@@ -475,7 +485,10 @@ impl Model {
                     k += SPHERICAL.len();
                 }
                 None => {
-                    blocks.push(LieBlock::Scalar { v: k, q: self.q_index(k).expect("a one-dof coordinate has a q entry") });
+                    blocks.push(LieBlock::Scalar {
+                        v: k,
+                        q: self.q_index(k).expect("a one-dof coordinate has a q entry"),
+                    });
                     k += 1;
                 }
             }
@@ -501,7 +514,10 @@ impl Model {
         if self.is_free_flyer(i) {
             return Some(0..FREE_FLYER.len());
         }
-        self.spherical.iter().find(|&&s| s <= i && i < s + SPHERICAL.len()).map(|&s| s..s + SPHERICAL.len())
+        self.spherical
+            .iter()
+            .find(|&&s| s <= i && i < s + SPHERICAL.len())
+            .map(|&s| s..s + SPHERICAL.len())
     }
 
     /// Whether joint `i` is part of a multi-dof joint whose parent is the fixed root (the
@@ -518,7 +534,8 @@ impl Model {
 
     /// Multi-dof joints before model joint `i`: each adds one entry to q.
     fn quaternions_before(&self, i: usize) -> usize {
-        usize::from(self.floating && i >= FREE_FLYER.len()) + self.spherical.iter().filter(|&&s| s < i).count()
+        usize::from(self.floating && i >= FREE_FLYER.len())
+            + self.spherical.iter().filter(|&&s| s < i).count()
     }
 
     /// Where in q the multi-dof joint whose first model joint is `first` keeps its pose:
@@ -688,15 +705,20 @@ impl Model {
     /// Nonzero pattern of ∂v_i/∂q_j (and ∂a_i/∂q_j): j an ancestor of i or i itself.
     pub fn motion_sparsity(&self) -> Count {
         let n = self.njoints();
-        let nonzero = (0..n).flat_map(|i| (0..n).map(move |j| (i, j))).filter(|&(i, j)| self.is_ancestor_or_self(j, i)).count();
+        let nonzero = (0..n)
+            .flat_map(|i| (0..n).map(move |j| (i, j)))
+            .filter(|&(i, j)| self.is_ancestor_or_self(j, i))
+            .count();
         Count { nonzero, total: n * n }
     }
 
     /// Nonzero pattern of ∂f_i/∂q_j and ∂c_i/∂q_j: i and j on one root-to-leaf path.
     pub fn force_sparsity(&self) -> Count {
         let n = self.njoints();
-        let nonzero =
-            (0..n).flat_map(|i| (0..n).map(move |j| (i, j))).filter(|&(i, j)| self.is_ancestor_or_self(j, i) || self.is_ancestor_or_self(i, j)).count();
+        let nonzero = (0..n)
+            .flat_map(|i| (0..n).map(move |j| (i, j)))
+            .filter(|&(i, j)| self.is_ancestor_or_self(j, i) || self.is_ancestor_or_self(i, j))
+            .count();
         Count { nonzero, total: n * n }
     }
 }
@@ -708,8 +730,13 @@ fn link_inertia(inertial: &urdf::Inertial, in_body: &Transform) -> Inertia {
     let frame = in_body.compose(&Transform::from_pose(&inertial.origin));
     let r = frame.rot_matrix();
     let c = frame.pos_vector();
-    let i_origin = r * ic * r.transpose() + (Matrix3::identity() * c.dot(&c) - c * c.transpose()) * m;
-    Inertia { mass: m, h: (c * m).into(), i_origin: std::array::from_fn(|i| std::array::from_fn(|j| i_origin[(i, j)])) }
+    let i_origin =
+        r * ic * r.transpose() + (Matrix3::identity() * c.dot(&c) - c * c.transpose()) * m;
+    Inertia {
+        mass: m,
+        h: (c * m).into(),
+        i_origin: std::array::from_fn(|i| std::array::from_fn(|j| i_origin[(i, j)])),
+    }
 }
 
 /// Warns about inertias no rigid body can have: not positive semi-definite, or breaking
@@ -798,13 +825,21 @@ pub(crate) fn build(
     let mut spherical = Vec::new();
     let mut frames = Vec::new();
     let mut stack = vec![match floating_base {
-        true => Walk::Free { name: ROOT_JOINT.to_string(), link: tree.root, tree: Transform::identity() },
+        true => Walk::Free {
+            name: ROOT_JOINT.to_string(),
+            link: tree.root,
+            tree: Transform::identity(),
+        },
         false => Walk::Visit { link: tree.root, body: None, in_body: Transform::identity() },
     }];
     while let Some(step) = stack.pop() {
         match step {
             Walk::Visit { link, body, in_body } => {
-                frames.push(Frame { name: urdf.links[link].name.clone(), body, placement: in_body });
+                frames.push(Frame {
+                    name: urdf.links[link].name.clone(),
+                    body,
+                    placement: in_body,
+                });
                 // The root body is fixed: its inertia never enters the dynamics.
                 if let Some(b) = body {
                     for inertial in urdf.links[link].inertial.iter().chain(&edits.payload[link]) {
@@ -820,7 +855,11 @@ pub(crate) fn build(
                     .iter()
                     .rev()
                     .filter(|&&j| urdf.joints[j].kind != JointKind::Floating)
-                    .chain(tree.child_joints[link].iter().filter(|&&j| urdf.joints[j].kind == JointKind::Floating));
+                    .chain(
+                        tree.child_joints[link]
+                            .iter()
+                            .filter(|&&j| urdf.joints[j].kind == JointKind::Floating),
+                    );
                 for &j in floating_last {
                     let child = tree.joint_links[j].1;
                     if edits.dropped[child] {
@@ -830,7 +869,11 @@ pub(crate) fn build(
                     if urdf.joints[j].kind == JointKind::Floating {
                         let uj = &urdf.joints[j];
                         if link != tree.root || floating {
-                            let why = if floating { "a robot has at most one floating base" } else { "only the root link can carry a floating joint" };
+                            let why = if floating {
+                                "a robot has at most one floating base"
+                            } else {
+                                "only the root link can carry a floating joint"
+                            };
                             diags.push(Diagnostic::error(format!("floating joint `{}` is not supported here", uj.name), Some(uj.span.clone()), why).with_help(
                                 "a floating joint must join the root link (e.g. `world`) to the base; with `--floating-base`, leave it out of the URDF",
                             ));
@@ -845,13 +888,19 @@ pub(crate) fn build(
                     } else if let Some(value) = edits.locked[j] {
                         // A locked joint is a fixed one at its locked position.
                         let motion = joint_motion(&urdf.joints[j], value);
-                        stack.push(Walk::Visit { link: child, body, in_body: origin.compose(&motion) });
+                        stack.push(Walk::Visit {
+                            link: child,
+                            body,
+                            in_body: origin.compose(&motion),
+                        });
                     } else {
                         stack.push(Walk::Open { joint: j, parent: body, tree: origin });
                     }
                 }
             }
-            Walk::Open { joint: j, parent, tree: tree_transform } if urdf.joints[j].kind == JointKind::Spherical => {
+            Walk::Open { joint: j, parent, tree: tree_transform }
+                if urdf.joints[j].kind == JointKind::Spherical =>
+            {
                 let uj = &urdf.joints[j];
                 if mimic_coupled && uj.mimic.is_some() {
                     diags.push(
@@ -885,15 +934,23 @@ pub(crate) fn build(
                     stack.push(Walk::Close { body: first + k });
                 }
                 spherical.push(first);
-                stack.push(Walk::Visit { link: tree.joint_links[j].1, body: Some(first + SPHERICAL.len() - 1), in_body: Transform::identity() });
+                stack.push(Walk::Visit {
+                    link: tree.joint_links[j].1,
+                    body: Some(first + SPHERICAL.len() - 1),
+                    in_body: Transform::identity(),
+                });
             }
             Walk::Open { joint: j, parent, tree: tree_transform } => {
                 let uj = &urdf.joints[j];
                 let norm = (uj.axis[0].powi(2) + uj.axis[1].powi(2) + uj.axis[2].powi(2)).sqrt();
                 if norm < 1e-12 {
                     diags.push(
-                        Diagnostic::error(format!("joint `{}` has a zero axis", uj.name), Some(uj.axis_span.clone()), "the axis has no direction")
-                            .with_help("give a nonzero <axis xyz=\"...\">; it is normalised"),
+                        Diagnostic::error(
+                            format!("joint `{}` has a zero axis", uj.name),
+                            Some(uj.axis_span.clone()),
+                            "the axis has no direction",
+                        )
+                        .with_help("give a nonzero <axis xyz=\"...\">; it is normalised"),
                     );
                 }
                 let index = joints.len();
@@ -918,7 +975,11 @@ pub(crate) fn build(
                 });
                 source.push(Some(j));
                 stack.push(Walk::Close { body: index });
-                stack.push(Walk::Visit { link: tree.joint_links[j].1, body: Some(index), in_body: Transform::identity() });
+                stack.push(Walk::Visit {
+                    link: tree.joint_links[j].1,
+                    body: Some(index),
+                    in_body: Transform::identity(),
+                });
             }
             Walk::Free { name, link, tree: tree_transform } => {
                 for (k, &(suffix, joint_type, axis)) in FREE_FLYER.iter().enumerate() {
@@ -943,12 +1004,17 @@ pub(crate) fn build(
                 for k in 0..FREE_FLYER.len() {
                     stack.push(Walk::Close { body: k });
                 }
-                stack.push(Walk::Visit { link, body: Some(FREE_FLYER.len() - 1), in_body: Transform::identity() });
+                stack.push(Walk::Visit {
+                    link,
+                    body: Some(FREE_FLYER.len() - 1),
+                    in_body: Transform::identity(),
+                });
             }
             Walk::Close { body } => joints[body].subtree_end = joints.len(),
         }
     }
-    let mut coupling = if mimic_coupled { couple(urdf, &joints, &source, diags) } else { Vec::new() };
+    let mut coupling =
+        if mimic_coupled { couple(urdf, &joints, &source, diags) } else { Vec::new() };
     if coupling.iter().all(Option::is_none) {
         coupling.clear();
     }
@@ -971,11 +1037,19 @@ pub(crate) fn build(
 /// through chains of mimics (`m₁ (m₂ q + o₂) + o₁`). A target that is not a movable joint
 /// of the model (fixed, locked or left out by a scene), or a cycle, is an error at the
 /// `<mimic>`; an unknown name was warned about while loading and stays independent.
-fn couple(urdf: &Urdf, joints: &[Joint], source: &[Option<usize>], diags: &mut Vec<Diagnostic>) -> Vec<Option<Coupling>> {
+fn couple(
+    urdf: &Urdf,
+    joints: &[Joint],
+    source: &[Option<usize>],
+    diags: &mut Vec<Diagnostic>,
+) -> Vec<Option<Coupling>> {
     let index = |name: &str| joints.iter().position(|j| j.name == name);
-    let span = |i: usize| source[i].and_then(|j| urdf.joints[j].mimic.as_ref()).map(|m| m.span.clone());
+    let span =
+        |i: usize| source[i].and_then(|j| urdf.joints[j].mimic.as_ref()).map(|m| m.span.clone());
     // A mimic of a name the URDF lacks was warned about and stays independent.
-    let mimics = |i: usize| joints[i].mimic.as_ref().filter(|(t, ..)| urdf.joints.iter().any(|j| &j.name == t));
+    let mimics = |i: usize| {
+        joints[i].mimic.as_ref().filter(|(t, ..)| urdf.joints.iter().any(|j| &j.name == t))
+    };
     let mut coupling = vec![None; joints.len()];
     for (i, joint) in joints.iter().enumerate() {
         if mimics(i).is_none() {

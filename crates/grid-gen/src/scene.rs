@@ -244,7 +244,8 @@ fn one_or_many<'de, D: serde::Deserializer<'de>>(d: D) -> Result<Vec<Payload>, D
 
 /// Top-level keys of a scene file: in TOML they must come before the first `[table]`, or
 /// they belong to it.
-const TOP_LEVEL: [&str; 7] = ["outputs", "gravity", "drop", "keep", "static", "floating_base", "mimic"];
+const TOP_LEVEL: [&str; 7] =
+    ["outputs", "gravity", "drop", "keep", "static", "floating_base", "mimic"];
 
 /// When a scene fails to parse: a top-level key written after a table header (`static =
 /// true` after `[lock]` reads as a joint to lock), as the reason.
@@ -279,8 +280,10 @@ pub struct SceneError {
 impl Scene {
     /// Parses a scene file's text; `path` names it in errors.
     pub fn parse(path: &str, text: &str) -> Result<Scene, SceneError> {
-        let scene: Scene = toml::from_str(text)
-            .map_err(|e| SceneError { path: path.to_string(), message: misplaced_key(text).unwrap_or_else(|| e.to_string().trim_end().to_string()) })?;
+        let scene: Scene = toml::from_str(text).map_err(|e| SceneError {
+            path: path.to_string(),
+            message: misplaced_key(text).unwrap_or_else(|| e.to_string().trim_end().to_string()),
+        })?;
         let err = |message: String| Err(SceneError { path: path.to_string(), message });
         if let Some(g) = scene.gravity {
             if g.iter().any(|x| !x.is_finite()) {
@@ -293,7 +296,8 @@ impl Scene {
             }
         }
         for p in &scene.payload {
-            let finite = p.mass.is_finite() && p.com.iter().chain(&p.inertia).all(|x| x.is_finite());
+            let finite =
+                p.mass.is_finite() && p.com.iter().chain(&p.inertia).all(|x| x.is_finite());
             if !finite || p.mass < 0.0 {
                 return err(format!("payload on `{}`: mass, com and inertia must be finite and the mass not negative", p.link));
             }
@@ -309,7 +313,12 @@ impl Scene {
         for name in names {
             match KernelKind::parse(name) {
                 Some(k) => kinds.push(k),
-                None => return Err(format!("outputs: unknown kernel `{name}`; available: {}", KernelKind::ALL.map(|k| k.name()).join(", "))),
+                None => {
+                    return Err(format!(
+                        "outputs: unknown kernel `{name}`; available: {}",
+                        KernelKind::ALL.map(|k| k.name()).join(", ")
+                    ))
+                }
             }
         }
         Ok(Some(KernelKind::ALL.into_iter().filter(|k| kinds.contains(k)).collect()))
@@ -332,13 +341,23 @@ pub(crate) struct Edits {
 
 impl Edits {
     pub fn none(urdf: &Urdf) -> Edits {
-        Edits { locked: vec![None; urdf.joints.len()], dropped: vec![false; urdf.links.len()], payload: vec![Vec::new(); urdf.links.len()] }
+        Edits {
+            locked: vec![None; urdf.joints.len()],
+            dropped: vec![false; urdf.links.len()],
+            payload: vec![Vec::new(); urdf.links.len()],
+        }
     }
 }
 
 /// Checks every name the scene uses against the URDF and resolves them; a name the robot
 /// does not have is an error naming the scene file, the key and what exists.
-pub(crate) fn resolve(scene: &Scene, scene_path: &str, urdf: &Urdf, tree: &Tree, diags: &mut Vec<Diagnostic>) -> Edits {
+pub(crate) fn resolve(
+    scene: &Scene,
+    scene_path: &str,
+    urdf: &Urdf,
+    tree: &Tree,
+    diags: &mut Vec<Diagnostic>,
+) -> Edits {
     let mut edits = Edits::none(urdf);
     let link_index = |name: &str| urdf.links.iter().position(|l| l.name == name);
     let some_names = |names: Vec<&str>| {
@@ -346,8 +365,18 @@ pub(crate) fn resolve(scene: &Scene, scene_path: &str, urdf: &Urdf, tree: &Tree,
         format!("{}{}", shown.join(", "), if names.len() > 12 { ", ..." } else { "" })
     };
     let unknown_link = |key: &str, name: &str| {
-        Diagnostic::error(format!("scene `{scene_path}`: {key} names link `{name}`, which robot `{}` does not have", urdf.name), None, "unknown link")
-            .with_help(format!("links: {}", some_names(urdf.links.iter().map(|l| l.name.as_str()).collect())))
+        Diagnostic::error(
+            format!(
+                "scene `{scene_path}`: {key} names link `{name}`, which robot `{}` does not have",
+                urdf.name
+            ),
+            None,
+            "unknown link",
+        )
+        .with_help(format!(
+            "links: {}",
+            some_names(urdf.links.iter().map(|l| l.name.as_str()).collect())
+        ))
     };
     for (name, &value) in &scene.lock {
         match urdf.joints.iter().position(|j| &j.name == name) {
@@ -467,7 +496,13 @@ pub(crate) fn resolve(scene: &Scene, scene_path: &str, urdf: &Urdf, tree: &Tree,
 /// Resolves the scene's facts about the state and the outputs against the built model
 /// (whose joints are what remains after the locks, keeps and drops): a `[gradient]` joint
 /// that is not one of the model's movable joints is an error naming it and why.
-pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, diags: &mut Vec<Diagnostic>) -> Specialisation {
+pub(crate) fn specialise(
+    scene: &Scene,
+    scene_path: &str,
+    urdf: &Urdf,
+    model: &Model,
+    diags: &mut Vec<Diagnostic>,
+) -> Specialisation {
     let mut resolve = |key: &str, names: &Option<Vec<String>>| -> Option<Vec<usize>> {
         let names = names.as_ref()?;
         let mut picked = Vec::new();
@@ -514,7 +549,8 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
     let columns = resolve("columns", &scene.gradient.columns);
     let frames = select_frames(scene, scene_path, urdf, model, diags);
     let step = select_step(scene, scene_path, diags);
-    let actuated = scene.actuation.as_ref().map(|a| select_actuated(&a.joints, scene_path, model, diags));
+    let actuated =
+        scene.actuation.as_ref().map(|a| select_actuated(&a.joints, scene_path, model, diags));
     let fext = select_fext(&scene.external_forces.joints, scene_path, model, diags);
     let contacts = select_contacts(scene, scene_path, urdf, model, diags);
     Specialisation {
@@ -535,8 +571,17 @@ pub(crate) fn specialise(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &M
 /// `[external_forces] joints` (or `--fext`): each name is a joint as Pinocchio names
 /// it (a multi-dof joint by its own name), or `*` for every body; an unknown or repeated
 /// name is an error that lists the closest names.
-fn select_fext(names: &[String], scene_path: &str, model: &Model, diags: &mut Vec<Diagnostic>) -> Vec<usize> {
-    let whence = if scene_path.is_empty() { "--fext".to_string() } else { format!("scene `{scene_path}`: [external_forces] joints") };
+fn select_fext(
+    names: &[String],
+    scene_path: &str,
+    model: &Model,
+    diags: &mut Vec<Diagnostic>,
+) -> Vec<usize> {
+    let whence = if scene_path.is_empty() {
+        "--fext".to_string()
+    } else {
+        format!("scene `{scene_path}`: [external_forces] joints")
+    };
     let known = model.body_joint_names();
     let mut picked = Vec::new();
     for name in names {
@@ -544,19 +589,29 @@ fn select_fext(names: &[String], scene_path: &str, model: &Model, diags: &mut Ve
             picked = known.iter().filter_map(|n| model.body_of_joint(n)).collect();
             if names.len() > 1 {
                 diags.push(
-                    Diagnostic::error(format!("{whence}: `*` names every body, so no other name may follow it"), None, "`*` with names")
-                        .with_help("give `*` alone, or the names"),
+                    Diagnostic::error(
+                        format!("{whence}: `*` names every body, so no other name may follow it"),
+                        None,
+                        "`*` with names",
+                    )
+                    .with_help("give `*` alone, or the names"),
                 );
             }
             break;
         }
         match model.body_of_joint(name) {
-            Some(b) if picked.contains(&b) => {
-                diags.push(Diagnostic::error(format!("{whence} names joint `{name}` twice"), None, "duplicate joint").with_help("name each joint once"))
-            }
+            Some(b) if picked.contains(&b) => diags.push(
+                Diagnostic::error(
+                    format!("{whence} names joint `{name}` twice"),
+                    None,
+                    "duplicate joint",
+                )
+                .with_help("name each joint once"),
+            ),
             Some(b) => picked.push(b),
             None => {
-                let mut by_distance: Vec<(usize, &str)> = known.iter().map(|k| (strsim::levenshtein(name, k), *k)).collect();
+                let mut by_distance: Vec<(usize, &str)> =
+                    known.iter().map(|k| (strsim::levenshtein(name, k), *k)).collect();
                 by_distance.sort();
                 let closest: Vec<&str> = by_distance.iter().take(5).map(|(_, k)| *k).collect();
                 diags.push(
@@ -571,8 +626,18 @@ fn select_fext(names: &[String], scene_path: &str, model: &Model, diags: &mut Ve
 
 /// `[[contact]]` (or `--contact FRAME:TYPE`): each frame must be a frame of a moving body,
 /// named once.
-fn select_contacts(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, diags: &mut Vec<Diagnostic>) -> Vec<crate::model::Contact> {
-    let whence = if scene_path.is_empty() { "--contact".to_string() } else { format!("scene `{scene_path}`: [[contact]]") };
+fn select_contacts(
+    scene: &Scene,
+    scene_path: &str,
+    urdf: &Urdf,
+    model: &Model,
+    diags: &mut Vec<Diagnostic>,
+) -> Vec<crate::model::Contact> {
+    let whence = if scene_path.is_empty() {
+        "--contact".to_string()
+    } else {
+        format!("scene `{scene_path}`: [[contact]]")
+    };
     let mut picked: Vec<crate::model::Contact> = Vec::new();
     for entry in &scene.contact {
         let name = &entry.frame;
@@ -591,15 +656,20 @@ fn select_contacts(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, 
             );
         } else if picked.iter().any(|c| c.frame == frame) {
             diags.push(
-                Diagnostic::error(format!("{whence} declares a contact at `{name}` twice"), None, "duplicate contact")
-                    .with_help("one contact per frame; a wrench holds both force and torque"),
+                Diagnostic::error(
+                    format!("{whence} declares a contact at `{name}` twice"),
+                    None,
+                    "duplicate contact",
+                )
+                .with_help("one contact per frame; a wrench holds both force and torque"),
             );
         } else {
             picked.push(crate::model::Contact { frame, kind: entry.kind });
         }
     }
     if let Err(set) = crate::reference::check_contact_rank(model, &picked) {
-        let names: Vec<String> = set.iter().map(|&i| format!("`{}`", model.frames[picked[i].frame].name)).collect();
+        let names: Vec<String> =
+            set.iter().map(|&i| format!("`{}`", model.frames[picked[i].frame].name)).collect();
         diags.push(
             Diagnostic::error(
                 format!(
@@ -616,18 +686,33 @@ fn select_contacts(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, 
 }
 
 /// `[step]` (or `--step`, `--dt`): a scheme and a finite, positive time step.
-fn select_step(scene: &Scene, scene_path: &str, diags: &mut Vec<Diagnostic>) -> Option<crate::model::Step> {
+fn select_step(
+    scene: &Scene,
+    scene_path: &str,
+    diags: &mut Vec<Diagnostic>,
+) -> Option<crate::model::Step> {
     let s = scene.step.as_ref()?;
-    let whence = if scene_path.is_empty() { "--step".to_string() } else { format!("scene `{scene_path}`: [step]") };
+    let whence = if scene_path.is_empty() {
+        "--step".to_string()
+    } else {
+        format!("scene `{scene_path}`: [step]")
+    };
     let scheme = s.scheme.unwrap_or_default();
     let Some(dt) = s.dt else {
-        diags.push(Diagnostic::error(format!("{whence} has no time step"), None, "no dt").with_help("give `dt = 0.01` in [step], or `--dt 0.01`"));
+        diags.push(
+            Diagnostic::error(format!("{whence} has no time step"), None, "no dt")
+                .with_help("give `dt = 0.01` in [step], or `--dt 0.01`"),
+        );
         return None;
     };
     if !(dt.is_finite() && dt > 0.0) {
         diags.push(
-            Diagnostic::error(format!("{whence}: dt = {dt} is not a finite, positive number of seconds"), None, "bad dt")
-                .with_help("a time step such as `dt = 0.01`"),
+            Diagnostic::error(
+                format!("{whence}: dt = {dt} is not a finite, positive number of seconds"),
+                None,
+                "bad dt",
+            )
+            .with_help("a time step such as `dt = 0.01`"),
         );
         return None;
     }
@@ -643,29 +728,53 @@ fn select_step(scene: &Scene, scene_path: &str, diags: &mut Vec<Diagnostic>) -> 
 
 /// `[actuation] joints`: each name is a coordinate's joint, or a multi-dof joint's own name
 /// for all its coordinates; an unknown or repeated name is an error.
-fn select_actuated(names: &[String], scene_path: &str, model: &Model, diags: &mut Vec<Diagnostic>) -> Vec<usize> {
-    let whence = if scene_path.is_empty() { "--actuated".to_string() } else { format!("scene `{scene_path}`: [actuation] joints") };
+fn select_actuated(
+    names: &[String],
+    scene_path: &str,
+    model: &Model,
+    diags: &mut Vec<Diagnostic>,
+) -> Vec<usize> {
+    let whence = if scene_path.is_empty() {
+        "--actuated".to_string()
+    } else {
+        format!("scene `{scene_path}`: [actuation] joints")
+    };
     let coordinates = model.coordinate_joints();
     let mut picked = Vec::new();
     for name in names {
         let found: Vec<usize> = coordinates
             .iter()
             .enumerate()
-            .filter(|(_, &j)| model.joints[j].name == *name || (model.group(j).is_some() && model.joint_name(j) == name))
+            .filter(|(_, &j)| {
+                model.joints[j].name == *name
+                    || (model.group(j).is_some() && model.joint_name(j) == name)
+            })
             .map(|(k, _)| k)
             .collect();
         if found.is_empty() {
             let mut known: Vec<&str> = coordinates.iter().map(|&j| model.joint_name(j)).collect();
             known.dedup();
-            let mut by_distance: Vec<(usize, &str)> = known.iter().map(|k| (strsim::levenshtein(name, k), *k)).collect();
+            let mut by_distance: Vec<(usize, &str)> =
+                known.iter().map(|k| (strsim::levenshtein(name, k), *k)).collect();
             by_distance.sort();
             let closest: Vec<&str> = by_distance.iter().take(5).map(|(_, k)| *k).collect();
             diags.push(
-                Diagnostic::error(format!("{whence} names `{name}`, which is not a movable joint of the model"), None, "unknown joint")
-                    .with_help(format!("closest joints: {}", closest.join(", "))),
+                Diagnostic::error(
+                    format!("{whence} names `{name}`, which is not a movable joint of the model"),
+                    None,
+                    "unknown joint",
+                )
+                .with_help(format!("closest joints: {}", closest.join(", "))),
             );
         } else if found.iter().any(|k| picked.contains(k)) {
-            diags.push(Diagnostic::error(format!("{whence} names joint `{name}` twice"), None, "duplicate joint").with_help("name each joint once"));
+            diags.push(
+                Diagnostic::error(
+                    format!("{whence} names joint `{name}` twice"),
+                    None,
+                    "duplicate joint",
+                )
+                .with_help("name each joint once"),
+            );
         } else {
             picked.extend(found);
         }
@@ -677,13 +786,30 @@ fn select_actuated(names: &[String], scene_path: &str, model: &Model, diags: &mu
 /// Resolves `[frames] names` (or `--frames`) against the model's frames: an unknown name
 /// is an error that lists the closest link names, a link the scene removed one that says
 /// which scene entry removed it.
-fn select_frames(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, diags: &mut Vec<Diagnostic>) -> Vec<usize> {
+fn select_frames(
+    scene: &Scene,
+    scene_path: &str,
+    urdf: &Urdf,
+    model: &Model,
+    diags: &mut Vec<Diagnostic>,
+) -> Vec<usize> {
     let mut picked = Vec::new();
-    let whence = if scene_path.is_empty() { "--frames".to_string() } else { format!("scene `{scene_path}`: [frames]") };
+    let whence = if scene_path.is_empty() {
+        "--frames".to_string()
+    } else {
+        format!("scene `{scene_path}`: [frames]")
+    };
     for name in &scene.frames.names {
         if let Some(f) = model.frame(name) {
             if picked.contains(&f) {
-                diags.push(Diagnostic::error(format!("{whence} names frame `{name}` twice"), None, "duplicate frame").with_help("name each frame once"));
+                diags.push(
+                    Diagnostic::error(
+                        format!("{whence} names frame `{name}` twice"),
+                        None,
+                        "duplicate frame",
+                    )
+                    .with_help("name each frame once"),
+                );
             }
             picked.push(f);
             continue;
@@ -695,11 +821,20 @@ fn select_frames(scene: &Scene, scene_path: &str, urdf: &Urdf, model: &Model, di
 
 /// The error for a frame name that is not one of the model's frames: a link the scene
 /// removed (and by which entry), a joint's name, or no link at all, with the closest names.
-fn unknown_frame(name: &str, whence: &str, scene: &Scene, urdf: &Urdf, model: &Model) -> Diagnostic {
+fn unknown_frame(
+    name: &str,
+    whence: &str,
+    scene: &Scene,
+    urdf: &Urdf,
+    model: &Model,
+) -> Diagnostic {
     let message = match urdf.links.iter().position(|l| l.name == name) {
         Some(l) => {
             let by = if scene.drop.iter().any(|d| removes(urdf, d, l)) {
-                format!("`drop = [..., \"{}\"]`", scene.drop.iter().find(|d| removes(urdf, d, l)).expect("found above"))
+                format!(
+                    "`drop = [..., \"{}\"]`",
+                    scene.drop.iter().find(|d| removes(urdf, d, l)).expect("found above")
+                )
             } else {
                 "`keep`, which does not keep it".to_string()
             };
@@ -707,11 +842,16 @@ fn unknown_frame(name: &str, whence: &str, scene: &Scene, urdf: &Urdf, model: &M
         }
         None => {
             let joint = urdf.joints.iter().any(|j| j.name == name);
-            let what = if joint { "a joint, not a link: frames are link names" } else { "not a link of this robot" };
+            let what = if joint {
+                "a joint, not a link: frames are link names"
+            } else {
+                "not a link of this robot"
+            };
             format!("{whence} names `{name}`, which is {what}")
         }
     };
-    Diagnostic::error(message, None, "unknown frame").with_help(format!("closest frames: {}", closest(name, model)))
+    Diagnostic::error(message, None, "unknown frame")
+        .with_help(format!("closest frames: {}", closest(name, model)))
 }
 
 /// Whether dropping link `dropped` removes link `l` (it is `l` or an ancestor of it).
@@ -721,14 +861,22 @@ fn removes(urdf: &Urdf, dropped: &str, l: usize) -> bool {
         if urdf.links[x].name == dropped {
             return true;
         }
-        at = urdf.joints.iter().find(|j| j.child == urdf.links[x].name).and_then(|j| urdf.links.iter().position(|k| k.name == j.parent));
+        at = urdf
+            .joints
+            .iter()
+            .find(|j| j.child == urdf.links[x].name)
+            .and_then(|j| urdf.links.iter().position(|k| k.name == j.parent));
     }
     false
 }
 
 /// The model's five frame names nearest to `name` by edit distance.
 fn closest(name: &str, model: &Model) -> String {
-    let mut names: Vec<(usize, &str)> = model.frames.iter().map(|f| (strsim::levenshtein(name, &f.name), f.name.as_str())).collect();
+    let mut names: Vec<(usize, &str)> = model
+        .frames
+        .iter()
+        .map(|f| (strsim::levenshtein(name, &f.name), f.name.as_str()))
+        .collect();
     names.sort();
     names.iter().take(5).map(|(_, n)| *n).collect::<Vec<_>>().join(", ")
 }

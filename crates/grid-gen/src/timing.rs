@@ -66,7 +66,13 @@ const NV: usize = {nv};
 #[allow(dead_code)]
 const NQ: usize = {nq};"
         );
-        crate::back::rust::emit_mixed_kernel(&mut out, m.function, "NQ", &crate::back::rust::RustOptions::default(), m.wide);
+        crate::back::rust::emit_mixed_kernel(
+            &mut out,
+            m.function,
+            "NQ",
+            &crate::back::rust::RustOptions::default(),
+            m.wide,
+        );
         out.push_str(
             "}
 ",
@@ -81,7 +87,9 @@ fn call_args(inputs: &[crate::ir::Input]) -> &'static str {
     match inputs {
         [_] => "&x.0",
         [_, _] => "&x.0, &x.1[0]",
-        [.., crate::ir::Input::TauActuated] => "&x.0, &x.1[0], x.1[1].first_chunk::<{ robot::NU }>().unwrap()",
+        [.., crate::ir::Input::TauActuated] => {
+            "&x.0, &x.1[0], x.1[1].first_chunk::<{ robot::NU }>().unwrap()"
+        }
         _ => "&x.0, &x.1[0], &x.1[1]",
     }
 }
@@ -209,17 +217,35 @@ pub fn time_rust_kernels_with_mixed(
         ..Options::default()
     };
     let files = generate(model, &options)?;
-    let module = files.into_iter().find(|f| f.name.ends_with(".rs")).expect("the Rust target writes a .rs file");
+    let module = files
+        .into_iter()
+        .find(|f| f.name.ends_with(".rs"))
+        .expect("the Rust target writes a .rs file");
     // Kernels the model cannot have (M singular) are not in the module.
-    let present: Vec<KernelKind> = kernels.iter().copied().filter(|k| module.contents.contains(&format!("pub fn {}<", k.name()))).collect();
+    let present: Vec<KernelKind> = kernels
+        .iter()
+        .copied()
+        .filter(|k| module.contents.contains(&format!("pub fn {}<", k.name())))
+        .collect();
     let io = |e| TimingError::Io(work.to_path_buf(), e);
     std::fs::create_dir_all(work).map_err(io)?;
     std::fs::write(work.join("robot.rs"), &module.contents).map_err(io)?;
-    std::fs::write(work.join("mixed.rs"), mixed_module(model.nv(), model.nq(), mixed)).map_err(io)?;
+    std::fs::write(work.join("mixed.rs"), mixed_module(model.nv(), model.nq(), mixed))
+        .map_err(io)?;
     std::fs::write(work.join("main.rs"), program(&present, mixed, model.nq())).map_err(io)?;
     let exe = work.join(if cfg!(windows) { "time_kernels.exe" } else { "time_kernels" });
     let out = Command::new(rustc)
-        .args(["--edition", "2021", "-C", "opt-level=3", "-C", "debuginfo=0", "--crate-name", "time_kernels", "-o"])
+        .args([
+            "--edition",
+            "2021",
+            "-C",
+            "opt-level=3",
+            "-C",
+            "debuginfo=0",
+            "--crate-name",
+            "time_kernels",
+            "-o",
+        ])
         .arg(&exe)
         .arg(work.join("main.rs"))
         .output()
@@ -240,26 +266,32 @@ pub fn time_rust_kernels_with_mixed(
         let parsed = match parts.as_slice() {
             [k, i, "mixed", ns] => {
                 let m = i.parse::<usize>().ok().and_then(|i| mixed.get(i));
-                KernelKind::parse(k).zip(m).zip(ns.parse::<f64>().ok()).map(|((kernel, m), ns)| KernelTime {
+                KernelKind::parse(k).zip(m).zip(ns.parse::<f64>().ok()).map(|((kernel, m), ns)| {
+                    KernelTime {
+                        kernel,
+                        scalar: m.label.clone(),
+                        copy: "portable",
+                        ns_per_call: ns,
+                    }
+                })
+            }
+            [k, s, c, ns] => {
+                KernelKind::parse(k).zip(ns.parse::<f64>().ok()).map(|(kernel, ns)| KernelTime {
                     kernel,
-                    scalar: m.label.clone(),
-                    copy: "portable",
+                    scalar: if *s == "f32" { "f32" } else { "f64" }.to_string(),
+                    copy: match *c {
+                        "portable" => "portable",
+                        "fma" => "fma",
+                        _ => "dispatch",
+                    },
                     ns_per_call: ns,
                 })
             }
-            [k, s, c, ns] => KernelKind::parse(k).zip(ns.parse::<f64>().ok()).map(|(kernel, ns)| KernelTime {
-                kernel,
-                scalar: if *s == "f32" { "f32" } else { "f64" }.to_string(),
-                copy: match *c {
-                    "portable" => "portable",
-                    "fma" => "fma",
-                    _ => "dispatch",
-                },
-                ns_per_call: ns,
-            }),
             _ => None,
         };
-        times.push(parsed.ok_or_else(|| TimingError::Run(format!("unexpected output line `{line}`")))?);
+        times.push(
+            parsed.ok_or_else(|| TimingError::Run(format!("unexpected output line `{line}`")))?,
+        );
     }
     Ok(times)
 }
@@ -276,13 +308,26 @@ mod tests {
         )
         .unwrap()
         .0;
-        let work = std::env::temp_dir().join(format!("grid-gen-timing-test-{}", std::process::id()));
-        let err = super::time_rust_kernels(&model, [0.0, 0.0, -9.81], crate::ir::Gradient::Auto, &[crate::ir::KernelKind::Rnea], "/nonexistent/rustc", &work)
-            .unwrap_err()
-            .to_string();
-        assert!(err.starts_with("cannot run `/nonexistent/rustc`") && err.contains("https://rustup.rs"), "{err}");
+        let work =
+            std::env::temp_dir().join(format!("grid-gen-timing-test-{}", std::process::id()));
+        let err = super::time_rust_kernels(
+            &model,
+            [0.0, 0.0, -9.81],
+            crate::ir::Gradient::Auto,
+            &[crate::ir::KernelKind::Rnea],
+            "/nonexistent/rustc",
+            &work,
+        )
+        .unwrap_err()
+        .to_string();
+        assert!(
+            err.starts_with("cannot run `/nonexistent/rustc`") && err.contains("https://rustup.rs"),
+            "{err}"
+        );
         // The program it would have compiled is there, for a user to build by hand.
-        assert!(std::fs::read_to_string(work.join("main.rs")).unwrap().contains("println!(\"rnea f64 portable {}\""));
+        assert!(std::fs::read_to_string(work.join("main.rs"))
+            .unwrap()
+            .contains("println!(\"rnea f64 portable {}\""));
         std::fs::remove_dir_all(&work).unwrap();
     }
 }

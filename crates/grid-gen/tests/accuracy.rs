@@ -43,13 +43,22 @@ fn every_format_within_its_bound() {
         let report = accuracy::measure(&model, &states, "test", &options(&model), &mut []).unwrap();
         assert_eq!(report.rows.len(), 6 * 4, "{robot}: a row per kernel and format");
         let c = report.cond_m.unwrap();
-        assert!(c.median >= 1.0 && c.max >= c.median && c.max.is_finite(), "{robot}: cond(M) {c:?}");
+        assert!(
+            c.median >= 1.0 && c.max >= c.median && c.max.is_finite(),
+            "{robot}: cond(M) {c:?}"
+        );
         for r in &report.rows {
-            let datapath = matches!(r.kernel, KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::MassMatrix);
-            let through_minv = matches!(r.kernel, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad);
+            let datapath = matches!(
+                r.kernel,
+                KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::MassMatrix
+            );
+            let through_minv =
+                matches!(r.kernel, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad);
             assert_eq!(r.states, 12);
             match r.format.as_str() {
-                "f64" => assert!(r.error.unwrap().max <= F64, "{robot} {} f64: {:?}", r.kernel, r.error),
+                "f64" => {
+                    assert!(r.error.unwrap().max <= F64, "{robot} {} f64: {:?}", r.kernel, r.error)
+                }
                 "f32" => {
                     let tol = if through_minv { F32_MINV } else { F32_DIRECT };
                     let e = r.error.unwrap();
@@ -58,17 +67,36 @@ fn every_format_within_its_bound() {
                     assert!(e.max > 1e-9, "{robot} {} f32: {e:?} is not an f32 error", r.kernel);
                 }
                 f if f.starts_with("fixed auto") && datapath => {
-                    assert_eq!(r.overflowed, Some(0), "{robot} {}: states inside the bounds overflowed", r.kernel);
+                    assert_eq!(
+                        r.overflowed,
+                        Some(0),
+                        "{robot} {}: states inside the bounds overflowed",
+                        r.kernel
+                    );
                     let abs = r.max_abs_error.unwrap();
-                    assert!(abs <= MAX_ERROR, "{robot} {} {f} {:?}: {abs:.2e} above the analysed bound", r.kernel, r.fixed);
+                    assert!(
+                        abs <= MAX_ERROR,
+                        "{robot} {} {f} {:?}: {abs:.2e} above the analysed bound",
+                        r.kernel,
+                        r.fixed
+                    );
                     assert!(r.fixed.is_some());
                 }
                 f if f.starts_with("fixed") && !datapath => {
-                    assert!(r.error.is_none() && r.skipped.as_deref().unwrap().contains("divides"), "{robot} {} {f}: {r:?}", r.kernel)
+                    assert!(
+                        r.error.is_none() && r.skipped.as_deref().unwrap().contains("divides"),
+                        "{robot} {} {f}: {r:?}",
+                        r.kernel
+                    )
                 }
                 f => {
-                    assert!(f.starts_with("fixed 32.16 truncate") && r.skipped.is_none(), "{robot}: {r:?}");
-                    assert!(r.overflowed.is_some() && (r.error.is_some() || r.overflowed == Some(12)));
+                    assert!(
+                        f.starts_with("fixed 32.16 truncate") && r.skipped.is_none(),
+                        "{robot}: {r:?}"
+                    );
+                    assert!(
+                        r.overflowed.is_some() && (r.error.is_some() || r.overflowed == Some(12))
+                    );
                 }
             }
         }
@@ -97,7 +125,8 @@ fn random_states_are_seeded_and_inside_the_bounds() {
         assert!(qdd.iter().zip(&bounds.qdd).all(|(a, b)| a.abs() <= b * (1.0 + 1e-9)));
     }
     let slow = accuracy::random_states(&model, g, 5, 5, Some(0.5), Some(2.0));
-    assert!(slow.states.iter().all(|s| s.qd.iter().all(|v| v.abs() <= 0.5) && s.qdd.as_ref().unwrap().iter().all(|v| v.abs() <= 2.0)));
+    assert!(slow.states.iter().all(|s| s.qd.iter().all(|v| v.abs() <= 0.5)
+        && s.qdd.as_ref().unwrap().iter().all(|v| v.abs() <= 2.0)));
 }
 
 #[test]
@@ -109,7 +138,10 @@ fn the_plot_has_a_point_per_measured_row_and_escapes_names() {
     let report = accuracy::measure(&model, &states, "test", &options(&model), &mut []).unwrap();
     let svg = accuracy::svg(&report);
     assert!(svg.starts_with("<svg ") && svg.trim_end().ends_with("</svg>"));
-    assert!(svg.contains("a&lt;b&amp;c &#x2264; ") && !svg.contains("a<b"), "the robot name is escaped");
+    assert!(
+        svg.contains("a&lt;b&amp;c &#x2264; ") && !svg.contains("a<b"),
+        "the robot name is escaped"
+    );
     let measured = report.rows.iter().filter(|r| r.error.is_some()).count();
     let legend = 4;
     assert_eq!(svg.matches("<circle").count(), measured + legend);
@@ -123,9 +155,14 @@ fn the_plot_has_a_point_per_measured_row_and_escapes_names() {
         }
     }
     let svg = accuracy::svg(&timed);
-    let number = |s: &str, key: &str| -> f64 { s.split(key).nth(1).unwrap().split('"').next().unwrap().parse().unwrap() };
+    let number = |s: &str, key: &str| -> f64 {
+        s.split(key).nth(1).unwrap().split('"').next().unwrap().parse().unwrap()
+    };
     for point in svg.split("<line x1=").skip(1).filter(|l| l.contains("<circle cx=\"")) {
         let (cx, cy) = (number(point, "<circle cx=\""), number(point, "cy=\""));
-        assert!((70.0..=550.0).contains(&cx) && (40.0..430.0).contains(&cy), "point at ({cx}, {cy}) outside the plot area");
+        assert!(
+            (70.0..=550.0).contains(&cx) && (40.0..430.0).contains(&cy),
+            "point at ({cx}, {cy}) outside the plot area"
+        );
     }
 }

@@ -32,7 +32,8 @@ const HOSTILE: &str = r#"<robot name="../../evil&quot;); std::process::exit(1); 
 #[test]
 fn urdf_names_cannot_inject_code_or_paths() {
     // The file name is written into the header too.
-    let (model, _) = grid_gen::Model::from_urdf_str("x/h.urdf\n}\nfn y() {}\n//", HOSTILE, false).unwrap();
+    let (model, _) =
+        grid_gen::Model::from_urdf_str("x/h.urdf\n}\nfn y() {}\n//", HOSTILE, false).unwrap();
     let file = generate(&model, &Options::default()).unwrap().remove(0);
     assert_eq!(file.name, "______evil____std__process__exit_1_____.rs");
     // The code parses, and its only items are the ones grid-gen writes.
@@ -54,7 +55,11 @@ fn urdf_names_cannot_inject_code_or_paths() {
                         syn::Item::Fn(f) => {
                             let name = f.sig.ident.to_string();
                             let kernel = name.split("_part").next().unwrap();
-                            assert!(["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"].contains(&kernel), "unexpected fn {name}");
+                            assert!(
+                                ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]
+                                    .contains(&kernel),
+                                "unexpected fn {name}"
+                            );
                         }
                         _ => panic!("unexpected item in mod {}", m.ident),
                     }
@@ -97,9 +102,17 @@ fn urdf_names_cannot_inject_code_or_paths() {
             })
             .map(|e| match *e {
                 syn::Expr::Lit(syn::ExprLit { lit: syn::Lit::Str(s), .. }) => vec![s.value()],
-                syn::Expr::Array(a) => {
-                    a.elems.iter().map(|e| if let syn::Expr::Lit(syn::ExprLit { lit: syn::Lit::Str(s), .. }) = e { s.value() } else { panic!() }).collect()
-                }
+                syn::Expr::Array(a) => a
+                    .elems
+                    .iter()
+                    .map(|e| {
+                        if let syn::Expr::Lit(syn::ExprLit { lit: syn::Lit::Str(s), .. }) = e {
+                            s.value()
+                        } else {
+                            panic!()
+                        }
+                    })
+                    .collect(),
                 _ => panic!("not a literal"),
             })
             .unwrap()
@@ -110,7 +123,10 @@ fn urdf_names_cannot_inject_code_or_paths() {
     assert!(file.contents.lines().filter(|l| l.starts_with("//")).all(|l| !l.contains("fn x()")));
     // The file name (the last path component: `h.urdf`, a newline, `}`, ...) is escaped
     // onto one comment line.
-    assert_eq!(grid_gen::back::source_of(&file.contents), Some("h.urdf\\u{a}}\\u{a}fn y() {}\\u{a}"));
+    assert_eq!(
+        grid_gen::back::source_of(&file.contents),
+        Some("h.urdf\\u{a}}\\u{a}fn y() {}\\u{a}")
+    );
 }
 
 /// The C target's files for the hostile robot: the Rust file's only module holds what
@@ -119,10 +135,15 @@ fn urdf_names_cannot_inject_code_or_paths() {
 #[test]
 fn urdf_names_cannot_inject_code_into_the_c_abi() {
     use grid_gen::generate::Target;
-    let (model, _) = grid_gen::Model::from_urdf_str("x/h.urdf\n*/ int evil;", HOSTILE, false).unwrap();
-    let files = generate(&model, &Options { targets: vec![Target::C], ..Options::default() }).unwrap();
+    let (model, _) =
+        grid_gen::Model::from_urdf_str("x/h.urdf\n*/ int evil;", HOSTILE, false).unwrap();
+    let files =
+        generate(&model, &Options { targets: vec![Target::C], ..Options::default() }).unwrap();
     let stem = "______evil____std__process__exit_1_____";
-    assert_eq!(files.iter().map(|f| f.name.as_str()).collect::<Vec<_>>(), [format!("{stem}_c.rs"), format!("{stem}.h")]);
+    assert_eq!(
+        files.iter().map(|f| f.name.as_str()).collect::<Vec<_>>(),
+        [format!("{stem}_c.rs"), format!("{stem}.h")]
+    );
     let parsed = syn::parse_file(&files[0].contents).unwrap();
     assert_eq!(parsed.items.len(), 1);
     let syn::Item::Mod(m) = &parsed.items[0] else { panic!("one module") };
@@ -130,13 +151,31 @@ fn urdf_names_cannot_inject_code_into_the_c_abi() {
     for item in &m.content.as_ref().unwrap().1 {
         match item {
             syn::Item::Use(_) => {}
-            syn::Item::Const(c) => assert!(["GRID_GEN_OK", "GRID_GEN_NULL_POINTER", "GRID_GEN_BAD_LENGTH", "MANIFEST"].contains(&c.ident.to_string().as_str())),
+            syn::Item::Const(c) => {
+                assert!(["GRID_GEN_OK", "GRID_GEN_NULL_POINTER", "GRID_GEN_BAD_LENGTH", "MANIFEST"]
+                    .contains(&c.ident.to_string().as_str()))
+            }
             syn::Item::Fn(f) => {
                 let name = f.sig.ident.to_string();
-                let kernel =
-                    name.strip_prefix(&format!("robot{stem}_")).unwrap_or(&name).trim_end_matches("_f64").trim_end_matches("_f32").trim_end_matches("_batch");
+                let kernel = name
+                    .strip_prefix(&format!("robot{stem}_"))
+                    .unwrap_or(&name)
+                    .trim_end_matches("_f64")
+                    .trim_end_matches("_f32")
+                    .trim_end_matches("_batch");
                 assert!(
-                    ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad", "set_threads", "threads", "manifest"].contains(&kernel),
+                    [
+                        "rnea",
+                        "rnea_grad",
+                        "mass_matrix",
+                        "minv",
+                        "fd",
+                        "fd_grad",
+                        "set_threads",
+                        "threads",
+                        "manifest"
+                    ]
+                    .contains(&kernel),
                     "unexpected fn {name}"
                 );
             }
@@ -153,7 +192,11 @@ fn urdf_names_cannot_inject_code_into_the_c_abi() {
         format!("#include <stdio.h>\n#include \"{stem}.h\"\nint main(void) {{ fputs({upper}_JOINT_NAMES[0], stdout); return {upper}_NV == 1 ? 0 : 1; }}\n"),
     )
     .unwrap();
-    let cc = std::process::Command::new("cc").current_dir(&dir).args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-o", "names", "main.c"]).output().unwrap();
+    let cc = std::process::Command::new("cc")
+        .current_dir(&dir)
+        .args(["-std=c99", "-Wall", "-Wextra", "-Werror", "-o", "names", "main.c"])
+        .output()
+        .unwrap();
     assert!(cc.status.success(), "{}", String::from_utf8_lossy(&cc.stderr));
     let run = std::process::Command::new(dir.join("names")).output().unwrap();
     std::fs::remove_dir_all(&dir).unwrap();
@@ -184,7 +227,17 @@ fn a_robot_without_movable_joints_compiles_without_warnings() {
     .unwrap();
     let rustc = std::env::var("RUSTC").unwrap_or_else(|_| "rustc".into());
     let out = std::process::Command::new(rustc)
-        .args(["--edition", "2021", "--crate-type", "lib", "--emit", "metadata", "-D", "warnings", "--out-dir"])
+        .args([
+            "--edition",
+            "2021",
+            "--crate-type",
+            "lib",
+            "--emit",
+            "metadata",
+            "-D",
+            "warnings",
+            "--out-dir",
+        ])
         .arg(&dir)
         .arg(dir.join("lib.rs"))
         .output()
@@ -205,17 +258,41 @@ fn builder_writes_once_and_names_urdf_problems() {
     let first = std::fs::metadata(path).unwrap().modified().unwrap();
     std::thread::sleep(std::time::Duration::from_millis(20));
     Builder::new().urdf(&urdf).out_dir(&dir).quiet(true).compile().unwrap();
-    assert_eq!(std::fs::metadata(path).unwrap().modified().unwrap(), first, "unchanged contents are not rewritten");
+    assert_eq!(
+        std::fs::metadata(path).unwrap().modified().unwrap(),
+        first,
+        "unchanged contents are not rewritten"
+    );
 
     let bad = repo().join("tests/diagnostics/unknown_parent.urdf");
-    let err = Builder::new().urdf(&bad).out_dir(&dir).quiet(true).compile().unwrap_err().to_string();
-    assert!(err.contains("unknown_parent.urdf:4:36: error: joint `j1` names unknown parent link `bsae`"), "{err}");
+    let err =
+        Builder::new().urdf(&bad).out_dir(&dir).quiet(true).compile().unwrap_err().to_string();
+    assert!(
+        err.contains(
+            "unknown_parent.urdf:4:36: error: joint `j1` names unknown parent link `bsae`"
+        ),
+        "{err}"
+    );
     assert!(err.contains("help: correct the name or add the missing <link>"), "{err}");
-    let err = Builder::new().urdf(&urdf).out_dir(&dir).file_name("../x.rs").quiet(true).compile().unwrap_err().to_string();
+    let err = Builder::new()
+        .urdf(&urdf)
+        .out_dir(&dir)
+        .file_name("../x.rs")
+        .quiet(true)
+        .compile()
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("must be a plain `*.rs` name"), "{err}");
     let err = Builder::new().out_dir(&dir).compile().unwrap_err().to_string();
     assert!(err.contains("no URDF given"), "{err}");
-    let err = Builder::new().urdf(&urdf).out_dir(&dir).emit(&[]).quiet(true).compile().unwrap_err().to_string();
+    let err = Builder::new()
+        .urdf(&urdf)
+        .out_dir(&dir)
+        .emit(&[])
+        .quiet(true)
+        .compile()
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("no targets selected"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
@@ -231,13 +308,20 @@ fn the_avx512_copy_matches_the_fma_copy_bit_for_bit() {
     let model = load("ur5");
     let options = Options {
         targets: vec![grid_gen::generate::Target::Rust],
-        lower: grid_gen::ir::LowerOptions { kernels: vec![grid_gen::ir::KernelKind::RneaGrad, grid_gen::ir::KernelKind::FdGrad], ..Default::default() },
+        lower: grid_gen::ir::LowerOptions {
+            kernels: vec![grid_gen::ir::KernelKind::RneaGrad, grid_gen::ir::KernelKind::FdGrad],
+            ..Default::default()
+        },
         rust: grid_gen::back::rust::RustOptions { avx512: true, ..Default::default() },
         ..Options::default()
     };
     let file = generate(&model, &options).unwrap().remove(0);
-    assert!(file.contents.contains("pub mod avx512") && file.contents.contains("pub fn has_avx512()"));
-    let default = generate(&model, &Options { rust: Default::default(), ..options.clone() }).unwrap().remove(0);
+    assert!(
+        file.contents.contains("pub mod avx512") && file.contents.contains("pub fn has_avx512()")
+    );
+    let default = generate(&model, &Options { rust: Default::default(), ..options.clone() })
+        .unwrap()
+        .remove(0);
     assert!(!default.contents.contains("avx512"), "the avx512 copy is opt-in");
     let said = compile_and_run(
         "avx512",
@@ -273,8 +357,12 @@ fn main() {
     );
     let said = said.trim().to_string();
     match said.as_str() {
-        "same" => println!("ur5: the avx512 copy equals the fma copy bit for bit (f64, f32, Lanes<4>, Lanes<8>)"),
-        "no AVX-512" => eprintln!("note: this CPU has no AVX-512 F and VL; the avx512 copy was compiled but not run"),
+        "same" => println!(
+            "ur5: the avx512 copy equals the fma copy bit for bit (f64, f32, Lanes<4>, Lanes<8>)"
+        ),
+        "no AVX-512" => eprintln!(
+            "note: this CPU has no AVX-512 F and VL; the avx512 copy was compiled but not run"
+        ),
         other => panic!("unexpected output `{other}`"),
     }
 }
@@ -287,11 +375,21 @@ fn main() {
 #[test]
 fn the_looped_product_matches_the_portable_copy() {
     let model = load("grid_iiwa");
-    let lower = grid_gen::ir::LowerOptions { kernels: vec![grid_gen::ir::KernelKind::FdGrad], solve: grid_gen::ir::Solve::Minv, ..Default::default() };
-    let options = Options { targets: vec![grid_gen::generate::Target::Rust], lower, ..Options::default() };
+    let lower = grid_gen::ir::LowerOptions {
+        kernels: vec![grid_gen::ir::KernelKind::FdGrad],
+        solve: grid_gen::ir::Solve::Minv,
+        ..Default::default()
+    };
+    let options =
+        Options { targets: vec![grid_gen::generate::Target::Rust], lower, ..Options::default() };
     let file = generate(&model, &options).unwrap().remove(0);
-    assert!(file.contents.contains("r0[c] = T::mul_add(m, pd0[j][c], r0[c]);"), "the fma copy loops over the product");
-    let auto = generate(&model, &Options { lower: Default::default(), ..options.clone() }).unwrap().remove(0);
+    assert!(
+        file.contents.contains("r0[c] = T::mul_add(m, pd0[j][c], r0[c]);"),
+        "the fma copy loops over the product"
+    );
+    let auto = generate(&model, &Options { lower: Default::default(), ..options.clone() })
+        .unwrap()
+        .remove(0);
     assert!(!auto.contents.contains("pd0[j][c]"), "auto factorises M on iiwa (no dense product)");
     let said = compile_and_run(
         "looped",

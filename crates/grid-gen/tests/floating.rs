@@ -40,13 +40,21 @@ fn a_urdf_floating_joint_is_the_floating_base_flag() {
         let q = flag.q_from_joints(&rng.vec(18, -3.0, 3.0), rng.base_pose());
         let (qd, qdd) = (rng.vec(18, -2.0, 2.0), rng.vec(18, -2.0, 2.0));
         // The same computation on the same model: identical to the bit.
-        assert_eq!(reference::rnea_derivatives(&flag, &q, &qd, &qdd, g), reference::rnea_derivatives(&joint, &q, &qd, &qdd, g));
+        assert_eq!(
+            reference::rnea_derivatives(&flag, &q, &qd, &qdd, g),
+            reference::rnea_derivatives(&joint, &q, &qd, &qdd, g)
+        );
         assert_eq!(reference::crba(&flag, &q), reference::crba(&joint, &q));
     }
     // A joint origin places the free-flyer's reference frame: the base pose q is then
     // relative to it, so with the origin rotated by 90° about x, gravity in the base frame
     // is that of the base rotated by the same amount under the plain flag.
-    let (rotated, _) = Model::from_urdf_str("hyq.urdf", &hyq_with_floating_joint(r#"<origin xyz="1 2 3" rpy="1.5707963267948966 0 0"/>"#), false).unwrap();
+    let (rotated, _) = Model::from_urdf_str(
+        "hyq.urdf",
+        &hyq_with_floating_joint(r#"<origin xyz="1 2 3" rpy="1.5707963267948966 0 0"/>"#),
+        false,
+    )
+    .unwrap();
     let s = std::f64::consts::FRAC_1_SQRT_2;
     let (ident, turned) = ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], [0.0, 0.0, 0.0, s, 0.0, 0.0, s]);
     let joints = rng.vec(18, -3.0, 3.0);
@@ -66,13 +74,18 @@ fn what_cannot_be_a_floating_base_is_a_located_error() {
         1,
     );
     let e = errors(&deep, &none);
-    assert!(e.contains("floating joint `deep` is not supported here") && e.contains("only the root link can carry a floating joint"), "{e}");
+    assert!(
+        e.contains("floating joint `deep` is not supported here")
+            && e.contains("only the root link can carry a floating joint"),
+        "{e}"
+    );
     // A floating joint and --floating-base.
     let both = Scene { floating_base: true, ..Scene::default() };
     let e = errors(&hyq_with_floating_joint(""), &both);
     assert!(e.contains("floating joint `float`") && e.contains("at most one floating base"), "{e}");
     // Locking one.
-    let lock = Scene { lock: [("float".to_string(), 0.0)].into_iter().collect(), ..Scene::default() };
+    let lock =
+        Scene { lock: [("float".to_string(), 0.0)].into_iter().collect(), ..Scene::default() };
     let e = errors(&hyq_with_floating_joint(""), &lock);
     assert!(e.contains("[lock] names floating joint `float`"), "{e}");
 }
@@ -81,10 +94,19 @@ fn what_cannot_be_a_floating_base_is_a_located_error() {
 fn eval_checks_the_length_and_the_quaternion() {
     let model = load_floating("grid_hyq");
     let g = reference::DEFAULT_GRAVITY;
-    let state = |q: &[f64]| format!(r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#, vec![0.5; 18], vec![0.1; 18]);
+    let state = |q: &[f64]| {
+        format!(
+            r#"{{"states": [{{"q": {q:?}, "qd": {:?}, "qdd": {:?}}}]}}"#,
+            vec![0.5; 18],
+            vec![0.1; 18]
+        )
+    };
     let mut q = model.q_from_joints(&[0.3; 18], [0.1, 0.2, 0.3, 0.5, 0.5, 0.5, 0.5]);
     let out = evaluate(&model, &parse_states(&state(&q)).unwrap(), g).unwrap();
-    assert_eq!(out.states[0].rnea.as_ref().unwrap(), &reference::rnea(&model, &q, &[0.5; 18], &[0.1; 18], g));
+    assert_eq!(
+        out.states[0].rnea.as_ref().unwrap(),
+        &reference::rnea(&model, &q, &[0.5; 18], &[0.1; 18], g)
+    );
     // nv entries instead of nq.
     let e = evaluate(&model, &parse_states(&state(&q[..18])).unwrap(), g).unwrap_err();
     assert!(matches!(e, EvalError::FloatingLength { index: 0, found: 18, expected: 19 }), "{e}");
@@ -115,11 +137,27 @@ fn the_base_position_does_not_enter() {
     let [_, _, _, qx, qy, qz, qw] = rng.base_pose();
     let g = reference::DEFAULT_GRAVITY;
     let (qd, qdd) = (rng.vec(model.nv(), -1.0, 1.0), rng.vec(model.nv(), -1.0, 1.0));
-    let here = reference::rnea_derivatives(&model, &model.q_from_joints(&joints, [0.0, 0.0, 0.0, qx, qy, qz, qw]), &qd, &qdd, g);
-    let there = reference::rnea_derivatives(&model, &model.q_from_joints(&joints, [5.0, -7.0, 100.0, qx, qy, qz, qw]), &qd, &qdd, g);
+    let here = reference::rnea_derivatives(
+        &model,
+        &model.q_from_joints(&joints, [0.0, 0.0, 0.0, qx, qy, qz, qw]),
+        &qd,
+        &qdd,
+        g,
+    );
+    let there = reference::rnea_derivatives(
+        &model,
+        &model.q_from_joints(&joints, [5.0, -7.0, 100.0, qx, qy, qz, qw]),
+        &qd,
+        &qdd,
+        g,
+    );
     assert_eq!(here, there);
     let module = ir::lower(&model, g, &LowerOptions::default()).unwrap();
     for f in &module.functions {
-        assert!(f.nodes.iter().all(|n| !matches!(n.op, Op::Input(Input::Q, 0..=2))), "{} reads the base position", f.kind.name());
+        assert!(
+            f.nodes.iter().all(|n| !matches!(n.op, Op::Input(Input::Q, 0..=2))),
+            "{} reads the base position",
+            f.kind.name()
+        );
     }
 }

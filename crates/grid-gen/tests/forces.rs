@@ -26,13 +26,22 @@ fn fixture_model(name: &str, fx: &serde_json::Value) -> Model {
         "grid_atlas.floating" => load_floating("grid_atlas"),
         _ => unreachable!(),
     };
-    let fext: Vec<&str> = fx["fext"].as_array().map_or(Vec::new(), |a| a.iter().map(|n| n.as_str().unwrap()).collect());
-    let contacts: Vec<(&str, ContactKind)> =
-        fx["contacts"].as_array().unwrap().iter().map(|c| (c["frame"].as_str().unwrap(), ContactKind::parse(c["type"].as_str().unwrap()).unwrap())).collect();
+    let fext: Vec<&str> = fx["fext"]
+        .as_array()
+        .map_or(Vec::new(), |a| a.iter().map(|n| n.as_str().unwrap()).collect());
+    let contacts: Vec<(&str, ContactKind)> = fx["contacts"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|c| {
+            (c["frame"].as_str().unwrap(), ContactKind::parse(c["type"].as_str().unwrap()).unwrap())
+        })
+        .collect();
     with_forces(&model, &fext, &contacts)
 }
 
-const FIXTURES: [&str; 4] = ["grid_iiwa", "grid_hyq.floating", "go2.floating", "grid_atlas.floating"];
+const FIXTURES: [&str; 4] =
+    ["grid_iiwa", "grid_hyq.floating", "go2.floating", "grid_atlas.floating"];
 
 /// One fixture state in grid-gen's order: (q, q̇, q̈, τ, fext, λ) and the fixture's
 /// permutation to reorder its matrices' rows and columns.
@@ -56,8 +65,13 @@ fn states(model: &Model, fx: &serde_json::Value, name: &str) -> (Vec<State>, Vec
         o
     };
     let q_of = |v: &[f64]| {
-        let (base, angles) = if model.floating { (v[..7].try_into().unwrap(), &v[7..]) } else { ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], v) };
-        let per = if model.floating { [vec![0.0; 6], angles.to_vec()].concat() } else { angles.to_vec() };
+        let (base, angles) = if model.floating {
+            (v[..7].try_into().unwrap(), &v[7..])
+        } else {
+            ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], v)
+        };
+        let per =
+            if model.floating { [vec![0.0; 6], angles.to_vec()].concat() } else { angles.to_vec() };
         model.q_from_joints(&ours(&per), base)
     };
     let states = fx["states"]
@@ -94,8 +108,11 @@ fn reference_forces_match_pinocchio() {
         for (s, (st, want)) in states.iter().zip(fx["states"].as_array().unwrap()).enumerate() {
             let ext = External { fext: &st.fext, lambda: &st.lambda };
             let rnea = reference::rnea_with(&model, &st.q, &st.qd, &st.qdd, g, ext);
-            let (dq, dqd) = reference::rnea_derivatives_with(&model, &st.q, &st.qd, &st.qdd, g, ext);
-            let (fd, fdq, fdqd) = reference::forward_dynamics_derivatives_with(&model, &st.q, &st.qd, &st.tau, g, ext);
+            let (dq, dqd) =
+                reference::rnea_derivatives_with(&model, &st.q, &st.qd, &st.qdd, g, ext);
+            let (fd, fdq, fdqd) = reference::forward_dynamics_derivatives_with(
+                &model, &st.q, &st.qd, &st.tau, g, ext,
+            );
             let d = reference::force_derivatives(&model, &st.q);
             let theirs = |key: &str, square: bool| reorder(&mat_of(&want[key]), &perm, square);
             let pairs: Vec<(&str, DMatrix<f64>, DMatrix<f64>)> = vec![
@@ -136,8 +153,17 @@ fn force_derivatives_match_central_differences() {
         let (states, _) = states(&model, &fx, name);
         let st = &states[0];
         let nv = model.nv();
-        let c = |q: &[f64], fext: &[f64], lambda: &[f64]| reference::rnea_with(&model, q, &st.qd, &st.qdd, g, External { fext, lambda });
-        let (dq, _) = reference::rnea_derivatives_with(&model, &st.q, &st.qd, &st.qdd, g, External { fext: &st.fext, lambda: &st.lambda });
+        let c = |q: &[f64], fext: &[f64], lambda: &[f64]| {
+            reference::rnea_with(&model, q, &st.qd, &st.qdd, g, External { fext, lambda })
+        };
+        let (dq, _) = reference::rnea_derivatives_with(
+            &model,
+            &st.q,
+            &st.qd,
+            &st.qdd,
+            g,
+            External { fext: &st.fext, lambda: &st.lambda },
+        );
         // h = 1e-6 balances the O(h²) truncation against rounding of c (~1e3 here).
         let h = 1e-6;
         let mut num = DMatrix::zeros(nv, nv);
@@ -156,7 +182,9 @@ fn force_derivatives_match_central_differences() {
         assert!(e < 1e-7, "{name}: dc/dq against central differences {e:.2e}");
         // c is affine in the forces: one-sided differences of size 1 are exact to rounding.
         let d = reference::force_derivatives(&model, &st.q);
-        for (what, analytic, len) in [("fext", &d.dc_dfext, st.fext.len()), ("lambda", &d.dc_dlambda, st.lambda.len())] {
+        for (what, analytic, len) in
+            [("fext", &d.dc_dfext, st.fext.len()), ("lambda", &d.dc_dlambda, st.lambda.len())]
+        {
             let base = c(&st.q, &st.fext, &st.lambda);
             let mut num = DMatrix::zeros(nv, len);
             for k in 0..len {
@@ -213,18 +241,31 @@ fn force_kernels_match_the_reference() {
     let all: Vec<&str> = all.iter().map(String::as_str).collect();
     cases.push(("mimic_arm coupled".into(), with_forces(&mimic, &all, &[])));
     let ball = load_urdf(&fixtures.join("ball_arm.urdf"), true);
-    let ball_frames: Vec<String> = ball.frames.iter().filter(|f| f.body.is_some()).map(|f| f.name.clone()).collect();
+    let ball_frames: Vec<String> =
+        ball.frames.iter().filter(|f| f.body.is_some()).map(|f| f.name.clone()).collect();
     let ball_joints: Vec<String> = ball.body_joint_names().iter().map(|s| s.to_string()).collect();
     let ball_joints: Vec<&str> = ball_joints.iter().map(String::as_str).collect();
     let last = ball_frames.last().unwrap().as_str();
-    cases.push(("ball_arm floating".into(), with_forces(&ball, &ball_joints, &[(last, ContactKind::Wrench)])));
+    cases.push((
+        "ball_arm floating".into(),
+        with_forces(&ball, &ball_joints, &[(last, ContactKind::Wrench)]),
+    ));
     let g = reference::DEFAULT_GRAVITY;
     let mut rng = Rng(30);
     let mut worst: f64 = 0.0;
     let kernels = vec![KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::Fd, KernelKind::FdGrad];
     for (name, m) in &cases {
-        for (gradient, solve) in [(Gradient::Columns, Solve::Minv), (Gradient::Idsva, Solve::Ltdl), (Gradient::Columns, Solve::Crba)] {
-            let options = LowerOptions { kernels: kernels.clone(), gradient, solve, ..LowerOptions::default() };
+        for (gradient, solve) in [
+            (Gradient::Columns, Solve::Minv),
+            (Gradient::Idsva, Solve::Ltdl),
+            (Gradient::Columns, Solve::Crba),
+        ] {
+            let options = LowerOptions {
+                kernels: kernels.clone(),
+                gradient,
+                solve,
+                ..LowerOptions::default()
+            };
             let module = ir::lower(m, g, &options).unwrap();
             let nv = m.nv();
             for state in 0..2 {
@@ -233,7 +274,11 @@ fn force_kernels_match_the_reference() {
                 let (fext, lambda) = random_forces(m, &mut rng);
                 let ext = External { fext: &fext, lambda: &lambda };
                 for f in &module.functions {
-                    assert!(f.inputs().contains(&ir::Input::Fext) == (m.nfext() > 0), "{name} {}: takes fext", f.kind);
+                    assert!(
+                        f.inputs().contains(&ir::Input::Fext) == (m.nfext() > 0),
+                        "{name} {}: takes fext",
+                        f.kind
+                    );
                     let got = f.eval(&kernel_args_with(f.inputs(), &q, &qd, &u, ext));
                     let want = reference_outputs_with(f.kind, m, &q, &qd, &u, g, ext);
                     assert_eq!(got.len(), want.len(), "{name} {}: outputs", f.kind);
@@ -243,7 +288,12 @@ fn force_kernels_match_the_reference() {
                         worst = worst.max(e);
                         // The same f64 dynamics by other routes; Crba's q̈ solves with M
                         // (cond(M) ~ 1e3 on these robots, see `ir::CRBA_MAX_DEPTH`).
-                        assert!(e < 1e-11, "{name} {gradient:?} {solve:?} state {state} {} {}: {e:.2e}", f.kind, o.name);
+                        assert!(
+                            e < 1e-11,
+                            "{name} {gradient:?} {solve:?} state {state} {} {}: {e:.2e}",
+                            f.kind,
+                            o.name
+                        );
                     }
                 }
             }
@@ -259,7 +309,11 @@ fn kernels_without_forces_are_unchanged() {
     let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
     for f in &module.functions {
         assert_eq!(f.inputs(), f.kind.inputs(), "{}", f.kind);
-        assert!(f.outputs.iter().all(|o| !o.name.contains("fext") && !o.name.contains("lambda")), "{}", f.kind);
+        assert!(
+            f.outputs.iter().all(|o| !o.name.contains("fext") && !o.name.contains("lambda")),
+            "{}",
+            f.kind
+        );
     }
 }
 
@@ -280,7 +334,10 @@ fn bad_forces_are_errors() {
         let err = load(scene).err().unwrap_or_else(|| panic!("{scene:?} loads"));
         assert!(err.contains(says), "{scene:?}: {err}");
     }
-    assert!(Scene::parse("s.toml", "[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"line\"\n").is_err(), "an unknown contact type");
+    assert!(
+        Scene::parse("s.toml", "[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"line\"\n").is_err(),
+        "an unknown contact type"
+    );
     let m = load("floating_base = true\n[external_forces]\njoints = [\"*\"]\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"point\"\n").unwrap();
     assert_eq!(m.nfext(), 13, "`*`: the base and twelve leg bodies");
     assert_eq!(m.nlambda(), 3);
@@ -292,15 +349,28 @@ fn bad_forces_are_errors() {
 #[test]
 fn force_kernels_compile_and_match_the_reference() {
     use grid_gen::generate::{generate, Options, Target};
-    let legs: Vec<String> = ["lf", "rf", "lh", "rh"].iter().map(|l| format!("{l}_lowerleg")).collect();
-    let contacts: Vec<(&str, ContactKind)> = legs.iter().map(|l| (l.as_str(), ContactKind::Point)).collect();
+    let legs: Vec<String> =
+        ["lf", "rf", "lh", "rh"].iter().map(|l| format!("{l}_lowerleg")).collect();
+    let contacts: Vec<(&str, ContactKind)> =
+        legs.iter().map(|l| (l.as_str(), ContactKind::Point)).collect();
     let hyq = load_floating("grid_hyq");
     let all: Vec<String> = hyq.body_joint_names().iter().map(|s| s.to_string()).collect();
     let all: Vec<&str> = all.iter().map(String::as_str).collect();
     let model = with_forces(&hyq, &all, &contacts);
-    let lower = LowerOptions { kernels: vec![KernelKind::RneaGrad, KernelKind::FdGrad], ..LowerOptions::default() };
-    let file = generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() }).unwrap().remove(0);
-    for needle in ["pub const NFEXT: usize = 13;", "pub const NLAMBDA: usize = 12;", "(\"lf_lowerleg\", \"point\")", "fext: &[T; 6 * NFEXT]"] {
+    let lower = LowerOptions {
+        kernels: vec![KernelKind::RneaGrad, KernelKind::FdGrad],
+        ..LowerOptions::default()
+    };
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
+    for needle in [
+        "pub const NFEXT: usize = 13;",
+        "pub const NLAMBDA: usize = 12;",
+        "(\"lf_lowerleg\", \"point\")",
+        "fext: &[T; 6 * NFEXT]",
+    ] {
         assert!(file.contents.contains(needle), "the module has {needle}");
     }
     let said = compile_and_run(
@@ -326,7 +396,9 @@ fn main() {
 }
 "#,
     );
-    let state = |k: usize, i: usize, salt: usize| (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5;
+    let state = |k: usize, i: usize, salt: usize| {
+        (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5
+    };
     let (nv, nq) = (model.nv(), model.nq());
     let g = reference::DEFAULT_GRAVITY;
     let mut worst: f64 = 0.0;
@@ -337,7 +409,8 @@ fn main() {
         let fext: Vec<f64> = (0..6 * model.nfext()).map(|i| 10.0 * state(k, i, 3)).collect();
         let lambda: Vec<f64> = (0..model.nlambda()).map(|i| 50.0 * state(k, i, 4)).collect();
         let ext = External { fext: &fext, lambda: &lambda };
-        let mut want = reference_outputs_with(KernelKind::RneaGrad, &model, &q, &x[0], &x[1], g, ext);
+        let mut want =
+            reference_outputs_with(KernelKind::RneaGrad, &model, &q, &x[0], &x[1], g, ext);
         want.extend(reference_outputs_with(KernelKind::FdGrad, &model, &q, &x[0], &x[1], g, ext));
         let want: Vec<f64> = want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
         assert_eq!(got.len() - nq, want.len());
@@ -363,10 +436,13 @@ fn reference_contact_dynamics_matches_pinocchio() {
         let g: [f64; 3] = vec_of(&fx["gravity"]).try_into().unwrap();
         let (states, perm) = states(&model, &fx, name);
         for (s, (st, want)) in states.iter().zip(fx["states"].as_array().unwrap()).enumerate() {
-            let (sol, d) = reference::contact_fd_derivatives(&model, &st.q, &st.qd, &st.tau, g, &[]).expect("independent contacts");
+            let (sol, d) =
+                reference::contact_fd_derivatives(&model, &st.q, &st.qd, &st.tau, g, &[])
+                    .expect("independent contacts");
             let square = |key: &str| reorder(&mat_of(&want[key]), &perm, true);
             // λ's rows are the contacts', in both; only its columns are coordinates.
-            let by_coordinate = |key: &str| reorder(&mat_of(&want[key]).transpose(), &perm, false).transpose();
+            let by_coordinate =
+                |key: &str| reorder(&mat_of(&want[key]).transpose(), &perm, false).transpose();
             let pairs: Vec<(&str, DMatrix<f64>, DMatrix<f64>)> = vec![
                 ("qdd", col(&sol.qdd), reorder(&col(&vec_of(&want["qdd"])), &perm, false)),
                 ("lambda", col(&sol.lambda), col(&vec_of(&want["lambda"]))),
@@ -398,14 +474,27 @@ fn reference_contact_dynamics_matches_pinocchio() {
 fn contact_accelerations_match_frames_and_central_differences() {
     use grid_gen::model::ReferenceFrame;
     let fixtures = repo().join("tests/fixtures");
-    let mut cases: Vec<(String, Model)> =
-        FIXTURES.iter().map(|name| (name.to_string(), fixture_model(name, &fixture(&format!("{name}.contact.pinocchio.json"))))).collect();
+    let mut cases: Vec<(String, Model)> = FIXTURES
+        .iter()
+        .map(|name| {
+            (
+                name.to_string(),
+                fixture_model(name, &fixture(&format!("{name}.contact.pinocchio.json"))),
+            )
+        })
+        .collect();
     let mimic = load_coupled_urdf(&fixtures.join("mimic_arm.urdf"));
     let tip = mimic.frames.iter().rev().find(|f| f.body.is_some()).unwrap().name.clone();
-    cases.push(("mimic_arm coupled".into(), with_forces(&mimic, &[], &[(tip.as_str(), ContactKind::Point)])));
+    cases.push((
+        "mimic_arm coupled".into(),
+        with_forces(&mimic, &[], &[(tip.as_str(), ContactKind::Point)]),
+    ));
     let ball = load_urdf(&fixtures.join("ball_arm.urdf"), true);
     let tip = ball.frames.iter().rev().find(|f| f.body.is_some()).unwrap().name.clone();
-    cases.push(("ball_arm floating".into(), with_forces(&ball, &[], &[(tip.as_str(), ContactKind::Wrench)])));
+    cases.push((
+        "ball_arm floating".into(),
+        with_forces(&ball, &[], &[(tip.as_str(), ContactKind::Wrench)]),
+    ));
     let mut rng = Rng(31);
     let (mut worst, mut worst_frame): (f64, f64) = (0.0, 0.0);
     for (name, m) in &cases {
@@ -413,16 +502,27 @@ fn contact_accelerations_match_frames_and_central_differences() {
         let nv = m.nv();
         let q = random_config(m, &mut rng);
         let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -5.0, 5.0));
-        let acc = |q: &[f64], qd: &[f64]| reference::contact_accelerations(m, contacts, q, qd, &qdd);
+        let acc =
+            |q: &[f64], qd: &[f64]| reference::contact_accelerations(m, contacts, q, qd, &qdd);
         let here = acc(&q, &qd);
         let mut at = 0;
         for c in contacts {
             if c.kind == ContactKind::Point {
                 let frame = &m.frames[c.frame];
-                let want = reference::frame_classical_acceleration(m, &q, &qd, &qdd, frame, ReferenceFrame::LocalWorldAligned);
+                let want = reference::frame_classical_acceleration(
+                    m,
+                    &q,
+                    &qd,
+                    &qdd,
+                    frame,
+                    ReferenceFrame::LocalWorldAligned,
+                );
                 let e = rel_err(&col(&here[at..at + 3]), &col(&want));
                 worst_frame = worst_frame.max(e);
-                assert!(e < 1e-12, "{name}: a point contact's acceleration is its frame's classical one ({e:.2e})");
+                assert!(
+                    e < 1e-12,
+                    "{name}: a point contact's acceleration is its frame's classical one ({e:.2e})"
+                );
             }
             at += c.kind.dim();
         }
@@ -430,7 +530,8 @@ fn contact_accelerations_match_frames_and_central_differences() {
         // h = 1e-6: O(h²) truncation ~1e-12 against rounding ~1e-16·|acc|/h ~ 1e-8 relative
         // at worst; q̇'s dependence is quadratic, so its central difference is exact.
         let h = 1e-6;
-        let (mut num_q, mut num_qd) = (DMatrix::zeros(here.len(), nv), DMatrix::zeros(here.len(), nv));
+        let (mut num_q, mut num_qd) =
+            (DMatrix::zeros(here.len(), nv), DMatrix::zeros(here.len(), nv));
         for u in 0..nv {
             let mut e = vec![0.0; nv];
             e[u] = h;
@@ -449,7 +550,10 @@ fn contact_accelerations_match_frames_and_central_differences() {
         for (what, ours, num, bound) in [("dq", &dq, &num_q, 1e-7), ("dqd", &dqd, &num_qd, 1e-12)] {
             let e = rel_err(ours, num);
             worst = worst.max(e);
-            assert!(e < bound, "{name}: dacc/{what} against central differences {e:.2e} (bound {bound:e})");
+            assert!(
+                e < bound,
+                "{name}: dacc/{what} against central differences {e:.2e} (bound {bound:e})"
+            );
         }
     }
     println!("contact accelerations: {worst_frame:.2e} from the frame reference; derivatives {worst:.2e} from central differences");
@@ -467,7 +571,9 @@ fn dependent_contacts_are_errors() {
     ];
     for (robot, scene, says) in cases {
         match (load_scene_text(robot, scene), says) {
-            (Err(err), Some(says)) => assert!(err.contains(says) && err.contains("rank"), "{robot} {scene:?}: {err}"),
+            (Err(err), Some(says)) => {
+                assert!(err.contains(says) && err.contains("rank"), "{robot} {scene:?}: {err}")
+            }
             (Ok(_), None) => {}
             (got, _) => panic!("{robot} {scene:?}: {:?}", got.err()),
         }
@@ -475,10 +581,25 @@ fn dependent_contacts_are_errors() {
     // Atlas (whose URDF's inertias the scene loader rejects as implausible): its feet hold,
     // a foot and the ankle link one joint above it do not.
     let atlas = load_floating("grid_atlas");
-    let feet = with_forces(&atlas, &[], &[("l_foot", ContactKind::Wrench), ("r_foot", ContactKind::Wrench)]);
+    let feet = with_forces(
+        &atlas,
+        &[],
+        &[("l_foot", ContactKind::Wrench), ("r_foot", ContactKind::Wrench)],
+    );
     assert_eq!(reference::check_contact_rank(&feet, &feet.specialisation.contacts), Ok(()));
-    let three = with_forces(&atlas, &[], &[("l_foot", ContactKind::Wrench), ("r_foot", ContactKind::Wrench), ("l_talus", ContactKind::Wrench)]);
-    assert_eq!(reference::check_contact_rank(&three, &three.specialisation.contacts), Err(vec![0, 2]));
+    let three = with_forces(
+        &atlas,
+        &[],
+        &[
+            ("l_foot", ContactKind::Wrench),
+            ("r_foot", ContactKind::Wrench),
+            ("l_talus", ContactKind::Wrench),
+        ],
+    );
+    assert_eq!(
+        reference::check_contact_rank(&three, &three.specialisation.contacts),
+        Err(vec![0, 2])
+    );
 }
 
 /// The contact kernels' IR against the reference: the fixture robots' contact sets, a
@@ -487,21 +608,43 @@ fn dependent_contacts_are_errors() {
 #[test]
 fn contact_kernels_match_the_reference() {
     let fixtures = repo().join("tests/fixtures");
-    let mut cases: Vec<(String, Model)> =
-        FIXTURES.iter().map(|name| (name.to_string(), fixture_model(name, &fixture(&format!("{name}.contact.pinocchio.json"))))).collect();
+    let mut cases: Vec<(String, Model)> = FIXTURES
+        .iter()
+        .map(|name| {
+            (
+                name.to_string(),
+                fixture_model(name, &fixture(&format!("{name}.contact.pinocchio.json"))),
+            )
+        })
+        .collect();
     // Panda with its fingers coupled: the tool point and a force on the left finger.
     let panda = load_coupled_urdf(&repo().join("robots/panda.urdf"));
-    cases.push(("panda coupled".into(), with_forces(&panda, &["panda_finger_joint1"], &[("panda_hand_tcp", ContactKind::Point)])));
+    cases.push((
+        "panda coupled".into(),
+        with_forces(&panda, &["panda_finger_joint1"], &[("panda_hand_tcp", ContactKind::Point)]),
+    ));
     let ball = load_urdf(&fixtures.join("ball_arm.urdf"), true);
     let tip = ball.frames.iter().rev().find(|f| f.body.is_some()).unwrap().name.clone();
-    cases.push(("ball_arm floating".into(), with_forces(&ball, &["root_joint"], &[(tip.as_str(), ContactKind::Wrench)])));
+    cases.push((
+        "ball_arm floating".into(),
+        with_forces(&ball, &["root_joint"], &[(tip.as_str(), ContactKind::Wrench)]),
+    ));
     let g = reference::DEFAULT_GRAVITY;
     let mut rng = Rng(32);
     let mut worst: f64 = 0.0;
     let kernels = vec![KernelKind::ContactFd, KernelKind::ContactFdGrad];
     for (name, m) in &cases {
-        for (gradient, solve) in [(Gradient::Columns, Solve::Minv), (Gradient::Idsva, Solve::Ltdl), (Gradient::Columns, Solve::Crba)] {
-            let options = LowerOptions { kernels: kernels.clone(), gradient, solve, ..LowerOptions::default() };
+        for (gradient, solve) in [
+            (Gradient::Columns, Solve::Minv),
+            (Gradient::Idsva, Solve::Ltdl),
+            (Gradient::Columns, Solve::Crba),
+        ] {
+            let options = LowerOptions {
+                kernels: kernels.clone(),
+                gradient,
+                solve,
+                ..LowerOptions::default()
+            };
             let module = ir::lower(m, g, &options).unwrap();
             assert_eq!(module.functions.len(), 2, "{name}: both contact kernels");
             let nv = m.nv();
@@ -511,7 +654,11 @@ fn contact_kernels_match_the_reference() {
                 let (fext, _) = random_forces(m, &mut rng);
                 let ext = External { fext: &fext, lambda: &[] };
                 for f in &module.functions {
-                    assert!(!f.inputs().contains(&ir::Input::Lambda), "{name} {}: solves for λ", f.kind);
+                    assert!(
+                        !f.inputs().contains(&ir::Input::Lambda),
+                        "{name} {}: solves for λ",
+                        f.kind
+                    );
                     let got = f.eval(&kernel_args_with(f.inputs(), &q, &qd, &u, ext));
                     let want = reference_outputs_with(f.kind, m, &q, &qd, &u, g, ext);
                     assert_eq!(got.len(), want.len(), "{name} {}: outputs", f.kind);
@@ -522,7 +669,12 @@ fn contact_kernels_match_the_reference() {
                         // The same f64 dynamics by other routes (the Schur complement
                         // against the reference's full KKT LU); K's conditioning on
                         // random states costs a digit (measured 6.3e-12).
-                        assert!(e < 5e-11, "{name} {gradient:?} {solve:?} state {state} {} {}: {e:.2e}", f.kind, o.name);
+                        assert!(
+                            e < 5e-11,
+                            "{name} {gradient:?} {solve:?} state {state} {} {}: {e:.2e}",
+                            f.kind,
+                            o.name
+                        );
                     }
                 }
             }

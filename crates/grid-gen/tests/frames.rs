@@ -51,34 +51,68 @@ fn frame_kinematics_match_pinocchio() {
             // The fixture's `q` lists the joints after the free-flyer.
             let angles = vec_of(&st["q"]);
             let per = if floating { [vec![0.0; 6], angles].concat() } else { angles };
-            let base: [f64; 7] = if floating { vec_of(&st["base"]).try_into().unwrap() } else { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] };
+            let base: [f64; 7] = if floating {
+                vec_of(&st["base"]).try_into().unwrap()
+            } else {
+                [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+            };
             let q = model.q_from_joints(&ours(&per), base);
             let (qd, qdd) = (ours(&vec_of(&st["qd"])), ours(&vec_of(&st["qdd"])));
             for (frame_name, want) in st["frames"].as_object().unwrap() {
-                let frame = &model.frames[model.frame(frame_name).unwrap_or_else(|| panic!("{name}: no frame {frame_name}"))];
+                let frame = &model.frames[model
+                    .frame(frame_name)
+                    .unwrap_or_else(|| panic!("{name}: no frame {frame_name}"))];
                 let (r, p) = reference::frame_placement(&model, &q, frame);
                 let mut results = vec![
-                    ("translation".to_string(), col(p.as_slice()), col(&vec_of(&want["translation"]))),
-                    ("rotation".to_string(), DMatrix::from_fn(3, 3, |i, j| r[(i, j)]), mat_of(&want["rotation"])),
+                    (
+                        "translation".to_string(),
+                        col(p.as_slice()),
+                        col(&vec_of(&want["translation"])),
+                    ),
+                    (
+                        "rotation".to_string(),
+                        DMatrix::from_fn(3, 3, |i, j| r[(i, j)]),
+                        mat_of(&want["rotation"]),
+                    ),
                 ];
                 for (key, j) in want["jacobian"].as_object().unwrap() {
                     let ours_j = reference::frame_jacobian(&model, &q, frame, rf_of(key));
                     let theirs = mat_of(j);
-                    let theirs = DMatrix::from_fn(6, nv, |a, b| theirs[(a, perm.iter().position(|&i| i == b).unwrap())]);
+                    let theirs = DMatrix::from_fn(6, nv, |a, b| {
+                        theirs[(a, perm.iter().position(|&i| i == b).unwrap())]
+                    });
                     results.push((format!("jacobian {key}"), ours_j, theirs));
                 }
                 for (key, v) in want["velocity"].as_object().unwrap() {
-                    results.push((format!("velocity {key}"), col(&reference::frame_velocity(&model, &q, &qd, frame, rf_of(key))), col(&vec_of(v))));
+                    results.push((
+                        format!("velocity {key}"),
+                        col(&reference::frame_velocity(&model, &q, &qd, frame, rf_of(key))),
+                        col(&vec_of(v)),
+                    ));
                 }
                 for (key, a) in want["classical_acceleration"].as_object().unwrap() {
-                    let got = reference::frame_classical_acceleration(&model, &q, &qd, &qdd, frame, rf_of(key));
-                    results.push((format!("classical_acceleration {key}"), col(&got), col(&vec_of(a))));
+                    let got = reference::frame_classical_acceleration(
+                        &model,
+                        &q,
+                        &qd,
+                        &qdd,
+                        frame,
+                        rf_of(key),
+                    );
+                    results.push((
+                        format!("classical_acceleration {key}"),
+                        col(&got),
+                        col(&vec_of(a)),
+                    ));
                 }
                 for (what, got, want) in results {
                     checked += 1;
                     let e = rel_err(&got, &want);
                     if !(e <= TOL) {
-                        failures.push(format!("{name} state {s} ({}) {frame_name}: {what} relative error {e:.2e}", st["kind"]));
+                        failures.push(format!(
+                            "{name} state {s} ({}) {frame_name}: {what} relative error {e:.2e}",
+                            st["kind"]
+                        ));
                     }
                 }
             }
@@ -86,7 +120,12 @@ fn frame_kinematics_match_pinocchio() {
     }
     println!("{checked} frame quantities against Pinocchio, tolerance {TOL:e}");
     assert!(checked > 2000, "only {checked} comparisons");
-    assert!(failures.is_empty(), "{} of {checked} above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} of {checked} above {TOL:e}:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }
 
 /// q moved by `dq` in the tangent space: additively, and each quaternion by the rotation
@@ -157,7 +196,8 @@ fn jacobians_are_derivatives_of_placements() {
             };
             let qd = rng.vec(nv, -2.0, 2.0);
             for frame in &model.frames {
-                let j = reference::frame_jacobian(model, &q, frame, ReferenceFrame::LocalWorldAligned);
+                let j =
+                    reference::frame_jacobian(model, &q, frame, ReferenceFrame::LocalWorldAligned);
                 let (r0, _) = reference::frame_placement(model, &q, frame);
                 // h = 1e-6: the central difference's truncation error (h²·|p'''| ~ 1e-12)
                 // and round-off (ε/h ~ 1e-10) both stay under the 1e-8 bound.
@@ -166,9 +206,11 @@ fn jacobians_are_derivatives_of_placements() {
                 for k in 0..nv {
                     let mut e = vec![0.0; nv];
                     e[k] = h;
-                    let (rp, pp) = reference::frame_placement(model, &integrate(model, &q, &e), frame);
+                    let (rp, pp) =
+                        reference::frame_placement(model, &integrate(model, &q, &e), frame);
                     e[k] = -h;
-                    let (rm, pm) = reference::frame_placement(model, &integrate(model, &q, &e), frame);
+                    let (rm, pm) =
+                        reference::frame_placement(model, &integrate(model, &q, &e), frame);
                     let dp = (pp - pm) / (2.0 * h);
                     let dr = (rp - rm) / (2.0 * h) * r0.transpose();
                     let w = [dr[(2, 1)], dr[(0, 2)], dr[(1, 0)]];
@@ -179,12 +221,22 @@ fn jacobians_are_derivatives_of_placements() {
                 }
                 let e = rel_err(&j, &fd);
                 worst = worst.max(e);
-                assert!(e < 1e-8, "{name} frame {}: Jacobian against central differences {e:.2e}", frame.name);
+                assert!(
+                    e < 1e-8,
+                    "{name} frame {}: Jacobian against central differences {e:.2e}",
+                    frame.name
+                );
                 for rf in ReferenceFrame::ALL {
-                    let jv = reference::frame_jacobian(model, &q, frame, rf) * DMatrix::from_column_slice(nv, 1, &qd);
+                    let jv = reference::frame_jacobian(model, &q, frame, rf)
+                        * DMatrix::from_column_slice(nv, 1, &qd);
                     let v = col(&reference::frame_velocity(model, &q, &qd, frame, rf));
                     let e = rel_err(&jv, &v);
-                    assert!(e < 1e-13, "{name} frame {} {}: J q̇ against the velocity {e:.2e}", frame.name, rf.name());
+                    assert!(
+                        e < 1e-13,
+                        "{name} frame {} {}: J q̇ against the velocity {e:.2e}",
+                        frame.name,
+                        rf.name()
+                    );
                 }
             }
         }
@@ -209,13 +261,20 @@ fn every_link_is_a_frame_and_a_scene_removes_them() {
     let wrist = ur5.joints.iter().position(|j| j.name == "wrist_3_joint").unwrap();
     assert_eq!(tool.body, Some(wrist));
     assert_eq!(ur5.frames[ur5.frame("world").unwrap()].body, None);
-    let urdf_links = std::fs::read_to_string(repo().join("robots/ur5.urdf")).unwrap().matches("<link ").count();
+    let urdf_links =
+        std::fs::read_to_string(repo().join("robots/ur5.urdf")).unwrap().matches("<link ").count();
     assert_eq!(ur5.frames.len(), urdf_links);
 
     // A locked joint's child link becomes a frame of the parent body.
     let scene = Scene::parse("s.toml", "[lock]\niiwa_joint_7 = 0.5\n").unwrap();
-    let (model, _) =
-        Model::from_urdf_str_in_scene("iiwa.urdf", &std::fs::read_to_string(repo().join("robots/grid_iiwa.urdf")).unwrap(), false, &scene, "s.toml").unwrap();
+    let (model, _) = Model::from_urdf_str_in_scene(
+        "iiwa.urdf",
+        &std::fs::read_to_string(repo().join("robots/grid_iiwa.urdf")).unwrap(),
+        false,
+        &scene,
+        "s.toml",
+    )
+    .unwrap();
     let l7 = &model.frames[model.frame("iiwa_link_7").unwrap()];
     assert_eq!(model.joints[l7.body.unwrap()].name, "iiwa_joint_6");
 
@@ -227,9 +286,18 @@ fn every_link_is_a_frame_and_a_scene_removes_them() {
         s
     };
     let e = load_error("grid_iiwa", scene(&["iiwa_link_8"], &[]));
-    assert!(e.contains("`iiwa_link_8`, which is not a link of this robot") && e.contains("closest frames: iiwa_link_0"), "{e}");
+    assert!(
+        e.contains("`iiwa_link_8`, which is not a link of this robot")
+            && e.contains("closest frames: iiwa_link_0"),
+        "{e}"
+    );
     let e = load_error("grid_iiwa", scene(&["iiwa_link_7"], &["iiwa_link_5"]));
-    assert!(e.contains("link `iiwa_link_7`, which the scene removes (by `drop = [..., \"iiwa_link_5\"]`)"), "{e}");
+    assert!(
+        e.contains(
+            "link `iiwa_link_7`, which the scene removes (by `drop = [..., \"iiwa_link_5\"]`)"
+        ),
+        "{e}"
+    );
     let e = load_error("grid_iiwa", scene(&["iiwa_joint_7"], &[]));
     assert!(e.contains("a joint, not a link: frames are link names"), "{e}");
     let e = load_error("grid_iiwa", scene(&["iiwa_link_7", "iiwa_link_7"], &[]));
@@ -245,10 +313,22 @@ fn frame_kernels_match_the_reference() {
     let fixtures = repo().join("tests/fixtures");
     let cases: Vec<(&str, Model, Vec<&str>)> = vec![
         ("iiwa", load("grid_iiwa"), vec!["iiwa_link_7", "iiwa_link_3", "base"]),
-        ("hyq floating", load_floating("grid_hyq"), vec!["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg", "base_link_0"]),
+        (
+            "hyq floating",
+            load_floating("grid_hyq"),
+            vec!["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg", "base_link_0"],
+        ),
         ("ur5", load("ur5"), vec!["tool0", "world"]),
-        ("ball_arm floating", load_urdf(&fixtures.join("ball_arm.urdf"), true), vec!["l4", "l6", "base"]),
-        ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf")), vec!["l3", "l6", "l7"]),
+        (
+            "ball_arm floating",
+            load_urdf(&fixtures.join("ball_arm.urdf"), true),
+            vec!["l4", "l6", "base"],
+        ),
+        (
+            "mimic_arm coupled",
+            load_coupled_urdf(&fixtures.join("mimic_arm.urdf")),
+            vec!["l3", "l6", "l7"],
+        ),
         ("go2 floating", load_urdf(&fixtures.join("go2.urdf"), true), vec!["FL_foot", "RR_foot"]),
     ];
     let mut rng = Rng(31);
@@ -256,8 +336,10 @@ fn frame_kernels_match_the_reference() {
     for (name, model, frames) in &cases {
         for rf in ReferenceFrame::ALL {
             let m = with_frames(model, frames, rf);
-            let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
-            let kinds: Vec<KernelKind> = module.functions.iter().map(|f| f.kind).filter(|k| k.is_frame()).collect();
+            let module =
+                ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+            let kinds: Vec<KernelKind> =
+                module.functions.iter().map(|f| f.kind).filter(|k| k.is_frame()).collect();
             assert_eq!(kinds.len(), 5, "{name}: every frame kernel is generated");
             let nv = m.nv();
             for _ in 0..3 {
@@ -267,7 +349,11 @@ fn frame_kernels_match_the_reference() {
                     q[at..at + 4].copy_from_slice(&rng.vec(4, -1.0, 1.0));
                 }
                 let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -2.0, 2.0));
-                for f in module.functions.iter().filter(|f| f.kind.is_frame() && f.kind != KernelKind::FrameAccelerationGrad) {
+                for f in module
+                    .functions
+                    .iter()
+                    .filter(|f| f.kind.is_frame() && f.kind != KernelKind::FrameAccelerationGrad)
+                {
                     let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &qdd));
                     let want = reference_frames(f.kind, &m, &q, &qd, &qdd);
                     for ((o, got), want) in f.outputs.iter().zip(&got).zip(&want) {
@@ -283,7 +369,9 @@ fn frame_kernels_match_the_reference() {
     }
     println!("worst frame kernel against the reference: {worst:.2e} (bound 1e-13)");
     // No frames asked, no frame kernels.
-    let module = ir::lower(&load("grid_iiwa"), reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+    let module =
+        ir::lower(&load("grid_iiwa"), reference::DEFAULT_GRAVITY, &LowerOptions::default())
+            .unwrap();
     assert!(module.functions.iter().all(|f| !f.kind.is_frame()));
 }
 
@@ -294,9 +382,20 @@ fn a_frame_kernel_costs_its_chain() {
     use grid_gen::ir::{self, LowerOptions};
     let m = with_frames(&load("grid_iiwa"), &["iiwa_link_7"], ReferenceFrame::LocalWorldAligned);
     let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
-    let ops = |k: KernelKind| module.function(k).unwrap().nodes.iter().filter(|n| !matches!(n.op, ir::Op::Const(_) | ir::Op::Input(..))).count();
+    let ops = |k: KernelKind| {
+        module
+            .function(k)
+            .unwrap()
+            .nodes
+            .iter()
+            .filter(|n| !matches!(n.op, ir::Op::Const(_) | ir::Op::Input(..)))
+            .count()
+    };
     let (jac, rnea) = (ops(KernelKind::FrameJacobian), ops(KernelKind::Rnea));
-    println!("iiwa flange: frame_jacobian {jac} operations, placement {}, rnea {rnea}", ops(KernelKind::FramePlacement));
+    println!(
+        "iiwa flange: frame_jacobian {jac} operations, placement {}, rnea {rnea}",
+        ops(KernelKind::FramePlacement)
+    );
     assert!(jac < rnea, "frame_jacobian {jac} operations, rnea {rnea}");
 }
 
@@ -312,7 +411,11 @@ fn frame_acceleration_derivatives_match_central_differences() {
         ("iiwa", load("grid_iiwa"), vec!["iiwa_link_7"]),
         ("hyq floating", load_floating("grid_hyq"), vec!["lf_lowerleg", "rh_lowerleg"]),
         ("ball_arm floating", load_urdf(&fixtures.join("ball_arm.urdf"), true), vec!["l4", "l6"]),
-        ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf")), vec!["l3", "l7"]),
+        (
+            "mimic_arm coupled",
+            load_coupled_urdf(&fixtures.join("mimic_arm.urdf")),
+            vec!["l3", "l7"],
+        ),
     ];
     let mut rng = Rng(41);
     let mut worst: f64 = 0.0;
@@ -320,7 +423,12 @@ fn frame_acceleration_derivatives_match_central_differences() {
         for rf in ReferenceFrame::ALL {
             let m = with_frames(model, frames, rf);
             let kinds = vec![KernelKind::FrameAccelerationGrad];
-            let module = ir::lower(&m, reference::DEFAULT_GRAVITY, &LowerOptions { kernels: kinds, ..LowerOptions::default() }).unwrap();
+            let module = ir::lower(
+                &m,
+                reference::DEFAULT_GRAVITY,
+                &LowerOptions { kernels: kinds, ..LowerOptions::default() },
+            )
+            .unwrap();
             let f = module.function(KernelKind::FrameAccelerationGrad).unwrap();
             let nv = m.nv();
             let nf = frames.len();
@@ -333,7 +441,11 @@ fn frame_acceleration_derivatives_match_central_differences() {
                 let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -2.0, 2.0));
                 let got = f.eval(&[&q, &qd, &qdd]);
                 let acc = |q: &[f64], qd: &[f64], qdd: &[f64]| -> Vec<f64> {
-                    m.selected_frames().flat_map(|fr| reference::frame_classical_acceleration(&m, q, qd, qdd, fr, rf)).collect()
+                    m.selected_frames()
+                        .flat_map(|fr| {
+                            reference::frame_classical_acceleration(&m, q, qd, qdd, fr, rf)
+                        })
+                        .collect()
                 };
                 // h = 1e-6: the truncation (h² times the third derivative) and the round-off
                 // (ε |a| / h) both stay far under the 1e-7 bound.
@@ -350,11 +462,15 @@ fn frame_acceleration_derivatives_match_central_differences() {
                                 (acc(&qp, &qd, &qdd), acc(&integrate(&m, &q, &e), &qd, &qdd))
                             }
                             1 => {
-                                let add = |s: f64| qd.iter().zip(&e).map(|(a, b)| a + s * b).collect::<Vec<_>>();
+                                let add = |s: f64| {
+                                    qd.iter().zip(&e).map(|(a, b)| a + s * b).collect::<Vec<_>>()
+                                };
                                 (acc(&q, &add(1.0), &qdd), acc(&q, &add(-1.0), &qdd))
                             }
                             _ => {
-                                let add = |s: f64| qdd.iter().zip(&e).map(|(a, b)| a + s * b).collect::<Vec<_>>();
+                                let add = |s: f64| {
+                                    qdd.iter().zip(&e).map(|(a, b)| a + s * b).collect::<Vec<_>>()
+                                };
                                 (acc(&q, &qd, &add(1.0)), acc(&q, &qd, &add(-1.0)))
                             }
                         };
@@ -364,7 +480,11 @@ fn frame_acceleration_derivatives_match_central_differences() {
                     }
                     let e = rel_err(&col(out), &col(&fd));
                     worst = worst.max(e);
-                    assert!(e < 1e-7, "{name} {} output {which}: {e:.2e} from central differences", rf.name());
+                    assert!(
+                        e < 1e-7,
+                        "{name} {} output {which}: {e:.2e} from central differences",
+                        rf.name()
+                    );
                 }
             }
         }
@@ -382,14 +502,22 @@ fn frame_acceleration_derivatives_match_pinocchio() {
     let mut worst: f64 = 0.0;
     for (name, path, floating) in CASES {
         let fx = fixture(&format!("{name}.pinocchio.json"));
-        let frames: Vec<&str> = fx["frames"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
-        let model = with_frames(&load_urdf(&repo().join(path), floating), &frames, ReferenceFrame::Local);
-        let lower = LowerOptions { kernels: vec![KernelKind::FrameAccelerationGrad], ..LowerOptions::default() };
+        let frames: Vec<&str> =
+            fx["frames"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let model =
+            with_frames(&load_urdf(&repo().join(path), floating), &frames, ReferenceFrame::Local);
+        let lower = LowerOptions {
+            kernels: vec![KernelKind::FrameAccelerationGrad],
+            ..LowerOptions::default()
+        };
         let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
         let f = module.function(KernelKind::FrameAccelerationGrad).unwrap();
-        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
-        let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
-        let perm: Vec<usize> = names.iter().map(|n| coordinates.iter().position(|c| c == n).unwrap()).collect();
+        let names: Vec<&str> =
+            fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let coordinates: Vec<&str> =
+            model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+        let perm: Vec<usize> =
+            names.iter().map(|n| coordinates.iter().position(|c| c == n).unwrap()).collect();
         let nv = model.nv();
         let ours = |v: &[f64]| {
             let mut o = vec![0.0; nv];
@@ -401,19 +529,30 @@ fn frame_acceleration_derivatives_match_pinocchio() {
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
             let angles = vec_of(&st["q"]);
             let per = if floating { [vec![0.0; 6], angles].concat() } else { angles };
-            let base: [f64; 7] = if floating { vec_of(&st["base"]).try_into().unwrap() } else { [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0] };
+            let base: [f64; 7] = if floating {
+                vec_of(&st["base"]).try_into().unwrap()
+            } else {
+                [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]
+            };
             let q = model.q_from_joints(&ours(&per), base);
             let got = f.eval(&[&q, &ours(&vec_of(&st["qd"])), &ours(&vec_of(&st["qdd"]))]);
             for (fi, frame) in frames.iter().enumerate() {
                 let want = &st["frames"][*frame]["classical_acceleration_derivatives_local"];
                 for (o, key) in ["dq", "dqd", "dqdd"].iter().enumerate() {
                     let theirs = mat_of(&want[*key]);
-                    let theirs = DMatrix::from_fn(3, nv, |r, c| theirs[(r, perm.iter().position(|&i| i == c).unwrap())]);
-                    let mine = DMatrix::from_row_slice(3, nv, &got[o][fi * 3 * nv..(fi + 1) * 3 * nv]);
+                    let theirs = DMatrix::from_fn(3, nv, |r, c| {
+                        theirs[(r, perm.iter().position(|&i| i == c).unwrap())]
+                    });
+                    let mine =
+                        DMatrix::from_row_slice(3, nv, &got[o][fi * 3 * nv..(fi + 1) * 3 * nv]);
                     let e = rel_err(&mine, &theirs);
                     worst = worst.max(e);
                     checked += 1;
-                    assert!(e <= TOL, "{name} state {s} ({}) {frame}: {key} relative error {e:.2e}", st["kind"]);
+                    assert!(
+                        e <= TOL,
+                        "{name} state {s} ({}) {frame}: {key} relative error {e:.2e}",
+                        st["kind"]
+                    );
                 }
             }
         }

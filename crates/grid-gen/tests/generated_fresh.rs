@@ -5,8 +5,9 @@
 //! [`VERILOG_ROBOTS`] their default Verilog netlists and testbenches (a fully pipelined
 //! iiwa gradient is 1.4 MB of instances: readable in a simulator, not in a review).
 //!
-//! Refresh after an intended change: `GRID_GEN_BLESS=1 cargo test -p grid-gen --test generated_fresh`
-//! (or `grid-gen robots/<robot>.urdf -o generated/<robot>` per robot), then review the diff.
+//! Refresh after an intended change: `GRID_GEN_BLESS=1 cargo test -p grid-gen --test
+//! generated_fresh` (or `grid-gen robots/<robot>.urdf -o generated/<robot>` per robot), then review
+//! the diff.
 
 use grid_gen::generate::{generate, write_files, FileStatus, Options, Target};
 use grid_gen_test_support::*;
@@ -78,7 +79,10 @@ fn checked_in_kernels_are_fresh() {
         }
         let mut expected: Vec<String> = files.iter().map(|f| f.name.clone()).collect();
         expected.sort();
-        let mut present: Vec<String> = std::fs::read_dir(&dir).unwrap().map(|e| e.unwrap().file_name().to_string_lossy().into_owned()).collect();
+        let mut present: Vec<String> = std::fs::read_dir(&dir)
+            .unwrap()
+            .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+            .collect();
         present.sort();
         assert_eq!(present, expected, "{robot}: no stray files in generated/{robot}");
     }
@@ -102,7 +106,9 @@ fn checked_in_kernels_are_fresh() {
     for robot in FIXTURE_ROBOTS {
         let model = load_urdf(&repo().join("tests/fixtures").join(format!("{robot}.urdf")), false);
         let files = generate(&model, &Options::default()).unwrap();
-        for (path, status) in write_files(&repo().join("generated/fixtures").join(robot), &files, !bless).unwrap() {
+        for (path, status) in
+            write_files(&repo().join("generated/fixtures").join(robot), &files, !bless).unwrap()
+        {
             if status == FileStatus::Stale {
                 stale.push(path.display().to_string());
             }

@@ -45,8 +45,16 @@ fn rnea_gradient_matches_finite_differences() {
                 let (dq, dqd) = reference::rnea_derivatives(&model, &q, &qd, &qdd, g);
                 let fq = central(|x| reference::rnea(&model, x, &qd, &qdd, g), &q);
                 let fqd = central(|x| reference::rnea(&model, &q, x, &qdd, g), &qd);
-                assert!(rel_err(&dq, &fq) < FD_TOL, "{robot}: dc/dq off by {:.2e}", rel_err(&dq, &fq));
-                assert!(rel_err(&dqd, &fqd) < FD_TOL, "{robot}: dc/dqd off by {:.2e}", rel_err(&dqd, &fqd));
+                assert!(
+                    rel_err(&dq, &fq) < FD_TOL,
+                    "{robot}: dc/dq off by {:.2e}",
+                    rel_err(&dq, &fq)
+                );
+                assert!(
+                    rel_err(&dqd, &fqd) < FD_TOL,
+                    "{robot}: dc/dqd off by {:.2e}",
+                    rel_err(&dqd, &fqd)
+                );
                 worst = worst.max(rel_err(&dq, &fq)).max(rel_err(&dqd, &fqd));
             }
         }
@@ -62,13 +70,22 @@ fn fd_gradient_matches_finite_differences() {
         let model = load(&robot);
         for g in GRAVITIES {
             for (q, qd, tau) in states(model.nv(), &mut rng) {
-                let (_, dq, dqd) = reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
+                let (_, dq, dqd) =
+                    reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
                 let fq = central(|x| reference::forward_dynamics(&model, x, &qd, &tau, g), &q);
                 let fqd = central(|x| reference::forward_dynamics(&model, &q, x, &tau, g), &qd);
                 // Through M⁻¹ the round-off term grows with cond(M) (1e2 to 1e4 here): a 10x wider
                 // bound (measured worst: 6.2e-8).
-                assert!(rel_err(&dq, &fq) < 10.0 * FD_TOL, "{robot}: dqdd/dq off by {:.2e}", rel_err(&dq, &fq));
-                assert!(rel_err(&dqd, &fqd) < 10.0 * FD_TOL, "{robot}: dqdd/dqd off by {:.2e}", rel_err(&dqd, &fqd));
+                assert!(
+                    rel_err(&dq, &fq) < 10.0 * FD_TOL,
+                    "{robot}: dqdd/dq off by {:.2e}",
+                    rel_err(&dq, &fq)
+                );
+                assert!(
+                    rel_err(&dqd, &fqd) < 10.0 * FD_TOL,
+                    "{robot}: dqdd/dqd off by {:.2e}",
+                    rel_err(&dqd, &fqd)
+                );
                 worst = worst.max(rel_err(&dq, &fq)).max(rel_err(&dqd, &fqd));
             }
         }
@@ -95,7 +112,11 @@ fn rnea_is_affine_in_qdd_with_slope_m() {
                 }
             }
             // Exact up to the cancellation in c(e_j) - c(0): eps times |c| / |M| ≲ 1e2.
-            assert!(rel_err(&slope, &m) < 1e-12, "{robot}: dc/dqdd vs M {:.2e}", rel_err(&slope, &m));
+            assert!(
+                rel_err(&slope, &m) < 1e-12,
+                "{robot}: dc/dqdd vs M {:.2e}",
+                rel_err(&slope, &m)
+            );
             assert!((&m - m.transpose()).amax() <= 1e-15 * m.amax(), "{robot}: M symmetric");
         }
     }
@@ -113,15 +134,23 @@ fn minv_inverts_m_and_fd_inverts_rnea() {
             let cond = m.norm() * mi.norm();
             let err = (&m * &mi - DMatrix::identity(n, n)).amax();
             // Backward-stable recursions: error ≲ n eps cond(M).
-            assert!(err < 10.0 * n as f64 * f64::EPSILON * cond, "{robot}: |M Minv - I| = {err:.2e}, cond {cond:.2e}");
+            assert!(
+                err < 10.0 * n as f64 * f64::EPSILON * cond,
+                "{robot}: |M Minv - I| = {err:.2e}, cond {cond:.2e}"
+            );
             let tau = reference::rnea(&model, &q, &qd, &qdd, reference::DEFAULT_GRAVITY);
-            let back = reference::forward_dynamics(&model, &q, &qd, &tau, reference::DEFAULT_GRAVITY);
+            let back =
+                reference::forward_dynamics(&model, &q, &qd, &tau, reference::DEFAULT_GRAVITY);
             let e = rel_err(&col(&back), &col(&qdd));
             // q̈ is fixed by τ − c(q, q̇, 0): rounding c (eps ‖c‖) moves q̈ by M⁻¹ eps ‖c‖,
             // which exceeds eps cond(M) ‖q̈‖ when ‖τ‖ + ‖c‖ ≫ ‖M‖ ‖q̈‖ (gravity-dominated states).
             let bias = reference::rnea(&model, &q, &qd, &vec![0.0; n], reference::DEFAULT_GRAVITY);
-            let amp = ((col(&tau).norm() + col(&bias).norm()) / (m.norm() * col(&qdd).norm())).max(1.0);
-            assert!(e < 10.0 * n as f64 * f64::EPSILON * cond * amp, "{robot}: FD(RNEA(qdd)) vs qdd {e:.2e}, cond {cond:.2e}, amplification {amp:.1}");
+            let amp =
+                ((col(&tau).norm() + col(&bias).norm()) / (m.norm() * col(&qdd).norm())).max(1.0);
+            assert!(
+                e < 10.0 * n as f64 * f64::EPSILON * cond * amp,
+                "{robot}: FD(RNEA(qdd)) vs qdd {e:.2e}, cond {cond:.2e}, amplification {amp:.1}"
+            );
         }
     }
 }

@@ -11,7 +11,14 @@ use grid_gen_test_support::*;
 const TOL: f64 = 1e-12;
 
 /// Every kernel output next to what the reference says it should be.
-fn compare(model: &Model, g: [f64; 3], options: &LowerOptions, q: &[f64], qd: &[f64], u: &[f64]) -> Vec<(String, f64)> {
+fn compare(
+    model: &Model,
+    g: [f64; 3],
+    options: &LowerOptions,
+    q: &[f64],
+    qd: &[f64],
+    u: &[f64],
+) -> Vec<(String, f64)> {
     let n = model.nv();
     let module = ir::lower(model, g, options).expect("bundled robots lower");
     let mut errs = Vec::new();
@@ -35,7 +42,8 @@ fn specialised_ir_matches_the_reference() {
         let n = model.nv();
         for g in [reference::DEFAULT_GRAVITY, [0.3, 1.0, -9.0]] {
             for _ in 0..3 {
-                let (q, qd, u) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
+                let (q, qd, u) =
+                    (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
                 for (what, e) in compare(&model, g, &LowerOptions::default(), &q, &qd, &u) {
                     assert!(e <= TOL, "{robot}: {what} relative error {e:.2e}");
                     worst = worst.max(e);
@@ -53,7 +61,11 @@ fn both_gradient_formulations_match_the_reference() {
         let model = load(&robot);
         let n = model.nv();
         for gradient in [Gradient::Columns, Gradient::Idsva] {
-            let options = LowerOptions { kernels: vec![KernelKind::RneaGrad, KernelKind::FdGrad], gradient, ..LowerOptions::default() };
+            let options = LowerOptions {
+                kernels: vec![KernelKind::RneaGrad, KernelKind::FdGrad],
+                gradient,
+                ..LowerOptions::default()
+            };
             let (q, qd, u) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
             for (what, e) in compare(&model, [0.3, 1.0, -9.0], &options, &q, &qd, &u) {
                 assert!(e <= TOL, "{robot} {gradient:?}: {what} relative error {e:.2e}");
@@ -70,8 +82,11 @@ fn dense_ir_matches_the_reference() {
         let n = model.nv();
         let (q, qd, u) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
         // Each option on its own, and both off (the general dense algorithm).
-        let partial =
-            [LowerOptions { fold: false, ..LowerOptions::default() }, LowerOptions { sparse: false, ..LowerOptions::default() }, LowerOptions::general()];
+        let partial = [
+            LowerOptions { fold: false, ..LowerOptions::default() },
+            LowerOptions { sparse: false, ..LowerOptions::default() },
+            LowerOptions::general(),
+        ];
         for options in &partial {
             for (what, e) in compare(&model, reference::DEFAULT_GRAVITY, options, &q, &qd, &u) {
                 assert!(e <= TOL, "{robot} {options:?}: {what} relative error {e:.2e}");
@@ -83,11 +98,18 @@ fn dense_ir_matches_the_reference() {
 #[test]
 fn specialisation_removes_work_and_keeps_depth_bounded() {
     let model = load("grid_atlas");
-    let stats = ir::stats(&model, reference::DEFAULT_GRAVITY, ir::Gradient::Auto, ir::STATS_MAX_NODES);
+    let stats =
+        ir::stats(&model, reference::DEFAULT_GRAVITY, ir::Gradient::Auto, ir::STATS_MAX_NODES);
     assert!(stats.skipped.is_empty(), "Atlas fits the op-count limit: {:?}", stats.skipped);
     assert_eq!(stats.ops.len(), KernelKind::DYNAMICS.len(), "no frames asked, no frame kernels");
     for s in stats.ops {
-        assert!(s.after.total() < s.before.total(), "{}: {:?} vs {:?}", s.kernel, s.after, s.before);
+        assert!(
+            s.after.total() < s.before.total(),
+            "{}: {:?} vs {:?}",
+            s.kernel,
+            s.after,
+            s.before
+        );
     }
 }
 
@@ -98,9 +120,16 @@ fn specialisation_removes_work_and_keeps_depth_bounded() {
 fn a_singular_mass_matrix_blocks_only_the_kernels_that_need_its_inverse() {
     let path = repo().join("tests/diagnostics/massless_subtree.urdf");
     let text = std::fs::read_to_string(&path).unwrap();
-    let (model, warnings) = Model::from_urdf_str("massless_subtree.urdf", &text, false).expect("a singular M is a warning");
-    assert!(warnings.iter().any(|w| w.message.contains("joint `j2` moves only massless links")), "{warnings:?}");
-    assert!(Model::from_urdf_str("massless_subtree.urdf", &text, true).is_err(), "--strict refuses it");
+    let (model, warnings) = Model::from_urdf_str("massless_subtree.urdf", &text, false)
+        .expect("a singular M is a warning");
+    assert!(
+        warnings.iter().any(|w| w.message.contains("joint `j2` moves only massless links")),
+        "{warnings:?}"
+    );
+    assert!(
+        Model::from_urdf_str("massless_subtree.urdf", &text, true).is_err(),
+        "--strict refuses it"
+    );
     assert_eq!(model.singular.as_deref(), Some("j2"));
     let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
     let kinds: Vec<KernelKind> = module.functions.iter().map(|f| f.kind).collect();
@@ -109,22 +138,53 @@ fn a_singular_mass_matrix_blocks_only_the_kernels_that_need_its_inverse() {
     let n = model.nv();
     for _ in 0..3 {
         let (q, qd, u) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
-        for (what, e) in compare(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default(), &q, &qd, &u) {
+        for (what, e) in
+            compare(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default(), &q, &qd, &u)
+        {
             assert!(e <= TOL, "{what} relative error {e:.2e}");
         }
     }
-    let err = ir::lower_function(&model, reference::DEFAULT_GRAVITY, KernelKind::FdGrad, &LowerOptions::default()).unwrap_err().to_string();
+    let err = ir::lower_function(
+        &model,
+        reference::DEFAULT_GRAVITY,
+        KernelKind::FdGrad,
+        &LowerOptions::default(),
+    )
+    .unwrap_err()
+    .to_string();
     assert!(err.contains("needs M⁻¹, and M is singular (joint `j2`"), "{err}");
     let info = grid_gen::info::Info::new(&model);
     let skipped: Vec<&str> = info.ops_skipped.iter().map(|s| s.kernel.name()).collect();
     assert_eq!(skipped, ["minv", "fd", "fd_grad"]);
-    let rust = grid_gen::generate::generate(&model, &grid_gen::generate::Options::default()).unwrap().remove(0).contents;
-    assert!(rust.contains("pub fn mass_matrix<") && !rust.contains("pub fn minv<") && !rust.contains("pub fn fd<"));
-    let states = grid_gen::eval::parse_states(r#"{"states": [{"q": [0.1, 0.2], "qd": [0.3, 0.4], "qdd": [1, 2]}]}"#).unwrap();
-    let out = serde_json::to_value(grid_gen::eval::evaluate(&model, &states, reference::DEFAULT_GRAVITY).unwrap()).unwrap();
-    assert!(out["states"][0]["M"].is_array() && out["states"][0]["drnea_dq"].is_array() && out["states"][0].get("Minv").is_none(), "{out}");
-    let with_tau = grid_gen::eval::parse_states(r#"{"states": [{"q": [0, 0], "qd": [0, 0], "tau": [1, 2]}]}"#).unwrap();
-    let err = grid_gen::eval::evaluate(&model, &with_tau, reference::DEFAULT_GRAVITY).unwrap_err().to_string();
+    let rust = grid_gen::generate::generate(&model, &grid_gen::generate::Options::default())
+        .unwrap()
+        .remove(0)
+        .contents;
+    assert!(
+        rust.contains("pub fn mass_matrix<")
+            && !rust.contains("pub fn minv<")
+            && !rust.contains("pub fn fd<")
+    );
+    let states = grid_gen::eval::parse_states(
+        r#"{"states": [{"q": [0.1, 0.2], "qd": [0.3, 0.4], "qdd": [1, 2]}]}"#,
+    )
+    .unwrap();
+    let out = serde_json::to_value(
+        grid_gen::eval::evaluate(&model, &states, reference::DEFAULT_GRAVITY).unwrap(),
+    )
+    .unwrap();
+    assert!(
+        out["states"][0]["M"].is_array()
+            && out["states"][0]["drnea_dq"].is_array()
+            && out["states"][0].get("Minv").is_none(),
+        "{out}"
+    );
+    let with_tau =
+        grid_gen::eval::parse_states(r#"{"states": [{"q": [0, 0], "qd": [0, 0], "tau": [1, 2]}]}"#)
+            .unwrap();
+    let err = grid_gen::eval::evaluate(&model, &with_tau, reference::DEFAULT_GRAVITY)
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("state 0: `tau` asks for forward dynamics, which needs M⁻¹, and M is singular (joint `j2`"), "{err}");
 }
 
@@ -145,18 +205,32 @@ fn chain(n: usize) -> Model {
 fn f64_against_the_double_double_reference() {
     let g = reference::DEFAULT_GRAVITY;
     let mut rng = Rng(29);
-    let unfolded = LowerOptions { fold: false, kernels: vec![KernelKind::Fd, KernelKind::FdGrad], ..LowerOptions::default() };
-    let folded = LowerOptions { kernels: vec![KernelKind::Fd, KernelKind::FdGrad], ..LowerOptions::default() };
-    for (name, model) in [("grid_iiwa", load("grid_iiwa")), ("grid_hyq", load("grid_hyq")), ("chain30", chain(30))] {
+    let unfolded = LowerOptions {
+        fold: false,
+        kernels: vec![KernelKind::Fd, KernelKind::FdGrad],
+        ..LowerOptions::default()
+    };
+    let folded = LowerOptions {
+        kernels: vec![KernelKind::Fd, KernelKind::FdGrad],
+        ..LowerOptions::default()
+    };
+    for (name, model) in
+        [("grid_iiwa", load("grid_iiwa")), ("grid_hyq", load("grid_hyq")), ("chain30", chain(30))]
+    {
         let n = model.nv();
         let exact = ir::lower(&model, g, &unfolded).unwrap();
         let fast = ir::lower(&model, g, &folded).unwrap();
         let (mut kernel_worst, mut reference_worst) = (0.0f64, 0.0f64);
         for _ in 0..3 {
-            let (q, qd, tau) = (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
+            let (q, qd, tau) =
+                (rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0), rng.vec(n, -3.0, 3.0));
             let f = exact.function(KernelKind::FdGrad).unwrap();
             let args = kernel_args(f.inputs(), &q, &qd, &tau);
-            let truth: Vec<Vec<f64>> = f.eval_dd(&args).into_iter().map(|o| o.into_iter().map(|x| x.to_f64()).collect()).collect();
+            let truth: Vec<Vec<f64>> = f
+                .eval_dd(&args)
+                .into_iter()
+                .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
+                .collect();
             let got = fast.function(KernelKind::FdGrad).unwrap().eval(&args);
             let (qdd, dq, dqd) = reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
             let reference_outputs = [col(&qdd), dq, dqd];
@@ -166,7 +240,11 @@ fn f64_against_the_double_double_reference() {
                 let r = rel_err(&reference_outputs[k], &want);
                 kernel_worst = kernel_worst.max(e);
                 reference_worst = reference_worst.max(r);
-                assert!(e <= TOL && r <= TOL, "{name} {}: kernel {e:.1e}, reference {r:.1e}", o.name);
+                assert!(
+                    e <= TOL && r <= TOL,
+                    "{name} {}: kernel {e:.1e}, reference {r:.1e}",
+                    o.name
+                );
             }
         }
         let m = reference::crba(&model, &vec![0.3; n]);
@@ -182,13 +260,19 @@ fn f64_against_the_double_double_reference() {
             let truth = f.eval_dd(&args);
             let got = fast.function(KernelKind::FdGrad).unwrap().eval(&args);
             for (k, o) in f.outputs.iter().enumerate() {
-                let want = output_matrix(o.shape, n, &truth[k].iter().map(|x| x.to_f64()).collect::<Vec<_>>());
+                let want = output_matrix(
+                    o.shape,
+                    n,
+                    &truth[k].iter().map(|x| x.to_f64()).collect::<Vec<_>>(),
+                );
                 let e = rel_err(&output_matrix(o.shape, n, &got[k]), &want);
                 assert!(e <= TOL, "{name} {} at extreme angles or speeds: {e:.1e}", o.name);
                 extreme_worst = extreme_worst.max(e);
             }
         }
-        eprintln!("{name}: the same at angles up to ±1e3 rad and speeds 1e3 or 1e-8: {extreme_worst:.1e}");
+        eprintln!(
+            "{name}: the same at angles up to ±1e3 rad and speeds 1e3 or 1e-8: {extreme_worst:.1e}"
+        );
     }
 }
 
@@ -201,22 +285,44 @@ fn f64_against_the_double_double_reference() {
 fn forward_dynamics_as_accurate_as_pinocchio_on_a_100_link_chain() {
     let n = 100;
     let path = repo().join("tests/fixtures/chain100.urdf");
-    let text = std::fs::read_to_string(&path).expect("tests/fixtures/chain100.urdf (run scripts/make_fixtures.py)");
-    assert_eq!(text.trim_end(), chain_urdf(n), "{} is not chain_urdf(100): rerun scripts/make_fixtures.py", path.display());
+    let text = std::fs::read_to_string(&path)
+        .expect("tests/fixtures/chain100.urdf (run scripts/make_fixtures.py)");
+    assert_eq!(
+        text.trim_end(),
+        chain_urdf(n),
+        "{} is not chain_urdf(100): rerun scripts/make_fixtures.py",
+        path.display()
+    );
     let model = chain(n);
     let fx = fixture("chain100.pinocchio.json");
-    let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|x| x.as_str().unwrap()).collect();
-    assert_eq!(names, model.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>(), "Pinocchio's joint order is grid-gen's on a chain");
+    let names: Vec<&str> =
+        fx["joint_names"].as_array().unwrap().iter().map(|x| x.as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        model.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>(),
+        "Pinocchio's joint order is grid-gen's on a chain"
+    );
     let g = reference::DEFAULT_GRAVITY;
     assert_eq!(vec_of(&fx["gravity"]), g.to_vec());
     let kinds = vec![KernelKind::FdGrad];
-    let exact = ir::lower(&model, g, &LowerOptions { fold: false, kernels: kinds.clone(), ..LowerOptions::default() }).unwrap();
-    let fast = ir::lower(&model, g, &LowerOptions { kernels: kinds, ..LowerOptions::default() }).unwrap();
-    let (exact, fast) = (exact.function(KernelKind::FdGrad).unwrap(), fast.function(KernelKind::FdGrad).unwrap());
+    let exact = ir::lower(
+        &model,
+        g,
+        &LowerOptions { fold: false, kernels: kinds.clone(), ..LowerOptions::default() },
+    )
+    .unwrap();
+    let fast =
+        ir::lower(&model, g, &LowerOptions { kernels: kinds, ..LowerOptions::default() }).unwrap();
+    let (exact, fast) =
+        (exact.function(KernelKind::FdGrad).unwrap(), fast.function(KernelKind::FdGrad).unwrap());
     for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
         let (q, qd, tau) = (vec_of(&st["q"]), vec_of(&st["qd"]), vec_of(&st["tau"]));
         let args = kernel_args(exact.inputs(), &q, &qd, &tau);
-        let truth: Vec<Vec<f64>> = exact.eval_dd(&args).into_iter().map(|o| o.into_iter().map(|x| x.to_f64()).collect()).collect();
+        let truth: Vec<Vec<f64>> = exact
+            .eval_dd(&args)
+            .into_iter()
+            .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
+            .collect();
         let got = fast.eval(&args);
         let (qdd, dq, dqd) = reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
         let pinocchio = [col(&vec_of(&st["fd"])), mat_of(&st["dfd_dq"]), mat_of(&st["dfd_dqd"])];

@@ -37,22 +37,55 @@ fn error(got: &[Vec<f64>], truth: &[Vec<f64>]) -> f64 {
 fn the_plan_meets_its_target_on_other_states() {
     for robot in ["grid_iiwa", "grid_hyq"] {
         let model = load(robot);
-        let exact = ir::lower(&model, G, &LowerOptions { fold: false, kernels: THROUGH_MINV.to_vec(), ..LowerOptions::default() }).unwrap();
-        let fast = ir::lower(&model, G, &LowerOptions { kernels: THROUGH_MINV.to_vec(), ..LowerOptions::default() }).unwrap();
+        let exact = ir::lower(
+            &model,
+            G,
+            &LowerOptions {
+                fold: false,
+                kernels: THROUGH_MINV.to_vec(),
+                ..LowerOptions::default()
+            },
+        )
+        .unwrap();
+        let fast = ir::lower(
+            &model,
+            G,
+            &LowerOptions { kernels: THROUGH_MINV.to_vec(), ..LowerOptions::default() },
+        )
+        .unwrap();
         for (e, f) in exact.functions.iter().zip(&fast.functions) {
             let states = inputs(&model, f, 40, 7);
-            let truth: Vec<Vec<Vec<f64>>> =
-                states.iter().map(|s| e.eval_dd(&refs(s)).into_iter().map(|o| o.into_iter().map(|x| x.to_f64()).collect()).collect()).collect();
+            let truth: Vec<Vec<Vec<f64>>> = states
+                .iter()
+                .map(|s| {
+                    e.eval_dd(&refs(s))
+                        .into_iter()
+                        .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
+                        .collect()
+                })
+                .collect();
             let mut wide_before = usize::MAX;
             for target in [1e-12, 1e-9, 1e-6] {
                 let plan = mixed_plan(&model, G, f, target);
-                assert!(plan.bound <= target && plan.all_f32_bound > target, "{robot} {}: {plan:?}", f.kind);
-                let worst = states.iter().zip(&truth).map(|(s, t)| error(&f.eval_mixed(&refs(s), &plan.wide), t)).fold(0.0, f64::max);
+                assert!(
+                    plan.bound <= target && plan.all_f32_bound > target,
+                    "{robot} {}: {plan:?}",
+                    f.kind
+                );
+                let worst = states
+                    .iter()
+                    .zip(&truth)
+                    .map(|(s, t)| error(&f.eval_mixed(&refs(s), &plan.wide), t))
+                    .fold(0.0, f64::max);
                 // The bound is first order; measured, it holds with one to two orders to spare
                 // (iiwa fd_grad at 1e-12: 4.7e-14 over 100 states), so no slack is added.
                 assert!(worst <= target, "{robot} {} mixed ≤{target:e}: {worst:.2e}", f.kind);
                 let (wide, all) = plan.wide_operations(f);
-                assert!(wide < all && wide <= wide_before, "{robot} {}: {wide} of {all} in f64 at {target:e}", f.kind);
+                assert!(
+                    wide < all && wide <= wide_before,
+                    "{robot} {}: {wide} of {all} in f64 at {target:e}",
+                    f.kind
+                );
                 wide_before = wide;
             }
         }
@@ -62,12 +95,26 @@ fn the_plan_meets_its_target_on_other_states() {
 #[test]
 fn all_f32_and_all_f64_are_the_pure_formats_to_the_bit() {
     let model = load("grid_iiwa");
-    let m = ir::lower(&model, G, &LowerOptions { kernels: THROUGH_MINV.to_vec(), ..LowerOptions::default() }).unwrap();
+    let m = ir::lower(
+        &model,
+        G,
+        &LowerOptions { kernels: THROUGH_MINV.to_vec(), ..LowerOptions::default() },
+    )
+    .unwrap();
     for f in &m.functions {
         for s in inputs(&model, f, 3, 11) {
-            let narrow: Vec<Vec<f64>> = f.eval_f32(&refs(&s)).into_iter().map(|o| o.into_iter().map(f64::from).collect()).collect();
+            let narrow: Vec<Vec<f64>> = f
+                .eval_f32(&refs(&s))
+                .into_iter()
+                .map(|o| o.into_iter().map(f64::from).collect())
+                .collect();
             assert_eq!(f.eval_mixed(&refs(&s), &vec![false; f.nodes.len()]), narrow, "{}", f.kind);
-            assert_eq!(f.eval_mixed(&refs(&s), &vec![true; f.nodes.len()]), f.eval(&refs(&s)), "{}", f.kind);
+            assert_eq!(
+                f.eval_mixed(&refs(&s), &vec![true; f.nodes.len()]),
+                f.eval(&refs(&s)),
+                "{}",
+                f.kind
+            );
         }
     }
 }
@@ -82,28 +129,44 @@ fn emitted_mixed_rust_computes_the_interpreters_numbers() {
     let mut program = String::from("#![allow(dead_code, clippy::all)]\nfn bits(v: &[f64]) { for x in v { print!(\"{:016x} \", x.to_bits()); } println!(); }\n");
     let mut main = String::from("fn main() {\n");
     let mut expected = String::new();
-    for (i, (robot, kind)) in [("grid_iiwa", KernelKind::FdGrad), ("grid_hyq", KernelKind::Minv)].into_iter().enumerate() {
+    for (i, (robot, kind)) in
+        [("grid_iiwa", KernelKind::FdGrad), ("grid_hyq", KernelKind::Minv)].into_iter().enumerate()
+    {
         let model = load(robot);
-        let m = ir::lower(&model, G, &LowerOptions { kernels: vec![kind], ..LowerOptions::default() }).unwrap();
+        let m =
+            ir::lower(&model, G, &LowerOptions { kernels: vec![kind], ..LowerOptions::default() })
+                .unwrap();
         let f = &m.functions[0];
         let plan = mixed_plan(&model, G, f, 1e-9);
         let (wide, all) = plan.wide_operations(f);
         assert!(wide > 0 && wide < all);
         program += &format!("mod k{i} {{\nconst NV: usize = {};\n", model.nv());
-        grid_gen::back::rust::emit_mixed_kernel(&mut program, f, "NV", &grid_gen::back::rust::RustOptions { chunk: 2500, ..Default::default() }, &plan.wide);
+        grid_gen::back::rust::emit_mixed_kernel(
+            &mut program,
+            f,
+            "NV",
+            &grid_gen::back::rust::RustOptions { chunk: 2500, ..Default::default() },
+            &plan.wide,
+        );
         program += "}\n";
         for s in inputs(&model, f, 3, 13) {
             let args: Vec<String> = s.iter().map(|v| format!("&{:?}", v)).collect();
             let outs: Vec<String> = (0..f.outputs.len()).map(|o| format!("o{o}")).collect();
-            let pattern = if outs.len() == 1 { outs[0].clone() } else { format!("({})", outs.join(", ")) };
+            let pattern =
+                if outs.len() == 1 { outs[0].clone() } else { format!("({})", outs.join(", ")) };
             main += &format!("{{ let {pattern} = k{i}::{}({});\n", f.kind.name(), args.join(", "));
             for (o, out) in f.outputs.iter().enumerate() {
-                let flat = if out.shape == ir::Shape::Matrix { format!("o{o}.concat()") } else { format!("o{o}.to_vec()") };
+                let flat = if out.shape == ir::Shape::Matrix {
+                    format!("o{o}.concat()")
+                } else {
+                    format!("o{o}.to_vec()")
+                };
                 main += &format!("bits(&{flat});\n");
             }
             main += "}\n";
             for out in f.eval_mixed(&refs(&s), &plan.wide) {
-                expected += &out.iter().map(|x| format!("{:016x} ", x.to_bits())).collect::<String>();
+                expected +=
+                    &out.iter().map(|x| format!("{:016x} ", x.to_bits())).collect::<String>();
                 expected += "\n";
             }
         }
@@ -113,7 +176,12 @@ fn emitted_mixed_rust_computes_the_interpreters_numbers() {
     std::fs::write(work.join("main.rs"), &program).unwrap();
     let exe = work.join("mixed");
     let rustc = grid_gen::timing::rustc();
-    let out = std::process::Command::new(&rustc).args(["--edition", "2021", "-C", "opt-level=3", "-o"]).arg(&exe).arg(work.join("main.rs")).output().unwrap();
+    let out = std::process::Command::new(&rustc)
+        .args(["--edition", "2021", "-C", "opt-level=3", "-o"])
+        .arg(&exe)
+        .arg(work.join("main.rs"))
+        .output()
+        .unwrap();
     assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
     let run = std::process::Command::new(&exe).output().unwrap();
     assert!(run.status.success());

@@ -17,10 +17,20 @@ fn reference_matches_pinocchio_on_every_robot() {
     let mut failures = Vec::new();
     let mut checked = 0;
     for robot in robots() {
-        checked += compare(&robot, &load(&robot), &fixture(&format!("{robot}.pinocchio.json")), &mut failures);
+        checked += compare(
+            &robot,
+            &load(&robot),
+            &fixture(&format!("{robot}.pinocchio.json")),
+            &mut failures,
+        );
     }
     assert!(checked > 500, "only {checked} comparisons");
-    assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} of {checked} comparisons above {TOL:e}:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }
 
 /// Scenes against Pinocchio's own reduction: `[lock]` is
@@ -33,22 +43,46 @@ fn scenes_match_pinocchio_reduced_models() {
     let mut checked = 0;
     for (robot, scene) in [("grid_iiwa", "iiwa_wrist_locked"), ("grid_hyq", "hyq_knees_locked")] {
         let (model, _) = load_in_scene(robot, scene);
-        checked += compare(&format!("{robot} in {scene}"), &model, &fixture(&format!("{robot}.{scene}.pinocchio.json")), &mut failures);
+        checked += compare(
+            &format!("{robot} in {scene}"),
+            &model,
+            &fixture(&format!("{robot}.{scene}.pinocchio.json")),
+            &mut failures,
+        );
     }
     assert!(checked > 100, "only {checked} comparisons");
-    assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} of {checked} comparisons above {TOL:e}:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }
 
 /// Every state of one fixture against the reference on `model`; returns the number of
 /// comparisons, pushing each one above TOL onto `failures`.
-fn compare(robot: &str, model: &grid_gen::Model, fx: &serde_json::Value, failures: &mut Vec<String>) -> usize {
+fn compare(
+    robot: &str,
+    model: &grid_gen::Model,
+    fx: &serde_json::Value,
+    failures: &mut Vec<String>,
+) -> usize {
     let mut checked = 0;
     {
-        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let names: Vec<&str> =
+            fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
         assert_eq!(names.len(), model.nv(), "{robot}: joint count");
         // perm[k] = our index of Pinocchio's k-th joint.
-        let perm: Vec<usize> =
-            names.iter().map(|n| model.joints.iter().position(|j| j.name == *n).unwrap_or_else(|| panic!("{robot}: no joint {n}"))).collect();
+        let perm: Vec<usize> = names
+            .iter()
+            .map(|n| {
+                model
+                    .joints
+                    .iter()
+                    .position(|j| j.name == *n)
+                    .unwrap_or_else(|| panic!("{robot}: no joint {n}"))
+            })
+            .collect();
         let ours = |v: &[f64]| {
             let mut out = vec![0.0; v.len()];
             for (k, &i) in perm.iter().enumerate() {
@@ -57,21 +91,36 @@ fn compare(robot: &str, model: &grid_gen::Model, fx: &serde_json::Value, failure
             out
         };
         let back_v = |v: &[f64]| col(&perm.iter().map(|&i| v[i]).collect::<Vec<_>>());
-        let back_m = |m: &DMatrix<f64>| DMatrix::from_fn(m.nrows(), m.ncols(), |a, b| m[(perm[a], perm[b])]);
+        let back_m =
+            |m: &DMatrix<f64>| DMatrix::from_fn(m.nrows(), m.ncols(), |a, b| m[(perm[a], perm[b])]);
         let g = [0.0, 0.0, -9.81];
         assert_eq!(vec_of(&fx["gravity"]), g.to_vec());
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
-            let (q, qd, qdd, tau) = (ours(&vec_of(&st["q"])), ours(&vec_of(&st["qd"])), ours(&vec_of(&st["qdd"])), ours(&vec_of(&st["tau"])));
+            let (q, qd, qdd, tau) = (
+                ours(&vec_of(&st["q"])),
+                ours(&vec_of(&st["qd"])),
+                ours(&vec_of(&st["qdd"])),
+                ours(&vec_of(&st["tau"])),
+            );
             let (dq, dqd) = reference::rnea_derivatives(&model, &q, &qd, &qdd, g);
-            let (fd, dfd_dq, dfd_dqd) = reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
+            let (fd, dfd_dq, dfd_dqd) =
+                reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, g);
             let results = [
-                ("rnea", back_v(&reference::rnea(&model, &q, &qd, &qdd, g)), col(&vec_of(&st["rnea"]))),
+                (
+                    "rnea",
+                    back_v(&reference::rnea(&model, &q, &qd, &qdd, g)),
+                    col(&vec_of(&st["rnea"])),
+                ),
                 ("drnea_dq", back_m(&dq), mat_of(&st["drnea_dq"])),
                 ("drnea_dqd", back_m(&dqd), mat_of(&st["drnea_dqd"])),
                 ("M", back_m(&reference::crba(&model, &q)), mat_of(&st["M"])),
                 ("Minv", back_m(&reference::minv(&model, &q)), mat_of(&st["Minv"])),
                 ("fd", back_v(&fd), col(&vec_of(&st["fd"]))),
-                ("fd alone", back_v(&reference::forward_dynamics(&model, &q, &qd, &tau, g)), col(&vec_of(&st["fd"]))),
+                (
+                    "fd alone",
+                    back_v(&reference::forward_dynamics(&model, &q, &qd, &tau, g)),
+                    col(&vec_of(&st["fd"])),
+                ),
                 ("dfd_dq", back_m(&dfd_dq), mat_of(&st["dfd_dq"])),
                 ("dfd_dqd", back_m(&dfd_dqd), mat_of(&st["dfd_dqd"])),
             ];
@@ -79,7 +128,10 @@ fn compare(robot: &str, model: &grid_gen::Model, fx: &serde_json::Value, failure
                 checked += 1;
                 let e = rel_err(&got, &want);
                 if !(e <= TOL) {
-                    failures.push(format!("{robot} state {s} ({}): {what} relative error {e:.2e}", st["kind"]));
+                    failures.push(format!(
+                        "{robot} state {s} ({}): {what} relative error {e:.2e}",
+                        st["kind"]
+                    ));
                 }
             }
         }
@@ -97,12 +149,21 @@ struct Order {
 
 impl Order {
     fn new(robot: &str, model: &grid_gen::Model, fx: &serde_json::Value) -> Order {
-        let names: Vec<&str> = fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
+        let names: Vec<&str> =
+            fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
         assert_eq!(names.len(), model.nv(), "{robot}: joint count");
         // Coordinates: the joints that are not coupled mimics (all of them by default).
-        let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
-        let perm: Vec<usize> =
-            names.iter().map(|name| coordinates.iter().position(|j| j == name).unwrap_or_else(|| panic!("{robot}: no coordinate {name}"))).collect();
+        let coordinates: Vec<&str> =
+            model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+        let perm: Vec<usize> = names
+            .iter()
+            .map(|name| {
+                coordinates
+                    .iter()
+                    .position(|j| j == name)
+                    .unwrap_or_else(|| panic!("{robot}: no coordinate {name}"))
+            })
+            .collect();
         let mut inv = vec![0; perm.len()];
         for (k, &i) in perm.iter().enumerate() {
             inv[i] = k;
@@ -116,7 +177,12 @@ impl Order {
     }
 
     /// Fixture entry `key` of state `st` in our order.
-    fn theirs(&self, st: &serde_json::Value, key: &str, shape: grid_gen::ir::Shape) -> DMatrix<f64> {
+    fn theirs(
+        &self,
+        st: &serde_json::Value,
+        key: &str,
+        shape: grid_gen::ir::Shape,
+    ) -> DMatrix<f64> {
         match shape {
             grid_gen::ir::Shape::Vector => col(&self.ours(&vec_of(&st[key]))),
             grid_gen::ir::Shape::Matrix => {
@@ -152,12 +218,14 @@ fn static_and_gradient_scenes_match_pinocchio() {
     use grid_gen::ir::{self, Input, LowerOptions};
     let mut failures = Vec::new();
     let mut checked = 0;
-    for (robot, scene, fixture_name) in
-        [("grid_iiwa", "iiwa_static", "grid_iiwa.iiwa_static.pinocchio.json"), ("grid_hyq", "hyq_lf_columns", "grid_hyq.pinocchio.json")]
-    {
+    for (robot, scene, fixture_name) in [
+        ("grid_iiwa", "iiwa_static", "grid_iiwa.iiwa_static.pinocchio.json"),
+        ("grid_hyq", "hyq_lf_columns", "grid_hyq.pinocchio.json"),
+    ] {
         let (model, _) = load_in_scene(robot, scene);
         let spec = model.specialisation.clone();
-        let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
+        let module =
+            ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
         let fx = fixture(fixture_name);
         let n = model.nv();
         let order = Order::new(robot, &model, &fx);
@@ -166,7 +234,9 @@ fn static_and_gradient_scenes_match_pinocchio() {
         let theirs = |st: &serde_json::Value, key: &str, shape: ir::Shape| -> DMatrix<f64> {
             let m = order.theirs(st, key, shape);
             match shape {
-                ir::Shape::Matrix if key.starts_with('d') => DMatrix::from_fn(n, n, |a, b| if spec.keeps(a, b) { m[(a, b)] } else { 0.0 }),
+                ir::Shape::Matrix if key.starts_with('d') => {
+                    DMatrix::from_fn(n, n, |a, b| if spec.keeps(a, b) { m[(a, b)] } else { 0.0 })
+                }
                 _ => m,
             }
         };
@@ -174,7 +244,10 @@ fn static_and_gradient_scenes_match_pinocchio() {
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
             let q = ours(&vec_of(&st["q"]));
             let qd = if spec.static_velocity {
-                assert!(vec_of(&st["qd"]).iter().all(|&x| x == 0.0), "the static fixture is at rest");
+                assert!(
+                    vec_of(&st["qd"]).iter().all(|&x| x == 0.0),
+                    "the static fixture is at rest"
+                );
                 rng.vec(n, -1.0, 1.0)
             } else {
                 ours(&vec_of(&st["qd"]))
@@ -191,14 +264,22 @@ fn static_and_gradient_scenes_match_pinocchio() {
                     checked += 1;
                     let e = rel_err(&output_matrix(o.shape, n, got), &theirs(st, key, o.shape));
                     if !(e <= TOL) {
-                        failures.push(format!("{robot} in {scene} state {s} ({}): {} {key} relative error {e:.2e}", st["kind"], f.kind));
+                        failures.push(format!(
+                            "{robot} in {scene} state {s} ({}): {} {key} relative error {e:.2e}",
+                            st["kind"], f.kind
+                        ));
                     }
                 }
             }
         }
     }
     assert!(checked > 200, "only {checked} comparisons");
-    assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+    assert!(
+        failures.is_empty(),
+        "{} of {checked} comparisons above {TOL:e}:\n{}",
+        failures.len(),
+        failures.join("\n")
+    );
 }
 
 /// Floating base: `--floating-base` against Pinocchio's
@@ -216,7 +297,9 @@ fn floating_base_matches_pinocchio_free_flyer() {
     for robot in ["grid_hyq", "grid_atlas", "grid_iiwa", "ur5", "solo12", "go2"] {
         // Solo-12 and Go2 are test-only robots (tests/fixtures/LICENSE.example-robot-data).
         let model = match robot {
-            "solo12" | "go2" => load_floating_urdf(&repo().join("tests/fixtures").join(format!("{robot}.urdf"))),
+            "solo12" | "go2" => {
+                load_floating_urdf(&repo().join("tests/fixtures").join(format!("{robot}.urdf")))
+            }
             _ => load_floating(robot),
         };
         assert!(model.floating && model.nq() == model.nv() + 1);
@@ -225,16 +308,27 @@ fn floating_base_matches_pinocchio_free_flyer() {
         assert_eq!(order.perm[..6], [0, 1, 2, 3, 4, 5], "{robot}: the free-flyer comes first");
         let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
             .into_iter()
-            .map(|gradient| ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions { gradient, ..LowerOptions::default() }).unwrap())
+            .map(|gradient| {
+                ir::lower(
+                    &model,
+                    reference::DEFAULT_GRAVITY,
+                    &LowerOptions { gradient, ..LowerOptions::default() },
+                )
+                .unwrap()
+            })
             .collect();
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
-            // q: the base's seven entries, then each joint after the free-flyer at its model index + 1.
+            // q: the base's seven entries, then each joint after the free-flyer at its model
+            // index + 1.
             let mut q = vec_of(&st["base"]);
             q.resize(model.nq(), 0.0);
             for (k, &a) in vec_of(&st["q"]).iter().enumerate() {
                 q[order.perm[6 + k] + 1] = a;
             }
-            tally.add(&format!("{robot} floating state {s} ({})", st["kind"]), everything(&model, &modules, &order, st, &q));
+            tally.add(
+                &format!("{robot} floating state {s} ({})", st["kind"]),
+                everything(&model, &modules, &order, st, &q),
+            );
         }
     }
     tally.finish("floating base: comparisons with Pinocchio's free-flyer", 1800);
@@ -253,17 +347,30 @@ fn floating_base_matches_pinocchio_free_flyer() {
 fn coupled_mimic_matches_pinocchio_mimic() {
     use grid_gen::ir::{self, Gradient, LowerOptions};
     let mut tally = Tally::default();
-    for (robot, path, coupled) in [("panda", repo().join("robots/panda.urdf"), 1), ("mimic_arm", repo().join("tests/fixtures/mimic_arm.urdf"), 3)] {
+    for (robot, path, coupled) in [
+        ("panda", repo().join("robots/panda.urdf"), 1),
+        ("mimic_arm", repo().join("tests/fixtures/mimic_arm.urdf"), 3),
+    ] {
         let model = load_coupled_urdf(&path);
         assert_eq!(model.njoints() - model.nv(), coupled, "{robot}: coupled mimic joints");
         let fx = fixture(&format!("{robot}.mimic.pinocchio.json"));
         let order = Order::new(robot, &model, &fx);
         let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
             .into_iter()
-            .map(|gradient| ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions { gradient, ..LowerOptions::default() }).unwrap())
+            .map(|gradient| {
+                ir::lower(
+                    &model,
+                    reference::DEFAULT_GRAVITY,
+                    &LowerOptions { gradient, ..LowerOptions::default() },
+                )
+                .unwrap()
+            })
             .collect();
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
-            tally.add(&format!("{robot} coupled state {s} ({})", st["kind"]), everything(&model, &modules, &order, st, &order.ours(&vec_of(&st["q"]))));
+            tally.add(
+                &format!("{robot} coupled state {s} ({})", st["kind"]),
+                everything(&model, &modules, &order, st, &order.ours(&vec_of(&st["q"]))),
+            );
         }
     }
     tally.finish("coupled mimic joints: comparisons with Pinocchio's mimic model", 700);
@@ -282,17 +389,34 @@ fn spherical_joints_match_pinocchio_spherical() {
     for floating in [false, true] {
         let robot = if floating { "ball_arm.floating" } else { "ball_arm" };
         let model = load_urdf(&repo().join("tests/fixtures/ball_arm.urdf"), floating);
-        assert_eq!((model.spherical.len(), model.nq()), (3, model.nv() + 3 + usize::from(floating)), "{robot}: q's size");
+        assert_eq!(
+            (model.spherical.len(), model.nq()),
+            (3, model.nv() + 3 + usize::from(floating)),
+            "{robot}: q's size"
+        );
         let fx = fixture(&format!("{robot}.pinocchio.json"));
         let order = Order::new(robot, &model, &fx);
         // q is Pinocchio's whole q, which is in grid-gen's layout when the orders agree.
-        assert!(order.perm.iter().enumerate().all(|(k, &p)| k == p), "{robot}: Pinocchio's model is built in grid-gen's order");
+        assert!(
+            order.perm.iter().enumerate().all(|(k, &p)| k == p),
+            "{robot}: Pinocchio's model is built in grid-gen's order"
+        );
         let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
             .into_iter()
-            .map(|gradient| ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions { gradient, ..LowerOptions::default() }).unwrap())
+            .map(|gradient| {
+                ir::lower(
+                    &model,
+                    reference::DEFAULT_GRAVITY,
+                    &LowerOptions { gradient, ..LowerOptions::default() },
+                )
+                .unwrap()
+            })
             .collect();
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
-            tally.add(&format!("{robot} state {s} ({})", st["kind"]), everything(&model, &modules, &order, st, &vec_of(&st["q"])));
+            tally.add(
+                &format!("{robot} state {s} ({})", st["kind"]),
+                everything(&model, &modules, &order, st, &vec_of(&st["q"])),
+            );
         }
     }
     tally.finish("spherical joints: comparisons with Pinocchio's JointModelSpherical", 600);
@@ -309,18 +433,30 @@ fn everything(
 ) -> Vec<(String, DMatrix<f64>, DMatrix<f64>)> {
     use grid_gen::ir::{Input, Shape};
     let g = reference::DEFAULT_GRAVITY;
-    let (qd, qdd, tau) = (order.ours(&vec_of(&st["qd"])), order.ours(&vec_of(&st["qdd"])), order.ours(&vec_of(&st["tau"])));
+    let (qd, qdd, tau) = (
+        order.ours(&vec_of(&st["qd"])),
+        order.ours(&vec_of(&st["qdd"])),
+        order.ours(&vec_of(&st["tau"])),
+    );
     let theirs = |key: &str, shape| order.theirs(st, key, shape);
     let (dq, dqd) = reference::rnea_derivatives(model, q, &qd, &qdd, g);
     let (fd, dfd_dq, dfd_dqd) = reference::forward_dynamics_derivatives(model, q, &qd, &tau, g);
     let mut results = vec![
-        ("reference rnea".to_string(), col(&reference::rnea(model, q, &qd, &qdd, g)), theirs("rnea", Shape::Vector)),
+        (
+            "reference rnea".to_string(),
+            col(&reference::rnea(model, q, &qd, &qdd, g)),
+            theirs("rnea", Shape::Vector),
+        ),
         ("reference drnea_dq".into(), dq, theirs("drnea_dq", Shape::Matrix)),
         ("reference drnea_dqd".into(), dqd, theirs("drnea_dqd", Shape::Matrix)),
         ("reference M".into(), reference::crba(model, q), theirs("M", Shape::Matrix)),
         ("reference Minv".into(), reference::minv(model, q), theirs("Minv", Shape::Matrix)),
         ("reference fd".into(), col(&fd), theirs("fd", Shape::Vector)),
-        ("reference aba".into(), col(&reference::aba(model, q, &qd, &tau, g)), theirs("fd", Shape::Vector)),
+        (
+            "reference aba".into(),
+            col(&reference::aba(model, q, &qd, &tau, g)),
+            theirs("fd", Shape::Vector),
+        ),
         ("reference dfd_dq".into(), dfd_dq, theirs("dfd_dq", Shape::Matrix)),
         ("reference dfd_dqd".into(), dfd_dqd, theirs("dfd_dqd", Shape::Matrix)),
     ];
@@ -334,7 +470,11 @@ fn everything(
             let got = f.eval(&kernel_args(f.inputs(), q, &qd, &u));
             for ((o, got), key) in f.outputs.iter().zip(&got).zip(fixture_keys(f.kind)) {
                 let form = f.gradient.map_or(String::new(), |g| format!(" ({})", g.name()));
-                results.push((format!("{}{form} {key}", f.kind.name()), output_matrix(o.shape, model.nv(), got), theirs(key, o.shape)));
+                results.push((
+                    format!("{}{form} {key}", f.kind.name()),
+                    output_matrix(o.shape, model.nv(), got),
+                    theirs(key, o.shape),
+                ));
             }
         }
     }
@@ -366,6 +506,11 @@ impl Tally {
         let Tally { checked, worst, failures } = self;
         println!("{what}: {checked}, worst relative error {worst:.2e}");
         assert!(checked > min, "only {checked} comparisons");
-        assert!(failures.is_empty(), "{} of {checked} comparisons above {TOL:e}:\n{}", failures.len(), failures.join("\n"));
+        assert!(
+            failures.is_empty(),
+            "{} of {checked} comparisons above {TOL:e}:\n{}",
+            failures.len(),
+            failures.join("\n")
+        );
     }
 }

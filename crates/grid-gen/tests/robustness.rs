@@ -8,7 +8,12 @@ use proptest::prelude::*;
 fn robots_text() -> Vec<String> {
     grid_gen_test_support::robots()
         .iter()
-        .map(|r| std::fs::read_to_string(grid_gen_test_support::repo().join("robots").join(format!("{r}.urdf"))).unwrap())
+        .map(|r| {
+            std::fs::read_to_string(
+                grid_gen_test_support::repo().join("robots").join(format!("{r}.urdf")),
+            )
+            .unwrap()
+        })
         .collect()
 }
 
@@ -23,12 +28,22 @@ fn exercise(text: &str) {
             let q = vec![0.3; model.nq()];
             let v = vec![0.3; n];
             let _ = reference::rnea_derivatives(&model, &q, &v, &v, reference::DEFAULT_GRAVITY);
-            let _ = reference::forward_dynamics_derivatives(&model, &q, &v, &v, reference::DEFAULT_GRAVITY);
+            let _ = reference::forward_dynamics_derivatives(
+                &model,
+                &q,
+                &v,
+                &v,
+                reference::DEFAULT_GRAVITY,
+            );
             // Generation too (small robots only, to keep the test quick): an error is
             // fine, a panic is not.
             if n <= 7 {
-                if let Ok(files) = grid_gen::generate::generate(&model, &grid_gen::generate::Options::default()) {
-                    assert!(files.iter().all(|f| !f.name.contains(['/', '\\']) && f.name.ends_with(".rs")));
+                if let Ok(files) =
+                    grid_gen::generate::generate(&model, &grid_gen::generate::Options::default())
+                {
+                    assert!(files
+                        .iter()
+                        .all(|f| !f.name.contains(['/', '\\']) && f.name.ends_with(".rs")));
                 }
             }
         }
@@ -39,7 +54,10 @@ fn exercise(text: &str) {
     }
 }
 
-const TOKENS: &[&str] = &["", "nan", "inf", "-1", "0", "1e308", "-1e-320", "x", "1 2", "\"", "<", "&amp;", "fixed", "floating", "base", "1 0 0 0"];
+const TOKENS: &[&str] = &[
+    "", "nan", "inf", "-1", "0", "1e308", "-1e-320", "x", "1 2", "\"", "<", "&amp;", "fixed",
+    "floating", "base", "1 0 0 0",
+];
 
 #[derive(Debug, Clone)]
 enum Edit {
@@ -85,7 +103,11 @@ fn fuzz_config(cases: u32) -> ProptestConfig {
     let set = |var: &str| std::env::var_os(var).is_some();
     ProptestConfig {
         cases: if set("PROPTEST_CASES") { from_env.cases } else { cases },
-        rng_seed: if !set("PROPTEST_RNG_SEED") && set("CI") { proptest::test_runner::RngSeed::Fixed(20261124) } else { from_env.rng_seed },
+        rng_seed: if !set("PROPTEST_RNG_SEED") && set("CI") {
+            proptest::test_runner::RngSeed::Fixed(20261124)
+        } else {
+            from_env.rng_seed
+        },
         failure_persistence: None,
         ..from_env
     }
@@ -122,7 +144,8 @@ fn scenes_text() -> Vec<(String, String)> {
             let root = grid_gen_test_support::repo();
             (
                 std::fs::read_to_string(root.join("robots").join(format!("{robot}.urdf"))).unwrap(),
-                std::fs::read_to_string(root.join("examples/scenes").join(format!("{scene}.toml"))).unwrap(),
+                std::fs::read_to_string(root.join("examples/scenes").join(format!("{scene}.toml")))
+                    .unwrap(),
             )
         })
         .collect()
@@ -158,7 +181,9 @@ fn overflowing_numbers_are_an_error_not_a_literal() {
       <link name="a"><inertial><origin xyz="1e200 0 0"/><mass value="1e300"/><inertia ixx="1" ixy="0" ixz="0" iyy="1" iyz="0" izz="1"/></inertial></link>
       <joint name="j" type="revolute"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/></joint></robot>"#;
     let (model, _) = Model::from_urdf_str("big.urdf", text, false).unwrap();
-    let err = grid_gen::generate::generate(&model, &grid_gen::generate::Options::default()).unwrap_err().to_string();
+    let err = grid_gen::generate::generate(&model, &grid_gen::generate::Options::default())
+        .unwrap_err()
+        .to_string();
     assert!(err.contains("overflows f64"), "{err}");
 }
 
@@ -181,8 +206,15 @@ fn deep_chains_do_not_overflow_the_stack() {
 /// floating has nq = nv + 1 positions, and the exercise must pass q with nq entries.
 #[test]
 fn a_robot_edited_to_float_is_exercised_with_its_quaternion() {
-    let text = robots_text().into_iter().find(|t| t.contains(r#"<robot name="iiwa"#) || t.contains("iiwa_base_joint")).unwrap();
-    let edited = text.replacen(r#"name="iiwa_base_joint" type="fixed""#, r#"name="iiwa_base_joint" type="floating""#, 1);
+    let text = robots_text()
+        .into_iter()
+        .find(|t| t.contains(r#"<robot name="iiwa"#) || t.contains("iiwa_base_joint"))
+        .unwrap();
+    let edited = text.replacen(
+        r#"name="iiwa_base_joint" type="fixed""#,
+        r#"name="iiwa_base_joint" type="floating""#,
+        1,
+    );
     assert_ne!(edited, text, "the edit applies");
     let (model, _) = Model::from_urdf_str("fuzz.urdf", &edited, false).unwrap();
     assert_eq!(model.nq(), model.nv() + 1, "a free-flyer root");

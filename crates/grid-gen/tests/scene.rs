@@ -36,7 +36,8 @@ const A2_REVOLUTE: &str = "<joint name=\"ja2\" type=\"revolute\"><parent link=\"
 
 fn in_scene(urdf: &str, scene: &str) -> Result<(Model, Vec<grid_gen::Diagnostic>), String> {
     let scene = Scene::parse("scene.toml", scene).map_err(|e| e.to_string())?;
-    Model::from_urdf_str_in_scene("tree.urdf", urdf, false, &scene, "scene.toml").map_err(|e| e.render_plain())
+    Model::from_urdf_str_in_scene("tree.urdf", urdf, false, &scene, "scene.toml")
+        .map_err(|e| e.render_plain())
 }
 
 fn plain(urdf: &str) -> Model {
@@ -54,9 +55,15 @@ fn assert_same(a: &Model, b: &Model, what: &str) {
         let (q, qd, qdd) = (rng.vec(n, -2.0, 2.0), rng.vec(n, -2.0, 2.0), rng.vec(n, -2.0, 2.0));
         let g = reference::DEFAULT_GRAVITY;
         let pairs = [
-            (col(&reference::rnea(a, &q, &qd, &qdd, g)), col(&reference::rnea(b, &q, &qd, &qdd, g))),
+            (
+                col(&reference::rnea(a, &q, &qd, &qdd, g)),
+                col(&reference::rnea(b, &q, &qd, &qdd, g)),
+            ),
             (reference::crba(a, &q), reference::crba(b, &q)),
-            (reference::rnea_derivatives(a, &q, &qd, &qdd, g).0, reference::rnea_derivatives(b, &q, &qd, &qdd, g).0),
+            (
+                reference::rnea_derivatives(a, &q, &qd, &qdd, g).0,
+                reference::rnea_derivatives(b, &q, &qd, &qdd, g).0,
+            ),
         ];
         for (x, y) in pairs {
             assert!(rel_err(&x, &y) <= 1e-14, "{what}: {:.2e}", rel_err(&x, &y));
@@ -68,7 +75,8 @@ fn assert_same(a: &Model, b: &Model, what: &str) {
 fn dropping_a_subtree_is_the_urdf_without_it() {
     let (dropped, _) = in_scene(&tree_urdf(true, A2_REVOLUTE, ""), "drop = [\"b1\"]").unwrap();
     assert_same(&dropped, &plain(&tree_urdf(false, A2_REVOLUTE, "")), "drop b1");
-    let (only_b2, _) = in_scene(&tree_urdf(true, A2_REVOLUTE, ""), "drop = [\"b2\", \"a1\"]").unwrap();
+    let (only_b2, _) =
+        in_scene(&tree_urdf(true, A2_REVOLUTE, ""), "drop = [\"b2\", \"a1\"]").unwrap();
     assert_eq!(only_b2.joints.iter().map(|j| j.name.as_str()).collect::<Vec<_>>(), ["jb1"]);
 }
 
@@ -101,9 +109,18 @@ fn a_payload_is_a_fixed_child_carrying_it() {
 fn every_name_is_checked_and_bad_scenes_are_named() {
     let urdf = tree_urdf(true, A2_REVOLUTE, "");
     for (scene, expected) in [
-        ("[lock]\nnope = 1.0", "scene `scene.toml`: [lock] names joint `nope`, which robot `tree` does not have"),
-        ("drop = [\"nope\"]", "scene `scene.toml`: drop names link `nope`, which robot `tree` does not have"),
-        ("keep = [\"nope\"]", "scene `scene.toml`: keep names link `nope`, which robot `tree` does not have"),
+        (
+            "[lock]\nnope = 1.0",
+            "scene `scene.toml`: [lock] names joint `nope`, which robot `tree` does not have",
+        ),
+        (
+            "drop = [\"nope\"]",
+            "scene `scene.toml`: drop names link `nope`, which robot `tree` does not have",
+        ),
+        (
+            "keep = [\"nope\"]",
+            "scene `scene.toml`: keep names link `nope`, which robot `tree` does not have",
+        ),
         ("drop = [\"base\"]", "drop names the root link `base`, which would leave no robot"),
         ("[payload]\nlink = \"nope\"\nmass = 1.0", "payload names link `nope`"),
         ("lokc = 1", "unknown field `lokc`"),
@@ -116,7 +133,10 @@ fn every_name_is_checked_and_bad_scenes_are_named() {
     }
     // Warnings: outside the limits, already fixed; --strict refuses them.
     let (_, warnings) = in_scene(&urdf, "[lock]\nja2 = 3.0").unwrap();
-    assert!(warnings.iter().any(|w| w.message.contains("holds `ja2` at 3, outside its limits [-2, 2]")), "{warnings:?}");
+    assert!(
+        warnings.iter().any(|w| w.message.contains("holds `ja2` at 3, outside its limits [-2, 2]")),
+        "{warnings:?}"
+    );
     let scene = Scene::parse("scene.toml", "[lock]\nja2 = 3.0").unwrap();
     assert!(Model::from_urdf_str_in_scene("tree.urdf", &urdf, true, &scene, "scene.toml").is_err());
 }
@@ -127,13 +147,23 @@ fn kernels_of_a_scene_model_match_the_reference() {
     assert_eq!(scene.kernels().unwrap(), Some(vec![KernelKind::RneaGrad, KernelKind::FdGrad]));
     assert_eq!(model.nv(), 4);
     let g = scene.gravity.unwrap_or(reference::DEFAULT_GRAVITY);
-    let module = ir::lower(&model, g, &LowerOptions { kernels: scene.kernels().unwrap().unwrap(), ..LowerOptions::default() }).unwrap();
-    assert_eq!(module.functions.iter().map(|f| f.kind).collect::<Vec<_>>(), [KernelKind::RneaGrad, KernelKind::FdGrad]);
+    let module = ir::lower(
+        &model,
+        g,
+        &LowerOptions { kernels: scene.kernels().unwrap().unwrap(), ..LowerOptions::default() },
+    )
+    .unwrap();
+    assert_eq!(
+        module.functions.iter().map(|f| f.kind).collect::<Vec<_>>(),
+        [KernelKind::RneaGrad, KernelKind::FdGrad]
+    );
     let mut rng = Rng(8);
     let (q, qd, u) = (rng.vec(4, -2.0, 2.0), rng.vec(4, -2.0, 2.0), rng.vec(4, -2.0, 2.0));
     for f in &module.functions {
         let got = f.eval(&kernel_args(f.inputs(), &q, &qd, &u));
-        for ((o, got), want) in f.outputs.iter().zip(&got).zip(reference_outputs(f.kind, &model, &q, &qd, &u, g)) {
+        for ((o, got), want) in
+            f.outputs.iter().zip(&got).zip(reference_outputs(f.kind, &model, &q, &qd, &u, g))
+        {
             let e = rel_err(&output_matrix(o.shape, 4, got), &want);
             assert!(e <= 1e-12, "{} {}: {e:.2e}", f.kind, o.name);
         }
@@ -151,18 +181,36 @@ fn a_static_scene_compiles_the_velocity_terms_out() {
     assert!(scene.static_velocity && fixed.specialisation.static_velocity);
     let moving = load("grid_iiwa");
     let g = reference::DEFAULT_GRAVITY;
-    let (a, b) = (ir::lower(&fixed, g, &LowerOptions::default()).unwrap(), ir::lower(&moving, g, &LowerOptions::default()).unwrap());
+    let (a, b) = (
+        ir::lower(&fixed, g, &LowerOptions::default()).unwrap(),
+        ir::lower(&moving, g, &LowerOptions::default()).unwrap(),
+    );
     let n = fixed.nv();
     let zero = vec![0.0; n];
     let mut rng = Rng(21);
     for (fa, fb) in a.functions.iter().zip(&b.functions) {
         // No kernel reads q̇ any more, and the q̇-gradients are constant zeros.
-        assert!(!fa.nodes.iter().any(|node| matches!(node.op, ir::Op::Input(ir::Input::Qd, _))), "{}: reads qd", fa.kind);
+        assert!(
+            !fa.nodes.iter().any(|node| matches!(node.op, ir::Op::Input(ir::Input::Qd, _))),
+            "{}: reads qd",
+            fa.kind
+        );
         for o in fa.outputs.iter().filter(|o| o.name.ends_with("_dqd")) {
-            assert!(o.ids.iter().all(|&id| fa.op(id) == ir::Op::Const(0.0)), "{} {}", fa.kind, o.name);
+            assert!(
+                o.ids.iter().all(|&id| fa.op(id) == ir::Op::Const(0.0)),
+                "{} {}",
+                fa.kind,
+                o.name
+            );
         }
         let velocity = fa.inputs().contains(&ir::Input::Qd);
-        assert!(if velocity { ops(fa) < ops(fb) } else { ops(fa) == ops(fb) }, "{}: {} vs {} ops", fa.kind, ops(fa), ops(fb));
+        assert!(
+            if velocity { ops(fa) < ops(fb) } else { ops(fa) == ops(fb) },
+            "{}: {} vs {} ops",
+            fa.kind,
+            ops(fa),
+            ops(fb)
+        );
         for _ in 0..3 {
             let (q, qd, u) = (rng.vec(n, -2.0, 2.0), rng.vec(n, -2.0, 2.0), rng.vec(n, -2.0, 2.0));
             // Whatever qd is passed, the answer is the full robot's at q̇ = 0; dropping
@@ -170,14 +218,22 @@ fn a_static_scene_compiles_the_velocity_terms_out() {
             let got = fa.eval(&kernel_args(fa.inputs(), &q, &qd, &u));
             let want = fb.eval(&kernel_args(fb.inputs(), &q, &zero, &u));
             assert_eq!(got, want, "{}", fa.kind);
-            for ((o, got), want) in fa.outputs.iter().zip(&got).zip(reference_outputs(fa.kind, &fixed, &q, &zero, &u, g)) {
+            for ((o, got), want) in fa
+                .outputs
+                .iter()
+                .zip(&got)
+                .zip(reference_outputs(fa.kind, &fixed, &q, &zero, &u, g))
+            {
                 let e = rel_err(&output_matrix(o.shape, n, got), &want);
                 assert!(e <= 1e-12, "{} {}: {e:.2e}", fa.kind, o.name);
             }
         }
     }
     // eval refuses a moving state rather than answer for a still one.
-    let states = grid_gen::eval::parse_states(&format!(r#"{{"states": [{{"q": {zero:?}, "qd": [0, 0, 0.5, 0, 0, 0, 0]}}]}}"#)).unwrap();
+    let states = grid_gen::eval::parse_states(&format!(
+        r#"{{"states": [{{"q": {zero:?}, "qd": [0, 0, 0.5, 0, 0, 0, 0]}}]}}"#
+    ))
+    .unwrap();
     let err = grid_gen::eval::evaluate(&fixed, &states, g).unwrap_err().to_string();
     assert!(err.contains("state 0: `qd[2]` is 0.5, and the scene is static"), "{err}");
 }
@@ -195,15 +251,24 @@ fn gradient_entries_the_scene_does_not_read_are_not_computed() {
     for gradient in [ir::Gradient::Columns, ir::Gradient::Idsva] {
         for kind in [KernelKind::RneaGrad, KernelKind::FdGrad] {
             let options = LowerOptions { kernels: vec![kind], gradient, ..LowerOptions::default() };
-            let (a, b) = (ir::lower(&chosen, g, &options).unwrap(), ir::lower(&all, g, &options).unwrap());
+            let (a, b) =
+                (ir::lower(&chosen, g, &options).unwrap(), ir::lower(&all, g, &options).unwrap());
             let (fa, fb) = (&a.functions[0], &b.functions[0]);
             // One leg of four: a quarter of rnea_grad (measured 1298/5222 columns, 1060/4264
             // IDSVA); fd_grad keeps ABA's q̈ for every joint, about half (4089/8042, 3853/7092).
             let most = if kind == KernelKind::RneaGrad { 0.3 } else { 0.6 };
-            assert!((ops(fa) as f64) < most * ops(fb) as f64, "{kind} {gradient:?}: {} vs {} ops", ops(fa), ops(fb));
+            assert!(
+                (ops(fa) as f64) < most * ops(fb) as f64,
+                "{kind} {gradient:?}: {} vs {} ops",
+                ops(fa),
+                ops(fb)
+            );
             // The entries kept are the full kernel's to the bit (the same graph, less the
             // work that fed only the others); the rest are 0.
-            let (got, want) = (fa.eval(&kernel_args(fa.inputs(), &q, &qd, &u)), fb.eval(&kernel_args(fb.inputs(), &q, &qd, &u)));
+            let (got, want) = (
+                fa.eval(&kernel_args(fa.inputs(), &q, &qd, &u)),
+                fb.eval(&kernel_args(fb.inputs(), &q, &qd, &u)),
+            );
             for ((o, got), want) in fa.outputs.iter().zip(&got).zip(&want) {
                 for (k, (x, y)) in got.iter().zip(want).enumerate() {
                     let kept = o.shape == ir::Shape::Vector || columns.contains(&(k % n));
@@ -213,19 +278,34 @@ fn gradient_entries_the_scene_does_not_read_are_not_computed() {
         }
     }
     // The reference in `eval` answers the same way.
-    let states = grid_gen::eval::parse_states(&format!(r#"{{"states": [{{"q": {q:?}, "qd": {qd:?}, "qdd": {u:?}}}]}}"#)).unwrap();
+    let states = grid_gen::eval::parse_states(&format!(
+        r#"{{"states": [{{"q": {q:?}, "qd": {qd:?}, "qdd": {u:?}}}]}}"#
+    ))
+    .unwrap();
     let out = grid_gen::eval::evaluate(&chosen, &states, g).unwrap();
     let dq = out.states[0].drnea_dq.as_ref().unwrap();
-    assert!(dq.iter().all(|row| row[3..].iter().all(|&x| x == 0.0)) && dq[0][..3].iter().any(|&x| x != 0.0));
+    assert!(
+        dq.iter().all(|row| row[3..].iter().all(|&x| x == 0.0))
+            && dq[0][..3].iter().any(|&x| x != 0.0)
+    );
 }
 
 #[test]
 fn gradient_rows_and_columns_name_movable_joints() {
     let urdf = tree_urdf(true, A2_REVOLUTE, "");
     for (scene, expected) in [
-        ("[lock]\nja2 = 0.5\n[gradient]\ncolumns = [\"ja2\"]", "[gradient] columns names `ja2`, which is locked by the scene's [lock]"),
-        ("drop = [\"b1\"]\n[gradient]\nrows = [\"jb2\"]", "[gradient] rows names `jb2`, which is left out by the scene's keep or drop"),
-        ("[gradient]\nrows = [\"nope\"]", "[gradient] rows names `nope`, which is not a joint of robot `tree`"),
+        (
+            "[lock]\nja2 = 0.5\n[gradient]\ncolumns = [\"ja2\"]",
+            "[gradient] columns names `ja2`, which is locked by the scene's [lock]",
+        ),
+        (
+            "drop = [\"b1\"]\n[gradient]\nrows = [\"jb2\"]",
+            "[gradient] rows names `jb2`, which is left out by the scene's keep or drop",
+        ),
+        (
+            "[gradient]\nrows = [\"nope\"]",
+            "[gradient] rows names `nope`, which is not a joint of robot `tree`",
+        ),
         ("[gradient]\nrow = [\"ja1\"]", "unknown field `row`"),
         ("static = 1", "static"),
     ] {
@@ -245,10 +325,20 @@ fn the_books_scene_example_parses() {
     let page = std::fs::read_to_string(repo().join("docs/guide/scenes.md")).unwrap();
     let block = page.split("```toml\n").nth(1).unwrap().split("```").next().unwrap();
     let scene = Scene::parse("scenes.md", block).unwrap();
-    assert!(scene.static_velocity && scene.floating_base && scene.lock.len() == 1 && scene.payload.len() == 1);
-    assert_eq!(scene.outputs.as_deref(), Some(&["rnea_grad".to_string(), "fd_grad".to_string()][..]));
+    assert!(
+        scene.static_velocity
+            && scene.floating_base
+            && scene.lock.len() == 1
+            && scene.payload.len() == 1
+    );
+    assert_eq!(
+        scene.outputs.as_deref(),
+        Some(&["rnea_grad".to_string(), "fd_grad".to_string()][..])
+    );
     // Written after the table, `static` is a joint of `[lock]`, and the error says what went wrong.
-    let misplaced = block.replace("static = true ", "").replace("iiwa_joint_7 = 0.0\n", "iiwa_joint_7 = 0.0\nstatic = true\n");
+    let misplaced = block
+        .replace("static = true ", "")
+        .replace("iiwa_joint_7 = 0.0\n", "iiwa_joint_7 = 0.0\nstatic = true\n");
     let err = Scene::parse("scenes.md", &misplaced).unwrap_err().to_string();
     assert!(err.contains("static"), "{err}");
 }

@@ -8,7 +8,9 @@ use grid_gen_test_support::*;
 
 fn functions(robot: &str) -> Vec<Function> {
     let model = load(robot);
-    ir::lower(&model, grid_gen::reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap().functions
+    ir::lower(&model, grid_gen::reference::DEFAULT_GRAVITY, &LowerOptions::default())
+        .unwrap()
+        .functions
 }
 
 #[test]
@@ -33,7 +35,12 @@ fn chunks_cover_every_operation_once_with_safe_slots() {
                             assert!(d as usize <= ci, "operand computed before use");
                             if (d as usize) < ci {
                                 let s = c.slot[o.0 as usize].expect("crossing value has a slot");
-                                assert_eq!(holder[s as usize], Some(o), "{robot} {}: slot {s} overwritten before its last read", f.kind);
+                                assert_eq!(
+                                    holder[s as usize],
+                                    Some(o),
+                                    "{robot} {}: slot {s} overwritten before its last read",
+                                    f.kind
+                                );
                             }
                         }
                     }
@@ -45,7 +52,12 @@ fn chunks_cover_every_operation_once_with_safe_slots() {
                 }
             }
             for (i, n) in seen.iter().enumerate() {
-                assert_eq!(*n, usize::from(f.is_operation(Id(i as u32))), "{robot} {}: node {i}", f.kind);
+                assert_eq!(
+                    *n,
+                    usize::from(f.is_operation(Id(i as u32))),
+                    "{robot} {}: node {i}",
+                    f.kind
+                );
             }
         }
     }
@@ -72,11 +84,20 @@ fn check(f: &Function, p: &Phases, budget: usize) {
                     let Some(po) = p.place[o.0 as usize] else { continue };
                     if po.phase as usize == pi {
                         assert_eq!(po.worker as usize, w, "same-phase operand on another worker");
-                        assert!(pos[o.0 as usize] < k, "same-phase operand computed earlier in the list");
+                        assert!(
+                            pos[o.0 as usize] < k,
+                            "same-phase operand computed earlier in the list"
+                        );
                     } else {
                         assert!((po.phase as usize) < pi, "operand from a later phase");
-                        let s = p.slot[o.0 as usize].expect("value read in a later phase has a slot");
-                        assert_eq!(holder[s as usize], Some(o), "{}: slot {s} overwritten before its last read", f.kind);
+                        let s =
+                            p.slot[o.0 as usize].expect("value read in a later phase has a slot");
+                        assert_eq!(
+                            holder[s as usize],
+                            Some(o),
+                            "{}: slot {s} overwritten before its last read",
+                            f.kind
+                        );
                     }
                 }
             }
@@ -88,7 +109,12 @@ fn check(f: &Function, p: &Phases, budget: usize) {
         }
     }
     for (i, n) in seen.iter().enumerate() {
-        assert_eq!(*n, usize::from(f.is_operation(Id(i as u32))), "{}: node {i} placed once", f.kind);
+        assert_eq!(
+            *n,
+            usize::from(f.is_operation(Id(i as u32))),
+            "{}: node {i} placed once",
+            f.kind
+        );
     }
 }
 
@@ -104,7 +130,12 @@ fn phases_place_every_operation_once_after_its_operands() {
                 if workers == 1 {
                     assert_eq!(p.phases.len(), 1, "one worker needs no barrier");
                 } else {
-                    assert!(p.span() < ops, "{robot} {}: {workers} workers shorten the schedule ({} of {ops})", f.kind, p.span());
+                    assert!(
+                        p.span() < ops,
+                        "{robot} {}: {workers} workers shorten the schedule ({} of {ops})",
+                        f.kind,
+                        p.span()
+                    );
                 }
             }
         }
@@ -113,12 +144,20 @@ fn phases_place_every_operation_once_after_its_operands() {
 
 #[test]
 fn phases_respect_the_slot_budget() {
-    let f = functions("grid_iiwa").into_iter().find(|f| f.kind == ir::KernelKind::RneaGrad).unwrap();
+    let f =
+        functions("grid_iiwa").into_iter().find(|f| f.kind == ir::KernelKind::RneaGrad).unwrap();
     let free = Phases::new(&f, 32, usize::MAX).unwrap();
     assert!(free.slots > 10);
     check(&f, &free, free.slots);
     let err = Phases::new(&f, 32, free.slots - 1).unwrap_err();
-    assert_eq!(err, ScheduleError::OverBudget { kernel: "rnea_grad", needed: free.slots, budget: free.slots - 1 });
+    assert_eq!(
+        err,
+        ScheduleError::OverBudget {
+            kernel: "rnea_grad",
+            needed: free.slots,
+            budget: free.slots - 1
+        }
+    );
     assert_eq!(Phases::new(&f, 0, 10).unwrap_err(), ScheduleError::NoWorkers);
 }
 
@@ -126,6 +165,7 @@ fn phases_respect_the_slot_budget() {
 fn lowering_over_the_node_limit_is_an_error_not_an_abort() {
     let model = load("grid_atlas");
     let options = LowerOptions { max_nodes: 5_000, ..LowerOptions::default() };
-    let err = ir::lower(&model, grid_gen::reference::DEFAULT_GRAVITY, &options).unwrap_err().to_string();
+    let err =
+        ir::lower(&model, grid_gen::reference::DEFAULT_GRAVITY, &options).unwrap_err().to_string();
     assert!(err.contains("needs more than 5000 IR nodes"), "{err}");
 }

@@ -33,13 +33,25 @@ fn fixture_model(name: &str, fx: &serde_json::Value) -> (Model, bool) {
         "ball_arm" => (load_urdf(&fixtures.join("ball_arm.urdf"), true), true),
         _ => unreachable!(),
     };
-    let names = |key: &str| -> Vec<String> { fx[key].as_array().map_or(Vec::new(), |a| a.iter().map(|n| n.as_str().unwrap().to_string()).collect()) };
+    let names = |key: &str| -> Vec<String> {
+        fx[key]
+            .as_array()
+            .map_or(Vec::new(), |a| a.iter().map(|n| n.as_str().unwrap().to_string()).collect())
+    };
     let fext = names("fext");
     let contacts: Vec<(String, ContactKind)> = fx["contacts"].as_array().map_or(Vec::new(), |a| {
-        a.iter().map(|c| (c["frame"].as_str().unwrap().to_string(), ContactKind::parse(c["type"].as_str().unwrap()).unwrap())).collect()
+        a.iter()
+            .map(|c| {
+                (
+                    c["frame"].as_str().unwrap().to_string(),
+                    ContactKind::parse(c["type"].as_str().unwrap()).unwrap(),
+                )
+            })
+            .collect()
     });
     let fext: Vec<&str> = fext.iter().map(String::as_str).collect();
-    let contacts: Vec<(&str, ContactKind)> = contacts.iter().map(|(f, k)| (f.as_str(), *k)).collect();
+    let contacts: Vec<(&str, ContactKind)> =
+        contacts.iter().map(|(f, k)| (f.as_str(), *k)).collect();
     (with_forces(&model, &fext, &contacts), floating)
 }
 
@@ -50,12 +62,20 @@ fn fixture_model(name: &str, fx: &serde_json::Value) -> (Model, bool) {
 fn reference_step_matches_pinocchio() {
     let mut checked = 0;
     let mut worst: f64 = 0.0;
-    let names = ["grid_iiwa", "grid_hyq.floating", "ball_arm.floating", "grid_iiwa.fext", "grid_hyq.floating.contact", "grid_iiwa.contact"];
+    let names = [
+        "grid_iiwa",
+        "grid_hyq.floating",
+        "ball_arm.floating",
+        "grid_iiwa.fext",
+        "grid_hyq.floating.contact",
+        "grid_iiwa.contact",
+    ];
     for name in names {
         let fx = fixture(&format!("{name}.step.pinocchio.json"));
         let (model, floating) = fixture_model(name, &fx);
         let perm = fixture_perm(&model, &fx, name);
-        let coordinates: Vec<&str> = model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+        let coordinates: Vec<&str> =
+            model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
         let nv = model.nv();
         let ours = |v: &[f64]| {
             let mut o = vec![0.0; nv];
@@ -71,36 +91,66 @@ fn reference_step_matches_pinocchio() {
             if spherical {
                 return v.to_vec();
             }
-            let (base, angles) = if floating { (v[..7].try_into().unwrap(), &v[7..]) } else { ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], v) };
-            let per = if floating { [vec![0.0; 6], angles.to_vec()].concat() } else { angles.to_vec() };
+            let (base, angles) = if floating {
+                (v[..7].try_into().unwrap(), &v[7..])
+            } else {
+                ([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], v)
+            };
+            let per =
+                if floating { [vec![0.0; 6], angles.to_vec()].concat() } else { angles.to_vec() };
             model.q_from_joints(&ours(&per), base)
         };
-        let actuated: Vec<usize> =
-            fx["actuated"].as_array().unwrap().iter().map(|n| coordinates.iter().position(|c| *c == n.as_str().unwrap()).unwrap()).collect();
+        let actuated: Vec<usize> = fx["actuated"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|n| coordinates.iter().position(|c| *c == n.as_str().unwrap()).unwrap())
+            .collect();
         assert_eq!(
             actuated.iter().copied().collect::<std::collections::BTreeSet<_>>(),
             model.actuated().into_iter().collect(),
             "{name}: the default actuation"
         );
-        let state_perm: Vec<usize> = perm.iter().copied().chain(perm.iter().map(|&p| nv + p)).collect();
+        let state_perm: Vec<usize> =
+            perm.iter().copied().chain(perm.iter().map(|&p| nv + p)).collect();
         let dt = fx["dt"].as_f64().unwrap();
         let g: [f64; 3] = vec_of(&fx["gravity"]).try_into().unwrap();
         for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
-            let (q, qd, tau) = (q_of(&vec_of(&st["q"])), ours(&vec_of(&st["qd"])), ours(&vec_of(&st["tau"])));
+            let (q, qd, tau) =
+                (q_of(&vec_of(&st["q"])), ours(&vec_of(&st["qd"])), ours(&vec_of(&st["tau"])));
             let fext = if st["fext"].is_null() { Vec::new() } else { vec_of(&st["fext"]) };
             for scheme in Scheme::ALL {
                 let want = &st[scheme.name()];
                 let step = Step { scheme, dt };
-                let d = reference::step_derivatives(&model, &q, &qd, &tau, g, step, &model.actuated(), &fext).unwrap();
+                let d = reference::step_derivatives(
+                    &model,
+                    &q,
+                    &qd,
+                    &tau,
+                    g,
+                    step,
+                    &model.actuated(),
+                    &fext,
+                )
+                .unwrap();
                 let (q1, v1) = reference::step(&model, &q, &qd, &tau, g, step, &fext).unwrap();
                 let theirs_a = mat_of(&want["A"]);
                 let theirs_a = DMatrix::from_fn(2 * nv, 2 * nv, |r, c| {
-                    theirs_a[(state_perm.iter().position(|&p| p == r).unwrap(), state_perm.iter().position(|&p| p == c).unwrap())]
+                    theirs_a[(
+                        state_perm.iter().position(|&p| p == r).unwrap(),
+                        state_perm.iter().position(|&p| p == c).unwrap(),
+                    )]
                 });
                 // B's columns: the fixture's actuated order, mapped to ours (model order).
                 let theirs_b = mat_of(&want["B"]);
-                let order: Vec<usize> = model.actuated().iter().map(|c| actuated.iter().position(|a| a == c).unwrap()).collect();
-                let theirs_b = DMatrix::from_fn(2 * nv, order.len(), |r, c| theirs_b[(state_perm.iter().position(|&p| p == r).unwrap(), order[c])]);
+                let order: Vec<usize> = model
+                    .actuated()
+                    .iter()
+                    .map(|c| actuated.iter().position(|a| a == c).unwrap())
+                    .collect();
+                let theirs_b = DMatrix::from_fn(2 * nv, order.len(), |r, c| {
+                    theirs_b[(state_perm.iter().position(|&p| p == r).unwrap(), order[c])]
+                });
                 let results = [
                     ("q_next", col(&d.q_next), col(&q_of(&vec_of(&want["q_next"])))),
                     ("q_next (step)", col(&q1), col(&q_of(&vec_of(&want["q_next"])))),
@@ -113,7 +163,12 @@ fn reference_step_matches_pinocchio() {
                     let e = rel_err(&got, &want);
                     worst = worst.max(e);
                     checked += 1;
-                    assert!(e < TOL, "{name} state {s} ({}) {}: {what} {e:.2e}", st["kind"], scheme.name());
+                    assert!(
+                        e < TOL,
+                        "{name} state {s} ({}) {}: {what} {e:.2e}",
+                        st["kind"],
+                        scheme.name()
+                    );
                 }
             }
         }
@@ -124,7 +179,14 @@ fn reference_step_matches_pinocchio() {
 
 /// `q1 ⊖ q0` (Pinocchio's `difference`): logs of the relative motions.
 fn difference(model: &Model, q0: &[f64], q1: &[f64]) -> Vec<f64> {
-    let quat = |q: &[f64], at: usize| UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[at + 3], q[at], q[at + 1], q[at + 2]));
+    let quat = |q: &[f64], at: usize| {
+        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+            q[at + 3],
+            q[at],
+            q[at + 1],
+            q[at + 2],
+        ))
+    };
     let mut d = vec![0.0; model.nv()];
     for block in model.lie_blocks() {
         match block {
@@ -138,8 +200,10 @@ fn difference(model: &Model, q0: &[f64], q1: &[f64]) -> Vec<f64> {
                 let w = (r0.inverse() * quat(q1, 3)).scaled_axis();
                 let p = r0.inverse() * Vector3::new(q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2]);
                 // log6's linear part: V(ω)⁻¹ p with V = Σ [ω]×^k / (k + 1)!.
-                let wx = nalgebra::Matrix3::new(0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0);
-                let (mut v, mut term) = (nalgebra::Matrix3::identity(), nalgebra::Matrix3::identity());
+                let wx =
+                    nalgebra::Matrix3::new(0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0);
+                let (mut v, mut term) =
+                    (nalgebra::Matrix3::identity(), nalgebra::Matrix3::identity());
                 for k in 1..60 {
                     term = term * wx / (k as f64 + 1.0);
                     v += term;
@@ -157,13 +221,27 @@ fn difference(model: &Model, q0: &[f64], q1: &[f64]) -> Vec<f64> {
 /// force on its base, iiwa holding its tool by a rigid wrench contact with a force on its
 /// third link, the floating spherical arm with its tip held by a wrench contact.
 fn forced_cases() -> Vec<(&'static str, Model)> {
-    let legs = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"].map(|l| (l, ContactKind::Point));
+    let legs = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+        .map(|l| (l, ContactKind::Point));
     let ball = load_urdf(&repo().join("tests/fixtures/ball_arm.urdf"), true);
     let tip = ball.frames.iter().rev().find(|f| f.body.is_some()).unwrap().name.clone();
     vec![
-        ("hyq floating, four point contacts, fext", with_forces(&load_floating("grid_hyq"), &["root_joint"], &legs)),
-        ("iiwa, tool wrench contact, fext", with_forces(&load("grid_iiwa"), &["iiwa_joint_3"], &[("iiwa_link_7", ContactKind::Wrench)])),
-        ("ball_arm floating, tip wrench contact", with_forces(&ball, &[], &[(tip.as_str(), ContactKind::Wrench)])),
+        (
+            "hyq floating, four point contacts, fext",
+            with_forces(&load_floating("grid_hyq"), &["root_joint"], &legs),
+        ),
+        (
+            "iiwa, tool wrench contact, fext",
+            with_forces(
+                &load("grid_iiwa"),
+                &["iiwa_joint_3"],
+                &[("iiwa_link_7", ContactKind::Wrench)],
+            ),
+        ),
+        (
+            "ball_arm floating, tip wrench contact",
+            with_forces(&ball, &[], &[(tip.as_str(), ContactKind::Wrench)]),
+        ),
     ]
 }
 
@@ -199,7 +277,8 @@ fn step_derivatives_match_central_differences() {
         let tau = actuated_tau(model, &rng.vec(actuated.len(), -5.0, 5.0));
         for scheme in Scheme::ALL {
             let step = Step { scheme, dt: 0.05 };
-            let d = reference::step_derivatives(model, &q, &qd, &tau, g, step, &actuated, fext).unwrap();
+            let d = reference::step_derivatives(model, &q, &qd, &tau, g, step, &actuated, fext)
+                .unwrap();
             let (q1, v1) = reference::step(model, &q, &qd, &tau, g, step, fext).unwrap();
             // The five-point stencil, `(−f(2h) + 8 f(h) − 8 f(−h) + f(−2h)) / 12h`, errs by
             // about h⁴ |f⁽⁵⁾| / 30 + 1e-16 |f| / h: at h = 1e-4, 1e-12 from rounding. The
@@ -215,7 +294,8 @@ fn step_derivatives_match_central_differences() {
                     t.extend(va);
                     nalgebra::DVector::from_vec(t)
                 };
-                (tangent(-2.0 * eps) - tangent(2.0 * eps) + (tangent(eps) - tangent(-eps)) * 8.0) / (12.0 * eps)
+                (tangent(-2.0 * eps) - tangent(2.0 * eps) + (tangent(eps) - tangent(-eps)) * 8.0)
+                    / (12.0 * eps)
             };
             let mut num_a = DMatrix::zeros(2 * nv, 2 * nv);
             for k in 0..2 * nv {
@@ -227,7 +307,16 @@ fn step_derivatives_match_central_differences() {
                     } else {
                         qd_e[k - nv] += h;
                     }
-                    reference::step(model, &reference::integrate(model, &q, &e), &qd_e, &tau, g, step, fext).unwrap()
+                    reference::step(
+                        model,
+                        &reference::integrate(model, &q, &e),
+                        &qd_e,
+                        &tau,
+                        g,
+                        step,
+                        fext,
+                    )
+                    .unwrap()
                 };
                 num_a.set_column(k, &derivative(&moved));
             }
@@ -240,7 +329,11 @@ fn step_derivatives_match_central_differences() {
                 };
                 num_b.set_column(c, &derivative(&moved));
             }
-            assert!(rel_err(&col(&q1), &col(&d.q_next)) < 1e-14 && rel_err(&col(&v1), &col(&d.qd_next)) < 1e-14, "{name}: step and step_derivatives agree");
+            assert!(
+                rel_err(&col(&q1), &col(&d.q_next)) < 1e-14
+                    && rel_err(&col(&v1), &col(&d.qd_next)) < 1e-14,
+                "{name}: step and step_derivatives agree"
+            );
             for (what, got, want) in [("A", &d.a, &num_a), ("B", &d.b, &num_b)] {
                 let e = rel_err(got, want);
                 worst = worst.max(e);
@@ -274,7 +367,11 @@ fn step_kernels_match_the_reference() {
         for scheme in Scheme::ALL {
             for solve in [ir::Solve::Minv, ir::Solve::Ltdl] {
                 let m = with_step(model, scheme, 0.01);
-                let options = LowerOptions { kernels: vec![KernelKind::Step, KernelKind::StepGrad], solve, ..LowerOptions::default() };
+                let options = LowerOptions {
+                    kernels: vec![KernelKind::Step, KernelKind::StepGrad],
+                    solve,
+                    ..LowerOptions::default()
+                };
                 let module = ir::lower(&m, g, &options).unwrap();
                 assert_eq!(module.functions.len(), 2, "{name}: both step kernels");
                 let nv = m.nv();
@@ -302,7 +399,13 @@ fn step_kernels_match_the_reference() {
                             worst = worst.max(e);
                             // The same f64 dynamics by other routes (scaling and squaring
                             // against nalgebra's exponential, AD against a summed series).
-                            assert!(e < 1e-12, "{name} {} {solve:?} state {state} {} {}: {e:.2e}", scheme.name(), f.kind, o.name);
+                            assert!(
+                                e < 1e-12,
+                                "{name} {} {solve:?} state {state} {} {}: {e:.2e}",
+                                scheme.name(),
+                                f.kind,
+                                o.name
+                            );
                         }
                     }
                 }
@@ -322,10 +425,18 @@ fn forced_step_kernels_match_the_reference() {
     let mut worst: f64 = 0.0;
     for (name, model) in forced_cases() {
         for scheme in Scheme::ALL {
-            let solves: &[ir::Solve] = if scheme == Scheme::Rk4 { &[ir::Solve::Ltdl] } else { &[ir::Solve::Minv, ir::Solve::Ltdl, ir::Solve::Crba] };
+            let solves: &[ir::Solve] = if scheme == Scheme::Rk4 {
+                &[ir::Solve::Ltdl]
+            } else {
+                &[ir::Solve::Minv, ir::Solve::Ltdl, ir::Solve::Crba]
+            };
             for &solve in solves {
                 let m = with_step(&model, scheme, 0.01);
-                let options = LowerOptions { kernels: vec![KernelKind::Step, KernelKind::StepGrad], solve, ..LowerOptions::default() };
+                let options = LowerOptions {
+                    kernels: vec![KernelKind::Step, KernelKind::StepGrad],
+                    solve,
+                    ..LowerOptions::default()
+                };
                 let module = ir::lower(&m, g, &options).unwrap();
                 let nv = m.nv();
                 let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
@@ -333,11 +444,24 @@ fn forced_step_kernels_match_the_reference() {
                     let at = m.group_q(s);
                     q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
                 }
-                let (qd, u, fext) = (rng.vec(nv, -2.0, 2.0), rng.vec(m.nu(), -10.0, 10.0), rng.vec(6 * m.nfext(), -20.0, 20.0));
+                let (qd, u, fext) = (
+                    rng.vec(nv, -2.0, 2.0),
+                    rng.vec(m.nu(), -10.0, 10.0),
+                    rng.vec(6 * m.nfext(), -20.0, 20.0),
+                );
                 let ext = reference::External { fext: &fext, lambda: &[] };
                 for f in &module.functions {
-                    assert_eq!(f.inputs().contains(&ir::Input::Fext), m.nfext() > 0, "{name} {}: takes fext", f.kind);
-                    assert!(!f.inputs().contains(&ir::Input::Lambda), "{name} {}: solves for λ", f.kind);
+                    assert_eq!(
+                        f.inputs().contains(&ir::Input::Fext),
+                        m.nfext() > 0,
+                        "{name} {}: takes fext",
+                        f.kind
+                    );
+                    assert!(
+                        !f.inputs().contains(&ir::Input::Lambda),
+                        "{name} {}: solves for λ",
+                        f.kind
+                    );
                     let got = f.eval(&kernel_args_with(f.inputs(), &q, &qd, &u, ext));
                     let want = reference_outputs_with(f.kind, &m, &q, &qd, &u, g, ext);
                     assert_eq!(got.len(), want.len(), "{name} {}: outputs", f.kind);
@@ -347,7 +471,13 @@ fn forced_step_kernels_match_the_reference() {
                         // As `contact_kernels_match_the_reference` (the Schur complement
                         // against the reference's KKT LU, a digit lost to K's conditioning),
                         // then integrated.
-                        assert!(e < 5e-11, "{name} {} {solve:?} {} {}: {e:.2e}", scheme.name(), f.kind, o.name);
+                        assert!(
+                            e < 5e-11,
+                            "{name} {} {solve:?} {} {}: {e:.2e}",
+                            scheme.name(),
+                            f.kind,
+                            o.name
+                        );
                     }
                 }
             }
@@ -365,13 +495,19 @@ fn bad_steps_are_errors() {
         ("[step]\ndt = -0.01\n", "not a finite, positive"),
         ("static = true\n[step]\ndt = 0.01\n", "with `static = true`"),
         ("[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_haa\"]\n", "closest joints: lf_haa_joint"),
-        ("[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_haa_joint\", \"lf_haa_joint\"]\n", "twice"),
+        (
+            "[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_haa_joint\", \"lf_haa_joint\"]\n",
+            "twice",
+        ),
     ];
     for (scene, says) in cases {
         let err = load(scene).err().unwrap_or_else(|| panic!("{scene:?} loads"));
         assert!(err.contains(says), "{scene:?}: {err}");
     }
-    assert!(Scene::parse("s.toml", "[step]\nscheme = \"leapfrog\"\ndt = 0.01\n").is_err(), "an unknown scheme");
+    assert!(
+        Scene::parse("s.toml", "[step]\nscheme = \"leapfrog\"\ndt = 0.01\n").is_err(),
+        "an unknown scheme"
+    );
     let m = load("floating_base = true\n[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_kfe_joint\", \"root_joint\"]\n").unwrap();
     assert_eq!(m.actuated().len(), 7, "root_joint stands for its six coordinates");
     assert_eq!(m.specialisation.step, Some(Step { scheme: Scheme::SemiImplicitEuler, dt: 0.01 }));
@@ -384,7 +520,10 @@ fn rk4_step_grad_compiles_and_matches_the_reference() {
     use grid_gen::generate::{generate, Options, Target};
     let model = with_step(&load("grid_iiwa"), Scheme::Rk4, 0.01);
     let lower = LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() };
-    let file = generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() }).unwrap().remove(0);
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
     let said = compile_and_run(
         "rk4",
         &file.contents,
@@ -401,13 +540,22 @@ fn main() {
 }
 "#,
     );
-    let state = |k: usize, i: usize, salt: usize| (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5;
+    let state = |k: usize, i: usize, salt: usize| {
+        (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5
+    };
     let nv = model.nv();
     let mut worst: f64 = 0.0;
     for (k, line) in said.lines().enumerate() {
         let got: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
         let x: Vec<Vec<f64>> = (0..3).map(|s| (0..nv).map(|i| state(k, i, s)).collect()).collect();
-        let want = reference_outputs(KernelKind::StepGrad, &model, &x[0], &x[1], &x[2], reference::DEFAULT_GRAVITY);
+        let want = reference_outputs(
+            KernelKind::StepGrad,
+            &model,
+            &x[0],
+            &x[1],
+            &x[2],
+            reference::DEFAULT_GRAVITY,
+        );
         let want: Vec<f64> = want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
         assert_eq!(got.len(), want.len());
         let e = rel_err(&col(&got), &col(&want));
@@ -424,11 +572,18 @@ fn main() {
 #[test]
 fn forced_step_grad_compiles_and_matches_the_reference() {
     use grid_gen::generate::{generate, Options, Target};
-    let iiwa = with_forces(&load("grid_iiwa"), &["iiwa_joint_3"], &[("iiwa_link_7", ContactKind::Wrench)]);
+    let iiwa =
+        with_forces(&load("grid_iiwa"), &["iiwa_joint_3"], &[("iiwa_link_7", ContactKind::Wrench)]);
     let model = with_step(&iiwa, Scheme::SemiImplicitEuler, 0.01);
     let lower = LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() };
-    let file = generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() }).unwrap().remove(0);
-    assert!(file.contents.contains("`step_grad(q, qd, tau, fext) -> (q_next, qd_next, a, b)`"), "the API summary names fext and no lambda");
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
+    assert!(
+        file.contents.contains("`step_grad(q, qd, tau, fext) -> (q_next, qd_next, a, b)`"),
+        "the API summary names fext and no lambda"
+    );
     let said = compile_and_run(
         "forcedstep",
         &file.contents,
@@ -446,7 +601,9 @@ fn main() {
 }
 "#,
     );
-    let state = |k: usize, i: usize, salt: usize| (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5;
+    let state = |k: usize, i: usize, salt: usize| {
+        (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5
+    };
     let nv = model.nv();
     let mut worst: f64 = 0.0;
     for (k, line) in said.lines().enumerate() {
@@ -454,7 +611,15 @@ fn main() {
         let x: Vec<Vec<f64>> = (0..3).map(|s| (0..nv).map(|i| state(k, i, s)).collect()).collect();
         let fext: Vec<f64> = (0..6).map(|i| 10.0 * state(k, i, 3)).collect();
         let ext = reference::External { fext: &fext, lambda: &[] };
-        let want = reference_outputs_with(KernelKind::StepGrad, &model, &x[0], &x[1], &x[2], reference::DEFAULT_GRAVITY, ext);
+        let want = reference_outputs_with(
+            KernelKind::StepGrad,
+            &model,
+            &x[0],
+            &x[1],
+            &x[2],
+            reference::DEFAULT_GRAVITY,
+            ext,
+        );
         let want: Vec<f64> = want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
         assert_eq!(got.len(), want.len());
         let e = rel_err(&col(&got), &col(&want));
@@ -464,7 +629,9 @@ fn main() {
         assert!(e < 1e-12, "state {k}: {e:.2e}");
     }
     assert_eq!(said.lines().count(), 4);
-    println!("iiwa contact step_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
+    println!(
+        "iiwa contact step_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)"
+    );
 }
 
 /// `fd_grad` with `dqdd_dtau` (`[fd_grad] minv = true`): M⁻¹ from the route `fd_grad` took,
@@ -484,11 +651,18 @@ fn fd_grad_can_return_minv() {
         let mut m = model.clone();
         m.specialisation.fd_grad_minv = true;
         for solve in [ir::Solve::Minv, ir::Solve::Ltdl] {
-            let options = LowerOptions { kernels: vec![KernelKind::FdGrad], solve, ..LowerOptions::default() };
+            let options = LowerOptions {
+                kernels: vec![KernelKind::FdGrad],
+                solve,
+                ..LowerOptions::default()
+            };
             let with = ir::lower(&m, g, &options).unwrap();
             let without = ir::lower(model, g, &options).unwrap();
             let f = with.function(KernelKind::FdGrad).unwrap();
-            assert_eq!(f.outputs.iter().map(|o| o.name).collect::<Vec<_>>(), ["qdd", "dqdd_dq", "dqdd_dqd", "dqdd_dtau"]);
+            assert_eq!(
+                f.outputs.iter().map(|o| o.name).collect::<Vec<_>>(),
+                ["qdd", "dqdd_dq", "dqdd_dqd", "dqdd_dtau"]
+            );
             let nv = m.nv();
             let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
             let (qd, tau) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -5.0, 5.0));
@@ -507,7 +681,10 @@ fn fd_grad_can_return_minv() {
         ..grid_gen::generate::Options::default()
     };
     let file = grid_gen::generate::generate(&m, &options).unwrap().remove(0);
-    assert!(file.contents.contains("`fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd, dqdd_dtau)`"), "the API summary names it");
+    assert!(
+        file.contents.contains("`fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd, dqdd_dtau)`"),
+        "the API summary names it"
+    );
     let said = compile_and_run(
         "fdminv",
         &file.contents,

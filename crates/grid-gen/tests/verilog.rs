@@ -29,7 +29,8 @@ fn module(robot: &str) -> (grid_gen::Model, Module) {
 
 fn lowered(model: grid_gen::Model) -> (grid_gen::Model, Module) {
     let kernels = vec![KernelKind::RneaGrad, KernelKind::MassMatrix];
-    let m = ir::lower(&model, GRAVITY, &LowerOptions { kernels, ..LowerOptions::default() }).unwrap();
+    let m =
+        ir::lower(&model, GRAVITY, &LowerOptions { kernels, ..LowerOptions::default() }).unwrap();
     (model, m)
 }
 
@@ -42,7 +43,12 @@ fn states(n: &Netlist, model: &grid_gen::Model, count: usize, seed: u64) -> Vec<
     use grid_gen::ir::{fixed::Port, Input};
     let mut rng = Rng(seed);
     let b = &n.bounds;
-    let linear: Vec<usize> = n.datapath.ports.iter().filter_map(|p| if let Port::Value(Input::Q, j) = p { Some(*j as usize) } else { None }).collect();
+    let linear: Vec<usize> = n
+        .datapath
+        .ports
+        .iter()
+        .filter_map(|p| if let Port::Value(Input::Q, j) = p { Some(*j as usize) } else { None })
+        .collect();
     let clamp = |mut q: Vec<f64>| {
         for &j in &linear {
             q[j] = q[j].clamp(b.q[j].0, b.q[j].1);
@@ -64,7 +70,10 @@ fn states(n: &Netlist, model: &grid_gen::Model, count: usize, seed: u64) -> Vec<
     }
     for corner in 0..4 {
         let s = if corner % 2 == 0 { 1.0 } else { -1.0 };
-        let q = clamp(model.q_from_joints(&vec![if corner < 2 { std::f64::consts::PI } else { 0.0 } * s; nv], [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0]));
+        let q = clamp(model.q_from_joints(
+            &vec![if corner < 2 { std::f64::consts::PI } else { 0.0 } * s; nv],
+            [0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0],
+        ));
         let qd = (0..nv).map(|j| s * b.qd[j]).collect();
         let qdd = (0..nv).map(|j| if j % 2 == 0 { s } else { -s } * b.qdd[j]).collect();
         out.push([q, qd, qdd]);
@@ -81,35 +90,66 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
         .iter()
         .map(|[q, qd, qdd]| {
             let (p, overflow) = quantize_ports(dp, &n.format, q, qd, qdd, &[]);
-            assert!(!overflow, "{}: an input within the bounds does not fit {}", n.top, n.format.label());
+            assert!(
+                !overflow,
+                "{}: an input within the bounds does not fit {}",
+                n.top,
+                n.format.label()
+            );
             p
         })
         .collect();
     let simulated = sim::simulate(n, &m.robot, &ports).unwrap_or_else(|e| panic!("{}: {e}", n.top));
     let nonzero = dp.nonzero_outputs();
-    assert_eq!(n.names.outputs.iter().map(|(_, id)| *id).collect::<Vec<_>>(), nonzero.iter().map(|&(_, _, id)| id).collect::<Vec<_>>());
+    assert_eq!(
+        n.names.outputs.iter().map(|(_, id)| *id).collect::<Vec<_>>(),
+        nonzero.iter().map(|&(_, _, id)| id).collect::<Vec<_>>()
+    );
     let mut worst = 0.0f64;
     for (k, ([q, qd, qdd], hw)) in states.iter().zip(&simulated).enumerate() {
         let run = dp.run(&n.format, &ports[k]);
         // The netlist's output ports are the non-zero entries, in this order.
         let model_nonzero: Vec<i64> = nonzero.iter().map(|&(o, e, _)| run.outputs[o][e]).collect();
-        assert_eq!(hw.outputs, model_nonzero, "{} state {k}: simulator and software model differ", n.top);
-        assert!(!hw.overflow && !run.overflow, "{} state {k}: overflow inside the analysed bounds", n.top);
+        assert_eq!(
+            hw.outputs, model_nonzero,
+            "{} state {k}: simulator and software model differ",
+            n.top
+        );
+        assert!(
+            !hw.overflow && !run.overflow,
+            "{} state {k}: overflow inside the analysed bounds",
+            n.top
+        );
         let reference = reference_outputs(n.kind, model, q, qd, qdd, GRAVITY);
         for (o, out) in dp.outputs.iter().enumerate() {
             for (e, id) in out.ids.iter().enumerate() {
                 // Matrices come back nv × nv; vectors and frame outputs as one column.
-                let exact = if reference[o].ncols() == 1 { reference[o][(e, 0)] } else { reference[o][(e / nv, e % nv)] };
+                let exact = if reference[o].ncols() == 1 {
+                    reference[o][(e, 0)]
+                } else {
+                    reference[o][(e / nv, e % nv)]
+                };
                 let got = n.format.to_f64(run.outputs[o][e]);
                 let bound = n.analysis.err[id.0 as usize];
                 // The reference itself is f64: allow its rounding on top of the bound.
                 let slack = 1e-12 * exact.abs().max(1.0);
-                assert!((got - exact).abs() <= bound + slack, "{} state {k} {}[{e}]: {got} vs {exact}, bound {bound:e}", n.top, out.name);
+                assert!(
+                    (got - exact).abs() <= bound + slack,
+                    "{} state {k} {}[{e}]: {got} vs {exact}, bound {bound:e}",
+                    n.top,
+                    out.name
+                );
                 worst = worst.max((got - exact).abs());
             }
         }
     }
-    eprintln!("{} {} {}: worst error {worst:.3e}, analysed bound {:.3e}", n.top, n.arch().name(), n.format.label(), n.analysis.output_error);
+    eprintln!(
+        "{} {} {}: worst error {worst:.3e}, analysed bound {:.3e}",
+        n.top,
+        n.arch().name(),
+        n.format.label(),
+        n.analysis.output_error
+    );
 }
 
 fn run_robot(robot: &str, archs: &[Arch], count: usize) {
@@ -130,7 +170,8 @@ fn run_model(model: grid_gen::Model, archs: &[Arch], count: usize) {
     }
 }
 
-const BOTH: [Arch; 2] = [Arch::Pipelined { stage_depth: 4 }, Arch::Shared { multipliers: 8, adders: 8 }];
+const BOTH: [Arch; 2] =
+    [Arch::Pipelined { stage_depth: 4 }, Arch::Shared { multipliers: 8, adders: 8 }];
 
 #[test]
 fn double_pendulum_bit_exact_and_within_bound() {
@@ -161,7 +202,10 @@ fn spherical_pendulum_bit_exact_and_within_bound() {
   <joint name="ball" type="spherical"><parent link="upper"/><child link="lower"/><origin xyz="0 0 -0.5" rpy="0.1 0 0.2"/></joint>
   <link name="lower"><inertial><origin xyz="0.01 0 -0.2"/><mass value="0.5"/><inertia ixx="0.01" iyy="0.012" izz="0.002" ixy="0.001" ixz="0" iyz="0"/></inertial></link>
 </robot>"#;
-    let model = grid_gen::Model::from_urdf_str("ball_pendulum.urdf", urdf, false).map_err(|e| e.render_plain()).unwrap().0;
+    let model = grid_gen::Model::from_urdf_str("ball_pendulum.urdf", urdf, false)
+        .map_err(|e| e.render_plain())
+        .unwrap()
+        .0;
     assert_eq!((model.spherical.len(), model.nq()), (1, 5));
     run_model(model, &BOTH, 40);
 }
@@ -176,12 +220,30 @@ fn frame_jacobians_bit_exact_and_within_bound() {
         return;
     }
     use grid_gen::model::ReferenceFrame;
-    let cases = [(load("grid_iiwa"), "iiwa_link_7"), (load("ur5"), "tool0"), (load_floating("double_pendulum_continuous"), "link2")];
+    let cases = [
+        (load("grid_iiwa"), "iiwa_link_7"),
+        (load("ur5"), "tool0"),
+        (load_floating("double_pendulum_continuous"), "link2"),
+    ];
     for (robot, frame) in cases {
-        let model = grid_gen_test_support::with_frames(&robot, &[frame], ReferenceFrame::LocalWorldAligned);
-        let m = ir::lower(&model, GRAVITY, &LowerOptions { kernels: vec![KernelKind::FrameJacobian], ..LowerOptions::default() }).unwrap();
+        let model =
+            grid_gen_test_support::with_frames(&robot, &[frame], ReferenceFrame::LocalWorldAligned);
+        let m = ir::lower(
+            &model,
+            GRAVITY,
+            &LowerOptions { kernels: vec![KernelKind::FrameJacobian], ..LowerOptions::default() },
+        )
+        .unwrap();
         for arch in BOTH {
-            let netlists = plan(&m, &VerilogOptions { arch, kernels: vec![KernelKind::FrameJacobian], ..VerilogOptions::default() }).unwrap();
+            let netlists = plan(
+                &m,
+                &VerilogOptions {
+                    arch,
+                    kernels: vec![KernelKind::FrameJacobian],
+                    ..VerilogOptions::default()
+                },
+            )
+            .unwrap();
             let n = &netlists[0];
             check_netlist(&model, &m, n, &states(n, &model, 20, 11));
         }
@@ -212,7 +274,15 @@ fn states_outside_the_bounds_raise_overflow() {
     }
     let (_, m) = module("grid_iiwa");
     for arch in BOTH {
-        let netlists = plan(&m, &VerilogOptions { arch, kernels: vec![KernelKind::RneaGrad], ..VerilogOptions::default() }).unwrap();
+        let netlists = plan(
+            &m,
+            &VerilogOptions {
+                arch,
+                kernels: vec![KernelKind::RneaGrad],
+                ..VerilogOptions::default()
+            },
+        )
+        .unwrap();
         let n = &netlists[0];
         let nv = m.robot.nv();
         // The speed that makes qd² alone exceed the format's range, yet fits as an input.
@@ -238,17 +308,38 @@ fn rounding_modes_differ_in_the_bits() {
     }
     let (model, m) = module("double_pendulum_continuous");
     let fixed = FormatChoice::Fixed { width: 24, frac: 12 };
-    let build =
-        |rounding| plan(&m, &VerilogOptions { format: fixed, rounding, kernels: vec![KernelKind::RneaGrad], ..VerilogOptions::default() }).unwrap().remove(0);
+    let build = |rounding| {
+        plan(
+            &m,
+            &VerilogOptions {
+                format: fixed,
+                rounding,
+                kernels: vec![KernelKind::RneaGrad],
+                ..VerilogOptions::default()
+            },
+        )
+        .unwrap()
+        .remove(0)
+    };
     let (t, h) = (build(Rounding::Truncate), build(Rounding::HalfUp));
     let st = states(&t, &model, 10, 3);
-    let ports: Vec<Vec<i64>> = st.iter().map(|[q, qd, qdd]| quantize_ports(&t.datapath, &t.format, q, qd, qdd, &[]).0).collect();
-    let (a, b) = (sim::simulate(&t, &m.robot, &ports).unwrap(), sim::simulate(&h, &m.robot, &ports).unwrap());
+    let ports: Vec<Vec<i64>> = st
+        .iter()
+        .map(|[q, qd, qdd]| quantize_ports(&t.datapath, &t.format, q, qd, qdd, &[]).0)
+        .collect();
+    let (a, b) = (
+        sim::simulate(&t, &m.robot, &ports).unwrap(),
+        sim::simulate(&h, &m.robot, &ports).unwrap(),
+    );
     assert_ne!(a, b);
 }
 
 fn yosys_available() -> bool {
-    std::process::Command::new("yosys").arg("-V").output().map(|o| o.status.success()).unwrap_or(false)
+    std::process::Command::new("yosys")
+        .arg("-V")
+        .output()
+        .map(|o| o.status.success())
+        .unwrap_or(false)
 }
 
 /// Runs Yosys's generic `synth` (hierarchical: each cell module is mapped once) on a
@@ -261,7 +352,12 @@ fn synthesise(n: &Netlist, robot: &grid_gen::ir::Robot) -> String {
 /// [`synthesise`] with another synthesis command (`synth -run begin:fine`: Yosys's
 /// word-level synthesis, everything before gate mapping).
 fn synthesise_with(n: &Netlist, robot: &grid_gen::ir::Robot, synth: &str) -> String {
-    let dir = std::env::temp_dir().join(format!("grid-gen-yosys-{}-{}-{}", std::process::id(), n.top, n.arch().name()));
+    let dir = std::env::temp_dir().join(format!(
+        "grid-gen-yosys-{}-{}-{}",
+        std::process::id(),
+        n.top,
+        n.arch().name()
+    ));
     std::fs::create_dir_all(&dir).unwrap();
     let v = dir.join(n.file_names().0);
     std::fs::write(&v, n.verilog(robot)).unwrap();
@@ -272,8 +368,15 @@ fn synthesise_with(n: &Netlist, robot: &grid_gen::ir::Robot, synth: &str) -> Str
         stat.display(),
         top = n.top
     );
-    let out = std::process::Command::new("yosys").arg("-q").arg("-p").arg(&script).output().unwrap();
-    assert!(out.status.success(), "{}: yosys failed:\n{}{}", n.top, String::from_utf8_lossy(&out.stdout), String::from_utf8_lossy(&out.stderr));
+    let out =
+        std::process::Command::new("yosys").arg("-q").arg("-p").arg(&script).output().unwrap();
+    assert!(
+        out.status.success(),
+        "{}: yosys failed:\n{}{}",
+        n.top,
+        String::from_utf8_lossy(&out.stdout),
+        String::from_utf8_lossy(&out.stderr)
+    );
     let report = std::fs::read_to_string(&stat).unwrap();
     let _ = std::fs::remove_dir_all(&dir);
     report
@@ -303,35 +406,76 @@ fn yosys_synthesises_the_iiwa_netlists() {
         return;
     }
     let (_, m) = module("grid_iiwa");
-    for n in plan(&m, &VerilogOptions { arch: BOTH[1], kernels: vec![KernelKind::RneaGrad], ..VerilogOptions::default() }).unwrap() {
+    for n in plan(
+        &m,
+        &VerilogOptions {
+            arch: BOTH[1],
+            kernels: vec![KernelKind::RneaGrad],
+            ..VerilogOptions::default()
+        },
+    )
+    .unwrap()
+    {
         let report = synthesise_with(&n, &m.robot, "synth -run begin:fine");
         let s = n.stats();
-        assert_eq!(count(&report, &format!("{}_mul", n.top)), s.multipliers, "{}: multiplier instances", n.top);
-        assert_eq!(count(&report, &format!("{}_add", n.top)), s.adders, "{}: adder instances", n.top);
+        assert_eq!(
+            count(&report, &format!("{}_mul", n.top)),
+            s.multipliers,
+            "{}: multiplier instances",
+            n.top
+        );
+        assert_eq!(
+            count(&report, &format!("{}_add", n.top)),
+            s.adders,
+            "{}: adder instances",
+            n.top
+        );
         // One word-level register with enable per register of the file.
         assert_eq!(count(&report, "$dffe"), s.registers, "{}: registers", n.top);
     }
     // (Full-width formats from `--fixed auto`: 58.35 for rnea_grad, 31.22 for M.)
-    let cases = [(BOTH[0], vec![KernelKind::RneaGrad, KernelKind::MassMatrix]), (BOTH[1], vec![KernelKind::MassMatrix])];
+    let cases = [
+        (BOTH[0], vec![KernelKind::RneaGrad, KernelKind::MassMatrix]),
+        (BOTH[1], vec![KernelKind::MassMatrix]),
+    ];
     for (arch, kernels) in cases {
         for n in plan(&m, &VerilogOptions { arch, kernels, ..VerilogOptions::default() }).unwrap() {
             let report = synthesise(&n, &m.robot);
             let s = n.stats();
-            assert_eq!(count(&report, &format!("{}_mul", n.top)), s.multipliers, "{}: multiplier instances", n.top);
-            assert_eq!(count(&report, &format!("{}_add", n.top)), s.adders, "{}: adder instances", n.top);
-            let totals = report.split("=== design hierarchy ===").nth(1).expect("stat -top prints the hierarchy");
+            assert_eq!(
+                count(&report, &format!("{}_mul", n.top)),
+                s.multipliers,
+                "{}: multiplier instances",
+                n.top
+            );
+            assert_eq!(
+                count(&report, &format!("{}_add", n.top)),
+                s.adders,
+                "{}: adder instances",
+                n.top
+            );
+            let totals = report
+                .split("=== design hierarchy ===")
+                .nth(1)
+                .expect("stat -top prints the hierarchy");
             let flops: usize = totals
                 .lines()
                 .filter_map(|l| {
                     let mut f = l.split_whitespace();
                     let name = f.next()?;
-                    (name.starts_with("$_DFF") || name.starts_with("$_SDFF")).then(|| f.next()?.parse::<usize>().ok()).flatten()
+                    (name.starts_with("$_DFF") || name.starts_with("$_SDFF"))
+                        .then(|| f.next()?.parse::<usize>().ok())
+                        .flatten()
                 })
                 .sum();
             let data = s.registers * n.format.width as usize;
             // Control: the pipelined valid and overflow bits, or the shared busy/done/
             // overflow bits and the cycle counter.
-            assert!(flops >= data && flops <= data + 2 * s.latency_cycles + 16, "{}: {flops} flip-flops for {data} data bits", n.top);
+            assert!(
+                flops >= data && flops <= data + 2 * s.latency_cycles + 16,
+                "{}: {flops} flip-flops for {data} data bits",
+                n.top
+            );
             eprintln!(
                 "{} {}: {} cells, {flops} flip-flops, {} multipliers, {} adders",
                 n.top,
@@ -369,32 +513,57 @@ fn hostile_names_and_an_unseen_robot_through_eval() {
       <joint name="output" type="prismatic"><parent link="b"/><child link="c"/><origin xyz="0 0.3 0"/><axis xyz="1 0 0"/><limit lower="-0.5" upper="0.5" velocity="1" effort="1"/></joint>
     </robot>"#;
     let (model, _) = grid_gen::Model::from_urdf_str("hostile.urdf", urdf, false).unwrap();
-    let m = ir::lower(&model, GRAVITY, &LowerOptions { kernels: vec![KernelKind::RneaGrad, KernelKind::MassMatrix], ..LowerOptions::default() }).unwrap();
+    let m = ir::lower(
+        &model,
+        GRAVITY,
+        &LowerOptions {
+            kernels: vec![KernelKind::RneaGrad, KernelKind::MassMatrix],
+            ..LowerOptions::default()
+        },
+    )
+    .unwrap();
     for arch in BOTH {
         for n in plan(&m, &VerilogOptions { arch, ..VerilogOptions::default() }).unwrap() {
             assert_eq!(n.top, format!("module__evil____endmodule_{}", n.datapath.kernel));
             for name in n.names.inputs.iter().chain(n.names.outputs.iter().map(|(s, _)| s)) {
-                assert!(name.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_'), "port `{name}`");
+                assert!(
+                    name.chars().all(|c| c.is_ascii_lowercase() || c.is_ascii_digit() || c == '_'),
+                    "port `{name}`"
+                );
             }
             let text = n.verilog(&m.robot);
             // Names reach only line comments (escaped, one line each); code lines never see them.
-            let code: Vec<&str> = text.lines().filter(|l| !l.trim_start().starts_with("//")).collect();
-            assert!(code.iter().all(|l| !l.contains('\\') && !l.contains("*/")), "a name reached the code");
+            let code: Vec<&str> =
+                text.lines().filter(|l| !l.trim_start().starts_with("//")).collect();
+            assert!(
+                code.iter().all(|l| !l.contains('\\') && !l.contains("*/")),
+                "a name reached the code"
+            );
             let states = states(&n, &model, 15, 11);
             check_netlist(&model, &m, &n, &states);
         }
     }
     // Through the `eval --backend verilog` path: the same bits as the software model.
-    let json = r#"{"states": [{"q": [0.4, -1.2, 0.3], "qd": [1.5, -2.0, 0.5], "qdd": [3.0, -1.0, 2.0]}]}"#;
+    let json =
+        r#"{"states": [{"q": [0.4, -1.2, 0.3], "qd": [1.5, -2.0, 0.5], "qdd": [3.0, -1.0, 2.0]}]}"#;
     let file = grid_gen::eval::parse_states(json).unwrap();
-    let out = grid_gen::eval::evaluate_verilog(&model, &file, GRAVITY, &VerilogOptions::default()).unwrap();
+    let out = grid_gen::eval::evaluate_verilog(&model, &file, GRAVITY, &VerilogOptions::default())
+        .unwrap();
     let netlists = plan(&m, &VerilogOptions::default()).unwrap();
     let s = &file.states[0];
     for n in &netlists {
-        let (ports, _) = quantize_ports(&n.datapath, &n.format, &s.q, &s.qd, s.qdd.as_ref().unwrap(), &[]);
+        let (ports, _) =
+            quantize_ports(&n.datapath, &n.format, &s.q, &s.qd, s.qdd.as_ref().unwrap(), &[]);
         let run = n.datapath.run(&n.format, &ports);
         let got: Vec<f64> = match n.kind {
-            KernelKind::RneaGrad => out.states[0].drnea_dq.iter().chain(out.states[0].drnea_dqd.iter()).flatten().flatten().copied().collect(),
+            KernelKind::RneaGrad => out.states[0]
+                .drnea_dq
+                .iter()
+                .chain(out.states[0].drnea_dqd.iter())
+                .flatten()
+                .flatten()
+                .copied()
+                .collect(),
             _ => out.states[0].m.iter().flatten().copied().collect(),
         };
         let want: Vec<f64> = run.outputs.iter().flatten().map(|&r| n.format.to_f64(r)).collect();
@@ -415,12 +584,30 @@ fn netlists_take_forces_bit_exact_and_within_bound() {
     if !tool_or_skip("Icarus Verilog (iverilog)", sim::available()) {
         return;
     }
-    let model = grid_gen_test_support::with_forces(&load("ur5"), &["wrist_3_joint"], &[("tool0", ContactKind::Point)]);
-    let m = ir::lower(&model, GRAVITY, &LowerOptions { kernels: vec![KernelKind::RneaGrad], ..LowerOptions::default() }).unwrap();
+    let model = grid_gen_test_support::with_forces(
+        &load("ur5"),
+        &["wrist_3_joint"],
+        &[("tool0", ContactKind::Point)],
+    );
+    let m = ir::lower(
+        &model,
+        GRAVITY,
+        &LowerOptions { kernels: vec![KernelKind::RneaGrad], ..LowerOptions::default() },
+    )
+    .unwrap();
     for arch in BOTH {
-        let options = VerilogOptions { arch, force_max: Some(200.0), kernels: vec![KernelKind::RneaGrad], ..VerilogOptions::default() };
+        let options = VerilogOptions {
+            arch,
+            force_max: Some(200.0),
+            kernels: vec![KernelKind::RneaGrad],
+            ..VerilogOptions::default()
+        };
         let n = plan(&m, &options).unwrap().remove(0);
-        assert!(n.names.inputs.iter().any(|p| p == "fext_3_wrist_3_joint_tx"), "{:?}", n.names.inputs);
+        assert!(
+            n.names.inputs.iter().any(|p| p == "fext_3_wrist_3_joint_tx"),
+            "{:?}",
+            n.names.inputs
+        );
         assert!(n.names.inputs.iter().any(|p| p == "lambda_2_tool0_fz"), "{:?}", n.names.inputs);
         assert_eq!(n.bounds.force, 200.0);
         let dp = &n.datapath;
@@ -431,7 +618,11 @@ fn netlists_take_forces_bit_exact_and_within_bound() {
             .enumerate()
             .map(|(k, s)| {
                 // The corners push every force entry to its bound too.
-                let forces = if k >= 12 { vec![if k % 2 == 0 { 200.0 } else { -200.0 }; 9] } else { rng.vec(9, -200.0, 200.0) };
+                let forces = if k >= 12 {
+                    vec![if k % 2 == 0 { 200.0 } else { -200.0 }; 9]
+                } else {
+                    rng.vec(9, -200.0, 200.0)
+                };
                 (s, forces)
             })
             .collect();
@@ -443,16 +634,29 @@ fn netlists_take_forces_bit_exact_and_within_bound() {
                 p
             })
             .collect();
-        let simulated = sim::simulate(&n, &m.robot, &ports).unwrap_or_else(|e| panic!("{}: {e}", n.top));
+        let simulated =
+            sim::simulate(&n, &m.robot, &ports).unwrap_or_else(|e| panic!("{}: {e}", n.top));
         let nonzero = dp.nonzero_outputs();
         let mut worst = 0.0f64;
         for (k, (([q, qd, qdd], f), hw)) in cases.iter().zip(&simulated).enumerate() {
             let run = dp.run(&n.format, &ports[k]);
-            let model_nonzero: Vec<i64> = nonzero.iter().map(|&(o, e, _)| run.outputs[o][e]).collect();
+            let model_nonzero: Vec<i64> =
+                nonzero.iter().map(|&(o, e, _)| run.outputs[o][e]).collect();
             assert_eq!(hw.outputs, model_nonzero, "state {k}: simulator and software model differ");
-            assert!(!hw.overflow && !run.overflow, "state {k}: overflow inside the analysed bounds");
+            assert!(
+                !hw.overflow && !run.overflow,
+                "state {k}: overflow inside the analysed bounds"
+            );
             let ext = grid_gen::reference::External { fext: &f[..6], lambda: &f[6..] };
-            let reference = grid_gen_test_support::reference_outputs_with(KernelKind::RneaGrad, &model, q, qd, qdd, GRAVITY, ext);
+            let reference = grid_gen_test_support::reference_outputs_with(
+                KernelKind::RneaGrad,
+                &model,
+                q,
+                qd,
+                qdd,
+                GRAVITY,
+                ext,
+            );
             assert_eq!(reference.len(), dp.outputs.len(), "dc_dq, dc_dqd, dc_dfext, dc_dlambda");
             for (o, out) in dp.outputs.iter().enumerate() {
                 for (e, id) in out.ids.iter().enumerate() {
@@ -461,12 +665,21 @@ fn netlists_take_forces_bit_exact_and_within_bound() {
                     let got = n.format.to_f64(run.outputs[o][e]);
                     let bound = n.analysis.err[id.0 as usize];
                     let slack = 1e-12 * exact.abs().max(1.0);
-                    assert!((got - exact).abs() <= bound + slack, "state {k} {}[{e}]: {got} vs {exact}, bound {bound:e}", out.name);
+                    assert!(
+                        (got - exact).abs() <= bound + slack,
+                        "state {k} {}[{e}]: {got} vs {exact}, bound {bound:e}",
+                        out.name
+                    );
                     worst = worst.max((got - exact).abs());
                 }
             }
         }
         assert_eq!(nv, 6);
-        eprintln!("ur5 with forces {} {}: worst error {worst:.3e}, analysed bound {:.3e}", n.arch().name(), n.format.label(), n.analysis.output_error);
+        eprintln!(
+            "ur5 with forces {} {}: worst error {worst:.3e}, analysed bound {:.3e}",
+            n.arch().name(),
+            n.format.label(),
+            n.analysis.output_error
+        );
     }
 }

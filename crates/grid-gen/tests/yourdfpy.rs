@@ -22,15 +22,25 @@ fn parsed_tree_matches_yourdfpy() {
         for (theirs, ours) in joints.iter().zip(&urdf.joints) {
             let name = &ours.name;
             assert_eq!(theirs["name"].as_str().unwrap(), name);
-            assert_eq!(theirs["type"].as_str().unwrap(), ours.kind.as_str(), "{robot}/{name}: type");
+            assert_eq!(
+                theirs["type"].as_str().unwrap(),
+                ours.kind.as_str(),
+                "{robot}/{name}: type"
+            );
             assert_eq!(theirs["parent"].as_str().unwrap(), ours.parent, "{robot}/{name}: parent");
             assert_eq!(theirs["child"].as_str().unwrap(), ours.child, "{robot}/{name}: child");
             let origin = mat_of(&theirs["origin"]);
             let r = rpy_matrix(ours.origin.rpy);
             for i in 0..3 {
-                assert!((origin[(i, 3)] - ours.origin.xyz[i]).abs() <= TOL, "{robot}/{name}: origin xyz");
+                assert!(
+                    (origin[(i, 3)] - ours.origin.xyz[i]).abs() <= TOL,
+                    "{robot}/{name}: origin xyz"
+                );
                 for j in 0..3 {
-                    assert!((origin[(i, j)] - r[(i, j)]).abs() <= TOL, "{robot}/{name}: origin rotation");
+                    assert!(
+                        (origin[(i, j)] - r[(i, j)]).abs() <= TOL,
+                        "{robot}/{name}: origin rotation"
+                    );
                 }
             }
             if ours.kind != grid_gen::urdf::JointKind::Fixed {
@@ -51,7 +61,11 @@ fn body_poses_match_yourdfpy() {
         assert_eq!(fx["base_link"].as_str().unwrap(), model.root_link, "{robot}: root link");
         for cfg in fx["configurations"].as_array().unwrap() {
             let given = cfg["q"].as_object().unwrap();
-            let mut q: Vec<f64> = model.joints.iter().map(|j| given.get(&j.name).and_then(|v| v.as_f64()).unwrap_or(f64::NAN)).collect();
+            let mut q: Vec<f64> = model
+                .joints
+                .iter()
+                .map(|j| given.get(&j.name).and_then(|v| v.as_f64()).unwrap_or(f64::NAN))
+                .collect();
             // yourdfpy drives mimic joints from the joint they follow.
             for (i, j) in model.joints.iter().enumerate() {
                 if let Some((m, mult, off)) = &j.mimic {
@@ -65,9 +79,15 @@ fn body_poses_match_yourdfpy() {
                 let want = mat_of(&cfg["link_poses"][child.as_str()]);
                 let (r, p) = &poses[i];
                 for a in 0..3 {
-                    assert!((want[(a, 3)] - p[a]).abs() <= TOL, "{robot}/{child}: position {p:?} vs {want}");
+                    assert!(
+                        (want[(a, 3)] - p[a]).abs() <= TOL,
+                        "{robot}/{child}: position {p:?} vs {want}"
+                    );
                     for b in 0..3 {
-                        assert!((want[(a, b)] - r[(a, b)]).abs() <= TOL, "{robot}/{child}: rotation");
+                        assert!(
+                            (want[(a, b)] - r[(a, b)]).abs() <= TOL,
+                            "{robot}/{child}: rotation"
+                        );
                     }
                 }
             }

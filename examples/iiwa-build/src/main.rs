@@ -16,7 +16,10 @@ fn main() {
     let minv = iiwa::minv(&q);
     // A = [[I, dt I], [dt ∂q̈/∂q, I + dt ∂q̈/∂q̇]], B = [[0], [dt M⁻¹]].
     let a_qq = (0..NV).map(|i| dt * dqdd_dq[i][i]).sum::<f64>();
-    let b_norm = (0..NV).flat_map(|i| (0..NV).map(move |j| (i, j))).map(|(i, j)| (dt * minv[i][j]).abs()).fold(0.0, f64::max);
+    let b_norm = (0..NV)
+        .flat_map(|i| (0..NV).map(move |j| (i, j)))
+        .map(|(i, j)| (dt * minv[i][j]).abs())
+        .fold(0.0, f64::max);
     println!("joints: {}", iiwa::JOINT_NAMES.join(" "));
     println!("qdd: {}", qdd.map(|x| format!("{x:.17e}")).join(" "));
     println!("dqdd_dq[1]: {}", dqdd_dq[1].map(|x| format!("{x:.17e}")).join(" "));

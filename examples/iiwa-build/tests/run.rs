@@ -15,26 +15,45 @@ fn example_runs_and_matches_the_reference() {
     let lines: Vec<&str> = text.lines().collect();
     assert!(lines[0].starts_with("joints: iiwa_joint_1 "), "{text}");
     let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../robots/grid_iiwa.urdf");
-    let (model, _) = grid_gen::Model::from_urdf_str(path, &std::fs::read_to_string(path).unwrap(), false).unwrap();
+    let (model, _) =
+        grid_gen::Model::from_urdf_str(path, &std::fs::read_to_string(path).unwrap(), false)
+            .unwrap();
     let q = [0.1, -0.4, 0.3, 1.2, -0.5, 0.6, 0.2];
     let qd = [0.5, 0.1, -0.2, 0.3, 0.0, -0.1, 0.4];
     let tau = [1.0, 20.0, 0.5, -10.0, 0.2, 1.0, 0.1];
-    let (qdd, dq, dqd) = grid_gen::reference::forward_dynamics_derivatives(&model, &q, &qd, &tau, grid_gen::reference::DEFAULT_GRAVITY);
+    let (qdd, dq, dqd) = grid_gen::reference::forward_dynamics_derivatives(
+        &model,
+        &q,
+        &qd,
+        &tau,
+        grid_gen::reference::DEFAULT_GRAVITY,
+    );
     let close = |got: &[f64], want: &[f64]| {
         let scale = want.iter().fold(0.0f64, |m, x| m.max(x.abs()));
         got.iter().zip(want).all(|(a, b)| (a - b).abs() <= 1e-12 * scale)
     };
     assert!(close(&parse(lines[1]), &qdd), "qdd: {}", lines[1]);
-    assert!(close(&parse(lines[2]), &dq.row(1).iter().copied().collect::<Vec<_>>()), "dqdd_dq: {}", lines[2]);
-    assert!(close(&parse(lines[3]), &dqd.row(1).iter().copied().collect::<Vec<_>>()), "dqdd_dqd: {}", lines[3]);
+    assert!(
+        close(&parse(lines[2]), &dq.row(1).iter().copied().collect::<Vec<_>>()),
+        "dqdd_dq: {}",
+        lines[2]
+    );
+    assert!(
+        close(&parse(lines[3]), &dqd.row(1).iter().copied().collect::<Vec<_>>()),
+        "dqdd_dqd: {}",
+        lines[3]
+    );
 }
 
 /// The book's `src/main.rs` snippet (Generated Rust) is this example, so the documented
 /// code compiles and runs.
 #[test]
 fn the_book_shows_this_main_rs() {
-    let page = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/guide/rust.md")).unwrap();
-    let main = std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/src/main.rs")).unwrap();
+    let page =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/../../docs/guide/rust.md"))
+            .unwrap();
+    let main =
+        std::fs::read_to_string(concat!(env!("CARGO_MANIFEST_DIR"), "/src/main.rs")).unwrap();
     assert!(
         page.contains(&format!("```rust\n// src/main.rs\n{main}```")),
         "docs/guide/rust.md's `// src/main.rs` block differs from examples/iiwa-build/src/main.rs"

@@ -10,7 +10,8 @@ use grid_iiwa::iiwa14_batch::*;
 /// States of iiwa drawn from the library's seeded generator.
 fn states(n: usize) -> (Vec<f64>, Vec<f64>, Vec<f64>) {
     let mut rng = Rng(7);
-    let mut draw = |len: usize, scale: f64| (0..len).map(|_| rng.uniform(-scale, scale)).collect::<Vec<f64>>();
+    let mut draw =
+        |len: usize, scale: f64| (0..len).map(|_| rng.uniform(-scale, scale)).collect::<Vec<f64>>();
     (draw(n * NQ, 2.0), draw(n * NV, 1.5), draw(n * NV, 20.0))
 }
 
@@ -32,37 +33,73 @@ fn batches_match_the_reference_in_f64_and_f32() {
     let mut m = vec![0.0; n * NV * NV];
     // SAFETY: every array holds n states.
     unsafe {
-        assert_eq!(iiwa14_fd_grad_batch_f64(n, q.as_ptr(), qd.as_ptr(), tau.as_ptr(), qdd.as_mut_ptr(), dq.as_mut_ptr(), dqd.as_mut_ptr()), GRID_GEN_OK);
-        assert_eq!(iiwa14_rnea_batch_f64(n, q.as_ptr(), qd.as_ptr(), qdd.as_ptr(), c.as_mut_ptr()), GRID_GEN_OK);
+        assert_eq!(
+            iiwa14_fd_grad_batch_f64(
+                n,
+                q.as_ptr(),
+                qd.as_ptr(),
+                tau.as_ptr(),
+                qdd.as_mut_ptr(),
+                dq.as_mut_ptr(),
+                dqd.as_mut_ptr()
+            ),
+            GRID_GEN_OK
+        );
+        assert_eq!(
+            iiwa14_rnea_batch_f64(n, q.as_ptr(), qd.as_ptr(), qdd.as_ptr(), c.as_mut_ptr()),
+            GRID_GEN_OK
+        );
         assert_eq!(iiwa14_mass_matrix_batch_f64(n, q.as_ptr(), m.as_mut_ptr()), GRID_GEN_OK);
     }
     let (mut worst_fd, mut worst_rnea, mut worst_m) = (0.0f64, 0.0f64, 0.0f64);
     for i in 0..n {
         let s = |v: &[f64], len: usize| v[i * len..(i + 1) * len].to_vec();
-        let (want_qdd, want_dq, want_dqd) = reference::forward_dynamics_derivatives(&model, &s(&q, NQ), &s(&qd, NV), &s(&tau, NV), g);
+        let (want_qdd, want_dq, want_dqd) = reference::forward_dynamics_derivatives(
+            &model,
+            &s(&q, NQ),
+            &s(&qd, NV),
+            &s(&tau, NV),
+            g,
+        );
         let row_major = |m: &nalgebra::DMatrix<f64>| m.transpose().as_slice().to_vec();
         worst_fd = worst_fd
             .max(max_rel(&s(&qdd, NV), &want_qdd))
             .max(max_rel(&s(&dq, NV * NV), &row_major(&want_dq)))
             .max(max_rel(&s(&dqd, NV * NV), &row_major(&want_dqd)));
         worst_rnea = worst_rnea.max(max_rel(&s(&c, NV), &s(&tau, NV)));
-        worst_m = worst_m.max(max_rel(&s(&m, NV * NV), &row_major(&reference::crba(&model, &s(&q, NQ)))));
+        worst_m =
+            worst_m.max(max_rel(&s(&m, NV * NV), &row_major(&reference::crba(&model, &s(&q, NQ)))));
     }
     println!("C ABI f64, {n} states: fd_grad {worst_fd:.1e}, rnea(fd) - tau {worst_rnea:.1e}, mass_matrix {worst_m:.1e} (tolerance 1e-12)");
     // Measured ~1e-14: f64 round-off through M^-1 at random states (the kernels crate
     // allows 5e-12 on bigger robots); a wrong layout or state stride would be O(1).
     assert!(worst_fd < 1e-12 && worst_rnea < 1e-12 && worst_m < 1e-12);
 
-    let (q32, qd32, tau32): (Vec<f32>, Vec<f32>, Vec<f32>) =
-        (q.iter().map(|&x| x as f32).collect(), qd.iter().map(|&x| x as f32).collect(), tau.iter().map(|&x| x as f32).collect());
+    let (q32, qd32, tau32): (Vec<f32>, Vec<f32>, Vec<f32>) = (
+        q.iter().map(|&x| x as f32).collect(),
+        qd.iter().map(|&x| x as f32).collect(),
+        tau.iter().map(|&x| x as f32).collect(),
+    );
     let mut qdd32 = vec![0.0f32; n * NV];
     let mut dq32 = vec![0.0f32; n * NV * NV];
     let mut dqd32 = vec![0.0f32; n * NV * NV];
     // SAFETY: every array holds n states.
-    let status = unsafe { iiwa14_fd_grad_batch_f32(n, q32.as_ptr(), qd32.as_ptr(), tau32.as_ptr(), qdd32.as_mut_ptr(), dq32.as_mut_ptr(), dqd32.as_mut_ptr()) };
+    let status = unsafe {
+        iiwa14_fd_grad_batch_f32(
+            n,
+            q32.as_ptr(),
+            qd32.as_ptr(),
+            tau32.as_ptr(),
+            qdd32.as_mut_ptr(),
+            dq32.as_mut_ptr(),
+            dqd32.as_mut_ptr(),
+        )
+    };
     assert_eq!(status, GRID_GEN_OK);
     let widen = |v: &[f32]| v.iter().map(|&x| x as f64).collect::<Vec<f64>>();
-    let err32 = max_rel(&widen(&qdd32), &qdd).max(max_rel(&widen(&dq32), &dq)).max(max_rel(&widen(&dqd32), &dqd));
+    let err32 = max_rel(&widen(&qdd32), &qdd)
+        .max(max_rel(&widen(&dq32), &dq))
+        .max(max_rel(&widen(&dqd32), &dqd));
     println!("C ABI f32 fd_grad against f64: {err32:.1e} (tolerance 1e-4)");
     // Measured ~2e-6: f32 rounding (6e-8) amplified by iiwa's M^-1 at these states (its
     // condition number is in the hundreds at worst); a wrong layout would be O(1).
@@ -80,7 +117,17 @@ fn one_thread_and_every_core_give_the_same_bits() {
         let mut dq = vec![0.0; n * NV * NV];
         let mut dqd = vec![0.0; n * NV * NV];
         // SAFETY: every array holds n states.
-        let status = unsafe { iiwa14_fd_grad_batch_f64(n, q.as_ptr(), qd.as_ptr(), tau.as_ptr(), qdd.as_mut_ptr(), dq.as_mut_ptr(), dqd.as_mut_ptr()) };
+        let status = unsafe {
+            iiwa14_fd_grad_batch_f64(
+                n,
+                q.as_ptr(),
+                qd.as_ptr(),
+                tau.as_ptr(),
+                qdd.as_mut_ptr(),
+                dq.as_mut_ptr(),
+                dqd.as_mut_ptr(),
+            )
+        };
         assert_eq!(status, GRID_GEN_OK);
         (qdd, dq, dqd)
     };
@@ -88,13 +135,25 @@ fn one_thread_and_every_core_give_the_same_bits() {
     let all = run(0);
     let three = run(3);
     iiwa14_set_threads(0);
-    assert!(one == all && one == three, "a state's result does not depend on the thread that ran it");
+    assert!(
+        one == all && one == three,
+        "a state's result does not depend on the thread that ran it"
+    );
     // The one-state entry point is the batch's first state.
     let mut qdd = [0.0; NV];
     let mut dq = [0.0; NV * NV];
     let mut dqd = [0.0; NV * NV];
     // SAFETY: one state each.
-    let status = unsafe { iiwa14_fd_grad_f64(q.as_ptr(), qd.as_ptr(), tau.as_ptr(), qdd.as_mut_ptr(), dq.as_mut_ptr(), dqd.as_mut_ptr()) };
+    let status = unsafe {
+        iiwa14_fd_grad_f64(
+            q.as_ptr(),
+            qd.as_ptr(),
+            tau.as_ptr(),
+            qdd.as_mut_ptr(),
+            dq.as_mut_ptr(),
+            dqd.as_mut_ptr(),
+        )
+    };
     assert_eq!(status, GRID_GEN_OK);
     assert!(qdd[..] == one.0[..NV] && dq[..] == one.1[..NV * NV] && dqd[..] == one.2[..NV * NV]);
 }
@@ -106,12 +165,34 @@ fn null_pointers_and_impossible_lengths_are_statuses() {
     let null = std::ptr::null_mut::<f64>();
     // SAFETY: the calls must refuse before touching memory.
     unsafe {
-        assert_eq!(iiwa14_fd_f64(q.as_ptr(), std::ptr::null(), tau.as_ptr(), out.as_mut_ptr()), GRID_GEN_NULL_POINTER);
+        assert_eq!(
+            iiwa14_fd_f64(q.as_ptr(), std::ptr::null(), tau.as_ptr(), out.as_mut_ptr()),
+            GRID_GEN_NULL_POINTER
+        );
         assert_eq!(iiwa14_minv_batch_f64(3, q.as_ptr(), null), GRID_GEN_NULL_POINTER);
-        assert_eq!(iiwa14_rnea_batch_f32(5, std::ptr::null(), std::ptr::null(), std::ptr::null(), std::ptr::null_mut()), GRID_GEN_NULL_POINTER);
-        assert_eq!(iiwa14_minv_batch_f64(usize::MAX / 8, q.as_ptr(), out.as_mut_ptr()), GRID_GEN_BAD_LENGTH);
-        assert_eq!(iiwa14_minv_batch_f64(0, std::ptr::null(), null), GRID_GEN_OK, "n = 0 does nothing");
-        assert_eq!(iiwa14_fd_f64(q.as_ptr(), qd.as_ptr(), tau.as_ptr(), out.as_mut_ptr()), GRID_GEN_OK);
+        assert_eq!(
+            iiwa14_rnea_batch_f32(
+                5,
+                std::ptr::null(),
+                std::ptr::null(),
+                std::ptr::null(),
+                std::ptr::null_mut()
+            ),
+            GRID_GEN_NULL_POINTER
+        );
+        assert_eq!(
+            iiwa14_minv_batch_f64(usize::MAX / 8, q.as_ptr(), out.as_mut_ptr()),
+            GRID_GEN_BAD_LENGTH
+        );
+        assert_eq!(
+            iiwa14_minv_batch_f64(0, std::ptr::null(), null),
+            GRID_GEN_OK,
+            "n = 0 does nothing"
+        );
+        assert_eq!(
+            iiwa14_fd_f64(q.as_ptr(), qd.as_ptr(), tau.as_ptr(), out.as_mut_ptr()),
+            GRID_GEN_OK
+        );
     }
     assert!(out.iter().all(|x| x.is_finite()) && out[..NV].iter().any(|&x| x != 0.0));
 }
@@ -125,6 +206,9 @@ fn the_manifest_describes_the_library() {
     assert_eq!(m["nv"], NV);
     assert_eq!(m["joint_names"][6], "iiwa_joint_7");
     let fd_grad = m["kernels"].as_array().unwrap().iter().find(|k| k["name"] == "fd_grad").unwrap();
-    assert_eq!(fd_grad["inputs"], serde_json::json!([{"name": "q", "len": 7}, {"name": "qd", "len": 7}, {"name": "tau", "len": 7}]));
+    assert_eq!(
+        fd_grad["inputs"],
+        serde_json::json!([{"name": "q", "len": 7}, {"name": "qd", "len": 7}, {"name": "tau", "len": 7}])
+    );
     assert_eq!(fd_grad["outputs"][1], serde_json::json!({"name": "dqdd_dq", "dims": [7, 7]}));
 }

@@ -18,7 +18,9 @@ pub use plot::svg;
 pub use states::{random_states, Rng};
 
 use crate::eval::{check_states, EvalError, State, StatesFile};
-use crate::ir::fixed::{choose_format, quantize_ports, Bounds, Datapath, FixedError, Format, Rounding};
+use crate::ir::fixed::{
+    choose_format, quantize_ports, Bounds, Datapath, FixedError, Format, Rounding,
+};
 use crate::ir::{self, Function, Gradient, Input, KernelKind, LowerError, LowerOptions};
 use crate::model::Model;
 use crate::reference;
@@ -53,7 +55,12 @@ pub const MIXED_PLAN_SEED: u64 = 0x6d69_7865_64;
 pub const DEFAULT_MIXED_TARGET: f64 = 1e-12;
 
 /// Plans a kernel's mixed precision (see [`NumberFormat::Mixed`]).
-pub fn mixed_plan(model: &Model, gravity: [f64; 3], f: &Function, target: f64) -> crate::ir::precision::Plan {
+pub fn mixed_plan(
+    model: &Model,
+    gravity: [f64; 3],
+    f: &Function,
+    target: f64,
+) -> crate::ir::precision::Plan {
     let states = random_states(model, gravity, MIXED_PLAN_STATES, MIXED_PLAN_SEED, None, None);
     crate::ir::precision::plan(f, &kernel_states(f, &states), target)
 }
@@ -69,7 +76,12 @@ pub fn kernel_states(f: &Function, file: &StatesFile) -> Vec<Vec<Vec<f64>>> {
                 Some(Some(u)) => &u[..],
                 Some(None) => return None,
             };
-            Some(kernel_inputs(f, &[&s.q[..], &s.qd[..], u]).into_iter().map(|v| v.to_vec()).collect())
+            Some(
+                kernel_inputs(f, &[&s.q[..], &s.qd[..], u])
+                    .into_iter()
+                    .map(|v| v.to_vec())
+                    .collect(),
+            )
         })
         .collect()
 }
@@ -80,7 +92,9 @@ impl NumberFormat {
             NumberFormat::F64 => "f64".into(),
             NumberFormat::F32 => "f32".into(),
             NumberFormat::Fixed(f) => format!("fixed {}.{} {}", f.width, f.frac, f.rounding.name()),
-            NumberFormat::FixedAuto { max_error, rounding } => format!("fixed auto ≤{max_error:e} {}", rounding.name()),
+            NumberFormat::FixedAuto { max_error, rounding } => {
+                format!("fixed auto ≤{max_error:e} {}", rounding.name())
+            }
             NumberFormat::Mixed { target } => format!("mixed ≤{target:e}"),
         }
     }
@@ -95,7 +109,9 @@ impl NumberFormat {
             "mixed" => Ok(NumberFormat::Mixed { target: DEFAULT_MIXED_TARGET }),
             _ if s.starts_with("mixed:") => match s["mixed:".len()..].parse::<f64>() {
                 Ok(t) if t > 0.0 && t.is_finite() => Ok(NumberFormat::Mixed { target: t }),
-                _ => Err(format!("`{s}`: mixed:TARGET takes a positive relative error, e.g. mixed:1e-10")),
+                _ => Err(format!(
+                    "`{s}`: mixed:TARGET takes a positive relative error, e.g. mixed:1e-10"
+                )),
             },
             _ => match s.strip_prefix("fixed:").and_then(|f| Format::parse(f, rounding)) {
                 Some(Ok(f)) => Ok(NumberFormat::Fixed(f)),
@@ -108,7 +124,8 @@ impl NumberFormat {
 
 /// Runs one kernel on a batch through another backend: `(kind, q, qd, u)` state-major
 /// (`u` is q̈ or τ, empty for kernels without it), outputs concatenated per state.
-pub type Runner<'a> = dyn FnMut(KernelKind, &[f64], &[f64], &[f64]) -> Result<Vec<f64>, String> + 'a;
+pub type Runner<'a> =
+    dyn FnMut(KernelKind, &[f64], &[f64], &[f64]) -> Result<Vec<f64>, String> + 'a;
 
 /// A backend measured next to the number formats, e.g. WGSL on a GPU.
 pub struct Backend<'a> {
@@ -130,7 +147,8 @@ impl Spread {
         }
         values.sort_by(f64::total_cmp);
         let n = values.len();
-        let median = if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) };
+        let median =
+            if n % 2 == 1 { values[n / 2] } else { 0.5 * (values[n / 2 - 1] + values[n / 2]) };
         Some(Spread { median, max: values[n - 1] })
     }
 }
@@ -228,7 +246,10 @@ pub enum AccuracyError {
 /// The kernels `accuracy` measures by default: all six, less those M's singularity blocks.
 pub fn default_kernels(model: &Model) -> Vec<KernelKind> {
     // The step kernels are held to the reference by tests/step.rs; `accuracy` skips them.
-    KernelKind::for_model(model).into_iter().filter(|k| (model.singular.is_none() || !k.needs_minv()) && !k.is_step()).collect()
+    KernelKind::for_model(model)
+        .into_iter()
+        .filter(|k| (model.singular.is_none() || !k.needs_minv()) && !k.is_step())
+        .collect()
 }
 
 /// The input `u` of a kernel at a state: q̈ for the RNEA kernels, τ for `fd*`, none else.
@@ -253,23 +274,44 @@ pub struct Options {
 }
 
 /// Measures every kernel of `options` in each format (and backend) on `file`'s states.
-pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &Options, backends: &mut [Backend]) -> Result<Report, AccuracyError> {
+pub fn measure<'a>(
+    model: &Model,
+    file: &'a StatesFile,
+    source: &str,
+    options: &Options,
+    backends: &mut [Backend],
+) -> Result<Report, AccuracyError> {
     check_states(model, file)?;
     if model.nfext() + model.nlambda() > 0 {
         return Err(AccuracyError::Forces);
     }
-    let (nv, gravity, kernels, formats) = (model.nv(), options.gravity, &options.kernels, &options.formats);
-    let lower = LowerOptions { kernels: kernels.clone(), gradient: options.gradient, ..LowerOptions::default() };
+    let (nv, gravity, kernels, formats) =
+        (model.nv(), options.gravity, &options.kernels, &options.formats);
+    let lower = LowerOptions {
+        kernels: kernels.clone(),
+        gradient: options.gradient,
+        ..LowerOptions::default()
+    };
     let exact = ir::lower(model, gravity, &LowerOptions { fold: false, ..lower.clone() })?;
     let fast = ir::lower(model, gravity, &lower)?;
     let bounds = Bounds::new(&fast.robot, options.qd_max, options.qdd_max);
     let mut rows = Vec::new();
     let mut mixed = Vec::new();
     for &kind in kernels.iter() {
-        let (Some(exact_f), Some(f)) = (exact.function(kind), fast.function(kind)) else { continue };
+        let (Some(exact_f), Some(f)) = (exact.function(kind), fast.function(kind)) else {
+            continue;
+        };
         if kind.is_step() {
-            let skipped = Some("the step kernels take the actuated joints' forces; tests/step.rs measures them".to_string());
-            let ops = f.nodes.iter().enumerate().filter(|(i, _)| f.is_operation(ir::Id(*i as u32))).count();
+            let skipped = Some(
+                "the step kernels take the actuated joints' forces; tests/step.rs measures them"
+                    .to_string(),
+            );
+            let ops = f
+                .nodes
+                .iter()
+                .enumerate()
+                .filter(|(i, _)| f.is_operation(ir::Id(*i as u32)))
+                .count();
             for format in formats.iter() {
                 rows.push(Row {
                     kernel: kind,
@@ -287,20 +329,42 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
             }
             continue;
         }
-        let chosen: Vec<&State> = file.states.iter().filter(|s| !matches!(u_of(kind, s), Some(None))).collect();
-        let args: Vec<[&[f64]; 3]> = chosen.iter().map(|s| [&s.q[..], &s.qd[..], u_of(kind, s).flatten().map_or(&[][..], |v| &v[..])]).collect();
+        let chosen: Vec<&State> =
+            file.states.iter().filter(|s| !matches!(u_of(kind, s), Some(None))).collect();
+        let args: Vec<[&[f64]; 3]> = chosen
+            .iter()
+            .map(|s| [&s.q[..], &s.qd[..], u_of(kind, s).flatten().map_or(&[][..], |v| &v[..])])
+            .collect();
         let inputs = |a: &[&'a [f64]; 3]| kernel_inputs(f, a);
-        let truth: Vec<Vec<Vec<f64>>> =
-            args.iter().map(|a| exact_f.eval_dd(&inputs(a)).into_iter().map(|o| o.into_iter().map(|x| x.to_f64()).collect()).collect()).collect();
-        let ops = f.nodes.iter().enumerate().filter(|(i, _)| f.is_operation(ir::Id(*i as u32))).count();
-        let row = |format: String, fixed: Option<String>, errors: Option<Vec<(f64, f64)>>, overflowed: Option<usize>, skipped: Option<String>| Row {
+        let truth: Vec<Vec<Vec<f64>>> = args
+            .iter()
+            .map(|a| {
+                exact_f
+                    .eval_dd(&inputs(a))
+                    .into_iter()
+                    .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
+                    .collect()
+            })
+            .collect();
+        let ops =
+            f.nodes.iter().enumerate().filter(|(i, _)| f.is_operation(ir::Id(*i as u32))).count();
+        let row = |format: String,
+                   fixed: Option<String>,
+                   errors: Option<Vec<(f64, f64)>>,
+                   overflowed: Option<usize>,
+                   skipped: Option<String>| Row {
             kernel: kind,
             format,
             fixed,
             ops,
             states: chosen.len(),
-            error: errors.as_ref().and_then(|e| Spread::of(&mut e.iter().map(|x| x.0).collect::<Vec<_>>())),
-            max_abs_error: errors.as_ref().filter(|e| !e.is_empty()).map(|e| e.iter().map(|x| x.1).fold(0.0, f64::max)),
+            error: errors
+                .as_ref()
+                .and_then(|e| Spread::of(&mut e.iter().map(|x| x.0).collect::<Vec<_>>())),
+            max_abs_error: errors
+                .as_ref()
+                .filter(|e| !e.is_empty())
+                .map(|e| e.iter().map(|x| x.1).fold(0.0, f64::max)),
             overflowed,
             mixed: None,
             time_ns: None,
@@ -309,21 +373,40 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
         for format in formats.iter() {
             match format {
                 NumberFormat::F64 => {
-                    let e = args.iter().zip(&truth).map(|(a, t)| error(&f.eval(&inputs(a)), t)).collect();
+                    let e = args
+                        .iter()
+                        .zip(&truth)
+                        .map(|(a, t)| error(&f.eval(&inputs(a)), t))
+                        .collect();
                     rows.push(row(format.label(), None, Some(e), None, None));
                 }
                 NumberFormat::F32 => {
-                    let e = args.iter().zip(&truth).map(|(a, t)| error(&widen(f.eval_f32(&inputs(a))), t)).collect();
+                    let e = args
+                        .iter()
+                        .zip(&truth)
+                        .map(|(a, t)| error(&widen(f.eval_f32(&inputs(a))), t))
+                        .collect();
                     rows.push(row(format.label(), None, Some(e), None, None));
                 }
                 NumberFormat::Mixed { target } => {
                     let plan = mixed_plan(model, gravity, f, *target);
-                    let e = args.iter().zip(&truth).map(|(a, t)| error(&f.eval_mixed(&inputs(a), &plan.wide), t)).collect();
+                    let e = args
+                        .iter()
+                        .zip(&truth)
+                        .map(|(a, t)| error(&f.eval_mixed(&inputs(a), &plan.wide), t))
+                        .collect();
                     let (wide, all) = plan.wide_operations(f);
                     let mut r = row(format.label(), None, Some(e), None, None);
-                    r.mixed = Some(format!("{wide} of {all} ops in f64, bound {:.1e} (all f32: {:.1e})", plan.bound, plan.all_f32_bound));
+                    r.mixed = Some(format!(
+                        "{wide} of {all} ops in f64, bound {:.1e} (all f32: {:.1e})",
+                        plan.bound, plan.all_f32_bound
+                    ));
                     rows.push(r);
-                    mixed.push(MixedKernel { label: format.label(), function: f.clone(), wide: plan.wide });
+                    mixed.push(MixedKernel {
+                        label: format.label(),
+                        function: f.clone(),
+                        wide: plan.wide,
+                    });
                 }
                 NumberFormat::Fixed(_) | NumberFormat::FixedAuto { .. } => {
                     let dp = match Datapath::new(f, nv) {
@@ -337,7 +420,9 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
                     };
                     let fmt = match format {
                         NumberFormat::FixedAuto { max_error, rounding } => {
-                            choose_format(&dp, &bounds, *rounding, *max_error).map_err(|error| AccuracyError::Fixed { kernel: kind, error })?.0
+                            choose_format(&dp, &bounds, *rounding, *max_error)
+                                .map_err(|error| AccuracyError::Fixed { kernel: kind, error })?
+                                .0
                         }
                         NumberFormat::Fixed(fmt) => *fmt,
                         _ => unreachable!("matched above"),
@@ -347,28 +432,37 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
                         let zeros = vec![0.0; nv];
                         let qdd = s.qdd.as_ref().unwrap_or(&zeros);
                         let tau = s.tau.as_ref().unwrap_or(&zeros);
-                        let (ports, input_overflow) = quantize_ports(&dp, &fmt, &s.q, &s.qd, qdd, tau);
+                        let (ports, input_overflow) =
+                            quantize_ports(&dp, &fmt, &s.q, &s.qd, qdd, tau);
                         let run = dp.run(&fmt, &ports);
                         if run.overflow || input_overflow {
                             overflowed += 1;
                             continue;
                         }
-                        let got: Vec<Vec<f64>> = run.outputs.iter().map(|o| o.iter().map(|&r| fmt.to_f64(r)).collect()).collect();
+                        let got: Vec<Vec<f64>> = run
+                            .outputs
+                            .iter()
+                            .map(|o| o.iter().map(|&r| fmt.to_f64(r)).collect())
+                            .collect();
                         errors.push(error(&got, t));
                     }
-                    let auto = matches!(format, NumberFormat::FixedAuto { .. }).then(|| format!("{}.{}", fmt.width, fmt.frac));
+                    let auto = matches!(format, NumberFormat::FixedAuto { .. })
+                        .then(|| format!("{}.{}", fmt.width, fmt.frac));
                     rows.push(row(format.label(), auto, Some(errors), Some(overflowed), None));
                 }
             }
         }
         for b in backends.iter_mut() {
-            let flat = |k: usize| -> Vec<f64> { args.iter().flat_map(|a| a[k].iter().copied()).collect() };
+            let flat =
+                |k: usize| -> Vec<f64> { args.iter().flat_map(|a| a[k].iter().copied()).collect() };
             let velocity = f.inputs().contains(&Input::Qd);
-            let out = (b.run)(kind, &flat(0), &if velocity { flat(1) } else { Vec::new() }, &flat(2)).map_err(|message| AccuracyError::Backend {
-                label: b.label.clone(),
-                kernel: kind,
-                message,
-            })?;
+            let out =
+                (b.run)(kind, &flat(0), &if velocity { flat(1) } else { Vec::new() }, &flat(2))
+                    .map_err(|message| AccuracyError::Backend {
+                        label: b.label.clone(),
+                        kernel: kind,
+                        message,
+                    })?;
             let per = out.len() / chosen.len().max(1);
             let e = truth
                 .iter()
@@ -403,8 +497,21 @@ pub fn measure<'a>(model: &Model, file: &'a StatesFile, source: &str, options: &
         .collect();
     let cond_m = Spread::of(&mut conds);
     let bound = |u: f64, c: f64| (10.0 * nv as f64 * u * c).min(f64::MAX);
-    let bound_through_minv = cond_m.map(|c| Bounds2 { f64: bound(f64::EPSILON / 2.0, c.max), f32: bound(f32::EPSILON as f64 / 2.0, c.max) });
-    Ok(Report { robot: model.name.clone(), nv, gravity, states: file.states.len(), source: source.to_string(), cond_m, bound_through_minv, rows, mixed })
+    let bound_through_minv = cond_m.map(|c| Bounds2 {
+        f64: bound(f64::EPSILON / 2.0, c.max),
+        f32: bound(f32::EPSILON as f64 / 2.0, c.max),
+    });
+    Ok(Report {
+        robot: model.name.clone(),
+        nv,
+        gravity,
+        states: file.states.len(),
+        source: source.to_string(),
+        cond_m,
+        bound_through_minv,
+        rows,
+        mixed,
+    })
 }
 
 /// The arguments of `f` in its input order, from `[q, q̇, u]`.
@@ -446,7 +553,10 @@ impl Report {
                 f if f.starts_with("mixed") => f,
                 _ => continue,
             };
-            r.time_ns = times.iter().find(|t| t.kernel == r.kernel && t.scalar == scalar && t.copy == "portable").map(|t| t.ns_per_call);
+            r.time_ns = times
+                .iter()
+                .find(|t| t.kernel == r.kernel && t.scalar == scalar && t.copy == "portable")
+                .map(|t| t.ns_per_call);
         }
     }
 
@@ -464,15 +574,28 @@ impl Report {
             s += &format!("worst-case bound through M⁻¹ (10·nv·u·cond(M) at the largest cond(M)): f64 {:.1e}, f32 {:.1e}\n", b.f64, b.f32);
         }
         let timed = self.rows.iter().any(|r| r.time_ns.is_some());
-        s += &format!("{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}", "kernel", "format", "ops", "states", "median", "max");
+        s += &format!(
+            "{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}",
+            "kernel", "format", "ops", "states", "median", "max"
+        );
         s += if timed { "   ns/call (portable)\n" } else { "\n" };
         for r in &self.rows {
-            let (median, max) = r.error.map_or(("-".to_string(), "-".to_string()), |e| (format!("{:.1e}", e.median), format!("{:.1e}", e.max)));
+            let (median, max) = r.error.map_or(("-".to_string(), "-".to_string()), |e| {
+                (format!("{:.1e}", e.median), format!("{:.1e}", e.max))
+            });
             let format = match &r.fixed {
                 Some(f) => format!("{} = {f}", r.format),
                 None => r.format.clone(),
             };
-            s += &format!("{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}", r.kernel.name(), format, r.ops, r.states, median, max);
+            s += &format!(
+                "{:<12} {:<32} {:>7} {:>7} {:>9} {:>9}",
+                r.kernel.name(),
+                format,
+                r.ops,
+                r.states,
+                median,
+                max
+            );
             if let Some(t) = r.time_ns {
                 s += &format!("   {t:>9.0}");
             }

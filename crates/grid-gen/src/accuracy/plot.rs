@@ -1,6 +1,6 @@
 //! The `--plot` figure of `grid-gen accuracy`: error against cost (time or operations per
-//! call), one point per kernel and format, on log-log axes, as a self-contained SVG (no plotting crate: the figure
-//! is a few dozen elements).
+//! call), one point per kernel and format, on log-log axes, as a self-contained SVG (no plotting
+//! crate: the figure is a few dozen elements).
 
 use super::Report;
 
@@ -11,7 +11,8 @@ const RIGHT: f64 = 210.0;
 const TOP: f64 = 40.0;
 const BOTTOM: f64 = 50.0;
 /// Colour-blind-safe palette (Okabe & Ito 2008), one colour per format.
-const COLOURS: [&str; 8] = ["#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#000000"];
+const COLOURS: [&str; 8] =
+    ["#0072B2", "#D55E00", "#009E73", "#CC79A7", "#E69F00", "#56B4E9", "#F0E442", "#000000"];
 
 /// Escapes text for SVG element content and attributes: markup characters as entities,
 /// other non-ASCII characters as numeric references (so `≤` shows as itself), control
@@ -45,7 +46,12 @@ fn decades(lo: f64, hi: f64) -> (i32, i32) {
 pub fn svg(report: &Report) -> String {
     let timed = report.rows.iter().any(|r| r.time_ns.is_some());
     let cost = |r: &super::Row| if timed { r.time_ns.unwrap_or(0.0) } else { r.ops as f64 };
-    let points: Vec<_> = report.rows.iter().filter_map(|r| r.error.map(|e| (r, e))).filter(|(r, _)| cost(r) > 0.0).collect();
+    let points: Vec<_> = report
+        .rows
+        .iter()
+        .filter_map(|r| r.error.map(|e| (r, e)))
+        .filter(|(r, _)| cost(r) > 0.0)
+        .collect();
     let mut formats: Vec<&str> = Vec::new();
     for (r, _) in &points {
         if !formats.contains(&r.format.as_str()) {
@@ -54,15 +60,26 @@ pub fn svg(report: &Report) -> String {
     }
     // Errors of exactly 0 (a kernel that is exact in a format) sit on the bottom axis, a
     // decade under the smallest nonzero error, so that no measured point is pinned to it.
-    let smallest = points.iter().flat_map(|(_, e)| [e.median, e.max]).filter(|&x| x > 0.0).fold(f64::INFINITY, f64::min);
+    let smallest = points
+        .iter()
+        .flat_map(|(_, e)| [e.median, e.max])
+        .filter(|&x| x > 0.0)
+        .fold(f64::INFINITY, f64::min);
     let floor = if smallest.is_finite() { smallest / 10.0 } else { 1e-17 };
     // The axis spans the cost actually drawn: time per call with `--time`, else operations.
-    let (x_lo, x_hi) =
-        decades(points.iter().map(|(r, _)| cost(r)).fold(f64::INFINITY, f64::min).min(1e6), points.iter().map(|(r, _)| cost(r)).fold(1.0, f64::max));
-    let (y_lo, y_hi) =
-        decades(points.iter().map(|(_, e)| e.median.max(floor)).fold(1.0, f64::min), points.iter().map(|(_, e)| e.max.max(floor)).fold(floor * 10.0, f64::max));
+    let (x_lo, x_hi) = decades(
+        points.iter().map(|(r, _)| cost(r)).fold(f64::INFINITY, f64::min).min(1e6),
+        points.iter().map(|(r, _)| cost(r)).fold(1.0, f64::max),
+    );
+    let (y_lo, y_hi) = decades(
+        points.iter().map(|(_, e)| e.median.max(floor)).fold(1.0, f64::min),
+        points.iter().map(|(_, e)| e.max.max(floor)).fold(floor * 10.0, f64::max),
+    );
     let px = |x: f64| LEFT + (x.log10() - x_lo as f64) / (x_hi - x_lo) as f64 * (W - LEFT - RIGHT);
-    let py = |y: f64| H - BOTTOM - (y.max(floor).log10() - y_lo as f64) / (y_hi - y_lo) as f64 * (H - TOP - BOTTOM);
+    let py = |y: f64| {
+        H - BOTTOM
+            - (y.max(floor).log10() - y_lo as f64) / (y_hi - y_lo) as f64 * (H - TOP - BOTTOM)
+    };
     let mut s = format!(
         "<svg xmlns=\"http://www.w3.org/2000/svg\" width=\"{W}\" height=\"{H}\" viewBox=\"0 0 {W} {H}\" font-family=\"sans-serif\" font-size=\"11\">\n\
          <rect width=\"{W}\" height=\"{H}\" fill=\"white\"/>\n\
@@ -97,7 +114,8 @@ pub fn svg(report: &Report) -> String {
         (TOP + H - BOTTOM) / 2.0
     );
     for (r, e) in &points {
-        let colour = COLOURS[formats.iter().position(|f| *f == r.format).unwrap_or(0) % COLOURS.len()];
+        let colour =
+            COLOURS[formats.iter().position(|f| *f == r.format).unwrap_or(0) % COLOURS.len()];
         let (x, y, top) = (px(cost(r)), py(e.median), py(e.max));
         s += &format!(
             "<line x1=\"{x:.1}\" y1=\"{y:.1}\" x2=\"{x:.1}\" y2=\"{top:.1}\" stroke=\"{colour}\"/><circle cx=\"{x:.1}\" cy=\"{y:.1}\" r=\"4\" fill=\"{colour}\"><title>{} {}: median {:.1e}, max {:.1e}</title></circle>\

@@ -46,12 +46,19 @@ impl Rng {
     }
 }
 
-/// `n` states: a floating base's pose uniform ([`Rng::base_pose`]), q uniform within each joint's limits (±π where a joint has none, or
-/// limits wider than 100, as Atlas's ±1e5), q̇ and q̈ uniform within the fixed-point
-/// analysis's default bounds (the URDF's velocity limits, else its defaults), and
-/// τ = RNEA(q, q̇, q̈′) for another such q̈′, so that forward dynamics answers a plausible
-/// acceleration. `qd_max` / `qdd_max` override the bounds as in the Verilog backend.
-pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_max: Option<f64>, qdd_max: Option<f64>) -> StatesFile {
+/// `n` states: a floating base's pose uniform ([`Rng::base_pose`]), q uniform within each joint's
+/// limits (±π where a joint has none, or limits wider than 100, as Atlas's ±1e5), q̇ and q̈ uniform
+/// within the fixed-point analysis's default bounds (the URDF's velocity limits, else its
+/// defaults), and τ = RNEA(q, q̇, q̈′) for another such q̈′, so that forward dynamics answers a
+/// plausible acceleration. `qd_max` / `qdd_max` override the bounds as in the Verilog backend.
+pub fn random_states(
+    model: &Model,
+    gravity: [f64; 3],
+    n: usize,
+    seed: u64,
+    qd_max: Option<f64>,
+    qdd_max: Option<f64>,
+) -> StatesFile {
     let bounds = Bounds::new(&Robot::of(model), qd_max, qdd_max);
     let mut rng = Rng(seed);
     let nv = model.nv();
@@ -62,7 +69,10 @@ pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_m
                 .into_iter()
                 .map(|i| &model.joints[i])
                 .map(|j| {
-                    let (lo, hi) = j.limit.filter(|(lo, hi)| lo < hi && hi - lo <= 100.0).unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
+                    let (lo, hi) = j
+                        .limit
+                        .filter(|(lo, hi)| lo < hi && hi - lo <= 100.0)
+                        .unwrap_or((-std::f64::consts::PI, std::f64::consts::PI));
                     rng.uniform(lo, hi)
                 })
                 .collect();
@@ -78,8 +88,16 @@ pub fn random_states(model: &Model, gravity: [f64; 3], n: usize, seed: u64, qd_m
             let qd: Vec<f64> = bounds.qd.iter().map(|&b| rng.uniform(-b, b)).collect();
             let qdd: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();
             let other: Vec<f64> = bounds.qdd.iter().map(|&b| rng.uniform(-b, b)).collect();
-            let tau = (model.singular.is_none() && nv > 0).then(|| reference::rnea(model, &q, &qd, &other, gravity));
-            State { q, qd, qdd: Some(qdd), tau, fext: Default::default(), contacts: Default::default() }
+            let tau = (model.singular.is_none() && nv > 0)
+                .then(|| reference::rnea(model, &q, &qd, &other, gravity));
+            State {
+                q,
+                qd,
+                qdd: Some(qdd),
+                tau,
+                fext: Default::default(),
+                contacts: Default::default(),
+            }
         })
         .collect();
     StatesFile { states }

@@ -144,10 +144,21 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
         let name = k.kind.name();
         let inputs = k.inputs();
         // The safe batch function.
-        let args: Vec<String> = inputs.iter().map(|i| format!("{}: &[[T; {}]]", i.name(), input_len(*i, ql))).collect();
-        let outs: Vec<String> = k.outputs.iter().map(|o| format!("{}: &mut [{}]", o.name, array_of(o.shape, "T"))).collect();
+        let args: Vec<String> =
+            inputs.iter().map(|i| format!("{}: &[[T; {}]]", i.name(), input_len(*i, ql))).collect();
+        let outs: Vec<String> = k
+            .outputs
+            .iter()
+            .map(|o| format!("{}: &mut [{}]", o.name, array_of(o.shape, "T")))
+            .collect();
         let first = inputs[0].name();
-        let lens: Vec<String> = inputs.iter().skip(1).map(|i| i.name()).chain(k.outputs.iter().map(|o| o.name)).map(|n| format!("{n}.len() == n")).collect();
+        let lens: Vec<String> = inputs
+            .iter()
+            .skip(1)
+            .map(|i| i.name())
+            .chain(k.outputs.iter().map(|o| o.name))
+            .map(|n| format!("{n}.len() == n"))
+            .collect();
         let _ = writeln!(
             out,
             "/// `{}` for each state: entry `i` of every slice is state `i`. On every core.\n///\n/// # Panics\n/// If the slices' lengths differ.\n\
@@ -160,9 +171,14 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
             let _ = writeln!(out, "let o{j} = Out({}.as_mut_ptr());", o.name);
         }
         let results: Vec<String> = (0..k.outputs.len()).map(|j| format!("r{j}")).collect();
-        let pattern = if results.len() == 1 { results[0].clone() } else { format!("({})", results.join(", ")) };
+        let pattern = if results.len() == 1 {
+            results[0].clone()
+        } else {
+            format!("({})", results.join(", "))
+        };
         let call: Vec<String> = inputs.iter().map(|i| format!("&{}[i]", i.name())).collect();
-        let writes: String = (0..k.outputs.len()).map(|j| format!("o{j}.write(i, r{j});")).collect();
+        let writes: String =
+            (0..k.outputs.len()).map(|j| format!("o{j}.write(i, r{j});")).collect();
         let _ = writeln!(
             out,
             "grid_gen_runtime::for_each(n, |range| {{\nfor i in range {{\nlet {pattern} = super::{stem}::{name}({});\n\
@@ -171,9 +187,13 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
         );
         // The C entry points.
         for (rt, _) in precisions(options) {
-            let ptr_args: Vec<String> =
-                inputs.iter().map(|i| format!("{}: *const {rt}", i.name())).chain(k.outputs.iter().map(|o| format!("{}: *mut {rt}", o.name))).collect();
-            let all: Vec<&str> = inputs.iter().map(|i| i.name()).chain(k.outputs.iter().map(|o| o.name)).collect();
+            let ptr_args: Vec<String> = inputs
+                .iter()
+                .map(|i| format!("{}: *const {rt}", i.name()))
+                .chain(k.outputs.iter().map(|o| format!("{}: *mut {rt}", o.name)))
+                .collect();
+            let all: Vec<&str> =
+                inputs.iter().map(|i| i.name()).chain(k.outputs.iter().map(|o| o.name)).collect();
             let _ = writeln!(
                 out,
                 "/// `{name}` in {rt} for one state (`{stem}.h`).\n///\n/// # Safety\n/// Each pointer holds one state's array, aligned, and outputs overlap nothing.\n\
@@ -193,12 +213,23 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
             );
             let _ = writeln!(out, "// SAFETY: the caller's contract: each pointer holds n states, which fit in memory (checked above).\nunsafe {{");
             for i in inputs {
-                let _ = writeln!(out, "let {0} = core::slice::from_raw_parts({0}.cast::<[{rt}; {1}]>(), n);", i.name(), input_len(*i, ql));
+                let _ = writeln!(
+                    out,
+                    "let {0} = core::slice::from_raw_parts({0}.cast::<[{rt}; {1}]>(), n);",
+                    i.name(),
+                    input_len(*i, ql)
+                );
             }
             for o in &k.outputs {
-                let _ = writeln!(out, "let {0} = core::slice::from_raw_parts_mut({0}.cast::<{1}>(), n);", o.name, array_of(o.shape, rt));
+                let _ = writeln!(
+                    out,
+                    "let {0} = core::slice::from_raw_parts_mut({0}.cast::<{1}>(), n);",
+                    o.name,
+                    array_of(o.shape, rt)
+                );
             }
-            let _ = writeln!(out, "self::{name}::<{rt}>({});\n}}\nGRID_GEN_OK\n}}\n", all.join(", "));
+            let _ =
+                writeln!(out, "self::{name}::<{rt}>({});\n}}\nGRID_GEN_OK\n}}\n", all.join(", "));
         }
     }
     out.push_str("}\n");
@@ -280,11 +311,20 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
     let size = |n: &str| format!("{mac}_{n}");
     let c_len = |len: &str| -> String {
         // `6 * NFEXT` and the like, in the header's macros.
-        len.split(' ').map(|t| if t.chars().all(|c| c.is_ascii_uppercase()) { size(t) } else { t.to_string() }).collect::<Vec<_>>().join(" ")
+        len.split(' ')
+            .map(
+                |t| if t.chars().all(|c| c.is_ascii_uppercase()) { size(t) } else { t.to_string() },
+            )
+            .collect::<Vec<_>>()
+            .join(" ")
     };
     for k in &module.functions {
         let name = k.kind.name();
-        let ins: Vec<String> = k.inputs().iter().map(|i| format!("{}[{}]", i.name(), c_len(input_len(*i, q_len(robot))))).collect();
+        let ins: Vec<String> = k
+            .inputs()
+            .iter()
+            .map(|i| format!("{}[{}]", i.name(), c_len(input_len(*i, q_len(robot)))))
+            .collect();
         let outs: Vec<String> = k
             .outputs
             .iter()
@@ -295,10 +335,19 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
             .collect();
         // The docs are grid-gen's own text, but a `*/` in one must still not end the comment.
         let doc = k.doc().replace("*/", "*\\/");
-        let _ = writeln!(h, "/* {name}: {doc}\n * Per state, in: {}.\n * Per state, out: {}. */", ins.join(", "), outs.join(", "));
+        let _ = writeln!(
+            h,
+            "/* {name}: {doc}\n * Per state, in: {}.\n * Per state, out: {}. */",
+            ins.join(", "),
+            outs.join(", ")
+        );
         for (rt, ct) in precisions(options) {
-            let params: Vec<String> =
-                k.inputs().iter().map(|i| format!("const {ct} *{}", i.name())).chain(k.outputs.iter().map(|o| format!("{ct} *{}", o.name))).collect();
+            let params: Vec<String> = k
+                .inputs()
+                .iter()
+                .map(|i| format!("const {ct} *{}", i.name()))
+                .chain(k.outputs.iter().map(|o| format!("{ct} *{}", o.name)))
+                .collect();
             let _ = writeln!(h, "int32_t {p}_{name}_{rt}({});", params.join(", "));
             let _ = writeln!(h, "int32_t {p}_{name}_batch_{rt}(size_t n, {});", params.join(", "));
         }
@@ -353,7 +402,10 @@ pub fn emit(module: &Module, options: &COptions) -> Result<Vec<GeneratedFile>, B
         crate::back::source_line(&module.robot.source),
     );
     Ok(vec![
-        GeneratedFile { name: format!("{stem}_c.rs"), contents: header + &prettyplease::unparse(&file) },
+        GeneratedFile {
+            name: format!("{stem}_c.rs"),
+            contents: header + &prettyplease::unparse(&file),
+        },
         GeneratedFile { name: format!("{stem}.h"), contents: emit_header(module, options, &stem) },
     ])
 }

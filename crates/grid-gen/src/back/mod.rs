@@ -37,7 +37,11 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
         ));
     }
     if !robot.spherical.is_empty() {
-        let joints: Vec<String> = robot.spherical.iter().map(|(name, at)| format!("{} at q[{at}..{}]", names::comment_text(name), at + 4)).collect();
+        let joints: Vec<String> = robot
+            .spherical
+            .iter()
+            .map(|(name, at)| format!("{} at q[{at}..{}]", names::comment_text(name), at + 4))
+            .collect();
         out.push_str(&format!(
             "// Spherical joints (Pinocchio's JointModelSpherical), each a quaternion [qx, qy, qz, qw] in q (normalised): {}.\n\
              // Each has three coordinates <name>_wx, _wy, _wz, its angular velocity in its own frame; gradients are with\n\
@@ -57,8 +61,17 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
         ));
     }
     if !robot.coupled.is_empty() {
-        let coupled: Vec<String> =
-            robot.coupled.iter().map(|(m, of, mult, off)| format!("{} = {mult:?} * {} + {off:?}", names::comment_text(m), names::comment_text(of))).collect();
+        let coupled: Vec<String> = robot
+            .coupled
+            .iter()
+            .map(|(m, of, mult, off)| {
+                format!(
+                    "{} = {mult:?} * {} + {off:?}",
+                    names::comment_text(m),
+                    names::comment_text(of)
+                )
+            })
+            .collect();
         out.push_str(&format!(
             "// Coupled mimic joints (no coordinate of their own; q, qd, qdd, tau and the matrices leave them out): {}.\n\
              // minv, fd and fd_grad project the tree's M^-1 and articulated-body qdd onto the mimic constraints.\n",
@@ -70,7 +83,11 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
     }
     let names = |set: &Option<Vec<usize>>| match set {
         None => "all".to_string(),
-        Some(v) => v.iter().map(|&j| names::comment_text(&robot.joint_names[j])).collect::<Vec<_>>().join(", "),
+        Some(v) => v
+            .iter()
+            .map(|&j| names::comment_text(&robot.joint_names[j]))
+            .collect::<Vec<_>>()
+            .join(", "),
     };
     if spec.selects() {
         out.push_str(&format!(

@@ -62,7 +62,13 @@ pub(crate) struct Rnea {
 
 impl<'a> Dynamics<'a> {
     /// Records the joint transforms (sin/cos, E, r) for every joint.
-    pub fn new(model: &'a Model, gravity: [f64; 3], fold: bool, sparse: bool, limit: usize) -> Self {
+    pub fn new(
+        model: &'a Model,
+        gravity: [f64; 3],
+        fold: bool,
+        sparse: bool,
+        limit: usize,
+    ) -> Self {
         let mut g = Graph::new(fold, limit);
         let mut x = Vec::new();
         let mut s = Vec::new();
@@ -118,7 +124,14 @@ impl<'a> Dynamics<'a> {
     fn root_acceleration(&mut self) -> Sv {
         let z = sp::zero(&mut self.g);
         let g = &mut self.g;
-        [z[0], z[1], z[2], g.constant(-self.gravity[0]), g.constant(-self.gravity[1]), g.constant(-self.gravity[2])]
+        [
+            z[0],
+            z[1],
+            z[2],
+            g.constant(-self.gravity[0]),
+            g.constant(-self.gravity[1]),
+            g.constant(-self.gravity[2]),
+        ]
     }
 
     fn at(&mut self, i: usize, stage: Stage) {
@@ -150,7 +163,8 @@ impl<'a> Dynamics<'a> {
         let n = self.n();
         let z = sp::zero(&mut self.g);
         let a0 = self.root_acceleration();
-        let (mut v, mut xv, mut xa, mut a, mut f, mut iv) = (vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n]);
+        let (mut v, mut xv, mut xa, mut a, mut f, mut iv) =
+            (vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n], vec![z; n]);
         for i in 0..n {
             if self.exhausted() {
                 break;
@@ -224,7 +238,8 @@ impl<'a> Dynamics<'a> {
         let n = self.n();
         let z = sp::zero(&mut self.g);
         let none = || vec![None::<Sv>; n];
-        let (mut dv_q, mut dv_qd, mut da_q, mut da_qd) = (vec![none(); n], vec![none(); n], vec![none(); n], vec![none(); n]);
+        let (mut dv_q, mut dv_qd, mut da_q, mut da_qd) =
+            (vec![none(); n], vec![none(); n], vec![none(); n], vec![none(); n]);
         let (mut df_q, mut df_qd) = (vec![none(); n], vec![none(); n]);
         for i in 0..n {
             if self.exhausted() {
@@ -235,16 +250,18 @@ impl<'a> Dynamics<'a> {
             let group = self.model.group(i);
             // The velocity product's joint velocity: S_i q̇_i, a multi-dof joint's v_J at its
             // last member (with a moving parent), none at its other members.
-            let product = group.as_ref().is_none_or(|m| i + 1 == m.end && !self.model.in_root_group(i));
+            let product =
+                group.as_ref().is_none_or(|m| i + 1 == m.end && !self.model.in_root_group(i));
             let members = group.clone().unwrap_or(i..i + 1);
             let cols = self.motion_cols(i);
             let g = &mut self.g;
             let vj = velocity_of(g, &self.s, qd, members.clone());
             for u in cols {
-                let from = |m: &Vec<Vec<Option<Sv>>>, g: &mut Graph| match parent.and_then(|p| m[p][u]) {
-                    Some(col) => self.x[i].apply(g, &col),
-                    None => z,
-                };
+                let from =
+                    |m: &Vec<Vec<Option<Sv>>>, g: &mut Graph| match parent.and_then(|p| m[p][u]) {
+                        Some(col) => self.x[i].apply(g, &col),
+                        None => z,
+                    };
                 let mut dvq = from(&dv_q, g);
                 let mut dvqd = from(&dv_qd, g);
                 let mut daq = from(&da_q, g);
@@ -681,7 +698,13 @@ impl<'a> Dynamics<'a> {
     /// Also `∂q̈/∂τ` for the coordinates `columns` (those columns of M⁻¹),
     /// and `−M⁻¹ b` for each per-coordinate vector b of `rhs`, both from the route that
     /// formed `∂q̈/∂u` (M⁻¹ itself, or its factorisation's solves).
-    pub fn fd_grad(&mut self, qd: &[Id], tau: &[Id], columns: &[usize], rhs: &[Vec<Id>]) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
+    pub fn fd_grad(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        columns: &[usize],
+        rhs: &[Vec<Id>],
+    ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
         if matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled() {
             return self.fd_grad_ltdl(qd, tau, columns, rhs);
         }
@@ -712,8 +735,14 @@ impl<'a> Dynamics<'a> {
         };
         let dq = product(&dc_q, &mut self.g);
         let dqd = product(&dc_qd, &mut self.g);
-        let flat = |m: &Mat| m.iter().flatten().map(|&id| super::module::Operand::Node(id)).collect::<Vec<_>>();
-        self.product = Some(super::module::DenseProduct { minv: flat(&mi), dc: vec![flat(&dc_q), flat(&dc_qd)], outputs: vec![1, 2] });
+        let flat = |m: &Mat| {
+            m.iter().flatten().map(|&id| super::module::Operand::Node(id)).collect::<Vec<_>>()
+        };
+        self.product = Some(super::module::DenseProduct {
+            minv: flat(&mi),
+            dc: vec![flat(&dc_q), flat(&dc_qd)],
+            outputs: vec![1, 2],
+        });
         let picked = mi.iter().map(|row| columns.iter().map(|&c| row[c]).collect()).collect();
         let solved = rhs
             .iter()
@@ -737,7 +766,13 @@ impl Dynamics<'_> {
     /// gradient's own nodes, shared by hash-consing), then `−M⁻¹ ∂c/∂u` by the
     /// factorisation. Zero entries of ∂c/∂u (joints on different branches) fold away, so
     /// each column's solves touch only the joints it can reach.
-    fn fd_grad_ltdl(&mut self, qd: &[Id], tau: &[Id], columns: &[usize], rhs: &[Vec<Id>]) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
+    fn fd_grad_ltdl(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        columns: &[usize],
+        rhs: &[Vec<Id>],
+    ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
         let n = self.n();
         let zero = self.g.constant(0.0);
         let m = self.mass_matrix();
@@ -746,7 +781,13 @@ impl Dynamics<'_> {
         let bias = if by_aba.is_none() { self.rnea(qd, &vec![zero; n]).c } else { Vec::new() };
         let empty = |columns: usize| vec![vec![zero; columns]; n];
         if self.exhausted() {
-            return (vec![zero; n], empty(n), empty(n), empty(columns.len()), vec![vec![zero; n]; rhs.len()]);
+            return (
+                vec![zero; n],
+                empty(n),
+                empty(n),
+                empty(columns.len()),
+                vec![vec![zero; n]; rhs.len()],
+            );
         }
         let f = self.ltdl(m);
         let qdd = by_aba.unwrap_or_else(|| {

@@ -126,7 +126,14 @@ pub(crate) struct Graph {
 impl Graph {
     pub fn new(fold: bool, limit: usize) -> Self {
         // Node 0 always exists, so the placeholder id handed out when exhausted is valid.
-        let mut g = Graph { nodes: Vec::new(), shared: HashMap::new(), fold, here: (None, Stage::Transform, 0), limit: limit.max(1), exhausted: false };
+        let mut g = Graph {
+            nodes: Vec::new(),
+            shared: HashMap::new(),
+            fold,
+            here: (None, Stage::Transform, 0),
+            limit: limit.max(1),
+            exhausted: false,
+        };
         g.constant(0.0);
         g
     }

@@ -128,7 +128,13 @@ impl Gradient {
 
     /// Whether a kernel's graph holds the RNEA gradient.
     pub fn applies_to(kind: KernelKind) -> bool {
-        matches!(kind, KernelKind::RneaGrad | KernelKind::FdGrad | KernelKind::StepGrad | KernelKind::ContactFdGrad)
+        matches!(
+            kind,
+            KernelKind::RneaGrad
+                | KernelKind::FdGrad
+                | KernelKind::StepGrad
+                | KernelKind::ContactFdGrad
+        )
     }
 }
 
@@ -221,8 +227,14 @@ impl KernelKind {
     ];
 
     /// The dynamics kernels, those every robot has.
-    pub const DYNAMICS: [KernelKind; 6] =
-        [KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Minv, KernelKind::Fd, KernelKind::FdGrad];
+    pub const DYNAMICS: [KernelKind; 6] = [
+        KernelKind::Rnea,
+        KernelKind::RneaGrad,
+        KernelKind::MassMatrix,
+        KernelKind::Minv,
+        KernelKind::Fd,
+        KernelKind::FdGrad,
+    ];
 
     /// The kernels a model has, in [`KernelKind::ALL`] order: the dynamics kernels, and the
     /// frame kernels when it asks for frames.
@@ -233,7 +245,9 @@ impl KernelKind {
     /// Whether a model so specialised has this kernel: the frame kernels need frames, the
     /// step kernels a step, the contact kernels contacts.
     pub fn exists_for(self, spec: &crate::model::Specialisation) -> bool {
-        (!self.is_frame() || !spec.frames.is_empty()) && (!self.is_step() || spec.step.is_some()) && (!self.is_contact() || !spec.contacts.is_empty())
+        (!self.is_frame() || !spec.frames.is_empty())
+            && (!self.is_step() || spec.step.is_some())
+            && (!self.is_contact() || !spec.contacts.is_empty())
     }
 
     /// Whether the kernel solves rigid-contact dynamics (and so exists only with contacts).
@@ -248,7 +262,13 @@ impl KernelKind {
 
     /// Whether the kernel's graph holds `fd_grad`'s (and so its choice of solve).
     pub fn holds_fd_grad(self) -> bool {
-        matches!(self, KernelKind::FdGrad | KernelKind::StepGrad | KernelKind::ContactFd | KernelKind::ContactFdGrad)
+        matches!(
+            self,
+            KernelKind::FdGrad
+                | KernelKind::StepGrad
+                | KernelKind::ContactFd
+                | KernelKind::ContactFdGrad
+        )
     }
 
     /// Whether the kernel computes frame quantities (and so exists only when frames are asked for).
@@ -293,7 +313,10 @@ impl KernelKind {
         use Input::*;
         match self {
             KernelKind::Rnea | KernelKind::RneaGrad => &[Q, Qd, Qdd],
-            KernelKind::MassMatrix | KernelKind::Minv | KernelKind::FramePlacement | KernelKind::FrameJacobian => &[Q],
+            KernelKind::MassMatrix
+            | KernelKind::Minv
+            | KernelKind::FramePlacement
+            | KernelKind::FrameJacobian => &[Q],
             KernelKind::Fd | KernelKind::FdGrad => &[Q, Qd, Tau],
             KernelKind::FrameVelocity => &[Q, Qd],
             KernelKind::FrameAcceleration | KernelKind::FrameAccelerationGrad => &[Q, Qd, Qdd],
@@ -307,30 +330,46 @@ impl KernelKind {
         use Shape::*;
         match self {
             KernelKind::Rnea => &[OutputSpec { name: "c", shape: Vector }],
-            KernelKind::RneaGrad => &[OutputSpec { name: "dc_dq", shape: Matrix }, OutputSpec { name: "dc_dqd", shape: Matrix }],
+            KernelKind::RneaGrad => &[
+                OutputSpec { name: "dc_dq", shape: Matrix },
+                OutputSpec { name: "dc_dqd", shape: Matrix },
+            ],
             KernelKind::MassMatrix => &[OutputSpec { name: "m", shape: Matrix }],
             KernelKind::Minv => &[OutputSpec { name: "minv", shape: Matrix }],
             KernelKind::Fd => &[OutputSpec { name: "qdd", shape: Vector }],
-            KernelKind::FdGrad => {
-                &[OutputSpec { name: "qdd", shape: Vector }, OutputSpec { name: "dqdd_dq", shape: Matrix }, OutputSpec { name: "dqdd_dqd", shape: Matrix }]
-            }
-            KernelKind::FramePlacement => &[OutputSpec { name: "translation", shape: PerFrame(3) }, OutputSpec { name: "rotation", shape: PerFrame(9) }],
+            KernelKind::FdGrad => &[
+                OutputSpec { name: "qdd", shape: Vector },
+                OutputSpec { name: "dqdd_dq", shape: Matrix },
+                OutputSpec { name: "dqdd_dqd", shape: Matrix },
+            ],
+            KernelKind::FramePlacement => &[
+                OutputSpec { name: "translation", shape: PerFrame(3) },
+                OutputSpec { name: "rotation", shape: PerFrame(9) },
+            ],
             KernelKind::FrameJacobian => &[OutputSpec { name: "jacobian", shape: FrameMatrix(6) }],
             KernelKind::FrameVelocity => &[OutputSpec { name: "velocity", shape: PerFrame(6) }],
-            KernelKind::FrameAcceleration => &[OutputSpec { name: "acceleration", shape: PerFrame(3) }],
+            KernelKind::FrameAcceleration => {
+                &[OutputSpec { name: "acceleration", shape: PerFrame(3) }]
+            }
             KernelKind::FrameAccelerationGrad => &[
                 OutputSpec { name: "dacc_dq", shape: FrameMatrix(3) },
                 OutputSpec { name: "dacc_dqd", shape: FrameMatrix(3) },
                 OutputSpec { name: "dacc_dqdd", shape: FrameMatrix(3) },
             ],
-            KernelKind::Step => &[OutputSpec { name: "q_next", shape: Config }, OutputSpec { name: "qd_next", shape: Vector }],
+            KernelKind::Step => &[
+                OutputSpec { name: "q_next", shape: Config },
+                OutputSpec { name: "qd_next", shape: Vector },
+            ],
             KernelKind::StepGrad => &[
                 OutputSpec { name: "q_next", shape: Config },
                 OutputSpec { name: "qd_next", shape: Vector },
                 OutputSpec { name: "a", shape: StateMatrix },
                 OutputSpec { name: "b", shape: StateInput },
             ],
-            KernelKind::ContactFd => &[OutputSpec { name: "qdd", shape: Vector }, OutputSpec { name: "lambda", shape: Lambda }],
+            KernelKind::ContactFd => &[
+                OutputSpec { name: "qdd", shape: Vector },
+                OutputSpec { name: "lambda", shape: Lambda },
+            ],
             KernelKind::ContactFdGrad => &[
                 OutputSpec { name: "qdd", shape: Vector },
                 OutputSpec { name: "lambda", shape: Lambda },
@@ -352,15 +391,20 @@ impl KernelKind {
         if self == KernelKind::FdGrad && spec.fd_grad_minv {
             out.push(OutputSpec { name: "dqdd_dtau", shape: Shape::Matrix });
         }
-        let (fext, lambda) = (!spec.fext.is_empty() && !spec.no_fext_derivatives, !spec.contacts.is_empty());
+        let (fext, lambda) =
+            (!spec.fext.is_empty() && !spec.no_fext_derivatives, !spec.contacts.is_empty());
         match self {
             KernelKind::RneaGrad => {
                 out.extend(fext.then_some(OutputSpec { name: "dc_dfext", shape: Shape::ByFext }));
-                out.extend(lambda.then_some(OutputSpec { name: "dc_dlambda", shape: Shape::ByLambda }));
+                out.extend(
+                    lambda.then_some(OutputSpec { name: "dc_dlambda", shape: Shape::ByLambda }),
+                );
             }
             KernelKind::FdGrad => {
                 out.extend(fext.then_some(OutputSpec { name: "dqdd_dfext", shape: Shape::ByFext }));
-                out.extend(lambda.then_some(OutputSpec { name: "dqdd_dlambda", shape: Shape::ByLambda }));
+                out.extend(
+                    lambda.then_some(OutputSpec { name: "dqdd_dlambda", shape: Shape::ByLambda }),
+                );
             }
             _ => {}
         }
@@ -370,7 +414,10 @@ impl KernelKind {
     /// Whether the kernel takes the external and contact forces a model declares (the
     /// contact and step kernels take `fext` and solve for λ).
     pub fn takes_forces(self) -> bool {
-        matches!(self, KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::Fd | KernelKind::FdGrad) || self.solves_contacts()
+        matches!(
+            self,
+            KernelKind::Rnea | KernelKind::RneaGrad | KernelKind::Fd | KernelKind::FdGrad
+        ) || self.solves_contacts()
     }
 
     /// Whether the kernel holds the model's contacts rigid and solves for their forces
@@ -386,7 +433,9 @@ impl KernelKind {
         let mut inputs = self.inputs().to_vec();
         if self.takes_forces() {
             inputs.extend((!spec.fext.is_empty()).then_some(Input::Fext));
-            inputs.extend((!spec.contacts.is_empty() && !self.solves_contacts()).then_some(Input::Lambda));
+            inputs.extend(
+                (!spec.contacts.is_empty() && !self.solves_contacts()).then_some(Input::Lambda),
+            );
         }
         inputs
     }
@@ -448,7 +497,14 @@ impl KernelKind {
 
     /// Whether the kernel needs M⁻¹, so cannot exist for a robot whose M is singular.
     pub fn needs_minv(self) -> bool {
-        matches!(self, KernelKind::Minv | KernelKind::Fd | KernelKind::FdGrad | KernelKind::Step | KernelKind::StepGrad) || self.is_contact()
+        matches!(
+            self,
+            KernelKind::Minv
+                | KernelKind::Fd
+                | KernelKind::FdGrad
+                | KernelKind::Step
+                | KernelKind::StepGrad
+        ) || self.is_contact()
     }
 
     /// Kernels whose graph contains this one's (a superset of its work): if this kernel is
@@ -464,7 +520,13 @@ impl KernelKind {
             FdGrad => &[StepGrad, ContactFdGrad],
             Step => &[StepGrad],
             ContactFd => &[ContactFdGrad],
-            StepGrad | FramePlacement | FrameJacobian | FrameVelocity | FrameAcceleration | FrameAccelerationGrad | ContactFdGrad => &[],
+            StepGrad
+            | FramePlacement
+            | FrameJacobian
+            | FrameVelocity
+            | FrameAcceleration
+            | FrameAccelerationGrad
+            | ContactFdGrad => &[],
         }
     }
 
@@ -477,7 +539,11 @@ impl KernelKind {
         // Inputs and outputs are per coordinate; the recursions run per joint. `expand`
         // and `reduce` map between the two (the identity unless mimic joints are coupled).
         if self.takes_forces() {
-            d.load_forces(if self.solves_contacts() { super::dynamics::LambdaSource::Unknown } else { super::dynamics::LambdaSource::Inputs });
+            d.load_forces(if self.solves_contacts() {
+                super::dynamics::LambdaSource::Unknown
+            } else {
+                super::dynamics::LambdaSource::Inputs
+            });
         }
         match self {
             KernelKind::Rnea => {
@@ -511,7 +577,8 @@ impl KernelKind {
             KernelKind::FdGrad => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
                 let nv = qd.len();
-                let all: Vec<usize> = if d.wants_fd_grad_minv() { (0..nv).collect() } else { Vec::new() };
+                let all: Vec<usize> =
+                    if d.wants_fd_grad_minv() { (0..nv).collect() } else { Vec::new() };
                 // ∂q̈/∂(fext, λ) = −M⁻¹ ∂c/∂(fext, λ), by the route that forms ∂q̈/∂u.
                 let (mut rhs, by_lambda) = d.force_grad_columns();
                 let nfext = rhs.len();
@@ -565,7 +632,10 @@ impl KernelKind {
             KernelKind::ContactFdGrad => {
                 let (qd, tau) = (d.inputs(Qd), d.inputs(Tau));
                 let all: Vec<usize> = (0..qd.len()).collect();
-                d.contact_fd_grad(&qd, &tau, &all).into_iter().map(|x| x.into_iter().flatten().collect()).collect()
+                d.contact_fd_grad(&qd, &tau, &all)
+                    .into_iter()
+                    .map(|x| x.into_iter().flatten().collect())
+                    .collect()
             }
         }
     }

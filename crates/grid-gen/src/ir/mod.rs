@@ -20,7 +20,10 @@ mod validate;
 
 pub use graph::{Id, Input, Node, Op, Stage};
 pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve};
-pub use module::{lower, lower_function, DenseProduct, Function, LowerError, LowerOptions, Module, Operand, Output, Robot, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH};
+pub use module::{
+    lower, lower_function, DenseProduct, Function, LowerError, LowerOptions, Module, Operand,
+    Output, Robot, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
+};
 pub use precise::Dd;
 pub use spatial::SNAP;
 pub use stats::{stats, KernelStats, OpCounts, Skipped, Stats, STATS_MAX_NODES};

@@ -36,14 +36,27 @@ pub struct LowerOptions {
 
 impl Default for LowerOptions {
     fn default() -> Self {
-        LowerOptions { fold: true, sparse: true, kernels: KernelKind::ALL.to_vec(), max_nodes: DEFAULT_MAX_NODES, gradient: Gradient::Auto, solve: Solve::Auto }
+        LowerOptions {
+            fold: true,
+            sparse: true,
+            kernels: KernelKind::ALL.to_vec(),
+            max_nodes: DEFAULT_MAX_NODES,
+            gradient: Gradient::Auto,
+            solve: Solve::Auto,
+        }
     }
 }
 
 impl LowerOptions {
     /// The general dense algorithm: no folding, no sharing, every gradient column.
     pub fn general() -> Self {
-        LowerOptions { fold: false, sparse: false, gradient: Gradient::Columns, solve: Solve::Minv, ..LowerOptions::default() }
+        LowerOptions {
+            fold: false,
+            sparse: false,
+            gradient: Gradient::Columns,
+            solve: Solve::Minv,
+            ..LowerOptions::default()
+        }
     }
 }
 
@@ -110,7 +123,8 @@ pub struct Robot {
 impl Robot {
     pub fn of(model: &Model) -> Robot {
         // One entry per coordinate: coupled mimic joints have none.
-        let joints: Vec<&crate::model::Joint> = model.coordinate_joints().into_iter().map(|i| &model.joints[i]).collect();
+        let joints: Vec<&crate::model::Joint> =
+            model.coordinate_joints().into_iter().map(|i| &model.joints[i]).collect();
         Robot {
             name: model.name.clone(),
             source: model.source.clone(),
@@ -121,10 +135,23 @@ impl Robot {
             velocity_limits: joints.iter().map(|j| j.velocity_limit).collect(),
             specialisation: model.specialisation.clone(),
             coupled: (0..model.njoints())
-                .filter_map(|i| model.coupling(i).map(|c| (model.joints[i].name.clone(), model.joints[c.of].name.clone(), c.multiplier, c.offset)))
+                .filter_map(|i| {
+                    model.coupling(i).map(|c| {
+                        (
+                            model.joints[i].name.clone(),
+                            model.joints[c.of].name.clone(),
+                            c.multiplier,
+                            c.offset,
+                        )
+                    })
+                })
                 .collect(),
             floating: model.floating,
-            spherical: model.spherical.iter().map(|&s| (model.joint_name(s).to_string(), model.group_q(s))).collect(),
+            spherical: model
+                .spherical
+                .iter()
+                .map(|&s| (model.joint_name(s).to_string(), model.group_q(s)))
+                .collect(),
             q_coordinates: {
                 let mut at = vec![None; model.nq()];
                 for k in 0..model.nv() {
@@ -137,8 +164,18 @@ impl Robot {
             frames: model.selected_frames().map(|f| f.name.clone()).collect(),
             reference: model.specialisation.reference,
             actuated: model.actuated(),
-            fext: model.specialisation.fext.iter().map(|&b| model.joint_name(b).to_string()).collect(),
-            contacts: model.specialisation.contacts.iter().map(|c| (model.frames[c.frame].name.clone(), c.kind)).collect(),
+            fext: model
+                .specialisation
+                .fext
+                .iter()
+                .map(|&b| model.joint_name(b).to_string())
+                .collect(),
+            contacts: model
+                .specialisation
+                .contacts
+                .iter()
+                .map(|c| (model.frames[c.frame].name.clone(), c.kind))
+                .collect(),
         }
     }
 
@@ -149,7 +186,14 @@ impl Robot {
 
     /// The robot's sizes.
     pub fn dims(&self) -> crate::ir::Dims {
-        crate::ir::Dims { nq: self.nq(), nv: self.nv(), nu: self.nu(), nframes: self.nframes(), nfext: self.specialisation.fext.len(), nlambda: self.nlambda() }
+        crate::ir::Dims {
+            nq: self.nq(),
+            nv: self.nv(),
+            nu: self.nu(),
+            nframes: self.nframes(),
+            nfext: self.specialisation.fext.len(),
+            nlambda: self.nlambda(),
+        }
     }
 
     /// Entries of the contact forces λ.
@@ -174,7 +218,8 @@ impl Robot {
     /// The name of q's entry `k`: its joint's, the base's `base_x` … `base_qw`, or a
     /// spherical joint's `<name>_qx` … `<name>_qw`.
     pub fn q_name(&self, k: usize) -> String {
-        const BASE: [&str; 7] = ["base_x", "base_y", "base_z", "base_qx", "base_qy", "base_qz", "base_qw"];
+        const BASE: [&str; 7] =
+            ["base_x", "base_y", "base_z", "base_qx", "base_qy", "base_qz", "base_qw"];
         const QUATERNION: [&str; 4] = ["qx", "qy", "qz", "qw"];
         if let Some(c) = self.q_coordinates[k] {
             return self.joint_names[c].clone();
@@ -182,7 +227,11 @@ impl Robot {
         if self.floating && k < BASE.len() {
             return BASE[k].to_string();
         }
-        let (name, at) = self.spherical.iter().find(|(_, at)| (*at..at + 4).contains(&k)).expect("every q entry has an owner");
+        let (name, at) = self
+            .spherical
+            .iter()
+            .find(|(_, at)| (*at..at + 4).contains(&k))
+            .expect("every q entry has an owner");
         format!("{name}_{}", QUATERNION[k - at])
     }
 
@@ -252,7 +301,8 @@ impl Function {
     pub fn signature(&self) -> String {
         let args: Vec<&str> = self.inputs().iter().map(|i| i.name()).collect();
         let outs: Vec<&str> = self.outputs.iter().map(|o| o.name).collect();
-        let ret = if outs.len() == 1 { outs[0].to_string() } else { format!("({})", outs.join(", ")) };
+        let ret =
+            if outs.len() == 1 { outs[0].to_string() } else { format!("({})", outs.join(", ")) };
         format!("{}({}) -> {ret}", self.kind.name(), args.join(", "))
     }
 
@@ -262,14 +312,20 @@ impl Function {
         let d = &self.dims;
         match which {
             Input::Fext => d.nv + j,
-            Input::Lambda => d.nv + 6 * d.nfext * usize::from(self.inputs.contains(&Input::Fext)) + j,
+            Input::Lambda => {
+                d.nv + 6 * d.nfext * usize::from(self.inputs.contains(&Input::Fext)) + j
+            }
             _ => j,
         }
     }
 
     /// Entries of the packed `u` ([`Self::packed_u`]) per state.
     pub fn packed_u_len(&self) -> usize {
-        self.inputs.iter().filter(|i| !matches!(i, Input::Q | Input::Qd)).map(|i| i.len(&self.dims)).sum()
+        self.inputs
+            .iter()
+            .filter(|i| !matches!(i, Input::Q | Input::Qd))
+            .map(|i| i.len(&self.dims))
+            .sum()
     }
 }
 
@@ -280,11 +336,18 @@ impl Module {
 }
 
 /// Lowers the requested kernels of `model`.
-pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result<Module, LowerError> {
+pub fn lower(
+    model: &Model,
+    gravity: [f64; 3],
+    options: &LowerOptions,
+) -> Result<Module, LowerError> {
     let robot = Robot::of(model);
     let mut functions = Vec::new();
     // No frames asked, no frame kernels; no step, no step kernels.
-    for kind in KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k) && k.exists_for(&model.specialisation)) {
+    for kind in KernelKind::ALL
+        .into_iter()
+        .filter(|k| options.kernels.contains(k) && k.exists_for(&model.specialisation))
+    {
         match lower_function(model, gravity, kind, options) {
             Ok(f) => functions.push(f),
             // A singular M leaves out the kernels that need M⁻¹ (the load warning says so).
@@ -296,12 +359,21 @@ pub fn lower(model: &Model, gravity: [f64; 3], options: &LowerOptions) -> Result
 }
 
 /// Lowers one kernel.
-pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions) -> Result<Function, LowerError> {
+pub fn lower_function(
+    model: &Model,
+    gravity: [f64; 3],
+    kind: KernelKind,
+    options: &LowerOptions,
+) -> Result<Function, LowerError> {
     if gravity.iter().any(|g| !g.is_finite()) {
         return Err(LowerError::Gravity(gravity));
     }
     if let (Some(joint), true) = (&model.singular, kind.needs_minv()) {
-        return Err(LowerError::Singular { robot: model.name.clone(), kernel: kind, joint: joint.clone() });
+        return Err(LowerError::Singular {
+            robot: model.name.clone(),
+            kernel: kind,
+            joint: joint.clone(),
+        });
     }
     // Every candidate formulation is recorded and the one with the fewest nodes kept
     // (the first on a tie: columns before idsva; minv before ltdl before crba).
@@ -347,7 +419,8 @@ pub fn lower_function(model: &Model, gravity: [f64; 3], kind: KernelKind, option
             }
         }
     }
-    validate(&f, &Robot::of(model).dims()).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
+    validate(&f, &Robot::of(model).dims())
+        .map_err(|error| LowerError::Invalid { kernel: kind, error })?;
     Ok(f)
 }
 
@@ -373,7 +446,14 @@ pub const CRBA_MAX_DEPTH: usize = 12;
 
 /// Runs one kernel's algorithm with one gradient formulation and M⁻¹ route and freezes
 /// its graph.
-fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOptions, gradient: Gradient, solve: Solve) -> Result<Function, LowerError> {
+fn record(
+    model: &Model,
+    gravity: [f64; 3],
+    kind: KernelKind,
+    options: &LowerOptions,
+    gradient: Gradient,
+    solve: Solve,
+) -> Result<Function, LowerError> {
     let mut d = Dynamics::new(model, gravity, options.fold, options.sparse, options.max_nodes);
     d.gradient = gradient;
     d.solve = solve;
@@ -395,7 +475,12 @@ fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOpt
         }
     }
     if d.g.exhausted() {
-        return Err(LowerError::TooLarge { robot: model.name.clone(), nv: model.nv(), kernel: kind, limit: options.max_nodes });
+        return Err(LowerError::TooLarge {
+            robot: model.name.clone(),
+            nv: model.nv(),
+            kernel: kind,
+            limit: options.max_nodes,
+        });
     }
     let product = if spec.selects() { None } else { d.product.take() };
     let mut f = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, product);
@@ -408,7 +493,13 @@ fn record(model: &Model, gravity: [f64; 3], kind: KernelKind, options: &LowerOpt
 }
 
 /// Keeps the nodes that reach an output, renumbered in their original order.
-fn freeze(kind: KernelKind, specs: &[crate::ir::OutputSpec], g: &Graph, outputs: Vec<Vec<Id>>, product: Option<DenseProduct>) -> Function {
+fn freeze(
+    kind: KernelKind,
+    specs: &[crate::ir::OutputSpec],
+    g: &Graph,
+    outputs: Vec<Vec<Id>>,
+    product: Option<DenseProduct>,
+) -> Function {
     let mut live = vec![false; g.nodes.len()];
     for id in outputs.iter().flatten() {
         live[id.0 as usize] = true;
@@ -443,7 +534,11 @@ fn freeze(kind: KernelKind, specs: &[crate::ir::OutputSpec], g: &Graph, outputs:
     let outputs = specs
         .iter()
         .zip(outputs)
-        .map(|(spec, ids)| Output { name: spec.name, shape: spec.shape, ids: ids.into_iter().map(|id| new_id[id.0 as usize]).collect() })
+        .map(|(spec, ids)| Output {
+            name: spec.name,
+            shape: spec.shape,
+            ids: ids.into_iter().map(|id| new_id[id.0 as usize]).collect(),
+        })
         .collect();
     // Folding can leave an operand unread (a product with a constant folded, or a negation
     // moved out of the product): a constant keeps its value and a dead negation of a live
@@ -463,13 +558,23 @@ fn freeze(kind: KernelKind, specs: &[crate::ir::OutputSpec], g: &Graph, outputs:
             _ => None,
         }
     };
-    let remap = |ids: &[Operand]| -> Option<Vec<Operand>> { ids.iter().map(|&id| entry(id)).collect() };
+    let remap =
+        |ids: &[Operand]| -> Option<Vec<Operand>> { ids.iter().map(|&id| entry(id)).collect() };
     let product = product.and_then(|p| {
         let dc = p.dc.iter().map(|m| remap(m)).collect::<Option<Vec<_>>>()?;
         Some(DenseProduct { minv: remap(&p.minv)?, dc, outputs: p.outputs })
     });
     let dims = crate::ir::Dims { nq: 0, nv: 0, nu: 0, nframes: 0, nfext: 0, nlambda: 0 };
-    Function { kind, inputs: kind.inputs().to_vec(), dims, nodes, outputs, gradient: None, solve: None, product }
+    Function {
+        kind,
+        inputs: kind.inputs().to_vec(),
+        dims,
+        nodes,
+        outputs,
+        gradient: None,
+        solve: None,
+        product,
+    }
 }
 
 impl Function {

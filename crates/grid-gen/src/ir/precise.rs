@@ -36,7 +36,8 @@ fn two_prod(a: f64, b: f64) -> Dd {
 }
 
 /// π/2 as the sum of three doubles (QD library, `qd_real::_pi` halved).
-const HALF_PI: [f64; 3] = [1.570_796_326_794_896_6, 6.123_233_995_736_766e-17, -1.497_384_904_859_169_8e-33];
+const HALF_PI: [f64; 3] =
+    [1.570_796_326_794_896_6, 6.123_233_995_736_766e-17, -1.497_384_904_859_169_8e-33];
 
 impl Dd {
     pub const fn new(x: f64) -> Dd {
@@ -155,8 +156,14 @@ mod tests {
             let (s, c) = Dd::new(x).sin_cos();
             assert!(err(s * s + c * c, 1.0, 0.0) < 1e-30, "x = {x}");
             // libm's sin and cos are within an ulp or so of the truth.
-            assert!((s.to_f64() - x.sin()).abs() <= 2.0 * f64::EPSILON * x.sin().abs().max(1e-300), "x = {x}");
-            assert!((c.to_f64() - x.cos()).abs() <= 2.0 * f64::EPSILON * x.cos().abs().max(1e-300), "x = {x}");
+            assert!(
+                (s.to_f64() - x.sin()).abs() <= 2.0 * f64::EPSILON * x.sin().abs().max(1e-300),
+                "x = {x}"
+            );
+            assert!(
+                (c.to_f64() - x.cos()).abs() <= 2.0 * f64::EPSILON * x.cos().abs().max(1e-300),
+                "x = {x}"
+            );
             x += 0.731;
         }
     }

@@ -34,7 +34,8 @@ pub struct Plan {
 impl Plan {
     /// Nodes computed in f64, of the operations (constants and inputs not counted).
     pub fn wide_operations(&self, f: &Function) -> (usize, usize) {
-        let ops: Vec<usize> = (0..f.nodes.len()).filter(|&i| f.is_operation(Id(i as u32))).collect();
+        let ops: Vec<usize> =
+            (0..f.nodes.len()).filter(|&i| f.is_operation(Id(i as u32))).collect();
         (ops.iter().filter(|&&i| self.wide[i]).count(), ops.len())
     }
 }
@@ -145,7 +146,11 @@ pub fn plan(f: &Function, states: &[Vec<Vec<f64>>], target: f64) -> Plan {
             if !is_op(i) || wide[i] {
                 continue;
             }
-            let operands_wide = f.nodes[i].op.operands().filter(|o| is_op(o.0 as usize)).all(|o| wide[o.0 as usize]);
+            let operands_wide = f.nodes[i]
+                .op
+                .operands()
+                .filter(|o| is_op(o.0 as usize))
+                .all(|o| wide[o.0 as usize]);
             if operands_wide && !users[i].is_empty() && users[i].iter().all(|&u| wide[u]) {
                 wide[i] = true;
                 bound -= F32_UNIT_ROUNDOFF * weight[i];

@@ -53,7 +53,11 @@ impl Chunks {
 /// is reused only by a value written in a step after the last step that reads its
 /// previous value, so no step both reads and overwrites a slot; free slots are taken
 /// lowest first, for stable, compact numbering. Returns each node's slot and the count.
-fn assign_slots(f: &Function, step_of: &[Option<u32>], steps: &[Vec<Id>]) -> (Vec<Option<u32>>, usize) {
+fn assign_slots(
+    f: &Function,
+    step_of: &[Option<u32>],
+    steps: &[Vec<Id>],
+) -> (Vec<Option<u32>>, usize) {
     let mut last_read: Vec<Option<u32>> = vec![None; f.nodes.len()];
     for (i, node) in f.nodes.iter().enumerate() {
         let Some(si) = step_of[i] else { continue };
@@ -165,7 +169,8 @@ impl Phases {
         // For waiting operations: the worker that supplied operands in the current phase
         // (MANY if several did), stamped with the phase.
         let mut from: Vec<(u32, u32)> = vec![(u32::MAX, 0); n];
-        let mut ready: BinaryHeap<Reverse<u32>> = (0..n).filter(|&i| is_op[i] && pending[i] == 0).map(|i| Reverse(i as u32)).collect();
+        let mut ready: BinaryHeap<Reverse<u32>> =
+            (0..n).filter(|&i| is_op[i] && pending[i] == 0).map(|i| Reverse(i as u32)).collect();
         let mut phases: Vec<Vec<Vec<Id>>> = Vec::new();
         let mut done = 0usize;
         let total = is_op.iter().filter(|&&x| x).count();
@@ -193,7 +198,9 @@ impl Phases {
                 lists[w as usize].push(Id(id));
                 place[id as usize] = Some(Place { phase: p, worker: w });
                 done += 1;
-                for &u in &users[user_count[id as usize] as usize..user_count[id as usize + 1] as usize] {
+                for &u in
+                    &users[user_count[id as usize] as usize..user_count[id as usize + 1] as usize]
+                {
                     let u = u as usize;
                     let (stamp, who) = from[u];
                     from[u] = if stamp == p && who != w { (p, MANY) } else { (p, w) };
@@ -211,10 +218,15 @@ impl Phases {
         }
 
         let phase_of: Vec<Option<u32>> = place.iter().map(|p| p.map(|p| p.phase)).collect();
-        let in_phase: Vec<Vec<Id>> = phases.iter().map(|lists| lists.iter().flatten().copied().collect()).collect();
+        let in_phase: Vec<Vec<Id>> =
+            phases.iter().map(|lists| lists.iter().flatten().copied().collect()).collect();
         let (slot, slots) = assign_slots(f, &phase_of, &in_phase);
         if slots > max_slots {
-            return Err(ScheduleError::OverBudget { kernel: f.kind.name(), needed: slots, budget: max_slots });
+            return Err(ScheduleError::OverBudget {
+                kernel: f.kind.name(),
+                needed: slots,
+                budget: max_slots,
+            });
         }
         Ok(Phases { workers, phases, place, slot, slots })
     }

@@ -175,7 +175,9 @@ impl SymInertia {
         let e = &x.e;
         let hp = mat_t_vec(g, e, &self.h);
         // J E, then Eᵀ (J E) on the upper triangle.
-        let je: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| g.dot(&self.i[r], &[e[0][c], e[1][c], e[2][c]])));
+        let je: [[Id; 3]; 3] = std::array::from_fn(|r| {
+            std::array::from_fn(|c| g.dot(&self.i[r], &[e[0][c], e[1][c], e[2][c]]))
+        });
         let rr = g.dot(&x.r, &x.r);
         let rh = g.dot(&x.r, &hp);
         let two = g.constant(2.0);
@@ -213,7 +215,9 @@ impl SymInertia {
         let h = add3(g, &wh, &mv);
         let wx = skew(g, &w);
         // A = ω× I_o; ω×I_o − I_o ω× = A + Aᵀ (I_o symmetric).
-        let a: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| g.dot(&wx[r], &[self.i[0][c], self.i[1][c], self.i[2][c]])));
+        let a: [[Id; 3]; 3] = std::array::from_fn(|r| {
+            std::array::from_fn(|c| g.dot(&wx[r], &[self.i[0][c], self.i[1][c], self.i[2][c]]))
+        });
         // v× h× + h× v× = h vᵀ + v hᵀ − 2 (v·h) 1.
         let vh = g.dot(&vl, &self.h);
         let two = g.constant(2.0);
@@ -324,7 +328,9 @@ pub fn joint_xform_at(g: &mut Graph, model: &Model, i: usize, q_at: Option<&[Id]
     // E_T = Rᵀ (rows of E_T are columns of R); r_T = position.
     let et: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| k(g, tree_r[c][r])));
     let rt: V3 = std::array::from_fn(|r| k(g, joint.tree.pos[r]));
-    let Some((qi, multiplier, offset)) = model.joint_q(i) else { return group_xform(g, model, i, et, rt, q_at) };
+    let Some((qi, multiplier, offset)) = model.joint_q(i) else {
+        return group_xform(g, model, i, et, rt, q_at);
+    };
     let mut q = q_at.map_or_else(|| g.input(super::graph::Input::Q, qi), |q| q[qi]);
     // A coupled mimic joint: q_m = multiplier · q + offset.
     if multiplier != 1.0 {
@@ -352,7 +358,9 @@ pub fn joint_xform_at(g: &mut Graph, model: &Model, i: usize, q_at: Option<&[Id]
                 g.add(t, gamma)
             })
         });
-        let e = std::array::from_fn(|r| std::array::from_fn(|cc| g.dot(&ej[r], &[et[0][cc], et[1][cc], et[2][cc]])));
+        let e = std::array::from_fn(|r| {
+            std::array::from_fn(|cc| g.dot(&ej[r], &[et[0][cc], et[1][cc], et[2][cc]]))
+        });
         Xform { e, r: rt }
     } else {
         // Prismatic: E = E_T, r = r_T + E_Tᵀ a q.
@@ -398,18 +406,30 @@ pub fn quaternion_rotation(g: &mut Graph, [x, y, z, w]: [Id; 4]) -> [[Id; 3]; 3]
     ]
 }
 
-fn group_xform(g: &mut Graph, model: &Model, i: usize, et: [[Id; 3]; 3], rt: V3, q_at: Option<&[Id]>) -> Xform {
+fn group_xform(
+    g: &mut Graph,
+    model: &Model,
+    i: usize,
+    et: [[Id; 3]; 3],
+    rt: V3,
+    q_at: Option<&[Id]>,
+) -> Xform {
     if model.group(i).is_none_or(|m| m.start != i) {
         return Xform { e: et, r: rt };
     }
-    let input = |g: &mut Graph, k: usize| q_at.map_or_else(|| g.input(super::graph::Input::Q, k), |q| q[k]);
+    let input =
+        |g: &mut Graph, k: usize| q_at.map_or_else(|| g.input(super::graph::Input::Q, k), |q| q[k]);
     let free = model.is_free_flyer(i);
     let at = if free { 3 } else { model.group_q(i) };
     let p: Option<V3> = free.then(|| std::array::from_fn(|k| input(g, k)));
     let [x, y, z, w] = std::array::from_fn(|k| input(g, at + k));
     let r = quaternion_rotation(g, [x, y, z, w]);
     // E = E_p E_T with E_p = Rᵀ: entry (a, b) = Σ_c R[c][a] E_T[c][b].
-    let e = std::array::from_fn(|a| std::array::from_fn(|b| g.dot(&[r[0][a], r[1][a], r[2][a]], &[et[0][b], et[1][b], et[2][b]])));
+    let e = std::array::from_fn(|a| {
+        std::array::from_fn(|b| {
+            g.dot(&[r[0][a], r[1][a], r[2][a]], &[et[0][b], et[1][b], et[2][b]])
+        })
+    });
     let r = match p {
         Some(p) => {
             let shift = mat_t_vec(g, &et, &p);

@@ -92,14 +92,20 @@ pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: us
     let mut too_large: Vec<(KernelKind, KernelKind)> = Vec::new();
     for kind in KernelKind::for_model(model) {
         if let Some((_, inner)) = too_large.iter().find(|(k, _)| *k == kind) {
-            out.skipped.push(Skipped { kernel: kind, reason: format!("contains `{inner}`, which is over the node limit") });
+            out.skipped.push(Skipped {
+                kernel: kind,
+                reason: format!("contains `{inner}`, which is over the node limit"),
+            });
             continue;
         }
         let mut counts = [OpCounts::default(); 2];
         let mut picked = None;
         let mut solve = None;
         let mut failed = None;
-        for (slot, base) in counts.iter_mut().zip([LowerOptions { gradient, ..LowerOptions::default() }, LowerOptions::general()]) {
+        for (slot, base) in counts
+            .iter_mut()
+            .zip([LowerOptions { gradient, ..LowerOptions::default() }, LowerOptions::general()])
+        {
             let options = LowerOptions { max_nodes, ..base };
             match lower_function(model, gravity, kind, &options) {
                 Ok(f) => {
@@ -114,7 +120,13 @@ pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: us
             }
         }
         match failed {
-            None => out.ops.push(KernelStats { kernel: kind, after: counts[0], before: counts[1], gradient: picked, solve }),
+            None => out.ops.push(KernelStats {
+                kernel: kind,
+                after: counts[0],
+                before: counts[1],
+                gradient: picked,
+                solve,
+            }),
             Some(e) => {
                 let reason = match e {
                     LowerError::TooLarge { limit, .. } => {

@@ -16,9 +16,15 @@ impl Graph {
     /// [`Graph::tangent`] with the tangents of some nodes given (`(node, tangent)`): what
     /// those nodes depend on is not followed, so the derivative is the partial one that
     /// holds them at their values (the step's `∂(q ⊕ w)/∂q` at fixed `w`).
-    pub fn tangent_at(&mut self, outputs: &[Id], seeds: &[(Input, usize, Id)], nodes: &[(Id, Id)]) -> Vec<Id> {
+    pub fn tangent_at(
+        &mut self,
+        outputs: &[Id],
+        seeds: &[(Input, usize, Id)],
+        nodes: &[(Id, Id)],
+    ) -> Vec<Id> {
         let n = self.nodes.len();
-        let given: std::collections::HashMap<usize, Id> = nodes.iter().map(|&(x, t)| (x.0 as usize, t)).collect();
+        let given: std::collections::HashMap<usize, Id> =
+            nodes.iter().map(|&(x, t)| (x.0 as usize, t)).collect();
         let mut live = vec![false; n];
         for o in outputs {
             live[o.0 as usize] = true;
@@ -42,7 +48,9 @@ impl Graph {
             }
             let d = |x: Id| dt[x.0 as usize];
             dt[i] = match self.nodes[i].op {
-                Op::Input(which, j) => seeds.iter().find(|s| s.0 == which && s.1 == j as usize).map_or(zero, |s| s.2),
+                Op::Input(which, j) => {
+                    seeds.iter().find(|s| s.0 == which && s.1 == j as usize).map_or(zero, |s| s.2)
+                }
                 Op::Const(_) => zero,
                 Op::Add(a, b) => {
                     let (da, db) = (d(a), d(b));

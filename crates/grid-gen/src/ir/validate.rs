@@ -29,8 +29,12 @@ pub fn validate(f: &Function, dims: &crate::ir::Dims) -> Result<(), ValidationEr
             }
         }
         match node.op {
-            Op::Const(value) if !value.is_finite() => return Err(ValidationError::NotFinite { node: i, value }),
-            Op::Input(input, joint) if !f.inputs().contains(&input) || joint as usize >= input.len(dims) => {
+            Op::Const(value) if !value.is_finite() => {
+                return Err(ValidationError::NotFinite { node: i, value })
+            }
+            Op::Input(input, joint)
+                if !f.inputs().contains(&input) || joint as usize >= input.len(dims) =>
+            {
                 return Err(ValidationError::BadInput { node: i, input: input.name(), joint })
             }
             _ => {}
@@ -39,7 +43,11 @@ pub fn validate(f: &Function, dims: &crate::ir::Dims) -> Result<(), ValidationEr
     for o in &f.outputs {
         let expected = o.shape.len(dims);
         if o.ids.len() != expected {
-            return Err(ValidationError::OutputLength { output: o.name, got: o.ids.len(), expected });
+            return Err(ValidationError::OutputLength {
+                output: o.name,
+                got: o.ids.len(),
+                expected,
+            });
         }
         if let Some(id) = o.ids.iter().find(|id| id.0 as usize >= f.nodes.len()) {
             return Err(ValidationError::OutputRange { output: o.name, node: id.0 });
@@ -69,14 +77,21 @@ mod tests {
             gradient: None,
             solve: None,
             nodes: nodes.into_iter().map(node).collect(),
-            outputs: vec![Output { name: "c", shape: Shape::Vector, ids: out.into_iter().map(Id).collect() }],
+            outputs: vec![Output {
+                name: "c",
+                shape: Shape::Vector,
+                ids: out.into_iter().map(Id).collect(),
+            }],
             product: None,
         }
     }
 
     #[test]
     fn accepts_a_well_formed_function() {
-        let f = function(vec![Op::Input(crate::ir::Input::Qd, 0), Op::Const(2.0), Op::Mul(Id(0), Id(1))], vec![2]);
+        let f = function(
+            vec![Op::Input(crate::ir::Input::Qd, 0), Op::Const(2.0), Op::Mul(Id(0), Id(1))],
+            vec![2],
+        );
         assert_eq!(validate(&f, &dims(1)), Ok(()));
     }
 
@@ -84,7 +99,10 @@ mod tests {
     fn rejects_each_kind_of_defect() {
         use crate::ir::Input;
         let f = function(vec![Op::Const(1.0), Op::Add(Id(1), Id(0))], vec![1]);
-        assert_eq!(validate(&f, &dims(1)), Err(ValidationError::OperandOrder { node: 1, operand: 1 }));
+        assert_eq!(
+            validate(&f, &dims(1)),
+            Err(ValidationError::OperandOrder { node: 1, operand: 1 })
+        );
         let f = function(vec![Op::Const(f64::INFINITY)], vec![0]);
         assert!(matches!(validate(&f, &dims(1)), Err(ValidationError::NotFinite { node: 0, .. })));
         let f = function(vec![Op::Input(Input::Tau, 0)], vec![0]);
@@ -92,8 +110,14 @@ mod tests {
         let f = function(vec![Op::Input(Input::Q, 3)], vec![0]);
         assert!(matches!(validate(&f, &dims(2)), Err(ValidationError::BadInput { joint: 3, .. })));
         let f = function(vec![Op::Const(1.0)], vec![0]);
-        assert_eq!(validate(&f, &dims(2)), Err(ValidationError::OutputLength { output: "c", got: 1, expected: 2 }));
+        assert_eq!(
+            validate(&f, &dims(2)),
+            Err(ValidationError::OutputLength { output: "c", got: 1, expected: 2 })
+        );
         let f = function(vec![Op::Const(1.0)], vec![5]);
-        assert_eq!(validate(&f, &dims(1)), Err(ValidationError::OutputRange { output: "c", node: 5 }));
+        assert_eq!(
+            validate(&f, &dims(1)),
+            Err(ValidationError::OutputRange { output: "c", node: 5 })
+        );
     }
 }

@@ -15,8 +15,22 @@ pub fn aba(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3])
 
 /// [`aba`] under external forces and contact forces `ext` (Pinocchio's
 /// `aba(model, data, q, v, tau, fext)`).
-pub fn aba_with(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], ext: External) -> Vec<f64> {
-    let a = aba_joints(model, q, &expand(model, qd), &place(model, tau), gravity, &body_forces(model, q, ext));
+pub fn aba_with(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    ext: External,
+) -> Vec<f64> {
+    let a = aba_joints(
+        model,
+        q,
+        &expand(model, qd),
+        &place(model, tau),
+        gravity,
+        &body_forces(model, q, ext),
+    );
     if !model.has_coupled() {
         return a;
     }
@@ -24,7 +38,14 @@ pub fn aba_with(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64
 }
 
 /// [`aba`] with a q̇, τ and q̈ per model joint, before the mimic constraints (see `coupled`).
-fn aba_joints(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], ext: &[Vec6]) -> Vec<f64> {
+fn aba_joints(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    ext: &[Vec6],
+) -> Vec<f64> {
     let n = model.njoints();
     let k = Kinematics::new(model, q);
     let mut v = vec![Vec6::zeros(); n];

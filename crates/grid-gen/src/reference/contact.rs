@@ -53,7 +53,8 @@ pub fn contact_jacobian(model: &Model, contacts: &[Contact], q: &[f64]) -> DMatr
     let mut j = DMatrix::zeros(rows, model.nv());
     let mut at = 0;
     for c in contacts {
-        let jf = frame_jacobian(model, q, &model.frames[c.frame], ReferenceFrame::LocalWorldAligned);
+        let jf =
+            frame_jacobian(model, q, &model.frames[c.frame], ReferenceFrame::LocalWorldAligned);
         j.rows_mut(at, c.kind.dim()).copy_from(&jf.rows(0, c.kind.dim()));
         at += c.kind.dim();
     }
@@ -76,7 +77,11 @@ impl Screws {
             let joint = &model.joints[a];
             let (r, p) = poses[a];
             let axis = r * Vector3::from(joint.axis);
-            s[a] = if joint.joint_type.is_rotation() { join(axis, p.cross(&axis)) } else { join(Vector3::zeros(), axis) };
+            s[a] = if joint.joint_type.is_rotation() {
+                join(axis, p.cross(&axis))
+            } else {
+                join(Vector3::zeros(), axis)
+            };
             v[a] = joint.parent.map_or(Vec6::zeros(), |p| v[p]) + s[a] * qd[a];
         }
         Screws { s, v, poses }
@@ -122,7 +127,11 @@ fn rows(kind: ContactKind, v: &Vec6, a: &Vec6, p: &Vector3<f64>) -> Vec<f64> {
 }
 
 /// The first-order change of [`rows`] under changes dv, da, dp of its arguments.
-fn d_rows(kind: ContactKind, (v, a, p): (&Vec6, &Vec6, &Vector3<f64>), (dv, da, dp): (&Vec6, &Vec6, &Vector3<f64>)) -> Vec<f64> {
+fn d_rows(
+    kind: ContactKind,
+    (v, a, p): (&Vec6, &Vec6, &Vector3<f64>),
+    (dv, da, dp): (&Vec6, &Vec6, &Vector3<f64>),
+) -> Vec<f64> {
     let d_at_p = lin(da) + ang(da).cross(p) + ang(a).cross(dp);
     match kind {
         ContactKind::Point => {
@@ -136,7 +145,11 @@ fn d_rows(kind: ContactKind, (v, a, p): (&Vec6, &Vec6, &Vector3<f64>), (dv, da, 
 }
 
 /// Each contact's body, its frame's origin in world coordinates, and its kind.
-fn contact_points<'a>(model: &'a Model, contacts: &'a [Contact], sc: &'a Screws) -> impl Iterator<Item = (usize, Vector3<f64>, ContactKind)> + 'a {
+fn contact_points<'a>(
+    model: &'a Model,
+    contacts: &'a [Contact],
+    sc: &'a Screws,
+) -> impl Iterator<Item = (usize, Vector3<f64>, ContactKind)> + 'a {
     contacts.iter().map(move |c| {
         let frame = &model.frames[c.frame];
         let b = frame.body.expect("contacts are on moving bodies");
@@ -147,19 +160,39 @@ fn contact_points<'a>(model: &'a Model, contacts: &'a [Contact], sc: &'a Screws)
 
 /// The body's spatial acceleration `Σ S_a q̈_a + (V_a × S_a) q̇_a` over its ancestors.
 fn body_acceleration(model: &Model, sc: &Screws, b: usize, qd: &[f64], qdd: &[f64]) -> Vec6 {
-    model.ancestors(b).into_iter().map(|a| sc.s[a] * qdd[a] + crm(&sc.v[moved(model, a)]) * sc.s[a] * qd[a]).sum()
+    model
+        .ancestors(b)
+        .into_iter()
+        .map(|a| sc.s[a] * qdd[a] + crm(&sc.v[moved(model, a)]) * sc.s[a] * qd[a])
+        .sum()
 }
 
 /// The contacts' constrained accelerations at (q, q̇, q̈), stacked as λ is: `J q̈ + γ`.
-pub fn contact_accelerations(model: &Model, contacts: &[Contact], q: &[f64], qd: &[f64], qdd: &[f64]) -> Vec<f64> {
+pub fn contact_accelerations(
+    model: &Model,
+    contacts: &[Contact],
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+) -> Vec<f64> {
     let (qd, qdd) = (expand(model, qd), expand(model, qdd));
     let sc = Screws::new(model, q, &qd);
-    contact_points(model, contacts, &sc).flat_map(|(b, p, kind)| rows(kind, &sc.v[b], &body_acceleration(model, &sc, b, &qd, &qdd), &p)).collect()
+    contact_points(model, contacts, &sc)
+        .flat_map(|(b, p, kind)| {
+            rows(kind, &sc.v[b], &body_acceleration(model, &sc, b, &qd, &qdd), &p)
+        })
+        .collect()
 }
 
 /// `(∂acc/∂q, ∂acc/∂q̇)` of [`contact_accelerations`] at fixed q̈, `nlambda x nv` each, q in
 /// the tangent space.
-pub fn contact_acceleration_derivatives(model: &Model, contacts: &[Contact], q: &[f64], qd: &[f64], qdd: &[f64]) -> (DMatrix<f64>, DMatrix<f64>) {
+pub fn contact_acceleration_derivatives(
+    model: &Model,
+    contacts: &[Contact],
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+) -> (DMatrix<f64>, DMatrix<f64>) {
     let (qd, qdd) = (expand(model, qd), expand(model, qdd));
     let sc = Screws::new(model, q, &qd);
     let n = model.njoints();
@@ -169,13 +202,17 @@ pub fn contact_acceleration_derivatives(model: &Model, contacts: &[Contact], q: 
     for k in 0..n {
         let (col, m) = (model.coordinate_of(k), model.multiplier(k));
         // Along δ_k: screws downstream turn by S_k ×, velocities follow.
-        let ds: Vec<Vec6> = (0..n).map(|a| if turns(model, k, a) { crm(&sc.s[k]) * sc.s[a] } else { Vec6::zeros() }).collect();
+        let ds: Vec<Vec6> = (0..n)
+            .map(|a| if turns(model, k, a) { crm(&sc.s[k]) * sc.s[a] } else { Vec6::zeros() })
+            .collect();
         let mut dv = vec![Vec6::zeros(); n];
         for a in 0..n {
             dv[a] = model.joints[a].parent.map_or(Vec6::zeros(), |p| dv[p]) + ds[a] * qd[a];
         }
         // Along q̇_k: the velocities of k's subtree gain S_k.
-        let dv_qd: Vec<Vec6> = (0..n).map(|a| if model.is_ancestor_or_self(k, a) { sc.s[k] } else { Vec6::zeros() }).collect();
+        let dv_qd: Vec<Vec6> = (0..n)
+            .map(|a| if model.is_ancestor_or_self(k, a) { sc.s[k] } else { Vec6::zeros() })
+            .collect();
         let mut at = 0;
         for &(b, p, kind) in &points {
             let a_b = body_acceleration(model, &sc, b, &qd, &qdd);
@@ -204,7 +241,11 @@ pub fn contact_acceleration_derivatives(model: &Model, contacts: &[Contact], q: 
 }
 
 /// The KKT matrix `[M Jᵀ; J 0]`, LU-factorised.
-fn kkt(model: &Model, contacts: &[Contact], q: &[f64]) -> nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn> {
+fn kkt(
+    model: &Model,
+    contacts: &[Contact],
+    q: &[f64],
+) -> nalgebra::LU<f64, nalgebra::Dyn, nalgebra::Dyn> {
     let (nv, j) = (model.nv(), contact_jacobian(model, contacts, q));
     let nl = j.nrows();
     let mut k = DMatrix::zeros(nv + nl, nv + nl);
@@ -217,15 +258,28 @@ fn kkt(model: &Model, contacts: &[Contact], q: &[f64]) -> nalgebra::LU<f64, nalg
 /// Rigid-contact forward dynamics under `fext` (the model's external forces, as
 /// [`External::fext`]; empty for none): q̈ and λ with every contact's acceleration zero.
 /// `None` when the KKT system is singular (the contacts' Jacobian loses rank at q).
-pub fn contact_fd(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], fext: &[f64]) -> Option<ContactDynamics> {
+pub fn contact_fd(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    fext: &[f64],
+) -> Option<ContactDynamics> {
     let contacts = &model.specialisation.contacts;
     let nv = model.nv();
     let bias = rnea_with(model, q, qd, &vec![0.0; nv], gravity, External { fext, lambda: &[] });
     let drift = contact_accelerations(model, contacts, q, qd, &vec![0.0; nv]);
     let lu = kkt(model, contacts, q);
-    let rhs = DVector::from_iterator(nv + drift.len(), (0..nv).map(|i| tau[i] - bias[i]).chain(drift.iter().map(|g| -g)));
+    let rhs = DVector::from_iterator(
+        nv + drift.len(),
+        (0..nv).map(|i| tau[i] - bias[i]).chain(drift.iter().map(|g| -g)),
+    );
     let x = lu.solve(&rhs)?;
-    Some(ContactDynamics { qdd: x.rows(0, nv).iter().copied().collect(), lambda: x.rows(nv, drift.len()).iter().map(|l| -l).collect() })
+    Some(ContactDynamics {
+        qdd: x.rows(0, nv).iter().copied().collect(),
+        lambda: x.rows(nv, drift.len()).iter().map(|l| -l).collect(),
+    })
 }
 
 /// [`contact_fd`] and its derivatives, fext held in the bodies' frames (as Pinocchio's
@@ -242,7 +296,14 @@ pub fn contact_fd_derivatives(
     let nv = model.nv();
     let sol = contact_fd(model, q, qd, tau, gravity, fext)?;
     let nl = sol.lambda.len();
-    let (dc_dq, dc_dqd) = rnea_derivatives_with(model, q, qd, &sol.qdd, gravity, External { fext, lambda: &sol.lambda });
+    let (dc_dq, dc_dqd) = rnea_derivatives_with(
+        model,
+        q,
+        qd,
+        &sol.qdd,
+        gravity,
+        External { fext, lambda: &sol.lambda },
+    );
     let (da_dq, da_dqd) = contact_acceleration_derivatives(model, contacts, q, qd, &sol.qdd);
     let lu = kkt(model, contacts, q);
     let solve = |top: DMatrix<f64>, bottom: DMatrix<f64>| -> Option<(DMatrix<f64>, DMatrix<f64>)> {
@@ -255,7 +316,10 @@ pub fn contact_fd_derivatives(
     let (dqdd_dq, dlambda_dq) = solve(-dc_dq, -da_dq)?;
     let (dqdd_dqd, dlambda_dqd) = solve(-dc_dqd, -da_dqd)?;
     let (dqdd_dtau, dlambda_dtau) = solve(DMatrix::identity(nv, nv), DMatrix::zeros(nl, nv))?;
-    Some((sol, ContactDerivatives { dqdd_dq, dqdd_dqd, dqdd_dtau, dlambda_dq, dlambda_dqd, dlambda_dtau }))
+    Some((
+        sol,
+        ContactDerivatives { dqdd_dq, dqdd_dqd, dqdd_dtau, dlambda_dq, dlambda_dqd, dlambda_dtau },
+    ))
 }
 
 /// Whether `contacts` constrain independent motions: the rank of their stacked Jacobian at a
@@ -299,6 +363,8 @@ pub fn check_contact_rank(model: &Model, contacts: &[Contact]) -> Result<(), Vec
 /// A deterministic configuration with no special angles: each scalar coordinate at an
 /// irrational multiple of its index, quaternions of irrational angles.
 fn generic_q(model: &Model, seed: usize) -> Vec<f64> {
-    let v: Vec<f64> = (0..model.nv()).map(|k| (0.7 + 0.618_033_988_749_895 * (k + 7 * seed + 1) as f64).sin() * 1.3).collect();
+    let v: Vec<f64> = (0..model.nv())
+        .map(|k| (0.7 + 0.618_033_988_749_895 * (k + 7 * seed + 1) as f64).sin() * 1.3)
+        .collect();
     super::integrate(model, &model.neutral_q(), &v)
 }

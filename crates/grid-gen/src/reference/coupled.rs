@@ -47,7 +47,13 @@ pub fn reduce_matrix(model: &Model, d: DMatrix<f64>) -> DMatrix<f64> {
 }
 
 fn coupling_matrix(model: &Model) -> DMatrix<f64> {
-    DMatrix::from_fn(model.njoints(), model.nv(), |i, k| if model.coordinate_of(i) == k { model.multiplier(i) } else { 0.0 })
+    DMatrix::from_fn(model.njoints(), model.nv(), |i, k| {
+        if model.coordinate_of(i) == k {
+            model.multiplier(i)
+        } else {
+            0.0
+        }
+    })
 }
 
 /// K: one row per coupled joint.

@@ -8,12 +8,24 @@ use super::{aba_with, minv, rnea_derivatives_with};
 use crate::model::Model;
 
 /// Joint accelerations under torques `tau`.
-pub fn forward_dynamics(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]) -> Vec<f64> {
+pub fn forward_dynamics(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+) -> Vec<f64> {
     aba_with(model, q, qd, tau, gravity, External::NONE)
 }
 
 /// `(q̈, ∂q̈/∂q, ∂q̈/∂q̇)` under torques `tau`.
-pub fn forward_dynamics_derivatives(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]) -> (Vec<f64>, DMatrix<f64>, DMatrix<f64>) {
+pub fn forward_dynamics_derivatives(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+) -> (Vec<f64>, DMatrix<f64>, DMatrix<f64>) {
     forward_dynamics_derivatives_with(model, q, qd, tau, gravity, External::NONE)
 }
 

@@ -55,7 +55,12 @@ fn contacts(model: &Model) -> impl Iterator<Item = (usize, Vector3<f64>, Contact
     model.specialisation.contacts.iter().map(move |c| {
         let frame = &model.frames[c.frame];
         at += c.kind.dim();
-        (frame.body.expect("contacts are on moving bodies"), frame.placement.pos_vector(), c.kind, at - c.kind.dim())
+        (
+            frame.body.expect("contacts are on moving bodies"),
+            frame.placement.pos_vector(),
+            c.kind,
+            at - c.kind.dim(),
+        )
     })
 }
 
@@ -148,7 +153,8 @@ pub fn force_derivatives(model: &Model, q: &[f64]) -> ForceDerivatives {
         for c in 0..6 {
             let mut e = [0.0; 6];
             e[c] = 1.0;
-            dc_dfext.set_column(6 * j + c, &nalgebra::DVector::from_vec(column(b, featherstone(&e))));
+            dc_dfext
+                .set_column(6 * j + c, &nalgebra::DVector::from_vec(column(b, featherstone(&e))));
         }
     }
     let mut dc_dlambda = DMatrix::zeros(nv, model.nlambda());

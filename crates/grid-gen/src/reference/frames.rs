@@ -21,7 +21,10 @@ pub fn frame_placement(model: &Model, q: &[f64], frame: &Frame) -> (Matrix3<f64>
     placement_from(&poses, frame)
 }
 
-fn placement_from(poses: &[(Matrix3<f64>, Vector3<f64>)], frame: &Frame) -> (Matrix3<f64>, Vector3<f64>) {
+fn placement_from(
+    poses: &[(Matrix3<f64>, Vector3<f64>)],
+    frame: &Frame,
+) -> (Matrix3<f64>, Vector3<f64>) {
     let (rb, pb) = frame.body.map_or((Matrix3::identity(), Vector3::zeros()), |b| poses[b]);
     (rb * frame.placement.rot_matrix(), pb + rb * frame.placement.pos_vector())
 }
@@ -38,7 +41,11 @@ pub fn frame_jacobian(model: &Model, q: &[f64], frame: &Frame, rf: ReferenceFram
         let (r, p) = poses[a];
         let axis = r * Vector3::from(joint.axis);
         // The joint's unit motion as a spatial velocity at the world origin: [v_O; ω].
-        let (v_o, w) = if joint.joint_type.is_rotation() { (p.cross(&axis), axis) } else { (axis, Vector3::zeros()) };
+        let (v_o, w) = if joint.joint_type.is_rotation() {
+            (p.cross(&axis), axis)
+        } else {
+            (axis, Vector3::zeros())
+        };
         let (lin, ang) = express(rf, &r_f, &p_f, v_o, w);
         let k = model.coordinate_of(a);
         let m = model.multiplier(a);
@@ -53,7 +60,13 @@ pub fn frame_jacobian(model: &Model, q: &[f64], frame: &Frame, rf: ReferenceFram
 /// A spatial motion given at the world origin in world axes, `[v_O; ω]`, expressed in `rf`
 /// for the frame at `(r_f, p_f)`: the velocity of the point at the frame's origin is
 /// `v_O + ω × p_f`.
-fn express(rf: ReferenceFrame, r_f: &Matrix3<f64>, p_f: &Vector3<f64>, v_o: Vector3<f64>, w: Vector3<f64>) -> (Vector3<f64>, Vector3<f64>) {
+fn express(
+    rf: ReferenceFrame,
+    r_f: &Matrix3<f64>,
+    p_f: &Vector3<f64>,
+    v_o: Vector3<f64>,
+    w: Vector3<f64>,
+) -> (Vector3<f64>, Vector3<f64>) {
     match rf {
         ReferenceFrame::World => (v_o, w),
         ReferenceFrame::LocalWorldAligned => (v_o + w.cross(p_f), w),
@@ -67,9 +80,11 @@ fn body_motion(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64]) -> (Vec<Vec6>,
     let (qd, qdd) = (expand(model, qd), expand(model, qdd));
     let n = model.njoints();
     let k = Kinematics::new(model, q);
-    let (mut v, mut a, mut xv) = (vec![Vec6::zeros(); n], vec![Vec6::zeros(); n], vec![Vec6::zeros(); n]);
+    let (mut v, mut a, mut xv) =
+        (vec![Vec6::zeros(); n], vec![Vec6::zeros(); n], vec![Vec6::zeros(); n]);
     for i in 0..n {
-        let (vp, ap) = model.joints[i].parent.map_or((Vec6::zeros(), Vec6::zeros()), |p| (v[p], a[p]));
+        let (vp, ap) =
+            model.joints[i].parent.map_or((Vec6::zeros(), Vec6::zeros()), |p| (v[p], a[p]));
         xv[i] = k.x[i] * vp;
         v[i] = xv[i] + k.s[i] * qd[i];
         a[i] = k.x[i] * ap + k.s[i] * qdd[i] + velocity_product(model, i, &k, &v, &xv, &qd);
@@ -106,7 +121,12 @@ fn local_motion(
 }
 
 /// A LOCAL motion `(linear, angular)` of the frame at `(r, p)` expressed in `rf`.
-fn from_local(rf: ReferenceFrame, r: &Matrix3<f64>, p: &Vector3<f64>, (l, w): (Vector3<f64>, Vector3<f64>)) -> (Vector3<f64>, Vector3<f64>) {
+fn from_local(
+    rf: ReferenceFrame,
+    r: &Matrix3<f64>,
+    p: &Vector3<f64>,
+    (l, w): (Vector3<f64>, Vector3<f64>),
+) -> (Vector3<f64>, Vector3<f64>) {
     match rf {
         ReferenceFrame::Local => (l, w),
         ReferenceFrame::LocalWorldAligned => (r * l, r * w),
@@ -115,7 +135,13 @@ fn from_local(rf: ReferenceFrame, r: &Matrix3<f64>, p: &Vector3<f64>, (l, w): (V
 }
 
 /// The frame's spatial velocity in `rf`, `[linear; angular]` (Pinocchio's `getFrameVelocity`).
-pub fn frame_velocity(model: &Model, q: &[f64], qd: &[f64], frame: &Frame, rf: ReferenceFrame) -> [f64; 6] {
+pub fn frame_velocity(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    frame: &Frame,
+    rf: ReferenceFrame,
+) -> [f64; 6] {
     let zero = vec![0.0; model.nv()];
     let (vf, _, (r, p)) = local_motion(model, q, qd, &zero, frame);
     let (l, w) = from_local(rf, &r, &p, vf);
@@ -126,7 +152,14 @@ pub fn frame_velocity(model: &Model, q: &[f64], qd: &[f64], frame: &Frame, rf: R
 /// the spatial acceleration's linear part plus `ω × v`, both in `rf`. In `LOCAL` and
 /// `LOCAL_WORLD_ALIGNED` that is the acceleration of the frame's origin; in `WORLD`, that of
 /// the body point at the world's origin. At q̈ = 0 it is the drift `J̇ q̇`.
-pub fn frame_classical_acceleration(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], frame: &Frame, rf: ReferenceFrame) -> [f64; 3] {
+pub fn frame_classical_acceleration(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    frame: &Frame,
+    rf: ReferenceFrame,
+) -> [f64; 3] {
     let (vf, af, (r, p)) = local_motion(model, q, qd, qdd, frame);
     let (vl, vw) = from_local(rf, &r, &p, vf);
     let (al, _) = from_local(rf, &r, &p, af);

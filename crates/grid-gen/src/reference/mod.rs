@@ -19,8 +19,8 @@ mod step;
 
 pub use aba::{aba, aba_with};
 pub use contact::{
-    check_contact_rank, contact_acceleration_derivatives, contact_accelerations, contact_fd, contact_fd_derivatives, contact_jacobian, ContactDerivatives,
-    ContactDynamics,
+    check_contact_rank, contact_acceleration_derivatives, contact_accelerations, contact_fd,
+    contact_fd_derivatives, contact_jacobian, ContactDerivatives, ContactDynamics,
 };
 pub use crba::crba;
 pub use fd::{forward_dynamics, forward_dynamics_derivatives, forward_dynamics_derivatives_with};
@@ -54,7 +54,11 @@ pub fn motion_subspace(joint: &Joint) -> Vec6 {
 pub fn joint_transform(joint: &Joint, qi: f64) -> Mat6 {
     let x_tree = plux(&joint.tree.rot_matrix().transpose(), &joint.tree.pos_vector());
     let a = Vector3::from(joint.axis);
-    let x_joint = if joint.joint_type.is_rotation() { plux(&axis_angle(&a, qi).transpose(), &Vector3::zeros()) } else { plux(&Matrix3::identity(), &(a * qi)) };
+    let x_joint = if joint.joint_type.is_rotation() {
+        plux(&axis_angle(&a, qi).transpose(), &Vector3::zeros())
+    } else {
+        plux(&Matrix3::identity(), &(a * qi))
+    };
     x_joint * x_tree
 }
 
@@ -88,7 +92,14 @@ fn group_pose(model: &Model, i: usize, q: &[f64]) -> Option<(Matrix3<f64>, Vecto
 /// table 5.1), and for a multi-dof joint (see [`Model::group`]) `u × v_J` at its last
 /// member only, u the parent's velocity in the joint frame (`xv` of its first member) and
 /// v_J its members' `S q̇` together: zero at the root, where u = 0.
-pub(crate) fn velocity_product(model: &Model, i: usize, k: &Kinematics, v: &[Vec6], xv: &[Vec6], qd: &[f64]) -> Vec6 {
+pub(crate) fn velocity_product(
+    model: &Model,
+    i: usize,
+    k: &Kinematics,
+    v: &[Vec6],
+    xv: &[Vec6],
+    qd: &[f64],
+) -> Vec6 {
     match model.group(i) {
         None => crm(&v[i]) * (k.s[i] * qd[i]),
         Some(g) if i + 1 == g.end && model.joints[g.start].parent.is_some() => {
@@ -107,7 +118,11 @@ pub fn base_pose(q: &[f64]) -> (Matrix3<f64>, Vector3<f64>) {
 
 /// The spatial inertia of body i in its own frame.
 pub fn body_inertia(joint: &Joint) -> Mat6 {
-    spatial_inertia(joint.inertia.mass, &Vector3::from(joint.inertia.h), &joint.inertia.i_origin_matrix())
+    spatial_inertia(
+        joint.inertia.mass,
+        &Vector3::from(joint.inertia.h),
+        &joint.inertia.i_origin_matrix(),
+    )
 }
 
 /// Per-body transforms, subspaces and inertias at `q`.
@@ -155,7 +170,11 @@ pub fn forward_kinematics(model: &Model, q: &[f64]) -> Vec<(Matrix3<f64>, Vector
         };
         let qi = m * q[k] + o;
         let a = Vector3::from(joint.axis);
-        let (r_joint, p_joint) = if joint.joint_type.is_rotation() { (axis_angle(&a, qi), Vector3::zeros()) } else { (Matrix3::identity(), a * qi) };
+        let (r_joint, p_joint) = if joint.joint_type.is_rotation() {
+            (axis_angle(&a, qi), Vector3::zeros())
+        } else {
+            (Matrix3::identity(), a * qi)
+        };
         let r_tree = joint.tree.rot_matrix();
         let p_tree = joint.tree.pos_vector();
         let r = r_parent * r_tree * r_joint;

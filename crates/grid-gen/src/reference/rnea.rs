@@ -14,14 +14,28 @@ pub fn rnea(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]
 
 /// [`rnea`] under external forces and contact forces `ext` (subtracted from the bodies'
 /// forces, as Pinocchio's `rnea(model, data, q, v, a, fext)`).
-pub fn rnea_with(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3], ext: External) -> Vec<f64> {
+pub fn rnea_with(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    gravity: [f64; 3],
+    ext: External,
+) -> Vec<f64> {
     let (qd, qdd) = (expand(model, qd), expand(model, qdd));
     reduce(model, &rnea_joints(model, q, &qd, &qdd, gravity, &body_forces(model, q, ext)))
 }
 
 /// [`rnea`] with one q̇, q̈ and force per model joint (see `coupled`), and one external
 /// force per body in its own frame.
-fn rnea_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3], ext: &[Vec6]) -> Vec<f64> {
+fn rnea_joints(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    gravity: [f64; 3],
+    ext: &[Vec6],
+) -> Vec<f64> {
     let n = model.njoints();
     let k = Kinematics::new(model, q);
     let a0 = root_acceleration(gravity);

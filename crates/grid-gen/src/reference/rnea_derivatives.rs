@@ -11,31 +11,61 @@ use crate::model::Model;
 use crate::spatial::{crf, crm, Vec6};
 
 /// `(∂c/∂q, ∂c/∂q̇)` at `(q, qd, qdd)`, row-major: entry (i, j) is ∂c_i/∂u_j.
-pub fn rnea_derivatives(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3]) -> (DMatrix<f64>, DMatrix<f64>) {
+pub fn rnea_derivatives(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    gravity: [f64; 3],
+) -> (DMatrix<f64>, DMatrix<f64>) {
     rnea_derivatives_with(model, q, qd, qdd, gravity, External::NONE)
 }
 
 /// [`rnea_derivatives`] under external forces `ext`: `fext` held fixed in the bodies'
 /// frames (as Pinocchio's `computeRNEADerivatives(..., fext)`), contact forces λ fixed in
 /// their `LOCAL_WORLD_ALIGNED` axes (so ∂(Jᵀ)/∂q · λ is included).
-pub fn rnea_derivatives_with(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3], ext: External) -> (DMatrix<f64>, DMatrix<f64>) {
+pub fn rnea_derivatives_with(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    gravity: [f64; 3],
+    ext: External,
+) -> (DMatrix<f64>, DMatrix<f64>) {
     let forces = body_forces(model, q, ext);
-    let (mut dq, dqd) = rnea_derivatives_joints(model, q, &expand(model, qd), &expand(model, qdd), gravity, &forces);
+    let (mut dq, dqd) = rnea_derivatives_joints(
+        model,
+        q,
+        &expand(model, qd),
+        &expand(model, qdd),
+        gravity,
+        &forces,
+    );
     dq += contact_q_terms(model, q, ext);
     (reduce_matrix(model, dq), reduce_matrix(model, dqd))
 }
 
 /// [`rnea_derivatives`] per model joint (see `coupled`), one external force per body in
 /// its own frame, held fixed there.
-fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gravity: [f64; 3], ext: &[Vec6]) -> (DMatrix<f64>, DMatrix<f64>) {
+fn rnea_derivatives_joints(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    gravity: [f64; 3],
+    ext: &[Vec6],
+) -> (DMatrix<f64>, DMatrix<f64>) {
     let n = model.njoints();
     let k = Kinematics::new(model, q);
     let a0 = root_acceleration(gravity);
     let zero = Matrix6xX::<f64>::zeros(n);
-    let (mut v, mut a, mut f) = (vec![Vec6::zeros(); n], vec![Vec6::zeros(); n], vec![Vec6::zeros(); n]);
+    let (mut v, mut a, mut f) =
+        (vec![Vec6::zeros(); n], vec![Vec6::zeros(); n], vec![Vec6::zeros(); n]);
     // d?_dq[i] and d?_dqd[i]: 6 x n, column u = derivative with respect to q_u or q̇_u.
-    let (mut dv_dq, mut da_dq, mut df_dq) = (vec![zero.clone(); n], vec![zero.clone(); n], vec![zero.clone(); n]);
-    let (mut dv_dqd, mut da_dqd, mut df_dqd) = (vec![zero.clone(); n], vec![zero.clone(); n], vec![zero.clone(); n]);
+    let (mut dv_dq, mut da_dq, mut df_dq) =
+        (vec![zero.clone(); n], vec![zero.clone(); n], vec![zero.clone(); n]);
+    let (mut dv_dqd, mut da_dqd, mut df_dqd) =
+        (vec![zero.clone(); n], vec![zero.clone(); n], vec![zero.clone(); n]);
     let (mut xvs, mut xas) = (vec![Vec6::zeros(); n], vec![Vec6::zeros(); n]);
     for i in 0..n {
         let s = k.s[i];
@@ -53,7 +83,8 @@ fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gr
         let group = model.group(i);
         let first = group.as_ref().map_or(i, |g| g.start);
         let (xv, xa) = (xvs[first], xas[first]);
-        let product = group.as_ref().is_none_or(|g| i + 1 == g.end && model.joints[g.start].parent.is_some());
+        let product =
+            group.as_ref().is_none_or(|g| i + 1 == g.end && model.joints[g.start].parent.is_some());
         let vj: Vec6 = group.clone().unwrap_or(i..i + 1).map(|m| k.s[m] * qd[m]).sum();
         let iv = k.inertia[i] * v[i];
         f[i] = k.inertia[i] * a[i] + crf(&v[i]) * iv - ext[i];
@@ -83,7 +114,9 @@ fn rnea_derivatives_joints(model: &Model, q: &[f64], qd: &[f64], qdd: &[f64], gr
         col = da_dq[i].column(i) + crm(&xa) * s;
         da_dq[i].set_column(i, &col);
         // ∂f_i = I ∂a_i + v_i ×* (I ∂v_i) + ∂v_i ×* (I v_i), the last one column by column.
-        for (dv, da, df) in [(&dv_dq[i], &da_dq[i], &mut df_dq[i]), (&dv_dqd[i], &da_dqd[i], &mut df_dqd[i])] {
+        for (dv, da, df) in
+            [(&dv_dq[i], &da_dq[i], &mut df_dq[i]), (&dv_dqd[i], &da_dqd[i], &mut df_dqd[i])]
+        {
             *df = &k.inertia[i] * da + crf(&v[i]) * (&k.inertia[i] * dv);
             for u in 0..n {
                 let dvu: Vec6 = dv.column(u).into();

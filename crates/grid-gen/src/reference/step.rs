@@ -14,7 +14,9 @@
 
 use nalgebra::{DMatrix, Matrix3, UnitQuaternion, Vector3};
 
-use super::{aba_with, contact_fd, contact_fd_derivatives, forward_dynamics_derivatives_with, minv, External};
+use super::{
+    aba_with, contact_fd, contact_fd_derivatives, forward_dynamics_derivatives_with, minv, External,
+};
 use crate::model::{LieBlock, Model, Scheme, Step};
 
 /// `[ω]×`.
@@ -52,13 +54,23 @@ fn beta(t: f64) -> (f64, f64) {
         return (1.0 / t2 - st / t * inv, -2.0 / (t2 * t2) + (1.0 + st / t) / t2 * inv);
     }
     // Bernoulli numbers B_2n, n = 1..8.
-    const B: [f64; 8] = [1.0 / 6.0, -1.0 / 30.0, 1.0 / 42.0, -1.0 / 30.0, 5.0 / 66.0, -691.0 / 2730.0, 7.0 / 6.0, -3617.0 / 510.0];
+    const B: [f64; 8] = [
+        1.0 / 6.0,
+        -1.0 / 30.0,
+        1.0 / 42.0,
+        -1.0 / 30.0,
+        5.0 / 66.0,
+        -691.0 / 2730.0,
+        7.0 / 6.0,
+        -3617.0 / 510.0,
+    ];
     let (mut b, mut db) = (0.0, 0.0);
     let mut factorial = 1.0;
     for (i, bn) in B.iter().enumerate() {
         let n = i as i32 + 1;
         factorial *= (2 * n - 1) as f64 * (2 * n) as f64;
-        // cot(t/2)/(2t) has the term (−1)^n 2^2n B_2n (t/2)^(2n−1) / ((2n)! 2t) = (−1)^n B_2n t^(2n−2) / (2n)!.
+        // cot(t/2)/(2t) has the term (−1)^n 2^2n B_2n (t/2)^(2n−1) / ((2n)! 2t)
+        // = (−1)^n B_2n t^(2n−2) / (2n)!.
         let coefficient = -(-1f64).powi(n) * bn / factorial;
         b += coefficient * t.powi(2 * n - 2);
         if n >= 2 {
@@ -85,7 +97,10 @@ fn jexp6(v: &Vector3<f64>, w: &Vector3<f64>) -> DMatrix<f64> {
     let t2 = w.norm_squared();
     let p = jr.transpose() * v;
     let wtp = w.dot(&p);
-    let j = skew(&p) * 0.5 + w * w.transpose() * (db * wtp) - p * w.transpose() * (t2 * db + 2.0 * b) + Matrix3::identity() * (wtp * b) + w * p.transpose() * b;
+    let j = skew(&p) * 0.5 + w * w.transpose() * (db * wtp)
+        - p * w.transpose() * (t2 * db + 2.0 * b)
+        + Matrix3::identity() * (wtp * b)
+        + w * p.transpose() * b;
     let mut out = DMatrix::zeros(6, 6);
     out.view_mut((0, 0), (3, 3)).copy_from(&jr);
     out.view_mut((3, 3), (3, 3)).copy_from(&jr);
@@ -95,7 +110,12 @@ fn jexp6(v: &Vector3<f64>, w: &Vector3<f64>) -> DMatrix<f64> {
 
 /// The unit quaternion `[x, y, z, w]` at q's entries `at..at + 4`, normalised.
 fn quaternion(q: &[f64], at: usize) -> UnitQuaternion<f64> {
-    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(q[at + 3], q[at], q[at + 1], q[at + 2]))
+    UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
+        q[at + 3],
+        q[at],
+        q[at + 1],
+        q[at + 2],
+    ))
 }
 
 fn store(out: &mut [f64], at: usize, r: &UnitQuaternion<f64>) {
@@ -142,7 +162,8 @@ pub fn d_integrate(model: &Model, v: &[f64]) -> (DMatrix<f64>, DMatrix<f64>) {
             }
             LieBlock::FreeFlyer => {
                 let (lin, w) = (Vector3::new(v[0], v[1], v[2]), Vector3::new(v[3], v[4], v[5]));
-                let rt = UnitQuaternion::from_scaled_axis(w).to_rotation_matrix().matrix().transpose();
+                let rt =
+                    UnitQuaternion::from_scaled_axis(w).to_rotation_matrix().matrix().transpose();
                 let p = so3_jacobians(&w).0 * lin;
                 dq.view_mut((0, 0), (3, 3)).copy_from(&rt);
                 dq.view_mut((0, 3), (3, 3)).copy_from(&(-rt * skew(&p)));
@@ -151,7 +172,8 @@ pub fn d_integrate(model: &Model, v: &[f64]) -> (DMatrix<f64>, DMatrix<f64>) {
             }
             LieBlock::Spherical { v: k, .. } => {
                 let w = Vector3::new(v[k], v[k + 1], v[k + 2]);
-                let rt = UnitQuaternion::from_scaled_axis(w).to_rotation_matrix().matrix().transpose();
+                let rt =
+                    UnitQuaternion::from_scaled_axis(w).to_rotation_matrix().matrix().transpose();
                 dq.view_mut((k, k), (3, 3)).copy_from(&rt);
                 dv.view_mut((k, k), (3, 3)).copy_from(&so3_jacobians(&w).1);
             }
@@ -179,7 +201,14 @@ fn state_integrate(model: &Model, q: &[f64], qd: &[f64], dx: &[f64]) -> (Vec<f64
 
 /// q̈ at one state: forward dynamics under `fext`, with the model's contacts held rigid
 /// when it declares any. `None` when the contacts' KKT system is singular there.
-fn acceleration(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], fext: &[f64]) -> Option<Vec<f64>> {
+fn acceleration(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    fext: &[f64],
+) -> Option<Vec<f64>> {
     if model.specialisation.contacts.is_empty() {
         return Some(aba_with(model, q, qd, tau, gravity, External { fext, lambda: &[] }));
     }
@@ -196,7 +225,14 @@ fn acceleration_derivatives(
     fext: &[f64],
 ) -> Option<(Vec<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>)> {
     if model.specialisation.contacts.is_empty() {
-        let (qdd, dq, dqd) = forward_dynamics_derivatives_with(model, q, qd, tau, gravity, External { fext, lambda: &[] });
+        let (qdd, dq, dqd) = forward_dynamics_derivatives_with(
+            model,
+            q,
+            qd,
+            tau,
+            gravity,
+            External { fext, lambda: &[] },
+        );
         return Some((qdd, dq, dqd, minv(model, q)));
     }
     let (sol, d) = contact_fd_derivatives(model, q, qd, tau, gravity, fext)?;
@@ -206,7 +242,15 @@ fn acceleration_derivatives(
 /// One step from `(q, q̇)` under joint forces `tau` (nv entries) with gravity `gravity` and
 /// the model's external forces `fext` (as [`External::fext`]; empty for none) held over the
 /// step. `None` when the model's contacts are singular at a state the step visits.
-pub fn step(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3], step: Step, fext: &[f64]) -> Option<(Vec<f64>, Vec<f64>)> {
+pub fn step(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    step: Step,
+    fext: &[f64],
+) -> Option<(Vec<f64>, Vec<f64>)> {
     let nv = model.nv();
     let dt = step.dt;
     Some(match step.scheme {
@@ -220,7 +264,9 @@ pub fn step(model: &Model, q: &[f64], qd: &[f64], tau: &[f64], gravity: [f64; 3]
         Scheme::Rk4 => {
             let mut dx = vec![0.0; 2 * nv];
             let mut k_prev: Vec<f64> = Vec::new();
-            for (i, (c, weight)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
+            for (i, (c, weight)) in
+                [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate()
+            {
                 let (y_q, y_v) = if i == 0 {
                     (q.to_vec(), qd.to_vec())
                 } else {
@@ -254,8 +300,14 @@ pub fn step_derivatives(
     let dt = step.dt;
     let identity = DMatrix::<f64>::identity(nv, nv);
     // ∂q̈/∂τ_actuated = M⁻¹ S.
-    let select = |m: &DMatrix<f64>| DMatrix::from_fn(nv, actuated.len(), |r, c| m[(r, actuated[c])]);
-    let assemble = |aqq: DMatrix<f64>, aqv: DMatrix<f64>, avq: DMatrix<f64>, avv: DMatrix<f64>, bq: DMatrix<f64>, bv: DMatrix<f64>| {
+    let select =
+        |m: &DMatrix<f64>| DMatrix::from_fn(nv, actuated.len(), |r, c| m[(r, actuated[c])]);
+    let assemble = |aqq: DMatrix<f64>,
+                    aqv: DMatrix<f64>,
+                    avq: DMatrix<f64>,
+                    avv: DMatrix<f64>,
+                    bq: DMatrix<f64>,
+                    bv: DMatrix<f64>| {
         let mut a = DMatrix::zeros(2 * nv, 2 * nv);
         a.view_mut((0, 0), (nv, nv)).copy_from(&aqq);
         a.view_mut((0, nv), (nv, nv)).copy_from(&aqv);
@@ -268,7 +320,8 @@ pub fn step_derivatives(
     };
     match step.scheme {
         Scheme::SemiImplicitEuler | Scheme::ExplicitEuler => {
-            let (qdd, da_dq, da_dv, da_dtau) = acceleration_derivatives(model, q, qd, tau, gravity, fext)?;
+            let (qdd, da_dq, da_dv, da_dtau) =
+                acceleration_derivatives(model, q, qd, tau, gravity, fext)?;
             let da_du = select(&da_dtau);
             let qd_next: Vec<f64> = (0..nv).map(|k| qd[k] + dt * qdd[k]).collect();
             let (avq, avv, bv) = (&da_dq * dt, &identity + &da_dv * dt, &da_du * dt);
@@ -276,12 +329,17 @@ pub fn step_derivatives(
             let moved = if semi { &qd_next } else { qd };
             let dq: Vec<f64> = moved.iter().map(|x| dt * x).collect();
             let (jq, jv) = d_integrate(model, &dq);
-            let (aqq, aqv, bq) =
-                if semi { (&jq + &jv * &avq * dt, &jv * &avv * dt, &jv * &bv * dt) } else { (jq, &jv * dt, DMatrix::zeros(nv, actuated.len())) };
+            let (aqq, aqv, bq) = if semi {
+                (&jq + &jv * &avq * dt, &jv * &avv * dt, &jv * &bv * dt)
+            } else {
+                (jq, &jv * dt, DMatrix::zeros(nv, actuated.len()))
+            };
             let (a, b) = assemble(aqq, aqv, avq, avv, bq, bv);
             Some(StepDerivatives { q_next: integrate(model, q, &dq), qd_next, a, b })
         }
-        Scheme::Rk4 => rk4_derivatives(model, q, qd, tau, gravity, fext, dt, actuated.len(), &select),
+        Scheme::Rk4 => {
+            rk4_derivatives(model, q, qd, tau, gravity, fext, dt, actuated.len(), &select)
+        }
     }
 }
 
@@ -303,15 +361,19 @@ fn rk4_derivatives(
     let nv = model.nv();
     let state_jacobians = |dx: &[f64]| {
         let (jq, jv) = d_integrate(model, &dx[..nv]);
-        let (mut jx, mut jdx) = (DMatrix::identity(2 * nv, 2 * nv), DMatrix::identity(2 * nv, 2 * nv));
+        let (mut jx, mut jdx) =
+            (DMatrix::identity(2 * nv, 2 * nv), DMatrix::identity(2 * nv, 2 * nv));
         jx.view_mut((0, 0), (nv, nv)).copy_from(&jq);
         jdx.view_mut((0, 0), (nv, nv)).copy_from(&jv);
         (jx, jdx)
     };
     let mut dx = vec![0.0; 2 * nv];
-    let (mut dx_dx, mut dx_du) = (DMatrix::<f64>::zeros(2 * nv, 2 * nv), DMatrix::<f64>::zeros(2 * nv, nu));
-    let (mut k_prev, mut dk_dx_prev, mut dk_du_prev) = (Vec::new(), DMatrix::zeros(2 * nv, 2 * nv), DMatrix::zeros(2 * nv, nu));
-    for (i, (c, weight)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
+    let (mut dx_dx, mut dx_du) =
+        (DMatrix::<f64>::zeros(2 * nv, 2 * nv), DMatrix::<f64>::zeros(2 * nv, nu));
+    let (mut k_prev, mut dk_dx_prev, mut dk_du_prev) =
+        (Vec::new(), DMatrix::zeros(2 * nv, 2 * nv), DMatrix::zeros(2 * nv, nu));
+    for (i, (c, weight)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate()
+    {
         let (y_q, y_v, dy_dx, dy_du) = if i == 0 {
             (q.to_vec(), qd.to_vec(), DMatrix::identity(2 * nv, 2 * nv), DMatrix::zeros(2 * nv, nu))
         } else {
@@ -320,7 +382,8 @@ fn rk4_derivatives(
             let (jx, jdx) = state_jacobians(&d);
             (y_q, y_v, jx + &jdx * &dk_dx_prev * (c * dt), &jdx * &dk_du_prev * (c * dt))
         };
-        let (qdd, da_dq, da_dv, da_dtau) = acceleration_derivatives(model, &y_q, &y_v, tau, gravity, fext)?;
+        let (qdd, da_dq, da_dv, da_dtau) =
+            acceleration_derivatives(model, &y_q, &y_v, tau, gravity, fext)?;
         let da_du = select(&da_dtau);
         // ∂f/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
         let mut df = DMatrix::zeros(2 * nv, 2 * nv);

@@ -47,7 +47,8 @@ pub fn load(path: &str, text: &str) -> Result<(Urdf, Tree, Vec<Diagnostic>), Loa
 /// and grid-gen models mimic joints as independent joints, so nothing depends on the
 /// target.
 fn unknown_mimic_targets(urdf: &Urdf, diags: &mut Vec<Diagnostic>) {
-    let names: std::collections::HashSet<&str> = urdf.joints.iter().map(|j| j.name.as_str()).collect();
+    let names: std::collections::HashSet<&str> =
+        urdf.joints.iter().map(|j| j.name.as_str()).collect();
     for joint in &urdf.joints {
         let Some(m) = &joint.mimic else { continue };
         if !names.contains(m.joint.as_str()) {

@@ -102,7 +102,11 @@ fn offset_of(text: &str, row: u32, col: u32) -> usize {
     let mut offset = 0;
     for (i, line) in text.split_inclusive('\n').enumerate() {
         if i + 1 == row as usize {
-            return offset + line.char_indices().nth(col.saturating_sub(1) as usize).map_or(line.len(), |(b, _)| b);
+            return offset
+                + line
+                    .char_indices()
+                    .nth(col.saturating_sub(1) as usize)
+                    .map_or(line.len(), |(b, _)| b);
         }
         offset += line.len();
     }
@@ -130,15 +134,24 @@ impl Parser {
         if v.is_none() {
             let tag = node.tag_name().name();
             self.diags.push(
-                Diagnostic::error(format!("<{tag}> has no `{name}` attribute"), Some(tag_span(node)), format!("`{name}` is required here"))
-                    .with_help(format!("add {name}=\"...\" to this <{tag}>")),
+                Diagnostic::error(
+                    format!("<{tag}> has no `{name}` attribute"),
+                    Some(tag_span(node)),
+                    format!("`{name}` is required here"),
+                )
+                .with_help(format!("add {name}=\"...\" to this <{tag}>")),
             );
         }
         v
     }
 
     /// Parses `count` whitespace-separated finite numbers from an attribute.
-    fn numbers<const N: usize>(&mut self, node: Node, name: &str, default: Option<[f64; N]>) -> Option<[f64; N]> {
+    fn numbers<const N: usize>(
+        &mut self,
+        node: Node,
+        name: &str,
+        default: Option<[f64; N]>,
+    ) -> Option<[f64; N]> {
         let tag = node.tag_name().name();
         let Some(raw) = node.attribute(name) else {
             if default.is_none() {
@@ -151,8 +164,12 @@ impl Parser {
         if parts.len() != N {
             let what = if N == 1 { "one number".to_string() } else { format!("{N} numbers") };
             self.diags.push(
-                Diagnostic::error(format!("<{tag}> attribute `{name}` needs {what}, found {}", parts.len()), Some(span), format!("`{raw}`"))
-                    .with_help(format!("write {what} separated by spaces")),
+                Diagnostic::error(
+                    format!("<{tag}> attribute `{name}` needs {what}, found {}", parts.len()),
+                    Some(span),
+                    format!("`{raw}`"),
+                )
+                .with_help(format!("write {what} separated by spaces")),
             );
             return None;
         }
@@ -162,15 +179,23 @@ impl Parser {
                 Ok(v) if v.is_finite() => *slot = v,
                 Ok(_) => {
                     self.diags.push(
-                        Diagnostic::error(format!("<{tag}> attribute `{name}` is not finite"), Some(span), format!("`{part}` is not a finite number"))
-                            .with_help("every number in a URDF must be finite"),
+                        Diagnostic::error(
+                            format!("<{tag}> attribute `{name}` is not finite"),
+                            Some(span),
+                            format!("`{part}` is not a finite number"),
+                        )
+                        .with_help("every number in a URDF must be finite"),
                     );
                     return None;
                 }
                 Err(_) => {
                     self.diags.push(
-                        Diagnostic::error(format!("<{tag}> attribute `{name}` is not a number"), Some(span), format!("`{part}` is not a number"))
-                            .with_help("write a decimal number such as 0.25 or 1e-3"),
+                        Diagnostic::error(
+                            format!("<{tag}> attribute `{name}` is not a number"),
+                            Some(span),
+                            format!("`{part}` is not a number"),
+                        )
+                        .with_help("write a decimal number such as 0.25 or 1e-3"),
                     );
                     return None;
                 }
@@ -205,7 +230,14 @@ impl Parser {
                 None => ok = false,
             }
         }
-        ok.then(|| Inertial { span: tag_span(node), origin, mass, mass_span: tag_span(mass_node), inertia, inertia_span: tag_span(inertia_node) })
+        ok.then(|| Inertial {
+            span: tag_span(node),
+            origin,
+            mass,
+            mass_span: tag_span(mass_node),
+            inertia,
+            inertia_span: tag_span(inertia_node),
+        })
     }
 
     fn required_child<'n>(&mut self, node: Node<'n, 'n>, name: &str) -> Option<Node<'n, 'n>> {
@@ -213,8 +245,12 @@ impl Parser {
         if c.is_none() {
             let tag = node.tag_name().name();
             self.diags.push(
-                Diagnostic::error(format!("<{tag}> has no <{name}>"), Some(tag_span(node)), format!("<{name}> is required inside <{tag}>"))
-                    .with_help(format!("add a <{name}> element")),
+                Diagnostic::error(
+                    format!("<{tag}> has no <{name}>"),
+                    Some(tag_span(node)),
+                    format!("<{name}> is required inside <{tag}>"),
+                )
+                .with_help(format!("add a <{name}> element")),
             );
         }
         c
@@ -272,7 +308,10 @@ impl Parser {
             None => (None, None),
         };
         let (damping, friction) = match child(node, "dynamics") {
-            Some(d) => (self.numbers::<1>(d, "damping", Some([0.0]))?[0], self.numbers::<1>(d, "friction", Some([0.0]))?[0]),
+            Some(d) => (
+                self.numbers::<1>(d, "damping", Some([0.0]))?[0],
+                self.numbers::<1>(d, "friction", Some([0.0]))?[0],
+            ),
             None => (0.0, 0.0),
         };
         let mimic = match child(node, "mimic") {
@@ -318,8 +357,12 @@ pub(crate) fn parse(text: &str) -> (Option<Urdf>, Vec<Diagnostic>) {
             let span = at..(at + 1).min(text.len()).max(at);
             return (
                 None,
-                vec![Diagnostic::error(format!("malformed XML: {e}"), Some(span), "the XML parser stopped here")
-                    .with_help("fix the XML syntax; a URDF is one <robot> element")],
+                vec![Diagnostic::error(
+                    format!("malformed XML: {e}"),
+                    Some(span),
+                    "the XML parser stopped here",
+                )
+                .with_help("fix the XML syntax; a URDF is one <robot> element")],
             );
         }
     };
@@ -327,8 +370,12 @@ pub(crate) fn parse(text: &str) -> (Option<Urdf>, Vec<Diagnostic>) {
     let mut p = Parser { diags: Vec::new() };
     if root.tag_name().name() != "robot" {
         p.diags.push(
-            Diagnostic::error(format!("the root element is <{}>, not <robot>", root.tag_name().name()), Some(tag_span(root)), "expected <robot>")
-                .with_help("a URDF file holds one <robot name=\"...\"> element"),
+            Diagnostic::error(
+                format!("the root element is <{}>, not <robot>", root.tag_name().name()),
+                Some(tag_span(root)),
+                "expected <robot>",
+            )
+            .with_help("a URDF file holds one <robot name=\"...\"> element"),
         );
         return (None, p.diags);
     }

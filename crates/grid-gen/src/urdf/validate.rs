@@ -23,8 +23,12 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
     let mut diags = Vec::new();
     if urdf.links.is_empty() {
         diags.push(
-            Diagnostic::error(format!("robot `{}` has no links", urdf.name), Some(urdf.span.clone()), "no <link> inside")
-                .with_help("add at least one <link name=\"...\">"),
+            Diagnostic::error(
+                format!("robot `{}` has no links", urdf.name),
+                Some(urdf.span.clone()),
+                "no <link> inside",
+            )
+            .with_help("add at least one <link name=\"...\">"),
         );
         return Err(diags);
     }
@@ -32,8 +36,12 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
     for (i, link) in urdf.links.iter().enumerate() {
         if link_index.contains_key(link.name.as_str()) {
             diags.push(
-                Diagnostic::error(format!("duplicate link name `{}`", link.name), Some(link.span.clone()), "a second link with this name")
-                    .with_help("give every <link> a unique name"),
+                Diagnostic::error(
+                    format!("duplicate link name `{}`", link.name),
+                    Some(link.span.clone()),
+                    "a second link with this name",
+                )
+                .with_help("give every <link> a unique name"),
             );
         } else {
             link_index.insert(&link.name, i);
@@ -43,8 +51,12 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
     for (i, joint) in urdf.joints.iter().enumerate() {
         if joint_names.insert(&joint.name, i).is_some() {
             diags.push(
-                Diagnostic::error(format!("duplicate joint name `{}`", joint.name), Some(joint.span.clone()), "a second joint with this name")
-                    .with_help("give every <joint> a unique name"),
+                Diagnostic::error(
+                    format!("duplicate joint name `{}`", joint.name),
+                    Some(joint.span.clone()),
+                    "a second joint with this name",
+                )
+                .with_help("give every <joint> a unique name"),
             );
         }
     }
@@ -102,21 +114,28 @@ pub fn check_tree(urdf: &Urdf) -> Result<Tree, Vec<Diagnostic>> {
         0 => {
             let j = &urdf.joints[0];
             diags.push(
-                Diagnostic::error("the robot has no root link: every link is some joint's child", Some(j.span.clone()), "part of a cycle")
-                    .with_help("a URDF is a tree: remove the joint that closes the loop"),
+                Diagnostic::error(
+                    "the robot has no root link: every link is some joint's child",
+                    Some(j.span.clone()),
+                    "part of a cycle",
+                )
+                .with_help("a URDF is a tree: remove the joint that closes the loop"),
             );
             return Err(diags);
         }
         1 => {}
         _ => {
-            let names: Vec<String> = roots.iter().map(|&r| format!("`{}`", urdf.links[r].name)).collect();
+            let names: Vec<String> =
+                roots.iter().map(|&r| format!("`{}`", urdf.links[r].name)).collect();
             diags.push(
                 Diagnostic::error(
                     format!("the robot has {} root links: {}", roots.len(), names.join(", ")),
                     Some(urdf.links[roots[1]].span.clone()),
                     "this link is not connected to the first root",
                 )
-                .with_help("connect every link to one tree with joints (a URDF has exactly one root link)"),
+                .with_help(
+                    "connect every link to one tree with joints (a URDF has exactly one root link)",
+                ),
             );
             return Err(diags);
         }

@@ -13,7 +13,13 @@ use crate::ir::{Function, Id, Op};
 /// One kernel's mixed function: `pub fn NAME(q: &[f64; NV], ...) -> outputs` (f64), with
 /// its `_part` functions where the kernel is split. `wide[i]`: node i is f64. The caller
 /// provides `NV` in scope.
-pub fn emit_mixed_kernel(out: &mut String, k: &Function, q_len: &str, options: &RustOptions, wide: &[bool]) {
+pub fn emit_mixed_kernel(
+    out: &mut String,
+    k: &Function,
+    q_len: &str,
+    options: &RustOptions,
+    wide: &[bool],
+) {
     let names = Chunks::new(k, options.chunk);
     let ty = |id: Id| if wide[id.0 as usize] { "f64" } else { "f32" };
     // A constant or input as written: the f64 the model or the caller holds.
@@ -35,7 +41,9 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, q_len: &str, options: &
                     format!("(t{i} as f64)")
                 }
             }
-            None => format!("s[{}]", names.slot[i].expect("values read by a later chunk have a slot")),
+            None => {
+                format!("s[{}]", names.slot[i].expect("values read by a later chunk have a slot"))
+            }
         }
     };
     // The operand as a consumer of precision `to_wide` reads it.
@@ -66,10 +74,16 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, q_len: &str, options: &
         }
     };
     let name = k.kind.name();
-    let args: Vec<String> = k.inputs().iter().map(|i| format!("{}: &[f64; {}]", i.name(), super::input_len(*i, q_len))).collect();
+    let args: Vec<String> = k
+        .inputs()
+        .iter()
+        .map(|i| format!("{}: &[f64; {}]", i.name(), super::input_len(*i, q_len)))
+        .collect();
     let arg_names: Vec<&str> = k.inputs().iter().map(|i| i.name()).collect();
-    let types: Vec<String> = k.outputs.iter().map(|o| output_type(o.shape).replace('T', "f64")).collect();
-    let ret_type = if types.len() == 1 { types[0].clone() } else { format!("({})", types.join(", ")) };
+    let types: Vec<String> =
+        k.outputs.iter().map(|o| output_type(o.shape).replace('T', "f64")).collect();
+    let ret_type =
+        if types.len() == 1 { types[0].clone() } else { format!("({})", types.join(", ")) };
     let ret_value = return_value(k);
     let (inline_outputs, sinks) = output_stores(k);
     let body = |c: usize, ids: &[Id]| -> String {
@@ -93,7 +107,10 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, q_len: &str, options: &
         b
     };
     let _ = writeln!(out, "/// {} Mixed precision.", k.doc());
-    let _ = writeln!(out, "#[allow(clippy::all, unused_variables, unused_mut, unused_parens, dead_code)]");
+    let _ = writeln!(
+        out,
+        "#[allow(clippy::all, unused_variables, unused_mut, unused_parens, dead_code)]"
+    );
     let _ = writeln!(out, "pub fn {name}({}) -> {ret_type} {{", args.join(", "));
     for o in &k.outputs {
         let init = super::array_of(o.shape, "0.0f64");
@@ -106,15 +123,27 @@ pub fn emit_mixed_kernel(out: &mut String, k: &Function, q_len: &str, options: &
         let _ = writeln!(out, "let mut s = [0.0f64; {}];", names.slots);
         let outs: Vec<String> = k.outputs.iter().map(|o| format!("&mut {}", o.name)).collect();
         for c in 0..chunks.len() {
-            let _ = writeln!(out, "{name}_part{c}({}, &mut s, {});", arg_names.join(", "), outs.join(", "));
+            let _ = writeln!(
+                out,
+                "{name}_part{c}({}, &mut s, {});",
+                arg_names.join(", "),
+                outs.join(", ")
+            );
         }
     }
     let _ = writeln!(out, "{ret_value}\n}}\n");
     if chunks.len() > 1 {
-        let outs: Vec<String> = k.outputs.iter().zip(&types).map(|(o, t)| format!("{}: &mut {t}", o.name)).collect();
+        let outs: Vec<String> =
+            k.outputs.iter().zip(&types).map(|(o, t)| format!("{}: &mut {t}", o.name)).collect();
         for (c, ids) in chunks.iter().enumerate() {
             let _ = writeln!(out, "#[inline(never)]\n#[allow(clippy::all, unused_variables, unused_mut, unused_parens)]");
-            let _ = writeln!(out, "fn {name}_part{c}({}, s: &mut [f64; {}], {}) {{", args.join(", "), names.slots, outs.join(", "));
+            let _ = writeln!(
+                out,
+                "fn {name}_part{c}({}, s: &mut [f64; {}], {}) {{",
+                args.join(", "),
+                names.slots,
+                outs.join(", ")
+            );
             out.push_str(&body(c, ids));
             out.push_str("}\n\n");
         }

@@ -62,7 +62,10 @@ fn operand(k: &Function, names: &Chunks, here: usize, id: Id) -> String {
         Op::Const(c) => format!("T::k({})", literal(c)),
         Op::Input(which, j) => format!("{}[{j}]", which.name()),
         _ if names.chunk_of[id.0 as usize] == Some(here as u32) => format!("t{}", id.0),
-        _ => format!("s[{}]", names.slot[id.0 as usize].expect("values read by a later chunk have a slot")),
+        _ => format!(
+            "s[{}]",
+            names.slot[id.0 as usize].expect("values read by a later chunk have a slot")
+        ),
     }
 }
 
@@ -105,7 +108,9 @@ fn fusable(k: &Function, names: &Chunks) -> Vec<bool> {
             uses[id.0 as usize] += 2;
         }
     }
-    (0..k.nodes.len()).map(|i| matches!(k.nodes[i].op, Op::Mul(..)) && uses[i] == 1 && names.slot[i].is_none()).collect()
+    (0..k.nodes.len())
+        .map(|i| matches!(k.nodes[i].op, Op::Mul(..)) && uses[i] == 1 && names.slot[i].is_none())
+        .collect()
 }
 
 /// `a * b + c` as one rounding: `T::mul_add(a, b, c)`.
@@ -215,19 +220,24 @@ fn output_stores(k: &Function) -> (Vec<(String, Id)>, HashMap<Id, Vec<String>>) 
 /// order, so it stays bit-identical to the IR.
 fn looped_product(k: &Function, nv: usize, copy: Copy) -> Option<&DenseProduct> {
     let p = k.product.as_ref().filter(|_| copy != Copy::Portable && nv > 0)?;
-    let nonzero =
-        p.dc.iter()
-            .flatten()
-            .filter(|o| match **o {
-                Operand::Const(c) => c != 0.0,
-                Operand::Node(id) | Operand::Neg(id) => !matches!(k.op(id), Op::Const(c) if c == 0.0),
-            })
-            .count();
+    let nonzero = p
+        .dc
+        .iter()
+        .flatten()
+        .filter(|o| match **o {
+            Operand::Const(c) => c != 0.0,
+            Operand::Node(id) | Operand::Neg(id) => !matches!(k.op(id), Op::Const(c) if c == 0.0),
+        })
+        .count();
     // The loop replaces the `Combine` nodes, so nothing else may read them (with coupled
     // mimic joints, for one, the graph goes on after the product).
     let combine = |id: Id| k.nodes[id.0 as usize].stage == Stage::Combine;
-    let read_elsewhere = k.nodes.iter().any(|n| n.stage != Stage::Combine && n.op.operands().any(combine))
-        || k.outputs.iter().enumerate().any(|(o, out)| !p.outputs.contains(&o) && out.ids.iter().any(|&id| combine(id)));
+    let read_elsewhere =
+        k.nodes.iter().any(|n| n.stage != Stage::Combine && n.op.operands().any(combine))
+            || k.outputs
+                .iter()
+                .enumerate()
+                .any(|(o, out)| !p.outputs.contains(&o) && out.ids.iter().any(|&id| combine(id)));
     (!read_elsewhere && 4 * nonzero >= 3 * p.dc.len() * nv * nv).then_some(p)
 }
 
@@ -236,12 +246,21 @@ fn operand_names(p: &DenseProduct) -> Vec<String> {
     std::iter::once("pm".to_string()).chain((0..p.dc.len()).map(|i| format!("pd{i}"))).collect()
 }
 
-fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: &RustOptions, copy: Copy) {
+fn emit_kernel(
+    out: &mut String,
+    k: &Function,
+    nv: usize,
+    q_len: &str,
+    options: &RustOptions,
+    copy: Copy,
+) {
     let names = Chunks::new(k, options.chunk);
     let looped = looped_product(k, nv, copy);
     // With a looped product, the graph's product nodes are not emitted.
-    let skip: Vec<bool> = k.nodes.iter().map(|n| looped.is_some() && n.stage == Stage::Combine).collect();
-    let mut fuse = if copy != Copy::Portable { fusable(k, &names) } else { vec![false; k.nodes.len()] };
+    let skip: Vec<bool> =
+        k.nodes.iter().map(|n| looped.is_some() && n.stage == Stage::Combine).collect();
+    let mut fuse =
+        if copy != Copy::Portable { fusable(k, &names) } else { vec![false; k.nodes.len()] };
     if let Some(p) = looped {
         // The operands are stored into the loop's matrices, so they must exist.
         for o in p.minv.iter().chain(p.dc.iter().flatten()) {
@@ -284,7 +303,9 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
                     Operand::Node(id) | Operand::Neg(id) => {
                         match k.op(id) {
                             Op::Const(c) if c == 0.0 => continue,
-                            Op::Const(_) | Op::Input(..) => inline_outputs.push((place.clone(), id)),
+                            Op::Const(_) | Op::Input(..) => {
+                                inline_outputs.push((place.clone(), id))
+                            }
                             _ => sinks.entry(id).or_default().push(place.clone()),
                         }
                         if matches!(o, Operand::Neg(_)) {
@@ -306,7 +327,8 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
             if dropped[id.0 as usize] || skip[id.0 as usize] {
                 continue;
             }
-            let expr = fused(k, &names, c, k.op(id), &dropped).unwrap_or_else(|| expression(k, &names, c, k.op(id)));
+            let expr = fused(k, &names, c, k.op(id), &dropped)
+                .unwrap_or_else(|| expression(k, &names, c, k.op(id)));
             let _ = writeln!(b, "let t{} = {expr};", id.0);
             if let Some(s) = names.slot[id.0 as usize] {
                 let _ = writeln!(b, "s[{s}] = t{};", id.0);
@@ -320,7 +342,10 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
 
     let attr = copy.attribute();
     let _ = writeln!(out, "/// {}", k.doc());
-    let _ = writeln!(out, "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]");
+    let _ = writeln!(
+        out,
+        "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]"
+    );
     let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
     for o in &k.outputs {
         let init = array_of(o.shape, "T::k(0.0)");
@@ -333,9 +358,20 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
         out.push_str(&body(0, &chunks[0]));
     } else {
         let _ = writeln!(out, "let mut s = [T::k(0.0); {}];", names.slots);
-        let outs: Vec<String> = k.outputs.iter().map(|o| o.name.to_string()).chain(operand_mats.iter().cloned()).map(|o| format!("&mut {o}")).collect();
+        let outs: Vec<String> = k
+            .outputs
+            .iter()
+            .map(|o| o.name.to_string())
+            .chain(operand_mats.iter().cloned())
+            .map(|o| format!("&mut {o}"))
+            .collect();
         for c in 0..chunks.len() {
-            let _ = writeln!(out, "{name}_part{c}({}, &mut s, {});", arg_names.join(", "), outs.join(", "));
+            let _ = writeln!(
+                out,
+                "{name}_part{c}({}, &mut s, {});",
+                arg_names.join(", "),
+                outs.join(", ")
+            );
         }
     }
     if let Some(p) = looped {
@@ -350,8 +386,17 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
             .chain(operand_mats.iter().map(|m| format!("{m}: &mut [[T; NV]; NV]")))
             .collect();
         for (c, ids) in chunks.iter().enumerate() {
-            let _ = writeln!(out, "#[inline(never)]\n{attr}#[allow(clippy::all, unused_variables, unused_mut)]");
-            let _ = writeln!(out, "fn {name}_part{c}<T: Real>({}, s: &mut [T; {}], {}) {{", args.join(", "), names.slots, outs.join(", "));
+            let _ = writeln!(
+                out,
+                "#[inline(never)]\n{attr}#[allow(clippy::all, unused_variables, unused_mut)]"
+            );
+            let _ = writeln!(
+                out,
+                "fn {name}_part{c}<T: Real>({}, s: &mut [T; {}], {}) {{",
+                args.join(", "),
+                names.slots,
+                outs.join(", ")
+            );
             out.push_str(&body(c, ids));
             out.push_str("}\n\n");
         }
@@ -362,7 +407,14 @@ fn emit_kernel(out: &mut String, k: &Function, nv: usize, q_len: &str, options: 
 /// column index innermost so that the compiler vectorises it; each entry sums its terms in the graph's order (j = 0, 1, ...), with
 /// `mul_add`. Entries the graph holds as constants (structural zeros) are written back
 /// after the loop.
-fn emit_product_loop(out: &mut String, k: &Function, p: &DenseProduct, mats: &[String], fixups: &[String], nv: usize) {
+fn emit_product_loop(
+    out: &mut String,
+    k: &Function,
+    p: &DenseProduct,
+    mats: &[String],
+    fixups: &[String],
+    nv: usize,
+) {
     for f in fixups {
         let _ = writeln!(out, "{f}");
     }
@@ -383,7 +435,14 @@ fn emit_product_loop(out: &mut String, k: &Function, p: &DenseProduct, mats: &[S
     for &o in &p.outputs {
         for (flat, &id) in k.outputs[o].ids.iter().enumerate() {
             if let Op::Const(c) = k.op(id) {
-                let _ = writeln!(out, "{}[{}][{}] = T::k({});", k.outputs[o].name, flat / nv, flat % nv, literal(c));
+                let _ = writeln!(
+                    out,
+                    "{}[{}][{}] = T::k({});",
+                    k.outputs[o].name,
+                    flat / nv,
+                    flat % nv,
+                    literal(c)
+                );
             }
         }
     }
@@ -420,7 +479,11 @@ impl Signature {
     fn of(k: &Function, q_len: &str) -> Self {
         let ret: Vec<String> = k.outputs.iter().map(|o| output_type(o.shape)).collect();
         Signature {
-            args: k.inputs().iter().map(|i| format!("{}: &[T; {}]", i.name(), input_len(*i, q_len))).collect(),
+            args: k
+                .inputs()
+                .iter()
+                .map(|i| format!("{}: &[T; {}]", i.name(), input_len(*i, q_len)))
+                .collect(),
             arg_names: k.inputs().iter().map(|i| i.name()).collect(),
             ret_type: if ret.len() == 1 { ret[0].clone() } else { format!("({})", ret.join(", ")) },
         }
@@ -461,9 +524,17 @@ fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool) {
             k.doc()
         );
     } else {
-        let _ = writeln!(out, "/// {}\n///\n/// Runs [`fma::{name}`] where [`has_fma`], else [`portable::{name}`].", k.doc());
+        let _ = writeln!(
+            out,
+            "/// {}\n///\n/// Runs [`fma::{name}`] where [`has_fma`], else [`portable::{name}`].",
+            k.doc()
+        );
     }
-    let _ = writeln!(out, "#[inline]\n#[allow(dead_code)]\npub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
+    let _ = writeln!(
+        out,
+        "#[inline]\n#[allow(dead_code)]\npub fn {name}<T: Real>({}) -> {ret_type} {{",
+        args.join(", ")
+    );
     if avx512 {
         let _ = writeln!(
             out,
@@ -589,7 +660,11 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
     let nv = robot.nv();
     let gravity = module.gravity;
     let mut out = String::new();
-    let _ = writeln!(out, "/// The robot's name in its URDF.\n#[allow(dead_code)]\npub const ROBOT: &str = {};", string_literal(&robot.name));
+    let _ = writeln!(
+        out,
+        "/// The robot's name in its URDF.\n#[allow(dead_code)]\npub const ROBOT: &str = {};",
+        string_literal(&robot.name)
+    );
     let _ = writeln!(out, "/// Number of movable joints (and of entries in every vector).\n#[allow(dead_code)]\npub const NV: usize = {nv};");
     let nq_doc = match (robot.floating, robot.spherical.is_empty()) {
         (true, true) => {
@@ -602,10 +677,12 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
                  /// joint's three and seven for a floating base's six (Pinocchio's layout; see the file header)."
         }
     };
-    let _ = writeln!(out, "/// {nq_doc}\n#[allow(dead_code)]\npub const NQ: usize = {};", robot.nq());
+    let _ =
+        writeln!(out, "/// {nq_doc}\n#[allow(dead_code)]\npub const NQ: usize = {};", robot.nq());
     let names: Vec<String> = robot.joint_names.iter().map(|n| string_literal(n)).collect();
     let _ = writeln!(out, "/// Movable joints in model order: depth-first from the root, children in document order.\n#[allow(dead_code)]\npub const JOINT_NAMES: [&str; NV] = [{}];", names.join(", "));
-    let parents: Vec<String> = robot.parents.iter().map(|p| p.map_or("None".into(), |p| format!("Some({p})"))).collect();
+    let parents: Vec<String> =
+        robot.parents.iter().map(|p| p.map_or("None".into(), |p| format!("Some({p})"))).collect();
     let _ = writeln!(
         out,
         "/// Parent joint of each joint (`None`: the fixed root).\n#[allow(dead_code)]\npub const PARENTS: [Option<usize>; NV] = [{}];",
@@ -624,7 +701,8 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
         );
     }
     if let Some(step) = robot.specialisation.step {
-        let actuated: Vec<String> = robot.actuated.iter().map(|&c| string_literal(&robot.joint_names[c])).collect();
+        let actuated: Vec<String> =
+            robot.actuated.iter().map(|&c| string_literal(&robot.joint_names[c])).collect();
         let _ = writeln!(
             out,
             "/// Entries of the step kernels' `tau`: the actuated joints.\n#[allow(dead_code)]\npub const NU: usize = {};\n\
@@ -651,7 +729,8 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
     }
     if !robot.contacts.is_empty() {
         let frames: Vec<String> = robot.contacts.iter().map(|(n, _)| string_literal(n)).collect();
-        let kinds: Vec<String> = robot.contacts.iter().map(|(_, k)| string_literal(k.name())).collect();
+        let kinds: Vec<String> =
+            robot.contacts.iter().map(|(_, k)| string_literal(k.name())).collect();
         let _ = writeln!(
             out,
             "/// Entries of the contact forces `lambda`: 3 per point contact, 6 per wrench (`[f; tau]`), in world axes at the\n\
@@ -703,7 +782,10 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
     let file = syn::parse_file(&out).map_err(|e| BackError::RustUnparsable(e.to_string()))?;
     let code = prettyplease::unparse(&file);
     let stem = identifier(&robot.name);
-    let api: String = api_doc(module.functions.iter()).lines().map(|l| if l.is_empty() { "//\n".to_string() } else { format!("// {l}\n") }).collect();
+    let api: String = api_doc(module.functions.iter())
+        .lines()
+        .map(|l| if l.is_empty() { "//\n".to_string() } else { format!("// {l}\n") })
+        .collect();
     let header = format!(
         "// @generated by grid-gen {} from the URDF of robot {} ({} joints). Do not edit:\n\
          // regenerate with `grid-gen ROBOT.urdf -o DIR` or grid_gen::Builder in build.rs.\n\

@@ -24,7 +24,9 @@ pub fn cells(top: &str, f: &Format) -> String {
     };
     let how = match f.rounding {
         Rounding::Truncate => "drops the low FRAC bits (rounds toward -inf)",
-        Rounding::HalfUp => "adds half an ulp and drops the low FRAC bits (rounds to nearest, ties up)",
+        Rounding::HalfUp => {
+            "adds half an ulp and drops the low FRAC bits (rounds to nearest, ties up)"
+        }
     };
     format!(
         "// y = a * b in {label}: the {w2}-bit product {how}, then saturates.

@@ -22,7 +22,9 @@ use serde::Serialize;
 
 use super::names::{comment_text, identifier};
 use super::{BackError, GeneratedFile, Target};
-use crate::ir::fixed::{analyse, choose_format, Analysis, Bounds, Datapath, FixedError, Format, Rounding};
+use crate::ir::fixed::{
+    analyse, choose_format, Analysis, Bounds, Datapath, FixedError, Format, Rounding,
+};
 use crate::ir::{KernelKind, Module};
 pub use pipelined::Stages;
 pub use ports::PortNames;
@@ -73,7 +75,8 @@ pub const DEFAULT_ADDERS: usize = 8;
 /// The kernels `--emit verilog` builds by default: the gradient and M (the host forms
 /// M⁻¹ and ∂q̈ = −M⁻¹ ∂c, as robomorphic computing does), and the frame Jacobian when
 /// frames are asked for (the kernel an FPGA controller runs at kHz rates).
-pub const DEFAULT_KERNELS: [KernelKind; 3] = [KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::FrameJacobian];
+pub const DEFAULT_KERNELS: [KernelKind; 3] =
+    [KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::FrameJacobian];
 
 /// Options of the Verilog backend.
 #[derive(Clone, Debug, PartialEq)]
@@ -162,15 +165,21 @@ pub enum Layout {
 /// Builds each requested kernel's datapath, picks or checks its format, and schedules it.
 pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, BackError> {
     // A frame kernel exists only where frames were asked for: without them it is not built.
-    let kernels: Vec<KernelKind> =
-        KernelKind::ALL.into_iter().filter(|k| options.kernels.contains(k) && !(k.is_frame() && module.function(*k).is_none())).collect();
+    let kernels: Vec<KernelKind> = KernelKind::ALL
+        .into_iter()
+        .filter(|k| options.kernels.contains(k) && !(k.is_frame() && module.function(*k).is_none()))
+        .collect();
     if kernels.is_empty() {
         return Err(BackError::VerilogNoKernels);
     }
     match options.arch {
-        Arch::Pipelined { stage_depth: 0 } => return Err(BackError::VerilogArch("--stage-depth must be at least 1".into())),
+        Arch::Pipelined { stage_depth: 0 } => {
+            return Err(BackError::VerilogArch("--stage-depth must be at least 1".into()))
+        }
         Arch::Shared { multipliers, adders } if multipliers == 0 || adders == 0 => {
-            return Err(BackError::VerilogArch("--multipliers and --adders must be at least 1".into()))
+            return Err(BackError::VerilogArch(
+                "--multipliers and --adders must be at least 1".into(),
+            ))
         }
         _ => {}
     }
@@ -190,14 +199,29 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, B
                 analysis.check(&datapath, &format)?;
                 (format, analysis)
             }
-            FormatChoice::Auto { max_error } => choose_format(&datapath, &bounds, options.rounding, max_error)?,
+            FormatChoice::Auto { max_error } => {
+                choose_format(&datapath, &bounds, options.rounding, max_error)?
+            }
         };
         let layout = match options.arch {
-            Arch::Shared { multipliers, adders } => Layout::Shared(SharedSchedule::new(&datapath, multipliers, adders)),
-            Arch::Pipelined { stage_depth } => Layout::Pipelined(Stages::new(&datapath, stage_depth)),
+            Arch::Shared { multipliers, adders } => {
+                Layout::Shared(SharedSchedule::new(&datapath, multipliers, adders))
+            }
+            Arch::Pipelined { stage_depth } => {
+                Layout::Pipelined(Stages::new(&datapath, stage_depth))
+            }
         };
         let names = PortNames::new(&module.robot, &datapath);
-        out.push(Netlist { kind, datapath, format, analysis, bounds: bounds.clone(), top: format!("{stem}_{}", kind.name()), names, layout });
+        out.push(Netlist {
+            kind,
+            datapath,
+            format,
+            analysis,
+            bounds: bounds.clone(),
+            top: format!("{stem}_{}", kind.name()),
+            names,
+            layout,
+        });
     }
     Ok(out)
 }
@@ -214,9 +238,20 @@ impl Netlist {
     pub fn stats(&self) -> NetlistStats {
         let dp = &self.datapath;
         let (muls, adds) = dp.op_counts();
-        let (multipliers, constant_multipliers, adders, registers, latency_cycles, cycles_per_state) = match &self.layout {
-            Layout::Shared(s) => (s.multipliers, 0, s.adders, s.registers, s.cycles + 1, s.cycles + 1),
-            Layout::Pipelined(st) => (muls, dp.constant_muls(), adds, st.registers(), st.count as usize + 1, 1),
+        let (
+            multipliers,
+            constant_multipliers,
+            adders,
+            registers,
+            latency_cycles,
+            cycles_per_state,
+        ) = match &self.layout {
+            Layout::Shared(s) => {
+                (s.multipliers, 0, s.adders, s.registers, s.cycles + 1, s.cycles + 1)
+            }
+            Layout::Pipelined(st) => {
+                (muls, dp.constant_muls(), adds, st.registers(), st.count as usize + 1, 1)
+            }
         };
         NetlistStats {
             kernel: self.kind,
@@ -241,7 +276,10 @@ impl Netlist {
 
     /// The netlist file's name and the testbench's.
     pub fn file_names(&self) -> (String, String) {
-        (Target::Verilog.file_name(&self.top), Target::Verilog.file_name(&format!("{}_tb", self.top)))
+        (
+            Target::Verilog.file_name(&self.top),
+            Target::Verilog.file_name(&format!("{}_tb", self.top)),
+        )
     }
 
     /// The netlist (cells and top module) as Verilog-2005.
@@ -280,7 +318,11 @@ impl Netlist {
     fn header(&self, robot: &crate::ir::Robot) -> String {
         let s = self.stats();
         let mut h = String::new();
-        h.push_str(&format!("// Generated by grid-gen {} from robot \"{}\". Do not edit.\n", env!("CARGO_PKG_VERSION"), comment_text(&robot.name)));
+        h.push_str(&format!(
+            "// Generated by grid-gen {} from robot \"{}\". Do not edit.\n",
+            env!("CARGO_PKG_VERSION"),
+            comment_text(&robot.name)
+        ));
         h.push_str(&crate::back::source_line(&robot.source));
         h.push_str(&crate::back::specialisation_lines(robot));
         h.push_str(&format!("// {}: {}\n", self.kind.name(), comment_text(self.kind.doc())));
@@ -308,7 +350,12 @@ impl Netlist {
             s.multipliers, s.constant_multipliers, s.adders, s.registers
         ));
         // Forces appear in the bounds only where the netlist takes them.
-        let forces = if self.datapath.ports.iter().any(|p| matches!(p, crate::ir::fixed::Port::Value(crate::ir::Input::Fext | crate::ir::Input::Lambda, _))) {
+        let forces = if self.datapath.ports.iter().any(|p| {
+            matches!(
+                p,
+                crate::ir::fixed::Port::Value(crate::ir::Input::Fext | crate::ir::Input::Lambda, _)
+            )
+        }) {
             format!(", |fext|, |lambda| <= {} per entry", self.bounds.force)
         } else {
             String::new()

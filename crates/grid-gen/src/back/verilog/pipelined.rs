@@ -73,7 +73,12 @@ pub fn top(n: &Netlist, st: &Stages) -> String {
     v.push_str(&n.module_ports());
     let _ = writeln!(v, "    assign in_ready = 1'b1;");
     let _ = writeln!(v, "    reg [{s_max}:0] valid;");
-    let _ = writeln!(v, "    always @(posedge clk) valid <= rst ? {}'d0 : {{valid[{}:0], in_valid}};", s_max + 1, s_max - 1);
+    let _ = writeln!(
+        v,
+        "    always @(posedge clk) valid <= rst ? {}'d0 : {{valid[{}:0], in_valid}};",
+        s_max + 1,
+        s_max - 1
+    );
     let _ = writeln!(v, "    wire ovf0 = 1'b0;");
 
     // Registers, declared once; filled in one clocked block per stage below.
@@ -113,23 +118,36 @@ pub fn top(n: &Netlist, st: &Stages) -> String {
             }
             let _ = writeln!(v, "    wire signed [{}:0] n{i};\n    wire o{i};", w - 1);
             let (cell, a, b, sub) = match *op {
-                HwOp::Add(a, b) => ("add", operand(n, st, a, s), operand(n, st, b, s), Some("1'b0")),
-                HwOp::Sub(a, b) => ("add", operand(n, st, a, s), operand(n, st, b, s), Some("1'b1")),
+                HwOp::Add(a, b) => {
+                    ("add", operand(n, st, a, s), operand(n, st, b, s), Some("1'b0"))
+                }
+                HwOp::Sub(a, b) => {
+                    ("add", operand(n, st, a, s), operand(n, st, b, s), Some("1'b1"))
+                }
                 HwOp::Neg(a) => ("add", literal(0, w), operand(n, st, a, s), Some("1'b1")),
                 HwOp::Mul(a, b) => ("mul", operand(n, st, a, s), operand(n, st, b, s), None),
                 HwOp::Port(_) | HwOp::Const(_) => unreachable!("operations only"),
             };
             let sub = sub.map_or(String::new(), |s| format!(", .sub({s})"));
-            let _ = writeln!(v, "    {}_{cell} u{i} (.a({a}), .b({b}){sub}, .y(n{i}), .ovf(o{i}));", n.top);
+            let _ = writeln!(
+                v,
+                "    {}_{cell} u{i} (.a({a}), .b({b}){sub}, .y(n{i}), .ovf(o{i}));",
+                n.top
+            );
             flags.push(format!("o{i}"));
         }
         let _ = writeln!(v, "    reg ovf{s};");
-        let any = if flags.is_empty() { "1'b0".to_string() } else { format!("(|{{{}}})", flags.join(", ")) };
+        let any = if flags.is_empty() {
+            "1'b0".to_string()
+        } else {
+            format!("(|{{{}}})", flags.join(", "))
+        };
         let _ = writeln!(v, "    always @(posedge clk) ovf{s} <= ovf{} | {any};", s - 1);
         register_from(&mut v, s);
     }
 
-    let _ = writeln!(v, "\n    assign out_valid = valid[{s_max}];\n    assign overflow = ovf{s_max};");
+    let _ =
+        writeln!(v, "\n    assign out_valid = valid[{s_max}];\n    assign overflow = ovf{s_max};");
     for (name, id) in &n.names.outputs {
         let src = match dp.op(*id) {
             HwOp::Const(c) => literal(n.format.quantize(c).0, w),

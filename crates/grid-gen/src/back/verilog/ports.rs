@@ -29,10 +29,15 @@ fn input_name(robot: &Robot, p: Port) -> String {
     let k = p.joint();
     match p {
         Port::QuatScale(3) if robot.floating => "quat_scale".to_string(),
-        Port::QuatScale(_) => format!("quat_scale_{k}_{}", identifier(robot.q_name(k).strip_suffix("_qx").unwrap_or_default())),
+        Port::QuatScale(_) => format!(
+            "quat_scale_{k}_{}",
+            identifier(robot.q_name(k).strip_suffix("_qx").unwrap_or_default())
+        ),
         _ if q_indexed => format!("{}_{k}_{}", p.prefix(), identifier(&robot.q_name(k))),
         // A force entry: the body's joint or the contact's frame, and the component.
-        Port::Value(Input::Fext, _) => format!("fext_{k}_{}_{}", identifier(&robot.fext[k / 6]), FORCE_COMPONENTS[k % 6]),
+        Port::Value(Input::Fext, _) => {
+            format!("fext_{k}_{}_{}", identifier(&robot.fext[k / 6]), FORCE_COMPONENTS[k % 6])
+        }
         Port::Value(Input::Lambda, _) => {
             let mut at = 0;
             let (frame, kind) = robot
@@ -57,7 +62,8 @@ impl PortNames {
             .into_iter()
             .map(|(k, e, id)| {
                 let o = &dp.outputs[k];
-                let index: Vec<String> = o.shape.index(e, &dp.dims).iter().map(|i| i.to_string()).collect();
+                let index: Vec<String> =
+                    o.shape.index(e, &dp.dims).iter().map(|i| i.to_string()).collect();
                 let name = format!("{}_{}", o.name, index.join("_"));
                 (name, id)
             })
@@ -68,7 +74,12 @@ impl PortNames {
     /// The port table for the file header.
     pub fn doc(&self, robot: &Robot) -> String {
         let mut s = String::from("//   joints: ");
-        let joints: Vec<String> = robot.joint_names.iter().enumerate().map(|(i, n)| format!("{i} \"{}\"", comment_text(n))).collect();
+        let joints: Vec<String> = robot
+            .joint_names
+            .iter()
+            .enumerate()
+            .map(|(i, n)| format!("{i} \"{}\"", comment_text(n)))
+            .collect();
         s.push_str(&joints.join(", "));
         s.push_str("\n//   inputs, in this order: ");
         s.push_str(&self.inputs.join(", "));

@@ -51,7 +51,8 @@ impl SharedSchedule {
                 height[i] = 1 + users[i].iter().map(|&u| height[u]).max().unwrap_or(0);
             }
         }
-        let mut ready: [BinaryHeap<(usize, Reverse<usize>)>; 2] = [BinaryHeap::new(), BinaryHeap::new()];
+        let mut ready: [BinaryHeap<(usize, Reverse<usize>)>; 2] =
+            [BinaryHeap::new(), BinaryHeap::new()];
         let kind = |i: usize| usize::from(!dp.nodes[i].is_mul());
         for i in 0..n {
             if dp.nodes[i].is_operation() && waiting[i] == 0 {
@@ -104,7 +105,8 @@ impl SharedSchedule {
                 _ => unreachable!("constants are not allocated"),
             }
         };
-        let mut order: Vec<usize> = (0..n).filter(|&i| !matches!(dp.nodes[i], HwOp::Const(_))).collect();
+        let mut order: Vec<usize> =
+            (0..n).filter(|&i| !matches!(dp.nodes[i], HwOp::Const(_))).collect();
         order.sort_by_key(|&i| (def(i), i));
         let mut free: BinaryHeap<Reverse<(isize, usize)>> = BinaryHeap::new();
         let mut reg = vec![None; n];
@@ -137,14 +139,26 @@ mod tests {
     /// A small graph: (p0 * p1) + (p0 * 3), then negated.
     fn graph() -> Datapath {
         use HwOp::*;
-        let nodes = vec![Port(0), Port(1), Const(3.0), Mul(HwId(0), HwId(1)), Mul(HwId(0), HwId(2)), Add(HwId(3), HwId(4)), Neg(HwId(5))];
+        let nodes = vec![
+            Port(0),
+            Port(1),
+            Const(3.0),
+            Mul(HwId(0), HwId(1)),
+            Mul(HwId(0), HwId(2)),
+            Add(HwId(3), HwId(4)),
+            Neg(HwId(5)),
+        ];
         Datapath {
             kernel: "test",
             nv: 1,
             dims: crate::ir::Dims { nq: 1, nv: 1, nu: 0, nframes: 0, nfext: 0, nlambda: 0 },
             ports: vec![crate::ir::fixed::Port::Sin(0), crate::ir::fixed::Port::Cos(0)],
             nodes,
-            outputs: vec![crate::ir::fixed::DatapathOutput { name: "c", shape: crate::ir::Shape::Vector, ids: vec![HwId(6)] }],
+            outputs: vec![crate::ir::fixed::DatapathOutput {
+                name: "c",
+                shape: crate::ir::Shape::Vector,
+                ids: vec![HwId(6)],
+            }],
         }
     }
 

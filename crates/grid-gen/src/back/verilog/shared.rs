@@ -43,7 +43,11 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
         let _ = writeln!(v, "    reg signed [{wm}:0] {m}_a, {m}_b;\n    wire signed [{wm}:0] {m}_y;\n    wire {m}_o;", wm = w - 1);
         match u {
             Unit::Mul(_) => {
-                let _ = writeln!(v, "    {}_mul u{m} (.a({m}_a), .b({m}_b), .y({m}_y), .ovf({m}_o));", n.top);
+                let _ = writeln!(
+                    v,
+                    "    {}_mul u{m} (.a({m}_a), .b({m}_b), .y({m}_y), .ovf({m}_o));",
+                    n.top
+                );
             }
             Unit::Add(_) => {
                 let _ = writeln!(v, "    reg {m}_s;\n    {}_add u{m} (.a({m}_a), .b({m}_b), .sub({m}_s), .y({m}_y), .ovf({m}_o));", n.top);
@@ -95,7 +99,12 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
     let _ = writeln!(v, "                    busy <= 1'b1; cyc <= {counter_bits}'d0; ovf <= 1'b0;");
     for (i, op) in dp.nodes.iter().enumerate() {
         if let HwOp::Port(p) = op {
-            let _ = writeln!(v, "                    r{} <= {};", s.reg[i].expect("allocated"), n.names.inputs[*p as usize]);
+            let _ = writeln!(
+                v,
+                "                    r{} <= {};",
+                s.reg[i].expect("allocated"),
+                n.names.inputs[*p as usize]
+            );
         }
     }
     let _ = writeln!(v, "                end\n            end else begin");
@@ -110,10 +119,18 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
         let _ = writeln!(v, " end");
     }
     let _ = writeln!(v, "                    default: ;\n                endcase");
-    let _ = writeln!(v, "                if (cyc == {counter_bits}'d{}) begin busy <= 1'b0; done <= 1'b1; end", s.cycles - 1);
-    let _ = writeln!(v, "                cyc <= cyc + 1'b1;\n            end\n        end\n    end");
+    let _ = writeln!(
+        v,
+        "                if (cyc == {counter_bits}'d{}) begin busy <= 1'b0; done <= 1'b1; end",
+        s.cycles - 1
+    );
+    let _ =
+        writeln!(v, "                cyc <= cyc + 1'b1;\n            end\n        end\n    end");
 
-    let _ = writeln!(v, "\n    assign in_ready = !busy;\n    assign out_valid = done;\n    assign overflow = ovf;");
+    let _ = writeln!(
+        v,
+        "\n    assign in_ready = !busy;\n    assign out_valid = done;\n    assign overflow = ovf;"
+    );
     for (name, id) in &n.names.outputs {
         let _ = writeln!(v, "    assign {name} = {};", read(*id));
     }

@@ -44,19 +44,36 @@ impl Drop for Scratch {
 }
 
 fn run(step: &'static str, cmd: &mut Command) -> Result<String, SimError> {
-    let out = cmd.output().map_err(|e| if e.kind() == std::io::ErrorKind::NotFound { SimError::NoSimulator } else { SimError::Io(e) })?;
+    let out = cmd.output().map_err(|e| {
+        if e.kind() == std::io::ErrorKind::NotFound {
+            SimError::NoSimulator
+        } else {
+            SimError::Io(e)
+        }
+    })?;
     let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
     if !out.status.success() {
-        return Err(SimError::Failed { step, stderr: format!("{}{}", stdout, String::from_utf8_lossy(&out.stderr)) });
+        return Err(SimError::Failed {
+            step,
+            stderr: format!("{}{}", stdout, String::from_utf8_lossy(&out.stderr)),
+        });
     }
     Ok(stdout)
 }
 
 /// Compiles the netlist and its testbench once, then simulates `ports` (one raw vector
 /// per state, in port order), in batches of the testbench's capacity.
-pub fn simulate(netlist: &Netlist, robot: &Robot, ports: &[Vec<i64>]) -> Result<Vec<SimResult>, SimError> {
+pub fn simulate(
+    netlist: &Netlist,
+    robot: &Robot,
+    ports: &[Vec<i64>],
+) -> Result<Vec<SimResult>, SimError> {
     static NEXT: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!("grid-gen-sim-{}-{}", std::process::id(), NEXT.fetch_add(1, Ordering::Relaxed)));
+    let dir = std::env::temp_dir().join(format!(
+        "grid-gen-sim-{}-{}",
+        std::process::id(),
+        NEXT.fetch_add(1, Ordering::Relaxed)
+    ));
     std::fs::create_dir_all(&dir)?;
     let scratch = Scratch(dir);
     let (v, tb) = netlist.file_names();
@@ -81,7 +98,12 @@ pub fn simulate(netlist: &Netlist, robot: &Robot, ports: &[Vec<i64>]) -> Result<
     Ok(results)
 }
 
-fn simulate_batch(netlist: &Netlist, dir: &Path, image: &Path, batch: &[Vec<i64>]) -> Result<Vec<SimResult>, SimError> {
+fn simulate_batch(
+    netlist: &Netlist,
+    dir: &Path,
+    image: &Path,
+    batch: &[Vec<i64>],
+) -> Result<Vec<SimResult>, SimError> {
     let w = netlist.format.width;
     let mask = if w == 64 { u64::MAX } else { (1u64 << w) - 1 };
     let mut hex = String::new();
@@ -118,11 +140,21 @@ fn simulate_batch(netlist: &Netlist, dir: &Path, image: &Path, batch: &[Vec<i64>
         .map(|line| {
             let fields: Vec<&str> = line.split_whitespace().collect();
             if fields.len() != expected + 1 {
-                return Err(SimError::Output(format!("a line has {} fields, expected {}", fields.len(), expected + 1)));
+                return Err(SimError::Output(format!(
+                    "a line has {} fields, expected {}",
+                    fields.len(),
+                    expected + 1
+                )));
             }
             let outputs = fields[..expected]
                 .iter()
-                .map(|f| u64::from_str_radix(f, 16).map(sign).map_err(|_| SimError::Output(format!("`{f}` is not a hex value (x or z in the netlist?)"))))
+                .map(|f| {
+                    u64::from_str_radix(f, 16).map(sign).map_err(|_| {
+                        SimError::Output(format!(
+                            "`{f}` is not a hex value (x or z in the netlist?)"
+                        ))
+                    })
+                })
                 .collect::<Result<Vec<i64>, _>>()?;
             Ok(SimResult { outputs, overflow: fields[expected] == "1" })
         })

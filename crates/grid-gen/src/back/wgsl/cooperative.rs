@@ -19,7 +19,10 @@
 use std::collections::{BTreeSet, HashMap};
 use std::fmt::Write;
 
-use super::{output_stores, EntryStats, Precision, Strategy, Tables, Trig, WgslOptions, WORKGROUP_STORAGE_LIMIT};
+use super::{
+    output_stores, EntryStats, Precision, Strategy, Tables, Trig, WgslOptions,
+    WORKGROUP_STORAGE_LIMIT,
+};
 use crate::back::BackError;
 use crate::ir::{Function, Id, Input, Op};
 
@@ -56,7 +59,13 @@ fn address(tag: u32, index: usize, robot: &str) -> Result<u32, BackError> {
     Ok(tag << INDEX_BITS | index as u32)
 }
 
-pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot: &str, tables: &mut Tables) -> Result<EntryStats, BackError> {
+pub(super) fn emit(
+    out: &mut String,
+    f: &Function,
+    options: &WgslOptions,
+    robot: &str,
+    tables: &mut Tables,
+) -> Result<EntryStats, BackError> {
     let workers = options.workers as usize;
     let name = Strategy::Cooperative.entry(f.kind.name());
     let (stores, inline, outputs) = output_stores(f);
@@ -73,14 +82,28 @@ pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot:
     let mut phase = vec![usize::MAX; nodes];
     for (i, node) in f.nodes.iter().enumerate() {
         if node.op.operands().any(|o| o.0 as usize >= i) {
-            return Err(BackError::WgslOption(format!("{}: node {i} reads a later node (the IR is built in dependence order)", f.kind.name())));
+            return Err(BackError::WgslOption(format!(
+                "{}: node {i} reads a later node (the IR is built in dependence order)",
+                f.kind.name()
+            )));
         }
         if f.is_operation(Id(i as u32)) {
-            phase[i] = node.op.operands().filter(|o| phase[o.0 as usize] != usize::MAX).map(|o| phase[o.0 as usize] + 1).max().unwrap_or(0);
+            phase[i] = node
+                .op
+                .operands()
+                .filter(|o| phase[o.0 as usize] != usize::MAX)
+                .map(|o| phase[o.0 as usize] + 1)
+                .max()
+                .unwrap_or(0);
         }
     }
     let copies_after = |i: usize| if stores[i].is_empty() { 0 } else { 1 };
-    let phases = (0..nodes).filter(|&i| phase[i] != usize::MAX).map(|i| phase[i] + 1 + copies_after(i)).max().unwrap_or(0).max(1);
+    let phases = (0..nodes)
+        .filter(|&i| phase[i] != usize::MAX)
+        .map(|i| phase[i] + 1 + copies_after(i))
+        .max()
+        .unwrap_or(0)
+        .max(1);
 
     // Each operation's slot: from its phase to the last phase that reads it (its copies
     // included). A slot is reused only by a value written in a later phase than that, so
@@ -123,7 +146,10 @@ pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot:
     let in_workgroup = slots.min(budget) as usize;
     let spilled = slots.saturating_sub(budget) as usize;
     if slots >= 1 << 24 {
-        return Err(BackError::WgslOption(format!("robot \"{robot}\": {} needs {slots} slots, more than the table's 2^24", f.kind.name())));
+        return Err(BackError::WgslOption(format!(
+            "robot \"{robot}\": {} needs {slots} slots, more than the table's 2^24",
+            f.kind.name()
+        )));
     }
 
     let operand = |id: Id, tables: &mut Tables| -> Result<u32, BackError> {
@@ -192,7 +218,9 @@ pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot:
         at += steps * workers * WORDS;
     }
     if at > u32::MAX as usize {
-        return Err(BackError::WgslOption(format!("robot \"{robot}\": the cooperative tables exceed 2^32 words")));
+        return Err(BackError::WgslOption(format!(
+            "robot \"{robot}\": the cooperative tables exceed 2^32 words"
+        )));
     }
     tables.prog.extend(head);
     let mut instructions = 0;
@@ -240,7 +268,11 @@ pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot:
          case {COS}u: {{ v = {cos}(x); }}\n        case {COPY}u: {{\n            out[d * n + s] = x;\n            return;\n        }}\n        default: {{ return; }}\n    }}\n    \
          if (d < {in_workgroup}u) {{\n        {wg}[d] = v;\n    }} else {{\n        scratch[(d - {in_workgroup}u) * n + s] = v;\n    }}\n}}\n"
     );
-    let barrier = if spilled > 0 { "        workgroupBarrier();\n        storageBarrier();" } else { "        workgroupBarrier();" };
+    let barrier = if spilled > 0 {
+        "        workgroupBarrier();\n        storageBarrier();"
+    } else {
+        "        workgroupBarrier();"
+    };
     let _ = writeln!(out, "@compute @workgroup_size({workers})");
     let _ = writeln!(out, "fn {name}(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {{");
     // s and n are workgroup-uniform, so the early return keeps the barriers in uniform

@@ -236,7 +236,9 @@ fn literal(c: f64, precision: Precision, robot: &str) -> Result<String, BackErro
 /// Constant `c` as `precision` holds it, or an error if it cannot (an f32 overflow).
 fn rounded(c: f64, precision: Precision, robot: &str) -> Result<f64, BackError> {
     match precision {
-        Precision::F32 if !(c as f32).is_finite() => Err(BackError::WgslRange { robot: robot.to_string(), value: c }),
+        Precision::F32 if !(c as f32).is_finite() => {
+            Err(BackError::WgslRange { robot: robot.to_string(), value: c })
+        }
         Precision::F32 => Ok(c as f32 as f64),
         Precision::F64 => Ok(c),
     }
@@ -251,7 +253,12 @@ fn input_buffer(input: Input) -> &'static str {
 }
 
 /// The expression of operation `id`, given how to name each operand.
-fn expression(f: &Function, id: Id, trig: Trig, mut o: impl FnMut(Id) -> Result<String, BackError>) -> Result<String, BackError> {
+fn expression(
+    f: &Function,
+    id: Id,
+    trig: Trig,
+    mut o: impl FnMut(Id) -> Result<String, BackError>,
+) -> Result<String, BackError> {
     let (sin, cos) = match trig {
         Trig::Builtin => ("sin", "cos"),
         Trig::Accurate => ("gg_sin", "gg_cos"),
@@ -269,10 +276,17 @@ fn expression(f: &Function, id: Id, trig: Trig, mut o: impl FnMut(Id) -> Result<
 }
 
 /// Constants and inputs printed inline; `None` for operations.
-fn leaf(f: &Function, id: Id, precision: Precision, robot: &str) -> Result<Option<String>, BackError> {
+fn leaf(
+    f: &Function,
+    id: Id,
+    precision: Precision,
+    robot: &str,
+) -> Result<Option<String>, BackError> {
     Ok(match f.op(id) {
         Op::Const(k) => Some(literal(k, precision, robot)?),
-        Op::Input(which, j) => Some(format!("{}[{}u * n + s]", input_buffer(which), f.packed_u(which, j as usize))),
+        Op::Input(which, j) => {
+            Some(format!("{}[{}u * n + s]", input_buffer(which), f.packed_u(which, j as usize)))
+        }
         _ => None,
     })
 }
@@ -308,7 +322,8 @@ fn block(
     };
     let mut statements = 0;
     let mut loaded = std::collections::BTreeSet::new();
-    let reads = ids.iter().flat_map(|&id| f.op(id).operands()).chain(inline.iter().map(|&(_, id)| id));
+    let reads =
+        ids.iter().flat_map(|&id| f.op(id).operands()).chain(inline.iter().map(|&(_, id)| id));
     for x in reads {
         let load = match f.op(x) {
             Op::Const(_) => None,
@@ -400,13 +415,18 @@ pub fn emit(module: &Module, options: &WgslOptions) -> Result<GeneratedFile, Bac
 }
 
 /// [`emit`], and what each entry point costs.
-pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(GeneratedFile, Vec<EntryStats>), BackError> {
+pub fn emit_with_stats(
+    module: &Module,
+    options: &WgslOptions,
+) -> Result<(GeneratedFile, Vec<EntryStats>), BackError> {
     let robot = &module.robot;
     let nv = robot.nv();
     let stem = identifier(&robot.name);
     check_options(options)?;
     if options.precision == Precision::F64 && options.trig == Trig::Builtin {
-        return Err(BackError::WgslOption("f64 kernels need --wgsl-trig accurate (Vulkan has no f64 sine)".into()));
+        return Err(BackError::WgslOption(
+            "f64 kernels need --wgsl-trig accurate (Vulkan has no f64 sine)".into(),
+        ));
     }
     let mut body = String::new();
     let mut stats = Vec::new();
@@ -415,7 +435,9 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
         for &strategy in &options.strategies {
             let s = match strategy {
                 Strategy::Thread => thread::emit(&mut body, f, options, &robot.name)?,
-                Strategy::Cooperative => cooperative::emit(&mut body, f, options, &robot.name, &mut tables)?,
+                Strategy::Cooperative => {
+                    cooperative::emit(&mut body, f, options, &robot.name, &mut tables)?
+                }
             };
             stats.push(s);
         }
@@ -432,13 +454,18 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
     for line in LAYOUT_DOC.lines() {
         let _ = writeln!(out, "// {line}");
     }
-    let _ = writeln!(out, "//\n// Joints (model order), gravity [{}, {}, {}] m/s^2 compiled in:", module.gravity[0], module.gravity[1], module.gravity[2]);
+    let _ = writeln!(
+        out,
+        "//\n// Joints (model order), gravity [{}, {}, {}] m/s^2 compiled in:",
+        module.gravity[0], module.gravity[1], module.gravity[2]
+    );
     for (j, name) in robot.joint_names.iter().enumerate() {
         let _ = writeln!(out, "//   {j:>3}  {}", comment_text(name));
     }
     let _ = writeln!(out, "//\n// Kernels and output values per state:");
     for f in &module.functions {
-        let parts: Vec<String> = f.outputs.iter().map(|o| format!("{} ({})", o.name, o.ids.len())).collect();
+        let parts: Vec<String> =
+            f.outputs.iter().map(|o| format!("{} ({})", o.name, o.ids.len())).collect();
         let _ = writeln!(out, "//   {}: {}", f.signature(), parts.join(", "));
     }
     if robot.floating {
@@ -468,7 +495,8 @@ pub fn emit_with_stats(module: &Module, options: &WgslOptions) -> Result<(Genera
         options.precision.name(),
         options.trig.name()
     );
-    let _ = writeln!(out, "// tables: prog={} konst={}", tables.prog.len(), tables.konst.values.len());
+    let _ =
+        writeln!(out, "// tables: prog={} konst={}", tables.prog.len(), tables.konst.values.len());
     for s in &stats {
         let _ = writeln!(out, "{}", s.header_line());
     }
@@ -532,7 +560,9 @@ fn check_options(options: &WgslOptions) -> Result<(), BackError> {
     if options.strategies.is_empty() {
         return bad("no strategy selected (available: thread, cooperative)".into());
     }
-    for (name, v) in [("workgroup size", options.workgroup_size), ("cooperative workers", options.workers)] {
+    for (name, v) in
+        [("workgroup size", options.workgroup_size), ("cooperative workers", options.workers)]
+    {
         if v == 0 || v > MAX_INVOCATIONS {
             return bad(format!("{name} {v} is outside 1..={MAX_INVOCATIONS} (WebGPU's default maxComputeInvocationsPerWorkgroup)"));
         }

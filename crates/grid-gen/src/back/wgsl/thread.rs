@@ -15,9 +15,17 @@ use crate::back::BackError;
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id};
 
-pub(super) fn emit(out: &mut String, f: &Function, options: &WgslOptions, robot: &str) -> Result<EntryStats, BackError> {
+pub(super) fn emit(
+    out: &mut String,
+    f: &Function,
+    options: &WgslOptions,
+    robot: &str,
+) -> Result<EntryStats, BackError> {
     // A helper never spans two stages, so stages smaller than `chunk` shrink the helpers.
-    let c = Chunks::new(f, if options.stage > 0 { options.chunk.min(options.stage) } else { options.chunk });
+    let c = Chunks::new(
+        f,
+        if options.stage > 0 { options.chunk.min(options.stage) } else { options.chunk },
+    );
     let name = Strategy::Thread.entry(f.kind.name());
     let (stores, inline, outputs) = output_stores(f);
     let mut statements = 0;

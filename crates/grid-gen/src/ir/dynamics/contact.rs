@@ -35,7 +35,8 @@ impl Ldl {
         let zero = g.constant(0.0);
         let one = g.constant(1.0);
         // w[i][j] = L_ij D_j, kept so that each update is one multiplication.
-        let (mut l, mut w, mut dinv) = (vec![vec![zero; n]; n], vec![vec![zero; n]; n], vec![zero; n]);
+        let (mut l, mut w, mut dinv) =
+            (vec![vec![zero; n]; n], vec![vec![zero; n]; n], vec![zero; n]);
         for j in 0..n {
             let mut d = k[j][j];
             for p in 0..j {
@@ -233,7 +234,8 @@ impl Dynamics<'_> {
         let (mut outs_q, mut outs_l): (Vec<Mat>, Vec<Mat>) = (Vec::new(), Vec::new());
         for which in 0..3 {
             let columns = if which == 2 { tau_cols.len() } else { nv };
-            let (mut dq_cols, mut dl_cols) = (Vec::with_capacity(columns), Vec::with_capacity(columns));
+            let (mut dq_cols, mut dl_cols) =
+                (Vec::with_capacity(columns), Vec::with_capacity(columns));
             for c in 0..columns {
                 let f: Vec<Id> = (0..nv).map(|i| [&fq, &fqd, &minv][which][i][c]).collect();
                 let rhs: Vec<Id> = (0..nl)

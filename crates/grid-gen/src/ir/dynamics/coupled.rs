@@ -40,7 +40,15 @@ impl Dynamics<'_> {
 
     /// Per-joint τ from per-coordinate τ, `Pᵀ τ`: a coupled joint's is 0.
     pub fn place(&mut self, tau: &[Id]) -> Vec<Id> {
-        (0..self.n()).map(|i| if self.model.coupling(i).is_some() { self.g.constant(0.0) } else { tau[self.model.coordinate_of(i)] }).collect()
+        (0..self.n())
+            .map(|i| {
+                if self.model.coupling(i).is_some() {
+                    self.g.constant(0.0)
+                } else {
+                    tau[self.model.coordinate_of(i)]
+                }
+            })
+            .collect()
     }
 
     /// Per-coordinate forces from per-joint ones, `Gᵀ c`.
@@ -93,10 +101,14 @@ impl Dynamics<'_> {
 
     /// W, S and Y from the joint-level M⁻¹ (symmetric, so `M⁻¹ Kᵀ` has rows `K M⁻¹[a]`).
     pub fn constraints(&mut self, minv: &Mat) -> Constraints {
-        let rows: Vec<(usize, usize, f64)> = (0..self.n()).filter_map(|i| self.model.coupling(i).map(|c| (i, c.of, c.multiplier))).collect();
+        let rows: Vec<(usize, usize, f64)> = (0..self.n())
+            .filter_map(|i| self.model.coupling(i).map(|c| (i, c.of, c.multiplier)))
+            .collect();
         let w: Mat = minv.iter().map(|row| self.constrain(&rows, row)).collect();
         // S = K W: column s of S is K applied to column s of W.
-        let columns: Vec<Vec<Id>> = (0..rows.len()).map(|s| self.constrain(&rows, &w.iter().map(|row| row[s]).collect::<Vec<_>>())).collect();
+        let columns: Vec<Vec<Id>> = (0..rows.len())
+            .map(|s| self.constrain(&rows, &w.iter().map(|row| row[s]).collect::<Vec<_>>()))
+            .collect();
         let s: Mat = (0..rows.len()).map(|r| columns.iter().map(|col| col[r]).collect()).collect();
         let (l, d) = ldl(&mut self.g, &s);
         let y = w.iter().map(|row| ldl_solve(&mut self.g, &l, &d, row)).collect();

@@ -92,7 +92,9 @@ impl Dynamics<'_> {
                 self.at(b, super::Stage::Forward);
                 let g = &mut self.g;
                 let here: Option<Vec<Id>> = match &lambda {
-                    LambdaSource::Inputs => Some((0..c.kind.dim()).map(|i| g.input(Input::Lambda, at + i)).collect()),
+                    LambdaSource::Inputs => {
+                        Some((0..c.kind.dim()).map(|i| g.input(Input::Lambda, at + i)).collect())
+                    }
                     LambdaSource::Unknown => None,
                     LambdaSource::Nodes(l) => Some(l[at..at + c.kind.dim()].to_vec()),
                 };
@@ -116,7 +118,14 @@ impl Dynamics<'_> {
                 if here.is_some() {
                     add(&mut forces, g, b, force);
                 }
-                forces.contacts.push(ContactForce { body: b, kind: c.kind, rotation, point, force, axes });
+                forces.contacts.push(ContactForce {
+                    body: b,
+                    kind: c.kind,
+                    rotation,
+                    point,
+                    force,
+                    axes,
+                });
             }
         }
         self.forces = forces;
@@ -170,7 +179,11 @@ impl Dynamics<'_> {
 
     /// The columns of `∂c/∂fext` (see [`Self::force_grad_columns`]).
     fn fext_columns(&mut self) -> Vec<Vec<Id>> {
-        let bodies = if self.wants_fext_grads() { self.model.specialisation.fext.clone() } else { Vec::new() };
+        let bodies = if self.wants_fext_grads() {
+            self.model.specialisation.fext.clone()
+        } else {
+            Vec::new()
+        };
         let mut by_fext: Vec<Vec<Id>> = Vec::new();
         for b in bodies {
             for c in 0..6 {
@@ -209,7 +222,13 @@ pub(crate) fn transpose(columns: Vec<Vec<Id>>, rows: usize) -> Mat {
 
 /// A contact's force on its body in the body's frame: `[p × Rᵀf + Rᵀτ; Rᵀf]` (τ only for
 /// a wrench).
-fn contact_force(g: &mut super::Graph, r: &[[Id; 3]; 3], p: &V3, kind: ContactKind, lambda: &[Id]) -> Sv {
+fn contact_force(
+    g: &mut super::Graph,
+    r: &[[Id; 3]; 3],
+    p: &V3,
+    kind: ContactKind,
+    lambda: &[Id],
+) -> Sv {
     let f = sp::mat_t_vec(g, r, &[lambda[0], lambda[1], lambda[2]]);
     let mut n = sp::cross(g, p, &f);
     if kind == ContactKind::Wrench {

@@ -61,7 +61,9 @@ impl Dynamics<'_> {
             None => (rl, pl),
             Some(b) => {
                 let (rb, pb) = poses[b];
-                let r = std::array::from_fn(|a| std::array::from_fn(|c| g.dot(&rb[a], &[rl[0][c], rl[1][c], rl[2][c]])));
+                let r = std::array::from_fn(|a| {
+                    std::array::from_fn(|c| g.dot(&rb[a], &[rl[0][c], rl[1][c], rl[2][c]]))
+                });
                 let shift = sp::mat_vec(g, &rb, &pl);
                 (r, sp::add3(g, &pb, &shift))
             }
@@ -262,13 +264,16 @@ impl Dynamics<'_> {
             return vec![(Input::Q, i, one)];
         }
         let joint = self.model.coordinate_joints()[k];
-        let group = self.model.group(joint).expect("a coordinate without a q entry is a multi-dof joint's");
+        let group =
+            self.model.group(joint).expect("a coordinate without a q entry is a multi-dof joint's");
         let member = joint - group.start;
         let free = self.model.is_free_flyer(group.start);
         let at = if free { 3 } else { self.model.group_q(group.start) };
         let g = &mut self.g;
         let config = &self.config;
-        let [x, y, z, w] = std::array::from_fn(|c| config.as_ref().map_or_else(|| g.input(Input::Q, at + c), |q| q[at + c]));
+        let [x, y, z, w] = std::array::from_fn(|c| {
+            config.as_ref().map_or_else(|| g.input(Input::Q, at + c), |q| q[at + c])
+        });
         if free && member < 3 {
             // Column `member` of the rotation the kernels build (hash-consing shares its nodes).
             let r = sp::quaternion_rotation(g, [x, y, z, w]);
@@ -296,20 +301,35 @@ impl Dynamics<'_> {
     /// on the kernel's q input, or, at an RK4 stage, tangents given to the stage's
     /// configuration and velocity nodes, which stops the derivative at them (the stage's
     /// dynamics are differentiated at the stage's state, not through it).
-    pub(super) fn q_tangents(&mut self, k: usize, qd: &[Id], held: &[(Id, Id)]) -> (Vec<(Input, usize, Id)>, Vec<(Id, Id)>) {
+    pub(super) fn q_tangents(
+        &mut self,
+        k: usize,
+        qd: &[Id],
+        held: &[(Id, Id)],
+    ) -> (Vec<(Input, usize, Id)>, Vec<(Id, Id)>) {
         let seeds = self.q_seeds(k);
         let Some(config) = self.config.clone() else {
             return (seeds, held.to_vec());
         };
         let zero = self.g.constant(0.0);
         let mut given = held.to_vec();
-        given.extend(config.iter().enumerate().map(|(i, &n)| (n, seeds.iter().find(|s| s.1 == i).map_or(zero, |s| s.2))));
+        given.extend(
+            config
+                .iter()
+                .enumerate()
+                .map(|(i, &n)| (n, seeds.iter().find(|s| s.1 == i).map_or(zero, |s| s.2))),
+        );
         given.extend(qd.iter().map(|&n| (n, zero)));
         (Vec::new(), given)
     }
 
     /// [`Self::q_tangents`] along q̇'s entry `k`, at fixed q.
-    pub(super) fn qd_tangents(&mut self, k: usize, qd: &[Id], held: &[(Id, Id)]) -> (Vec<(Input, usize, Id)>, Vec<(Id, Id)>) {
+    pub(super) fn qd_tangents(
+        &mut self,
+        k: usize,
+        qd: &[Id],
+        held: &[(Id, Id)],
+    ) -> (Vec<(Input, usize, Id)>, Vec<(Id, Id)>) {
         let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
         let Some(config) = self.config.clone() else {
             return (vec![(Input::Qd, k, one)], held.to_vec());
@@ -341,7 +361,9 @@ impl Dynamics<'_> {
             let z = self.g.constant(0.0);
             return (vec![z; 3 * nv * nf], vec![z; 3 * nv * nf], vec![z; 3 * nv * nf]);
         }
-        let layout = |cols: &Vec<Vec<Id>>| -> Vec<Id> { (0..3 * nf).flat_map(|row| (0..nv).map(move |k| cols[k][row])).collect() };
+        let layout = |cols: &Vec<Vec<Id>>| -> Vec<Id> {
+            (0..3 * nf).flat_map(|row| (0..nv).map(move |k| cols[k][row])).collect()
+        };
         (layout(&columns[0]), layout(&columns[1]), layout(&columns[2]))
     }
 }

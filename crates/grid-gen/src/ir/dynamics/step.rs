@@ -11,7 +11,8 @@
 //! operations a joint; the result is exact to rounding for rotations of up to `2^K =
 //! 4096` rad in one step (a base spinning at 1e3 rad/s over 10 ms turns by 10 rad; a
 //! double-angle step doubles the angle's rounding error with the angle, so the error stays
-//! that of `θ` itself, about ε θ per step, as in a library `sin`). `integrate`'s Jacobians are the forward-mode derivatives of that graph.
+//! that of `θ` itself, about ε θ per step, as in a library `sin`). `integrate`'s Jacobians are the
+//! forward-mode derivatives of that graph.
 
 use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::spatial::{self as sp, joint_xform_at, k, V3};
@@ -36,7 +37,8 @@ struct Trig {
 /// `Σ_n (−y)^n / (2n + m)!` by Horner's rule.
 fn series(g: &mut Graph, y: Id, m: u32) -> Id {
     let factorial = |n: u32| (1..=n).map(f64::from).product::<f64>();
-    let mut acc = k(g, if (TERMS - 1) % 2 == 0 { 1.0 } else { -1.0 } / factorial(2 * (TERMS as u32 - 1) + m));
+    let mut acc =
+        k(g, if (TERMS - 1) % 2 == 0 { 1.0 } else { -1.0 } / factorial(2 * (TERMS as u32 - 1) + m));
     for n in (0..TERMS as u32 - 1).rev() {
         let t = g.mul(acc, y);
         let c = k(g, if n % 2 == 0 { 1.0 } else { -1.0 } / factorial(2 * n + m));
@@ -51,9 +53,11 @@ fn exp_coefficients(g: &mut Graph, w: &V3) -> (Trig, Id, Id) {
     let x = g.dot(w, w);
     let scale = k(g, 0.25f64.powi(DOUBLINGS));
     let mut y = g.mul(x, scale);
-    let mut t = Trig { s: series(g, y, 1), c: series(g, y, 0), b: series(g, y, 2), d: series(g, y, 3) };
+    let mut t =
+        Trig { s: series(g, y, 1), c: series(g, y, 0), b: series(g, y, 2), d: series(g, y, 3) };
     let (half, quarter, four) = (k(g, 0.5), k(g, 0.25), k(g, 4.0));
-    // sin 2φ/2φ = S C; cos 2φ = C² − φ² S²; (1 − cos 2φ)/4φ² = S²/2; (2φ − sin 2φ)/8φ³ = (D + S B)/4.
+    // sin 2φ/2φ = S C; cos 2φ = C² − φ² S²; (1 − cos 2φ)/4φ² = S²/2;
+    // (2φ − sin 2φ)/8φ³ = (D + S B)/4.
     let double = |g: &mut Graph, t: Trig, y: Id| {
         let ss = g.mul(t.s, t.s);
         let cc = g.mul(t.c, t.c);
@@ -109,7 +113,10 @@ fn turn(g: &mut Graph, q: [Id; 4], w: &V3) -> ([Id; 4], Trig, Id, Id) {
 impl Dynamics<'_> {
     /// The model's step (the step kernels exist only for a model with one).
     pub fn step_spec(&self) -> crate::model::Step {
-        self.model.specialisation.step.expect("step kernels are lowered only for a model with a step")
+        self.model
+            .specialisation
+            .step
+            .expect("step kernels are lowered only for a model with a step")
     }
 
     /// Whether `fd_grad` also returns M⁻¹.
@@ -219,7 +226,8 @@ impl Dynamics<'_> {
                 let held: Vec<(Id, Id)> = (0..dims).map(|i| (w[v + i], zero)).collect();
                 let seeds = self.q_seeds(v + col);
                 let dq = self.g.tangent_at(&outs, &seeds, &held);
-                let seeded: Vec<(Id, Id)> = (0..dims).map(|i| (w[v + i], if i == col { one } else { zero })).collect();
+                let seeded: Vec<(Id, Id)> =
+                    (0..dims).map(|i| (w[v + i], if i == col { one } else { zero })).collect();
                 let dw = self.g.tangent_at(&outs, &[], &seeded);
                 let (dq, dw) = (project(&mut self.g, dq), project(&mut self.g, dw));
                 for row in 0..dims {
@@ -264,12 +272,21 @@ impl Dynamics<'_> {
 
     /// [`Self::step_acceleration`] and `(∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`, τ's columns the
     /// coordinates `tau_cols`: `contact_fd_grad`'s with contacts, `fd_grad`'s without.
-    fn step_acceleration_grad(&mut self, qd: &[Id], tau: &[Id], tau_cols: &[usize]) -> (Vec<Id>, Mat, Mat, Mat) {
+    fn step_acceleration_grad(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        tau_cols: &[usize],
+    ) -> (Vec<Id>, Mat, Mat, Mat) {
         if self.declares_contacts() {
             let mut out = self.contact_fd_grad(qd, tau, tau_cols).into_iter();
             let qdd = out.next().and_then(|rows| rows.into_iter().next()).unwrap_or_default();
             let _lambda = out.next();
-            let (dq, dqd, dtau) = (out.next().unwrap_or_default(), out.next().unwrap_or_default(), out.next().unwrap_or_default());
+            let (dq, dqd, dtau) = (
+                out.next().unwrap_or_default(),
+                out.next().unwrap_or_default(),
+                out.next().unwrap_or_default(),
+            );
             return (qdd, dq, dqd, dtau);
         }
         let (qdd, dq, dqd, minv, _) = self.fd_grad(qd, tau, tau_cols, &[]);
@@ -287,17 +304,28 @@ impl Dynamics<'_> {
     /// RK4's stages as Crocoddyl's `IntegratedActionModelRK4`: `k_i = (v_i, q̈_i)` at
     /// `y_i = x ⊕ c_i dt k_(i−1)`, `dx = dt (k_1 + 2 k_2 + 2 k_3 + k_4) / 6`. With `grad`,
     /// each stage's `fd_grad` and the chain rule give `(A, B)` too.
-    fn rk4(&mut self, qd: &[Id], tau: &[Id], dt: f64, grad: bool) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
+    fn rk4(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        dt: f64,
+        grad: bool,
+    ) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
         let nv = self.model.nv();
         let nx = 2 * nv;
         let actuated = self.model.actuated();
         let nu = actuated.len();
         let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
-        let identity = |n: usize| -> Mat { (0..n).map(|i| (0..n).map(|j| if i == j { one } else { zero }).collect()).collect() };
+        let identity = |n: usize| -> Mat {
+            (0..n).map(|i| (0..n).map(|j| if i == j { one } else { zero }).collect()).collect()
+        };
         let mut dx = vec![zero; nx];
         let (mut dx_dx, mut dx_du) = (vec![vec![zero; nx]; nx], vec![vec![zero; nu]; nx]);
-        let (mut k_prev, mut dk_dx, mut dk_du): (Vec<Id>, Mat, Mat) = (Vec::new(), Vec::new(), Vec::new());
-        for (i, (c, weight)) in [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate() {
+        let (mut k_prev, mut dk_dx, mut dk_du): (Vec<Id>, Mat, Mat) =
+            (Vec::new(), Vec::new(), Vec::new());
+        for (i, (c, weight)) in
+            [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate()
+        {
             if self.exhausted() {
                 break;
             }
@@ -321,7 +349,8 @@ impl Dynamics<'_> {
             };
             let qdd;
             if grad {
-                let (a, da_dq, da_dv, minv_s) = self.at_config(&y_q, |d| d.step_acceleration_grad(&y_v, tau, &actuated));
+                let (a, da_dq, da_dv, minv_s) =
+                    self.at_config(&y_q, |d| d.step_acceleration_grad(&y_v, tau, &actuated));
                 // ∂k/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
                 let df: Mat = (0..nx)
                     .map(|r| {
@@ -401,7 +430,10 @@ impl Dynamics<'_> {
     }
 
     fn add_mat(&mut self, x: &Mat, y: &Mat) -> Mat {
-        x.iter().zip(y).map(|(a, b)| a.iter().zip(b).map(|(&p, &q)| self.g.add(p, q)).collect()).collect()
+        x.iter()
+            .zip(y)
+            .map(|(a, b)| a.iter().zip(b).map(|(&p, &q)| self.g.add(p, q)).collect())
+            .collect()
     }
 
     /// `x⁺ = (q⁺, q̇⁺)` for one step of `scheme` under the actuated forces `tau`.
@@ -438,7 +470,13 @@ impl Dynamics<'_> {
     /// and columns `[δq; δq̇]`. With `a_v = dt ∂q̈/∂x`, `b_v = dt M⁻¹ S`:
     /// semi-implicit `A = [[Jq + dt Jv a_vq, dt Jv (I + a_vv)], [a_vq, I + a_vv]]`,
     /// `B = [dt Jv b_v; b_v]`; explicit `A = [[Jq, dt Jv], [a_vq, I + a_vv]]`, `B = [0; b_v]`.
-    pub fn step_grad(&mut self, qd: &[Id], tau: &[Id], scheme: Scheme, dt: f64) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
+    pub fn step_grad(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        scheme: Scheme,
+        dt: f64,
+    ) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
         let nv = self.model.nv();
         let actuated = self.model.actuated();
         let nu = actuated.len();
@@ -455,7 +493,9 @@ impl Dynamics<'_> {
         let (jq, jv) = self.d_integrate(&w, &q_next);
         let g = &mut self.g;
         let (zero, one, h) = (g.constant(0.0), g.constant(1.0), k(g, dt));
-        let scale = |g: &mut Graph, m: &Mat| -> Mat { m.iter().map(|row| row.iter().map(|&x| g.mul(h, x)).collect()).collect() };
+        let scale = |g: &mut Graph, m: &Mat| -> Mat {
+            m.iter().map(|row| row.iter().map(|&x| g.mul(h, x)).collect()).collect()
+        };
         let avq = scale(g, &da_dq);
         let mut avv = scale(g, &da_dv);
         for (i, row) in avv.iter_mut().enumerate() {
@@ -479,7 +519,11 @@ impl Dynamics<'_> {
         };
         let (aqq, aqv, bq) = if scheme == Scheme::SemiImplicitEuler {
             let t = jv_times(g, &avq);
-            let aqq = jq.iter().zip(&t).map(|(a, b)| a.iter().zip(b).map(|(&x, &y)| g.add(x, y)).collect()).collect();
+            let aqq = jq
+                .iter()
+                .zip(&t)
+                .map(|(a, b)| a.iter().zip(b).map(|(&x, &y)| g.add(x, y)).collect())
+                .collect();
             (aqq, jv_times(g, &avv), jv_times(g, &bv))
         } else {
             (jq, scale(g, &jv), vec![vec![zero; nu]; nv])

@@ -8,7 +8,8 @@
 //! √(a²+b²) at every joint and ranges grow along the chain faster than the true values.
 //! First-order affine arithmetic (one noise symbol per port) was tried and bounded no
 //! node of the bundled robots tighter: the dynamics are multilinear in the joints'
-//! sin/cos, so every product of two joints' terms falls into the nonlinear remainder. The book reports the bound beside the measured error.
+//! sin/cos, so every product of two joints' terms falls into the nonlinear remainder. The book
+//! reports the bound beside the measured error.
 
 use super::{Datapath, FixedError, Format, HwOp, Port, Rounding, MAX_WIDTH};
 use crate::ir::{Input, Robot};
@@ -42,7 +43,9 @@ impl Bounds {
     /// given; the defaults above otherwise.
     pub fn new(robot: &Robot, qd_max: Option<f64>, qdd_max: Option<f64>) -> Bounds {
         let nv = robot.nv();
-        let joint_q = |j: usize| robot.limits[j].filter(|(lo, hi)| lo < hi).unwrap_or((-DEFAULT_Q_MAX, DEFAULT_Q_MAX));
+        let joint_q = |j: usize| {
+            robot.limits[j].filter(|(lo, hi)| lo < hi).unwrap_or((-DEFAULT_Q_MAX, DEFAULT_Q_MAX))
+        };
         // With a floating base, q's entries: position (read by no datapath: gravity does
         // not depend on it), the quaternion (within `eval`'s tolerance of unit), then the
         // joints after the free-flyer.
@@ -59,7 +62,13 @@ impl Bounds {
             q,
             // A static scene holds q̇ at 0 (its kernels never read it).
             qd: (0..nv)
-                .map(|j| if robot.specialisation.static_velocity { 0.0 } else { qd_max.or(robot.velocity_limits[j]).unwrap_or(DEFAULT_QD_MAX) })
+                .map(|j| {
+                    if robot.specialisation.static_velocity {
+                        0.0
+                    } else {
+                        qd_max.or(robot.velocity_limits[j]).unwrap_or(DEFAULT_QD_MAX)
+                    }
+                })
                 .collect(),
             qdd: vec![qdd_max.unwrap_or(DEFAULT_QDD_MAX); nv],
             force: DEFAULT_FORCE_MAX,
@@ -69,7 +78,8 @@ impl Bounds {
     /// Whether a state lies inside the bounds (positions are only bounded where a
     /// datapath uses them directly, for prismatic joints).
     pub fn contains(&self, qd: &[f64], qdd: &[f64]) -> bool {
-        qd.iter().zip(&self.qd).all(|(v, b)| v.abs() <= *b) && qdd.iter().zip(&self.qdd).all(|(v, b)| v.abs() <= *b)
+        qd.iter().zip(&self.qd).all(|(v, b)| v.abs() <= *b)
+            && qdd.iter().zip(&self.qdd).all(|(v, b)| v.abs() <= *b)
     }
 
     fn port(&self, p: Port) -> (f64, f64) {
@@ -123,16 +133,29 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
                 (l, h, ulp / 2.0)
             }
             HwOp::Const(c) => (c, c, (c - format.to_f64(format.quantize(c).0)).abs()),
-            HwOp::Add(a, b) => (lo[a.0 as usize] + lo[b.0 as usize], hi[a.0 as usize] + hi[b.0 as usize], err[a.0 as usize] + err[b.0 as usize]),
-            HwOp::Sub(a, b) => (lo[a.0 as usize] - hi[b.0 as usize], hi[a.0 as usize] - lo[b.0 as usize], err[a.0 as usize] + err[b.0 as usize]),
+            HwOp::Add(a, b) => (
+                lo[a.0 as usize] + lo[b.0 as usize],
+                hi[a.0 as usize] + hi[b.0 as usize],
+                err[a.0 as usize] + err[b.0 as usize],
+            ),
+            HwOp::Sub(a, b) => (
+                lo[a.0 as usize] - hi[b.0 as usize],
+                hi[a.0 as usize] - lo[b.0 as usize],
+                err[a.0 as usize] + err[b.0 as usize],
+            ),
             HwOp::Neg(a) => (-hi[a.0 as usize], -lo[a.0 as usize], err[a.0 as usize]),
             HwOp::Mul(a, b) => {
-                let (al, ah, bl, bh) = (lo[a.0 as usize], hi[a.0 as usize], lo[b.0 as usize], hi[b.0 as usize]);
+                let (al, ah, bl, bh) =
+                    (lo[a.0 as usize], hi[a.0 as usize], lo[b.0 as usize], hi[b.0 as usize]);
                 let p = [al * bl, al * bh, ah * bl, ah * bh];
                 let l = p.iter().copied().fold(f64::INFINITY, f64::min);
                 let h = p.iter().copied().fold(f64::NEG_INFINITY, f64::max);
                 // 0 · ∞ from an unbounded port: the product is unbounded.
-                let (l, h) = if l.is_nan() || h.is_nan() { (f64::NEG_INFINITY, f64::INFINITY) } else { (l, h) };
+                let (l, h) = if l.is_nan() || h.is_nan() {
+                    (f64::NEG_INFINITY, f64::INFINITY)
+                } else {
+                    (l, h)
+                };
                 let (ea, eb) = (err[a.0 as usize], err[b.0 as usize]);
                 let (ma, mb) = (al.abs().max(ah.abs()), bl.abs().max(bh.abs()));
                 (l, h, ma * eb + mb * ea + ea * eb + format.product_error())
@@ -144,7 +167,8 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
         err[i] = e + slack(e);
     }
     let needed = (0..n).map(|i| lo[i].abs().max(hi[i].abs()) + err[i]).fold(0.0, f64::max);
-    let output_error = dp.nonzero_outputs().iter().map(|&(_, _, id)| err[id.0 as usize]).fold(0.0, f64::max);
+    let output_error =
+        dp.nonzero_outputs().iter().map(|&(_, _, id)| err[id.0 as usize]).fold(0.0, f64::max);
     Analysis { lo, hi, err, needed, output_error }
 }
 
@@ -155,19 +179,31 @@ impl Analysis {
         if self.needed.is_finite() && self.needed <= format.max_value() {
             Ok(())
         } else {
-            Err(FixedError::Range { kernel: dp.kernel.to_string(), width: format.width, frac: format.frac, needed: self.needed, max: format.max_value() })
+            Err(FixedError::Range {
+                kernel: dp.kernel.to_string(),
+                width: format.width,
+                frac: format.frac,
+                needed: self.needed,
+                max: format.max_value(),
+            })
         }
     }
 }
 
 /// The narrowest width that holds `needed` with `frac` fraction bits, if any ≤ 64.
 pub fn width_for(needed: f64, frac: u32) -> Option<u32> {
-    (frac + 1..=MAX_WIDTH).find(|&w| Format { width: w, frac, rounding: Rounding::Truncate }.max_value() >= needed)
+    (frac + 1..=MAX_WIDTH)
+        .find(|&w| Format { width: w, frac, rounding: Rounding::Truncate }.max_value() >= needed)
 }
 
 /// The narrowest format whose analysed output error is at most `max_error`: the fewest
 /// fraction bits that meet it, then the fewest integer bits that hold every value.
-pub fn choose_format(dp: &Datapath, bounds: &Bounds, rounding: Rounding, max_error: f64) -> Result<(Format, Analysis), FixedError> {
+pub fn choose_format(
+    dp: &Datapath,
+    bounds: &Bounds,
+    rounding: Rounding,
+    max_error: f64,
+) -> Result<(Format, Analysis), FixedError> {
     if !(max_error.is_finite() && max_error > 0.0) {
         return Err(FixedError::BadMaxError(max_error));
     }
@@ -188,7 +224,12 @@ pub fn choose_format(dp: &Datapath, bounds: &Bounds, rounding: Rounding, max_err
 }
 
 /// The format of width `width` with as many fraction bits as the analysed range allows.
-pub fn format_for_width(dp: &Datapath, bounds: &Bounds, rounding: Rounding, width: u32) -> Option<(Format, Analysis)> {
+pub fn format_for_width(
+    dp: &Datapath,
+    bounds: &Bounds,
+    rounding: Rounding,
+    width: u32,
+) -> Option<(Format, Analysis)> {
     (0..width).rev().find_map(|frac| {
         let a = analyse(dp, bounds, frac, rounding);
         let f = Format { width, frac, rounding };

@@ -153,8 +153,15 @@ impl Datapath {
             new_id[i] = HwId(nodes.len() as u32);
             nodes.push(op);
         }
-        let outputs =
-            f.outputs.iter().map(|o| DatapathOutput { name: o.name, shape: o.shape, ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect() }).collect();
+        let outputs = f
+            .outputs
+            .iter()
+            .map(|o| DatapathOutput {
+                name: o.name,
+                shape: o.shape,
+                ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect(),
+            })
+            .collect();
         Ok(Datapath { kernel: f.kind.name(), nv, dims: f.dims, ports, nodes, outputs })
     }
 
@@ -204,7 +211,9 @@ impl Datapath {
         self.nodes
             .iter()
             .filter(|o| match o {
-                HwOp::Mul(a, b) => matches!(self.op(*a), HwOp::Const(_)) || matches!(self.op(*b), HwOp::Const(_)),
+                HwOp::Mul(a, b) => {
+                    matches!(self.op(*a), HwOp::Const(_)) || matches!(self.op(*b), HwOp::Const(_))
+                }
                 _ => false,
             })
             .count()

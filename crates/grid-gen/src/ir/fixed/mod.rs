@@ -7,7 +7,10 @@ mod analysis;
 mod datapath;
 mod model;
 
-pub use analysis::{analyse, choose_format, format_for_width, width_for, Analysis, Bounds, DEFAULT_FORCE_MAX, DEFAULT_QDD_MAX, DEFAULT_QD_MAX, DEFAULT_Q_MAX};
+pub use analysis::{
+    analyse, choose_format, format_for_width, width_for, Analysis, Bounds, DEFAULT_FORCE_MAX,
+    DEFAULT_QDD_MAX, DEFAULT_QD_MAX, DEFAULT_Q_MAX,
+};
 pub use datapath::{Datapath, DatapathOutput, HwId, HwOp, Port};
 pub use model::{port_values, quantize_ports, Run};
 
@@ -162,7 +165,10 @@ mod tests {
         assert!(Format::new(65, 16, Rounding::HalfUp).is_err());
         assert!(Format::new(16, 16, Rounding::HalfUp).is_err());
         assert!(Format::new(1, 0, Rounding::HalfUp).is_err());
-        assert_eq!(Format::parse("32.16", Rounding::HalfUp), Some(Ok(Format { width: 32, frac: 16, rounding: Rounding::HalfUp })));
+        assert_eq!(
+            Format::parse("32.16", Rounding::HalfUp),
+            Some(Ok(Format { width: 32, frac: 16, rounding: Rounding::HalfUp }))
+        );
         assert_eq!(Format::parse("32", Rounding::HalfUp), None);
         let f = Format::new(64, 10, Rounding::Truncate).unwrap();
         assert_eq!((f.max_raw(), f.min_raw()), (i64::MAX, i64::MIN));

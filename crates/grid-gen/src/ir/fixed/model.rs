@@ -23,7 +23,9 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f6
         .map(|&p| match p {
             Port::Sin(j) => q[j as usize].sin(),
             Port::Cos(j) => q[j as usize].cos(),
-            Port::QuatScale(k) => 2.0 / q[k as usize..k as usize + 4].iter().map(|x| x * x).sum::<f64>(),
+            Port::QuatScale(k) => {
+                2.0 / q[k as usize..k as usize + 4].iter().map(|x| x * x).sum::<f64>()
+            }
             Port::Value(input, j) => {
                 let (v, at) = match input {
                     Input::Q => (q, 0),
@@ -40,7 +42,14 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f6
 
 /// The raw value of each port for one state ([`port_values`] rounded to nearest). The
 /// flag says a value did not fit.
-pub fn quantize_ports(dp: &Datapath, format: &Format, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f64]) -> (Vec<i64>, bool) {
+pub fn quantize_ports(
+    dp: &Datapath,
+    format: &Format,
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    rest: &[f64],
+) -> (Vec<i64>, bool) {
     let mut overflow = false;
     let raw = port_values(dp, q, qd, qdd, rest)
         .into_iter()
@@ -99,7 +108,14 @@ impl Datapath {
             overflow |= o;
             val[i] = x;
         }
-        Run { outputs: self.outputs.iter().map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect()).collect(), overflow }
+        Run {
+            outputs: self
+                .outputs
+                .iter()
+                .map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect())
+                .collect(),
+            overflow,
+        }
     }
 }
 
