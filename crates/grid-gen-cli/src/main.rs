@@ -570,38 +570,16 @@ fn print(text: &str) -> ExitCode {
     }
 }
 
-fn generate(
+/// Generates `model`'s files with `options` and writes them into `dir` (or, with `check`,
+/// reports which would change).
+fn write_generated(
     model: &Model,
     dir: &Path,
-    targets: Vec<grid_gen::generate::Target>,
-    gravity: [f64; 3],
-    gradient: grid_gen::ir::Gradient,
-    kernels: Option<Vec<grid_gen::ir::KernelKind>>,
+    options: &grid_gen::generate::Options,
     check: bool,
-    avx512: bool,
-    verilog: &VerilogArgs,
-    wgsl: &WgslArgs,
 ) -> ExitCode {
     use grid_gen::generate::{self as g, FileStatus};
-    let verilog = match verilog.options() {
-        Ok(v) => v,
-        Err(e) => return fail(e),
-    };
-    let mut lower = grid_gen::ir::LowerOptions { gradient, ..Default::default() };
-    if let Some(k) = kernels {
-        lower.kernels = k;
-    }
-    let rust = grid_gen::back::rust::RustOptions { avx512, ..Default::default() };
-    let options = g::Options {
-        gravity,
-        targets,
-        lower,
-        verilog,
-        wgsl: wgsl.options(),
-        rust,
-        ..g::Options::default()
-    };
-    let files = match g::generate(model, &options) {
+    let files = match g::generate(model, options) {
         Ok(f) => f,
         Err(e) => return fail(e),
     };
@@ -645,19 +623,27 @@ fn run(cli: Cli) -> ExitCode {
                         + "(pass -o DIR to generate code)\n"),
                 ),
                 Some(dir) => {
-                    let kernels = scene.kernels().unwrap_or_default();
-                    generate(
-                        &model,
-                        &dir,
-                        emit,
+                    let verilog = match cli.verilog.options() {
+                        Ok(v) => v,
+                        Err(e) => return fail(e),
+                    };
+                    let mut lower = grid_gen::ir::LowerOptions {
+                        gradient: kernel.gradient(),
+                        ..Default::default()
+                    };
+                    if let Some(k) = scene.kernels().unwrap_or_default() {
+                        lower.kernels = k;
+                    }
+                    let options = grid_gen::generate::Options {
                         gravity,
-                        kernel.gradient(),
-                        kernels,
-                        check,
-                        avx512,
-                        &cli.verilog,
-                        &cli.wgsl,
-                    )
+                        targets: emit,
+                        lower,
+                        verilog,
+                        wgsl: cli.wgsl.options(),
+                        rust: grid_gen::back::rust::RustOptions { avx512, ..Default::default() },
+                        ..Default::default()
+                    };
+                    write_generated(&model, &dir, &options, check)
                 }
             }
         }

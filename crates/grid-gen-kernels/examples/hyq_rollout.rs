@@ -40,8 +40,9 @@ fn main() {
     states.push((q, qd));
 
     // A and B into buffers a solver keeps from one iteration to the next.
-    let mut linear = vec![([[0.0; NX]; NX], [[0.0; NU]; NX]); KNOTS];
-    let linearise_all = |linear: &mut Vec<([[f64; NX]; NX], [[f64; NU]; NX])>| {
+    type Linear = ([[f64; NX]; NX], [[f64; NU]; NX]);
+    let mut linear: Vec<Linear> = vec![([[0.0; NX]; NX], [[0.0; NU]; NX]); KNOTS];
+    let linearise_all = |linear: &mut Vec<Linear>| {
         for (k, out) in linear.iter_mut().enumerate() {
             let (x, u) = (&states[k], &controls[k]);
             let (_, _, a, b) = hyq::step_grad(&x.0, &x.1, u);

@@ -24,7 +24,9 @@ const F32_DIRECT: f64 = 1e-5;
 const F32_MINV: f64 = 1e-4;
 
 /// (label, q, qd, u) where u is q̈ for RNEA and τ for FD.
-fn states(model: &Model, rng: &mut Rng) -> Vec<(String, Vec<f64>, Vec<f64>, Vec<f64>)> {
+type State = (String, Vec<f64>, Vec<f64>, Vec<f64>);
+
+fn states(model: &Model, rng: &mut Rng) -> Vec<State> {
     let n = model.nv();
     let mut out: Vec<_> = (0..6)
         .map(|i| {
@@ -123,8 +125,6 @@ fn fma_runs() -> bool {
     }
     has
 }
-
-/// Calls every kernel of copy `$copy` (`portable` or `fma`) of module `$m` in scalar type
 
 /// Every kernel of the checked-in module `$m`, both copies, f64 and f32 (the f32 run's
 /// reference at the f32-rounded state), on `$states` (label, q, qd, u) against the

@@ -288,8 +288,7 @@ impl Gpu {
         let e = &k.entry;
         let word = k.precision.bytes() as u64;
         let widest = (e.outputs.max(e.scratch).max(k.nq).max(1)) as u64 * word;
-        let bytes =
-            (self.limits.max_storage_buffer_binding_size as u64).min(self.limits.max_buffer_size);
+        let bytes = self.limits.max_storage_buffer_binding_size.min(self.limits.max_buffer_size);
         let by_memory = (bytes / widest).max(1) as usize;
         let by_groups = self.limits.max_compute_workgroups_per_dimension as usize
             * e.states_per_workgroup as usize;
@@ -310,7 +309,7 @@ impl Gpu {
         u: &[f64],
     ) -> Result<Batch<'k>, GpuError> {
         let (nv, nq) = (kernel.nv, kernel.nq);
-        let n = if nq == 0 { 0 } else { q.len() / nq };
+        let n = q.len().checked_div(nq).unwrap_or(0);
         // What the kernel reads, by its kind's inputs (an unknown name reads everything).
         use grid_gen::ir::{Input, KernelKind};
         let kind = KernelKind::parse(&kernel.entry.kernel);

@@ -879,7 +879,9 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
             contact_fd: None,
         })
         .collect();
-    let flat = |chosen: &[usize], pick: &dyn Fn(&State) -> Option<&Vec<f64>>| -> Vec<f64> {
+    /// The input a kernel takes from a state (q̈ or τ), if the state has it.
+    type Pick = dyn Fn(&State) -> Option<&Vec<f64>>;
+    let flat = |chosen: &[usize], pick: &Pick| -> Vec<f64> {
         chosen
             .iter()
             .flat_map(|&i| {
@@ -892,7 +894,7 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
         all.iter().copied().filter(|&i| file.states[i].qdd.is_some()).collect();
     let with_tau: Vec<usize> =
         all.iter().copied().filter(|&i| file.states[i].tau.is_some()).collect();
-    let plan: [(KernelKind, &[usize], &dyn Fn(&State) -> Option<&Vec<f64>>); 5] = [
+    let plan: [(KernelKind, &[usize], &Pick); 5] = [
         (KernelKind::Rnea, &with_qdd, &|s: &State| s.qdd.as_ref()),
         (KernelKind::RneaGrad, &with_qdd, &|s: &State| s.qdd.as_ref()),
         (KernelKind::MassMatrix, &all, &|_: &State| None),

@@ -117,7 +117,7 @@ fn urdf_names_cannot_inject_code_or_paths() {
             })
             .unwrap()
     };
-    assert_eq!(lit("ROBOT"), [model.name.clone()]);
+    assert_eq!(lit("ROBOT"), std::slice::from_ref(&model.name));
     assert_eq!(lit("JOINT_NAMES"), [model.joints[0].name.clone()]);
     // Comments only carry escaped names: no raw newline from the URDF or its file name.
     assert!(file.contents.lines().filter(|l| l.starts_with("//")).all(|l| !l.contains("fn x()")));

@@ -217,7 +217,7 @@ pub fn has_fma() -> bool {
 ///
 /// Runs [`fma::frame_placement`] where [`has_fma`], else [`portable::frame_placement`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn frame_placement<T: Real>(q: &[T; NQ]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -229,7 +229,7 @@ pub fn frame_placement<T: Real>(q: &[T; NQ]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
 ///
 /// Runs [`fma::frame_jacobian`] where [`has_fma`], else [`portable::frame_jacobian`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn frame_jacobian<T: Real>(q: &[T; NQ]) -> [[[T; NV]; 6]; NF] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -241,7 +241,7 @@ pub fn frame_jacobian<T: Real>(q: &[T; NQ]) -> [[[T; NV]; 6]; NF] {
 ///
 /// Runs [`fma::frame_velocity`] where [`has_fma`], else [`portable::frame_velocity`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn frame_velocity<T: Real>(q: &[T; NQ], qd: &[T; NV]) -> [[T; 6]; NF] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -253,7 +253,7 @@ pub fn frame_velocity<T: Real>(q: &[T; NQ], qd: &[T; NV]) -> [[T; 6]; NF] {
 ///
 /// Runs [`fma::frame_acceleration`] where [`has_fma`], else [`portable::frame_acceleration`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn frame_acceleration<T: Real>(
     q: &[T; NQ],
     qd: &[T; NV],
@@ -269,7 +269,7 @@ pub fn frame_acceleration<T: Real>(
 ///
 /// Runs [`fma::frame_acceleration_grad`] where [`has_fma`], else [`portable::frame_acceleration_grad`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn frame_acceleration_grad<T: Real>(
     q: &[T; NQ],
     qd: &[T; NV],

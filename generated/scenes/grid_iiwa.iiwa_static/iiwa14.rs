@@ -178,7 +178,7 @@ pub fn has_fma() -> bool {
 ///
 /// Runs [`fma::rnea`] where [`has_fma`], else [`portable::rnea`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -190,7 +190,7 @@ pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
 ///
 /// Runs [`fma::rnea_grad`] where [`has_fma`], else [`portable::rnea_grad`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn rnea_grad<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
@@ -206,7 +206,7 @@ pub fn rnea_grad<T: Real>(
 ///
 /// Runs [`fma::mass_matrix`] where [`has_fma`], else [`portable::mass_matrix`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -218,7 +218,7 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 ///
 /// Runs [`fma::minv`] where [`has_fma`], else [`portable::minv`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -230,7 +230,7 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 ///
 /// Runs [`fma::fd`] where [`has_fma`], else [`portable::fd`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -242,7 +242,7 @@ pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
 ///
 /// Runs [`fma::fd_grad`] where [`has_fma`], else [`portable::fd_grad`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn fd_grad<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],

@@ -161,7 +161,7 @@ pub fn has_fma() -> bool {
 ///
 /// Runs [`fma::rnea_grad`] where [`has_fma`], else [`portable::rnea_grad`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn rnea_grad<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
@@ -177,7 +177,7 @@ pub fn rnea_grad<T: Real>(
 ///
 /// Runs [`fma::fd_grad`] where [`has_fma`], else [`portable::fd_grad`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn fd_grad<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],

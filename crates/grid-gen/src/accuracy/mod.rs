@@ -49,7 +49,7 @@ pub enum NumberFormat {
 /// States the mixed-precision plan is analysed at: seeded random states
 /// ([`random_states`], seed [`MIXED_PLAN_SEED`]), apart from the states it is measured on.
 pub const MIXED_PLAN_STATES: usize = 16;
-pub const MIXED_PLAN_SEED: u64 = 0x6d69_7865_64;
+pub const MIXED_PLAN_SEED: u64 = 0x6d_6978_6564;
 
 /// The mixed-precision target of a bare `mixed`: f64-like accuracy, 1e-12 relative.
 pub const DEFAULT_MIXED_TARGET: f64 = 1e-12;

@@ -37,7 +37,7 @@ fn two_prod(a: f64, b: f64) -> Dd {
 
 /// π/2 as the sum of three doubles (QD library, `qd_real::_pi` halved).
 const HALF_PI: [f64; 3] =
-    [1.570_796_326_794_896_6, 6.123_233_995_736_766e-17, -1.497_384_904_859_169_8e-33];
+    [std::f64::consts::FRAC_PI_2, 6.123_233_995_736_766e-17, -1.497_384_904_859_169_8e-33];
 
 impl Dd {
     pub const fn new(x: f64) -> Dd {
@@ -146,7 +146,7 @@ mod tests {
     #[test]
     fn sin_and_cos_keep_about_106_bits_up_to_1e3_rad() {
         // π/6 from QD's π: sin = 1/2 exactly.
-        let pi = Dd { hi: 3.141_592_653_589_793, lo: 1.224_646_799_147_353_2e-16 };
+        let pi = Dd { hi: std::f64::consts::PI, lo: 1.224_646_799_147_353_2e-16 };
         let (s, c) = (pi / Dd::new(6.0)).sin_cos();
         assert!(err(s, 0.5, 0.0) < 1e-31, "{s:?}");
         // cos(π/6)² = 3/4.

@@ -171,7 +171,7 @@ impl SymInertia {
     /// `h_λ = m r + h'` and `I_λ = Eᵀ I_o E + m (r·r 1 − r rᵀ) − (h' rᵀ + r h'ᵀ) + 2 (r·h') 1`
     /// (the parallel-axis theorem with the first moment; Featherstone, RBDA §2.13). Linear
     /// in (m, h, I_o), so it holds for rates and composites as for bodies.
-    pub fn to_parent(&self, g: &mut Graph, x: &Xform) -> SymInertia {
+    pub fn to_parent(self, g: &mut Graph, x: &Xform) -> SymInertia {
         let e = &x.e;
         let hp = mat_t_vec(g, e, &self.h);
         // J E, then Eᵀ (J E) on the upper triangle.
@@ -251,7 +251,7 @@ impl SymInertia {
     }
 
     /// `I + Δ`, for composite and articulated inertias: returned as a full symmetric 6x6.
-    pub fn to_matrix(&self, g: &mut Graph) -> [[Id; 6]; 6] {
+    pub fn to_matrix(self, g: &mut Graph) -> [[Id; 6]; 6] {
         let z = g.constant(0.0);
         let mut out = [[z; 6]; 6];
         let hx = skew(g, &self.h);

@@ -117,7 +117,7 @@ fn rnea_derivatives_joints(
         for (dv, da, df) in
             [(&dv_dq[i], &da_dq[i], &mut df_dq[i]), (&dv_dqd[i], &da_dqd[i], &mut df_dqd[i])]
         {
-            *df = &k.inertia[i] * da + crf(&v[i]) * (&k.inertia[i] * dv);
+            *df = k.inertia[i] * da + crf(&v[i]) * (k.inertia[i] * dv);
             for u in 0..n {
                 let dvu: Vec6 = dv.column(u).into();
                 let c = df.column(u) + crf(&dvu) * iv;
@@ -136,9 +136,9 @@ fn rnea_derivatives_joints(
         if let Some(p) = model.joints[i].parent {
             // ∂f_λ += iXλᵀ ∂f_i, plus iXλᵀ (S_i ×* f_i) in the q_i column.
             let xt = k.x[i].transpose();
-            let dp = &xt * &df_dq[i];
+            let dp = xt * &df_dq[i];
             df_dq[p] += dp;
-            let dpd = &xt * &df_dqd[i];
+            let dpd = xt * &df_dqd[i];
             df_dqd[p] += dpd;
             // For a multi-dof joint, at its first member for every member's column (between
             // members the frames coincide and S is constant: no such term).
@@ -148,7 +148,7 @@ fn rnea_derivatives_joints(
                 Some(_) => i..i,
             };
             for m in members {
-                let extra = &xt * (crf(&k.s[m]) * f[i]);
+                let extra = xt * (crf(&k.s[m]) * f[i]);
                 let col = df_dq[p].column(m) + extra;
                 df_dq[p].set_column(m, &col);
             }

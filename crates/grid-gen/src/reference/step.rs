@@ -215,6 +215,9 @@ fn acceleration(
     contact_fd(model, q, qd, tau, gravity, fext).map(|c| c.qdd)
 }
 
+/// q̈ and `(∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`.
+type AccelerationDerivatives = (Vec<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>);
+
 /// [`acceleration`] and `(∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`, τ's columns all nv coordinates.
 fn acceleration_derivatives(
     model: &Model,
@@ -223,7 +226,7 @@ fn acceleration_derivatives(
     tau: &[f64],
     gravity: [f64; 3],
     fext: &[f64],
-) -> Option<(Vec<f64>, DMatrix<f64>, DMatrix<f64>, DMatrix<f64>)> {
+) -> Option<AccelerationDerivatives> {
     if model.specialisation.contacts.is_empty() {
         let (qdd, dq, dqd) = forward_dynamics_derivatives_with(
             model,

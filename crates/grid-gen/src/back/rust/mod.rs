@@ -191,10 +191,14 @@ fn return_value(k: &Function) -> String {
     }
 }
 
+/// Output places written once from a constant or an input, and per computed node the places
+/// that take its value.
+type OutputStores = (Vec<(String, Id)>, HashMap<Id, Vec<String>>);
+
 /// Where output values are stored: output places that take a constant or an input
 /// (written once, up front), and for each computed node the places that take its value.
 /// Outputs start at zero, so structural zeros need no store.
-fn output_stores(k: &Function) -> (Vec<(String, Id)>, HashMap<Id, Vec<String>>) {
+fn output_stores(k: &Function) -> OutputStores {
     let dims = &k.dims;
     let mut sinks: HashMap<Id, Vec<String>> = HashMap::new();
     let mut inline_outputs = Vec::new();
@@ -202,7 +206,7 @@ fn output_stores(k: &Function) -> (Vec<(String, Id)>, HashMap<Id, Vec<String>>) 
         for (flat, &id) in o.ids.iter().enumerate() {
             let place = output_place(k, oi, flat, dims);
             match k.op(id) {
-                Op::Const(c) if c == 0.0 => {}
+                Op::Const(0.0) => {}
                 Op::Const(_) | Op::Input(..) => inline_outputs.push((place, id)),
                 _ => sinks.entry(id).or_default().push(place),
             }
@@ -298,11 +302,11 @@ fn emit_kernel(
                 let place = format!("{m}[{}][{}]", flat / nv, flat % nv);
                 // The matrices start at zero.
                 match *o {
-                    Operand::Const(c) if c == 0.0 => {}
+                    Operand::Const(0.0) => {}
                     Operand::Const(c) => fixups.push(format!("{place} = T::k({});", literal(c))),
                     Operand::Node(id) | Operand::Neg(id) => {
                         match k.op(id) {
-                            Op::Const(c) if c == 0.0 => continue,
+                            Op::Const(0.0) => continue,
                             Op::Const(_) | Op::Input(..) => {
                                 inline_outputs.push((place.clone(), id))
                             }
@@ -532,7 +536,7 @@ fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool) {
     }
     let _ = writeln!(
         out,
-        "#[inline]\n#[allow(dead_code)]\npub fn {name}<T: Real>({}) -> {ret_type} {{",
+        "#[inline]\n#[allow(dead_code, clippy::type_complexity)]\npub fn {name}<T: Real>({}) -> {ret_type} {{",
         args.join(", ")
     );
     if avx512 {

@@ -375,7 +375,7 @@ pub fn stage_entry(entry: &str, k: usize, stages: usize) -> String {
 /// grouped into stages of at most `limit` operations, at least one step each (0: one
 /// stage), as ranges of step indices.
 fn stages(sizes: impl Iterator<Item = usize>, limit: usize) -> Vec<std::ops::Range<usize>> {
-    let mut stages = vec![0..0];
+    let mut stages: Vec<std::ops::Range<usize>> = std::iter::once(0..0).collect();
     let mut size = 0;
     for (k, ops) in sizes.enumerate() {
         let last = stages.len() - 1;

@@ -9,6 +9,10 @@ use super::super::spatial::{self as sp, k, Sv, V3};
 use super::Dynamics;
 use crate::model::{Frame, ReferenceFrame};
 
+/// A forward-mode direction: seeds on the kernel's inputs, and tangents given to nodes
+/// (see [`Graph::tangent_at`](super::super::graph::Graph::tangent_at)).
+type Tangents = (Vec<(Input, usize, Id)>, Vec<(Id, Id)>);
+
 /// A rotation (columns: a frame's axes in world coordinates) and a position.
 pub(super) type Pose = ([[Id; 3]; 3], V3);
 
@@ -301,12 +305,7 @@ impl Dynamics<'_> {
     /// on the kernel's q input, or, at an RK4 stage, tangents given to the stage's
     /// configuration and velocity nodes, which stops the derivative at them (the stage's
     /// dynamics are differentiated at the stage's state, not through it).
-    pub(super) fn q_tangents(
-        &mut self,
-        k: usize,
-        qd: &[Id],
-        held: &[(Id, Id)],
-    ) -> (Vec<(Input, usize, Id)>, Vec<(Id, Id)>) {
+    pub(super) fn q_tangents(&mut self, k: usize, qd: &[Id], held: &[(Id, Id)]) -> Tangents {
         let seeds = self.q_seeds(k);
         let Some(config) = self.config.clone() else {
             return (seeds, held.to_vec());
@@ -324,12 +323,7 @@ impl Dynamics<'_> {
     }
 
     /// [`Self::q_tangents`] along q̇'s entry `k`, at fixed q.
-    pub(super) fn qd_tangents(
-        &mut self,
-        k: usize,
-        qd: &[Id],
-        held: &[(Id, Id)],
-    ) -> (Vec<(Input, usize, Id)>, Vec<(Id, Id)>) {
+    pub(super) fn qd_tangents(&mut self, k: usize, qd: &[Id], held: &[(Id, Id)]) -> Tangents {
         let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
         let Some(config) = self.config.clone() else {
             return (vec![(Input::Qd, k, one)], held.to_vec());

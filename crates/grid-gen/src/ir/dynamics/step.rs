@@ -37,8 +37,11 @@ struct Trig {
 /// `Σ_n (−y)^n / (2n + m)!` by Horner's rule.
 fn series(g: &mut Graph, y: Id, m: u32) -> Id {
     let factorial = |n: u32| (1..=n).map(f64::from).product::<f64>();
-    let mut acc =
-        k(g, if (TERMS - 1) % 2 == 0 { 1.0 } else { -1.0 } / factorial(2 * (TERMS as u32 - 1) + m));
+    let mut acc = k(
+        g,
+        if (TERMS - 1).is_multiple_of(2) { 1.0 } else { -1.0 }
+            / factorial(2 * (TERMS as u32 - 1) + m),
+    );
     for n in (0..TERMS as u32 - 1).rev() {
         let t = g.mul(acc, y);
         let c = k(g, if n % 2 == 0 { 1.0 } else { -1.0 } / factorial(2 * n + m));
@@ -245,7 +248,7 @@ impl Dynamics<'_> {
     fn at_config<R>(&mut self, q: &[Id], f: impl FnOnce(&mut Self) -> R) -> R {
         let x = (0..self.model.njoints())
             .map(|i| {
-                self.g.at(Some(i), Stage::Transform, self.model.joints[i].level as usize);
+                self.g.at(Some(i), Stage::Transform, self.model.joints[i].level);
                 joint_xform_at(&mut self.g, self.model, i, Some(q))
             })
             .collect();
