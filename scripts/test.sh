@@ -94,12 +94,24 @@ if [ -z "$MDBOOK" ]; then
 fi
 "$PY" -m pip install --quiet pytest "jax[cpu]" ./python >target/tools/python-install.log 2>&1 &
 PYTHON_PID=$!
+# Clippy, warnings denied: the workspace with every target, and the CLI without wgpu (what
+# `cargo install --no-default-features` builds). Its own target folder, so that it never
+# waits on the test run's lock.
+if ! cargo clippy --version >/dev/null 2>&1; then
+    rustup component add clippy || die "clippy is missing and could not be installed (rustup component add clippy)"
+fi
+(
+    export CARGO_TARGET_DIR=target/clippy
+    cargo clippy --workspace --all-targets -- -D warnings &&
+        cargo clippy -p grid-gen-cli --no-default-features -- -D warnings
+) >target/tools/clippy.log 2>&1 &
+CLIPPY_PID=$!
 
 say "cargo test (workspace): run"
 cargo test --workspace --all-targets
 
-say "the CLI without wgpu (cargo install --no-default-features): it must still build"
-cargo check -q -p grid-gen-cli --no-default-features
+say "lints: cargo clippy -D warnings, the workspace and the CLI without wgpu"
+wait "$CLIPPY_PID" || { cat target/tools/clippy.log; die "cargo clippy reports warnings (listed above): fix them, or allow one with a reason"; }
 
 say "the step example: 64 knots of floating HyQ rolled out and linearised"
 cargo run -q -p grid-gen-kernels --example hyq_rollout
