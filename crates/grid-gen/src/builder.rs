@@ -284,9 +284,7 @@ impl Builder {
             return Err(BuildError::NoTargets);
         }
         let urdf = self.urdf.as_ref().ok_or(BuildError::NoUrdf)?;
-        if !self.quiet {
-            println!("cargo:rerun-if-changed={}", urdf.display());
-        }
+        let mut cargo = vec![format!("cargo:rerun-if-changed={}", urdf.display())];
         let out_dir = match &self.out_dir {
             Some(d) => d.clone(),
             None => std::env::var_os("OUT_DIR").map(PathBuf::from).ok_or(BuildError::NoOutDir)?,
@@ -296,9 +294,7 @@ impl Builder {
         let (scene, scene_path) = match &self.scene {
             None => (Scene::default(), String::new()),
             Some(p) => {
-                if !self.quiet {
-                    println!("cargo:rerun-if-changed={}", p.display());
-                }
+                cargo.push(format!("cargo:rerun-if-changed={}", p.display()));
                 let t = std::fs::read_to_string(p).map_err(|e| BuildError::Read(p.clone(), e))?;
                 (
                     Scene::parse(&p.display().to_string(), &t).map_err(BuildError::Scene)?,
@@ -355,8 +351,10 @@ impl Builder {
         if let Some(k) = &self.kernels {
             options.lower.kernels = k.clone();
         }
+        cargo.extend(cargo_warnings(&shown, &text, &warnings));
         if !self.quiet {
-            for line in cargo_warnings(&shown, &text, &warnings) {
+            // Cargo's build-script protocol: the only place the library prints.
+            for line in cargo {
                 println!("{line}");
             }
         }

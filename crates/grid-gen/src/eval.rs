@@ -448,12 +448,7 @@ pub fn parse_states(json: &str) -> Result<StatesFile, EvalError> {
     Ok(serde_json::from_str(&quote_non_finite(json))?)
 }
 
-/// How far from 1 the norm of a quaternion (a floating base's, a spherical joint's) may be. Within
-/// it, the quaternion is used normalised (the kernels and the reference rotate by q/|q|, which is
-/// exact for any nonzero q); beyond it, it is an error, since a quaternion that far from unit is a
-/// wrong layout or an uninitialised state rather than drift (f32 storage and integrators drift by
-/// ~1e-7 per step).
-pub const QUATERNION_TOLERANCE: f64 = 1e-3;
+pub use crate::model::QUATERNION_TOLERANCE;
 
 /// Where each spherical joint's quaternion is in q, for an error message.
 fn spherical_layout(model: &Model) -> String {

@@ -19,9 +19,15 @@ use nalgebra::{Matrix3, SymmetricEigen, Vector3};
 use serde::Serialize;
 
 use crate::diagnostic::Diagnostic;
-use crate::scene::Edits;
 use crate::spatial::{axis_angle, rpy_matrix};
 use crate::urdf::{self, JointKind, Pose, Tree, Urdf};
+
+/// How far from 1 the norm of a quaternion (a floating base's, a spherical joint's) may be. Within
+/// it, the quaternion is used normalised (the kernels and the reference rotate by q/|q|, which is
+/// exact for any nonzero q); beyond it, it is an error, since a quaternion that far from unit is a
+/// wrong layout or an uninitialised state rather than drift (f32 storage and integrators drift by
+/// ~1e-7 per step).
+pub const QUATERNION_TOLERANCE: f64 = 1e-3;
 
 /// Gravity used when none is given: (0, 0, -9.81) m/s² in the root frame. Every default
 /// gravity in grid-gen (reference, IR, generation, CLI) is this constant.
@@ -802,6 +808,26 @@ enum Walk {
     Free { name: String, link: usize, tree: Transform },
     /// The subtree of model joint `body` is complete.
     Close { body: usize },
+}
+
+/// A scene resolved against one URDF: what the model builder does differently.
+pub(crate) struct Edits {
+    /// Per URDF joint: the position it is locked at.
+    pub locked: Vec<Option<f64>>,
+    /// Per URDF link: left out (with its subtree).
+    pub dropped: Vec<bool>,
+    /// Per URDF link: payloads, as inertials in the link frame.
+    pub payload: Vec<Vec<urdf::Inertial>>,
+}
+
+impl Edits {
+    pub fn none(urdf: &Urdf) -> Edits {
+        Edits {
+            locked: vec![None; urdf.joints.len()],
+            dropped: vec![false; urdf.links.len()],
+            payload: vec![Vec::new(); urdf.links.len()],
+        }
+    }
 }
 
 /// Builds the model from a checked URDF tree, with a free-flyer under the root link when

@@ -56,7 +56,7 @@ use serde::Deserialize;
 
 use crate::diagnostic::Diagnostic;
 use crate::ir::KernelKind;
-use crate::model::{Model, ReferenceFrame, Specialisation};
+use crate::model::{Edits, Model, ReferenceFrame, Specialisation};
 use crate::urdf::{Inertial, JointKind, Pose, Tree, Urdf};
 
 /// A scene file's contents (see the module documentation for the format).
@@ -326,26 +326,6 @@ impl Scene {
 
     pub fn is_empty(&self) -> bool {
         *self == Scene::default()
-    }
-}
-
-/// A scene resolved against one URDF: what the model builder does differently.
-pub(crate) struct Edits {
-    /// Per URDF joint: the position it is locked at.
-    pub locked: Vec<Option<f64>>,
-    /// Per URDF link: left out (with its subtree).
-    pub dropped: Vec<bool>,
-    /// Per URDF link: payloads, as inertials in the link frame.
-    pub payload: Vec<Vec<Inertial>>,
-}
-
-impl Edits {
-    pub fn none(urdf: &Urdf) -> Edits {
-        Edits {
-            locked: vec![None; urdf.joints.len()],
-            dropped: vec![false; urdf.links.len()],
-            payload: vec![Vec::new(); urdf.links.len()],
-        }
     }
 }
 

@@ -9,7 +9,7 @@ pub mod verilog;
 pub mod wgsl;
 
 /// Starts the header line that names the URDF file a generated file came from;
-/// [`crate::generate::write_files`] reads it back so that two robots sharing a name never
+/// the generator's `write_files` reads it back so that two robots sharing a name never
 /// silently overwrite each other's files in one folder.
 pub const SOURCE_PREFIX: &str = "// source: ";
 

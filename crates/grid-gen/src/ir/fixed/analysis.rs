@@ -50,7 +50,7 @@ impl Bounds {
         // not depend on it), the quaternion (within `eval`'s tolerance of unit), then the
         // joints after the free-flyer.
         // Spherical joints' quaternions likewise.
-        let unit = 1.0 + crate::eval::QUATERNION_TOLERANCE;
+        let unit = 1.0 + crate::model::QUATERNION_TOLERANCE;
         let q = (0..robot.nq())
             .map(|k| match robot.q_coordinates[k] {
                 Some(c) => joint_q(c),
@@ -86,7 +86,7 @@ impl Bounds {
         match p {
             Port::Sin(_) | Port::Cos(_) => (-1.0, 1.0),
             Port::QuatScale(_) => {
-                let t = crate::eval::QUATERNION_TOLERANCE;
+                let t = crate::model::QUATERNION_TOLERANCE;
                 (2.0 / (1.0 + t).powi(2), 2.0 / (1.0 - t).powi(2))
             }
             Port::Value(Input::Q, j) => self.q[j as usize],
