@@ -296,7 +296,7 @@ dt = 0.01
 def test_every_kind_of_kernel_through_a_scene(tmp_path, iiwa):
     """A scene with frames, an external force, a contact wrench and the step: every kernel
     is a method whose outputs have the manifest's shapes; fd under fext matches Pinocchio's
-    aba, contact_fd its constraintDynamics, and step the semi-implicit Euler step of fd."""
+    aba, contact_fd its constraintDynamics, and step the semi-implicit Euler step of contact_fd."""
     scene = tmp_path / "iiwa_everything.toml"
     scene.write_text(SCENE)
     robot = grid_gen.load(IIWA, scene=scene)
@@ -340,9 +340,11 @@ def test_every_kind_of_kernel_through_a_scene(tmp_path, iiwa):
     # f64 round-off; a 6-D contact on a 7-joint arm leaves K = J M^-1 J^T well conditioned
     # at these states (measured ~1e-13).
     assert worst_fd < 1e-11 and worst_c < 1e-10
-    # The step: semi-implicit Euler on fd (no force), q+ = q + dt qd+ on a fixed base.
-    q_next, qd_next = robot.step(q, qd, tau[:, : robot.nu], np.zeros((n, 6)), np.zeros((n, 6)))[:2] if len(robot.step.inputs) == 5 else robot.step(q, qd, tau[:, : robot.nu])[:2]
-    a = robot.fd(q, qd, tau, np.zeros((n, 6)), np.zeros((n, 6)))
+    # The step: semi-implicit Euler on contact_fd (the wrench contact held rigid, fext held
+    # over the step), q+ = q + dt qd+ on a fixed base; it takes fext and no lambda.
+    assert [name for name, _ in robot.step.inputs] == ["q", "qd", "tau", "fext"]
+    q_next, qd_next = robot.step(q, qd, tau[:, : robot.nu], fext)
+    a, _ = robot.contact_fd(q, qd, tau, fext)
     assert rel(qd_next, qd + 0.01 * a) < 1e-12 and rel(q_next, q + 0.01 * (qd + 0.01 * a)) < 1e-12
 
 
