@@ -161,7 +161,7 @@ pub fn has_fma() -> bool {
 ///
 /// Runs [`fma::rnea`] where [`has_fma`], else [`portable::rnea`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -173,7 +173,7 @@ pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
 ///
 /// Runs [`fma::rnea_grad`] where [`has_fma`], else [`portable::rnea_grad`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn rnea_grad<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
@@ -189,7 +189,7 @@ pub fn rnea_grad<T: Real>(
 ///
 /// Runs [`fma::mass_matrix`] where [`has_fma`], else [`portable::mass_matrix`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -201,7 +201,7 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 ///
 /// Runs [`fma::minv`] where [`has_fma`], else [`portable::minv`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -213,7 +213,7 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 ///
 /// Runs [`fma::fd`] where [`has_fma`], else [`portable::fd`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
@@ -225,7 +225,7 @@ pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
 ///
 /// Runs [`fma::fd_grad`] where [`has_fma`], else [`portable::fd_grad`].
 #[inline]
-#[allow(dead_code)]
+#[allow(dead_code, clippy::type_complexity)]
 pub fn fd_grad<T: Real>(
     q: &[T; NV],
     qd: &[T; NV],
