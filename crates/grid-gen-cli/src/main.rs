@@ -232,8 +232,8 @@ struct LoadArgs {
     /// `fd_grad` also returns `dqdd_dtau` = M^-1 (the scene's `[fd_grad] minv = true`).
     #[arg(long, global = true)]
     fd_grad_minv: bool,
-    /// Bodies that take an external force `fext` in rnea, rnea_grad, fd and fd_grad, by the
-    /// name of the joint that moves them (Pinocchio's names: `root_joint` for a floating
+    /// Bodies that take an external force `fext` in rnea, rnea_grad, fd and fd_grad (and,
+    /// held constant, in the contact and step kernels), by the name of the joint that moves them (Pinocchio's names: `root_joint` for a floating
     /// base), comma-separated, or `*` for every body; replaces `[external_forces] joints`.
     #[arg(long, value_name = "JOINT,...", value_delimiter = ',', global = true)]
     fext: Vec<String>,
@@ -242,8 +242,8 @@ struct LoadArgs {
     #[arg(long, global = true)]
     no_fext_derivatives: bool,
     /// Contacts whose forces lambda those kernels take, in world axes at the frame's
-    /// origin: FRAME:point (3-D force) or FRAME:wrench (6-D), comma-separated; replaces
-    /// the scene's `[[contact]]`.
+    /// origin: FRAME:point (3-D force) or FRAME:wrench (6-D), comma-separated; the contact
+    /// and step kernels hold them rigid and solve for lambda. Replaces the scene's `[[contact]]`.
     #[arg(long, value_name = "FRAME:TYPE,...", value_delimiter = ',', global = true, value_parser = parse_contact)]
     contact: Vec<grid_gen::ContactEntry>,
 }

@@ -213,6 +213,39 @@ pub fn compile_and_run(label: &str, robot_rs: &str, main_rs: &str) -> String {
     String::from_utf8_lossy(&run.stdout).into_owned()
 }
 
+/// A state entry in [-1.5, 1.5) for state `k`, entry `i` and input `salt`: the same numbers
+/// the compiled test programs draw with [`SEEDED_STATE_RS`], so a test can rebuild the
+/// states a program ran on.
+pub fn seeded_state(k: usize, i: usize, salt: usize) -> f64 {
+    (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5
+}
+
+/// [`seeded_state`] as `fn state` in a compiled test program's source.
+pub const SEEDED_STATE_RS: &str = "fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }\n";
+
+/// A compiled program's output, one line of space-separated numbers per state, against
+/// `want(k)` (state k's expected values, after the first `skip` printed ones): the worst
+/// relative error, each state's held below `bound`, with `lines` states printed.
+pub fn worst_line_error(
+    said: &str,
+    lines: usize,
+    skip: usize,
+    bound: f64,
+    mut want: impl FnMut(usize, &[f64]) -> Vec<f64>,
+) -> f64 {
+    let mut worst: f64 = 0.0;
+    for (k, line) in said.lines().enumerate() {
+        let got: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
+        let expected = want(k, &got[..skip]);
+        assert_eq!(got.len() - skip, expected.len(), "state {k}: values printed");
+        let e = rel_err(&col(&got[skip..]), &col(&expected));
+        worst = worst.max(e);
+        assert!(e < bound, "state {k}: {e:.2e}");
+    }
+    assert_eq!(said.lines().count(), lines, "states printed");
+    worst
+}
+
 pub fn vec_of(v: &serde_json::Value) -> Vec<f64> {
     v.as_array().expect("array").iter().map(|x| x.as_f64().expect("number")).collect()
 }

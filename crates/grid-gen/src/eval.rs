@@ -621,6 +621,11 @@ fn check_forces(model: &Model, index: usize, s: &State) -> Result<(), EvalError>
     Ok(())
 }
 
+/// The coordinates' joint names, the order of every vector and matrix in the output.
+fn coordinate_names(model: &Model) -> Vec<String> {
+    model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect()
+}
+
 /// Evaluates the reference dynamics on every state.
 pub fn evaluate(
     model: &Model,
@@ -704,14 +709,7 @@ pub fn evaluate(
             Ok(out)
         })
         .collect::<Result<_, EvalError>>()?;
-    Ok(EvalOutput {
-        joint_names: model
-            .coordinate_joints()
-            .iter()
-            .map(|&i| model.joints[i].name.clone())
-            .collect(),
-        states,
-    })
+    Ok(EvalOutput { joint_names: coordinate_names(model), states })
 }
 
 /// Results of the Verilog netlists for one state: the keys of [`Output`] that the
@@ -981,12 +979,5 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
             }
         }
     }
-    Ok(EvalOutput {
-        joint_names: model
-            .coordinate_joints()
-            .iter()
-            .map(|&i| model.joints[i].name.clone())
-            .collect(),
-        states,
-    })
+    Ok(EvalOutput { joint_names: coordinate_names(model), states })
 }

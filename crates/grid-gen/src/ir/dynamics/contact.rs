@@ -16,7 +16,7 @@
 //! `∂λ/∂u = −K⁻¹ (J F_u + A_u)` and `∂q̈/∂u = F_u + G ∂λ/∂u`; for τ, `F_τ = M⁻¹`,
 //! `A_τ = 0`, so `J F_τ = Gᵀ`.
 
-use super::super::graph::{Graph, Id, Stage};
+use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::kernel::Solve;
 use super::super::spatial::{self as sp, k, V3};
 use super::{Dynamics, LambdaSource, Mat};
@@ -217,9 +217,11 @@ impl Dynamics<'_> {
             if self.exhausted() {
                 break;
             }
-            let (seeds, given) = self.q_tangents(c, qd, &held);
+            let along_q = self.q_seeds(c);
+            let (seeds, given) = self.stage_tangents(along_q, qd, &held);
             aq.push(self.g.tangent_at(&acc, &seeds, &given));
-            let (seeds, given) = self.qd_tangents(c, qd, &held);
+            let one = self.g.constant(1.0);
+            let (seeds, given) = self.stage_tangents(vec![(Input::Qd, c, one)], qd, &held);
             aqd.push(self.g.tangent_at(&acc, &seeds, &given));
         }
         self.g.at(None, Stage::Combine, 0);

@@ -261,7 +261,7 @@ impl Dynamics<'_> {
     /// `q ⊕ ε = q · exp(ε)` (Pinocchio's `integrate`): a free-flyer's linear coordinate moves
     /// the position by `R e_k`, an angular one turns the quaternion by `½ q ⊗ (e_k, 0)`.
     /// Entries name q's; the tangents are built from the configuration the transforms were
-    /// (an RK4 stage's, see [`Self::q_tangents`]).
+    /// (an RK4 stage's, see [`Self::stage_tangents`]).
     pub(super) fn q_seeds(&mut self, k: usize) -> Vec<(Input, usize, Id)> {
         if let Some(i) = self.model.q_index(k) {
             let one = self.g.constant(1.0);
@@ -300,37 +300,28 @@ impl Dynamics<'_> {
         (0..4).map(|e| (Input::Q, at + e, dv[e])).collect()
     }
 
-    /// The seeds and given node tangents for a forward-mode derivative along coordinate `k`
-    /// of q, at fixed `qd` (the velocity nodes the recording used) and fixed `held`: seeds
-    /// on the kernel's q input, or, at an RK4 stage, tangents given to the stage's
-    /// configuration and velocity nodes, which stops the derivative at them (the stage's
-    /// dynamics are differentiated at the stage's state, not through it).
-    pub(super) fn q_tangents(&mut self, k: usize, qd: &[Id], held: &[(Id, Id)]) -> Tangents {
-        let seeds = self.q_seeds(k);
+    /// The seeds and given node tangents for a forward-mode derivative along `seeds` (a
+    /// direction in the kernel's q and q̇ inputs, as [`Self::q_seeds`] gives for q), with
+    /// `held` fixed. At the kernel's inputs they are the seeds. At an RK4 stage the same
+    /// tangents are given to the stage's configuration and velocity nodes `qd` instead, which
+    /// stops the derivative there: the stage's dynamics are differentiated at the stage's
+    /// state, not through it.
+    pub(super) fn stage_tangents(
+        &mut self,
+        seeds: Vec<(Input, usize, Id)>,
+        qd: &[Id],
+        held: &[(Id, Id)],
+    ) -> Tangents {
         let Some(config) = self.config.clone() else {
             return (seeds, held.to_vec());
         };
         let zero = self.g.constant(0.0);
-        let mut given = held.to_vec();
-        given.extend(
-            config
-                .iter()
-                .enumerate()
-                .map(|(i, &n)| (n, seeds.iter().find(|s| s.1 == i).map_or(zero, |s| s.2))),
-        );
-        given.extend(qd.iter().map(|&n| (n, zero)));
-        (Vec::new(), given)
-    }
-
-    /// [`Self::q_tangents`] along q̇'s entry `k`, at fixed q.
-    pub(super) fn qd_tangents(&mut self, k: usize, qd: &[Id], held: &[(Id, Id)]) -> Tangents {
-        let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
-        let Some(config) = self.config.clone() else {
-            return (vec![(Input::Qd, k, one)], held.to_vec());
+        let seed = |input: Input, i: usize| {
+            seeds.iter().find(|s| s.0 == input && s.1 == i).map_or(zero, |s| s.2)
         };
         let mut given = held.to_vec();
-        given.extend(config.iter().map(|&n| (n, zero)));
-        given.extend(qd.iter().enumerate().map(|(i, &n)| (n, if i == k { one } else { zero })));
+        given.extend(config.iter().enumerate().map(|(i, &n)| (n, seed(Input::Q, i))));
+        given.extend(qd.iter().enumerate().map(|(i, &n)| (n, seed(Input::Qd, i))));
         (Vec::new(), given)
     }
 
