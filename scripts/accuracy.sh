@@ -9,13 +9,14 @@
 set -euo pipefail
 cd "$(dirname "$0")/.."
 formats="f64,f32,mixed:1e-6,mixed,fixed"
-[ "${1:-}" = "--wgsl" ] && formats="$formats,wgsl"
+backend=()
+[ "${1:-}" = "--wgsl" ] && backend=(--backend wgsl)
 cargo build -q --release -p grid-gen-cli
 mkdir -p docs/accuracy
 for urdf in robots/*.urdf; do
     r=$(basename "$urdf" .urdf)
     # Every format against operations per call, then f64 and f32 against time per call.
-    target/release/grid-gen accuracy "$urdf" --random 100 --seed 1 --formats "$formats" --plot "docs/accuracy/$r.svg" > /dev/null
-    target/release/grid-gen accuracy "$urdf" --random 100 --seed 1 --formats "$formats" --time --plot "docs/accuracy/$r-time.svg" > "docs/accuracy/$r.txt"
+    target/release/grid-gen accuracy "$urdf" --random 100 --seed 1 --formats "$formats" "${backend[@]}" --plot "docs/accuracy/$r.svg" > /dev/null
+    target/release/grid-gen accuracy "$urdf" --random 100 --seed 1 --formats "$formats" "${backend[@]}" --time --plot "docs/accuracy/$r-time.svg" > "docs/accuracy/$r.txt"
     echo "wrote docs/accuracy/$r.txt, $r.svg and $r-time.svg"
 done

@@ -38,9 +38,12 @@ fn generate(
     b.urdf(urdf)
         .out_dir(out_dir)
         .emit(&[Target::Rust, Target::C])
-        .floating_base(floating_base)
         .c_precision(f64, f32)
         .quiet(true);
+    // False is the default, not a request to take away a scene's floating base.
+    if floating_base {
+        b.floating_base(true);
+    }
     if let Some(scene) = scene {
         b.scene(scene);
     }

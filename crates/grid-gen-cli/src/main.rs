@@ -29,116 +29,131 @@ struct Cli {
     #[command(subcommand)]
     command: Command,
     #[command(flatten)]
-    load: LoadArgs,
-    #[command(flatten)]
-    verilog: VerilogArgs,
-    #[command(flatten)]
-    wgsl: WgslArgs,
+    model: ModelArgs,
 }
 
-/// What the generated kernels compute with: shared by `generate` and `info`, so the
-/// summary counts the operations of the code that would be written.
+/// The WGSL kernels' options, for the commands that write or run them.
 #[derive(clap::Args, Clone)]
-struct KernelArgs {
-    /// Gravity in the root frame, m/s², compiled into the generated code.
-    #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, default_value = "0,0,-9.81", allow_hyphen_values = true)]
-    gravity: [f64; 3],
-    /// How to build the RNEA gradient (rnea_grad, fd_grad): `idsva` (Singh, Russell &
-    /// Wensing 2022), `columns` (Carpentier & Mansard 2018), or `auto`, the one with fewer
-    /// operations for this robot (`info` says which).
-    #[arg(long, value_name = "FORM", default_value = "auto", value_parser = ["auto", "columns", "idsva"])]
-    gradient: String,
-}
-
-impl KernelArgs {
-    fn gradient(&self) -> grid_gen::ir::Gradient {
-        grid_gen::ir::Gradient::parse(&self.gradient).unwrap_or(grid_gen::ir::Gradient::Auto)
-    }
-}
-
-/// The WGSL kernels' options (`--emit wgsl`, `eval --backend wgsl`, `bench`).
-#[derive(clap::Args, Clone)]
+#[command(next_help_heading = "WGSL options")]
 struct WgslArgs {
     /// WGSL strategy: thread (one invocation per state), cooperative (one workgroup per
-    /// state), or both (emit both entry points; eval runs thread, bench times both).
-    #[arg(long, value_name = "S", default_value = "both", value_parser = ["thread", "cooperative", "both"], global = true)]
-    wgsl_strategy: String,
+    /// state), or both (`generate` writes both entry points and `bench` times both, their
+    /// default; `eval` and `accuracy` run one, thread by default).
+    #[arg(long, value_name = "S")]
+    wgsl_strategy: Option<StrategyChoice>,
     /// WGSL float type: f32 (every adapter) or f64 (adapters with SHADER_F64).
-    #[arg(long, value_name = "P", default_value = "f32", value_parser = ["f32", "f64"], global = true)]
-    precision: String,
+    #[arg(long, value_name = "P", default_value = "f32")]
+    precision: grid_gen::back::wgsl::Precision,
     /// WGSL sin/cos: accurate (in-kernel reduction and polynomial, ~1 ulp) or builtin
     /// (WGSL's, accuracy up to the implementation; f32 only).
-    #[arg(long, value_name = "T", default_value = "accurate", value_parser = ["accurate", "builtin"], global = true)]
-    wgsl_trig: String,
+    #[arg(long, value_name = "T", default_value = "accurate")]
+    wgsl_trig: grid_gen::back::wgsl::Trig,
     /// WGSL cooperative strategy: invocations per state (1 to 256).
-    #[arg(long, value_name = "W", default_value_t = 64, global = true)]
+    #[arg(long, value_name = "W", default_value_t = 64)]
     wgsl_workers: u32,
     /// WGSL thread strategy: most operations per dispatch; a larger kernel runs as several
     /// entry points (stages) in order, so no driver compiles more in one pipeline (0: no
     /// split).
-    #[arg(long, value_name = "OPS", default_value_t = grid_gen::back::wgsl::DEFAULT_STAGE, global = true)]
+    #[arg(long, value_name = "OPS", default_value_t = grid_gen::back::wgsl::DEFAULT_STAGE)]
     wgsl_stage: usize,
 }
 
+/// `--wgsl-strategy`: one of the library's strategies, or both.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+enum StrategyChoice {
+    Thread,
+    Cooperative,
+    Both,
+}
+
 impl WgslArgs {
+    /// Whether every WGSL flag has its default value (`bench --backend rust` takes none).
+    fn is_default(&self) -> bool {
+        use grid_gen::back::wgsl::{Precision, Trig, DEFAULT_STAGE};
+        self.wgsl_strategy.is_none()
+            && self.precision == Precision::F32
+            && self.wgsl_trig == Trig::Accurate
+            && self.wgsl_workers == 64
+            && self.wgsl_stage == DEFAULT_STAGE
+    }
+
+    /// The options for the commands that write or time every strategy asked for (both by
+    /// default).
     fn options(&self) -> grid_gen::back::wgsl::WgslOptions {
-        use grid_gen::back::wgsl::{Precision, Strategy, Trig, WgslOptions};
-        let strategies = match self.wgsl_strategy.as_str() {
-            "both" => Strategy::ALL.to_vec(),
-            s => vec![Strategy::parse(s).unwrap_or(Strategy::Thread)],
+        use grid_gen::back::wgsl::{Strategy, WgslOptions};
+        let strategies = match self.wgsl_strategy.unwrap_or(StrategyChoice::Both) {
+            StrategyChoice::Both => Strategy::ALL.to_vec(),
+            StrategyChoice::Thread => vec![Strategy::Thread],
+            StrategyChoice::Cooperative => vec![Strategy::Cooperative],
         };
         WgslOptions {
             strategies,
-            precision: Precision::parse(&self.precision).unwrap_or(Precision::F32),
-            trig: Trig::parse(&self.wgsl_trig).unwrap_or(Trig::Accurate),
+            precision: self.precision,
+            trig: self.wgsl_trig,
             workers: self.wgsl_workers,
             stage: self.wgsl_stage,
             ..WgslOptions::default()
         }
     }
+
+    /// The one strategy `eval` and `accuracy` run (thread by default); `both` is an error
+    /// there rather than a silent choice.
+    fn strategy(&self, command: &str) -> Result<grid_gen::back::wgsl::Strategy, String> {
+        use grid_gen::back::wgsl::Strategy;
+        match self.wgsl_strategy {
+            None | Some(StrategyChoice::Thread) => Ok(Strategy::Thread),
+            Some(StrategyChoice::Cooperative) => Ok(Strategy::Cooperative),
+            Some(StrategyChoice::Both) => Err(format!(
+                "`{command}` runs one WGSL strategy: pass --wgsl-strategy thread or cooperative"
+            )),
+        }
+    }
 }
 
-/// The fixed-point datapath's options (`--emit verilog`, `eval --backend verilog`).
+/// The fixed-point datapath's options, for the commands that write, simulate or model it.
 #[derive(clap::Args, Clone)]
+#[command(next_help_heading = "Verilog options")]
 struct VerilogArgs {
     /// Verilog number format: `WIDTH.FRAC` (signed, e.g. 32.16), or `auto` for the
     /// narrowest format whose analysed error meets --max-error.
-    #[arg(long, value_name = "WIDTH.FRAC|auto", default_value = "auto", global = true)]
+    #[arg(long, value_name = "WIDTH.FRAC|auto", default_value = "auto")]
     fixed: String,
     /// With --fixed auto: the largest absolute error allowed on any output entry.
-    #[arg(long, value_name = "E", default_value_t = grid_gen::back::verilog::DEFAULT_MAX_ERROR, global = true)]
+    #[arg(long, value_name = "E", default_value_t = grid_gen::back::verilog::DEFAULT_MAX_ERROR)]
     max_error: f64,
     /// How multipliers drop fraction bits: truncate (robomorphic's choice) or half-up.
-    #[arg(long, value_name = "MODE", default_value = "half-up", value_parser = parse_rounding, global = true)]
+    #[arg(long, value_name = "MODE", default_value = "half-up")]
     rounding: grid_gen::ir::fixed::Rounding,
     /// Datapath architecture: pipelined (one state per clock) or shared (M multipliers,
     /// A adders, list-scheduled).
-    #[arg(long, value_name = "ARCH", default_value = "pipelined", value_parser = ["pipelined", "shared"], global = true)]
-    arch: String,
+    #[arg(long, value_name = "ARCH", default_value = "pipelined")]
+    arch: ArchChoice,
     /// Pipelined: levels of dependence depth between pipeline registers.
-    #[arg(long, value_name = "K", default_value_t = grid_gen::back::verilog::DEFAULT_STAGE_DEPTH, global = true)]
+    #[arg(long, value_name = "K", default_value_t = grid_gen::back::verilog::DEFAULT_STAGE_DEPTH)]
     stage_depth: u32,
     /// Shared: number of multipliers.
-    #[arg(long, value_name = "M", default_value_t = grid_gen::back::verilog::DEFAULT_MULTIPLIERS, global = true)]
+    #[arg(long, value_name = "M", default_value_t = grid_gen::back::verilog::DEFAULT_MULTIPLIERS)]
     multipliers: usize,
     /// Shared: number of adders.
-    #[arg(long, value_name = "A", default_value_t = grid_gen::back::verilog::DEFAULT_ADDERS, global = true)]
+    #[arg(long, value_name = "A", default_value_t = grid_gen::back::verilog::DEFAULT_ADDERS)]
     adders: usize,
     /// Speed bound of every joint for the range analysis (default: the URDF's
     /// `<limit velocity>`, else 10).
-    #[arg(long, value_name = "V", global = true)]
+    #[arg(long, value_name = "V")]
     qd_max: Option<f64>,
     /// Acceleration bound of every joint for the range analysis (default 100).
-    #[arg(long, value_name = "A", global = true)]
+    #[arg(long, value_name = "A")]
     qdd_max: Option<f64>,
     /// Bound on every entry of fext and lambda for the range analysis (N, N m; default 1e4).
-    #[arg(long, value_name = "F", global = true)]
+    #[arg(long, value_name = "F")]
     force_max: Option<f64>,
 }
 
-fn parse_rounding(s: &str) -> Result<grid_gen::ir::fixed::Rounding, String> {
-    grid_gen::ir::fixed::Rounding::parse(s)
-        .ok_or_else(|| format!("unknown rounding `{s}`; available: truncate, half-up"))
+/// `--arch`: the Verilog architectures, whose sizes are their own flags.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+enum ArchChoice {
+    Pipelined,
+    Shared,
 }
 
 impl VerilogArgs {
@@ -169,9 +184,11 @@ impl VerilogArgs {
                 }
             }
         }
-        let arch = match self.arch.as_str() {
-            "shared" => Arch::Shared { multipliers: self.multipliers, adders: self.adders },
-            _ => Arch::Pipelined { stage_depth: self.stage_depth },
+        let arch = match self.arch {
+            ArchChoice::Shared => {
+                Arch::Shared { multipliers: self.multipliers, adders: self.adders }
+            }
+            ArchChoice::Pipelined => Arch::Pipelined { stage_depth: self.stage_depth },
         };
         Ok(VerilogOptions {
             format,
@@ -185,24 +202,44 @@ impl VerilogArgs {
     }
 }
 
-fn parse_target(s: &str) -> Result<grid_gen::generate::Target, String> {
-    grid_gen::generate::Target::parse(s).ok_or_else(|| {
-        format!(
-            "unknown backend `{s}`; available: {}",
-            grid_gen::generate::Target::ALL.map(|t| t.name()).join(", ")
-        )
-    })
-}
-
+/// The robot, its scene and what its kernels compute: every command loads the model
+/// through these, into the library's one [`grid_gen::Config`].
 #[derive(clap::Args)]
-struct LoadArgs {
+struct ModelArgs {
     /// Treat warnings (such as physically implausible inertias) as errors.
     #[arg(long, global = true)]
     strict: bool,
     /// A scene file (TOML): joints to lock, links to keep or drop, payloads, gravity, the
     /// kernels to generate; applied to the model for every command (the book, Scenes).
+    /// Each flag below replaces the scene's value.
     #[arg(long, value_name = "SCENE.toml", global = true)]
     scene: Option<PathBuf>,
+    /// Gravity in the root frame, m/s², compiled into the generated code (default
+    /// 0,0,-9.81, or the scene's `gravity`).
+    #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, allow_hyphen_values = true, global = true)]
+    gravity: Option<[f64; 3]>,
+    /// How to build the RNEA gradient (rnea_grad, fd_grad): `idsva` (Singh, Russell &
+    /// Wensing 2022), `columns` (Carpentier & Mansard 2018), or `auto`, the one with fewer
+    /// operations for this robot (`info` says which).
+    #[arg(
+        long,
+        value_name = "FORM",
+        default_value = "auto",
+        global = true,
+        hide_possible_values = true
+    )]
+    gradient: grid_gen::ir::Gradient,
+    /// How fd_grad applies M^-1: `minv` (Pinocchio's), `ltdl` (M's sparse factorisation),
+    /// `crba` (q̈ from it too), or `auto`, the one with fewer operations (`info` says
+    /// which; the book, Speed).
+    #[arg(
+        long,
+        value_name = "SOLVE",
+        default_value = "auto",
+        global = true,
+        hide_possible_values = true
+    )]
+    solve: grid_gen::ir::Solve,
     /// Put a free-flyer between the world and the root link (Pinocchio's conventions:
     /// q = [x, y, z, qx, qy, qz, qw, joints...], velocities and gradients in the base frame).
     #[arg(long, global = true)]
@@ -210,31 +247,36 @@ struct LoadArgs {
     /// How <mimic> joints are modelled: `independent` (the default, as urdfdom and
     /// Pinocchio's default) or `coupled` (q_m = multiplier * q + offset, no coordinate of
     /// their own; Pinocchio's mimic=True).
-    #[arg(long, value_name = "MODE", global = true, value_parser = parse_mimic)]
+    #[arg(long, value_name = "MODE", global = true, hide_possible_values = true)]
     mimic: Option<grid_gen::MimicMode>,
     /// Frames (URDF link names, comma-separated) whose placement, Jacobian, velocity and
     /// classical acceleration the frame kernels compute and `eval` reports; replaces the
     /// scene's `[frames] names`.
     #[arg(long, value_name = "LINK,...", value_delimiter = ',', global = true)]
     frames: Vec<String>,
-    /// The frame kernels' reference frame (Pinocchio's ReferenceFrame): local, world or
-    /// local_world_aligned (the default).
-    #[arg(long, value_name = "RF", global = true, value_parser = parse_reference_frame)]
+    /// The frame kernels' reference frame (Pinocchio's ReferenceFrame; default
+    /// local_world_aligned).
+    #[arg(long, value_name = "RF", global = true, hide_possible_values = true)]
     reference_frame: Option<grid_gen::model::ReferenceFrame>,
     /// Generate the step kernels (`step`, `step_grad`) and have `eval` report each state's
-    /// next state and [A | B]: semi_implicit_euler (Crocoddyl's default), explicit_euler or
-    /// rk4; replaces the scene's `[step] scheme`. Needs a time step (--dt).
-    #[arg(long, value_name = "SCHEME", global = true, value_parser = parse_scheme)]
+    /// next state and [A | B] (semi_implicit_euler is Crocoddyl's default); replaces the
+    /// scene's `[step] scheme`. Needs a time step (--dt).
+    #[arg(long, value_name = "SCHEME", global = true, hide_possible_values = true)]
     step: Option<grid_gen::model::Scheme>,
     /// The step's time step in seconds (folded into the kernels); replaces `[step] dt`.
     #[arg(long, value_name = "SECONDS", global = true)]
     dt: Option<f64>,
+    /// The actuated joints, comma-separated: the step's τ and B's columns (default every
+    /// joint but a floating base); replaces `[actuation] joints`.
+    #[arg(long, value_name = "JOINT,...", value_delimiter = ',', global = true)]
+    actuated: Vec<String>,
     /// `fd_grad` also returns `dqdd_dtau` = M^-1 (the scene's `[fd_grad] minv = true`).
     #[arg(long, global = true)]
     fd_grad_minv: bool,
     /// Bodies that take an external force `fext` in rnea, rnea_grad, fd and fd_grad (and,
-    /// held constant, in the contact and step kernels), by the name of the joint that moves them (Pinocchio's names: `root_joint` for a floating
-    /// base), comma-separated, or `*` for every body; replaces `[external_forces] joints`.
+    /// held constant, in the contact and step kernels), by the name of the joint that
+    /// moves them (Pinocchio's names: `root_joint` for a floating base), comma-separated,
+    /// or `*` for every body; replaces `[external_forces] joints`.
     #[arg(long, value_name = "JOINT,...", value_delimiter = ',', global = true)]
     fext: Vec<String>,
     /// rnea_grad and fd_grad do not return d/dfext (the scene's `[external_forces]
@@ -243,9 +285,37 @@ struct LoadArgs {
     no_fext_derivatives: bool,
     /// Contacts whose forces lambda those kernels take, in world axes at the frame's
     /// origin: FRAME:point (3-D force) or FRAME:wrench (6-D), comma-separated; the contact
-    /// and step kernels hold them rigid and solve for lambda. Replaces the scene's `[[contact]]`.
+    /// and step kernels hold them rigid and solve for lambda. Replaces the scene's
+    /// `[[contact]]`.
     #[arg(long, value_name = "FRAME:TYPE,...", value_delimiter = ',', global = true, value_parser = parse_contact)]
     contact: Vec<grid_gen::ContactEntry>,
+}
+
+impl ModelArgs {
+    /// The library's description of the job: these flags as overrides of the scene.
+    fn config(&self, urdf: &Path) -> grid_gen::Config {
+        let list = |v: &Vec<String>| (!v.is_empty()).then(|| v.clone());
+        let mut config = grid_gen::Config::new(urdf);
+        config.scene = self.scene.clone();
+        config.strict = self.strict;
+        config.options.lower.gradient = self.gradient;
+        config.options.lower.solve = self.solve;
+        config.overrides = grid_gen::SceneOverrides {
+            gravity: self.gravity,
+            floating_base: self.floating_base.then_some(true),
+            mimic: self.mimic,
+            frames: list(&self.frames),
+            reference_frame: self.reference_frame,
+            scheme: self.step,
+            dt: self.dt,
+            actuated: list(&self.actuated),
+            fd_grad_minv: self.fd_grad_minv.then_some(true),
+            fext: list(&self.fext),
+            fext_derivatives: self.no_fext_derivatives.then_some(false),
+            contacts: (!self.contact.is_empty()).then(|| self.contact.clone()),
+        };
+        config
+    }
 }
 
 fn parse_contact(s: &str) -> Result<grid_gen::ContactEntry, String> {
@@ -255,23 +325,6 @@ fn parse_contact(s: &str) -> Result<grid_gen::ContactEntry, String> {
     let kind = grid_gen::model::ContactKind::parse(kind)
         .ok_or_else(|| format!("`{s}`: unknown contact type `{kind}`; available: point, wrench"))?;
     Ok(grid_gen::ContactEntry { frame: frame.to_string(), kind })
-}
-
-fn parse_scheme(s: &str) -> Result<grid_gen::model::Scheme, String> {
-    grid_gen::model::Scheme::parse(s).ok_or_else(|| {
-        format!("unknown step scheme `{s}`; available: semi_implicit_euler, explicit_euler, rk4")
-    })
-}
-
-fn parse_reference_frame(s: &str) -> Result<grid_gen::model::ReferenceFrame, String> {
-    grid_gen::model::ReferenceFrame::parse(s).ok_or_else(|| {
-        format!("unknown reference frame `{s}`; available: local, world, local_world_aligned")
-    })
-}
-
-fn parse_mimic(s: &str) -> Result<grid_gen::MimicMode, String> {
-    grid_gen::MimicMode::parse(s)
-        .ok_or_else(|| format!("unknown mimic mode `{s}`; available: independent, coupled"))
 }
 
 #[derive(Subcommand)]
@@ -285,10 +338,16 @@ enum Command {
         /// Folder to write the generated files into (created if needed).
         #[arg(short = 'o', long = "out", value_name = "DIR")]
         out: Option<PathBuf>,
-        /// Backends to emit, comma-separated (available: rust, wgsl, verilog, c; c writes the
-        /// batch entry points and C ABI `<robot>_c.rs` and the header `<robot>.h`).
-        #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "rust", value_parser = parse_target)]
-        emit: Vec<grid_gen::generate::Target>,
+        /// Backends to write, comma-separated: rust, wgsl, verilog, c (c writes the batch
+        /// entry points and C ABI `<robot>_c.rs` and the header `<robot>.h`).
+        #[arg(
+            long,
+            alias = "emit",
+            value_name = "LIST",
+            value_delimiter = ',',
+            default_value = "rust"
+        )]
+        backend: Vec<grid_gen::generate::Target>,
         /// Write nothing; exit 1 if any file would change (for CI freshness checks).
         #[arg(long, requires = "out")]
         check: bool,
@@ -298,7 +357,9 @@ enum Command {
         #[arg(long)]
         avx512: bool,
         #[command(flatten)]
-        kernel: KernelArgs,
+        wgsl: WgslArgs,
+        #[command(flatten)]
+        verilog: VerilogArgs,
     },
     /// Print the model: joint order, types, parents, tree levels, gradient sparsity,
     /// operations per kernel, Verilog netlist sizes.
@@ -310,10 +371,8 @@ enum Command {
         /// reference).
         #[arg(long)]
         json: bool,
-        #[command(flatten)]
-        kernel: KernelArgs,
     },
-    /// Evaluate the reference dynamics on states from a JSON file and print JSON.
+    /// Evaluate the dynamics on states from a JSON file and print JSON.
     ///
     /// Input: {"states": [{"q": [...], "qd": [...], "qdd": [...], "tau": [...]}]} in model
     /// order (qdd and tau optional). Output: per state rnea, drnea_dq, drnea_dqd (with qdd),
@@ -327,25 +386,27 @@ enum Command {
         /// The states to evaluate.
         #[arg(long, value_name = "STATES.json")]
         states: PathBuf,
-        /// Gravity in the root frame, m/s².
-        #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, default_value = "0,0,-9.81", allow_hyphen_values = true)]
-        gravity: [f64; 3],
         /// `reference` (f64, every key); `wgsl`: run the WGSL kernels on the first
         /// adapter (or the one WGPU_ADAPTER_NAME names), same keys, with the WGSL options;
         /// or `verilog`: simulate the rnea_grad and mass_matrix netlists under Icarus
         /// Verilog (keys drnea_dq, drnea_dqd, M, plus each netlist's overflow flag), with
         /// the Verilog options.
-        #[arg(long, value_name = "BACKEND", default_value = "reference", value_parser = ["reference", "wgsl", "verilog"])]
-        backend: String,
+        #[arg(long, value_name = "BACKEND", default_value = "reference")]
+        backend: EvalBackend,
+        #[command(flatten)]
+        wgsl: WgslArgs,
+        #[command(flatten)]
+        verilog: VerilogArgs,
     },
     /// Measure each kernel's error per number format against the double-double value
     /// of its graph, with cond(M) over the states.
     ///
-    /// Formats: f64 and f32 (what the generated Rust computes), fixed (the Verilog
-    /// datapath's bit-exact model in the --fixed/--rounding/--max-error format; also
-    /// fixed:WIDTH.FRAC and fixed:auto), wgsl (the WGSL kernels on the first adapter, with
-    /// the WGSL options). Error per state: max|Δ| / max|true| over each output, the worst
-    /// output; the table gives the median and largest over the states.
+    /// Formats: f64 and f32 (what the generated Rust computes), mixed (a mixed-precision
+    /// plan), fixed (the Verilog datapath's bit-exact model in the --fixed/--rounding/
+    /// --max-error format; also fixed:WIDTH.FRAC and fixed:auto); with --backend wgsl, the
+    /// WGSL kernels on the first adapter too. Error per state: max|Δ| / max|true| over
+    /// each output, the worst output; the table gives the median and largest over the
+    /// states.
     Accuracy {
         /// The robot description.
         #[arg(value_name = "ROBOT.urdf")]
@@ -360,12 +421,17 @@ enum Command {
         /// Seed of the random states.
         #[arg(long, value_name = "S", default_value_t = 1)]
         seed: u64,
-        /// Number formats, comma-separated: f64, f32, fixed, fixed:WIDTH.FRAC, fixed:auto, wgsl.
+        /// Number formats, comma-separated: f64, f32, mixed, mixed:TARGET, fixed,
+        /// fixed:WIDTH.FRAC, fixed:auto.
         #[arg(long, value_name = "LIST", value_delimiter = ',', default_value = "f64,f32,fixed")]
         formats: Vec<String>,
+        /// Also measure the kernels run by a backend: `wgsl` (the WGSL kernels on the first
+        /// adapter, with the WGSL options).
+        #[arg(long, value_name = "BACKEND", value_delimiter = ',')]
+        backend: Vec<AccuracyBackend>,
         /// Kernels to measure (default: every kernel the robot has).
         #[arg(long, value_name = "K,...", value_delimiter = ',')]
-        kernels: Vec<String>,
+        kernels: Vec<grid_gen::ir::KernelKind>,
         /// Print JSON instead of the table.
         #[arg(long)]
         json: bool,
@@ -378,7 +444,9 @@ enum Command {
         #[arg(long)]
         time: bool,
         #[command(flatten)]
-        kernel: KernelArgs,
+        wgsl: WgslArgs,
+        #[command(flatten)]
+        verilog: VerilogArgs,
     },
     /// Time the generated kernels: WGSL on batches of states (GPU or lavapipe), or with
     /// --backend rust the Rust kernels per call on this CPU.
@@ -392,16 +460,11 @@ enum Command {
         urdf: PathBuf,
         /// `wgsl`, or `rust`: the generated Rust kernels compiled with `rustc -C
         /// opt-level=3` and timed per call, f64 and f32, portable and dispatching copies
-        /// (--batch and --seconds do not apply).
-        #[arg(long, value_name = "BACKEND", default_value = "wgsl", value_parser = ["wgsl", "rust"])]
-        backend: String,
-        /// Batch sizes.
-        #[arg(
-            long,
-            value_name = "N,...",
-            value_delimiter = ',',
-            default_value = "1,16,128,1024,16384"
-        )]
+        /// (then --batch, --seconds and the WGSL options are errors).
+        #[arg(long, value_name = "BACKEND", default_value = "wgsl")]
+        backend: BenchBackend,
+        /// WGSL: batch sizes (default 1,16,128,1024,16384).
+        #[arg(long, value_name = "N,...", value_delimiter = ',')]
         batch: Vec<usize>,
         /// Kernels to time.
         #[arg(
@@ -410,11 +473,34 @@ enum Command {
             value_delimiter = ',',
             default_value = "rnea_grad,fd_grad"
         )]
-        kernels: Vec<String>,
-        /// Time spent repeating each measurement (at least 5 runs each).
-        #[arg(long, value_name = "S", default_value_t = 0.5)]
-        seconds: f64,
+        kernels: Vec<grid_gen::ir::KernelKind>,
+        /// WGSL: time spent repeating each measurement (at least 5 runs each; default 0.5).
+        #[arg(long, value_name = "S")]
+        seconds: Option<f64>,
+        #[command(flatten)]
+        wgsl: WgslArgs,
     },
+}
+
+/// `eval --backend`.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+enum EvalBackend {
+    Reference,
+    Wgsl,
+    Verilog,
+}
+
+/// `accuracy --backend`: the backends that run kernels beside the modelled formats.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+enum AccuracyBackend {
+    Wgsl,
+}
+
+/// `bench --backend`.
+#[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
+enum BenchBackend {
+    Wgsl,
+    Rust,
 }
 
 fn parse_gravity(s: &str) -> Result<[f64; 3], String> {
@@ -471,67 +557,20 @@ fn fail(message: impl std::fmt::Display) -> ExitCode {
     ExitCode::from(1)
 }
 
-/// Reads and loads a URDF in the scene of `--scene` (if any), rendering every
-/// diagnostic; the exit code after an error.
-fn load(path: &Path, args: &LoadArgs) -> Result<(Model, grid_gen::Scene), ExitCode> {
-    let scene = match &args.scene {
-        None => grid_gen::Scene::default(),
-        Some(p) => {
-            let parsed = std::fs::read_to_string(p)
-                .map_err(|e| format!("cannot read scene {}: {e}", p.display()));
-            match parsed.and_then(|t| {
-                grid_gen::Scene::parse(&p.display().to_string(), &t).map_err(|e| e.to_string())
-            }) {
-                Ok(s) => s,
-                Err(e) => return Err(fail(e)),
-            }
+/// Loads the robot as the flags describe it, rendering every diagnostic; the exit code
+/// after an error.
+fn load(urdf: &Path, args: &ModelArgs) -> Result<(grid_gen::Config, grid_gen::Loaded), ExitCode> {
+    let config = args.config(urdf);
+    match config.load() {
+        Ok(loaded) => {
+            render(&loaded.urdf_path, &loaded.urdf_text, &loaded.warnings);
+            Ok((config, loaded))
         }
-    };
-    let mut scene = scene;
-    scene.floating_base |= args.floating_base;
-    if let Some(mode) = args.mimic {
-        scene.mimic = mode;
-    }
-    if !args.frames.is_empty() {
-        scene.frames.names = args.frames.clone();
-    }
-    if let Some(rf) = args.reference_frame {
-        scene.frames.reference = Some(rf);
-    }
-    scene.fd_grad.minv |= args.fd_grad_minv;
-    if !args.fext.is_empty() {
-        scene.external_forces.joints = args.fext.clone();
-    }
-    if args.no_fext_derivatives {
-        scene.external_forces.derivatives = Some(false);
-    }
-    if !args.contact.is_empty() {
-        scene.contact = args.contact.clone();
-    }
-    if args.step.is_some() || args.dt.is_some() {
-        let s = scene.step.get_or_insert_with(Default::default);
-        s.scheme = args.step.or(s.scheme);
-        s.dt = args.dt.or(s.dt);
-    }
-    let scene_path = args.scene.as_ref().map(|p| p.display().to_string()).unwrap_or_default();
-    let strict = args.strict;
-    let shown = path.display().to_string();
-    let text = match std::fs::read(path) {
-        Ok(bytes) => match String::from_utf8(bytes) {
-            Ok(t) => t,
-            Err(_) => return Err(fail(format!("{shown}: the file is not UTF-8 text"))),
-        },
-        Err(e) => return Err(fail(format!("cannot read {shown}: {e}"))),
-    };
-    match Model::from_urdf_str_in_scene(&shown, &text, strict, &scene, &scene_path) {
-        Ok((model, warnings)) => {
-            render(&shown, &text, &warnings);
-            Ok((model, scene))
-        }
-        Err(e) => {
-            render(&shown, &text, &e.diagnostics);
+        Err(grid_gen::ConfigError::Load(e)) => {
+            render(&e.path, &e.source_text, &e.diagnostics);
             Err(ExitCode::from(1))
         }
+        Err(e) => Err(fail(e)),
     }
 }
 
@@ -610,90 +649,91 @@ fn write_generated(
 
 fn run(cli: Cli) -> ExitCode {
     match cli.command {
-        Command::Generate { urdf, out, emit, check, avx512, kernel } => {
-            let (model, scene) = match load(&urdf, &cli.load) {
+        Command::Generate { urdf, out, backend, check, avx512, wgsl, verilog } => {
+            let (mut config, loaded) = match load(&urdf, &cli.model) {
                 Ok(loaded) => loaded,
                 Err(code) => return code,
             };
-            let gravity = scene.gravity.unwrap_or(kernel.gravity);
-            match out {
-                None => print(
-                    &(Info::with_options(&model, gravity, kernel.gradient()).to_text()
-                        + &scene_lines(&scene)
+            let Some(dir) = out else {
+                return print(
+                    &(Info::with_options(&loaded.model, loaded.gravity(), cli.model.gradient)
+                        .to_text()
+                        + &scene_lines(&loaded.scene)
                         + "(pass -o DIR to generate code)\n"),
-                ),
-                Some(dir) => {
-                    let verilog = match cli.verilog.options() {
-                        Ok(v) => v,
-                        Err(e) => return fail(e),
-                    };
-                    let mut lower = grid_gen::ir::LowerOptions {
-                        gradient: kernel.gradient(),
-                        ..Default::default()
-                    };
-                    if let Some(k) = scene.kernels().unwrap_or_default() {
-                        lower.kernels = k;
-                    }
-                    let options = grid_gen::generate::Options {
-                        gravity,
-                        targets: emit,
-                        lower,
-                        verilog,
-                        wgsl: cli.wgsl.options(),
-                        rust: grid_gen::back::rust::RustOptions { avx512, ..Default::default() },
-                        ..Default::default()
-                    };
-                    write_generated(&model, &dir, &options, check)
-                }
-            }
-        }
-        Command::Info { urdf, json, kernel } => match load(&urdf, &cli.load) {
-            Ok((model, scene)) => {
-                let info = Info::with_options(
-                    &model,
-                    scene.gravity.unwrap_or(kernel.gravity),
-                    kernel.gradient(),
                 );
+            };
+            config.options.targets = backend;
+            config.options.rust.avx512 = avx512;
+            config.options.wgsl = wgsl.options();
+            config.options.verilog = match verilog.options() {
+                Ok(v) => v,
+                Err(e) => return fail(e),
+            };
+            write_generated(&loaded.model, &dir, &loaded.options(&config.options), check)
+        }
+        Command::Info { urdf, json } => match load(&urdf, &cli.model) {
+            Ok((_, loaded)) => {
+                let info = Info::with_options(&loaded.model, loaded.gravity(), cli.model.gradient);
                 if json {
                     print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))
                 } else {
-                    print(&(info.to_text() + &scene_lines(&scene)))
+                    print(&(info.to_text() + &scene_lines(&loaded.scene)))
                 }
             }
             Err(code) => code,
         },
-        Command::Bench { urdf, backend, batch, kernels, seconds } => match load(&urdf, &cli.load) {
-            Ok((model, scene)) if backend == "rust" => bench_rust(&model, &scene, &kernels),
-            Ok((model, _)) => bench(&model, &cli.wgsl, &batch, &kernels, seconds),
-            Err(code) => code,
-        },
+        Command::Bench { urdf, backend, batch, kernels, seconds, wgsl } => {
+            let wgsl_only = !batch.is_empty() || seconds.is_some() || !wgsl.is_default();
+            if backend == BenchBackend::Rust && wgsl_only {
+                return fail(
+                    "`bench --backend rust` times one state per call on this CPU: --batch, \
+                     --seconds and the WGSL options apply to `--backend wgsl` only",
+                );
+            }
+            let (config, loaded) = match load(&urdf, &cli.model) {
+                Ok(loaded) => loaded,
+                Err(code) => return code,
+            };
+            match backend {
+                BenchBackend::Rust => bench_rust(&loaded, &config, &kernels),
+                BenchBackend::Wgsl => {
+                    let batch =
+                        if batch.is_empty() { vec![1, 16, 128, 1024, 16384] } else { batch };
+                    let mut options = loaded.options(&config.options);
+                    options.lower.kernels = kernels;
+                    bench(&loaded.model, &options, &wgsl, &batch, seconds.unwrap_or(0.5))
+                }
+            }
+        }
         Command::Accuracy {
             urdf,
             states,
             random,
             seed,
             formats,
+            backend,
             kernels,
             json,
             plot,
             time,
-            kernel,
-        } => match load(&urdf, &cli.load) {
-            Ok((model, scene)) => accuracy(
-                &model,
-                &scene,
-                &cli.verilog,
-                &cli.wgsl,
-                AccuracyArgs { states, random, seed, formats, kernels, json, plot, time, kernel },
+            wgsl,
+            verilog,
+        } => match load(&urdf, &cli.model) {
+            Ok((config, loaded)) => accuracy(
+                &loaded,
+                &config,
+                &verilog,
+                &wgsl,
+                AccuracyArgs { states, random, seed, formats, backend, kernels, json, plot, time },
             ),
             Err(code) => code,
         },
-        Command::Eval { urdf, states, gravity, backend } => {
-            let (model, scene) = match load(&urdf, &cli.load) {
+        Command::Eval { urdf, states, backend, wgsl, verilog } => {
+            let (_, loaded) = match load(&urdf, &cli.model) {
                 Ok(loaded) => loaded,
                 Err(code) => return code,
             };
-            let gravity = scene.gravity.unwrap_or(gravity);
+            let (model, gravity) = (&loaded.model, loaded.gravity());
             let text = match std::fs::read_to_string(&states) {
                 Ok(t) => t,
                 Err(e) => return fail(format!("cannot read {}: {e}", states.display())),
@@ -702,56 +742,58 @@ fn run(cli: Cli) -> ExitCode {
                 Ok(f) => f,
                 Err(e) => return fail(format!("{}: {e}", states.display())),
             };
-            #[cfg(not(feature = "wgpu"))]
-            if backend == "wgsl" {
-                return fail(NO_WGPU);
-            }
-            #[cfg(feature = "wgpu")]
-            if backend == "wgsl" {
-                let gpu = match grid_gen_wgpu::Gpu::new() {
-                    Ok(g) => g,
-                    Err(e) => return fail(e),
-                };
-                let options = cli.wgsl.options();
-                let strategy = if cli.wgsl.wgsl_strategy == "cooperative" {
-                    grid_gen::back::wgsl::Strategy::Cooperative
-                } else {
-                    grid_gen::back::wgsl::Strategy::Thread
-                };
-                // Which adapter and number type the JSON comes from (stdout stays JSON).
-                eprintln!(
-                    "eval: WGSL on `{}`, {}, {} strategy",
-                    gpu.adapter(),
-                    options.precision.name(),
-                    strategy.name()
-                );
-                return match grid_gen_wgpu::evaluate(
-                    &gpu, &model, &file, gravity, &options, strategy,
-                ) {
-                    Ok(out) => {
-                        print(&(serde_json::to_string(&out).expect("results serialise") + "\n"))
-                    }
-                    Err(e) => fail(format!("{}: {e}", states.display())),
-                };
-            }
-            if backend == "verilog" {
-                let options = match cli.verilog.options() {
-                    Ok(v) => v,
-                    Err(e) => return fail(e),
-                };
-                return match grid_gen::eval::evaluate_verilog(&model, &file, gravity, &options) {
-                    Ok(out) => {
-                        print(&(serde_json::to_string(&out).expect("results serialise") + "\n"))
-                    }
-                    Err(e) => fail(format!("{}: {e}", states.display())),
-                };
-            }
-            match grid_gen::eval::evaluate(&model, &file, gravity) {
-                Ok(out) => print(&(serde_json::to_string(&out).expect("results serialise") + "\n")),
-                Err(e) => fail(format!("{}: {e}", states.display())),
+            let out = match backend {
+                EvalBackend::Reference => grid_gen::eval::evaluate(model, &file, gravity)
+                    .map(|o| serde_json::to_string(&o).expect("results serialise"))
+                    .map_err(|e| format!("{}: {e}", states.display())),
+                EvalBackend::Verilog => verilog.options().and_then(|options| {
+                    grid_gen::eval::evaluate_verilog(model, &file, gravity, &options)
+                        .map(|o| serde_json::to_string(&o).expect("results serialise"))
+                        .map_err(|e| format!("{}: {e}", states.display()))
+                }),
+                EvalBackend::Wgsl => eval_wgsl(model, &file, gravity, &wgsl)
+                    .map(|o| serde_json::to_string(&o).expect("results serialise"))
+                    .map_err(|e| format!("{}: {e}", states.display())),
+            };
+            match out {
+                Ok(text) => print(&(text + "\n")),
+                Err(e) => fail(e),
             }
         }
     }
+}
+
+/// `eval --backend wgsl`: the WGSL kernels on the first adapter.
+#[cfg(feature = "wgpu")]
+fn eval_wgsl(
+    model: &Model,
+    file: &grid_gen::eval::StatesFile,
+    gravity: [f64; 3],
+    wgsl: &WgslArgs,
+) -> Result<grid_gen::eval::EvalOutput, String> {
+    let strategy = wgsl.strategy("eval")?;
+    let gpu = grid_gen_wgpu::Gpu::new().map_err(|e| e.to_string())?;
+    let options = wgsl.options();
+    // Which adapter and number type the JSON comes from (stdout stays JSON).
+    eprintln!(
+        "eval: WGSL on `{}`, {}, {} strategy",
+        gpu.adapter(),
+        options.precision.name(),
+        strategy.name()
+    );
+    grid_gen_wgpu::evaluate(&gpu, model, file, gravity, &options, strategy)
+        .map_err(|e| e.to_string())
+}
+
+#[cfg(not(feature = "wgpu"))]
+fn eval_wgsl(
+    _: &Model,
+    _: &grid_gen::eval::StatesFile,
+    _: [f64; 3],
+    wgsl: &WgslArgs,
+) -> Result<grid_gen::eval::EvalOutput, String> {
+    wgsl.strategy("eval")?;
+    Err(NO_WGPU.to_string())
 }
 
 struct AccuracyArgs {
@@ -759,22 +801,23 @@ struct AccuracyArgs {
     random: usize,
     seed: u64,
     formats: Vec<String>,
-    kernels: Vec<String>,
+    backend: Vec<AccuracyBackend>,
+    kernels: Vec<grid_gen::ir::KernelKind>,
     json: bool,
     plot: Option<PathBuf>,
     time: bool,
-    kernel: KernelArgs,
 }
 
 fn accuracy(
-    model: &Model,
-    scene: &grid_gen::Scene,
+    loaded: &grid_gen::Loaded,
+    config: &grid_gen::Config,
     verilog: &VerilogArgs,
     wgsl: &WgslArgs,
     args: AccuracyArgs,
 ) -> ExitCode {
     use grid_gen::accuracy::{self, NumberFormat};
-    let gravity = scene.gravity.unwrap_or(args.kernel.gravity);
+    let (model, gravity) = (&loaded.model, loaded.gravity());
+    let gradient = config.options.lower.gradient;
     let (file, source) = match &args.states {
         Some(path) => {
             let parsed = std::fs::read_to_string(path)
@@ -799,23 +842,20 @@ fn accuracy(
     };
     let kernels = if args.kernels.is_empty() {
         let all = accuracy::default_kernels(model);
-        match scene.kernels() {
-            Ok(Some(wanted)) => all.into_iter().filter(|k| wanted.contains(k)).collect(),
-            _ => all,
+        match &loaded.kernels {
+            Some(wanted) => all.into_iter().filter(|k| wanted.contains(k)).collect(),
+            None => all,
         }
     } else {
-        match parse_kernels(&args.kernels) {
-            Ok(k) => k,
-            Err(code) => return code,
-        }
+        args.kernels.clone()
     };
     let mut formats = Vec::new();
-    let mut want_wgsl = false;
     for f in &args.formats {
         let parsed = match f.as_str() {
             "wgsl" => {
-                want_wgsl = true;
-                continue;
+                return fail(
+                    "--formats: `wgsl` is a backend, not a number format: pass --backend wgsl",
+                )
             }
             "fixed" => NumberFormat::parse(
                 &format!("fixed:{}", verilog.fixed),
@@ -830,11 +870,12 @@ fn accuracy(
             Err(e) => {
                 return fail(format!(
                     "--formats: {e}; available: f64, f32, mixed, mixed:TARGET (e.g. mixed:1e-10), fixed (the Verilog options' format), \
-                     fixed:WIDTH.FRAC (e.g. fixed:32.16), fixed:auto, wgsl"
+                     fixed:WIDTH.FRAC (e.g. fixed:32.16), fixed:auto"
                 ))
             }
         }
     }
+    let want_wgsl = args.backend.contains(&AccuracyBackend::Wgsl);
     #[cfg(not(feature = "wgpu"))]
     if want_wgsl {
         let _ = wgsl;
@@ -853,50 +894,28 @@ fn accuracy(
     let mut backends = Vec::new();
     #[cfg(feature = "wgpu")]
     if let Some(gpu) = &gpu {
-        use grid_gen::back::wgsl::Strategy;
-        let options = wgsl.options();
-        let strategy = if wgsl.wgsl_strategy == "cooperative" {
-            Strategy::Cooperative
-        } else {
-            Strategy::Thread
-        };
-        let lower = grid_gen::ir::LowerOptions {
-            kernels: kernels.clone(),
-            gradient: args.kernel.gradient(),
-            ..Default::default()
-        };
-        let source =
-            grid_gen::ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|m| {
-                grid_gen::back::wgsl::emit(
-                    &m,
-                    &grid_gen::back::wgsl::WgslOptions {
-                        strategies: vec![strategy],
-                        ..options.clone()
-                    },
-                )
-                .map_err(|e| e.to_string())
-            });
-        let shader = match source.and_then(|s| gpu.load(&s.contents).map_err(|e| e.to_string())) {
+        let strategy = match wgsl.strategy("accuracy") {
             Ok(s) => s,
-            Err(e) => return fail(format!("wgsl: {e}")),
+            Err(e) => return fail(e),
         };
-        let adapter = gpu.adapter();
-        let short = adapter.split(" (").next().unwrap_or(&adapter);
-        let label = format!("wgsl {} {} on {short}", wgsl.precision, strategy.name());
-        backends.push(accuracy::Backend {
-            label,
-            run: Box::new(move |kind, q, qd, u| {
-                let kernel =
-                    gpu.kernel(&shader, &strategy.entry(kind.name())).map_err(|e| e.to_string())?;
-                gpu.run(&kernel, q, qd, u).map_err(|e| e.to_string())
-            }),
-        });
+        let mut lower = config.options.lower.clone();
+        lower.kernels = kernels.clone();
+        let backend = grid_gen::ir::lower(model, gravity, &lower)
+            .map_err(|e| e.to_string())
+            .and_then(|module| {
+                grid_gen_wgpu::accuracy_backend(gpu, &module, &wgsl.options(), strategy)
+                    .map_err(|e| e.to_string())
+            });
+        match backend {
+            Ok(b) => backends.push(b),
+            Err(e) => return fail(format!("wgsl: {e}")),
+        }
     }
     let options = accuracy::Options {
         kernels,
         formats,
         gravity,
-        gradient: args.kernel.gradient(),
+        gradient,
         qd_max: verilog.qd_max,
         qdd_max: verilog.qdd_max,
     };
@@ -915,7 +934,7 @@ fn accuracy(
                 wide: &m.wide,
             })
             .collect();
-        match time_kernels(model, gravity, args.kernel.gradient(), &options.kernels, &mixed) {
+        match time_kernels(model, gravity, gradient, &options.kernels, &mixed) {
             Ok(times) => report.add_times(&times),
             Err(e) => return fail(e),
         }
@@ -936,22 +955,6 @@ fn accuracy(
     } else {
         print(&report.to_text())
     }
-}
-
-/// The kernels a `--kernels` list names, or the exit code after naming the unknown one.
-fn parse_kernels(names: &[String]) -> Result<Vec<grid_gen::ir::KernelKind>, ExitCode> {
-    use grid_gen::ir::KernelKind;
-    names
-        .iter()
-        .map(|k| {
-            KernelKind::parse(k).ok_or_else(|| {
-                fail(format!(
-                    "--kernels: unknown kernel `{k}`; available: {}",
-                    KernelKind::ALL.map(|x| x.name()).join(", ")
-                ))
-            })
-        })
-        .collect()
 }
 
 /// Times the generated Rust kernels in a scratch folder under the system's temp folder.
@@ -977,193 +980,52 @@ fn time_kernels(
     result
 }
 
-fn bench_rust(model: &Model, scene: &grid_gen::Scene, kernels: &[String]) -> ExitCode {
-    let kinds = match parse_kernels(kernels) {
-        Ok(k) => k,
-        Err(code) => return code,
-    };
+fn bench_rust(
+    loaded: &grid_gen::Loaded,
+    config: &grid_gen::Config,
+    kinds: &[grid_gen::ir::KernelKind],
+) -> ExitCode {
     eprintln!("compiling the kernels with rustc -C opt-level=3...");
-    let gravity = scene.gravity.unwrap_or(grid_gen::model::DEFAULT_GRAVITY);
-    let times = match time_kernels(model, gravity, grid_gen::ir::Gradient::Auto, &kinds, &[]) {
-        Ok(t) => t,
-        Err(e) => return fail(e),
-    };
-    let mut out = format!(
-        "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}   (ns per call, one state, median of 15; dispatch runs the {} copy here)\n",
-        "kernel",
-        "f64 portable",
-        "f64 fma",
-        "f64 dispatch",
-        "f32 portable",
-        "f32 fma",
-        "f32 dispatch",
-        dispatched_copy()
-    );
-    for kind in kinds {
-        let cell = |scalar: &str, copy: &str| {
-            times
-                .iter()
-                .find(|t| t.kernel == kind && t.scalar == scalar && t.copy == copy)
-                .map_or("-".to_string(), |t| format!("{:.0}", t.ns_per_call))
-        };
-        out += &format!(
-            "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}\n",
-            kind.name(),
-            cell("f64", "portable"),
-            cell("f64", "fma"),
-            cell("f64", "dispatch"),
-            cell("f32", "portable"),
-            cell("f32", "fma"),
-            cell("f32", "dispatch")
-        );
+    let gradient = config.options.lower.gradient;
+    match time_kernels(&loaded.model, loaded.gravity(), gradient, kinds, &[]) {
+        Ok(times) => print(&grid_gen::timing::table(&times, kinds)),
+        Err(e) => fail(e),
     }
-    print(&out)
-}
-
-/// The machine-code copy the generated dispatchers pick on this CPU (the same test as
-/// their `has_avx512` and `has_fma`).
-fn dispatched_copy() -> &'static str {
-    #[cfg(target_arch = "x86_64")]
-    {
-        let fma = std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
-        if fma
-            && std::is_x86_feature_detected!("avx512f")
-            && std::is_x86_feature_detected!("avx512vl")
-        {
-            return "avx512";
-        }
-        if fma {
-            return "fma";
-        }
-    }
-    "portable"
 }
 
 /// Without the `wgpu` feature: the WGSL kernels cannot run here.
 #[cfg(not(feature = "wgpu"))]
-fn bench(_: &Model, _: &WgslArgs, _: &[usize], _: &[String], _: f64) -> ExitCode {
+fn bench(
+    _: &Model,
+    _: &grid_gen::generate::Options,
+    _: &WgslArgs,
+    _: &[usize],
+    _: f64,
+) -> ExitCode {
     fail(NO_WGPU)
 }
 
+/// `bench`: the WGSL kernels of `options.lower` timed on the first adapter.
 #[cfg(feature = "wgpu")]
 fn bench(
     model: &Model,
+    options: &grid_gen::generate::Options,
     wgsl: &WgslArgs,
     batch: &[usize],
-    kernels: &[String],
     seconds: f64,
 ) -> ExitCode {
-    use std::fmt::Write as _;
-    let lower = match parse_kernels(kernels) {
-        Ok(kernels) => grid_gen::ir::LowerOptions { kernels, ..Default::default() },
-        Err(code) => return code,
+    let module = match grid_gen::ir::lower(model, options.gravity, &options.lower) {
+        Ok(m) => m,
+        Err(e) => return fail(e),
     };
-    if !(seconds.is_finite() && seconds > 0.0) {
-        return fail("--seconds must be a positive number");
-    }
     let gpu = match grid_gen_wgpu::Gpu::new() {
         Ok(g) => g,
         Err(e) => return fail(e),
     };
-    let options = wgsl.options();
-    let module = match grid_gen::ir::lower(model, grid_gen::model::DEFAULT_GRAVITY, &lower) {
-        Ok(m) => m,
-        Err(e) => return fail(e),
-    };
-    let source = match grid_gen::back::wgsl::emit(&module, &options) {
-        Ok(f) => f.contents,
-        Err(e) => return fail(e),
-    };
-    let t = std::time::Instant::now();
-    let shader = match gpu.load(&source) {
-        Ok(s) => s,
-        Err(e) => return fail(e),
-    };
-    let mut report = format!(
-        "adapter: {}\nrobot: {} ({} joints), {}, trig {}; shader module {:.2?}\n",
-        gpu.adapter(),
-        module.robot.name,
-        module.robot.nv(),
-        options.precision.name(),
-        options.trig.name(),
-        t.elapsed()
-    );
-    let _ = writeln!(
-        report,
-        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14}",
-        "kernel",
-        "strategy",
-        "N",
-        "disp",
-        "us/batch",
-        "us/state",
-        "states/s",
-        "round-trip us",
-        "device us"
-    );
-    // q has nq entries per state (a floating base's or spherical joint's quaternion, which
-    // the kernels scale by 1/|q|²), velocities and torques nv.
-    let (nq, nv) = (module.robot.nq(), module.robot.nv());
-    let mut rng = 0x9E37_79B9_7F4A_7C15u64;
-    let mut uniform = move |lo: f64, hi: f64| {
-        rng ^= rng << 13;
-        rng ^= rng >> 7;
-        rng ^= rng << 17;
-        lo + (hi - lo) * ((rng >> 11) as f64 / (1u64 << 53) as f64)
-    };
-    let largest = batch.iter().copied().max().unwrap_or(0);
-    let q: Vec<f64> = (0..largest * nq).map(|_| uniform(-3.1, 3.1)).collect();
-    let qd: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
-    let u: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
-    let budget = std::time::Duration::from_secs_f64(seconds);
-    for f in &module.functions {
-        for &strategy in &options.strategies {
-            let kernel = match gpu.kernel(&shader, &strategy.entry(f.kind.name())) {
-                Ok(k) => k,
-                Err(e) => return fail(e),
-            };
-            let _ = writeln!(
-                report,
-                "{} {}: pipeline built in {:.2?}",
-                kernel.entry.entry,
-                strategy.name(),
-                kernel.build_time
-            );
-            for &n in batch {
-                let m = n * nv;
-                match grid_gen_wgpu::bench::time(
-                    &gpu,
-                    &kernel,
-                    &q[..n * nq],
-                    &qd[..m],
-                    &u[..m],
-                    budget,
-                ) {
-                    Ok(t) => {
-                        let us = t.dispatch.as_secs_f64() * 1e6;
-                        let _ = writeln!(
-                            report,
-                            "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1} {:>14}",
-                            f.kind.name(),
-                            strategy.name(),
-                            n,
-                            t.dispatches,
-                            us,
-                            us / n.max(1) as f64,
-                            n as f64 / t.dispatch.as_secs_f64(),
-                            t.round_trip.as_secs_f64() * 1e6,
-                            t.device.map_or("-".to_string(), |d| format!(
-                                "{:.1}",
-                                d.as_secs_f64() * 1e6
-                            ))
-                        );
-                    }
-                    Err(e) => return fail(e),
-                }
-            }
-        }
+    match grid_gen_wgpu::bench::table(&gpu, &module, &wgsl.options(), batch, seconds) {
+        Ok(table) => print(&table),
+        Err(e) => fail(e),
     }
-    print(&report)
 }
 
 /// What a command that runs WGSL kernels says in a build without the `wgpu` feature.

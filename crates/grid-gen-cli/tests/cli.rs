@@ -468,8 +468,13 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
         String::from_utf8_lossy(&floating.stdout)
     );
     let bad = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--kernels", "nope"]);
-    assert_eq!(bad.status.code(), Some(1));
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown kernel `nope`"));
+    assert_eq!(bad.status.code(), Some(2));
+    assert!(
+        stderr(&bad).contains("invalid value 'nope' for '--kernels")
+            && stderr(&bad).contains("possible values: rnea, rnea_grad,"),
+        "{}",
+        stderr(&bad)
+    );
 }
 
 fn stderr(out: &Output) -> String {
@@ -586,6 +591,67 @@ fn what_a_new_user_tripped_over() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// One word per choice across the commands, typed flags, and no flag accepted by a command
+/// that would ignore it.
+#[test]
+fn every_command_takes_only_its_own_flags() {
+    let iiwa = "robots/grid_iiwa.urdf";
+    // A WGSL or Verilog setting means nothing to `info`: an error, not ignored.
+    for flag in [["--wgsl-workers", "7"], ["--fixed", "32.16"]] {
+        let out = grid_gen(&["info", iiwa, flag[0], flag[1]]);
+        assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
+        assert!(stderr(&out).contains(&format!("unexpected argument '{}'", flag[0])));
+    }
+    // Nor do batch sizes to `bench --backend rust`, which times one state per call.
+    let out = grid_gen(&["bench", iiwa, "--backend", "rust", "--batch", "16"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("apply to `--backend wgsl` only"), "{}", stderr(&out));
+    // `eval` runs one strategy: `both` is refused, not silently read as `thread`.
+    let states = std::env::temp_dir().join(format!("grid-gen-cli-own-{}.json", std::process::id()));
+    std::fs::write(&states, r#"{"states": [{"q": [0,0,0,0,0,0,0], "qd": [0,0,0,0,0,0,0]}]}"#)
+        .unwrap();
+    let s = states.to_str().unwrap();
+    let out =
+        grid_gen(&["eval", iiwa, "--states", s, "--backend", "wgsl", "--wgsl-strategy", "both"]);
+    assert_eq!(out.status.code(), Some(1));
+    assert!(stderr(&out).contains("runs one WGSL strategy"), "{}", stderr(&out));
+    // Enumerated flags list their values and refuse others (no fallback to a default).
+    let out = grid_gen(&["eval", iiwa, "--states", s, "--backend", "cuda"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(
+        stderr(&out).contains("[possible values: reference, wgsl, verilog]"),
+        "{}",
+        stderr(&out)
+    );
+    let out = grid_gen(&["info", iiwa, "--gradient", "dense"]);
+    assert_eq!(out.status.code(), Some(2));
+    assert!(stderr(&out).contains("[possible values: auto, columns, idsva]"), "{}", stderr(&out));
+    // A flag replaces the scene's value, gravity as every other; the rest of the scene stays.
+    let scene = std::env::temp_dir().join(format!("grid-gen-cli-own-{}.toml", std::process::id()));
+    std::fs::write(&scene, "gravity = [0.0, 0.0, -3.0]\n[lock]\niiwa_joint_7 = 0.0\n").unwrap();
+    let summary = |extra: &[&str]| {
+        let mut args = vec!["--scene", scene.to_str().unwrap(), iiwa];
+        args.extend(extra);
+        String::from_utf8_lossy(&grid_gen(&args).stdout).into_owned()
+    };
+    let (scene_only, flagged) = (summary(&[]), summary(&["--gravity", "0,0,-1.62"]));
+    assert!(scene_only.contains("gravity: 0, 0, -3 m/s²"), "{scene_only}");
+    assert!(
+        flagged.contains("gravity: 0, 0, -1.62 m/s²") && flagged.contains("6 movable joints"),
+        "{flagged}"
+    );
+    std::fs::remove_file(&scene).unwrap();
+    // `generate` names its backends with the word every command uses; `--emit` still works.
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-own-{}", std::process::id()));
+    let d = dir.to_str().unwrap();
+    let out = grid_gen(&[iiwa, "-o", d, "--backend", "rust,c"]);
+    assert_eq!(out.status.code(), Some(0), "{}", stderr(&out));
+    assert!(dir.join("iiwa14.h").exists() && dir.join("iiwa14_c.rs").exists());
+    assert_eq!(grid_gen(&[iiwa, "-o", d, "--check", "--emit", "rust,c"]).status.code(), Some(0));
+    std::fs::remove_dir_all(&dir).unwrap();
+    std::fs::remove_file(&states).unwrap();
+}
+
 /// `accuracy`: a row per kernel and format in text and JSON, the SVG written, the WGSL
 /// kernels measured on the adapter next to the CPU formats, and bad arguments named.
 #[test]
@@ -650,14 +716,19 @@ fn accuracy_measures_every_format_and_plots() {
     assert!(std::fs::read_to_string(&nested).unwrap().starts_with("<svg"));
     std::fs::remove_dir_all(&plot_dir).unwrap();
     let bad = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--kernels", "aba"]);
-    assert!(String::from_utf8_lossy(&bad.stderr).contains("unknown kernel `aba`"));
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("invalid value 'aba' for '--kernels"));
+    // WGSL is a backend, named as every command names one.
+    let bad = grid_gen(&["accuracy", "robots/grid_iiwa.urdf", "--formats", "f32,wgsl"]);
+    assert!(stderr(&bad).contains("pass --backend wgsl"), "{}", stderr(&bad));
     let gpu = grid_gen(&[
         "accuracy",
         "robots/double_pendulum_continuous.urdf",
         "--random",
         "4",
         "--formats",
-        "f32,wgsl",
+        "f32",
+        "--backend",
+        "wgsl",
         "--json",
     ]);
     if adapter_or_skip(&gpu) {
@@ -949,7 +1020,8 @@ fn mimic_coupled_from_the_command_line() {
     let bad = grid_gen(&["--mimic", "both", "info", urdf]);
     assert_eq!(bad.status.code(), Some(2));
     assert!(
-        stderr(&bad).contains("unknown mimic mode `both`; available: independent, coupled"),
+        stderr(&bad).contains("invalid value 'both' for '--mimic <MODE>'")
+            && stderr(&bad).contains("[possible values: independent, coupled]"),
         "{}",
         stderr(&bad)
     );

@@ -74,3 +74,104 @@ pub fn time(
         dispatches: batch.dispatches(),
     })
 }
+
+/// Why `grid-gen bench` could not time the WGSL kernels.
+#[derive(Debug, thiserror::Error)]
+pub enum BenchError {
+    #[error(transparent)]
+    Emit(#[from] grid_gen::back::BackError),
+    #[error(transparent)]
+    Gpu(#[from] GpuError),
+    #[error("the time per measurement must be a positive number of seconds, got {0}")]
+    Seconds(f64),
+}
+
+/// `grid-gen bench`: emits `module`'s WGSL with `options`, times every kernel under each
+/// strategy on batches of `batch` states (seeded pseudo-random inputs, so every run times
+/// the same work), spending about `seconds` per measurement, and returns the table.
+pub fn table(
+    gpu: &Gpu,
+    module: &grid_gen::ir::Module,
+    options: &grid_gen::back::wgsl::WgslOptions,
+    batch: &[usize],
+    seconds: f64,
+) -> Result<String, BenchError> {
+    use std::fmt::Write as _;
+    if !(seconds.is_finite() && seconds > 0.0) {
+        return Err(BenchError::Seconds(seconds));
+    }
+    let source = grid_gen::back::wgsl::emit(module, options)?.contents;
+    let t = Instant::now();
+    let shader = gpu.load(&source)?;
+    let mut report = format!(
+        "adapter: {}\nrobot: {} ({} joints), {}, trig {}; shader module {:.2?}\n",
+        gpu.adapter(),
+        module.robot.name,
+        module.robot.nv(),
+        options.precision.name(),
+        options.trig.name(),
+        t.elapsed()
+    );
+    let _ = writeln!(
+        report,
+        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14}",
+        "kernel",
+        "strategy",
+        "N",
+        "disp",
+        "us/batch",
+        "us/state",
+        "states/s",
+        "round-trip us",
+        "device us"
+    );
+    // q has nq entries per state (a floating base's or spherical joint's quaternion, which
+    // the kernels scale by 1/|q|²), velocities and torques nv.
+    let (nq, nv) = (module.robot.nq(), module.robot.nv());
+    let mut rng = 0x9E37_79B9_7F4A_7C15u64;
+    let mut uniform = move |lo: f64, hi: f64| {
+        // xorshift64 (Marsaglia 2003): the same inputs on every run and machine.
+        rng ^= rng << 13;
+        rng ^= rng >> 7;
+        rng ^= rng << 17;
+        lo + (hi - lo) * ((rng >> 11) as f64 / (1u64 << 53) as f64)
+    };
+    let largest = batch.iter().copied().max().unwrap_or(0);
+    let q: Vec<f64> = (0..largest * nq).map(|_| uniform(-3.1, 3.1)).collect();
+    let qd: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
+    let u: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
+    let budget = Duration::from_secs_f64(seconds);
+    for f in &module.functions {
+        for &strategy in &options.strategies {
+            let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name()))?;
+            let _ = writeln!(
+                report,
+                "{} {}: pipeline built in {:.2?}",
+                kernel.entry.entry,
+                strategy.name(),
+                kernel.build_time
+            );
+            for &n in batch {
+                let m = n * nv;
+                let t = time(gpu, &kernel, &q[..n * nq], &qd[..m], &u[..m], budget)?;
+                let us = t.dispatch.as_secs_f64() * 1e6;
+                let device =
+                    t.device.map_or("-".to_string(), |d| format!("{:.1}", d.as_secs_f64() * 1e6));
+                let _ = writeln!(
+                    report,
+                    "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1} {:>14}",
+                    f.kind.name(),
+                    strategy.name(),
+                    n,
+                    t.dispatches,
+                    us,
+                    us / n.max(1) as f64,
+                    n as f64 / t.dispatch.as_secs_f64(),
+                    t.round_trip.as_secs_f64() * 1e6,
+                    device
+                );
+            }
+        }
+    }
+    Ok(report)
+}

@@ -633,3 +633,29 @@ pub fn evaluate(
         gpu.run(&kernel, q, qd, u)
     })?)
 }
+
+/// The WGSL kernels of `module` under `strategy` on `gpu`, as a backend that
+/// [`grid_gen::accuracy::measure`] runs next to the number formats (`accuracy --backend
+/// wgsl`), labelled with the precision, strategy and adapter.
+pub fn accuracy_backend<'a>(
+    gpu: &'a Gpu,
+    module: &grid_gen::ir::Module,
+    options: &grid_gen::back::wgsl::WgslOptions,
+    strategy: Strategy,
+) -> Result<grid_gen::accuracy::Backend<'a>, EvalError> {
+    let wgsl = grid_gen::back::wgsl::WgslOptions { strategies: vec![strategy], ..options.clone() };
+    let source = grid_gen::back::wgsl::emit(module, &wgsl)
+        .map_err(grid_gen::generate::GenerateError::from)?;
+    let shader = gpu.load(&source.contents)?;
+    let adapter = gpu.adapter();
+    let short = adapter.split(" (").next().unwrap_or(&adapter);
+    let label = format!("wgsl {} {} on {short}", options.precision.name(), strategy.name());
+    Ok(grid_gen::accuracy::Backend {
+        label,
+        run: Box::new(move |kind, q, qd, u| {
+            let kernel =
+                gpu.kernel(&shader, &strategy.entry(kind.name())).map_err(|e| e.to_string())?;
+            gpu.run(&kernel, q, qd, u).map_err(|e| e.to_string())
+        }),
+    })
+}

@@ -23,23 +23,20 @@
 use std::fmt;
 use std::path::{Path, PathBuf};
 
-use crate::diagnostic::LoadError;
-use crate::generate::{generate, write_files, GenerateError, Options, Target};
-use crate::model::Model;
-use crate::scene::Scene;
+use crate::config::{Config, ConfigError};
+use crate::generate::{write_files, Target};
+use crate::scene::ContactEntry;
 
 /// Why a build script could not generate the kernels. `Debug` prints the same text as
 /// `Display`, so `fn main() -> Result<(), BuildError>` shows cargo a readable message.
 pub enum BuildError {
     NoUrdf,
     NoOutDir,
-    Read(PathBuf, std::io::Error),
-    Load(Box<LoadError>),
-    Generate(GenerateError),
+    /// Reading the URDF or scene, the robot description's errors, or generation.
+    Config(ConfigError),
     Write(PathBuf, std::io::Error),
     BadFileName(String),
     NoTargets,
-    Scene(crate::scene::SceneError),
 }
 
 impl fmt::Display for BuildError {
@@ -47,13 +44,11 @@ impl fmt::Display for BuildError {
         match self {
             BuildError::NoUrdf => write!(f, "grid-gen: no URDF given; call Builder::urdf(\"path/to/robot.urdf\")"),
             BuildError::NoOutDir => write!(f, "grid-gen: OUT_DIR is not set (not running under cargo); call Builder::out_dir(...)"),
-            BuildError::Read(p, e) => write!(f, "grid-gen: cannot read {}: {e}", p.display()),
-            BuildError::Load(e) => write!(f, "grid-gen: {} is not a usable robot description:\n{}", e.path, e.render_plain()),
-            BuildError::Generate(e) => write!(f, "grid-gen: {e}"),
+            BuildError::Config(ConfigError::Load(e)) => write!(f, "grid-gen: {} is not a usable robot description:\n{}", e.path, e.render_plain()),
+            BuildError::Config(e) => write!(f, "grid-gen: {e}"),
             BuildError::Write(p, e) => write!(f, "grid-gen: cannot write {}: {e}", p.display()),
             BuildError::BadFileName(n) => write!(f, "grid-gen: file name `{n}` must be a plain `*.rs` name without folders"),
             BuildError::NoTargets => write!(f, "grid-gen: no targets selected; call Builder::emit(&[Target::Rust])"),
-            BuildError::Scene(e) => write!(f, "grid-gen: {e}"),
         }
     }
 }
@@ -66,26 +61,13 @@ impl fmt::Debug for BuildError {
 
 impl std::error::Error for BuildError {}
 
-/// Generates robot kernels from a build script.
+/// Generates robot kernels from a build script: the setters fill a [`Config`], the
+/// description the CLI and the Python package build too.
 #[derive(Clone, Debug, Default)]
 pub struct Builder {
-    urdf: Option<PathBuf>,
+    config: Config,
     out_dir: Option<PathBuf>,
     file_name: Option<String>,
-    options: Options,
-    scene: Option<PathBuf>,
-    strict: bool,
-    floating_base: bool,
-    mimic: Option<crate::MimicMode>,
-    frames: Vec<String>,
-    reference_frame: Option<crate::model::ReferenceFrame>,
-    step: Option<crate::model::Step>,
-    actuated: Option<Vec<String>>,
-    fd_grad_minv: bool,
-    fext: Option<Vec<String>>,
-    fext_derivatives: Option<bool>,
-    contacts: Option<Vec<(String, crate::model::ContactKind)>>,
-    kernels: Option<Vec<crate::ir::KernelKind>>,
     quiet: bool,
 }
 
@@ -97,7 +79,7 @@ impl Builder {
     /// The robot description (relative paths are relative to the crate, as in build.rs).
     /// Cargo is told to rerun the build script when it changes.
     pub fn urdf(&mut self, path: impl AsRef<Path>) -> &mut Self {
-        self.urdf = Some(path.as_ref().to_path_buf());
+        self.config.urdf = path.as_ref().to_path_buf();
         self
     }
 
@@ -116,7 +98,7 @@ impl Builder {
     /// # Ok(()) }
     /// ```
     pub fn emit(&mut self, targets: &[Target]) -> &mut Self {
-        self.options.targets = targets.to_vec();
+        self.config.options.targets = targets.to_vec();
         self
     }
 
@@ -129,29 +111,29 @@ impl Builder {
 
     /// Gravity in the root frame, m/s², compiled in; default (0, 0, -9.81).
     pub fn gravity(&mut self, gravity: [f64; 3]) -> &mut Self {
-        self.options.gravity = gravity;
+        self.config.overrides.gravity = Some(gravity);
         self
     }
 
     /// The RNEA gradient's formulation (default [`crate::ir::Gradient::Auto`]: the one with fewer
     /// operations for this robot).
     pub fn gradient(&mut self, gradient: crate::ir::Gradient) -> &mut Self {
-        self.options.lower.gradient = gradient;
+        self.config.options.lower.gradient = gradient;
         self
     }
 
     /// How `fd_grad` applies M⁻¹ (default [`crate::ir::Solve::Auto`]: the route with fewer
     /// operations; `info` says which).
     pub fn solve(&mut self, solve: crate::ir::Solve) -> &mut Self {
-        self.options.lower.solve = solve;
+        self.config.options.lower.solve = solve;
         self
     }
 
     /// A scene file (TOML; see [`crate::scene`]): locked joints, kept or dropped subtrees,
-    /// payloads, gravity (which replaces [`Builder::gravity`]) and the kernels to
+    /// payloads, gravity (which [`Builder::gravity`] replaces) and the kernels to
     /// generate. Cargo is told to rerun the build script when it changes.
     pub fn scene(&mut self, path: impl AsRef<Path>) -> &mut Self {
-        self.scene = Some(path.as_ref().to_path_buf());
+        self.config.scene = Some(path.as_ref().to_path_buf());
         self
     }
 
@@ -160,14 +142,14 @@ impl Builder {
     /// and the kernels' first six velocity coordinates are the base's linear and angular
     /// velocity in its own frame. Same as `floating_base = true` in a scene.
     pub fn floating_base(&mut self, floating: bool) -> &mut Self {
-        self.floating_base = floating;
+        self.config.overrides.floating_base = Some(floating);
         self
     }
 
     /// How `<mimic>` joints are modelled (default: independent, or the scene's `mimic`):
     /// coupled mimic joints follow their joint and have no coordinate of their own.
     pub fn mimic(&mut self, mode: crate::MimicMode) -> &mut Self {
-        self.mimic = Some(mode);
+        self.config.overrides.mimic = Some(mode);
         self
     }
 
@@ -176,47 +158,49 @@ impl Builder {
     /// `[frames] names`; none: no frame kernels). An unknown name fails the build with the
     /// closest link names.
     pub fn frames<S: AsRef<str>>(&mut self, names: &[S]) -> &mut Self {
-        self.frames = names.iter().map(|n| n.as_ref().to_string()).collect();
+        self.config.overrides.frames = Some(names.iter().map(|n| n.as_ref().to_string()).collect());
         self
     }
 
     /// The frame kernels' reference frame (default `LocalWorldAligned`, or the scene's).
     pub fn reference_frame(&mut self, rf: crate::model::ReferenceFrame) -> &mut Self {
-        self.reference_frame = Some(rf);
+        self.config.overrides.reference_frame = Some(rf);
         self
     }
 
     /// Generate the step kernels `step` and `step_grad` for this scheme and time step
     /// (replaces the scene's `[step]`).
     pub fn step(&mut self, scheme: crate::model::Scheme, dt: f64) -> &mut Self {
-        self.step = Some(crate::model::Step { scheme, dt });
+        self.config.overrides.scheme = Some(scheme);
+        self.config.overrides.dt = Some(dt);
         self
     }
 
     /// The actuated joints, the step's τ and B's columns (replaces the scene's
     /// `[actuation] joints`; default every joint but a floating base).
     pub fn actuated<S: AsRef<str>>(&mut self, joints: &[S]) -> &mut Self {
-        self.actuated = Some(joints.iter().map(|n| n.as_ref().to_string()).collect());
+        self.config.overrides.actuated =
+            Some(joints.iter().map(|n| n.as_ref().to_string()).collect());
         self
     }
 
     /// `fd_grad` also returns `dqdd_dtau = M⁻¹` (as the scene's `[fd_grad] minv = true`).
     pub fn fd_grad_minv(&mut self, on: bool) -> &mut Self {
-        self.fd_grad_minv = on;
+        self.config.overrides.fd_grad_minv = Some(on);
         self
     }
 
     /// The bodies that take an external force `fext`, by the name of the joint that moves
     /// them (Pinocchio's names; `"*"` for every body). Replaces `[external_forces] joints`.
     pub fn external_forces<S: AsRef<str>>(&mut self, joints: &[S]) -> &mut Self {
-        self.fext = Some(joints.iter().map(|n| n.as_ref().to_string()).collect());
+        self.config.overrides.fext = Some(joints.iter().map(|n| n.as_ref().to_string()).collect());
         self
     }
 
     /// Whether `rnea_grad` and `fd_grad` return `∂/∂fext` (default true; the scene's
     /// `[external_forces] derivatives`).
     pub fn external_force_derivatives(&mut self, on: bool) -> &mut Self {
-        self.fext_derivatives = Some(on);
+        self.config.overrides.fext_derivatives = Some(on);
         self
     }
 
@@ -226,21 +210,26 @@ impl Builder {
         &mut self,
         contacts: &[(S, crate::model::ContactKind)],
     ) -> &mut Self {
-        self.contacts = Some(contacts.iter().map(|(f, k)| (f.as_ref().to_string(), *k)).collect());
+        self.config.overrides.contacts = Some(
+            contacts
+                .iter()
+                .map(|(f, k)| ContactEntry { frame: f.as_ref().to_string(), kind: *k })
+                .collect(),
+        );
         self
     }
 
     /// Which kernels to generate (replaces the scene's `kernels`; default every kernel the
     /// robot has: frame, force, contact and step kernels where those are declared).
     pub fn kernels(&mut self, kernels: &[crate::ir::KernelKind]) -> &mut Self {
-        self.kernels = Some(kernels.to_vec());
+        self.config.kernels = Some(kernels.to_vec());
         self
     }
 
     /// The scalar types of the C target's entry points (default both; a loader that needs
     /// one halves the library's compile time).
     pub fn c_precision(&mut self, f64: bool, f32: bool) -> &mut Self {
-        self.options.c = crate::back::c::COptions { f64, f32 };
+        self.config.options.c = crate::back::c::COptions { f64, f32 };
         self
     }
 
@@ -248,14 +237,14 @@ impl Builder {
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.
     pub fn strict(&mut self, strict: bool) -> &mut Self {
-        self.strict = strict;
+        self.config.strict = strict;
         self
     }
 
     /// Most statements per generated function (default 2500): lower compiles faster per
     /// function, higher gives the optimiser more room.
     pub fn chunk_size(&mut self, statements: usize) -> &mut Self {
-        self.options.rust.chunk = statements.max(1);
+        self.config.options.rust.chunk = statements.max(1);
         self
     }
 
@@ -263,7 +252,7 @@ impl Builder {
     /// VL (default off: half again the module's size and compile time for 5-12% on the
     /// gradients of an AVX-512 CPU; results bit-identical to the `fma` copy).
     pub fn avx512(&mut self, avx512: bool) -> &mut Self {
-        self.options.rust.avx512 = avx512;
+        self.config.options.rust.avx512 = avx512;
         self
     }
 
@@ -280,90 +269,36 @@ impl Builder {
     /// URDF warning (cargo's protocol, the only output of the library) unless
     /// [`Builder::quiet`].
     pub fn compile(&self) -> Result<Vec<PathBuf>, BuildError> {
-        if self.options.targets.is_empty() {
+        if self.config.options.targets.is_empty() {
             return Err(BuildError::NoTargets);
         }
-        let urdf = self.urdf.as_ref().ok_or(BuildError::NoUrdf)?;
-        let mut cargo = vec![format!("cargo:rerun-if-changed={}", urdf.display())];
+        if self.config.urdf.as_os_str().is_empty() {
+            return Err(BuildError::NoUrdf);
+        }
         let out_dir = match &self.out_dir {
             Some(d) => d.clone(),
             None => std::env::var_os("OUT_DIR").map(PathBuf::from).ok_or(BuildError::NoOutDir)?,
         };
-        let text = std::fs::read_to_string(urdf).map_err(|e| BuildError::Read(urdf.clone(), e))?;
-        let shown = urdf.display().to_string();
-        let (scene, scene_path) = match &self.scene {
-            None => (Scene::default(), String::new()),
-            Some(p) => {
-                cargo.push(format!("cargo:rerun-if-changed={}", p.display()));
-                let t = std::fs::read_to_string(p).map_err(|e| BuildError::Read(p.clone(), e))?;
-                (
-                    Scene::parse(&p.display().to_string(), &t).map_err(BuildError::Scene)?,
-                    p.display().to_string(),
-                )
+        if let Some(name) = &self.file_name {
+            if name.contains(['/', '\\']) || name.starts_with('.') || !name.ends_with(".rs") {
+                return Err(BuildError::BadFileName(name.clone()));
             }
-        };
-        let mut scene = scene;
-        scene.floating_base |= self.floating_base;
-        if let Some(mode) = self.mimic {
-            scene.mimic = mode;
         }
-        if !self.frames.is_empty() {
-            scene.frames.names = self.frames.clone();
+        let mut cargo = vec![format!("cargo:rerun-if-changed={}", self.config.urdf.display())];
+        if let Some(scene) = &self.config.scene {
+            cargo.push(format!("cargo:rerun-if-changed={}", scene.display()));
         }
-        if let Some(rf) = self.reference_frame {
-            scene.frames.reference = Some(rf);
+        let generated = self.config.generate();
+        if let Ok((loaded, _)) = &generated {
+            cargo.extend(cargo_warnings(&loaded.urdf_path, &loaded.urdf_text, &loaded.warnings));
         }
-        if let Some(step) = self.step {
-            scene.step =
-                Some(crate::scene::StepSection { scheme: Some(step.scheme), dt: Some(step.dt) });
-        }
-        scene.fd_grad.minv |= self.fd_grad_minv;
-        if let Some(joints) = &self.actuated {
-            scene.actuation = Some(crate::scene::ActuationSection { joints: joints.clone() });
-        }
-        if let Some(joints) = &self.fext {
-            scene.external_forces.joints = joints.clone();
-        }
-        if let Some(on) = self.fext_derivatives {
-            scene.external_forces.derivatives = Some(on);
-        }
-        if let Some(contacts) = &self.contacts {
-            scene.contact = contacts
-                .iter()
-                .map(|(frame, kind)| crate::scene::ContactEntry {
-                    frame: frame.clone(),
-                    kind: *kind,
-                })
-                .collect();
-        }
-        let (model, warnings) =
-            Model::from_urdf_str_in_scene(&shown, &text, self.strict, &scene, &scene_path)
-                .map_err(|e| BuildError::Load(Box::new(e)))?;
-        let mut options = self.options.clone();
-        if let Some(g) = scene.gravity {
-            options.gravity = g;
-        }
-        if let Some(k) = scene.kernels().map_err(|message| {
-            BuildError::Scene(crate::scene::SceneError { path: scene_path.clone(), message })
-        })? {
-            options.lower.kernels = k;
-        }
-        if let Some(k) = &self.kernels {
-            options.lower.kernels = k.clone();
-        }
-        cargo.extend(cargo_warnings(&shown, &text, &warnings));
         if !self.quiet {
             // Cargo's build-script protocol: the only place the library prints.
             for line in cargo {
                 println!("{line}");
             }
         }
-        if let Some(name) = &self.file_name {
-            if name.contains(['/', '\\']) || name.starts_with('.') || !name.ends_with(".rs") {
-                return Err(BuildError::BadFileName(name.clone()));
-            }
-        }
-        let mut files = generate(&model, &options).map_err(BuildError::Generate)?;
+        let (_, mut files) = generated.map_err(BuildError::Config)?;
         if let (Some(name), Some(rust)) =
             (&self.file_name, files.iter_mut().find(|f| f.name.ends_with(".rs")))
         {

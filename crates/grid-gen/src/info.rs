@@ -121,14 +121,14 @@ pub struct Info {
     pub ops: Vec<KernelStats>,
     /// Kernels left out of `ops`, each with the reason.
     pub ops_skipped: Vec<Skipped>,
-    /// The Verilog netlists `--emit verilog` builds with default options (format by
+    /// The Verilog netlists `--backend verilog` builds with default options (format by
     /// `--fixed auto --max-error 1e-3`), in both architectures: units, registers, cycles,
     /// format and analysed error bound.
     pub verilog: Vec<NetlistStats>,
     /// Why `verilog` is empty, when it is.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub verilog_skipped: Option<String>,
-    /// Each entry point `--emit wgsl` writes with default options (f32, both strategies):
+    /// Each entry point `--backend wgsl` writes with default options (f32, both strategies):
     /// statements, functions, workgroup size and bytes, phases, scratch words.
     pub wgsl: Vec<EntryStats>,
     /// Why `wgsl` is empty or lacks kernels, when it does.
@@ -253,7 +253,7 @@ impl Info {
     /// Only the kernels `ops` counted: the others are over the node limit already, and
     /// lowering them again to find out would cost the time the limit exists to bound.
     /// Kernels whose operations times depth exceed [`WGSL_STATS_MAX_WORK`] are left out too
-    /// (`--emit wgsl` still writes them): set when the cooperative strategy was planned by
+    /// (`--backend wgsl` still writes them): set when the cooperative strategy was planned by
     /// the IR's list scheduler, whose cost grew with depth (a 400-link chain's `rnea` took
     /// 19 s); its level schedule is linear now, and the bound stays as a cap on `info`'s time.
     fn with_wgsl(mut self, model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
@@ -266,7 +266,7 @@ impl Info {
             .collect();
         left_out.extend(large.iter().map(|k| {
             format!(
-                "{} (operations × depth over {WGSL_STATS_MAX_WORK:e}; `--emit wgsl` writes it)",
+                "{} (operations × depth over {WGSL_STATS_MAX_WORK:e}; `--backend wgsl` writes it)",
                 k.kernel.name()
             )
         }));

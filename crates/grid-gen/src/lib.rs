@@ -7,6 +7,7 @@
 pub mod accuracy;
 pub mod back;
 pub mod builder;
+pub mod config;
 pub mod diagnostic;
 pub mod eval;
 pub mod generate;
@@ -21,6 +22,7 @@ pub mod timing;
 pub mod urdf;
 
 pub use builder::{BuildError, Builder};
+pub use config::{Config, ConfigError, Loaded};
 pub use diagnostic::{Diagnostic, LoadError, Severity};
 pub use model::Model;
-pub use scene::{ContactEntry, MimicMode, Scene};
+pub use scene::{ContactEntry, MimicMode, Scene, SceneOverrides};

@@ -238,6 +238,7 @@ pub struct Frame {
 /// (`pinocchio::ReferenceFrame`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum ReferenceFrame {
     /// The frame's own axes, at its origin.
     Local,
@@ -245,6 +246,7 @@ pub enum ReferenceFrame {
     World,
     /// The world's axes, at the frame's origin: what position costs and point contacts use.
     #[default]
+    #[cfg_attr(feature = "clap", value(name = "local_world_aligned"))]
     LocalWorldAligned,
 }
 
@@ -268,11 +270,14 @@ impl ReferenceFrame {
 /// How the step kernels integrate one time step (Crocoddyl's integrated action models).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, Serialize, serde::Deserialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Scheme {
     /// Symplectic Euler, Crocoddyl's default: `qd+ = qd + dt qdd`, `q+ = q ⊕ dt qd+`.
     #[default]
+    #[cfg_attr(feature = "clap", value(name = "semi_implicit_euler"))]
     SemiImplicitEuler,
     /// `qd+ = qd + dt qdd`, `q+ = q ⊕ dt qd`.
+    #[cfg_attr(feature = "clap", value(name = "explicit_euler"))]
     ExplicitEuler,
     /// Classical Runge-Kutta on the manifold, as Crocoddyl's `IntegratedActionModelRK4`:
     /// four stages `k_i = (qd_i, qdd_i)` at `x ⊕ c_i dt k_(i-1)`, then

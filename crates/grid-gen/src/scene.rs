@@ -6,7 +6,7 @@
 //!
 //! ```toml
 //! outputs = ["rnea_grad", "fd_grad"]   # kernels to generate (default: all)
-//! gravity = [0.0, 0.0, -9.81]          # replaces --gravity
+//! gravity = [0.0, 0.0, -9.81]          # --gravity replaces it
 //! drop = ["left_gripper_base"]         # these links and everything below them go
 //! keep = ["right_arm_base"]            # only these subtrees (and the path to them) stay
 //!
@@ -73,7 +73,7 @@ pub struct Scene {
     /// Links left out, with everything below them.
     #[serde(default)]
     pub drop: Vec<String>,
-    /// Gravity in the root frame, m/s²; replaces `--gravity` and `Builder::gravity`.
+    /// Gravity in the root frame, m/s² (`--gravity` and `Builder::gravity` replace it).
     pub gravity: Option<[f64; 3]>,
     /// Rigid bodies added to links.
     #[serde(default, deserialize_with = "one_or_many")]
@@ -177,6 +177,7 @@ pub struct FramesSection {
 /// How `<mimic>` joints are modelled.
 #[derive(Clone, Copy, Debug, Default, Deserialize, PartialEq, Eq)]
 #[serde(rename_all = "lowercase")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum MimicMode {
     /// Each is a joint with its own coordinate, as urdfdom and Pinocchio's default
     /// `buildModelFromUrdf` do: the dynamics are those of the robot without the mimic
@@ -269,6 +270,25 @@ fn misplaced_key(text: &str) -> Option<String> {
     None
 }
 
+/// The caller's changes to a scene (command-line flags, `Builder` calls, the Python
+/// package's arguments): each value that is set replaces the scene file's. [`Scene::apply`]
+/// is the one place they are merged.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct SceneOverrides {
+    pub gravity: Option<[f64; 3]>,
+    pub floating_base: Option<bool>,
+    pub mimic: Option<MimicMode>,
+    pub frames: Option<Vec<String>>,
+    pub reference_frame: Option<ReferenceFrame>,
+    pub scheme: Option<crate::model::Scheme>,
+    pub dt: Option<f64>,
+    pub actuated: Option<Vec<String>>,
+    pub fd_grad_minv: Option<bool>,
+    pub fext: Option<Vec<String>>,
+    pub fext_derivatives: Option<bool>,
+    pub contacts: Option<Vec<ContactEntry>>,
+}
+
 /// A scene file that cannot be read.
 #[derive(Debug, thiserror::Error)]
 #[error("scene `{path}`: {message}")]
@@ -304,6 +324,34 @@ impl Scene {
         }
         scene.kernels().map_err(|message| SceneError { path: path.to_string(), message })?;
         Ok(scene)
+    }
+
+    /// Replaces this scene's values with those `overrides` sets.
+    pub fn apply(&mut self, overrides: &SceneOverrides) {
+        let o = overrides.clone();
+        self.gravity = o.gravity.or(self.gravity);
+        self.floating_base = o.floating_base.unwrap_or(self.floating_base);
+        self.mimic = o.mimic.unwrap_or(self.mimic);
+        if let Some(names) = o.frames {
+            self.frames.names = names;
+        }
+        self.frames.reference = o.reference_frame.or(self.frames.reference);
+        if o.scheme.is_some() || o.dt.is_some() {
+            let step = self.step.get_or_insert_with(Default::default);
+            step.scheme = o.scheme.or(step.scheme);
+            step.dt = o.dt.or(step.dt);
+        }
+        if let Some(joints) = o.actuated {
+            self.actuation = Some(ActuationSection { joints });
+        }
+        self.fd_grad.minv = o.fd_grad_minv.unwrap_or(self.fd_grad.minv);
+        if let Some(joints) = o.fext {
+            self.external_forces.joints = joints;
+        }
+        self.external_forces.derivatives = o.fext_derivatives.or(self.external_forces.derivatives);
+        if let Some(contacts) = o.contacts {
+            self.contact = contacts;
+        }
     }
 
     /// The kernels `outputs` names, in generation order; `None` when it names none.

@@ -296,6 +296,61 @@ pub fn time_rust_kernels_with_mixed(
     Ok(times)
 }
 
+/// `grid-gen bench --backend rust`'s table: one row per kernel of `kinds`, ns per call for
+/// each scalar type and machine-code copy in `times` ("-" where one was not timed).
+pub fn table(times: &[KernelTime], kinds: &[KernelKind]) -> String {
+    let mut out = format!(
+        "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}   (ns per call, one state, median of 15; dispatch runs the {} copy here)\n",
+        "kernel",
+        "f64 portable",
+        "f64 fma",
+        "f64 dispatch",
+        "f32 portable",
+        "f32 fma",
+        "f32 dispatch",
+        dispatched_copy()
+    );
+    for &kind in kinds {
+        let cell = |scalar: &str, copy: &str| {
+            times
+                .iter()
+                .find(|t| t.kernel == kind && t.scalar == scalar && t.copy == copy)
+                .map_or("-".to_string(), |t| format!("{:.0}", t.ns_per_call))
+        };
+        let _ = writeln!(
+            out,
+            "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}",
+            kind.name(),
+            cell("f64", "portable"),
+            cell("f64", "fma"),
+            cell("f64", "dispatch"),
+            cell("f32", "portable"),
+            cell("f32", "fma"),
+            cell("f32", "dispatch")
+        );
+    }
+    out
+}
+
+/// The machine-code copy the generated dispatchers pick on this CPU (the same test as
+/// their `has_avx512` and `has_fma`).
+pub fn dispatched_copy() -> &'static str {
+    #[cfg(target_arch = "x86_64")]
+    {
+        let fma = std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+        if fma
+            && std::is_x86_feature_detected!("avx512f")
+            && std::is_x86_feature_detected!("avx512vl")
+        {
+            return "avx512";
+        }
+        if fma {
+            return "fma";
+        }
+    }
+    "portable"
+}
+
 #[cfg(test)]
 mod tests {
     #[test]

@@ -5,10 +5,11 @@
 use std::path::{Path, PathBuf};
 
 /// The library's top-level modules.
-const MODULES: [&str; 16] = [
+const MODULES: [&str; 17] = [
     "accuracy",
     "back",
     "builder",
+    "config",
     "diagnostic",
     "eval",
     "generate",
@@ -132,6 +133,35 @@ fn the_library_prints_in_one_place() {
     }
     assert_eq!(printing.len(), 1, "the library prints at {printing:?}");
     assert!(printing[0].starts_with("builder.rs:"), "{printing:?}");
+}
+
+/// One way in: the CLI, `Builder` and the Python package describe a job as a `Config`, and
+/// only `config.rs` reads a scene, merges the caller's settings into it and builds the model
+/// from both, so that a setting added there reaches every caller alike.
+#[test]
+fn every_way_in_loads_through_config() {
+    let root = Path::new(env!("CARGO_MANIFEST_DIR")).join("../..");
+    let callers =
+        ["crates/grid-gen/src/builder.rs", "crates/grid-gen-cli/src/main.rs", "python/src/lib.rs"];
+    let merging = ["Scene::parse", "from_urdf_str", ".apply(", "Scene::default()"];
+    let mut found = Vec::new();
+    for caller in callers {
+        let text = std::fs::read_to_string(root.join(caller)).unwrap();
+        // Unit tests may build models directly.
+        let text = text.split("#[cfg(test)]").next().unwrap();
+        for m in merging.iter().filter(|m| text.contains(*m)) {
+            found.push(format!("{caller} calls `{m}`"));
+        }
+    }
+    for module in MODULES.iter().filter(|m| !["config", "scene", "load"].contains(m)) {
+        for file in files_of(module) {
+            let text = std::fs::read_to_string(&file).unwrap();
+            if text.contains("from_urdf_str_in_scene(") || text.contains(".apply(&") {
+                found.push(format!("{} loads a robot in a scene", file.display()));
+            }
+        }
+    }
+    assert!(found.is_empty(), "loading outside `Config::load`:\n{}", found.join("\n"));
 }
 
 /// The check itself: it sees an import that breaks a layer.

@@ -33,7 +33,7 @@ pub enum NumberFormat {
     /// Signed fixed point through the Verilog datapath's bit-exact model.
     Fixed(Format),
     /// For each kernel, the narrowest fixed-point format whose analysed error bound meets
-    /// `max_error` on the input bounds: what `--emit verilog --fixed auto` builds.
+    /// `max_error` on the input bounds: what `--backend verilog --fixed auto` builds.
     FixedAuto {
         max_error: f64,
         rounding: Rounding,

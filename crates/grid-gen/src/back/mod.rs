@@ -113,6 +113,7 @@ pub struct GeneratedFile {
 
 /// The targets grid-gen can emit.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Target {
     Rust,
     Wgsl,
@@ -124,7 +125,7 @@ pub enum Target {
 impl Target {
     pub const ALL: [Target; 4] = [Target::Rust, Target::Wgsl, Target::Verilog, Target::C];
 
-    /// The name used by `--emit`.
+    /// The name used by `--backend`.
     pub fn name(self) -> &'static str {
         match self {
             Target::Rust => "rust",

@@ -101,6 +101,7 @@ pub struct OutputSpec {
 /// How the IR builds the RNEA gradient (and so `fd_grad`'s).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Gradient {
     /// Whichever of the two has fewer operations for this robot and kernel.
     #[default]
@@ -141,6 +142,7 @@ impl Gradient {
 /// How `fd_grad` gets q̈ and forms `−M⁻¹ ∂c/∂u`.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Solve {
     /// Whichever has fewer operations for this robot, `Ltdl` only on trees at most
     /// [`super::LTDL_MAX_DEPTH`] joints deep and `Crba` at most [`super::CRBA_MAX_DEPTH`]
@@ -185,6 +187,7 @@ impl Solve {
 /// One generated function.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum), value(rename_all = "snake_case"))]
 pub enum KernelKind {
     Rnea,
     RneaGrad,

@@ -72,7 +72,7 @@ pub const DEFAULT_STAGE_DEPTH: u32 = 4;
 pub const DEFAULT_MULTIPLIERS: usize = 8;
 pub const DEFAULT_ADDERS: usize = 8;
 
-/// The kernels `--emit verilog` builds by default: the gradient and M (the host forms
+/// The kernels `--backend verilog` builds by default: the gradient and M (the host forms
 /// M⁻¹ and ∂q̈ = −M⁻¹ ∂c, as robomorphic computing does), and the frame Jacobian when
 /// frames are asked for (the kernel an FPGA controller runs at kHz rates).
 pub const DEFAULT_KERNELS: [KernelKind; 3] =

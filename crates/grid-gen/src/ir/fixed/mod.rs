@@ -17,6 +17,7 @@ pub use model::{port_values, quantize_ports, Run};
 /// How a multiplier drops the low `frac` bits of its double-width product.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Rounding {
     /// Keep the high bits (an arithmetic shift: rounds toward −∞), as the robomorphic RTL
     /// does (it keeps bits [47:16] of a 64-bit product). Error in [0, 1 ulp).
