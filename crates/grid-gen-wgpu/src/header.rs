@@ -1,23 +1,7 @@
 //! Reads the `// nv:`, `// precision:` and `// entry:` lines that the WGSL backend writes
 //! at the top of every shader (the contract between the generator and this runtime).
 
-use grid_gen::back::wgsl::{Precision, Strategy};
-
-/// One entry point as the header describes it.
-#[derive(Clone, Debug, PartialEq)]
-pub struct EntryInfo {
-    pub entry: String,
-    pub kernel: String,
-    pub strategy: Strategy,
-    pub outputs: usize,
-    pub scratch: usize,
-    pub workgroup_size: u32,
-    pub states_per_workgroup: u32,
-    pub workgroup_bytes: usize,
-    pub phases: usize,
-    /// Dispatches in order: entry points `<entry>_stage<k>` when more than one.
-    pub stages: usize,
-}
+use grid_gen::back::wgsl::{EntryMeta, Precision};
 
 #[derive(Clone, Debug, PartialEq)]
 pub struct ShaderInfo {
@@ -33,7 +17,7 @@ pub struct ShaderInfo {
     /// for them, so their `u` holds τ and fext only.
     pub lambda: usize,
     pub precision: Precision,
-    pub entries: Vec<EntryInfo>,
+    pub entries: Vec<EntryMeta>,
     /// The cooperative entries' operation tables (binding 6) and constants (binding 7),
     /// from the `// prog:` and `// konst:` lines at the end of the file.
     pub prog: Vec<u32>,
@@ -86,31 +70,7 @@ impl ShaderInfo {
                 precision =
                     Some(Precision::parse(v.trim()).ok_or_else(|| bad("unknown precision"))?);
             } else if let Some(v) = line.strip_prefix("// entry: ") {
-                let mut words = v.split_whitespace();
-                let entry = words.next().ok_or_else(|| bad("no name"))?.to_string();
-                let mut field = std::collections::HashMap::new();
-                for w in words {
-                    let (k, v) = w.split_once('=').ok_or_else(|| bad("expected key=value"))?;
-                    field.insert(k, v);
-                }
-                let get = |k: &str| field.get(k).copied().ok_or_else(|| bad(&format!("no `{k}`")));
-                let num = |k: &str| {
-                    get(k)?.parse::<usize>().map_err(|_| bad(&format!("`{k}` is not a count")))
-                };
-                entries.push(EntryInfo {
-                    kernel: get("kernel")?.to_string(),
-                    strategy: Strategy::parse(get("strategy")?)
-                        .ok_or_else(|| bad("unknown strategy"))?,
-                    outputs: num("outputs")?,
-                    scratch: num("scratch")?,
-                    workgroup_size: num("workgroup_size")? as u32,
-                    states_per_workgroup: num("states_per_workgroup")?.max(1) as u32,
-                    workgroup_bytes: num("workgroup_bytes")?,
-                    phases: num("phases")?,
-                    // Absent from shaders written before stages existed: one dispatch.
-                    stages: if field.contains_key("stages") { num("stages")?.max(1) } else { 1 },
-                    entry,
-                });
+                entries.push(EntryMeta::parse(v).map_err(|why| bad(&why))?);
             }
         }
         let nv = nv.ok_or(HeaderError::Missing("nv"))?;
@@ -134,7 +94,7 @@ impl ShaderInfo {
         })
     }
 
-    pub fn entry(&self, name: &str) -> Option<&EntryInfo> {
+    pub fn entry(&self, name: &str) -> Option<&EntryMeta> {
         self.entries.iter().find(|e| e.entry == name)
     }
 }
@@ -197,6 +157,23 @@ mod tests {
             .contents
     }
 
+    /// The emitter's metadata is what the runtime reads back, field for field.
+    #[test]
+    fn every_entry_reads_back_as_the_emitter_wrote_it() {
+        let model = grid_gen_test_support::load("double_pendulum_continuous");
+        let module =
+            grid_gen::ir::lower(&model, grid_gen::reference::DEFAULT_GRAVITY, &Default::default())
+                .unwrap();
+        let (file, written) = emit_with_stats(&module, &WgslOptions::default()).unwrap();
+        assert_eq!(ShaderInfo::parse(&file.contents).unwrap().entries, written);
+        let line = written[0].header_line();
+        let bad = line.replace("outputs=", "outputs=x");
+        assert!(ShaderInfo::parse(&bad)
+            .unwrap_err()
+            .to_string()
+            .contains("`outputs` is not a count"));
+    }
+
     #[test]
     fn the_tables_round_trip_in_both_precisions() {
         for precision in [Precision::F32, Precision::F64] {
@@ -214,8 +191,11 @@ mod tests {
                 })
                 .map(|(a, b)| (a.parse().unwrap(), b.parse().unwrap()))
                 .collect();
-            let coop: Vec<&EntryInfo> =
-                info.entries.iter().filter(|e| e.strategy == Strategy::Cooperative).collect();
+            let coop: Vec<&EntryMeta> = info
+                .entries
+                .iter()
+                .filter(|e| e.strategy == grid_gen::back::wgsl::Strategy::Cooperative)
+                .collect();
             assert_eq!(ranges.len(), coop.len());
             let mut at = 0;
             for ((a, b), e) in ranges.into_iter().zip(coop) {

@@ -9,8 +9,9 @@ mod header;
 use std::sync::Arc;
 use std::time::{Duration, Instant};
 
+pub use grid_gen::back::wgsl::EntryMeta;
 pub use grid_gen::back::wgsl::{Precision, Strategy};
-pub use header::{EntryInfo, HeaderError, ShaderInfo};
+pub use header::{HeaderError, ShaderInfo};
 use wgpu::util::DeviceExt;
 
 /// What went wrong, with what to do about it.
@@ -66,7 +67,7 @@ pub struct Shader {
 /// One entry point's compute pipelines: one per stage, dispatched in order.
 pub struct Kernel {
     pipelines: Vec<wgpu::ComputePipeline>,
-    pub entry: EntryInfo,
+    pub entry: EntryMeta,
     pub precision: Precision,
     pub nv: usize,
     /// Entries of q per state (nv + 1 with a floating base).

@@ -7,7 +7,7 @@ use crate::back::verilog::{
     plan, Arch, NetlistStats, VerilogOptions, DEFAULT_ADDERS, DEFAULT_KERNELS, DEFAULT_MULTIPLIERS,
     DEFAULT_STAGE_DEPTH,
 };
-use crate::back::wgsl::{emit_with_stats, EntryStats, WgslOptions};
+use crate::back::wgsl::{emit_with_stats, EntryMeta, WgslOptions};
 use crate::ir::{self, KernelStats, Skipped};
 use crate::model::{Count, JointType, Model, DEFAULT_GRAVITY};
 
@@ -130,7 +130,7 @@ pub struct Info {
     pub verilog_skipped: Option<String>,
     /// Each entry point `--backend wgsl` writes with default options (f32, both strategies):
     /// statements, functions, workgroup size and bytes, phases, scratch words.
-    pub wgsl: Vec<EntryStats>,
+    pub wgsl: Vec<EntryMeta>,
     /// Why `wgsl` is empty or lacks kernels, when it does.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub wgsl_skipped: Option<String>,
@@ -162,7 +162,7 @@ impl Info {
             spherical: crate::ir::Robot::of(model)
                 .spherical
                 .into_iter()
-                .map(|(joint, q_index)| SphericalInfo { joint, q_index })
+                .map(|s| SphericalInfo { joint: s.name, q_index: s.q_start })
                 .collect(),
             frames: model
                 .frames

@@ -98,7 +98,7 @@ fn manifest(module: &Module, options: &COptions) -> String {
         "joint_names": robot.joint_names,
         "frames": robot.frames,
         "reference_frame": robot.reference.name(),
-        "contacts": robot.contacts.iter().map(|(f, k)| serde_json::json!([f, k.name()])).collect::<Vec<_>>(),
+        "contacts": robot.contacts.iter().map(|c| serde_json::json!([c.frame, c.kind.name()])).collect::<Vec<_>>(),
         "gravity": module.gravity,
         "precisions": precisions(options).iter().map(|p| p.0).collect::<Vec<_>>(),
         "kernels": kernels,
@@ -292,7 +292,8 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
         );
     }
     if dims.nlambda > 0 {
-        let frames: Vec<String> = robot.contacts.iter().map(|(n, _)| c_string_literal(n)).collect();
+        let frames: Vec<String> =
+            robot.contacts.iter().map(|c| c_string_literal(&c.frame)).collect();
         let _ = writeln!(
             h,
             "/* Entries of the contact forces lambda (3 per point, 6 per wrench; LOCAL_WORLD_ALIGNED). */\n#define {mac}_NLAMBDA {}\n\

@@ -40,7 +40,10 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
         let joints: Vec<String> = robot
             .spherical
             .iter()
-            .map(|(name, at)| format!("{} at q[{at}..{}]", names::comment_text(name), at + 4))
+            .map(|s| {
+                let at = s.q_start;
+                format!("{} at q[{at}..{}]", names::comment_text(&s.name), at + 4)
+            })
             .collect();
         out.push_str(&format!(
             "// Spherical joints (Pinocchio's JointModelSpherical), each a quaternion [qx, qy, qz, qw] in q (normalised): {}.\n\
@@ -64,11 +67,13 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
         let coupled: Vec<String> = robot
             .coupled
             .iter()
-            .map(|(m, of, mult, off)| {
+            .map(|c| {
                 format!(
-                    "{} = {mult:?} * {} + {off:?}",
-                    names::comment_text(m),
-                    names::comment_text(of)
+                    "{} = {:?} * {} + {:?}",
+                    names::comment_text(&c.joint),
+                    c.multiplier,
+                    names::comment_text(&c.follows),
+                    c.offset
                 )
             })
             .collect();

@@ -21,8 +21,8 @@ mod validate;
 pub use graph::{Id, Input, Node, Op, Stage};
 pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve};
 pub use module::{
-    lower, lower_function, DenseProduct, Function, LowerError, LowerOptions, Module, Operand,
-    Output, Robot, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
+    lower, lower_function, Contact, CoupledJoint, DenseProduct, Function, LowerError, LowerOptions,
+    Module, Operand, Output, Robot, SphericalJoint, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
 };
 pub use precise::Dd;
 pub use spatial::SNAP;

@@ -96,15 +96,13 @@ pub struct Robot {
     pub velocity_limits: Vec<Option<f64>>,
     /// What the scene fixes: q̇ = 0, the gradient entries computed.
     pub specialisation: crate::model::Specialisation,
-    /// Coupled mimic joints (`--mimic coupled`), which have no coordinate: `(joint, the
-    /// joint it follows, multiplier, offset)`, its position `multiplier · q + offset`.
-    pub coupled: Vec<(String, String, f64, f64)>,
+    /// Coupled mimic joints (`--mimic coupled`), which have no coordinate.
+    pub coupled: Vec<CoupledJoint>,
     /// A floating base: joints 0..6 are the free-flyer and q has nv + 1 entries
     /// (`[x, y, z, qx, qy, qz, qw, …]`, see [`crate::model::Model::floating`]).
     pub floating: bool,
-    /// Spherical joints: their URDF name and where their quaternion `[qx, qy, qz, qw]` is
-    /// in q (see [`crate::model::Model::spherical`]).
-    pub spherical: Vec<(String, usize)>,
+    /// Spherical joints (see [`crate::model::Model::spherical`]).
+    pub spherical: Vec<SphericalJoint>,
     /// The coordinate whose position each entry of q holds; `None` for the floating
     /// base's pose and the quaternions.
     pub q_coordinates: Vec<Option<usize>>,
@@ -116,8 +114,34 @@ pub struct Robot {
     pub actuated: Vec<usize>,
     /// The joints (Pinocchio's names) whose bodies take `fext`, in its order.
     pub fext: Vec<String>,
-    /// The contacts (frame name, kind), in λ's order.
-    pub contacts: Vec<(String, crate::model::ContactKind)>,
+    /// The contacts, in λ's order.
+    pub contacts: Vec<Contact>,
+}
+
+/// A coupled mimic joint: no coordinate of its own, its position
+/// `multiplier · q[follows] + offset`.
+#[derive(Clone, Debug, PartialEq)]
+pub struct CoupledJoint {
+    pub joint: String,
+    /// The joint it follows.
+    pub follows: String,
+    pub multiplier: f64,
+    pub offset: f64,
+}
+
+/// A spherical joint: its URDF name and where its quaternion `[qx, qy, qz, qw]` starts
+/// in q.
+#[derive(Clone, Debug, PartialEq)]
+pub struct SphericalJoint {
+    pub name: String,
+    pub q_start: usize,
+}
+
+/// A contact at a frame: the frame's (link's) name and what force it takes.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Contact {
+    pub frame: String,
+    pub kind: crate::model::ContactKind,
 }
 
 impl Robot {
@@ -136,13 +160,11 @@ impl Robot {
             specialisation: model.specialisation.clone(),
             coupled: (0..model.njoints())
                 .filter_map(|i| {
-                    model.coupling(i).map(|c| {
-                        (
-                            model.joints[i].name.clone(),
-                            model.joints[c.of].name.clone(),
-                            c.multiplier,
-                            c.offset,
-                        )
+                    model.coupling(i).map(|c| CoupledJoint {
+                        joint: model.joints[i].name.clone(),
+                        follows: model.joints[c.of].name.clone(),
+                        multiplier: c.multiplier,
+                        offset: c.offset,
                     })
                 })
                 .collect(),
@@ -150,7 +172,10 @@ impl Robot {
             spherical: model
                 .spherical
                 .iter()
-                .map(|&s| (model.joint_name(s).to_string(), model.group_q(s)))
+                .map(|&s| SphericalJoint {
+                    name: model.joint_name(s).to_string(),
+                    q_start: model.group_q(s),
+                })
                 .collect(),
             q_coordinates: {
                 let mut at = vec![None; model.nq()];
@@ -174,7 +199,7 @@ impl Robot {
                 .specialisation
                 .contacts
                 .iter()
-                .map(|c| (model.frames[c.frame].name.clone(), c.kind))
+                .map(|c| Contact { frame: model.frames[c.frame].name.clone(), kind: c.kind })
                 .collect(),
         }
     }
@@ -227,12 +252,12 @@ impl Robot {
         if self.floating && k < BASE.len() {
             return BASE[k].to_string();
         }
-        let (name, at) = self
+        let joint = self
             .spherical
             .iter()
-            .find(|(_, at)| (*at..at + 4).contains(&k))
+            .find(|s| (s.q_start..s.q_start + 4).contains(&k))
             .expect("every q entry has an owner");
-        format!("{name}_{}", QUATERNION[k - at])
+        format!("{}_{}", joint.name, QUATERNION[k - joint.q_start])
     }
 
     /// Entries of one input: q has nq, the step's τ nu, the others nv.

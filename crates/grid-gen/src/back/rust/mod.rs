@@ -732,9 +732,9 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
         );
     }
     if !robot.contacts.is_empty() {
-        let frames: Vec<String> = robot.contacts.iter().map(|(n, _)| string_literal(n)).collect();
+        let frames: Vec<String> = robot.contacts.iter().map(|c| string_literal(&c.frame)).collect();
         let kinds: Vec<String> =
-            robot.contacts.iter().map(|(_, k)| string_literal(k.name())).collect();
+            robot.contacts.iter().map(|c| string_literal(c.kind.name())).collect();
         let _ = writeln!(
             out,
             "/// Entries of the contact forces `lambda`: 3 per point contact, 6 per wrench (`[f; tau]`), in world axes at the\n\

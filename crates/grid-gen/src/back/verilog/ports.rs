@@ -40,15 +40,16 @@ fn input_name(robot: &Robot, p: Port) -> String {
         }
         Port::Value(Input::Lambda, _) => {
             let mut at = 0;
-            let (frame, kind) = robot
+            let contact = robot
                 .contacts
                 .iter()
-                .find(|(_, kind)| {
-                    at += kind.dim();
+                .find(|c| {
+                    at += c.kind.dim();
                     k < at
                 })
                 .expect("a λ port names a declared contact");
-            format!("lambda_{k}_{}_{}", identifier(frame), FORCE_COMPONENTS[k + kind.dim() - at])
+            let component = FORCE_COMPONENTS[k + contact.kind.dim() - at];
+            format!("lambda_{k}_{}_{component}", identifier(&contact.frame))
         }
         _ => format!("{}_{k}_{}", p.prefix(), identifier(&robot.joint_names[k])),
     }

@@ -20,7 +20,7 @@ use std::collections::{BTreeSet, HashMap};
 use std::fmt::Write;
 
 use super::{
-    output_stores, EntryStats, Precision, Strategy, Tables, Trig, WgslOptions,
+    output_stores, EntryMeta, Precision, Strategy, Tables, Trig, WgslOptions,
     WORKGROUP_STORAGE_LIMIT,
 };
 use crate::back::BackError;
@@ -65,7 +65,7 @@ pub(super) fn emit(
     options: &WgslOptions,
     robot: &str,
     tables: &mut Tables,
-) -> Result<EntryStats, BackError> {
+) -> Result<EntryMeta, BackError> {
     let workers = options.workers as usize;
     let name = Strategy::Cooperative.entry(f.kind.name());
     let (stores, inline, outputs) = output_stores(f);
@@ -284,9 +284,9 @@ pub(super) fn emit(
          let steps = prog[{base}u + 2u * p + 1u];\n        for (var k = 0u; k < steps; k++) {{\n            {name}_step(at + k * {stride}u, s, n);\n        }}\n{barrier}\n    }}\n}}\n",
         stride = workers * WORDS
     );
-    Ok(EntryStats {
+    Ok(EntryMeta {
         entry: name,
-        kernel: f.kind.name(),
+        kernel: f.kind.name().to_string(),
         strategy: Strategy::Cooperative,
         outputs,
         scratch: spilled,

@@ -156,12 +156,14 @@ impl Default for WgslOptions {
     }
 }
 
-/// What one entry point costs, for `info --json` and the runtime (which reads the same
-/// figures back from the file's `// entry:` lines).
+/// One entry point's metadata: what it costs (for `info --json`) and what the runtime needs
+/// to dispatch it. The emitter writes it as a `// entry:` header line
+/// ([`EntryMeta::header_line`]) and the runtime reads it back ([`EntryMeta::parse`]): one
+/// type on both sides of the file.
 #[derive(Clone, Debug, PartialEq, Serialize)]
-pub struct EntryStats {
+pub struct EntryMeta {
     pub entry: String,
-    pub kernel: &'static str,
+    pub kernel: String,
     pub strategy: Strategy,
     /// Output values per state (structural zeros included).
     pub outputs: usize,
@@ -180,9 +182,9 @@ pub struct EntryStats {
     pub functions: usize,
 }
 
-impl EntryStats {
+impl EntryMeta {
     /// The machine-readable header line the runtime parses.
-    fn header_line(&self) -> String {
+    pub fn header_line(&self) -> String {
         format!(
             "// entry: {} kernel={} strategy={} outputs={} scratch={} workgroup_size={} states_per_workgroup={} workgroup_bytes={} phases={} stages={} statements={} functions={}",
             self.entry,
@@ -198,6 +200,44 @@ impl EntryStats {
             self.statements,
             self.functions
         )
+    }
+
+    /// Reads what follows `// entry: ` on a header line; the error says what is wrong.
+    /// `stages`, `statements` and `functions` may be absent (shaders written before they
+    /// existed: one dispatch, counts unknown).
+    pub fn parse(text: &str) -> Result<EntryMeta, String> {
+        let mut words = text.split_whitespace();
+        let entry = words.next().ok_or("no name")?.to_string();
+        let mut field = std::collections::HashMap::new();
+        for w in words {
+            let (k, v) = w.split_once('=').ok_or("expected key=value")?;
+            field.insert(k, v);
+        }
+        let get = |k: &str| field.get(k).copied().ok_or(format!("no `{k}`"));
+        let num = |k: &str| get(k)?.parse::<usize>().map_err(|_| format!("`{k}` is not a count"));
+        let optional = |k: &str, absent: usize| {
+            if field.contains_key(k) {
+                num(k)
+            } else {
+                Ok(absent)
+            }
+        };
+        let small =
+            |k: &str| u32::try_from(num(k)?).map_err(|_| format!("`{k}` is too large for a u32"));
+        Ok(EntryMeta {
+            kernel: get("kernel")?.to_string(),
+            strategy: Strategy::parse(get("strategy")?).ok_or("unknown strategy")?,
+            outputs: num("outputs")?,
+            scratch: num("scratch")?,
+            workgroup_size: small("workgroup_size")?,
+            states_per_workgroup: small("states_per_workgroup")?.max(1),
+            workgroup_bytes: num("workgroup_bytes")?,
+            phases: num("phases")?,
+            stages: optional("stages", 1)?.max(1),
+            statements: optional("statements", 0)?,
+            functions: optional("functions", 0)?,
+            entry,
+        })
     }
 }
 
@@ -421,7 +461,7 @@ pub fn emit(module: &Module, options: &WgslOptions) -> Result<GeneratedFile, Bac
 pub fn emit_with_stats(
     module: &Module,
     options: &WgslOptions,
-) -> Result<(GeneratedFile, Vec<EntryStats>), BackError> {
+) -> Result<(GeneratedFile, Vec<EntryMeta>), BackError> {
     let robot = &module.robot;
     let nv = robot.nv();
     let stem = identifier(&robot.name);

@@ -10,7 +10,7 @@
 
 use std::fmt::Write;
 
-use super::{block, output_stores, stages, EntryStats, Strategy, WgslOptions};
+use super::{block, output_stores, stages, EntryMeta, Strategy, WgslOptions};
 use crate::back::BackError;
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id};
@@ -20,7 +20,7 @@ pub(super) fn emit(
     f: &Function,
     options: &WgslOptions,
     robot: &str,
-) -> Result<EntryStats, BackError> {
+) -> Result<EntryMeta, BackError> {
     // A helper never spans two stages, so stages smaller than `chunk` shrink the helpers.
     let c = Chunks::new(
         f,
@@ -49,9 +49,9 @@ pub(super) fn emit(
         }
         let _ = writeln!(out, "}}\n");
     }
-    Ok(EntryStats {
+    Ok(EntryMeta {
         entry: name,
-        kernel: f.kind.name(),
+        kernel: f.kind.name().to_string(),
         strategy: Strategy::Thread,
         outputs,
         scratch: c.slots,
