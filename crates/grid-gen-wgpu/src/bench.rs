@@ -79,7 +79,7 @@ pub fn time(
 #[derive(Debug, thiserror::Error)]
 pub enum BenchError {
     #[error(transparent)]
-    Emit(#[from] grid_gen::back::BackError),
+    Emit(#[from] grid_gen::back::wgsl::WgslError),
     #[error(transparent)]
     Gpu(#[from] GpuError),
     #[error("the time per measurement must be a positive number of seconds, got {0}")]

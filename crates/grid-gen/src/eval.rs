@@ -742,7 +742,7 @@ pub enum VerilogEvalError {
     #[error(transparent)]
     Lower(#[from] crate::ir::LowerError),
     #[error(transparent)]
-    Back(#[from] crate::back::BackError),
+    Back(#[from] crate::back::verilog::VerilogError),
     #[error(transparent)]
     Sim(#[from] crate::back::verilog::sim::SimError),
 }

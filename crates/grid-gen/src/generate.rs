@@ -45,6 +45,18 @@ pub enum GenerateError {
     Back(#[from] BackError),
 }
 
+/// Each backend's error, as the generator's.
+macro_rules! from_backend {
+    ($($e:ty),*) => {$(
+        impl From<$e> for GenerateError {
+            fn from(e: $e) -> Self {
+                GenerateError::Back(e.into())
+            }
+        }
+    )*};
+}
+from_backend!(rust::RustError, wgsl::WgslError, verilog::VerilogError, c::CError);
+
 /// Generates every requested file for `model`, in [`Target::ALL`] order. Deterministic:
 /// same input, same bytes.
 pub fn generate(model: &Model, options: &Options) -> Result<Vec<GeneratedFile>, GenerateError> {

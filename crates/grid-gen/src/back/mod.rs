@@ -156,23 +156,15 @@ impl Target {
     }
 }
 
-/// Why a backend could not print a module.
+/// Why a backend could not print a module: each backend's own error.
 #[derive(Debug, thiserror::Error)]
 pub enum BackError {
-    #[error("internal error: the Rust backend produced code that does not parse: {0}")]
-    RustUnparsable(String),
-    #[error("the C target needs at least one precision (f64 or f32)")]
-    NoPrecision,
-    #[error("robot `{robot}`: the constant {value} is out of f32's range, so the WGSL f32 kernels cannot hold it (try --precision f64)")]
-    WgslRange { robot: String, value: f64 },
-    #[error("WGSL: {0}")]
-    WgslOption(String),
-    #[error("Verilog: {0}")]
-    Fixed(crate::ir::fixed::FixedError),
-    #[error("Verilog: no datapath kernel selected (available: rnea, rnea_grad, mass_matrix)")]
-    VerilogNoKernels,
-    #[error("Verilog: kernel `{0}` was not lowered")]
-    VerilogMissing(crate::ir::KernelKind),
-    #[error("Verilog: {0}")]
-    VerilogArch(String),
+    #[error(transparent)]
+    Rust(#[from] rust::RustError),
+    #[error(transparent)]
+    Wgsl(#[from] wgsl::WgslError),
+    #[error(transparent)]
+    Verilog(#[from] verilog::VerilogError),
+    #[error(transparent)]
+    C(#[from] c::CError),
 }

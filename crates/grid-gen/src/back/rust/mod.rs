@@ -10,7 +10,7 @@ use std::fmt::Write;
 pub use mixed::emit_mixed_kernel;
 
 use super::names::{identifier, string_literal};
-use super::{BackError, GeneratedFile, Target};
+use super::{GeneratedFile, Target};
 use crate::ir::schedule::Chunks;
 use crate::ir::{DenseProduct, Function, Id, Module, Op, Operand, Shape, Stage};
 
@@ -659,7 +659,14 @@ impl<const N: usize> Real for Lanes<N> {
 "#;
 
 /// The Rust file for `module`: `<stem>.rs`, formatted, with its header.
-pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, BackError> {
+/// Why the Rust backend could not print a module.
+#[derive(Debug, thiserror::Error)]
+pub enum RustError {
+    #[error("internal error: the Rust backend produced code that does not parse: {0}")]
+    Unparsable(String),
+}
+
+pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, RustError> {
     let robot = &module.robot;
     let nv = robot.nv();
     let gravity = module.gravity;
@@ -783,7 +790,7 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Bac
         }
     }
     out.push_str("}\n");
-    let file = syn::parse_file(&out).map_err(|e| BackError::RustUnparsable(e.to_string()))?;
+    let file = syn::parse_file(&out).map_err(|e| RustError::Unparsable(e.to_string()))?;
     let code = prettyplease::unparse(&file);
     let stem = identifier(&robot.name);
     let api: String = api_doc(module.functions.iter())

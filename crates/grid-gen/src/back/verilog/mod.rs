@@ -21,7 +21,7 @@ mod testbench;
 use serde::Serialize;
 
 use super::names::{comment_text, identifier};
-use super::{BackError, GeneratedFile, Target};
+use super::{GeneratedFile, Target};
 use crate::ir::fixed::{
     analyse, choose_format, Analysis, Bounds, Datapath, FixedError, Format, Rounding,
 };
@@ -163,23 +163,21 @@ pub enum Layout {
 }
 
 /// Builds each requested kernel's datapath, picks or checks its format, and schedules it.
-pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, BackError> {
+pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, VerilogError> {
     // A frame kernel exists only where frames were asked for: without them it is not built.
     let kernels: Vec<KernelKind> = KernelKind::ALL
         .into_iter()
         .filter(|k| options.kernels.contains(k) && !(k.is_frame() && module.function(*k).is_none()))
         .collect();
     if kernels.is_empty() {
-        return Err(BackError::VerilogNoKernels);
+        return Err(VerilogError::NoKernels);
     }
     match options.arch {
         Arch::Pipelined { stage_depth: 0 } => {
-            return Err(BackError::VerilogArch("--stage-depth must be at least 1".into()))
+            return Err(VerilogError::Arch("--stage-depth must be at least 1".into()))
         }
         Arch::Shared { multipliers, adders } if multipliers == 0 || adders == 0 => {
-            return Err(BackError::VerilogArch(
-                "--multipliers and --adders must be at least 1".into(),
-            ))
+            return Err(VerilogError::Arch("--multipliers and --adders must be at least 1".into()))
         }
         _ => {}
     }
@@ -190,7 +188,7 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, B
     }
     let mut out = Vec::new();
     for kind in kernels {
-        let f = module.function(kind).ok_or(BackError::VerilogMissing(kind))?;
+        let f = module.function(kind).ok_or(VerilogError::Missing(kind))?;
         let datapath = Datapath::new(f, module.robot.nv())?;
         let (format, analysis) = match options.format {
             FormatChoice::Fixed { width, frac } => {
@@ -384,7 +382,7 @@ fn list(v: &[f64]) -> String {
 }
 
 /// Every file of the Verilog target: each netlist and its testbench.
-pub fn emit(module: &Module, options: &VerilogOptions) -> Result<Vec<GeneratedFile>, BackError> {
+pub fn emit(module: &Module, options: &VerilogOptions) -> Result<Vec<GeneratedFile>, VerilogError> {
     let mut files = Vec::new();
     for n in plan(module, options)? {
         let (v, tb) = n.file_names();
@@ -394,8 +392,15 @@ pub fn emit(module: &Module, options: &VerilogOptions) -> Result<Vec<GeneratedFi
     Ok(files)
 }
 
-impl From<FixedError> for BackError {
-    fn from(e: FixedError) -> Self {
-        BackError::Fixed(e)
-    }
+/// Why the Verilog backend could not print a module.
+#[derive(Debug, thiserror::Error)]
+pub enum VerilogError {
+    #[error("Verilog: {0}")]
+    Fixed(#[from] FixedError),
+    #[error("Verilog: no datapath kernel selected (available: rnea, rnea_grad, mass_matrix)")]
+    NoKernels,
+    #[error("Verilog: kernel `{0}` was not lowered")]
+    Missing(crate::ir::KernelKind),
+    #[error("Verilog: {0}")]
+    Arch(String),
 }

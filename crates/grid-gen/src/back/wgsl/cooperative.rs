@@ -19,11 +19,11 @@
 use std::collections::{BTreeSet, HashMap};
 use std::fmt::Write;
 
+use super::WgslError;
 use super::{
     output_stores, EntryMeta, Precision, Strategy, Tables, Trig, WgslOptions,
     WORKGROUP_STORAGE_LIMIT,
 };
-use crate::back::BackError;
 use crate::ir::{Function, Id, Input, Op};
 
 /// Operation codes of the table (bits 24..32 of an instruction's first word).
@@ -52,9 +52,9 @@ const INDEX_BITS: u32 = 28;
 /// for `COPY`, an output index.
 const WORDS: usize = 3;
 
-fn address(tag: u32, index: usize, robot: &str) -> Result<u32, BackError> {
+fn address(tag: u32, index: usize, robot: &str) -> Result<u32, WgslError> {
     if index >= 1 << INDEX_BITS {
-        return Err(BackError::WgslOption(format!("robot \"{robot}\": a cooperative table index {index} does not fit in {INDEX_BITS} bits")));
+        return Err(WgslError::Option(format!("robot \"{robot}\": a cooperative table index {index} does not fit in {INDEX_BITS} bits")));
     }
     Ok(tag << INDEX_BITS | index as u32)
 }
@@ -65,7 +65,7 @@ pub(super) fn emit(
     options: &WgslOptions,
     robot: &str,
     tables: &mut Tables,
-) -> Result<EntryMeta, BackError> {
+) -> Result<EntryMeta, WgslError> {
     let workers = options.workers as usize;
     let name = Strategy::Cooperative.entry(f.kind.name());
     let (stores, inline, outputs) = output_stores(f);
@@ -82,7 +82,7 @@ pub(super) fn emit(
     let mut phase = vec![usize::MAX; nodes];
     for (i, node) in f.nodes.iter().enumerate() {
         if node.op.operands().any(|o| o.0 as usize >= i) {
-            return Err(BackError::WgslOption(format!(
+            return Err(WgslError::Option(format!(
                 "{}: node {i} reads a later node (the IR is built in dependence order)",
                 f.kind.name()
             )));
@@ -146,13 +146,13 @@ pub(super) fn emit(
     let in_workgroup = slots.min(budget) as usize;
     let spilled = slots.saturating_sub(budget) as usize;
     if slots >= 1 << 24 {
-        return Err(BackError::WgslOption(format!(
+        return Err(WgslError::Option(format!(
             "robot \"{robot}\": {} needs {slots} slots, more than the table's 2^24",
             f.kind.name()
         )));
     }
 
-    let operand = |id: Id, tables: &mut Tables| -> Result<u32, BackError> {
+    let operand = |id: Id, tables: &mut Tables| -> Result<u32, WgslError> {
         match f.op(id) {
             Op::Const(c) => address(KONST, tables.konst.get(c, options.precision, robot)?, robot),
             Op::Input(which, j) => {
@@ -218,7 +218,7 @@ pub(super) fn emit(
         at += steps * workers * WORDS;
     }
     if at > u32::MAX as usize {
-        return Err(BackError::WgslOption(format!(
+        return Err(WgslError::Option(format!(
             "robot \"{robot}\": the cooperative tables exceed 2^32 words"
         )));
     }
@@ -309,7 +309,7 @@ pub(super) struct Constants {
 }
 
 impl Constants {
-    pub fn get(&mut self, c: f64, precision: Precision, robot: &str) -> Result<usize, BackError> {
+    pub fn get(&mut self, c: f64, precision: Precision, robot: &str) -> Result<usize, WgslError> {
         let c = super::rounded(c, precision, robot)?;
         let next = self.values.len();
         let k = *self.index.entry(c.to_bits()).or_insert(next);

@@ -11,7 +11,7 @@ use std::fmt::Write;
 use serde::Serialize;
 
 use super::names::{comment_text, identifier};
-use super::{BackError, GeneratedFile, Target};
+use super::{GeneratedFile, Target};
 use crate::ir::{Function, Id, Input, Module, Op};
 
 /// Invocation layout of the entry points.
@@ -241,6 +241,16 @@ impl EntryMeta {
     }
 }
 
+/// Why the WGSL backend could not print a module.
+#[derive(Debug, thiserror::Error)]
+pub enum WgslError {
+    #[error("robot `{robot}`: the constant {value} is out of f32's range, so the WGSL f32 kernels cannot hold it (try --precision f64)")]
+    Range { robot: String, value: f64 },
+    /// Options the backend cannot honour, or a kernel too large for the cooperative tables.
+    #[error("WGSL: {0}")]
+    Option(String),
+}
+
 /// The buffer layout, described once for the file header and the book.
 pub const LAYOUT_DOC: &str = "\
 Every entry point shares one bind group (group 0), so one pipeline layout serves all:
@@ -266,7 +276,7 @@ dispatches of their own buffers. A state past N does nothing. Every output value
 written, structural zeros included.";
 
 /// WGSL's literal for a constant in `precision`, or an error if it cannot hold it.
-fn literal(c: f64, precision: Precision, robot: &str) -> Result<String, BackError> {
+fn literal(c: f64, precision: Precision, robot: &str) -> Result<String, WgslError> {
     // `{:?}` prints the shortest text that reads back as the same value.
     let x = rounded(c, precision, robot)?;
     let s = match precision {
@@ -277,10 +287,10 @@ fn literal(c: f64, precision: Precision, robot: &str) -> Result<String, BackErro
 }
 
 /// Constant `c` as `precision` holds it, or an error if it cannot (an f32 overflow).
-fn rounded(c: f64, precision: Precision, robot: &str) -> Result<f64, BackError> {
+fn rounded(c: f64, precision: Precision, robot: &str) -> Result<f64, WgslError> {
     match precision {
         Precision::F32 if !(c as f32).is_finite() => {
-            Err(BackError::WgslRange { robot: robot.to_string(), value: c })
+            Err(WgslError::Range { robot: robot.to_string(), value: c })
         }
         Precision::F32 => Ok(c as f32 as f64),
         Precision::F64 => Ok(c),
@@ -300,8 +310,8 @@ fn expression(
     f: &Function,
     id: Id,
     trig: Trig,
-    mut o: impl FnMut(Id) -> Result<String, BackError>,
-) -> Result<String, BackError> {
+    mut o: impl FnMut(Id) -> Result<String, WgslError>,
+) -> Result<String, WgslError> {
     let (sin, cos) = match trig {
         Trig::Builtin => ("sin", "cos"),
         Trig::Accurate => ("gg_sin", "gg_cos"),
@@ -324,7 +334,7 @@ fn leaf(
     id: Id,
     precision: Precision,
     robot: &str,
-) -> Result<Option<String>, BackError> {
+) -> Result<Option<String>, WgslError> {
     Ok(match f.op(id) {
         Op::Const(k) => Some(literal(k, precision, robot)?),
         Op::Input(which, j) => {
@@ -356,8 +366,8 @@ fn block(
     local: impl Fn(Id) -> bool,
     slot: impl Fn(Id) -> Option<String>,
     outputs: &[Vec<usize>],
-) -> Result<usize, BackError> {
-    let operand = |id: Id| -> Result<String, BackError> {
+) -> Result<usize, WgslError> {
+    let operand = |id: Id| -> Result<String, WgslError> {
         Ok(match f.op(id) {
             Op::Const(_) => leaf(f, id, options.precision, robot)?.unwrap_or_default(),
             _ => format!("t{}", id.0),
@@ -453,7 +463,7 @@ fn output_stores(f: &Function) -> (Vec<Vec<usize>>, Vec<(usize, Id)>, usize) {
 }
 
 /// The WGSL file for `module`: `<stem>.wgsl`, every kernel an entry point per strategy.
-pub fn emit(module: &Module, options: &WgslOptions) -> Result<GeneratedFile, BackError> {
+pub fn emit(module: &Module, options: &WgslOptions) -> Result<GeneratedFile, WgslError> {
     emit_with_stats(module, options).map(|(file, _)| file)
 }
 
@@ -461,13 +471,13 @@ pub fn emit(module: &Module, options: &WgslOptions) -> Result<GeneratedFile, Bac
 pub fn emit_with_stats(
     module: &Module,
     options: &WgslOptions,
-) -> Result<(GeneratedFile, Vec<EntryMeta>), BackError> {
+) -> Result<(GeneratedFile, Vec<EntryMeta>), WgslError> {
     let robot = &module.robot;
     let nv = robot.nv();
     let stem = identifier(&robot.name);
     check_options(options)?;
     if options.precision == Precision::F64 && options.trig == Trig::Builtin {
-        return Err(BackError::WgslOption(
+        return Err(WgslError::Option(
             "f64 kernels need --wgsl-trig accurate (Vulkan has no f64 sine)".into(),
         ));
     }
@@ -598,8 +608,8 @@ impl Tables {
     }
 }
 
-fn check_options(options: &WgslOptions) -> Result<(), BackError> {
-    let bad = |what: String| Err(BackError::WgslOption(what));
+fn check_options(options: &WgslOptions) -> Result<(), WgslError> {
+    let bad = |what: String| Err(WgslError::Option(what));
     if options.strategies.is_empty() {
         return bad("no strategy selected (available: thread, cooperative)".into());
     }

@@ -10,8 +10,8 @@
 
 use std::fmt::Write;
 
+use super::WgslError;
 use super::{block, output_stores, stages, EntryMeta, Strategy, WgslOptions};
-use crate::back::BackError;
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id};
 
@@ -20,7 +20,7 @@ pub(super) fn emit(
     f: &Function,
     options: &WgslOptions,
     robot: &str,
-) -> Result<EntryMeta, BackError> {
+) -> Result<EntryMeta, WgslError> {
     // A helper never spans two stages, so stages smaller than `chunk` shrink the helpers.
     let c = Chunks::new(
         f,
