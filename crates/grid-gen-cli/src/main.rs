@@ -656,8 +656,13 @@ fn run(cli: Cli) -> ExitCode {
             };
             let Some(dir) = out else {
                 return print(
-                    &(Info::with_options(&loaded.model, loaded.gravity(), cli.model.gradient)
-                        .to_text()
+                    &(Info::with_options(
+                        &loaded.model,
+                        loaded.gravity(),
+                        cli.model.gradient,
+                        cli.model.solve,
+                    )
+                    .to_text()
                         + &scene_lines(&loaded.scene)
                         + "(pass -o DIR to generate code)\n"),
                 );
@@ -673,7 +678,12 @@ fn run(cli: Cli) -> ExitCode {
         }
         Command::Info { urdf, json } => match load(&urdf, &cli.model) {
             Ok((_, loaded)) => {
-                let info = Info::with_options(&loaded.model, loaded.gravity(), cli.model.gradient);
+                let info = Info::with_options(
+                    &loaded.model,
+                    loaded.gravity(),
+                    cli.model.gradient,
+                    cli.model.solve,
+                );
                 if json {
                     print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))
                 } else {
@@ -916,6 +926,7 @@ fn accuracy(
         formats,
         gravity,
         gradient,
+        solve: config.options.lower.solve,
         qd_max: verilog.qd_max,
         qdd_max: verilog.qdd_max,
     };
@@ -934,7 +945,7 @@ fn accuracy(
                 wide: &m.wide,
             })
             .collect();
-        match time_kernels(model, gravity, gradient, &options.kernels, &mixed) {
+        match time_kernels(model, gravity, &config.options.lower, &options.kernels, &mixed) {
             Ok(times) => report.add_times(&times),
             Err(e) => return fail(e),
         }
@@ -961,7 +972,7 @@ fn accuracy(
 fn time_kernels(
     model: &Model,
     gravity: [f64; 3],
-    gradient: grid_gen::ir::Gradient,
+    routes: &grid_gen::ir::LowerOptions,
     kernels: &[grid_gen::ir::KernelKind],
     mixed: &[grid_gen::timing::MixedKernel],
 ) -> Result<Vec<grid_gen::timing::KernelTime>, grid_gen::timing::TimingError> {
@@ -969,7 +980,7 @@ fn time_kernels(
     let result = grid_gen::timing::time_rust_kernels_with_mixed(
         model,
         gravity,
-        gradient,
+        routes,
         kernels,
         mixed,
         &grid_gen::timing::rustc(),
@@ -986,8 +997,7 @@ fn bench_rust(
     kinds: &[grid_gen::ir::KernelKind],
 ) -> ExitCode {
     eprintln!("compiling the kernels with rustc -C opt-level=3...");
-    let gradient = config.options.lower.gradient;
-    match time_kernels(&loaded.model, loaded.gravity(), gradient, kinds, &[]) {
+    match time_kernels(&loaded.model, loaded.gravity(), &config.options.lower, kinds, &[]) {
         Ok(times) => print(&grid_gen::timing::table(&times, kinds)),
         Err(e) => fail(e),
     }

@@ -626,6 +626,10 @@ fn every_command_takes_only_its_own_flags() {
     let out = grid_gen(&["info", iiwa, "--gradient", "dense"]);
     assert_eq!(out.status.code(), Some(2));
     assert!(stderr(&out).contains("[possible values: auto, columns, idsva]"), "{}", stderr(&out));
+    // `--solve` reaches the summary's counts, as it reaches the generated code.
+    let summary =
+        String::from_utf8_lossy(&grid_gen(&["info", iiwa, "--solve", "minv"]).stdout).into_owned();
+    assert!(summary.contains("solve: minv"), "{summary}");
     // A flag replaces the scene's value, gravity as every other; the rest of the scene stays.
     let scene = std::env::temp_dir().join(format!("grid-gen-cli-own-{}.toml", std::process::id()));
     std::fs::write(&scene, "gravity = [0.0, 0.0, -3.0]\n[lock]\niiwa_joint_7 = 0.0\n").unwrap();

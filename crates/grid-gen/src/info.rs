@@ -143,11 +143,17 @@ pub const WGSL_STATS_MAX_WORK: usize = 50_000_000;
 impl Info {
     /// The summary with default gravity and the gradient formulation picked by op count.
     pub fn new(model: &Model) -> Self {
-        Info::with_options(model, DEFAULT_GRAVITY, ir::Gradient::Auto)
+        Info::with_options(model, DEFAULT_GRAVITY, ir::Gradient::Auto, ir::Solve::Auto)
     }
 
-    /// The summary of the kernels generated with this gravity and gradient formulation.
-    pub fn with_options(model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
+    /// The summary of the kernels generated with this gravity, gradient formulation and
+    /// solve.
+    pub fn with_options(
+        model: &Model,
+        gravity: [f64; 3],
+        gradient: ir::Gradient,
+        solve: ir::Solve,
+    ) -> Self {
         let coordinates = model.coordinate_joints();
         let names = |set: &Option<Vec<usize>>| {
             set.as_ref()
@@ -245,9 +251,9 @@ impl Info {
             wgsl: Vec::new(),
             wgsl_skipped: None,
         }
-        .with_ops(ir::stats(model, gravity, gradient, ir::STATS_MAX_NODES))
-        .with_verilog(model, gravity, gradient)
-        .with_wgsl(model, gravity, gradient)
+        .with_ops(ir::stats(model, gravity, gradient, solve, ir::STATS_MAX_NODES))
+        .with_verilog(model, gravity, gradient, solve)
+        .with_wgsl(model, gravity, gradient, solve)
     }
 
     /// Only the kernels `ops` counted: the others are over the node limit already, and
@@ -256,7 +262,13 @@ impl Info {
     /// (`--backend wgsl` still writes them): set when the cooperative strategy was planned by
     /// the IR's list scheduler, whose cost grew with depth (a 400-link chain's `rnea` took
     /// 19 s); its level schedule is linear now, and the bound stays as a cap on `info`'s time.
-    fn with_wgsl(mut self, model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
+    fn with_wgsl(
+        mut self,
+        model: &Model,
+        gravity: [f64; 3],
+        gradient: ir::Gradient,
+        solve: ir::Solve,
+    ) -> Self {
         let (kernels, large): (Vec<&KernelStats>, Vec<&KernelStats>) =
             self.ops.iter().partition(|k| k.after.total() * k.after.depth <= WGSL_STATS_MAX_WORK);
         let mut left_out: Vec<String> = self
@@ -281,6 +293,7 @@ impl Info {
             kernels,
             max_nodes: ir::STATS_MAX_NODES,
             gradient,
+            solve,
             ..ir::LowerOptions::default()
         };
         let result =
@@ -296,7 +309,13 @@ impl Info {
 
     /// Like [`Self::with_wgsl`], only for kernels `ops` counted: one over the node limit
     /// is reported without lowering it a second time.
-    fn with_verilog(mut self, model: &Model, gravity: [f64; 3], gradient: ir::Gradient) -> Self {
+    fn with_verilog(
+        mut self,
+        model: &Model,
+        gravity: [f64; 3],
+        gradient: ir::Gradient,
+        solve: ir::Solve,
+    ) -> Self {
         if let Some(k) = self.ops_skipped.iter().find(|k| DEFAULT_KERNELS.contains(&k.kernel)) {
             self.verilog_skipped =
                 Some(format!("kernel `{}` was not counted: {}", k.kernel.name(), k.reason));
@@ -306,6 +325,7 @@ impl Info {
             kernels: DEFAULT_KERNELS.to_vec(),
             max_nodes: ir::STATS_MAX_NODES,
             gradient,
+            solve,
             ..ir::LowerOptions::default()
         };
         let result =

@@ -15,7 +15,7 @@ use std::process::Command;
 use serde::Serialize;
 
 use crate::generate::{generate, GenerateError, Options, Target};
-use crate::ir::{Gradient, KernelKind, LowerOptions};
+use crate::ir::{KernelKind, LowerOptions};
 use crate::model::Model;
 
 /// One kernel's time per call.
@@ -179,18 +179,19 @@ pub fn rustc() -> String {
     std::env::var("RUSTC").unwrap_or_else(|_| "rustc".to_string())
 }
 
-/// Generates `model`'s Rust kernels (`kernels`, with `gravity` and `gradient`), compiles
+/// Generates `model`'s Rust kernels (`kernels`, with `gravity`, and the gradient
+/// formulation and solve of `routes`, whose kernel list is not read), compiles
 /// them with `rustc` in `work` (a folder this call may fill and leaves behind), and times
 /// each in f64 and f32, portable and dispatching copies.
 pub fn time_rust_kernels(
     model: &Model,
     gravity: [f64; 3],
-    gradient: Gradient,
+    routes: &LowerOptions,
     kernels: &[KernelKind],
     rustc: &str,
     work: &Path,
 ) -> Result<Vec<KernelTime>, TimingError> {
-    time_rust_kernels_with_mixed(model, gravity, gradient, kernels, &[], rustc, work)
+    time_rust_kernels_with_mixed(model, gravity, routes, kernels, &[], rustc, work)
 }
 
 /// [`time_rust_kernels`], and the `mixed` kernels (one state per call, f64 in and out;
@@ -198,7 +199,7 @@ pub fn time_rust_kernels(
 pub fn time_rust_kernels_with_mixed(
     model: &Model,
     gravity: [f64; 3],
-    gradient: Gradient,
+    routes: &LowerOptions,
     kernels: &[KernelKind],
     mixed: &[MixedKernel],
     rustc: &str,
@@ -213,7 +214,7 @@ pub fn time_rust_kernels_with_mixed(
         // With the avx512 copy, so that on an AVX-512 CPU `dispatch` is the fastest copy
         // and `fma` is timed beside it.
         rust: crate::back::rust::RustOptions { avx512: true, ..Default::default() },
-        lower: LowerOptions { kernels: kernels.to_vec(), gradient, ..LowerOptions::default() },
+        lower: LowerOptions { kernels: kernels.to_vec(), ..routes.clone() },
         ..Options::default()
     };
     let files = generate(model, &options)?;
@@ -368,7 +369,7 @@ mod tests {
         let err = super::time_rust_kernels(
             &model,
             [0.0, 0.0, -9.81],
-            crate::ir::Gradient::Auto,
+            &crate::ir::LowerOptions::default(),
             &[crate::ir::KernelKind::Rnea],
             "/nonexistent/rustc",
             &work,

@@ -30,6 +30,7 @@ fn options(model: &Model) -> Options {
         ],
         gravity: reference::DEFAULT_GRAVITY,
         gradient: Gradient::Auto,
+        solve: grid_gen::ir::Solve::Auto,
         qd_max: None,
         qdd_max: None,
     }

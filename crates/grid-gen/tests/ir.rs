@@ -98,8 +98,13 @@ fn dense_ir_matches_the_reference() {
 #[test]
 fn specialisation_removes_work_and_keeps_depth_bounded() {
     let model = load("grid_atlas");
-    let stats =
-        ir::stats(&model, reference::DEFAULT_GRAVITY, ir::Gradient::Auto, ir::STATS_MAX_NODES);
+    let stats = ir::stats(
+        &model,
+        reference::DEFAULT_GRAVITY,
+        ir::Gradient::Auto,
+        ir::Solve::Auto,
+        ir::STATS_MAX_NODES,
+    );
     assert!(stats.skipped.is_empty(), "Atlas fits the op-count limit: {:?}", stats.skipped);
     assert_eq!(stats.ops.len(), KernelKind::DYNAMICS.len(), "no frames asked, no frame kernels");
     for s in stats.ops {

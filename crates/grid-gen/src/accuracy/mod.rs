@@ -21,7 +21,7 @@ use crate::eval::{check_states, EvalError, State, StatesFile};
 use crate::ir::fixed::{
     choose_format, quantize_ports, Bounds, Datapath, FixedError, Format, Rounding,
 };
-use crate::ir::{self, Function, Gradient, Input, KernelKind, LowerError, LowerOptions};
+use crate::ir::{self, Function, Gradient, Input, KernelKind, LowerError, LowerOptions, Solve};
 use crate::model::Model;
 use crate::reference;
 
@@ -268,6 +268,8 @@ pub struct Options {
     pub formats: Vec<NumberFormat>,
     pub gravity: [f64; 3],
     pub gradient: Gradient,
+    /// How `fd_grad` applies M⁻¹ (its accuracy differs per route on deep chains).
+    pub solve: Solve,
     /// Input bounds for `fixed:auto` (as `--qd-max` / `--qdd-max` of the Verilog backend).
     pub qd_max: Option<f64>,
     pub qdd_max: Option<f64>,
@@ -290,6 +292,7 @@ pub fn measure<'a>(
     let lower = LowerOptions {
         kernels: kernels.clone(),
         gradient: options.gradient,
+        solve: options.solve,
         ..LowerOptions::default()
     };
     let exact = ir::lower(model, gravity, &LowerOptions { fold: false, ..lower.clone() })?;

@@ -87,7 +87,13 @@ pub const STATS_MAX_NODES: usize = 2_000_000;
 /// every kernel that contains it, without building them: time and memory stay bounded
 /// whatever the robot. `gradient` picks the specialised graphs' RNEA-gradient formulation
 /// (the general count is always the column formulation, as a library runs it).
-pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: usize) -> Stats {
+pub fn stats(
+    model: &Model,
+    gravity: [f64; 3],
+    gradient: Gradient,
+    solve: Solve,
+    max_nodes: usize,
+) -> Stats {
     let mut out = Stats { ops: Vec::new(), skipped: Vec::new() };
     let mut too_large: Vec<(KernelKind, KernelKind)> = Vec::new();
     for kind in KernelKind::for_model(model) {
@@ -100,18 +106,18 @@ pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: us
         }
         let mut counts = [OpCounts::default(); 2];
         let mut picked = None;
-        let mut solve = None;
+        let mut picked_solve = None;
         let mut failed = None;
-        for (slot, base) in counts
-            .iter_mut()
-            .zip([LowerOptions { gradient, ..LowerOptions::default() }, LowerOptions::general()])
-        {
+        for (slot, base) in counts.iter_mut().zip([
+            LowerOptions { gradient, solve, ..LowerOptions::default() },
+            LowerOptions::general(),
+        ]) {
             let options = LowerOptions { max_nodes, ..base };
             match lower_function(model, gravity, kind, &options) {
                 Ok(f) => {
                     *slot = f.counts();
                     picked = picked.or(f.gradient);
-                    solve = solve.or(f.solve);
+                    picked_solve = picked_solve.or(f.solve);
                 }
                 Err(e) => {
                     failed = Some(e);
@@ -125,7 +131,7 @@ pub fn stats(model: &Model, gravity: [f64; 3], gradient: Gradient, max_nodes: us
                 after: counts[0],
                 before: counts[1],
                 gradient: picked,
-                solve,
+                solve: picked_solve,
             }),
             Some(e) => {
                 let reason = match e {
