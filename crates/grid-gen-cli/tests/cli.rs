@@ -429,14 +429,18 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
             for n in ["1", "100"] {
                 let row = text.lines().find(|l| {
                     let w: Vec<&str> = l.split_whitespace().collect();
-                    w.len() == 9 && w[0] == kernel && w[1] == strategy && w[2] == n
+                    w.len() == 10 && w[0] == kernel && w[1] == strategy && w[2] == n
                 });
                 let row =
                     row.unwrap_or_else(|| panic!("no row for {kernel} {strategy} {n}:\n{text}"));
-                let per_s: f64 = row.split_whitespace().nth(6).unwrap().parse().unwrap();
-                assert!(per_s > 0.0 && per_s.is_finite(), "{row}");
+                // States per second, and the round trips on the uploaded batch and with
+                // fresh buffers.
+                for column in [6, 7, 8] {
+                    let x: f64 = row.split_whitespace().nth(column).unwrap().parse().unwrap();
+                    assert!(x > 0.0 && x.is_finite(), "{row}");
+                }
                 // The device's own time for the pass, or `-` without timestamp queries.
-                let device = row.split_whitespace().nth(8).unwrap();
+                let device = row.split_whitespace().nth(9).unwrap();
                 assert!(
                     device == "-" || device.parse::<f64>().is_ok_and(|t| t >= 0.0 && t.is_finite()),
                     "{row}"

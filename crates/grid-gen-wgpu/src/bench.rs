@@ -17,8 +17,12 @@ pub struct Timing {
     /// Median time the device spent in the compute pass by its own clock (timestamp
     /// queries), where the adapter has them.
     pub device: Option<Duration>,
-    /// Median time of upload + dispatch + read back.
+    /// Median time of writing new states into the uploaded batch, dispatching and reading
+    /// back, in one submission ([`Gpu::run_on`]): what an MPC loop pays per iteration.
     pub round_trip: Duration,
+    /// Median time of the same with the batch's buffers and bind groups allocated anew on
+    /// each call ([`Gpu::run`]).
+    pub fresh_round_trip: Duration,
     pub repetitions: usize,
     /// Dispatches the batch takes.
     pub dispatches: usize,
@@ -64,12 +68,14 @@ pub fn time(
     }
     device.sort();
     let device = device.get(device.len() / 2).copied();
-    let (round_trip, _) = median(5, budget, || gpu.run(kernel, q, qd, u).map(|_| ()))?;
+    let (round_trip, _) = median(5, budget, || gpu.run_on(&batch, q, qd, u).map(|_| ()))?;
+    let (fresh_round_trip, _) = median(5, budget, || gpu.run(kernel, q, qd, u).map(|_| ()))?;
     Ok(Timing {
         states: batch.len(),
         dispatch,
         device,
         round_trip,
+        fresh_round_trip,
         repetitions,
         dispatches: batch.dispatches(),
     })
@@ -114,7 +120,7 @@ pub fn table(
     );
     let _ = writeln!(
         report,
-        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14}",
+        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14} {:>14}",
         "kernel",
         "strategy",
         "N",
@@ -123,6 +129,7 @@ pub fn table(
         "us/state",
         "states/s",
         "round-trip us",
+        "fresh rt us",
         "device us"
     );
     // q has nq entries per state (a floating base's or spherical joint's quaternion, which
@@ -159,7 +166,7 @@ pub fn table(
                     t.device.map_or("-".to_string(), |d| format!("{:.1}", d.as_secs_f64() * 1e6));
                 let _ = writeln!(
                     report,
-                    "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1} {:>14}",
+                    "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1} {:>14.1} {:>14}",
                     f.kind.name(),
                     strategy.name(),
                     n,
@@ -168,6 +175,7 @@ pub fn table(
                     us / n.max(1) as f64,
                     n as f64 / t.dispatch.as_secs_f64(),
                     t.round_trip.as_secs_f64() * 1e6,
+                    t.fresh_round_trip.as_secs_f64() * 1e6,
                     device
                 );
             }

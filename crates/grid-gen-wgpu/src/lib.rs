@@ -37,6 +37,8 @@ pub enum GpuError {
     Pipeline { entry: String, reason: String },
     #[error("`{field}` has {found} values; {n} states of {per} entries need {expected}")]
     Length { field: &'static str, found: usize, n: usize, per: usize, expected: usize },
+    #[error("`{0}` was empty when the batch was uploaded, so the batch has no room for it; upload the batch with it")]
+    NotUploaded(&'static str),
     #[error("the dispatch failed: {0}")]
     Dispatch(String),
 }
@@ -83,9 +85,11 @@ pub struct Kernel {
 }
 
 struct Chunk {
+    /// The batch's first state in this chunk, and how many it holds.
+    start: usize,
     states: usize,
-    /// Held for the batch's lifetime; the bind group refers to them.
-    _inputs: [wgpu::Buffer; 3],
+    /// `q`, `qd`, `u`, joint-major; [`Gpu::run_on`] writes new states into them.
+    inputs: [wgpu::Buffer; 3],
     out: wgpu::Buffer,
     read: wgpu::Buffer,
     group: wgpu::BindGroup,
@@ -309,23 +313,8 @@ impl Gpu {
         qd: &[f64],
         u: &[f64],
     ) -> Result<Batch<'k>, GpuError> {
-        let (nv, nq) = (kernel.nv, kernel.nq);
-        let n = q.len().checked_div(nq).unwrap_or(0);
-        // What the kernel reads, by its kind's inputs (an unknown name reads everything).
-        use grid_gen::ir::{Input, KernelKind};
-        let kind = KernelKind::parse(&kernel.entry.kernel);
-        let takes = |i: Input| kind.is_none_or(|k| k.inputs().contains(&i));
-        let (uses_qd, uses_u) =
-            (takes(Input::Qd), takes(Input::Qdd) || takes(Input::Tau) || takes(Input::TauActuated));
-        let check = |field: &'static str, x: &[f64], needed: bool, per: usize| {
-            if (needed || !x.is_empty()) && x.len() != n * per || q.len() != n * nq {
-                return Err(GpuError::Length { field, found: x.len(), n, per, expected: n * per });
-            }
-            Ok(())
-        };
-        check("q", q, true, nq)?;
-        check("qd", qd, uses_qd, nv)?;
-        check("u", u, uses_u, kernel.nu)?;
+        let n = q.len().checked_div(kernel.nq).unwrap_or(0);
+        check_lengths(kernel, n, q, qd, u)?;
         let per = self.chunk_states(kernel);
         let mut chunks = Vec::new();
         let mut start = 0;
@@ -346,14 +335,9 @@ impl Gpu {
     ) -> Result<Chunk, GpuError> {
         let d = &self.device;
         let bytes = |x: Vec<f64>| to_bytes(x, k.precision);
-        // Joint-major within the chunk: x[j * m + i].
+        // An input the kernel does not read is one word: a binding cannot be empty.
         let soa = |x: &[f64], per: usize| -> Vec<f64> {
-            if x.is_empty() {
-                return vec![0.0];
-            }
-            (0..per)
-                .flat_map(|j| (0..m).map(move |i| x[(start + i) * per + j]))
-                .collect::<Vec<f64>>()
+            if x.is_empty() { vec![0.0] } else { joint_major(x, per, start, m) }
         };
         let init = |data: Vec<u8>, usage| {
             d.create_buffer_init(&wgpu::util::BufferInitDescriptor {
@@ -367,8 +351,9 @@ impl Gpu {
         params[..4].copy_from_slice(&(m as u32).to_le_bytes());
         let params = init(params, wgpu::BufferUsages::UNIFORM);
         let [q, qd, u] = inputs;
-        let inputs = [(q, k.nq), (qd, k.nv), (u, k.nu)]
-            .map(|(x, per)| init(bytes(soa(x, per)), wgpu::BufferUsages::STORAGE));
+        let inputs = [(q, k.nq), (qd, k.nv), (u, k.nu)].map(|(x, per)| {
+            init(bytes(soa(x, per)), wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST)
+        });
         let word = k.precision.bytes() as u64;
         let out_bytes = (k.entry.outputs * m).max(1) as u64 * word;
         // NaN everywhere, so a value the kernel fails to write cannot pass for a result.
@@ -413,12 +398,12 @@ impl Gpu {
             )));
         }
         let groups = m.div_ceil(k.entry.states_per_workgroup as usize) as u32;
-        Ok(Chunk { states: m, _inputs: inputs, out, read, group, groups })
+        Ok(Chunk { start, states: m, inputs, out, read, group, groups })
     }
 
     /// Runs the uploaded batch and waits for it to finish.
     pub fn dispatch(&self, batch: &Batch) -> Result<(), GpuError> {
-        self.dispatch_with(batch, None)
+        self.dispatch_with(batch, None, false)
     }
 
     /// [`Gpu::dispatch`], and the time the device spent in the compute pass by its own
@@ -445,7 +430,7 @@ impl Gpu {
         };
         let resolve = buffer(wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC);
         let read = buffer(wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
-        self.dispatch_with(batch, Some((&set, &resolve, &read)))?;
+        self.dispatch_with(batch, Some((&set, &resolve, &read)), false)?;
         read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
@@ -464,11 +449,13 @@ impl Gpu {
     }
 
     /// Encodes every stage over every chunk in one compute pass, with timestamps at its
-    /// ends resolved into the given buffers when asked, submits and waits.
+    /// ends resolved into the given buffers when asked, and, with `read_back`, the copies of
+    /// the outputs into the mappable buffers; submits once and waits.
     fn dispatch_with(
         &self,
         batch: &Batch,
         timestamps: Option<(&wgpu::QuerySet, &wgpu::Buffer, &wgpu::Buffer)>,
+        read_back: bool,
     ) -> Result<(), GpuError> {
         if batch.chunks.is_empty() {
             return Ok(());
@@ -497,7 +484,17 @@ impl Gpu {
             encoder.resolve_query_set(set, 0..2, resolve, 0);
             encoder.copy_buffer_to_buffer(resolve, 0, read, 0, 16);
         }
+        if read_back {
+            for c in &batch.chunks {
+                encoder.copy_buffer_to_buffer(&c.out, 0, &c.read, 0, c.read.size());
+            }
+        }
         self.queue.submit([encoder.finish()]);
+        if read_back {
+            for c in &batch.chunks {
+                c.read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
+            }
+        }
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Dispatch(e.to_string()))?;
@@ -509,9 +506,6 @@ impl Gpu {
 
     /// Copies the results back: `out[s * outputs + k]`, value k of state s, in f64.
     pub fn read(&self, batch: &Batch) -> Result<Vec<f64>, GpuError> {
-        let k = batch.kernel;
-        let outputs = k.entry.outputs;
-        let mut result = vec![0.0; batch.n * outputs];
         let mut encoder = self.device.create_command_encoder(&Default::default());
         for c in &batch.chunks {
             encoder.copy_buffer_to_buffer(&c.out, 0, &c.read, 0, c.read.size());
@@ -523,7 +517,14 @@ impl Gpu {
         self.device
             .poll(wgpu::PollType::wait_indefinitely())
             .map_err(|e| GpuError::Dispatch(e.to_string()))?;
-        let mut start = 0;
+        Self::mapped_results(batch)
+    }
+
+    /// The outputs in the batch's mapped read buffers, state-major, unmapping them.
+    fn mapped_results(batch: &Batch) -> Result<Vec<f64>, GpuError> {
+        let k = batch.kernel;
+        let outputs = k.entry.outputs;
+        let mut result = vec![0.0; batch.n * outputs];
         for c in &batch.chunks {
             {
                 let view = c
@@ -543,17 +544,18 @@ impl Gpu {
                 };
                 for i in 0..c.states {
                     for o in 0..outputs {
-                        result[(start + i) * outputs + o] = values[o * c.states + i];
+                        result[(c.start + i) * outputs + o] = values[o * c.states + i];
                     }
                 }
             }
             c.read.unmap();
-            start += c.states;
         }
         Ok(result)
     }
 
-    /// Upload, dispatch and read back in one call.
+    /// Upload, dispatch and read back in one call, allocating the batch's buffers: for a
+    /// one-off batch. A loop that runs the same kernel on new states of the same count
+    /// should upload once and call [`Gpu::run_on`].
     pub fn run(
         &self,
         kernel: &Kernel,
@@ -562,9 +564,74 @@ impl Gpu {
         u: &[f64],
     ) -> Result<Vec<f64>, GpuError> {
         let batch = self.upload(kernel, q, qd, u)?;
-        self.dispatch(&batch)?;
-        self.read(&batch)
+        self.dispatch_with(&batch, None, true)?;
+        Self::mapped_results(&batch)
     }
+
+    /// Writes new states (the batch's count, state-major as for [`Gpu::upload`]) into an
+    /// uploaded batch's buffers, runs it and reads the results back: one submission, no
+    /// allocation, the same bind groups. This is the call an MPC loop makes at each
+    /// iteration; its cost over [`Gpu::dispatch`] is the copies alone.
+    pub fn run_on(
+        &self,
+        batch: &Batch,
+        q: &[f64],
+        qd: &[f64],
+        u: &[f64],
+    ) -> Result<Vec<f64>, GpuError> {
+        let k = batch.kernel;
+        check_lengths(k, batch.n, q, qd, u)?;
+        let fields = [("q", q, k.nq), ("qd", qd, k.nv), ("u", u, k.nu)];
+        for c in &batch.chunks {
+            for (buffer, (field, x, per)) in c.inputs.iter().zip(fields) {
+                // An input the kernel does not read may be left empty.
+                if x.is_empty() {
+                    continue;
+                }
+                let words = to_bytes(joint_major(x, per, c.start, c.states), k.precision);
+                if words.len() as u64 > buffer.size() {
+                    return Err(GpuError::NotUploaded(field));
+                }
+                self.queue.write_buffer(buffer, 0, &words);
+            }
+        }
+        self.dispatch_with(batch, None, true)?;
+        Self::mapped_results(batch)
+    }
+}
+
+/// States `start..start + m` of the state-major `x` (`per` entries each), joint-major as
+/// the kernels read them: `x[j * m + i]`.
+fn joint_major(x: &[f64], per: usize, start: usize, m: usize) -> Vec<f64> {
+    (0..per).flat_map(|j| (0..m).map(move |i| x[(start + i) * per + j])).collect()
+}
+
+/// Checks that `q`, `qd` and `u` hold `n` states for `kernel`: q has nq entries per state,
+/// `qd` nv and `u` the kernel's nu (q̈ for rnea, rnea_grad and frame_acceleration, τ for
+/// fd and fd_grad, followed in each state by `fext` and λ when the shader's robot declares
+/// forces); a kernel that does not read `qd` or `u` accepts it empty.
+fn check_lengths(
+    kernel: &Kernel,
+    n: usize,
+    q: &[f64],
+    qd: &[f64],
+    u: &[f64],
+) -> Result<(), GpuError> {
+    // What the kernel reads, by its kind's inputs (an unknown name reads everything).
+    use grid_gen::ir::{Input, KernelKind};
+    let kind = KernelKind::parse(&kernel.entry.kernel);
+    let takes = |i: Input| kind.is_none_or(|k| k.inputs().contains(&i));
+    let (uses_qd, uses_u) =
+        (takes(Input::Qd), takes(Input::Qdd) || takes(Input::Tau) || takes(Input::TauActuated));
+    let check = |field: &'static str, x: &[f64], needed: bool, per: usize| {
+        if (needed || !x.is_empty()) && x.len() != n * per {
+            return Err(GpuError::Length { field, found: x.len(), n, per, expected: n * per });
+        }
+        Ok(())
+    };
+    check("q", q, true, kernel.nq)?;
+    check("qd", qd, uses_qd, kernel.nv)?;
+    check("u", u, uses_u, kernel.nu)
 }
 
 /// Values as the device's words in `precision`.

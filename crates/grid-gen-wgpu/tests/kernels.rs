@@ -731,6 +731,27 @@ fn batch_sizes_nan_and_dispatch_splitting() {
         "70,000 states in {} dispatches: worst relative error {worst:.2e}",
         batch.dispatches()
     );
+    // New states written into the same batch (`run_on`: no allocation, one submission)
+    // give what a fresh upload of them gives, on both sides of the split, bit for bit.
+    let q2 = rng.vec(n * nv, -3.0, 3.0);
+    let again = gpu.run_on(&batch, &q2, &[], &[]).unwrap();
+    let fresh = gpu.run(&kernel, &q2, &[], &[]).unwrap();
+    assert_eq!(again.len(), fresh.len());
+    assert!(again.iter().zip(&fresh).all(|(a, b)| a.to_bits() == b.to_bits()));
+    assert_ne!(again, got, "the batch still holds the first states");
+    for s in [0, 65_535, n - 1] {
+        let qs: Vec<f64> = q2[s * nv..(s + 1) * nv].iter().map(|&x| x as f32 as f64).collect();
+        let e = rel_err(
+            &output_matrix(grid_gen::ir::Shape::Matrix, nv, &again[s * nv * nv..(s + 1) * nv * nv]),
+            &reference::crba(&model, &qs),
+        );
+        assert!(e <= DIRECT, "run_on, state {s}: {e:.2e}");
+    }
+    // Another count of states, or an input the batch was uploaded without: errors.
+    let e = gpu.run_on(&batch, &q2[nv..], &[], &[]).unwrap_err();
+    assert!(matches!(e, GpuError::Length { field: "q", .. }), "{e}");
+    let e = gpu.run_on(&batch, &q2, &q2, &[]).unwrap_err();
+    assert!(matches!(e, GpuError::NotUploaded("qd")), "{e}");
 }
 
 /// The frame kernels (placement, Jacobian, velocity, classical acceleration) in every
