@@ -39,6 +39,8 @@ pub enum GpuError {
     Length { field: &'static str, found: usize, n: usize, per: usize, expected: usize },
     #[error("`{0}` was empty when the batch was uploaded, so the batch has no room for it; upload the batch with it")]
     NotUploaded(&'static str),
+    #[error("a thread panicked while it held this batch; upload it again")]
+    Poisoned,
     #[error("the dispatch failed: {0}")]
     Dispatch(String),
 }
@@ -55,6 +57,9 @@ pub struct Gpu {
     f64: bool,
     /// The adapter has TIMESTAMP_QUERY: [`Gpu::dispatch_timed`] reads the device's clock.
     timestamps: bool,
+    /// How long to poll for finished work before blocking on the driver's fence
+    /// (`GRID_GEN_WGPU_SPIN_US`, default [`SPIN`]).
+    spin: Duration,
 }
 
 /// A loaded shader: the module, what its header says, and its cooperative tables on
@@ -88,8 +93,11 @@ struct Chunk {
     /// The batch's first state in this chunk, and how many it holds.
     start: usize,
     states: usize,
-    /// `q`, `qd`, `u`, joint-major; [`Gpu::run_on`] writes new states into them.
+    /// `q`, `qd`, `u`, joint-major; [`Gpu::run_on`] copies new states into them.
     inputs: [wgpu::Buffer; 3],
+    /// Host-writable copy source for `inputs`, back to back, kept mapped between calls of
+    /// [`Gpu::run_on`] so that new states go straight into it with no allocation.
+    stage: wgpu::Buffer,
     out: wgpu::Buffer,
     read: wgpu::Buffer,
     group: wgpu::BindGroup,
@@ -101,6 +109,11 @@ pub struct Batch<'k> {
     kernel: &'k Kernel,
     n: usize,
     chunks: Vec<Chunk>,
+    /// Host memory the size of the largest chunk's staging or read buffer. Mapped memory
+    /// can be uncached: one bulk copy through here, then the transpose in cached memory,
+    /// is several times faster than reading or writing words there (measured on an H200
+    /// through Vulkan, 2026-11-25).
+    host: std::sync::Mutex<Vec<u8>>,
 }
 
 fn layout_entry(binding: u32, ty: wgpu::BufferBindingType) -> wgpu::BindGroupLayoutEntry {
@@ -199,7 +212,21 @@ impl Gpu {
             bind_group_layouts: &[Some(&layout)],
             immediate_size: 0,
         });
-        Ok(Gpu { device, queue, layout, pipeline_layout, adapter: info, limits, f64, timestamps })
+        let spin = std::env::var("GRID_GEN_WGPU_SPIN_US")
+            .ok()
+            .and_then(|v| v.trim().parse().ok())
+            .map_or(SPIN, Duration::from_micros);
+        Ok(Gpu {
+            device,
+            queue,
+            layout,
+            pipeline_layout,
+            adapter: info,
+            limits,
+            f64,
+            timestamps,
+            spin,
+        })
     }
 
     /// The adapter's name, backend and driver.
@@ -323,7 +350,9 @@ impl Gpu {
             chunks.push(self.chunk(kernel, start, m, [q, qd, u])?);
             start += m;
         }
-        Ok(Batch { kernel, n, chunks })
+        let largest = chunks.iter().map(|c| c.read.size().max(c.stage.size())).max().unwrap_or(0);
+        let host = std::sync::Mutex::new(vec![0; largest as usize]);
+        Ok(Batch { kernel, n, chunks, host })
     }
 
     fn chunk(
@@ -361,6 +390,12 @@ impl Gpu {
             bytes(vec![f64::NAN; (k.entry.outputs * m).max(1)]),
             wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
         );
+        let stage = d.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: inputs.iter().map(|b| b.size()).sum(),
+            usage: wgpu::BufferUsages::MAP_WRITE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: true,
+        });
         let scratch = d.create_buffer(&wgpu::BufferDescriptor {
             label: None,
             size: (k.entry.scratch * m).max(1) as u64 * word,
@@ -398,12 +433,12 @@ impl Gpu {
             )));
         }
         let groups = m.div_ceil(k.entry.states_per_workgroup as usize) as u32;
-        Ok(Chunk { start, states: m, inputs, out, read, group, groups })
+        Ok(Chunk { start, states: m, inputs, stage, out, read, group, groups })
     }
 
     /// Runs the uploaded batch and waits for it to finish.
     pub fn dispatch(&self, batch: &Batch) -> Result<(), GpuError> {
-        self.dispatch_with(batch, None, false)
+        self.dispatch_with(batch, None, Io::None)
     }
 
     /// [`Gpu::dispatch`], and the time the device spent in the compute pass by its own
@@ -430,11 +465,10 @@ impl Gpu {
         };
         let resolve = buffer(wgpu::BufferUsages::QUERY_RESOLVE | wgpu::BufferUsages::COPY_SRC);
         let read = buffer(wgpu::BufferUsages::MAP_READ | wgpu::BufferUsages::COPY_DST);
-        self.dispatch_with(batch, Some((&set, &resolve, &read)), false)?;
-        read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Dispatch(e.to_string()))?;
+        self.dispatch_with(batch, Some((&set, &resolve, &read)), Io::None)?;
+        let maps = Maps::default();
+        maps.map(&read, wgpu::MapMode::Read);
+        self.wait(&maps)?;
         let ticks = {
             let view =
                 read.slice(..).get_mapped_range().map_err(|e| GpuError::Dispatch(e.to_string()))?;
@@ -449,19 +483,30 @@ impl Gpu {
     }
 
     /// Encodes every stage over every chunk in one compute pass, with timestamps at its
-    /// ends resolved into the given buffers when asked, and, with `read_back`, the copies of
-    /// the outputs into the mappable buffers; submits once and waits.
+    /// ends resolved into the given buffers when asked; with `io`, first the copies of new
+    /// inputs from the staging buffers and last those of the outputs into the mappable
+    /// buffers, which are mapped again (the staging buffers for writing) once the work is
+    /// done. Submits once and waits.
     fn dispatch_with(
         &self,
         batch: &Batch,
         timestamps: Option<(&wgpu::QuerySet, &wgpu::Buffer, &wgpu::Buffer)>,
-        read_back: bool,
+        io: Io,
     ) -> Result<(), GpuError> {
         if batch.chunks.is_empty() {
             return Ok(());
         }
         let scope = self.device.push_error_scope(wgpu::ErrorFilter::Validation);
         let mut encoder = self.device.create_command_encoder(&Default::default());
+        if io == Io::StagedInputs {
+            for c in &batch.chunks {
+                let mut offset = 0;
+                for input in &c.inputs {
+                    encoder.copy_buffer_to_buffer(&c.stage, offset, input, 0, input.size());
+                    offset += input.size();
+                }
+            }
+        }
         {
             let timestamp_writes = timestamps.map(|(set, _, _)| wgpu::ComputePassTimestampWrites {
                 query_set: set,
@@ -484,24 +529,49 @@ impl Gpu {
             encoder.resolve_query_set(set, 0..2, resolve, 0);
             encoder.copy_buffer_to_buffer(resolve, 0, read, 0, 16);
         }
-        if read_back {
+        if io != Io::None {
             for c in &batch.chunks {
                 encoder.copy_buffer_to_buffer(&c.out, 0, &c.read, 0, c.read.size());
             }
         }
         self.queue.submit([encoder.finish()]);
-        if read_back {
+        let maps = Maps::default();
+        if io != Io::None {
             for c in &batch.chunks {
-                c.read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
+                maps.map(&c.read, wgpu::MapMode::Read);
+                if io == Io::StagedInputs {
+                    maps.map(&c.stage, wgpu::MapMode::Write);
+                }
             }
         }
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Dispatch(e.to_string()))?;
+        self.wait(&maps)?;
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Dispatch(e.to_string()));
         }
         Ok(())
+    }
+
+    /// Waits until the queue is empty and every mapping in `maps` is done: polling in a
+    /// loop (one core busy) for up to `self.spin`, then blocking. A blocking wait sleeps on
+    /// the driver's fence, and waking costs tens of microseconds, more than a small
+    /// batch's work.
+    fn wait(&self, maps: &Maps) -> Result<(), GpuError> {
+        let start = Instant::now();
+        let poll = |kind| self.device.poll(kind).map_err(|e| GpuError::Dispatch(e.to_string()));
+        loop {
+            let empty = poll(wgpu::PollType::Poll)?.is_queue_empty();
+            if empty && maps.done() {
+                return maps.result();
+            }
+            if start.elapsed() >= self.spin {
+                poll(wgpu::PollType::wait_indefinitely())?;
+                if !maps.done() {
+                    return Err(GpuError::Dispatch("a buffer mapping never completed".into()));
+                }
+                return maps.result();
+            }
+            std::hint::spin_loop();
+        }
     }
 
     /// Copies the results back: `out[s * outputs + k]`, value k of state s, in f64.
@@ -511,46 +581,52 @@ impl Gpu {
             encoder.copy_buffer_to_buffer(&c.out, 0, &c.read, 0, c.read.size());
         }
         self.queue.submit([encoder.finish()]);
+        let maps = Maps::default();
         for c in &batch.chunks {
-            c.read.slice(..).map_async(wgpu::MapMode::Read, |_| ());
+            maps.map(&c.read, wgpu::MapMode::Read);
         }
-        self.device
-            .poll(wgpu::PollType::wait_indefinitely())
-            .map_err(|e| GpuError::Dispatch(e.to_string()))?;
-        Self::mapped_results(batch)
+        self.wait(&maps)?;
+        let mut out = vec![0.0; batch.n * batch.kernel.entry.outputs];
+        Self::mapped_results(batch, &mut out)?;
+        Ok(out)
     }
 
-    /// The outputs in the batch's mapped read buffers, state-major, unmapping them.
-    fn mapped_results(batch: &Batch) -> Result<Vec<f64>, GpuError> {
+    /// The outputs in the batch's mapped read buffers into `out`, state-major (a transpose
+    /// in blocks of states, so that neither side strides through memory), unmapping them.
+    fn mapped_results(batch: &Batch, out: &mut [f64]) -> Result<(), GpuError> {
         let k = batch.kernel;
         let outputs = k.entry.outputs;
-        let mut result = vec![0.0; batch.n * outputs];
+        let word = k.precision.bytes();
+        let mut host = batch.host.lock().map_err(|_| GpuError::Poisoned)?;
         for c in &batch.chunks {
+            let bytes = c.read.size() as usize;
             {
                 let view = c
                     .read
                     .slice(..)
                     .get_mapped_range()
                     .map_err(|e| GpuError::Dispatch(e.to_string()))?;
-                let values: Vec<f64> = match k.precision {
-                    Precision::F32 => view
-                        .chunks_exact(4)
-                        .map(|b| f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64)
-                        .collect(),
-                    Precision::F64 => view
-                        .chunks_exact(8)
-                        .map(|b| f64::from_le_bytes(b.try_into().unwrap_or([0; 8])))
-                        .collect(),
-                };
-                for i in 0..c.states {
-                    for o in 0..outputs {
-                        result[(c.start + i) * outputs + o] = values[o * c.states + i];
+                host[..bytes].copy_from_slice(&view);
+            }
+            c.read.unmap();
+            let view = &host[..bytes];
+            let value = |at: usize| -> f64 {
+                let b = &view[at * word..(at + 1) * word];
+                match k.precision {
+                    Precision::F32 => f32::from_le_bytes([b[0], b[1], b[2], b[3]]) as f64,
+                    Precision::F64 => f64::from_le_bytes(b.try_into().unwrap_or([0; 8])),
+                }
+            };
+            for block in (0..c.states).step_by(BLOCK) {
+                let end = (block + BLOCK).min(c.states);
+                for o in 0..outputs {
+                    for i in block..end {
+                        out[(c.start + i) * outputs + o] = value(o * c.states + i);
                     }
                 }
             }
-            c.read.unmap();
         }
-        Ok(result)
+        Ok(())
     }
 
     /// Upload, dispatch and read back in one call, allocating the batch's buffers: for a
@@ -564,39 +640,140 @@ impl Gpu {
         u: &[f64],
     ) -> Result<Vec<f64>, GpuError> {
         let batch = self.upload(kernel, q, qd, u)?;
-        self.dispatch_with(&batch, None, true)?;
-        Self::mapped_results(&batch)
+        self.dispatch_with(&batch, None, Io::ReadBack)?;
+        let mut out = vec![0.0; batch.n * kernel.entry.outputs];
+        Self::mapped_results(&batch, &mut out)?;
+        Ok(out)
     }
 
-    /// Writes new states (the batch's count, state-major as for [`Gpu::upload`]) into an
-    /// uploaded batch's buffers, runs it and reads the results back: one submission, no
-    /// allocation, the same bind groups. This is the call an MPC loop makes at each
-    /// iteration; its cost over [`Gpu::dispatch`] is the copies alone.
+    /// Runs an uploaded batch on new states (the batch's count, state-major as for
+    /// [`Gpu::upload`]) and writes the results into `out` (`out[s * outputs + k]`, value k
+    /// of state s): the states go into the batch's mapped staging buffer, then one
+    /// submission copies them in, dispatches and copies the outputs out, with the same
+    /// buffers and bind groups and no allocation. This is the call an MPC loop makes at
+    /// each iteration.
     pub fn run_on(
         &self,
         batch: &Batch,
         q: &[f64],
         qd: &[f64],
         u: &[f64],
-    ) -> Result<Vec<f64>, GpuError> {
+        out: &mut [f64],
+    ) -> Result<(), GpuError> {
         let k = batch.kernel;
         check_lengths(k, batch.n, q, qd, u)?;
+        let outputs = k.entry.outputs;
+        if out.len() != batch.n * outputs {
+            return Err(GpuError::Length {
+                field: "out",
+                found: out.len(),
+                n: batch.n,
+                per: outputs,
+                expected: batch.n * outputs,
+            });
+        }
         let fields = [("q", q, k.nq), ("qd", qd, k.nv), ("u", u, k.nu)];
         for c in &batch.chunks {
-            for (buffer, (field, x, per)) in c.inputs.iter().zip(fields) {
+            let range = || c.stage.slice(..).get_mapped_range_mut();
+            let mut view = match range() {
+                Ok(view) => view,
+                // A failed call left it unmapped: map it again before writing.
+                Err(_) => {
+                    let maps = Maps::default();
+                    maps.map(&c.stage, wgpu::MapMode::Write);
+                    self.wait(&maps)?;
+                    range().map_err(|e| GpuError::Dispatch(e.to_string()))?
+                }
+            };
+            let mut offset = 0;
+            for (input, (field, x, per)) in c.inputs.iter().zip(fields) {
+                let size = input.size() as usize;
                 // An input the kernel does not read may be left empty.
-                if x.is_empty() {
-                    continue;
+                if !x.is_empty() {
+                    if per * c.states * k.precision.bytes() > size {
+                        drop(view);
+                        c.stage.unmap();
+                        return Err(GpuError::NotUploaded(field));
+                    }
+                    let bytes = per * c.states * k.precision.bytes();
+                    let mut host = batch.host.lock().map_err(|_| GpuError::Poisoned)?;
+                    let word = k.precision.bytes();
+                    for block in (0..c.states).step_by(BLOCK) {
+                        let end = (block + BLOCK).min(c.states);
+                        for j in 0..per {
+                            for i in block..end {
+                                let v = x[(c.start + i) * per + j];
+                                let at = (j * c.states + i) * word;
+                                match k.precision {
+                                    Precision::F32 => host[at..at + 4]
+                                        .copy_from_slice(&(v as f32).to_le_bytes()),
+                                    Precision::F64 => {
+                                        host[at..at + 8].copy_from_slice(&v.to_le_bytes())
+                                    }
+                                }
+                            }
+                        }
+                    }
+                    view.slice(offset..offset + bytes).copy_from_slice(&host[..bytes]);
                 }
-                let words = to_bytes(joint_major(x, per, c.start, c.states), k.precision);
-                if words.len() as u64 > buffer.size() {
-                    return Err(GpuError::NotUploaded(field));
-                }
-                self.queue.write_buffer(buffer, 0, &words);
+                offset += size;
             }
+            drop(view);
+            c.stage.unmap();
         }
-        self.dispatch_with(batch, None, true)?;
-        Self::mapped_results(batch)
+        self.dispatch_with(batch, None, Io::StagedInputs)?;
+        Self::mapped_results(batch, out)
+    }
+}
+
+/// States per block of the transposes between state-major host arrays and the device's
+/// joint-major buffers: 64 states of a few dozen values stay in the L1 cache.
+const BLOCK: usize = 64;
+
+/// How long [`Gpu`] polls for finished work before it blocks on the driver's fence, unless
+/// `GRID_GEN_WGPU_SPIN_US` says otherwise (0: block at once).
+pub const SPIN: Duration = Duration::from_millis(2);
+
+/// What a submission moves besides the dispatches.
+#[derive(Clone, Copy, PartialEq, Eq)]
+enum Io {
+    None,
+    /// Copies the outputs into the mappable buffers and maps them.
+    ReadBack,
+    /// Also copies the inputs in from the staging buffers first and maps those again.
+    StagedInputs,
+}
+
+/// Buffer mappings requested after a submission: how many there are, how many finished,
+/// and the first error.
+#[derive(Default)]
+struct Maps {
+    asked: std::cell::Cell<usize>,
+    done: Arc<std::sync::atomic::AtomicUsize>,
+    failed: Arc<std::sync::Mutex<Option<String>>>,
+}
+
+impl Maps {
+    fn map(&self, buffer: &wgpu::Buffer, mode: wgpu::MapMode) {
+        self.asked.set(self.asked.get() + 1);
+        let (done, failed) = (self.done.clone(), self.failed.clone());
+        buffer.slice(..).map_async(mode, move |r| {
+            if let (Err(e), Ok(mut f)) = (r, failed.lock()) {
+                f.get_or_insert(e.to_string());
+            }
+            done.fetch_add(1, std::sync::atomic::Ordering::AcqRel);
+        });
+    }
+
+    fn done(&self) -> bool {
+        self.done.load(std::sync::atomic::Ordering::Acquire) >= self.asked.get()
+    }
+
+    fn result(&self) -> Result<(), GpuError> {
+        match self.failed.lock().ok().and_then(|f| f.clone()) {
+            Some(e) => Err(GpuError::Dispatch(format!("cannot map a buffer: {e}"))),
+            None => Ok(()),
+        }
     }
 }
 

@@ -734,7 +734,8 @@ fn batch_sizes_nan_and_dispatch_splitting() {
     // New states written into the same batch (`run_on`: no allocation, one submission)
     // give what a fresh upload of them gives, on both sides of the split, bit for bit.
     let q2 = rng.vec(n * nv, -3.0, 3.0);
-    let again = gpu.run_on(&batch, &q2, &[], &[]).unwrap();
+    let mut again = vec![f64::NAN; got.len()];
+    gpu.run_on(&batch, &q2, &[], &[], &mut again).unwrap();
     let fresh = gpu.run(&kernel, &q2, &[], &[]).unwrap();
     assert_eq!(again.len(), fresh.len());
     assert!(again.iter().zip(&fresh).all(|(a, b)| a.to_bits() == b.to_bits()));
@@ -748,10 +749,15 @@ fn batch_sizes_nan_and_dispatch_splitting() {
         assert!(e <= DIRECT, "run_on, state {s}: {e:.2e}");
     }
     // Another count of states, or an input the batch was uploaded without: errors.
-    let e = gpu.run_on(&batch, &q2[nv..], &[], &[]).unwrap_err();
+    let e = gpu.run_on(&batch, &q2[nv..], &[], &[], &mut again).unwrap_err();
     assert!(matches!(e, GpuError::Length { field: "q", .. }), "{e}");
-    let e = gpu.run_on(&batch, &q2, &q2, &[]).unwrap_err();
+    let e = gpu.run_on(&batch, &q2, &[], &[], &mut again[1..]).unwrap_err();
+    assert!(matches!(e, GpuError::Length { field: "out", .. }), "{e}");
+    let e = gpu.run_on(&batch, &q2, &q2, &[], &mut again).unwrap_err();
     assert!(matches!(e, GpuError::NotUploaded("qd")), "{e}");
+    // The failed call left the staging buffer unmapped; the next one maps it again.
+    gpu.run_on(&batch, &q, &[], &[], &mut again).unwrap();
+    assert!(again.iter().zip(&got).all(|(a, b)| a.to_bits() == b.to_bits()));
 }
 
 /// The frame kernels (placement, Jacobian, velocity, classical acceleration) in every
