@@ -2,10 +2,12 @@
 # Reproduces every speed figure in the book, side by side in one run on this machine:
 #   1. Pinocchio's computeRNEADerivatives / computeABADerivatives (and rnea, aba), built
 #      from the headers of the `pin` wheel with g++ -O3 (bench/pinocchio_bench.cpp);
-#   2. the criterion benchmarks of the generated kernels and the reference
+#   2. Pinocchio's code-generation path: CppADCodeGen records its derivatives and prints C that
+#      gcc compiles (bench/pinocchio_cg_bench.cpp; its own build takes several minutes);
+#   3. the criterion benchmarks of the generated kernels and the reference
 #      (crates/grid-gen-kernels/benches/kernels.rs);
-#   3. a table of times and ratios (scripts/bench_report.py), written to target/bench-report.md.
-# Needs: pip install pin==4.1.0; apt-get install libeigen3-dev g++.
+#   4. a table of times and ratios (scripts/bench_report.py), written to target/bench-report.md.
+# Needs: pip install pin==4.1.0 cmeel-cppad cmeel-cppadcodegen; apt-get install libeigen3-dev g++.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PREFIX=$(python3 -c "import pinocchio, pathlib; p = pathlib.Path(pinocchio.__file__).resolve(); print(next(x for x in p.parents if (x / 'cmeel.prefix').exists()) / 'cmeel.prefix')")
@@ -41,5 +43,16 @@ done
 for variant in default native; do
     target/bench/pinocchio_bench_$variant $MODELS | sed "s/^{/{\"variant\": \"$variant\", /"
 done | tee target/bench/pinocchio.jsonl
+# Pinocchio's code-generation path: the derivatives recorded by CppADCodeGen and compiled by gcc,
+# and (jac@) the AD Jacobian of rnea and aba, on every robot; the report takes the faster route.
+test -d "$PREFIX/include/cppad/cg" || { echo "error: CppADCodeGen headers missing: pip install cmeel-cppad cmeel-cppadcodegen" >&2; exit 1; }
+mkdir -p target/bench/cg
+g++ -O3 -march=native -DNDEBUG -std=c++17 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS -DBOOST_MPL_LIMIT_LIST_SIZE=30 \
+    -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 -DBOOST_FUSION_INVOKE_MAX_ARITY=12 \
+    -I"$PREFIX/include" -I/usr/include/eigen3 bench/pinocchio_cg_bench.cpp -o target/bench/cg/pinocchio_cg_bench \
+    -L"$PREFIX/lib" -lpinocchio_default -lboost_filesystem -lboost_serialization -lcppad_lib -ldl -Wl,-rpath,"$PREFIX/lib"
+# The generated libraries land in the working directory.
+(cd target/bench/cg && ./pinocchio_cg_bench jac@../grid_iiwa.pinmodel jac@../grid_hyq.pinmodel ../grid_atlas.pinmodel \
+    ../grid_hyq_floating.pinmodel) | sed "s/^{/{\"variant\": \"codegen\", /; s#\.\./grid#target/bench/grid#" | tee -a target/bench/pinocchio.jsonl
 cargo bench -p grid-gen-kernels --bench kernels
 python3 scripts/bench_report.py target/bench/pinocchio.jsonl target/criterion | tee target/bench-report.md

@@ -24,22 +24,29 @@ def main() -> int:
     if not run:
         print("README.md, Speed: no link to the dated run its table comes from")
         return 1
+    # Report rows: robot, kernel, generated, reference, Pinocchio, [CppADCodeGen,] vs reference,
+    # vs Pinocchio[, vs CppADCodeGen] (runs before 2026-11-25 have no CppADCodeGen columns).
     report = {}
     for line in open(os.path.join(ROOT, run.group(1)), encoding="utf-8"):
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
         if len(cells) == 7:
             report[(cells[0], cells[1])] = (cells[2], cells[6])
+        elif len(cells) == 9:
+            report[(cells[0], cells[1])] = (cells[2], cells[7], cells[8])
     wrong, rows = [], 0
     for line in section.splitlines():
         cells = [c.strip() for c in line.strip().strip("|").split("|")]
-        if len(cells) != 5 or cells[0] not in ROBOTS:
+        if len(cells) not in (5, 7) or cells[0] not in ROBOTS:
             continue
         rows += 1
         robot = ROBOTS[cells[0]]
-        for kernel, time, ratio in (("fd_grad", cells[1], cells[2]), ("rnea_grad", cells[3], cells[4])):
+        # README rows: robot, then per kernel its time and ratios (vs Pinocchio[, vs CppADCodeGen]).
+        per = (len(cells) - 1) // 2
+        for n, kernel in enumerate(("fd_grad", "rnea_grad")):
+            got = tuple(cells[1 + n * per : 1 + (n + 1) * per])
             want = report.get((robot, kernel))
-            if want != (time, ratio):
-                wrong.append(f"README.md Speed, {cells[0]} {kernel}: {time} {ratio}; {run.group(1)} says {want}")
+            if want != got:
+                wrong.append(f"README.md Speed, {cells[0]} {kernel}: {' '.join(got)}; {run.group(1)} says {want}")
     if rows != len(ROBOTS):
         wrong.append(f"README.md Speed: {rows} rows found, expected {len(ROBOTS)}")
     for w in wrong:
