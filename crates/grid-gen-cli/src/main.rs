@@ -123,7 +123,7 @@ struct VerilogArgs {
     max_error: f64,
     /// How multipliers drop fraction bits: truncate (robomorphic's choice) or half-up.
     #[arg(long, value_name = "MODE", default_value = "half-up")]
-    rounding: grid_gen::ir::fixed::Rounding,
+    rounding: grid_gen::datapath::Rounding,
     /// Datapath architecture: pipelined (one state per clock) or shared (M multipliers,
     /// A adders, list-scheduled).
     #[arg(long, value_name = "ARCH", default_value = "pipelined")]
@@ -162,7 +162,7 @@ impl VerilogArgs {
         let format = if self.fixed == "auto" {
             FormatChoice::Auto { max_error: self.max_error }
         } else {
-            match grid_gen::ir::fixed::Format::parse(&self.fixed, self.rounding) {
+            match grid_gen::datapath::Format::parse(&self.fixed, self.rounding) {
                 Some(Ok(f)) => FormatChoice::Fixed { width: f.width, frac: f.frac },
                 Some(Err(e)) => return Err(format!("--fixed: {e}")),
                 None => {

@@ -8,7 +8,7 @@
 //! verilog_trade`.
 
 use grid_gen::back::verilog::SharedSchedule;
-use grid_gen::ir::fixed::{
+use grid_gen::datapath::{
     format_for_width, port_values, quantize_ports, Bounds, Datapath, Format, Rounding,
 };
 use grid_gen::ir::{self, KernelKind, LowerOptions};
@@ -141,7 +141,7 @@ fn main() {
         let (worst, over) = measure(&q16);
         println!(
             "  robomorphic Q16.16 truncate: measured max error {worst:.2e}, {over}/200 states overflow (analysed range needs {:.2e}, Q16.16 holds {:.2e})",
-            ir::fixed::analyse(&dp, &bounds, 16, Rounding::Truncate).needed,
+            grid_gen::datapath::analyse(&dp, &bounds, 16, Rounding::Truncate).needed,
             q16.max_value()
         );
     }

@@ -756,7 +756,8 @@ pub fn evaluate_verilog(
     options: &crate::back::verilog::VerilogOptions,
 ) -> Result<VerilogEvalOutput, VerilogEvalError> {
     use crate::back::verilog::{plan, sim, DEFAULT_KERNELS};
-    use crate::ir::{self, fixed::quantize_ports, KernelKind, LowerOptions};
+    use crate::datapath::quantize_ports;
+    use crate::ir::{self, KernelKind, LowerOptions};
     check_states(model, file)?;
     let nv = model.nv();
     let module = ir::lower(

@@ -48,7 +48,7 @@ pub enum TimingError {
 }
 
 /// A mixed-precision kernel to time beside the generic ones: the function and which of
-/// its nodes run in f64 ([`crate::ir::precision::Plan::wide`]), under `label`.
+/// its nodes run in f64 ([`crate::numerics::precision::Plan::wide`]), under `label`.
 pub struct MixedKernel<'a> {
     pub label: String,
     pub function: &'a crate::ir::Function,

@@ -4,7 +4,7 @@
 //! inside the bounds, and the plot escaping what it prints.
 
 use grid_gen::accuracy::{self, NumberFormat, Options};
-use grid_gen::ir::fixed::{Bounds, Format, Rounding};
+use grid_gen::datapath::{Bounds, Format, Rounding};
 use grid_gen::ir::{Gradient, KernelKind, Robot};
 use grid_gen::{reference, Model};
 use grid_gen_test_support::*;

@@ -106,7 +106,7 @@ fn forward_dynamics_within_the_conditioning_bound_at_the_extremes() {
         );
         let args = kernel_args(exact.inputs(), &c.q, &c.qd, &c.tau);
         let truth: Vec<Vec<f64>> = exact
-            .eval_dd(&args)
+            .eval_as::<grid_gen::numerics::Dd>(&args)
             .into_iter()
             .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
             .collect();

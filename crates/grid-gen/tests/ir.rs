@@ -232,7 +232,7 @@ fn f64_against_the_double_double_reference() {
             let f = exact.function(KernelKind::FdGrad).unwrap();
             let args = kernel_args(f.inputs(), &q, &qd, &tau);
             let truth: Vec<Vec<f64>> = f
-                .eval_dd(&args)
+                .eval_as::<grid_gen::numerics::Dd>(&args)
                 .into_iter()
                 .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
                 .collect();
@@ -262,7 +262,7 @@ fn f64_against_the_double_double_reference() {
             let (q, qd, tau) = (rng.vec(n, -qs, qs), rng.vec(n, -vs, vs), rng.vec(n, -3.0, 3.0));
             let f = exact.function(KernelKind::FdGrad).unwrap();
             let args = kernel_args(f.inputs(), &q, &qd, &tau);
-            let truth = f.eval_dd(&args);
+            let truth = f.eval_as::<grid_gen::numerics::Dd>(&args);
             let got = fast.function(KernelKind::FdGrad).unwrap().eval(&args);
             for (k, o) in f.outputs.iter().enumerate() {
                 let want = output_matrix(
@@ -324,7 +324,7 @@ fn forward_dynamics_as_accurate_as_pinocchio_on_a_100_link_chain() {
         let (q, qd, tau) = (vec_of(&st["q"]), vec_of(&st["qd"]), vec_of(&st["tau"]));
         let args = kernel_args(exact.inputs(), &q, &qd, &tau);
         let truth: Vec<Vec<f64>> = exact
-            .eval_dd(&args)
+            .eval_as::<grid_gen::numerics::Dd>(&args)
             .into_iter()
             .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
             .collect();

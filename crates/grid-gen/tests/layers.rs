@@ -5,11 +5,12 @@
 use std::path::{Path, PathBuf};
 
 /// The library's top-level modules.
-const MODULES: [&str; 17] = [
+const MODULES: [&str; 19] = [
     "accuracy",
     "back",
     "builder",
     "config",
+    "datapath",
     "diagnostic",
     "eval",
     "generate",
@@ -17,6 +18,7 @@ const MODULES: [&str; 17] = [
     "ir",
     "load",
     "model",
+    "numerics",
     "reference",
     "scene",
     "spatial",
@@ -26,19 +28,22 @@ const MODULES: [&str; 17] = [
 ];
 
 /// (module, what it may name besides itself): the URDF front end and the model know nothing
-/// of the IR, the reference knows only the model, the IR knows only the model, and the
-/// backends read only the IR.
-const LAYERS: [(&str, &[&str]); 6] = [
+/// of the IR, the reference knows only the model, the IR knows only the model, the numerics
+/// and the datapath model read the IR from beside it, and the backends read only the IR and
+/// those analyses of it.
+const LAYERS: [(&str, &[&str]); 8] = [
     ("diagnostic", &[]),
     ("spatial", &[]),
     ("urdf", &["diagnostic"]),
     ("model", &["diagnostic", "spatial", "urdf"]),
     ("reference", &["model", "spatial"]),
     ("ir", &["model"]),
+    ("numerics", &["ir"]),
+    ("datapath", &["ir", "model"]),
 ];
 
-/// Backends read only `ir` (and share nothing else of the library).
-const BACKENDS: (&str, &[&str]) = ("back", &["ir"]);
+/// Backends read only `ir` and its analyses (and share nothing else of the library).
+const BACKENDS: (&str, &[&str]) = ("back", &["ir", "numerics", "datapath"]);
 
 fn src() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("src")

@@ -58,7 +58,7 @@ fn the_plan_meets_its_target_on_other_states() {
             let truth: Vec<Vec<Vec<f64>>> = states
                 .iter()
                 .map(|s| {
-                    e.eval_dd(&refs(s))
+                    e.eval_as::<grid_gen::numerics::Dd>(&refs(s))
                         .into_iter()
                         .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
                         .collect()

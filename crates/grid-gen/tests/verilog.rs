@@ -5,8 +5,8 @@
 //! With `CI` set, a missing simulator or synthesiser fails the test instead of skipping.
 
 use grid_gen::back::verilog::{plan, sim, Arch, FormatChoice, Netlist, VerilogOptions};
-use grid_gen::ir::fixed::quantize_ports;
-use grid_gen::ir::fixed::Rounding;
+use grid_gen::datapath::quantize_ports;
+use grid_gen::datapath::Rounding;
 use grid_gen::ir::{self, KernelKind, LowerOptions, Module};
 use grid_gen_test_support::{load, load_floating, reference_outputs, Rng};
 
@@ -40,7 +40,8 @@ fn lowered(model: grid_gen::Model) -> (grid_gen::Model, Module) {
 /// A floating base gets a random pose, upside down at the corners.
 fn states(n: &Netlist, model: &grid_gen::Model, count: usize, seed: u64) -> Vec<[Vec<f64>; 3]> {
     let nv = model.nv();
-    use grid_gen::ir::{fixed::Port, Input};
+    use grid_gen::datapath::Port;
+    use grid_gen::ir::Input;
     let mut rng = Rng(seed);
     let b = &n.bounds;
     let linear: Vec<usize> = n

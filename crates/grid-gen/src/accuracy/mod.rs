@@ -3,7 +3,7 @@
 //! speed/accuracy trade, measured rather than assumed.
 //!
 //! The true value is the kernel's graph lowered without constant folding (so every model
-//! constant is the f64 the model holds) and evaluated in double-double ([`crate::ir::Dd`],
+//! constant is the f64 the model holds) and evaluated in double-double ([`crate::numerics::Dd`],
 //! about 106 bits): the exact dynamics of the f64 model at the f64 state. Each format runs
 //! the folded graph that the backends emit: f64 and f32 as the generated Rust's portable
 //! copy computes it, fixed point through the Verilog datapath's bit-exact model, and any
@@ -17,10 +17,10 @@ use serde::Serialize;
 pub use plot::svg;
 pub use states::{random_states, Rng};
 
-use crate::eval::{check_states, EvalError, State, StatesFile};
-use crate::ir::fixed::{
+use crate::datapath::{
     choose_format, quantize_ports, Bounds, Datapath, FixedError, Format, Rounding,
 };
+use crate::eval::{check_states, EvalError, State, StatesFile};
 use crate::ir::{self, Function, Gradient, Input, KernelKind, LowerError, LowerOptions, Solve};
 use crate::model::Model;
 use crate::reference;
@@ -39,7 +39,7 @@ pub enum NumberFormat {
         rounding: Rounding,
     },
     /// f32 except the nodes the first-order error analysis puts in f64 to bound each
-    /// output's relative error by `target` ([`crate::ir::precision`]), planned at
+    /// output's relative error by `target` ([`crate::numerics::precision`]), planned at
     /// [`MIXED_PLAN_STATES`] states of their own (not the measured ones).
     Mixed {
         target: f64,
@@ -60,9 +60,9 @@ pub fn mixed_plan(
     gravity: [f64; 3],
     f: &Function,
     target: f64,
-) -> crate::ir::precision::Plan {
+) -> crate::numerics::precision::Plan {
     let states = random_states(model, gravity, MIXED_PLAN_STATES, MIXED_PLAN_SEED, None, None);
-    crate::ir::precision::plan(f, &kernel_states(f, &states), target)
+    crate::numerics::precision::plan(f, &kernel_states(f, &states), target)
 }
 
 /// `f`'s arguments (in its input order) at each state of `file` that has the input it
@@ -343,7 +343,7 @@ pub fn measure<'a>(
             .iter()
             .map(|a| {
                 exact_f
-                    .eval_dd(&inputs(a))
+                    .eval_as::<crate::numerics::Dd>(&inputs(a))
                     .into_iter()
                     .map(|o| o.into_iter().map(|x| x.to_f64()).collect())
                     .collect()

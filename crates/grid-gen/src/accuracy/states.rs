@@ -1,8 +1,8 @@
 //! Seeded random states for `accuracy --random N --seed S`, inside the bounds the
 //! fixed-point analysis assumes, so every format is measured where it claims to work.
 
+use crate::datapath::Bounds;
 use crate::eval::{State, StatesFile};
-use crate::ir::fixed::Bounds;
 use crate::ir::Robot;
 use crate::model::Model;
 use crate::reference;

@@ -6,12 +6,9 @@
 //! target-neutral [`schedule`].
 
 mod dynamics;
-pub mod fixed;
 mod graph;
 mod kernel;
 mod module;
-pub mod precise;
-pub mod precision;
 pub mod schedule;
 mod spatial;
 mod stats;
@@ -21,10 +18,10 @@ mod validate;
 pub use graph::{Id, Input, Node, Op, Stage};
 pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve};
 pub use module::{
-    lower, lower_function, Contact, CoupledJoint, DenseProduct, Function, LowerError, LowerOptions,
-    Module, Operand, Output, Robot, SphericalJoint, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
+    lower, lower_function, Contact, CoupledJoint, DenseProduct, EvalNumber, Function, LowerError,
+    LowerOptions, Module, Operand, Output, Robot, SphericalJoint, DEFAULT_MAX_NODES,
+    LTDL_MAX_DEPTH,
 };
-pub use precise::Dd;
 pub use spatial::SNAP;
 pub use stats::{stats, KernelStats, OpCounts, Skipped, Stats, STATS_MAX_NODES};
 pub use validate::{validate, ValidationError};

@@ -640,13 +640,6 @@ impl Function {
         self.eval_as::<f64>(inputs)
     }
 
-    /// The graph in double-double arithmetic (about 106 bits; [`super::precise`]): the
-    /// graph's own rounding becomes negligible, so this is the true value of what the
-    /// graph computes from its f64 inputs and constants.
-    pub fn eval_dd(&self, inputs: &[&[f64]]) -> Vec<Vec<super::precise::Dd>> {
-        self.eval_as::<super::precise::Dd>(inputs)
-    }
-
     /// The graph in f32, from the f64 inputs rounded to f32, every constant rounded to
     /// f32, in node order: the operations the generated kernels' portable copy runs for
     /// `T = f32` (the `fma` copy fuses some of them).
@@ -664,7 +657,10 @@ impl Function {
         self.inputs().iter().position(|&x| x == which).expect("validated input")
     }
 
-    fn eval_as<T: EvalNumber>(&self, inputs: &[&[f64]]) -> Vec<Vec<T>> {
+    /// Interprets the function in any [`EvalNumber`]: f64, f32, or a wider number that a
+    /// module beside the IR implements it for (the double-double numbers of the
+    /// high-precision reference).
+    pub fn eval_as<T: EvalNumber>(&self, inputs: &[&[f64]]) -> Vec<Vec<T>> {
         let val = self.node_values::<T>(inputs);
         self.outputs.iter().map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect()).collect()
     }
@@ -690,7 +686,7 @@ impl Function {
 }
 
 /// The number types the IR interpreter runs in.
-trait EvalNumber:
+pub trait EvalNumber:
     Copy
     + core::ops::Add<Output = Self>
     + core::ops::Sub<Output = Self>
@@ -724,17 +720,5 @@ impl EvalNumber for f32 {
     }
     fn cos(self) -> Self {
         f32::cos(self)
-    }
-}
-
-impl EvalNumber for super::precise::Dd {
-    fn from_f64(x: f64) -> Self {
-        super::precise::Dd::new(x)
-    }
-    fn sin(self) -> Self {
-        self.sin_cos().0
-    }
-    fn cos(self) -> Self {
-        self.sin_cos().1
     }
 }

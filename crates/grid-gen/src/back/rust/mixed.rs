@@ -1,5 +1,5 @@
 //! Mixed-precision Rust: each kernel as one non-generic function whose
-//! every value is f32 or f64 as a [`crate::ir::precision::Plan`] says, taking and
+//! every value is f32 or f64 as a [`crate::numerics::precision::Plan`] says, taking and
 //! returning f64. It computes what [`Function::eval_mixed`] computes, bit for bit: a node
 //! runs in its own precision on operands converted to it, and a constant or input is
 //! rounded to its node's precision first.

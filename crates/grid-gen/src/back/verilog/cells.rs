@@ -1,9 +1,9 @@
 //! The two arithmetic cells every netlist instantiates, specialised to its format: a
 //! saturating multiplier that drops FRAC bits with the chosen rounding, and a saturating
-//! adder/subtractor. Their semantics are the software model's (`ir::fixed::model`)
+//! adder/subtractor. Their semantics are the software model's (`datapath::model`)
 //! exactly; the simulation tests compare the two bit for bit.
 
-use crate::ir::fixed::{Format, Rounding};
+use crate::datapath::{Format, Rounding};
 
 /// A `W'sh…` literal of a raw value (two's complement bits, so the most negative value
 /// needs no special case).

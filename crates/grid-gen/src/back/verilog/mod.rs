@@ -22,7 +22,7 @@ use serde::Serialize;
 
 use super::names::{comment_text, identifier};
 use super::{GeneratedFile, Target};
-use crate::ir::fixed::{
+use crate::datapath::{
     analyse, choose_format, Analysis, Bounds, Datapath, FixedError, Format, Rounding,
 };
 use crate::ir::{KernelKind, Module};
@@ -85,11 +85,11 @@ pub struct VerilogOptions {
     pub rounding: Rounding,
     pub arch: Arch,
     /// Override every joint's speed bound (else the URDF's `<limit velocity>`, else
-    /// [`crate::ir::fixed::DEFAULT_QD_MAX`]).
+    /// [`crate::datapath::DEFAULT_QD_MAX`]).
     pub qd_max: Option<f64>,
-    /// Override every joint's acceleration bound (else [`crate::ir::fixed::DEFAULT_QDD_MAX`]).
+    /// Override every joint's acceleration bound (else [`crate::datapath::DEFAULT_QDD_MAX`]).
     pub qdd_max: Option<f64>,
-    /// Bound on every entry of the forces (else [`crate::ir::fixed::DEFAULT_FORCE_MAX`]).
+    /// Bound on every entry of the forces (else [`crate::datapath::DEFAULT_FORCE_MAX`]).
     pub force_max: Option<f64>,
     /// Which of the module's kernels to build (those without division).
     pub kernels: Vec<KernelKind>,
@@ -351,7 +351,7 @@ impl Netlist {
         let forces = if self.datapath.ports.iter().any(|p| {
             matches!(
                 p,
-                crate::ir::fixed::Port::Value(crate::ir::Input::Fext | crate::ir::Input::Lambda, _)
+                crate::datapath::Port::Value(crate::ir::Input::Fext | crate::ir::Input::Lambda, _)
             )
         }) {
             format!(", |fext|, |lambda| <= {} per entry", self.bounds.force)

@@ -8,7 +8,7 @@ use std::fmt::Write;
 
 use super::cells::literal;
 use super::Netlist;
-use crate::ir::fixed::{Datapath, HwId, HwOp};
+use crate::datapath::{Datapath, HwId, HwOp};
 
 /// Which stage computes each node, and the last stage that needs its value.
 #[derive(Clone, Debug, PartialEq)]

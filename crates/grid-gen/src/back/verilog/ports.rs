@@ -6,7 +6,7 @@
 //! unique whatever the names are.
 
 use crate::back::names::{comment_text, identifier};
-use crate::ir::fixed::{Datapath, HwId, Port};
+use crate::datapath::{Datapath, HwId, Port};
 use crate::ir::{Input, Robot};
 
 /// The names of a datapath's ports, in port order (inputs) and output order.

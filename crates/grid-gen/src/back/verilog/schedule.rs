@@ -6,7 +6,7 @@
 use std::cmp::Reverse;
 use std::collections::BinaryHeap;
 
-use crate::ir::fixed::{Datapath, HwOp};
+use crate::datapath::{Datapath, HwOp};
 
 /// Which unit runs an operation.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -134,7 +134,7 @@ impl SharedSchedule {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::ir::fixed::HwId;
+    use crate::datapath::HwId;
 
     /// A small graph: (p0 * p1) + (p0 * 3), then negated.
     fn graph() -> Datapath {
@@ -152,9 +152,9 @@ mod tests {
             kernel: "test",
             nv: 1,
             dims: crate::ir::Dims { nq: 1, nv: 1, nu: 0, nframes: 0, nfext: 0, nlambda: 0 },
-            ports: vec![crate::ir::fixed::Port::Sin(0), crate::ir::fixed::Port::Cos(0)],
+            ports: vec![crate::datapath::Port::Sin(0), crate::datapath::Port::Cos(0)],
             nodes,
-            outputs: vec![crate::ir::fixed::DatapathOutput {
+            outputs: vec![crate::datapath::DatapathOutput {
                 name: "c",
                 shape: crate::ir::Shape::Vector,
                 ids: vec![HwId(6)],

@@ -8,7 +8,7 @@ use std::fmt::Write;
 use super::cells::literal;
 use super::schedule::{SharedSchedule, Unit};
 use super::Netlist;
-use crate::ir::fixed::{HwId, HwOp};
+use crate::datapath::{HwId, HwOp};
 
 fn unit_name(u: Unit) -> String {
     match u {

@@ -13,8 +13,7 @@
 //! term without u, relative to the largest entry of the output, the largest over the
 //! outputs' entries and the sample states.
 
-use super::graph::{Id, Op};
-use super::module::Function;
+use crate::ir::{Function, Id, Op};
 
 /// f32's unit roundoff, 2⁻²⁴ (round to nearest).
 pub const F32_UNIT_ROUNDOFF: f64 = 1.0 / 16_777_216.0;

@@ -123,6 +123,19 @@ impl Div for Dd {
     }
 }
 
+/// The IR's interpreter runs in double-double ([`crate::ir::Function::eval_as`]).
+impl crate::ir::EvalNumber for Dd {
+    fn from_f64(x: f64) -> Self {
+        Dd::new(x)
+    }
+    fn sin(self) -> Self {
+        self.sin_cos().0
+    }
+    fn cos(self) -> Self {
+        self.sin_cos().1
+    }
+}
+
 #[cfg(test)]
 mod tests {
     use super::*;

@@ -4,15 +4,15 @@
 //! that shows a format safe.
 
 mod analysis;
-mod datapath;
 mod model;
+mod view;
 
 pub use analysis::{
     analyse, choose_format, format_for_width, width_for, Analysis, Bounds, DEFAULT_FORCE_MAX,
     DEFAULT_QDD_MAX, DEFAULT_QD_MAX, DEFAULT_Q_MAX,
 };
-pub use datapath::{Datapath, DatapathOutput, HwId, HwOp, Port};
 pub use model::{port_values, quantize_ports, Run};
+pub use view::{Datapath, DatapathOutput, HwId, HwOp, Port};
 
 /// How a multiplier drops the low `frac` bits of its double-width product.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
