@@ -471,6 +471,22 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
         "{}",
         String::from_utf8_lossy(&floating.stdout)
     );
+    // Forces: `u` holds nv torques or accelerations and then fext and λ, per state.
+    let forces = grid_gen(&[
+        "bench",
+        "robots/grid_hyq.urdf",
+        "--scene",
+        "examples/scenes/hyq_contacts_floating.toml",
+        "--batch",
+        "2",
+        "--kernels",
+        "rnea",
+        "--wgsl-strategy",
+        "thread",
+        "--seconds",
+        "0.01",
+    ]);
+    assert_eq!(forces.status.code(), Some(0), "{}", stderr(&forces));
     let bad = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--kernels", "nope"]);
     assert_eq!(bad.status.code(), Some(2));
     assert!(

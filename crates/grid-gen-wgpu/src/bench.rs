@@ -149,11 +149,16 @@ pub fn table(
     let largest = batch.iter().copied().max().unwrap_or(0);
     let q: Vec<f64> = (0..largest * nq).map(|_| uniform(-3.1, 3.1)).collect();
     let qd: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
-    let u: Vec<f64> = (0..largest * nv).map(|_| uniform(-3.0, 3.0)).collect();
+    // `u` per kernel: nv torques or accelerations, the actuated joints' count for the step,
+    // nv plus the forces where the robot declares them (`Kernel::nu` per state).
+    let mut u: Vec<f64> = Vec::new();
     let budget = Duration::from_secs_f64(seconds);
     for f in &module.functions {
         for &strategy in &options.strategies {
             let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name()))?;
+            if u.len() < largest * kernel.nu {
+                u.extend((u.len()..largest * kernel.nu).map(|_| uniform(-3.0, 3.0)));
+            }
             let _ = writeln!(
                 report,
                 "{} {}: pipeline built in {:.2?}",
@@ -163,7 +168,7 @@ pub fn table(
             );
             for &n in batch {
                 let m = n * nv;
-                let t = time(gpu, &kernel, &q[..n * nq], &qd[..m], &u[..m], budget)?;
+                let t = time(gpu, &kernel, &q[..n * nq], &qd[..m], &u[..n * kernel.nu], budget)?;
                 let us = t.dispatch.as_secs_f64() * 1e6;
                 let device =
                     t.device.map_or("-".to_string(), |d| format!("{:.1}", d.as_secs_f64() * 1e6));
