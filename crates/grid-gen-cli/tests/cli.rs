@@ -448,45 +448,31 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
             }
         }
     }
-    // A floating base: q has nq = nv + 1 entries per state (the base's quaternion).
-    let floating = grid_gen(&[
-        "bench",
-        "robots/grid_hyq.urdf",
-        "--scene",
-        "examples/scenes/hyq_floating.toml",
-        "--batch",
-        "2",
-        "--kernels",
-        "rnea",
-        "--wgsl-strategy",
-        "thread",
-        "--seconds",
-        "0.01",
-    ]);
-    assert_eq!(floating.status.code(), Some(0), "{}", stderr(&floating));
-    assert!(
-        String::from_utf8_lossy(&floating.stdout)
-            .lines()
-            .any(|l| l.starts_with("rnea ") && l.contains(" thread ")),
-        "{}",
-        String::from_utf8_lossy(&floating.stdout)
-    );
-    // Forces: `u` holds nv torques or accelerations and then fext and λ, per state.
-    let forces = grid_gen(&[
-        "bench",
-        "robots/grid_hyq.urdf",
-        "--scene",
-        "examples/scenes/hyq_contacts_floating.toml",
-        "--batch",
-        "2",
-        "--kernels",
-        "rnea",
-        "--wgsl-strategy",
-        "thread",
-        "--seconds",
-        "0.01",
-    ]);
-    assert_eq!(forces.status.code(), Some(0), "{}", stderr(&forces));
+    // A floating base: q has nq = nv + 1 entries per state (the base's quaternion). Forces:
+    // `u` holds nv torques or accelerations and then fext and λ, per state.
+    for scene in ["examples/scenes/hyq_floating.toml", "examples/scenes/hyq_contacts_floating.toml"]
+    {
+        let out = grid_gen(&[
+            "bench",
+            "robots/grid_hyq.urdf",
+            "--scene",
+            scene,
+            "--batch",
+            "2",
+            "--kernels",
+            "rnea",
+            "--wgsl-strategy",
+            "thread",
+            "--seconds",
+            "0.01",
+        ]);
+        assert_eq!(out.status.code(), Some(0), "{scene}: {}", stderr(&out));
+        let text = String::from_utf8_lossy(&out.stdout);
+        assert!(
+            text.lines().any(|l| l.starts_with("rnea ") && l.contains(" thread ")),
+            "{scene}: {text}"
+        );
+    }
     let bad = grid_gen(&["bench", "robots/double_pendulum_continuous.urdf", "--kernels", "nope"]);
     assert_eq!(bad.status.code(), Some(2));
     assert!(
