@@ -983,7 +983,7 @@ fn time_kernels(
         routes,
         kernels,
         mixed,
-        &grid_gen::timing::rustc(),
+        &grid_gen::tools::rustc::rustc(),
         &work,
     );
     // The folder holds only what this call wrote; failing to remove it changes nothing.

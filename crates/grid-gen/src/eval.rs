@@ -744,7 +744,7 @@ pub enum VerilogEvalError {
     #[error(transparent)]
     Back(#[from] crate::back::verilog::VerilogError),
     #[error(transparent)]
-    Sim(#[from] crate::back::verilog::sim::SimError),
+    Sim(#[from] crate::tools::icarus::SimError),
 }
 
 /// Simulates the `rnea_grad` and `mass_matrix` netlists (built with `options`, whose
@@ -755,9 +755,10 @@ pub fn evaluate_verilog(
     gravity: [f64; 3],
     options: &crate::back::verilog::VerilogOptions,
 ) -> Result<VerilogEvalOutput, VerilogEvalError> {
-    use crate::back::verilog::{plan, sim, DEFAULT_KERNELS};
+    use crate::back::verilog::{plan, DEFAULT_KERNELS};
     use crate::datapath::quantize_ports;
     use crate::ir::{self, KernelKind, LowerOptions};
+    use crate::tools::icarus as sim;
     check_states(model, file)?;
     let nv = model.nv();
     let module = ir::lower(

@@ -21,6 +21,7 @@ pub mod reference;
 pub mod scene;
 pub mod spatial;
 pub mod timing;
+pub mod tools;
 pub mod urdf;
 
 pub use builder::{BuildError, Builder};

@@ -10,7 +10,6 @@
 
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
 use serde::Serialize;
 
@@ -37,12 +36,10 @@ pub enum TimingError {
     Generate(#[from] GenerateError),
     #[error("cannot write the timing program into {0}: {1}")]
     Io(PathBuf, std::io::Error),
-    #[error("cannot run `{0}` ({1}); timing the Rust kernels needs a Rust compiler: install one from https://rustup.rs, or set RUSTC")]
-    NoRustc(String, std::io::Error),
-    #[error("rustc could not compile the generated kernels:\n{0}")]
-    Compile(String),
-    #[error("the timing program failed: {0}")]
-    Run(String),
+    #[error(transparent)]
+    Rustc(#[from] crate::tools::rustc::RustcError),
+    #[error("the timing program wrote an unexpected line: `{0}`")]
+    Output(String),
     #[error("`bench --backend rust` does not time kernels that take external or contact forces yet; `GRID_GEN_BENCH_FORCES_ONLY=1 cargo bench -p grid-gen-kernels --bench kernels` times the checked-in forces scene")]
     Forces,
 }
@@ -174,11 +171,6 @@ fn main() {{
     )
 }
 
-/// The Rust compiler to use: `$RUSTC` (as cargo sets it), else `rustc` on the path.
-pub fn rustc() -> String {
-    std::env::var("RUSTC").unwrap_or_else(|_| "rustc".to_string())
-}
-
 /// Generates `model`'s Rust kernels (`kernels`, with `gravity`, and the gradient
 /// formulation and solve of `routes`, whose kernel list is not read), compiles
 /// them with `rustc` in `work` (a folder this call may fill and leaves behind), and times
@@ -235,32 +227,7 @@ pub fn time_rust_kernels_with_mixed(
         .map_err(io)?;
     std::fs::write(work.join("main.rs"), program(&present, mixed, model.nq())).map_err(io)?;
     let exe = work.join(if cfg!(windows) { "time_kernels.exe" } else { "time_kernels" });
-    let out = Command::new(rustc)
-        .args([
-            "--edition",
-            "2021",
-            "-C",
-            "opt-level=3",
-            "-C",
-            "debuginfo=0",
-            "--crate-name",
-            "time_kernels",
-            "-o",
-        ])
-        .arg(&exe)
-        .arg(work.join("main.rs"))
-        .output()
-        .map_err(|e| TimingError::NoRustc(rustc.to_string(), e))?;
-    if !out.status.success() {
-        let err = String::from_utf8_lossy(&out.stderr);
-        let tail: Vec<&str> = err.lines().rev().take(30).collect();
-        return Err(TimingError::Compile(tail.into_iter().rev().collect::<Vec<_>>().join("\n")));
-    }
-    let run = Command::new(&exe).output().map_err(|e| TimingError::Run(e.to_string()))?;
-    if !run.status.success() {
-        return Err(TimingError::Run(String::from_utf8_lossy(&run.stderr).into_owned()));
-    }
-    let text = String::from_utf8_lossy(&run.stdout);
+    let text = crate::tools::rustc::build_and_run(rustc, &work.join("main.rs"), &exe)?;
     let mut times = Vec::new();
     for line in text.lines() {
         let parts: Vec<&str> = line.split_whitespace().collect();
@@ -290,9 +257,7 @@ pub fn time_rust_kernels_with_mixed(
             }
             _ => None,
         };
-        times.push(
-            parsed.ok_or_else(|| TimingError::Run(format!("unexpected output line `{line}`")))?,
-        );
+        times.push(parsed.ok_or_else(|| TimingError::Output(line.to_string()))?);
     }
     Ok(times)
 }

@@ -5,7 +5,7 @@
 use std::path::{Path, PathBuf};
 
 /// The library's top-level modules.
-const MODULES: [&str; 19] = [
+const MODULES: [&str; 20] = [
     "accuracy",
     "back",
     "builder",
@@ -23,6 +23,7 @@ const MODULES: [&str; 19] = [
     "scene",
     "spatial",
     "timing",
+    "tools",
     "urdf",
     "lib",
 ];
@@ -167,6 +168,26 @@ fn every_way_in_loads_through_config() {
         }
     }
     assert!(found.is_empty(), "loading outside `Config::load`:\n{}", found.join("\n"));
+}
+
+/// Programs (rustc, iverilog, vvp) are started only from `tools`, outside the core: the
+/// front end, the IR and the backends return text (and, by the layers above, never name
+/// `tools`).
+#[test]
+fn only_tools_starts_programs() {
+    let mut found = Vec::new();
+    for module in MODULES.iter().filter(|m| **m != "tools") {
+        for file in files_of(module) {
+            let text = std::fs::read_to_string(&file).unwrap();
+            if text.contains("Command::new") || text.contains("process::Command") {
+                found.push(format!(
+                    "{} starts a program",
+                    file.strip_prefix(src()).unwrap().display()
+                ));
+            }
+        }
+    }
+    assert!(found.is_empty(), "{}", found.join("\n"));
 }
 
 /// The check itself: it sees an import that breaks a layer.

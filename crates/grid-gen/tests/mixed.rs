@@ -175,7 +175,7 @@ fn emitted_mixed_rust_computes_the_interpreters_numbers() {
     program += "}\n";
     std::fs::write(work.join("main.rs"), &program).unwrap();
     let exe = work.join("mixed");
-    let rustc = grid_gen::timing::rustc();
+    let rustc = grid_gen::tools::rustc::rustc();
     let out = std::process::Command::new(&rustc)
         .args(["--edition", "2021", "-C", "opt-level=3", "-o"])
         .arg(&exe)

@@ -4,10 +4,11 @@
 //! states outside the bounds must raise `overflow`. Yosys synthesises the iiwa netlists.
 //! With `CI` set, a missing simulator or synthesiser fails the test instead of skipping.
 
-use grid_gen::back::verilog::{plan, sim, Arch, FormatChoice, Netlist, VerilogOptions};
+use grid_gen::back::verilog::{plan, Arch, FormatChoice, Netlist, VerilogOptions};
 use grid_gen::datapath::quantize_ports;
 use grid_gen::datapath::Rounding;
 use grid_gen::ir::{self, KernelKind, LowerOptions, Module};
+use grid_gen::tools::icarus as sim;
 use grid_gen_test_support::{load, load_floating, reference_outputs, Rng};
 
 const GRAVITY: [f64; 3] = [0.0, 0.0, -9.81];

@@ -15,8 +15,9 @@ mod pipelined;
 mod ports;
 mod schedule;
 mod shared;
-pub mod sim;
 mod testbench;
+/// How many states one run of the testbench reads (its input memory's depth).
+pub use testbench::MAX_STATES;
 
 use serde::Serialize;
 

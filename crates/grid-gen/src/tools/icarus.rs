@@ -2,12 +2,11 @@
 //! `iverilog`) on raw input values and reads back the raw outputs and overflow flags.
 //! Used by `grid-gen eval --backend verilog` and by the tests.
 
-use std::path::{Path, PathBuf};
+use std::path::Path;
 use std::process::Command;
-use std::sync::atomic::{AtomicUsize, Ordering};
 
-use super::testbench::MAX_STATES;
-use super::Netlist;
+use super::{run, RunError, Scratch};
+use crate::back::verilog::{Netlist, MAX_STATES};
 use crate::ir::Robot;
 
 #[derive(Debug, thiserror::Error)]
@@ -35,30 +34,14 @@ pub fn available() -> bool {
     Command::new("iverilog").arg("-V").output().map(|o| o.status.success()).unwrap_or(false)
 }
 
-struct Scratch(PathBuf);
-
-impl Drop for Scratch {
-    fn drop(&mut self) {
-        let _ = std::fs::remove_dir_all(&self.0);
-    }
-}
-
-fn run(step: &'static str, cmd: &mut Command) -> Result<String, SimError> {
-    let out = cmd.output().map_err(|e| {
-        if e.kind() == std::io::ErrorKind::NotFound {
-            SimError::NoSimulator
-        } else {
-            SimError::Io(e)
+fn sim(step: &'static str, cmd: &mut Command) -> Result<String, SimError> {
+    run(cmd).map_err(|e| match e {
+        RunError::NotFound(_) => SimError::NoSimulator,
+        RunError::Io(e) => SimError::Io(e),
+        RunError::Failed { stdout, stderr } => {
+            SimError::Failed { step, stderr: format!("{stdout}{stderr}") }
         }
-    })?;
-    let stdout = String::from_utf8_lossy(&out.stdout).into_owned();
-    if !out.status.success() {
-        return Err(SimError::Failed {
-            step,
-            stderr: format!("{}{}", stdout, String::from_utf8_lossy(&out.stderr)),
-        });
-    }
-    Ok(stdout)
+    })
 }
 
 /// Compiles the netlist and its testbench once, then simulates `ports` (one raw vector
@@ -68,19 +51,12 @@ pub fn simulate(
     robot: &Robot,
     ports: &[Vec<i64>],
 ) -> Result<Vec<SimResult>, SimError> {
-    static NEXT: AtomicUsize = AtomicUsize::new(0);
-    let dir = std::env::temp_dir().join(format!(
-        "grid-gen-sim-{}-{}",
-        std::process::id(),
-        NEXT.fetch_add(1, Ordering::Relaxed)
-    ));
-    std::fs::create_dir_all(&dir)?;
-    let scratch = Scratch(dir);
+    let scratch = Scratch::new("sim")?;
     let (v, tb) = netlist.file_names();
-    std::fs::write(scratch.0.join(&v), netlist.verilog(robot))?;
-    std::fs::write(scratch.0.join(&tb), netlist.testbench())?;
-    let image = scratch.0.join("sim.vvp");
-    run(
+    std::fs::write(scratch.path().join(&v), netlist.verilog(robot))?;
+    std::fs::write(scratch.path().join(&tb), netlist.testbench())?;
+    let image = scratch.path().join("sim.vvp");
+    sim(
         "iverilog",
         Command::new("iverilog")
             .arg("-g2005")
@@ -88,12 +64,12 @@ pub fn simulate(
             .arg(&image)
             .arg("-s")
             .arg(format!("{}_tb", netlist.top))
-            .arg(scratch.0.join(&v))
-            .arg(scratch.0.join(&tb)),
+            .arg(scratch.path().join(&v))
+            .arg(scratch.path().join(&tb)),
     )?;
     let mut results = Vec::with_capacity(ports.len());
     for batch in ports.chunks(MAX_STATES) {
-        results.extend(simulate_batch(netlist, &scratch.0, &image, batch)?);
+        results.extend(simulate_batch(netlist, scratch.path(), &image, batch)?);
     }
     Ok(results)
 }
@@ -114,7 +90,7 @@ fn simulate_batch(
     }
     let (inp, outp) = (dir.join("in.hex"), dir.join("out.txt"));
     std::fs::write(&inp, hex)?;
-    let stdout = run(
+    let stdout = sim(
         "vvp",
         Command::new("vvp")
             .arg("-n")

@@ -1,0 +1,207 @@
+//! ∂q̈/∂(q, q̇) = −M⁻¹ ∂c/∂(q, q̇), recorded by either solve: the dense product with the
+//! direct M⁻¹, or CRBA's M factorised as Lᵀ D L (LTDL) and solved per column.
+
+use super::super::graph::{Graph, Id, Stage};
+use super::super::kernel::Solve;
+use super::{strict_ancestors, Dynamics, Mat};
+use crate::model::Model;
+
+impl Dynamics<'_> {
+    /// `∂q̈/∂u = −M⁻¹ ∂c/∂u` at the q̈ of [`Self::aba`] (Carpentier & Mansard 2018, eq. 9;
+    /// Pinocchio's `computeABADerivatives`), sharing through hash-consing ABA's
+    /// articulated inertias with M⁻¹ and its velocities with the RNEA pass.
+    /// Per-coordinate inputs and outputs: with coupled mimic joints q̈ and M⁻¹ are the
+    /// constrained ones and the gradient `−M⁻¹ Gᵀ (∂c/∂u) G`.
+    /// Also `∂q̈/∂τ` for the coordinates `columns` (those columns of M⁻¹),
+    /// and `−M⁻¹ b` for each per-coordinate vector b of `rhs`, both from the route that
+    /// formed `∂q̈/∂u` (M⁻¹ itself, or its factorisation's solves).
+    pub fn fd_grad(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        columns: &[usize],
+        rhs: &[Vec<Id>],
+    ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
+        if matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled() {
+            return self.fd_grad_ltdl(qd, tau, columns, rhs);
+        }
+        // The constrained M⁻¹ of coupled mimic joints comes from the direct route.
+        self.solve = Solve::Minv;
+        let n = self.model.nv();
+        let (qdd, mi) = self.fd_minv(qd, tau);
+        let (qd, qdd_joints) = (self.expand(qd), self.expand(&qdd));
+        let r = self.rnea(&qd, &qdd_joints);
+        let (dc_q, dc_qd) = self.rnea_grad(&r, &qd);
+        let (dc_q, dc_qd) = (self.reduce_matrix(dc_q), self.reduce_matrix(dc_qd));
+        self.g.at(None, Stage::Combine, 0);
+        let product = |dc: &Mat, g: &mut Graph| -> Mat {
+            (0..n)
+                .map(|i| {
+                    if g.exhausted() {
+                        return vec![Id(0); n];
+                    }
+                    (0..n)
+                        .map(|k| {
+                            let col: Vec<Id> = (0..n).map(|j| dc[j][k]).collect();
+                            let d = g.dot(&mi[i], &col);
+                            g.neg(d)
+                        })
+                        .collect()
+                })
+                .collect()
+        };
+        let dq = product(&dc_q, &mut self.g);
+        let dqd = product(&dc_qd, &mut self.g);
+        let flat = |m: &Mat| {
+            m.iter()
+                .flatten()
+                .map(|&id| super::super::module::Operand::Node(id))
+                .collect::<Vec<_>>()
+        };
+        self.product = Some(super::super::module::DenseProduct {
+            minv: flat(&mi),
+            dc: vec![flat(&dc_q), flat(&dc_qd)],
+            outputs: vec![1, 2],
+        });
+        let picked = mi.iter().map(|row| columns.iter().map(|&c| row[c]).collect()).collect();
+        let solved = rhs
+            .iter()
+            .map(|b| {
+                (0..n)
+                    .map(|i| {
+                        let d = self.g.dot(&mi[i], b);
+                        self.g.neg(d)
+                    })
+                    .collect()
+            })
+            .collect();
+        (qdd, dq, dqd, picked, solved)
+    }
+}
+
+impl Dynamics<'_> {
+    /// [`Self::fd_grad`] by [`Solve::Ltdl`] (q̈ by ABA) or [`Solve::Crba`] (q̈ from the
+    /// factorisation, `−M⁻¹ (c(q, q̇, 0) − τ)`): ∂c/∂u at q̈, M by CRBA (whose
+    /// composites, `IC S` vectors and their moves to the ancestors are the IDSVA
+    /// gradient's own nodes, shared by hash-consing), then `−M⁻¹ ∂c/∂u` by the
+    /// factorisation. Zero entries of ∂c/∂u (joints on different branches) fold away, so
+    /// each column's solves touch only the joints it can reach.
+    fn fd_grad_ltdl(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        columns: &[usize],
+        rhs: &[Vec<Id>],
+    ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
+        let n = self.n();
+        let zero = self.g.constant(0.0);
+        let m = self.mass_matrix();
+        // q̈ by ABA, or the bias forces c(q, q̇, 0) that the factorisation turns into q̈.
+        let by_aba = (self.solve == Solve::Ltdl).then(|| self.aba(qd, tau));
+        let bias = if by_aba.is_none() { self.rnea(qd, &vec![zero; n]).c } else { Vec::new() };
+        let empty = |columns: usize| vec![vec![zero; columns]; n];
+        if self.exhausted() {
+            return (
+                vec![zero; n],
+                empty(n),
+                empty(n),
+                empty(columns.len()),
+                vec![vec![zero; n]; rhs.len()],
+            );
+        }
+        let f = self.ltdl(m);
+        let qdd = by_aba.unwrap_or_else(|| {
+            let b: Vec<Id> = (0..n).map(|i| self.g.sub(bias[i], tau[i])).collect();
+            f.solve(&mut self.g, self.model, b)
+        });
+        let r = self.rnea(qd, &qdd);
+        let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
+        if self.exhausted() {
+            return (qdd, dc_q, dc_qd, empty(columns.len()), vec![vec![zero; n]; rhs.len()]);
+        }
+        self.g.at(None, Stage::Combine, 0);
+        let g = &mut self.g;
+        let mut solve = |dc: &Mat| -> Mat {
+            let mut out = vec![vec![Id(0); n]; n];
+            for c in 0..n {
+                let x = f.solve(g, self.model, (0..n).map(|row| dc[row][c]).collect());
+                for (row, x) in x.into_iter().enumerate() {
+                    out[row][c] = x;
+                }
+            }
+            out
+        };
+        let dq = solve(&dc_q);
+        let dqd = solve(&dc_qd);
+        // M⁻¹ e_c = −(−M⁻¹ e_c).
+        let mut picked = vec![vec![zero; columns.len()]; n];
+        for (at, &c) in columns.iter().enumerate() {
+            let one = self.g.constant(1.0);
+            let mut e = vec![zero; n];
+            e[c] = one;
+            for (row, x) in f.solve(&mut self.g, self.model, e).into_iter().enumerate() {
+                picked[row][at] = self.g.neg(x);
+            }
+        }
+        let solved = rhs.iter().map(|b| f.solve(&mut self.g, self.model, b.clone())).collect();
+        (qdd, dq, dqd, picked, solved)
+    }
+
+    /// LTDL (Featherstone 2005, table 2): M's lower triangle becomes L (unit diagonal
+    /// implied) and its diagonal D, rows visited leaves first. One division per joint,
+    /// −1/D_k: the solves' diagonal step takes it as it is (the minus sign of −M⁻¹), and
+    /// L's entries are −(M_ki · −1/D_k), whose negations the graph moves into the
+    /// subtractions that read them (no node is left for them).
+    pub(super) fn ltdl(&mut self, mut m: Mat) -> Ltdl {
+        let n = self.n();
+        self.g.at(None, Stage::Combine, 0);
+        let g = &mut self.g;
+        let minus_one = g.constant(-1.0);
+        let mut neg_dinv = vec![minus_one; n];
+        for k in (0..n).rev() {
+            neg_dinv[k] = g.div(minus_one, m[k][k]);
+            let up = strict_ancestors(self.model, k);
+            for (at, &i) in up.iter().enumerate() {
+                let p = g.mul(m[k][i], neg_dinv[k]);
+                let a = g.neg(p);
+                for &j in &up[at..] {
+                    let t = g.mul(a, m[k][j]);
+                    m[i][j] = g.sub(m[i][j], t);
+                }
+                m[k][i] = a;
+            }
+        }
+        Ltdl { l: m, neg_dinv }
+    }
+}
+
+/// M = Lᵀ D L, as [`Dynamics::ltdl`] leaves it: L below the diagonal (row k, the
+/// ancestors of k), and −1/D.
+pub(super) struct Ltdl {
+    l: Mat,
+    neg_dinv: Vec<Id>,
+}
+
+impl Ltdl {
+    /// −M⁻¹ b: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`, `L x = z` root first. Zero entries
+    /// of b fold away, so a column touches only the joints it can reach.
+    pub(super) fn solve(&self, g: &mut Graph, model: &Model, mut b: Vec<Id>) -> Vec<Id> {
+        let n = b.len();
+        for k in (0..n).rev() {
+            for j in strict_ancestors(model, k) {
+                let t = g.mul(self.l[k][j], b[k]);
+                b[j] = g.sub(b[j], t);
+            }
+        }
+        for k in 0..n {
+            b[k] = g.mul(b[k], self.neg_dinv[k]);
+        }
+        for k in 0..n {
+            for j in strict_ancestors(model, k) {
+                let t = g.mul(self.l[k][j], b[j]);
+                b[k] = g.sub(b[k], t);
+            }
+        }
+        b
+    }
+}

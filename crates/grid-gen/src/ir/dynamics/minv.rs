@@ -1,0 +1,90 @@
+//! The direct M⁻¹ (no M, no factorisation), recorded: articulated inertias and one
+//! backward and one forward sweep, per joint and per coordinate.
+
+use super::super::graph::{Id, Stage};
+use super::super::spatial::{self as sp, Sv};
+use super::{add6, articulated, pivot, Dynamics, Mat};
+
+impl Dynamics<'_> {
+    /// The direct O(n²) M⁻¹ of `reference::minv`.
+    pub fn minv(&mut self) -> Mat {
+        let n = self.n();
+        let mut ia = self.composite_start();
+        let z = sp::zero(&mut self.g);
+        let zero = z[0];
+        let mut f: Vec<Vec<Option<Sv>>> = vec![vec![None; n]; n];
+        let mut u = vec![z; n];
+        let mut dinv = vec![zero; n];
+        let mut minv: Vec<Vec<Option<Id>>> = vec![vec![None; n]; n];
+        for i in (0..n).rev() {
+            if self.exhausted() {
+                break;
+            }
+            self.at(i, Stage::Backward);
+            let end = self.model.joints[i].subtree_end;
+            let g = &mut self.g;
+            (u[i], dinv[i]) = pivot(g, &ia[i], &self.s[i]);
+            minv[i][i] = Some(dinv[i]);
+            for j in i + 1..end {
+                if let Some(col) = f[i][j] {
+                    let sf = sp::dot(g, &self.s[i], &col);
+                    let t = g.mul(dinv[i], sf);
+                    minv[i][j] = Some(g.neg(t));
+                }
+            }
+            if let Some(p) = self.model.joints[i].parent {
+                for j in i..end {
+                    let um = sp::scale(g, &u[i], minv[i][j].unwrap_or(zero));
+                    let col = match f[i][j] {
+                        Some(c) => sp::add(g, &c, &um),
+                        None => um,
+                    };
+                    let moved = self.x[i].apply_t(g, &col);
+                    f[p][j] = Some(match f[p][j] {
+                        Some(old) => sp::add(g, &old, &moved),
+                        None => moved,
+                    });
+                }
+                let ia_a = articulated(g, &ia[i], &u[i], dinv[i]);
+                let add = sp::congruence(g, &self.x[i], &ia_a);
+                ia[p] = add6(g, &ia[p], &add);
+            }
+        }
+        let mut pacc: Vec<Vec<Option<Sv>>> = vec![vec![None; n]; n];
+        for i in 0..n {
+            if self.exhausted() {
+                break;
+            }
+            self.at(i, Stage::Forward);
+            let g = &mut self.g;
+            for j in i..n {
+                let xp = match self.model.joints[i].parent.and_then(|p| pacc[p][j]) {
+                    Some(col) => {
+                        let xp = self.x[i].apply(g, &col);
+                        let ux = sp::dot(g, &u[i], &xp);
+                        let t = g.mul(dinv[i], ux);
+                        let old = minv[i][j].unwrap_or(zero);
+                        minv[i][j] = Some(g.sub(old, t));
+                        xp
+                    }
+                    None => z,
+                };
+                let sm = sp::scale(g, &self.s[i], minv[i][j].unwrap_or(zero));
+                pacc[i][j] = Some(sp::add(g, &xp, &sm));
+            }
+        }
+        (0..n).map(|i| (0..n).map(|j| minv[i.min(j)][i.max(j)].unwrap_or(zero)).collect()).collect()
+    }
+
+    /// M⁻¹ per coordinate: [`Self::minv`], projected onto the mimic constraints when
+    /// some joint is coupled.
+    pub fn minv_coordinates(&mut self) -> Mat {
+        let mi = self.minv();
+        if !self.coupled() {
+            return mi;
+        }
+        self.g.at(None, Stage::Combine, 0);
+        let k = self.constraints(&mi);
+        self.project_minv(&mi, &k)
+    }
+}
