@@ -7,7 +7,7 @@
 
 use std::collections::HashMap;
 use std::ops::Range;
-use std::sync::atomic::{AtomicUsize, Ordering};
+use std::sync::atomic::{AtomicU64, AtomicUsize, Ordering};
 use std::sync::{Arc, Mutex, OnceLock};
 
 /// Threads a batch runs on; 0 means every core (rayon's default).
@@ -39,17 +39,46 @@ fn pool(n: usize) -> Option<Arc<rayon::ThreadPool>> {
     Some(p)
 }
 
+/// How long a helper stays awake after its last block, in microseconds, waiting for the
+/// next batch; `u64::MAX` until first read (then `GRID_GEN_BATCH_SPIN_US`, or 1000).
+static SPIN_US: AtomicU64 = AtomicU64::new(u64::MAX);
+
+/// Sets how long, in microseconds, the pool's helpers keep spinning after a batch for the
+/// next one (default 1000, or `GRID_GEN_BATCH_SPIN_US`): a solver that calls batches with
+/// its own serial work between them finds them awake instead of waking them through the
+/// OS (tens of microseconds on a virtual machine). The price is a core kept busy that long
+/// after the last batch; 0 lets them sleep at once, as an OpenMP runtime's
+/// `OMP_WAIT_POLICY=passive` does.
+pub fn set_spin_us(us: u64) {
+    SPIN_US.store(us.min(u64::MAX - 1), Ordering::Relaxed);
+}
+
+fn spin_time() -> std::time::Duration {
+    let mut us = SPIN_US.load(Ordering::Relaxed);
+    if us == u64::MAX {
+        us = std::env::var("GRID_GEN_BATCH_SPIN_US")
+            .ok()
+            .and_then(|v| v.trim().parse().ok())
+            .unwrap_or(1000)
+            .min(u64::MAX - 1);
+        SPIN_US.store(us, Ordering::Relaxed);
+    }
+    std::time::Duration::from_micros(us)
+}
+
 /// Calls `f` on disjoint ranges that cover `0..n`, in parallel on [`threads`] threads;
 /// with one thread, or one state, on the calling thread. Every state is visited exactly
 /// once; a panic in `f` reaches the caller after every thread has left `f`.
 ///
-/// The calling thread works too: it asks the pool for `threads - 1` helpers and claims
+/// The calling thread works too: it publishes the batch, asks the pool for as many helpers
+/// as are missing (`threads - 1`, less those still awake from the last batch), and claims
 /// blocks of states from a shared counter like them, so a batch never waits for a sleeping
 /// worker to wake before it starts. When the blocks run out, it waits (spinning: a block
-/// takes microseconds) only for the helpers that are inside `f`; a helper that wakes later
-/// finds the batch closed and leaves without touching it. Waiting on rayon's own scope
-/// instead would put the caller to sleep and wake it through the OS at the end of every
-/// batch, tens of microseconds on a virtual machine, a third of a 64-state batch of iiwa.
+/// takes microseconds) only for the helpers that are inside `f`; a helper that arrives
+/// later finds the batch closed and leaves without touching it. Waiting on rayon's own
+/// scope instead would put the caller to sleep and wake it through the OS at the end of
+/// every batch, tens of microseconds on a virtual machine, a third of a 64-state batch of
+/// iiwa. A helper then stays awake for [`set_spin_us`] to join the next batch.
 pub fn for_each(n: usize, f: impl Fn(Range<usize>) + Sync + Send) {
     let threads = threads();
     if threads <= 1 || n <= 1 {
@@ -68,43 +97,113 @@ pub fn for_each(n: usize, f: impl Fn(Range<usize>) + Sync + Send) {
         f(start..(start + block).min(n));
     };
     let helpers = threads.min(n.div_ceil(block)) - 1;
+    let erased: &(dyn Fn() + Sync) = &work;
+    // SAFETY: helpers call through this pointer only between entering and leaving the
+    // batch (`Shared::run`), and this function returns only after closing it with no
+    // helper inside, so `work` (and the `f` and counter it borrows) outlives every call.
+    let erased: &'static (dyn Fn() + Sync) = unsafe { std::mem::transmute(erased) };
+    let batch = Arc::new(Shared {
+        state: AtomicUsize::new(0),
+        panic: Mutex::new(None),
+        work: Erased(erased),
+        generation: PUBLISHED.next.fetch_add(1, Ordering::Relaxed) + 1,
+    });
+    PUBLISHED.publish(&batch);
+    let awake = AWAKE.load(Ordering::Acquire);
     let pool = match THREADS.load(Ordering::Relaxed) {
         0 => None,
         t => pool(t),
     };
-    let shared = Arc::new(Shared { state: AtomicUsize::new(0), panic: Mutex::new(None) });
-    let erased: &(dyn Fn() + Sync) = &work;
-    // SAFETY: helpers call through this pointer only between entering and leaving
-    // `shared`, and this function returns only after closing it with no helper inside, so
-    // `work` (and the `f` and counter it borrows) outlives every call.
-    let erased: &'static (dyn Fn() + Sync) = unsafe { std::mem::transmute(erased) };
-    for _ in 0..helpers {
-        let (shared, work) = (shared.clone(), Erased(erased));
-        let job = move || {
-            if shared.enter() {
-                // Taken whole, so the closure captures `Erased` (which is `Send`), not
-                // its field.
-                let work = work;
-                let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(|| (work.0)()));
-                if let Err(p) = r {
-                    *shared.panic.lock().unwrap_or_else(|e| e.into_inner()) = Some(p);
-                }
-                shared.state.fetch_sub(1, Ordering::Release);
-            }
-        };
+    for _ in awake.min(helpers)..helpers {
+        let batch = batch.clone();
         match &pool {
-            Some(p) => p.spawn(job),
-            None => rayon::spawn(job),
+            Some(p) => p.spawn(move || help(batch)),
+            None => rayon::spawn(move || help(batch)),
         }
     }
     let mine = std::panic::catch_unwind(std::panic::AssertUnwindSafe(work));
-    shared.close_and_wait();
+    batch.close_and_wait();
+    PUBLISHED.clear(&batch);
     if let Err(p) = mine {
         std::panic::resume_unwind(p);
     }
-    let theirs = shared.panic.lock().unwrap_or_else(|e| e.into_inner()).take();
+    let theirs = batch.panic.lock().unwrap_or_else(|e| e.into_inner()).take();
     if let Some(p) = theirs {
         std::panic::resume_unwind(p);
+    }
+}
+
+/// A helper on the pool: runs `first` (unless it is already closed, then it leaves at
+/// once), then stays awake for [`spin_time`] and joins each newer batch published meanwhile.
+fn help(first: Arc<Shared>) {
+    if !first.run() {
+        return;
+    }
+    let mut last = first;
+    loop {
+        AWAKE.fetch_add(1, Ordering::AcqRel);
+        let next = PUBLISHED.newer_than(last.generation, spin_time());
+        AWAKE.fetch_sub(1, Ordering::AcqRel);
+        match next {
+            Some(batch) => {
+                batch.run();
+                last = batch;
+            }
+            None => return,
+        }
+    }
+}
+
+/// Helpers spinning between batches, which a new batch need not ask the pool for.
+static AWAKE: AtomicUsize = AtomicUsize::new(0);
+
+/// The batch running now, for helpers that are awake to find.
+static PUBLISHED: Published =
+    Published { next: AtomicU64::new(0), generation: AtomicU64::new(0), batch: Mutex::new(None) };
+
+struct Published {
+    /// The last generation handed to a batch.
+    next: AtomicU64,
+    /// The generation of the batch last published, stored after the batch is in `batch`,
+    /// so that a helper who sees it change finds the batch there (or already gone).
+    generation: AtomicU64,
+    batch: Mutex<Option<Arc<Shared>>>,
+}
+
+impl Published {
+    fn publish(&self, batch: &Arc<Shared>) {
+        *self.batch.lock().unwrap_or_else(|e| e.into_inner()) = Some(batch.clone());
+        self.generation.store(batch.generation, Ordering::Release);
+    }
+
+    /// Takes `batch` down if it is still the one published.
+    fn clear(&self, batch: &Arc<Shared>) {
+        let mut slot = self.batch.lock().unwrap_or_else(|e| e.into_inner());
+        if slot.as_ref().is_some_and(|b| Arc::ptr_eq(b, batch)) {
+            *slot = None;
+        }
+    }
+
+    /// Spins up to `wait` for a batch newer than generation `last` to be published.
+    fn newer_than(&self, last: u64, wait: std::time::Duration) -> Option<Arc<Shared>> {
+        let start = std::time::Instant::now();
+        let mut seen = last;
+        let mut spins = 0u32;
+        loop {
+            let now = self.generation.load(Ordering::Acquire);
+            if now != seen {
+                seen = now;
+                let slot = self.batch.lock().unwrap_or_else(|e| e.into_inner());
+                if let Some(b) = slot.as_ref().filter(|b| b.generation > last) {
+                    return Some(b.clone());
+                }
+            }
+            spins = spins.wrapping_add(1);
+            if spins & 63 == 0 && start.elapsed() >= wait {
+                return None;
+            }
+            std::hint::spin_loop();
+        }
     }
 }
 
@@ -114,18 +213,37 @@ struct Erased(&'static (dyn Fn() + Sync));
 
 // SAFETY: the closure behind it is `Sync`, so calling it from another thread is sound.
 unsafe impl Send for Erased {}
+unsafe impl Sync for Erased {}
 
-/// What a batch's caller and helpers share.
+/// One batch, as its caller and helpers share it.
 struct Shared {
     /// [`CLOSED`] once the caller has finished its blocks; below it, the helpers inside.
     state: AtomicUsize,
     /// The first panic a helper caught, for the caller to resume.
     panic: Mutex<Option<Box<dyn std::any::Any + Send>>>,
+    /// Claims and runs blocks until none is left; valid only while the batch is open.
+    work: Erased,
+    /// Its place in the order batches were published.
+    generation: u64,
 }
 
 const CLOSED: usize = 1 << (usize::BITS - 1);
 
 impl Shared {
+    /// Runs the batch's blocks as a helper, unless it is closed; whether it was open.
+    fn run(&self) -> bool {
+        if !self.enter() {
+            return false;
+        }
+        let work = self.work.0;
+        let r = std::panic::catch_unwind(std::panic::AssertUnwindSafe(work));
+        if let Err(p) = r {
+            *self.panic.lock().unwrap_or_else(|e| e.into_inner()) = Some(p);
+        }
+        self.state.fetch_sub(1, Ordering::Release);
+        true
+    }
+
     /// Counts a helper in, unless the batch is closed (then the helper must not run).
     fn enter(&self) -> bool {
         let mut s = self.state.load(Ordering::Acquire);
