@@ -42,7 +42,7 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<State> {
         model
             .coordinate_joints()
             .into_iter()
-            .map(|i| &model.joints[i])
+            .map(|i| model.joint(i))
             .map(|j| {
                 j.limit
                     .map_or(if lo { -3.1 } else { 3.1 }, |(l, h)| if lo { l } else { h })
@@ -396,7 +396,7 @@ fn spherical_kernels_match_the_reference() {
             let mut q = model.q_from_joints(&per_joint, [0.0; 7]);
             if label != "zero" {
                 for &first in &model.spherical {
-                    let at = model.group_q(first);
+                    let at = model.group_q(first).0;
                     q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
                 }
             }

@@ -165,7 +165,7 @@ pub fn fixture(name: &str) -> serde_json::Value {
 /// `joint_names` (fixtures keep their tool's joint order, matched here by name).
 pub fn fixture_perm(model: &Model, fx: &serde_json::Value, label: &str) -> Vec<usize> {
     let coordinates: Vec<&str> =
-        model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+        model.coordinate_joints().into_iter().map(|i| model.joint(i).name.as_str()).collect();
     fx["joint_names"]
         .as_array()
         .expect("joint_names")

@@ -154,7 +154,7 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
     let n = model.nv();
     let round = |v: Vec<f64>| v.into_iter().map(|x| x as f32 as f64).collect::<Vec<_>>();
     let limit = |lo: bool| {
-        let coordinates = model.coordinate_joints().into_iter().map(|i| &model.joints[i]);
+        let coordinates = model.coordinate_joints().into_iter().map(|i| model.joint(i));
         coordinates
             .map(|j| {
                 j.limit
@@ -186,7 +186,7 @@ fn states(model: &Model, rng: &mut Rng) -> Vec<[Vec<f64>; 3]> {
             let mut q = model.q_from_joints(&q, base);
             // Spherical joints likewise (drawn only for robots that have them).
             for &first in &model.spherical {
-                let at = model.group_q(first);
+                let at = model.group_q(first).0;
                 if k != zero {
                     q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
                 }

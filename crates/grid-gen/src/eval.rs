@@ -463,9 +463,9 @@ fn spherical_layout(model: &Model) -> String {
         .map(|&s| {
             format!(
                 "`{}` at q[{}..{}]",
-                model.joint_name(s),
-                model.group_q(s),
-                model.group_q(s) + 4
+                model.joint_name(s.0),
+                model.group_q(s).0,
+                model.group_q(s).0 + 4
             )
         })
         .collect();
@@ -522,12 +522,12 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
             }
         }
         for &first in &model.spherical {
-            let at = model.group_q(first);
+            let at = model.group_q(first).0;
             let norm = s.q[at..at + 4].iter().map(|x| x * x).sum::<f64>().sqrt();
             if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
                 return Err(EvalError::SphericalQuaternion {
                     index,
-                    joint: model.joint_name(first).to_string(),
+                    joint: model.joint_name(first.0).to_string(),
                     at,
                     norm,
                 });
@@ -545,7 +545,7 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         if let (Some(_), Some(tau)) = (model.specialisation.step, &s.tau) {
             let actuated = model.actuated();
             if let Some(entry) = (0..n).find(|k| !actuated.contains(k) && tau[*k] != 0.0) {
-                let joint = model.joints[model.coordinate_joints()[entry]].name.clone();
+                let joint = model.joint(model.coordinate_joints()[entry]).name.clone();
                 return Err(EvalError::NotActuated { index, entry, joint, value: tau[entry] });
             }
         }
@@ -623,7 +623,7 @@ fn check_forces(model: &Model, index: usize, s: &State) -> Result<(), EvalError>
 
 /// The coordinates' joint names, the order of every vector and matrix in the output.
 fn coordinate_names(model: &Model) -> Vec<String> {
-    model.coordinate_joints().iter().map(|&i| model.joints[i].name.clone()).collect()
+    model.coordinate_joints().iter().map(|&i| model.joint(i).name.clone()).collect()
 }
 
 /// Evaluates the reference dynamics on every state.

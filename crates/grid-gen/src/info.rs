@@ -9,6 +9,7 @@ use crate::back::verilog::{
 };
 use crate::back::wgsl::{emit_with_stats, EntryMeta, WgslOptions};
 use crate::ir::{self, KernelStats, Skipped};
+use crate::model::JointIndex;
 use crate::model::{Count, JointType, Model, DEFAULT_GRAVITY};
 
 #[derive(Clone, Debug, Serialize)]
@@ -157,7 +158,7 @@ impl Info {
         let coordinates = model.coordinate_joints();
         let names = |set: &Option<Vec<usize>>| {
             set.as_ref()
-                .map(|v| v.iter().map(|&k| model.joints[coordinates[k]].name.clone()).collect())
+                .map(|v| v.iter().map(|&k| model.joint(coordinates[k]).name.clone()).collect())
         };
         Info {
             robot: model.name.clone(),
@@ -186,7 +187,7 @@ impl Info {
             actuated: model
                 .actuated()
                 .iter()
-                .map(|&c| model.joints[model.coordinate_joints()[c]].name.clone())
+                .map(|&c| model.joint(model.coordinate_joints()[c]).name.clone())
                 .collect(),
             fext: model
                 .specialisation
@@ -208,12 +209,12 @@ impl Info {
             joint_names: model
                 .coordinate_joints()
                 .iter()
-                .map(|&i| model.joints[i].name.clone())
+                .map(|&i| model.joint(i).name.clone())
                 .collect(),
             joint_types: model
                 .coordinate_joints()
                 .iter()
-                .map(|&i| model.joints[i].joint_type)
+                .map(|&i| model.joint(i).joint_type)
                 .collect(),
             parents: model.coordinate_parents(),
             levels: model
@@ -223,7 +224,7 @@ impl Info {
                     level
                         .into_iter()
                         .filter(|&i| model.coupling(i).is_none())
-                        .map(|i| model.coordinate_of(i))
+                        .map(|i| model.coordinate_of(JointIndex(i)).0)
                         .collect()
                 })
                 .collect(),

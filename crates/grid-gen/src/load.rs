@@ -3,6 +3,7 @@
 //! check), so that `model` does not depend on `reference` (which depends on `model`).
 
 use crate::diagnostic::{Diagnostic, LoadError, Severity};
+use crate::model::JointIndex;
 use crate::model::{build, Model};
 use crate::scene::{self, Scene};
 use crate::urdf::{self, Urdf};
@@ -99,7 +100,7 @@ fn check_massless(
         if model.coupling(i).is_some() {
             continue;
         }
-        let k = model.coordinate_of(i);
+        let k = model.coordinate_of(JointIndex(i)).0;
         // Relative to M's largest diagonal entry, so a small robot is not a singular one:
         // below n·ε of it, M_ii is rounding noise at M's scale, cond(M) ≥ max M_jj / M_ii
         // exceeds 1/(n·ε), and no double-precision factorisation of M is meaningful.

@@ -33,6 +33,21 @@ pub const QUATERNION_TOLERANCE: f64 = 1e-3;
 /// gravity in grid-gen (reference, IR, generation, CLI) is this constant.
 pub const DEFAULT_GRAVITY: [f64; 3] = [0.0, 0.0, -9.81];
 
+/// A model joint: one degree of freedom, the index of `Model::joints` and of the body it
+/// moves (the free-flyer and each spherical joint are several, see [`Model::group`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct JointIndex(pub usize);
+
+/// A coordinate: an entry of q̇, q̈ and τ and a row of every matrix the kernels return;
+/// one per model joint that is not a coupled mimic ([`Model::coordinate_joints`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct CoordIndex(pub usize);
+
+/// An entry of q, where a quaternion takes four entries for three coordinates
+/// (Pinocchio's `idx_q`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, PartialOrd, Ord, Hash)]
+pub struct QIndex(pub usize);
+
 /// A rigid transform: `rot` holds the child frame's axes in parent coordinates and `pos`
 /// its origin in parent coordinates.
 #[derive(Clone, Copy, Debug, PartialEq)]
@@ -207,7 +222,7 @@ pub struct Model {
     /// Spherical joints: the first of the three model joints each one
     /// is ([`SPHERICAL`], like the free-flyer's six: revolute about the joint frame's
     /// axes, held at zero, the first carrying the quaternion's rotation). In model order.
-    pub spherical: Vec<usize>,
+    pub spherical: Vec<JointIndex>,
     /// For each joint, whether it is a coupled mimic joint (`--mimic coupled`); empty when
     /// no joint is coupled (`build` never leaves it all `None`). A coupled joint has
     /// no coordinate: q, q̇, q̈, τ and the matrices have one entry per *coordinate*, the
@@ -485,26 +500,35 @@ impl Model {
         let mut blocks = Vec::new();
         let mut k = 0;
         while k < joints.len() {
-            let j = joints[k];
+            let j = joints[k].0;
             match self.group(j) {
                 Some(_) if self.is_free_flyer(j) => {
                     blocks.push(LieBlock::FreeFlyer);
                     k += FREE_FLYER.len();
                 }
                 Some(m) => {
-                    blocks.push(LieBlock::Spherical { v: k, q: self.group_q(m.start) });
+                    blocks
+                        .push(LieBlock::Spherical { v: k, q: self.group_q(JointIndex(m.start)).0 });
                     k += SPHERICAL.len();
                 }
                 None => {
                     blocks.push(LieBlock::Scalar {
                         v: k,
-                        q: self.q_index(k).expect("a one-dof coordinate has a q entry"),
+                        q: self
+                            .q_index(CoordIndex(k))
+                            .expect("a one-dof coordinate has a q entry")
+                            .0,
                     });
                     k += 1;
                 }
             }
         }
         blocks
+    }
+
+    /// The joint at `i`.
+    pub fn joint(&self, i: JointIndex) -> &Joint {
+        &self.joints[i.0]
     }
 
     pub fn nq(&self) -> usize {
@@ -527,8 +551,8 @@ impl Model {
         }
         self.spherical
             .iter()
-            .find(|&&s| s <= i && i < s + SPHERICAL.len())
-            .map(|&s| s..s + SPHERICAL.len())
+            .find(|&&JointIndex(s)| s <= i && i < s + SPHERICAL.len())
+            .map(|&JointIndex(s)| s..s + SPHERICAL.len())
     }
 
     /// Whether joint `i` is part of a multi-dof joint whose parent is the fixed root (the
@@ -546,14 +570,14 @@ impl Model {
     /// Multi-dof joints before model joint `i`: each adds one entry to q.
     fn quaternions_before(&self, i: usize) -> usize {
         usize::from(self.floating && i >= FREE_FLYER.len())
-            + self.spherical.iter().filter(|&&s| s < i).count()
+            + self.spherical.iter().filter(|s| s.0 < i).count()
     }
 
     /// Where in q the multi-dof joint whose first model joint is `first` keeps its pose:
     /// the free-flyer's `[x, y, z, qx, qy, qz, qw]`, a spherical joint's `[qx, qy, qz, qw]`
     /// (Pinocchio's layout: each joint's entries at its `idx_q`, in model order).
-    pub fn group_q(&self, first: usize) -> usize {
-        self.coordinate_of(first) + self.quaternions_before(first)
+    pub fn group_q(&self, first: JointIndex) -> QIndex {
+        QIndex(self.coordinate_of(first).0 + self.quaternions_before(first.0))
     }
 
     /// Whether some joint is a coupled mimic (then coordinates and joints differ).
@@ -567,19 +591,19 @@ impl Model {
     }
 
     /// The joint of each coordinate: every joint that is not a coupled mimic, in order.
-    pub fn coordinate_joints(&self) -> Vec<usize> {
-        (0..self.njoints()).filter(|&i| self.coupling(i).is_none()).collect()
+    pub fn coordinate_joints(&self) -> Vec<JointIndex> {
+        (0..self.njoints()).filter(|&i| self.coupling(i).is_none()).map(JointIndex).collect()
     }
 
     /// The coordinate joint `i` moves with: its own, or for a coupled mimic joint the
     /// coordinate of the joint it follows.
-    pub fn coordinate_of(&self, i: usize) -> usize {
+    pub fn coordinate_of(&self, i: JointIndex) -> CoordIndex {
         // `build` leaves `coupling` empty when nothing is coupled: the common case is O(1).
         if self.coupling.is_empty() {
-            return i;
+            return CoordIndex(i.0);
         }
-        let own = self.coupling(i).map_or(i, |c| c.of);
-        (0..own).filter(|&j| self.coupling(j).is_none()).count()
+        let own = self.coupling(i.0).map_or(i.0, |c| c.of);
+        CoordIndex((0..own).filter(|&j| self.coupling(j).is_none()).count())
     }
 
     /// Each coordinate's parent coordinate: that of its joint's nearest ancestor that is
@@ -590,9 +614,9 @@ impl Model {
             while let Some(a) = p.filter(|&a| self.coupling(a).is_some()) {
                 p = self.joints[a].parent;
             }
-            p.map(|a| self.coordinate_of(a))
+            p.map(|a| self.coordinate_of(JointIndex(a)).0)
         };
-        self.coordinate_joints().into_iter().map(coordinate_parent).collect()
+        self.coordinate_joints().into_iter().map(|j| coordinate_parent(j.0)).collect()
     }
 
     /// Joint `i`'s velocity per unit of its coordinate's: 1, or a coupled joint's multiplier.
@@ -602,23 +626,23 @@ impl Model {
 
     /// Where coordinate `k`'s position is in q; `None` for the coordinates of a multi-dof
     /// joint, which are always at zero (its pose is in q at [`Model::group_q`] instead).
-    pub fn q_index(&self, k: usize) -> Option<usize> {
+    pub fn q_index(&self, k: CoordIndex) -> Option<QIndex> {
         if !self.floating && self.spherical.is_empty() {
-            return Some(k);
+            return Some(QIndex(k.0));
         }
-        let j = if self.coupling.is_empty() { k } else { self.coordinate_joints()[k] };
+        let j = if self.coupling.is_empty() { k.0 } else { self.coordinate_joints()[k.0].0 };
         match self.group(j) {
             Some(_) => None,
-            None => Some(k + self.quaternions_before(j)),
+            None => Some(QIndex(k.0 + self.quaternions_before(j))),
         }
     }
 
     /// Joint `i`'s position as `(q index, multiplier, offset)`: `q[index] · multiplier +
     /// offset` (1 and 0 unless it is a coupled mimic joint); `None` for the members of a
     /// multi-dof joint.
-    pub fn joint_q(&self, i: usize) -> Option<(usize, f64, f64)> {
+    pub fn joint_q(&self, i: JointIndex) -> Option<(QIndex, f64, f64)> {
         let k = self.q_index(self.coordinate_of(i))?;
-        Some(self.coupling(i).map_or((k, 1.0, 0.0), |c| (k, c.multiplier, c.offset)))
+        Some(self.coupling(i.0).map_or((k, 1.0, 0.0), |c| (k, c.multiplier, c.offset)))
     }
 
     /// Whether joint `i` is one of the free-flyer's six coordinates. The algorithms treat
@@ -639,8 +663,8 @@ impl Model {
             q[..7].copy_from_slice(&base);
         }
         for (i, &x) in per_joint.iter().enumerate().take(self.nv()) {
-            if let Some(k) = self.q_index(i) {
-                q[k] = x;
+            if let Some(k) = self.q_index(CoordIndex(i)) {
+                q[k.0] = x;
             }
         }
         q
@@ -654,15 +678,15 @@ impl Model {
             q[6] = 1.0;
         }
         for &s in &self.spherical {
-            q[self.group_q(s) + 3] = 1.0;
+            q[self.group_q(s).0 + 3] = 1.0;
         }
         q
     }
 
     /// Where each quaternion is in q (`[qx, qy, qz, qw]`): the floating base's at 3, then
     /// each spherical joint's.
-    pub fn quaternions(&self) -> Vec<usize> {
-        let base = self.floating.then_some(3);
+    pub fn quaternions(&self) -> Vec<QIndex> {
+        let base = self.floating.then_some(QIndex(3));
         base.into_iter().chain(self.spherical.iter().map(|&s| self.group_q(s))).collect()
     }
 
@@ -964,7 +988,7 @@ pub(crate) fn build(
                     source.push(Some(j));
                     stack.push(Walk::Close { body: first + k });
                 }
-                spherical.push(first);
+                spherical.push(JointIndex(first));
                 stack.push(Walk::Visit {
                     link: tree.joint_links[j].1,
                     body: Some(first + SPHERICAL.len() - 1),

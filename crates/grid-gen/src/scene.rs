@@ -56,6 +56,7 @@ use serde::Deserialize;
 
 use crate::diagnostic::Diagnostic;
 use crate::ir::KernelKind;
+use crate::model::JointIndex;
 use crate::model::{Edits, Model, ReferenceFrame, Specialisation};
 use crate::urdf::{Inertial, JointKind, Pose, Tree, Urdf};
 
@@ -536,7 +537,7 @@ pub(crate) fn specialise(
         let mut picked = Vec::new();
         for name in names {
             match model.joints.iter().position(|j| &j.name == name) {
-                Some(i) if model.coupling(i).is_none() => picked.push(model.coordinate_of(i)),
+                Some(i) if model.coupling(i).is_none() => picked.push(model.coordinate_of(JointIndex(i)).0),
                 Some(i) => diags.push(
                     Diagnostic::error(
                         format!("scene `{scene_path}`: [gradient] {key} names `{name}`, a coupled mimic joint"),
@@ -563,7 +564,7 @@ pub(crate) fn specialise(
                         Diagnostic::error(format!("scene `{scene_path}`: [gradient] {key} names `{name}`, which is {why}"), None, "not a movable joint")
                             .with_help(format!(
                                 "movable joints of the scene's model: {}",
-                                model.coordinate_joints().iter().map(|&i| model.joints[i].name.as_str()).collect::<Vec<_>>().join(", ")
+                                model.coordinate_joints().iter().map(|&i| model.joint(i).name.as_str()).collect::<Vec<_>>().join(", ")
                             )),
                     );
                 }
@@ -773,14 +774,15 @@ fn select_actuated(
         let found: Vec<usize> = coordinates
             .iter()
             .enumerate()
-            .filter(|(_, &j)| {
+            .filter(|(_, &JointIndex(j))| {
                 model.joints[j].name == *name
                     || (model.group(j).is_some() && model.joint_name(j) == name)
             })
             .map(|(k, _)| k)
             .collect();
         if found.is_empty() {
-            let mut known: Vec<&str> = coordinates.iter().map(|&j| model.joint_name(j)).collect();
+            let mut known: Vec<&str> =
+                coordinates.iter().map(|&JointIndex(j)| model.joint_name(j)).collect();
             known.dedup();
             let mut by_distance: Vec<(usize, &str)> =
                 known.iter().map(|k| (strsim::levenshtein(name, k), *k)).collect();

@@ -212,7 +212,7 @@ fn force_derivatives_match_central_differences() {
 fn random_config(m: &Model, rng: &mut Rng) -> Vec<f64> {
     let mut q = m.q_from_joints(&rng.vec(m.nv(), -3.0, 3.0), rng.base_pose());
     for &s in &m.spherical {
-        let at = m.group_q(s);
+        let at = m.group_q(s).0;
         q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
     }
     q

@@ -5,6 +5,7 @@
 
 use grid_gen::ir::KernelKind;
 use grid_gen::model::ReferenceFrame;
+use grid_gen::model::{CoordIndex, QIndex};
 use grid_gen::{reference, Model, Scene};
 use grid_gen_test_support::*;
 use nalgebra::DMatrix;
@@ -134,7 +135,7 @@ fn frame_kinematics_match_pinocchio() {
 fn integrate(model: &Model, q: &[f64], dq: &[f64]) -> Vec<f64> {
     let mut out = q.to_vec();
     for k in 0..model.nv() {
-        if let Some(i) = model.q_index(k) {
+        if let Some(QIndex(i)) = model.q_index(CoordIndex(k)) {
             out[i] += dq[k];
         }
     }
@@ -158,8 +159,8 @@ fn integrate(model: &Model, q: &[f64], dq: &[f64]) -> Vec<f64> {
         rotate(&mut out, 3, [dq[3], dq[4], dq[5]]);
     }
     for &s in &model.spherical {
-        let k = model.coordinate_of(s);
-        rotate(&mut out, model.group_q(s), [dq[k], dq[k + 1], dq[k + 2]]);
+        let k = model.coordinate_of(s).0;
+        rotate(&mut out, model.group_q(s).0, [dq[k], dq[k + 1], dq[k + 2]]);
     }
     out
 }
@@ -188,7 +189,7 @@ fn jacobians_are_derivatives_of_placements() {
                 // Random spherical rotations too (q_from_joints leaves them unrotated).
                 let mut q = q;
                 for &s in &model.spherical {
-                    let at = model.group_q(s);
+                    let at = model.group_q(s).0;
                     let r = rng.vec(4, -1.0, 1.0);
                     q[at..at + 4].copy_from_slice(&r);
                 }
@@ -345,7 +346,7 @@ fn frame_kernels_match_the_reference() {
             for _ in 0..3 {
                 let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
                 for &s in &m.spherical {
-                    let at = m.group_q(s);
+                    let at = m.group_q(s).0;
                     q[at..at + 4].copy_from_slice(&rng.vec(4, -1.0, 1.0));
                 }
                 let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -2.0, 2.0));
@@ -435,7 +436,7 @@ fn frame_acceleration_derivatives_match_central_differences() {
             for _ in 0..2 {
                 let mut q = m.q_from_joints(&rng.vec(nv, -2.0, 2.0), rng.base_pose());
                 for &s in &m.spherical {
-                    let at = m.group_q(s);
+                    let at = m.group_q(s).0;
                     q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
                 }
                 let (qd, qdd) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -2.0, 2.0));
@@ -515,7 +516,7 @@ fn frame_acceleration_derivatives_match_pinocchio() {
         let names: Vec<&str> =
             fx["joint_names"].as_array().unwrap().iter().map(|v| v.as_str().unwrap()).collect();
         let coordinates: Vec<&str> =
-            model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+            model.coordinate_joints().into_iter().map(|i| model.joint(i).name.as_str()).collect();
         let perm: Vec<usize> =
             names.iter().map(|n| coordinates.iter().position(|c| c == n).unwrap()).collect();
         let nv = model.nv();

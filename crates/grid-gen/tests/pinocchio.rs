@@ -154,7 +154,7 @@ impl Order {
         assert_eq!(names.len(), model.nv(), "{robot}: joint count");
         // Coordinates: the joints that are not coupled mimics (all of them by default).
         let coordinates: Vec<&str> =
-            model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+            model.coordinate_joints().into_iter().map(|i| model.joint(i).name.as_str()).collect();
         let perm: Vec<usize> = names
             .iter()
             .map(|name| {

@@ -75,7 +75,7 @@ fn reference_step_matches_pinocchio() {
         let (model, floating) = fixture_model(name, &fx);
         let perm = fixture_perm(&model, &fx, name);
         let coordinates: Vec<&str> =
-            model.coordinate_joints().into_iter().map(|i| model.joints[i].name.as_str()).collect();
+            model.coordinate_joints().into_iter().map(|i| model.joint(i).name.as_str()).collect();
         let nv = model.nv();
         let ours = |v: &[f64]| {
             let mut o = vec![0.0; nv];
@@ -268,7 +268,7 @@ fn step_derivatives_match_central_differences() {
         let actuated = model.actuated();
         let mut q = model.q_from_joints(&rng.vec(nv, -2.0, 2.0), rng.base_pose());
         for &s in &model.spherical {
-            let at = model.group_q(s);
+            let at = model.group_q(s).0;
             let x = rng.vec(4, -1.0, 1.0);
             let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
             q[at..at + 4].copy_from_slice(&x.iter().map(|v| v / n).collect::<Vec<_>>());
@@ -384,7 +384,7 @@ fn step_kernels_match_the_reference() {
                     let speed = if state == 2 { fast } else { 2.0 };
                     let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
                     for &s in &m.spherical {
-                        let at = m.group_q(s);
+                        let at = m.group_q(s).0;
                         let x = rng.vec(4, -1.0, 1.0);
                         let n = x.iter().map(|v| v * v).sum::<f64>().sqrt();
                         q[at..at + 4].copy_from_slice(&x.iter().map(|v| v / n).collect::<Vec<_>>());
@@ -441,7 +441,7 @@ fn forced_step_kernels_match_the_reference() {
                 let nv = m.nv();
                 let mut q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
                 for &s in &m.spherical {
-                    let at = m.group_q(s);
+                    let at = m.group_q(s).0;
                     q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
                 }
                 let (qd, u, fext) = (

@@ -63,7 +63,7 @@ fn states(n: &Netlist, model: &grid_gen::Model, count: usize, seed: u64) -> Vec<
         let base = if model.floating { rng.base_pose() } else { [0.0; 7] };
         let mut q = clamp(model.q_from_joints(&angles, base));
         for &first in &model.spherical {
-            let at = model.group_q(first);
+            let at = model.group_q(first).0;
             q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
         }
         let qd = (0..nv).map(|j| rng.uniform(-b.qd[j], b.qd[j])).collect();

@@ -67,7 +67,7 @@ pub fn random_states(
             let per_joint: Vec<f64> = model
                 .coordinate_joints()
                 .into_iter()
-                .map(|i| &model.joints[i])
+                .map(|i| model.joint(i))
                 .map(|j| {
                     let (lo, hi) = j
                         .limit
@@ -82,7 +82,7 @@ pub fn random_states(
             let mut q = model.q_from_joints(&per_joint, base);
             // Each spherical joint: a uniform rotation (drawn only for robots that have one).
             for &first in &model.spherical {
-                let at = model.group_q(first);
+                let at = model.group_q(first).0;
                 q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
             }
             let qd: Vec<f64> = bounds.qd.iter().map(|&b| rng.uniform(-b, b)).collect();

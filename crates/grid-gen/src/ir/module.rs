@@ -7,6 +7,7 @@ use super::dynamics::Dynamics;
 use super::graph::{Graph, Id, Input, Node, Op};
 use super::kernel::{Gradient, KernelKind, Shape, Solve};
 use super::validate::{validate, ValidationError};
+use crate::model::{CoordIndex, QIndex};
 use crate::model::{JointType, Model};
 
 /// Default node limit of one kernel's graph: about 1 GB while lowering, and far beyond
@@ -148,7 +149,7 @@ impl Robot {
     pub fn of(model: &Model) -> Robot {
         // One entry per coordinate: coupled mimic joints have none.
         let joints: Vec<&crate::model::Joint> =
-            model.coordinate_joints().into_iter().map(|i| &model.joints[i]).collect();
+            model.coordinate_joints().into_iter().map(|i| model.joint(i)).collect();
         Robot {
             name: model.name.clone(),
             source: model.source.clone(),
@@ -173,14 +174,14 @@ impl Robot {
                 .spherical
                 .iter()
                 .map(|&s| SphericalJoint {
-                    name: model.joint_name(s).to_string(),
-                    q_start: model.group_q(s),
+                    name: model.joint_name(s.0).to_string(),
+                    q_start: model.group_q(s).0,
                 })
                 .collect(),
             q_coordinates: {
                 let mut at = vec![None; model.nq()];
                 for k in 0..model.nv() {
-                    if let Some(i) = model.q_index(k) {
+                    if let Some(QIndex(i)) = model.q_index(CoordIndex(k)) {
                         at[i] = Some(k);
                     }
                 }

@@ -4,6 +4,7 @@
 
 use super::graph::{Graph, Id};
 use crate::model::{Inertia, Joint, Model};
+use crate::model::{JointIndex, QIndex};
 
 pub type V3 = [Id; 3];
 pub type Sv = [Id; 6];
@@ -328,7 +329,7 @@ pub fn joint_xform_at(g: &mut Graph, model: &Model, i: usize, q_at: Option<&[Id]
     // E_T = Rᵀ (rows of E_T are columns of R); r_T = position.
     let et: [[Id; 3]; 3] = std::array::from_fn(|r| std::array::from_fn(|c| k(g, tree_r[c][r])));
     let rt: V3 = std::array::from_fn(|r| k(g, joint.tree.pos[r]));
-    let Some((qi, multiplier, offset)) = model.joint_q(i) else {
+    let Some((QIndex(qi), multiplier, offset)) = model.joint_q(JointIndex(i)) else {
         return group_xform(g, model, i, et, rt, q_at);
     };
     let mut q = q_at.map_or_else(|| g.input(super::graph::Input::Q, qi), |q| q[qi]);
@@ -420,7 +421,7 @@ fn group_xform(
     let input =
         |g: &mut Graph, k: usize| q_at.map_or_else(|| g.input(super::graph::Input::Q, k), |q| q[k]);
     let free = model.is_free_flyer(i);
-    let at = if free { 3 } else { model.group_q(i) };
+    let at = if free { 3 } else { model.group_q(JointIndex(i)).0 };
     let p: Option<V3> = free.then(|| std::array::from_fn(|k| input(g, k)));
     let [x, y, z, w] = std::array::from_fn(|k| input(g, at + k));
     let r = quaternion_rotation(g, [x, y, z, w]);

@@ -23,6 +23,7 @@ use nalgebra::{DMatrix, DVector, Vector3};
 use super::coupled::expand;
 use super::forces::External;
 use super::{crba, forward_kinematics, frame_jacobian, rnea_derivatives_with, rnea_with};
+use crate::model::JointIndex;
 use crate::model::{Contact, ContactKind, Model, ReferenceFrame};
 use crate::spatial::{crm, Vec6};
 
@@ -200,7 +201,7 @@ pub fn contact_acceleration_derivatives(
     let nl: usize = contacts.iter().map(|c| c.kind.dim()).sum();
     let (mut dq, mut dqd) = (DMatrix::zeros(nl, model.nv()), DMatrix::zeros(nl, model.nv()));
     for k in 0..n {
-        let (col, m) = (model.coordinate_of(k), model.multiplier(k));
+        let (col, m) = (model.coordinate_of(JointIndex(k)).0, model.multiplier(k));
         // Along δ_k: screws downstream turn by S_k ×, velocities follow.
         let ds: Vec<Vec6> = (0..n)
             .map(|a| if turns(model, k, a) { crm(&sc.s[k]) * sc.s[a] } else { Vec6::zeros() })

@@ -14,6 +14,7 @@
 
 use nalgebra::DMatrix;
 
+use crate::model::JointIndex;
 use crate::model::Model;
 
 /// Per-joint values from per-coordinate ones: `G x` (velocities, accelerations).
@@ -21,7 +22,9 @@ pub fn expand(model: &Model, x: &[f64]) -> Vec<f64> {
     if !model.has_coupled() {
         return x.to_vec();
     }
-    (0..model.njoints()).map(|i| model.multiplier(i) * x[model.coordinate_of(i)]).collect()
+    (0..model.njoints())
+        .map(|i| model.multiplier(i) * x[model.coordinate_of(JointIndex(i)).0])
+        .collect()
 }
 
 /// Per-coordinate forces from per-joint ones: `Gᵀ c`.
@@ -31,7 +34,7 @@ pub fn reduce(model: &Model, c: &[f64]) -> Vec<f64> {
     }
     let mut out = vec![0.0; model.nv()];
     for (i, ci) in c.iter().enumerate() {
-        out[model.coordinate_of(i)] += model.multiplier(i) * ci;
+        out[model.coordinate_of(JointIndex(i)).0] += model.multiplier(i) * ci;
     }
     out
 }
@@ -48,7 +51,7 @@ pub fn reduce_matrix(model: &Model, d: DMatrix<f64>) -> DMatrix<f64> {
 
 fn coupling_matrix(model: &Model) -> DMatrix<f64> {
     DMatrix::from_fn(model.njoints(), model.nv(), |i, k| {
-        if model.coordinate_of(i) == k {
+        if model.coordinate_of(JointIndex(i)).0 == k {
             model.multiplier(i)
         } else {
             0.0
@@ -80,7 +83,7 @@ fn correction(model: &Model, minv_joints: &DMatrix<f64>) -> (DMatrix<f64>, DMatr
 
 fn pick(model: &Model, full: &DMatrix<f64>) -> DMatrix<f64> {
     let joints = model.coordinate_joints();
-    DMatrix::from_fn(joints.len(), joints.len(), |a, b| full[(joints[a], joints[b])])
+    DMatrix::from_fn(joints.len(), joints.len(), |a, b| full[(joints[a].0, joints[b].0)])
 }
 
 /// The coordinates' M⁻¹ from the joint-level M⁻¹.
@@ -99,7 +102,7 @@ pub fn place(model: &Model, tau: &[f64]) -> Vec<f64> {
         return tau.to_vec();
     }
     let mut out = vec![0.0; model.njoints()];
-    for (k, &i) in model.coordinate_joints().iter().enumerate() {
+    for (k, &JointIndex(i)) in model.coordinate_joints().iter().enumerate() {
         out[i] = tau[k];
     }
     out
@@ -110,5 +113,5 @@ pub fn project_acceleration(model: &Model, a: Vec<f64>, minv_joints: &DMatrix<f6
     let (w, s_inv) = correction(model, minv_joints);
     let a = nalgebra::DVector::from_vec(a);
     let constrained = &a - &w * (s_inv * (constraints(model) * &a));
-    model.coordinate_joints().iter().map(|&i| constrained[i]).collect()
+    model.coordinate_joints().iter().map(|&JointIndex(i)| constrained[i]).collect()
 }

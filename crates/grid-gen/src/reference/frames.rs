@@ -11,6 +11,7 @@ use nalgebra::{DMatrix, Matrix3, Vector3};
 
 use super::coupled::expand;
 use super::{forward_kinematics, velocity_product, Kinematics};
+use crate::model::JointIndex;
 use crate::model::{Frame, Model, ReferenceFrame};
 use crate::spatial::Vec6;
 
@@ -47,7 +48,7 @@ pub fn frame_jacobian(model: &Model, q: &[f64], frame: &Frame, rf: ReferenceFram
             (axis, Vector3::zeros())
         };
         let (lin, ang) = express(rf, &r_f, &p_f, v_o, w);
-        let k = model.coordinate_of(a);
+        let k = model.coordinate_of(JointIndex(a)).0;
         let m = model.multiplier(a);
         for r in 0..3 {
             j[(r, k)] += m * lin[r];

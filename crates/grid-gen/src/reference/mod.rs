@@ -37,6 +37,7 @@ use crate::model::{Joint, Model};
 use crate::spatial::{axis_angle, crm, plux, quaternion_matrix, spatial_inertia, Mat6, Vec6};
 
 pub use crate::model::DEFAULT_GRAVITY;
+use crate::model::{JointIndex, QIndex};
 
 /// The joint's motion subspace S (a unit twist) in its own frame.
 pub fn motion_subspace(joint: &Joint) -> Vec6 {
@@ -68,8 +69,8 @@ pub fn joint_transform(joint: &Joint, qi: f64) -> Mat6 {
 /// [`crate::model`]).
 pub fn model_joint_transform(model: &Model, i: usize, q: &[f64]) -> Mat6 {
     let joint = &model.joints[i];
-    match model.joint_q(i) {
-        Some((k, m, o)) => joint_transform(joint, m * q[k] + o),
+    match model.joint_q(JointIndex(i)) {
+        Some((QIndex(k), m, o)) => joint_transform(joint, m * q[k] + o),
         None => match group_pose(model, i, q) {
             Some((r, p)) => plux(&r.transpose(), &p) * joint_transform(joint, 0.0),
             None => joint_transform(joint, 0.0),
@@ -84,7 +85,7 @@ fn group_pose(model: &Model, i: usize, q: &[f64]) -> Option<(Matrix3<f64>, Vecto
     if model.is_free_flyer(first.start) {
         return Some(base_pose(q));
     }
-    let k = model.group_q(i);
+    let k = model.group_q(JointIndex(i)).0;
     Some((quaternion_matrix([q[k], q[k + 1], q[k + 2], q[k + 3]]), Vector3::zeros()))
 }
 
@@ -156,7 +157,7 @@ pub fn forward_kinematics(model: &Model, q: &[f64]) -> Vec<(Matrix3<f64>, Vector
             Some(p) => poses[p],
             None => (Matrix3::identity(), Vector3::zeros()),
         };
-        let Some((k, m, o)) = model.joint_q(i) else {
+        let Some((QIndex(k), m, o)) = model.joint_q(JointIndex(i)) else {
             // A multi-dof joint: the pose after the first member's origin, then at rest.
             let (r, p) = match group_pose(model, i, q) {
                 Some((rb, pb)) => {

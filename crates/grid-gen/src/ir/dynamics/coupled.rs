@@ -5,6 +5,7 @@
 
 use super::{Dynamics, Mat};
 use crate::ir::graph::{Graph, Id};
+use crate::model::JointIndex;
 
 /// The mimic constraints `K q̈_joints = 0` against a joint-level M⁻¹: `W = M⁻¹ Kᵀ`
 /// (joints × constraints) and `Y = W S⁻¹` with `S = K W` (symmetric positive definite).
@@ -26,7 +27,7 @@ impl Dynamics<'_> {
     pub fn expand(&mut self, x: &[Id]) -> Vec<Id> {
         (0..self.n())
             .map(|i| {
-                let xi = x[self.model.coordinate_of(i)];
+                let xi = x[self.model.coordinate_of(JointIndex(i)).0];
                 match self.model.multiplier(i) {
                     1.0 => xi,
                     m => {
@@ -45,7 +46,7 @@ impl Dynamics<'_> {
                 if self.model.coupling(i).is_some() {
                     self.g.constant(0.0)
                 } else {
-                    tau[self.model.coordinate_of(i)]
+                    tau[self.model.coordinate_of(JointIndex(i)).0]
                 }
             })
             .collect()
@@ -55,7 +56,7 @@ impl Dynamics<'_> {
     pub fn reduce(&mut self, c: &[Id]) -> Vec<Id> {
         let mut out: Vec<Option<Id>> = vec![None; self.model.nv()];
         for (i, &ci) in c.iter().enumerate() {
-            let k = self.model.coordinate_of(i);
+            let k = self.model.coordinate_of(JointIndex(i)).0;
             let term = match self.model.multiplier(i) {
                 1.0 => ci,
                 m => {
@@ -122,7 +123,7 @@ impl Dynamics<'_> {
         let mut out = vec![vec![Id(0); nv]; nv];
         for a in 0..nv {
             for b in a..nv {
-                let (ja, jb) = (joints[a], joints[b]);
+                let (ja, jb) = (joints[a].0, joints[b].0);
                 let t = self.g.dot(&k.y[ja], &k.w[jb]);
                 out[a][b] = self.g.sub(minv[ja][jb], t);
                 out[b][a] = out[a][b];
@@ -137,7 +138,7 @@ impl Dynamics<'_> {
         self.model
             .coordinate_joints()
             .into_iter()
-            .map(|j| {
+            .map(|JointIndex(j)| {
                 let t = self.g.dot(&k.y[j], &ka);
                 self.g.sub(a[j], t)
             })

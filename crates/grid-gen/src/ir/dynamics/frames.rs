@@ -7,6 +7,7 @@
 use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::spatial::{self as sp, k, Sv, V3};
 use super::Dynamics;
+use crate::model::{CoordIndex, JointIndex, QIndex};
 use crate::model::{Frame, ReferenceFrame};
 
 /// A forward-mode direction: seeds on the kernel's inputs, and tangents given to nodes
@@ -134,7 +135,7 @@ impl Dynamics<'_> {
                     ReferenceFrame::Local => (t_apply(g, &r_f, &l), t_apply(g, &r_f, &a)),
                     _ => (l, a),
                 };
-                let c = self.model.coordinate_of(j);
+                let c = self.model.coordinate_of(JointIndex(j)).0;
                 let m = self.model.multiplier(j);
                 let col = [l[0], l[1], l[2], a[0], a[1], a[2]];
                 for (row, &x) in col.iter().enumerate() {
@@ -263,16 +264,16 @@ impl Dynamics<'_> {
     /// Entries name q's; the tangents are built from the configuration the transforms were
     /// (an RK4 stage's, see [`Self::stage_tangents`]).
     pub(super) fn q_seeds(&mut self, k: usize) -> Vec<(Input, usize, Id)> {
-        if let Some(i) = self.model.q_index(k) {
+        if let Some(QIndex(i)) = self.model.q_index(CoordIndex(k)) {
             let one = self.g.constant(1.0);
             return vec![(Input::Q, i, one)];
         }
-        let joint = self.model.coordinate_joints()[k];
+        let joint = self.model.coordinate_joints()[k].0;
         let group =
             self.model.group(joint).expect("a coordinate without a q entry is a multi-dof joint's");
         let member = joint - group.start;
         let free = self.model.is_free_flyer(group.start);
-        let at = if free { 3 } else { self.model.group_q(group.start) };
+        let at = if free { 3 } else { self.model.group_q(JointIndex(group.start)).0 };
         let g = &mut self.g;
         let config = &self.config;
         let [x, y, z, w] = std::array::from_fn(|c| {
