@@ -739,7 +739,7 @@ fn run(cli: Cli) -> ExitCode {
             Err(code) => code,
         },
         Command::Eval { urdf, states, backend, wgsl, verilog } => {
-            let (_, loaded) = match load(&urdf, &cli.model) {
+            let (config, loaded) = match load(&urdf, &cli.model) {
                 Ok(loaded) => loaded,
                 Err(code) => return code,
             };
@@ -761,7 +761,7 @@ fn run(cli: Cli) -> ExitCode {
                         .map(|o| serde_json::to_string(&o).expect("results serialise"))
                         .map_err(|e| format!("{}: {e}", states.display()))
                 }),
-                EvalBackend::Wgsl => eval_wgsl(model, &file, gravity, &wgsl)
+                EvalBackend::Wgsl => eval_wgsl(model, &file, gravity, &config.options.lower, &wgsl)
                     .map(|o| serde_json::to_string(&o).expect("results serialise"))
                     .map_err(|e| format!("{}: {e}", states.display())),
             };
@@ -779,6 +779,7 @@ fn eval_wgsl(
     model: &Model,
     file: &grid_gen::eval::StatesFile,
     gravity: [f64; 3],
+    routes: &grid_gen::ir::LowerOptions,
     wgsl: &WgslArgs,
 ) -> Result<grid_gen::eval::EvalOutput, String> {
     let strategy = wgsl.strategy("eval")?;
@@ -786,12 +787,14 @@ fn eval_wgsl(
     let options = wgsl.options();
     // Which adapter and number type the JSON comes from (stdout stays JSON).
     eprintln!(
-        "eval: WGSL on `{}`, {}, {} strategy",
+        "eval: WGSL on `{}`, {}, {} strategy, gradient {}, solve {}",
         gpu.adapter(),
         options.precision.name(),
-        strategy.name()
+        strategy.name(),
+        routes.gradient.name(),
+        routes.solve.name()
     );
-    grid_gen_wgpu::evaluate(&gpu, model, file, gravity, &options, strategy)
+    grid_gen_wgpu::evaluate(&gpu, model, file, gravity, routes, &options, strategy)
         .map_err(|e| e.to_string())
 }
 
@@ -800,6 +803,7 @@ fn eval_wgsl(
     _: &Model,
     _: &grid_gen::eval::StatesFile,
     _: [f64; 3],
+    _: &grid_gen::ir::LowerOptions,
     wgsl: &WgslArgs,
 ) -> Result<grid_gen::eval::EvalOutput, String> {
     wgsl.strategy("eval")?;

@@ -330,6 +330,8 @@ fn adapter_or_skip(out: &Output) -> bool {
 /// `eval --backend wgsl` prints the same keys, in the same order, as the reference, on a
 /// robot the checked-in kernels do not include (a 3-joint chain written here), within
 /// the f32 bounds of the WGSL tests (1e-5 direct, 1e-4 through M⁻¹; relative, max-abs).
+/// The cooperative run also takes `--gradient idsva --solve ltdl`, which must reach the
+/// generated kernels (stderr names the routes) and give the same numbers.
 #[test]
 fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-wgsl-{}", std::process::id()));
@@ -345,9 +347,13 @@ fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
     let (u, s) = (urdf.to_str().unwrap(), states.to_str().unwrap());
     let reference = grid_gen(&["eval", u, "--states", s]);
     assert_eq!(reference.status.code(), Some(0), "{}", String::from_utf8_lossy(&reference.stderr));
-    for strategy in ["thread", "cooperative"] {
-        let out =
-            grid_gen(&["eval", u, "--states", s, "--backend", "wgsl", "--wgsl-strategy", strategy]);
+    for (strategy, routes) in [
+        ("thread", ["--gradient", "auto", "--solve", "auto"]),
+        ("cooperative", ["--gradient", "idsva", "--solve", "ltdl"]),
+    ] {
+        let args = ["eval", u, "--states", s, "--backend", "wgsl", "--wgsl-strategy", strategy];
+        let args: Vec<&str> = args.iter().chain(&routes).copied().collect();
+        let out = grid_gen(&args);
         if !adapter_or_skip(&out) {
             return;
         }
@@ -356,14 +362,17 @@ fn eval_wgsl_matches_the_reference_on_an_unseen_robot() {
         // about XDG_RUNTIME_DIR even where it is unset.
         let quiet = Command::new(env!("CARGO_BIN_EXE_grid-gen"))
             .current_dir(repo())
-            .args(["eval", u, "--states", s, "--backend", "wgsl", "--wgsl-strategy", strategy])
+            .args(&args)
             .env_remove("XDG_RUNTIME_DIR")
             .output()
             .unwrap();
         let err = String::from_utf8_lossy(&quiet.stderr);
         assert!(
             err.contains("eval: WGSL on `")
-                && err.contains(&format!("f32, {strategy} strategy"))
+                && err.contains(&format!(
+                    "f32, {strategy} strategy, gradient {}, solve {}",
+                    routes[1], routes[3]
+                ))
                 && !err.contains("XDG_RUNTIME_DIR"),
             "{err}"
         );

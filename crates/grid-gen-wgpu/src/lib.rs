@@ -850,14 +850,16 @@ pub enum EvalError {
     Eval(#[from] grid_gen::eval::BackendEvalError<GpuError>),
 }
 
-/// `grid-gen eval --backend wgsl`: generates the WGSL of `model` with `options`, runs
-/// every kernel under `strategy` on `gpu`, and returns exactly the JSON of
+/// `grid-gen eval --backend wgsl`: generates the WGSL of `model` with `options` and the
+/// gradient formulation and solve of `routes` (whose kernel list is not read), runs every
+/// kernel under `strategy` on `gpu`, and returns exactly the JSON of
 /// [`grid_gen::eval::evaluate`] (same keys, model order).
 pub fn evaluate(
     gpu: &Gpu,
     model: &grid_gen::Model,
     file: &grid_gen::eval::StatesFile,
     gravity: [f64; 3],
+    routes: &grid_gen::ir::LowerOptions,
     options: &grid_gen::back::wgsl::WgslOptions,
     strategy: Strategy,
 ) -> Result<grid_gen::eval::EvalOutput, EvalError> {
@@ -871,7 +873,7 @@ pub fn evaluate(
         KernelKind::FdGrad,
     ];
     kernels.extend(KernelKind::ALL.into_iter().filter(|k| k.is_frame()));
-    let lower = grid_gen::ir::LowerOptions { kernels, ..Default::default() };
+    let lower = grid_gen::ir::LowerOptions { kernels, ..routes.clone() };
     let module = grid_gen::ir::lower(model, gravity, &lower)
         .map_err(grid_gen::generate::GenerateError::from)?;
     let wgsl = grid_gen::back::wgsl::WgslOptions { strategies: vec![strategy], ..options.clone() };
