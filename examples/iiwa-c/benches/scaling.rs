@@ -12,6 +12,7 @@
 
 use std::time::{Duration, Instant};
 
+use grid_gen_test_support::Rng;
 use grid_iiwa::iiwa14::{NQ, NV};
 use grid_iiwa::iiwa14_batch::{iiwa14_fd_grad_batch_f64, iiwa14_set_threads, GRID_GEN_OK};
 
@@ -25,15 +26,10 @@ struct Batch {
 
 impl Batch {
     fn new(n: usize) -> Self {
-        // A fixed linear congruential sequence: the same states every run.
-        let mut s = 0x2545_f491_4f6c_dd1du64;
+        // The library's seeded generator, as the C ABI tests draw iiwa's states.
+        let mut rng = Rng(7);
         let mut draw = |len: usize, scale: f64| -> Vec<f64> {
-            (0..len)
-                .map(|_| {
-                    s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407);
-                    ((s >> 11) as f64 / (1u64 << 53) as f64 * 2.0 - 1.0) * scale
-                })
-                .collect()
+            (0..len).map(|_| rng.uniform(-scale, scale)).collect()
         };
         let (q, qd, tau) = (draw(n * NQ, 2.0), draw(n * NV, 1.5), draw(n * NV, 20.0));
         Batch {
