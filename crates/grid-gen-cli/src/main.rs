@@ -219,8 +219,9 @@ struct ModelArgs {
     #[arg(long, value_name = "X,Y,Z", value_parser = parse_gravity, allow_hyphen_values = true, global = true)]
     gravity: Option<[f64; 3]>,
     /// How to build the RNEA gradient (rnea_grad, fd_grad): `idsva` (Singh, Russell &
-    /// Wensing 2022), `columns` (Carpentier & Mansard 2018), or `auto`, the one with fewer
-    /// operations for this robot (`info` says which).
+    /// Wensing 2022) in body frames, `world` (the same with every pair in one frame per tree),
+    /// `columns` (Carpentier & Mansard 2018), or `auto`, the one with fewer operations for
+    /// this robot (`info` says which).
     #[arg(
         long,
         value_name = "FORM",

@@ -212,16 +212,16 @@ fn generate_writes_checks_and_reports_op_counts() {
         Some(1)
     );
     assert_eq!(grid_gen(&["robots/ur5.urdf", "-o", d, "--emit", "cuda"]).status.code(), Some(2));
-    // The checked-in UR5 uses IDSVA (auto's pick); `--gradient idsva` is the same file,
-    // `columns` another one, and an unknown formulation is a usage error.
-    assert_eq!(
-        grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", "idsva"]).status.code(),
-        Some(0)
-    );
-    assert_eq!(
-        grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", "columns"]).status.code(),
-        Some(1)
-    );
+    // The checked-in UR5 takes auto's picks, `world` for rnea_grad and `idsva` for fd_grad
+    // (`info`); forcing any one formulation is another file, and an unknown one is a usage
+    // error.
+    for form in ["idsva", "world", "columns"] {
+        assert_eq!(
+            grid_gen(&["robots/ur5.urdf", "-o", d, "--check", "--gradient", form]).status.code(),
+            Some(1),
+            "{form}"
+        );
+    }
     assert_eq!(
         grid_gen(&["robots/ur5.urdf", "-o", d, "--gradient", "rnea"]).status.code(),
         Some(2)
@@ -252,6 +252,18 @@ fn generate_writes_checks_and_reports_op_counts() {
         let has_gradient = matches!(k["kernel"].as_str(), Some("rnea_grad" | "fd_grad"));
         assert_eq!(k["gradient"].as_str(), has_gradient.then_some("idsva"), "{k}");
     }
+    // Every formulation's cost, the picked one the cheapest.
+    let costs = v["gradient_costs"].as_array().unwrap();
+    let names: Vec<&str> = costs.iter().map(|c| c["gradient"].as_str().unwrap()).collect();
+    assert_eq!(names, ["columns", "idsva", "world"]);
+    let cheapest = costs.iter().min_by_key(|c| c["ops"].as_u64().unwrap()).unwrap();
+    assert_eq!(cheapest["gradient"], "idsva");
+    let grad = v["ops"].as_array().unwrap().iter().find(|k| k["kernel"] == "rnea_grad").unwrap();
+    let after: u64 = ["add", "mul", "div", "neg", "trig"]
+        .iter()
+        .map(|f| grad["after"][f].as_u64().unwrap())
+        .sum();
+    assert_eq!(cheapest["ops"].as_u64(), Some(after));
 }
 
 /// A serial chain of `n` revolute links with alternating axes, written to a temporary file.
@@ -640,7 +652,11 @@ fn every_command_takes_only_its_own_flags() {
     );
     let out = grid_gen(&["info", iiwa, "--gradient", "dense"]);
     assert_eq!(out.status.code(), Some(2));
-    assert!(stderr(&out).contains("[possible values: auto, columns, idsva]"), "{}", stderr(&out));
+    assert!(
+        stderr(&out).contains("[possible values: auto, columns, idsva, world]"),
+        "{}",
+        stderr(&out)
+    );
     // `--solve` reaches the summary's counts, as it reaches the generated code.
     let summary =
         String::from_utf8_lossy(&grid_gen(&["info", iiwa, "--solve", "minv"]).stdout).into_owned();

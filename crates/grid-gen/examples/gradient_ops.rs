@@ -1,4 +1,4 @@
-//! Operation counts of the two RNEA-gradient formulations for each bundled robot, and of
+//! Operation counts of the three RNEA-gradient formulations for each bundled robot, and of
 //! `fd_grad`'s two M⁻¹ routes (the figures of the book's gradient tables):
 //! `cargo run --release -p grid-gen --example gradient_ops`.
 
@@ -14,8 +14,8 @@ fn main() {
         .collect();
     names.sort();
     let mut routes = String::from("\n| robot | `fd_grad`, minv | `fd_grad`, ltdl | `fd_grad`, crba | auto picks |\n|---|---:|---:|---:|---|\n");
-    println!("| robot | kernel | columns | idsva | auto picks |");
-    println!("|---|---|---:|---:|---|");
+    println!("| robot | kernel | columns | idsva | world | auto picks |");
+    println!("|---|---|---:|---:|---:|---|");
     for path in names {
         let text = std::fs::read_to_string(&path).expect("bundled robot reads");
         let (model, _) = grid_gen::Model::from_urdf_str(&path.to_string_lossy(), &text, false)
@@ -41,9 +41,10 @@ fn main() {
             };
             let (c, _, _) = ops(Gradient::Columns, Solve::Auto);
             let (i, _, _) = ops(Gradient::Idsva, Solve::Auto);
+            let (w, _, _) = ops(Gradient::World, Solve::Auto);
             let (_, pick, _) = ops(Gradient::Auto, Solve::Auto);
             println!(
-                "| {} | {} | {c} | {i} | {} |",
+                "| {} | {} | {c} | {i} | {w} | {} |",
                 model.name,
                 kind,
                 pick.map_or("-", |g| g.name())

@@ -30,6 +30,17 @@ pub struct Sparsity {
     pub dc_dq: Count,
 }
 
+/// What one RNEA-gradient formulation costs this robot, in [`Info`]: `rnea_grad`'s
+/// operations after specialisation, and what it adds to `rnea`'s per (joint, ancestor or
+/// self) pair, the unit the formulations' costs grow with (Singh, Russell & Wensing 2022
+/// count the same way).
+#[derive(Clone, Debug, Serialize)]
+pub struct GradientCost {
+    pub gradient: ir::Gradient,
+    pub ops: usize,
+    pub per_pair: f64,
+}
+
 /// A contact the dynamics kernels take a force λ at, in [`Info`].
 #[derive(Clone, Debug, Serialize)]
 pub struct ContactInfo {
@@ -122,6 +133,9 @@ pub struct Info {
     pub ops: Vec<KernelStats>,
     /// Kernels left out of `ops`, each with the reason.
     pub ops_skipped: Vec<Skipped>,
+    /// `rnea_grad` in every formulation `--gradient auto` chooses from (empty when
+    /// `rnea_grad` is over the node limit).
+    pub gradient_costs: Vec<GradientCost>,
     /// The Verilog netlists `--backend verilog` builds with default options (format by
     /// `--fixed auto --max-error 1e-3`), in both architectures: units, registers, cycles,
     /// format and analysed error bound.
@@ -247,6 +261,7 @@ impl Info {
             gradient_columns: names(&model.specialisation.columns),
             ops: Vec::new(),
             ops_skipped: Vec::new(),
+            gradient_costs: gradient_costs(model, gravity),
             verilog: Vec::new(),
             verilog_skipped: None,
             wgsl: Vec::new(),
@@ -511,6 +526,16 @@ impl Info {
         for k in &self.ops_skipped {
             s.push_str(&format!("  {:<w$} not counted: {}\n", k.kernel.name(), k.reason));
         }
+        if !self.gradient_costs.is_empty() {
+            let pairs = self.sparsity.dv_dq.nonzero;
+            s.push_str(&format!(
+                "rnea_grad by formulation (operations; beyond rnea's, per (joint, ancestor) pair, {pairs} pairs):"
+            ));
+            for c in &self.gradient_costs {
+                s.push_str(&format!(" {} {} ({:.1})", c.gradient.name(), c.ops, c.per_pair));
+            }
+            s.push('\n');
+        }
         if !self.verilog.is_empty() {
             s.push_str("verilog netlists (default options; multipliers/adders/registers, cycles per state, latency, format, error bound):\n");
         }
@@ -550,4 +575,35 @@ impl Info {
         }
         s
     }
+}
+
+/// `rnea_grad`'s cost in each formulation, beside `rnea`'s; empty when either is over the
+/// node limit or the model has no `rnea_grad`.
+fn gradient_costs(model: &Model, gravity: [f64; 3]) -> Vec<GradientCost> {
+    use ir::{Gradient, KernelKind, LowerOptions};
+    let ops = |kind: KernelKind, gradient: Gradient| {
+        let options = LowerOptions {
+            kernels: vec![kind],
+            gradient,
+            max_nodes: ir::STATS_MAX_NODES,
+            ..LowerOptions::default()
+        };
+        ir::lower_function(model, gravity, kind, &options).ok().map(|f| f.counts().total())
+    };
+    if !ir::KernelKind::for_model(model).contains(&KernelKind::RneaGrad) {
+        return Vec::new();
+    }
+    let Some(base) = ops(KernelKind::Rnea, Gradient::Auto) else { return Vec::new() };
+    let pairs = model.motion_sparsity().nonzero.max(1) as f64;
+    [Gradient::Columns, Gradient::Idsva, Gradient::World]
+        .into_iter()
+        .map(|gradient| {
+            ops(KernelKind::RneaGrad, gradient).map(|n| GradientCost {
+                gradient,
+                ops: n,
+                per_pair: (n.saturating_sub(base)) as f64 / pairs,
+            })
+        })
+        .collect::<Option<Vec<_>>>()
+        .unwrap_or_default()
 }

@@ -259,6 +259,7 @@ fn force_kernels_match_the_reference() {
             (Gradient::Columns, Solve::Minv),
             (Gradient::Idsva, Solve::Ltdl),
             (Gradient::Columns, Solve::Crba),
+            (Gradient::World, Solve::Minv),
         ] {
             let options = LowerOptions {
                 kernels: kernels.clone(),
@@ -631,6 +632,7 @@ fn contact_kernels_match_the_reference() {
             (Gradient::Columns, Solve::Minv),
             (Gradient::Idsva, Solve::Ltdl),
             (Gradient::Columns, Solve::Crba),
+            (Gradient::World, Solve::Minv),
         ] {
             let options = LowerOptions {
                 kernels: kernels.clone(),

@@ -55,12 +55,12 @@ fn specialised_ir_matches_the_reference() {
 }
 
 #[test]
-fn both_gradient_formulations_match_the_reference() {
+fn every_gradient_formulation_matches_the_reference() {
     let mut rng = Rng(13);
     for robot in robots() {
         let model = load(&robot);
         let n = model.nv();
-        for gradient in [Gradient::Columns, Gradient::Idsva] {
+        for gradient in [Gradient::Columns, Gradient::Idsva, Gradient::World] {
             let options = LowerOptions {
                 kernels: vec![KernelKind::RneaGrad, KernelKind::FdGrad],
                 gradient,

@@ -306,7 +306,7 @@ fn floating_base_matches_pinocchio_free_flyer() {
         let fx = fixture(&format!("{robot}.floating.pinocchio.json"));
         let order = Order::new(robot, &model, &fx);
         assert_eq!(order.perm[..6], [0, 1, 2, 3, 4, 5], "{robot}: the free-flyer comes first");
-        let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
+        let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva, Gradient::World]
             .into_iter()
             .map(|gradient| {
                 ir::lower(
@@ -355,7 +355,7 @@ fn coupled_mimic_matches_pinocchio_mimic() {
         assert_eq!(model.njoints() - model.nv(), coupled, "{robot}: coupled mimic joints");
         let fx = fixture(&format!("{robot}.mimic.pinocchio.json"));
         let order = Order::new(robot, &model, &fx);
-        let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
+        let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva, Gradient::World]
             .into_iter()
             .map(|gradient| {
                 ir::lower(
@@ -401,7 +401,7 @@ fn spherical_joints_match_pinocchio_spherical() {
             order.perm.iter().enumerate().all(|(k, &p)| k == p),
             "{robot}: Pinocchio's model is built in grid-gen's order"
         );
-        let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva]
+        let modules: Vec<_> = [Gradient::Columns, Gradient::Idsva, Gradient::World]
             .into_iter()
             .map(|gradient| {
                 ir::lower(

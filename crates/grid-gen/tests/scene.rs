@@ -248,7 +248,7 @@ fn gradient_entries_the_scene_does_not_read_are_not_computed() {
     let n = all.nv();
     let mut rng = Rng(5);
     let (q, qd, u) = (rng.vec(n, -2.0, 2.0), rng.vec(n, -2.0, 2.0), rng.vec(n, -2.0, 2.0));
-    for gradient in [ir::Gradient::Columns, ir::Gradient::Idsva] {
+    for gradient in [ir::Gradient::Columns, ir::Gradient::Idsva, ir::Gradient::World] {
         for kind in [KernelKind::RneaGrad, KernelKind::FdGrad] {
             let options = LowerOptions { kernels: vec![kind], gradient, ..LowerOptions::default() };
             let (a, b) =

@@ -1,6 +1,6 @@
 //! The recorder the algorithms share: [`Dynamics`] holds the graph, the joint transforms,
 //! motion subspaces and inertias, and each algorithm is one file below it (`rnea`,
-//! `rnea_grad`, `crba`, `minv`, `aba`, `fd_grad`, `frames`, `forces`, `contact`, `step`,
+//! `rnea_grad`, `rnea_grad_world`, `crba`, `minv`, `aba`, `fd_grad`, `frames`, `forces`, `contact`, `step`,
 //! `coupled`) that records into the [`Graph`]. The same recursions as `reference`, written
 //! over (E, r) transforms and structural sparsity: a gradient column is only built where the
 //! model says it can be nonzero (`sparse` off turns that off, for the "before
@@ -24,6 +24,7 @@ mod frames;
 mod minv;
 mod rnea;
 mod rnea_grad;
+mod rnea_grad_world;
 mod step;
 
 pub(crate) use forces::{transpose, Forces, LambdaSource};

@@ -103,7 +103,7 @@ pub struct OutputSpec {
 #[serde(rename_all = "snake_case")]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Gradient {
-    /// Whichever of the two has fewer operations for this robot and kernel.
+    /// Whichever of the three has fewer operations for this robot and kernel.
     #[default]
     Auto,
     /// One RNEA-like pass per gradient column (Carpentier & Mansard 2018): cheapest on
@@ -112,6 +112,11 @@ pub enum Gradient {
     /// IDSVA (Singh, Russell & Wensing 2022), per-joint work done once and four force
     /// vectors per (joint, ancestor) pair: cheapest on long chains.
     Idsva,
+    /// IDSVA in world coordinates, as the paper writes it (and as Pinocchio's
+    /// `computeRNEADerivatives` works): every joint's vectors turned into the world once, so a
+    /// (joint, ancestor) pair costs six dot products and no transform; cheapest on deep,
+    /// branchy trees whose joints are not axis-aligned.
+    World,
 }
 
 impl Gradient {
@@ -120,11 +125,14 @@ impl Gradient {
             Gradient::Auto => "auto",
             Gradient::Columns => "columns",
             Gradient::Idsva => "idsva",
+            Gradient::World => "world",
         }
     }
 
     pub fn parse(name: &str) -> Option<Gradient> {
-        [Gradient::Auto, Gradient::Columns, Gradient::Idsva].into_iter().find(|g| g.name() == name)
+        [Gradient::Auto, Gradient::Columns, Gradient::Idsva, Gradient::World]
+            .into_iter()
+            .find(|g| g.name() == name)
     }
 
     /// Whether a kernel's graph holds the RNEA gradient.

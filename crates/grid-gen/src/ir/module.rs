@@ -402,11 +402,14 @@ pub fn lower_function(
         });
     }
     // Every candidate formulation is recorded and the one with the fewest nodes kept
-    // (the first on a tie: columns before idsva; minv before ltdl before crba).
+    // (the first on a tie: columns before idsva before world; minv before ltdl before crba).
     let gradients: &[Gradient] = match options.gradient {
-        Gradient::Auto if Gradient::applies_to(kind) => &[Gradient::Columns, Gradient::Idsva],
+        Gradient::Auto if Gradient::applies_to(kind) => {
+            &[Gradient::Columns, Gradient::Idsva, Gradient::World]
+        }
         Gradient::Auto | Gradient::Columns => &[Gradient::Columns],
         Gradient::Idsva => &[Gradient::Idsva],
+        Gradient::World => &[Gradient::World],
     };
     let depth = model.joints.iter().map(|j| j.level + 1).max().unwrap_or(0);
     let solves: &[Solve] = match options.solve {

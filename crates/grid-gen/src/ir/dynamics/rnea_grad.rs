@@ -1,6 +1,7 @@
-//! ∂c/∂q and ∂c/∂q̇ of RNEA, recorded in either formulation: per-column forward
-//! derivatives (Carpentier & Mansard 2018) or IDSVA's per-pair form (Singh, Russell &
-//! Wensing 2022), picked per robot by operation count.
+//! ∂c/∂q and ∂c/∂q̇ of RNEA, recorded in one of three formulations: per-column forward
+//! derivatives (Carpentier & Mansard 2018), or IDSVA's per-pair form (Singh, Russell &
+//! Wensing 2022) in body frames here or in one frame per tree (`rnea_grad_world.rs`),
+//! picked per robot by operation count.
 
 use super::super::graph::{Graph, Id, Stage};
 use super::super::kernel::Gradient;
@@ -12,6 +13,7 @@ impl Dynamics<'_> {
     pub fn rnea_grad(&mut self, r: &Rnea, qd: &[Id]) -> (Mat, Mat) {
         let (mut dq, dqd) = match self.gradient {
             Gradient::Idsva => self.rnea_grad_idsva(r),
+            Gradient::World => self.rnea_grad_world(r),
             Gradient::Columns | Gradient::Auto => self.rnea_grad_columns(r, qd),
         };
         self.add_contact_q_terms(&mut dq);
