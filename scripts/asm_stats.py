@@ -1,0 +1,93 @@
+#!/usr/bin/env python3
+"""What the compiled kernels spend their instructions on, read from the assembly that rustc
+emits for a generated module's `fma` copy in f64: per kernel, the instructions of its part
+functions, the floating-point arithmetic among them, the stack traffic (spills and reloads:
+memory operands on %rsp or %rbp), the other memory traffic (the module's scratch array,
+inputs and outputs) and the register moves. This machine's VM exposes no hardware counters
+(`perf stat` reports instructions and cycles as <not supported>), so this static count is
+the measurement the speed chapter uses for register pressure.
+
+Usage: scripts/asm_stats.py MODULE.rs [KERNEL ...]   (default kernels: rnea_grad fd_grad)
+Prints a Markdown table. Needs rustc; compiles with -C opt-level=3 -C target-cpu=x86-64-v3
+(AVX2 and FMA, what the `fma` copy is built for), as the generated module's dispatcher runs it.
+"""
+import collections
+import pathlib
+import re
+import subprocess
+import sys
+import tempfile
+
+module = pathlib.Path(sys.argv[1]).resolve()
+kernels = sys.argv[2:] or ["rnea_grad", "fd_grad"]
+
+with tempfile.TemporaryDirectory() as tmp:
+    wrapper = pathlib.Path(tmp) / "wrapper.rs"
+    # Taking each kernel's address instantiates it in f64 and keeps it in the object.
+    uses = "\n".join(f"    m::fma::{k}::<f64> as *const () as usize," for k in kernels)
+    wrapper.write_text(
+        "#![allow(dead_code, clippy::all)]\n"
+        f'mod m {{ include!("{module}"); }}\n'
+        f"#[inline(never)]\npub fn keep() -> usize {{\n    [\n{uses}\n    ].iter().sum()\n}}\n"
+    )
+    asm = pathlib.Path(tmp) / "out.s"
+    subprocess.run(
+        ["rustc", "--edition", "2021", "--crate-type", "lib", "--emit", "asm", "-C", "opt-level=3",
+         "-C", "target-cpu=x86-64-v3", "-C", "symbol-mangling-version=v0", str(wrapper), "-o", str(asm)],
+        check=True,
+    )
+    lines = asm.read_text().splitlines()
+
+ARITH = re.compile(r"^v(fn?m(add|sub)\d+[sp][sd]|(mul|add|sub|div|sqrt|xor|and|max|min)[sp][sd])$")
+counts = collections.defaultdict(collections.Counter)
+current = None
+for line in lines:
+    if re.match(r"^\S+:$", line) and not line.startswith("."):
+        label = line[:-1]
+        current = None
+        for k in kernels:
+            # v0 mangling: `...3fma15rnea_grad_part0dEB6_` (a part), `...3fma9rnea_graddEB6_`.
+            if re.search(rf"3fma\d+{k}(_part\d+)?dE", label):
+                current = k
+        continue
+    if current is None:
+        continue
+    if line.startswith("\t.cfi_endproc"):
+        current = None
+        continue
+    if not line.startswith("\t") or line.startswith("\t."):
+        continue
+    parts = line.split(None, 1)
+    op, args = parts[0], (parts[1] if len(parts) > 1 else "")
+    c = counts[current]
+    c["instructions"] += 1
+    stack = "(%rsp" in args or "(%rbp" in args
+    memory = "(" in args
+    if ARITH.match(op):
+        c["arithmetic"] += 1
+        if stack:
+            c["arithmetic on a stack operand"] += 1
+    elif op.startswith("vmov") or op.startswith("mov"):
+        if stack:
+            # AT&T: the destination is last.
+            c["stack stores" if args.rstrip().endswith(")") else "stack loads"] += 1
+        elif memory:
+            c["other loads and stores"] += 1
+        else:
+            c["register moves"] += 1
+    elif op == "call" or op.startswith("call"):
+        c["calls"] += 1
+    else:
+        c["other"] += 1
+
+cols = ["instructions", "arithmetic", "stack loads", "stack stores", "arithmetic on a stack operand",
+        "other loads and stores", "register moves", "calls", "other"]
+print(f"{module.name}, `fma` copy, f64:\n")
+print("| kernel | " + " | ".join(cols) + " | stack share |")
+print("|---|" + "---:|" * (len(cols) + 1))
+for k in kernels:
+    c = counts[k]
+    if not c["instructions"]:
+        sys.exit(f"error: no instructions found for {k} in the assembly")
+    stack = c["stack loads"] + c["stack stores"] + c["arithmetic on a stack operand"]
+    print(f"| {k} | " + " | ".join(str(c[x]) for x in cols) + f" | {stack / c['instructions']:.0%} |")
