@@ -7,9 +7,10 @@ inputs and outputs) and the register moves. This machine's VM exposes no hardwar
 (`perf stat` reports instructions and cycles as <not supported>), so this static count is
 the measurement the speed chapter uses for register pressure.
 
-Usage: scripts/asm_stats.py MODULE.rs [KERNEL ...]   (default kernels: rnea_grad fd_grad)
+Usage: scripts/asm_stats.py [--avx512] MODULE.rs [KERNEL ...]   (default: rnea_grad fd_grad)
 Prints a Markdown table. Needs rustc; compiles with -C opt-level=3 -C target-cpu=x86-64-v3
-(AVX2 and FMA, what the `fma` copy is built for), as the generated module's dispatcher runs it.
+(AVX2 and FMA, what the `fma` copy is built for), or x86-64-v4 for the `avx512` copy of a
+module generated with `--avx512`.
 """
 import collections
 import pathlib
@@ -18,13 +19,18 @@ import subprocess
 import sys
 import tempfile
 
-module = pathlib.Path(sys.argv[1]).resolve()
-kernels = sys.argv[2:] or ["rnea_grad", "fd_grad"]
+args = sys.argv[1:]
+COPY = "fma"
+if args[:1] == ["--avx512"]:
+    # The module's AVX-512 copy (`--avx512`), which has 32 vector registers to the fma copy's 16.
+    COPY, args = "avx512", args[1:]
+module = pathlib.Path(args[0]).resolve()
+kernels = args[1:] or ["rnea_grad", "fd_grad"]
 
 with tempfile.TemporaryDirectory() as tmp:
     wrapper = pathlib.Path(tmp) / "wrapper.rs"
     # Taking each kernel's address instantiates it in f64 and keeps it in the object.
-    uses = "\n".join(f"    m::fma::{k}::<f64> as *const () as usize," for k in kernels)
+    uses = "\n".join(f"    m::{COPY}::{k}::<f64> as *const () as usize," for k in kernels)
     wrapper.write_text(
         "#![allow(dead_code, clippy::all)]\n"
         f'mod m {{ include!("{module}"); }}\n'
@@ -33,7 +39,7 @@ with tempfile.TemporaryDirectory() as tmp:
     asm = pathlib.Path(tmp) / "out.s"
     subprocess.run(
         ["rustc", "--edition", "2021", "--crate-type", "lib", "--emit", "asm", "-C", "opt-level=3",
-         "-C", "target-cpu=x86-64-v3", "-C", "symbol-mangling-version=v0", str(wrapper), "-o", str(asm)],
+         "-C", "target-cpu=" + ("x86-64-v4" if COPY == "avx512" else "x86-64-v3"), "-C", "symbol-mangling-version=v0", str(wrapper), "-o", str(asm)],
         check=True,
     )
     lines = asm.read_text().splitlines()
@@ -47,7 +53,7 @@ for line in lines:
         current = None
         for k in kernels:
             # v0 mangling: `...3fma15rnea_grad_part0dEB6_` (a part), `...3fma9rnea_graddEB6_`.
-            if re.search(rf"3fma\d+{k}(_part\d+)?dE", label):
+            if re.search(rf"{len(COPY)}{COPY}\d+{k}(_part\d+)?dE", label):
                 current = k
         continue
     if current is None:
@@ -82,7 +88,7 @@ for line in lines:
 
 cols = ["instructions", "arithmetic", "stack loads", "stack stores", "arithmetic on a stack operand",
         "other loads and stores", "register moves", "calls", "other"]
-print(f"{module.name}, `fma` copy, f64:\n")
+print(f"{module.name}, `{COPY}` copy, f64:\n")
 print("| kernel | " + " | ".join(cols) + " | stack share |")
 print("|---|" + "---:|" * (len(cols) + 1))
 for k in kernels:
