@@ -261,13 +261,14 @@ impl Info {
             gradient_columns: names(&model.specialisation.columns),
             ops: Vec::new(),
             ops_skipped: Vec::new(),
-            gradient_costs: gradient_costs(model, gravity),
+            gradient_costs: Vec::new(),
             verilog: Vec::new(),
             verilog_skipped: None,
             wgsl: Vec::new(),
             wgsl_skipped: None,
         }
         .with_ops(ir::stats(model, gravity, gradient, solve, ir::STATS_MAX_NODES))
+        .with_gradient_costs(model, gravity)
         .with_verilog(model, gravity, gradient, solve)
         .with_wgsl(model, gravity, gradient, solve)
     }
@@ -369,6 +370,38 @@ impl Info {
     fn with_ops(mut self, stats: ir::Stats) -> Self {
         self.ops = stats.ops;
         self.ops_skipped = stats.skipped;
+        self
+    }
+
+    /// `rnea_grad`'s cost in each formulation, beside `rnea`'s as `ops` counted it; left
+    /// empty when `ops` has no `rnea_grad` (the model has none, or it is over the node
+    /// limit) or a formulation is over the limit.
+    fn with_gradient_costs(mut self, model: &Model, gravity: [f64; 3]) -> Self {
+        use ir::{Gradient, KernelKind, LowerOptions};
+        let total = |kind| self.ops.iter().find(|k| k.kernel == kind).map(|k| k.after.total());
+        let (Some(base), Some(_)) = (total(KernelKind::Rnea), total(KernelKind::RneaGrad)) else {
+            return self;
+        };
+        let pairs = self.sparsity.dv_dq.nonzero.max(1) as f64;
+        self.gradient_costs = [Gradient::Columns, Gradient::Idsva, Gradient::World]
+            .into_iter()
+            .map(|gradient| {
+                let options = LowerOptions {
+                    kernels: vec![KernelKind::RneaGrad],
+                    gradient,
+                    max_nodes: ir::STATS_MAX_NODES,
+                    ..LowerOptions::default()
+                };
+                let f = ir::lower_function(model, gravity, KernelKind::RneaGrad, &options).ok()?;
+                let ops = f.counts().total();
+                Some(GradientCost {
+                    gradient,
+                    ops,
+                    per_pair: ops.saturating_sub(base) as f64 / pairs,
+                })
+            })
+            .collect::<Option<Vec<_>>>()
+            .unwrap_or_default();
         self
     }
 
@@ -575,35 +608,4 @@ impl Info {
         }
         s
     }
-}
-
-/// `rnea_grad`'s cost in each formulation, beside `rnea`'s; empty when either is over the
-/// node limit or the model has no `rnea_grad`.
-fn gradient_costs(model: &Model, gravity: [f64; 3]) -> Vec<GradientCost> {
-    use ir::{Gradient, KernelKind, LowerOptions};
-    let ops = |kind: KernelKind, gradient: Gradient| {
-        let options = LowerOptions {
-            kernels: vec![kind],
-            gradient,
-            max_nodes: ir::STATS_MAX_NODES,
-            ..LowerOptions::default()
-        };
-        ir::lower_function(model, gravity, kind, &options).ok().map(|f| f.counts().total())
-    };
-    if !ir::KernelKind::for_model(model).contains(&KernelKind::RneaGrad) {
-        return Vec::new();
-    }
-    let Some(base) = ops(KernelKind::Rnea, Gradient::Auto) else { return Vec::new() };
-    let pairs = model.motion_sparsity().nonzero.max(1) as f64;
-    [Gradient::Columns, Gradient::Idsva, Gradient::World]
-        .into_iter()
-        .map(|gradient| {
-            ops(KernelKind::RneaGrad, gradient).map(|n| GradientCost {
-                gradient,
-                ops: n,
-                per_pair: (n.saturating_sub(base)) as f64 / pairs,
-            })
-        })
-        .collect::<Option<Vec<_>>>()
-        .unwrap_or_default()
 }

@@ -36,15 +36,18 @@ pub fn zero(g: &mut Graph) -> Sv {
     [z; 6]
 }
 
-fn ang(v: &Sv) -> V3 {
+/// A spatial vector's angular (first) half.
+pub fn ang(v: &Sv) -> V3 {
     [v[0], v[1], v[2]]
 }
 
-fn lin(v: &Sv) -> V3 {
+/// A spatial vector's linear (second) half.
+pub fn lin(v: &Sv) -> V3 {
     [v[3], v[4], v[5]]
 }
 
-fn join(a: V3, b: V3) -> Sv {
+/// `[a; b]`.
+pub fn join(a: V3, b: V3) -> Sv {
     [a[0], a[1], a[2], b[0], b[1], b[2]]
 }
 

@@ -5,7 +5,7 @@
 //! Conventions are Pinocchio's, as in `reference::frames`: 6-vectors [linear; angular].
 
 use super::super::graph::{Graph, Id, Input, Stage};
-use super::super::spatial::{self as sp, k, Sv, V3};
+use super::super::spatial::{self as sp, ang, k, lin, Sv, V3};
 use super::Dynamics;
 use crate::model::{CoordIndex, JointIndex, QIndex};
 use crate::model::{Frame, ReferenceFrame};
@@ -16,14 +16,6 @@ type Tangents = (Vec<(Input, usize, Id)>, Vec<(Id, Id)>);
 
 /// A rotation (columns: a frame's axes in world coordinates) and a position.
 pub(super) type Pose = ([[Id; 3]; 3], V3);
-
-fn ang(v: &Sv) -> V3 {
-    [v[0], v[1], v[2]]
-}
-
-fn lin(v: &Sv) -> V3 {
-    [v[3], v[4], v[5]]
-}
 
 /// `Rᵀ v`.
 fn t_apply(g: &mut Graph, r: &[[Id; 3]; 3], v: &V3) -> V3 {
@@ -40,13 +32,24 @@ fn constant_pose(g: &mut Graph, frame: &Frame) -> Pose {
 impl Dynamics<'_> {
     /// The world pose of every body: `R_i = R_λ E_iᵀ`, `p_i = p_λ + R_λ r_i`.
     pub(super) fn world_poses(&mut self) -> Vec<Pose> {
+        self.poses(false)
+    }
+
+    /// Every body's pose as [`Self::world_poses`], or, `per_tree`, in its tree's root body:
+    /// that body's own pose the identity.
+    pub(super) fn poses(&mut self, per_tree: bool) -> Vec<Pose> {
         let g = &mut self.g;
         let (zero, one) = (g.constant(0.0), g.constant(1.0));
         let identity = [[one, zero, zero], [zero, one, zero], [zero, zero, one]];
         let mut poses: Vec<Pose> = Vec::with_capacity(self.model.njoints());
         for i in 0..self.model.njoints() {
             self.g.at(Some(i), Stage::Transform, self.model.joints[i].level);
-            let (rp, pp) = self.model.joints[i].parent.map_or((identity, [zero; 3]), |p| poses[p]);
+            let parent = self.model.joints[i].parent;
+            if per_tree && parent.is_none() {
+                poses.push((identity, [zero; 3]));
+                continue;
+            }
+            let (rp, pp) = parent.map_or((identity, [zero; 3]), |p| poses[p]);
             let x = &self.x[i];
             let g = &mut self.g;
             // R_λ Eᵀ: entry (a, b) = row a of R_λ · row b of E.
