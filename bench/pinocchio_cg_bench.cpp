@@ -8,9 +8,14 @@
 // (CodeGenRNEA / CodeGenABA's evalJacobian, which also returns dtau/da = M or dddq/dtau =
 // M^-1), on fixed-base models. Before timing, every route is checked against Pinocchio's
 // analytical derivatives on the first state (the largest entry difference is printed).
+// Libraries that already exist in the working directory are loaded, not built again:
+// scripts/bench.sh runs this program once per measuring process (the placement protocol),
+// deletes the libraries before the first, and so compiles each C file once per run.
 // Prints one JSON line per model:
 // {"robot": ..., "cg_rnea_derivatives_ns": ..., "cg_aba_derivatives_ns": ...,
-//  ["cg_rnea_jacobian_ns": ..., "cg_aba_jacobian_ns": ...,] "check": ..., "build_s": ...}
+//  ["cg_rnea_jacobian_ns": ..., "cg_aba_jacobian_ns": ...,] "check": ..., "build_s": ...,
+//  "compiled": ...} (build_s: seconds to record the tape, print and compile the C, or to
+// record and load when compiled is 0)
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -38,17 +43,22 @@ double time_ns(F&& f, int iters, int rounds) {
 }
 
 // Pinocchio's CodeGenBase::compileLib puts one flag string in place of gcc's -O2; this
-// passes -O3 and -march=native as two flags, then loads the library.
+// passes -O3 and -march=native as two flags, then loads the library. Returns whether it
+// compiled (false: an earlier process's library was loaded).
 template <typename CodeGen>
 struct Compiled : CodeGen {
   Compiled(const pinocchio::Model& model, const std::string& function, const std::string& library)
       : CodeGen(model, function, library) {}
-  void build() {
+  bool build() {
     this->initLib();
-    CppAD::cg::GccCompiler<double> gcc("/usr/bin/gcc");
-    gcc.setCompileFlags({"-O3", "-march=native"});
-    this->dynamicLibManager_ptr->createDynamicLibrary(gcc, false);
+    const bool compile = !this->existLib();
+    if (compile) {
+      CppAD::cg::GccCompiler<double> gcc("/usr/bin/gcc");
+      gcc.setCompileFlags({"-O3", "-march=native"});
+      this->dynamicLibManager_ptr->createDynamicLibrary(gcc, false);
+    }
     this->loadLib(false);
+    return compile;
   }
 };
 
@@ -90,9 +100,9 @@ int main(int argc, char** argv) {
     const int iters = 2000, rounds = 15;
     auto t0 = Clock::now();
     RneaDerivatives rd(model, "partial_rnea", stem + "_partial_rnea");
-    rd.build();
+    bool compiled = rd.build();
     AbaDerivatives ad(model, "partial_aba", stem + "_partial_aba");
-    ad.build();
+    compiled = ad.build() || compiled;
     double build_s = std::chrono::duration<double>(Clock::now() - t0).count();
 
     // The same functions as Pinocchio's analytical derivatives, on state 0.
@@ -122,9 +132,9 @@ int main(int argc, char** argv) {
     if (jacobians && model.nq == model.nv) {
       t0 = Clock::now();
       Compiled<pinocchio::CodeGenRNEA<double>> rj(model, "rnea", stem + "_rnea");
-      rj.build();
+      compiled = rj.build() || compiled;
       Compiled<pinocchio::CodeGenABA<double>> aj(model, "aba", stem + "_aba");
-      aj.build();
+      compiled = aj.build() || compiled;
       build_s += std::chrono::duration<double>(Clock::now() - t0).count();
       rj.evalJacobian(q[0], v[0], acc[0]);
       aj.evalJacobian(q[0], v[0], tau[0]);
@@ -144,7 +154,7 @@ int main(int argc, char** argv) {
           iters, rounds);
       std::printf(", \"cg_rnea_jacobian_ns\": %.1f, \"cg_aba_jacobian_ns\": %.1f", rj_ns, aj_ns);
     }
-    std::printf(", \"check\": %.3g, \"build_s\": %.1f, \"sink\": %g}\n", check, build_s, sink);
+    std::printf(", \"check\": %.3g, \"build_s\": %.1f, \"compiled\": %d, \"sink\": %g}\n", check, build_s, compiled ? 1 : 0, sink);
     std::fflush(stdout);
   }
   return 0;

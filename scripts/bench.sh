@@ -8,8 +8,18 @@
 #      (crates/grid-gen-kernels/benches/kernels.rs);
 #   4. a table of times and ratios (scripts/bench_report.py), written to target/bench-report.md.
 # Needs: pip install pin==4.1.0 cmeel-cppad cmeel-cppadcodegen; apt-get install libeigen3-dev g++.
+#
+# The placement protocol: a generated function's speed moves by 15-30 % with where the process
+# lays out its stack, heap and libraries, on both sides. So every program above is run in
+# BENCH_PROCESSES separate processes (default 5), interleaved (process 1 of each program, then
+# process 2 of each, ...) so that drift in the machine's speed falls on every side alike; each
+# figure in the report is the median over processes of each process's own median, and the
+# report says how far the processes spread. Criterion's reference benchmarks (the slow Rust
+# reference, not a placement question) run in the first process only.
 set -euo pipefail
 cd "$(dirname "$0")/.."
+PROCESSES=${BENCH_PROCESSES:-5}
+case "$PROCESSES" in ''|*[!0-9]*|0) echo "error: BENCH_PROCESSES must be a positive integer, got '$PROCESSES'" >&2; exit 1;; esac
 PREFIX=$(python3 -c "import pinocchio, pathlib; p = pathlib.Path(pinocchio.__file__).resolve(); print(next(x for x in p.parents if (x / 'cmeel.prefix').exists()) / 'cmeel.prefix')")
 test -d /usr/include/eigen3 || { echo "error: Eigen headers missing: apt-get install libeigen3-dev" >&2; exit 1; }
 mkdir -p target/bench
@@ -40,9 +50,6 @@ for variant in default native; do
         -I"$PREFIX/include" -I/usr/include/eigen3 bench/pinocchio_bench.cpp -o target/bench/pinocchio_bench_$variant \
         -L"$PREFIX/lib" -lpinocchio_default -lboost_filesystem -lboost_serialization -Wl,-rpath,"$PREFIX/lib"
 done
-for variant in default native; do
-    target/bench/pinocchio_bench_$variant $MODELS | sed "s/^{/{\"variant\": \"$variant\", /"
-done | tee target/bench/pinocchio.jsonl
 # Pinocchio's code-generation path: the derivatives recorded by CppADCodeGen and compiled by gcc,
 # and (jac@) the AD Jacobian of rnea and aba, on every robot; the report takes the faster route.
 test -d "$PREFIX/include/cppad/cg" || { echo "error: CppADCodeGen headers missing: pip install cmeel-cppad cmeel-cppadcodegen" >&2; exit 1; }
@@ -51,8 +58,24 @@ g++ -O3 -march=native -DNDEBUG -std=c++17 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADER
     -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 -DBOOST_FUSION_INVOKE_MAX_ARITY=12 \
     -I"$PREFIX/include" -I/usr/include/eigen3 bench/pinocchio_cg_bench.cpp -o target/bench/cg/pinocchio_cg_bench \
     -L"$PREFIX/lib" -lpinocchio_default -lboost_filesystem -lboost_serialization -lcppad_lib -ldl -Wl,-rpath,"$PREFIX/lib"
-# The generated libraries land in the working directory.
-(cd target/bench/cg && ./pinocchio_cg_bench jac@../grid_iiwa.pinmodel jac@../grid_hyq.pinmodel ../grid_atlas.pinmodel \
-    ../grid_hyq_floating.pinmodel) | sed "s/^{/{\"variant\": \"codegen\", /; s#\.\./grid#target/bench/grid#" | tee -a target/bench/pinocchio.jsonl
-cargo bench -p grid-gen-kernels --bench kernels
-python3 scripts/bench_report.py target/bench/pinocchio.jsonl target/criterion | tee target/bench-report.md
+# The generated libraries land in the working directory; the first process compiles them
+# (after an earlier run's are removed), the later ones load them.
+rm -f target/bench/cg/*.so
+cargo bench -p grid-gen-kernels --bench kernels --no-run
+rm -rf target/bench/criterion
+: >target/bench/pinocchio.jsonl
+for p in $(seq 1 "$PROCESSES"); do
+    echo "== process $p of $PROCESSES" >&2
+    for variant in default native; do
+        target/bench/pinocchio_bench_$variant $MODELS | sed "s/^{/{\"variant\": \"$variant\", \"process\": $p, /"
+    done | tee -a target/bench/pinocchio.jsonl
+    (cd target/bench/cg && ./pinocchio_cg_bench jac@../grid_iiwa.pinmodel jac@../grid_hyq.pinmodel ../grid_atlas.pinmodel \
+        ../grid_hyq_floating.pinmodel) | sed "s/^{/{\"variant\": \"codegen\", \"process\": $p, /; s#\.\./grid#target/bench/grid#" | tee -a target/bench/pinocchio.jsonl
+    filter=()
+    [ "$p" -gt 1 ] && filter=("generated|without")
+    rm -rf target/criterion
+    cargo bench -p grid-gen-kernels --bench kernels -- --noplot "${filter[@]}"
+    mkdir -p target/bench/criterion
+    mv target/criterion target/bench/criterion/$p
+done
+python3 scripts/bench_report.py target/bench/pinocchio.jsonl target/bench/criterion | tee target/bench-report.md

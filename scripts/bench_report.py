@@ -1,26 +1,65 @@
 #!/usr/bin/env python3
 """Prints the book's speed table from one run of scripts/bench.sh: Pinocchio's times
 (JSON lines from bench/pinocchio_bench.cpp and bench/pinocchio_cg_bench.cpp) and criterion's
-estimates (median, ns)."""
+estimates (median, ns).
+
+The placement protocol (scripts/bench.sh): every program ran in several processes. Each
+figure here is the median over processes of each process's own median, and a last table
+gives the spread over processes, (slowest - fastest) / median, for the headline rows. The
+criterion argument is either one criterion folder (one process) or a folder of them, one
+per process (target/bench/criterion/1, 2, ...). Pinocchio rows without a "process" field
+(runs before the protocol) count as process 1."""
 import json
 import pathlib
+import statistics
 import sys
 
 pin_file, criterion = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
-# The faster of Pinocchio's default-target and -march=native builds, per algorithm.
-pin = {}
+
+# Per (robot, variant, key), one figure per process: the fastest row of that process (a
+# robot has several rows, e.g. the step row repeats aba_derivatives_ns).
+per_process = {}
 for line in pin_file.read_text().splitlines():
     if line.strip():
         row = json.loads(line)
-        best = pin.setdefault(pathlib.Path(row["robot"]).stem, {})
+        robot, variant, process = pathlib.Path(row["robot"]).stem, row.get("variant", "default"), row.get("process", 1)
         for key, value in row.items():
             if key.endswith("_ns"):
-                best[key] = min(best.get(key, value), value)
+                slot = per_process.setdefault((robot, variant, key), {})
+                slot[process] = min(slot.get(process, value), value)
+# Pinocchio's analytical builds (default target and -march=native): the faster variant's
+# median, per algorithm. pin[robot][key] = (median, spread, processes).
+pin = {}
+
+
+def summary(values):
+    m = statistics.median(values)
+    return m, (max(values) - min(values)) / m, len(values)
+
+
+for (robot, variant, key), slot in per_process.items():
+    s = summary(list(slot.values()))
+    best = pin.setdefault(robot, {})
+    if key not in best or s[0] < best[key][0]:
+        best[key] = s
+
+runs = sorted((d for d in criterion.iterdir() if d.is_dir() and d.name.isdigit()), key=lambda d: int(d.name))
+runs = runs or [criterion]
+
+
+def criterion_summary(robot, name):
+    values = []
+    for run in runs:
+        f = run / robot / name.replace("/", "_") / "new" / "estimates.json"
+        if f.exists():
+            values.append(json.loads(f.read_text())["median"]["point_estimate"])
+    if not values:
+        raise FileNotFoundError(f"no criterion estimate for {robot}/{name} in {criterion}")
+    return summary(values)
 
 
 def ns(robot, name):
-    est = json.loads((criterion / robot / name.replace("/", "_") / "new" / "estimates.json").read_text())
-    return est["median"]["point_estimate"]
+    return criterion_summary(robot, name)[0]
 
 
 def fmt(t):
@@ -32,10 +71,20 @@ def fmt(t):
 CODEGEN = {"rnea_grad": ("cg_rnea_derivatives_ns", "cg_rnea_jacobian_ns"), "fd_grad": ("cg_aba_derivatives_ns", "cg_aba_jacobian_ns")}
 
 
-def codegen(robot, kernel):
+def codegen_summary(robot, kernel):
     times = [pin.get(robot, {}).get(k) for k in CODEGEN.get(kernel, ())]
     times = [t for t in times if t]
     return min(times) if times else None
+
+
+def codegen(robot, kernel):
+    s = codegen_summary(robot, kernel)
+    return s[0] if s else None
+
+
+def pin_ns(robot, key):
+    s = pin.get(robot, {}).get(key)
+    return s[0] if s else None
 
 
 def ratio(p, g):
@@ -49,7 +98,7 @@ for robot in ["grid_iiwa", "grid_hyq", "grid_atlas"]:
     for kernel, pin_key in pairs.items():
         g = ns(robot, f"generated/{kernel}")
         r = ns(robot, f"reference/{kernel}")
-        p = pin[robot][pin_key] if pin_key else None
+        p = pin_ns(robot, pin_key) if pin_key else None
         c = codegen(robot, kernel)
         print(f"| {robot} | {kernel} | {fmt(g)} | {fmt(r)} | {fmt(p) if p else '-'} | {fmt(c) if c else '-'} | {r / g:.1f}x | {ratio(p, g)} | {ratio(c, g)} |")
         if kernel in ("rnea_grad", "fd_grad"):
@@ -67,7 +116,7 @@ for robot in ["grid_iiwa", "grid_hyq", "grid_atlas"]:
 for group, pin_robot in [("grid_hyq.hyq_floating", "grid_hyq_floating")]:
     for kernel, pin_key in (("rnea_grad", "rnea_derivatives_ns"), ("fd_grad", "aba_derivatives_ns")):
         g = ns(group, f"generated/{kernel}")
-        p = pin[pin_robot][pin_key]
+        p = pin_ns(pin_robot, pin_key)
         c = codegen(pin_robot, kernel)
         print(f"| {group} (floating base) | {kernel} | {fmt(g)} | - | {fmt(p)} | {fmt(c) if c else '-'} | - | {ratio(p, g)} | {ratio(c, g)} |")
 
@@ -83,7 +132,7 @@ for group, pin_robot in [("grid_iiwa.iiwa_tool_frame", "grid_iiwa"), ("grid_hyq.
             g = ns(group, f"generated/{kernel}")
         except FileNotFoundError:
             continue
-        p = pin.get(pin_robot, {}).get(f"{kernel}_ns")
+        p = pin_ns(pin_robot, f"{kernel}_ns")
         print(f"| {group} | {kernel} | {fmt(g)} | {fmt(p) if p else '-'} | {f'{p / g:.1f}x' if p else '-'} |")
 
 # The discrete step (floating HyQ, semi-implicit Euler, 10 ms; examples/scenes/hyq_step_floating.toml):
@@ -91,7 +140,7 @@ for group, pin_robot in [("grid_iiwa.iiwa_tool_frame", "grid_iiwa"), ("grid_hyq.
 # the products; `step=DT@MODEL` in bench/pinocchio_bench.cpp), and against the module's own fd_grad.
 try:
     g, f = ns("grid_hyq.hyq_step_floating", "generated/step_grad"), ns("grid_hyq.hyq_step_floating", "generated/fd_grad")
-    p = pin.get("grid_hyq_floating", {}).get("step_grad_ns")
+    p = pin_ns("grid_hyq_floating", "step_grad_ns")
     print()
     print("| scene | kernel | generated | its fd_grad | Pinocchio composition | vs fd_grad | vs Pinocchio |")
     print("|---|---|---|---|---|---|---|")
@@ -108,7 +157,30 @@ try:
     print("|---|---|---|---|---|")
     for kernel in ("contact_fd", "contact_fd_grad"):
         g = ns("grid_hyq.hyq_standing_floating", f"generated/{kernel}")
-        p = pin.get("grid_hyq_floating", {}).get(f"{kernel}_ns")
+        p = pin_ns("grid_hyq_floating", f"{kernel}_ns")
         print(f"| grid_hyq.hyq_standing_floating | {kernel} | {fmt(g)} | {fmt(p) if p else '-'} | {f'{p / g:.1f}x' if p else '-'} |")
 except FileNotFoundError:
     pass
+
+# The placement protocol's spread: how far the processes' own medians lie apart, as a share of
+# their median, for the headline rows (ours; Pinocchio's faster build; CppADCodeGen's faster route).
+
+
+def spread(s):
+    return f"{s[1] * 100:.0f} % ({s[2]})" if s else "-"
+
+
+print()
+print(f"Spread over processes, (slowest - fastest) / median (processes): {len(runs)} criterion processes.")
+print()
+print("| robot | kernel | spread, generated | spread, Pinocchio | spread, CppADCodeGen |")
+print("|---|---|---|---|---|")
+for robot, group, pin_robot in [
+    ("grid_iiwa", "grid_iiwa", "grid_iiwa"),
+    ("grid_hyq", "grid_hyq", "grid_hyq"),
+    ("grid_atlas", "grid_atlas", "grid_atlas"),
+    ("grid_hyq.hyq_floating (floating base)", "grid_hyq.hyq_floating", "grid_hyq_floating"),
+]:
+    for kernel, pin_key in (("rnea_grad", "rnea_derivatives_ns"), ("fd_grad", "aba_derivatives_ns")):
+        g = criterion_summary(group, f"generated/{kernel}")
+        print(f"| {robot} | {kernel} | {spread(g)} | {spread(pin.get(pin_robot, {}).get(pin_key))} | {spread(codegen_summary(pin_robot, kernel))} |")
