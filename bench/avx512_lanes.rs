@@ -1,5 +1,6 @@
 //! Per-state time of the gradients in each machine-code copy (portable, fma, avx512) and
-//! lane width (one state, Lanes<4>, Lanes<8>), interleaved over three rounds; compiled by
+//! lane width (one state, Lanes<4>, Lanes<8>; in f32 one state, Lanes<8, f32> (one ymm) and
+//! Lanes<16, f32> (one zmm)), interleaved over three rounds; compiled by
 //! scripts/bench_avx512.sh beside a module generated with --avx512 (robot.rs). Protocol
 //! as timing.rs: 64 fixed states cycled, samples of at least 2 ms, median of 15.
 #![allow(dead_code, unused_unsafe, clippy::all)]
@@ -19,10 +20,16 @@ fn time<F: FnMut(usize)>(mut f: F) -> f64 {
 fn lanes<const L: usize>(s: &[[[f64; N]; 3]], j: usize) -> [[Lanes<L>; N]; 3] {
     std::array::from_fn(|a| std::array::from_fn(|i| Lanes(std::array::from_fn(|l| s[(j * L + l) % STATES][a][i]))))
 }
+fn lanes32<const L: usize>(s: &[[[f64; N]; 3]], j: usize) -> [[Lanes<L, f32>; N]; 3] {
+    std::array::from_fn(|a| std::array::from_fn(|i| Lanes(std::array::from_fn(|l| s[(j * L + l) % STATES][a][i] as f32))))
+}
 fn main() {
     let s: Vec<[[f64; N]; 3]> = (0..STATES).map(|j| std::array::from_fn(|a| std::array::from_fn(|i| state(j, i, a)))).collect();
     let l4: Vec<_> = (0..STATES).map(|j| lanes::<4>(&s, j)).collect();
     let l8: Vec<_> = (0..STATES).map(|j| lanes::<8>(&s, j)).collect();
+    let s32: Vec<[[f32; N]; 3]> = s.iter().map(|x| x.map(|v| v.map(|e| e as f32))).collect();
+    let f8: Vec<_> = (0..STATES).map(|j| lanes32::<8>(&s, j)).collect();
+    let f16: Vec<_> = (0..STATES).map(|j| lanes32::<16>(&s, j)).collect();
     if !robot::has_avx512() {
         eprintln!("this CPU has no AVX-512 F and VL: nothing to compare");
         std::process::exit(1);
@@ -37,10 +44,19 @@ fn main() {
             robot::avx512::fd_grad(&l8[0][0], &l8[0][1], &l8[0][2]),
         )
     };
+    let (a32, c32, d32) = unsafe {
+        (
+            robot::avx512::fd_grad(&s32[3][0], &s32[3][1], &s32[3][2]),
+            robot::fma::fd_grad(&f8[0][0], &f8[0][1], &f8[0][2]),
+            robot::avx512::fd_grad(&f16[0][0], &f16[0][1], &f16[0][2]),
+        )
+    };
     for i in 0..N {
         for j in 0..N {
             assert!(a.1[i][j].to_bits() == b.1[i][j].to_bits(), "the fma and avx512 copies differ");
             assert!(c.1[i][j].0[3].to_bits() == b.1[i][j].to_bits(), "lane 3 of Lanes<8> differs from one state");
+            assert!(c32.1[i][j].0[3].to_bits() == a32.1[i][j].to_bits(), "lane 3 of Lanes<8, f32> differs from one f32 state");
+            assert!(d32.1[i][j].0[3].to_bits() == a32.1[i][j].to_bits(), "lane 3 of Lanes<16, f32> differs from one f32 state");
         }
     }
     println!("round copy kernel states/call ns/state");
@@ -55,5 +71,9 @@ fn main() {
         t!("f64", portable, rnea_grad, s, 1); t!("f64", fma, rnea_grad, s, 1); t!("f64", avx512, rnea_grad, s, 1);
         t!("L4", fma, rnea_grad, l4, 4); t!("L4", avx512, rnea_grad, l4, 4);
         t!("L8", fma, rnea_grad, l8, 8); t!("L8", avx512, rnea_grad, l8, 8);
+        t!("f32", fma, fd_grad, s32, 1); t!("f32", avx512, fd_grad, s32, 1);
+        t!("f32L8", fma, fd_grad, f8, 8); t!("f32L8", avx512, fd_grad, f8, 8); t!("f32L16", avx512, fd_grad, f16, 16);
+        t!("f32", fma, rnea_grad, s32, 1); t!("f32", avx512, rnea_grad, s32, 1);
+        t!("f32L8", fma, rnea_grad, f8, 8); t!("f32L8", avx512, rnea_grad, f8, 8); t!("f32L16", avx512, rnea_grad, f16, 16);
     }
 }

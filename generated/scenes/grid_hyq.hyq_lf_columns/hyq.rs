@@ -6,7 +6,7 @@
 //
 // Everything in this module is specialised to one robot. Vectors are `[T; NV]` in the order of
 // `JOINT_NAMES`; matrices are `[[T; NV]; NV]`, row-major, `m[i][j] = d out_i / d in_j`. `T` is `f64`
-// or `f32` (see [`Real`]), or `Lanes<N>` for N states per call. Gravity is fixed at generation
+// or `f32` (see [`Real`]), or `Lanes<N>` (`Lanes<N, f32>`) for N states per call. Gravity is fixed at generation
 // time (`GRAVITY`).
 //
 // - `rnea(q, qd, qdd) -> c`: inverse dynamics `c = M(q) qdd + C(q, qd) qd + g(q)`.
@@ -116,51 +116,53 @@ impl Real for f32 {
     }
 }
 /// `N` states evaluated by one call, one per lane (`q[j].0[l]` is joint j of state l), for
-/// sweeping many knot points: every lane runs exactly the f64 operations of a scalar call
-/// (of the same copy, `portable` or `fma`), so results are bit-identical, and the compiler
-/// can put the lanes in SIMD registers (ymm in the `fma` copy: 4 lanes per instruction).
+/// sweeping many knot points: every lane runs exactly the operations of a scalar call in its
+/// scalar type `S` (of the same copy, `portable` or `fma`), so results are bit-identical, and
+/// the compiler can put the lanes in SIMD registers. `Lanes<4>` is four f64 states (a ymm
+/// register in the `fma` copy); `Lanes<8, f32>` eight f32 states in one ymm, and
+/// `Lanes<16, f32>` sixteen in one zmm of the AVX-512 copy, where it is generated.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[allow(dead_code)]
-pub struct Lanes<const N: usize>(pub [f64; N]);
-impl<const N: usize> core::ops::Add for Lanes<N> {
+pub struct Lanes<const N: usize, S = f64>(pub [S; N]);
+impl<const N: usize, S: Real> core::ops::Add for Lanes<N, S> {
     type Output = Self;
     #[inline(always)]
     fn add(self, b: Self) -> Self {
         Lanes(core::array::from_fn(|l| self.0[l] + b.0[l]))
     }
 }
-impl<const N: usize> core::ops::Sub for Lanes<N> {
+impl<const N: usize, S: Real> core::ops::Sub for Lanes<N, S> {
     type Output = Self;
     #[inline(always)]
     fn sub(self, b: Self) -> Self {
         Lanes(core::array::from_fn(|l| self.0[l] - b.0[l]))
     }
 }
-impl<const N: usize> core::ops::Mul for Lanes<N> {
+impl<const N: usize, S: Real> core::ops::Mul for Lanes<N, S> {
     type Output = Self;
     #[inline(always)]
     fn mul(self, b: Self) -> Self {
         Lanes(core::array::from_fn(|l| self.0[l] * b.0[l]))
     }
 }
-impl<const N: usize> core::ops::Div for Lanes<N> {
+impl<const N: usize, S: Real> core::ops::Div for Lanes<N, S> {
     type Output = Self;
     #[inline(always)]
     fn div(self, b: Self) -> Self {
         Lanes(core::array::from_fn(|l| self.0[l] / b.0[l]))
     }
 }
-impl<const N: usize> core::ops::Neg for Lanes<N> {
+impl<const N: usize, S: Real> core::ops::Neg for Lanes<N, S> {
     type Output = Self;
     #[inline(always)]
     fn neg(self) -> Self {
         Lanes(self.0.map(|x| -x))
     }
 }
-impl<const N: usize> Real for Lanes<N> {
+impl<const N: usize, S: Real> Real for Lanes<N, S> {
     #[inline(always)]
     fn k(x: f64) -> Self {
-        Lanes([x; N])
+        Lanes([S::k(x); N])
     }
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {
@@ -168,11 +170,11 @@ impl<const N: usize> Real for Lanes<N> {
     }
     #[inline(always)]
     fn sin(self) -> Self {
-        Lanes(self.0.map(f64::sin))
+        Lanes(self.0.map(S::sin))
     }
     #[inline(always)]
     fn cos(self) -> Self {
-        Lanes(self.0.map(f64::cos))
+        Lanes(self.0.map(S::cos))
     }
 }
 /// Whether this CPU runs the [`fma`] copy (x86-64 with AVX2 and FMA, detected once and
