@@ -178,6 +178,47 @@ macro_rules! run_kernels {
     }};
 }
 
+/// `$lanes` seeded states of robot `$m` in one `Lanes<$lanes, $s>` call against `$lanes`
+/// scalar calls in `$s` (inputs converted by `$to`), `rnea_grad` and `fd_grad`, through the
+/// dispatcher and the portable copy: every output of every lane equal bit for bit.
+macro_rules! lanes_match_scalar_calls {
+    ($m:ident, $stem:literal, $lanes:literal, $s:ty, $seed:literal, $to:expr) => {{
+        use grid_gen_kernels::$m as k;
+        let to = $to;
+        let model = load($stem);
+        let mut rng = Rng($seed);
+        let st: Vec<_> = states(&model, &mut rng).into_iter().take($lanes).collect();
+        assert_eq!(st.len(), $lanes);
+        let lane = |f: &dyn Fn(&(String, Vec<f64>, Vec<f64>, Vec<f64>)) -> &Vec<f64>| -> [k::Lanes<$lanes, $s>; k::NV] {
+            std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| to(f(&st[l])[j]))))
+        };
+        let (q, qd, u) = (lane(&|s| &s.1), lane(&|s| &s.2), lane(&|s| &s.3));
+        macro_rules! check {
+            ($c:path) => {{
+                use $c as c;
+                let (lq, lqd) = c::rnea_grad(&q, &qd, &u);
+                let (lqdd, lfq, lfqd) = c::fd_grad(&q, &qd, &u);
+                for (l, s) in st.iter().enumerate() {
+                    let arr = |v: &Vec<f64>| -> [$s; k::NV] { std::array::from_fn(|i| to(v[i])) };
+                    let (dq, dqd) = c::rnea_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
+                    let (qdd, fq, fqd) = c::fd_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
+                    for i in 0..k::NV {
+                        assert_eq!(lqdd[i].0[l].to_bits(), qdd[i].to_bits());
+                        for j in 0..k::NV {
+                            assert_eq!(lq[i][j].0[l].to_bits(), dq[i][j].to_bits());
+                            assert_eq!(lqd[i][j].0[l].to_bits(), dqd[i][j].to_bits());
+                            assert_eq!(lfq[i][j].0[l].to_bits(), fq[i][j].to_bits());
+                            assert_eq!(lfqd[i][j].0[l].to_bits(), fqd[i][j].to_bits());
+                        }
+                    }
+                }
+            }};
+        }
+        check!(k);
+        check!(k::portable);
+    }};
+}
+
 macro_rules! robot_test {
     ($m:ident, $stem:literal) => {
         mod $m {
@@ -187,75 +228,14 @@ macro_rules! robot_test {
             /// calls of the same copy (the dispatcher's, and the portable one).
             #[test]
             fn lanes_are_bit_identical_to_scalar_calls() {
-                use grid_gen_kernels::$m as k;
-                let model = load($stem);
-                let mut rng = Rng(9);
-                let st: Vec<_> = states(&model, &mut rng).into_iter().take(4).collect();
-                let lane = |f: &dyn Fn(&(String, Vec<f64>, Vec<f64>, Vec<f64>)) -> &Vec<f64>| -> [k::Lanes<4>; k::NV] {
-                    std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| f(&st[l])[j])))
-                };
-                let (q, qd, u) = (lane(&|s| &s.1), lane(&|s| &s.2), lane(&|s| &s.3));
-                macro_rules! check {
-                    ($c:path) => {{
-                        use $c as c;
-                        let (lq, lqd) = c::rnea_grad(&q, &qd, &u);
-                        let (lqdd, lfq, lfqd) = c::fd_grad(&q, &qd, &u);
-                        for (l, s) in st.iter().enumerate() {
-                            let arr = |v: &Vec<f64>| -> [f64; k::NV] { std::array::from_fn(|i| v[i]) };
-                            let (dq, dqd) = c::rnea_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
-                            let (qdd, fq, fqd) = c::fd_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
-                            for i in 0..k::NV {
-                                assert_eq!(lqdd[i].0[l].to_bits(), qdd[i].to_bits());
-                                for j in 0..k::NV {
-                                    assert_eq!(lq[i][j].0[l].to_bits(), dq[i][j].to_bits());
-                                    assert_eq!(lqd[i][j].0[l].to_bits(), dqd[i][j].to_bits());
-                                    assert_eq!(lfq[i][j].0[l].to_bits(), fq[i][j].to_bits());
-                                    assert_eq!(lfqd[i][j].0[l].to_bits(), fqd[i][j].to_bits());
-                                }
-                            }
-                        }
-                    }};
-                }
-                check!(k);
-                check!(k::portable);
+                lanes_match_scalar_calls!($m, $stem, 4, f64, 9, |x: f64| x);
             }
 
             /// Eight f32 states in one `Lanes<8, f32>` call give bit-identical results to eight
             /// scalar f32 calls of the same copy: a lane runs the scalar call's f32 operations.
             #[test]
             fn f32_lanes_are_bit_identical_to_scalar_f32_calls() {
-                use grid_gen_kernels::$m as k;
-                let model = load($stem);
-                let mut rng = Rng(11);
-                let st: Vec<_> = states(&model, &mut rng).into_iter().take(8).collect();
-                assert_eq!(st.len(), 8);
-                let lane = |f: &dyn Fn(&(String, Vec<f64>, Vec<f64>, Vec<f64>)) -> &Vec<f64>| -> [k::Lanes<8, f32>; k::NV] {
-                    std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| f(&st[l])[j] as f32)))
-                };
-                let (q, qd, u) = (lane(&|s| &s.1), lane(&|s| &s.2), lane(&|s| &s.3));
-                macro_rules! check {
-                    ($c:path) => {{
-                        use $c as c;
-                        let (lq, lqd) = c::rnea_grad(&q, &qd, &u);
-                        let (lqdd, lfq, lfqd) = c::fd_grad(&q, &qd, &u);
-                        for (l, s) in st.iter().enumerate() {
-                            let arr = |v: &Vec<f64>| -> [f32; k::NV] { std::array::from_fn(|i| v[i] as f32) };
-                            let (dq, dqd) = c::rnea_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
-                            let (qdd, fq, fqd) = c::fd_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
-                            for i in 0..k::NV {
-                                assert_eq!(lqdd[i].0[l].to_bits(), qdd[i].to_bits());
-                                for j in 0..k::NV {
-                                    assert_eq!(lq[i][j].0[l].to_bits(), dq[i][j].to_bits());
-                                    assert_eq!(lqd[i][j].0[l].to_bits(), dqd[i][j].to_bits());
-                                    assert_eq!(lfq[i][j].0[l].to_bits(), fq[i][j].to_bits());
-                                    assert_eq!(lfqd[i][j].0[l].to_bits(), fqd[i][j].to_bits());
-                                }
-                            }
-                        }
-                    }};
-                }
-                check!(k);
-                check!(k::portable);
+                lanes_match_scalar_calls!($m, $stem, 8, f32, 11, |x: f64| x as f32);
             }
 
             /// The portable copy computes exactly the IR's graph: bit for bit in f64 and in
