@@ -5,7 +5,8 @@
 //
 // Everything in this module is specialised to one robot. Vectors are `[T; NV]` in the order of
 // `JOINT_NAMES`; matrices are `[[T; NV]; NV]`, row-major, `m[i][j] = d out_i / d in_j`. `T` is `f64`
-// or `f32` (see [`Real`]), or `Lanes<N>` (`Lanes<N, f32>`) for N states per call. Gravity is fixed at generation
+// or `f32` (see [`Real`]), or several states per call: `F64x4` and `F32x8` (one AVX register, on x86-64 with AVX2
+// and FMA; the fastest per state) or the portable `Lanes<N>` (`Lanes<N, f32>`). Gravity is fixed at generation
 // time (`GRAVITY`).
 //
 // - `rnea(q, qd, qdd) -> c`: inverse dynamics `c = M(q) qdd + C(q, qd) qd + g(q)`.
@@ -44,8 +45,17 @@ pub trait Real: Copy + core::ops::Add<
     > + core::ops::Mul<
         Output = Self,
     > + core::ops::Div<Output = Self> + core::ops::Neg<Output = Self> {
-    /// A constant of the robot, rounded to this type.
+    /// A constant of the robot, rounded to this type (for the SIMD types, it checks that this
+    /// CPU runs them, and panics where it does not).
     fn k(x: f64) -> Self;
+    /// `k` without its check of the CPU, for the kernels' constants.
+    ///
+    /// # Safety
+    /// This CPU runs `Self`'s operations (for `f64`, `f32` and `Lanes`, always).
+    #[inline(always)]
+    unsafe fn lit(x: f64) -> Self {
+        Self::k(x)
+    }
     fn sin(self) -> Self;
     fn cos(self) -> Self;
     /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
@@ -88,12 +98,20 @@ impl Real for f32 {
         f32::cos(self)
     }
 }
+/// A constant in the kernels: `Real::lit`, sound here because every kernel first fills its
+/// outputs with the checked `T::k`, so this runs only where the CPU runs `T`'s operations.
+#[inline(always)]
+#[allow(dead_code)]
+fn lit<T: Real>(x: f64) -> T {
+    unsafe { T::lit(x) }
+}
 /// `N` states evaluated by one call, one per lane (`q[j].0[l]` is joint j of state l), for
 /// sweeping many knot points: every lane runs exactly the operations of a scalar call in its
 /// scalar type `S` (of the same copy, `portable` or `fma`), so results are bit-identical, and
-/// the compiler can put the lanes in SIMD registers. `Lanes<4>` is four f64 states (a ymm
-/// register in the `fma` copy); `Lanes<8, f32>` eight f32 states in one ymm, and
-/// `Lanes<16, f32>` sixteen in one zmm of the AVX-512 copy, where it is generated.
+/// the compiler can put the lanes in SIMD registers, which it does only in part (it spills
+/// the rest): on x86-64 with AVX2 and FMA, `F64x4` and `F32x8` compute the same bits with
+/// one vector instruction per operation, two to three times faster per state. `Lanes` runs
+/// on any target and at any width.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[allow(dead_code)]
 pub struct Lanes<const N: usize, S = f64>(pub [S; N]);
@@ -158,6 +176,246 @@ pub fn has_fma() -> bool {
     #[cfg(target_arch = "x86_64")]
     { std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") }
     #[cfg(not(target_arch = "x86_64"))] { false }
+}
+/// 4 f64 states per call in one 256-bit register (`__m256d`): what `Lanes<4>` computes,
+/// bit for bit, but each operation is one vector instruction, where `Lanes` leaves the
+/// vectorising to the compiler (which does part of it, and spills the rest). Runs where
+/// the CPU has AVX2 and FMA ([`has_fma`]): every way to make one checks, so a value of this type
+/// is proof of that. Through the dispatching functions it runs in the copy that compiles
+/// its operations inline; elsewhere each operation is a call (correct, slow).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+#[allow(dead_code)]
+pub struct F64x4(core::arch::x86_64::__m256d);
+#[cfg(target_arch = "x86_64")]
+#[allow(dead_code)]
+impl F64x4 {
+    /// States in one value.
+    pub const LANES: usize = 4;
+    /// Whether this CPU runs `F64x4`: x86-64 with AVX2 and FMA.
+    #[inline]
+    pub fn supported() -> bool {
+        has_fma()
+    }
+    /// The lanes as one value, or `None` where this CPU does not run `F64x4`.
+    #[inline]
+    pub fn new(lanes: [f64; 4]) -> Option<Self> {
+        if Self::supported() { Some(Self::unchecked(lanes)) } else { None }
+    }
+    #[inline(always)]
+    fn unchecked(lanes: [f64; 4]) -> Self {
+        F64x4(unsafe {
+            core::mem::transmute::<[f64; 4], core::arch::x86_64::__m256d>(lanes)
+        })
+    }
+    /// The lanes.
+    #[inline(always)]
+    pub fn to_array(self) -> [f64; 4] {
+        unsafe { core::mem::transmute::<core::arch::x86_64::__m256d, [f64; 4]>(self.0) }
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::fmt::Debug for F64x4 {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_tuple("F64x4").field(&self.to_array()).finish()
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl PartialEq for F64x4 {
+    fn eq(&self, b: &Self) -> bool {
+        self.to_array() == b.to_array()
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Add for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_add_pd(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Sub for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_sub_pd(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Mul for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_mul_pd(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Div for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn div(self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_div_pd(self.0, b.0) })
+    }
+}
+/// Negation is `-0 - x`: exact, and the same bits as the scalar `-x` for every number.
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Neg for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        F64x4(unsafe {
+            core::arch::x86_64::_mm256_sub_pd(
+                core::arch::x86_64::_mm256_set1_pd(-0.0),
+                self.0,
+            )
+        })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl Real for F64x4 {
+    #[inline]
+    fn k(x: f64) -> Self {
+        F64x4::new([x as f64; 4])
+            .expect("F64x4 needs a CPU with AVX2 and FMA (F64x4::supported)")
+    }
+    #[inline(always)]
+    unsafe fn lit(x: f64) -> Self {
+        F64x4::unchecked([x as f64; 4])
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_fmadd_pd(self.0, a.0, b.0) })
+    }
+    #[inline(always)]
+    fn sin(self) -> Self {
+        F64x4::unchecked(self.to_array().map(f64::sin))
+    }
+    #[inline(always)]
+    fn cos(self) -> Self {
+        F64x4::unchecked(self.to_array().map(f64::cos))
+    }
+}
+/// 8 f32 states per call in one 256-bit register (`__m256`): what `Lanes<8, f32>` computes,
+/// bit for bit, but each operation is one vector instruction, where `Lanes` leaves the
+/// vectorising to the compiler (which does part of it, and spills the rest). Runs where
+/// the CPU has AVX2 and FMA ([`has_fma`]): every way to make one checks, so a value of this type
+/// is proof of that. Through the dispatching functions it runs in the copy that compiles
+/// its operations inline; elsewhere each operation is a call (correct, slow).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+#[allow(dead_code)]
+pub struct F32x8(core::arch::x86_64::__m256);
+#[cfg(target_arch = "x86_64")]
+#[allow(dead_code)]
+impl F32x8 {
+    /// States in one value.
+    pub const LANES: usize = 8;
+    /// Whether this CPU runs `F32x8`: x86-64 with AVX2 and FMA.
+    #[inline]
+    pub fn supported() -> bool {
+        has_fma()
+    }
+    /// The lanes as one value, or `None` where this CPU does not run `F32x8`.
+    #[inline]
+    pub fn new(lanes: [f32; 8]) -> Option<Self> {
+        if Self::supported() { Some(Self::unchecked(lanes)) } else { None }
+    }
+    #[inline(always)]
+    fn unchecked(lanes: [f32; 8]) -> Self {
+        F32x8(unsafe {
+            core::mem::transmute::<[f32; 8], core::arch::x86_64::__m256>(lanes)
+        })
+    }
+    /// The lanes.
+    #[inline(always)]
+    pub fn to_array(self) -> [f32; 8] {
+        unsafe { core::mem::transmute::<core::arch::x86_64::__m256, [f32; 8]>(self.0) }
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::fmt::Debug for F32x8 {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_tuple("F32x8").field(&self.to_array()).finish()
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl PartialEq for F32x8 {
+    fn eq(&self, b: &Self) -> bool {
+        self.to_array() == b.to_array()
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Add for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_add_ps(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Sub for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_sub_ps(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Mul for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_mul_ps(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Div for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn div(self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_div_ps(self.0, b.0) })
+    }
+}
+/// Negation is `-0 - x`: exact, and the same bits as the scalar `-x` for every number.
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Neg for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        F32x8(unsafe {
+            core::arch::x86_64::_mm256_sub_ps(
+                core::arch::x86_64::_mm256_set1_ps(-0.0),
+                self.0,
+            )
+        })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl Real for F32x8 {
+    #[inline]
+    fn k(x: f64) -> Self {
+        F32x8::new([x as f32; 8])
+            .expect("F32x8 needs a CPU with AVX2 and FMA (F32x8::supported)")
+    }
+    #[inline(always)]
+    unsafe fn lit(x: f64) -> Self {
+        F32x8::unchecked([x as f32; 8])
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_fmadd_ps(self.0, a.0, b.0) })
+    }
+    #[inline(always)]
+    fn sin(self) -> Self {
+        F32x8::unchecked(self.to_array().map(f32::sin))
+    }
+    #[inline(always)]
+    fn cos(self) -> Self {
+        F32x8::unchecked(self.to_array().map(f32::cos))
+    }
 }
 /// Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.
 ///
@@ -247,7 +505,7 @@ pub mod portable {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
         let mut c = [T::k(0.0); NV];
-        let mut s = [T::k(0.0); 14];
+        let mut s = [lit::<T>(0.0); 14];
         rnea_part0(q, qd, qdd, &mut s, &mut c);
         rnea_part1(q, qd, qdd, &mut s, &mut c);
         c
@@ -267,20 +525,20 @@ pub mod portable {
         s[0] = t8;
         let t9 = q[1].cos();
         s[1] = t9;
-        let t19 = t1 * T::k(9.81);
-        let t20 = t2 * T::k(9.81);
-        let t21 = T::k(0.0007545716336328686) * qdd[0];
-        let t22 = T::k(5.801760809999999e-7) * t20;
-        let t23 = T::k(0.00961628436) * t19;
+        let t19 = t1 * lit::<T>(9.81);
+        let t20 = t2 * lit::<T>(9.81);
+        let t21 = lit::<T>(0.0007545716336328686) * qdd[0];
+        let t22 = lit::<T>(5.801760809999999e-7) * t20;
+        let t23 = lit::<T>(0.00961628436) * t19;
         let t24 = t22 - t23;
         let t25 = t21 + t24;
         s[2] = t25;
-        let t26 = T::k(0.1) * qd[0];
+        let t26 = lit::<T>(0.1) * qd[0];
         let t27 = t9 * t26;
         s[3] = t27;
         let t28 = t8 * t26;
         s[4] = t28;
-        let t29 = T::k(0.1) * qdd[0];
+        let t29 = lit::<T>(0.1) * qdd[0];
         let t30 = t19 - t29;
         let t31 = t9 * t30;
         let t32 = t8 * t20;
@@ -298,22 +556,22 @@ pub mod portable {
         s[7] = t41;
         let t42 = t36 + t39;
         s[8] = t42;
-        let t43 = T::k(0.0335304944) * t37;
-        let t44 = T::k(6.43853298e-11) * t37;
-        let t45 = T::k(0.33238) * t27;
+        let t43 = lit::<T>(0.0335304944) * t37;
+        let t44 = lit::<T>(6.43853298e-11) * t37;
+        let t45 = lit::<T>(0.33238) * t27;
         let t46 = -t45;
-        let t47 = T::k(0.33238) * t28;
+        let t47 = lit::<T>(0.33238) * t28;
         let t48 = t46 - t43;
         s[9] = t48;
         let t49 = t44 + t47;
         s[10] = t49;
-        let t50 = T::k(0.004557856275072) * t40;
+        let t50 = lit::<T>(0.004557856275072) * t40;
         s[11] = t50;
-        let t51 = T::k(6.43853298e-11) * t42;
-        let t52 = T::k(0.0335304944) * t41;
+        let t51 = lit::<T>(6.43853298e-11) * t42;
+        let t52 = lit::<T>(0.0335304944) * t41;
         let t53 = t51 - t52;
         s[12] = t53;
-        let t54 = T::k(0.0335304944) * t40;
+        let t54 = lit::<T>(0.0335304944) * t40;
         s[13] = t54;
     }
     #[inline(never)]
@@ -325,9 +583,9 @@ pub mod portable {
         s: &mut [T; 14],
         c: &mut [T; NV],
     ) {
-        let t55 = T::k(6.43853298e-11) * s[6];
-        let t56 = T::k(0.33238) * s[7];
-        let t57 = T::k(0.33238) * s[8];
+        let t55 = lit::<T>(6.43853298e-11) * s[6];
+        let t56 = lit::<T>(0.33238) * s[7];
+        let t57 = lit::<T>(0.33238) * s[8];
         let t58 = s[11] + s[12];
         let t59 = t56 - s[13];
         let t60 = t55 + t57;
@@ -344,7 +602,7 @@ pub mod portable {
         let t70 = s[1] * t68;
         let t71 = s[0] * t69;
         let t72 = t70 - t71;
-        let t73 = T::k(0.1) * t72;
+        let t73 = lit::<T>(0.1) * t72;
         let t74 = t67 - t73;
         let t75 = s[2] + t74;
         c[0] = t75;
@@ -359,7 +617,7 @@ pub mod portable {
     ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
         let mut dc_dq = [[T::k(0.0); NV]; NV];
         let mut dc_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 26];
+        let mut s = [lit::<T>(0.0); 26];
         rnea_grad_part0(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
         rnea_grad_part1(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
         rnea_grad_part2(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
@@ -382,16 +640,16 @@ pub mod portable {
         s[0] = t7;
         let t8 = q[1].cos();
         s[1] = t8;
-        let t17 = t1 * T::k(9.81);
+        let t17 = t1 * lit::<T>(9.81);
         s[2] = t17;
-        let t18 = t2 * T::k(9.81);
+        let t18 = t2 * lit::<T>(9.81);
         s[3] = t18;
-        let t19 = T::k(0.1) * qd[0];
+        let t19 = lit::<T>(0.1) * qd[0];
         let t20 = t8 * t19;
         s[4] = t20;
         let t21 = t7 * t19;
         s[5] = t21;
-        let t22 = T::k(0.1) * qdd[0];
+        let t22 = lit::<T>(0.1) * qdd[0];
         let t23 = t17 - t22;
         let t24 = t8 * t23;
         let t25 = t7 * t18;
@@ -407,22 +665,22 @@ pub mod portable {
         let t33 = qdd[0] + qdd[1];
         let t34 = t26 + t31;
         let t35 = t29 + t32;
-        let t36 = T::k(0.0335304944) * t30;
+        let t36 = lit::<T>(0.0335304944) * t30;
         s[8] = t36;
-        let t37 = T::k(6.43853298e-11) * t30;
-        let t38 = T::k(0.33238) * t20;
+        let t37 = lit::<T>(6.43853298e-11) * t30;
+        let t38 = lit::<T>(0.33238) * t20;
         s[9] = t38;
         let t39 = -t38;
-        let t40 = T::k(0.33238) * t21;
+        let t40 = lit::<T>(0.33238) * t21;
         s[10] = t40;
         let t41 = t39 - t36;
         s[11] = t41;
         let t42 = t37 + t40;
         s[12] = t42;
-        let t43 = T::k(0.0335304944) * t33;
-        let t44 = T::k(6.43853298e-11) * t33;
-        let t45 = T::k(0.33238) * t34;
-        let t46 = T::k(0.33238) * t35;
+        let t43 = lit::<T>(0.0335304944) * t33;
+        let t44 = lit::<T>(6.43853298e-11) * t33;
+        let t45 = lit::<T>(0.33238) * t34;
+        let t46 = lit::<T>(0.33238) * t35;
         let t47 = t45 - t43;
         let t48 = t44 + t46;
         let t49 = t30 * t42;
@@ -449,18 +707,18 @@ pub mod portable {
         let t58 = -s[8];
         let t59 = t58 - s[9];
         s[15] = t59;
-        let t60 = T::k(6.43853298e-11) * s[4];
+        let t60 = lit::<T>(6.43853298e-11) * s[4];
         s[16] = t60;
-        let t61 = T::k(0.0335304944) * s[5];
+        let t61 = lit::<T>(0.0335304944) * s[5];
         let t62 = t61 - t60;
-        let t63 = T::k(2.0) * t62;
+        let t63 = lit::<T>(2.0) * t62;
         s[17] = t63;
         let t65 = t60 - t61;
-        let t66 = T::k(6.43853298e-11) * t56;
-        let t67 = T::k(0.0335304944) * t55;
+        let t66 = lit::<T>(6.43853298e-11) * t56;
+        let t67 = lit::<T>(0.0335304944) * t55;
         let t68 = t66 - t67;
-        let t69 = T::k(0.33238) * t55;
-        let t70 = T::k(0.33238) * t56;
+        let t69 = lit::<T>(0.33238) * t55;
+        let t70 = lit::<T>(0.33238) * t56;
         let t71 = -s[12];
         let t72 = s[4] * t59;
         let t73 = s[5] * s[12];
@@ -487,12 +745,12 @@ pub mod portable {
         s[23] = t88;
         let t89 = t59 - s[11];
         s[24] = t89;
-        let t90 = t55 * T::k(-0.0335304944);
+        let t90 = t55 * lit::<T>(-0.0335304944);
         let t91 = t66 + t90;
         let t92 = s[4] * t89;
         let t93 = t91 + t92;
         dc_dq[1][1] = t93;
-        let t94 = s[5] * T::k(-0.0335304944);
+        let t94 = s[5] * lit::<T>(-0.0335304944);
         s[25] = t94;
     }
     #[inline(never)]
@@ -509,41 +767,41 @@ pub mod portable {
         let t96 = t95 + t95;
         let t97 = s[17] + t96;
         dc_dqd[1][1] = t97;
-        let t98 = s[1] * T::k(-0.0335304944);
-        let t99 = s[0] * T::k(6.43853298e-11);
+        let t98 = s[1] * lit::<T>(-0.0335304944);
+        let t99 = s[0] * lit::<T>(6.43853298e-11);
         let t100 = t98 - t99;
-        let t101 = s[0] * T::k(-0.0335304944);
-        let t102 = s[1] * T::k(6.43853298e-11);
+        let t101 = s[0] * lit::<T>(-0.0335304944);
+        let t102 = s[1] * lit::<T>(6.43853298e-11);
         let t103 = t101 + t102;
         s[4] = t103;
         let t104 = s[1] * s[19];
         let t105 = s[0] * s[20];
         let t106 = t104 - t105;
-        let t107 = T::k(0.1) * t106;
+        let t107 = lit::<T>(0.1) * t106;
         let t108 = s[18] - t107;
         dc_dqd[0][1] = t108;
         let t109 = s[1] * s[22];
         let t110 = s[0] * s[23];
         let t111 = t109 - t110;
-        let t112 = T::k(0.1) * t111;
+        let t112 = lit::<T>(0.1) * t111;
         let t113 = s[21] - t112;
         dc_dq[0][1] = t113;
         let t114 = s[0] * s[24];
-        let t115 = T::k(0.1) * t114;
+        let t115 = lit::<T>(0.1) * t114;
         let t116 = s[17] + t115;
         dc_dqd[1][0] = t116;
-        let t117 = s[0] * T::k(0.0335304944);
+        let t117 = s[0] * lit::<T>(0.0335304944);
         let t118 = t102 - t117;
-        let t119 = s[1] * T::k(0.0335304944);
+        let t119 = s[1] * lit::<T>(0.0335304944);
         let t120 = t99 + t119;
-        let t122 = t120 + T::k(0.033238000000000004);
-        let t123 = T::k(5.801760809999999e-7) + t118;
-        let t124 = T::k(0.00961628436) + t122;
+        let t122 = t120 + lit::<T>(0.033238000000000004);
+        let t123 = lit::<T>(5.801760809999999e-7) + t118;
+        let t124 = lit::<T>(0.00961628436) + t122;
         let t125 = s[0] * s[15];
         let t126 = s[1] * s[12];
         let t127 = t125 + t126;
-        let t128 = T::k(0.1) * t127;
-        let t129 = T::k(2.0) * t128;
+        let t128 = lit::<T>(0.1) * t127;
+        let t129 = lit::<T>(2.0) * t128;
         let t130 = s[17] + t129;
         dc_dqd[0][0] = t130;
         let t131 = s[2] * t123;
@@ -573,22 +831,22 @@ pub mod portable {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut m = [[T::k(0.0); NV]; NV];
-        m[1][1] = T::k(0.004557856275072);
+        m[1][1] = lit::<T>(0.004557856275072);
         let t3 = q[1].sin();
         let t4 = q[1].cos();
-        let t8 = t3 * T::k(6.43853298e-11);
-        let t9 = t4 * T::k(0.0335304944);
+        let t8 = t3 * lit::<T>(6.43853298e-11);
+        let t9 = t4 * lit::<T>(0.0335304944);
         let t10 = t8 + t9;
-        let t12 = T::k(0.1) * t10;
-        let t13 = T::k(-3.8305498717999996e-5) + t12;
-        let t15 = t13 * T::k(2.0);
-        let t17 = t15 + T::k(0.007958267272508);
-        let t18 = T::k(0.0007545716336328686) + t17;
+        let t12 = lit::<T>(0.1) * t10;
+        let t13 = lit::<T>(-3.8305498717999996e-5) + t12;
+        let t15 = t13 * lit::<T>(2.0);
+        let t17 = t15 + lit::<T>(0.007958267272508);
+        let t18 = lit::<T>(0.0007545716336328686) + t17;
         m[0][0] = t18;
-        let t20 = t4 * T::k(-0.0335304944);
+        let t20 = t4 * lit::<T>(-0.0335304944);
         let t21 = t20 - t8;
-        let t22 = T::k(0.1) * t21;
-        let t23 = T::k(0.004557856275072) - t22;
+        let t22 = lit::<T>(0.1) * t21;
+        let t23 = lit::<T>(0.004557856275072) - t22;
         m[0][1] = t23;
         m[1][0] = t23;
         m
@@ -600,40 +858,40 @@ pub mod portable {
         let mut minv = [[T::k(0.0); NV]; NV];
         let t4 = q[1].sin();
         let t5 = q[1].cos();
-        let t13 = t5 * T::k(-7.356637062775817);
-        let t14 = t4 * T::k(1.4126230823060104e-8);
+        let t13 = t5 * lit::<T>(-7.356637062775817);
+        let t14 = t4 * lit::<T>(1.4126230823060104e-8);
         let t15 = t13 - t14;
-        let t16 = T::k(0.1) * t15;
-        let t17 = T::k(1.0) - t16;
-        let t21 = t5 * T::k(-0.1);
-        let t22 = t4 * T::k(-0.1);
-        let t23 = T::k(0.08570832216376303) * t21;
-        let t24 = T::k(4.736595035057242e-10) * t22;
+        let t16 = lit::<T>(0.1) * t15;
+        let t17 = lit::<T>(1.0) - t16;
+        let t21 = t5 * lit::<T>(-0.1);
+        let t22 = t4 * lit::<T>(-0.1);
+        let t23 = lit::<T>(0.08570832216376303) * t21;
+        let t24 = lit::<T>(4.736595035057242e-10) * t22;
         let t25 = t23 - t24;
-        let t26 = T::k(4.736595035057242e-10) * t21;
-        let t27 = T::k(0.33238) * t22;
+        let t26 = lit::<T>(4.736595035057242e-10) * t21;
+        let t27 = lit::<T>(0.33238) * t22;
         let t28 = t26 - t27;
         let t29 = t5 * t25;
         let t30 = t4 * t28;
         let t31 = t29 - t30;
-        let t32 = T::k(0.1) * t31;
-        let t33 = T::k(0.0007545716336328686) - t32;
-        let t34 = T::k(1.0) / t33;
+        let t32 = lit::<T>(0.1) * t31;
+        let t33 = lit::<T>(0.0007545716336328686) - t32;
+        let t34 = lit::<T>(1.0) / t33;
         minv[0][0] = t34;
         let t35 = t17 * t34;
         let t36 = -t35;
         minv[0][1] = t36;
         minv[1][0] = t36;
-        let t37 = T::k(0.1) * t35;
+        let t37 = lit::<T>(0.1) * t35;
         let t38 = t5 * t37;
         let t39 = t4 * t37;
-        let t40 = T::k(0.004557856275072) * t35;
-        let t41 = T::k(-0.0335304944) * t38;
+        let t40 = lit::<T>(0.004557856275072) * t35;
+        let t41 = lit::<T>(-0.0335304944) * t38;
         let t42 = t41 - t40;
-        let t43 = T::k(6.43853298e-11) * t39;
+        let t43 = lit::<T>(6.43853298e-11) * t39;
         let t44 = t42 - t43;
-        let t45 = T::k(219.4013895236754) * t44;
-        let t46 = T::k(219.4013895236754) - t45;
+        let t45 = lit::<T>(219.4013895236754) * t44;
+        let t46 = lit::<T>(219.4013895236754) - t45;
         minv[1][1] = t46;
         minv
     }
@@ -642,7 +900,7 @@ pub mod portable {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
         let mut qdd = [T::k(0.0); NV];
-        let mut s = [T::k(0.0); 15];
+        let mut s = [lit::<T>(0.0); 15];
         fd_part0(q, qd, tau, &mut s, &mut qdd);
         fd_part1(q, qd, tau, &mut s, &mut qdd);
         fd_part2(q, qd, tau, &mut s, &mut qdd);
@@ -665,7 +923,7 @@ pub mod portable {
         s[2] = t8;
         let t9 = q[1].cos();
         s[3] = t9;
-        let t18 = T::k(0.1) * qd[0];
+        let t18 = lit::<T>(0.1) * qd[0];
         let t19 = t9 * t18;
         let t20 = t8 * t18;
         let t21 = qd[0] + qd[1];
@@ -673,11 +931,11 @@ pub mod portable {
         s[4] = t22;
         let t23 = qd[1] * t19;
         s[5] = t23;
-        let t24 = T::k(0.0335304944) * t21;
-        let t25 = T::k(6.43853298e-11) * t21;
-        let t26 = T::k(0.33238) * t19;
+        let t24 = lit::<T>(0.0335304944) * t21;
+        let t25 = lit::<T>(6.43853298e-11) * t21;
+        let t26 = lit::<T>(0.33238) * t19;
         let t27 = -t26;
-        let t28 = T::k(0.33238) * t20;
+        let t28 = lit::<T>(0.33238) * t20;
         let t29 = t27 - t24;
         let t30 = t25 + t28;
         let t31 = t19 * t30;
@@ -688,16 +946,16 @@ pub mod portable {
         let t36 = t21 * t29;
         let t40 = tau[1] - t34;
         s[6] = t40;
-        let t43 = t22 * T::k(0.08570832216376303);
-        let t44 = t23 * T::k(4.736595035057242e-10);
+        let t43 = t22 * lit::<T>(0.08570832216376303);
+        let t44 = t23 * lit::<T>(4.736595035057242e-10);
         let t45 = t43 + t44;
-        let t46 = t22 * T::k(4.736595035057242e-10);
-        let t47 = T::k(0.33238) * t23;
+        let t46 = t22 * lit::<T>(4.736595035057242e-10);
+        let t47 = lit::<T>(0.33238) * t23;
         let t48 = t46 + t47;
-        let t49 = T::k(219.4013895236754) * t40;
-        let t50 = T::k(0.004557856275072) * t49;
-        let t51 = T::k(-0.0335304944) * t49;
-        let t52 = T::k(6.43853298e-11) * t49;
+        let t49 = lit::<T>(219.4013895236754) * t40;
+        let t50 = lit::<T>(0.004557856275072) * t49;
+        let t51 = lit::<T>(-0.0335304944) * t49;
+        let t52 = lit::<T>(6.43853298e-11) * t49;
         let t53 = t45 - t35;
         let t54 = t36 + t48;
         let t55 = t34 + t50;
@@ -719,48 +977,48 @@ pub mod portable {
     ) {
         let t59 = s[2] * s[8];
         let t60 = s[9] - t59;
-        let t61 = T::k(0.1) * t60;
+        let t61 = lit::<T>(0.1) * t60;
         let t62 = s[7] - t61;
-        let t64 = s[3] * T::k(-0.1);
-        let t65 = s[2] * T::k(-0.1);
-        let t66 = T::k(0.08570832216376303) * t64;
-        let t67 = T::k(4.736595035057242e-10) * t65;
+        let t64 = s[3] * lit::<T>(-0.1);
+        let t65 = s[2] * lit::<T>(-0.1);
+        let t66 = lit::<T>(0.08570832216376303) * t64;
+        let t67 = lit::<T>(4.736595035057242e-10) * t65;
         let t68 = t66 - t67;
-        let t69 = T::k(4.736595035057242e-10) * t64;
-        let t70 = T::k(0.33238) * t65;
+        let t69 = lit::<T>(4.736595035057242e-10) * t64;
+        let t70 = lit::<T>(0.33238) * t65;
         let t71 = t69 - t70;
         let t72 = s[3] * t68;
         let t73 = s[2] * t71;
         let t74 = t72 - t73;
-        let t75 = T::k(0.1) * t74;
-        let t76 = s[3] * T::k(0.08570832216376303);
-        let t77 = s[2] * T::k(4.736595035057242e-10);
+        let t75 = lit::<T>(0.1) * t74;
+        let t76 = s[3] * lit::<T>(0.08570832216376303);
+        let t77 = s[2] * lit::<T>(4.736595035057242e-10);
         let t78 = t76 - t77;
-        let t79 = s[3] * T::k(4.736595035057242e-10);
-        let t80 = s[2] * T::k(0.33238);
+        let t79 = s[3] * lit::<T>(4.736595035057242e-10);
+        let t80 = s[2] * lit::<T>(0.33238);
         let t81 = t79 - t80;
         let t82 = s[3] * t78;
         let t83 = s[2] * t81;
         let t84 = t82 - t83;
-        let t85 = T::k(0.1) * t84;
-        let t86 = s[2] * T::k(0.08570832216376303);
+        let t85 = lit::<T>(0.1) * t84;
+        let t86 = s[2] * lit::<T>(0.08570832216376303);
         let t87 = t79 + t86;
-        let t88 = s[3] * T::k(0.33238);
+        let t88 = s[3] * lit::<T>(0.33238);
         let t89 = t77 + t88;
         let t90 = s[3] * t87;
         let t91 = s[2] * t89;
         let t92 = t90 - t91;
-        let t93 = T::k(0.1) * t92;
-        let t94 = T::k(0.0007545716336328686) - t75;
-        let t95 = T::k(-0.00961628436) - t85;
+        let t93 = lit::<T>(0.1) * t92;
+        let t94 = lit::<T>(0.0007545716336328686) - t75;
+        let t95 = lit::<T>(-0.00961628436) - t85;
         s[10] = t95;
-        let t96 = T::k(5.801760809999999e-7) - t93;
+        let t96 = lit::<T>(5.801760809999999e-7) - t93;
         s[11] = t96;
-        let t97 = T::k(1.0) / t94;
+        let t97 = lit::<T>(1.0) / t94;
         s[12] = t97;
         let t98 = tau[0] - t62;
         s[13] = t98;
-        let t100 = s[0] * T::k(9.81);
+        let t100 = s[0] * lit::<T>(9.81);
         s[14] = t100;
     }
     #[inline(never)]
@@ -772,14 +1030,14 @@ pub mod portable {
         s: &mut [T; 15],
         qdd: &mut [T; NV],
     ) {
-        let t101 = s[1] * T::k(9.81);
+        let t101 = s[1] * lit::<T>(9.81);
         let t102 = s[10] * s[14];
         let t103 = s[11] * t101;
         let t104 = t102 + t103;
         let t105 = s[13] - t104;
         let t106 = s[12] * t105;
         qdd[0] = t106;
-        let t107 = T::k(0.1) * t106;
+        let t107 = lit::<T>(0.1) * t106;
         let t108 = s[14] - t107;
         let t109 = s[3] * t108;
         let t110 = s[2] * t101;
@@ -789,13 +1047,13 @@ pub mod portable {
         let t114 = t113 - t112;
         let t115 = s[4] + t111;
         let t116 = s[5] + t114;
-        let t117 = T::k(0.004557856275072) * t106;
-        let t118 = T::k(-0.0335304944) * t115;
+        let t117 = lit::<T>(0.004557856275072) * t106;
+        let t118 = lit::<T>(-0.0335304944) * t115;
         let t119 = t117 + t118;
-        let t120 = T::k(6.43853298e-11) * t116;
+        let t120 = lit::<T>(6.43853298e-11) * t116;
         let t121 = t119 + t120;
         let t122 = s[6] - t121;
-        let t123 = T::k(219.4013895236754) * t122;
+        let t123 = lit::<T>(219.4013895236754) * t122;
         qdd[1] = t123;
     }
     /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
@@ -809,7 +1067,7 @@ pub mod portable {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 40];
+        let mut s = [lit::<T>(0.0); 40];
         fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
@@ -834,41 +1092,41 @@ pub mod portable {
         s[0] = t9;
         let t10 = q[1].cos();
         s[1] = t10;
-        let t19 = t10 * T::k(6.43853298e-11);
-        let t20 = t9 * T::k(0.0335304944);
+        let t19 = t10 * lit::<T>(6.43853298e-11);
+        let t20 = t9 * lit::<T>(0.0335304944);
         let t21 = t19 - t20;
-        let t22 = t9 * T::k(6.43853298e-11);
-        let t23 = t10 * T::k(0.0335304944);
+        let t22 = t9 * lit::<T>(6.43853298e-11);
+        let t23 = t10 * lit::<T>(0.0335304944);
         let t24 = t22 + t23;
-        let t26 = T::k(0.1) * t24;
-        let t27 = T::k(-3.8305498717999996e-5) + t26;
-        let t29 = t27 * T::k(2.0);
-        let t31 = t29 + T::k(0.007958267272508);
-        let t33 = t24 + T::k(0.033238000000000004);
-        let t34 = T::k(0.0007545716336328686) + t31;
+        let t26 = lit::<T>(0.1) * t24;
+        let t27 = lit::<T>(-3.8305498717999996e-5) + t26;
+        let t29 = t27 * lit::<T>(2.0);
+        let t31 = t29 + lit::<T>(0.007958267272508);
+        let t33 = t24 + lit::<T>(0.033238000000000004);
+        let t34 = lit::<T>(0.0007545716336328686) + t31;
         s[2] = t34;
-        let t35 = T::k(5.801760809999999e-7) + t21;
+        let t35 = lit::<T>(5.801760809999999e-7) + t21;
         s[3] = t35;
-        let t36 = T::k(0.00961628436) + t33;
+        let t36 = lit::<T>(0.00961628436) + t33;
         s[4] = t36;
-        let t38 = t10 * T::k(-0.0335304944);
+        let t38 = t10 * lit::<T>(-0.0335304944);
         let t39 = t38 - t22;
         s[5] = t39;
-        let t40 = t9 * T::k(-0.0335304944);
+        let t40 = t9 * lit::<T>(-0.0335304944);
         let t41 = t19 + t40;
         s[6] = t41;
-        let t42 = T::k(0.1) * t39;
-        let t43 = T::k(0.004557856275072) - t42;
+        let t42 = lit::<T>(0.1) * t39;
+        let t43 = lit::<T>(0.004557856275072) - t42;
         s[7] = t43;
-        let t45 = t1 * T::k(9.81);
+        let t45 = t1 * lit::<T>(9.81);
         s[8] = t45;
-        let t46 = t2 * T::k(9.81);
+        let t46 = t2 * lit::<T>(9.81);
         s[9] = t46;
-        let t47 = T::k(5.801760809999999e-7) * t46;
-        let t48 = T::k(0.00961628436) * t45;
+        let t47 = lit::<T>(5.801760809999999e-7) * t46;
+        let t48 = lit::<T>(0.00961628436) * t45;
         let t49 = t47 - t48;
         s[10] = t49;
-        let t50 = T::k(0.1) * qd[0];
+        let t50 = lit::<T>(0.1) * qd[0];
         let t51 = t10 * t50;
         s[11] = t51;
         let t52 = t9 * t50;
@@ -903,23 +1161,23 @@ pub mod portable {
         s[19] = t61;
         let t62 = s[14] + s[18];
         let t63 = s[16] + t61;
-        let t64 = T::k(0.0335304944) * s[17];
+        let t64 = lit::<T>(0.0335304944) * s[17];
         s[20] = t64;
-        let t65 = T::k(6.43853298e-11) * s[17];
-        let t66 = T::k(0.33238) * s[11];
+        let t65 = lit::<T>(6.43853298e-11) * s[17];
+        let t66 = lit::<T>(0.33238) * s[11];
         s[21] = t66;
         let t67 = -t66;
-        let t68 = T::k(0.33238) * s[12];
+        let t68 = lit::<T>(0.33238) * s[12];
         s[22] = t68;
         let t69 = t67 - t64;
         s[23] = t69;
         let t70 = t65 + t68;
         s[24] = t70;
-        let t71 = T::k(6.43853298e-11) * t63;
-        let t72 = T::k(0.0335304944) * t62;
+        let t71 = lit::<T>(6.43853298e-11) * t63;
+        let t72 = lit::<T>(0.0335304944) * t62;
         let t73 = t71 - t72;
-        let t74 = T::k(0.33238) * t62;
-        let t75 = T::k(0.33238) * t63;
+        let t74 = lit::<T>(0.33238) * t62;
+        let t75 = lit::<T>(0.33238) * t63;
         let t76 = s[11] * t70;
         let t77 = -t76;
         let t78 = s[12] * t69;
@@ -934,14 +1192,14 @@ pub mod portable {
         let t85 = s[1] * t83;
         let t86 = s[0] * t84;
         let t87 = t85 - t86;
-        let t88 = T::k(0.1) * t87;
+        let t88 = lit::<T>(0.1) * t87;
         let t89 = t82 - t88;
         let t90 = s[10] + t89;
-        let t92 = s[7] * T::k(-219.4013895236754);
+        let t92 = s[7] * lit::<T>(-219.4013895236754);
         s[27] = t92;
         let t93 = s[7] * t92;
         let t94 = s[2] + t93;
-        let t95 = T::k(-1.0) / t94;
+        let t95 = lit::<T>(-1.0) / t94;
         s[28] = t95;
         let t96 = t90 - tau[0];
         let t97 = t82 - tau[1];
@@ -950,7 +1208,7 @@ pub mod portable {
         let t100 = t95 * t99;
         s[29] = t100;
         qdd[0] = t100;
-        let t101 = T::k(-219.4013895236754) * t97;
+        let t101 = lit::<T>(-219.4013895236754) * t97;
         s[30] = t101;
     }
     #[inline(never)]
@@ -967,7 +1225,7 @@ pub mod portable {
         let t102 = s[27] * s[29];
         let t103 = s[30] + t102;
         qdd[1] = t103;
-        let t104 = T::k(0.1) * s[29];
+        let t104 = lit::<T>(0.1) * s[29];
         let t105 = s[8] - t104;
         let t106 = s[1] * t105;
         let t107 = s[13] + t106;
@@ -976,10 +1234,10 @@ pub mod portable {
         let t110 = s[29] + t103;
         let t111 = s[18] + t107;
         let t112 = s[19] + t109;
-        let t113 = T::k(0.0335304944) * t110;
-        let t114 = T::k(6.43853298e-11) * t110;
-        let t115 = T::k(0.33238) * t111;
-        let t116 = T::k(0.33238) * t112;
+        let t113 = lit::<T>(0.0335304944) * t110;
+        let t114 = lit::<T>(6.43853298e-11) * t110;
+        let t115 = lit::<T>(0.33238) * t111;
+        let t116 = lit::<T>(0.33238) * t112;
         let t117 = t115 - t113;
         let t118 = t114 + t116;
         let t119 = t117 - s[25];
@@ -994,22 +1252,22 @@ pub mod portable {
         let t125 = -s[20];
         let t126 = t125 - s[21];
         s[14] = t126;
-        let t127 = T::k(6.43853298e-11) * s[11];
+        let t127 = lit::<T>(6.43853298e-11) * s[11];
         s[16] = t127;
-        let t128 = T::k(0.0335304944) * s[12];
+        let t128 = lit::<T>(0.0335304944) * s[12];
         let t129 = t128 - t127;
-        let t130 = T::k(2.0) * t129;
+        let t130 = lit::<T>(2.0) * t129;
         s[17] = t130;
         let t131 = t127 - t128;
         s[31] = t131;
-        let t132 = T::k(6.43853298e-11) * t124;
+        let t132 = lit::<T>(6.43853298e-11) * t124;
         s[32] = t132;
-        let t133 = T::k(0.0335304944) * t123;
+        let t133 = lit::<T>(0.0335304944) * t123;
         let t134 = t132 - t133;
         s[33] = t134;
-        let t135 = T::k(0.33238) * t123;
+        let t135 = lit::<T>(0.33238) * t123;
         s[34] = t135;
-        let t136 = T::k(0.33238) * t124;
+        let t136 = lit::<T>(0.33238) * t124;
         s[35] = t136;
         let t137 = -s[24];
         s[36] = t137;
@@ -1046,12 +1304,12 @@ pub mod portable {
         let t153 = s[34] - s[7];
         let t154 = s[2] + s[35];
         let t155 = s[14] - s[23];
-        let t156 = T::k(-0.0335304944) * s[10];
+        let t156 = lit::<T>(-0.0335304944) * s[10];
         let t157 = s[32] + t156;
         let t158 = s[11] * t155;
         let t159 = t157 + t158;
         s[13] = t159;
-        let t160 = T::k(-0.0335304944) * s[12];
+        let t160 = lit::<T>(-0.0335304944) * s[12];
         let t161 = s[16] + t160;
         let t162 = t161 + t161;
         let t163 = s[17] + t162;
@@ -1059,24 +1317,24 @@ pub mod portable {
         let t164 = s[1] * t149;
         let t165 = s[0] * t150;
         let t166 = t164 - t165;
-        let t167 = T::k(0.1) * t166;
+        let t167 = lit::<T>(0.1) * t166;
         let t168 = t148 - t167;
         s[18] = t168;
         let t169 = s[1] * t153;
         let t170 = s[0] * t154;
         let t171 = t169 - t170;
-        let t172 = T::k(0.1) * t171;
+        let t172 = lit::<T>(0.1) * t171;
         let t173 = t152 - t172;
         s[19] = t173;
         let t174 = s[0] * t155;
-        let t175 = T::k(0.1) * t174;
+        let t175 = lit::<T>(0.1) * t174;
         let t176 = s[17] + t175;
         s[20] = t176;
         let t177 = s[0] * s[14];
         let t178 = s[1] * s[24];
         let t179 = t177 + t178;
-        let t180 = T::k(0.1) * t179;
-        let t181 = T::k(2.0) * t180;
+        let t180 = lit::<T>(0.1) * t179;
+        let t181 = lit::<T>(2.0) * t180;
         s[25] = t181;
     }
     #[inline(never)]
@@ -1102,7 +1360,7 @@ pub mod portable {
         let t191 = t186 + t190;
         let t192 = s[28] * t191;
         dqdd_dq[0][0] = t192;
-        let t193 = T::k(-219.4013895236754) * t189;
+        let t193 = lit::<T>(-219.4013895236754) * t189;
         let t194 = s[27] * t192;
         let t195 = t193 + t194;
         dqdd_dq[1][0] = t195;
@@ -1110,7 +1368,7 @@ pub mod portable {
         let t197 = s[19] + t196;
         let t198 = s[28] * t197;
         dqdd_dq[0][1] = t198;
-        let t199 = T::k(-219.4013895236754) * s[13];
+        let t199 = lit::<T>(-219.4013895236754) * s[13];
         let t200 = s[27] * t198;
         let t201 = t199 + t200;
         dqdd_dq[1][1] = t201;
@@ -1118,7 +1376,7 @@ pub mod portable {
         let t203 = t182 + t202;
         let t204 = s[28] * t203;
         dqdd_dqd[0][0] = t204;
-        let t205 = T::k(-219.4013895236754) * s[20];
+        let t205 = lit::<T>(-219.4013895236754) * s[20];
         let t206 = s[27] * t204;
         let t207 = t205 + t206;
         dqdd_dqd[1][0] = t207;
@@ -1126,7 +1384,7 @@ pub mod portable {
         let t209 = s[18] + t208;
         let t210 = s[28] * t209;
         dqdd_dqd[0][1] = t210;
-        let t211 = T::k(-219.4013895236754) * s[15];
+        let t211 = lit::<T>(-219.4013895236754) * s[15];
         let t212 = s[27] * t210;
         let t213 = t211 + t212;
         dqdd_dqd[1][1] = t213;
@@ -1144,7 +1402,7 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
         let mut c = [T::k(0.0); NV];
-        let mut s = [T::k(0.0); 14];
+        let mut s = [lit::<T>(0.0); 14];
         rnea_part0(q, qd, qdd, &mut s, &mut c);
         rnea_part1(q, qd, qdd, &mut s, &mut c);
         c
@@ -1165,18 +1423,18 @@ pub mod fma {
         s[0] = t8;
         let t9 = q[1].cos();
         s[1] = t9;
-        let t19 = t1 * T::k(9.81);
-        let t20 = t2 * T::k(9.81);
-        let t23 = T::k(0.00961628436) * t19;
-        let t24 = T::mul_add(T::k(5.801760809999999e-7), t20, -t23);
-        let t25 = T::mul_add(T::k(0.0007545716336328686), qdd[0], t24);
+        let t19 = t1 * lit::<T>(9.81);
+        let t20 = t2 * lit::<T>(9.81);
+        let t23 = lit::<T>(0.00961628436) * t19;
+        let t24 = T::mul_add(lit::<T>(5.801760809999999e-7), t20, -t23);
+        let t25 = T::mul_add(lit::<T>(0.0007545716336328686), qdd[0], t24);
         s[2] = t25;
-        let t26 = T::k(0.1) * qd[0];
+        let t26 = lit::<T>(0.1) * qd[0];
         let t27 = t9 * t26;
         s[3] = t27;
         let t28 = t8 * t26;
         s[4] = t28;
-        let t30 = T::mul_add(-T::k(0.1), qdd[0], t19);
+        let t30 = T::mul_add(-lit::<T>(0.1), qdd[0], t19);
         let t32 = t8 * t20;
         let t33 = T::mul_add(t9, t30, t32);
         let t34 = t8 * t30;
@@ -1189,19 +1447,19 @@ pub mod fma {
         s[7] = t41;
         let t42 = T::mul_add(qd[1], t27, t36);
         s[8] = t42;
-        let t45 = T::k(0.33238) * t27;
+        let t45 = lit::<T>(0.33238) * t27;
         let t46 = -t45;
-        let t47 = T::k(0.33238) * t28;
-        let t48 = T::mul_add(-T::k(0.0335304944), t37, t46);
+        let t47 = lit::<T>(0.33238) * t28;
+        let t48 = T::mul_add(-lit::<T>(0.0335304944), t37, t46);
         s[9] = t48;
-        let t49 = T::mul_add(T::k(6.43853298e-11), t37, t47);
+        let t49 = T::mul_add(lit::<T>(6.43853298e-11), t37, t47);
         s[10] = t49;
-        let t50 = T::k(0.004557856275072) * t40;
+        let t50 = lit::<T>(0.004557856275072) * t40;
         s[11] = t50;
-        let t52 = T::k(0.0335304944) * t41;
-        let t53 = T::mul_add(T::k(6.43853298e-11), t42, -t52);
+        let t52 = lit::<T>(0.0335304944) * t41;
+        let t53 = T::mul_add(lit::<T>(6.43853298e-11), t42, -t52);
         s[12] = t53;
-        let t54 = T::k(0.0335304944) * t40;
+        let t54 = lit::<T>(0.0335304944) * t40;
         s[13] = t54;
     }
     #[inline(never)]
@@ -1214,10 +1472,10 @@ pub mod fma {
         s: &mut [T; 14],
         c: &mut [T; NV],
     ) {
-        let t57 = T::k(0.33238) * s[8];
+        let t57 = lit::<T>(0.33238) * s[8];
         let t58 = s[11] + s[12];
-        let t59 = T::mul_add(T::k(0.33238), s[7], -s[13]);
-        let t60 = T::mul_add(T::k(6.43853298e-11), s[6], t57);
+        let t59 = T::mul_add(lit::<T>(0.33238), s[7], -s[13]);
+        let t60 = T::mul_add(lit::<T>(6.43853298e-11), s[6], t57);
         let t61 = s[3] * s[10];
         let t62 = -t61;
         let t64 = T::mul_add(-s[4], s[9], t62);
@@ -1227,7 +1485,7 @@ pub mod fma {
         let t69 = T::mul_add(s[5], s[9], t60);
         let t71 = s[0] * t69;
         let t72 = T::mul_add(s[1], t68, -t71);
-        let t74 = T::mul_add(-T::k(0.1), t72, t67);
+        let t74 = T::mul_add(-lit::<T>(0.1), t72, t67);
         let t75 = s[2] + t74;
         c[0] = t75;
     }
@@ -1242,7 +1500,7 @@ pub mod fma {
     ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
         let mut dc_dq = [[T::k(0.0); NV]; NV];
         let mut dc_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 26];
+        let mut s = [lit::<T>(0.0); 26];
         rnea_grad_part0(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
         rnea_grad_part1(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
         rnea_grad_part2(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
@@ -1266,16 +1524,16 @@ pub mod fma {
         s[0] = t7;
         let t8 = q[1].cos();
         s[1] = t8;
-        let t17 = t1 * T::k(9.81);
+        let t17 = t1 * lit::<T>(9.81);
         s[2] = t17;
-        let t18 = t2 * T::k(9.81);
+        let t18 = t2 * lit::<T>(9.81);
         s[3] = t18;
-        let t19 = T::k(0.1) * qd[0];
+        let t19 = lit::<T>(0.1) * qd[0];
         let t20 = t8 * t19;
         s[4] = t20;
         let t21 = t7 * t19;
         s[5] = t21;
-        let t23 = T::mul_add(-T::k(0.1), qdd[0], t17);
+        let t23 = T::mul_add(-lit::<T>(0.1), qdd[0], t17);
         let t25 = t7 * t18;
         let t26 = T::mul_add(t8, t23, t25);
         s[6] = t26;
@@ -1286,21 +1544,21 @@ pub mod fma {
         let t33 = qdd[0] + qdd[1];
         let t34 = T::mul_add(qd[1], t21, t26);
         let t35 = T::mul_add(qd[1], t20, t29);
-        let t36 = T::k(0.0335304944) * t30;
+        let t36 = lit::<T>(0.0335304944) * t30;
         s[8] = t36;
-        let t38 = T::k(0.33238) * t20;
+        let t38 = lit::<T>(0.33238) * t20;
         s[9] = t38;
         let t39 = -t38;
-        let t40 = T::k(0.33238) * t21;
+        let t40 = lit::<T>(0.33238) * t21;
         s[10] = t40;
         let t41 = t39 - t36;
         s[11] = t41;
-        let t42 = T::mul_add(T::k(6.43853298e-11), t30, t40);
+        let t42 = T::mul_add(lit::<T>(6.43853298e-11), t30, t40);
         s[12] = t42;
-        let t43 = T::k(0.0335304944) * t33;
-        let t46 = T::k(0.33238) * t35;
-        let t47 = T::mul_add(T::k(0.33238), t34, -t43);
-        let t48 = T::mul_add(T::k(6.43853298e-11), t33, t46);
+        let t43 = lit::<T>(0.0335304944) * t33;
+        let t46 = lit::<T>(0.33238) * t35;
+        let t47 = T::mul_add(lit::<T>(0.33238), t34, -t43);
+        let t48 = T::mul_add(lit::<T>(6.43853298e-11), t33, t46);
         let t51 = T::mul_add(-t30, t42, t47);
         s[13] = t51;
         let t52 = T::mul_add(t30, t41, t48);
@@ -1322,15 +1580,15 @@ pub mod fma {
         let t58 = -s[8];
         let t59 = t58 - s[9];
         s[15] = t59;
-        let t60 = T::k(6.43853298e-11) * s[4];
+        let t60 = lit::<T>(6.43853298e-11) * s[4];
         s[16] = t60;
-        let t61 = T::k(0.0335304944) * s[5];
+        let t61 = lit::<T>(0.0335304944) * s[5];
         let t62 = t61 - t60;
-        let t63 = T::k(2.0) * t62;
+        let t63 = lit::<T>(2.0) * t62;
         s[17] = t63;
         let t65 = t60 - t61;
-        let t66 = T::k(6.43853298e-11) * t56;
-        let t68 = T::mul_add(-T::k(0.0335304944), t55, t66);
+        let t66 = lit::<T>(6.43853298e-11) * t56;
+        let t68 = T::mul_add(-lit::<T>(0.0335304944), t55, t66);
         let t71 = -s[12];
         let t73 = s[5] * s[12];
         let t74 = T::mul_add(s[4], t59, -t73);
@@ -1349,16 +1607,16 @@ pub mod fma {
         let t85 = t74 + t76;
         let t86 = t68 + t85;
         s[21] = t86;
-        let t87 = T::mul_add(T::k(0.33238), t55, -s[14]);
+        let t87 = T::mul_add(lit::<T>(0.33238), t55, -s[14]);
         s[22] = t87;
-        let t88 = T::mul_add(T::k(0.33238), t56, s[13]);
+        let t88 = T::mul_add(lit::<T>(0.33238), t56, s[13]);
         s[23] = t88;
         let t89 = t59 - s[11];
         s[24] = t89;
-        let t91 = T::mul_add(t55, T::k(-0.0335304944), t66);
+        let t91 = T::mul_add(t55, lit::<T>(-0.0335304944), t66);
         let t93 = T::mul_add(s[4], t89, t91);
         dc_dq[1][1] = t93;
-        let t94 = s[5] * T::k(-0.0335304944);
+        let t94 = s[5] * lit::<T>(-0.0335304944);
         s[25] = t94;
     }
     #[inline(never)]
@@ -1376,31 +1634,31 @@ pub mod fma {
         let t96 = t95 + t95;
         let t97 = s[17] + t96;
         dc_dqd[1][1] = t97;
-        let t99 = s[0] * T::k(6.43853298e-11);
-        let t100 = T::mul_add(s[1], T::k(-0.0335304944), -t99);
-        let t102 = s[1] * T::k(6.43853298e-11);
-        let t103 = T::mul_add(s[0], T::k(-0.0335304944), t102);
+        let t99 = s[0] * lit::<T>(6.43853298e-11);
+        let t100 = T::mul_add(s[1], lit::<T>(-0.0335304944), -t99);
+        let t102 = s[1] * lit::<T>(6.43853298e-11);
+        let t103 = T::mul_add(s[0], lit::<T>(-0.0335304944), t102);
         s[4] = t103;
         let t105 = s[0] * s[20];
         let t106 = T::mul_add(s[1], s[19], -t105);
-        let t108 = T::mul_add(-T::k(0.1), t106, s[18]);
+        let t108 = T::mul_add(-lit::<T>(0.1), t106, s[18]);
         dc_dqd[0][1] = t108;
         let t110 = s[0] * s[23];
         let t111 = T::mul_add(s[1], s[22], -t110);
-        let t113 = T::mul_add(-T::k(0.1), t111, s[21]);
+        let t113 = T::mul_add(-lit::<T>(0.1), t111, s[21]);
         dc_dq[0][1] = t113;
         let t114 = s[0] * s[24];
-        let t116 = T::mul_add(T::k(0.1), t114, s[17]);
+        let t116 = T::mul_add(lit::<T>(0.1), t114, s[17]);
         dc_dqd[1][0] = t116;
-        let t118 = T::mul_add(-s[0], T::k(0.0335304944), t102);
-        let t120 = T::mul_add(s[1], T::k(0.0335304944), t99);
-        let t122 = t120 + T::k(0.033238000000000004);
-        let t123 = T::k(5.801760809999999e-7) + t118;
-        let t124 = T::k(0.00961628436) + t122;
+        let t118 = T::mul_add(-s[0], lit::<T>(0.0335304944), t102);
+        let t120 = T::mul_add(s[1], lit::<T>(0.0335304944), t99);
+        let t122 = t120 + lit::<T>(0.033238000000000004);
+        let t123 = lit::<T>(5.801760809999999e-7) + t118;
+        let t124 = lit::<T>(0.00961628436) + t122;
         let t126 = s[1] * s[12];
         let t127 = T::mul_add(s[0], s[15], t126);
-        let t128 = T::k(0.1) * t127;
-        let t130 = T::mul_add(T::k(2.0), t128, s[17]);
+        let t128 = lit::<T>(0.1) * t127;
+        let t130 = T::mul_add(lit::<T>(2.0), t128, s[17]);
         dc_dqd[0][0] = t130;
         let t132 = s[3] * t124;
         let t133 = -t132;
@@ -1429,17 +1687,17 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut m = [[T::k(0.0); NV]; NV];
-        m[1][1] = T::k(0.004557856275072);
+        m[1][1] = lit::<T>(0.004557856275072);
         let t3 = q[1].sin();
         let t4 = q[1].cos();
-        let t8 = t3 * T::k(6.43853298e-11);
-        let t10 = T::mul_add(t4, T::k(0.0335304944), t8);
-        let t13 = T::mul_add(T::k(0.1), t10, T::k(-3.8305498717999996e-5));
-        let t17 = T::mul_add(t13, T::k(2.0), T::k(0.007958267272508));
-        let t18 = T::k(0.0007545716336328686) + t17;
+        let t8 = t3 * lit::<T>(6.43853298e-11);
+        let t10 = T::mul_add(t4, lit::<T>(0.0335304944), t8);
+        let t13 = T::mul_add(lit::<T>(0.1), t10, lit::<T>(-3.8305498717999996e-5));
+        let t17 = T::mul_add(t13, lit::<T>(2.0), lit::<T>(0.007958267272508));
+        let t18 = lit::<T>(0.0007545716336328686) + t17;
         m[0][0] = t18;
-        let t21 = T::mul_add(t4, T::k(-0.0335304944), -t8);
-        let t23 = T::mul_add(-T::k(0.1), t21, T::k(0.004557856275072));
+        let t21 = T::mul_add(t4, lit::<T>(-0.0335304944), -t8);
+        let t23 = T::mul_add(-lit::<T>(0.1), t21, lit::<T>(0.004557856275072));
         m[0][1] = t23;
         m[1][0] = t23;
         m
@@ -1452,31 +1710,35 @@ pub mod fma {
         let mut minv = [[T::k(0.0); NV]; NV];
         let t4 = q[1].sin();
         let t5 = q[1].cos();
-        let t14 = t4 * T::k(1.4126230823060104e-8);
-        let t15 = T::mul_add(t5, T::k(-7.356637062775817), -t14);
-        let t17 = T::mul_add(-T::k(0.1), t15, T::k(1.0));
-        let t21 = t5 * T::k(-0.1);
-        let t22 = t4 * T::k(-0.1);
-        let t24 = T::k(4.736595035057242e-10) * t22;
-        let t25 = T::mul_add(T::k(0.08570832216376303), t21, -t24);
-        let t27 = T::k(0.33238) * t22;
-        let t28 = T::mul_add(T::k(4.736595035057242e-10), t21, -t27);
+        let t14 = t4 * lit::<T>(1.4126230823060104e-8);
+        let t15 = T::mul_add(t5, lit::<T>(-7.356637062775817), -t14);
+        let t17 = T::mul_add(-lit::<T>(0.1), t15, lit::<T>(1.0));
+        let t21 = t5 * lit::<T>(-0.1);
+        let t22 = t4 * lit::<T>(-0.1);
+        let t24 = lit::<T>(4.736595035057242e-10) * t22;
+        let t25 = T::mul_add(lit::<T>(0.08570832216376303), t21, -t24);
+        let t27 = lit::<T>(0.33238) * t22;
+        let t28 = T::mul_add(lit::<T>(4.736595035057242e-10), t21, -t27);
         let t30 = t4 * t28;
         let t31 = T::mul_add(t5, t25, -t30);
-        let t33 = T::mul_add(-T::k(0.1), t31, T::k(0.0007545716336328686));
-        let t34 = T::k(1.0) / t33;
+        let t33 = T::mul_add(-lit::<T>(0.1), t31, lit::<T>(0.0007545716336328686));
+        let t34 = lit::<T>(1.0) / t33;
         minv[0][0] = t34;
         let t35 = t17 * t34;
         let t36 = -t35;
         minv[0][1] = t36;
         minv[1][0] = t36;
-        let t37 = T::k(0.1) * t35;
+        let t37 = lit::<T>(0.1) * t35;
         let t38 = t5 * t37;
         let t39 = t4 * t37;
-        let t40 = T::k(0.004557856275072) * t35;
-        let t42 = T::mul_add(T::k(-0.0335304944), t38, -t40);
-        let t44 = T::mul_add(-T::k(6.43853298e-11), t39, t42);
-        let t46 = T::mul_add(-T::k(219.4013895236754), t44, T::k(219.4013895236754));
+        let t40 = lit::<T>(0.004557856275072) * t35;
+        let t42 = T::mul_add(lit::<T>(-0.0335304944), t38, -t40);
+        let t44 = T::mul_add(-lit::<T>(6.43853298e-11), t39, t42);
+        let t46 = T::mul_add(
+            -lit::<T>(219.4013895236754),
+            t44,
+            lit::<T>(219.4013895236754),
+        );
         minv[1][1] = t46;
         minv
     }
@@ -1486,7 +1748,7 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
         let mut qdd = [T::k(0.0); NV];
-        let mut s = [T::k(0.0); 15];
+        let mut s = [lit::<T>(0.0); 15];
         fd_part0(q, qd, tau, &mut s, &mut qdd);
         fd_part1(q, qd, tau, &mut s, &mut qdd);
         fd_part2(q, qd, tau, &mut s, &mut qdd);
@@ -1510,7 +1772,7 @@ pub mod fma {
         s[2] = t8;
         let t9 = q[1].cos();
         s[3] = t9;
-        let t18 = T::k(0.1) * qd[0];
+        let t18 = lit::<T>(0.1) * qd[0];
         let t19 = t9 * t18;
         let t20 = t8 * t18;
         let t21 = qd[0] + qd[1];
@@ -1518,27 +1780,27 @@ pub mod fma {
         s[4] = t22;
         let t23 = qd[1] * t19;
         s[5] = t23;
-        let t26 = T::k(0.33238) * t19;
+        let t26 = lit::<T>(0.33238) * t19;
         let t27 = -t26;
-        let t28 = T::k(0.33238) * t20;
-        let t29 = T::mul_add(-T::k(0.0335304944), t21, t27);
-        let t30 = T::mul_add(T::k(6.43853298e-11), t21, t28);
+        let t28 = lit::<T>(0.33238) * t20;
+        let t29 = T::mul_add(-lit::<T>(0.0335304944), t21, t27);
+        let t30 = T::mul_add(lit::<T>(6.43853298e-11), t21, t28);
         let t31 = t19 * t30;
         let t32 = -t31;
         let t34 = T::mul_add(-t20, t29, t32);
         let t40 = tau[1] - t34;
         s[6] = t40;
-        let t44 = t23 * T::k(4.736595035057242e-10);
-        let t45 = T::mul_add(t22, T::k(0.08570832216376303), t44);
-        let t47 = T::k(0.33238) * t23;
-        let t48 = T::mul_add(t22, T::k(4.736595035057242e-10), t47);
-        let t49 = T::k(219.4013895236754) * t40;
+        let t44 = t23 * lit::<T>(4.736595035057242e-10);
+        let t45 = T::mul_add(t22, lit::<T>(0.08570832216376303), t44);
+        let t47 = lit::<T>(0.33238) * t23;
+        let t48 = T::mul_add(t22, lit::<T>(4.736595035057242e-10), t47);
+        let t49 = lit::<T>(219.4013895236754) * t40;
         let t53 = T::mul_add(-t21, t30, t45);
         let t54 = T::mul_add(t21, t29, t48);
-        let t55 = T::mul_add(T::k(0.004557856275072), t49, t34);
+        let t55 = T::mul_add(lit::<T>(0.004557856275072), t49, t34);
         s[7] = t55;
-        let t56 = T::mul_add(T::k(-0.0335304944), t49, t53);
-        let t57 = T::mul_add(T::k(6.43853298e-11), t49, t54);
+        let t56 = T::mul_add(lit::<T>(-0.0335304944), t49, t53);
+        let t57 = T::mul_add(lit::<T>(6.43853298e-11), t49, t54);
         s[8] = t57;
         let t58 = t9 * t56;
         s[9] = t58;
@@ -1554,35 +1816,35 @@ pub mod fma {
         qdd: &mut [T; NV],
     ) {
         let t60 = T::mul_add(-s[2], s[8], s[9]);
-        let t62 = T::mul_add(-T::k(0.1), t60, s[7]);
-        let t64 = s[3] * T::k(-0.1);
-        let t65 = s[2] * T::k(-0.1);
-        let t67 = T::k(4.736595035057242e-10) * t65;
-        let t68 = T::mul_add(T::k(0.08570832216376303), t64, -t67);
-        let t70 = T::k(0.33238) * t65;
-        let t71 = T::mul_add(T::k(4.736595035057242e-10), t64, -t70);
+        let t62 = T::mul_add(-lit::<T>(0.1), t60, s[7]);
+        let t64 = s[3] * lit::<T>(-0.1);
+        let t65 = s[2] * lit::<T>(-0.1);
+        let t67 = lit::<T>(4.736595035057242e-10) * t65;
+        let t68 = T::mul_add(lit::<T>(0.08570832216376303), t64, -t67);
+        let t70 = lit::<T>(0.33238) * t65;
+        let t71 = T::mul_add(lit::<T>(4.736595035057242e-10), t64, -t70);
         let t73 = s[2] * t71;
         let t74 = T::mul_add(s[3], t68, -t73);
-        let t77 = s[2] * T::k(4.736595035057242e-10);
-        let t78 = T::mul_add(s[3], T::k(0.08570832216376303), -t77);
-        let t79 = s[3] * T::k(4.736595035057242e-10);
-        let t81 = T::mul_add(-s[2], T::k(0.33238), t79);
+        let t77 = s[2] * lit::<T>(4.736595035057242e-10);
+        let t78 = T::mul_add(s[3], lit::<T>(0.08570832216376303), -t77);
+        let t79 = s[3] * lit::<T>(4.736595035057242e-10);
+        let t81 = T::mul_add(-s[2], lit::<T>(0.33238), t79);
         let t83 = s[2] * t81;
         let t84 = T::mul_add(s[3], t78, -t83);
-        let t87 = T::mul_add(s[2], T::k(0.08570832216376303), t79);
-        let t89 = T::mul_add(s[3], T::k(0.33238), t77);
+        let t87 = T::mul_add(s[2], lit::<T>(0.08570832216376303), t79);
+        let t89 = T::mul_add(s[3], lit::<T>(0.33238), t77);
         let t91 = s[2] * t89;
         let t92 = T::mul_add(s[3], t87, -t91);
-        let t94 = T::mul_add(-T::k(0.1), t74, T::k(0.0007545716336328686));
-        let t95 = T::mul_add(-T::k(0.1), t84, T::k(-0.00961628436));
+        let t94 = T::mul_add(-lit::<T>(0.1), t74, lit::<T>(0.0007545716336328686));
+        let t95 = T::mul_add(-lit::<T>(0.1), t84, lit::<T>(-0.00961628436));
         s[10] = t95;
-        let t96 = T::mul_add(-T::k(0.1), t92, T::k(5.801760809999999e-7));
+        let t96 = T::mul_add(-lit::<T>(0.1), t92, lit::<T>(5.801760809999999e-7));
         s[11] = t96;
-        let t97 = T::k(1.0) / t94;
+        let t97 = lit::<T>(1.0) / t94;
         s[12] = t97;
         let t98 = tau[0] - t62;
         s[13] = t98;
-        let t100 = s[0] * T::k(9.81);
+        let t100 = s[0] * lit::<T>(9.81);
         s[14] = t100;
     }
     #[inline(never)]
@@ -1595,24 +1857,24 @@ pub mod fma {
         s: &mut [T; 15],
         qdd: &mut [T; NV],
     ) {
-        let t101 = s[1] * T::k(9.81);
+        let t101 = s[1] * lit::<T>(9.81);
         let t103 = s[11] * t101;
         let t104 = T::mul_add(s[10], s[14], t103);
         let t105 = s[13] - t104;
         let t106 = s[12] * t105;
         qdd[0] = t106;
-        let t108 = T::mul_add(-T::k(0.1), t106, s[14]);
+        let t108 = T::mul_add(-lit::<T>(0.1), t106, s[14]);
         let t110 = s[2] * t101;
         let t111 = T::mul_add(s[3], t108, t110);
         let t112 = s[2] * t108;
         let t114 = T::mul_add(s[3], t101, -t112);
         let t115 = s[4] + t111;
         let t116 = s[5] + t114;
-        let t118 = T::k(-0.0335304944) * t115;
-        let t119 = T::mul_add(T::k(0.004557856275072), t106, t118);
-        let t121 = T::mul_add(T::k(6.43853298e-11), t116, t119);
+        let t118 = lit::<T>(-0.0335304944) * t115;
+        let t119 = T::mul_add(lit::<T>(0.004557856275072), t106, t118);
+        let t121 = T::mul_add(lit::<T>(6.43853298e-11), t116, t119);
         let t122 = s[6] - t121;
-        let t123 = T::k(219.4013895236754) * t122;
+        let t123 = lit::<T>(219.4013895236754) * t122;
         qdd[1] = t123;
     }
     /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
@@ -1627,7 +1889,7 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [T::k(0.0); 40];
+        let mut s = [lit::<T>(0.0); 40];
         fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
@@ -1653,33 +1915,33 @@ pub mod fma {
         s[0] = t9;
         let t10 = q[1].cos();
         s[1] = t10;
-        let t19 = t10 * T::k(6.43853298e-11);
-        let t21 = T::mul_add(-t9, T::k(0.0335304944), t19);
-        let t22 = t9 * T::k(6.43853298e-11);
-        let t24 = T::mul_add(t10, T::k(0.0335304944), t22);
-        let t27 = T::mul_add(T::k(0.1), t24, T::k(-3.8305498717999996e-5));
-        let t31 = T::mul_add(t27, T::k(2.0), T::k(0.007958267272508));
-        let t33 = t24 + T::k(0.033238000000000004);
-        let t34 = T::k(0.0007545716336328686) + t31;
+        let t19 = t10 * lit::<T>(6.43853298e-11);
+        let t21 = T::mul_add(-t9, lit::<T>(0.0335304944), t19);
+        let t22 = t9 * lit::<T>(6.43853298e-11);
+        let t24 = T::mul_add(t10, lit::<T>(0.0335304944), t22);
+        let t27 = T::mul_add(lit::<T>(0.1), t24, lit::<T>(-3.8305498717999996e-5));
+        let t31 = T::mul_add(t27, lit::<T>(2.0), lit::<T>(0.007958267272508));
+        let t33 = t24 + lit::<T>(0.033238000000000004);
+        let t34 = lit::<T>(0.0007545716336328686) + t31;
         s[2] = t34;
-        let t35 = T::k(5.801760809999999e-7) + t21;
+        let t35 = lit::<T>(5.801760809999999e-7) + t21;
         s[3] = t35;
-        let t36 = T::k(0.00961628436) + t33;
+        let t36 = lit::<T>(0.00961628436) + t33;
         s[4] = t36;
-        let t39 = T::mul_add(t10, T::k(-0.0335304944), -t22);
+        let t39 = T::mul_add(t10, lit::<T>(-0.0335304944), -t22);
         s[5] = t39;
-        let t41 = T::mul_add(t9, T::k(-0.0335304944), t19);
+        let t41 = T::mul_add(t9, lit::<T>(-0.0335304944), t19);
         s[6] = t41;
-        let t43 = T::mul_add(-T::k(0.1), t39, T::k(0.004557856275072));
+        let t43 = T::mul_add(-lit::<T>(0.1), t39, lit::<T>(0.004557856275072));
         s[7] = t43;
-        let t45 = t1 * T::k(9.81);
+        let t45 = t1 * lit::<T>(9.81);
         s[8] = t45;
-        let t46 = t2 * T::k(9.81);
+        let t46 = t2 * lit::<T>(9.81);
         s[9] = t46;
-        let t48 = T::k(0.00961628436) * t45;
-        let t49 = T::mul_add(T::k(5.801760809999999e-7), t46, -t48);
+        let t48 = lit::<T>(0.00961628436) * t45;
+        let t49 = T::mul_add(lit::<T>(5.801760809999999e-7), t46, -t48);
         s[10] = t49;
-        let t50 = T::k(0.1) * qd[0];
+        let t50 = lit::<T>(0.1) * qd[0];
         let t51 = t10 * t50;
         s[11] = t51;
         let t52 = t9 * t50;
@@ -1713,19 +1975,19 @@ pub mod fma {
         s[19] = t61;
         let t62 = s[14] + s[18];
         let t63 = s[16] + t61;
-        let t64 = T::k(0.0335304944) * s[17];
+        let t64 = lit::<T>(0.0335304944) * s[17];
         s[20] = t64;
-        let t66 = T::k(0.33238) * s[11];
+        let t66 = lit::<T>(0.33238) * s[11];
         s[21] = t66;
         let t67 = -t66;
-        let t68 = T::k(0.33238) * s[12];
+        let t68 = lit::<T>(0.33238) * s[12];
         s[22] = t68;
         let t69 = t67 - t64;
         s[23] = t69;
-        let t70 = T::mul_add(T::k(6.43853298e-11), s[17], t68);
+        let t70 = T::mul_add(lit::<T>(6.43853298e-11), s[17], t68);
         s[24] = t70;
-        let t72 = T::k(0.0335304944) * t62;
-        let t73 = T::mul_add(T::k(6.43853298e-11), t63, -t72);
+        let t72 = lit::<T>(0.0335304944) * t62;
+        let t73 = T::mul_add(lit::<T>(6.43853298e-11), t63, -t72);
         let t76 = s[11] * t70;
         let t77 = -t76;
         let t79 = T::mul_add(-s[12], t69, t77);
@@ -1734,16 +1996,16 @@ pub mod fma {
         let t81 = s[17] * t69;
         s[26] = t81;
         let t82 = t73 + t79;
-        let t83 = T::mul_add(T::k(0.33238), t62, -t80);
-        let t84 = T::mul_add(T::k(0.33238), t63, t81);
+        let t83 = T::mul_add(lit::<T>(0.33238), t62, -t80);
+        let t84 = T::mul_add(lit::<T>(0.33238), t63, t81);
         let t86 = s[0] * t84;
         let t87 = T::mul_add(s[1], t83, -t86);
-        let t89 = T::mul_add(-T::k(0.1), t87, t82);
+        let t89 = T::mul_add(-lit::<T>(0.1), t87, t82);
         let t90 = s[10] + t89;
-        let t92 = s[7] * T::k(-219.4013895236754);
+        let t92 = s[7] * lit::<T>(-219.4013895236754);
         s[27] = t92;
         let t94 = T::mul_add(s[7], t92, s[2]);
-        let t95 = T::k(-1.0) / t94;
+        let t95 = lit::<T>(-1.0) / t94;
         s[28] = t95;
         let t96 = t90 - tau[0];
         let t97 = t82 - tau[1];
@@ -1751,7 +2013,7 @@ pub mod fma {
         let t100 = t95 * t99;
         s[29] = t100;
         qdd[0] = t100;
-        let t101 = T::k(-219.4013895236754) * t97;
+        let t101 = lit::<T>(-219.4013895236754) * t97;
         s[30] = t101;
     }
     #[inline(never)]
@@ -1768,16 +2030,16 @@ pub mod fma {
     ) {
         let t103 = T::mul_add(s[27], s[29], s[30]);
         qdd[1] = t103;
-        let t105 = T::mul_add(-T::k(0.1), s[29], s[8]);
+        let t105 = T::mul_add(-lit::<T>(0.1), s[29], s[8]);
         let t107 = T::mul_add(s[1], t105, s[13]);
         let t109 = T::mul_add(-s[0], t105, s[15]);
         let t110 = s[29] + t103;
         let t111 = s[18] + t107;
         let t112 = s[19] + t109;
-        let t113 = T::k(0.0335304944) * t110;
-        let t116 = T::k(0.33238) * t112;
-        let t117 = T::mul_add(T::k(0.33238), t111, -t113);
-        let t118 = T::mul_add(T::k(6.43853298e-11), t110, t116);
+        let t113 = lit::<T>(0.0335304944) * t110;
+        let t116 = lit::<T>(0.33238) * t112;
+        let t117 = T::mul_add(lit::<T>(0.33238), t111, -t113);
+        let t118 = T::mul_add(lit::<T>(6.43853298e-11), t110, t116);
         let t119 = t117 - s[25];
         s[2] = t119;
         let t120 = s[26] + t118;
@@ -1788,21 +2050,21 @@ pub mod fma {
         let t125 = -s[20];
         let t126 = t125 - s[21];
         s[14] = t126;
-        let t127 = T::k(6.43853298e-11) * s[11];
+        let t127 = lit::<T>(6.43853298e-11) * s[11];
         s[16] = t127;
-        let t128 = T::k(0.0335304944) * s[12];
+        let t128 = lit::<T>(0.0335304944) * s[12];
         let t129 = t128 - t127;
-        let t130 = T::k(2.0) * t129;
+        let t130 = lit::<T>(2.0) * t129;
         s[17] = t130;
         let t131 = t127 - t128;
         s[31] = t131;
-        let t132 = T::k(6.43853298e-11) * t124;
+        let t132 = lit::<T>(6.43853298e-11) * t124;
         s[32] = t132;
-        let t134 = T::mul_add(-T::k(0.0335304944), t123, t132);
+        let t134 = T::mul_add(-lit::<T>(0.0335304944), t123, t132);
         s[33] = t134;
-        let t135 = T::k(0.33238) * t123;
+        let t135 = lit::<T>(0.33238) * t123;
         s[34] = t135;
-        let t136 = T::k(0.33238) * t124;
+        let t136 = lit::<T>(0.33238) * t124;
         s[35] = t136;
         let t137 = -s[24];
         s[36] = t137;
@@ -1839,28 +2101,28 @@ pub mod fma {
         let t153 = s[34] - s[7];
         let t154 = s[2] + s[35];
         let t155 = s[14] - s[23];
-        let t157 = T::mul_add(T::k(-0.0335304944), s[10], s[32]);
+        let t157 = T::mul_add(lit::<T>(-0.0335304944), s[10], s[32]);
         let t159 = T::mul_add(s[11], t155, t157);
         s[13] = t159;
-        let t161 = T::mul_add(T::k(-0.0335304944), s[12], s[16]);
+        let t161 = T::mul_add(lit::<T>(-0.0335304944), s[12], s[16]);
         let t162 = t161 + t161;
         let t163 = s[17] + t162;
         s[15] = t163;
         let t165 = s[0] * t150;
         let t166 = T::mul_add(s[1], t149, -t165);
-        let t168 = T::mul_add(-T::k(0.1), t166, t148);
+        let t168 = T::mul_add(-lit::<T>(0.1), t166, t148);
         s[18] = t168;
         let t170 = s[0] * t154;
         let t171 = T::mul_add(s[1], t153, -t170);
-        let t173 = T::mul_add(-T::k(0.1), t171, t152);
+        let t173 = T::mul_add(-lit::<T>(0.1), t171, t152);
         s[19] = t173;
         let t174 = s[0] * t155;
-        let t176 = T::mul_add(T::k(0.1), t174, s[17]);
+        let t176 = T::mul_add(lit::<T>(0.1), t174, s[17]);
         s[20] = t176;
         let t178 = s[1] * s[24];
         let t179 = T::mul_add(s[0], s[14], t178);
-        let t180 = T::k(0.1) * t179;
-        let t181 = T::k(2.0) * t180;
+        let t180 = lit::<T>(0.1) * t179;
+        let t181 = lit::<T>(2.0) * t180;
         s[25] = t181;
     }
     #[inline(never)]
@@ -1885,25 +2147,25 @@ pub mod fma {
         let t192 = s[28] * t191;
         dqdd_dq[0][0] = t192;
         let t194 = s[27] * t192;
-        let t195 = T::mul_add(T::k(-219.4013895236754), t189, t194);
+        let t195 = T::mul_add(lit::<T>(-219.4013895236754), t189, t194);
         dqdd_dq[1][0] = t195;
         let t197 = T::mul_add(s[27], s[13], s[19]);
         let t198 = s[28] * t197;
         dqdd_dq[0][1] = t198;
         let t200 = s[27] * t198;
-        let t201 = T::mul_add(T::k(-219.4013895236754), s[13], t200);
+        let t201 = T::mul_add(lit::<T>(-219.4013895236754), s[13], t200);
         dqdd_dq[1][1] = t201;
         let t203 = T::mul_add(s[27], s[20], t182);
         let t204 = s[28] * t203;
         dqdd_dqd[0][0] = t204;
         let t206 = s[27] * t204;
-        let t207 = T::mul_add(T::k(-219.4013895236754), s[20], t206);
+        let t207 = T::mul_add(lit::<T>(-219.4013895236754), s[20], t206);
         dqdd_dqd[1][0] = t207;
         let t209 = T::mul_add(s[27], s[15], s[18]);
         let t210 = s[28] * t209;
         dqdd_dqd[0][1] = t210;
         let t212 = s[27] * t210;
-        let t213 = T::mul_add(T::k(-219.4013895236754), s[15], t212);
+        let t213 = T::mul_add(lit::<T>(-219.4013895236754), s[15], t212);
         dqdd_dqd[1][1] = t213;
     }
 }

@@ -178,19 +178,20 @@ macro_rules! run_kernels {
     }};
 }
 
-/// `$lanes` seeded states of robot `$m` in one `Lanes<$lanes, $s>` call against `$lanes`
-/// scalar calls in `$s` (inputs converted by `$to`), `rnea_grad` and `fd_grad`, through the
-/// dispatcher and the portable copy: every output of every lane equal bit for bit.
+/// `$lanes` seeded states of robot `$m` in one call of `$t` (built from an array of
+/// `$lanes` values of `$s` by `$wrap`, read back by `$get`) against `$lanes` scalar calls
+/// in `$s` (inputs converted by `$to`), `rnea_grad` and `fd_grad`, through the dispatcher and
+/// the portable copy: every output of every lane equal bit for bit.
 macro_rules! lanes_match_scalar_calls {
-    ($m:ident, $stem:literal, $lanes:literal, $s:ty, $seed:literal, $to:expr) => {{
+    ($m:ident, $stem:literal, $t:ty, $lanes:literal, $s:ty, $seed:literal, $to:expr, $wrap:expr, $get:expr) => {{
         use grid_gen_kernels::$m as k;
-        let to = $to;
+        let (to, wrap, get) = ($to, $wrap, $get);
         let model = load($stem);
         let mut rng = Rng($seed);
         let st: Vec<_> = states(&model, &mut rng).into_iter().take($lanes).collect();
         assert_eq!(st.len(), $lanes);
-        let lane = |f: &dyn Fn(&(String, Vec<f64>, Vec<f64>, Vec<f64>)) -> &Vec<f64>| -> [k::Lanes<$lanes, $s>; k::NV] {
-            std::array::from_fn(|j| k::Lanes(std::array::from_fn(|l| to(f(&st[l])[j]))))
+        let lane = |f: &dyn Fn(&(String, Vec<f64>, Vec<f64>, Vec<f64>)) -> &Vec<f64>| -> [$t; k::NV] {
+            std::array::from_fn(|j| wrap(std::array::from_fn(|l| to(f(&st[l])[j]))))
         };
         let (q, qd, u) = (lane(&|s| &s.1), lane(&|s| &s.2), lane(&|s| &s.3));
         macro_rules! check {
@@ -203,12 +204,12 @@ macro_rules! lanes_match_scalar_calls {
                     let (dq, dqd) = c::rnea_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
                     let (qdd, fq, fqd) = c::fd_grad(&arr(&s.1), &arr(&s.2), &arr(&s.3));
                     for i in 0..k::NV {
-                        assert_eq!(lqdd[i].0[l].to_bits(), qdd[i].to_bits());
+                        assert_eq!(get(lqdd[i], l).to_bits(), qdd[i].to_bits());
                         for j in 0..k::NV {
-                            assert_eq!(lq[i][j].0[l].to_bits(), dq[i][j].to_bits());
-                            assert_eq!(lqd[i][j].0[l].to_bits(), dqd[i][j].to_bits());
-                            assert_eq!(lfq[i][j].0[l].to_bits(), fq[i][j].to_bits());
-                            assert_eq!(lfqd[i][j].0[l].to_bits(), fqd[i][j].to_bits());
+                            assert_eq!(get(lq[i][j], l).to_bits(), dq[i][j].to_bits());
+                            assert_eq!(get(lqd[i][j], l).to_bits(), dqd[i][j].to_bits());
+                            assert_eq!(get(lfq[i][j], l).to_bits(), fq[i][j].to_bits());
+                            assert_eq!(get(lfqd[i][j], l).to_bits(), fqd[i][j].to_bits());
                         }
                     }
                 }
@@ -228,14 +229,39 @@ macro_rules! robot_test {
             /// calls of the same copy (the dispatcher's, and the portable one).
             #[test]
             fn lanes_are_bit_identical_to_scalar_calls() {
-                lanes_match_scalar_calls!($m, $stem, 4, f64, 9, |x: f64| x);
+                lanes_match_scalar_calls!($m, $stem, k::Lanes<4>, 4, f64, 9, |x: f64| x, k::Lanes, |v: k::Lanes<4>, l: usize| v.0[l]);
+            }
+
+            /// Four f64 states in one `F64x4` (one AVX register) give bit-identical results to
+            /// four scalar calls of the same copy. The portable copy runs it too (each
+            /// operation a call): a CPU without AVX2 and FMA cannot make an `F64x4`.
+            #[test]
+            fn f64x4_is_bit_identical_to_scalar_calls() {
+                use grid_gen_kernels::$m as k;
+                if !fma_runs() {
+                    assert!(k::F64x4::new([0.0; 4]).is_none() && !k::F64x4::supported());
+                    return;
+                }
+                lanes_match_scalar_calls!($m, $stem, k::F64x4, 4, f64, 13, |x: f64| x, |a: [f64; 4]| k::F64x4::new(a).unwrap(), |v: k::F64x4, l: usize| v.to_array()[l]);
             }
 
             /// Eight f32 states in one `Lanes<8, f32>` call give bit-identical results to eight
             /// scalar f32 calls of the same copy: a lane runs the scalar call's f32 operations.
             #[test]
             fn f32_lanes_are_bit_identical_to_scalar_f32_calls() {
-                lanes_match_scalar_calls!($m, $stem, 8, f32, 11, |x: f64| x as f32);
+                lanes_match_scalar_calls!($m, $stem, k::Lanes<8, f32>, 8, f32, 11, |x: f64| x as f32, k::Lanes, |v: k::Lanes<8, f32>, l: usize| v.0[l]);
+            }
+
+            /// Eight f32 states in one `F32x8` give bit-identical results to eight scalar f32
+            /// calls of the same copy.
+            #[test]
+            fn f32x8_is_bit_identical_to_scalar_f32_calls() {
+                use grid_gen_kernels::$m as k;
+                if !fma_runs() {
+                    assert!(k::F32x8::new([0.0; 8]).is_none());
+                    return;
+                }
+                lanes_match_scalar_calls!($m, $stem, k::F32x8, 8, f32, 15, |x: f64| x as f32, |a: [f32; 8]| k::F32x8::new(a).unwrap(), |v: k::F32x8, l: usize| v.to_array()[l]);
             }
 
             /// The portable copy computes exactly the IR's graph: bit for bit in f64 and in

@@ -79,8 +79,11 @@ fn urdf_names_cannot_inject_code_or_paths() {
             "PARENTS",
             "GRAVITY",
             "Real",
+            "lit",
             "Lanes",
             "has_fma",
+            "F64x4",
+            "F32x8",
             "rnea",
             "rnea_grad",
             "mass_matrix",
@@ -299,7 +302,8 @@ fn builder_writes_once_and_names_urdf_problems() {
 
 /// The opt-in `avx512` copy (`--avx512`, `RustOptions::avx512`) runs the `fma` copy's
 /// operations, so on a CPU with AVX-512 its outputs must equal the `fma` copy's bit for bit,
-/// in f64, f32, `Lanes<4>`/`Lanes<8>` and `Lanes<16, f32>`, and the dispatcher must return the same. UR5's
+/// in f64, f32, `Lanes<4>`/`Lanes<8>`, `Lanes<16, f32>` and the 512-bit `F64x8`/`F32x16` (which
+/// must also equal the lanes of the same width), and the dispatcher must return the same. UR5's
 /// gradients, so that the chunked path (scratch slots, parts) is compiled too. Without
 /// AVX-512 here the module is still compiled (and its dispatcher run), and the test says
 /// the copy did not run: a CPU feature cannot be installed.
@@ -352,6 +356,21 @@ fn main() {
     same!(Lanes<4>, |k: usize, i: usize, s: usize| Lanes(std::array::from_fn(|l| state(k * 4 + l, i, s))));
     same!(Lanes<8>, |k: usize, i: usize, s: usize| Lanes(std::array::from_fn(|l| state(k * 8 + l, i, s))));
     same!(Lanes<16, f32>, |k: usize, i: usize, s: usize| Lanes(std::array::from_fn(|l| state(k * 16 + l, i, s) as f32)));
+    same!(F64x8, |k: usize, i: usize, s: usize| F64x8::new(std::array::from_fn(|l| state(k * 8 + l, i, s))).unwrap());
+    same!(F32x16, |k: usize, i: usize, s: usize| F32x16::new(std::array::from_fn(|l| state(k * 16 + l, i, s) as f32)).unwrap());
+    // The explicit SIMD types compute what the lanes do, bit for bit.
+    for k in 0..8 {
+        let l: [[Lanes<8>; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| Lanes(std::array::from_fn(|l| state(k * 8 + l, i, s)))));
+        let x = l.map(|v| v.map(|e| F64x8::new(e.0).unwrap()));
+        let want = (bits(rnea_grad(&l[0], &l[1], &l[2])), bits(fd_grad(&l[0], &l[1], &l[2])));
+        let got = (bits(rnea_grad(&x[0], &x[1], &x[2])), bits(fd_grad(&x[0], &x[1], &x[2])));
+        assert!(want.0 == got.0.replace("F64x8", "Lanes") && want.1 == got.1.replace("F64x8", "Lanes"), "state {k}: F64x8 differs from Lanes<8>");
+        let l: [[Lanes<16, f32>; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| Lanes(std::array::from_fn(|l| state(k * 16 + l, i, s) as f32))));
+        let x = l.map(|v| v.map(|e| F32x16::new(e.0).unwrap()));
+        let want = (bits(rnea_grad(&l[0], &l[1], &l[2])), bits(fd_grad(&l[0], &l[1], &l[2])));
+        let got = (bits(rnea_grad(&x[0], &x[1], &x[2])), bits(fd_grad(&x[0], &x[1], &x[2])));
+        assert!(want.0 == got.0.replace("F32x16", "Lanes") && want.1 == got.1.replace("F32x16", "Lanes"), "state {k}: F32x16 differs from Lanes<16, f32>");
+    }
     println!("same");
 }
 "#,
@@ -359,7 +378,7 @@ fn main() {
     let said = said.trim().to_string();
     match said.as_str() {
         "same" => println!(
-            "ur5: the avx512 copy equals the fma copy bit for bit (f64, f32, Lanes<4>, Lanes<8>, Lanes<16, f32>)"
+            "ur5: the avx512 copy equals the fma copy bit for bit (f64, f32, Lanes<4>, Lanes<8>, Lanes<16, f32>, F64x8, F32x16), and F64x8 and F32x16 equal Lanes<8> and Lanes<16, f32>"
         ),
         "no AVX-512" => eprintln!(
             "note: this CPU has no AVX-512 F and VL; the avx512 copy was compiled but not run"

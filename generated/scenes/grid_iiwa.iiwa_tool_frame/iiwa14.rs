@@ -8,7 +8,8 @@
 //
 // Everything in this module is specialised to one robot. Vectors are `[T; NV]` in the order of
 // `JOINT_NAMES`; matrices are `[[T; NV]; NV]`, row-major, `m[i][j] = d out_i / d in_j`. `T` is `f64`
-// or `f32` (see [`Real`]), or `Lanes<N>` (`Lanes<N, f32>`) for N states per call. Gravity is fixed at generation
+// or `f32` (see [`Real`]), or several states per call: `F64x4` and `F32x8` (one AVX register, on x86-64 with AVX2
+// and FMA; the fastest per state) or the portable `Lanes<N>` (`Lanes<N, f32>`). Gravity is fixed at generation
 // time (`GRAVITY`).
 //
 // - `frame_placement(q) -> (translation, rotation)`: each frame's world translation and rotation.
@@ -69,8 +70,17 @@ pub trait Real: Copy + core::ops::Add<
     > + core::ops::Mul<
         Output = Self,
     > + core::ops::Div<Output = Self> + core::ops::Neg<Output = Self> {
-    /// A constant of the robot, rounded to this type.
+    /// A constant of the robot, rounded to this type (for the SIMD types, it checks that this
+    /// CPU runs them, and panics where it does not).
     fn k(x: f64) -> Self;
+    /// `k` without its check of the CPU, for the kernels' constants.
+    ///
+    /// # Safety
+    /// This CPU runs `Self`'s operations (for `f64`, `f32` and `Lanes`, always).
+    #[inline(always)]
+    unsafe fn lit(x: f64) -> Self {
+        Self::k(x)
+    }
     fn sin(self) -> Self;
     fn cos(self) -> Self;
     /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
@@ -113,12 +123,20 @@ impl Real for f32 {
         f32::cos(self)
     }
 }
+/// A constant in the kernels: `Real::lit`, sound here because every kernel first fills its
+/// outputs with the checked `T::k`, so this runs only where the CPU runs `T`'s operations.
+#[inline(always)]
+#[allow(dead_code)]
+fn lit<T: Real>(x: f64) -> T {
+    unsafe { T::lit(x) }
+}
 /// `N` states evaluated by one call, one per lane (`q[j].0[l]` is joint j of state l), for
 /// sweeping many knot points: every lane runs exactly the operations of a scalar call in its
 /// scalar type `S` (of the same copy, `portable` or `fma`), so results are bit-identical, and
-/// the compiler can put the lanes in SIMD registers. `Lanes<4>` is four f64 states (a ymm
-/// register in the `fma` copy); `Lanes<8, f32>` eight f32 states in one ymm, and
-/// `Lanes<16, f32>` sixteen in one zmm of the AVX-512 copy, where it is generated.
+/// the compiler can put the lanes in SIMD registers, which it does only in part (it spills
+/// the rest): on x86-64 with AVX2 and FMA, `F64x4` and `F32x8` compute the same bits with
+/// one vector instruction per operation, two to three times faster per state. `Lanes` runs
+/// on any target and at any width.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[allow(dead_code)]
 pub struct Lanes<const N: usize, S = f64>(pub [S; N]);
@@ -183,6 +201,246 @@ pub fn has_fma() -> bool {
     #[cfg(target_arch = "x86_64")]
     { std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") }
     #[cfg(not(target_arch = "x86_64"))] { false }
+}
+/// 4 f64 states per call in one 256-bit register (`__m256d`): what `Lanes<4>` computes,
+/// bit for bit, but each operation is one vector instruction, where `Lanes` leaves the
+/// vectorising to the compiler (which does part of it, and spills the rest). Runs where
+/// the CPU has AVX2 and FMA ([`has_fma`]): every way to make one checks, so a value of this type
+/// is proof of that. Through the dispatching functions it runs in the copy that compiles
+/// its operations inline; elsewhere each operation is a call (correct, slow).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+#[allow(dead_code)]
+pub struct F64x4(core::arch::x86_64::__m256d);
+#[cfg(target_arch = "x86_64")]
+#[allow(dead_code)]
+impl F64x4 {
+    /// States in one value.
+    pub const LANES: usize = 4;
+    /// Whether this CPU runs `F64x4`: x86-64 with AVX2 and FMA.
+    #[inline]
+    pub fn supported() -> bool {
+        has_fma()
+    }
+    /// The lanes as one value, or `None` where this CPU does not run `F64x4`.
+    #[inline]
+    pub fn new(lanes: [f64; 4]) -> Option<Self> {
+        if Self::supported() { Some(Self::unchecked(lanes)) } else { None }
+    }
+    #[inline(always)]
+    fn unchecked(lanes: [f64; 4]) -> Self {
+        F64x4(unsafe {
+            core::mem::transmute::<[f64; 4], core::arch::x86_64::__m256d>(lanes)
+        })
+    }
+    /// The lanes.
+    #[inline(always)]
+    pub fn to_array(self) -> [f64; 4] {
+        unsafe { core::mem::transmute::<core::arch::x86_64::__m256d, [f64; 4]>(self.0) }
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::fmt::Debug for F64x4 {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_tuple("F64x4").field(&self.to_array()).finish()
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl PartialEq for F64x4 {
+    fn eq(&self, b: &Self) -> bool {
+        self.to_array() == b.to_array()
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Add for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_add_pd(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Sub for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_sub_pd(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Mul for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_mul_pd(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Div for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn div(self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_div_pd(self.0, b.0) })
+    }
+}
+/// Negation is `-0 - x`: exact, and the same bits as the scalar `-x` for every number.
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Neg for F64x4 {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        F64x4(unsafe {
+            core::arch::x86_64::_mm256_sub_pd(
+                core::arch::x86_64::_mm256_set1_pd(-0.0),
+                self.0,
+            )
+        })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl Real for F64x4 {
+    #[inline]
+    fn k(x: f64) -> Self {
+        F64x4::new([x as f64; 4])
+            .expect("F64x4 needs a CPU with AVX2 and FMA (F64x4::supported)")
+    }
+    #[inline(always)]
+    unsafe fn lit(x: f64) -> Self {
+        F64x4::unchecked([x as f64; 4])
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_fmadd_pd(self.0, a.0, b.0) })
+    }
+    #[inline(always)]
+    fn sin(self) -> Self {
+        F64x4::unchecked(self.to_array().map(f64::sin))
+    }
+    #[inline(always)]
+    fn cos(self) -> Self {
+        F64x4::unchecked(self.to_array().map(f64::cos))
+    }
+}
+/// 8 f32 states per call in one 256-bit register (`__m256`): what `Lanes<8, f32>` computes,
+/// bit for bit, but each operation is one vector instruction, where `Lanes` leaves the
+/// vectorising to the compiler (which does part of it, and spills the rest). Runs where
+/// the CPU has AVX2 and FMA ([`has_fma`]): every way to make one checks, so a value of this type
+/// is proof of that. Through the dispatching functions it runs in the copy that compiles
+/// its operations inline; elsewhere each operation is a call (correct, slow).
+#[cfg(target_arch = "x86_64")]
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+#[allow(dead_code)]
+pub struct F32x8(core::arch::x86_64::__m256);
+#[cfg(target_arch = "x86_64")]
+#[allow(dead_code)]
+impl F32x8 {
+    /// States in one value.
+    pub const LANES: usize = 8;
+    /// Whether this CPU runs `F32x8`: x86-64 with AVX2 and FMA.
+    #[inline]
+    pub fn supported() -> bool {
+        has_fma()
+    }
+    /// The lanes as one value, or `None` where this CPU does not run `F32x8`.
+    #[inline]
+    pub fn new(lanes: [f32; 8]) -> Option<Self> {
+        if Self::supported() { Some(Self::unchecked(lanes)) } else { None }
+    }
+    #[inline(always)]
+    fn unchecked(lanes: [f32; 8]) -> Self {
+        F32x8(unsafe {
+            core::mem::transmute::<[f32; 8], core::arch::x86_64::__m256>(lanes)
+        })
+    }
+    /// The lanes.
+    #[inline(always)]
+    pub fn to_array(self) -> [f32; 8] {
+        unsafe { core::mem::transmute::<core::arch::x86_64::__m256, [f32; 8]>(self.0) }
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::fmt::Debug for F32x8 {
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {
+        f.debug_tuple("F32x8").field(&self.to_array()).finish()
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl PartialEq for F32x8 {
+    fn eq(&self, b: &Self) -> bool {
+        self.to_array() == b.to_array()
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Add for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn add(self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_add_ps(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Sub for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn sub(self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_sub_ps(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Mul for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn mul(self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_mul_ps(self.0, b.0) })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Div for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn div(self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_div_ps(self.0, b.0) })
+    }
+}
+/// Negation is `-0 - x`: exact, and the same bits as the scalar `-x` for every number.
+#[cfg(target_arch = "x86_64")]
+impl core::ops::Neg for F32x8 {
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {
+        F32x8(unsafe {
+            core::arch::x86_64::_mm256_sub_ps(
+                core::arch::x86_64::_mm256_set1_ps(-0.0),
+                self.0,
+            )
+        })
+    }
+}
+#[cfg(target_arch = "x86_64")]
+impl Real for F32x8 {
+    #[inline]
+    fn k(x: f64) -> Self {
+        F32x8::new([x as f32; 8])
+            .expect("F32x8 needs a CPU with AVX2 and FMA (F32x8::supported)")
+    }
+    #[inline(always)]
+    unsafe fn lit(x: f64) -> Self {
+        F32x8::unchecked([x as f32; 8])
+    }
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_fmadd_ps(self.0, a.0, b.0) })
+    }
+    #[inline(always)]
+    fn sin(self) -> Self {
+        F32x8::unchecked(self.to_array().map(f32::sin))
+    }
+    #[inline(always)]
+    fn cos(self) -> Self {
+        F32x8::unchecked(self.to_array().map(f32::cos))
+    }
 }
 /// Each frame's world placement: translation, and rotation (frame axes in world coordinates, row-major), as Pinocchio's `framesForwardKinematics`.
 ///
@@ -294,10 +552,10 @@ pub mod portable {
         let t42 = t41 - t40;
         let t43 = t4 * t9;
         let t44 = t4 * t8;
-        let t45 = T::k(0.2045) * t26;
-        let t46 = T::k(0.2045) * t28;
-        let t47 = t5 * T::k(0.2045);
-        let t48 = T::k(0.36) + t47;
+        let t45 = lit::<T>(0.2045) * t26;
+        let t46 = lit::<T>(0.2045) * t28;
+        let t47 = t5 * lit::<T>(0.2045);
+        let t48 = lit::<T>(0.36) + t47;
         let t49 = t13 * t32;
         let t50 = t12 * t26;
         let t51 = t49 + t50;
@@ -316,9 +574,9 @@ pub mod portable {
         let t64 = t12 * t43;
         let t65 = t5 * t13;
         let t66 = t64 + t65;
-        let t67 = T::k(0.2155) * t26;
-        let t68 = T::k(0.2155) * t28;
-        let t69 = t5 * T::k(0.2155);
+        let t67 = lit::<T>(0.2155) * t26;
+        let t68 = lit::<T>(0.2155) * t28;
+        let t69 = t5 * lit::<T>(0.2155);
         let t70 = t45 + t67;
         let t71 = t46 + t68;
         let t72 = t48 + t69;
@@ -343,9 +601,9 @@ pub mod portable {
         let t91 = t16 * t63;
         let t92 = t17 * t44;
         let t93 = t91 - t92;
-        let t94 = T::k(0.1845) * t54;
-        let t95 = T::k(0.1845) * t60;
-        let t96 = T::k(0.1845) * t66;
+        let t94 = lit::<T>(0.1845) * t54;
+        let t95 = lit::<T>(0.1845) * t60;
+        let t96 = lit::<T>(0.1845) * t66;
         let t97 = t70 + t94;
         let t98 = t71 + t95;
         let t99 = t72 + t96;
@@ -370,9 +628,9 @@ pub mod portable {
         let t116 = t20 * t66;
         let t117 = t116 - t115;
         rotation[0][8] = t117;
-        let t118 = T::k(0.2155) * t54;
-        let t119 = T::k(0.2155) * t60;
-        let t120 = T::k(0.2155) * t66;
+        let t118 = lit::<T>(0.2155) * t54;
+        let t119 = lit::<T>(0.2155) * t60;
+        let t120 = lit::<T>(0.2155) * t66;
         let t121 = t97 + t118;
         let t122 = t98 + t119;
         let t123 = t99 + t120;
@@ -403,9 +661,9 @@ pub mod portable {
         let t143 = t24 * t93;
         let t144 = t142 - t143;
         rotation[0][7] = t144;
-        let t145 = T::k(0.081) * t105;
-        let t146 = T::k(0.081) * t111;
-        let t147 = T::k(0.081) * t117;
+        let t145 = lit::<T>(0.081) * t105;
+        let t146 = lit::<T>(0.081) * t111;
+        let t147 = lit::<T>(0.081) * t117;
         let t148 = t121 + t145;
         translation[0][0] = t148;
         let t149 = t122 + t146;
@@ -419,7 +677,7 @@ pub mod portable {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn frame_jacobian<T: Real>(q: &[T; NV]) -> [[[T; NV]; 6]; NF] {
         let mut jacobian = [[[T::k(0.0); NV]; 6]; NF];
-        jacobian[0][5][0] = T::k(1.0);
+        jacobian[0][5][0] = lit::<T>(1.0);
         let t3 = q[0].sin();
         let t4 = q[0].cos();
         jacobian[0][4][1] = t4;
@@ -457,10 +715,10 @@ pub mod portable {
         let t42 = t41 - t40;
         let t43 = t7 * t12;
         let t44 = t7 * t11;
-        let t45 = T::k(0.2045) * t26;
-        let t46 = T::k(0.2045) * t28;
-        let t47 = t8 * T::k(0.2045);
-        let t48 = T::k(0.36) + t47;
+        let t45 = lit::<T>(0.2045) * t26;
+        let t46 = lit::<T>(0.2045) * t28;
+        let t47 = t8 * lit::<T>(0.2045);
+        let t48 = lit::<T>(0.36) + t47;
         let t49 = t16 * t32;
         let t50 = t15 * t26;
         let t51 = t49 + t50;
@@ -488,9 +746,9 @@ pub mod portable {
         jacobian[0][5][4] = t68;
         let t69 = -t44;
         jacobian[0][5][3] = t69;
-        let t70 = T::k(0.2155) * t26;
-        let t71 = T::k(0.2155) * t28;
-        let t72 = t8 * T::k(0.2155);
+        let t70 = lit::<T>(0.2155) * t26;
+        let t71 = lit::<T>(0.2155) * t28;
+        let t72 = t8 * lit::<T>(0.2155);
         let t73 = t45 + t70;
         let t74 = t46 + t71;
         let t75 = t48 + t72;
@@ -515,9 +773,9 @@ pub mod portable {
         let t94 = t19 * t65;
         let t95 = t20 * t44;
         let t96 = t94 - t95;
-        let t97 = T::k(0.1845) * t54;
-        let t98 = T::k(0.1845) * t61;
-        let t99 = T::k(0.1845) * t68;
+        let t97 = lit::<T>(0.1845) * t54;
+        let t98 = lit::<T>(0.1845) * t61;
+        let t99 = lit::<T>(0.1845) * t68;
         let t100 = t73 + t97;
         let t101 = t74 + t98;
         let t102 = t75 + t99;
@@ -539,22 +797,22 @@ pub mod portable {
         jacobian[0][5][6] = t113;
         let t114 = -t96;
         jacobian[0][5][5] = t114;
-        let t115 = T::k(0.2155) * t54;
-        let t116 = T::k(0.2155) * t61;
-        let t117 = T::k(0.2155) * t68;
+        let t115 = lit::<T>(0.2155) * t54;
+        let t116 = lit::<T>(0.2155) * t61;
+        let t117 = lit::<T>(0.2155) * t68;
         let t118 = t100 + t115;
         let t119 = t101 + t116;
         let t120 = t102 + t117;
-        let t121 = T::k(0.081) * t105;
-        let t122 = T::k(0.081) * t109;
-        let t123 = T::k(0.081) * t113;
+        let t121 = lit::<T>(0.081) * t105;
+        let t122 = lit::<T>(0.081) * t109;
+        let t123 = lit::<T>(0.081) * t113;
         let t124 = t118 + t121;
         jacobian[0][1][0] = t124;
         let t125 = t119 + t122;
         let t126 = t120 + t123;
         let t127 = -t125;
         jacobian[0][0][0] = t127;
-        let t128 = t126 - T::k(0.36);
+        let t128 = t126 - lit::<T>(0.36);
         let t129 = t4 * t128;
         jacobian[0][0][1] = t129;
         let t130 = t3 * t128;
@@ -647,8 +905,8 @@ pub mod portable {
         let t24 = q[6].cos();
         let t32 = t4 * qd[0];
         let t33 = t5 * qd[0];
-        let t34 = T::k(0.2045) * qd[1];
-        let t35 = T::k(0.2045) * t32;
+        let t34 = lit::<T>(0.2045) * qd[1];
+        let t35 = lit::<T>(0.2045) * t32;
         let t36 = t9 * t32;
         let t37 = t8 * qd[1];
         let t38 = t37 - t36;
@@ -662,8 +920,8 @@ pub mod portable {
         let t46 = t9 * t35;
         let t47 = t46 - t45;
         let t48 = qd[2] + t33;
-        let t49 = T::k(0.2155) * t41;
-        let t50 = T::k(0.2155) * t38;
+        let t49 = lit::<T>(0.2155) * t41;
+        let t50 = lit::<T>(0.2155) * t38;
         let t51 = t44 + t49;
         let t52 = t47 - t50;
         let t53 = t13 * t38;
@@ -675,8 +933,8 @@ pub mod portable {
         let t59 = t13 * t51;
         let t60 = t12 * t51;
         let t61 = qd[3] - t41;
-        let t62 = T::k(0.1845) * t61;
-        let t63 = T::k(0.1845) * t55;
+        let t62 = lit::<T>(0.1845) * t61;
+        let t63 = lit::<T>(0.1845) * t55;
         let t64 = t59 - t62;
         let t65 = t63 - t52;
         let t66 = t17 * t55;
@@ -692,8 +950,8 @@ pub mod portable {
         let t76 = t17 * t65;
         let t77 = t75 + t76;
         let t78 = qd[4] + t58;
-        let t79 = T::k(0.2155) * t71;
-        let t80 = T::k(0.2155) * t68;
+        let t79 = lit::<T>(0.2155) * t71;
+        let t80 = lit::<T>(0.2155) * t68;
         let t81 = t74 + t79;
         let t82 = t77 - t80;
         let t83 = t20 * t68;
@@ -710,8 +968,8 @@ pub mod portable {
         let t94 = t20 * t60;
         let t95 = t93 - t94;
         let t96 = qd[5] - t71;
-        let t97 = T::k(0.081) * t96;
-        let t98 = T::k(0.081) * t85;
+        let t97 = lit::<T>(0.081) * t96;
+        let t98 = lit::<T>(0.081) * t85;
         let t99 = t91 - t97;
         let t100 = t98 - t82;
         let t101 = t24 * t85;
@@ -893,8 +1151,8 @@ pub mod portable {
         let t43 = qd[1] * t38;
         let t44 = t40 + t42;
         let t45 = t41 - t43;
-        let t46 = T::k(0.2045) * qd[1];
-        let t47 = T::k(0.2045) * t38;
+        let t46 = lit::<T>(0.2045) * qd[1];
+        let t47 = lit::<T>(0.2045) * t38;
         let t48 = t9 * t38;
         let t49 = t8 * qd[1];
         let t50 = t49 - t48;
@@ -907,8 +1165,8 @@ pub mod portable {
         let t57 = t8 * t46;
         let t58 = t9 * t47;
         let t59 = t58 - t57;
-        let t60 = T::k(0.2045) * qdd[1];
-        let t61 = T::k(0.2045) * t44;
+        let t60 = lit::<T>(0.2045) * qdd[1];
+        let t61 = lit::<T>(0.2045) * t44;
         let t62 = t9 * t44;
         let t63 = t8 * qdd[1];
         let t64 = t63 - t62;
@@ -931,8 +1189,8 @@ pub mod portable {
         let t81 = t67 - t76;
         let t82 = t70 + t77;
         let t83 = t73 - t78;
-        let t84 = T::k(0.2155) * t53;
-        let t85 = T::k(0.2155) * t50;
+        let t84 = lit::<T>(0.2155) * t53;
+        let t85 = lit::<T>(0.2155) * t50;
         let t86 = t56 + t84;
         let t87 = t59 - t85;
         let t88 = t13 * t50;
@@ -943,8 +1201,8 @@ pub mod portable {
         let t93 = t92 - t91;
         let t94 = t13 * t86;
         let t95 = t12 * t86;
-        let t96 = T::k(0.2155) * t81;
-        let t97 = T::k(0.2155) * t80;
+        let t96 = lit::<T>(0.2155) * t81;
+        let t97 = lit::<T>(0.2155) * t80;
         let t98 = t82 + t96;
         let t99 = t83 - t97;
         let t100 = t13 * t80;
@@ -966,8 +1224,8 @@ pub mod portable {
         let t116 = t105 - t111;
         let t117 = t106 - t112;
         let t118 = t108 - t113;
-        let t119 = T::k(0.1845) * t109;
-        let t120 = T::k(0.1845) * t90;
+        let t119 = lit::<T>(0.1845) * t109;
+        let t120 = lit::<T>(0.1845) * t90;
         let t121 = t94 - t119;
         let t122 = t120 - t87;
         let t123 = t17 * t90;
@@ -982,8 +1240,8 @@ pub mod portable {
         let t132 = t16 * t121;
         let t133 = t17 * t122;
         let t134 = t132 + t133;
-        let t135 = T::k(0.1845) * t114;
-        let t136 = T::k(0.1845) * t115;
+        let t135 = lit::<T>(0.1845) * t114;
+        let t136 = lit::<T>(0.1845) * t115;
         let t137 = t117 - t135;
         let t138 = t136 - t99;
         let t139 = t17 * t115;
@@ -1008,8 +1266,8 @@ pub mod portable {
         let t158 = t144 - t153;
         let t159 = t147 + t154;
         let t160 = t150 - t155;
-        let t161 = T::k(0.2155) * t128;
-        let t162 = T::k(0.2155) * t125;
+        let t161 = lit::<T>(0.2155) * t128;
+        let t162 = lit::<T>(0.2155) * t125;
         let t163 = t131 + t161;
         let t164 = t134 - t162;
         let t165 = t20 * t125;
@@ -1025,8 +1283,8 @@ pub mod portable {
         let t175 = -t174;
         let t176 = t20 * t95;
         let t177 = t175 - t176;
-        let t178 = T::k(0.2155) * t158;
-        let t179 = T::k(0.2155) * t157;
+        let t178 = lit::<T>(0.2155) * t158;
+        let t179 = lit::<T>(0.2155) * t157;
         let t180 = t159 + t178;
         let t181 = t160 - t179;
         let t182 = t20 * t157;
@@ -1046,8 +1304,8 @@ pub mod portable {
         let t196 = t184 + t192;
         let t197 = t187 + t193;
         let t198 = t190 - t194;
-        let t199 = T::k(0.081) * t191;
-        let t200 = T::k(0.081) * t167;
+        let t199 = lit::<T>(0.081) * t191;
+        let t200 = lit::<T>(0.081) * t167;
         let t201 = t173 - t199;
         let t202 = t200 - t164;
         let t203 = t24 * t167;
@@ -1062,8 +1320,8 @@ pub mod portable {
         let t212 = t23 * t201;
         let t213 = t24 * t202;
         let t214 = t212 + t213;
-        let t215 = T::k(0.081) * t195;
-        let t216 = T::k(0.081) * t196;
+        let t215 = lit::<T>(0.081) * t195;
+        let t216 = lit::<T>(0.081) * t196;
         let t217 = t197 - t215;
         let t218 = t216 - t181;
         let t219 = t24 * t217;
@@ -1239,8 +1497,8 @@ pub mod portable {
         let t44 = qd[1] * t39;
         let t45 = t41 + t43;
         let t46 = t42 - t44;
-        let t47 = T::k(0.2045) * qd[1];
-        let t48 = T::k(0.2045) * t39;
+        let t47 = lit::<T>(0.2045) * qd[1];
+        let t48 = lit::<T>(0.2045) * t39;
         let t49 = t10 * t39;
         let t50 = t9 * qd[1];
         let t51 = t50 - t49;
@@ -1253,8 +1511,8 @@ pub mod portable {
         let t58 = t9 * t47;
         let t59 = t10 * t48;
         let t60 = t59 - t58;
-        let t61 = T::k(0.2045) * qdd[1];
-        let t62 = T::k(0.2045) * t45;
+        let t61 = lit::<T>(0.2045) * qdd[1];
+        let t62 = lit::<T>(0.2045) * t45;
         let t63 = t10 * t45;
         let t64 = t9 * qdd[1];
         let t65 = t64 - t63;
@@ -1277,8 +1535,8 @@ pub mod portable {
         let t82 = t68 - t77;
         let t83 = t71 + t78;
         let t84 = t74 - t79;
-        let t85 = T::k(0.2155) * t54;
-        let t86 = T::k(0.2155) * t51;
+        let t85 = lit::<T>(0.2155) * t54;
+        let t86 = lit::<T>(0.2155) * t51;
         let t87 = t57 + t85;
         let t88 = t60 - t86;
         let t89 = t14 * t51;
@@ -1289,8 +1547,8 @@ pub mod portable {
         let t94 = t93 - t92;
         let t95 = t14 * t87;
         let t96 = t13 * t87;
-        let t97 = T::k(0.2155) * t82;
-        let t98 = T::k(0.2155) * t81;
+        let t97 = lit::<T>(0.2155) * t82;
+        let t98 = lit::<T>(0.2155) * t81;
         let t99 = t83 + t97;
         let t100 = t84 - t98;
         let t101 = t14 * t81;
@@ -1312,8 +1570,8 @@ pub mod portable {
         let t117 = t106 - t112;
         let t118 = t107 - t113;
         let t119 = t109 - t114;
-        let t120 = T::k(0.1845) * t110;
-        let t121 = T::k(0.1845) * t91;
+        let t120 = lit::<T>(0.1845) * t110;
+        let t121 = lit::<T>(0.1845) * t91;
         let t122 = t95 - t120;
         let t123 = t121 - t88;
         let t124 = t18 * t91;
@@ -1328,8 +1586,8 @@ pub mod portable {
         let t133 = t17 * t122;
         let t134 = t18 * t123;
         let t135 = t133 + t134;
-        let t136 = T::k(0.1845) * t115;
-        let t137 = T::k(0.1845) * t116;
+        let t136 = lit::<T>(0.1845) * t115;
+        let t137 = lit::<T>(0.1845) * t116;
         let t138 = t118 - t136;
         let t139 = t137 - t100;
         let t140 = t18 * t116;
@@ -1354,8 +1612,8 @@ pub mod portable {
         let t159 = t145 - t154;
         let t160 = t148 + t155;
         let t161 = t151 - t156;
-        let t162 = T::k(0.2155) * t129;
-        let t163 = T::k(0.2155) * t126;
+        let t162 = lit::<T>(0.2155) * t129;
+        let t163 = lit::<T>(0.2155) * t126;
         let t164 = t132 + t162;
         let t165 = t135 - t163;
         let t166 = t21 * t126;
@@ -1371,8 +1629,8 @@ pub mod portable {
         let t176 = -t175;
         let t177 = t21 * t96;
         let t178 = t176 - t177;
-        let t179 = T::k(0.2155) * t159;
-        let t180 = T::k(0.2155) * t158;
+        let t179 = lit::<T>(0.2155) * t159;
+        let t180 = lit::<T>(0.2155) * t158;
         let t181 = t160 + t179;
         let t182 = t161 - t180;
         let t183 = t21 * t158;
@@ -1395,8 +1653,8 @@ pub mod portable {
         let t200 = t185 + t196;
         let t201 = t191 + t197;
         let t202 = t194 - t198;
-        let t203 = T::k(0.081) * t195;
-        let t204 = T::k(0.081) * t168;
+        let t203 = lit::<T>(0.081) * t195;
+        let t204 = lit::<T>(0.081) * t168;
         let t205 = t174 - t203;
         let t206 = t204 - t165;
         let t207 = t25 * t168;
@@ -1411,8 +1669,8 @@ pub mod portable {
         let t216 = t24 * t205;
         let t217 = t25 * t206;
         let t218 = t216 + t217;
-        let t219 = T::k(0.081) * t199;
-        let t220 = T::k(0.081) * t200;
+        let t219 = lit::<T>(0.081) * t199;
+        let t220 = lit::<T>(0.081) * t200;
         let t221 = t201 - t219;
         let t222 = t220 - t182;
         let t223 = t25 * t221;
@@ -1597,10 +1855,10 @@ pub mod portable {
         dacc_dq[0][1][0] = t400;
         let t401 = t6 * qd[1];
         let t402 = t5 * qd[1];
-        let t403 = t5 * T::k(0.2045);
+        let t403 = t5 * lit::<T>(0.2045);
         let t404 = t9 * t403;
         let t405 = t10 * t403;
-        let t406 = T::k(0.2045) * t401;
+        let t406 = lit::<T>(0.2045) * t401;
         let t407 = t10 * t401;
         let t408 = t9 * t401;
         let t409 = t9 * t406;
@@ -1613,14 +1871,14 @@ pub mod portable {
         let t416 = t408 + t412;
         let t417 = t409 + t413;
         let t418 = t410 - t414;
-        let t419 = T::k(0.2155) * t254;
-        let t420 = T::k(0.2155) * t253;
+        let t419 = lit::<T>(0.2155) * t254;
+        let t420 = lit::<T>(0.2155) * t253;
         let t421 = t404 + t419;
         let t422 = t405 + t420;
         let t423 = t14 * t421;
         let t424 = t13 * t421;
-        let t425 = T::k(0.2155) * t416;
-        let t426 = T::k(0.2155) * t415;
+        let t425 = lit::<T>(0.2155) * t416;
+        let t426 = lit::<T>(0.2155) * t415;
         let t427 = t417 + t425;
         let t428 = t418 - t426;
         let t429 = t14 * t415;
@@ -1641,8 +1899,8 @@ pub mod portable {
         let t444 = t435 - t440;
         let t445 = t436 - t441;
         let t446 = t438 - t442;
-        let t447 = T::k(0.1845) * t254;
-        let t448 = T::k(0.1845) * t269;
+        let t447 = lit::<T>(0.1845) * t254;
+        let t448 = lit::<T>(0.1845) * t269;
         let t449 = t423 + t447;
         let t450 = t448 - t422;
         let t451 = t290 - t287;
@@ -1652,8 +1910,8 @@ pub mod portable {
         let t455 = t17 * t449;
         let t456 = t18 * t450;
         let t457 = t455 + t456;
-        let t458 = T::k(0.1845) * t416;
-        let t459 = T::k(0.1845) * t443;
+        let t458 = lit::<T>(0.1845) * t416;
+        let t459 = lit::<T>(0.1845) * t443;
         let t460 = t445 + t458;
         let t461 = t459 - t428;
         let t462 = t18 * t443;
@@ -1677,8 +1935,8 @@ pub mod portable {
         let t480 = t468 - t476;
         let t481 = t471 + t477;
         let t482 = t474 - t478;
-        let t483 = T::k(0.2155) * t294;
-        let t484 = T::k(0.2155) * t451;
+        let t483 = lit::<T>(0.2155) * t294;
+        let t484 = lit::<T>(0.2155) * t451;
         let t485 = t454 + t483;
         let t486 = t457 - t484;
         let t487 = t21 * t451;
@@ -1692,8 +1950,8 @@ pub mod portable {
         let t495 = -t494;
         let t496 = t21 * t424;
         let t497 = t495 - t496;
-        let t498 = T::k(0.2155) * t480;
-        let t499 = T::k(0.2155) * t479;
+        let t498 = lit::<T>(0.2155) * t480;
+        let t499 = lit::<T>(0.2155) * t479;
         let t500 = t481 + t498;
         let t501 = t482 - t499;
         let t502 = t21 * t479;
@@ -1711,8 +1969,8 @@ pub mod portable {
         let t514 = t504 + t511;
         let t515 = t507 + t512;
         let t516 = t510 - t513;
-        let t517 = T::k(0.081) * t294;
-        let t518 = T::k(0.081) * t488;
+        let t517 = lit::<T>(0.081) * t294;
+        let t518 = lit::<T>(0.081) * t488;
         let t519 = t493 + t517;
         let t520 = t518 - t486;
         let t521 = t25 * t488;
@@ -1725,8 +1983,8 @@ pub mod portable {
         let t528 = t24 * t519;
         let t529 = t25 * t520;
         let t530 = t528 + t529;
-        let t531 = T::k(0.081) * t480;
-        let t532 = T::k(0.081) * t514;
+        let t531 = lit::<T>(0.081) * t480;
+        let t532 = lit::<T>(0.081) * t514;
         let t533 = t515 + t531;
         let t534 = t532 - t501;
         let t535 = t25 * t533;
@@ -1803,12 +2061,12 @@ pub mod portable {
         dacc_dqdd[0][2][0] = t600;
         let t601 = -t41;
         let t602 = t601 - t43;
-        let t603 = T::k(0.2045) * t40;
+        let t603 = lit::<T>(0.2045) * t40;
         let t604 = t10 * t40;
         let t605 = t9 * t40;
         let t606 = t9 * t603;
         let t607 = t10 * t603;
-        let t608 = T::k(0.2045) * t46;
+        let t608 = lit::<T>(0.2045) * t46;
         let t609 = t10 * t46;
         let t610 = t9 * t46;
         let t611 = t9 * t608;
@@ -1821,8 +2079,8 @@ pub mod portable {
         let t618 = t610 + t614;
         let t619 = t611 + t615;
         let t620 = t612 - t616;
-        let t621 = T::k(0.2155) * t605;
-        let t622 = T::k(0.2155) * t604;
+        let t621 = lit::<T>(0.2155) * t605;
+        let t622 = lit::<T>(0.2155) * t604;
         let t623 = t606 + t621;
         let t624 = t607 + t622;
         let t625 = t14 * t604;
@@ -1835,8 +2093,8 @@ pub mod portable {
         let t632 = t629 - t630;
         let t633 = t14 * t623;
         let t634 = t13 * t623;
-        let t635 = T::k(0.2155) * t618;
-        let t636 = T::k(0.2155) * t617;
+        let t635 = lit::<T>(0.2155) * t618;
+        let t636 = lit::<T>(0.2155) * t617;
         let t637 = t619 + t635;
         let t638 = t620 - t636;
         let t639 = t14 * t617;
@@ -1856,8 +2114,8 @@ pub mod portable {
         let t653 = t644 - t649;
         let t654 = t645 - t650;
         let t655 = t647 - t651;
-        let t656 = T::k(0.1845) * t605;
-        let t657 = T::k(0.1845) * t628;
+        let t656 = lit::<T>(0.1845) * t605;
+        let t657 = lit::<T>(0.1845) * t628;
         let t658 = t633 + t656;
         let t659 = t657 - t624;
         let t660 = t18 * t628;
@@ -1873,8 +2131,8 @@ pub mod portable {
         let t670 = t17 * t658;
         let t671 = t18 * t659;
         let t672 = t670 + t671;
-        let t673 = T::k(0.1845) * t618;
-        let t674 = T::k(0.1845) * t652;
+        let t673 = lit::<T>(0.1845) * t618;
+        let t674 = lit::<T>(0.1845) * t652;
         let t675 = t654 + t673;
         let t676 = t674 - t638;
         let t677 = t18 * t652;
@@ -1898,8 +2156,8 @@ pub mod portable {
         let t695 = t683 - t691;
         let t696 = t686 + t692;
         let t697 = t689 - t693;
-        let t698 = T::k(0.2155) * t666;
-        let t699 = T::k(0.2155) * t663;
+        let t698 = lit::<T>(0.2155) * t666;
+        let t699 = lit::<T>(0.2155) * t663;
         let t700 = t669 + t698;
         let t701 = t672 - t699;
         let t702 = t21 * t663;
@@ -1915,8 +2173,8 @@ pub mod portable {
         let t712 = -t711;
         let t713 = t21 * t634;
         let t714 = t712 - t713;
-        let t715 = T::k(0.2155) * t695;
-        let t716 = T::k(0.2155) * t694;
+        let t715 = lit::<T>(0.2155) * t695;
+        let t716 = lit::<T>(0.2155) * t694;
         let t717 = t696 + t715;
         let t718 = t697 - t716;
         let t719 = t21 * t694;
@@ -1934,8 +2192,8 @@ pub mod portable {
         let t731 = t721 + t728;
         let t732 = t724 + t729;
         let t733 = t727 - t730;
-        let t734 = T::k(0.081) * t666;
-        let t735 = T::k(0.081) * t704;
+        let t734 = lit::<T>(0.081) * t666;
+        let t735 = lit::<T>(0.081) * t704;
         let t736 = t710 + t734;
         let t737 = t735 - t701;
         let t738 = t25 * t704;
@@ -1951,8 +2209,8 @@ pub mod portable {
         let t748 = t24 * t736;
         let t749 = t25 * t737;
         let t750 = t748 + t749;
-        let t751 = T::k(0.081) * t695;
-        let t752 = T::k(0.081) * t731;
+        let t751 = lit::<T>(0.081) * t695;
+        let t752 = lit::<T>(0.081) * t731;
         let t753 = t732 + t751;
         let t754 = t752 - t718;
         let t755 = t25 * t753;
@@ -2110,8 +2368,8 @@ pub mod portable {
         let t905 = t903 + t904;
         let t906 = t902 + t905;
         dacc_dq[0][2][1] = t906;
-        let t907 = T::k(0.2045) * t10;
-        let t908 = T::k(0.2045) * t9;
+        let t907 = lit::<T>(0.2045) * t10;
+        let t908 = lit::<T>(0.2045) * t9;
         let t909 = -t908;
         let t910 = t10 * qd[2];
         let t911 = t9 * qd[2];
@@ -2121,16 +2379,16 @@ pub mod portable {
         let t915 = t605 - t911;
         let t916 = t606 - t912;
         let t917 = t607 - t913;
-        let t918 = t10 * T::k(0.2155);
-        let t919 = t9 * T::k(0.2155);
+        let t918 = t10 * lit::<T>(0.2155);
+        let t919 = t9 * lit::<T>(0.2155);
         let t920 = t907 + t918;
         let t921 = t909 - t919;
         let t922 = t9 * t14;
         let t923 = t9 * t13;
         let t924 = t14 * t920;
         let t925 = t13 * t920;
-        let t926 = T::k(0.2155) * t915;
-        let t927 = T::k(0.2155) * t914;
+        let t926 = lit::<T>(0.2155) * t915;
+        let t927 = lit::<T>(0.2155) * t914;
         let t928 = t916 + t926;
         let t929 = t917 - t927;
         let t930 = t14 * t914;
@@ -2148,8 +2406,8 @@ pub mod portable {
         let t942 = t933 - t938;
         let t943 = t934 - t939;
         let t944 = t936 - t940;
-        let t945 = t10 * T::k(0.1845);
-        let t946 = T::k(0.1845) * t922;
+        let t945 = t10 * lit::<T>(0.1845);
+        let t946 = lit::<T>(0.1845) * t922;
         let t947 = t924 + t945;
         let t948 = t946 - t921;
         let t949 = t18 * t922;
@@ -2165,8 +2423,8 @@ pub mod portable {
         let t959 = t17 * t947;
         let t960 = t18 * t948;
         let t961 = t959 + t960;
-        let t962 = T::k(0.1845) * t915;
-        let t963 = T::k(0.1845) * t941;
+        let t962 = lit::<T>(0.1845) * t915;
+        let t963 = lit::<T>(0.1845) * t941;
         let t964 = t943 + t962;
         let t965 = t963 - t929;
         let t966 = t18 * t941;
@@ -2190,8 +2448,8 @@ pub mod portable {
         let t984 = t972 - t980;
         let t985 = t975 + t981;
         let t986 = t978 - t982;
-        let t987 = T::k(0.2155) * t955;
-        let t988 = T::k(0.2155) * t952;
+        let t987 = lit::<T>(0.2155) * t955;
+        let t988 = lit::<T>(0.2155) * t952;
         let t989 = t958 + t987;
         let t990 = t961 - t988;
         let t991 = t21 * t952;
@@ -2208,8 +2466,8 @@ pub mod portable {
         let t1002 = -t1001;
         let t1003 = t21 * t925;
         let t1004 = t1002 - t1003;
-        let t1005 = T::k(0.2155) * t984;
-        let t1006 = T::k(0.2155) * t983;
+        let t1005 = lit::<T>(0.2155) * t984;
+        let t1006 = lit::<T>(0.2155) * t983;
         let t1007 = t985 + t1005;
         let t1008 = t986 - t1006;
         let t1009 = t21 * t983;
@@ -2227,8 +2485,8 @@ pub mod portable {
         let t1021 = t1011 + t1018;
         let t1022 = t1014 + t1019;
         let t1023 = t1017 - t1020;
-        let t1024 = T::k(0.081) * t955;
-        let t1025 = T::k(0.081) * t993;
+        let t1024 = lit::<T>(0.081) * t955;
+        let t1025 = lit::<T>(0.081) * t993;
         let t1026 = t1000 + t1024;
         let t1027 = t1025 - t990;
         let t1028 = t25 * t993;
@@ -2244,8 +2502,8 @@ pub mod portable {
         let t1038 = t24 * t1026;
         let t1039 = t25 * t1027;
         let t1040 = t1038 + t1039;
-        let t1041 = T::k(0.081) * t984;
-        let t1042 = T::k(0.081) * t1021;
+        let t1041 = lit::<T>(0.081) * t984;
+        let t1042 = lit::<T>(0.081) * t1021;
         let t1043 = t1022 + t1041;
         let t1044 = t1042 - t1008;
         let t1045 = t25 * t1043;
@@ -2332,7 +2590,7 @@ pub mod portable {
         let t1120 = t1114 - t76;
         let t1121 = t74 + t1118;
         let t1122 = t1116 - t78;
-        let t1123 = T::k(0.2155) * t1111;
+        let t1123 = lit::<T>(0.2155) * t1111;
         let t1124 = t60 + t1123;
         let t1125 = t1113 - t85;
         let t1126 = t14 * t54;
@@ -2340,8 +2598,8 @@ pub mod portable {
         let t1128 = -t1127;
         let t1129 = t14 * t1124;
         let t1130 = t13 * t1124;
-        let t1131 = T::k(0.2155) * t1120;
-        let t1132 = T::k(0.2155) * t1119;
+        let t1131 = lit::<T>(0.2155) * t1120;
+        let t1132 = lit::<T>(0.2155) * t1119;
         let t1133 = t1121 + t1131;
         let t1134 = t1122 - t1132;
         let t1135 = t14 * t1119;
@@ -2358,8 +2616,8 @@ pub mod portable {
         let t1146 = t1137 - t1142;
         let t1147 = t1138 - t1143;
         let t1148 = t1140 - t1144;
-        let t1149 = T::k(0.1845) * t1111;
-        let t1150 = T::k(0.1845) * t1126;
+        let t1149 = lit::<T>(0.1845) * t1111;
+        let t1150 = lit::<T>(0.1845) * t1126;
         let t1151 = t1129 + t1149;
         let t1152 = t1150 - t1125;
         let t1153 = t18 * t1126;
@@ -2375,8 +2633,8 @@ pub mod portable {
         let t1163 = t17 * t1151;
         let t1164 = t18 * t1152;
         let t1165 = t1163 + t1164;
-        let t1166 = T::k(0.1845) * t1120;
-        let t1167 = T::k(0.1845) * t1145;
+        let t1166 = lit::<T>(0.1845) * t1120;
+        let t1167 = lit::<T>(0.1845) * t1145;
         let t1168 = t1147 + t1166;
         let t1169 = t1167 - t1134;
         let t1170 = t18 * t1145;
@@ -2400,8 +2658,8 @@ pub mod portable {
         let t1188 = t1176 - t1184;
         let t1189 = t1179 + t1185;
         let t1190 = t1182 - t1186;
-        let t1191 = T::k(0.2155) * t1159;
-        let t1192 = T::k(0.2155) * t1156;
+        let t1191 = lit::<T>(0.2155) * t1159;
+        let t1192 = lit::<T>(0.2155) * t1156;
         let t1193 = t1162 + t1191;
         let t1194 = t1165 - t1192;
         let t1195 = t21 * t1156;
@@ -2418,8 +2676,8 @@ pub mod portable {
         let t1206 = -t1205;
         let t1207 = t21 * t1130;
         let t1208 = t1206 - t1207;
-        let t1209 = T::k(0.2155) * t1188;
-        let t1210 = T::k(0.2155) * t1187;
+        let t1209 = lit::<T>(0.2155) * t1188;
+        let t1210 = lit::<T>(0.2155) * t1187;
         let t1211 = t1189 + t1209;
         let t1212 = t1190 - t1210;
         let t1213 = t21 * t1187;
@@ -2437,8 +2695,8 @@ pub mod portable {
         let t1225 = t1215 + t1222;
         let t1226 = t1218 + t1223;
         let t1227 = t1221 - t1224;
-        let t1228 = T::k(0.081) * t1159;
-        let t1229 = T::k(0.081) * t1197;
+        let t1228 = lit::<T>(0.081) * t1159;
+        let t1229 = lit::<T>(0.081) * t1197;
         let t1230 = t1204 + t1228;
         let t1231 = t1229 - t1194;
         let t1232 = t25 * t1197;
@@ -2454,8 +2712,8 @@ pub mod portable {
         let t1242 = t24 * t1230;
         let t1243 = t25 * t1231;
         let t1244 = t1242 + t1243;
-        let t1245 = T::k(0.081) * t1188;
-        let t1246 = T::k(0.081) * t1225;
+        let t1245 = lit::<T>(0.081) * t1188;
+        let t1246 = lit::<T>(0.081) * t1225;
         let t1247 = t1226 + t1245;
         let t1248 = t1246 - t1212;
         let t1249 = t25 * t1247;
@@ -2608,13 +2866,13 @@ pub mod portable {
         let t1393 = t13 * qd[3];
         let t1394 = t1126 + t1392;
         let t1395 = t1128 - t1393;
-        let t1396 = t13 * T::k(0.1845);
+        let t1396 = t13 * lit::<T>(0.1845);
         let t1397 = t13 * t18;
         let t1398 = t13 * t17;
         let t1399 = t17 * t1396;
         let t1400 = t18 * t1396;
-        let t1401 = T::k(0.1845) * t51;
-        let t1402 = T::k(0.1845) * t1394;
+        let t1401 = lit::<T>(0.1845) * t51;
+        let t1402 = lit::<T>(0.1845) * t1394;
         let t1403 = t1390 - t1401;
         let t1404 = t1402 - t1389;
         let t1405 = t18 * t1394;
@@ -2637,8 +2895,8 @@ pub mod portable {
         let t1422 = t1410 + t1418;
         let t1423 = t1413 + t1419;
         let t1424 = t1416 - t1420;
-        let t1425 = T::k(0.2155) * t1398;
-        let t1426 = T::k(0.2155) * t1397;
+        let t1425 = lit::<T>(0.2155) * t1398;
+        let t1426 = lit::<T>(0.2155) * t1397;
         let t1427 = t1399 + t1425;
         let t1428 = t1400 + t1426;
         let t1429 = t21 * t1397;
@@ -2649,8 +2907,8 @@ pub mod portable {
         let t1434 = t1432 + t1433;
         let t1435 = t21 * t1427;
         let t1436 = t20 * t1427;
-        let t1437 = T::k(0.2155) * t1422;
-        let t1438 = T::k(0.2155) * t1421;
+        let t1437 = lit::<T>(0.2155) * t1422;
+        let t1438 = lit::<T>(0.2155) * t1421;
         let t1439 = t1423 + t1437;
         let t1440 = t1424 - t1438;
         let t1441 = t21 * t1421;
@@ -2669,8 +2927,8 @@ pub mod portable {
         let t1454 = t1443 + t1451;
         let t1455 = t1446 - t1452;
         let t1456 = t1450 - t1453;
-        let t1457 = T::k(0.081) * t1398;
-        let t1458 = T::k(0.081) * t1431;
+        let t1457 = lit::<T>(0.081) * t1398;
+        let t1458 = lit::<T>(0.081) * t1431;
         let t1459 = t1435 + t1457;
         let t1460 = t1458 - t1428;
         let t1461 = t25 * t1431;
@@ -2686,8 +2944,8 @@ pub mod portable {
         let t1471 = t24 * t1459;
         let t1472 = t25 * t1460;
         let t1473 = t1471 + t1472;
-        let t1474 = T::k(0.081) * t1422;
-        let t1475 = T::k(0.081) * t1454;
+        let t1474 = lit::<T>(0.081) * t1422;
+        let t1475 = lit::<T>(0.081) * t1454;
         let t1476 = t1455 + t1474;
         let t1477 = t1475 - t1440;
         let t1478 = t25 * t1476;
@@ -2768,7 +3026,7 @@ pub mod portable {
         let t1547 = t106 + t1546;
         let t1548 = t1545 - t111;
         let t1549 = t113 - t107;
-        let t1550 = T::k(0.1845) * t94;
+        let t1550 = lit::<T>(0.1845) * t94;
         let t1551 = t18 * t94;
         let t1552 = t17 * t94;
         let t1553 = t18 * t96;
@@ -2777,7 +3035,7 @@ pub mod portable {
         let t1556 = t17 * t96;
         let t1557 = t18 * t1550;
         let t1558 = t1557 - t1556;
-        let t1559 = T::k(0.1845) * t1547;
+        let t1559 = lit::<T>(0.1845) * t1547;
         let t1560 = t18 * t1547;
         let t1561 = t17 * t1547;
         let t1562 = t18 * t119;
@@ -2794,8 +3052,8 @@ pub mod portable {
         let t1573 = t1561 + t1569;
         let t1574 = t1564 + t1570;
         let t1575 = t1567 - t1571;
-        let t1576 = T::k(0.2155) * t1552;
-        let t1577 = T::k(0.2155) * t1551;
+        let t1576 = lit::<T>(0.2155) * t1552;
+        let t1577 = lit::<T>(0.2155) * t1551;
         let t1578 = t1555 + t1576;
         let t1579 = t1558 + t1577;
         let t1580 = t21 * t1551;
@@ -2811,8 +3069,8 @@ pub mod portable {
         let t1590 = -t1589;
         let t1591 = t21 * t95;
         let t1592 = t1590 - t1591;
-        let t1593 = T::k(0.2155) * t1573;
-        let t1594 = T::k(0.2155) * t1572;
+        let t1593 = lit::<T>(0.2155) * t1573;
+        let t1594 = lit::<T>(0.2155) * t1572;
         let t1595 = t1574 + t1593;
         let t1596 = t1575 - t1594;
         let t1597 = t21 * t1572;
@@ -2830,8 +3088,8 @@ pub mod portable {
         let t1609 = t1599 + t1606;
         let t1610 = t1602 + t1607;
         let t1611 = t1605 - t1608;
-        let t1612 = T::k(0.081) * t1552;
-        let t1613 = T::k(0.081) * t1582;
+        let t1612 = lit::<T>(0.081) * t1552;
+        let t1613 = lit::<T>(0.081) * t1582;
         let t1614 = t1588 + t1612;
         let t1615 = t1613 - t1579;
         let t1616 = t25 * t1582;
@@ -2847,8 +3105,8 @@ pub mod portable {
         let t1626 = t24 * t1614;
         let t1627 = t25 * t1615;
         let t1628 = t1626 + t1627;
-        let t1629 = T::k(0.081) * t1573;
-        let t1630 = T::k(0.081) * t1609;
+        let t1629 = lit::<T>(0.081) * t1573;
+        let t1630 = lit::<T>(0.081) * t1609;
         let t1631 = t1610 + t1629;
         let t1632 = t1630 - t1596;
         let t1633 = t25 * t1631;
@@ -2970,8 +3228,8 @@ pub mod portable {
         let t1747 = t1745 + t1746;
         let t1748 = t1744 + t1747;
         dacc_dq[0][2][3] = t1748;
-        let t1750 = t18 * T::k(-0.1845);
-        let t1751 = t17 * T::k(-0.1845);
+        let t1750 = t18 * lit::<T>(-0.1845);
+        let t1751 = t17 * lit::<T>(-0.1845);
         let t1752 = t18 * qd[4];
         let t1753 = t17 * qd[4];
         let t1754 = qd[4] * t1751;
@@ -2980,16 +3238,16 @@ pub mod portable {
         let t1757 = t1552 - t1753;
         let t1758 = t1555 + t1754;
         let t1759 = t1558 + t1755;
-        let t1760 = T::k(0.2155) * t18;
-        let t1761 = T::k(0.2155) * t17;
+        let t1760 = lit::<T>(0.2155) * t18;
+        let t1761 = lit::<T>(0.2155) * t17;
         let t1762 = t1760 - t1750;
         let t1763 = t1751 - t1761;
         let t1764 = t17 * t21;
         let t1765 = t17 * t20;
         let t1766 = t21 * t1762;
         let t1767 = t20 * t1762;
-        let t1768 = T::k(0.2155) * t1757;
-        let t1769 = T::k(0.2155) * t1756;
+        let t1768 = lit::<T>(0.2155) * t1757;
+        let t1769 = lit::<T>(0.2155) * t1756;
         let t1770 = t1758 + t1768;
         let t1771 = t1759 - t1769;
         let t1772 = t21 * t1756;
@@ -3006,8 +3264,8 @@ pub mod portable {
         let t1783 = t1774 - t1780;
         let t1784 = t1776 - t1781;
         let t1785 = t1779 - t1782;
-        let t1786 = t18 * T::k(0.081);
-        let t1787 = T::k(0.081) * t1764;
+        let t1786 = t18 * lit::<T>(0.081);
+        let t1787 = lit::<T>(0.081) * t1764;
         let t1788 = t1766 + t1786;
         let t1789 = t1787 - t1763;
         let t1790 = t25 * t1764;
@@ -3023,8 +3281,8 @@ pub mod portable {
         let t1800 = t24 * t1788;
         let t1801 = t25 * t1789;
         let t1802 = t1800 + t1801;
-        let t1803 = T::k(0.081) * t1757;
-        let t1804 = T::k(0.081) * t1783;
+        let t1803 = lit::<T>(0.081) * t1757;
+        let t1804 = lit::<T>(0.081) * t1783;
         let t1805 = t1784 + t1803;
         let t1806 = t1804 - t1771;
         let t1807 = t25 * t1805;
@@ -3107,15 +3365,15 @@ pub mod portable {
         let t1878 = t1873 - t153;
         let t1879 = t151 + t1876;
         let t1880 = t1874 - t155;
-        let t1881 = T::k(0.2155) * t1871;
+        let t1881 = lit::<T>(0.2155) * t1871;
         let t1882 = t135 + t1881;
         let t1883 = t1872 - t162;
         let t1884 = t21 * t129;
         let t1885 = t20 * t129;
         let t1886 = t21 * t1882;
         let t1887 = t20 * t1882;
-        let t1888 = T::k(0.2155) * t1878;
-        let t1889 = T::k(0.2155) * t1877;
+        let t1888 = lit::<T>(0.2155) * t1878;
+        let t1889 = lit::<T>(0.2155) * t1877;
         let t1890 = t1879 + t1888;
         let t1891 = t1880 - t1889;
         let t1892 = t21 * t1877;
@@ -3128,8 +3386,8 @@ pub mod portable {
         let t1899 = t1892 - t1896;
         let t1900 = t1893 - t1897;
         let t1901 = t1895 - t1898;
-        let t1902 = T::k(0.081) * t1871;
-        let t1903 = T::k(0.081) * t1884;
+        let t1902 = lit::<T>(0.081) * t1871;
+        let t1903 = lit::<T>(0.081) * t1884;
         let t1904 = t1886 + t1902;
         let t1905 = t1903 - t1883;
         let t1906 = t25 * t1884;
@@ -3145,8 +3403,8 @@ pub mod portable {
         let t1916 = t24 * t1904;
         let t1917 = t25 * t1905;
         let t1918 = t1916 + t1917;
-        let t1919 = T::k(0.081) * t1878;
-        let t1920 = T::k(0.081) * t1899;
+        let t1919 = lit::<T>(0.081) * t1878;
+        let t1920 = lit::<T>(0.081) * t1899;
         let t1921 = t1900 + t1919;
         let t1922 = t1920 - t1891;
         let t1923 = t25 * t1921;
@@ -3255,13 +3513,13 @@ pub mod portable {
         let t2023 = t20 * t165;
         let t2024 = t21 * qd[5];
         let t2025 = t1884 + t2024;
-        let t2026 = t20 * T::k(0.081);
+        let t2026 = t20 * lit::<T>(0.081);
         let t2027 = t20 * t25;
         let t2028 = t20 * t24;
         let t2029 = t24 * t2026;
         let t2030 = t25 * t2026;
-        let t2031 = T::k(0.081) * t126;
-        let t2032 = T::k(0.081) * t2025;
+        let t2031 = lit::<T>(0.081) * t126;
+        let t2032 = lit::<T>(0.081) * t2025;
         let t2033 = t2022 - t2031;
         let t2034 = t2032 - t2021;
         let t2035 = t25 * t2033;
@@ -3334,7 +3592,7 @@ pub mod portable {
         let t2096 = t188 + t2094;
         let t2097 = t194 + t2095;
         let t2098 = t2093 - t197;
-        let t2099 = T::k(0.081) * t171;
+        let t2099 = lit::<T>(0.081) * t171;
         let t2100 = t25 * t171;
         let t2101 = t24 * t171;
         let t2102 = t25 * t178;
@@ -3343,7 +3601,7 @@ pub mod portable {
         let t2105 = t24 * t178;
         let t2106 = t25 * t2099;
         let t2107 = t2105 + t2106;
-        let t2108 = T::k(0.081) * t2096;
+        let t2108 = lit::<T>(0.081) * t2096;
         let t2109 = t25 * t2097;
         let t2110 = t24 * t2108;
         let t2111 = t2110 - t2109;
@@ -3426,8 +3684,8 @@ pub mod portable {
         let t2186 = t2184 + t2185;
         let t2187 = t2183 + t2186;
         dacc_dq[0][2][5] = t2187;
-        let t2189 = t25 * T::k(-0.081);
-        let t2190 = t24 * T::k(-0.081);
+        let t2189 = t25 * lit::<T>(-0.081);
+        let t2190 = t24 * lit::<T>(-0.081);
         let t2191 = qd[6] * t2190;
         let t2192 = qd[6] * t2189;
         let t2193 = t2104 + t2191;
@@ -3573,7 +3831,7 @@ pub mod fma {
         let t42 = T::mul_add(t2, t9, -t40);
         let t43 = t4 * t9;
         let t44 = t4 * t8;
-        let t48 = T::mul_add(t5, T::k(0.2045), T::k(0.36));
+        let t48 = T::mul_add(t5, lit::<T>(0.2045), lit::<T>(0.36));
         let t50 = t12 * t26;
         let t51 = T::mul_add(t13, t32, t50);
         let t52 = t12 * t32;
@@ -3586,11 +3844,11 @@ pub mod fma {
         let t63 = T::mul_add(t5, t12, -t61);
         let t65 = t5 * t13;
         let t66 = T::mul_add(t12, t43, t65);
-        let t67 = T::k(0.2155) * t26;
-        let t68 = T::k(0.2155) * t28;
-        let t70 = T::mul_add(T::k(0.2045), t26, t67);
-        let t71 = T::mul_add(T::k(0.2045), t28, t68);
-        let t72 = T::mul_add(t5, T::k(0.2155), t48);
+        let t67 = lit::<T>(0.2155) * t26;
+        let t68 = lit::<T>(0.2155) * t28;
+        let t70 = T::mul_add(lit::<T>(0.2045), t26, t67);
+        let t71 = T::mul_add(lit::<T>(0.2045), t28, t68);
+        let t72 = T::mul_add(t5, lit::<T>(0.2155), t48);
         let t73 = t17 * t51;
         let t74 = -t73;
         let t76 = T::mul_add(-t16, t36, t74);
@@ -3606,9 +3864,9 @@ pub mod fma {
         let t90 = T::mul_add(-t16, t44, t88);
         let t92 = t17 * t44;
         let t93 = T::mul_add(t16, t63, -t92);
-        let t97 = T::mul_add(T::k(0.1845), t54, t70);
-        let t98 = T::mul_add(T::k(0.1845), t60, t71);
-        let t99 = T::mul_add(T::k(0.1845), t66, t72);
+        let t97 = T::mul_add(lit::<T>(0.1845), t54, t70);
+        let t98 = T::mul_add(lit::<T>(0.1845), t60, t71);
+        let t99 = T::mul_add(lit::<T>(0.1845), t66, t72);
         let t101 = t19 * t54;
         let t102 = T::mul_add(t20, t76, t101);
         let t103 = t19 * t76;
@@ -3624,9 +3882,9 @@ pub mod fma {
         let t115 = t19 * t90;
         let t117 = T::mul_add(t20, t66, -t115);
         rotation[0][8] = t117;
-        let t121 = T::mul_add(T::k(0.2155), t54, t97);
-        let t122 = T::mul_add(T::k(0.2155), t60, t98);
-        let t123 = T::mul_add(T::k(0.2155), t66, t99);
+        let t121 = T::mul_add(lit::<T>(0.2155), t54, t97);
+        let t122 = T::mul_add(lit::<T>(0.2155), t60, t98);
+        let t123 = T::mul_add(lit::<T>(0.2155), t66, t99);
         let t124 = t24 * t102;
         let t125 = -t124;
         let t127 = T::mul_add(-t23, t79, t125);
@@ -3648,11 +3906,11 @@ pub mod fma {
         let t143 = t24 * t93;
         let t144 = T::mul_add(t23, t114, -t143);
         rotation[0][7] = t144;
-        let t148 = T::mul_add(T::k(0.081), t105, t121);
+        let t148 = T::mul_add(lit::<T>(0.081), t105, t121);
         translation[0][0] = t148;
-        let t149 = T::mul_add(T::k(0.081), t111, t122);
+        let t149 = T::mul_add(lit::<T>(0.081), t111, t122);
         translation[0][1] = t149;
-        let t150 = T::mul_add(T::k(0.081), t117, t123);
+        let t150 = T::mul_add(lit::<T>(0.081), t117, t123);
         translation[0][2] = t150;
         (translation, rotation)
     }
@@ -3662,7 +3920,7 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn frame_jacobian<T: Real>(q: &[T; NV]) -> [[[T; NV]; 6]; NF] {
         let mut jacobian = [[[T::k(0.0); NV]; 6]; NF];
-        jacobian[0][5][0] = T::k(1.0);
+        jacobian[0][5][0] = lit::<T>(1.0);
         let t3 = q[0].sin();
         let t4 = q[0].cos();
         jacobian[0][4][1] = t4;
@@ -3696,9 +3954,9 @@ pub mod fma {
         let t42 = T::mul_add(t4, t12, -t40);
         let t43 = t7 * t12;
         let t44 = t7 * t11;
-        let t45 = T::k(0.2045) * t26;
-        let t46 = T::k(0.2045) * t28;
-        let t48 = T::mul_add(t8, T::k(0.2045), T::k(0.36));
+        let t45 = lit::<T>(0.2045) * t26;
+        let t46 = lit::<T>(0.2045) * t28;
+        let t48 = T::mul_add(t8, lit::<T>(0.2045), lit::<T>(0.36));
         let t50 = t15 * t26;
         let t51 = T::mul_add(t16, t32, t50);
         let t52 = t15 * t32;
@@ -3720,9 +3978,9 @@ pub mod fma {
         jacobian[0][5][4] = t68;
         let t69 = -t44;
         jacobian[0][5][3] = t69;
-        let t73 = T::mul_add(T::k(0.2155), t26, t45);
-        let t74 = T::mul_add(T::k(0.2155), t28, t46);
-        let t75 = T::mul_add(t8, T::k(0.2155), t48);
+        let t73 = T::mul_add(lit::<T>(0.2155), t26, t45);
+        let t74 = T::mul_add(lit::<T>(0.2155), t28, t46);
+        let t75 = T::mul_add(t8, lit::<T>(0.2155), t48);
         let t76 = t20 * t51;
         let t77 = -t76;
         let t79 = T::mul_add(-t19, t36, t77);
@@ -3738,9 +3996,9 @@ pub mod fma {
         let t93 = T::mul_add(-t19, t44, t91);
         let t95 = t20 * t44;
         let t96 = T::mul_add(t19, t65, -t95);
-        let t100 = T::mul_add(T::k(0.1845), t54, t73);
-        let t101 = T::mul_add(T::k(0.1845), t61, t74);
-        let t102 = T::mul_add(T::k(0.1845), t68, t75);
+        let t100 = T::mul_add(lit::<T>(0.1845), t54, t73);
+        let t101 = T::mul_add(lit::<T>(0.1845), t61, t74);
+        let t102 = T::mul_add(lit::<T>(0.1845), t68, t75);
         let t103 = t22 * t79;
         let t105 = T::mul_add(t23, t54, -t103);
         jacobian[0][3][6] = t105;
@@ -3756,16 +4014,16 @@ pub mod fma {
         jacobian[0][5][6] = t113;
         let t114 = -t96;
         jacobian[0][5][5] = t114;
-        let t118 = T::mul_add(T::k(0.2155), t54, t100);
-        let t119 = T::mul_add(T::k(0.2155), t61, t101);
-        let t120 = T::mul_add(T::k(0.2155), t68, t102);
-        let t124 = T::mul_add(T::k(0.081), t105, t118);
+        let t118 = T::mul_add(lit::<T>(0.2155), t54, t100);
+        let t119 = T::mul_add(lit::<T>(0.2155), t61, t101);
+        let t120 = T::mul_add(lit::<T>(0.2155), t68, t102);
+        let t124 = T::mul_add(lit::<T>(0.081), t105, t118);
         jacobian[0][1][0] = t124;
-        let t125 = T::mul_add(T::k(0.081), t109, t119);
-        let t126 = T::mul_add(T::k(0.081), t113, t120);
+        let t125 = T::mul_add(lit::<T>(0.081), t109, t119);
+        let t126 = T::mul_add(lit::<T>(0.081), t113, t120);
         let t127 = -t125;
         jacobian[0][0][0] = t127;
-        let t128 = t126 - T::k(0.36);
+        let t128 = t126 - lit::<T>(0.36);
         let t129 = t4 * t128;
         jacobian[0][0][1] = t129;
         let t130 = t3 * t128;
@@ -3845,8 +4103,8 @@ pub mod fma {
         let t23 = q[6].sin();
         let t24 = q[6].cos();
         let t32 = t4 * qd[0];
-        let t34 = T::k(0.2045) * qd[1];
-        let t35 = T::k(0.2045) * t32;
+        let t34 = lit::<T>(0.2045) * qd[1];
+        let t35 = lit::<T>(0.2045) * t32;
         let t36 = t9 * t32;
         let t38 = T::mul_add(t8, qd[1], -t36);
         let t40 = t9 * qd[1];
@@ -3856,17 +4114,17 @@ pub mod fma {
         let t45 = t8 * t34;
         let t47 = T::mul_add(t9, t35, -t45);
         let t48 = T::mul_add(t5, qd[0], qd[2]);
-        let t51 = T::mul_add(T::k(0.2155), t41, t44);
-        let t52 = T::mul_add(-T::k(0.2155), t38, t47);
+        let t51 = T::mul_add(lit::<T>(0.2155), t41, t44);
+        let t52 = T::mul_add(-lit::<T>(0.2155), t38, t47);
         let t54 = t12 * t48;
         let t55 = T::mul_add(t13, t38, t54);
         let t56 = t12 * t38;
         let t58 = T::mul_add(t13, t48, -t56);
         let t60 = t12 * t51;
         let t61 = qd[3] - t41;
-        let t62 = T::k(0.1845) * t61;
+        let t62 = lit::<T>(0.1845) * t61;
         let t64 = T::mul_add(t13, t51, -t62);
-        let t65 = T::mul_add(T::k(0.1845), t55, -t52);
+        let t65 = T::mul_add(lit::<T>(0.1845), t55, -t52);
         let t66 = t17 * t55;
         let t68 = T::mul_add(t16, t61, -t66);
         let t70 = t17 * t61;
@@ -3876,8 +4134,8 @@ pub mod fma {
         let t76 = t17 * t65;
         let t77 = T::mul_add(t16, t64, t76);
         let t78 = qd[4] + t58;
-        let t81 = T::mul_add(T::k(0.2155), t71, t74);
-        let t82 = T::mul_add(-T::k(0.2155), t68, t77);
+        let t81 = T::mul_add(lit::<T>(0.2155), t71, t74);
+        let t82 = T::mul_add(-lit::<T>(0.2155), t68, t77);
         let t84 = t19 * t78;
         let t85 = T::mul_add(t20, t68, t84);
         let t86 = t19 * t68;
@@ -3888,8 +4146,8 @@ pub mod fma {
         let t93 = -t92;
         let t95 = T::mul_add(-t20, t60, t93);
         let t96 = qd[5] - t71;
-        let t99 = T::mul_add(-T::k(0.081), t96, t91);
-        let t100 = T::mul_add(T::k(0.081), t85, -t82);
+        let t99 = T::mul_add(-lit::<T>(0.081), t96, t91);
+        let t100 = T::mul_add(lit::<T>(0.081), t85, -t82);
         let t101 = t24 * t85;
         let t103 = T::mul_add(t23, t96, -t101);
         let t105 = t24 * t96;
@@ -4024,8 +4282,8 @@ pub mod fma {
         let t43 = qd[1] * t38;
         let t44 = T::mul_add(t4, qdd[0], t42);
         let t45 = T::mul_add(t5, qdd[0], -t43);
-        let t46 = T::k(0.2045) * qd[1];
-        let t47 = T::k(0.2045) * t38;
+        let t46 = lit::<T>(0.2045) * qd[1];
+        let t47 = lit::<T>(0.2045) * t38;
         let t48 = t9 * t38;
         let t50 = T::mul_add(t8, qd[1], -t48);
         let t52 = t9 * qd[1];
@@ -4034,8 +4292,8 @@ pub mod fma {
         let t56 = T::mul_add(t9, t46, t55);
         let t57 = t8 * t46;
         let t59 = T::mul_add(t9, t47, -t57);
-        let t60 = T::k(0.2045) * qdd[1];
-        let t61 = T::k(0.2045) * t44;
+        let t60 = lit::<T>(0.2045) * qdd[1];
+        let t61 = lit::<T>(0.2045) * t44;
         let t62 = t9 * t44;
         let t64 = T::mul_add(t8, qdd[1], -t62);
         let t66 = t9 * qdd[1];
@@ -4050,16 +4308,16 @@ pub mod fma {
         let t81 = T::mul_add(-qd[2], t50, t67);
         let t82 = T::mul_add(qd[2], t59, t70);
         let t83 = T::mul_add(-qd[2], t56, t73);
-        let t86 = T::mul_add(T::k(0.2155), t53, t56);
-        let t87 = T::mul_add(-T::k(0.2155), t50, t59);
+        let t86 = T::mul_add(lit::<T>(0.2155), t53, t56);
+        let t87 = T::mul_add(-lit::<T>(0.2155), t50, t59);
         let t89 = t12 * t74;
         let t90 = T::mul_add(t13, t50, t89);
         let t91 = t12 * t50;
         let t93 = T::mul_add(t13, t74, -t91);
         let t94 = t13 * t86;
         let t95 = t12 * t86;
-        let t98 = T::mul_add(T::k(0.2155), t81, t82);
-        let t99 = T::mul_add(-T::k(0.2155), t80, t83);
+        let t98 = T::mul_add(lit::<T>(0.2155), t81, t82);
+        let t99 = T::mul_add(-lit::<T>(0.2155), t80, t83);
         let t101 = t12 * t79;
         let t102 = T::mul_add(t13, t80, t101);
         let t103 = t12 * t80;
@@ -4073,8 +4331,8 @@ pub mod fma {
         let t116 = T::mul_add(-qd[3], t90, t105);
         let t117 = T::mul_add(t13, t98, -t112);
         let t118 = T::mul_add(-qd[3], t94, t108);
-        let t121 = T::mul_add(-T::k(0.1845), t109, t94);
-        let t122 = T::mul_add(T::k(0.1845), t90, -t87);
+        let t121 = T::mul_add(-lit::<T>(0.1845), t109, t94);
+        let t122 = T::mul_add(lit::<T>(0.1845), t90, -t87);
         let t123 = t17 * t90;
         let t125 = T::mul_add(t16, t109, -t123);
         let t127 = t17 * t109;
@@ -4083,8 +4341,8 @@ pub mod fma {
         let t131 = T::mul_add(t16, t122, -t129);
         let t133 = t17 * t122;
         let t134 = T::mul_add(t16, t121, t133);
-        let t137 = T::mul_add(-T::k(0.1845), t114, t117);
-        let t138 = T::mul_add(T::k(0.1845), t115, -t99);
+        let t137 = T::mul_add(-lit::<T>(0.1845), t114, t117);
+        let t138 = T::mul_add(lit::<T>(0.1845), t115, -t99);
         let t139 = t17 * t115;
         let t141 = T::mul_add(t16, t114, -t139);
         let t143 = t17 * t114;
@@ -4099,8 +4357,8 @@ pub mod fma {
         let t158 = T::mul_add(-qd[4], t125, t144);
         let t159 = T::mul_add(qd[4], t134, t147);
         let t160 = T::mul_add(-qd[4], t131, t150);
-        let t163 = T::mul_add(T::k(0.2155), t128, t131);
-        let t164 = T::mul_add(-T::k(0.2155), t125, t134);
+        let t163 = T::mul_add(lit::<T>(0.2155), t128, t131);
+        let t164 = T::mul_add(-lit::<T>(0.2155), t125, t134);
         let t166 = t19 * t151;
         let t167 = T::mul_add(t20, t125, t166);
         let t168 = t19 * t125;
@@ -4110,8 +4368,8 @@ pub mod fma {
         let t174 = t19 * t163;
         let t175 = -t174;
         let t177 = T::mul_add(-t20, t95, t175);
-        let t180 = T::mul_add(T::k(0.2155), t158, t159);
-        let t181 = T::mul_add(-T::k(0.2155), t157, t160);
+        let t180 = T::mul_add(lit::<T>(0.2155), t158, t159);
+        let t181 = T::mul_add(-lit::<T>(0.2155), t157, t160);
         let t183 = t19 * t156;
         let t184 = T::mul_add(t20, t157, t183);
         let t186 = t19 * t118;
@@ -4123,8 +4381,8 @@ pub mod fma {
         let t196 = T::mul_add(qd[5], t170, t184);
         let t197 = T::mul_add(qd[5], t177, t187);
         let t198 = T::mul_add(-qd[5], t173, t190);
-        let t201 = T::mul_add(-T::k(0.081), t191, t173);
-        let t202 = T::mul_add(T::k(0.081), t167, -t164);
+        let t201 = T::mul_add(-lit::<T>(0.081), t191, t173);
+        let t202 = T::mul_add(lit::<T>(0.081), t167, -t164);
         let t203 = t24 * t167;
         let t205 = T::mul_add(t23, t191, -t203);
         let t207 = t24 * t191;
@@ -4133,8 +4391,8 @@ pub mod fma {
         let t211 = T::mul_add(t23, t202, -t209);
         let t213 = t24 * t202;
         let t214 = T::mul_add(t23, t201, t213);
-        let t217 = T::mul_add(-T::k(0.081), t195, t197);
-        let t218 = T::mul_add(T::k(0.081), t196, -t181);
+        let t217 = T::mul_add(-lit::<T>(0.081), t195, t197);
+        let t218 = T::mul_add(lit::<T>(0.081), t196, -t181);
         let t219 = t24 * t217;
         let t221 = T::mul_add(t23, t218, -t219);
         let t223 = t24 * t218;
@@ -4267,8 +4525,8 @@ pub mod fma {
         let t44 = qd[1] * t39;
         let t45 = t41 + t43;
         let t46 = T::mul_add(t6, qdd[0], -t44);
-        let t47 = T::k(0.2045) * qd[1];
-        let t48 = T::k(0.2045) * t39;
+        let t47 = lit::<T>(0.2045) * qd[1];
+        let t48 = lit::<T>(0.2045) * t39;
         let t49 = t10 * t39;
         let t50 = t9 * qd[1];
         let t51 = t50 - t49;
@@ -4279,8 +4537,8 @@ pub mod fma {
         let t57 = t55 + t56;
         let t58 = t9 * t47;
         let t60 = T::mul_add(t10, t48, -t58);
-        let t61 = T::k(0.2045) * qdd[1];
-        let t62 = T::k(0.2045) * t45;
+        let t61 = lit::<T>(0.2045) * qdd[1];
+        let t62 = lit::<T>(0.2045) * t45;
         let t63 = t10 * t45;
         let t64 = t9 * qdd[1];
         let t65 = t64 - t63;
@@ -4299,9 +4557,9 @@ pub mod fma {
         let t82 = T::mul_add(-qd[2], t51, t68);
         let t83 = t71 + t78;
         let t84 = T::mul_add(-qd[2], t57, t74);
-        let t85 = T::k(0.2155) * t54;
+        let t85 = lit::<T>(0.2155) * t54;
         let t87 = t57 + t85;
-        let t88 = T::mul_add(-T::k(0.2155), t51, t60);
+        let t88 = T::mul_add(-lit::<T>(0.2155), t51, t60);
         let t89 = t14 * t51;
         let t90 = t13 * t75;
         let t91 = t89 + t90;
@@ -4309,8 +4567,8 @@ pub mod fma {
         let t94 = T::mul_add(t14, t75, -t92);
         let t95 = t14 * t87;
         let t96 = t13 * t87;
-        let t99 = T::mul_add(T::k(0.2155), t82, t83);
-        let t100 = T::mul_add(-T::k(0.2155), t81, t84);
+        let t99 = T::mul_add(lit::<T>(0.2155), t82, t83);
+        let t100 = T::mul_add(-lit::<T>(0.2155), t81, t84);
         let t101 = t14 * t81;
         let t102 = t13 * t80;
         let t103 = t101 + t102;
@@ -4327,8 +4585,8 @@ pub mod fma {
         let t117 = T::mul_add(-qd[3], t91, t106);
         let t118 = t107 - t113;
         let t119 = T::mul_add(-qd[3], t95, t109);
-        let t122 = T::mul_add(-T::k(0.1845), t110, t95);
-        let t123 = T::mul_add(T::k(0.1845), t91, -t88);
+        let t122 = T::mul_add(-lit::<T>(0.1845), t110, t95);
+        let t123 = T::mul_add(lit::<T>(0.1845), t91, -t88);
         let t124 = t18 * t91;
         let t125 = t17 * t110;
         let t126 = t125 - t124;
@@ -4339,8 +4597,8 @@ pub mod fma {
         let t132 = t131 - t130;
         let t134 = t18 * t123;
         let t135 = T::mul_add(t17, t122, t134);
-        let t138 = T::mul_add(-T::k(0.1845), t115, t118);
-        let t139 = T::mul_add(T::k(0.1845), t116, -t100);
+        let t138 = T::mul_add(-lit::<T>(0.1845), t115, t118);
+        let t139 = T::mul_add(lit::<T>(0.1845), t116, -t100);
         let t140 = t18 * t116;
         let t141 = t17 * t115;
         let t142 = t141 - t140;
@@ -4359,9 +4617,9 @@ pub mod fma {
         let t159 = T::mul_add(-qd[4], t126, t145);
         let t160 = t148 + t155;
         let t161 = T::mul_add(-qd[4], t132, t151);
-        let t162 = T::k(0.2155) * t129;
+        let t162 = lit::<T>(0.2155) * t129;
         let t164 = t132 + t162;
-        let t165 = T::mul_add(-T::k(0.2155), t126, t135);
+        let t165 = T::mul_add(-lit::<T>(0.2155), t126, t135);
         let t166 = t21 * t126;
         let t167 = t20 * t152;
         let t168 = t166 + t167;
@@ -4373,8 +4631,8 @@ pub mod fma {
         let t175 = t20 * t164;
         let t176 = -t175;
         let t178 = T::mul_add(-t21, t96, t176);
-        let t181 = T::mul_add(T::k(0.2155), t159, t160);
-        let t182 = T::mul_add(-T::k(0.2155), t158, t161);
+        let t181 = T::mul_add(lit::<T>(0.2155), t159, t160);
+        let t182 = T::mul_add(-lit::<T>(0.2155), t158, t161);
         let t184 = t20 * t157;
         let t185 = T::mul_add(t21, t158, t184);
         let t186 = t20 * t158;
@@ -4390,8 +4648,8 @@ pub mod fma {
         let t200 = T::mul_add(qd[5], t171, t185);
         let t201 = t191 + t197;
         let t202 = T::mul_add(-qd[5], t174, t194);
-        let t205 = T::mul_add(-T::k(0.081), t195, t174);
-        let t206 = T::mul_add(T::k(0.081), t168, -t165);
+        let t205 = T::mul_add(-lit::<T>(0.081), t195, t174);
+        let t206 = T::mul_add(lit::<T>(0.081), t168, -t165);
         let t207 = t25 * t168;
         let t208 = t24 * t195;
         let t209 = t208 - t207;
@@ -4402,8 +4660,8 @@ pub mod fma {
         let t215 = t214 - t213;
         let t217 = t25 * t206;
         let t218 = T::mul_add(t24, t205, t217);
-        let t221 = T::mul_add(-T::k(0.081), t199, t201);
-        let t222 = T::mul_add(T::k(0.081), t200, -t182);
+        let t221 = T::mul_add(-lit::<T>(0.081), t199, t201);
+        let t222 = T::mul_add(lit::<T>(0.081), t200, -t182);
         let t223 = t25 * t221;
         let t224 = t24 * t222;
         let t225 = t224 - t223;
@@ -4552,10 +4810,10 @@ pub mod fma {
         dacc_dq[0][1][0] = t400;
         let t401 = t6 * qd[1];
         let t402 = t5 * qd[1];
-        let t403 = t5 * T::k(0.2045);
+        let t403 = t5 * lit::<T>(0.2045);
         let t404 = t9 * t403;
         let t405 = t10 * t403;
-        let t406 = T::k(0.2045) * t401;
+        let t406 = lit::<T>(0.2045) * t401;
         let t407 = t10 * t401;
         let t412 = qd[2] * t253;
         let t413 = qd[2] * t405;
@@ -4564,12 +4822,12 @@ pub mod fma {
         let t416 = T::mul_add(t9, t401, t412);
         let t417 = T::mul_add(t9, t406, t413);
         let t418 = T::mul_add(t10, t406, -t414);
-        let t421 = T::mul_add(T::k(0.2155), t254, t404);
-        let t422 = T::mul_add(T::k(0.2155), t253, t405);
+        let t421 = T::mul_add(lit::<T>(0.2155), t254, t404);
+        let t422 = T::mul_add(lit::<T>(0.2155), t253, t405);
         let t423 = t14 * t421;
         let t424 = t13 * t421;
-        let t427 = T::mul_add(T::k(0.2155), t416, t417);
-        let t428 = T::mul_add(-T::k(0.2155), t415, t418);
+        let t427 = T::mul_add(lit::<T>(0.2155), t416, t417);
+        let t428 = T::mul_add(-lit::<T>(0.2155), t415, t418);
         let t430 = t13 * t402;
         let t431 = T::mul_add(t14, t415, -t430);
         let t433 = t14 * t402;
@@ -4582,15 +4840,15 @@ pub mod fma {
         let t444 = T::mul_add(-qd[3], t269, t435);
         let t445 = T::mul_add(t14, t427, -t441);
         let t446 = T::mul_add(-qd[3], t423, t438);
-        let t449 = T::mul_add(T::k(0.1845), t254, t423);
-        let t450 = T::mul_add(T::k(0.1845), t269, -t422);
+        let t449 = T::mul_add(lit::<T>(0.1845), t254, t423);
+        let t450 = T::mul_add(lit::<T>(0.1845), t269, -t422);
         let t451 = t290 - t287;
         let t452 = t18 * t449;
         let t454 = T::mul_add(t17, t450, -t452);
         let t456 = t18 * t450;
         let t457 = T::mul_add(t17, t449, t456);
-        let t460 = T::mul_add(T::k(0.1845), t416, t445);
-        let t461 = T::mul_add(T::k(0.1845), t443, -t428);
+        let t460 = T::mul_add(lit::<T>(0.1845), t416, t445);
+        let t461 = T::mul_add(lit::<T>(0.1845), t443, -t428);
         let t463 = t17 * t416;
         let t464 = -t463;
         let t465 = T::mul_add(-t18, t443, t464);
@@ -4604,8 +4862,8 @@ pub mod fma {
         let t480 = T::mul_add(-qd[4], t451, t468);
         let t481 = T::mul_add(qd[4], t457, t471);
         let t482 = T::mul_add(-qd[4], t454, t474);
-        let t485 = T::mul_add(T::k(0.2155), t294, t454);
-        let t486 = T::mul_add(-T::k(0.2155), t451, t457);
+        let t485 = T::mul_add(lit::<T>(0.2155), t294, t454);
+        let t486 = T::mul_add(-lit::<T>(0.2155), t451, t457);
         let t488 = T::mul_add(t21, t451, t308);
         let t490 = T::mul_add(-t20, t451, t311);
         let t492 = t20 * t424;
@@ -4614,8 +4872,8 @@ pub mod fma {
         let t495 = -t494;
         let t496 = t21 * t424;
         let t497 = t495 - t496;
-        let t500 = T::mul_add(T::k(0.2155), t480, t481);
-        let t501 = T::mul_add(-T::k(0.2155), t479, t482);
+        let t500 = T::mul_add(lit::<T>(0.2155), t480, t481);
+        let t501 = T::mul_add(-lit::<T>(0.2155), t479, t482);
         let t503 = t20 * t444;
         let t504 = T::mul_add(t21, t479, t503);
         let t506 = t20 * t446;
@@ -4625,16 +4883,16 @@ pub mod fma {
         let t514 = T::mul_add(qd[5], t490, t504);
         let t515 = T::mul_add(qd[5], t497, t507);
         let t516 = T::mul_add(-qd[5], t493, t510);
-        let t519 = T::mul_add(T::k(0.081), t294, t493);
-        let t520 = T::mul_add(T::k(0.081), t488, -t486);
+        let t519 = T::mul_add(lit::<T>(0.081), t294, t493);
+        let t520 = T::mul_add(lit::<T>(0.081), t488, -t486);
         let t522 = T::mul_add(-t25, t488, t330);
         let t524 = T::mul_add(t24, t488, -t333);
         let t525 = t25 * t519;
         let t527 = T::mul_add(t24, t520, -t525);
         let t529 = t25 * t520;
         let t530 = T::mul_add(t24, t519, t529);
-        let t533 = T::mul_add(T::k(0.081), t480, t515);
-        let t534 = T::mul_add(T::k(0.081), t514, -t501);
+        let t533 = T::mul_add(lit::<T>(0.081), t480, t515);
+        let t534 = T::mul_add(lit::<T>(0.081), t514, -t501);
         let t535 = t25 * t533;
         let t537 = T::mul_add(t24, t534, -t535);
         let t539 = t25 * t534;
@@ -4687,12 +4945,12 @@ pub mod fma {
         dacc_dqdd[0][2][0] = t600;
         let t601 = -t41;
         let t602 = t601 - t43;
-        let t603 = T::k(0.2045) * t40;
+        let t603 = lit::<T>(0.2045) * t40;
         let t604 = t10 * t40;
         let t605 = t9 * t40;
         let t606 = t9 * t603;
         let t607 = t10 * t603;
-        let t608 = T::k(0.2045) * t46;
+        let t608 = lit::<T>(0.2045) * t46;
         let t609 = t10 * t46;
         let t614 = qd[2] * t604;
         let t615 = qd[2] * t607;
@@ -4701,8 +4959,8 @@ pub mod fma {
         let t618 = T::mul_add(t9, t46, t614);
         let t619 = T::mul_add(t9, t608, t615);
         let t620 = T::mul_add(t10, t608, -t616);
-        let t623 = T::mul_add(T::k(0.2155), t605, t606);
-        let t624 = T::mul_add(T::k(0.2155), t604, t607);
+        let t623 = T::mul_add(lit::<T>(0.2155), t605, t606);
+        let t624 = T::mul_add(lit::<T>(0.2155), t604, t607);
         let t625 = t14 * t604;
         let t626 = -t625;
         let t627 = t13 * t39;
@@ -4712,8 +4970,8 @@ pub mod fma {
         let t632 = T::mul_add(t13, t604, -t630);
         let t633 = t14 * t623;
         let t634 = t13 * t623;
-        let t637 = T::mul_add(T::k(0.2155), t618, t619);
-        let t638 = T::mul_add(-T::k(0.2155), t617, t620);
+        let t637 = T::mul_add(lit::<T>(0.2155), t618, t619);
+        let t638 = T::mul_add(-lit::<T>(0.2155), t617, t620);
         let t640 = t13 * t602;
         let t641 = T::mul_add(t14, t617, t640);
         let t642 = t13 * t617;
@@ -4725,8 +4983,8 @@ pub mod fma {
         let t653 = T::mul_add(-qd[3], t628, t644);
         let t654 = T::mul_add(t14, t637, -t650);
         let t655 = T::mul_add(-qd[3], t633, t647);
-        let t658 = T::mul_add(T::k(0.1845), t605, t633);
-        let t659 = T::mul_add(T::k(0.1845), t628, -t624);
+        let t658 = T::mul_add(lit::<T>(0.1845), t605, t633);
+        let t659 = T::mul_add(lit::<T>(0.1845), t628, -t624);
         let t661 = t17 * t605;
         let t662 = -t661;
         let t663 = T::mul_add(-t18, t628, t662);
@@ -4736,8 +4994,8 @@ pub mod fma {
         let t669 = T::mul_add(t17, t659, -t667);
         let t671 = t18 * t659;
         let t672 = T::mul_add(t17, t658, t671);
-        let t675 = T::mul_add(T::k(0.1845), t618, t654);
-        let t676 = T::mul_add(T::k(0.1845), t652, -t638);
+        let t675 = T::mul_add(lit::<T>(0.1845), t618, t654);
+        let t676 = T::mul_add(lit::<T>(0.1845), t652, -t638);
         let t678 = t17 * t618;
         let t679 = -t678;
         let t680 = T::mul_add(-t18, t652, t679);
@@ -4751,8 +5009,8 @@ pub mod fma {
         let t695 = T::mul_add(-qd[4], t663, t683);
         let t696 = T::mul_add(qd[4], t672, t686);
         let t697 = T::mul_add(-qd[4], t669, t689);
-        let t700 = T::mul_add(T::k(0.2155), t666, t669);
-        let t701 = T::mul_add(-T::k(0.2155), t663, t672);
+        let t700 = T::mul_add(lit::<T>(0.2155), t666, t669);
+        let t701 = T::mul_add(-lit::<T>(0.2155), t663, t672);
         let t703 = t20 * t632;
         let t704 = T::mul_add(t21, t663, t703);
         let t705 = t20 * t663;
@@ -4762,8 +5020,8 @@ pub mod fma {
         let t711 = t20 * t700;
         let t712 = -t711;
         let t714 = T::mul_add(-t21, t634, t712);
-        let t717 = T::mul_add(T::k(0.2155), t695, t696);
-        let t718 = T::mul_add(-T::k(0.2155), t694, t697);
+        let t717 = T::mul_add(lit::<T>(0.2155), t695, t696);
+        let t718 = T::mul_add(-lit::<T>(0.2155), t694, t697);
         let t720 = t20 * t653;
         let t721 = T::mul_add(t21, t694, t720);
         let t723 = t20 * t655;
@@ -4773,8 +5031,8 @@ pub mod fma {
         let t731 = T::mul_add(qd[5], t707, t721);
         let t732 = T::mul_add(qd[5], t714, t724);
         let t733 = T::mul_add(-qd[5], t710, t727);
-        let t736 = T::mul_add(T::k(0.081), t666, t710);
-        let t737 = T::mul_add(T::k(0.081), t704, -t701);
+        let t736 = T::mul_add(lit::<T>(0.081), t666, t710);
+        let t737 = T::mul_add(lit::<T>(0.081), t704, -t701);
         let t739 = t24 * t666;
         let t740 = -t739;
         let t741 = T::mul_add(-t25, t704, t740);
@@ -4784,8 +5042,8 @@ pub mod fma {
         let t747 = T::mul_add(t24, t737, -t745);
         let t749 = t25 * t737;
         let t750 = T::mul_add(t24, t736, t749);
-        let t753 = T::mul_add(T::k(0.081), t695, t732);
-        let t754 = T::mul_add(T::k(0.081), t731, -t718);
+        let t753 = T::mul_add(lit::<T>(0.081), t695, t732);
+        let t754 = T::mul_add(lit::<T>(0.081), t731, -t718);
         let t755 = t25 * t753;
         let t757 = T::mul_add(t24, t754, -t755);
         let t759 = t25 * t754;
@@ -4898,21 +5156,21 @@ pub mod fma {
         let t905 = T::mul_add(t346, t828, t904);
         let t906 = t902 + t905;
         dacc_dq[0][2][1] = t906;
-        let t907 = T::k(0.2045) * t10;
-        let t908 = T::k(0.2045) * t9;
+        let t907 = lit::<T>(0.2045) * t10;
+        let t908 = lit::<T>(0.2045) * t9;
         let t909 = -t908;
         let t914 = T::mul_add(t10, qd[2], -t604);
         let t915 = T::mul_add(-t9, qd[2], t605);
         let t916 = T::mul_add(-qd[2], t908, t606);
         let t917 = T::mul_add(-qd[2], t907, t607);
-        let t920 = T::mul_add(t10, T::k(0.2155), t907);
-        let t921 = T::mul_add(-t9, T::k(0.2155), t909);
+        let t920 = T::mul_add(t10, lit::<T>(0.2155), t907);
+        let t921 = T::mul_add(-t9, lit::<T>(0.2155), t909);
         let t922 = t9 * t14;
         let t923 = t9 * t13;
         let t924 = t14 * t920;
         let t925 = t13 * t920;
-        let t928 = T::mul_add(T::k(0.2155), t915, t916);
-        let t929 = T::mul_add(-T::k(0.2155), t914, t917);
+        let t928 = T::mul_add(lit::<T>(0.2155), t915, t916);
+        let t929 = T::mul_add(-lit::<T>(0.2155), t914, t917);
         let t931 = T::mul_add(t14, t914, -t627);
         let t933 = T::mul_add(-t13, t914, t631);
         let t935 = t13 * t928;
@@ -4922,8 +5180,8 @@ pub mod fma {
         let t942 = T::mul_add(-qd[3], t922, t933);
         let t943 = T::mul_add(t14, t928, -t939);
         let t944 = T::mul_add(-qd[3], t924, t936);
-        let t947 = T::mul_add(t10, T::k(0.1845), t924);
-        let t948 = T::mul_add(T::k(0.1845), t922, -t921);
+        let t947 = T::mul_add(t10, lit::<T>(0.1845), t924);
+        let t948 = T::mul_add(lit::<T>(0.1845), t922, -t921);
         let t950 = t10 * t17;
         let t951 = -t950;
         let t952 = T::mul_add(-t18, t922, t951);
@@ -4933,8 +5191,8 @@ pub mod fma {
         let t958 = T::mul_add(t17, t948, -t956);
         let t960 = t18 * t948;
         let t961 = T::mul_add(t17, t947, t960);
-        let t964 = T::mul_add(T::k(0.1845), t915, t943);
-        let t965 = T::mul_add(T::k(0.1845), t941, -t929);
+        let t964 = T::mul_add(lit::<T>(0.1845), t915, t943);
+        let t965 = T::mul_add(lit::<T>(0.1845), t941, -t929);
         let t967 = t17 * t915;
         let t968 = -t967;
         let t969 = T::mul_add(-t18, t941, t968);
@@ -4948,8 +5206,8 @@ pub mod fma {
         let t984 = T::mul_add(-qd[4], t952, t972);
         let t985 = T::mul_add(qd[4], t961, t975);
         let t986 = T::mul_add(-qd[4], t958, t978);
-        let t989 = T::mul_add(T::k(0.2155), t955, t958);
-        let t990 = T::mul_add(-T::k(0.2155), t952, t961);
+        let t989 = T::mul_add(lit::<T>(0.2155), t955, t958);
+        let t990 = T::mul_add(-lit::<T>(0.2155), t952, t961);
         let t992 = t20 * t923;
         let t993 = T::mul_add(t21, t952, -t992);
         let t995 = t21 * t923;
@@ -4961,8 +5219,8 @@ pub mod fma {
         let t1002 = -t1001;
         let t1003 = t21 * t925;
         let t1004 = t1002 - t1003;
-        let t1007 = T::mul_add(T::k(0.2155), t984, t985);
-        let t1008 = T::mul_add(-T::k(0.2155), t983, t986);
+        let t1007 = T::mul_add(lit::<T>(0.2155), t984, t985);
+        let t1008 = T::mul_add(-lit::<T>(0.2155), t983, t986);
         let t1010 = t20 * t942;
         let t1011 = T::mul_add(t21, t983, t1010);
         let t1013 = t20 * t944;
@@ -4972,8 +5230,8 @@ pub mod fma {
         let t1021 = T::mul_add(qd[5], t997, t1011);
         let t1022 = T::mul_add(qd[5], t1004, t1014);
         let t1023 = T::mul_add(-qd[5], t1000, t1017);
-        let t1026 = T::mul_add(T::k(0.081), t955, t1000);
-        let t1027 = T::mul_add(T::k(0.081), t993, -t990);
+        let t1026 = T::mul_add(lit::<T>(0.081), t955, t1000);
+        let t1027 = T::mul_add(lit::<T>(0.081), t993, -t990);
         let t1029 = t24 * t955;
         let t1030 = -t1029;
         let t1031 = T::mul_add(-t25, t993, t1030);
@@ -4983,8 +5241,8 @@ pub mod fma {
         let t1037 = T::mul_add(t24, t1027, -t1035);
         let t1039 = t25 * t1027;
         let t1040 = T::mul_add(t24, t1026, t1039);
-        let t1043 = T::mul_add(T::k(0.081), t984, t1022);
-        let t1044 = T::mul_add(T::k(0.081), t1021, -t1008);
+        let t1043 = T::mul_add(lit::<T>(0.081), t984, t1022);
+        let t1044 = T::mul_add(lit::<T>(0.081), t1021, -t1008);
         let t1045 = t25 * t1043;
         let t1047 = T::mul_add(t24, t1044, -t1045);
         let t1049 = t25 * t1044;
@@ -5045,15 +5303,15 @@ pub mod fma {
         let t1120 = t1114 - t76;
         let t1121 = T::mul_add(qd[2], t1113, t74);
         let t1122 = t1116 - t78;
-        let t1124 = T::mul_add(T::k(0.2155), t1111, t60);
+        let t1124 = T::mul_add(lit::<T>(0.2155), t1111, t60);
         let t1125 = t1113 - t85;
         let t1126 = t14 * t54;
         let t1127 = t13 * t54;
         let t1128 = -t1127;
         let t1129 = t14 * t1124;
         let t1130 = t13 * t1124;
-        let t1133 = T::mul_add(T::k(0.2155), t1120, t1121);
-        let t1134 = T::mul_add(-T::k(0.2155), t1119, t1122);
+        let t1133 = T::mul_add(lit::<T>(0.2155), t1120, t1121);
+        let t1134 = T::mul_add(-lit::<T>(0.2155), t1119, t1122);
         let t1136 = t13 * t1119;
         let t1137 = -t1136;
         let t1139 = t13 * t1133;
@@ -5064,8 +5322,8 @@ pub mod fma {
         let t1146 = T::mul_add(-qd[3], t1126, t1137);
         let t1147 = T::mul_add(t14, t1133, -t1143);
         let t1148 = T::mul_add(-qd[3], t1129, t1140);
-        let t1151 = T::mul_add(T::k(0.1845), t1111, t1129);
-        let t1152 = T::mul_add(T::k(0.1845), t1126, -t1125);
+        let t1151 = T::mul_add(lit::<T>(0.1845), t1111, t1129);
+        let t1152 = T::mul_add(lit::<T>(0.1845), t1126, -t1125);
         let t1154 = t17 * t1111;
         let t1155 = -t1154;
         let t1156 = T::mul_add(-t18, t1126, t1155);
@@ -5075,8 +5333,8 @@ pub mod fma {
         let t1162 = T::mul_add(t17, t1152, -t1160);
         let t1164 = t18 * t1152;
         let t1165 = T::mul_add(t17, t1151, t1164);
-        let t1168 = T::mul_add(T::k(0.1845), t1120, t1147);
-        let t1169 = T::mul_add(T::k(0.1845), t1145, -t1134);
+        let t1168 = T::mul_add(lit::<T>(0.1845), t1120, t1147);
+        let t1169 = T::mul_add(lit::<T>(0.1845), t1145, -t1134);
         let t1171 = t17 * t1120;
         let t1172 = -t1171;
         let t1173 = T::mul_add(-t18, t1145, t1172);
@@ -5090,8 +5348,8 @@ pub mod fma {
         let t1188 = T::mul_add(-qd[4], t1156, t1176);
         let t1189 = T::mul_add(qd[4], t1165, t1179);
         let t1190 = T::mul_add(-qd[4], t1162, t1182);
-        let t1193 = T::mul_add(T::k(0.2155), t1159, t1162);
-        let t1194 = T::mul_add(-T::k(0.2155), t1156, t1165);
+        let t1193 = T::mul_add(lit::<T>(0.2155), t1159, t1162);
+        let t1194 = T::mul_add(-lit::<T>(0.2155), t1156, t1165);
         let t1196 = t20 * t1127;
         let t1197 = T::mul_add(t21, t1156, -t1196);
         let t1199 = t21 * t1127;
@@ -5102,8 +5360,8 @@ pub mod fma {
         let t1205 = t20 * t1193;
         let t1206 = -t1205;
         let t1208 = T::mul_add(-t21, t1130, t1206);
-        let t1211 = T::mul_add(T::k(0.2155), t1188, t1189);
-        let t1212 = T::mul_add(-T::k(0.2155), t1187, t1190);
+        let t1211 = T::mul_add(lit::<T>(0.2155), t1188, t1189);
+        let t1212 = T::mul_add(-lit::<T>(0.2155), t1187, t1190);
         let t1214 = t20 * t1146;
         let t1215 = T::mul_add(t21, t1187, t1214);
         let t1217 = t20 * t1148;
@@ -5113,8 +5371,8 @@ pub mod fma {
         let t1225 = T::mul_add(qd[5], t1201, t1215);
         let t1226 = T::mul_add(qd[5], t1208, t1218);
         let t1227 = T::mul_add(-qd[5], t1204, t1221);
-        let t1230 = T::mul_add(T::k(0.081), t1159, t1204);
-        let t1231 = T::mul_add(T::k(0.081), t1197, -t1194);
+        let t1230 = T::mul_add(lit::<T>(0.081), t1159, t1204);
+        let t1231 = T::mul_add(lit::<T>(0.081), t1197, -t1194);
         let t1233 = t24 * t1159;
         let t1234 = -t1233;
         let t1235 = T::mul_add(-t25, t1197, t1234);
@@ -5124,8 +5382,8 @@ pub mod fma {
         let t1241 = T::mul_add(t24, t1231, -t1239);
         let t1243 = t25 * t1231;
         let t1244 = T::mul_add(t24, t1230, t1243);
-        let t1247 = T::mul_add(T::k(0.081), t1188, t1226);
-        let t1248 = T::mul_add(T::k(0.081), t1225, -t1212);
+        let t1247 = T::mul_add(lit::<T>(0.081), t1188, t1226);
+        let t1248 = T::mul_add(lit::<T>(0.081), t1225, -t1212);
         let t1249 = t25 * t1247;
         let t1251 = T::mul_add(t24, t1248, -t1249);
         let t1253 = t25 * t1248;
@@ -5236,14 +5494,14 @@ pub mod fma {
         let t1391 = t13 * t88;
         let t1394 = T::mul_add(t14, qd[3], t1126);
         let t1395 = T::mul_add(-t13, qd[3], t1128);
-        let t1396 = t13 * T::k(0.1845);
+        let t1396 = t13 * lit::<T>(0.1845);
         let t1397 = t13 * t18;
         let t1398 = t13 * t17;
         let t1399 = t17 * t1396;
         let t1400 = t18 * t1396;
-        let t1401 = T::k(0.1845) * t51;
+        let t1401 = lit::<T>(0.1845) * t51;
         let t1403 = T::mul_add(t14, t88, -t1401);
-        let t1404 = T::mul_add(T::k(0.1845), t1394, -t1389);
+        let t1404 = T::mul_add(lit::<T>(0.1845), t1394, -t1389);
         let t1405 = t18 * t1394;
         let t1407 = T::mul_add(t17, t51, -t1405);
         let t1409 = t18 * t51;
@@ -5256,16 +5514,16 @@ pub mod fma {
         let t1422 = T::mul_add(qd[4], t1397, t1410);
         let t1423 = T::mul_add(qd[4], t1400, t1413);
         let t1424 = T::mul_add(-qd[4], t1399, t1416);
-        let t1427 = T::mul_add(T::k(0.2155), t1398, t1399);
-        let t1428 = T::mul_add(T::k(0.2155), t1397, t1400);
+        let t1427 = T::mul_add(lit::<T>(0.2155), t1398, t1399);
+        let t1428 = T::mul_add(lit::<T>(0.2155), t1397, t1400);
         let t1429 = t21 * t1397;
         let t1431 = T::mul_add(t14, t20, -t1429);
         let t1433 = t14 * t21;
         let t1434 = T::mul_add(t20, t1397, t1433);
         let t1435 = t21 * t1427;
         let t1436 = t20 * t1427;
-        let t1439 = T::mul_add(T::k(0.2155), t1422, t1423);
-        let t1440 = T::mul_add(-T::k(0.2155), t1421, t1424);
+        let t1439 = T::mul_add(lit::<T>(0.2155), t1422, t1423);
+        let t1440 = T::mul_add(-lit::<T>(0.2155), t1421, t1424);
         let t1442 = t20 * t1395;
         let t1443 = T::mul_add(t21, t1421, t1442);
         let t1445 = t20 * t1391;
@@ -5276,8 +5534,8 @@ pub mod fma {
         let t1454 = T::mul_add(qd[5], t1434, t1443);
         let t1455 = T::mul_add(-qd[5], t1436, t1446);
         let t1456 = T::mul_add(-qd[5], t1435, t1450);
-        let t1459 = T::mul_add(T::k(0.081), t1398, t1435);
-        let t1460 = T::mul_add(T::k(0.081), t1431, -t1428);
+        let t1459 = T::mul_add(lit::<T>(0.081), t1398, t1435);
+        let t1460 = T::mul_add(lit::<T>(0.081), t1431, -t1428);
         let t1462 = t24 * t1398;
         let t1463 = -t1462;
         let t1464 = T::mul_add(-t25, t1431, t1463);
@@ -5287,8 +5545,8 @@ pub mod fma {
         let t1470 = T::mul_add(t24, t1460, -t1468);
         let t1472 = t25 * t1460;
         let t1473 = T::mul_add(t24, t1459, t1472);
-        let t1476 = T::mul_add(T::k(0.081), t1422, t1455);
-        let t1477 = T::mul_add(T::k(0.081), t1454, -t1440);
+        let t1476 = T::mul_add(lit::<T>(0.081), t1422, t1455);
+        let t1477 = T::mul_add(lit::<T>(0.081), t1454, -t1440);
         let t1478 = t25 * t1476;
         let t1480 = T::mul_add(t24, t1477, -t1478);
         let t1482 = t25 * t1477;
@@ -5344,14 +5602,14 @@ pub mod fma {
         let t1547 = T::mul_add(qd[3], t1543, t106);
         let t1548 = t1545 - t111;
         let t1549 = t113 - t107;
-        let t1550 = T::k(0.1845) * t94;
+        let t1550 = lit::<T>(0.1845) * t94;
         let t1551 = t18 * t94;
         let t1552 = t17 * t94;
         let t1554 = t17 * t1550;
         let t1555 = T::mul_add(t18, t96, t1554);
         let t1556 = t17 * t96;
         let t1558 = T::mul_add(t18, t1550, -t1556);
-        let t1559 = T::k(0.1845) * t1547;
+        let t1559 = lit::<T>(0.1845) * t1547;
         let t1560 = t18 * t1547;
         let t1562 = t18 * t119;
         let t1564 = T::mul_add(t17, t1559, -t1562);
@@ -5362,8 +5620,8 @@ pub mod fma {
         let t1573 = T::mul_add(t17, t1547, t1569);
         let t1574 = T::mul_add(qd[4], t1558, t1564);
         let t1575 = T::mul_add(-qd[4], t1555, t1567);
-        let t1578 = T::mul_add(T::k(0.2155), t1552, t1555);
-        let t1579 = T::mul_add(T::k(0.2155), t1551, t1558);
+        let t1578 = T::mul_add(lit::<T>(0.2155), t1552, t1555);
+        let t1579 = T::mul_add(lit::<T>(0.2155), t1551, t1558);
         let t1580 = t21 * t1551;
         let t1582 = T::mul_add(t20, t1543, -t1580);
         let t1584 = t21 * t1543;
@@ -5374,8 +5632,8 @@ pub mod fma {
         let t1590 = -t1589;
         let t1591 = t21 * t95;
         let t1592 = t1590 - t1591;
-        let t1595 = T::mul_add(T::k(0.2155), t1573, t1574);
-        let t1596 = T::mul_add(-T::k(0.2155), t1572, t1575);
+        let t1595 = T::mul_add(lit::<T>(0.2155), t1573, t1574);
+        let t1596 = T::mul_add(-lit::<T>(0.2155), t1572, t1575);
         let t1598 = t20 * t1548;
         let t1599 = T::mul_add(t21, t1572, t1598);
         let t1601 = t20 * t1549;
@@ -5385,8 +5643,8 @@ pub mod fma {
         let t1609 = T::mul_add(qd[5], t1585, t1599);
         let t1610 = T::mul_add(qd[5], t1592, t1602);
         let t1611 = T::mul_add(-qd[5], t1588, t1605);
-        let t1614 = T::mul_add(T::k(0.081), t1552, t1588);
-        let t1615 = T::mul_add(T::k(0.081), t1582, -t1579);
+        let t1614 = T::mul_add(lit::<T>(0.081), t1552, t1588);
+        let t1615 = T::mul_add(lit::<T>(0.081), t1582, -t1579);
         let t1617 = t24 * t1552;
         let t1618 = -t1617;
         let t1619 = T::mul_add(-t25, t1582, t1618);
@@ -5396,8 +5654,8 @@ pub mod fma {
         let t1625 = T::mul_add(t24, t1615, -t1623);
         let t1627 = t25 * t1615;
         let t1628 = T::mul_add(t24, t1614, t1627);
-        let t1631 = T::mul_add(T::k(0.081), t1573, t1610);
-        let t1632 = T::mul_add(T::k(0.081), t1609, -t1596);
+        let t1631 = T::mul_add(lit::<T>(0.081), t1573, t1610);
+        let t1632 = T::mul_add(lit::<T>(0.081), t1609, -t1596);
         let t1633 = t25 * t1631;
         let t1635 = T::mul_add(t24, t1632, -t1633);
         let t1637 = t25 * t1632;
@@ -5486,20 +5744,20 @@ pub mod fma {
         let t1747 = T::mul_add(t346, t1670, t1746);
         let t1748 = t1744 + t1747;
         dacc_dq[0][2][3] = t1748;
-        let t1750 = t18 * T::k(-0.1845);
-        let t1751 = t17 * T::k(-0.1845);
+        let t1750 = t18 * lit::<T>(-0.1845);
+        let t1751 = t17 * lit::<T>(-0.1845);
         let t1756 = T::mul_add(t18, qd[4], -t1551);
         let t1757 = T::mul_add(-t17, qd[4], t1552);
         let t1758 = T::mul_add(qd[4], t1751, t1555);
         let t1759 = T::mul_add(qd[4], t1750, t1558);
-        let t1762 = T::mul_add(T::k(0.2155), t18, -t1750);
-        let t1763 = T::mul_add(-T::k(0.2155), t17, t1751);
+        let t1762 = T::mul_add(lit::<T>(0.2155), t18, -t1750);
+        let t1763 = T::mul_add(-lit::<T>(0.2155), t17, t1751);
         let t1764 = t17 * t21;
         let t1765 = t17 * t20;
         let t1766 = t21 * t1762;
         let t1767 = t20 * t1762;
-        let t1770 = T::mul_add(T::k(0.2155), t1757, t1758);
-        let t1771 = T::mul_add(-T::k(0.2155), t1756, t1759);
+        let t1770 = T::mul_add(lit::<T>(0.2155), t1757, t1758);
+        let t1771 = T::mul_add(-lit::<T>(0.2155), t1756, t1759);
         let t1773 = t20 * t91;
         let t1774 = T::mul_add(t21, t1756, -t1773);
         let t1776 = T::mul_add(t21, t1770, -t1587);
@@ -5508,8 +5766,8 @@ pub mod fma {
         let t1783 = T::mul_add(-qd[5], t1765, t1774);
         let t1784 = T::mul_add(-qd[5], t1767, t1776);
         let t1785 = T::mul_add(-qd[5], t1766, t1779);
-        let t1788 = T::mul_add(t18, T::k(0.081), t1766);
-        let t1789 = T::mul_add(T::k(0.081), t1764, -t1763);
+        let t1788 = T::mul_add(t18, lit::<T>(0.081), t1766);
+        let t1789 = T::mul_add(lit::<T>(0.081), t1764, -t1763);
         let t1791 = t18 * t24;
         let t1792 = -t1791;
         let t1793 = T::mul_add(-t25, t1764, t1792);
@@ -5519,8 +5777,8 @@ pub mod fma {
         let t1799 = T::mul_add(t24, t1789, -t1797);
         let t1801 = t25 * t1789;
         let t1802 = T::mul_add(t24, t1788, t1801);
-        let t1805 = T::mul_add(T::k(0.081), t1757, t1784);
-        let t1806 = T::mul_add(T::k(0.081), t1783, -t1771);
+        let t1805 = T::mul_add(lit::<T>(0.081), t1757, t1784);
+        let t1806 = T::mul_add(lit::<T>(0.081), t1783, -t1771);
         let t1807 = t25 * t1805;
         let t1809 = T::mul_add(t24, t1806, -t1807);
         let t1811 = t25 * t1806;
@@ -5577,14 +5835,14 @@ pub mod fma {
         let t1878 = t1873 - t153;
         let t1879 = T::mul_add(qd[4], t1872, t151);
         let t1880 = t1874 - t155;
-        let t1882 = T::mul_add(T::k(0.2155), t1871, t135);
+        let t1882 = T::mul_add(lit::<T>(0.2155), t1871, t135);
         let t1883 = t1872 - t162;
         let t1884 = t21 * t129;
         let t1885 = t20 * t129;
         let t1886 = t21 * t1882;
         let t1887 = t20 * t1882;
-        let t1890 = T::mul_add(T::k(0.2155), t1878, t1879);
-        let t1891 = T::mul_add(-T::k(0.2155), t1877, t1880);
+        let t1890 = T::mul_add(lit::<T>(0.2155), t1878, t1879);
+        let t1891 = T::mul_add(-lit::<T>(0.2155), t1877, t1880);
         let t1894 = t20 * t1890;
         let t1895 = -t1894;
         let t1896 = qd[5] * t1885;
@@ -5592,8 +5850,8 @@ pub mod fma {
         let t1899 = T::mul_add(t21, t1877, -t1896);
         let t1900 = T::mul_add(t21, t1890, -t1897);
         let t1901 = T::mul_add(-qd[5], t1886, t1895);
-        let t1904 = T::mul_add(T::k(0.081), t1871, t1886);
-        let t1905 = T::mul_add(T::k(0.081), t1884, -t1883);
+        let t1904 = T::mul_add(lit::<T>(0.081), t1871, t1886);
+        let t1905 = T::mul_add(lit::<T>(0.081), t1884, -t1883);
         let t1907 = t24 * t1871;
         let t1908 = -t1907;
         let t1909 = T::mul_add(-t25, t1884, t1908);
@@ -5603,8 +5861,8 @@ pub mod fma {
         let t1915 = T::mul_add(t24, t1905, -t1913);
         let t1917 = t25 * t1905;
         let t1918 = T::mul_add(t24, t1904, t1917);
-        let t1921 = T::mul_add(T::k(0.081), t1878, t1900);
-        let t1922 = T::mul_add(T::k(0.081), t1899, -t1891);
+        let t1921 = T::mul_add(lit::<T>(0.081), t1878, t1900);
+        let t1922 = T::mul_add(lit::<T>(0.081), t1899, -t1891);
         let t1923 = t25 * t1921;
         let t1925 = T::mul_add(t24, t1922, -t1923);
         let t1927 = t25 * t1922;
@@ -5683,14 +5941,14 @@ pub mod fma {
         let t2020 = -t132;
         let t2021 = t2020 - t162;
         let t2025 = T::mul_add(t21, qd[5], t1884);
-        let t2026 = t20 * T::k(0.081);
+        let t2026 = t20 * lit::<T>(0.081);
         let t2027 = t20 * t25;
         let t2028 = t20 * t24;
         let t2029 = t24 * t2026;
         let t2030 = t25 * t2026;
-        let t2031 = T::k(0.081) * t126;
+        let t2031 = lit::<T>(0.081) * t126;
         let t2033 = T::mul_add(t21, t165, -t2031);
-        let t2034 = T::mul_add(T::k(0.081), t2025, -t2021);
+        let t2034 = T::mul_add(lit::<T>(0.081), t2025, -t2021);
         let t2035 = t25 * t2033;
         let t2037 = T::mul_add(t24, t2034, -t2035);
         let t2039 = t25 * t2034;
@@ -5740,14 +5998,14 @@ pub mod fma {
         let t2096 = T::mul_add(qd[5], t2090, t188);
         let t2097 = T::mul_add(qd[5], t2091, t194);
         let t2098 = t2093 - t197;
-        let t2099 = T::k(0.081) * t171;
+        let t2099 = lit::<T>(0.081) * t171;
         let t2100 = t25 * t171;
         let t2101 = t24 * t171;
         let t2102 = t25 * t178;
         let t2104 = T::mul_add(t24, t2099, -t2102);
         let t2105 = t24 * t178;
         let t2107 = T::mul_add(t25, t2099, t2105);
-        let t2108 = T::k(0.081) * t2096;
+        let t2108 = lit::<T>(0.081) * t2096;
         let t2109 = t25 * t2097;
         let t2111 = T::mul_add(t24, t2108, -t2109);
         let t2113 = t25 * t2108;
@@ -5811,8 +6069,8 @@ pub mod fma {
         let t2186 = T::mul_add(t346, t2124, t2185);
         let t2187 = t2183 + t2186;
         dacc_dq[0][2][5] = t2187;
-        let t2189 = t25 * T::k(-0.081);
-        let t2190 = t24 * T::k(-0.081);
+        let t2189 = t25 * lit::<T>(-0.081);
+        let t2190 = t24 * lit::<T>(-0.081);
         let t2193 = T::mul_add(qd[6], t2190, t2104);
         let t2194 = T::mul_add(qd[6], t2189, t2107);
         let t2196 = T::mul_add(-t229, t2190, t2102);

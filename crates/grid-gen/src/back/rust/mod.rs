@@ -19,7 +19,8 @@ fn api_doc<'a>(kernels: impl Iterator<Item = &'a Function>) -> String {
     let mut s = String::from(
         "Everything in this module is specialised to one robot. Vectors are `[T; NV]` in the order of\n\
          `JOINT_NAMES`; matrices are `[[T; NV]; NV]`, row-major, `m[i][j] = d out_i / d in_j`. `T` is `f64`\n\
-         or `f32` (see [`Real`]), or `Lanes<N>` (`Lanes<N, f32>`) for N states per call. Gravity is fixed at generation\n\
+         or `f32` (see [`Real`]), or several states per call: `F64x4` and `F32x8` (one AVX register, on x86-64 with AVX2\n\
+         and FMA; the fastest per state) or the portable `Lanes<N>` (`Lanes<N, f32>`). Gravity is fixed at generation\n\
          time (`GRAVITY`).\n\n",
     );
     for k in kernels {
@@ -59,7 +60,7 @@ fn literal(c: f64) -> String {
 
 fn operand(k: &Function, names: &Chunks, here: usize, id: Id) -> String {
     match k.op(id) {
-        Op::Const(c) => format!("T::k({})", literal(c)),
+        Op::Const(c) => format!("lit::<T>({})", literal(c)),
         Op::Input(which, j) => format!("{}[{j}]", which.name()),
         _ if names.chunk_of[id.0 as usize] == Some(here as u32) => format!("t{}", id.0),
         _ => format!(
@@ -303,7 +304,7 @@ fn emit_kernel(
                 // The matrices start at zero.
                 match *o {
                     Operand::Const(0.0) => {}
-                    Operand::Const(c) => fixups.push(format!("{place} = T::k({});", literal(c))),
+                    Operand::Const(c) => fixups.push(format!("{place} = lit::<T>({});", literal(c))),
                     Operand::Node(id) | Operand::Neg(id) => {
                         match k.op(id) {
                             Op::Const(0.0) => continue,
@@ -351,17 +352,19 @@ fn emit_kernel(
         "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]"
     );
     let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
+    // The outputs start from the checked `T::k`, before anything else runs: for the SIMD
+    // types that is the CPU check which makes every later `lit` sound (see the prelude).
     for o in &k.outputs {
         let init = array_of(o.shape, "T::k(0.0)");
         let _ = writeln!(out, "let mut {} = {init};", o.name);
     }
     for m in &operand_mats {
-        let _ = writeln!(out, "let mut {m} = [[T::k(0.0); NV]; NV];");
+        let _ = writeln!(out, "let mut {m} = [[lit::<T>(0.0); NV]; NV];");
     }
     if chunks.len() == 1 {
         out.push_str(&body(0, &chunks[0]));
     } else {
-        let _ = writeln!(out, "let mut s = [T::k(0.0); {}];", names.slots);
+        let _ = writeln!(out, "let mut s = [lit::<T>(0.0); {}];", names.slots);
         let outs: Vec<String> = k
             .outputs
             .iter()
@@ -425,7 +428,7 @@ fn emit_product_loop(
     let accs: Vec<String> = (0..p.dc.len()).map(|i| format!("r{i}")).collect();
     let _ = writeln!(out, "for i in 0..NV {{");
     for a in &accs {
-        let _ = writeln!(out, "let mut {a} = [T::k(0.0); NV];");
+        let _ = writeln!(out, "let mut {a} = [lit::<T>(0.0); NV];");
     }
     let _ = writeln!(out, "for j in 0..NV {{\nlet m = {}[i][j];\nfor c in 0..NV {{", mats[0]);
     for (a, d) in accs.iter().zip(&mats[1..]) {
@@ -441,7 +444,7 @@ fn emit_product_loop(
             if let Op::Const(c) = k.op(id) {
                 let _ = writeln!(
                     out,
-                    "{}[{}][{}] = T::k({});",
+                    "{}[{}][{}] = lit::<T>({});",
                     k.outputs[o].name,
                     flat / nv,
                     flat % nv,
@@ -569,8 +572,15 @@ const PRELUDE: &str = r#"
 /// The scalar types the kernels run in: `f64` (exact to round-off) and `f32`.
 #[allow(dead_code)]
 pub trait Real: Copy + core::ops::Add<Output = Self> + core::ops::Sub<Output = Self> + core::ops::Mul<Output = Self> + core::ops::Div<Output = Self> + core::ops::Neg<Output = Self> {
-    /// A constant of the robot, rounded to this type.
+    /// A constant of the robot, rounded to this type (for the SIMD types, it checks that this
+    /// CPU runs them, and panics where it does not).
     fn k(x: f64) -> Self;
+    /// `k` without its check of the CPU, for the kernels' constants.
+    ///
+    /// # Safety
+    /// This CPU runs `Self`'s operations (for `f64`, `f32` and `Lanes`, always).
+    #[inline(always)]
+    unsafe fn lit(x: f64) -> Self { Self::k(x) }
     fn sin(self) -> Self;
     fn cos(self) -> Self;
     /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
@@ -600,12 +610,22 @@ impl Real for f32 {
     fn cos(self) -> Self { f32::cos(self) }
 }
 
+/// A constant in the kernels: `Real::lit`, sound here because every kernel first fills its
+/// outputs with the checked `T::k`, so this runs only where the CPU runs `T`'s operations.
+#[inline(always)]
+#[allow(dead_code)]
+fn lit<T: Real>(x: f64) -> T {
+    // SAFETY: see above; only this module's kernels call it, after that check.
+    unsafe { T::lit(x) }
+}
+
 /// `N` states evaluated by one call, one per lane (`q[j].0[l]` is joint j of state l), for
 /// sweeping many knot points: every lane runs exactly the operations of a scalar call in its
 /// scalar type `S` (of the same copy, `portable` or `fma`), so results are bit-identical, and
-/// the compiler can put the lanes in SIMD registers. `Lanes<4>` is four f64 states (a ymm
-/// register in the `fma` copy); `Lanes<8, f32>` eight f32 states in one ymm, and
-/// `Lanes<16, f32>` sixteen in one zmm of the AVX-512 copy, where it is generated.
+/// the compiler can put the lanes in SIMD registers, which it does only in part (it spills
+/// the rest): on x86-64 with AVX2 and FMA, `F64x4` and `F32x8` compute the same bits with
+/// one vector instruction per operation, two to three times faster per state. `Lanes` runs
+/// on any target and at any width.
 #[derive(Clone, Copy, Debug, PartialEq)]
 #[allow(dead_code)]
 pub struct Lanes<const N: usize, S = f64>(pub [S; N]);
@@ -659,6 +679,150 @@ impl<const N: usize, S: Real> Real for Lanes<N, S> {
     fn cos(self) -> Self { Lanes(self.0.map(S::cos)) }
 }
 "#;
+
+/// One explicit SIMD type of the prelude: `lanes` values of `scalar` in one `bits`-bit
+/// register, for the copy whose CPU check is `check`.
+struct Simd {
+    name: &'static str,
+    scalar: &'static str,
+    lanes: usize,
+    bits: u32,
+    check: &'static str,
+    needs: &'static str,
+}
+
+/// The SIMD types: with `avx512`, also the 512-bit ones (only such a module has a copy that
+/// compiles their operations inline).
+fn simd_types(avx512: bool) -> String {
+    let mut types = vec![
+        Simd { name: "F64x4", scalar: "f64", lanes: 4, bits: 256, check: "has_fma", needs: "AVX2 and FMA" },
+        Simd { name: "F32x8", scalar: "f32", lanes: 8, bits: 256, check: "has_fma", needs: "AVX2 and FMA" },
+    ];
+    if avx512 {
+        types.push(Simd { name: "F64x8", scalar: "f64", lanes: 8, bits: 512, check: "has_avx512", needs: "AVX-512 F and VL, AVX2 and FMA" });
+        types.push(Simd { name: "F32x16", scalar: "f32", lanes: 16, bits: 512, check: "has_avx512", needs: "AVX-512 F and VL, AVX2 and FMA" });
+    }
+    let mut out = String::new();
+    for t in &types {
+        let Simd { name, scalar, lanes, bits, check, needs } = *t;
+        let (suffix, reg) = match scalar {
+            "f64" => ("pd", format!("__m{bits}d")),
+            _ => ("ps", format!("__m{bits}")),
+        };
+        let op = |o: &str| format!("core::arch::x86_64::_mm{bits}_{o}_{suffix}");
+        let bin = |tr: &str, f: &str, o: &str| {
+            format!(
+                "#[cfg(target_arch = \"x86_64\")]\nimpl core::ops::{tr} for {name} {{\ntype Output = Self;\n#[inline(always)]\n\
+                 fn {f}(self, b: Self) -> Self {{\n// SAFETY: a {name} exists only where the CPU runs it (every constructor checks).\n\
+                 {name}(unsafe {{ {}(self.0, b.0) }})\n}}\n}}\n",
+                op(o)
+            )
+        };
+        let _ = write!(
+            out,
+            "
+/// {lanes} {scalar} states per call in one {bits}-bit register (`{reg}`): what `Lanes<{lanes}{ty}>` computes,
+/// bit for bit, but each operation is one vector instruction, where `Lanes` leaves the
+/// vectorising to the compiler (which does part of it, and spills the rest). Runs where
+/// the CPU has {needs} ([`{check}`]): every way to make one checks, so a value of this type
+/// is proof of that. Through the dispatching functions it runs in the copy that compiles
+/// its operations inline; elsewhere each operation is a call (correct, slow).
+#[cfg(target_arch = \"x86_64\")]
+#[derive(Clone, Copy)]
+#[repr(transparent)]
+#[allow(dead_code)]
+pub struct {name}(core::arch::x86_64::{reg});
+
+#[cfg(target_arch = \"x86_64\")]
+#[allow(dead_code)]
+impl {name} {{
+    /// States in one value.
+    pub const LANES: usize = {lanes};
+    /// Whether this CPU runs `{name}`: x86-64 with {needs}.
+    #[inline]
+    pub fn supported() -> bool {{
+        {check}()
+    }}
+    /// The lanes as one value, or `None` where this CPU does not run `{name}`.
+    #[inline]
+    pub fn new(lanes: [{scalar}; {lanes}]) -> Option<Self> {{
+        if Self::supported() {{ Some(Self::unchecked(lanes)) }} else {{ None }}
+    }}
+    #[inline(always)]
+    fn unchecked(lanes: [{scalar}; {lanes}]) -> Self {{
+        // SAFETY: the same size, and every bit pattern is a valid value of both.
+        {name}(unsafe {{ core::mem::transmute::<[{scalar}; {lanes}], core::arch::x86_64::{reg}>(lanes) }})
+    }}
+    /// The lanes.
+    #[inline(always)]
+    pub fn to_array(self) -> [{scalar}; {lanes}] {{
+        // SAFETY: as in `unchecked`.
+        unsafe {{ core::mem::transmute::<core::arch::x86_64::{reg}, [{scalar}; {lanes}]>(self.0) }}
+    }}
+}}
+
+#[cfg(target_arch = \"x86_64\")]
+impl core::fmt::Debug for {name} {{
+    fn fmt(&self, f: &mut core::fmt::Formatter<'_>) -> core::fmt::Result {{
+        f.debug_tuple(\"{name}\").field(&self.to_array()).finish()
+    }}
+}}
+
+#[cfg(target_arch = \"x86_64\")]
+impl PartialEq for {name} {{
+    fn eq(&self, b: &Self) -> bool {{
+        self.to_array() == b.to_array()
+    }}
+}}
+{}{}{}{}
+/// Negation is `-0 - x`: exact, and the same bits as the scalar `-x` for every number.
+#[cfg(target_arch = \"x86_64\")]
+impl core::ops::Neg for {name} {{
+    type Output = Self;
+    #[inline(always)]
+    fn neg(self) -> Self {{
+        // SAFETY: as for the other operations.
+        {name}(unsafe {{ {}({}(-0.0), self.0) }})
+    }}
+}}
+
+#[cfg(target_arch = \"x86_64\")]
+impl Real for {name} {{
+    #[inline]
+    fn k(x: f64) -> Self {{
+        {name}::new([x as {scalar}; {lanes}]).expect(\"{name} needs a CPU with {needs} ({name}::supported)\")
+    }}
+    #[inline(always)]
+    unsafe fn lit(x: f64) -> Self {{
+        {name}::unchecked([x as {scalar}; {lanes}])
+    }}
+    #[inline(always)]
+    fn mul_add(self, a: Self, b: Self) -> Self {{
+        // SAFETY: as for the other operations.
+        {name}(unsafe {{ {}(self.0, a.0, b.0) }})
+    }}
+    #[inline(always)]
+    fn sin(self) -> Self {{
+        {name}::unchecked(self.to_array().map({scalar}::sin))
+    }}
+    #[inline(always)]
+    fn cos(self) -> Self {{
+        {name}::unchecked(self.to_array().map({scalar}::cos))
+    }}
+}}
+",
+            bin("Add", "add", "add"),
+            bin("Sub", "sub", "sub"),
+            bin("Mul", "mul", "mul"),
+            bin("Div", "div", "div"),
+            op("sub"),
+            op("set1"),
+            op("fmadd"),
+            ty = if scalar == "f64" { "" } else { ", f32" },
+        );
+    }
+    out
+}
 
 /// The Rust file for `module`: `<stem>.rs`, formatted, with its header.
 /// Why the Rust backend could not print a module.
@@ -766,6 +930,7 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
     if options.avx512 {
         out.push_str(HAS_AVX512);
     }
+    out.push_str(&simd_types(options.avx512));
     for k in &module.functions {
         emit_dispatcher(&mut out, k, q_len(robot), options.avx512);
     }
