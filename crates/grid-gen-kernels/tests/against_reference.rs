@@ -190,9 +190,10 @@ macro_rules! lanes_match_scalar_calls {
         let mut rng = Rng($seed);
         let st: Vec<_> = states(&model, &mut rng).into_iter().take($lanes).collect();
         assert_eq!(st.len(), $lanes);
-        let lane = |f: &dyn Fn(&(String, Vec<f64>, Vec<f64>, Vec<f64>)) -> &Vec<f64>| -> [$t; k::NV] {
-            std::array::from_fn(|j| wrap(std::array::from_fn(|l| to(f(&st[l])[j]))))
-        };
+        let lane =
+            |f: &dyn Fn(&(String, Vec<f64>, Vec<f64>, Vec<f64>)) -> &Vec<f64>| -> [$t; k::NV] {
+                std::array::from_fn(|j| wrap(std::array::from_fn(|l| to(f(&st[l])[j]))))
+            };
         let (q, qd, u) = (lane(&|s| &s.1), lane(&|s| &s.2), lane(&|s| &s.3));
         macro_rules! check {
             ($c:path) => {{

@@ -277,12 +277,12 @@ impl core::ops::Neg for F64x4 {
 impl Real for F64x4 {
     #[inline]
     fn k(x: f64) -> Self {
-        F64x4::new([x as f64; 4])
+        F64x4::new([x; 4])
             .expect("F64x4 needs a CPU with AVX2 and FMA (F64x4::supported)")
     }
     #[inline(always)]
     unsafe fn lit(x: f64) -> Self {
-        F64x4::unchecked([x as f64; 4])
+        F64x4::unchecked([x; 4])
     }
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {

@@ -304,7 +304,9 @@ fn emit_kernel(
                 // The matrices start at zero.
                 match *o {
                     Operand::Const(0.0) => {}
-                    Operand::Const(c) => fixups.push(format!("{place} = lit::<T>({});", literal(c))),
+                    Operand::Const(c) => {
+                        fixups.push(format!("{place} = lit::<T>({});", literal(c)))
+                    }
                     Operand::Node(id) | Operand::Neg(id) => {
                         match k.op(id) {
                             Op::Const(0.0) => continue,
@@ -695,12 +697,40 @@ struct Simd {
 /// compiles their operations inline).
 fn simd_types(avx512: bool) -> String {
     let mut types = vec![
-        Simd { name: "F64x4", scalar: "f64", lanes: 4, bits: 256, check: "has_fma", needs: "AVX2 and FMA" },
-        Simd { name: "F32x8", scalar: "f32", lanes: 8, bits: 256, check: "has_fma", needs: "AVX2 and FMA" },
+        Simd {
+            name: "F64x4",
+            scalar: "f64",
+            lanes: 4,
+            bits: 256,
+            check: "has_fma",
+            needs: "AVX2 and FMA",
+        },
+        Simd {
+            name: "F32x8",
+            scalar: "f32",
+            lanes: 8,
+            bits: 256,
+            check: "has_fma",
+            needs: "AVX2 and FMA",
+        },
     ];
     if avx512 {
-        types.push(Simd { name: "F64x8", scalar: "f64", lanes: 8, bits: 512, check: "has_avx512", needs: "AVX-512 F and VL, AVX2 and FMA" });
-        types.push(Simd { name: "F32x16", scalar: "f32", lanes: 16, bits: 512, check: "has_avx512", needs: "AVX-512 F and VL, AVX2 and FMA" });
+        types.push(Simd {
+            name: "F64x8",
+            scalar: "f64",
+            lanes: 8,
+            bits: 512,
+            check: "has_avx512",
+            needs: "AVX-512 F and VL, AVX2 and FMA",
+        });
+        types.push(Simd {
+            name: "F32x16",
+            scalar: "f32",
+            lanes: 16,
+            bits: 512,
+            check: "has_avx512",
+            needs: "AVX-512 F and VL, AVX2 and FMA",
+        });
     }
     let mut out = String::new();
     for t in &types {
@@ -790,11 +820,11 @@ impl core::ops::Neg for {name} {{
 impl Real for {name} {{
     #[inline]
     fn k(x: f64) -> Self {{
-        {name}::new([x as {scalar}; {lanes}]).expect(\"{name} needs a CPU with {needs} ({name}::supported)\")
+        {name}::new([x{cast}; {lanes}]).expect(\"{name} needs a CPU with {needs} ({name}::supported)\")
     }}
     #[inline(always)]
     unsafe fn lit(x: f64) -> Self {{
-        {name}::unchecked([x as {scalar}; {lanes}])
+        {name}::unchecked([x{cast}; {lanes}])
     }}
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {{
@@ -819,6 +849,7 @@ impl Real for {name} {{
             op("set1"),
             op("fmadd"),
             ty = if scalar == "f64" { "" } else { ", f32" },
+            cast = if scalar == "f64" { "" } else { " as f32" },
         );
     }
     out
