@@ -111,7 +111,6 @@ for robot in ["grid_iiwa", "grid_hyq", "grid_atlas"]:
         if kernel in ("rnea_grad", "fd_grad"):
             g = ns(robot, f"generated/portable/{kernel}")
             print(f"| {robot} | {kernel}, portable copy (no FMA) | {fmt(g)} | {fmt(r)} | {fmt(p)} | {fmt(c) if c else '-'} | {r / g:.1f}x | {ratio(p, g)} | {ratio(c, g)} |")
-        if kernel in ("rnea_grad", "fd_grad"):
             for label, bench, lanes in (("2 states per call", "lanes2", 2), ("4 states per call", "lanes4", 4), ("`F64x4` (4 states in one AVX register)", "f64x4", 4)):
                 # Atlas has no Lanes rows (LLVM takes too long over them; see kernels.rs).
                 g = ns(robot, f"generated/{kernel}_{bench}", missing_ok=bench == "f64x4" or robot == "grid_atlas")

@@ -192,27 +192,21 @@ macro_rules! bench_lanes {
 /// in about a minute.
 macro_rules! bench_f64x4 {
     ($c:expr, $m:ident, $stem:literal) => {{
-        (|| {
-            use grid_gen_kernels::$m as k;
-            const N: usize = k::NV;
-            // None where the CPU lacks AVX2 and FMA: then there are no F64x4 rows.
-            let x4: Option<Vec<[[k::F64x4; N]; 3]>> = (0..STATES)
+        use grid_gen_kernels::$m as k;
+        const N: usize = k::NV;
+        if !k::F64x4::supported() {
+            eprintln!("note: this CPU has no AVX2 and FMA: no F64x4 rows for {}", $stem);
+        } else {
+            let x4: Vec<[[k::F64x4; N]; 3]> = (0..STATES)
                 .map(|j| {
-                    let mut x = [[k::F64x4::new([0.0; 4])?; N]; 3];
-                    for (salt, v) in x.iter_mut().enumerate() {
-                        for (i, e) in v.iter_mut().enumerate() {
-                            *e = k::F64x4::new(std::array::from_fn(|l| {
-                                state(j + l * STATES, i, salt)
-                            }))?;
-                        }
-                    }
-                    Some(x)
+                    std::array::from_fn(|salt| {
+                        std::array::from_fn(|i| {
+                            k::F64x4::new(std::array::from_fn(|l| state(j + l * STATES, i, salt)))
+                                .expect("supported: checked above")
+                        })
+                    })
                 })
                 .collect();
-            let Some(x4) = x4 else {
-                eprintln!("note: this CPU has no AVX2 and FMA: no F64x4 rows for {}", $stem);
-                return;
-            };
             let mut group = $c.benchmark_group($stem);
             let mut j = 0usize;
             let mut next = || {
@@ -232,7 +226,7 @@ macro_rules! bench_f64x4 {
                 })
             });
             group.finish();
-        })()
+        }
     }};
 }
 

@@ -682,59 +682,18 @@ impl<const N: usize, S: Real> Real for Lanes<N, S> {
 }
 "#;
 
-/// One explicit SIMD type of the prelude: `lanes` values of `scalar` in one `bits`-bit
-/// register, for the copy whose CPU check is `check`.
-struct Simd {
-    name: &'static str,
-    scalar: &'static str,
-    lanes: usize,
-    bits: u32,
-    check: &'static str,
-    needs: &'static str,
-}
-
-/// The SIMD types: with `avx512`, also the 512-bit ones (only such a module has a copy that
-/// compiles their operations inline).
+/// The SIMD types, each a scalar type and a register width: with `avx512`, also the 512-bit
+/// ones (only such a module has a copy that compiles their operations inline).
 fn simd_types(avx512: bool) -> String {
-    let mut types = vec![
-        Simd {
-            name: "F64x4",
-            scalar: "f64",
-            lanes: 4,
-            bits: 256,
-            check: "has_fma",
-            needs: "AVX2 and FMA",
-        },
-        Simd {
-            name: "F32x8",
-            scalar: "f32",
-            lanes: 8,
-            bits: 256,
-            check: "has_fma",
-            needs: "AVX2 and FMA",
-        },
-    ];
-    if avx512 {
-        types.push(Simd {
-            name: "F64x8",
-            scalar: "f64",
-            lanes: 8,
-            bits: 512,
-            check: "has_avx512",
-            needs: "AVX-512 F and VL, AVX2 and FMA",
-        });
-        types.push(Simd {
-            name: "F32x16",
-            scalar: "f32",
-            lanes: 16,
-            bits: 512,
-            check: "has_avx512",
-            needs: "AVX-512 F and VL, AVX2 and FMA",
-        });
-    }
+    let widths: &[u32] = if avx512 { &[256, 512] } else { &[256] };
     let mut out = String::new();
-    for t in &types {
-        let Simd { name, scalar, lanes, bits, check, needs } = *t;
+    for (scalar, bits) in widths.iter().flat_map(|&b| [("f64", b), ("f32", b)]) {
+        let lanes = bits / if scalar == "f64" { 64 } else { 32 };
+        let name = format!("F{}x{lanes}", &scalar[1..]);
+        let (check, needs) = match bits {
+            256 => ("has_fma", "AVX2 and FMA"),
+            _ => ("has_avx512", "AVX-512 F and VL, AVX2 and FMA"),
+        };
         let (suffix, reg) = match scalar {
             "f64" => ("pd", format!("__m{bits}d")),
             _ => ("ps", format!("__m{bits}")),
