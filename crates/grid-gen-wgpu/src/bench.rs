@@ -2,11 +2,12 @@
 //! the dispatch alone (inputs already on the device, waiting for completion) and of the
 //! whole round trip (upload, dispatch, read back), so both throughput and the latency a
 //! host sees are reported; and, where the adapter has timestamp queries, the device's own
-//! time for the compute pass, which a one-state latency is about.
+//! time for the compute pass, which a one-state latency is about; the round trip's phases;
+//! and the floor under every dispatch, an empty submission and its wait.
 
 use std::time::{Duration, Instant};
 
-use crate::{Gpu, GpuError, Kernel};
+use crate::{Gpu, GpuError, Kernel, Maps, Phases};
 
 #[derive(Clone, Copy, Debug)]
 pub struct Timing {
@@ -23,6 +24,8 @@ pub struct Timing {
     /// Median time of the same with the batch's buffers and bind groups allocated anew on
     /// each call ([`Gpu::run`]).
     pub fresh_round_trip: Duration,
+    /// Medians of the round trip's phases, each over the same repetitions.
+    pub phases: Phases,
     pub repetitions: usize,
     /// Dispatches the batch takes.
     pub dispatches: usize,
@@ -71,7 +74,22 @@ pub fn time(
     device.sort();
     let device = device.get(device.len() / 2).copied();
     let mut out = vec![0.0; batch.len() * kernel.entry.outputs];
-    let (round_trip, _) = median(5, budget, || gpu.run_on(&batch, q, qd, u, &mut out))?;
+    let mut each = Vec::new();
+    let (round_trip, _) = median(5, budget, || {
+        each.push(gpu.run_on_timed(&batch, q, qd, u, &mut out)?);
+        Ok(())
+    })?;
+    let mid = |f: fn(&Phases) -> Duration| {
+        let mut t: Vec<Duration> = each.iter().map(f).collect();
+        t.sort();
+        t[t.len() / 2]
+    };
+    let phases = Phases {
+        stage_in: mid(|p| p.stage_in),
+        submit_wait: mid(|p| p.submit_wait),
+        copy_out: mid(|p| p.copy_out),
+        convert_out: mid(|p| p.convert_out),
+    };
     let (fresh_round_trip, _) = median(5, budget, || gpu.run(kernel, q, qd, u).map(|_| ()))?;
     Ok(Timing {
         states: batch.len(),
@@ -79,9 +97,22 @@ pub fn time(
         device,
         round_trip,
         fresh_round_trip,
+        phases,
         repetitions,
         dispatches: batch.dispatches(),
     })
+}
+
+/// The median time of an empty submission and the wait for it, after a warm-up: the
+/// floor under every dispatch as the host sees it (the API's and the driver's submission,
+/// the fence, the poll), whatever the kernel.
+pub fn submission_floor(gpu: &Gpu, budget: Duration) -> Result<Duration, GpuError> {
+    let mut submit = || {
+        gpu.queue.submit([gpu.device.create_command_encoder(&Default::default()).finish()]);
+        gpu.wait(&Maps::default())
+    };
+    median(1, budget, &mut submit)?;
+    Ok(median(5, budget, submit)?.0)
 }
 
 /// Why `grid-gen bench` could not time the WGSL kernels.
@@ -112,9 +143,13 @@ pub fn table(
     let source = grid_gen::back::wgsl::emit(module, options)?.contents;
     let t = Instant::now();
     let shader = gpu.load(&source)?;
+    let budget = Duration::from_secs_f64(seconds);
+    let floor = submission_floor(gpu, budget)?;
     let mut report = format!(
-        "adapter: {}\nrobot: {} ({} joints), {}, trig {}; shader module {:.2?}\n",
+        "adapter: {}; empty submission and wait {:.1} us\nrobot: {} ({} joints), {}, trig {}; \
+         shader module {:.2?}\n",
         gpu.adapter(),
+        floor.as_secs_f64() * 1e6,
         module.robot.name,
         module.robot.nv(),
         options.precision.name(),
@@ -123,7 +158,7 @@ pub fn table(
     );
     let _ = writeln!(
         report,
-        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14} {:>14}",
+        "{:<12} {:<12} {:>7} {:>4} {:>14} {:>12} {:>14} {:>16} {:>14} {:>14} {:>9} {:>9} {:>9} {:>9}",
         "kernel",
         "strategy",
         "N",
@@ -133,7 +168,11 @@ pub fn table(
         "states/s",
         "round-trip us",
         "fresh rt us",
-        "device us"
+        "device us",
+        "in us",
+        "wait us",
+        "copy us",
+        "f64 us"
     );
     // q has nq entries per state (a floating base's or spherical joint's quaternion, which
     // the kernels scale by 1/|q|²), velocities and torques nv.
@@ -152,7 +191,6 @@ pub fn table(
     // `u` per kernel: nv torques or accelerations, the actuated joints' count for the step,
     // nv plus the forces where the robot declares them (`Kernel::nu` per state).
     let mut u: Vec<f64> = Vec::new();
-    let budget = Duration::from_secs_f64(seconds);
     for f in &module.functions {
         for &strategy in &options.strategies {
             let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name()))?;
@@ -174,7 +212,8 @@ pub fn table(
                     t.device.map_or("-".to_string(), |d| format!("{:.1}", d.as_secs_f64() * 1e6));
                 let _ = writeln!(
                     report,
-                    "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1} {:>14.1} {:>14}",
+                    "{:<12} {:<12} {:>7} {:>4} {:>14.1} {:>12.4} {:>14.3e} {:>16.1} {:>14.1} {:>14} \
+                     {:>9.1} {:>9.1} {:>9.1} {:>9.1}",
                     f.kind.name(),
                     strategy.name(),
                     n,
@@ -184,7 +223,11 @@ pub fn table(
                     n as f64 / t.dispatch.as_secs_f64(),
                     t.round_trip.as_secs_f64() * 1e6,
                     t.fresh_round_trip.as_secs_f64() * 1e6,
-                    device
+                    device,
+                    t.phases.stage_in.as_secs_f64() * 1e6,
+                    t.phases.submit_wait.as_secs_f64() * 1e6,
+                    t.phases.copy_out.as_secs_f64() * 1e6,
+                    t.phases.convert_out.as_secs_f64() * 1e6,
                 );
             }
         }

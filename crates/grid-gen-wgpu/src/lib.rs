@@ -5,6 +5,7 @@
 
 pub mod bench;
 mod header;
+mod transpose;
 
 use std::sync::Arc;
 use std::time::{Duration, Instant};
@@ -60,6 +61,8 @@ pub struct Gpu {
     /// How long to poll for finished work before blocking on the driver's fence
     /// (`GRID_GEN_WGPU_SPIN_US`, default [`SPIN`]).
     spin: Duration,
+    /// The transposes between the host's state-major layout and the kernels'.
+    transposer: transpose::Transposer,
 }
 
 /// A loaded shader: the module, what its header says, and its cooperative tables on
@@ -89,16 +92,33 @@ pub struct Kernel {
     tables: [wgpu::Buffer; 2],
 }
 
+/// A chunk's transposes on the device, with the buffers they fill.
+struct Moves {
+    /// For each input given at upload: where its part of `stage` is copied, and the
+    /// transpose from there into the input, joint-major.
+    staged: [Option<(wgpu::Buffer, transpose::Move)>; 3],
+    /// The outputs state-major, and the transpose into it from the kernel's `out`.
+    out_states: wgpu::Buffer,
+    to_states: transpose::Move,
+}
+
 struct Chunk {
     /// The batch's first state in this chunk, and how many it holds.
     start: usize,
     states: usize,
     /// `q`, `qd`, `u`, joint-major; [`Gpu::run_on`] copies new states into them.
     inputs: [wgpu::Buffer; 3],
-    /// Host-writable copy source for `inputs`, back to back, kept mapped between calls of
-    /// [`Gpu::run_on`] so that new states go straight into it with no allocation.
+    /// Host-writable copy source for `inputs`, back to back (state-major where the chunk
+    /// has `moves`, joint-major otherwise), kept mapped between calls of [`Gpu::run_on`]
+    /// so that new states go straight into it with no allocation.
     stage: wgpu::Buffer,
+    /// The kernel's outputs, joint-major.
     out: wgpu::Buffer,
+    /// Where the layouts are changed on the device (a chunk of [`DEVICE_TRANSPOSES`]
+    /// values or more); without them the host transposes and `stage` and `read` hold
+    /// joint-major values.
+    moves: Option<Moves>,
+    /// Mappable copy of the outputs.
     read: wgpu::Buffer,
     group: wgpu::BindGroup,
     groups: u32,
@@ -217,7 +237,10 @@ impl Gpu {
             .ok()
             .and_then(|v| v.trim().parse().ok())
             .map_or(SPIN, Duration::from_micros);
+        let transposer = transpose::Transposer::new(&device)
+            .map_err(|reason| GpuError::Pipeline { entry: "transpose".into(), reason })?;
         Ok(Gpu {
+            transposer,
             device,
             queue,
             layout,
@@ -384,6 +407,7 @@ impl Gpu {
         let mut params = vec![0u8; 16];
         params[..4].copy_from_slice(&(m as u32).to_le_bytes());
         let params = init(params, wgpu::BufferUsages::UNIFORM);
+        let given = inputs;
         let [q, qd, u] = inputs;
         let inputs = [(q, k.nq), (qd, k.nv), (u, k.nu)].map(|(x, per)| {
             init(bytes(soa(x, per)), wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST)
@@ -432,13 +456,51 @@ impl Gpu {
             layout: &self.layout,
             entries: &entries,
         });
+        let values = m * (k.nq + k.nv + k.nu + k.entry.outputs);
+        let moves = (values >= DEVICE_TRANSPOSES).then(|| self.moves(k, m, given, &inputs, &out));
         if let Some(e) = pollster::block_on(scope.pop()) {
             return Err(GpuError::Dispatch(format!(
                 "cannot allocate the buffers of {m} states: {e}"
             )));
         }
         let groups = m.div_ceil(k.entry.states_per_workgroup as usize) as u32;
-        Ok(Chunk { start, states: m, inputs, stage, out, read, group, groups })
+        Ok(Chunk { start, states: m, inputs, stage, out, moves, read, group, groups })
+    }
+
+    /// The device-side transposes of a chunk of `m` states and the buffers they fill.
+    fn moves(
+        &self,
+        k: &Kernel,
+        m: usize,
+        given: [&[f64]; 3],
+        inputs: &[wgpu::Buffer; 3],
+        out: &wgpu::Buffer,
+    ) -> Moves {
+        let d = &self.device;
+        let words = k.precision.bytes() / 4;
+        let max_groups = self.limits.max_compute_workgroups_per_dimension;
+        let out_states = d.create_buffer(&wgpu::BufferDescriptor {
+            label: None,
+            size: out.size(),
+            usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_SRC,
+            mapped_at_creation: false,
+        });
+        let t = &self.transposer;
+        let to_states = t.bind(d, out, &out_states, (k.entry.outputs, m), words, max_groups);
+        let pers = [k.nq, k.nv, k.nu];
+        let staged: [Option<(wgpu::Buffer, transpose::Move)>; 3] = std::array::from_fn(|j| {
+            (!given[j].is_empty()).then(|| {
+                let b = d.create_buffer(&wgpu::BufferDescriptor {
+                    label: None,
+                    size: inputs[j].size(),
+                    usage: wgpu::BufferUsages::STORAGE | wgpu::BufferUsages::COPY_DST,
+                    mapped_at_creation: false,
+                });
+                let to_joints = t.bind(d, &b, &inputs[j], (m, pers[j]), words, max_groups);
+                (b, to_joints)
+            })
+        });
+        Moves { staged, out_states, to_states }
     }
 
     /// Runs the uploaded batch and waits for it to finish.
@@ -506,8 +568,17 @@ impl Gpu {
         if io == Io::StagedInputs {
             for c in &batch.chunks {
                 let mut offset = 0;
-                for input in &c.inputs {
-                    encoder.copy_buffer_to_buffer(&c.stage, offset, input, 0, input.size());
+                for (j, input) in c.inputs.iter().enumerate() {
+                    match &c.moves {
+                        Some(moves) => {
+                            if let Some((b, _)) = &moves.staged[j] {
+                                encoder.copy_buffer_to_buffer(&c.stage, offset, b, 0, b.size());
+                            }
+                        }
+                        None => {
+                            encoder.copy_buffer_to_buffer(&c.stage, offset, input, 0, input.size())
+                        }
+                    }
                     offset += input.size();
                 }
             }
@@ -522,6 +593,13 @@ impl Gpu {
             // scratch values of the one before.
             let mut pass = encoder
                 .begin_compute_pass(&wgpu::ComputePassDescriptor { label: None, timestamp_writes });
+            if io == Io::StagedInputs {
+                for moves in batch.chunks.iter().filter_map(|c| c.moves.as_ref()) {
+                    for (_, to_joints) in moves.staged.iter().flatten() {
+                        self.transposer.encode(&mut pass, to_joints);
+                    }
+                }
+            }
             for pipeline in &batch.kernel.pipelines {
                 pass.set_pipeline(pipeline);
                 for c in &batch.chunks {
@@ -529,15 +607,16 @@ impl Gpu {
                     pass.dispatch_workgroups(c.groups, 1, 1);
                 }
             }
+            if io != Io::None {
+                self.encode_to_states(&mut pass, batch);
+            }
         }
         if let Some((set, resolve, read)) = timestamps {
             encoder.resolve_query_set(set, 0..2, resolve, 0);
             encoder.copy_buffer_to_buffer(resolve, 0, read, 0, 16);
         }
         if io != Io::None {
-            for c in &batch.chunks {
-                encoder.copy_buffer_to_buffer(&c.out, 0, &c.read, 0, c.read.size());
-            }
+            Self::encode_read_copies(&mut encoder, batch);
         }
         self.queue.submit([encoder.finish()]);
         let maps = Maps::default();
@@ -579,12 +658,29 @@ impl Gpu {
         }
     }
 
+    /// The transposes of every chunk's outputs into state-major order.
+    fn encode_to_states(&self, pass: &mut wgpu::ComputePass, batch: &Batch) {
+        for moves in batch.chunks.iter().filter_map(|c| c.moves.as_ref()) {
+            self.transposer.encode(pass, &moves.to_states);
+        }
+    }
+
+    /// The copies of every chunk's outputs into its mappable buffer.
+    fn encode_read_copies(encoder: &mut wgpu::CommandEncoder, batch: &Batch) {
+        for c in &batch.chunks {
+            let from = c.moves.as_ref().map_or(&c.out, |m| &m.out_states);
+            encoder.copy_buffer_to_buffer(from, 0, &c.read, 0, c.read.size());
+        }
+    }
+
     /// Copies the results back: `out[s * outputs + k]`, value k of state s, in f64.
     pub fn read(&self, batch: &Batch) -> Result<Vec<f64>, GpuError> {
         let mut encoder = self.device.create_command_encoder(&Default::default());
-        for c in &batch.chunks {
-            encoder.copy_buffer_to_buffer(&c.out, 0, &c.read, 0, c.read.size());
+        if batch.chunks.iter().any(|c| c.moves.is_some()) {
+            let mut pass = encoder.begin_compute_pass(&Default::default());
+            self.encode_to_states(&mut pass, batch);
         }
+        Self::encode_read_copies(&mut encoder, batch);
         self.queue.submit([encoder.finish()]);
         let maps = Maps::default();
         for c in &batch.chunks {
@@ -596,13 +692,24 @@ impl Gpu {
         Ok(out)
     }
 
-    /// The outputs in the batch's mapped read buffers into `out`, state-major (a transpose
-    /// in blocks of states, so that neither side strides through memory), unmapping them.
+    /// The outputs in the batch's mapped read buffers (state-major, transposed on the
+    /// device) into `out` in f64, unmapping them.
     fn mapped_results(batch: &Batch, out: &mut [f64]) -> Result<(), GpuError> {
+        Self::mapped_results_timed(batch, out, &mut Phases::default())
+    }
+
+    /// [`Gpu::mapped_results`], adding the time of the bulk copies out of mapped memory
+    /// and of the conversions to f64 to `phases`.
+    fn mapped_results_timed(
+        batch: &Batch,
+        out: &mut [f64],
+        phases: &mut Phases,
+    ) -> Result<(), GpuError> {
         let k = batch.kernel;
         let outputs = k.entry.outputs;
         let mut host = batch.host.lock().map_err(|_| GpuError::Poisoned)?;
         for c in &batch.chunks {
+            let t = Instant::now();
             let bytes = c.read.size() as usize;
             {
                 let view = c
@@ -613,6 +720,9 @@ impl Gpu {
                 bytemuck::cast_slice_mut::<u64, u8>(&mut host[..])[..bytes].copy_from_slice(&view);
             }
             c.read.unmap();
+            let t2 = Instant::now();
+            phases.copy_out += t2 - t;
+            let dst = &mut out[c.start * outputs..(c.start + c.states) * outputs];
             let f32s: &[u32] = bytemuck::cast_slice(&host[..]);
             let value = |at: usize| -> f64 {
                 match k.precision {
@@ -620,14 +730,22 @@ impl Gpu {
                     Precision::F64 => f64::from_bits(u64::from_le(host[at])),
                 }
             };
-            for block in (0..c.states).step_by(BLOCK) {
-                let end = (block + BLOCK).min(c.states);
-                for o in 0..outputs {
-                    for i in block..end {
-                        out[(c.start + i) * outputs + o] = value(o * c.states + i);
+            if c.moves.is_some() {
+                // State-major already: one pass in order, which the compiler vectorises.
+                for (at, o) in dst.iter_mut().enumerate() {
+                    *o = value(at);
+                }
+            } else {
+                for block in (0..c.states).step_by(BLOCK) {
+                    let end = (block + BLOCK).min(c.states);
+                    for o in 0..outputs {
+                        for i in block..end {
+                            dst[i * outputs + o] = value(o * c.states + i);
+                        }
                     }
                 }
             }
+            phases.convert_out += t2.elapsed();
         }
         Ok(())
     }
@@ -663,6 +781,20 @@ impl Gpu {
         u: &[f64],
         out: &mut [f64],
     ) -> Result<(), GpuError> {
+        self.run_on_timed(batch, q, qd, u, out).map(|_| ())
+    }
+
+    /// [`Gpu::run_on`], and how long each of its phases took, for `grid-gen bench`.
+    fn run_on_timed(
+        &self,
+        batch: &Batch,
+        q: &[f64],
+        qd: &[f64],
+        u: &[f64],
+        out: &mut [f64],
+    ) -> Result<Phases, GpuError> {
+        let start = Instant::now();
+        let mut phases = Phases::default();
         let k = batch.kernel;
         check_lengths(k, batch.n, q, qd, u)?;
         let outputs = k.entry.outputs;
@@ -700,18 +832,25 @@ impl Gpu {
                     }
                     let bytes = per * c.states * k.precision.bytes();
                     let mut host = batch.host.lock().map_err(|_| GpuError::Poisoned)?;
-                    for block in (0..c.states).step_by(BLOCK) {
-                        let end = (block + BLOCK).min(c.states);
-                        for j in 0..per {
-                            for i in block..end {
-                                let v = x[(c.start + i) * per + j];
-                                let at = j * c.states + i;
-                                match k.precision {
-                                    Precision::F32 => {
-                                        bytemuck::cast_slice_mut::<u64, u32>(&mut host[..])[at] =
-                                            (v as f32).to_bits().to_le()
-                                    }
-                                    Precision::F64 => host[at] = v.to_bits().to_le(),
+                    let x = &x[c.start * per..(c.start + c.states) * per];
+                    let mut put = |at: usize, v: f64| match k.precision {
+                        Precision::F32 => {
+                            bytemuck::cast_slice_mut::<u64, u32>(&mut host[..])[at] =
+                                (v as f32).to_bits().to_le()
+                        }
+                        Precision::F64 => host[at] = v.to_bits().to_le(),
+                    };
+                    if c.moves.is_some() {
+                        // State-major as given: the device transposes it (`Moves::staged`).
+                        for (at, &v) in x.iter().enumerate() {
+                            put(at, v);
+                        }
+                    } else {
+                        for block in (0..c.states).step_by(BLOCK) {
+                            let end = (block + BLOCK).min(c.states);
+                            for j in 0..per {
+                                for i in block..end {
+                                    put(j * c.states + i, x[i * per + j]);
                                 }
                             }
                         }
@@ -724,20 +863,43 @@ impl Gpu {
             drop(view);
             c.stage.unmap();
         }
+        let staged = Instant::now();
+        phases.stage_in = staged - start;
         self.dispatch_with(batch, None, Io::StagedInputs)?;
-        Self::mapped_results(batch, out)
+        phases.submit_wait = staged.elapsed();
+        Self::mapped_results_timed(batch, out, &mut phases)?;
+        Ok(phases)
     }
 }
 
-/// States per block of the transposes between state-major host arrays and the device's
+/// States per block of the host's transposes between state-major arrays and the device's
 /// joint-major buffers: 16 f32 words are one cache line of each joint-major row, and 16
 /// states of up to a few hundred f64 values stay in the L1 cache (16 was 30 % faster than
 /// 64 for iiwa's `fd_grad`, 105 outputs, on an EPYC, 2026-11-25).
 const BLOCK: usize = 16;
 
+/// Values (inputs and outputs, over a chunk's states) from which the device, not the host,
+/// transposes between the layouts. The host's transposes cost about 0.8 ns a value, the
+/// device's four more dispatches about 10 µs whatever the size (an H200 through Vulkan,
+/// iiwa and HyQ `fd_grad`, 2026-11-26): the device is faster from about 12,000 values
+/// (iiwa's `fd_grad`, 126 values a state: host faster at 32 states, device at 256).
+pub const DEVICE_TRANSPOSES: usize = 16_384;
+
 /// How long [`Gpu`] polls for finished work before it blocks on the driver's fence, unless
 /// `GRID_GEN_WGPU_SPIN_US` says otherwise (0: block at once).
 pub const SPIN: Duration = Duration::from_millis(2);
+
+/// Where the time of one [`Gpu::run_on`] goes: writing the states into the mapped staging
+/// buffer (converted to the device's precision), the submission and the wait for it
+/// (copies in, transposes, dispatches, copies out, mappings), the bulk copies out of mapped
+/// memory, and the conversion to f64.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Phases {
+    pub stage_in: Duration,
+    pub submit_wait: Duration,
+    pub copy_out: Duration,
+    pub convert_out: Duration,
+}
 
 /// What a submission moves besides the dispatches.
 #[derive(Clone, Copy, PartialEq, Eq)]

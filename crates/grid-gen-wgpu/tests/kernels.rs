@@ -760,6 +760,57 @@ fn batch_sizes_nan_and_dispatch_splitting() {
     assert!(again.iter().zip(&got).all(|(a, b)| a.to_bits() == b.to_bits()));
 }
 
+/// The layouts change on the device for chunks of [`grid_gen_wgpu::DEVICE_TRANSPOSES`]
+/// values or more and on the host below: the same states give the same bits either way,
+/// in f32 and f64, through `run` and `run_on`, for a kernel with all three inputs (iiwa's
+/// `fd_grad`: 21 inputs and 105 outputs a state, so 200 states take the device's path and
+/// 8 the host's).
+#[test]
+fn device_and_host_transposes_agree() {
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let model = load("grid_iiwa");
+    let nv = model.nv();
+    let mut rng = Rng(89);
+    let n = 200;
+    let q = rng.vec(n * nv, -3.0, 3.0);
+    let qd = rng.vec(n * nv, -3.0, 3.0);
+    let tau = rng.vec(n * nv, -3.0, 3.0);
+    for precision in [Precision::F32, Precision::F64] {
+        let options = WgslOptions {
+            precision,
+            strategies: vec![Strategy::Cooperative],
+            ..WgslOptions::default()
+        };
+        let shader = gpu.load(&wgsl(&model, options)).unwrap();
+        let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry("fd_grad")).unwrap();
+        let per = kernel.entry.outputs;
+        assert!(n * (3 * nv + per) >= grid_gen_wgpu::DEVICE_TRANSPOSES);
+        assert!(8 * (3 * nv + per) < grid_gen_wgpu::DEVICE_TRANSPOSES);
+        let whole = gpu.run(&kernel, &q, &qd, &tau).unwrap();
+        assert!(whole.iter().all(|x| x.is_finite()), "{precision:?}");
+        // The same states run again through the uploaded batch, in reverse order.
+        let rev = |x: &[f64]| -> Vec<f64> { x.chunks(nv).rev().flatten().copied().collect() };
+        let batch = gpu.upload(&kernel, &q, &qd, &tau).unwrap();
+        let mut again = vec![f64::NAN; whole.len()];
+        gpu.run_on(&batch, &rev(&q), &rev(&qd), &rev(&tau), &mut again).unwrap();
+        for s in 0..n {
+            let (a, b) = (&whole[s * per..(s + 1) * per], &again[(n - 1 - s) * per..][..per]);
+            assert!(a.iter().zip(b).all(|(x, y)| x.to_bits() == y.to_bits()), "state {s}");
+        }
+        for start in (0..n).step_by(8) {
+            let part = |x: &[f64]| x[start * nv..(start + 8) * nv].to_vec();
+            let small = gpu.run(&kernel, &part(&q), &part(&qd), &part(&tau)).unwrap();
+            let want = &whole[start * per..(start + 8) * per];
+            assert!(
+                small.iter().zip(want).all(|(x, y)| x.to_bits() == y.to_bits()),
+                "{precision:?}: states {start}..{} differ between the two paths",
+                start + 8
+            );
+        }
+        eprintln!("iiwa fd_grad {precision:?}: {n} states, device and host transposes agree");
+    }
+}
+
 /// The frame kernels (placement, Jacobian, velocity, classical acceleration) in every
 /// reference frame, both strategies, f32 and f64, against the reference (held to Pinocchio
 /// by grid-gen's tests/frames.rs): iiwa's flange and a fixed root frame, and floating
