@@ -445,12 +445,17 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
     }
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let text = String::from_utf8(out.stdout).unwrap();
+    let floor = text
+        .lines()
+        .find_map(|l| l.split("empty submission and wait ").nth(1))
+        .and_then(|t| t.trim_end_matches(" us").parse::<f64>().ok());
+    assert!(floor.is_some_and(|t| t > 0.0 && t.is_finite()), "no submission floor:\n{text}");
     for kernel in ["rnea", "mass_matrix"] {
         for strategy in ["thread", "cooperative"] {
             for n in ["1", "100"] {
                 let row = text.lines().find(|l| {
                     let w: Vec<&str> = l.split_whitespace().collect();
-                    w.len() == 10 && w[0] == kernel && w[1] == strategy && w[2] == n
+                    w.len() == 14 && w[0] == kernel && w[1] == strategy && w[2] == n
                 });
                 let row =
                     row.unwrap_or_else(|| panic!("no row for {kernel} {strategy} {n}:\n{text}"));
@@ -466,6 +471,13 @@ fn bench_prints_a_row_per_kernel_strategy_and_batch() {
                     device == "-" || device.parse::<f64>().is_ok_and(|t| t >= 0.0 && t.is_finite()),
                     "{row}"
                 );
+                // The round trip's phases (states in, submission and wait, copy out,
+                // conversion to f64): finite times, the submission never free.
+                let phases: Vec<f64> = (10..14)
+                    .map(|c| row.split_whitespace().nth(c).unwrap().parse().unwrap())
+                    .collect();
+                assert!(phases.iter().all(|t| *t >= 0.0 && t.is_finite()), "{row}");
+                assert!(phases[1] > 0.0, "the submission and wait take time: {row}");
             }
         }
     }
