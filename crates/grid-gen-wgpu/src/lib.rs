@@ -723,27 +723,17 @@ impl Gpu {
             let t2 = Instant::now();
             phases.copy_out += t2 - t;
             let dst = &mut out[c.start * outputs..(c.start + c.states) * outputs];
-            let f32s: &[u32] = bytemuck::cast_slice(&host[..]);
-            let value = |at: usize| -> f64 {
-                match k.precision {
-                    Precision::F32 => f32::from_bits(u32::from_le(f32s[at])) as f64,
-                    Precision::F64 => f64::from_bits(u64::from_le(host[at])),
+            let joint_major = c.moves.is_none();
+            match k.precision {
+                Precision::F32 => {
+                    let words: &[u32] = bytemuck::cast_slice(&host[..]);
+                    unstage(words, dst, outputs, joint_major, |w| {
+                        f32::from_bits(u32::from_le(w)) as f64
+                    })
                 }
-            };
-            if c.moves.is_some() {
-                // State-major already: one pass in order, which the compiler vectorises.
-                for (at, o) in dst.iter_mut().enumerate() {
-                    *o = value(at);
-                }
-            } else {
-                for block in (0..c.states).step_by(BLOCK) {
-                    let end = (block + BLOCK).min(c.states);
-                    for o in 0..outputs {
-                        for i in block..end {
-                            dst[i * outputs + o] = value(o * c.states + i);
-                        }
-                    }
-                }
+                Precision::F64 => unstage(&host[..], dst, outputs, joint_major, |w| {
+                    f64::from_bits(u64::from_le(w))
+                }),
             }
             phases.convert_out += t2.elapsed();
         }
@@ -825,34 +815,23 @@ impl Gpu {
                 let size = input.size() as usize;
                 // An input the kernel does not read may be left empty.
                 if !x.is_empty() {
-                    if per * c.states * k.precision.bytes() > size {
+                    let bytes = per * c.states * k.precision.bytes();
+                    if bytes > size {
                         drop(view);
                         c.stage.unmap();
                         return Err(GpuError::NotUploaded(field));
                     }
-                    let bytes = per * c.states * k.precision.bytes();
                     let mut host = batch.host.lock().map_err(|_| GpuError::Poisoned)?;
                     let x = &x[c.start * per..(c.start + c.states) * per];
-                    let mut put = |at: usize, v: f64| match k.precision {
+                    // State-major as given where the device transposes (`Moves::staged`).
+                    let joint_major = c.moves.is_none();
+                    match k.precision {
                         Precision::F32 => {
-                            bytemuck::cast_slice_mut::<u64, u32>(&mut host[..])[at] =
-                                (v as f32).to_bits().to_le()
+                            let words = bytemuck::cast_slice_mut::<u64, u32>(&mut host[..]);
+                            stage(x, words, per, joint_major, |v| (v as f32).to_bits().to_le())
                         }
-                        Precision::F64 => host[at] = v.to_bits().to_le(),
-                    };
-                    if c.moves.is_some() {
-                        // State-major as given: the device transposes it (`Moves::staged`).
-                        for (at, &v) in x.iter().enumerate() {
-                            put(at, v);
-                        }
-                    } else {
-                        for block in (0..c.states).step_by(BLOCK) {
-                            let end = (block + BLOCK).min(c.states);
-                            for j in 0..per {
-                                for i in block..end {
-                                    put(j * c.states + i, x[i * per + j]);
-                                }
-                            }
+                        Precision::F64 => {
+                            stage(x, &mut host[..], per, joint_major, |v| v.to_bits().to_le())
                         }
                     }
                     let staged = &bytemuck::cast_slice::<u64, u8>(&host[..])[..bytes];
@@ -877,6 +856,52 @@ impl Gpu {
 /// states of up to a few hundred f64 values stay in the L1 cache (16 was 30 % faster than
 /// 64 for iiwa's `fd_grad`, 105 outputs, on an EPYC, 2026-11-25).
 const BLOCK: usize = 16;
+
+/// The state-major `x` (`per` values a state) into `words`, each converted by `word`: in
+/// the same order, or joint-major (`words[j * m + i]`, value j of state i, for m states)
+/// in blocks of [`BLOCK`] states. The precision is matched once, outside the loops, so
+/// that the in-order pass vectorises.
+fn stage<W>(x: &[f64], words: &mut [W], per: usize, joint_major: bool, word: impl Fn(f64) -> W) {
+    if !joint_major {
+        for (w, &v) in words.iter_mut().zip(x) {
+            *w = word(v);
+        }
+        return;
+    }
+    let m = x.len() / per.max(1);
+    for block in (0..m).step_by(BLOCK) {
+        for j in 0..per {
+            for i in block..(block + BLOCK).min(m) {
+                words[j * m + i] = word(x[i * per + j]);
+            }
+        }
+    }
+}
+
+/// The way back: `words` (in order, or joint-major as [`stage`] writes them) into the
+/// state-major `out` (`per` values a state), each converted by `value`.
+fn unstage<W: Copy>(
+    words: &[W],
+    out: &mut [f64],
+    per: usize,
+    joint_major: bool,
+    value: impl Fn(W) -> f64,
+) {
+    if !joint_major {
+        for (o, &w) in out.iter_mut().zip(words) {
+            *o = value(w);
+        }
+        return;
+    }
+    let m = out.len() / per.max(1);
+    for block in (0..m).step_by(BLOCK) {
+        for j in 0..per {
+            for i in block..(block + BLOCK).min(m) {
+                out[i * per + j] = value(words[j * m + i]);
+            }
+        }
+    }
+}
 
 /// Values (inputs and outputs, over a chunk's states) from which the device, not the host,
 /// transposes between the layouts. The host's transposes cost about 0.8 ns a value, the
