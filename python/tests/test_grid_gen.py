@@ -348,18 +348,37 @@ def test_every_kind_of_kernel_through_a_scene(tmp_path, iiwa):
     assert rel(qd_next, qd + 0.01 * a) < 1e-12 and rel(q_next, q + 0.01 * (qd + 0.01 * a)) < 1e-12
 
 
-def test_jax_functions_differentiate_with_the_generated_gradients(iiwa):
+def _jax():
     jax = pytest.importorskip("jax") if not os.environ.get("CI") else __import__("jax")
     jax.config.update("jax_enable_x64", True)
+    return jax
+
+
+def test_jax_functions_differentiate_with_the_generated_gradients(iiwa):
+    jax = _jax()
     import jax.numpy as jnp
 
     import grid_gen.jax as gj
 
     dyn = gj.wrap(iiwa)
+    assert dyn.via == "ffi"
     q, qd, tau = random_states(iiwa, 5, seed=12)
-    # Values: jit and vmap give the batch kernel's numbers.
-    assert np.allclose(jax.jit(dyn.fd)(q, qd, tau), iiwa.fd(q, qd, tau), rtol=0, atol=0)
+    # Values: jit and vmap give the batch kernel's numbers, bit for bit (the same entry point
+    # on the same arrays), through the FFI call and through the callback alike.
+    assert np.array_equal(jax.jit(dyn.fd)(q, qd, tau), iiwa.fd(q, qd, tau))
     assert np.array_equal(jax.vmap(dyn.rnea)(q, qd, iiwa.fd(q, qd, tau)), iiwa.rnea(q, qd, iiwa.fd(q, qd, tau)))
+    slow = gj.wrap(iiwa, via="callback")
+    assert np.array_equal(jax.jit(slow.fd)(q, qd, tau), iiwa.fd(q, qd, tau))
+    # Leading axes of any rank broadcast: (2, 5, 7) against a single (7,) state.
+    qdd2 = jax.jit(dyn.fd)(np.stack([q, q]), qd[0], tau[0])
+    assert qdd2.shape == (2, 5, 7) and np.array_equal(qdd2[1, 3], iiwa.fd(q[3], qd[0], tau[0]))
+    # A robot loaded in f32 computes in f32 (arrays cast to it), as its kernels do.
+    iiwa32 = grid_gen.load(IIWA, precision="f32")
+    q32, qd32, tau32 = (a.astype(np.float32) for a in (q, qd, tau))
+    got = gj.wrap(iiwa32).fd(q, qd, tau)
+    assert got.dtype == np.float32 and np.array_equal(got, iiwa32.fd(q32, qd32, tau32))
+    with pytest.raises(ValueError, match=r"`qd` has shape \(6,\); expected \(\.\.\., 7\)"):
+        dyn.fd(q[0], qd[0, :6], tau[0])
     # Gradients of a scalar cost against central differences of the kernels themselves.
     w = np.random.default_rng(1).normal(size=7)
 
@@ -372,7 +391,7 @@ def test_jax_functions_differentiate_with_the_generated_gradients(iiwa):
     h = 1e-6
     worst = 0.0
     for cost, plain, args in ((cost_fd, iiwa.fd, (q[0], qd[0], tau[0])), (cost_rnea, iiwa.rnea, (q[1], qd[1], tau[1] / 10))):
-        grads = jax.grad(cost, argnums=(0, 1, 2))(*args)
+        grads = jax.jit(jax.grad(cost, argnums=(0, 1, 2)))(*args)
         for k in range(3):
             num = np.zeros(7)
             for j in range(7):
@@ -389,5 +408,76 @@ def test_jax_functions_differentiate_with_the_generated_gradients(iiwa):
     # A batch under vmap of grad.
     batch = jax.vmap(jax.grad(cost_fd))(q, qd, tau)
     assert batch.shape == (5, 7) and np.allclose(batch[0], jax.grad(cost_fd)(q[0], qd[0], tau[0]), rtol=1e-14, atol=0)
-    with pytest.raises(ValueError, match="tangent space"):
-        gj.wrap(grid_gen.load(GO2, floating_base=True, kernels=["rnea", "fd"]))
+    assert dyn.step is None
+
+
+def test_jax_floating_base_and_step_on_the_manifold(tmp_path):
+    """go2 on a floating base with a semi-implicit step: jax.grad with respect to q's
+    coordinates, checked along tangent directions (q moved by Pinocchio's integrate), for fd,
+    rnea and the step's both outputs."""
+    jax = _jax()
+    import jax.numpy as jnp
+
+    import grid_gen.jax as gj
+
+    scene = tmp_path / "go2_step.toml"
+    scene.write_text('floating_base = true\noutputs = ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad", "step", "step_grad"]\n\n[step]\nscheme = "semi_implicit_euler"\ndt = 0.01\n')
+    go2 = grid_gen.load(GO2, scene=scene)
+    assert go2.floating_base and (go2.nq, go2.nv, go2.nu) == (19, 18, 12)
+    dyn = gj.wrap(go2)
+    p = Pin(GO2, go2)
+    q, qd, tau = random_states(go2, 3, seed=21)
+    u = tau[:, 6:]
+    rng = np.random.default_rng(5)
+    wq, wv = rng.normal(size=go2.nq), rng.normal(size=go2.nv)
+
+    def cost_fd(q, qd, tau):
+        return jnp.dot(dyn.fd(q, qd, tau), wv)
+
+    def cost_rnea(q, qd, qdd):
+        return jnp.dot(dyn.rnea(q, qd, qdd), wv)
+
+    def cost_step(q, qd, u):
+        q_next, qd_next = dyn.step(q, qd, u)
+        return jnp.dot(q_next, wq) + jnp.dot(qd_next, wv)
+
+    def plain_step(q, qd, u):
+        q_next, qd_next = go2.step(q, qd, u)
+        return q_next @ wq + qd_next @ wv
+
+    def integrate(qi, dv):
+        """grid-gen's q moved along dv by Pinocchio's integrate."""
+        qp, vp = p.to_pin(qi, dv)
+        return np.asarray(pin.integrate(p.model, qp, vp))[p.q]
+
+    h = 1e-5
+    worst = 0.0
+    for cost, plain, args in ((cost_fd, go2.fd, (q[0], qd[0], tau[0])), (cost_rnea, go2.rnea, (q[1], qd[1], tau[1] / 10)), (cost_step, plain_step, (q[2], qd[2], u[2]))):
+        g_q, g_qd, g_u = (np.asarray(g) for g in jax.jit(jax.grad(cost, argnums=(0, 1, 2)))(*args))
+        value = (lambda *a: float(np.dot(plain(*a), wv))) if plain is not plain_step else plain_step
+        # Along a tangent direction d: q(t) = integrate(q, t d), so d cost/dt = g_q . dq/dt.
+        for _ in range(4):
+            d = rng.normal(size=go2.nv)
+            dq_dt = (integrate(args[0], h * d) - integrate(args[0], -h * d)) / (2 * h)
+            num = (value(integrate(args[0], h * d), *args[1:]) - value(integrate(args[0], -h * d), *args[1:])) / (2 * h)
+            worst = max(worst, abs(g_q @ dq_dt - num) / max(abs(num), np.linalg.norm(g_q)))
+        # No component along the quaternion itself.
+        quat = args[0][3:7]
+        assert abs(g_q[3:7] @ quat) < 1e-12 * max(1.0, np.linalg.norm(g_q))
+        for k, g in ((1, g_qd), (2, g_u)):
+            num = np.zeros(len(g))
+            for j in range(len(g)):
+                plus = [np.array(a, dtype=float) for a in args]
+                minus = [np.array(a, dtype=float) for a in args]
+                plus[k][j] += h
+                minus[k][j] -= h
+                num[j] = (value(*plus) - value(*minus)) / (2 * h)
+            worst = max(worst, rel(g, num))
+    print(f"grid_gen.jax floating go2 (fd, rnea, step): grad against central differences on the manifold {worst:.1e}")
+    # Central differences at h = 1e-5: truncation O(h^2) and rounding eps |cost| / h, the
+    # latter largest against B's small entries (dt^2 M^-1): measured ~2e-8, along tangent
+    # directions ~2e-10. A wrong map onto the quaternion's coordinates or a transposed A
+    # would be O(1).
+    assert worst < 1e-6
+    with pytest.raises(ValueError, match="spherical"):
+        gj.wrap(grid_gen.load(ROOT / "tests" / "fixtures" / "ball_arm.urdf", kernels=["rnea", "rnea_grad", "mass_matrix", "fd", "fd_grad", "minv"]))
