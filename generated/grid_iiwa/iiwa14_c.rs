@@ -10,6 +10,42 @@
 pub mod iiwa14_batch {
     use super::iiwa14::*;
     use grid_gen_runtime::Out;
+    /// States `i..i + L` of a batch slice as one `L`-lane value per entry (lane l: state i + l).
+    ///
+    /// # Safety
+    /// `S` is `T`, `V` is `L` lanes of `S` laid out as `[S; L]`, and `i + L <= s.len()`.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn gather<T: Copy, S: Copy + Default, V, const N: usize, const L: usize>(
+        s: &[[T; N]],
+        i: usize,
+    ) -> [V; N] {
+        let mut lanes = [[S::default(); L]; N];
+        for l in 0..L {
+            let state = &s[i + l];
+            for k in 0..N {
+                lanes[k][l] = unsafe { core::mem::transmute_copy::<T, S>(&state[k]) };
+            }
+        }
+        unsafe { core::mem::transmute_copy::<[[S; L]; N], [V; N]>(&lanes) }
+    }
+    /// Lane `l` of an `L`-lane kernel output `r` (an array of any depth of `L`-lane values), as
+    /// the output `X` of that one state.
+    ///
+    /// # Safety
+    /// `X` is `r`'s shape over the scalar `S`, each lane value is `[S; L]` in memory, `l < L`.
+    #[cfg(target_arch = "x86_64")]
+    #[inline(always)]
+    unsafe fn lane<R, X, S: Copy, const L: usize>(r: &R, l: usize) -> X {
+        let count = core::mem::size_of::<X>() / core::mem::size_of::<S>();
+        let src = (r as *const R).cast::<S>();
+        let mut out = core::mem::MaybeUninit::<X>::uninit();
+        let dst = out.as_mut_ptr().cast::<S>();
+        for k in 0..count {
+            unsafe { dst.add(k).write(src.add(k * L + l).read()) };
+        }
+        unsafe { out.assume_init() }
+    }
     /// Success.
     pub const GRID_GEN_OK: i32 = 0;
     /// A pointer the call needs is null.
@@ -32,11 +68,13 @@ pub mod iiwa14_batch {
     pub extern "C" fn iiwa14_manifest() -> *const core::ffi::c_char {
         MANIFEST.as_ptr().cast()
     }
-    /// `rnea(q, qd, qdd) -> c` for each state: entry `i` of every slice is state `i`. On every core.
+    /// `rnea(q, qd, qdd) -> c` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
     ///
     /// # Panics
     /// If the slices' lengths differ.
-    pub fn rnea<T: Real + Send + Sync>(
+    pub fn rnea<T: Real + Send + Sync + 'static>(
         q: &[[T; NV]],
         qd: &[[T; NV]],
         qdd: &[[T; NV]],
@@ -48,10 +86,55 @@ pub mod iiwa14_batch {
             "rnea: every slice holds one entry per state"
         );
         let o0 = Out(c.as_mut_ptr());
-        grid_gen_runtime::for_each(
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
             n,
+            lanes,
             |range| {
-                for i in range {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::rnea(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(qd, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(qdd, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::rnea(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(qd, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(qdd, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
                     let r0 = super::iiwa14::rnea(&q[i], &qd[i], &qdd[i]);
                     unsafe {
                         o0.write(i, r0);
@@ -146,11 +229,13 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `rnea_grad(q, qd, qdd) -> (dc_dq, dc_dqd)` for each state: entry `i` of every slice is state `i`. On every core.
+    /// `rnea_grad(q, qd, qdd) -> (dc_dq, dc_dqd)` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
     ///
     /// # Panics
     /// If the slices' lengths differ.
-    pub fn rnea_grad<T: Real + Send + Sync>(
+    pub fn rnea_grad<T: Real + Send + Sync + 'static>(
         q: &[[T; NV]],
         qd: &[[T; NV]],
         qdd: &[[T; NV]],
@@ -164,10 +249,57 @@ pub mod iiwa14_batch {
         );
         let o0 = Out(dc_dq.as_mut_ptr());
         let o1 = Out(dc_dqd.as_mut_ptr());
-        grid_gen_runtime::for_each(
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
             n,
+            lanes,
             |range| {
-                for i in range {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let (r0, r1) = super::iiwa14::rnea_grad(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(qd, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(qdd, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                    o1.write(i + l, lane::<_, _, f64, 4>(&r1, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let (r0, r1) = super::iiwa14::rnea_grad(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(qd, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(qdd, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                    o1.write(i + l, lane::<_, _, f32, 8>(&r1, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
                     let (r0, r1) = super::iiwa14::rnea_grad(&q[i], &qd[i], &qdd[i]);
                     unsafe {
                         o0.write(i, r0);
@@ -285,18 +417,64 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `mass_matrix(q) -> m` for each state: entry `i` of every slice is state `i`. On every core.
+    /// `mass_matrix(q) -> m` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
     ///
     /// # Panics
     /// If the slices' lengths differ.
-    pub fn mass_matrix<T: Real + Send + Sync>(q: &[[T; NV]], m: &mut [[[T; NV]; NV]]) {
+    pub fn mass_matrix<T: Real + Send + Sync + 'static>(
+        q: &[[T; NV]],
+        m: &mut [[[T; NV]; NV]],
+    ) {
         let n = q.len();
         assert!(m.len() == n, "mass_matrix: every slice holds one entry per state");
         let o0 = Out(m.as_mut_ptr());
-        grid_gen_runtime::for_each(
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
             n,
+            lanes,
             |range| {
-                for i in range {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::mass_matrix(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::mass_matrix(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
                     let r0 = super::iiwa14::mass_matrix(&q[i]);
                     unsafe {
                         o0.write(i, r0);
@@ -373,18 +551,64 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `minv(q) -> minv` for each state: entry `i` of every slice is state `i`. On every core.
+    /// `minv(q) -> minv` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
     ///
     /// # Panics
     /// If the slices' lengths differ.
-    pub fn minv<T: Real + Send + Sync>(q: &[[T; NV]], minv: &mut [[[T; NV]; NV]]) {
+    pub fn minv<T: Real + Send + Sync + 'static>(
+        q: &[[T; NV]],
+        minv: &mut [[[T; NV]; NV]],
+    ) {
         let n = q.len();
         assert!(minv.len() == n, "minv: every slice holds one entry per state");
         let o0 = Out(minv.as_mut_ptr());
-        grid_gen_runtime::for_each(
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
             n,
+            lanes,
             |range| {
-                for i in range {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::minv(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::minv(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
                     let r0 = super::iiwa14::minv(&q[i]);
                     unsafe {
                         o0.write(i, r0);
@@ -467,11 +691,13 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `fd(q, qd, tau) -> qdd` for each state: entry `i` of every slice is state `i`. On every core.
+    /// `fd(q, qd, tau) -> qdd` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
     ///
     /// # Panics
     /// If the slices' lengths differ.
-    pub fn fd<T: Real + Send + Sync>(
+    pub fn fd<T: Real + Send + Sync + 'static>(
         q: &[[T; NV]],
         qd: &[[T; NV]],
         tau: &[[T; NV]],
@@ -483,10 +709,55 @@ pub mod iiwa14_batch {
             "fd: every slice holds one entry per state"
         );
         let o0 = Out(qdd.as_mut_ptr());
-        grid_gen_runtime::for_each(
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
             n,
+            lanes,
             |range| {
-                for i in range {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::fd(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(qd, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(tau, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::fd(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(qd, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(tau, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
                     let r0 = super::iiwa14::fd(&q[i], &qd[i], &tau[i]);
                     unsafe {
                         o0.write(i, r0);
@@ -581,11 +852,13 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)` for each state: entry `i` of every slice is state `i`. On every core.
+    /// `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
     ///
     /// # Panics
     /// If the slices' lengths differ.
-    pub fn fd_grad<T: Real + Send + Sync>(
+    pub fn fd_grad<T: Real + Send + Sync + 'static>(
         q: &[[T; NV]],
         qd: &[[T; NV]],
         tau: &[[T; NV]],
@@ -601,10 +874,59 @@ pub mod iiwa14_batch {
         let o0 = Out(qdd.as_mut_ptr());
         let o1 = Out(dqdd_dq.as_mut_ptr());
         let o2 = Out(dqdd_dqd.as_mut_ptr());
-        grid_gen_runtime::for_each(
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
             n,
+            lanes,
             |range| {
-                for i in range {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let (r0, r1, r2) = super::iiwa14::fd_grad(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(qd, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(tau, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                    o1.write(i + l, lane::<_, _, f64, 4>(&r1, l));
+                                    o2.write(i + l, lane::<_, _, f64, 4>(&r2, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let (r0, r1, r2) = super::iiwa14::fd_grad(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(qd, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(tau, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                    o1.write(i + l, lane::<_, _, f32, 8>(&r1, l));
+                                    o2.write(i + l, lane::<_, _, f32, 8>(&r2, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
                     let (r0, r1, r2) = super::iiwa14::fd_grad(&q[i], &qd[i], &tau[i]);
                     unsafe {
                         o0.write(i, r0);

@@ -80,6 +80,13 @@ fn spin_time() -> std::time::Duration {
 /// every batch, tens of microseconds on a virtual machine, a third of a 64-state batch of
 /// iiwa. A helper then stays awake for [`set_spin_us`] to join the next batch.
 pub fn for_each(n: usize, f: impl Fn(Range<usize>) + Sync + Send) {
+    for_each_lanes(n, 1, f)
+}
+
+/// [`for_each`] with every range but the last a multiple of `lanes` states long, so that
+/// a kernel that evaluates `lanes` states per call (the generated `F64x4` and `F32x8`
+/// paths) leaves at most one partial group per batch, not one per range.
+pub fn for_each_lanes(n: usize, lanes: usize, f: impl Fn(Range<usize>) + Sync + Send) {
     let threads = threads();
     if threads <= 1 || n <= 1 {
         f(0..n);
@@ -87,7 +94,7 @@ pub fn for_each(n: usize, f: impl Fn(Range<usize>) + Sync + Send) {
     }
     // Eight blocks per thread: small enough that the threads finish together, large
     // enough that claiming one (an atomic add) is nothing next to its kernels.
-    let block = n.div_ceil(8 * threads).max(1);
+    let block = n.div_ceil(8 * threads).max(1).next_multiple_of(lanes.max(1));
     let next = AtomicUsize::new(0);
     let work = || loop {
         let start = next.fetch_add(block, Ordering::Relaxed);

@@ -114,6 +114,50 @@ fn largest(k: &Function) -> usize {
     inputs.chain(outputs).max().unwrap_or(1).max(1)
 }
 
+/// What the batch functions' SIMD paths share: moving `L` states in and out of `L`-lane
+/// values (`F64x4`, `F32x8`: `repr(transparent)` over `L` scalars, lane l in memory slot l).
+const LANE_HELPERS: &str = "\
+/// States `i..i + L` of a batch slice as one `L`-lane value per entry (lane l: state i + l).
+///
+/// # Safety
+/// `S` is `T`, `V` is `L` lanes of `S` laid out as `[S; L]`, and `i + L <= s.len()`.
+#[cfg(target_arch = \"x86_64\")]
+#[inline(always)]
+unsafe fn gather<T: Copy, S: Copy + Default, V, const N: usize, const L: usize>(s: &[[T; N]], i: usize) -> [V; N] {
+let mut lanes = [[S::default(); L]; N];
+for l in 0..L {
+let state = &s[i + l];
+for k in 0..N {
+// SAFETY: S is T (the caller's contract).
+lanes[k][l] = unsafe { core::mem::transmute_copy::<T, S>(&state[k]) };
+}
+}
+// SAFETY: [V; N] is [[S; L]; N] (the caller's contract); transmute_copy reads unaligned.
+unsafe { core::mem::transmute_copy::<[[S; L]; N], [V; N]>(&lanes) }
+}
+
+/// Lane `l` of an `L`-lane kernel output `r` (an array of any depth of `L`-lane values), as
+/// the output `X` of that one state.
+///
+/// # Safety
+/// `X` is `r`'s shape over the scalar `S`, each lane value is `[S; L]` in memory, `l < L`.
+#[cfg(target_arch = \"x86_64\")]
+#[inline(always)]
+unsafe fn lane<R, X, S: Copy, const L: usize>(r: &R, l: usize) -> X {
+let count = core::mem::size_of::<X>() / core::mem::size_of::<S>();
+let src = (r as *const R).cast::<S>();
+let mut out = core::mem::MaybeUninit::<X>::uninit();
+let dst = out.as_mut_ptr().cast::<S>();
+for k in 0..count {
+// SAFETY: entry k of X is lane l of r's value k (the caller's contract).
+unsafe { dst.add(k).write(src.add(k * L + l).read()) };
+}
+// SAFETY: every one of X's count scalars was written.
+unsafe { out.assume_init() }
+}
+
+";
+
 fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
     let robot = &module.robot;
     let p = c_prefix(stem);
@@ -125,6 +169,7 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
          /// (`extern \"C\"`, declared in `{stem}.h`).\n\
          #[allow(dead_code, clippy::all)]\npub mod {stem}_batch {{\nuse super::{stem}::*;\nuse grid_gen_runtime::Out;\n"
     );
+    out.push_str(LANE_HELPERS);
     let _ = writeln!(
         out,
         "/// Success.\npub const GRID_GEN_OK: i32 = 0;\n/// A pointer the call needs is null.\npub const GRID_GEN_NULL_POINTER: i32 = 1;\n\
@@ -161,8 +206,10 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
             .collect();
         let _ = writeln!(
             out,
-            "/// `{}` for each state: entry `i` of every slice is state `i`. On every core.\n///\n/// # Panics\n/// If the slices' lengths differ.\n\
-             pub fn {name}<T: Real + Send + Sync>({}) {{\nlet n = {first}.len();\nassert!({}, \"{name}: every slice holds one entry per state\");",
+            "/// `{}` for each state: entry `i` of every slice is state `i`. On every core; in f64 and\n\
+             /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,\n\
+             /// bit-identical to one call per state.\n///\n/// # Panics\n/// If the slices' lengths differ.\n\
+             pub fn {name}<T: Real + Send + Sync + 'static>({}) {{\nlet n = {first}.len();\nassert!({}, \"{name}: every slice holds one entry per state\");",
             k.signature(),
             args.iter().chain(&outs).cloned().collect::<Vec<_>>().join(", "),
             if lens.is_empty() { "true".to_string() } else { lens.join(" && ") },
@@ -179,10 +226,37 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
         let call: Vec<String> = inputs.iter().map(|i| format!("&{}[i]", i.name())).collect();
         let writes: String =
             (0..k.outputs.len()).map(|j| format!("o{j}.write(i, r{j});")).collect();
+        // Groups of states in one SIMD value where T is f64 or f32 and the CPU runs it: the
+        // same operations lane by lane (bit-identical to one call per state), two to three
+        // times fewer instructions per state (Speed).
+        let simd = |v: &str, s: &str, l: usize| {
+            let gathered: Vec<String> = inputs
+                .iter()
+                .map(|i| {
+                    format!("&gather::<T, {s}, {v}, {}, {l}>({}, i)", input_len(*i, ql), i.name())
+                })
+                .collect();
+            let lane_writes: String = (0..k.outputs.len())
+                .map(|j| format!("o{j}.write(i + l, lane::<_, _, {s}, {l}>(&r{j}, l));"))
+                .collect();
+            format!(
+                "if core::any::TypeId::of::<T>() == core::any::TypeId::of::<{s}>() && {v}::supported() {{\n\
+                 while i + {l} <= range.end {{\n\
+                 // SAFETY: T is {s} (its TypeId), {v} is {l} lanes of it and runs on this CPU (both\n\
+                 // checked above), states i..i + {l} are in this range, and no two ranges meet.\n\
+                 unsafe {{\nlet {pattern} = super::{stem}::{name}({});\nfor l in 0..{l} {{\n{lane_writes}\n}}\n}}\ni += {l};\n}}\n}}",
+                gathered.join(", ")
+            )
+        };
         let _ = writeln!(
             out,
-            "grid_gen_runtime::for_each(n, |range| {{\nfor i in range {{\nlet {pattern} = super::{stem}::{name}({});\n\
+            "let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {{ 8 }} else {{ 4 }};\n\
+             grid_gen_runtime::for_each_lanes(n, lanes, |range| {{\n#[allow(unused_mut)]\nlet mut i = range.start;\n\
+             #[cfg(target_arch = \"x86_64\")]\n{{\n{}\n{}\n}}\n\
+             for i in i..range.end {{\nlet {pattern} = super::{stem}::{name}({});\n\
              // SAFETY: i < n, every output's length, and no two ranges meet.\nunsafe {{ {writes} }}\n}}\n}});\n}}\n",
+            simd("F64x4", "f64", 4),
+            simd("F32x8", "f32", 8),
             call.join(", ")
         );
         // The C entry points.
