@@ -233,7 +233,14 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
             let gathered: Vec<String> = inputs
                 .iter()
                 .map(|i| {
-                    format!("&gather::<T, {s}, {v}, {}, {l}>({}, i)", input_len(*i, ql), i.name())
+                    // A const argument that is an expression (`6 * NFEXT`) needs braces.
+                    let len = input_len(*i, ql);
+                    let len = if len.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+                        len.to_string()
+                    } else {
+                        format!("{{ {len} }}")
+                    };
+                    format!("&gather::<T, {s}, {v}, {len}, {l}>({}, i)", i.name())
                 })
                 .collect();
             let lane_writes: String = (0..k.outputs.len())
