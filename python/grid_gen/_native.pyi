@@ -19,3 +19,11 @@ def runtime_source() -> str:
 
 def version() -> str:
     """grid-gen's version."""
+
+class Caller:
+    """One kernel's C batch entry point called on NumPy arrays in native code: the fast path
+    of the kernel methods. Returns None where it does not apply (a dtype, contiguity, shape
+    or non-finite value the Python path must convert or report)."""
+
+    def __init__(self, addr: int, f64: bool, in_lens: List[int], out_dims: List[List[int]]) -> None: ...
+    def __call__(self, *args: object) -> object: ...

@@ -9,6 +9,8 @@ from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
+from . import _native
+
 Array = np.ndarray
 
 
@@ -43,6 +45,11 @@ class Kernel:
         # Per-state sizes, fixed for the robot: the call multiplies them by the batch.
         self._in_sizes = tuple(length for _, length in self.inputs)
         self._out_sizes = tuple(math.prod(dims) for _, dims in self.outputs)
+        # The fast path: arrays of the kernel's dtype, C-contiguous, finite, shapes right,
+        # no out=: checked and called in native code (a few microseconds less per call than
+        # the path below, which handles everything else and names what is wrong).
+        address = ctypes.cast(fn, ctypes.c_void_p).value
+        self._fast = _native.Caller(address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs])
         args = ", ".join(n for n, _ in self.inputs)
         outs = ", ".join(n for n, _ in self.outputs)
         shapes = "; ".join(f"{n}: (B, {l})" for n, l in self.inputs)
@@ -54,6 +61,13 @@ class Kernel:
 
     def __call__(self, *args: Any, out: Union[None, Array, Sequence[Array]] = None, **kwargs: Any):
         name = self.name
+        if out is None and not kwargs:
+            try:
+                fast = self._fast(*args)
+            except RuntimeError as e:
+                raise RuntimeError(f"{name}: {e}") from None
+            if fast is not None:
+                return fast
         robot = self._robot
         dtype = robot.dtype
         if len(args) > len(self.inputs):

@@ -1,10 +1,13 @@
 //! The native half of the `grid_gen` Python package: grid-gen's generator (URDF to the
 //! Rust kernels and their C ABI), and the runtime crate's source, which `grid_gen.load`
 //! writes beside each robot it compiles. The kernels themselves are not here: each robot
-//! becomes its own shared library, loaded through its C ABI.
+//! becomes its own shared library, loaded through its C ABI; [`Caller`] is the fast path
+//! that calls one of its batch entry points on NumPy arrays.
 
-use pyo3::exceptions::{PyFileNotFoundError, PyValueError};
+use numpy::{Element, PyArrayDyn, PyArrayMethods, PyUntypedArrayMethods};
+use pyo3::exceptions::{PyFileNotFoundError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
+use pyo3::types::PyTuple;
 
 /// Generates the Rust module and its C ABI for one robot into `out_dir`; returns the
 /// written files' names. Raises ValueError with grid-gen's diagnostics (located in the
@@ -85,8 +88,167 @@ fn version() -> &'static str {
     env!("CARGO_PKG_VERSION")
 }
 
+/// The most pointers one entry point takes (inputs and outputs): contact_fd_grad with fext
+/// has 4 inputs and 8 outputs.
+const MAX_POINTERS: usize = 16;
+
+/// Calls the C ABI batch entry point at `addr`, `int32_t f(size_t n, T* p0, T* p1, ...)`,
+/// with `p.len()` pointers.
+///
+/// # Safety
+/// `addr` is such an entry point taking exactly `p.len()` pointers, each holding `n`
+/// states' arrays of the entry point's sizes.
+unsafe fn call_entry(addr: usize, n: usize, p: &[usize]) -> i32 {
+    macro_rules! arity {
+        ($($i:literal)*) => {{
+            type F = unsafe extern "C" fn(usize, $(arity!(@ptr $i)),*) -> i32;
+            // SAFETY: the caller's contract: addr is an entry point of this arity.
+            let f: F = unsafe { std::mem::transmute::<usize, F>(addr) };
+            // SAFETY: the caller's contract on the pointers.
+            unsafe { f(n, $(p[$i] as *mut std::ffi::c_void),*) }
+        }};
+        (@ptr $i:literal) => { *mut std::ffi::c_void };
+    }
+    match p.len() {
+        2 => arity!(0 1),
+        3 => arity!(0 1 2),
+        4 => arity!(0 1 2 3),
+        5 => arity!(0 1 2 3 4),
+        6 => arity!(0 1 2 3 4 5),
+        7 => arity!(0 1 2 3 4 5 6),
+        8 => arity!(0 1 2 3 4 5 6 7),
+        9 => arity!(0 1 2 3 4 5 6 7 8),
+        10 => arity!(0 1 2 3 4 5 6 7 8 9),
+        11 => arity!(0 1 2 3 4 5 6 7 8 9 10),
+        12 => arity!(0 1 2 3 4 5 6 7 8 9 10 11),
+        13 => arity!(0 1 2 3 4 5 6 7 8 9 10 11 12),
+        14 => arity!(0 1 2 3 4 5 6 7 8 9 10 11 12 13),
+        15 => arity!(0 1 2 3 4 5 6 7 8 9 10 11 12 13 14),
+        16 => arity!(0 1 2 3 4 5 6 7 8 9 10 11 12 13 14 15),
+        _ => unreachable!("Caller::new admits 2 to {MAX_POINTERS} pointers"),
+    }
+}
+
+/// One kernel's batch entry point, called on NumPy arrays without leaving native code: the
+/// fast path of `grid_gen`'s kernel methods. It takes the common case only (every input an
+/// array of exactly the kernel's dtype, C-contiguous, shaped `(len,)` or `(B, len)` alike,
+/// every value finite) and returns None for anything else, so that the Python path, which
+/// converts, copies and names what is wrong, handles it: the two give the same results.
+#[pyclass(frozen)]
+struct Caller {
+    addr: usize,
+    f64: bool,
+    in_lens: Vec<usize>,
+    out_dims: Vec<Vec<usize>>,
+}
+
+#[pymethods]
+impl Caller {
+    /// `addr`: the entry point's address (from ctypes), which must stay loaded as long as
+    /// this object lives; `f64`: its scalar (else f32); the per-state input lengths and
+    /// output shapes, in the entry point's order.
+    #[new]
+    fn new(
+        addr: usize,
+        f64: bool,
+        in_lens: Vec<usize>,
+        out_dims: Vec<Vec<usize>>,
+    ) -> PyResult<Self> {
+        let count = in_lens.len() + out_dims.len();
+        if addr == 0 || in_lens.is_empty() || out_dims.is_empty() || count > MAX_POINTERS {
+            return Err(PyValueError::new_err(format!(
+                "Caller: a non-null entry point with 1 to {MAX_POINTERS} arrays, not {count}"
+            )));
+        }
+        Ok(Caller { addr, f64, in_lens, out_dims })
+    }
+
+    /// The kernel's outputs for these inputs (one array, or a tuple), or None where the
+    /// fast path does not apply.
+    #[pyo3(signature = (*args))]
+    fn __call__(&self, py: Python<'_>, args: &Bound<'_, PyTuple>) -> PyResult<Option<Py<PyAny>>> {
+        if self.f64 {
+            self.run::<f64>(py, args)
+        } else {
+            self.run::<f32>(py, args)
+        }
+    }
+}
+
+impl Caller {
+    fn run<T: Element + Copy + Into<f64>>(
+        &self,
+        py: Python<'_>,
+        args: &Bound<'_, PyTuple>,
+    ) -> PyResult<Option<Py<PyAny>>> {
+        if args.len() != self.in_lens.len() {
+            return Ok(None);
+        }
+        let mut pointers = [0usize; MAX_POINTERS];
+        let mut count = 0;
+        let mut batch: Option<Option<usize>> = None;
+        // The inputs stay borrowed (read-only) until the call returns.
+        let mut borrowed = Vec::with_capacity(self.in_lens.len());
+        for (arg, &len) in args.iter().zip(&self.in_lens) {
+            let Ok(array) = arg.cast::<PyArrayDyn<T>>() else { return Ok(None) };
+            let Ok(view) = array.try_readonly() else { return Ok(None) };
+            let b = match *view.shape() {
+                [l] if l == len => None,
+                [b, l] if l == len => Some(b),
+                _ => return Ok(None),
+            };
+            match batch {
+                None => batch = Some(b),
+                Some(first) if first != b => return Ok(None),
+                Some(_) => {}
+            }
+            // as_slice takes Fortran order too, which the entry point would misread.
+            if !view.is_c_contiguous() {
+                return Ok(None);
+            }
+            let Ok(values) = view.as_slice() else { return Ok(None) };
+            if !values.iter().all(|&x| x.into().is_finite()) {
+                return Ok(None);
+            }
+            pointers[count] = values.as_ptr() as usize;
+            count += 1;
+            borrowed.push(view);
+        }
+        let lead = batch.flatten();
+        let n = lead.unwrap_or(1);
+        let mut outputs = Vec::with_capacity(self.out_dims.len());
+        for dims in &self.out_dims {
+            let shape: Vec<usize> = lead.into_iter().chain(dims.iter().copied()).collect();
+            // SAFETY: the entry point writes every element before anyone reads it (and on
+            // an error status the array is dropped unread).
+            let array = unsafe { PyArrayDyn::<T>::new(py, shape, false) };
+            pointers[count] = array.data() as usize;
+            count += 1;
+            outputs.push(array);
+        }
+        let addr = self.addr;
+        let p = &pointers[..count];
+        // SAFETY: addr is the entry point Caller::new was given, of this arity; each input
+        // pointer holds n states of its length (shapes checked above) and stays borrowed,
+        // each output was just allocated with n states of its shape.
+        let status = py.detach(|| unsafe { call_entry(addr, n, p) });
+        drop(borrowed);
+        if status != 0 {
+            return Err(PyRuntimeError::new_err(format!(
+                "the kernel library returned status {status}"
+            )));
+        }
+        if outputs.len() == 1 {
+            Ok(Some(outputs.pop().expect("one output").into_any().unbind()))
+        } else {
+            Ok(Some(PyTuple::new(py, outputs)?.into_any().unbind()))
+        }
+    }
+}
+
 #[pymodule]
 fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
+    m.add_class::<Caller>()?;
     m.add_function(wrap_pyfunction!(generate, m)?)?;
     m.add_function(wrap_pyfunction!(runtime_source, m)?)?;
     m.add_function(wrap_pyfunction!(version, m)?)?;

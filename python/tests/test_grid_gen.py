@@ -204,6 +204,23 @@ def test_one_state_batches_out_and_threads(iiwa):
     assert all(np.array_equal(a, b) for a, b in zip(single, (qdd, dq, dqd)))
     # An empty batch is fine.
     assert iiwa.fd(np.empty((0, 7)), np.empty((0, 7)), np.empty((0, 7))).shape == (0, 7)
+    # The native fast path takes contiguous f64 arrays of the right shapes and gives the
+    # Python path's bits; it declines (None) what the Python path must convert or report.
+    fast = iiwa.fd_grad._fast
+    got = fast(q, qd, tau)
+    assert got is not None and all(np.array_equal(a, b) for a, b in zip(got, (qdd, dq, dqd)))
+    assert fast(q[4], qd[4], tau[4]) is not None and np.array_equal(fast(q[4], qd[4], tau[4])[1], dq[4])
+    for declined in (
+        (np.asfortranarray(q), qd, tau),  # not C-contiguous
+        (q.astype(np.float32), qd, tau),  # another dtype
+        (q, qd[:3], tau),  # batches differ
+        (q, qd[0], tau),  # one state against a batch
+        (q[:, :6], qd, tau),  # wrong length
+        (q, np.where(np.eye(9, 7) > 0, np.nan, qd), tau),  # non-finite
+        (q, qd),  # too few
+        (q.tolist(), qd, tau),  # not an array
+    ):
+        assert fast(*declined) is None
 
 
 def test_bad_arguments_raise_value_errors_that_name_them(iiwa):
