@@ -176,7 +176,9 @@ fn urdf_names_cannot_inject_code_into_the_c_abi() {
                         "fd_grad",
                         "set_threads",
                         "threads",
-                        "manifest"
+                        "manifest",
+                        "gather",
+                        "lane"
                     ]
                     .contains(&kernel),
                     "unexpected fn {name}"
