@@ -72,8 +72,8 @@ fn spin_time() -> std::time::Duration {
 ///
 /// The calling thread works too: it publishes the batch, asks the pool for as many helpers
 /// as are missing (`threads - 1`, less those still awake from the last batch), and claims
-/// blocks of states from a shared counter like them, so a batch never waits for a sleeping
-/// worker to wake before it starts. When the blocks run out, it waits (spinning: a block
+/// blocks of states (guided: large first, one group last) from a shared counter like
+/// them, so a batch never waits for a sleeping worker to wake before it starts. When the blocks run out, it waits (spinning: a block
 /// takes microseconds) only for the helpers that are inside `f`; a helper that arrives
 /// later finds the batch closed and leaves without touching it. Waiting on rayon's own
 /// scope instead would put the caller to sleep and wake it through the OS at the end of
@@ -92,18 +92,35 @@ pub fn for_each_lanes(n: usize, lanes: usize, f: impl Fn(Range<usize>) + Sync + 
         f(0..n);
         return;
     }
-    // Eight blocks per thread: small enough that the threads finish together, large
-    // enough that claiming one (an atomic add) is nothing next to its kernels.
-    let block = n.div_ceil(8 * threads).max(1).next_multiple_of(lanes.max(1));
+    let lanes = lanes.max(1);
     let next = AtomicUsize::new(0);
-    let work = || loop {
-        let start = next.fetch_add(block, Ordering::Relaxed);
-        if start >= n {
-            break;
+    // Guided self-scheduling (OpenMP's `schedule(guided)`): each claim takes half a
+    // thread's share of what is left, in whole groups of `lanes`, so the first blocks are
+    // large (few claims: each is an atomic on a line both cores write, about 0.1 µs) and the
+    // last ones one group long (the threads finish within a group of each other). A
+    // 64-state batch on two threads is 8 claims instead of 16 equal blocks of 4.
+    let work = || {
+        let mut start = next.load(Ordering::Relaxed);
+        loop {
+            if start >= n {
+                return;
+            }
+            let size = ((n - start) / (2 * threads)).next_multiple_of(lanes).max(lanes);
+            match next.compare_exchange_weak(
+                start,
+                start + size,
+                Ordering::Relaxed,
+                Ordering::Relaxed,
+            ) {
+                Ok(_) => {
+                    f(start..(start + size).min(n));
+                    start = next.load(Ordering::Relaxed);
+                }
+                Err(now) => start = now,
+            }
         }
-        f(start..(start + block).min(n));
     };
-    let helpers = threads.min(n.div_ceil(block)) - 1;
+    let helpers = threads.min(n.div_ceil(lanes)) - 1;
     let erased: &(dyn Fn() + Sync) = &work;
     // SAFETY: helpers call through this pointer only between entering and leaving the
     // batch (`Shared::run`), and this function returns only after closing it with no
@@ -331,6 +348,35 @@ mod tests {
                     seen.iter().all(|s| s.load(Ordering::Relaxed) == 1),
                     "threads {threads}, n {n}"
                 );
+            }
+        }
+        set_threads(0);
+    }
+
+    /// With lanes, every range starts at a multiple of `lanes` and only a range that ends
+    /// the batch is shorter than a whole number of groups; every state is still visited once.
+    #[test]
+    fn ranges_come_in_whole_groups_of_lanes() {
+        let _one_at_a_time = serial();
+        for threads in [1, 2, 3] {
+            set_threads(threads);
+            for lanes in [1, 4, 8] {
+                for n in [0, 1, 3, 4, 9, 37, 64, 203, 1024] {
+                    let seen: Vec<AtomicU32> = (0..n).map(|_| AtomicU32::new(0)).collect();
+                    let ranges = Mutex::new(Vec::new());
+                    for_each_lanes(n, lanes, |r| {
+                        ranges.lock().unwrap().push(r.clone());
+                        for i in r {
+                            seen[i].fetch_add(1, Ordering::Relaxed);
+                        }
+                    });
+                    let what = format!("threads {threads}, lanes {lanes}, n {n}");
+                    assert!(seen.iter().all(|s| s.load(Ordering::Relaxed) == 1), "{what}");
+                    for r in ranges.into_inner().unwrap() {
+                        assert!(r.start % lanes == 0, "{what}: {r:?}");
+                        assert!(r.end == n || r.len() % lanes == 0, "{what}: {r:?}");
+                    }
+                }
             }
         }
         set_threads(0);
