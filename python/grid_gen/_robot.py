@@ -48,8 +48,9 @@ class Kernel:
         # The fast path: arrays of the kernel's dtype, C-contiguous, finite, shapes right,
         # no out=: checked and called in native code (a few microseconds less per call than
         # the path below, which handles everything else and names what is wrong).
-        address = ctypes.cast(fn, ctypes.c_void_p).value
-        self._fast = _native.Caller(address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs])
+        # The batch entry point's address, also what grid_gen.jax's FFI call is given.
+        self._address: int = ctypes.cast(fn, ctypes.c_void_p).value
+        self._fast = _native.Caller(self._address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs])
         args = ", ".join(n for n, _ in self.inputs)
         outs = ", ".join(n for n, _ in self.outputs)
         shapes = "; ".join(f"{n}: (B, {l})" for n, l in self.inputs)

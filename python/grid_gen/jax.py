@@ -180,12 +180,10 @@ class Functions:
             shapes = tuple(jax.ShapeDtypeStruct(lead + dims, dtype) for _, dims in kernel.outputs)
             if via == "callback":
                 return jax.pure_callback(_host(kernel, kernel.outputs), shapes, *args, vmap_method="broadcast_all")
-            entry = getattr(robot._lib, f"{robot._prefix}_{name}_batch_{robot.precision}")
-            address = ctypes.cast(entry, ctypes.c_void_p).value
             ffi = jax.ffi.ffi_call(_TARGET, shapes, vmap_method="broadcast_all")
             out = ffi(
                 *args,
-                fn=np.int64(address),
+                fn=np.int64(kernel._address),
                 state_len=np.int64(kernel.inputs[0][1]),
                 precision_bytes=np.int64(jnp.dtype(dtype).itemsize),
             )
