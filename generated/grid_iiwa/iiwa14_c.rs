@@ -99,7 +99,8 @@ pub mod iiwa14_batch {
                 let mut i = range.start;
                 #[cfg(target_arch = "x86_64")]
                 {
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
                         && F64x4::supported()
                     {
                         while i + 4 <= range.end {
@@ -116,7 +117,8 @@ pub mod iiwa14_batch {
                             i += 4;
                         }
                     }
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
                         && F32x8::supported()
                     {
                         while i + 8 <= range.end {
@@ -262,7 +264,8 @@ pub mod iiwa14_batch {
                 let mut i = range.start;
                 #[cfg(target_arch = "x86_64")]
                 {
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
                         && F64x4::supported()
                     {
                         while i + 4 <= range.end {
@@ -280,7 +283,8 @@ pub mod iiwa14_batch {
                             i += 4;
                         }
                     }
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
                         && F32x8::supported()
                     {
                         while i + 8 <= range.end {
@@ -443,7 +447,8 @@ pub mod iiwa14_batch {
                 let mut i = range.start;
                 #[cfg(target_arch = "x86_64")]
                 {
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
                         && F64x4::supported()
                     {
                         while i + 4 <= range.end {
@@ -458,7 +463,8 @@ pub mod iiwa14_batch {
                             i += 4;
                         }
                     }
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
                         && F32x8::supported()
                     {
                         while i + 8 <= range.end {
@@ -577,7 +583,8 @@ pub mod iiwa14_batch {
                 let mut i = range.start;
                 #[cfg(target_arch = "x86_64")]
                 {
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
                         && F64x4::supported()
                     {
                         while i + 4 <= range.end {
@@ -592,7 +599,8 @@ pub mod iiwa14_batch {
                             i += 4;
                         }
                     }
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
                         && F32x8::supported()
                     {
                         while i + 8 <= range.end {
@@ -722,7 +730,8 @@ pub mod iiwa14_batch {
                 let mut i = range.start;
                 #[cfg(target_arch = "x86_64")]
                 {
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
                         && F64x4::supported()
                     {
                         while i + 4 <= range.end {
@@ -739,7 +748,8 @@ pub mod iiwa14_batch {
                             i += 4;
                         }
                     }
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
                         && F32x8::supported()
                     {
                         while i + 8 <= range.end {
@@ -887,7 +897,8 @@ pub mod iiwa14_batch {
                 let mut i = range.start;
                 #[cfg(target_arch = "x86_64")]
                 {
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
                         && F64x4::supported()
                     {
                         while i + 4 <= range.end {
@@ -906,7 +917,8 @@ pub mod iiwa14_batch {
                             i += 4;
                         }
                     }
-                    if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
                         && F32x8::supported()
                     {
                         while i + 8 <= range.end {

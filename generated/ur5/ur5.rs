@@ -75,8 +75,14 @@ pub trait Real: Copy + core::ops::Add<
     /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
     /// instruction it would be a slow library call).
     fn mul_add(self, a: Self, b: Self) -> Self;
+    /// Whether `Self` is `f64`, and `f32`: constants, so that the batch functions (`_c.rs`)
+    /// pick their SIMD type at compile time and an f64 batch never compiles the f32 kernels
+    /// (their `TypeId` check is what makes the choice sound).
+    const IS_F64: bool = false;
+    const IS_F32: bool = false;
 }
 impl Real for f64 {
+    const IS_F64: bool = true;
     #[inline(always)]
     fn k(x: f64) -> Self {
         x
@@ -95,6 +101,7 @@ impl Real for f64 {
     }
 }
 impl Real for f32 {
+    const IS_F32: bool = true;
     #[inline(always)]
     fn k(x: f64) -> Self {
         x as f32

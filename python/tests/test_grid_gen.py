@@ -123,8 +123,21 @@ def test_iiwa_batch_matches_pinocchio(iiwa):
     check_against_pinocchio(IIWA, iiwa, 64, 1e-12)
 
 
-def test_go2_floating_batch_matches_pinocchio():
-    go2 = grid_gen.load(GO2, floating_base=True, kernels=["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"])
+# go2 on a floating base with a semi-implicit step: one library for the Pinocchio check of the
+# basic kernels and the JAX test of the step (the cache's key is the scene's text), so that the
+# test command compiles go2 once.
+GO2_STEP_SCENE = 'floating_base = true\noutputs = ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad", "step", "step_grad"]\n\n[step]\nscheme = "semi_implicit_euler"\ndt = 0.01\n'
+
+
+@pytest.fixture(scope="module")
+def go2_stepping(tmp_path_factory):
+    scene = tmp_path_factory.mktemp("go2") / "go2_step.toml"
+    scene.write_text(GO2_STEP_SCENE)
+    return grid_gen.load(GO2, scene=scene)
+
+
+def test_go2_floating_batch_matches_pinocchio(go2_stepping):
+    go2 = go2_stepping
     assert (go2.nq, go2.nv) == (19, 18) and go2.floating_base
     # Measured 4e-13: a floating base's M^-1 is worse conditioned than iiwa's (light feet
     # under a heavy trunk), so 1e-11.
@@ -431,7 +444,7 @@ def test_jax_functions_differentiate_with_the_generated_gradients(iiwa):
     assert dyn.step is None
 
 
-def test_jax_floating_base_and_step_on_the_manifold(tmp_path):
+def test_jax_floating_base_and_step_on_the_manifold(go2_stepping):
     """go2 on a floating base with a semi-implicit step: jax.grad with respect to q's
     coordinates, checked along tangent directions (q moved by Pinocchio's integrate), for fd,
     rnea and the step's both outputs."""
@@ -440,9 +453,7 @@ def test_jax_floating_base_and_step_on_the_manifold(tmp_path):
 
     import grid_gen.jax as gj
 
-    scene = tmp_path / "go2_step.toml"
-    scene.write_text('floating_base = true\noutputs = ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad", "step", "step_grad"]\n\n[step]\nscheme = "semi_implicit_euler"\ndt = 0.01\n')
-    go2 = grid_gen.load(GO2, scene=scene)
+    go2 = go2_stepping
     assert go2.floating_base and (go2.nq, go2.nv, go2.nu) == (19, 18, 12)
     dyn = gj.wrap(go2)
     p = Pin(GO2, go2)

@@ -304,9 +304,9 @@ fn builder_writes_once_and_names_urdf_problems() {
 
 /// The opt-in `avx512` copy (`--avx512`, `RustOptions::avx512`) runs the `fma` copy's
 /// operations, so on a CPU with AVX-512 its outputs must equal the `fma` copy's bit for bit,
-/// in f64, f32, `Lanes<8>` (`Lanes<4>` is the same code at another width), `Lanes<16, f32>`
-/// and the 512-bit `F64x8`/`F32x16` (which must also equal the lanes of the same width),
-/// and the dispatcher must return the same. UR5's
+/// in f64, f32 and the 512-bit `F64x8`/`F32x16` (each of whose lanes must also equal one
+/// scalar call: what `Lanes<8>` and `Lanes<16, f32>` compute by construction, without their
+/// minutes of rustc), and the dispatcher must return the same. UR5's
 /// gradients, so that the chunked path (scratch slots, parts) is compiled too. Without
 /// AVX-512 here the module is still compiled (and its dispatcher run), and the test says
 /// the copy did not run: a CPU feature cannot be installed.
@@ -337,6 +337,7 @@ fn the_avx512_copy_matches_the_fma_copy_bit_for_bit() {
 use robot::*;
 fn state(k: usize, i: usize, salt: usize) -> f64 { (((k * 7919 + i * 104_729 + salt * 15_485_863) % 2001) as f64 / 1000.0) * 3.0 - 1.5 }
 fn bits<T: core::fmt::Debug>(x: T) -> String { format!("{x:?}") }
+fn m<V: Copy, S>(x: &[[V; NV]; NV], f: impl Fn(V) -> S) -> [[S; NV]; NV] { x.map(|r| r.map(&f)) }
 macro_rules! same {
     ($t:ty, $lift:expr) => {{
         for k in 0..8 {
@@ -356,22 +357,29 @@ fn main() {
     }
     same!(f64, |k: usize, i: usize, s: usize| state(k, i, s));
     same!(f32, |k: usize, i: usize, s: usize| state(k, i, s) as f32);
-    same!(Lanes<8>, |k: usize, i: usize, s: usize| Lanes(std::array::from_fn(|l| state(k * 8 + l, i, s))));
-    same!(Lanes<16, f32>, |k: usize, i: usize, s: usize| Lanes(std::array::from_fn(|l| state(k * 16 + l, i, s) as f32)));
     same!(F64x8, |k: usize, i: usize, s: usize| F64x8::new(std::array::from_fn(|l| state(k * 8 + l, i, s))).unwrap());
     same!(F32x16, |k: usize, i: usize, s: usize| F32x16::new(std::array::from_fn(|l| state(k * 16 + l, i, s) as f32)).unwrap());
-    // The explicit SIMD types compute what the lanes do, bit for bit.
+    // Each lane of the explicit SIMD types is one scalar call of the same copy, bit for bit
+    // (what the batch functions rely on); no `Lanes` here, whose arrays take rustc minutes.
     for k in 0..8 {
-        let l: [[Lanes<8>; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| Lanes(std::array::from_fn(|l| state(k * 8 + l, i, s)))));
-        let x = l.map(|v| v.map(|e| F64x8::new(e.0).unwrap()));
-        let want = (bits(rnea_grad(&l[0], &l[1], &l[2])), bits(fd_grad(&l[0], &l[1], &l[2])));
-        let got = (bits(rnea_grad(&x[0], &x[1], &x[2])), bits(fd_grad(&x[0], &x[1], &x[2])));
-        assert!(want.0 == got.0.replace("F64x8", "Lanes") && want.1 == got.1.replace("F64x8", "Lanes"), "state {k}: F64x8 differs from Lanes<8>");
-        let l: [[Lanes<16, f32>; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| Lanes(std::array::from_fn(|l| state(k * 16 + l, i, s) as f32))));
-        let x = l.map(|v| v.map(|e| F32x16::new(e.0).unwrap()));
-        let want = (bits(rnea_grad(&l[0], &l[1], &l[2])), bits(fd_grad(&l[0], &l[1], &l[2])));
-        let got = (bits(rnea_grad(&x[0], &x[1], &x[2])), bits(fd_grad(&x[0], &x[1], &x[2])));
-        assert!(want.0 == got.0.replace("F32x16", "Lanes") && want.1 == got.1.replace("F32x16", "Lanes"), "state {k}: F32x16 differs from Lanes<16, f32>");
+        for l in 0..8 {
+            let x: [[f64; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| state(k * 8 + l, i, s)));
+            let v: [[F64x8; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| F64x8::new(std::array::from_fn(|m| state(k * 8 + m, i, s))).unwrap()));
+            let (a, b) = rnea_grad(&v[0], &v[1], &v[2]);
+            let (c, d, e) = fd_grad(&v[0], &v[1], &v[2]);
+            let got = (bits((m(&a, |y| y.to_array()[l]), m(&b, |y| y.to_array()[l]))), bits((c.map(|y| y.to_array()[l]), m(&d, |y| y.to_array()[l]), m(&e, |y| y.to_array()[l]))));
+            let want = unsafe { (bits(avx512::rnea_grad(&x[0], &x[1], &x[2])), bits(avx512::fd_grad(&x[0], &x[1], &x[2]))) };
+            assert!(got == want, "state {k}, lane {l}: F64x8 differs from one f64 call");
+        }
+        for l in 0..16 {
+            let x: [[f32; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| state(k * 16 + l, i, s) as f32));
+            let v: [[F32x16; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| F32x16::new(std::array::from_fn(|m| state(k * 16 + m, i, s) as f32)).unwrap()));
+            let (a, b) = rnea_grad(&v[0], &v[1], &v[2]);
+            let (c, d, e) = fd_grad(&v[0], &v[1], &v[2]);
+            let got = (bits((m(&a, |y| y.to_array()[l]), m(&b, |y| y.to_array()[l]))), bits((c.map(|y| y.to_array()[l]), m(&d, |y| y.to_array()[l]), m(&e, |y| y.to_array()[l]))));
+            let want = unsafe { (bits(avx512::rnea_grad(&x[0], &x[1], &x[2])), bits(avx512::fd_grad(&x[0], &x[1], &x[2]))) };
+            assert!(got == want, "state {k}, lane {l}: F32x16 differs from one f32 call");
+        }
     }
     println!("same");
 }
@@ -380,7 +388,7 @@ fn main() {
     let said = said.trim().to_string();
     match said.as_str() {
         "same" => println!(
-            "ur5: the avx512 copy equals the fma copy bit for bit (f64, f32, Lanes<8>, Lanes<16, f32>, F64x8, F32x16), and F64x8 and F32x16 equal Lanes<8> and Lanes<16, f32>"
+            "ur5: the avx512 copy equals the fma copy bit for bit (f64, f32, F64x8, F32x16), and each lane of F64x8 and F32x16 one f64 or f32 call"
         ),
         "no AVX-512" => eprintln!(
             "note: this CPU has no AVX-512 F and VL; the avx512 copy was compiled but not run"
