@@ -850,8 +850,9 @@ fn a_scene_reduces_every_command() {
 /// `bench --backend rust` and `accuracy --time` compile the generated kernels of a robot
 /// with rustc and time them: a row per kernel with positive times for the portable copy
 /// and the dispatcher in f64 and f32, and for the `fma` copy exactly where the dispatcher
-/// runs the `avx512` copy (the header says which); and the times beside the f64 and f32
-/// errors. (Times are not compared: that is for benchmarks.)
+/// runs the `avx512` copy (the header says which); kernels with external and contact
+/// forces too; and the times beside the f64 and f32 errors. (Times are not compared: that
+/// is for benchmarks.)
 #[test]
 fn rust_kernels_are_compiled_and_timed() {
     let out = grid_gen(&[
@@ -880,6 +881,30 @@ fn rust_kernels_are_compiled_and_timed() {
                 assert!(cell.parse::<f64>().is_ok_and(|t| t > 0.0), "{row}");
             }
         }
+    }
+    // Kernels that take external and contact forces get them as arguments (a robot whose
+    // last body moves in three directions, so that a point contact there is accepted).
+    let forced = grid_gen(&[
+        "bench",
+        "tests/fixtures/ball_arm.urdf",
+        "--backend",
+        "rust",
+        "--kernels",
+        "rnea_grad,contact_fd",
+        "--fext",
+        "*",
+        "--contact",
+        "l6:point",
+    ]);
+    assert_eq!(forced.status.code(), Some(0), "{}", String::from_utf8_lossy(&forced.stderr));
+    let text = String::from_utf8(forced.stdout).unwrap();
+    for kernel in ["rnea_grad", "contact_fd"] {
+        let row = text
+            .lines()
+            .find(|l| l.starts_with(&format!("{kernel} ")))
+            .unwrap_or_else(|| panic!("no {kernel} row in\n{text}"));
+        let dispatch = row.split_whitespace().nth(3).and_then(|c| c.parse::<f64>().ok());
+        assert!(dispatch.is_some_and(|t| t > 0.0), "{row}");
     }
     let acc = grid_gen(&[
         "accuracy",

@@ -40,8 +40,6 @@ pub enum TimingError {
     Rustc(#[from] crate::tools::rustc::RustcError),
     #[error("the timing program wrote an unexpected line: `{0}`")]
     Output(String),
-    #[error("`bench --backend rust` does not time kernels that take external or contact forces yet; `GRID_GEN_BENCH_FORCES_ONLY=1 cargo bench -p grid-gen-kernels --bench kernels` times the checked-in forces scene")]
-    Forces,
 }
 
 /// A mixed-precision kernel to time beside the generic ones: the function and which of
@@ -78,22 +76,33 @@ const NQ: usize = {nq};"
     out
 }
 
-/// A call's arguments from a state `x = (q, [q̇, u])`: q alone, q and q̇, or all three, the
-/// step kernels' τ the first NU entries of u.
-fn call_args(inputs: &[crate::ir::Input]) -> &'static str {
-    match inputs {
-        [_] => "&x.0",
-        [_, _] => "&x.0, &x.1[0]",
-        [.., crate::ir::Input::TauActuated] => {
-            "&x.0, &x.1[0], x.1[1].first_chunk::<{ robot::NU }>().unwrap()"
-        }
-        _ => "&x.0, &x.1[0], &x.1[1]",
-    }
+/// A call's arguments from a state `x = (q, [q̇, u], fext, λ)`: each input in the kernel's
+/// order, u as q̈ or τ, the step kernels' τ the first NU entries of u.
+fn call_args(inputs: &[crate::ir::Input]) -> String {
+    use crate::ir::Input;
+    let args: Vec<&str> = inputs
+        .iter()
+        .map(|i| match i {
+            Input::Q => "&x.0",
+            Input::Qd => "&x.1[0]",
+            Input::Qdd | Input::Tau => "&x.1[1]",
+            Input::TauActuated => "x.1[1].first_chunk::<{ robot::NU }>().unwrap()",
+            Input::Fext => "&x.2",
+            Input::Lambda => "&x.3",
+        })
+        .collect();
+    args.join(", ")
 }
 
 /// The timing program for `kernels` of a module whose file is `robot.rs`, and the
 /// mixed kernels of `mixed.rs`.
-fn program(kernels: &[KernelKind], mixed: &[MixedKernel], nq: usize) -> String {
+fn program(
+    kernels: &[KernelKind],
+    mixed: &[MixedKernel],
+    spec: &crate::model::Specialisation,
+    (nq, nfext, nl): (usize, usize, usize),
+) -> String {
+    let nf = 6 * nfext;
     let mut calls = String::new();
     for (i, m) in mixed.iter().enumerate() {
         let name = m.function.kind.name();
@@ -102,7 +111,7 @@ fn program(kernels: &[KernelKind], mixed: &[MixedKernel], nq: usize) -> String {
     }
     for k in kernels {
         let name = k.name();
-        let args = call_args(k.inputs());
+        let args = call_args(&k.inputs_for(spec));
         for (scalar, states) in [("f64", "s64"), ("f32", "s32")] {
             for (copy, path) in [("portable", "robot::portable::"), ("dispatch", "robot::")] {
                 let _ =
@@ -160,12 +169,15 @@ fn time<F: FnMut(usize)>(mut f: F) -> f64 {{
 
 fn main() {{
     const N: usize = robot::NV;
-    // q (nq entries: a floating base's quaternion is normalised by the kernels), then q̇, and q̈ or τ.
+    // q (nq entries: a floating base's quaternion is normalised by the kernels), then q̇, and
+    // q̈ or τ; external forces (6 per body) and contact forces, in newtons and newton-metres.
     const NQ: usize = {nq};
-    let s64: Vec<([f64; NQ], [[f64; N]; 2])> = (0..STATES)
-        .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1)))))
+    const NF: usize = {nf};
+    const NL: usize = {nl};
+    let s64: Vec<([f64; NQ], [[f64; N]; 2], [f64; NF], [f64; NL])> = (0..STATES)
+        .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))), std::array::from_fn(|i| 20.0 * state(j, i, 3)), std::array::from_fn(|i| 100.0 * state(j, i, 4))))
         .collect();
-    let s32: Vec<([f32; NQ], [[f32; N]; 2])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)))).collect();
+    let s32: Vec<([f32; NQ], [[f32; N]; 2], [f32; NF], [f32; NL])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)), x.2.map(|y| y as f32), x.3.map(|y| y as f32))).collect();
 {calls}}}
 "#
     )
@@ -197,9 +209,6 @@ pub fn time_rust_kernels_with_mixed(
     rustc: &str,
     work: &Path,
 ) -> Result<Vec<KernelTime>, TimingError> {
-    if model.nfext() + model.nlambda() > 0 {
-        return Err(TimingError::Forces);
-    }
     let options = Options {
         gravity,
         targets: vec![Target::Rust],
@@ -225,7 +234,16 @@ pub fn time_rust_kernels_with_mixed(
     std::fs::write(work.join("robot.rs"), &module.contents).map_err(io)?;
     std::fs::write(work.join("mixed.rs"), mixed_module(model.nv(), model.nq(), mixed))
         .map_err(io)?;
-    std::fs::write(work.join("main.rs"), program(&present, mixed, model.nq())).map_err(io)?;
+    std::fs::write(
+        work.join("main.rs"),
+        program(
+            &present,
+            mixed,
+            &model.specialisation,
+            (model.nq(), model.nfext(), model.nlambda()),
+        ),
+    )
+    .map_err(io)?;
     let exe = work.join(if cfg!(windows) { "time_kernels.exe" } else { "time_kernels" });
     let text = crate::tools::rustc::build_and_run(rustc, &work.join("main.rs"), &exe)?;
     let mut times = Vec::new();
