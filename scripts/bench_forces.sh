@@ -7,12 +7,12 @@
 #   fext     an external force on each of the 13 bodies as an input, no d/dfext outputs
 #            (`[external_forces] derivatives = false`, `--no-fext-derivatives`);
 #   fext+d   the same with the d/dfext outputs (78 more columns: dc/dfext and dqdd/dfext).
-# Each variant is compiled and run in its own process, BENCH_ROUNDS times (default 3),
+# Each variant is compiled and run in its own process, BENCH_ROUNDS times (default 5),
 # interleaved so that drift in the machine's speed falls on every variant alike; the table
 # gives the median over rounds and each variant's ratio to `none` in the same round's median.
 set -euo pipefail
 cd "$(dirname "$0")/.."
-ROUNDS=${BENCH_ROUNDS:-3}
+ROUNDS=${BENCH_ROUNDS:-5}
 case "$ROUNDS" in ''|*[!0-9]*|0) echo "error: BENCH_ROUNDS must be a positive integer, got '$ROUNDS'" >&2; exit 1;; esac
 cargo build -q -p grid-gen-cli
 dir=$(mktemp -d)
