@@ -96,13 +96,8 @@ fn call_args(inputs: &[crate::ir::Input]) -> String {
 
 /// The timing program for `kernels` of a module whose file is `robot.rs`, and the
 /// mixed kernels of `mixed.rs`.
-fn program(
-    kernels: &[KernelKind],
-    mixed: &[MixedKernel],
-    spec: &crate::model::Specialisation,
-    (nq, nfext, nl): (usize, usize, usize),
-) -> String {
-    let nf = 6 * nfext;
+fn program(kernels: &[KernelKind], mixed: &[MixedKernel], model: &Model) -> String {
+    let (nq, nf, nl) = (model.nq(), 6 * model.nfext(), model.nlambda());
     let mut calls = String::new();
     for (i, m) in mixed.iter().enumerate() {
         let name = m.function.kind.name();
@@ -111,7 +106,7 @@ fn program(
     }
     for k in kernels {
         let name = k.name();
-        let args = call_args(&k.inputs_for(spec));
+        let args = call_args(&k.inputs_for(&model.specialisation));
         for (scalar, states) in [("f64", "s64"), ("f32", "s32")] {
             for (copy, path) in [("portable", "robot::portable::"), ("dispatch", "robot::")] {
                 let _ =
@@ -234,16 +229,7 @@ pub fn time_rust_kernels_with_mixed(
     std::fs::write(work.join("robot.rs"), &module.contents).map_err(io)?;
     std::fs::write(work.join("mixed.rs"), mixed_module(model.nv(), model.nq(), mixed))
         .map_err(io)?;
-    std::fs::write(
-        work.join("main.rs"),
-        program(
-            &present,
-            mixed,
-            &model.specialisation,
-            (model.nq(), model.nfext(), model.nlambda()),
-        ),
-    )
-    .map_err(io)?;
+    std::fs::write(work.join("main.rs"), program(&present, mixed, model)).map_err(io)?;
     let exe = work.join(if cfg!(windows) { "time_kernels.exe" } else { "time_kernels" });
     let text = crate::tools::rustc::build_and_run(rustc, &work.join("main.rs"), &exe)?;
     let mut times = Vec::new();
