@@ -14,7 +14,8 @@
 //! `F_u = ∂q̈/∂u` at fixed λ (held in world axes, `fd_grad`'s with the contacts' forces as
 //! inputs) and `A_u = ∂acc/∂u` at fixed q̈ (forward-mode over the acceleration's graph),
 //! `∂λ/∂u = −K⁻¹ (J F_u + A_u)` and `∂q̈/∂u = F_u + G ∂λ/∂u`; for τ, `F_τ = M⁻¹`,
-//! `A_τ = 0`, so `J F_τ = Gᵀ`.
+//! `A_τ = 0`, so `J F_τ = Gᵀ`, and `∂q̈/∂τ = M⁻¹ − G K⁻¹ Gᵀ` is symmetric (half of it is
+//! formed). `F_u`'s free-flyer columns come without a solve (`fd_grad.rs`).
 
 use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::kernel::Solve;
@@ -236,7 +237,7 @@ impl Dynamics<'_> {
         let (mut outs_q, mut outs_l): (Vec<Mat>, Vec<Mat>) = (Vec::new(), Vec::new());
         for which in 0..3 {
             let columns = if which == 2 { tau_cols.len() } else { nv };
-            let (mut dq_cols, mut dl_cols) =
+            let (mut dq_cols, mut dl_cols): (Vec<Vec<Id>>, Vec<Vec<Id>>) =
                 (Vec::with_capacity(columns), Vec::with_capacity(columns));
             for c in 0..columns {
                 let f: Vec<Id> = (0..nv).map(|i| [&fq, &fqd, &minv][which][i][c]).collect();
@@ -254,6 +255,15 @@ impl Dynamics<'_> {
                 let dl: Vec<Id> = x.into_iter().map(|x| g.neg(x)).collect();
                 let dq: Vec<Id> = (0..nv)
                     .map(|i| {
+                        // ∂q̈/∂τ = M⁻¹ − G K⁻¹ Gᵀ is symmetric: an entry whose mirror
+                        // is in a column already formed is that entry (Carpentier &
+                        // Budhiraja 2021, the KKT inverse's upper-left block).
+                        if which == 2 {
+                            let mirror = tau_cols[..c].iter().position(|&t| t == i);
+                            if let Some(at) = mirror {
+                                return dq_cols[at][tau_cols[c]];
+                            }
+                        }
                         let row: Vec<Id> = sol.g.iter().map(|col| col[i]).collect();
                         let t = g.dot(&row, &dl);
                         g.add(f[i], t)

@@ -1,9 +1,10 @@
 //! ∂q̈/∂(q, q̇) = −M⁻¹ ∂c/∂(q, q̇), recorded by either solve: the dense product with the
-//! direct M⁻¹, or CRBA's M factorised as Lᵀ D L (LTDL) and solved per column.
+//! direct M⁻¹, or CRBA's M factorised as Lᵀ D L (LTDL) and solved per column; on a
+//! floating base, six columns come from the free-flyer's invariances without a solve.
 
 use super::super::graph::{Graph, Id, Stage};
 use super::super::kernel::Solve;
-use super::{strict_ancestors, Dynamics, Mat};
+use super::{strict_ancestors, Dynamics, Mat, Rnea};
 use crate::model::Model;
 
 impl Dynamics<'_> {
@@ -50,8 +51,19 @@ impl Dynamics<'_> {
                 })
                 .collect()
         };
-        let dq = product(&dc_q, &mut self.g);
-        let dqd = product(&dc_qd, &mut self.g);
+        let mut dq = product(&dc_q, &mut self.g);
+        let mut dqd = product(&dc_qd, &mut self.g);
+        let (known_q, known_qd) = match self.coupled() {
+            true => (Vec::new(), Vec::new()),
+            false => self.free_flyer_columns(&r, &qd),
+        };
+        for (m, known) in [(&mut dq, &known_q), (&mut dqd, &known_qd)] {
+            for (c, col) in known.iter().enumerate() {
+                for (row, &x) in col.iter().flatten().enumerate() {
+                    m[row][c] = x;
+                }
+            }
+        }
         let flat = |m: &Mat| {
             m.iter()
                 .flatten()
@@ -120,19 +132,23 @@ impl Dynamics<'_> {
             return (qdd, dc_q, dc_qd, empty(columns.len()), vec![vec![zero; n]; rhs.len()]);
         }
         self.g.at(None, Stage::Combine, 0);
+        let (known_q, known_qd) = self.free_flyer_columns(&r, qd);
         let g = &mut self.g;
-        let mut solve = |dc: &Mat| -> Mat {
+        let mut solve = |dc: &Mat, known: &[Option<Vec<Id>>]| -> Mat {
             let mut out = vec![vec![Id(0); n]; n];
             for c in 0..n {
-                let x = f.solve(g, self.model, (0..n).map(|row| dc[row][c]).collect());
+                let x = match &known[c] {
+                    Some(col) => col.clone(),
+                    None => f.solve(g, self.model, (0..n).map(|row| dc[row][c]).collect()),
+                };
                 for (row, x) in x.into_iter().enumerate() {
                     out[row][c] = x;
                 }
             }
             out
         };
-        let dq = solve(&dc_q);
-        let dqd = solve(&dc_qd);
+        let dq = solve(&dc_q, &known_q);
+        let dqd = solve(&dc_qd, &known_qd);
         // M⁻¹ e_c = −(−M⁻¹ e_c).
         let mut picked = vec![vec![zero; columns.len()]; n];
         for (at, &c) in columns.iter().enumerate() {
@@ -203,5 +219,56 @@ impl Ltdl {
             }
         }
         b
+    }
+}
+
+impl Dynamics<'_> {
+    /// Columns of ∂q̈/∂q and ∂q̈/∂q̇ that a free-flyer base's invariances give without a
+    /// solve (`None` for the others, and for every column without a floating base).
+    ///
+    /// With no force held in world axes (fext is held in the bodies' frames; contact forces
+    /// λ are held in world axes), the dynamics in the base frame see the base's orientation
+    /// only through gravity, and every body's classical acceleration shifts by g with it:
+    /// the joints' q̈ and the base's angular acceleration do not change, and the base's
+    /// spatial linear acceleration `a = Rᵀ p̈ − ω × v` moves with `Rᵀ g`. Along
+    /// Pinocchio's tangent `R ↦ R exp(δθ)`, `∂(Rᵀ g)/∂δθ = [Rᵀ g]×`.
+    /// Galilean invariance (every force here is independent of a uniform velocity, λ
+    /// included): adding a uniform velocity leaves every p̈ and q̈ of the joints unchanged,
+    /// so along the base's linear velocity only `a = Rᵀ p̈ − ω × v` moves, by `−[ω]×`.
+    /// These are the columns Pinocchio's `computeABADerivatives` returns there; the tests
+    /// compare them with it through the reference.
+    fn free_flyer_columns(
+        &mut self,
+        r: &Rnea,
+        qd: &[Id],
+    ) -> (Vec<Option<Vec<Id>>>, Vec<Option<Vec<Id>>>) {
+        let n = self.n();
+        let (mut dq, mut dqd) = (vec![None; n], vec![None; n]);
+        if !self.model.floating || self.config.is_some() {
+            return (dq, dqd);
+        }
+        let g = &mut self.g;
+        let zero = g.constant(0.0);
+        // Column c of −[x]×: −(x × e_c) = e_c × x, −x_b at row a and x_a at row b (a, b the
+        // axes after c).
+        let neg_skew_col = |g: &mut Graph, x: [Id; 3], c: usize| -> Vec<Id> {
+            let mut col = vec![zero; n];
+            let (a, b) = ((c + 1) % 3, (c + 2) % 3);
+            col[a] = g.neg(x[b]);
+            col[b] = x[a];
+            col
+        };
+        if !self.forces.any_in_world_axes() {
+            // r.xa[0] is the base's a₀ = −g moved into its frame: [0; −Rᵀ g].
+            let neg_gb = [r.xa[0][3], r.xa[0][4], r.xa[0][5]];
+            for c in 0..3 {
+                dq[3 + c] = Some(neg_skew_col(g, neg_gb, c));
+            }
+        }
+        let omega = [qd[3], qd[4], qd[5]];
+        for c in 0..3 {
+            dqd[c] = Some(neg_skew_col(g, omega, c));
+        }
+        (dq, dqd)
     }
 }

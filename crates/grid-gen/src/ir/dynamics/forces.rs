@@ -48,6 +48,11 @@ impl Forces {
     pub fn on(&self, i: usize) -> Option<Sv> {
         self.body.get(i).copied().flatten()
     }
+
+    /// Whether some force is held in world axes (a contact's λ, applied or not yet known).
+    pub fn any_in_world_axes(&self) -> bool {
+        !self.contacts.is_empty()
+    }
 }
 
 impl Dynamics<'_> {
