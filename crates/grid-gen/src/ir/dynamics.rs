@@ -44,6 +44,8 @@ pub(crate) struct Dynamics<'a> {
     inertia: Vec<SymInertia>,
     /// Set by [`Self::fd_grad`]: the operands of its dense product.
     pub product: Option<super::module::DenseProduct>,
+    /// Set by [`Self::contact_fd_grad`]: its combination as a per-column program.
+    pub program: Option<super::module::ColumnProgram>,
     /// How [`Self::fd_grad`] gets q̈ and applies M⁻¹ to ∂c/∂u (`Auto` runs `Minv`); after
     /// recording, the solve it took.
     pub solve: Solve,
@@ -98,6 +100,7 @@ impl<'a> Dynamics<'a> {
             s,
             inertia,
             product: None,
+            program: None,
             solve: Solve::Minv,
             forces: Forces::default(),
             config: None,

@@ -294,6 +294,91 @@ pub struct Function {
     /// instead multiply these matrices (the Rust backend's vectorised loop). `None` where a
     /// scene selects entries.
     pub product: Option<DenseProduct>,
+    /// Outputs that are the same short program run once per column (`contact_fd_grad`'s
+    /// combination of `fd_grad` with the contacts' Schur complement), as its operands and
+    /// steps: the graph holds every column's statements, which every backend may run as they
+    /// are; a backend may instead run the program with the columns innermost (the Rust
+    /// backend's vectorised loops). `None` where a scene selects entries.
+    pub program: Option<ColumnProgram>,
+}
+
+/// A program over a small register file of rows, run over many columns at once: each
+/// block starts its rows from `init` (one operand per row and column), runs `steps` on
+/// every column alike, and stores rows into outputs.
+#[derive(Clone, Debug, PartialEq)]
+pub struct ColumnProgram {
+    pub rows: usize,
+    pub blocks: Vec<ColumnBlock>,
+}
+
+/// One set of columns of a [`ColumnProgram`].
+#[derive(Clone, Debug, PartialEq)]
+pub struct ColumnBlock {
+    /// `init[row][column]`.
+    pub init: Vec<Vec<Operand>>,
+    pub steps: Vec<ColumnStep>,
+    pub stores: Vec<ColumnStore>,
+}
+
+/// One step of a [`ColumnBlock`], the same for every column.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum ColumnStep {
+    /// `row[dst] −= coef · row[src]`.
+    Sub { dst: usize, coef: Operand, src: usize },
+    /// `row[dst] *= coef`.
+    Mul { dst: usize, coef: Operand },
+}
+
+/// Row `row` of every column of a block goes to output `output` at `flat[column]`
+/// (negated when `negate`).
+#[derive(Clone, Debug, PartialEq)]
+pub struct ColumnStore {
+    pub row: usize,
+    pub output: usize,
+    pub flat: Vec<usize>,
+    pub negate: bool,
+}
+
+impl ColumnProgram {
+    /// Every operand the program reads.
+    pub fn operands(&self) -> impl Iterator<Item = Operand> + '_ {
+        self.blocks.iter().flat_map(|b| {
+            b.init.iter().flatten().copied().chain(b.steps.iter().map(|s| match *s {
+                ColumnStep::Sub { coef, .. } | ColumnStep::Mul { coef, .. } => coef,
+            }))
+        })
+    }
+
+    /// The same program with each operand mapped (`None` if one cannot be).
+    fn try_map(&self, f: impl Fn(Operand) -> Option<Operand>) -> Option<ColumnProgram> {
+        let blocks = self
+            .blocks
+            .iter()
+            .map(|b| {
+                let init = b
+                    .init
+                    .iter()
+                    .map(|row| row.iter().map(|&o| f(o)).collect::<Option<Vec<_>>>())
+                    .collect::<Option<Vec<_>>>()?;
+                let steps = b
+                    .steps
+                    .iter()
+                    .map(|s| {
+                        Some(match *s {
+                            ColumnStep::Sub { dst, coef, src } => {
+                                ColumnStep::Sub { dst, coef: f(coef)?, src }
+                            }
+                            ColumnStep::Mul { dst, coef } => {
+                                ColumnStep::Mul { dst, coef: f(coef)? }
+                            }
+                        })
+                    })
+                    .collect::<Option<Vec<_>>>()?;
+                Some(ColumnBlock { init, steps, stores: b.stores.clone() })
+            })
+            .collect::<Option<Vec<_>>>()?;
+        Some(ColumnProgram { rows: self.rows, blocks })
+    }
 }
 
 /// The operands of a dense product `out_k = −minv · dc_k` over the outputs `outputs[k]`
@@ -512,7 +597,8 @@ fn record(
         });
     }
     let product = if spec.selects() { None } else { d.product.take() };
-    let mut f = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, product);
+    let program = if spec.selects() { None } else { d.program.take() };
+    let mut f = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, product, program);
     f.inputs = kind.inputs_for(spec);
     f.dims = Robot::of(model).dims();
     f.gradient = Gradient::applies_to(kind).then_some(gradient);
@@ -528,6 +614,7 @@ fn freeze(
     g: &Graph,
     outputs: Vec<Vec<Id>>,
     product: Option<DenseProduct>,
+    program: Option<ColumnProgram>,
 ) -> Function {
     let mut live = vec![false; g.nodes.len()];
     for id in outputs.iter().flatten() {
@@ -593,6 +680,7 @@ fn freeze(
         let dc = p.dc.iter().map(|m| remap(m)).collect::<Option<Vec<_>>>()?;
         Some(DenseProduct { minv: remap(&p.minv)?, dc, outputs: p.outputs })
     });
+    let program = program.and_then(|p| p.try_map(entry));
     let dims = crate::ir::Dims { nq: 0, nv: 0, nu: 0, nframes: 0, nfext: 0, nlambda: 0 };
     Function {
         kind,
@@ -603,6 +691,7 @@ fn freeze(
         gradient: None,
         solve: None,
         product,
+        program,
     }
 }
 

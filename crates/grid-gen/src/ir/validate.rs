@@ -83,6 +83,7 @@ mod tests {
                 ids: out.into_iter().map(Id).collect(),
             }],
             product: None,
+            program: None,
         }
     }
 

@@ -12,7 +12,9 @@ pub use mixed::emit_mixed_kernel;
 use super::names::{identifier, string_literal};
 use super::{GeneratedFile, Target};
 use crate::ir::schedule::Chunks;
-use crate::ir::{DenseProduct, Function, Id, Module, Op, Operand, Shape, Stage};
+use crate::ir::{
+    ColumnProgram, ColumnStep, DenseProduct, Function, Id, Module, Op, Operand, Shape, Stage,
+};
 
 /// The public API of a module with `kernels`, for the file's header.
 fn api_doc<'a>(kernels: impl Iterator<Item = &'a Function>) -> String {
@@ -261,15 +263,27 @@ fn emit_kernel(
 ) {
     let names = Chunks::new(k, options.chunk);
     let looped = looped_product(k, nv, copy);
-    // With a looped product, the graph's product nodes are not emitted.
-    let skip: Vec<bool> =
+    let program = k.program.as_ref().filter(|_| copy != Copy::Portable && looped.is_none());
+    // With a looped product, the graph's product nodes are not emitted; with a program, the
+    // nodes only its outputs read.
+    let mut skip: Vec<bool> =
         k.nodes.iter().map(|n| looped.is_some() && n.stage == Stage::Combine).collect();
+    if let Some(p) = program {
+        skip = program_skip(k, p);
+    }
     let mut fuse =
         if copy != Copy::Portable { fusable(k, &names) } else { vec![false; k.nodes.len()] };
     if let Some(p) = looped {
         // The operands are stored into the loop's matrices, so they must exist.
         for o in p.minv.iter().chain(p.dc.iter().flatten()) {
             if let Operand::Node(id) | Operand::Neg(id) = *o {
+                fuse[id.0 as usize] = false;
+            }
+        }
+    }
+    if let Some(p) = program {
+        for o in p.operands() {
+            if let Operand::Node(id) | Operand::Neg(id) = o {
                 fuse[id.0 as usize] = false;
             }
         }
@@ -294,6 +308,17 @@ fn emit_kernel(
     let ret_value = return_value(k);
     let (mut inline_outputs, mut sinks) = output_stores(k);
     let operand_mats = looped.map(operand_names).unwrap_or_default();
+    // Local arrays the operands are stored into, with their types.
+    let mut locals: Vec<(String, String)> =
+        operand_mats.iter().map(|m| (m.clone(), "[[T; NV]; NV]".to_string())).collect();
+    let coefs = program.map(|p| ProgramCoefs::of(k, p));
+    if let (Some(p), Some(c)) = (program, &coefs) {
+        locals.push(("pc".to_string(), format!("[T; {}]", c.slots.len().max(1))));
+        for (b, block) in p.blocks.iter().enumerate() {
+            let cols = block.init.first().map_or(0, Vec::len);
+            locals.push((format!("pb{b}"), format!("[[T; {cols}]; {}]", p.rows)));
+        }
+    }
     // The operands reach their matrices as outputs do; negations and constants the graph
     // no longer holds are written just before the loop (`fixups`).
     let mut fixups = Vec::new();
@@ -318,6 +343,30 @@ fn emit_kernel(
                         if matches!(o, Operand::Neg(_)) {
                             fixups.push(format!("{place} = -{place};"));
                         }
+                    }
+                }
+            }
+        }
+    }
+    if let (Some(p), Some(c)) = (program, &coefs) {
+        let places = c.slots.iter().enumerate().map(|(i, &o)| (format!("pc[{i}]"), o));
+        let inits = p.blocks.iter().enumerate().flat_map(|(b, block)| {
+            block.init.iter().enumerate().flat_map(move |(row, ops)| {
+                ops.iter().enumerate().map(move |(col, &o)| (format!("pb{b}[{row}][{col}]"), o))
+            })
+        });
+        for (place, o) in places.chain(inits) {
+            match o {
+                Operand::Const(0.0) => {}
+                Operand::Const(c) => fixups.push(format!("{place} = lit::<T>({});", literal(c))),
+                Operand::Node(id) | Operand::Neg(id) => {
+                    match k.op(id) {
+                        Op::Const(0.0) => continue,
+                        Op::Const(_) | Op::Input(..) => inline_outputs.push((place.clone(), id)),
+                        _ => sinks.entry(id).or_default().push(place.clone()),
+                    }
+                    if matches!(o, Operand::Neg(_)) {
+                        fixups.push(format!("{place} = -{place};"));
                     }
                 }
             }
@@ -360,8 +409,8 @@ fn emit_kernel(
         let init = array_of(o.shape, "T::k(0.0)");
         let _ = writeln!(out, "let mut {} = {init};", o.name);
     }
-    for m in &operand_mats {
-        let _ = writeln!(out, "let mut {m} = [[lit::<T>(0.0); NV]; NV];");
+    for (m, ty) in &locals {
+        let _ = writeln!(out, "let mut {m} = {};", ty.replace("T;", "lit::<T>(0.0);"));
     }
     if chunks.len() == 1 {
         out.push_str(&body(0, &chunks[0]));
@@ -371,7 +420,7 @@ fn emit_kernel(
             .outputs
             .iter()
             .map(|o| o.name.to_string())
-            .chain(operand_mats.iter().cloned())
+            .chain(locals.iter().map(|(m, _)| m.clone()))
             .map(|o| format!("&mut {o}"))
             .collect();
         for c in 0..chunks.len() {
@@ -386,13 +435,31 @@ fn emit_kernel(
     if let Some(p) = looped {
         emit_product_loop(out, k, p, &operand_mats, &fixups, nv);
     }
+    if let (Some(p), Some(c)) = (program, &coefs) {
+        for f in &fixups {
+            let _ = writeln!(out, "{f}");
+        }
+        for (b, block) in p.blocks.iter().enumerate() {
+            if block.init.first().is_some_and(|r| !r.is_empty()) {
+                let _ = writeln!(out, "{name}_cols{b}(&mut pb{b}, &pc);");
+            }
+            for st in &block.stores {
+                let sign = if st.negate { "-" } else { "" };
+                for (col, &flat) in st.flat.iter().enumerate() {
+                    let place = output_place(k, st.output, flat, &k.dims);
+                    let _ = writeln!(out, "{place} = {sign}pb{b}[{}][{col}];", st.row);
+                }
+            }
+        }
+        let _ = c;
+    }
     let _ = writeln!(out, "{ret_value}\n}}\n");
     if chunks.len() > 1 {
         let outs: Vec<String> = k
             .outputs
             .iter()
             .map(|o| format!("{}: &mut {}", o.name, output_type(o.shape)))
-            .chain(operand_mats.iter().map(|m| format!("{m}: &mut [[T; NV]; NV]")))
+            .chain(locals.iter().map(|(m, ty)| format!("{m}: &mut {ty}")))
             .collect();
         for (c, ids) in chunks.iter().enumerate() {
             let _ = writeln!(
@@ -410,6 +477,133 @@ fn emit_kernel(
             out.push_str("}\n\n");
         }
     }
+    if let (Some(p), Some(c)) = (program, &coefs) {
+        for (b, block) in p.blocks.iter().enumerate() {
+            let cols = block.init.first().map_or(0, Vec::len);
+            if cols == 0 {
+                continue;
+            }
+            emit_program_block(out, k, block, b, cols, p.rows, c, &format!("{name}_cols{b}"), attr);
+        }
+    }
+}
+
+/// Where a [`ColumnProgram`]'s coefficients are stored: one slot of `pc` per distinct
+/// node or negated node (constants are written into the loops).
+struct ProgramCoefs {
+    slots: Vec<Operand>,
+    index: HashMap<(bool, Id), usize>,
+}
+
+impl ProgramCoefs {
+    fn of(k: &Function, p: &ColumnProgram) -> Self {
+        let mut c = ProgramCoefs { slots: Vec::new(), index: HashMap::new() };
+        for block in &p.blocks {
+            for step in &block.steps {
+                let (ColumnStep::Sub { coef, .. } | ColumnStep::Mul { coef, .. }) = *step;
+                let key = match coef {
+                    Operand::Node(id) => (false, id),
+                    Operand::Neg(id) => (true, id),
+                    Operand::Const(_) => continue,
+                };
+                if matches!(k.op(key.1), Op::Const(_)) {
+                    continue;
+                }
+                let next = c.slots.len();
+                if *c.index.entry(key).or_insert(next) == next {
+                    c.slots.push(coef);
+                }
+            }
+        }
+        c
+    }
+
+    /// The coefficient's value in the loops, `None` where it is zero.
+    fn expr(&self, k: &Function, coef: Operand) -> Option<String> {
+        let constant = |c: f64| (c != 0.0).then(|| format!("lit::<T>({})", literal(c)));
+        match coef {
+            Operand::Const(c) => constant(c),
+            Operand::Node(id) | Operand::Neg(id) => match k.op(id) {
+                Op::Const(c) => constant(if matches!(coef, Operand::Neg(_)) { -c } else { c }),
+                _ => Some(format!("pc[{}]", self.index[&(matches!(coef, Operand::Neg(_)), id)])),
+            },
+        }
+    }
+}
+
+/// The nodes that only a [`ColumnProgram`]'s stored outputs read, which its loops compute
+/// instead: everything else (the other outputs, the program's operands and what they read)
+/// is still emitted.
+fn program_skip(k: &Function, p: &ColumnProgram) -> Vec<bool> {
+    let stored: std::collections::HashSet<(usize, usize)> = p
+        .blocks
+        .iter()
+        .flat_map(|b| b.stores.iter())
+        .flat_map(|st| st.flat.iter().map(move |&f| (st.output, f)))
+        .collect();
+    let mut live = vec![false; k.nodes.len()];
+    for (oi, o) in k.outputs.iter().enumerate() {
+        for (flat, id) in o.ids.iter().enumerate() {
+            if !stored.contains(&(oi, flat)) {
+                live[id.0 as usize] = true;
+            }
+        }
+    }
+    for o in p.operands() {
+        if let Operand::Node(id) | Operand::Neg(id) = o {
+            live[id.0 as usize] = true;
+        }
+    }
+    for i in (0..k.nodes.len()).rev() {
+        if live[i] {
+            for operand in k.nodes[i].op.operands() {
+                live[operand.0 as usize] = true;
+            }
+        }
+    }
+    live.into_iter().map(|l| !l).collect()
+}
+
+/// One block of a [`ColumnProgram`] as a function of its rows, each step a loop over the
+/// columns (innermost, so that the compiler vectorises it).
+#[allow(clippy::too_many_arguments)]
+fn emit_program_block(
+    out: &mut String,
+    k: &Function,
+    block: &crate::ir::ColumnBlock,
+    b: usize,
+    cols: usize,
+    rows: usize,
+    coefs: &ProgramCoefs,
+    fn_name: &str,
+    attr: &str,
+) {
+    let _ = writeln!(out, "#[inline(never)]\n{attr}#[allow(clippy::all, unused_variables)]");
+    let _ = writeln!(
+        out,
+        "fn {fn_name}<T: Real>(x: &mut [[T; {cols}]; {rows}], pc: &[T; {}]) {{",
+        coefs.slots.len().max(1)
+    );
+    let _ = b;
+    for step in &block.steps {
+        match *step {
+            ColumnStep::Sub { dst, coef, src } => {
+                let Some(c) = coefs.expr(k, coef) else { continue };
+                let _ = writeln!(
+                    out,
+                    "{{ let k = -{c}; for c in 0..{cols} {{ x[{dst}][c] = T::mul_add(k, x[{src}][c], x[{dst}][c]); }} }}"
+                );
+            }
+            ColumnStep::Mul { dst, coef } => {
+                let c = coefs.expr(k, coef).unwrap_or_else(|| "lit::<T>(0.0)".to_string());
+                let _ = writeln!(
+                    out,
+                    "{{ let k = {c}; for c in 0..{cols} {{ x[{dst}][c] = x[{dst}][c] * k; }} }}"
+                );
+            }
+        }
+    }
+    out.push_str("}\n\n");
 }
 
 /// The operand matrices' `fixups`, then `out_k = −M⁻¹ · dc_k` over rows of M⁻¹, the

@@ -19,6 +19,7 @@
 
 use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::kernel::Solve;
+use super::super::module::{ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Operand};
 use super::super::spatial::{self as sp, k, V3};
 use super::{Dynamics, LambdaSource, Mat};
 use crate::model::ContactKind;
@@ -275,9 +276,100 @@ impl Dynamics<'_> {
             outs_q.push(super::transpose(dq_cols, nv));
             outs_l.push(super::transpose(dl_cols, nl));
         }
+        let blocks = [&fq, &fqd, &minv]
+            .iter()
+            .enumerate()
+            .map(|(which, f)| {
+                let a = [Some(&aq), Some(&aqd), None][which];
+                combination_block(&sol, f, a, tau_cols, which)
+            })
+            .collect();
+        self.program = Some(ColumnProgram { rows: nv + nl, blocks });
         let mut out = vec![vec![sol.qdd], vec![sol.lambda]];
         out.extend(outs_q);
         out.extend(outs_l);
         out
     }
+}
+
+/// The combination above for one of u = q, q̇, τ (`which` 0, 1, 2) as a per-column program
+/// over rows `[F e_c (nv); x (nλ)]`: `x = A e_c + (−Jᵀ)ᵀ F e_c` (for τ, G's row c), then
+/// `x ← K⁻¹ x`, `F e_c −= G x`; stored as ∂q̈/∂u (outputs 2 + which) and ∂λ/∂u = −x
+/// (outputs 5 + which). The same operations as the graph's, which the Rust backend runs with
+/// the columns innermost.
+fn combination_block(
+    sol: &ContactSolution,
+    f: &Mat,
+    a: Option<&Vec<Vec<Id>>>,
+    tau_cols: &[usize],
+    which: usize,
+) -> ColumnBlock {
+    let (nv, nl) = (f.len(), sol.lambda.len());
+    let columns = f.first().map_or(0, Vec::len);
+    let node = Operand::Node;
+    // For τ, where the graph took an entry of ∂q̈/∂τ from its mirror, M⁻¹'s entry is read
+    // from the mirror too (the one the graph keeps; M⁻¹ is symmetric).
+    let f_entry = |i: usize, c: usize| match which {
+        2 => match tau_cols[..c].iter().position(|&t| t == i) {
+            Some(at) => f[tau_cols[c]][at],
+            None => f[i][c],
+        },
+        _ => f[i][c],
+    };
+    let mut init: Vec<Vec<Operand>> =
+        (0..nv).map(|i| (0..columns).map(|c| node(f_entry(i, c))).collect()).collect();
+    for r in 0..nl {
+        init.push(
+            (0..columns)
+                .map(|c| match a {
+                    Some(a) => node(a[c][r]),
+                    None => node(sol.g[r][tau_cols[c]]),
+                })
+                .collect(),
+        );
+    }
+    let mut steps = Vec::new();
+    if a.is_some() {
+        // x_r = a_r − (−Jᵀ)_r · F.
+        for r in 0..nl {
+            for i in 0..nv {
+                steps.push(ColumnStep::Sub { dst: nv + r, coef: node(sol.neg_jt[r][i]), src: i });
+            }
+        }
+    }
+    // K⁻¹ as `Ldl::solve`.
+    for i in 0..nl {
+        for p in 0..i {
+            steps.push(ColumnStep::Sub { dst: nv + i, coef: node(sol.k.l[i][p]), src: nv + p });
+        }
+    }
+    for i in 0..nl {
+        steps.push(ColumnStep::Mul { dst: nv + i, coef: node(sol.k.dinv[i]) });
+    }
+    for i in (0..nl).rev() {
+        for p in i + 1..nl {
+            steps.push(ColumnStep::Sub { dst: nv + i, coef: node(sol.k.l[p][i]), src: nv + p });
+        }
+    }
+    // dq = F + G dλ = F − G x.
+    for i in 0..nv {
+        for r in 0..nl {
+            steps.push(ColumnStep::Sub { dst: i, coef: node(sol.g[r][i]), src: nv + r });
+        }
+    }
+    let mut stores: Vec<ColumnStore> = (0..nv)
+        .map(|i| ColumnStore {
+            row: i,
+            output: 2 + which,
+            flat: (0..columns).map(|c| i * columns + c).collect(),
+            negate: false,
+        })
+        .collect();
+    stores.extend((0..nl).map(|r| ColumnStore {
+        row: nv + r,
+        output: 5 + which,
+        flat: (0..columns).map(|c| r * columns + c).collect(),
+        negate: true,
+    }));
+    ColumnBlock { init, steps, stores }
 }

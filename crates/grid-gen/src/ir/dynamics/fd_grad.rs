@@ -222,6 +222,9 @@ impl Ltdl {
     }
 }
 
+/// Per column, the column itself where it is known without a solve.
+type KnownColumns = Vec<Option<Vec<Id>>>;
+
 impl Dynamics<'_> {
     /// Columns of ∂q̈/∂q and ∂q̈/∂q̇ that a free-flyer base's invariances give without a
     /// solve (`None` for the others, and for every column without a floating base).
@@ -237,11 +240,7 @@ impl Dynamics<'_> {
     /// so along the base's linear velocity only `a = Rᵀ p̈ − ω × v` moves, by `−[ω]×`.
     /// These are the columns Pinocchio's `computeABADerivatives` returns there; the tests
     /// compare them with it through the reference.
-    fn free_flyer_columns(
-        &mut self,
-        r: &Rnea,
-        qd: &[Id],
-    ) -> (Vec<Option<Vec<Id>>>, Vec<Option<Vec<Id>>>) {
+    fn free_flyer_columns(&mut self, r: &Rnea, qd: &[Id]) -> (KnownColumns, KnownColumns) {
         let n = self.n();
         let (mut dq, mut dqd) = (vec![None; n], vec![None; n]);
         if !self.model.floating || self.config.is_some() {

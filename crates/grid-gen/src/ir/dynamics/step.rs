@@ -283,6 +283,8 @@ impl Dynamics<'_> {
     ) -> (Vec<Id>, Mat, Mat, Mat) {
         if self.declares_contacts() {
             let mut out = self.contact_fd_grad(qd, tau, tau_cols).into_iter();
+            // The program describes contact_fd_grad's outputs, which the step goes on from.
+            self.program = None;
             let qdd = out.next().and_then(|rows| rows.into_iter().next()).unwrap_or_default();
             let _lambda = out.next();
             let (dq, dqd, dtau) = (
