@@ -677,3 +677,51 @@ fn contact_kernels_match_the_reference() {
     }
     println!("worst contact kernel against the reference: {worst:.2e} (bound 5e-11)");
 }
+
+/// `contact_fd_grad`'s combination reaches the Rust backend as a per-column program, which
+/// the `fma` copy (and `avx512`'s, with `--avx512`) runs as loops over the columns
+/// (`against_reference.rs` checks the fma copy's values against the reference); the
+/// portable copy keeps the graph, and a step under contacts, whose combination the step goes
+/// on from, has no program.
+#[test]
+fn the_contact_combination_is_looped_in_the_simd_copies() {
+    use grid_gen::generate::{generate, Options, Target};
+    let legs: Vec<String> =
+        ["lf", "rf", "lh", "rh"].iter().map(|l| format!("{l}_lowerleg")).collect();
+    let contacts: Vec<(&str, ContactKind)> =
+        legs.iter().map(|l| (l.as_str(), ContactKind::Point)).collect();
+    let model = with_forces(&load_floating("grid_hyq"), &[], &contacts);
+    let lowered = ir::lower(
+        &model,
+        reference::DEFAULT_GRAVITY,
+        &LowerOptions { kernels: vec![KernelKind::ContactFdGrad], ..LowerOptions::default() },
+    )
+    .unwrap();
+    let program = lowered.functions[0].program.as_ref().expect("the program survives freezing");
+    assert_eq!((program.rows, program.blocks.len()), (18 + 12, 3));
+    let lower =
+        LowerOptions { kernels: vec![KernelKind::ContactFdGrad], ..LowerOptions::default() };
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
+    let text = &file.contents;
+    let (portable, fma) = text.split_at(text.find("pub mod fma").unwrap());
+    for b in 0..3 {
+        let call = format!("contact_fd_grad_cols{b}(&mut pb{b}, &pc);");
+        assert_eq!(fma.matches(&call).count(), 1, "the fma copy calls {call}");
+        assert!(!portable.contains(&call), "the portable copy keeps the graph");
+    }
+    let mut stepping = model.clone();
+    stepping.specialisation.step = Some(grid_gen::model::Step {
+        scheme: grid_gen::model::Scheme::SemiImplicitEuler,
+        dt: 0.01,
+    });
+    let lowered = ir::lower(
+        &stepping,
+        reference::DEFAULT_GRAVITY,
+        &LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() },
+    )
+    .unwrap();
+    assert!(lowered.functions[0].program.is_none(), "the step goes on from the combination");
+}
