@@ -339,6 +339,13 @@ pub struct ColumnStore {
     pub negate: bool,
 }
 
+impl ColumnBlock {
+    /// How many columns the block runs.
+    pub fn columns(&self) -> usize {
+        self.init.first().map_or(0, Vec::len)
+    }
+}
+
 impl ColumnProgram {
     /// Every operand the program reads.
     pub fn operands(&self) -> impl Iterator<Item = Operand> + '_ {

@@ -264,6 +264,7 @@ fn emit_kernel(
     let names = Chunks::new(k, options.chunk);
     let looped = looped_product(k, nv, copy);
     let program = k.program.as_ref().filter(|_| copy != Copy::Portable && looped.is_none());
+    let coefs = program.map(|p| ProgramCoefs::of(k, p));
     // With a looped product, the graph's product nodes are not emitted; with a program, the
     // nodes only its outputs read.
     let mut skip: Vec<bool> =
@@ -273,19 +274,12 @@ fn emit_kernel(
     }
     let mut fuse =
         if copy != Copy::Portable { fusable(k, &names) } else { vec![false; k.nodes.len()] };
-    if let Some(p) = looped {
-        // The operands are stored into the loop's matrices, so they must exist.
-        for o in p.minv.iter().chain(p.dc.iter().flatten()) {
-            if let Operand::Node(id) | Operand::Neg(id) = *o {
-                fuse[id.0 as usize] = false;
-            }
-        }
-    }
-    if let Some(p) = program {
-        for o in p.operands() {
-            if let Operand::Node(id) | Operand::Neg(id) = o {
-                fuse[id.0 as usize] = false;
-            }
+    // The operands are stored into the loops' matrices, so they must exist.
+    let product_operands =
+        looped.into_iter().flat_map(|p| p.minv.iter().chain(p.dc.iter().flatten()).copied());
+    for o in product_operands.chain(program.into_iter().flat_map(|p| p.operands())) {
+        if let Operand::Node(id) | Operand::Neg(id) = o {
+            fuse[id.0 as usize] = false;
         }
     }
     // A product is dropped only where its one user fuses it.
@@ -311,12 +305,10 @@ fn emit_kernel(
     // Local arrays the operands are stored into, with their types.
     let mut locals: Vec<(String, String)> =
         operand_mats.iter().map(|m| (m.clone(), "[[T; NV]; NV]".to_string())).collect();
-    let coefs = program.map(|p| ProgramCoefs::of(k, p));
     if let (Some(p), Some(c)) = (program, &coefs) {
         locals.push(("pc".to_string(), format!("[T; {}]", c.slots.len().max(1))));
         for (b, block) in p.blocks.iter().enumerate() {
-            let cols = block.init.first().map_or(0, Vec::len);
-            locals.push((format!("pb{b}"), format!("[[T; {cols}]; {}]", p.rows)));
+            locals.push((format!("pb{b}"), format!("[[T; {}]; {}]", block.columns(), p.rows)));
         }
     }
     // The operands reach their matrices as outputs do; negations and constants the graph
@@ -324,27 +316,9 @@ fn emit_kernel(
     let mut fixups = Vec::new();
     if let Some(p) = looped {
         for (m, ids) in operand_mats.iter().zip(std::iter::once(&p.minv).chain(&p.dc)) {
-            for (flat, o) in ids.iter().enumerate() {
+            for (flat, &o) in ids.iter().enumerate() {
                 let place = format!("{m}[{}][{}]", flat / nv, flat % nv);
-                // The matrices start at zero.
-                match *o {
-                    Operand::Const(0.0) => {}
-                    Operand::Const(c) => {
-                        fixups.push(format!("{place} = lit::<T>({});", literal(c)))
-                    }
-                    Operand::Node(id) | Operand::Neg(id) => {
-                        match k.op(id) {
-                            Op::Const(0.0) => continue,
-                            Op::Const(_) | Op::Input(..) => {
-                                inline_outputs.push((place.clone(), id))
-                            }
-                            _ => sinks.entry(id).or_default().push(place.clone()),
-                        }
-                        if matches!(o, Operand::Neg(_)) {
-                            fixups.push(format!("{place} = -{place};"));
-                        }
-                    }
-                }
+                place_operand(k, place, o, &mut fixups, &mut inline_outputs, &mut sinks);
             }
         }
     }
@@ -356,20 +330,7 @@ fn emit_kernel(
             })
         });
         for (place, o) in places.chain(inits) {
-            match o {
-                Operand::Const(0.0) => {}
-                Operand::Const(c) => fixups.push(format!("{place} = lit::<T>({});", literal(c))),
-                Operand::Node(id) | Operand::Neg(id) => {
-                    match k.op(id) {
-                        Op::Const(0.0) => continue,
-                        Op::Const(_) | Op::Input(..) => inline_outputs.push((place.clone(), id)),
-                        _ => sinks.entry(id).or_default().push(place.clone()),
-                    }
-                    if matches!(o, Operand::Neg(_)) {
-                        fixups.push(format!("{place} = -{place};"));
-                    }
-                }
-            }
+            place_operand(k, place, o, &mut fixups, &mut inline_outputs, &mut sinks);
         }
     }
     let body = |c: usize, ids: &[Id]| -> String {
@@ -435,12 +396,12 @@ fn emit_kernel(
     if let Some(p) = looped {
         emit_product_loop(out, k, p, &operand_mats, &fixups, nv);
     }
-    if let (Some(p), Some(c)) = (program, &coefs) {
+    if let Some(p) = program {
         for f in &fixups {
             let _ = writeln!(out, "{f}");
         }
         for (b, block) in p.blocks.iter().enumerate() {
-            if block.init.first().is_some_and(|r| !r.is_empty()) {
+            if block.columns() > 0 {
                 let _ = writeln!(out, "{name}_cols{b}(&mut pb{b}, &pc);");
             }
             for st in &block.stores {
@@ -451,7 +412,6 @@ fn emit_kernel(
                 }
             }
         }
-        let _ = c;
     }
     let _ = writeln!(out, "{ret_value}\n}}\n");
     if chunks.len() > 1 {
@@ -478,12 +438,35 @@ fn emit_kernel(
         }
     }
     if let (Some(p), Some(c)) = (program, &coefs) {
-        for (b, block) in p.blocks.iter().enumerate() {
-            let cols = block.init.first().map_or(0, Vec::len);
-            if cols == 0 {
-                continue;
+        for (b, block) in p.blocks.iter().enumerate().filter(|(_, b)| b.columns() > 0) {
+            emit_program_block(out, k, block, p.rows, c, &format!("{name}_cols{b}"), attr);
+        }
+    }
+}
+
+/// Writes a loop operand into `place` (a local matrix, which starts at zero): a node's
+/// value when it is computed (`sinks`), an input or constant up front (`inline_outputs`), a
+/// constant or a negation just before the loops (`fixups`).
+fn place_operand(
+    k: &Function,
+    place: String,
+    o: Operand,
+    fixups: &mut Vec<String>,
+    inline_outputs: &mut Vec<(String, Id)>,
+    sinks: &mut HashMap<Id, Vec<String>>,
+) {
+    match o {
+        Operand::Const(0.0) => {}
+        Operand::Const(c) => fixups.push(format!("{place} = lit::<T>({});", literal(c))),
+        Operand::Node(id) | Operand::Neg(id) => {
+            if matches!(o, Operand::Neg(_)) && k.op(id) != Op::Const(0.0) {
+                fixups.push(format!("{place} = -{place};"));
             }
-            emit_program_block(out, k, block, b, cols, p.rows, c, &format!("{name}_cols{b}"), attr);
+            match k.op(id) {
+                Op::Const(0.0) => {}
+                Op::Const(_) | Op::Input(..) => inline_outputs.push((place, id)),
+                _ => sinks.entry(id).or_default().push(place),
+            }
         }
     }
 }
@@ -566,25 +549,22 @@ fn program_skip(k: &Function, p: &ColumnProgram) -> Vec<bool> {
 
 /// One block of a [`ColumnProgram`] as a function of its rows, each step a loop over the
 /// columns (innermost, so that the compiler vectorises it).
-#[allow(clippy::too_many_arguments)]
 fn emit_program_block(
     out: &mut String,
     k: &Function,
     block: &crate::ir::ColumnBlock,
-    b: usize,
-    cols: usize,
     rows: usize,
     coefs: &ProgramCoefs,
     fn_name: &str,
     attr: &str,
 ) {
+    let cols = block.columns();
     let _ = writeln!(out, "#[inline(never)]\n{attr}#[allow(clippy::all, unused_variables)]");
     let _ = writeln!(
         out,
         "fn {fn_name}<T: Real>(x: &mut [[T; {cols}]; {rows}], pc: &[T; {}]) {{",
         coefs.slots.len().max(1)
     );
-    let _ = b;
     for step in &block.steps {
         match *step {
             ColumnStep::Sub { dst, coef, src } => {

@@ -259,11 +259,8 @@ impl Dynamics<'_> {
                         // ∂q̈/∂τ = M⁻¹ − G K⁻¹ Gᵀ is symmetric: an entry whose mirror
                         // is in a column already formed is that entry (Carpentier &
                         // Budhiraja 2021, the KKT inverse's upper-left block).
-                        if which == 2 {
-                            let mirror = tau_cols[..c].iter().position(|&t| t == i);
-                            if let Some(at) = mirror {
-                                return dq_cols[at][tau_cols[c]];
-                            }
+                        if let Some(at) = mirror(which, tau_cols, i, c) {
+                            return dq_cols[at][tau_cols[c]];
                         }
                         let row: Vec<Id> = sol.g.iter().map(|col| col[i]).collect();
                         let t = g.dot(&row, &dl);
@@ -292,6 +289,12 @@ impl Dynamics<'_> {
     }
 }
 
+/// For τ (`which` 2), the earlier column of `tau_cols` whose coordinate is row i: entry
+/// (i, c) of the symmetric ∂q̈/∂τ is that column's entry in row `tau_cols[c]`.
+fn mirror(which: usize, tau_cols: &[usize], i: usize, c: usize) -> Option<usize> {
+    (which == 2).then(|| tau_cols[..c].iter().position(|&t| t == i)).flatten()
+}
+
 /// The combination above for one of u = q, q̇, τ (`which` 0, 1, 2) as a per-column program
 /// over rows `[F e_c (nv); x (nλ)]`: `x = A e_c + (−Jᵀ)ᵀ F e_c` (for τ, G's row c), then
 /// `x ← K⁻¹ x`, `F e_c −= G x`; stored as ∂q̈/∂u (outputs 2 + which) and ∂λ/∂u = −x
@@ -309,12 +312,9 @@ fn combination_block(
     let node = Operand::Node;
     // For τ, where the graph took an entry of ∂q̈/∂τ from its mirror, M⁻¹'s entry is read
     // from the mirror too (the one the graph keeps; M⁻¹ is symmetric).
-    let f_entry = |i: usize, c: usize| match which {
-        2 => match tau_cols[..c].iter().position(|&t| t == i) {
-            Some(at) => f[tau_cols[c]][at],
-            None => f[i][c],
-        },
-        _ => f[i][c],
+    let f_entry = |i: usize, c: usize| match mirror(which, tau_cols, i, c) {
+        Some(at) => f[tau_cols[c]][at],
+        None => f[i][c],
     };
     let mut init: Vec<Vec<Operand>> =
         (0..nv).map(|i| (0..columns).map(|c| node(f_entry(i, c))).collect()).collect();
