@@ -23,8 +23,22 @@ impl Dynamics<'_> {
         columns: &[usize],
         rhs: &[Vec<Id>],
     ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
+        self.fd_grad_scaled(qd, tau, columns, rhs, 1.0)
+    }
+
+    /// [`Self::fd_grad`] with `∂q̈/∂u` and the columns of M⁻¹ multiplied by `s` (a step's
+    /// dt, whose `A` and `B` read `dt ∂q̈/∂u` and `dt M⁻¹`). Through the factorisation,
+    /// `s` rides on −D⁻¹: one multiplication per coordinate instead of one per entry.
+    pub fn fd_grad_scaled(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        columns: &[usize],
+        rhs: &[Vec<Id>],
+        s: f64,
+    ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
         if matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled() {
-            return self.fd_grad_ltdl(qd, tau, columns, rhs);
+            return self.fd_grad_ltdl(qd, tau, columns, rhs, s);
         }
         // The constrained M⁻¹ of coupled mimic joints comes from the direct route.
         self.solve = Solve::Minv;
@@ -55,7 +69,7 @@ impl Dynamics<'_> {
         let mut dqd = product(&dc_qd, &mut self.g);
         let (known_q, known_qd) = match self.coupled() {
             true => (Vec::new(), Vec::new()),
-            false => self.free_flyer_columns(&r, &qd),
+            false => self.free_flyer_columns(&r, &qd, 1.0),
         };
         for (m, known) in [(&mut dq, &known_q), (&mut dqd, &known_qd)] {
             for (c, col) in known.iter().enumerate() {
@@ -75,7 +89,16 @@ impl Dynamics<'_> {
             dc: vec![flat(&dc_q), flat(&dc_qd)],
             outputs: vec![1, 2],
         });
-        let picked = mi.iter().map(|row| columns.iter().map(|&c| row[c]).collect()).collect();
+        let mut picked: Mat =
+            mi.iter().map(|row| columns.iter().map(|&c| row[c]).collect()).collect();
+        if s != 1.0 {
+            // The product loop would write the unscaled entries.
+            self.product = None;
+            let h = super::super::spatial::k(&mut self.g, s);
+            for x in dq.iter_mut().chain(&mut dqd).chain(&mut picked).flatten() {
+                *x = self.g.mul(h, *x);
+            }
+        }
         let solved = rhs
             .iter()
             .map(|b| {
@@ -104,6 +127,7 @@ impl Dynamics<'_> {
         tau: &[Id],
         columns: &[usize],
         rhs: &[Vec<Id>],
+        s: f64,
     ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
         let n = self.n();
         let zero = self.g.constant(0.0);
@@ -132,14 +156,15 @@ impl Dynamics<'_> {
             return (qdd, dc_q, dc_qd, empty(columns.len()), vec![vec![zero; n]; rhs.len()]);
         }
         self.g.at(None, Stage::Combine, 0);
-        let (known_q, known_qd) = self.free_flyer_columns(&r, qd);
+        let (known_q, known_qd) = self.free_flyer_columns(&r, qd, s);
+        let fs = f.scaled(&mut self.g, s);
         let g = &mut self.g;
         let mut solve = |dc: &Mat, known: &[Option<Vec<Id>>]| -> Mat {
             let mut out = vec![vec![Id(0); n]; n];
             for c in 0..n {
                 let x = match &known[c] {
                     Some(col) => col.clone(),
-                    None => f.solve(g, self.model, (0..n).map(|row| dc[row][c]).collect()),
+                    None => fs.solve(g, self.model, (0..n).map(|row| dc[row][c]).collect()),
                 };
                 for (row, x) in x.into_iter().enumerate() {
                     out[row][c] = x;
@@ -149,14 +174,25 @@ impl Dynamics<'_> {
         };
         let dq = solve(&dc_q, &known_q);
         let dqd = solve(&dc_qd, &known_qd);
-        // M⁻¹ e_c = −(−M⁻¹ e_c).
+        // M⁻¹ e_c = −M⁻¹ (−e_c): no negation is left to store.
         let mut picked = vec![vec![zero; columns.len()]; n];
         for (at, &c) in columns.iter().enumerate() {
-            let one = self.g.constant(1.0);
+            let minus_one = self.g.constant(-1.0);
             let mut e = vec![zero; n];
-            e[c] = one;
-            for (row, x) in f.solve(&mut self.g, self.model, e).into_iter().enumerate() {
-                picked[row][at] = self.g.neg(x);
+            e[c] = minus_one;
+            for (row, x) in fs.solve(&mut self.g, self.model, e).into_iter().enumerate() {
+                picked[row][at] = x;
+            }
+        }
+        // M⁻¹ is symmetric: where row r is also a picked column, the entry above the
+        // diagonal is column r's below it, and the solve's last pass drops the rows no
+        // other row reads (a floating quadruped's B: the other legs' rows of half its
+        // columns).
+        for (at, &c) in columns.iter().enumerate() {
+            for (at_r, &r) in columns.iter().enumerate() {
+                if r < c {
+                    picked[r][at] = picked[c][at_r];
+                }
             }
         }
         let solved = rhs.iter().map(|b| f.solve(&mut self.g, self.model, b.clone())).collect();
@@ -193,12 +229,19 @@ impl Dynamics<'_> {
 
 /// M = Lᵀ D L, as [`Dynamics::ltdl`] leaves it: L below the diagonal (row k, the
 /// ancestors of k), and −1/D.
+#[derive(Clone)]
 pub(super) struct Ltdl {
     l: Mat,
     neg_dinv: Vec<Id>,
 }
 
 impl Ltdl {
+    /// The factorisation whose solves give `−s M⁻¹ b`: −D⁻¹ multiplied by `s`.
+    pub(super) fn scaled(&self, g: &mut Graph, s: f64) -> Ltdl {
+        let h = super::super::spatial::k(g, s);
+        Ltdl { l: self.l.clone(), neg_dinv: self.neg_dinv.iter().map(|&d| g.mul(h, d)).collect() }
+    }
+
     /// −M⁻¹ b: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`, `L x = z` root first. Zero entries
     /// of b fold away, so a column touches only the joints it can reach.
     pub(super) fn solve(&self, g: &mut Graph, model: &Model, mut b: Vec<Id>) -> Vec<Id> {
@@ -240,14 +283,15 @@ impl Dynamics<'_> {
     /// so along the base's linear velocity only `a = Rᵀ p̈ − ω × v` moves, by `−[ω]×`.
     /// These are the columns Pinocchio's `computeABADerivatives` returns there; the tests
     /// compare them with it through the reference.
-    fn free_flyer_columns(&mut self, r: &Rnea, qd: &[Id]) -> (KnownColumns, KnownColumns) {
+    /// Multiplied by `s`, as [`Dynamics::fd_grad_scaled`]'s.
+    fn free_flyer_columns(&mut self, r: &Rnea, qd: &[Id], s: f64) -> (KnownColumns, KnownColumns) {
         let n = self.n();
         let (mut dq, mut dqd) = (vec![None; n], vec![None; n]);
         if !self.model.floating || self.config.is_some() {
             return (dq, dqd);
         }
         let g = &mut self.g;
-        let zero = g.constant(0.0);
+        let (zero, h) = (g.constant(0.0), super::super::spatial::k(g, s));
         // Column c of −[x]×: −(x × e_c) = e_c × x, −x_b at row a and x_a at row b (a, b the
         // axes after c).
         let neg_skew_col = |g: &mut Graph, x: [Id; 3], c: usize| -> Vec<Id> {
@@ -259,12 +303,12 @@ impl Dynamics<'_> {
         };
         if !self.forces.any_in_world_axes() {
             // r.xa[0] is the base's a₀ = −g moved into its frame: [0; −Rᵀ g].
-            let neg_gb = [r.xa[0][3], r.xa[0][4], r.xa[0][5]];
+            let neg_gb = [r.xa[0][3], r.xa[0][4], r.xa[0][5]].map(|x| g.mul(h, x));
             for c in 0..3 {
                 dq[3 + c] = Some(neg_skew_col(g, neg_gb, c));
             }
         }
-        let omega = [qd[3], qd[4], qd[5]];
+        let omega = [qd[3], qd[4], qd[5]].map(|x| g.mul(h, x));
         for c in 0..3 {
             dqd[c] = Some(neg_skew_col(g, omega, c));
         }

@@ -50,9 +50,56 @@ fn series(g: &mut Graph, y: Id, m: u32) -> Id {
     acc
 }
 
+/// An exponential as [`integrate`](Dynamics::integrate) recorded it: the rotation vector
+/// ω, θ² and the nodes that read ω only through it (the half angle's `sin φ / φ`, `cos φ`,
+/// the full angle's `b`, `d`; not all of them are used by every block), and a free-flyer's
+/// `v` and translation `V v` before q's rotation moves it.
+#[derive(Clone, Copy)]
+struct ExpNodes {
+    omega: V3,
+    theta2: Id,
+    coefs: [Id; 4],
+    shift: Option<(V3, V3)>,
+}
+
+impl ExpNodes {
+    /// `R(ω)ᵀ = cos θ I − (sin θ/θ) [ω]× + b ω ωᵀ` and the right Jacobian
+    /// `Jr(ω) = (sin θ/θ) I − b [ω]× + d ω ωᵀ` (Rodrigues; `Jr = I − b [ω]× + d [ω]×²` with
+    /// `[ω]×² = ω ωᵀ − θ² I` and `1 − d θ² = sin θ/θ`), the blocks of Pinocchio's
+    /// `dIntegrate` (`Jexp3`) without a division.
+    fn rotation_and_jacobian(&self, g: &mut Graph) -> ([[Id; 3]; 3], [[Id; 3]; 3]) {
+        let [hs, hc, b, d] = self.coefs;
+        let w = self.omega;
+        let sinc = g.mul(hs, hc);
+        let bx = g.mul(b, self.theta2);
+        let one = k(g, 1.0);
+        let cos = g.sub(one, bx);
+        let build = |g: &mut Graph, diag: Id, skew: Id, outer: Id| -> [[Id; 3]; 3] {
+            let ow: V3 = w.map(|x| g.mul(outer, x));
+            let sw: V3 = w.map(|x| g.mul(skew, x));
+            std::array::from_fn(|r| {
+                std::array::from_fn(|c| {
+                    let o = g.mul(ow[r], w[c]);
+                    if r == c {
+                        return g.add(diag, o);
+                    }
+                    // −skew [ω]×: [ω]× has ω_m at (m+2, m+1) and −ω_m at (m+1, m+2).
+                    let m = 3 - r - c;
+                    if r == (m + 2) % 3 {
+                        g.sub(o, sw[m])
+                    } else {
+                        g.add(o, sw[m])
+                    }
+                })
+            })
+        };
+        (build(g, cos, sinc, b), build(g, sinc, b, d))
+    }
+}
+
 /// The half angle's [`Trig`] and the full angle's `b`, `d`, for the rotation vector `w`
-/// (θ = |w|), by scaling and squaring.
-fn exp_coefficients(g: &mut Graph, w: &V3) -> (Trig, Id, Id) {
+/// (θ = |w|), by scaling and squaring; and the nodes recorded as [`ExpNodes`].
+fn exp_coefficients(g: &mut Graph, w: &V3) -> (Trig, Id, Id, ExpNodes) {
     let x = g.dot(w, w);
     let scale = k(g, 0.25f64.powi(DOUBLINGS));
     let mut y = g.mul(x, scale);
@@ -74,7 +121,12 @@ fn exp_coefficients(g: &mut Graph, w: &V3) -> (Trig, Id, Id) {
         y = g.mul(four, y);
     }
     let full = double(g, t, y);
-    (t, full.b, full.d)
+    (
+        t,
+        full.b,
+        full.d,
+        ExpNodes { omega: *w, theta2: x, coefs: [t.s, t.c, full.b, full.d], shift: None },
+    )
 }
 
 /// The quaternion product `a ⊗ b`, `[x, y, z, w]`.
@@ -104,13 +156,13 @@ fn normalize(g: &mut Graph, r: [Id; 4]) -> [Id; 4] {
 }
 
 /// `q ⊗ exp(w)`, normalised: a quaternion turned by the rotation vector `w` in its own frame.
-fn turn(g: &mut Graph, q: [Id; 4], w: &V3) -> ([Id; 4], Trig, Id, Id) {
-    let (h, b, d) = exp_coefficients(g, w);
+fn turn(g: &mut Graph, q: [Id; 4], w: &V3) -> ([Id; 4], Id, Id, ExpNodes) {
+    let (h, b, d, nodes) = exp_coefficients(g, w);
     let half = k(g, 0.5);
     let s = g.mul(half, h.s);
     let e = [g.mul(s, w[0]), g.mul(s, w[1]), g.mul(s, w[2]), h.c];
     let r = qmul(g, q, e);
-    (normalize(g, r), h, b, d)
+    (normalize(g, r), b, d, nodes)
 }
 
 impl Dynamics<'_> {
@@ -144,6 +196,13 @@ impl Dynamics<'_> {
 
     /// `q ⊕ w` (Pinocchio's `integrate`) for the kernel's q and the tangent `w`.
     fn integrate(&mut self, w: &[Id]) -> Vec<Id> {
+        self.integrate_recorded(w).0
+    }
+
+    /// [`Self::integrate`] and each exponential's [`ExpNodes`], in the order of the model's
+    /// Lie blocks, for [`Self::d_integrate`].
+    fn integrate_recorded(&mut self, w: &[Id]) -> (Vec<Id>, Vec<ExpNodes>) {
+        let mut exps = Vec::new();
         let g = &mut self.g;
         let mut out: Vec<Id> = (0..self.model.nq()).map(|i| g.input(Input::Q, i)).collect();
         for block in self.model.lie_blocks() {
@@ -152,7 +211,7 @@ impl Dynamics<'_> {
                 LieBlock::FreeFlyer => {
                     let quat = [out[3], out[4], out[5], out[6]];
                     let (lin, ang) = ([w[0], w[1], w[2]], [w[3], w[4], w[5]]);
-                    let (turned, _, b, d) = turn(g, quat, &ang);
+                    let (turned, b, d, mut nodes) = turn(g, quat, &ang);
                     // exp6's translation V v = v + B (ω × v) + D (ω × (ω × v)), moved by R(q).
                     let wv = sp::cross(g, &ang, &lin);
                     let wwv = sp::cross(g, &ang, &wv);
@@ -162,6 +221,8 @@ impl Dynamics<'_> {
                         let s = g.add(x, y);
                         g.add(lin[i], s)
                     });
+                    nodes.shift = Some((lin, shift));
+                    exps.push(nodes);
                     let r = sp::quaternion_rotation(g, quat);
                     let moved = sp::mat_vec(g, &r, &shift);
                     for i in 0..3 {
@@ -171,71 +232,78 @@ impl Dynamics<'_> {
                 }
                 LieBlock::Spherical { v, q } => {
                     let quat = [out[q], out[q + 1], out[q + 2], out[q + 3]];
-                    let (turned, ..) = turn(g, quat, &[w[v], w[v + 1], w[v + 2]]);
+                    let (turned, _, _, nodes) = turn(g, quat, &[w[v], w[v + 1], w[v + 2]]);
+                    exps.push(nodes);
                     out[q..q + 4].copy_from_slice(&turned);
                 }
             }
         }
-        out
-    }
-
-    /// The tangent-space change of a quaternion block `r` (unit) under the coordinate
-    /// change `dr`: `2 vec(r* ⊗ dr)`.
-    fn rotation_tangent(g: &mut Graph, r: [Id; 4], dr: [Id; 4]) -> V3 {
-        let conj = {
-            let n: [Id; 3] = std::array::from_fn(|i| g.neg(r[i]));
-            [n[0], n[1], n[2], r[3]]
-        };
-        let p = qmul(g, conj, dr);
-        let two = k(g, 2.0);
-        std::array::from_fn(|i| g.mul(two, p[i]))
+        (out, exps)
     }
 
     /// `(∂(q ⊕ w)/∂q, ∂(q ⊕ w)/∂w)` in the tangent space (Pinocchio's `dIntegrate`):
-    /// block-diagonal, 1 on scalar coordinates, the forward-mode derivatives of
-    /// [`Self::integrate`]'s graph (`q_next`) projected onto the tangent space for a
-    /// free-flyer (`δp = R⁺ᵀ dp`, `δθ = 2 vec(r⁺* ⊗ dr⁺)`) and a spherical joint.
-    fn d_integrate(&mut self, w: &[Id], q_next: &[Id]) -> (Mat, Mat) {
+    /// block-diagonal, 1 on scalar coordinates. A rotation block (ω) is `R(ω)ᵀ` and
+    /// `Jr(ω)` ([`ExpNodes::rotation_and_jacobian`]); a free-flyer's (`[v; ω]`, its
+    /// translation `p = V(ω) v`) is `[[Rᵀ, −Rᵀ [p]×], [0, Rᵀ]]` (Pinocchio's
+    /// `exp6(v).toDualActionMatrix()ᵀ`) and `[[Jr, Rᵀ ∂p/∂ω], [0, Jr]]` (`Jexp6`, whose
+    /// coupling block is taken here by forward mode: `Rᵀ` moves `∂p/∂ω` from q⁺'s parent
+    /// into q⁺'s frame). `p`'s coefficients depend on ω only through θ², so their
+    /// derivatives along θ² are taken once and each column chains them (`dθ² = 2 ω_i`).
+    fn d_integrate(&mut self, exps: &[ExpNodes]) -> (Mat, Mat) {
         let nv = self.model.nv();
         let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
         let (mut jq, mut jv) = (vec![vec![zero; nv]; nv], vec![vec![zero; nv]; nv]);
+        let mut exps = exps.iter();
         for block in self.model.lie_blocks() {
-            let (v, q, dims) = match block {
+            let (v, dims) = match block {
                 LieBlock::Scalar { v, .. } => {
                     jq[v][v] = one;
                     jv[v][v] = one;
                     continue;
                 }
-                LieBlock::FreeFlyer => (0, 0, 6),
-                LieBlock::Spherical { v, q } => (v, q, 3),
+                LieBlock::FreeFlyer => (0, 6),
+                LieBlock::Spherical { v, .. } => (v, 3),
             };
-            let outs: Vec<Id> = q_next[q..q + dims + 1].to_vec();
-            let r = [outs[dims - 3], outs[dims - 2], outs[dims - 1], outs[dims]];
-            let rot = (dims == 6).then(|| sp::quaternion_rotation(&mut self.g, r));
-            let project = |g: &mut Graph, d: Vec<Id>| -> Vec<Id> {
-                let dr = [d[dims - 3], d[dims - 2], d[dims - 1], d[dims]];
-                let mut out = Vec::new();
-                if let Some(rot) = &rot {
-                    out.extend(sp::mat_t_vec(g, rot, &[d[0], d[1], d[2]]));
+            let exp = *exps.next().expect("one exponential per rotation block");
+            let g = &mut self.g;
+            let (rt, jr) = exp.rotation_and_jacobian(g);
+            let at = v + dims - 3;
+            for r in 0..3 {
+                for c in 0..3 {
+                    jq[at + r][at + c] = rt[r][c];
+                    jv[at + r][at + c] = jr[r][c];
                 }
-                out.extend(Self::rotation_tangent(g, r, dr));
-                out
-            };
-            for col in 0..dims {
-                if self.exhausted() {
-                    break;
+            }
+            let Some((lin, p)) = exp.shift else { continue };
+            for r in 0..3 {
+                for c in 0..3 {
+                    jq[v + r][v + c] = rt[r][c];
+                    jv[v + r][v + c] = jr[r][c];
                 }
-                // Along q's direction `col` with w held; along w's entry `col` with q held.
-                let held: Vec<(Id, Id)> = (0..dims).map(|i| (w[v + i], zero)).collect();
-                let seeds = self.q_seeds(v + col);
-                let dq = self.g.tangent_at(&outs, &seeds, &held);
-                let seeded: Vec<(Id, Id)> =
-                    (0..dims).map(|i| (w[v + i], if i == col { one } else { zero })).collect();
-                let dw = self.g.tangent_at(&outs, &[], &seeded);
-                let (dq, dw) = (project(&mut self.g, dq), project(&mut self.g, dw));
-                for row in 0..dims {
-                    jq[v + row][v + col] = dq[row];
-                    jv[v + row][v + col] = dw[row];
+            }
+            let d_coefs = g.tangent_at(&exp.coefs, &[], &[(exp.theta2, one)]);
+            let two = k(g, 2.0);
+            for c in 0..3 {
+                // −Rᵀ [p]× e_c = Rᵀ (e_c × p).
+                let mut ep = [zero; 3];
+                let (a, b) = ((c + 1) % 3, (c + 2) % 3);
+                ep[a] = g.neg(p[b]);
+                ep[b] = p[a];
+                let col = sp::mat_vec(g, &rt, &ep);
+                // ∂p/∂ω_c with v held: ω's seed and the coefficients' chained tangents.
+                let mut seeded: Vec<(Id, Id)> = (0..3)
+                    .map(|i| (exp.omega[i], if i == c { one } else { zero }))
+                    .chain(lin.map(|x| (x, zero)))
+                    .collect();
+                let d_theta2 = g.mul(two, exp.omega[c]);
+                for (&x, &dx) in exp.coefs.iter().zip(&d_coefs) {
+                    seeded.push((x, g.mul(dx, d_theta2)));
+                }
+                let dp: V3 = g.tangent_at(&p, &[], &seeded).try_into().expect("three entries");
+                let coupling = sp::mat_vec(g, &rt, &dp);
+                for r in 0..3 {
+                    jq[v + r][at + c] = col[r];
+                    jv[v + r][at + c] = coupling[r];
                 }
             }
         }
@@ -273,13 +341,14 @@ impl Dynamics<'_> {
         self.fd(qd, tau)
     }
 
-    /// [`Self::step_acceleration`] and `(∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`, τ's columns the
+    /// [`Self::step_acceleration`] and `s (∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`, τ's columns the
     /// coordinates `tau_cols`: `contact_fd_grad`'s with contacts, `fd_grad`'s without.
     fn step_acceleration_grad(
         &mut self,
         qd: &[Id],
         tau: &[Id],
         tau_cols: &[usize],
+        s: f64,
     ) -> (Vec<Id>, Mat, Mat, Mat) {
         if self.declares_contacts() {
             let mut out = self.contact_fd_grad(qd, tau, tau_cols).into_iter();
@@ -287,23 +356,25 @@ impl Dynamics<'_> {
             self.program = None;
             let qdd = out.next().and_then(|rows| rows.into_iter().next()).unwrap_or_default();
             let _lambda = out.next();
-            let (dq, dqd, dtau) = (
-                out.next().unwrap_or_default(),
-                out.next().unwrap_or_default(),
-                out.next().unwrap_or_default(),
-            );
+            let h = k(&mut self.g, s);
+            let mut scaled = || -> Mat {
+                let m: Mat = out.next().unwrap_or_default();
+                m.iter().map(|row| row.iter().map(|&x| self.g.mul(h, x)).collect()).collect()
+            };
+            let (dq, dqd, dtau) = (scaled(), scaled(), scaled());
             return (qdd, dq, dqd, dtau);
         }
-        let (qdd, dq, dqd, minv, _) = self.fd_grad(qd, tau, tau_cols, &[]);
+        let (qdd, dq, dqd, minv, _) = self.fd_grad_scaled(qd, tau, tau_cols, &[], s);
         (qdd, dq, dqd, minv)
     }
 
     /// `q ⊕ w` for the kernel's q and a state's `x ⊕ dx` (Crocoddyl's `StateMultibody`).
-    fn state_integrate(&mut self, qd: &[Id], dx: &[Id]) -> (Vec<Id>, Vec<Id>) {
+    /// With each exponential's [`ExpNodes`].
+    fn state_integrate(&mut self, qd: &[Id], dx: &[Id]) -> (Vec<Id>, Vec<Id>, Vec<ExpNodes>) {
         let nv = self.model.nv();
-        let q = self.integrate(&dx[..nv]);
+        let (q, exps) = self.integrate_recorded(&dx[..nv]);
         let v = (0..nv).map(|k| self.g.add(qd[k], dx[nv + k])).collect();
-        (q, v)
+        (q, v, exps)
     }
 
     /// RK4's stages as Crocoddyl's `IntegratedActionModelRK4`: `k_i = (v_i, q̈_i)` at
@@ -340,9 +411,9 @@ impl Dynamics<'_> {
             } else {
                 let h = k(&mut self.g, c * dt);
                 let d: Vec<Id> = k_prev.iter().map(|&x| self.g.mul(h, x)).collect();
-                let (y_q, y_v) = self.state_integrate(qd, &d);
+                let (y_q, y_v, exps) = self.state_integrate(qd, &d);
                 if grad {
-                    let (jq, jv) = self.d_integrate(&d[..nv], &y_q);
+                    let (jq, jv) = self.d_integrate(&exps);
                     let (jx, jdx) = (state_block(&jq, one, zero), state_block(&jv, one, zero));
                     let t = self.scaled_product(&jdx, &dk_dx, c * dt);
                     let dy_dx = self.add_mat(&jx, &t);
@@ -355,7 +426,7 @@ impl Dynamics<'_> {
             let qdd;
             if grad {
                 let (a, da_dq, da_dv, minv_s) =
-                    self.at_config(&y_q, |d| d.step_acceleration_grad(&y_v, tau, &actuated));
+                    self.at_config(&y_q, |d| d.step_acceleration_grad(&y_v, tau, &actuated, 1.0));
                 // ∂k/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
                 let df: Mat = (0..nx)
                     .map(|r| {
@@ -400,11 +471,11 @@ impl Dynamics<'_> {
             }
         }
         self.product = None;
-        let (q_next, qd_next) = self.state_integrate(qd, &dx);
+        let (q_next, qd_next, exps) = self.state_integrate(qd, &dx);
         if !grad {
             return (q_next, qd_next, Vec::new(), Vec::new());
         }
-        let (jq, jv) = self.d_integrate(&dx[..nv], &q_next);
+        let (jq, jv) = self.d_integrate(&exps);
         let (jx, jdx) = (state_block(&jq, one, zero), state_block(&jv, one, zero));
         let t = self.scaled_product(&jdx, &dx_dx, 1.0);
         let a = self.add_mat(&jx, &t);
@@ -489,25 +560,25 @@ impl Dynamics<'_> {
         if scheme == Scheme::Rk4 {
             return self.rk4(qd, &tau, dt, true);
         }
-        let (qdd, da_dq, da_dv, minv_s) = self.step_acceleration_grad(qd, &tau, &actuated);
+        // a_v = dt ∂q̈/∂x and b_v = dt M⁻¹ S as they come out of the solves.
+        let (qdd, avq, mut avv, bv) = self.step_acceleration_grad(qd, &tau, &actuated, dt);
         // The step's products are its own: no backend may rerun fd_grad's as a loop.
         self.product = None;
         self.g.at(None, Stage::Combine, 0);
         let (qd_next, w) = self.euler(qd, &qdd, scheme, dt);
-        let q_next = self.integrate(&w);
-        let (jq, jv) = self.d_integrate(&w, &q_next);
+        let (q_next, exps) = self.integrate_recorded(&w);
+        let (jq, jv) = self.d_integrate(&exps);
         let g = &mut self.g;
         let (zero, one, h) = (g.constant(0.0), g.constant(1.0), k(g, dt));
         let scale = |g: &mut Graph, m: &Mat| -> Mat {
             m.iter().map(|row| row.iter().map(|&x| g.mul(h, x)).collect()).collect()
         };
-        let avq = scale(g, &da_dq);
-        let mut avv = scale(g, &da_dv);
         for (i, row) in avv.iter_mut().enumerate() {
             row[i] = g.add(one, row[i]);
         }
-        let bv = scale(g, &minv_s);
-        // dt Jv X, with Jv block-diagonal (its zeros fold away).
+        // dt Jv X, with Jv block-diagonal (its zeros fold away) and dt on Jv's entries
+        // (on a scalar coordinate's row that is one multiplication per entry, as after).
+        let jv_h = scale(g, &jv);
         let jv_times = |g: &mut Graph, x: &Mat| -> Mat {
             let cols = x.first().map_or(0, Vec::len);
             (0..nv)
@@ -515,8 +586,7 @@ impl Dynamics<'_> {
                     (0..cols)
                         .map(|c| {
                             let col: Vec<Id> = (0..nv).map(|r| x[r][c]).collect();
-                            let d = g.dot(&jv[i], &col);
-                            g.mul(h, d)
+                            g.dot(&jv_h[i], &col)
                         })
                         .collect()
                 })
@@ -531,7 +601,7 @@ impl Dynamics<'_> {
                 .collect();
             (aqq, jv_times(g, &avv), jv_times(g, &bv))
         } else {
-            (jq, scale(g, &jv), vec![vec![zero; nu]; nv])
+            (jq, jv_h, vec![vec![zero; nu]; nv])
         };
         let mut a = Vec::with_capacity(4 * nv * nv);
         for (left, right) in aqq.iter().zip(&aqv).chain(avq.iter().zip(&avv)) {
