@@ -448,7 +448,9 @@ impl Real for F32x8 {
 pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea(q, qd, qdd) };
+        let mut c = [T::k(0.0); NV];
+        unsafe { fma::rnea_into(q, qd, qdd, &mut c) };
+        return c;
     }
     portable::rnea(q, qd, qdd)
 }
@@ -464,7 +466,10 @@ pub fn rnea_grad<T: Real>(
 ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea_grad(q, qd, qdd) };
+        let mut dc_dq = [[T::k(0.0); NV]; NV];
+        let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd) };
+        return (dc_dq, dc_dqd);
     }
     portable::rnea_grad(q, qd, qdd)
 }
@@ -476,7 +481,9 @@ pub fn rnea_grad<T: Real>(
 pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::mass_matrix(q) };
+        let mut m = [[T::k(0.0); NV]; NV];
+        unsafe { fma::mass_matrix_into(q, &mut m) };
+        return m;
     }
     portable::mass_matrix(q)
 }
@@ -488,7 +495,9 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::minv(q) };
+        let mut minv = [[T::k(0.0); NV]; NV];
+        unsafe { fma::minv_into(q, &mut minv) };
+        return minv;
     }
     portable::minv(q)
 }
@@ -500,7 +509,9 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        unsafe { fma::fd_into(q, qd, tau, &mut qdd) };
+        return qdd;
     }
     portable::fd(q, qd, tau)
 }
@@ -516,7 +527,11 @@ pub fn fd_grad<T: Real>(
 ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd_grad(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        let mut dqdd_dq = [[T::k(0.0); NV]; NV];
+        let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd) };
+        return (qdd, dqdd_dq, dqdd_dqd);
     }
     portable::fd_grad(q, qd, tau)
 }
@@ -14797,6 +14812,20 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
         let mut c = [T::k(0.0); NV];
+        rnea_into(q, qd, qdd, &mut c);
+        c
+    }
+    /// [`rnea`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        c: &mut [T; NV],
+    ) {
         let t2 = q[1].sin();
         let t3 = q[1].cos();
         let t15 = q[2].sin();
@@ -15358,7 +15387,6 @@ pub mod fma {
         let t880 = T::mul_add(t2, t875, t879);
         let t881 = T::mul_add(lit::<T>(0.022684), qdd[0], t880);
         c[0] = t881;
-        c
     }
     /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
     #[inline]
@@ -15371,10 +15399,24 @@ pub mod fma {
     ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
         let mut dc_dq = [[T::k(0.0); NV]; NV];
         let mut dc_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 155];
-        rnea_grad_part0(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
-        rnea_grad_part1(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
+        rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd);
         (dc_dq, dc_dqd)
+    }
+    /// [`rnea_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        dc_dq: &mut [[T; NV]; NV],
+        dc_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 155];
+        rnea_grad_part0(q, qd, qdd, &mut s, dc_dq, dc_dqd);
+        rnea_grad_part1(q, qd, qdd, &mut s, dc_dq, dc_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -18171,6 +18213,15 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut m = [[T::k(0.0); NV]; NV];
+        mass_matrix_into(q, &mut m);
+        m
+    }
+    /// [`mass_matrix`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn mass_matrix_into<T: Real>(q: &[T; NV], m: &mut [[T; NV]; NV]) {
         m[6][6] = lit::<T>(0.005);
         let t4 = q[1].sin();
         let t5 = q[1].cos();
@@ -18502,7 +18553,6 @@ pub mod fma {
         let t441 = T::mul_add(t4, t435, t440);
         m[0][6] = t441;
         m[6][0] = t441;
-        m
     }
     /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
     #[inline]
@@ -18510,6 +18560,15 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut minv = [[T::k(0.0); NV]; NV];
+        minv_into(q, &mut minv);
+        minv
+    }
+    /// [`minv`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn minv_into<T: Real>(q: &[T; NV], minv: &mut [[T; NV]; NV]) {
         let t3 = q[1].sin();
         let t4 = q[1].cos();
         let t13 = q[2].sin();
@@ -19626,7 +19685,6 @@ pub mod fma {
         let t1687 = lit::<T>(0.005) * t1672;
         let t1689 = T::mul_add(-lit::<T>(200.0), t1687, lit::<T>(200.0));
         minv[6][6] = t1689;
-        minv
     }
     /// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
     #[inline]
@@ -19634,6 +19692,20 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
         let mut qdd = [T::k(0.0); NV];
+        fd_into(q, qd, tau, &mut qdd);
+        qdd
+    }
+    /// [`fd`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+    ) {
         let t3 = q[1].sin();
         let t4 = q[1].cos();
         let t15 = q[2].sin();
@@ -20884,7 +20956,6 @@ pub mod fma {
         let t1928 = T::mul_add(-lit::<T>(0.005), t1914, t493);
         let t1929 = lit::<T>(200.0) * t1928;
         qdd[6] = t1929;
-        qdd
     }
     /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
@@ -20898,11 +20969,26 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 281];
-        fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
+    }
+    /// [`fd_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+        dqdd_dq: &mut [[T; NV]; NV],
+        dqdd_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 281];
+        fd_grad_part0(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part1(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part2(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]

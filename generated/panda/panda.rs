@@ -452,7 +452,9 @@ impl Real for F32x8 {
 pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea(q, qd, qdd) };
+        let mut c = [T::k(0.0); NV];
+        unsafe { fma::rnea_into(q, qd, qdd, &mut c) };
+        return c;
     }
     portable::rnea(q, qd, qdd)
 }
@@ -468,7 +470,10 @@ pub fn rnea_grad<T: Real>(
 ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea_grad(q, qd, qdd) };
+        let mut dc_dq = [[T::k(0.0); NV]; NV];
+        let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd) };
+        return (dc_dq, dc_dqd);
     }
     portable::rnea_grad(q, qd, qdd)
 }
@@ -480,7 +485,9 @@ pub fn rnea_grad<T: Real>(
 pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::mass_matrix(q) };
+        let mut m = [[T::k(0.0); NV]; NV];
+        unsafe { fma::mass_matrix_into(q, &mut m) };
+        return m;
     }
     portable::mass_matrix(q)
 }
@@ -492,7 +499,9 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::minv(q) };
+        let mut minv = [[T::k(0.0); NV]; NV];
+        unsafe { fma::minv_into(q, &mut minv) };
+        return minv;
     }
     portable::minv(q)
 }
@@ -504,7 +513,9 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        unsafe { fma::fd_into(q, qd, tau, &mut qdd) };
+        return qdd;
     }
     portable::fd(q, qd, tau)
 }
@@ -520,7 +531,11 @@ pub fn fd_grad<T: Real>(
 ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd_grad(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        let mut dqdd_dq = [[T::k(0.0); NV]; NV];
+        let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd) };
+        return (qdd, dqdd_dq, dqdd_dqd);
     }
     portable::fd_grad(q, qd, tau)
 }
@@ -24293,6 +24308,20 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
         let mut c = [T::k(0.0); NV];
+        rnea_into(q, qd, qdd, &mut c);
+        c
+    }
+    /// [`rnea`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        c: &mut [T; NV],
+    ) {
         let t2 = q[1].sin();
         let t3 = q[1].cos();
         let t15 = q[2].sin();
@@ -25181,7 +25210,6 @@ pub mod fma {
         let t1347 = T::mul_add(-t3, t1342, t1345);
         let t1348 = T::mul_add(lit::<T>(0.009213163777211224), qdd[0], t1347);
         c[0] = t1348;
-        c
     }
     /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
     #[inline]
@@ -25194,11 +25222,25 @@ pub mod fma {
     ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
         let mut dc_dq = [[T::k(0.0); NV]; NV];
         let mut dc_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 370];
-        rnea_grad_part0(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
-        rnea_grad_part1(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
-        rnea_grad_part2(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
+        rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd);
         (dc_dq, dc_dqd)
+    }
+    /// [`rnea_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        dc_dq: &mut [[T; NV]; NV],
+        dc_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 370];
+        rnea_grad_part0(q, qd, qdd, &mut s, dc_dq, dc_dqd);
+        rnea_grad_part1(q, qd, qdd, &mut s, dc_dq, dc_dqd);
+        rnea_grad_part2(q, qd, qdd, &mut s, dc_dq, dc_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -29845,6 +29887,15 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut m = [[T::k(0.0); NV]; NV];
+        mass_matrix_into(q, &mut m);
+        m
+    }
+    /// [`mass_matrix`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn mass_matrix_into<T: Real>(q: &[T; NV], m: &mut [[T; NV]; NV]) {
         m[7][7] = lit::<T>(0.015);
         m[8][8] = lit::<T>(0.015);
         let t3 = q[1].sin();
@@ -30452,7 +30503,6 @@ pub mod fma {
         let t812 = T::mul_add(t4, t793, -t810);
         m[0][8] = t812;
         m[8][0] = t812;
-        m
     }
     /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
     #[inline]
@@ -30460,10 +30510,18 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut minv = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 47];
-        minv_part0(q, &mut s, &mut minv);
-        minv_part1(q, &mut s, &mut minv);
+        minv_into(q, &mut minv);
         minv
+    }
+    /// [`minv`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn minv_into<T: Real>(q: &[T; NV], minv: &mut [[T; NV]; NV]) {
+        let mut s = [lit::<T>(0.0); 47];
+        minv_part0(q, &mut s, minv);
+        minv_part1(q, &mut s, minv);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -32402,10 +32460,23 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
         let mut qdd = [T::k(0.0); NV];
-        let mut s = [lit::<T>(0.0); 11];
-        fd_part0(q, qd, tau, &mut s, &mut qdd);
-        fd_part1(q, qd, tau, &mut s, &mut qdd);
+        fd_into(q, qd, tau, &mut qdd);
         qdd
+    }
+    /// [`fd`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 11];
+        fd_part0(q, qd, tau, &mut s, qdd);
+        fd_part1(q, qd, tau, &mut s, qdd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -34185,12 +34256,27 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 687];
-        fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
+    }
+    /// [`fd_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+        dqdd_dq: &mut [[T; NV]; NV],
+        dqdd_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 687];
+        fd_grad_part0(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part1(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part2(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part3(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]

@@ -448,7 +448,9 @@ impl Real for F32x8 {
 pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea(q, qd, qdd) };
+        let mut c = [T::k(0.0); NV];
+        unsafe { fma::rnea_into(q, qd, qdd, &mut c) };
+        return c;
     }
     portable::rnea(q, qd, qdd)
 }
@@ -464,7 +466,10 @@ pub fn rnea_grad<T: Real>(
 ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea_grad(q, qd, qdd) };
+        let mut dc_dq = [[T::k(0.0); NV]; NV];
+        let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd) };
+        return (dc_dq, dc_dqd);
     }
     portable::rnea_grad(q, qd, qdd)
 }
@@ -476,7 +481,9 @@ pub fn rnea_grad<T: Real>(
 pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::mass_matrix(q) };
+        let mut m = [[T::k(0.0); NV]; NV];
+        unsafe { fma::mass_matrix_into(q, &mut m) };
+        return m;
     }
     portable::mass_matrix(q)
 }
@@ -488,7 +495,9 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::minv(q) };
+        let mut minv = [[T::k(0.0); NV]; NV];
+        unsafe { fma::minv_into(q, &mut minv) };
+        return minv;
     }
     portable::minv(q)
 }
@@ -500,7 +509,9 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        unsafe { fma::fd_into(q, qd, tau, &mut qdd) };
+        return qdd;
     }
     portable::fd(q, qd, tau)
 }
@@ -516,7 +527,11 @@ pub fn fd_grad<T: Real>(
 ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd_grad(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        let mut dqdd_dq = [[T::k(0.0); NV]; NV];
+        let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd) };
+        return (qdd, dqdd_dq, dqdd_dqd);
     }
     portable::fd_grad(q, qd, tau)
 }
@@ -21364,6 +21379,20 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
         let mut c = [T::k(0.0); NV];
+        rnea_into(q, qd, qdd, &mut c);
+        c
+    }
+    /// [`rnea`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        c: &mut [T; NV],
+    ) {
         let t5 = q[1].sin();
         let t6 = q[1].cos();
         let t18 = q[2].sin();
@@ -22062,7 +22091,6 @@ pub mod fma {
         let t1130 = T::mul_add(lit::<T>(4.8965888601467475e-12), t1125, t1128);
         let t1131 = T::mul_add(lit::<T>(0.0236), qdd[0], t1130);
         c[0] = t1131;
-        c
     }
     /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
     #[inline]
@@ -22075,10 +22103,24 @@ pub mod fma {
     ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
         let mut dc_dq = [[T::k(0.0); NV]; NV];
         let mut dc_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 185];
-        rnea_grad_part0(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
-        rnea_grad_part1(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
+        rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd);
         (dc_dq, dc_dqd)
+    }
+    /// [`rnea_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        dc_dq: &mut [[T; NV]; NV],
+        dc_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 185];
+        rnea_grad_part0(q, qd, qdd, &mut s, dc_dq, dc_dqd);
+        rnea_grad_part1(q, qd, qdd, &mut s, dc_dq, dc_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -25836,6 +25878,15 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut m = [[T::k(0.0); NV]; NV];
+        mass_matrix_into(q, &mut m);
+        m
+    }
+    /// [`mass_matrix`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn mass_matrix_into<T: Real>(q: &[T; NV], m: &mut [[T; NV]; NV]) {
         m[5][6] = lit::<T>(-4.8965888601467474e-15);
         m[6][5] = lit::<T>(-4.8965888601467474e-15);
         m[6][6] = lit::<T>(0.001);
@@ -26399,7 +26450,6 @@ pub mod fma {
         let t806 = T::mul_add(lit::<T>(4.8965888601467475e-12), t801, t804);
         m[0][6] = t806;
         m[6][0] = t806;
-        m
     }
     /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
     #[inline]
@@ -26407,10 +26457,18 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut minv = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 72];
-        minv_part0(q, &mut s, &mut minv);
-        minv_part1(q, &mut s, &mut minv);
+        minv_into(q, &mut minv);
         minv
+    }
+    /// [`minv`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn minv_into<T: Real>(q: &[T; NV], minv: &mut [[T; NV]; NV]) {
+        let mut s = [lit::<T>(0.0); 72];
+        minv_part0(q, &mut s, minv);
+        minv_part1(q, &mut s, minv);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -28398,10 +28456,23 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
         let mut qdd = [T::k(0.0); NV];
-        let mut s = [lit::<T>(0.0); 106];
-        fd_part0(q, qd, tau, &mut s, &mut qdd);
-        fd_part1(q, qd, tau, &mut s, &mut qdd);
+        fd_into(q, qd, tau, &mut qdd);
         qdd
+    }
+    /// [`fd`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 106];
+        fd_part0(q, qd, tau, &mut s, qdd);
+        fd_part1(q, qd, tau, &mut s, qdd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -30488,11 +30559,26 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 501];
-        fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
+    }
+    /// [`fd_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+        dqdd_dq: &mut [[T; NV]; NV],
+        dqdd_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 501];
+        fd_grad_part0(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part1(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part2(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]

@@ -432,7 +432,9 @@ impl Real for F32x8 {
 pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea(q, qd, qdd) };
+        let mut c = [T::k(0.0); NV];
+        unsafe { fma::rnea_into(q, qd, qdd, &mut c) };
+        return c;
     }
     portable::rnea(q, qd, qdd)
 }
@@ -448,7 +450,10 @@ pub fn rnea_grad<T: Real>(
 ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea_grad(q, qd, qdd) };
+        let mut dc_dq = [[T::k(0.0); NV]; NV];
+        let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd) };
+        return (dc_dq, dc_dqd);
     }
     portable::rnea_grad(q, qd, qdd)
 }
@@ -460,7 +465,9 @@ pub fn rnea_grad<T: Real>(
 pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::mass_matrix(q) };
+        let mut m = [[T::k(0.0); NV]; NV];
+        unsafe { fma::mass_matrix_into(q, &mut m) };
+        return m;
     }
     portable::mass_matrix(q)
 }
@@ -472,7 +479,9 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::minv(q) };
+        let mut minv = [[T::k(0.0); NV]; NV];
+        unsafe { fma::minv_into(q, &mut minv) };
+        return minv;
     }
     portable::minv(q)
 }
@@ -484,7 +493,9 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        unsafe { fma::fd_into(q, qd, tau, &mut qdd) };
+        return qdd;
     }
     portable::fd(q, qd, tau)
 }
@@ -500,7 +511,11 @@ pub fn fd_grad<T: Real>(
 ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd_grad(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        let mut dqdd_dq = [[T::k(0.0); NV]; NV];
+        let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd) };
+        return (qdd, dqdd_dq, dqdd_dqd);
     }
     portable::fd_grad(q, qd, tau)
 }
@@ -1409,10 +1424,23 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
         let mut c = [T::k(0.0); NV];
-        let mut s = [lit::<T>(0.0); 14];
-        rnea_part0(q, qd, qdd, &mut s, &mut c);
-        rnea_part1(q, qd, qdd, &mut s, &mut c);
+        rnea_into(q, qd, qdd, &mut c);
         c
+    }
+    /// [`rnea`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        c: &mut [T; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 14];
+        rnea_part0(q, qd, qdd, &mut s, c);
+        rnea_part1(q, qd, qdd, &mut s, c);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1507,12 +1535,26 @@ pub mod fma {
     ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
         let mut dc_dq = [[T::k(0.0); NV]; NV];
         let mut dc_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 26];
-        rnea_grad_part0(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
-        rnea_grad_part1(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
-        rnea_grad_part2(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
-        rnea_grad_part3(q, qd, qdd, &mut s, &mut dc_dq, &mut dc_dqd);
+        rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd);
         (dc_dq, dc_dqd)
+    }
+    /// [`rnea_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        dc_dq: &mut [[T; NV]; NV],
+        dc_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 26];
+        rnea_grad_part0(q, qd, qdd, &mut s, dc_dq, dc_dqd);
+        rnea_grad_part1(q, qd, qdd, &mut s, dc_dq, dc_dqd);
+        rnea_grad_part2(q, qd, qdd, &mut s, dc_dq, dc_dqd);
+        rnea_grad_part3(q, qd, qdd, &mut s, dc_dq, dc_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1694,6 +1736,15 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut m = [[T::k(0.0); NV]; NV];
+        mass_matrix_into(q, &mut m);
+        m
+    }
+    /// [`mass_matrix`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn mass_matrix_into<T: Real>(q: &[T; NV], m: &mut [[T; NV]; NV]) {
         m[1][1] = lit::<T>(0.004557856275072);
         let t3 = q[1].sin();
         let t4 = q[1].cos();
@@ -1707,7 +1758,6 @@ pub mod fma {
         let t23 = T::mul_add(-lit::<T>(0.1), t21, lit::<T>(0.004557856275072));
         m[0][1] = t23;
         m[1][0] = t23;
-        m
     }
     /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
     #[inline]
@@ -1715,6 +1765,15 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut minv = [[T::k(0.0); NV]; NV];
+        minv_into(q, &mut minv);
+        minv
+    }
+    /// [`minv`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn minv_into<T: Real>(q: &[T; NV], minv: &mut [[T; NV]; NV]) {
         let t4 = q[1].sin();
         let t5 = q[1].cos();
         let t14 = t4 * lit::<T>(1.4126230823060104e-8);
@@ -1747,7 +1806,6 @@ pub mod fma {
             lit::<T>(219.4013895236754),
         );
         minv[1][1] = t46;
-        minv
     }
     /// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
     #[inline]
@@ -1755,11 +1813,24 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
         let mut qdd = [T::k(0.0); NV];
-        let mut s = [lit::<T>(0.0); 15];
-        fd_part0(q, qd, tau, &mut s, &mut qdd);
-        fd_part1(q, qd, tau, &mut s, &mut qdd);
-        fd_part2(q, qd, tau, &mut s, &mut qdd);
+        fd_into(q, qd, tau, &mut qdd);
         qdd
+    }
+    /// [`fd`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 15];
+        fd_part0(q, qd, tau, &mut s, qdd);
+        fd_part1(q, qd, tau, &mut s, qdd);
+        fd_part2(q, qd, tau, &mut s, qdd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]
@@ -1896,13 +1967,28 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 40];
-        fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part2(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part3(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part4(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
+    }
+    /// [`fd_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+        dqdd_dq: &mut [[T; NV]; NV],
+        dqdd_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 40];
+        fd_grad_part0(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part1(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part2(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part3(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part4(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]

@@ -488,7 +488,10 @@ impl Real for F32x8 {
 pub fn frame_placement<T: Real>(q: &[T; NQ]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_placement(q) };
+        let mut translation = [[T::k(0.0); 3]; NF];
+        let mut rotation = [[T::k(0.0); 9]; NF];
+        unsafe { fma::frame_placement_into(q, &mut translation, &mut rotation) };
+        return (translation, rotation);
     }
     portable::frame_placement(q)
 }
@@ -500,7 +503,9 @@ pub fn frame_placement<T: Real>(q: &[T; NQ]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
 pub fn frame_jacobian<T: Real>(q: &[T; NQ]) -> [[[T; NV]; 6]; NF] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_jacobian(q) };
+        let mut jacobian = [[[T::k(0.0); NV]; 6]; NF];
+        unsafe { fma::frame_jacobian_into(q, &mut jacobian) };
+        return jacobian;
     }
     portable::frame_jacobian(q)
 }
@@ -512,7 +517,9 @@ pub fn frame_jacobian<T: Real>(q: &[T; NQ]) -> [[[T; NV]; 6]; NF] {
 pub fn frame_velocity<T: Real>(q: &[T; NQ], qd: &[T; NV]) -> [[T; 6]; NF] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_velocity(q, qd) };
+        let mut velocity = [[T::k(0.0); 6]; NF];
+        unsafe { fma::frame_velocity_into(q, qd, &mut velocity) };
+        return velocity;
     }
     portable::frame_velocity(q, qd)
 }
@@ -528,7 +535,9 @@ pub fn frame_acceleration<T: Real>(
 ) -> [[T; 3]; NF] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_acceleration(q, qd, qdd) };
+        let mut acceleration = [[T::k(0.0); 3]; NF];
+        unsafe { fma::frame_acceleration_into(q, qd, qdd, &mut acceleration) };
+        return acceleration;
     }
     portable::frame_acceleration(q, qd, qdd)
 }
@@ -544,7 +553,20 @@ pub fn frame_acceleration_grad<T: Real>(
 ) -> ([[[T; NV]; 3]; NF], [[[T; NV]; 3]; NF], [[[T; NV]; 3]; NF]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_acceleration_grad(q, qd, qdd) };
+        let mut dacc_dq = [[[T::k(0.0); NV]; 3]; NF];
+        let mut dacc_dqd = [[[T::k(0.0); NV]; 3]; NF];
+        let mut dacc_dqdd = [[[T::k(0.0); NV]; 3]; NF];
+        unsafe {
+            fma::frame_acceleration_grad_into(
+                q,
+                qd,
+                qdd,
+                &mut dacc_dq,
+                &mut dacc_dqd,
+                &mut dacc_dqdd,
+            )
+        };
+        return (dacc_dq, dacc_dqd, dacc_dqdd);
     }
     portable::frame_acceleration_grad(q, qd, qdd)
 }
@@ -11780,6 +11802,19 @@ pub mod fma {
     pub fn frame_placement<T: Real>(q: &[T; NQ]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
         let mut translation = [[T::k(0.0); 3]; NF];
         let mut rotation = [[T::k(0.0); 9]; NF];
+        frame_placement_into(q, &mut translation, &mut rotation);
+        (translation, rotation)
+    }
+    /// [`frame_placement`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_placement_into<T: Real>(
+        q: &[T; NQ],
+        translation: &mut [[T; 3]; NF],
+        rotation: &mut [[T; 9]; NF],
+    ) {
         let t8 = q[3] * q[3];
         let t9 = q[4] * q[4];
         let t10 = t8 + t9;
@@ -12184,7 +12219,6 @@ pub mod fma {
         translation[3][1] = t540;
         let t541 = T::mul_add(lit::<T>(0.35), t505, t517);
         translation[3][2] = t541;
-        (translation, rotation)
     }
     /// Each frame's Jacobian, 6 x nv, rows [linear; angular], in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameJacobian`).
     #[inline]
@@ -12192,6 +12226,18 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn frame_jacobian<T: Real>(q: &[T; NQ]) -> [[[T; NV]; 6]; NF] {
         let mut jacobian = [[[T::k(0.0); NV]; 6]; NF];
+        frame_jacobian_into(q, &mut jacobian);
+        jacobian
+    }
+    /// [`frame_jacobian`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_jacobian_into<T: Real>(
+        q: &[T; NQ],
+        jacobian: &mut [[[T; NV]; 6]; NF],
+    ) {
         let t9 = q[3] * q[3];
         let t10 = q[4] * q[4];
         let t11 = t9 + t10;
@@ -12776,7 +12822,6 @@ pub mod fma {
         let t609 = t376 * t599;
         let t610 = T::mul_add(t370, t600, -t609);
         jacobian[3][2][16] = t610;
-        jacobian
     }
     /// Each frame's spatial velocity [linear; angular] in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameVelocity`).
     #[inline]
@@ -12784,6 +12829,19 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn frame_velocity<T: Real>(q: &[T; NQ], qd: &[T; NV]) -> [[T; 6]; NF] {
         let mut velocity = [[T::k(0.0); 6]; NF];
+        frame_velocity_into(q, qd, &mut velocity);
+        velocity
+    }
+    /// [`frame_velocity`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_velocity_into<T: Real>(
+        q: &[T; NQ],
+        qd: &[T; NV],
+        velocity: &mut [[T; 6]; NF],
+    ) {
         let t5 = q[3] * q[3];
         let t6 = q[4] * q[4];
         let t7 = t5 + t6;
@@ -13366,7 +13424,6 @@ pub mod fma {
         let t895 = T::mul_add(t422, t774, t894);
         let t897 = T::mul_add(t432, t759, t895);
         velocity[3][5] = t897;
-        velocity
     }
     /// Each frame's classical acceleration (linear, with `w x v`) in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameClassicalAcceleration`); at qdd = 0, the drift `dJ/dt qd`.
     #[inline]
@@ -13378,6 +13435,20 @@ pub mod fma {
         qdd: &[T; NV],
     ) -> [[T; 3]; NF] {
         let mut acceleration = [[T::k(0.0); 3]; NF];
+        frame_acceleration_into(q, qd, qdd, &mut acceleration);
+        acceleration
+    }
+    /// [`frame_acceleration`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_acceleration_into<T: Real>(
+        q: &[T; NQ],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        acceleration: &mut [[T; 3]; NF],
+    ) {
         let t5 = q[3] * q[3];
         let t6 = q[4] * q[4];
         let t7 = t5 + t6;
@@ -14142,7 +14213,6 @@ pub mod fma {
         let t1226 = T::mul_add(t1117, t1211, t1225);
         let t1228 = T::mul_add(t1102, t1213, t1226);
         acceleration[3][2] = t1228;
-        acceleration
     }
     /// The classical acceleration's derivatives `(dacc/dq, dacc/dqd, dacc/dqdd)`, 3 x nv per frame, row-major, `dq` in the tangent space (forward-mode differentiation of `frame_acceleration`'s graph).
     #[inline]
@@ -14156,35 +14226,33 @@ pub mod fma {
         let mut dacc_dq = [[[T::k(0.0); NV]; 3]; NF];
         let mut dacc_dqd = [[[T::k(0.0); NV]; 3]; NF];
         let mut dacc_dqdd = [[[T::k(0.0); NV]; 3]; NF];
-        let mut s = [lit::<T>(0.0); 582];
-        frame_acceleration_grad_part0(
+        frame_acceleration_grad_into(
             q,
             qd,
             qdd,
-            &mut s,
-            &mut dacc_dq,
-            &mut dacc_dqd,
-            &mut dacc_dqdd,
-        );
-        frame_acceleration_grad_part1(
-            q,
-            qd,
-            qdd,
-            &mut s,
-            &mut dacc_dq,
-            &mut dacc_dqd,
-            &mut dacc_dqdd,
-        );
-        frame_acceleration_grad_part2(
-            q,
-            qd,
-            qdd,
-            &mut s,
             &mut dacc_dq,
             &mut dacc_dqd,
             &mut dacc_dqdd,
         );
         (dacc_dq, dacc_dqd, dacc_dqdd)
+    }
+    /// [`frame_acceleration_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_acceleration_grad_into<T: Real>(
+        q: &[T; NQ],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        dacc_dq: &mut [[[T; NV]; 3]; NF],
+        dacc_dqd: &mut [[[T; NV]; 3]; NF],
+        dacc_dqdd: &mut [[[T; NV]; 3]; NF],
+    ) {
+        let mut s = [lit::<T>(0.0); 582];
+        frame_acceleration_grad_part0(q, qd, qdd, &mut s, dacc_dq, dacc_dqd, dacc_dqdd);
+        frame_acceleration_grad_part1(q, qd, qdd, &mut s, dacc_dq, dacc_dqd, dacc_dqdd);
+        frame_acceleration_grad_part2(q, qd, qdd, &mut s, dacc_dq, dacc_dqd, dacc_dqdd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]

@@ -446,7 +446,9 @@ impl Real for F32x8 {
 pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea(q, qd, qdd) };
+        let mut c = [T::k(0.0); NV];
+        unsafe { fma::rnea_into(q, qd, qdd, &mut c) };
+        return c;
     }
     portable::rnea(q, qd, qdd)
 }
@@ -462,7 +464,10 @@ pub fn rnea_grad<T: Real>(
 ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea_grad(q, qd, qdd) };
+        let mut dc_dq = [[T::k(0.0); NV]; NV];
+        let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd) };
+        return (dc_dq, dc_dqd);
     }
     portable::rnea_grad(q, qd, qdd)
 }
@@ -474,7 +479,9 @@ pub fn rnea_grad<T: Real>(
 pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::mass_matrix(q) };
+        let mut m = [[T::k(0.0); NV]; NV];
+        unsafe { fma::mass_matrix_into(q, &mut m) };
+        return m;
     }
     portable::mass_matrix(q)
 }
@@ -486,7 +493,9 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::minv(q) };
+        let mut minv = [[T::k(0.0); NV]; NV];
+        unsafe { fma::minv_into(q, &mut minv) };
+        return minv;
     }
     portable::minv(q)
 }
@@ -498,7 +507,9 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
 pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        unsafe { fma::fd_into(q, qd, tau, &mut qdd) };
+        return qdd;
     }
     portable::fd(q, qd, tau)
 }
@@ -514,7 +525,11 @@ pub fn fd_grad<T: Real>(
 ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd_grad(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        let mut dqdd_dq = [[T::k(0.0); NV]; NV];
+        let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd) };
+        return (qdd, dqdd_dq, dqdd_dqd);
     }
     portable::fd_grad(q, qd, tau)
 }
@@ -8679,6 +8694,20 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
         let mut c = [T::k(0.0); NV];
+        rnea_into(q, qd, qdd, &mut c);
+        c
+    }
+    /// [`rnea`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        c: &mut [T; NV],
+    ) {
         let t2 = q[0].sin();
         let t3 = q[0].cos();
         let t8 = q[1].sin();
@@ -9163,7 +9192,6 @@ pub mod fma {
         let t744 = T::mul_add(lit::<T>(0.08), t737, t742);
         let t745 = t64 + t744;
         c[0] = t745;
-        c
     }
     /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
     #[inline]
@@ -9176,6 +9204,21 @@ pub mod fma {
     ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
         let mut dc_dq = [[T::k(0.0); NV]; NV];
         let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd);
+        (dc_dq, dc_dqd)
+    }
+    /// [`rnea_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        dc_dq: &mut [[T; NV]; NV],
+        dc_dqd: &mut [[T; NV]; NV],
+    ) {
         let t3 = q[0].sin();
         let t4 = q[0].cos();
         let t8 = q[1].sin();
@@ -10814,7 +10857,6 @@ pub mod fma {
         let t2184 = t59 * t2112;
         let t2185 = T::mul_add(t60, t2109, t2184);
         dc_dq[2][0] = t2185;
-        (dc_dq, dc_dqd)
     }
     /// The joint-space inertia matrix M(q) (CRBA).
     #[inline]
@@ -10822,6 +10864,15 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut m = [[T::k(0.0); NV]; NV];
+        mass_matrix_into(q, &mut m);
+        m
+    }
+    /// [`mass_matrix`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn mass_matrix_into<T: Real>(q: &[T; NV], m: &mut [[T; NV]; NV]) {
         m[2][2] = lit::<T>(0.026183867369600003);
         m[5][5] = lit::<T>(0.026183867369600003);
         let t5 = q[1].sin();
@@ -10995,7 +11046,6 @@ pub mod fma {
         let t248 = T::mul_add(lit::<T>(0.08), t240, t246);
         m[3][5] = t248;
         m[5][3] = t248;
-        m
     }
     /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
     #[inline]
@@ -11003,6 +11053,15 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut minv = [[T::k(0.0); NV]; NV];
+        minv_into(q, &mut minv);
+        minv
+    }
+    /// [`minv`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn minv_into<T: Real>(q: &[T; NV], minv: &mut [[T; NV]; NV]) {
         let t6 = q[1].sin();
         let t7 = q[1].cos();
         let t8 = lit::<T>(4.8965888601467475e-12) * t6;
@@ -11485,7 +11544,6 @@ pub mod fma {
             lit::<T>(38.19145529132263),
         );
         minv[5][5] = t731;
-        minv
     }
     /// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
     #[inline]
@@ -11493,6 +11551,20 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
         let mut qdd = [T::k(0.0); NV];
+        fd_into(q, qd, tau, &mut qdd);
+        qdd
+    }
+    /// [`fd`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+    ) {
         let t2 = q[0].sin();
         let t3 = q[0].cos();
         let t9 = q[1].sin();
@@ -12438,7 +12510,6 @@ pub mod fma {
         let t1457 = t409 - t1456;
         let t1458 = lit::<T>(38.19145529132263) * t1457;
         qdd[5] = t1458;
-        qdd
     }
     /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
@@ -12452,10 +12523,25 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
-        let mut s = [lit::<T>(0.0); 74];
-        fd_grad_part0(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
-        fd_grad_part1(q, qd, tau, &mut s, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
         (qdd, dqdd_dq, dqdd_dqd)
+    }
+    /// [`fd_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+        dqdd_dq: &mut [[T; NV]; NV],
+        dqdd_dqd: &mut [[T; NV]; NV],
+    ) {
+        let mut s = [lit::<T>(0.0); 74];
+        fd_grad_part0(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
+        fd_grad_part1(q, qd, tau, &mut s, qdd, dqdd_dq, dqdd_dqd);
     }
     #[inline(never)]
     #[target_feature(enable = "avx2,fma")]

@@ -457,7 +457,10 @@ impl Real for F32x8 {
 pub fn frame_placement<T: Real>(q: &[T; NV]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_placement(q) };
+        let mut translation = [[T::k(0.0); 3]; NF];
+        let mut rotation = [[T::k(0.0); 9]; NF];
+        unsafe { fma::frame_placement_into(q, &mut translation, &mut rotation) };
+        return (translation, rotation);
     }
     portable::frame_placement(q)
 }
@@ -469,7 +472,9 @@ pub fn frame_placement<T: Real>(q: &[T; NV]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
 pub fn frame_jacobian<T: Real>(q: &[T; NV]) -> [[[T; NV]; 6]; NF] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_jacobian(q) };
+        let mut jacobian = [[[T::k(0.0); NV]; 6]; NF];
+        unsafe { fma::frame_jacobian_into(q, &mut jacobian) };
+        return jacobian;
     }
     portable::frame_jacobian(q)
 }
@@ -481,7 +486,9 @@ pub fn frame_jacobian<T: Real>(q: &[T; NV]) -> [[[T; NV]; 6]; NF] {
 pub fn frame_velocity<T: Real>(q: &[T; NV], qd: &[T; NV]) -> [[T; 6]; NF] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_velocity(q, qd) };
+        let mut velocity = [[T::k(0.0); 6]; NF];
+        unsafe { fma::frame_velocity_into(q, qd, &mut velocity) };
+        return velocity;
     }
     portable::frame_velocity(q, qd)
 }
@@ -497,7 +504,9 @@ pub fn frame_acceleration<T: Real>(
 ) -> [[T; 3]; NF] {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_acceleration(q, qd, qdd) };
+        let mut acceleration = [[T::k(0.0); 3]; NF];
+        unsafe { fma::frame_acceleration_into(q, qd, qdd, &mut acceleration) };
+        return acceleration;
     }
     portable::frame_acceleration(q, qd, qdd)
 }
@@ -513,7 +522,20 @@ pub fn frame_acceleration_grad<T: Real>(
 ) -> ([[[T; NV]; 3]; NF], [[[T; NV]; 3]; NF], [[[T; NV]; 3]; NF]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::frame_acceleration_grad(q, qd, qdd) };
+        let mut dacc_dq = [[[T::k(0.0); NV]; 3]; NF];
+        let mut dacc_dqd = [[[T::k(0.0); NV]; 3]; NF];
+        let mut dacc_dqdd = [[[T::k(0.0); NV]; 3]; NF];
+        unsafe {
+            fma::frame_acceleration_grad_into(
+                q,
+                qd,
+                qdd,
+                &mut dacc_dq,
+                &mut dacc_dqd,
+                &mut dacc_dqdd,
+            )
+        };
+        return (dacc_dq, dacc_dqd, dacc_dqdd);
     }
     portable::frame_acceleration_grad(q, qd, qdd)
 }
@@ -3809,6 +3831,19 @@ pub mod fma {
     pub fn frame_placement<T: Real>(q: &[T; NV]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
         let mut translation = [[T::k(0.0); 3]; NF];
         let mut rotation = [[T::k(0.0); 9]; NF];
+        frame_placement_into(q, &mut translation, &mut rotation);
+        (translation, rotation)
+    }
+    /// [`frame_placement`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_placement_into<T: Real>(
+        q: &[T; NV],
+        translation: &mut [[T; 3]; NF],
+        rotation: &mut [[T; 9]; NF],
+    ) {
         let t1 = q[0].sin();
         let t2 = q[0].cos();
         let t4 = q[1].sin();
@@ -3919,7 +3954,6 @@ pub mod fma {
         translation[0][1] = t149;
         let t150 = T::mul_add(lit::<T>(0.081), t117, t123);
         translation[0][2] = t150;
-        (translation, rotation)
     }
     /// Each frame's Jacobian, 6 x nv, rows [linear; angular], in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameJacobian`).
     #[inline]
@@ -3927,6 +3961,18 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn frame_jacobian<T: Real>(q: &[T; NV]) -> [[[T; NV]; 6]; NF] {
         let mut jacobian = [[[T::k(0.0); NV]; 6]; NF];
+        frame_jacobian_into(q, &mut jacobian);
+        jacobian
+    }
+    /// [`frame_jacobian`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_jacobian_into<T: Real>(
+        q: &[T; NV],
+        jacobian: &mut [[[T; NV]; 6]; NF],
+    ) {
         jacobian[0][5][0] = lit::<T>(1.0);
         let t3 = q[0].sin();
         let t4 = q[0].cos();
@@ -4087,7 +4133,6 @@ pub mod fma {
         let t180 = t82 * t172;
         let t182 = T::mul_add(t89, t171, -t180);
         jacobian[0][2][5] = t182;
-        jacobian
     }
     /// Each frame's spatial velocity [linear; angular] in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameVelocity`).
     #[inline]
@@ -4095,6 +4140,19 @@ pub mod fma {
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn frame_velocity<T: Real>(q: &[T; NV], qd: &[T; NV]) -> [[T; 6]; NF] {
         let mut velocity = [[T::k(0.0); 6]; NF];
+        frame_velocity_into(q, qd, &mut velocity);
+        velocity
+    }
+    /// [`frame_velocity`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_velocity_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        velocity: &mut [[T; 6]; NF],
+    ) {
         let t1 = q[0].sin();
         let t2 = q[0].cos();
         let t4 = q[1].sin();
@@ -4257,7 +4315,6 @@ pub mod fma {
         let t238 = T::mul_add(t103, t207, t237);
         let t240 = T::mul_add(t113, t189, t238);
         velocity[0][5] = t240;
-        velocity
     }
     /// Each frame's classical acceleration (linear, with `w x v`) in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameClassicalAcceleration`); at qdd = 0, the drift `dJ/dt qd`.
     #[inline]
@@ -4269,6 +4326,20 @@ pub mod fma {
         qdd: &[T; NV],
     ) -> [[T; 3]; NF] {
         let mut acceleration = [[T::k(0.0); 3]; NF];
+        frame_acceleration_into(q, qd, qdd, &mut acceleration);
+        acceleration
+    }
+    /// [`frame_acceleration`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_acceleration_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        acceleration: &mut [[T; 3]; NF],
+    ) {
         let t1 = q[0].sin();
         let t2 = q[0].cos();
         let t4 = q[1].sin();
@@ -4497,7 +4568,6 @@ pub mod fma {
         let t351 = T::mul_add(t323, t336, t350);
         let t353 = T::mul_add(t305, t338, t351);
         acceleration[0][2] = t353;
-        acceleration
     }
     /// The classical acceleration's derivatives `(dacc/dq, dacc/dqd, dacc/dqdd)`, 3 x nv per frame, row-major, `dq` in the tangent space (forward-mode differentiation of `frame_acceleration`'s graph).
     #[inline]
@@ -4511,6 +4581,29 @@ pub mod fma {
         let mut dacc_dq = [[[T::k(0.0); NV]; 3]; NF];
         let mut dacc_dqd = [[[T::k(0.0); NV]; 3]; NF];
         let mut dacc_dqdd = [[[T::k(0.0); NV]; 3]; NF];
+        frame_acceleration_grad_into(
+            q,
+            qd,
+            qdd,
+            &mut dacc_dq,
+            &mut dacc_dqd,
+            &mut dacc_dqdd,
+        );
+        (dacc_dq, dacc_dqd, dacc_dqdd)
+    }
+    /// [`frame_acceleration_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn frame_acceleration_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        dacc_dq: &mut [[[T; NV]; 3]; NF],
+        dacc_dqd: &mut [[[T; NV]; 3]; NF],
+        dacc_dqdd: &mut [[[T; NV]; 3]; NF],
+    ) {
         let t2 = q[0].sin();
         let t3 = q[0].cos();
         let t5 = q[1].sin();
@@ -6151,6 +6244,5 @@ pub mod fma {
         let t2279 = t2275 + t2278;
         let t2281 = T::mul_add(t312, t2252, t2279);
         dacc_dq[0][2][6] = t2281;
-        (dacc_dq, dacc_dqd, dacc_dqdd)
     }
 }

@@ -436,7 +436,10 @@ pub fn rnea_grad<T: Real>(
 ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::rnea_grad(q, qd, qdd) };
+        let mut dc_dq = [[T::k(0.0); NV]; NV];
+        let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd) };
+        return (dc_dq, dc_dqd);
     }
     portable::rnea_grad(q, qd, qdd)
 }
@@ -452,7 +455,11 @@ pub fn fd_grad<T: Real>(
 ) -> ([T; NV], [[T; NV]; NV], [[T; NV]; NV]) {
     #[cfg(target_arch = "x86_64")]
     if has_fma() {
-        return unsafe { fma::fd_grad(q, qd, tau) };
+        let mut qdd = [T::k(0.0); NV];
+        let mut dqdd_dq = [[T::k(0.0); NV]; NV];
+        let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd) };
+        return (qdd, dqdd_dq, dqdd_dqd);
     }
     portable::fd_grad(q, qd, tau)
 }
@@ -3762,6 +3769,21 @@ pub mod fma {
     ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
         let mut dc_dq = [[T::k(0.0); NV]; NV];
         let mut dc_dqd = [[T::k(0.0); NV]; NV];
+        rnea_grad_into(q, qd, qdd, &mut dc_dq, &mut dc_dqd);
+        (dc_dq, dc_dqd)
+    }
+    /// [`rnea_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn rnea_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        qdd: &[T; NV],
+        dc_dq: &mut [[T; NV]; NV],
+        dc_dqd: &mut [[T; NV]; NV],
+    ) {
         let t3 = q[1].sin();
         let t4 = q[1].cos();
         let t16 = q[2].sin();
@@ -4795,7 +4817,6 @@ pub mod fma {
         let t1426 = t1424 - t1425;
         let t1427 = T::mul_add(lit::<T>(2.0), t1420, t1426);
         dc_dqd[0][0] = t1427;
-        (dc_dq, dc_dqd)
     }
     /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
@@ -4809,6 +4830,22 @@ pub mod fma {
         let mut qdd = [T::k(0.0); NV];
         let mut dqdd_dq = [[T::k(0.0); NV]; NV];
         let mut dqdd_dqd = [[T::k(0.0); NV]; NV];
+        fd_grad_into(q, qd, tau, &mut qdd, &mut dqdd_dq, &mut dqdd_dqd);
+        (qdd, dqdd_dq, dqdd_dqd)
+    }
+    /// [`fd_grad`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn fd_grad_into<T: Real>(
+        q: &[T; NV],
+        qd: &[T; NV],
+        tau: &[T; NV],
+        qdd: &mut [T; NV],
+        dqdd_dq: &mut [[T; NV]; NV],
+        dqdd_dqd: &mut [[T; NV]; NV],
+    ) {
         let t5 = q[1].sin();
         let t6 = q[1].cos();
         let t18 = q[2].sin();
@@ -6150,6 +6187,5 @@ pub mod fma {
         let t1884 = T::mul_add(t597, t1876, t1882);
         let t1886 = T::mul_add(t602, t1871, t1884);
         dqdd_dqd[3][3] = t1886;
-        (qdd, dqdd_dq, dqdd_dqd)
     }
 }

@@ -364,11 +364,32 @@ fn emit_kernel(
         "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]"
     );
     let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
-    // The outputs start from the checked `T::k`, before anything else runs: for the SIMD
-    // types that is the CPU check which makes every later `lit` sound (see the prelude).
-    for o in &k.outputs {
-        let init = array_of(o.shape, "T::k(0.0)");
-        let _ = writeln!(out, "let mut {} = {init};", o.name);
+    emit_output_init(out, k);
+    // A SIMD copy's body writes into its caller's outputs (`{name}_into`), which the
+    // dispatcher passes as its own: see `emit_dispatcher`.
+    let into = copy != Copy::Portable;
+    if into {
+        let outs: Vec<String> = k.outputs.iter().map(|o| format!("&mut {}", o.name)).collect();
+        let _ = writeln!(
+            out,
+            "{name}_into({}, {});\n{ret_value}\n}}\n",
+            arg_names.join(", "),
+            outs.join(", ")
+        );
+        let params: Vec<String> = k
+            .outputs
+            .iter()
+            .map(|o| format!("{}: &mut {}", o.name, output_type(o.shape)))
+            .collect();
+        let _ = writeln!(
+            out,
+            "/// [`{name}`] into outputs that start at zero, set by `T::k(0.0)` (which has run the\n\
+             /// CPU check that makes `lit` sound for the SIMD types).\n\
+             #[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]\n\
+             pub(super) fn {name}_into<T: Real>({}, {}) {{",
+            args.join(", "),
+            params.join(", ")
+        );
     }
     for (m, ty) in &locals {
         let _ = writeln!(out, "let mut {m} = {};", ty.replace("T;", "lit::<T>(0.0);"));
@@ -377,12 +398,12 @@ fn emit_kernel(
         out.push_str(&body(0, &chunks[0]));
     } else {
         let _ = writeln!(out, "let mut s = [lit::<T>(0.0); {}];", names.slots);
+        // In `{name}_into` the outputs are references already.
         let outs: Vec<String> = k
             .outputs
             .iter()
-            .map(|o| o.name.to_string())
-            .chain(locals.iter().map(|(m, _)| m.clone()))
-            .map(|o| format!("&mut {o}"))
+            .map(|o| if into { o.name.to_string() } else { format!("&mut {}", o.name) })
+            .chain(locals.iter().map(|(m, _)| format!("&mut {m}")))
             .collect();
         for c in 0..chunks.len() {
             let _ = writeln!(
@@ -413,7 +434,11 @@ fn emit_kernel(
             }
         }
     }
-    let _ = writeln!(out, "{ret_value}\n}}\n");
+    if into {
+        let _ = writeln!(out, "}}\n");
+    } else {
+        let _ = writeln!(out, "{ret_value}\n}}\n");
+    }
     if chunks.len() > 1 {
         let outs: Vec<String> = k
             .outputs
@@ -718,14 +743,38 @@ fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool) {
         "#[inline]\n#[allow(dead_code, clippy::type_complexity)]\npub fn {name}<T: Real>({}) -> {ret_type} {{",
         args.join(", ")
     );
+    // The SIMD copies write into this function's own outputs, which it returns: returned
+    // by a `#[target_feature]` function (which cannot be inlined here) they were copied once
+    // more, up to 14 KB per call (floating HyQ's `step_grad`), and that copy's speed moved
+    // with the stack's layout (0.6 µs of its 4.4 µs in one build, docs/guide/speed.md).
+    let _ = writeln!(out, "#[cfg(target_arch = \"x86_64\")]\nif has_fma() {{");
+    emit_output_init(out, k);
+    let outs: Vec<String> = k.outputs.iter().map(|o| format!("&mut {}", o.name)).collect();
+    let into_call = format!("{call}, {}", outs.join(", "));
     if avx512 {
         let _ = writeln!(
             out,
-            "#[cfg(target_arch = \"x86_64\")]\nif has_avx512() {{\n// SAFETY: the CPU has AVX-512 F and VL, AVX2 and FMA (checked just above).\nreturn unsafe {{ avx512::{name}({call}) }};\n}}"
+            "if has_avx512() {{\n// SAFETY: the CPU has AVX-512 F and VL, AVX2 and FMA (checked just above).\nunsafe {{ avx512::{name}_into({into_call}) }};\n}} else {{"
         );
     }
-    let _ = writeln!(out, "#[cfg(target_arch = \"x86_64\")]\nif has_fma() {{\n// SAFETY: the CPU has AVX2 and FMA (checked just above).\nreturn unsafe {{ fma::{name}({call}) }};\n}}");
+    let _ = writeln!(
+        out,
+        "// SAFETY: the CPU has AVX2 and FMA (checked just above).\nunsafe {{ fma::{name}_into({into_call}) }};"
+    );
+    if avx512 {
+        let _ = writeln!(out, "}}");
+    }
+    let _ = writeln!(out, "return {};\n}}", return_value(k));
     let _ = writeln!(out, "portable::{name}({call})\n}}\n");
+}
+
+/// The outputs, from the checked `T::k` before anything else runs: for the SIMD types that
+/// is the CPU check which makes every later `lit` sound (see the prelude).
+fn emit_output_init(out: &mut String, k: &Function) {
+    for o in &k.outputs {
+        let init = array_of(o.shape, "T::k(0.0)");
+        let _ = writeln!(out, "let mut {} = {init};", o.name);
+    }
 }
 
 const HAS_AVX512: &str = r#"
