@@ -16,9 +16,16 @@
 # figure in the report is the median over processes of each process's own median, and the
 # report says how far the processes spread. Criterion's reference benchmarks (the slow Rust
 # reference, not a placement question) run in the first process only.
+# A process keeps its binary's code layout, and the layout moves a kernel too (2026-11-27: HyQ's
+# rnea_grad at 0.70 µs in one link of the same code and 1.85 µs in another). So with
+# BENCH_LAYOUTS=1 (the default) process p > 1 runs the criterion benchmarks relinked with their
+# code sections shuffled (rust-lld's --shuffle-sections, seed p - 1; rustc links with rust-lld on
+# x86-64 Linux), each process another layout; BENCH_LAYOUTS=0 keeps cargo's one layout.
 set -euo pipefail
 cd "$(dirname "$0")/.."
 PROCESSES=${BENCH_PROCESSES:-5}
+LAYOUTS=${BENCH_LAYOUTS:-1}
+case "$LAYOUTS" in 0|1) ;; *) echo "error: BENCH_LAYOUTS must be 0 or 1, got '$LAYOUTS'" >&2; exit 1;; esac
 case "$PROCESSES" in ''|*[!0-9]*|0) echo "error: BENCH_PROCESSES must be a positive integer, got '$PROCESSES'" >&2; exit 1;; esac
 PREFIX=$(python3 -c "import pinocchio, pathlib; p = pathlib.Path(pinocchio.__file__).resolve(); print(next(x for x in p.parents if (x / 'cmeel.prefix').exists()) / 'cmeel.prefix')")
 test -d /usr/include/eigen3 || { echo "error: Eigen headers missing: apt-get install libeigen3-dev" >&2; exit 1; }
@@ -61,7 +68,14 @@ g++ -O3 -march=native -DNDEBUG -std=c++17 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADER
 # The generated libraries land in the working directory; the first process compiles them
 # (after an earlier run's are removed), the later ones load them.
 rm -f target/bench/cg/*.so
-cargo bench -p grid-gen-kernels --bench kernels --no-run
+# The criterion benchmarks' executable, linked with its code sections shuffled by seed $1 (0:
+# cargo's own layout); rebuilding the benchmark crate takes about two minutes per layout.
+bench_exe() {
+    local args=()
+    [ "$1" -gt 0 ] && args=(-C "link-arg=-Wl,--shuffle-sections=.text*=$1")
+    cargo rustc --profile bench -p grid-gen-kernels --bench kernels --message-format=json -- "${args[@]}" \
+        | grep -o '"executable":"[^"]*"' | tail -1 | cut -d'"' -f4
+}
 rm -rf target/bench/criterion
 : >target/bench/pinocchio.jsonl
 for p in $(seq 1 "$PROCESSES"); do
@@ -73,8 +87,12 @@ for p in $(seq 1 "$PROCESSES"); do
         ../grid_hyq_floating.pinmodel) | sed "s/^{/{\"variant\": \"codegen\", \"process\": $p, /; s#\.\./grid#target/bench/grid#" | tee -a target/bench/pinocchio.jsonl
     filter=()
     [ "$p" -gt 1 ] && filter=("generated|without")
+    seed=0
+    [ "$LAYOUTS" = 1 ] && seed=$((p - 1))
+    exe=$(bench_exe "$seed")
+    [ -x "$exe" ] || { echo "error: the benchmarks did not build in layout $seed (a linker without --shuffle-sections? BENCH_LAYOUTS=0 keeps one layout)" >&2; exit 1; }
     rm -rf target/criterion
-    cargo bench -p grid-gen-kernels --bench kernels -- --noplot "${filter[@]}"
+    "$exe" --bench --noplot "${filter[@]}"
     mkdir -p target/bench/criterion
     mv target/criterion target/bench/criterion/$p
 done
