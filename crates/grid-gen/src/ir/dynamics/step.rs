@@ -11,8 +11,9 @@
 //! operations a joint; the result is exact to rounding for rotations of up to `2^K =
 //! 4096` rad in one step (a base spinning at 1e3 rad/s over 10 ms turns by 10 rad; a
 //! double-angle step doubles the angle's rounding error with the angle, so the error stays
-//! that of `θ` itself, about ε θ per step, as in a library `sin`). `integrate`'s Jacobians are the
-//! forward-mode derivatives of that graph.
+//! that of `θ` itself, about ε θ per step, as in a library `sin`). `integrate`'s Jacobians
+//! are written from the same coefficients (`R(ω)ᵀ`, `Jr(ω)`), but for a free-flyer's coupling
+//! block, the forward-mode derivative of its translation.
 
 use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::spatial::{self as sp, joint_xform_at, k, V3};
