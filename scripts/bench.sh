@@ -68,14 +68,7 @@ g++ -O3 -march=native -DNDEBUG -std=c++17 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADER
 # The generated libraries land in the working directory; the first process compiles them
 # (after an earlier run's are removed), the later ones load them.
 rm -f target/bench/cg/*.so
-# The criterion benchmarks' executable, linked with its code sections shuffled by seed $1 (0:
-# cargo's own layout); rebuilding the benchmark crate takes about two minutes per layout.
-bench_exe() {
-    local args=()
-    [ "$1" -gt 0 ] && args=(-C "link-arg=-Wl,--shuffle-sections=.text*=$1")
-    cargo rustc --profile bench -p grid-gen-kernels --bench kernels --message-format=json -- "${args[@]}" \
-        | grep -o '"executable":"[^"]*"' | tail -1 | cut -d'"' -f4
-}
+source scripts/bench_exe.sh
 rm -rf target/bench/criterion
 : >target/bench/pinocchio.jsonl
 for p in $(seq 1 "$PROCESSES"); do

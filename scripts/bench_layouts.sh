@@ -16,14 +16,11 @@ SEEDS=${LAYOUT_SEEDS:-0 7}
 ROUNDS=${BENCH_ROUNDS:-2}
 FILTER=${FILTER:-'^(grid_iiwa|grid_hyq|grid_atlas|grid_hyq\.hyq_floating)/generated/(rnea_grad|fd_grad)$|hyq_step_floating/generated/(step_grad|fd_grad)$|hyq_standing_floating/generated/contact_fd_grad$'}
 OUT=$PWD/target/bench/layouts
+source scripts/bench_exe.sh
 rm -rf "$OUT" && mkdir -p "$OUT"
 for side in OLD NEW; do
     for seed in $SEEDS; do
-        args=()
-        [ "$seed" -gt 0 ] && args=(-C "link-arg=-Wl,--shuffle-sections=.text*=$seed")
-        exe=$(cd "${!side}" && CARGO_TARGET_DIR="$(realpath "${!side}")/target" cargo rustc --profile bench \
-            -p grid-gen-kernels --bench kernels --message-format=json -- "${args[@]}" \
-            | grep -o '"executable":"[^"]*"' | tail -1 | cut -d'"' -f4)
+        exe=$(cd "${!side}" && CARGO_TARGET_DIR="$PWD/target" bench_exe "$seed")
         [ -x "$exe" ] || { echo "error: $side did not build in layout $seed" >&2; exit 1; }
         cp "$exe" "$OUT/$side-s$seed"
     done

@@ -171,6 +171,13 @@ impl<'a> Dynamics<'a> {
     }
 }
 
+/// Of the picked coordinates `cols`, the one before position `at` that is `row`: where M⁻¹ (or
+/// the contacts' symmetric ∂q̈/∂τ) has both, entry (row, `cols[at]`) is that column's entry in
+/// row `cols[at]`, already formed.
+fn mirrored_column(cols: &[usize], row: usize, at: usize) -> Option<usize> {
+    cols[..at].iter().position(|&c| c == row)
+}
+
 /// The ancestors of joint k, nearest first, k excluded: the order the factorisation and
 /// the solves visit them.
 fn strict_ancestors(model: &Model, k: usize) -> Vec<usize> {

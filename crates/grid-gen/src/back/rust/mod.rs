@@ -369,12 +369,11 @@ fn emit_kernel(
     // dispatcher passes as its own: see `emit_dispatcher`.
     let into = copy != Copy::Portable;
     if into {
-        let outs: Vec<String> = k.outputs.iter().map(|o| format!("&mut {}", o.name)).collect();
         let _ = writeln!(
             out,
             "{name}_into({}, {});\n{ret_value}\n}}\n",
             arg_names.join(", "),
-            outs.join(", ")
+            output_refs(k)
         );
         let params: Vec<String> = k
             .outputs
@@ -749,8 +748,7 @@ fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool) {
     // with the stack's layout (0.6 µs of its 4.4 µs in one build, docs/guide/speed.md).
     let _ = writeln!(out, "#[cfg(target_arch = \"x86_64\")]\nif has_fma() {{");
     emit_output_init(out, k);
-    let outs: Vec<String> = k.outputs.iter().map(|o| format!("&mut {}", o.name)).collect();
-    let into_call = format!("{call}, {}", outs.join(", "));
+    let into_call = format!("{call}, {}", output_refs(k));
     if avx512 {
         let _ = writeln!(
             out,
@@ -766,6 +764,11 @@ fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool) {
     }
     let _ = writeln!(out, "return {};\n}}", return_value(k));
     let _ = writeln!(out, "portable::{name}({call})\n}}\n");
+}
+
+/// `&mut out1, &mut out2, ...`: the outputs passed to a copy's `{name}_into`.
+fn output_refs(k: &Function) -> String {
+    k.outputs.iter().map(|o| format!("&mut {}", o.name)).collect::<Vec<_>>().join(", ")
 }
 
 /// The outputs, from the checked `T::k` before anything else runs: for the SIMD types that

@@ -292,7 +292,7 @@ impl Dynamics<'_> {
 /// For τ (`which` 2), the earlier column of `tau_cols` whose coordinate is row i: entry
 /// (i, c) of the symmetric ∂q̈/∂τ is that column's entry in row `tau_cols[c]`.
 fn mirror(which: usize, tau_cols: &[usize], i: usize, c: usize) -> Option<usize> {
-    (which == 2).then(|| tau_cols[..c].iter().position(|&t| t == i)).flatten()
+    (which == 2).then(|| super::mirrored_column(tau_cols, i, c)).flatten()
 }
 
 /// The combination above for one of u = q, q̇, τ (`which` 0, 1, 2) as a per-column program

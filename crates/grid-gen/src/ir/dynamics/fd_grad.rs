@@ -184,14 +184,13 @@ impl Dynamics<'_> {
                 picked[row][at] = x;
             }
         }
-        // M⁻¹ is symmetric: where row r is also a picked column, the entry above the
-        // diagonal is column r's below it, and the solve's last pass drops the rows no
-        // other row reads (a floating quadruped's B: the other legs' rows of half its
-        // columns).
+        // M⁻¹ is symmetric: where a row is also an earlier picked column, the entry is
+        // that column's, and the solve's last pass drops the rows no other row reads (a
+        // floating quadruped's B: the other legs' rows of half its columns).
         for (at, &c) in columns.iter().enumerate() {
-            for (at_r, &r) in columns.iter().enumerate() {
-                if r < c {
-                    picked[r][at] = picked[c][at_r];
+            for row in 0..n {
+                if let Some(at_r) = super::mirrored_column(columns, row, at) {
+                    picked[row][at] = picked[c][at_r];
                 }
             }
         }

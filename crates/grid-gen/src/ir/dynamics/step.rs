@@ -357,12 +357,8 @@ impl Dynamics<'_> {
             self.program = None;
             let qdd = out.next().and_then(|rows| rows.into_iter().next()).unwrap_or_default();
             let _lambda = out.next();
-            let h = k(&mut self.g, s);
-            let mut scaled = || -> Mat {
-                let m: Mat = out.next().unwrap_or_default();
-                m.iter().map(|row| row.iter().map(|&x| self.g.mul(h, x)).collect()).collect()
-            };
-            let (dq, dqd, dtau) = (scaled(), scaled(), scaled());
+            let mut scaled = |d: &mut Self| d.scaled(&out.next().unwrap_or_default(), s);
+            let (dq, dqd, dtau) = (scaled(self), scaled(self), scaled(self));
             return (qdd, dq, dqd, dtau);
         }
         let (qdd, dq, dqd, minv, _) = self.fd_grad_scaled(qd, tau, tau_cols, &[], s);
@@ -569,17 +565,14 @@ impl Dynamics<'_> {
         let (qd_next, w) = self.euler(qd, &qdd, scheme, dt);
         let (q_next, exps) = self.integrate_recorded(&w);
         let (jq, jv) = self.d_integrate(&exps);
-        let g = &mut self.g;
-        let (zero, one, h) = (g.constant(0.0), g.constant(1.0), k(g, dt));
-        let scale = |g: &mut Graph, m: &Mat| -> Mat {
-            m.iter().map(|row| row.iter().map(|&x| g.mul(h, x)).collect()).collect()
-        };
+        let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
         for (i, row) in avv.iter_mut().enumerate() {
-            row[i] = g.add(one, row[i]);
+            row[i] = self.g.add(one, row[i]);
         }
         // dt Jv X, with Jv block-diagonal (its zeros fold away) and dt on Jv's entries
         // (on a scalar coordinate's row that is one multiplication per entry, as after).
-        let jv_h = scale(g, &jv);
+        let jv_h = self.scaled(&jv, dt);
+        let g = &mut self.g;
         let jv_times = |g: &mut Graph, x: &Mat| -> Mat {
             let cols = x.first().map_or(0, Vec::len);
             (0..nv)
