@@ -290,6 +290,12 @@ struct ModelArgs {
     /// `[[contact]]`.
     #[arg(long, value_name = "FRAME:TYPE,...", value_delimiter = ',', global = true, value_parser = parse_contact)]
     contact: Vec<grid_gen::ContactEntry>,
+    /// Read every <origin rpy> angle within RAD of a multiple of pi/2 as that multiple
+    /// (at most 1e-6): a URDF's pi/2 written to a few digits becomes a permutation the
+    /// kernels apply for free, and the results move from the literal file's by about RAD
+    /// (the book, Speed). Replaces the scene's `round_angles`.
+    #[arg(long, value_name = "RAD", global = true)]
+    round_angles: Option<f64>,
 }
 
 impl ModelArgs {
@@ -314,6 +320,7 @@ impl ModelArgs {
             fext: list(&self.fext),
             fext_derivatives: self.no_fext_derivatives.then_some(false),
             contacts: (!self.contact.is_empty()).then(|| self.contact.clone()),
+            round_angles: self.round_angles,
         };
         config
     }

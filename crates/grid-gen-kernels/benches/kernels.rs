@@ -489,6 +489,8 @@ fn kernels(c: &mut Criterion) {
     bench_scene!(c, grid_iiwa_static, "grid_iiwa.iiwa_static");
     bench_scene!(c, grid_hyq_lf_columns, "grid_hyq.hyq_lf_columns");
     bench_scene!(c, grid_hyq_floating, "grid_hyq.hyq_floating");
+    bench_scene!(c, grid_hyq_round_angles, "grid_hyq.hyq_round_angles");
+    bench_scene!(c, grid_hyq_floating_round_angles, "grid_hyq.hyq_floating_round_angles");
     bench_frames!(c, grid_iiwa_tool_frame, "grid_iiwa.iiwa_tool_frame");
     bench_frames!(c, grid_hyq_feet_floating, "grid_hyq.hyq_feet_floating");
     bench_step!(c, grid_hyq_step_floating, "grid_hyq.hyq_step_floating");

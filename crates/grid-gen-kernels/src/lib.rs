@@ -99,4 +99,13 @@ pub mod scenes {
     pub mod grid_hyq_standing_floating {
         include!("../../../generated/scenes/grid_hyq.hyq_standing_floating/hyq.rs");
     }
+    /// HyQ with its URDF's right angles read as right angles (`round_angles = 1e-11`):
+    /// rnea_grad and fd_grad.
+    pub mod grid_hyq_round_angles {
+        include!("../../../generated/scenes/grid_hyq.hyq_round_angles/hyq.rs");
+    }
+    /// Floating HyQ with `round_angles = 1e-11`: rnea_grad and fd_grad.
+    pub mod grid_hyq_floating_round_angles {
+        include!("../../../generated/scenes/grid_hyq.hyq_floating_round_angles/hyq.rs");
+    }
 }

@@ -944,3 +944,72 @@ fn contact_kernels_match_the_reference() {
         worst[0], worst[1]
     );
 }
+
+/// HyQ with `round_angles = 1e-11` (`generated/scenes/grid_hyq.hyq_round_angles/` and its
+/// floating twin): rnea_grad and fd_grad against the reference on the rounded model at
+/// F64_TOL, and how far the rounding moves them from the literal file's reference. The
+/// twelve angles move by at most 4.9e-12 rad, so the outputs move by that times how
+/// sensitive they are to the geometry (measured at most 2.1e-11, 4.4 times the angle, on
+/// these states). ROUNDED_TOL is the agreement with Pinocchio the project promises
+/// (1e-10 relative): the rounded kernels must still keep it against the literal file.
+/// At least one output must differ by more than F64_TOL (the rounding reached the
+/// kernels).
+#[test]
+fn rounded_angle_kernels_match_the_rounded_reference_and_stay_near_the_literal() {
+    const ROUNDED_TOL: f64 = 1e-10;
+    macro_rules! check {
+        ($m:ident, $scene:literal, $literal:literal) => {{
+            use grid_gen_kernels::scenes::$m as k;
+            let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", $scene);
+            let literal = match $literal {
+                "" => load("grid_hyq"),
+                s => grid_gen_test_support::load_in_scene("grid_hyq", s).0,
+            };
+            let r = model.rounded_angles.expect("the scene rounds");
+            assert_eq!((r.count, literal.rounded_angles), (12, None));
+            assert!(k::NV == model.nv() && k::NQ == model.nq());
+            let mut rng = Rng(31);
+            let (mut moved, mut worst) = (0.0f64, 0.0f64);
+            for (label, per_joint, qd, u) in states(&model, &mut rng) {
+                let q = match model.floating {
+                    true => model.q_from_joints(&per_joint, rng.base_pose()),
+                    false => per_joint,
+                };
+                let nq = |v: &[f64]| -> [f64; k::NQ] { std::array::from_fn(|i| v[i]) };
+                let nv = |v: &[f64]| -> [f64; k::NV] { std::array::from_fn(|i| v[i]) };
+                let m = |x: [[f64; k::NV]; k::NV]| DMatrix::from_fn(k::NV, k::NV, |i, j| x[i][j]);
+                let (dq, dqd) = k::rnea_grad(&nq(&q), &nv(&qd), &nv(&u));
+                let (qdd, fq, fqd) = k::fd_grad(&nq(&q), &nv(&qd), &nv(&u));
+                let got = [
+                    (1, m(dq)),
+                    (2, m(dqd)),
+                    (6, DMatrix::from_column_slice(k::NV, 1, &qdd)),
+                    (7, m(fq)),
+                    (8, m(fqd)),
+                ];
+                let want = reference_outputs(&model, &q, &qd, &u);
+                let far = reference_outputs(&literal, &q, &qd, &u);
+                for (i, g) in got {
+                    let (e, d) = (rel(&g, &want[i]), rel(&g, &far[i]));
+                    assert!(
+                        e <= F64_TOL,
+                        "{} {label}: {} relative error {e:.2e}",
+                        $scene,
+                        NAMES[i]
+                    );
+                    assert!(
+                        d <= ROUNDED_TOL,
+                        "{} {label}: {} {d:.2e} from the literal file's",
+                        $scene,
+                        NAMES[i]
+                    );
+                    (moved, worst) = (moved.max(d), worst.max(d));
+                }
+            }
+            assert!(moved > F64_TOL, "{}: the rounding changed nothing ({moved:.2e})", $scene);
+            eprintln!("{}: at most {worst:.2e} relative from the literal file's reference", $scene);
+        }};
+    }
+    check!(grid_hyq_round_angles, "hyq_round_angles", "");
+    check!(grid_hyq_floating_round_angles, "hyq_floating_round_angles", "hyq_floating");
+}

@@ -89,6 +89,10 @@ impl Config {
                 return Err(ConfigError::Scene(SceneError { path: "gravity".into(), message }));
             }
         }
+        if let Some(tol) = self.overrides.round_angles {
+            let error = |message| SceneError { path: "round_angles".into(), message };
+            crate::scene::check_round_angles(tol).map_err(error)?;
+        }
         scene.apply(&self.overrides);
         let kernels = match &self.kernels {
             Some(k) => Some(KernelKind::ALL.into_iter().filter(|x| k.contains(x)).collect()),

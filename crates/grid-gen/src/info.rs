@@ -103,6 +103,10 @@ pub struct Info {
     pub floating_base: bool,
     /// Gravity in the root frame (m/s²) the op counts and netlists were built with.
     pub gravity: [f64; 3],
+    /// The scene's `round_angles`: how many `<origin rpy>` angles it read as multiples of
+    /// π/2, and the largest change (absent when the scene does not round).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rounded_angles: Option<crate::urdf::RoundedAngles>,
     /// Movable joints in model order (depth-first pre-order, children in document order),
     /// one per coordinate.
     pub joint_names: Vec<String>,
@@ -180,6 +184,7 @@ impl Info {
             nv: model.nv(),
             nq: model.nq(),
             floating_base: model.floating,
+            rounded_angles: model.rounded_angles,
             spherical: crate::ir::Robot::of(model)
                 .spherical
                 .into_iter()
@@ -447,6 +452,12 @@ impl Info {
             s.push_str(&format!(
                 "floating base: joints 0-5 are the free-flyer (base velocity, linear then angular, in the base frame); q has nq = {} entries, [x, y, z, qx, qy, qz, qw] then joints 6.. at q[j + 1]\n",
                 self.nq
+            ));
+        }
+        if let Some(r) = &self.rounded_angles {
+            s.push_str(&format!(
+                "round_angles {:e} rad: {} <origin rpy> angles read as multiples of pi/2 (largest change {:.2e} rad; the results move by about that much, relative, from the literal file's)\n",
+                r.tolerance, r.count, r.largest
             ));
         }
         if !self.spherical.is_empty() {

@@ -29,7 +29,8 @@ impl Model {
         scene: &Scene,
         scene_path: &str,
     ) -> Result<(Model, Vec<Diagnostic>), LoadError> {
-        let (urdf, tree, mut diags) = urdf::load(path, text)?;
+        let (mut urdf, tree, mut diags) = urdf::load(path, text)?;
+        let rounded = scene.round_angles.map(|tol| urdf::round_angles(&mut urdf, tol));
         let edits = scene::resolve(scene, scene_path, &urdf, &tree, &mut diags);
         let built = build(
             &urdf,
@@ -41,6 +42,7 @@ impl Model {
         )
         .map(|(mut model, source)| {
             model.singular = check_massless(&model, &source, &urdf, &mut diags);
+            model.rounded_angles = rounded;
             model.specialisation = scene::specialise(scene, scene_path, &urdf, &model, &mut diags);
             let file_name = |p: &str| {
                 std::path::Path::new(p)

@@ -233,6 +233,8 @@ pub struct Model {
     pub frames: Vec<Frame>,
     /// What a scene fixes about the state and the outputs (default: nothing).
     pub specialisation: Specialisation,
+    /// The `<origin rpy>` angles a scene's `round_angles` read as multiples of π/2.
+    pub rounded_angles: Option<crate::urdf::RoundedAngles>,
 }
 
 /// A URDF link as a frame: the moving body it is fixed in (after fixed and locked joints
@@ -1084,6 +1086,7 @@ pub(crate) fn build(
         coupling,
         frames,
         specialisation: Specialisation::default(),
+        rounded_angles: None,
     };
     Some((model, source))
 }

@@ -110,6 +110,10 @@ pub struct Scene {
     /// Contacts at frames (the dynamics kernels' `lambda`), in the order declared.
     #[serde(default)]
     pub contact: Vec<ContactEntry>,
+    /// Read every `<origin rpy>` angle within this many radians of a multiple of π/2 as
+    /// that multiple (`urdf::round_angles`; at most `urdf::MAX_ROUND_ANGLES`). Off by
+    /// default: the URDF's numbers are taken as written, as Pinocchio takes them.
+    pub round_angles: Option<f64>,
 }
 
 /// `[external_forces]`: the bodies that take a spatial force, each named by the joint that
@@ -288,6 +292,18 @@ pub struct SceneOverrides {
     pub fext: Option<Vec<String>>,
     pub fext_derivatives: Option<bool>,
     pub contacts: Option<Vec<ContactEntry>>,
+    pub round_angles: Option<f64>,
+}
+
+/// `round_angles` must round off digits, not change the robot.
+pub fn check_round_angles(tol: f64) -> Result<(), String> {
+    let max = crate::urdf::MAX_ROUND_ANGLES;
+    match tol.is_finite() && tol > 0.0 && tol <= max {
+        true => Ok(()),
+        false => Err(format!(
+            "round_angles = {tol} rad: give a tolerance above 0 and at most {max:e} rad (an angle's round-off, single precision at worst)"
+        )),
+    }
 }
 
 /// A scene file that cannot be read.
@@ -323,6 +339,11 @@ impl Scene {
                 return err(format!("payload on `{}`: mass, com and inertia must be finite and the mass not negative", p.link));
             }
         }
+        if let Some(tol) = scene.round_angles {
+            if let Err(message) = check_round_angles(tol) {
+                return err(message);
+            }
+        }
         scene.kernels().map_err(|message| SceneError { path: path.to_string(), message })?;
         Ok(scene)
     }
@@ -353,6 +374,7 @@ impl Scene {
         if let Some(contacts) = o.contacts {
             self.contact = contacts;
         }
+        self.round_angles = o.round_angles.or(self.round_angles);
     }
 
     /// The kernels `outputs` names, in generation order; `None` when it names none.

@@ -24,7 +24,7 @@ const C_ROBOTS: [&str; 1] = ["grid_iiwa"];
 
 /// Robots in a scene of `examples/scenes/`, whose Rust modules are checked in under
 /// `generated/scenes/<robot>.<scene>/` (benchmarked against the full robots').
-pub const SCENES: [(&str, &str); 11] = [
+pub const SCENES: [(&str, &str); 13] = [
     ("grid_iiwa", "iiwa_wrist_locked"),
     ("grid_hyq", "hyq_front_legs"),
     ("grid_iiwa", "iiwa_static"),
@@ -36,6 +36,8 @@ pub const SCENES: [(&str, &str); 11] = [
     ("grid_hyq", "hyq_step_floating"),
     ("grid_hyq", "hyq_contacts_floating"),
     ("grid_hyq", "hyq_standing_floating"),
+    ("grid_hyq", "hyq_round_angles"),
+    ("grid_hyq", "hyq_floating_round_angles"),
 ];
 
 /// Test robots (not bundled: they use grid-gen's extensions of URDF) whose Rust modules

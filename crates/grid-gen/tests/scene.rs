@@ -342,3 +342,40 @@ fn the_books_scene_example_parses() {
     let err = Scene::parse("scenes.md", &misplaced).unwrap_err().to_string();
     assert!(err.contains("static"), "{err}");
 }
+
+/// `round_angles`: an angle written to 11 digits becomes the right angle it stands for
+/// (the model equals the URDF written with π/2 in full), an angle that is no multiple of
+/// π/2 stays, and a tolerance that would change the robot rather than its round-off is
+/// an error, from a scene file and from the caller's override alike.
+#[test]
+#[allow(clippy::approx_constant)] // the truncated π/2 is the point
+fn round_angles_reads_truncated_right_angles_and_refuses_large_tolerances() {
+    let ja2 = |rpy: &str| {
+        A2_REVOLUTE.replace(
+            "<origin xyz=\"0 0.1 0.2\"/>",
+            &format!("<origin xyz=\"0 0.1 0.2\" rpy=\"{rpy}\"/>"),
+        )
+    };
+    let truncated = tree_urdf(true, &ja2("1.57079632679 0.3 0"), "");
+    let (m, _) = in_scene(&truncated, "round_angles = 1e-11").unwrap();
+    let r = m.rounded_angles.unwrap();
+    assert_eq!((r.count, r.largest), (1, std::f64::consts::FRAC_PI_2 - 1.57079632679));
+    let exact = tree_urdf(true, &ja2(&format!("{} 0.3 0", std::f64::consts::FRAC_PI_2)), "");
+    assert_same(&m, &plain(&exact), "rounded");
+    assert_eq!(plain(&truncated).rounded_angles, None);
+    for bad in ["0.0", "-1e-12", "1e-3", "nan", "inf"] {
+        let e = in_scene(&truncated, &format!("round_angles = {bad}")).unwrap_err();
+        assert!(e.contains("round_angles") && e.contains("at most 1e-6"), "{bad}: {e}");
+    }
+    let dir = std::env::temp_dir().join(format!("grid-gen-round-angles-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("tree.urdf");
+    std::fs::write(&path, &truncated).unwrap();
+    let mut config = grid_gen::Config::new(&path);
+    config.overrides.round_angles = Some(0.01);
+    let e = config.load().unwrap_err().to_string();
+    assert!(e.contains("round_angles = 0.01"), "{e}");
+    config.overrides.round_angles = Some(1e-11);
+    assert_eq!(config.load().unwrap().model.rounded_angles.map(|r| r.count), Some(1));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

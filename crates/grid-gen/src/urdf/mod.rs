@@ -5,9 +5,11 @@
 //! at the element it is about.
 
 mod parse;
+mod round;
 mod validate;
 
 pub use parse::{Inertial, Joint, JointKind, Link, Mimic, Pose, Urdf};
+pub use round::{round_angles, RoundedAngles, MAX_ROUND_ANGLES};
 pub use validate::{check_tree, Tree};
 
 use crate::diagnostic::{Diagnostic, LoadError, Severity};
