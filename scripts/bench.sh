@@ -37,6 +37,27 @@ done
 # HyQ on a free-flyer (grid-gen's --floating-base, the scene examples/scenes/hyq_floating.toml).
 python3 -c "import pinocchio as pin; pin.buildModelFromUrdf('robots/grid_hyq.urdf', pin.JointModelFreeFlyer()).saveToText('target/bench/grid_hyq_floating.pinmodel')"
 MODELS="$(for r in $ROBOTS; do echo target/bench/$r.pinmodel; done) target/bench/grid_hyq_floating.pinmodel"
+# HyQ with its right angles read as right angles (the scenes hyq_round_angles.toml and
+# hyq_floating_round_angles.toml, round_angles = 1e-11): the same models with every joint
+# placement's rotation entry within 1e-11 of 0 or +-1 made exact. Pinocchio's analytical
+# functions cost the same on them (they do not look at values), but CppADCodeGen records the
+# model's numbers as constants and drops products with an exact 0, so its C is recorded again
+# from these models, for a fair third column.
+python3 - <<'PY'
+import numpy as np
+import pinocchio as pin
+for joint, out in [((), "grid_hyq_round"), ((pin.JointModelFreeFlyer(),), "grid_hyq_floating_round")]:
+    m = pin.buildModelFromUrdf("robots/grid_hyq.urdf", *joint)
+    for i in range(m.njoints):
+        placement = m.jointPlacements[i]
+        r = placement.rotation.copy()
+        r[np.abs(r) <= 1e-11] = 0.0
+        near_one = np.abs(np.abs(r) - 1.0) <= 1e-11
+        r[near_one] = np.sign(r[near_one])
+        placement.rotation = r
+        m.jointPlacements[i] = placement
+    m.saveToText(f"target/bench/{out}.pinmodel")
+PY
 # Frames (the scenes examples/scenes/iiwa_tool_frame.toml and hyq_feet_floating.toml):
 # MODEL:LINK,... times getFrameJacobian and getFrameClassicalAcceleration for those links.
 MODELS="$MODELS target/bench/grid_iiwa.pinmodel:iiwa_link_7 target/bench/grid_hyq_floating.pinmodel:lf_lowerleg,rf_lowerleg,lh_lowerleg,rh_lowerleg"
@@ -49,9 +70,15 @@ MODELS="$MODELS contact@target/bench/grid_hyq_floating.pinmodel:lf_lowerleg,rf_l
 # Pinocchio's own build defines these (see its exported CMake targets). Built twice, for
 # the default target and with -march=native; the report takes the faster of the two per
 # algorithm, so Pinocchio gets the same wide instructions as our FMA copy.
+# Each harness takes several minutes of g++: one newer than its source and than the installed
+# Pinocchio library is kept (BENCH_REBUILD=1 builds them all again).
+built() {
+    [ "${BENCH_REBUILD:-0}" != 1 ] && [ "$1" -nt "$2" ] && [ "$1" -nt "$(ls "$PREFIX"/lib/libpinocchio_default.so* | head -1)" ]
+}
 for variant in default native; do
     arch=""
     [ "$variant" = native ] && arch="-march=native"
+    built target/bench/pinocchio_bench_$variant bench/pinocchio_bench.cpp && continue
     g++ -O3 $arch -DNDEBUG -std=c++17 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS -DBOOST_MPL_LIMIT_LIST_SIZE=30 \
         -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 -DBOOST_FUSION_INVOKE_MAX_ARITY=12 \
         -I"$PREFIX/include" -I/usr/include/eigen3 bench/pinocchio_bench.cpp -o target/bench/pinocchio_bench_$variant \
@@ -61,6 +88,7 @@ done
 # and (jac@) the AD Jacobian of rnea and aba, on every robot; the report takes the faster route.
 test -d "$PREFIX/include/cppad/cg" || { echo "error: CppADCodeGen headers missing: pip install cmeel-cppad cmeel-cppadcodegen" >&2; exit 1; }
 mkdir -p target/bench/cg
+built target/bench/cg/pinocchio_cg_bench bench/pinocchio_cg_bench.cpp ||
 g++ -O3 -march=native -DNDEBUG -std=c++17 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADERS -DBOOST_MPL_LIMIT_LIST_SIZE=30 \
     -DBOOST_MPL_LIMIT_VECTOR_SIZE=30 -DBOOST_FUSION_INVOKE_MAX_ARITY=12 \
     -I"$PREFIX/include" -I/usr/include/eigen3 bench/pinocchio_cg_bench.cpp -o target/bench/cg/pinocchio_cg_bench \
@@ -77,7 +105,7 @@ for p in $(seq 1 "$PROCESSES"); do
         target/bench/pinocchio_bench_$variant $MODELS | sed "s/^{/{\"variant\": \"$variant\", \"process\": $p, /"
     done | tee -a target/bench/pinocchio.jsonl
     (cd target/bench/cg && ./pinocchio_cg_bench jac@../grid_iiwa.pinmodel jac@../grid_hyq.pinmodel ../grid_atlas.pinmodel \
-        ../grid_hyq_floating.pinmodel) | sed "s/^{/{\"variant\": \"codegen\", \"process\": $p, /; s#\.\./grid#target/bench/grid#" | tee -a target/bench/pinocchio.jsonl
+        ../grid_hyq_floating.pinmodel jac@../grid_hyq_round.pinmodel ../grid_hyq_floating_round.pinmodel) | sed "s/^{/{\"variant\": \"codegen\", \"process\": $p, /; s#\.\./grid#target/bench/grid#" | tee -a target/bench/pinocchio.jsonl
     filter=()
     [ "$p" -gt 1 ] && filter=("generated|without")
     seed=0
