@@ -190,6 +190,13 @@ impl Builder {
         self
     }
 
+    /// Reads every `<origin rpy>` angle within `tolerance` rad (at most 1e-6) of a multiple
+    /// of π/2 as that multiple (the scene's `round_angles`; off by default).
+    pub fn round_angles(&mut self, tolerance: f64) -> &mut Self {
+        self.config.overrides.round_angles = Some(tolerance);
+        self
+    }
+
     /// The bodies that take an external force `fext`, by the name of the joint that moves
     /// them (Pinocchio's names; `"*"` for every body). Replaces `[external_forces] joints`.
     pub fn external_forces<S: AsRef<str>>(&mut self, joints: &[S]) -> &mut Self {
