@@ -1572,6 +1572,29 @@ fn round_angles_from_the_command_line() {
     assert!(literal.get("rounded_angles").is_none());
     // 3,212 against 4,264 (Speed, Right angles written short): under 80 %.
     assert!(ops(&rounded) * 10 < ops(&literal) * 8, "{} vs {}", ops(&rounded), ops(&literal));
+    // The generated files say that their robot is not the file as written.
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-round-{}", std::process::id()));
+    let out = grid_gen(&[
+        "--round-angles",
+        "1e-11",
+        "generate",
+        urdf,
+        "-o",
+        dir.to_str().unwrap(),
+        "--emit",
+        "rust,wgsl",
+    ]);
+    assert!(out.status.success(), "{}", stderr(&out));
+    for file in ["hyq.rs", "hyq.wgsl"] {
+        let code = std::fs::read_to_string(dir.join(file)).unwrap();
+        assert!(
+            code.contains(
+                "// Right angles: the scene's round_angles = 1e-11 read 12 <origin rpy> angles"
+            ),
+            "{file}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
     let bad = grid_gen(&["--round-angles", "0.1", "info", urdf]);
     assert_eq!(bad.status.code(), Some(1));
     assert!(

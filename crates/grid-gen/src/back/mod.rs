@@ -28,6 +28,13 @@ pub fn source_line(source: &str) -> String {
 pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
     let spec = &robot.specialisation;
     let mut out = String::new();
+    if let Some(r) = &robot.rounded_angles {
+        out.push_str(&format!(
+            "// Right angles: the scene's round_angles = {:e} read {} <origin rpy> angles as multiples of pi/2 (largest\n\
+             // change {:.2e} rad), so this robot differs from the URDF as written, and the outputs from its, by about that.\n",
+            r.tolerance, r.count, r.largest
+        ));
+    }
     if robot.floating {
         out.push_str(&format!(
             "// Floating base (Pinocchio's free-flyer): q = [x, y, z, qx, qy, qz, qw, joints 6..] ({} entries; the quaternion is\n\

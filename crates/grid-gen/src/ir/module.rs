@@ -117,6 +117,8 @@ pub struct Robot {
     pub fext: Vec<String>,
     /// The contacts, in λ's order.
     pub contacts: Vec<Contact>,
+    /// The `<origin rpy>` angles the scene's `round_angles` read as multiples of π/2.
+    pub rounded_angles: Option<crate::urdf::RoundedAngles>,
 }
 
 /// A coupled mimic joint: no coordinate of its own, its position
@@ -202,6 +204,7 @@ impl Robot {
                 .iter()
                 .map(|c| Contact { frame: model.frames[c.frame].name.clone(), kind: c.kind })
                 .collect(),
+            rounded_angles: model.rounded_angles,
         }
     }
 
