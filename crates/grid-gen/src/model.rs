@@ -20,6 +20,8 @@ use serde::Serialize;
 
 use crate::diagnostic::Diagnostic;
 use crate::spatial::{axis_angle, rpy_matrix};
+/// What a scene's `round_angles` changed (the URDF front end rounds; the model records it).
+pub use crate::urdf::RoundedAngles;
 use crate::urdf::{self, JointKind, Pose, Tree, Urdf};
 
 /// How far from 1 the norm of a quaternion (a floating base's, a spherical joint's) may be. Within
@@ -234,7 +236,7 @@ pub struct Model {
     /// What a scene fixes about the state and the outputs (default: nothing).
     pub specialisation: Specialisation,
     /// The `<origin rpy>` angles a scene's `round_angles` read as multiples of π/2.
-    pub rounded_angles: Option<crate::urdf::RoundedAngles>,
+    pub rounded_angles: Option<RoundedAngles>,
 }
 
 /// A URDF link as a frame: the moving body it is fixed in (after fixed and locked joints

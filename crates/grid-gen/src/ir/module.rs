@@ -118,7 +118,7 @@ pub struct Robot {
     /// The contacts, in λ's order.
     pub contacts: Vec<Contact>,
     /// The `<origin rpy>` angles the scene's `round_angles` read as multiples of π/2.
-    pub rounded_angles: Option<crate::urdf::RoundedAngles>,
+    pub rounded_angles: Option<crate::model::RoundedAngles>,
 }
 
 /// A coupled mimic joint: no coordinate of its own, its position
