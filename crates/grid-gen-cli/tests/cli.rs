@@ -1559,7 +1559,7 @@ fn round_angles_from_the_command_line() {
     let text =
         String::from_utf8_lossy(&grid_gen(&["--round-angles", "1e-11", urdf]).stdout).into_owned();
     assert!(
-        text.contains("round_angles 1e-11 rad: 12 <origin rpy> angles read as multiples of pi/2"),
+        text.contains("round_angles = 1e-11 read 12 <origin rpy> angles as multiples of pi/2 (largest change 4.90e-12 rad): the results move"),
         "{text}"
     );
     let ops = |v: &serde_json::Value| {

@@ -106,7 +106,7 @@ pub struct Info {
     /// The scene's `round_angles`: how many `<origin rpy>` angles it read as multiples of
     /// π/2, and the largest change (absent when the scene does not round).
     #[serde(skip_serializing_if = "Option::is_none")]
-    pub rounded_angles: Option<crate::urdf::RoundedAngles>,
+    pub rounded_angles: Option<crate::model::RoundedAngles>,
     /// Movable joints in model order (depth-first pre-order, children in document order),
     /// one per coordinate.
     pub joint_names: Vec<String>,
@@ -456,8 +456,7 @@ impl Info {
         }
         if let Some(r) = &self.rounded_angles {
             s.push_str(&format!(
-                "round_angles {:e} rad: {} <origin rpy> angles read as multiples of pi/2 (largest change {:.2e} rad; the results move by about that much, relative, from the literal file's)\n",
-                r.tolerance, r.count, r.largest
+                "{r}: the results move by about that much, relative, from the literal file's\n"
             ));
         }
         if !self.spherical.is_empty() {

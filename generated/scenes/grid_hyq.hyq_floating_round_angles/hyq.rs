@@ -2,8 +2,8 @@
 // regenerate with `grid-gen ROBOT.urdf -o DIR` or grid_gen::Builder in build.rs.
 // Use it with `mod hyq { include!("hyq.rs"); }`.
 // source: grid_hyq.urdf in scene hyq_floating_round_angles.toml
-// Right angles: the scene's round_angles = 1e-11 read 12 <origin rpy> angles as multiples of pi/2 (largest
-// change 4.90e-12 rad), so this robot differs from the URDF as written, and the outputs from its, by about that.
+// Right angles: the scene's round_angles = 1e-11 read 12 <origin rpy> angles as multiples of pi/2 (largest change 4.90e-12 rad);
+// so this robot differs from the URDF as written, and the outputs from its, by about that.
 // Floating base (Pinocchio's free-flyer): q = [x, y, z, qx, qy, qz, qw, joints 6..] (19 entries; the quaternion is
 // normalised); joints 0-5 are the base's linear and angular velocity in its own frame; gradients are
 // with respect to the tangent space at q, the base first.

@@ -2,8 +2,8 @@
 // regenerate with `grid-gen ROBOT.urdf -o DIR` or grid_gen::Builder in build.rs.
 // Use it with `mod hyq { include!("hyq.rs"); }`.
 // source: grid_hyq.urdf in scene hyq_round_angles.toml
-// Right angles: the scene's round_angles = 1e-11 read 12 <origin rpy> angles as multiples of pi/2 (largest
-// change 4.90e-12 rad), so this robot differs from the URDF as written, and the outputs from its, by about that.
+// Right angles: the scene's round_angles = 1e-11 read 12 <origin rpy> angles as multiples of pi/2 (largest change 4.90e-12 rad);
+// so this robot differs from the URDF as written, and the outputs from its, by about that.
 //
 // Everything in this module is specialised to one robot. Vectors are `[T; NV]` in the order of
 // `JOINT_NAMES`; matrices are `[[T; NV]; NV]`, row-major, `m[i][j] = d out_i / d in_j`. `T` is `f64`

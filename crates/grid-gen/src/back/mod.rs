@@ -30,9 +30,8 @@ pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {
     let mut out = String::new();
     if let Some(r) = &robot.rounded_angles {
         out.push_str(&format!(
-            "// Right angles: the scene's round_angles = {:e} read {} <origin rpy> angles as multiples of pi/2 (largest\n\
-             // change {:.2e} rad), so this robot differs from the URDF as written, and the outputs from its, by about that.\n",
-            r.tolerance, r.count, r.largest
+            "// Right angles: the scene's {r};\n\
+             // so this robot differs from the URDF as written, and the outputs from its, by about that.\n"
         ));
     }
     if robot.floating {

@@ -27,6 +27,18 @@ pub struct RoundedAngles {
     pub largest: f64,
 }
 
+/// `round_angles = TOL read N <origin rpy> angles as multiples of pi/2 (largest change X
+/// rad)`: what `info` and the generated files' headers say of it.
+impl std::fmt::Display for RoundedAngles {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(
+            f,
+            "round_angles = {:e} read {} <origin rpy> angles as multiples of pi/2 (largest change {:.2e} rad)",
+            self.tolerance, self.count, self.largest
+        )
+    }
+}
+
 /// The multiple of π/2 within `tolerance` of `angle`, if any.
 fn rounded(angle: f64, tolerance: f64) -> Option<f64> {
     let k = (angle / std::f64::consts::FRAC_PI_2).round();
