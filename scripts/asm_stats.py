@@ -11,6 +11,11 @@ Usage: scripts/asm_stats.py [--avx512] MODULE.rs [KERNEL ...]   (default: rnea_g
 Prints a Markdown table. Needs rustc; compiles with -C opt-level=3 -C target-cpu=x86-64-v3
 (AVX2 and FMA, what the `fma` copy is built for), or x86-64-v4 for the `avx512` copy of a
 module generated with `--avx512`.
+
+       scripts/asm_stats.py --object LIBRARY.so FUNCTION [FUNCTION ...]
+counts the same classes in functions of a compiled library (objdump -d), such as the C that
+CppADCodeGen prints for Pinocchio in scripts/bench.sh (target/bench/cg/*.so), which is
+straight-line too.
 """
 import collections
 import pathlib
@@ -20,29 +25,49 @@ import sys
 import tempfile
 
 args = sys.argv[1:]
+OBJECT = args[:1] == ["--object"]
 COPY = "fma"
 if args[:1] == ["--avx512"]:
     # The module's AVX-512 copy (`--avx512`), which has 32 vector registers to the fma copy's 16.
     COPY, args = "avx512", args[1:]
-module = pathlib.Path(args[0]).resolve()
-kernels = args[1:] or ["rnea_grad", "fd_grad"]
+if OBJECT:
+    # objdump's AT&T lines, `  addr:\top args` under `<function>:` headers, as rustc's
+    # `\top args` under `label:`; only the named functions' lines are kept.
+    module, kernels = pathlib.Path(args[1]).resolve(), args[2:]
+    if not kernels:
+        sys.exit("usage: scripts/asm_stats.py --object LIBRARY.so FUNCTION [FUNCTION ...]")
+    dump = subprocess.run(["objdump", "-d", "--no-show-raw-insn", "-M", "att", str(module)],
+                          check=True, capture_output=True, text=True).stdout
+    lines, COPY = [], "object"
+    for line in dump.splitlines():
+        header = re.match(r"^[0-9a-f]+ <(.+)>:$", line)
+        if header:
+            lines.append(f"{header.group(1)}:")
+            continue
+        insn = re.match(r"^\s+[0-9a-f]+:\t(.*)$", line)
+        if insn and lines:
+            lines.append("\t" + insn.group(1))
+    lines.append("\t.cfi_endproc")
+else:
+    module = pathlib.Path(args[0]).resolve()
+    kernels = args[1:] or ["rnea_grad", "fd_grad"]
 
-with tempfile.TemporaryDirectory() as tmp:
-    wrapper = pathlib.Path(tmp) / "wrapper.rs"
-    # Taking each kernel's address instantiates it in f64 and keeps it in the object.
-    uses = "\n".join(f"    m::{COPY}::{k}::<f64> as *const () as usize," for k in kernels)
-    wrapper.write_text(
-        "#![allow(dead_code, clippy::all)]\n"
-        f'mod m {{ include!("{module}"); }}\n'
-        f"#[inline(never)]\npub fn keep() -> usize {{\n    [\n{uses}\n    ].iter().sum()\n}}\n"
-    )
-    asm = pathlib.Path(tmp) / "out.s"
-    subprocess.run(
-        ["rustc", "--edition", "2021", "--crate-type", "lib", "--emit", "asm", "-C", "opt-level=3",
-         "-C", "target-cpu=" + ("x86-64-v4" if COPY == "avx512" else "x86-64-v3"), "-C", "symbol-mangling-version=v0", str(wrapper), "-o", str(asm)],
-        check=True,
-    )
-    lines = asm.read_text().splitlines()
+    with tempfile.TemporaryDirectory() as tmp:
+        wrapper = pathlib.Path(tmp) / "wrapper.rs"
+        # Taking each kernel's address instantiates it in f64 and keeps it in the object.
+        uses = "\n".join(f"    m::{COPY}::{k}::<f64> as *const () as usize," for k in kernels)
+        wrapper.write_text(
+            "#![allow(dead_code, clippy::all)]\n"
+            f'mod m {{ include!("{module}"); }}\n'
+            f"#[inline(never)]\npub fn keep() -> usize {{\n    [\n{uses}\n    ].iter().sum()\n}}\n"
+        )
+        asm = pathlib.Path(tmp) / "out.s"
+        subprocess.run(
+            ["rustc", "--edition", "2021", "--crate-type", "lib", "--emit", "asm", "-C", "opt-level=3",
+             "-C", "target-cpu=" + ("x86-64-v4" if COPY == "avx512" else "x86-64-v3"), "-C", "symbol-mangling-version=v0", str(wrapper), "-o", str(asm)],
+            check=True,
+        )
+        lines = asm.read_text().splitlines()
 
 ARITH = re.compile(r"^v(fn?m(add|sub)\d+[sp][sd]|(mul|add|sub|div|sqrt|xor|and|max|min)[sp][sd])$")
 counts = collections.defaultdict(collections.Counter)
@@ -53,8 +78,10 @@ for line in lines:
         current = None
         for k in kernels:
             # v0 mangling: `...3fma15rnea_grad_part0dEB6_` (a part), `...3fma9rnea_graddEB6_`.
-            if re.search(rf"{len(COPY)}{COPY}\d+{k}(_part\d+)?dE", label):
+            if (label == k) if OBJECT else re.search(rf"{len(COPY)}{COPY}\d+{k}(_part\d+)?dE", label):
                 current = k
+        if OBJECT and current is None:
+            continue
         continue
     if current is None:
         continue
@@ -88,7 +115,7 @@ for line in lines:
 
 cols = ["instructions", "arithmetic", "stack loads", "stack stores", "arithmetic on a stack operand",
         "other loads and stores", "register moves", "calls", "other"]
-print(f"{module.name}, `{COPY}` copy, f64:\n")
+print(f"{module.name}:\n" if OBJECT else f"{module.name}, `{COPY}` copy, f64:\n")
 print("| kernel | " + " | ".join(cols) + " | stack share |")
 print("|---|" + "---:|" * (len(cols) + 1))
 for k in kernels:

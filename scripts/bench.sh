@@ -5,7 +5,8 @@
 #   2. Pinocchio's code-generation path: CppADCodeGen records its derivatives and prints C that
 #      gcc compiles (bench/pinocchio_cg_bench.cpp; its own build takes several minutes);
 #   3. the criterion benchmarks of the generated kernels and the reference
-#      (crates/grid-gen-kernels/benches/kernels.rs);
+#      (crates/grid-gen-kernels/benches/kernels.rs), and `grid-gen bench --backend rust` for
+#      floating Atlas, whose module is not checked in;
 #   4. a table of times and ratios (scripts/bench_report.py), written to target/bench-report.md.
 # Needs: pip install pin==4.1.0 cmeel-cppad cmeel-cppadcodegen; apt-get install libeigen3-dev g++.
 #
@@ -36,7 +37,12 @@ for r in $ROBOTS; do
 done
 # HyQ on a free-flyer (grid-gen's --floating-base, the scene examples/scenes/hyq_floating.toml).
 python3 -c "import pinocchio as pin; pin.buildModelFromUrdf('robots/grid_hyq.urdf', pin.JointModelFreeFlyer()).saveToText('target/bench/grid_hyq_floating.pinmodel')"
-MODELS="$(for r in $ROBOTS; do echo target/bench/$r.pinmodel; done) target/bench/grid_hyq_floating.pinmodel"
+# Atlas on a free-flyer (the speed issue's floating-base target names HyQ and Atlas). Its
+# module is not checked in (fd_grad alone is 107,735 operations), so ours is timed by
+# `grid-gen --floating-base bench --backend rust` below, not by criterion; CppADCodeGen is not
+# recorded for it (the target is against Pinocchio's analytical functions).
+python3 -c "import pinocchio as pin; pin.buildModelFromUrdf('robots/grid_atlas.urdf', pin.JointModelFreeFlyer()).saveToText('target/bench/grid_atlas_floating.pinmodel')"
+MODELS="$(for r in $ROBOTS; do echo target/bench/$r.pinmodel; done) target/bench/grid_hyq_floating.pinmodel target/bench/grid_atlas_floating.pinmodel"
 # HyQ with its right angles read as right angles (the scenes hyq_round_angles.toml and
 # hyq_floating_round_angles.toml, round_angles = 1e-11): the same models with every joint
 # placement's rotation entry within 1e-11 of 0 or +-1 made exact. Pinocchio's analytical
@@ -97,7 +103,9 @@ g++ -O3 -march=native -DNDEBUG -std=c++17 -DBOOST_MPL_CFG_NO_PREPROCESSED_HEADER
 # (after an earlier run's are removed), the later ones load them.
 rm -f target/bench/cg/*.so
 source scripts/bench_exe.sh
-rm -rf target/bench/criterion
+rm -rf target/bench/criterion target/bench/grid-gen-bench
+mkdir -p target/bench/grid-gen-bench
+cargo build --release -p grid-gen-cli
 : >target/bench/pinocchio.jsonl
 for p in $(seq 1 "$PROCESSES"); do
     echo "== process $p of $PROCESSES" >&2
@@ -112,9 +120,15 @@ for p in $(seq 1 "$PROCESSES"); do
     [ "$LAYOUTS" = 1 ] && seed=$((p - 1))
     exe=$(bench_exe "$seed")
     [ -x "$exe" ] || { echo "error: the benchmarks did not build in layout $seed (a linker without --shuffle-sections? BENCH_LAYOUTS=0 keeps one layout)" >&2; exit 1; }
+    # Floating Atlas: grid-gen's own timing program (the same protocol as criterion's: 64
+    # seeded states cycled, median of 15 samples of 2 ms), compiled by rustc in each process.
+    out=target/bench/grid-gen-bench/grid_atlas_floating.$p
+    target/release/grid-gen --floating-base bench --backend rust --kernels rnea_grad,fd_grad \
+        robots/grid_atlas.urdf >"$out.txt" 2>"$out.err" || { cat "$out.err" >&2; exit 1; }
+    cat "$out.txt"
     rm -rf target/criterion
     "$exe" --bench --noplot "${filter[@]}"
     mkdir -p target/bench/criterion
     mv target/criterion target/bench/criterion/$p
 done
-python3 scripts/bench_report.py target/bench/pinocchio.jsonl target/bench/criterion | tee target/bench-report.md
+python3 scripts/bench_report.py target/bench/pinocchio.jsonl target/bench/criterion target/bench/grid-gen-bench | tee target/bench-report.md

@@ -15,6 +15,9 @@ import statistics
 import sys
 
 pin_file, criterion = pathlib.Path(sys.argv[1]), pathlib.Path(sys.argv[2])
+# Optional: the folder of `grid-gen bench --backend rust` tables, ROBOT.PROCESS.txt (floating
+# Atlas, whose module is not checked in for criterion).
+grid_gen_bench = pathlib.Path(sys.argv[3]) if len(sys.argv) > 3 else None
 
 # Per (robot, variant, key), one figure per process: the fastest row of that process (a
 # robot has several rows, e.g. the step row repeats aba_derivatives_ns).
@@ -139,6 +142,31 @@ for group, label, pin_robot, cg_robot in [
         c = codegen(cg_robot, kernel)
         print(f"| {label} | {kernel} | {fmt(g)} | - | {fmt(p)} | {fmt(c) if c else '-'} | - | {ratio(p, g)} | {ratio(c, g)} |")
 
+
+
+def grid_gen_bench_summary(robot, kernel):
+    """The median over processes of `grid-gen bench --backend rust`'s f64 time for `kernel`:
+    its `fma` copy where the table has one (an AVX-512 CPU, where `dispatch` runs the avx512
+    copy that the checked-in modules do not have), else `dispatch` (the fma copy). None when
+    there is no such table (a run from before it existed)."""
+    values = []
+    for f in sorted(grid_gen_bench.glob(f"{robot}.*.txt")) if grid_gen_bench else []:
+        for line in f.read_text().splitlines():
+            cells = line.split()
+            if cells[:1] == [kernel]:
+                values.append(float(cells[2] if cells[2] != "-" else cells[3]))
+    return summary(values) if values else None
+
+
+# Floating Atlas, timed by grid-gen's own program (see scripts/bench.sh), against Pinocchio's
+# analytical derivatives on the free-flyer model; CppADCodeGen is not recorded for it.
+for kernel, pin_key in (("rnea_grad", "rnea_derivatives_ns"), ("fd_grad", "aba_derivatives_ns")):
+    s = grid_gen_bench_summary("grid_atlas_floating", kernel)
+    if s is None:
+        continue
+    p = pin_ns("grid_atlas_floating", pin_key)
+    print(f"| grid_atlas, floating base (`grid-gen bench`, {s[2]} processes) | {kernel} | {fmt(s[0])} | - | {fmt(p) if p else '-'} | - | - | {ratio(p, s[0])} | - |")
+
 # Frames: the frame scenes' kernels (every frame of the scene per call, LOCAL_WORLD_ALIGNED)
 # against Pinocchio's computeJointJacobians + getFrameJacobian and forwardKinematics(q, v, a)
 # + getFrameClassicalAcceleration for the same frames.
@@ -208,3 +236,7 @@ for robot, group, pin_robot, cg_robot in [
         except FileNotFoundError:
             continue  # a run from before the scene existed
         print(f"| {robot} | {kernel} | {spread(g)} | {spread(pin.get(pin_robot, {}).get(pin_key))} | {spread(codegen_summary(cg_robot, kernel))} |")
+for kernel, pin_key in (("rnea_grad", "rnea_derivatives_ns"), ("fd_grad", "aba_derivatives_ns")):
+    s = grid_gen_bench_summary("grid_atlas_floating", kernel)
+    if s is not None:
+        print(f"| grid_atlas, floating base (`grid-gen bench`) | {kernel} | {spread(s)} | {spread(pin.get('grid_atlas_floating', {}).get(pin_key))} | - |")

@@ -161,3 +161,80 @@ fn the_base_position_does_not_enter() {
         );
     }
 }
+
+/// A floating base large enough (floating Atlas) has `fd_grad`'s per-column LTDL solves run
+/// as loops over the columns in the SIMD copies (`PROGRAM_MIN_OPS` in
+/// `ir/dynamics/fd_grad.rs`); floating HyQ's, which fit the instruction cache, stay
+/// straight-line. The looped copy, compiled by rustc and run on three states, against the
+/// reference at 1e-12 (the f64 kernels' bound everywhere).
+#[test]
+fn large_floating_fd_grad_solves_run_as_column_loops() {
+    use grid_gen::generate::{generate, Options, Target};
+    use grid_gen::ir::{self, KernelKind, LowerOptions};
+    let lower = LowerOptions { kernels: vec![KernelKind::FdGrad], ..LowerOptions::default() };
+    let g = reference::DEFAULT_GRAVITY;
+    let hyq = ir::lower(&load_floating("grid_hyq"), g, &lower).unwrap();
+    assert!(hyq.functions[0].program.is_none(), "floating HyQ's solves stay straight-line");
+    let model = load_floating("grid_atlas");
+    let lowered = ir::lower(&model, g, &lower).unwrap();
+    let program = lowered.functions[0].program.as_ref().expect("floating Atlas's solves loop");
+    // ∂q̈/∂q and ∂q̈/∂q̇, each without the three columns the free-flyer's invariances give.
+    let columns: Vec<usize> = program.blocks.iter().map(|b| b.columns()).collect();
+    assert_eq!((program.rows, columns), (36, vec![33, 33]));
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
+    let text = &file.contents;
+    let (portable, fma) = text.split_at(text.find("pub mod fma").unwrap());
+    for b in 0..2 {
+        let call = format!("fd_grad_cols{b}(&mut pb{b}, &pc);");
+        assert_eq!(fma.matches(&call).count(), 1, "the fma copy calls {call}");
+        assert!(!portable.contains(&call), "the portable copy keeps the graph");
+    }
+    let said = compile_and_run(
+        "floating_atlas_loops",
+        text,
+        &[
+            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
+            SEEDED_STATE_RS,
+            r#"fn main() {
+    for k in 0..3 {
+        let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
+        let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+        for x in &mut q[3..7] { *x /= n; }
+        let x: [[f64; NV]; 2] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s + 1)));
+        let (a, aq, av) = if has_fma() { unsafe { fma::fd_grad(&q, &x[0], &x[1]) } } else { portable::fd_grad(&q, &x[0], &x[1]) };
+        let all: Vec<String> = q.iter().chain(&a).chain(aq.as_flattened()).chain(av.as_flattened()).map(|x| format!("{x:?}")).collect();
+        println!("{}", all.join(" "));
+    }
+}
+"#,
+        ]
+        .concat(),
+    );
+    let (nv, nq) = (model.nv(), model.nq());
+    let worst = worst_line_error(&said, 3, nq, 1e-12, |k, q| {
+        let x: Vec<Vec<f64>> =
+            (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+        reference_outputs(KernelKind::FdGrad, &model, q, &x[0], &x[1], g)
+            .iter()
+            .flat_map(|m| m.transpose().as_slice().to_vec())
+            .collect()
+    });
+    let fma = cfg!(target_arch = "x86_64") && {
+        #[cfg(target_arch = "x86_64")]
+        let has = std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
+        #[cfg(not(target_arch = "x86_64"))]
+        let has = false;
+        has
+    };
+    println!(
+        "floating Atlas fd_grad, {} copy: worst {worst:.2e} from the reference (bound 1e-12)",
+        if fma {
+            "fma (looped solves)"
+        } else {
+            "portable (no AVX2 and FMA here: the loops are not run)"
+        }
+    );
+}

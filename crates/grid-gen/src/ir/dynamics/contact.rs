@@ -206,8 +206,9 @@ impl Dynamics<'_> {
         // taken at the same point.
         self.load_forces(LambdaSource::Nodes(sol.lambda.clone()));
         let (_, fq, fqd, minv, _) = self.fd_grad(qd, tau, tau_cols, &[]);
-        // The dense-product annotation describes fd_grad's outputs, not these.
+        // The dense-product and solve annotations describe fd_grad's outputs, not these.
         self.product = None;
+        self.program = None;
         // ∂acc/∂u at fixed q̈, by forward-mode over the acceleration's graph with the q̈
         // nodes held.
         let (xqd, xqdd) = (self.expand(qd), self.expand(&sol.qdd));

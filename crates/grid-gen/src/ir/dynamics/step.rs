@@ -468,6 +468,7 @@ impl Dynamics<'_> {
             }
         }
         self.product = None;
+        self.program = None;
         let (q_next, qd_next, exps) = self.state_integrate(qd, &dx);
         if !grad {
             return (q_next, qd_next, Vec::new(), Vec::new());
@@ -561,6 +562,7 @@ impl Dynamics<'_> {
         let (qdd, avq, mut avv, bv) = self.step_acceleration_grad(qd, &tau, &actuated, dt);
         // The step's products are its own: no backend may rerun fd_grad's as a loop.
         self.product = None;
+        self.program = None;
         self.g.at(None, Stage::Combine, 0);
         let (qd_next, w) = self.euler(qd, &qdd, scheme, dt);
         let (q_next, exps) = self.integrate_recorded(&w);
