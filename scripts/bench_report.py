@@ -165,7 +165,7 @@ for kernel, pin_key in (("rnea_grad", "rnea_derivatives_ns"), ("fd_grad", "aba_d
     if s is None:
         continue
     p = pin_ns("grid_atlas_floating", pin_key)
-    print(f"| grid_atlas, floating base (`grid-gen bench`, {s[2]} processes) | {kernel} | {fmt(s[0])} | - | {fmt(p) if p else '-'} | - | - | {ratio(p, s[0])} | - |")
+    print(f"| grid_atlas, floating base (`grid-gen bench`) | {kernel} | {fmt(s[0])} | - | {fmt(p) if p else '-'} | - | - | {ratio(p, s[0])} | - |")
 
 # Frames: the frame scenes' kernels (every frame of the scene per call, LOCAL_WORLD_ALIGNED)
 # against Pinocchio's computeJointJacobians + getFrameJacobian and forwardKinematics(q, v, a)

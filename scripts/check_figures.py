@@ -14,6 +14,7 @@ ROBOTS = {
     "HyQ (12 joints)": "grid_hyq",
     "Atlas (30 joints)": "grid_atlas",
     "HyQ, floating base": "grid_hyq.hyq_floating (floating base)",
+    "Atlas, floating base": "grid_atlas, floating base (`grid-gen bench`)",
     "HyQ, `round_angles = 1e-11`": "grid_hyq.hyq_round_angles (round_angles 1e-11)",
     "HyQ, floating, `round_angles = 1e-11`": "grid_hyq.hyq_floating_round_angles (floating base, round_angles 1e-11)",
 }
