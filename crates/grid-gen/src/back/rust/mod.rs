@@ -589,14 +589,35 @@ fn emit_program_block(
         "fn {fn_name}<T: Real>(x: &mut [[T; {cols}]; {rows}], pc: &[T; {}]) {{",
         coefs.slots.len().max(1)
     );
-    for step in &block.steps {
+    let mut steps = block.steps.iter().peekable();
+    while let Some(step) = steps.next() {
         match *step {
             ColumnStep::Sub { dst, coef, src } => {
-                let Some(c) = coefs.expr(k, coef) else { continue };
-                let _ = writeln!(
-                    out,
-                    "{{ let k = -{c}; for c in 0..{cols} {{ x[{dst}][c] = T::mul_add(k, x[{src}][c], x[{dst}][c]); }} }}"
-                );
+                // Consecutive subtractions into one row (a solve's row, a dot product)
+                // share one loop whose accumulator stays in a register: each column loads
+                // the row once and stores it once, not once per term. The terms keep
+                // their order, so the values are the unfused loops' to the bit.
+                let mut terms: Vec<(String, usize)> = Vec::new();
+                terms.extend(coefs.expr(k, coef).map(|c| (c, src)));
+                while let Some(&&ColumnStep::Sub { dst: d, coef, src }) = steps.peek() {
+                    if d != dst || src == dst {
+                        break;
+                    }
+                    steps.next();
+                    terms.extend(coefs.expr(k, coef).map(|c| (c, src)));
+                }
+                if terms.is_empty() {
+                    continue;
+                }
+                let _ = write!(out, "{{ ");
+                for (t, (c, _)) in terms.iter().enumerate() {
+                    let _ = write!(out, "let k{t} = -{c}; ");
+                }
+                let _ = write!(out, "for c in 0..{cols} {{ let mut a = x[{dst}][c]; ");
+                for (t, (_, src)) in terms.iter().enumerate() {
+                    let _ = write!(out, "a = T::mul_add(k{t}, x[{src}][c], a); ");
+                }
+                let _ = writeln!(out, "x[{dst}][c] = a; }} }}");
             }
             ColumnStep::Mul { dst, coef } => {
                 let c = coefs.expr(k, coef).unwrap_or_else(|| "lit::<T>(0.0)".to_string());
