@@ -512,3 +512,15 @@ pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
         | Shape::Lambda => col(values),
     }
 }
+
+/// A generated Rust module's column program for `kernel` runs as loops in the `fma` copy
+/// (one call of each of its `blocks` block functions) and not in the portable copy, which
+/// keeps the graph.
+pub fn assert_program_looped_in_fma(text: &str, kernel: &str, blocks: usize) {
+    let (portable, fma) = text.split_at(text.find("pub mod fma").expect("an fma copy"));
+    for b in 0..blocks {
+        let call = format!("{kernel}_cols{b}(&mut pb{b}, &pc);");
+        assert_eq!(fma.matches(&call).count(), 1, "the fma copy calls {call}");
+        assert!(!portable.contains(&call), "the portable copy keeps the graph");
+    }
+}

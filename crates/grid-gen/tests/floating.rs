@@ -186,12 +186,7 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
             .unwrap()
             .remove(0);
     let text = &file.contents;
-    let (portable, fma) = text.split_at(text.find("pub mod fma").unwrap());
-    for b in 0..2 {
-        let call = format!("fd_grad_cols{b}(&mut pb{b}, &pc);");
-        assert_eq!(fma.matches(&call).count(), 1, "the fma copy calls {call}");
-        assert!(!portable.contains(&call), "the portable copy keeps the graph");
-    }
+    assert_program_looped_in_fma(text, "fd_grad", 2);
     let said = compile_and_run(
         "floating_atlas_loops",
         text,

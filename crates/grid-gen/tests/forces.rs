@@ -706,12 +706,7 @@ fn the_contact_combination_is_looped_in_the_simd_copies() {
             .unwrap()
             .remove(0);
     let text = &file.contents;
-    let (portable, fma) = text.split_at(text.find("pub mod fma").unwrap());
-    for b in 0..3 {
-        let call = format!("contact_fd_grad_cols{b}(&mut pb{b}, &pc);");
-        assert_eq!(fma.matches(&call).count(), 1, "the fma copy calls {call}");
-        assert!(!portable.contains(&call), "the portable copy keeps the graph");
-    }
+    assert_program_looped_in_fma(text, "contact_fd_grad", 3);
     let mut stepping = model.clone();
     stepping.specialisation.step = Some(grid_gen::model::Step {
         scheme: grid_gen::model::Scheme::SemiImplicitEuler,

@@ -177,11 +177,13 @@ impl Dynamics<'_> {
         let dq = solve(&dc_q, &known_q);
         let dqd = solve(&dc_qd, &known_qd);
         let straight = self.g.nodes.len() - before;
-        let blocks = [(&dc_q, &known_q, 1), (&dc_qd, &known_qd, 2)]
-            .map(|(dc, known, output)| solve_block(&fs, self.model, dc, known, output));
-        let looped: usize = blocks.iter().map(|b| 2 * b.steps.len() * b.columns()).sum();
-        if s == 1.0 && straight >= PROGRAM_MIN_OPS && 2 * looped <= 3 * straight {
-            self.program = Some(ColumnProgram { rows: n, blocks: blocks.into() });
+        if s == 1.0 && straight >= PROGRAM_MIN_OPS {
+            let blocks = [(&dc_q, &known_q, 1), (&dc_qd, &known_qd, 2)]
+                .map(|(dc, known, output)| solve_block(&fs, self.model, dc, known, output));
+            let looped: usize = blocks.iter().map(|b| 2 * b.steps.len() * b.columns()).sum();
+            if 2 * looped <= 3 * straight {
+                self.program = Some(ColumnProgram { rows: n, blocks: blocks.into() });
+            }
         }
         // M⁻¹ e_c = −M⁻¹ (−e_c): no negation is left to store.
         let mut picked = vec![vec![zero; columns.len()]; n];
@@ -250,26 +252,46 @@ impl Ltdl {
         Ltdl { l: self.l.clone(), neg_dinv: self.neg_dinv.iter().map(|&d| g.mul(h, d)).collect() }
     }
 
-    /// −M⁻¹ b: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`, `L x = z` root first. Zero entries
-    /// of b fold away, so a column touches only the joints it can reach.
+    /// −M⁻¹ b: [`Self::steps`] on b's nodes. Zero entries of b fold away, so a column
+    /// touches only the joints it can reach.
     pub(super) fn solve(&self, g: &mut Graph, model: &Model, mut b: Vec<Id>) -> Vec<Id> {
-        let n = b.len();
-        for k in (0..n).rev() {
-            for j in strict_ancestors(model, k) {
-                let t = g.mul(self.l[k][j], b[k]);
-                b[j] = g.sub(b[j], t);
-            }
-        }
-        for k in 0..n {
-            b[k] = g.mul(b[k], self.neg_dinv[k]);
-        }
-        for k in 0..n {
-            for j in strict_ancestors(model, k) {
-                let t = g.mul(self.l[k][j], b[j]);
-                b[k] = g.sub(b[k], t);
+        let node = |o: Operand| match o {
+            Operand::Node(id) => id,
+            _ => unreachable!("Ltdl::steps reads nodes"),
+        };
+        for step in self.steps(model) {
+            match step {
+                ColumnStep::Sub { dst, coef, src } => {
+                    let t = g.mul(node(coef), b[src]);
+                    b[dst] = g.sub(b[dst], t);
+                }
+                ColumnStep::Mul { dst, coef } => b[dst] = g.mul(b[dst], node(coef)),
             }
         }
         b
+    }
+
+    /// The solve `−M⁻¹ b` as steps on b's rows: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`,
+    /// `L x = z` root first. [`Self::solve`] runs them on graph nodes, [`solve_block`] on
+    /// many columns at once.
+    fn steps(&self, model: &Model) -> Vec<ColumnStep> {
+        let n = self.neg_dinv.len();
+        let l = |k: usize, j: usize| Operand::Node(self.l[k][j]);
+        let mut steps = Vec::new();
+        for k in (0..n).rev() {
+            for j in strict_ancestors(model, k) {
+                steps.push(ColumnStep::Sub { dst: j, coef: l(k, j), src: k });
+            }
+        }
+        steps.extend(
+            (0..n).map(|k| ColumnStep::Mul { dst: k, coef: Operand::Node(self.neg_dinv[k]) }),
+        );
+        for k in 0..n {
+            for j in strict_ancestors(model, k) {
+                steps.push(ColumnStep::Sub { dst: k, coef: l(k, j), src: j });
+            }
+        }
+        steps
     }
 }
 
@@ -288,7 +310,7 @@ const PROGRAM_MIN_OPS: usize = 32_000;
 
 /// The solves of [`Dynamics::fd_grad_ltdl`] for the columns of `dc` that are not `known`,
 /// as a per-column program that stores `−M⁻¹ dc` into output `output` (`fd_grad`'s
-/// ∂q̈/∂q is 1, ∂q̈/∂q̇ 2): the same steps as [`Ltdl::solve`] for every column, where the
+/// ∂q̈/∂q is 1, ∂q̈/∂q̇ 2): [`Ltdl::solve`]'s steps for every column, where the
 /// graph's straight-line solves drop the steps a column's zeros make empty. On a floating
 /// base every column reaches every joint (the base is an ancestor of all), so the
 /// straight-line solves are as long as the program's, and the Rust backend runs the
@@ -304,18 +326,7 @@ fn solve_block(
     let cols: Vec<usize> = (0..n).filter(|&c| known[c].is_none()).collect();
     let init =
         (0..n).map(|row| cols.iter().map(|&c| Operand::Node(dc[row][c])).collect()).collect();
-    let mut steps = Vec::new();
-    for k in (0..n).rev() {
-        for j in strict_ancestors(model, k) {
-            steps.push(ColumnStep::Sub { dst: j, coef: Operand::Node(f.l[k][j]), src: k });
-        }
-    }
-    steps.extend((0..n).map(|k| ColumnStep::Mul { dst: k, coef: Operand::Node(f.neg_dinv[k]) }));
-    for k in 0..n {
-        for j in strict_ancestors(model, k) {
-            steps.push(ColumnStep::Sub { dst: k, coef: Operand::Node(f.l[k][j]), src: j });
-        }
-    }
+    let steps = f.steps(model);
     let stores = (0..n)
         .map(|row| ColumnStore {
             row,
