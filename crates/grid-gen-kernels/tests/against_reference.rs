@@ -945,6 +945,73 @@ fn contact_kernels_match_the_reference() {
     );
 }
 
+/// The portable copy of the checked-in contact kernels runs `contact_fd_grad`'s
+/// combination as loops over the columns (the IR's `ColumnProgram`) where the graph has it
+/// straight-line: the same products, but each row's terms subtracted one by one where the
+/// graph sums a dot product first, so the two round differently, and K⁻¹ (the contacts'
+/// conditioning) carries that into λ and q̈. Held to the graph (what `grid-gen accuracy`
+/// interprets) at 1e-13 in f64 and 5e-5 in f32, about 17 times the differences measured
+/// (6e-15, 3e-6: tens of ε), far inside the kernels' bounds against the reference.
+#[test]
+fn the_portable_contact_loops_round_as_the_graph_does() {
+    use grid_gen::ir::KernelKind::*;
+    use grid_gen_kernels::scenes::grid_hyq_standing_floating as k;
+    let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_standing_floating");
+    let module = grid_gen::ir::lower(
+        &model,
+        model_gravity(),
+        &grid_gen::ir::LowerOptions { kernels: vec![ContactFdGrad], ..Default::default() },
+    )
+    .unwrap();
+    let f = &module.functions[0];
+    assert!(f.program.is_some(), "the combination is a column program");
+    let mut rng = Rng(73);
+    let mut compared = 0;
+    let mut worst = [0.0f64; 2];
+    // The first state is the zero state, where these contacts are singular.
+    for (label, per_joint, qd, tau) in states(&model, &mut rng).into_iter().skip(1).take(3) {
+        let q = model.q_from_joints(&per_joint, rng.base_pose());
+        let args = grid_gen_test_support::kernel_args(f.inputs(), &q, &qd, &tau);
+        let want64: Vec<f64> = f.eval(&args).concat();
+        let want32: Vec<f64> = f.eval_f32(&args).concat().into_iter().map(f64::from).collect();
+        macro_rules! got {
+            ($t:ty) => {{
+                let q: [$t; k::NQ] = std::array::from_fn(|i| q[i] as $t);
+                let qd: [$t; k::NV] = std::array::from_fn(|i| qd[i] as $t);
+                let u: [$t; k::NV] = std::array::from_fn(|i| tau[i] as $t);
+                let (a, l, aq, aqd, at, lq, lqd, lt) = k::portable::contact_fd_grad(&q, &qd, &u);
+                [
+                    &a[..],
+                    &l,
+                    aq.as_flattened(),
+                    aqd.as_flattened(),
+                    at.as_flattened(),
+                    lq.as_flattened(),
+                    lqd.as_flattened(),
+                    lt.as_flattened(),
+                ]
+                .concat()
+                .into_iter()
+                .map(f64::from)
+                .collect::<Vec<f64>>()
+            }};
+        }
+        for (t, got, want) in [("f64", got!(f64), want64), ("f32", got!(f32), want32)] {
+            assert_eq!(got.len(), want.len(), "{label} {t}: values");
+            let bound = if t == "f64" { 1e-13 } else { 5e-5 };
+            let e = rel(&grid_gen_test_support::col(&got), &grid_gen_test_support::col(&want));
+            assert!(e <= bound, "{label} {t}: {e:.2e} from the graph (bound {bound:e})");
+            worst[usize::from(t == "f32")] = worst[usize::from(t == "f32")].max(e);
+            compared += got.len();
+        }
+    }
+    assert!(compared > 0);
+    println!(
+        "portable contact loops against the graph: f64 {:.2e}, f32 {:.2e}",
+        worst[0], worst[1]
+    );
+}
+
 /// HyQ with `round_angles = 1e-11` (`generated/scenes/grid_hyq.hyq_round_angles/` and its
 /// floating twin): rnea_grad and fd_grad against the reference on the rounded model at
 /// F64_TOL, and how far the rounding moves them from the literal file's reference. The

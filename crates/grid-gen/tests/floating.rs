@@ -163,10 +163,11 @@ fn the_base_position_does_not_enter() {
 }
 
 /// A floating base large enough (floating Atlas) has `fd_grad`'s per-column LTDL solves run
-/// as loops over the columns in the SIMD copies (`PROGRAM_MIN_OPS` in
+/// as loops over the columns, in every copy of the Rust module (`PROGRAM_MIN_OPS` in
 /// `ir/dynamics/fd_grad.rs`); floating HyQ's, which fit the instruction cache, stay
-/// straight-line. The looped copy, compiled by rustc and run on three states, against the
-/// reference at 1e-12 (the f64 kernels' bound everywhere).
+/// straight-line. Both copies (the `fma` one where the CPU has AVX2 and FMA), compiled by
+/// rustc and run on three states, against the reference at 1e-12 (the f64 kernels' bound
+/// everywhere), and the portable copy against the IR's graph, value for value.
 #[test]
 fn large_floating_fd_grad_solves_run_as_column_loops() {
     use grid_gen::generate::{generate, Options, Target};
@@ -186,7 +187,8 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
             .unwrap()
             .remove(0);
     let text = &file.contents;
-    assert_program_looped_in_fma(text, "fd_grad", 2);
+    assert_program_looped(text, "fd_grad", 2);
+    // Three lines from the portable copy, then three from the fma copy where it runs.
     let said = compile_and_run(
         "floating_atlas_loops",
         text,
@@ -194,14 +196,17 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
             "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
             SEEDED_STATE_RS,
             r#"fn main() {
-    for k in 0..3 {
-        let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
-        let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
-        for x in &mut q[3..7] { *x /= n; }
-        let x: [[f64; NV]; 2] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s + 1)));
-        let (a, aq, av) = if has_fma() { unsafe { fma::fd_grad(&q, &x[0], &x[1]) } } else { portable::fd_grad(&q, &x[0], &x[1]) };
-        let all: Vec<String> = q.iter().chain(&a).chain(aq.as_flattened()).chain(av.as_flattened()).map(|x| format!("{x:?}")).collect();
-        println!("{}", all.join(" "));
+    let copies = if has_fma() { 2 } else { 1 };
+    for copy in 0..copies {
+        for k in 0..3 {
+            let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
+            let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+            for x in &mut q[3..7] { *x /= n; }
+            let x: [[f64; NV]; 2] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s + 1)));
+            let (a, aq, av) = if copy == 1 { unsafe { fma::fd_grad(&q, &x[0], &x[1]) } } else { portable::fd_grad(&q, &x[0], &x[1]) };
+            let all: Vec<String> = q.iter().chain(&a).chain(aq.as_flattened()).chain(av.as_flattened()).map(|x| format!("{x:?}")).collect();
+            println!("{}", all.join(" "));
+        }
     }
 }
 "#,
@@ -209,27 +214,36 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
         .concat(),
     );
     let (nv, nq) = (model.nv(), model.nq());
-    let worst = worst_line_error(&said, 3, nq, 1e-12, |k, q| {
+    let lines: Vec<&str> = said.lines().collect();
+    let copies = lines.len() / 3;
+    assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
+    for (copy, name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
+        let worst =
+            worst_line_error(&lines[3 * copy..3 * copy + 3].join("\n"), 3, nq, 1e-12, |k, q| {
+                let x: Vec<Vec<f64>> =
+                    (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+                reference_outputs(KernelKind::FdGrad, &model, q, &x[0], &x[1], g)
+                    .iter()
+                    .flat_map(|m| m.transpose().as_slice().to_vec())
+                    .collect()
+            });
+        println!("floating Atlas fd_grad, looped solves, {name} copy: worst {worst:.2e} from the reference (bound 1e-12)");
+    }
+    if copies == 1 {
+        println!("no AVX2 and FMA here: the fma copy's loops are not run");
+    }
+    // The portable copy's loops are the graph's operations in the graph's order (the
+    // solve's steps, one multiplication and one subtraction each): its values are the IR's,
+    // equal as numbers (a zero's sign may differ: the graph folds `a − c·0` to `a`).
+    let f = &lowered.functions[0];
+    for (k, line) in lines[..3].iter().enumerate() {
+        let got: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
         let x: Vec<Vec<f64>> =
             (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
-        reference_outputs(KernelKind::FdGrad, &model, q, &x[0], &x[1], g)
-            .iter()
-            .flat_map(|m| m.transpose().as_slice().to_vec())
-            .collect()
-    });
-    let fma = cfg!(target_arch = "x86_64") && {
-        #[cfg(target_arch = "x86_64")]
-        let has = std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma");
-        #[cfg(not(target_arch = "x86_64"))]
-        let has = false;
-        has
-    };
-    println!(
-        "floating Atlas fd_grad, {} copy: worst {worst:.2e} from the reference (bound 1e-12)",
-        if fma {
-            "fma (looped solves)"
-        } else {
-            "portable (no AVX2 and FMA here: the loops are not run)"
+        let want = f.eval(&kernel_args(f.inputs(), &got[..nq], &x[0], &x[1])).concat();
+        assert_eq!(got.len() - nq, want.len(), "state {k}: values");
+        for (i, (g, w)) in got[nq..].iter().zip(&want).enumerate() {
+            assert!(g == w, "state {k}: portable value {i} is {g:e}, the graph's {w:e}");
         }
-    );
+    }
 }

@@ -299,8 +299,9 @@ fn mirror(which: usize, tau_cols: &[usize], i: usize, c: usize) -> Option<usize>
 /// The combination above for one of u = q, q̇, τ (`which` 0, 1, 2) as a per-column program
 /// over rows `[F e_c (nv); x (nλ)]`: `x = A e_c + (−Jᵀ)ᵀ F e_c` (for τ, G's row c), then
 /// `x ← K⁻¹ x`, `F e_c −= G x`; stored as ∂q̈/∂u (outputs 2 + which) and ∂λ/∂u = −x
-/// (outputs 5 + which). The same operations as the graph's, which the Rust backend runs with
-/// the columns innermost.
+/// (outputs 5 + which). The graph's products, but each row's terms subtracted one by one
+/// where the graph sums a dot product first (so the two round differently), which the Rust
+/// backend runs with the columns innermost.
 fn combination_block(
     sol: &ContactSolution,
     f: &Mat,
