@@ -265,8 +265,9 @@ fn emit_kernel(
     let looped = looped_product(k, nv, copy);
     // Every copy runs a program as loops: the portable one too, since on a target without
     // the SIMD copies (aarch64, or x86-64 without FMA) its straight-line form is the
-    // instruction-cache-bound code the program replaces (floating HyQ's `contact_fd_grad`
-    // 18.3 -> 12.9 us, floating Atlas's `fd_grad` 37.7 -> 24.6 us, portable copy on x86-64).
+    // instruction-cache-bound code the program replaces (side by side, portable copy on
+    // x86-64: floating HyQ's `contact_fd_grad` 20 -> 13 us, floating Atlas's `fd_grad` 33 ->
+    // 23 us; docs/bench/portable-loops-2026-11-27.md).
     let program = k.program.as_ref().filter(|_| looped.is_none());
     let coefs = program.map(|p| ProgramCoefs::of(k, p));
     // With a looped product, the graph's product nodes are not emitted; with a program, the
