@@ -578,9 +578,11 @@ fn program_skip(k: &Function, p: &ColumnProgram) -> Vec<bool> {
 
 /// One block of a [`ColumnProgram`] as a function of its rows, each step a loop over the
 /// columns (innermost, so that the compiler vectorises it). In the SIMD copies a term
-/// `x_dst −= c x_src` is one `mul_add`; in the portable copy it is the graph's
-/// multiplication and subtraction, so each column's values are the straight-line graph's
-/// (to the sign of a zero: the graph folds `a − c·0` to `a`, the loop computes it).
+/// `x_dst −= c x_src` is one `mul_add`; in the portable copy a multiplication and a
+/// subtraction, so each column's values are the steps' run one by one in f64 or f32: where
+/// the graph is those steps (fd_grad's solves) its values to the sign of a zero (the graph
+/// folds `a − c·0` to `a`, the loop computes it); where the graph sums a dot product first
+/// (the contact combination) its values to rounding.
 fn emit_program_block(
     out: &mut String,
     k: &Function,
