@@ -214,14 +214,17 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
         .concat(),
     );
     let (nv, nq) = (model.nv(), model.nq());
+    // State k's q̇ and τ, as the program drew them.
+    let inputs = |k: usize| -> Vec<Vec<f64>> {
+        (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect()
+    };
     let lines: Vec<&str> = said.lines().collect();
     let copies = lines.len() / 3;
     assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
     for (copy, name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
         let worst =
             worst_line_error(&lines[3 * copy..3 * copy + 3].join("\n"), 3, nq, 1e-12, |k, q| {
-                let x: Vec<Vec<f64>> =
-                    (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+                let x = inputs(k);
                 reference_outputs(KernelKind::FdGrad, &model, q, &x[0], &x[1], g)
                     .iter()
                     .flat_map(|m| m.transpose().as_slice().to_vec())
@@ -238,8 +241,7 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
     let f = &lowered.functions[0];
     for (k, line) in lines[..3].iter().enumerate() {
         let got: Vec<f64> = line.split(' ').map(|x| x.parse().unwrap()).collect();
-        let x: Vec<Vec<f64>> =
-            (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+        let x = inputs(k);
         let want = f.eval(&kernel_args(f.inputs(), &got[..nq], &x[0], &x[1])).concat();
         assert_eq!(got.len() - nq, want.len(), "state {k}: values");
         for (i, (g, w)) in got[nq..].iter().zip(&want).enumerate() {
