@@ -1249,14 +1249,14 @@ fn eval_and_info_report_the_step() {
             grid_gen::Model::from_urdf_str_in_scene("go2.urdf", &text, false, &scene, "")
                 .unwrap()
                 .0;
-        model.specialisation.step = Some(grid_gen::model::Step { scheme, dt: 0.02 });
+        model.specialisation.step = Some(grid_gen::model::StepSpec::folded(scheme, 0.02));
         let d = grid_gen::reference::step_derivatives(
             &model,
             &parse(q),
             &parse(qd),
             &parse(tau),
             grid_gen::model::DEFAULT_GRAVITY,
-            model.specialisation.step.unwrap(),
+            grid_gen::model::Step { scheme, dt: 0.02 },
             &model.actuated(),
             &[],
         )
@@ -1441,15 +1441,15 @@ fn eval_and_info_report_forces() {
     assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
     let step = &json(&out)["states"][0]["step"];
     let mut stepped = model.clone();
-    stepped.specialisation.step =
-        Some(grid_gen::model::Step { scheme: grid_gen::model::Scheme::Rk4, dt: 0.01 });
+    let rk4 = grid_gen::model::Step { scheme: grid_gen::model::Scheme::Rk4, dt: 0.01 };
+    stepped.specialisation.step = Some(grid_gen::model::StepSpec::folded(rk4.scheme, rk4.dt));
     let d = grid_gen::reference::step_derivatives(
         &stepped,
         &parse(q),
         &parse(qd),
         &parse(u),
         grid_gen::model::DEFAULT_GRAVITY,
-        stepped.specialisation.step.unwrap(),
+        rk4,
         &stepped.actuated(),
         &fext,
     )

@@ -322,17 +322,9 @@ pub fn reference_outputs_with(
     ext: reference::External,
 ) -> Vec<DMatrix<f64>> {
     if kind.is_step() {
-        // The step solves its contacts' forces (ext.lambda does not enter) and holds fext.
-        let step = m.specialisation.step.expect("a model with a step");
-        let tau = actuated_tau(m, u);
-        if kind == KernelKind::Step {
-            let (q1, v1) =
-                reference::step(m, q, qd, &tau, g, step, ext.fext).expect("independent contacts");
-            return vec![col(&q1), col(&v1)];
-        }
-        let d = reference::step_derivatives(m, q, qd, &tau, g, step, &m.actuated(), ext.fext)
-            .expect("independent contacts");
-        return vec![col(&d.q_next), col(&d.qd_next), d.a, d.b];
+        let dt = m.specialisation.step.and_then(|s| s.dt);
+        let dt = dt.expect("a folded dt (reference_step_outputs takes a run-time one)");
+        return reference_step_outputs(kind, m, q, qd, u, g, ext.fext, dt);
     }
     let d = reference::force_derivatives(m, q);
     let mut out = match kind {
@@ -378,6 +370,32 @@ pub fn reference_outputs_with(
     out
 }
 
+/// The reference's values of a step kernel, in its output order, over a step of `dt`
+/// seconds (a folded step's own dt, or a run-time one): the step solves its contacts'
+/// forces and holds `fext`.
+#[allow(clippy::too_many_arguments)]
+pub fn reference_step_outputs(
+    kind: KernelKind,
+    m: &Model,
+    q: &[f64],
+    qd: &[f64],
+    u: &[f64],
+    g: [f64; 3],
+    fext: &[f64],
+    dt: f64,
+) -> Vec<DMatrix<f64>> {
+    let step = m.specialisation.step.expect("a model with a step").at(dt);
+    let tau = actuated_tau(m, u);
+    if kind == KernelKind::Step {
+        let (q1, v1) =
+            reference::step(m, q, qd, &tau, g, step, fext).expect("independent contacts");
+        return vec![col(&q1), col(&v1)];
+    }
+    let d = reference::step_derivatives(m, q, qd, &tau, g, step, &m.actuated(), fext)
+        .expect("independent contacts");
+    vec![col(&d.q_next), col(&d.qd_next), d.a, d.b]
+}
+
 /// τ per coordinate from the actuated joints' forces (0 on the others).
 pub fn actuated_tau(model: &Model, u: &[f64]) -> Vec<f64> {
     let mut tau = vec![0.0; model.nv()];
@@ -387,10 +405,17 @@ pub fn actuated_tau(model: &Model, u: &[f64]) -> Vec<f64> {
     tau
 }
 
-/// A model that takes a step.
+/// A model that takes a step of `dt` seconds, folded into the kernels.
 pub fn with_step(model: &Model, scheme: grid_gen::model::Scheme, dt: f64) -> Model {
     let mut m = model.clone();
-    m.specialisation.step = Some(grid_gen::model::Step { scheme, dt });
+    m.specialisation.step = Some(grid_gen::model::StepSpec::folded(scheme, dt));
+    m
+}
+
+/// A model whose step kernels take their time step at run time.
+pub fn with_runtime_step(model: &Model, scheme: grid_gen::model::Scheme) -> Model {
+    let mut m = model.clone();
+    m.specialisation.step = Some(grid_gen::model::StepSpec::at_run_time(scheme));
     m
 }
 
@@ -460,6 +485,20 @@ pub fn kernel_args_with<'a>(
     u: &'a [f64],
     ext: reference::External<'a>,
 ) -> Vec<&'a [f64]> {
+    assert!(!inputs.contains(&Input::Dt), "a run-time step's kernel: use kernel_args_dt");
+    kernel_args_dt(inputs, q, qd, u, ext, &[])
+}
+
+/// [`kernel_args_with`] for a step kernel that may also take its time step (`dt`, one
+/// value).
+pub fn kernel_args_dt<'a>(
+    inputs: &[Input],
+    q: &'a [f64],
+    qd: &'a [f64],
+    u: &'a [f64],
+    ext: reference::External<'a>,
+    dt: &'a [f64],
+) -> Vec<&'a [f64]> {
     inputs
         .iter()
         .map(|i| match i {
@@ -468,6 +507,7 @@ pub fn kernel_args_with<'a>(
             Input::Qdd | Input::Tau | Input::TauActuated => u,
             Input::Fext => ext.fext,
             Input::Lambda => ext.lambda,
+            Input::Dt => dt,
         })
         .collect()
 }

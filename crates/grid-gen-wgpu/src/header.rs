@@ -16,6 +16,9 @@ pub struct ShaderInfo {
     /// Of those, the contact forces λ (`// lambda:`, else 0): the contact kernels solve
     /// for them, so their `u` holds τ and fext only.
     pub lambda: usize,
+    /// Whether the step kernels read their time step as the last entry of each state's `u`
+    /// (`// dt: input`).
+    pub runtime_dt: bool,
     pub precision: Precision,
     pub entries: Vec<EntryMeta>,
     /// The cooperative entries' operation tables (binding 6) and constants (binding 7),
@@ -39,6 +42,7 @@ impl ShaderInfo {
         let mut nu = None;
         let mut forces = 0;
         let mut lambda = 0;
+        let mut runtime_dt = false;
         let mut precision = None;
         let mut entries = Vec::new();
         let mut tables = None;
@@ -55,6 +59,11 @@ impl ShaderInfo {
                 forces = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// lambda: ") {
                 lambda = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
+            } else if let Some(v) = line.strip_prefix("// dt: ") {
+                if v.trim() != "input" {
+                    return Err(bad("expected `input`"));
+                }
+                runtime_dt = true;
             } else if let Some(v) = line.strip_prefix("// tables: ") {
                 let mut counts = [0usize; 2];
                 for (k, key) in ["prog=", "konst="].iter().enumerate() {
@@ -87,6 +96,7 @@ impl ShaderInfo {
             nu: nu.unwrap_or(nv),
             forces,
             lambda,
+            runtime_dt,
             precision,
             entries,
             prog,

@@ -331,7 +331,8 @@ impl Gpu {
             nv: shader.info.nv,
             nq: shader.info.nq,
             nu: grid_gen::ir::KernelKind::parse(&info.kernel).map_or(shader.info.nv, |k| {
-                k.u_len(shader.info.nv, shader.info.nu, shader.info.forces, shader.info.lambda)
+                let i = &shader.info;
+                k.u_len(i.nv, i.nu, i.forces, i.lambda, i.runtime_dt)
             }),
             build_time: start.elapsed(),
             tables: shader.tables.clone(),
@@ -354,8 +355,8 @@ impl Gpu {
     /// Uploads N states for `kernel`. Inputs are state-major (`q[s * nq + j]`, the others
     /// `[s * nv + j]`; nq = nv but with a floating base); `u` is q̈
     /// for rnea, rnea_grad and frame_acceleration, τ for fd and fd_grad, followed in each
-    /// state by `fext` and λ when the shader's robot declares forces (`Kernel::nu` entries
-    /// per state in all); a kernel that does not read `qd` or `u` ignores it (it may be
+    /// state by `fext` and λ when the shader's robot declares forces, and for the step
+    /// kernels of a run-time step by its `dt` (`Kernel::nu` entries per state in all); a kernel that does not read `qd` or `u` ignores it (it may be
     /// empty). N = 0 is a no-op batch.
     pub fn upload<'k>(
         &self,

@@ -27,6 +27,10 @@ pub struct State {
     /// the scene declares; a declared contact left out has λ = 0.
     #[serde(default)]
     pub contacts: BTreeMap<String, Values>,
+    /// The step's time step in seconds, for a scene that leaves `[step] dt` to run time
+    /// (needed there with `tau`; where the scene folds dt, it may only repeat it).
+    #[serde(default)]
+    pub dt: Option<f64>,
 }
 
 /// A list of numbers, read as [`State`]'s vectors are (NaN and infinities included, so
@@ -288,6 +292,8 @@ fn step_output(
     let (Some(step), Some(tau)) = (model.specialisation.step, s.tau.as_ref()) else {
         return Ok(None);
     };
+    // check_states made sure that a run-time step has its dt.
+    let step = step.at(s.dt.unwrap_or(f64::NAN));
     let d = reference::step_derivatives(
         model,
         &s.q,
@@ -417,6 +423,14 @@ pub enum EvalError {
     ForceNotFinite { index: usize, field: &'static str, key: String, entry: usize },
     #[error("external and contact forces are evaluated by the reference only (`eval` without --backend); the generated Rust and WGSL kernels take them, and the tests compare those with the reference")]
     ForcesOnBackend,
+    #[error("state {index}: the step takes its time step at run time (the scene's [step] has no dt): give `dt` (seconds) beside `tau`")]
+    NoDt { index: usize },
+    #[error("state {index}: `dt` is {value}, not a finite, positive number of seconds")]
+    BadDt { index: usize, value: f64 },
+    #[error("state {index}: `dt` is {value}, but the step's dt = {folded} s is folded into the kernels ({why}); leave `dt` out, or leave [step] dt out to give it per state")]
+    FoldedDt { index: usize, value: f64, folded: f64, why: &'static str },
+    #[error("state {index}: `dt` is given, but the model takes no step; add [step] to the scene, or --step")]
+    DtWithoutStep { index: usize },
     #[error("state {index}: the contacts' Jacobian loses rank at this configuration, so rigid-contact dynamics has no unique solution (contact_fd, and a step that integrates it); move the state away from the singularity or declare fewer contacts")]
     ContactsSingular { index: usize },
 }
@@ -542,6 +556,7 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
             return Err(EvalError::Singular { index, joint: joint.clone() });
         }
         check_forces(model, index, s)?;
+        check_dt(model, index, s)?;
         if let (Some(_), Some(tau)) = (model.specialisation.step, &s.tau) {
             let actuated = model.actuated();
             if let Some(entry) = (0..n).find(|k| !actuated.contains(k) && tau[*k] != 0.0) {
@@ -551,6 +566,23 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         }
     }
     Ok(())
+}
+
+/// A state's `dt`: finite and positive; required by a run-time step where the state asks
+/// for the step (`tau`), and only a repetition of a folded one.
+fn check_dt(model: &Model, index: usize, s: &State) -> Result<(), EvalError> {
+    let step = model.specialisation.step;
+    match (s.dt, step.map(|st| st.dt)) {
+        (Some(value), _) if !(value.is_finite() && value > 0.0) => {
+            Err(EvalError::BadDt { index, value })
+        }
+        (Some(value), Some(Some(folded))) if value != folded => {
+            Err(EvalError::FoldedDt { index, value, folded, why: "the scene's [step] dt or --dt" })
+        }
+        (Some(_), None) => Err(EvalError::DtWithoutStep { index }),
+        (None, Some(None)) if s.tau.is_some() => Err(EvalError::NoDt { index }),
+        _ => Ok(()),
+    }
 }
 
 /// A state's `fext` and `contacts`: known keys, the right number of finite values.

@@ -89,8 +89,8 @@ pub struct Info {
     /// reference frame.
     pub selected_frames: Vec<String>,
     pub reference_frame: crate::model::ReferenceFrame,
-    /// The step the step kernels take (`--step`, `[step]`), if any.
-    pub step: Option<crate::model::Step>,
+    /// The step the step kernels take (`--step`, `[step]`), if any; `dt` null when the kernels take it at run time.
+    pub step: Option<crate::model::StepSpec>,
     /// The actuated joints: the step's τ and B's columns, in model order.
     pub actuated: Vec<String>,
     /// The joints whose bodies take an external force: `fext` of rnea, rnea_grad, fd and
@@ -500,9 +500,12 @@ impl Info {
         }
         if let Some(step) = self.step {
             s.push_str(&format!(
-                "step kernels: {} over dt = {} s; actuated ({}): {}{}{}\n",
+                "step kernels: {} over {}; actuated ({}): {}{}{}\n",
                 step.scheme.name(),
-                step.dt,
+                match step.dt {
+                    Some(dt) => format!("dt = {dt} s"),
+                    None => "dt given at run time (their last input)".to_string(),
+                },
                 self.actuated.len(),
                 self.actuated.join(", "),
                 if self.fext.is_empty() { "" } else { "; fext held over the step" },

@@ -320,13 +320,46 @@ impl Scheme {
     }
 }
 
-/// The discrete step the step kernels take: the scheme and the time step, a constant
-/// folded into the kernels.
+/// One discrete step: the scheme and the time step (what the reference integrates).
 #[derive(Clone, Copy, Debug, PartialEq, Serialize)]
 pub struct Step {
     pub scheme: Scheme,
     /// Seconds; finite and positive.
     pub dt: f64,
+}
+
+/// The step kernels a model is specialised for: the scheme, and the time step either folded
+/// into the kernels as a constant or left to run time, where `step` and `step_grad` take it
+/// as their last input (`dt`, one value per state), so that one library serves a horizon
+/// whose knots have different time steps.
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct StepSpec {
+    pub scheme: Scheme,
+    /// Seconds, finite and positive, folded into the kernels; `None`: an input.
+    pub dt: Option<f64>,
+}
+
+impl StepSpec {
+    /// A step with a folded time step.
+    pub fn folded(scheme: Scheme, dt: f64) -> StepSpec {
+        StepSpec { scheme, dt: Some(dt) }
+    }
+
+    /// A step whose time step the kernels take at run time.
+    pub fn at_run_time(scheme: Scheme) -> StepSpec {
+        StepSpec { scheme, dt: None }
+    }
+
+    /// The step these kernels take at a state whose run-time time step is `dt` (ignored when
+    /// the time step is folded: the kernels then take no `dt`).
+    pub fn at(self, dt: f64) -> Step {
+        Step { scheme: self.scheme, dt: self.dt.unwrap_or(dt) }
+    }
+
+    /// Whether the kernels take `dt` as an input.
+    pub fn runtime_dt(self) -> bool {
+        self.dt.is_none()
+    }
 }
 
 /// One block of the configuration space, as Pinocchio's joints integrate it: a scalar
@@ -361,7 +394,7 @@ pub struct Specialisation {
     /// The reference frame of the frame kernels' Jacobian, velocity and acceleration.
     pub reference: ReferenceFrame,
     /// The step the step kernels take; `None`: no step kernels.
-    pub step: Option<Step>,
+    pub step: Option<StepSpec>,
     /// The actuated coordinates (the columns of the step's B and the entries of its τ), in
     /// coordinate order. `None`: every coordinate but a floating base's six.
     pub actuated: Option<Vec<usize>>,

@@ -27,7 +27,8 @@
 //!
 //! [step]                               # the step kernels: one time step and [A | B]
 //! scheme = "semi_implicit_euler"       # or "explicit_euler", "rk4"
-//! dt = 0.01                            # s, folded into the kernels
+//! dt = 0.01                            # s, folded into the kernels; left out, the
+//!                                      # step kernels take dt at run time, per state
 //!
 //! [actuation]                          # the step's tau and B's columns (default: every
 //! joints = ["lf_haa_joint"]            # joint but a floating base; multi-dof by name)
@@ -154,7 +155,8 @@ pub struct FdGradSection {
 pub struct StepSection {
     /// Default `semi_implicit_euler`.
     pub scheme: Option<crate::model::Scheme>,
-    /// Seconds, finite and positive; required.
+    /// Seconds, finite and positive, folded into the kernels; left out, `step` and
+    /// `step_grad` take `dt` at run time, one value per state.
     pub dt: Option<f64>,
 }
 
@@ -736,12 +738,13 @@ fn select_contacts(
     picked
 }
 
-/// `[step]` (or `--step`, `--dt`): a scheme and a finite, positive time step.
+/// `[step]` (or `--step`, `--dt`): a scheme and a finite, positive time step, or none (then
+/// the kernels take it at run time).
 fn select_step(
     scene: &Scene,
     scene_path: &str,
     diags: &mut Vec<Diagnostic>,
-) -> Option<crate::model::Step> {
+) -> Option<crate::model::StepSpec> {
     let s = scene.step.as_ref()?;
     let whence = if scene_path.is_empty() {
         "--step".to_string()
@@ -749,14 +752,8 @@ fn select_step(
         format!("scene `{scene_path}`: [step]")
     };
     let scheme = s.scheme.unwrap_or_default();
-    let Some(dt) = s.dt else {
-        diags.push(
-            Diagnostic::error(format!("{whence} has no time step"), None, "no dt")
-                .with_help("give `dt = 0.01` in [step], or `--dt 0.01`"),
-        );
-        return None;
-    };
-    if !(dt.is_finite() && dt > 0.0) {
+    let dt = s.dt;
+    if let Some(dt) = dt.filter(|dt| !(dt.is_finite() && *dt > 0.0)) {
         diags.push(
             Diagnostic::error(
                 format!("{whence}: dt = {dt} is not a finite, positive number of seconds"),
@@ -774,7 +771,8 @@ fn select_step(
         );
         return None;
     }
-    Some(crate::model::Step { scheme, dt })
+    // No dt: the step kernels take it at run time.
+    Some(crate::model::StepSpec { scheme, dt })
 }
 
 /// `[actuation] joints`: each name is a coordinate's joint, or a multi-dof joint's own name

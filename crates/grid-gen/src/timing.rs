@@ -76,7 +76,7 @@ const NQ: usize = {nq};"
     out
 }
 
-/// A call's arguments from a state `x = (q, [q̇, u], fext, λ)`: each input in the kernel's
+/// A call's arguments from a state `x = (q, [q̇, u], fext, λ, dt)`: each input in the kernel's
 /// order, u as q̈ or τ, the step kernels' τ the first NU entries of u.
 fn call_args(inputs: &[crate::ir::Input]) -> String {
     use crate::ir::Input;
@@ -89,6 +89,7 @@ fn call_args(inputs: &[crate::ir::Input]) -> String {
             Input::TauActuated => "x.1[1].first_chunk::<{ robot::NU }>().unwrap()",
             Input::Fext => "&x.2",
             Input::Lambda => "&x.3",
+            Input::Dt => "&x.4",
         })
         .collect();
     args.join(", ")
@@ -169,10 +170,11 @@ fn main() {{
     const NQ: usize = {nq};
     const NF: usize = {nf};
     const NL: usize = {nl};
-    let s64: Vec<([f64; NQ], [[f64; N]; 2], [f64; NF], [f64; NL])> = (0..STATES)
-        .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))), std::array::from_fn(|i| 20.0 * state(j, i, 3)), std::array::from_fn(|i| 100.0 * state(j, i, 4))))
+    // A run-time time step between 5 and 15 ms, for step kernels that take one.
+    let s64: Vec<([f64; NQ], [[f64; N]; 2], [f64; NF], [f64; NL], [f64; 1])> = (0..STATES)
+        .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))), std::array::from_fn(|i| 20.0 * state(j, i, 3)), std::array::from_fn(|i| 100.0 * state(j, i, 4)), [0.01 + 0.005 * state(j, 0, 5)]))
         .collect();
-    let s32: Vec<([f32; NQ], [[f32; N]; 2], [f32; NF], [f32; NL])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)), x.2.map(|y| y as f32), x.3.map(|y| y as f32))).collect();
+    let s32: Vec<([f32; NQ], [[f32; N]; 2], [f32; NF], [f32; NL], [f32; 1])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)), x.2.map(|y| y as f32), x.3.map(|y| y as f32), x.4.map(|y| y as f32))).collect();
 {calls}}}
 "#
     )

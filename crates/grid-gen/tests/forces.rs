@@ -707,10 +707,8 @@ fn the_contact_combination_is_looped_in_every_copy() {
     let text = &file.contents;
     assert_program_looped(text, "contact_fd_grad", 3);
     let mut stepping = model.clone();
-    stepping.specialisation.step = Some(grid_gen::model::Step {
-        scheme: grid_gen::model::Scheme::SemiImplicitEuler,
-        dt: 0.01,
-    });
+    stepping.specialisation.step =
+        Some(grid_gen::model::StepSpec::folded(grid_gen::model::Scheme::SemiImplicitEuler, 0.01));
     let lowered = ir::lower(
         &stepping,
         reference::DEFAULT_GRAVITY,

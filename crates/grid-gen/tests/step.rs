@@ -5,7 +5,7 @@
 //! scene's bad inputs.
 
 use grid_gen::ir::{self, KernelKind, LowerOptions};
-use grid_gen::model::{ContactKind, LieBlock, Scheme, Step};
+use grid_gen::model::{ContactKind, LieBlock, Scheme, Step, StepSpec};
 use grid_gen::{reference, Model, Scene};
 use grid_gen_test_support::*;
 use nalgebra::{DMatrix, UnitQuaternion, Vector3};
@@ -491,8 +491,8 @@ fn forced_step_kernels_match_the_reference() {
 fn bad_steps_are_errors() {
     let load = |scene: &str| load_scene_text("grid_hyq", scene);
     let cases = [
-        ("[step]\nscheme = \"semi_implicit_euler\"\n", "has no time step"),
         ("[step]\ndt = -0.01\n", "not a finite, positive"),
+        ("[step]\ndt = 0.0\n", "not a finite, positive"),
         ("static = true\n[step]\ndt = 0.01\n", "with `static = true`"),
         ("[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_haa\"]\n", "closest joints: lf_haa_joint"),
         (
@@ -510,7 +510,13 @@ fn bad_steps_are_errors() {
     );
     let m = load("floating_base = true\n[step]\ndt = 0.01\n[actuation]\njoints = [\"lf_kfe_joint\", \"root_joint\"]\n").unwrap();
     assert_eq!(m.actuated().len(), 7, "root_joint stands for its six coordinates");
-    assert_eq!(m.specialisation.step, Some(Step { scheme: Scheme::SemiImplicitEuler, dt: 0.01 }));
+    assert_eq!(m.specialisation.step, Some(StepSpec::folded(Scheme::SemiImplicitEuler, 0.01)));
+    // A [step] without dt leaves it to run time: the step kernels take it last.
+    let m = load("floating_base = true\n[step]\nscheme = \"rk4\"\n").unwrap();
+    assert_eq!(m.specialisation.step, Some(StepSpec::at_run_time(Scheme::Rk4)));
+    for kind in [KernelKind::Step, KernelKind::StepGrad] {
+        assert_eq!(kind.inputs_for(&m.specialisation).last(), Some(&ir::Input::Dt), "{kind}");
+    }
 }
 
 /// RK4's generated Rust, compiled with rustc and run: iiwa's `step_grad` (both copies) on
@@ -675,4 +681,187 @@ fn main() {
     let got: Vec<f64> = said.split_whitespace().map(|x| x.parse().unwrap()).collect();
     let want = reference::minv(&m, &[0.1, -0.4, 0.3, 1.2, -0.5, 0.6, 0.2]);
     assert!(rel_err(&DMatrix::from_row_slice(7, 7, &got), &want) < 1e-12);
+}
+
+/// A step whose time step is an input (`[step]` without dt) gives, at each dt, the values of
+/// the step with that dt folded in: every scheme, fixed, floating, spherical and coupled
+/// robots and robots with fext and rigid contacts, two time steps a state (one library
+/// for a horizon whose knots differ in dt). Both graphs are the same operations but for
+/// where `c dt` is rounded (RK4's `dt / 6` weights once at generation time, or `(1/6) dt`
+/// at run time), so they agree to a few ulps; each is also held to the reference at its dt.
+#[test]
+fn runtime_dt_steps_match_folded_ones() {
+    let fixtures = repo().join("tests/fixtures");
+    let mut cases: Vec<(&str, Model)> = vec![
+        ("iiwa", load("grid_iiwa")),
+        ("hyq floating", load_floating("grid_hyq")),
+        ("ball_arm floating", load_urdf(&fixtures.join("ball_arm.urdf"), true)),
+        ("mimic_arm coupled", load_coupled_urdf(&fixtures.join("mimic_arm.urdf"))),
+    ];
+    cases.extend(forced_cases());
+    let g = reference::DEFAULT_GRAVITY;
+    let mut rng = Rng(61);
+    let (mut worst_folded, mut worst_reference): (f64, f64) = (0.0, 0.0);
+    let kernels = vec![KernelKind::Step, KernelKind::StepGrad];
+    let options = LowerOptions { kernels, ..LowerOptions::default() };
+    for (name, model) in &cases {
+        // RK4's floating HyQ graphs take a minute each to lower; RK4's run-time dt is the
+        // Euler schemes' multipliers, four times, and the smaller robots check it.
+        let schemes: &[Scheme] = match name.starts_with("hyq") {
+            true => &[Scheme::SemiImplicitEuler, Scheme::ExplicitEuler],
+            false => &Scheme::ALL,
+        };
+        for &scheme in schemes {
+            let runtime = ir::lower(&with_runtime_step(model, scheme), g, &options).unwrap();
+            let nv = model.nv();
+            let mut q = model.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+            for &s in &model.spherical {
+                let at = model.group_q(s).0;
+                q[at..at + 4].copy_from_slice(&rng.unit_quaternion());
+            }
+            let (qd, u, fext) = (
+                rng.vec(nv, -2.0, 2.0),
+                rng.vec(model.nu(), -10.0, 10.0),
+                rng.vec(6 * model.nfext(), -20.0, 20.0),
+            );
+            let ext = reference::External { fext: &fext, lambda: &[] };
+            // One dt on floating HyQ, whose contact step_grad takes seconds to lower.
+            let dts: &[f64] = if name.starts_with("hyq") { &[0.03] } else { &[1e-3, 0.03] };
+            for &dt in dts {
+                let folded_model = with_step(model, scheme, dt);
+                let folded = ir::lower(&folded_model, g, &options).unwrap();
+                for (f, fixed) in runtime.functions.iter().zip(&folded.functions) {
+                    assert_eq!(f.inputs().last(), Some(&ir::Input::Dt), "{name} {}", f.kind);
+                    assert!(!fixed.inputs().contains(&ir::Input::Dt), "{name} {}", f.kind);
+                    let got = f.eval(&kernel_args_dt(f.inputs(), &q, &qd, &u, ext, &[dt]));
+                    let want = fixed.eval(&kernel_args_with(fixed.inputs(), &q, &qd, &u, ext));
+                    let reference =
+                        reference_step_outputs(f.kind, &folded_model, &q, &qd, &u, g, &fext, dt);
+                    for (((o, got), want), reference) in
+                        f.outputs.iter().zip(&got).zip(&want).zip(&reference)
+                    {
+                        let got = output_matrix(o.shape, nv, got);
+                        let e = rel_err(&got, &output_matrix(o.shape, nv, want));
+                        worst_folded = worst_folded.max(e);
+                        let what =
+                            format!("{name} {} dt {dt} {} {}", scheme.name(), f.kind, o.name);
+                        // An ulp of a multiplier, carried through the step (measured 4.1e-16).
+                        assert!(e < 1e-14, "{what}: {e:.2e} from the folded step");
+                        let e = rel_err(&got, reference);
+                        worst_reference = worst_reference.max(e);
+                        // As forced_step_kernels_match_the_reference (the contacts' Schur
+                        // complement against the reference's KKT LU).
+                        assert!(e < 5e-11, "{what}: {e:.2e} from the reference");
+                    }
+                }
+            }
+        }
+    }
+    println!(
+        "run-time dt: worst {worst_folded:.2e} from the folded step (bound 1e-14), {worst_reference:.2e} from the reference (bound 5e-11)"
+    );
+}
+
+/// A run-time dt costs a multiplication where the folded step has a constant: the graphs
+/// have the same operations but for a handful (floating HyQ with the Euler schemes, iiwa
+/// with RK4), so the one library that serves every dt is as fast as the folded ones.
+#[test]
+fn runtime_dt_costs_a_few_operations() {
+    let g = reference::DEFAULT_GRAVITY;
+    let options = LowerOptions {
+        kernels: vec![KernelKind::Step, KernelKind::StepGrad],
+        ..LowerOptions::default()
+    };
+    let cases = [
+        ("floating HyQ", Scheme::SemiImplicitEuler),
+        ("floating HyQ", Scheme::ExplicitEuler),
+        ("iiwa", Scheme::Rk4),
+    ];
+    for (name, scheme) in cases {
+        let model = if name == "iiwa" { load("grid_iiwa") } else { load_floating("grid_hyq") };
+        let runtime = ir::lower(&with_runtime_step(&model, scheme), g, &options).unwrap();
+        let folded = ir::lower(&with_step(&model, scheme, 0.01), g, &options).unwrap();
+        for (f, fixed) in runtime.functions.iter().zip(&folded.functions) {
+            let ops = |f: &ir::Function| {
+                (0..f.nodes.len()).filter(|&i| f.is_operation(ir::Id(i as u32))).count()
+            };
+            let (a, b) = (ops(f), ops(fixed));
+            let what = format!("{name} {} {}", scheme.name(), f.kind);
+            println!("{what}: {a} operations with a run-time dt, {b} folded");
+            // Each distinct `c dt` the folded step reads as a constant is one multiplication
+            // at run time: none or one for the Euler schemes (dt itself is an input), three
+            // for RK4 (dt / 2, dt / 6, dt / 3). Measured on floating HyQ: 0, 1 and 3.
+            assert!(a <= b + 3, "{what}: {a} against {b}");
+        }
+    }
+}
+
+/// A run-time dt through the generated Rust, compiled with rustc and run: iiwa with fext on
+/// its third link (so `dt` follows `fext`), semi-implicit `step_grad` on four states, each
+/// with its own dt, called one state at a time in both copies and as one `Lanes<4>` call
+/// (each lane its own dt), against the reference at each state's dt.
+#[test]
+fn runtime_dt_step_grad_compiles_and_matches_the_reference() {
+    use grid_gen::generate::{generate, Options, Target};
+    let iiwa = with_forces(&load("grid_iiwa"), &["iiwa_joint_3"], &[]);
+    let model = with_runtime_step(&iiwa, Scheme::SemiImplicitEuler);
+    let lower = LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() };
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
+    assert!(
+        file.contents.contains("`step_grad(q, qd, tau, fext, dt) -> (q_next, qd_next, a, b)`"),
+        "the API summary names dt last"
+    );
+    assert!(!file.contents.contains("pub const DT"), "no folded DT");
+    let said = compile_and_run(
+        "runtimedt",
+        &file.contents,
+        &[
+            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
+            SEEDED_STATE_RS,
+            r#"fn dt(k: usize) -> f64 { 0.002 + 0.01 * k as f64 }
+fn args(k: usize) -> ([[f64; NV]; 3], [f64; 6 * NFEXT]) {
+    (std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s))), std::array::from_fn(|i| 10.0 * state(k, i, 3)))
+}
+fn main() {
+    let flat = |q: &[f64], v: &[f64], a: &[[f64; NX]], b: &[[f64; NU]]| -> Vec<f64> { q.iter().chain(v).chain(a.as_flattened()).chain(b.as_flattened()).copied().collect() };
+    let lane = |x: &[Lanes<4>], l: usize| -> Vec<f64> { x.iter().map(|v| v.0[l]).collect() };
+    let st: Vec<_> = (0..4).map(args).collect();
+    let x: [[Lanes<4>; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| Lanes(std::array::from_fn(|l| st[l].0[s][i]))));
+    let fext: [Lanes<4>; 6 * NFEXT] = std::array::from_fn(|i| Lanes(std::array::from_fn(|l| st[l].1[i])));
+    let (lq, lv, la, lb) = portable::step_grad(&x[0], &x[1], &x[2], &fext, &[Lanes(std::array::from_fn(dt))]);
+    for k in 0..4 {
+        let (x, fext) = &st[k];
+        let (q, v, a, b) = step_grad(&x[0], &x[1], &x[2], fext, &[dt(k)]);
+        let (pq, pv, pa, pb) = portable::step_grad(&x[0], &x[1], &x[2], fext, &[dt(k)]);
+        let one = flat(&q, &v, &a, &b);
+        assert_eq!(flat(&pq, &pv, &pa, &pb).len(), one.len());
+        let lanes: Vec<f64> = lane(&lq, k).into_iter().chain(lane(&lv, k)).chain(lane(la.as_flattened(), k)).chain(lane(lb.as_flattened(), k)).collect();
+        let portable = flat(&pq, &pv, &pa, &pb);
+        assert!(lanes.iter().zip(&portable).all(|(a, b)| a.to_bits() == b.to_bits()), "state {k}: Lanes<4> differs from a portable call");
+        let all: Vec<String> = one.iter().chain(&portable).map(|x| format!("{x:?}")).collect();
+        println!("{}", all.join(" "));
+    }
+}
+"#,
+        ]
+        .concat(),
+    );
+    let nv = model.nv();
+    // f64 kernels are held to 1e-12 of the reference, as everywhere; the dispatched copy
+    // and the portable one are printed one after the other and both checked.
+    let worst = worst_line_error(&said, 4, 0, 1e-12, |k, _| {
+        let x: Vec<Vec<f64>> =
+            (0..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+        let fext: Vec<f64> = (0..6).map(|i| 10.0 * seeded_state(k, i, 3)).collect();
+        let g = reference::DEFAULT_GRAVITY;
+        let dt = 0.002 + 0.01 * k as f64;
+        let want =
+            reference_step_outputs(KernelKind::StepGrad, &model, &x[0], &x[1], &x[2], g, &fext, dt);
+        let one: Vec<f64> = want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
+        one.iter().chain(&one).copied().collect()
+    });
+    println!("iiwa step_grad with a run-time dt, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
 }

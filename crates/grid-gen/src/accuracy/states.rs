@@ -97,6 +97,8 @@ pub fn random_states(
                 tau,
                 fext: Default::default(),
                 contacts: Default::default(),
+                // The accuracy study leaves the step kernels out.
+                dt: None,
             }
         })
         .collect();

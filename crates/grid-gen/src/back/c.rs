@@ -367,6 +367,9 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
     }
     if robot.specialisation.step.is_some() {
         let _ = writeln!(h, "/* Entries of the step kernels' tau: the actuated joints. */\n#define {mac}_NU {}\n#define {mac}_NX (2 * {mac}_NV)", dims.nu);
+        if robot.specialisation.step.is_some_and(|s| s.runtime_dt()) {
+            let _ = writeln!(h, "/* The step kernels take their time step (s) at run time: their last input, dt, one value per state. */");
+        }
     }
     if dims.nfext > 0 {
         let _ = writeln!(

@@ -92,8 +92,11 @@ impl Bounds {
             Port::Value(Input::Q, j) => self.q[j as usize],
             Port::Value(Input::Qd, j) => (-self.qd[j as usize], self.qd[j as usize]),
             Port::Value(Input::Qdd, j) => (-self.qdd[j as usize], self.qdd[j as usize]),
-            // No datapath kernel takes torques; unbounded makes any that did fail the check.
-            Port::Value(Input::Tau | Input::TauActuated, _) => (f64::NEG_INFINITY, f64::INFINITY),
+            // No datapath kernel takes torques or a step; unbounded makes any that did fail
+            // the check.
+            Port::Value(Input::Tau | Input::TauActuated | Input::Dt, _) => {
+                (f64::NEG_INFINITY, f64::INFINITY)
+            }
             Port::Value(Input::Fext | Input::Lambda, _) => (-self.force, self.force),
         }
     }

@@ -32,6 +32,58 @@ pub(crate) use forces::{transpose, Forces, LambdaSource};
 /// Row-major n x n matrix of nodes.
 pub type Mat = Vec<Vec<Id>>;
 
+/// A factor the algorithms scale by (the step's dt and its multiples `c dt`): a constant
+/// folded at generation time, or `coef` times a node read at run time. A folded `c dt` stays
+/// the one constant it was (`c * dt` rounded once), so a folded step's graph does not change
+/// when a run-time one is possible.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) enum Scalar {
+    Const(f64),
+    Node { coef: f64, id: Id },
+}
+
+impl Scalar {
+    pub const ONE: Scalar = Scalar::Const(1.0);
+
+    /// A node's value.
+    pub fn node(id: Id) -> Scalar {
+        Scalar::Node { coef: 1.0, id }
+    }
+
+    /// `c · self`.
+    pub fn times(self, c: f64) -> Scalar {
+        match self {
+            Scalar::Const(x) => Scalar::Const(c * x),
+            Scalar::Node { coef, id } => Scalar::Node { coef: c * coef, id },
+        }
+    }
+
+    /// `self / c`.
+    pub fn over(self, c: f64) -> Scalar {
+        match self {
+            Scalar::Const(x) => Scalar::Const(x / c),
+            Scalar::Node { coef, id } => Scalar::Node { coef: coef / c, id },
+        }
+    }
+
+    /// Whether it is the constant 1 (scaling by it is the identity).
+    pub fn is_one(self) -> bool {
+        self == Scalar::ONE
+    }
+
+    /// Its node: a constant (snapped as every model constant), or `coef · node`.
+    pub fn id(self, g: &mut Graph) -> Id {
+        match self {
+            Scalar::Const(x) => sp::k(g, x),
+            Scalar::Node { coef, id } if coef == 1.0 => id,
+            Scalar::Node { coef, id } => {
+                let c = sp::k(g, coef);
+                g.mul(c, id)
+            }
+        }
+    }
+}
+
 pub(crate) struct Dynamics<'a> {
     pub g: Graph,
     /// Which formulation [`Self::rnea_grad`] records (never `Auto` here).

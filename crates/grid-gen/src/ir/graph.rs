@@ -25,6 +25,9 @@ pub enum Input {
     Fext,
     /// Contact forces, 3 or 6 per contact of [`crate::model::Specialisation::contacts`].
     Lambda,
+    /// The step kernels' time step, one value, when the scene leaves it to run time
+    /// ([`crate::model::StepSpec::dt`]).
+    Dt,
 }
 
 impl Input {
@@ -36,6 +39,7 @@ impl Input {
             Input::Tau | Input::TauActuated => "tau",
             Input::Fext => "fext",
             Input::Lambda => "lambda",
+            Input::Dt => "dt",
         }
     }
 
@@ -46,6 +50,7 @@ impl Input {
             Input::TauActuated => dims.nu,
             Input::Fext => 6 * dims.nfext,
             Input::Lambda => dims.nlambda,
+            Input::Dt => 1,
             Input::Qd | Input::Qdd | Input::Tau => dims.nv,
         }
     }

@@ -1,7 +1,7 @@
 //! The kernels grid-gen generates: each [`KernelKind`] owns its name, inputs, output
 //! shapes and documentation, so that no other file matches on kernel names.
 
-use super::dynamics::{transpose, Dynamics, Mat};
+use super::dynamics::{transpose, Dynamics, Mat, Scalar};
 use super::graph::{Id, Input};
 
 /// A robot's sizes, which the kernels' inputs and outputs are measured in.
@@ -439,7 +439,8 @@ impl KernelKind {
     }
 
     /// The inputs of the kernel of a model so specialised: [`Self::inputs`], then `fext`
-    /// and `lambda` when the model declares them and the kernel takes forces.
+    /// and `lambda` when the model declares them and the kernel takes forces, then a step
+    /// kernel's `dt` when the scene leaves it to run time.
     pub fn inputs_for(self, spec: &crate::model::Specialisation) -> Vec<Input> {
         let mut inputs = self.inputs().to_vec();
         if self.takes_forces() {
@@ -448,15 +449,27 @@ impl KernelKind {
                 (!spec.contacts.is_empty() && !self.solves_contacts()).then_some(Input::Lambda),
             );
         }
+        if self.is_step() && spec.step.is_some_and(|s| s.runtime_dt()) {
+            inputs.push(Input::Dt);
+        }
         inputs
     }
 
     /// Entries per state of WGSL's `u` buffer, which packs every input after q and q̇:
-    /// the first (q̈, τ or the actuated τ), then the forces the kernel takes. `forces` is
-    /// the model's force entries (6 per fext body, then λ's), `lambda` λ's alone.
-    pub fn u_len(self, nv: usize, nu: usize, forces: usize, lambda: usize) -> usize {
+    /// the first (q̈, τ or the actuated τ), then the forces the kernel takes, then a step
+    /// kernel's run-time `dt`. `forces` is the model's force entries (6 per fext body, then
+    /// λ's), `lambda` λ's alone, `runtime_dt` whether the step kernels take `dt`.
+    pub fn u_len(
+        self,
+        nv: usize,
+        nu: usize,
+        forces: usize,
+        lambda: usize,
+        runtime_dt: bool,
+    ) -> usize {
         let first = if self.is_step() { nu } else { nv };
-        match (self.takes_forces(), self.solves_contacts()) {
+        let dt = usize::from(self.is_step() && runtime_dt);
+        dt + match (self.takes_forces(), self.solves_contacts()) {
             (false, _) => first,
             (true, false) => first + forces,
             (true, true) => first + forces.saturating_sub(lambda),
@@ -627,11 +640,15 @@ impl KernelKind {
             KernelKind::Step | KernelKind::StepGrad => {
                 let step = d.step_spec();
                 let (qd, tau) = (d.inputs(Qd), d.actuated_inputs());
+                let dt = match step.dt {
+                    Some(dt) => Scalar::Const(dt),
+                    None => Scalar::node(d.g.input(Dt, 0)),
+                };
                 if self == KernelKind::Step {
-                    let (q, v) = d.step(&qd, &tau, step.scheme, step.dt);
+                    let (q, v) = d.step(&qd, &tau, step.scheme, dt);
                     vec![q, v]
                 } else {
-                    let (q, v, a, b) = d.step_grad(&qd, &tau, step.scheme, step.dt);
+                    let (q, v, a, b) = d.step_grad(&qd, &tau, step.scheme, dt);
                     vec![q, v, a, b]
                 }
             }

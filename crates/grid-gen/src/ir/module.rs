@@ -428,15 +428,19 @@ impl Function {
     }
 
     /// Where input `which`'s entry `j` sits when the inputs after q and q̇ are packed into
-    /// one `u` per state (q̈ or τ, then `fext`, then λ), as the WGSL kernels read them.
+    /// one `u` per state (q̈, τ or the step's actuated τ, then `fext`, then λ, then the
+    /// step's run-time `dt`: the inputs' order), as the WGSL kernels read them.
     pub fn packed_u(&self, which: Input, j: usize) -> usize {
-        let d = &self.dims;
+        let before: usize = self
+            .inputs
+            .iter()
+            .take_while(|&&i| i != which)
+            .filter(|i| !matches!(i, Input::Q | Input::Qd))
+            .map(|i| i.len(&self.dims))
+            .sum();
         match which {
-            Input::Fext => d.nv + j,
-            Input::Lambda => {
-                d.nv + 6 * d.nfext * usize::from(self.inputs.contains(&Input::Fext)) + j
-            }
-            _ => j,
+            Input::Q | Input::Qd => j,
+            _ => before + j,
         }
     }
 
@@ -705,6 +709,9 @@ fn freeze(
     }
 }
 
+/// How the step kernels' docs name a folded time step, and a run-time one.
+const RUNTIME_DT: (&str, &str) = ("over `DT` seconds", "over `dt` seconds (an argument)");
+
 impl Function {
     /// The kernel's doc sentence, with how this graph gets q̈ and M⁻¹ where it has a solve,
     /// and, for a step under forces, what it holds.
@@ -713,6 +720,9 @@ impl Function {
             Some(solve) => format!("{} {}", self.kind.doc(), solve.doc()),
             None => self.kind.doc().to_string(),
         };
+        if self.inputs.contains(&Input::Dt) {
+            doc = doc.replace(RUNTIME_DT.0, RUNTIME_DT.1);
+        }
         if self.kind.is_step() && self.dims.nfext > 0 {
             doc.push_str(" `fext` is held over the step (in the bodies' frames).");
         }
@@ -724,6 +734,14 @@ impl Function {
 
     pub fn inputs(&self) -> &[Input] {
         &self.inputs
+    }
+
+    /// The kernel's line in an API summary ([`KernelKind::summary`], with a run-time dt).
+    pub fn summary(&self) -> String {
+        match self.inputs.contains(&Input::Dt) {
+            true => self.kind.summary().replace(RUNTIME_DT.0, RUNTIME_DT.1),
+            false => self.kind.summary().to_string(),
+        }
     }
 
     pub fn op(&self, id: Id) -> Op {

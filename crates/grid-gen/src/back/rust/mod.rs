@@ -26,7 +26,7 @@ fn api_doc<'a>(kernels: impl Iterator<Item = &'a Function>) -> String {
          time (`GRAVITY`).\n\n",
     );
     for k in kernels {
-        let _ = writeln!(s, "- `{}`: {}", k.signature(), k.kind.summary());
+        let _ = writeln!(s, "- `{}`: {}", k.signature(), k.summary());
     }
     s
 }
@@ -739,6 +739,7 @@ pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
         crate::ir::Input::TauActuated => "NU",
         crate::ir::Input::Fext => "6 * NFEXT",
         crate::ir::Input::Lambda => "NLAMBDA",
+        crate::ir::Input::Dt => "1",
         _ => "NV",
     }
 }
@@ -1142,11 +1143,15 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
             "/// Entries of the step kernels' `tau`: the actuated joints.\n#[allow(dead_code)]\npub const NU: usize = {};\n\
              /// The actuated joints, in the order of the step kernels' `tau` and B's columns.\n#[allow(dead_code)]\npub const ACTUATED: [&str; NU] = [{}];\n\
              /// Rows and columns of the step's A: the state's tangent `[dq; dqd]`.\n#[allow(dead_code)]\npub const NX: usize = 2 * NV;\n\
-             /// The step kernels' time step, s, fixed at generation time.\n#[allow(dead_code)]\npub const DT: f64 = {};\n\
+             {}\
              /// The step kernels' integration scheme (Crocoddyl's integrated action models).\n#[allow(dead_code)]\npub const STEP_SCHEME: &str = {};",
             actuated.len(),
             actuated.join(", "),
-            literal(step.dt),
+            match step.dt {
+                Some(dt) => format!("/// The step kernels' time step, s, fixed at generation time.\n#[allow(dead_code)]\npub const DT: f64 = {};\n", literal(dt)),
+                // No DT: a caller who reads it learns at compile time that the module has none.
+                None => "/// The step kernels take their time step, s, at run time: their last argument `dt`, one value per state.\n".to_string(),
+            },
             string_literal(step.scheme.name())
         );
     }

@@ -159,7 +159,12 @@ pub(super) fn emit(
                 let tag = match which {
                     Input::Q => Q,
                     Input::Qd => QD,
-                    Input::Qdd | Input::Tau | Input::TauActuated | Input::Fext | Input::Lambda => U,
+                    Input::Qdd
+                    | Input::Tau
+                    | Input::TauActuated
+                    | Input::Fext
+                    | Input::Lambda
+                    | Input::Dt => U,
                 };
                 address(tag, f.packed_u(which, j as usize), robot)
             }

@@ -301,7 +301,9 @@ fn input_buffer(input: Input) -> &'static str {
     match input {
         Input::Q => "q",
         Input::Qd => "qd",
-        Input::Qdd | Input::Tau | Input::TauActuated | Input::Fext | Input::Lambda => "u",
+        Input::Qdd | Input::Tau | Input::TauActuated | Input::Fext | Input::Lambda | Input::Dt => {
+            "u"
+        }
     }
 }
 
@@ -531,7 +533,7 @@ pub fn emit_with_stats(
     }
     let _ = writeln!(
         out,
-        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}{}// precision: {}\n// trig: {}",
+        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}{}{}// precision: {}\n// trig: {}",
         if robot.nq() != robot.nv() { format!("// nq: {}\n", robot.nq()) } else { String::new() },
         // The step kernels' `u` is the actuated joints' τ.
         if robot.specialisation.step.is_some() { format!("// nu: {}\n", robot.nu()) } else { String::new() },
@@ -544,6 +546,11 @@ pub fn emit_with_stats(
         match robot.nlambda() {
             0 => String::new(),
             n => format!("// lambda: {n}\n"),
+        },
+        // The step kernels read a run-time dt last in `u`.
+        match robot.specialisation.step.is_some_and(|s| s.runtime_dt()) {
+            true => "// dt: input\n",
+            false => "",
         },
         options.precision.name(),
         options.trig.name()

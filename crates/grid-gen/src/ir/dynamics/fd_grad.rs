@@ -5,7 +5,7 @@
 use super::super::graph::{Graph, Id, Stage};
 use super::super::kernel::Solve;
 use super::super::module::{ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Operand};
-use super::{strict_ancestors, Dynamics, Mat, Rnea};
+use super::{strict_ancestors, Dynamics, Mat, Rnea, Scalar};
 use crate::model::Model;
 
 impl Dynamics<'_> {
@@ -24,7 +24,7 @@ impl Dynamics<'_> {
         columns: &[usize],
         rhs: &[Vec<Id>],
     ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
-        self.fd_grad_scaled(qd, tau, columns, rhs, 1.0)
+        self.fd_grad_scaled(qd, tau, columns, rhs, Scalar::ONE)
     }
 
     /// [`Self::fd_grad`] with `∂q̈/∂u` and the columns of M⁻¹ multiplied by `s` (a step's
@@ -36,7 +36,7 @@ impl Dynamics<'_> {
         tau: &[Id],
         columns: &[usize],
         rhs: &[Vec<Id>],
-        s: f64,
+        s: Scalar,
     ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
         if matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled() {
             return self.fd_grad_ltdl(qd, tau, columns, rhs, s);
@@ -70,7 +70,7 @@ impl Dynamics<'_> {
         let mut dqd = product(&dc_qd, &mut self.g);
         let (known_q, known_qd) = match self.coupled() {
             true => (Vec::new(), Vec::new()),
-            false => self.free_flyer_columns(&r, &qd, 1.0),
+            false => self.free_flyer_columns(&r, &qd, Scalar::ONE),
         };
         for (m, known) in [(&mut dq, &known_q), (&mut dqd, &known_qd)] {
             for (c, col) in known.iter().enumerate() {
@@ -92,10 +92,10 @@ impl Dynamics<'_> {
         });
         let mut picked: Mat =
             mi.iter().map(|row| columns.iter().map(|&c| row[c]).collect()).collect();
-        if s != 1.0 {
+        if !s.is_one() {
             // The product loop would write the unscaled entries.
             self.product = None;
-            let h = super::super::spatial::k(&mut self.g, s);
+            let h = s.id(&mut self.g);
             for x in dq.iter_mut().chain(&mut dqd).chain(&mut picked).flatten() {
                 *x = self.g.mul(h, *x);
             }
@@ -128,7 +128,7 @@ impl Dynamics<'_> {
         tau: &[Id],
         columns: &[usize],
         rhs: &[Vec<Id>],
-        s: f64,
+        s: Scalar,
     ) -> (Vec<Id>, Mat, Mat, Mat, Mat) {
         let n = self.n();
         let zero = self.g.constant(0.0);
@@ -177,7 +177,7 @@ impl Dynamics<'_> {
         let dq = solve(&dc_q, &known_q);
         let dqd = solve(&dc_qd, &known_qd);
         let straight = self.g.nodes.len() - before;
-        if s == 1.0 && straight >= PROGRAM_MIN_OPS {
+        if s.is_one() && straight >= PROGRAM_MIN_OPS {
             let blocks = [(&dc_q, &known_q, 1), (&dc_qd, &known_qd, 2)]
                 .map(|(dc, known, output)| solve_block(&fs, self.model, dc, known, output));
             let looped: usize = blocks.iter().map(|b| 2 * b.steps.len() * b.columns()).sum();
@@ -247,8 +247,8 @@ pub(super) struct Ltdl {
 
 impl Ltdl {
     /// The factorisation whose solves give `−s M⁻¹ b`: −D⁻¹ multiplied by `s`.
-    pub(super) fn scaled(&self, g: &mut Graph, s: f64) -> Ltdl {
-        let h = super::super::spatial::k(g, s);
+    pub(super) fn scaled(&self, g: &mut Graph, s: Scalar) -> Ltdl {
+        let h = s.id(g);
         Ltdl { l: self.l.clone(), neg_dinv: self.neg_dinv.iter().map(|&d| g.mul(h, d)).collect() }
     }
 
@@ -357,14 +357,20 @@ impl Dynamics<'_> {
     /// These are the columns Pinocchio's `computeABADerivatives` returns there; the tests
     /// compare them with it through the reference.
     /// Multiplied by `s`, as [`Dynamics::fd_grad_scaled`]'s.
-    fn free_flyer_columns(&mut self, r: &Rnea, qd: &[Id], s: f64) -> (KnownColumns, KnownColumns) {
+    fn free_flyer_columns(
+        &mut self,
+        r: &Rnea,
+        qd: &[Id],
+        s: Scalar,
+    ) -> (KnownColumns, KnownColumns) {
         let n = self.n();
         let (mut dq, mut dqd) = (vec![None; n], vec![None; n]);
         if !self.model.floating || self.config.is_some() {
             return (dq, dqd);
         }
         let g = &mut self.g;
-        let (zero, h) = (g.constant(0.0), super::super::spatial::k(g, s));
+        let zero = g.constant(0.0);
+        let h = s.id(g);
         // Column c of −[x]×: −(x × e_c) = e_c × x, −x_b at row a and x_a at row b (a, b the
         // axes after c).
         let neg_skew_col = |g: &mut Graph, x: [Id; 3], c: usize| -> Vec<Id> {

@@ -17,7 +17,7 @@
 
 use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::spatial::{self as sp, joint_xform_at, k, V3};
-use super::{Dynamics, LambdaSource, Mat};
+use super::{Dynamics, LambdaSource, Mat, Scalar};
 use crate::model::{LieBlock, Scheme};
 
 /// Double-angle steps of the exponentials' scaling and squaring.
@@ -168,7 +168,7 @@ fn turn(g: &mut Graph, q: [Id; 4], w: &V3) -> ([Id; 4], Id, Id, ExpNodes) {
 
 impl Dynamics<'_> {
     /// The model's step (the step kernels exist only for a model with one).
-    pub fn step_spec(&self) -> crate::model::Step {
+    pub fn step_spec(&self) -> crate::model::StepSpec {
         self.model
             .specialisation
             .step
@@ -349,7 +349,7 @@ impl Dynamics<'_> {
         qd: &[Id],
         tau: &[Id],
         tau_cols: &[usize],
-        s: f64,
+        s: Scalar,
     ) -> (Vec<Id>, Mat, Mat, Mat) {
         if self.declares_contacts() {
             let mut out = self.contact_fd_grad(qd, tau, tau_cols).into_iter();
@@ -381,7 +381,7 @@ impl Dynamics<'_> {
         &mut self,
         qd: &[Id],
         tau: &[Id],
-        dt: f64,
+        dt: Scalar,
         grad: bool,
     ) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
         let nv = self.model.nv();
@@ -406,15 +406,15 @@ impl Dynamics<'_> {
                 let q: Vec<Id> = (0..self.model.nq()).map(|j| self.g.input(Input::Q, j)).collect();
                 (q, qd.to_vec(), identity(nx), vec![vec![zero; nu]; nx])
             } else {
-                let h = k(&mut self.g, c * dt);
+                let h = dt.times(c).id(&mut self.g);
                 let d: Vec<Id> = k_prev.iter().map(|&x| self.g.mul(h, x)).collect();
                 let (y_q, y_v, exps) = self.state_integrate(qd, &d);
                 if grad {
                     let (jq, jv) = self.d_integrate(&exps);
                     let (jx, jdx) = (state_block(&jq, one, zero), state_block(&jv, one, zero));
-                    let t = self.scaled_product(&jdx, &dk_dx, c * dt);
+                    let t = self.scaled_product(&jdx, &dk_dx, dt.times(c));
                     let dy_dx = self.add_mat(&jx, &t);
-                    let dy_du = self.scaled_product(&jdx, &dk_du, c * dt);
+                    let dy_du = self.scaled_product(&jdx, &dk_du, dt.times(c));
                     (y_q, y_v, dy_dx, dy_du)
                 } else {
                     (y_q, y_v, Vec::new(), Vec::new())
@@ -422,8 +422,9 @@ impl Dynamics<'_> {
             };
             let qdd;
             if grad {
-                let (a, da_dq, da_dv, minv_s) =
-                    self.at_config(&y_q, |d| d.step_acceleration_grad(&y_v, tau, &actuated, 1.0));
+                let (a, da_dq, da_dv, minv_s) = self.at_config(&y_q, |d| {
+                    d.step_acceleration_grad(&y_v, tau, &actuated, Scalar::ONE)
+                });
                 // ∂k/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
                 let df: Mat = (0..nx)
                     .map(|r| {
@@ -444,14 +445,14 @@ impl Dynamics<'_> {
                             .collect()
                     })
                     .collect();
-                dk_dx = self.scaled_product(&df, &dy_dx, 1.0);
-                dk_du = self.scaled_product(&df, &dy_du, 1.0);
+                dk_dx = self.scaled_product(&df, &dy_dx, Scalar::ONE);
+                dk_du = self.scaled_product(&df, &dy_du, Scalar::ONE);
                 for r in 0..nv {
                     for c in 0..nu {
                         dk_du[nv + r][c] = self.g.add(dk_du[nv + r][c], minv_s[r][c]);
                     }
                 }
-                let w = weight * dt / 6.0;
+                let w = dt.times(weight).over(6.0);
                 let t = self.scaled(&dk_dx, w);
                 dx_dx = self.add_mat(&dx_dx, &t);
                 let t = self.scaled(&dk_du, w);
@@ -461,7 +462,7 @@ impl Dynamics<'_> {
                 qdd = self.at_config(&y_q, |d| d.step_acceleration(&y_v, tau));
             }
             k_prev = y_v.iter().chain(&qdd).copied().collect();
-            let w = k(&mut self.g, weight * dt / 6.0);
+            let w = dt.times(weight).over(6.0).id(&mut self.g);
             for (d, &kk) in dx.iter_mut().zip(&k_prev) {
                 let t = self.g.mul(w, kk);
                 *d = self.g.add(*d, t);
@@ -475,16 +476,16 @@ impl Dynamics<'_> {
         }
         let (jq, jv) = self.d_integrate(&exps);
         let (jx, jdx) = (state_block(&jq, one, zero), state_block(&jv, one, zero));
-        let t = self.scaled_product(&jdx, &dx_dx, 1.0);
+        let t = self.scaled_product(&jdx, &dx_dx, Scalar::ONE);
         let a = self.add_mat(&jx, &t);
-        let b = self.scaled_product(&jdx, &dx_du, 1.0);
+        let b = self.scaled_product(&jdx, &dx_du, Scalar::ONE);
         (q_next, qd_next, a.into_iter().flatten().collect(), b.into_iter().flatten().collect())
     }
 
     /// `s · x y` (zeros fold away).
-    fn scaled_product(&mut self, x: &Mat, y: &Mat, s: f64) -> Mat {
+    fn scaled_product(&mut self, x: &Mat, y: &Mat, s: Scalar) -> Mat {
         let cols = y.first().map_or(0, Vec::len);
-        let h = k(&mut self.g, s);
+        let h = s.id(&mut self.g);
         (0..x.len())
             .map(|i| {
                 (0..cols)
@@ -498,8 +499,8 @@ impl Dynamics<'_> {
             .collect()
     }
 
-    fn scaled(&mut self, x: &Mat, s: f64) -> Mat {
-        let h = k(&mut self.g, s);
+    fn scaled(&mut self, x: &Mat, s: Scalar) -> Mat {
+        let h = s.id(&mut self.g);
         x.iter().map(|row| row.iter().map(|&v| self.g.mul(h, v)).collect()).collect()
     }
 
@@ -511,7 +512,13 @@ impl Dynamics<'_> {
     }
 
     /// `x⁺ = (q⁺, q̇⁺)` for one step of `scheme` under the actuated forces `tau`.
-    pub fn step(&mut self, qd: &[Id], tau: &[Id], scheme: Scheme, dt: f64) -> (Vec<Id>, Vec<Id>) {
+    pub fn step(
+        &mut self,
+        qd: &[Id],
+        tau: &[Id],
+        scheme: Scheme,
+        dt: Scalar,
+    ) -> (Vec<Id>, Vec<Id>) {
         let tau = self.actuate(tau);
         if scheme == Scheme::Rk4 {
             let (q, v, _, _) = self.rk4(qd, &tau, dt, false);
@@ -524,9 +531,9 @@ impl Dynamics<'_> {
     }
 
     /// `q̇⁺ = q̇ + dt q̈` and the tangent that moves q: `dt q̇⁺` (semi-implicit) or `dt q̇`.
-    fn euler(&mut self, qd: &[Id], qdd: &[Id], scheme: Scheme, dt: f64) -> (Vec<Id>, Vec<Id>) {
+    fn euler(&mut self, qd: &[Id], qdd: &[Id], scheme: Scheme, dt: Scalar) -> (Vec<Id>, Vec<Id>) {
         let g = &mut self.g;
-        let h = k(g, dt);
+        let h = dt.id(g);
         let qd_next: Vec<Id> = qd
             .iter()
             .zip(qdd)
@@ -549,7 +556,7 @@ impl Dynamics<'_> {
         qd: &[Id],
         tau: &[Id],
         scheme: Scheme,
-        dt: f64,
+        dt: Scalar,
     ) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
         let nv = self.model.nv();
         let actuated = self.model.actuated();
