@@ -60,6 +60,25 @@ class Kernel:
     def __repr__(self) -> str:
         return f"<grid_gen kernel {self.name} of {self._robot.name}>"
 
+    def _time_steps(self, a: Array, batch: Optional[int]) -> Array:
+        """A step's run-time `dt` as the kernel reads it, (1,) or (B, 1): from a scalar (every
+        state's), a (B,) array (one per state) or (1,) for one state; each finite and
+        positive."""
+        name = self.name
+        if a.dtype.kind not in "fiu":
+            raise ValueError(f"{name}: `dt` has dtype {a.dtype}; expected seconds as real numbers")
+        if a.ndim == 0:
+            a = np.full((1,) if batch is None else (batch, 1), a, dtype=np.float64)
+        elif a.ndim == 1 and batch is not None and a.shape[0] == batch:
+            a = a.reshape(batch, 1)
+        elif not (a.ndim == 1 and batch is None and a.shape == (1,)) and not (a.ndim == 2 and batch is not None and a.shape == (batch, 1)):
+            want = "a scalar or (1,) for one state" if batch is None else f"a scalar or ({batch},), one per state"
+            raise ValueError(f"{name}: `dt` has shape {a.shape}; expected {want}")
+        bad = np.argwhere(~(np.isfinite(a) & (a > 0)))
+        if len(bad):
+            raise ValueError(f"{name}: `dt` is {a.ravel()[bad[0][0]]!r} at state {int(bad[0][0])}; a time step is a finite, positive number of seconds")
+        return a
+
     def __call__(self, *args: Any, out: Union[None, Array, Sequence[Array]] = None, **kwargs: Any):
         name = self.name
         if out is None and not kwargs:
@@ -86,6 +105,10 @@ class Kernel:
         for arg, length in self.inputs:
             if arg not in values:
                 raise TypeError(f"{name}() is missing its argument {arg!r}")
+            if arg == "dt":
+                # A run-time time step, one per state: a scalar, or (B,); placed below.
+                arrays.append(np.asarray(values[arg]))
+                continue
             a = np.asarray(values[arg])
             if a.dtype.kind not in "fiu":
                 raise ValueError(f"{name}: `{arg}` has dtype {a.dtype}; expected real numbers (float64 or float32)")
@@ -99,6 +122,9 @@ class Kernel:
                 raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected {want}")
             arrays.append(a)
         n = 1 if batch is None else batch
+        if "dt" in values:
+            at = [a for a, _ in self.inputs].index("dt")
+            arrays[at] = self._time_steps(arrays[at], batch)
         # The inputs, copied into one buffer in the kernel's scalar, input after input (the
         # C ABI's layout): one finiteness check and one pointer instead of one per input,
         # which is most of a small call's cost.

@@ -381,6 +381,36 @@ def test_every_kind_of_kernel_through_a_scene(tmp_path, iiwa):
     assert rel(qd_next, qd + 0.01 * a) < 1e-12 and rel(q_next, q + 0.01 * (qd + 0.01 * a)) < 1e-12
 
 
+def test_a_step_without_dt_takes_it_per_state(tmp_path):
+    """A scene's [step] without dt: step and step_grad take `dt` last, a scalar for every
+    state or one per state, and give the semi-implicit Euler step of fd (and of fd_grad for
+    A) at each state's dt; a bad dt is a ValueError that names it."""
+    scene = tmp_path / "iiwa_runtime_dt.toml"
+    scene.write_text('outputs = ["fd", "fd_grad", "step", "step_grad"]\n\n[step]\nscheme = "semi_implicit_euler"\n')
+    robot = grid_gen.load(IIWA, scene=scene)
+    assert [name for name, _ in robot.step.inputs] == ["q", "qd", "tau", "dt"]
+    n, nv = 5, robot.nv
+    q, qd, tau = random_states(robot, n, seed=12)
+    dt = np.array([1e-3, 2e-3, 5e-3, 1e-2, 3e-2])
+    a, da_dq, da_dqd = robot.fd_grad(q, qd, tau)
+    for given in (dt, 0.01, dt[:, None]):
+        h = np.broadcast_to(np.asarray(given).reshape(-1, 1), (n, 1))
+        q_next, qd_next = robot.step(q, qd, tau, dt=given)
+        # f64 round-off of a multiply and an add on each entry.
+        assert rel(qd_next, qd + h * a) < 1e-13 and rel(q_next, q + h * (qd + h * a)) < 1e-13
+        g_q, g_v, big_a, big_b = robot.step_grad(q, qd, tau, given)
+        # step_grad's q̈ may come by another solve than step's (its doc says which).
+        assert rel(g_q, q_next) < 1e-13 and rel(g_v, qd_next) < 1e-13
+        # A's lower right block: d qd+ / d qd = I + dt d qdd / d qd.
+        want = np.eye(nv) + h[:, :, None] * da_dqd
+        assert rel(big_a[:, nv:, nv:], want) < 1e-13
+    one = robot.step(q[0], qd[0], tau[0], 0.02)
+    assert rel(one[1], qd[0] + 0.02 * a[0]) < 1e-13
+    for bad, says in ((-0.01, "finite, positive"), (dt[:3], r"one per state"), (np.array([0.01, np.nan, 0.01, 0.01, 0.01]), "at state 1")):
+        with pytest.raises(ValueError, match=f"`dt`.*{says}"):
+            robot.step(q, qd, tau, bad)
+
+
 def _jax():
     jax = pytest.importorskip("jax") if not os.environ.get("CI") else __import__("jax")
     jax.config.update("jax_enable_x64", True)

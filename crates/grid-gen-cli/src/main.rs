@@ -261,10 +261,13 @@ struct ModelArgs {
     reference_frame: Option<grid_gen::model::ReferenceFrame>,
     /// Generate the step kernels (`step`, `step_grad`) and have `eval` report each state's
     /// next state and [A | B] (semi_implicit_euler is Crocoddyl's default); replaces the
-    /// scene's `[step] scheme`. Needs a time step (--dt).
+    /// scene's `[step] scheme`. With --dt the time step is folded into the kernels; without
+    /// it (and no `[step] dt`) the step kernels take `dt` at run time, and `eval` reads each
+    /// state's `dt`.
     #[arg(long, value_name = "SCHEME", global = true, hide_possible_values = true)]
     step: Option<grid_gen::model::Scheme>,
-    /// The step's time step in seconds (folded into the kernels); replaces `[step] dt`.
+    /// The step's time step in seconds, folded into the kernels; replaces `[step] dt`. Left
+    /// out, the step kernels take it at run time.
     #[arg(long, value_name = "SECONDS", global = true)]
     dt: Option<f64>,
     /// The actuated joints, comma-separated: the step's τ and B's columns (default every
@@ -315,6 +318,8 @@ impl ModelArgs {
             reference_frame: self.reference_frame,
             scheme: self.step,
             dt: self.dt,
+            // A scene's folded dt stays folded unless --dt replaces it.
+            runtime_dt: false,
             actuated: list(&self.actuated),
             fd_grad_minv: self.fd_grad_minv.then_some(true),
             fext: list(&self.fext),

@@ -1323,6 +1323,90 @@ fn eval_and_info_report_the_step() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `--step` without `--dt`: the step kernels take dt at run time. `eval` reads each state's
+/// `dt` and gives the folded step's values at it; a state without one, a bad one, or one
+/// that contradicts a folded dt is an error that says what to give; `info` and the module
+/// say dt is an input.
+#[test]
+fn a_step_without_dt_takes_it_at_run_time() {
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-dt-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";
+    let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
+    let tau = "[0,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]";
+    let write = |name: &str, states: &str| {
+        let path = dir.join(name);
+        std::fs::write(&path, format!(r#"{{"states": [{states}]}}"#)).unwrap();
+        path
+    };
+    let eval = |states: &std::path::Path, dt: Option<&str>| {
+        let mut args = vec!["eval", "tests/fixtures/go2.urdf", "--floating-base"];
+        args.extend(["--step", "semi_implicit_euler"]);
+        args.extend(dt.map(|d| ["--dt", d]).into_iter().flatten());
+        args.extend(["--states", states.to_str().unwrap()]);
+        grid_gen(&args)
+    };
+    let two = write(
+        "two.json",
+        &format!(
+            r#"{{"q": {q}, "qd": {qd}, "tau": {tau}, "dt": 0.02}}, {{"q": {q}, "qd": {qd}, "tau": {tau}, "dt": 0.005}}"#
+        ),
+    );
+    let runtime = eval(&two, None);
+    assert_eq!(runtime.status.code(), Some(0), "{}", String::from_utf8_lossy(&runtime.stderr));
+    let runtime = json(&runtime);
+    for (k, dt) in [(0, "0.02"), (1, "0.005")] {
+        let one = write(
+            "one.json",
+            &format!(
+                r#"{{"q": {q}, "qd": {qd}, "tau": {tau}}}, {{"q": {q}, "qd": {qd}, "tau": {tau}}}"#
+            ),
+        );
+        let folded = eval(&one, Some(dt));
+        assert_eq!(folded.status.code(), Some(0), "{}", String::from_utf8_lossy(&folded.stderr));
+        // The same reference at the same dt: the same numbers.
+        assert_eq!(runtime["states"][k]["step"], json(&folded)["states"][k]["step"], "dt {dt}");
+    }
+    assert_ne!(
+        runtime["states"][0]["step"]["q_next"], runtime["states"][1]["step"]["q_next"],
+        "each state steps by its own dt"
+    );
+    let errors = [
+        (
+            format!(r#"{{"q": {q}, "qd": {qd}, "tau": {tau}}}"#),
+            None,
+            "give `dt` (seconds) beside `tau`",
+        ),
+        (
+            format!(r#"{{"q": {q}, "qd": {qd}, "tau": {tau}, "dt": -1}}"#),
+            None,
+            "not a finite, positive",
+        ),
+        (
+            format!(r#"{{"q": {q}, "qd": {qd}, "tau": {tau}, "dt": 0.5}}"#),
+            Some("0.02"),
+            "is folded into the kernels",
+        ),
+    ];
+    for (state, dt, says) in errors {
+        let out = eval(&write("bad.json", &state), dt);
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("state 0") && err.contains(says), "{err}");
+        assert!(out.stdout.is_empty(), "nothing on stdout");
+    }
+    let info = json(&grid_gen(&["info", "robots/grid_iiwa.urdf", "--json", "--step", "rk4"]));
+    assert_eq!(info["step"], serde_json::json!({"scheme": "rk4", "dt": null}));
+    let text = grid_gen(&["info", "robots/grid_iiwa.urdf", "--step", "rk4"]);
+    assert!(String::from_utf8_lossy(&text.stdout).contains("dt given at run time"));
+    let out = dir.join("out");
+    let gen = grid_gen(&["robots/grid_iiwa.urdf", "--step", "rk4", "-o", out.to_str().unwrap()]);
+    assert_eq!(gen.status.code(), Some(0), "{}", String::from_utf8_lossy(&gen.stderr));
+    let module = std::fs::read_to_string(out.join("iiwa14.rs")).unwrap();
+    assert!(module.contains("dt: &[T; 1]") && !module.contains("pub const DT"));
+    std::fs::remove_dir_all(&dir).ok();
+}
+
 /// External and contact forces from the command line: `eval` with `fext` and
 /// `contacts` gives the reference's values under them, with the derivatives keyed by joint
 /// and frame; bad entries are errors naming the entry (nothing on stdout); `info` and the

@@ -1115,3 +1115,90 @@ fn forced_step_kernels_match_the_reference() {
         );
     }
 }
+
+/// Step kernels that take dt at run time, f64 cooperative entries, each state its own dt:
+/// floating HyQ's `step` with fext on its base (`u` packs the twelve actuated τ, fext, then
+/// dt: nu < nv, so fext and dt sit after nu entries, not nv) and iiwa's `step_grad`, against
+/// the reference at each state's dt and the IR.
+#[test]
+fn runtime_dt_step_kernels_match_the_reference() {
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(73);
+    let hyq = with_forces(&load_floating("grid_hyq"), &["root_joint"], &[]);
+    let cases = [
+        (
+            "grid_hyq floating",
+            with_runtime_step(&hyq, grid_gen::model::Scheme::SemiImplicitEuler),
+            KernelKind::Step,
+            1e-2,
+        ),
+        (
+            "grid_iiwa",
+            with_runtime_step(&load("grid_iiwa"), grid_gen::model::Scheme::Rk4),
+            KernelKind::StepGrad,
+            1e-4,
+        ),
+    ];
+    for (robot, model, kind, longest) in cases {
+        let options = WgslOptions {
+            precision: Precision::F64,
+            strategies: vec![Strategy::Cooperative],
+            ..WgslOptions::default()
+        };
+        let shader = gpu.load(&wgsl(&model, options)).unwrap();
+        assert!(shader.info.runtime_dt, "{robot}: the header says dt is an input");
+        let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
+        let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+        let f = lowered.function(kind).unwrap();
+        let (nv, nu, nf) = (model.nv(), model.nu(), 6 * model.nfext());
+        let states = states(&model, &mut rng);
+        let fext: Vec<Vec<f64>> = states.iter().map(|_| rng.vec(nf, -20.0, 20.0)).collect();
+        // A twentieth of the longest to the longest: HyQ's Euler step up to 10 ms, iiwa's
+        // RK4 up to 0.1 ms, where it stays within its stability at these states' speeds (as
+        // step_kernels_match_the_reference).
+        let dt: Vec<f64> =
+            (0..states.len()).map(|s| longest * (0.05 + 0.95 * (s % 7) as f64 / 6.0)).collect();
+        let flat =
+            |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+        let (q, qd) = (flat(0), flat(1));
+        let u: Vec<f64> = states
+            .iter()
+            .zip(&fext)
+            .zip(&dt)
+            .flat_map(|((s, f), dt)| {
+                s[2][..nu].iter().chain(f).chain([dt]).copied().collect::<Vec<_>>()
+            })
+            .collect();
+        let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry(kind.name())).unwrap();
+        assert_eq!(kernel.nu, nu + nf + 1, "{robot} {kind}: u holds τ, fext and dt");
+        assert_eq!(kernel.nu, f.packed_u_len(), "{robot} {kind}: u's width");
+        let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
+        let total = kernel.entry.outputs;
+        let mut worst: f64 = 0.0;
+        for (s, (([q, qd, u], fext), dt)) in states.iter().zip(&fext).zip(&dt).enumerate() {
+            let g = reference::DEFAULT_GRAVITY;
+            let want = reference_step_outputs(kind, &model, q, qd, &u[..nu], g, fext, *dt);
+            let ext = reference::External { fext, lambda: &[] };
+            let args = kernel_args_dt(f.inputs(), q, qd, &u[..nu], ext, std::slice::from_ref(dt));
+            let interpreted = f.eval(&args);
+            let mut base = s * total;
+            for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
+                let got = output_matrix(o.shape, nv, &got[base..base + o.ids.len()]);
+                let e = rel_err(&got, want);
+                // f64 kernels are held to F64_TOL, as everywhere.
+                assert!(e <= F64_TOL, "{robot} {kind}.{} state {s}: {e:.2e}", o.name);
+                assert!(
+                    rel_err(&got, &output_matrix(o.shape, nv, ir_vals)) <= F64_TOL,
+                    "{robot} {kind}.{} state {s}: from the IR",
+                    o.name
+                );
+                worst = worst.max(e);
+                base += o.ids.len();
+            }
+        }
+        eprintln!(
+            "{robot} {kind} with a run-time dt, f64: worst relative error {worst:.2e} over {} states",
+            states.len()
+        );
+    }
+}

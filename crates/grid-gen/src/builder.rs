@@ -176,6 +176,26 @@ impl Builder {
         self
     }
 
+    /// Generate the step kernels for this scheme with the time step left to run time: `step`
+    /// and `step_grad` take `dt` as their last argument, one value per state (replaces the
+    /// scene's `[step]`, its dt included).
+    ///
+    /// ```no_run
+    /// // build.rs
+    /// grid_gen::Builder::new()
+    ///     .urdf("robots/grid_hyq.urdf")
+    ///     .floating_base(true)
+    ///     .step_at_run_time(grid_gen::model::Scheme::SemiImplicitEuler)
+    ///     .compile()?;
+    /// # Ok::<(), grid_gen::BuildError>(())
+    /// ```
+    pub fn step_at_run_time(&mut self, scheme: crate::model::Scheme) -> &mut Self {
+        self.config.overrides.scheme = Some(scheme);
+        self.config.overrides.dt = None;
+        self.config.overrides.runtime_dt = true;
+        self
+    }
+
     /// The actuated joints, the step's τ and B's columns (replaces the scene's
     /// `[actuation] joints`; default every joint but a floating base).
     pub fn actuated<S: AsRef<str>>(&mut self, joints: &[S]) -> &mut Self {
@@ -381,6 +401,31 @@ mod tests {
                 && code.contains("q: &[T; NQ]")
                 && code.contains("qd: &[T; NV]")
         );
+        std::fs::remove_dir_all(&out).unwrap();
+    }
+
+    /// `step_at_run_time` leaves dt to the caller even over a scene that folds one; `step`
+    /// folds it.
+    #[test]
+    fn a_run_time_dt_reaches_the_generated_module() {
+        let root = concat!(env!("CARGO_MANIFEST_DIR"), "/../..");
+        let out = std::env::temp_dir().join(format!("grid-gen-builder-dt-{}", std::process::id()));
+        let compile = |runtime: bool| {
+            let mut b = crate::Builder::new();
+            b.urdf(format!("{root}/robots/grid_hyq.urdf"))
+                .scene(format!("{root}/examples/scenes/hyq_step_floating.toml"))
+                .out_dir(&out)
+                .quiet(true);
+            if runtime {
+                b.step_at_run_time(crate::model::Scheme::ExplicitEuler);
+            }
+            let written = b.compile().unwrap();
+            std::fs::read_to_string(&written[0]).unwrap()
+        };
+        let (folded, runtime) = (compile(false), compile(true));
+        assert!(folded.contains("pub const DT: f64 = 0.01;"), "the scene's dt folds");
+        assert!(!runtime.contains("pub const DT") && runtime.contains("dt: &[T; 1]"));
+        assert!(runtime.contains("pub const STEP_SCHEME: &str = \"explicit_euler\";"));
         std::fs::remove_dir_all(&out).unwrap();
     }
 

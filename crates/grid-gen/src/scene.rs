@@ -289,6 +289,8 @@ pub struct SceneOverrides {
     pub reference_frame: Option<ReferenceFrame>,
     pub scheme: Option<crate::model::Scheme>,
     pub dt: Option<f64>,
+    /// Leave the step's dt to run time even where the scene folds one.
+    pub runtime_dt: bool,
     pub actuated: Option<Vec<String>>,
     pub fd_grad_minv: Option<bool>,
     pub fext: Option<Vec<String>>,
@@ -363,7 +365,7 @@ impl Scene {
         if o.scheme.is_some() || o.dt.is_some() {
             let step = self.step.get_or_insert_with(Default::default);
             step.scheme = o.scheme.or(step.scheme);
-            step.dt = o.dt.or(step.dt);
+            step.dt = if o.runtime_dt { None } else { o.dt.or(step.dt) };
         }
         if let Some(joints) = o.actuated {
             self.actuation = Some(ActuationSection { joints });
