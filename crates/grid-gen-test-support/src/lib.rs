@@ -499,6 +499,21 @@ pub fn kernel_args_dt<'a>(
     ext: reference::External<'a>,
     dt: &'a [f64],
 ) -> Vec<&'a [f64]> {
+    assert!(!inputs.contains(&Input::Active), "a masked kernel: use kernel_args_masked");
+    kernel_args_masked(inputs, q, qd, u, ext, dt, &[])
+}
+
+/// [`kernel_args_dt`] for a kernel that may also take a contact mask (`active`, one 0 or
+/// 1 per contact).
+pub fn kernel_args_masked<'a>(
+    inputs: &[Input],
+    q: &'a [f64],
+    qd: &'a [f64],
+    u: &'a [f64],
+    ext: reference::External<'a>,
+    dt: &'a [f64],
+    active: &'a [f64],
+) -> Vec<&'a [f64]> {
     inputs
         .iter()
         .map(|i| match i {
@@ -508,6 +523,66 @@ pub fn kernel_args_dt<'a>(
             Input::Fext => ext.fext,
             Input::Lambda => ext.lambda,
             Input::Dt => dt,
+            Input::Active => active,
+        })
+        .collect()
+}
+
+/// The model holding just the contacts `active` marks (masked or not, the subset is a
+/// model of its own, as Pinocchio holding just those contacts).
+pub fn with_active_contacts(m: &Model, active: &[bool]) -> Model {
+    let mut held = m.clone();
+    let spec = &mut held.specialisation;
+    spec.contacts = spec.contacts.iter().zip(active).filter(|(_, &a)| a).map(|(c, _)| *c).collect();
+    spec.contact_mask = false;
+    held
+}
+
+/// The reference's values of a contact or step kernel of a masked model `m` at the mask
+/// `active`: those of the model holding just the active contacts, with λ's rows of the
+/// inactive ones 0 (in the kernel's output order and λ's full layout).
+#[allow(clippy::too_many_arguments)]
+pub fn reference_masked_outputs(
+    kind: KernelKind,
+    m: &Model,
+    q: &[f64],
+    qd: &[f64],
+    u: &[f64],
+    g: [f64; 3],
+    fext: &[f64],
+    dt: f64,
+    active: &[bool],
+) -> Vec<DMatrix<f64>> {
+    let held = with_active_contacts(m, active);
+    if kind.is_step() {
+        return reference_step_outputs(kind, &held, q, qd, u, g, fext, dt);
+    }
+    let ext = reference::External { fext, lambda: &[] };
+    let got = reference_outputs_with(kind, &held, q, qd, u, g, ext);
+    // λ's rows: the active contacts' in order, zeros for the others.
+    let rows: Vec<Option<usize>> = {
+        let mut at = 0;
+        m.specialisation
+            .contacts
+            .iter()
+            .zip(active)
+            .flat_map(|(c, &a)| {
+                let start = at;
+                if a {
+                    at += c.kind.dim();
+                }
+                (0..c.kind.dim()).map(move |k| a.then_some(start + k))
+            })
+            .collect()
+    };
+    let outputs = kind.outputs_for(&m.specialisation);
+    got.into_iter()
+        .zip(&outputs)
+        .map(|(x, o)| match o.shape {
+            Shape::Lambda | Shape::LambdaBy => {
+                DMatrix::from_fn(rows.len(), x.ncols(), |r, c| rows[r].map_or(0.0, |r| x[(r, c)]))
+            }
+            _ => x,
         })
         .collect()
 }

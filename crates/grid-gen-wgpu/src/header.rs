@@ -16,6 +16,9 @@ pub struct ShaderInfo {
     /// Of those, the contact forces λ (`// lambda:`, else 0): the contact kernels solve
     /// for them, so their `u` holds τ and fext only.
     pub lambda: usize,
+    /// Entries of the contact mask that the contact kernels and the step read in `u`
+    /// (`// active:`, else 0).
+    pub active: usize,
     /// Whether the step kernels read their time step as the last entry of each state's `u`
     /// (`// dt: input`).
     pub runtime_dt: bool,
@@ -43,6 +46,7 @@ impl ShaderInfo {
         let mut forces = 0;
         let mut lambda = 0;
         let mut runtime_dt = false;
+        let mut active = 0;
         let mut precision = None;
         let mut entries = Vec::new();
         let mut tables = None;
@@ -59,6 +63,8 @@ impl ShaderInfo {
                 forces = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// lambda: ") {
                 lambda = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
+            } else if let Some(v) = line.strip_prefix("// active: ") {
+                active = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// dt: ") {
                 if v.trim() != "input" {
                     return Err(bad("expected `input`"));
@@ -96,6 +102,7 @@ impl ShaderInfo {
             nu: nu.unwrap_or(nv),
             forces,
             lambda,
+            active,
             runtime_dt,
             precision,
             entries,

@@ -412,6 +412,10 @@ pub struct Specialisation {
     /// The contacts whose forces λ the dynamics kernels take (their `lambda` input), in the
     /// order declared. Empty: no `lambda` input.
     pub contacts: Vec<Contact>,
+    /// The contacts are candidates chosen per state: the kernels that solve for their forces
+    /// take `active` (one 0 or 1 per contact); an inactive contact has λ = 0 and no
+    /// constraint row, so one library serves every contact mode of a gait.
+    pub contact_mask: bool,
 }
 
 /// A contact at a frame: the force λ the environment applies there, in

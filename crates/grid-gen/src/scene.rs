@@ -111,6 +111,11 @@ pub struct Scene {
     /// Contacts at frames (the dynamics kernels' `lambda`), in the order declared.
     #[serde(default)]
     pub contact: Vec<ContactEntry>,
+    /// The contacts are candidates: the kernels that solve for their forces (`contact_fd`,
+    /// `contact_fd_grad`, `step`, `step_grad`) take `active`, one 0 or 1 per contact and
+    /// state, and an inactive contact has λ = 0 and no constraint (as `--contact-mask`).
+    #[serde(default)]
+    pub contact_mask: bool,
     /// Read every `<origin rpy>` angle within this many radians of a multiple of π/2 as
     /// that multiple (`urdf::round_angles`; at most `urdf::MAX_ROUND_ANGLES`). Off by
     /// default: the URDF's numbers are taken as written, as Pinocchio takes them.
@@ -297,6 +302,7 @@ pub struct SceneOverrides {
     pub fext_derivatives: Option<bool>,
     pub contacts: Option<Vec<ContactEntry>>,
     pub round_angles: Option<f64>,
+    pub contact_mask: Option<bool>,
 }
 
 /// `round_angles` must round off digits, not change the robot.
@@ -378,6 +384,7 @@ impl Scene {
         if let Some(contacts) = o.contacts {
             self.contact = contacts;
         }
+        self.contact_mask = o.contact_mask.unwrap_or(self.contact_mask);
         self.round_angles = o.round_angles.or(self.round_angles);
     }
 
@@ -608,6 +615,21 @@ pub(crate) fn specialise(
         scene.actuation.as_ref().map(|a| select_actuated(&a.joints, scene_path, model, diags));
     let fext = select_fext(&scene.external_forces.joints, scene_path, model, diags);
     let contacts = select_contacts(scene, scene_path, urdf, model, diags);
+    if scene.contact_mask && contacts.is_empty() {
+        let whence = if scene_path.is_empty() {
+            "--contact-mask".to_string()
+        } else {
+            format!("scene `{scene_path}`: contact_mask")
+        };
+        diags.push(
+            Diagnostic::error(
+                format!("{whence} without contacts: there is nothing to mask"),
+                None,
+                "no contacts",
+            )
+            .with_help("declare the candidate contacts with [[contact]] or --contact FRAME:point"),
+        );
+    }
     Specialisation {
         static_velocity: scene.static_velocity,
         rows,
@@ -620,6 +642,7 @@ pub(crate) fn specialise(
         fext,
         no_fext_derivatives: !scene.external_forces.derivatives.unwrap_or(true),
         contacts,
+        contact_mask: scene.contact_mask,
     }
 }
 

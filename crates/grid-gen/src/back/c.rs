@@ -389,6 +389,9 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
             frames.len(),
             frames.join(", ")
         );
+        if dims.ncontacts > 0 {
+            let _ = writeln!(h, "/* The contact kernels and the step take active: {mac}_NCONTACTS values per state, 1 where a contact holds, 0 where it does not. */");
+        }
     }
     let _ = writeln!(
         h,

@@ -25,6 +25,10 @@ pub enum Input {
     Fext,
     /// Contact forces, 3 or 6 per contact of [`crate::model::Specialisation::contacts`].
     Lambda,
+    /// Which candidate contacts hold, one 0 or 1 per contact of
+    /// [`crate::model::Specialisation::contacts`], when the scene masks them
+    /// ([`crate::model::Specialisation::contact_mask`]).
+    Active,
     /// The step kernels' time step, one value, when the scene leaves it to run time
     /// ([`crate::model::StepSpec::dt`]).
     Dt,
@@ -39,6 +43,7 @@ impl Input {
             Input::Tau | Input::TauActuated => "tau",
             Input::Fext => "fext",
             Input::Lambda => "lambda",
+            Input::Active => "active",
             Input::Dt => "dt",
         }
     }
@@ -50,6 +55,7 @@ impl Input {
             Input::TauActuated => dims.nu,
             Input::Fext => 6 * dims.nfext,
             Input::Lambda => dims.nlambda,
+            Input::Active => dims.ncontacts,
             Input::Dt => 1,
             Input::Qd | Input::Qdd | Input::Tau => dims.nv,
         }

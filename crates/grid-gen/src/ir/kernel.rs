@@ -19,6 +19,8 @@ pub struct Dims {
     pub nfext: usize,
     /// Entries of the contact forces λ.
     pub nlambda: usize,
+    /// Entries of the contact mask `active` (one per contact; 0 without a mask).
+    pub ncontacts: usize,
 }
 
 /// The shape of a kernel output.
@@ -449,6 +451,9 @@ impl KernelKind {
                 (!spec.contacts.is_empty() && !self.solves_contacts()).then_some(Input::Lambda),
             );
         }
+        if self.solves_contacts() && spec.contact_mask && !spec.contacts.is_empty() {
+            inputs.push(Input::Active);
+        }
         if self.is_step() && spec.step.is_some_and(|s| s.runtime_dt()) {
             inputs.push(Input::Dt);
         }
@@ -458,22 +463,26 @@ impl KernelKind {
     /// Entries per state of WGSL's `u` buffer, which packs every input after q and q̇:
     /// the first (q̈, τ or the actuated τ), then the forces the kernel takes, then a step
     /// kernel's run-time `dt`. `forces` is the model's force entries (6 per fext body, then
-    /// λ's), `lambda` λ's alone, `runtime_dt` whether the step kernels take `dt`.
+    /// λ's), `lambda` λ's alone, `active` the contact mask's entries (0 without one),
+    /// `runtime_dt` whether the step kernels take `dt`.
     pub fn u_len(
         self,
         nv: usize,
         nu: usize,
         forces: usize,
         lambda: usize,
+        active: usize,
         runtime_dt: bool,
     ) -> usize {
         let first = if self.is_step() { nu } else { nv };
         let dt = usize::from(self.is_step() && runtime_dt);
-        dt + match (self.takes_forces(), self.solves_contacts()) {
-            (false, _) => first,
-            (true, false) => first + forces,
-            (true, true) => first + forces.saturating_sub(lambda),
-        }
+        let mask = if self.solves_contacts() { active } else { 0 };
+        dt + mask
+            + match (self.takes_forces(), self.solves_contacts()) {
+                (false, _) => first,
+                (true, false) => first + forces,
+                (true, true) => first + forces.saturating_sub(lambda),
+            }
     }
 
     /// One sentence for the function's doc comment.

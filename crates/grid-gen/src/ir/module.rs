@@ -222,6 +222,7 @@ impl Robot {
             nframes: self.nframes(),
             nfext: self.specialisation.fext.len(),
             nlambda: self.nlambda(),
+            ncontacts: if self.specialisation.contact_mask { self.contacts.len() } else { 0 },
         }
     }
 
@@ -695,7 +696,7 @@ fn freeze(
         Some(DenseProduct { minv: remap(&p.minv)?, dc, outputs: p.outputs })
     });
     let program = program.and_then(|p| p.try_map(entry));
-    let dims = crate::ir::Dims { nq: 0, nv: 0, nu: 0, nframes: 0, nfext: 0, nlambda: 0 };
+    let dims = crate::ir::Dims::default();
     Function {
         kind,
         inputs: kind.inputs().to_vec(),

@@ -740,6 +740,7 @@ pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
         crate::ir::Input::Fext => "6 * NFEXT",
         crate::ir::Input::Lambda => "NLAMBDA",
         crate::ir::Input::Dt => "1",
+        crate::ir::Input::Active => "NCONTACTS",
         _ => "NV",
     }
 }
@@ -1179,6 +1180,14 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
             frames.len(),
             frames.iter().zip(&kinds).map(|(f, k)| format!("({f}, {k})")).collect::<Vec<_>>().join(", ")
         );
+        if robot.specialisation.contact_mask {
+            let _ = writeln!(
+                out,
+                "/// Entries of the contact mask `active` that `contact_fd`, `contact_fd_grad`, `step` and `step_grad` take: one per\n\
+                 /// contact of `CONTACTS`, 1 where it holds and 0 where it does not (its lambda and their rows are then 0).\n#[allow(dead_code)]\npub const NCONTACTS: usize = {};",
+                frames.len()
+            );
+        }
     }
     let _ = writeln!(
         out,

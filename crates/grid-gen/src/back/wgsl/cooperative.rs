@@ -159,12 +159,8 @@ pub(super) fn emit(
                 let tag = match which {
                     Input::Q => Q,
                     Input::Qd => QD,
-                    Input::Qdd
-                    | Input::Tau
-                    | Input::TauActuated
-                    | Input::Fext
-                    | Input::Lambda
-                    | Input::Dt => U,
+                    // Every input after q and q̇ is packed into u.
+                    _ => U,
                 };
                 address(tag, f.packed_u(which, j as usize), robot)
             }

@@ -301,9 +301,8 @@ fn input_buffer(input: Input) -> &'static str {
     match input {
         Input::Q => "q",
         Input::Qd => "qd",
-        Input::Qdd | Input::Tau | Input::TauActuated | Input::Fext | Input::Lambda | Input::Dt => {
-            "u"
-        }
+        // Every input after q and q̇ is packed into u.
+        _ => "u",
     }
 }
 
@@ -533,7 +532,7 @@ pub fn emit_with_stats(
     }
     let _ = writeln!(
         out,
-        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}{}{}// precision: {}\n// trig: {}",
+        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}{}{}{}// precision: {}\n// trig: {}",
         if robot.nq() != robot.nv() { format!("// nq: {}\n", robot.nq()) } else { String::new() },
         // The step kernels' `u` is the actuated joints' τ.
         if robot.specialisation.step.is_some() { format!("// nu: {}\n", robot.nu()) } else { String::new() },
@@ -546,6 +545,11 @@ pub fn emit_with_stats(
         match robot.nlambda() {
             0 => String::new(),
             n => format!("// lambda: {n}\n"),
+        },
+        // The contact-solving kernels read the contact mask in `u`.
+        match robot.dims().ncontacts {
+            0 => String::new(),
+            n => format!("// active: {n}\n"),
         },
         // The step kernels read a run-time dt last in `u`.
         match robot.specialisation.step.is_some_and(|s| s.runtime_dt()) {

@@ -182,7 +182,17 @@ impl Dynamics<'_> {
                 kmat[s][r] = kmat[r][s];
             }
         }
-        let k = Ldl::new(g, &kmat);
+        let mask = mask_rows(g, &self.model.specialisation);
+        if let Some(m) = &mask {
+            mask_kkt(g, &mut kmat, m);
+        }
+        let mut k = Ldl::new(g, &kmat);
+        if let Some(m) = &mask {
+            // An inactive row's 1/D becomes 0: every solve with K leaves it 0.
+            for (d, &m) in k.dinv.iter_mut().zip(m) {
+                *d = g.mul(*d, m);
+            }
+        }
         let x = k.solve(g, bias);
         let lambda: Vec<Id> = x.into_iter().map(|x| g.neg(x)).collect();
         let qdd = (0..a0.len())
@@ -287,6 +297,43 @@ impl Dynamics<'_> {
         out.extend(outs_q);
         out.extend(outs_l);
         out
+    }
+}
+
+/// The contact mask per row of λ (each contact's `active` input repeated over its 3 or 6
+/// rows), when the model masks its contacts.
+fn mask_rows(g: &mut Graph, spec: &crate::model::Specialisation) -> Option<Vec<Id>> {
+    if !spec.contact_mask {
+        return None;
+    }
+    let mut rows = Vec::new();
+    for (c, contact) in spec.contacts.iter().enumerate() {
+        let m = g.input(Input::Active, c);
+        rows.extend(std::iter::repeat_n(m, contact.kind.dim()));
+    }
+    Some(rows)
+}
+
+/// Masks the contacts' Schur complement in place: `K_rs ← m_r m_s K_rs + δ_rs (1 − m_r)`.
+/// With each m 0 or 1, an inactive contact's rows and columns become the identity's, so K
+/// stays positive definite and the active contacts' block is theirs alone; with 1/D of the
+/// inactive rows then zeroed (in [`Dynamics::contact_fd`]), every solve `K⁻¹ b` gives 0 on
+/// them and the active contacts' solution on the rest, so λ and every derivative of λ are 0
+/// for an inactive contact and q̈ is that of the active contacts alone, branch-free.
+fn mask_kkt(g: &mut Graph, k: &mut Mat, m: &[Id]) {
+    let one = g.constant(1.0);
+    let n = m.len();
+    for r in 0..n {
+        for s in 0..=r {
+            let both = g.mul(m[r], m[s]);
+            let mut x = g.mul(both, k[r][s]);
+            if r == s {
+                let off = g.sub(one, m[r]);
+                x = g.add(x, off);
+            }
+            k[r][s] = x;
+            k[s][r] = x;
+        }
     }
 }
 

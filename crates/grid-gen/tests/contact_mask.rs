@@ -1,0 +1,159 @@
+//! Contacts chosen at run time (`contact_mask = true`): one library whose contact kernels
+//! and step take `active`, one 0 or 1 per candidate contact, serves every contact mode of a
+//! gait. Each mode's values are those of the model holding just its active contacts (the
+//! reference, itself checked against Pinocchio's `constraintDynamics` in `tests/forces.rs`),
+//! with λ's rows of the inactive contacts 0.
+
+use grid_gen::ir::{self, Input, KernelKind, LowerOptions};
+use grid_gen::model::{ContactKind, Scheme};
+use grid_gen::{reference, Model};
+use grid_gen_test_support::*;
+use nalgebra::DMatrix;
+
+/// Floating HyQ with its four lower legs as candidate point contacts, a force on its base.
+fn standing_hyq() -> Model {
+    let legs = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+        .map(|l| (l, ContactKind::Point));
+    let mut m = with_forces(&load_floating("grid_hyq"), &["root_joint"], &legs);
+    m.specialisation.contact_mask = true;
+    m
+}
+
+/// The mask `bits` (bit c: contact c holds) as the kernels take it and as the reference's.
+fn mask(bits: usize, n: usize) -> (Vec<f64>, Vec<bool>) {
+    let active: Vec<bool> = (0..n).map(|c| bits >> c & 1 == 1).collect();
+    (active.iter().map(|&a| f64::from(u8::from(a))).collect(), active)
+}
+
+/// All sixteen modes of HyQ's four feet (none, one, two, three and four on the ground):
+/// `contact_fd` and `contact_fd_grad` against the reference holding just those contacts,
+/// on random states, with fext on the base.
+#[test]
+fn every_mode_of_four_feet_matches_the_reference_holding_those_contacts() {
+    let m = standing_hyq();
+    let g = reference::DEFAULT_GRAVITY;
+    let options = LowerOptions {
+        kernels: vec![KernelKind::ContactFd, KernelKind::ContactFdGrad],
+        ..LowerOptions::default()
+    };
+    let module = ir::lower(&m, g, &options).unwrap();
+    let mut rng = Rng(83);
+    let nv = m.nv();
+    let mut worst: f64 = 0.0;
+    for f in &module.functions {
+        assert_eq!(f.inputs().last(), Some(&Input::Active), "{}: takes the mask", f.kind);
+    }
+    for state in 0..2 {
+        let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+        let (qd, u, fext) =
+            (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -10.0, 10.0), rng.vec(6, -20.0, 20.0));
+        let ext = reference::External { fext: &fext, lambda: &[] };
+        for bits in 0..16 {
+            let (values, active) = mask(bits, 4);
+            for f in &module.functions {
+                let got = f.eval(&kernel_args_masked(f.inputs(), &q, &qd, &u, ext, &[], &values));
+                let want =
+                    reference_masked_outputs(f.kind, &m, &q, &qd, &u, g, &fext, 0.0, &active);
+                assert_eq!(got.len(), want.len(), "{}: outputs", f.kind);
+                for ((o, got), want) in f.outputs.iter().zip(&got).zip(&want) {
+                    let got = DMatrix::from_row_slice(want.nrows(), want.ncols(), got);
+                    let e = rel_err(&got, want);
+                    worst = worst.max(e);
+                    // As contact_kernels_match_the_reference (tests/forces.rs): the Schur
+                    // complement against the reference's full KKT LU, a digit lost to K's
+                    // conditioning on random states.
+                    assert!(
+                        e < 5e-11,
+                        "state {state} mask {bits:04b} {} {}: {e:.2e}",
+                        f.kind,
+                        o.name
+                    );
+                    if o.name.starts_with("lambda") || o.name.starts_with("dlambda") {
+                        // An inactive contact's rows are exactly 0, not small.
+                        for (c, &a) in active.iter().enumerate() {
+                            let rows = got.rows(3 * c, 3);
+                            assert!(
+                                a || rows.iter().all(|&x| x == 0.0),
+                                "mask {bits:04b} {} contact {c}",
+                                o.name
+                            );
+                        }
+                    }
+                }
+            }
+        }
+    }
+    println!("16 contact modes of floating HyQ: worst {worst:.2e} from the reference holding those contacts (bound 5e-11)");
+}
+
+/// With every contact active, the masked kernels compute the unmasked kernels' values bit
+/// for bit (the mask multiplies by 1 and adds 0), and cost a few operations more: two per
+/// entry of K's lower triangle and one per row.
+#[test]
+fn all_active_is_the_unmasked_kernel() {
+    let masked = standing_hyq();
+    let mut plain = masked.clone();
+    plain.specialisation.contact_mask = false;
+    let g = reference::DEFAULT_GRAVITY;
+    let options = LowerOptions {
+        kernels: vec![KernelKind::ContactFd, KernelKind::ContactFdGrad],
+        ..LowerOptions::default()
+    };
+    let (a, b) =
+        (ir::lower(&masked, g, &options).unwrap(), ir::lower(&plain, g, &options).unwrap());
+    let mut rng = Rng(89);
+    let nv = plain.nv();
+    let q = plain.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+    let (qd, u, fext) = (rng.vec(nv, -2.0, 2.0), rng.vec(nv, -10.0, 10.0), rng.vec(6, -20.0, 20.0));
+    let ext = reference::External { fext: &fext, lambda: &[] };
+    for (f, fixed) in a.functions.iter().zip(&b.functions) {
+        let got = f.eval(&kernel_args_masked(f.inputs(), &q, &qd, &u, ext, &[], &[1.0; 4]));
+        let want = fixed.eval(&kernel_args_with(fixed.inputs(), &q, &qd, &u, ext));
+        assert_eq!(got, want, "{}", f.kind);
+        let ops = |f: &ir::Function| {
+            (0..f.nodes.len()).filter(|&i| f.is_operation(ir::Id(i as u32))).count()
+        };
+        let nl = plain.nlambda();
+        println!("floating HyQ {}: {} operations masked, {} not", f.kind, ops(f), ops(fixed));
+        // m_r m_s once per pair of contacts, then a multiplication per entry of K's lower
+        // triangle, 1 − m_r and an addition per diagonal entry, a multiplication per 1/D.
+        assert!(ops(f) <= ops(fixed) + nl * (nl + 1) / 2 + 3 * nl + 10, "{}", f.kind);
+    }
+}
+
+/// The step through a masked contact set: floating HyQ's semi-implicit `step` and
+/// `step_grad` with a run-time dt, for a trot's two stances (diagonal pairs) and a flight
+/// phase, against the reference step holding just those contacts.
+#[test]
+fn a_trot_steps_with_one_library() {
+    let m = with_runtime_step(&standing_hyq(), Scheme::SemiImplicitEuler);
+    let g = reference::DEFAULT_GRAVITY;
+    let options = LowerOptions {
+        kernels: vec![KernelKind::Step, KernelKind::StepGrad],
+        ..LowerOptions::default()
+    };
+    let module = ir::lower(&m, g, &options).unwrap();
+    let mut rng = Rng(97);
+    let nv = m.nv();
+    let mut worst: f64 = 0.0;
+    for bits in [0b1001, 0b0110, 0b0000, 0b1111] {
+        let (values, active) = mask(bits, 4);
+        let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+        let (qd, u, fext) =
+            (rng.vec(nv, -2.0, 2.0), rng.vec(m.nu(), -10.0, 10.0), rng.vec(6, -20.0, 20.0));
+        let ext = reference::External { fext: &fext, lambda: &[] };
+        let dt = [0.01];
+        for f in &module.functions {
+            let args = kernel_args_masked(f.inputs(), &q, &qd, &u, ext, &dt, &values);
+            let got = f.eval(&args);
+            let want = reference_masked_outputs(f.kind, &m, &q, &qd, &u, g, &fext, dt[0], &active);
+            for ((o, got), want) in f.outputs.iter().zip(&got).zip(&want) {
+                let e = rel_err(&output_matrix(o.shape, nv, got), want);
+                worst = worst.max(e);
+                // As forced_step_kernels_match_the_reference (tests/step.rs).
+                assert!(e < 5e-11, "mask {bits:04b} {} {}: {e:.2e}", f.kind, o.name);
+            }
+        }
+    }
+    println!("floating HyQ's trot through one library: worst {worst:.2e} from the reference (bound 5e-11)");
+}
