@@ -50,6 +50,7 @@ class Kernel:
         # the path below, which handles everything else and names what is wrong).
         # The batch entry point's address, also what grid_gen.jax's FFI call is given.
         self._address: int = ctypes.cast(fn, ctypes.c_void_p).value
+        self._masked = any(n == "active" for n, _ in self.inputs)
         self._fast = _native.Caller(self._address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs])
         args = ", ".join(n for n, _ in self.inputs)
         outs = ", ".join(n for n, _ in self.outputs)
@@ -59,6 +60,27 @@ class Kernel:
 
     def __repr__(self) -> str:
         return f"<grid_gen kernel {self.name} of {self._robot.name}>"
+
+    def _mask(self, a: Array, batch: Optional[int], nc: int) -> Array:
+        """The contact mask as the kernel reads it, 1.0 or 0.0 per contact, (nc,) or (B, nc):
+        from one bool for every contact, (nc,) for every state, or (B, nc); bools, or numbers
+        that are exactly 0 or 1."""
+        name = self.name
+        if a.dtype.kind not in "biuf":
+            raise ValueError(f"{name}: `active` has dtype {a.dtype}; expected bools (True where a contact holds)")
+        if a.dtype.kind != "b" and not np.isin(a, (0, 1)).all():
+            bad = a.ravel()[~np.isin(a.ravel(), (0, 1))][0]
+            raise ValueError(f"{name}: `active` holds {float(bad)!r}; each entry is True/1 (the contact holds) or False/0 (it does not)")
+        a = a.astype(np.float64)
+        contacts = ", ".join(f for f, _ in self._robot.contacts)
+        if a.ndim == 0:
+            a = np.full((nc,) if batch is None else (batch, nc), a)
+        elif a.ndim == 1 and a.shape == (nc,) and batch is not None:
+            a = np.broadcast_to(a, (batch, nc))
+        elif not ((a.ndim == 1 and batch is None and a.shape == (nc,)) or (a.ndim == 2 and a.shape == (batch, nc))):
+            want = f"({nc},)" if batch is None else f"({nc},) or ({batch}, {nc})"
+            raise ValueError(f"{name}: `active` has shape {a.shape}; expected {want}, one per contact ({contacts})")
+        return a
 
     def _time_steps(self, a: Array, batch: Optional[int]) -> Array:
         """A step's run-time `dt` as the kernel reads it, (1,) or (B, 1): from a scalar (every
@@ -81,7 +103,8 @@ class Kernel:
 
     def __call__(self, *args: Any, out: Union[None, Array, Sequence[Array]] = None, **kwargs: Any):
         name = self.name
-        if out is None and not kwargs:
+        # A contact mask is checked (0 or 1 each) on the path below, never the fast one.
+        if out is None and not kwargs and not self._masked:
             try:
                 fast = self._fast(*args)
             except RuntimeError as e:
@@ -99,14 +122,18 @@ class Kernel:
             if k in values:
                 raise TypeError(f"{name}() got {k!r} twice")
             values[k] = v
+        if self._masked and "active" not in values and len(args) < len(self.inputs):
+            # Every candidate contact holds unless said otherwise.
+            values["active"] = True
         batch: Optional[int] = None
         first: Optional[str] = None
         arrays: List[Array] = []
         for arg, length in self.inputs:
             if arg not in values:
                 raise TypeError(f"{name}() is missing its argument {arg!r}")
-            if arg == "dt":
-                # A run-time time step, one per state: a scalar, or (B,); placed below.
+            if arg in ("dt", "active"):
+                # A run-time time step (a scalar, or (B,)) and a contact mask (a bool, (nc,)
+                # or (B, nc)), shaped below once the batch is known.
                 arrays.append(np.asarray(values[arg]))
                 continue
             a = np.asarray(values[arg])
@@ -125,6 +152,9 @@ class Kernel:
         if "dt" in values:
             at = [a for a, _ in self.inputs].index("dt")
             arrays[at] = self._time_steps(arrays[at], batch)
+        if self._masked:
+            at = [a for a, _ in self.inputs].index("active")
+            arrays[at] = self._mask(arrays[at], batch, self.inputs[at][1])
         # The inputs, copied into one buffer in the kernel's scalar, input after input (the
         # C ABI's layout): one finiteness check and one pointer instead of one per input,
         # which is most of a small call's cost.

@@ -411,6 +411,50 @@ def test_a_step_without_dt_takes_it_per_state(tmp_path):
             robot.step(q, qd, tau, bad)
 
 
+def test_one_library_for_every_contact_mode(tmp_path):
+    """A scene with contact_mask: contact_fd takes `active` (default every contact), and each
+    of the four modes of two point contacts on the iiwa gives Pinocchio's constraintDynamics
+    holding just the active contacts (none active: aba), with 0 for an inactive contact's
+    lambda; one mask per state in a batch; a mask that is not 0 or 1 is a ValueError."""
+    scene = tmp_path / "iiwa_two_points.toml"
+    scene.write_text('outputs = ["contact_fd", "contact_fd_grad"]\ncontact_mask = true\n\n[[contact]]\nframe = "iiwa_link_7"\ntype = "point"\n\n[[contact]]\nframe = "iiwa_link_5"\ntype = "point"\n')
+    robot = grid_gen.load(IIWA, scene=scene)
+    assert [name for name, _ in robot.contact_fd.inputs] == ["q", "qd", "tau", "active"]
+    p = Pin(IIWA, robot)
+    n = 4
+    q, qd, tau = random_states(robot, n, seed=14)
+    modes = np.array([[False, False], [True, False], [False, True], [True, True]])
+    qdd, lam = robot.contact_fd(q, qd, tau, active=modes)
+    every, _ = robot.contact_fd(q, qd, tau)
+    assert rel(every[3], qdd[3]) == 0.0, "no mask is every contact active"
+    worst = 0.0
+    for i, mode in enumerate(modes):
+        cms, cds = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
+        for c, frame_name in enumerate(("iiwa_link_7", "iiwa_link_5")):
+            if mode[c]:
+                frame = p.model.frames[p.model.getFrameId(frame_name, pin.BODY)]
+                cm = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, p.model, frame.parentJoint, frame.placement, pin.LOCAL_WORLD_ALIGNED)
+                cms.append(cm)
+                cds.append(cm.createData())
+        if len(cms):
+            pin.initConstraintDynamics(p.model, p.data, cms, cds)
+            want = pin.constraintDynamics(p.model, p.data, q[i], qd[i], tau[i], cms, cds, pin.ProximalSettings(1e-14, 0.0, 1))
+            want_lam = np.zeros(6)
+            want_lam[np.repeat(mode, 3)] = p.data.lambda_c
+        else:
+            want, want_lam = pin.aba(p.model, p.data, q[i], qd[i], tau[i]), np.zeros(6)
+        worst = max(worst, rel(qdd[i], want), rel(lam[i], want_lam) if mode.any() else 0.0)
+        assert (lam[i][np.repeat(~mode, 3)] == 0.0).all(), f"mode {mode}: an inactive contact's lambda is 0"
+    print(f"iiwa, four contact modes of one library: {worst:.1e} from Pinocchio")
+    # f64 round-off through K, well conditioned for two points on the arm (measured 9.5e-15).
+    assert worst < 1e-12
+    one_qdd, _ = robot.contact_fd(q[1], qd[1], tau[1], active=[True, False])
+    assert rel(one_qdd, qdd[1]) == 0.0
+    for bad, says in (([0.5, 1.0], "holds 0.5"), ([True, True, False], r"shape \(3,\)")):
+        with pytest.raises(ValueError, match=f"`active`.*{says}"):
+            robot.contact_fd(q, qd, tau, active=bad)
+
+
 def _jax():
     jax = pytest.importorskip("jax") if not os.environ.get("CI") else __import__("jax")
     jax.config.update("jax_enable_x64", True)

@@ -293,6 +293,11 @@ struct ModelArgs {
     /// `[[contact]]`.
     #[arg(long, value_name = "FRAME:TYPE,...", value_delimiter = ',', global = true, value_parser = parse_contact)]
     contact: Vec<grid_gen::ContactEntry>,
+    /// The contacts are candidates chosen per state: contact_fd, contact_fd_grad, step and
+    /// step_grad take `active`, one 0 or 1 per contact (an inactive one has lambda = 0 and
+    /// no constraint). The scene's `contact_mask = true`.
+    #[arg(long, global = true)]
+    contact_mask: bool,
     /// Read every <origin rpy> angle within RAD of a multiple of pi/2 as that multiple
     /// (at most 1e-6): a URDF's pi/2 written to a few digits becomes a permutation the
     /// kernels apply for free, and the results move from the literal file's by about RAD
@@ -326,6 +331,7 @@ impl ModelArgs {
             fext_derivatives: self.no_fext_derivatives.then_some(false),
             contacts: (!self.contact.is_empty()).then(|| self.contact.clone()),
             round_angles: self.round_angles,
+            contact_mask: self.contact_mask.then_some(true),
         };
         config
     }

@@ -231,6 +231,27 @@ impl Builder {
         self
     }
 
+    /// Whether the contacts are candidates chosen per state (the scene's `contact_mask`):
+    /// `contact_fd`, `contact_fd_grad`, `step` and `step_grad` then take `active`, one 0 or
+    /// 1 per contact, and one library serves every contact mode of a gait.
+    ///
+    /// ```no_run
+    /// // build.rs: HyQ's four feet, any of them on the ground.
+    /// let feet = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+    ///     .map(|f| (f, grid_gen::model::ContactKind::Point));
+    /// grid_gen::Builder::new()
+    ///     .urdf("robots/grid_hyq.urdf")
+    ///     .floating_base(true)
+    ///     .contacts(&feet)
+    ///     .contact_mask(true)
+    ///     .compile()?;
+    /// # Ok::<(), grid_gen::BuildError>(())
+    /// ```
+    pub fn contact_mask(&mut self, mask: bool) -> &mut Self {
+        self.config.overrides.contact_mask = Some(mask);
+        self
+    }
+
     /// Contacts at frames (link names), each a point or a wrench; the kernels take their
     /// forces λ in `LOCAL_WORLD_ALIGNED` axes. Replaces the scene's `[[contact]]`.
     pub fn contacts<S: AsRef<str>>(

@@ -157,3 +157,68 @@ fn a_trot_steps_with_one_library() {
     }
     println!("floating HyQ's trot through one library: worst {worst:.2e} from the reference (bound 1e-12)");
 }
+
+/// A masked contact set through the generated Rust, compiled with rustc and run: iiwa with
+/// points at its fifth and seventh links, `contact_fd_grad` in each of the four modes (one
+/// state each, both copies), against the reference holding just the active contacts.
+#[test]
+fn masked_contacts_compile_and_match_the_reference() {
+    use grid_gen::generate::{generate, Options, Target};
+    let points = [("iiwa_link_5", ContactKind::Point), ("iiwa_link_7", ContactKind::Point)];
+    let mut model = with_forces(&load("grid_iiwa"), &[], &points);
+    model.specialisation.contact_mask = true;
+    let lower =
+        LowerOptions { kernels: vec![KernelKind::ContactFdGrad], ..LowerOptions::default() };
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
+    assert!(file.contents.contains("pub const NCONTACTS: usize = 2;"));
+    let said = compile_and_run(
+        "contactmask",
+        &file.contents,
+        &[
+            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
+            SEEDED_STATE_RS,
+            r#"fn main() {
+    for k in 0..4 {
+        let x: [[f64; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s)));
+        let active = [(k & 1) as f64, (k >> 1 & 1) as f64];
+        let one = contact_fd_grad(&x[0], &x[1], &x[2], &active);
+        let two = portable::contact_fd_grad(&x[0], &x[1], &x[2], &active);
+        let flat = |o: &(_, _, _, _, _, _, _, _)| -> Vec<f64> {
+            let (a, l, b, c, d, e, f, g): &([f64; NV], [f64; NLAMBDA], [[f64; NV]; NV], [[f64; NV]; NV], [[f64; NV]; NV], [[f64; NV]; NLAMBDA], [[f64; NV]; NLAMBDA], [[f64; NV]; NLAMBDA]) = o;
+            a.iter().chain(l).chain(b.as_flattened()).chain(c.as_flattened()).chain(d.as_flattened()).chain(e.as_flattened()).chain(f.as_flattened()).chain(g.as_flattened()).copied().collect()
+        };
+        let all: Vec<String> = flat(&one).iter().chain(&flat(&two)).map(|x| format!("{x:?}")).collect();
+        println!("{}", all.join(" "));
+    }
+}
+"#,
+        ]
+        .concat(),
+    );
+    let nv = model.nv();
+    // f64 kernels are held to 1e-12 of the reference, as everywhere; the dispatched copy and
+    // the portable one are printed one after the other and both checked.
+    let worst = worst_line_error(&said, 4, 0, 1e-12, |k, _| {
+        let x: Vec<Vec<f64>> =
+            (0..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+        let active = [k & 1 == 1, k >> 1 & 1 == 1];
+        let g = reference::DEFAULT_GRAVITY;
+        let want = reference_masked_outputs(
+            KernelKind::ContactFdGrad,
+            &model,
+            &x[0],
+            &x[1],
+            &x[2],
+            g,
+            &[],
+            0.0,
+            &active,
+        );
+        let one: Vec<f64> = want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
+        one.iter().chain(&one).copied().collect()
+    });
+    println!("iiwa contact_fd_grad in four modes, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
+}
