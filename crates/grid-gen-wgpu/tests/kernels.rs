@@ -1202,3 +1202,80 @@ fn runtime_dt_step_kernels_match_the_reference() {
         );
     }
 }
+
+/// A masked contact set on the GPU: floating HyQ's four feet as candidates, f64 cooperative
+/// `contact_fd`, every state in another of the sixteen modes (`u` packs τ, then the mask),
+/// against the reference holding just the active contacts and the IR.
+#[test]
+fn masked_contacts_match_the_reference() {
+    use grid_gen::model::ContactKind;
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(79);
+    let legs = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+        .map(|l| (l, ContactKind::Point));
+    let mut model = with_forces(&load_floating("grid_hyq"), &[], &legs);
+    model.specialisation.contact_mask = true;
+    let options = WgslOptions {
+        precision: Precision::F64,
+        strategies: vec![Strategy::Cooperative],
+        ..WgslOptions::default()
+    };
+    let shader = gpu.load(&wgsl(&model, options)).unwrap();
+    assert_eq!(shader.info.active, 4, "the header counts the mask");
+    let kind = KernelKind::ContactFd;
+    let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
+    let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+    let f = lowered.function(kind).unwrap();
+    let nv = model.nv();
+    let states = states(&model, &mut rng);
+    let modes: Vec<[bool; 4]> =
+        (0..states.len()).map(|s| std::array::from_fn(|c| (s % 16) >> c & 1 == 1)).collect();
+    let mask = |m: &[bool; 4]| m.map(|a| f64::from(u8::from(a)));
+    let flat =
+        |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let (q, qd) = (flat(0), flat(1));
+    let u: Vec<f64> = states
+        .iter()
+        .zip(&modes)
+        .flat_map(|(s, m)| s[2].iter().copied().chain(mask(m)).collect::<Vec<_>>())
+        .collect();
+    let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry(kind.name())).unwrap();
+    assert_eq!(kernel.nu, nv + 4, "{kind}: u holds τ and the mask");
+    assert_eq!(kernel.nu, f.packed_u_len(), "{kind}: u's width");
+    let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
+    let total = kernel.entry.outputs;
+    let (mut worst, mut singular): (f64, usize) = (0.0, 0);
+    for (s, ([q, qd, u], m)) in states.iter().zip(&modes).enumerate() {
+        let held = with_active_contacts(&model, m);
+        let j = reference::contact_jacobian(&held, &held.specialisation.contacts, q);
+        if j.nrows() > 0 && j.singular_values().min() < 1e-8 * j.singular_values().max() {
+            // A leg stretched straight: λ is not unique there.
+            singular += 1;
+            continue;
+        }
+        let g = reference::DEFAULT_GRAVITY;
+        let want = reference_masked_outputs(kind, &model, q, qd, u, g, &[], 0.0, m);
+        let values = mask(m);
+        let ext = reference::External { fext: &[], lambda: &[] };
+        let interpreted = f.eval(&kernel_args_masked(f.inputs(), q, qd, u, ext, &[], &values));
+        let mut base = s * total;
+        for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
+            let got = output_matrix(o.shape, nv, &got[base..base + o.ids.len()]);
+            let e = rel_err(&got, want);
+            // f64 kernels are held to F64_TOL, as everywhere.
+            assert!(e <= F64_TOL, "{kind}.{} state {s} mode {m:?}: {e:.2e}", o.name);
+            assert!(
+                rel_err(&got, &output_matrix(o.shape, nv, ir_vals)) <= F64_TOL,
+                "{kind}.{} state {s}: from the IR",
+                o.name
+            );
+            worst = worst.max(e);
+            base += o.ids.len();
+        }
+    }
+    assert!(singular <= 2, "{singular} singular states");
+    eprintln!(
+        "grid_hyq floating {kind}, sixteen contact modes, f64: worst relative error {worst:.2e} over {} states",
+        states.len() - singular
+    );
+}
