@@ -75,7 +75,7 @@ impl Scalar {
     pub fn id(self, g: &mut Graph) -> Id {
         match self {
             Scalar::Const(x) => sp::k(g, x),
-            Scalar::Node { coef, id } if coef == 1.0 => id,
+            Scalar::Node { coef: 1.0, id } => id,
             Scalar::Node { coef, id } => {
                 let c = sp::k(g, coef);
                 g.mul(c, id)

@@ -151,7 +151,15 @@ mod tests {
         Datapath {
             kernel: "test",
             nv: 1,
-            dims: crate::ir::Dims { nq: 1, nv: 1, nu: 0, nframes: 0, nfext: 0, nlambda: 0 },
+            dims: crate::ir::Dims {
+                nq: 1,
+                nv: 1,
+                nu: 0,
+                nframes: 0,
+                nfext: 0,
+                nlambda: 0,
+                ncontacts: 0,
+            },
             ports: vec![crate::datapath::Port::Sin(0), crate::datapath::Port::Cos(0)],
             nodes,
             outputs: vec![crate::datapath::DatapathOutput {
