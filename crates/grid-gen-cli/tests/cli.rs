@@ -1407,6 +1407,27 @@ fn a_step_without_dt_takes_it_at_run_time() {
     std::fs::remove_dir_all(&dir).ok();
 }
 
+/// `--contact-mask`: `info` says the contact kernels take `active` and the module holds
+/// NCONTACTS; without contacts it is an error that says what to declare.
+#[test]
+fn contact_mask_from_the_command_line() {
+    let feet = "lf_lowerleg:point,rh_lowerleg:point";
+    let base = ["robots/grid_hyq.urdf", "--floating-base", "--contact", feet, "--contact-mask"];
+    let info = grid_gen(&[&["info"], &base[..]].concat());
+    let text = String::from_utf8_lossy(&info.stdout);
+    assert_eq!(info.status.code(), Some(0), "{}", String::from_utf8_lossy(&info.stderr));
+    assert!(text.contains("take `active`, one 0 or 1 per contact"), "{text}");
+    let json = json(&grid_gen(&[&["info", "--json"], &base[..]].concat()));
+    assert_eq!(json["contact_mask"], serde_json::json!(true));
+    let bad = grid_gen(&["info", "robots/grid_hyq.urdf", "--floating-base", "--contact-mask"]);
+    let err = String::from_utf8_lossy(&bad.stderr);
+    assert_eq!(bad.status.code(), Some(1), "{err}");
+    assert!(
+        err.contains("--contact-mask without contacts") && err.contains("--contact FRAME:point"),
+        "{err}"
+    );
+}
+
 /// External and contact forces from the command line: `eval` with `fext` and
 /// `contacts` gives the reference's values under them, with the derivatives keyed by joint
 /// and frame; bad entries are errors naming the entry (nothing on stdout); `info` and the

@@ -98,6 +98,9 @@ pub struct Info {
     pub fext: Vec<String>,
     /// The contacts whose forces λ those kernels take, in this order.
     pub contacts: Vec<ContactInfo>,
+    /// The contacts are candidates: the contact kernels and the step take `active`, one 0
+    /// or 1 per contact (`contact_mask`).
+    pub contact_mask: bool,
     /// A floating base: joints 0 to 5 are the free-flyer's velocity coordinates (linear,
     /// then angular, in the base frame).
     pub floating_base: bool,
@@ -224,6 +227,7 @@ impl Info {
                     entries: c.kind.dim(),
                 })
                 .collect(),
+            contact_mask: model.specialisation.contact_mask,
             gravity,
             joint_names: model
                 .coordinate_joints()
@@ -497,6 +501,9 @@ impl Info {
             let c: Vec<String> =
                 self.contacts.iter().map(|c| format!("{} ({})", c.frame, c.kind.name())).collect();
             s.push_str(&format!("rnea, rnea_grad, fd, fd_grad take contact forces lambda (world axes at the frame) at: {}\n", c.join(", ")));
+            if self.contact_mask {
+                s.push_str("contact_fd, contact_fd_grad, step and step_grad take `active`, one 0 or 1 per contact in this order (an inactive contact has lambda = 0 and no constraint)\n");
+            }
         }
         if let Some(step) = self.step {
             s.push_str(&format!(
