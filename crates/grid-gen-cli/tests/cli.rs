@@ -1417,8 +1417,8 @@ fn contact_mask_from_the_command_line() {
     let text = String::from_utf8_lossy(&info.stdout);
     assert_eq!(info.status.code(), Some(0), "{}", String::from_utf8_lossy(&info.stderr));
     assert!(text.contains("take `active`, one 0 or 1 per contact"), "{text}");
-    let json = json(&grid_gen(&[&["info", "--json"], &base[..]].concat()));
-    assert_eq!(json["contact_mask"], serde_json::json!(true));
+    let summary = json(&grid_gen(&[&["info", "--json"], &base[..]].concat()));
+    assert_eq!(summary["contact_mask"], serde_json::json!(true));
     let bad = grid_gen(&["info", "robots/grid_hyq.urdf", "--floating-base", "--contact-mask"]);
     let err = String::from_utf8_lossy(&bad.stderr);
     assert_eq!(bad.status.code(), Some(1), "{err}");
@@ -1426,6 +1426,53 @@ fn contact_mask_from_the_command_line() {
         err.contains("--contact-mask without contacts") && err.contains("--contact FRAME:point"),
         "{err}"
     );
+    // eval: a state's `active` turns a contact off; its values are those of the model
+    // holding just the other contact, its lambda rows 0.
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-mask-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";
+    let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
+    let tau = "[0,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]";
+    let write = |name: &str, extra: &str| {
+        let path = dir.join(name);
+        let state = format!(r#"{{"q": {q}, "qd": {qd}, "tau": {tau}{extra}}}"#);
+        std::fs::write(&path, format!(r#"{{"states": [{state}]}}"#)).unwrap();
+        path
+    };
+    let off = write("off.json", r#", "active": {"rh_lowerleg": false}"#);
+    let masked = grid_gen(&[&["eval"], &base[..], &["--states", off.to_str().unwrap()]].concat());
+    assert_eq!(masked.status.code(), Some(0), "{}", String::from_utf8_lossy(&masked.stderr));
+    let plain = write("plain.json", "");
+    let one = grid_gen(&[
+        "eval",
+        "robots/grid_hyq.urdf",
+        "--floating-base",
+        "--contact",
+        "lf_lowerleg:point",
+        "--states",
+        plain.to_str().unwrap(),
+    ]);
+    assert_eq!(one.status.code(), Some(0), "{}", String::from_utf8_lossy(&one.stderr));
+    let (masked, one) = (json(&masked), json(&one));
+    let (m, o) = (&masked["states"][0]["contact_fd"], &one["states"][0]["contact_fd"]);
+    for key in ["qdd", "dqdd_dq", "dqdd_dtau"] {
+        assert_eq!(m[key], o[key], "{key}: the model holding just lf_lowerleg");
+    }
+    assert_eq!(m["lambda"]["lf_lowerleg"], o["lambda"]["lf_lowerleg"]);
+    assert_eq!(m["lambda"]["rh_lowerleg"], serde_json::json!([0.0, 0.0, 0.0]));
+    assert_eq!(m["dlambda_dq"]["rh_lowerleg"][2], serde_json::json!(vec![0.0; 18]));
+    let unknown = write("unknown.json", r#", "active": {"rf_lowerleg": false}"#);
+    let errors = [
+        (unknown, &base[..], "`active` names `rf_lowerleg`"),
+        (off.clone(), &base[..4], "does not mask its contacts"),
+    ];
+    for (states, args, says) in errors {
+        let out = grid_gen(&[&["eval"], args, &["--states", states.to_str().unwrap()]].concat());
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains(says), "{err}");
+    }
+    std::fs::remove_dir_all(&dir).ok();
 }
 
 /// External and contact forces from the command line: `eval` with `fext` and

@@ -31,6 +31,11 @@ pub struct State {
     /// (needed there with `tau`; where the scene folds dt, it may only repeat it).
     #[serde(default)]
     pub dt: Option<f64>,
+    /// For a scene that masks its contacts (`contact_mask`): which hold, keyed by contact
+    /// frame; a contact left out holds. An inactive contact has λ = 0 and no constraint in
+    /// `contact_fd` and the step.
+    #[serde(default)]
+    pub active: BTreeMap<String, bool>,
 }
 
 /// A list of numbers, read as [`State`]'s vectors are (NaN and infinities included, so
@@ -183,33 +188,45 @@ fn contact_output(
     let Some(tau) = s.tau.as_ref().filter(|_| !fm.specialisation.contacts.is_empty()) else {
         return Ok(None);
     };
-    let (sol, d) = reference::contact_fd_derivatives(fm, &s.q, &s.qd, tau, gravity, fext)
+    // The model holding just the state's active contacts; the others get zero rows below.
+    let held = holding(fm, s);
+    let (sol, d) = reference::contact_fd_derivatives(&held, &s.q, &s.qd, tau, gravity, fext)
         .ok_or(EvalError::ContactsSingular { index })?;
     if sol.qdd.iter().chain(&sol.lambda).any(|x| !x.is_finite()) {
         return Err(EvalError::ContactsSingular { index });
     }
-    let names: Vec<(String, usize)> = fm
+    let names: Vec<(String, usize, bool)> = fm
         .specialisation
         .contacts
         .iter()
-        .map(|c| (fm.frames[c.frame].name.clone(), c.kind.dim()))
+        .map(|c| {
+            let name = fm.frames[c.frame].name.clone();
+            let holds = s.active.get(&name).copied().unwrap_or(true);
+            (name, c.kind.dim(), holds)
+        })
         .collect();
     let per_frame = |m: &nalgebra::DMatrix<f64>| -> BTreeMap<String, Matrix> {
         let mut at = 0;
         names
             .iter()
-            .map(|(name, width)| {
-                at += width;
-                (name.clone(), rows(&m.rows(at - width, *width).into_owned()))
+            .map(|(name, width, holds)| match holds {
+                true => {
+                    at += width;
+                    (name.clone(), rows(&m.rows(at - width, *width).into_owned()))
+                }
+                false => (name.clone(), vec![vec![0.0; m.ncols()]; *width]),
             })
             .collect()
     };
     let mut at = 0;
     let lambda = names
         .iter()
-        .map(|(name, width)| {
-            at += width;
-            (name.clone(), sol.lambda[at - width..at].to_vec())
+        .map(|(name, width, holds)| match holds {
+            true => {
+                at += width;
+                (name.clone(), sol.lambda[at - width..at].to_vec())
+            }
+            false => (name.clone(), vec![0.0; *width]),
         })
         .collect();
     Ok(Some(ContactOutput {
@@ -222,6 +239,18 @@ fn contact_output(
         dlambda_dqd: per_frame(&d.dlambda_dqd),
         dlambda_dtau: per_frame(&d.dlambda_dtau),
     }))
+}
+
+/// The model holding just the contacts a state's `active` leaves on (all of them unless
+/// the state turns some off).
+fn holding<'m>(model: &'m Model, s: &State) -> std::borrow::Cow<'m, Model> {
+    if s.active.values().all(|&a| a) {
+        return std::borrow::Cow::Borrowed(model);
+    }
+    let mut held = model.clone();
+    let frames = &model.frames;
+    held.specialisation.contacts.retain(|c| s.active.get(&frames[c.frame].name) != Some(&false));
+    std::borrow::Cow::Owned(held)
 }
 
 /// A state's forces as the reference takes them: the model with the state's bodies
@@ -295,7 +324,7 @@ fn step_output(
     // check_states made sure that a run-time step has its dt.
     let step = step.at(s.dt.unwrap_or(f64::NAN));
     let d = reference::step_derivatives(
-        model,
+        &holding(model, s),
         &s.q,
         &s.qd,
         tau,
@@ -429,6 +458,10 @@ pub enum EvalError {
     BadDt { index: usize, value: f64 },
     #[error("state {index}: `dt` is {value}, but the step's dt = {folded} s is folded into the kernels ({why}); leave `dt` out, or leave [step] dt out to give it per state")]
     FoldedDt { index: usize, value: f64, folded: f64, why: &'static str },
+    #[error("state {index}: `active` is given, but the scene does not mask its contacts; add `contact_mask = true` (or --contact-mask) to choose them per state")]
+    NotMasked { index: usize },
+    #[error("state {index}: `active` names `{key}`, which is not a contact the scene declares; declared: {declared}")]
+    UnknownActive { index: usize, key: String, declared: String },
     #[error("state {index}: `dt` is given, but the model takes no step; add [step] to the scene, or --step")]
     DtWithoutStep { index: usize },
     #[error("state {index}: the contacts' Jacobian loses rank at this configuration, so rigid-contact dynamics has no unique solution (contact_fd, and a step that integrates it); move the state away from the singularity or declare fewer contacts")]
@@ -557,6 +590,7 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         }
         check_forces(model, index, s)?;
         check_dt(model, index, s)?;
+        check_active(model, index, s)?;
         if let (Some(_), Some(tau)) = (model.specialisation.step, &s.tau) {
             let actuated = model.actuated();
             if let Some(entry) = (0..n).find(|k| !actuated.contains(k) && tau[*k] != 0.0) {
@@ -566,6 +600,24 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         }
     }
     Ok(())
+}
+
+/// A state's `active`: only for a scene that masks its contacts, keyed by its contacts.
+fn check_active(model: &Model, index: usize, s: &State) -> Result<(), EvalError> {
+    if s.active.is_empty() {
+        return Ok(());
+    }
+    if !model.specialisation.contact_mask {
+        return Err(EvalError::NotMasked { index });
+    }
+    let declared: Vec<&str> =
+        model.specialisation.contacts.iter().map(|c| model.frames[c.frame].name.as_str()).collect();
+    match s.active.keys().find(|k| !declared.contains(&k.as_str())) {
+        Some(key) => {
+            Err(EvalError::UnknownActive { index, key: key.clone(), declared: declared.join(", ") })
+        }
+        None => Ok(()),
+    }
 }
 
 /// A state's `dt`: finite and positive; required by a run-time step where the state asks

@@ -99,6 +99,7 @@ pub fn random_states(
                 contacts: Default::default(),
                 // The accuracy study leaves the step kernels out.
                 dt: None,
+                active: Default::default(),
             }
         })
         .collect();
