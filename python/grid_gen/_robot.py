@@ -50,7 +50,9 @@ class Kernel:
         # the path below, which handles everything else and names what is wrong).
         # The batch entry point's address, also what grid_gen.jax's FFI call is given.
         self._address: int = ctypes.cast(fn, ctypes.c_void_p).value
-        self._masked = any(n == "active" for n, _ in self.inputs)
+        # Where each input sits in the argument list.
+        self._at: Dict[str, int] = {n: k for k, (n, _) in enumerate(self.inputs)}
+        self._masked = "active" in self._at
         self._fast = _native.Caller(self._address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs])
         args = ", ".join(n for n, _ in self.inputs)
         outs = ", ".join(n for n, _ in self.outputs)
@@ -149,11 +151,11 @@ class Kernel:
                 raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected {want}")
             arrays.append(a)
         n = 1 if batch is None else batch
-        if "dt" in values:
-            at = [a for a, _ in self.inputs].index("dt")
+        if "dt" in self._at:
+            at = self._at["dt"]
             arrays[at] = self._time_steps(arrays[at], batch)
         if self._masked:
-            at = [a for a, _ in self.inputs].index("active")
+            at = self._at["active"]
             arrays[at] = self._mask(arrays[at], batch, self.inputs[at][1])
         # The inputs, copied into one buffer in the kernel's scalar, input after input (the
         # C ABI's layout): one finiteness check and one pointer instead of one per input,

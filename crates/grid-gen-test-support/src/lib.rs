@@ -528,16 +528,6 @@ pub fn kernel_args_masked<'a>(
         .collect()
 }
 
-/// The model holding just the contacts `active` marks (masked or not, the subset is a
-/// model of its own, as Pinocchio holding just those contacts).
-pub fn with_active_contacts(m: &Model, active: &[bool]) -> Model {
-    let mut held = m.clone();
-    let spec = &mut held.specialisation;
-    spec.contacts = spec.contacts.iter().zip(active).filter(|(_, &a)| a).map(|(c, _)| *c).collect();
-    spec.contact_mask = false;
-    held
-}
-
 /// The reference's values of a contact or step kernel of a masked model `m` at the mask
 /// `active`: those of the model holding just the active contacts, with λ's rows of the
 /// inactive ones 0 (in the kernel's output order and λ's full layout).
@@ -553,7 +543,7 @@ pub fn reference_masked_outputs(
     dt: f64,
     active: &[bool],
 ) -> Vec<DMatrix<f64>> {
-    let held = with_active_contacts(m, active);
+    let held = m.holding_contacts(active);
     if kind.is_step() {
         return reference_step_outputs(kind, &held, q, qd, u, g, fext, dt);
     }

@@ -37,6 +37,31 @@ fn wgsl(model: &Model, wgsl: WgslOptions) -> String {
     generate(model, &options).unwrap().remove(0).contents
 }
 
+/// One state's f64 outputs from a run (`got` from the state's first value, outputs one after
+/// another) against the reference's `want` and the IR interpreter's values, each within
+/// F64_TOL, as every f64 kernel is held; `what` names the state in a failure. Returns the
+/// worst relative error from the reference.
+fn check_f64_state(
+    what: &str,
+    f: &grid_gen::ir::Function,
+    nv: usize,
+    got: &[f64],
+    want: &[nalgebra::DMatrix<f64>],
+    interpreted: &[Vec<f64>],
+) -> f64 {
+    let (mut worst, mut base) = (0.0f64, 0);
+    for ((o, want), ir_vals) in f.outputs.iter().zip(want).zip(interpreted) {
+        let got = output_matrix(o.shape, nv, &got[base..base + o.ids.len()]);
+        let e = rel_err(&got, want);
+        assert!(e <= F64_TOL, "{what} {}: {e:.2e}", o.name);
+        let e_ir = rel_err(&got, &output_matrix(o.shape, nv, ir_vals));
+        assert!(e_ir <= F64_TOL, "{what} {}: {e_ir:.2e} from the IR", o.name);
+        worst = worst.max(e);
+        base += o.ids.len();
+    }
+    worst
+}
+
 fn naga_validate(name: &str, source: &str) -> std::time::Duration {
     let start = std::time::Instant::now();
     let module = naga::front::wgsl::parse_str(source)
@@ -1092,21 +1117,10 @@ fn forced_step_kernels_match_the_reference() {
                 ext,
             );
             let interpreted = f.eval(&kernel_args_with(f.inputs(), q, qd, &u[..nu], ext));
-            let mut base = s * total;
-            for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
-                let got = output_matrix(o.shape, nv, &got[base..base + o.ids.len()]);
-                let e = rel_err(&got, want);
-                // f64 kernels are held to F64_TOL, as everywhere (measured 2.3e-13: these
-                // states' contact Schur complements are well conditioned).
-                assert!(e <= F64_TOL, "{kind}.{} state {s}: {e:.2e}", o.name);
-                assert!(
-                    rel_err(&got, &output_matrix(o.shape, nv, ir_vals)) <= F64_TOL,
-                    "{kind}.{} state {s}: from the IR",
-                    o.name
-                );
-                worst = worst.max(e);
-                base += o.ids.len();
-            }
+            // Measured 2.3e-13: these states' contact Schur complements are well conditioned.
+            let what = format!("{kind} state {s}");
+            let e = check_f64_state(&what, f, nv, &got[s * total..], &want, &interpreted);
+            worst = worst.max(e);
         }
         assert!(singular <= 1, "{kind}: {singular} singular states");
         eprintln!(
@@ -1181,20 +1195,9 @@ fn runtime_dt_step_kernels_match_the_reference() {
             let ext = reference::External { fext, lambda: &[] };
             let args = kernel_args_dt(f.inputs(), q, qd, &u[..nu], ext, std::slice::from_ref(dt));
             let interpreted = f.eval(&args);
-            let mut base = s * total;
-            for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
-                let got = output_matrix(o.shape, nv, &got[base..base + o.ids.len()]);
-                let e = rel_err(&got, want);
-                // f64 kernels are held to F64_TOL, as everywhere.
-                assert!(e <= F64_TOL, "{robot} {kind}.{} state {s}: {e:.2e}", o.name);
-                assert!(
-                    rel_err(&got, &output_matrix(o.shape, nv, ir_vals)) <= F64_TOL,
-                    "{robot} {kind}.{} state {s}: from the IR",
-                    o.name
-                );
-                worst = worst.max(e);
-                base += o.ids.len();
-            }
+            let what = format!("{robot} {kind} state {s}");
+            let e = check_f64_state(&what, f, nv, &got[s * total..], &want, &interpreted);
+            worst = worst.max(e);
         }
         eprintln!(
             "{robot} {kind} with a run-time dt, f64: worst relative error {worst:.2e} over {} states",
@@ -1246,7 +1249,7 @@ fn masked_contacts_match_the_reference() {
     let total = kernel.entry.outputs;
     let (mut worst, mut singular): (f64, usize) = (0.0, 0);
     for (s, ([q, qd, u], m)) in states.iter().zip(&modes).enumerate() {
-        let held = with_active_contacts(&model, m);
+        let held = model.holding_contacts(m);
         let j = reference::contact_jacobian(&held, &held.specialisation.contacts, q);
         if j.nrows() > 0 && j.singular_values().min() < 1e-8 * j.singular_values().max() {
             // A leg stretched straight: λ is not unique there.
@@ -1258,20 +1261,9 @@ fn masked_contacts_match_the_reference() {
         let values = mask(m);
         let ext = reference::External { fext: &[], lambda: &[] };
         let interpreted = f.eval(&kernel_args_masked(f.inputs(), q, qd, u, ext, &[], &values));
-        let mut base = s * total;
-        for ((o, want), ir_vals) in f.outputs.iter().zip(&want).zip(&interpreted) {
-            let got = output_matrix(o.shape, nv, &got[base..base + o.ids.len()]);
-            let e = rel_err(&got, want);
-            // f64 kernels are held to F64_TOL, as everywhere.
-            assert!(e <= F64_TOL, "{kind}.{} state {s} mode {m:?}: {e:.2e}", o.name);
-            assert!(
-                rel_err(&got, &output_matrix(o.shape, nv, ir_vals)) <= F64_TOL,
-                "{kind}.{} state {s}: from the IR",
-                o.name
-            );
-            worst = worst.max(e);
-            base += o.ids.len();
-        }
+        let what = format!("{kind} state {s} mode {m:?}");
+        let e = check_f64_state(&what, f, nv, &got[s * total..], &want, &interpreted);
+        worst = worst.max(e);
     }
     assert!(singular <= 2, "{singular} singular states");
     eprintln!(

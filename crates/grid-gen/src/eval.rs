@@ -247,10 +247,12 @@ fn holding<'m>(model: &'m Model, s: &State) -> std::borrow::Cow<'m, Model> {
     if s.active.values().all(|&a| a) {
         return std::borrow::Cow::Borrowed(model);
     }
-    let mut held = model.clone();
-    let frames = &model.frames;
-    held.specialisation.contacts.retain(|c| s.active.get(&frames[c.frame].name) != Some(&false));
-    std::borrow::Cow::Owned(held)
+    let contacts = &model.specialisation.contacts;
+    let flags: Vec<bool> = contacts
+        .iter()
+        .map(|c| s.active.get(&model.frames[c.frame].name) != Some(&false))
+        .collect();
+    std::borrow::Cow::Owned(model.holding_contacts(&flags))
 }
 
 /// A state's forces as the reference takes them: the model with the state's bodies

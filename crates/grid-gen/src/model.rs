@@ -472,6 +472,16 @@ impl Specialisation {
     pub fn selects(&self) -> bool {
         self.rows.is_some() || self.columns.is_some()
     }
+
+    /// Entries of the contact mask `active`: one per contact when the contacts are
+    /// masked ([`Self::contact_mask`]), else none.
+    pub fn active_len(&self) -> usize {
+        if self.contact_mask {
+            self.contacts.len()
+        } else {
+            0
+        }
+    }
 }
 
 /// How many entries of an `nv x nv` matrix are not structurally zero.
@@ -482,6 +492,18 @@ pub struct Count {
 }
 
 impl Model {
+    /// This model holding just the contacts `active` marks (one flag per contact of
+    /// [`Specialisation::contacts`]), unmasked: what a masked model computes in that
+    /// contact mode, as Pinocchio holding just those contacts.
+    pub fn holding_contacts(&self, active: &[bool]) -> Model {
+        let mut held = self.clone();
+        let spec = &mut held.specialisation;
+        let mut flags = active.iter();
+        spec.contacts.retain(|_| flags.next().copied().unwrap_or(true));
+        spec.contact_mask = false;
+        held
+    }
+
     /// Degrees of freedom: entries of q̇, q̈ and τ (the model's joints less the coupled
     /// mimic joints).
     pub fn nv(&self) -> usize {

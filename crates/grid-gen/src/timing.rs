@@ -100,8 +100,7 @@ fn call_args(inputs: &[crate::ir::Input]) -> String {
 /// mixed kernels of `mixed.rs`.
 fn program(kernels: &[KernelKind], mixed: &[MixedKernel], model: &Model) -> String {
     let (nq, nf, nl) = (model.nq(), 6 * model.nfext(), model.nlambda());
-    let nc =
-        if model.specialisation.contact_mask { model.specialisation.contacts.len() } else { 0 };
+    let nc = model.specialisation.active_len();
     let mut calls = String::new();
     for (i, m) in mixed.iter().enumerate() {
         let name = m.function.kind.name();

@@ -222,7 +222,7 @@ impl Robot {
             nframes: self.nframes(),
             nfext: self.specialisation.fext.len(),
             nlambda: self.nlambda(),
-            ncontacts: if self.specialisation.contact_mask { self.contacts.len() } else { 0 },
+            ncontacts: self.specialisation.active_len(),
         }
     }
 
