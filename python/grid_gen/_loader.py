@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import hashlib
 import json
+import math
 import os
 import shutil
 import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Optional, Sequence
+from typing import Any, Dict, Mapping, Optional, Sequence, Tuple, Union
 
 from . import _native
 from ._robot import Robot
@@ -81,6 +82,14 @@ def load(
     precision: str = "f64",
     kernels: Optional[Sequence[str]] = None,
     verbose: bool = True,
+    *,
+    contacts: Union[None, Mapping[str, str], Sequence[Tuple[str, str]]] = None,
+    step: Optional[str] = None,
+    dt: Optional[float] = None,
+    actuated: Optional[Sequence[str]] = None,
+    external_forces: Optional[Sequence[str]] = None,
+    contact_mask: Optional[bool] = None,
+    gravity: Optional[Sequence[float]] = None,
 ) -> Robot:
     """Loads a robot's kernels, compiling them on the first load.
 
@@ -90,6 +99,17 @@ def load(
     names for the frame kernels. precision: "f64" or "f32", the scalar of every array the
     kernels read and write. kernels: which kernels to compile (default all the robot has;
     fewer compile faster). verbose: say on stderr when a robot is being compiled.
+
+    The scene's settings as keywords, each the scene key of the same name (a keyword and a
+    scene file that both set a thing is a ValueError naming both):
+    contacts: rigid contacts at links, `{"FL_foot": "point", ...}` or a list of
+    `(link, "point" | "wrench")` pairs; adds `contact_fd`, `contact_fd_grad`, and makes the
+    step hold them. step: a scheme, "semi_implicit_euler", "explicit_euler" or "rk4"; adds
+    `step` and `step_grad`. dt: the step's seconds, folded into the kernels; None (the
+    default) leaves it to run time (`step(q, qd, tau, dt)`). actuated: the joints with a
+    motor (the step's tau). external_forces: the joints whose bodies take `fext`.
+    contact_mask: the contacts are candidates, chosen per state by `active=`. gravity:
+    (x, y, z) in m/s^2.
 
     A compiled robot is cached (see `cache_dir`) under a hash of the URDF, the scene, the
     options and this grid-gen, and loads again in milliseconds. Raises ValueError for a
@@ -109,6 +129,7 @@ def load(
     for what, names in (("frames", frames), ("kernels", kernels)):
         if names is not None and not all(isinstance(n, str) for n in names):
             raise ValueError(f"{what} must be a list of strings")
+    keywords = _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, gravity)
 
     key_source = {
         "generator": _generator_id(),
@@ -118,14 +139,56 @@ def load(
         "frames": frames,
         "kernels": kernels,
         "precision": precision,
+        "keywords": keywords,
     }
     key = hashlib.sha256(json.dumps(key_source, sort_keys=True).encode()).hexdigest()[:24]
     cache = cache_dir()
     lib = cache / "robots" / key / _library_name("robot")
     if not lib.exists():
-        _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose)
+        _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords)
     prefix = json.loads((lib.parent / "source.json").read_text())["prefix"]
     return Robot(str(lib), prefix, precision)
+
+
+def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, gravity) -> Dict[str, Any]:
+    """load's scene keywords, checked for their Python types and put as the native generator
+    takes them (every key present; None where not given)."""
+
+    def names(what: str, value) -> Optional[list]:
+        if value is None:
+            return None
+        if isinstance(value, str) or not all(isinstance(n, str) for n in value):
+            raise ValueError(f"load({what}=...) takes a list of joint names, not {value!r}")
+        return list(value)
+
+    pairs = None
+    if contacts is not None:
+        items = list(contacts.items()) if isinstance(contacts, Mapping) else list(contacts)
+        if not all(isinstance(p, (tuple, list)) and len(p) == 2 and all(isinstance(x, str) for x in p) for p in items):
+            raise ValueError(f"load(contacts=...) takes {{link: \"point\" | \"wrench\"}} or a list of (link, type) pairs, not {contacts!r}")
+        pairs = [(str(f), str(k)) for f, k in items]
+    if step is not None and not isinstance(step, str):
+        raise ValueError(f"load(step=...) takes a scheme's name (\"semi_implicit_euler\", \"explicit_euler\", \"rk4\"), not {step!r}")
+    if dt is not None:
+        if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt) or dt <= 0:
+            raise ValueError(f"load(dt={dt!r}): a time step is a finite, positive number of seconds (or None: given at run time)")
+        dt = float(dt)
+    if contact_mask is not None and not isinstance(contact_mask, bool):
+        raise ValueError(f"load(contact_mask=...) takes True or False, not {contact_mask!r}")
+    if gravity is not None:
+        g = [float(x) for x in gravity] if not isinstance(gravity, str) else []
+        if len(g) != 3 or not all(math.isfinite(x) for x in g):
+            raise ValueError(f"load(gravity=...) takes three finite numbers (m/s^2), not {gravity!r}")
+        gravity = g
+    return {
+        "contacts": pairs,
+        "step": step,
+        "dt": dt,
+        "actuated": names("actuated", actuated),
+        "external_forces": names("external_forces", external_forces),
+        "contact_mask": contact_mask,
+        "gravity": gravity,
+    }
 
 
 def _library_name(stem: str) -> str:
@@ -136,21 +199,37 @@ def _library_name(stem: str) -> str:
     return f"lib{stem}.so"
 
 
-def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose) -> None:
+def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords) -> None:
     cargo = _cargo()
     crate = cache / "build" / key
+    try:
+        _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords)
+    except BaseException:
+        # A failed load leaves nothing behind: the next load starts afresh, and the cache
+        # holds only robots that load.
+        shutil.rmtree(crate, ignore_errors=True)
+        shutil.rmtree(lib.parent, ignore_errors=True)
+        raise
+
+
+def _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords) -> None:
     src = crate / "src"
-    src.mkdir(parents=True, exist_ok=True)
-    # The generator's errors (a bad URDF, an unknown frame) come before any compiling.
-    files = _native.generate(
-        str(urdf_path),
-        str(src),
-        floating_base=bool(floating_base),
-        scene=str(scene_path) if scene_path else None,
-        frames=frames,
-        kernels=kernels,
-        precision=precision,
-    )
+    # The generator's errors (a bad URDF, an unknown frame) come before any compiling, and
+    # before anything is written.
+    with tempfile.TemporaryDirectory() as scratch:
+        files = _native.generate(
+            str(urdf_path),
+            scratch,
+            floating_base=bool(floating_base),
+            scene=str(scene_path) if scene_path else None,
+            frames=frames,
+            kernels=kernels,
+            precision=precision,
+            keywords=keywords,
+        )
+        src.mkdir(parents=True, exist_ok=True)
+        for f in files:
+            _write_if_changed(src / f, (Path(scratch) / f).read_text())
     module = next(f for f in files if f.endswith(".rs") and not f.endswith("_c.rs"))
     stem = module[: -len(".rs")]
     _write_if_changed(
@@ -158,7 +237,7 @@ def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kern
         f'mod {stem} {{\n    include!("{stem}.rs");\n}}\ninclude!("{stem}_c.rs");\n',
     )
     runtime = _runtime_crate(cache)
-    name = f"grid_gen_robot_{key}"
+    name = f"grid_gen_robot_{crate.name}"
     _write_if_changed(
         crate / "Cargo.toml",
         f'[package]\nname = "{name}"\nversion = "0.1.0"\nedition = "2021"\n\n[lib]\ncrate-type = ["cdylib"]\n\n'
@@ -178,7 +257,7 @@ def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kern
         cmd.append("--quiet")
     run = subprocess.run(cmd, stdout=subprocess.PIPE, stderr=None if verbose else subprocess.PIPE, text=True)
     if run.returncode != 0:
-        raise RuntimeError(f"cargo could not build {urdf_path.name}'s kernels (in {crate}):\n{run.stderr or ''}{run.stdout}")
+        raise RuntimeError(f"cargo could not build {urdf_path.name}'s kernels (nothing was cached):\n{run.stderr or ''}{run.stdout}")
     if not lock.exists():
         shutil.copyfile(crate / "Cargo.lock", lock)
     built = cache / "target" / "release" / _library_name(name)
@@ -186,7 +265,7 @@ def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kern
     # The C names' prefix (`<prefix>_fd_grad_f64`), and where the library came from.
     prefix = ("robot" + stem) if stem.startswith("_") else stem
     source = {"prefix": prefix, "urdf": str(urdf_path.resolve()), "scene": str(scene_path.resolve()) if scene_path else None}
-    source.update(floating_base=bool(floating_base), frames=frames, kernels=kernels, precision=precision)
+    source.update(floating_base=bool(floating_base), frames=frames, kernels=kernels, precision=precision, keywords=keywords)
     (lib.parent / "source.json").write_text(json.dumps(source, indent=1))
     # Copy, then rename: a concurrent load sees the whole library or none.
     fd, tmp = tempfile.mkstemp(dir=lib.parent, suffix=".tmp")

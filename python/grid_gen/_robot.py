@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import collections
 import ctypes
 import json
 import math
@@ -12,6 +13,13 @@ import numpy as np
 from . import _native
 
 Array = np.ndarray
+
+
+def _field(output: str) -> str:
+    """A result's field name from its output's: `lambda` is a Python keyword, so λ and its
+    derivatives are `lam`, `dlam_dq`, ...; the step's `a`, `b` are `A`, `B`, as the docs
+    write them."""
+    return {"a": "A", "b": "B"}.get(output, output.replace("lambda", "lam"))
 
 
 def _pointers(base: int, item: int, n: int, sizes: Sequence[int]) -> List[int]:
@@ -53,7 +61,11 @@ class Kernel:
         # Where each input sits in the argument list.
         self._at: Dict[str, int] = {n: k for k, (n, _) in enumerate(self.inputs)}
         self._masked = "active" in self._at
-        self._fast = _native.Caller(self._address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs])
+        # Several outputs come back as a named tuple (`qdd, lam = r` or `r.lam`).
+        self._result = collections.namedtuple(f"{self.name}_result", [_field(n) for n, _ in self.outputs]) if len(self.outputs) > 1 else None
+        # Where q's unit quaternions start, when q is the first input (every kernel's).
+        self._quats = [(j, at) for j, at in robot._quaternions] if self.inputs[0][0] == "q" else []
+        self._fast = _native.Caller(self._address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs], [at for _, at in self._quats])
         args = ", ".join(n for n, _ in self.inputs)
         outs = ", ".join(n for n, _ in self.outputs)
         shapes = "; ".join(f"{n}: (B, {l})" for n, l in self.inputs)
@@ -84,6 +96,41 @@ class Kernel:
             raise ValueError(f"{name}: `active` has shape {a.shape}; expected {want}, one per contact ({contacts})")
         return a
 
+    def _size_hint(self, arg: str, got: Optional[int]) -> str:
+        """Why an input may have the wrong length: a state for the other kind of base, or the
+        step's actuated τ mixed up with every coordinate's."""
+        r = self._robot
+        if got is None:
+            return ""
+        want = dict(self.inputs)[arg]
+        if arg == "tau" and r.nu != r.nv:
+            if got == r.nv and want == r.nu:
+                return f"; {self.name} takes the {r.nu} actuated joints' forces (nu), not one per coordinate (nv = {r.nv}, as fd takes)"
+            if got == r.nu and want == r.nv:
+                return f"; {self.name} takes a force per coordinate (nv = {r.nv}, zero on unactuated ones), not the step's nu = {r.nu}"
+        base = {"q": 7, "qd": 6, "qdd": 6, "tau": 6}.get(arg)
+        if base is not None and not r.floating_base and got == want + base:
+            return f"; {got} entries is a floating base's: load the robot with floating_base=True"
+        if base is not None and r.floating_base and got == want - base:
+            return f"; this robot has a floating base, whose {arg} starts with the base's {base} entries" + (" [x, y, z, qx, qy, qz, qw]" if arg == "q" else "")
+        return ""
+
+    def _check_quaternions(self, q: Array, batch: Optional[int]) -> None:
+        """Each unit quaternion of q has norm 1 within 1e-6 (a zero one included): the
+        kernels read them as rotations without normalising."""
+        for joint, at in self._quats:
+            quat = np.asarray(q[..., at : at + 4], dtype=np.float64)
+            norm = np.sqrt(np.sum(quat * quat, axis=-1))
+            bad = np.argwhere(np.atleast_1d(np.abs(norm - 1.0) > 1e-6))
+            if len(bad):
+                i = int(bad[0][0])
+                where = f" at state {i}" if batch is not None else ""
+                value = float(np.atleast_1d(norm)[i])
+                raise ValueError(
+                    f"{self.name}: `q`{where}: joint `{joint}`'s quaternion q[{at}:{at + 4}] has norm {value:.9g}; "
+                    "a rotation is a unit quaternion [qx, qy, qz, qw] (norm 1 within 1e-6; the identity is [0, 0, 0, 1])"
+                )
+
     def _time_steps(self, a: Array, batch: Optional[int]) -> Array:
         """A step's run-time `dt` as the kernel reads it, (1,) or (B, 1): from a scalar (every
         state's), a (B,) array (one per state) or (1,) for one state; each finite and
@@ -112,7 +159,7 @@ class Kernel:
             except RuntimeError as e:
                 raise RuntimeError(f"{name}: {e}") from None
             if fast is not None:
-                return fast
+                return fast if self._result is None else self._result._make(fast)
         robot = self._robot
         dtype = robot.dtype
         if len(args) > len(self.inputs):
@@ -142,7 +189,7 @@ class Kernel:
             if a.dtype.kind not in "fiu":
                 raise ValueError(f"{name}: `{arg}` has dtype {a.dtype}; expected real numbers (float64 or float32)")
             if a.ndim not in (1, 2) or a.shape[-1] != length:
-                raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected ({length},) for one state or (B, {length}) for a batch")
+                raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected ({length},) for one state or (B, {length}) for a batch{self._size_hint(arg, a.shape[-1] if a.ndim else None)}")
             b = a.shape[0] if a.ndim == 2 else None
             if first is None:
                 batch, first = b, arg
@@ -151,6 +198,8 @@ class Kernel:
                 raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected {want}")
             arrays.append(a)
         n = 1 if batch is None else batch
+        if self._quats:
+            self._check_quaternions(arrays[0], batch)
         if "dt" in self._at:
             at = self._at["dt"]
             arrays[at] = self._time_steps(arrays[at], batch)
@@ -198,7 +247,7 @@ class Kernel:
         status = self._fn(n, *in_ptrs, *out_ptrs)
         if status != 0:
             raise RuntimeError(f"{name}: the kernel library returned status {status}")
-        return outs[0] if len(outs) == 1 else tuple(outs)
+        return outs[0] if self._result is None else self._result._make(outs)
 
 
 class Robot:
@@ -226,6 +275,7 @@ class Robot:
         self.joint_names: List[str] = list(m["joint_names"])
         self.frames: List[str] = list(m["frames"])
         self.contacts: List[Tuple[str, str]] = [tuple(c) for c in m["contacts"]]
+        self._quaternions: List[Tuple[str, int]] = [(x["joint"], int(x["q"])) for x in m.get("quaternions", [])]
         self.gravity: Tuple[float, float, float] = tuple(m["gravity"])
         self.kernels: Tuple[str, ...] = tuple(k["name"] for k in m["kernels"])
         for spec in m["kernels"]:
@@ -236,6 +286,22 @@ class Robot:
         self._threads = getattr(self._lib, f"{prefix}_threads")
         self._threads.argtypes = []
         self._threads.restype = ctypes.c_size_t
+
+    def __getattr__(self, name: str):
+        # Only for names that are not attributes: a kernel this robot was built without.
+        adds = {
+            "step": 'step="semi_implicit_euler" (and dt=, or dt at run time)',
+            "step_grad": 'step="semi_implicit_euler" (and dt=, or dt at run time)',
+            "contact_fd": 'contacts={"link": "point" | "wrench"}',
+            "contact_fd_grad": 'contacts={"link": "point" | "wrench"}',
+        }
+        frame = ("frame_placement", "frame_jacobian", "frame_velocity", "frame_acceleration", "frame_acceleration_grad")
+        adds.update({k: 'frames=["link", ...]' for k in frame})
+        known = ("rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad") + tuple(adds)
+        if name in known and "kernels" in self.__dict__:
+            how = f"load it with {adds[name]}" if name in adds else "it was left out by load(kernels=...)"
+            raise AttributeError(f"robot {self.name} has no kernel `{name}`: {how}; its kernels: {', '.join(self.kernels)}")
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
 
     @property
     def threads(self) -> int:

@@ -245,11 +245,12 @@ class Functions:
 
                 @jax.custom_vjp
                 def step(q, qd, tau):
-                    q_next, qd_next = call("step", q, qd, tau)
+                    # With contacts, the step's λ follows (not differentiated here).
+                    q_next, qd_next = call("step", q, qd, tau)[:2]
                     return q_next, qd_next
 
                 def step_fwd(q, qd, tau):
-                    q_next, qd_next, a, b = call("step_grad", q, qd, tau)
+                    q_next, qd_next, a, b = call("step_grad", q, qd, tau)[:4]
                     return (q_next, qd_next), (q, q_next, a, b)
 
                 def step_bwd(res, g):

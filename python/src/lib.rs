@@ -9,11 +9,120 @@ use pyo3::exceptions::{PyFileNotFoundError, PyRuntimeError, PyValueError};
 use pyo3::prelude::*;
 use pyo3::types::PyTuple;
 
+/// What `grid_gen.load`'s scene keywords set, each the scene key of the same name; `None`
+/// leaves it to the scene file (or the default). `dt` without `step` times the scene's
+/// `[step]`.
+#[derive(Default, FromPyObject)]
+#[pyo3(from_item_all)]
+struct SceneKeywords {
+    contacts: Option<Vec<(String, String)>>,
+    step: Option<String>,
+    dt: Option<f64>,
+    actuated: Option<Vec<String>>,
+    external_forces: Option<Vec<String>>,
+    contact_mask: Option<bool>,
+    gravity: Option<[f64; 3]>,
+}
+
+impl SceneKeywords {
+    /// Sets what the keywords give on `b`; an error where the scene file sets it too (each
+    /// thing has one source, so nobody wonders which won), or where a value is unknown.
+    fn apply(&self, b: &mut grid_gen::Builder, scene: Option<&str>) -> PyResult<()> {
+        use grid_gen::model::{ContactKind, Scheme};
+        // A scene that does not parse is reported by the build below, with its line.
+        let parsed = scene.and_then(|path| {
+            let text = std::fs::read_to_string(path).ok()?;
+            grid_gen::Scene::parse(path, &text).ok().map(|s| (path, s))
+        });
+        let clash = |keyword: &str, what: &str, set: bool| -> PyResult<()> {
+            match &parsed {
+                Some((path, _)) if set => Err(PyValueError::new_err(format!(
+                    "load({keyword}=...) and the scene file `{path}` both set {what}; give it in one place"
+                ))),
+                _ => Ok(()),
+            }
+        };
+        let s = parsed.as_ref().map(|(_, s)| s);
+        if let Some(contacts) = &self.contacts {
+            clash("contacts", "the contacts ([[contact]])", s.is_some_and(|s| !s.contact.is_empty()))?;
+            let mut entries = Vec::with_capacity(contacts.len());
+            for (frame, kind) in contacts {
+                let kind = ContactKind::parse(kind).ok_or_else(|| {
+                    PyValueError::new_err(format!(
+                        "load(contacts=...): contact `{frame}` has type {kind:?}; a contact is \"point\" (a 3-D force) or \"wrench\" (6-D)"
+                    ))
+                })?;
+                entries.push((frame.clone(), kind));
+            }
+            b.contacts(&entries);
+        }
+        let scene_step = s.and_then(|s| s.step.as_ref());
+        if let Some(dt) = self.dt {
+            clash("dt", "the step's dt ([step] dt)", scene_step.is_some_and(|st| st.dt.is_some()))?;
+            if !(dt.is_finite() && dt > 0.0) {
+                return Err(PyValueError::new_err(format!(
+                    "load(dt={dt}): a time step is a finite, positive number of seconds (or None: given at run time)"
+                )));
+            }
+        }
+        match (&self.step, scene_step) {
+            (Some(name), _) => {
+                clash("step", "the step ([step])", scene_step.is_some())?;
+                let scheme = Scheme::parse(name).ok_or_else(|| {
+                    let known: Vec<&str> = Scheme::ALL.iter().map(|s| s.name()).collect();
+                    PyValueError::new_err(format!(
+                        "load(step={name:?}): no such scheme; schemes: {}",
+                        known.join(", ")
+                    ))
+                })?;
+                match self.dt {
+                    Some(dt) => b.step(scheme, dt),
+                    None => b.step_at_run_time(scheme),
+                };
+            }
+            (None, Some(st)) => {
+                if let Some(dt) = self.dt {
+                    b.step(st.scheme.unwrap_or_default(), dt);
+                }
+            }
+            (None, None) if self.dt.is_some() => {
+                return Err(PyValueError::new_err(
+                    "load(dt=...) times a step, and none is asked for: give step= too (\"semi_implicit_euler\", \"explicit_euler\" or \"rk4\")",
+                ))
+            }
+            (None, None) => {}
+        }
+        if let Some(joints) = &self.actuated {
+            clash("actuated", "the actuated joints ([actuation] joints)", s.is_some_and(|s| s.actuation.is_some()))?;
+            b.actuated(joints);
+        }
+        if let Some(joints) = &self.external_forces {
+            clash(
+                "external_forces",
+                "the bodies that take fext ([external_forces] joints)",
+                s.is_some_and(|s| !s.external_forces.joints.is_empty()),
+            )?;
+            b.external_forces(joints);
+        }
+        if let Some(mask) = self.contact_mask {
+            clash("contact_mask", "contact_mask", s.is_some_and(|s| s.contact_mask))?;
+            b.contact_mask(mask);
+        }
+        if let Some(g) = self.gravity {
+            clash("gravity", "gravity", s.is_some_and(|s| s.gravity.is_some()))?;
+            b.gravity(g);
+        }
+        Ok(())
+    }
+}
+
 /// Generates the Rust module and its C ABI for one robot into `out_dir`; returns the
 /// written files' names. Raises ValueError with grid-gen's diagnostics (located in the
-/// URDF) for a robot it cannot use.
+/// URDF) for a robot it cannot use. `keywords`: `grid_gen.load`'s scene keywords, a dict
+/// (see [`SceneKeywords`]).
 #[pyfunction]
-#[pyo3(signature = (urdf, out_dir, floating_base=false, scene=None, frames=None, kernels=None, precision="f64"))]
+#[pyo3(signature = (urdf, out_dir, floating_base=false, scene=None, frames=None, kernels=None, precision="f64", keywords=None))]
+#[allow(clippy::too_many_arguments)]
 fn generate(
     urdf: &str,
     out_dir: &str,
@@ -22,6 +131,7 @@ fn generate(
     frames: Option<Vec<String>>,
     kernels: Option<Vec<String>>,
     precision: &str,
+    keywords: Option<SceneKeywords>,
 ) -> PyResult<Vec<String>> {
     use grid_gen::generate::Target;
     if !std::path::Path::new(urdf).is_file() {
@@ -51,8 +161,19 @@ fn generate(
         b.scene(scene);
     }
     if let Some(frames) = &frames {
+        let parsed = scene.and_then(|path| {
+            let text = std::fs::read_to_string(path).ok()?;
+            grid_gen::Scene::parse(path, &text).ok()
+        });
+        if parsed.is_some_and(|s| !s.frames.names.is_empty()) {
+            return Err(PyValueError::new_err(format!(
+                "load(frames=...) and the scene file `{}` both set the frames ([frames] names); give them in one place",
+                scene.unwrap_or_default()
+            )));
+        }
         b.frames(frames);
     }
+    keywords.unwrap_or_default().apply(&mut b, scene)?;
     if let Some(names) = &kernels {
         let mut kinds = Vec::new();
         for name in names {
@@ -140,19 +261,24 @@ struct Caller {
     f64: bool,
     in_lens: Vec<usize>,
     out_dims: Vec<Vec<usize>>,
+    /// Where each unit quaternion starts in the first input (q): a state whose norm is off
+    /// by more than 1e-6 goes to the Python path, which names it.
+    quats: Vec<usize>,
 }
 
 #[pymethods]
 impl Caller {
     /// `addr`: the entry point's address (from ctypes), which must stay loaded as long as
     /// this object lives; `f64`: its scalar (else f32); the per-state input lengths and
-    /// output shapes, in the entry point's order.
+    /// output shapes, in the entry point's order; where q's quaternions start.
     #[new]
+    #[pyo3(signature = (addr, f64, in_lens, out_dims, quats=Vec::new()))]
     fn new(
         addr: usize,
         f64: bool,
         in_lens: Vec<usize>,
         out_dims: Vec<Vec<usize>>,
+        quats: Vec<usize>,
     ) -> PyResult<Self> {
         let count = in_lens.len() + out_dims.len();
         if addr == 0 || in_lens.is_empty() || out_dims.is_empty() || count > MAX_POINTERS {
@@ -160,7 +286,10 @@ impl Caller {
                 "Caller: a non-null entry point with 1 to {MAX_POINTERS} arrays, not {count}"
             )));
         }
-        Ok(Caller { addr, f64, in_lens, out_dims })
+        if quats.iter().any(|&at| at + 4 > in_lens[0]) {
+            return Err(PyValueError::new_err("Caller: a quaternion past the end of q"));
+        }
+        Ok(Caller { addr, f64, in_lens, out_dims, quats })
     }
 
     /// The kernel's outputs for these inputs (one array, or a tuple), or None where the
@@ -209,6 +338,17 @@ impl Caller {
             let Ok(values) = view.as_slice() else { return Ok(None) };
             if !values.iter().all(|&x| x.into().is_finite()) {
                 return Ok(None);
+            }
+            if count == 0 && !self.quats.is_empty() {
+                let unit = |state: &[T]| {
+                    self.quats.iter().all(|&at| {
+                        let n2: f64 = state[at..at + 4].iter().map(|&x| x.into() * x.into()).sum();
+                        (n2.sqrt() - 1.0).abs() <= 1e-6
+                    })
+                };
+                if !values.chunks_exact(len).all(unit) {
+                    return Ok(None);
+                }
             }
             pointers[count] = values.as_ptr() as usize;
             count += 1;

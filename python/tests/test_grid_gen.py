@@ -376,9 +376,15 @@ def test_every_kind_of_kernel_through_a_scene(tmp_path, iiwa):
     # The step: semi-implicit Euler on contact_fd (the wrench contact held rigid, fext held
     # over the step), q+ = q + dt qd+ on a fixed base; it takes fext and no lambda.
     assert [name for name, _ in robot.step.inputs] == ["q", "qd", "tau", "fext"]
-    q_next, qd_next = robot.step(q, qd, tau[:, : robot.nu], fext)
-    a, _ = robot.contact_fd(q, qd, tau, fext)
+    q_next, qd_next, lam_step = robot.step(q, qd, tau[:, : robot.nu], fext)
+    a, lam_c = robot.contact_fd(q, qd, tau, fext)
     assert rel(qd_next, qd + 0.01 * a) < 1e-12 and rel(q_next, q + 0.01 * (qd + 0.01 * a)) < 1e-12
+    # The step's λ is contact_fd's at the state (the same graph; f64 round-off).
+    assert rel(lam_step, lam_c) < 1e-12
+    r = robot.step_grad(q, qd, tau[:, : robot.nu], fext)
+    assert r._fields == ("q_next", "qd_next", "A", "B", "lam", "dlam_dx", "dlam_du")
+    assert r.dlam_dx.shape == (n, 6, 14) and r.dlam_du.shape == (n, 6, 7) and rel(r.lam, lam_c) < 1e-12
+    assert robot.contact_fd_grad._result._fields == ("qdd", "lam", "dqdd_dq", "dqdd_dqd", "dqdd_dtau", "dlam_dq", "dlam_dqd", "dlam_dtau")
 
 
 def test_a_step_without_dt_takes_it_per_state(tmp_path):
@@ -586,3 +592,154 @@ def test_jax_floating_base_and_step_on_the_manifold(go2_stepping):
     assert worst < 1e-6
     with pytest.raises(ValueError, match="spherical"):
         gj.wrap(grid_gen.load(ROOT / "tests" / "fixtures" / "ball_arm.urdf", kernels=["rnea"]))
+
+
+def _point_contacts(p: "Pin", frames, active=None):
+    """Pinocchio's point contacts (CONTACT_3D, LOCAL_WORLD_ALIGNED) at links, as grid-gen's."""
+    cms, cds = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
+    for k, name in enumerate(frames):
+        if active is None or active[k]:
+            frame = p.model.frames[p.model.getFrameId(name, pin.BODY)]
+            cm = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, p.model, frame.parentJoint, frame.placement, pin.LOCAL_WORLD_ALIGNED)
+            cms.append(cm)
+            cds.append(cm.createData())
+    pin.initConstraintDynamics(p.model, p.data, cms, cds)
+    return cms, cds
+
+
+def test_a_knot_from_load_keywords_with_the_steps_lambda(tmp_path):
+    """No scene file: a floating robot nobody bundled, two point feet and the semi-implicit
+    step with dt at run time, all from load's keywords. The step returns λ (Pinocchio's
+    constraintDynamics lambda_c at the state) and step_grad its derivatives, against central
+    differences of Pinocchio's constraintDynamics on the manifold; A and B against central
+    differences of Pinocchio's step (aba with contacts, then integrate)."""
+    urdf = tmp_path / "unseen_tree.urdf"
+    urdf.write_text(random_tree_urdf(seed=2027))
+    feet = {"l2": "point", "l4": "point"}
+    robot = grid_gen.load(urdf, floating_base=True, contacts=feet, step="semi_implicit_euler", kernels=["step", "step_grad"])
+    assert robot.contacts == [("l2", "point"), ("l4", "point")] and robot.kernels == ("step", "step_grad")
+    assert [n for n, _ in robot.step_grad.inputs] == ["q", "qd", "tau", "dt"]
+    p = Pin(urdf, robot)
+    n, nv, nu = 3, robot.nv, robot.nu
+    q, qd, tau = random_states(robot, n, seed=21)
+    u = tau[:, 6:]
+    dt = np.array([1e-3, 5e-3, 2e-2])
+    r = robot.step_grad(q, qd, u, dt)
+    q1, v1, lam1 = robot.step(q, qd, u, dt)
+    assert rel(lam1, r.lam) < 1e-13 and rel(v1, r.qd_next) < 1e-13
+
+    def pin_state(qg, vg):
+        return p.to_pin(qg, vg)
+
+    def pin_lambda(qp, vp, up):
+        taup = np.zeros(nv)
+        taup[p.v[6:]] = up
+        cms, cds = _point_contacts(p, list(feet))
+        a = pin.constraintDynamics(p.model, p.data, qp, vp, taup, cms, cds, pin.ProximalSettings(1e-14, 0.0, 1))
+        return a.copy(), p.data.lambda_c.copy()
+
+    def pin_step(qp, vp, up, h):
+        a, lam = pin_lambda(qp, vp, up)
+        v_next = vp + h * a
+        return pin.integrate(p.model, qp, h * v_next), v_next, lam
+
+    worst_lam = worst_dlam = worst_ab = 0.0
+    eps = 1e-6
+    for i in range(n):
+        qp, vp = pin_state(q[i], qd[i])
+        _, lam = pin_lambda(qp, vp, u[i])
+        worst_lam = max(worst_lam, rel(r.lam[i], lam))
+        # Central differences along each tangent direction of x = (q, qd) (grid-gen's
+        # order, mapped to Pinocchio's) and of u.
+        dlam_dx, dlam_du = np.empty((6, 2 * nv)), np.empty((6, nu))
+        a_fd, b_fd = np.empty((2 * nv, 2 * nv)), np.empty((2 * nv, nu))
+        q_next0, v_next0, _ = pin_step(qp, vp, u[i], dt[i])
+
+        def tangent(qa, va, qb, vb):
+            """x_b ⊖ x_a in grid-gen's tangent order."""
+            dq = pin.difference(p.model, qa, qb)
+            return np.concatenate([np.asarray(dq)[p.v], np.asarray(vb - va)[p.v]])
+
+        for c in range(2 * nv + nu):
+            outs = []
+            for sign in (1.0, -1.0):
+                dv = np.zeros(nv)
+                qs, vs, us = qp, vp.copy(), u[i].copy()
+                if c < nv:
+                    dv[p.v[c]] = sign * eps
+                    qs = pin.integrate(p.model, qp, dv)
+                elif c < 2 * nv:
+                    vs[p.v[c - nv]] += sign * eps
+                else:
+                    us[c - 2 * nv] += sign * eps
+                outs.append(pin_step(qs, vs, us, dt[i]))
+            dl = (outs[0][2] - outs[1][2]) / (2 * eps)
+            dxn = (tangent(q_next0, v_next0, outs[0][0], outs[0][1]) - tangent(q_next0, v_next0, outs[1][0], outs[1][1])) / (2 * eps)
+            if c < 2 * nv:
+                dlam_dx[:, c], a_fd[:, c] = dl, dxn
+            else:
+                dlam_du[:, c - 2 * nv], b_fd[:, c - 2 * nv] = dl, dxn
+        worst_dlam = max(worst_dlam, rel(r.dlam_dx[i], dlam_dx), rel(r.dlam_du[i], dlam_du))
+        worst_ab = max(worst_ab, rel(r.A[i], a_fd), rel(r.B[i], b_fd))
+    print(f"unseen floating tree, two feet, step from load keywords: lambda {worst_lam:.1e} from Pinocchio; dlam {worst_dlam:.1e}, A/B {worst_ab:.1e} from central differences")
+    # λ: f64 round-off through K = J M^-1 J^T (two points on a 12-dof tree, well
+    # conditioned at these states). Derivatives: central differences with eps = 1e-6 carry
+    # O(eps^2) truncation and O(1e-16 / eps) round-off, ~1e-10 of the scale; 1e-7 leaves
+    # room for the curvature of the contact forces, and a wrong column would be O(1).
+    assert worst_lam < 1e-11
+    assert worst_dlam < 1e-7 and worst_ab < 1e-7
+
+
+def test_load_keywords_and_state_checks_say_what_is_wrong(tmp_path):
+    """Every load keyword error names the keyword (and the scene file where both set a
+    thing), and a failed load leaves nothing in the cache; a bad quaternion, a state of the
+    other kind of base, τ of nv where nu is expected and a kernel the robot lacks each say
+    what is wrong. Uses the robot the previous test compiled (the same keywords)."""
+    urdf = tmp_path / "unseen_tree.urdf"
+    urdf.write_text(random_tree_urdf(seed=2027))
+    scene = tmp_path / "step.toml"
+    scene.write_text('[step]\nscheme = "rk4"\ndt = 0.01\n')
+    build = grid_gen.cache_dir() / "build"
+    before = set(build.iterdir()) if build.exists() else set()
+    cases = [
+        (dict(scene=scene, step="rk4"), "load(step=...) and the scene file `" + str(scene) + "` both set the step"),
+        (dict(scene=scene, dt=0.02), "both set the step's dt"),
+        (dict(dt=0.01), "load(dt=...) times a step, and none is asked for"),
+        (dict(dt=-1.0, step="rk4"), "load(dt=-1.0): a time step is a finite, positive number"),
+        (dict(step="leapfrog"), 'load(step="leapfrog"): no such scheme; schemes: semi_implicit_euler, explicit_euler, rk4'),
+        (dict(contacts={"l2": "line"}), 'contact `l2` has type "line"'),
+        (dict(contacts="l2"), "load(contacts=...) takes"),
+        (dict(contacts={"l9": "point"}), "l9"),
+    ]
+    for kwargs, says in cases:
+        with pytest.raises(ValueError) as e:
+            grid_gen.load(urdf, floating_base=True, **kwargs)
+        assert says in str(e.value), str(e.value)
+    after = set(build.iterdir()) if build.exists() else set()
+    assert after == before, f"failed loads left {sorted(after - before)} in the cache"
+
+    robot = grid_gen.load(urdf, floating_base=True, contacts={"l2": "point", "l4": "point"}, step="semi_implicit_euler", kernels=["step", "step_grad"])
+    q, qd, tau = random_states(robot, 3, seed=22)
+    u = tau[:, 6:]
+    for bad_q, says in ((np.zeros(robot.nq), "`q`: joint `root_joint`'s quaternion q[3:7] has norm 0; a rotation is a unit quaternion"),
+                        (np.concatenate([q[:, :3], 2 * q[:, 3:7], q[:, 7:]], axis=1), "`q` at state 0: joint `root_joint`'s quaternion q[3:7] has norm 2")):
+        for call in (robot.step, robot.step_grad):
+            with pytest.raises(ValueError) as e:
+                call(bad_q, qd[0] if bad_q.ndim == 1 else qd, u[0] if bad_q.ndim == 1 else u, 0.01)
+            assert says in str(e.value), str(e.value)
+    hints = [
+        (lambda: robot.step(q[:, 7:], qd, u, 0.01), "this robot has a floating base, whose q starts with the base's 7 entries"),
+        (lambda: robot.step(q, qd, tau, 0.01), f"step takes the {robot.nu} actuated joints' forces (nu), not one per coordinate (nv = {robot.nv}"),
+    ]
+    for call, says in hints:
+        with pytest.raises(ValueError) as e:
+            call()
+        assert says in str(e.value), str(e.value)
+    with pytest.raises(AttributeError, match="has no kernel `fd_grad`: it was left out by load\\(kernels=...\\)"):
+        robot.fd_grad
+    iiwa = grid_gen.load(IIWA)
+    q7, qd7, tau7 = random_states(iiwa, 2, seed=23)
+    with pytest.raises(ValueError, match="14 entries is a floating base's: load the robot with floating_base=True"):
+        iiwa.fd(np.zeros((2, 14)), qd7, tau7)
+    with pytest.raises(AttributeError, match='has no kernel `contact_fd`: load it with contacts='):
+        iiwa.contact_fd

@@ -386,14 +386,22 @@ pub fn reference_step_outputs(
 ) -> Vec<DMatrix<f64>> {
     let step = m.specialisation.step.expect("a model with a step").at(dt);
     let tau = actuated_tau(m, u);
+    // With contacts, the forces at (q, q̇) follow the state (and the linearisation).
+    let lambda = (!m.specialisation.contacts.is_empty()).then(|| {
+        reference::step_lambda(m, q, qd, &tau, g, &m.actuated(), fext)
+            .expect("independent contacts")
+    });
     if kind == KernelKind::Step {
         let (q1, v1) =
             reference::step(m, q, qd, &tau, g, step, fext).expect("independent contacts");
-        return vec![col(&q1), col(&v1)];
+        return [col(&q1), col(&v1)].into_iter().chain(lambda.map(|l| col(&l.0))).collect();
     }
     let d = reference::step_derivatives(m, q, qd, &tau, g, step, &m.actuated(), fext)
         .expect("independent contacts");
-    vec![col(&d.q_next), col(&d.qd_next), d.a, d.b]
+    // ∂λ/∂u as output_matrix shapes it: a column, row-major.
+    let lambda =
+        lambda.into_iter().flat_map(|(l, dx, du)| [col(&l), dx, col(du.transpose().as_slice())]);
+    [col(&d.q_next), col(&d.qd_next), d.a, d.b].into_iter().chain(lambda).collect()
 }
 
 /// τ per coordinate from the actuated joints' forces (0 on the others).
@@ -544,11 +552,18 @@ pub fn reference_masked_outputs(
     active: &[bool],
 ) -> Vec<DMatrix<f64>> {
     let held = m.holding_contacts(active);
-    if kind.is_step() {
-        return reference_step_outputs(kind, &held, q, qd, u, g, fext, dt);
+    let mut got = if kind.is_step() {
+        reference_step_outputs(kind, &held, q, qd, u, g, fext, dt)
+    } else {
+        let ext = reference::External { fext, lambda: &[] };
+        reference_outputs_with(kind, &held, q, qd, u, g, ext)
+    };
+    // With no contact held, the step has no λ outputs: each is 0 rows of its columns.
+    let nv = m.nv();
+    for o in &kind.outputs_for(&m.specialisation)[got.len()..] {
+        let cols = if o.shape == Shape::LambdaByState { 2 * nv } else { 1 };
+        got.push(DMatrix::zeros(0, cols));
     }
-    let ext = reference::External { fext, lambda: &[] };
-    let got = reference_outputs_with(kind, &held, q, qd, u, g, ext);
     // λ's rows: the active contacts' in order, zeros for the others.
     let rows: Vec<Option<usize>> = {
         let mut at = 0;
@@ -569,8 +584,14 @@ pub fn reference_masked_outputs(
     got.into_iter()
         .zip(&outputs)
         .map(|(x, o)| match o.shape {
-            Shape::Lambda | Shape::LambdaBy => {
+            Shape::Lambda | Shape::LambdaBy | Shape::LambdaByState => {
                 DMatrix::from_fn(rows.len(), x.ncols(), |r, c| rows[r].map_or(0.0, |r| x[(r, c)]))
+            }
+            Shape::LambdaByInput => {
+                let nu = m.actuated().len();
+                DMatrix::from_fn(rows.len() * nu, 1, |i, _| {
+                    rows[i / nu.max(1)].map_or(0.0, |r| x[(r * nu + i % nu.max(1), 0)])
+                })
             }
             _ => x,
         })
@@ -610,11 +631,17 @@ pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
             DMatrix::from_row_slice(nv, values.len() / nv.max(1), values)
         }
         Shape::LambdaBy => DMatrix::from_row_slice(values.len() / nv.max(1), nv, values),
+        Shape::LambdaByState => {
+            DMatrix::from_row_slice(values.len() / (2 * nv).max(1), 2 * nv, values)
+        }
+
         Shape::Vector
         | Shape::PerFrame(_)
         | Shape::FrameMatrix(_)
         | Shape::Config
-        | Shape::Lambda => col(values),
+        | Shape::Lambda
+        // nλ × nu, neither known from nv: compared as a column, row-major.
+        | Shape::LambdaByInput => col(values),
     }
 }
 

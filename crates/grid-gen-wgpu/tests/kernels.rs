@@ -50,6 +50,7 @@ fn check_f64_state(
     interpreted: &[Vec<f64>],
 ) -> f64 {
     let (mut worst, mut base) = (0.0f64, 0);
+    assert_eq!(f.outputs.len(), want.len(), "{what}: the reference's outputs");
     for ((o, want), ir_vals) in f.outputs.iter().zip(want).zip(interpreted) {
         let got = output_matrix(o.shape, nv, &got[base..base + o.ids.len()]);
         let e = rel_err(&got, want);

@@ -195,43 +195,17 @@ fn contact_output(
     if sol.qdd.iter().chain(&sol.lambda).any(|x| !x.is_finite()) {
         return Err(EvalError::ContactsSingular { index });
     }
-    let names: Vec<(String, usize, bool)> = fm
-        .specialisation
-        .contacts
-        .iter()
-        .map(|c| {
-            let name = fm.frames[c.frame].name.clone();
-            let holds = s.active.get(&name).copied().unwrap_or(true);
-            (name, c.kind.dim(), holds)
-        })
-        .collect();
-    let per_frame = |m: &nalgebra::DMatrix<f64>| -> BTreeMap<String, Matrix> {
-        let mut at = 0;
-        names
-            .iter()
-            .map(|(name, width, holds)| match holds {
-                true => {
-                    at += width;
-                    (name.clone(), rows(&m.rows(at - width, *width).into_owned()))
-                }
-                false => (name.clone(), vec![vec![0.0; m.ncols()]; *width]),
-            })
-            .collect()
-    };
-    let mut at = 0;
-    let lambda = names
-        .iter()
-        .map(|(name, width, holds)| match holds {
-            true => {
-                at += width;
-                (name.clone(), sol.lambda[at - width..at].to_vec())
-            }
-            false => (name.clone(), vec![0.0; *width]),
-        })
-        .collect();
+    let per_frame = |m: &nalgebra::DMatrix<f64>| per_contact(fm, s, m);
     Ok(Some(ContactOutput {
         qdd: sol.qdd,
-        lambda,
+        lambda: per_contact(
+            fm,
+            s,
+            &nalgebra::DMatrix::from_column_slice(sol.lambda.len(), 1, &sol.lambda),
+        )
+        .into_iter()
+        .map(|(name, rows)| (name, rows.into_iter().flatten().collect()))
+        .collect(),
         dqdd_dq: rows(&d.dqdd_dq),
         dqdd_dqd: rows(&d.dqdd_dqd),
         dqdd_dtau: rows(&d.dqdd_dtau),
@@ -239,6 +213,25 @@ fn contact_output(
         dlambda_dqd: per_frame(&d.dlambda_dqd),
         dlambda_dtau: per_frame(&d.dlambda_dtau),
     }))
+}
+
+/// The rows of `m` (λ's layout for the contacts `s` holds) per contact frame of `fm`: each
+/// held contact's own rows, and zeros for one the state turns off.
+fn per_contact(fm: &Model, s: &State, m: &nalgebra::DMatrix<f64>) -> BTreeMap<String, Matrix> {
+    let mut at = 0;
+    fm.specialisation
+        .contacts
+        .iter()
+        .map(|c| {
+            let (name, width) = (fm.frames[c.frame].name.clone(), c.kind.dim());
+            if s.active.get(&name).copied().unwrap_or(true) {
+                at += width;
+                (name, rows(&m.rows(at - width, width).into_owned()))
+            } else {
+                (name, vec![vec![0.0; m.ncols()]; width])
+            }
+        })
+        .collect()
 }
 
 /// The model holding just the contacts a state's `active` leaves on (all of them unless
@@ -308,6 +301,15 @@ pub struct StepOutput {
     pub a: Matrix,
     #[serde(rename = "B")]
     pub b: Matrix,
+    /// With contacts: their forces at the state (its first stage under RK4), per contact
+    /// frame as `contact_fd`'s, and their derivatives by the state (`rows x 2nv`, columns
+    /// `[δq; δq̇]`) and by the actuated τ (`rows x nu`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub lambda: Option<BTreeMap<String, Vec<f64>>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dlambda_dx: Option<BTreeMap<String, Matrix>>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dlambda_du: Option<BTreeMap<String, Matrix>>,
 }
 
 /// The reference's step at one state, when the model has a step and the state a `tau`:
@@ -325,8 +327,9 @@ fn step_output(
     };
     // check_states made sure that a run-time step has its dt.
     let step = step.at(s.dt.unwrap_or(f64::NAN));
+    let held = holding(model, s);
     let d = reference::step_derivatives(
-        &holding(model, s),
+        &held,
         &s.q,
         &s.qd,
         tau,
@@ -336,7 +339,30 @@ fn step_output(
         fext,
     )
     .ok_or(EvalError::ContactsSingular { index })?;
-    Ok(Some(StepOutput { q_next: d.q_next, qd_next: d.qd_next, a: rows(&d.a), b: rows(&d.b) }))
+    let mut out = StepOutput {
+        q_next: d.q_next,
+        qd_next: d.qd_next,
+        a: rows(&d.a),
+        b: rows(&d.b),
+        lambda: None,
+        dlambda_dx: None,
+        dlambda_du: None,
+    };
+    if !model.specialisation.contacts.is_empty() {
+        let (lambda, dx, du) =
+            reference::step_lambda(&held, &s.q, &s.qd, tau, gravity, &model.actuated(), fext)
+                .ok_or(EvalError::ContactsSingular { index })?;
+        let lambda = nalgebra::DMatrix::from_column_slice(lambda.len(), 1, &lambda);
+        out.lambda = Some(
+            per_contact(model, s, &lambda)
+                .into_iter()
+                .map(|(name, rows)| (name, rows.into_iter().flatten().collect()))
+                .collect(),
+        );
+        out.dlambda_dx = Some(per_contact(model, s, &dx));
+        out.dlambda_du = Some(per_contact(model, s, &du));
+    }
+    Ok(Some(out))
 }
 
 /// One frame's kinematics at a state, in Pinocchio's conventions: 6-vectors and Jacobian

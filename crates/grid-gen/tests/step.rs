@@ -562,7 +562,7 @@ fn rk4_step_grad_compiles_and_matches_the_reference() {
 
 /// A forced step's generated Rust, compiled with rustc and run: iiwa holding its tool by a
 /// rigid wrench contact, with fext on its third link, semi-implicit `step_grad` on four
-/// states against the reference.
+/// states against the reference, the contact's force λ and its derivatives included.
 #[test]
 fn forced_step_grad_compiles_and_matches_the_reference() {
     use grid_gen::generate::{generate, Options, Target};
@@ -575,8 +575,10 @@ fn forced_step_grad_compiles_and_matches_the_reference() {
             .unwrap()
             .remove(0);
     assert!(
-        file.contents.contains("`step_grad(q, qd, tau, fext) -> (q_next, qd_next, a, b)`"),
-        "the API summary names fext and no lambda"
+        file.contents.contains(
+            "`step_grad(q, qd, tau, fext) -> (q_next, qd_next, a, b, lambda, dlambda_dx, dlambda_du)`"
+        ),
+        "the API summary names fext, no lambda input, and the step's lambda outputs"
     );
     let said = compile_and_run(
         "forcedstep",
@@ -588,8 +590,9 @@ fn forced_step_grad_compiles_and_matches_the_reference() {
     for k in 0..4 {
         let x: [[f64; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s)));
         let fext: [f64; 6 * NFEXT] = std::array::from_fn(|i| 10.0 * state(k, i, 3));
-        let (q, v, a, b) = step_grad(&x[0], &x[1], &x[2], &fext);
-        let all: Vec<String> = q.iter().chain(&v).chain(a.as_flattened()).chain(b.as_flattened()).map(|x| format!("{x:?}")).collect();
+        let (q, v, a, b, lam, dlx, dlu) = step_grad(&x[0], &x[1], &x[2], &fext);
+        let all: Vec<String> = q.iter().chain(&v).chain(a.as_flattened()).chain(b.as_flattened())
+            .chain(&lam).chain(dlx.as_flattened()).chain(dlu.as_flattened()).map(|x| format!("{x:?}")).collect();
         println!("{}", all.join(" "));
     }
 }

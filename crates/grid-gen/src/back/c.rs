@@ -96,6 +96,11 @@ fn manifest(module: &Module, options: &COptions) -> String {
         "nfext": dims.nfext,
         "floating_base": robot.floating,
         "joint_names": robot.joint_names,
+        // Where each unit quaternion `[qx, qy, qz, qw]` sits in q, and its joint: a loader
+        // checks their norms.
+        "quaternions": robot.floating.then(|| serde_json::json!({"joint": "root_joint", "q": 3})).into_iter()
+            .chain(robot.spherical.iter().map(|s| serde_json::json!({"joint": s.name, "q": s.q_start})))
+            .collect::<Vec<_>>(),
         "frames": robot.frames,
         "reference_frame": robot.reference.name(),
         "contacts": robot.contacts.iter().map(|c| serde_json::json!([c.frame, c.kind.name()])).collect::<Vec<_>>(),
@@ -463,6 +468,8 @@ fn shape_macros(shape: Shape) -> Vec<String> {
         Shape::ByLambda => v(&["NV", "NLAMBDA"]),
         Shape::Lambda => v(&["NLAMBDA"]),
         Shape::LambdaBy => v(&["NLAMBDA", "NV"]),
+        Shape::LambdaByState => v(&["NLAMBDA", "NX"]),
+        Shape::LambdaByInput => v(&["NLAMBDA", "NU"]),
     }
 }
 

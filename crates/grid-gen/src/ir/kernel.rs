@@ -49,6 +49,10 @@ pub enum Shape {
     Lambda,
     /// `nlambda x nv`, row-major: a derivative of λ.
     LambdaBy,
+    /// `nlambda x 2nv`, row-major, columns `[δq; δq̇]`: λ's derivative by the state.
+    LambdaByState,
+    /// `nlambda x nu`, row-major: λ's derivative by the actuated τ.
+    LambdaByInput,
 }
 
 impl Shape {
@@ -67,6 +71,8 @@ impl Shape {
             Shape::ByLambda => vec![d.nv, d.nlambda],
             Shape::Lambda => vec![d.nlambda],
             Shape::LambdaBy => vec![d.nlambda, d.nv],
+            Shape::LambdaByState => vec![d.nlambda, 2 * d.nv],
+            Shape::LambdaByInput => vec![d.nlambda, d.nu],
         }
     }
 
@@ -82,6 +88,8 @@ impl Shape {
         match self {
             Shape::Vector | Shape::Config | Shape::Lambda => vec![flat],
             Shape::LambdaBy => vec![flat / nv.max(1), flat % nv.max(1)],
+            Shape::LambdaByState => vec![flat / (2 * nv).max(1), flat % (2 * nv).max(1)],
+            Shape::LambdaByInput => vec![flat / d.nu.max(1), flat % d.nu.max(1)],
             Shape::StateMatrix => vec![flat / (2 * nv), flat % (2 * nv)],
             Shape::StateInput => vec![flat / d.nu.max(1), flat % d.nu.max(1)],
             Shape::ByFext => vec![flat / (6 * d.nfext).max(1), flat % (6 * d.nfext).max(1)],
@@ -419,6 +427,15 @@ impl KernelKind {
                     lambda.then_some(OutputSpec { name: "dqdd_dlambda", shape: Shape::ByLambda }),
                 );
             }
+            // The step's contact forces at the knot's state (its first stage under RK4).
+            KernelKind::Step if lambda => {
+                out.push(OutputSpec { name: "lambda", shape: Shape::Lambda });
+            }
+            KernelKind::StepGrad if lambda => out.extend([
+                OutputSpec { name: "lambda", shape: Shape::Lambda },
+                OutputSpec { name: "dlambda_dx", shape: Shape::LambdaByState },
+                OutputSpec { name: "dlambda_du", shape: Shape::LambdaByInput },
+            ]),
             _ => {}
         }
         out
@@ -499,8 +516,8 @@ impl KernelKind {
             KernelKind::FrameVelocity => "Each frame's spatial velocity [linear; angular] in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameVelocity`).",
             KernelKind::FrameAcceleration => "Each frame's classical acceleration (linear, with `w x v`) in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameClassicalAcceleration`); at qdd = 0, the drift `dJ/dt qd`.",
             KernelKind::FrameAccelerationGrad => "The classical acceleration's derivatives `(dacc/dq, dacc/dqd, dacc/dqdd)`, 3 x nv per frame, row-major, `dq` in the tangent space (forward-mode differentiation of `frame_acceleration`'s graph).",
-            KernelKind::Step => "One step of `STEP_SCHEME` over `DT` seconds from `(q, qd)` under the actuated joints' forces `tau` (`ACTUATED`): `(q_next, qd_next)`, q on the manifold (Pinocchio's `integrate`).",
-            KernelKind::StepGrad => "The step and its linearisation: `(q_next, qd_next, A, B)`, A = d(q_next, qd_next)/d(q, qd) (2NV x 2NV), B = d(q_next, qd_next)/d tau (2NV x NU), row-major, rows and columns `[dq; dqd]` in the tangent space (Pinocchio's `dIntegrate`).",
+            KernelKind::Step => "One step of `STEP_SCHEME` over `DT` seconds from `(q, qd)` under the actuated joints' forces `tau` (`ACTUATED`): `(q_next, qd_next)`, q on the manifold (Pinocchio's `integrate`); with `CONTACTS`, then `lambda`, their forces at `(q, qd)` under `tau` (the first stage's under RK4) as `contact_fd`'s.",
+            KernelKind::StepGrad => "The step and its linearisation: `(q_next, qd_next, A, B)`, A = d(q_next, qd_next)/d(q, qd) (2NV x 2NV), B = d(q_next, qd_next)/d tau (2NV x NU), row-major, rows and columns `[dq; dqd]` in the tangent space (Pinocchio's `dIntegrate`); with `CONTACTS`, then `(lambda, dlambda/dx, dlambda/du)` as `step`'s.",
             KernelKind::ContactFd => "Rigid-contact forward dynamics `(qdd, lambda)`: every contact of `CONTACTS` held (a point's classical acceleration, a wrench's spatial acceleration, zero in world axes at the frame), lambda the contacts' forces in world axes at their frames (Pinocchio's `constraintDynamics` with `CONTACT_3D` / `CONTACT_6D` in `LOCAL_WORLD_ALIGNED`, `lambda_c`), through the contact Schur complement `J M^-1 J^T`.",
             KernelKind::ContactFdGrad => "Rigid-contact forward dynamics and its derivatives `(qdd, lambda, dqdd/dq, dqdd/dqd, dqdd/dtau, dlambda/dq, dlambda/dqd, dlambda/dtau)`, q in the tangent space (Pinocchio's `computeConstraintDynamicsDerivatives`); fext, if any, held in the bodies' frames.",
         }
@@ -654,11 +671,16 @@ impl KernelKind {
                     None => Scalar::node(d.g.input(Dt, 0)),
                 };
                 if self == KernelKind::Step {
-                    let (q, v) = d.step(&qd, &tau, step.scheme, dt);
-                    vec![q, v]
+                    let (q, v, lambda) = d.step(&qd, &tau, step.scheme, dt);
+                    [q, v].into_iter().chain(lambda).collect()
                 } else {
-                    let (q, v, a, b) = d.step_grad(&qd, &tau, step.scheme, dt);
-                    vec![q, v, a, b]
+                    let (q, v, a, b, lambda) = d.step_grad(&qd, &tau, step.scheme, dt);
+                    let lambda = lambda.map(|l| [l.by_state(), l.by_input(), l.lambda]);
+                    let [dx, du, lambda] = lambda.map_or([None, None, None], |l| l.map(Some));
+                    [Some(q), Some(v), Some(a), Some(b), lambda, dx, du]
+                        .into_iter()
+                        .flatten()
+                        .collect()
                 }
             }
             KernelKind::ContactFd => {

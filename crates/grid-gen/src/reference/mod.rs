@@ -29,7 +29,7 @@ pub use frames::{frame_classical_acceleration, frame_jacobian, frame_placement, 
 pub use minv::minv;
 pub use rnea::{rnea, rnea_with};
 pub use rnea_derivatives::{rnea_derivatives, rnea_derivatives_with};
-pub use step::{d_integrate, integrate, step, step_derivatives, StepDerivatives};
+pub use step::{d_integrate, integrate, step, step_derivatives, step_lambda, StepDerivatives};
 
 use nalgebra::{Matrix3, Vector3};
 

@@ -346,6 +346,29 @@ pub fn step_derivatives(
     }
 }
 
+/// The contact forces a step returns with a model that declares contacts: λ at the knot's
+/// state `(q, q̇)` under `tau` (for RK4, its first stage), `∂λ/∂x` (nλ × 2nv, columns
+/// `[δq; δq̇]`, q in the tangent space) and `∂λ/∂u` (nλ × nu, the coordinates
+/// `actuated`). `None` when the contacts are singular there.
+pub fn step_lambda(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    actuated: &[usize],
+    fext: &[f64],
+) -> Option<(Vec<f64>, DMatrix<f64>, DMatrix<f64>)> {
+    let nv = model.nv();
+    let (sol, d) = contact_fd_derivatives(model, q, qd, tau, gravity, fext)?;
+    let nl = sol.lambda.len();
+    let mut dx = DMatrix::zeros(nl, 2 * nv);
+    dx.view_mut((0, 0), (nl, nv)).copy_from(&d.dlambda_dq);
+    dx.view_mut((0, nv), (nl, nv)).copy_from(&d.dlambda_dqd);
+    let du = DMatrix::from_fn(nl, actuated.len(), |r, c| d.dlambda_dtau[(r, actuated[c])]);
+    Some((sol.lambda, dx, du))
+}
+
 /// RK4's chain rule, stage by stage, as Crocoddyl's `IntegratedActionModelRK4::calcDiff`:
 /// `∂y_i/∂x = J_x(x, dx_i) + J_dx(x, dx_i) c_i dt ∂k_(i−1)/∂x`, `∂k_i/∂x = ∂f/∂y_i ∂y_i/∂x`,
 /// with `J_x`, `J_dx` the state's `Jintegrate` (q's `dIntegrate`, identity for q̇).

@@ -172,6 +172,8 @@ pub(super) fn array_of(shape: Shape, t: &str) -> String {
         Shape::ByLambda => format!("[[{t}; NLAMBDA]; NV]"),
         Shape::Lambda => format!("[{t}; NLAMBDA]"),
         Shape::LambdaBy => format!("[[{t}; NV]; NLAMBDA]"),
+        Shape::LambdaByState => format!("[[{t}; NX]; NLAMBDA]"),
+        Shape::LambdaByInput => format!("[[{t}; NU]; NLAMBDA]"),
     }
 }
 

@@ -26,6 +26,30 @@ const DOUBLINGS: i32 = 12;
 /// left out, `φ^18 / 19!`, is below 1e-17 of the sum for φ ≤ 1, θ ≤ 4096 rad.
 const TERMS: usize = 9;
 
+/// The contact forces a step's kernels return with it: λ at the knot's state `(q, q̇)` under
+/// its τ, and its derivatives `∂λ/∂q` (tangent), `∂λ/∂q̇`, `∂λ/∂u` (u the actuated
+/// coordinates), one row per entry of λ.
+pub struct StepLambda {
+    pub lambda: Vec<Id>,
+    pub dq: Mat,
+    pub dqd: Mat,
+    pub du: Mat,
+}
+
+/// `step_grad`'s nodes: q⁺, q̇⁺, A and B (flat, row-major), and with contacts λ.
+pub type StepGradNodes = (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>, Option<StepLambda>);
+
+impl StepLambda {
+    /// `∂λ/∂x`, nλ × 2nv, row-major, columns `[δq; δq̇]`.
+    pub fn by_state(&self) -> Vec<Id> {
+        self.dq.iter().zip(&self.dqd).flat_map(|(a, b)| a.iter().chain(b)).copied().collect()
+    }
+
+    pub fn by_input(&self) -> Vec<Id> {
+        self.du.iter().flatten().copied().collect()
+    }
+}
+
 /// `sin φ / φ`, `cos φ`, `(1 − cos φ) / φ²` and `(φ − sin φ) / φ³` at one angle φ.
 #[derive(Clone, Copy)]
 struct Trig {
@@ -334,35 +358,40 @@ impl Dynamics<'_> {
 
     /// The q̈ a step integrates: forward dynamics under the loaded fext, with the model's
     /// contacts held rigid when it declares any (`contact_fd`, as Crocoddyl's contact
-    /// dynamics inside its integrated action models).
-    fn step_acceleration(&mut self, qd: &[Id], tau: &[Id]) -> Vec<Id> {
+    /// dynamics inside its integrated action models); and then the contacts' forces λ.
+    fn step_acceleration(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Option<Vec<Id>>) {
         if self.declares_contacts() {
-            return self.contact_fd(qd, tau).qdd;
+            let c = self.contact_fd(qd, tau);
+            return (c.qdd, Some(c.lambda));
         }
-        self.fd(qd, tau)
+        (self.fd(qd, tau), None)
     }
 
     /// [`Self::step_acceleration`] and `s (∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`, τ's columns the
-    /// coordinates `tau_cols`: `contact_fd_grad`'s with contacts, `fd_grad`'s without.
+    /// coordinates `tau_cols`: `contact_fd_grad`'s with contacts, `fd_grad`'s without; with
+    /// contacts, λ and its derivatives too (unscaled).
     fn step_acceleration_grad(
         &mut self,
         qd: &[Id],
         tau: &[Id],
         tau_cols: &[usize],
         s: Scalar,
-    ) -> (Vec<Id>, Mat, Mat, Mat) {
+    ) -> (Vec<Id>, Mat, Mat, Mat, Option<StepLambda>) {
         if self.declares_contacts() {
             let mut out = self.contact_fd_grad(qd, tau, tau_cols).into_iter();
             // The program describes contact_fd_grad's outputs, which the step goes on from.
             self.program = None;
-            let qdd = out.next().and_then(|rows| rows.into_iter().next()).unwrap_or_default();
-            let _lambda = out.next();
-            let mut scaled = |d: &mut Self| d.scaled(&out.next().unwrap_or_default(), s);
-            let (dq, dqd, dtau) = (scaled(self), scaled(self), scaled(self));
-            return (qdd, dq, dqd, dtau);
+            let mut next = || out.next().unwrap_or_default();
+            let qdd = next().into_iter().next().unwrap_or_default();
+            let lambda = next().into_iter().next().unwrap_or_default();
+            let (dq, dqd, dtau) = (next(), next(), next());
+            let lam = StepLambda { lambda, dq: next(), dqd: next(), du: next() };
+            let (dq, dqd, dtau) =
+                (self.scaled(&dq, s), self.scaled(&dqd, s), self.scaled(&dtau, s));
+            return (qdd, dq, dqd, dtau, Some(lam));
         }
         let (qdd, dq, dqd, minv, _) = self.fd_grad_scaled(qd, tau, tau_cols, &[], s);
-        (qdd, dq, dqd, minv)
+        (qdd, dq, dqd, minv, None)
     }
 
     /// `q ⊕ w` for the kernel's q and a state's `x ⊕ dx` (Crocoddyl's `StateMultibody`).
@@ -383,7 +412,7 @@ impl Dynamics<'_> {
         tau: &[Id],
         dt: Scalar,
         grad: bool,
-    ) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
+    ) -> StepGradNodes {
         let nv = self.model.nv();
         let nx = 2 * nv;
         let actuated = self.model.actuated();
@@ -396,6 +425,8 @@ impl Dynamics<'_> {
         let (mut dx_dx, mut dx_du) = (vec![vec![zero; nx]; nx], vec![vec![zero; nu]; nx]);
         let (mut k_prev, mut dk_dx, mut dk_du): (Vec<Id>, Mat, Mat) =
             (Vec::new(), Vec::new(), Vec::new());
+        // λ is the first stage's: the forces at the knot's own state.
+        let mut lambda = None;
         for (i, (c, weight)) in
             [(0.0, 1.0), (0.5, 2.0), (0.5, 2.0), (1.0, 1.0)].into_iter().enumerate()
         {
@@ -422,9 +453,12 @@ impl Dynamics<'_> {
             };
             let qdd;
             if grad {
-                let (a, da_dq, da_dv, minv_s) = self.at_config(&y_q, |d| {
+                let (a, da_dq, da_dv, minv_s, lam) = self.at_config(&y_q, |d| {
                     d.step_acceleration_grad(&y_v, tau, &actuated, Scalar::ONE)
                 });
+                if i == 0 {
+                    lambda = lam;
+                }
                 // ∂k/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
                 let df: Mat = (0..nx)
                     .map(|r| {
@@ -459,7 +493,16 @@ impl Dynamics<'_> {
                 dx_du = self.add_mat(&dx_du, &t);
                 qdd = a;
             } else {
-                qdd = self.at_config(&y_q, |d| d.step_acceleration(&y_v, tau));
+                let (a, lam) = self.at_config(&y_q, |d| d.step_acceleration(&y_v, tau));
+                if i == 0 {
+                    lambda = lam.map(|lambda| StepLambda {
+                        lambda,
+                        dq: Vec::new(),
+                        dqd: Vec::new(),
+                        du: Vec::new(),
+                    });
+                }
+                qdd = a;
             }
             k_prev = y_v.iter().chain(&qdd).copied().collect();
             let w = dt.times(weight).over(6.0).id(&mut self.g);
@@ -472,14 +515,15 @@ impl Dynamics<'_> {
         self.program = None;
         let (q_next, qd_next, exps) = self.state_integrate(qd, &dx);
         if !grad {
-            return (q_next, qd_next, Vec::new(), Vec::new());
+            return (q_next, qd_next, Vec::new(), Vec::new(), lambda);
         }
         let (jq, jv) = self.d_integrate(&exps);
         let (jx, jdx) = (state_block(&jq, one, zero), state_block(&jv, one, zero));
         let t = self.scaled_product(&jdx, &dx_dx, Scalar::ONE);
         let a = self.add_mat(&jx, &t);
         let b = self.scaled_product(&jdx, &dx_du, Scalar::ONE);
-        (q_next, qd_next, a.into_iter().flatten().collect(), b.into_iter().flatten().collect())
+        let (a, b) = (a.into_iter().flatten().collect(), b.into_iter().flatten().collect());
+        (q_next, qd_next, a, b, lambda)
     }
 
     /// `s · x y` (zeros fold away).
@@ -511,23 +555,24 @@ impl Dynamics<'_> {
             .collect()
     }
 
-    /// `x⁺ = (q⁺, q̇⁺)` for one step of `scheme` under the actuated forces `tau`.
+    /// `x⁺ = (q⁺, q̇⁺)` for one step of `scheme` under the actuated forces `tau`, and with
+    /// contacts their forces λ at `(q, q̇)` ([`StepLambda`]).
     pub fn step(
         &mut self,
         qd: &[Id],
         tau: &[Id],
         scheme: Scheme,
         dt: Scalar,
-    ) -> (Vec<Id>, Vec<Id>) {
+    ) -> (Vec<Id>, Vec<Id>, Option<Vec<Id>>) {
         let tau = self.actuate(tau);
         if scheme == Scheme::Rk4 {
-            let (q, v, _, _) = self.rk4(qd, &tau, dt, false);
-            return (q, v);
+            let (q, v, _, _, lam) = self.rk4(qd, &tau, dt, false);
+            return (q, v, lam.map(|l| l.lambda));
         }
-        let qdd = self.step_acceleration(qd, &tau);
+        let (qdd, lambda) = self.step_acceleration(qd, &tau);
         self.g.at(None, Stage::Combine, 0);
         let (qd_next, w) = self.euler(qd, &qdd, scheme, dt);
-        (self.integrate(&w), qd_next)
+        (self.integrate(&w), qd_next, lambda)
     }
 
     /// `q̇⁺ = q̇ + dt q̈` and the tangent that moves q: `dt q̇⁺` (semi-implicit) or `dt q̇`.
@@ -551,13 +596,14 @@ impl Dynamics<'_> {
     /// and columns `[δq; δq̇]`. With `a_v = dt ∂q̈/∂x`, `b_v = dt M⁻¹ S`:
     /// semi-implicit `A = [[Jq + dt Jv a_vq, dt Jv (I + a_vv)], [a_vq, I + a_vv]]`,
     /// `B = [dt Jv b_v; b_v]`; explicit `A = [[Jq, dt Jv], [a_vq, I + a_vv]]`, `B = [0; b_v]`.
+    /// With contacts, their forces and derivatives too ([`StepLambda`]).
     pub fn step_grad(
         &mut self,
         qd: &[Id],
         tau: &[Id],
         scheme: Scheme,
         dt: Scalar,
-    ) -> (Vec<Id>, Vec<Id>, Vec<Id>, Vec<Id>) {
+    ) -> StepGradNodes {
         let nv = self.model.nv();
         let actuated = self.model.actuated();
         let nu = actuated.len();
@@ -566,7 +612,7 @@ impl Dynamics<'_> {
             return self.rk4(qd, &tau, dt, true);
         }
         // a_v = dt ∂q̈/∂x and b_v = dt M⁻¹ S as they come out of the solves.
-        let (qdd, avq, mut avv, bv) = self.step_acceleration_grad(qd, &tau, &actuated, dt);
+        let (qdd, avq, mut avv, bv, lambda) = self.step_acceleration_grad(qd, &tau, &actuated, dt);
         // The step's products are its own: no backend may rerun fd_grad's as a loop.
         self.product = None;
         self.program = None;
@@ -612,7 +658,7 @@ impl Dynamics<'_> {
             a.extend(right);
         }
         let b = bq.iter().chain(&bv).flatten().copied().collect();
-        (q_next, qd_next, a, b)
+        (q_next, qd_next, a, b, lambda)
     }
 }
 
