@@ -2,7 +2,7 @@
 
 import os
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 import numpy as np
 
@@ -18,6 +18,14 @@ def load(
     precision: str = "f64",
     kernels: Optional[Sequence[str]] = None,
     verbose: bool = True,
+    *,
+    contacts: Union[None, Mapping[str, str], Sequence[Tuple[str, str]]] = None,
+    step: Optional[str] = None,
+    dt: Optional[float] = None,
+    actuated: Optional[Sequence[str]] = None,
+    external_forces: Optional[Sequence[str]] = None,
+    contact_mask: Optional[bool] = None,
+    gravity: Optional[Sequence[float]] = None,
 ) -> Robot: ...
 
 class Kernel:

@@ -1,6 +1,6 @@
 """grid-gen's generator, compiled into the package (see grid_gen.load)."""
 
-from typing import List, Optional
+from typing import Any, Dict, List, Optional
 
 def generate(
     urdf: str,
@@ -10,6 +10,7 @@ def generate(
     frames: Optional[List[str]] = None,
     kernels: Optional[List[str]] = None,
     precision: str = "f64",
+    keywords: Optional[Dict[str, Any]] = None,
 ) -> List[str]:
     """Writes the robot's Rust module and C ABI into out_dir; returns the file names.
     Raises ValueError (with the URDF's diagnostics) or FileNotFoundError."""
@@ -25,5 +26,5 @@ class Caller:
     of the kernel methods. Returns None where it does not apply (a dtype, contiguity, shape
     or non-finite value the Python path must convert or report)."""
 
-    def __init__(self, addr: int, f64: bool, in_lens: List[int], out_dims: List[List[int]]) -> None: ...
+    def __init__(self, addr: int, f64: bool, in_lens: List[int], out_dims: List[List[int]], quats: List[int] = ...) -> None: ...
     def __call__(self, *args: object) -> object: ...
