@@ -25,6 +25,7 @@ def load(
     actuated: Optional[Sequence[str]] = None,
     external_forces: Optional[Sequence[str]] = None,
     contact_mask: Optional[bool] = None,
+    baumgarte: Optional[bool] = None,
     gravity: Optional[Sequence[float]] = None,
 ) -> Robot: ...
 
@@ -32,6 +33,7 @@ class Kernel:
     name: str
     inputs: Tuple[Tuple[str, int], ...]
     outputs: Tuple[Tuple[str, Tuple[int, ...]], ...]
+    arguments: Tuple[str, ...]
     def __call__(self, *args: ArrayLike, out: Union[None, Array, Sequence[Array]] = None, **kwargs: ArrayLike) -> Any: ...
 
 class Robot:

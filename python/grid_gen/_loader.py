@@ -89,6 +89,7 @@ def load(
     actuated: Optional[Sequence[str]] = None,
     external_forces: Optional[Sequence[str]] = None,
     contact_mask: Optional[bool] = None,
+    baumgarte: Optional[bool] = None,
     gravity: Optional[Sequence[float]] = None,
 ) -> Robot:
     """Loads a robot's kernels, compiling them on the first load.
@@ -108,8 +109,10 @@ def load(
     `step` and `step_grad`. dt: the step's seconds, folded into the kernels; None (the
     default) leaves it to run time (`step(q, qd, tau, dt)`). actuated: the joints with a
     motor (the step's tau). external_forces: the joints whose bodies take `fext`.
-    contact_mask: the contacts are candidates, chosen per state by `active=`. gravity:
-    (x, y, z) in m/s^2.
+    contact_mask: the contacts are candidates, chosen per state by `active=`. baumgarte:
+    the point contacts are stabilised as Pinocchio's Baumgarte corrector, the contact kernels
+    and the step taking `gains=` ([Kp, Kd] per contact) and `contact_ref=` (each contact's
+    reference position in the world). gravity: (x, y, z) in m/s^2.
 
     A compiled robot is cached (see `cache_dir`) under a hash of the URDF, the scene, the
     options and this grid-gen, and loads again in milliseconds. Raises ValueError for a
@@ -129,7 +132,7 @@ def load(
     for what, names in (("frames", frames), ("kernels", kernels)):
         if names is not None and not all(isinstance(n, str) for n in names):
             raise ValueError(f"{what} must be a list of strings")
-    keywords = _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, gravity)
+    keywords = _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, baumgarte, gravity)
 
     key_source = {
         "generator": _generator_id(),
@@ -150,7 +153,7 @@ def load(
     return Robot(str(lib), prefix, precision)
 
 
-def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, gravity) -> Dict[str, Any]:
+def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, baumgarte, gravity) -> Dict[str, Any]:
     """load's scene keywords, checked for their Python types and put as the native generator
     takes them (every key present; None where not given)."""
 
@@ -173,8 +176,9 @@ def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask,
         if isinstance(dt, bool) or not isinstance(dt, (int, float)) or not math.isfinite(dt) or dt <= 0:
             raise ValueError(f"load(dt={dt!r}): a time step is a finite, positive number of seconds (or None: given at run time)")
         dt = float(dt)
-    if contact_mask is not None and not isinstance(contact_mask, bool):
-        raise ValueError(f"load(contact_mask=...) takes True or False, not {contact_mask!r}")
+    for what, flag in (("contact_mask", contact_mask), ("baumgarte", baumgarte)):
+        if flag is not None and not isinstance(flag, bool):
+            raise ValueError(f"load({what}=...) takes True or False, not {flag!r}")
     if gravity is not None:
         g = [float(x) for x in gravity] if not isinstance(gravity, str) else []
         if len(g) != 3 or not all(math.isfinite(x) for x in g):
@@ -187,6 +191,7 @@ def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask,
         "actuated": names("actuated", actuated),
         "external_forces": names("external_forces", external_forces),
         "contact_mask": contact_mask,
+        "baumgarte": baumgarte,
         "gravity": gravity,
     }
 

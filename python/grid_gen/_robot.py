@@ -60,13 +60,19 @@ class Kernel:
         self._address: int = ctypes.cast(fn, ctypes.c_void_p).value
         # Where each input sits in the argument list.
         self._at: Dict[str, int] = {n: k for k, (n, _) in enumerate(self.inputs)}
-        self._masked = "active" in self._at
+        # Python's argument order: the inputs every call gives, in the kernel's order, then
+        # those with a default (the mask, Baumgarte's gains and references), so that
+        # `step(q, qd, tau, dt)` reads the same with or without them.
+        optional = ("active", "gains", "contact_ref")
+        self.arguments: Tuple[str, ...] = tuple(n for n, _ in self.inputs if n not in optional) + tuple(n for n, _ in self.inputs if n in optional)
+        # Contact mask and Baumgarte gains: checked and shaped on the Python path.
+        self._masked = "active" in self._at or "gains" in self._at
         # Several outputs come back as a named tuple (`qdd, lam = r` or `r.lam`).
         self._result = collections.namedtuple(f"{self.name}_result", [_field(n) for n, _ in self.outputs]) if len(self.outputs) > 1 else None
         # Where q's unit quaternions start, when q is the first input (every kernel's).
         self._quats = [(j, at) for j, at in robot._quaternions] if self.inputs[0][0] == "q" else []
         self._fast = _native.Caller(self._address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs], [at for _, at in self._quats])
-        args = ", ".join(n for n, _ in self.inputs)
+        args = ", ".join(self.arguments)
         outs = ", ".join(n for n, _ in self.outputs)
         shapes = "; ".join(f"{n}: (B, {l})" for n, l in self.inputs)
         out_shapes = "; ".join(f"{n}: (B, {', '.join(map(str, d))})" for n, d in self.outputs)
@@ -131,6 +137,28 @@ class Kernel:
                     "a rotation is a unit quaternion [qx, qy, qz, qw] (norm 1 within 1e-6; the identity is [0, 0, 0, 1])"
                 )
 
+    def _per_contact(self, arg: str, a: Array, batch: Optional[int], k: int, what: str) -> Array:
+        """Baumgarte's `gains` (k = 2) or `contact_ref` (k = 3) as the kernel reads them,
+        (nc * k,) or (B, nc * k): from a scalar (every entry), (nc, k) for every state or
+        (B, nc, k); real and finite, gains non-negative."""
+        name, nc = self.name, len(self._robot.contacts)
+        if a.dtype.kind not in "fiu":
+            raise ValueError(f"{name}: `{arg}` has dtype {a.dtype}; expected real numbers")
+        if a.ndim == 0:
+            a = np.full((nc, k), a, dtype=np.float64)
+        if a.shape == (nc, k) and batch is not None:
+            a = np.broadcast_to(a, (batch, nc, k))
+        want = (nc, k) if batch is None else (batch, nc, k)
+        if a.shape != want:
+            alt = "" if batch is None else f" or ({nc}, {k}) for every state"
+            contacts = ", ".join(f for f, _ in self._robot.contacts)
+            raise ValueError(f"{name}: `{arg}` has shape {a.shape}; expected {want}{alt}: {what} per contact ({contacts})")
+        if not np.isfinite(a).all():
+            raise ValueError(f"{name}: `{arg}` holds a non-finite value")
+        if arg == "gains" and (a < 0).any():
+            raise ValueError(f"{name}: `gains` holds a negative gain; Kp and Kd are >= 0 (0: no correction)")
+        return np.asarray(a, dtype=np.float64).reshape(want[:-2] + (nc * k,))
+
     def _time_steps(self, a: Array, batch: Optional[int]) -> Array:
         """A step's run-time `dt` as the kernel reads it, (1,) or (B, 1): from a scalar (every
         state's), a (B,) array (one per state) or (1,) for one state; each finite and
@@ -163,24 +191,31 @@ class Kernel:
         robot = self._robot
         dtype = robot.dtype
         if len(args) > len(self.inputs):
-            raise TypeError(f"{name}() takes {len(self.inputs)} arguments ({', '.join(n for n, _ in self.inputs)}), got {len(args)}")
-        values = dict(zip((n for n, _ in self.inputs), args))
+            raise TypeError(f"{name}() takes {len(self.inputs)} arguments ({', '.join(self.arguments)}), got {len(args)}")
+        values = dict(zip(self.arguments, args))
         for k, v in kwargs.items():
             if k not in (n for n, _ in self.inputs):
-                raise TypeError(f"{name}() has no argument {k!r}; its arguments: {', '.join(n for n, _ in self.inputs)}")
+                raise TypeError(f"{name}() has no argument {k!r}; its arguments: {', '.join(self.arguments)}")
             if k in values:
                 raise TypeError(f"{name}() got {k!r} twice")
             values[k] = v
-        if self._masked and "active" not in values and len(args) < len(self.inputs):
+        if "active" in self._at and "active" not in values:
             # Every candidate contact holds unless said otherwise.
             values["active"] = True
+        ref_given = "contact_ref" in values
+        if "gains" in self._at:
+            if "contact_ref" in values and "gains" not in values:
+                raise TypeError(f"{name}() got `contact_ref` without `gains`: give both (Kp, Kd per contact, and each contact's reference position)")
+            # No gains: the rigid contact (whose reference is never read).
+            values.setdefault("gains", 0.0)
+            values.setdefault("contact_ref", 0.0)
         batch: Optional[int] = None
         first: Optional[str] = None
         arrays: List[Array] = []
         for arg, length in self.inputs:
             if arg not in values:
                 raise TypeError(f"{name}() is missing its argument {arg!r}")
-            if arg in ("dt", "active"):
+            if arg in ("dt", "active", "gains", "contact_ref"):
                 # A run-time time step (a scalar, or (B,)) and a contact mask (a bool, (nc,)
                 # or (B, nc)), shaped below once the batch is known.
                 arrays.append(np.asarray(values[arg]))
@@ -203,9 +238,16 @@ class Kernel:
         if "dt" in self._at:
             at = self._at["dt"]
             arrays[at] = self._time_steps(arrays[at], batch)
-        if self._masked:
+        if "active" in self._at:
             at = self._at["active"]
             arrays[at] = self._mask(arrays[at], batch, self.inputs[at][1])
+        if "gains" in self._at:
+            at, ref_at = self._at["gains"], self._at["contact_ref"]
+            arrays[at] = self._per_contact("gains", arrays[at], batch, 2, "[Kp, Kd]")
+            arrays[ref_at] = self._per_contact("contact_ref", arrays[ref_at], batch, 3, "a world position [x, y, z]")
+            kp = arrays[at].reshape(n, -1, 2)[:, :, 0]
+            if not ref_given and (kp != 0).any():
+                raise ValueError(f"{name}: `gains` has a nonzero Kp and no `contact_ref`: Kp pulls each contact towards its reference position; give contact_ref=")
         # The inputs, copied into one buffer in the kernel's scalar, input after input (the
         # C ABI's layout): one finiteness check and one pointer instead of one per input,
         # which is most of a small call's cost.

@@ -21,6 +21,7 @@ struct SceneKeywords {
     actuated: Option<Vec<String>>,
     external_forces: Option<Vec<String>>,
     contact_mask: Option<bool>,
+    baumgarte: Option<bool>,
     gravity: Option<[f64; 3]>,
 }
 
@@ -107,6 +108,10 @@ impl SceneKeywords {
         if let Some(mask) = self.contact_mask {
             clash("contact_mask", "contact_mask", s.is_some_and(|s| s.contact_mask))?;
             b.contact_mask(mask);
+        }
+        if let Some(on) = self.baumgarte {
+            clash("baumgarte", "baumgarte", s.is_some_and(|s| s.baumgarte))?;
+            b.baumgarte(on);
         }
         if let Some(g) = self.gravity {
             clash("gravity", "gravity", s.is_some_and(|s| s.gravity.is_some()))?;

@@ -594,38 +594,65 @@ def test_jax_floating_base_and_step_on_the_manifold(go2_stepping):
         gj.wrap(grid_gen.load(ROOT / "tests" / "fixtures" / "ball_arm.urdf", kernels=["rnea"]))
 
 
-def _point_contacts(p: "Pin", frames, active=None):
-    """Pinocchio's point contacts (CONTACT_3D, LOCAL_WORLD_ALIGNED) at links, as grid-gen's."""
+def _point_contacts(p: "Pin", frames, active=None, gains=None, refs=None):
+    """Pinocchio's point contacts (CONTACT_3D, LOCAL_WORLD_ALIGNED) at links, as grid-gen's;
+    with `gains` ([Kp, Kd] per contact) and `refs` (world positions), its Baumgarte corrector
+    towards the universe at each reference."""
     cms, cds = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
     for k, name in enumerate(frames):
         if active is None or active[k]:
             frame = p.model.frames[p.model.getFrameId(name, pin.BODY)]
-            cm = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, p.model, frame.parentJoint, frame.placement, pin.LOCAL_WORLD_ALIGNED)
+            if gains is None:
+                cm = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, p.model, frame.parentJoint, frame.placement, pin.LOCAL_WORLD_ALIGNED)
+            else:
+                ref = pin.SE3(np.eye(3), np.asarray(refs[k], dtype=float))
+                cm = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, p.model, frame.parentJoint, frame.placement, 0, ref, pin.LOCAL_WORLD_ALIGNED)
+                bp = cm.m_baumgarte_parameters
+                bp.Kp, bp.Kd = float(gains[k][0]), float(gains[k][1])
+                cm.setBaumgarteCorrectorParameters(bp)
             cms.append(cm)
             cds.append(cm.createData())
     pin.initConstraintDynamics(p.model, p.data, cms, cds)
     return cms, cds
 
 
+# A floating robot nobody bundled with two point feet, stabilised, and a semi-implicit step
+# whose dt is given at run time, all from load's keywords (one library for the two tests).
+KNOT = dict(floating_base=True, contacts={"l2": "point", "l4": "point"}, step="semi_implicit_euler", baumgarte=True, kernels=["step", "step_grad"])
+
+
 def test_a_knot_from_load_keywords_with_the_steps_lambda(tmp_path):
-    """No scene file: a floating robot nobody bundled, two point feet and the semi-implicit
-    step with dt at run time, all from load's keywords. The step returns λ (Pinocchio's
-    constraintDynamics lambda_c at the state) and step_grad its derivatives, against central
-    differences of Pinocchio's constraintDynamics on the manifold; A and B against central
-    differences of Pinocchio's step (aba with contacts, then integrate)."""
+    """No scene file (KNOT). The step returns λ (Pinocchio's constraintDynamics lambda_c at
+    the state) and step_grad its derivatives, against central differences of Pinocchio's
+    constraintDynamics on the manifold; A and B against central differences of Pinocchio's
+    step (constraintDynamics, then integrate): rigid contacts (no gains), then with
+    Baumgarte gains towards references (Pinocchio's corrector)."""
     urdf = tmp_path / "unseen_tree.urdf"
     urdf.write_text(random_tree_urdf(seed=2027))
-    feet = {"l2": "point", "l4": "point"}
-    robot = grid_gen.load(urdf, floating_base=True, contacts=feet, step="semi_implicit_euler", kernels=["step", "step_grad"])
+    feet = KNOT["contacts"]
+    robot = grid_gen.load(urdf, **KNOT)
     assert robot.contacts == [("l2", "point"), ("l4", "point")] and robot.kernels == ("step", "step_grad")
-    assert [n for n, _ in robot.step_grad.inputs] == ["q", "qd", "tau", "dt"]
+    # The kernel's inputs (what C and the header list), and Python's order: given ones first.
+    assert [n for n, _ in robot.step_grad.inputs] == ["q", "qd", "tau", "gains", "contact_ref", "dt"]
+    assert robot.step_grad.arguments == ("q", "qd", "tau", "dt", "gains", "contact_ref")
     p = Pin(urdf, robot)
     n, nv, nu = 3, robot.nv, robot.nu
     q, qd, tau = random_states(robot, n, seed=21)
     u = tau[:, 6:]
     dt = np.array([1e-3, 5e-3, 2e-2])
-    r = robot.step_grad(q, qd, u, dt)
-    q1, v1, lam1 = robot.step(q, qd, u, dt)
+    rng = np.random.default_rng(24)
+    gains = np.stack([rng.uniform(0, 200, (n, 2)), rng.uniform(0, 30, (n, 2))], axis=-1)
+    refs = rng.uniform(-0.5, 0.5, (n, 2, 3))
+    for stabilised in (False, True):
+        corr = (gains, refs) if stabilised else None
+        _check_knot(robot, p, feet, q, qd, u, dt, corr)
+
+
+def _check_knot(robot, p, feet, q, qd, u, dt, corr):
+    n, nv, nu = len(q), robot.nv, robot.nu
+    extra = {} if corr is None else dict(gains=corr[0], contact_ref=corr[1])
+    r = robot.step_grad(q, qd, u, dt, **extra)
+    q1, v1, lam1 = robot.step(q, qd, u, dt, **extra)
     assert rel(lam1, r.lam) < 1e-13 and rel(v1, r.qd_next) < 1e-13
 
     def pin_state(qg, vg):
@@ -634,7 +661,7 @@ def test_a_knot_from_load_keywords_with_the_steps_lambda(tmp_path):
     def pin_lambda(qp, vp, up):
         taup = np.zeros(nv)
         taup[p.v[6:]] = up
-        cms, cds = _point_contacts(p, list(feet))
+        cms, cds = _point_contacts(p, list(feet), gains=None if corr is None else corr[0][i], refs=None if corr is None else corr[1][i])
         a = pin.constraintDynamics(p.model, p.data, qp, vp, taup, cms, cds, pin.ProximalSettings(1e-14, 0.0, 1))
         return a.copy(), p.data.lambda_c.copy()
 
@@ -644,11 +671,15 @@ def test_a_knot_from_load_keywords_with_the_steps_lambda(tmp_path):
         return pin.integrate(p.model, qp, h * v_next), v_next, lam
 
     worst_lam = worst_dlam = worst_ab = 0.0
-    eps = 1e-6
+    # Central differences' step: their round-off, ε_mach times the contact forces' large
+    # intermediate terms over eps, dominates at 1e-6 (measured 5.8e-8 with gains) and falls
+    # to 8.6e-9 at 1e-5, where the O(eps^2) truncation is still below it.
+    eps = 1e-5
     for i in range(n):
         qp, vp = pin_state(q[i], qd[i])
         _, lam = pin_lambda(qp, vp, u[i])
-        worst_lam = max(worst_lam, rel(r.lam[i], lam))
+        q_want, v_want, _ = pin_step(qp, vp, u[i], dt[i])
+        worst_lam = max(worst_lam, rel(r.lam[i], lam), rel(r.qd_next[i], p.vec(v_want)))
         # Central differences along each tangent direction of x = (q, qd) (grid-gen's
         # order, mapped to Pinocchio's) and of u.
         dlam_dx, dlam_du = np.empty((6, 2 * nv)), np.empty((6, nu))
@@ -681,11 +712,11 @@ def test_a_knot_from_load_keywords_with_the_steps_lambda(tmp_path):
                 dlam_du[:, c - 2 * nv], b_fd[:, c - 2 * nv] = dl, dxn
         worst_dlam = max(worst_dlam, rel(r.dlam_dx[i], dlam_dx), rel(r.dlam_du[i], dlam_du))
         worst_ab = max(worst_ab, rel(r.A[i], a_fd), rel(r.B[i], b_fd))
-    print(f"unseen floating tree, two feet, step from load keywords: lambda {worst_lam:.1e} from Pinocchio; dlam {worst_dlam:.1e}, A/B {worst_ab:.1e} from central differences")
-    # λ: f64 round-off through K = J M^-1 J^T (two points on a 12-dof tree, well
-    # conditioned at these states). Derivatives: central differences with eps = 1e-6 carry
-    # O(eps^2) truncation and O(1e-16 / eps) round-off, ~1e-10 of the scale; 1e-7 leaves
-    # room for the curvature of the contact forces, and a wrong column would be O(1).
+    what = "Baumgarte gains" if corr is not None else "rigid"
+    print(f"unseen floating tree, two feet ({what}), step from load keywords: lambda and qd_next {worst_lam:.1e} from Pinocchio; dlam {worst_dlam:.1e}, A/B {worst_ab:.1e} from central differences")
+    # λ and q̇⁺: f64 round-off through K = J M^-1 J^T (two points on a 12-dof tree, well
+    # conditioned at these states). Derivatives: the central differences' own error (above)
+    # with a 10x margin; a wrong term (a missing Kp J, a sign) would be O(1).
     assert worst_lam < 1e-11
     assert worst_dlam < 1e-7 and worst_ab < 1e-7
 
@@ -718,7 +749,7 @@ def test_load_keywords_and_state_checks_say_what_is_wrong(tmp_path):
     after = set(build.iterdir()) if build.exists() else set()
     assert after == before, f"failed loads left {sorted(after - before)} in the cache"
 
-    robot = grid_gen.load(urdf, floating_base=True, contacts={"l2": "point", "l4": "point"}, step="semi_implicit_euler", kernels=["step", "step_grad"])
+    robot = grid_gen.load(urdf, **KNOT)
     q, qd, tau = random_states(robot, 3, seed=22)
     u = tau[:, 6:]
     for bad_q, says in ((np.zeros(robot.nq), "`q`: joint `root_joint`'s quaternion q[3:7] has norm 0; a rotation is a unit quaternion"),
@@ -734,6 +765,15 @@ def test_load_keywords_and_state_checks_say_what_is_wrong(tmp_path):
     for call, says in hints:
         with pytest.raises(ValueError) as e:
             call()
+        assert says in str(e.value), str(e.value)
+    gain_errors = [
+        (dict(gains=[[100.0, 10.0]] * 2), "`gains` has a nonzero Kp and no `contact_ref`"),
+        (dict(gains=[[1.0, -1.0]] * 2, contact_ref=np.zeros((2, 3))), "negative gain"),
+        (dict(gains=np.zeros((2, 3)), contact_ref=np.zeros((2, 3))), "`gains` has shape (2, 3); expected (3, 2, 2) or (2, 2) for every state: [Kp, Kd] per contact (l2, l4)"),
+    ]
+    for kwargs, says in gain_errors:
+        with pytest.raises(ValueError) as e:
+            robot.step(q, qd, u, 0.01, **kwargs)
         assert says in str(e.value), str(e.value)
     with pytest.raises(AttributeError, match="has no kernel `fd_grad`: it was left out by load\\(kernels=...\\)"):
         robot.fd_grad

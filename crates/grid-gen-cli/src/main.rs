@@ -298,6 +298,11 @@ struct ModelArgs {
     /// no constraint). The scene's `contact_mask = true`.
     #[arg(long, global = true)]
     contact_mask: bool,
+    /// Stabilise the contacts as Pinocchio's Baumgarte corrector: the kernels that solve for
+    /// their forces take `gains` (Kp, Kd per contact) and `contact_ref` (a world position
+    /// per contact). Point contacts only. The scene's `baumgarte = true`.
+    #[arg(long, global = true)]
+    baumgarte: bool,
     /// Read every <origin rpy> angle within RAD of a multiple of pi/2 as that multiple
     /// (at most 1e-6): a URDF's pi/2 written to a few digits becomes a permutation the
     /// kernels apply for free, and the results move from the literal file's by about RAD
@@ -332,6 +337,7 @@ impl ModelArgs {
             contacts: (!self.contact.is_empty()).then(|| self.contact.clone()),
             round_angles: self.round_angles,
             contact_mask: self.contact_mask.then_some(true),
+            baumgarte: self.baumgarte.then_some(true),
         };
         config
     }

@@ -1756,3 +1756,120 @@ fn round_angles_from_the_command_line() {
         stderr(&bad)
     );
 }
+
+/// Baumgarte-stabilised contacts from the command line: `eval --baumgarte` takes a state's
+/// `baumgarte` (kp, kd, ref per contact frame) and gives the reference's stabilised contact
+/// dynamics and step (λ included); `info` names the inputs; bad correctors are errors
+/// naming the state and the contact.
+#[test]
+fn baumgarte_from_the_command_line() {
+    let base = [
+        "robots/grid_hyq.urdf",
+        "--floating-base",
+        "--contact",
+        "lf_lowerleg:point,rh_lowerleg:point",
+        "--baumgarte",
+    ];
+    let summary = json(&grid_gen(&[&["info", "--json"], &base[..]].concat()));
+    assert_eq!(summary["baumgarte"], serde_json::json!(true));
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-baumgarte-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";
+    let qd = "[0.1,0,0,0,0,0.2, 1,0,0,0,0,0,0,0,0,0,0,0.5]";
+    let tau = "[0,0,0,0,0,0, 1,2,3,4,5,6,7,8,9,10,11,12]";
+    let write = |name: &str, extra: &str| {
+        let path = dir.join(name);
+        let state = format!(r#"{{"q": {q}, "qd": {qd}, "tau": {tau}{extra}}}"#);
+        std::fs::write(&path, format!(r#"{{"states": [{state}]}}"#)).unwrap();
+        path
+    };
+    let corrected = write(
+        "gains.json",
+        r#", "baumgarte": {"lf_lowerleg": {"kp": 100, "kd": 20, "ref": [0.4, 0.3, -0.3]}, "rh_lowerleg": {"kp": 50, "kd": 5, "ref": [-0.4, -0.3, -0.35]}}"#,
+    );
+    let args = |extra: &[&str], states: &std::path::Path| -> Vec<String> {
+        [&["eval"], &base[..], extra, &["--states", states.to_str().unwrap()]]
+            .concat()
+            .iter()
+            .map(|s| s.to_string())
+            .collect()
+    };
+    let run = |a: Vec<String>| grid_gen(&a.iter().map(String::as_str).collect::<Vec<_>>());
+    let out = run(args(&["--step", "semi_implicit_euler", "--dt", "0.01"], &corrected));
+    assert_eq!(out.status.code(), Some(0), "{}", String::from_utf8_lossy(&out.stderr));
+    let s = &json(&out)["states"][0];
+    let text = std::fs::read_to_string(repo().join("robots/grid_hyq.urdf")).unwrap();
+    let scene = grid_gen::Scene::parse(
+        "s.toml",
+        "floating_base = true\nbaumgarte = true\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"rh_lowerleg\"\ntype = \"point\"\n",
+    )
+    .unwrap();
+    let model =
+        grid_gen::Model::from_urdf_str_in_scene("grid_hyq.urdf", &text, false, &scene, "s.toml")
+            .unwrap()
+            .0;
+    let parse = |s: &str| -> Vec<f64> { serde_json::from_str(s).unwrap() };
+    let gains = [100.0, 20.0, 50.0, 5.0];
+    let refs = [0.4, 0.3, -0.3, -0.4, -0.3, -0.35];
+    let corr = grid_gen::reference::Baumgarte { gains: &gains, refs: &refs };
+    let g = grid_gen::model::DEFAULT_GRAVITY;
+    let (x, v, u) = (parse(q), parse(qd), parse(tau));
+    let (sol, _) =
+        grid_gen::reference::contact_fd_derivatives_with(&model, &x, &v, &u, g, &[], corr).unwrap();
+    let (rigid, _) =
+        grid_gen::reference::contact_fd_derivatives(&model, &x, &v, &u, g, &[]).unwrap();
+    let floats = |v: &serde_json::Value| -> Vec<f64> {
+        v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
+    };
+    // serde_json's float parsing may round the last digit differently.
+    let close = |a: &[f64], b: &[f64]| {
+        a.len() == b.len()
+            && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-14 * y.abs().max(1.0))
+    };
+    let got = floats(&s["contact_fd"]["qdd"]);
+    assert!(close(&got, &sol.qdd), "contact_fd.qdd is the reference's with the corrector");
+    assert!(!close(&got, &rigid.qdd), "and the corrector changes it");
+    let lambda: Vec<f64> = ["lf_lowerleg", "rh_lowerleg"]
+        .iter()
+        .flat_map(|f| floats(&s["step"]["lambda"][f]))
+        .collect();
+    assert!(close(&lambda, &sol.lambda), "the step's lambda is contact_fd's, stabilised");
+    let errors = [
+        (
+            write(
+                "none.json",
+                r#", "baumgarte": {"rf_lowerleg": {"kp": 1, "kd": 1, "ref": [0, 0, 0]}}"#,
+            ),
+            "`baumgarte` names `rf_lowerleg`",
+        ),
+        (
+            write("noref.json", r#", "baumgarte": {"lf_lowerleg": {"kp": 1, "kd": 1}}"#),
+            "kp pulls the contact towards `ref`",
+        ),
+        (
+            write(
+                "neg.json",
+                r#", "baumgarte": {"lf_lowerleg": {"kp": -1, "kd": 1, "ref": [0, 0, 0]}}"#,
+            ),
+            "kp and kd are finite and >= 0",
+        ),
+    ];
+    for (states, says) in errors {
+        let out = run(args(&[], &states));
+        let err = String::from_utf8_lossy(&out.stderr);
+        assert_eq!(out.status.code(), Some(1), "{err}");
+        assert!(err.contains("state 0") && err.contains(says), "{err}");
+    }
+    let plain = grid_gen(&[
+        "eval",
+        "robots/grid_hyq.urdf",
+        "--floating-base",
+        "--contact",
+        "lf_lowerleg:point,rh_lowerleg:point",
+        "--states",
+        corrected.to_str().unwrap(),
+    ]);
+    let err = String::from_utf8_lossy(&plain.stderr);
+    assert!(err.contains("does not stabilise its contacts"), "{err}");
+    std::fs::remove_dir_all(&dir).ok();
+}

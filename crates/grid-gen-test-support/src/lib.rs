@@ -522,6 +522,22 @@ pub fn kernel_args_masked<'a>(
     dt: &'a [f64],
     active: &'a [f64],
 ) -> Vec<&'a [f64]> {
+    assert!(!inputs.contains(&Input::Gains), "a stabilised kernel: use kernel_args_corrected");
+    kernel_args_corrected(inputs, q, qd, u, ext, dt, active, reference::Baumgarte::NONE)
+}
+
+/// [`kernel_args_masked`] for a kernel that may also take Baumgarte gains and references.
+#[allow(clippy::too_many_arguments)]
+pub fn kernel_args_corrected<'a>(
+    inputs: &[Input],
+    q: &'a [f64],
+    qd: &'a [f64],
+    u: &'a [f64],
+    ext: reference::External<'a>,
+    dt: &'a [f64],
+    active: &'a [f64],
+    corr: reference::Baumgarte<'a>,
+) -> Vec<&'a [f64]> {
     inputs
         .iter()
         .map(|i| match i {
@@ -532,6 +548,8 @@ pub fn kernel_args_masked<'a>(
             Input::Lambda => ext.lambda,
             Input::Dt => dt,
             Input::Active => active,
+            Input::Gains => corr.gains,
+            Input::ContactRef => corr.refs,
         })
         .collect()
 }

@@ -19,6 +19,9 @@ pub struct ShaderInfo {
     /// Entries of the contact mask that the contact kernels and the step read in `u`
     /// (`// active:`, else 0).
     pub active: usize,
+    /// Contacts with Baumgarte gains, each 2 gains and 3 reference entries in `u` after the
+    /// mask (`// baumgarte:`, else 0).
+    pub baumgarte: usize,
     /// Whether the step kernels read their time step as the last entry of each state's `u`
     /// (`// dt: input`).
     pub runtime_dt: bool,
@@ -47,6 +50,7 @@ impl ShaderInfo {
         let mut lambda = 0;
         let mut runtime_dt = false;
         let mut active = 0;
+        let mut baumgarte = 0;
         let mut precision = None;
         let mut entries = Vec::new();
         let mut tables = None;
@@ -65,6 +69,8 @@ impl ShaderInfo {
                 lambda = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// active: ") {
                 active = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
+            } else if let Some(v) = line.strip_prefix("// baumgarte: ") {
+                baumgarte = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// dt: ") {
                 if v.trim() != "input" {
                     return Err(bad("expected `input`"));
@@ -103,6 +109,7 @@ impl ShaderInfo {
             forces,
             lambda,
             active,
+            baumgarte,
             runtime_dt,
             precision,
             entries,

@@ -332,7 +332,15 @@ impl Gpu {
             nq: shader.info.nq,
             nu: grid_gen::ir::KernelKind::parse(&info.kernel).map_or(shader.info.nv, |k| {
                 let i = &shader.info;
-                k.u_len(i.nv, i.nu, i.forces, i.lambda, i.active, i.runtime_dt)
+                k.u_len(&grid_gen::ir::UPacking {
+                    nv: i.nv,
+                    nu: i.nu,
+                    forces: i.forces,
+                    lambda: i.lambda,
+                    active: i.active,
+                    baumgarte: i.baumgarte,
+                    runtime_dt: i.runtime_dt,
+                })
             }),
             build_time: start.elapsed(),
             tables: shader.tables.clone(),

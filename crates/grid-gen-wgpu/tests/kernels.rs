@@ -1272,3 +1272,84 @@ fn masked_contacts_match_the_reference() {
         states.len() - singular
     );
 }
+
+/// Baumgarte-stabilised contacts on the GPU: floating HyQ's four feet, f64 cooperative
+/// `contact_fd_grad`, each state its own gains and references (`u` packs τ, then the gains,
+/// then the references), against the reference's stabilised contact dynamics and the IR.
+#[test]
+fn stabilised_contacts_match_the_reference() {
+    use grid_gen::model::ContactKind;
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(107);
+    let legs = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+        .map(|l| (l, ContactKind::Point));
+    let mut model = with_forces(&load_floating("grid_hyq"), &[], &legs);
+    model.specialisation.baumgarte = true;
+    let options = WgslOptions {
+        precision: Precision::F64,
+        strategies: vec![Strategy::Cooperative],
+        ..WgslOptions::default()
+    };
+    let shader = gpu.load(&wgsl(&model, options)).unwrap();
+    assert_eq!(shader.info.baumgarte, 4, "the header counts the stabilised contacts");
+    let kind = KernelKind::ContactFdGrad;
+    let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
+    let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+    let f = lowered.function(kind).unwrap();
+    let nv = model.nv();
+    let states = states(&model, &mut rng);
+    let corr: Vec<(Vec<f64>, Vec<f64>)> = states
+        .iter()
+        .map(|_| {
+            let gains = (0..4).flat_map(|_| [rng.vec(1, 0.0, 200.0)[0], rng.vec(1, 0.0, 30.0)[0]]);
+            (gains.collect(), rng.vec(12, -0.6, 0.6))
+        })
+        .collect();
+    let flat =
+        |k: usize| -> Vec<f64> { states.iter().flat_map(|s| s[k].iter().copied()).collect() };
+    let (q, qd) = (flat(0), flat(1));
+    let u: Vec<f64> = states
+        .iter()
+        .zip(&corr)
+        .flat_map(|(s, (g, r))| s[2].iter().chain(g).chain(r).copied().collect::<Vec<_>>())
+        .collect();
+    let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry(kind.name())).unwrap();
+    assert_eq!(kernel.nu, nv + 20, "{kind}: u holds τ, 8 gains and 12 reference entries");
+    assert_eq!(kernel.nu, f.packed_u_len(), "{kind}: u's width");
+    let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
+    let total = kernel.entry.outputs;
+    let (mut worst, mut singular): (f64, usize) = (0.0, 0);
+    for (s, ([q, qd, u], (gains, refs))) in states.iter().zip(&corr).enumerate() {
+        let j = reference::contact_jacobian(&model, &model.specialisation.contacts, q);
+        if j.singular_values().min() < 1e-8 * j.singular_values().max() {
+            // A leg stretched straight: λ is not unique there.
+            singular += 1;
+            continue;
+        }
+        let g = reference::DEFAULT_GRAVITY;
+        let c = reference::Baumgarte { gains, refs };
+        let (sol, d) = reference::contact_fd_derivatives_with(&model, q, qd, u, g, &[], c).unwrap();
+        let col = |v: &[f64]| nalgebra::DMatrix::from_column_slice(v.len(), 1, v);
+        let want = vec![
+            col(&sol.qdd),
+            col(&sol.lambda),
+            d.dqdd_dq,
+            d.dqdd_dqd,
+            d.dqdd_dtau,
+            d.dlambda_dq,
+            d.dlambda_dqd,
+            d.dlambda_dtau,
+        ];
+        let ext = reference::External { fext: &[], lambda: &[] };
+        let args = kernel_args_corrected(f.inputs(), q, qd, u, ext, &[], &[], c);
+        let interpreted = f.eval(&args);
+        let what = format!("{kind} state {s}");
+        let e = check_f64_state(&what, f, nv, &got[s * total..], &want, &interpreted);
+        worst = worst.max(e);
+    }
+    assert!(singular <= 2, "{singular} singular states");
+    eprintln!(
+        "grid_hyq floating stabilised {kind} f64: worst relative error {worst:.2e} over {} states",
+        states.len() - singular
+    );
+}

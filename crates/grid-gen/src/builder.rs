@@ -252,6 +252,15 @@ impl Builder {
         self
     }
 
+    /// Whether the contacts are stabilised as Pinocchio's Baumgarte corrector (the scene's
+    /// `baumgarte`): `contact_fd`, `contact_fd_grad`, `step` and `step_grad` then take
+    /// `gains` (Kp, Kd per contact) and `contact_ref` (a world position per contact), and
+    /// drive each contact's acceleration to `−Kd v − Kp (p − p_ref)`. Point contacts only.
+    pub fn baumgarte(&mut self, on: bool) -> &mut Self {
+        self.config.overrides.baumgarte = Some(on);
+        self
+    }
+
     /// Contacts at frames (link names), each a point or a wrench; the kernels take their
     /// forces λ in `LOCAL_WORLD_ALIGNED` axes. Replaces the scene's `[[contact]]`.
     pub fn contacts<S: AsRef<str>>(

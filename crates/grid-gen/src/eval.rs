@@ -36,6 +36,23 @@ pub struct State {
     /// `contact_fd` and the step.
     #[serde(default)]
     pub active: BTreeMap<String, bool>,
+    /// For a scene that stabilises its contacts (`baumgarte`): each contact's Baumgarte
+    /// corrector, keyed by contact frame; a contact left out has gains 0 (held rigid).
+    #[serde(default)]
+    pub baumgarte: BTreeMap<String, Corrector>,
+}
+
+/// One contact's Baumgarte corrector (Pinocchio's `BaumgarteCorrectorParameters` and the
+/// reference placement of `joint2`, the universe): the contact's acceleration is driven to
+/// `−kd v − kp (p − ref)`.
+#[derive(Clone, Debug, Deserialize)]
+#[serde(deny_unknown_fields)]
+pub struct Corrector {
+    pub kp: f64,
+    pub kd: f64,
+    /// The reference position in the world, `[x, y, z]` (may be left out where kp is 0).
+    #[serde(default, rename = "ref")]
+    pub reference: Option<Values>,
 }
 
 /// A list of numbers, read as [`State`]'s vectors are (NaN and infinities included, so
@@ -190,8 +207,11 @@ fn contact_output(
     };
     // The model holding just the state's active contacts; the others get zero rows below.
     let held = holding(fm, s);
-    let (sol, d) = reference::contact_fd_derivatives(&held, &s.q, &s.qd, tau, gravity, fext)
-        .ok_or(EvalError::ContactsSingular { index })?;
+    let (gains, refs) = correctors(&held, s);
+    let corr = reference::Baumgarte { gains: &gains, refs: &refs };
+    let (sol, d) =
+        reference::contact_fd_derivatives_with(&held, &s.q, &s.qd, tau, gravity, fext, corr)
+            .ok_or(EvalError::ContactsSingular { index })?;
     if sol.qdd.iter().chain(&sol.lambda).any(|x| !x.is_finite()) {
         return Err(EvalError::ContactsSingular { index });
     }
@@ -328,7 +348,9 @@ fn step_output(
     // check_states made sure that a run-time step has its dt.
     let step = step.at(s.dt.unwrap_or(f64::NAN));
     let held = holding(model, s);
-    let d = reference::step_derivatives(
+    let (gains, refs) = correctors(&held, s);
+    let corr = reference::Baumgarte { gains: &gains, refs: &refs };
+    let d = reference::step_derivatives_with(
         &held,
         &s.q,
         &s.qd,
@@ -337,6 +359,7 @@ fn step_output(
         step,
         &model.actuated(),
         fext,
+        corr,
     )
     .ok_or(EvalError::ContactsSingular { index })?;
     let mut out = StepOutput {
@@ -349,9 +372,17 @@ fn step_output(
         dlambda_du: None,
     };
     if !model.specialisation.contacts.is_empty() {
-        let (lambda, dx, du) =
-            reference::step_lambda(&held, &s.q, &s.qd, tau, gravity, &model.actuated(), fext)
-                .ok_or(EvalError::ContactsSingular { index })?;
+        let (lambda, dx, du) = reference::step_lambda_with(
+            &held,
+            &s.q,
+            &s.qd,
+            tau,
+            gravity,
+            &model.actuated(),
+            fext,
+            corr,
+        )
+        .ok_or(EvalError::ContactsSingular { index })?;
         let lambda = nalgebra::DMatrix::from_column_slice(lambda.len(), 1, &lambda);
         out.lambda = Some(
             per_contact(model, s, &lambda)
@@ -490,6 +521,12 @@ pub enum EvalError {
     NotMasked { index: usize },
     #[error("state {index}: `active` names `{key}`, which is not a contact the scene declares; declared: {declared}")]
     UnknownActive { index: usize, key: String, declared: String },
+    #[error("state {index}: `baumgarte` is given, but the scene does not stabilise its contacts; add `baumgarte = true` (or --baumgarte)")]
+    NotStabilised { index: usize },
+    #[error("state {index}: `baumgarte` names `{key}`, which is not a contact the scene declares; declared: {declared}")]
+    UnknownCorrector { index: usize, key: String, declared: String },
+    #[error("state {index}: `baumgarte` of `{key}`: {why}")]
+    BadCorrector { index: usize, key: String, why: &'static str },
     #[error("state {index}: `dt` is given, but the model takes no step; add [step] to the scene, or --step")]
     DtWithoutStep { index: usize },
     #[error("state {index}: the contacts' Jacobian loses rank at this configuration, so rigid-contact dynamics has no unique solution (contact_fd, and a step that integrates it); move the state away from the singularity or declare fewer contacts")]
@@ -619,6 +656,7 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         check_forces(model, index, s)?;
         check_dt(model, index, s)?;
         check_active(model, index, s)?;
+        check_baumgarte(model, index, s)?;
         if let (Some(_), Some(tau)) = (model.specialisation.step, &s.tau) {
             let actuated = model.actuated();
             if let Some(entry) = (0..n).find(|k| !actuated.contains(k) && tau[*k] != 0.0) {
@@ -628,6 +666,53 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
         }
     }
     Ok(())
+}
+
+/// A state's `baumgarte`: only for a scene that stabilises its contacts, keyed by its
+/// contacts, gains finite and non-negative, a reference of three finite numbers where kp is
+/// not 0.
+fn check_baumgarte(model: &Model, index: usize, s: &State) -> Result<(), EvalError> {
+    if s.baumgarte.is_empty() {
+        return Ok(());
+    }
+    if !model.specialisation.baumgarte {
+        return Err(EvalError::NotStabilised { index });
+    }
+    let declared: Vec<&str> =
+        model.specialisation.contacts.iter().map(|c| model.frames[c.frame].name.as_str()).collect();
+    for (key, c) in &s.baumgarte {
+        if !declared.contains(&key.as_str()) {
+            let declared = declared.join(", ");
+            return Err(EvalError::UnknownCorrector { index, key: key.clone(), declared });
+        }
+        let bad = |why| Err(EvalError::BadCorrector { index, key: key.clone(), why });
+        if !(c.kp.is_finite() && c.kd.is_finite() && c.kp >= 0.0 && c.kd >= 0.0) {
+            return bad("kp and kd are finite and >= 0 (0: no correction)");
+        }
+        match &c.reference {
+            Some(r) if r.0.len() != 3 || !r.0.iter().all(|x| x.is_finite()) => {
+                return bad("`ref` is a world position, three finite numbers")
+            }
+            None if c.kp != 0.0 => return bad("kp pulls the contact towards `ref`: give `ref`"),
+            _ => {}
+        }
+    }
+    Ok(())
+}
+
+/// The state's Baumgarte gains and references for the contacts `held` holds (zeros for a
+/// contact the state leaves out), as the reference takes them.
+fn correctors(held: &Model, s: &State) -> (Vec<f64>, Vec<f64>) {
+    let (mut gains, mut refs) = (Vec::new(), Vec::new());
+    if !held.specialisation.baumgarte {
+        return (gains, refs);
+    }
+    for c in &held.specialisation.contacts {
+        let corr = s.baumgarte.get(&held.frames[c.frame].name);
+        gains.extend(corr.map_or([0.0; 2], |c| [c.kp, c.kd]));
+        refs.extend(corr.and_then(|c| c.reference.as_ref()).map_or(vec![0.0; 3], |r| r.0.clone()));
+    }
+    (gains, refs)
 }
 
 /// A state's `active`: only for a scene that masks its contacts, keyed by its contacts.

@@ -101,6 +101,9 @@ pub struct Info {
     /// The contacts are candidates: the contact kernels and the step take `active`, one 0
     /// or 1 per contact (`contact_mask`).
     pub contact_mask: bool,
+    /// The contacts are stabilised as Pinocchio's Baumgarte corrector: the contact kernels
+    /// and the step take `gains` and `contact_ref` (`baumgarte`).
+    pub baumgarte: bool,
     /// A floating base: joints 0 to 5 are the free-flyer's velocity coordinates (linear,
     /// then angular, in the base frame).
     pub floating_base: bool,
@@ -228,6 +231,7 @@ impl Info {
                 })
                 .collect(),
             contact_mask: model.specialisation.contact_mask,
+            baumgarte: model.specialisation.baumgarte,
             gravity,
             joint_names: model
                 .coordinate_joints()
@@ -503,6 +507,9 @@ impl Info {
             s.push_str(&format!("rnea, rnea_grad, fd, fd_grad take contact forces lambda (world axes at the frame) at: {}\n", c.join(", ")));
             if self.contact_mask {
                 s.push_str("contact_fd, contact_fd_grad, step and step_grad take `active`, one 0 or 1 per contact in this order (an inactive contact has lambda = 0 and no constraint)\n");
+            }
+            if self.baumgarte {
+                s.push_str("contact_fd, contact_fd_grad, step and step_grad take `gains` ([Kp, Kd] per contact) and `contact_ref` (a world position per contact): Pinocchio's Baumgarte corrector, each contact's acceleration driven to -Kd v - Kp (p - p_ref)\n");
             }
         }
         if let Some(step) = self.step {

@@ -416,6 +416,11 @@ pub struct Specialisation {
     /// take `active` (one 0 or 1 per contact); an inactive contact has λ = 0 and no
     /// constraint row, so one library serves every contact mode of a gait.
     pub contact_mask: bool,
+    /// The contacts are stabilised as Pinocchio's Baumgarte corrector: the kernels that solve
+    /// for their forces take `gains` (Kp, Kd per contact) and `contact_ref` (a world position
+    /// per contact), and drive each contact's acceleration to `−Kd v − Kp (p − p_ref)`.
+    /// Point contacts only.
+    pub baumgarte: bool,
 }
 
 /// A contact at a frame: the force λ the environment applies there, in
@@ -471,6 +476,15 @@ impl Specialisation {
     /// Whether some gradient entries are not computed.
     pub fn selects(&self) -> bool {
         self.rows.is_some() || self.columns.is_some()
+    }
+
+    /// Contacts with Baumgarte gains ([`Self::baumgarte`]): every contact, else none.
+    pub fn baumgarte_len(&self) -> usize {
+        if self.baumgarte {
+            self.contacts.len()
+        } else {
+            0
+        }
     }
 
     /// Entries of the contact mask `active`: one per contact when the contacts are

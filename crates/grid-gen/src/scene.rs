@@ -116,6 +116,11 @@ pub struct Scene {
     /// state, and an inactive contact has λ = 0 and no constraint (as `--contact-mask`).
     #[serde(default)]
     pub contact_mask: bool,
+    /// The contacts are stabilised as Pinocchio's Baumgarte corrector (`BaumgarteCorrectorParameters`):
+    /// the kernels that solve for their forces take `gains` (Kp, Kd per contact) and
+    /// `contact_ref` (a world position per contact) at run time (as `--baumgarte`).
+    #[serde(default)]
+    pub baumgarte: bool,
     /// Read every `<origin rpy>` angle within this many radians of a multiple of π/2 as
     /// that multiple (`urdf::round_angles`; at most `urdf::MAX_ROUND_ANGLES`). Off by
     /// default: the URDF's numbers are taken as written, as Pinocchio takes them.
@@ -303,6 +308,7 @@ pub struct SceneOverrides {
     pub contacts: Option<Vec<ContactEntry>>,
     pub round_angles: Option<f64>,
     pub contact_mask: Option<bool>,
+    pub baumgarte: Option<bool>,
 }
 
 /// `round_angles` must round off digits, not change the robot.
@@ -385,6 +391,7 @@ impl Scene {
             self.contact = contacts;
         }
         self.contact_mask = o.contact_mask.unwrap_or(self.contact_mask);
+        self.baumgarte = o.baumgarte.unwrap_or(self.baumgarte);
         self.round_angles = o.round_angles.or(self.round_angles);
     }
 
@@ -630,6 +637,42 @@ pub(crate) fn specialise(
             .with_help("declare the candidate contacts with [[contact]] or --contact FRAME:point"),
         );
     }
+    let whence = |key: &str, flag: &str| {
+        if scene_path.is_empty() {
+            flag.to_string()
+        } else {
+            format!("scene `{scene_path}`: {key}")
+        }
+    };
+    if scene.baumgarte && contacts.is_empty() {
+        diags.push(
+            Diagnostic::error(
+                format!(
+                    "{} without contacts: there is nothing to stabilise",
+                    whence("baumgarte", "--baumgarte")
+                ),
+                None,
+                "no contacts",
+            )
+            .with_help("declare the contacts with [[contact]] or --contact FRAME:point"),
+        );
+    }
+    if let Some(c) =
+        contacts.iter().find(|c| scene.baumgarte && c.kind == crate::model::ContactKind::Wrench)
+    {
+        diags.push(
+            Diagnostic::error(
+                format!(
+                    "{}: contact `{}` is a wrench; Baumgarte gains are supported on point contacts (a wrench's placement error needs SE(3)'s log, which the kernels do not have yet)",
+                    whence("baumgarte", "--baumgarte"),
+                    model.frames[c.frame].name
+                ),
+                None,
+                "a wrench contact",
+            )
+            .with_help("make it a point contact, or leave baumgarte off"),
+        );
+    }
     Specialisation {
         static_velocity: scene.static_velocity,
         rows,
@@ -643,6 +686,7 @@ pub(crate) fn specialise(
         no_fext_derivatives: !scene.external_forces.derivatives.unwrap_or(true),
         contacts,
         contact_mask: scene.contact_mask,
+        baumgarte: scene.baumgarte,
     }
 }
 

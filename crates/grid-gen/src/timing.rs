@@ -76,7 +76,7 @@ const NQ: usize = {nq};"
     out
 }
 
-/// A call's arguments from a state `x = (q, [q̇, u], fext, λ, dt, active)`: each input in the kernel's
+/// A call's arguments from a state `x = (q, [q̇, u], fext, λ, dt, active, gains, contact_ref)`: each input in the kernel's
 /// order, u as q̈ or τ, the step kernels' τ the first NU entries of u.
 fn call_args(inputs: &[crate::ir::Input]) -> String {
     use crate::ir::Input;
@@ -91,6 +91,8 @@ fn call_args(inputs: &[crate::ir::Input]) -> String {
             Input::Lambda => "&x.3",
             Input::Dt => "&x.4",
             Input::Active => "&x.5",
+            Input::Gains => "&x.6",
+            Input::ContactRef => "&x.7",
         })
         .collect();
     args.join(", ")
@@ -101,6 +103,7 @@ fn call_args(inputs: &[crate::ir::Input]) -> String {
 fn program(kernels: &[KernelKind], mixed: &[MixedKernel], model: &Model) -> String {
     let (nq, nf, nl) = (model.nq(), 6 * model.nfext(), model.nlambda());
     let nc = model.specialisation.active_len();
+    let nb = model.specialisation.baumgarte_len();
     let mut calls = String::new();
     for (i, m) in mixed.iter().enumerate() {
         let name = m.function.kind.name();
@@ -175,10 +178,12 @@ fn main() {{
     // A run-time time step between 5 and 15 ms, for step kernels that take one.
     // Every candidate contact active, for kernels that take a contact mask.
     const NC: usize = {nc};
-    let s64: Vec<([f64; NQ], [[f64; N]; 2], [f64; NF], [f64; NL], [f64; 1], [f64; NC])> = (0..STATES)
-        .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))), std::array::from_fn(|i| 20.0 * state(j, i, 3)), std::array::from_fn(|i| 100.0 * state(j, i, 4)), [0.01 + 0.005 * state(j, 0, 5)], [1.0; NC]))
+    // Baumgarte gains (Kp 100, Kd 20) and reference positions within a metre of the origin.
+    const NB: usize = {nb};
+    let s64: Vec<([f64; NQ], [[f64; N]; 2], [f64; NF], [f64; NL], [f64; 1], [f64; NC], [f64; 2 * NB], [f64; 3 * NB])> = (0..STATES)
+        .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))), std::array::from_fn(|i| 20.0 * state(j, i, 3)), std::array::from_fn(|i| 100.0 * state(j, i, 4)), [0.01 + 0.005 * state(j, 0, 5)], [1.0; NC], std::array::from_fn(|i| if i % 2 == 0 {{ 100.0 }} else {{ 20.0 }}), std::array::from_fn(|i| state(j, i, 6))))
         .collect();
-    let s32: Vec<([f32; NQ], [[f32; N]; 2], [f32; NF], [f32; NL], [f32; 1], [f32; NC])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)), x.2.map(|y| y as f32), x.3.map(|y| y as f32), x.4.map(|y| y as f32), x.5.map(|y| y as f32))).collect();
+    let s32: Vec<([f32; NQ], [[f32; N]; 2], [f32; NF], [f32; NL], [f32; 1], [f32; NC], [f32; 2 * NB], [f32; 3 * NB])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)), x.2.map(|y| y as f32), x.3.map(|y| y as f32), x.4.map(|y| y as f32), x.5.map(|y| y as f32), x.6.map(|y| y as f32), x.7.map(|y| y as f32))).collect();
 {calls}}}
 "#
     )

@@ -100,6 +100,7 @@ pub fn random_states(
                 // The accuracy study leaves the step kernels out.
                 dt: None,
                 active: Default::default(),
+                baumgarte: Default::default(),
             }
         })
         .collect();

@@ -394,6 +394,9 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
             frames.len(),
             frames.join(", ")
         );
+        if dims.nbaumgarte > 0 {
+            let _ = writeln!(h, "/* The contact kernels and the step take gains (Kp, Kd per contact: 2 * {mac}_NCONTACTS values per state) and contact_ref (each contact's reference position in the world: 3 * {mac}_NCONTACTS), Pinocchio's Baumgarte corrector. */");
+        }
         if dims.ncontacts > 0 {
             let _ = writeln!(h, "/* The contact kernels and the step take active: {mac}_NCONTACTS values per state, 1 where a contact holds, 0 where it does not. */");
         }

@@ -94,9 +94,15 @@ impl Bounds {
             Port::Value(Input::Qdd, j) => (-self.qdd[j as usize], self.qdd[j as usize]),
             // No datapath kernel takes torques or a step; unbounded makes any that did fail
             // the check.
-            Port::Value(Input::Tau | Input::TauActuated | Input::Active | Input::Dt, _) => {
-                (f64::NEG_INFINITY, f64::INFINITY)
-            }
+            Port::Value(
+                Input::Tau
+                | Input::TauActuated
+                | Input::Active
+                | Input::Gains
+                | Input::ContactRef
+                | Input::Dt,
+                _,
+            ) => (f64::NEG_INFINITY, f64::INFINITY),
             Port::Value(Input::Fext | Input::Lambda, _) => (-self.force, self.force),
         }
     }

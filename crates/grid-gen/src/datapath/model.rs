@@ -31,9 +31,13 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f6
                     Input::Q => (q, 0),
                     Input::Qd => (qd, 0),
                     Input::Qdd => (qdd, 0),
-                    Input::Tau | Input::TauActuated | Input::Fext | Input::Active | Input::Dt => {
-                        (rest, 0)
-                    }
+                    Input::Tau
+                    | Input::TauActuated
+                    | Input::Fext
+                    | Input::Active
+                    | Input::Gains
+                    | Input::ContactRef
+                    | Input::Dt => (rest, 0),
                     Input::Lambda => (rest, lambda_at),
                 };
                 v[at + j as usize]

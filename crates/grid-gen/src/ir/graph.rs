@@ -29,6 +29,11 @@ pub enum Input {
     /// [`crate::model::Specialisation::contacts`], when the scene masks them
     /// ([`crate::model::Specialisation::contact_mask`]).
     Active,
+    /// Baumgarte gains `[Kp, Kd]` per contact, when the scene stabilises them
+    /// ([`crate::model::Specialisation::baumgarte`]).
+    Gains,
+    /// Each contact's reference position in the world, 3 per contact, with [`Input::Gains`].
+    ContactRef,
     /// The step kernels' time step, one value, when the scene leaves it to run time
     /// ([`crate::model::StepSpec::dt`]).
     Dt,
@@ -44,6 +49,8 @@ impl Input {
             Input::Fext => "fext",
             Input::Lambda => "lambda",
             Input::Active => "active",
+            Input::Gains => "gains",
+            Input::ContactRef => "contact_ref",
             Input::Dt => "dt",
         }
     }
@@ -56,6 +63,8 @@ impl Input {
             Input::Fext => 6 * dims.nfext,
             Input::Lambda => dims.nlambda,
             Input::Active => dims.ncontacts,
+            Input::Gains => 2 * dims.nbaumgarte,
+            Input::ContactRef => 3 * dims.nbaumgarte,
             Input::Dt => 1,
             Input::Qd | Input::Qdd | Input::Tau => dims.nv,
         }

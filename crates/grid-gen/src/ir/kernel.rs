@@ -21,6 +21,26 @@ pub struct Dims {
     pub nlambda: usize,
     /// Entries of the contact mask `active` (one per contact; 0 without a mask).
     pub ncontacts: usize,
+    /// Contacts with Baumgarte gains (every contact when the scene stabilises them, else 0).
+    pub nbaumgarte: usize,
+}
+
+/// What sizes WGSL's `u` per state ([`KernelKind::u_len`]), as a shader's header gives them.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct UPacking {
+    pub nv: usize,
+    /// The step kernels' actuated τ.
+    pub nu: usize,
+    /// The model's force entries: 6 per fext body, then λ's.
+    pub forces: usize,
+    /// λ's entries alone.
+    pub lambda: usize,
+    /// The contact mask's entries (0 without one).
+    pub active: usize,
+    /// Contacts with Baumgarte gains (2 gains and 3 reference entries each).
+    pub baumgarte: usize,
+    /// Whether the step kernels take `dt`.
+    pub runtime_dt: bool,
 }
 
 /// The shape of a kernel output.
@@ -471,6 +491,9 @@ impl KernelKind {
         if self.solves_contacts() && spec.contact_mask && !spec.contacts.is_empty() {
             inputs.push(Input::Active);
         }
+        if self.solves_contacts() && spec.baumgarte && !spec.contacts.is_empty() {
+            inputs.extend([Input::Gains, Input::ContactRef]);
+        }
         if self.is_step() && spec.step.is_some_and(|s| s.runtime_dt()) {
             inputs.push(Input::Dt);
         }
@@ -478,27 +501,17 @@ impl KernelKind {
     }
 
     /// Entries per state of WGSL's `u` buffer, which packs every input after q and q̇:
-    /// the first (q̈, τ or the actuated τ), then the forces the kernel takes, then a step
-    /// kernel's run-time `dt`. `forces` is the model's force entries (6 per fext body, then
-    /// λ's), `lambda` λ's alone, `active` the contact mask's entries (0 without one),
-    /// `runtime_dt` whether the step kernels take `dt`.
-    pub fn u_len(
-        self,
-        nv: usize,
-        nu: usize,
-        forces: usize,
-        lambda: usize,
-        active: usize,
-        runtime_dt: bool,
-    ) -> usize {
-        let first = if self.is_step() { nu } else { nv };
-        let dt = usize::from(self.is_step() && runtime_dt);
-        let mask = if self.solves_contacts() { active } else { 0 };
+    /// the first (q̈, τ or the actuated τ), then the forces the kernel takes, then the
+    /// contact mask and Baumgarte's inputs, then a step kernel's run-time `dt`.
+    pub fn u_len(self, p: &UPacking) -> usize {
+        let first = if self.is_step() { p.nu } else { p.nv };
+        let dt = usize::from(self.is_step() && p.runtime_dt);
+        let mask = if self.solves_contacts() { p.active + 5 * p.baumgarte } else { 0 };
         dt + mask
             + match (self.takes_forces(), self.solves_contacts()) {
                 (false, _) => first,
-                (true, false) => first + forces,
-                (true, true) => first + forces.saturating_sub(lambda),
+                (true, false) => first + p.forces,
+                (true, true) => first + p.forces.saturating_sub(p.lambda),
             }
     }
 

@@ -16,7 +16,7 @@ mod tangent;
 mod validate;
 
 pub use graph::{Id, Input, Node, Op, Stage};
-pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve};
+pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve, UPacking};
 pub use module::{
     lower, lower_function, ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Contact,
     CoupledJoint, DenseProduct, EvalNumber, Function, LowerError, LowerOptions, Module, Operand,

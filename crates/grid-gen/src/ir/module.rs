@@ -223,6 +223,7 @@ impl Robot {
             nfext: self.specialisation.fext.len(),
             nlambda: self.nlambda(),
             ncontacts: self.specialisation.active_len(),
+            nbaumgarte: self.specialisation.baumgarte_len(),
         }
     }
 

@@ -62,7 +62,16 @@ mod tests {
     use crate::ir::{KernelKind, Node, Output, Shape, Stage};
 
     fn dims(n: usize) -> crate::ir::Dims {
-        crate::ir::Dims { nq: n, nv: n, nu: n, nframes: 0, nfext: 0, nlambda: 0, ncontacts: 0 }
+        crate::ir::Dims {
+            nq: n,
+            nv: n,
+            nu: n,
+            nframes: 0,
+            nfext: 0,
+            nlambda: 0,
+            ncontacts: 0,
+            nbaumgarte: 0,
+        }
     }
 
     fn node(op: Op) -> Node {

@@ -1,6 +1,7 @@
 //! Rigid-contact forward dynamics and its derivatives, as Pinocchio's `constraintDynamics`
 //! and `computeConstraintDynamicsDerivatives` with `CONTACT_3D` / `CONTACT_6D` constraints
-//! in `LOCAL_WORLD_ALIGNED` and no Baumgarte correction: the contacts' accelerations are
+//! in `LOCAL_WORLD_ALIGNED` (with Baumgarte's corrector on point contacts where [`Baumgarte`]
+//! holds gains; none by default): the contacts' accelerations are
 //! zero, a point contact's the classical acceleration of its frame's origin, a wrench
 //! contact's the frame's spatial acceleration, both in world axes at the frame's origin.
 //!
@@ -26,6 +27,29 @@ use super::{crba, forward_kinematics, frame_jacobian, rnea_derivatives_with, rne
 use crate::model::JointIndex;
 use crate::model::{Contact, ContactKind, Model, ReferenceFrame};
 use crate::spatial::{crm, Vec6};
+
+/// Pinocchio's Baumgarte corrector on point contacts (`RigidConstraintModel` in
+/// `LOCAL_WORLD_ALIGNED` with joint2 the universe at the reference, its
+/// `BaumgarteCorrectorParameters` set): each contact's constraint is `a + Kd v + Kp (p −
+/// p_ref) = 0`, a, v the point's classical acceleration and velocity and p its position, all
+/// in the world. `gains` holds `[Kp, Kd]` per contact, `refs` `p_ref` (3 per contact); both
+/// empty: no correction (the rigid contact).
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Baumgarte<'a> {
+    pub gains: &'a [f64],
+    pub refs: &'a [f64],
+}
+
+impl Baumgarte<'_> {
+    pub const NONE: Baumgarte<'static> = Baumgarte { gains: &[], refs: &[] };
+
+    /// `(Kp, Kd, p_ref)` of contact `c`, when the corrector holds it.
+    fn of(&self, c: usize) -> Option<(f64, f64, Vector3<f64>)> {
+        let g = self.gains.get(2 * c..2 * c + 2)?;
+        let r = self.refs.get(3 * c..3 * c + 3)?;
+        Some((g[0], g[1], Vector3::new(r[0], r[1], r[2])))
+    }
+}
 
 /// q̈ and the contact forces λ (3 or 6 per contact, world axes at the frame's origin, as
 /// Pinocchio's `lambda_c` and the kernels' `lambda` input).
@@ -176,11 +200,32 @@ pub fn contact_accelerations(
     qd: &[f64],
     qdd: &[f64],
 ) -> Vec<f64> {
+    corrected_accelerations(model, contacts, q, qd, qdd, Baumgarte::NONE)
+}
+
+/// [`contact_accelerations`] with the corrector's terms `Kd v + Kp (p − p_ref)` added on
+/// each point contact it holds.
+fn corrected_accelerations(
+    model: &Model,
+    contacts: &[Contact],
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    corr: Baumgarte,
+) -> Vec<f64> {
     let (qd, qdd) = (expand(model, qd), expand(model, qdd));
     let sc = Screws::new(model, q, &qd);
     contact_points(model, contacts, &sc)
-        .flat_map(|(b, p, kind)| {
-            rows(kind, &sc.v[b], &body_acceleration(model, &sc, b, &qd, &qdd), &p)
+        .enumerate()
+        .flat_map(|(c, (b, p, kind))| {
+            let mut r = rows(kind, &sc.v[b], &body_acceleration(model, &sc, b, &qd, &qdd), &p);
+            if let Some((kp, kd, reference)) = corr.of(c) {
+                let v = lin(&sc.v[b]) + ang(&sc.v[b]).cross(&p);
+                for i in 0..3 {
+                    r[i] += kd * v[i] + kp * (p[i] - reference[i]);
+                }
+            }
+            r
         })
         .collect()
 }
@@ -193,6 +238,19 @@ pub fn contact_acceleration_derivatives(
     q: &[f64],
     qd: &[f64],
     qdd: &[f64],
+) -> (DMatrix<f64>, DMatrix<f64>) {
+    corrected_acceleration_derivatives(model, contacts, q, qd, qdd, Baumgarte::NONE)
+}
+
+/// [`contact_acceleration_derivatives`] of [`corrected_accelerations`]: the corrector adds
+/// `Kd ∂v + Kp ∂p` (∂v/∂q̇ = ∂p/∂q = the point's linear Jacobian in world axes).
+fn corrected_acceleration_derivatives(
+    model: &Model,
+    contacts: &[Contact],
+    q: &[f64],
+    qd: &[f64],
+    qdd: &[f64],
+    corr: Baumgarte,
 ) -> (DMatrix<f64>, DMatrix<f64>) {
     let (qd, qdd) = (expand(model, qd), expand(model, qdd));
     let sc = Screws::new(model, q, &qd);
@@ -215,7 +273,7 @@ pub fn contact_acceleration_derivatives(
             .map(|a| if model.is_ancestor_or_self(k, a) { sc.s[k] } else { Vec6::zeros() })
             .collect();
         let mut at = 0;
-        for &(b, p, kind) in &points {
+        for (c, &(b, p, kind)) in points.iter().enumerate() {
             let a_b = body_acceleration(model, &sc, b, &qd, &qdd);
             let moves = model.is_ancestor_or_self(k, b);
             let mut da = Vec6::zeros();
@@ -229,8 +287,18 @@ pub fn contact_acceleration_derivatives(
                 da_qd += crm(&sc.v[moved(model, k)]) * sc.s[k];
             }
             let dp = if moves { lin(&sc.s[k]) + ang(&sc.s[k]).cross(&p) } else { Vector3::zeros() };
-            let by_q = d_rows(kind, (&sc.v[b], &a_b, &p), (&dv[b], &da, &dp));
-            let by_qd = d_rows(kind, (&sc.v[b], &a_b, &p), (&dv_qd[b], &da_qd, &Vector3::zeros()));
+            let mut by_q = d_rows(kind, (&sc.v[b], &a_b, &p), (&dv[b], &da, &dp));
+            let mut by_qd =
+                d_rows(kind, (&sc.v[b], &a_b, &p), (&dv_qd[b], &da_qd, &Vector3::zeros()));
+            if let Some((kp, kd, _)) = corr.of(c) {
+                let w = ang(&sc.v[b]);
+                let dvp = lin(&dv[b]) + ang(&dv[b]).cross(&p) + w.cross(&dp);
+                let dvp_qd = lin(&dv_qd[b]) + ang(&dv_qd[b]).cross(&p);
+                for i in 0..3 {
+                    by_q[i] += kd * dvp[i] + kp * dp[i];
+                    by_qd[i] += kd * dvp_qd[i];
+                }
+            }
             for (r, (x, y)) in by_q.into_iter().zip(by_qd).enumerate() {
                 dq[(at + r, col)] += m * x;
                 dqd[(at + r, col)] += m * y;
@@ -267,10 +335,23 @@ pub fn contact_fd(
     gravity: [f64; 3],
     fext: &[f64],
 ) -> Option<ContactDynamics> {
+    contact_fd_with(model, q, qd, tau, gravity, fext, Baumgarte::NONE)
+}
+
+/// [`contact_fd`] with the contacts stabilised by `corr`.
+pub fn contact_fd_with(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    fext: &[f64],
+    corr: Baumgarte,
+) -> Option<ContactDynamics> {
     let contacts = &model.specialisation.contacts;
     let nv = model.nv();
     let bias = rnea_with(model, q, qd, &vec![0.0; nv], gravity, External { fext, lambda: &[] });
-    let drift = contact_accelerations(model, contacts, q, qd, &vec![0.0; nv]);
+    let drift = corrected_accelerations(model, contacts, q, qd, &vec![0.0; nv], corr);
     let lu = kkt(model, contacts, q);
     let rhs = DVector::from_iterator(
         nv + drift.len(),
@@ -293,9 +374,23 @@ pub fn contact_fd_derivatives(
     gravity: [f64; 3],
     fext: &[f64],
 ) -> Option<(ContactDynamics, ContactDerivatives)> {
+    contact_fd_derivatives_with(model, q, qd, tau, gravity, fext, Baumgarte::NONE)
+}
+
+/// [`contact_fd_derivatives`] with the contacts stabilised by `corr` (its references held
+/// fixed).
+pub fn contact_fd_derivatives_with(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    fext: &[f64],
+    corr: Baumgarte,
+) -> Option<(ContactDynamics, ContactDerivatives)> {
     let contacts = &model.specialisation.contacts;
     let nv = model.nv();
-    let sol = contact_fd(model, q, qd, tau, gravity, fext)?;
+    let sol = contact_fd_with(model, q, qd, tau, gravity, fext, corr)?;
     let nl = sol.lambda.len();
     let (dc_dq, dc_dqd) = rnea_derivatives_with(
         model,
@@ -305,7 +400,8 @@ pub fn contact_fd_derivatives(
         gravity,
         External { fext, lambda: &sol.lambda },
     );
-    let (da_dq, da_dqd) = contact_acceleration_derivatives(model, contacts, q, qd, &sol.qdd);
+    let (da_dq, da_dqd) =
+        corrected_acceleration_derivatives(model, contacts, q, qd, &sol.qdd, corr);
     let lu = kkt(model, contacts, q);
     let solve = |top: DMatrix<f64>, bottom: DMatrix<f64>| -> Option<(DMatrix<f64>, DMatrix<f64>)> {
         let mut rhs = DMatrix::zeros(nv + nl, nv);

@@ -20,7 +20,8 @@ mod step;
 pub use aba::{aba, aba_with};
 pub use contact::{
     check_contact_rank, contact_acceleration_derivatives, contact_accelerations, contact_fd,
-    contact_fd_derivatives, contact_jacobian, ContactDerivatives, ContactDynamics,
+    contact_fd_derivatives, contact_fd_derivatives_with, contact_fd_with, contact_jacobian,
+    Baumgarte, ContactDerivatives, ContactDynamics,
 };
 pub use crba::crba;
 pub use fd::{forward_dynamics, forward_dynamics_derivatives, forward_dynamics_derivatives_with};
@@ -29,7 +30,10 @@ pub use frames::{frame_classical_acceleration, frame_jacobian, frame_placement, 
 pub use minv::minv;
 pub use rnea::{rnea, rnea_with};
 pub use rnea_derivatives::{rnea_derivatives, rnea_derivatives_with};
-pub use step::{d_integrate, integrate, step, step_derivatives, step_lambda, StepDerivatives};
+pub use step::{
+    d_integrate, integrate, step, step_derivatives, step_derivatives_with, step_lambda,
+    step_lambda_with, step_with, StepDerivatives,
+};
 
 use nalgebra::{Matrix3, Vector3};
 

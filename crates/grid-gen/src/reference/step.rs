@@ -15,7 +15,8 @@
 use nalgebra::{DMatrix, Matrix3, UnitQuaternion, Vector3};
 
 use super::{
-    aba_with, contact_fd, contact_fd_derivatives, forward_dynamics_derivatives_with, minv, External,
+    aba_with, contact_fd_derivatives_with, contact_fd_with, forward_dynamics_derivatives_with,
+    minv, Baumgarte, External,
 };
 use crate::model::{LieBlock, Model, Scheme, Step};
 
@@ -208,11 +209,12 @@ fn acceleration(
     tau: &[f64],
     gravity: [f64; 3],
     fext: &[f64],
+    corr: Baumgarte,
 ) -> Option<Vec<f64>> {
     if model.specialisation.contacts.is_empty() {
         return Some(aba_with(model, q, qd, tau, gravity, External { fext, lambda: &[] }));
     }
-    contact_fd(model, q, qd, tau, gravity, fext).map(|c| c.qdd)
+    contact_fd_with(model, q, qd, tau, gravity, fext, corr).map(|c| c.qdd)
 }
 
 /// q̈ and `(∂q̈/∂q, ∂q̈/∂q̇, ∂q̈/∂τ)`.
@@ -226,6 +228,7 @@ fn acceleration_derivatives(
     tau: &[f64],
     gravity: [f64; 3],
     fext: &[f64],
+    corr: Baumgarte,
 ) -> Option<AccelerationDerivatives> {
     if model.specialisation.contacts.is_empty() {
         let (qdd, dq, dqd) = forward_dynamics_derivatives_with(
@@ -238,7 +241,7 @@ fn acceleration_derivatives(
         );
         return Some((qdd, dq, dqd, minv(model, q)));
     }
-    let (sol, d) = contact_fd_derivatives(model, q, qd, tau, gravity, fext)?;
+    let (sol, d) = contact_fd_derivatives_with(model, q, qd, tau, gravity, fext, corr)?;
     Some((sol.qdd, d.dqdd_dq, d.dqdd_dqd, d.dqdd_dtau))
 }
 
@@ -254,11 +257,26 @@ pub fn step(
     step: Step,
     fext: &[f64],
 ) -> Option<(Vec<f64>, Vec<f64>)> {
+    step_with(model, q, qd, tau, gravity, step, fext, Baumgarte::NONE)
+}
+
+/// [`step`] with the contacts stabilised by `corr`.
+#[allow(clippy::too_many_arguments)]
+pub fn step_with(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    step: Step,
+    fext: &[f64],
+    corr: Baumgarte,
+) -> Option<(Vec<f64>, Vec<f64>)> {
     let nv = model.nv();
     let dt = step.dt;
     Some(match step.scheme {
         Scheme::SemiImplicitEuler | Scheme::ExplicitEuler => {
-            let qdd = acceleration(model, q, qd, tau, gravity, fext)?;
+            let qdd = acceleration(model, q, qd, tau, gravity, fext, corr)?;
             let qd_next: Vec<f64> = (0..nv).map(|k| qd[k] + dt * qdd[k]).collect();
             let moved = if step.scheme == Scheme::SemiImplicitEuler { &qd_next } else { qd };
             let dq: Vec<f64> = moved.iter().map(|x| dt * x).collect();
@@ -276,7 +294,7 @@ pub fn step(
                     let d: Vec<f64> = k_prev.iter().map(|x| c * dt * x).collect();
                     state_integrate(model, q, qd, &d)
                 };
-                let qdd = acceleration(model, &y_q, &y_v, tau, gravity, fext)?;
+                let qdd = acceleration(model, &y_q, &y_v, tau, gravity, fext, corr)?;
                 k_prev = y_v.iter().chain(&qdd).copied().collect();
                 for (d, k) in dx.iter_mut().zip(&k_prev) {
                     *d += weight * dt / 6.0 * k;
@@ -298,6 +316,22 @@ pub fn step_derivatives(
     step: Step,
     actuated: &[usize],
     fext: &[f64],
+) -> Option<StepDerivatives> {
+    step_derivatives_with(model, q, qd, tau, gravity, step, actuated, fext, Baumgarte::NONE)
+}
+
+/// [`step_derivatives`] with the contacts stabilised by `corr` (references held fixed).
+#[allow(clippy::too_many_arguments)]
+pub fn step_derivatives_with(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    step: Step,
+    actuated: &[usize],
+    fext: &[f64],
+    corr: Baumgarte,
 ) -> Option<StepDerivatives> {
     let nv = model.nv();
     let dt = step.dt;
@@ -324,7 +358,7 @@ pub fn step_derivatives(
     match step.scheme {
         Scheme::SemiImplicitEuler | Scheme::ExplicitEuler => {
             let (qdd, da_dq, da_dv, da_dtau) =
-                acceleration_derivatives(model, q, qd, tau, gravity, fext)?;
+                acceleration_derivatives(model, q, qd, tau, gravity, fext, corr)?;
             let da_du = select(&da_dtau);
             let qd_next: Vec<f64> = (0..nv).map(|k| qd[k] + dt * qdd[k]).collect();
             let (avq, avv, bv) = (&da_dq * dt, &identity + &da_dv * dt, &da_du * dt);
@@ -341,7 +375,7 @@ pub fn step_derivatives(
             Some(StepDerivatives { q_next: integrate(model, q, &dq), qd_next, a, b })
         }
         Scheme::Rk4 => {
-            rk4_derivatives(model, q, qd, tau, gravity, fext, dt, actuated.len(), &select)
+            rk4_derivatives(model, q, qd, tau, gravity, fext, dt, actuated.len(), &select, corr)
         }
     }
 }
@@ -359,8 +393,23 @@ pub fn step_lambda(
     actuated: &[usize],
     fext: &[f64],
 ) -> Option<(Vec<f64>, DMatrix<f64>, DMatrix<f64>)> {
+    step_lambda_with(model, q, qd, tau, gravity, actuated, fext, Baumgarte::NONE)
+}
+
+/// [`step_lambda`] with the contacts stabilised by `corr`.
+#[allow(clippy::too_many_arguments)]
+pub fn step_lambda_with(
+    model: &Model,
+    q: &[f64],
+    qd: &[f64],
+    tau: &[f64],
+    gravity: [f64; 3],
+    actuated: &[usize],
+    fext: &[f64],
+    corr: Baumgarte,
+) -> Option<(Vec<f64>, DMatrix<f64>, DMatrix<f64>)> {
     let nv = model.nv();
-    let (sol, d) = contact_fd_derivatives(model, q, qd, tau, gravity, fext)?;
+    let (sol, d) = contact_fd_derivatives_with(model, q, qd, tau, gravity, fext, corr)?;
     let nl = sol.lambda.len();
     let mut dx = DMatrix::zeros(nl, 2 * nv);
     dx.view_mut((0, 0), (nl, nv)).copy_from(&d.dlambda_dq);
@@ -383,6 +432,7 @@ fn rk4_derivatives(
     dt: f64,
     nu: usize,
     select: &dyn Fn(&DMatrix<f64>) -> DMatrix<f64>,
+    corr: Baumgarte,
 ) -> Option<StepDerivatives> {
     let nv = model.nv();
     let state_jacobians = |dx: &[f64]| {
@@ -409,7 +459,7 @@ fn rk4_derivatives(
             (y_q, y_v, jx + &jdx * &dk_dx_prev * (c * dt), &jdx * &dk_du_prev * (c * dt))
         };
         let (qdd, da_dq, da_dv, da_dtau) =
-            acceleration_derivatives(model, &y_q, &y_v, tau, gravity, fext)?;
+            acceleration_derivatives(model, &y_q, &y_v, tau, gravity, fext, corr)?;
         let da_du = select(&da_dtau);
         // ∂f/∂y = [[0, I], [∂q̈/∂q, ∂q̈/∂q̇]].
         let mut df = DMatrix::zeros(2 * nv, 2 * nv);

@@ -743,6 +743,8 @@ pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
         crate::ir::Input::Lambda => "NLAMBDA",
         crate::ir::Input::Dt => "1",
         crate::ir::Input::Active => "NCONTACTS",
+        crate::ir::Input::Gains => "2 * NBAUMGARTE",
+        crate::ir::Input::ContactRef => "3 * NBAUMGARTE",
         _ => "NV",
     }
 }
@@ -1182,6 +1184,15 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
             frames.len(),
             frames.iter().zip(&kinds).map(|(f, k)| format!("({f}, {k})")).collect::<Vec<_>>().join(", ")
         );
+        if robot.specialisation.baumgarte {
+            let _ = writeln!(
+                out,
+                "/// Contacts stabilised as Pinocchio's Baumgarte corrector: `contact_fd`, `contact_fd_grad`, `step` and `step_grad` take\n\
+                 /// `gains` (`[Kp, Kd]` per contact of `CONTACTS`) and `contact_ref` (each contact's reference position in the world),\n\
+                 /// and drive each contact's acceleration to `-Kd v - Kp (p - p_ref)` (gains 0: the rigid contact).\n#[allow(dead_code)]\npub const NBAUMGARTE: usize = {};",
+                frames.len()
+            );
+        }
         if robot.specialisation.contact_mask {
             let _ = writeln!(
                 out,

@@ -159,6 +159,7 @@ mod tests {
                 nfext: 0,
                 nlambda: 0,
                 ncontacts: 0,
+                nbaumgarte: 0,
             },
             ports: vec![crate::datapath::Port::Sin(0), crate::datapath::Port::Cos(0)],
             nodes,

@@ -532,7 +532,7 @@ pub fn emit_with_stats(
     }
     let _ = writeln!(
         out,
-        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}{}{}{}// precision: {}\n// trig: {}",
+        "//\n// Read by grid-gen's runtime (crates/grid-gen-wgpu):\n// nv: {nv}\n{}{}{}{}{}{}{}// precision: {}\n// trig: {}",
         if robot.nq() != robot.nv() { format!("// nq: {}\n", robot.nq()) } else { String::new() },
         // The step kernels' `u` is the actuated joints' τ.
         if robot.specialisation.step.is_some() { format!("// nu: {}\n", robot.nu()) } else { String::new() },
@@ -550,6 +550,11 @@ pub fn emit_with_stats(
         match robot.dims().ncontacts {
             0 => String::new(),
             n => format!("// active: {n}\n"),
+        },
+        // With Baumgarte gains, then gains (2 per contact) and contact_ref (3 per contact).
+        match robot.dims().nbaumgarte {
+            0 => String::new(),
+            n => format!("// baumgarte: {n}\n"),
         },
         // The step kernels read a run-time dt last in `u`.
         match robot.specialisation.step.is_some_and(|s| s.runtime_dt()) {

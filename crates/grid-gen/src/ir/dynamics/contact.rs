@@ -122,20 +122,43 @@ impl Dynamics<'_> {
         let (v, a) = self.motion(qd, qdd);
         let poses = self.world_poses();
         let mut out = Vec::new();
-        for c in self.model.specialisation.contacts.clone() {
+        let baumgarte = self.model.specialisation.baumgarte;
+        for (ci, c) in self.model.specialisation.contacts.clone().into_iter().enumerate() {
             let frame = &self.model.frames[c.frame];
             let b = frame.body.expect("contacts are on moving bodies");
             self.at(b, Stage::Forward);
             let g = &mut self.g;
             let p: V3 = std::array::from_fn(|i| k(g, frame.placement.pos[i]));
-            let r = poses[b].0;
+            let (r, origin) = poses[b];
             let (al, alpha) = Self::at_point(g, &a[b], &p);
             match c.kind {
                 ContactKind::Point => {
                     let (vl, w) = Self::at_point(g, &v[b], &p);
                     let wv = sp::cross(g, &w, &vl);
                     let acc = sp::add3(g, &al, &wv);
-                    out.extend(sp::mat_vec(g, &r, &acc));
+                    let acc = sp::mat_vec(g, &r, &acc);
+                    if !baumgarte {
+                        out.extend(acc);
+                        continue;
+                    }
+                    // Pinocchio's Baumgarte corrector for CONTACT_3D in LOCAL_WORLD_ALIGNED
+                    // (RigidConstraintModel with joint2 the universe at the reference): the
+                    // constraint is `a + Kd v + Kp (p − p_ref) = 0`, with a, v the point's
+                    // classical acceleration and velocity and p its position, all in the
+                    // world. Checked against pin.constraintDynamics 4.1 with the corrector set.
+                    let (kp, kd) =
+                        (g.input(Input::Gains, 2 * ci), g.input(Input::Gains, 2 * ci + 1));
+                    let vw = sp::mat_vec(g, &r, &vl);
+                    let rp = sp::mat_vec(g, &r, &p);
+                    let at = sp::add3(g, &origin, &rp);
+                    out.extend((0..3).map(|i| {
+                        let reference = g.input(Input::ContactRef, 3 * ci + i);
+                        let e = g.sub(at[i], reference);
+                        let pe = g.mul(kp, e);
+                        let dv = g.mul(kd, vw[i]);
+                        let t = g.add(acc[i], dv);
+                        g.add(t, pe)
+                    }));
                 }
                 ContactKind::Wrench => {
                     out.extend(sp::mat_vec(g, &r, &al));

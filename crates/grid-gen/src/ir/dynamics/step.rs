@@ -406,13 +406,7 @@ impl Dynamics<'_> {
     /// RK4's stages as Crocoddyl's `IntegratedActionModelRK4`: `k_i = (v_i, q̈_i)` at
     /// `y_i = x ⊕ c_i dt k_(i−1)`, `dx = dt (k_1 + 2 k_2 + 2 k_3 + k_4) / 6`. With `grad`,
     /// each stage's `fd_grad` and the chain rule give `(A, B)` too.
-    fn rk4(
-        &mut self,
-        qd: &[Id],
-        tau: &[Id],
-        dt: Scalar,
-        grad: bool,
-    ) -> StepGradNodes {
+    fn rk4(&mut self, qd: &[Id], tau: &[Id], dt: Scalar, grad: bool) -> StepGradNodes {
         let nv = self.model.nv();
         let nx = 2 * nv;
         let actuated = self.model.actuated();
