@@ -7,9 +7,10 @@
 // dqdd_dq at dqdd_dq + i * IIWA14_NV * IIWA14_NV; matrices are [i][j] = d out_i / d in_j. Vectors are in
 // the order of IIWA14_JOINT_NAMES. Pointers must be aligned to their scalar; outputs must not overlap
 // inputs or each other. Every function returns GRID_GEN_OK (0), GRID_GEN_NULL_POINTER when a pointer
-// is null (nothing is written), or GRID_GEN_BAD_LENGTH when n states cannot fit in memory. n = 0 does
-// nothing. Batches run on every core (a rayon pool); iiwa14_set_threads(1) keeps them on the caller's.
-// Values are not checked: a NaN in gives NaN out.
+// is null (nothing is written), GRID_GEN_BAD_LENGTH when n states cannot fit in memory, or
+// GRID_GEN_BAD_VALUE when an input holds a non-finite value or q a quaternion whose norm is more than
+// 1e-6 from 1 (nothing is written; iiwa14_bad_state() gives the first such state). n = 0 does nothing.
+// Batches run on every core (a rayon pool); iiwa14_set_threads(1) keeps them on the caller's.
 
 #ifndef GRID_GEN_IIWA14_H
 #define GRID_GEN_IIWA14_H
@@ -26,6 +27,9 @@ extern "C" {
 #define GRID_GEN_NULL_POINTER 1
 #define GRID_GEN_BAD_LENGTH 2
 #endif
+#ifndef GRID_GEN_BAD_VALUE
+#define GRID_GEN_BAD_VALUE 3
+#endif
 
 /* Entries of q (Pinocchio's layout: a floating base's [x, y, z, qx, qy, qz, qw] first). */
 #define IIWA14_NQ 7
@@ -38,6 +42,8 @@ static const char *const IIWA14_JOINT_NAMES[IIWA14_NV] = {"iiwa_joint_1", "iiwa_
 void iiwa14_set_threads(size_t n);
 /* The threads a batch runs on now. */
 size_t iiwa14_threads(void);
+/* The state (from 0) that made this thread's last call return GRID_GEN_BAD_VALUE; -1 before any. */
+int64_t iiwa14_bad_state(void);
 /* What the library holds, as JSON: sizes, names, and each kernel's inputs and outputs. Static. */
 const char *iiwa14_manifest(void);
 

@@ -287,6 +287,9 @@ class Kernel:
                 outs.append(o)
             out_ptrs = [o.ctypes.data for o in outs]
         status = self._fn(n, *in_ptrs, *out_ptrs)
+        if status == 3:
+            # GRID_GEN_BAD_VALUE: the library's own check (the checks above come first).
+            raise ValueError(f"{name}: state {robot._bad_state()} holds a non-finite value or a quaternion whose norm is off 1 by more than 1e-6 (the kernel library's check)")
         if status != 0:
             raise RuntimeError(f"{name}: the kernel library returned status {status}")
         return outs[0] if self._result is None else self._result._make(outs)
@@ -325,6 +328,9 @@ class Robot:
         self._set_threads = getattr(self._lib, f"{prefix}_set_threads")
         self._set_threads.argtypes = [ctypes.c_size_t]
         self._set_threads.restype = None
+        self._bad_state = getattr(self._lib, f"{prefix}_bad_state")
+        self._bad_state.argtypes = []
+        self._bad_state.restype = ctypes.c_int64
         self._threads = getattr(self._lib, f"{prefix}_threads")
         self._threads.argtypes = []
         self._threads.restype = ctypes.c_size_t

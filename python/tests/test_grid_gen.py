@@ -758,6 +758,17 @@ def test_load_keywords_and_state_checks_say_what_is_wrong(tmp_path):
             with pytest.raises(ValueError) as e:
                 call(bad_q, qd[0] if bad_q.ndim == 1 else qd, u[0] if bad_q.ndim == 1 else u, 0.01)
             assert says in str(e.value), str(e.value)
+    # The C ABI checks too: a zero quaternion at state 1 passed straight to the entry point
+    # (past Python's checks) is GRID_GEN_BAD_VALUE, and the library names the state.
+    bad = q.copy()
+    bad[1, 3:7] = 0.0
+    k = robot.step
+    ins = {"q": bad, "qd": qd, "tau": u, "dt": np.full(3, 0.01), "gains": np.zeros((3, 4)), "contact_ref": np.zeros((3, 6))}
+    arrays = [np.ascontiguousarray(ins[name], dtype=np.float64) for name, _ in k.inputs]
+    outs = [np.full((3,) + dims, 7.0) for _, dims in k.outputs]
+    status = k._fn(3, *[a.ctypes.data for a in arrays], *[o.ctypes.data for o in outs])
+    assert status == 3 and robot._bad_state() == 1, (status, robot._bad_state())
+    assert all((o == 7.0).all() for o in outs), "nothing written"
     hints = [
         (lambda: robot.step(q[:, 7:], qd, u, 0.01), "this robot has a floating base, whose q starts with the base's 7 entries"),
         (lambda: robot.step(q, qd, tau, 0.01), f"step takes the {robot.nu} actuated joints' forces (nu), not one per coordinate (nv = {robot.nv}"),

@@ -157,8 +157,19 @@ fn urdf_names_cannot_inject_code_into_the_c_abi() {
         match item {
             syn::Item::Use(_) => {}
             syn::Item::Const(c) => {
-                assert!(["GRID_GEN_OK", "GRID_GEN_NULL_POINTER", "GRID_GEN_BAD_LENGTH", "MANIFEST"]
-                    .contains(&c.ident.to_string().as_str()))
+                assert!([
+                    "GRID_GEN_OK",
+                    "GRID_GEN_NULL_POINTER",
+                    "GRID_GEN_BAD_LENGTH",
+                    "GRID_GEN_BAD_VALUE",
+                    "MANIFEST",
+                    "QUATERNIONS"
+                ]
+                .contains(&c.ident.to_string().as_str()))
+            }
+            // The thread's last bad state (`thread_local!`).
+            syn::Item::Macro(m) => {
+                assert!(m.mac.path.is_ident("thread_local"), "unexpected macro")
             }
             syn::Item::Fn(f) => {
                 let name = f.sig.ident.to_string();
@@ -179,6 +190,8 @@ fn urdf_names_cannot_inject_code_into_the_c_abi() {
                         "set_threads",
                         "threads",
                         "manifest",
+                        "bad_state",
+                        "first_bad",
                         "gather",
                         "lane"
                     ]

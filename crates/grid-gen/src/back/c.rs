@@ -179,8 +179,32 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
         out,
         "/// Success.\npub const GRID_GEN_OK: i32 = 0;\n/// A pointer the call needs is null.\npub const GRID_GEN_NULL_POINTER: i32 = 1;\n\
          /// The batch is longer than any array in memory can be.\npub const GRID_GEN_BAD_LENGTH: i32 = 2;\n\
+         /// An input holds a non-finite value, or q a quaternion whose norm is more than 1e-6 from 1\n\
+         /// (`{p}_bad_state` says which state).\npub const GRID_GEN_BAD_VALUE: i32 = 3;\n\
          const MANIFEST: &str = {};\n",
         super::names::string_literal(&(manifest(module, options) + "\0"))
+    );
+    let quats: Vec<String> = robot
+        .floating
+        .then_some(3)
+        .into_iter()
+        .chain(robot.spherical.iter().map(|s| s.q_start))
+        .map(|at| at.to_string())
+        .collect();
+    let _ = writeln!(
+        out,
+        "/// Where each unit quaternion `[qx, qy, qz, qw]` starts in q.\nconst QUATERNIONS: [usize; {}] = [{}];\n\
+         thread_local! {{\n/// The state that made this thread's last call return GRID_GEN_BAD_VALUE.\n\
+         static BAD_STATE: core::cell::Cell<i64> = const {{ core::cell::Cell::new(-1) }};\n}}\n\
+         /// The first state of `x` with a non-finite value or, at `quats`, a quaternion whose norm is more than\n\
+         /// 1e-6 from 1 (the kernels read them as rotations without normalising).\n\
+         fn first_bad<S: Copy + Into<f64>, const N: usize>(x: &[[S; N]], quats: &[usize]) -> Option<usize> {{\n\
+         x.iter().position(|s| {{\ns.iter().any(|&v| !v.into().is_finite())\n\
+         || quats.iter().any(|&at| {{\nlet n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();\n(n2.sqrt() - 1.0).abs() > 1e-6\n}})\n}})\n}}\n\
+         /// The state (from 0) that made this thread's last call return GRID_GEN_BAD_VALUE; -1 before any.\n\
+         #[unsafe(no_mangle)]\npub extern \"C\" fn {p}_bad_state() -> i64 {{\nBAD_STATE.with(|b| b.get())\n}}\n",
+        quats.len(),
+        quats.join(", ")
     );
     let _ = writeln!(
         out,
@@ -317,6 +341,19 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
                     array_of(o.shape, rt)
                 );
             }
+            // Every input checked before anything runs: the first bad state, over the inputs.
+            let checks: Vec<String> = inputs
+                .iter()
+                .map(|i| {
+                    let quats = if *i == crate::ir::Input::Q { "&QUATERNIONS" } else { "&[]" };
+                    format!("first_bad({}, {quats})", i.name())
+                })
+                .collect();
+            let _ = writeln!(
+                out,
+                "if let Some(bad) = [{}].into_iter().flatten().min() {{\nBAD_STATE.with(|b| b.set(bad as i64));\nreturn GRID_GEN_BAD_VALUE;\n}}",
+                checks.join(", ")
+            );
             let _ =
                 writeln!(out, "self::{name}::<{rt}>({});\n}}\nGRID_GEN_OK\n}}\n", all.join(", "));
         }
@@ -339,9 +376,10 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
          // dqdd_dq at dqdd_dq + i * {mac}_NV * {mac}_NV; matrices are [i][j] = d out_i / d in_j. Vectors are in\n\
          // the order of {mac}_JOINT_NAMES. Pointers must be aligned to their scalar; outputs must not overlap\n\
          // inputs or each other. Every function returns GRID_GEN_OK (0), GRID_GEN_NULL_POINTER when a pointer\n\
-         // is null (nothing is written), or GRID_GEN_BAD_LENGTH when n states cannot fit in memory. n = 0 does\n\
-         // nothing. Batches run on every core (a rayon pool); {p}_set_threads(1) keeps them on the caller's.\n\
-         // Values are not checked: a NaN in gives NaN out.\n",
+         // is null (nothing is written), GRID_GEN_BAD_LENGTH when n states cannot fit in memory, or\n\
+         // GRID_GEN_BAD_VALUE when an input holds a non-finite value or q a quaternion whose norm is more than\n\
+         // 1e-6 from 1 (nothing is written; {p}_bad_state() gives the first such state). n = 0 does nothing.\n\
+         // Batches run on every core (a rayon pool); {p}_set_threads(1) keeps them on the caller's.\n",
         env!("CARGO_PKG_VERSION"),
         comment_text(&robot.name),
         crate::back::source_line(&robot.source),
@@ -350,7 +388,8 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
     let _ = writeln!(
         h,
         "#ifndef {guard}\n#define {guard}\n\n#include <stddef.h>\n#include <stdint.h>\n\n#ifdef __cplusplus\nextern \"C\" {{\n#endif\n\n\
-         #ifndef GRID_GEN_OK\n#define GRID_GEN_OK 0\n#define GRID_GEN_NULL_POINTER 1\n#define GRID_GEN_BAD_LENGTH 2\n#endif\n"
+         #ifndef GRID_GEN_OK\n#define GRID_GEN_OK 0\n#define GRID_GEN_NULL_POINTER 1\n#define GRID_GEN_BAD_LENGTH 2\n#endif\n\
+         #ifndef GRID_GEN_BAD_VALUE\n#define GRID_GEN_BAD_VALUE 3\n#endif\n"
     );
     let _ = writeln!(h, "/* Entries of q (Pinocchio's layout: a floating base's [x, y, z, qx, qy, qz, qw] first). */\n#define {mac}_NQ {}", dims.nq);
     let _ = writeln!(h, "/* Velocity coordinates: entries of qd, qdd and tau, rows and columns of the matrices. */\n#define {mac}_NV {}", dims.nv);
@@ -405,6 +444,7 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
         h,
         "\n/* Sets the threads a batch runs on: 0 for every core (the default), 1 for the calling thread. */\nvoid {p}_set_threads(size_t n);\n\
          /* The threads a batch runs on now. */\nsize_t {p}_threads(void);\n\
+         /* The state (from 0) that made this thread's last call return GRID_GEN_BAD_VALUE; -1 before any. */\nint64_t {p}_bad_state(void);\n\
          /* What the library holds, as JSON: sizes, names, and each kernel's inputs and outputs. Static. */\nconst char *{p}_manifest(void);\n"
     );
     let size = |n: &str| format!("{mac}_{n}");
