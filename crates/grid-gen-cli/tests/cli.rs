@@ -1772,6 +1772,16 @@ fn baumgarte_from_the_command_line() {
     ];
     let summary = json(&grid_gen(&[&["info", "--json"], &base[..]].concat()));
     assert_eq!(summary["baumgarte"], serde_json::json!(true));
+    // Each counted kernel's generated Rust, in ops' order; a gradient outweighs its value.
+    let sizes = summary["rust_size"].as_array().unwrap();
+    let ops = summary["ops"].as_array().unwrap();
+    assert_eq!(sizes.len(), ops.len());
+    let bytes = |k: &str| {
+        let row = sizes.iter().find(|r| r["kernel"] == k).unwrap_or_else(|| panic!("{k}"));
+        assert!(row["lines"].as_u64().unwrap() > 0, "{k}");
+        row["bytes"].as_u64().unwrap()
+    };
+    assert!(bytes("contact_fd_grad") > bytes("contact_fd") && bytes("rnea") > 0);
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-baumgarte-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let q = "[0.1,0.2,0.3, 0,0,0.3826834323650898,0.9238795325112867, 0.1,0.7,-1.4, -0.1,0.7,-1.4, 0.1,0.9,-1.5, -0.1,0.9,-1.5]";

@@ -159,6 +159,17 @@ pub struct Info {
     /// Why `wgsl` is empty or lacks kernels, when it does.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub wgsl_skipped: Option<String>,
+    /// The generated Rust each counted kernel adds to a module (`--backend rust`, default
+    /// options: the portable and `fma` copies), what rustc has to compile.
+    pub rust_size: Vec<RustSize>,
+}
+
+/// One kernel's generated Rust, in [`Info`]: what the module grows by with it.
+#[derive(Clone, Debug, Serialize)]
+pub struct RustSize {
+    pub kernel: ir::KernelKind,
+    pub bytes: usize,
+    pub lines: usize,
 }
 
 /// The most operations × depth per kernel that `info` plans WGSL entry points for
@@ -279,11 +290,51 @@ impl Info {
             verilog_skipped: None,
             wgsl: Vec::new(),
             wgsl_skipped: None,
+            rust_size: Vec::new(),
         }
         .with_ops(ir::stats(model, gravity, gradient, solve, ir::STATS_MAX_NODES))
         .with_gradient_costs(model, gravity)
         .with_verilog(model, gravity, gradient, solve)
         .with_wgsl(model, gravity, gradient, solve)
+        .with_rust_size(model, gravity, gradient, solve)
+    }
+
+    /// The Rust each kernel `ops` counted adds to a module: the module with that kernel
+    /// alone, less the module with none (the constants and helpers every module has).
+    fn with_rust_size(
+        mut self,
+        model: &Model,
+        gravity: [f64; 3],
+        gradient: ir::Gradient,
+        solve: ir::Solve,
+    ) -> Self {
+        let kernels: Vec<ir::KernelKind> = self.ops.iter().map(|k| k.kernel).collect();
+        let lower = ir::LowerOptions {
+            kernels,
+            max_nodes: ir::STATS_MAX_NODES,
+            gradient,
+            solve,
+            ..ir::LowerOptions::default()
+        };
+        let Ok(module) = ir::lower(model, gravity, &lower) else { return self };
+        let options = crate::back::rust::RustOptions::default();
+        let size = |functions: Vec<ir::Function>| {
+            let m = ir::Module { functions, ..module.clone() };
+            crate::back::rust::emit(&m, &options)
+                .ok()
+                .map(|f| (f.contents.len(), f.contents.lines().count()))
+        };
+        let Some((base_bytes, base_lines)) = size(Vec::new()) else { return self };
+        for f in &module.functions {
+            if let Some((bytes, lines)) = size(vec![f.clone()]) {
+                self.rust_size.push(RustSize {
+                    kernel: f.kind,
+                    bytes: bytes.saturating_sub(base_bytes),
+                    lines: lines.saturating_sub(base_lines),
+                });
+            }
+        }
+        self
     }
 
     /// Only the kernels `ops` counted: the others are over the node limit already, and
@@ -585,6 +636,21 @@ impl Info {
         }
         for k in &self.ops_skipped {
             s.push_str(&format!("  {:<w$} not counted: {}\n", k.kernel.name(), k.reason));
+        }
+        if !self.rust_size.is_empty() {
+            s.push_str(
+                "generated Rust per kernel (what rustc compiles; the portable and fma copies):",
+            );
+            for r in &self.rust_size {
+                s.push_str(&format!(
+                    " {} {} kB, {} lines;",
+                    r.kernel.name(),
+                    r.bytes.div_ceil(1000),
+                    r.lines
+                ));
+            }
+            s.pop();
+            s.push('\n');
         }
         if !self.gradient_costs.is_empty() {
             let pairs = self.sparsity.dv_dq.nonzero;
