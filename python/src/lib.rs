@@ -26,26 +26,12 @@ struct SceneKeywords {
 }
 
 impl SceneKeywords {
-    /// Sets what the keywords give on `b`; an error where the scene file sets it too (each
-    /// thing has one source, so nobody wonders which won), or where a value is unknown.
-    fn apply(&self, b: &mut grid_gen::Builder, scene: Option<&str>) -> PyResult<()> {
+    /// Sets what the keywords give on `b`, which is exclusive of the scene file: a keyword
+    /// that the file also sets is an error naming both (`grid_gen::Config::exclusive`).
+    fn set_on(&self, b: &mut grid_gen::Builder) -> PyResult<()> {
         use grid_gen::model::{ContactKind, Scheme};
-        // A scene that does not parse is reported by the build below, with its line.
-        let parsed = scene.and_then(|path| {
-            let text = std::fs::read_to_string(path).ok()?;
-            grid_gen::Scene::parse(path, &text).ok().map(|s| (path, s))
-        });
-        let clash = |keyword: &str, what: &str, set: bool| -> PyResult<()> {
-            match &parsed {
-                Some((path, _)) if set => Err(PyValueError::new_err(format!(
-                    "load({keyword}=...) and the scene file `{path}` both set {what}; give it in one place"
-                ))),
-                _ => Ok(()),
-            }
-        };
-        let s = parsed.as_ref().map(|(_, s)| s);
+        b.exclusive_of_scene("load");
         if let Some(contacts) = &self.contacts {
-            clash("contacts", "the contacts ([[contact]])", s.is_some_and(|s| !s.contact.is_empty()))?;
             let mut entries = Vec::with_capacity(contacts.len());
             for (frame, kind) in contacts {
                 let kind = ContactKind::parse(kind).ok_or_else(|| {
@@ -57,18 +43,15 @@ impl SceneKeywords {
             }
             b.contacts(&entries);
         }
-        let scene_step = s.and_then(|s| s.step.as_ref());
         if let Some(dt) = self.dt {
-            clash("dt", "the step's dt ([step] dt)", scene_step.is_some_and(|st| st.dt.is_some()))?;
             if !(dt.is_finite() && dt > 0.0) {
                 return Err(PyValueError::new_err(format!(
                     "load(dt={dt}): a time step is a finite, positive number of seconds (or None: given at run time)"
                 )));
             }
         }
-        match (&self.step, scene_step) {
-            (Some(name), _) => {
-                clash("step", "the step ([step])", scene_step.is_some())?;
+        match (&self.step, self.dt) {
+            (Some(name), dt) => {
                 let scheme = Scheme::parse(name).ok_or_else(|| {
                     let known: Vec<&str> = Scheme::ALL.iter().map(|s| s.name()).collect();
                     PyValueError::new_err(format!(
@@ -76,45 +59,30 @@ impl SceneKeywords {
                         known.join(", ")
                     ))
                 })?;
-                match self.dt {
+                match dt {
                     Some(dt) => b.step(scheme, dt),
                     None => b.step_at_run_time(scheme),
                 };
             }
-            (None, Some(st)) => {
-                if let Some(dt) = self.dt {
-                    b.step(st.scheme.unwrap_or_default(), dt);
-                }
-            }
-            (None, None) if self.dt.is_some() => {
-                return Err(PyValueError::new_err(
-                    "load(dt=...) times a step, and none is asked for: give step= too (\"semi_implicit_euler\", \"explicit_euler\" or \"rk4\")",
-                ))
+            // The scene's [step], timed here (an error without one).
+            (None, Some(dt)) => {
+                b.dt(dt);
             }
             (None, None) => {}
         }
         if let Some(joints) = &self.actuated {
-            clash("actuated", "the actuated joints ([actuation] joints)", s.is_some_and(|s| s.actuation.is_some()))?;
             b.actuated(joints);
         }
         if let Some(joints) = &self.external_forces {
-            clash(
-                "external_forces",
-                "the bodies that take fext ([external_forces] joints)",
-                s.is_some_and(|s| !s.external_forces.joints.is_empty()),
-            )?;
             b.external_forces(joints);
         }
         if let Some(mask) = self.contact_mask {
-            clash("contact_mask", "contact_mask", s.is_some_and(|s| s.contact_mask))?;
             b.contact_mask(mask);
         }
         if let Some(on) = self.baumgarte {
-            clash("baumgarte", "baumgarte", s.is_some_and(|s| s.baumgarte))?;
             b.baumgarte(on);
         }
         if let Some(g) = self.gravity {
-            clash("gravity", "gravity", s.is_some_and(|s| s.gravity.is_some()))?;
             b.gravity(g);
         }
         Ok(())
@@ -166,19 +134,9 @@ fn generate(
         b.scene(scene);
     }
     if let Some(frames) = &frames {
-        let parsed = scene.and_then(|path| {
-            let text = std::fs::read_to_string(path).ok()?;
-            grid_gen::Scene::parse(path, &text).ok()
-        });
-        if parsed.is_some_and(|s| !s.frames.names.is_empty()) {
-            return Err(PyValueError::new_err(format!(
-                "load(frames=...) and the scene file `{}` both set the frames ([frames] names); give them in one place",
-                scene.unwrap_or_default()
-            )));
-        }
         b.frames(frames);
     }
-    keywords.unwrap_or_default().apply(&mut b, scene)?;
+    keywords.unwrap_or_default().set_on(&mut b)?;
     if let Some(names) = &kernels {
         let mut kinds = Vec::new();
         for name in names {

@@ -252,6 +252,21 @@ impl Builder {
         self
     }
 
+    /// Names the caller's settings in errors (`load` for the Python package), and makes a
+    /// setting given here that the scene file also sets an error naming both, rather than
+    /// this value replacing the file's ([`crate::Config::exclusive`]).
+    pub fn exclusive_of_scene(&mut self, caller: impl Into<String>) -> &mut Self {
+        self.config.exclusive = Some(caller.into());
+        self
+    }
+
+    /// The step's time step alone, for the scene's `[step]` scheme (its dt must be unset
+    /// there; with [`Self::exclusive_of_scene`], a scene without a step is an error).
+    pub fn dt(&mut self, dt: f64) -> &mut Self {
+        self.config.overrides.dt = Some(dt);
+        self
+    }
+
     /// Whether the contacts are stabilised as Pinocchio's Baumgarte corrector (the scene's
     /// `baumgarte`): `contact_fd`, `contact_fd_grad`, `step` and `step_grad` then take
     /// `gains` (Kp, Kd per contact) and `contact_ref` (a world position per contact), and

@@ -24,6 +24,10 @@ pub struct Config {
     pub kernels: Option<Vec<KernelKind>>,
     /// Refuse URDFs with warnings.
     pub strict: bool,
+    /// The caller's name for its settings (`load` for the Python package): when set, a
+    /// setting in [`Self::overrides`] that the scene file also sets is an error naming both
+    /// (the keyword and the file), rather than the caller's value replacing the file's.
+    pub exclusive: Option<String>,
     /// The lowering's and the backends' settings. Its `gravity` and `lower.kernels` are
     /// not read: [`Loaded::options`] sets them from the merged scene.
     pub options: Options,
@@ -60,6 +64,12 @@ pub enum ConfigError {
     Load(Box<LoadError>),
     #[error(transparent)]
     Generate(#[from] GenerateError),
+    #[error(
+        "{caller}({key}=...) and the scene file `{scene}` both set {what}; give it in one place"
+    )]
+    Clash { caller: String, key: &'static str, what: &'static str, scene: String },
+    #[error("{caller}(dt=...) times a step, and none is asked for: give step= too (\"semi_implicit_euler\", \"explicit_euler\" or \"rk4\")")]
+    DtWithoutStep { caller: String },
 }
 
 fn read(path: &Path) -> Result<String, ConfigError> {
@@ -92,6 +102,16 @@ impl Config {
         if let Some(tol) = self.overrides.round_angles {
             let error = |message| SceneError { path: "round_angles".into(), message };
             crate::scene::check_round_angles(tol).map_err(error)?;
+        }
+        if let Some(caller) = &self.exclusive {
+            if let Some((key, what)) = scene.clash(&self.overrides) {
+                let (caller, scene) = (caller.clone(), scene_path.clone());
+                return Err(ConfigError::Clash { caller, key, what, scene });
+            }
+            let o = &self.overrides;
+            if o.dt.is_some() && o.scheme.is_none() && scene.step.is_none() {
+                return Err(ConfigError::DtWithoutStep { caller: caller.clone() });
+            }
         }
         scene.apply(&self.overrides);
         let kernels = match &self.kernels {

@@ -364,6 +364,43 @@ impl Scene {
         Ok(scene)
     }
 
+    /// The first setting `overrides` gives that this scene sets too: its keyword (as
+    /// `grid_gen.load` names it) and what it is, for [`crate::Config::exclusive`].
+    pub fn clash(&self, o: &SceneOverrides) -> Option<(&'static str, &'static str)> {
+        let both = [
+            (
+                o.frames.is_some() && !self.frames.names.is_empty(),
+                "frames",
+                "the frames ([frames] names)",
+            ),
+            (
+                o.contacts.is_some() && !self.contact.is_empty(),
+                "contacts",
+                "the contacts ([[contact]])",
+            ),
+            (o.scheme.is_some() && self.step.is_some(), "step", "the step ([step])"),
+            (
+                o.dt.is_some() && self.step.as_ref().is_some_and(|s| s.dt.is_some()),
+                "dt",
+                "the step's dt ([step] dt)",
+            ),
+            (
+                o.actuated.is_some() && self.actuation.is_some(),
+                "actuated",
+                "the actuated joints ([actuation] joints)",
+            ),
+            (
+                o.fext.is_some() && !self.external_forces.joints.is_empty(),
+                "external_forces",
+                "the bodies that take fext ([external_forces] joints)",
+            ),
+            (o.contact_mask.is_some() && self.contact_mask, "contact_mask", "contact_mask"),
+            (o.baumgarte.is_some() && self.baumgarte, "baumgarte", "baumgarte"),
+            (o.gravity.is_some() && self.gravity.is_some(), "gravity", "gravity"),
+        ];
+        both.into_iter().find(|b| b.0).map(|(_, key, what)| (key, what))
+    }
+
     /// Replaces this scene's values with those `overrides` sets.
     pub fn apply(&mut self, overrides: &SceneOverrides) {
         let o = overrides.clone();
