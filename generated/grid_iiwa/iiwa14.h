@@ -8,9 +8,10 @@
 // the order of IIWA14_JOINT_NAMES. Pointers must be aligned to their scalar; outputs must not overlap
 // inputs or each other. Every function returns GRID_GEN_OK (0), GRID_GEN_NULL_POINTER when a pointer
 // is null (nothing is written), GRID_GEN_BAD_LENGTH when n states cannot fit in memory, or
-// GRID_GEN_BAD_VALUE when an input holds a non-finite value or q a quaternion whose norm is more than
-// 1e-6 from 1 (nothing is written; iiwa14_bad_state() gives the first such state). n = 0 does nothing.
-// Batches run on every core (a rayon pool); iiwa14_set_threads(1) keeps them on the caller's.
+// GRID_GEN_BAD_VALUE when q holds a quaternion whose norm is more than 1e-6 from 1 (nothing is
+// written; iiwa14_bad_state() gives the first such state). n = 0 does nothing. Other values are not
+// checked: a NaN in gives NaN out. Batches run on every core (a rayon pool); iiwa14_set_threads(1)
+// keeps them on the caller's.
 
 #ifndef GRID_GEN_IIWA14_H
 #define GRID_GEN_IIWA14_H

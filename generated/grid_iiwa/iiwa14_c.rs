@@ -52,8 +52,7 @@ pub mod iiwa14_batch {
     pub const GRID_GEN_NULL_POINTER: i32 = 1;
     /// The batch is longer than any array in memory can be.
     pub const GRID_GEN_BAD_LENGTH: i32 = 2;
-    /// An input holds a non-finite value, or q a quaternion whose norm is more than 1e-6 from 1
-    /// (`iiwa14_bad_state` says which state).
+    /// q holds a quaternion whose norm is more than 1e-6 from 1 (`iiwa14_bad_state` says which state).
     pub const GRID_GEN_BAD_VALUE: i32 = 3;
     const MANIFEST: &str = "{\"contacts\":[],\"floating_base\":false,\"frames\":[],\"gravity\":[0.0,0.0,-9.81],\"grid_gen\":\"0.1.0\",\"joint_names\":[\"iiwa_joint_1\",\"iiwa_joint_2\",\"iiwa_joint_3\",\"iiwa_joint_4\",\"iiwa_joint_5\",\"iiwa_joint_6\",\"iiwa_joint_7\"],\"kernels\":[{\"doc\":\"Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"qdd\"}],\"name\":\"rnea\",\"outputs\":[{\"dims\":[7],\"name\":\"c\"}]},{\"doc\":\"Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"qdd\"}],\"name\":\"rnea_grad\",\"outputs\":[{\"dims\":[7,7],\"name\":\"dc_dq\"},{\"dims\":[7,7],\"name\":\"dc_dqd\"}]},{\"doc\":\"The joint-space inertia matrix M(q) (CRBA).\",\"inputs\":[{\"len\":7,\"name\":\"q\"}],\"name\":\"mass_matrix\",\"outputs\":[{\"dims\":[7,7],\"name\":\"m\"}]},{\"doc\":\"M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.\",\"inputs\":[{\"len\":7,\"name\":\"q\"}],\"name\":\"minv\",\"outputs\":[{\"dims\":[7,7],\"name\":\"minv\"}]},{\"doc\":\"Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"tau\"}],\"name\":\"fd\",\"outputs\":[{\"dims\":[7],\"name\":\"qdd\"}]},{\"doc\":\"Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"tau\"}],\"name\":\"fd_grad\",\"outputs\":[{\"dims\":[7],\"name\":\"qdd\"},{\"dims\":[7,7],\"name\":\"dqdd_dq\"},{\"dims\":[7,7],\"name\":\"dqdd_dqd\"}]}],\"nfext\":0,\"nlambda\":0,\"nq\":7,\"nu\":7,\"nv\":7,\"precisions\":[\"f64\",\"f32\"],\"prefix\":\"iiwa14\",\"quaternions\":[],\"reference_frame\":\"local_world_aligned\",\"robot\":\"iiwa14\"}\u{0}";
     /// Where each unit quaternion `[qx, qy, qz, qw]` starts in q.
@@ -63,24 +62,21 @@ pub mod iiwa14_batch {
         " The state that made this thread's last call return GRID_GEN_BAD_VALUE."] static
         BAD_STATE : core::cell::Cell < i64 > = const { core::cell::Cell::new(- 1) };
     }
-    /// The first state of `x` with a non-finite value or, at `quats`, a quaternion whose norm is more than
-    /// 1e-6 from 1 (the kernels read them as rotations without normalising).
-    fn first_bad<S: Copy + Into<f64>, const N: usize>(
-        x: &[[S; N]],
-        quats: &[usize],
-    ) -> Option<usize> {
-        x.iter()
+    /// The first state of q whose quaternion at `QUATERNIONS` has a norm more than 1e-6 from 1 (NaN
+    /// included): the kernels read them as rotations without normalising. Four values a quaternion and
+    /// state, read on the calling thread before the batch runs.
+    fn first_bad<S: Copy + Into<f64>, const N: usize>(q: &[[S; N]]) -> Option<usize> {
+        q.iter()
             .position(|s| {
-                s.iter().any(|&v| !v.into().is_finite())
-                    || quats
-                        .iter()
-                        .any(|&at| {
-                            let n2: f64 = s[at..at + 4]
-                                .iter()
-                                .map(|&v| v.into() * v.into())
-                                .sum();
-                            (n2.sqrt() - 1.0).abs() > 1e-6
-                        })
+                QUATERNIONS
+                    .iter()
+                    .any(|&at| {
+                        let n2: f64 = s[at..at + 4]
+                            .iter()
+                            .map(|&v| v.into() * v.into())
+                            .sum();
+                        !((n2.sqrt() - 1.0).abs() <= 1e-6)
+                    })
             })
     }
     /// The state (from 0) that made this thread's last call return GRID_GEN_BAD_VALUE; -1 before any.
@@ -219,18 +215,6 @@ pub mod iiwa14_batch {
             let qd = core::slice::from_raw_parts(qd.cast::<[f64; NV]>(), n);
             let qdd = core::slice::from_raw_parts(qdd.cast::<[f64; NV]>(), n);
             let c = core::slice::from_raw_parts_mut(c.cast::<[f64; NV]>(), n);
-            if let Some(bad) = [
-                first_bad(q, &QUATERNIONS),
-                first_bad(qd, &[]),
-                first_bad(qdd, &[]),
-            ]
-                .into_iter()
-                .flatten()
-                .min()
-            {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::rnea::<f64>(q, qd, qdd, c);
         }
         GRID_GEN_OK
@@ -274,18 +258,6 @@ pub mod iiwa14_batch {
             let qd = core::slice::from_raw_parts(qd.cast::<[f32; NV]>(), n);
             let qdd = core::slice::from_raw_parts(qdd.cast::<[f32; NV]>(), n);
             let c = core::slice::from_raw_parts_mut(c.cast::<[f32; NV]>(), n);
-            if let Some(bad) = [
-                first_bad(q, &QUATERNIONS),
-                first_bad(qd, &[]),
-                first_bad(qdd, &[]),
-            ]
-                .into_iter()
-                .flatten()
-                .min()
-            {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::rnea::<f32>(q, qd, qdd, c);
         }
         GRID_GEN_OK
@@ -422,18 +394,6 @@ pub mod iiwa14_batch {
                 dc_dqd.cast::<[[f64; NV]; NV]>(),
                 n,
             );
-            if let Some(bad) = [
-                first_bad(q, &QUATERNIONS),
-                first_bad(qd, &[]),
-                first_bad(qdd, &[]),
-            ]
-                .into_iter()
-                .flatten()
-                .min()
-            {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::rnea_grad::<f64>(q, qd, qdd, dc_dq, dc_dqd);
         }
         GRID_GEN_OK
@@ -488,18 +448,6 @@ pub mod iiwa14_batch {
                 dc_dqd.cast::<[[f32; NV]; NV]>(),
                 n,
             );
-            if let Some(bad) = [
-                first_bad(q, &QUATERNIONS),
-                first_bad(qd, &[]),
-                first_bad(qdd, &[]),
-            ]
-                .into_iter()
-                .flatten()
-                .min()
-            {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::rnea_grad::<f32>(q, qd, qdd, dc_dq, dc_dqd);
         }
         GRID_GEN_OK
@@ -602,10 +550,6 @@ pub mod iiwa14_batch {
         unsafe {
             let q = core::slice::from_raw_parts(q.cast::<[f64; NV]>(), n);
             let m = core::slice::from_raw_parts_mut(m.cast::<[[f64; NV]; NV]>(), n);
-            if let Some(bad) = [first_bad(q, &QUATERNIONS)].into_iter().flatten().min() {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::mass_matrix::<f64>(q, m);
         }
         GRID_GEN_OK
@@ -640,10 +584,6 @@ pub mod iiwa14_batch {
         unsafe {
             let q = core::slice::from_raw_parts(q.cast::<[f32; NV]>(), n);
             let m = core::slice::from_raw_parts_mut(m.cast::<[[f32; NV]; NV]>(), n);
-            if let Some(bad) = [first_bad(q, &QUATERNIONS)].into_iter().flatten().min() {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::mass_matrix::<f32>(q, m);
         }
         GRID_GEN_OK
@@ -749,10 +689,6 @@ pub mod iiwa14_batch {
                 minv.cast::<[[f64; NV]; NV]>(),
                 n,
             );
-            if let Some(bad) = [first_bad(q, &QUATERNIONS)].into_iter().flatten().min() {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::minv::<f64>(q, minv);
         }
         GRID_GEN_OK
@@ -790,10 +726,6 @@ pub mod iiwa14_batch {
                 minv.cast::<[[f32; NV]; NV]>(),
                 n,
             );
-            if let Some(bad) = [first_bad(q, &QUATERNIONS)].into_iter().flatten().min() {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::minv::<f32>(q, minv);
         }
         GRID_GEN_OK
@@ -914,18 +846,6 @@ pub mod iiwa14_batch {
             let qd = core::slice::from_raw_parts(qd.cast::<[f64; NV]>(), n);
             let tau = core::slice::from_raw_parts(tau.cast::<[f64; NV]>(), n);
             let qdd = core::slice::from_raw_parts_mut(qdd.cast::<[f64; NV]>(), n);
-            if let Some(bad) = [
-                first_bad(q, &QUATERNIONS),
-                first_bad(qd, &[]),
-                first_bad(tau, &[]),
-            ]
-                .into_iter()
-                .flatten()
-                .min()
-            {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::fd::<f64>(q, qd, tau, qdd);
         }
         GRID_GEN_OK
@@ -969,18 +889,6 @@ pub mod iiwa14_batch {
             let qd = core::slice::from_raw_parts(qd.cast::<[f32; NV]>(), n);
             let tau = core::slice::from_raw_parts(tau.cast::<[f32; NV]>(), n);
             let qdd = core::slice::from_raw_parts_mut(qdd.cast::<[f32; NV]>(), n);
-            if let Some(bad) = [
-                first_bad(q, &QUATERNIONS),
-                first_bad(qd, &[]),
-                first_bad(tau, &[]),
-            ]
-                .into_iter()
-                .flatten()
-                .min()
-            {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::fd::<f32>(q, qd, tau, qdd);
         }
         GRID_GEN_OK
@@ -1125,18 +1033,6 @@ pub mod iiwa14_batch {
                 dqdd_dqd.cast::<[[f64; NV]; NV]>(),
                 n,
             );
-            if let Some(bad) = [
-                first_bad(q, &QUATERNIONS),
-                first_bad(qd, &[]),
-                first_bad(tau, &[]),
-            ]
-                .into_iter()
-                .flatten()
-                .min()
-            {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::fd_grad::<f64>(q, qd, tau, qdd, dqdd_dq, dqdd_dqd);
         }
         GRID_GEN_OK
@@ -1194,18 +1090,6 @@ pub mod iiwa14_batch {
                 dqdd_dqd.cast::<[[f32; NV]; NV]>(),
                 n,
             );
-            if let Some(bad) = [
-                first_bad(q, &QUATERNIONS),
-                first_bad(qd, &[]),
-                first_bad(tau, &[]),
-            ]
-                .into_iter()
-                .flatten()
-                .min()
-            {
-                BAD_STATE.with(|b| b.set(bad as i64));
-                return GRID_GEN_BAD_VALUE;
-            }
             self::fd_grad::<f32>(q, qd, tau, qdd, dqdd_dq, dqdd_dqd);
         }
         GRID_GEN_OK

@@ -289,7 +289,7 @@ class Kernel:
         status = self._fn(n, *in_ptrs, *out_ptrs)
         if status == 3:
             # GRID_GEN_BAD_VALUE: the library's own check (the checks above come first).
-            raise ValueError(f"{name}: state {robot._bad_state()} holds a non-finite value or a quaternion whose norm is off 1 by more than 1e-6 (the kernel library's check)")
+            raise ValueError(f"{name}: `q` at state {robot._bad_state()} holds a quaternion whose norm is off 1 by more than 1e-6 (the kernel library's check)")
         if status != 0:
             raise RuntimeError(f"{name}: the kernel library returned status {status}")
         return outs[0] if self._result is None else self._result._make(outs)

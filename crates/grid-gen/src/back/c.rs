@@ -179,8 +179,8 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
         out,
         "/// Success.\npub const GRID_GEN_OK: i32 = 0;\n/// A pointer the call needs is null.\npub const GRID_GEN_NULL_POINTER: i32 = 1;\n\
          /// The batch is longer than any array in memory can be.\npub const GRID_GEN_BAD_LENGTH: i32 = 2;\n\
-         /// An input holds a non-finite value, or q a quaternion whose norm is more than 1e-6 from 1\n\
-         /// (`{p}_bad_state` says which state).\npub const GRID_GEN_BAD_VALUE: i32 = 3;\n\
+         /// q holds a quaternion whose norm is more than 1e-6 from 1 (`{p}_bad_state` says which state).\n\
+         pub const GRID_GEN_BAD_VALUE: i32 = 3;\n\
          const MANIFEST: &str = {};\n",
         super::names::string_literal(&(manifest(module, options) + "\0"))
     );
@@ -196,11 +196,11 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
         "/// Where each unit quaternion `[qx, qy, qz, qw]` starts in q.\nconst QUATERNIONS: [usize; {}] = [{}];\n\
          thread_local! {{\n/// The state that made this thread's last call return GRID_GEN_BAD_VALUE.\n\
          static BAD_STATE: core::cell::Cell<i64> = const {{ core::cell::Cell::new(-1) }};\n}}\n\
-         /// The first state of `x` with a non-finite value or, at `quats`, a quaternion whose norm is more than\n\
-         /// 1e-6 from 1 (the kernels read them as rotations without normalising).\n\
-         fn first_bad<S: Copy + Into<f64>, const N: usize>(x: &[[S; N]], quats: &[usize]) -> Option<usize> {{\n\
-         x.iter().position(|s| {{\ns.iter().any(|&v| !v.into().is_finite())\n\
-         || quats.iter().any(|&at| {{\nlet n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();\n(n2.sqrt() - 1.0).abs() > 1e-6\n}})\n}})\n}}\n\
+         /// The first state of q whose quaternion at `QUATERNIONS` has a norm more than 1e-6 from 1 (NaN\n\
+         /// included): the kernels read them as rotations without normalising. Four values a quaternion and\n\
+         /// state, read on the calling thread before the batch runs.\n\
+         fn first_bad<S: Copy + Into<f64>, const N: usize>(q: &[[S; N]]) -> Option<usize> {{\n\
+         q.iter().position(|s| {{\nQUATERNIONS.iter().any(|&at| {{\nlet n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();\n!((n2.sqrt() - 1.0).abs() <= 1e-6)\n}})\n}})\n}}\n\
          /// The state (from 0) that made this thread's last call return GRID_GEN_BAD_VALUE; -1 before any.\n\
          #[unsafe(no_mangle)]\npub extern \"C\" fn {p}_bad_state() -> i64 {{\nBAD_STATE.with(|b| b.get())\n}}\n",
         quats.len(),
@@ -341,19 +341,15 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
                     array_of(o.shape, rt)
                 );
             }
-            // Every input checked before anything runs: the first bad state, over the inputs.
-            let checks: Vec<String> = inputs
-                .iter()
-                .map(|i| {
-                    let quats = if *i == crate::ir::Input::Q { "&QUATERNIONS" } else { "&[]" };
-                    format!("first_bad({}, {quats})", i.name())
-                })
-                .collect();
-            let _ = writeln!(
-                out,
-                "if let Some(bad) = [{}].into_iter().flatten().min() {{\nBAD_STATE.with(|b| b.set(bad as i64));\nreturn GRID_GEN_BAD_VALUE;\n}}",
-                checks.join(", ")
-            );
+            // q's quaternions checked before anything runs (a robot with none pays nothing):
+            // a bad one turns every output into NaN, silently. Other values are not checked,
+            // so that the batch's cost stays the kernel's on every core (NaN in, NaN out).
+            if !quats.is_empty() && inputs.contains(&crate::ir::Input::Q) {
+                let _ = writeln!(
+                    out,
+                    "if let Some(bad) = first_bad(q) {{\nBAD_STATE.with(|b| b.set(bad as i64));\nreturn GRID_GEN_BAD_VALUE;\n}}"
+                );
+            }
             let _ =
                 writeln!(out, "self::{name}::<{rt}>({});\n}}\nGRID_GEN_OK\n}}\n", all.join(", "));
         }
@@ -377,9 +373,10 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
          // the order of {mac}_JOINT_NAMES. Pointers must be aligned to their scalar; outputs must not overlap\n\
          // inputs or each other. Every function returns GRID_GEN_OK (0), GRID_GEN_NULL_POINTER when a pointer\n\
          // is null (nothing is written), GRID_GEN_BAD_LENGTH when n states cannot fit in memory, or\n\
-         // GRID_GEN_BAD_VALUE when an input holds a non-finite value or q a quaternion whose norm is more than\n\
-         // 1e-6 from 1 (nothing is written; {p}_bad_state() gives the first such state). n = 0 does nothing.\n\
-         // Batches run on every core (a rayon pool); {p}_set_threads(1) keeps them on the caller's.\n",
+         // GRID_GEN_BAD_VALUE when q holds a quaternion whose norm is more than 1e-6 from 1 (nothing is\n\
+         // written; {p}_bad_state() gives the first such state). n = 0 does nothing. Other values are not\n\
+         // checked: a NaN in gives NaN out. Batches run on every core (a rayon pool); {p}_set_threads(1)\n\
+         // keeps them on the caller's.\n",
         env!("CARGO_PKG_VERSION"),
         comment_text(&robot.name),
         crate::back::source_line(&robot.source),
