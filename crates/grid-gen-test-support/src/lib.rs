@@ -277,8 +277,9 @@ pub fn col(v: &[f64]) -> DMatrix<f64> {
 pub use grid_gen::accuracy::Rng;
 
 /// The reference's values of kernel `kind`, in the kernel's output order; `u` is q̈ for
-/// the RNEA kernels, τ for the forward-dynamics ones and the actuated joints' τ (nu
-/// entries) for the step kernels.
+/// the RNEA kernels, τ for the forward-dynamics ones, the actuated joints' τ (nu
+/// entries) for the step kernels and `difference`'s q1 (nq entries); `integrate`'s v is
+/// `qd`.
 pub fn reference_outputs(
     kind: KernelKind,
     model: &Model,
@@ -305,6 +306,16 @@ pub fn reference_outputs(
         | KernelKind::ContactFd
         | KernelKind::ContactFdGrad => {
             reference_outputs_with(kind, model, q, qd, u, g, reference::External::NONE)
+        }
+        KernelKind::Integrate => vec![col(&reference::integrate(model, q, qd))],
+        KernelKind::DIntegrate => {
+            let (a, b) = reference::d_integrate(model, qd);
+            vec![a, b]
+        }
+        KernelKind::Difference => vec![col(&reference::difference(model, q, u))],
+        KernelKind::DDifference => {
+            let (a, b) = reference::d_difference(model, q, u);
+            vec![a, b]
         }
         _ => reference_frames(kind, model, q, qd, u).iter().map(|v| col(v)).collect(),
     }
@@ -542,8 +553,8 @@ pub fn kernel_args_corrected<'a>(
         .iter()
         .map(|i| match i {
             Input::Q => q,
-            Input::Qd => qd,
-            Input::Qdd | Input::Tau | Input::TauActuated => u,
+            Input::Qd | Input::V => qd,
+            Input::Qdd | Input::Tau | Input::TauActuated | Input::Q1 => u,
             Input::Fext => ext.fext,
             Input::Lambda => ext.lambda,
             Input::Dt => dt,

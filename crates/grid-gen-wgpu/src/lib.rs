@@ -334,6 +334,7 @@ impl Gpu {
                 let i = &shader.info;
                 k.u_len(&grid_gen::ir::UPacking {
                     nv: i.nv,
+                    nq: i.nq,
                     nu: i.nu,
                     forces: i.forces,
                     lambda: i.lambda,
@@ -999,8 +1000,9 @@ fn check_lengths(
     use grid_gen::ir::{Input, KernelKind};
     let kind = KernelKind::parse(&kernel.entry.kernel);
     let takes = |i: Input| kind.is_none_or(|k| k.inputs().contains(&i));
-    let (uses_qd, uses_u) =
-        (takes(Input::Qd), takes(Input::Qdd) || takes(Input::Tau) || takes(Input::TauActuated));
+    let uses_qd = takes(Input::Qd) || takes(Input::V);
+    let uses_u = takes(Input::Qdd) || takes(Input::Tau) || takes(Input::TauActuated);
+    let uses_u = uses_u || takes(Input::Q1);
     let check = |field: &'static str, x: &[f64], needed: bool, per: usize| {
         if (needed || !x.is_empty()) && x.len() != n * per {
             return Err(GpuError::Length { field, found: x.len(), n, per, expected: n * per });

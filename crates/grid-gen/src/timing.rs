@@ -83,8 +83,9 @@ fn call_args(inputs: &[crate::ir::Input]) -> String {
     let args: Vec<&str> = inputs
         .iter()
         .map(|i| match i {
-            Input::Q => "&x.0",
-            Input::Qd => "&x.1[0]",
+            // `difference(q, q)`: the kernels have no branches, so any pair times the same.
+            Input::Q | Input::Q1 => "&x.0",
+            Input::Qd | Input::V => "&x.1[0]",
             Input::Qdd | Input::Tau => "&x.1[1]",
             Input::TauActuated => "x.1[1].first_chunk::<{ robot::NU }>().unwrap()",
             Input::Fext => "&x.2",

@@ -344,10 +344,11 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
             // q's quaternions checked before anything runs (a robot with none pays nothing):
             // a bad one turns every output into NaN, silently. Other values are not checked,
             // so that the batch's cost stays the kernel's on every core (NaN in, NaN out).
-            if !quats.is_empty() && inputs.contains(&crate::ir::Input::Q) {
+            for config in inputs.iter().filter(|i| !quats.is_empty() && i.is_config()) {
                 let _ = writeln!(
                     out,
-                    "if let Some(bad) = first_bad(q) {{\nBAD_STATE.with(|b| b.set(bad as i64));\nreturn GRID_GEN_BAD_VALUE;\n}}"
+                    "if let Some(bad) = first_bad({}) {{\nBAD_STATE.with(|b| b.set(bad as i64));\nreturn GRID_GEN_BAD_VALUE;\n}}",
+                    config.name()
                 );
             }
             let _ =
@@ -373,7 +374,7 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
          // the order of {mac}_JOINT_NAMES. Pointers must be aligned to their scalar; outputs must not overlap\n\
          // inputs or each other. Every function returns GRID_GEN_OK (0), GRID_GEN_NULL_POINTER when a pointer\n\
          // is null (nothing is written), GRID_GEN_BAD_LENGTH when n states cannot fit in memory, or\n\
-         // GRID_GEN_BAD_VALUE when q holds a quaternion whose norm is more than 1e-6 from 1 (nothing is\n\
+         // GRID_GEN_BAD_VALUE when q (or difference's q1) holds a quaternion whose norm is more than 1e-6 from 1 (nothing is\n\
          // written; {p}_bad_state() gives the first such state). n = 0 does nothing. Other values are not\n\
          // checked: a NaN in gives NaN out. Batches run on every core (a rayon pool); {p}_set_threads(1)\n\
          // keeps them on the caller's.\n",

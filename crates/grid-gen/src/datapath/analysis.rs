@@ -100,7 +100,9 @@ impl Bounds {
                 | Input::Active
                 | Input::Gains
                 | Input::ContactRef
-                | Input::Dt,
+                | Input::Dt
+                | Input::V
+                | Input::Q1,
                 _,
             ) => (f64::NEG_INFINITY, f64::INFINITY),
             Port::Value(Input::Fext | Input::Lambda, _) => (-self.force, self.force),

@@ -37,7 +37,9 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f6
                     | Input::Active
                     | Input::Gains
                     | Input::ContactRef
-                    | Input::Dt => (rest, 0),
+                    | Input::Dt
+                    | Input::V
+                    | Input::Q1 => (rest, 0),
                     Input::Lambda => (rest, lambda_at),
                 };
                 v[at + j as usize]

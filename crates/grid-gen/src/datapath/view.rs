@@ -121,7 +121,7 @@ impl Datapath {
                     }
                 }
                 Op::Div(a, b) if quat_scale(f, a, b).is_some() => {}
-                Op::Div(..) => return Err(unsupported()),
+                Op::Div(..) | Op::Sqrt(_) => return Err(unsupported()),
                 op => op.operands().for_each(|o| live[o.0 as usize] = true),
             }
         }
@@ -149,6 +149,7 @@ impl Datapath {
                 Op::Mul(a, b) => HwOp::Mul(m(a), m(b)),
                 Op::Neg(a) => HwOp::Neg(m(a)),
                 Op::Div(a, b) => port(Port::QuatScale(quat_scale(f, a, b).expect("checked above"))),
+                Op::Sqrt(_) => unreachable!("refused above"),
             };
             new_id[i] = HwId(nodes.len() as u32);
             nodes.push(op);

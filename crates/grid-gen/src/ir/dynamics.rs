@@ -21,6 +21,7 @@ mod crba;
 mod fd_grad;
 mod forces;
 mod frames;
+mod lie;
 mod minv;
 mod rnea;
 mod rnea_grad;

@@ -37,6 +37,19 @@ pub enum Input {
     /// The step kernels' time step, one value, when the scene leaves it to run time
     /// ([`crate::model::StepSpec::dt`]).
     Dt,
+    /// A tangent vector, nv entries: `integrate`'s and `dintegrate`'s `v`.
+    V,
+    /// A second configuration, nq entries: `difference`'s and `ddifference`'s `q1`.
+    Q1,
+}
+
+/// Which of a WGSL kernel's three input buffers holds an input: `q`, `qd` (q̇, or the
+/// Lie-group kernels' tangent `v`), or `u`, which packs every other input in argument order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Buffer {
+    Q,
+    Qd,
+    U,
 }
 
 impl Input {
@@ -52,13 +65,30 @@ impl Input {
             Input::Gains => "gains",
             Input::ContactRef => "contact_ref",
             Input::Dt => "dt",
+            Input::V => "v",
+            Input::Q1 => "q1",
         }
+    }
+
+    /// The WGSL buffer that holds the input.
+    pub fn buffer(self) -> Buffer {
+        match self {
+            Input::Q => Buffer::Q,
+            Input::Qd | Input::V => Buffer::Qd,
+            _ => Buffer::U,
+        }
+    }
+
+    /// Whether the input is a configuration, whose quaternions are rotations (checked to be
+    /// unit by the C ABI and Python).
+    pub fn is_config(self) -> bool {
+        matches!(self, Input::Q | Input::Q1)
     }
 
     /// Entries of the input for a robot of these sizes.
     pub fn len(self, dims: &crate::ir::Dims) -> usize {
         match self {
-            Input::Q => dims.nq,
+            Input::Q | Input::Q1 => dims.nq,
             Input::TauActuated => dims.nu,
             Input::Fext => 6 * dims.nfext,
             Input::Lambda => dims.nlambda,
@@ -66,7 +96,7 @@ impl Input {
             Input::Gains => 2 * dims.nbaumgarte,
             Input::ContactRef => 3 * dims.nbaumgarte,
             Input::Dt => 1,
-            Input::Qd | Input::Qdd | Input::Tau => dims.nv,
+            Input::Qd | Input::Qdd | Input::Tau | Input::V => dims.nv,
         }
     }
 }
@@ -82,6 +112,9 @@ pub enum Op {
     Neg(Id),
     Sin(Id),
     Cos(Id),
+    /// The square root (of a non-negative value: the Lie-group kernels' logarithm, whose
+    /// arguments the IR keeps away from 0, see `dynamics/lie.rs`).
+    Sqrt(Id),
 }
 
 impl Op {
@@ -89,7 +122,7 @@ impl Op {
         let (a, b) = match *self {
             Op::Input(..) | Op::Const(_) => (None, None),
             Op::Add(a, b) | Op::Sub(a, b) | Op::Mul(a, b) | Op::Div(a, b) => (Some(a), Some(b)),
-            Op::Neg(a) | Op::Sin(a) | Op::Cos(a) => (Some(a), None),
+            Op::Neg(a) | Op::Sin(a) | Op::Cos(a) | Op::Sqrt(a) => (Some(a), None),
         };
         a.into_iter().chain(b)
     }
@@ -350,6 +383,20 @@ impl Graph {
     pub fn cos(&mut self, a: Id) -> Id {
         let key = self.key(Key::Un(2, a));
         self.push(Op::Cos(a), key)
+    }
+
+    pub fn sqrt(&mut self, a: Id) -> Id {
+        if self.fold {
+            if let Some(x) = self.value(a) {
+                if x >= 0.0 {
+                    if let Some(id) = self.folded(x.sqrt()) {
+                        return id;
+                    }
+                }
+            }
+        }
+        let key = self.key(Key::Un(3, a));
+        self.push(Op::Sqrt(a), key)
     }
 
     /// Σ aᵢ bᵢ, skipping structural zeros.

@@ -29,6 +29,8 @@ pub struct Dims {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct UPacking {
     pub nv: usize,
+    /// Entries of q (a second configuration, `difference`'s q1, is packed into u).
+    pub nq: usize,
     /// The step kernels' actuated τ.
     pub nu: usize,
     /// The model's force entries: 6 per fext body, then λ's.
@@ -242,14 +244,18 @@ pub enum KernelKind {
     StepGrad,
     ContactFd,
     ContactFdGrad,
+    Integrate,
+    DIntegrate,
+    Difference,
+    DDifference,
 }
 
 impl KernelKind {
     /// Every kernel, in the order backends emit them. The frame kernels exist only for a
     /// model with requested frames ([`KernelKind::is_frame`]), the step kernels only for one
     /// with a step ([`KernelKind::is_step`]), the contact kernels only for one with
-    /// contacts ([`KernelKind::is_contact`]).
-    pub const ALL: [KernelKind; 15] = [
+    /// contacts ([`KernelKind::is_contact`]); the Lie-group kernels come last.
+    pub const ALL: [KernelKind; 19] = [
         KernelKind::Rnea,
         KernelKind::RneaGrad,
         KernelKind::MassMatrix,
@@ -265,6 +271,10 @@ impl KernelKind {
         KernelKind::StepGrad,
         KernelKind::ContactFd,
         KernelKind::ContactFdGrad,
+        KernelKind::Integrate,
+        KernelKind::DIntegrate,
+        KernelKind::Difference,
+        KernelKind::DDifference,
     ];
 
     /// The dynamics kernels, those every robot has.
@@ -294,6 +304,18 @@ impl KernelKind {
     /// Whether the kernel solves rigid-contact dynamics (and so exists only with contacts).
     pub fn is_contact(self) -> bool {
         matches!(self, KernelKind::ContactFd | KernelKind::ContactFdGrad)
+    }
+
+    /// Whether the kernel is one of the configuration space's Lie-group operations
+    /// (`integrate`, `difference` and their Jacobians), which take no dynamics.
+    pub fn is_lie(self) -> bool {
+        matches!(
+            self,
+            KernelKind::Integrate
+                | KernelKind::DIntegrate
+                | KernelKind::Difference
+                | KernelKind::DDifference
+        )
     }
 
     /// Whether the kernel takes a discrete step (and so exists only when one is asked for).
@@ -342,6 +364,10 @@ impl KernelKind {
             KernelKind::StepGrad => "step_grad",
             KernelKind::ContactFd => "contact_fd",
             KernelKind::ContactFdGrad => "contact_fd_grad",
+            KernelKind::Integrate => "integrate",
+            KernelKind::DIntegrate => "dintegrate",
+            KernelKind::Difference => "difference",
+            KernelKind::DDifference => "ddifference",
         }
     }
 
@@ -363,6 +389,8 @@ impl KernelKind {
             KernelKind::FrameAcceleration | KernelKind::FrameAccelerationGrad => &[Q, Qd, Qdd],
             KernelKind::Step | KernelKind::StepGrad => &[Q, Qd, TauActuated],
             KernelKind::ContactFd | KernelKind::ContactFdGrad => &[Q, Qd, Tau],
+            KernelKind::Integrate | KernelKind::DIntegrate => &[Q, V],
+            KernelKind::Difference | KernelKind::DDifference => &[Q, Q1],
         }
     }
 
@@ -420,6 +448,16 @@ impl KernelKind {
                 OutputSpec { name: "dlambda_dq", shape: LambdaBy },
                 OutputSpec { name: "dlambda_dqd", shape: LambdaBy },
                 OutputSpec { name: "dlambda_dtau", shape: LambdaBy },
+            ],
+            KernelKind::Integrate => &[OutputSpec { name: "q_next", shape: Config }],
+            KernelKind::DIntegrate => &[
+                OutputSpec { name: "dq", shape: Matrix },
+                OutputSpec { name: "dv", shape: Matrix },
+            ],
+            KernelKind::Difference => &[OutputSpec { name: "v", shape: Vector }],
+            KernelKind::DDifference => &[
+                OutputSpec { name: "dq", shape: Matrix },
+                OutputSpec { name: "dq1", shape: Matrix },
             ],
         }
     }
@@ -504,6 +542,10 @@ impl KernelKind {
     /// the first (q̈, τ or the actuated τ), then the forces the kernel takes, then the
     /// contact mask and Baumgarte's inputs, then a step kernel's run-time `dt`.
     pub fn u_len(self, p: &UPacking) -> usize {
+        if self.is_lie() {
+            // `v` rides in the `qd` buffer; `difference`'s q1 is all of u.
+            return if self.inputs().contains(&Input::Q1) { p.nq } else { 0 };
+        }
         let first = if self.is_step() { p.nu } else { p.nv };
         let dt = usize::from(self.is_step() && p.runtime_dt);
         let mask = if self.solves_contacts() { p.active + 5 * p.baumgarte } else { 0 };
@@ -533,6 +575,10 @@ impl KernelKind {
             KernelKind::StepGrad => "The step and its linearisation: `(q_next, qd_next, A, B)`, A = d(q_next, qd_next)/d(q, qd) (2NV x 2NV), B = d(q_next, qd_next)/d tau (2NV x NU), row-major, rows and columns `[dq; dqd]` in the tangent space (Pinocchio's `dIntegrate`); with `CONTACTS`, then `(lambda, dlambda/dx, dlambda/du)` as `step`'s.",
             KernelKind::ContactFd => "Rigid-contact forward dynamics `(qdd, lambda)`: every contact of `CONTACTS` held (a point's classical acceleration, a wrench's spatial acceleration, zero in world axes at the frame), lambda the contacts' forces in world axes at their frames (Pinocchio's `constraintDynamics` with `CONTACT_3D` / `CONTACT_6D` in `LOCAL_WORLD_ALIGNED`, `lambda_c`), through the contact Schur complement `J M^-1 J^T`.",
             KernelKind::ContactFdGrad => "Rigid-contact forward dynamics and its derivatives `(qdd, lambda, dqdd/dq, dqdd/dqd, dqdd/dtau, dlambda/dq, dlambda/dqd, dlambda/dtau)`, q in the tangent space (Pinocchio's `computeConstraintDynamicsDerivatives`); fext, if any, held in the bodies' frames.",
+            KernelKind::Integrate => "The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.",
+            KernelKind::DIntegrate => "The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`).",
+            KernelKind::Difference => "The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`).",
+            KernelKind::DDifference => "The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`).",
         }
     }
 
@@ -555,6 +601,10 @@ impl KernelKind {
             KernelKind::StepGrad => "the step and its linearisation `[A | B]` in the tangent space.",
             KernelKind::ContactFd => "rigid-contact forward dynamics: qdd and the contact forces lambda.",
             KernelKind::ContactFdGrad => "their derivatives with respect to q, qd and tau.",
+            KernelKind::Integrate => "`q (+) v`, q on the manifold (Pinocchio's `integrate`).",
+            KernelKind::DIntegrate => "its Jacobians with respect to q and v, in the tangent space.",
+            KernelKind::Difference => "the tangent v with `q (+) v = q1` (Pinocchio's `difference`).",
+            KernelKind::DDifference => "its Jacobians with respect to q and q1, in the tangent space.",
         }
     }
 
@@ -583,6 +633,9 @@ impl KernelKind {
             FdGrad => &[StepGrad, ContactFdGrad],
             Step => &[StepGrad],
             ContactFd => &[ContactFdGrad],
+            Integrate => &[DIntegrate],
+            Difference => &[DDifference],
+            DIntegrate | DDifference => &[],
             StepGrad
             | FramePlacement
             | FrameJacobian
@@ -708,6 +761,16 @@ impl KernelKind {
                     .into_iter()
                     .map(|x| x.into_iter().flatten().collect())
                     .collect()
+            }
+            KernelKind::Integrate => vec![d.lie_integrate()],
+            KernelKind::DIntegrate => {
+                let (dq, dv) = d.lie_d_integrate();
+                vec![flat(dq), flat(dv)]
+            }
+            KernelKind::Difference => vec![d.difference()],
+            KernelKind::DDifference => {
+                let (dq, dq1) = d.d_difference();
+                vec![flat(dq), flat(dq1)]
             }
         }
     }

@@ -15,7 +15,7 @@ mod stats;
 mod tangent;
 mod validate;
 
-pub use graph::{Id, Input, Node, Op, Stage};
+pub use graph::{Buffer, Id, Input, Node, Op, Stage};
 pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve, UPacking};
 pub use module::{
     lower, lower_function, ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Contact,

@@ -4,7 +4,7 @@
 //! lowered with, so nothing downstream needs the [`Model`].
 
 use super::dynamics::Dynamics;
-use super::graph::{Graph, Id, Input, Node, Op};
+use super::graph::{Buffer, Graph, Id, Input, Node, Op};
 use super::kernel::{Gradient, KernelKind, Shape, Solve};
 use super::validate::{validate, ValidationError};
 use crate::model::{CoordIndex, QIndex};
@@ -437,12 +437,12 @@ impl Function {
             .inputs
             .iter()
             .take_while(|&&i| i != which)
-            .filter(|i| !matches!(i, Input::Q | Input::Qd))
+            .filter(|i| i.buffer() == Buffer::U)
             .map(|i| i.len(&self.dims))
             .sum();
-        match which {
-            Input::Q | Input::Qd => j,
-            _ => before + j,
+        match which.buffer() {
+            Buffer::Q | Buffer::Qd => j,
+            Buffer::U => before + j,
         }
     }
 
@@ -450,7 +450,7 @@ impl Function {
     pub fn packed_u_len(&self) -> usize {
         self.inputs
             .iter()
-            .filter(|i| !matches!(i, Input::Q | Input::Qd))
+            .filter(|i| i.buffer() == Buffer::U)
             .map(|i| i.len(&self.dims))
             .sum()
     }
@@ -659,6 +659,7 @@ fn freeze(
             Op::Neg(a) => Op::Neg(m(a)),
             Op::Sin(a) => Op::Sin(m(a)),
             Op::Cos(a) => Op::Cos(m(a)),
+            Op::Sqrt(a) => Op::Sqrt(m(a)),
             op @ (Op::Input(..) | Op::Const(_)) => op,
         };
         nodes.push(Node { op, ..*node });
@@ -802,6 +803,7 @@ impl Function {
                 Op::Neg(a) => -v(a),
                 Op::Sin(a) => v(a).sin(),
                 Op::Cos(a) => v(a).cos(),
+                Op::Sqrt(a) => v(a).sqrt(),
             };
         }
         val
@@ -820,6 +822,7 @@ pub trait EvalNumber:
     fn from_f64(x: f64) -> Self;
     fn sin(self) -> Self;
     fn cos(self) -> Self;
+    fn sqrt(self) -> Self;
 }
 
 impl EvalNumber for f64 {
@@ -832,6 +835,9 @@ impl EvalNumber for f64 {
     fn cos(self) -> Self {
         f64::cos(self)
     }
+    fn sqrt(self) -> Self {
+        f64::sqrt(self)
+    }
 }
 
 impl EvalNumber for f32 {
@@ -843,5 +849,8 @@ impl EvalNumber for f32 {
     }
     fn cos(self) -> Self {
         f32::cos(self)
+    }
+    fn sqrt(self) -> Self {
+        f32::sqrt(self)
     }
 }

@@ -91,6 +91,17 @@ impl Graph {
                     self.neg(m)
                 }
                 Op::Sin(_) | Op::Cos(_) => zero,
+                // d√a = da / (2√a).
+                Op::Sqrt(a) => {
+                    let da = d(a);
+                    if da == zero {
+                        zero
+                    } else {
+                        let two = self.constant(2.0);
+                        let r = self.mul(two, Id(i as u32));
+                        self.div(da, r)
+                    }
+                }
             };
         }
         outputs.iter().map(|o| dt[o.0 as usize]).collect()

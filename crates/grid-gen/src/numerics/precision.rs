@@ -58,6 +58,8 @@ pub fn weights(f: &Function, states: &[Vec<Vec<f64>>]) -> Vec<f64> {
                         Op::Add(a, b) | Op::Sub(a, b) => v(a).abs() + v(b).abs(),
                         Op::Mul(..) => 2.0 * val[j].abs(),
                         Op::Div(..) => 2.0 * val[j].abs(),
+                        // √x rounds once, and halves its operand's relative error.
+                        Op::Sqrt(_) => 1.5 * val[j].abs(),
                         Op::Neg(_) => val[j].abs(),
                         Op::Sin(a) => (v(a).cos() * v(a)).abs(),
                         Op::Cos(a) => (v(a).sin() * v(a)).abs(),
@@ -106,6 +108,7 @@ pub fn weights(f: &Function, states: &[Vec<Vec<f64>>]) -> Vec<f64> {
                         Op::Neg(x) => push(x, -1.0),
                         Op::Sin(x) => push(x, v(x).cos()),
                         Op::Cos(x) => push(x, -v(x).sin()),
+                        Op::Sqrt(x) => push(x, 0.5 / val[j]),
                     }
                 }
             }
@@ -183,6 +186,7 @@ impl Function {
                     Op::Neg(a) => -w(a),
                     Op::Sin(a) => w(a).sin(),
                     Op::Cos(a) => w(a).cos(),
+                    Op::Sqrt(a) => w(a).sqrt(),
                 }
             } else {
                 f64::from(match node.op {
@@ -195,6 +199,7 @@ impl Function {
                     Op::Neg(a) => -n(a),
                     Op::Sin(a) => n(a).sin(),
                     Op::Cos(a) => n(a).cos(),
+                    Op::Sqrt(a) => n(a).sqrt(),
                 })
             };
         }

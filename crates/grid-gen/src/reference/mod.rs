@@ -15,6 +15,7 @@ mod frames;
 mod minv;
 mod rnea;
 mod rnea_derivatives;
+mod lie;
 mod step;
 
 pub use aba::{aba, aba_with};
@@ -27,6 +28,7 @@ pub use crba::crba;
 pub use fd::{forward_dynamics, forward_dynamics_derivatives, forward_dynamics_derivatives_with};
 pub use forces::{force_derivatives, External, ForceDerivatives};
 pub use frames::{frame_classical_acceleration, frame_jacobian, frame_placement, frame_velocity};
+pub use lie::{d_difference, difference};
 pub use minv::minv;
 pub use rnea::{rnea, rnea_with};
 pub use rnea_derivatives::{rnea_derivatives, rnea_derivatives_with};

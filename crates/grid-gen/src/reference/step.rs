@@ -83,7 +83,7 @@ fn beta(t: f64) -> (f64, f64) {
 
 /// `[ω]×`-polynomials: SO(3)'s left Jacobian `V = I + B K + C K²` (exp6's translation),
 /// and its right Jacobian `Jexp3 = I − B K + C K²` (K = [ω]×).
-fn so3_jacobians(w: &Vector3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
+pub(super) fn so3_jacobians(w: &Vector3<f64>) -> (Matrix3<f64>, Matrix3<f64>) {
     let (b, c) = bc(w.norm());
     let k = skew(w);
     let k2 = k * k;
@@ -110,7 +110,7 @@ fn jexp6(v: &Vector3<f64>, w: &Vector3<f64>) -> DMatrix<f64> {
 }
 
 /// The unit quaternion `[x, y, z, w]` at q's entries `at..at + 4`, normalised.
-fn quaternion(q: &[f64], at: usize) -> UnitQuaternion<f64> {
+pub(super) fn quaternion(q: &[f64], at: usize) -> UnitQuaternion<f64> {
     UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
         q[at + 3],
         q[at],

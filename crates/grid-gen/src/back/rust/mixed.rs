@@ -70,6 +70,7 @@ pub fn emit_mixed_kernel(
             Op::Neg(a) => format!("-{}", o(a)),
             Op::Sin(a) => format!("{}.sin()", o(a)),
             Op::Cos(a) => format!("{}.cos()", o(a)),
+            Op::Sqrt(a) => format!("{}.sqrt()", o(a)),
             Op::Const(_) | Op::Input(..) => unreachable!("printed inline"),
         }
     };

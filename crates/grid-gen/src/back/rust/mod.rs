@@ -153,6 +153,7 @@ fn expression(k: &Function, names: &Chunks, here: usize, op: Op) -> String {
         Op::Neg(a) => format!("-{}", o(a)),
         Op::Sin(a) => format!("{}.sin()", o(a)),
         Op::Cos(a) => format!("{}.cos()", o(a)),
+        Op::Sqrt(a) => format!("{}.sqrt()", o(a)),
         Op::Const(_) | Op::Input(..) => unreachable!("printed inline"),
     }
 }
@@ -737,7 +738,7 @@ impl Signature {
 /// step's τ `NU`.
 pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
     match input {
-        crate::ir::Input::Q => q_len,
+        crate::ir::Input::Q | crate::ir::Input::Q1 => q_len,
         crate::ir::Input::TauActuated => "NU",
         crate::ir::Input::Fext => "6 * NFEXT",
         crate::ir::Input::Lambda => "NLAMBDA",
@@ -745,7 +746,10 @@ pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
         crate::ir::Input::Active => "NCONTACTS",
         crate::ir::Input::Gains => "2 * NBAUMGARTE",
         crate::ir::Input::ContactRef => "3 * NBAUMGARTE",
-        _ => "NV",
+        crate::ir::Input::Qd
+        | crate::ir::Input::Qdd
+        | crate::ir::Input::Tau
+        | crate::ir::Input::V => "NV",
     }
 }
 
@@ -851,6 +855,8 @@ pub trait Real: Copy + core::ops::Add<Output = Self> + core::ops::Sub<Output = S
     unsafe fn lit(x: f64) -> Self { Self::k(x) }
     fn sin(self) -> Self;
     fn cos(self) -> Self;
+    /// Correctly rounded (IEEE 754), so every type's lanes agree bit for bit.
+    fn sqrt(self) -> Self;
     /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
     /// instruction it would be a slow library call).
     fn mul_add(self, a: Self, b: Self) -> Self;
@@ -871,6 +877,8 @@ impl Real for f64 {
     fn sin(self) -> Self { f64::sin(self) }
     #[inline(always)]
     fn cos(self) -> Self { f64::cos(self) }
+    #[inline(always)]
+    fn sqrt(self) -> Self { f64::sqrt(self) }
 }
 
 impl Real for f32 {
@@ -883,6 +891,8 @@ impl Real for f32 {
     fn sin(self) -> Self { f32::sin(self) }
     #[inline(always)]
     fn cos(self) -> Self { f32::cos(self) }
+    #[inline(always)]
+    fn sqrt(self) -> Self { f32::sqrt(self) }
 }
 
 /// A constant in the kernels: `Real::lit`, sound here because every kernel first fills its
@@ -952,6 +962,8 @@ impl<const N: usize, S: Real> Real for Lanes<N, S> {
     fn sin(self) -> Self { Lanes(self.0.map(S::sin)) }
     #[inline(always)]
     fn cos(self) -> Self { Lanes(self.0.map(S::cos)) }
+    #[inline(always)]
+    fn sqrt(self) -> Self { Lanes(self.0.map(S::sqrt)) }
 }
 "#;
 
@@ -1071,6 +1083,11 @@ impl Real for {name} {{
     fn cos(self) -> Self {{
         {name}::unchecked(self.to_array().map({scalar}::cos))
     }}
+    #[inline(always)]
+    fn sqrt(self) -> Self {{
+        // SAFETY: as for the other operations.
+        {name}(unsafe {{ {}(self.0) }})
+    }}
 }}
 ",
             bin("Add", "add", "add"),
@@ -1080,6 +1097,7 @@ impl Real for {name} {{
             op("sub"),
             op("set1"),
             op("fmadd"),
+            op("sqrt"),
             ty = if scalar == "f64" { "" } else { ", f32" },
             cast = if scalar == "f64" { "" } else { " as f32" },
         );

@@ -24,7 +24,7 @@ use super::{
     output_stores, EntryMeta, Precision, Strategy, Tables, Trig, WgslOptions,
     WORKGROUP_STORAGE_LIMIT,
 };
-use crate::ir::{Function, Id, Input, Op};
+use crate::ir::{Buffer, Function, Id, Op};
 
 /// Operation codes of the table (bits 24..32 of an instruction's first word).
 const ADD: u32 = 0;
@@ -37,6 +37,7 @@ const COS: u32 = 6;
 const COPY: u32 = 7;
 /// Does nothing: pads an invocation's list to its phase's longest.
 const NOP: u32 = 8;
+const SQRT: u32 = 9;
 
 /// Address tags (bits 28..32 of an address; the index is the low 28 bits).
 const WORKGROUP: u32 = 0;
@@ -156,11 +157,10 @@ pub(super) fn emit(
         match f.op(id) {
             Op::Const(c) => address(KONST, tables.konst.get(c, options.precision, robot)?, robot),
             Op::Input(which, j) => {
-                let tag = match which {
-                    Input::Q => Q,
-                    Input::Qd => QD,
-                    // Every input after q and q̇ is packed into u.
-                    _ => U,
+                let tag = match which.buffer() {
+                    Buffer::Q => Q,
+                    Buffer::Qd => QD,
+                    Buffer::U => U,
                 };
                 address(tag, f.packed_u(which, j as usize), robot)
             }
@@ -185,6 +185,7 @@ pub(super) fn emit(
             Op::Neg(a) => (NEG, a, a),
             Op::Sin(a) => (SIN, a, a),
             Op::Cos(a) => (COS, a, a),
+            Op::Sqrt(a) => (SQRT, a, a),
             Op::Const(_) | Op::Input(..) => unreachable!("only operations have a phase"),
         };
         let (a, b) = (operand(a, tables)?, operand(b, tables)?);
@@ -266,7 +267,7 @@ pub(super) fn emit(
          let d = w0 & 16777215u;\n    var v = {zero};\n    switch (w0 >> 24u) {{\n        \
          case {ADD}u: {{ v = x + y; }}\n        case {SUB}u: {{ v = x - y; }}\n        case {MUL}u: {{ v = x * y; }}\n        \
          case {DIV}u: {{ v = x / y; }}\n        case {NEG}u: {{ v = -x; }}\n        case {SIN}u: {{ v = {sin}(x); }}\n        \
-         case {COS}u: {{ v = {cos}(x); }}\n        case {COPY}u: {{\n            out[d * n + s] = x;\n            return;\n        }}\n        default: {{ return; }}\n    }}\n    \
+         case {COS}u: {{ v = {cos}(x); }}\n        case {SQRT}u: {{ v = sqrt(x); }}\n        case {COPY}u: {{\n            out[d * n + s] = x;\n            return;\n        }}\n        default: {{ return; }}\n    }}\n    \
          if (d < {in_workgroup}u) {{\n        {wg}[d] = v;\n    }} else {{\n        scratch[(d - {in_workgroup}u) * n + s] = v;\n    }}\n}}\n"
     );
     let barrier = if spilled > 0 {

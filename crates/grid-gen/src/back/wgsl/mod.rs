@@ -12,7 +12,7 @@ use serde::Serialize;
 
 use super::names::{comment_text, identifier};
 use super::{GeneratedFile, Target};
-use crate::ir::{Function, Id, Input, Module, Op};
+use crate::ir::{Buffer, Function, Id, Input, Module, Op};
 
 /// Invocation layout of the entry points.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
@@ -298,11 +298,10 @@ fn rounded(c: f64, precision: Precision, robot: &str) -> Result<f64, WgslError> 
 }
 
 fn input_buffer(input: Input) -> &'static str {
-    match input {
-        Input::Q => "q",
-        Input::Qd => "qd",
-        // Every input after q and q̇ is packed into u.
-        _ => "u",
+    match input.buffer() {
+        Buffer::Q => "q",
+        Buffer::Qd => "qd",
+        Buffer::U => "u",
     }
 }
 
@@ -325,6 +324,7 @@ fn expression(
         Op::Neg(a) => format!("-({})", o(a)?),
         Op::Sin(a) => format!("{sin}({})", o(a)?),
         Op::Cos(a) => format!("{cos}({})", o(a)?),
+        Op::Sqrt(a) => format!("sqrt({})", o(a)?),
         Op::Const(_) | Op::Input(..) => unreachable!("schedules hold operations only"),
     })
 }

@@ -267,9 +267,15 @@ impl Dynamics<'_> {
     /// Entries name q's; the tangents are built from the configuration the transforms were
     /// (an RK4 stage's, see [`Self::stage_tangents`]).
     pub(super) fn q_seeds(&mut self, k: usize) -> Vec<(Input, usize, Id)> {
+        self.config_seeds(Input::Q, k)
+    }
+
+    /// [`Self::q_seeds`] for the configuration `input` (q, or the Lie-group kernels' q1,
+    /// which is never an RK4 stage's).
+    pub(super) fn config_seeds(&mut self, input: Input, k: usize) -> Vec<(Input, usize, Id)> {
         if let Some(QIndex(i)) = self.model.q_index(CoordIndex(k)) {
             let one = self.g.constant(1.0);
-            return vec![(Input::Q, i, one)];
+            return vec![(input, i, one)];
         }
         let joint = self.model.coordinate_joints()[k].0;
         let group =
@@ -278,15 +284,14 @@ impl Dynamics<'_> {
         let free = self.model.is_free_flyer(group.start);
         let at = if free { 3 } else { self.model.group_q(JointIndex(group.start)).0 };
         let g = &mut self.g;
-        let config = &self.config;
-        let [x, y, z, w] = std::array::from_fn(|c| {
-            config.as_ref().map_or_else(|| g.input(Input::Q, at + c), |q| q[at + c])
-        });
+        let config = self.config.as_ref().filter(|_| input == Input::Q);
+        let [x, y, z, w] =
+            std::array::from_fn(|c| config.map_or_else(|| g.input(input, at + c), |q| q[at + c]));
         if free && member < 3 {
             // Column `member` of the rotation the kernels build (hash-consing shares its nodes).
             let r = sp::quaternion_rotation(g, [x, y, z, w]);
             let column = [r[0][member], r[1][member], r[2][member]];
-            return (0..3).map(|r| (Input::Q, r, column[r])).collect();
+            return (0..3).map(|r| (input, r, column[r])).collect();
         }
         let axis = if free { member - 3 } else { member };
         // ½ (w e_a + v × e_a, −v · e_a) with v = (x, y, z).
@@ -301,7 +306,7 @@ impl Dynamics<'_> {
         dv[c] = g.neg(t);
         let t = g.mul(half, v[axis]);
         dv[3] = g.neg(t);
-        (0..4).map(|e| (Input::Q, at + e, dv[e])).collect()
+        (0..4).map(|e| (input, at + e, dv[e])).collect()
     }
 
     /// The seeds and given node tangents for a forward-mode derivative along `seeds` (a

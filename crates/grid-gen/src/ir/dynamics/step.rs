@@ -80,7 +80,7 @@ fn series(g: &mut Graph, y: Id, m: u32) -> Id {
 /// the full angle's `b`, `d`; not all of them are used by every block), and a free-flyer's
 /// `v` and translation `V v` before q's rotation moves it.
 #[derive(Clone, Copy)]
-struct ExpNodes {
+pub(super) struct ExpNodes {
     omega: V3,
     theta2: Id,
     coefs: [Id; 4],
@@ -226,7 +226,7 @@ impl Dynamics<'_> {
 
     /// [`Self::integrate`] and each exponential's [`ExpNodes`], in the order of the model's
     /// Lie blocks, for [`Self::d_integrate`].
-    fn integrate_recorded(&mut self, w: &[Id]) -> (Vec<Id>, Vec<ExpNodes>) {
+    pub(super) fn integrate_recorded(&mut self, w: &[Id]) -> (Vec<Id>, Vec<ExpNodes>) {
         let mut exps = Vec::new();
         let g = &mut self.g;
         let mut out: Vec<Id> = (0..self.model.nq()).map(|i| g.input(Input::Q, i)).collect();
@@ -274,7 +274,7 @@ impl Dynamics<'_> {
     /// coupling block is taken here by forward mode: `Rᵀ` moves `∂p/∂ω` from q⁺'s parent
     /// into q⁺'s frame). `p`'s coefficients depend on ω only through θ², so their
     /// derivatives along θ² are taken once and each column chains them (`dθ² = 2 ω_i`).
-    fn d_integrate(&mut self, exps: &[ExpNodes]) -> (Mat, Mat) {
+    pub(super) fn d_integrate(&mut self, exps: &[ExpNodes]) -> (Mat, Mat) {
         let nv = self.model.nv();
         let (zero, one) = (self.g.constant(0.0), self.g.constant(1.0));
         let (mut jq, mut jv) = (vec![vec![zero; nv]; nv], vec![vec![zero; nv]; nv]);
