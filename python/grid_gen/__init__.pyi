@@ -65,5 +65,13 @@ class Robot:
         """Forward dynamics qdd, (B, nv)."""
     def fd_grad(self, q: ArrayLike, qd: ArrayLike, tau: ArrayLike, *, out: Optional[Sequence[Array]] = None) -> Tuple[Array, Array, Array]:
         """(qdd, dqdd_dq, dqdd_dqd): (B, nv), (B, nv, nv), (B, nv, nv)."""
+    def integrate(self, q: ArrayLike, v: ArrayLike, *, out: Optional[Array] = None) -> Array:
+        """q (+) v on the configuration manifold (Pinocchio's integrate), (B, nq)."""
+    def dintegrate(self, q: ArrayLike, v: ArrayLike, *, out: Optional[Sequence[Array]] = None) -> Tuple[Array, Array]:
+        """(dq, dv): integrate's Jacobians in the tangent space (dIntegrate ARG0, ARG1), each (B, nv, nv)."""
+    def difference(self, q: ArrayLike, q1: ArrayLike, *, out: Optional[Array] = None) -> Array:
+        """The tangent v with q (+) v = q1 (Pinocchio's difference(q0=q, q1)), (B, nv)."""
+    def ddifference(self, q: ArrayLike, q1: ArrayLike, *, out: Optional[Sequence[Array]] = None) -> Tuple[Array, Array]:
+        """(dq, dq1): difference's Jacobians in the tangent space (dDifference ARG0, ARG1), each (B, nv, nv)."""
     def __getattr__(self, kernel: str) -> Kernel:
         """The frame, force, contact and step kernels the robot was generated with."""

@@ -69,9 +69,11 @@ class Kernel:
         self._masked = "active" in self._at or "gains" in self._at
         # Several outputs come back as a named tuple (`qdd, lam = r` or `r.lam`).
         self._result = collections.namedtuple(f"{self.name}_result", [_field(n) for n, _ in self.outputs]) if len(self.outputs) > 1 else None
-        # Where q's unit quaternions start, when q is the first input (every kernel's).
-        self._quats = [(j, at) for j, at in robot._quaternions] if self.inputs[0][0] == "q" else []
-        self._fast = _native.Caller(self._address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs], [at for _, at in self._quats])
+        # Where the configurations' unit quaternions start: q's (every kernel's first input)
+        # and difference's q1.
+        self._quats = list(robot._quaternions)
+        self._configs = [k for k, (n, _) in enumerate(self.inputs) if n in ("q", "q1")]
+        self._fast = _native.Caller(self._address, robot.precision == "f64", list(self._in_sizes), [list(d) for _, d in self.outputs], [at for _, at in self._quats], self._configs)
         args = ", ".join(self.arguments)
         outs = ", ".join(n for n, _ in self.outputs)
         shapes = "; ".join(f"{n}: (B, {l})" for n, l in self.inputs)
@@ -114,16 +116,16 @@ class Kernel:
                 return f"; {self.name} takes the {r.nu} actuated joints' forces (nu), not one per coordinate (nv = {r.nv}, as fd takes)"
             if got == r.nu and want == r.nv:
                 return f"; {self.name} takes a force per coordinate (nv = {r.nv}, zero on unactuated ones), not the step's nu = {r.nu}"
-        base = {"q": 7, "qd": 6, "qdd": 6, "tau": 6}.get(arg)
+        base = {"q": 7, "q1": 7, "qd": 6, "v": 6, "qdd": 6, "tau": 6}.get(arg)
         if base is not None and not r.floating_base and got == want + base:
             return f"; {got} entries is a floating base's: load the robot with floating_base=True"
         if base is not None and r.floating_base and got == want - base:
             return f"; this robot has a floating base, whose {arg} starts with the base's {base} entries" + (" [x, y, z, qx, qy, qz, qw]" if arg == "q" else "")
         return ""
 
-    def _check_quaternions(self, q: Array, batch: Optional[int]) -> None:
-        """Each unit quaternion of q has norm 1 within 1e-6 (a zero one included): the
-        kernels read them as rotations without normalising."""
+    def _check_quaternions(self, q: Array, batch: Optional[int], arg: str = "q") -> None:
+        """Each unit quaternion of the configuration `arg` has norm 1 within 1e-6 (a zero one
+        included): the kernels read them as rotations without normalising."""
         for joint, at in self._quats:
             quat = np.asarray(q[..., at : at + 4], dtype=np.float64)
             norm = np.sqrt(np.sum(quat * quat, axis=-1))
@@ -133,7 +135,7 @@ class Kernel:
                 where = f" at state {i}" if batch is not None else ""
                 value = float(np.atleast_1d(norm)[i])
                 raise ValueError(
-                    f"{self.name}: `q`{where}: joint `{joint}`'s quaternion q[{at}:{at + 4}] has norm {value:.9g}; "
+                    f"{self.name}: `{arg}`{where}: joint `{joint}`'s quaternion {arg}[{at}:{at + 4}] has norm {value:.9g}; "
                     "a rotation is a unit quaternion [qx, qy, qz, qw] (norm 1 within 1e-6; the identity is [0, 0, 0, 1])"
                 )
 
@@ -234,7 +236,8 @@ class Kernel:
             arrays.append(a)
         n = 1 if batch is None else batch
         if self._quats:
-            self._check_quaternions(arrays[0], batch)
+            for k in self._configs:
+                self._check_quaternions(arrays[k], batch, self.inputs[k][0])
         if "dt" in self._at:
             at = self._at["dt"]
             arrays[at] = self._time_steps(arrays[at], batch)
@@ -289,7 +292,7 @@ class Kernel:
         status = self._fn(n, *in_ptrs, *out_ptrs)
         if status == 3:
             # GRID_GEN_BAD_VALUE: the library's own check (the checks above come first).
-            raise ValueError(f"{name}: `q` at state {robot._bad_state()} holds a quaternion whose norm is off 1 by more than 1e-6 (the kernel library's check)")
+            raise ValueError(f"{name}: `q` or `q1` at state {robot._bad_state()} holds a quaternion whose norm is off 1 by more than 1e-6 (the kernel library's check)" if "q1" in self._at else f"{name}: `q` at state {robot._bad_state()} holds a quaternion whose norm is off 1 by more than 1e-6 (the kernel library's check)")
         if status != 0:
             raise RuntimeError(f"{name}: the kernel library returned status {status}")
         return outs[0] if self._result is None else self._result._make(outs)

@@ -224,9 +224,11 @@ struct Caller {
     f64: bool,
     in_lens: Vec<usize>,
     out_dims: Vec<Vec<usize>>,
-    /// Where each unit quaternion starts in the first input (q): a state whose norm is off
-    /// by more than 1e-6 goes to the Python path, which names it.
+    /// Where each unit quaternion starts in a configuration (q, and `difference`'s q1): a
+    /// state whose norm is off by more than 1e-6 goes to the Python path, which names it.
     quats: Vec<usize>,
+    /// Which inputs are configurations (the first, q, unless told).
+    configs: Vec<usize>,
 }
 
 #[pymethods]
@@ -235,13 +237,14 @@ impl Caller {
     /// this object lives; `f64`: its scalar (else f32); the per-state input lengths and
     /// output shapes, in the entry point's order; where q's quaternions start.
     #[new]
-    #[pyo3(signature = (addr, f64, in_lens, out_dims, quats=Vec::new()))]
+    #[pyo3(signature = (addr, f64, in_lens, out_dims, quats=Vec::new(), configs=vec![0]))]
     fn new(
         addr: usize,
         f64: bool,
         in_lens: Vec<usize>,
         out_dims: Vec<Vec<usize>>,
         quats: Vec<usize>,
+        configs: Vec<usize>,
     ) -> PyResult<Self> {
         let count = in_lens.len() + out_dims.len();
         if addr == 0 || in_lens.is_empty() || out_dims.is_empty() || count > MAX_POINTERS {
@@ -249,10 +252,12 @@ impl Caller {
                 "Caller: a non-null entry point with 1 to {MAX_POINTERS} arrays, not {count}"
             )));
         }
-        if quats.iter().any(|&at| at + 4 > in_lens[0]) {
+        if configs.iter().any(|&c| c >= in_lens.len())
+            || configs.iter().any(|&c| quats.iter().any(|&at| at + 4 > in_lens[c]))
+        {
             return Err(PyValueError::new_err("Caller: a quaternion past the end of q"));
         }
-        Ok(Caller { addr, f64, in_lens, out_dims, quats })
+        Ok(Caller { addr, f64, in_lens, out_dims, quats, configs })
     }
 
     /// The kernel's outputs for these inputs (one array, or a tuple), or None where the
@@ -302,7 +307,7 @@ impl Caller {
             if !values.iter().all(|&x| x.into().is_finite()) {
                 return Ok(None);
             }
-            if count == 0 && !self.quats.is_empty() {
+            if self.configs.contains(&count) && !self.quats.is_empty() {
                 let unit = |state: &[T]| {
                     self.quats.iter().all(|&at| {
                         let n2: f64 = state[at..at + 4].iter().map(|&x| x.into() * x.into()).sum();

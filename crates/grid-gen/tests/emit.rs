@@ -58,8 +58,19 @@ fn urdf_names_cannot_inject_code_or_paths() {
                             let kernel = name.split("_part").next().unwrap();
                             let kernel = kernel.strip_suffix("_into").unwrap_or(kernel);
                             assert!(
-                                ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]
-                                    .contains(&kernel),
+                                [
+                                    "rnea",
+                                    "rnea_grad",
+                                    "mass_matrix",
+                                    "minv",
+                                    "fd",
+                                    "fd_grad",
+                                    "integrate",
+                                    "dintegrate",
+                                    "difference",
+                                    "ddifference"
+                                ]
+                                .contains(&kernel),
                                 "unexpected fn {name}"
                             );
                         }
@@ -92,6 +103,10 @@ fn urdf_names_cannot_inject_code_or_paths() {
             "minv",
             "fd",
             "fd_grad",
+            "integrate",
+            "dintegrate",
+            "difference",
+            "ddifference",
             "mod portable",
             "mod fma"
         ]
@@ -187,6 +202,10 @@ fn urdf_names_cannot_inject_code_into_the_c_abi() {
                         "minv",
                         "fd",
                         "fd_grad",
+                        "integrate",
+                        "dintegrate",
+                        "difference",
+                        "ddifference",
                         "set_threads",
                         "threads",
                         "manifest",

@@ -128,8 +128,9 @@ fn phases_place_every_operation_once_after_its_operands() {
                 let ops = (0..f.nodes.len()).filter(|&i| f.is_operation(Id(i as u32))).count();
                 assert!(p.span() >= ops.div_ceil(workers), "no schedule beats perfect balance");
                 if workers == 1 {
-                    assert_eq!(p.phases.len(), 1, "one worker needs no barrier");
-                } else {
+                    // (A fixed robot's `dintegrate` is constants: no operation, no phase.)
+                    assert_eq!(p.phases.len(), usize::from(ops > 0), "one worker needs no barrier");
+                } else if ops > 1 {
                     assert!(
                         p.span() < ops,
                         "{robot} {}: {workers} workers shorten the schedule ({} of {ops})",

@@ -245,10 +245,11 @@ pub enum AccuracyError {
 
 /// The kernels `accuracy` measures by default: all six, less those M's singularity blocks.
 pub fn default_kernels(model: &Model) -> Vec<KernelKind> {
-    // The step kernels are held to the reference by tests/step.rs; `accuracy` skips them.
+    // The step kernels are held to the reference by tests/step.rs and the Lie-group ones by
+    // tests/lie.rs; `accuracy` skips them.
     KernelKind::for_model(model)
         .into_iter()
-        .filter(|k| (model.singular.is_none() || !k.needs_minv()) && !k.is_step())
+        .filter(|k| (model.singular.is_none() || !k.needs_minv()) && !k.is_step() && !k.is_lie())
         .collect()
 }
 
@@ -304,10 +305,14 @@ pub fn measure<'a>(
         let (Some(exact_f), Some(f)) = (exact.function(kind), fast.function(kind)) else {
             continue;
         };
-        if kind.is_step() {
+        if kind.is_step() || kind.is_lie() {
             let skipped = Some(
-                "the step kernels take the actuated joints' forces; tests/step.rs measures them"
-                    .to_string(),
+                if kind.is_step() {
+                    "the step kernels take the actuated joints' forces; tests/step.rs measures them"
+                } else {
+                    "the Lie-group kernels take a second configuration or a tangent; tests/lie.rs measures them"
+                }
+                .to_string(),
             );
             let ops = f
                 .nodes
