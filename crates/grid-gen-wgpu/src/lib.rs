@@ -1070,7 +1070,7 @@ pub fn evaluate(
         KernelKind::Minv,
         KernelKind::FdGrad,
     ];
-    kernels.extend(KernelKind::ALL.into_iter().filter(|k| k.is_frame()));
+    kernels.extend(KernelKind::ALL.into_iter().filter(|k| k.is_frame() || k.is_lie()));
     let lower = grid_gen::ir::LowerOptions { kernels, ..routes.clone() };
     let module = grid_gen::ir::lower(model, gravity, &lower)
         .map_err(grid_gen::generate::GenerateError::from)?;

@@ -274,8 +274,20 @@ fn check_model_within(
     // The step kernels take the actuated joints' τ: each state's first nu entries of u.
     let nu = model.nu();
     let u_step: Vec<f64> = states.iter().flat_map(|s| s[2][..nu].iter().copied()).collect();
+    // `difference` takes a second configuration in u: each state's q moved by its q̇ (whose
+    // rotations reach 3 rad and more, the logarithm's far range), so that it returns q̇.
+    let q1s: Vec<Vec<f64>> =
+        states.iter().map(|[q, qd, _]| reference::integrate(model, q, qd)).collect();
+    let u_q1: Vec<f64> = q1s.concat();
     for f in lowered.functions.iter().filter(|f| kernels.contains(&f.kind)) {
-        let u = if f.kind.is_step() { &u_step } else { &u };
+        let takes_q1 = f.inputs().contains(&grid_gen::ir::Input::Q1);
+        let u = if f.kind.is_step() {
+            &u_step
+        } else if takes_q1 {
+            &u_q1
+        } else {
+            &u
+        };
         for &strategy in strategies {
             let kernel = gpu.kernel(&shader, &strategy.entry(f.kind.name())).unwrap();
             let t0 = std::time::Instant::now();
@@ -303,7 +315,13 @@ fn check_model_within(
             );
             let (mut worst, mut worst_ir, mut graph) = (0.0f64, 0.0f64, 0.0f64);
             for (s, [q, qd, u]) in states.iter().enumerate() {
-                let u = if f.kind.is_step() { &u[..nu] } else { &u[..] };
+                let u = if f.kind.is_step() {
+                    &u[..nu]
+                } else if takes_q1 {
+                    &q1s[s][..]
+                } else {
+                    &u[..]
+                };
                 let want = reference_outputs(f.kind, model, q, qd, u, reference::DEFAULT_GRAVITY);
                 // The IR interpreter on the same graph: the backend prints it faithfully.
                 let interpreted = f.eval(&kernel_args(f.inputs(), q, qd, u));

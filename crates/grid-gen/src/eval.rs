@@ -19,6 +19,12 @@ pub struct State {
     pub qdd: Option<Vec<f64>>,
     #[serde(default, deserialize_with = "some_numbers")]
     pub tau: Option<Vec<f64>>,
+    /// A tangent vector (nv entries): `integrate` from q along it, and its Jacobians.
+    #[serde(default, deserialize_with = "some_numbers")]
+    pub v: Option<Vec<f64>>,
+    /// A second configuration (nq entries): `difference` from q to it, and its Jacobians.
+    #[serde(default, deserialize_with = "some_numbers")]
+    pub q1: Option<Vec<f64>>,
     /// External forces `[fx, fy, fz, tx, ty, tz]` in the joint's frame (Pinocchio's
     /// `fext`), keyed by the name of the joint that moves the body.
     #[serde(default)]
@@ -176,6 +182,28 @@ pub struct Output {
     /// derivatives (the state's `contacts` are not read: λ is solved for).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub contact_fd: Option<ContactOutput>,
+    /// With `v`: `q ⊕ v` and its Jacobians (Pinocchio's `integrate`, `dIntegrate`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub integrate: Option<IntegrateOutput>,
+    /// With `q1`: `q1 ⊖ q` and its Jacobians (Pinocchio's `difference`, `dDifference`).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub difference: Option<DifferenceOutput>,
+}
+
+/// `integrate(q, v)` and its Jacobians in the tangent space (`ARG0`, `ARG1`).
+#[derive(Clone, Debug, Serialize)]
+pub struct IntegrateOutput {
+    pub q_next: Vec<f64>,
+    pub dq: Matrix,
+    pub dv: Matrix,
+}
+
+/// `difference(q, q1)` and its Jacobians in the tangent space (`ARG0`, `ARG1`).
+#[derive(Clone, Debug, Serialize)]
+pub struct DifferenceOutput {
+    pub v: Vec<f64>,
+    pub dq: Matrix,
+    pub dq1: Matrix,
 }
 
 /// Rigid-contact forward dynamics at one state (see [`crate::reference::contact_fd`]):
@@ -464,25 +492,31 @@ pub enum EvalError {
     #[error("the states file is a bare array: write it as an object, {{\"states\": [{{\"q\": [...], \"qd\": [...]}}, ...]}}")]
     BareArray,
     #[error(
-        "state {index}: `q` has {found} entries, expected {expected}: the floating base's position and quaternion \
+        "state {index}: `{field}` has {found} entries, expected {expected}: the floating base's position and quaternion \
          `[x, y, z, qx, qy, qz, qw]`, then one per joint after the base (nq = nv + 1, Pinocchio's layout)"
     )]
-    FloatingLength { index: usize, found: usize, expected: usize },
+    FloatingLength { index: usize, field: &'static str, found: usize, expected: usize },
     #[error(
-        "state {index}: `q` has {found} entries, expected {expected}: one per joint, with a quaternion `[qx, qy, qz, qw]` \
+        "state {index}: `{field}` has {found} entries, expected {expected}: one per joint, with a quaternion `[qx, qy, qz, qw]` \
          for each spherical joint ({layout}) (Pinocchio's layout)"
     )]
-    SphericalLength { index: usize, found: usize, expected: usize, layout: String },
+    SphericalLength {
+        index: usize,
+        field: &'static str,
+        found: usize,
+        expected: usize,
+        layout: String,
+    },
     #[error(
-        "state {index}: the base quaternion `q[3..7]` has norm {norm}, not 1 (more than {QUATERNION_TOLERANCE:e} off): \
+        "state {index}: the base quaternion `{field}[3..7]` has norm {norm}, not 1 (more than {QUATERNION_TOLERANCE:e} off): \
          is it stored `[qx, qy, qz, qw]`, after the position `[x, y, z]`?"
     )]
-    Quaternion { index: usize, norm: f64 },
+    Quaternion { index: usize, field: &'static str, norm: f64 },
     #[error(
-        "state {index}: the quaternion of spherical joint `{joint}`, `q[{at}..{end}]`, has norm {norm}, not 1 (more than \
-         {QUATERNION_TOLERANCE:e} off): is it stored `[qx, qy, qz, qw]`?", end = at + 4
+        "state {index}: the quaternion of spherical joint `{joint}`, `{field}[{at}..{end}]`, has norm {norm}, not 1 (more \
+         than {QUATERNION_TOLERANCE:e} off): is it stored `[qx, qy, qz, qw]`?", end = at + 4
     )]
-    SphericalQuaternion { index: usize, joint: String, at: usize, norm: f64 },
+    SphericalQuaternion { index: usize, field: &'static str, joint: String, at: usize, norm: f64 },
     #[error("state {index}: `{field}[{entry}]` is not finite")]
     NotFinite { index: usize, field: &'static str, entry: usize },
     #[error(
@@ -593,29 +627,34 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
             ("qd", Some(&s.qd)),
             ("qdd", s.qdd.as_ref()),
             ("tau", s.tau.as_ref()),
+            ("v", s.v.as_ref()),
+            ("q1", s.q1.as_ref()),
         ];
         for (field, v) in fields {
             let Some(v) = v else { continue };
-            if field == "q" && !model.spherical.is_empty() && v.len() != model.nq() {
+            let config = field == "q" || field == "q1";
+            if config && !model.spherical.is_empty() && v.len() != model.nq() {
                 return Err(EvalError::SphericalLength {
                     index,
+                    field,
                     found: v.len(),
                     expected: model.nq(),
                     layout: spherical_layout(model),
                 });
             }
-            if field == "q" && model.floating && v.len() != model.nq() {
+            if config && model.floating && v.len() != model.nq() {
                 return Err(EvalError::FloatingLength {
                     index,
+                    field,
                     found: v.len(),
                     expected: model.nq(),
                 });
             }
-            if v.len() != n && !(field == "q" && model.nq() != n) {
+            if v.len() != n && !(config && model.nq() != n) {
                 // q has one entry per joint here; the others one per velocity coordinate,
                 // which a floating base's six make more than its joints.
                 let unit = match (field, model.floating) {
-                    ("q", _) => "joints",
+                    ("q" | "q1", _) => "joints",
                     (_, true) => {
                         "velocity coordinates (nv: the floating base's six, then one per joint)"
                     }
@@ -627,22 +666,26 @@ pub fn check_states(model: &Model, file: &StatesFile) -> Result<(), EvalError> {
                 return Err(EvalError::NotFinite { index, field, entry });
             }
         }
-        if model.floating {
-            let norm = s.q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
-            if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
-                return Err(EvalError::Quaternion { index, norm });
+        for (field, q) in [("q", Some(&s.q)), ("q1", s.q1.as_ref())] {
+            let Some(q) = q else { continue };
+            if model.floating {
+                let norm = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+                if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
+                    return Err(EvalError::Quaternion { index, field, norm });
+                }
             }
-        }
-        for &first in &model.spherical {
-            let at = model.group_q(first).0;
-            let norm = s.q[at..at + 4].iter().map(|x| x * x).sum::<f64>().sqrt();
-            if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
-                return Err(EvalError::SphericalQuaternion {
-                    index,
-                    joint: model.joint_name(first.0).to_string(),
-                    at,
-                    norm,
-                });
+            for &first in &model.spherical {
+                let at = model.group_q(first).0;
+                let norm = q[at..at + 4].iter().map(|x| x * x).sum::<f64>().sqrt();
+                if (norm - 1.0).abs() > QUATERNION_TOLERANCE {
+                    return Err(EvalError::SphericalQuaternion {
+                        index,
+                        field,
+                        joint: model.joint_name(first.0).to_string(),
+                        at,
+                        norm,
+                    });
+                }
             }
         }
         if let (true, Some(entry)) =
@@ -877,6 +920,22 @@ pub fn evaluate(
                 drnea_dlambda: None,
                 dfd_dlambda: None,
                 contact_fd: contact_output(&fm, s, index, &fext, gravity)?,
+                integrate: s.v.as_ref().map(|v| {
+                    let (dq, dv) = reference::d_integrate(model, v);
+                    IntegrateOutput {
+                        q_next: reference::integrate(model, &s.q, v),
+                        dq: rows(&dq),
+                        dv: rows(&dv),
+                    }
+                }),
+                difference: s.q1.as_ref().map(|q1| {
+                    let (dq, dq1) = reference::d_difference(model, &s.q, q1);
+                    DifferenceOutput {
+                        v: reference::difference(model, &s.q, q1),
+                        dq: rows(&dq),
+                        dq1: rows(&dq1),
+                    }
+                }),
             };
             if fm.nfext() + fm.nlambda() > 0 {
                 let d = reference::force_derivatives(&fm, &s.q);
@@ -1069,6 +1128,8 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
             drnea_dlambda: None,
             dfd_dlambda: None,
             contact_fd: None,
+            integrate: None,
+            difference: None,
         })
         .collect();
     /// The input a kernel takes from a state (q̈ or τ), if the state has it.
@@ -1119,6 +1180,37 @@ pub fn evaluate_with<E: std::error::Error + 'static>(
                     st.dfd_dq = Some(matrix(&values[nv..nv + m]));
                     st.dfd_dqd = Some(matrix(&values[nv + m..nv + 2 * m]));
                 }
+            }
+        }
+    }
+    // The Lie-group kernels: `v` rides in q̇'s place, `q1` in u's.
+    let with_v: Vec<usize> = all.iter().copied().filter(|&i| file.states[i].v.is_some()).collect();
+    let with_q1: Vec<usize> =
+        all.iter().copied().filter(|&i| file.states[i].q1.is_some()).collect();
+    for (value, jacobians, chosen) in [
+        (KernelKind::Integrate, KernelKind::DIntegrate, &with_v),
+        (KernelKind::Difference, KernelKind::DDifference, &with_q1),
+    ] {
+        if chosen.is_empty() {
+            continue;
+        }
+        let q = flat(chosen, &|s: &State| Some(&s.q));
+        let (qd, u) = if value == KernelKind::Integrate {
+            (flat(chosen, &|s: &State| s.v.as_ref()), Vec::new())
+        } else {
+            (Vec::new(), flat(chosen, &|s: &State| s.q1.as_ref()))
+        };
+        let out = run(value, &q, &qd, &u).map_err(BackendEvalError::Backend)?;
+        let d = run(jacobians, &q, &qd, &u).map_err(BackendEvalError::Backend)?;
+        let (per, m) = (out.len() / chosen.len(), nv * nv);
+        for (k, &i) in chosen.iter().enumerate() {
+            let x = out[k * per..(k + 1) * per].to_vec();
+            let j = &d[k * 2 * m..(k + 1) * 2 * m];
+            let (a, b) = (matrix(&j[..m]), matrix(&j[m..]));
+            if value == KernelKind::Integrate {
+                states[i].integrate = Some(IntegrateOutput { q_next: x, dq: a, dv: b });
+            } else {
+                states[i].difference = Some(DifferenceOutput { v: x, dq: a, dq1: b });
             }
         }
     }

@@ -158,6 +158,14 @@ fn a_numerically_singular_mass_matrix_is_named_not_computed() {
     );
     let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
     let kinds: Vec<KernelKind> = module.functions.iter().map(|f| f.kind).collect();
-    let lie = [KernelKind::Integrate, KernelKind::DIntegrate, KernelKind::Difference, KernelKind::DDifference];
-    assert_eq!(kinds, [&[KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix][..], &lie].concat());
+    let lie = [
+        KernelKind::Integrate,
+        KernelKind::DIntegrate,
+        KernelKind::Difference,
+        KernelKind::DDifference,
+    ];
+    assert_eq!(
+        kinds,
+        [&[KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix][..], &lie].concat()
+    );
 }

@@ -109,7 +109,10 @@ fn eval_checks_the_length_and_the_quaternion() {
     );
     // nv entries instead of nq.
     let e = evaluate(&model, &parse_states(&state(&q[..18])).unwrap(), g).unwrap_err();
-    assert!(matches!(e, EvalError::FloatingLength { index: 0, found: 18, expected: 19 }), "{e}");
+    assert!(
+        matches!(e, EvalError::FloatingLength { index: 0, field: "q", found: 18, expected: 19 }),
+        "{e}"
+    );
     assert!(e.to_string().contains("[x, y, z, qx, qy, qz, qw]"), "{e}");
     // A quaternion far from unit (here: all zero, a missing orientation) is refused...
     let mut zero = q.clone();

@@ -143,8 +143,16 @@ fn a_singular_mass_matrix_blocks_only_the_kernels_that_need_its_inverse() {
     assert_eq!(model.singular.as_deref(), Some("j2"));
     let module = ir::lower(&model, reference::DEFAULT_GRAVITY, &LowerOptions::default()).unwrap();
     let kinds: Vec<KernelKind> = module.functions.iter().map(|f| f.kind).collect();
-    let lie = [KernelKind::Integrate, KernelKind::DIntegrate, KernelKind::Difference, KernelKind::DDifference];
-    assert_eq!(kinds, [&[KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix][..], &lie].concat());
+    let lie = [
+        KernelKind::Integrate,
+        KernelKind::DIntegrate,
+        KernelKind::Difference,
+        KernelKind::DDifference,
+    ];
+    assert_eq!(
+        kinds,
+        [&[KernelKind::Rnea, KernelKind::RneaGrad, KernelKind::MassMatrix][..], &lie].concat()
+    );
     let mut rng = Rng(17);
     let n = model.nv();
     for _ in 0..3 {

@@ -13,8 +13,12 @@ use grid_gen_test_support::*;
 /// step is exact to rounding, so they agree to a few hundred ulps of the largest entry.
 const TOL: f64 = 1e-12;
 
-const LIE: [KernelKind; 4] =
-    [KernelKind::Integrate, KernelKind::DIntegrate, KernelKind::Difference, KernelKind::DDifference];
+const LIE: [KernelKind; 4] = [
+    KernelKind::Integrate,
+    KernelKind::DIntegrate,
+    KernelKind::Difference,
+    KernelKind::DDifference,
+];
 
 fn cases() -> Vec<(&'static str, Model)> {
     let fixtures = repo().join("tests/fixtures");
@@ -98,7 +102,12 @@ fn lie_group_kernels_match_the_reference() {
                     let e = if case == 0 { (&got - want).amax() } else { rel_err(&got, want) };
                     worst = worst.max(e);
                     checked += 1;
-                    assert!(e < TOL, "{name} θ = {theta} {}.{}: {e:.2e}\n{got:?}\n{want}", f.kind, o.name);
+                    assert!(
+                        e < TOL,
+                        "{name} θ = {theta} {}.{}: {e:.2e}\n{got:?}\n{want}",
+                        f.kind,
+                        o.name
+                    );
                 }
             }
             // difference undoes integrate (angles below π).
@@ -197,4 +206,42 @@ fn quaternion_starts(m: &Model) -> Vec<usize> {
             grid_gen::model::LieBlock::Scalar { .. } => None,
         })
         .collect()
+}
+
+/// `eval` gives `integrate` and `difference` where a state has `v` and `q1`, and names
+/// `q1` in its errors as it names `q`.
+#[test]
+fn eval_gives_the_lie_group_operations_and_checks_q1() {
+    use grid_gen::eval::{evaluate, parse_states, EvalError};
+    let model = load_urdf(&repo().join("tests/fixtures/ball_arm.urdf"), true);
+    let g = reference::DEFAULT_GRAVITY;
+    let mut rng = Rng(58);
+    let (q, q1) = (random_q(&model, &mut rng), random_q(&model, &mut rng));
+    let v = rng.vec(model.nv(), -1.0, 1.0);
+    let json = |q1: &[f64]| {
+        format!(
+            r#"{{"states": [{{"q": {q:?}, "qd": {qd:?}, "v": {v:?}, "q1": {q1:?}}}, {{"q": {q:?}, "qd": {qd:?}}}]}}"#,
+            qd = vec![0.0; model.nv()]
+        )
+    };
+    let out = evaluate(&model, &parse_states(&json(&q1)).unwrap(), g).unwrap();
+    let (i, d) =
+        (out.states[0].integrate.as_ref().unwrap(), out.states[0].difference.as_ref().unwrap());
+    // eval reads q's quaternions normalised (see tests/floating.rs): equal to rounding.
+    let close = |a: &[f64], b: &[f64]| rel_err(&col(a), &col(b)) < 1e-14;
+    assert!(close(&i.q_next, &reference::integrate(&model, &q, &v)));
+    assert!(close(&d.v, &reference::difference(&model, &q, &q1)));
+    let (dq, dq1) = reference::d_difference(&model, &q, &q1);
+    assert!(
+        (d.dq[1][2] - dq[(1, 2)]).abs() < 1e-14 && (d.dq1[4][3] - dq1[(4, 3)]).abs() < 1e-14,
+        "row-major"
+    );
+    assert!(out.states[1].integrate.is_none() && out.states[1].difference.is_none());
+    let mut bad = q1.clone();
+    bad[3..7].copy_from_slice(&[0.0; 4]);
+    let e = evaluate(&model, &parse_states(&json(&bad)).unwrap(), g).unwrap_err();
+    assert!(matches!(e, EvalError::Quaternion { index: 0, field: "q1", .. }), "{e}");
+    assert!(e.to_string().contains("`q1[3..7]`"), "{e}");
+    let e = evaluate(&model, &parse_states(&json(&q1[..q1.len() - 1])).unwrap(), g).unwrap_err();
+    assert!(e.to_string().contains("`q1` has"), "{e}");
 }

@@ -189,7 +189,9 @@ fn a_static_scene_compiles_the_velocity_terms_out() {
     let zero = vec![0.0; n];
     let mut rng = Rng(21);
     // The Lie-group kernels take no velocity (their `v` is a tangent, not q̇).
-    let dynamics = |m: &ir::Module| m.functions.iter().filter(|f| !f.kind.is_lie()).cloned().collect::<Vec<_>>();
+    let dynamics = |m: &ir::Module| {
+        m.functions.iter().filter(|f| !f.kind.is_lie()).cloned().collect::<Vec<_>>()
+    };
     for (fa, fb) in dynamics(&a).iter().zip(&dynamics(&b)) {
         // No kernel reads q̇ any more, and the q̇-gradients are constant zeros.
         assert!(

@@ -95,6 +95,8 @@ pub fn random_states(
                 qd,
                 qdd: Some(qdd),
                 tau,
+                v: None,
+                q1: None,
                 fext: Default::default(),
                 contacts: Default::default(),
                 // The accuracy study leaves the step kernels out.

@@ -448,11 +448,7 @@ impl Function {
 
     /// Entries of the packed `u` ([`Self::packed_u`]) per state.
     pub fn packed_u_len(&self) -> usize {
-        self.inputs
-            .iter()
-            .filter(|i| i.buffer() == Buffer::U)
-            .map(|i| i.len(&self.dims))
-            .sum()
+        self.inputs.iter().filter(|i| i.buffer() == Buffer::U).map(|i| i.len(&self.dims)).sum()
     }
 }
 

@@ -12,10 +12,10 @@ mod crba;
 mod fd;
 mod forces;
 mod frames;
+mod lie;
 mod minv;
 mod rnea;
 mod rnea_derivatives;
-mod lie;
 mod step;
 
 pub use aba::{aba, aba_with};

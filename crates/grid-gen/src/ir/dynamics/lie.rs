@@ -85,9 +85,8 @@ fn quaternion_log(g: &mut Graph, r: [Id; 4]) -> Log {
     let vv = g.dot(&v, &v);
     let cc = g.mul(c, c);
     let t2 = g.div(vv, cc);
-    let signs: Vec<f64> = (0..ATAN_TERMS)
-        .map(|n| if n % 2 == 0 { 1.0 } else { -1.0 } / (2 * n + 1) as f64)
-        .collect();
+    let signs: Vec<f64> =
+        (0..ATAN_TERMS).map(|n| if n % 2 == 0 { 1.0 } else { -1.0 } / (2 * n + 1) as f64).collect();
     let atanc = polynomial(g, t2, &signs);
     let factor = k(g, 2f64.powi(HALVINGS as i32 + 1));
     let f = g.div(atanc, c);
