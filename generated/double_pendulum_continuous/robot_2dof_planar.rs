@@ -17,6 +17,10 @@
 //   by the O(nv) articulated-body algorithm.
 // - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics and its gradient `-M^-1 dc/du`
 //   at that qdd (the function's doc says how qdd and M^-1 are formed).
+// - `integrate(q, v) -> q_next`: `q (+) v`, q on the manifold (Pinocchio's `integrate`).
+// - `dintegrate(q, v) -> (dq, dv)`: its Jacobians with respect to q and v, in the tangent space.
+// - `difference(q, q1) -> v`: the tangent v with `q (+) v = q1` (Pinocchio's `difference`).
+// - `ddifference(q, q1) -> (dq, dq1)`: its Jacobians with respect to q and q1, in the tangent space.
 
 /// The robot's name in its URDF.
 #[allow(dead_code)]
@@ -58,6 +62,8 @@ pub trait Real: Copy + core::ops::Add<
     }
     fn sin(self) -> Self;
     fn cos(self) -> Self;
+    /// Correctly rounded (IEEE 754), so every type's lanes agree bit for bit.
+    fn sqrt(self) -> Self;
     /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
     /// instruction it would be a slow library call).
     fn mul_add(self, a: Self, b: Self) -> Self;
@@ -85,6 +91,10 @@ impl Real for f64 {
     fn cos(self) -> Self {
         f64::cos(self)
     }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f64::sqrt(self)
+    }
 }
 impl Real for f32 {
     const IS_F32: bool = true;
@@ -103,6 +113,10 @@ impl Real for f32 {
     #[inline(always)]
     fn cos(self) -> Self {
         f32::cos(self)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f32::sqrt(self)
     }
 }
 /// A constant in the kernels: `Real::lit`, sound here because every kernel first fills its
@@ -173,6 +187,10 @@ impl<const N: usize, S: Real> Real for Lanes<N, S> {
     #[inline(always)]
     fn cos(self) -> Self {
         Lanes(self.0.map(S::cos))
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        Lanes(self.0.map(S::sqrt))
     }
 }
 /// Whether this CPU runs the [`fma`] copy (x86-64 with AVX2 and FMA, detected once and
@@ -303,6 +321,10 @@ impl Real for F64x4 {
     fn cos(self) -> Self {
         F64x4::unchecked(self.to_array().map(f64::cos))
     }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_sqrt_pd(self.0) })
+    }
 }
 /// 8 f32 states per call in one 256-bit register (`__m256`): what `Lanes<8, f32>` computes,
 /// bit for bit, but each operation is one vector instruction, where `Lanes` leaves the
@@ -423,6 +445,10 @@ impl Real for F32x8 {
     fn cos(self) -> Self {
         F32x8::unchecked(self.to_array().map(f32::cos))
     }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_sqrt_ps(self.0) })
+    }
 }
 /// Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.
 ///
@@ -518,6 +544,67 @@ pub fn fd_grad<T: Real>(
         return (qdd, dqdd_dq, dqdd_dqd);
     }
     portable::fd_grad(q, qd, tau)
+}
+/// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.
+///
+/// Runs [`fma::integrate`] where [`has_fma`], else [`portable::integrate`].
+#[inline]
+#[allow(dead_code, clippy::type_complexity)]
+pub fn integrate<T: Real>(q: &[T; NV], v: &[T; NV]) -> [T; NQ] {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        let mut q_next = [T::k(0.0); NQ];
+        unsafe { fma::integrate_into(q, v, &mut q_next) };
+        return q_next;
+    }
+    portable::integrate(q, v)
+}
+/// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`).
+///
+/// Runs [`fma::dintegrate`] where [`has_fma`], else [`portable::dintegrate`].
+#[inline]
+#[allow(dead_code, clippy::type_complexity)]
+pub fn dintegrate<T: Real>(q: &[T; NV], v: &[T; NV]) -> ([[T; NV]; NV], [[T; NV]; NV]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        let mut dq = [[T::k(0.0); NV]; NV];
+        let mut dv = [[T::k(0.0); NV]; NV];
+        unsafe { fma::dintegrate_into(q, v, &mut dq, &mut dv) };
+        return (dq, dv);
+    }
+    portable::dintegrate(q, v)
+}
+/// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`).
+///
+/// Runs [`fma::difference`] where [`has_fma`], else [`portable::difference`].
+#[inline]
+#[allow(dead_code, clippy::type_complexity)]
+pub fn difference<T: Real>(q: &[T; NV], q1: &[T; NV]) -> [T; NV] {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        let mut v = [T::k(0.0); NV];
+        unsafe { fma::difference_into(q, q1, &mut v) };
+        return v;
+    }
+    portable::difference(q, q1)
+}
+/// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`).
+///
+/// Runs [`fma::ddifference`] where [`has_fma`], else [`portable::ddifference`].
+#[inline]
+#[allow(dead_code, clippy::type_complexity)]
+pub fn ddifference<T: Real>(
+    q: &[T; NV],
+    q1: &[T; NV],
+) -> ([[T; NV]; NV], [[T; NV]; NV]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        let mut dq = [[T::k(0.0); NV]; NV];
+        let mut dq1 = [[T::k(0.0); NV]; NV];
+        unsafe { fma::ddifference_into(q, q1, &mut dq, &mut dq1) };
+        return (dq, dq1);
+    }
+    portable::ddifference(q, q1)
 }
 /// The kernels for any target: separate multiplies and adds.
 pub mod portable {
@@ -1130,6 +1217,58 @@ pub mod portable {
         dqdd_dqd[1][1] = t213;
         (qdd, dqdd_dq, dqdd_dqd)
     }
+    /// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.
+    #[inline]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub fn integrate<T: Real>(q: &[T; NV], v: &[T; NV]) -> [T; NQ] {
+        let mut q_next = [T::k(0.0); NQ];
+        let t4 = q[0] + v[0];
+        q_next[0] = t4;
+        let t5 = q[1] + v[1];
+        q_next[1] = t5;
+        q_next
+    }
+    /// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`).
+    #[inline]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub fn dintegrate<T: Real>(
+        q: &[T; NV],
+        v: &[T; NV],
+    ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
+        let mut dq = [[T::k(0.0); NV]; NV];
+        let mut dv = [[T::k(0.0); NV]; NV];
+        dq[0][0] = lit::<T>(1.0);
+        dq[1][1] = lit::<T>(1.0);
+        dv[0][0] = lit::<T>(1.0);
+        dv[1][1] = lit::<T>(1.0);
+        (dq, dv)
+    }
+    /// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`).
+    #[inline]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub fn difference<T: Real>(q: &[T; NV], q1: &[T; NV]) -> [T; NV] {
+        let mut v = [T::k(0.0); NV];
+        let t4 = q1[0] - q[0];
+        v[0] = t4;
+        let t5 = q1[1] - q[1];
+        v[1] = t5;
+        v
+    }
+    /// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`).
+    #[inline]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub fn ddifference<T: Real>(
+        q: &[T; NV],
+        q1: &[T; NV],
+    ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
+        let mut dq = [[T::k(0.0); NV]; NV];
+        let mut dq1 = [[T::k(0.0); NV]; NV];
+        dq[0][0] = lit::<T>(-1.0);
+        dq[1][1] = lit::<T>(-1.0);
+        dq1[0][0] = lit::<T>(1.0);
+        dq1[1][1] = lit::<T>(1.0);
+        (dq, dq1)
+    }
 }
 /// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).
 /// Calling them on a CPU without those features is undefined behaviour; the functions
@@ -1678,5 +1817,107 @@ pub mod fma {
         let t212 = t92 * t210;
         let t213 = T::mul_add(lit::<T>(-219.4013895236754), t163, t212);
         dqdd_dqd[1][1] = t213;
+    }
+    /// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub fn integrate<T: Real>(q: &[T; NV], v: &[T; NV]) -> [T; NQ] {
+        let mut q_next = [T::k(0.0); NQ];
+        integrate_into(q, v, &mut q_next);
+        q_next
+    }
+    /// [`integrate`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn integrate_into<T: Real>(
+        q: &[T; NV],
+        v: &[T; NV],
+        q_next: &mut [T; NQ],
+    ) {
+        let t4 = q[0] + v[0];
+        q_next[0] = t4;
+        let t5 = q[1] + v[1];
+        q_next[1] = t5;
+    }
+    /// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub fn dintegrate<T: Real>(
+        q: &[T; NV],
+        v: &[T; NV],
+    ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
+        let mut dq = [[T::k(0.0); NV]; NV];
+        let mut dv = [[T::k(0.0); NV]; NV];
+        dintegrate_into(q, v, &mut dq, &mut dv);
+        (dq, dv)
+    }
+    /// [`dintegrate`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn dintegrate_into<T: Real>(
+        q: &[T; NV],
+        v: &[T; NV],
+        dq: &mut [[T; NV]; NV],
+        dv: &mut [[T; NV]; NV],
+    ) {
+        dq[0][0] = lit::<T>(1.0);
+        dq[1][1] = lit::<T>(1.0);
+        dv[0][0] = lit::<T>(1.0);
+        dv[1][1] = lit::<T>(1.0);
+    }
+    /// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub fn difference<T: Real>(q: &[T; NV], q1: &[T; NV]) -> [T; NV] {
+        let mut v = [T::k(0.0); NV];
+        difference_into(q, q1, &mut v);
+        v
+    }
+    /// [`difference`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn difference_into<T: Real>(q: &[T; NV], q1: &[T; NV], v: &mut [T; NV]) {
+        let t4 = q1[0] - q[0];
+        v[0] = t4;
+        let t5 = q1[1] - q[1];
+        v[1] = t5;
+    }
+    /// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub fn ddifference<T: Real>(
+        q: &[T; NV],
+        q1: &[T; NV],
+    ) -> ([[T; NV]; NV], [[T; NV]; NV]) {
+        let mut dq = [[T::k(0.0); NV]; NV];
+        let mut dq1 = [[T::k(0.0); NV]; NV];
+        ddifference_into(q, q1, &mut dq, &mut dq1);
+        (dq, dq1)
+    }
+    /// [`ddifference`] into outputs that start at zero, set by `T::k(0.0)` (which has run the
+    /// CPU check that makes `lit` sound for the SIMD types).
+    #[inline]
+    #[target_feature(enable = "avx2,fma")]
+    #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+    pub(super) fn ddifference_into<T: Real>(
+        q: &[T; NV],
+        q1: &[T; NV],
+        dq: &mut [[T; NV]; NV],
+        dq1: &mut [[T; NV]; NV],
+    ) {
+        dq[0][0] = lit::<T>(-1.0);
+        dq[1][1] = lit::<T>(-1.0);
+        dq1[0][0] = lit::<T>(1.0);
+        dq1[1][1] = lit::<T>(1.0);
     }
 }

@@ -45,12 +45,16 @@
 //   minv(q) -> minv: minv (144)
 //   fd(q, qd, tau) -> qdd: qdd (12)
 //   fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd): qdd (12), dqdd_dq (144), dqdd_dqd (144)
+//   integrate(q, v) -> q_next: q_next (12)
+//   dintegrate(q, v) -> (dq, dv): dq (144), dv (144)
+//   difference(q, q1) -> v: v (12)
+//   ddifference(q, q1) -> (dq, dq1): dq (144), dq1 (144)
 //
 // Read by grid-gen's runtime (crates/grid-gen-wgpu):
 // nv: 12
 // precision: f32
 // trig: accurate
-// tables: prog=78616 konst=76
+// tables: prog=81316 konst=76
 // entry: rnea kernel=rnea strategy=thread outputs=12 scratch=78 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=2 statements=1606 functions=4
 // entry: rnea_coop kernel=rnea strategy=cooperative outputs=12 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=1840 phases=25 stages=1 statements=1414 functions=3
 // entry: rnea_grad kernel=rnea_grad strategy=thread outputs=288 scratch=514 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=5 statements=5829 functions=10
@@ -63,6 +67,14 @@
 // entry: fd_coop kernel=fd strategy=cooperative outputs=12 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=2248 phases=56 stages=1 statements=2790 functions=3
 // entry: fd_grad kernel=fd_grad strategy=thread outputs=300 scratch=647 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=6 statements=7621 functions=12
 // entry: fd_grad_coop kernel=fd_grad strategy=cooperative outputs=300 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=4424 phases=59 stages=1 statements=5788 functions=3
+// entry: integrate kernel=integrate strategy=thread outputs=12 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=48 functions=2
+// entry: integrate_coop kernel=integrate strategy=cooperative outputs=12 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=48 phases=2 stages=1 statements=24 functions=3
+// entry: dintegrate kernel=dintegrate strategy=thread outputs=288 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=288 functions=2
+// entry: dintegrate_coop kernel=dintegrate strategy=cooperative outputs=288 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=4 phases=1 stages=1 statements=288 functions=3
+// entry: difference kernel=difference strategy=thread outputs=12 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=48 functions=2
+// entry: difference_coop kernel=difference strategy=cooperative outputs=12 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=48 phases=2 stages=1 statements=24 functions=3
+// entry: ddifference kernel=ddifference strategy=thread outputs=288 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=288 functions=2
+// entry: ddifference_coop kernel=ddifference strategy=cooperative outputs=288 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=4 phases=1 stages=1 statements=288 functions=3
 
 alias real = f32;
 
@@ -1771,6 +1783,7 @@ fn rnea_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -7725,6 +7738,7 @@ fn rnea_grad_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -8384,6 +8398,7 @@ fn mass_matrix_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -10158,6 +10173,7 @@ fn minv_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -13479,6 +13495,7 @@ fn fd_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -21238,6 +21255,7 @@ fn fd_grad_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -21263,6 +21281,974 @@ fn fd_grad_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         let steps = prog[55074u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             fd_grad_coop_step(at + k * 192u, s, n);
+        }
+        workgroupBarrier();
+    }
+}
+
+// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order. One invocation per state.
+fn integrate_part0(s: u32, n: u32) {
+    let t0 = q[0u * n + s];
+    let t12 = qd[0u * n + s];
+    let t1 = q[1u * n + s];
+    let t13 = qd[1u * n + s];
+    let t2 = q[2u * n + s];
+    let t14 = qd[2u * n + s];
+    let t3 = q[3u * n + s];
+    let t15 = qd[3u * n + s];
+    let t4 = q[4u * n + s];
+    let t16 = qd[4u * n + s];
+    let t5 = q[5u * n + s];
+    let t17 = qd[5u * n + s];
+    let t6 = q[6u * n + s];
+    let t18 = qd[6u * n + s];
+    let t7 = q[7u * n + s];
+    let t19 = qd[7u * n + s];
+    let t8 = q[8u * n + s];
+    let t20 = qd[8u * n + s];
+    let t9 = q[9u * n + s];
+    let t21 = qd[9u * n + s];
+    let t10 = q[10u * n + s];
+    let t22 = qd[10u * n + s];
+    let t11 = q[11u * n + s];
+    let t23 = qd[11u * n + s];
+    let t24 = t0 + t12;
+    let t25 = t1 + t13;
+    let t26 = t2 + t14;
+    let t27 = t3 + t15;
+    let t28 = t4 + t16;
+    let t29 = t5 + t17;
+    let t30 = t6 + t18;
+    let t31 = t7 + t19;
+    let t32 = t8 + t20;
+    let t33 = t9 + t21;
+    let t34 = t10 + t22;
+    let t35 = t11 + t23;
+    out[0u * n + s] = t24;
+    out[1u * n + s] = t25;
+    out[2u * n + s] = t26;
+    out[3u * n + s] = t27;
+    out[4u * n + s] = t28;
+    out[5u * n + s] = t29;
+    out[6u * n + s] = t30;
+    out[7u * n + s] = t31;
+    out[8u * n + s] = t32;
+    out[9u * n + s] = t33;
+    out[10u * n + s] = t34;
+    out[11u * n + s] = t35;
+}
+
+@compute @workgroup_size(64)
+fn integrate(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.n;
+    let s = gid.x;
+    if (s >= n) {
+        return;
+    }
+    integrate_part0(s, n);
+}
+
+// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order. One workgroup of 64 invocations per state, 2 phases; its 24 operations are a table at prog[78616..79004] (phase p's block starts at prog[78616 + 2 * p] and has prog[78616 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> integrate_coop_wg: array<real, 12>;
+
+fn integrate_coop_read(a: u32, s: u32, n: u32) -> real {
+    let i = a & 268435455u;
+    switch (a >> 28u) {
+        case 0u: { return integrate_coop_wg[i]; }
+        case 1u: { return scratch[i * n + s]; }
+        case 2u: { return konst[i]; }
+        case 3u: { return q[i * n + s]; }
+        case 4u: { return qd[i * n + s]; }
+        default: { return u[i * n + s]; }
+    }
+}
+
+fn integrate_coop_step(k: u32, s: u32, n: u32) {
+    let w0 = prog[k];
+    let x = integrate_coop_read(prog[k + 1u], s, n);
+    let y = integrate_coop_read(prog[k + 2u], s, n);
+    let d = w0 & 16777215u;
+    var v = 0.0f;
+    switch (w0 >> 24u) {
+        case 0u: { v = x + y; }
+        case 1u: { v = x - y; }
+        case 2u: { v = x * y; }
+        case 3u: { v = x / y; }
+        case 4u: { v = -x; }
+        case 5u: { v = gg_sin(x); }
+        case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
+        case 7u: {
+            out[d * n + s] = x;
+            return;
+        }
+        default: { return; }
+    }
+    if (d < 12u) {
+        integrate_coop_wg[d] = v;
+    } else {
+        scratch[(d - 12u) * n + s] = v;
+    }
+}
+
+@compute @workgroup_size(64)
+fn integrate_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {
+    let n = params.n;
+    let s = wid.x;
+    if (s >= n) {
+        return;
+    }
+    for (var p = 0u; p < 2u; p++) {
+        let at = prog[78616u + 2u * p] + 3u * w;
+        let steps = prog[78616u + 2u * p + 1u];
+        for (var k = 0u; k < steps; k++) {
+            integrate_coop_step(at + k * 192u, s, n);
+        }
+        workgroupBarrier();
+    }
+}
+
+// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`). One invocation per state.
+fn dintegrate_part0(s: u32, n: u32) {
+    out[0u * n + s] = 1.0f;
+    out[1u * n + s] = 0.0f;
+    out[2u * n + s] = 0.0f;
+    out[3u * n + s] = 0.0f;
+    out[4u * n + s] = 0.0f;
+    out[5u * n + s] = 0.0f;
+    out[6u * n + s] = 0.0f;
+    out[7u * n + s] = 0.0f;
+    out[8u * n + s] = 0.0f;
+    out[9u * n + s] = 0.0f;
+    out[10u * n + s] = 0.0f;
+    out[11u * n + s] = 0.0f;
+    out[12u * n + s] = 0.0f;
+    out[13u * n + s] = 1.0f;
+    out[14u * n + s] = 0.0f;
+    out[15u * n + s] = 0.0f;
+    out[16u * n + s] = 0.0f;
+    out[17u * n + s] = 0.0f;
+    out[18u * n + s] = 0.0f;
+    out[19u * n + s] = 0.0f;
+    out[20u * n + s] = 0.0f;
+    out[21u * n + s] = 0.0f;
+    out[22u * n + s] = 0.0f;
+    out[23u * n + s] = 0.0f;
+    out[24u * n + s] = 0.0f;
+    out[25u * n + s] = 0.0f;
+    out[26u * n + s] = 1.0f;
+    out[27u * n + s] = 0.0f;
+    out[28u * n + s] = 0.0f;
+    out[29u * n + s] = 0.0f;
+    out[30u * n + s] = 0.0f;
+    out[31u * n + s] = 0.0f;
+    out[32u * n + s] = 0.0f;
+    out[33u * n + s] = 0.0f;
+    out[34u * n + s] = 0.0f;
+    out[35u * n + s] = 0.0f;
+    out[36u * n + s] = 0.0f;
+    out[37u * n + s] = 0.0f;
+    out[38u * n + s] = 0.0f;
+    out[39u * n + s] = 1.0f;
+    out[40u * n + s] = 0.0f;
+    out[41u * n + s] = 0.0f;
+    out[42u * n + s] = 0.0f;
+    out[43u * n + s] = 0.0f;
+    out[44u * n + s] = 0.0f;
+    out[45u * n + s] = 0.0f;
+    out[46u * n + s] = 0.0f;
+    out[47u * n + s] = 0.0f;
+    out[48u * n + s] = 0.0f;
+    out[49u * n + s] = 0.0f;
+    out[50u * n + s] = 0.0f;
+    out[51u * n + s] = 0.0f;
+    out[52u * n + s] = 1.0f;
+    out[53u * n + s] = 0.0f;
+    out[54u * n + s] = 0.0f;
+    out[55u * n + s] = 0.0f;
+    out[56u * n + s] = 0.0f;
+    out[57u * n + s] = 0.0f;
+    out[58u * n + s] = 0.0f;
+    out[59u * n + s] = 0.0f;
+    out[60u * n + s] = 0.0f;
+    out[61u * n + s] = 0.0f;
+    out[62u * n + s] = 0.0f;
+    out[63u * n + s] = 0.0f;
+    out[64u * n + s] = 0.0f;
+    out[65u * n + s] = 1.0f;
+    out[66u * n + s] = 0.0f;
+    out[67u * n + s] = 0.0f;
+    out[68u * n + s] = 0.0f;
+    out[69u * n + s] = 0.0f;
+    out[70u * n + s] = 0.0f;
+    out[71u * n + s] = 0.0f;
+    out[72u * n + s] = 0.0f;
+    out[73u * n + s] = 0.0f;
+    out[74u * n + s] = 0.0f;
+    out[75u * n + s] = 0.0f;
+    out[76u * n + s] = 0.0f;
+    out[77u * n + s] = 0.0f;
+    out[78u * n + s] = 1.0f;
+    out[79u * n + s] = 0.0f;
+    out[80u * n + s] = 0.0f;
+    out[81u * n + s] = 0.0f;
+    out[82u * n + s] = 0.0f;
+    out[83u * n + s] = 0.0f;
+    out[84u * n + s] = 0.0f;
+    out[85u * n + s] = 0.0f;
+    out[86u * n + s] = 0.0f;
+    out[87u * n + s] = 0.0f;
+    out[88u * n + s] = 0.0f;
+    out[89u * n + s] = 0.0f;
+    out[90u * n + s] = 0.0f;
+    out[91u * n + s] = 1.0f;
+    out[92u * n + s] = 0.0f;
+    out[93u * n + s] = 0.0f;
+    out[94u * n + s] = 0.0f;
+    out[95u * n + s] = 0.0f;
+    out[96u * n + s] = 0.0f;
+    out[97u * n + s] = 0.0f;
+    out[98u * n + s] = 0.0f;
+    out[99u * n + s] = 0.0f;
+    out[100u * n + s] = 0.0f;
+    out[101u * n + s] = 0.0f;
+    out[102u * n + s] = 0.0f;
+    out[103u * n + s] = 0.0f;
+    out[104u * n + s] = 1.0f;
+    out[105u * n + s] = 0.0f;
+    out[106u * n + s] = 0.0f;
+    out[107u * n + s] = 0.0f;
+    out[108u * n + s] = 0.0f;
+    out[109u * n + s] = 0.0f;
+    out[110u * n + s] = 0.0f;
+    out[111u * n + s] = 0.0f;
+    out[112u * n + s] = 0.0f;
+    out[113u * n + s] = 0.0f;
+    out[114u * n + s] = 0.0f;
+    out[115u * n + s] = 0.0f;
+    out[116u * n + s] = 0.0f;
+    out[117u * n + s] = 1.0f;
+    out[118u * n + s] = 0.0f;
+    out[119u * n + s] = 0.0f;
+    out[120u * n + s] = 0.0f;
+    out[121u * n + s] = 0.0f;
+    out[122u * n + s] = 0.0f;
+    out[123u * n + s] = 0.0f;
+    out[124u * n + s] = 0.0f;
+    out[125u * n + s] = 0.0f;
+    out[126u * n + s] = 0.0f;
+    out[127u * n + s] = 0.0f;
+    out[128u * n + s] = 0.0f;
+    out[129u * n + s] = 0.0f;
+    out[130u * n + s] = 1.0f;
+    out[131u * n + s] = 0.0f;
+    out[132u * n + s] = 0.0f;
+    out[133u * n + s] = 0.0f;
+    out[134u * n + s] = 0.0f;
+    out[135u * n + s] = 0.0f;
+    out[136u * n + s] = 0.0f;
+    out[137u * n + s] = 0.0f;
+    out[138u * n + s] = 0.0f;
+    out[139u * n + s] = 0.0f;
+    out[140u * n + s] = 0.0f;
+    out[141u * n + s] = 0.0f;
+    out[142u * n + s] = 0.0f;
+    out[143u * n + s] = 1.0f;
+    out[144u * n + s] = 1.0f;
+    out[145u * n + s] = 0.0f;
+    out[146u * n + s] = 0.0f;
+    out[147u * n + s] = 0.0f;
+    out[148u * n + s] = 0.0f;
+    out[149u * n + s] = 0.0f;
+    out[150u * n + s] = 0.0f;
+    out[151u * n + s] = 0.0f;
+    out[152u * n + s] = 0.0f;
+    out[153u * n + s] = 0.0f;
+    out[154u * n + s] = 0.0f;
+    out[155u * n + s] = 0.0f;
+    out[156u * n + s] = 0.0f;
+    out[157u * n + s] = 1.0f;
+    out[158u * n + s] = 0.0f;
+    out[159u * n + s] = 0.0f;
+    out[160u * n + s] = 0.0f;
+    out[161u * n + s] = 0.0f;
+    out[162u * n + s] = 0.0f;
+    out[163u * n + s] = 0.0f;
+    out[164u * n + s] = 0.0f;
+    out[165u * n + s] = 0.0f;
+    out[166u * n + s] = 0.0f;
+    out[167u * n + s] = 0.0f;
+    out[168u * n + s] = 0.0f;
+    out[169u * n + s] = 0.0f;
+    out[170u * n + s] = 1.0f;
+    out[171u * n + s] = 0.0f;
+    out[172u * n + s] = 0.0f;
+    out[173u * n + s] = 0.0f;
+    out[174u * n + s] = 0.0f;
+    out[175u * n + s] = 0.0f;
+    out[176u * n + s] = 0.0f;
+    out[177u * n + s] = 0.0f;
+    out[178u * n + s] = 0.0f;
+    out[179u * n + s] = 0.0f;
+    out[180u * n + s] = 0.0f;
+    out[181u * n + s] = 0.0f;
+    out[182u * n + s] = 0.0f;
+    out[183u * n + s] = 1.0f;
+    out[184u * n + s] = 0.0f;
+    out[185u * n + s] = 0.0f;
+    out[186u * n + s] = 0.0f;
+    out[187u * n + s] = 0.0f;
+    out[188u * n + s] = 0.0f;
+    out[189u * n + s] = 0.0f;
+    out[190u * n + s] = 0.0f;
+    out[191u * n + s] = 0.0f;
+    out[192u * n + s] = 0.0f;
+    out[193u * n + s] = 0.0f;
+    out[194u * n + s] = 0.0f;
+    out[195u * n + s] = 0.0f;
+    out[196u * n + s] = 1.0f;
+    out[197u * n + s] = 0.0f;
+    out[198u * n + s] = 0.0f;
+    out[199u * n + s] = 0.0f;
+    out[200u * n + s] = 0.0f;
+    out[201u * n + s] = 0.0f;
+    out[202u * n + s] = 0.0f;
+    out[203u * n + s] = 0.0f;
+    out[204u * n + s] = 0.0f;
+    out[205u * n + s] = 0.0f;
+    out[206u * n + s] = 0.0f;
+    out[207u * n + s] = 0.0f;
+    out[208u * n + s] = 0.0f;
+    out[209u * n + s] = 1.0f;
+    out[210u * n + s] = 0.0f;
+    out[211u * n + s] = 0.0f;
+    out[212u * n + s] = 0.0f;
+    out[213u * n + s] = 0.0f;
+    out[214u * n + s] = 0.0f;
+    out[215u * n + s] = 0.0f;
+    out[216u * n + s] = 0.0f;
+    out[217u * n + s] = 0.0f;
+    out[218u * n + s] = 0.0f;
+    out[219u * n + s] = 0.0f;
+    out[220u * n + s] = 0.0f;
+    out[221u * n + s] = 0.0f;
+    out[222u * n + s] = 1.0f;
+    out[223u * n + s] = 0.0f;
+    out[224u * n + s] = 0.0f;
+    out[225u * n + s] = 0.0f;
+    out[226u * n + s] = 0.0f;
+    out[227u * n + s] = 0.0f;
+    out[228u * n + s] = 0.0f;
+    out[229u * n + s] = 0.0f;
+    out[230u * n + s] = 0.0f;
+    out[231u * n + s] = 0.0f;
+    out[232u * n + s] = 0.0f;
+    out[233u * n + s] = 0.0f;
+    out[234u * n + s] = 0.0f;
+    out[235u * n + s] = 1.0f;
+    out[236u * n + s] = 0.0f;
+    out[237u * n + s] = 0.0f;
+    out[238u * n + s] = 0.0f;
+    out[239u * n + s] = 0.0f;
+    out[240u * n + s] = 0.0f;
+    out[241u * n + s] = 0.0f;
+    out[242u * n + s] = 0.0f;
+    out[243u * n + s] = 0.0f;
+    out[244u * n + s] = 0.0f;
+    out[245u * n + s] = 0.0f;
+    out[246u * n + s] = 0.0f;
+    out[247u * n + s] = 0.0f;
+    out[248u * n + s] = 1.0f;
+    out[249u * n + s] = 0.0f;
+    out[250u * n + s] = 0.0f;
+    out[251u * n + s] = 0.0f;
+    out[252u * n + s] = 0.0f;
+    out[253u * n + s] = 0.0f;
+    out[254u * n + s] = 0.0f;
+    out[255u * n + s] = 0.0f;
+    out[256u * n + s] = 0.0f;
+    out[257u * n + s] = 0.0f;
+    out[258u * n + s] = 0.0f;
+    out[259u * n + s] = 0.0f;
+    out[260u * n + s] = 0.0f;
+    out[261u * n + s] = 1.0f;
+    out[262u * n + s] = 0.0f;
+    out[263u * n + s] = 0.0f;
+    out[264u * n + s] = 0.0f;
+    out[265u * n + s] = 0.0f;
+    out[266u * n + s] = 0.0f;
+    out[267u * n + s] = 0.0f;
+    out[268u * n + s] = 0.0f;
+    out[269u * n + s] = 0.0f;
+    out[270u * n + s] = 0.0f;
+    out[271u * n + s] = 0.0f;
+    out[272u * n + s] = 0.0f;
+    out[273u * n + s] = 0.0f;
+    out[274u * n + s] = 1.0f;
+    out[275u * n + s] = 0.0f;
+    out[276u * n + s] = 0.0f;
+    out[277u * n + s] = 0.0f;
+    out[278u * n + s] = 0.0f;
+    out[279u * n + s] = 0.0f;
+    out[280u * n + s] = 0.0f;
+    out[281u * n + s] = 0.0f;
+    out[282u * n + s] = 0.0f;
+    out[283u * n + s] = 0.0f;
+    out[284u * n + s] = 0.0f;
+    out[285u * n + s] = 0.0f;
+    out[286u * n + s] = 0.0f;
+    out[287u * n + s] = 1.0f;
+}
+
+@compute @workgroup_size(64)
+fn dintegrate(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.n;
+    let s = gid.x;
+    if (s >= n) {
+        return;
+    }
+    dintegrate_part0(s, n);
+}
+
+// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 288 operations are a table at prog[79004..79966] (phase p's block starts at prog[79004 + 2 * p] and has prog[79004 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> dintegrate_coop_wg: array<real, 1>;
+
+fn dintegrate_coop_read(a: u32, s: u32, n: u32) -> real {
+    let i = a & 268435455u;
+    switch (a >> 28u) {
+        case 0u: { return dintegrate_coop_wg[i]; }
+        case 1u: { return scratch[i * n + s]; }
+        case 2u: { return konst[i]; }
+        case 3u: { return q[i * n + s]; }
+        case 4u: { return qd[i * n + s]; }
+        default: { return u[i * n + s]; }
+    }
+}
+
+fn dintegrate_coop_step(k: u32, s: u32, n: u32) {
+    let w0 = prog[k];
+    let x = dintegrate_coop_read(prog[k + 1u], s, n);
+    let y = dintegrate_coop_read(prog[k + 2u], s, n);
+    let d = w0 & 16777215u;
+    var v = 0.0f;
+    switch (w0 >> 24u) {
+        case 0u: { v = x + y; }
+        case 1u: { v = x - y; }
+        case 2u: { v = x * y; }
+        case 3u: { v = x / y; }
+        case 4u: { v = -x; }
+        case 5u: { v = gg_sin(x); }
+        case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
+        case 7u: {
+            out[d * n + s] = x;
+            return;
+        }
+        default: { return; }
+    }
+    if (d < 0u) {
+        dintegrate_coop_wg[d] = v;
+    } else {
+        scratch[(d - 0u) * n + s] = v;
+    }
+}
+
+@compute @workgroup_size(64)
+fn dintegrate_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {
+    let n = params.n;
+    let s = wid.x;
+    if (s >= n) {
+        return;
+    }
+    for (var p = 0u; p < 1u; p++) {
+        let at = prog[79004u + 2u * p] + 3u * w;
+        let steps = prog[79004u + 2u * p + 1u];
+        for (var k = 0u; k < steps; k++) {
+            dintegrate_coop_step(at + k * 192u, s, n);
+        }
+        workgroupBarrier();
+    }
+}
+
+// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`). One invocation per state.
+fn difference_part0(s: u32, n: u32) {
+    let t12 = u[0u * n + s];
+    let t0 = q[0u * n + s];
+    let t13 = u[1u * n + s];
+    let t1 = q[1u * n + s];
+    let t14 = u[2u * n + s];
+    let t2 = q[2u * n + s];
+    let t15 = u[3u * n + s];
+    let t3 = q[3u * n + s];
+    let t16 = u[4u * n + s];
+    let t4 = q[4u * n + s];
+    let t17 = u[5u * n + s];
+    let t5 = q[5u * n + s];
+    let t18 = u[6u * n + s];
+    let t6 = q[6u * n + s];
+    let t19 = u[7u * n + s];
+    let t7 = q[7u * n + s];
+    let t20 = u[8u * n + s];
+    let t8 = q[8u * n + s];
+    let t21 = u[9u * n + s];
+    let t9 = q[9u * n + s];
+    let t22 = u[10u * n + s];
+    let t10 = q[10u * n + s];
+    let t23 = u[11u * n + s];
+    let t11 = q[11u * n + s];
+    let t24 = t12 - t0;
+    let t25 = t13 - t1;
+    let t26 = t14 - t2;
+    let t27 = t15 - t3;
+    let t28 = t16 - t4;
+    let t29 = t17 - t5;
+    let t30 = t18 - t6;
+    let t31 = t19 - t7;
+    let t32 = t20 - t8;
+    let t33 = t21 - t9;
+    let t34 = t22 - t10;
+    let t35 = t23 - t11;
+    out[0u * n + s] = t24;
+    out[1u * n + s] = t25;
+    out[2u * n + s] = t26;
+    out[3u * n + s] = t27;
+    out[4u * n + s] = t28;
+    out[5u * n + s] = t29;
+    out[6u * n + s] = t30;
+    out[7u * n + s] = t31;
+    out[8u * n + s] = t32;
+    out[9u * n + s] = t33;
+    out[10u * n + s] = t34;
+    out[11u * n + s] = t35;
+}
+
+@compute @workgroup_size(64)
+fn difference(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.n;
+    let s = gid.x;
+    if (s >= n) {
+        return;
+    }
+    difference_part0(s, n);
+}
+
+// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`). One workgroup of 64 invocations per state, 2 phases; its 24 operations are a table at prog[79966..80354] (phase p's block starts at prog[79966 + 2 * p] and has prog[79966 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> difference_coop_wg: array<real, 12>;
+
+fn difference_coop_read(a: u32, s: u32, n: u32) -> real {
+    let i = a & 268435455u;
+    switch (a >> 28u) {
+        case 0u: { return difference_coop_wg[i]; }
+        case 1u: { return scratch[i * n + s]; }
+        case 2u: { return konst[i]; }
+        case 3u: { return q[i * n + s]; }
+        case 4u: { return qd[i * n + s]; }
+        default: { return u[i * n + s]; }
+    }
+}
+
+fn difference_coop_step(k: u32, s: u32, n: u32) {
+    let w0 = prog[k];
+    let x = difference_coop_read(prog[k + 1u], s, n);
+    let y = difference_coop_read(prog[k + 2u], s, n);
+    let d = w0 & 16777215u;
+    var v = 0.0f;
+    switch (w0 >> 24u) {
+        case 0u: { v = x + y; }
+        case 1u: { v = x - y; }
+        case 2u: { v = x * y; }
+        case 3u: { v = x / y; }
+        case 4u: { v = -x; }
+        case 5u: { v = gg_sin(x); }
+        case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
+        case 7u: {
+            out[d * n + s] = x;
+            return;
+        }
+        default: { return; }
+    }
+    if (d < 12u) {
+        difference_coop_wg[d] = v;
+    } else {
+        scratch[(d - 12u) * n + s] = v;
+    }
+}
+
+@compute @workgroup_size(64)
+fn difference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {
+    let n = params.n;
+    let s = wid.x;
+    if (s >= n) {
+        return;
+    }
+    for (var p = 0u; p < 2u; p++) {
+        let at = prog[79966u + 2u * p] + 3u * w;
+        let steps = prog[79966u + 2u * p + 1u];
+        for (var k = 0u; k < steps; k++) {
+            difference_coop_step(at + k * 192u, s, n);
+        }
+        workgroupBarrier();
+    }
+}
+
+// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`). One invocation per state.
+fn ddifference_part0(s: u32, n: u32) {
+    out[0u * n + s] = (-1.0f);
+    out[1u * n + s] = 0.0f;
+    out[2u * n + s] = 0.0f;
+    out[3u * n + s] = 0.0f;
+    out[4u * n + s] = 0.0f;
+    out[5u * n + s] = 0.0f;
+    out[6u * n + s] = 0.0f;
+    out[7u * n + s] = 0.0f;
+    out[8u * n + s] = 0.0f;
+    out[9u * n + s] = 0.0f;
+    out[10u * n + s] = 0.0f;
+    out[11u * n + s] = 0.0f;
+    out[12u * n + s] = 0.0f;
+    out[13u * n + s] = (-1.0f);
+    out[14u * n + s] = 0.0f;
+    out[15u * n + s] = 0.0f;
+    out[16u * n + s] = 0.0f;
+    out[17u * n + s] = 0.0f;
+    out[18u * n + s] = 0.0f;
+    out[19u * n + s] = 0.0f;
+    out[20u * n + s] = 0.0f;
+    out[21u * n + s] = 0.0f;
+    out[22u * n + s] = 0.0f;
+    out[23u * n + s] = 0.0f;
+    out[24u * n + s] = 0.0f;
+    out[25u * n + s] = 0.0f;
+    out[26u * n + s] = (-1.0f);
+    out[27u * n + s] = 0.0f;
+    out[28u * n + s] = 0.0f;
+    out[29u * n + s] = 0.0f;
+    out[30u * n + s] = 0.0f;
+    out[31u * n + s] = 0.0f;
+    out[32u * n + s] = 0.0f;
+    out[33u * n + s] = 0.0f;
+    out[34u * n + s] = 0.0f;
+    out[35u * n + s] = 0.0f;
+    out[36u * n + s] = 0.0f;
+    out[37u * n + s] = 0.0f;
+    out[38u * n + s] = 0.0f;
+    out[39u * n + s] = (-1.0f);
+    out[40u * n + s] = 0.0f;
+    out[41u * n + s] = 0.0f;
+    out[42u * n + s] = 0.0f;
+    out[43u * n + s] = 0.0f;
+    out[44u * n + s] = 0.0f;
+    out[45u * n + s] = 0.0f;
+    out[46u * n + s] = 0.0f;
+    out[47u * n + s] = 0.0f;
+    out[48u * n + s] = 0.0f;
+    out[49u * n + s] = 0.0f;
+    out[50u * n + s] = 0.0f;
+    out[51u * n + s] = 0.0f;
+    out[52u * n + s] = (-1.0f);
+    out[53u * n + s] = 0.0f;
+    out[54u * n + s] = 0.0f;
+    out[55u * n + s] = 0.0f;
+    out[56u * n + s] = 0.0f;
+    out[57u * n + s] = 0.0f;
+    out[58u * n + s] = 0.0f;
+    out[59u * n + s] = 0.0f;
+    out[60u * n + s] = 0.0f;
+    out[61u * n + s] = 0.0f;
+    out[62u * n + s] = 0.0f;
+    out[63u * n + s] = 0.0f;
+    out[64u * n + s] = 0.0f;
+    out[65u * n + s] = (-1.0f);
+    out[66u * n + s] = 0.0f;
+    out[67u * n + s] = 0.0f;
+    out[68u * n + s] = 0.0f;
+    out[69u * n + s] = 0.0f;
+    out[70u * n + s] = 0.0f;
+    out[71u * n + s] = 0.0f;
+    out[72u * n + s] = 0.0f;
+    out[73u * n + s] = 0.0f;
+    out[74u * n + s] = 0.0f;
+    out[75u * n + s] = 0.0f;
+    out[76u * n + s] = 0.0f;
+    out[77u * n + s] = 0.0f;
+    out[78u * n + s] = (-1.0f);
+    out[79u * n + s] = 0.0f;
+    out[80u * n + s] = 0.0f;
+    out[81u * n + s] = 0.0f;
+    out[82u * n + s] = 0.0f;
+    out[83u * n + s] = 0.0f;
+    out[84u * n + s] = 0.0f;
+    out[85u * n + s] = 0.0f;
+    out[86u * n + s] = 0.0f;
+    out[87u * n + s] = 0.0f;
+    out[88u * n + s] = 0.0f;
+    out[89u * n + s] = 0.0f;
+    out[90u * n + s] = 0.0f;
+    out[91u * n + s] = (-1.0f);
+    out[92u * n + s] = 0.0f;
+    out[93u * n + s] = 0.0f;
+    out[94u * n + s] = 0.0f;
+    out[95u * n + s] = 0.0f;
+    out[96u * n + s] = 0.0f;
+    out[97u * n + s] = 0.0f;
+    out[98u * n + s] = 0.0f;
+    out[99u * n + s] = 0.0f;
+    out[100u * n + s] = 0.0f;
+    out[101u * n + s] = 0.0f;
+    out[102u * n + s] = 0.0f;
+    out[103u * n + s] = 0.0f;
+    out[104u * n + s] = (-1.0f);
+    out[105u * n + s] = 0.0f;
+    out[106u * n + s] = 0.0f;
+    out[107u * n + s] = 0.0f;
+    out[108u * n + s] = 0.0f;
+    out[109u * n + s] = 0.0f;
+    out[110u * n + s] = 0.0f;
+    out[111u * n + s] = 0.0f;
+    out[112u * n + s] = 0.0f;
+    out[113u * n + s] = 0.0f;
+    out[114u * n + s] = 0.0f;
+    out[115u * n + s] = 0.0f;
+    out[116u * n + s] = 0.0f;
+    out[117u * n + s] = (-1.0f);
+    out[118u * n + s] = 0.0f;
+    out[119u * n + s] = 0.0f;
+    out[120u * n + s] = 0.0f;
+    out[121u * n + s] = 0.0f;
+    out[122u * n + s] = 0.0f;
+    out[123u * n + s] = 0.0f;
+    out[124u * n + s] = 0.0f;
+    out[125u * n + s] = 0.0f;
+    out[126u * n + s] = 0.0f;
+    out[127u * n + s] = 0.0f;
+    out[128u * n + s] = 0.0f;
+    out[129u * n + s] = 0.0f;
+    out[130u * n + s] = (-1.0f);
+    out[131u * n + s] = 0.0f;
+    out[132u * n + s] = 0.0f;
+    out[133u * n + s] = 0.0f;
+    out[134u * n + s] = 0.0f;
+    out[135u * n + s] = 0.0f;
+    out[136u * n + s] = 0.0f;
+    out[137u * n + s] = 0.0f;
+    out[138u * n + s] = 0.0f;
+    out[139u * n + s] = 0.0f;
+    out[140u * n + s] = 0.0f;
+    out[141u * n + s] = 0.0f;
+    out[142u * n + s] = 0.0f;
+    out[143u * n + s] = (-1.0f);
+    out[144u * n + s] = 1.0f;
+    out[145u * n + s] = 0.0f;
+    out[146u * n + s] = 0.0f;
+    out[147u * n + s] = 0.0f;
+    out[148u * n + s] = 0.0f;
+    out[149u * n + s] = 0.0f;
+    out[150u * n + s] = 0.0f;
+    out[151u * n + s] = 0.0f;
+    out[152u * n + s] = 0.0f;
+    out[153u * n + s] = 0.0f;
+    out[154u * n + s] = 0.0f;
+    out[155u * n + s] = 0.0f;
+    out[156u * n + s] = 0.0f;
+    out[157u * n + s] = 1.0f;
+    out[158u * n + s] = 0.0f;
+    out[159u * n + s] = 0.0f;
+    out[160u * n + s] = 0.0f;
+    out[161u * n + s] = 0.0f;
+    out[162u * n + s] = 0.0f;
+    out[163u * n + s] = 0.0f;
+    out[164u * n + s] = 0.0f;
+    out[165u * n + s] = 0.0f;
+    out[166u * n + s] = 0.0f;
+    out[167u * n + s] = 0.0f;
+    out[168u * n + s] = 0.0f;
+    out[169u * n + s] = 0.0f;
+    out[170u * n + s] = 1.0f;
+    out[171u * n + s] = 0.0f;
+    out[172u * n + s] = 0.0f;
+    out[173u * n + s] = 0.0f;
+    out[174u * n + s] = 0.0f;
+    out[175u * n + s] = 0.0f;
+    out[176u * n + s] = 0.0f;
+    out[177u * n + s] = 0.0f;
+    out[178u * n + s] = 0.0f;
+    out[179u * n + s] = 0.0f;
+    out[180u * n + s] = 0.0f;
+    out[181u * n + s] = 0.0f;
+    out[182u * n + s] = 0.0f;
+    out[183u * n + s] = 1.0f;
+    out[184u * n + s] = 0.0f;
+    out[185u * n + s] = 0.0f;
+    out[186u * n + s] = 0.0f;
+    out[187u * n + s] = 0.0f;
+    out[188u * n + s] = 0.0f;
+    out[189u * n + s] = 0.0f;
+    out[190u * n + s] = 0.0f;
+    out[191u * n + s] = 0.0f;
+    out[192u * n + s] = 0.0f;
+    out[193u * n + s] = 0.0f;
+    out[194u * n + s] = 0.0f;
+    out[195u * n + s] = 0.0f;
+    out[196u * n + s] = 1.0f;
+    out[197u * n + s] = 0.0f;
+    out[198u * n + s] = 0.0f;
+    out[199u * n + s] = 0.0f;
+    out[200u * n + s] = 0.0f;
+    out[201u * n + s] = 0.0f;
+    out[202u * n + s] = 0.0f;
+    out[203u * n + s] = 0.0f;
+    out[204u * n + s] = 0.0f;
+    out[205u * n + s] = 0.0f;
+    out[206u * n + s] = 0.0f;
+    out[207u * n + s] = 0.0f;
+    out[208u * n + s] = 0.0f;
+    out[209u * n + s] = 1.0f;
+    out[210u * n + s] = 0.0f;
+    out[211u * n + s] = 0.0f;
+    out[212u * n + s] = 0.0f;
+    out[213u * n + s] = 0.0f;
+    out[214u * n + s] = 0.0f;
+    out[215u * n + s] = 0.0f;
+    out[216u * n + s] = 0.0f;
+    out[217u * n + s] = 0.0f;
+    out[218u * n + s] = 0.0f;
+    out[219u * n + s] = 0.0f;
+    out[220u * n + s] = 0.0f;
+    out[221u * n + s] = 0.0f;
+    out[222u * n + s] = 1.0f;
+    out[223u * n + s] = 0.0f;
+    out[224u * n + s] = 0.0f;
+    out[225u * n + s] = 0.0f;
+    out[226u * n + s] = 0.0f;
+    out[227u * n + s] = 0.0f;
+    out[228u * n + s] = 0.0f;
+    out[229u * n + s] = 0.0f;
+    out[230u * n + s] = 0.0f;
+    out[231u * n + s] = 0.0f;
+    out[232u * n + s] = 0.0f;
+    out[233u * n + s] = 0.0f;
+    out[234u * n + s] = 0.0f;
+    out[235u * n + s] = 1.0f;
+    out[236u * n + s] = 0.0f;
+    out[237u * n + s] = 0.0f;
+    out[238u * n + s] = 0.0f;
+    out[239u * n + s] = 0.0f;
+    out[240u * n + s] = 0.0f;
+    out[241u * n + s] = 0.0f;
+    out[242u * n + s] = 0.0f;
+    out[243u * n + s] = 0.0f;
+    out[244u * n + s] = 0.0f;
+    out[245u * n + s] = 0.0f;
+    out[246u * n + s] = 0.0f;
+    out[247u * n + s] = 0.0f;
+    out[248u * n + s] = 1.0f;
+    out[249u * n + s] = 0.0f;
+    out[250u * n + s] = 0.0f;
+    out[251u * n + s] = 0.0f;
+    out[252u * n + s] = 0.0f;
+    out[253u * n + s] = 0.0f;
+    out[254u * n + s] = 0.0f;
+    out[255u * n + s] = 0.0f;
+    out[256u * n + s] = 0.0f;
+    out[257u * n + s] = 0.0f;
+    out[258u * n + s] = 0.0f;
+    out[259u * n + s] = 0.0f;
+    out[260u * n + s] = 0.0f;
+    out[261u * n + s] = 1.0f;
+    out[262u * n + s] = 0.0f;
+    out[263u * n + s] = 0.0f;
+    out[264u * n + s] = 0.0f;
+    out[265u * n + s] = 0.0f;
+    out[266u * n + s] = 0.0f;
+    out[267u * n + s] = 0.0f;
+    out[268u * n + s] = 0.0f;
+    out[269u * n + s] = 0.0f;
+    out[270u * n + s] = 0.0f;
+    out[271u * n + s] = 0.0f;
+    out[272u * n + s] = 0.0f;
+    out[273u * n + s] = 0.0f;
+    out[274u * n + s] = 1.0f;
+    out[275u * n + s] = 0.0f;
+    out[276u * n + s] = 0.0f;
+    out[277u * n + s] = 0.0f;
+    out[278u * n + s] = 0.0f;
+    out[279u * n + s] = 0.0f;
+    out[280u * n + s] = 0.0f;
+    out[281u * n + s] = 0.0f;
+    out[282u * n + s] = 0.0f;
+    out[283u * n + s] = 0.0f;
+    out[284u * n + s] = 0.0f;
+    out[285u * n + s] = 0.0f;
+    out[286u * n + s] = 0.0f;
+    out[287u * n + s] = 1.0f;
+}
+
+@compute @workgroup_size(64)
+fn ddifference(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.n;
+    let s = gid.x;
+    if (s >= n) {
+        return;
+    }
+    ddifference_part0(s, n);
+}
+
+// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 288 operations are a table at prog[80354..81316] (phase p's block starts at prog[80354 + 2 * p] and has prog[80354 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> ddifference_coop_wg: array<real, 1>;
+
+fn ddifference_coop_read(a: u32, s: u32, n: u32) -> real {
+    let i = a & 268435455u;
+    switch (a >> 28u) {
+        case 0u: { return ddifference_coop_wg[i]; }
+        case 1u: { return scratch[i * n + s]; }
+        case 2u: { return konst[i]; }
+        case 3u: { return q[i * n + s]; }
+        case 4u: { return qd[i * n + s]; }
+        default: { return u[i * n + s]; }
+    }
+}
+
+fn ddifference_coop_step(k: u32, s: u32, n: u32) {
+    let w0 = prog[k];
+    let x = ddifference_coop_read(prog[k + 1u], s, n);
+    let y = ddifference_coop_read(prog[k + 2u], s, n);
+    let d = w0 & 16777215u;
+    var v = 0.0f;
+    switch (w0 >> 24u) {
+        case 0u: { v = x + y; }
+        case 1u: { v = x - y; }
+        case 2u: { v = x * y; }
+        case 3u: { v = x / y; }
+        case 4u: { v = -x; }
+        case 5u: { v = gg_sin(x); }
+        case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
+        case 7u: {
+            out[d * n + s] = x;
+            return;
+        }
+        default: { return; }
+    }
+    if (d < 0u) {
+        ddifference_coop_wg[d] = v;
+    } else {
+        scratch[(d - 0u) * n + s] = v;
+    }
+}
+
+@compute @workgroup_size(64)
+fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {
+    let n = params.n;
+    let s = wid.x;
+    if (s >= n) {
+        return;
+    }
+    for (var p = 0u; p < 1u; p++) {
+        let at = prog[80354u + 2u * p] + 3u * w;
+        let steps = prog[80354u + 2u * p + 1u];
+        for (var k = 0u; k < steps; k++) {
+            ddifference_coop_step(at + k * 192u, s, n);
         }
         workgroupBarrier();
     }
@@ -26182,7 +27168,176 @@ fn fd_grad_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0
+// prog: 0 0 8000000 0 0 8000000 0 0 1331c 1 133dc 1 0 30000000 40000000 1
+// prog: 30000001 40000001 2 30000002 40000002 3 30000003 40000003 4 30000004 40000004 5 30000005 40000005 6 30000006
+// prog: 40000006 7 30000007 40000007 8 30000008 40000008 9 30000009 40000009 a 3000000a 4000000a b 3000000b 4000000b
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 7000000 0 0 7000001
+// prog: 1 1 7000002 2 2 7000003 3 3 7000004 4 4 7000005 5 5 7000006 6
+// prog: 6 7000007 7 7 7000008 8 8 7000009 9 9 700000a a a 700000b b b
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1349e 5 7000000 20000030
+// prog: 20000030 7000001 2000002a 2000002a 7000002 2000002a 2000002a 7000003 2000002a 2000002a 7000004 2000002a 2000002a 7000005 2000002a 2000002a
+// prog: 7000006 2000002a 2000002a 7000007 2000002a 2000002a 7000008 2000002a 2000002a 7000009 2000002a 2000002a 700000a 2000002a 2000002a 700000b
+// prog: 2000002a 2000002a 700000c 2000002a 2000002a 700000d 20000030 20000030 700000e 2000002a 2000002a 700000f 2000002a 2000002a 7000010 2000002a
+// prog: 2000002a 7000011 2000002a 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a 7000014 2000002a 2000002a 7000015 2000002a 2000002a
+// prog: 7000016 2000002a 2000002a 7000017 2000002a 2000002a 7000018 2000002a 2000002a 7000019 2000002a 2000002a 700001a 20000030 20000030 700001b
+// prog: 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e 2000002a 2000002a 700001f 2000002a 2000002a 7000020 2000002a
+// prog: 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a 2000002a 7000024 2000002a 2000002a 7000025 2000002a 2000002a
+// prog: 7000026 2000002a 2000002a 7000027 20000030 20000030 7000028 2000002a 2000002a 7000029 2000002a 2000002a 700002a 2000002a 2000002a 700002b
+// prog: 2000002a 2000002a 700002c 2000002a 2000002a 700002d 2000002a 2000002a 700002e 2000002a 2000002a 700002f 2000002a 2000002a 7000030 2000002a
+// prog: 2000002a 7000031 2000002a 2000002a 7000032 2000002a 2000002a 7000033 2000002a 2000002a 7000034 20000030 20000030 7000035 2000002a 2000002a
+// prog: 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039 2000002a 2000002a 700003a 2000002a 2000002a 700003b
+// prog: 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a 2000002a 700003f 2000002a 2000002a 7000040 2000002a
+// prog: 2000002a 7000041 20000030 20000030 7000042 2000002a 2000002a 7000043 2000002a 2000002a 7000044 2000002a 2000002a 7000045 2000002a 2000002a
+// prog: 7000046 2000002a 2000002a 7000047 2000002a 2000002a 7000048 2000002a 2000002a 7000049 2000002a 2000002a 700004a 2000002a 2000002a 700004b
+// prog: 2000002a 2000002a 700004c 2000002a 2000002a 700004d 2000002a 2000002a 700004e 20000030 20000030 700004f 2000002a 2000002a 7000050 2000002a
+// prog: 2000002a 7000051 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a 7000054 2000002a 2000002a 7000055 2000002a 2000002a
+// prog: 7000056 2000002a 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059 2000002a 2000002a 700005a 2000002a 2000002a 700005b
+// prog: 20000030 20000030 700005c 2000002a 2000002a 700005d 2000002a 2000002a 700005e 2000002a 2000002a 700005f 2000002a 2000002a 7000060 2000002a
+// prog: 2000002a 7000061 2000002a 2000002a 7000062 2000002a 2000002a 7000063 2000002a 2000002a 7000064 2000002a 2000002a 7000065 2000002a 2000002a
+// prog: 7000066 2000002a 2000002a 7000067 2000002a 2000002a 7000068 20000030 20000030 7000069 2000002a 2000002a 700006a 2000002a 2000002a 700006b
+// prog: 2000002a 2000002a 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a 2000002a 700006f 2000002a 2000002a 7000070 2000002a
+// prog: 2000002a 7000071 2000002a 2000002a 7000072 2000002a 2000002a 7000073 2000002a 2000002a 7000074 2000002a 2000002a 7000075 20000030 20000030
+// prog: 7000076 2000002a 2000002a 7000077 2000002a 2000002a 7000078 2000002a 2000002a 7000079 2000002a 2000002a 700007a 2000002a 2000002a 700007b
+// prog: 2000002a 2000002a 700007c 2000002a 2000002a 700007d 2000002a 2000002a 700007e 2000002a 2000002a 700007f 2000002a 2000002a 7000080 2000002a
+// prog: 2000002a 7000081 2000002a 2000002a 7000082 20000030 20000030 7000083 2000002a 2000002a 7000084 2000002a 2000002a 7000085 2000002a 2000002a
+// prog: 7000086 2000002a 2000002a 7000087 2000002a 2000002a 7000088 2000002a 2000002a 7000089 2000002a 2000002a 700008a 2000002a 2000002a 700008b
+// prog: 2000002a 2000002a 700008c 2000002a 2000002a 700008d 2000002a 2000002a 700008e 2000002a 2000002a 700008f 20000030 20000030 7000090 20000030
+// prog: 20000030 7000091 2000002a 2000002a 7000092 2000002a 2000002a 7000093 2000002a 2000002a 7000094 2000002a 2000002a 7000095 2000002a 2000002a
+// prog: 7000096 2000002a 2000002a 7000097 2000002a 2000002a 7000098 2000002a 2000002a 7000099 2000002a 2000002a 700009a 2000002a 2000002a 700009b
+// prog: 2000002a 2000002a 700009c 2000002a 2000002a 700009d 20000030 20000030 700009e 2000002a 2000002a 700009f 2000002a 2000002a 70000a0 2000002a
+// prog: 2000002a 70000a1 2000002a 2000002a 70000a2 2000002a 2000002a 70000a3 2000002a 2000002a 70000a4 2000002a 2000002a 70000a5 2000002a 2000002a
+// prog: 70000a6 2000002a 2000002a 70000a7 2000002a 2000002a 70000a8 2000002a 2000002a 70000a9 2000002a 2000002a 70000aa 20000030 20000030 70000ab
+// prog: 2000002a 2000002a 70000ac 2000002a 2000002a 70000ad 2000002a 2000002a 70000ae 2000002a 2000002a 70000af 2000002a 2000002a 70000b0 2000002a
+// prog: 2000002a 70000b1 2000002a 2000002a 70000b2 2000002a 2000002a 70000b3 2000002a 2000002a 70000b4 2000002a 2000002a 70000b5 2000002a 2000002a
+// prog: 70000b6 2000002a 2000002a 70000b7 20000030 20000030 70000b8 2000002a 2000002a 70000b9 2000002a 2000002a 70000ba 2000002a 2000002a 70000bb
+// prog: 2000002a 2000002a 70000bc 2000002a 2000002a 70000bd 2000002a 2000002a 70000be 2000002a 2000002a 70000bf 2000002a 2000002a 70000c0 2000002a
+// prog: 2000002a 70000c1 2000002a 2000002a 70000c2 2000002a 2000002a 70000c3 2000002a 2000002a 70000c4 20000030 20000030 70000c5 2000002a 2000002a
+// prog: 70000c6 2000002a 2000002a 70000c7 2000002a 2000002a 70000c8 2000002a 2000002a 70000c9 2000002a 2000002a 70000ca 2000002a 2000002a 70000cb
+// prog: 2000002a 2000002a 70000cc 2000002a 2000002a 70000cd 2000002a 2000002a 70000ce 2000002a 2000002a 70000cf 2000002a 2000002a 70000d0 2000002a
+// prog: 2000002a 70000d1 20000030 20000030 70000d2 2000002a 2000002a 70000d3 2000002a 2000002a 70000d4 2000002a 2000002a 70000d5 2000002a 2000002a
+// prog: 70000d6 2000002a 2000002a 70000d7 2000002a 2000002a 70000d8 2000002a 2000002a 70000d9 2000002a 2000002a 70000da 2000002a 2000002a 70000db
+// prog: 2000002a 2000002a 70000dc 2000002a 2000002a 70000dd 2000002a 2000002a 70000de 20000030 20000030 70000df 2000002a 2000002a 70000e0 2000002a
+// prog: 2000002a 70000e1 2000002a 2000002a 70000e2 2000002a 2000002a 70000e3 2000002a 2000002a 70000e4 2000002a 2000002a 70000e5 2000002a 2000002a
+// prog: 70000e6 2000002a 2000002a 70000e7 2000002a 2000002a 70000e8 2000002a 2000002a 70000e9 2000002a 2000002a 70000ea 2000002a 2000002a 70000eb
+// prog: 20000030 20000030 70000ec 2000002a 2000002a 70000ed 2000002a 2000002a 70000ee 2000002a 2000002a 70000ef 2000002a 2000002a 70000f0 2000002a
+// prog: 2000002a 70000f1 2000002a 2000002a 70000f2 2000002a 2000002a 70000f3 2000002a 2000002a 70000f4 2000002a 2000002a 70000f5 2000002a 2000002a
+// prog: 70000f6 2000002a 2000002a 70000f7 2000002a 2000002a 70000f8 20000030 20000030 70000f9 2000002a 2000002a 70000fa 2000002a 2000002a 70000fb
+// prog: 2000002a 2000002a 70000fc 2000002a 2000002a 70000fd 2000002a 2000002a 70000fe 2000002a 2000002a 70000ff 2000002a 2000002a 7000100 2000002a
+// prog: 2000002a 7000101 2000002a 2000002a 7000102 2000002a 2000002a 7000103 2000002a 2000002a 7000104 2000002a 2000002a 7000105 20000030 20000030
+// prog: 7000106 2000002a 2000002a 7000107 2000002a 2000002a 7000108 2000002a 2000002a 7000109 2000002a 2000002a 700010a 2000002a 2000002a 700010b
+// prog: 2000002a 2000002a 700010c 2000002a 2000002a 700010d 2000002a 2000002a 700010e 2000002a 2000002a 700010f 2000002a 2000002a 7000110 2000002a
+// prog: 2000002a 7000111 2000002a 2000002a 7000112 20000030 20000030 7000113 2000002a 2000002a 7000114 2000002a 2000002a 7000115 2000002a 2000002a
+// prog: 7000116 2000002a 2000002a 7000117 2000002a 2000002a 7000118 2000002a 2000002a 7000119 2000002a 2000002a 700011a 2000002a 2000002a 700011b
+// prog: 2000002a 2000002a 700011c 2000002a 2000002a 700011d 2000002a 2000002a 700011e 2000002a 2000002a 700011f 20000030 20000030 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 13862 1
+// prog: 13922 1 1000000 50000000 30000000 1000001 50000001 30000001 1000002 50000002 30000002 1000003 50000003 30000003 1000004 50000004
+// prog: 30000004 1000005 50000005 30000005 1000006 50000006 30000006 1000007 50000007 30000007 1000008 50000008 30000008 1000009 50000009 30000009
+// prog: 100000a 5000000a 3000000a 100000b 5000000b 3000000b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 7000000 0 0 7000001 1 1 7000002 2 2 7000003 3 3 7000004 4
+// prog: 4 7000005 5 5 7000006 6 6 7000007 7 7 7000008 8 8 7000009 9 9
+// prog: 700000a a a 700000b b b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 139e4 5 7000000 2000004b 2000004b 7000001 2000002a 2000002a 7000002 2000002a 2000002a 7000003 2000002a 2000002a
+// prog: 7000004 2000002a 2000002a 7000005 2000002a 2000002a 7000006 2000002a 2000002a 7000007 2000002a 2000002a 7000008 2000002a 2000002a 7000009
+// prog: 2000002a 2000002a 700000a 2000002a 2000002a 700000b 2000002a 2000002a 700000c 2000002a 2000002a 700000d 2000004b 2000004b 700000e 2000002a
+// prog: 2000002a 700000f 2000002a 2000002a 7000010 2000002a 2000002a 7000011 2000002a 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a
+// prog: 7000014 2000002a 2000002a 7000015 2000002a 2000002a 7000016 2000002a 2000002a 7000017 2000002a 2000002a 7000018 2000002a 2000002a 7000019
+// prog: 2000002a 2000002a 700001a 2000004b 2000004b 700001b 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e 2000002a
+// prog: 2000002a 700001f 2000002a 2000002a 7000020 2000002a 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a 2000002a
+// prog: 7000024 2000002a 2000002a 7000025 2000002a 2000002a 7000026 2000002a 2000002a 7000027 2000004b 2000004b 7000028 2000002a 2000002a 7000029
+// prog: 2000002a 2000002a 700002a 2000002a 2000002a 700002b 2000002a 2000002a 700002c 2000002a 2000002a 700002d 2000002a 2000002a 700002e 2000002a
+// prog: 2000002a 700002f 2000002a 2000002a 7000030 2000002a 2000002a 7000031 2000002a 2000002a 7000032 2000002a 2000002a 7000033 2000002a 2000002a
+// prog: 7000034 2000004b 2000004b 7000035 2000002a 2000002a 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039
+// prog: 2000002a 2000002a 700003a 2000002a 2000002a 700003b 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a
+// prog: 2000002a 700003f 2000002a 2000002a 7000040 2000002a 2000002a 7000041 2000004b 2000004b 7000042 2000002a 2000002a 7000043 2000002a 2000002a
+// prog: 7000044 2000002a 2000002a 7000045 2000002a 2000002a 7000046 2000002a 2000002a 7000047 2000002a 2000002a 7000048 2000002a 2000002a 7000049
+// prog: 2000002a 2000002a 700004a 2000002a 2000002a 700004b 2000002a 2000002a 700004c 2000002a 2000002a 700004d 2000002a 2000002a 700004e 2000004b
+// prog: 2000004b 700004f 2000002a 2000002a 7000050 2000002a 2000002a 7000051 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a
+// prog: 7000054 2000002a 2000002a 7000055 2000002a 2000002a 7000056 2000002a 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059
+// prog: 2000002a 2000002a 700005a 2000002a 2000002a 700005b 2000004b 2000004b 700005c 2000002a 2000002a 700005d 2000002a 2000002a 700005e 2000002a
+// prog: 2000002a 700005f 2000002a 2000002a 7000060 2000002a 2000002a 7000061 2000002a 2000002a 7000062 2000002a 2000002a 7000063 2000002a 2000002a
+// prog: 7000064 2000002a 2000002a 7000065 2000002a 2000002a 7000066 2000002a 2000002a 7000067 2000002a 2000002a 7000068 2000004b 2000004b 7000069
+// prog: 2000002a 2000002a 700006a 2000002a 2000002a 700006b 2000002a 2000002a 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a
+// prog: 2000002a 700006f 2000002a 2000002a 7000070 2000002a 2000002a 7000071 2000002a 2000002a 7000072 2000002a 2000002a 7000073 2000002a 2000002a
+// prog: 7000074 2000002a 2000002a 7000075 2000004b 2000004b 7000076 2000002a 2000002a 7000077 2000002a 2000002a 7000078 2000002a 2000002a 7000079
+// prog: 2000002a 2000002a 700007a 2000002a 2000002a 700007b 2000002a 2000002a 700007c 2000002a 2000002a 700007d 2000002a 2000002a 700007e 2000002a
+// prog: 2000002a 700007f 2000002a 2000002a 7000080 2000002a 2000002a 7000081 2000002a 2000002a 7000082 2000004b 2000004b 7000083 2000002a 2000002a
+// prog: 7000084 2000002a 2000002a 7000085 2000002a 2000002a 7000086 2000002a 2000002a 7000087 2000002a 2000002a 7000088 2000002a 2000002a 7000089
+// prog: 2000002a 2000002a 700008a 2000002a 2000002a 700008b 2000002a 2000002a 700008c 2000002a 2000002a 700008d 2000002a 2000002a 700008e 2000002a
+// prog: 2000002a 700008f 2000004b 2000004b 7000090 20000030 20000030 7000091 2000002a 2000002a 7000092 2000002a 2000002a 7000093 2000002a 2000002a
+// prog: 7000094 2000002a 2000002a 7000095 2000002a 2000002a 7000096 2000002a 2000002a 7000097 2000002a 2000002a 7000098 2000002a 2000002a 7000099
+// prog: 2000002a 2000002a 700009a 2000002a 2000002a 700009b 2000002a 2000002a 700009c 2000002a 2000002a 700009d 20000030 20000030 700009e 2000002a
+// prog: 2000002a 700009f 2000002a 2000002a 70000a0 2000002a 2000002a 70000a1 2000002a 2000002a 70000a2 2000002a 2000002a 70000a3 2000002a 2000002a
+// prog: 70000a4 2000002a 2000002a 70000a5 2000002a 2000002a 70000a6 2000002a 2000002a 70000a7 2000002a 2000002a 70000a8 2000002a 2000002a 70000a9
+// prog: 2000002a 2000002a 70000aa 20000030 20000030 70000ab 2000002a 2000002a 70000ac 2000002a 2000002a 70000ad 2000002a 2000002a 70000ae 2000002a
+// prog: 2000002a 70000af 2000002a 2000002a 70000b0 2000002a 2000002a 70000b1 2000002a 2000002a 70000b2 2000002a 2000002a 70000b3 2000002a 2000002a
+// prog: 70000b4 2000002a 2000002a 70000b5 2000002a 2000002a 70000b6 2000002a 2000002a 70000b7 20000030 20000030 70000b8 2000002a 2000002a 70000b9
+// prog: 2000002a 2000002a 70000ba 2000002a 2000002a 70000bb 2000002a 2000002a 70000bc 2000002a 2000002a 70000bd 2000002a 2000002a 70000be 2000002a
+// prog: 2000002a 70000bf 2000002a 2000002a 70000c0 2000002a 2000002a 70000c1 2000002a 2000002a 70000c2 2000002a 2000002a 70000c3 2000002a 2000002a
+// prog: 70000c4 20000030 20000030 70000c5 2000002a 2000002a 70000c6 2000002a 2000002a 70000c7 2000002a 2000002a 70000c8 2000002a 2000002a 70000c9
+// prog: 2000002a 2000002a 70000ca 2000002a 2000002a 70000cb 2000002a 2000002a 70000cc 2000002a 2000002a 70000cd 2000002a 2000002a 70000ce 2000002a
+// prog: 2000002a 70000cf 2000002a 2000002a 70000d0 2000002a 2000002a 70000d1 20000030 20000030 70000d2 2000002a 2000002a 70000d3 2000002a 2000002a
+// prog: 70000d4 2000002a 2000002a 70000d5 2000002a 2000002a 70000d6 2000002a 2000002a 70000d7 2000002a 2000002a 70000d8 2000002a 2000002a 70000d9
+// prog: 2000002a 2000002a 70000da 2000002a 2000002a 70000db 2000002a 2000002a 70000dc 2000002a 2000002a 70000dd 2000002a 2000002a 70000de 20000030
+// prog: 20000030 70000df 2000002a 2000002a 70000e0 2000002a 2000002a 70000e1 2000002a 2000002a 70000e2 2000002a 2000002a 70000e3 2000002a 2000002a
+// prog: 70000e4 2000002a 2000002a 70000e5 2000002a 2000002a 70000e6 2000002a 2000002a 70000e7 2000002a 2000002a 70000e8 2000002a 2000002a 70000e9
+// prog: 2000002a 2000002a 70000ea 2000002a 2000002a 70000eb 20000030 20000030 70000ec 2000002a 2000002a 70000ed 2000002a 2000002a 70000ee 2000002a
+// prog: 2000002a 70000ef 2000002a 2000002a 70000f0 2000002a 2000002a 70000f1 2000002a 2000002a 70000f2 2000002a 2000002a 70000f3 2000002a 2000002a
+// prog: 70000f4 2000002a 2000002a 70000f5 2000002a 2000002a 70000f6 2000002a 2000002a 70000f7 2000002a 2000002a 70000f8 20000030 20000030 70000f9
+// prog: 2000002a 2000002a 70000fa 2000002a 2000002a 70000fb 2000002a 2000002a 70000fc 2000002a 2000002a 70000fd 2000002a 2000002a 70000fe 2000002a
+// prog: 2000002a 70000ff 2000002a 2000002a 7000100 2000002a 2000002a 7000101 2000002a 2000002a 7000102 2000002a 2000002a 7000103 2000002a 2000002a
+// prog: 7000104 2000002a 2000002a 7000105 20000030 20000030 7000106 2000002a 2000002a 7000107 2000002a 2000002a 7000108 2000002a 2000002a 7000109
+// prog: 2000002a 2000002a 700010a 2000002a 2000002a 700010b 2000002a 2000002a 700010c 2000002a 2000002a 700010d 2000002a 2000002a 700010e 2000002a
+// prog: 2000002a 700010f 2000002a 2000002a 7000110 2000002a 2000002a 7000111 2000002a 2000002a 7000112 20000030 20000030 7000113 2000002a 2000002a
+// prog: 7000114 2000002a 2000002a 7000115 2000002a 2000002a 7000116 2000002a 2000002a 7000117 2000002a 2000002a 7000118 2000002a 2000002a 7000119
+// prog: 2000002a 2000002a 700011a 2000002a 2000002a 700011b 2000002a 2000002a 700011c 2000002a 2000002a 700011d 2000002a 2000002a 700011e 2000002a
+// prog: 2000002a 700011f 20000030 20000030 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0
 // konst: 4.8965888e-12 9.81 0.011034738 0.1249059 0.08 4.8035537e-11 2.3521028e-22 0.005497747
 // konst: 0.007418368 0.0001 0.08713208 2e-5 0.08986983 -0.0692475 0.39765212 2.638
 // konst: 0.35 0.0004700102 5.5580906e-5 1.04774e-6 0.026413875 3.524e-9 0.026183868 3.524e-5

@@ -8,7 +8,7 @@
 // the order of IIWA14_JOINT_NAMES. Pointers must be aligned to their scalar; outputs must not overlap
 // inputs or each other. Every function returns GRID_GEN_OK (0), GRID_GEN_NULL_POINTER when a pointer
 // is null (nothing is written), GRID_GEN_BAD_LENGTH when n states cannot fit in memory, or
-// GRID_GEN_BAD_VALUE when q holds a quaternion whose norm is more than 1e-6 from 1 (nothing is
+// GRID_GEN_BAD_VALUE when q (or difference's q1) holds a quaternion whose norm is more than 1e-6 from 1 (nothing is
 // written; iiwa14_bad_state() gives the first such state). n = 0 does nothing. Other values are not
 // checked: a NaN in gives NaN out. Batches run on every core (a rayon pool); iiwa14_set_threads(1)
 // keeps them on the caller's.
@@ -95,6 +95,38 @@ int32_t iiwa14_fd_grad_f64(const double *q, const double *qd, const double *tau,
 int32_t iiwa14_fd_grad_batch_f64(size_t n, const double *q, const double *qd, const double *tau, double *qdd, double *dqdd_dq, double *dqdd_dqd);
 int32_t iiwa14_fd_grad_f32(const float *q, const float *qd, const float *tau, float *qdd, float *dqdd_dq, float *dqdd_dqd);
 int32_t iiwa14_fd_grad_batch_f32(size_t n, const float *q, const float *qd, const float *tau, float *qdd, float *dqdd_dq, float *dqdd_dqd);
+
+/* integrate: The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.
+ * Per state, in: q[IIWA14_NV], v[IIWA14_NV].
+ * Per state, out: q_next[IIWA14_NQ]. */
+int32_t iiwa14_integrate_f64(const double *q, const double *v, double *q_next);
+int32_t iiwa14_integrate_batch_f64(size_t n, const double *q, const double *v, double *q_next);
+int32_t iiwa14_integrate_f32(const float *q, const float *v, float *q_next);
+int32_t iiwa14_integrate_batch_f32(size_t n, const float *q, const float *v, float *q_next);
+
+/* dintegrate: The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`).
+ * Per state, in: q[IIWA14_NV], v[IIWA14_NV].
+ * Per state, out: dq[IIWA14_NV][IIWA14_NV], dv[IIWA14_NV][IIWA14_NV]. */
+int32_t iiwa14_dintegrate_f64(const double *q, const double *v, double *dq, double *dv);
+int32_t iiwa14_dintegrate_batch_f64(size_t n, const double *q, const double *v, double *dq, double *dv);
+int32_t iiwa14_dintegrate_f32(const float *q, const float *v, float *dq, float *dv);
+int32_t iiwa14_dintegrate_batch_f32(size_t n, const float *q, const float *v, float *dq, float *dv);
+
+/* difference: The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`).
+ * Per state, in: q[IIWA14_NV], q1[IIWA14_NV].
+ * Per state, out: v[IIWA14_NV]. */
+int32_t iiwa14_difference_f64(const double *q, const double *q1, double *v);
+int32_t iiwa14_difference_batch_f64(size_t n, const double *q, const double *q1, double *v);
+int32_t iiwa14_difference_f32(const float *q, const float *q1, float *v);
+int32_t iiwa14_difference_batch_f32(size_t n, const float *q, const float *q1, float *v);
+
+/* ddifference: The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`).
+ * Per state, in: q[IIWA14_NV], q1[IIWA14_NV].
+ * Per state, out: dq[IIWA14_NV][IIWA14_NV], dq1[IIWA14_NV][IIWA14_NV]. */
+int32_t iiwa14_ddifference_f64(const double *q, const double *q1, double *dq, double *dq1);
+int32_t iiwa14_ddifference_batch_f64(size_t n, const double *q, const double *q1, double *dq, double *dq1);
+int32_t iiwa14_ddifference_f32(const float *q, const float *q1, float *dq, float *dq1);
+int32_t iiwa14_ddifference_batch_f32(size_t n, const float *q, const float *q1, float *dq, float *dq1);
 
 #ifdef __cplusplus
 }

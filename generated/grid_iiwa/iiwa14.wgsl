@@ -40,12 +40,16 @@
 //   minv(q) -> minv: minv (49)
 //   fd(q, qd, tau) -> qdd: qdd (7)
 //   fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd): qdd (7), dqdd_dq (49), dqdd_dqd (49)
+//   integrate(q, v) -> q_next: q_next (7)
+//   dintegrate(q, v) -> (dq, dv): dq (49), dv (49)
+//   difference(q, q1) -> v: v (7)
+//   ddifference(q, q1) -> (dq, dq1): dq (49), dq1 (49)
 //
 // Read by grid-gen's runtime (crates/grid-gen-wgpu):
 // nv: 7
 // precision: f32
 // trig: accurate
-// tables: prog=114324 konst=89
+// tables: prog=115872 konst=89
 // entry: rnea kernel=rnea strategy=thread outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=842 functions=2
 // entry: rnea_coop kernel=rnea strategy=cooperative outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=612 phases=52 stages=1 statements=822 functions=3
 // entry: rnea_grad kernel=rnea_grad strategy=thread outputs=98 scratch=277 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=4 statements=4357 functions=8
@@ -58,6 +62,14 @@
 // entry: fd_coop kernel=fd strategy=cooperative outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=876 phases=122 stages=1 statements=1853 functions=3
 // entry: fd_grad kernel=fd_grad strategy=thread outputs=105 scratch=439 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=6 statements=6759 functions=12
 // entry: fd_grad_coop kernel=fd_grad strategy=cooperative outputs=105 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=2716 phases=138 stages=1 statements=5359 functions=3
+// entry: integrate kernel=integrate strategy=thread outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=28 functions=2
+// entry: integrate_coop kernel=integrate strategy=cooperative outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=28 phases=2 stages=1 statements=14 functions=3
+// entry: dintegrate kernel=dintegrate strategy=thread outputs=98 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=98 functions=2
+// entry: dintegrate_coop kernel=dintegrate strategy=cooperative outputs=98 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=4 phases=1 stages=1 statements=98 functions=3
+// entry: difference kernel=difference strategy=thread outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=28 functions=2
+// entry: difference_coop kernel=difference strategy=cooperative outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=28 phases=2 stages=1 statements=14 functions=3
+// entry: ddifference kernel=ddifference strategy=thread outputs=98 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=98 functions=2
+// entry: ddifference_coop kernel=ddifference strategy=cooperative outputs=98 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=4 phases=1 stages=1 statements=98 functions=3
 
 alias real = f32;
 
@@ -989,6 +1001,7 @@ fn rnea_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -5458,6 +5471,7 @@ fn rnea_grad_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -5966,6 +5980,7 @@ fn mass_matrix_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -7879,6 +7894,7 @@ fn minv_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -10008,6 +10024,7 @@ fn fd_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -16905,6 +16922,7 @@ fn fd_grad_coop_step(k: u32, s: u32, n: u32) {
         case 4u: { v = -x; }
         case 5u: { v = gg_sin(x); }
         case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
         case 7u: {
             out[d * n + s] = x;
             return;
@@ -16930,6 +16948,554 @@ fn fd_grad_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         let steps = prog[81600u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             fd_grad_coop_step(at + k * 192u, s, n);
+        }
+        workgroupBarrier();
+    }
+}
+
+// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order. One invocation per state.
+fn integrate_part0(s: u32, n: u32) {
+    let t0 = q[0u * n + s];
+    let t7 = qd[0u * n + s];
+    let t1 = q[1u * n + s];
+    let t8 = qd[1u * n + s];
+    let t2 = q[2u * n + s];
+    let t9 = qd[2u * n + s];
+    let t3 = q[3u * n + s];
+    let t10 = qd[3u * n + s];
+    let t4 = q[4u * n + s];
+    let t11 = qd[4u * n + s];
+    let t5 = q[5u * n + s];
+    let t12 = qd[5u * n + s];
+    let t6 = q[6u * n + s];
+    let t13 = qd[6u * n + s];
+    let t14 = t0 + t7;
+    let t15 = t1 + t8;
+    let t16 = t2 + t9;
+    let t17 = t3 + t10;
+    let t18 = t4 + t11;
+    let t19 = t5 + t12;
+    let t20 = t6 + t13;
+    out[0u * n + s] = t14;
+    out[1u * n + s] = t15;
+    out[2u * n + s] = t16;
+    out[3u * n + s] = t17;
+    out[4u * n + s] = t18;
+    out[5u * n + s] = t19;
+    out[6u * n + s] = t20;
+}
+
+@compute @workgroup_size(64)
+fn integrate(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.n;
+    let s = gid.x;
+    if (s >= n) {
+        return;
+    }
+    integrate_part0(s, n);
+}
+
+// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order. One workgroup of 64 invocations per state, 2 phases; its 14 operations are a table at prog[114324..114712] (phase p's block starts at prog[114324 + 2 * p] and has prog[114324 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> integrate_coop_wg: array<real, 7>;
+
+fn integrate_coop_read(a: u32, s: u32, n: u32) -> real {
+    let i = a & 268435455u;
+    switch (a >> 28u) {
+        case 0u: { return integrate_coop_wg[i]; }
+        case 1u: { return scratch[i * n + s]; }
+        case 2u: { return konst[i]; }
+        case 3u: { return q[i * n + s]; }
+        case 4u: { return qd[i * n + s]; }
+        default: { return u[i * n + s]; }
+    }
+}
+
+fn integrate_coop_step(k: u32, s: u32, n: u32) {
+    let w0 = prog[k];
+    let x = integrate_coop_read(prog[k + 1u], s, n);
+    let y = integrate_coop_read(prog[k + 2u], s, n);
+    let d = w0 & 16777215u;
+    var v = 0.0f;
+    switch (w0 >> 24u) {
+        case 0u: { v = x + y; }
+        case 1u: { v = x - y; }
+        case 2u: { v = x * y; }
+        case 3u: { v = x / y; }
+        case 4u: { v = -x; }
+        case 5u: { v = gg_sin(x); }
+        case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
+        case 7u: {
+            out[d * n + s] = x;
+            return;
+        }
+        default: { return; }
+    }
+    if (d < 7u) {
+        integrate_coop_wg[d] = v;
+    } else {
+        scratch[(d - 7u) * n + s] = v;
+    }
+}
+
+@compute @workgroup_size(64)
+fn integrate_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {
+    let n = params.n;
+    let s = wid.x;
+    if (s >= n) {
+        return;
+    }
+    for (var p = 0u; p < 2u; p++) {
+        let at = prog[114324u + 2u * p] + 3u * w;
+        let steps = prog[114324u + 2u * p + 1u];
+        for (var k = 0u; k < steps; k++) {
+            integrate_coop_step(at + k * 192u, s, n);
+        }
+        workgroupBarrier();
+    }
+}
+
+// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`). One invocation per state.
+fn dintegrate_part0(s: u32, n: u32) {
+    out[0u * n + s] = 1.0f;
+    out[1u * n + s] = 0.0f;
+    out[2u * n + s] = 0.0f;
+    out[3u * n + s] = 0.0f;
+    out[4u * n + s] = 0.0f;
+    out[5u * n + s] = 0.0f;
+    out[6u * n + s] = 0.0f;
+    out[7u * n + s] = 0.0f;
+    out[8u * n + s] = 1.0f;
+    out[9u * n + s] = 0.0f;
+    out[10u * n + s] = 0.0f;
+    out[11u * n + s] = 0.0f;
+    out[12u * n + s] = 0.0f;
+    out[13u * n + s] = 0.0f;
+    out[14u * n + s] = 0.0f;
+    out[15u * n + s] = 0.0f;
+    out[16u * n + s] = 1.0f;
+    out[17u * n + s] = 0.0f;
+    out[18u * n + s] = 0.0f;
+    out[19u * n + s] = 0.0f;
+    out[20u * n + s] = 0.0f;
+    out[21u * n + s] = 0.0f;
+    out[22u * n + s] = 0.0f;
+    out[23u * n + s] = 0.0f;
+    out[24u * n + s] = 1.0f;
+    out[25u * n + s] = 0.0f;
+    out[26u * n + s] = 0.0f;
+    out[27u * n + s] = 0.0f;
+    out[28u * n + s] = 0.0f;
+    out[29u * n + s] = 0.0f;
+    out[30u * n + s] = 0.0f;
+    out[31u * n + s] = 0.0f;
+    out[32u * n + s] = 1.0f;
+    out[33u * n + s] = 0.0f;
+    out[34u * n + s] = 0.0f;
+    out[35u * n + s] = 0.0f;
+    out[36u * n + s] = 0.0f;
+    out[37u * n + s] = 0.0f;
+    out[38u * n + s] = 0.0f;
+    out[39u * n + s] = 0.0f;
+    out[40u * n + s] = 1.0f;
+    out[41u * n + s] = 0.0f;
+    out[42u * n + s] = 0.0f;
+    out[43u * n + s] = 0.0f;
+    out[44u * n + s] = 0.0f;
+    out[45u * n + s] = 0.0f;
+    out[46u * n + s] = 0.0f;
+    out[47u * n + s] = 0.0f;
+    out[48u * n + s] = 1.0f;
+    out[49u * n + s] = 1.0f;
+    out[50u * n + s] = 0.0f;
+    out[51u * n + s] = 0.0f;
+    out[52u * n + s] = 0.0f;
+    out[53u * n + s] = 0.0f;
+    out[54u * n + s] = 0.0f;
+    out[55u * n + s] = 0.0f;
+    out[56u * n + s] = 0.0f;
+    out[57u * n + s] = 1.0f;
+    out[58u * n + s] = 0.0f;
+    out[59u * n + s] = 0.0f;
+    out[60u * n + s] = 0.0f;
+    out[61u * n + s] = 0.0f;
+    out[62u * n + s] = 0.0f;
+    out[63u * n + s] = 0.0f;
+    out[64u * n + s] = 0.0f;
+    out[65u * n + s] = 1.0f;
+    out[66u * n + s] = 0.0f;
+    out[67u * n + s] = 0.0f;
+    out[68u * n + s] = 0.0f;
+    out[69u * n + s] = 0.0f;
+    out[70u * n + s] = 0.0f;
+    out[71u * n + s] = 0.0f;
+    out[72u * n + s] = 0.0f;
+    out[73u * n + s] = 1.0f;
+    out[74u * n + s] = 0.0f;
+    out[75u * n + s] = 0.0f;
+    out[76u * n + s] = 0.0f;
+    out[77u * n + s] = 0.0f;
+    out[78u * n + s] = 0.0f;
+    out[79u * n + s] = 0.0f;
+    out[80u * n + s] = 0.0f;
+    out[81u * n + s] = 1.0f;
+    out[82u * n + s] = 0.0f;
+    out[83u * n + s] = 0.0f;
+    out[84u * n + s] = 0.0f;
+    out[85u * n + s] = 0.0f;
+    out[86u * n + s] = 0.0f;
+    out[87u * n + s] = 0.0f;
+    out[88u * n + s] = 0.0f;
+    out[89u * n + s] = 1.0f;
+    out[90u * n + s] = 0.0f;
+    out[91u * n + s] = 0.0f;
+    out[92u * n + s] = 0.0f;
+    out[93u * n + s] = 0.0f;
+    out[94u * n + s] = 0.0f;
+    out[95u * n + s] = 0.0f;
+    out[96u * n + s] = 0.0f;
+    out[97u * n + s] = 1.0f;
+}
+
+@compute @workgroup_size(64)
+fn dintegrate(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.n;
+    let s = gid.x;
+    if (s >= n) {
+        return;
+    }
+    dintegrate_part0(s, n);
+}
+
+// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 98 operations are a table at prog[114712..115098] (phase p's block starts at prog[114712 + 2 * p] and has prog[114712 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> dintegrate_coop_wg: array<real, 1>;
+
+fn dintegrate_coop_read(a: u32, s: u32, n: u32) -> real {
+    let i = a & 268435455u;
+    switch (a >> 28u) {
+        case 0u: { return dintegrate_coop_wg[i]; }
+        case 1u: { return scratch[i * n + s]; }
+        case 2u: { return konst[i]; }
+        case 3u: { return q[i * n + s]; }
+        case 4u: { return qd[i * n + s]; }
+        default: { return u[i * n + s]; }
+    }
+}
+
+fn dintegrate_coop_step(k: u32, s: u32, n: u32) {
+    let w0 = prog[k];
+    let x = dintegrate_coop_read(prog[k + 1u], s, n);
+    let y = dintegrate_coop_read(prog[k + 2u], s, n);
+    let d = w0 & 16777215u;
+    var v = 0.0f;
+    switch (w0 >> 24u) {
+        case 0u: { v = x + y; }
+        case 1u: { v = x - y; }
+        case 2u: { v = x * y; }
+        case 3u: { v = x / y; }
+        case 4u: { v = -x; }
+        case 5u: { v = gg_sin(x); }
+        case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
+        case 7u: {
+            out[d * n + s] = x;
+            return;
+        }
+        default: { return; }
+    }
+    if (d < 0u) {
+        dintegrate_coop_wg[d] = v;
+    } else {
+        scratch[(d - 0u) * n + s] = v;
+    }
+}
+
+@compute @workgroup_size(64)
+fn dintegrate_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {
+    let n = params.n;
+    let s = wid.x;
+    if (s >= n) {
+        return;
+    }
+    for (var p = 0u; p < 1u; p++) {
+        let at = prog[114712u + 2u * p] + 3u * w;
+        let steps = prog[114712u + 2u * p + 1u];
+        for (var k = 0u; k < steps; k++) {
+            dintegrate_coop_step(at + k * 192u, s, n);
+        }
+        workgroupBarrier();
+    }
+}
+
+// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`). One invocation per state.
+fn difference_part0(s: u32, n: u32) {
+    let t7 = u[0u * n + s];
+    let t0 = q[0u * n + s];
+    let t8 = u[1u * n + s];
+    let t1 = q[1u * n + s];
+    let t9 = u[2u * n + s];
+    let t2 = q[2u * n + s];
+    let t10 = u[3u * n + s];
+    let t3 = q[3u * n + s];
+    let t11 = u[4u * n + s];
+    let t4 = q[4u * n + s];
+    let t12 = u[5u * n + s];
+    let t5 = q[5u * n + s];
+    let t13 = u[6u * n + s];
+    let t6 = q[6u * n + s];
+    let t14 = t7 - t0;
+    let t15 = t8 - t1;
+    let t16 = t9 - t2;
+    let t17 = t10 - t3;
+    let t18 = t11 - t4;
+    let t19 = t12 - t5;
+    let t20 = t13 - t6;
+    out[0u * n + s] = t14;
+    out[1u * n + s] = t15;
+    out[2u * n + s] = t16;
+    out[3u * n + s] = t17;
+    out[4u * n + s] = t18;
+    out[5u * n + s] = t19;
+    out[6u * n + s] = t20;
+}
+
+@compute @workgroup_size(64)
+fn difference(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.n;
+    let s = gid.x;
+    if (s >= n) {
+        return;
+    }
+    difference_part0(s, n);
+}
+
+// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`). One workgroup of 64 invocations per state, 2 phases; its 14 operations are a table at prog[115098..115486] (phase p's block starts at prog[115098 + 2 * p] and has prog[115098 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> difference_coop_wg: array<real, 7>;
+
+fn difference_coop_read(a: u32, s: u32, n: u32) -> real {
+    let i = a & 268435455u;
+    switch (a >> 28u) {
+        case 0u: { return difference_coop_wg[i]; }
+        case 1u: { return scratch[i * n + s]; }
+        case 2u: { return konst[i]; }
+        case 3u: { return q[i * n + s]; }
+        case 4u: { return qd[i * n + s]; }
+        default: { return u[i * n + s]; }
+    }
+}
+
+fn difference_coop_step(k: u32, s: u32, n: u32) {
+    let w0 = prog[k];
+    let x = difference_coop_read(prog[k + 1u], s, n);
+    let y = difference_coop_read(prog[k + 2u], s, n);
+    let d = w0 & 16777215u;
+    var v = 0.0f;
+    switch (w0 >> 24u) {
+        case 0u: { v = x + y; }
+        case 1u: { v = x - y; }
+        case 2u: { v = x * y; }
+        case 3u: { v = x / y; }
+        case 4u: { v = -x; }
+        case 5u: { v = gg_sin(x); }
+        case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
+        case 7u: {
+            out[d * n + s] = x;
+            return;
+        }
+        default: { return; }
+    }
+    if (d < 7u) {
+        difference_coop_wg[d] = v;
+    } else {
+        scratch[(d - 7u) * n + s] = v;
+    }
+}
+
+@compute @workgroup_size(64)
+fn difference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {
+    let n = params.n;
+    let s = wid.x;
+    if (s >= n) {
+        return;
+    }
+    for (var p = 0u; p < 2u; p++) {
+        let at = prog[115098u + 2u * p] + 3u * w;
+        let steps = prog[115098u + 2u * p + 1u];
+        for (var k = 0u; k < steps; k++) {
+            difference_coop_step(at + k * 192u, s, n);
+        }
+        workgroupBarrier();
+    }
+}
+
+// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`). One invocation per state.
+fn ddifference_part0(s: u32, n: u32) {
+    out[0u * n + s] = (-1.0f);
+    out[1u * n + s] = 0.0f;
+    out[2u * n + s] = 0.0f;
+    out[3u * n + s] = 0.0f;
+    out[4u * n + s] = 0.0f;
+    out[5u * n + s] = 0.0f;
+    out[6u * n + s] = 0.0f;
+    out[7u * n + s] = 0.0f;
+    out[8u * n + s] = (-1.0f);
+    out[9u * n + s] = 0.0f;
+    out[10u * n + s] = 0.0f;
+    out[11u * n + s] = 0.0f;
+    out[12u * n + s] = 0.0f;
+    out[13u * n + s] = 0.0f;
+    out[14u * n + s] = 0.0f;
+    out[15u * n + s] = 0.0f;
+    out[16u * n + s] = (-1.0f);
+    out[17u * n + s] = 0.0f;
+    out[18u * n + s] = 0.0f;
+    out[19u * n + s] = 0.0f;
+    out[20u * n + s] = 0.0f;
+    out[21u * n + s] = 0.0f;
+    out[22u * n + s] = 0.0f;
+    out[23u * n + s] = 0.0f;
+    out[24u * n + s] = (-1.0f);
+    out[25u * n + s] = 0.0f;
+    out[26u * n + s] = 0.0f;
+    out[27u * n + s] = 0.0f;
+    out[28u * n + s] = 0.0f;
+    out[29u * n + s] = 0.0f;
+    out[30u * n + s] = 0.0f;
+    out[31u * n + s] = 0.0f;
+    out[32u * n + s] = (-1.0f);
+    out[33u * n + s] = 0.0f;
+    out[34u * n + s] = 0.0f;
+    out[35u * n + s] = 0.0f;
+    out[36u * n + s] = 0.0f;
+    out[37u * n + s] = 0.0f;
+    out[38u * n + s] = 0.0f;
+    out[39u * n + s] = 0.0f;
+    out[40u * n + s] = (-1.0f);
+    out[41u * n + s] = 0.0f;
+    out[42u * n + s] = 0.0f;
+    out[43u * n + s] = 0.0f;
+    out[44u * n + s] = 0.0f;
+    out[45u * n + s] = 0.0f;
+    out[46u * n + s] = 0.0f;
+    out[47u * n + s] = 0.0f;
+    out[48u * n + s] = (-1.0f);
+    out[49u * n + s] = 1.0f;
+    out[50u * n + s] = 0.0f;
+    out[51u * n + s] = 0.0f;
+    out[52u * n + s] = 0.0f;
+    out[53u * n + s] = 0.0f;
+    out[54u * n + s] = 0.0f;
+    out[55u * n + s] = 0.0f;
+    out[56u * n + s] = 0.0f;
+    out[57u * n + s] = 1.0f;
+    out[58u * n + s] = 0.0f;
+    out[59u * n + s] = 0.0f;
+    out[60u * n + s] = 0.0f;
+    out[61u * n + s] = 0.0f;
+    out[62u * n + s] = 0.0f;
+    out[63u * n + s] = 0.0f;
+    out[64u * n + s] = 0.0f;
+    out[65u * n + s] = 1.0f;
+    out[66u * n + s] = 0.0f;
+    out[67u * n + s] = 0.0f;
+    out[68u * n + s] = 0.0f;
+    out[69u * n + s] = 0.0f;
+    out[70u * n + s] = 0.0f;
+    out[71u * n + s] = 0.0f;
+    out[72u * n + s] = 0.0f;
+    out[73u * n + s] = 1.0f;
+    out[74u * n + s] = 0.0f;
+    out[75u * n + s] = 0.0f;
+    out[76u * n + s] = 0.0f;
+    out[77u * n + s] = 0.0f;
+    out[78u * n + s] = 0.0f;
+    out[79u * n + s] = 0.0f;
+    out[80u * n + s] = 0.0f;
+    out[81u * n + s] = 1.0f;
+    out[82u * n + s] = 0.0f;
+    out[83u * n + s] = 0.0f;
+    out[84u * n + s] = 0.0f;
+    out[85u * n + s] = 0.0f;
+    out[86u * n + s] = 0.0f;
+    out[87u * n + s] = 0.0f;
+    out[88u * n + s] = 0.0f;
+    out[89u * n + s] = 1.0f;
+    out[90u * n + s] = 0.0f;
+    out[91u * n + s] = 0.0f;
+    out[92u * n + s] = 0.0f;
+    out[93u * n + s] = 0.0f;
+    out[94u * n + s] = 0.0f;
+    out[95u * n + s] = 0.0f;
+    out[96u * n + s] = 0.0f;
+    out[97u * n + s] = 1.0f;
+}
+
+@compute @workgroup_size(64)
+fn ddifference(@builtin(global_invocation_id) gid: vec3<u32>) {
+    let n = params.n;
+    let s = gid.x;
+    if (s >= n) {
+        return;
+    }
+    ddifference_part0(s, n);
+}
+
+// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 98 operations are a table at prog[115486..115872] (phase p's block starts at prog[115486 + 2 * p] and has prog[115486 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> ddifference_coop_wg: array<real, 1>;
+
+fn ddifference_coop_read(a: u32, s: u32, n: u32) -> real {
+    let i = a & 268435455u;
+    switch (a >> 28u) {
+        case 0u: { return ddifference_coop_wg[i]; }
+        case 1u: { return scratch[i * n + s]; }
+        case 2u: { return konst[i]; }
+        case 3u: { return q[i * n + s]; }
+        case 4u: { return qd[i * n + s]; }
+        default: { return u[i * n + s]; }
+    }
+}
+
+fn ddifference_coop_step(k: u32, s: u32, n: u32) {
+    let w0 = prog[k];
+    let x = ddifference_coop_read(prog[k + 1u], s, n);
+    let y = ddifference_coop_read(prog[k + 2u], s, n);
+    let d = w0 & 16777215u;
+    var v = 0.0f;
+    switch (w0 >> 24u) {
+        case 0u: { v = x + y; }
+        case 1u: { v = x - y; }
+        case 2u: { v = x * y; }
+        case 3u: { v = x / y; }
+        case 4u: { v = -x; }
+        case 5u: { v = gg_sin(x); }
+        case 6u: { v = gg_cos(x); }
+        case 9u: { v = sqrt(x); }
+        case 7u: {
+            out[d * n + s] = x;
+            return;
+        }
+        default: { return; }
+    }
+    if (d < 0u) {
+        ddifference_coop_wg[d] = v;
+    } else {
+        scratch[(d - 0u) * n + s] = v;
+    }
+}
+
+@compute @workgroup_size(64)
+fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_index) w: u32) {
+    let n = params.n;
+    let s = wid.x;
+    if (s >= n) {
+        return;
+    }
+    for (var p = 0u; p < 1u; p++) {
+        let at = prog[115486u + 2u * p] + 3u * w;
+        let steps = prog[115486u + 2u * p + 1u];
+        for (var k = 0u; k < steps; k++) {
+            ddifference_coop_step(at + k * 192u, s, n);
         }
         workgroupBarrier();
     }
@@ -24081,7 +24647,103 @@ fn fd_grad_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0
+// prog: 0 8000000 0 0 1be98 1 1bf58 1 0 30000000 40000000 1 30000001 40000001 2 30000002
+// prog: 40000002 3 30000003 40000003 4 30000004 40000004 5 30000005 40000005 6 30000006 40000006 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 7000000 0 0 7000001 1 1 7000002 2
+// prog: 2 7000003 3 3 7000004 4 4 7000005 5 5 7000006 6 6 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 1c01a 2 7000000 20000049 20000049 7000001 20000045 20000045
+// prog: 7000002 20000045 20000045 7000003 20000045 20000045 7000004 20000045 20000045 7000005 20000045 20000045 7000006 20000045 20000045 7000007
+// prog: 20000045 20000045 7000008 20000049 20000049 7000009 20000045 20000045 700000a 20000045 20000045 700000b 20000045 20000045 700000c 20000045
+// prog: 20000045 700000d 20000045 20000045 700000e 20000045 20000045 700000f 20000045 20000045 7000010 20000049 20000049 7000011 20000045 20000045
+// prog: 7000012 20000045 20000045 7000013 20000045 20000045 7000014 20000045 20000045 7000015 20000045 20000045 7000016 20000045 20000045 7000017
+// prog: 20000045 20000045 7000018 20000049 20000049 7000019 20000045 20000045 700001a 20000045 20000045 700001b 20000045 20000045 700001c 20000045
+// prog: 20000045 700001d 20000045 20000045 700001e 20000045 20000045 700001f 20000045 20000045 7000020 20000049 20000049 7000021 20000045 20000045
+// prog: 7000022 20000045 20000045 7000023 20000045 20000045 7000024 20000045 20000045 7000025 20000045 20000045 7000026 20000045 20000045 7000027
+// prog: 20000045 20000045 7000028 20000049 20000049 7000029 20000045 20000045 700002a 20000045 20000045 700002b 20000045 20000045 700002c 20000045
+// prog: 20000045 700002d 20000045 20000045 700002e 20000045 20000045 700002f 20000045 20000045 7000030 20000049 20000049 7000031 20000049 20000049
+// prog: 7000032 20000045 20000045 7000033 20000045 20000045 7000034 20000045 20000045 7000035 20000045 20000045 7000036 20000045 20000045 7000037
+// prog: 20000045 20000045 7000038 20000045 20000045 7000039 20000049 20000049 700003a 20000045 20000045 700003b 20000045 20000045 700003c 20000045
+// prog: 20000045 700003d 20000045 20000045 700003e 20000045 20000045 700003f 20000045 20000045 7000040 20000045 20000045 7000041 20000049 20000049
+// prog: 7000042 20000045 20000045 7000043 20000045 20000045 7000044 20000045 20000045 7000045 20000045 20000045 7000046 20000045 20000045 7000047
+// prog: 20000045 20000045 7000048 20000045 20000045 7000049 20000049 20000049 700004a 20000045 20000045 700004b 20000045 20000045 700004c 20000045
+// prog: 20000045 700004d 20000045 20000045 700004e 20000045 20000045 700004f 20000045 20000045 7000050 20000045 20000045 7000051 20000049 20000049
+// prog: 7000052 20000045 20000045 7000053 20000045 20000045 7000054 20000045 20000045 7000055 20000045 20000045 7000056 20000045 20000045 7000057
+// prog: 20000045 20000045 7000058 20000045 20000045 7000059 20000049 20000049 700005a 20000045 20000045 700005b 20000045 20000045 700005c 20000045
+// prog: 20000045 700005d 20000045 20000045 700005e 20000045 20000045 700005f 20000045 20000045 7000060 20000045 20000045 7000061 20000049 20000049
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1c19e 1 1c25e 1 1000000 50000000
+// prog: 30000000 1000001 50000001 30000001 1000002 50000002 30000002 1000003 50000003 30000003 1000004 50000004 30000004 1000005 50000005 30000005
+// prog: 1000006 50000006 30000006 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 7000000 0
+// prog: 0 7000001 1 1 7000002 2 2 7000003 3 3 7000004 4 4 7000005 5 5
+// prog: 7000006 6 6 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1c320 2
+// prog: 7000000 20000058 20000058 7000001 20000045 20000045 7000002 20000045 20000045 7000003 20000045 20000045 7000004 20000045 20000045 7000005
+// prog: 20000045 20000045 7000006 20000045 20000045 7000007 20000045 20000045 7000008 20000058 20000058 7000009 20000045 20000045 700000a 20000045
+// prog: 20000045 700000b 20000045 20000045 700000c 20000045 20000045 700000d 20000045 20000045 700000e 20000045 20000045 700000f 20000045 20000045
+// prog: 7000010 20000058 20000058 7000011 20000045 20000045 7000012 20000045 20000045 7000013 20000045 20000045 7000014 20000045 20000045 7000015
+// prog: 20000045 20000045 7000016 20000045 20000045 7000017 20000045 20000045 7000018 20000058 20000058 7000019 20000045 20000045 700001a 20000045
+// prog: 20000045 700001b 20000045 20000045 700001c 20000045 20000045 700001d 20000045 20000045 700001e 20000045 20000045 700001f 20000045 20000045
+// prog: 7000020 20000058 20000058 7000021 20000045 20000045 7000022 20000045 20000045 7000023 20000045 20000045 7000024 20000045 20000045 7000025
+// prog: 20000045 20000045 7000026 20000045 20000045 7000027 20000045 20000045 7000028 20000058 20000058 7000029 20000045 20000045 700002a 20000045
+// prog: 20000045 700002b 20000045 20000045 700002c 20000045 20000045 700002d 20000045 20000045 700002e 20000045 20000045 700002f 20000045 20000045
+// prog: 7000030 20000058 20000058 7000031 20000049 20000049 7000032 20000045 20000045 7000033 20000045 20000045 7000034 20000045 20000045 7000035
+// prog: 20000045 20000045 7000036 20000045 20000045 7000037 20000045 20000045 7000038 20000045 20000045 7000039 20000049 20000049 700003a 20000045
+// prog: 20000045 700003b 20000045 20000045 700003c 20000045 20000045 700003d 20000045 20000045 700003e 20000045 20000045 700003f 20000045 20000045
+// prog: 7000040 20000045 20000045 7000041 20000049 20000049 7000042 20000045 20000045 7000043 20000045 20000045 7000044 20000045 20000045 7000045
+// prog: 20000045 20000045 7000046 20000045 20000045 7000047 20000045 20000045 7000048 20000045 20000045 7000049 20000049 20000049 700004a 20000045
+// prog: 20000045 700004b 20000045 20000045 700004c 20000045 20000045 700004d 20000045 20000045 700004e 20000045 20000045 700004f 20000045 20000045
+// prog: 7000050 20000045 20000045 7000051 20000049 20000049 7000052 20000045 20000045 7000053 20000045 20000045 7000054 20000045 20000045 7000055
+// prog: 20000045 20000045 7000056 20000045 20000045 7000057 20000045 20000045 7000058 20000045 20000045 7000059 20000049 20000049 700005a 20000045
+// prog: 20000045 700005b 20000045 20000045 700005c 20000045 20000045 700005d 20000045 20000045 700005e 20000045 20000045 700005f 20000045 20000045
+// prog: 7000060 20000045 20000045 7000061 20000049 20000049 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // konst: 0.022684 9.81 0.09710575 -1.2395e-5 -1e-8 0.05280197 -3.53e-5 0.05520492
 // konst: 0.2667 0.001905 0.37465 0.2045 0.1496 0.14215 0.00035 0.01395
 // konst: 0.455 0.105 3.5 0.2155 0.0565575 0.024496 2.7e-5 0.0374215

@@ -54,7 +54,7 @@ pub mod iiwa14_batch {
     pub const GRID_GEN_BAD_LENGTH: i32 = 2;
     /// q holds a quaternion whose norm is more than 1e-6 from 1 (`iiwa14_bad_state` says which state).
     pub const GRID_GEN_BAD_VALUE: i32 = 3;
-    const MANIFEST: &str = "{\"contacts\":[],\"floating_base\":false,\"frames\":[],\"gravity\":[0.0,0.0,-9.81],\"grid_gen\":\"0.1.0\",\"joint_names\":[\"iiwa_joint_1\",\"iiwa_joint_2\",\"iiwa_joint_3\",\"iiwa_joint_4\",\"iiwa_joint_5\",\"iiwa_joint_6\",\"iiwa_joint_7\"],\"kernels\":[{\"doc\":\"Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"qdd\"}],\"name\":\"rnea\",\"outputs\":[{\"dims\":[7],\"name\":\"c\"}]},{\"doc\":\"Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"qdd\"}],\"name\":\"rnea_grad\",\"outputs\":[{\"dims\":[7,7],\"name\":\"dc_dq\"},{\"dims\":[7,7],\"name\":\"dc_dqd\"}]},{\"doc\":\"The joint-space inertia matrix M(q) (CRBA).\",\"inputs\":[{\"len\":7,\"name\":\"q\"}],\"name\":\"mass_matrix\",\"outputs\":[{\"dims\":[7,7],\"name\":\"m\"}]},{\"doc\":\"M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.\",\"inputs\":[{\"len\":7,\"name\":\"q\"}],\"name\":\"minv\",\"outputs\":[{\"dims\":[7,7],\"name\":\"minv\"}]},{\"doc\":\"Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"tau\"}],\"name\":\"fd\",\"outputs\":[{\"dims\":[7],\"name\":\"qdd\"}]},{\"doc\":\"Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"tau\"}],\"name\":\"fd_grad\",\"outputs\":[{\"dims\":[7],\"name\":\"qdd\"},{\"dims\":[7,7],\"name\":\"dqdd_dq\"},{\"dims\":[7,7],\"name\":\"dqdd_dqd\"}]}],\"nfext\":0,\"nlambda\":0,\"nq\":7,\"nu\":7,\"nv\":7,\"precisions\":[\"f64\",\"f32\"],\"prefix\":\"iiwa14\",\"quaternions\":[],\"reference_frame\":\"local_world_aligned\",\"robot\":\"iiwa14\"}\u{0}";
+    const MANIFEST: &str = "{\"contacts\":[],\"floating_base\":false,\"frames\":[],\"gravity\":[0.0,0.0,-9.81],\"grid_gen\":\"0.1.0\",\"joint_names\":[\"iiwa_joint_1\",\"iiwa_joint_2\",\"iiwa_joint_3\",\"iiwa_joint_4\",\"iiwa_joint_5\",\"iiwa_joint_6\",\"iiwa_joint_7\"],\"kernels\":[{\"doc\":\"Inverse dynamics (RNEA): joint forces `c = M(q) qdd + C(q, qd) qd + g(q)`.\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"qdd\"}],\"name\":\"rnea\",\"outputs\":[{\"dims\":[7],\"name\":\"c\"}]},{\"doc\":\"Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"qdd\"}],\"name\":\"rnea_grad\",\"outputs\":[{\"dims\":[7,7],\"name\":\"dc_dq\"},{\"dims\":[7,7],\"name\":\"dc_dqd\"}]},{\"doc\":\"The joint-space inertia matrix M(q) (CRBA).\",\"inputs\":[{\"len\":7,\"name\":\"q\"}],\"name\":\"mass_matrix\",\"outputs\":[{\"dims\":[7,7],\"name\":\"m\"}]},{\"doc\":\"M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.\",\"inputs\":[{\"len\":7,\"name\":\"q\"}],\"name\":\"minv\",\"outputs\":[{\"dims\":[7,7],\"name\":\"minv\"}]},{\"doc\":\"Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"tau\"}],\"name\":\"fd\",\"outputs\":[{\"dims\":[7],\"name\":\"qdd\"}]},{\"doc\":\"Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"qd\"},{\"len\":7,\"name\":\"tau\"}],\"name\":\"fd_grad\",\"outputs\":[{\"dims\":[7],\"name\":\"qdd\"},{\"dims\":[7,7],\"name\":\"dqdd_dq\"},{\"dims\":[7,7],\"name\":\"dqdd_dqd\"}]},{\"doc\":\"The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"v\"}],\"name\":\"integrate\",\"outputs\":[{\"dims\":[7],\"name\":\"q_next\"}]},{\"doc\":\"The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"v\"}],\"name\":\"dintegrate\",\"outputs\":[{\"dims\":[7,7],\"name\":\"dq\"},{\"dims\":[7,7],\"name\":\"dv\"}]},{\"doc\":\"The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"q1\"}],\"name\":\"difference\",\"outputs\":[{\"dims\":[7],\"name\":\"v\"}]},{\"doc\":\"The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`).\",\"inputs\":[{\"len\":7,\"name\":\"q\"},{\"len\":7,\"name\":\"q1\"}],\"name\":\"ddifference\",\"outputs\":[{\"dims\":[7,7],\"name\":\"dq\"},{\"dims\":[7,7],\"name\":\"dq1\"}]}],\"nfext\":0,\"nlambda\":0,\"nq\":7,\"nu\":7,\"nv\":7,\"precisions\":[\"f64\",\"f32\"],\"prefix\":\"iiwa14\",\"quaternions\":[],\"reference_frame\":\"local_world_aligned\",\"robot\":\"iiwa14\"}\u{0}";
     /// Where each unit quaternion `[qx, qy, qz, qw]` starts in q.
     const QUATERNIONS: [usize; 0] = [];
     thread_local! {
@@ -1091,6 +1091,644 @@ pub mod iiwa14_batch {
                 n,
             );
             self::fd_grad::<f32>(q, qd, tau, qdd, dqdd_dq, dqdd_dqd);
+        }
+        GRID_GEN_OK
+    }
+    /// `integrate(q, v) -> q_next` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
+    ///
+    /// # Panics
+    /// If the slices' lengths differ.
+    pub fn integrate<T: Real + Send + Sync + 'static>(
+        q: &[[T; NV]],
+        v: &[[T; NV]],
+        q_next: &mut [[T; NQ]],
+    ) {
+        let n = q.len();
+        assert!(
+            v.len() == n && q_next.len() == n,
+            "integrate: every slice holds one entry per state"
+        );
+        let o0 = Out(q_next.as_mut_ptr());
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
+            n,
+            lanes,
+            |range| {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::integrate(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(v, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::integrate(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(v, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
+                    let r0 = super::iiwa14::integrate(&q[i], &v[i]);
+                    unsafe {
+                        o0.write(i, r0);
+                    }
+                }
+            },
+        );
+    }
+    /// `integrate` in f64 for one state (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds one state's array, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_integrate_f64(
+        q: *const f64,
+        v: *const f64,
+        q_next: *mut f64,
+    ) -> i32 {
+        unsafe { iiwa14_integrate_batch_f64(1, q, v, q_next) }
+    }
+    /// `integrate` in f64 for `n` states, on every core (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_integrate_batch_f64(
+        n: usize,
+        q: *const f64,
+        v: *const f64,
+        q_next: *mut f64,
+    ) -> i32 {
+        if n == 0 {
+            return GRID_GEN_OK;
+        }
+        if q.is_null() || v.is_null() || q_next.is_null() {
+            return GRID_GEN_NULL_POINTER;
+        }
+        if n > isize::MAX as usize / (7 * core::mem::size_of::<f64>()) {
+            return GRID_GEN_BAD_LENGTH;
+        }
+        unsafe {
+            let q = core::slice::from_raw_parts(q.cast::<[f64; NV]>(), n);
+            let v = core::slice::from_raw_parts(v.cast::<[f64; NV]>(), n);
+            let q_next = core::slice::from_raw_parts_mut(q_next.cast::<[f64; NQ]>(), n);
+            self::integrate::<f64>(q, v, q_next);
+        }
+        GRID_GEN_OK
+    }
+    /// `integrate` in f32 for one state (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds one state's array, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_integrate_f32(
+        q: *const f32,
+        v: *const f32,
+        q_next: *mut f32,
+    ) -> i32 {
+        unsafe { iiwa14_integrate_batch_f32(1, q, v, q_next) }
+    }
+    /// `integrate` in f32 for `n` states, on every core (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_integrate_batch_f32(
+        n: usize,
+        q: *const f32,
+        v: *const f32,
+        q_next: *mut f32,
+    ) -> i32 {
+        if n == 0 {
+            return GRID_GEN_OK;
+        }
+        if q.is_null() || v.is_null() || q_next.is_null() {
+            return GRID_GEN_NULL_POINTER;
+        }
+        if n > isize::MAX as usize / (7 * core::mem::size_of::<f32>()) {
+            return GRID_GEN_BAD_LENGTH;
+        }
+        unsafe {
+            let q = core::slice::from_raw_parts(q.cast::<[f32; NV]>(), n);
+            let v = core::slice::from_raw_parts(v.cast::<[f32; NV]>(), n);
+            let q_next = core::slice::from_raw_parts_mut(q_next.cast::<[f32; NQ]>(), n);
+            self::integrate::<f32>(q, v, q_next);
+        }
+        GRID_GEN_OK
+    }
+    /// `dintegrate(q, v) -> (dq, dv)` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
+    ///
+    /// # Panics
+    /// If the slices' lengths differ.
+    pub fn dintegrate<T: Real + Send + Sync + 'static>(
+        q: &[[T; NV]],
+        v: &[[T; NV]],
+        dq: &mut [[[T; NV]; NV]],
+        dv: &mut [[[T; NV]; NV]],
+    ) {
+        let n = q.len();
+        assert!(
+            v.len() == n && dq.len() == n && dv.len() == n,
+            "dintegrate: every slice holds one entry per state"
+        );
+        let o0 = Out(dq.as_mut_ptr());
+        let o1 = Out(dv.as_mut_ptr());
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
+            n,
+            lanes,
+            |range| {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let (r0, r1) = super::iiwa14::dintegrate(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(v, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                    o1.write(i + l, lane::<_, _, f64, 4>(&r1, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let (r0, r1) = super::iiwa14::dintegrate(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(v, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                    o1.write(i + l, lane::<_, _, f32, 8>(&r1, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
+                    let (r0, r1) = super::iiwa14::dintegrate(&q[i], &v[i]);
+                    unsafe {
+                        o0.write(i, r0);
+                        o1.write(i, r1);
+                    }
+                }
+            },
+        );
+    }
+    /// `dintegrate` in f64 for one state (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds one state's array, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_dintegrate_f64(
+        q: *const f64,
+        v: *const f64,
+        dq: *mut f64,
+        dv: *mut f64,
+    ) -> i32 {
+        unsafe { iiwa14_dintegrate_batch_f64(1, q, v, dq, dv) }
+    }
+    /// `dintegrate` in f64 for `n` states, on every core (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_dintegrate_batch_f64(
+        n: usize,
+        q: *const f64,
+        v: *const f64,
+        dq: *mut f64,
+        dv: *mut f64,
+    ) -> i32 {
+        if n == 0 {
+            return GRID_GEN_OK;
+        }
+        if q.is_null() || v.is_null() || dq.is_null() || dv.is_null() {
+            return GRID_GEN_NULL_POINTER;
+        }
+        if n > isize::MAX as usize / (49 * core::mem::size_of::<f64>()) {
+            return GRID_GEN_BAD_LENGTH;
+        }
+        unsafe {
+            let q = core::slice::from_raw_parts(q.cast::<[f64; NV]>(), n);
+            let v = core::slice::from_raw_parts(v.cast::<[f64; NV]>(), n);
+            let dq = core::slice::from_raw_parts_mut(dq.cast::<[[f64; NV]; NV]>(), n);
+            let dv = core::slice::from_raw_parts_mut(dv.cast::<[[f64; NV]; NV]>(), n);
+            self::dintegrate::<f64>(q, v, dq, dv);
+        }
+        GRID_GEN_OK
+    }
+    /// `dintegrate` in f32 for one state (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds one state's array, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_dintegrate_f32(
+        q: *const f32,
+        v: *const f32,
+        dq: *mut f32,
+        dv: *mut f32,
+    ) -> i32 {
+        unsafe { iiwa14_dintegrate_batch_f32(1, q, v, dq, dv) }
+    }
+    /// `dintegrate` in f32 for `n` states, on every core (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_dintegrate_batch_f32(
+        n: usize,
+        q: *const f32,
+        v: *const f32,
+        dq: *mut f32,
+        dv: *mut f32,
+    ) -> i32 {
+        if n == 0 {
+            return GRID_GEN_OK;
+        }
+        if q.is_null() || v.is_null() || dq.is_null() || dv.is_null() {
+            return GRID_GEN_NULL_POINTER;
+        }
+        if n > isize::MAX as usize / (49 * core::mem::size_of::<f32>()) {
+            return GRID_GEN_BAD_LENGTH;
+        }
+        unsafe {
+            let q = core::slice::from_raw_parts(q.cast::<[f32; NV]>(), n);
+            let v = core::slice::from_raw_parts(v.cast::<[f32; NV]>(), n);
+            let dq = core::slice::from_raw_parts_mut(dq.cast::<[[f32; NV]; NV]>(), n);
+            let dv = core::slice::from_raw_parts_mut(dv.cast::<[[f32; NV]; NV]>(), n);
+            self::dintegrate::<f32>(q, v, dq, dv);
+        }
+        GRID_GEN_OK
+    }
+    /// `difference(q, q1) -> v` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
+    ///
+    /// # Panics
+    /// If the slices' lengths differ.
+    pub fn difference<T: Real + Send + Sync + 'static>(
+        q: &[[T; NV]],
+        q1: &[[T; NV]],
+        v: &mut [[T; NV]],
+    ) {
+        let n = q.len();
+        assert!(
+            q1.len() == n && v.len() == n,
+            "difference: every slice holds one entry per state"
+        );
+        let o0 = Out(v.as_mut_ptr());
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
+            n,
+            lanes,
+            |range| {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::difference(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(q1, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let r0 = super::iiwa14::difference(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(q1, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
+                    let r0 = super::iiwa14::difference(&q[i], &q1[i]);
+                    unsafe {
+                        o0.write(i, r0);
+                    }
+                }
+            },
+        );
+    }
+    /// `difference` in f64 for one state (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds one state's array, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_difference_f64(
+        q: *const f64,
+        q1: *const f64,
+        v: *mut f64,
+    ) -> i32 {
+        unsafe { iiwa14_difference_batch_f64(1, q, q1, v) }
+    }
+    /// `difference` in f64 for `n` states, on every core (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_difference_batch_f64(
+        n: usize,
+        q: *const f64,
+        q1: *const f64,
+        v: *mut f64,
+    ) -> i32 {
+        if n == 0 {
+            return GRID_GEN_OK;
+        }
+        if q.is_null() || q1.is_null() || v.is_null() {
+            return GRID_GEN_NULL_POINTER;
+        }
+        if n > isize::MAX as usize / (7 * core::mem::size_of::<f64>()) {
+            return GRID_GEN_BAD_LENGTH;
+        }
+        unsafe {
+            let q = core::slice::from_raw_parts(q.cast::<[f64; NV]>(), n);
+            let q1 = core::slice::from_raw_parts(q1.cast::<[f64; NV]>(), n);
+            let v = core::slice::from_raw_parts_mut(v.cast::<[f64; NV]>(), n);
+            self::difference::<f64>(q, q1, v);
+        }
+        GRID_GEN_OK
+    }
+    /// `difference` in f32 for one state (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds one state's array, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_difference_f32(
+        q: *const f32,
+        q1: *const f32,
+        v: *mut f32,
+    ) -> i32 {
+        unsafe { iiwa14_difference_batch_f32(1, q, q1, v) }
+    }
+    /// `difference` in f32 for `n` states, on every core (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_difference_batch_f32(
+        n: usize,
+        q: *const f32,
+        q1: *const f32,
+        v: *mut f32,
+    ) -> i32 {
+        if n == 0 {
+            return GRID_GEN_OK;
+        }
+        if q.is_null() || q1.is_null() || v.is_null() {
+            return GRID_GEN_NULL_POINTER;
+        }
+        if n > isize::MAX as usize / (7 * core::mem::size_of::<f32>()) {
+            return GRID_GEN_BAD_LENGTH;
+        }
+        unsafe {
+            let q = core::slice::from_raw_parts(q.cast::<[f32; NV]>(), n);
+            let q1 = core::slice::from_raw_parts(q1.cast::<[f32; NV]>(), n);
+            let v = core::slice::from_raw_parts_mut(v.cast::<[f32; NV]>(), n);
+            self::difference::<f32>(q, q1, v);
+        }
+        GRID_GEN_OK
+    }
+    /// `ddifference(q, q1) -> (dq, dq1)` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
+    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
+    /// bit-identical to one call per state.
+    ///
+    /// # Panics
+    /// If the slices' lengths differ.
+    pub fn ddifference<T: Real + Send + Sync + 'static>(
+        q: &[[T; NV]],
+        q1: &[[T; NV]],
+        dq: &mut [[[T; NV]; NV]],
+        dq1: &mut [[[T; NV]; NV]],
+    ) {
+        let n = q.len();
+        assert!(
+            q1.len() == n && dq.len() == n && dq1.len() == n,
+            "ddifference: every slice holds one entry per state"
+        );
+        let o0 = Out(dq.as_mut_ptr());
+        let o1 = Out(dq1.as_mut_ptr());
+        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
+            8
+        } else {
+            4
+        };
+        grid_gen_runtime::for_each_lanes(
+            n,
+            lanes,
+            |range| {
+                #[allow(unused_mut)]
+                let mut i = range.start;
+                #[cfg(target_arch = "x86_64")]
+                {
+                    if T::IS_F64
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
+                        && F64x4::supported()
+                    {
+                        while i + 4 <= range.end {
+                            unsafe {
+                                let (r0, r1) = super::iiwa14::ddifference(
+                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
+                                    &gather::<T, f64, F64x4, NV, 4>(q1, i),
+                                );
+                                for l in 0..4 {
+                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
+                                    o1.write(i + l, lane::<_, _, f64, 4>(&r1, l));
+                                }
+                            }
+                            i += 4;
+                        }
+                    }
+                    if T::IS_F32
+                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
+                        && F32x8::supported()
+                    {
+                        while i + 8 <= range.end {
+                            unsafe {
+                                let (r0, r1) = super::iiwa14::ddifference(
+                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
+                                    &gather::<T, f32, F32x8, NV, 8>(q1, i),
+                                );
+                                for l in 0..8 {
+                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
+                                    o1.write(i + l, lane::<_, _, f32, 8>(&r1, l));
+                                }
+                            }
+                            i += 8;
+                        }
+                    }
+                }
+                for i in i..range.end {
+                    let (r0, r1) = super::iiwa14::ddifference(&q[i], &q1[i]);
+                    unsafe {
+                        o0.write(i, r0);
+                        o1.write(i, r1);
+                    }
+                }
+            },
+        );
+    }
+    /// `ddifference` in f64 for one state (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds one state's array, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_ddifference_f64(
+        q: *const f64,
+        q1: *const f64,
+        dq: *mut f64,
+        dq1: *mut f64,
+    ) -> i32 {
+        unsafe { iiwa14_ddifference_batch_f64(1, q, q1, dq, dq1) }
+    }
+    /// `ddifference` in f64 for `n` states, on every core (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_ddifference_batch_f64(
+        n: usize,
+        q: *const f64,
+        q1: *const f64,
+        dq: *mut f64,
+        dq1: *mut f64,
+    ) -> i32 {
+        if n == 0 {
+            return GRID_GEN_OK;
+        }
+        if q.is_null() || q1.is_null() || dq.is_null() || dq1.is_null() {
+            return GRID_GEN_NULL_POINTER;
+        }
+        if n > isize::MAX as usize / (49 * core::mem::size_of::<f64>()) {
+            return GRID_GEN_BAD_LENGTH;
+        }
+        unsafe {
+            let q = core::slice::from_raw_parts(q.cast::<[f64; NV]>(), n);
+            let q1 = core::slice::from_raw_parts(q1.cast::<[f64; NV]>(), n);
+            let dq = core::slice::from_raw_parts_mut(dq.cast::<[[f64; NV]; NV]>(), n);
+            let dq1 = core::slice::from_raw_parts_mut(dq1.cast::<[[f64; NV]; NV]>(), n);
+            self::ddifference::<f64>(q, q1, dq, dq1);
+        }
+        GRID_GEN_OK
+    }
+    /// `ddifference` in f32 for one state (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds one state's array, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_ddifference_f32(
+        q: *const f32,
+        q1: *const f32,
+        dq: *mut f32,
+        dq1: *mut f32,
+    ) -> i32 {
+        unsafe { iiwa14_ddifference_batch_f32(1, q, q1, dq, dq1) }
+    }
+    /// `ddifference` in f32 for `n` states, on every core (`iiwa14.h`).
+    ///
+    /// # Safety
+    /// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.
+    #[unsafe(no_mangle)]
+    pub unsafe extern "C" fn iiwa14_ddifference_batch_f32(
+        n: usize,
+        q: *const f32,
+        q1: *const f32,
+        dq: *mut f32,
+        dq1: *mut f32,
+    ) -> i32 {
+        if n == 0 {
+            return GRID_GEN_OK;
+        }
+        if q.is_null() || q1.is_null() || dq.is_null() || dq1.is_null() {
+            return GRID_GEN_NULL_POINTER;
+        }
+        if n > isize::MAX as usize / (49 * core::mem::size_of::<f32>()) {
+            return GRID_GEN_BAD_LENGTH;
+        }
+        unsafe {
+            let q = core::slice::from_raw_parts(q.cast::<[f32; NV]>(), n);
+            let q1 = core::slice::from_raw_parts(q1.cast::<[f32; NV]>(), n);
+            let dq = core::slice::from_raw_parts_mut(dq.cast::<[[f32; NV]; NV]>(), n);
+            let dq1 = core::slice::from_raw_parts_mut(dq1.cast::<[[f32; NV]; NV]>(), n);
+            self::ddifference::<f32>(q, q1, dq, dq1);
         }
         GRID_GEN_OK
     }

@@ -75,7 +75,7 @@ fn info_json_has_the_documented_fields() {
         // Every kernel in both WGSL strategies, cooperative ones within WebGPU's 16 KiB of
         // workgroup memory, and the same figures the shader file's `// entry:` lines carry.
         let wgsl = v["wgsl"].as_array().unwrap();
-        assert_eq!(wgsl.len(), 12, "{robot}: six kernels, two strategies");
+        assert_eq!(wgsl.len(), 20, "{robot}: six dynamics and four Lie-group kernels, two strategies");
         assert!(v.get("wgsl_skipped").is_none());
         for e in wgsl {
             assert!(
@@ -301,7 +301,7 @@ fn huge_chains_stay_within_two_gib() {
         assert_eq!(info["nv"], n);
         let counted = info["ops"].as_array().unwrap().len();
         let skipped = info["ops_skipped"].as_array().unwrap();
-        assert_eq!(counted + skipped.len(), 6, "chain{n}: every kernel is counted or skipped");
+        assert_eq!(counted + skipped.len(), 10, "chain{n}: every kernel is counted or skipped");
         assert!(
             skipped.iter().any(|s| s["kernel"] == "fd_grad"),
             "chain{n}: fd_grad is over the op-count limit"

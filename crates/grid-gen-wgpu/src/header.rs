@@ -203,7 +203,8 @@ mod tests {
         for precision in [Precision::F32, Precision::F64] {
             let text = shader(precision);
             let info = ShaderInfo::parse(&text).unwrap();
-            assert_eq!(info.entries.len(), 12);
+            // Ten kernels (six dynamics, four Lie-group), two strategies.
+            assert_eq!(info.entries.len(), 20);
             // The cooperative entries' tables tile prog in order, each a head of (offset,
             // steps) per phase, the first block just past it, each block `steps` rows of
             // one instruction (3 words) per invocation, the last ending the table (the

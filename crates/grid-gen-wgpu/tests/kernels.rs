@@ -281,10 +281,14 @@ fn check_model_within(
     let u_q1: Vec<f64> = q1s.concat();
     for f in lowered.functions.iter().filter(|f| kernels.contains(&f.kind)) {
         let takes_q1 = f.inputs().contains(&grid_gen::ir::Input::Q1);
+        let none = Vec::new();
         let u = if f.kind.is_step() {
             &u_step
         } else if takes_q1 {
             &u_q1
+        } else if f.packed_u_len() == 0 {
+            // `integrate` and `dintegrate`: q and v (in q̇'s buffer) only.
+            &none
         } else {
             &u
         };

@@ -83,6 +83,8 @@ pub trait Real: Copy + core::ops::Add<
     }
     fn sin(self) -> Self;
     fn cos(self) -> Self;
+    /// Correctly rounded (IEEE 754), so every type's lanes agree bit for bit.
+    fn sqrt(self) -> Self;
     /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
     /// instruction it would be a slow library call).
     fn mul_add(self, a: Self, b: Self) -> Self;
@@ -110,6 +112,10 @@ impl Real for f64 {
     fn cos(self) -> Self {
         f64::cos(self)
     }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f64::sqrt(self)
+    }
 }
 impl Real for f32 {
     const IS_F32: bool = true;
@@ -128,6 +134,10 @@ impl Real for f32 {
     #[inline(always)]
     fn cos(self) -> Self {
         f32::cos(self)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f32::sqrt(self)
     }
 }
 /// A constant in the kernels: `Real::lit`, sound here because every kernel first fills its
@@ -198,6 +208,10 @@ impl<const N: usize, S: Real> Real for Lanes<N, S> {
     #[inline(always)]
     fn cos(self) -> Self {
         Lanes(self.0.map(S::cos))
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        Lanes(self.0.map(S::sqrt))
     }
 }
 /// Whether this CPU runs the [`fma`] copy (x86-64 with AVX2 and FMA, detected once and
@@ -328,6 +342,10 @@ impl Real for F64x4 {
     fn cos(self) -> Self {
         F64x4::unchecked(self.to_array().map(f64::cos))
     }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_sqrt_pd(self.0) })
+    }
 }
 /// 8 f32 states per call in one 256-bit register (`__m256`): what `Lanes<8, f32>` computes,
 /// bit for bit, but each operation is one vector instruction, where `Lanes` leaves the
@@ -447,6 +465,10 @@ impl Real for F32x8 {
     #[inline(always)]
     fn cos(self) -> Self {
         F32x8::unchecked(self.to_array().map(f32::cos))
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_sqrt_ps(self.0) })
     }
 }
 /// Each frame's world placement: translation, and rotation (frame axes in world coordinates, row-major), as Pinocchio's `framesForwardKinematics`.

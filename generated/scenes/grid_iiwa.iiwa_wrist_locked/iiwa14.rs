@@ -58,6 +58,8 @@ pub trait Real: Copy + core::ops::Add<
     }
     fn sin(self) -> Self;
     fn cos(self) -> Self;
+    /// Correctly rounded (IEEE 754), so every type's lanes agree bit for bit.
+    fn sqrt(self) -> Self;
     /// `self * a + b` rounded once; only the FMA copy calls it (without the FMA
     /// instruction it would be a slow library call).
     fn mul_add(self, a: Self, b: Self) -> Self;
@@ -85,6 +87,10 @@ impl Real for f64 {
     fn cos(self) -> Self {
         f64::cos(self)
     }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f64::sqrt(self)
+    }
 }
 impl Real for f32 {
     const IS_F32: bool = true;
@@ -103,6 +109,10 @@ impl Real for f32 {
     #[inline(always)]
     fn cos(self) -> Self {
         f32::cos(self)
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        f32::sqrt(self)
     }
 }
 /// A constant in the kernels: `Real::lit`, sound here because every kernel first fills its
@@ -173,6 +183,10 @@ impl<const N: usize, S: Real> Real for Lanes<N, S> {
     #[inline(always)]
     fn cos(self) -> Self {
         Lanes(self.0.map(S::cos))
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        Lanes(self.0.map(S::sqrt))
     }
 }
 /// Whether this CPU runs the [`fma`] copy (x86-64 with AVX2 and FMA, detected once and
@@ -303,6 +317,10 @@ impl Real for F64x4 {
     fn cos(self) -> Self {
         F64x4::unchecked(self.to_array().map(f64::cos))
     }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F64x4(unsafe { core::arch::x86_64::_mm256_sqrt_pd(self.0) })
+    }
 }
 /// 8 f32 states per call in one 256-bit register (`__m256`): what `Lanes<8, f32>` computes,
 /// bit for bit, but each operation is one vector instruction, where `Lanes` leaves the
@@ -422,6 +440,10 @@ impl Real for F32x8 {
     #[inline(always)]
     fn cos(self) -> Self {
         F32x8::unchecked(self.to_array().map(f32::cos))
+    }
+    #[inline(always)]
+    fn sqrt(self) -> Self {
+        F32x8(unsafe { core::arch::x86_64::_mm256_sqrt_ps(self.0) })
     }
 }
 /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
