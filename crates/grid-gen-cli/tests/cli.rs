@@ -75,7 +75,11 @@ fn info_json_has_the_documented_fields() {
         // Every kernel in both WGSL strategies, cooperative ones within WebGPU's 16 KiB of
         // workgroup memory, and the same figures the shader file's `// entry:` lines carry.
         let wgsl = v["wgsl"].as_array().unwrap();
-        assert_eq!(wgsl.len(), 20, "{robot}: six dynamics and four Lie-group kernels, two strategies");
+        assert_eq!(
+            wgsl.len(),
+            20,
+            "{robot}: six dynamics and four Lie-group kernels, two strategies"
+        );
         assert!(v.get("wgsl_skipped").is_none());
         for e in wgsl {
             assert!(
@@ -243,7 +247,21 @@ fn generate_writes_checks_and_reports_op_counts() {
     let v = json(&grid_gen(&["info", "robots/grid_iiwa.urdf", "--json"]));
     let kernels: Vec<&str> =
         v["ops"].as_array().unwrap().iter().map(|k| k["kernel"].as_str().unwrap()).collect();
-    assert_eq!(kernels, ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad"]);
+    assert_eq!(
+        kernels,
+        [
+            "rnea",
+            "rnea_grad",
+            "mass_matrix",
+            "minv",
+            "fd",
+            "fd_grad",
+            "integrate",
+            "dintegrate",
+            "difference",
+            "ddifference"
+        ]
+    );
     for k in v["ops"].as_array().unwrap() {
         for field in ["add", "mul", "div", "neg", "trig", "depth"] {
             assert!(k["after"][field].is_u64() && k["before"][field].is_u64(), "{k}");

@@ -245,8 +245,13 @@ pub enum KernelKind {
     ContactFd,
     ContactFdGrad,
     Integrate,
+    // Pinocchio's names, lower-cased (`dIntegrate`), in JSON and on the command line too.
+    #[serde(rename = "dintegrate")]
+    #[cfg_attr(feature = "clap", value(name = "dintegrate"))]
     DIntegrate,
     Difference,
+    #[serde(rename = "ddifference")]
+    #[cfg_attr(feature = "clap", value(name = "ddifference"))]
     DDifference,
 }
 
