@@ -78,8 +78,9 @@ fn quaternion_log(g: &mut Graph, r: [Id; 4]) -> Log {
         let s = g.add(one, c);
         let s = g.mul(half, s);
         c = g.sqrt(s);
-        let twice = g.add(c, c);
-        v = v.map(|x| g.div(x, twice));
+        // One division per halving: v / 2c as v · (½ / c).
+        let inv = g.div(half, c);
+        v = v.map(|x| g.mul(x, inv));
     }
     // t = tan φ_K; φ_K / sin φ_K = (atan t / t) / cos φ_K.
     let vv = g.dot(&v, &v);
@@ -101,8 +102,8 @@ fn quaternion_log(g: &mut Graph, r: [Id; 4]) -> Log {
     let (four, quarter) = (k(g, 4.0), k(g, 0.25));
     for _ in 0..HALVINGS {
         // 2x cot 2x = a − x²/a; (1 − 2x cot 2x)/(2x)² = (b + 1/a)/4.
-        let xa = g.div(x2, a);
         let inv = g.div(one, a);
+        let xa = g.mul(x2, inv);
         let bi = g.add(b, inv);
         b = g.mul(quarter, bi);
         a = g.sub(a, xa);
