@@ -11,7 +11,12 @@ generated gradients.
 `step(q, qd, tau) -> (q_next, qd_next)` are `jax.custom_vjp` functions: their values come
 from the robot's kernels, their reverse-mode rules from its analytical gradients (`rnea_grad`
 with M for rnea; `fd_grad` with M^-1 for fd; `step_grad`'s A and B for step), never from
-differentiating through the kernels.
+differentiating through the kernels. A robot with contacts: `rnea` and `fd` take the contact
+forces as a fourth argument, `lam` (their rules pull back through `dc_dlambda`,
+`dqdd_dlambda`), and `step` returns `(q_next, qd_next, lam)`, the step's contact forces,
+whose cotangent its rule pulls back through `dlambda_dx` and `dlambda_du`. External forces,
+a contact mask, Baumgarte's inputs and a run-time dt are not covered (the kernels that take
+them are not wrapped: `step` is None).
 
 Each call is an XLA FFI custom call (`jax.ffi.ffi_call`, `vmap_method="broadcast_all"`): one
 small C++ handler, compiled once with the local C++ compiler against jaxlib's headers and
@@ -148,7 +153,9 @@ class Functions:
         missing = [k for k in ("rnea", "rnea_grad", "mass_matrix", "fd", "fd_grad", "minv") if k not in robot.kernels]
         if missing:
             raise ValueError(f"grid_gen.jax needs the kernels {', '.join(missing)}; load the robot with them")
+        contacts = bool(robot.contacts)
         for k, names in (("rnea", ["q", "qd", "qdd"]), ("fd", ["q", "qd", "tau"])):
+            names = names + ["lambda"] * contacts
             got = [n for n, _ in getattr(robot, k).inputs]
             if got != names:
                 raise ValueError(
@@ -212,31 +219,34 @@ class Functions:
             g_ang = 0.5 * jnp.einsum("...ji,...j->...i", _quat_u(quat), g_q[..., 3:7])
             return jnp.concatenate([g_lin, g_ang, g_q[..., 7:]], axis=-1)
 
-        def differentiable(value, grad, matrix, grad_gives_value):
-            """The kernel `value` as a custom_vjp function of three arrays: its rule pulls the
-            cotangent back through `grad`'s two matrices (for the first two arguments) and
-            through `matrix` of q (for the third). `grad_gives_value`: `grad` returns the value
-            first (fd_grad's q̈), so it is not computed twice."""
+        def differentiable(value, grad, matrix, grad_gives_value, by_lambda):
+            """The kernel `value` as a custom_vjp function of three arrays (four with contacts:
+            λ last): its rule pulls the cotangent back through `grad`'s two matrices (for the
+            first two arguments), through `matrix` of q (for the third) and through `grad`'s
+            output `by_lambda` (for λ). `grad_gives_value`: `grad` returns the value first
+            (fd_grad's q̈), so it is not computed twice."""
+            at = [n for n, _ in getattr(robot, grad).outputs].index(by_lambda) if contacts else None
 
             @jax.custom_vjp
-            def f(q, x, y):
-                return call(value, q, x, y)[0]
+            def f(q, x, y, *lam):
+                return call(value, q, x, y, *lam)[0]
 
-            def f_fwd(q, x, y):
-                out = call(grad, q, x, y)
-                val, dq, dx = out[:3] if grad_gives_value else (call(value, q, x, y)[0], *out[:2])
+            def f_fwd(q, x, y, *lam):
+                out = call(grad, q, x, y, *lam)
+                val, dq, dx = out[:3] if grad_gives_value else (call(value, q, x, y, *lam)[0], *out[:2])
                 (m,) = call(matrix, q)
-                return val, (q, dq, dx, m)
+                return val, (q, dq, dx, m, out[at] if contacts else None)
 
             def f_bwd(res, g):
-                q, dq, dx, m = res
-                return q_cotangent(q, vec_mat(g, dq)), vec_mat(g, dx), vec_mat(g, m)
+                q, dq, dx, m, dl = res
+                rest = (vec_mat(g, dl),) if contacts else ()
+                return (q_cotangent(q, vec_mat(g, dq)), vec_mat(g, dx), vec_mat(g, m), *rest)
 
             f.defvjp(f_fwd, f_bwd)
             return f
 
-        self.rnea: Callable = differentiable("rnea", "rnea_grad", "mass_matrix", grad_gives_value=False)
-        self.fd: Callable = differentiable("fd", "fd_grad", "minv", grad_gives_value=True)
+        self.rnea: Callable = differentiable("rnea", "rnea_grad", "mass_matrix", False, "dc_dlambda")
+        self.fd: Callable = differentiable("fd", "fd_grad", "minv", True, "dqdd_dlambda")
         self.step: Optional[Callable] = None
         if "step" in robot.kernels and "step_grad" in robot.kernels:
             got = [n for n, _ in robot.step.inputs]
@@ -245,19 +255,23 @@ class Functions:
 
                 @jax.custom_vjp
                 def step(q, qd, tau):
-                    # With contacts, the step's λ follows (not differentiated here).
-                    q_next, qd_next = call("step", q, qd, tau)[:2]
-                    return q_next, qd_next
+                    # With contacts, the step's λ at the knot follows: (q_next, qd_next, lam).
+                    return tuple(call("step", q, qd, tau))
 
                 def step_fwd(q, qd, tau):
-                    q_next, qd_next, a, b = call("step_grad", q, qd, tau)[:4]
-                    return (q_next, qd_next), (q, q_next, a, b)
+                    out = call("step_grad", q, qd, tau)
+                    # (q_next, qd_next, A, B) and with contacts (lam, dlam_dx, dlam_du).
+                    value = (out[0], out[1]) + ((out[4],) if contacts else ())
+                    return value, (q, out[0], out[2], out[3], out[5:] if contacts else None)
 
                 def step_bwd(res, g):
-                    q, q_next, a, b = res
+                    q, q_next, a, b, dlam = res
                     g_x = jnp.concatenate([v_cotangent(q_next, g[0]), g[1]], axis=-1)
-                    g_in = vec_mat(g_x, a)
-                    return q_cotangent(q, g_in[..., :nv]), g_in[..., nv:], vec_mat(g_x, b)
+                    g_in, g_tau = vec_mat(g_x, a), vec_mat(g_x, b)
+                    if contacts:
+                        g_in = g_in + vec_mat(g[2], dlam[0])
+                        g_tau = g_tau + vec_mat(g[2], dlam[1])
+                    return q_cotangent(q, g_in[..., :nv]), g_in[..., nv:], g_tau
 
                 step.defvjp(step_fwd, step_bwd)
                 self.step = step

@@ -740,7 +740,9 @@ def test_load_keywords_and_state_checks_say_what_is_wrong(tmp_path):
         (dict(step="leapfrog"), 'load(step="leapfrog"): no such scheme; schemes: semi_implicit_euler, explicit_euler, rk4'),
         (dict(contacts={"l2": "line"}), 'contact `l2` has type "line"'),
         (dict(contacts="l2"), "load(contacts=...) takes"),
-        (dict(contacts={"l9": "point"}), "l9"),
+        (dict(contacts={"l9": "point"}), "load(contacts=...) names `l9`"),
+        (dict(frames=["l9"]), "load(frames=...) names `l9`"),
+        (dict(external_forces=["j9"]), "load(external_forces=...) names `j9`"),
     ]
     for kwargs, says in cases:
         with pytest.raises(ValueError) as e:
@@ -897,3 +899,70 @@ def test_lie_group_kernels_match_pinocchio(tmp_path):
         robot.difference(Q[1], bad)
     with pytest.raises(ValueError, match=r"`v` has shape \(17,\).*\(14,\)"):
         robot.integrate(Q[1], Q1[1])
+
+
+def test_jax_contact_forces_through_rnea_fd_and_the_step(tmp_path):
+    """A floating robot nobody bundled on two point contacts with a semi-implicit step:
+    grid_gen.jax's rnea and fd take λ, its step returns the step's λ, and jax.grad of a cost
+    of all their outputs (λ's included) matches central differences on the manifold, q moved
+    by the robot's own integrate (held to Pinocchio in test_lie_group_kernels_match_pinocchio)."""
+    jax = _jax()
+    import jax.numpy as jnp
+
+    import grid_gen.jax as gj
+
+    urdf = tmp_path / "unseen_tree.urdf"
+    urdf.write_text(random_tree_urdf(seed=2027))
+    kernels = ["rnea", "rnea_grad", "mass_matrix", "minv", "fd", "fd_grad", "step", "step_grad", "integrate"]
+    robot = grid_gen.load(urdf, floating_base=True, contacts={"l2": "point", "l4": "point"}, step="semi_implicit_euler", dt=0.01, kernels=kernels)
+    dyn = gj.wrap(robot)
+    nl = robot.nlambda
+    assert nl == 6 and [n for n, _ in robot.fd.inputs] == ["q", "qd", "tau", "lambda"]
+    rng = np.random.default_rng(9)
+    q = np.concatenate([[0.1, -0.2, 0.3], np.array([0.1, 0.2, -0.3, 0.9]) / np.linalg.norm([0.1, 0.2, -0.3, 0.9]), rng.uniform(-1, 1, robot.nv - 6)])
+    qd, tau, lam = rng.uniform(-1, 1, robot.nv), rng.uniform(-2, 2, robot.nv), rng.uniform(-5, 5, nl)
+    u = tau[6:]
+    wq, wv, wl = rng.normal(size=robot.nq), rng.normal(size=robot.nv), rng.normal(size=nl)
+
+    def jax_cost(kind):
+        if kind == "step":
+            def cost(q, qd, u):
+                q_next, qd_next, lam_next = dyn.step(q, qd, u)
+                return jnp.dot(q_next, wq) + jnp.dot(qd_next, wv) + jnp.dot(lam_next, wl)
+            return cost
+        f = dyn.fd if kind == "fd" else dyn.rnea
+        return lambda q, qd, y, lam: jnp.dot(f(q, qd, y, lam), wv)
+
+    def plain(kind):
+        if kind == "step":
+            def value(q, qd, u):
+                r = robot.step(q, qd, u)
+                return r.q_next @ wq + r.qd_next @ wv + r.lam @ wl
+            return value
+        f = robot.fd if kind == "fd" else robot.rnea
+        return lambda q, qd, y, lam: float(f(q, qd, y, lam) @ wv)
+
+    h = 1e-5
+    worst = 0.0
+    for kind, args in (("fd", (q, qd, tau, lam)), ("rnea", (q, qd, tau / 10, lam)), ("step", (q, qd, u))):
+        n = len(args)
+        grads = [np.asarray(g) for g in jax.jit(jax.grad(jax_cost(kind), argnums=tuple(range(n))))(*args)]
+        value = plain(kind)
+        for _ in range(4):
+            d = rng.normal(size=robot.nv)
+            qp, qm = robot.integrate(args[0], h * d), robot.integrate(args[0], -h * d)
+            num = (value(qp, *args[1:]) - value(qm, *args[1:])) / (2 * h)
+            worst = max(worst, abs(grads[0] @ ((qp - qm) / (2 * h)) - num) / max(abs(num), np.linalg.norm(grads[0])))
+        for k in range(1, n):
+            num = np.zeros(len(grads[k]))
+            for j in range(len(num)):
+                plus = [np.array(a, dtype=float) for a in args]
+                minus = [np.array(a, dtype=float) for a in args]
+                plus[k][j] += h
+                minus[k][j] -= h
+                num[j] = (value(*plus) - value(*minus)) / (2 * h)
+            worst = max(worst, rel(grads[k], num))
+    print(f"grid_gen.jax with contacts (fd, rnea with lambda, step's lambda): grad against central differences {worst:.1e}")
+    # As the floating go2 test: central differences at h = 1e-5 are good to ~1e-8 here; a
+    # missing or transposed dlambda term would be O(1).
+    assert worst < 1e-6

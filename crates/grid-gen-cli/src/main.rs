@@ -338,6 +338,7 @@ impl ModelArgs {
             round_angles: self.round_angles,
             contact_mask: self.contact_mask.then_some(true),
             baumgarte: self.baumgarte.then_some(true),
+            source: grid_gen::settings::Source::Flags,
         };
         config
     }

@@ -1895,3 +1895,34 @@ fn baumgarte_from_the_command_line() {
     assert!(err.contains("does not stabilise its contacts"), "{err}");
     std::fs::remove_dir_all(&dir).ok();
 }
+
+/// A flag given beside a scene file is named as the flag when it is wrong, not blamed on the
+/// file; the file's own values are named by the file and key.
+#[test]
+fn errors_name_the_flag_or_the_file_that_set_a_value() {
+    let hyq = "robots/grid_hyq.urdf";
+    let scene = "examples/scenes/hyq_step_floating.toml";
+    for (args, said) in [
+        (vec!["--scene", scene, "--dt=-1"], "--dt: dt = -1 is not a finite, positive number"),
+        (vec!["--scene", scene, "--contact", "nothere:point"], "--contact names `nothere`"),
+        (vec!["--scene", scene, "--actuated", "nothere"], "--actuated names `nothere`"),
+        (vec!["--scene", scene, "--fext", "nothere"], "--fext names `nothere`"),
+        (vec!["--scene", scene, "--frames", "nothere"], "--frames names `nothere`"),
+        (vec!["--floating-base", "--step", "rk4", "--dt=0"], "--dt: dt = 0 is not"),
+        (vec!["--contact-mask"], "--contact-mask without contacts"),
+    ] {
+        let out = grid_gen(&[&["info", hyq][..], &args].concat());
+        assert_eq!(out.status.code(), Some(1), "{args:?}");
+        let err = stderr(&out);
+        assert!(err.contains(said) && !err.contains("scene `"), "{args:?}: {err}");
+    }
+    // The file's own bad value is the file's.
+    let dir = std::env::temp_dir().join(format!("grid-gen-cli-whence-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let bad = dir.join("bad_dt.toml");
+    std::fs::write(&bad, "floating_base = true\n[step]\ndt = -0.5\n").unwrap();
+    let out = grid_gen(&["info", hyq, "--scene", bad.to_str().unwrap()]);
+    let err = stderr(&out);
+    assert!(err.contains("bad_dt.toml`: [step] dt: dt = -0.5 is not"), "{err}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -70,6 +70,9 @@ pub enum ConfigError {
     Clash { caller: String, key: &'static str, what: &'static str, scene: String },
     #[error("{caller}(dt=...) times a step, and none is asked for: give step= too (\"semi_implicit_euler\", \"explicit_euler\" or \"rk4\")")]
     DtWithoutStep { caller: String },
+    /// A setting the caller gave that no scene could hold, named as the caller gave it.
+    #[error("{0}")]
+    Setting(String),
 }
 
 fn read(path: &Path) -> Result<String, ConfigError> {
@@ -93,15 +96,21 @@ impl Config {
                 (Scene::parse(&shown, &read(p)?)?, shown)
             }
         };
-        if let Some(g) = self.overrides.gravity {
+        // Who gives the overrides: a caller that named itself gives keywords.
+        let mut overrides = self.overrides.clone();
+        if let Some(caller) = &self.exclusive {
+            overrides.source = crate::settings::Source::Keywords(caller.clone());
+        }
+        if let Some(g) = overrides.gravity {
             if g.iter().any(|x| !x.is_finite()) {
-                let message = format!("gravity {g:?} is not finite");
-                return Err(ConfigError::Scene(SceneError { path: "gravity".into(), message }));
+                let whence = overrides.source.name("gravity");
+                return Err(ConfigError::Setting(format!("{whence}: gravity {g:?} is not finite")));
             }
         }
-        if let Some(tol) = self.overrides.round_angles {
-            let error = |message| SceneError { path: "round_angles".into(), message };
-            crate::scene::check_round_angles(tol).map_err(error)?;
+        if let Some(tol) = overrides.round_angles {
+            let whence = overrides.source.name("round_angles");
+            crate::scene::check_round_angles(tol)
+                .map_err(|message| ConfigError::Setting(format!("{whence}: {message}")))?;
         }
         if let Some(caller) = &self.exclusive {
             if let Some((key, what)) = scene.clash(&self.overrides) {
@@ -113,7 +122,7 @@ impl Config {
                 return Err(ConfigError::DtWithoutStep { caller: caller.clone() });
             }
         }
-        scene.apply(&self.overrides);
+        scene.apply(&overrides);
         let kernels = match &self.kernels {
             Some(k) => Some(KernelKind::ALL.into_iter().filter(|x| k.contains(x)).collect()),
             None => scene

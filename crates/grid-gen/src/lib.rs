@@ -19,6 +19,7 @@ pub mod model;
 pub mod numerics;
 pub mod reference;
 pub mod scene;
+pub mod settings;
 pub mod spatial;
 pub mod timing;
 pub mod tools;

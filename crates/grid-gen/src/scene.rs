@@ -65,6 +65,10 @@ use crate::urdf::{Inertial, JointKind, Pose, Tree, Urdf};
 #[derive(Clone, Debug, Default, Deserialize, PartialEq)]
 #[serde(deny_unknown_fields)]
 pub struct Scene {
+    /// Who replaced a setting's value from the file, by setting key
+    /// ([`crate::settings::SETTINGS`]): what errors name instead of the file.
+    #[serde(skip)]
+    pub origins: BTreeMap<&'static str, crate::settings::Source>,
     /// Joints held at a position: each becomes a fixed joint there.
     #[serde(default)]
     pub lock: BTreeMap<String, f64>,
@@ -309,6 +313,8 @@ pub struct SceneOverrides {
     pub round_angles: Option<f64>,
     pub contact_mask: Option<bool>,
     pub baumgarte: Option<bool>,
+    /// Who gives these values, for errors ([`crate::settings::Source`]).
+    pub source: crate::settings::Source,
 }
 
 /// `round_angles` must round off digits, not change the robot.
@@ -404,6 +410,22 @@ impl Scene {
     /// Replaces this scene's values with those `overrides` sets.
     pub fn apply(&mut self, overrides: &SceneOverrides) {
         let o = overrides.clone();
+        let given = [
+            ("gravity", o.gravity.is_some()),
+            ("floating_base", o.floating_base.is_some()),
+            ("frames", o.frames.is_some()),
+            ("step", o.scheme.is_some()),
+            ("dt", o.dt.is_some()),
+            ("actuated", o.actuated.is_some()),
+            ("external_forces", o.fext.is_some()),
+            ("contacts", o.contacts.is_some()),
+            ("contact_mask", o.contact_mask.is_some()),
+            ("baumgarte", o.baumgarte.is_some()),
+            ("round_angles", o.round_angles.is_some()),
+        ];
+        for (key, _) in given.into_iter().filter(|g| g.1) {
+            self.origins.insert(key, o.source.clone());
+        }
         self.gravity = o.gravity.or(self.gravity);
         self.floating_base = o.floating_base.unwrap_or(self.floating_base);
         self.mimic = o.mimic.unwrap_or(self.mimic);
@@ -450,8 +472,14 @@ impl Scene {
         Ok(Some(KernelKind::ALL.into_iter().filter(|k| kinds.contains(k)).collect()))
     }
 
+    /// Whether the scene sets nothing (who set what is not a setting).
     pub fn is_empty(&self) -> bool {
-        *self == Scene::default()
+        Scene { origins: BTreeMap::new(), ..self.clone() } == Scene::default()
+    }
+
+    /// How an error names setting `key` of this scene, read from `path` (empty: no file).
+    pub fn whence(&self, key: &str, path: &str) -> String {
+        crate::settings::whence(key, path, self.origins.get(key))
     }
 }
 
@@ -655,16 +683,15 @@ pub(crate) fn specialise(
     let columns = resolve("columns", &scene.gradient.columns);
     let frames = select_frames(scene, scene_path, urdf, model, diags);
     let step = select_step(scene, scene_path, diags);
-    let actuated =
-        scene.actuation.as_ref().map(|a| select_actuated(&a.joints, scene_path, model, diags));
-    let fext = select_fext(&scene.external_forces.joints, scene_path, model, diags);
+    let actuated = scene
+        .actuation
+        .as_ref()
+        .map(|a| select_actuated(&a.joints, &scene.whence("actuated", scene_path), model, diags));
+    let fext_whence = scene.whence("external_forces", scene_path);
+    let fext = select_fext(&scene.external_forces.joints, &fext_whence, model, diags);
     let contacts = select_contacts(scene, scene_path, urdf, model, diags);
     if scene.contact_mask && contacts.is_empty() {
-        let whence = if scene_path.is_empty() {
-            "--contact-mask".to_string()
-        } else {
-            format!("scene `{scene_path}`: contact_mask")
-        };
+        let whence = scene.whence("contact_mask", scene_path);
         diags.push(
             Diagnostic::error(
                 format!("{whence} without contacts: there is nothing to mask"),
@@ -674,13 +701,7 @@ pub(crate) fn specialise(
             .with_help("declare the candidate contacts with [[contact]] or --contact FRAME:point"),
         );
     }
-    let whence = |key: &str, flag: &str| {
-        if scene_path.is_empty() {
-            flag.to_string()
-        } else {
-            format!("scene `{scene_path}`: {key}")
-        }
-    };
+    let whence = |key: &str, _flag: &str| scene.whence(key, scene_path);
     if scene.baumgarte && contacts.is_empty() {
         diags.push(
             Diagnostic::error(
@@ -732,15 +753,10 @@ pub(crate) fn specialise(
 /// name is an error that lists the closest names.
 fn select_fext(
     names: &[String],
-    scene_path: &str,
+    whence: &str,
     model: &Model,
     diags: &mut Vec<Diagnostic>,
 ) -> Vec<usize> {
-    let whence = if scene_path.is_empty() {
-        "--fext".to_string()
-    } else {
-        format!("scene `{scene_path}`: [external_forces] joints")
-    };
     let known = model.body_joint_names();
     let mut picked = Vec::new();
     for name in names {
@@ -792,11 +808,7 @@ fn select_contacts(
     model: &Model,
     diags: &mut Vec<Diagnostic>,
 ) -> Vec<crate::model::Contact> {
-    let whence = if scene_path.is_empty() {
-        "--contact".to_string()
-    } else {
-        format!("scene `{scene_path}`: [[contact]]")
-    };
+    let whence = scene.whence("contacts", scene_path);
     let mut picked: Vec<crate::model::Contact> = Vec::new();
     for entry in &scene.contact {
         let name = &entry.frame;
@@ -852,17 +864,16 @@ fn select_step(
     diags: &mut Vec<Diagnostic>,
 ) -> Option<crate::model::StepSpec> {
     let s = scene.step.as_ref()?;
-    let whence = if scene_path.is_empty() {
-        "--step".to_string()
-    } else {
-        format!("scene `{scene_path}`: [step]")
-    };
+    let whence = scene.whence("step", scene_path);
     let scheme = s.scheme.unwrap_or_default();
     let dt = s.dt;
     if let Some(dt) = dt.filter(|dt| !(dt.is_finite() && *dt > 0.0)) {
         diags.push(
             Diagnostic::error(
-                format!("{whence}: dt = {dt} is not a finite, positive number of seconds"),
+                format!(
+                    "{}: dt = {dt} is not a finite, positive number of seconds",
+                    scene.whence("dt", scene_path)
+                ),
                 None,
                 "bad dt",
             )
@@ -885,15 +896,10 @@ fn select_step(
 /// for all its coordinates; an unknown or repeated name is an error.
 fn select_actuated(
     names: &[String],
-    scene_path: &str,
+    whence: &str,
     model: &Model,
     diags: &mut Vec<Diagnostic>,
 ) -> Vec<usize> {
-    let whence = if scene_path.is_empty() {
-        "--actuated".to_string()
-    } else {
-        format!("scene `{scene_path}`: [actuation] joints")
-    };
     let coordinates = model.coordinate_joints();
     let mut picked = Vec::new();
     for name in names {
@@ -950,11 +956,7 @@ fn select_frames(
     diags: &mut Vec<Diagnostic>,
 ) -> Vec<usize> {
     let mut picked = Vec::new();
-    let whence = if scene_path.is_empty() {
-        "--frames".to_string()
-    } else {
-        format!("scene `{scene_path}`: [frames]")
-    };
+    let whence = scene.whence("frames", scene_path);
     for name in &scene.frames.names {
         if let Some(f) = model.frame(name) {
             if picked.contains(&f) {
