@@ -338,7 +338,7 @@ def test_every_kind_of_kernel_through_a_scene(tmp_path, iiwa):
         assert name in robot.kernels, robot.kernels
     rng = np.random.default_rng(9)
     n = 6
-    sizes = {"q": 7, "qd": 7, "qdd": 7, "tau": 7, "fext": 6, "lambda": 6}
+    sizes = {"q": 7, "qd": 7, "qdd": 7, "tau": 7, "fext": 6, "lambda": 6, "v": 7, "q1": 7}
     for name in robot.kernels:
         kernel = getattr(robot, name)
         args = [rng.uniform(-1, 1, (n, length)) for _, length in kernel.inputs]
