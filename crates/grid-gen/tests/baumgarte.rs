@@ -184,7 +184,8 @@ fn baumgarte_needs_point_contacts() {
     let mut config = grid_gen::Config::new(&urdf);
     config.overrides.baumgarte = Some(true);
     let e = config.load().unwrap_err().to_string();
-    assert!(e.contains("--baumgarte without contacts"), "{e}");
+    // A Config's overrides are the library's: named by the Builder method that sets them.
+    assert!(e.contains("Builder::baumgarte without contacts"), "{e}");
     config.overrides.contacts = Some(vec![grid_gen::ContactEntry {
         frame: "iiwa_link_7".into(),
         kind: ContactKind::Wrench,
