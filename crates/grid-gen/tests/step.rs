@@ -5,10 +5,10 @@
 //! scene's bad inputs.
 
 use grid_gen::ir::{self, KernelKind, LowerOptions};
-use grid_gen::model::{ContactKind, LieBlock, Scheme, Step, StepSpec};
+use grid_gen::model::{ContactKind, Scheme, Step, StepSpec};
 use grid_gen::{reference, Model, Scene};
 use grid_gen_test_support::*;
-use nalgebra::{DMatrix, UnitQuaternion, Vector3};
+use nalgebra::DMatrix;
 
 /// Pinocchio and the reference compose the same quantities by other routes (Pinocchio's
 /// closed-form Jexp6 against a summed series): 1e-10 relative, the project's bar against
@@ -177,46 +177,6 @@ fn reference_step_matches_pinocchio() {
     assert!(checked > 800);
 }
 
-/// `q1 ⊖ q0` (Pinocchio's `difference`): logs of the relative motions.
-fn difference(model: &Model, q0: &[f64], q1: &[f64]) -> Vec<f64> {
-    let quat = |q: &[f64], at: usize| {
-        UnitQuaternion::from_quaternion(nalgebra::Quaternion::new(
-            q[at + 3],
-            q[at],
-            q[at + 1],
-            q[at + 2],
-        ))
-    };
-    let mut d = vec![0.0; model.nv()];
-    for block in model.lie_blocks() {
-        match block {
-            LieBlock::Scalar { v, q } => d[v] = q1[q] - q0[q],
-            LieBlock::Spherical { v, q } => {
-                let w = (quat(q0, q).inverse() * quat(q1, q)).scaled_axis();
-                d[v..v + 3].copy_from_slice(w.as_slice());
-            }
-            LieBlock::FreeFlyer => {
-                let r0 = quat(q0, 3);
-                let w = (r0.inverse() * quat(q1, 3)).scaled_axis();
-                let p = r0.inverse() * Vector3::new(q1[0] - q0[0], q1[1] - q0[1], q1[2] - q0[2]);
-                // log6's linear part: V(ω)⁻¹ p with V = Σ [ω]×^k / (k + 1)!.
-                let wx =
-                    nalgebra::Matrix3::new(0.0, -w[2], w[1], w[2], 0.0, -w[0], -w[1], w[0], 0.0);
-                let (mut v, mut term) =
-                    (nalgebra::Matrix3::identity(), nalgebra::Matrix3::identity());
-                for k in 1..60 {
-                    term = term * wx / (k as f64 + 1.0);
-                    v += term;
-                }
-                let lin = v.try_inverse().unwrap() * p;
-                d[..3].copy_from_slice(lin.as_slice());
-                d[3..6].copy_from_slice(w.as_slice());
-            }
-        }
-    }
-    d
-}
-
 /// Robots with forces for the step tests: floating HyQ on four rigid point contacts with a
 /// force on its base, iiwa holding its tool by a rigid wrench contact with a force on its
 /// third link, the floating spherical arm with its tip held by a wrench contact.
@@ -290,7 +250,7 @@ fn step_derivatives_match_central_differences() {
             let derivative = |at: &dyn Fn(f64) -> (Vec<f64>, Vec<f64>)| -> nalgebra::DVector<f64> {
                 let tangent = |h: f64| {
                     let (qa, va) = at(h);
-                    let mut t = difference(model, &q1, &qa);
+                    let mut t = reference::difference(model, &q1, &qa);
                     t.extend(va);
                     nalgebra::DVector::from_vec(t)
                 };
