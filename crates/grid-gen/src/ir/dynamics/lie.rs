@@ -19,6 +19,7 @@
 
 use super::super::graph::{Graph, Id, Input};
 use super::super::spatial::{self as sp, k, V3};
+use super::step::qmul;
 use super::{Dynamics, Mat};
 use crate::model::LieBlock;
 
@@ -117,17 +118,7 @@ fn quaternion_log(g: &mut Graph, r: [Id; 4]) -> Log {
 /// The conjugate of `a` times `b`: `a⁻¹ b` for unit quaternions.
 fn conjugate_times(g: &mut Graph, a: [Id; 4], b: [Id; 4]) -> [Id; 4] {
     let conj = [g.neg(a[0]), g.neg(a[1]), g.neg(a[2]), a[3]];
-    let (av, bv) = ([conj[0], conj[1], conj[2]], [b[0], b[1], b[2]]);
-    let cr = sp::cross(g, &av, &bv);
-    let v: [Id; 3] = std::array::from_fn(|i| {
-        let x = g.mul(conj[3], bv[i]);
-        let y = g.mul(b[3], av[i]);
-        let s = g.add(x, y);
-        g.add(s, cr[i])
-    });
-    let d = g.dot(&av, &bv);
-    let ww = g.mul(conj[3], b[3]);
-    [v[0], v[1], v[2], g.sub(ww, d)]
+    qmul(g, conj, b)
 }
 
 impl Dynamics<'_> {

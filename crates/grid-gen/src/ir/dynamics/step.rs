@@ -155,7 +155,7 @@ fn exp_coefficients(g: &mut Graph, w: &V3) -> (Trig, Id, Id, ExpNodes) {
 }
 
 /// The quaternion product `a ⊗ b`, `[x, y, z, w]`.
-fn qmul(g: &mut Graph, a: [Id; 4], b: [Id; 4]) -> [Id; 4] {
+pub(super) fn qmul(g: &mut Graph, a: [Id; 4], b: [Id; 4]) -> [Id; 4] {
     let (av, bv) = ([a[0], a[1], a[2]], [b[0], b[1], b[2]]);
     let cr = sp::cross(g, &av, &bv);
     let v: [Id; 3] = std::array::from_fn(|i| {
