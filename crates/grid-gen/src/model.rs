@@ -457,6 +457,15 @@ impl ContactKind {
         ContactKind::ALL.into_iter().find(|k| k.name() == name)
     }
 
+    /// Entries of a Baumgarte reference (`contact_ref`): a point's world position, a
+    /// wrench's world placement as position and quaternion `[x, y, z, qx, qy, qz, qw]`.
+    pub fn ref_dim(self) -> usize {
+        match self {
+            ContactKind::Point => 3,
+            ContactKind::Wrench => 7,
+        }
+    }
+
     /// Entries of λ.
     pub fn dim(self) -> usize {
         match self {
@@ -485,6 +494,21 @@ impl Specialisation {
         } else {
             0
         }
+    }
+
+    /// Entries of `contact_ref` ([`ContactKind::ref_dim`] per contact) when the contacts
+    /// are stabilised, else none.
+    pub fn contact_ref_len(&self) -> usize {
+        if self.baumgarte {
+            self.contacts.iter().map(|c| c.kind.ref_dim()).sum()
+        } else {
+            0
+        }
+    }
+
+    /// Where contact `c`'s entries of `contact_ref` start.
+    pub fn contact_ref_at(&self, c: usize) -> usize {
+        self.contacts[..c].iter().map(|c| c.kind.ref_dim()).sum()
     }
 
     /// Entries of the contact mask `active`: one per contact when the contacts are

@@ -715,22 +715,6 @@ pub(crate) fn specialise(
             .with_help("declare the contacts with [[contact]] or --contact FRAME:point"),
         );
     }
-    if let Some(c) =
-        contacts.iter().find(|c| scene.baumgarte && c.kind == crate::model::ContactKind::Wrench)
-    {
-        diags.push(
-            Diagnostic::error(
-                format!(
-                    "{}: contact `{}` is a wrench; Baumgarte gains are supported on point contacts (a wrench's placement error needs SE(3)'s log, which the kernels do not have yet)",
-                    whence("baumgarte", "--baumgarte"),
-                    model.frames[c.frame].name
-                ),
-                None,
-                "a wrench contact",
-            )
-            .with_help("make it a point contact, or leave baumgarte off"),
-        );
-    }
     Specialisation {
         static_velocity: scene.static_velocity,
         rows,

@@ -105,6 +105,7 @@ fn program(kernels: &[KernelKind], mixed: &[MixedKernel], model: &Model) -> Stri
     let (nq, nf, nl) = (model.nq(), 6 * model.nfext(), model.nlambda());
     let nc = model.specialisation.active_len();
     let nb = model.specialisation.baumgarte_len();
+    let nr = model.specialisation.contact_ref_len();
     let mut calls = String::new();
     for (i, m) in mixed.iter().enumerate() {
         let name = m.function.kind.name();
@@ -179,12 +180,14 @@ fn main() {{
     // A run-time time step between 5 and 15 ms, for step kernels that take one.
     // Every candidate contact active, for kernels that take a contact mask.
     const NC: usize = {nc};
-    // Baumgarte gains (Kp 100, Kd 20) and reference positions within a metre of the origin.
+    // Baumgarte gains (Kp 100, Kd 20) and references (positions within a metre of the
+    // origin; a wrench's quaternion is normalised by the kernels).
     const NB: usize = {nb};
-    let s64: Vec<([f64; NQ], [[f64; N]; 2], [f64; NF], [f64; NL], [f64; 1], [f64; NC], [f64; 2 * NB], [f64; 3 * NB])> = (0..STATES)
+    const NR: usize = {nr};
+    let s64: Vec<([f64; NQ], [[f64; N]; 2], [f64; NF], [f64; NL], [f64; 1], [f64; NC], [f64; 2 * NB], [f64; NR])> = (0..STATES)
         .map(|j| (std::array::from_fn(|i| state(j, i, 0)), std::array::from_fn(|salt| std::array::from_fn(|i| state(j, i, salt + 1))), std::array::from_fn(|i| 20.0 * state(j, i, 3)), std::array::from_fn(|i| 100.0 * state(j, i, 4)), [0.01 + 0.005 * state(j, 0, 5)], [1.0; NC], std::array::from_fn(|i| if i % 2 == 0 {{ 100.0 }} else {{ 20.0 }}), std::array::from_fn(|i| state(j, i, 6))))
         .collect();
-    let s32: Vec<([f32; NQ], [[f32; N]; 2], [f32; NF], [f32; NL], [f32; 1], [f32; NC], [f32; 2 * NB], [f32; 3 * NB])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)), x.2.map(|y| y as f32), x.3.map(|y| y as f32), x.4.map(|y| y as f32), x.5.map(|y| y as f32), x.6.map(|y| y as f32), x.7.map(|y| y as f32))).collect();
+    let s32: Vec<([f32; NQ], [[f32; N]; 2], [f32; NF], [f32; NL], [f32; 1], [f32; NC], [f32; 2 * NB], [f32; NR])> = s64.iter().map(|x| (x.0.map(|y| y as f32), x.1.map(|v| v.map(|y| y as f32)), x.2.map(|y| y as f32), x.3.map(|y| y as f32), x.4.map(|y| y as f32), x.5.map(|y| y as f32), x.6.map(|y| y as f32), x.7.map(|y| y as f32))).collect();
 {calls}}}
 "#
     )

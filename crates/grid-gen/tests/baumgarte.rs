@@ -1,6 +1,7 @@
 //! Contacts stabilised as Pinocchio's Baumgarte corrector (`baumgarte = true`): the contact
-//! kernels and the step take `gains` (Kp, Kd per contact) and `contact_ref` (a world position
-//! per contact), and drive each contact's acceleration to `−Kd v − Kp (p − p_ref)`. The IR's
+//! kernels and the step take `gains` (Kp, Kd per contact) and `contact_ref` (a point's world
+//! position, a wrench's world placement), and drive each contact's acceleration to
+//! `−Kd v − Kp e` (e a point's `p − p_ref`, a wrench's `−log6(oMc⁻¹ oMref)` in world axes). The IR's
 //! derivatives come from forward-mode differentiation of the corrected accelerations; the
 //! reference's are written by hand (`reference/contact.rs`), and its values are checked
 //! against `pin.constraintDynamics` with the corrector set in `python/tests`.
@@ -84,7 +85,35 @@ fn corrected_reference(
 /// 5 cm from their references, as a drifting plan's), with fext on the base.
 #[test]
 fn stabilised_contacts_match_the_reference() {
-    let m = with_step(&stabilised_hyq(), Scheme::SemiImplicitEuler, 0.01);
+    let worst = check_stabilised(&stabilised_hyq(), 101, 0.0);
+    println!("stabilised floating HyQ: worst {worst:.2e} from the reference (bound 1e-12)");
+}
+
+/// Wrench contacts, whose error is SE(3)'s logarithm: floating HyQ with its left front foot
+/// held as a wrench and its right hind foot as a point, and iiwa's flange as a wrench, each
+/// with references turned by up to 0.5 rad and by 3.1 rad (near the half turn where the
+/// logarithm's axis comes from the quaternion's vector part alone).
+#[test]
+fn stabilised_wrench_contacts_match_the_reference() {
+    let feet = [("lf_lowerleg", ContactKind::Wrench), ("rh_lowerleg", ContactKind::Point)];
+    let mut hyq = with_forces(&load_floating("grid_hyq"), &["root_joint"], &feet);
+    hyq.specialisation.baumgarte = true;
+    let mut iiwa = with_forces(&load("grid_iiwa"), &[], &[("iiwa_link_7", ContactKind::Wrench)]);
+    iiwa.specialisation.baumgarte = true;
+    let mut worst: f64 = 0.0;
+    for (seed, angle) in [(111, 0.5), (113, 3.1)] {
+        worst = worst.max(check_stabilised(&hyq, seed, angle));
+        worst = worst.max(check_stabilised(&iiwa, seed + 1, angle));
+    }
+    println!("stabilised wrench contacts: worst {worst:.2e} from the reference (bound 1e-12)");
+}
+
+/// Every contact and step kernel of the stabilised model `m` (fext on its first joint, if
+/// it takes any) against the reference at three random states: gains Kp in [0, 200], Kd in
+/// [0, 30], each reference 5 cm from its contact and, for a wrench, turned by a random
+/// rotation of `angle` rad. Returns the worst relative error.
+fn check_stabilised(m: &Model, seed: u64, angle: f64) -> f64 {
+    let m = with_step(m, Scheme::SemiImplicitEuler, 0.01);
     let g = reference::DEFAULT_GRAVITY;
     let kernels = vec![
         KernelKind::ContactFd,
@@ -93,8 +122,8 @@ fn stabilised_contacts_match_the_reference() {
         KernelKind::StepGrad,
     ];
     let module = ir::lower(&m, g, &LowerOptions { kernels, ..LowerOptions::default() }).unwrap();
-    let mut rng = Rng(101);
-    let nv = m.nv();
+    let mut rng = Rng(seed);
+    let (nv, nc) = (m.nv(), m.specialisation.contacts.len());
     let mut worst: f64 = 0.0;
     for f in &module.functions {
         let n = f.inputs().len();
@@ -102,13 +131,12 @@ fn stabilised_contacts_match_the_reference() {
     }
     for _ in 0..3 {
         let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
-        let (qd, fext) = (rng.vec(nv, -2.0, 2.0), rng.vec(6, -20.0, 20.0));
+        let (qd, fext) = (rng.vec(nv, -2.0, 2.0), rng.vec(6 * m.nfext(), -20.0, 20.0));
         let ext = reference::External { fext: &fext, lambda: &[] };
-        let gains: Vec<f64> =
-            (0..4).flat_map(|_| [rng.vec(1, 0.0, 200.0)[0], rng.vec(1, 0.0, 30.0)[0]]).collect();
-        // Each foot's reference: where it is now, moved by up to 5 cm.
-        let here = foot_positions(&m, &q);
-        let refs: Vec<f64> = here.iter().map(|p| p + rng.vec(1, -0.05, 0.05)[0]).collect();
+        let gains: Vec<f64> = (0..nc)
+            .flat_map(|_| [rng.vec(1, 0.0, 200.0)[0], rng.vec(1, 0.0, 30.0)[0]])
+            .collect();
+        let refs = contact_refs(&m, &q, &mut rng, angle);
         let corr = reference::Baumgarte { gains: &gains, refs: &refs };
         for f in &module.functions {
             let u = if f.kind.is_step() {
@@ -125,24 +153,32 @@ fn stabilised_contacts_match_the_reference() {
                 worst = worst.max(e);
                 // f64 round-off through the contacts' Schur complement, as every contact
                 // test (the unstabilised kernels measure ~1e-14 here).
-                assert!(e < 1e-12, "{} {}: {e:.2e}", f.kind, o.name);
+                assert!(e < 1e-12, "{} {} {}: {e:.2e}", m.name, f.kind, o.name);
             }
         }
     }
-    println!("stabilised floating HyQ: worst {worst:.2e} from the reference (bound 1e-12)");
+    worst
 }
 
-/// Each contact's world position, stacked (the reference's frame placements).
-fn foot_positions(m: &Model, q: &[f64]) -> Vec<f64> {
-    m.specialisation
-        .contacts
-        .iter()
-        .flat_map(|c| {
-            let (_, p) = reference::frame_placement(m, q, &m.frames[c.frame]);
-            [p.x, p.y, p.z]
-        })
-        .collect()
+/// Each contact's reference near where it is at q: its position moved by up to 5 cm, and a
+/// wrench's orientation (as `[qx, qy, qz, qw]`) turned by `angle` rad about a random axis.
+fn contact_refs(m: &Model, q: &[f64], rng: &mut Rng, angle: f64) -> Vec<f64> {
+    let mut out = Vec::new();
+    for c in &m.specialisation.contacts {
+        let (r, p) = reference::frame_placement(m, q, &m.frames[c.frame]);
+        out.extend(p.iter().map(|x| x + rng.vec(1, -0.05, 0.05)[0]));
+        if c.kind == ContactKind::Wrench {
+            let axis = nalgebra::Vector3::from_vec(rng.vec(3, -1.0, 1.0)).normalize();
+            let turn = nalgebra::UnitQuaternion::from_scaled_axis(axis * angle);
+            let here = nalgebra::UnitQuaternion::from_rotation_matrix(
+                &nalgebra::Rotation3::from_matrix_unchecked(r),
+            );
+            out.extend((turn * here).quaternion().coords.iter());
+        }
+    }
+    out
 }
+
 
 /// Gains 0 are the rigid contact, bit for bit: the stabilised kernels' values with zero
 /// gains equal the unstabilised kernels' (the corrector adds `0 · v + 0 · e`), and the
@@ -177,9 +213,10 @@ fn zero_gains_are_the_rigid_contact() {
     }
 }
 
-/// A wrench contact or no contact at all with `baumgarte` is an error that says why.
+/// `baumgarte` without contacts is an error that says why; a wrench contact takes gains
+/// and a 7-entry reference.
 #[test]
-fn baumgarte_needs_point_contacts() {
+fn baumgarte_needs_contacts() {
     let urdf = repo().join("robots/grid_iiwa.urdf");
     let mut config = grid_gen::Config::new(&urdf);
     config.overrides.baumgarte = Some(true);
@@ -190,16 +227,7 @@ fn baumgarte_needs_point_contacts() {
         frame: "iiwa_link_7".into(),
         kind: ContactKind::Wrench,
     }]);
-    let e = config.load().unwrap_err().to_string();
-    assert!(
-        e.contains(
-            "contact `iiwa_link_7` is a wrench; Baumgarte gains are supported on point contacts"
-        ),
-        "{e}"
-    );
-    config.overrides.contacts = Some(vec![grid_gen::ContactEntry {
-        frame: "iiwa_link_7".into(),
-        kind: ContactKind::Point,
-    }]);
-    assert!(config.load().unwrap().model.specialisation.baumgarte);
+    let spec = config.load().unwrap().model.specialisation;
+    assert!(spec.baumgarte);
+    assert_eq!((spec.baumgarte_len(), spec.contact_ref_len()), (1, 7));
 }

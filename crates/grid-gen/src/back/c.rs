@@ -432,7 +432,7 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
             frames.join(", ")
         );
         if dims.nbaumgarte > 0 {
-            let _ = writeln!(h, "/* The contact kernels and the step take gains (Kp, Kd per contact: 2 * {mac}_NCONTACTS values per state) and contact_ref (each contact's reference position in the world: 3 * {mac}_NCONTACTS), Pinocchio's Baumgarte corrector. */");
+            let _ = writeln!(h, "/* The contact kernels and the step take gains (Kp, Kd per contact: 2 * {mac}_NCONTACTS values per state) and contact_ref ({mac}_NCONTACT_REF values per state: a point contact's reference position in the world, 3 values; a wrench contact's reference placement, position and quaternion x, y, z, qx, qy, qz, qw, 7), Pinocchio's Baumgarte corrector. */\n#define {mac}_NCONTACT_REF {}", dims.ncontact_ref);
         }
         if dims.ncontacts > 0 {
             let _ = writeln!(h, "/* The contact kernels and the step take active: {mac}_NCONTACTS values per state, 1 where a contact holds, 0 where it does not. */");

@@ -109,6 +109,9 @@ pub(crate) struct Dynamics<'a> {
     /// the kernel's q input (an RK4 stage's `q ⊕ dq`), so that derivatives with respect to
     /// "q" there seed those nodes.
     config: Option<Vec<Id>>,
+    /// The sign nodes of the logarithms [`Self::contact_accelerations`] took (a wrench
+    /// contact's Baumgarte error), whose tangents the derivatives hold at 0.
+    log_signs: Vec<Id>,
 }
 
 /// The RNEA quantities the gradient needs.
@@ -157,6 +160,7 @@ impl<'a> Dynamics<'a> {
             solve: Solve::Minv,
             forces: Forces::default(),
             config: None,
+            log_signs: Vec::new(),
         }
     }
 

@@ -32,7 +32,8 @@ pub enum Input {
     /// Baumgarte gains `[Kp, Kd]` per contact, when the scene stabilises them
     /// ([`crate::model::Specialisation::baumgarte`]).
     Gains,
-    /// Each contact's reference position in the world, 3 per contact, with [`Input::Gains`].
+    /// Each contact's reference in the world, with [`Input::Gains`]: a point's position (3
+    /// entries), a wrench's placement (position and quaternion, 7).
     ContactRef,
     /// The step kernels' time step, one value, when the scene leaves it to run time
     /// ([`crate::model::StepSpec::dt`]).
@@ -94,7 +95,7 @@ impl Input {
             Input::Lambda => dims.nlambda,
             Input::Active => dims.ncontacts,
             Input::Gains => 2 * dims.nbaumgarte,
-            Input::ContactRef => 3 * dims.nbaumgarte,
+            Input::ContactRef => dims.ncontact_ref,
             Input::Dt => 1,
             Input::Qd | Input::Qdd | Input::Tau | Input::V => dims.nv,
         }

@@ -23,6 +23,8 @@ pub struct Dims {
     pub ncontacts: usize,
     /// Contacts with Baumgarte gains (every contact when the scene stabilises them, else 0).
     pub nbaumgarte: usize,
+    /// Entries of `contact_ref`: 3 per point contact, 7 per wrench contact, when stabilised.
+    pub ncontact_ref: usize,
 }
 
 /// What sizes WGSL's `u` per state ([`KernelKind::u_len`]), as a shader's header gives them.

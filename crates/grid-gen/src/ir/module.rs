@@ -224,6 +224,7 @@ impl Robot {
             nlambda: self.nlambda(),
             ncontacts: self.specialisation.active_len(),
             nbaumgarte: self.specialisation.baumgarte_len(),
+            ncontact_ref: self.specialisation.contact_ref_len(),
         }
     }
 

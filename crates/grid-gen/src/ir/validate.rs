@@ -71,6 +71,7 @@ mod tests {
             nlambda: 0,
             ncontacts: 0,
             nbaumgarte: 0,
+            ncontact_ref: 0,
         }
     }
 

@@ -19,7 +19,7 @@
 //! a moves; for a multi-dof joint, the body after its last member). Moving coordinate k
 //! along its tangent turns every screw attached downstream of it: `∂S_a/∂δ_k = S_k × S_a`.
 
-use nalgebra::{DMatrix, DVector, Vector3};
+use nalgebra::{DMatrix, DVector, Matrix3, Rotation3, UnitQuaternion, Vector3};
 
 use super::coupled::expand;
 use super::forces::External;
@@ -28,12 +28,14 @@ use crate::model::JointIndex;
 use crate::model::{Contact, ContactKind, Model, ReferenceFrame};
 use crate::spatial::{crm, Vec6};
 
-/// Pinocchio's Baumgarte corrector on point contacts (`RigidConstraintModel` in
-/// `LOCAL_WORLD_ALIGNED` with joint2 the universe at the reference, its
-/// `BaumgarteCorrectorParameters` set): each contact's constraint is `a + Kd v + Kp (p −
-/// p_ref) = 0`, a, v the point's classical acceleration and velocity and p its position, all
-/// in the world. `gains` holds `[Kp, Kd]` per contact, `refs` `p_ref` (3 per contact); both
-/// empty: no correction (the rigid contact).
+/// Pinocchio's Baumgarte corrector (`RigidConstraintModel` in `LOCAL_WORLD_ALIGNED` with
+/// joint2 the universe at the reference, its `BaumgarteCorrectorParameters` set). A point
+/// contact's constraint is `a + Kd v + Kp (p − p_ref) = 0`, a, v the point's classical
+/// acceleration and velocity and p its position, all in the world. A wrench contact's is
+/// `[a; α] + Kd [v; ω] − Kp R_c log6(oMc⁻¹ oMref) = 0` (spatial acceleration and velocity
+/// at the frame's origin, world axes). `gains` holds `[Kp, Kd]` per contact, `refs` each
+/// contact's reference (a point's position, 3 entries; a wrench's position and quaternion
+/// `[x, y, z, qx, qy, qz, qw]`, 7); both empty: no correction (the rigid contact).
 #[derive(Clone, Copy, Debug, Default)]
 pub struct Baumgarte<'a> {
     pub gains: &'a [f64],
@@ -43,12 +45,62 @@ pub struct Baumgarte<'a> {
 impl Baumgarte<'_> {
     pub const NONE: Baumgarte<'static> = Baumgarte { gains: &[], refs: &[] };
 
-    /// `(Kp, Kd, p_ref)` of contact `c`, when the corrector holds it.
-    fn of(&self, c: usize) -> Option<(f64, f64, Vector3<f64>)> {
+    /// `(Kp, Kd, reference)` of contact `c` of `contacts`, when the corrector holds it.
+    fn of(&self, contacts: &[Contact], c: usize) -> Option<(f64, f64, &[f64])> {
         let g = self.gains.get(2 * c..2 * c + 2)?;
-        let r = self.refs.get(3 * c..3 * c + 3)?;
-        Some((g[0], g[1], Vector3::new(r[0], r[1], r[2])))
+        let at: usize = contacts[..c].iter().map(|c| c.kind.ref_dim()).sum();
+        let r = self.refs.get(at..at + contacts[c].kind.ref_dim())?;
+        Some((g[0], g[1], r))
     }
+}
+
+/// A wrench contact's placement error in world axes, `R_c log6(oMc⁻¹ oMref)` =
+/// `[V(ω)⁻¹ (p_ref − p); ω]` with `ω = log3(R_ref R_cᵀ)` (by the quaternion's `atan2`, and
+/// V's inverse by an LU solve: a route independent of the kernels' halving of the angle).
+fn placement_error(rc: &Matrix3<f64>, p: &Vector3<f64>, reference: &[f64]) -> (Vector3<f64>, Vector3<f64>) {
+    let r_ref = super::step::quaternion(reference, 3);
+    let e = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
+        r_ref.to_rotation_matrix().into_inner() * rc.transpose(),
+    ));
+    let c = e.quaternion().coords;
+    let (mut v, mut w) = (Vector3::new(c[0], c[1], c[2]), c[3]);
+    if w < 0.0 {
+        v = -v;
+        w = -w;
+    }
+    let n = v.norm();
+    let omega = if n == 0.0 { Vector3::zeros() } else { v * (2.0 * n.atan2(w) / n) };
+    let d = Vector3::new(reference[0], reference[1], reference[2]) - p;
+    let lin = super::step::so3_jacobians(&omega)
+        .0
+        .lu()
+        .solve(&d)
+        .expect("V(ω) is invertible for angles below 2π");
+    (lin, omega)
+}
+
+/// The first-order change of [`placement_error`] when the frame turns by `dw` (world axes)
+/// and its origin moves by `dp`: `dω = −Jexp3(ω)⁻¹ dw` (the error's rotation is multiplied
+/// on the right by `exp(−dw)` in the frame's axes, Pinocchio's `Jlog3`), and the change of
+/// `V⁻¹(ω) d = d − ½ ω × d + β ω × (ω × d)` (β and β'/θ as `Jexp6` takes them).
+fn d_placement_error(
+    rc: &Matrix3<f64>,
+    p: &Vector3<f64>,
+    reference: &[f64],
+    dw: &Vector3<f64>,
+    dp: &Vector3<f64>,
+) -> (Vector3<f64>, Vector3<f64>) {
+    let (_, omega) = placement_error(rc, p, reference);
+    let (_, jr) = super::step::so3_jacobians(&omega);
+    let dom = -jr.lu().solve(dw).expect("Jexp3 is invertible for angles below 2π");
+    let d = Vector3::new(reference[0], reference[1], reference[2]) - p;
+    let dd = -dp;
+    let (b, db) = super::step::beta(omega.norm());
+    let wd = omega.cross(&d);
+    let dlin = dd - (dom.cross(&d) + omega.cross(&dd)) * 0.5
+        + (dom.cross(&wd) + omega.cross(&(dom.cross(&d) + omega.cross(&dd)))) * b
+        + omega.cross(&wd) * (db * omega.dot(&dom));
+    (dlin, dom)
 }
 
 /// q̈ and the contact forces λ (3 or 6 per contact, world axes at the frame's origin, as
@@ -183,6 +235,12 @@ fn contact_points<'a>(
     })
 }
 
+/// A contact frame's world rotation: its body's, times its placement's.
+fn frame_rotation(model: &Model, sc: &Screws, c: &Contact) -> Matrix3<f64> {
+    let frame = &model.frames[c.frame];
+    sc.poses[frame.body.expect("contacts are on moving bodies")].0 * frame.placement.rot_matrix()
+}
+
 /// The body's spatial acceleration `Σ S_a q̈_a + (V_a × S_a) q̇_a` over its ancestors.
 fn body_acceleration(model: &Model, sc: &Screws, b: usize, qd: &[f64], qdd: &[f64]) -> Vec6 {
     model
@@ -219,10 +277,23 @@ fn corrected_accelerations(
         .enumerate()
         .flat_map(|(c, (b, p, kind))| {
             let mut r = rows(kind, &sc.v[b], &body_acceleration(model, &sc, b, &qd, &qdd), &p);
-            if let Some((kp, kd, reference)) = corr.of(c) {
-                let v = lin(&sc.v[b]) + ang(&sc.v[b]).cross(&p);
-                for i in 0..3 {
-                    r[i] += kd * v[i] + kp * (p[i] - reference[i]);
+            if let Some((kp, kd, reference)) = corr.of(contacts, c) {
+                let w = ang(&sc.v[b]);
+                let v = lin(&sc.v[b]) + w.cross(&p);
+                match kind {
+                    ContactKind::Point => {
+                        for i in 0..3 {
+                            r[i] += kd * v[i] + kp * (p[i] - reference[i]);
+                        }
+                    }
+                    ContactKind::Wrench => {
+                        let rc = frame_rotation(model, &sc, &contacts[c]);
+                        let (el, ew) = placement_error(&rc, &p, reference);
+                        for i in 0..3 {
+                            r[i] += kd * v[i] - kp * el[i];
+                            r[3 + i] += kd * w[i] - kp * ew[i];
+                        }
+                    }
                 }
             }
             r
@@ -290,13 +361,30 @@ fn corrected_acceleration_derivatives(
             let mut by_q = d_rows(kind, (&sc.v[b], &a_b, &p), (&dv[b], &da, &dp));
             let mut by_qd =
                 d_rows(kind, (&sc.v[b], &a_b, &p), (&dv_qd[b], &da_qd, &Vector3::zeros()));
-            if let Some((kp, kd, _)) = corr.of(c) {
+            if let Some((kp, kd, reference)) = corr.of(contacts, c) {
                 let w = ang(&sc.v[b]);
                 let dvp = lin(&dv[b]) + ang(&dv[b]).cross(&p) + w.cross(&dp);
                 let dvp_qd = lin(&dv_qd[b]) + ang(&dv_qd[b]).cross(&p);
-                for i in 0..3 {
-                    by_q[i] += kd * dvp[i] + kp * dp[i];
-                    by_qd[i] += kd * dvp_qd[i];
+                match kind {
+                    ContactKind::Point => {
+                        for i in 0..3 {
+                            by_q[i] += kd * dvp[i] + kp * dp[i];
+                            by_qd[i] += kd * dvp_qd[i];
+                        }
+                    }
+                    ContactKind::Wrench => {
+                        // The frame turns by the screw's angular part where k moves it.
+                        let turn = if moves { ang(&sc.s[k]) } else { Vector3::zeros() };
+                        let rc = frame_rotation(model, &sc, &contacts[c]);
+                        let (del, dew) = d_placement_error(&rc, &p, reference, &turn, &dp);
+                        let (dw, dw_qd) = (ang(&dv[b]), ang(&dv_qd[b]));
+                        for i in 0..3 {
+                            by_q[i] += kd * dvp[i] - kp * del[i];
+                            by_q[3 + i] += kd * dw[i] - kp * dew[i];
+                            by_qd[i] += kd * dvp_qd[i];
+                            by_qd[3 + i] += kd * dw_qd[i];
+                        }
+                    }
                 }
             }
             for (r, (x, y)) in by_q.into_iter().zip(by_qd).enumerate() {

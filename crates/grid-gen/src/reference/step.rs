@@ -47,7 +47,7 @@ fn bc(t: f64) -> (f64, f64) {
 /// Pinocchio's `Jexp6` coefficients `β = 1/t² − sin t / (2t (1 − cos t))` and `β' / t`:
 /// their series below t = 1 (from `cot x = Σ (−1)^n 2^2n B_2n x^(2n−1) / (2n)!`, x = t/2,
 /// since β = 1/t² − cot(t/2) / (2t)), Pinocchio's closed forms above.
-fn beta(t: f64) -> (f64, f64) {
+pub(super) fn beta(t: f64) -> (f64, f64) {
     if t >= 1.0 {
         let (st, ct) = t.sin_cos();
         let inv = 1.0 / (2.0 * (1.0 - ct));

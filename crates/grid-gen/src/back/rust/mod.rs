@@ -745,7 +745,7 @@ pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
         crate::ir::Input::Dt => "1",
         crate::ir::Input::Active => "NCONTACTS",
         crate::ir::Input::Gains => "2 * NBAUMGARTE",
-        crate::ir::Input::ContactRef => "3 * NBAUMGARTE",
+        crate::ir::Input::ContactRef => "NCONTACT_REF",
         crate::ir::Input::Qd
         | crate::ir::Input::Qdd
         | crate::ir::Input::Tau
@@ -1206,9 +1206,12 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
             let _ = writeln!(
                 out,
                 "/// Contacts stabilised as Pinocchio's Baumgarte corrector: `contact_fd`, `contact_fd_grad`, `step` and `step_grad` take\n\
-                 /// `gains` (`[Kp, Kd]` per contact of `CONTACTS`) and `contact_ref` (each contact's reference position in the world),\n\
-                 /// and drive each contact's acceleration to `-Kd v - Kp (p - p_ref)` (gains 0: the rigid contact).\n#[allow(dead_code)]\npub const NBAUMGARTE: usize = {};",
-                frames.len()
+                 /// `gains` (`[Kp, Kd]` per contact of `CONTACTS`) and `contact_ref` (each contact's reference in the world: a point's\n\
+                 /// position, 3 entries; a wrench's placement `[x, y, z, qx, qy, qz, qw]`, 7), and drive each contact's acceleration\n\
+                 /// to `-Kd v - Kp e`, e the error to the reference (a point's `p - p_ref`, a wrench's `-log6`; gains 0: the rigid\n\
+                 /// contact).\n#[allow(dead_code)]\npub const NBAUMGARTE: usize = {};\n/// Entries of `contact_ref`.\n#[allow(dead_code)]\npub const NCONTACT_REF: usize = {};",
+                frames.len(),
+                robot.dims().ncontact_ref
             );
         }
         if robot.specialisation.contact_mask {

@@ -160,6 +160,7 @@ mod tests {
                 nlambda: 0,
                 ncontacts: 0,
                 nbaumgarte: 0,
+                ncontact_ref: 0,
             },
             ports: vec![crate::datapath::Port::Sin(0), crate::datapath::Port::Cos(0)],
             nodes,

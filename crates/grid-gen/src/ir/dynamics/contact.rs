@@ -21,6 +21,8 @@ use super::super::graph::{Graph, Id, Input, Stage};
 use super::super::kernel::Solve;
 use super::super::module::{ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Operand};
 use super::super::spatial::{self as sp, k, V3};
+use super::lie::quaternion_log;
+use super::step::qmul;
 use super::{Dynamics, LambdaSource, Mat};
 use crate::model::ContactKind;
 
@@ -123,8 +125,9 @@ impl Dynamics<'_> {
         let poses = self.world_poses();
         let mut out = Vec::new();
         let baumgarte = self.model.specialisation.baumgarte;
-        for (ci, c) in self.model.specialisation.contacts.clone().into_iter().enumerate() {
-            let frame = &self.model.frames[c.frame];
+        let model = self.model;
+        for (ci, c) in model.specialisation.contacts.iter().enumerate() {
+            let frame = &model.frames[c.frame];
             let b = frame.body.expect("contacts are on moving bodies");
             self.at(b, Stage::Forward);
             let g = &mut self.g;
@@ -151,8 +154,9 @@ impl Dynamics<'_> {
                     let vw = sp::mat_vec(g, &r, &vl);
                     let rp = sp::mat_vec(g, &r, &p);
                     let at = sp::add3(g, &origin, &rp);
+                    let base = model.specialisation.contact_ref_at(ci);
                     out.extend((0..3).map(|i| {
-                        let reference = g.input(Input::ContactRef, 3 * ci + i);
+                        let reference = g.input(Input::ContactRef, base + i);
                         let e = g.sub(at[i], reference);
                         let pe = g.mul(kp, e);
                         let dv = g.mul(kd, vw[i]);
@@ -161,8 +165,59 @@ impl Dynamics<'_> {
                     }));
                 }
                 ContactKind::Wrench => {
-                    out.extend(sp::mat_vec(g, &r, &al));
-                    out.extend(sp::mat_vec(g, &r, &alpha));
+                    let lin = sp::mat_vec(g, &r, &al);
+                    let ang = sp::mat_vec(g, &r, &alpha);
+                    if !baumgarte {
+                        out.extend(lin);
+                        out.extend(ang);
+                        continue;
+                    }
+                    // Pinocchio's corrector for CONTACT_6D in LOCAL_WORLD_ALIGNED
+                    // (constrained-dynamics.hxx, 4.1): the desired acceleration is
+                    // `R_c (Kp log6(c1Mc2) − Kd v_c)`, v_c the frame's velocity in its own
+                    // axes and c1Mc2 = oMc⁻¹ oMref. In world axes `R_c log6(c1Mc2)` is
+                    // `[V⁻¹(ω) (p_ref − p); ω]` with ω = log3(R_ref R_cᵀ) (a logarithm
+                    // commutes with the rotation R_c), so the constraint is
+                    // `[a; α] + Kd [v; ω_b] − Kp [V⁻¹(ω) (p_ref − p); ω] = 0`.
+                    let (kp, kd) =
+                        (g.input(Input::Gains, 2 * ci), g.input(Input::Gains, 2 * ci + 1));
+                    let (vl, w) = Self::at_point(g, &v[b], &p);
+                    let vel: Vec<Id> =
+                        sp::mat_vec(g, &r, &vl).into_iter().chain(sp::mat_vec(g, &r, &w)).collect();
+                    let rp = sp::mat_vec(g, &r, &p);
+                    let at = sp::add3(g, &origin, &rp);
+                    let base = model.specialisation.contact_ref_at(ci);
+                    let reference: [Id; 7] =
+                        std::array::from_fn(|i| self.g.input(Input::ContactRef, base + i));
+                    let qc = self.frame_quaternion(frame);
+                    let g = &mut self.g;
+                    let conj = [g.neg(qc[0]), g.neg(qc[1]), g.neg(qc[2]), qc[3]];
+                    let rel = qmul(g, [reference[3], reference[4], reference[5], reference[6]], conj);
+                    let log = quaternion_log(g, rel);
+                    self.log_signs.push(log.sign);
+                    // V⁻¹(ω) d = α d − ½ ω × d + β (ω · d) ω (Pinocchio's `log6`).
+                    let d = sp::sub3(g, &[reference[0], reference[1], reference[2]], &at);
+                    let w = log.omega;
+                    let wd = sp::cross(g, &w, &d);
+                    let dot = g.dot(&w, &d);
+                    let bd = g.mul(log.beta, dot);
+                    let half = k(g, 0.5);
+                    let error: Vec<Id> = (0..3)
+                        .map(|i| {
+                            let x = g.mul(log.alpha, d[i]);
+                            let y = g.mul(half, wd[i]);
+                            let z = g.mul(bd, w[i]);
+                            let s = g.sub(x, y);
+                            g.add(s, z)
+                        })
+                        .chain(w)
+                        .collect();
+                    out.extend(lin.into_iter().chain(ang).enumerate().map(|(i, a)| {
+                        let dv = g.mul(kd, vel[i]);
+                        let pe = g.mul(kp, error[i]);
+                        let t = g.add(a, dv);
+                        g.sub(t, pe)
+                    }));
                 }
             }
         }
@@ -247,7 +302,10 @@ impl Dynamics<'_> {
         let (xqd, xqdd) = (self.expand(qd), self.expand(&sol.qdd));
         let acc = self.contact_accelerations(&xqd, &xqdd);
         let zero = self.g.constant(0.0);
-        let held: Vec<(Id, Id)> = xqdd.iter().map(|&x| (x, zero)).collect();
+        // The logarithms' signs (a stabilised wrench's) are held too, as `ddifference` holds
+        // them: their tangent is 0 wherever they are differentiable.
+        let held: Vec<(Id, Id)> =
+            xqdd.iter().chain(&self.log_signs).map(|&x| (x, zero)).collect();
         let (mut aq, mut aqd) = (Vec::with_capacity(nv), Vec::with_capacity(nv));
         for c in 0..nv {
             if self.exhausted() {

@@ -29,6 +29,15 @@ fn constant_pose(g: &mut Graph, frame: &Frame) -> Pose {
     (r, p)
 }
 
+/// A constant rotation's quaternion `[x, y, z, w]` (nalgebra's conversion, which picks the
+/// largest of the four components to divide by).
+fn constant_quaternion(g: &mut Graph, rot: [[f64; 3]; 3]) -> [Id; 4] {
+    let m = nalgebra::Matrix3::from_fn(|r, c| rot[r][c]);
+    let q = nalgebra::UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(m));
+    let c = q.into_inner().coords;
+    std::array::from_fn(|i| k(g, c[i]))
+}
+
 impl Dynamics<'_> {
     /// The world pose of every body: `R_i = R_λ E_iᵀ`, `p_i = p_λ + R_λ r_i`.
     pub(super) fn world_poses(&mut self) -> Vec<Pose> {
@@ -59,6 +68,64 @@ impl Dynamics<'_> {
             poses.push((r, p));
         }
         poses
+    }
+
+    /// A frame's world orientation as a quaternion `[x, y, z, w]` (Hamilton's product, q's
+    /// convention): the product along its body's path of each joint's tree rotation and its
+    /// own (`[a sin(θ/2), cos(θ/2)]` for a revolute joint, q's quaternion for a free-flyer or
+    /// a spherical joint), then the frame's placement. It is the rotation of
+    /// [`Self::frame_pose`] up to q's quaternions' norms, which only scale it; a wrench
+    /// contact's Baumgarte error takes its logarithm, which needs no branch on a quaternion
+    /// where a rotation matrix would need one near a half turn.
+    pub(super) fn frame_quaternion(&mut self, frame: &Frame) -> [Id; 4] {
+        let mut chain = Vec::new();
+        let mut at = frame.body;
+        while let Some(i) = at {
+            chain.push(i);
+            at = self.model.joints[i].parent;
+        }
+        let mut out = constant_quaternion(&mut self.g, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        for &i in chain.iter().rev() {
+            let tree = constant_quaternion(&mut self.g, self.model.joints[i].tree.rot);
+            out = super::step::qmul(&mut self.g, out, tree);
+            if let Some(own) = self.joint_quaternion(i) {
+                out = super::step::qmul(&mut self.g, out, own);
+            }
+        }
+        let placement = constant_quaternion(&mut self.g, frame.placement.rot);
+        super::step::qmul(&mut self.g, out, placement)
+    }
+
+    /// Joint i's own rotation as a quaternion, `None` where it has none (a prismatic joint,
+    /// a multi-dof joint's later members).
+    fn joint_quaternion(&mut self, i: usize) -> Option<[Id; 4]> {
+        let model = self.model;
+        let g = &mut self.g;
+        let config = self.config.as_ref();
+        let q_at = |g: &mut Graph, e: usize| config.map_or_else(|| g.input(Input::Q, e), |q| q[e]);
+        let joint = &model.joints[i];
+        let Some((QIndex(qi), multiplier, offset)) = model.joint_q(JointIndex(i)) else {
+            if model.group(i).is_none_or(|m| m.start != i) {
+                return None;
+            }
+            let at = if model.is_free_flyer(i) { 3 } else { model.group_q(JointIndex(i)).0 };
+            return Some(std::array::from_fn(|c| q_at(g, at + c)));
+        };
+        if !joint.joint_type.is_rotation() {
+            return None;
+        }
+        // The half angle of `multiplier · q + offset` (a coupled mimic joint's angle).
+        let q = q_at(g, qi);
+        let (m, o) = (k(g, 0.5 * multiplier), k(g, 0.5 * offset));
+        let half = g.mul(m, q);
+        let half = g.add(half, o);
+        let (s, c) = (g.sin(half), g.cos(half));
+        let a = joint.axis;
+        let [x, y, z] = a.map(|ar| {
+            let ar = k(g, ar);
+            g.mul(ar, s)
+        });
+        Some([x, y, z, c])
     }
 
     /// The world pose of a frame: its body's, composed with its constant placement.

@@ -41,11 +41,11 @@ const SIGN_SHIFT: f64 = 1e-18;
 /// A quaternion's logarithm as [`quaternion_log`] records it: the rotation vector ω
 /// (θ = |ω| ≤ π), `α = (θ/2) cot(θ/2)` and `β = (1 − α)/θ²` (a free-flyer's translation
 /// needs them), and the node of `w`'s sign, whose tangent the Jacobians hold at 0.
-struct Log {
-    omega: V3,
-    alpha: Id,
-    beta: Id,
-    sign: Id,
+pub(super) struct Log {
+    pub omega: V3,
+    pub alpha: Id,
+    pub beta: Id,
+    pub sign: Id,
 }
 
 /// `Σ c_n y^n` by Horner's rule.
@@ -62,7 +62,7 @@ fn polynomial(g: &mut Graph, y: Id, c: &[f64]) -> Id {
 
 /// The logarithm of the rotation of the quaternion `r = [x, y, z, w]` (Pinocchio's
 /// `quaternion::log3`, as the module documentation computes it).
-fn quaternion_log(g: &mut Graph, r: [Id; 4]) -> Log {
+pub(super) fn quaternion_log(g: &mut Graph, r: [Id; 4]) -> Log {
     let norm = g.dot(&r, &r);
     let norm = g.sqrt(norm);
     let shift = k(g, SIGN_SHIFT);
