@@ -67,6 +67,11 @@ class Kernel:
         self.arguments: Tuple[str, ...] = tuple(n for n, _ in self.inputs if n not in optional) + tuple(n for n, _ in self.inputs if n in optional)
         # Contact mask and Baumgarte gains: checked and shaped on the Python path.
         self._masked = "active" in self._at or "gains" in self._at
+        # contact_ref's width per contact as given (7 where a contact is a wrench), and the
+        # columns of its flattened (nc * width) rows that the kernel reads.
+        kinds = [kind for _, kind in robot.contacts]
+        self._ref_width = 7 if "wrench" in kinds else 3
+        self._ref_columns = np.array([c * self._ref_width + i for c, kind in enumerate(kinds) for i in range(7 if kind == "wrench" else 3)], dtype=np.intp)
         # Several outputs come back as a named tuple (`qdd, lam = r` or `r.lam`).
         self._result = collections.namedtuple(f"{self.name}_result", [_field(n) for n, _ in self.outputs]) if len(self.outputs) > 1 else None
         # Where the configurations' unit quaternions start: q's (every kernel's first input)
@@ -161,6 +166,28 @@ class Kernel:
             raise ValueError(f"{name}: `gains` holds a negative gain; Kp and Kd are >= 0 (0: no correction)")
         return np.asarray(a, dtype=np.float64).reshape(want[:-2] + (nc * k,))
 
+    def _references(self, a: Array, batch: Optional[int]) -> Array:
+        """Baumgarte's `contact_ref` as the kernel reads it: 3 entries per point contact (a
+        world position), 7 per wrench contact (a world placement, position and quaternion
+        `[x, y, z, qx, qy, qz, qw]`). Given as (nc, 3) or (B, nc, 3) when every contact is a
+        point, (nc, 7) or (B, nc, 7) when one is a wrench (a point's row reads its first
+        three entries); a wrench's quaternion must have norm 1 within 1e-6."""
+        width = self._ref_width
+        what = "a world position [x, y, z]" if width == 3 else "a world position [x, y, z] for a point contact, a world placement [x, y, z, qx, qy, qz, qw] for a wrench contact"
+        flat = self._per_contact("contact_ref", a, batch, width, what)
+        if width == 3:
+            return flat
+        rows = flat.reshape(-1, len(self._robot.contacts), width)
+        for c, (frame, kind) in enumerate(self._robot.contacts):
+            if kind != "wrench":
+                continue
+            norm = np.linalg.norm(rows[:, c, 3:], axis=-1)
+            bad = np.flatnonzero(np.abs(norm - 1.0) > 1e-6)
+            if len(bad):
+                state = "" if batch is None else f" of state {int(bad[0])}"
+                raise ValueError(f"{self.name}: `contact_ref`{state}: the quaternion [qx, qy, qz, qw] of wrench contact `{frame}` has norm {norm[bad[0]]:.9g}, not 1 (within 1e-6)")
+        return flat[..., self._ref_columns]
+
     def _time_steps(self, a: Array, batch: Optional[int]) -> Array:
         """A step's run-time `dt` as the kernel reads it, (1,) or (B, 1): from a scalar (every
         state's), a (B,) array (one per state) or (1,) for one state; each finite and
@@ -207,10 +234,15 @@ class Kernel:
         ref_given = "contact_ref" in values
         if "gains" in self._at:
             if "contact_ref" in values and "gains" not in values:
-                raise TypeError(f"{name}() got `contact_ref` without `gains`: give both (Kp, Kd per contact, and each contact's reference position)")
-            # No gains: the rigid contact (whose reference is never read).
+                raise TypeError(f"{name}() got `contact_ref` without `gains`: give both (Kp, Kd per contact, and each contact's reference)")
+            # No gains: the rigid contact. A reference left out is the origin, and a
+            # wrench's the identity rotation, whose logarithm is finite, so that Kp = 0 adds
+            # nothing.
             values.setdefault("gains", 0.0)
-            values.setdefault("contact_ref", 0.0)
+            if "contact_ref" not in values:
+                unset = np.zeros((len(self._robot.contacts), self._ref_width))
+                unset[:, 6:] = 1.0
+                values["contact_ref"] = unset
         batch: Optional[int] = None
         first: Optional[str] = None
         arrays: List[Array] = []
@@ -247,7 +279,7 @@ class Kernel:
         if "gains" in self._at:
             at, ref_at = self._at["gains"], self._at["contact_ref"]
             arrays[at] = self._per_contact("gains", arrays[at], batch, 2, "[Kp, Kd]")
-            arrays[ref_at] = self._per_contact("contact_ref", arrays[ref_at], batch, 3, "a world position [x, y, z]")
+            arrays[ref_at] = self._references(arrays[ref_at], batch)
             kp = arrays[at].reshape(n, -1, 2)[:, :, 0]
             if not ref_given and (kp != 0).any():
                 raise ValueError(f"{name}: `gains` has a nonzero Kp and no `contact_ref`: Kp pulls each contact towards its reference position; give contact_ref=")

@@ -595,18 +595,22 @@ def test_jax_floating_base_and_step_on_the_manifold(go2_stepping):
 
 
 def _point_contacts(p: "Pin", frames, active=None, gains=None, refs=None):
-    """Pinocchio's point contacts (CONTACT_3D, LOCAL_WORLD_ALIGNED) at links, as grid-gen's;
-    with `gains` ([Kp, Kd] per contact) and `refs` (world positions), its Baumgarte corrector
-    towards the universe at each reference."""
+    """Pinocchio's contacts (CONTACT_3D, or CONTACT_6D where `frames` is a dict that says
+    "wrench"; LOCAL_WORLD_ALIGNED) at links, as grid-gen's; with `gains` ([Kp, Kd] per
+    contact) and `refs` (world positions, or a wrench's [x, y, z, qx, qy, qz, qw]), its
+    Baumgarte corrector towards the universe at each reference."""
+    kinds = frames if isinstance(frames, dict) else dict.fromkeys(frames, "point")
     cms, cds = pin.StdVec_RigidConstraintModel(), pin.StdVec_RigidConstraintData()
-    for k, name in enumerate(frames):
+    for k, name in enumerate(kinds):
         if active is None or active[k]:
             frame = p.model.frames[p.model.getFrameId(name, pin.BODY)]
+            kind = pin.ContactType.CONTACT_6D if kinds[name] == "wrench" else pin.ContactType.CONTACT_3D
             if gains is None:
-                cm = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, p.model, frame.parentJoint, frame.placement, pin.LOCAL_WORLD_ALIGNED)
+                cm = pin.RigidConstraintModel(kind, p.model, frame.parentJoint, frame.placement, pin.LOCAL_WORLD_ALIGNED)
             else:
-                ref = pin.SE3(np.eye(3), np.asarray(refs[k], dtype=float))
-                cm = pin.RigidConstraintModel(pin.ContactType.CONTACT_3D, p.model, frame.parentJoint, frame.placement, 0, ref, pin.LOCAL_WORLD_ALIGNED)
+                r = np.asarray(refs[k], dtype=float)
+                ref = pin.XYZQUATToSE3(r[:7]) if kinds[name] == "wrench" else pin.SE3(np.eye(3), r[:3])
+                cm = pin.RigidConstraintModel(kind, p.model, frame.parentJoint, frame.placement, 0, ref, pin.LOCAL_WORLD_ALIGNED)
                 bp = cm.m_baumgarte_parameters
                 bp.Kp, bp.Kd = float(gains[k][0]), float(gains[k][1])
                 cm.setBaumgarteCorrectorParameters(bp)
@@ -661,7 +665,7 @@ def _check_knot(robot, p, feet, q, qd, u, dt, corr):
     def pin_lambda(qp, vp, up):
         taup = np.zeros(nv)
         taup[p.v[6:]] = up
-        cms, cds = _point_contacts(p, list(feet), gains=None if corr is None else corr[0][i], refs=None if corr is None else corr[1][i])
+        cms, cds = _point_contacts(p, dict(feet), gains=None if corr is None else corr[0][i], refs=None if corr is None else corr[1][i])
         a = pin.constraintDynamics(p.model, p.data, qp, vp, taup, cms, cds, pin.ProximalSettings(1e-14, 0.0, 1))
         return a.copy(), p.data.lambda_c.copy()
 
@@ -682,7 +686,8 @@ def _check_knot(robot, p, feet, q, qd, u, dt, corr):
         worst_lam = max(worst_lam, rel(r.lam[i], lam), rel(r.qd_next[i], p.vec(v_want)))
         # Central differences along each tangent direction of x = (q, qd) (grid-gen's
         # order, mapped to Pinocchio's) and of u.
-        dlam_dx, dlam_du = np.empty((6, 2 * nv)), np.empty((6, nu))
+        nl = r.lam.shape[-1]
+        dlam_dx, dlam_du = np.empty((nl, 2 * nv)), np.empty((nl, nu))
         a_fd, b_fd = np.empty((2 * nv, 2 * nv)), np.empty((2 * nv, nu))
         q_next0, v_next0, _ = pin_step(qp, vp, u[i], dt[i])
 
@@ -712,13 +717,53 @@ def _check_knot(robot, p, feet, q, qd, u, dt, corr):
                 dlam_du[:, c - 2 * nv], b_fd[:, c - 2 * nv] = dl, dxn
         worst_dlam = max(worst_dlam, rel(r.dlam_dx[i], dlam_dx), rel(r.dlam_du[i], dlam_du))
         worst_ab = max(worst_ab, rel(r.A[i], a_fd), rel(r.B[i], b_fd))
-    what = "Baumgarte gains" if corr is not None else "rigid"
+    what = ("Baumgarte gains" if corr is not None else "rigid") + ", " + " and ".join(f"{f} {k}" for f, k in feet.items())
     print(f"unseen floating tree, two feet ({what}), step from load keywords: lambda and qd_next {worst_lam:.1e} from Pinocchio; dlam {worst_dlam:.1e}, A/B {worst_ab:.1e} from central differences")
     # λ and q̇⁺: f64 round-off through K = J M^-1 J^T (two points on a 12-dof tree, well
     # conditioned at these states). Derivatives: the central differences' own error (above)
     # with a 10x margin; a wrong term (a missing Kp J, a sign) would be O(1).
     assert worst_lam < 1e-11
     assert worst_dlam < 1e-7 and worst_ab < 1e-7
+
+
+def test_a_stabilised_wrench_contact_against_pinocchio(tmp_path):
+    """A wrench foot beside a point foot on the unseen floating tree, stabilised towards
+    references turned by up to 0.6 rad from the feet's placements (Pinocchio's CONTACT_6D
+    corrector, whose error is log6): λ and q̇⁺ against constraintDynamics, and the
+    derivatives against central differences, as the point feet's test; then contact_ref's
+    checks (its shape, a wrench's quaternion)."""
+    urdf = tmp_path / "unseen_tree.urdf"
+    urdf.write_text(random_tree_urdf(seed=2027))
+    feet = {"l2": "wrench", "l4": "point"}
+    robot = grid_gen.load(urdf, **{**KNOT, "contacts": feet})
+    p = Pin(urdf, robot)
+    n = 3
+    q, qd, tau = random_states(robot, n, seed=31)
+    u = tau[:, 6:]
+    dt = np.array([1e-3, 5e-3, 2e-2])
+    rng = np.random.default_rng(34)
+    gains = np.stack([rng.uniform(0, 200, (n, 2)), rng.uniform(0, 30, (n, 2))], axis=-1)
+    refs = np.zeros((n, 2, 7))
+    for i in range(n):
+        qp, _ = p.to_pin(q[i], qd[i])
+        pin.framesForwardKinematics(p.model, p.data, qp)
+        for k, foot in enumerate(feet):
+            here = p.data.oMf[p.model.getFrameId(foot, pin.BODY)]
+            turn = pin.exp3(rng.uniform(-0.35, 0.35, 3))
+            placed = pin.SE3(turn @ here.rotation, here.translation + rng.uniform(-0.05, 0.05, 3))
+            refs[i, k] = pin.SE3ToXYZQUAT(placed)
+    refs[:, 1, 3:] = 0.0  # the point foot's row reads its first three entries only
+    _check_knot(robot, p, feet, q, qd, u, dt, (gains, refs))
+    with pytest.raises(ValueError, match=r"expected \(3, 2, 7\) or \(2, 7\) for every state"):
+        robot.step(q, qd, u, dt, gains=gains, contact_ref=refs[:, :, :3])
+    bad = refs.copy()
+    bad[1, 0, 3:] = 0.0
+    with pytest.raises(ValueError, match="contact_ref` of state 1: the quaternion .* of wrench contact `l2` has norm 0, not 1"):
+        robot.step(q, qd, u, dt, gains=gains, contact_ref=bad)
+    # No contact_ref and no Kp: the wrench's reference is the identity, and the step is the
+    # rigid one to rounding (Kp · log6 is 0 · a finite value).
+    rigid = robot.step(q, qd, u, dt)
+    assert np.isfinite(rigid.lam).all()
 
 
 def test_load_keywords_and_state_checks_say_what_is_wrong(tmp_path):

@@ -1771,15 +1771,15 @@ fn round_angles_from_the_command_line() {
 
 /// Baumgarte-stabilised contacts from the command line: `eval --baumgarte` takes a state's
 /// `baumgarte` (kp, kd, ref per contact frame) and gives the reference's stabilised contact
-/// dynamics and step (λ included); `info` names the inputs; bad correctors are errors
-/// naming the state and the contact.
+/// dynamics and step (λ included), a wrench foot's reference a placement; `info` names the
+/// inputs; bad correctors are errors naming the state and the contact.
 #[test]
 fn baumgarte_from_the_command_line() {
     let base = [
         "robots/grid_hyq.urdf",
         "--floating-base",
         "--contact",
-        "lf_lowerleg:point,rh_lowerleg:point",
+        "lf_lowerleg:wrench,rh_lowerleg:point",
         "--baumgarte",
     ];
     let summary = json(&grid_gen(&[&["info", "--json"], &base[..]].concat()));
@@ -1807,7 +1807,7 @@ fn baumgarte_from_the_command_line() {
     };
     let corrected = write(
         "gains.json",
-        r#", "baumgarte": {"lf_lowerleg": {"kp": 100, "kd": 20, "ref": [0.4, 0.3, -0.3]}, "rh_lowerleg": {"kp": 50, "kd": 5, "ref": [-0.4, -0.3, -0.35]}}"#,
+        r#", "baumgarte": {"lf_lowerleg": {"kp": 100, "kd": 20, "ref": [0.4, 0.3, -0.3, 0, 0, 0.3826834323650898, 0.9238795325112867]}, "rh_lowerleg": {"kp": 50, "kd": 5, "ref": [-0.4, -0.3, -0.35]}}"#,
     );
     let args = |extra: &[&str], states: &std::path::Path| -> Vec<String> {
         [&["eval"], &base[..], extra, &["--states", states.to_str().unwrap()]]
@@ -1823,7 +1823,7 @@ fn baumgarte_from_the_command_line() {
     let text = std::fs::read_to_string(repo().join("robots/grid_hyq.urdf")).unwrap();
     let scene = grid_gen::Scene::parse(
         "s.toml",
-        "floating_base = true\nbaumgarte = true\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"point\"\n[[contact]]\nframe = \"rh_lowerleg\"\ntype = \"point\"\n",
+        "floating_base = true\nbaumgarte = true\n[[contact]]\nframe = \"lf_lowerleg\"\ntype = \"wrench\"\n[[contact]]\nframe = \"rh_lowerleg\"\ntype = \"point\"\n",
     )
     .unwrap();
     let model =
@@ -1832,7 +1832,8 @@ fn baumgarte_from_the_command_line() {
             .0;
     let parse = |s: &str| -> Vec<f64> { serde_json::from_str(s).unwrap() };
     let gains = [100.0, 20.0, 50.0, 5.0];
-    let refs = [0.4, 0.3, -0.3, -0.4, -0.3, -0.35];
+    let refs =
+        [0.4, 0.3, -0.3, 0.0, 0.0, 0.3826834323650898, 0.9238795325112867, -0.4, -0.3, -0.35];
     let corr = grid_gen::reference::Baumgarte { gains: &gains, refs: &refs };
     let g = grid_gen::model::DEFAULT_GRAVITY;
     let (x, v, u) = (parse(q), parse(qd), parse(tau));
@@ -1843,10 +1844,11 @@ fn baumgarte_from_the_command_line() {
     let floats = |v: &serde_json::Value| -> Vec<f64> {
         v.as_array().unwrap().iter().map(|x| x.as_f64().unwrap()).collect()
     };
-    // serde_json's float parsing may round the last digit differently.
+    // serde_json's float parsing may round the last digit of an input differently, which
+    // moves the outputs by rounding relative to their largest entry (measured 2.6e-16 of it).
     let close = |a: &[f64], b: &[f64]| {
-        a.len() == b.len()
-            && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-14 * y.abs().max(1.0))
+        let scale = b.iter().fold(1.0f64, |m, y| m.max(y.abs()));
+        a.len() == b.len() && a.iter().zip(b).all(|(x, y)| (x - y).abs() <= 1e-14 * scale)
     };
     let got = floats(&s["contact_fd"]["qdd"]);
     assert!(close(&got, &sol.qdd), "contact_fd.qdd is the reference's with the corrector");
@@ -1870,6 +1872,20 @@ fn baumgarte_from_the_command_line() {
         ),
         (
             write(
+                "short.json",
+                r#", "baumgarte": {"lf_lowerleg": {"kp": 1, "kd": 1, "ref": [0, 0, 0]}}"#,
+            ),
+            "`ref` of a wrench contact is a world placement, seven finite numbers",
+        ),
+        (
+            write(
+                "zero.json",
+                r#", "baumgarte": {"lf_lowerleg": {"kp": 1, "kd": 1, "ref": [0, 0, 0, 0, 0, 0, 0]}}"#,
+            ),
+            "`ref`'s quaternion [qx, qy, qz, qw] must have norm 1",
+        ),
+        (
+            write(
                 "neg.json",
                 r#", "baumgarte": {"lf_lowerleg": {"kp": -1, "kd": 1, "ref": [0, 0, 0]}}"#,
             ),
@@ -1887,7 +1903,7 @@ fn baumgarte_from_the_command_line() {
         "robots/grid_hyq.urdf",
         "--floating-base",
         "--contact",
-        "lf_lowerleg:point,rh_lowerleg:point",
+        "lf_lowerleg:wrench,rh_lowerleg:point",
         "--states",
         corrected.to_str().unwrap(),
     ]);

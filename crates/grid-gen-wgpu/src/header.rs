@@ -19,9 +19,12 @@ pub struct ShaderInfo {
     /// Entries of the contact mask that the contact kernels and the step read in `u`
     /// (`// active:`, else 0).
     pub active: usize,
-    /// Contacts with Baumgarte gains, each 2 gains and 3 reference entries in `u` after the
-    /// mask (`// baumgarte:`, else 0).
+    /// Contacts with Baumgarte gains, each 2 gains in `u` after the mask (`// baumgarte:`,
+    /// else 0).
     pub baumgarte: usize,
+    /// Their references' entries after the gains: 3 per point contact, 7 per wrench contact
+    /// (`// contact_ref:`, else 0).
+    pub contact_ref: usize,
     /// Whether the step kernels read their time step as the last entry of each state's `u`
     /// (`// dt: input`).
     pub runtime_dt: bool,
@@ -51,6 +54,7 @@ impl ShaderInfo {
         let mut runtime_dt = false;
         let mut active = 0;
         let mut baumgarte = 0;
+        let mut contact_ref = 0;
         let mut precision = None;
         let mut entries = Vec::new();
         let mut tables = None;
@@ -71,6 +75,8 @@ impl ShaderInfo {
                 active = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// baumgarte: ") {
                 baumgarte = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
+            } else if let Some(v) = line.strip_prefix("// contact_ref: ") {
+                contact_ref = v.trim().parse::<usize>().map_err(|_| bad("not a count"))?;
             } else if let Some(v) = line.strip_prefix("// dt: ") {
                 if v.trim() != "input" {
                     return Err(bad("expected `input`"));
@@ -110,6 +116,7 @@ impl ShaderInfo {
             lambda,
             active,
             baumgarte,
+            contact_ref,
             runtime_dt,
             precision,
             entries,

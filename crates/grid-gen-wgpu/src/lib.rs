@@ -340,6 +340,7 @@ impl Gpu {
                     lambda: i.lambda,
                     active: i.active,
                     baumgarte: i.baumgarte,
+                    contact_ref: i.contact_ref,
                     runtime_dt: i.runtime_dt,
                 })
             }),

@@ -1319,19 +1319,36 @@ fn masked_contacts_match_the_reference() {
 #[test]
 fn stabilised_contacts_match_the_reference() {
     use grid_gen::model::ContactKind;
-    let Some((_serial, gpu)) = gpu_f64() else { return };
-    let mut rng = Rng(107);
     let legs = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
         .map(|l| (l, ContactKind::Point));
-    let mut model = with_forces(&load_floating("grid_hyq"), &[], &legs);
+    check_stabilised(&legs, 107);
+}
+
+/// A stabilised wrench foot (its error SE(3)'s logarithm, its reference 7 entries of `u`)
+/// beside a point foot, as [`stabilised_contacts_match_the_reference`].
+#[test]
+fn stabilised_wrench_contacts_match_the_reference() {
+    use grid_gen::model::ContactKind;
+    check_stabilised(
+        &[("lf_lowerleg", ContactKind::Wrench), ("rh_lowerleg", ContactKind::Point)],
+        109,
+    );
+}
+
+fn check_stabilised(legs: &[(&str, grid_gen::model::ContactKind)], seed: u64) {
+    let Some((_serial, gpu)) = gpu_f64() else { return };
+    let mut rng = Rng(seed);
+    let mut model = with_forces(&load_floating("grid_hyq"), &[], legs);
     model.specialisation.baumgarte = true;
+    let nc = legs.len();
+    let nref = model.specialisation.contact_ref_len();
     let options = WgslOptions {
         precision: Precision::F64,
         strategies: vec![Strategy::Cooperative],
         ..WgslOptions::default()
     };
     let shader = gpu.load(&wgsl(&model, options)).unwrap();
-    assert_eq!(shader.info.baumgarte, 4, "the header counts the stabilised contacts");
+    assert_eq!(shader.info.baumgarte, nc, "the header counts the stabilised contacts");
     let kind = KernelKind::ContactFdGrad;
     let lower = grid_gen::ir::LowerOptions { kernels: vec![kind], ..Default::default() };
     let lowered = grid_gen::ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
@@ -1341,8 +1358,20 @@ fn stabilised_contacts_match_the_reference() {
     let corr: Vec<(Vec<f64>, Vec<f64>)> = states
         .iter()
         .map(|_| {
-            let gains = (0..4).flat_map(|_| [rng.vec(1, 0.0, 200.0)[0], rng.vec(1, 0.0, 30.0)[0]]);
-            (gains.collect(), rng.vec(12, -0.6, 0.6))
+            let gains: Vec<f64> = (0..nc)
+                .flat_map(|_| [rng.vec(1, 0.0, 200.0)[0], rng.vec(1, 0.0, 30.0)[0]])
+                .collect();
+            // Positions within 0.6 m of the origin; a wrench's quaternion any unit one.
+            let refs = legs.iter().flat_map(|(_, kind)| {
+                let mut r = rng.vec(3, -0.6, 0.6);
+                if *kind == grid_gen::model::ContactKind::Wrench {
+                    let quat = rng.vec(4, -1.0, 1.0);
+                    let norm = quat.iter().map(|x| x * x).sum::<f64>().sqrt();
+                    r.extend(quat.iter().map(|x| x / norm));
+                }
+                r
+            });
+            (gains, refs.collect())
         })
         .collect();
     let flat =
@@ -1354,7 +1383,7 @@ fn stabilised_contacts_match_the_reference() {
         .flat_map(|(s, (g, r))| s[2].iter().chain(g).chain(r).copied().collect::<Vec<_>>())
         .collect();
     let kernel = gpu.kernel(&shader, &Strategy::Cooperative.entry(kind.name())).unwrap();
-    assert_eq!(kernel.nu, nv + 20, "{kind}: u holds τ, 8 gains and 12 reference entries");
+    assert_eq!(kernel.nu, nv + 2 * nc + nref, "{kind}: u holds τ, the gains and the references");
     assert_eq!(kernel.nu, f.packed_u_len(), "{kind}: u's width");
     let got = gpu.run(&kernel, &q, &qd, &u).unwrap();
     let total = kernel.entry.outputs;
@@ -1389,7 +1418,8 @@ fn stabilised_contacts_match_the_reference() {
     }
     assert!(singular <= 2, "{singular} singular states");
     eprintln!(
-        "grid_hyq floating stabilised {kind} f64: worst relative error {worst:.2e} over {} states",
+        "grid_hyq floating stabilised {kind} ({}) f64: worst relative error {worst:.2e} over {} states",
+        legs.iter().map(|(l, k)| format!("{l} {}", k.name())).collect::<Vec<_>>().join(", "),
         states.len() - singular
     );
 }

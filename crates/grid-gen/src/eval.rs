@@ -50,13 +50,14 @@ pub struct State {
 
 /// One contact's Baumgarte corrector (Pinocchio's `BaumgarteCorrectorParameters` and the
 /// reference placement of `joint2`, the universe): the contact's acceleration is driven to
-/// `−kd v − kp (p − ref)`.
+/// `−kd v − kp e`, e a point's `p − ref`, a wrench's `−log6(oMc⁻¹ oMref)` in world axes.
 #[derive(Clone, Debug, Deserialize)]
 #[serde(deny_unknown_fields)]
 pub struct Corrector {
     pub kp: f64,
     pub kd: f64,
-    /// The reference position in the world, `[x, y, z]` (may be left out where kp is 0).
+    /// The reference in the world: a point contact's position `[x, y, z]`, a wrench
+    /// contact's placement `[x, y, z, qx, qy, qz, qw]` (may be left out where kp is 0).
     #[serde(default, rename = "ref")]
     pub reference: Option<Values>,
 }
@@ -724,17 +725,24 @@ fn check_baumgarte(model: &Model, index: usize, s: &State) -> Result<(), EvalErr
     let declared: Vec<&str> =
         model.specialisation.contacts.iter().map(|c| model.frames[c.frame].name.as_str()).collect();
     for (key, c) in &s.baumgarte {
-        if !declared.contains(&key.as_str()) {
+        let Some(at) = declared.iter().position(|d| d == key) else {
             let declared = declared.join(", ");
             return Err(EvalError::UnknownCorrector { index, key: key.clone(), declared });
-        }
+        };
         let bad = |why| Err(EvalError::BadCorrector { index, key: key.clone(), why });
         if !(c.kp.is_finite() && c.kd.is_finite() && c.kp >= 0.0 && c.kd >= 0.0) {
             return bad("kp and kd are finite and >= 0 (0: no correction)");
         }
+        let wrench = model.specialisation.contacts[at].kind == crate::model::ContactKind::Wrench;
         match &c.reference {
-            Some(r) if r.0.len() != 3 || !r.0.iter().all(|x| x.is_finite()) => {
+            Some(r) if !wrench && (r.0.len() != 3 || !r.0.iter().all(|x| x.is_finite())) => {
                 return bad("`ref` is a world position, three finite numbers")
+            }
+            Some(r) if wrench && (r.0.len() != 7 || !r.0.iter().all(|x| x.is_finite())) => {
+                return bad("`ref` of a wrench contact is a world placement, seven finite numbers: [x, y, z, qx, qy, qz, qw]")
+            }
+            Some(r) if wrench && (r.0[3..].iter().map(|x| x * x).sum::<f64>().sqrt() - 1.0).abs() > QUATERNION_TOLERANCE => {
+                return bad("`ref`'s quaternion [qx, qy, qz, qw] must have norm 1 (within 1e-6)")
             }
             None if c.kp != 0.0 => return bad("kp pulls the contact towards `ref`: give `ref`"),
             _ => {}
@@ -753,7 +761,13 @@ fn correctors(held: &Model, s: &State) -> (Vec<f64>, Vec<f64>) {
     for c in &held.specialisation.contacts {
         let corr = s.baumgarte.get(&held.frames[c.frame].name);
         gains.extend(corr.map_or([0.0; 2], |c| [c.kp, c.kd]));
-        refs.extend(corr.and_then(|c| c.reference.as_ref()).map_or(vec![0.0; 3], |r| r.0.clone()));
+        // Left out (kp 0): the origin, and for a wrench the identity rotation, whose
+        // logarithm is finite, so that 0 · e adds nothing.
+        let unset = match c.kind {
+            crate::model::ContactKind::Point => vec![0.0; 3],
+            crate::model::ContactKind::Wrench => vec![0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0],
+        };
+        refs.extend(corr.and_then(|c| c.reference.as_ref()).map_or(unset, |r| r.0.clone()));
     }
     (gains, refs)
 }

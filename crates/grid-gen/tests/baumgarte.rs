@@ -133,9 +133,8 @@ fn check_stabilised(m: &Model, seed: u64, angle: f64) -> f64 {
         let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
         let (qd, fext) = (rng.vec(nv, -2.0, 2.0), rng.vec(6 * m.nfext(), -20.0, 20.0));
         let ext = reference::External { fext: &fext, lambda: &[] };
-        let gains: Vec<f64> = (0..nc)
-            .flat_map(|_| [rng.vec(1, 0.0, 200.0)[0], rng.vec(1, 0.0, 30.0)[0]])
-            .collect();
+        let gains: Vec<f64> =
+            (0..nc).flat_map(|_| [rng.vec(1, 0.0, 200.0)[0], rng.vec(1, 0.0, 30.0)[0]]).collect();
         let refs = contact_refs(&m, &q, &mut rng, angle);
         let corr = reference::Baumgarte { gains: &gains, refs: &refs };
         for f in &module.functions {
@@ -178,7 +177,6 @@ fn contact_refs(m: &Model, q: &[f64], rng: &mut Rng, angle: f64) -> Vec<f64> {
     }
     out
 }
-
 
 /// Gains 0 are the rigid contact, bit for bit: the stabilised kernels' values with zero
 /// gains equal the unstabilised kernels' (the corrector adds `0 · v + 0 · e`), and the

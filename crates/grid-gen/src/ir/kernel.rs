@@ -41,8 +41,10 @@ pub struct UPacking {
     pub lambda: usize,
     /// The contact mask's entries (0 without one).
     pub active: usize,
-    /// Contacts with Baumgarte gains (2 gains and 3 reference entries each).
+    /// Contacts with Baumgarte gains (2 gains each).
     pub baumgarte: usize,
+    /// Their references' entries (3 per point contact, 7 per wrench contact).
+    pub contact_ref: usize,
     /// Whether the step kernels take `dt`.
     pub runtime_dt: bool,
 }
@@ -555,7 +557,8 @@ impl KernelKind {
         }
         let first = if self.is_step() { p.nu } else { p.nv };
         let dt = usize::from(self.is_step() && p.runtime_dt);
-        let mask = if self.solves_contacts() { p.active + 5 * p.baumgarte } else { 0 };
+        let mask =
+            if self.solves_contacts() { p.active + 2 * p.baumgarte + p.contact_ref } else { 0 };
         dt + mask
             + match (self.takes_forces(), self.solves_contacts()) {
                 (false, _) => first,

@@ -57,7 +57,11 @@ impl Baumgarte<'_> {
 /// A wrench contact's placement error in world axes, `R_c log6(oMc⁻¹ oMref)` =
 /// `[V(ω)⁻¹ (p_ref − p); ω]` with `ω = log3(R_ref R_cᵀ)` (by the quaternion's `atan2`, and
 /// V's inverse by an LU solve: a route independent of the kernels' halving of the angle).
-fn placement_error(rc: &Matrix3<f64>, p: &Vector3<f64>, reference: &[f64]) -> (Vector3<f64>, Vector3<f64>) {
+fn placement_error(
+    rc: &Matrix3<f64>,
+    p: &Vector3<f64>,
+    reference: &[f64],
+) -> (Vector3<f64>, Vector3<f64>) {
     let r_ref = super::step::quaternion(reference, 3);
     let e = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
         r_ref.to_rotation_matrix().into_inner() * rc.transpose(),

@@ -551,10 +551,11 @@ pub fn emit_with_stats(
             0 => String::new(),
             n => format!("// active: {n}\n"),
         },
-        // With Baumgarte gains, then gains (2 per contact) and contact_ref (3 per contact).
+        // With Baumgarte gains, then gains (2 per contact) and contact_ref (3 per point
+        // contact, 7 per wrench contact: the second count).
         match robot.dims().nbaumgarte {
             0 => String::new(),
-            n => format!("// baumgarte: {n}\n"),
+            n => format!("// baumgarte: {n}\n// contact_ref: {}\n", robot.dims().ncontact_ref),
         },
         // The step kernels read a run-time dt last in `u`.
         match robot.specialisation.step.is_some_and(|s| s.runtime_dt()) {

@@ -192,7 +192,8 @@ impl Dynamics<'_> {
                     let qc = self.frame_quaternion(frame);
                     let g = &mut self.g;
                     let conj = [g.neg(qc[0]), g.neg(qc[1]), g.neg(qc[2]), qc[3]];
-                    let rel = qmul(g, [reference[3], reference[4], reference[5], reference[6]], conj);
+                    let rel =
+                        qmul(g, [reference[3], reference[4], reference[5], reference[6]], conj);
                     let log = quaternion_log(g, rel);
                     self.log_signs.push(log.sign);
                     // V⁻¹(ω) d = α d − ½ ω × d + β (ω · d) ω (Pinocchio's `log6`).
@@ -304,8 +305,7 @@ impl Dynamics<'_> {
         let zero = self.g.constant(0.0);
         // The logarithms' signs (a stabilised wrench's) are held too, as `ddifference` holds
         // them: their tangent is 0 wherever they are differentiable.
-        let held: Vec<(Id, Id)> =
-            xqdd.iter().chain(&self.log_signs).map(|&x| (x, zero)).collect();
+        let held: Vec<(Id, Id)> = xqdd.iter().chain(&self.log_signs).map(|&x| (x, zero)).collect();
         let (mut aq, mut aqd) = (Vec::with_capacity(nv), Vec::with_capacity(nv));
         for c in 0..nv {
             if self.exhausted() {

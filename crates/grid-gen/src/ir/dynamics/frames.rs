@@ -33,7 +33,9 @@ fn constant_pose(g: &mut Graph, frame: &Frame) -> Pose {
 /// largest of the four components to divide by).
 fn constant_quaternion(g: &mut Graph, rot: [[f64; 3]; 3]) -> [Id; 4] {
     let m = nalgebra::Matrix3::from_fn(|r, c| rot[r][c]);
-    let q = nalgebra::UnitQuaternion::from_rotation_matrix(&nalgebra::Rotation3::from_matrix_unchecked(m));
+    let q = nalgebra::UnitQuaternion::from_rotation_matrix(
+        &nalgebra::Rotation3::from_matrix_unchecked(m),
+    );
     let c = q.into_inner().coords;
     std::array::from_fn(|i| k(g, c[i]))
 }
@@ -84,7 +86,8 @@ impl Dynamics<'_> {
             chain.push(i);
             at = self.model.joints[i].parent;
         }
-        let mut out = constant_quaternion(&mut self.g, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
+        let mut out =
+            constant_quaternion(&mut self.g, [[1.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, 1.0]]);
         for &i in chain.iter().rev() {
             let tree = constant_quaternion(&mut self.g, self.model.joints[i].tree.rot);
             out = super::step::qmul(&mut self.g, out, tree);
