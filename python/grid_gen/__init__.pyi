@@ -27,6 +27,7 @@ def load(
     contact_mask: Optional[bool] = None,
     baumgarte: Optional[bool] = None,
     gravity: Optional[Sequence[float]] = None,
+    round_angles: Optional[float] = None,
 ) -> Robot: ...
 
 class Kernel:

@@ -91,6 +91,7 @@ def load(
     contact_mask: Optional[bool] = None,
     baumgarte: Optional[bool] = None,
     gravity: Optional[Sequence[float]] = None,
+    round_angles: Optional[float] = None,
 ) -> Robot:
     """Loads a robot's kernels, compiling them on the first load.
 
@@ -110,9 +111,12 @@ def load(
     default) leaves it to run time (`step(q, qd, tau, dt)`). actuated: the joints with a
     motor (the step's tau). external_forces: the joints whose bodies take `fext`.
     contact_mask: the contacts are candidates, chosen per state by `active=`. baumgarte:
-    the point contacts are stabilised as Pinocchio's Baumgarte corrector, the contact kernels
+    the contacts are stabilised as Pinocchio's Baumgarte corrector, the contact kernels
     and the step taking `gains=` ([Kp, Kd] per contact) and `contact_ref=` (each contact's
-    reference position in the world). gravity: (x, y, z) in m/s^2.
+    reference in the world: a point's position, a wrench's [x, y, z, qx, qy, qz, qw]).
+    gravity: (x, y, z) in m/s^2. round_angles: a tolerance in rad; `<origin rpy>` angles
+    within it of a multiple of pi/2 are read as that multiple (axis-aligned joints cost
+    fewer operations).
 
     A compiled robot is cached (see `cache_dir`) under a hash of the URDF, the scene, the
     options and this grid-gen, and loads again in milliseconds. Raises ValueError for a
@@ -132,7 +136,7 @@ def load(
     for what, names in (("frames", frames), ("kernels", kernels)):
         if names is not None and not all(isinstance(n, str) for n in names):
             raise ValueError(f"{what} must be a list of strings")
-    keywords = _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, baumgarte, gravity)
+    keywords = _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, baumgarte, gravity, round_angles)
 
     key_source = {
         "generator": _generator_id(),
@@ -153,7 +157,7 @@ def load(
     return Robot(str(lib), prefix, precision)
 
 
-def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, baumgarte, gravity) -> Dict[str, Any]:
+def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask, baumgarte, gravity, round_angles=None) -> Dict[str, Any]:
     """load's scene keywords, checked for their Python types and put as the native generator
     takes them (every key present; None where not given)."""
 
@@ -184,6 +188,10 @@ def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask,
         if len(g) != 3 or not all(math.isfinite(x) for x in g):
             raise ValueError(f"load(gravity=...) takes three finite numbers (m/s^2), not {gravity!r}")
         gravity = g
+    if round_angles is not None:
+        if isinstance(round_angles, bool) or not isinstance(round_angles, (int, float)) or not math.isfinite(round_angles):
+            raise ValueError(f"load(round_angles=...) takes a tolerance in rad, not {round_angles!r}")
+        round_angles = float(round_angles)
     return {
         "contacts": pairs,
         "step": step,
@@ -193,6 +201,7 @@ def _scene_keywords(contacts, step, dt, actuated, external_forces, contact_mask,
         "contact_mask": contact_mask,
         "baumgarte": baumgarte,
         "gravity": gravity,
+        "round_angles": round_angles,
     }
 
 

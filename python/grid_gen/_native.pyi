@@ -1,6 +1,6 @@
 """grid-gen's generator, compiled into the package (see grid_gen.load)."""
 
-from typing import Any, Dict, List, Optional
+from typing import Any, Dict, List, Optional, Tuple
 
 def generate(
     urdf: str,
@@ -20,6 +20,9 @@ def runtime_source() -> str:
 
 def version() -> str:
     """grid-gen's version."""
+
+def settings() -> List[Tuple[str, str, str, str]]:
+    """Each setting's load keyword, scene key, CLI flag and Builder method."""
 
 class Caller:
     """One kernel's C batch entry point called on NumPy arrays in native code: the fast path

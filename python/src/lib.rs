@@ -23,6 +23,7 @@ struct SceneKeywords {
     contact_mask: Option<bool>,
     baumgarte: Option<bool>,
     gravity: Option<[f64; 3]>,
+    round_angles: Option<f64>,
 }
 
 impl SceneKeywords {
@@ -84,6 +85,11 @@ impl SceneKeywords {
         }
         if let Some(g) = self.gravity {
             b.gravity(g);
+        }
+        if let Some(tol) = self.round_angles {
+            grid_gen::scene::check_round_angles(tol)
+                .map_err(|why| PyValueError::new_err(format!("load(round_angles=...): {why}")))?;
+            b.round_angles(tol);
         }
         Ok(())
     }
@@ -164,6 +170,13 @@ fn generate(
 #[pyfunction]
 fn runtime_source() -> &'static str {
     include_str!("../../crates/grid-gen-runtime/src/lib.rs")
+}
+
+/// The settings table (`grid_gen::settings::SETTINGS`): each setting's load keyword, scene
+/// key, CLI flag and Builder method, which the tests hold `load`'s signature to.
+#[pyfunction]
+fn settings() -> Vec<(&'static str, &'static str, &'static str, &'static str)> {
+    grid_gen::settings::SETTINGS.iter().map(|s| (s.key, s.toml, s.flag, s.builder)).collect()
 }
 
 /// grid-gen's version; part of the cache key of every compiled robot.
@@ -360,5 +373,6 @@ fn _native(m: &Bound<'_, PyModule>) -> PyResult<()> {
     m.add_function(wrap_pyfunction!(generate, m)?)?;
     m.add_function(wrap_pyfunction!(runtime_source, m)?)?;
     m.add_function(wrap_pyfunction!(version, m)?)?;
+    m.add_function(wrap_pyfunction!(settings, m)?)?;
     Ok(())
 }

@@ -7,6 +7,7 @@ robots at target/grid-gen-cache there.
 
 from __future__ import annotations
 
+import inspect
 import math
 import os
 from pathlib import Path
@@ -766,6 +767,17 @@ def test_a_stabilised_wrench_contact_against_pinocchio(tmp_path):
     assert np.isfinite(rigid.lam).all()
 
 
+def test_every_setting_is_a_load_keyword():
+    """The settings table, which the CLI's flags, the Builder's methods and the scene's keys
+    are also held to (crates' tests), names load's keywords: each is one, with a default of
+    None or False (the scene's value, or nothing, when left out)."""
+    from grid_gen import _native
+    parameters = inspect.signature(grid_gen.load).parameters
+    for key, toml, flag, builder in _native.settings():
+        assert key in parameters, f"load has no keyword `{key}` (scene {toml}, {flag}, {builder})"
+        assert parameters[key].default in (None, False), key
+
+
 def test_load_keywords_and_state_checks_say_what_is_wrong(tmp_path):
     """Every load keyword error names the keyword (and the scene file where both set a
     thing), and a failed load leaves nothing in the cache; a bad quaternion, a state of the
@@ -783,6 +795,7 @@ def test_load_keywords_and_state_checks_say_what_is_wrong(tmp_path):
         (dict(dt=0.01), "load(dt=...) times a step, and none is asked for"),
         (dict(dt=-1.0, step="rk4"), "load(dt=-1.0): a time step is a finite, positive number"),
         (dict(step="leapfrog"), 'load(step="leapfrog"): no such scheme; schemes: semi_implicit_euler, explicit_euler, rk4'),
+        (dict(round_angles=-1.0), "load(round_angles=...): round_angles = -1 rad: give a tolerance above 0"),
         (dict(contacts={"l2": "line"}), 'contact `l2` has type "line"'),
         (dict(contacts="l2"), "load(contacts=...) takes"),
         (dict(contacts={"l9": "point"}), "load(contacts=...) names `l9`"),

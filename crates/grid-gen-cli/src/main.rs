@@ -299,8 +299,8 @@ struct ModelArgs {
     #[arg(long, global = true)]
     contact_mask: bool,
     /// Stabilise the contacts as Pinocchio's Baumgarte corrector: the kernels that solve for
-    /// their forces take `gains` (Kp, Kd per contact) and `contact_ref` (a world position
-    /// per contact). Point contacts only. The scene's `baumgarte = true`.
+    /// their forces take `gains` (Kp, Kd per contact) and `contact_ref` (a point's world
+    /// position, a wrench's world placement). The scene's `baumgarte = true`.
     #[arg(long, global = true)]
     baumgarte: bool,
     /// Read every <origin rpy> angle within RAD of a multiple of pi/2 as that multiple
@@ -1139,6 +1139,32 @@ fn main() -> ExitCode {
             let _ = e.print();
             // clap: 0 for --help/--version, 2 for usage errors.
             ExitCode::from(e.exit_code() as u8)
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    /// Every setting of `grid_gen::settings::SETTINGS` is the flag the table says, on every
+    /// subcommand (the model flags are global): errors name that flag.
+    #[test]
+    fn every_setting_has_its_flag() {
+        let cmd = Cli::command();
+        for sub in cmd.get_subcommands() {
+            for s in &grid_gen::settings::SETTINGS {
+                let long = s.flag.strip_prefix("--").expect("a long flag");
+                let found = sub.get_arguments().any(|a| a.get_long() == Some(long))
+                    || cmd.get_arguments().any(|a| a.get_long() == Some(long) && a.is_global_set());
+                assert!(
+                    found,
+                    "`grid-gen {}` has no {} (setting `{}`)",
+                    sub.get_name(),
+                    s.flag,
+                    s.key
+                );
+            }
         }
     }
 }

@@ -1932,13 +1932,13 @@ fn errors_name_the_flag_or_the_file_that_set_a_value() {
         let err = stderr(&out);
         assert!(err.contains(said) && !err.contains("scene `"), "{args:?}: {err}");
     }
-    // The file's own bad value is the file's.
+    // The file's own bad value is the file's, at the line that sets it.
     let dir = std::env::temp_dir().join(format!("grid-gen-cli-whence-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let bad = dir.join("bad_dt.toml");
     std::fs::write(&bad, "floating_base = true\n[step]\ndt = -0.5\n").unwrap();
     let out = grid_gen(&["info", hyq, "--scene", bad.to_str().unwrap()]);
     let err = stderr(&out);
-    assert!(err.contains("bad_dt.toml`: [step] dt: dt = -0.5 is not"), "{err}");
+    assert!(err.contains("bad_dt.toml` line 3: [step] dt: dt = -0.5 is not"), "{err}");
     std::fs::remove_dir_all(&dir).unwrap();
 }

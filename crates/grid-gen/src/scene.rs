@@ -69,6 +69,9 @@ pub struct Scene {
     /// ([`crate::settings::SETTINGS`]): what errors name instead of the file.
     #[serde(skip)]
     pub origins: BTreeMap<&'static str, crate::settings::Source>,
+    /// Where the file sets each setting, by setting key: the line errors name.
+    #[serde(skip)]
+    pub lines: Lines,
     /// Joints held at a position: each becomes a fixed joint there.
     #[serde(default)]
     pub lock: BTreeMap<String, f64>,
@@ -122,7 +125,8 @@ pub struct Scene {
     pub contact_mask: bool,
     /// The contacts are stabilised as Pinocchio's Baumgarte corrector (`BaumgarteCorrectorParameters`):
     /// the kernels that solve for their forces take `gains` (Kp, Kd per contact) and
-    /// `contact_ref` (a world position per contact) at run time (as `--baumgarte`).
+    /// `contact_ref` (a point's world position, a wrench's world placement) at run time (as
+    /// `--baumgarte`).
     #[serde(default)]
     pub baumgarte: bool,
     /// Read every `<origin rpy>` angle within this many radians of a multiple of π/2 as
@@ -336,13 +340,26 @@ pub struct SceneError {
     pub message: String,
 }
 
+/// The line (from 1) where a scene file sets each setting, by setting key
+/// ([`crate::settings::lines`]). Where a key sits is not part of the scene's value: any two
+/// compare equal.
+#[derive(Clone, Debug, Default)]
+pub struct Lines(pub BTreeMap<&'static str, usize>);
+
+impl PartialEq for Lines {
+    fn eq(&self, _: &Lines) -> bool {
+        true
+    }
+}
+
 impl Scene {
     /// Parses a scene file's text; `path` names it in errors.
     pub fn parse(path: &str, text: &str) -> Result<Scene, SceneError> {
-        let scene: Scene = toml::from_str(text).map_err(|e| SceneError {
+        let mut scene: Scene = toml::from_str(text).map_err(|e| SceneError {
             path: path.to_string(),
             message: misplaced_key(text).unwrap_or_else(|| e.to_string().trim_end().to_string()),
         })?;
+        scene.lines = Lines(crate::settings::lines(text));
         let err = |message: String| Err(SceneError { path: path.to_string(), message });
         if let Some(g) = scene.gravity {
             if g.iter().any(|x| !x.is_finite()) {
@@ -479,7 +496,8 @@ impl Scene {
 
     /// How an error names setting `key` of this scene, read from `path` (empty: no file).
     pub fn whence(&self, key: &str, path: &str) -> String {
-        crate::settings::whence(key, path, self.origins.get(key))
+        let line = self.lines.0.get(key).copied();
+        crate::settings::whence(key, path, self.origins.get(key), line)
     }
 }
 
