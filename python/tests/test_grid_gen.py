@@ -761,6 +761,16 @@ def test_a_stabilised_wrench_contact_against_pinocchio(tmp_path):
     bad[1, 0, 3:] = 0.0
     with pytest.raises(ValueError, match="contact_ref` of state 1: the quaternion .* of wrench contact `l2` has norm 0, not 1"):
         robot.step(q, qd, u, dt, gains=gains, contact_ref=bad)
+    # The C ABI checks the wrench's reference quaternion as q's: a zero one at state 1,
+    # passed straight to the entry point, is GRID_GEN_BAD_VALUE naming the state.
+    k = robot.step
+    flat_ref = np.concatenate([bad[:, 0, :], bad[:, 1, :3]], axis=1)
+    ins = {"q": q, "qd": qd, "tau": u, "dt": dt, "gains": gains.reshape(n, 4), "contact_ref": flat_ref}
+    arrays = [np.ascontiguousarray(ins[name], dtype=np.float64) for name, _ in k.inputs]
+    outs = [np.full((n,) + dims, 7.0) for _, dims in k.outputs]
+    status = k._fn(n, *[a.ctypes.data for a in arrays], *[o.ctypes.data for o in outs])
+    assert status == 3 and robot._bad_state() == 1, (status, robot._bad_state())
+    assert all((o == 7.0).all() for o in outs), "nothing written"
     # No contact_ref and no Kp: the wrench's reference is the identity, and the step is the
     # rigid one to rounding (Kp · log6 is 0 · a finite value).
     rigid = robot.step(q, qd, u, dt)

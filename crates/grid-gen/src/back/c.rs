@@ -18,7 +18,7 @@ use std::fmt::Write;
 use super::names::{comment_text, identifier};
 use super::rust::{array_of, input_len, q_len};
 use super::GeneratedFile;
-use crate::ir::{Function, Module, Shape};
+use crate::ir::{Function, Input, Module, Shape};
 
 /// Options of the C target.
 #[derive(Clone, Debug)]
@@ -206,6 +206,33 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
         quats.len(),
         quats.join(", ")
     );
+    // A stabilised wrench contact's reference quaternion is read as a rotation too (its
+    // logarithm normalises it, but a zero one is NaN): checked as q's are.
+    let ref_quats: Vec<String> = (0..robot.contacts.len())
+        .filter(|&c| {
+            robot.specialisation.baumgarte && robot.contacts[c].kind == crate::model::ContactKind::Wrench
+        })
+        .map(|c| (robot.specialisation.contact_ref_at(c) + 3).to_string())
+        .collect();
+    if !ref_quats.is_empty() {
+        let _ = writeln!(
+            out,
+            "/// Where each wrench contact's reference quaternion `[qx, qy, qz, qw]` starts in contact_ref.
+             const REF_QUATERNIONS: [usize; {}] = [{}];
+             /// The first state of contact_ref whose quaternion at `REF_QUATERNIONS` has a norm more than 1e-6
+             /// from 1 (NaN included), as [`first_bad`] for q.
+             fn first_bad_ref<S: Copy + Into<f64>, const N: usize>(r: &[[S; N]]) -> Option<usize> {{
+             r.iter().position(|s| {{
+REF_QUATERNIONS.iter().any(|&at| {{
+let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
+!((n2.sqrt() - 1.0).abs() <= 1e-6)
+}})
+}})
+}}",
+            ref_quats.len(),
+            ref_quats.join(", ")
+        );
+    }
     let _ = writeln!(
         out,
         "/// Sets the threads a batch runs on (0: every core, the default; 1: the calling thread).\n\
@@ -351,6 +378,12 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
                     config.name()
                 );
             }
+            if !ref_quats.is_empty() && inputs.contains(&Input::ContactRef) {
+                let _ = writeln!(
+                    out,
+                    "if let Some(bad) = first_bad_ref(contact_ref) {{\nBAD_STATE.with(|b| b.set(bad as i64));\nreturn GRID_GEN_BAD_VALUE;\n}}"
+                );
+            }
             let _ =
                 writeln!(out, "self::{name}::<{rt}>({});\n}}\nGRID_GEN_OK\n}}\n", all.join(", "));
         }
@@ -432,7 +465,7 @@ fn emit_header(module: &Module, options: &COptions, stem: &str) -> String {
             frames.join(", ")
         );
         if dims.nbaumgarte > 0 {
-            let _ = writeln!(h, "/* The contact kernels and the step take gains (Kp, Kd per contact: 2 * {mac}_NCONTACTS values per state) and contact_ref ({mac}_NCONTACT_REF values per state: a point contact's reference position in the world, 3 values; a wrench contact's reference placement, position and quaternion x, y, z, qx, qy, qz, qw, 7), Pinocchio's Baumgarte corrector. */\n#define {mac}_NCONTACT_REF {}", dims.ncontact_ref);
+            let _ = writeln!(h, "/* The contact kernels and the step take gains (Kp, Kd per contact: 2 * {mac}_NCONTACTS values per state) and contact_ref ({mac}_NCONTACT_REF values per state: a point contact's reference position in the world, 3 values; a wrench contact's reference placement, position and quaternion x, y, z, qx, qy, qz, qw, 7, the quaternion checked as q's: GRID_GEN_BAD_VALUE), Pinocchio's Baumgarte corrector. */\n#define {mac}_NCONTACT_REF {}", dims.ncontact_ref);
         }
         if dims.ncontacts > 0 {
             let _ = writeln!(h, "/* The contact kernels and the step take active: {mac}_NCONTACTS values per state, 1 where a contact holds, 0 where it does not. */");
