@@ -147,6 +147,9 @@ def load(
         "kernels": kernels,
         "precision": precision,
         "keywords": keywords,
+        # The one copy of the kernels compiled (this CPU's): a shared cache never hands a
+        # machine a library built for features it lacks.
+        "copies": _native.host_copies(),
     }
     key = hashlib.sha256(json.dumps(key_source, sort_keys=True).encode()).hexdigest()[:24]
     cache = cache_dir()

@@ -21,6 +21,9 @@ def runtime_source() -> str:
 def version() -> str:
     """grid-gen's version."""
 
+def host_copies() -> str:
+    """The one copy of the kernels generate compiles here: "fma" or "portable"."""
+
 def settings() -> List[Tuple[str, str, str, str]]:
     """Each setting's load keyword, scene key, CLI flag and Builder method."""
 

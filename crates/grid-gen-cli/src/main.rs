@@ -382,6 +382,12 @@ enum Command {
         /// `fma` copy; the book, Speed).
         #[arg(long)]
         avx512: bool,
+        /// Which copies of the kernels the Rust module holds: `dispatch` (portable and
+        /// AVX2+FMA, chosen per call: runs anywhere), `portable`, `fma` (x86-64 with AVX2 and
+        /// FMA only, about 4x faster to compile than `dispatch`), or `host` (this machine's:
+        /// `fma` where it has them, else `portable`).
+        #[arg(long, value_name = "COPIES", default_value = "dispatch", value_parser = parse_copies)]
+        copies: grid_gen::back::rust::Copies,
         #[command(flatten)]
         wgsl: WgslArgs,
         #[command(flatten)]
@@ -675,7 +681,7 @@ fn write_generated(
 
 fn run(cli: Cli) -> ExitCode {
     match cli.command {
-        Command::Generate { urdf, out, backend, check, avx512, wgsl, verilog } => {
+        Command::Generate { urdf, out, backend, check, avx512, copies, wgsl, verilog } => {
             let (mut config, loaded) = match load(&urdf, &cli.model) {
                 Ok(loaded) => loaded,
                 Err(code) => return code,
@@ -695,6 +701,7 @@ fn run(cli: Cli) -> ExitCode {
             };
             config.options.targets = backend;
             config.options.rust.avx512 = avx512;
+            config.options.rust.copies = copies;
             config.options.wgsl = wgsl.options();
             config.options.verilog = match verilog.options() {
                 Ok(v) => v,
@@ -1141,6 +1148,12 @@ fn main() -> ExitCode {
             ExitCode::from(e.exit_code() as u8)
         }
     }
+}
+
+/// `--copies`: a name of [`grid_gen::back::rust::Copies`], or `host`.
+fn parse_copies(s: &str) -> Result<grid_gen::back::rust::Copies, String> {
+    grid_gen::back::rust::Copies::parse(s)
+        .ok_or_else(|| format!("`{s}`: copies are dispatch, portable, fma or host"))
 }
 
 #[cfg(test)]

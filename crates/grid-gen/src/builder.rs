@@ -328,6 +328,17 @@ impl Builder {
         self
     }
 
+    /// Which machine-code copies the Rust module holds (default [`Copies::Dispatch`]: a
+    /// portable one and an AVX2+FMA one, chosen per call). A library compiled for the
+    /// machine it runs on needs one: [`Copies::host`] compiles about 4x faster.
+    ///
+    /// [`Copies::Dispatch`]: crate::back::rust::Copies::Dispatch
+    /// [`Copies::host`]: crate::back::rust::Copies::host
+    pub fn copies(&mut self, copies: crate::back::rust::Copies) -> &mut Self {
+        self.config.options.rust.copies = copies;
+        self
+    }
+
     /// Do not print `cargo:` directives (`rerun-if-changed`, and `warning` for each URDF
     /// warning), for use outside build scripts.
     pub fn quiet(&mut self, quiet: bool) -> &mut Self {

@@ -210,7 +210,8 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
     // logarithm normalises it, but a zero one is NaN): checked as q's are.
     let ref_quats: Vec<String> = (0..robot.contacts.len())
         .filter(|&c| {
-            robot.specialisation.baumgarte && robot.contacts[c].kind == crate::model::ContactKind::Wrench
+            robot.specialisation.baumgarte
+                && robot.contacts[c].kind == crate::model::ContactKind::Wrench
         })
         .map(|c| (robot.specialisation.contact_ref_at(c) + 3).to_string())
         .collect();

@@ -41,11 +41,60 @@ pub struct RustOptions {
     /// the module's size and release compile time (Atlas: 32 s -> 47 s) for 5-12% on the
     /// gradients of an AVX-512 CPU (the book, Speed).
     pub avx512: bool,
+    /// Which copies of the kernels the module holds.
+    pub copies: Copies,
 }
 
 impl Default for RustOptions {
     fn default() -> Self {
-        RustOptions { chunk: 2500, avx512: false }
+        RustOptions { chunk: 2500, avx512: false, copies: Copies::Dispatch }
+    }
+}
+
+/// Which machine-code copies of the kernels a module holds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub enum Copies {
+    /// `portable` and `fma` (and `avx512` with [`RustOptions::avx512`]), chosen per call by
+    /// the CPU's features: a library that runs on any CPU, at several times the compile
+    /// time of one copy.
+    #[default]
+    Dispatch,
+    /// Only `portable`: separate multiplies and adds, for any target.
+    Portable,
+    /// Only `fma`, for x86-64 with AVX2 and FMA; elsewhere every kernel panics. Its results
+    /// are `Dispatch`'s on such a CPU, bit for bit, and it compiles about 4x faster than
+    /// `Dispatch` (a floating tree's stabilised step: 85 s and 2.0 GB against 21 s and
+    /// 0.9 GB, docs/guide/compile-time.md): what `grid_gen.load` builds on a machine that
+    /// has them, since its library runs where it was compiled.
+    Fma,
+}
+
+impl Copies {
+    /// The one copy this machine runs: `Fma` on x86-64 with AVX2 and FMA, else `Portable`.
+    pub fn host() -> Copies {
+        #[cfg(target_arch = "x86_64")]
+        if std::is_x86_feature_detected!("avx2") && std::is_x86_feature_detected!("fma") {
+            return Copies::Fma;
+        }
+        Copies::Portable
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Copies::Dispatch => "dispatch",
+            Copies::Portable => "portable",
+            Copies::Fma => "fma",
+        }
+    }
+
+    /// `dispatch`, `portable`, `fma`, or `host` (this machine's one copy, [`Copies::host`]).
+    pub fn parse(name: &str) -> Option<Copies> {
+        match name {
+            "host" => Some(Copies::host()),
+            _ => [Copies::Dispatch, Copies::Portable, Copies::Fma]
+                .into_iter()
+                .find(|c| c.name() == name),
+        }
     }
 }
 
@@ -764,28 +813,28 @@ pub(super) fn q_len(robot: &crate::ir::Robot) -> &'static str {
 
 /// The public kernel: the AVX-512 copy (when emitted) or the FMA copy where the CPU has
 /// it, else the portable one.
-fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool) {
+fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool, copies: Copies) {
     let name = k.kind.name();
     let Signature { args, arg_names, ret_type } = Signature::of(k, q_len);
     let call = arg_names.join(", ");
-    if avx512 {
-        let _ = writeln!(
-            out,
-            "/// {}\n///\n/// Runs [`avx512::{name}`] where [`has_avx512`], else [`fma::{name}`] where [`has_fma`] (the same\n/// results, bit for bit), else [`portable::{name}`].",
-            k.doc()
-        );
-    } else {
-        let _ = writeln!(
-            out,
-            "/// {}\n///\n/// Runs [`fma::{name}`] where [`has_fma`], else [`portable::{name}`].",
-            k.doc()
-        );
-    }
+    let runs = match (copies, avx512) {
+        (Copies::Portable, _) => format!("Runs [`portable::{name}`] (this module holds no other copy)."),
+        (Copies::Fma, _) => format!("Runs [`fma::{name}`] where [`has_fma`] (this module holds no other copy), and panics\n/// elsewhere."),
+        (Copies::Dispatch, true) => format!("Runs [`avx512::{name}`] where [`has_avx512`], else [`fma::{name}`] where [`has_fma`] (the same\n/// results, bit for bit), else [`portable::{name}`]."),
+        (Copies::Dispatch, false) => format!("Runs [`fma::{name}`] where [`has_fma`], else [`portable::{name}`]."),
+    };
+    let _ = writeln!(out, "/// {}\n///\n/// {runs}", k.doc());
     let _ = writeln!(
         out,
-        "#[inline]\n#[allow(dead_code, clippy::type_complexity)]\npub fn {name}<T: Real>({}) -> {ret_type} {{",
+        "#[inline]\n#[allow(dead_code, {}clippy::type_complexity)]\npub fn {name}<T: Real>({}) -> {ret_type} {{",
+        // Off x86-64 an fma-only dispatcher only panics.
+        if copies == Copies::Fma { "unused_variables, " } else { "" },
         args.join(", ")
     );
+    if copies == Copies::Portable {
+        let _ = writeln!(out, "portable::{name}({call})\n}}\n");
+        return;
+    }
     // The SIMD copies write into this function's own outputs, which it returns: returned
     // by a `#[target_feature]` function (which cannot be inlined here) they were copied once
     // more, up to 14 KB per call (floating HyQ's `step_grad`), and that copy's speed moved
@@ -807,7 +856,14 @@ fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool) {
         let _ = writeln!(out, "}}");
     }
     let _ = writeln!(out, "return {};\n}}", return_value(k));
-    let _ = writeln!(out, "portable::{name}({call})\n}}\n");
+    if copies == Copies::Fma {
+        let _ = writeln!(
+            out,
+            "panic!(\"this module holds only the kernels for x86-64 with AVX2 and FMA (generated with copies = fma), and this CPU lacks them\")\n}}\n"
+        );
+    } else {
+        let _ = writeln!(out, "portable::{name}({call})\n}}\n");
+    }
 }
 
 /// `&mut out1, &mut out2, ...`: the outputs passed to a copy's `{name}_into`.
@@ -1236,32 +1292,40 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
         out.push_str(HAS_AVX512);
     }
     out.push_str(&simd_types(options.avx512));
+    // The avx512 copy rides with the dispatched pair only.
+    let avx512 = options.avx512 && options.copies == Copies::Dispatch;
     for k in &module.functions {
-        emit_dispatcher(&mut out, k, q_len(robot), options.avx512);
+        emit_dispatcher(&mut out, k, q_len(robot), avx512, options.copies);
     }
-    out.push_str("/// The kernels for any target: separate multiplies and adds.\npub mod portable {\nuse super::*;\n");
-    for k in &module.functions {
-        emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Portable);
+    if options.copies != Copies::Fma {
+        out.push_str("/// The kernels for any target: separate multiplies and adds.\npub mod portable {\nuse super::*;\n");
+        for k in &module.functions {
+            emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Portable);
+        }
+        out.push_str("}\n");
     }
-    out.push_str(
-        "}\n/// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).\n\
-         /// Calling them on a CPU without those features is undefined behaviour; the functions\n\
-         /// at the top of the module check first.\n#[cfg(target_arch = \"x86_64\")]\npub mod fma {\nuse super::*;\n",
-    );
-    for k in &module.functions {
-        emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Fma);
-    }
-    if options.avx512 {
+    if options.copies != Copies::Portable {
         out.push_str(
-            "}\n/// The `fma` copy's kernels compiled for AVX-512 (F and VL): the same operations, so the same\n\
+            "/// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).\n\
+             /// Calling them on a CPU without those features is undefined behaviour; the functions\n\
+             /// at the top of the module check first.\n#[cfg(target_arch = \"x86_64\")]\npub mod fma {\nuse super::*;\n",
+        );
+        for k in &module.functions {
+            emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Fma);
+        }
+        out.push_str("}\n");
+    }
+    if avx512 {
+        out.push_str(
+            "/// The `fma` copy's kernels compiled for AVX-512 (F and VL): the same operations, so the same\n\
          /// results bit for bit, with 32 vector registers (fewer spills) and zmm for `Lanes<8>`.\n\
          /// Calling them on a CPU without those features is undefined behaviour.\n#[cfg(target_arch = \"x86_64\")]\npub mod avx512 {\nuse super::*;\n",
         );
         for k in &module.functions {
             emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Avx512);
         }
+        out.push_str("}\n");
     }
-    out.push_str("}\n");
     let file = syn::parse_file(&out).map_err(|e| RustError::Unparsable(e.to_string()))?;
     let code = prettyplease::unparse(&file);
     let stem = identifier(&robot.name);
