@@ -208,13 +208,8 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
     );
     // A stabilised wrench contact's reference quaternion is read as a rotation too (its
     // logarithm normalises it, but a zero one is NaN): checked as q's are.
-    let ref_quats: Vec<String> = (0..robot.contacts.len())
-        .filter(|&c| {
-            robot.specialisation.baumgarte
-                && robot.contacts[c].kind == crate::model::ContactKind::Wrench
-        })
-        .map(|c| (robot.specialisation.contact_ref_at(c) + 3).to_string())
-        .collect();
+    let ref_quats: Vec<String> =
+        robot.reference_quaternions().into_iter().map(|at| at.to_string()).collect();
     if !ref_quats.is_empty() {
         let _ = writeln!(
             out,

@@ -268,6 +268,18 @@ impl Robot {
     }
 
     /// Entries of one input: q has nq, the step's τ nu, the others nv.
+    /// Where each stabilised wrench contact's reference quaternion `[qx, qy, qz, qw]`
+    /// starts in `contact_ref` (none without `baumgarte`).
+    pub fn reference_quaternions(&self) -> Vec<usize> {
+        let spec = &self.specialisation;
+        (0..self.contacts.len())
+            .filter(|&c| {
+                spec.baumgarte && self.contacts[c].kind == crate::model::ContactKind::Wrench
+            })
+            .map(|c| spec.contact_ref_at(c) + 3)
+            .collect()
+    }
+
     pub fn input_len(&self, input: Input) -> usize {
         input.len(&self.dims())
     }
