@@ -66,14 +66,7 @@ fn placement_error(
     let e = UnitQuaternion::from_rotation_matrix(&Rotation3::from_matrix_unchecked(
         r_ref.to_rotation_matrix().into_inner() * rc.transpose(),
     ));
-    let c = e.quaternion().coords;
-    let (mut v, mut w) = (Vector3::new(c[0], c[1], c[2]), c[3]);
-    if w < 0.0 {
-        v = -v;
-        w = -w;
-    }
-    let n = v.norm();
-    let omega = if n == 0.0 { Vector3::zeros() } else { v * (2.0 * n.atan2(w) / n) };
+    let omega = super::lie::quaternion_log3(&e);
     let d = Vector3::new(reference[0], reference[1], reference[2]) - p;
     let lin = super::step::so3_jacobians(&omega)
         .0

@@ -4,15 +4,19 @@
 //! Jacobian, and the Jacobians by inverting `dIntegrate`'s at the difference
 //! (`q1 = q ⊕ v(q, q1)`, differentiated on both sides).
 
-use nalgebra::{DMatrix, Vector3};
+use nalgebra::{DMatrix, UnitQuaternion, Vector3};
 
 use super::step::{d_integrate, quaternion, so3_jacobians};
 use crate::model::{LieBlock, Model};
 
-/// The rotation vector of `q0⁻¹ q1` (the quaternions at `at` of each), its angle at most π
-/// (Pinocchio's `quaternion::log3`, which negates a quaternion whose `w` is negative).
+/// The rotation vector of `q0⁻¹ q1` (the quaternions at `at` of each), its angle at most π.
 fn log3(q0: &[f64], q1: &[f64], at: usize) -> Vector3<f64> {
-    let r = quaternion(q0, at).inverse() * quaternion(q1, at);
+    quaternion_log3(&(quaternion(q0, at).inverse() * quaternion(q1, at)))
+}
+
+/// A unit quaternion's rotation vector, its angle at most π (Pinocchio's
+/// `quaternion::log3`, which negates a quaternion whose `w` is negative), by `atan2`.
+pub(super) fn quaternion_log3(r: &UnitQuaternion<f64>) -> Vector3<f64> {
     let c = r.quaternion().coords;
     let (mut v, mut w) = (Vector3::new(c[0], c[1], c[2]), c[3]);
     if w < 0.0 {
