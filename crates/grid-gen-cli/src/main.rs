@@ -147,6 +147,15 @@ struct VerilogArgs {
     /// Bound on every entry of fext and lambda for the range analysis (N, N m; default 1e4).
     #[arg(long, value_name = "F")]
     force_max: Option<f64>,
+    /// Also build fd_grad's netlist. `host`: robomorphic computing's partition, the host
+    /// computes q̈ and M⁻¹, the netlist ∂q̈/∂q and ∂q̈/∂q̇ = −M⁻¹ ∂c/∂u
+    /// (`<robot>_fd_grad_host`).
+    #[arg(long, value_name = "PARTITION")]
+    fd_grad_netlist: Option<grid_gen::back::verilog::FdGradPartition>,
+    /// With --fd-grad-netlist host: bound on every diagonal entry of M⁻¹, which the host
+    /// checks (default: twice the largest over 256 seeded configurations).
+    #[arg(long, value_name = "B")]
+    minv_max: Option<f64>,
 }
 
 /// `--arch`: the Verilog architectures, whose sizes are their own flags.
@@ -177,6 +186,7 @@ impl VerilogArgs {
             ("--qd-max", self.qd_max),
             ("--qdd-max", self.qdd_max),
             ("--force-max", self.force_max),
+            ("--minv-max", self.minv_max),
         ] {
             if let Some(v) = v {
                 if !(v.is_finite() && v > 0.0) {
@@ -197,6 +207,8 @@ impl VerilogArgs {
             qd_max: self.qd_max,
             qdd_max: self.qdd_max,
             force_max: self.force_max,
+            fd_grad: self.fd_grad_netlist,
+            minv_max: self.minv_max,
             ..VerilogOptions::default()
         })
     }

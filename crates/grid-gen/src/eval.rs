@@ -994,6 +994,12 @@ pub struct VerilogOutput {
     pub drnea_dqd: Option<Matrix>,
     #[serde(rename = "M")]
     pub m: Matrix,
+    /// `fd_grad`'s host partition (`--fd-grad-netlist host`), on states with `tau`: the
+    /// host's q̈ and M⁻¹ (the reference's, in f64) go in, ∂q̈/∂q and ∂q̈/∂q̇ come out.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dfd_dq: Option<Matrix>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub dfd_dqd: Option<Matrix>,
     pub overflow: std::collections::BTreeMap<&'static str, bool>,
 }
 
@@ -1018,7 +1024,8 @@ pub enum VerilogEvalError {
 }
 
 /// Simulates the `rnea_grad` and `mass_matrix` netlists (built with `options`, whose
-/// kernel list is ignored) on every state; `rnea_grad` only where `qdd` is given.
+/// kernel list is ignored) on every state; `rnea_grad` only where `qdd` is given; and
+/// `fd_grad`'s host partition where `options` asks for it, on the states with `tau`.
 pub fn evaluate_verilog(
     model: &Model,
     file: &StatesFile,
@@ -1030,12 +1037,17 @@ pub fn evaluate_verilog(
     use crate::ir::{self, KernelKind, LowerOptions};
     use crate::tools::icarus as sim;
     check_states(model, file)?;
+    // The netlists' force ports would read nothing here: refused, as on the other backends.
+    if model.nfext() + model.nlambda() > 0 {
+        return Err(EvalError::ForcesOnBackend.into());
+    }
     let nv = model.nv();
-    let module = ir::lower(
-        model,
-        gravity,
-        &LowerOptions { kernels: DEFAULT_KERNELS.to_vec(), ..LowerOptions::default() },
-    )?;
+    let mut kernels = DEFAULT_KERNELS.to_vec();
+    if options.fd_grad.is_some() && options.minv_max.is_none() {
+        // The host partition's bound on M⁻¹ samples the minv kernel.
+        kernels.push(KernelKind::Minv);
+    }
+    let module = ir::lower(model, gravity, &LowerOptions { kernels, ..LowerOptions::default() })?;
     let netlists = plan(
         &module,
         &crate::back::verilog::VerilogOptions {
@@ -1050,20 +1062,33 @@ pub fn evaluate_verilog(
             drnea_dq: None,
             drnea_dqd: None,
             m: Vec::new(),
+            dfd_dq: None,
+            dfd_dqd: None,
             overflow: Default::default(),
         })
         .collect();
     for n in &netlists {
         let chosen: Vec<usize> = (0..file.states.len())
-            .filter(|&i| n.kind != KernelKind::RneaGrad || file.states[i].qdd.is_some())
+            .filter(|&i| match n.kind {
+                KernelKind::RneaGrad => file.states[i].qdd.is_some(),
+                KernelKind::FdGrad => file.states[i].tau.is_some(),
+                _ => true,
+            })
             .collect();
         let mut input_overflow = Vec::new();
-        let ports: Vec<Vec<i64>> = chosen
+        let ports: Vec<Vec<i128>> = chosen
             .iter()
             .map(|&i| {
                 let s = &file.states[i];
-                let qdd = s.qdd.clone().unwrap_or_else(|| vec![0.0; nv]);
-                let (p, o) = quantize_ports(&n.datapath, &n.format, &s.q, &s.qd, &qdd, &[]);
+                let (qdd, rest) = match (n.kind, &s.tau) {
+                    // What the host computes: q̈ = FD(q, q̇, τ) and M⁻¹, row-major.
+                    (KernelKind::FdGrad, Some(tau)) => (
+                        crate::reference::forward_dynamics(model, &s.q, &s.qd, tau, gravity),
+                        crate::reference::minv(model, &s.q).transpose().iter().copied().collect(),
+                    ),
+                    _ => (s.qdd.clone().unwrap_or_else(|| vec![0.0; nv]), Vec::new()),
+                };
+                let (p, o) = quantize_ports(&n.datapath, &n.format, &s.q, &s.qd, &qdd, &rest);
                 input_overflow.push(o);
                 p
             })
@@ -1082,6 +1107,10 @@ pub fn evaluate_verilog(
                 KernelKind::RneaGrad => {
                     st.drnea_dq = Some(matrix(&outs[0]));
                     st.drnea_dqd = Some(matrix(&outs[1]));
+                }
+                KernelKind::FdGrad => {
+                    st.dfd_dq = Some(matrix(&outs[0]));
+                    st.dfd_dqd = Some(matrix(&outs[1]));
                 }
                 _ => st.m = matrix(&outs[0]),
             }

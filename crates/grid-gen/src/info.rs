@@ -4,8 +4,8 @@
 use serde::Serialize;
 
 use crate::back::verilog::{
-    plan, Arch, NetlistStats, VerilogOptions, DEFAULT_ADDERS, DEFAULT_KERNELS, DEFAULT_MULTIPLIERS,
-    DEFAULT_STAGE_DEPTH,
+    plan, Arch, FdGradPartition, NetlistStats, VerilogOptions, DEFAULT_ADDERS, DEFAULT_KERNELS,
+    DEFAULT_MULTIPLIERS, DEFAULT_STAGE_DEPTH,
 };
 use crate::back::wgsl::{emit_with_stats, EntryMeta, WgslOptions};
 use crate::ir::{self, KernelStats, Skipped};
@@ -153,6 +153,9 @@ pub struct Info {
     /// Why `verilog` is empty, when it is.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub verilog_skipped: Option<String>,
+    /// Why `verilog` lacks `fd_grad`'s host partition (`--fd-grad-netlist host`), when it does.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub verilog_fd_grad_skipped: Option<String>,
     /// Each entry point `--backend wgsl` writes with default options (f32, both strategies):
     /// statements, functions, workgroup size and bytes, phases, scratch words.
     pub wgsl: Vec<EntryMeta>,
@@ -288,6 +291,7 @@ impl Info {
             gradient_costs: Vec::new(),
             verilog: Vec::new(),
             verilog_skipped: None,
+            verilog_fd_grad_skipped: None,
             wgsl: Vec::new(),
             wgsl_skipped: None,
             rust_size: Vec::new(),
@@ -403,12 +407,14 @@ impl Info {
             return self;
         }
         let lower = ir::LowerOptions {
-            kernels: DEFAULT_KERNELS.to_vec(),
+            // minv: the sampled bound on fd_grad's host partition's M⁻¹ input.
+            kernels: [&DEFAULT_KERNELS[..], &[ir::KernelKind::Minv]].concat(),
             max_nodes: ir::STATS_MAX_NODES,
             gradient,
             solve,
             ..ir::LowerOptions::default()
         };
+        let mut fd_grad_skipped = None;
         let result =
             ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|module| {
                 let mut all = Vec::new();
@@ -422,12 +428,29 @@ impl Info {
                             .map_err(|e| e.to_string())?;
                     all.extend(netlists.iter().map(|n| n.stats()));
                 }
+                // fd_grad's host partition, where a format is found (a note says why not).
+                for arch in archs {
+                    let options = VerilogOptions {
+                        arch,
+                        kernels: Vec::new(),
+                        fd_grad: Some(FdGradPartition::Host),
+                        ..VerilogOptions::default()
+                    };
+                    match plan(&module, &options) {
+                        Ok(netlists) => all.extend(netlists.iter().map(|n| n.stats())),
+                        Err(e) => {
+                            fd_grad_skipped = Some(e.to_string());
+                            break;
+                        }
+                    }
+                }
                 Ok(all)
             });
         match result {
             Ok(v) => self.verilog = v,
             Err(e) => self.verilog_skipped = Some(e),
         }
+        self.verilog_fd_grad_skipped = fd_grad_skipped;
         self
     }
 
@@ -613,7 +636,7 @@ impl Info {
             .ops
             .iter()
             .map(|k| k.kernel.name().len())
-            .chain(self.verilog.iter().map(|v| v.kernel.name().len()))
+            .chain(self.verilog.iter().map(|v| v.kernel.name().len() + 5))
             .max()
             .unwrap_or(0)
             .max(12);
@@ -666,9 +689,13 @@ impl Info {
             s.push_str("verilog netlists (default options; multipliers/adders/registers, cycles per state, latency, format, error bound):\n");
         }
         for v in &self.verilog {
+            let name = match v.partition {
+                Some(FdGradPartition::Host) => "fd_grad_host",
+                None => v.kernel.name(),
+            };
             s.push_str(&format!(
                 "  {:<w$} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  error <= {:.1e}\n",
-                v.kernel.name(),
+                name,
                 v.arch,
                 v.multipliers,
                 v.adders,
@@ -681,6 +708,9 @@ impl Info {
         }
         if let Some(why) = &self.verilog_skipped {
             s.push_str(&format!("verilog netlists not planned: {why}\n"));
+        }
+        if let Some(why) = &self.verilog_fd_grad_skipped {
+            s.push_str(&format!("verilog fd_grad_host not planned: {why}\n"));
         }
         if !self.wgsl.is_empty() {
             s.push_str("wgsl entry points (default options, f32; statements, functions, workgroup size, workgroup bytes, phases, dispatches):\n");

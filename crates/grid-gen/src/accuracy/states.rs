@@ -7,44 +7,7 @@ use crate::ir::Robot;
 use crate::model::Model;
 use crate::reference;
 
-/// A small deterministic generator (SplitMix64, Steele, Lea & Flood 2014), so that a seed
-/// gives the same states on every machine without an RNG crate.
-pub struct Rng(pub u64);
-
-impl Rng {
-    pub fn next_u64(&mut self) -> u64 {
-        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
-        let mut z = self.0;
-        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
-        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
-        z ^ (z >> 31)
-    }
-
-    /// Uniform in [lo, hi).
-    pub fn uniform(&mut self, lo: f64, hi: f64) -> f64 {
-        lo + (hi - lo) * ((self.next_u64() >> 11) as f64 / (1u64 << 53) as f64)
-    }
-
-    pub fn vec(&mut self, n: usize, lo: f64, hi: f64) -> Vec<f64> {
-        (0..n).map(|_| self.uniform(lo, hi)).collect()
-    }
-
-    /// A uniformly distributed unit quaternion `[x, y, z, w]` (Shoemake, "Uniform random
-    /// rotations", Graphics Gems III, 1992).
-    pub fn unit_quaternion(&mut self) -> [f64; 4] {
-        let (u1, u2, u3) = (self.uniform(0.0, 1.0), self.uniform(0.0, 1.0), self.uniform(0.0, 1.0));
-        let tau = std::f64::consts::TAU;
-        let (a, b) = ((1.0 - u1).sqrt(), u1.sqrt());
-        [a * (tau * u2).sin(), a * (tau * u2).cos(), b * (tau * u3).sin(), b * (tau * u3).cos()]
-    }
-
-    /// A floating base's pose: position uniform in [-1, 1) m per axis, a uniform rotation.
-    pub fn base_pose(&mut self) -> [f64; 7] {
-        let [x, y, z] = [self.uniform(-1.0, 1.0), self.uniform(-1.0, 1.0), self.uniform(-1.0, 1.0)];
-        let [qx, qy, qz, qw] = self.unit_quaternion();
-        [x, y, z, qx, qy, qz, qw]
-    }
-}
+pub use crate::datapath::Rng;
 
 /// `n` states: a floating base's pose uniform ([`Rng::base_pose`]), q uniform within each joint's
 /// limits (±π where a joint has none, or limits wider than 100, as Atlas's ±1e5), q̇ and q̈ uniform

@@ -36,6 +36,9 @@ pub struct Bounds {
     pub qdd: Vec<f64>,
     /// Every entry of `fext` and λ (the kernels that take forces).
     pub force: f64,
+    /// |M⁻¹|'s entries, row-major (`fd_grad`'s host partition; empty: unbounded, which
+    /// fails the check of any datapath that reads M⁻¹).
+    pub minv: Vec<f64>,
 }
 
 impl Bounds {
@@ -72,6 +75,7 @@ impl Bounds {
                 .collect(),
             qdd: vec![qdd_max.unwrap_or(DEFAULT_QDD_MAX); nv],
             force: DEFAULT_FORCE_MAX,
+            minv: Vec::new(),
         }
     }
 
@@ -106,6 +110,10 @@ impl Bounds {
                 _,
             ) => (f64::NEG_INFINITY, f64::INFINITY),
             Port::Value(Input::Fext | Input::Lambda, _) => (-self.force, self.force),
+            Port::Minv(i, k) => match self.minv.get(i as usize * self.qd.len() + k as usize) {
+                Some(&b) => (-b, b),
+                None => (f64::NEG_INFINITY, f64::INFINITY),
+            },
         }
     }
 }

@@ -1,10 +1,11 @@
 //! Signed fixed-point arithmetic on the IR, for the Verilog datapath: the number format,
 //! the datapath view of a function (host-computed sin/cos as inputs), the bit-exact
 //! software model of the generated hardware, and the range and rounding-error analysis
-//! that shows a format safe.
+//! that shows a format safe, and the seeded configurations behind the M⁻¹ input's bound.
 
 mod analysis;
 mod model;
+mod sample;
 mod view;
 
 pub use analysis::{
@@ -12,6 +13,7 @@ pub use analysis::{
     DEFAULT_QDD_MAX, DEFAULT_QD_MAX, DEFAULT_Q_MAX,
 };
 pub use model::{port_values, quantize_ports, Run};
+pub use sample::{minv_diagonal, minv_entries, Rng, MINV_MARGIN, MINV_SAMPLES};
 pub use view::{Datapath, DatapathOutput, HwId, HwOp, Port};
 
 /// How a multiplier drops the low `frac` bits of its double-width product.
@@ -51,8 +53,11 @@ pub struct Format {
     pub rounding: Rounding,
 }
 
-/// Widest format: products then fit in `i128`, which the software model uses.
-pub const MAX_WIDTH: u32 = 64;
+/// Widest format. Raw values are `i128` in the software model and products are formed
+/// in 256 bits (`ethnum::I256`); 96 bits leave every sum of two raw values in `i128` and
+/// cover the ranges the interval analysis proves for a 7-joint arm's `fd_grad` (the
+/// iiwa's needs 72 bits at the default `--max-error`).
+pub const MAX_WIDTH: u32 = 96;
 
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum FixedError {
@@ -85,12 +90,12 @@ impl Format {
         Some(Format::new(w.parse().ok()?, f.parse().ok()?, rounding))
     }
 
-    pub fn max_raw(&self) -> i64 {
-        ((1i128 << (self.width - 1)) - 1) as i64
+    pub fn max_raw(&self) -> i128 {
+        (1i128 << (self.width - 1)) - 1
     }
 
-    pub fn min_raw(&self) -> i64 {
-        (-(1i128 << (self.width - 1))) as i64
+    pub fn min_raw(&self) -> i128 {
+        -(1i128 << (self.width - 1))
     }
 
     /// One unit in the last place, 2^-frac.
@@ -113,7 +118,7 @@ impl Format {
 
     /// `x` rounded to the nearest representable value (ties away from zero), saturated;
     /// the flag says it saturated (or was not finite).
-    pub fn quantize(&self, x: f64) -> (i64, bool) {
+    pub fn quantize(&self, x: f64) -> (i128, bool) {
         let scaled = (x * self.ulp().recip()).round();
         if !scaled.is_finite() {
             return (if scaled > 0.0 { self.max_raw() } else { self.min_raw() }, true);
@@ -122,18 +127,29 @@ impl Format {
         self.saturate(scaled as i128)
     }
 
-    pub fn to_f64(&self, raw: i64) -> f64 {
+    pub fn to_f64(&self, raw: i128) -> f64 {
         raw as f64 * self.ulp()
     }
 
     /// Clamps a wide result into the format; the flag says it had to.
-    pub fn saturate(&self, x: i128) -> (i64, bool) {
-        if x > self.max_raw() as i128 {
+    pub fn saturate(&self, x: i128) -> (i128, bool) {
+        if x > self.max_raw() {
             (self.max_raw(), true)
-        } else if x < self.min_raw() as i128 {
+        } else if x < self.min_raw() {
             (self.min_raw(), true)
         } else {
-            (x as i64, false)
+            (x, false)
+        }
+    }
+
+    /// [`Format::saturate`] of a product's 256 bits.
+    pub fn saturate_wide(&self, x: ethnum::I256) -> (i128, bool) {
+        if x > ethnum::I256::from(self.max_raw()) {
+            (self.max_raw(), true)
+        } else if x < ethnum::I256::from(self.min_raw()) {
+            (self.min_raw(), true)
+        } else {
+            (x.as_i128(), false)
         }
     }
 
@@ -163,7 +179,8 @@ mod tests {
     #[test]
     fn formats_are_checked() {
         assert!(Format::new(64, 63, Rounding::HalfUp).is_ok());
-        assert!(Format::new(65, 16, Rounding::HalfUp).is_err());
+        assert!(Format::new(96, 40, Rounding::HalfUp).is_ok());
+        assert!(Format::new(97, 16, Rounding::HalfUp).is_err());
         assert!(Format::new(16, 16, Rounding::HalfUp).is_err());
         assert!(Format::new(1, 0, Rounding::HalfUp).is_err());
         assert_eq!(
@@ -172,6 +189,6 @@ mod tests {
         );
         assert_eq!(Format::parse("32", Rounding::HalfUp), None);
         let f = Format::new(64, 10, Rounding::Truncate).unwrap();
-        assert_eq!((f.max_raw(), f.min_raw()), (i64::MAX, i64::MIN));
+        assert_eq!((f.max_raw(), f.min_raw()), (i64::MAX as i128, i64::MIN as i128));
     }
 }

@@ -4,20 +4,22 @@
 
 use super::{Datapath, Format, HwOp, Port, Rounding};
 use crate::ir::Input;
+use ethnum::I256;
 
 /// One evaluation: every output entry (structural zeros included) and the overflow flag.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct Run {
-    pub outputs: Vec<Vec<i64>>,
+    pub outputs: Vec<Vec<i128>>,
     pub overflow: bool,
 }
 
 /// The exact value of each port for one state, as the host computes it in f64: sin and
 /// cos of q, a floating base's quaternion scale, the inputs themselves. `rest` holds what
 /// follows q̈: τ for a kernel that takes it (no datapath does), else the forces, `fext`
-/// then λ (empty: none).
+/// then λ (empty: none), then, for `fd_grad`'s host partition, M⁻¹ row-major.
 pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f64]) -> Vec<f64> {
     let lambda_at = 6 * dp.dims.nfext;
+    let minv_at = lambda_at + dp.dims.nlambda;
     dp.ports
         .iter()
         .map(|&p| match p {
@@ -26,6 +28,7 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f6
             Port::QuatScale(k) => {
                 2.0 / q[k as usize..k as usize + 4].iter().map(|x| x * x).sum::<f64>()
             }
+            Port::Minv(i, k) => rest[minv_at + i as usize * dp.nv + k as usize],
             Port::Value(input, j) => {
                 let (v, at) = match input {
                     Input::Q => (q, 0),
@@ -57,7 +60,7 @@ pub fn quantize_ports(
     qd: &[f64],
     qdd: &[f64],
     rest: &[f64],
-) -> (Vec<i64>, bool) {
+) -> (Vec<i128>, bool) {
     let mut overflow = false;
     let raw = port_values(dp, q, qd, qdd, rest)
         .into_iter()
@@ -70,13 +73,14 @@ pub fn quantize_ports(
     (raw, overflow)
 }
 
-/// The product of two raw values with the format's rounding, before saturation.
-pub(crate) fn product(format: &Format, a: i64, b: i64) -> i128 {
-    let p = a as i128 * b as i128;
+/// The product of two raw values with the format's rounding, before saturation, in 256
+/// bits (the netlist's product is 2·WIDTH bits; an arithmetic shift drops FRAC of them).
+pub(crate) fn product(format: &Format, a: i128, b: i128) -> I256 {
+    let p = I256::from(a) * I256::from(b);
     match format.rounding {
         Rounding::Truncate => p >> format.frac,
         Rounding::HalfUp if format.frac == 0 => p,
-        Rounding::HalfUp => (p + (1i128 << (format.frac - 1))) >> format.frac,
+        Rounding::HalfUp => (p + (I256::ONE << (format.frac - 1))) >> format.frac,
     }
 }
 
@@ -100,18 +104,19 @@ impl Datapath {
     }
 
     /// Runs the datapath on raw port values (from [`quantize_ports`]).
-    pub fn run(&self, format: &Format, ports: &[i64]) -> Run {
-        let mut val = vec![0i64; self.nodes.len()];
+    pub fn run(&self, format: &Format, ports: &[i128]) -> Run {
+        let mut val = vec![0i128; self.nodes.len()];
         let mut overflow = false;
         for (i, op) in self.nodes.iter().enumerate() {
             let v = |id: super::HwId| val[id.0 as usize];
             let (x, o) = match *op {
                 HwOp::Port(n) => (ports[n as usize], false),
                 HwOp::Const(c) => format.quantize(c),
-                HwOp::Add(a, b) => format.saturate(v(a) as i128 + v(b) as i128),
-                HwOp::Sub(a, b) => format.saturate(v(a) as i128 - v(b) as i128),
-                HwOp::Neg(a) => format.saturate(-(v(a) as i128)),
-                HwOp::Mul(a, b) => format.saturate(product(format, v(a), v(b))),
+                // Raw values have at most 96 bits: sums stay in i128.
+                HwOp::Add(a, b) => format.saturate(v(a) + v(b)),
+                HwOp::Sub(a, b) => format.saturate(v(a) - v(b)),
+                HwOp::Neg(a) => format.saturate(-v(a)),
+                HwOp::Mul(a, b) => format.saturate_wide(product(format, v(a), v(b))),
             };
             overflow |= o;
             val[i] = x;
@@ -136,11 +141,19 @@ mod tests {
         let t = Format::new(16, 4, Rounding::Truncate).unwrap();
         let h = Format::new(16, 4, Rounding::HalfUp).unwrap();
         // 1.5 * 0.0625 = 0.09375 = 1.5 ulp: truncation keeps 1 ulp, half-up gives 2.
-        assert_eq!(product(&t, 24, 1), 1);
-        assert_eq!(product(&h, 24, 1), 2);
+        let p = |f: &Format, a: i128, b: i128| product(f, a, b).as_i128();
+        assert_eq!(p(&t, 24, 1), 1);
+        assert_eq!(p(&h, 24, 1), 2);
         // −1.5 ulp: truncation rounds toward −∞ (−2), half-up ties toward +∞ (−1).
-        assert_eq!(product(&t, -24, 1), -2);
-        assert_eq!(product(&h, -24, 1), -1);
-        assert_eq!(product(&h, -25, 1), -2);
+        assert_eq!(p(&t, -24, 1), -2);
+        assert_eq!(p(&h, -24, 1), -1);
+        assert_eq!(p(&h, -25, 1), -2);
+        // 96 bits: the product needs more than i128; it saturates.
+        let w = Format::new(96, 10, Rounding::HalfUp).unwrap();
+        let big = w.max_raw();
+        // (2^95 − 1)² / 2^10 lies in [2^179, 2^180): beyond i128, exact in 256 bits.
+        assert_eq!(product(&w, big, big) >> 179u32, I256::ONE);
+        assert_eq!(w.saturate_wide(product(&w, big, big)), (big, true));
+        assert_eq!(w.saturate_wide(product(&w, big, -big)), (w.min_raw(), true));
     }
 }

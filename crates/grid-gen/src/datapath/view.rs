@@ -21,6 +21,9 @@ pub enum Port {
     /// spherical joint's), which normalises it: like sin and cos, a division the host
     /// computes (the datapath has no divider).
     QuatScale(u16),
+    /// Entry (row, column) of M⁻¹, row ≤ column (M⁻¹ is symmetric): an input of `fd_grad`'s
+    /// host partition, which the host computes as robomorphic computing's does.
+    Minv(u16, u16),
 }
 
 impl Port {
@@ -30,6 +33,7 @@ impl Port {
     pub fn joint(self) -> usize {
         match self {
             Port::Sin(j) | Port::Cos(j) | Port::Value(_, j) | Port::QuatScale(j) => j as usize,
+            Port::Minv(i, _) => i as usize,
         }
     }
 
@@ -40,6 +44,7 @@ impl Port {
             Port::Cos(_) => "cos_q",
             Port::Value(i, _) => i.name(),
             Port::QuatScale(_) => "quat_scale",
+            Port::Minv(..) => "minv",
         }
     }
 }
@@ -164,6 +169,125 @@ impl Datapath {
             })
             .collect();
         Ok(Datapath { kernel: f.kind.name(), nv, dims: f.dims, ports, nodes, outputs })
+    }
+
+    /// `fd_grad`'s host partition, robomorphic computing's: from `rnea_grad`'s datapath
+    /// (∂c/∂q and ∂c/∂q̇ at the q̈ the host supplies), ∂q̈/∂u = −M⁻¹ ∂c/∂u with M⁻¹'s
+    /// entries as input ports (Featherstone's ∇Dynamics, the seeds' Algorithm 3). `coupled(i,
+    /// k)` says whether M⁻¹'s entry (i, k) can be non-zero (joints under different children
+    /// of a fixed root never couple); no port is made for the others. Each entry is a
+    /// balanced sum of its products, negated.
+    pub fn fd_grad_host(rnea_grad: &Datapath, coupled: impl Fn(usize, usize) -> bool) -> Datapath {
+        let nv = rnea_grad.nv;
+        let mut ports = rnea_grad.ports.clone();
+        let mut nodes = rnea_grad.nodes.clone();
+        let push = |nodes: &mut Vec<HwOp>, op: HwOp| {
+            nodes.push(op);
+            HwId(nodes.len() as u32 - 1)
+        };
+        // The entries some product reads, each one port (a row of ∂c that is structurally
+        // zero leaves M⁻¹'s column unread).
+        let nonzero = |d: HwId| rnea_grad.op(d) != HwOp::Const(0.0);
+        let read = |i: usize, k: usize| {
+            coupled(i.min(k), i.max(k))
+                && rnea_grad.outputs.iter().any(|dc| (0..nv).any(|c| nonzero(dc.ids[k * nv + c])))
+        };
+        let mut minv = vec![None; nv * nv];
+        for i in 0..nv {
+            for k in i..nv {
+                if read(i, k) || read(k, i) {
+                    ports.push(Port::Minv(i as u16, k as u16));
+                    let id = push(&mut nodes, HwOp::Port(ports.len() as u32 - 1));
+                    minv[i * nv + k] = Some(id);
+                    minv[k * nv + i] = Some(id);
+                }
+            }
+        }
+        let zero = match rnea_grad.nodes.iter().position(|&o| o == HwOp::Const(0.0)) {
+            Some(z) => HwId(z as u32),
+            None => push(&mut nodes, HwOp::Const(0.0)),
+        };
+        let outputs = rnea_grad
+            .outputs
+            .iter()
+            .zip(["dqdd_dq", "dqdd_dqd"])
+            .map(|(dc, name)| {
+                let ids = (0..nv * nv)
+                    .map(|e| {
+                        let (i, c) = (e / nv, e % nv);
+                        let mut terms: Vec<HwId> = (0..nv)
+                            .filter_map(|k| {
+                                let d = dc.ids[k * nv + c];
+                                let m = minv[i * nv + k]?;
+                                nonzero(d).then_some((m, d))
+                            })
+                            .map(|(m, d)| push(&mut nodes, HwOp::Mul(m, d)))
+                            .collect();
+                        if terms.is_empty() {
+                            return zero;
+                        }
+                        while terms.len() > 1 {
+                            terms = terms
+                                .chunks(2)
+                                .map(|p| match *p {
+                                    [a, b] => push(&mut nodes, HwOp::Add(a, b)),
+                                    _ => p[0],
+                                })
+                                .collect();
+                        }
+                        push(&mut nodes, HwOp::Neg(terms[0]))
+                    })
+                    .collect();
+                DatapathOutput { name, shape: dc.shape, ids }
+            })
+            .collect();
+        Datapath { kernel: "fd_grad", nv, dims: rnea_grad.dims, ports, nodes, outputs }.pruned()
+    }
+
+    /// Without the nodes and ports no output reads (`rnea_grad`'s derivatives with respect
+    /// to the forces, which `fd_grad`'s host partition leaves out), renumbered in order.
+    fn pruned(self) -> Datapath {
+        let mut live = vec![false; self.nodes.len()];
+        for o in &self.outputs {
+            for id in &o.ids {
+                live[id.0 as usize] = true;
+            }
+        }
+        for i in (0..self.nodes.len()).rev() {
+            if live[i] {
+                self.nodes[i].operands().for_each(|a| live[a.0 as usize] = true);
+            }
+        }
+        let (mut ports, mut nodes) = (Vec::new(), Vec::new());
+        let mut new_id = vec![HwId(u32::MAX); self.nodes.len()];
+        for (i, &op) in self.nodes.iter().enumerate() {
+            if !live[i] {
+                continue;
+            }
+            let m = |a: HwId| new_id[a.0 as usize];
+            let op = match op {
+                HwOp::Port(p) => {
+                    ports.push(self.ports[p as usize]);
+                    HwOp::Port(ports.len() as u32 - 1)
+                }
+                HwOp::Const(c) => HwOp::Const(c),
+                HwOp::Add(a, b) => HwOp::Add(m(a), m(b)),
+                HwOp::Sub(a, b) => HwOp::Sub(m(a), m(b)),
+                HwOp::Mul(a, b) => HwOp::Mul(m(a), m(b)),
+                HwOp::Neg(a) => HwOp::Neg(m(a)),
+            };
+            new_id[i] = HwId(nodes.len() as u32);
+            nodes.push(op);
+        }
+        let outputs = self
+            .outputs
+            .into_iter()
+            .map(|o| DatapathOutput {
+                ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect(),
+                ..o
+            })
+            .collect();
+        Datapath { ports, nodes, outputs, ..self }
     }
 
     pub fn op(&self, id: HwId) -> HwOp {

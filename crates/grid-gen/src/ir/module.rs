@@ -242,6 +242,15 @@ impl Robot {
         self.joint_names.len()
     }
 
+    /// The joint at the top of `j`'s branch: the child of the fixed root it hangs from.
+    /// Joints under different ones share no body, so M and M⁻¹ never couple them.
+    pub fn root_of(&self, mut j: usize) -> usize {
+        while let Some(p) = self.parents[j] {
+            j = p;
+        }
+        j
+    }
+
     /// Entries of q (nv, plus one for a floating base and one per spherical joint).
     pub fn nq(&self) -> usize {
         self.nv() + usize::from(self.floating) + self.spherical.len()

@@ -25,7 +25,7 @@ pub enum SimError {
 /// [`super::PortNames`] order) and the overflow flag.
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct SimResult {
-    pub outputs: Vec<i64>,
+    pub outputs: Vec<i128>,
     pub overflow: bool,
 }
 
@@ -49,7 +49,7 @@ fn sim(step: &'static str, cmd: &mut Command) -> Result<String, SimError> {
 pub fn simulate(
     netlist: &Netlist,
     robot: &Robot,
-    ports: &[Vec<i64>],
+    ports: &[Vec<i128>],
 ) -> Result<Vec<SimResult>, SimError> {
     let scratch = Scratch::new("sim")?;
     let (v, tb) = netlist.file_names();
@@ -78,14 +78,14 @@ fn simulate_batch(
     netlist: &Netlist,
     dir: &Path,
     image: &Path,
-    batch: &[Vec<i64>],
+    batch: &[Vec<i128>],
 ) -> Result<Vec<SimResult>, SimError> {
     let w = netlist.format.width;
-    let mask = if w == 64 { u64::MAX } else { (1u64 << w) - 1 };
+    let mask = (1u128 << w) - 1;
     let mut hex = String::new();
     for state in batch {
         for &x in state {
-            hex.push_str(&format!("{:x}\n", x as u64 & mask));
+            hex.push_str(&format!("{:x}\n", x as u128 & mask));
         }
     }
     let (inp, outp) = (dir.join("in.hex"), dir.join("out.txt"));
@@ -104,13 +104,8 @@ fn simulate_batch(
     }
     let text = std::fs::read_to_string(&outp)?;
     let expected = netlist.names.outputs.len();
-    let sign = |raw: u64| -> i64 {
-        if w == 64 {
-            raw as i64
-        } else {
-            ((raw << (64 - w)) as i64) >> (64 - w)
-        }
-    };
+    // Formats have at most 96 bits: the value's sign bit shifted to the top of i128.
+    let sign = |raw: u128| -> i128 { ((raw << (128 - w)) as i128) >> (128 - w) };
     let results: Vec<SimResult> = text
         .lines()
         .map(|line| {
@@ -125,13 +120,13 @@ fn simulate_batch(
             let outputs = fields[..expected]
                 .iter()
                 .map(|f| {
-                    u64::from_str_radix(f, 16).map(sign).map_err(|_| {
+                    u128::from_str_radix(f, 16).map(sign).map_err(|_| {
                         SimError::Output(format!(
                             "`{f}` is not a hex value (x or z in the netlist?)"
                         ))
                     })
                 })
-                .collect::<Result<Vec<i64>, _>>()?;
+                .collect::<Result<Vec<i128>, _>>()?;
             Ok(SimResult { outputs, overflow: fields[expected] == "1" })
         })
         .collect::<Result<_, _>>()?;

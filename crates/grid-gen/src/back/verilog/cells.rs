@@ -7,9 +7,9 @@ use crate::datapath::{Format, Rounding};
 
 /// A `W'sh…` literal of a raw value (two's complement bits, so the most negative value
 /// needs no special case).
-pub fn literal(raw: i64, width: u32) -> String {
-    let mask = if width == 64 { u64::MAX } else { (1u64 << width) - 1 };
-    format!("{width}'sh{:x}", raw as u64 & mask)
+pub fn literal(raw: i128, width: u32) -> String {
+    let mask = if width == 128 { u128::MAX } else { (1u128 << width) - 1 };
+    format!("{width}'sh{:x}", raw as u128 & mask)
 }
 
 /// The cell modules `<top>_mul` and `<top>_add`.
@@ -72,6 +72,7 @@ mod tests {
     fn literals_are_twos_complement() {
         assert_eq!(literal(5, 16), "16'sh5");
         assert_eq!(literal(-1, 16), "16'shffff");
-        assert_eq!(literal(i64::MIN, 64), "64'sh8000000000000000");
+        assert_eq!(literal(i64::MIN as i128, 64), "64'sh8000000000000000");
+        assert_eq!(literal(-1, 96), "96'shffffffffffffffffffffffff");
     }
 }

@@ -94,6 +94,21 @@ pub struct VerilogOptions {
     pub force_max: Option<f64>,
     /// Which of the module's kernels to build (those without division).
     pub kernels: Vec<KernelKind>,
+    /// Also build `fd_grad`'s netlist, with M⁻¹ taken from where this says.
+    pub fd_grad: Option<FdGradPartition>,
+    /// Bound on every diagonal entry of M⁻¹ (the host partition's input contract; else
+    /// sampled from the `minv` kernel, see [`crate::datapath::minv_diagonal`]).
+    pub minv_max: Option<f64>,
+}
+
+/// How `fd_grad`'s netlist splits the seeds' ∇Dynamics between host and chip.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "kebab-case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum FdGradPartition {
+    /// Robomorphic computing's: the host computes q̈ and M⁻¹ (and sin/cos of q); the chip
+    /// computes ∂c/∂u and ∂q̈/∂u = −M⁻¹ ∂c/∂u. The netlist is `<robot>_fd_grad_host`.
+    Host,
 }
 
 impl Default for VerilogOptions {
@@ -106,6 +121,8 @@ impl Default for VerilogOptions {
             qdd_max: None,
             force_max: None,
             kernels: DEFAULT_KERNELS.to_vec(),
+            fd_grad: None,
+            minv_max: None,
         }
     }
 }
@@ -114,6 +131,9 @@ impl Default for VerilogOptions {
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct NetlistStats {
     pub kernel: KernelKind,
+    /// `fd_grad`'s partition (`host`: M⁻¹ is an input).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub partition: Option<FdGradPartition>,
     /// `pipelined` or `shared`.
     pub arch: &'static str,
     /// Pipelined: levels of depth between registers.
@@ -170,7 +190,7 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, V
         .into_iter()
         .filter(|k| options.kernels.contains(k) && !(k.is_frame() && module.function(*k).is_none()))
         .collect();
-    if kernels.is_empty() {
+    if kernels.is_empty() && options.fd_grad.is_none() {
         return Err(VerilogError::NoKernels);
     }
     match options.arch {
@@ -191,38 +211,65 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, V
     for kind in kernels {
         let f = module.function(kind).ok_or(VerilogError::Missing(kind))?;
         let datapath = Datapath::new(f, module.robot.nv())?;
-        let (format, analysis) = match options.format {
-            FormatChoice::Fixed { width, frac } => {
-                let format = Format::new(width, frac, options.rounding)?;
-                let analysis = analyse(&datapath, &bounds, frac, options.rounding);
-                analysis.check(&datapath, &format)?;
-                (format, analysis)
-            }
-            FormatChoice::Auto { max_error } => {
-                choose_format(&datapath, &bounds, options.rounding, max_error)?
-            }
-        };
-        let layout = match options.arch {
-            Arch::Shared { multipliers, adders } => {
-                Layout::Shared(SharedSchedule::new(&datapath, multipliers, adders))
-            }
-            Arch::Pipelined { stage_depth } => {
-                Layout::Pipelined(Stages::new(&datapath, stage_depth))
-            }
-        };
-        let names = PortNames::new(&module.robot, &datapath);
-        out.push(Netlist {
+        out.push(netlist(
+            module,
+            options,
             kind,
             datapath,
-            format,
-            analysis,
-            bounds: bounds.clone(),
-            top: format!("{stem}_{}", kind.name()),
-            names,
-            layout,
+            &bounds,
+            format!("{stem}_{}", kind.name()),
+        )?);
+    }
+    if options.fd_grad == Some(FdGradPartition::Host) {
+        let kind = KernelKind::RneaGrad;
+        let rnea_grad = module.function(kind).ok_or(VerilogError::Missing(kind))?;
+        let robot = &module.robot;
+        let datapath = Datapath::fd_grad_host(&Datapath::new(rnea_grad, robot.nv())?, |i, k| {
+            robot.root_of(i) == robot.root_of(k)
         });
+        let diagonal = match options.minv_max {
+            Some(b) => vec![b; robot.nv()],
+            None => crate::datapath::minv_diagonal(
+                module.function(KernelKind::Minv).ok_or(VerilogError::MinvBound)?,
+                robot,
+            ),
+        };
+        let mut bounds = bounds.clone();
+        bounds.minv = crate::datapath::minv_entries(&diagonal);
+        let top = format!("{stem}_fd_grad_host");
+        out.push(netlist(module, options, KernelKind::FdGrad, datapath, &bounds, top)?);
     }
     Ok(out)
+}
+
+/// One datapath's netlist: its format (given and checked, or chosen) and its schedule.
+fn netlist(
+    module: &Module,
+    options: &VerilogOptions,
+    kind: KernelKind,
+    datapath: Datapath,
+    bounds: &Bounds,
+    top: String,
+) -> Result<Netlist, VerilogError> {
+    let (format, analysis) = match options.format {
+        FormatChoice::Fixed { width, frac } => {
+            let format = Format::new(width, frac, options.rounding)?;
+            let analysis = analyse(&datapath, bounds, frac, options.rounding);
+            analysis.check(&datapath, &format)?;
+            (format, analysis)
+        }
+        FormatChoice::Auto { max_error } => {
+            choose_format(&datapath, bounds, options.rounding, max_error)?
+        }
+    };
+    let layout = match options.arch {
+        Arch::Shared { multipliers, adders } => {
+            Layout::Shared(SharedSchedule::new(&datapath, multipliers, adders))
+        }
+        Arch::Pipelined { stage_depth } => Layout::Pipelined(Stages::new(&datapath, stage_depth)),
+    };
+    let names = PortNames::new(&module.robot, &datapath);
+    Ok(Netlist { kind, datapath, format, analysis, bounds: bounds.clone(), top, names, layout })
 }
 
 impl Netlist {
@@ -254,6 +301,7 @@ impl Netlist {
         };
         NetlistStats {
             kernel: self.kind,
+            partition: self.reads_minv().then_some(FdGradPartition::Host),
             arch: self.arch().name(),
             stage_depth: match &self.layout {
                 Layout::Pipelined(st) => Some(st.stage_depth),
@@ -271,6 +319,11 @@ impl Netlist {
             error_bound: self.analysis.output_error,
             range_bound: self.analysis.needed,
         }
+    }
+
+    /// Whether the netlist takes M⁻¹ from the host (`fd_grad`'s host partition).
+    pub fn reads_minv(&self) -> bool {
+        self.datapath.ports.iter().any(|p| matches!(p, crate::datapath::Port::Minv(..)))
     }
 
     /// The netlist file's name and the testbench's.
@@ -324,7 +377,11 @@ impl Netlist {
         ));
         h.push_str(&crate::back::source_line(&robot.source));
         h.push_str(&crate::back::specialisation_lines(robot));
-        h.push_str(&format!("// {}: {}\n", self.kind.name(), comment_text(self.kind.doc())));
+        if self.reads_minv() {
+            h.push_str("// fd_grad, host partition (robomorphic computing's): dqdd_dq and dqdd_dqd = -Minv * (dc_dq, dc_dqd) at the qdd and Minv the host computed for this state.\n");
+        } else {
+            h.push_str(&format!("// {}: {}\n", self.kind.name(), comment_text(self.kind.doc())));
+        }
         h.push_str(&format!(
             "// Signed fixed point {} ({} bits, {} after the point; multipliers {}; every result saturates and sets `overflow`).\n",
             self.format.label(),
@@ -359,8 +416,15 @@ impl Netlist {
         } else {
             String::new()
         };
+        let minv = if self.reads_minv() {
+            let nv = self.bounds.qd.len();
+            let diagonal: Vec<f64> = (0..nv).map(|j| self.bounds.minv[j * nv + j]).collect();
+            format!(", Minv's diagonal <= {} (the host checks it; off the diagonal, |Minv_ik| <= sqrt(Minv_ii Minv_kk))", list(&diagonal))
+        } else {
+            String::new()
+        };
         h.push_str(&format!(
-            "// Analysed for |qd| <= {}, |qdd| <= {} (per joint, in order){forces}: every value within {:.6e}; every output within {:.6e} of exact.\n",
+            "// Analysed for |qd| <= {}, |qdd| <= {} (per joint, in order){forces}{minv}: every value within {:.6e}; every output within {:.6e} of exact.\n",
             list(&self.bounds.qd),
             list(&self.bounds.qdd),
             s.range_bound,
@@ -404,4 +468,6 @@ pub enum VerilogError {
     Missing(crate::ir::KernelKind),
     #[error("Verilog: {0}")]
     Arch(String),
+    #[error("Verilog: fd_grad's host partition bounds its M⁻¹ input from the minv kernel, which was not generated; generate minv too, or give --minv-max")]
+    MinvBound,
 }

@@ -1,6 +1,7 @@
 //! Port names of a netlist: inputs `<sin_q|cos_q|q|qd|qdd>_<index>_<joint name>` (the
 //! index into the input: q's for sin, cos and q), forces `fext_<index>_<joint>_<fx…tz>`
-//! and `lambda_<index>_<frame>_<fx…tz>`, and each quaternion's `quat_scale…`,
+//! and `lambda_<index>_<frame>_<fx…tz>`, each quaternion's `quat_scale…`, M⁻¹'s
+//! `minv_<row>_<column>` (the upper triangle),
 //! outputs `<output>_<row>_<column>` for the non-zero entries only. Joint names go through
 //! the shared namer (`[a-z0-9_]`, never a reserved word); the joint index keeps them
 //! unique whatever the names are.
@@ -29,6 +30,8 @@ fn input_name(robot: &Robot, p: Port) -> String {
     let k = p.joint();
     match p {
         Port::QuatScale(3) if robot.floating => "quat_scale".to_string(),
+        // M⁻¹'s entries are numbered by coordinate (the row and column of ∂q̈).
+        Port::Minv(i, k) => format!("minv_{i}_{k}"),
         Port::QuatScale(_) => format!(
             "quat_scale_{k}_{}",
             identifier(robot.q_name(k).strip_suffix("_qx").unwrap_or_default())
