@@ -875,6 +875,9 @@ fn accuracy(
     args: AccuracyArgs,
 ) -> ExitCode {
     use grid_gen::accuracy::{self, NumberFormat};
+    if verilog.fd_grad_netlist.is_some() || verilog.minv_max.is_some() {
+        return fail("--fd-grad-netlist and --minv-max choose a netlist to generate or simulate; `accuracy` measures number formats on the kernels themselves");
+    }
     let (model, gravity) = (&loaded.model, loaded.gravity());
     let gradient = config.options.lower.gradient;
     let (file, source) = match &args.states {

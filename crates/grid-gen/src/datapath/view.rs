@@ -99,6 +99,8 @@ pub struct Datapath {
     pub dims: crate::ir::Dims,
     pub ports: Vec<Port>,
     pub nodes: Vec<HwOp>,
+    /// The joint each node was computed for, where the IR knew one (what a refusal names).
+    pub links: Vec<Option<u16>>,
     pub outputs: Vec<DatapathOutput>,
 }
 
@@ -132,6 +134,7 @@ impl Datapath {
         }
         let mut ports = Vec::new();
         let mut nodes = Vec::new();
+        let mut links = Vec::new();
         let mut new_id = vec![HwId(u32::MAX); f.nodes.len()];
         for (i, node) in f.nodes.iter().enumerate() {
             if !live[i] {
@@ -158,6 +161,7 @@ impl Datapath {
             };
             new_id[i] = HwId(nodes.len() as u32);
             nodes.push(op);
+            links.push(node.link);
         }
         let outputs = f
             .outputs
@@ -168,7 +172,7 @@ impl Datapath {
                 ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect(),
             })
             .collect();
-        Ok(Datapath { kernel: f.kind.name(), nv, dims: f.dims, ports, nodes, outputs })
+        Ok(Datapath { kernel: f.kind.name(), nv, dims: f.dims, ports, nodes, links, outputs })
     }
 
     /// `fd_grad`'s host partition, robomorphic computing's: from `rnea_grad`'s datapath
@@ -181,6 +185,7 @@ impl Datapath {
         let nv = rnea_grad.nv;
         let mut ports = rnea_grad.ports.clone();
         let mut nodes = rnea_grad.nodes.clone();
+        // The product's nodes belong to no joint.
         let push = |nodes: &mut Vec<HwOp>, op: HwOp| {
             nodes.push(op);
             HwId(nodes.len() as u32 - 1)
@@ -241,7 +246,10 @@ impl Datapath {
                 DatapathOutput { name, shape: dc.shape, ids }
             })
             .collect();
-        Datapath { kernel: "fd_grad", nv, dims: rnea_grad.dims, ports, nodes, outputs }.pruned()
+        let mut links = rnea_grad.links.clone();
+        links.resize(nodes.len(), None);
+        Datapath { kernel: "fd_grad", nv, dims: rnea_grad.dims, ports, nodes, links, outputs }
+            .pruned()
     }
 
     /// Without the nodes and ports no output reads (`rnea_grad`'s derivatives with respect
@@ -258,7 +266,7 @@ impl Datapath {
                 self.nodes[i].operands().for_each(|a| live[a.0 as usize] = true);
             }
         }
-        let (mut ports, mut nodes) = (Vec::new(), Vec::new());
+        let (mut ports, mut nodes, mut links) = (Vec::new(), Vec::new(), Vec::new());
         let mut new_id = vec![HwId(u32::MAX); self.nodes.len()];
         for (i, &op) in self.nodes.iter().enumerate() {
             if !live[i] {
@@ -278,6 +286,7 @@ impl Datapath {
             };
             new_id[i] = HwId(nodes.len() as u32);
             nodes.push(op);
+            links.push(self.links[i]);
         }
         let outputs = self
             .outputs
@@ -287,7 +296,7 @@ impl Datapath {
                 ..o
             })
             .collect();
-        Datapath { ports, nodes, outputs, ..self }
+        Datapath { ports, nodes, links, outputs, ..self }
     }
 
     pub fn op(&self, id: HwId) -> HwOp {

