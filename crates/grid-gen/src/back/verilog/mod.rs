@@ -224,6 +224,12 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, V
         let kind = KernelKind::RneaGrad;
         let rnea_grad = module.function(kind).ok_or(VerilogError::Missing(kind))?;
         let robot = &module.robot;
+        // The product reads whole columns of ∂c/∂u.
+        if robot.specialisation.selects() {
+            return Err(VerilogError::Arch(
+                "fd_grad's host partition multiplies whole columns of rnea_grad, and the scene selects gradient entries; drop the scene's [gradient] selection".into(),
+            ));
+        }
         let datapath = Datapath::fd_grad_host(&Datapath::new(rnea_grad, robot.nv())?, |i, k| {
             robot.root_of(i) == robot.root_of(k)
         });
