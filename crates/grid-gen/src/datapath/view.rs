@@ -175,8 +175,9 @@ impl Datapath {
         Ok(Datapath { kernel: f.kind.name(), nv, dims: f.dims, ports, nodes, links, outputs })
     }
 
-    /// `fd_grad`'s host partition, robomorphic computing's: from `rnea_grad`'s datapath
-    /// (∂c/∂q and ∂c/∂q̇ at the q̈ the host supplies), ∂q̈/∂u = −M⁻¹ ∂c/∂u with M⁻¹'s
+    /// `fd_grad`'s host partition, robomorphic computing's: from the datapath of `rnea_grad`'s
+    /// first two outputs, ∂c/∂q and ∂c/∂q̇ at the q̈ the host supplies (every node of it
+    /// live, so the result's are too), ∂q̈/∂u = −M⁻¹ ∂c/∂u with M⁻¹'s
     /// entries as input ports (Featherstone's ∇Dynamics, the seeds' Algorithm 3). `coupled(i,
     /// k)` says whether M⁻¹'s entry (i, k) can be non-zero (joints under different children
     /// of a fixed root never couple); no port is made for the others. Each entry is a
@@ -208,10 +209,9 @@ impl Datapath {
                 }
             }
         }
-        let zero = match rnea_grad.nodes.iter().position(|&o| o == HwOp::Const(0.0)) {
-            Some(z) => HwId(z as u32),
-            None => push(&mut nodes, HwOp::Const(0.0)),
-        };
+        // An entry with no product is the constant 0 (made only if some entry needs it).
+        let mut zero =
+            rnea_grad.nodes.iter().position(|&o| o == HwOp::Const(0.0)).map(|z| HwId(z as u32));
         let outputs = rnea_grad
             .outputs
             .iter()
@@ -229,7 +229,7 @@ impl Datapath {
                             .map(|(m, d)| push(&mut nodes, HwOp::Mul(m, d)))
                             .collect();
                         if terms.is_empty() {
-                            return zero;
+                            return *zero.get_or_insert_with(|| push(&mut nodes, HwOp::Const(0.0)));
                         }
                         while terms.len() > 1 {
                             terms = terms
@@ -249,54 +249,6 @@ impl Datapath {
         let mut links = rnea_grad.links.clone();
         links.resize(nodes.len(), None);
         Datapath { kernel: "fd_grad", nv, dims: rnea_grad.dims, ports, nodes, links, outputs }
-            .pruned()
-    }
-
-    /// Without the nodes and ports no output reads (`rnea_grad`'s derivatives with respect
-    /// to the forces, which `fd_grad`'s host partition leaves out), renumbered in order.
-    fn pruned(self) -> Datapath {
-        let mut live = vec![false; self.nodes.len()];
-        for o in &self.outputs {
-            for id in &o.ids {
-                live[id.0 as usize] = true;
-            }
-        }
-        for i in (0..self.nodes.len()).rev() {
-            if live[i] {
-                self.nodes[i].operands().for_each(|a| live[a.0 as usize] = true);
-            }
-        }
-        let (mut ports, mut nodes, mut links) = (Vec::new(), Vec::new(), Vec::new());
-        let mut new_id = vec![HwId(u32::MAX); self.nodes.len()];
-        for (i, &op) in self.nodes.iter().enumerate() {
-            if !live[i] {
-                continue;
-            }
-            let m = |a: HwId| new_id[a.0 as usize];
-            let op = match op {
-                HwOp::Port(p) => {
-                    ports.push(self.ports[p as usize]);
-                    HwOp::Port(ports.len() as u32 - 1)
-                }
-                HwOp::Const(c) => HwOp::Const(c),
-                HwOp::Add(a, b) => HwOp::Add(m(a), m(b)),
-                HwOp::Sub(a, b) => HwOp::Sub(m(a), m(b)),
-                HwOp::Mul(a, b) => HwOp::Mul(m(a), m(b)),
-                HwOp::Neg(a) => HwOp::Neg(m(a)),
-            };
-            new_id[i] = HwId(nodes.len() as u32);
-            nodes.push(op);
-            links.push(self.links[i]);
-        }
-        let outputs = self
-            .outputs
-            .into_iter()
-            .map(|o| DatapathOutput {
-                ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect(),
-                ..o
-            })
-            .collect();
-        Datapath { ports, nodes, links, outputs, ..self }
     }
 
     pub fn op(&self, id: HwId) -> HwOp {

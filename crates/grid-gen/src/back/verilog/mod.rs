@@ -230,7 +230,10 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, V
                 "fd_grad's host partition multiplies whole columns of rnea_grad, and the scene selects gradient entries; drop the scene's [gradient] selection".into(),
             ));
         }
-        let datapath = Datapath::fd_grad_host(&Datapath::new(rnea_grad, robot.nv())?, |i, k| {
+        // ∂c/∂q and ∂c/∂q̇ alone: the derivatives with respect to forces are not multiplied.
+        let mut dc = rnea_grad.clone();
+        dc.outputs.retain(|o| matches!(o.name, "dc_dq" | "dc_dqd"));
+        let datapath = Datapath::fd_grad_host(&Datapath::new(&dc, robot.nv())?, |i, k| {
             robot.root_of(i) == robot.root_of(k)
         });
         let diagonal = match options.minv_max {
