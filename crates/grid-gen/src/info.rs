@@ -690,8 +690,8 @@ impl Info {
         }
         for v in &self.verilog {
             let name = match v.partition {
-                Some(FdGradPartition::Host) => "fd_grad_host",
-                None => v.kernel.name(),
+                Some(p) => format!("fd_grad_{}", p.name()),
+                None => v.kernel.name().to_string(),
             };
             s.push_str(&format!(
                 "  {:<w$} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  error <= {:.1e}\n",

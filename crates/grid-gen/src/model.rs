@@ -100,6 +100,20 @@ pub struct Inertia {
     pub i_origin: [[f64; 3]; 3],
 }
 
+/// A body's spatial inertia about its frame's origin, for twists ordered (linear,
+/// angular): twice the kinetic energy is m|v|² + 2 vᵀ(ω × h) + ωᵀ I ω.
+fn spatial_inertia(b: &Inertia) -> nalgebra::DMatrix<f64> {
+    let h = Vector3::from(b.h);
+    let mut a = nalgebra::DMatrix::<f64>::zeros(6, 6);
+    for k in 0..3 {
+        a[(k, k)] = b.mass;
+    }
+    a.view_mut((0, 3), (3, 3)).copy_from(&(-h.cross_matrix()));
+    a.view_mut((3, 0), (3, 3)).copy_from(&h.cross_matrix());
+    a.view_mut((3, 3), (3, 3)).copy_from(&b.i_origin_matrix());
+    a
+}
+
 impl Inertia {
     pub fn zero() -> Self {
         Inertia { mass: 0.0, h: [0.0; 3], i_origin: [[0.0; 3]; 3] }
@@ -654,6 +668,86 @@ impl Model {
             .iter()
             .find(|&&JointIndex(s)| s <= i && i < s + SPHERICAL.len())
             .map(|&JointIndex(s)| s..s + SPHERICAL.len())
+    }
+
+    /// A lower bound on the pivot D of M's LTDL factorisation at each coordinate, for
+    /// every configuration: D is `Sᵀ Iᴬ S` of the articulated inertia Iᴬ ⪰ I (the body's
+    /// own inertia: the articulated inertias of its children add positive semidefinite
+    /// terms, Featherstone's RBDA §7.3), so D ≥ `Sᵀ I S` for a one-dof joint; a member of a
+    /// free-flyer or spherical joint pivots on a Schur complement of that joint's `Sᵀ Iᴬ S`,
+    /// which is at least its smallest eigenvalue, so the members share
+    /// λ_min(Sᵀ I S) of the joint's body (the last member's). Empty when a joint is
+    /// coupled (M is then a projection, with no such pivots). Zero where the body has no
+    /// inertia along its joint.
+    pub fn pivot_floor(&self) -> Vec<f64> {
+        if !self.coupling.is_empty() {
+            return Vec::new();
+        }
+        (0..self.njoints())
+            .map(|i| {
+                let members = self.group(i).unwrap_or(i..i + 1);
+                let a = spatial_inertia(&self.joints[members.end - 1].inertia);
+                let s = self.motion_subspace(members);
+                let block = s.transpose() * a * &s;
+                block.symmetric_eigenvalues().min().max(0.0)
+            })
+            .collect()
+    }
+
+    /// A lower bound on 1 / M⁻¹ᵢᵢ at each coordinate, for every configuration (so M⁻¹ᵢᵢ
+    /// is at most its reciprocal). 1 / M⁻¹ᵢᵢ is the least kinetic energy (times two) of a
+    /// motion with q̇ᵢ = 1: at least that of the joint's body and its parent body alone,
+    /// with the parent's velocity u relaxed to any twist, min_u uᵀ A u + (u + S)ᵀ B (u + S)
+    /// ≥ 1 / (1/λ_min(A) + 1/λ_min(B)) for |S| = 1, where A is the parent's inertia moved
+    /// into the joint frame (a rotation about the joint's axis leaves its eigenvalues
+    /// unchanged) and B the body's. Under the fixed root the parent does not move: the
+    /// bound is [`Model::pivot_floor`]. Zero (no bound) where a body has no inertia, and for
+    /// a prismatic joint under a moving body (its translation changes A's eigenvalues).
+    /// Empty when a joint is coupled.
+    pub fn minv_floor(&self) -> Vec<f64> {
+        let floor = self.pivot_floor();
+        if floor.is_empty() {
+            return floor;
+        }
+        (0..self.njoints())
+            .map(|i| {
+                let members = self.group(i).unwrap_or(i..i + 1);
+                let first = &self.joints[members.start];
+                let Some(p) = first.parent else { return floor[i] };
+                if !first.joint_type.is_rotation() {
+                    return 0.0;
+                }
+                let b = spatial_inertia(&self.joints[members.end - 1].inertia);
+                // Twists of the parent body (its frame) in the joint frame: (v, ω) ↦
+                // (Rᵀ(v + ω × p), Rᵀ ω) for the joint frame at (R, p) in the parent's.
+                let (r, pos) = (first.tree.rot_matrix(), first.tree.pos_vector());
+                let mut x = nalgebra::Matrix6::<f64>::zeros();
+                x.fixed_view_mut::<3, 3>(0, 0).copy_from(&r.transpose());
+                x.fixed_view_mut::<3, 3>(0, 3).copy_from(&(-r.transpose() * pos.cross_matrix()));
+                x.fixed_view_mut::<3, 3>(3, 3).copy_from(&r.transpose());
+                let Some(xinv) = x.try_inverse() else { return 0.0 };
+                let a = xinv.transpose() * spatial_inertia(&self.joints[p].inertia) * xinv;
+                let (la, lb) = (a.symmetric_eigenvalues().min(), b.symmetric_eigenvalues().min());
+                if la > 0.0 && lb > 0.0 {
+                    1.0 / (1.0 / la + 1.0 / lb)
+                } else {
+                    0.0
+                }
+            })
+            .collect()
+    }
+
+    /// The motion subspace of `members` in the body frame, (linear, angular) rows: every
+    /// member's frame is the body's (identity transforms between members).
+    fn motion_subspace(&self, members: std::ops::Range<usize>) -> nalgebra::DMatrix<f64> {
+        nalgebra::DMatrix::from_fn(6, members.len(), |r, c| {
+            let j = &self.joints[members.start + c];
+            match (r < 3, !j.joint_type.is_rotation()) {
+                (true, true) => j.axis[r],
+                (false, false) => j.axis[r - 3],
+                _ => 0.0,
+            }
+        })
     }
 
     /// Whether joint `i` is part of a multi-dof joint whose parent is the fixed root (the

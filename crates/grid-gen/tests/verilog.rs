@@ -88,10 +88,22 @@ fn states(n: &Netlist, model: &grid_gen::Model, count: usize, seed: u64) -> Vec<
 fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Vec<f64>; 3]]) {
     let dp = &n.datapath;
     let nv = model.nv();
+    // fd_grad's chip partition takes τ = ID(q, q̇, q̈) in place of q̈.
+    let chip = n.measured.is_some();
+    // A floating base is unactuated: its τ is zero, and q̈ is FD's.
+    let tau = |q: &[f64], qd: &[f64], qdd: &[f64]| {
+        let mut t = grid_gen::reference::rnea(model, q, qd, qdd, GRAVITY);
+        if model.floating {
+            t[..6].fill(0.0);
+        }
+        t
+    };
     // fd_grad's host partition takes the host's M⁻¹ (row-major) after q̈.
-    let host = |q: &[f64]| -> Vec<f64> {
+    let host = |q: &[f64], qd: &[f64], qdd: &[f64]| -> Vec<f64> {
         if n.reads_minv() {
             grid_gen::reference::minv(model, q).transpose().iter().copied().collect()
+        } else if chip {
+            tau(q, qd, qdd)
         } else {
             Vec::new()
         }
@@ -99,7 +111,8 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
     let ports: Vec<Vec<i128>> = states
         .iter()
         .map(|[q, qd, qdd]| {
-            let (p, overflow) = quantize_ports(dp, &n.format, q, qd, qdd, &host(q));
+            let qdd_port: &[f64] = if chip { &[] } else { qdd };
+            let (p, overflow) = quantize_ports(dp, &n.format, q, qd, qdd_port, &host(q, qd, qdd));
             assert!(
                 !overflow,
                 "{}: an input within the bounds does not fit {}",
@@ -137,6 +150,8 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
             // are fd_grad's, after q̈ itself.
             let tau = grid_gen::reference::rnea(model, q, qd, qdd, GRAVITY);
             reference_outputs(KernelKind::FdGrad, model, q, qd, &tau, GRAVITY).split_off(1)
+        } else if chip {
+            reference_outputs(KernelKind::FdGrad, model, q, qd, &tau(q, qd, qdd), GRAVITY)
         } else {
             reference_outputs(n.kind, model, q, qd, qdd, GRAVITY)
         };
@@ -149,7 +164,13 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
                     reference[o][(e / nv, e % nv)]
                 };
                 let got = n.format.to_f64(run.outputs[o][e]);
-                let bound = n.analysis.err[id.0 as usize];
+                // The chip partition's error is measured, not bounded: its format leaves
+                // MEASURED_MARGIN between the sample's largest error and --max-error, which
+                // these other states must meet.
+                let bound = match &n.measured {
+                    Some(_) => grid_gen::back::verilog::DEFAULT_MAX_ERROR,
+                    None => n.analysis.err[id.0 as usize],
+                };
                 // The reference itself is f64: allow its rounding on top of the bound.
                 let slack = 1e-12 * exact.abs().max(1.0);
                 assert!(
@@ -167,7 +188,7 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
     // Issue 58's check of the whole gradient in the normal regime: within 1e-2 of each
     // output's largest entry. (The other kernels' formats meet an absolute --max-error, which
     // is coarse against a tiny robot's entries: the double pendulum's M is about 1e-2.)
-    if n.reads_minv() {
+    if n.kind == KernelKind::FdGrad {
         for (out, (err, size)) in dp.outputs.iter().zip(&relative) {
             assert!(
                 *err <= 1e-2 * size,
@@ -178,12 +199,72 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
         }
     }
     eprintln!(
-        "{} {} {}: worst error {worst:.3e}, analysed bound {:.3e}",
+        "{} {} {}: worst error {worst:.3e}, analysed bound {:.3e}, measured {:?}",
         n.top,
         n.arch().name(),
         n.format.label(),
-        n.analysis.output_error
+        n.analysis.output_error,
+        n.measured.as_ref().map(|m| m.error)
     );
+}
+
+/// `fd_grad`'s chip partition (q̈, M's factorisation and the solves on chip) of `model` in
+/// `archs`: bit-exact in simulation, q̈, ∂q̈/∂q and ∂q̈/∂q̇ within twice the measured error
+/// of the reference (at τ = ID(q, q̇, q̈) for q̈ within its bound) and within 1e-2 of each
+/// output's largest entry.
+fn run_chip(model: grid_gen::Model, archs: &[Arch], count: usize) {
+    if !tool_or_skip("Icarus Verilog (iverilog)", sim::available()) {
+        return;
+    }
+    let kernels = vec![KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Rnea];
+    let m =
+        ir::lower(&model, GRAVITY, &LowerOptions { kernels, ..LowerOptions::default() }).unwrap();
+    for &arch in archs {
+        let options = VerilogOptions {
+            arch,
+            kernels: vec![],
+            fd_grad: Some(FdGradPartition::Chip),
+            ..VerilogOptions::default()
+        };
+        let netlists = plan(&m, &options).unwrap();
+        assert_eq!(netlists.len(), 1);
+        let n = &netlists[0];
+        assert!(n.top.ends_with("_fd_grad_chip") && n.measured.is_some() && !n.reads_minv());
+        assert!(n.datapath.reciprocals() > 0, "{}: no pivot is divided on chip", n.top);
+        // The ranges are proven for |τ| within its bound: states whose τ = ID(q, q̇, q̈)
+        // leaves it (a floating base's wrench at the corners) are outside the contract.
+        let all = states(n, &model, count, 11);
+        let within: Vec<_> = all
+            .iter()
+            .filter(|[q, qd, qdd]| {
+                let tau = grid_gen::reference::rnea(&model, q, qd, qdd, GRAVITY);
+                tau.iter().zip(&n.bounds.tau).all(|(t, b)| t.abs() <= *b || *b == 0.0)
+            })
+            .cloned()
+            .collect();
+        assert!(within.len() * 2 >= all.len(), "{}: most states leave the τ bound", n.top);
+        check_netlist(&model, &m, n, &within);
+    }
+}
+
+#[test]
+fn fd_grad_chip_double_pendulum_both_architectures() {
+    run_chip(
+        load("double_pendulum_continuous"),
+        &[Arch::Pipelined { stage_depth: 2 }, Arch::Shared { multipliers: 2, adders: 2 }],
+        24,
+    );
+}
+
+#[test]
+fn fd_grad_chip_iiwa() {
+    run_chip(load("grid_iiwa"), &[Arch::Pipelined { stage_depth: 4 }], 12);
+}
+
+#[test]
+fn fd_grad_chip_hyq_and_a_floating_one() {
+    run_chip(load("grid_hyq"), &[Arch::Shared { multipliers: 8, adders: 8 }], 8);
+    run_chip(load_floating("grid_hyq"), &[Arch::Pipelined { stage_depth: 4 }], 8);
 }
 
 /// `fd_grad`'s host partition (robomorphic computing's: q̈ and M⁻¹ from the host, −M⁻¹ ∂c/∂u

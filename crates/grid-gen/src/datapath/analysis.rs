@@ -11,7 +11,7 @@
 //! sin/cos, so every product of two joints' terms falls into the nonlinear remainder. The book
 //! reports the bound beside the measured error.
 
-use super::{Datapath, FixedError, Format, HwOp, Port, Rounding, MAX_WIDTH};
+use super::{Clamp, Datapath, FixedError, Format, HwOp, Port, Rounding, SolveStage, MAX_WIDTH};
 use crate::ir::{Input, Robot};
 
 /// Joint speed bound when the URDF gives no `<limit velocity>` (rad/s or m/s); a fast
@@ -25,6 +25,11 @@ pub const DEFAULT_QDD_MAX: f64 = 100.0;
 /// Bound on every entry of the external and contact forces (N and N m) when none is given:
 /// ten times a 100 kg robot's weight on one contact, as an MPC iterate may ask.
 pub const DEFAULT_FORCE_MAX: f64 = 1e4;
+/// Joint torque (or force) bound for `fd_grad`'s chip partition, whose input τ is: a
+/// large humanoid's hip or knee is rated at a few hundred newton-metres (Atlas's URDF
+/// writes efforts up to 890 N m for the legs' hydraulic joints), and MPC iterates may ask
+/// for more.
+pub const DEFAULT_TAU_MAX: f64 = 1000.0;
 /// Prismatic position bound (m) when the joint has no `<limit>`.
 pub const DEFAULT_Q_MAX: f64 = 2.0;
 
@@ -34,6 +39,9 @@ pub struct Bounds {
     pub q: Vec<(f64, f64)>,
     pub qd: Vec<f64>,
     pub qdd: Vec<f64>,
+    /// |τ| per coordinate (`fd_grad`'s chip partition); 0 for a floating base's six,
+    /// which are unactuated (the chip takes no τ for them).
+    pub tau: Vec<f64>,
     /// Every entry of `fext` and λ (the kernels that take forces).
     pub force: f64,
     /// |M⁻¹|'s entries, row-major (`fd_grad`'s host partition; empty: unbounded, which
@@ -74,6 +82,9 @@ impl Bounds {
                 })
                 .collect(),
             qdd: vec![qdd_max.unwrap_or(DEFAULT_QDD_MAX); nv],
+            tau: (0..nv)
+                .map(|j| if robot.floating && j < 6 { 0.0 } else { DEFAULT_TAU_MAX })
+                .collect(),
             force: DEFAULT_FORCE_MAX,
             minv: Vec::new(),
         }
@@ -96,11 +107,10 @@ impl Bounds {
             Port::Value(Input::Q, j) => self.q[j as usize],
             Port::Value(Input::Qd, j) => (-self.qd[j as usize], self.qd[j as usize]),
             Port::Value(Input::Qdd, j) => (-self.qdd[j as usize], self.qdd[j as usize]),
-            // No datapath kernel takes torques or a step; unbounded makes any that did fail
-            // the check.
+            Port::Value(Input::Tau, j) => (-self.tau[j as usize], self.tau[j as usize]),
+            // No datapath kernel takes a step; unbounded makes any that did fail the check.
             Port::Value(
-                Input::Tau
-                | Input::TauActuated
+                Input::TauActuated
                 | Input::Active
                 | Input::Gains
                 | Input::ContactRef
@@ -145,6 +155,8 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
     let ulp = format.ulp();
     let n = dp.nodes.len();
     let (mut lo, mut hi, mut err) = (vec![0.0f64; n], vec![0.0f64; n], vec![0.0f64; n]);
+    // β of each solve, once its right-hand side is analysed.
+    let mut beta: Vec<Option<f64>> = vec![None; dp.factor.rhs.len()];
     for (i, op) in dp.nodes.iter().enumerate() {
         let (l, h, e) = match *op {
             HwOp::Port(p) => {
@@ -178,6 +190,56 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
                 let (ea, eb) = (err[a.0 as usize], err[b.0 as usize]);
                 let (ma, mb) = (al.abs().max(ah.abs()), bl.abs().max(bh.abs()));
                 (l, h, ma * eb + mb * ea + ea * eb + format.product_error())
+            }
+            HwOp::Recip(a) => {
+                let (al, ah, ea) = (lo[a.0 as usize], hi[a.0 as usize], err[a.0 as usize]);
+                // The exact divisor lies in [al, ah]: a positive one bounds the exact
+                // reciprocal. |1/(x + δ) − 1/x| = |δ| / (x (x + δ)) for x ≥ al > |δ|; the
+                // divider's quotient rounds toward zero, less than one ulp.
+                let (l, h) = if al > 0.0 && ah.is_finite() {
+                    (ah.recip(), al.recip())
+                } else {
+                    (f64::NEG_INFINITY, f64::INFINITY)
+                };
+                let e = if al > ea { ea / (al * (al - ea)) + ulp } else { f64::INFINITY };
+                (l, h, e)
+            }
+        };
+        // A pivot's bound may name the node itself (an entry of M no update reached).
+        let maxabs = |x: crate::datapath::HwId| {
+            if x.0 as usize == i {
+                l.abs().max(h.abs())
+            } else {
+                lo[x.0 as usize].abs().max(hi[x.0 as usize].abs())
+            }
+        };
+        let (l, h) = match dp.clamps[i] {
+            None => (l, h),
+            Some(Clamp::Schur(a, b)) => {
+                let m = (maxabs(a) * maxabs(b)).sqrt();
+                (l.max(-m), h.min(m))
+            }
+            Some(Clamp::Pivot { floor, diagonal }) => (l.max(floor), h.min(maxabs(diagonal))),
+            Some(Clamp::Multiplier { diagonal, floor }) => {
+                let m = (maxabs(diagonal) / floor).sqrt();
+                (l.max(-m), h.min(m))
+            }
+            Some(Clamp::Solve { solve, k, stage }) => {
+                let f = &dp.factor;
+                let b = *beta[solve as usize].get_or_insert_with(|| {
+                    let s: f64 = f.rhs[solve as usize]
+                        .iter()
+                        .map(|&(k, x)| f.minv[k as usize].sqrt() * maxabs(x))
+                        .sum();
+                    s * s
+                });
+                let k = k as usize;
+                let m = match stage {
+                    SolveStage::Lower => (b * maxabs(f.diagonal[k])).sqrt(),
+                    SolveStage::Scaled => (b / f.floor[k]).sqrt(),
+                    SolveStage::Solution => (f.minv[k] * b).sqrt(),
+                };
+                (l.max(-m), h.min(m))
             }
         };
         // Exact zeros (structural zeros) stay exact.

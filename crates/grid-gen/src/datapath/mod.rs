@@ -4,17 +4,24 @@
 //! that shows a format safe, and the seeded configurations behind the M⁻¹ input's bound.
 
 mod analysis;
+mod chip;
+mod measure;
 mod model;
 mod sample;
 mod view;
 
 pub use analysis::{
     analyse, choose_format, format_for_width, width_for, Analysis, Bounds, DEFAULT_FORCE_MAX,
-    DEFAULT_QDD_MAX, DEFAULT_QD_MAX, DEFAULT_Q_MAX,
+    DEFAULT_QDD_MAX, DEFAULT_QD_MAX, DEFAULT_Q_MAX, DEFAULT_TAU_MAX,
+};
+pub use chip::fd_grad_chip;
+pub use measure::{
+    chip_states, choose_format_measured, measure, ChipState, Measured, MEASURED_MARGIN,
+    MEASURED_STATES,
 };
 pub use model::{port_values, quantize_ports, Run};
 pub use sample::{minv_diagonal, minv_entries, Rng, MINV_MARGIN, MINV_SAMPLES};
-pub use view::{Datapath, DatapathOutput, HwId, HwOp, Port};
+pub use view::{Clamp, Datapath, DatapathOutput, Factor, HwId, HwOp, Port, SolveStage};
 
 /// How a multiplier drops the low `frac` bits of its double-width product.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]

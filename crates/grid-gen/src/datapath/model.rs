@@ -84,6 +84,16 @@ pub(crate) fn product(format: &Format, a: i128, b: i128) -> I256 {
     }
 }
 
+/// `1 / x` of a raw value: `2^(2·FRAC) / x` rounded toward zero (the divider's
+/// quotient), saturated; a non-positive `x` saturates to the largest value and sets the
+/// flag (the analysis shows the divisor positive for inputs within the bounds).
+pub(crate) fn reciprocal(format: &Format, x: i128) -> (i128, bool) {
+    if x <= 0 {
+        return (format.max_raw(), true);
+    }
+    format.saturate_wide((I256::ONE << (2 * format.frac)) / I256::from(x))
+}
+
 impl Datapath {
     /// Every node's value in f64 for port values `ports` (not quantized): the exact
     /// computation the fixed-point one approximates.
@@ -98,6 +108,7 @@ impl Datapath {
                 HwOp::Sub(a, b) => v(a) - v(b),
                 HwOp::Neg(a) => -v(a),
                 HwOp::Mul(a, b) => v(a) * v(b),
+                HwOp::Recip(a) => v(a).recip(),
             };
         }
         val
@@ -105,6 +116,19 @@ impl Datapath {
 
     /// Runs the datapath on raw port values (from [`quantize_ports`]).
     pub fn run(&self, format: &Format, ports: &[i128]) -> Run {
+        let (val, overflow) = self.run_nodes(format, ports);
+        Run {
+            outputs: self
+                .outputs
+                .iter()
+                .map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect())
+                .collect(),
+            overflow,
+        }
+    }
+
+    /// Every node's raw value, and whether any saturated.
+    pub fn run_nodes(&self, format: &Format, ports: &[i128]) -> (Vec<i128>, bool) {
         let mut val = vec![0i128; self.nodes.len()];
         let mut overflow = false;
         for (i, op) in self.nodes.iter().enumerate() {
@@ -117,18 +141,12 @@ impl Datapath {
                 HwOp::Sub(a, b) => format.saturate(v(a) - v(b)),
                 HwOp::Neg(a) => format.saturate(-v(a)),
                 HwOp::Mul(a, b) => format.saturate_wide(product(format, v(a), v(b))),
+                HwOp::Recip(a) => reciprocal(format, v(a)),
             };
             overflow |= o;
             val[i] = x;
         }
-        Run {
-            outputs: self
-                .outputs
-                .iter()
-                .map(|o| o.ids.iter().map(|id| val[id.0 as usize]).collect())
-                .collect(),
-            overflow,
-        }
+        (val, overflow)
     }
 }
 
@@ -155,5 +173,18 @@ mod tests {
         assert_eq!(product(&w, big, big) >> 179u32, I256::ONE);
         assert_eq!(w.saturate_wide(product(&w, big, big)), (big, true));
         assert_eq!(w.saturate_wide(product(&w, big, -big)), (w.min_raw(), true));
+    }
+
+    #[test]
+    fn reciprocals_round_toward_zero_and_refuse_non_positive_divisors() {
+        let f = Format::new(16, 4, Rounding::HalfUp).unwrap();
+        // 1 / 3 = 0.333… = 5.33 ulp: 5. 1 / 0.0625 = 16 = 256 ulp.
+        assert_eq!(reciprocal(&f, 48), (5, false));
+        assert_eq!(reciprocal(&f, 1), (256, false));
+        assert_eq!(reciprocal(&f, 0), (f.max_raw(), true));
+        assert_eq!(reciprocal(&f, -16), (f.max_raw(), true));
+        // 1 / 2^-8 does not fit 8.4.
+        let small = Format::new(8, 4, Rounding::HalfUp).unwrap();
+        assert_eq!(reciprocal(&small, 1), (127, true));
     }
 }

@@ -58,6 +58,66 @@ pub enum HwOp {
     Sub(HwId, HwId),
     Mul(HwId, HwId),
     Neg(HwId),
+    /// `1 / x` for a positive `x` (`fd_grad`'s chip partition: one per pivot of M's
+    /// factorisation), rounded toward zero; a non-positive or too small `x` saturates and
+    /// sets the overflow flag.
+    Recip(HwId),
+}
+
+/// A proven bound on a node's exact value that interval arithmetic cannot see (the
+/// factorisation of a positive definite matrix), which the analysis intersects with the
+/// node's interval. Bounds that name other nodes read those nodes' analysed ranges.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Clamp {
+    /// An entry (i, j) of a Schur complement of M: |x| ≤ √(max M_ii · max M_jj), where
+    /// the two nodes are M's original diagonal entries (a Schur complement of a positive
+    /// definite matrix is positive definite and its diagonal only shrinks).
+    Schur(HwId, HwId),
+    /// A diagonal entry of a Schur complement, or a pivot: `floor ≤ x ≤ max M_ii`.
+    Pivot { floor: f64, diagonal: HwId },
+    /// An entry of L, M_ki / D_k: |x| ≤ √(max M_ii / floor_k) (|M_ki| ≤ √(M_ii D_k)).
+    Multiplier { diagonal: HwId, floor: f64 },
+    /// A value of solve number `solve` of [`Datapath::factor`] at coordinate `k`, bounded
+    /// through β ≥ bᵀ M⁻¹ b = Σ w_k² / D_k, with β = (Σ_k √(M⁻¹_kk) |b_k|)² (positive
+    /// definiteness: |M⁻¹_ik| ≤ √(M⁻¹_ii M⁻¹_kk)).
+    Solve { solve: u32, k: u16, stage: SolveStage },
+}
+
+/// Which value of a solve `−M⁻¹ b` a [`Clamp::Solve`] bounds.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum SolveStage {
+    /// w = L⁻ᵀ b: |w_k| ≤ √(β max D_k) ≤ √(β max M_kk).
+    Lower,
+    /// z = −D⁻¹ w: |z_k| ≤ √(β / D_k).
+    Scaled,
+    /// x = −M⁻¹ b: |x_k| ≤ √(M⁻¹_kk β).
+    Solution,
+}
+
+/// What the bounds of a factorisation's values read: M's diagonal entries (nodes), each
+/// pivot's floor, each M⁻¹_kk's bound, and every solve's right-hand side (nodes).
+#[derive(Clone, Debug, PartialEq, Default)]
+pub struct Factor {
+    pub diagonal: Vec<HwId>,
+    pub floor: Vec<f64>,
+    pub minv: Vec<f64>,
+    /// Each solve's non-zero right-hand-side entries: (coordinate, node).
+    pub rhs: Vec<Vec<(u16, HwId)>>,
+}
+
+impl Clamp {
+    /// The nodes whose ranges the bound reads (`factor`: the datapath's).
+    pub fn reads(&self, factor: &Factor) -> Vec<HwId> {
+        match *self {
+            Clamp::Schur(a, b) => vec![a, b],
+            Clamp::Pivot { diagonal, .. } | Clamp::Multiplier { diagonal, .. } => vec![diagonal],
+            Clamp::Solve { solve, k, .. } => {
+                let mut v: Vec<HwId> = factor.rhs[solve as usize].iter().map(|r| r.1).collect();
+                v.push(factor.diagonal[k as usize]);
+                v
+            }
+        }
+    }
 }
 
 impl HwOp {
@@ -65,7 +125,7 @@ impl HwOp {
         let (a, b) = match *self {
             HwOp::Port(_) | HwOp::Const(_) => (None, None),
             HwOp::Add(a, b) | HwOp::Sub(a, b) | HwOp::Mul(a, b) => (Some(a), Some(b)),
-            HwOp::Neg(a) => (Some(a), None),
+            HwOp::Neg(a) | HwOp::Recip(a) => (Some(a), None),
         };
         a.into_iter().chain(b)
     }
@@ -75,9 +135,15 @@ impl HwOp {
         !matches!(self, HwOp::Port(_) | HwOp::Const(_))
     }
 
-    /// Whether a multiplier computes it (the others need an adder).
+    /// Whether a multiplier computes it (the others need an adder or, for `Recip`, the
+    /// divider).
     pub fn is_mul(&self) -> bool {
         matches!(self, HwOp::Mul(..))
+    }
+
+    /// Whether it is an addition, subtraction or negation.
+    pub fn is_add(&self) -> bool {
+        matches!(self, HwOp::Add(..) | HwOp::Sub(..) | HwOp::Neg(_))
     }
 }
 
@@ -101,6 +167,11 @@ pub struct Datapath {
     pub nodes: Vec<HwOp>,
     /// The joint each node was computed for, where the IR knew one (what a refusal names).
     pub links: Vec<Option<u16>>,
+    /// Proven bounds of nodes (see [`Clamp`]), per node.
+    pub clamps: Vec<Option<Clamp>>,
+    /// What [`Clamp::Solve`] and the factorisation's bounds read (`fd_grad`'s chip
+    /// partition; empty otherwise).
+    pub factor: Factor,
     pub outputs: Vec<DatapathOutput>,
 }
 
@@ -172,7 +243,18 @@ impl Datapath {
                 ids: o.ids.iter().map(|id| new_id[id.0 as usize]).collect(),
             })
             .collect();
-        Ok(Datapath { kernel: f.kind.name(), nv, dims: f.dims, ports, nodes, links, outputs })
+        let clamps = vec![None; nodes.len()];
+        Ok(Datapath {
+            kernel: f.kind.name(),
+            nv,
+            dims: f.dims,
+            ports,
+            nodes,
+            links,
+            clamps,
+            factor: Factor::default(),
+            outputs,
+        })
     }
 
     /// `fd_grad`'s host partition, robomorphic computing's: from the datapath of `rnea_grad`'s
@@ -248,7 +330,19 @@ impl Datapath {
             .collect();
         let mut links = rnea_grad.links.clone();
         links.resize(nodes.len(), None);
-        Datapath { kernel: "fd_grad", nv, dims: rnea_grad.dims, ports, nodes, links, outputs }
+        let mut clamps = rnea_grad.clamps.clone();
+        clamps.resize(nodes.len(), None);
+        Datapath {
+            kernel: "fd_grad",
+            nv,
+            dims: rnea_grad.dims,
+            ports,
+            nodes,
+            links,
+            clamps,
+            factor: rnea_grad.factor.clone(),
+            outputs,
+        }
     }
 
     pub fn op(&self, id: HwId) -> HwOp {
@@ -288,8 +382,13 @@ impl Datapath {
     /// (multiplications, additions/subtractions/negations).
     pub fn op_counts(&self) -> (usize, usize) {
         let muls = self.nodes.iter().filter(|o| o.is_mul()).count();
-        let adds = self.nodes.iter().filter(|o| o.is_operation() && !o.is_mul()).count();
+        let adds = self.nodes.iter().filter(|o| o.is_add()).count();
         (muls, adds)
+    }
+
+    /// Reciprocals (the divider's operations).
+    pub fn reciprocals(&self) -> usize {
+        self.nodes.iter().filter(|o| matches!(o, HwOp::Recip(_))).count()
     }
 
     /// Multiplications with a constant operand (cheaper in hardware: shift-and-add).

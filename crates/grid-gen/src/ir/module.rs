@@ -119,6 +119,13 @@ pub struct Robot {
     pub contacts: Vec<Contact>,
     /// The `<origin rpy>` angles the scene's `round_angles` read as multiples of π/2.
     pub rounded_angles: Option<crate::model::RoundedAngles>,
+    /// Per coordinate, a lower bound on M's LTDL pivot over all configurations
+    /// ([`Model::pivot_floor`]; empty with coupled mimic joints): what `fd_grad`'s chip
+    /// partition divides by.
+    pub pivot_floor: Vec<f64>,
+    /// Per coordinate, a lower bound on 1 / M⁻¹ᵢᵢ over all configurations
+    /// ([`Model::minv_floor`]; zero where none is known, empty with coupled mimic joints).
+    pub minv_floor: Vec<f64>,
 }
 
 /// A coupled mimic joint: no coordinate of its own, its position
@@ -180,6 +187,8 @@ impl Robot {
                     q_start: model.group_q(s).0,
                 })
                 .collect(),
+            pivot_floor: model.pivot_floor(),
+            minv_floor: model.minv_floor(),
             q_coordinates: {
                 let mut at = vec![None; model.nq()];
                 for k in 0..model.nv() {

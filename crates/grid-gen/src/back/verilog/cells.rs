@@ -12,8 +12,8 @@ pub fn literal(raw: i128, width: u32) -> String {
     format!("{width}'sh{:x}", raw as u128 & mask)
 }
 
-/// The cell modules `<top>_mul` and `<top>_add`.
-pub fn cells(top: &str, f: &Format) -> String {
+/// The cell modules `<top>_mul` and `<top>_add`, and `<top>_recip` where `recip`.
+pub fn cells(top: &str, f: &Format, recip: bool) -> String {
     let w = f.width;
     let w2 = 2 * w;
     let (max, min) = (literal(f.max_raw(), w), literal(f.min_raw(), w));
@@ -56,11 +56,45 @@ module {top}_add (
     assign y = ovf ? (s[{w}] ? {min} : {max}) : s[{wm}:0];
 endmodule
 
-",
+{recip}",
         label = f.label(),
         wm = w - 1,
         w2m = w2 - 1,
         top_bits = w + 1,
+        recip = if recip { recip_cell(top, f) } else { String::new() },
+    )
+}
+
+/// `<top>_recip`: y = 1 / a as the quotient 2^(2 FRAC) / a, rounded toward zero (a
+/// combinational divider; synthesis builds it from subtractors, one per quotient bit).
+fn recip_cell(top: &str, f: &Format) -> String {
+    let w = f.width;
+    // The dividend 2^(2 FRAC) and every divisor fit in n bits.
+    let n = (2 * f.frac + 2).max(w + 1);
+    let max = literal(f.max_raw(), w);
+    format!(
+        "// y = 1 / a in {label}: 2^{two_frac} / a rounded toward zero, saturated; a <= 0 gives the largest value and sets ovf.
+module {top}_recip (
+    input  wire signed [{wm}:0] a,
+    output wire signed [{wm}:0] y,
+    output wire ovf
+);
+    wire [{nm}:0] one = {n}'d1 << {two_frac};
+    wire [{nm}:0] d = {{{{{pad}{{1'b0}}}}, a}};
+    wire bad = a[{wm}] || (a == {zero});
+    wire [{nm}:0] q = bad ? {n}'d0 : one / d;
+    // q fits when its bits from {wm} up are all zero (it is never negative).
+    assign ovf = bad || (|q[{nm}:{wm}]);
+    assign y = ovf ? {max} : q[{wm}:0];
+endmodule
+
+",
+        label = f.label(),
+        two_frac = 2 * f.frac,
+        wm = w - 1,
+        nm = n - 1,
+        pad = n - w,
+        zero = literal(0, w),
     )
 }
 

@@ -24,7 +24,8 @@ use serde::Serialize;
 use super::names::{comment_text, identifier};
 use super::{GeneratedFile, Target};
 use crate::datapath::{
-    analyse, choose_format, Analysis, Bounds, Datapath, FixedError, Format, Rounding,
+    analyse, choose_format, choose_format_measured, measure, Analysis, Bounds, ChipState, Datapath,
+    FixedError, Format, Measured, Rounding,
 };
 use crate::ir::{KernelKind, Module};
 pub use pipelined::Stages;
@@ -99,6 +100,9 @@ pub struct VerilogOptions {
     /// Bound on every diagonal entry of M⁻¹ (the host partition's input contract; else
     /// sampled from the `minv` kernel, see [`crate::datapath::minv_diagonal`]).
     pub minv_max: Option<f64>,
+    /// Override every coordinate's |τ| bound (the chip partition's input; else
+    /// [`crate::datapath::DEFAULT_TAU_MAX`]).
+    pub tau_max: Option<f64>,
 }
 
 /// How `fd_grad`'s netlist splits the seeds' ∇Dynamics between host and chip.
@@ -109,6 +113,19 @@ pub enum FdGradPartition {
     /// Robomorphic computing's: the host computes q̈ and M⁻¹ (and sin/cos of q); the chip
     /// computes ∂c/∂u and ∂q̈/∂u = −M⁻¹ ∂c/∂u. The netlist is `<robot>_fd_grad_host`.
     Host,
+    /// Everything but sin and cos of q on the chip: from q̇ and τ, M and its LTDL
+    /// factorisation (one reciprocal per coordinate), q̈ = M⁻¹(τ − c), ∂c/∂u at that q̈ and
+    /// ∂q̈/∂u. The netlist is `<robot>_fd_grad_chip`.
+    Chip,
+}
+
+impl FdGradPartition {
+    pub fn name(self) -> &'static str {
+        match self {
+            FdGradPartition::Host => "host",
+            FdGradPartition::Chip => "chip",
+        }
+    }
 }
 
 impl Default for VerilogOptions {
@@ -123,6 +140,7 @@ impl Default for VerilogOptions {
             kernels: DEFAULT_KERNELS.to_vec(),
             fd_grad: None,
             minv_max: None,
+            tau_max: None,
         }
     }
 }
@@ -148,6 +166,10 @@ pub struct NetlistStats {
     pub constant_multipliers: usize,
     /// Adder/subtractor units (negation included).
     pub adders: usize,
+    /// Reciprocal (divider) units: `fd_grad`'s chip partition only (pipelined: one per
+    /// coordinate; shared: one).
+    #[serde(skip_serializing_if = "is_zero")]
+    pub dividers: usize,
     /// Data registers (each WIDTH bits), control excluded.
     pub registers: usize,
     /// Clock edges from the edge that takes a state to the one that raises `out_valid`.
@@ -160,6 +182,10 @@ pub struct NetlistStats {
     pub error_bound: f64,
     /// Largest magnitude the analysis allows any value (must be ≤ the format's maximum).
     pub range_bound: f64,
+    /// `fd_grad`'s chip partition: the largest output error measured on seeded states (its
+    /// `error_bound` is infinite: the analysis bounds its ranges, not its error).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub measured_error: Option<f64>,
 }
 
 /// One kernel planned for hardware: the datapath, its format and analysis, its names.
@@ -174,6 +200,9 @@ pub struct Netlist {
     pub top: String,
     pub names: PortNames,
     pub layout: Layout,
+    /// The measured error, where the analysis bounds the ranges only (`fd_grad`'s chip
+    /// partition): the format's fraction bits rest on it.
+    pub measured: Option<Measured>,
 }
 
 /// Where each operation sits in time, by architecture (each carries its parameters).
@@ -218,35 +247,81 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, V
             datapath,
             &bounds,
             format!("{stem}_{}", kind.name()),
+            None,
         )?);
     }
-    if options.fd_grad == Some(FdGradPartition::Host) {
-        let kind = KernelKind::RneaGrad;
-        let rnea_grad = module.function(kind).ok_or(VerilogError::Missing(kind))?;
+    if let Some(partition) = options.fd_grad {
         let robot = &module.robot;
         // The product reads whole columns of ∂c/∂u.
         if robot.specialisation.selects() {
-            return Err(VerilogError::Arch(
-                "fd_grad's host partition multiplies whole columns of rnea_grad, and the scene selects gradient entries; drop the scene's [gradient] selection".into(),
-            ));
+            return Err(VerilogError::Arch(format!(
+                "fd_grad's {} partition multiplies whole columns of rnea_grad, and the scene selects gradient entries; drop the scene's [gradient] selection",
+                partition.name()
+            )));
         }
+        let function = |kind| module.function(kind).ok_or(VerilogError::Missing(kind));
         // ∂c/∂q and ∂c/∂q̇ alone: the derivatives with respect to forces are not multiplied.
-        let mut dc = rnea_grad.clone();
+        let mut dc = function(KernelKind::RneaGrad)?.clone();
         dc.outputs.retain(|o| matches!(o.name, "dc_dq" | "dc_dqd"));
-        let datapath = Datapath::fd_grad_host(&Datapath::new(&dc, robot.nv())?, |i, k| {
-            robot.root_of(i) == robot.root_of(k)
-        });
-        let diagonal = match options.minv_max {
-            Some(b) => vec![b; robot.nv()],
-            None => crate::datapath::minv_diagonal(
-                module.function(KernelKind::Minv).ok_or(VerilogError::MinvBound)?,
-                robot,
-            ),
-        };
+        let dc = Datapath::new(&dc, robot.nv())?;
+        let top = format!("{stem}_fd_grad_{}", partition.name());
         let mut bounds = bounds.clone();
-        bounds.minv = crate::datapath::minv_entries(&diagonal);
-        let top = format!("{stem}_fd_grad_host");
-        out.push(netlist(module, options, KernelKind::FdGrad, datapath, &bounds, top)?);
+        let mut states = None;
+        let datapath = match partition {
+            FdGradPartition::Host => {
+                let diagonal = match options.minv_max {
+                    Some(b) => vec![b; robot.nv()],
+                    None => crate::datapath::minv_diagonal(
+                        module.function(KernelKind::Minv).ok_or(VerilogError::MinvBound)?,
+                        robot,
+                    ),
+                };
+                bounds.minv = crate::datapath::minv_entries(&diagonal);
+                Datapath::fd_grad_host(&dc, |i, k| robot.root_of(i) == robot.root_of(k))
+            }
+            FdGradPartition::Chip => {
+                if robot.pivot_floor.is_empty() {
+                    return Err(VerilogError::Arch("fd_grad's chip partition factorises M, and with coupled mimic joints M is a projection; use --mimic independent or --fd-grad-netlist host".into()));
+                }
+                if let Some(j) = robot.minv_floor.iter().position(|&f| f <= 0.0) {
+                    return Err(VerilogError::Arch(format!(
+                        "fd_grad's chip partition bounds q̈ through M⁻¹'s diagonal, and nothing bounds M⁻¹'s entry at joint `{}` over all configurations (its body or its parent's has no inertia, or it is prismatic under a moving body); use --fd-grad-netlist host",
+                        comment_text(&robot.joint_names[j])
+                    )));
+                }
+                if let Some(j) = robot.pivot_floor.iter().position(|&f| f <= 0.0) {
+                    return Err(VerilogError::Arch(format!(
+                        "fd_grad's chip partition divides by the pivots of M's factorisation, and the body of joint `{}` has no inertia about its axis, so nothing bounds its pivot away from zero; use --fd-grad-netlist host",
+                        comment_text(&robot.joint_names[j])
+                    )));
+                }
+                if let Some(t) = options.tau_max {
+                    for b in bounds.tau.iter_mut().filter(|b| **b > 0.0) {
+                        *b = t;
+                    }
+                }
+                let rnea = function(KernelKind::Rnea)?;
+                states = Some(crate::datapath::chip_states(
+                    rnea,
+                    robot,
+                    &bounds,
+                    crate::datapath::MEASURED_STATES,
+                ));
+                let bias = Datapath::new(rnea, robot.nv())?;
+                let mass = Datapath::new(function(KernelKind::MassMatrix)?, robot.nv())?;
+                crate::datapath::fd_grad_chip(
+                    &bias,
+                    &mass,
+                    &dc,
+                    &robot.parents,
+                    &robot.pivot_floor,
+                    &robot.minv_floor,
+                    &bounds.tau.iter().map(|&b| b > 0.0).collect::<Vec<_>>(),
+                )
+            }
+        };
+        let states = states.as_deref();
+        out.push(netlist(module, options, KernelKind::FdGrad, datapath, &bounds, top, states)?);
     }
     Ok(out)
 }
@@ -290,7 +365,11 @@ fn netlist(
     datapath: Datapath,
     bounds: &Bounds,
     top: String,
+    measured_on: Option<&[ChipState]>,
 ) -> Result<Netlist, VerilogError> {
+    if let Some(states) = measured_on {
+        return measured_netlist(module, options, kind, datapath, bounds, top, states);
+    }
     let (format, analysis) = match options.format {
         FormatChoice::Fixed { width, frac } => {
             let format = Format::new(width, frac, options.rounding)?;
@@ -310,14 +389,89 @@ fn netlist(
             })?
         }
     };
-    let layout = match options.arch {
-        Arch::Shared { multipliers, adders } => {
-            Layout::Shared(SharedSchedule::new(&datapath, multipliers, adders))
-        }
-        Arch::Pipelined { stage_depth } => Layout::Pipelined(Stages::new(&datapath, stage_depth)),
-    };
+    let layout = layout_of(&datapath, options.arch);
     let names = PortNames::new(&module.robot, &datapath);
-    Ok(Netlist { kind, datapath, format, analysis, bounds: bounds.clone(), top, names, layout })
+    Ok(Netlist {
+        kind,
+        datapath,
+        format,
+        analysis,
+        bounds: bounds.clone(),
+        top,
+        names,
+        layout,
+        measured: None,
+    })
+}
+
+fn layout_of(datapath: &Datapath, arch: Arch) -> Layout {
+    match arch {
+        Arch::Shared { multipliers, adders } => {
+            Layout::Shared(SharedSchedule::new(datapath, multipliers, adders))
+        }
+        Arch::Pipelined { stage_depth } => Layout::Pipelined(Stages::new(datapath, stage_depth)),
+    }
+}
+
+/// The largest proven magnitude of any node's exact value.
+fn range_of(a: &Analysis) -> f64 {
+    a.lo.iter().zip(&a.hi).map(|(l, h)| l.abs().max(h.abs())).fold(0.0, f64::max)
+}
+
+/// A netlist whose error the analysis cannot bound (module `measure`): the ranges proven,
+/// the fraction bits from the error measured on `states`.
+fn measured_netlist(
+    module: &Module,
+    options: &VerilogOptions,
+    kind: KernelKind,
+    datapath: Datapath,
+    bounds: &Bounds,
+    top: String,
+    states: &[ChipState],
+) -> Result<Netlist, VerilogError> {
+    let (format, analysis, measured) = match options.format {
+        FormatChoice::Fixed { width, frac } => {
+            let format = Format::new(width, frac, options.rounding)?;
+            let analysis = analyse(&datapath, bounds, frac, options.rounding);
+            let needed = range_of(&analysis);
+            if !(needed.is_finite() && needed <= format.max_value()) {
+                return Err(FixedError::Range {
+                    kernel: datapath.kernel.to_string(),
+                    width,
+                    frac,
+                    needed,
+                    max: format.max_value(),
+                }
+                .into());
+            }
+            let measured = measure(&datapath, &format, states);
+            (format, analysis, measured)
+        }
+        FormatChoice::Auto { max_error } => {
+            choose_format_measured(&datapath, bounds, options.rounding, max_error, states)
+                .map_err(|error| VerilogError::Refused {
+                    error,
+                    why: format!(
+                        "the proven range of its values is {:.1e}, so {} integer bits leave too few for the fraction",
+                        range_of(&analyse(&datapath, bounds, 0, options.rounding)),
+                        range_of(&analyse(&datapath, bounds, 0, options.rounding)).log2().ceil() + 1.0
+                    ),
+                })?
+        }
+    };
+    let layout = layout_of(&datapath, options.arch);
+    let names = PortNames::new(&module.robot, &datapath);
+    Ok(Netlist {
+        kind,
+        datapath,
+        format,
+        analysis,
+        bounds: bounds.clone(),
+        top,
+        names,
+        layout,
+        measured: Some(measured),
+    })
 }
 
 impl Netlist {
@@ -336,20 +490,31 @@ impl Netlist {
             multipliers,
             constant_multipliers,
             adders,
+            dividers,
             registers,
             latency_cycles,
             cycles_per_state,
         ) = match &self.layout {
             Layout::Shared(s) => {
-                (s.multipliers, 0, s.adders, s.registers, s.cycles + 1, s.cycles + 1)
+                (s.multipliers, 0, s.adders, s.dividers, s.registers, s.cycles + 1, s.cycles + 1)
             }
-            Layout::Pipelined(st) => {
-                (muls, dp.constant_muls(), adds, st.registers(), st.count as usize + 1, 1)
-            }
+            Layout::Pipelined(st) => (
+                muls,
+                dp.constant_muls(),
+                adds,
+                dp.reciprocals(),
+                st.registers(),
+                st.count as usize + 1,
+                1,
+            ),
         };
         NetlistStats {
             kernel: self.kind,
-            partition: self.reads_minv().then_some(FdGradPartition::Host),
+            partition: (self.kind == KernelKind::FdGrad).then_some(if self.reads_minv() {
+                FdGradPartition::Host
+            } else {
+                FdGradPartition::Chip
+            }),
             arch: self.arch().name(),
             stage_depth: match &self.layout {
                 Layout::Pipelined(st) => Some(st.stage_depth),
@@ -360,12 +525,17 @@ impl Netlist {
             multipliers,
             constant_multipliers,
             adders,
+            dividers,
             registers,
             latency_cycles,
             cycles_per_state,
             outputs: dp.nonzero_outputs().len(),
             error_bound: self.analysis.output_error,
-            range_bound: self.analysis.needed,
+            range_bound: match self.measured {
+                Some(_) => range_of(&self.analysis),
+                None => self.analysis.needed,
+            },
+            measured_error: self.measured.as_ref().map(|m| m.error),
         }
     }
 
@@ -385,7 +555,7 @@ impl Netlist {
     /// The netlist (cells and top module) as Verilog-2005.
     pub fn verilog(&self, robot: &crate::ir::Robot) -> String {
         let mut out = self.header(robot);
-        out.push_str(&cells::cells(&self.top, &self.format));
+        out.push_str(&cells::cells(&self.top, &self.format, self.datapath.reciprocals() > 0));
         match &self.layout {
             Layout::Pipelined(st) => out.push_str(&pipelined::top(self, st)),
             Layout::Shared(s) => out.push_str(&shared::top(self, s)),
@@ -427,6 +597,8 @@ impl Netlist {
         h.push_str(&crate::back::specialisation_lines(robot));
         if self.reads_minv() {
             h.push_str("// fd_grad, host partition (robomorphic computing's): dqdd_dq and dqdd_dqd = -Minv * (dc_dq, dc_dqd) at the qdd and Minv the host computed for this state.\n");
+        } else if self.measured.is_some() {
+            h.push_str("// fd_grad, chip partition: M and its LTDL factorisation (one reciprocal per state-dependent pivot), qdd = Minv (tau - c), dqdd_dq and dqdd_dqd = -Minv * (dc_dq, dc_dqd) at that qdd; the host computes sin and cos of q only.\n");
         } else {
             h.push_str(&format!("// {}: {}\n", self.kind.name(), comment_text(self.kind.doc())));
         }
@@ -471,18 +643,33 @@ impl Netlist {
         } else {
             String::new()
         };
-        h.push_str(&format!(
-            "// Analysed for |qd| <= {}, |qdd| <= {} (per joint, in order){forces}{minv}: every value within {:.6e}; every output within {:.6e} of exact.\n",
-            list(&self.bounds.qd),
-            list(&self.bounds.qdd),
-            s.range_bound,
-            s.error_bound
-        ));
+        match &self.measured {
+            None => h.push_str(&format!(
+                "// Analysed for |qd| <= {}, |qdd| <= {} (per joint, in order){forces}{minv}: every value within {:.6e}; every output within {:.6e} of exact.\n",
+                list(&self.bounds.qd),
+                list(&self.bounds.qdd),
+                s.range_bound,
+                s.error_bound
+            )),
+            Some(m) => h.push_str(&format!(
+                "// Analysed for |qd| <= {}, |tau| <= {} (per joint, in order): every exact value within {:.6e} (M's pivots and Minv's diagonal bounded from the link inertias). The error is measured, not bounded: at most {:.6e} on the outputs over {} seeded states with |qdd| <= {}; a saturation anywhere sets `overflow`.\n",
+                list(&self.bounds.qd),
+                list(&self.bounds.tau),
+                s.range_bound,
+                m.error,
+                m.states,
+                list(&self.bounds.qdd),
+            )),
+        }
         h.push_str("//\n// Ports (inputs and outputs raw two's complement, value = raw * 2^-FRAC; outputs valid while out_valid is high):\n");
         h.push_str(&self.names.doc(robot));
         h.push('\n');
         h
     }
+}
+
+fn is_zero(n: &usize) -> bool {
+    *n == 0
 }
 
 fn list(v: &[f64]) -> String {

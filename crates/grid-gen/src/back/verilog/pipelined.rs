@@ -126,14 +126,13 @@ pub fn top(n: &Netlist, st: &Stages) -> String {
                 }
                 HwOp::Neg(a) => ("add", literal(0, w), operand(n, st, a, s), Some("1'b1")),
                 HwOp::Mul(a, b) => ("mul", operand(n, st, a, s), operand(n, st, b, s), None),
+                HwOp::Recip(a) => ("recip", operand(n, st, a, s), String::new(), None),
                 HwOp::Port(_) | HwOp::Const(_) => unreachable!("operations only"),
             };
             let sub = sub.map_or(String::new(), |s| format!(", .sub({s})"));
-            let _ = writeln!(
-                v,
-                "    {}_{cell} u{i} (.a({a}), .b({b}){sub}, .y(n{i}), .ovf(o{i}));",
-                n.top
-            );
+            let b = if b.is_empty() { b } else { format!(", .b({b})") };
+            let _ =
+                writeln!(v, "    {}_{cell} u{i} (.a({a}){b}{sub}, .y(n{i}), .ovf(o{i}));", n.top);
             flags.push(format!("o{i}"));
         }
         let _ = writeln!(v, "    reg ovf{s};");

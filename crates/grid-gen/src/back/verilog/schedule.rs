@@ -1,5 +1,6 @@
 //! The shared architecture's schedule: a cycle-by-cycle list schedule of the datapath on
-//! M multipliers and A adders (every operation one cycle, results registered), priority
+//! M multipliers and A adders, and one divider where the datapath has reciprocals (every
+//! operation one cycle, results registered), priority
 //! to the longest path to an output, then register allocation by live interval so that
 //! a register is reused once its value's last reader has run.
 
@@ -13,6 +14,8 @@ use crate::datapath::{Datapath, HwOp};
 pub enum Unit {
     Mul(usize),
     Add(usize),
+    /// The divider (reciprocals).
+    Div(usize),
 }
 
 /// Where and when every operation runs, and where every value lives.
@@ -21,6 +24,8 @@ pub struct SharedSchedule {
     /// The units it was scheduled on.
     pub multipliers: usize,
     pub adders: usize,
+    /// 1 where the datapath has reciprocals, else 0.
+    pub dividers: usize,
     /// Cycles of computation per state (the load cycle excluded).
     pub cycles: usize,
     /// (cycle, unit) of each operation; `None` for ports and constants.
@@ -51,9 +56,14 @@ impl SharedSchedule {
                 height[i] = 1 + users[i].iter().map(|&u| height[u]).max().unwrap_or(0);
             }
         }
-        let mut ready: [BinaryHeap<(usize, Reverse<usize>)>; 2] =
-            [BinaryHeap::new(), BinaryHeap::new()];
-        let kind = |i: usize| usize::from(!dp.nodes[i].is_mul());
+        let mut ready: [BinaryHeap<(usize, Reverse<usize>)>; 3] =
+            [BinaryHeap::new(), BinaryHeap::new(), BinaryHeap::new()];
+        let kind = |i: usize| match dp.nodes[i] {
+            HwOp::Mul(..) => 0,
+            HwOp::Recip(_) => 2,
+            _ => 1,
+        };
+        let dividers = usize::from(dp.reciprocals() > 0);
         for i in 0..n {
             if dp.nodes[i].is_operation() && waiting[i] == 0 {
                 ready[kind(i)].push((height[i], Reverse(i)));
@@ -62,13 +72,14 @@ impl SharedSchedule {
         let mut slot = vec![None; n];
         let mut left = dp.nodes.iter().filter(|o| o.is_operation()).count();
         let mut cycle = 0;
-        let units = [multipliers, adders];
+        let units = [multipliers, adders, dividers];
         while left > 0 {
             let mut next = Vec::new();
             for (k, heap) in ready.iter_mut().enumerate() {
                 for u in 0..units[k] {
                     let Some((_, Reverse(i))) = heap.pop() else { break };
-                    slot[i] = Some((cycle, if k == 0 { Unit::Mul(u) } else { Unit::Add(u) }));
+                    let unit = [Unit::Mul, Unit::Add, Unit::Div][k](u);
+                    slot[i] = Some((cycle, unit));
                     left -= 1;
                     for &s in &users[i] {
                         waiting[s] -= 1;
@@ -127,7 +138,7 @@ impl SharedSchedule {
             // A value nobody reads (a port only sin/cos would have used) frees at once.
             free.push(Reverse((last_use[i].max(d), r)));
         }
-        SharedSchedule { multipliers, adders, cycles, slot, reg, registers }
+        SharedSchedule { multipliers, adders, dividers, cycles, slot, reg, registers }
     }
 }
 
@@ -164,6 +175,8 @@ mod tests {
             },
             ports: vec![crate::datapath::Port::Sin(0), crate::datapath::Port::Cos(0)],
             links: vec![None; nodes.len()],
+            clamps: vec![None; nodes.len()],
+            factor: Default::default(),
             nodes,
             outputs: vec![crate::datapath::DatapathOutput {
                 name: "c",

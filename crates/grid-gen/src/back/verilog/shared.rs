@@ -14,6 +14,7 @@ fn unit_name(u: Unit) -> String {
     match u {
         Unit::Mul(k) => format!("m{k}"),
         Unit::Add(k) => format!("a{k}"),
+        Unit::Div(k) => format!("d{k}"),
     }
 }
 
@@ -37,7 +38,11 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
     for r in 0..s.registers {
         let _ = writeln!(v, "    reg signed [{}:0] r{r};", w - 1);
     }
-    let units: Vec<Unit> = (0..muls).map(Unit::Mul).chain((0..adds).map(Unit::Add)).collect();
+    let units: Vec<Unit> = (0..muls)
+        .map(Unit::Mul)
+        .chain((0..adds).map(Unit::Add))
+        .chain((0..s.dividers).map(Unit::Div))
+        .collect();
     for &u in &units {
         let m = unit_name(u);
         let _ = writeln!(v, "    reg signed [{wm}:0] {m}_a, {m}_b;\n    wire signed [{wm}:0] {m}_y;\n    wire {m}_o;", wm = w - 1);
@@ -52,6 +57,10 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
             Unit::Add(_) => {
                 let _ = writeln!(v, "    reg {m}_s;\n    {}_add u{m} (.a({m}_a), .b({m}_b), .sub({m}_s), .y({m}_y), .ovf({m}_o));", n.top);
             }
+            Unit::Div(_) => {
+                let _ =
+                    writeln!(v, "    {}_recip u{m} (.a({m}_a), .y({m}_y), .ovf({m}_o));", n.top);
+            }
         }
     }
 
@@ -64,9 +73,12 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
     }
 
     let _ = writeln!(v, "\n    // Operand selection.\n    always @(*) begin");
+    // An idle divider divides one by one (zero would raise the overflow flag).
+    let one = literal(n.format.quantize(1.0).0, w);
     for &u in &units {
         let m = unit_name(u);
-        let _ = write!(v, "        {m}_a = {zero}; {m}_b = {zero};");
+        let idle = if matches!(u, Unit::Div(_)) { &one } else { &zero };
+        let _ = write!(v, "        {m}_a = {idle}; {m}_b = {zero};");
         if matches!(u, Unit::Add(_)) {
             let _ = write!(v, " {m}_s = 1'b0;");
         }
@@ -82,6 +94,8 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
                 HwOp::Sub(a, b) => (read(a), read(b), Some(true)),
                 HwOp::Neg(a) => (zero.clone(), read(a), Some(true)),
                 HwOp::Mul(a, b) => (read(a), read(b), None),
+                // The divider has no second operand; its `_b` is driven and unread.
+                HwOp::Recip(a) => (read(a), zero.clone(), None),
                 HwOp::Port(_) | HwOp::Const(_) => unreachable!("operations only"),
             };
             let _ = write!(v, " {m}_a = {a}; {m}_b = {b};");
