@@ -852,7 +852,9 @@ fn netlists_take_forces_bit_exact_and_within_bound() {
 
 /// A seeded random tree of `n` joints (revolute about random axes, one prismatic with
 /// limits), random origins and positive-definite inertias: a robot no file holds.
-fn random_tree(rng: &mut Rng, n: usize) -> String {
+/// A seeded random tree of `n` links with box-like inertias; the last joint prismatic
+/// where `prismatic`, the others revolute.
+fn random_tree(rng: &mut Rng, n: usize, prismatic: bool) -> String {
     let mut links = String::from(r#"<link name="base"/>"#);
     let mut joints = String::new();
     for j in 0..n {
@@ -871,7 +873,7 @@ fn random_tree(rng: &mut Rng, n: usize) -> String {
         let xyz = rng.vec(3, -0.3, 0.3);
         let rpy = rng.vec(3, -1.0, 1.0);
         let axis = rng.vec(3, -1.0, 1.0);
-        let (kind, limit) = if j == n - 1 {
+        let (kind, limit) = if j == n - 1 && prismatic {
             ("prismatic", r#"<limit lower="-0.3" upper="0.3" velocity="1" effort="1"/>"#)
         } else {
             ("revolute", r#"<limit lower="-3.1" upper="3.1" velocity="3" effort="1"/>"#)
@@ -895,14 +897,14 @@ fn fd_grad_host_on_random_trees_and_through_eval() {
     }
     let mut rng = Rng(58);
     for (k, n) in [3, 4, 5].into_iter().enumerate() {
-        let urdf = random_tree(&mut rng, n);
+        let urdf = random_tree(&mut rng, n, true);
         let (model, _) = grid_gen::Model::from_urdf_str("random.urdf", &urdf, false)
             .map_err(|e| e.render_plain())
             .unwrap();
         let arch = if k == 1 { BOTH[1] } else { BOTH[0] };
         run_host(model, &[arch], 10);
     }
-    let urdf = random_tree(&mut rng, 3);
+    let urdf = random_tree(&mut rng, 3, true);
     let (model, _) = grid_gen::Model::from_urdf_str("random.urdf", &urdf, false).unwrap();
     let json = r#"{"states": [{"q": [0.4, -1.2, 0.1], "qd": [1.5, -2.0, 0.5], "tau": [3.0, -1.0, 2.0]},
                               {"q": [0.4, -1.2, 0.1], "qd": [1.5, -2.0, 0.5], "qdd": [3.0, -1.0, 2.0]}]}"#;
@@ -968,4 +970,67 @@ fn fd_grad_host_refusals_say_why() {
         e.contains("no format of at most 96 bits") && e.contains("joints from the root"),
         "{e}"
     );
+}
+
+/// `fd_grad`'s chip partition on seeded random trees no file holds (revolute joints: a
+/// prismatic joint under a moving body is refused, below) and on a spherical joint.
+#[test]
+fn fd_grad_chip_on_random_trees_and_a_spherical_joint() {
+    let mut rng = Rng(5858);
+    for (k, n) in [3, 4, 5].into_iter().enumerate() {
+        let urdf = random_tree(&mut rng, n, false);
+        let (model, _) = grid_gen::Model::from_urdf_str("random.urdf", &urdf, false)
+            .map_err(|e| e.render_plain())
+            .unwrap();
+        let arch = if k == 1 { BOTH[1] } else { BOTH[0] };
+        run_chip(model, &[arch], 10);
+    }
+    // The spherical-joint arm with its prismatic joint made revolute.
+    let ball =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/ball_arm.urdf");
+    let urdf = std::fs::read_to_string(ball)
+        .unwrap()
+        .replace(r#"name="slide" type="prismatic""#, r#"name="slide" type="revolute""#);
+    let (model, _) = grid_gen::Model::from_urdf_str("ball_arm.urdf", &urdf, false)
+        .map_err(|e| e.render_plain())
+        .unwrap();
+    assert!(!model.spherical.is_empty());
+    run_chip(model, &[BOTH[1]], 8);
+}
+
+/// The chip partition refuses what its proofs do not cover, naming the joint: a prismatic
+/// joint under a moving body (Panda's fingers), a body without inertia (nothing bounds its
+/// pivot), coupled mimic joints (M is a projection); and a given format too narrow for
+/// the proven ranges.
+#[test]
+fn fd_grad_chip_refusals_say_why() {
+    let chip = VerilogOptions {
+        kernels: vec![],
+        fd_grad: Some(FdGradPartition::Chip),
+        ..VerilogOptions::default()
+    };
+    let lower = |model: &grid_gen::Model| {
+        let kernels = vec![KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Rnea];
+        ir::lower(model, GRAVITY, &LowerOptions { kernels, ..LowerOptions::default() }).unwrap()
+    };
+    let e = plan(&lower(&load("panda")), &chip).unwrap_err().to_string();
+    assert!(e.contains("panda_finger_joint1") && e.contains("prismatic"), "{e}");
+    let massless = r#"<robot name="m"><link name="base"/>
+        <link name="a"/>
+        <link name="b"><inertial><mass value="1"/><inertia ixx="0.1" ixy="0" ixz="0" iyy="0.1" iyz="0" izz="0.1"/></inertial></link>
+        <joint name="ja" type="continuous"><parent link="base"/><child link="a"/><axis xyz="0 0 1"/></joint>
+        <joint name="jb" type="continuous"><parent link="a"/><child link="b"/><origin xyz="0.3 0 0"/><axis xyz="0 1 0"/></joint>
+        </robot>"#;
+    let (model, _) = grid_gen::Model::from_urdf_str("m.urdf", massless, false).unwrap();
+    let e = plan(&lower(&model), &chip).unwrap_err().to_string();
+    assert!(e.contains("`ja`") && e.contains("no inertia"), "{e}");
+    let mimic = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../../tests/fixtures/mimic_arm.urdf");
+    let e = plan(&lower(&grid_gen_test_support::load_coupled_urdf(&mimic)), &chip)
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("coupled mimic"), "{e}");
+    let narrow = VerilogOptions { format: FormatChoice::Fixed { width: 32, frac: 16 }, ..chip };
+    let e = plan(&lower(&load("grid_iiwa")), &narrow).unwrap_err().to_string();
+    assert!(e.contains("cannot hold kernel `fd_grad`"), "{e}");
 }

@@ -287,14 +287,26 @@ pub fn fd_grad_chip(
         outputs.push(DatapathOutput { name, shape: o.shape, ids });
     }
     let _ = qdd;
-    let live = live_nodes(&g.nodes, &outputs);
+    // The bounds read M's diagonal and the right-hand sides: kept (an entry only a folded
+    // division read is a constant, which costs nothing).
+    let roots: Vec<HwId> = g
+        .factor
+        .diagonal
+        .iter()
+        .copied()
+        .chain(g.factor.rhs.iter().flat_map(|b| b.iter().map(|r| r.1)))
+        .collect();
+    let live = live_nodes(&g.nodes, &outputs, &roots);
     compact(g, live, outputs, nv, mass.dims)
 }
 
 /// Which nodes some output reads (the imports bring in outputs nobody uses, e.g. `rnea`'s
 /// is read but the transforms of a leaf's M column may not be).
-fn live_nodes(nodes: &[HwOp], outputs: &[DatapathOutput]) -> Vec<bool> {
+fn live_nodes(nodes: &[HwOp], outputs: &[DatapathOutput], roots: &[HwId]) -> Vec<bool> {
     let mut live = vec![false; nodes.len()];
+    for id in roots {
+        live[id.0 as usize] = true;
+    }
     for o in outputs {
         for id in &o.ids {
             live[id.0 as usize] = true;
@@ -357,8 +369,7 @@ fn compact(
         .into_iter()
         .map(|o| DatapathOutput { ids: o.ids.iter().map(|id| new[id.0 as usize]).collect(), ..o })
         .collect();
-    // Every node a bound reads is live: M's diagonal (each pivot reads it) and every
-    // solve's right-hand side (its first step reads each entry, unless it is zero).
+    // Every node a bound reads is live (a root of `live_nodes`).
     let remap = |x: &HwId| match new[x.0 as usize] {
         HwId(u32::MAX) => unreachable!("a bound reads a dead node"),
         y => y,
