@@ -1034,3 +1034,42 @@ fn fd_grad_chip_refusals_say_why() {
     let e = plan(&lower(&load("grid_iiwa")), &narrow).unwrap_err().to_string();
     assert!(e.contains("cannot hold kernel `fd_grad`"), "{e}");
 }
+
+/// Yosys synthesises `fd_grad`'s chip partition, divider included, in both architectures
+/// (the double pendulum's: one state-dependent pivot): one cell instance per operation
+/// (pipelined, to word-level cells: its 97 gate-level multipliers would take minutes) or
+/// per unit (shared, to gates).
+#[test]
+fn yosys_synthesises_a_chip_netlist() {
+    if !tool_or_skip("Yosys", yosys_available()) {
+        return;
+    }
+    let model = load("double_pendulum_continuous");
+    let kernels = vec![KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Rnea];
+    let m =
+        ir::lower(&model, GRAVITY, &LowerOptions { kernels, ..LowerOptions::default() }).unwrap();
+    for arch in [BOTH[0], Arch::Shared { multipliers: 2, adders: 2 }] {
+        let options = VerilogOptions {
+            arch,
+            kernels: vec![],
+            fd_grad: Some(FdGradPartition::Chip),
+            ..VerilogOptions::default()
+        };
+        let n = plan(&m, &options).unwrap().remove(0);
+        let report = match arch {
+            Arch::Pipelined { .. } => synthesise_with(&n, &m.robot, "synth -run begin:fine"),
+            Arch::Shared { .. } => synthesise(&n, &m.robot),
+        };
+        let s = n.stats();
+        assert!(s.dividers >= 1);
+        for (cell, units) in [("mul", s.multipliers), ("add", s.adders), ("recip", s.dividers)] {
+            assert_eq!(
+                count(&report, &format!("{}_{cell}", n.top)),
+                units,
+                "{} {}: {cell} instances",
+                n.top,
+                n.arch().name()
+            );
+        }
+    }
+}
