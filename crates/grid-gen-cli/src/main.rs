@@ -149,13 +149,19 @@ struct VerilogArgs {
     force_max: Option<f64>,
     /// Also build fd_grad's netlist. `host`: robomorphic computing's partition, the host
     /// computes q̈ and M⁻¹, the netlist ∂q̈/∂q and ∂q̈/∂q̇ = −M⁻¹ ∂c/∂u
-    /// (`<robot>_fd_grad_host`).
+    /// (`<robot>_fd_grad_host`). `chip`: the netlist takes τ and computes M, its
+    /// factorisation (with a divider), q̈ and both derivatives (`<robot>_fd_grad_chip`;
+    /// its ranges are proven, its error measured).
     #[arg(long, value_name = "PARTITION")]
     fd_grad_netlist: Option<grid_gen::back::verilog::FdGradPartition>,
     /// With --fd-grad-netlist host: bound on every diagonal entry of M⁻¹, which the host
     /// checks (default: twice the largest over 256 seeded configurations).
     #[arg(long, value_name = "B")]
     minv_max: Option<f64>,
+    /// With --fd-grad-netlist chip: bound on every actuated joint's |τ| (N m or N;
+    /// default 1000; a floating base takes none).
+    #[arg(long, value_name = "T")]
+    tau_max: Option<f64>,
 }
 
 /// `--arch`: the Verilog architectures, whose sizes are their own flags.
@@ -187,6 +193,7 @@ impl VerilogArgs {
             ("--qdd-max", self.qdd_max),
             ("--force-max", self.force_max),
             ("--minv-max", self.minv_max),
+            ("--tau-max", self.tau_max),
         ] {
             if let Some(v) = v {
                 if !(v.is_finite() && v > 0.0) {
@@ -209,6 +216,7 @@ impl VerilogArgs {
             force_max: self.force_max,
             fd_grad: self.fd_grad_netlist,
             minv_max: self.minv_max,
+            tau_max: self.tau_max,
             ..VerilogOptions::default()
         })
     }
@@ -875,8 +883,9 @@ fn accuracy(
     args: AccuracyArgs,
 ) -> ExitCode {
     use grid_gen::accuracy::{self, NumberFormat};
-    if verilog.fd_grad_netlist.is_some() || verilog.minv_max.is_some() {
-        return fail("--fd-grad-netlist and --minv-max choose a netlist to generate or simulate; `accuracy` measures number formats on the kernels themselves");
+    if verilog.fd_grad_netlist.is_some() || verilog.minv_max.is_some() || verilog.tau_max.is_some()
+    {
+        return fail("--fd-grad-netlist, --minv-max and --tau-max choose a netlist to generate or simulate; `accuracy` measures number formats on the kernels themselves");
     }
     let (model, gravity) = (&loaded.model, loaded.gravity());
     let gradient = config.options.lower.gradient;

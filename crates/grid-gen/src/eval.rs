@@ -994,8 +994,12 @@ pub struct VerilogOutput {
     pub drnea_dqd: Option<Matrix>,
     #[serde(rename = "M")]
     pub m: Matrix,
-    /// `fd_grad`'s host partition (`--fd-grad-netlist host`), on states with `tau`: the
-    /// host's q̈ and M⁻¹ (the reference's, in f64) go in, ∂q̈/∂q and ∂q̈/∂q̇ come out.
+    /// `fd_grad`'s chip partition (`--fd-grad-netlist chip`), on states with `tau`: q̈.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub fd: Option<Vec<f64>>,
+    /// `fd_grad`'s netlist, on states with `tau`: ∂q̈/∂q and ∂q̈/∂q̇. The host partition
+    /// (`--fd-grad-netlist host`) takes the host's q̈ and M⁻¹ (the reference's, in f64);
+    /// the chip partition computes them.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub dfd_dq: Option<Matrix>,
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -1021,6 +1025,8 @@ pub enum VerilogEvalError {
     Back(#[from] crate::back::verilog::VerilogError),
     #[error(transparent)]
     Sim(#[from] crate::tools::icarus::SimError),
+    #[error("state {index}: `tau` acts on the floating base ({value} at entry {entry}); fd_grad's chip partition takes no τ for the unactuated base: give 0 there, or use --fd-grad-netlist host")]
+    BaseTau { index: usize, entry: usize, value: f64 },
 }
 
 /// Simulates the `rnea_grad` and `mass_matrix` netlists (built with `options`, whose
@@ -1043,9 +1049,21 @@ pub fn evaluate_verilog(
     }
     let nv = model.nv();
     let mut kernels = DEFAULT_KERNELS.to_vec();
-    if options.fd_grad.is_some() && options.minv_max.is_none() {
+    let chip = options.fd_grad == Some(crate::back::verilog::FdGradPartition::Chip);
+    if options.fd_grad.is_some() && options.minv_max.is_none() && !chip {
         // The host partition's bound on M⁻¹ samples the minv kernel.
         kernels.push(KernelKind::Minv);
+    }
+    if chip {
+        // The chip partition's bias forces (and its measurement's τ).
+        kernels.push(KernelKind::Rnea);
+        for (index, s) in file.states.iter().enumerate() {
+            let base = if model.floating { 6 } else { 0 };
+            let tau = s.tau.as_deref().unwrap_or(&[]);
+            if let Some(entry) = tau.iter().take(base).position(|t| *t != 0.0) {
+                return Err(VerilogEvalError::BaseTau { index, entry, value: tau[entry] });
+            }
+        }
     }
     let module = ir::lower(model, gravity, &LowerOptions { kernels, ..LowerOptions::default() })?;
     let netlists = plan(
@@ -1062,6 +1080,7 @@ pub fn evaluate_verilog(
             drnea_dq: None,
             drnea_dqd: None,
             m: Vec::new(),
+            fd: None,
             dfd_dq: None,
             dfd_dqd: None,
             overflow: Default::default(),
@@ -1081,6 +1100,10 @@ pub fn evaluate_verilog(
             .map(|&i| {
                 let s = &file.states[i];
                 let (qdd, rest) = match (n.kind, &s.tau) {
+                    // The chip partition takes τ itself.
+                    (KernelKind::FdGrad, Some(tau)) if n.measured.is_some() => {
+                        (Vec::new(), tau.clone())
+                    }
                     // What the host computes: q̈ = FD(q, q̇, τ) and M⁻¹, row-major.
                     (KernelKind::FdGrad, Some(tau)) => (
                         crate::reference::forward_dynamics(model, &s.q, &s.qd, tau, gravity),
@@ -1109,8 +1132,13 @@ pub fn evaluate_verilog(
                     st.drnea_dqd = Some(matrix(&outs[1]));
                 }
                 KernelKind::FdGrad => {
-                    st.dfd_dq = Some(matrix(&outs[0]));
-                    st.dfd_dqd = Some(matrix(&outs[1]));
+                    // The chip partition's outputs begin with q̈.
+                    let at = usize::from(n.measured.is_some());
+                    if at == 1 {
+                        st.fd = Some(outs[0].clone());
+                    }
+                    st.dfd_dq = Some(matrix(&outs[at]));
+                    st.dfd_dqd = Some(matrix(&outs[at + 1]));
                 }
                 _ => st.m = matrix(&outs[0]),
             }

@@ -156,6 +156,9 @@ pub struct Info {
     /// Why `verilog` lacks `fd_grad`'s host partition (`--fd-grad-netlist host`), when it does.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub verilog_fd_grad_skipped: Option<String>,
+    /// Why `verilog` lacks `fd_grad`'s chip partition (`--fd-grad-netlist chip`), when it does.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub verilog_fd_grad_chip_skipped: Option<String>,
     /// Each entry point `--backend wgsl` writes with default options (f32, both strategies):
     /// statements, functions, workgroup size and bytes, phases, scratch words.
     pub wgsl: Vec<EntryMeta>,
@@ -292,6 +295,7 @@ impl Info {
             verilog: Vec::new(),
             verilog_skipped: None,
             verilog_fd_grad_skipped: None,
+            verilog_fd_grad_chip_skipped: None,
             wgsl: Vec::new(),
             wgsl_skipped: None,
             rust_size: Vec::new(),
@@ -407,14 +411,16 @@ impl Info {
             return self;
         }
         let lower = ir::LowerOptions {
-            // minv: the sampled bound on fd_grad's host partition's M⁻¹ input.
-            kernels: [&DEFAULT_KERNELS[..], &[ir::KernelKind::Minv]].concat(),
+            // minv: the sampled bound on fd_grad's host partition's M⁻¹ input; rnea: the
+            // chip partition's bias forces.
+            kernels: [&DEFAULT_KERNELS[..], &[ir::KernelKind::Minv, ir::KernelKind::Rnea]].concat(),
             max_nodes: ir::STATS_MAX_NODES,
             gradient,
             solve,
             ..ir::LowerOptions::default()
         };
         let mut fd_grad_skipped = None;
+        let mut chip_skipped = None;
         let result =
             ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|module| {
                 let mut all = Vec::new();
@@ -428,19 +434,24 @@ impl Info {
                             .map_err(|e| e.to_string())?;
                     all.extend(netlists.iter().map(|n| n.stats()));
                 }
-                // fd_grad's host partition, where a format is found (a note says why not).
-                for arch in archs {
-                    let options = VerilogOptions {
-                        arch,
-                        kernels: Vec::new(),
-                        fd_grad: Some(FdGradPartition::Host),
-                        ..VerilogOptions::default()
-                    };
-                    match plan(&module, &options) {
-                        Ok(netlists) => all.extend(netlists.iter().map(|n| n.stats())),
-                        Err(e) => {
-                            fd_grad_skipped = Some(e.to_string());
-                            break;
+                // fd_grad's partitions, where a format is found (a note says why not).
+                for (partition, skipped) in [
+                    (FdGradPartition::Host, &mut fd_grad_skipped),
+                    (FdGradPartition::Chip, &mut chip_skipped),
+                ] {
+                    for arch in archs {
+                        let options = VerilogOptions {
+                            arch,
+                            kernels: Vec::new(),
+                            fd_grad: Some(partition),
+                            ..VerilogOptions::default()
+                        };
+                        match plan(&module, &options) {
+                            Ok(netlists) => all.extend(netlists.iter().map(|n| n.stats())),
+                            Err(e) => {
+                                *skipped = Some(e.to_string());
+                                break;
+                            }
                         }
                     }
                 }
@@ -451,6 +462,7 @@ impl Info {
             Err(e) => self.verilog_skipped = Some(e),
         }
         self.verilog_fd_grad_skipped = fd_grad_skipped;
+        self.verilog_fd_grad_chip_skipped = chip_skipped;
         self
     }
 
@@ -694,7 +706,7 @@ impl Info {
                 None => v.kernel.name().to_string(),
             };
             s.push_str(&format!(
-                "  {:<w$} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  error <= {:.1e}\n",
+                "  {:<w$} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  {}\n",
                 name,
                 v.arch,
                 v.multipliers,
@@ -703,7 +715,10 @@ impl Info {
                 v.cycles_per_state,
                 v.latency_cycles,
                 v.format,
-                v.error_bound
+                match v.measured_error {
+                    Some(e) => format!("error {e:.1e} measured"),
+                    None => format!("error <= {:.1e}", v.error_bound),
+                }
             ));
         }
         if let Some(why) = &self.verilog_skipped {
@@ -711,6 +726,9 @@ impl Info {
         }
         if let Some(why) = &self.verilog_fd_grad_skipped {
             s.push_str(&format!("verilog fd_grad_host not planned: {why}\n"));
+        }
+        if let Some(why) = &self.verilog_fd_grad_chip_skipped {
+            s.push_str(&format!("verilog fd_grad_chip not planned: {why}\n"));
         }
         if !self.wgsl.is_empty() {
             s.push_str("wgsl entry points (default options, f32; statements, functions, workgroup size, workgroup bytes, phases, dispatches):\n");

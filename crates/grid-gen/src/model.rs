@@ -701,8 +701,10 @@ impl Model {
     /// ≥ 1 / (1/λ_min(A) + 1/λ_min(B)) for |S| = 1, where A is the parent's inertia moved
     /// into the joint frame (a rotation about the joint's axis leaves its eigenvalues
     /// unchanged) and B the body's. Under the fixed root the parent does not move: the
-    /// bound is [`Model::pivot_floor`]. Zero (no bound) where a body has no inertia, and for
-    /// a prismatic joint under a moving body (its translation changes A's eigenvalues).
+    /// bound is [`Model::pivot_floor`]. Zero (no bound) where a body's spatial inertia is not
+    /// positive definite (none, or a physically implausible `<inertia>`, as GRiD's Atlas
+    /// gives `utorso`), and for a prismatic joint under a moving body (its translation
+    /// changes A's eigenvalues).
     /// Empty when a joint is coupled.
     pub fn minv_floor(&self) -> Vec<f64> {
         let floor = self.pivot_floor();

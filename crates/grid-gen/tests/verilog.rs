@@ -1023,7 +1023,7 @@ fn fd_grad_chip_refusals_say_why() {
         </robot>"#;
     let (model, _) = grid_gen::Model::from_urdf_str("m.urdf", massless, false).unwrap();
     let e = plan(&lower(&model), &chip).unwrap_err().to_string();
-    assert!(e.contains("`ja`") && e.contains("no inertia"), "{e}");
+    assert!(e.contains("`ja`") && e.contains("not positive definite"), "{e}");
     let mimic = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../../tests/fixtures/mimic_arm.urdf");
     let e = plan(&lower(&grid_gen_test_support::load_coupled_urdf(&mimic)), &chip)
@@ -1072,4 +1072,56 @@ fn yosys_synthesises_a_chip_netlist() {
             );
         }
     }
+}
+
+/// `eval --backend verilog --fd-grad-netlist chip` (the library call behind it): q̈, ∂q̈/∂q
+/// and ∂q̈/∂q̇ from τ, against the reference within `--max-error` (the format leaves
+/// `MEASURED_MARGIN` below it on its own states); a floating base's τ must be zero.
+#[test]
+fn fd_grad_chip_through_eval() {
+    if !tool_or_skip("Icarus Verilog (iverilog)", sim::available()) {
+        return;
+    }
+    let mut rng = Rng(5859);
+    let urdf = random_tree(&mut rng, 3, false);
+    let (model, _) = grid_gen::Model::from_urdf_str("random.urdf", &urdf, false).unwrap();
+    let json =
+        r#"{"states": [{"q": [0.4, -1.2, 0.1], "qd": [1.5, -2.0, 0.5], "tau": [3.0, -1.0, 2.0]}]}"#;
+    let file = grid_gen::eval::parse_states(json).unwrap();
+    let options =
+        VerilogOptions { fd_grad: Some(FdGradPartition::Chip), ..VerilogOptions::default() };
+    let out = grid_gen::eval::evaluate_verilog(&model, &file, GRAVITY, &options).unwrap();
+    let stats = out.netlists.iter().find(|s| s.kernel == KernelKind::FdGrad).unwrap();
+    assert_eq!(stats.partition, Some(FdGradPartition::Chip));
+    let s = &file.states[0];
+    let tau = s.tau.as_ref().unwrap();
+    let (qdd, dq, dqd) =
+        grid_gen::reference::forward_dynamics_derivatives(&model, &s.q, &s.qd, tau, GRAVITY);
+    let got = &out.states[0];
+    let max_error = grid_gen::back::verilog::DEFAULT_MAX_ERROR;
+    let fd = got.fd.as_ref().expect("fd");
+    for i in 0..3 {
+        assert!((fd[i] - qdd[i]).abs() <= max_error, "fd[{i}]: {} vs {}", fd[i], qdd[i]);
+    }
+    for (name, got, exact) in [("dfd_dq", &got.dfd_dq, dq), ("dfd_dqd", &got.dfd_dqd, dqd)] {
+        let got = got.as_ref().unwrap_or_else(|| panic!("{name} missing"));
+        for i in 0..3 {
+            for j in 0..3 {
+                let e = (got[i][j] - exact[(i, j)]).abs();
+                assert!(e <= max_error, "{name}[{i}][{j}]: {} vs {}", got[i][j], exact[(i, j)]);
+            }
+        }
+    }
+    assert_eq!(got.overflow.get("fd_grad"), Some(&false));
+    // A floating base is unactuated on this netlist: a wrench there is refused.
+    let go2 =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../../tests/fixtures/go2.urdf");
+    let model = load_floating_urdf(&go2);
+    let mut tau = vec![0.0; model.nv()];
+    tau[2] = 5.0;
+    let q = model.q_from_joints(&vec![0.0; model.nv()], [0.0, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0]);
+    let json = serde_json::json!({"states": [{"q": q, "qd": vec![0.0; model.nv()], "tau": tau}]});
+    let file = grid_gen::eval::parse_states(&json.to_string()).unwrap();
+    let e = grid_gen::eval::evaluate_verilog(&model, &file, GRAVITY, &options).unwrap_err();
+    assert!(e.to_string().contains("unactuated base"), "{e}");
 }

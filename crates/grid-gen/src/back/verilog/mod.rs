@@ -285,13 +285,13 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, V
                 }
                 if let Some(j) = robot.minv_floor.iter().position(|&f| f <= 0.0) {
                     return Err(VerilogError::Arch(format!(
-                        "fd_grad's chip partition bounds q̈ through M⁻¹'s diagonal, and nothing bounds M⁻¹'s entry at joint `{}` over all configurations (its body or its parent's has no inertia, or it is prismatic under a moving body); use --fd-grad-netlist host",
+                        "fd_grad's chip partition bounds q̈ through M⁻¹'s diagonal, and nothing bounds M⁻¹'s entry at joint `{}` over all configurations: its body's or its parent body's spatial inertia is not positive definite (none, or a physically implausible `<inertia>`, which loading warns of), or it is prismatic under a moving body; use --fd-grad-netlist host",
                         comment_text(&robot.joint_names[j])
                     )));
                 }
                 if let Some(j) = robot.pivot_floor.iter().position(|&f| f <= 0.0) {
                     return Err(VerilogError::Arch(format!(
-                        "fd_grad's chip partition divides by the pivots of M's factorisation, and the body of joint `{}` has no inertia about its axis, so nothing bounds its pivot away from zero; use --fd-grad-netlist host",
+                        "fd_grad's chip partition divides by the pivots of M's factorisation, and the body of joint `{}` has no inertia about its axis (none, or a physically implausible `<inertia>`), so nothing bounds its pivot away from zero; use --fd-grad-netlist host",
                         comment_text(&robot.joint_names[j])
                     )));
                 }
@@ -621,8 +621,12 @@ impl Netlist {
                 h.push_str(&format!("// Architecture: shared, {multipliers} multipliers and {adders} adders; one state every {} clocks.\n", s.cycles_per_state))
             }
         }
+        let dividers = match s.dividers {
+            0 => String::new(),
+            d => format!(", {d} dividers"),
+        };
         h.push_str(&format!(
-            "// Units: {} multipliers ({} by a constant), {} adders, {} data registers.\n",
+            "// Units: {} multipliers ({} by a constant), {} adders{dividers}, {} data registers.\n",
             s.multipliers, s.constant_multipliers, s.adders, s.registers
         ));
         // Forces appear in the bounds only where the netlist takes them.
