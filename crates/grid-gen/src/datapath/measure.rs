@@ -83,16 +83,34 @@ pub fn chip_states(
 
 /// The software model's largest errors against the f64 datapath on `states`.
 pub fn measure(dp: &Datapath, format: &Format, states: &[ChipState]) -> Measured {
+    let exact: Vec<Vec<f64>> = states.iter().map(|s| exact_values(dp, s)).collect();
+    measure_against(dp, format, states, &exact)
+}
+
+/// Every node's value in f64 for one state (what the fixed-point one approximates).
+fn exact_values(dp: &Datapath, (q, qd, tau): &ChipState) -> Vec<f64> {
+    dp.values_f64(&port_values(dp, q, qd, &[], tau))
+}
+
+/// [`measure`] with each state's f64 values computed once (they do not depend on the format).
+fn measure_against(
+    dp: &Datapath,
+    format: &Format,
+    states: &[ChipState],
+    exact: &[Vec<f64>],
+) -> Measured {
     let (mut error, mut node_error) = (0.0f64, 0.0f64);
-    let outputs: Vec<usize> = dp.nonzero_outputs().iter().map(|o| o.2 .0 as usize).collect();
-    for (q, qd, tau) in states {
-        let exact = dp.values_f64(&port_values(dp, q, qd, &[], tau));
+    let mut output = vec![false; dp.nodes.len()];
+    for (_, _, id) in dp.nonzero_outputs() {
+        output[id.0 as usize] = true;
+    }
+    for ((q, qd, tau), exact) in states.iter().zip(exact) {
         let (ports, _) = quantize_ports(dp, format, q, qd, &[], tau);
         let (fixed, _) = dp.run_nodes(format, &ports);
         for (i, (x, r)) in exact.iter().zip(&fixed).enumerate() {
             let e = (format.to_f64(*r) - x).abs();
             node_error = node_error.max(e);
-            if outputs.binary_search(&i).is_ok() {
+            if output[i] {
                 error = error.max(e);
             }
         }
@@ -123,10 +141,11 @@ pub fn choose_format_measured(
     // Ranges do not depend on the fraction bits.
     let a = analyse(dp, bounds, 0, rounding);
     let needed = range(&a);
+    let exact: Vec<Vec<f64>> = states.iter().map(|s| exact_values(dp, s)).collect();
     let trial = |frac: u32| -> Option<(Format, Measured)> {
         let width = width_for(needed, frac)?;
         let f = Format { width, frac, rounding };
-        let m = measure(dp, &f, states);
+        let m = measure_against(dp, &f, states, &exact);
         let width = width_for(needed + 2.0 * m.node_error, frac)?;
         Some((Format { width, ..f }, m))
     };

@@ -76,6 +76,15 @@ pub fn quantize_ports(
 /// The product of two raw values with the format's rounding, before saturation, in 256
 /// bits (the netlist's product is 2·WIDTH bits; an arithmetic shift drops FRAC of them).
 pub(crate) fn product(format: &Format, a: i128, b: i128) -> I256 {
+    // Operands within 63 bits (most values at the formats chosen) multiply in i128.
+    if let (Ok(x), Ok(y)) = (i64::try_from(a), i64::try_from(b)) {
+        let p = x as i128 * y as i128;
+        return I256::from(match format.rounding {
+            Rounding::Truncate => p >> format.frac,
+            Rounding::HalfUp if format.frac == 0 => p,
+            Rounding::HalfUp => (p + (1i128 << (format.frac - 1))) >> format.frac,
+        });
+    }
     let p = I256::from(a) * I256::from(b);
     match format.rounding {
         Rounding::Truncate => p >> format.frac,
