@@ -151,8 +151,9 @@ struct VerilogArgs {
     /// computes q̈ and M⁻¹, the netlist ∂q̈/∂q and ∂q̈/∂q̇ = −M⁻¹ ∂c/∂u
     /// (`<robot>_fd_grad_host`). `chip`: the netlist takes τ and computes M, its
     /// factorisation (with a divider), q̈ and both derivatives (`<robot>_fd_grad_chip`;
-    /// its ranges are proven, its error measured).
-    #[arg(long, value_name = "PARTITION")]
+    /// its ranges are proven, its error measured). `auto` (the flag without a value): chip
+    /// where its bounds cover the robot, else host.
+    #[arg(long, value_name = "PARTITION", num_args = 0..=1, default_missing_value = "auto")]
     fd_grad_netlist: Option<grid_gen::back::verilog::FdGradPartition>,
     /// With --fd-grad-netlist host: bound on every diagonal entry of M⁻¹, which the host
     /// checks (default: twice the largest over 256 seeded configurations).

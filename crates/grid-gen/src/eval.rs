@@ -1049,21 +1049,20 @@ pub fn evaluate_verilog(
     }
     let nv = model.nv();
     let mut kernels = DEFAULT_KERNELS.to_vec();
-    let chip = options.fd_grad == Some(crate::back::verilog::FdGradPartition::Chip);
-    if options.fd_grad.is_some() && options.minv_max.is_none() && !chip {
+    use crate::back::verilog::FdGradPartition;
+    let (host, chip) = match options.fd_grad {
+        None => (false, false),
+        Some(FdGradPartition::Host) => (true, false),
+        Some(FdGradPartition::Chip) => (false, true),
+        Some(FdGradPartition::Auto) => (true, true),
+    };
+    if host && options.minv_max.is_none() {
         // The host partition's bound on M⁻¹ samples the minv kernel.
         kernels.push(KernelKind::Minv);
     }
     if chip {
         // The chip partition's bias forces (and its measurement's τ).
         kernels.push(KernelKind::Rnea);
-        for (index, s) in file.states.iter().enumerate() {
-            let base = if model.floating { 6 } else { 0 };
-            let tau = s.tau.as_deref().unwrap_or(&[]);
-            if let Some(entry) = tau.iter().take(base).position(|t| *t != 0.0) {
-                return Err(VerilogEvalError::BaseTau { index, entry, value: tau[entry] });
-            }
-        }
     }
     let module = ir::lower(model, gravity, &LowerOptions { kernels, ..LowerOptions::default() })?;
     let netlists = plan(
@@ -1073,6 +1072,15 @@ pub fn evaluate_verilog(
             ..options.clone()
         },
     )?;
+    // The chip partition takes no τ for a floating base: a wrench there is refused.
+    if model.floating && netlists.iter().any(|n| n.measured.is_some()) {
+        for (index, s) in file.states.iter().enumerate() {
+            let tau = s.tau.as_deref().unwrap_or(&[]);
+            if let Some(entry) = tau.iter().take(6).position(|t| *t != 0.0) {
+                return Err(VerilogEvalError::BaseTau { index, entry, value: tau[entry] });
+            }
+        }
+    }
     let mut states: Vec<VerilogOutput> = file
         .states
         .iter()

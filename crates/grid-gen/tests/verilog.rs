@@ -1125,3 +1125,30 @@ fn fd_grad_chip_through_eval() {
     let e = grid_gen::eval::evaluate_verilog(&model, &file, GRAVITY, &options).unwrap_err();
     assert!(e.to_string().contains("unactuated base"), "{e}");
 }
+
+/// `--fd-grad-netlist auto` (the flag alone): the chip partition where its bounds cover the
+/// robot (the double pendulum), else the host's (Panda's prismatic fingers).
+#[test]
+fn fd_grad_auto_picks_chip_where_it_fits() {
+    let auto = VerilogOptions {
+        kernels: vec![],
+        fd_grad: Some(FdGradPartition::Auto),
+        ..VerilogOptions::default()
+    };
+    let kernels =
+        vec![KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Rnea, KernelKind::Minv];
+    let lower = |model: &grid_gen::Model| {
+        ir::lower(
+            model,
+            GRAVITY,
+            &LowerOptions { kernels: kernels.clone(), ..LowerOptions::default() },
+        )
+        .unwrap()
+    };
+    let n = plan(&lower(&load("double_pendulum_continuous")), &auto).unwrap().remove(0);
+    assert!(n.top.ends_with("_fd_grad_chip"), "{}", n.top);
+    assert_eq!(n.stats().partition, Some(FdGradPartition::Chip));
+    let n = plan(&lower(&load("panda")), &auto).unwrap().remove(0);
+    assert!(n.top.ends_with("_fd_grad_host"), "{}", n.top);
+    assert_eq!(n.stats().partition, Some(FdGradPartition::Host));
+}

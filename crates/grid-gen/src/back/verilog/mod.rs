@@ -117,6 +117,8 @@ pub enum FdGradPartition {
     /// factorisation (one reciprocal per coordinate), q̈ = M⁻¹(τ − c), ∂c/∂u at that q̈ and
     /// ∂q̈/∂u. The netlist is `<robot>_fd_grad_chip`.
     Chip,
+    /// `Chip` where its bounds cover the robot, else `Host` (the netlist's name says which).
+    Auto,
 }
 
 impl FdGradPartition {
@@ -124,6 +126,7 @@ impl FdGradPartition {
         match self {
             FdGradPartition::Host => "host",
             FdGradPartition::Chip => "chip",
+            FdGradPartition::Auto => "auto",
         }
     }
 }
@@ -251,79 +254,98 @@ pub fn plan(module: &Module, options: &VerilogOptions) -> Result<Vec<Netlist>, V
         )?);
     }
     if let Some(partition) = options.fd_grad {
-        let robot = &module.robot;
-        // The product reads whole columns of ∂c/∂u.
-        if robot.specialisation.selects() {
-            return Err(VerilogError::Arch(format!(
-                "fd_grad's {} partition multiplies whole columns of rnea_grad, and the scene selects gradient entries; drop the scene's [gradient] selection",
-                partition.name()
-            )));
-        }
-        let function = |kind| module.function(kind).ok_or(VerilogError::Missing(kind));
-        // ∂c/∂q and ∂c/∂q̇ alone: the derivatives with respect to forces are not multiplied.
-        let mut dc = function(KernelKind::RneaGrad)?.clone();
-        dc.outputs.retain(|o| matches!(o.name, "dc_dq" | "dc_dqd"));
-        let dc = Datapath::new(&dc, robot.nv())?;
-        let top = format!("{stem}_fd_grad_{}", partition.name());
-        let mut bounds = bounds.clone();
-        let mut states = None;
-        let datapath = match partition {
-            FdGradPartition::Host => {
-                let diagonal = match options.minv_max {
-                    Some(b) => vec![b; robot.nv()],
-                    None => crate::datapath::minv_diagonal(
-                        module.function(KernelKind::Minv).ok_or(VerilogError::MinvBound)?,
-                        robot,
-                    ),
-                };
-                bounds.minv = crate::datapath::minv_entries(&diagonal);
-                Datapath::fd_grad_host(&dc, |i, k| robot.root_of(i) == robot.root_of(k))
-            }
-            FdGradPartition::Chip => {
-                if robot.pivot_floor.is_empty() {
-                    return Err(VerilogError::Arch("fd_grad's chip partition factorises M, and with coupled mimic joints M is a projection; use --mimic independent or --fd-grad-netlist host".into()));
-                }
-                if let Some(j) = robot.minv_floor.iter().position(|&f| f <= 0.0) {
-                    return Err(VerilogError::Arch(format!(
-                        "fd_grad's chip partition bounds q̈ through M⁻¹'s diagonal, and nothing bounds M⁻¹'s entry at joint `{}` over all configurations: its body's or its parent body's spatial inertia is not positive definite (none, or a physically implausible `<inertia>`, which loading warns of), or it is prismatic under a moving body; use --fd-grad-netlist host",
-                        comment_text(&robot.joint_names[j])
-                    )));
-                }
-                if let Some(j) = robot.pivot_floor.iter().position(|&f| f <= 0.0) {
-                    return Err(VerilogError::Arch(format!(
-                        "fd_grad's chip partition divides by the pivots of M's factorisation, and the body of joint `{}` has no inertia about its axis (none, or a physically implausible `<inertia>`), so nothing bounds its pivot away from zero; use --fd-grad-netlist host",
-                        comment_text(&robot.joint_names[j])
-                    )));
-                }
-                if let Some(t) = options.tau_max {
-                    for b in bounds.tau.iter_mut().filter(|b| **b > 0.0) {
-                        *b = t;
-                    }
-                }
-                let rnea = function(KernelKind::Rnea)?;
-                states = Some(crate::datapath::chip_states(
-                    rnea,
-                    robot,
-                    &bounds,
-                    crate::datapath::MEASURED_STATES,
-                ));
-                let bias = Datapath::new(rnea, robot.nv())?;
-                let mass = Datapath::new(function(KernelKind::MassMatrix)?, robot.nv())?;
-                crate::datapath::fd_grad_chip(
-                    &bias,
-                    &mass,
-                    &dc,
-                    &robot.parents,
-                    &robot.pivot_floor,
-                    &robot.minv_floor,
-                    &bounds.tau.iter().map(|&b| b > 0.0).collect::<Vec<_>>(),
-                )
-            }
-        };
-        let states = states.as_deref();
-        out.push(netlist(module, options, KernelKind::FdGrad, datapath, &bounds, top, states)?);
+        let build = |p| fd_grad_netlist(module, options, p, &bounds, &stem);
+        out.push(match partition {
+            // The chip partition where it is built, else the host's; the chip's reason when
+            // neither is.
+            FdGradPartition::Auto => build(FdGradPartition::Chip)
+                .or_else(|chip| build(FdGradPartition::Host).map_err(|_| chip))?,
+            p => build(p)?,
+        });
     }
     Ok(out)
+}
+
+/// `fd_grad`'s netlist in `partition` (not `Auto`).
+fn fd_grad_netlist(
+    module: &Module,
+    options: &VerilogOptions,
+    partition: FdGradPartition,
+    bounds: &Bounds,
+    stem: &str,
+) -> Result<Netlist, VerilogError> {
+    let robot = &module.robot;
+    // The product reads whole columns of ∂c/∂u.
+    if robot.specialisation.selects() {
+        return Err(VerilogError::Arch(format!(
+            "fd_grad's {} partition multiplies whole columns of rnea_grad, and the scene selects gradient entries; drop the scene's [gradient] selection",
+            partition.name()
+        )));
+    }
+    let function = |kind| module.function(kind).ok_or(VerilogError::Missing(kind));
+    // ∂c/∂q and ∂c/∂q̇ alone: the derivatives with respect to forces are not multiplied.
+    let mut dc = function(KernelKind::RneaGrad)?.clone();
+    dc.outputs.retain(|o| matches!(o.name, "dc_dq" | "dc_dqd"));
+    let dc = Datapath::new(&dc, robot.nv())?;
+    let top = format!("{stem}_fd_grad_{}", partition.name());
+    let mut bounds = bounds.clone();
+    let mut states = None;
+    let datapath = match partition {
+        FdGradPartition::Auto => unreachable!("plan resolves Auto"),
+        FdGradPartition::Host => {
+            let diagonal = match options.minv_max {
+                Some(b) => vec![b; robot.nv()],
+                None => crate::datapath::minv_diagonal(
+                    module.function(KernelKind::Minv).ok_or(VerilogError::MinvBound)?,
+                    robot,
+                ),
+            };
+            bounds.minv = crate::datapath::minv_entries(&diagonal);
+            Datapath::fd_grad_host(&dc, |i, k| robot.root_of(i) == robot.root_of(k))
+        }
+        FdGradPartition::Chip => {
+            if robot.pivot_floor.is_empty() {
+                return Err(VerilogError::Arch("fd_grad's chip partition factorises M, and with coupled mimic joints M is a projection; use --mimic independent or --fd-grad-netlist host".into()));
+            }
+            if let Some(j) = robot.minv_floor.iter().position(|&f| f <= 0.0) {
+                return Err(VerilogError::Arch(format!(
+                    "fd_grad's chip partition bounds q̈ through M⁻¹'s diagonal, and nothing bounds M⁻¹'s entry at joint `{}` over all configurations: its body's or its parent body's spatial inertia is not positive definite (none, or a physically implausible `<inertia>`, which loading warns of), or it is prismatic under a moving body; use --fd-grad-netlist host",
+                    comment_text(&robot.joint_names[j])
+                )));
+            }
+            if let Some(j) = robot.pivot_floor.iter().position(|&f| f <= 0.0) {
+                return Err(VerilogError::Arch(format!(
+                    "fd_grad's chip partition divides by the pivots of M's factorisation, and the body of joint `{}` has no inertia about its axis (none, or a physically implausible `<inertia>`), so nothing bounds its pivot away from zero; use --fd-grad-netlist host",
+                    comment_text(&robot.joint_names[j])
+                )));
+            }
+            if let Some(t) = options.tau_max {
+                for b in bounds.tau.iter_mut().filter(|b| **b > 0.0) {
+                    *b = t;
+                }
+            }
+            let rnea = function(KernelKind::Rnea)?;
+            states = Some(crate::datapath::chip_states(
+                rnea,
+                robot,
+                &bounds,
+                crate::datapath::MEASURED_STATES,
+            ));
+            let bias = Datapath::new(rnea, robot.nv())?;
+            let mass = Datapath::new(function(KernelKind::MassMatrix)?, robot.nv())?;
+            crate::datapath::fd_grad_chip(
+                &bias,
+                &mass,
+                &dc,
+                &robot.parents,
+                &robot.pivot_floor,
+                &robot.minv_floor,
+                &bounds.tau.iter().map(|&b| b > 0.0).collect::<Vec<_>>(),
+            )
+        }
+    };
+    let states = states.as_deref();
+    netlist(module, options, KernelKind::FdGrad, datapath, &bounds, top, states)
 }
 
 /// Where a refused datapath's widest value is computed (at the best format tried): what a
