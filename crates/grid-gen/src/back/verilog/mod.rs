@@ -304,6 +304,9 @@ fn fd_grad_netlist(
             Datapath::fd_grad_host(&dc, |i, k| robot.root_of(i) == robot.root_of(k))
         }
         FdGradPartition::Chip => {
+            if !robot.fext.is_empty() || !robot.contacts.is_empty() {
+                return Err(VerilogError::Arch("fd_grad's chip partition takes no external or contact forces (its q̈ would need them); use --fd-grad-netlist host".into()));
+            }
             if robot.pivot_floor.is_empty() {
                 return Err(VerilogError::Arch("fd_grad's chip partition factorises M, and with coupled mimic joints M is a projection; use --mimic independent or --fd-grad-netlist host".into()));
             }
