@@ -254,6 +254,11 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
 }
 
 impl Analysis {
+    /// The largest proven magnitude of any node's exact value (its error not included).
+    pub fn range(&self) -> f64 {
+        self.lo.iter().zip(&self.hi).map(|(l, h)| l.abs().max(h.abs())).fold(0.0, f64::max)
+    }
+
     /// Error unless every value fits `format` (then no node can saturate for inputs
     /// within the bounds).
     pub fn check(&self, dp: &Datapath, format: &Format) -> Result<(), FixedError> {

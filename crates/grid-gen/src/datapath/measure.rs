@@ -118,11 +118,6 @@ fn measure_against(
     Measured { error, node_error, states: states.len() }
 }
 
-/// The largest proven magnitude of any node's exact value.
-fn range(a: &Analysis) -> f64 {
-    a.lo.iter().zip(&a.hi).map(|(l, h)| l.abs().max(h.abs())).fold(0.0, f64::max)
-}
-
 /// A format for `dp` whose measured output error is at most `max_error` /
 /// [`MEASURED_MARGIN`]: the fewest
 /// fraction bits that meet it (searched by bisection: the error halves with each bit),
@@ -140,7 +135,7 @@ pub fn choose_format_measured(
     }
     // Ranges do not depend on the fraction bits.
     let a = analyse(dp, bounds, 0, rounding);
-    let needed = range(&a);
+    let needed = a.range();
     let exact: Vec<Vec<f64>> = states.iter().map(|s| exact_values(dp, s)).collect();
     let trial = |frac: u32| -> Option<(Format, Measured)> {
         let width = width_for(needed, frac)?;

@@ -392,26 +392,27 @@ fn netlist(
     top: String,
     measured_on: Option<&[ChipState]>,
 ) -> Result<Netlist, VerilogError> {
-    if let Some(states) = measured_on {
-        return measured_netlist(module, options, kind, datapath, bounds, top, states);
-    }
-    let (format, analysis) = match options.format {
-        FormatChoice::Fixed { width, frac } => {
+    let (format, analysis, measured) = match (measured_on, options.format) {
+        (Some(states), _) => {
+            let (format, analysis, measured) = measured_format(&datapath, options, bounds, states)?;
+            (format, analysis, Some(measured))
+        }
+        (None, FormatChoice::Fixed { width, frac }) => {
             let format = Format::new(width, frac, options.rounding)?;
             let analysis = analyse(&datapath, bounds, frac, options.rounding);
             analysis.check(&datapath, &format)?;
-            (format, analysis)
+            (format, analysis, None)
         }
-        FormatChoice::Auto { max_error } => {
-            choose_format(&datapath, bounds, options.rounding, max_error).map_err(|error| {
-                match error {
+        (None, FormatChoice::Auto { max_error }) => {
+            let (format, analysis) = choose_format(&datapath, bounds, options.rounding, max_error)
+                .map_err(|error| match error {
                     FixedError::Unreachable { frac, .. } => {
                         let why = widest(&datapath, bounds, frac, options.rounding, &module.robot);
                         VerilogError::Refused { error, why }
                     }
                     e => e.into(),
-                }
-            })?
+                })?;
+            (format, analysis, None)
         }
     };
     let layout = layout_of(&datapath, options.arch);
@@ -425,7 +426,7 @@ fn netlist(
         top,
         names,
         layout,
-        measured: None,
+        measured,
     })
 }
 
@@ -438,27 +439,19 @@ fn layout_of(datapath: &Datapath, arch: Arch) -> Layout {
     }
 }
 
-/// The largest proven magnitude of any node's exact value.
-fn range_of(a: &Analysis) -> f64 {
-    a.lo.iter().zip(&a.hi).map(|(l, h)| l.abs().max(h.abs())).fold(0.0, f64::max)
-}
-
-/// A netlist whose error the analysis cannot bound (module `measure`): the ranges proven,
-/// the fraction bits from the error measured on `states`.
-fn measured_netlist(
-    module: &Module,
+/// The format of a datapath whose error the analysis cannot bound (module `measure`): the
+/// ranges proven, the fraction bits from the error measured on `states`.
+fn measured_format(
+    datapath: &Datapath,
     options: &VerilogOptions,
-    kind: KernelKind,
-    datapath: Datapath,
     bounds: &Bounds,
-    top: String,
     states: &[ChipState],
-) -> Result<Netlist, VerilogError> {
-    let (format, analysis, measured) = match options.format {
+) -> Result<(Format, Analysis, Measured), VerilogError> {
+    match options.format {
         FormatChoice::Fixed { width, frac } => {
             let format = Format::new(width, frac, options.rounding)?;
-            let analysis = analyse(&datapath, bounds, frac, options.rounding);
-            let needed = range_of(&analysis);
+            let analysis = analyse(datapath, bounds, frac, options.rounding);
+            let needed = analysis.range();
             if !(needed.is_finite() && needed <= format.max_value()) {
                 return Err(FixedError::Range {
                     kernel: datapath.kernel.to_string(),
@@ -469,34 +462,24 @@ fn measured_netlist(
                 }
                 .into());
             }
-            let measured = measure(&datapath, &format, states);
-            (format, analysis, measured)
+            let measured = measure(datapath, &format, states);
+            Ok((format, analysis, measured))
         }
         FormatChoice::Auto { max_error } => {
-            choose_format_measured(&datapath, bounds, options.rounding, max_error, states)
-                .map_err(|error| VerilogError::Refused {
-                    error,
-                    why: format!(
-                        "the proven range of its values is {:.1e}, so {} integer bits leave too few for the fraction",
-                        range_of(&analyse(&datapath, bounds, 0, options.rounding)),
-                        range_of(&analyse(&datapath, bounds, 0, options.rounding)).log2().ceil() + 1.0
-                    ),
-                })?
+            choose_format_measured(datapath, bounds, options.rounding, max_error, states).map_err(
+                |error| {
+                    let range = analyse(datapath, bounds, 0, options.rounding).range();
+                    VerilogError::Refused {
+                        error,
+                        why: format!(
+                            "the proven range of its values is {range:.1e}, so {} integer bits leave too few for the fraction",
+                            range.log2().ceil() + 1.0
+                        ),
+                    }
+                },
+            )
         }
-    };
-    let layout = layout_of(&datapath, options.arch);
-    let names = PortNames::new(&module.robot, &datapath);
-    Ok(Netlist {
-        kind,
-        datapath,
-        format,
-        analysis,
-        bounds: bounds.clone(),
-        top,
-        names,
-        layout,
-        measured: Some(measured),
-    })
+    }
 }
 
 impl Netlist {
@@ -557,7 +540,7 @@ impl Netlist {
             outputs: dp.nonzero_outputs().len(),
             error_bound: self.analysis.output_error,
             range_bound: match self.measured {
-                Some(_) => range_of(&self.analysis),
+                Some(_) => self.analysis.range(),
                 None => self.analysis.needed,
             },
             measured_error: self.measured.as_ref().map(|m| m.error),
