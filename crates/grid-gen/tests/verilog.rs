@@ -122,6 +122,39 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
             p
         })
         .collect();
+    // The analysed ranges hold: every node's exact value (the datapath in f64) lies within
+    // them. The slack is f64's rounding over a few thousand operations against the
+    // range's magnitude (about 1e-13 of it), with room to spare. A state whose inputs
+    // leave their declared ranges is outside what the ranges promise: the host
+    // partition's M⁻¹ bound is sampled within the joint limits, which these states' angles
+    // ignore (the host checks M⁻¹ against it at run time).
+    let within = |i: usize, x: f64| {
+        let (lo, hi) = (n.analysis.lo[i], n.analysis.hi[i]);
+        let slack = 1e-10 * lo.abs().max(hi.abs()).max(1.0);
+        lo - slack <= x && x <= hi + slack
+    };
+    let mut checked = 0;
+    for (k, [q, qd, qdd]) in states.iter().enumerate() {
+        let qdd_port: &[f64] = if chip { &[] } else { qdd };
+        let exact =
+            dp.values_f64(&grid_gen::datapath::port_values(dp, q, qd, qdd_port, &host(q, qd, qdd)));
+        let port = |i: usize| matches!(dp.nodes[i], grid_gen::datapath::HwOp::Port(_));
+        if (0..exact.len()).any(|i| port(i) && !within(i, exact[i])) {
+            assert!(n.reads_minv(), "{} state {k}: an input outside its bound", n.top);
+            continue;
+        }
+        checked += 1;
+        for (i, x) in exact.iter().enumerate() {
+            assert!(
+                within(i, *x),
+                "{} state {k}: node {i} = {x:e} outside its analysed range [{:e}, {:e}]",
+                n.top,
+                n.analysis.lo[i],
+                n.analysis.hi[i]
+            );
+        }
+    }
+    assert!(checked * 2 >= states.len(), "{}: only {checked} states within the bounds", n.top);
     let simulated = sim::simulate(n, &m.robot, &ports).unwrap_or_else(|e| panic!("{}: {e}", n.top));
     let nonzero = dp.nonzero_outputs();
     assert_eq!(

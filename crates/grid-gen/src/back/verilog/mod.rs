@@ -374,7 +374,7 @@ fn widest(
                 k = p;
             }
             format!(
-                "its widest value, bounded by {size:.1e}, is computed for joint `{}` ({depth} joints from the root): the interval analysis bounds each rotation by |sin| + |cos|, so bounds grow about twofold per joint along a chain and a deep tree needs more bits than its values do",
+                "its widest value, bounded by {size:.1e}, is computed for joint `{}` ({depth} joints from the root): the interval analysis bounds vectors entry by entry (one joint's rotation of two entries by their norm, but sums of several entries by |a| + |b|), so bounds grow along a chain faster than the values and a deep tree needs more bits than its values do",
                 comment_text(&robot.joint_names[j])
             )
         }
