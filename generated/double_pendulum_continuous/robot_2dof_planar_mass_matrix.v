@@ -4,7 +4,7 @@
 // Signed fixed point 15.12 (15 bits, 12 after the point; multipliers round half up; every result saturates and sets `overflow`).
 // Architecture: pipelined, registers every 4 levels; one state per clock, latency 3 clocks.
 // Units: 6 multipliers (6 by a constant), 6 adders, 6 data registers.
-// Analysed for |qd| <= 10, |qdd| <= 100 (per joint, in order): every value within 2.000000e0; every output within 6.362533e-4 of exact.
+// Analysed for |qd| <= 10, |qdd| <= 100 (per joint, in order): every value within 2.000000e0; every output within 6.362532e-4 of exact.
 //
 // Ports (inputs and outputs raw two's complement, value = raw * 2^-FRAC; outputs valid while out_valid is high):
 //   joints: 0 "joint1", 1 "joint2"

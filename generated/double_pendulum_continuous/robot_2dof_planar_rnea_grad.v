@@ -4,7 +4,7 @@
 // Signed fixed point 26.17 (26 bits, 17 after the point; multipliers round half up; every result saturates and sets `overflow`).
 // Architecture: pipelined, registers every 4 levels; one state per clock, latency 5 clocks.
 // Units: 59 multipliers (32 by a constant), 59 adders, 69 data registers.
-// Analysed for |qd| <= 10, |qdd| <= 100 (per joint, in order): every value within 2.000000e2; every output within 5.941893e-4 of exact.
+// Analysed for |qd| <= 10, |qdd| <= 100 (per joint, in order): every value within 2.000000e2; every output within 5.206036e-4 of exact.
 //
 // Ports (inputs and outputs raw two's complement, value = raw * 2^-FRAC; outputs valid while out_valid is high):
 //   joints: 0 "joint1", 1 "joint2"

@@ -632,7 +632,7 @@ fn yosys_synthesises_the_iiwa_netlists() {
         // One word-level register with enable per register of the file.
         assert_eq!(count(&report, "$dffe"), s.registers, "{}: registers", n.top);
     }
-    // (Full-width formats from `--fixed auto`: 58.35 for rnea_grad, 31.22 for M.)
+    // (Full-width formats from `--fixed auto`: 49.31 for rnea_grad, 23.17 for M.)
     let cases = [
         (BOTH[0], vec![KernelKind::RneaGrad, KernelKind::MassMatrix]),
         (BOTH[1], vec![KernelKind::MassMatrix]),

@@ -208,19 +208,26 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
             }
         };
         // A joint's rotation: |±cos θ · x ± sin θ · y| ≤ √(x² + y²) (Cauchy–Schwarz, as
-        // cos² θ + sin² θ = 1), where intervals alone give |x| + |y|.
-        let (l, h) = match *op {
+        // cos² θ + sin² θ = 1), where intervals alone give |x| + |y|. Its error likewise:
+        // the computed value is ĉx̂ ± ŝŷ plus two roundings, and ĉx̂ − cx = c(x̂ − x) +
+        // (ĉ − c)x̂, so the errors of x and y enter as √(ex² + ey²).
+        let (l, h, e) = match *op {
             HwOp::Add(a, b) | HwOp::Sub(a, b) => match (trig[a.0 as usize], trig[b.0 as usize]) {
                 (Some(ta), Some(tb)) if ta.joint == tb.joint && ta.cos != tb.cos => {
                     let m = |x: crate::datapath::HwId| {
                         lo[x.0 as usize].abs().max(hi[x.0 as usize].abs())
                     };
                     let r = m(ta.other).hypot(m(tb.other));
-                    (l.max(-r), h.min(r))
+                    let (ea, eb) = (err[ta.other.0 as usize], err[tb.other.0 as usize]);
+                    let rotated = ea.hypot(eb)
+                        + err[ta.port.0 as usize] * (m(ta.other) + ea)
+                        + err[tb.port.0 as usize] * (m(tb.other) + eb)
+                        + 2.0 * format.product_error();
+                    (l.max(-r), h.min(r), e.min(rotated))
                 }
-                _ => (l, h),
+                _ => (l, h, e),
             },
-            _ => (l, h),
+            _ => (l, h, e),
         };
         // A pivot's bound may name the node itself (an entry of M no update reached).
         let maxabs = |x: crate::datapath::HwId| {
@@ -275,6 +282,8 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
 struct Trig {
     joint: u16,
     cos: bool,
+    /// The `Sin` or `Cos` port's node.
+    port: crate::datapath::HwId,
     other: crate::datapath::HwId,
 }
 
@@ -293,8 +302,8 @@ fn trig_products(dp: &Datapath) -> Vec<Option<Trig>> {
     for op in &dp.nodes {
         let t = match *op {
             HwOp::Mul(a, b) => match (port(a), port(b)) {
-                (Some((joint, cos)), _) => Some(Trig { joint, cos, other: b }),
-                (None, Some((joint, cos))) => Some(Trig { joint, cos, other: a }),
+                (Some((joint, cos)), _) => Some(Trig { joint, cos, port: a, other: b }),
+                (None, Some((joint, cos))) => Some(Trig { joint, cos, port: b, other: a }),
                 (None, None) => None,
             },
             HwOp::Neg(a) => trig[a.0 as usize],
