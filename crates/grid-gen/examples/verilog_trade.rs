@@ -78,11 +78,15 @@ fn main() {
                 [q, qd, qdd]
             })
             .collect();
+        // The largest |value| of any node over the states, against the analysed range:
+        // how pessimistic the range analysis is.
+        let mut largest = 0.0f64;
         let exact: Vec<Vec<f64>> = states
             .iter()
             .map(|[q, qd, qdd]| {
                 let ports = port_values(&dp, q, qd, qdd, &[]);
                 let v = dp.values_f64(&ports);
+                largest = v.iter().fold(largest, |m, x| m.max(x.abs()));
                 dp.outputs.iter().flat_map(|o| o.ids.iter().map(|id| v[id.0 as usize])).collect()
             })
             .collect();
@@ -106,6 +110,10 @@ fn main() {
             .map(|&k| format!("M=A={k}: {}", SharedSchedule::new(&dp, k, k).cycles + 1))
             .collect();
         println!("  shared cycles per state: {}", cycles.join(", "));
+        println!(
+            "  largest |value| over the states {largest:.2e}, analysed range {:.2e}",
+            grid_gen::datapath::analyse(&dp, &bounds, 30, Rounding::HalfUp).range()
+        );
         println!("  | WIDTH.FRAC | measured max error | analysed bound |");
         for width in [16, 24, 32, 40, 48, 56, 64] {
             for rounding in Rounding::ALL {
