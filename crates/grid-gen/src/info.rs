@@ -715,9 +715,12 @@ impl Info {
                 v.cycles_per_state,
                 v.latency_cycles,
                 v.format,
-                match v.measured_error {
-                    Some(e) => format!("error {e:.1e} measured"),
-                    None => format!("error <= {:.1e}", v.error_bound),
+                match (v.measured_error, &v.proven_format, v.proven_error_bound) {
+                    (Some(e), Some(f), Some(b)) => {
+                        format!("error {e:.1e} measured (proven <= {b:.1e} at {f})")
+                    }
+                    (Some(e), _, _) => format!("error {e:.1e} measured (no proven format)"),
+                    (None, _, _) => format!("error <= {:.1e}", v.error_bound),
                 }
             ));
         }

@@ -212,6 +212,15 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
                     n.top,
                     out.name
                 );
+                // The chip partition's backward error analysis bounds it too, however
+                // loosely at the measured format.
+                let proven = n.analysis.err[id.0 as usize];
+                assert!(
+                    (got - exact).abs() <= proven + slack,
+                    "{} state {k} {}[{e}]: {got} vs {exact}, analysed bound {proven:e}",
+                    n.top,
+                    out.name
+                );
                 worst = worst.max((got - exact).abs());
                 relative[o].0 = relative[o].0.max((got - exact).abs());
                 relative[o].1 = relative[o].1.max(exact.abs());
@@ -244,11 +253,14 @@ fn check_netlist(model: &grid_gen::Model, m: &Module, n: &Netlist, states: &[[Ve
 /// `fd_grad`'s chip partition (q̈, M's factorisation and the solves on chip) of `model` in
 /// `archs`: bit-exact in simulation, q̈, ∂q̈/∂q and ∂q̈/∂q̇ within twice the measured error
 /// of the reference (at τ = ID(q, q̇, q̈) for q̈ within its bound) and within 1e-2 of each
-/// output's largest entry.
-fn run_chip(model: grid_gen::Model, archs: &[Arch], count: usize) {
+/// output's largest entry. Where the backward error analysis proves a format within
+/// `--max-error`, that format's netlist too, within its analysed bound; returns how many
+/// such netlists it checked.
+fn run_chip(model: grid_gen::Model, archs: &[Arch], count: usize) -> usize {
     if !tool_or_skip("Icarus Verilog (iverilog)", sim::available()) {
-        return;
+        return 0;
     }
+    let mut proven = 0;
     let kernels = vec![KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Rnea];
     let m =
         ir::lower(&model, GRAVITY, &LowerOptions { kernels, ..LowerOptions::default() }).unwrap();
@@ -277,16 +289,27 @@ fn run_chip(model: grid_gen::Model, archs: &[Arch], count: usize) {
             .collect();
         assert!(within.len() * 2 >= all.len(), "{}: most states leave the τ bound", n.top);
         check_netlist(&model, &m, n, &within);
+        if let Some((f, bound)) = n.proven {
+            let fixed = FormatChoice::Fixed { width: f.width, frac: f.frac };
+            let p = plan(&m, &VerilogOptions { format: fixed, ..options }).unwrap();
+            assert_eq!(p[0].format, f);
+            assert_eq!(p[0].analysis.output_error, bound);
+            assert!(bound <= grid_gen::back::verilog::DEFAULT_MAX_ERROR, "{}: {bound:e}", n.top);
+            check_netlist(&model, &m, &p[0], &within);
+            proven += 1;
+        }
     }
+    proven
 }
 
 #[test]
 fn fd_grad_chip_double_pendulum_both_architectures() {
-    run_chip(
+    let proven = run_chip(
         load("double_pendulum_continuous"),
         &[Arch::Pipelined { stage_depth: 2 }, Arch::Shared { multipliers: 2, adders: 2 }],
         24,
     );
+    assert_eq!(proven, 2 * usize::from(sim::available()), "a proven format in both architectures");
 }
 
 #[test]
@@ -296,7 +319,8 @@ fn fd_grad_chip_iiwa() {
 
 #[test]
 fn fd_grad_chip_hyq_and_a_floating_one() {
-    run_chip(load("grid_hyq"), &[Arch::Shared { multipliers: 8, adders: 8 }], 8);
+    let proven = run_chip(load("grid_hyq"), &[Arch::Shared { multipliers: 8, adders: 8 }], 8);
+    assert_eq!(proven, usize::from(sim::available()), "HyQ's chip partition has a proven format");
     run_chip(load_floating("grid_hyq"), &[Arch::Pipelined { stage_depth: 4 }], 8);
 }
 

@@ -12,6 +12,7 @@
 //! sin/cos, so every product of two joints' terms falls into the nonlinear remainder. The book
 //! reports the bound beside the measured error.
 
+use super::backward::{Backward, SolveBounds};
 use super::{Clamp, Datapath, FixedError, Format, HwOp, Port, Rounding, SolveStage, MAX_WIDTH};
 use crate::ir::{Input, Robot};
 
@@ -158,6 +159,11 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
     let (mut lo, mut hi, mut err) = (vec![0.0f64; n], vec![0.0f64; n], vec![0.0f64; n]);
     // β of each solve, once its right-hand side is analysed.
     let mut beta: Vec<Option<f64>> = vec![None; dp.factor.rhs.len()];
+    // The factorisation's and solves' error bounds (`fd_grad`'s chip partition), once M's
+    // entries are analysed: nodes after them that carry a bound take it from there.
+    let last_entry = dp.factor.entries.iter().map(|e| e.2 .0 as usize).max();
+    let mut backward: Option<Backward> = None;
+    let mut solves: Vec<Option<SolveBounds>> = (0..dp.factor.rhs.len()).map(|_| None).collect();
     let trig = trig_products(dp);
     for (i, op) in dp.nodes.iter().enumerate() {
         let (l, h, e) = match *op {
@@ -237,16 +243,30 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
                 lo[x.0 as usize].abs().max(hi[x.0 as usize].abs())
             }
         };
-        let (l, h) = match dp.clamps[i] {
-            None => (l, h),
+        // The backward analysis's bounds apply to the values the factorisation computes
+        // (M's entries keep their own).
+        let after = last_entry.is_some_and(|last| i > last) && dp.clamps[i].is_some();
+        if after && backward.is_none() {
+            let range =
+                |x: crate::datapath::HwId| lo[x.0 as usize].abs().max(hi[x.0 as usize].abs());
+            backward = Some(Backward::new(dp, &format, range, &err));
+        }
+        let proof = backward.as_ref().filter(|b| after && b.valid);
+        let (l, h, e) = match dp.clamps[i] {
+            None => (l, h, e),
             Some(Clamp::Schur(a, b)) => {
                 let m = (maxabs(a) * maxabs(b)).sqrt();
-                (l.max(-m), h.min(m))
+                let e = proof.map_or(e, |p| e.min(p.schur_excess(maxabs(a), maxabs(b))));
+                (l.max(-m), h.min(m), e)
             }
-            Some(Clamp::Pivot { floor, diagonal }) => (l.max(floor), h.min(maxabs(diagonal))),
+            Some(Clamp::Pivot { floor, diagonal }) => {
+                let e = proof.map_or(e, |p| e.min(p.pivot_excess(floor)));
+                (l.max(floor), h.min(maxabs(diagonal)), e)
+            }
             Some(Clamp::Multiplier { diagonal, floor }) => {
                 let m = (maxabs(diagonal) / floor).sqrt();
-                (l.max(-m), h.min(m))
+                let e = proof.map_or(e, |p| e.min(p.multiplier_excess(maxabs(diagonal), floor)));
+                (l.max(-m), h.min(m), e)
             }
             Some(Clamp::Solve { solve, k, stage }) => {
                 let f = &dp.factor;
@@ -263,7 +283,21 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
                     SolveStage::Scaled => (b / f.floor[k]).sqrt(),
                     SolveStage::Solution => (f.minv[k] * b).sqrt(),
                 };
-                (l.max(-m), h.min(m))
+                let e = match proof {
+                    None => e,
+                    Some(p) => {
+                        let s = solves[solve as usize]
+                            .get_or_insert_with(|| p.solve(dp, solve as usize, maxabs, &err));
+                        // Lower and scaled values: how far the computed value's bound
+                        // exceeds the exact one's. A solution's: its error.
+                        match stage {
+                            SolveStage::Lower => e.min((s.lower[k] - m).max(0.0)),
+                            SolveStage::Scaled => e.min((s.scaled[k] - m).max(0.0)),
+                            SolveStage::Solution => s.error[k],
+                        }
+                    }
+                };
+                (l.max(-m), h.min(m), e)
             }
         };
         // Exact zeros (structural zeros) stay exact.
@@ -358,8 +392,13 @@ pub fn choose_format(
     for frac in 0..MAX_WIDTH - 1 {
         let a = analyse(dp, bounds, frac, rounding);
         let Some(width) = width_for(a.needed, frac) else {
-            // More fraction bits only need more width: nothing further fits.
-            break;
+            // More fraction bits only need more width: nothing further fits. (An unbounded
+            // value at few fraction bits is the factorisation's error analysis failing,
+            // which more bits cure.)
+            if a.needed.is_finite() {
+                break;
+            }
+            continue;
         };
         if a.output_error <= max_error {
             return Ok((Format { width, frac, rounding }, a));

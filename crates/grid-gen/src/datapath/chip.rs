@@ -107,7 +107,18 @@ impl Builder {
                 .iter()
                 .all(|&x| x < id || (x == id && !matches!(c, Clamp::Solve { .. })))
         {
-            self.clamps[id.0 as usize].get_or_insert(c);
+            let slot = &mut self.clamps[id.0 as usize];
+            match (*slot, c) {
+                // A root's scaled value is its solution: the error analysis needs to know
+                // it is one (both bounds hold for its range).
+                (
+                    Some(Clamp::Solve { solve, k, stage: SolveStage::Scaled }),
+                    Clamp::Solve { solve: s2, k: k2, stage: SolveStage::Solution },
+                ) if solve == s2 && k == k2 => *slot = Some(c),
+                _ => {
+                    slot.get_or_insert(c);
+                }
+            }
         }
     }
 
@@ -219,11 +230,21 @@ pub fn fd_grad_chip(
         .map(|i| (0..nv).map(|j| m_ids[mass.outputs[0].ids[i * nv + j].0 as usize]).collect())
         .collect();
     let diagonal: Vec<HwId> = (0..nv).map(|i| m[i][i]).collect();
+    let entries = (0..nv)
+        .flat_map(|i| {
+            let m = &m;
+            std::iter::once(i)
+                .chain(ancestors(parents, i))
+                .map(move |j| (i as u16, j as u16, m[i][j]))
+        })
+        .collect();
     g.factor = Factor {
         diagonal: diagonal.clone(),
         floor: floor.to_vec(),
         minv: minv_floor.iter().map(|f| f.recip()).collect(),
         rhs: Vec::new(),
+        parents: parents.iter().map(|p| p.map(|p| p as u16)).collect(),
+        entries,
     };
 
     // The factorisation, rows leaves first; every value a Schur complement's entry (the
@@ -287,7 +308,7 @@ pub fn fd_grad_chip(
         outputs.push(DatapathOutput { name, shape: o.shape, ids });
     }
     let _ = qdd;
-    // The bounds read M's diagonal and the right-hand sides: kept (an entry only a folded
+    // The bounds read M's entries and the right-hand sides: kept (an entry only a folded
     // division read is a constant, which costs nothing).
     let roots: Vec<HwId> = g
         .factor
@@ -295,6 +316,7 @@ pub fn fd_grad_chip(
         .iter()
         .copied()
         .chain(g.factor.rhs.iter().flat_map(|b| b.iter().map(|r| r.1)))
+        .chain(g.factor.entries.iter().map(|e| e.2))
         .collect();
     let live = live_nodes(&g.nodes, &outputs, &roots);
     compact(g, live, outputs, nv, mass.dims)
@@ -379,6 +401,8 @@ fn compact(
         floor: g.factor.floor,
         minv: g.factor.minv,
         rhs: g.factor.rhs.iter().map(|b| b.iter().map(|(k, x)| (*k, remap(x))).collect()).collect(),
+        parents: g.factor.parents,
+        entries: g.factor.entries.iter().map(|&(i, j, x)| (i, j, remap(&x))).collect(),
     };
     Datapath { kernel: "fd_grad", nv, dims, ports, nodes, links, clamps, factor, outputs }
 }

@@ -4,6 +4,7 @@
 //! that shows a format safe, and the seeded configurations behind the M⁻¹ input's bound.
 
 mod analysis;
+mod backward;
 mod chip;
 mod measure;
 mod model;

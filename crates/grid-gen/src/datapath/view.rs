@@ -103,6 +103,11 @@ pub struct Factor {
     pub minv: Vec<f64>,
     /// Each solve's non-zero right-hand-side entries: (coordinate, node).
     pub rhs: Vec<Vec<(u16, HwId)>>,
+    /// The coordinates' tree (each one's parent), which the factorisation follows.
+    pub parents: Vec<Option<u16>>,
+    /// M's entries before the factorisation, `(i, j, node)` for j = i or an ancestor of i
+    /// (the others are structurally zero): what its rounding-error analysis starts from.
+    pub entries: Vec<(u16, u16, HwId)>,
 }
 
 impl Clamp {

@@ -189,6 +189,13 @@ pub struct NetlistStats {
     /// `error_bound` is infinite: the analysis bounds its ranges, not its error).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measured_error: Option<f64>,
+    /// `fd_grad`'s chip partition: the narrowest format whose error the backward analysis
+    /// bounds within `--max-error` (`datapath::backward`), if one of at most 96 bits does,
+    /// and that bound.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub proven_format: Option<String>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub proven_error_bound: Option<f64>,
 }
 
 /// One kernel planned for hardware: the datapath, its format and analysis, its names.
@@ -206,6 +213,9 @@ pub struct Netlist {
     /// The measured error, where the analysis bounds the ranges only (`fd_grad`'s chip
     /// partition): the format's fraction bits rest on it.
     pub measured: Option<Measured>,
+    /// `fd_grad`'s chip partition with `--fixed auto`: the narrowest format the error
+    /// analysis proves, and its bound (`None` where none of at most 96 bits does).
+    pub proven: Option<(Format, f64)>,
 }
 
 /// Where each operation sits in time, by architecture (each carries its parameters).
@@ -392,9 +402,15 @@ fn netlist(
     top: String,
     measured_on: Option<&[ChipState]>,
 ) -> Result<Netlist, VerilogError> {
+    let mut proven = None;
     let (format, analysis, measured) = match (measured_on, options.format) {
         (Some(states), _) => {
             let (format, analysis, measured) = measured_format(&datapath, options, bounds, states)?;
+            if let FormatChoice::Auto { max_error } = options.format {
+                proven = choose_format(&datapath, bounds, options.rounding, max_error)
+                    .ok()
+                    .map(|(f, a)| (f, a.output_error));
+            }
             (format, analysis, Some(measured))
         }
         (None, FormatChoice::Fixed { width, frac }) => {
@@ -427,6 +443,7 @@ fn netlist(
         names,
         layout,
         measured,
+        proven,
     })
 }
 
@@ -544,6 +561,8 @@ impl Netlist {
                 None => self.analysis.needed,
             },
             measured_error: self.measured.as_ref().map(|m| m.error),
+            proven_format: self.proven.map(|(f, _)| f.label()),
+            proven_error_bound: self.proven.map(|(_, e)| e),
         }
     }
 
@@ -664,13 +683,18 @@ impl Netlist {
                 s.error_bound
             )),
             Some(m) => h.push_str(&format!(
-                "// Analysed for |qd| <= {}, |tau| <= {} (per joint, in order): every exact value within {:.6e} (M's pivots and Minv's diagonal bounded from the link inertias). The error is measured, not bounded: at most {:.6e} on the outputs over {} seeded states with |qdd| <= {}; a saturation anywhere sets `overflow`.\n",
+                "// Analysed for |qd| <= {}, |tau| <= {} (per joint, in order): every exact value within {:.6e} (M's pivots and Minv's diagonal bounded from the link inertias). The error is measured: at most {:.6e} on the outputs over {} seeded states with |qdd| <= {}; the backward error analysis bounds it by {:.6e} at this format{}; a saturation anywhere sets `overflow`.\n",
                 list(&self.bounds.qd),
                 list(&self.bounds.tau),
                 s.range_bound,
                 m.error,
                 m.states,
                 list(&self.bounds.qdd),
+                s.error_bound,
+                match self.proven {
+                    Some((f, e)) => format!(" (by {e:.6e} at {})", f.label()),
+                    None => String::new(),
+                },
             )),
         }
         h.push_str("//\n// Ports (inputs and outputs raw two's complement, value = raw * 2^-FRAC; outputs valid while out_valid is high):\n");
