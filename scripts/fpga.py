@@ -75,10 +75,12 @@ def synthesise(yosys, path, top, json_out=None):
 def clock_estimate(nextpnr, json_path):
     """nextpnr-ecp5's post-placement estimate of the largest clock, MHz (no routing: the
     router is hours in WebAssembly on a 2-core machine; the estimate uses its delay model)."""
+    # Run beside the file: the YoWASP build is WebAssembly, which sees only the folder it
+    # starts in (an absolute path elsewhere fails with "Failed to open").
     out = subprocess.run(
-        [nextpnr, "--85k", "--package", "CABGA756", "--json", json_path, "--out-of-context",
-         "--no-route", "--timing-allow-fail", "--freq", "100", "--seed", "1"],
-        capture_output=True, text=True,
+        [nextpnr, "--85k", "--package", "CABGA756", "--json", os.path.basename(json_path),
+         "--out-of-context", "--no-route", "--timing-allow-fail", "--freq", "100", "--seed", "1"],
+        capture_output=True, text=True, cwd=os.path.dirname(json_path),
     )
     found = re.findall(r"Max frequency for clock\s+'clk':\s+([\d.]+) MHz", out.stderr + out.stdout)
     return float(found[-1]) if found else None
