@@ -10,6 +10,9 @@ use crate::ir::{Function, Robot};
 
 /// How many seeded states [`chip_states`] draws.
 pub const MEASURED_STATES: usize = 128;
+/// The most fraction bits the measured search tries (a measured format wider than 96
+/// bits would be better served by the proven one).
+const MEASURED_MAX_FRAC: u32 = 95;
 /// How far below `--max-error` the measured error must be: two bits for states no sample
 /// drew (the error grows where M is ill-conditioned, a region few states fall in). On the
 /// tests' own states the worst error stayed below the sample's largest (at most 0.7 of it).
@@ -144,7 +147,9 @@ pub fn choose_format_measured(
         let width = width_for(needed + 2.0 * m.node_error, frac)?;
         Some((Format { width, ..f }, m))
     };
-    let (mut lo, mut hi) = (0u32, MAX_WIDTH - 1);
+    // The search's range is fixed (not MAX_WIDTH's): a bisection's path, and so the
+    // format it lands on where the measured error is not monotone in FRAC, stays put.
+    let (mut lo, mut hi) = (0u32, MEASURED_MAX_FRAC);
     let mut best = None;
     let mut found = None;
     while lo < hi {

@@ -62,10 +62,11 @@ pub struct Format {
 }
 
 /// Widest format. Raw values are `i128` in the software model and products are formed
-/// in 256 bits (`ethnum::I256`); 96 bits leave every sum of two raw values in `i128` and
-/// cover the ranges the interval analysis proves for a 7-joint arm's `fd_grad` (the
-/// iiwa's needs 72 bits at the default `--max-error`).
-pub const MAX_WIDTH: u32 = 96;
+/// in 256 bits (`ethnum::I256`): 120 bits leave every sum of two raw values in `i128`, a
+/// product (240 bits) and a reciprocal's dividend 2^(2·FRAC) in 256, and cover what the
+/// error analyses prove for a 7-joint arm's whole gradient on chip (the iiwa's needs 118
+/// bits) and a floating humanoid's `rnea_grad` (Atlas's, 100).
+pub const MAX_WIDTH: u32 = 120;
 
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum FixedError {
@@ -187,8 +188,8 @@ mod tests {
     #[test]
     fn formats_are_checked() {
         assert!(Format::new(64, 63, Rounding::HalfUp).is_ok());
-        assert!(Format::new(96, 40, Rounding::HalfUp).is_ok());
-        assert!(Format::new(97, 16, Rounding::HalfUp).is_err());
+        assert!(Format::new(120, 40, Rounding::HalfUp).is_ok());
+        assert!(Format::new(121, 16, Rounding::HalfUp).is_err());
         assert!(Format::new(16, 16, Rounding::HalfUp).is_err());
         assert!(Format::new(1, 0, Rounding::HalfUp).is_err());
         assert_eq!(

@@ -145,7 +145,7 @@ impl Datapath {
             let (x, o) = match *op {
                 HwOp::Port(n) => (ports[n as usize], false),
                 HwOp::Const(c) => format.quantize(c),
-                // Raw values have at most 96 bits: sums stay in i128.
+                // Raw values have at most 120 bits: sums stay in i128.
                 HwOp::Add(a, b) => format.saturate(v(a) + v(b)),
                 HwOp::Sub(a, b) => format.saturate(v(a) - v(b)),
                 HwOp::Neg(a) => format.saturate(-v(a)),

@@ -104,7 +104,7 @@ fn simulate_batch(
     }
     let text = std::fs::read_to_string(&outp)?;
     let expected = netlist.names.outputs.len();
-    // Formats have at most 96 bits: the value's sign bit shifted to the top of i128.
+    // Formats have at most 120 bits: the value's sign bit shifted to the top of i128.
     let sign = |raw: u128| -> i128 { ((raw << (128 - w)) as i128) >> (128 - w) };
     let results: Vec<SimResult> = text
         .lines()

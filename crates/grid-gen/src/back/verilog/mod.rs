@@ -190,7 +190,7 @@ pub struct NetlistStats {
     #[serde(skip_serializing_if = "Option::is_none")]
     pub measured_error: Option<f64>,
     /// `fd_grad`'s chip partition: the narrowest format whose error the backward analysis
-    /// bounds within `--max-error` (`datapath::backward`), if one of at most 96 bits does,
+    /// bounds within `--max-error` (`datapath::backward`), if one of at most 120 bits does,
     /// and that bound.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub proven_format: Option<String>,
@@ -214,7 +214,7 @@ pub struct Netlist {
     /// partition): the format's fraction bits rest on it.
     pub measured: Option<Measured>,
     /// `fd_grad`'s chip partition with `--fixed auto`: the narrowest format the error
-    /// analysis proves, and its bound (`None` where none of at most 96 bits does).
+    /// analysis proves, and its bound (`None` where none of at most 120 bits does).
     pub proven: Option<(Format, f64)>,
 }
 
