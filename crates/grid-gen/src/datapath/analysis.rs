@@ -13,7 +13,8 @@
 //! reports the bound beside the measured error.
 
 use super::backward::{Backward, SolveBounds};
-use super::{Clamp, Datapath, FixedError, Format, HwOp, Port, Rounding, SolveStage, MAX_WIDTH};
+use super::MAX_WIDTH;
+use super::{Clamp, Datapath, FixedError, Format, HwId, HwOp, Port, Rounding, SolveStage};
 use crate::ir::{Input, Robot};
 
 /// Joint speed bound when the URDF gives no `<limit velocity>` (rad/s or m/s); a fast
@@ -166,6 +167,8 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
     let mut solves: Vec<Option<SolveBounds>> = (0..dp.factor.rhs.len()).map(|_| None).collect();
     let trig = trig_products(dp);
     for (i, op) in dp.nodes.iter().enumerate() {
+        // The largest magnitude of an analysed node's exact value.
+        let range = |x: HwId| lo[x.0 as usize].abs().max(hi[x.0 as usize].abs());
         let (l, h, e) = match *op {
             HwOp::Port(p) => {
                 let (l, h) = bounds.port(dp.ports[p as usize]);
@@ -220,14 +223,12 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
         let (l, h, e) = match *op {
             HwOp::Add(a, b) | HwOp::Sub(a, b) => match (trig[a.0 as usize], trig[b.0 as usize]) {
                 (Some(ta), Some(tb)) if ta.joint == tb.joint && ta.cos != tb.cos => {
-                    let m = |x: crate::datapath::HwId| {
-                        lo[x.0 as usize].abs().max(hi[x.0 as usize].abs())
-                    };
-                    let r = m(ta.other).hypot(m(tb.other));
+                    let (xa, xb) = (range(ta.other), range(tb.other));
+                    let r = xa.hypot(xb);
                     let (ea, eb) = (err[ta.other.0 as usize], err[tb.other.0 as usize]);
                     let rotated = ea.hypot(eb)
-                        + err[ta.port.0 as usize] * (m(ta.other) + ea)
-                        + err[tb.port.0 as usize] * (m(tb.other) + eb)
+                        + err[ta.port.0 as usize] * (xa + ea)
+                        + err[tb.port.0 as usize] * (xb + eb)
                         + 2.0 * format.product_error();
                     (l.max(-r), h.min(r), e.min(rotated))
                 }
@@ -236,19 +237,11 @@ pub fn analyse(dp: &Datapath, bounds: &Bounds, frac: u32, rounding: Rounding) ->
             _ => (l, h, e),
         };
         // A pivot's bound may name the node itself (an entry of M no update reached).
-        let maxabs = |x: crate::datapath::HwId| {
-            if x.0 as usize == i {
-                l.abs().max(h.abs())
-            } else {
-                lo[x.0 as usize].abs().max(hi[x.0 as usize].abs())
-            }
-        };
+        let maxabs = |x: HwId| if x.0 as usize == i { l.abs().max(h.abs()) } else { range(x) };
         // The backward analysis's bounds apply to the values the factorisation computes
         // (M's entries keep their own).
         let after = last_entry.is_some_and(|last| i > last) && dp.clamps[i].is_some();
         if after && backward.is_none() {
-            let range =
-                |x: crate::datapath::HwId| lo[x.0 as usize].abs().max(hi[x.0 as usize].abs());
             backward = Some(Backward::new(dp, &format, range, &err));
         }
         let proof = backward.as_ref().filter(|b| after && b.valid);
@@ -317,14 +310,14 @@ struct Trig {
     joint: u16,
     cos: bool,
     /// The `Sin` or `Cos` port's node.
-    port: crate::datapath::HwId,
-    other: crate::datapath::HwId,
+    port: HwId,
+    other: HwId,
 }
 
 /// Each node's [`Trig`] form, where it has one: a product with a `Sin` or `Cos` port, or
 /// the negation of one.
 fn trig_products(dp: &Datapath) -> Vec<Option<Trig>> {
-    let port = |x: crate::datapath::HwId| match dp.nodes[x.0 as usize] {
+    let port = |x: HwId| match dp.nodes[x.0 as usize] {
         HwOp::Port(p) => match dp.ports[p as usize] {
             Port::Sin(j) => Some((j, false)),
             Port::Cos(j) => Some((j, true)),
@@ -392,10 +385,10 @@ pub fn choose_format(
     for frac in 0..MAX_WIDTH - 1 {
         let a = analyse(dp, bounds, frac, rounding);
         let Some(width) = width_for(a.needed, frac) else {
-            // More fraction bits only need more width: nothing further fits. (An unbounded
-            // value at few fraction bits is the factorisation's error analysis failing,
-            // which more bits cure.)
-            if a.needed.is_finite() {
+            // More fraction bits only need more width: nothing further fits, unless the
+            // ranges are bounded and only an error is not (the factorisation's error
+            // analysis failing at few fraction bits, which more bits cure).
+            if a.needed.is_finite() || !a.range().is_finite() {
                 break;
             }
             continue;
@@ -426,7 +419,7 @@ pub fn format_for_width(
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::datapath::{DatapathOutput, Factor, HwId};
+    use crate::datapath::{DatapathOutput, Factor};
     use crate::ir::{Dims, Shape};
 
     /// `cos θ · x − sin θ · y` and `−(sin θ · x) + cos θ · y` with |x|, |y| ≤ 3 and 4: the

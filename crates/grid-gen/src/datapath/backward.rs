@@ -32,9 +32,9 @@ pub(super) struct Backward {
     /// Whether the argument holds (θ ≤ ½, ε ≤ min M_ii / 4): else no bound.
     pub valid: bool,
     /// ‖M' − M‖₂ ≤ ε.
-    pub eps: f64,
+    eps: f64,
     /// ε / λ_min(M)'s lower bound.
-    pub theta: f64,
+    theta: f64,
     /// |(M' − M)_ij| ≤ delta[i · n + j].
     delta: Vec<f64>,
     /// max M_ii.

@@ -683,16 +683,19 @@ impl Netlist {
                 s.error_bound
             )),
             Some(m) => h.push_str(&format!(
-                "// Analysed for |qd| <= {}, |tau| <= {} (per joint, in order): every exact value within {:.6e} (M's pivots and Minv's diagonal bounded from the link inertias). The error is measured: at most {:.6e} on the outputs over {} seeded states with |qdd| <= {}; the backward error analysis bounds it by {:.6e} at this format{}; a saturation anywhere sets `overflow`.\n",
+                "// Analysed for |qd| <= {}, |tau| <= {} (per joint, in order): every exact value within {:.6e} (M's pivots and Minv's diagonal bounded from the link inertias). The error is measured: at most {:.6e} on the outputs over {} seeded states with |qdd| <= {}; the backward error analysis {}{}; a saturation anywhere sets `overflow`.\n",
                 list(&self.bounds.qd),
                 list(&self.bounds.tau),
                 s.range_bound,
                 m.error,
                 m.states,
                 list(&self.bounds.qdd),
-                s.error_bound,
+                match s.error_bound {
+                    b if b.is_finite() => format!("bounds it by {b:.6e} at this format"),
+                    _ => "does not bound it at this format".to_string(),
+                },
                 match self.proven {
-                    Some((f, e)) => format!(" (by {e:.6e} at {})", f.label()),
+                    Some((f, e)) => format!(" (at {}: {e:.6e})", f.label()),
                     None => String::new(),
                 },
             )),
