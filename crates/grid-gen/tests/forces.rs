@@ -681,7 +681,7 @@ fn contact_kernels_match_the_reference() {
 /// `contact_fd_grad`'s combination reaches the Rust backend as a per-column program, which
 /// every copy (portable, `fma`, and `avx512`'s with `--avx512`) runs as loops over the
 /// columns (`against_reference.rs` checks both copies' values against the reference); a
-/// step under contacts, whose combination the step goes on from, has no program.
+/// step under contacts runs the combination and its own composition as one program.
 #[test]
 fn the_contact_combination_is_looped_in_every_copy() {
     use grid_gen::generate::{generate, Options, Target};
@@ -715,5 +715,18 @@ fn the_contact_combination_is_looped_in_every_copy() {
         &LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() },
     )
     .unwrap();
-    assert!(lowered.functions[0].program.is_none(), "the step goes on from the combination");
+    let program = lowered.functions[0].program.as_ref().expect("the step extends the program");
+    // The combination's rows, then the q rows of A and B and q̇'s identity.
+    assert_eq!((program.rows, program.blocks.len()), (18 + 12 + 2 * 18, 3));
+    let file = generate(
+        &stepping,
+        &Options {
+            targets: vec![Target::Rust],
+            lower: LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() },
+            ..Options::default()
+        },
+    )
+    .unwrap()
+    .remove(0);
+    assert_program_looped(&file.contents, "step_grad", 3);
 }

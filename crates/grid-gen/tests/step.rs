@@ -521,14 +521,22 @@ fn rk4_step_grad_compiles_and_matches_the_reference() {
 }
 
 /// A forced step's generated Rust, compiled with rustc and run: iiwa holding its tool by a
-/// rigid wrench contact, with fext on its third link, semi-implicit `step_grad` on four
-/// states against the reference, the contact's force λ and its derivatives included.
+/// rigid wrench contact, with fext on its third link, `step_grad` by both Euler schemes
+/// (whose programs store different rows of A and B) on four states against the reference,
+/// the contact's force λ and its derivatives included.
 #[test]
 fn forced_step_grad_compiles_and_matches_the_reference() {
     use grid_gen::generate::{generate, Options, Target};
     let iiwa =
         with_forces(&load("grid_iiwa"), &["iiwa_joint_3"], &[("iiwa_link_7", ContactKind::Wrench)]);
-    let model = with_step(&iiwa, Scheme::SemiImplicitEuler, 0.01);
+    for scheme in [Scheme::SemiImplicitEuler, Scheme::ExplicitEuler] {
+        forced_step_grad_compiles(&iiwa, scheme);
+    }
+}
+
+fn forced_step_grad_compiles(iiwa: &Model, scheme: Scheme) {
+    use grid_gen::generate::{generate, Options, Target};
+    let model = with_step(iiwa, scheme, 0.01);
     let lower = LowerOptions { kernels: vec![KernelKind::StepGrad], ..LowerOptions::default() };
     let file =
         generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
@@ -574,7 +582,7 @@ fn forced_step_grad_compiles_and_matches_the_reference() {
         want.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect()
     });
     println!(
-        "iiwa contact step_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)"
+        "iiwa contact step_grad ({scheme:?}), compiled: worst {worst:.2e} from the reference (bound 1e-12)"
     );
 }
 

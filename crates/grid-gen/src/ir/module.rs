@@ -703,20 +703,31 @@ fn freeze(
     // Folding can leave an operand unread (a product with a constant folded, or a negation
     // moved out of the product): a constant keeps its value and a dead negation of a live
     // node becomes that node negated; any other dead operand gives up the descriptor.
-    let entry = |id: Operand| -> Option<Operand> {
-        let Operand::Node(id) = id else { return Some(id) };
+    // A negated operand maps as its node does, negated.
+    let entry = |o: Operand| -> Option<Operand> {
+        let (id, negated) = match o {
+            Operand::Node(id) => (id, false),
+            Operand::Neg(id) => (id, true),
+            Operand::Const(_) => return Some(o),
+        };
         let live_id = |id: Id| Some(new_id[id.0 as usize]).filter(|n| n.0 != u32::MAX);
-        if let Some(n) = live_id(id) {
-            return Some(Operand::Node(n));
-        }
-        match g.nodes[id.0 as usize].op {
-            Op::Const(c) => Some(Operand::Const(c)),
-            Op::Neg(x) => match g.nodes[x.0 as usize].op {
-                Op::Const(c) => Some(Operand::Const(-c)),
-                _ => live_id(x).map(Operand::Neg),
+        let mapped = match live_id(id) {
+            Some(n) => Operand::Node(n),
+            None => match g.nodes[id.0 as usize].op {
+                Op::Const(c) => Operand::Const(c),
+                Op::Neg(x) => match g.nodes[x.0 as usize].op {
+                    Op::Const(c) => Operand::Const(-c),
+                    _ => Operand::Neg(live_id(x)?),
+                },
+                _ => return None,
             },
-            _ => None,
-        }
+        };
+        Some(match (mapped, negated) {
+            (m, false) => m,
+            (Operand::Node(n), true) => Operand::Neg(n),
+            (Operand::Neg(n), true) => Operand::Node(n),
+            (Operand::Const(c), true) => Operand::Const(-c),
+        })
     };
     let remap =
         |ids: &[Operand]| -> Option<Vec<Operand>> { ids.iter().map(|&id| entry(id)).collect() };

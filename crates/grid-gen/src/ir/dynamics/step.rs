@@ -16,6 +16,7 @@
 //! block, the forward-mode derivative of its translation.
 
 use super::super::graph::{Graph, Id, Input, Stage};
+use super::super::module::{ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Operand};
 use super::super::spatial::{self as sp, joint_xform_at, k, V3};
 use super::{Dynamics, LambdaSource, Mat, Scalar};
 use crate::model::{LieBlock, Scheme};
@@ -378,9 +379,9 @@ impl Dynamics<'_> {
         s: Scalar,
     ) -> (Vec<Id>, Mat, Mat, Mat, Option<StepLambda>) {
         if self.declares_contacts() {
+            // contact_fd_grad's program (its combination over the columns) is left in
+            // `self.program` for the Euler steps to extend ([`step_program`]).
             let mut out = self.contact_fd_grad(qd, tau, tau_cols).into_iter();
-            // The program describes contact_fd_grad's outputs, which the step goes on from.
-            self.program = None;
             let mut next = || out.next().unwrap_or_default();
             let qdd = next().into_iter().next().unwrap_or_default();
             let lambda = next().into_iter().next().unwrap_or_default();
@@ -607,7 +608,9 @@ impl Dynamics<'_> {
         }
         // a_v = dt ∂q̈/∂x and b_v = dt M⁻¹ S as they come out of the solves.
         let (qdd, avq, mut avv, bv, lambda) = self.step_acceleration_grad(qd, &tau, &actuated, dt);
-        // The step's products are its own: no backend may rerun fd_grad's as a loop.
+        // The step's products are its own: no backend may rerun fd_grad's as a loop; the
+        // contacts' combination goes on into the step's own program (below).
+        let combination = if self.declares_contacts() { self.program.take() } else { None };
         self.product = None;
         self.program = None;
         self.g.at(None, Stage::Combine, 0);
@@ -644,7 +647,7 @@ impl Dynamics<'_> {
                 .collect();
             (aqq, jv_times(g, &avv), jv_times(g, &bv))
         } else {
-            (jq, jv_h, vec![vec![zero; nu]; nv])
+            (jq.clone(), jv_h.clone(), vec![vec![zero; nu]; nv])
         };
         let mut a = Vec::with_capacity(4 * nv * nv);
         for (left, right) in aqq.iter().zip(&aqv).chain(avq.iter().zip(&avv)) {
@@ -652,8 +655,104 @@ impl Dynamics<'_> {
             a.extend(right);
         }
         let b = bq.iter().chain(&bv).flatten().copied().collect();
+        if let Some(p) = combination {
+            let h = Operand::Node(dt.id(&mut self.g));
+            let semi = (scheme == Scheme::SemiImplicitEuler).then_some((&jq, &jv_h));
+            self.program = Some(step_program(p, nv, h, semi, zero));
+        }
         (q_next, qd_next, a, b, lambda)
     }
+}
+
+/// `step_grad`'s program under contacts: `contact_fd_grad`'s combination per column of u =
+/// q, q̇, τ (its three blocks, rows `[∂q̈/∂u e_c (nv); −∂λ/∂u e_c (nλ)]`), then the Euler
+/// step's composition with the columns still innermost, so that no (column, coordinate)
+/// pair of `[A | B]` is straight-line code: `x ← dt x` (the rows become `a_v e_c`), on
+/// q̇'s columns `x ← x + e_c` (from identity rows, `I + a_vv`), and with the semi-implicit
+/// scheme `z = Jq e_c + dt Jv x` (`z` starts at q's column of Jq, zero for q̇ and τ). Stored
+/// as A's and B's rows `[z; x]` (`[0 from the graph; x]` for the explicit scheme, whose
+/// `[Jq, dt Jv]` does not depend on q̈) and ∂λ/∂x, ∂λ/∂u. Rows: `x` 0..nv, the combination's
+/// nλ, `z` nv, identity nv.
+fn step_program(
+    combination: ColumnProgram,
+    nv: usize,
+    dt: Operand,
+    semi: Option<(&Mat, &Mat)>,
+    zero: Id,
+) -> ColumnProgram {
+    let nl = combination.rows - nv;
+    let (z0, e0) = (nv + nl, 2 * nv + nl);
+    let rows = e0 + nv;
+    let nx = 2 * nv;
+    let blocks = combination
+        .blocks
+        .into_iter()
+        .enumerate()
+        .map(|(which, b)| {
+            let columns = b.columns();
+            let mut init = b.init;
+            let constant = |x: f64| vec![Operand::Const(x); columns];
+            // z: q's columns of Jq (semi-implicit), else zero.
+            for i in 0..nv {
+                init.push(match (which, semi) {
+                    (0, Some((jq, _))) => jq[i].iter().map(|&x| Operand::Node(x)).collect(),
+                    _ => constant(0.0),
+                });
+            }
+            // Identity rows, read only on q̇'s columns.
+            for i in 0..nv {
+                init.push(match which {
+                    1 => {
+                        (0..columns).map(|c| Operand::Const(f64::from(u8::from(c == i)))).collect()
+                    }
+                    _ => constant(0.0),
+                });
+            }
+            let mut steps = b.steps;
+            steps.extend((0..nv).map(|i| ColumnStep::Mul { dst: i, coef: dt }));
+            if which == 1 {
+                steps.extend((0..nv).map(|i| ColumnStep::Sub {
+                    dst: i,
+                    coef: Operand::Const(-1.0),
+                    src: e0 + i,
+                }));
+            }
+            if let Some((_, jv_h)) = semi {
+                for i in 0..nv {
+                    for (r, &j) in jv_h[i].iter().enumerate() {
+                        if j != zero {
+                            steps.push(ColumnStep::Sub {
+                                dst: z0 + i,
+                                coef: Operand::Neg(j),
+                                src: r,
+                            });
+                        }
+                    }
+                }
+            }
+            // A (2nv x 2nv) and dλ/dx (nλ x 2nv) take q's columns then q̇'s; B (2nv x nu)
+            // and dλ/du (nλ x nu) τ's.
+            let (width, at, out_x, out_l) = match which {
+                0 => (nx, 0, 2, 5),
+                1 => (nx, nv, 2, 5),
+                _ => (columns, 0, 3, 6),
+            };
+            let store = |row: usize, out_row: usize, output: usize, negate: bool| ColumnStore {
+                row,
+                output,
+                flat: (0..columns).map(|c| out_row * width + at + c).collect(),
+                negate,
+            };
+            let mut stores: Vec<ColumnStore> =
+                (0..nv).map(|i| store(i, nv + i, out_x, false)).collect();
+            if semi.is_some() {
+                stores.extend((0..nv).map(|i| store(z0 + i, i, out_x, false)));
+            }
+            stores.extend((0..nl).map(|r| store(nv + r, r, out_l, true)));
+            ColumnBlock { init, steps, stores }
+        })
+        .collect();
+    ColumnProgram { rows, blocks }
 }
 
 /// The state's block-diagonal Jacobian `[[J, 0], [0, I]]` (q's block `j`, q̇'s identity).
