@@ -526,7 +526,6 @@ fn rk4_step_grad_compiles_and_matches_the_reference() {
 /// the contact's force λ and its derivatives included.
 #[test]
 fn forced_step_grad_compiles_and_matches_the_reference() {
-    use grid_gen::generate::{generate, Options, Target};
     let iiwa =
         with_forces(&load("grid_iiwa"), &["iiwa_joint_3"], &[("iiwa_link_7", ContactKind::Wrench)]);
     for scheme in [Scheme::SemiImplicitEuler, Scheme::ExplicitEuler] {
