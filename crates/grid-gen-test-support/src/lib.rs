@@ -676,13 +676,14 @@ pub fn output_matrix(shape: Shape, nv: usize, values: &[f64]) -> DMatrix<f64> {
 
 /// A generated Rust module's column program for `kernel` runs as loops in both copies, the
 /// portable one and the `fma` one: each calls each of its `blocks` block functions once,
-/// the portable copy's with a multiplication and a subtraction per term, the `fma` copy's
-/// with one `mul_add`.
+/// whose tables the copy's runner runs, the portable copy's with a multiplication and a
+/// subtraction per term, the `fma` copy's with one `mul_add`.
 pub fn assert_program_looped(text: &str, kernel: &str, blocks: usize) {
     let (portable, fma) = text.split_at(text.find("pub mod fma").expect("an fma copy"));
-    for (copy, text, term) in
-        [("portable", portable, "a = a - k0 * x["), ("fma", fma, "a = T::mul_add(k0, x[")]
-    {
+    for (copy, text, term) in [
+        ("portable", portable, "a[c] = a[c] - k * s[c]"),
+        ("fma", fma, "a[c] = T::mul_add(k, s[c], a[c])"),
+    ] {
         for b in 0..blocks {
             let call = format!("{kernel}_cols{b}(&mut pb{b}, &pc);");
             assert_eq!(text.matches(&call).count(), 1, "the {copy} copy calls {call}");

@@ -697,7 +697,11 @@ fn the_contact_combination_is_looped_in_every_copy() {
     )
     .unwrap();
     let program = lowered.functions[0].program.as_ref().expect("the program survives freezing");
-    assert_eq!((program.rows, program.blocks.len()), (18 + 12, 3));
+    // q's, τ's, and q̇'s in two: the twelve leg and three linear base columns through M's
+    // factorisation, the three angular base ones known without a solve.
+    assert_eq!((program.rows, program.blocks.len()), (18 + 12, 4));
+    let widths: Vec<usize> = program.blocks.iter().map(|b| b.columns()).collect();
+    assert_eq!(widths, [18, 15, 3, 18]);
     let lower =
         LowerOptions { kernels: vec![KernelKind::ContactFdGrad], ..LowerOptions::default() };
     let file =
@@ -705,7 +709,7 @@ fn the_contact_combination_is_looped_in_every_copy() {
             .unwrap()
             .remove(0);
     let text = &file.contents;
-    assert_program_looped(text, "contact_fd_grad", 3);
+    assert_program_looped(text, "contact_fd_grad", 4);
     let mut stepping = model.clone();
     stepping.specialisation.step =
         Some(grid_gen::model::StepSpec::folded(grid_gen::model::Scheme::SemiImplicitEuler, 0.01));
@@ -717,7 +721,7 @@ fn the_contact_combination_is_looped_in_every_copy() {
     .unwrap();
     let program = lowered.functions[0].program.as_ref().expect("the step extends the program");
     // The combination's rows, then the q rows of A and B and q̇'s identity.
-    assert_eq!((program.rows, program.blocks.len()), (18 + 12 + 2 * 18, 3));
+    assert_eq!((program.rows, program.blocks.len()), (18 + 12 + 2 * 18, 4));
     let file = generate(
         &stepping,
         &Options {
@@ -728,5 +732,5 @@ fn the_contact_combination_is_looped_in_every_copy() {
     )
     .unwrap()
     .remove(0);
-    assert_program_looped(&file.contents, "step_grad", 3);
+    assert_program_looped(&file.contents, "step_grad", 4);
 }

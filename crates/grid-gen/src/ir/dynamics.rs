@@ -99,6 +99,9 @@ pub(crate) struct Dynamics<'a> {
     pub product: Option<super::module::DenseProduct>,
     /// Set by [`Self::contact_fd_grad`]: its combination as a per-column program.
     pub program: Option<super::module::ColumnProgram>,
+    /// Set by [`Self::fd_grad`] when it solves through M's factorisation: its solves as
+    /// steps on the right-hand sides, which [`Self::contact_fd_grad`] runs in its program.
+    fd_solves: Option<fd_grad::FdSolves>,
     /// How [`Self::fd_grad`] gets q̈ and applies M⁻¹ to ∂c/∂u (`Auto` runs `Minv`); after
     /// recording, the solve it took.
     pub solve: Solve,
@@ -157,6 +160,7 @@ impl<'a> Dynamics<'a> {
             inertia,
             product: None,
             program: None,
+            fd_solves: None,
             solve: Solve::Minv,
             forces: Forces::default(),
             config: None,

@@ -363,7 +363,8 @@ fn emit_kernel(
     let mut locals: Vec<(String, String)> =
         operand_mats.iter().map(|m| (m.clone(), "[[T; NV]; NV]".to_string())).collect();
     if let (Some(p), Some(c)) = (program, &coefs) {
-        locals.push(("pc".to_string(), format!("[T; {}]", c.slots.len().max(1))));
+        // One slot more than the coefficients: a zero, for a step that scales by zero.
+        locals.push(("pc".to_string(), format!("[T; {}]", c.slots.len() + 1)));
         for (b, block) in p.blocks.iter().enumerate() {
             locals.push((format!("pb{b}"), format!("[[T; {}]; {}]", block.columns(), p.rows)));
         }
@@ -553,10 +554,11 @@ fn place_operand(
 }
 
 /// Where a [`ColumnProgram`]'s coefficients are stored: one slot of `pc` per distinct
-/// node or negated node (constants are written into the loops).
+/// node, negated node or nonzero constant (zero coefficients have none: their terms are
+/// dropped).
 struct ProgramCoefs {
     slots: Vec<Operand>,
-    index: HashMap<(bool, Id), usize>,
+    index: HashMap<(u8, u64), usize>,
 }
 
 impl ProgramCoefs {
@@ -565,33 +567,35 @@ impl ProgramCoefs {
         for block in &p.blocks {
             for step in &block.steps {
                 let (ColumnStep::Sub { coef, .. } | ColumnStep::Mul { coef, .. }) = *step;
-                let key = match coef {
-                    Operand::Node(id) => (false, id),
-                    Operand::Neg(id) => (true, id),
-                    Operand::Const(_) => continue,
-                };
-                if matches!(k.op(key.1), Op::Const(_)) {
-                    continue;
-                }
+                let Some(key) = Self::key(k, coef) else { continue };
                 let next = c.slots.len();
                 if *c.index.entry(key).or_insert(next) == next {
-                    c.slots.push(coef);
+                    c.slots.push(match key {
+                        (2, bits) => Operand::Const(f64::from_bits(bits)),
+                        _ => coef,
+                    });
                 }
             }
         }
         c
     }
 
-    /// The coefficient's value in the loops, `None` where it is zero.
-    fn expr(&self, k: &Function, coef: Operand) -> Option<String> {
-        let constant = |c: f64| (c != 0.0).then(|| format!("lit::<T>({})", literal(c)));
+    /// A coefficient's identity: a node (0), a negated node (1) or a constant's value (2);
+    /// `None` where it is zero.
+    fn key(k: &Function, coef: Operand) -> Option<(u8, u64)> {
+        let constant = |c: f64| (c != 0.0).then_some((2, (c + 0.0).to_bits()));
         match coef {
             Operand::Const(c) => constant(c),
             Operand::Node(id) | Operand::Neg(id) => match k.op(id) {
                 Op::Const(c) => constant(if matches!(coef, Operand::Neg(_)) { -c } else { c }),
-                _ => Some(format!("pc[{}]", self.index[&(matches!(coef, Operand::Neg(_)), id)])),
+                _ => Some((u8::from(matches!(coef, Operand::Neg(_))), u64::from(id.0))),
             },
         }
+    }
+
+    /// The coefficient's slot, `None` where it is zero.
+    fn slot(&self, k: &Function, coef: Operand) -> Option<usize> {
+        Self::key(k, coef).map(|key| self.index[&key])
     }
 }
 
@@ -628,13 +632,14 @@ fn program_skip(k: &Function, p: &ColumnProgram) -> Vec<bool> {
     live.into_iter().map(|l| !l).collect()
 }
 
-/// One block of a [`ColumnProgram`] as a function of its rows, each step a loop over the
-/// columns (innermost, so that the compiler vectorises it). In the SIMD copies a term
-/// `x_dst −= c x_src` is one `mul_add`; in the portable copy a multiplication and a
-/// subtraction, so each column's values are the steps' run one by one in f64 or f32: where
-/// the graph is those steps (fd_grad's solves) its values to the sign of a zero (the graph
-/// folds `a − c·0` to `a`, the loop computes it); where the graph sums a dot product first
-/// (the contact combination) its values to rounding.
+/// One block of a [`ColumnProgram`] as a function of its rows that hands its steps, as
+/// tables, to the copy's runner ([`emit_column_runner`]): code whose size does not grow
+/// with the program's (the tables do, as data). Consecutive subtractions into one row (a solve's
+/// row, a dot product) form one group, whose accumulator the runner keeps for every column
+/// while it subtracts the group's terms in order; a group of no terms scales its row by the
+/// slot in its second field. Each term's rounding is the unrolled loops' it replaces, so
+/// the values are theirs to the bit (the graph's where the graph is these steps, fd_grad's
+/// solves, to the sign of a zero; to rounding where it sums a dot product first).
 fn emit_program_block(
     out: &mut String,
     k: &Function,
@@ -644,56 +649,80 @@ fn emit_program_block(
     fn_name: &str,
     copy: Copy,
 ) {
-    let (cols, attr, fused) = (block.columns(), copy.attribute(), copy != Copy::Portable);
-    let _ = writeln!(out, "#[inline(never)]\n{attr}#[allow(clippy::all, unused_variables)]");
-    let _ = writeln!(
-        out,
-        "fn {fn_name}<T: Real>(x: &mut [[T; {cols}]; {rows}], pc: &[T; {}]) {{",
-        coefs.slots.len().max(1)
-    );
+    let cols = block.columns();
+    // Groups `(row, first term, terms)` and terms `(slot, source row)`.
+    let mut groups: Vec<(usize, usize, usize)> = Vec::new();
+    let mut terms: Vec<(usize, usize)> = Vec::new();
     let mut steps = block.steps.iter().peekable();
     while let Some(step) = steps.next() {
         match *step {
             ColumnStep::Sub { dst, coef, src } => {
-                // Consecutive subtractions into one row (a solve's row, a dot product)
-                // share one loop whose accumulator stays in a register: each column loads
-                // the row once and stores it once, not once per term. The terms keep
-                // their order, so the values are the unfused loops' to the bit.
-                let mut terms: Vec<(String, usize)> = Vec::new();
-                terms.extend(coefs.expr(k, coef).map(|c| (c, src)));
+                let first = terms.len();
+                terms.extend(coefs.slot(k, coef).map(|c| (c, src)));
                 while let Some(&&ColumnStep::Sub { dst: d, coef, src }) = steps.peek() {
                     if d != dst || src == dst {
                         break;
                     }
                     steps.next();
-                    terms.extend(coefs.expr(k, coef).map(|c| (c, src)));
+                    terms.extend(coefs.slot(k, coef).map(|c| (c, src)));
                 }
-                if terms.is_empty() {
-                    continue;
+                if terms.len() > first {
+                    groups.push((dst, first, terms.len() - first));
                 }
-                let _ = write!(out, "{{ ");
-                for (t, (c, _)) in terms.iter().enumerate() {
-                    let _ = write!(out, "let k{t} = {}{c}; ", if fused { "-" } else { "" });
-                }
-                let _ = write!(out, "for c in 0..{cols} {{ let mut a = x[{dst}][c]; ");
-                for (t, (_, src)) in terms.iter().enumerate() {
-                    let _ = match fused {
-                        true => write!(out, "a = T::mul_add(k{t}, x[{src}][c], a); "),
-                        false => write!(out, "a = a - k{t} * x[{src}][c]; "),
-                    };
-                }
-                let _ = writeln!(out, "x[{dst}][c] = a; }} }}");
             }
-            ColumnStep::Mul { dst, coef } => {
-                let c = coefs.expr(k, coef).unwrap_or_else(|| "lit::<T>(0.0)".to_string());
-                let _ = writeln!(
-                    out,
-                    "{{ let k = {c}; for c in 0..{cols} {{ x[{dst}][c] = x[{dst}][c] * k; }} }}"
-                );
-            }
+            ColumnStep::Mul { dst, coef } => match coefs.slot(k, coef) {
+                Some(c) => groups.push((dst, c, 0)),
+                // A zero factor: the row becomes zero, as `x * 0` leaves it for finite x.
+                None => groups.push((dst, coefs.slots.len(), 0)),
+            },
         }
     }
-    out.push_str("}\n\n");
+    let list = |items: Vec<String>| items.join(", ");
+    let _ = writeln!(
+        out,
+        "#[inline(never)]\n{}#[allow(clippy::all, unused_variables)]\n\
+         fn {fn_name}<T: Real>(x: &mut [[T; {cols}]; {rows}], pc: &[T; {}]) {{\n\
+         static GROUPS: [(u32, u32, u32); {}] = [{}];\n\
+         static TERMS: [(u32, u32); {}] = [{}];\n\
+         run_columns(x, pc, &GROUPS, &TERMS);\n}}\n",
+        copy.attribute(),
+        coefs.slots.len() + 1,
+        groups.len(),
+        list(groups.iter().map(|(d, f, n)| format!("({d}, {f}, {n})")).collect()),
+        terms.len(),
+        list(terms.iter().map(|(c, s)| format!("({c}, {s})")).collect()),
+    );
+}
+
+/// The copy's runner of [`emit_program_block`]'s tables, once per copy that has a program:
+/// each step a loop over the columns (innermost, so that the compiler vectorises it; `C`
+/// is the block's column count). In the SIMD copies a term `a −= k x` is one `mul_add`; in
+/// the portable copy a multiplication and a subtraction.
+fn emit_column_runner(out: &mut String, copy: Copy) {
+    let term = match copy {
+        Copy::Portable => "let k = pc[slot as usize]; for c in 0..C { a[c] = a[c] - k * s[c]; }",
+        _ => "let k = -pc[slot as usize]; for c in 0..C { a[c] = T::mul_add(k, s[c], a[c]); }",
+    };
+    let _ = writeln!(
+        out,
+        "/// Runs one block of a column program from its tables: per group `(row, first, n)` the\n\
+         /// row less its `n` terms `(slot, source row)` from `first` on, or with `n = 0` the row\n\
+         /// times slot `first`.\n\
+         #[inline(never)]\n{}#[allow(clippy::all, dead_code)]\n\
+         fn run_columns<T: Real, const C: usize>(x: &mut [[T; C]], pc: &[T], groups: &[(u32, u32, u32)], terms: &[(u32, u32)]) {{\n\
+         for &(dst, first, n) in groups {{\n\
+         let dst = dst as usize;\n\
+         if n == 0 {{ let k = pc[first as usize]; for c in 0..C {{ x[dst][c] = x[dst][c] * k; }} continue; }}\n\
+         let mut a = x[dst];\n\
+         for &(slot, src) in &terms[first as usize..(first + n) as usize] {{\n\
+         let s = &x[src as usize];\n\
+         {term}\n\
+         }}\n\
+         x[dst] = a;\n\
+         }}\n\
+         }}\n",
+        copy.attribute()
+    );
 }
 
 /// The operand matrices' `fixups`, then `out_k = −M⁻¹ · dc_k` over rows of M⁻¹, the
@@ -1302,6 +1331,9 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
         for k in &module.functions {
             emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Portable);
         }
+        if module.functions.iter().any(|f| f.program.is_some()) {
+            emit_column_runner(&mut out, Copy::Portable);
+        }
         out.push_str("}\n");
     }
     if options.copies != Copies::Portable {
@@ -1313,6 +1345,9 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
         for k in &module.functions {
             emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Fma);
         }
+        if module.functions.iter().any(|f| f.program.is_some()) {
+            emit_column_runner(&mut out, Copy::Fma);
+        }
         out.push_str("}\n");
     }
     if avx512 {
@@ -1323,6 +1358,9 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
         );
         for k in &module.functions {
             emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Avx512);
+        }
+        if module.functions.iter().any(|f| f.program.is_some()) {
+            emit_column_runner(&mut out, Copy::Avx512);
         }
         out.push_str("}\n");
     }

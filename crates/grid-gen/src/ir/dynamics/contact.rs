@@ -294,10 +294,13 @@ impl Dynamics<'_> {
         // q̈ is sol.qdd by ABA (or the factorisation) under them, so its RNEA gradient is
         // taken at the same point.
         self.load_forces(LambdaSource::Nodes(sol.lambda.clone()));
+        self.fd_solves = None;
         let (_, fq, fqd, minv, _) = self.fd_grad(qd, tau, tau_cols, &[]);
-        // The dense-product and solve annotations describe fd_grad's outputs, not these.
+        // The dense-product and solve annotations describe fd_grad's outputs, not these;
+        // its solves, where it factorised M, go into this kernel's program.
         self.product = None;
         self.program = None;
+        let solves = self.fd_solves.take();
         // ∂acc/∂u at fixed q̈, by forward-mode over the acceleration's graph with the q̈
         // nodes held.
         let (xqd, xqdd) = (self.expand(qd), self.expand(&sol.qdd));
@@ -365,14 +368,35 @@ impl Dynamics<'_> {
             outs_q.push(super::transpose(dq_cols, nv));
             outs_l.push(super::transpose(dl_cols, nl));
         }
-        let blocks = [&fq, &fqd, &minv]
-            .iter()
-            .enumerate()
-            .map(|(which, f)| {
-                let a = [Some(&aq), Some(&aqd), None][which];
-                combination_block(&sol, f, a, tau_cols, which)
-            })
-            .collect();
+        let mut blocks = Vec::new();
+        for (which, f) in [&fq, &fqd, &minv].into_iter().enumerate() {
+            let a = [Some(&aq), Some(&aqd), None][which];
+            let columns = if which == 2 { tau_cols.len() } else { nv };
+            let Some(solves) = &solves else {
+                let x = |i: usize, c: usize| Operand::Node(f_entry(f, which, tau_cols, i, c));
+                let all: Vec<usize> = (0..columns).collect();
+                let at = Columns { tau: tau_cols, cols: &all, width: columns, which };
+                blocks.push(combination_block(&sol, x, &[], a, at));
+                continue;
+            };
+            // F e_c by the factorisation's solves in the program: ∂c/∂u's column, or −e
+            // for τ (M⁻¹ e = −M⁻¹ (−e)); the free-flyer's known columns as they are.
+            let (solved, known): (Vec<usize>, Vec<usize>) =
+                (0..columns).partition(|&c| which == 2 || solves.known[which][c].is_none());
+            let rhs = |i: usize, c: usize| match which {
+                2 => Operand::Const(if i == tau_cols[c] { -1.0 } else { 0.0 }),
+                _ => Operand::Node(solves.dc[which][i][c]),
+            };
+            let given = |i: usize, c: usize| Operand::Node(f[i][c]);
+            if !solved.is_empty() {
+                let at = Columns { tau: tau_cols, cols: &solved, width: columns, which };
+                blocks.push(combination_block(&sol, rhs, &solves.steps, a, at));
+            }
+            if !known.is_empty() {
+                let at = Columns { tau: tau_cols, cols: &known, width: columns, which };
+                blocks.push(combination_block(&sol, given, &[], a, at));
+            }
+        }
         self.program = Some(ColumnProgram { rows: nv + nl, blocks });
         let mut out = vec![vec![sol.qdd], vec![sol.lambda]];
         out.extend(outs_q);
@@ -424,41 +448,55 @@ fn mirror(which: usize, tau_cols: &[usize], i: usize, c: usize) -> Option<usize>
     (which == 2).then(|| super::mirrored_column(tau_cols, i, c)).flatten()
 }
 
-/// The combination above for one of u = q, q̇, τ (`which` 0, 1, 2) as a per-column program
-/// over rows `[F e_c (nv); x (nλ)]`: `x = A e_c + (−Jᵀ)ᵀ F e_c` (for τ, G's row c), then
-/// `x ← K⁻¹ x`, `F e_c −= G x`; stored as ∂q̈/∂u (outputs 2 + which) and ∂λ/∂u = −x
-/// (outputs 5 + which). The graph's products, but each row's terms subtracted one by one
-/// where the graph sums a dot product first (so the two round differently), which the Rust
-/// backend runs with the columns innermost.
-fn combination_block(
-    sol: &ContactSolution,
-    f: &Mat,
-    a: Option<&Vec<Vec<Id>>>,
-    tau_cols: &[usize],
-    which: usize,
-) -> ColumnBlock {
-    let (nv, nl) = (f.len(), sol.lambda.len());
-    let columns = f.first().map_or(0, Vec::len);
-    let node = Operand::Node;
-    // For τ, where the graph took an entry of ∂q̈/∂τ from its mirror, M⁻¹'s entry is read
-    // from the mirror too (the one the graph keeps; M⁻¹ is symmetric).
-    let f_entry = |i: usize, c: usize| match mirror(which, tau_cols, i, c) {
+/// For τ (`which` 2), column c of M⁻¹ read as the graph keeps it: where the graph took an
+/// entry of ∂q̈/∂τ from its mirror, M⁻¹'s entry from the mirror too (M⁻¹ is symmetric).
+fn f_entry(f: &Mat, which: usize, tau_cols: &[usize], i: usize, c: usize) -> Id {
+    match mirror(which, tau_cols, i, c) {
         Some(at) => f[tau_cols[c]][at],
         None => f[i][c],
-    };
+    }
+}
+
+/// Which columns a block of the combination runs: `cols` of u = q, q̇, τ (`which` 0, 1,
+/// 2), which has `width` columns (τ's the coordinates `tau`).
+struct Columns<'a> {
+    tau: &'a [usize],
+    cols: &'a [usize],
+    width: usize,
+    which: usize,
+}
+
+/// The combination above on the columns `at`, as a per-column program over rows
+/// `[F e_c (nv); x (nλ)]`: F e_c from `x_init` (row, column of u), then `solve` on it (the
+/// factorisation's steps, or none where `x_init` is F itself);
+/// `x = A e_c + (−Jᵀ)ᵀ F e_c` (for τ, G's row `tau[c]`), then `x ← K⁻¹ x`,
+/// `F e_c −= G x`; stored as ∂q̈/∂u (outputs 2 + which) and ∂λ/∂u = −x (outputs
+/// 5 + which). The graph's products, but each row's terms subtracted one by one where the
+/// graph sums a dot product first (so the two round differently), which the Rust backend
+/// runs with the columns innermost.
+fn combination_block(
+    sol: &ContactSolution,
+    x_init: impl Fn(usize, usize) -> Operand,
+    solve: &[ColumnStep],
+    a: Option<&Vec<Vec<Id>>>,
+    at: Columns,
+) -> ColumnBlock {
+    let (nv, nl) = (sol.qdd.len(), sol.lambda.len());
+    let Columns { tau: tau_cols, cols, width, which } = at;
+    let node = Operand::Node;
     let mut init: Vec<Vec<Operand>> =
-        (0..nv).map(|i| (0..columns).map(|c| node(f_entry(i, c))).collect()).collect();
+        (0..nv).map(|i| cols.iter().map(|&c| x_init(i, c)).collect()).collect();
     for r in 0..nl {
         init.push(
-            (0..columns)
-                .map(|c| match a {
+            cols.iter()
+                .map(|&c| match a {
                     Some(a) => node(a[c][r]),
                     None => node(sol.g[r][tau_cols[c]]),
                 })
                 .collect(),
         );
     }
-    let mut steps = Vec::new();
+    let mut steps = solve.to_vec();
     if a.is_some() {
         // x_r = a_r − (−Jᵀ)_r · F.
         for r in 0..nl {
@@ -491,14 +529,14 @@ fn combination_block(
         .map(|i| ColumnStore {
             row: i,
             output: 2 + which,
-            flat: (0..columns).map(|c| i * columns + c).collect(),
+            flat: cols.iter().map(|&c| i * width + c).collect(),
             negate: false,
         })
         .collect();
     stores.extend((0..nl).map(|r| ColumnStore {
         row: nv + r,
         output: 5 + which,
-        flat: (0..columns).map(|c| r * columns + c).collect(),
+        flat: cols.iter().map(|&c| r * width + c).collect(),
         negate: true,
     }));
     ColumnBlock { init, steps, stores }

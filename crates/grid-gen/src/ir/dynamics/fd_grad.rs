@@ -176,6 +176,11 @@ impl Dynamics<'_> {
         };
         let dq = solve(&dc_q, &known_q);
         let dqd = solve(&dc_qd, &known_qd);
+        self.fd_solves = Some(FdSolves {
+            steps: fs.steps(self.model),
+            dc: [dc_q.clone(), dc_qd.clone()],
+            known: [known_q.clone(), known_qd.clone()],
+        });
         let straight = self.g.nodes.len() - before;
         if s.is_one() && straight >= PROGRAM_MIN_OPS {
             let blocks = [(&dc_q, &known_q, 1), (&dc_qd, &known_qd, 2)]
@@ -339,7 +344,16 @@ fn solve_block(
 }
 
 /// Per column, the column itself where it is known without a solve.
-type KnownColumns = Vec<Option<Vec<Id>>>;
+pub(super) type KnownColumns = Vec<Option<Vec<Id>>>;
+
+/// [`Dynamics::fd_grad_ltdl`]'s solves, for a program that runs them over the columns:
+/// `−s M⁻¹ b` is `steps` on b's rows; ∂q̈/∂q and ∂q̈/∂q̇ solve the columns of `dc` that are
+/// not `known`.
+pub(super) struct FdSolves {
+    pub steps: Vec<ColumnStep>,
+    pub dc: [Mat; 2],
+    pub known: [KnownColumns; 2],
+}
 
 impl Dynamics<'_> {
     /// Columns of ∂q̈/∂q and ∂q̈/∂q̇ that a free-flyer base's invariances give without a

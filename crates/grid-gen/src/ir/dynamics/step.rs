@@ -658,7 +658,7 @@ impl Dynamics<'_> {
         if let Some(p) = combination {
             let h = Operand::Node(dt.id(&mut self.g));
             let semi = (scheme == Scheme::SemiImplicitEuler).then_some((&jq, &jv_h));
-            self.program = Some(step_program(p, nv, h, semi, zero));
+            self.program = Some(step_program(p, (nv, nu), h, semi, zero));
         }
         (q_next, qd_next, a, b, lambda)
     }
@@ -675,7 +675,7 @@ impl Dynamics<'_> {
 /// nλ, `z` nv, identity nv.
 fn step_program(
     combination: ColumnProgram,
-    nv: usize,
+    (nv, nu): (usize, usize),
     dt: Operand,
     semi: Option<(&Mat, &Mat)>,
     zero: Id,
@@ -687,15 +687,17 @@ fn step_program(
     let blocks = combination
         .blocks
         .into_iter()
-        .enumerate()
-        .map(|(which, b)| {
-            let columns = b.columns();
+        .map(|b| {
+            // Which of u = q, q̇, τ the block is, and its columns of u: where the
+            // combination stores its row 0 (output 2 + which, entry c).
+            let (which, cols) = (b.stores[0].output - 2, b.stores[0].flat.clone());
+            let columns = cols.len();
             let mut init = b.init;
             let constant = |x: f64| vec![Operand::Const(x); columns];
             // z: q's columns of Jq (semi-implicit), else zero.
             for i in 0..nv {
                 init.push(match (which, semi) {
-                    (0, Some((jq, _))) => jq[i].iter().map(|&x| Operand::Node(x)).collect(),
+                    (0, Some((jq, _))) => cols.iter().map(|&c| Operand::Node(jq[i][c])).collect(),
                     _ => constant(0.0),
                 });
             }
@@ -703,7 +705,7 @@ fn step_program(
             for i in 0..nv {
                 init.push(match which {
                     1 => {
-                        (0..columns).map(|c| Operand::Const(f64::from(u8::from(c == i)))).collect()
+                        cols.iter().map(|&c| Operand::Const(f64::from(u8::from(c == i)))).collect()
                     }
                     _ => constant(0.0),
                 });
@@ -735,12 +737,12 @@ fn step_program(
             let (width, at, out_x, out_l) = match which {
                 0 => (nx, 0, 2, 5),
                 1 => (nx, nv, 2, 5),
-                _ => (columns, 0, 3, 6),
+                _ => (nu, 0, 3, 6),
             };
             let store = |row: usize, out_row: usize, output: usize, negate: bool| ColumnStore {
                 row,
                 output,
-                flat: (0..columns).map(|c| out_row * width + at + c).collect(),
+                flat: cols.iter().map(|&c| out_row * width + at + c).collect(),
                 negate,
             };
             let mut stores: Vec<ColumnStore> =
