@@ -583,7 +583,7 @@ impl ProgramCoefs {
     /// A coefficient's identity: a node (0), a negated node (1) or a constant's value (2);
     /// `None` where it is zero.
     fn key(k: &Function, coef: Operand) -> Option<(u8, u64)> {
-        let constant = |c: f64| (c != 0.0).then_some((2, (c + 0.0).to_bits()));
+        let constant = |c: f64| (c != 0.0).then_some((2, c.to_bits()));
         match coef {
             Operand::Const(c) => constant(c),
             Operand::Node(id) | Operand::Neg(id) => match k.op(id) {
@@ -1326,41 +1326,38 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
     for k in &module.functions {
         emit_dispatcher(&mut out, k, q_len(robot), avx512, options.copies);
     }
-    if options.copies != Copies::Fma {
-        out.push_str("/// The kernels for any target: separate multiplies and adds.\npub mod portable {\nuse super::*;\n");
-        for k in &module.functions {
-            emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Portable);
-        }
-        if module.functions.iter().any(|f| f.program.is_some()) {
-            emit_column_runner(&mut out, Copy::Portable);
-        }
-        out.push_str("}\n");
-    }
-    if options.copies != Copies::Portable {
-        out.push_str(
+    let copies = [
+        (
+            options.copies != Copies::Fma,
+            Copy::Portable,
+            "/// The kernels for any target: separate multiplies and adds.\npub mod portable {\nuse super::*;\n",
+        ),
+        (
+            options.copies != Copies::Portable,
+            Copy::Fma,
             "/// The kernels for x86-64 with AVX2 and FMA (`mul_add` where a product feeds one addition).\n\
              /// Calling them on a CPU without those features is undefined behaviour; the functions\n\
              /// at the top of the module check first.\n#[cfg(target_arch = \"x86_64\")]\npub mod fma {\nuse super::*;\n",
-        );
-        for k in &module.functions {
-            emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Fma);
-        }
-        if module.functions.iter().any(|f| f.program.is_some()) {
-            emit_column_runner(&mut out, Copy::Fma);
-        }
-        out.push_str("}\n");
-    }
-    if avx512 {
-        out.push_str(
+        ),
+        (
+            avx512,
+            Copy::Avx512,
             "/// The `fma` copy's kernels compiled for AVX-512 (F and VL): the same operations, so the same\n\
          /// results bit for bit, with 32 vector registers (fewer spills) and zmm for `Lanes<8>`.\n\
          /// Calling them on a CPU without those features is undefined behaviour.\n#[cfg(target_arch = \"x86_64\")]\npub mod avx512 {\nuse super::*;\n",
-        );
-        for k in &module.functions {
-            emit_kernel(&mut out, k, nv, q_len(robot), options, Copy::Avx512);
+        ),
+    ];
+    let has_program = module.functions.iter().any(|f| f.program.is_some());
+    for (wanted, copy, header) in copies {
+        if !wanted {
+            continue;
         }
-        if module.functions.iter().any(|f| f.program.is_some()) {
-            emit_column_runner(&mut out, Copy::Avx512);
+        out.push_str(header);
+        for k in &module.functions {
+            emit_kernel(&mut out, k, nv, q_len(robot), options, copy);
+        }
+        if has_program {
+            emit_column_runner(&mut out, copy);
         }
         out.push_str("}\n");
     }
