@@ -17,6 +17,7 @@ pub mod ir;
 mod load;
 pub mod model;
 pub mod numerics;
+mod parallel;
 pub mod reference;
 pub mod scene;
 pub mod settings;

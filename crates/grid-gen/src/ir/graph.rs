@@ -5,7 +5,7 @@
 //! once, here, for every backend. Backends never see this type: `ir::lower` freezes it
 //! into a [`crate::ir::Function`].
 
-use std::collections::HashMap;
+use rustc_hash::FxHashMap;
 
 /// A node of the graph.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
@@ -170,7 +170,9 @@ enum Key {
 /// running out of memory.
 pub(crate) struct Graph {
     pub nodes: Vec<Node>,
-    shared: HashMap<Key, Id>,
+    /// Fx hashing: the keys are a few small integers and this map is the generator's
+    /// hottest (a third of a humanoid's generation time with std's SipHash).
+    shared: FxHashMap<Key, Id>,
     fold: bool,
     here: (Option<u16>, Stage, u16),
     limit: usize,
@@ -182,7 +184,7 @@ impl Graph {
         // Node 0 always exists, so the placeholder id handed out when exhausted is valid.
         let mut g = Graph {
             nodes: Vec::new(),
-            shared: HashMap::new(),
+            shared: FxHashMap::default(),
             fold,
             here: (None, Stage::Transform, 0),
             limit: limit.max(1),

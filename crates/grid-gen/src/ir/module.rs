@@ -498,11 +498,15 @@ pub fn lower(
     let robot = Robot::of(model);
     let mut functions = Vec::new();
     // No frames asked, no frame kernels; no step, no step kernels.
-    for kind in KernelKind::ALL
+    let kinds: Vec<KernelKind> = KernelKind::ALL
         .into_iter()
         .filter(|k| options.kernels.contains(k) && k.exists_for(&model.specialisation))
-    {
-        match lower_function(model, gravity, kind, options) {
+        .collect();
+    // The kernels lower independently, so on every core; the module keeps their order.
+    let lowered =
+        crate::parallel::in_parallel(&kinds, |&kind| lower_function(model, gravity, kind, options));
+    for f in lowered {
+        match f {
             Ok(f) => functions.push(f),
             // A singular M leaves out the kernels that need M⁻¹ (the load warning says so).
             Err(LowerError::Singular { .. }) => {}

@@ -22,7 +22,9 @@ impl Graph {
         seeds: &[(Input, usize, Id)],
         nodes: &[(Id, Id)],
     ) -> Vec<Id> {
-        let n = self.nodes.len();
+        // Only nodes up to the last output can feed one: a column's tangent then costs what
+        // its outputs depend on, not the whole graph (the contacts take one per column).
+        let n = outputs.iter().map(|o| o.0 as usize + 1).max().unwrap_or(0);
         let given: std::collections::HashMap<usize, Id> =
             nodes.iter().map(|&(x, t)| (x.0 as usize, t)).collect();
         let mut live = vec![false; n];

@@ -2,6 +2,7 @@
 //! split into functions of at most `chunk` statements (rustc's time grows faster than
 //! linearly in the size of one function; the split is the IR's [`Chunks`]).
 
+mod format;
 mod mixed;
 
 use std::collections::HashMap;
@@ -1348,21 +1349,49 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
         ),
     ];
     let has_program = module.functions.iter().any(|f| f.program.is_some());
-    for (wanted, copy, header) in copies {
-        if !wanted {
-            continue;
-        }
-        out.push_str(header);
-        for k in &module.functions {
-            emit_kernel(&mut out, k, nv, q_len(robot), options, copy);
-        }
-        if has_program {
-            emit_column_runner(&mut out, copy);
-        }
-        out.push_str("}\n");
+    // Every piece of the file, each emitted and formatted on its own (on every core, in
+    // order): the top-level items, then per copy its header, its kernels and its runner.
+    enum Piece<'a> {
+        Head,
+        Start(&'a str),
+        Kernel(&'a Function, Copy),
+        Runner(Copy),
     }
-    let file = syn::parse_file(&out).map_err(|e| RustError::Unparsable(e.to_string()))?;
-    let code = prettyplease::unparse(&file);
+    let mut pieces = vec![Piece::Head];
+    for (wanted, copy, header) in copies {
+        if wanted {
+            pieces.push(Piece::Start(header));
+            pieces.extend(module.functions.iter().map(|k| Piece::Kernel(k, copy)));
+            if has_program {
+                pieces.push(Piece::Runner(copy));
+            }
+        }
+    }
+    let formatted = crate::parallel::in_parallel(&pieces, |piece| match *piece {
+        Piece::Head => format::items(&out),
+        Piece::Start(header) => format::module_start(header),
+        Piece::Kernel(k, copy) => {
+            let mut item = String::new();
+            emit_kernel(&mut item, k, nv, q_len(robot), options, copy);
+            format::module_items(&item)
+        }
+        Piece::Runner(copy) => {
+            let mut item = String::new();
+            emit_column_runner(&mut item, copy);
+            format::module_items(&item)
+        }
+    });
+    let mut code = String::new();
+    for (i, text) in formatted.into_iter().enumerate() {
+        // A module ends where the next one starts, and at the end of the file.
+        if i > 1 && matches!(pieces[i], Piece::Start(_)) {
+            code.push_str("}\n");
+        }
+        code.push_str(&text.map_err(RustError::Unparsable)?);
+    }
+    if pieces.len() > 1 {
+        code.push_str("}\n");
+    }
     let stem = identifier(&robot.name);
     let api: String = api_doc(module.functions.iter())
         .lines()
