@@ -755,19 +755,20 @@ def random_q(model, floating, rng):
     return q
 
 
-def step_fixture(robot, floating, dt, rng, fext_joints=(), contacts=()):
+def step_fixture(robot, floating, dt, rng, fext_joints=(), contacts=(), schemes=SCHEMES, randoms=6):
     """Random states (uniform base rotations and joint quaternions), a fast one (speeds of
     30 rad/s, so that dt q̇ turns the base by a few tenths of a radian) and a still one; τ on
     the actuated coordinates (all but the free-flyer's six). Per scheme: q+ in grid-gen's q
     layout, q̇+, A (2nv x 2nv) and B (2nv x nu), rows and columns [δq; δq̇] in listing order.
     With `fext_joints`, each state has a random fext on their bodies (N(0, 10), held over
-    the step); with `contacts`, they are rigid."""
+    the step); with `contacts`, they are rigid. `randoms` random states, and `schemes`
+    only (the humanoid's: one scheme and fewer states keep its fixture small)."""
     model, names, perm, qidx = step_model(robot, floating)
     data = model.createData()
     nv = model.nv
     actuated = [k for k in range(nv) if not (floating and k < 6)]
     records = []
-    for kind, speed in [("random", 1.0)] * 6 + [("fast", 30.0), ("still", 0.0)]:
+    for kind, speed in [("random", 1.0)] * randoms + [("fast", 30.0), ("still", 0.0)]:
         q = pin.randomConfiguration(model, -np.ones(model.nq) * 2, np.ones(model.nq) * 2) if robot == "ball_arm" else None
         if q is None:
             q = random_q(model, floating, rng)
@@ -787,7 +788,7 @@ def step_fixture(robot, floating, dt, rng, fext_joints=(), contacts=()):
             for k, name in enumerate(fext_joints):
                 fext[model.getJointId(name)] = pin.Force(fin[6 * k:6 * k + 3], fin[6 * k + 3:6 * k + 6])
             record["fext"] = [float(x) for x in fin]
-        for scheme in SCHEMES:
+        for scheme in schemes:
             q1, v1, a, b = step_record(model, data, q, v, tau, dt, scheme, act, fext, contacts)
             record[scheme] = {
                 "q_next": [float(q1[i]) for i in qidx], "qd_next": [float(x) for x in np.asarray(v1)[perm]],
@@ -813,11 +814,11 @@ def step_fixtures(check):
         np.random.seed(seed)
         data = step_fixture(robot, floating, dt, np.random.default_rng(seed))
         stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.step.pinocchio.json", data, check, 1e-10)
-    for label, robot, floating, dt, fext_joints, contacts in FORCED_STEPS:
+    for label, robot, floating, dt, fext_joints, contacts, *rest in FORCED_STEPS:
         seed = sum(robot.encode()) + 37 + floating + len(label)
         pin.seed(seed)
         np.random.seed(seed)
-        data = step_fixture(robot, floating, dt, np.random.default_rng(seed), fext_joints, contacts)
+        data = step_fixture(robot, floating, dt, np.random.default_rng(seed), fext_joints, contacts, *rest)
         stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.{label}.step.pinocchio.json", data, check, 1e-10)
     return stale
 
@@ -825,11 +826,14 @@ def step_fixtures(check):
 # Steps under forces: fext held over the step (aba and computeABADerivatives with fext),
 # and rigid contacts (constraintDynamics and its derivatives, as Crocoddyl's contact
 # dynamics inside its integrated action models); Pinocchio's constraintDynamics takes no
-# fext, so the two are separate. (label, robot, floating, dt, fext joints, contacts).
+# fext, so the two are separate. (label, robot, floating, dt, fext joints, contacts[,
+# schemes, random states]). The humanoid (floating Atlas, 30 joints, both feet as 6-D
+# contacts) is issue 56's: the semi-implicit step (Crocoddyl's default) on four states.
 FORCED_STEPS = [
     ("fext", "grid_iiwa", False, 0.01, ["iiwa_joint_2", "iiwa_joint_5", "iiwa_joint_7"], []),
     ("contact", "grid_hyq", True, 0.01, [], [(f"{leg}_lowerleg", "point") for leg in ("lf", "rf", "lh", "rh")]),
     ("contact", "grid_iiwa", False, 0.01, [], [("iiwa_link_7", "wrench")]),
+    ("contact", "grid_atlas", True, 0.01, [], [("l_foot", "wrench"), ("r_foot", "wrench")], ["semi_implicit_euler"], 2),
 ]
 
 
