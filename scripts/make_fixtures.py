@@ -1071,6 +1071,43 @@ def contact_fixture(robot, floating, contacts, rng):
             "contacts": [{"frame": f, "type": k} for f, k in contacts], "states": records}
 
 
+def mask_fixture(robot, floating, contacts, rng):
+    """Every mode of `contacts` (2^n subsets, bit c for contact c), one random state each:
+    Pinocchio holding just the active contacts (no contact at all: constraintDynamics with
+    none, which is aba). lambda and its derivatives have a row per candidate contact's
+    component, zero where the contact is inactive, as a masked kernel returns them."""
+    model, names, perm, qidx = step_model(robot, floating)
+    data = model.createData()
+    nv = model.nv
+    dims = [3 if k == "point" else 6 for _, k in contacts]
+    starts = [sum(dims[:c]) for c in range(len(contacts))]
+    records = []
+    for bits in range(2 ** len(contacts)):
+        active = [bits >> c & 1 for c in range(len(contacts))]
+        held = [contacts[c] for c in range(len(contacts)) if active[c]]
+        q = random_q(model, floating, rng)
+        lv, lt = rng.normal(size=nv), rng.normal(size=nv) * 10
+        v, t = np.zeros(nv), np.zeros(nv)
+        v[perm], t[perm] = lv, lt
+        out = contact_record(model, data, q, v, t, held)
+        rows = [r for c in range(len(contacts)) if active[c] for r in range(starts[c], starts[c] + dims[c])]
+        lam = np.zeros(sum(dims))
+        lam[rows] = np.asarray(out["lambda"])
+        record = {"kind": "random", "active": active, "q": [float(q[i]) for i in qidx], "qd": [float(x) for x in lv],
+                  "tau": [float(x) for x in lt], "qdd": [float(x) for x in np.asarray(out["qdd"])[perm]],
+                  "lambda": [float(x) for x in lam]}
+        for key in ("dqdd_dq", "dqdd_dqd", "dqdd_dtau"):
+            record[key] = mat(np.asarray(out[key])[np.ix_(perm, perm)])
+        for key in ("dlambda_dq", "dlambda_dqd", "dlambda_dtau"):
+            full = np.zeros((sum(dims), nv))
+            if rows:
+                full[rows, :] = np.asarray(out[key])[:, perm]
+            record[key] = mat(full)
+        records.append(record)
+    return {"tool": f"pinocchio {pin.__version__}", "gravity": [float(x) for x in model.gravity.linear], "joint_names": names,
+            "contacts": [{"frame": f, "type": k} for f, k in contacts], "states": records}
+
+
 def contact_fixtures(check):
     stale = False
     for robot, floating, contacts in CONTACTS:
@@ -1078,6 +1115,12 @@ def contact_fixtures(check):
         pin.seed(seed)
         data = contact_fixture(robot, floating, contacts, np.random.default_rng(seed))
         stale |= report(OUT / f"{robot}{'.floating' if floating else ''}.contact.pinocchio.json", data, check, 1e-10)
+    # Issue 56: every contact mode of a quadruped's four feet, for the masked kernels.
+    robot, floating, contacts = CONTACTS[0]
+    seed = sum(robot.encode()) + 73 + floating
+    pin.seed(seed)
+    data = mask_fixture(robot, floating, contacts, np.random.default_rng(seed))
+    stale |= report(OUT / f"{robot}.floating.contact_masks.pinocchio.json", data, check, 1e-10)
     return stale
 
 

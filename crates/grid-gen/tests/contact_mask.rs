@@ -1,8 +1,9 @@
 //! Contacts chosen at run time (`contact_mask = true`): one library whose contact kernels
 //! and step take `active`, one 0 or 1 per candidate contact, serves every contact mode of a
 //! gait. Each mode's values are those of the model holding just its active contacts (the
-//! reference, itself checked against Pinocchio's `constraintDynamics` in `tests/forces.rs`),
-//! with λ's rows of the inactive contacts 0.
+//! reference, itself checked against Pinocchio's `constraintDynamics` in `tests/forces.rs`,
+//! and, for HyQ's sixteen modes, Pinocchio holding just those contacts), with λ's rows of
+//! the inactive contacts 0.
 
 use grid_gen::ir::{self, Input, KernelKind, LowerOptions};
 use grid_gen::model::{ContactKind, Scheme};
@@ -84,6 +85,68 @@ fn every_mode_of_four_feet_matches_the_reference_holding_those_contacts() {
         }
     }
     println!("16 contact modes of floating HyQ: worst {worst:.2e} from the reference holding those contacts (bound 1e-12)");
+}
+
+/// The same sixteen modes against Pinocchio 4.1 directly: `constraintDynamics` and
+/// `computeConstraintDynamicsDerivatives` holding just each mode's feet (none: plain
+/// `aba`), one random state per mode (`tests/fixtures/grid_hyq.floating.contact_masks.
+/// pinocchio.json`, rows of λ and its derivatives zero for the feet off the ground). 1e-10
+/// relative, the project's bar against Pinocchio (tests/forces.rs).
+#[test]
+fn every_mode_of_four_feet_matches_pinocchio_holding_those_contacts() {
+    let fx = fixture("grid_hyq.floating.contact_masks.pinocchio.json");
+    let legs = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+        .map(|l| (l, ContactKind::Point));
+    let mut m = with_forces(&load_floating("grid_hyq"), &[], &legs);
+    m.specialisation.contact_mask = true;
+    let fixture_feet: Vec<&str> =
+        fx["contacts"].as_array().unwrap().iter().map(|c| c["frame"].as_str().unwrap()).collect();
+    assert_eq!(fixture_feet, legs.map(|l| l.0), "the fixture's contacts, in order");
+    let g: [f64; 3] = vec_of(&fx["gravity"]).try_into().unwrap();
+    let options = LowerOptions {
+        kernels: vec![KernelKind::ContactFd, KernelKind::ContactFdGrad],
+        ..LowerOptions::default()
+    };
+    let module = ir::lower(&m, g, &options).unwrap();
+    let perm = fixture_perm(&m, &fx, "contact masks");
+    let nv = m.nv();
+    let at = |i: usize| perm.iter().position(|&p| p == i).unwrap();
+    let ours = |v: &[f64]| -> Vec<f64> { (0..nv).map(|i| v[at(i)]).collect() };
+    let (mut worst, mut checked, mut modes): (f64, usize, Vec<usize>) = (0.0, 0, Vec::new());
+    for (s, st) in fx["states"].as_array().unwrap().iter().enumerate() {
+        let active: Vec<f64> = vec_of(&st["active"]);
+        modes.push(active.iter().enumerate().map(|(c, &a)| (a as usize) << c).sum());
+        let fq = vec_of(&st["q"]);
+        let angles = [vec![0.0; 6], fq[7..].to_vec()].concat();
+        let q = m.q_from_joints(&ours(&angles), fq[..7].try_into().unwrap());
+        let (qd, tau) = (ours(&vec_of(&st["qd"])), ours(&vec_of(&st["tau"])));
+        let ext = reference::External { fext: &[], lambda: &[] };
+        for f in &module.functions {
+            let got = f.eval(&kernel_args_masked(f.inputs(), &q, &qd, &tau, ext, &[], &active));
+            for (o, got) in f.outputs.iter().zip(&got) {
+                let theirs = match &*o.name {
+                    "qdd" => col(&ours(&vec_of(&st["qdd"]))),
+                    "lambda" => col(&vec_of(&st["lambda"])),
+                    name => {
+                        let t = mat_of(&st[name]);
+                        let square = name.starts_with("dqdd");
+                        DMatrix::from_fn(t.nrows(), nv, |r, c| {
+                            t[(if square { at(r) } else { r }, at(c))]
+                        })
+                    }
+                };
+                let got = DMatrix::from_row_slice(theirs.nrows(), theirs.ncols(), got);
+                let e = rel_err(&got, &theirs);
+                worst = worst.max(e);
+                checked += 1;
+                assert!(e < 1e-10, "mode {:?} (state {s}) {} {}: {e:.2e}", active, f.kind, o.name);
+            }
+        }
+    }
+    modes.sort_unstable();
+    assert_eq!(modes, (0..16).collect::<Vec<_>>(), "every mode once");
+    assert_eq!(checked, 16 * 10, "two outputs of contact_fd, eight of contact_fd_grad");
+    println!("16 contact modes of floating HyQ against Pinocchio: worst {worst:.2e} (bound 1e-10)");
 }
 
 /// With every contact active, the masked kernels compute the unmasked kernels' values bit
