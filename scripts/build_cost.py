@@ -28,6 +28,7 @@ CASES = [
     "tests/fixtures/go2.urdf::floating",
     "robots/grid_hyq.urdf:examples/scenes/hyq_step_floating.toml",
     "robots/grid_hyq.urdf:examples/scenes/hyq_gait_floating.toml",
+    "robots/grid_atlas.urdf:examples/scenes/atlas_feet_floating.toml",
 ]
 
 
