@@ -1,4 +1,4 @@
-//! Runs independent pieces of the generator (kernels to lower, kernels to format) on every
+//! Runs independent pieces of the generator (the kernels to emit and format) on every
 //! core, with results in the pieces' order so that the output never depends on timing.
 
 use std::sync::atomic::{AtomicUsize, Ordering};
