@@ -307,6 +307,13 @@ impl Info {
         .with_rust_size(model, gravity, gradient, solve)
     }
 
+    /// The kernels `ops` counted whose general graph fit the node limit too: the others
+    /// are large enough that `info` leaves their Rust, WGSL and Verilog out, to keep its
+    /// time and memory bounded (a 400-link chain's `rnea_grad`).
+    fn fully_counted(&self) -> impl Iterator<Item = &KernelStats> {
+        self.ops.iter().filter(|k| k.before.is_some())
+    }
+
     /// The Rust each kernel `ops` counted adds to a module: the module with that kernel
     /// alone, less the module with none (the constants and helpers every module has).
     fn with_rust_size(
@@ -316,7 +323,7 @@ impl Info {
         gradient: ir::Gradient,
         solve: ir::Solve,
     ) -> Self {
-        let kernels: Vec<ir::KernelKind> = self.ops.iter().map(|k| k.kernel).collect();
+        let kernels: Vec<ir::KernelKind> = self.fully_counted().map(|k| k.kernel).collect();
         let lower = ir::LowerOptions {
             kernels,
             max_nodes: ir::STATS_MAX_NODES,
@@ -358,8 +365,11 @@ impl Info {
         gradient: ir::Gradient,
         solve: ir::Solve,
     ) -> Self {
+        // Kernels whose general graph is over the node limit are larger still.
         let (kernels, large): (Vec<&KernelStats>, Vec<&KernelStats>) =
-            self.ops.iter().partition(|k| k.after.total() * k.after.depth <= WGSL_STATS_MAX_WORK);
+            self.ops.iter().partition(|k| {
+                k.before.is_some() && k.after.total() * k.after.depth <= WGSL_STATS_MAX_WORK
+            });
         let mut left_out: Vec<String> = self
             .ops_skipped
             .iter()
@@ -408,6 +418,14 @@ impl Info {
         if let Some(k) = self.ops_skipped.iter().find(|k| DEFAULT_KERNELS.contains(&k.kernel)) {
             self.verilog_skipped =
                 Some(format!("kernel `{}` was not counted: {}", k.kernel.name(), k.reason));
+            return self;
+        }
+        let partial = self.ops.iter().filter(|k| k.before.is_none());
+        if let Some(k) = partial.into_iter().find(|k| DEFAULT_KERNELS.contains(&k.kernel)) {
+            self.verilog_skipped = Some(format!(
+                "kernel `{}`'s general graph is over the op-count limit",
+                k.kernel.name()
+            ));
             return self;
         }
         let lower = ir::LowerOptions {
@@ -641,7 +659,7 @@ impl Info {
             ));
         }
         s.push_str(
-            "operations per kernel (before -> after specialisation; add/mul/div/neg/trig after; depth; the gradient formulation and fd_grad's solve picked):\n",
+            "operations per kernel (before -> after specialisation, before \"too big\" where the general graph is over the node limit; add/mul/div/neg/trig after; depth; the gradient formulation and fd_grad's solve picked):\n",
         );
         // Names pad to the longest (12 without frame kernels, whose names are longer).
         let w = self
@@ -657,7 +675,7 @@ impl Info {
             s.push_str(&format!(
                 "  {:<w$} {:>8} -> {:>7}   {}/{}/{}/{}/{}   depth {}{}\n",
                 k.kernel.name(),
-                k.before.total(),
+                k.before.map_or("too big".to_string(), |b| b.total().to_string()),
                 a.total(),
                 a.add,
                 a.mul,

@@ -124,7 +124,7 @@ fn every_mode_of_four_feet_matches_pinocchio_holding_those_contacts() {
         for f in &module.functions {
             let got = f.eval(&kernel_args_masked(f.inputs(), &q, &qd, &tau, ext, &[], &active));
             for (o, got) in f.outputs.iter().zip(&got) {
-                let theirs = match &*o.name {
+                let theirs = match o.name {
                     "qdd" => col(&ours(&vec_of(&st["qdd"]))),
                     "lambda" => col(&vec_of(&st["lambda"])),
                     name => {

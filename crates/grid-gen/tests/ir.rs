@@ -113,13 +113,8 @@ fn specialisation_removes_work_and_keeps_depth_bounded() {
     );
     // The Lie-group kernels of a fixed robot are additions and constants: nothing to remove.
     for s in stats.ops.into_iter().filter(|s| !s.kernel.is_lie()) {
-        assert!(
-            s.after.total() < s.before.total(),
-            "{}: {:?} vs {:?}",
-            s.kernel,
-            s.after,
-            s.before
-        );
+        let before = s.before.expect("Atlas's general graphs fit the limit");
+        assert!(s.after.total() < before.total(), "{}: {:?} vs {:?}", s.kernel, s.after, s.before);
     }
 }
 

@@ -56,7 +56,9 @@ impl Function {
 #[derive(Clone, Debug, Serialize)]
 pub struct KernelStats {
     pub kernel: KernelKind,
-    pub before: OpCounts,
+    /// `None` where the general graph is over the node limit (a humanoid's contact step:
+    /// its specialised graph is counted all the same).
+    pub before: Option<OpCounts>,
     pub after: OpCounts,
     /// The RNEA gradient's formulation in the specialised kernel, where it has one (the
     /// general algorithm is always `columns`).
@@ -106,36 +108,13 @@ pub fn stats(
             });
             continue;
         }
-        let mut counts = [OpCounts::default(); 2];
-        let mut picked = None;
-        let mut picked_solve = None;
-        let mut failed = None;
-        for (slot, base) in counts.iter_mut().zip([
-            LowerOptions { gradient, solve, ..LowerOptions::default() },
-            LowerOptions::general(),
-        ]) {
-            let options = LowerOptions { max_nodes, ..base };
-            match lower_function(model, gravity, kind, &options) {
-                Ok(f) => {
-                    *slot = f.counts();
-                    picked = picked.or(f.gradient);
-                    picked_solve = picked_solve.or(f.solve);
-                }
-                Err(e) => {
-                    failed = Some(e);
-                    break;
-                }
-            }
-        }
-        match failed {
-            None => out.ops.push(KernelStats {
-                kernel: kind,
-                after: counts[0],
-                before: counts[1],
-                gradient: picked,
-                solve: picked_solve,
-            }),
-            Some(e) => {
+        // The specialised graph first: a kernel over the limit there is skipped (and so is
+        // every kernel that holds it); the general graph over the limit only leaves its
+        // "before" count out.
+        let specialised = LowerOptions { gradient, solve, max_nodes, ..LowerOptions::default() };
+        let f = match lower_function(model, gravity, kind, &specialised) {
+            Ok(f) => f,
+            Err(e) => {
                 let reason = match e {
                     LowerError::TooLarge { limit, .. } => {
                         too_large.extend(kind.contained_in().iter().map(|&k| (k, kind)));
@@ -144,8 +123,25 @@ pub fn stats(
                     other => other.to_string(),
                 };
                 out.skipped.push(Skipped { kernel: kind, reason });
+                continue;
             }
-        }
+        };
+        let general = LowerOptions { max_nodes, ..LowerOptions::general() };
+        let before = match lower_function(model, gravity, kind, &general) {
+            Ok(g) => Some(g.counts()),
+            Err(LowerError::TooLarge { .. }) => None,
+            Err(e) => {
+                out.skipped.push(Skipped { kernel: kind, reason: e.to_string() });
+                continue;
+            }
+        };
+        out.ops.push(KernelStats {
+            kernel: kind,
+            after: f.counts(),
+            before,
+            gradient: f.gradient,
+            solve: f.solve,
+        });
     }
     out
 }
