@@ -15,6 +15,10 @@
 // at each of those BODY frames in LOCAL_WORLD_ALIGNED: constraintDynamics, and constraintDynamics
 // followed by computeConstraintDynamicsDerivatives (what `contact_fd_grad` returns):
 // {"robot": ..., "contacts": ..., "contact_fd_ns": ..., "contact_fd_grad_ns": ...}.
+// A LINK written `LINK/6d` is a CONTACT_6D there instead (a foot's wrench). With `step=DT@`
+// in front (`step=DT@contact@MODEL:LINK,...`), the semi-implicit step under those contacts is
+// timed too, composed as above from constraintDynamics and its derivatives (what `step_grad`
+// returns, λ's derivatives included): "contact_step_grad_ns".
 #include <algorithm>
 #include <chrono>
 #include <cstdio>
@@ -55,13 +59,13 @@ int main(int argc, char** argv) {
     std::string arg(argv[a]);
     double dt = 0.0;
     bool contact = false;
-    if (arg.rfind("contact@", 0) == 0) {
-      contact = true;
-      arg = arg.substr(8);
-    }
     if (arg.rfind("step=", 0) == 0) {
       dt = std::stod(arg.substr(5, arg.find('@') - 5));
       arg = arg.substr(arg.find('@') + 1);
+    }
+    if (arg.rfind("contact@", 0) == 0) {
+      contact = true;
+      arg = arg.substr(8);
     }
     std::string path = arg.substr(0, arg.find(':'));
     std::vector<std::string> names;
@@ -86,7 +90,7 @@ int main(int argc, char** argv) {
       tau[k] = Eigen::VectorXd::Random(model.nv);
     }
     const int iters = 2000, rounds = 15;
-    if (dt > 0.0) {
+    if (dt > 0.0 && !contact) {
       const int nv = model.nv;
       const int first = model.joints[1].nv() == 6 ? 6 : 0;  // a free-flyer is not actuated
       const int nu = nv - first;
@@ -124,9 +128,14 @@ int main(int argc, char** argv) {
       typedef pinocchio::RigidConstraintData Cd;
       PINOCCHIO_STD_VECTOR_WITH_EIGEN_ALLOCATOR(Cm) cms;
       PINOCCHIO_STD_VECTOR_WITH_EIGEN_ALLOCATOR(Cd) cds;
-      for (auto& n : names) {
+      for (auto n : names) {
+        auto type = pinocchio::CONTACT_3D;
+        if (n.size() > 3 && n.compare(n.size() - 3, 3, "/6d") == 0) {
+          type = pinocchio::CONTACT_6D;
+          n = n.substr(0, n.size() - 3);
+        }
         const auto& frame = model.frames[model.getFrameId(n, pinocchio::BODY)];
-        cms.push_back(Cm(pinocchio::CONTACT_3D, model, frame.parentJoint, frame.placement, pinocchio::LOCAL_WORLD_ALIGNED));
+        cms.push_back(Cm(type, model, frame.parentJoint, frame.placement, pinocchio::LOCAL_WORLD_ALIGNED));
       }
       for (auto& cm : cms) cds.push_back(Cd(cm));
       pinocchio::initConstraintDynamics(model, data, cms, cds);
@@ -140,8 +149,37 @@ int main(int argc, char** argv) {
             sink += data.ddq_dq(0, 0) + data.dlambda_dq(0, 0);
           },
           iters, rounds);
-      std::printf("{\"robot\": \"%s\", \"contacts\": %zu, \"contact_fd_ns\": %.1f, \"contact_fd_grad_ns\": %.1f, \"sink\": %g}\n", path.c_str(), cms.size(), fd,
-                  grad, sink);
+      double step = 0.0;
+      if (dt > 0.0) {
+        const int nv = model.nv;
+        const int first = model.joints[1].nv() == 6 ? 6 : 0;  // a free-flyer is not actuated
+        const int nu = nv - first;
+        Eigen::VectorXd v1(nv), dq(nv), qn(model.nq);
+        Eigen::MatrixXd Jq(nv, nv), Jv(nv, nv), A(2 * nv, 2 * nv), B(2 * nv, nu);
+        step = time_ns(
+            [&](int i) {
+              const int k = i % K;
+              pinocchio::constraintDynamics(model, data, q[k], v[k], tau[k], cms, cds);
+              pinocchio::computeConstraintDynamicsDerivatives(model, data, cms, cds);
+              v1 = v[k] + dt * data.ddq;
+              dq = dt * v1;
+              pinocchio::integrate(model, q[k], dq, qn);
+              pinocchio::dIntegrate(model, q[k], dq, Jq, pinocchio::ARG0);
+              pinocchio::dIntegrate(model, q[k], dq, Jv, pinocchio::ARG1);
+              A.bottomLeftCorner(nv, nv) = dt * data.ddq_dq;
+              A.bottomRightCorner(nv, nv) = dt * data.ddq_dv;
+              A.bottomRightCorner(nv, nv).diagonal().array() += 1.0;
+              B.bottomRows(nv) = dt * data.ddq_dtau.rightCols(nu);
+              A.topLeftCorner(nv, nv) = Jq;
+              A.topLeftCorner(nv, nv).noalias() += dt * Jv * A.bottomLeftCorner(nv, nv);
+              A.topRightCorner(nv, nv).noalias() = dt * Jv * A.bottomRightCorner(nv, nv);
+              B.topRows(nv).noalias() = dt * Jv * B.bottomRows(nv);
+              sink += A(0, 0) + B(0, 0) + qn[0] + data.dlambda_dq(0, 0);
+            },
+            iters, rounds);
+      }
+      std::printf("{\"robot\": \"%s\", \"contacts\": %zu, \"contact_fd_ns\": %.1f, \"contact_fd_grad_ns\": %.1f, \"contact_step_grad_ns\": %.1f, \"sink\": %g}\n",
+                  path.c_str(), cms.size(), fd, grad, step, sink);
       continue;
     }
     if (!names.empty()) {
