@@ -420,8 +420,9 @@ impl Info {
                 Some(format!("kernel `{}` was not counted: {}", k.kernel.name(), k.reason));
             return self;
         }
-        let partial = self.ops.iter().filter(|k| k.before.is_none());
-        if let Some(k) = partial.into_iter().find(|k| DEFAULT_KERNELS.contains(&k.kernel)) {
+        let partial =
+            self.ops.iter().find(|k| k.before.is_none() && DEFAULT_KERNELS.contains(&k.kernel));
+        if let Some(k) = partial {
             self.verilog_skipped = Some(format!(
                 "kernel `{}`'s general graph is over the op-count limit",
                 k.kernel.name()
