@@ -54,6 +54,38 @@ double time_ns(F&& f, int iters, int rounds) {
   return samples[samples.size() / 2];
 }
 
+// The semi-implicit Euler step and its [A | B] composed from q̈ and its derivatives the way a
+// user of Pinocchio writes it (integrate, dIntegrate twice and the products), every joint but a
+// free-flyer actuated; `dtau` is ∂q̈/∂τ (M⁻¹ without contacts), whose actuated columns make B.
+struct StepComposer {
+  int nv, nu;
+  Eigen::VectorXd v1, dq, qn;
+  Eigen::MatrixXd Jq, Jv, A, B;
+  explicit StepComposer(const pinocchio::Model& model)
+      : nv(model.nv),
+        nu(model.nv - (model.joints[1].nv() == 6 ? 6 : 0)),
+        v1(nv), dq(nv), qn(model.nq), Jq(nv, nv), Jv(nv, nv), A(2 * nv, 2 * nv), B(2 * nv, nu) {}
+  // Returns a value read from the results, so that the compiler keeps the work.
+  template <typename Ddq, typename Dq, typename Dv, typename Dtau>
+  double compose(const pinocchio::Model& model, const Eigen::VectorXd& q, const Eigen::VectorXd& v, double dt,
+                 const Ddq& ddq, const Dq& ddq_dq, const Dv& ddq_dv, const Dtau& dtau) {
+    v1 = v + dt * ddq;
+    dq = dt * v1;
+    pinocchio::integrate(model, q, dq, qn);
+    pinocchio::dIntegrate(model, q, dq, Jq, pinocchio::ARG0);
+    pinocchio::dIntegrate(model, q, dq, Jv, pinocchio::ARG1);
+    A.bottomLeftCorner(nv, nv) = dt * ddq_dq;
+    A.bottomRightCorner(nv, nv) = dt * ddq_dv;
+    A.bottomRightCorner(nv, nv).diagonal().array() += 1.0;
+    B.bottomRows(nv) = dt * dtau.rightCols(nu);
+    A.topLeftCorner(nv, nv) = Jq;
+    A.topLeftCorner(nv, nv).noalias() += dt * Jv * A.bottomLeftCorner(nv, nv);
+    A.topRightCorner(nv, nv).noalias() = dt * Jv * A.bottomRightCorner(nv, nv);
+    B.topRows(nv).noalias() = dt * Jv * B.bottomRows(nv);
+    return A(0, 0) + B(0, 0) + qn[0];
+  }
+};
+
 int main(int argc, char** argv) {
   for (int a = 1; a < argc; ++a) {
     std::string arg(argv[a]);
@@ -91,11 +123,8 @@ int main(int argc, char** argv) {
     }
     const int iters = 2000, rounds = 15;
     if (dt > 0.0 && !contact) {
-      const int nv = model.nv;
-      const int first = model.joints[1].nv() == 6 ? 6 : 0;  // a free-flyer is not actuated
-      const int nu = nv - first;
-      Eigen::VectorXd v1(nv), dq(nv), qn(model.nq);
-      Eigen::MatrixXd Jq(nv, nv), Jv(nv, nv), A(2 * nv, 2 * nv), B(2 * nv, nu), Minv(nv, nv);
+      StepComposer composer(model);
+      Eigen::MatrixXd Minv(model.nv, model.nv);
       double sink = 0.0;
       double step = time_ns(
           [&](int i) {
@@ -103,20 +132,7 @@ int main(int argc, char** argv) {
             pinocchio::computeABADerivatives(model, data, q[k], v[k], tau[k]);
             Minv = data.Minv;
             Minv.triangularView<Eigen::StrictlyLower>() = Minv.transpose().triangularView<Eigen::StrictlyLower>();
-            v1 = v[k] + dt * data.ddq;
-            dq = dt * v1;
-            pinocchio::integrate(model, q[k], dq, qn);
-            pinocchio::dIntegrate(model, q[k], dq, Jq, pinocchio::ARG0);
-            pinocchio::dIntegrate(model, q[k], dq, Jv, pinocchio::ARG1);
-            A.bottomLeftCorner(nv, nv) = dt * data.ddq_dq;
-            A.bottomRightCorner(nv, nv) = dt * data.ddq_dv;
-            A.bottomRightCorner(nv, nv).diagonal().array() += 1.0;
-            B.bottomRows(nv) = dt * Minv.rightCols(nu);
-            A.topLeftCorner(nv, nv) = Jq;
-            A.topLeftCorner(nv, nv).noalias() += dt * Jv * A.bottomLeftCorner(nv, nv);
-            A.topRightCorner(nv, nv).noalias() = dt * Jv * A.bottomRightCorner(nv, nv);
-            B.topRows(nv).noalias() = dt * Jv * B.bottomRows(nv);
-            sink += A(0, 0) + B(0, 0) + qn[0];
+            sink += composer.compose(model, q[k], v[k], dt, data.ddq, data.ddq_dq, data.ddq_dv, Minv);
           },
           iters, rounds);
       double ad = time_ns([&](int i) { pinocchio::computeABADerivatives(model, data, q[i % K], v[i % K], tau[i % K]); }, iters, rounds);
@@ -151,30 +167,14 @@ int main(int argc, char** argv) {
           iters, rounds);
       double step = 0.0;
       if (dt > 0.0) {
-        const int nv = model.nv;
-        const int first = model.joints[1].nv() == 6 ? 6 : 0;  // a free-flyer is not actuated
-        const int nu = nv - first;
-        Eigen::VectorXd v1(nv), dq(nv), qn(model.nq);
-        Eigen::MatrixXd Jq(nv, nv), Jv(nv, nv), A(2 * nv, 2 * nv), B(2 * nv, nu);
+        StepComposer composer(model);
         step = time_ns(
             [&](int i) {
               const int k = i % K;
               pinocchio::constraintDynamics(model, data, q[k], v[k], tau[k], cms, cds);
               pinocchio::computeConstraintDynamicsDerivatives(model, data, cms, cds);
-              v1 = v[k] + dt * data.ddq;
-              dq = dt * v1;
-              pinocchio::integrate(model, q[k], dq, qn);
-              pinocchio::dIntegrate(model, q[k], dq, Jq, pinocchio::ARG0);
-              pinocchio::dIntegrate(model, q[k], dq, Jv, pinocchio::ARG1);
-              A.bottomLeftCorner(nv, nv) = dt * data.ddq_dq;
-              A.bottomRightCorner(nv, nv) = dt * data.ddq_dv;
-              A.bottomRightCorner(nv, nv).diagonal().array() += 1.0;
-              B.bottomRows(nv) = dt * data.ddq_dtau.rightCols(nu);
-              A.topLeftCorner(nv, nv) = Jq;
-              A.topLeftCorner(nv, nv).noalias() += dt * Jv * A.bottomLeftCorner(nv, nv);
-              A.topRightCorner(nv, nv).noalias() = dt * Jv * A.bottomRightCorner(nv, nv);
-              B.topRows(nv).noalias() = dt * Jv * B.bottomRows(nv);
-              sink += A(0, 0) + B(0, 0) + qn[0] + data.dlambda_dq(0, 0);
+              sink += composer.compose(model, q[k], v[k], dt, data.ddq, data.ddq_dq, data.ddq_dv, data.ddq_dtau) +
+                      data.dlambda_dq(0, 0);
             },
             iters, rounds);
       }
