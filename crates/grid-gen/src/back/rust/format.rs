@@ -25,3 +25,39 @@ pub(super) fn module_items(source: &str) -> Result<String, String> {
     const USE: &str = "    use super::*;\n";
     Ok(body.find(USE).map_or(body, |at| &body[at + USE.len()..]).to_string())
 }
+
+/// Puts the fields of each slots struct (`struct k_slots<T>(T, T, ...)`, thousands of
+/// them, which prettyplease writes one per line) on lines of up to 100 columns.
+pub(super) fn compact_slots(text: String) -> String {
+    if !text.contains("_slots<T>(\n") {
+        return text;
+    }
+    let mut out = String::with_capacity(text.len());
+    let mut lines = text.split_inclusive('\n').peekable();
+    while let Some(line) = lines.next() {
+        out.push_str(line);
+        if !line.ends_with("_slots<T>(\n") {
+            continue;
+        }
+        let mut fields = 0;
+        let mut indent = "";
+        while let Some(next) = lines.peek() {
+            if next.trim() != "T," {
+                break;
+            }
+            indent = &next[..next.len() - next.trim_start().len()];
+            fields += 1;
+            lines.next();
+        }
+        let per_line = ((100 - indent.len()) / 3).max(1);
+        let mut left = fields;
+        while left > 0 {
+            let n = left.min(per_line);
+            out.push_str(indent);
+            out.push_str(&vec!["T,"; n].join(" "));
+            out.push('\n');
+            left -= n;
+        }
+    }
+    out
+}
