@@ -307,7 +307,7 @@ impl Real for F64x4 {
     }
     #[inline(always)]
     unsafe fn lit(x: f64) -> Self {
-        F64x4::unchecked([x; 4])
+        F64x4(unsafe { core::arch::x86_64::_mm256_set1_pd(x) })
     }
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {
@@ -431,7 +431,7 @@ impl Real for F32x8 {
     }
     #[inline(always)]
     unsafe fn lit(x: f64) -> Self {
-        F32x8::unchecked([x as f32; 8])
+        F32x8(unsafe { core::arch::x86_64::_mm256_set1_ps(x as f32) })
     }
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {
@@ -624,103 +624,111 @@ pub mod portable {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct rnea_slots<T>(T, T, T, T, T, T, T, T, T, T, T, T, T, T);
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_part0<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_slots<T>,
-        c: &mut [T; NV],
-    ) {
-        let t1 = q[0].sin();
-        let t2 = q[0].cos();
-        let t8 = q[1].sin();
-        s.0 = t8;
-        let t9 = q[1].cos();
-        s.1 = t9;
-        let t19 = t1 * lit::<T>(9.81);
-        let t20 = t2 * lit::<T>(9.81);
-        let t21 = lit::<T>(0.0007545716336328686) * qdd[0];
-        let t22 = lit::<T>(5.801760809999999e-7) * t20;
-        let t23 = lit::<T>(0.00961628436) * t19;
-        let t24 = t22 - t23;
-        let t25 = t21 + t24;
-        s.2 = t25;
-        let t26 = lit::<T>(0.1) * qd[0];
-        let t27 = t9 * t26;
-        s.3 = t27;
-        let t28 = t8 * t26;
-        s.4 = t28;
-        let t29 = lit::<T>(0.1) * qdd[0];
-        let t30 = t19 - t29;
-        let t31 = t9 * t30;
-        let t32 = t8 * t20;
-        let t33 = t31 + t32;
-        let t34 = t8 * t30;
-        let t35 = t9 * t20;
-        let t36 = t35 - t34;
-        let t37 = qd[0] + qd[1];
-        s.5 = t37;
-        let t38 = qd[1] * t28;
-        let t39 = qd[1] * t27;
-        let t40 = qdd[0] + qdd[1];
-        s.6 = t40;
-        let t41 = t33 + t38;
-        s.7 = t41;
-        let t42 = t36 + t39;
-        s.8 = t42;
-        let t43 = lit::<T>(0.0335304944) * t37;
-        let t44 = lit::<T>(6.43853298e-11) * t37;
-        let t45 = lit::<T>(0.33238) * t27;
-        let t46 = -t45;
-        let t47 = lit::<T>(0.33238) * t28;
-        let t48 = t46 - t43;
-        s.9 = t48;
-        let t49 = t44 + t47;
-        s.10 = t49;
-        let t50 = lit::<T>(0.004557856275072) * t40;
-        s.11 = t50;
-        let t51 = lit::<T>(6.43853298e-11) * t42;
-        let t52 = lit::<T>(0.0335304944) * t41;
-        let t53 = t51 - t52;
-        s.12 = t53;
-        let t54 = lit::<T>(0.0335304944) * t40;
-        s.13 = t54;
+    mod rnea_part0 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_part0<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_slots<T>,
+            c: &mut [T; NV],
+        ) {
+            let t1 = q[0].sin();
+            let t2 = q[0].cos();
+            let t8 = q[1].sin();
+            s.0 = t8;
+            let t9 = q[1].cos();
+            s.1 = t9;
+            let t19 = t1 * lit::<T>(9.81);
+            let t20 = t2 * lit::<T>(9.81);
+            let t21 = lit::<T>(0.0007545716336328686) * qdd[0];
+            let t22 = lit::<T>(5.801760809999999e-7) * t20;
+            let t23 = lit::<T>(0.00961628436) * t19;
+            let t24 = t22 - t23;
+            let t25 = t21 + t24;
+            s.2 = t25;
+            let t26 = lit::<T>(0.1) * qd[0];
+            let t27 = t9 * t26;
+            s.3 = t27;
+            let t28 = t8 * t26;
+            s.4 = t28;
+            let t29 = lit::<T>(0.1) * qdd[0];
+            let t30 = t19 - t29;
+            let t31 = t9 * t30;
+            let t32 = t8 * t20;
+            let t33 = t31 + t32;
+            let t34 = t8 * t30;
+            let t35 = t9 * t20;
+            let t36 = t35 - t34;
+            let t37 = qd[0] + qd[1];
+            s.5 = t37;
+            let t38 = qd[1] * t28;
+            let t39 = qd[1] * t27;
+            let t40 = qdd[0] + qdd[1];
+            s.6 = t40;
+            let t41 = t33 + t38;
+            s.7 = t41;
+            let t42 = t36 + t39;
+            s.8 = t42;
+            let t43 = lit::<T>(0.0335304944) * t37;
+            let t44 = lit::<T>(6.43853298e-11) * t37;
+            let t45 = lit::<T>(0.33238) * t27;
+            let t46 = -t45;
+            let t47 = lit::<T>(0.33238) * t28;
+            let t48 = t46 - t43;
+            s.9 = t48;
+            let t49 = t44 + t47;
+            s.10 = t49;
+            let t50 = lit::<T>(0.004557856275072) * t40;
+            s.11 = t50;
+            let t51 = lit::<T>(6.43853298e-11) * t42;
+            let t52 = lit::<T>(0.0335304944) * t41;
+            let t53 = t51 - t52;
+            s.12 = t53;
+            let t54 = lit::<T>(0.0335304944) * t40;
+            s.13 = t54;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_part1<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_slots<T>,
-        c: &mut [T; NV],
-    ) {
-        let t55 = lit::<T>(6.43853298e-11) * s.6;
-        let t56 = lit::<T>(0.33238) * s.7;
-        let t57 = lit::<T>(0.33238) * s.8;
-        let t58 = s.11 + s.12;
-        let t59 = t56 - s.13;
-        let t60 = t55 + t57;
-        let t61 = s.3 * s.10;
-        let t62 = -t61;
-        let t63 = s.4 * s.9;
-        let t64 = t62 - t63;
-        let t65 = s.5 * s.10;
-        let t66 = s.5 * s.9;
-        let t67 = t58 + t64;
-        c[1] = t67;
-        let t68 = t59 - t65;
-        let t69 = t60 + t66;
-        let t70 = s.1 * t68;
-        let t71 = s.0 * t69;
-        let t72 = t70 - t71;
-        let t73 = lit::<T>(0.1) * t72;
-        let t74 = t67 - t73;
-        let t75 = s.2 + t74;
-        c[0] = t75;
+    use rnea_part0::rnea_part0;
+    mod rnea_part1 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_part1<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_slots<T>,
+            c: &mut [T; NV],
+        ) {
+            let t55 = lit::<T>(6.43853298e-11) * s.6;
+            let t56 = lit::<T>(0.33238) * s.7;
+            let t57 = lit::<T>(0.33238) * s.8;
+            let t58 = s.11 + s.12;
+            let t59 = t56 - s.13;
+            let t60 = t55 + t57;
+            let t61 = s.3 * s.10;
+            let t62 = -t61;
+            let t63 = s.4 * s.9;
+            let t64 = t62 - t63;
+            let t65 = s.5 * s.10;
+            let t66 = s.5 * s.9;
+            let t67 = t58 + t64;
+            c[1] = t67;
+            let t68 = t59 - t65;
+            let t69 = t60 + t66;
+            let t70 = s.1 * t68;
+            let t71 = s.0 * t69;
+            let t72 = t70 - t71;
+            let t73 = lit::<T>(0.1) * t72;
+            let t74 = t67 - t73;
+            let t75 = s.2 + t74;
+            c[0] = t75;
+        }
     }
+    use rnea_part1::rnea_part1;
     /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
@@ -745,208 +753,224 @@ pub mod portable {
     struct rnea_grad_slots<T>(
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_grad_part0<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_grad_slots<T>,
-        dc_dq: &mut [[T; NV]; NV],
-        dc_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t1 = q[0].sin();
-        let t2 = q[0].cos();
-        let t7 = q[1].sin();
-        s.0 = t7;
-        let t8 = q[1].cos();
-        s.1 = t8;
-        let t17 = t1 * lit::<T>(9.81);
-        s.2 = t17;
-        let t18 = t2 * lit::<T>(9.81);
-        s.3 = t18;
-        let t19 = lit::<T>(0.1) * qd[0];
-        let t20 = t8 * t19;
-        s.4 = t20;
-        let t21 = t7 * t19;
-        s.5 = t21;
-        let t22 = lit::<T>(0.1) * qdd[0];
-        let t23 = t17 - t22;
-        let t24 = t8 * t23;
-        let t25 = t7 * t18;
-        let t26 = t24 + t25;
-        s.6 = t26;
-        let t27 = t7 * t23;
-        let t28 = t8 * t18;
-        let t29 = t28 - t27;
-        s.7 = t29;
-        let t30 = qd[0] + qd[1];
-        let t31 = qd[1] * t21;
-        let t32 = qd[1] * t20;
-        let t33 = qdd[0] + qdd[1];
-        let t34 = t26 + t31;
-        let t35 = t29 + t32;
-        let t36 = lit::<T>(0.0335304944) * t30;
-        s.8 = t36;
-        let t37 = lit::<T>(6.43853298e-11) * t30;
-        let t38 = lit::<T>(0.33238) * t20;
-        s.9 = t38;
-        let t39 = -t38;
-        let t40 = lit::<T>(0.33238) * t21;
-        s.10 = t40;
-        let t41 = t39 - t36;
-        s.11 = t41;
-        let t42 = t37 + t40;
-        s.12 = t42;
-        let t43 = lit::<T>(0.0335304944) * t33;
-        let t44 = lit::<T>(6.43853298e-11) * t33;
-        let t45 = lit::<T>(0.33238) * t34;
-        let t46 = lit::<T>(0.33238) * t35;
-        let t47 = t45 - t43;
-        let t48 = t44 + t46;
-        let t49 = t30 * t42;
-        let t50 = t30 * t41;
-        let t51 = t47 - t49;
-        s.13 = t51;
-        let t52 = t48 + t50;
-        s.14 = t52;
+    mod rnea_grad_part0 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_grad_part0<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_grad_slots<T>,
+            dc_dq: &mut [[T; NV]; NV],
+            dc_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t1 = q[0].sin();
+            let t2 = q[0].cos();
+            let t7 = q[1].sin();
+            s.0 = t7;
+            let t8 = q[1].cos();
+            s.1 = t8;
+            let t17 = t1 * lit::<T>(9.81);
+            s.2 = t17;
+            let t18 = t2 * lit::<T>(9.81);
+            s.3 = t18;
+            let t19 = lit::<T>(0.1) * qd[0];
+            let t20 = t8 * t19;
+            s.4 = t20;
+            let t21 = t7 * t19;
+            s.5 = t21;
+            let t22 = lit::<T>(0.1) * qdd[0];
+            let t23 = t17 - t22;
+            let t24 = t8 * t23;
+            let t25 = t7 * t18;
+            let t26 = t24 + t25;
+            s.6 = t26;
+            let t27 = t7 * t23;
+            let t28 = t8 * t18;
+            let t29 = t28 - t27;
+            s.7 = t29;
+            let t30 = qd[0] + qd[1];
+            let t31 = qd[1] * t21;
+            let t32 = qd[1] * t20;
+            let t33 = qdd[0] + qdd[1];
+            let t34 = t26 + t31;
+            let t35 = t29 + t32;
+            let t36 = lit::<T>(0.0335304944) * t30;
+            s.8 = t36;
+            let t37 = lit::<T>(6.43853298e-11) * t30;
+            let t38 = lit::<T>(0.33238) * t20;
+            s.9 = t38;
+            let t39 = -t38;
+            let t40 = lit::<T>(0.33238) * t21;
+            s.10 = t40;
+            let t41 = t39 - t36;
+            s.11 = t41;
+            let t42 = t37 + t40;
+            s.12 = t42;
+            let t43 = lit::<T>(0.0335304944) * t33;
+            let t44 = lit::<T>(6.43853298e-11) * t33;
+            let t45 = lit::<T>(0.33238) * t34;
+            let t46 = lit::<T>(0.33238) * t35;
+            let t47 = t45 - t43;
+            let t48 = t44 + t46;
+            let t49 = t30 * t42;
+            let t50 = t30 * t41;
+            let t51 = t47 - t49;
+            s.13 = t51;
+            let t52 = t48 + t50;
+            s.14 = t52;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_grad_part1<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_grad_slots<T>,
-        dc_dq: &mut [[T; NV]; NV],
-        dc_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t53 = qd[0] * s.4;
-        let t54 = qd[0] * s.5;
-        let t55 = s.7 - t53;
-        let t56 = t54 - s.6;
-        let t58 = -s.8;
-        let t59 = t58 - s.9;
-        s.15 = t59;
-        let t60 = lit::<T>(6.43853298e-11) * s.4;
-        s.16 = t60;
-        let t61 = lit::<T>(0.0335304944) * s.5;
-        let t62 = t61 - t60;
-        let t63 = lit::<T>(2.0) * t62;
-        s.17 = t63;
-        let t65 = t60 - t61;
-        let t66 = lit::<T>(6.43853298e-11) * t56;
-        let t67 = lit::<T>(0.0335304944) * t55;
-        let t68 = t66 - t67;
-        let t69 = lit::<T>(0.33238) * t55;
-        let t70 = lit::<T>(0.33238) * t56;
-        let t71 = -s.12;
-        let t72 = s.4 * t59;
-        let t73 = s.5 * s.12;
-        let t74 = t72 - t73;
-        let t75 = s.4 * s.11;
-        let t76 = t73 - t75;
-        let t77 = t65 + t65;
-        let t78 = s.10 + s.10;
-        let t79 = s.9 + s.9;
-        let t80 = t71 - s.12;
-        let t81 = s.11 + t59;
-        let t82 = t63 + t77;
-        s.18 = t82;
-        let t83 = t78 + t80;
-        s.19 = t83;
-        let t84 = t79 + t81;
-        s.20 = t84;
-        let t85 = t74 + t76;
-        let t86 = t68 + t85;
-        s.21 = t86;
-        let t87 = t69 - s.14;
-        s.22 = t87;
-        let t88 = s.13 + t70;
-        s.23 = t88;
-        let t89 = t59 - s.11;
-        s.24 = t89;
-        let t90 = t55 * lit::<T>(-0.0335304944);
-        let t91 = t66 + t90;
-        let t92 = s.4 * t89;
-        let t93 = t91 + t92;
-        dc_dq[1][1] = t93;
-        let t94 = s.5 * lit::<T>(-0.0335304944);
-        s.25 = t94;
+    use rnea_grad_part0::rnea_grad_part0;
+    mod rnea_grad_part1 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_grad_part1<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_grad_slots<T>,
+            dc_dq: &mut [[T; NV]; NV],
+            dc_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t53 = qd[0] * s.4;
+            let t54 = qd[0] * s.5;
+            let t55 = s.7 - t53;
+            let t56 = t54 - s.6;
+            let t58 = -s.8;
+            let t59 = t58 - s.9;
+            s.15 = t59;
+            let t60 = lit::<T>(6.43853298e-11) * s.4;
+            s.16 = t60;
+            let t61 = lit::<T>(0.0335304944) * s.5;
+            let t62 = t61 - t60;
+            let t63 = lit::<T>(2.0) * t62;
+            s.17 = t63;
+            let t65 = t60 - t61;
+            let t66 = lit::<T>(6.43853298e-11) * t56;
+            let t67 = lit::<T>(0.0335304944) * t55;
+            let t68 = t66 - t67;
+            let t69 = lit::<T>(0.33238) * t55;
+            let t70 = lit::<T>(0.33238) * t56;
+            let t71 = -s.12;
+            let t72 = s.4 * t59;
+            let t73 = s.5 * s.12;
+            let t74 = t72 - t73;
+            let t75 = s.4 * s.11;
+            let t76 = t73 - t75;
+            let t77 = t65 + t65;
+            let t78 = s.10 + s.10;
+            let t79 = s.9 + s.9;
+            let t80 = t71 - s.12;
+            let t81 = s.11 + t59;
+            let t82 = t63 + t77;
+            s.18 = t82;
+            let t83 = t78 + t80;
+            s.19 = t83;
+            let t84 = t79 + t81;
+            s.20 = t84;
+            let t85 = t74 + t76;
+            let t86 = t68 + t85;
+            s.21 = t86;
+            let t87 = t69 - s.14;
+            s.22 = t87;
+            let t88 = s.13 + t70;
+            s.23 = t88;
+            let t89 = t59 - s.11;
+            s.24 = t89;
+            let t90 = t55 * lit::<T>(-0.0335304944);
+            let t91 = t66 + t90;
+            let t92 = s.4 * t89;
+            let t93 = t91 + t92;
+            dc_dq[1][1] = t93;
+            let t94 = s.5 * lit::<T>(-0.0335304944);
+            s.25 = t94;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_grad_part2<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_grad_slots<T>,
-        dc_dq: &mut [[T; NV]; NV],
-        dc_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t95 = s.16 + s.25;
-        let t96 = t95 + t95;
-        let t97 = s.17 + t96;
-        dc_dqd[1][1] = t97;
-        let t98 = s.1 * lit::<T>(-0.0335304944);
-        let t99 = s.0 * lit::<T>(6.43853298e-11);
-        let t100 = t98 - t99;
-        let t101 = s.0 * lit::<T>(-0.0335304944);
-        let t102 = s.1 * lit::<T>(6.43853298e-11);
-        let t103 = t101 + t102;
-        s.4 = t103;
-        let t104 = s.1 * s.19;
-        let t105 = s.0 * s.20;
-        let t106 = t104 - t105;
-        let t107 = lit::<T>(0.1) * t106;
-        let t108 = s.18 - t107;
-        dc_dqd[0][1] = t108;
-        let t109 = s.1 * s.22;
-        let t110 = s.0 * s.23;
-        let t111 = t109 - t110;
-        let t112 = lit::<T>(0.1) * t111;
-        let t113 = s.21 - t112;
-        dc_dq[0][1] = t113;
-        let t114 = s.0 * s.24;
-        let t115 = lit::<T>(0.1) * t114;
-        let t116 = s.17 + t115;
-        dc_dqd[1][0] = t116;
-        let t117 = s.0 * lit::<T>(0.0335304944);
-        let t118 = t102 - t117;
-        let t119 = s.1 * lit::<T>(0.0335304944);
-        let t120 = t99 + t119;
-        let t122 = t120 + lit::<T>(0.033238000000000004);
-        let t123 = lit::<T>(5.801760809999999e-7) + t118;
-        let t124 = lit::<T>(0.00961628436) + t122;
-        let t125 = s.0 * s.15;
-        let t126 = s.1 * s.12;
-        let t127 = t125 + t126;
-        let t128 = lit::<T>(0.1) * t127;
-        let t129 = lit::<T>(2.0) * t128;
-        let t130 = s.17 + t129;
-        dc_dqd[0][0] = t130;
-        let t131 = s.2 * t123;
-        let t132 = s.3 * t124;
-        let t133 = -t132;
-        let t134 = t133 - t131;
-        dc_dq[0][0] = t134;
-        let t135 = s.3 * t100;
-        s.5 = t135;
+    use rnea_grad_part1::rnea_grad_part1;
+    mod rnea_grad_part2 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_grad_part2<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_grad_slots<T>,
+            dc_dq: &mut [[T; NV]; NV],
+            dc_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t95 = s.16 + s.25;
+            let t96 = t95 + t95;
+            let t97 = s.17 + t96;
+            dc_dqd[1][1] = t97;
+            let t98 = s.1 * lit::<T>(-0.0335304944);
+            let t99 = s.0 * lit::<T>(6.43853298e-11);
+            let t100 = t98 - t99;
+            let t101 = s.0 * lit::<T>(-0.0335304944);
+            let t102 = s.1 * lit::<T>(6.43853298e-11);
+            let t103 = t101 + t102;
+            s.4 = t103;
+            let t104 = s.1 * s.19;
+            let t105 = s.0 * s.20;
+            let t106 = t104 - t105;
+            let t107 = lit::<T>(0.1) * t106;
+            let t108 = s.18 - t107;
+            dc_dqd[0][1] = t108;
+            let t109 = s.1 * s.22;
+            let t110 = s.0 * s.23;
+            let t111 = t109 - t110;
+            let t112 = lit::<T>(0.1) * t111;
+            let t113 = s.21 - t112;
+            dc_dq[0][1] = t113;
+            let t114 = s.0 * s.24;
+            let t115 = lit::<T>(0.1) * t114;
+            let t116 = s.17 + t115;
+            dc_dqd[1][0] = t116;
+            let t117 = s.0 * lit::<T>(0.0335304944);
+            let t118 = t102 - t117;
+            let t119 = s.1 * lit::<T>(0.0335304944);
+            let t120 = t99 + t119;
+            let t122 = t120 + lit::<T>(0.033238000000000004);
+            let t123 = lit::<T>(5.801760809999999e-7) + t118;
+            let t124 = lit::<T>(0.00961628436) + t122;
+            let t125 = s.0 * s.15;
+            let t126 = s.1 * s.12;
+            let t127 = t125 + t126;
+            let t128 = lit::<T>(0.1) * t127;
+            let t129 = lit::<T>(2.0) * t128;
+            let t130 = s.17 + t129;
+            dc_dqd[0][0] = t130;
+            let t131 = s.2 * t123;
+            let t132 = s.3 * t124;
+            let t133 = -t132;
+            let t134 = t133 - t131;
+            dc_dq[0][0] = t134;
+            let t135 = s.3 * t100;
+            s.5 = t135;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_grad_part3<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_grad_slots<T>,
-        dc_dq: &mut [[T; NV]; NV],
-        dc_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t136 = s.2 * s.4;
-        let t137 = s.5 - t136;
-        dc_dq[1][0] = t137;
+    use rnea_grad_part2::rnea_grad_part2;
+    mod rnea_grad_part3 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_grad_part3<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_grad_slots<T>,
+            dc_dq: &mut [[T; NV]; NV],
+            dc_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t136 = s.2 * s.4;
+            let t137 = s.5 - t136;
+            dc_dq[1][0] = t137;
+        }
     }
+    use rnea_grad_part3::rnea_grad_part3;
     /// The joint-space inertia matrix M(q) (CRBA).
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
@@ -1032,156 +1056,168 @@ pub mod portable {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct fd_slots<T>(T, T, T, T, T, T, T, T, T, T, T, T, T, T, T);
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_part0<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_slots<T>,
-        qdd: &mut [T; NV],
-    ) {
-        let t2 = q[0].sin();
-        s.0 = t2;
-        let t3 = q[0].cos();
-        s.1 = t3;
-        let t8 = q[1].sin();
-        s.2 = t8;
-        let t9 = q[1].cos();
-        s.3 = t9;
-        let t18 = lit::<T>(0.1) * qd[0];
-        let t19 = t9 * t18;
-        let t20 = t8 * t18;
-        let t21 = qd[0] + qd[1];
-        let t22 = qd[1] * t20;
-        s.4 = t22;
-        let t23 = qd[1] * t19;
-        s.5 = t23;
-        let t24 = lit::<T>(0.0335304944) * t21;
-        let t25 = lit::<T>(6.43853298e-11) * t21;
-        let t26 = lit::<T>(0.33238) * t19;
-        let t27 = -t26;
-        let t28 = lit::<T>(0.33238) * t20;
-        let t29 = t27 - t24;
-        let t30 = t25 + t28;
-        let t31 = t19 * t30;
-        let t32 = -t31;
-        let t33 = t20 * t29;
-        let t34 = t32 - t33;
-        let t35 = t21 * t30;
-        let t36 = t21 * t29;
-        let t40 = tau[1] - t34;
-        s.6 = t40;
-        let t43 = t22 * lit::<T>(0.08570832216376303);
-        let t44 = t23 * lit::<T>(4.736595035057242e-10);
-        let t45 = t43 + t44;
-        let t46 = t22 * lit::<T>(4.736595035057242e-10);
-        let t47 = lit::<T>(0.33238) * t23;
-        let t48 = t46 + t47;
-        let t49 = lit::<T>(219.4013895236754) * t40;
-        let t50 = lit::<T>(0.004557856275072) * t49;
-        let t51 = lit::<T>(-0.0335304944) * t49;
-        let t52 = lit::<T>(6.43853298e-11) * t49;
-        let t53 = t45 - t35;
-        let t54 = t36 + t48;
-        let t55 = t34 + t50;
-        s.7 = t55;
-        let t56 = t51 + t53;
-        let t57 = t52 + t54;
-        s.8 = t57;
-        let t58 = t9 * t56;
-        s.9 = t58;
+    mod fd_part0 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_part0<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_slots<T>,
+            qdd: &mut [T; NV],
+        ) {
+            let t2 = q[0].sin();
+            s.0 = t2;
+            let t3 = q[0].cos();
+            s.1 = t3;
+            let t8 = q[1].sin();
+            s.2 = t8;
+            let t9 = q[1].cos();
+            s.3 = t9;
+            let t18 = lit::<T>(0.1) * qd[0];
+            let t19 = t9 * t18;
+            let t20 = t8 * t18;
+            let t21 = qd[0] + qd[1];
+            let t22 = qd[1] * t20;
+            s.4 = t22;
+            let t23 = qd[1] * t19;
+            s.5 = t23;
+            let t24 = lit::<T>(0.0335304944) * t21;
+            let t25 = lit::<T>(6.43853298e-11) * t21;
+            let t26 = lit::<T>(0.33238) * t19;
+            let t27 = -t26;
+            let t28 = lit::<T>(0.33238) * t20;
+            let t29 = t27 - t24;
+            let t30 = t25 + t28;
+            let t31 = t19 * t30;
+            let t32 = -t31;
+            let t33 = t20 * t29;
+            let t34 = t32 - t33;
+            let t35 = t21 * t30;
+            let t36 = t21 * t29;
+            let t40 = tau[1] - t34;
+            s.6 = t40;
+            let t43 = t22 * lit::<T>(0.08570832216376303);
+            let t44 = t23 * lit::<T>(4.736595035057242e-10);
+            let t45 = t43 + t44;
+            let t46 = t22 * lit::<T>(4.736595035057242e-10);
+            let t47 = lit::<T>(0.33238) * t23;
+            let t48 = t46 + t47;
+            let t49 = lit::<T>(219.4013895236754) * t40;
+            let t50 = lit::<T>(0.004557856275072) * t49;
+            let t51 = lit::<T>(-0.0335304944) * t49;
+            let t52 = lit::<T>(6.43853298e-11) * t49;
+            let t53 = t45 - t35;
+            let t54 = t36 + t48;
+            let t55 = t34 + t50;
+            s.7 = t55;
+            let t56 = t51 + t53;
+            let t57 = t52 + t54;
+            s.8 = t57;
+            let t58 = t9 * t56;
+            s.9 = t58;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_part1<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_slots<T>,
-        qdd: &mut [T; NV],
-    ) {
-        let t59 = s.2 * s.8;
-        let t60 = s.9 - t59;
-        let t61 = lit::<T>(0.1) * t60;
-        let t62 = s.7 - t61;
-        let t64 = s.3 * lit::<T>(-0.1);
-        let t65 = s.2 * lit::<T>(-0.1);
-        let t66 = lit::<T>(0.08570832216376303) * t64;
-        let t67 = lit::<T>(4.736595035057242e-10) * t65;
-        let t68 = t66 - t67;
-        let t69 = lit::<T>(4.736595035057242e-10) * t64;
-        let t70 = lit::<T>(0.33238) * t65;
-        let t71 = t69 - t70;
-        let t72 = s.3 * t68;
-        let t73 = s.2 * t71;
-        let t74 = t72 - t73;
-        let t75 = lit::<T>(0.1) * t74;
-        let t76 = s.3 * lit::<T>(0.08570832216376303);
-        let t77 = s.2 * lit::<T>(4.736595035057242e-10);
-        let t78 = t76 - t77;
-        let t79 = s.3 * lit::<T>(4.736595035057242e-10);
-        let t80 = s.2 * lit::<T>(0.33238);
-        let t81 = t79 - t80;
-        let t82 = s.3 * t78;
-        let t83 = s.2 * t81;
-        let t84 = t82 - t83;
-        let t85 = lit::<T>(0.1) * t84;
-        let t86 = s.2 * lit::<T>(0.08570832216376303);
-        let t87 = t79 + t86;
-        let t88 = s.3 * lit::<T>(0.33238);
-        let t89 = t77 + t88;
-        let t90 = s.3 * t87;
-        let t91 = s.2 * t89;
-        let t92 = t90 - t91;
-        let t93 = lit::<T>(0.1) * t92;
-        let t94 = lit::<T>(0.0007545716336328686) - t75;
-        let t95 = lit::<T>(-0.00961628436) - t85;
-        s.10 = t95;
-        let t96 = lit::<T>(5.801760809999999e-7) - t93;
-        s.11 = t96;
-        let t97 = lit::<T>(1.0) / t94;
-        s.12 = t97;
-        let t98 = tau[0] - t62;
-        s.13 = t98;
-        let t100 = s.0 * lit::<T>(9.81);
-        s.14 = t100;
+    use fd_part0::fd_part0;
+    mod fd_part1 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_part1<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_slots<T>,
+            qdd: &mut [T; NV],
+        ) {
+            let t59 = s.2 * s.8;
+            let t60 = s.9 - t59;
+            let t61 = lit::<T>(0.1) * t60;
+            let t62 = s.7 - t61;
+            let t64 = s.3 * lit::<T>(-0.1);
+            let t65 = s.2 * lit::<T>(-0.1);
+            let t66 = lit::<T>(0.08570832216376303) * t64;
+            let t67 = lit::<T>(4.736595035057242e-10) * t65;
+            let t68 = t66 - t67;
+            let t69 = lit::<T>(4.736595035057242e-10) * t64;
+            let t70 = lit::<T>(0.33238) * t65;
+            let t71 = t69 - t70;
+            let t72 = s.3 * t68;
+            let t73 = s.2 * t71;
+            let t74 = t72 - t73;
+            let t75 = lit::<T>(0.1) * t74;
+            let t76 = s.3 * lit::<T>(0.08570832216376303);
+            let t77 = s.2 * lit::<T>(4.736595035057242e-10);
+            let t78 = t76 - t77;
+            let t79 = s.3 * lit::<T>(4.736595035057242e-10);
+            let t80 = s.2 * lit::<T>(0.33238);
+            let t81 = t79 - t80;
+            let t82 = s.3 * t78;
+            let t83 = s.2 * t81;
+            let t84 = t82 - t83;
+            let t85 = lit::<T>(0.1) * t84;
+            let t86 = s.2 * lit::<T>(0.08570832216376303);
+            let t87 = t79 + t86;
+            let t88 = s.3 * lit::<T>(0.33238);
+            let t89 = t77 + t88;
+            let t90 = s.3 * t87;
+            let t91 = s.2 * t89;
+            let t92 = t90 - t91;
+            let t93 = lit::<T>(0.1) * t92;
+            let t94 = lit::<T>(0.0007545716336328686) - t75;
+            let t95 = lit::<T>(-0.00961628436) - t85;
+            s.10 = t95;
+            let t96 = lit::<T>(5.801760809999999e-7) - t93;
+            s.11 = t96;
+            let t97 = lit::<T>(1.0) / t94;
+            s.12 = t97;
+            let t98 = tau[0] - t62;
+            s.13 = t98;
+            let t100 = s.0 * lit::<T>(9.81);
+            s.14 = t100;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_part2<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_slots<T>,
-        qdd: &mut [T; NV],
-    ) {
-        let t101 = s.1 * lit::<T>(9.81);
-        let t102 = s.10 * s.14;
-        let t103 = s.11 * t101;
-        let t104 = t102 + t103;
-        let t105 = s.13 - t104;
-        let t106 = s.12 * t105;
-        qdd[0] = t106;
-        let t107 = lit::<T>(0.1) * t106;
-        let t108 = s.14 - t107;
-        let t109 = s.3 * t108;
-        let t110 = s.2 * t101;
-        let t111 = t109 + t110;
-        let t112 = s.2 * t108;
-        let t113 = s.3 * t101;
-        let t114 = t113 - t112;
-        let t115 = s.4 + t111;
-        let t116 = s.5 + t114;
-        let t117 = lit::<T>(0.004557856275072) * t106;
-        let t118 = lit::<T>(-0.0335304944) * t115;
-        let t119 = t117 + t118;
-        let t120 = lit::<T>(6.43853298e-11) * t116;
-        let t121 = t119 + t120;
-        let t122 = s.6 - t121;
-        let t123 = lit::<T>(219.4013895236754) * t122;
-        qdd[1] = t123;
+    use fd_part1::fd_part1;
+    mod fd_part2 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_part2<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_slots<T>,
+            qdd: &mut [T; NV],
+        ) {
+            let t101 = s.1 * lit::<T>(9.81);
+            let t102 = s.10 * s.14;
+            let t103 = s.11 * t101;
+            let t104 = t102 + t103;
+            let t105 = s.13 - t104;
+            let t106 = s.12 * t105;
+            qdd[0] = t106;
+            let t107 = lit::<T>(0.1) * t106;
+            let t108 = s.14 - t107;
+            let t109 = s.3 * t108;
+            let t110 = s.2 * t101;
+            let t111 = t109 + t110;
+            let t112 = s.2 * t108;
+            let t113 = s.3 * t101;
+            let t114 = t113 - t112;
+            let t115 = s.4 + t111;
+            let t116 = s.5 + t114;
+            let t117 = lit::<T>(0.004557856275072) * t106;
+            let t118 = lit::<T>(-0.0335304944) * t115;
+            let t119 = t117 + t118;
+            let t120 = lit::<T>(6.43853298e-11) * t116;
+            let t121 = t119 + t120;
+            let t122 = s.6 - t121;
+            let t123 = lit::<T>(219.4013895236754) * t122;
+            qdd[1] = t123;
+        }
     }
+    use fd_part2::fd_part2;
     /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
@@ -1209,320 +1245,340 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T,
     );
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part0<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t1 = q[0].sin();
-        let t2 = q[0].cos();
-        let t9 = q[1].sin();
-        s.0 = t9;
-        let t10 = q[1].cos();
-        s.1 = t10;
-        let t19 = t10 * lit::<T>(6.43853298e-11);
-        let t20 = t9 * lit::<T>(0.0335304944);
-        let t21 = t19 - t20;
-        let t22 = t9 * lit::<T>(6.43853298e-11);
-        let t23 = t10 * lit::<T>(0.0335304944);
-        let t24 = t22 + t23;
-        let t26 = lit::<T>(0.1) * t24;
-        let t27 = lit::<T>(-3.8305498717999996e-5) + t26;
-        let t29 = t27 * lit::<T>(2.0);
-        let t31 = t29 + lit::<T>(0.007958267272508);
-        let t33 = t24 + lit::<T>(0.033238000000000004);
-        let t34 = lit::<T>(0.0007545716336328686) + t31;
-        s.2 = t34;
-        let t35 = lit::<T>(5.801760809999999e-7) + t21;
-        s.3 = t35;
-        let t36 = lit::<T>(0.00961628436) + t33;
-        s.4 = t36;
-        let t38 = t10 * lit::<T>(-0.0335304944);
-        let t39 = t38 - t22;
-        s.5 = t39;
-        let t40 = t9 * lit::<T>(-0.0335304944);
-        let t41 = t19 + t40;
-        s.6 = t41;
-        let t42 = lit::<T>(0.1) * t39;
-        let t43 = lit::<T>(0.004557856275072) - t42;
-        s.7 = t43;
-        let t45 = t1 * lit::<T>(9.81);
-        s.8 = t45;
-        let t46 = t2 * lit::<T>(9.81);
-        s.9 = t46;
-        let t47 = lit::<T>(5.801760809999999e-7) * t46;
-        let t48 = lit::<T>(0.00961628436) * t45;
-        let t49 = t47 - t48;
-        s.10 = t49;
-        let t50 = lit::<T>(0.1) * qd[0];
-        let t51 = t10 * t50;
-        s.11 = t51;
-        let t52 = t9 * t50;
-        s.12 = t52;
-        let t53 = t10 * t45;
-        let t54 = t9 * t46;
-        s.13 = t54;
-        let t55 = t53 + t54;
-        s.14 = t55;
-        let t56 = t9 * t45;
-        let t57 = t10 * t46;
-        s.15 = t57;
-        let t58 = t57 - t56;
-        s.16 = t58;
-        let t59 = qd[0] + qd[1];
-        s.17 = t59;
-        let t60 = qd[1] * t52;
-        s.18 = t60;
+    mod fd_grad_part0 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part0<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t1 = q[0].sin();
+            let t2 = q[0].cos();
+            let t9 = q[1].sin();
+            s.0 = t9;
+            let t10 = q[1].cos();
+            s.1 = t10;
+            let t19 = t10 * lit::<T>(6.43853298e-11);
+            let t20 = t9 * lit::<T>(0.0335304944);
+            let t21 = t19 - t20;
+            let t22 = t9 * lit::<T>(6.43853298e-11);
+            let t23 = t10 * lit::<T>(0.0335304944);
+            let t24 = t22 + t23;
+            let t26 = lit::<T>(0.1) * t24;
+            let t27 = lit::<T>(-3.8305498717999996e-5) + t26;
+            let t29 = t27 * lit::<T>(2.0);
+            let t31 = t29 + lit::<T>(0.007958267272508);
+            let t33 = t24 + lit::<T>(0.033238000000000004);
+            let t34 = lit::<T>(0.0007545716336328686) + t31;
+            s.2 = t34;
+            let t35 = lit::<T>(5.801760809999999e-7) + t21;
+            s.3 = t35;
+            let t36 = lit::<T>(0.00961628436) + t33;
+            s.4 = t36;
+            let t38 = t10 * lit::<T>(-0.0335304944);
+            let t39 = t38 - t22;
+            s.5 = t39;
+            let t40 = t9 * lit::<T>(-0.0335304944);
+            let t41 = t19 + t40;
+            s.6 = t41;
+            let t42 = lit::<T>(0.1) * t39;
+            let t43 = lit::<T>(0.004557856275072) - t42;
+            s.7 = t43;
+            let t45 = t1 * lit::<T>(9.81);
+            s.8 = t45;
+            let t46 = t2 * lit::<T>(9.81);
+            s.9 = t46;
+            let t47 = lit::<T>(5.801760809999999e-7) * t46;
+            let t48 = lit::<T>(0.00961628436) * t45;
+            let t49 = t47 - t48;
+            s.10 = t49;
+            let t50 = lit::<T>(0.1) * qd[0];
+            let t51 = t10 * t50;
+            s.11 = t51;
+            let t52 = t9 * t50;
+            s.12 = t52;
+            let t53 = t10 * t45;
+            let t54 = t9 * t46;
+            s.13 = t54;
+            let t55 = t53 + t54;
+            s.14 = t55;
+            let t56 = t9 * t45;
+            let t57 = t10 * t46;
+            s.15 = t57;
+            let t58 = t57 - t56;
+            s.16 = t58;
+            let t59 = qd[0] + qd[1];
+            s.17 = t59;
+            let t60 = qd[1] * t52;
+            s.18 = t60;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part1<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t61 = qd[1] * s.11;
-        s.19 = t61;
-        let t62 = s.14 + s.18;
-        let t63 = s.16 + t61;
-        let t64 = lit::<T>(0.0335304944) * s.17;
-        s.20 = t64;
-        let t65 = lit::<T>(6.43853298e-11) * s.17;
-        let t66 = lit::<T>(0.33238) * s.11;
-        s.21 = t66;
-        let t67 = -t66;
-        let t68 = lit::<T>(0.33238) * s.12;
-        s.22 = t68;
-        let t69 = t67 - t64;
-        s.23 = t69;
-        let t70 = t65 + t68;
-        s.24 = t70;
-        let t71 = lit::<T>(6.43853298e-11) * t63;
-        let t72 = lit::<T>(0.0335304944) * t62;
-        let t73 = t71 - t72;
-        let t74 = lit::<T>(0.33238) * t62;
-        let t75 = lit::<T>(0.33238) * t63;
-        let t76 = s.11 * t70;
-        let t77 = -t76;
-        let t78 = s.12 * t69;
-        let t79 = t77 - t78;
-        let t80 = s.17 * t70;
-        s.25 = t80;
-        let t81 = s.17 * t69;
-        s.26 = t81;
-        let t82 = t73 + t79;
-        let t83 = t74 - t80;
-        let t84 = t75 + t81;
-        let t85 = s.1 * t83;
-        let t86 = s.0 * t84;
-        let t87 = t85 - t86;
-        let t88 = lit::<T>(0.1) * t87;
-        let t89 = t82 - t88;
-        let t90 = s.10 + t89;
-        let t92 = s.7 * lit::<T>(-219.4013895236754);
-        s.27 = t92;
-        let t93 = s.7 * t92;
-        let t94 = s.2 + t93;
-        let t95 = lit::<T>(-1.0) / t94;
-        s.28 = t95;
-        let t96 = t90 - tau[0];
-        let t97 = t82 - tau[1];
-        let t98 = t92 * t97;
-        let t99 = t96 + t98;
-        let t100 = t95 * t99;
-        s.29 = t100;
-        qdd[0] = t100;
-        let t101 = lit::<T>(-219.4013895236754) * t97;
-        s.30 = t101;
+    use fd_grad_part0::fd_grad_part0;
+    mod fd_grad_part1 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part1<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t61 = qd[1] * s.11;
+            s.19 = t61;
+            let t62 = s.14 + s.18;
+            let t63 = s.16 + t61;
+            let t64 = lit::<T>(0.0335304944) * s.17;
+            s.20 = t64;
+            let t65 = lit::<T>(6.43853298e-11) * s.17;
+            let t66 = lit::<T>(0.33238) * s.11;
+            s.21 = t66;
+            let t67 = -t66;
+            let t68 = lit::<T>(0.33238) * s.12;
+            s.22 = t68;
+            let t69 = t67 - t64;
+            s.23 = t69;
+            let t70 = t65 + t68;
+            s.24 = t70;
+            let t71 = lit::<T>(6.43853298e-11) * t63;
+            let t72 = lit::<T>(0.0335304944) * t62;
+            let t73 = t71 - t72;
+            let t74 = lit::<T>(0.33238) * t62;
+            let t75 = lit::<T>(0.33238) * t63;
+            let t76 = s.11 * t70;
+            let t77 = -t76;
+            let t78 = s.12 * t69;
+            let t79 = t77 - t78;
+            let t80 = s.17 * t70;
+            s.25 = t80;
+            let t81 = s.17 * t69;
+            s.26 = t81;
+            let t82 = t73 + t79;
+            let t83 = t74 - t80;
+            let t84 = t75 + t81;
+            let t85 = s.1 * t83;
+            let t86 = s.0 * t84;
+            let t87 = t85 - t86;
+            let t88 = lit::<T>(0.1) * t87;
+            let t89 = t82 - t88;
+            let t90 = s.10 + t89;
+            let t92 = s.7 * lit::<T>(-219.4013895236754);
+            s.27 = t92;
+            let t93 = s.7 * t92;
+            let t94 = s.2 + t93;
+            let t95 = lit::<T>(-1.0) / t94;
+            s.28 = t95;
+            let t96 = t90 - tau[0];
+            let t97 = t82 - tau[1];
+            let t98 = t92 * t97;
+            let t99 = t96 + t98;
+            let t100 = t95 * t99;
+            s.29 = t100;
+            qdd[0] = t100;
+            let t101 = lit::<T>(-219.4013895236754) * t97;
+            s.30 = t101;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part2<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t102 = s.27 * s.29;
-        let t103 = s.30 + t102;
-        qdd[1] = t103;
-        let t104 = lit::<T>(0.1) * s.29;
-        let t105 = s.8 - t104;
-        let t106 = s.1 * t105;
-        let t107 = s.13 + t106;
-        let t108 = s.0 * t105;
-        let t109 = s.15 - t108;
-        let t110 = s.29 + t103;
-        let t111 = s.18 + t107;
-        let t112 = s.19 + t109;
-        let t113 = lit::<T>(0.0335304944) * t110;
-        let t114 = lit::<T>(6.43853298e-11) * t110;
-        let t115 = lit::<T>(0.33238) * t111;
-        let t116 = lit::<T>(0.33238) * t112;
-        let t117 = t115 - t113;
-        let t118 = t114 + t116;
-        let t119 = t117 - s.25;
-        s.2 = t119;
-        let t120 = s.26 + t118;
-        s.7 = t120;
-        let t121 = qd[0] * s.11;
-        let t122 = qd[0] * s.12;
-        let t123 = t109 - t121;
-        s.10 = t123;
-        let t124 = t122 - t107;
-        let t125 = -s.20;
-        let t126 = t125 - s.21;
-        s.14 = t126;
-        let t127 = lit::<T>(6.43853298e-11) * s.11;
-        s.16 = t127;
-        let t128 = lit::<T>(0.0335304944) * s.12;
-        let t129 = t128 - t127;
-        let t130 = lit::<T>(2.0) * t129;
-        s.17 = t130;
-        let t131 = t127 - t128;
-        s.31 = t131;
-        let t132 = lit::<T>(6.43853298e-11) * t124;
-        s.32 = t132;
-        let t133 = lit::<T>(0.0335304944) * t123;
-        let t134 = t132 - t133;
-        s.33 = t134;
-        let t135 = lit::<T>(0.33238) * t123;
-        s.34 = t135;
-        let t136 = lit::<T>(0.33238) * t124;
-        s.35 = t136;
-        let t137 = -s.24;
-        s.36 = t137;
-        let t138 = s.11 * t126;
-        let t139 = s.12 * s.24;
-        s.37 = t139;
-        let t140 = t138 - t139;
-        s.38 = t140;
-        let t141 = s.11 * s.23;
-        s.39 = t141;
+    use fd_grad_part1::fd_grad_part1;
+    mod fd_grad_part2 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part2<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t102 = s.27 * s.29;
+            let t103 = s.30 + t102;
+            qdd[1] = t103;
+            let t104 = lit::<T>(0.1) * s.29;
+            let t105 = s.8 - t104;
+            let t106 = s.1 * t105;
+            let t107 = s.13 + t106;
+            let t108 = s.0 * t105;
+            let t109 = s.15 - t108;
+            let t110 = s.29 + t103;
+            let t111 = s.18 + t107;
+            let t112 = s.19 + t109;
+            let t113 = lit::<T>(0.0335304944) * t110;
+            let t114 = lit::<T>(6.43853298e-11) * t110;
+            let t115 = lit::<T>(0.33238) * t111;
+            let t116 = lit::<T>(0.33238) * t112;
+            let t117 = t115 - t113;
+            let t118 = t114 + t116;
+            let t119 = t117 - s.25;
+            s.2 = t119;
+            let t120 = s.26 + t118;
+            s.7 = t120;
+            let t121 = qd[0] * s.11;
+            let t122 = qd[0] * s.12;
+            let t123 = t109 - t121;
+            s.10 = t123;
+            let t124 = t122 - t107;
+            let t125 = -s.20;
+            let t126 = t125 - s.21;
+            s.14 = t126;
+            let t127 = lit::<T>(6.43853298e-11) * s.11;
+            s.16 = t127;
+            let t128 = lit::<T>(0.0335304944) * s.12;
+            let t129 = t128 - t127;
+            let t130 = lit::<T>(2.0) * t129;
+            s.17 = t130;
+            let t131 = t127 - t128;
+            s.31 = t131;
+            let t132 = lit::<T>(6.43853298e-11) * t124;
+            s.32 = t132;
+            let t133 = lit::<T>(0.0335304944) * t123;
+            let t134 = t132 - t133;
+            s.33 = t134;
+            let t135 = lit::<T>(0.33238) * t123;
+            s.34 = t135;
+            let t136 = lit::<T>(0.33238) * t124;
+            s.35 = t136;
+            let t137 = -s.24;
+            s.36 = t137;
+            let t138 = s.11 * t126;
+            let t139 = s.12 * s.24;
+            s.37 = t139;
+            let t140 = t138 - t139;
+            s.38 = t140;
+            let t141 = s.11 * s.23;
+            s.39 = t141;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part3<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t142 = s.37 - s.39;
-        let t143 = s.31 + s.31;
-        let t144 = s.22 + s.22;
-        let t145 = s.21 + s.21;
-        let t146 = s.36 - s.24;
-        let t147 = s.23 + s.14;
-        let t148 = s.17 + t143;
-        let t149 = t144 + t146;
-        let t150 = t145 + t147;
-        let t151 = s.38 + t142;
-        let t152 = s.33 + t151;
-        let t153 = s.34 - s.7;
-        let t154 = s.2 + s.35;
-        let t155 = s.14 - s.23;
-        let t156 = lit::<T>(-0.0335304944) * s.10;
-        let t157 = s.32 + t156;
-        let t158 = s.11 * t155;
-        let t159 = t157 + t158;
-        s.13 = t159;
-        let t160 = lit::<T>(-0.0335304944) * s.12;
-        let t161 = s.16 + t160;
-        let t162 = t161 + t161;
-        let t163 = s.17 + t162;
-        s.15 = t163;
-        let t164 = s.1 * t149;
-        let t165 = s.0 * t150;
-        let t166 = t164 - t165;
-        let t167 = lit::<T>(0.1) * t166;
-        let t168 = t148 - t167;
-        s.18 = t168;
-        let t169 = s.1 * t153;
-        let t170 = s.0 * t154;
-        let t171 = t169 - t170;
-        let t172 = lit::<T>(0.1) * t171;
-        let t173 = t152 - t172;
-        s.19 = t173;
-        let t174 = s.0 * t155;
-        let t175 = lit::<T>(0.1) * t174;
-        let t176 = s.17 + t175;
-        s.20 = t176;
-        let t177 = s.0 * s.14;
-        let t178 = s.1 * s.24;
-        let t179 = t177 + t178;
-        let t180 = lit::<T>(0.1) * t179;
-        let t181 = lit::<T>(2.0) * t180;
-        s.25 = t181;
+    use fd_grad_part2::fd_grad_part2;
+    mod fd_grad_part3 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part3<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t142 = s.37 - s.39;
+            let t143 = s.31 + s.31;
+            let t144 = s.22 + s.22;
+            let t145 = s.21 + s.21;
+            let t146 = s.36 - s.24;
+            let t147 = s.23 + s.14;
+            let t148 = s.17 + t143;
+            let t149 = t144 + t146;
+            let t150 = t145 + t147;
+            let t151 = s.38 + t142;
+            let t152 = s.33 + t151;
+            let t153 = s.34 - s.7;
+            let t154 = s.2 + s.35;
+            let t155 = s.14 - s.23;
+            let t156 = lit::<T>(-0.0335304944) * s.10;
+            let t157 = s.32 + t156;
+            let t158 = s.11 * t155;
+            let t159 = t157 + t158;
+            s.13 = t159;
+            let t160 = lit::<T>(-0.0335304944) * s.12;
+            let t161 = s.16 + t160;
+            let t162 = t161 + t161;
+            let t163 = s.17 + t162;
+            s.15 = t163;
+            let t164 = s.1 * t149;
+            let t165 = s.0 * t150;
+            let t166 = t164 - t165;
+            let t167 = lit::<T>(0.1) * t166;
+            let t168 = t148 - t167;
+            s.18 = t168;
+            let t169 = s.1 * t153;
+            let t170 = s.0 * t154;
+            let t171 = t169 - t170;
+            let t172 = lit::<T>(0.1) * t171;
+            let t173 = t152 - t172;
+            s.19 = t173;
+            let t174 = s.0 * t155;
+            let t175 = lit::<T>(0.1) * t174;
+            let t176 = s.17 + t175;
+            s.20 = t176;
+            let t177 = s.0 * s.14;
+            let t178 = s.1 * s.24;
+            let t179 = t177 + t178;
+            let t180 = lit::<T>(0.1) * t179;
+            let t181 = lit::<T>(2.0) * t180;
+            s.25 = t181;
+        }
     }
-    #[inline(never)]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part4<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t182 = s.17 + s.25;
-        let t183 = s.3 * s.8;
-        let t184 = s.4 * s.9;
-        let t185 = -t184;
-        let t186 = t185 - t183;
-        let t187 = s.5 * s.9;
-        let t188 = s.6 * s.8;
-        let t189 = t187 - t188;
-        let t190 = s.27 * t189;
-        let t191 = t186 + t190;
-        let t192 = s.28 * t191;
-        dqdd_dq[0][0] = t192;
-        let t193 = lit::<T>(-219.4013895236754) * t189;
-        let t194 = s.27 * t192;
-        let t195 = t193 + t194;
-        dqdd_dq[1][0] = t195;
-        let t196 = s.27 * s.13;
-        let t197 = s.19 + t196;
-        let t198 = s.28 * t197;
-        dqdd_dq[0][1] = t198;
-        let t199 = lit::<T>(-219.4013895236754) * s.13;
-        let t200 = s.27 * t198;
-        let t201 = t199 + t200;
-        dqdd_dq[1][1] = t201;
-        let t202 = s.27 * s.20;
-        let t203 = t182 + t202;
-        let t204 = s.28 * t203;
-        dqdd_dqd[0][0] = t204;
-        let t205 = lit::<T>(-219.4013895236754) * s.20;
-        let t206 = s.27 * t204;
-        let t207 = t205 + t206;
-        dqdd_dqd[1][0] = t207;
-        let t208 = s.27 * s.15;
-        let t209 = s.18 + t208;
-        let t210 = s.28 * t209;
-        dqdd_dqd[0][1] = t210;
-        let t211 = lit::<T>(-219.4013895236754) * s.15;
-        let t212 = s.27 * t210;
-        let t213 = t211 + t212;
-        dqdd_dqd[1][1] = t213;
+    use fd_grad_part3::fd_grad_part3;
+    mod fd_grad_part4 {
+        use super::*;
+        #[inline(never)]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part4<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t182 = s.17 + s.25;
+            let t183 = s.3 * s.8;
+            let t184 = s.4 * s.9;
+            let t185 = -t184;
+            let t186 = t185 - t183;
+            let t187 = s.5 * s.9;
+            let t188 = s.6 * s.8;
+            let t189 = t187 - t188;
+            let t190 = s.27 * t189;
+            let t191 = t186 + t190;
+            let t192 = s.28 * t191;
+            dqdd_dq[0][0] = t192;
+            let t193 = lit::<T>(-219.4013895236754) * t189;
+            let t194 = s.27 * t192;
+            let t195 = t193 + t194;
+            dqdd_dq[1][0] = t195;
+            let t196 = s.27 * s.13;
+            let t197 = s.19 + t196;
+            let t198 = s.28 * t197;
+            dqdd_dq[0][1] = t198;
+            let t199 = lit::<T>(-219.4013895236754) * s.13;
+            let t200 = s.27 * t198;
+            let t201 = t199 + t200;
+            dqdd_dq[1][1] = t201;
+            let t202 = s.27 * s.20;
+            let t203 = t182 + t202;
+            let t204 = s.28 * t203;
+            dqdd_dqd[0][0] = t204;
+            let t205 = lit::<T>(-219.4013895236754) * s.20;
+            let t206 = s.27 * t204;
+            let t207 = t205 + t206;
+            dqdd_dqd[1][0] = t207;
+            let t208 = s.27 * s.15;
+            let t209 = s.18 + t208;
+            let t210 = s.28 * t209;
+            dqdd_dqd[0][1] = t210;
+            let t211 = lit::<T>(-219.4013895236754) * s.15;
+            let t212 = s.27 * t210;
+            let t213 = t211 + t212;
+            dqdd_dqd[1][1] = t213;
+        }
     }
+    use fd_grad_part4::fd_grad_part4;
     /// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
@@ -1611,88 +1667,96 @@ pub mod fma {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct rnea_slots<T>(T, T, T, T, T, T, T, T, T, T, T, T, T, T);
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_part0<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_slots<T>,
-        c: &mut [T; NV],
-    ) {
-        let t1 = q[0].sin();
-        let t2 = q[0].cos();
-        let t8 = q[1].sin();
-        s.0 = t8;
-        let t9 = q[1].cos();
-        s.1 = t9;
-        let t19 = t1 * lit::<T>(9.81);
-        let t20 = t2 * lit::<T>(9.81);
-        let t23 = lit::<T>(0.00961628436) * t19;
-        let t24 = T::mul_add(lit::<T>(5.801760809999999e-7), t20, -t23);
-        let t25 = T::mul_add(lit::<T>(0.0007545716336328686), qdd[0], t24);
-        s.2 = t25;
-        let t26 = lit::<T>(0.1) * qd[0];
-        let t27 = t9 * t26;
-        s.3 = t27;
-        let t28 = t8 * t26;
-        s.4 = t28;
-        let t30 = T::mul_add(-lit::<T>(0.1), qdd[0], t19);
-        let t32 = t8 * t20;
-        let t33 = T::mul_add(t9, t30, t32);
-        let t34 = t8 * t30;
-        let t36 = T::mul_add(t9, t20, -t34);
-        let t37 = qd[0] + qd[1];
-        s.5 = t37;
-        let t40 = qdd[0] + qdd[1];
-        s.6 = t40;
-        let t41 = T::mul_add(qd[1], t28, t33);
-        s.7 = t41;
-        let t42 = T::mul_add(qd[1], t27, t36);
-        s.8 = t42;
-        let t45 = lit::<T>(0.33238) * t27;
-        let t46 = -t45;
-        let t47 = lit::<T>(0.33238) * t28;
-        let t48 = T::mul_add(-lit::<T>(0.0335304944), t37, t46);
-        s.9 = t48;
-        let t49 = T::mul_add(lit::<T>(6.43853298e-11), t37, t47);
-        s.10 = t49;
-        let t50 = lit::<T>(0.004557856275072) * t40;
-        s.11 = t50;
-        let t52 = lit::<T>(0.0335304944) * t41;
-        let t53 = T::mul_add(lit::<T>(6.43853298e-11), t42, -t52);
-        s.12 = t53;
-        let t54 = lit::<T>(0.0335304944) * t40;
-        s.13 = t54;
+    mod rnea_part0 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_part0<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_slots<T>,
+            c: &mut [T; NV],
+        ) {
+            let t1 = q[0].sin();
+            let t2 = q[0].cos();
+            let t8 = q[1].sin();
+            s.0 = t8;
+            let t9 = q[1].cos();
+            s.1 = t9;
+            let t19 = t1 * lit::<T>(9.81);
+            let t20 = t2 * lit::<T>(9.81);
+            let t23 = lit::<T>(0.00961628436) * t19;
+            let t24 = T::mul_add(lit::<T>(5.801760809999999e-7), t20, -t23);
+            let t25 = T::mul_add(lit::<T>(0.0007545716336328686), qdd[0], t24);
+            s.2 = t25;
+            let t26 = lit::<T>(0.1) * qd[0];
+            let t27 = t9 * t26;
+            s.3 = t27;
+            let t28 = t8 * t26;
+            s.4 = t28;
+            let t30 = T::mul_add(-lit::<T>(0.1), qdd[0], t19);
+            let t32 = t8 * t20;
+            let t33 = T::mul_add(t9, t30, t32);
+            let t34 = t8 * t30;
+            let t36 = T::mul_add(t9, t20, -t34);
+            let t37 = qd[0] + qd[1];
+            s.5 = t37;
+            let t40 = qdd[0] + qdd[1];
+            s.6 = t40;
+            let t41 = T::mul_add(qd[1], t28, t33);
+            s.7 = t41;
+            let t42 = T::mul_add(qd[1], t27, t36);
+            s.8 = t42;
+            let t45 = lit::<T>(0.33238) * t27;
+            let t46 = -t45;
+            let t47 = lit::<T>(0.33238) * t28;
+            let t48 = T::mul_add(-lit::<T>(0.0335304944), t37, t46);
+            s.9 = t48;
+            let t49 = T::mul_add(lit::<T>(6.43853298e-11), t37, t47);
+            s.10 = t49;
+            let t50 = lit::<T>(0.004557856275072) * t40;
+            s.11 = t50;
+            let t52 = lit::<T>(0.0335304944) * t41;
+            let t53 = T::mul_add(lit::<T>(6.43853298e-11), t42, -t52);
+            s.12 = t53;
+            let t54 = lit::<T>(0.0335304944) * t40;
+            s.13 = t54;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_part1<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_slots<T>,
-        c: &mut [T; NV],
-    ) {
-        let t57 = lit::<T>(0.33238) * s.8;
-        let t58 = s.11 + s.12;
-        let t59 = T::mul_add(lit::<T>(0.33238), s.7, -s.13);
-        let t60 = T::mul_add(lit::<T>(6.43853298e-11), s.6, t57);
-        let t61 = s.3 * s.10;
-        let t62 = -t61;
-        let t64 = T::mul_add(-s.4, s.9, t62);
-        let t67 = t58 + t64;
-        c[1] = t67;
-        let t68 = T::mul_add(-s.5, s.10, t59);
-        let t69 = T::mul_add(s.5, s.9, t60);
-        let t71 = s.0 * t69;
-        let t72 = T::mul_add(s.1, t68, -t71);
-        let t74 = T::mul_add(-lit::<T>(0.1), t72, t67);
-        let t75 = s.2 + t74;
-        c[0] = t75;
+    use rnea_part0::rnea_part0;
+    mod rnea_part1 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_part1<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_slots<T>,
+            c: &mut [T; NV],
+        ) {
+            let t57 = lit::<T>(0.33238) * s.8;
+            let t58 = s.11 + s.12;
+            let t59 = T::mul_add(lit::<T>(0.33238), s.7, -s.13);
+            let t60 = T::mul_add(lit::<T>(6.43853298e-11), s.6, t57);
+            let t61 = s.3 * s.10;
+            let t62 = -t61;
+            let t64 = T::mul_add(-s.4, s.9, t62);
+            let t67 = t58 + t64;
+            c[1] = t67;
+            let t68 = T::mul_add(-s.5, s.10, t59);
+            let t69 = T::mul_add(s.5, s.9, t60);
+            let t71 = s.0 * t69;
+            let t72 = T::mul_add(s.1, t68, -t71);
+            let t74 = T::mul_add(-lit::<T>(0.1), t72, t67);
+            let t75 = s.2 + t74;
+            c[0] = t75;
+        }
     }
+    use rnea_part1::rnea_part1;
     /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
     #[inline]
     #[target_feature(enable = "avx2,fma")]
@@ -1732,180 +1796,196 @@ pub mod fma {
     struct rnea_grad_slots<T>(
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_grad_part0<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_grad_slots<T>,
-        dc_dq: &mut [[T; NV]; NV],
-        dc_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t1 = q[0].sin();
-        let t2 = q[0].cos();
-        let t7 = q[1].sin();
-        s.0 = t7;
-        let t8 = q[1].cos();
-        s.1 = t8;
-        let t17 = t1 * lit::<T>(9.81);
-        s.2 = t17;
-        let t18 = t2 * lit::<T>(9.81);
-        s.3 = t18;
-        let t19 = lit::<T>(0.1) * qd[0];
-        let t20 = t8 * t19;
-        s.4 = t20;
-        let t21 = t7 * t19;
-        s.5 = t21;
-        let t23 = T::mul_add(-lit::<T>(0.1), qdd[0], t17);
-        let t25 = t7 * t18;
-        let t26 = T::mul_add(t8, t23, t25);
-        s.6 = t26;
-        let t27 = t7 * t23;
-        let t29 = T::mul_add(t8, t18, -t27);
-        s.7 = t29;
-        let t30 = qd[0] + qd[1];
-        let t33 = qdd[0] + qdd[1];
-        let t34 = T::mul_add(qd[1], t21, t26);
-        let t35 = T::mul_add(qd[1], t20, t29);
-        let t36 = lit::<T>(0.0335304944) * t30;
-        s.8 = t36;
-        let t38 = lit::<T>(0.33238) * t20;
-        s.9 = t38;
-        let t39 = -t38;
-        let t40 = lit::<T>(0.33238) * t21;
-        s.10 = t40;
-        let t41 = t39 - t36;
-        s.11 = t41;
-        let t42 = T::mul_add(lit::<T>(6.43853298e-11), t30, t40);
-        s.12 = t42;
-        let t43 = lit::<T>(0.0335304944) * t33;
-        let t46 = lit::<T>(0.33238) * t35;
-        let t47 = T::mul_add(lit::<T>(0.33238), t34, -t43);
-        let t48 = T::mul_add(lit::<T>(6.43853298e-11), t33, t46);
-        let t51 = T::mul_add(-t30, t42, t47);
-        s.13 = t51;
-        let t52 = T::mul_add(t30, t41, t48);
-        s.14 = t52;
+    mod rnea_grad_part0 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_grad_part0<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_grad_slots<T>,
+            dc_dq: &mut [[T; NV]; NV],
+            dc_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t1 = q[0].sin();
+            let t2 = q[0].cos();
+            let t7 = q[1].sin();
+            s.0 = t7;
+            let t8 = q[1].cos();
+            s.1 = t8;
+            let t17 = t1 * lit::<T>(9.81);
+            s.2 = t17;
+            let t18 = t2 * lit::<T>(9.81);
+            s.3 = t18;
+            let t19 = lit::<T>(0.1) * qd[0];
+            let t20 = t8 * t19;
+            s.4 = t20;
+            let t21 = t7 * t19;
+            s.5 = t21;
+            let t23 = T::mul_add(-lit::<T>(0.1), qdd[0], t17);
+            let t25 = t7 * t18;
+            let t26 = T::mul_add(t8, t23, t25);
+            s.6 = t26;
+            let t27 = t7 * t23;
+            let t29 = T::mul_add(t8, t18, -t27);
+            s.7 = t29;
+            let t30 = qd[0] + qd[1];
+            let t33 = qdd[0] + qdd[1];
+            let t34 = T::mul_add(qd[1], t21, t26);
+            let t35 = T::mul_add(qd[1], t20, t29);
+            let t36 = lit::<T>(0.0335304944) * t30;
+            s.8 = t36;
+            let t38 = lit::<T>(0.33238) * t20;
+            s.9 = t38;
+            let t39 = -t38;
+            let t40 = lit::<T>(0.33238) * t21;
+            s.10 = t40;
+            let t41 = t39 - t36;
+            s.11 = t41;
+            let t42 = T::mul_add(lit::<T>(6.43853298e-11), t30, t40);
+            s.12 = t42;
+            let t43 = lit::<T>(0.0335304944) * t33;
+            let t46 = lit::<T>(0.33238) * t35;
+            let t47 = T::mul_add(lit::<T>(0.33238), t34, -t43);
+            let t48 = T::mul_add(lit::<T>(6.43853298e-11), t33, t46);
+            let t51 = T::mul_add(-t30, t42, t47);
+            s.13 = t51;
+            let t52 = T::mul_add(t30, t41, t48);
+            s.14 = t52;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_grad_part1<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_grad_slots<T>,
-        dc_dq: &mut [[T; NV]; NV],
-        dc_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t55 = T::mul_add(-qd[0], s.4, s.7);
-        let t56 = T::mul_add(qd[0], s.5, -s.6);
-        let t58 = -s.8;
-        let t59 = t58 - s.9;
-        s.15 = t59;
-        let t60 = lit::<T>(6.43853298e-11) * s.4;
-        s.16 = t60;
-        let t61 = lit::<T>(0.0335304944) * s.5;
-        let t62 = t61 - t60;
-        let t63 = lit::<T>(2.0) * t62;
-        s.17 = t63;
-        let t65 = t60 - t61;
-        let t66 = lit::<T>(6.43853298e-11) * t56;
-        let t68 = T::mul_add(-lit::<T>(0.0335304944), t55, t66);
-        let t71 = -s.12;
-        let t73 = s.5 * s.12;
-        let t74 = T::mul_add(s.4, t59, -t73);
-        let t76 = T::mul_add(-s.4, s.11, t73);
-        let t77 = t65 + t65;
-        let t78 = s.10 + s.10;
-        let t79 = s.9 + s.9;
-        let t80 = t71 - s.12;
-        let t81 = s.11 + t59;
-        let t82 = t63 + t77;
-        s.18 = t82;
-        let t83 = t78 + t80;
-        s.19 = t83;
-        let t84 = t79 + t81;
-        s.20 = t84;
-        let t85 = t74 + t76;
-        let t86 = t68 + t85;
-        s.21 = t86;
-        let t87 = T::mul_add(lit::<T>(0.33238), t55, -s.14);
-        s.22 = t87;
-        let t88 = T::mul_add(lit::<T>(0.33238), t56, s.13);
-        s.23 = t88;
-        let t89 = t59 - s.11;
-        s.24 = t89;
-        let t91 = T::mul_add(t55, lit::<T>(-0.0335304944), t66);
-        let t93 = T::mul_add(s.4, t89, t91);
-        dc_dq[1][1] = t93;
-        let t94 = s.5 * lit::<T>(-0.0335304944);
-        s.25 = t94;
+    use rnea_grad_part0::rnea_grad_part0;
+    mod rnea_grad_part1 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_grad_part1<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_grad_slots<T>,
+            dc_dq: &mut [[T; NV]; NV],
+            dc_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t55 = T::mul_add(-qd[0], s.4, s.7);
+            let t56 = T::mul_add(qd[0], s.5, -s.6);
+            let t58 = -s.8;
+            let t59 = t58 - s.9;
+            s.15 = t59;
+            let t60 = lit::<T>(6.43853298e-11) * s.4;
+            s.16 = t60;
+            let t61 = lit::<T>(0.0335304944) * s.5;
+            let t62 = t61 - t60;
+            let t63 = lit::<T>(2.0) * t62;
+            s.17 = t63;
+            let t65 = t60 - t61;
+            let t66 = lit::<T>(6.43853298e-11) * t56;
+            let t68 = T::mul_add(-lit::<T>(0.0335304944), t55, t66);
+            let t71 = -s.12;
+            let t73 = s.5 * s.12;
+            let t74 = T::mul_add(s.4, t59, -t73);
+            let t76 = T::mul_add(-s.4, s.11, t73);
+            let t77 = t65 + t65;
+            let t78 = s.10 + s.10;
+            let t79 = s.9 + s.9;
+            let t80 = t71 - s.12;
+            let t81 = s.11 + t59;
+            let t82 = t63 + t77;
+            s.18 = t82;
+            let t83 = t78 + t80;
+            s.19 = t83;
+            let t84 = t79 + t81;
+            s.20 = t84;
+            let t85 = t74 + t76;
+            let t86 = t68 + t85;
+            s.21 = t86;
+            let t87 = T::mul_add(lit::<T>(0.33238), t55, -s.14);
+            s.22 = t87;
+            let t88 = T::mul_add(lit::<T>(0.33238), t56, s.13);
+            s.23 = t88;
+            let t89 = t59 - s.11;
+            s.24 = t89;
+            let t91 = T::mul_add(t55, lit::<T>(-0.0335304944), t66);
+            let t93 = T::mul_add(s.4, t89, t91);
+            dc_dq[1][1] = t93;
+            let t94 = s.5 * lit::<T>(-0.0335304944);
+            s.25 = t94;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_grad_part2<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_grad_slots<T>,
-        dc_dq: &mut [[T; NV]; NV],
-        dc_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t95 = s.16 + s.25;
-        let t96 = t95 + t95;
-        let t97 = s.17 + t96;
-        dc_dqd[1][1] = t97;
-        let t99 = s.0 * lit::<T>(6.43853298e-11);
-        let t100 = T::mul_add(s.1, lit::<T>(-0.0335304944), -t99);
-        let t102 = s.1 * lit::<T>(6.43853298e-11);
-        let t103 = T::mul_add(s.0, lit::<T>(-0.0335304944), t102);
-        s.4 = t103;
-        let t105 = s.0 * s.20;
-        let t106 = T::mul_add(s.1, s.19, -t105);
-        let t108 = T::mul_add(-lit::<T>(0.1), t106, s.18);
-        dc_dqd[0][1] = t108;
-        let t110 = s.0 * s.23;
-        let t111 = T::mul_add(s.1, s.22, -t110);
-        let t113 = T::mul_add(-lit::<T>(0.1), t111, s.21);
-        dc_dq[0][1] = t113;
-        let t114 = s.0 * s.24;
-        let t116 = T::mul_add(lit::<T>(0.1), t114, s.17);
-        dc_dqd[1][0] = t116;
-        let t118 = T::mul_add(-s.0, lit::<T>(0.0335304944), t102);
-        let t120 = T::mul_add(s.1, lit::<T>(0.0335304944), t99);
-        let t122 = t120 + lit::<T>(0.033238000000000004);
-        let t123 = lit::<T>(5.801760809999999e-7) + t118;
-        let t124 = lit::<T>(0.00961628436) + t122;
-        let t126 = s.1 * s.12;
-        let t127 = T::mul_add(s.0, s.15, t126);
-        let t128 = lit::<T>(0.1) * t127;
-        let t130 = T::mul_add(lit::<T>(2.0), t128, s.17);
-        dc_dqd[0][0] = t130;
-        let t132 = s.3 * t124;
-        let t133 = -t132;
-        let t134 = T::mul_add(-s.2, t123, t133);
-        dc_dq[0][0] = t134;
-        let t135 = s.3 * t100;
-        s.5 = t135;
+    use rnea_grad_part1::rnea_grad_part1;
+    mod rnea_grad_part2 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_grad_part2<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_grad_slots<T>,
+            dc_dq: &mut [[T; NV]; NV],
+            dc_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t95 = s.16 + s.25;
+            let t96 = t95 + t95;
+            let t97 = s.17 + t96;
+            dc_dqd[1][1] = t97;
+            let t99 = s.0 * lit::<T>(6.43853298e-11);
+            let t100 = T::mul_add(s.1, lit::<T>(-0.0335304944), -t99);
+            let t102 = s.1 * lit::<T>(6.43853298e-11);
+            let t103 = T::mul_add(s.0, lit::<T>(-0.0335304944), t102);
+            s.4 = t103;
+            let t105 = s.0 * s.20;
+            let t106 = T::mul_add(s.1, s.19, -t105);
+            let t108 = T::mul_add(-lit::<T>(0.1), t106, s.18);
+            dc_dqd[0][1] = t108;
+            let t110 = s.0 * s.23;
+            let t111 = T::mul_add(s.1, s.22, -t110);
+            let t113 = T::mul_add(-lit::<T>(0.1), t111, s.21);
+            dc_dq[0][1] = t113;
+            let t114 = s.0 * s.24;
+            let t116 = T::mul_add(lit::<T>(0.1), t114, s.17);
+            dc_dqd[1][0] = t116;
+            let t118 = T::mul_add(-s.0, lit::<T>(0.0335304944), t102);
+            let t120 = T::mul_add(s.1, lit::<T>(0.0335304944), t99);
+            let t122 = t120 + lit::<T>(0.033238000000000004);
+            let t123 = lit::<T>(5.801760809999999e-7) + t118;
+            let t124 = lit::<T>(0.00961628436) + t122;
+            let t126 = s.1 * s.12;
+            let t127 = T::mul_add(s.0, s.15, t126);
+            let t128 = lit::<T>(0.1) * t127;
+            let t130 = T::mul_add(lit::<T>(2.0), t128, s.17);
+            dc_dqd[0][0] = t130;
+            let t132 = s.3 * t124;
+            let t133 = -t132;
+            let t134 = T::mul_add(-s.2, t123, t133);
+            dc_dq[0][0] = t134;
+            let t135 = s.3 * t100;
+            s.5 = t135;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn rnea_grad_part3<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        qdd: &[T; NV],
-        s: &mut rnea_grad_slots<T>,
-        dc_dq: &mut [[T; NV]; NV],
-        dc_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t137 = T::mul_add(-s.2, s.4, s.5);
-        dc_dq[1][0] = t137;
+    use rnea_grad_part2::rnea_grad_part2;
+    mod rnea_grad_part3 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn rnea_grad_part3<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            qdd: &[T; NV],
+            s: &mut rnea_grad_slots<T>,
+            dc_dq: &mut [[T; NV]; NV],
+            dc_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t137 = T::mul_add(-s.2, s.4, s.5);
+            dc_dq[1][0] = t137;
+        }
     }
+    use rnea_grad_part3::rnea_grad_part3;
     /// The joint-space inertia matrix M(q) (CRBA).
     #[inline]
     #[target_feature(enable = "avx2,fma")]
@@ -2013,129 +2093,141 @@ pub mod fma {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct fd_slots<T>(T, T, T, T, T, T, T, T, T, T, T, T, T, T, T);
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_part0<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_slots<T>,
-        qdd: &mut [T; NV],
-    ) {
-        let t2 = q[0].sin();
-        s.0 = t2;
-        let t3 = q[0].cos();
-        s.1 = t3;
-        let t8 = q[1].sin();
-        s.2 = t8;
-        let t9 = q[1].cos();
-        s.3 = t9;
-        let t18 = lit::<T>(0.1) * qd[0];
-        let t19 = t9 * t18;
-        let t20 = t8 * t18;
-        let t21 = qd[0] + qd[1];
-        let t22 = qd[1] * t20;
-        s.4 = t22;
-        let t23 = qd[1] * t19;
-        s.5 = t23;
-        let t26 = lit::<T>(0.33238) * t19;
-        let t27 = -t26;
-        let t28 = lit::<T>(0.33238) * t20;
-        let t29 = T::mul_add(-lit::<T>(0.0335304944), t21, t27);
-        let t30 = T::mul_add(lit::<T>(6.43853298e-11), t21, t28);
-        let t31 = t19 * t30;
-        let t32 = -t31;
-        let t34 = T::mul_add(-t20, t29, t32);
-        let t40 = tau[1] - t34;
-        s.6 = t40;
-        let t44 = t23 * lit::<T>(4.736595035057242e-10);
-        let t45 = T::mul_add(t22, lit::<T>(0.08570832216376303), t44);
-        let t47 = lit::<T>(0.33238) * t23;
-        let t48 = T::mul_add(t22, lit::<T>(4.736595035057242e-10), t47);
-        let t49 = lit::<T>(219.4013895236754) * t40;
-        let t53 = T::mul_add(-t21, t30, t45);
-        let t54 = T::mul_add(t21, t29, t48);
-        let t55 = T::mul_add(lit::<T>(0.004557856275072), t49, t34);
-        s.7 = t55;
-        let t56 = T::mul_add(lit::<T>(-0.0335304944), t49, t53);
-        let t57 = T::mul_add(lit::<T>(6.43853298e-11), t49, t54);
-        s.8 = t57;
-        let t58 = t9 * t56;
-        s.9 = t58;
+    mod fd_part0 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_part0<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_slots<T>,
+            qdd: &mut [T; NV],
+        ) {
+            let t2 = q[0].sin();
+            s.0 = t2;
+            let t3 = q[0].cos();
+            s.1 = t3;
+            let t8 = q[1].sin();
+            s.2 = t8;
+            let t9 = q[1].cos();
+            s.3 = t9;
+            let t18 = lit::<T>(0.1) * qd[0];
+            let t19 = t9 * t18;
+            let t20 = t8 * t18;
+            let t21 = qd[0] + qd[1];
+            let t22 = qd[1] * t20;
+            s.4 = t22;
+            let t23 = qd[1] * t19;
+            s.5 = t23;
+            let t26 = lit::<T>(0.33238) * t19;
+            let t27 = -t26;
+            let t28 = lit::<T>(0.33238) * t20;
+            let t29 = T::mul_add(-lit::<T>(0.0335304944), t21, t27);
+            let t30 = T::mul_add(lit::<T>(6.43853298e-11), t21, t28);
+            let t31 = t19 * t30;
+            let t32 = -t31;
+            let t34 = T::mul_add(-t20, t29, t32);
+            let t40 = tau[1] - t34;
+            s.6 = t40;
+            let t44 = t23 * lit::<T>(4.736595035057242e-10);
+            let t45 = T::mul_add(t22, lit::<T>(0.08570832216376303), t44);
+            let t47 = lit::<T>(0.33238) * t23;
+            let t48 = T::mul_add(t22, lit::<T>(4.736595035057242e-10), t47);
+            let t49 = lit::<T>(219.4013895236754) * t40;
+            let t53 = T::mul_add(-t21, t30, t45);
+            let t54 = T::mul_add(t21, t29, t48);
+            let t55 = T::mul_add(lit::<T>(0.004557856275072), t49, t34);
+            s.7 = t55;
+            let t56 = T::mul_add(lit::<T>(-0.0335304944), t49, t53);
+            let t57 = T::mul_add(lit::<T>(6.43853298e-11), t49, t54);
+            s.8 = t57;
+            let t58 = t9 * t56;
+            s.9 = t58;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_part1<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_slots<T>,
-        qdd: &mut [T; NV],
-    ) {
-        let t60 = T::mul_add(-s.2, s.8, s.9);
-        let t62 = T::mul_add(-lit::<T>(0.1), t60, s.7);
-        let t64 = s.3 * lit::<T>(-0.1);
-        let t65 = s.2 * lit::<T>(-0.1);
-        let t67 = lit::<T>(4.736595035057242e-10) * t65;
-        let t68 = T::mul_add(lit::<T>(0.08570832216376303), t64, -t67);
-        let t70 = lit::<T>(0.33238) * t65;
-        let t71 = T::mul_add(lit::<T>(4.736595035057242e-10), t64, -t70);
-        let t73 = s.2 * t71;
-        let t74 = T::mul_add(s.3, t68, -t73);
-        let t77 = s.2 * lit::<T>(4.736595035057242e-10);
-        let t78 = T::mul_add(s.3, lit::<T>(0.08570832216376303), -t77);
-        let t79 = s.3 * lit::<T>(4.736595035057242e-10);
-        let t81 = T::mul_add(-s.2, lit::<T>(0.33238), t79);
-        let t83 = s.2 * t81;
-        let t84 = T::mul_add(s.3, t78, -t83);
-        let t87 = T::mul_add(s.2, lit::<T>(0.08570832216376303), t79);
-        let t89 = T::mul_add(s.3, lit::<T>(0.33238), t77);
-        let t91 = s.2 * t89;
-        let t92 = T::mul_add(s.3, t87, -t91);
-        let t94 = T::mul_add(-lit::<T>(0.1), t74, lit::<T>(0.0007545716336328686));
-        let t95 = T::mul_add(-lit::<T>(0.1), t84, lit::<T>(-0.00961628436));
-        s.10 = t95;
-        let t96 = T::mul_add(-lit::<T>(0.1), t92, lit::<T>(5.801760809999999e-7));
-        s.11 = t96;
-        let t97 = lit::<T>(1.0) / t94;
-        s.12 = t97;
-        let t98 = tau[0] - t62;
-        s.13 = t98;
-        let t100 = s.0 * lit::<T>(9.81);
-        s.14 = t100;
+    use fd_part0::fd_part0;
+    mod fd_part1 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_part1<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_slots<T>,
+            qdd: &mut [T; NV],
+        ) {
+            let t60 = T::mul_add(-s.2, s.8, s.9);
+            let t62 = T::mul_add(-lit::<T>(0.1), t60, s.7);
+            let t64 = s.3 * lit::<T>(-0.1);
+            let t65 = s.2 * lit::<T>(-0.1);
+            let t67 = lit::<T>(4.736595035057242e-10) * t65;
+            let t68 = T::mul_add(lit::<T>(0.08570832216376303), t64, -t67);
+            let t70 = lit::<T>(0.33238) * t65;
+            let t71 = T::mul_add(lit::<T>(4.736595035057242e-10), t64, -t70);
+            let t73 = s.2 * t71;
+            let t74 = T::mul_add(s.3, t68, -t73);
+            let t77 = s.2 * lit::<T>(4.736595035057242e-10);
+            let t78 = T::mul_add(s.3, lit::<T>(0.08570832216376303), -t77);
+            let t79 = s.3 * lit::<T>(4.736595035057242e-10);
+            let t81 = T::mul_add(-s.2, lit::<T>(0.33238), t79);
+            let t83 = s.2 * t81;
+            let t84 = T::mul_add(s.3, t78, -t83);
+            let t87 = T::mul_add(s.2, lit::<T>(0.08570832216376303), t79);
+            let t89 = T::mul_add(s.3, lit::<T>(0.33238), t77);
+            let t91 = s.2 * t89;
+            let t92 = T::mul_add(s.3, t87, -t91);
+            let t94 = T::mul_add(-lit::<T>(0.1), t74, lit::<T>(0.0007545716336328686));
+            let t95 = T::mul_add(-lit::<T>(0.1), t84, lit::<T>(-0.00961628436));
+            s.10 = t95;
+            let t96 = T::mul_add(-lit::<T>(0.1), t92, lit::<T>(5.801760809999999e-7));
+            s.11 = t96;
+            let t97 = lit::<T>(1.0) / t94;
+            s.12 = t97;
+            let t98 = tau[0] - t62;
+            s.13 = t98;
+            let t100 = s.0 * lit::<T>(9.81);
+            s.14 = t100;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_part2<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_slots<T>,
-        qdd: &mut [T; NV],
-    ) {
-        let t101 = s.1 * lit::<T>(9.81);
-        let t103 = s.11 * t101;
-        let t104 = T::mul_add(s.10, s.14, t103);
-        let t105 = s.13 - t104;
-        let t106 = s.12 * t105;
-        qdd[0] = t106;
-        let t108 = T::mul_add(-lit::<T>(0.1), t106, s.14);
-        let t110 = s.2 * t101;
-        let t111 = T::mul_add(s.3, t108, t110);
-        let t112 = s.2 * t108;
-        let t114 = T::mul_add(s.3, t101, -t112);
-        let t115 = s.4 + t111;
-        let t116 = s.5 + t114;
-        let t118 = lit::<T>(-0.0335304944) * t115;
-        let t119 = T::mul_add(lit::<T>(0.004557856275072), t106, t118);
-        let t121 = T::mul_add(lit::<T>(6.43853298e-11), t116, t119);
-        let t122 = s.6 - t121;
-        let t123 = lit::<T>(219.4013895236754) * t122;
-        qdd[1] = t123;
+    use fd_part1::fd_part1;
+    mod fd_part2 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_part2<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_slots<T>,
+            qdd: &mut [T; NV],
+        ) {
+            let t101 = s.1 * lit::<T>(9.81);
+            let t103 = s.11 * t101;
+            let t104 = T::mul_add(s.10, s.14, t103);
+            let t105 = s.13 - t104;
+            let t106 = s.12 * t105;
+            qdd[0] = t106;
+            let t108 = T::mul_add(-lit::<T>(0.1), t106, s.14);
+            let t110 = s.2 * t101;
+            let t111 = T::mul_add(s.3, t108, t110);
+            let t112 = s.2 * t108;
+            let t114 = T::mul_add(s.3, t101, -t112);
+            let t115 = s.4 + t111;
+            let t116 = s.5 + t114;
+            let t118 = lit::<T>(-0.0335304944) * t115;
+            let t119 = T::mul_add(lit::<T>(0.004557856275072), t106, t118);
+            let t121 = T::mul_add(lit::<T>(6.43853298e-11), t116, t119);
+            let t122 = s.6 - t121;
+            let t123 = lit::<T>(219.4013895236754) * t122;
+            qdd[1] = t123;
+        }
     }
+    use fd_part2::fd_part2;
     /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
     #[inline]
     #[target_feature(enable = "avx2,fma")]
@@ -2179,277 +2271,297 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T,
     );
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part0<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t1 = q[0].sin();
-        let t2 = q[0].cos();
-        let t9 = q[1].sin();
-        s.0 = t9;
-        let t10 = q[1].cos();
-        s.1 = t10;
-        let t19 = t10 * lit::<T>(6.43853298e-11);
-        let t21 = T::mul_add(-t9, lit::<T>(0.0335304944), t19);
-        let t22 = t9 * lit::<T>(6.43853298e-11);
-        let t24 = T::mul_add(t10, lit::<T>(0.0335304944), t22);
-        let t27 = T::mul_add(lit::<T>(0.1), t24, lit::<T>(-3.8305498717999996e-5));
-        let t31 = T::mul_add(t27, lit::<T>(2.0), lit::<T>(0.007958267272508));
-        let t33 = t24 + lit::<T>(0.033238000000000004);
-        let t34 = lit::<T>(0.0007545716336328686) + t31;
-        s.2 = t34;
-        let t35 = lit::<T>(5.801760809999999e-7) + t21;
-        s.3 = t35;
-        let t36 = lit::<T>(0.00961628436) + t33;
-        s.4 = t36;
-        let t39 = T::mul_add(t10, lit::<T>(-0.0335304944), -t22);
-        s.5 = t39;
-        let t41 = T::mul_add(t9, lit::<T>(-0.0335304944), t19);
-        s.6 = t41;
-        let t43 = T::mul_add(-lit::<T>(0.1), t39, lit::<T>(0.004557856275072));
-        s.7 = t43;
-        let t45 = t1 * lit::<T>(9.81);
-        s.8 = t45;
-        let t46 = t2 * lit::<T>(9.81);
-        s.9 = t46;
-        let t48 = lit::<T>(0.00961628436) * t45;
-        let t49 = T::mul_add(lit::<T>(5.801760809999999e-7), t46, -t48);
-        s.10 = t49;
-        let t50 = lit::<T>(0.1) * qd[0];
-        let t51 = t10 * t50;
-        s.11 = t51;
-        let t52 = t9 * t50;
-        s.12 = t52;
-        let t54 = t9 * t46;
-        s.13 = t54;
-        let t55 = T::mul_add(t10, t45, t54);
-        s.14 = t55;
-        let t57 = t10 * t46;
-        s.15 = t57;
-        let t58 = T::mul_add(-t9, t45, t57);
-        s.16 = t58;
-        let t59 = qd[0] + qd[1];
-        s.17 = t59;
-        let t60 = qd[1] * t52;
-        s.18 = t60;
+    mod fd_grad_part0 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part0<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t1 = q[0].sin();
+            let t2 = q[0].cos();
+            let t9 = q[1].sin();
+            s.0 = t9;
+            let t10 = q[1].cos();
+            s.1 = t10;
+            let t19 = t10 * lit::<T>(6.43853298e-11);
+            let t21 = T::mul_add(-t9, lit::<T>(0.0335304944), t19);
+            let t22 = t9 * lit::<T>(6.43853298e-11);
+            let t24 = T::mul_add(t10, lit::<T>(0.0335304944), t22);
+            let t27 = T::mul_add(lit::<T>(0.1), t24, lit::<T>(-3.8305498717999996e-5));
+            let t31 = T::mul_add(t27, lit::<T>(2.0), lit::<T>(0.007958267272508));
+            let t33 = t24 + lit::<T>(0.033238000000000004);
+            let t34 = lit::<T>(0.0007545716336328686) + t31;
+            s.2 = t34;
+            let t35 = lit::<T>(5.801760809999999e-7) + t21;
+            s.3 = t35;
+            let t36 = lit::<T>(0.00961628436) + t33;
+            s.4 = t36;
+            let t39 = T::mul_add(t10, lit::<T>(-0.0335304944), -t22);
+            s.5 = t39;
+            let t41 = T::mul_add(t9, lit::<T>(-0.0335304944), t19);
+            s.6 = t41;
+            let t43 = T::mul_add(-lit::<T>(0.1), t39, lit::<T>(0.004557856275072));
+            s.7 = t43;
+            let t45 = t1 * lit::<T>(9.81);
+            s.8 = t45;
+            let t46 = t2 * lit::<T>(9.81);
+            s.9 = t46;
+            let t48 = lit::<T>(0.00961628436) * t45;
+            let t49 = T::mul_add(lit::<T>(5.801760809999999e-7), t46, -t48);
+            s.10 = t49;
+            let t50 = lit::<T>(0.1) * qd[0];
+            let t51 = t10 * t50;
+            s.11 = t51;
+            let t52 = t9 * t50;
+            s.12 = t52;
+            let t54 = t9 * t46;
+            s.13 = t54;
+            let t55 = T::mul_add(t10, t45, t54);
+            s.14 = t55;
+            let t57 = t10 * t46;
+            s.15 = t57;
+            let t58 = T::mul_add(-t9, t45, t57);
+            s.16 = t58;
+            let t59 = qd[0] + qd[1];
+            s.17 = t59;
+            let t60 = qd[1] * t52;
+            s.18 = t60;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part1<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t61 = qd[1] * s.11;
-        s.19 = t61;
-        let t62 = s.14 + s.18;
-        let t63 = s.16 + t61;
-        let t64 = lit::<T>(0.0335304944) * s.17;
-        s.20 = t64;
-        let t66 = lit::<T>(0.33238) * s.11;
-        s.21 = t66;
-        let t67 = -t66;
-        let t68 = lit::<T>(0.33238) * s.12;
-        s.22 = t68;
-        let t69 = t67 - t64;
-        s.23 = t69;
-        let t70 = T::mul_add(lit::<T>(6.43853298e-11), s.17, t68);
-        s.24 = t70;
-        let t72 = lit::<T>(0.0335304944) * t62;
-        let t73 = T::mul_add(lit::<T>(6.43853298e-11), t63, -t72);
-        let t76 = s.11 * t70;
-        let t77 = -t76;
-        let t79 = T::mul_add(-s.12, t69, t77);
-        let t80 = s.17 * t70;
-        s.25 = t80;
-        let t81 = s.17 * t69;
-        s.26 = t81;
-        let t82 = t73 + t79;
-        let t83 = T::mul_add(lit::<T>(0.33238), t62, -t80);
-        let t84 = T::mul_add(lit::<T>(0.33238), t63, t81);
-        let t86 = s.0 * t84;
-        let t87 = T::mul_add(s.1, t83, -t86);
-        let t89 = T::mul_add(-lit::<T>(0.1), t87, t82);
-        let t90 = s.10 + t89;
-        let t92 = s.7 * lit::<T>(-219.4013895236754);
-        s.27 = t92;
-        let t94 = T::mul_add(s.7, t92, s.2);
-        let t95 = lit::<T>(-1.0) / t94;
-        s.28 = t95;
-        let t96 = t90 - tau[0];
-        let t97 = t82 - tau[1];
-        let t99 = T::mul_add(t92, t97, t96);
-        let t100 = t95 * t99;
-        s.29 = t100;
-        qdd[0] = t100;
-        let t101 = lit::<T>(-219.4013895236754) * t97;
-        s.30 = t101;
+    use fd_grad_part0::fd_grad_part0;
+    mod fd_grad_part1 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part1<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t61 = qd[1] * s.11;
+            s.19 = t61;
+            let t62 = s.14 + s.18;
+            let t63 = s.16 + t61;
+            let t64 = lit::<T>(0.0335304944) * s.17;
+            s.20 = t64;
+            let t66 = lit::<T>(0.33238) * s.11;
+            s.21 = t66;
+            let t67 = -t66;
+            let t68 = lit::<T>(0.33238) * s.12;
+            s.22 = t68;
+            let t69 = t67 - t64;
+            s.23 = t69;
+            let t70 = T::mul_add(lit::<T>(6.43853298e-11), s.17, t68);
+            s.24 = t70;
+            let t72 = lit::<T>(0.0335304944) * t62;
+            let t73 = T::mul_add(lit::<T>(6.43853298e-11), t63, -t72);
+            let t76 = s.11 * t70;
+            let t77 = -t76;
+            let t79 = T::mul_add(-s.12, t69, t77);
+            let t80 = s.17 * t70;
+            s.25 = t80;
+            let t81 = s.17 * t69;
+            s.26 = t81;
+            let t82 = t73 + t79;
+            let t83 = T::mul_add(lit::<T>(0.33238), t62, -t80);
+            let t84 = T::mul_add(lit::<T>(0.33238), t63, t81);
+            let t86 = s.0 * t84;
+            let t87 = T::mul_add(s.1, t83, -t86);
+            let t89 = T::mul_add(-lit::<T>(0.1), t87, t82);
+            let t90 = s.10 + t89;
+            let t92 = s.7 * lit::<T>(-219.4013895236754);
+            s.27 = t92;
+            let t94 = T::mul_add(s.7, t92, s.2);
+            let t95 = lit::<T>(-1.0) / t94;
+            s.28 = t95;
+            let t96 = t90 - tau[0];
+            let t97 = t82 - tau[1];
+            let t99 = T::mul_add(t92, t97, t96);
+            let t100 = t95 * t99;
+            s.29 = t100;
+            qdd[0] = t100;
+            let t101 = lit::<T>(-219.4013895236754) * t97;
+            s.30 = t101;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part2<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t103 = T::mul_add(s.27, s.29, s.30);
-        qdd[1] = t103;
-        let t105 = T::mul_add(-lit::<T>(0.1), s.29, s.8);
-        let t107 = T::mul_add(s.1, t105, s.13);
-        let t109 = T::mul_add(-s.0, t105, s.15);
-        let t110 = s.29 + t103;
-        let t111 = s.18 + t107;
-        let t112 = s.19 + t109;
-        let t113 = lit::<T>(0.0335304944) * t110;
-        let t116 = lit::<T>(0.33238) * t112;
-        let t117 = T::mul_add(lit::<T>(0.33238), t111, -t113);
-        let t118 = T::mul_add(lit::<T>(6.43853298e-11), t110, t116);
-        let t119 = t117 - s.25;
-        s.2 = t119;
-        let t120 = s.26 + t118;
-        s.7 = t120;
-        let t123 = T::mul_add(-qd[0], s.11, t109);
-        s.10 = t123;
-        let t124 = T::mul_add(qd[0], s.12, -t107);
-        let t125 = -s.20;
-        let t126 = t125 - s.21;
-        s.14 = t126;
-        let t127 = lit::<T>(6.43853298e-11) * s.11;
-        s.16 = t127;
-        let t128 = lit::<T>(0.0335304944) * s.12;
-        let t129 = t128 - t127;
-        let t130 = lit::<T>(2.0) * t129;
-        s.17 = t130;
-        let t131 = t127 - t128;
-        s.31 = t131;
-        let t132 = lit::<T>(6.43853298e-11) * t124;
-        s.32 = t132;
-        let t134 = T::mul_add(-lit::<T>(0.0335304944), t123, t132);
-        s.33 = t134;
-        let t135 = lit::<T>(0.33238) * t123;
-        s.34 = t135;
-        let t136 = lit::<T>(0.33238) * t124;
-        s.35 = t136;
-        let t137 = -s.24;
-        s.36 = t137;
-        let t139 = s.12 * s.24;
-        s.37 = t139;
-        let t140 = T::mul_add(s.11, t126, -t139);
-        s.38 = t140;
-        let t141 = s.11 * s.23;
-        s.39 = t141;
+    use fd_grad_part1::fd_grad_part1;
+    mod fd_grad_part2 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part2<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t103 = T::mul_add(s.27, s.29, s.30);
+            qdd[1] = t103;
+            let t105 = T::mul_add(-lit::<T>(0.1), s.29, s.8);
+            let t107 = T::mul_add(s.1, t105, s.13);
+            let t109 = T::mul_add(-s.0, t105, s.15);
+            let t110 = s.29 + t103;
+            let t111 = s.18 + t107;
+            let t112 = s.19 + t109;
+            let t113 = lit::<T>(0.0335304944) * t110;
+            let t116 = lit::<T>(0.33238) * t112;
+            let t117 = T::mul_add(lit::<T>(0.33238), t111, -t113);
+            let t118 = T::mul_add(lit::<T>(6.43853298e-11), t110, t116);
+            let t119 = t117 - s.25;
+            s.2 = t119;
+            let t120 = s.26 + t118;
+            s.7 = t120;
+            let t123 = T::mul_add(-qd[0], s.11, t109);
+            s.10 = t123;
+            let t124 = T::mul_add(qd[0], s.12, -t107);
+            let t125 = -s.20;
+            let t126 = t125 - s.21;
+            s.14 = t126;
+            let t127 = lit::<T>(6.43853298e-11) * s.11;
+            s.16 = t127;
+            let t128 = lit::<T>(0.0335304944) * s.12;
+            let t129 = t128 - t127;
+            let t130 = lit::<T>(2.0) * t129;
+            s.17 = t130;
+            let t131 = t127 - t128;
+            s.31 = t131;
+            let t132 = lit::<T>(6.43853298e-11) * t124;
+            s.32 = t132;
+            let t134 = T::mul_add(-lit::<T>(0.0335304944), t123, t132);
+            s.33 = t134;
+            let t135 = lit::<T>(0.33238) * t123;
+            s.34 = t135;
+            let t136 = lit::<T>(0.33238) * t124;
+            s.35 = t136;
+            let t137 = -s.24;
+            s.36 = t137;
+            let t139 = s.12 * s.24;
+            s.37 = t139;
+            let t140 = T::mul_add(s.11, t126, -t139);
+            s.38 = t140;
+            let t141 = s.11 * s.23;
+            s.39 = t141;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part3<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t142 = s.37 - s.39;
-        let t143 = s.31 + s.31;
-        let t144 = s.22 + s.22;
-        let t145 = s.21 + s.21;
-        let t146 = s.36 - s.24;
-        let t147 = s.23 + s.14;
-        let t148 = s.17 + t143;
-        let t149 = t144 + t146;
-        let t150 = t145 + t147;
-        let t151 = s.38 + t142;
-        let t152 = s.33 + t151;
-        let t153 = s.34 - s.7;
-        let t154 = s.2 + s.35;
-        let t155 = s.14 - s.23;
-        let t157 = T::mul_add(lit::<T>(-0.0335304944), s.10, s.32);
-        let t159 = T::mul_add(s.11, t155, t157);
-        s.13 = t159;
-        let t161 = T::mul_add(lit::<T>(-0.0335304944), s.12, s.16);
-        let t162 = t161 + t161;
-        let t163 = s.17 + t162;
-        s.15 = t163;
-        let t165 = s.0 * t150;
-        let t166 = T::mul_add(s.1, t149, -t165);
-        let t168 = T::mul_add(-lit::<T>(0.1), t166, t148);
-        s.18 = t168;
-        let t170 = s.0 * t154;
-        let t171 = T::mul_add(s.1, t153, -t170);
-        let t173 = T::mul_add(-lit::<T>(0.1), t171, t152);
-        s.19 = t173;
-        let t174 = s.0 * t155;
-        let t176 = T::mul_add(lit::<T>(0.1), t174, s.17);
-        s.20 = t176;
-        let t178 = s.1 * s.24;
-        let t179 = T::mul_add(s.0, s.14, t178);
-        let t180 = lit::<T>(0.1) * t179;
-        let t181 = lit::<T>(2.0) * t180;
-        s.25 = t181;
+    use fd_grad_part2::fd_grad_part2;
+    mod fd_grad_part3 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part3<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t142 = s.37 - s.39;
+            let t143 = s.31 + s.31;
+            let t144 = s.22 + s.22;
+            let t145 = s.21 + s.21;
+            let t146 = s.36 - s.24;
+            let t147 = s.23 + s.14;
+            let t148 = s.17 + t143;
+            let t149 = t144 + t146;
+            let t150 = t145 + t147;
+            let t151 = s.38 + t142;
+            let t152 = s.33 + t151;
+            let t153 = s.34 - s.7;
+            let t154 = s.2 + s.35;
+            let t155 = s.14 - s.23;
+            let t157 = T::mul_add(lit::<T>(-0.0335304944), s.10, s.32);
+            let t159 = T::mul_add(s.11, t155, t157);
+            s.13 = t159;
+            let t161 = T::mul_add(lit::<T>(-0.0335304944), s.12, s.16);
+            let t162 = t161 + t161;
+            let t163 = s.17 + t162;
+            s.15 = t163;
+            let t165 = s.0 * t150;
+            let t166 = T::mul_add(s.1, t149, -t165);
+            let t168 = T::mul_add(-lit::<T>(0.1), t166, t148);
+            s.18 = t168;
+            let t170 = s.0 * t154;
+            let t171 = T::mul_add(s.1, t153, -t170);
+            let t173 = T::mul_add(-lit::<T>(0.1), t171, t152);
+            s.19 = t173;
+            let t174 = s.0 * t155;
+            let t176 = T::mul_add(lit::<T>(0.1), t174, s.17);
+            s.20 = t176;
+            let t178 = s.1 * s.24;
+            let t179 = T::mul_add(s.0, s.14, t178);
+            let t180 = lit::<T>(0.1) * t179;
+            let t181 = lit::<T>(2.0) * t180;
+            s.25 = t181;
+        }
     }
-    #[inline(never)]
-    #[target_feature(enable = "avx2,fma")]
-    #[allow(clippy::all, unused_variables, unused_mut)]
-    fn fd_grad_part4<T: Real>(
-        q: &[T; NV],
-        qd: &[T; NV],
-        tau: &[T; NV],
-        s: &mut fd_grad_slots<T>,
-        qdd: &mut [T; NV],
-        dqdd_dq: &mut [[T; NV]; NV],
-        dqdd_dqd: &mut [[T; NV]; NV],
-    ) {
-        let t182 = s.17 + s.25;
-        let t184 = s.4 * s.9;
-        let t185 = -t184;
-        let t186 = T::mul_add(-s.3, s.8, t185);
-        let t188 = s.6 * s.8;
-        let t189 = T::mul_add(s.5, s.9, -t188);
-        let t191 = T::mul_add(s.27, t189, t186);
-        let t192 = s.28 * t191;
-        dqdd_dq[0][0] = t192;
-        let t194 = s.27 * t192;
-        let t195 = T::mul_add(lit::<T>(-219.4013895236754), t189, t194);
-        dqdd_dq[1][0] = t195;
-        let t197 = T::mul_add(s.27, s.13, s.19);
-        let t198 = s.28 * t197;
-        dqdd_dq[0][1] = t198;
-        let t200 = s.27 * t198;
-        let t201 = T::mul_add(lit::<T>(-219.4013895236754), s.13, t200);
-        dqdd_dq[1][1] = t201;
-        let t203 = T::mul_add(s.27, s.20, t182);
-        let t204 = s.28 * t203;
-        dqdd_dqd[0][0] = t204;
-        let t206 = s.27 * t204;
-        let t207 = T::mul_add(lit::<T>(-219.4013895236754), s.20, t206);
-        dqdd_dqd[1][0] = t207;
-        let t209 = T::mul_add(s.27, s.15, s.18);
-        let t210 = s.28 * t209;
-        dqdd_dqd[0][1] = t210;
-        let t212 = s.27 * t210;
-        let t213 = T::mul_add(lit::<T>(-219.4013895236754), s.15, t212);
-        dqdd_dqd[1][1] = t213;
+    use fd_grad_part3::fd_grad_part3;
+    mod fd_grad_part4 {
+        use super::*;
+        #[inline(never)]
+        #[target_feature(enable = "avx2,fma")]
+        #[allow(clippy::all, unused_variables, unused_mut)]
+        pub(super) fn fd_grad_part4<T: Real>(
+            q: &[T; NV],
+            qd: &[T; NV],
+            tau: &[T; NV],
+            s: &mut fd_grad_slots<T>,
+            qdd: &mut [T; NV],
+            dqdd_dq: &mut [[T; NV]; NV],
+            dqdd_dqd: &mut [[T; NV]; NV],
+        ) {
+            let t182 = s.17 + s.25;
+            let t184 = s.4 * s.9;
+            let t185 = -t184;
+            let t186 = T::mul_add(-s.3, s.8, t185);
+            let t188 = s.6 * s.8;
+            let t189 = T::mul_add(s.5, s.9, -t188);
+            let t191 = T::mul_add(s.27, t189, t186);
+            let t192 = s.28 * t191;
+            dqdd_dq[0][0] = t192;
+            let t194 = s.27 * t192;
+            let t195 = T::mul_add(lit::<T>(-219.4013895236754), t189, t194);
+            dqdd_dq[1][0] = t195;
+            let t197 = T::mul_add(s.27, s.13, s.19);
+            let t198 = s.28 * t197;
+            dqdd_dq[0][1] = t198;
+            let t200 = s.27 * t198;
+            let t201 = T::mul_add(lit::<T>(-219.4013895236754), s.13, t200);
+            dqdd_dq[1][1] = t201;
+            let t203 = T::mul_add(s.27, s.20, t182);
+            let t204 = s.28 * t203;
+            dqdd_dqd[0][0] = t204;
+            let t206 = s.27 * t204;
+            let t207 = T::mul_add(lit::<T>(-219.4013895236754), s.20, t206);
+            dqdd_dqd[1][0] = t207;
+            let t209 = T::mul_add(s.27, s.15, s.18);
+            let t210 = s.28 * t209;
+            dqdd_dqd[0][1] = t210;
+            let t212 = s.27 * t210;
+            let t213 = T::mul_add(lit::<T>(-219.4013895236754), s.15, t212);
+            dqdd_dqd[1][1] = t213;
+        }
     }
+    use fd_grad_part4::fd_grad_part4;
     /// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.
     #[inline]
     #[target_feature(enable = "avx2,fma")]

@@ -324,7 +324,7 @@ impl Real for F64x4 {
     }
     #[inline(always)]
     unsafe fn lit(x: f64) -> Self {
-        F64x4::unchecked([x; 4])
+        F64x4(unsafe { core::arch::x86_64::_mm256_set1_pd(x) })
     }
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {
@@ -448,7 +448,7 @@ impl Real for F32x8 {
     }
     #[inline(always)]
     unsafe fn lit(x: f64) -> Self {
-        F32x8::unchecked([x as f32; 8])
+        F32x8(unsafe { core::arch::x86_64::_mm256_set1_ps(x as f32) })
     }
     #[inline(always)]
     fn mul_add(self, a: Self, b: Self) -> Self {
