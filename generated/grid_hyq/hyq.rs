@@ -2086,6 +2086,16 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T,
     );
+    /// An array of 144 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -2098,6 +2108,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
             let t3 = q[0].sin();
             let t4 = q[0].cos();
             let t8 = q[1].sin();
@@ -4155,13 +4171,13 @@ pub mod portable {
             let t1907 = t1019 * t1898;
             let t1908 = t1906 - t1907;
             let t1909 = t1901 + t1908;
-            dc_dq[11][11] = t1909;
+            dc_dq.143 = t1909;
             let t1910 = lit::<T>(3.524e-5) * t1022;
             let t1911 = t1767 + t1910;
             let t1912 = t1911 - t1738;
             let t1913 = t1912 + t1912;
             let t1914 = t1764 + t1913;
-            dc_dqd[11][11] = t1914;
+            dc_dqd.143 = t1914;
             let t1915 = lit::<T>(3.524e-5) * t74;
             let t1916 = lit::<T>(0.11047740000000002) * t73;
             let t1917 = t1915 - t1916;
@@ -4192,7 +4208,7 @@ pub mod portable {
             let t1942 = lit::<T>(0.35) * t1934;
             let t1943 = t1940 - t1941;
             let t1944 = t1876 + t1942;
-            dc_dqd[10][11] = t1944;
+            dc_dqd.131 = t1944;
             let t1945 = t74 * t1893;
             let t1946 = t73 * t1894;
             let t1947 = t1945 - t1946;
@@ -4209,7 +4225,7 @@ pub mod portable {
             let t1958 = lit::<T>(0.35) * t1950;
             let t1959 = t1956 - t1957;
             let t1960 = t1887 + t1958;
-            dc_dq[10][11] = t1960;
+            dc_dq.131 = t1960;
             let t1961 = t74 * t1897;
             let t1962 = t73 * t1898;
             let t1963 = t1961 - t1962;
@@ -4499,12 +4515,12 @@ pub mod portable {
             let t2252 = t893 * t2244;
             let t2253 = t2251 - t2252;
             let t2254 = t2246 + t2253;
-            dc_dq[10][10] = t2254;
+            dc_dq.130 = t2254;
             let t2255 = t2104 - t2109;
             let t2256 = t2255 - t2107;
             let t2257 = t2256 + t2256;
             let t2258 = t2070 + t2257;
-            dc_dqd[10][10] = t2258;
+            dc_dqd.130 = t2258;
             let t2259 = t1365 * t1923;
             let t2260 = t1366 * t1926;
             let t2261 = t2259 + t2260;
@@ -4522,7 +4538,7 @@ pub mod portable {
             let t2273 = t893 * t1966;
             let t2274 = t2272 - t2273;
             let t2275 = t2267 + t2274;
-            dc_dq[11][10] = t2275;
+            dc_dq.142 = t2275;
             let t2276 = t891 * t1923;
             let t2277 = t890 * t1926;
             let t2278 = t2277 - t2276;
@@ -4532,7 +4548,7 @@ pub mod portable {
             let t2282 = t2280 - t2281;
             let t2283 = t2282 + t2282;
             let t2284 = t1974 + t2283;
-            dc_dqd[11][10] = t2284;
+            dc_dqd.142 = t2284;
             let t2285 = t69 * t2021;
             let t2286 = -t2285;
             let t2287 = t68 * t2020;
@@ -4554,7 +4570,7 @@ pub mod portable {
             let t2303 = t2301 + t2302;
             let t2304 = lit::<T>(0.08) * t2297;
             let t2305 = t2303 + t2304;
-            dc_dqd[9][10] = t2305;
+            dc_dqd.118 = t2305;
             let t2306 = t70 * t2239;
             let t2307 = t71 * t2240;
             let t2308 = t2306 + t2307;
@@ -4567,7 +4583,7 @@ pub mod portable {
             let t2315 = t2313 + t2314;
             let t2316 = lit::<T>(0.08) * t2309;
             let t2317 = t2315 + t2316;
-            dc_dq[9][10] = t2317;
+            dc_dq.118 = t2317;
             let t2318 = t70 * t2243;
             let t2319 = t71 * t2244;
             let t2320 = t2318 + t2319;
@@ -4579,7 +4595,7 @@ pub mod portable {
             let t2326 = t2324 + t2325;
             let t2327 = lit::<T>(0.08) * t2320;
             let t2328 = t2326 + t2327;
-            dc_dqd[10][9] = t2328;
+            dc_dqd.129 = t2328;
             let t2329 = t69 * t1917;
             let t2330 = t68 * t1920;
             let t2331 = t2329 - t2330;
@@ -4598,7 +4614,7 @@ pub mod portable {
             let t2344 = t2342 + t2343;
             let t2345 = lit::<T>(0.08) * t2338;
             let t2346 = t2344 + t2345;
-            dc_dqd[9][11] = t2346;
+            dc_dqd.119 = t2346;
             let t2347 = t70 * t1947;
             let t2348 = t71 * t1950;
             let t2349 = t2347 + t2348;
@@ -4611,7 +4627,7 @@ pub mod portable {
             let t2356 = t2354 + t2355;
             let t2357 = lit::<T>(0.08) * t2350;
             let t2358 = t2356 + t2357;
-            dc_dq[9][11] = t2358;
+            dc_dq.119 = t2358;
             let t2359 = t70 * t1963;
             let t2360 = t71 * t1966;
             let t2361 = t2359 + t2360;
@@ -4623,7 +4639,7 @@ pub mod portable {
             let t2367 = t2365 + t2366;
             let t2368 = lit::<T>(0.08) * t2361;
             let t2369 = t2367 + t2368;
-            dc_dqd[11][9] = t2369;
+            dc_dqd.141 = t2369;
             let t2370 = t2293 - t2292;
             let t2371 = t70 * t2020;
             let t2372 = t71 * t2021;
@@ -4660,19 +4676,19 @@ pub mod portable {
             let t2404 = lit::<T>(4.8965888601467475e-12) * t2397;
             let t2405 = t2403 + t2404;
             let t2406 = t2399 + t2405;
-            dc_dqd[9][9] = t2406;
+            dc_dqd.117 = t2406;
             let t2407 = t887 * t2377;
             let t2408 = t888 * t2374;
             let t2409 = t2407 - t2408;
-            dc_dq[9][9] = t2409;
+            dc_dq.117 = t2409;
             let t2410 = t888 * t2288;
             let t2411 = t887 * t2291;
             let t2412 = t2410 + t2411;
-            dc_dq[10][9] = t2412;
+            dc_dq.129 = t2412;
             let t2413 = t888 * t2331;
             let t2414 = t887 * t2334;
             let t2415 = t2413 + t2414;
-            dc_dq[11][9] = t2415;
+            dc_dq.141 = t2415;
             let t2416 = t1638 - t789;
             let t2417 = t785 - t1640;
             let t2418 = t1626 - t1634;
@@ -4834,13 +4850,13 @@ pub mod portable {
             let t2558 = t754 * t2549;
             let t2559 = t2557 - t2558;
             let t2560 = t2552 + t2559;
-            dc_dq[8][8] = t2560;
+            dc_dq.104 = t2560;
             let t2561 = lit::<T>(-3.524e-5) * t757;
             let t2562 = t2418 + t2561;
             let t2563 = t2562 - t1643;
             let t2564 = t2563 + t2563;
             let t2565 = t1669 + t2564;
-            dc_dqd[8][8] = t2565;
+            dc_dqd.104 = t2565;
             let t2566 = lit::<T>(-3.524e-5) * t63;
             let t2567 = lit::<T>(0.11047740000000002) * t62;
             s.234 = t2567;
@@ -4874,6 +4890,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
             let t2577 = s.239 + s.240;
             let t2578 = lit::<T>(0.35) * s.237;
             let t2579 = lit::<T>(0.026183867369600003) + t2578;
@@ -4893,7 +4915,7 @@ pub mod portable {
             let t2593 = lit::<T>(0.35) * t2585;
             let t2594 = t2591 - t2592;
             let t2595 = s.221 + t2593;
-            dc_dqd[7][8] = t2595;
+            dc_dqd.92 = t2595;
             let t2596 = s.17 * s.228;
             let t2597 = s.16 * s.229;
             let t2598 = t2596 - t2597;
@@ -4910,7 +4932,7 @@ pub mod portable {
             let t2609 = lit::<T>(0.35) * t2601;
             let t2610 = t2607 - t2608;
             let t2611 = s.224 + t2609;
-            dc_dq[7][8] = t2611;
+            dc_dq.92 = t2611;
             let t2612 = s.17 * s.232;
             let t2613 = s.16 * s.233;
             let t2614 = t2612 - t2613;
@@ -5200,12 +5222,12 @@ pub mod portable {
             let t2899 = s.102 * t2891;
             let t2900 = t2898 - t2899;
             let t2901 = t2893 + t2900;
-            dc_dq[7][7] = t2901;
+            dc_dq.91 = t2901;
             let t2902 = t2751 - t2756;
             let t2903 = t2902 - t2754;
             let t2904 = t2903 + t2903;
             let t2905 = t2717 + t2904;
-            dc_dqd[7][7] = t2905;
+            dc_dqd.91 = t2905;
             let t2906 = s.154 * s.238;
             let t2907 = s.155 * t2577;
             let t2908 = t2906 + t2907;
@@ -5223,7 +5245,7 @@ pub mod portable {
             let t2920 = s.102 * t2617;
             let t2921 = t2919 - t2920;
             let t2922 = t2914 + t2921;
-            dc_dq[8][7] = t2922;
+            dc_dq.103 = t2922;
             let t2923 = s.101 * s.238;
             let t2924 = s.100 * t2577;
             let t2925 = t2924 - t2923;
@@ -5233,7 +5255,7 @@ pub mod portable {
             let t2929 = t2927 - t2928;
             let t2930 = t2929 + t2929;
             let t2931 = t2625 + t2930;
-            dc_dqd[8][7] = t2931;
+            dc_dqd.103 = t2931;
             let t2932 = s.13 * t2669;
             let t2933 = -t2932;
             let t2934 = s.12 * t2668;
@@ -5255,7 +5277,7 @@ pub mod portable {
             let t2950 = t2948 + t2949;
             let t2951 = lit::<T>(0.08) * t2944;
             let t2952 = t2950 + t2951;
-            dc_dqd[6][7] = t2952;
+            dc_dqd.79 = t2952;
             let t2953 = s.14 * t2886;
             let t2954 = s.15 * t2887;
             let t2955 = t2953 + t2954;
@@ -5268,7 +5290,7 @@ pub mod portable {
             let t2962 = t2960 + t2961;
             let t2963 = lit::<T>(0.08) * t2956;
             let t2964 = t2962 + t2963;
-            dc_dq[6][7] = t2964;
+            dc_dq.79 = t2964;
             let t2965 = s.14 * t2890;
             let t2966 = s.15 * t2891;
             let t2967 = t2965 + t2966;
@@ -5280,7 +5302,7 @@ pub mod portable {
             let t2973 = t2971 + t2972;
             let t2974 = lit::<T>(0.08) * t2967;
             let t2975 = t2973 + t2974;
-            dc_dqd[7][6] = t2975;
+            dc_dqd.90 = t2975;
             let t2976 = s.13 * s.235;
             let t2977 = s.12 * s.237;
             let t2978 = t2976 - t2977;
@@ -5299,7 +5321,7 @@ pub mod portable {
             let t2991 = t2989 + t2990;
             let t2992 = lit::<T>(0.08) * t2985;
             let t2993 = t2991 + t2992;
-            dc_dqd[6][8] = t2993;
+            dc_dqd.80 = t2993;
             let t2994 = s.14 * t2598;
             let t2995 = s.15 * t2601;
             let t2996 = t2994 + t2995;
@@ -5312,7 +5334,7 @@ pub mod portable {
             let t3003 = t3001 + t3002;
             let t3004 = lit::<T>(0.08) * t2997;
             let t3005 = t3003 + t3004;
-            dc_dq[6][8] = t3005;
+            dc_dq.80 = t3005;
             let t3006 = s.14 * t2614;
             let t3007 = s.15 * t2617;
             let t3008 = t3006 + t3007;
@@ -5324,7 +5346,7 @@ pub mod portable {
             let t3014 = t3012 + t3013;
             let t3015 = lit::<T>(0.08) * t3008;
             let t3016 = t3014 + t3015;
-            dc_dqd[8][6] = t3016;
+            dc_dqd.102 = t3016;
             let t3017 = t2940 - t2939;
             let t3018 = s.14 * t2668;
             let t3019 = s.15 * t2669;
@@ -5361,19 +5383,19 @@ pub mod portable {
             let t3050 = lit::<T>(4.8965888601467475e-12) * t3043;
             let t3051 = t3049 + t3050;
             let t3052 = t3045 + t3051;
-            dc_dqd[6][6] = t3052;
+            dc_dqd.78 = t3052;
             let t3053 = s.98 * t3023;
             let t3054 = s.99 * t3021;
             let t3055 = t3053 - t3054;
-            dc_dq[6][6] = t3055;
+            dc_dq.78 = t3055;
             let t3056 = s.99 * t2935;
             let t3057 = s.98 * t2938;
             let t3058 = t3056 + t3057;
-            dc_dq[7][6] = t3058;
+            dc_dq.90 = t3058;
             let t3059 = s.99 * t2978;
             let t3060 = s.98 * t2981;
             let t3061 = t3059 + t3060;
-            dc_dq[8][6] = t3061;
+            dc_dq.102 = t3061;
             let t3062 = s.192 - s.75;
             let t3063 = s.74 - s.193;
             let t3064 = s.190 - s.191;
@@ -5519,13 +5541,13 @@ pub mod portable {
             let t3204 = s.72 * t3195;
             let t3205 = t3203 - t3204;
             let t3206 = t3198 + t3205;
-            dc_dq[5][5] = t3206;
+            dc_dq.65 = t3206;
             let t3207 = lit::<T>(3.524e-5) * s.73;
             let t3208 = t3064 + t3207;
             let t3209 = t3208 - s.194;
             let t3210 = t3209 + t3209;
             let t3211 = s.201 + t3210;
-            dc_dqd[5][5] = t3211;
+            dc_dqd.65 = t3211;
             let t3212 = lit::<T>(3.524e-5) * s.11;
             let t3213 = lit::<T>(0.11047740000000002) * s.10;
             let t3214 = t3212 - t3213;
@@ -5556,7 +5578,7 @@ pub mod portable {
             let t3239 = lit::<T>(0.35) * t3231;
             let t3240 = t3237 - t3238;
             let t3241 = t3173 + t3239;
-            dc_dqd[4][5] = t3241;
+            dc_dqd.53 = t3241;
             let t3242 = s.11 * t3190;
             let t3243 = s.10 * t3191;
             let t3244 = t3242 - t3243;
@@ -5573,7 +5595,7 @@ pub mod portable {
             let t3255 = lit::<T>(0.35) * t3247;
             let t3256 = t3253 - t3254;
             let t3257 = t3184 + t3255;
-            dc_dq[4][5] = t3257;
+            dc_dq.53 = t3257;
             let t3258 = s.11 * t3194;
             let t3259 = s.10 * t3195;
             let t3260 = t3258 - t3259;
@@ -5868,12 +5890,12 @@ pub mod portable {
             let t3549 = s.62 * t3541;
             let t3550 = t3548 - t3549;
             let t3551 = t3543 + t3550;
-            dc_dq[4][4] = t3551;
+            dc_dq.52 = t3551;
             let t3552 = t3396 - t3401;
             let t3553 = t3552 - t3399;
             let t3554 = t3553 + t3553;
             let t3555 = t3362 + t3554;
-            dc_dqd[4][4] = t3555;
+            dc_dqd.52 = t3555;
             let t3556 = s.142 * t3220;
             let t3557 = s.143 * t3223;
             let t3558 = t3556 + t3557;
@@ -5891,7 +5913,7 @@ pub mod portable {
             let t3570 = s.62 * t3263;
             let t3571 = t3569 - t3570;
             let t3572 = t3564 + t3571;
-            dc_dq[5][4] = t3572;
+            dc_dq.64 = t3572;
             let t3573 = s.61 * t3220;
             let t3574 = s.60 * t3223;
             let t3575 = t3573 - t3574;
@@ -5901,7 +5923,7 @@ pub mod portable {
             let t3579 = t3577 - t3578;
             let t3580 = t3579 + t3579;
             let t3581 = t3271 + t3580;
-            dc_dqd[5][4] = t3581;
+            dc_dqd.64 = t3581;
             let t3582 = s.7 * t3314;
             let t3583 = -t3582;
             let t3584 = s.6 * t3313;
@@ -5923,7 +5945,7 @@ pub mod portable {
             let t3600 = t3598 + t3599;
             let t3601 = lit::<T>(0.08) * t3595;
             let t3602 = t3600 + t3601;
-            dc_dqd[3][4] = t3602;
+            dc_dqd.40 = t3602;
             let t3603 = s.8 * t3536;
             let t3604 = s.9 * t3537;
             let t3605 = t3603 + t3604;
@@ -5935,7 +5957,7 @@ pub mod portable {
             let t3611 = t3609 + t3610;
             let t3612 = lit::<T>(0.08) * t3606;
             let t3613 = t3611 + t3612;
-            dc_dq[3][4] = t3613;
+            dc_dq.40 = t3613;
             let t3614 = s.8 * t3540;
             let t3615 = s.9 * t3541;
             let t3616 = t3614 + t3615;
@@ -5946,7 +5968,7 @@ pub mod portable {
             let t3621 = t3619 + t3620;
             let t3622 = lit::<T>(0.08) * t3616;
             let t3623 = t3621 + t3622;
-            dc_dqd[4][3] = t3623;
+            dc_dqd.51 = t3623;
             let t3624 = s.7 * t3214;
             let t3625 = s.6 * t3217;
             let t3626 = t3624 - t3625;
@@ -5964,7 +5986,7 @@ pub mod portable {
             let t3638 = t3636 + t3637;
             let t3639 = lit::<T>(0.08) * t3633;
             let t3640 = t3638 + t3639;
-            dc_dqd[3][5] = t3640;
+            dc_dqd.41 = t3640;
             let t3641 = s.8 * t3244;
             let t3642 = s.9 * t3247;
             let t3643 = t3641 + t3642;
@@ -5976,7 +5998,7 @@ pub mod portable {
             let t3649 = t3647 + t3648;
             let t3650 = lit::<T>(0.08) * t3644;
             let t3651 = t3649 + t3650;
-            dc_dq[3][5] = t3651;
+            dc_dq.41 = t3651;
             let t3652 = s.8 * t3260;
             let t3653 = s.9 * t3263;
             let t3654 = t3652 + t3653;
@@ -5987,7 +6009,7 @@ pub mod portable {
             let t3659 = t3657 + t3658;
             let t3660 = lit::<T>(0.08) * t3654;
             let t3661 = t3659 + t3660;
-            dc_dqd[5][3] = t3661;
+            dc_dqd.63 = t3661;
             let t3662 = s.8 * t3313;
             let t3663 = s.9 * t3314;
             let t3664 = t3662 + t3663;
@@ -6019,19 +6041,19 @@ pub mod portable {
             let t3690 = lit::<T>(4.8965888601467475e-12) * t3684;
             let t3691 = t3689 + t3690;
             let t3692 = t3686 + t3691;
-            dc_dqd[3][3] = t3692;
+            dc_dqd.39 = t3692;
             let t3693 = s.58 * t3667;
             let t3694 = s.59 * t3665;
             let t3695 = t3693 - t3694;
-            dc_dq[3][3] = t3695;
+            dc_dq.39 = t3695;
             let t3696 = s.59 * t3585;
             let t3697 = s.58 * t3588;
             let t3698 = t3696 + t3697;
-            dc_dq[4][3] = t3698;
+            dc_dq.51 = t3698;
             let t3699 = s.59 * t3626;
             let t3700 = s.58 * t3629;
             let t3701 = t3699 + t3700;
-            dc_dq[5][3] = t3701;
+            dc_dq.63 = t3701;
             let t3702 = s.170 - s.35;
             let t3703 = s.34 - s.171;
             let t3704 = s.168 - s.169;
@@ -6177,13 +6199,13 @@ pub mod portable {
             let t3844 = s.32 * t3835;
             let t3845 = t3843 - t3844;
             let t3846 = t3838 + t3845;
-            dc_dq[2][2] = t3846;
+            dc_dq.26 = t3846;
             let t3847 = lit::<T>(-3.524e-5) * s.33;
             let t3848 = t3704 + t3847;
             let t3849 = t3848 - s.172;
             let t3850 = t3849 + t3849;
             let t3851 = s.179 + t3850;
-            dc_dqd[2][2] = t3851;
+            dc_dqd.26 = t3851;
             let t3852 = s.5 * lit::<T>(-3.524e-5);
             let t3853 = s.4 * lit::<T>(0.11047740000000002);
             let t3854 = t3852 - t3853;
@@ -6214,7 +6236,7 @@ pub mod portable {
             let t3879 = lit::<T>(0.35) * t3871;
             let t3880 = t3877 - t3878;
             let t3881 = t3813 + t3879;
-            dc_dqd[1][2] = t3881;
+            dc_dqd.14 = t3881;
             let t3882 = s.5 * t3830;
             let t3883 = s.4 * t3831;
             let t3884 = t3882 - t3883;
@@ -6231,7 +6253,7 @@ pub mod portable {
             let t3895 = lit::<T>(0.35) * t3887;
             let t3896 = t3893 - t3894;
             let t3897 = t3824 + t3895;
-            dc_dq[1][2] = t3897;
+            dc_dq.14 = t3897;
             let t3898 = s.5 * t3834;
             let t3899 = s.4 * t3835;
             let t3900 = t3898 - t3899;
@@ -6526,12 +6548,12 @@ pub mod portable {
             let t4189 = s.22 * t4181;
             let t4190 = t4188 - t4189;
             let t4191 = t4183 + t4190;
-            dc_dq[1][1] = t4191;
+            dc_dq.13 = t4191;
             let t4192 = t4036 - t4041;
             let t4193 = t4192 - t4039;
             let t4194 = t4193 + t4193;
             let t4195 = t4002 + t4194;
-            dc_dqd[1][1] = t4195;
+            dc_dqd.13 = t4195;
             let t4196 = s.130 * t3860;
             let t4197 = s.131 * t3863;
             let t4198 = t4196 + t4197;
@@ -6549,7 +6571,7 @@ pub mod portable {
             let t4210 = s.22 * t3903;
             let t4211 = t4209 - t4210;
             let t4212 = t4204 + t4211;
-            dc_dq[2][1] = t4212;
+            dc_dq.25 = t4212;
             let t4213 = s.21 * t3860;
             let t4214 = s.20 * t3863;
             let t4215 = t4213 - t4214;
@@ -6559,7 +6581,7 @@ pub mod portable {
             let t4219 = t4217 - t4218;
             let t4220 = t4219 + t4219;
             let t4221 = t3911 + t4220;
-            dc_dqd[2][1] = t4221;
+            dc_dqd.25 = t4221;
             let t4222 = s.1 * t3954;
             let t4223 = -t4222;
             let t4224 = s.0 * t3953;
@@ -6581,7 +6603,7 @@ pub mod portable {
             let t4240 = t4238 + t4239;
             let t4241 = lit::<T>(0.08) * t4235;
             let t4242 = t4240 + t4241;
-            dc_dqd[0][1] = t4242;
+            dc_dqd.1 = t4242;
             let t4243 = s.2 * t4176;
             let t4244 = s.3 * t4177;
             let t4245 = t4243 + t4244;
@@ -6593,7 +6615,7 @@ pub mod portable {
             let t4251 = t4249 + t4250;
             let t4252 = lit::<T>(0.08) * t4246;
             let t4253 = t4251 + t4252;
-            dc_dq[0][1] = t4253;
+            dc_dq.1 = t4253;
             let t4254 = s.2 * t4180;
             let t4255 = s.3 * t4181;
             let t4256 = t4254 + t4255;
@@ -6604,7 +6626,7 @@ pub mod portable {
             let t4261 = t4259 + t4260;
             let t4262 = lit::<T>(0.08) * t4256;
             let t4263 = t4261 + t4262;
-            dc_dqd[1][0] = t4263;
+            dc_dqd.12 = t4263;
             let t4264 = s.1 * t3854;
             let t4265 = s.0 * t3857;
             let t4266 = t4264 - t4265;
@@ -6622,7 +6644,7 @@ pub mod portable {
             let t4278 = t4276 + t4277;
             let t4279 = lit::<T>(0.08) * t4273;
             let t4280 = t4278 + t4279;
-            dc_dqd[0][2] = t4280;
+            dc_dqd.2 = t4280;
             let t4281 = s.2 * t3884;
             let t4282 = s.3 * t3887;
             let t4283 = t4281 + t4282;
@@ -6634,7 +6656,7 @@ pub mod portable {
             let t4289 = t4287 + t4288;
             let t4290 = lit::<T>(0.08) * t4284;
             let t4291 = t4289 + t4290;
-            dc_dq[0][2] = t4291;
+            dc_dq.2 = t4291;
             let t4292 = s.2 * t3900;
             let t4293 = s.3 * t3903;
             let t4294 = t4292 + t4293;
@@ -6645,7 +6667,7 @@ pub mod portable {
             let t4299 = t4297 + t4298;
             let t4300 = lit::<T>(0.08) * t4294;
             let t4301 = t4299 + t4300;
-            dc_dqd[2][0] = t4301;
+            dc_dqd.24 = t4301;
             let t4302 = s.2 * t3953;
             let t4303 = s.3 * t3954;
             let t4304 = t4302 + t4303;
@@ -6677,19 +6699,19 @@ pub mod portable {
             let t4330 = lit::<T>(4.8965888601467475e-12) * t4324;
             let t4331 = t4329 + t4330;
             let t4332 = t4326 + t4331;
-            dc_dqd[0][0] = t4332;
+            dc_dqd.0 = t4332;
             let t4333 = s.18 * t4307;
             let t4334 = s.19 * t4305;
             let t4335 = t4333 - t4334;
-            dc_dq[0][0] = t4335;
+            dc_dq.0 = t4335;
             let t4336 = s.19 * t4225;
             let t4337 = s.18 * t4228;
             let t4338 = t4336 + t4337;
-            dc_dq[1][0] = t4338;
+            dc_dq.12 = t4338;
             let t4339 = s.19 * t4266;
             let t4340 = s.18 * t4269;
             let t4341 = t4339 + t4340;
-            dc_dq[2][0] = t4341;
+            dc_dq.24 = t4341;
         }
     }
     use rnea_grad_part1::rnea_grad_part1;
@@ -8597,6 +8619,10 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -8608,6 +8634,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f12<T>) };
             let t2 = q[0].sin();
             s.0 = t2;
             let t3 = q[0].cos();
@@ -11238,6 +11265,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f12<T>) };
             let t2598 = s.1 * lit::<T>(9.81);
             let t2599 = s.0 * lit::<T>(9.81);
             let t2601 = s.111 * t2598;
@@ -11247,7 +11275,7 @@ pub mod portable {
             let t2605 = t2603 + t2604;
             let t2606 = s.115 - t2605;
             let t2607 = s.114 * t2606;
-            qdd[0] = t2607;
+            qdd.0 = t2607;
             let t2608 = lit::<T>(0.08) * t2607;
             let t2609 = t2599 + t2608;
             let t2610 = s.2 * t2607;
@@ -11278,7 +11306,7 @@ pub mod portable {
             let t2635 = t2633 + t2634;
             let t2636 = s.110 - t2635;
             let t2637 = s.109 * t2636;
-            qdd[1] = t2637;
+            qdd.1 = t2637;
             let t2638 = t2612 + t2637;
             let t2639 = lit::<T>(0.35) * t2638;
             let t2640 = t2626 + t2639;
@@ -11309,7 +11337,7 @@ pub mod portable {
             let t2665 = t2663 + t2664;
             let t2666 = s.103 - t2665;
             let t2667 = lit::<T>(38.19145529132263) * t2666;
-            qdd[2] = t2667;
+            qdd.2 = t2667;
             let t2668 = s.9 * lit::<T>(9.81);
             let t2669 = s.8 * lit::<T>(9.81);
             let t2670 = s.98 * t2668;
@@ -11319,7 +11347,7 @@ pub mod portable {
             let t2674 = t2672 + t2673;
             let t2675 = s.102 - t2674;
             let t2676 = s.101 * t2675;
-            qdd[3] = t2676;
+            qdd.3 = t2676;
             let t2677 = lit::<T>(0.08) * t2676;
             let t2678 = t2669 + t2677;
             let t2679 = s.10 * t2676;
@@ -11350,7 +11378,7 @@ pub mod portable {
             let t2704 = t2702 + t2703;
             let t2705 = s.97 - t2704;
             let t2706 = s.96 * t2705;
-            qdd[4] = t2706;
+            qdd.4 = t2706;
             let t2707 = t2681 + t2706;
             let t2708 = lit::<T>(0.35) * t2707;
             let t2709 = t2695 + t2708;
@@ -11381,7 +11409,7 @@ pub mod portable {
             let t2734 = t2732 + t2733;
             let t2735 = s.90 - t2734;
             let t2736 = lit::<T>(38.19145529132263) * t2735;
-            qdd[5] = t2736;
+            qdd.5 = t2736;
             let t2737 = s.17 * lit::<T>(9.81);
             let t2738 = s.16 * lit::<T>(9.81);
             let t2739 = s.85 * t2737;
@@ -11391,7 +11419,7 @@ pub mod portable {
             let t2743 = t2741 + t2742;
             let t2744 = s.89 - t2743;
             let t2745 = s.88 * t2744;
-            qdd[6] = t2745;
+            qdd.6 = t2745;
             let t2746 = lit::<T>(0.08) * t2745;
             let t2747 = t2738 + t2746;
             let t2748 = s.18 * t2745;
@@ -11423,7 +11451,7 @@ pub mod portable {
             let t2774 = t2772 + t2773;
             let t2775 = s.84 - t2774;
             let t2776 = s.83 * t2775;
-            qdd[7] = t2776;
+            qdd.7 = t2776;
             let t2777 = t2751 + t2776;
             let t2778 = lit::<T>(0.35) * t2777;
             let t2779 = t2765 + t2778;
@@ -11454,7 +11482,7 @@ pub mod portable {
             let t2804 = t2802 + t2803;
             let t2805 = s.77 - t2804;
             let t2806 = lit::<T>(38.19145529132263) * t2805;
-            qdd[8] = t2806;
+            qdd.8 = t2806;
             let t2807 = s.25 * lit::<T>(9.81);
             let t2808 = s.24 * lit::<T>(9.81);
             let t2809 = s.72 * t2807;
@@ -11464,7 +11492,7 @@ pub mod portable {
             let t2813 = t2811 + t2812;
             let t2814 = s.76 - t2813;
             let t2815 = s.75 * t2814;
-            qdd[9] = t2815;
+            qdd.9 = t2815;
             let t2816 = lit::<T>(0.08) * t2815;
             let t2817 = t2808 + t2816;
             let t2818 = s.26 * t2815;
@@ -11496,7 +11524,7 @@ pub mod portable {
             let t2844 = t2842 + t2843;
             let t2845 = s.71 - t2844;
             let t2846 = s.70 * t2845;
-            qdd[10] = t2846;
+            qdd.10 = t2846;
             let t2847 = t2821 + t2846;
             let t2848 = lit::<T>(0.35) * t2847;
             let t2849 = t2835 + t2848;
@@ -11527,7 +11555,7 @@ pub mod portable {
             let t2874 = t2872 + t2873;
             let t2875 = s.64 - t2874;
             let t2876 = lit::<T>(38.19145529132263) * t2875;
-            qdd[11] = t2876;
+            qdd.11 = t2876;
         }
     }
     use fd_part1::fd_part1;
@@ -11573,6 +11601,20 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 144 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -11586,6 +11628,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t4 = q[0].sin();
             let t5 = q[0].cos();
             let t10 = q[1].sin();
@@ -13789,53 +13838,53 @@ pub mod portable {
             let t1902 = t1864 * t1899;
             let t1903 = t1901 + t1902;
             let t1904 = t1867 * t1903;
-            qdd[0] = t1904;
+            qdd.0 = t1904;
             let t1905 = t1863 * t1899;
             let t1906 = lit::<T>(-38.19145529132263) * t1870;
             let t1907 = t1854 * t1897;
-            qdd[3] = t1907;
+            qdd.3 = t1907;
             let t1908 = t1850 * t1893;
             let t1909 = lit::<T>(-38.19145529132263) * t1873;
             let t1910 = t1841 * t1891;
-            qdd[6] = t1910;
+            qdd.6 = t1910;
             let t1911 = t1837 * t1887;
             let t1912 = lit::<T>(-38.19145529132263) * t1876;
             let t1913 = t1828 * t1885;
-            qdd[9] = t1913;
+            qdd.9 = t1913;
             let t1914 = t1824 * t1881;
             let t1915 = lit::<T>(-38.19145529132263) * t1879;
             let t1916 = t1864 * t1904;
             let t1917 = t1905 + t1916;
-            qdd[1] = t1917;
+            qdd.1 = t1917;
             let t1918 = t1855 * t1917;
             let t1919 = t1906 + t1918;
             let t1920 = t1860 * t1904;
             let t1921 = t1919 + t1920;
-            qdd[2] = t1921;
+            qdd.2 = t1921;
             let t1922 = t1851 * t1907;
             let t1923 = t1908 + t1922;
-            qdd[4] = t1923;
+            qdd.4 = t1923;
             let t1924 = t1842 * t1923;
             let t1925 = t1909 + t1924;
             let t1926 = t1847 * t1907;
             let t1927 = t1925 + t1926;
-            qdd[5] = t1927;
+            qdd.5 = t1927;
             let t1928 = t1838 * t1910;
             let t1929 = t1911 + t1928;
-            qdd[7] = t1929;
+            qdd.7 = t1929;
             let t1930 = t1829 * t1929;
             let t1931 = t1912 + t1930;
             let t1932 = t1834 * t1910;
             let t1933 = t1931 + t1932;
-            qdd[8] = t1933;
+            qdd.8 = t1933;
             let t1934 = t1825 * t1913;
             let t1935 = t1914 + t1934;
-            qdd[10] = t1935;
+            qdd.10 = t1935;
             let t1936 = t1816 * t1935;
             let t1937 = t1915 + t1936;
             let t1938 = t1821 * t1913;
             let t1939 = t1937 + t1938;
-            qdd[11] = t1939;
+            qdd.11 = t1939;
             let t1940 = lit::<T>(0.08) * t1904;
             let t1941 = t574 + t1940;
             let t1942 = t10 * t1904;
@@ -14574,6 +14623,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t2582 = s.118 - s.117;
             let t2583 = t2582 - s.119;
             let t2584 = lit::<T>(0.00741836815) * s.106;
@@ -17191,6 +17247,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t5082 = s.541 - s.543;
             let t5083 = t5082 - s.542;
             let t5084 = t5083 + t5083;
@@ -17326,17 +17389,17 @@ pub mod portable {
             let t5214 = s.378 * t5211;
             let t5215 = t5213 + t5214;
             let t5216 = s.379 * t5215;
-            dqdd_dq[0][0] = t5216;
+            dqdd_dq.0 = t5216;
             let t5217 = s.377 * t5211;
             let t5218 = lit::<T>(-38.19145529132263) * t5209;
             let t5219 = s.378 * t5216;
             let t5220 = t5217 + t5219;
-            dqdd_dq[1][0] = t5220;
+            dqdd_dq.12 = t5220;
             let t5221 = s.375 * t5220;
             let t5222 = t5218 + t5221;
             let t5223 = s.376 * t5216;
             let t5224 = t5222 + t5223;
-            dqdd_dq[2][0] = t5224;
+            dqdd_dq.24 = t5224;
             let t5225 = s.375 * t5102;
             let t5226 = s.560 + t5225;
             let t5227 = s.376 * t5102;
@@ -17344,17 +17407,17 @@ pub mod portable {
             let t5229 = s.378 * t5226;
             let t5230 = t5228 + t5229;
             let t5231 = s.379 * t5230;
-            dqdd_dq[0][1] = t5231;
+            dqdd_dq.1 = t5231;
             let t5232 = s.377 * t5226;
             let t5233 = lit::<T>(-38.19145529132263) * t5102;
             let t5234 = s.378 * t5231;
             let t5235 = t5232 + t5234;
-            dqdd_dq[1][1] = t5235;
+            dqdd_dq.13 = t5235;
             let t5236 = s.375 * t5235;
             let t5237 = t5233 + t5236;
             let t5238 = s.376 * t5231;
             let t5239 = t5237 + t5238;
-            dqdd_dq[2][1] = t5239;
+            dqdd_dq.25 = t5239;
             let t5240 = s.375 * s.516;
             let t5241 = s.527 + t5240;
             let t5242 = s.376 * s.516;
@@ -17362,17 +17425,17 @@ pub mod portable {
             let t5244 = s.378 * t5241;
             let t5245 = t5243 + t5244;
             let t5246 = s.379 * t5245;
-            dqdd_dq[0][2] = t5246;
+            dqdd_dq.2 = t5246;
             let t5247 = s.377 * t5241;
             let t5248 = lit::<T>(-38.19145529132263) * s.516;
             let t5249 = s.378 * t5246;
             let t5250 = t5247 + t5249;
-            dqdd_dq[1][2] = t5250;
+            dqdd_dq.14 = t5250;
             let t5251 = s.375 * t5250;
             let t5252 = t5248 + t5251;
             let t5253 = s.376 * t5246;
             let t5254 = t5252 + t5253;
-            dqdd_dq[2][2] = t5254;
+            dqdd_dq.26 = t5254;
             let t5255 = s.370 * s.513;
             let t5256 = s.512 + t5255;
             let t5257 = s.371 * s.513;
@@ -17380,17 +17443,17 @@ pub mod portable {
             let t5259 = s.373 * t5256;
             let t5260 = t5258 + t5259;
             let t5261 = s.374 * t5260;
-            dqdd_dq[3][3] = t5261;
+            dqdd_dq.39 = t5261;
             let t5262 = s.372 * t5256;
             let t5263 = lit::<T>(-38.19145529132263) * s.513;
             let t5264 = s.373 * t5261;
             let t5265 = t5262 + t5264;
-            dqdd_dq[4][3] = t5265;
+            dqdd_dq.51 = t5265;
             let t5266 = s.370 * t5265;
             let t5267 = t5263 + t5266;
             let t5268 = s.371 * t5261;
             let t5269 = t5267 + t5268;
-            dqdd_dq[5][3] = t5269;
+            dqdd_dq.63 = t5269;
             let t5270 = s.370 * s.502;
             let t5271 = s.500 + t5270;
             let t5272 = s.371 * s.502;
@@ -17398,17 +17461,17 @@ pub mod portable {
             let t5274 = s.373 * t5271;
             let t5275 = t5273 + t5274;
             let t5276 = s.374 * t5275;
-            dqdd_dq[3][4] = t5276;
+            dqdd_dq.40 = t5276;
             let t5277 = s.372 * t5271;
             let t5278 = lit::<T>(-38.19145529132263) * s.502;
             let t5279 = s.373 * t5276;
             let t5280 = t5277 + t5279;
-            dqdd_dq[4][4] = t5280;
+            dqdd_dq.52 = t5280;
             let t5281 = s.370 * t5280;
             let t5282 = t5278 + t5281;
             let t5283 = s.371 * t5276;
             let t5284 = t5282 + t5283;
-            dqdd_dq[5][4] = t5284;
+            dqdd_dq.64 = t5284;
             let t5285 = s.370 * s.496;
             let t5286 = s.499 + t5285;
             let t5287 = s.371 * s.496;
@@ -17416,17 +17479,17 @@ pub mod portable {
             let t5289 = s.373 * t5286;
             let t5290 = t5288 + t5289;
             let t5291 = s.374 * t5290;
-            dqdd_dq[3][5] = t5291;
+            dqdd_dq.41 = t5291;
             let t5292 = s.372 * t5286;
             let t5293 = lit::<T>(-38.19145529132263) * s.496;
             let t5294 = s.373 * t5291;
             let t5295 = t5292 + t5294;
-            dqdd_dq[4][5] = t5295;
+            dqdd_dq.53 = t5295;
             let t5296 = s.370 * t5295;
             let t5297 = t5293 + t5296;
             let t5298 = s.371 * t5291;
             let t5299 = t5297 + t5298;
-            dqdd_dq[5][5] = t5299;
+            dqdd_dq.65 = t5299;
             let t5300 = s.365 * s.495;
             let t5301 = s.494 + t5300;
             let t5302 = s.366 * s.495;
@@ -17434,17 +17497,17 @@ pub mod portable {
             let t5304 = s.368 * t5301;
             let t5305 = t5303 + t5304;
             let t5306 = s.369 * t5305;
-            dqdd_dq[6][6] = t5306;
+            dqdd_dq.78 = t5306;
             let t5307 = s.367 * t5301;
             let t5308 = lit::<T>(-38.19145529132263) * s.495;
             let t5309 = s.368 * t5306;
             let t5310 = t5307 + t5309;
-            dqdd_dq[7][6] = t5310;
+            dqdd_dq.90 = t5310;
             let t5311 = s.365 * t5310;
             let t5312 = t5308 + t5311;
             let t5313 = s.366 * t5306;
             let t5314 = t5312 + t5313;
-            dqdd_dq[8][6] = t5314;
+            dqdd_dq.102 = t5314;
             let t5315 = s.365 * s.484;
             let t5316 = s.482 + t5315;
             let t5317 = s.366 * s.484;
@@ -17452,17 +17515,17 @@ pub mod portable {
             let t5319 = s.368 * t5316;
             let t5320 = t5318 + t5319;
             let t5321 = s.369 * t5320;
-            dqdd_dq[6][7] = t5321;
+            dqdd_dq.79 = t5321;
             let t5322 = s.367 * t5316;
             let t5323 = lit::<T>(-38.19145529132263) * s.484;
             let t5324 = s.368 * t5321;
             let t5325 = t5322 + t5324;
-            dqdd_dq[7][7] = t5325;
+            dqdd_dq.91 = t5325;
             let t5326 = s.365 * t5325;
             let t5327 = t5323 + t5326;
             let t5328 = s.366 * t5321;
             let t5329 = t5327 + t5328;
-            dqdd_dq[8][7] = t5329;
+            dqdd_dq.103 = t5329;
             let t5330 = s.365 * s.478;
             let t5331 = s.481 + t5330;
             let t5332 = s.366 * s.478;
@@ -17470,17 +17533,17 @@ pub mod portable {
             let t5334 = s.368 * t5331;
             let t5335 = t5333 + t5334;
             let t5336 = s.369 * t5335;
-            dqdd_dq[6][8] = t5336;
+            dqdd_dq.80 = t5336;
             let t5337 = s.367 * t5331;
             let t5338 = lit::<T>(-38.19145529132263) * s.478;
             let t5339 = s.368 * t5336;
             let t5340 = t5337 + t5339;
-            dqdd_dq[7][8] = t5340;
+            dqdd_dq.92 = t5340;
             let t5341 = s.365 * t5340;
             let t5342 = t5338 + t5341;
             let t5343 = s.366 * t5336;
             let t5344 = t5342 + t5343;
-            dqdd_dq[8][8] = t5344;
+            dqdd_dq.104 = t5344;
             let t5345 = s.360 * s.477;
             let t5346 = s.476 + t5345;
             let t5347 = s.361 * s.477;
@@ -17488,17 +17551,17 @@ pub mod portable {
             let t5349 = s.363 * t5346;
             let t5350 = t5348 + t5349;
             let t5351 = s.364 * t5350;
-            dqdd_dq[9][9] = t5351;
+            dqdd_dq.117 = t5351;
             let t5352 = s.362 * t5346;
             let t5353 = lit::<T>(-38.19145529132263) * s.477;
             let t5354 = s.363 * t5351;
             let t5355 = t5352 + t5354;
-            dqdd_dq[10][9] = t5355;
+            dqdd_dq.129 = t5355;
             let t5356 = s.360 * t5355;
             let t5357 = t5353 + t5356;
             let t5358 = s.361 * t5351;
             let t5359 = t5357 + t5358;
-            dqdd_dq[11][9] = t5359;
+            dqdd_dq.141 = t5359;
             let t5360 = s.360 * s.466;
             let t5361 = s.464 + t5360;
             let t5362 = s.361 * s.466;
@@ -17506,17 +17569,17 @@ pub mod portable {
             let t5364 = s.363 * t5361;
             let t5365 = t5363 + t5364;
             let t5366 = s.364 * t5365;
-            dqdd_dq[9][10] = t5366;
+            dqdd_dq.118 = t5366;
             let t5367 = s.362 * t5361;
             let t5368 = lit::<T>(-38.19145529132263) * s.466;
             let t5369 = s.363 * t5366;
             let t5370 = t5367 + t5369;
-            dqdd_dq[10][10] = t5370;
+            dqdd_dq.130 = t5370;
             let t5371 = s.360 * t5370;
             let t5372 = t5368 + t5371;
             let t5373 = s.361 * t5366;
             let t5374 = t5372 + t5373;
-            dqdd_dq[11][10] = t5374;
+            dqdd_dq.142 = t5374;
             let t5375 = s.360 * s.460;
             let t5376 = s.463 + t5375;
             let t5377 = s.361 * s.460;
@@ -17524,17 +17587,17 @@ pub mod portable {
             let t5379 = s.363 * t5376;
             let t5380 = t5378 + t5379;
             let t5381 = s.364 * t5380;
-            dqdd_dq[9][11] = t5381;
+            dqdd_dq.119 = t5381;
             let t5382 = s.362 * t5376;
             let t5383 = lit::<T>(-38.19145529132263) * s.460;
             let t5384 = s.363 * t5381;
             let t5385 = t5382 + t5384;
-            dqdd_dq[10][11] = t5385;
+            dqdd_dq.131 = t5385;
             let t5386 = s.360 * t5385;
             let t5387 = t5383 + t5386;
             let t5388 = s.361 * t5381;
             let t5389 = t5387 + t5388;
-            dqdd_dq[11][11] = t5389;
+            dqdd_dq.143 = t5389;
             let t5390 = s.375 * t5175;
             let t5391 = t5143 + t5390;
             let t5392 = s.376 * t5175;
@@ -17542,17 +17605,17 @@ pub mod portable {
             let t5394 = s.378 * t5391;
             let t5395 = t5393 + t5394;
             let t5396 = s.379 * t5395;
-            dqdd_dqd[0][0] = t5396;
+            dqdd_dqd.0 = t5396;
             let t5397 = s.377 * t5391;
             let t5398 = lit::<T>(-38.19145529132263) * t5175;
             let t5399 = s.378 * t5396;
             let t5400 = t5397 + t5399;
-            dqdd_dqd[1][0] = t5400;
+            dqdd_dqd.12 = t5400;
             let t5401 = s.375 * t5400;
             let t5402 = t5398 + t5401;
             let t5403 = s.376 * t5396;
             let t5404 = t5402 + t5403;
-            dqdd_dqd[2][0] = t5404;
+            dqdd_dqd.24 = t5404;
             let t5405 = s.375 * t5111;
             let t5406 = t5085 + t5405;
             let t5407 = s.376 * t5111;
@@ -17560,17 +17623,17 @@ pub mod portable {
             let t5409 = s.378 * t5406;
             let t5410 = t5408 + t5409;
             let t5411 = s.379 * t5410;
-            dqdd_dqd[0][1] = t5411;
+            dqdd_dqd.1 = t5411;
             let t5412 = s.377 * t5406;
             let t5413 = lit::<T>(-38.19145529132263) * t5111;
             let t5414 = s.378 * t5411;
             let t5415 = t5412 + t5414;
-            dqdd_dqd[1][1] = t5415;
+            dqdd_dqd.13 = t5415;
             let t5416 = s.375 * t5415;
             let t5417 = t5413 + t5416;
             let t5418 = s.376 * t5411;
             let t5419 = t5417 + t5418;
-            dqdd_dqd[2][1] = t5419;
+            dqdd_dqd.25 = t5419;
             let t5420 = s.375 * s.517;
             let t5421 = s.522 + t5420;
             let t5422 = s.376 * s.517;
@@ -17578,17 +17641,17 @@ pub mod portable {
             let t5424 = s.378 * t5421;
             let t5425 = t5423 + t5424;
             let t5426 = s.379 * t5425;
-            dqdd_dqd[0][2] = t5426;
+            dqdd_dqd.2 = t5426;
             let t5427 = s.377 * t5421;
             let t5428 = lit::<T>(-38.19145529132263) * s.517;
             let t5429 = s.378 * t5426;
             let t5430 = t5427 + t5429;
-            dqdd_dqd[1][2] = t5430;
+            dqdd_dqd.14 = t5430;
             let t5431 = s.375 * t5430;
             let t5432 = t5428 + t5431;
             let t5433 = s.376 * t5426;
             let t5434 = t5432 + t5433;
-            dqdd_dqd[2][2] = t5434;
+            dqdd_dqd.26 = t5434;
             let t5435 = s.370 * s.509;
             let t5436 = s.506 + t5435;
             let t5437 = s.371 * s.509;
@@ -17596,17 +17659,17 @@ pub mod portable {
             let t5439 = s.373 * t5436;
             let t5440 = t5438 + t5439;
             let t5441 = s.374 * t5440;
-            dqdd_dqd[3][3] = t5441;
+            dqdd_dqd.39 = t5441;
             let t5442 = s.372 * t5436;
             let t5443 = lit::<T>(-38.19145529132263) * s.509;
             let t5444 = s.373 * t5441;
             let t5445 = t5442 + t5444;
-            dqdd_dqd[4][3] = t5445;
+            dqdd_dqd.51 = t5445;
             let t5446 = s.370 * t5445;
             let t5447 = t5443 + t5446;
             let t5448 = s.371 * t5441;
             let t5449 = t5447 + t5448;
-            dqdd_dqd[5][3] = t5449;
+            dqdd_dqd.63 = t5449;
             let t5450 = s.370 * s.503;
             let t5451 = s.501 + t5450;
             let t5452 = s.371 * s.503;
@@ -17614,17 +17677,17 @@ pub mod portable {
             let t5454 = s.373 * t5451;
             let t5455 = t5453 + t5454;
             let t5456 = s.374 * t5455;
-            dqdd_dqd[3][4] = t5456;
+            dqdd_dqd.40 = t5456;
             let t5457 = s.372 * t5451;
             let t5458 = lit::<T>(-38.19145529132263) * s.503;
             let t5459 = s.373 * t5456;
             let t5460 = t5457 + t5459;
-            dqdd_dqd[4][4] = t5460;
+            dqdd_dqd.52 = t5460;
             let t5461 = s.370 * t5460;
             let t5462 = t5458 + t5461;
             let t5463 = s.371 * t5456;
             let t5464 = t5462 + t5463;
-            dqdd_dqd[5][4] = t5464;
+            dqdd_dqd.64 = t5464;
             let t5465 = s.370 * s.497;
             let t5466 = s.498 + t5465;
             let t5467 = s.371 * s.497;
@@ -17632,17 +17695,17 @@ pub mod portable {
             let t5469 = s.373 * t5466;
             let t5470 = t5468 + t5469;
             let t5471 = s.374 * t5470;
-            dqdd_dqd[3][5] = t5471;
+            dqdd_dqd.41 = t5471;
             let t5472 = s.372 * t5466;
             let t5473 = lit::<T>(-38.19145529132263) * s.497;
             let t5474 = s.373 * t5471;
             let t5475 = t5472 + t5474;
-            dqdd_dqd[4][5] = t5475;
+            dqdd_dqd.53 = t5475;
             let t5476 = s.370 * t5475;
             let t5477 = t5473 + t5476;
             let t5478 = s.371 * t5471;
             let t5479 = t5477 + t5478;
-            dqdd_dqd[5][5] = t5479;
+            dqdd_dqd.65 = t5479;
             let t5480 = s.365 * s.491;
             let t5481 = s.488 + t5480;
             let t5482 = s.366 * s.491;
@@ -17650,17 +17713,17 @@ pub mod portable {
             let t5484 = s.368 * t5481;
             let t5485 = t5483 + t5484;
             let t5486 = s.369 * t5485;
-            dqdd_dqd[6][6] = t5486;
+            dqdd_dqd.78 = t5486;
             let t5487 = s.367 * t5481;
             let t5488 = lit::<T>(-38.19145529132263) * s.491;
             let t5489 = s.368 * t5486;
             let t5490 = t5487 + t5489;
-            dqdd_dqd[7][6] = t5490;
+            dqdd_dqd.90 = t5490;
             let t5491 = s.365 * t5490;
             let t5492 = t5488 + t5491;
             let t5493 = s.366 * t5486;
             let t5494 = t5492 + t5493;
-            dqdd_dqd[8][6] = t5494;
+            dqdd_dqd.102 = t5494;
             let t5495 = s.365 * s.485;
             let t5496 = s.483 + t5495;
             let t5497 = s.366 * s.485;
@@ -17668,17 +17731,17 @@ pub mod portable {
             let t5499 = s.368 * t5496;
             let t5500 = t5498 + t5499;
             let t5501 = s.369 * t5500;
-            dqdd_dqd[6][7] = t5501;
+            dqdd_dqd.79 = t5501;
             let t5502 = s.367 * t5496;
             let t5503 = lit::<T>(-38.19145529132263) * s.485;
             let t5504 = s.368 * t5501;
             let t5505 = t5502 + t5504;
-            dqdd_dqd[7][7] = t5505;
+            dqdd_dqd.91 = t5505;
             let t5506 = s.365 * t5505;
             let t5507 = t5503 + t5506;
             let t5508 = s.366 * t5501;
             let t5509 = t5507 + t5508;
-            dqdd_dqd[8][7] = t5509;
+            dqdd_dqd.103 = t5509;
             let t5510 = s.365 * s.479;
             let t5511 = s.480 + t5510;
             let t5512 = s.366 * s.479;
@@ -17686,17 +17749,17 @@ pub mod portable {
             let t5514 = s.368 * t5511;
             let t5515 = t5513 + t5514;
             let t5516 = s.369 * t5515;
-            dqdd_dqd[6][8] = t5516;
+            dqdd_dqd.80 = t5516;
             let t5517 = s.367 * t5511;
             let t5518 = lit::<T>(-38.19145529132263) * s.479;
             let t5519 = s.368 * t5516;
             let t5520 = t5517 + t5519;
-            dqdd_dqd[7][8] = t5520;
+            dqdd_dqd.92 = t5520;
             let t5521 = s.365 * t5520;
             let t5522 = t5518 + t5521;
             let t5523 = s.366 * t5516;
             let t5524 = t5522 + t5523;
-            dqdd_dqd[8][8] = t5524;
+            dqdd_dqd.104 = t5524;
             let t5525 = s.360 * s.473;
             let t5526 = s.470 + t5525;
             let t5527 = s.361 * s.473;
@@ -17704,17 +17767,17 @@ pub mod portable {
             let t5529 = s.363 * t5526;
             let t5530 = t5528 + t5529;
             let t5531 = s.364 * t5530;
-            dqdd_dqd[9][9] = t5531;
+            dqdd_dqd.117 = t5531;
             let t5532 = s.362 * t5526;
             let t5533 = lit::<T>(-38.19145529132263) * s.473;
             let t5534 = s.363 * t5531;
             let t5535 = t5532 + t5534;
-            dqdd_dqd[10][9] = t5535;
+            dqdd_dqd.129 = t5535;
             let t5536 = s.360 * t5535;
             let t5537 = t5533 + t5536;
             let t5538 = s.361 * t5531;
             let t5539 = t5537 + t5538;
-            dqdd_dqd[11][9] = t5539;
+            dqdd_dqd.141 = t5539;
             let t5540 = s.360 * s.467;
             let t5541 = s.465 + t5540;
             let t5542 = s.361 * s.467;
@@ -17722,17 +17785,17 @@ pub mod portable {
             let t5544 = s.363 * t5541;
             let t5545 = t5543 + t5544;
             let t5546 = s.364 * t5545;
-            dqdd_dqd[9][10] = t5546;
+            dqdd_dqd.118 = t5546;
             let t5547 = s.362 * t5541;
             let t5548 = lit::<T>(-38.19145529132263) * s.467;
             let t5549 = s.363 * t5546;
             let t5550 = t5547 + t5549;
-            dqdd_dqd[10][10] = t5550;
+            dqdd_dqd.130 = t5550;
             let t5551 = s.360 * t5550;
             let t5552 = t5548 + t5551;
             let t5553 = s.361 * t5546;
             let t5554 = t5552 + t5553;
-            dqdd_dqd[11][10] = t5554;
+            dqdd_dqd.142 = t5554;
             let t5555 = s.360 * s.461;
             let t5556 = s.462 + t5555;
             let t5557 = s.361 * s.461;
@@ -17740,17 +17803,17 @@ pub mod portable {
             let t5559 = s.363 * t5556;
             let t5560 = t5558 + t5559;
             let t5561 = s.364 * t5560;
-            dqdd_dqd[9][11] = t5561;
+            dqdd_dqd.119 = t5561;
             let t5562 = s.362 * t5556;
             let t5563 = lit::<T>(-38.19145529132263) * s.461;
             let t5564 = s.363 * t5561;
             let t5565 = t5562 + t5564;
-            dqdd_dqd[10][11] = t5565;
+            dqdd_dqd.131 = t5565;
             let t5566 = s.360 * t5565;
             let t5567 = t5563 + t5566;
             let t5568 = s.361 * t5561;
             let t5569 = t5567 + t5568;
-            dqdd_dqd[11][11] = t5569;
+            dqdd_dqd.143 = t5569;
         }
     }
     use fd_grad_part2::fd_grad_part2;
@@ -18927,6 +18990,16 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T,
     );
+    /// An array of 144 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -18940,6 +19013,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
             let t3 = q[0].sin();
             let t4 = q[0].cos();
             let t8 = q[1].sin();
@@ -20595,12 +20674,12 @@ pub mod fma {
             let t1906 = T::mul_add(t1022, t1897, t1904);
             let t1908 = T::mul_add(-t1019, t1898, t1906);
             let t1909 = t1901 + t1908;
-            dc_dq[11][11] = t1909;
+            dc_dq.143 = t1909;
             let t1911 = T::mul_add(lit::<T>(3.524e-5), t1022, t1767);
             let t1912 = t1911 - t1738;
             let t1913 = t1912 + t1912;
             let t1914 = t1764 + t1913;
-            dc_dqd[11][11] = t1914;
+            dc_dqd.143 = t1914;
             let t1916 = lit::<T>(0.11047740000000002) * t73;
             let t1917 = T::mul_add(lit::<T>(3.524e-5), t74, -t1916);
             let t1919 = lit::<T>(0.11047740000000002) * t74;
@@ -20624,7 +20703,7 @@ pub mod fma {
             let t1940 = T::mul_add(t73, t1874, t1939);
             let t1943 = T::mul_add(-lit::<T>(0.35), t1869, t1940);
             let t1944 = T::mul_add(lit::<T>(0.35), t1934, t1876);
-            dc_dqd[10][11] = t1944;
+            dc_dqd.131 = t1944;
             let t1946 = t73 * t1894;
             let t1947 = T::mul_add(t74, t1893, -t1946);
             let t1949 = t74 * t1894;
@@ -20635,7 +20714,7 @@ pub mod fma {
             let t1956 = T::mul_add(t73, t1891, t1955);
             let t1959 = T::mul_add(-lit::<T>(0.35), t1890, t1956);
             let t1960 = T::mul_add(lit::<T>(0.35), t1950, t1887);
-            dc_dq[10][11] = t1960;
+            dc_dq.131 = t1960;
             let t1962 = t73 * t1898;
             let t1963 = T::mul_add(t74, t1897, -t1962);
             let t1965 = t74 * t1898;
@@ -20852,12 +20931,12 @@ pub mod fma {
             let t2251 = T::mul_add(t894, t2243, t2249);
             let t2253 = T::mul_add(-t893, t2244, t2251);
             let t2254 = t2246 + t2253;
-            dc_dq[10][10] = t2254;
+            dc_dq.130 = t2254;
             let t2255 = t2104 - t2109;
             let t2256 = t2255 - t2107;
             let t2257 = t2256 + t2256;
             let t2258 = t2070 + t2257;
-            dc_dqd[10][10] = t2258;
+            dc_dqd.130 = t2258;
             let t2260 = t1366 * t1926;
             let t2261 = T::mul_add(t1365, t1923, t2260);
             let t2263 = T::mul_add(t1354, t1928, t2261);
@@ -20868,14 +20947,14 @@ pub mod fma {
             let t2272 = T::mul_add(t894, t1963, t2270);
             let t2274 = T::mul_add(-t893, t1966, t2272);
             let t2275 = t2267 + t2274;
-            dc_dq[11][10] = t2275;
+            dc_dq.142 = t2275;
             let t2276 = t891 * t1923;
             let t2278 = T::mul_add(t890, t1926, -t2276);
             let t2280 = T::mul_add(t894, t1917, t2278);
             let t2282 = T::mul_add(-t893, t1920, t2280);
             let t2283 = t2282 + t2282;
             let t2284 = t1974 + t2283;
-            dc_dqd[11][10] = t2284;
+            dc_dqd.142 = t2284;
             let t2285 = t69 * t2021;
             let t2286 = -t2285;
             let t2288 = T::mul_add(-t68, t2020, t2286);
@@ -20890,7 +20969,7 @@ pub mod fma {
             let t2301 = T::mul_add(-t69, t2221, t2299);
             let t2303 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2222, t2301);
             let t2305 = T::mul_add(lit::<T>(0.08), t2297, t2303);
-            dc_dqd[9][10] = t2305;
+            dc_dqd.118 = t2305;
             let t2307 = t71 * t2240;
             let t2308 = T::mul_add(t70, t2239, t2307);
             let t2309 = t2236 + t2308;
@@ -20899,7 +20978,7 @@ pub mod fma {
             let t2313 = T::mul_add(-t69, t2238, t2311);
             let t2315 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2233, t2313);
             let t2317 = T::mul_add(lit::<T>(0.08), t2309, t2315);
-            dc_dq[9][10] = t2317;
+            dc_dq.118 = t2317;
             let t2319 = t71 * t2244;
             let t2320 = T::mul_add(t70, t2243, t2319);
             let t2321 = t68 * t2241;
@@ -20908,7 +20987,7 @@ pub mod fma {
             let t2325 = lit::<T>(4.8965888601467475e-12) * t2070;
             let t2326 = t2324 + t2325;
             let t2328 = T::mul_add(lit::<T>(0.08), t2320, t2326);
-            dc_dqd[10][9] = t2328;
+            dc_dqd.129 = t2328;
             let t2330 = t68 * t1920;
             let t2331 = T::mul_add(t69, t1917, -t2330);
             let t2333 = t71 * t1920;
@@ -20921,7 +21000,7 @@ pub mod fma {
             let t2342 = T::mul_add(-t69, t1943, t2340);
             let t2344 = T::mul_add(lit::<T>(4.8965888601467475e-12), t1944, t2342);
             let t2346 = T::mul_add(lit::<T>(0.08), t2338, t2344);
-            dc_dqd[9][11] = t2346;
+            dc_dqd.119 = t2346;
             let t2348 = t71 * t1950;
             let t2349 = T::mul_add(t70, t1947, t2348);
             let t2350 = t1890 + t2349;
@@ -20930,7 +21009,7 @@ pub mod fma {
             let t2354 = T::mul_add(-t69, t1959, t2352);
             let t2356 = T::mul_add(lit::<T>(4.8965888601467475e-12), t1960, t2354);
             let t2358 = T::mul_add(lit::<T>(0.08), t2350, t2356);
-            dc_dq[9][11] = t2358;
+            dc_dq.119 = t2358;
             let t2360 = t71 * t1966;
             let t2361 = T::mul_add(t70, t1963, t2360);
             let t2362 = t68 * t1969;
@@ -20938,7 +21017,7 @@ pub mod fma {
             let t2365 = T::mul_add(-t69, t1972, t2363);
             let t2367 = T::mul_add(lit::<T>(4.8965888601467475e-12), t1974, t2365);
             let t2369 = T::mul_add(lit::<T>(0.08), t2361, t2367);
-            dc_dqd[11][9] = t2369;
+            dc_dqd.141 = t2369;
             let t2370 = T::mul_add(t69, t2020, -t2292);
             let t2372 = t71 * t2021;
             let t2373 = T::mul_add(t70, t2020, t2372);
@@ -20965,16 +21044,16 @@ pub mod fma {
             let t2403 = T::mul_add(-t69, t2392, t2401);
             let t2405 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2397, t2403);
             let t2406 = T::mul_add(lit::<T>(2.0), t2398, t2405);
-            dc_dqd[9][9] = t2406;
+            dc_dqd.117 = t2406;
             let t2408 = t888 * t2374;
             let t2409 = T::mul_add(t887, t2377, -t2408);
-            dc_dq[9][9] = t2409;
+            dc_dq.117 = t2409;
             let t2411 = t887 * t2291;
             let t2412 = T::mul_add(t888, t2288, t2411);
-            dc_dq[10][9] = t2412;
+            dc_dq.129 = t2412;
             let t2414 = t887 * t2334;
             let t2415 = T::mul_add(t888, t2331, t2414);
-            dc_dq[11][9] = t2415;
+            dc_dq.141 = t2415;
             let t2416 = t1638 - t789;
             let t2417 = t785 - t1640;
             let t2418 = t1626 - t1634;
@@ -21106,12 +21185,12 @@ pub mod fma {
             let t2557 = T::mul_add(t757, t2548, t2555);
             let t2559 = T::mul_add(-t754, t2549, t2557);
             let t2560 = t2552 + t2559;
-            dc_dq[8][8] = t2560;
+            dc_dq.104 = t2560;
             let t2562 = T::mul_add(lit::<T>(-3.524e-5), t757, t2418);
             let t2563 = t2562 - t1643;
             let t2564 = t2563 + t2563;
             let t2565 = t1669 + t2564;
-            dc_dqd[8][8] = t2565;
+            dc_dqd.104 = t2565;
             let t2567 = lit::<T>(0.11047740000000002) * t62;
             s.234 = t2567;
             let t2568 = T::mul_add(lit::<T>(-3.524e-5), t63, -t2567);
@@ -21143,6 +21222,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
             let t2577 = s.239 + s.240;
             let t2579 = T::mul_add(
                 lit::<T>(0.35),
@@ -21159,7 +21244,7 @@ pub mod fma {
             let t2591 = T::mul_add(s.16, s.219, t2590);
             let t2594 = T::mul_add(-lit::<T>(0.35), s.218, t2591);
             let t2595 = T::mul_add(lit::<T>(0.35), t2585, s.221);
-            dc_dqd[7][8] = t2595;
+            dc_dqd.92 = t2595;
             let t2597 = s.16 * s.229;
             let t2598 = T::mul_add(s.17, s.228, -t2597);
             let t2600 = s.17 * s.229;
@@ -21170,7 +21255,7 @@ pub mod fma {
             let t2607 = T::mul_add(s.16, s.226, t2606);
             let t2610 = T::mul_add(-lit::<T>(0.35), s.225, t2607);
             let t2611 = T::mul_add(lit::<T>(0.35), t2601, s.224);
-            dc_dq[7][8] = t2611;
+            dc_dq.92 = t2611;
             let t2613 = s.16 * s.233;
             let t2614 = T::mul_add(s.17, s.232, -t2613);
             let t2616 = s.17 * s.233;
@@ -21387,12 +21472,12 @@ pub mod fma {
             let t2898 = T::mul_add(s.103, t2890, t2896);
             let t2900 = T::mul_add(-s.102, t2891, t2898);
             let t2901 = t2893 + t2900;
-            dc_dq[7][7] = t2901;
+            dc_dq.91 = t2901;
             let t2902 = t2751 - t2756;
             let t2903 = t2902 - t2754;
             let t2904 = t2903 + t2903;
             let t2905 = t2717 + t2904;
-            dc_dqd[7][7] = t2905;
+            dc_dqd.91 = t2905;
             let t2907 = s.155 * t2577;
             let t2908 = T::mul_add(s.154, s.238, t2907);
             let t2910 = T::mul_add(s.152, t2579, t2908);
@@ -21403,14 +21488,14 @@ pub mod fma {
             let t2919 = T::mul_add(s.103, t2614, t2917);
             let t2921 = T::mul_add(-s.102, t2617, t2919);
             let t2922 = t2914 + t2921;
-            dc_dq[8][7] = t2922;
+            dc_dq.103 = t2922;
             let t2923 = s.101 * s.238;
             let t2925 = T::mul_add(s.100, t2577, -t2923);
             let t2927 = T::mul_add(s.103, s.235, t2925);
             let t2929 = T::mul_add(-s.102, s.237, t2927);
             let t2930 = t2929 + t2929;
             let t2931 = t2625 + t2930;
-            dc_dqd[8][7] = t2931;
+            dc_dqd.103 = t2931;
             let t2932 = s.13 * t2669;
             let t2933 = -t2932;
             let t2935 = T::mul_add(-s.12, t2668, t2933);
@@ -21425,7 +21510,7 @@ pub mod fma {
             let t2948 = T::mul_add(-s.13, t2868, t2946);
             let t2950 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2869, t2948);
             let t2952 = T::mul_add(lit::<T>(0.08), t2944, t2950);
-            dc_dqd[6][7] = t2952;
+            dc_dqd.79 = t2952;
             let t2954 = s.15 * t2887;
             let t2955 = T::mul_add(s.14, t2886, t2954);
             let t2956 = t2883 + t2955;
@@ -21434,7 +21519,7 @@ pub mod fma {
             let t2960 = T::mul_add(-s.13, t2885, t2958);
             let t2962 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2880, t2960);
             let t2964 = T::mul_add(lit::<T>(0.08), t2956, t2962);
-            dc_dq[6][7] = t2964;
+            dc_dq.79 = t2964;
             let t2966 = s.15 * t2891;
             let t2967 = T::mul_add(s.14, t2890, t2966);
             let t2968 = s.12 * t2888;
@@ -21443,7 +21528,7 @@ pub mod fma {
             let t2972 = lit::<T>(4.8965888601467475e-12) * t2717;
             let t2973 = t2971 + t2972;
             let t2975 = T::mul_add(lit::<T>(0.08), t2967, t2973);
-            dc_dqd[7][6] = t2975;
+            dc_dqd.90 = t2975;
             let t2977 = s.12 * s.237;
             let t2978 = T::mul_add(s.13, s.235, -t2977);
             let t2980 = s.15 * s.237;
@@ -21456,7 +21541,7 @@ pub mod fma {
             let t2989 = T::mul_add(-s.13, t2594, t2987);
             let t2991 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2595, t2989);
             let t2993 = T::mul_add(lit::<T>(0.08), t2985, t2991);
-            dc_dqd[6][8] = t2993;
+            dc_dqd.80 = t2993;
             let t2995 = s.15 * t2601;
             let t2996 = T::mul_add(s.14, t2598, t2995);
             let t2997 = s.225 + t2996;
@@ -21465,7 +21550,7 @@ pub mod fma {
             let t3001 = T::mul_add(-s.13, t2610, t2999);
             let t3003 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2611, t3001);
             let t3005 = T::mul_add(lit::<T>(0.08), t2997, t3003);
-            dc_dq[6][8] = t3005;
+            dc_dq.80 = t3005;
             let t3007 = s.15 * t2617;
             let t3008 = T::mul_add(s.14, t2614, t3007);
             let t3009 = s.12 * t2620;
@@ -21473,7 +21558,7 @@ pub mod fma {
             let t3012 = T::mul_add(-s.13, t2623, t3010);
             let t3014 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2625, t3012);
             let t3016 = T::mul_add(lit::<T>(0.08), t3008, t3014);
-            dc_dqd[8][6] = t3016;
+            dc_dqd.102 = t3016;
             let t3017 = T::mul_add(s.13, t2668, -t2939);
             let t3019 = s.15 * t2669;
             let t3020 = T::mul_add(s.14, t2668, t3019);
@@ -21500,16 +21585,16 @@ pub mod fma {
             let t3049 = T::mul_add(-s.13, t3038, t3047);
             let t3051 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3043, t3049);
             let t3052 = T::mul_add(lit::<T>(2.0), t3044, t3051);
-            dc_dqd[6][6] = t3052;
+            dc_dqd.78 = t3052;
             let t3054 = s.99 * t3021;
             let t3055 = T::mul_add(s.98, t3023, -t3054);
-            dc_dq[6][6] = t3055;
+            dc_dq.78 = t3055;
             let t3057 = s.98 * t2938;
             let t3058 = T::mul_add(s.99, t2935, t3057);
-            dc_dq[7][6] = t3058;
+            dc_dq.90 = t3058;
             let t3060 = s.98 * t2981;
             let t3061 = T::mul_add(s.99, t2978, t3060);
-            dc_dq[8][6] = t3061;
+            dc_dq.102 = t3061;
             let t3062 = s.192 - s.75;
             let t3063 = s.74 - s.193;
             let t3064 = s.190 - s.191;
@@ -21625,12 +21710,12 @@ pub mod fma {
             let t3203 = T::mul_add(s.73, t3194, t3201);
             let t3205 = T::mul_add(-s.72, t3195, t3203);
             let t3206 = t3198 + t3205;
-            dc_dq[5][5] = t3206;
+            dc_dq.65 = t3206;
             let t3208 = T::mul_add(lit::<T>(3.524e-5), s.73, t3064);
             let t3209 = t3208 - s.194;
             let t3210 = t3209 + t3209;
             let t3211 = s.201 + t3210;
-            dc_dqd[5][5] = t3211;
+            dc_dqd.65 = t3211;
             let t3213 = lit::<T>(0.11047740000000002) * s.10;
             let t3214 = T::mul_add(lit::<T>(3.524e-5), s.11, -t3213);
             let t3216 = lit::<T>(0.11047740000000002) * s.11;
@@ -21654,7 +21739,7 @@ pub mod fma {
             let t3237 = T::mul_add(s.10, t3171, t3236);
             let t3240 = T::mul_add(-lit::<T>(0.35), t3166, t3237);
             let t3241 = T::mul_add(lit::<T>(0.35), t3231, t3173);
-            dc_dqd[4][5] = t3241;
+            dc_dqd.53 = t3241;
             let t3243 = s.10 * t3191;
             let t3244 = T::mul_add(s.11, t3190, -t3243);
             let t3246 = s.11 * t3191;
@@ -21665,7 +21750,7 @@ pub mod fma {
             let t3253 = T::mul_add(s.10, t3188, t3252);
             let t3256 = T::mul_add(-lit::<T>(0.35), t3187, t3253);
             let t3257 = T::mul_add(lit::<T>(0.35), t3247, t3184);
-            dc_dq[4][5] = t3257;
+            dc_dq.53 = t3257;
             let t3259 = s.10 * t3195;
             let t3260 = T::mul_add(s.11, t3194, -t3259);
             let t3262 = s.11 * t3195;
@@ -21887,12 +21972,12 @@ pub mod fma {
             let t3548 = T::mul_add(s.63, t3540, t3546);
             let t3550 = T::mul_add(-s.62, t3541, t3548);
             let t3551 = t3543 + t3550;
-            dc_dq[4][4] = t3551;
+            dc_dq.52 = t3551;
             let t3552 = t3396 - t3401;
             let t3553 = t3552 - t3399;
             let t3554 = t3553 + t3553;
             let t3555 = t3362 + t3554;
-            dc_dqd[4][4] = t3555;
+            dc_dqd.52 = t3555;
             let t3557 = s.143 * t3223;
             let t3558 = T::mul_add(s.142, t3220, t3557);
             let t3560 = T::mul_add(s.140, t3225, t3558);
@@ -21903,14 +21988,14 @@ pub mod fma {
             let t3569 = T::mul_add(s.63, t3260, t3567);
             let t3571 = T::mul_add(-s.62, t3263, t3569);
             let t3572 = t3564 + t3571;
-            dc_dq[5][4] = t3572;
+            dc_dq.64 = t3572;
             let t3574 = s.60 * t3223;
             let t3575 = T::mul_add(s.61, t3220, -t3574);
             let t3577 = T::mul_add(s.63, t3214, t3575);
             let t3579 = T::mul_add(-s.62, t3217, t3577);
             let t3580 = t3579 + t3579;
             let t3581 = t3271 + t3580;
-            dc_dqd[5][4] = t3581;
+            dc_dqd.64 = t3581;
             let t3582 = s.7 * t3314;
             let t3583 = -t3582;
             let t3585 = T::mul_add(-s.6, t3313, t3583);
@@ -21925,7 +22010,7 @@ pub mod fma {
             let t3598 = T::mul_add(s.6, t3517, t3597);
             let t3600 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3519, t3598);
             let t3602 = T::mul_add(lit::<T>(0.08), t3595, t3600);
-            dc_dqd[3][4] = t3602;
+            dc_dqd.40 = t3602;
             let t3604 = s.9 * t3537;
             let t3605 = T::mul_add(s.8, t3536, t3604);
             let t3606 = t3605 - t3533;
@@ -21933,7 +22018,7 @@ pub mod fma {
             let t3609 = T::mul_add(s.6, t3534, t3608);
             let t3611 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3530, t3609);
             let t3613 = T::mul_add(lit::<T>(0.08), t3606, t3611);
-            dc_dq[3][4] = t3613;
+            dc_dq.40 = t3613;
             let t3615 = s.9 * t3541;
             let t3616 = T::mul_add(s.8, t3540, t3615);
             let t3618 = s.7 * t3539;
@@ -21941,7 +22026,7 @@ pub mod fma {
             let t3620 = lit::<T>(4.8965888601467475e-12) * t3362;
             let t3621 = t3619 + t3620;
             let t3623 = T::mul_add(lit::<T>(0.08), t3616, t3621);
-            dc_dqd[4][3] = t3623;
+            dc_dqd.51 = t3623;
             let t3625 = s.6 * t3217;
             let t3626 = T::mul_add(s.7, t3214, -t3625);
             let t3628 = s.9 * t3217;
@@ -21953,7 +22038,7 @@ pub mod fma {
             let t3636 = T::mul_add(s.6, t3234, t3635);
             let t3638 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3241, t3636);
             let t3640 = T::mul_add(lit::<T>(0.08), t3633, t3638);
-            dc_dqd[3][5] = t3640;
+            dc_dqd.41 = t3640;
             let t3642 = s.9 * t3247;
             let t3643 = T::mul_add(s.8, t3244, t3642);
             let t3644 = t3643 - t3187;
@@ -21961,14 +22046,14 @@ pub mod fma {
             let t3647 = T::mul_add(s.6, t3250, t3646);
             let t3649 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3257, t3647);
             let t3651 = T::mul_add(lit::<T>(0.08), t3644, t3649);
-            dc_dq[3][5] = t3651;
+            dc_dq.41 = t3651;
             let t3653 = s.9 * t3263;
             let t3654 = T::mul_add(s.8, t3260, t3653);
             let t3656 = s.7 * t3269;
             let t3657 = T::mul_add(s.6, t3266, t3656);
             let t3659 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3271, t3657);
             let t3661 = T::mul_add(lit::<T>(0.08), t3654, t3659);
-            dc_dqd[5][3] = t3661;
+            dc_dqd.63 = t3661;
             let t3663 = s.9 * t3314;
             let t3664 = T::mul_add(s.8, t3313, t3663);
             let t3665 = lit::<T>(-8.81e-5) + t3664;
@@ -21990,16 +22075,16 @@ pub mod fma {
             let t3689 = T::mul_add(s.6, t3676, t3688);
             let t3691 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3684, t3689);
             let t3692 = T::mul_add(lit::<T>(2.0), t3685, t3691);
-            dc_dqd[3][3] = t3692;
+            dc_dqd.39 = t3692;
             let t3694 = s.59 * t3665;
             let t3695 = T::mul_add(s.58, t3667, -t3694);
-            dc_dq[3][3] = t3695;
+            dc_dq.39 = t3695;
             let t3697 = s.58 * t3588;
             let t3698 = T::mul_add(s.59, t3585, t3697);
-            dc_dq[4][3] = t3698;
+            dc_dq.51 = t3698;
             let t3700 = s.58 * t3629;
             let t3701 = T::mul_add(s.59, t3626, t3700);
-            dc_dq[5][3] = t3701;
+            dc_dq.63 = t3701;
             let t3702 = s.170 - s.35;
             let t3703 = s.34 - s.171;
             let t3704 = s.168 - s.169;
@@ -22115,12 +22200,12 @@ pub mod fma {
             let t3843 = T::mul_add(s.33, t3834, t3841);
             let t3845 = T::mul_add(-s.32, t3835, t3843);
             let t3846 = t3838 + t3845;
-            dc_dq[2][2] = t3846;
+            dc_dq.26 = t3846;
             let t3848 = T::mul_add(lit::<T>(-3.524e-5), s.33, t3704);
             let t3849 = t3848 - s.172;
             let t3850 = t3849 + t3849;
             let t3851 = s.179 + t3850;
-            dc_dqd[2][2] = t3851;
+            dc_dqd.26 = t3851;
             let t3853 = s.4 * lit::<T>(0.11047740000000002);
             let t3854 = T::mul_add(s.5, lit::<T>(-3.524e-5), -t3853);
             let t3856 = s.5 * lit::<T>(0.11047740000000002);
@@ -22144,7 +22229,7 @@ pub mod fma {
             let t3877 = T::mul_add(s.4, t3811, t3876);
             let t3880 = T::mul_add(-lit::<T>(0.35), t3806, t3877);
             let t3881 = T::mul_add(lit::<T>(0.35), t3871, t3813);
-            dc_dqd[1][2] = t3881;
+            dc_dqd.14 = t3881;
             let t3883 = s.4 * t3831;
             let t3884 = T::mul_add(s.5, t3830, -t3883);
             let t3886 = s.5 * t3831;
@@ -22155,7 +22240,7 @@ pub mod fma {
             let t3893 = T::mul_add(s.4, t3828, t3892);
             let t3896 = T::mul_add(-lit::<T>(0.35), t3827, t3893);
             let t3897 = T::mul_add(lit::<T>(0.35), t3887, t3824);
-            dc_dq[1][2] = t3897;
+            dc_dq.14 = t3897;
             let t3899 = s.4 * t3835;
             let t3900 = T::mul_add(s.5, t3834, -t3899);
             let t3902 = s.5 * t3835;
@@ -22377,12 +22462,12 @@ pub mod fma {
             let t4188 = T::mul_add(s.23, t4180, t4186);
             let t4190 = T::mul_add(-s.22, t4181, t4188);
             let t4191 = t4183 + t4190;
-            dc_dq[1][1] = t4191;
+            dc_dq.13 = t4191;
             let t4192 = t4036 - t4041;
             let t4193 = t4192 - t4039;
             let t4194 = t4193 + t4193;
             let t4195 = t4002 + t4194;
-            dc_dqd[1][1] = t4195;
+            dc_dqd.13 = t4195;
             let t4197 = s.131 * t3863;
             let t4198 = T::mul_add(s.130, t3860, t4197);
             let t4200 = T::mul_add(s.128, t3865, t4198);
@@ -22393,14 +22478,14 @@ pub mod fma {
             let t4209 = T::mul_add(s.23, t3900, t4207);
             let t4211 = T::mul_add(-s.22, t3903, t4209);
             let t4212 = t4204 + t4211;
-            dc_dq[2][1] = t4212;
+            dc_dq.25 = t4212;
             let t4214 = s.20 * t3863;
             let t4215 = T::mul_add(s.21, t3860, -t4214);
             let t4217 = T::mul_add(s.23, t3854, t4215);
             let t4219 = T::mul_add(-s.22, t3857, t4217);
             let t4220 = t4219 + t4219;
             let t4221 = t3911 + t4220;
-            dc_dqd[2][1] = t4221;
+            dc_dqd.25 = t4221;
             let t4222 = s.1 * t3954;
             let t4223 = -t4222;
             let t4225 = T::mul_add(-s.0, t3953, t4223);
@@ -22415,7 +22500,7 @@ pub mod fma {
             let t4238 = T::mul_add(s.0, t4157, t4237);
             let t4240 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4159, t4238);
             let t4242 = T::mul_add(lit::<T>(0.08), t4235, t4240);
-            dc_dqd[0][1] = t4242;
+            dc_dqd.1 = t4242;
             let t4244 = s.3 * t4177;
             let t4245 = T::mul_add(s.2, t4176, t4244);
             let t4246 = t4245 - t4173;
@@ -22423,7 +22508,7 @@ pub mod fma {
             let t4249 = T::mul_add(s.0, t4174, t4248);
             let t4251 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4170, t4249);
             let t4253 = T::mul_add(lit::<T>(0.08), t4246, t4251);
-            dc_dq[0][1] = t4253;
+            dc_dq.1 = t4253;
             let t4255 = s.3 * t4181;
             let t4256 = T::mul_add(s.2, t4180, t4255);
             let t4258 = s.1 * t4179;
@@ -22431,7 +22516,7 @@ pub mod fma {
             let t4260 = lit::<T>(4.8965888601467475e-12) * t4002;
             let t4261 = t4259 + t4260;
             let t4263 = T::mul_add(lit::<T>(0.08), t4256, t4261);
-            dc_dqd[1][0] = t4263;
+            dc_dqd.12 = t4263;
             let t4265 = s.0 * t3857;
             let t4266 = T::mul_add(s.1, t3854, -t4265);
             let t4268 = s.3 * t3857;
@@ -22443,7 +22528,7 @@ pub mod fma {
             let t4276 = T::mul_add(s.0, t3874, t4275);
             let t4278 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3881, t4276);
             let t4280 = T::mul_add(lit::<T>(0.08), t4273, t4278);
-            dc_dqd[0][2] = t4280;
+            dc_dqd.2 = t4280;
             let t4282 = s.3 * t3887;
             let t4283 = T::mul_add(s.2, t3884, t4282);
             let t4284 = t4283 - t3827;
@@ -22451,14 +22536,14 @@ pub mod fma {
             let t4287 = T::mul_add(s.0, t3890, t4286);
             let t4289 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3897, t4287);
             let t4291 = T::mul_add(lit::<T>(0.08), t4284, t4289);
-            dc_dq[0][2] = t4291;
+            dc_dq.2 = t4291;
             let t4293 = s.3 * t3903;
             let t4294 = T::mul_add(s.2, t3900, t4293);
             let t4296 = s.1 * t3909;
             let t4297 = T::mul_add(s.0, t3906, t4296);
             let t4299 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3911, t4297);
             let t4301 = T::mul_add(lit::<T>(0.08), t4294, t4299);
-            dc_dqd[2][0] = t4301;
+            dc_dqd.24 = t4301;
             let t4303 = s.3 * t3954;
             let t4304 = T::mul_add(s.2, t3953, t4303);
             let t4305 = lit::<T>(8.81e-5) + t4304;
@@ -22480,16 +22565,16 @@ pub mod fma {
             let t4329 = T::mul_add(s.0, t4316, t4328);
             let t4331 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4324, t4329);
             let t4332 = T::mul_add(lit::<T>(2.0), t4325, t4331);
-            dc_dqd[0][0] = t4332;
+            dc_dqd.0 = t4332;
             let t4334 = s.19 * t4305;
             let t4335 = T::mul_add(s.18, t4307, -t4334);
-            dc_dq[0][0] = t4335;
+            dc_dq.0 = t4335;
             let t4337 = s.18 * t4228;
             let t4338 = T::mul_add(s.19, t4225, t4337);
-            dc_dq[1][0] = t4338;
+            dc_dq.12 = t4338;
             let t4340 = s.18 * t4269;
             let t4341 = T::mul_add(s.19, t4266, t4340);
-            dc_dq[2][0] = t4341;
+            dc_dq.24 = t4341;
         }
     }
     use rnea_grad_part1::rnea_grad_part1;
@@ -23869,6 +23954,10 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -23881,6 +23970,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f12<T>) };
             let t2 = q[0].sin();
             s.0 = t2;
             let t3 = q[0].cos();
@@ -25702,6 +25792,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f12<T>) };
             let t2598 = s.1 * lit::<T>(9.81);
             let t2599 = s.0 * lit::<T>(9.81);
             let t2601 = s.111 * t2598;
@@ -25709,7 +25800,7 @@ pub mod fma {
             let t2605 = T::mul_add(s.112, lit::<T>(4.8035536718039596e-11), t2603);
             let t2606 = s.115 - t2605;
             let t2607 = s.114 * t2606;
-            qdd[0] = t2607;
+            qdd.0 = t2607;
             let t2609 = T::mul_add(lit::<T>(0.08), t2607, t2599);
             let t2612 = lit::<T>(4.8965888601467475e-12) * t2607;
             let t2613 = s.3 * t2598;
@@ -25729,7 +25820,7 @@ pub mod fma {
             let t2635 = T::mul_add(s.108, t2626, t2633);
             let t2636 = s.110 - t2635;
             let t2637 = s.109 * t2636;
-            qdd[1] = t2637;
+            qdd.1 = t2637;
             let t2638 = t2612 + t2637;
             let t2640 = T::mul_add(lit::<T>(0.35), t2638, t2626);
             let t2642 = s.6 * t2624;
@@ -25751,7 +25842,7 @@ pub mod fma {
             let t2665 = T::mul_add(lit::<T>(0.11047740000000002), t2656, t2663);
             let t2666 = s.103 - t2665;
             let t2667 = lit::<T>(38.19145529132263) * t2666;
-            qdd[2] = t2667;
+            qdd.2 = t2667;
             let t2668 = s.9 * lit::<T>(9.81);
             let t2669 = s.8 * lit::<T>(9.81);
             let t2670 = s.98 * t2668;
@@ -25759,7 +25850,7 @@ pub mod fma {
             let t2674 = T::mul_add(s.99, lit::<T>(4.8035536718039596e-11), t2672);
             let t2675 = s.102 - t2674;
             let t2676 = s.101 * t2675;
-            qdd[3] = t2676;
+            qdd.3 = t2676;
             let t2678 = T::mul_add(lit::<T>(0.08), t2676, t2669);
             let t2681 = lit::<T>(4.8965888601467475e-12) * t2676;
             let t2682 = s.11 * t2668;
@@ -25779,7 +25870,7 @@ pub mod fma {
             let t2704 = T::mul_add(s.95, t2695, t2702);
             let t2705 = s.97 - t2704;
             let t2706 = s.96 * t2705;
-            qdd[4] = t2706;
+            qdd.4 = t2706;
             let t2707 = t2681 + t2706;
             let t2709 = T::mul_add(lit::<T>(0.35), t2707, t2695);
             let t2711 = s.14 * t2693;
@@ -25801,7 +25892,7 @@ pub mod fma {
             let t2734 = T::mul_add(lit::<T>(0.11047740000000002), t2725, t2732);
             let t2735 = s.90 - t2734;
             let t2736 = lit::<T>(38.19145529132263) * t2735;
-            qdd[5] = t2736;
+            qdd.5 = t2736;
             let t2737 = s.17 * lit::<T>(9.81);
             let t2738 = s.16 * lit::<T>(9.81);
             let t2739 = s.85 * t2737;
@@ -25809,7 +25900,7 @@ pub mod fma {
             let t2743 = T::mul_add(s.86, lit::<T>(4.8035536718039596e-11), t2741);
             let t2744 = s.89 - t2743;
             let t2745 = s.88 * t2744;
-            qdd[6] = t2745;
+            qdd.6 = t2745;
             let t2747 = T::mul_add(lit::<T>(0.08), t2745, t2738);
             let t2748 = s.18 * t2745;
             let t2749 = -t2748;
@@ -25831,7 +25922,7 @@ pub mod fma {
             let t2774 = T::mul_add(s.82, t2765, t2772);
             let t2775 = s.84 - t2774;
             let t2776 = s.83 * t2775;
-            qdd[7] = t2776;
+            qdd.7 = t2776;
             let t2777 = t2751 + t2776;
             let t2779 = T::mul_add(lit::<T>(0.35), t2777, t2765);
             let t2781 = s.22 * t2763;
@@ -25853,7 +25944,7 @@ pub mod fma {
             let t2804 = T::mul_add(lit::<T>(0.11047740000000002), t2795, t2802);
             let t2805 = s.77 - t2804;
             let t2806 = lit::<T>(38.19145529132263) * t2805;
-            qdd[8] = t2806;
+            qdd.8 = t2806;
             let t2807 = s.25 * lit::<T>(9.81);
             let t2808 = s.24 * lit::<T>(9.81);
             let t2809 = s.72 * t2807;
@@ -25861,7 +25952,7 @@ pub mod fma {
             let t2813 = T::mul_add(s.73, lit::<T>(4.8035536718039596e-11), t2811);
             let t2814 = s.76 - t2813;
             let t2815 = s.75 * t2814;
-            qdd[9] = t2815;
+            qdd.9 = t2815;
             let t2817 = T::mul_add(lit::<T>(0.08), t2815, t2808);
             let t2818 = s.26 * t2815;
             let t2819 = -t2818;
@@ -25883,7 +25974,7 @@ pub mod fma {
             let t2844 = T::mul_add(s.69, t2835, t2842);
             let t2845 = s.71 - t2844;
             let t2846 = s.70 * t2845;
-            qdd[10] = t2846;
+            qdd.10 = t2846;
             let t2847 = t2821 + t2846;
             let t2849 = T::mul_add(lit::<T>(0.35), t2847, t2835);
             let t2851 = s.30 * t2833;
@@ -25905,7 +25996,7 @@ pub mod fma {
             let t2874 = T::mul_add(lit::<T>(0.11047740000000002), t2865, t2872);
             let t2875 = s.64 - t2874;
             let t2876 = lit::<T>(38.19145529132263) * t2875;
-            qdd[11] = t2876;
+            qdd.11 = t2876;
         }
     }
     use fd_part1::fd_part1;
@@ -25967,6 +26058,20 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 144 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -25981,6 +26086,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t4 = q[0].sin();
             let t5 = q[0].cos();
             let t10 = q[1].sin();
@@ -27742,41 +27854,41 @@ pub mod fma {
             let t1901 = T::mul_add(t1860, t1870, t1868);
             let t1903 = T::mul_add(t1864, t1899, t1901);
             let t1904 = t1867 * t1903;
-            qdd[0] = t1904;
+            qdd.0 = t1904;
             let t1907 = t1854 * t1897;
-            qdd[3] = t1907;
+            qdd.3 = t1907;
             let t1910 = t1841 * t1891;
-            qdd[6] = t1910;
+            qdd.6 = t1910;
             let t1913 = t1828 * t1885;
-            qdd[9] = t1913;
+            qdd.9 = t1913;
             let t1916 = t1864 * t1904;
             let t1917 = T::mul_add(t1863, t1899, t1916);
-            qdd[1] = t1917;
+            qdd.1 = t1917;
             let t1918 = t1855 * t1917;
             let t1919 = T::mul_add(lit::<T>(-38.19145529132263), t1870, t1918);
             let t1921 = T::mul_add(t1860, t1904, t1919);
-            qdd[2] = t1921;
+            qdd.2 = t1921;
             let t1922 = t1851 * t1907;
             let t1923 = T::mul_add(t1850, t1893, t1922);
-            qdd[4] = t1923;
+            qdd.4 = t1923;
             let t1924 = t1842 * t1923;
             let t1925 = T::mul_add(lit::<T>(-38.19145529132263), t1873, t1924);
             let t1927 = T::mul_add(t1847, t1907, t1925);
-            qdd[5] = t1927;
+            qdd.5 = t1927;
             let t1928 = t1838 * t1910;
             let t1929 = T::mul_add(t1837, t1887, t1928);
-            qdd[7] = t1929;
+            qdd.7 = t1929;
             let t1930 = t1829 * t1929;
             let t1931 = T::mul_add(lit::<T>(-38.19145529132263), t1876, t1930);
             let t1933 = T::mul_add(t1834, t1910, t1931);
-            qdd[8] = t1933;
+            qdd.8 = t1933;
             let t1934 = t1825 * t1913;
             let t1935 = T::mul_add(t1824, t1881, t1934);
-            qdd[10] = t1935;
+            qdd.10 = t1935;
             let t1936 = t1816 * t1935;
             let t1937 = T::mul_add(lit::<T>(-38.19145529132263), t1879, t1936);
             let t1939 = T::mul_add(t1821, t1913, t1937);
-            qdd[11] = t1939;
+            qdd.11 = t1939;
             let t1941 = T::mul_add(lit::<T>(0.08), t1904, t574);
             let t1942 = t10 * t1904;
             let t1943 = t11 * t1904;
@@ -28328,6 +28440,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t2582 = s.118 - s.117;
             let t2583 = t2582 - s.119;
             let t2584 = lit::<T>(0.00741836815) * s.106;
@@ -30349,6 +30468,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t5082 = s.541 - s.543;
             let t5083 = t5082 - s.542;
             let t5084 = t5083 + t5083;
@@ -30436,290 +30562,290 @@ pub mod fma {
             let t5213 = T::mul_add(s.376, t5209, t5203);
             let t5215 = T::mul_add(s.378, t5211, t5213);
             let t5216 = s.379 * t5215;
-            dqdd_dq[0][0] = t5216;
+            dqdd_dq.0 = t5216;
             let t5219 = s.378 * t5216;
             let t5220 = T::mul_add(s.377, t5211, t5219);
-            dqdd_dq[1][0] = t5220;
+            dqdd_dq.12 = t5220;
             let t5221 = s.375 * t5220;
             let t5222 = T::mul_add(lit::<T>(-38.19145529132263), t5209, t5221);
             let t5224 = T::mul_add(s.376, t5216, t5222);
-            dqdd_dq[2][0] = t5224;
+            dqdd_dq.24 = t5224;
             let t5226 = T::mul_add(s.375, t5102, s.560);
             let t5228 = T::mul_add(s.376, t5102, t5133);
             let t5230 = T::mul_add(s.378, t5226, t5228);
             let t5231 = s.379 * t5230;
-            dqdd_dq[0][1] = t5231;
+            dqdd_dq.1 = t5231;
             let t5234 = s.378 * t5231;
             let t5235 = T::mul_add(s.377, t5226, t5234);
-            dqdd_dq[1][1] = t5235;
+            dqdd_dq.13 = t5235;
             let t5236 = s.375 * t5235;
             let t5237 = T::mul_add(lit::<T>(-38.19145529132263), t5102, t5236);
             let t5239 = T::mul_add(s.376, t5231, t5237);
-            dqdd_dq[2][1] = t5239;
+            dqdd_dq.25 = t5239;
             let t5241 = T::mul_add(s.375, s.516, s.527);
             let t5243 = T::mul_add(s.376, s.516, t5165);
             let t5245 = T::mul_add(s.378, t5241, t5243);
             let t5246 = s.379 * t5245;
-            dqdd_dq[0][2] = t5246;
+            dqdd_dq.2 = t5246;
             let t5249 = s.378 * t5246;
             let t5250 = T::mul_add(s.377, t5241, t5249);
-            dqdd_dq[1][2] = t5250;
+            dqdd_dq.14 = t5250;
             let t5251 = s.375 * t5250;
             let t5252 = T::mul_add(lit::<T>(-38.19145529132263), s.516, t5251);
             let t5254 = T::mul_add(s.376, t5246, t5252);
-            dqdd_dq[2][2] = t5254;
+            dqdd_dq.26 = t5254;
             let t5256 = T::mul_add(s.370, s.513, s.512);
             let t5258 = T::mul_add(s.371, s.513, s.511);
             let t5260 = T::mul_add(s.373, t5256, t5258);
             let t5261 = s.374 * t5260;
-            dqdd_dq[3][3] = t5261;
+            dqdd_dq.39 = t5261;
             let t5264 = s.373 * t5261;
             let t5265 = T::mul_add(s.372, t5256, t5264);
-            dqdd_dq[4][3] = t5265;
+            dqdd_dq.51 = t5265;
             let t5266 = s.370 * t5265;
             let t5267 = T::mul_add(lit::<T>(-38.19145529132263), s.513, t5266);
             let t5269 = T::mul_add(s.371, t5261, t5267);
-            dqdd_dq[5][3] = t5269;
+            dqdd_dq.63 = t5269;
             let t5271 = T::mul_add(s.370, s.502, s.500);
             let t5273 = T::mul_add(s.371, s.502, s.505);
             let t5275 = T::mul_add(s.373, t5271, t5273);
             let t5276 = s.374 * t5275;
-            dqdd_dq[3][4] = t5276;
+            dqdd_dq.40 = t5276;
             let t5279 = s.373 * t5276;
             let t5280 = T::mul_add(s.372, t5271, t5279);
-            dqdd_dq[4][4] = t5280;
+            dqdd_dq.52 = t5280;
             let t5281 = s.370 * t5280;
             let t5282 = T::mul_add(lit::<T>(-38.19145529132263), s.502, t5281);
             let t5284 = T::mul_add(s.371, t5276, t5282);
-            dqdd_dq[5][4] = t5284;
+            dqdd_dq.64 = t5284;
             let t5286 = T::mul_add(s.370, s.496, s.499);
             let t5288 = T::mul_add(s.371, s.496, s.508);
             let t5290 = T::mul_add(s.373, t5286, t5288);
             let t5291 = s.374 * t5290;
-            dqdd_dq[3][5] = t5291;
+            dqdd_dq.41 = t5291;
             let t5294 = s.373 * t5291;
             let t5295 = T::mul_add(s.372, t5286, t5294);
-            dqdd_dq[4][5] = t5295;
+            dqdd_dq.53 = t5295;
             let t5296 = s.370 * t5295;
             let t5297 = T::mul_add(lit::<T>(-38.19145529132263), s.496, t5296);
             let t5299 = T::mul_add(s.371, t5291, t5297);
-            dqdd_dq[5][5] = t5299;
+            dqdd_dq.65 = t5299;
             let t5301 = T::mul_add(s.365, s.495, s.494);
             let t5303 = T::mul_add(s.366, s.495, s.493);
             let t5305 = T::mul_add(s.368, t5301, t5303);
             let t5306 = s.369 * t5305;
-            dqdd_dq[6][6] = t5306;
+            dqdd_dq.78 = t5306;
             let t5309 = s.368 * t5306;
             let t5310 = T::mul_add(s.367, t5301, t5309);
-            dqdd_dq[7][6] = t5310;
+            dqdd_dq.90 = t5310;
             let t5311 = s.365 * t5310;
             let t5312 = T::mul_add(lit::<T>(-38.19145529132263), s.495, t5311);
             let t5314 = T::mul_add(s.366, t5306, t5312);
-            dqdd_dq[8][6] = t5314;
+            dqdd_dq.102 = t5314;
             let t5316 = T::mul_add(s.365, s.484, s.482);
             let t5318 = T::mul_add(s.366, s.484, s.487);
             let t5320 = T::mul_add(s.368, t5316, t5318);
             let t5321 = s.369 * t5320;
-            dqdd_dq[6][7] = t5321;
+            dqdd_dq.79 = t5321;
             let t5324 = s.368 * t5321;
             let t5325 = T::mul_add(s.367, t5316, t5324);
-            dqdd_dq[7][7] = t5325;
+            dqdd_dq.91 = t5325;
             let t5326 = s.365 * t5325;
             let t5327 = T::mul_add(lit::<T>(-38.19145529132263), s.484, t5326);
             let t5329 = T::mul_add(s.366, t5321, t5327);
-            dqdd_dq[8][7] = t5329;
+            dqdd_dq.103 = t5329;
             let t5331 = T::mul_add(s.365, s.478, s.481);
             let t5333 = T::mul_add(s.366, s.478, s.490);
             let t5335 = T::mul_add(s.368, t5331, t5333);
             let t5336 = s.369 * t5335;
-            dqdd_dq[6][8] = t5336;
+            dqdd_dq.80 = t5336;
             let t5339 = s.368 * t5336;
             let t5340 = T::mul_add(s.367, t5331, t5339);
-            dqdd_dq[7][8] = t5340;
+            dqdd_dq.92 = t5340;
             let t5341 = s.365 * t5340;
             let t5342 = T::mul_add(lit::<T>(-38.19145529132263), s.478, t5341);
             let t5344 = T::mul_add(s.366, t5336, t5342);
-            dqdd_dq[8][8] = t5344;
+            dqdd_dq.104 = t5344;
             let t5346 = T::mul_add(s.360, s.477, s.476);
             let t5348 = T::mul_add(s.361, s.477, s.475);
             let t5350 = T::mul_add(s.363, t5346, t5348);
             let t5351 = s.364 * t5350;
-            dqdd_dq[9][9] = t5351;
+            dqdd_dq.117 = t5351;
             let t5354 = s.363 * t5351;
             let t5355 = T::mul_add(s.362, t5346, t5354);
-            dqdd_dq[10][9] = t5355;
+            dqdd_dq.129 = t5355;
             let t5356 = s.360 * t5355;
             let t5357 = T::mul_add(lit::<T>(-38.19145529132263), s.477, t5356);
             let t5359 = T::mul_add(s.361, t5351, t5357);
-            dqdd_dq[11][9] = t5359;
+            dqdd_dq.141 = t5359;
             let t5361 = T::mul_add(s.360, s.466, s.464);
             let t5363 = T::mul_add(s.361, s.466, s.469);
             let t5365 = T::mul_add(s.363, t5361, t5363);
             let t5366 = s.364 * t5365;
-            dqdd_dq[9][10] = t5366;
+            dqdd_dq.118 = t5366;
             let t5369 = s.363 * t5366;
             let t5370 = T::mul_add(s.362, t5361, t5369);
-            dqdd_dq[10][10] = t5370;
+            dqdd_dq.130 = t5370;
             let t5371 = s.360 * t5370;
             let t5372 = T::mul_add(lit::<T>(-38.19145529132263), s.466, t5371);
             let t5374 = T::mul_add(s.361, t5366, t5372);
-            dqdd_dq[11][10] = t5374;
+            dqdd_dq.142 = t5374;
             let t5376 = T::mul_add(s.360, s.460, s.463);
             let t5378 = T::mul_add(s.361, s.460, s.472);
             let t5380 = T::mul_add(s.363, t5376, t5378);
             let t5381 = s.364 * t5380;
-            dqdd_dq[9][11] = t5381;
+            dqdd_dq.119 = t5381;
             let t5384 = s.363 * t5381;
             let t5385 = T::mul_add(s.362, t5376, t5384);
-            dqdd_dq[10][11] = t5385;
+            dqdd_dq.131 = t5385;
             let t5386 = s.360 * t5385;
             let t5387 = T::mul_add(lit::<T>(-38.19145529132263), s.460, t5386);
             let t5389 = T::mul_add(s.361, t5381, t5387);
-            dqdd_dq[11][11] = t5389;
+            dqdd_dq.143 = t5389;
             let t5391 = T::mul_add(s.375, t5175, t5143);
             let t5393 = T::mul_add(s.376, t5175, t5200);
             let t5395 = T::mul_add(s.378, t5391, t5393);
             let t5396 = s.379 * t5395;
-            dqdd_dqd[0][0] = t5396;
+            dqdd_dqd.0 = t5396;
             let t5399 = s.378 * t5396;
             let t5400 = T::mul_add(s.377, t5391, t5399);
-            dqdd_dqd[1][0] = t5400;
+            dqdd_dqd.12 = t5400;
             let t5401 = s.375 * t5400;
             let t5402 = T::mul_add(lit::<T>(-38.19145529132263), t5175, t5401);
             let t5404 = T::mul_add(s.376, t5396, t5402);
-            dqdd_dqd[2][0] = t5404;
+            dqdd_dqd.24 = t5404;
             let t5406 = T::mul_add(s.375, t5111, t5085);
             let t5408 = T::mul_add(s.376, t5111, t5122);
             let t5410 = T::mul_add(s.378, t5406, t5408);
             let t5411 = s.379 * t5410;
-            dqdd_dqd[0][1] = t5411;
+            dqdd_dqd.1 = t5411;
             let t5414 = s.378 * t5411;
             let t5415 = T::mul_add(s.377, t5406, t5414);
-            dqdd_dqd[1][1] = t5415;
+            dqdd_dqd.13 = t5415;
             let t5416 = s.375 * t5415;
             let t5417 = T::mul_add(lit::<T>(-38.19145529132263), t5111, t5416);
             let t5419 = T::mul_add(s.376, t5411, t5417);
-            dqdd_dqd[2][1] = t5419;
+            dqdd_dqd.25 = t5419;
             let t5421 = T::mul_add(s.375, s.517, s.522);
             let t5423 = T::mul_add(s.376, s.517, t5154);
             let t5425 = T::mul_add(s.378, t5421, t5423);
             let t5426 = s.379 * t5425;
-            dqdd_dqd[0][2] = t5426;
+            dqdd_dqd.2 = t5426;
             let t5429 = s.378 * t5426;
             let t5430 = T::mul_add(s.377, t5421, t5429);
-            dqdd_dqd[1][2] = t5430;
+            dqdd_dqd.14 = t5430;
             let t5431 = s.375 * t5430;
             let t5432 = T::mul_add(lit::<T>(-38.19145529132263), s.517, t5431);
             let t5434 = T::mul_add(s.376, t5426, t5432);
-            dqdd_dqd[2][2] = t5434;
+            dqdd_dqd.26 = t5434;
             let t5436 = T::mul_add(s.370, s.509, s.506);
             let t5438 = T::mul_add(s.371, s.509, s.510);
             let t5440 = T::mul_add(s.373, t5436, t5438);
             let t5441 = s.374 * t5440;
-            dqdd_dqd[3][3] = t5441;
+            dqdd_dqd.39 = t5441;
             let t5444 = s.373 * t5441;
             let t5445 = T::mul_add(s.372, t5436, t5444);
-            dqdd_dqd[4][3] = t5445;
+            dqdd_dqd.51 = t5445;
             let t5446 = s.370 * t5445;
             let t5447 = T::mul_add(lit::<T>(-38.19145529132263), s.509, t5446);
             let t5449 = T::mul_add(s.371, t5441, t5447);
-            dqdd_dqd[5][3] = t5449;
+            dqdd_dqd.63 = t5449;
             let t5451 = T::mul_add(s.370, s.503, s.501);
             let t5453 = T::mul_add(s.371, s.503, s.504);
             let t5455 = T::mul_add(s.373, t5451, t5453);
             let t5456 = s.374 * t5455;
-            dqdd_dqd[3][4] = t5456;
+            dqdd_dqd.40 = t5456;
             let t5459 = s.373 * t5456;
             let t5460 = T::mul_add(s.372, t5451, t5459);
-            dqdd_dqd[4][4] = t5460;
+            dqdd_dqd.52 = t5460;
             let t5461 = s.370 * t5460;
             let t5462 = T::mul_add(lit::<T>(-38.19145529132263), s.503, t5461);
             let t5464 = T::mul_add(s.371, t5456, t5462);
-            dqdd_dqd[5][4] = t5464;
+            dqdd_dqd.64 = t5464;
             let t5466 = T::mul_add(s.370, s.497, s.498);
             let t5468 = T::mul_add(s.371, s.497, s.507);
             let t5470 = T::mul_add(s.373, t5466, t5468);
             let t5471 = s.374 * t5470;
-            dqdd_dqd[3][5] = t5471;
+            dqdd_dqd.41 = t5471;
             let t5474 = s.373 * t5471;
             let t5475 = T::mul_add(s.372, t5466, t5474);
-            dqdd_dqd[4][5] = t5475;
+            dqdd_dqd.53 = t5475;
             let t5476 = s.370 * t5475;
             let t5477 = T::mul_add(lit::<T>(-38.19145529132263), s.497, t5476);
             let t5479 = T::mul_add(s.371, t5471, t5477);
-            dqdd_dqd[5][5] = t5479;
+            dqdd_dqd.65 = t5479;
             let t5481 = T::mul_add(s.365, s.491, s.488);
             let t5483 = T::mul_add(s.366, s.491, s.492);
             let t5485 = T::mul_add(s.368, t5481, t5483);
             let t5486 = s.369 * t5485;
-            dqdd_dqd[6][6] = t5486;
+            dqdd_dqd.78 = t5486;
             let t5489 = s.368 * t5486;
             let t5490 = T::mul_add(s.367, t5481, t5489);
-            dqdd_dqd[7][6] = t5490;
+            dqdd_dqd.90 = t5490;
             let t5491 = s.365 * t5490;
             let t5492 = T::mul_add(lit::<T>(-38.19145529132263), s.491, t5491);
             let t5494 = T::mul_add(s.366, t5486, t5492);
-            dqdd_dqd[8][6] = t5494;
+            dqdd_dqd.102 = t5494;
             let t5496 = T::mul_add(s.365, s.485, s.483);
             let t5498 = T::mul_add(s.366, s.485, s.486);
             let t5500 = T::mul_add(s.368, t5496, t5498);
             let t5501 = s.369 * t5500;
-            dqdd_dqd[6][7] = t5501;
+            dqdd_dqd.79 = t5501;
             let t5504 = s.368 * t5501;
             let t5505 = T::mul_add(s.367, t5496, t5504);
-            dqdd_dqd[7][7] = t5505;
+            dqdd_dqd.91 = t5505;
             let t5506 = s.365 * t5505;
             let t5507 = T::mul_add(lit::<T>(-38.19145529132263), s.485, t5506);
             let t5509 = T::mul_add(s.366, t5501, t5507);
-            dqdd_dqd[8][7] = t5509;
+            dqdd_dqd.103 = t5509;
             let t5511 = T::mul_add(s.365, s.479, s.480);
             let t5513 = T::mul_add(s.366, s.479, s.489);
             let t5515 = T::mul_add(s.368, t5511, t5513);
             let t5516 = s.369 * t5515;
-            dqdd_dqd[6][8] = t5516;
+            dqdd_dqd.80 = t5516;
             let t5519 = s.368 * t5516;
             let t5520 = T::mul_add(s.367, t5511, t5519);
-            dqdd_dqd[7][8] = t5520;
+            dqdd_dqd.92 = t5520;
             let t5521 = s.365 * t5520;
             let t5522 = T::mul_add(lit::<T>(-38.19145529132263), s.479, t5521);
             let t5524 = T::mul_add(s.366, t5516, t5522);
-            dqdd_dqd[8][8] = t5524;
+            dqdd_dqd.104 = t5524;
             let t5526 = T::mul_add(s.360, s.473, s.470);
             let t5528 = T::mul_add(s.361, s.473, s.474);
             let t5530 = T::mul_add(s.363, t5526, t5528);
             let t5531 = s.364 * t5530;
-            dqdd_dqd[9][9] = t5531;
+            dqdd_dqd.117 = t5531;
             let t5534 = s.363 * t5531;
             let t5535 = T::mul_add(s.362, t5526, t5534);
-            dqdd_dqd[10][9] = t5535;
+            dqdd_dqd.129 = t5535;
             let t5536 = s.360 * t5535;
             let t5537 = T::mul_add(lit::<T>(-38.19145529132263), s.473, t5536);
             let t5539 = T::mul_add(s.361, t5531, t5537);
-            dqdd_dqd[11][9] = t5539;
+            dqdd_dqd.141 = t5539;
             let t5541 = T::mul_add(s.360, s.467, s.465);
             let t5543 = T::mul_add(s.361, s.467, s.468);
             let t5545 = T::mul_add(s.363, t5541, t5543);
             let t5546 = s.364 * t5545;
-            dqdd_dqd[9][10] = t5546;
+            dqdd_dqd.118 = t5546;
             let t5549 = s.363 * t5546;
             let t5550 = T::mul_add(s.362, t5541, t5549);
-            dqdd_dqd[10][10] = t5550;
+            dqdd_dqd.130 = t5550;
             let t5551 = s.360 * t5550;
             let t5552 = T::mul_add(lit::<T>(-38.19145529132263), s.467, t5551);
             let t5554 = T::mul_add(s.361, t5546, t5552);
-            dqdd_dqd[11][10] = t5554;
+            dqdd_dqd.142 = t5554;
             let t5556 = T::mul_add(s.360, s.461, s.462);
             let t5558 = T::mul_add(s.361, s.461, s.471);
             let t5560 = T::mul_add(s.363, t5556, t5558);
             let t5561 = s.364 * t5560;
-            dqdd_dqd[9][11] = t5561;
+            dqdd_dqd.119 = t5561;
             let t5564 = s.363 * t5561;
             let t5565 = T::mul_add(s.362, t5556, t5564);
-            dqdd_dqd[10][11] = t5565;
+            dqdd_dqd.131 = t5565;
             let t5566 = s.360 * t5565;
             let t5567 = T::mul_add(lit::<T>(-38.19145529132263), s.461, t5566);
             let t5569 = T::mul_add(s.361, t5561, t5567);
-            dqdd_dqd[11][11] = t5569;
+            dqdd_dqd.143 = t5569;
         }
     }
     use fd_grad_part2::fd_grad_part2;

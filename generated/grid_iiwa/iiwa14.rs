@@ -1481,6 +1481,13 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T,
     );
+    /// An array of 49 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -1493,6 +1500,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
             let t3 = q[1].sin();
             s.0 = t3;
             let t4 = q[1].cos();
@@ -2625,7 +2638,7 @@ pub mod portable {
             let t1145 = t1144 - t706;
             let t1146 = t1140 + t1140;
             let t1147 = t1141 - t1146;
-            dc_dqd[6][6] = t1147;
+            dc_dqd.48 = t1147;
             let t1148 = -t710;
             let t1149 = t706 - t703;
             let t1150 = t1148 - t708;
@@ -2706,7 +2719,7 @@ pub mod portable {
             let t1225 = t667 * t1223;
             let t1226 = t1224 - t1225;
             let t1227 = t1153 + t1226;
-            dc_dq[6][6] = t1227;
+            dc_dq.48 = t1227;
             let t1228 = t60 * t1204;
             let t1229 = t59 * t1205;
             let t1230 = t1229 - t1228;
@@ -2723,7 +2736,7 @@ pub mod portable {
             let t1241 = lit::<T>(0.081) * t1230;
             let t1242 = t1236 + t1240;
             let t1243 = t1239 - t1241;
-            dc_dqd[5][6] = t1243;
+            dc_dqd.41 = t1243;
             let t1244 = t60 * t1220;
             let t1245 = t59 * t1221;
             let t1246 = t1245 - t1244;
@@ -2740,7 +2753,7 @@ pub mod portable {
             let t1257 = lit::<T>(0.081) * t1246;
             let t1258 = t1252 + t1256;
             let t1259 = t1255 - t1257;
-            dc_dq[5][6] = t1259;
+            dc_dq.41 = t1259;
             let t1260 = t60 * t1222;
             let t1261 = t59 * t1223;
             let t1262 = t1261 - t1260;
@@ -2937,23 +2950,23 @@ pub mod portable {
             let t1459 = t539 * t1453;
             let t1460 = t1458 - t1459;
             let t1461 = t1455 + t1460;
-            dc_dq[5][5] = t1461;
+            dc_dq.40 = t1461;
             let t1462 = t543 * lit::<T>(-0.12228);
             let t1463 = t1338 + t1462;
             let t1464 = t1463 + t1463;
             let t1465 = t1318 + t1464;
-            dc_dqd[5][5] = t1465;
+            dc_dqd.40 = t1465;
             let t1466 = lit::<T>(0.005) * t946;
             let t1467 = t536 * t1262;
             let t1468 = t533 * t1147;
             let t1469 = t1467 - t1468;
             let t1470 = t1466 + t1469;
-            dc_dq[6][5] = t1470;
+            dc_dq.47 = t1470;
             let t1471 = lit::<T>(0.005) * t533;
             let t1472 = -t1471;
             let t1473 = t1472 - t1471;
             let t1474 = t1265 + t1473;
-            dc_dqd[6][5] = t1474;
+            dc_dqd.47 = t1474;
             let t1475 = t49 * lit::<T>(-0.12228);
             let t1476 = t48 * lit::<T>(-0.12228);
             let t1477 = t49 * t1277;
@@ -2976,7 +2989,7 @@ pub mod portable {
             let t1494 = t48 * t1430;
             let t1495 = t49 * t1431;
             let t1496 = t1494 + t1495;
-            dc_dqd[4][5] = t1496;
+            dc_dqd.33 = t1496;
             let t1497 = lit::<T>(0.2155) * t1425;
             let t1498 = lit::<T>(0.2155) * t1487;
             let t1499 = t1493 + t1497;
@@ -2993,7 +3006,7 @@ pub mod portable {
             let t1510 = t48 * t1447;
             let t1511 = t49 * t1448;
             let t1512 = t1510 + t1511;
-            dc_dq[4][5] = t1512;
+            dc_dq.33 = t1512;
             let t1513 = lit::<T>(0.2155) * t1446;
             let t1514 = lit::<T>(0.2155) * t1503;
             let t1515 = t1509 + t1513;
@@ -3019,7 +3032,7 @@ pub mod portable {
             let t1535 = t48 * t1242;
             let t1536 = t49 * t1147;
             let t1537 = t1535 + t1536;
-            dc_dqd[4][6] = t1537;
+            dc_dqd.34 = t1537;
             let t1538 = lit::<T>(0.2155) * t1233;
             let t1539 = lit::<T>(0.2155) * t1530;
             let t1540 = t1534 + t1538;
@@ -3036,7 +3049,7 @@ pub mod portable {
             let t1551 = t48 * t1258;
             let t1552 = t49 * t1214;
             let t1553 = t1551 + t1552;
-            dc_dq[4][6] = t1553;
+            dc_dq.34 = t1553;
             let t1554 = lit::<T>(0.2155) * t1249;
             let t1555 = lit::<T>(0.2155) * t1544;
             let t1556 = t1550 + t1554;
@@ -3320,13 +3333,13 @@ pub mod portable {
             let t1840 = t385 * t1831;
             let t1841 = t1839 - t1840;
             let t1842 = t1834 + t1841;
-            dc_dq[4][4] = t1842;
+            dc_dq.32 = t1842;
             let t1843 = t388 * lit::<T>(-0.07278000000000001);
             let t1844 = t1686 + t1843;
             let t1845 = t1844 - t1689;
             let t1846 = t1845 + t1845;
             let t1847 = t1654 + t1846;
-            dc_dqd[4][4] = t1847;
+            dc_dqd.32 = t1847;
             let t1848 = t921 * t1479;
             let t1849 = t922 * t1484;
             let t1850 = t1848 + t1849;
@@ -3342,7 +3355,7 @@ pub mod portable {
             let t1860 = t388 * t1517;
             let t1861 = t1859 - t1860;
             let t1862 = t1856 + t1861;
-            dc_dq[5][4] = t1862;
+            dc_dq.39 = t1862;
             let t1863 = t382 * t1479;
             let t1864 = t379 * t1484;
             let t1865 = t1863 - t1864;
@@ -3350,7 +3363,7 @@ pub mod portable {
             let t1867 = t1865 + t1866;
             let t1868 = t1867 + t1867;
             let t1869 = t1525 + t1868;
-            dc_dqd[5][4] = t1869;
+            dc_dqd.39 = t1869;
             let t1870 = t921 * t1528;
             let t1871 = t909 * t1529;
             let t1872 = t1871 - t1870;
@@ -3358,12 +3371,12 @@ pub mod portable {
             let t1874 = t379 * t1265;
             let t1875 = t1873 + t1874;
             let t1876 = t1872 + t1875;
-            dc_dq[6][4] = t1876;
+            dc_dq.46 = t1876;
             let t1877 = t382 * t1528;
             let t1878 = -t1877;
             let t1879 = t1878 - t1877;
             let t1880 = t1561 + t1879;
-            dc_dqd[6][4] = t1880;
+            dc_dqd.46 = t1880;
             let t1881 = t38 * lit::<T>(-0.07278000000000001);
             let t1882 = t37 * t1603;
             let t1883 = t1882 - t1881;
@@ -3398,7 +3411,7 @@ pub mod portable {
             let t1910 = lit::<T>(0.1845) * t1899;
             let t1911 = t1905 + t1909;
             let t1912 = t1908 - t1910;
-            dc_dqd[3][4] = t1912;
+            dc_dqd.25 = t1912;
             let t1913 = t38 * t1826;
             let t1914 = t37 * t1827;
             let t1915 = t1914 - t1913;
@@ -3416,7 +3429,7 @@ pub mod portable {
             let t1926 = lit::<T>(0.1845) * t1915;
             let t1927 = t1921 + t1925;
             let t1928 = t1924 - t1926;
-            dc_dq[3][4] = t1928;
+            dc_dq.25 = t1928;
             let t1929 = t38 * t1830;
             let t1930 = t37 * t1831;
             let t1931 = t1930 - t1929;
@@ -3465,7 +3478,7 @@ pub mod portable {
             let t1971 = lit::<T>(0.1845) * t1960;
             let t1972 = t1966 + t1970;
             let t1973 = t1969 - t1971;
-            dc_dqd[3][5] = t1973;
+            dc_dqd.26 = t1973;
             let t1974 = t38 * t1503;
             let t1975 = -t1974;
             let t1976 = t37 * t1446;
@@ -3484,7 +3497,7 @@ pub mod portable {
             let t1988 = lit::<T>(0.1845) * t1977;
             let t1989 = t1983 + t1987;
             let t1990 = t1986 - t1988;
-            dc_dq[3][5] = t1990;
+            dc_dq.26 = t1990;
             let t1991 = t38 * t1517;
             let t1992 = t37 * t1517;
             s.61 = t1992;
@@ -3519,7 +3532,7 @@ pub mod portable {
             let t2019 = lit::<T>(0.1845) * t2008;
             let t2020 = t2014 + t2018;
             let t2021 = t2017 - t2019;
-            dc_dqd[3][6] = t2021;
+            dc_dqd.27 = t2021;
             let t2022 = t38 * t1544;
             let t2023 = -t2022;
             let t2024 = t37 * t1249;
@@ -3538,7 +3551,7 @@ pub mod portable {
             let t2036 = lit::<T>(0.1845) * t2025;
             let t2037 = t2031 + t2035;
             let t2038 = t2034 - t2036;
-            dc_dq[3][6] = t2038;
+            dc_dq.27 = t2038;
             let t2039 = t38 * t1559;
             let t2040 = -t2039;
             let t2041 = t37 * t1265;
@@ -3848,12 +3861,12 @@ pub mod portable {
             let t2324 = t253 * t2316;
             let t2325 = t2323 - t2324;
             let t2326 = t2318 + t2325;
-            dc_dq[3][3] = t2326;
+            dc_dq.24 = t2326;
             let t2327 = t2173 + t2177;
             let t2328 = t2327 - t2176;
             let t2329 = t2328 + t2328;
             let t2330 = t2139 + t2329;
-            dc_dqd[3][3] = t2330;
+            dc_dqd.24 = t2330;
             let t2331 = t900 * t1895;
             let t2332 = t901 * t1602;
             let t2333 = t2331 + t2332;
@@ -3869,7 +3882,7 @@ pub mod portable {
             let t2343 = t254 * t1931;
             let t2344 = t2342 - t2343;
             let t2345 = t2339 + t2344;
-            dc_dq[4][3] = t2345;
+            dc_dq.31 = t2345;
             let t2346 = t252 * t1895;
             let t2347 = t249 * t1602;
             let t2348 = t2346 - t2347;
@@ -3877,7 +3890,7 @@ pub mod portable {
             let t2350 = t2348 - t2349;
             let t2351 = t2350 + t2350;
             let t2352 = t1944 + t2351;
-            dc_dqd[4][3] = t2352;
+            dc_dqd.31 = t2352;
             let t2353 = t900 * t1955;
             let t2354 = t901 * t1482;
             let t2355 = t2353 + t2354;
@@ -3897,7 +3910,7 @@ pub mod portable {
             let t2369 = t253 * t1518;
             let t2370 = t2368 - t2369;
             let t2371 = t2363 + t2370;
-            dc_dq[5][3] = t2371;
+            dc_dq.38 = t2371;
             let t2372 = t252 * t1955;
             let t2373 = t249 * t1482;
             let t2374 = t2372 - t2373;
@@ -3907,7 +3920,7 @@ pub mod portable {
             let t2378 = t2376 - t2377;
             let t2379 = t2378 + t2378;
             let t2380 = t2002 + t2379;
-            dc_dqd[5][3] = t2380;
+            dc_dqd.38 = t2380;
             let t2381 = t900 * t2003;
             let t2382 = t901 * t1529;
             let t2383 = t2381 + t2382;
@@ -3917,13 +3930,13 @@ pub mod portable {
             let t2387 = t249 * t1561;
             let t2388 = t2386 - t2387;
             let t2389 = t2385 + t2388;
-            dc_dq[6][3] = t2389;
+            dc_dq.45 = t2389;
             let t2390 = t252 * t2003;
             let t2391 = t249 * t1529;
             let t2392 = t2390 - t2391;
             let t2393 = t2392 + t2392;
             let t2394 = t2045 + t2393;
-            dc_dqd[6][3] = t2394;
+            dc_dqd.45 = t2394;
             let t2395 = t28 * t2089;
             s.89 = t2395;
             let t2396 = -t2395;
@@ -3959,7 +3972,7 @@ pub mod portable {
             let t2417 = t28 * t2293;
             let t2418 = t2416 + t2417;
             s.99 = t2418;
-            dc_dqd[2][3] = t2418;
+            dc_dqd.17 = t2418;
             let t2419 = lit::<T>(0.2155) * t2287;
             let t2420 = lit::<T>(0.2155) * t2412;
             let t2421 = t2415 + t2419;
@@ -3977,7 +3990,7 @@ pub mod portable {
             let t2430 = t28 * t2310;
             let t2431 = t2429 + t2430;
             s.103 = t2431;
-            dc_dq[2][3] = t2431;
+            dc_dq.17 = t2431;
             let t2432 = lit::<T>(0.2155) * t2308;
             let t2433 = lit::<T>(0.2155) * t2425;
             let t2434 = t2428 + t2432;
@@ -4027,7 +4040,7 @@ pub mod portable {
             let t2466 = t28 * t1809;
             let t2467 = t2465 + t2466;
             s.116 = t2467;
-            dc_dqd[2][4] = t2467;
+            dc_dqd.18 = t2467;
             let t2468 = lit::<T>(0.2155) * t1902;
             let t2469 = lit::<T>(0.2155) * t2461;
             let t2470 = t2464 + t2468;
@@ -4045,7 +4058,7 @@ pub mod portable {
             let t2479 = t28 * t1820;
             let t2480 = t2478 + t2479;
             s.120 = t2480;
-            dc_dq[2][4] = t2480;
+            dc_dq.18 = t2480;
             let t2481 = lit::<T>(0.2155) * t1918;
             let t2482 = lit::<T>(0.2155) * t2474;
             let t2483 = t2477 + t2481;
@@ -4100,7 +4113,7 @@ pub mod portable {
             let t2520 = t28 * t1496;
             let t2521 = t2519 + t2520;
             s.133 = t2521;
-            dc_dqd[2][5] = t2521;
+            dc_dqd.19 = t2521;
             let t2522 = lit::<T>(0.2155) * t1963;
             let t2523 = lit::<T>(0.2155) * t2515;
             let t2524 = t2518 + t2522;
@@ -4118,7 +4131,7 @@ pub mod portable {
             let t2533 = t28 * t1512;
             let t2534 = t2532 + t2533;
             s.137 = t2534;
-            dc_dq[2][5] = t2534;
+            dc_dq.19 = t2534;
             let t2535 = lit::<T>(0.2155) * t1980;
             let t2536 = lit::<T>(0.2155) * t2528;
             let t2537 = t2531 + t2535;
@@ -4161,7 +4174,7 @@ pub mod portable {
             let t2565 = t28 * t1537;
             let t2566 = t2564 + t2565;
             s.147 = t2566;
-            dc_dqd[2][6] = t2566;
+            dc_dqd.20 = t2566;
             let t2567 = lit::<T>(0.2155) * t2011;
             let t2568 = lit::<T>(0.2155) * t2560;
             let t2569 = t2563 + t2567;
@@ -4179,7 +4192,7 @@ pub mod portable {
             let t2578 = t28 * t1553;
             let t2579 = t2577 + t2578;
             s.151 = t2579;
-            dc_dq[2][6] = t2579;
+            dc_dq.20 = t2579;
             let t2580 = lit::<T>(0.2155) * t2028;
             let t2581 = lit::<T>(0.2155) * t2573;
             let t2582 = t2576 + t2580;
@@ -4203,6 +4216,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
             let t2585 = s.4 * s.53;
             let t2586 = s.154 - t2585;
             let t2587 = s.4 * s.65;
@@ -4466,12 +4485,12 @@ pub mod portable {
             let t2848 = s.17 * t2840;
             let t2849 = t2847 - t2848;
             let t2850 = t2842 + t2849;
-            dc_dq[2][2] = t2850;
+            dc_dq.16 = t2850;
             let t2851 = t2715 - t2720;
             let t2852 = t2851 - t2718;
             let t2853 = t2852 + t2852;
             let t2854 = t2681 + t2853;
-            dc_dqd[2][2] = t2854;
+            dc_dqd.16 = t2854;
             let t2855 = s.34 * s.95;
             let t2856 = s.35 * s.97;
             let t2857 = t2855 + t2856;
@@ -4486,7 +4505,7 @@ pub mod portable {
             let t2866 = s.18 * s.106;
             let t2867 = t2865 + t2866;
             let t2868 = t2862 + t2867;
-            dc_dq[3][2] = t2868;
+            dc_dq.23 = t2868;
             let t2869 = s.16 * s.95;
             let t2870 = s.15 * s.97;
             let t2871 = t2869 - t2870;
@@ -4494,7 +4513,7 @@ pub mod portable {
             let t2873 = t2871 + t2872;
             let t2874 = t2873 + t2873;
             let t2875 = s.108 + t2874;
-            dc_dqd[3][2] = t2875;
+            dc_dqd.23 = t2875;
             let t2876 = s.34 * s.113;
             let t2877 = s.35 * s.114;
             let t2878 = t2876 + t2877;
@@ -4514,7 +4533,7 @@ pub mod portable {
             let t2892 = s.17 * s.57;
             let t2893 = t2891 + t2892;
             let t2894 = t2886 + t2893;
-            dc_dq[4][2] = t2894;
+            dc_dq.30 = t2894;
             let t2895 = s.16 * s.113;
             let t2896 = s.15 * s.114;
             let t2897 = t2895 - t2896;
@@ -4524,7 +4543,7 @@ pub mod portable {
             let t2901 = t2899 + t2900;
             let t2902 = t2901 + t2901;
             let t2903 = s.124 + t2902;
-            dc_dqd[4][2] = t2903;
+            dc_dqd.30 = t2903;
             let t2904 = s.34 * s.130;
             let t2905 = s.35 * s.131;
             let t2906 = t2904 + t2905;
@@ -4544,7 +4563,7 @@ pub mod portable {
             let t2920 = s.17 * s.61;
             let t2921 = t2919 - t2920;
             let t2922 = t2914 + t2921;
-            dc_dq[5][2] = t2922;
+            dc_dq.37 = t2922;
             let t2923 = s.16 * s.130;
             let t2924 = s.15 * s.131;
             let t2925 = t2923 - t2924;
@@ -4554,7 +4573,7 @@ pub mod portable {
             let t2929 = t2927 + t2928;
             let t2930 = t2929 + t2929;
             let t2931 = s.141 + t2930;
-            dc_dqd[5][2] = t2931;
+            dc_dqd.37 = t2931;
             let t2932 = s.34 * s.144;
             let t2933 = s.35 * s.62;
             let t2934 = t2932 + t2933;
@@ -4564,13 +4583,13 @@ pub mod portable {
             let t2938 = s.15 * s.66;
             let t2939 = t2937 + t2938;
             let t2940 = t2936 + t2939;
-            dc_dq[6][2] = t2940;
+            dc_dq.44 = t2940;
             let t2941 = s.16 * s.144;
             let t2942 = s.15 * s.62;
             let t2943 = t2941 - t2942;
             let t2944 = t2943 + t2943;
             let t2945 = t2589 + t2944;
-            dc_dqd[6][2] = t2945;
+            dc_dqd.44 = t2945;
             let t2946 = s.3 * t2631;
             let t2947 = s.2 * s.92;
             let t2948 = t2946 + t2947;
@@ -4603,7 +4622,7 @@ pub mod portable {
             let t2975 = lit::<T>(0.2045) * t2964;
             let t2976 = t2970 + t2974;
             let t2977 = t2973 - t2975;
-            dc_dqd[1][2] = t2977;
+            dc_dqd.9 = t2977;
             let t2978 = s.3 * t2835;
             let t2979 = s.2 * t2836;
             let t2980 = t2979 - t2978;
@@ -4620,7 +4639,7 @@ pub mod portable {
             let t2991 = lit::<T>(0.2045) * t2980;
             let t2992 = t2986 + t2990;
             let t2993 = t2989 - t2991;
-            dc_dq[1][2] = t2993;
+            dc_dq.9 = t2993;
             let t2994 = s.3 * t2839;
             let t2995 = s.2 * t2840;
             let t2996 = t2995 - t2994;
@@ -4666,7 +4685,7 @@ pub mod portable {
             let t3036 = lit::<T>(0.2045) * t3025;
             let t3037 = t3031 + t3035;
             let t3038 = t3034 - t3036;
-            dc_dqd[1][3] = t3038;
+            dc_dqd.10 = t3038;
             let t3039 = s.3 * s.102;
             let t3040 = -t3039;
             let t3041 = s.2 * s.88;
@@ -4684,7 +4703,7 @@ pub mod portable {
             let t3053 = lit::<T>(0.2045) * t3042;
             let t3054 = t3048 + t3052;
             let t3055 = t3051 - t3053;
-            dc_dq[1][3] = t3055;
+            dc_dq.10 = t3055;
             let t3056 = s.3 * s.106;
             let t3057 = s.2 * s.106;
             let t3058 = s.3 * s.107;
@@ -4731,7 +4750,7 @@ pub mod portable {
             let t3099 = lit::<T>(0.2045) * t3088;
             let t3100 = t3094 + t3098;
             let t3101 = t3097 - t3099;
-            dc_dqd[1][4] = t3101;
+            dc_dqd.11 = t3101;
             let t3102 = s.3 * s.119;
             let t3103 = -t3102;
             let t3104 = s.2 * s.56;
@@ -4749,7 +4768,7 @@ pub mod portable {
             let t3116 = lit::<T>(0.2045) * t3105;
             let t3117 = t3111 + t3115;
             let t3118 = t3114 - t3116;
-            dc_dq[1][4] = t3118;
+            dc_dq.11 = t3118;
             let t3119 = s.3 * s.123;
             let t3120 = -t3119;
             let t3121 = s.2 * s.57;
@@ -4801,7 +4820,7 @@ pub mod portable {
             let t3167 = lit::<T>(0.2045) * t3156;
             let t3168 = t3162 + t3166;
             let t3169 = t3165 - t3167;
-            dc_dqd[1][5] = t3169;
+            dc_dqd.12 = t3169;
             let t3170 = s.3 * s.136;
             let t3171 = -t3170;
             let t3172 = s.2 * s.60;
@@ -4819,7 +4838,7 @@ pub mod portable {
             let t3184 = lit::<T>(0.2045) * t3173;
             let t3185 = t3179 + t3183;
             let t3186 = t3182 - t3184;
-            dc_dq[1][5] = t3186;
+            dc_dq.12 = t3186;
             let t3187 = s.3 * s.140;
             let t3188 = s.2 * s.61;
             let t3189 = t3188 - t3187;
@@ -4859,7 +4878,7 @@ pub mod portable {
             let t3223 = lit::<T>(0.2045) * t3212;
             let t3224 = t3218 + t3222;
             let t3225 = t3221 - t3223;
-            dc_dqd[1][6] = t3225;
+            dc_dqd.13 = t3225;
             let t3226 = s.3 * s.150;
             let t3227 = -t3226;
             let t3228 = s.2 * s.64;
@@ -4877,7 +4896,7 @@ pub mod portable {
             let t3240 = lit::<T>(0.2045) * t3229;
             let t3241 = t3235 + t3239;
             let t3242 = t3238 - t3240;
-            dc_dq[1][6] = t3242;
+            dc_dq.13 = t3242;
             let t3243 = s.3 * t2586;
             let t3244 = -t3243;
             let t3245 = s.2 * s.66;
@@ -5041,7 +5060,7 @@ pub mod portable {
             let t3405 = t3400 + t3403;
             let t3406 = t3401 + t3404;
             let t3407 = t3340 + t3402;
-            dc_dqd[1][1] = t3407;
+            dc_dqd.8 = t3407;
             let t3408 = t3394 - t3398;
             let t3409 = t3397 - t3399;
             let t3410 = t3390 + t3408;
@@ -5056,7 +5075,7 @@ pub mod portable {
             let t3419 = s.6 * t3415;
             let t3420 = t3418 - t3419;
             let t3421 = t3417 + t3420;
-            dc_dq[1][1] = t3421;
+            dc_dq.8 = t3421;
             let t3422 = s.9 * t2960;
             let t3423 = s.8 * t2630;
             let t3424 = t3422 - t3423;
@@ -5068,13 +5087,13 @@ pub mod portable {
             let t3430 = s.6 * t2681;
             let t3431 = t3429 - t3430;
             let t3432 = t3428 + t3431;
-            dc_dq[2][1] = t3432;
+            dc_dq.15 = t3432;
             let t3433 = s.7 * t2960;
             let t3434 = s.6 * t2630;
             let t3435 = t3433 - t3434;
             let t3436 = t3435 + t3435;
             let t3437 = t3009 + t3436;
-            dc_dqd[2][1] = t3437;
+            dc_dqd.15 = t3437;
             let t3438 = s.9 * t3020;
             let t3439 = s.8 * s.96;
             let t3440 = t3438 - t3439;
@@ -5088,13 +5107,13 @@ pub mod portable {
             let t3448 = s.6 * s.108;
             let t3449 = t3447 - t3448;
             let t3450 = t3446 + t3449;
-            dc_dq[3][1] = t3450;
+            dc_dq.22 = t3450;
             let t3451 = s.7 * t3020;
             let t3452 = s.6 * s.96;
             let t3453 = t3451 - t3452;
             let t3454 = t3453 + t3453;
             let t3455 = t3067 + t3454;
-            dc_dqd[3][1] = t3455;
+            dc_dqd.22 = t3455;
             let t3456 = s.9 * t3083;
             let t3457 = s.8 * s.112;
             let t3458 = t3456 - t3457;
@@ -5108,13 +5127,13 @@ pub mod portable {
             let t3466 = s.6 * s.124;
             let t3467 = t3465 - t3466;
             let t3468 = t3464 + t3467;
-            dc_dq[4][1] = t3468;
+            dc_dq.29 = t3468;
             let t3469 = s.7 * t3083;
             let t3470 = s.6 * s.112;
             let t3471 = t3469 - t3470;
             let t3472 = t3471 + t3471;
             let t3473 = t3135 + t3472;
-            dc_dqd[4][1] = t3473;
+            dc_dqd.29 = t3473;
             let t3474 = s.9 * t3151;
             let t3475 = s.8 * s.129;
             let t3476 = t3474 - t3475;
@@ -5128,13 +5147,13 @@ pub mod portable {
             let t3484 = s.6 * s.141;
             let t3485 = t3483 - t3484;
             let t3486 = t3482 + t3485;
-            dc_dq[5][1] = t3486;
+            dc_dq.36 = t3486;
             let t3487 = s.7 * t3151;
             let t3488 = s.6 * s.129;
             let t3489 = t3487 - t3488;
             let t3490 = t3489 + t3489;
             let t3491 = t3202 + t3490;
-            dc_dqd[5][1] = t3491;
+            dc_dqd.36 = t3491;
             let t3492 = s.9 * t3205;
             let t3493 = s.8 * s.145;
             let t3494 = t3492 - t3493;
@@ -5144,85 +5163,85 @@ pub mod portable {
             let t3498 = s.6 * t2589;
             let t3499 = t3497 - t3498;
             let t3500 = t3496 + t3499;
-            dc_dq[6][1] = t3500;
+            dc_dq.43 = t3500;
             let t3501 = s.7 * t3205;
             let t3502 = s.6 * s.145;
             let t3503 = t3501 - t3502;
             let t3504 = t3503 + t3503;
             let t3505 = t3249 + t3504;
-            dc_dqd[6][1] = t3505;
+            dc_dqd.43 = t3505;
             let t3506 = s.0 * t3405;
             let t3507 = s.1 * t3406;
             let t3508 = t3506 + t3507;
-            dc_dqd[0][1] = t3508;
+            dc_dqd.1 = t3508;
             let t3509 = s.0 * t3412;
             let t3510 = s.1 * t3413;
             let t3511 = t3509 + t3510;
-            dc_dq[0][1] = t3511;
+            dc_dq.1 = t3511;
             let t3512 = s.0 * t3414;
             let t3513 = s.1 * t3415;
             let t3514 = t3512 + t3513;
-            dc_dqd[1][0] = t3514;
+            dc_dqd.7 = t3514;
             let t3515 = s.0 * t2976;
             let t3516 = s.1 * t2820;
             let t3517 = t3515 + t3516;
-            dc_dqd[0][2] = t3517;
+            dc_dqd.2 = t3517;
             let t3518 = s.0 * t2992;
             let t3519 = s.1 * t2830;
             let t3520 = t3518 + t3519;
-            dc_dq[0][2] = t3520;
+            dc_dq.2 = t3520;
             let t3521 = s.0 * t3008;
             let t3522 = s.1 * t2681;
             let t3523 = t3521 + t3522;
-            dc_dqd[2][0] = t3523;
+            dc_dqd.14 = t3523;
             let t3524 = s.0 * t3037;
             let t3525 = s.1 * s.99;
             let t3526 = t3524 + t3525;
-            dc_dqd[0][3] = t3526;
+            dc_dqd.3 = t3526;
             let t3527 = s.0 * t3054;
             let t3528 = s.1 * s.103;
             let t3529 = t3527 + t3528;
-            dc_dq[0][3] = t3529;
+            dc_dq.3 = t3529;
             let t3530 = s.0 * t3066;
             let t3531 = s.1 * s.108;
             let t3532 = t3530 + t3531;
-            dc_dqd[3][0] = t3532;
+            dc_dqd.21 = t3532;
             let t3533 = s.0 * t3100;
             let t3534 = s.1 * s.116;
             let t3535 = t3533 + t3534;
-            dc_dqd[0][4] = t3535;
+            dc_dqd.4 = t3535;
             let t3536 = s.0 * t3117;
             let t3537 = s.1 * s.120;
             let t3538 = t3536 + t3537;
-            dc_dq[0][4] = t3538;
+            dc_dq.4 = t3538;
             let t3539 = s.0 * t3134;
             let t3540 = s.1 * s.124;
             let t3541 = t3539 + t3540;
-            dc_dqd[4][0] = t3541;
+            dc_dqd.28 = t3541;
             let t3542 = s.0 * t3168;
             let t3543 = s.1 * s.133;
             let t3544 = t3542 + t3543;
-            dc_dqd[0][5] = t3544;
+            dc_dqd.5 = t3544;
             let t3545 = s.0 * t3185;
             let t3546 = s.1 * s.137;
             let t3547 = t3545 + t3546;
-            dc_dq[0][5] = t3547;
+            dc_dq.5 = t3547;
             let t3548 = s.0 * t3201;
             let t3549 = s.1 * s.141;
             let t3550 = t3548 + t3549;
-            dc_dqd[5][0] = t3550;
+            dc_dqd.35 = t3550;
             let t3551 = s.0 * t3224;
             let t3552 = s.1 * s.147;
             let t3553 = t3551 + t3552;
-            dc_dqd[0][6] = t3553;
+            dc_dqd.6 = t3553;
             let t3554 = s.0 * t3241;
             let t3555 = s.1 * s.151;
             let t3556 = t3554 + t3555;
-            dc_dq[0][6] = t3556;
+            dc_dq.6 = t3556;
             let t3557 = s.0 * t3246;
             let t3558 = s.1 * t2589;
             let t3559 = t3557 + t3558;
-            dc_dqd[6][0] = t3559;
+            dc_dqd.42 = t3559;
             let t3560 = s.0 * t3341;
             let t3561 = s.1 * t3342;
             let t3562 = t3560 + t3561;
@@ -5240,7 +5259,7 @@ pub mod portable {
             let t3574 = t3569 + t3569;
             let t3575 = t3573 - t3574;
             let t3576 = t3570 + t3575;
-            dc_dqd[0][0] = t3576;
+            dc_dqd.0 = t3576;
         }
     }
     use rnea_grad_part1::rnea_grad_part1;
@@ -9253,6 +9272,17 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 7 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f7<T>(T, T, T, T, T, T, T);
+    /// An array of 49 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -9266,6 +9296,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t5 = q[1].sin();
             s.0 = t5;
             let t6 = q[1].cos();
@@ -10767,7 +10804,7 @@ pub mod portable {
             let t1439 = t1390 * t1436;
             let t1440 = t1438 + t1439;
             let t1441 = t1393 * t1440;
-            qdd[0] = t1441;
+            qdd.0 = t1441;
             let t1442 = t1389 * t1436;
             let t1443 = t1380 * t1430;
             let t1444 = t1364 * t1422;
@@ -10776,19 +10813,19 @@ pub mod portable {
             let t1447 = lit::<T>(-200.0) * t1400;
             let t1448 = t1390 * t1441;
             let t1449 = t1442 + t1448;
-            qdd[1] = t1449;
+            qdd.1 = t1449;
             let t1450 = t1381 * t1449;
             let t1451 = t1443 + t1450;
             let t1452 = t1386 * t1441;
             let t1453 = t1451 + t1452;
-            qdd[2] = t1453;
+            qdd.2 = t1453;
             let t1454 = t1365 * t1453;
             let t1455 = t1444 + t1454;
             let t1456 = t1372 * t1449;
             let t1457 = t1455 + t1456;
             let t1458 = t1377 * t1441;
             let t1459 = t1457 + t1458;
-            qdd[3] = t1459;
+            qdd.3 = t1459;
             let t1460 = t1340 * t1459;
             let t1461 = t1445 + t1460;
             let t1462 = t1349 * t1453;
@@ -10797,7 +10834,7 @@ pub mod portable {
             let t1465 = t1463 + t1464;
             let t1466 = t1361 * t1441;
             let t1467 = t1465 + t1466;
-            qdd[4] = t1467;
+            qdd.4 = t1467;
             let t1468 = t1304 * t1467;
             let t1469 = t1446 + t1468;
             let t1470 = t1315 * t1459;
@@ -10808,7 +10845,7 @@ pub mod portable {
             let t1475 = t1473 + t1474;
             let t1476 = t1336 * t1441;
             let t1477 = t1475 + t1476;
-            qdd[5] = t1477;
+            qdd.5 = t1477;
             let t1478 = t1268 * t1467;
             let t1479 = t1447 + t1478;
             let t1480 = t1279 * t1459;
@@ -10819,7 +10856,7 @@ pub mod portable {
             let t1485 = t1483 + t1484;
             let t1486 = t1300 * t1441;
             let t1487 = t1485 + t1486;
-            qdd[6] = t1487;
+            qdd.6 = t1487;
             let t1488 = t5 * t1441;
             s.152 = t1488;
             let t1489 = t6 * t1441;
@@ -12054,6 +12091,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t2593 = s.121 + s.263;
             let t2594 = s.122 + s.262;
             let t2595 = s.123 + s.260;
@@ -13730,7 +13774,7 @@ pub mod portable {
             let t4254 = s.150 * t4251;
             let t4255 = t4253 + t4254;
             let t4256 = s.151 * t4255;
-            dqdd_dq[0][1] = t4256;
+            dqdd_dq.1 = t4256;
             let t4257 = s.149 * t4251;
             let t4258 = s.146 * t4245;
             let t4259 = s.142 * t4237;
@@ -13739,19 +13783,19 @@ pub mod portable {
             let t4262 = lit::<T>(-200.0) * t4139;
             let t4263 = s.150 * t4256;
             let t4264 = t4257 + t4263;
-            dqdd_dq[1][1] = t4264;
+            dqdd_dq.8 = t4264;
             let t4265 = s.147 * t4264;
             let t4266 = t4258 + t4265;
             let t4267 = s.148 * t4256;
             let t4268 = t4266 + t4267;
-            dqdd_dq[2][1] = t4268;
+            dqdd_dq.15 = t4268;
             let t4269 = s.143 * t4268;
             let t4270 = t4259 + t4269;
             let t4271 = s.144 * t4264;
             let t4272 = t4270 + t4271;
             let t4273 = s.145 * t4256;
             let t4274 = t4272 + t4273;
-            dqdd_dq[3][1] = t4274;
+            dqdd_dq.22 = t4274;
             let t4275 = s.138 * t4274;
             let t4276 = t4260 + t4275;
             let t4277 = s.139 * t4268;
@@ -13760,7 +13804,7 @@ pub mod portable {
             let t4280 = t4278 + t4279;
             let t4281 = s.141 * t4256;
             let t4282 = t4280 + t4281;
-            dqdd_dq[4][1] = t4282;
+            dqdd_dq.29 = t4282;
             let t4283 = s.132 * t4282;
             let t4284 = t4261 + t4283;
             let t4285 = s.133 * t4274;
@@ -13771,7 +13815,7 @@ pub mod portable {
             let t4290 = t4288 + t4289;
             let t4291 = s.136 * t4256;
             let t4292 = t4290 + t4291;
-            dqdd_dq[5][1] = t4292;
+            dqdd_dq.36 = t4292;
             let t4293 = s.126 * t4282;
             let t4294 = t4262 + t4293;
             let t4295 = s.127 * t4274;
@@ -13782,7 +13826,7 @@ pub mod portable {
             let t4300 = t4298 + t4299;
             let t4301 = s.130 * t4256;
             let t4302 = t4300 + t4301;
-            dqdd_dq[6][1] = t4302;
+            dqdd_dq.43 = t4302;
             let t4303 = s.126 * t3690;
             let t4304 = t3644 + t4303;
             let t4305 = s.127 * t3690;
@@ -13824,7 +13868,7 @@ pub mod portable {
             let t4341 = s.150 * t4338;
             let t4342 = t4340 + t4341;
             let t4343 = s.151 * t4342;
-            dqdd_dq[0][2] = t4343;
+            dqdd_dq.2 = t4343;
             let t4344 = s.149 * t4338;
             let t4345 = s.146 * t4332;
             let t4346 = s.142 * t4324;
@@ -13833,19 +13877,19 @@ pub mod portable {
             let t4349 = lit::<T>(-200.0) * t3690;
             let t4350 = s.150 * t4343;
             let t4351 = t4344 + t4350;
-            dqdd_dq[1][2] = t4351;
+            dqdd_dq.9 = t4351;
             let t4352 = s.147 * t4351;
             let t4353 = t4345 + t4352;
             let t4354 = s.148 * t4343;
             let t4355 = t4353 + t4354;
-            dqdd_dq[2][2] = t4355;
+            dqdd_dq.16 = t4355;
             let t4356 = s.143 * t4355;
             let t4357 = t4346 + t4356;
             let t4358 = s.144 * t4351;
             let t4359 = t4357 + t4358;
             let t4360 = s.145 * t4343;
             let t4361 = t4359 + t4360;
-            dqdd_dq[3][2] = t4361;
+            dqdd_dq.23 = t4361;
             let t4362 = s.138 * t4361;
             let t4363 = t4347 + t4362;
             let t4364 = s.139 * t4355;
@@ -13854,7 +13898,7 @@ pub mod portable {
             let t4367 = t4365 + t4366;
             let t4368 = s.141 * t4343;
             let t4369 = t4367 + t4368;
-            dqdd_dq[4][2] = t4369;
+            dqdd_dq.30 = t4369;
             let t4370 = s.132 * t4369;
             let t4371 = t4348 + t4370;
             let t4372 = s.133 * t4361;
@@ -13865,7 +13909,7 @@ pub mod portable {
             let t4377 = t4375 + t4376;
             let t4378 = s.136 * t4343;
             let t4379 = t4377 + t4378;
-            dqdd_dq[5][2] = t4379;
+            dqdd_dq.37 = t4379;
             let t4380 = s.126 * t4369;
             let t4381 = t4349 + t4380;
             let t4382 = s.127 * t4361;
@@ -13876,7 +13920,7 @@ pub mod portable {
             let t4387 = t4385 + t4386;
             let t4388 = s.130 * t4343;
             let t4389 = t4387 + t4388;
-            dqdd_dq[6][2] = t4389;
+            dqdd_dq.44 = t4389;
             let t4390 = s.126 * t3233;
             let t4391 = t3189 + t4390;
             let t4392 = s.127 * t3233;
@@ -13918,7 +13962,7 @@ pub mod portable {
             let t4428 = s.150 * t4425;
             let t4429 = t4427 + t4428;
             let t4430 = s.151 * t4429;
-            dqdd_dq[0][3] = t4430;
+            dqdd_dq.3 = t4430;
             let t4431 = s.149 * t4425;
             let t4432 = s.146 * t4419;
             let t4433 = s.142 * t4411;
@@ -13927,19 +13971,19 @@ pub mod portable {
             let t4436 = lit::<T>(-200.0) * t3233;
             let t4437 = s.150 * t4430;
             let t4438 = t4431 + t4437;
-            dqdd_dq[1][3] = t4438;
+            dqdd_dq.10 = t4438;
             let t4439 = s.147 * t4438;
             let t4440 = t4432 + t4439;
             let t4441 = s.148 * t4430;
             let t4442 = t4440 + t4441;
-            dqdd_dq[2][3] = t4442;
+            dqdd_dq.17 = t4442;
             let t4443 = s.143 * t4442;
             let t4444 = t4433 + t4443;
             let t4445 = s.144 * t4438;
             let t4446 = t4444 + t4445;
             let t4447 = s.145 * t4430;
             let t4448 = t4446 + t4447;
-            dqdd_dq[3][3] = t4448;
+            dqdd_dq.24 = t4448;
             let t4449 = s.138 * t4448;
             let t4450 = t4434 + t4449;
             let t4451 = s.139 * t4442;
@@ -13948,7 +13992,7 @@ pub mod portable {
             let t4454 = t4452 + t4453;
             let t4455 = s.141 * t4430;
             let t4456 = t4454 + t4455;
-            dqdd_dq[4][3] = t4456;
+            dqdd_dq.31 = t4456;
             let t4457 = s.132 * t4456;
             let t4458 = t4435 + t4457;
             let t4459 = s.133 * t4448;
@@ -13959,7 +14003,7 @@ pub mod portable {
             let t4464 = t4462 + t4463;
             let t4465 = s.136 * t4430;
             let t4466 = t4464 + t4465;
-            dqdd_dq[5][3] = t4466;
+            dqdd_dq.38 = t4466;
             let t4467 = s.126 * t4456;
             let t4468 = t4436 + t4467;
             let t4469 = s.127 * t4448;
@@ -13970,7 +14014,7 @@ pub mod portable {
             let t4474 = t4472 + t4473;
             let t4475 = s.130 * t4430;
             let t4476 = t4474 + t4475;
-            dqdd_dq[6][3] = t4476;
+            dqdd_dq.45 = t4476;
             let t4477 = s.126 * t2796;
             let t4478 = t2762 + t4477;
             let t4479 = s.127 * t2796;
@@ -14012,7 +14056,7 @@ pub mod portable {
             let t4515 = s.150 * t4512;
             let t4516 = t4514 + t4515;
             let t4517 = s.151 * t4516;
-            dqdd_dq[0][4] = t4517;
+            dqdd_dq.4 = t4517;
             let t4518 = s.149 * t4512;
             let t4519 = s.146 * t4506;
             let t4520 = s.142 * t4498;
@@ -14021,19 +14065,19 @@ pub mod portable {
             let t4523 = lit::<T>(-200.0) * t2796;
             let t4524 = s.150 * t4517;
             let t4525 = t4518 + t4524;
-            dqdd_dq[1][4] = t4525;
+            dqdd_dq.11 = t4525;
             let t4526 = s.147 * t4525;
             let t4527 = t4519 + t4526;
             let t4528 = s.148 * t4517;
             let t4529 = t4527 + t4528;
-            dqdd_dq[2][4] = t4529;
+            dqdd_dq.18 = t4529;
             let t4530 = s.143 * t4529;
             let t4531 = t4520 + t4530;
             let t4532 = s.144 * t4525;
             let t4533 = t4531 + t4532;
             let t4534 = s.145 * t4517;
             let t4535 = t4533 + t4534;
-            dqdd_dq[3][4] = t4535;
+            dqdd_dq.25 = t4535;
             let t4536 = s.138 * t4535;
             let t4537 = t4521 + t4536;
             let t4538 = s.139 * t4529;
@@ -14042,7 +14086,7 @@ pub mod portable {
             let t4541 = t4539 + t4540;
             let t4542 = s.141 * t4517;
             let t4543 = t4541 + t4542;
-            dqdd_dq[4][4] = t4543;
+            dqdd_dq.32 = t4543;
             let t4544 = s.132 * t4543;
             let t4545 = t4522 + t4544;
             let t4546 = s.133 * t4535;
@@ -14053,7 +14097,7 @@ pub mod portable {
             let t4551 = t4549 + t4550;
             let t4552 = s.136 * t4517;
             let t4553 = t4551 + t4552;
-            dqdd_dq[5][4] = t4553;
+            dqdd_dq.39 = t4553;
             let t4554 = s.126 * t4543;
             let t4555 = t4523 + t4554;
             let t4556 = s.127 * t4535;
@@ -14064,7 +14108,7 @@ pub mod portable {
             let t4561 = t4559 + t4560;
             let t4562 = s.130 * t4517;
             let t4563 = t4561 + t4562;
-            dqdd_dq[6][4] = t4563;
+            dqdd_dq.46 = t4563;
             let t4564 = s.126 * s.222;
             let t4565 = s.231 + t4564;
             let t4566 = s.127 * s.222;
@@ -14106,7 +14150,7 @@ pub mod portable {
             let t4602 = s.150 * t4599;
             let t4603 = t4601 + t4602;
             let t4604 = s.151 * t4603;
-            dqdd_dq[0][5] = t4604;
+            dqdd_dq.5 = t4604;
             let t4605 = s.149 * t4599;
             let t4606 = s.146 * t4593;
             let t4607 = s.142 * t4585;
@@ -14115,19 +14159,19 @@ pub mod portable {
             let t4610 = lit::<T>(-200.0) * s.222;
             let t4611 = s.150 * t4604;
             let t4612 = t4605 + t4611;
-            dqdd_dq[1][5] = t4612;
+            dqdd_dq.12 = t4612;
             let t4613 = s.147 * t4612;
             let t4614 = t4606 + t4613;
             let t4615 = s.148 * t4604;
             let t4616 = t4614 + t4615;
-            dqdd_dq[2][5] = t4616;
+            dqdd_dq.19 = t4616;
             let t4617 = s.143 * t4616;
             let t4618 = t4607 + t4617;
             let t4619 = s.144 * t4612;
             let t4620 = t4618 + t4619;
             let t4621 = s.145 * t4604;
             let t4622 = t4620 + t4621;
-            dqdd_dq[3][5] = t4622;
+            dqdd_dq.26 = t4622;
             let t4623 = s.138 * t4622;
             let t4624 = t4608 + t4623;
             let t4625 = s.139 * t4616;
@@ -14136,7 +14180,7 @@ pub mod portable {
             let t4628 = t4626 + t4627;
             let t4629 = s.141 * t4604;
             let t4630 = t4628 + t4629;
-            dqdd_dq[4][5] = t4630;
+            dqdd_dq.33 = t4630;
             let t4631 = s.132 * t4630;
             let t4632 = t4609 + t4631;
             let t4633 = s.133 * t4622;
@@ -14147,7 +14191,7 @@ pub mod portable {
             let t4638 = t4636 + t4637;
             let t4639 = s.136 * t4604;
             let t4640 = t4638 + t4639;
-            dqdd_dq[5][5] = t4640;
+            dqdd_dq.40 = t4640;
             let t4641 = s.126 * t4630;
             let t4642 = t4610 + t4641;
             let t4643 = s.127 * t4622;
@@ -14158,7 +14202,7 @@ pub mod portable {
             let t4648 = t4646 + t4647;
             let t4649 = s.130 * t4604;
             let t4650 = t4648 + t4649;
-            dqdd_dq[6][5] = t4650;
+            dqdd_dq.47 = t4650;
             let t4651 = s.126 * s.211;
             let t4652 = s.246 + t4651;
             let t4653 = s.127 * s.211;
@@ -14200,7 +14244,7 @@ pub mod portable {
             let t4689 = s.150 * t4686;
             let t4690 = t4688 + t4689;
             let t4691 = s.151 * t4690;
-            dqdd_dq[0][6] = t4691;
+            dqdd_dq.6 = t4691;
             let t4692 = s.149 * t4686;
             let t4693 = s.146 * t4680;
             let t4694 = s.142 * t4672;
@@ -14209,19 +14253,19 @@ pub mod portable {
             let t4697 = lit::<T>(-200.0) * s.211;
             let t4698 = s.150 * t4691;
             let t4699 = t4692 + t4698;
-            dqdd_dq[1][6] = t4699;
+            dqdd_dq.13 = t4699;
             let t4700 = s.147 * t4699;
             let t4701 = t4693 + t4700;
             let t4702 = s.148 * t4691;
             let t4703 = t4701 + t4702;
-            dqdd_dq[2][6] = t4703;
+            dqdd_dq.20 = t4703;
             let t4704 = s.143 * t4703;
             let t4705 = t4694 + t4704;
             let t4706 = s.144 * t4699;
             let t4707 = t4705 + t4706;
             let t4708 = s.145 * t4691;
             let t4709 = t4707 + t4708;
-            dqdd_dq[3][6] = t4709;
+            dqdd_dq.27 = t4709;
             let t4710 = s.138 * t4709;
             let t4711 = t4695 + t4710;
             let t4712 = s.139 * t4703;
@@ -14230,7 +14274,7 @@ pub mod portable {
             let t4715 = t4713 + t4714;
             let t4716 = s.141 * t4691;
             let t4717 = t4715 + t4716;
-            dqdd_dq[4][6] = t4717;
+            dqdd_dq.34 = t4717;
             let t4718 = s.132 * t4717;
             let t4719 = t4696 + t4718;
             let t4720 = s.133 * t4709;
@@ -14241,7 +14285,7 @@ pub mod portable {
             let t4725 = t4723 + t4724;
             let t4726 = s.136 * t4691;
             let t4727 = t4725 + t4726;
-            dqdd_dq[5][6] = t4727;
+            dqdd_dq.41 = t4727;
             let t4728 = s.126 * t4717;
             let t4729 = t4697 + t4728;
             let t4730 = s.127 * t4709;
@@ -14252,7 +14296,7 @@ pub mod portable {
             let t4735 = t4733 + t4734;
             let t4736 = s.130 * t4691;
             let t4737 = t4735 + t4736;
-            dqdd_dq[6][6] = t4737;
+            dqdd_dq.48 = t4737;
             let t4738 = s.126 * t4198;
             let t4739 = t4180 + t4738;
             let t4740 = s.127 * t4198;
@@ -14294,7 +14338,7 @@ pub mod portable {
             let t4776 = s.150 * t4773;
             let t4777 = t4775 + t4776;
             let t4778 = s.151 * t4777;
-            dqdd_dqd[0][0] = t4778;
+            dqdd_dqd.0 = t4778;
             let t4779 = s.149 * t4773;
             let t4780 = s.146 * t4767;
             let t4781 = s.142 * t4759;
@@ -14303,19 +14347,19 @@ pub mod portable {
             let t4784 = lit::<T>(-200.0) * t4198;
             let t4785 = s.150 * t4778;
             let t4786 = t4779 + t4785;
-            dqdd_dqd[1][0] = t4786;
+            dqdd_dqd.7 = t4786;
             let t4787 = s.147 * t4786;
             let t4788 = t4780 + t4787;
             let t4789 = s.148 * t4778;
             let t4790 = t4788 + t4789;
-            dqdd_dqd[2][0] = t4790;
+            dqdd_dqd.14 = t4790;
             let t4791 = s.143 * t4790;
             let t4792 = t4781 + t4791;
             let t4793 = s.144 * t4786;
             let t4794 = t4792 + t4793;
             let t4795 = s.145 * t4778;
             let t4796 = t4794 + t4795;
-            dqdd_dqd[3][0] = t4796;
+            dqdd_dqd.21 = t4796;
             let t4797 = s.138 * t4796;
             let t4798 = t4782 + t4797;
             let t4799 = s.139 * t4790;
@@ -14324,7 +14368,7 @@ pub mod portable {
             let t4802 = t4800 + t4801;
             let t4803 = s.141 * t4778;
             let t4804 = t4802 + t4803;
-            dqdd_dqd[4][0] = t4804;
+            dqdd_dqd.28 = t4804;
             let t4805 = s.132 * t4804;
             let t4806 = t4783 + t4805;
             let t4807 = s.133 * t4796;
@@ -14335,7 +14379,7 @@ pub mod portable {
             let t4812 = t4810 + t4811;
             let t4813 = s.136 * t4778;
             let t4814 = t4812 + t4813;
-            dqdd_dqd[5][0] = t4814;
+            dqdd_dqd.35 = t4814;
             let t4815 = s.126 * t4804;
             let t4816 = t4784 + t4815;
             let t4817 = s.127 * t4796;
@@ -14346,7 +14390,7 @@ pub mod portable {
             let t4822 = t4820 + t4821;
             let t4823 = s.130 * t4778;
             let t4824 = t4822 + t4823;
-            dqdd_dqd[6][0] = t4824;
+            dqdd_dqd.42 = t4824;
             let t4825 = s.126 * t4144;
             let t4826 = t4112 + t4825;
             let t4827 = s.127 * t4144;
@@ -14388,7 +14432,7 @@ pub mod portable {
             let t4863 = s.150 * t4860;
             let t4864 = t4862 + t4863;
             let t4865 = s.151 * t4864;
-            dqdd_dqd[0][1] = t4865;
+            dqdd_dqd.1 = t4865;
             let t4866 = s.149 * t4860;
             let t4867 = s.146 * t4854;
             let t4868 = s.142 * t4846;
@@ -14397,19 +14441,19 @@ pub mod portable {
             let t4871 = lit::<T>(-200.0) * t4144;
             let t4872 = s.150 * t4865;
             let t4873 = t4866 + t4872;
-            dqdd_dqd[1][1] = t4873;
+            dqdd_dqd.8 = t4873;
             let t4874 = s.147 * t4873;
             let t4875 = t4867 + t4874;
             let t4876 = s.148 * t4865;
             let t4877 = t4875 + t4876;
-            dqdd_dqd[2][1] = t4877;
+            dqdd_dqd.15 = t4877;
             let t4878 = s.143 * t4877;
             let t4879 = t4868 + t4878;
             let t4880 = s.144 * t4873;
             let t4881 = t4879 + t4880;
             let t4882 = s.145 * t4865;
             let t4883 = t4881 + t4882;
-            dqdd_dqd[3][1] = t4883;
+            dqdd_dqd.22 = t4883;
             let t4884 = s.138 * t4883;
             let t4885 = t4869 + t4884;
             let t4886 = s.139 * t4877;
@@ -14418,7 +14462,7 @@ pub mod portable {
             let t4889 = t4887 + t4888;
             let t4890 = s.141 * t4865;
             let t4891 = t4889 + t4890;
-            dqdd_dqd[4][1] = t4891;
+            dqdd_dqd.29 = t4891;
             let t4892 = s.132 * t4891;
             let t4893 = t4870 + t4892;
             let t4894 = s.133 * t4883;
@@ -14429,7 +14473,7 @@ pub mod portable {
             let t4899 = t4897 + t4898;
             let t4900 = s.136 * t4865;
             let t4901 = t4899 + t4900;
-            dqdd_dqd[5][1] = t4901;
+            dqdd_dqd.36 = t4901;
             let t4902 = s.126 * t4891;
             let t4903 = t4871 + t4902;
             let t4904 = s.127 * t4883;
@@ -14440,7 +14484,7 @@ pub mod portable {
             let t4909 = t4907 + t4908;
             let t4910 = s.130 * t4865;
             let t4911 = t4909 + t4910;
-            dqdd_dqd[6][1] = t4911;
+            dqdd_dqd.43 = t4911;
             let t4912 = s.126 * t3695;
             let t4913 = t3653 + t4912;
             let t4914 = s.127 * t3695;
@@ -14482,7 +14526,7 @@ pub mod portable {
             let t4950 = s.150 * t4947;
             let t4951 = t4949 + t4950;
             let t4952 = s.151 * t4951;
-            dqdd_dqd[0][2] = t4952;
+            dqdd_dqd.2 = t4952;
             let t4953 = s.149 * t4947;
             let t4954 = s.146 * t4941;
             let t4955 = s.142 * t4933;
@@ -14491,19 +14535,19 @@ pub mod portable {
             let t4958 = lit::<T>(-200.0) * t3695;
             let t4959 = s.150 * t4952;
             let t4960 = t4953 + t4959;
-            dqdd_dqd[1][2] = t4960;
+            dqdd_dqd.9 = t4960;
             let t4961 = s.147 * t4960;
             let t4962 = t4954 + t4961;
             let t4963 = s.148 * t4952;
             let t4964 = t4962 + t4963;
-            dqdd_dqd[2][2] = t4964;
+            dqdd_dqd.16 = t4964;
             let t4965 = s.143 * t4964;
             let t4966 = t4955 + t4965;
             let t4967 = s.144 * t4960;
             let t4968 = t4966 + t4967;
             let t4969 = s.145 * t4952;
             let t4970 = t4968 + t4969;
-            dqdd_dqd[3][2] = t4970;
+            dqdd_dqd.23 = t4970;
             let t4971 = s.138 * t4970;
             let t4972 = t4956 + t4971;
             let t4973 = s.139 * t4964;
@@ -14512,7 +14556,7 @@ pub mod portable {
             let t4976 = t4974 + t4975;
             let t4977 = s.141 * t4952;
             let t4978 = t4976 + t4977;
-            dqdd_dqd[4][2] = t4978;
+            dqdd_dqd.30 = t4978;
             let t4979 = s.132 * t4978;
             let t4980 = t4957 + t4979;
             let t4981 = s.133 * t4970;
@@ -14523,7 +14567,7 @@ pub mod portable {
             let t4986 = t4984 + t4985;
             let t4987 = s.136 * t4952;
             let t4988 = t4986 + t4987;
-            dqdd_dqd[5][2] = t4988;
+            dqdd_dqd.37 = t4988;
             let t4989 = s.126 * t4978;
             let t4990 = t4958 + t4989;
             let t4991 = s.127 * t4970;
@@ -14534,7 +14578,7 @@ pub mod portable {
             let t4996 = t4994 + t4995;
             let t4997 = s.130 * t4952;
             let t4998 = t4996 + t4997;
-            dqdd_dqd[6][2] = t4998;
+            dqdd_dqd.44 = t4998;
             let t4999 = s.126 * t3238;
             let t5000 = t3196 + t4999;
             let t5001 = s.127 * t3238;
@@ -14576,7 +14620,7 @@ pub mod portable {
             let t5037 = s.150 * t5034;
             let t5038 = t5036 + t5037;
             let t5039 = s.151 * t5038;
-            dqdd_dqd[0][3] = t5039;
+            dqdd_dqd.3 = t5039;
             let t5040 = s.149 * t5034;
             let t5041 = s.146 * t5028;
             let t5042 = s.142 * t5020;
@@ -14585,19 +14629,19 @@ pub mod portable {
             let t5045 = lit::<T>(-200.0) * t3238;
             let t5046 = s.150 * t5039;
             let t5047 = t5040 + t5046;
-            dqdd_dqd[1][3] = t5047;
+            dqdd_dqd.10 = t5047;
             let t5048 = s.147 * t5047;
             let t5049 = t5041 + t5048;
             let t5050 = s.148 * t5039;
             let t5051 = t5049 + t5050;
-            dqdd_dqd[2][3] = t5051;
+            dqdd_dqd.17 = t5051;
             let t5052 = s.143 * t5051;
             let t5053 = t5042 + t5052;
             let t5054 = s.144 * t5047;
             let t5055 = t5053 + t5054;
             let t5056 = s.145 * t5039;
             let t5057 = t5055 + t5056;
-            dqdd_dqd[3][3] = t5057;
+            dqdd_dqd.24 = t5057;
             let t5058 = s.138 * t5057;
             let t5059 = t5043 + t5058;
             let t5060 = s.139 * t5051;
@@ -14606,7 +14650,7 @@ pub mod portable {
             let t5063 = t5061 + t5062;
             let t5064 = s.141 * t5039;
             let t5065 = t5063 + t5064;
-            dqdd_dqd[4][3] = t5065;
+            dqdd_dqd.31 = t5065;
             let t5066 = s.132 * t5065;
             let t5067 = t5044 + t5066;
             let t5068 = s.133 * t5057;
@@ -14617,7 +14661,7 @@ pub mod portable {
             let t5073 = t5071 + t5072;
             let t5074 = s.136 * t5039;
             let t5075 = t5073 + t5074;
-            dqdd_dqd[5][3] = t5075;
+            dqdd_dqd.38 = t5075;
             let t5076 = s.126 * t5065;
             let t5077 = t5045 + t5076;
             let t5078 = s.127 * t5057;
@@ -14628,7 +14672,7 @@ pub mod portable {
             let t5083 = t5081 + t5082;
             let t5084 = s.130 * t5039;
             let t5085 = t5083 + t5084;
-            dqdd_dqd[6][3] = t5085;
+            dqdd_dqd.45 = t5085;
             let t5086 = s.126 * t2800;
             let t5087 = t2767 + t5086;
             s.277 = t5087;
@@ -14656,6 +14700,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t5093 = s.271 + s.280;
             let t5094 = s.130 * s.266;
             let t5095 = s.274 + t5094;
@@ -14690,7 +14741,7 @@ pub mod portable {
             let t5124 = s.150 * t5121;
             let t5125 = t5123 + t5124;
             let t5126 = s.151 * t5125;
-            dqdd_dqd[0][4] = t5126;
+            dqdd_dqd.4 = t5126;
             let t5127 = s.149 * t5121;
             let t5128 = s.146 * t5115;
             let t5129 = s.142 * t5107;
@@ -14699,19 +14750,19 @@ pub mod portable {
             let t5132 = lit::<T>(-200.0) * s.266;
             let t5133 = s.150 * t5126;
             let t5134 = t5127 + t5133;
-            dqdd_dqd[1][4] = t5134;
+            dqdd_dqd.11 = t5134;
             let t5135 = s.147 * t5134;
             let t5136 = t5128 + t5135;
             let t5137 = s.148 * t5126;
             let t5138 = t5136 + t5137;
-            dqdd_dqd[2][4] = t5138;
+            dqdd_dqd.18 = t5138;
             let t5139 = s.143 * t5138;
             let t5140 = t5129 + t5139;
             let t5141 = s.144 * t5134;
             let t5142 = t5140 + t5141;
             let t5143 = s.145 * t5126;
             let t5144 = t5142 + t5143;
-            dqdd_dqd[3][4] = t5144;
+            dqdd_dqd.25 = t5144;
             let t5145 = s.138 * t5144;
             let t5146 = t5130 + t5145;
             let t5147 = s.139 * t5138;
@@ -14720,7 +14771,7 @@ pub mod portable {
             let t5150 = t5148 + t5149;
             let t5151 = s.141 * t5126;
             let t5152 = t5150 + t5151;
-            dqdd_dqd[4][4] = t5152;
+            dqdd_dqd.32 = t5152;
             let t5153 = s.132 * t5152;
             let t5154 = t5131 + t5153;
             let t5155 = s.133 * t5144;
@@ -14731,7 +14782,7 @@ pub mod portable {
             let t5160 = t5158 + t5159;
             let t5161 = s.136 * t5126;
             let t5162 = t5160 + t5161;
-            dqdd_dqd[5][4] = t5162;
+            dqdd_dqd.39 = t5162;
             let t5163 = s.126 * t5152;
             let t5164 = t5132 + t5163;
             let t5165 = s.127 * t5144;
@@ -14742,7 +14793,7 @@ pub mod portable {
             let t5170 = t5168 + t5169;
             let t5171 = s.130 * t5126;
             let t5172 = t5170 + t5171;
-            dqdd_dqd[6][4] = t5172;
+            dqdd_dqd.46 = t5172;
             let t5173 = s.126 * s.223;
             let t5174 = s.226 + t5173;
             let t5175 = s.127 * s.223;
@@ -14784,7 +14835,7 @@ pub mod portable {
             let t5211 = s.150 * t5208;
             let t5212 = t5210 + t5211;
             let t5213 = s.151 * t5212;
-            dqdd_dqd[0][5] = t5213;
+            dqdd_dqd.5 = t5213;
             let t5214 = s.149 * t5208;
             let t5215 = s.146 * t5202;
             let t5216 = s.142 * t5194;
@@ -14793,19 +14844,19 @@ pub mod portable {
             let t5219 = lit::<T>(-200.0) * s.223;
             let t5220 = s.150 * t5213;
             let t5221 = t5214 + t5220;
-            dqdd_dqd[1][5] = t5221;
+            dqdd_dqd.12 = t5221;
             let t5222 = s.147 * t5221;
             let t5223 = t5215 + t5222;
             let t5224 = s.148 * t5213;
             let t5225 = t5223 + t5224;
-            dqdd_dqd[2][5] = t5225;
+            dqdd_dqd.19 = t5225;
             let t5226 = s.143 * t5225;
             let t5227 = t5216 + t5226;
             let t5228 = s.144 * t5221;
             let t5229 = t5227 + t5228;
             let t5230 = s.145 * t5213;
             let t5231 = t5229 + t5230;
-            dqdd_dqd[3][5] = t5231;
+            dqdd_dqd.26 = t5231;
             let t5232 = s.138 * t5231;
             let t5233 = t5217 + t5232;
             let t5234 = s.139 * t5225;
@@ -14814,7 +14865,7 @@ pub mod portable {
             let t5237 = t5235 + t5236;
             let t5238 = s.141 * t5213;
             let t5239 = t5237 + t5238;
-            dqdd_dqd[4][5] = t5239;
+            dqdd_dqd.33 = t5239;
             let t5240 = s.132 * t5239;
             let t5241 = t5218 + t5240;
             let t5242 = s.133 * t5231;
@@ -14825,7 +14876,7 @@ pub mod portable {
             let t5247 = t5245 + t5246;
             let t5248 = s.136 * t5213;
             let t5249 = t5247 + t5248;
-            dqdd_dqd[5][5] = t5249;
+            dqdd_dqd.40 = t5249;
             let t5250 = s.126 * t5239;
             let t5251 = t5219 + t5250;
             let t5252 = s.127 * t5231;
@@ -14836,7 +14887,7 @@ pub mod portable {
             let t5257 = t5255 + t5256;
             let t5258 = s.130 * t5213;
             let t5259 = t5257 + t5258;
-            dqdd_dqd[6][5] = t5259;
+            dqdd_dqd.47 = t5259;
             let t5260 = s.126 * s.210;
             let t5261 = s.241 + t5260;
             let t5262 = s.127 * s.210;
@@ -14878,7 +14929,7 @@ pub mod portable {
             let t5298 = s.150 * t5295;
             let t5299 = t5297 + t5298;
             let t5300 = s.151 * t5299;
-            dqdd_dqd[0][6] = t5300;
+            dqdd_dqd.6 = t5300;
             let t5301 = s.149 * t5295;
             let t5302 = s.146 * t5289;
             let t5303 = s.142 * t5281;
@@ -14887,19 +14938,19 @@ pub mod portable {
             let t5306 = lit::<T>(-200.0) * s.210;
             let t5307 = s.150 * t5300;
             let t5308 = t5301 + t5307;
-            dqdd_dqd[1][6] = t5308;
+            dqdd_dqd.13 = t5308;
             let t5309 = s.147 * t5308;
             let t5310 = t5302 + t5309;
             let t5311 = s.148 * t5300;
             let t5312 = t5310 + t5311;
-            dqdd_dqd[2][6] = t5312;
+            dqdd_dqd.20 = t5312;
             let t5313 = s.143 * t5312;
             let t5314 = t5303 + t5313;
             let t5315 = s.144 * t5308;
             let t5316 = t5314 + t5315;
             let t5317 = s.145 * t5300;
             let t5318 = t5316 + t5317;
-            dqdd_dqd[3][6] = t5318;
+            dqdd_dqd.27 = t5318;
             let t5319 = s.138 * t5318;
             let t5320 = t5304 + t5319;
             let t5321 = s.139 * t5312;
@@ -14908,7 +14959,7 @@ pub mod portable {
             let t5324 = t5322 + t5323;
             let t5325 = s.141 * t5300;
             let t5326 = t5324 + t5325;
-            dqdd_dqd[4][6] = t5326;
+            dqdd_dqd.34 = t5326;
             let t5327 = s.132 * t5326;
             let t5328 = t5305 + t5327;
             let t5329 = s.133 * t5318;
@@ -14919,7 +14970,7 @@ pub mod portable {
             let t5334 = t5332 + t5333;
             let t5335 = s.136 * t5300;
             let t5336 = t5334 + t5335;
-            dqdd_dqd[5][6] = t5336;
+            dqdd_dqd.41 = t5336;
             let t5337 = s.126 * t5326;
             let t5338 = t5306 + t5337;
             let t5339 = s.127 * t5318;
@@ -14930,7 +14981,7 @@ pub mod portable {
             let t5344 = t5342 + t5343;
             let t5345 = s.130 * t5300;
             let t5346 = t5344 + t5345;
-            dqdd_dqd[6][6] = t5346;
+            dqdd_dqd.48 = t5346;
         }
     }
     use fd_grad_part2::fd_grad_part2;
@@ -15657,6 +15708,13 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T,
     );
+    /// An array of 49 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -15670,6 +15728,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
             let t3 = q[1].sin();
             s.0 = t3;
             let t4 = q[1].cos();
@@ -16518,7 +16582,7 @@ pub mod fma {
             let t1145 = t1144 - t706;
             let t1146 = t1140 + t1140;
             let t1147 = t1141 - t1146;
-            dc_dqd[6][6] = t1147;
+            dc_dqd.48 = t1147;
             let t1148 = -t710;
             let t1149 = t706 - t703;
             let t1150 = t1148 - t708;
@@ -16589,7 +16653,7 @@ pub mod fma {
             let t1225 = t667 * t1223;
             let t1226 = T::mul_add(t670, t1222, -t1225);
             let t1227 = t1153 + t1226;
-            dc_dq[6][6] = t1227;
+            dc_dq.48 = t1227;
             let t1228 = t60 * t1204;
             let t1230 = T::mul_add(t59, t1205, -t1228);
             let t1232 = t60 * t1205;
@@ -16600,7 +16664,7 @@ pub mod fma {
             let t1239 = T::mul_add(t59, t1202, t1238);
             let t1242 = T::mul_add(lit::<T>(0.081), t1233, t1236);
             let t1243 = T::mul_add(-lit::<T>(0.081), t1230, t1239);
-            dc_dqd[5][6] = t1243;
+            dc_dqd.41 = t1243;
             let t1244 = t60 * t1220;
             let t1246 = T::mul_add(t59, t1221, -t1244);
             let t1248 = t60 * t1221;
@@ -16611,7 +16675,7 @@ pub mod fma {
             let t1255 = T::mul_add(t59, t1218, t1254);
             let t1258 = T::mul_add(lit::<T>(0.081), t1249, t1252);
             let t1259 = T::mul_add(-lit::<T>(0.081), t1246, t1255);
-            dc_dq[5][6] = t1259;
+            dc_dq.41 = t1259;
             let t1260 = t60 * t1222;
             let t1262 = T::mul_add(t59, t1223, -t1260);
             let t1264 = t60 * t1223;
@@ -16771,20 +16835,20 @@ pub mod fma {
             let t1458 = T::mul_add(t536, t1451, -t1457);
             let t1460 = T::mul_add(-t539, t1453, t1458);
             let t1461 = t1455 + t1460;
-            dc_dq[5][5] = t1461;
+            dc_dq.40 = t1461;
             let t1463 = T::mul_add(t543, lit::<T>(-0.12228), t1338);
             let t1464 = t1463 + t1463;
             let t1465 = t1318 + t1464;
-            dc_dqd[5][5] = t1465;
+            dc_dqd.40 = t1465;
             let t1468 = t533 * t1147;
             let t1469 = T::mul_add(t536, t1262, -t1468);
             let t1470 = T::mul_add(lit::<T>(0.005), t946, t1469);
-            dc_dq[6][5] = t1470;
+            dc_dq.47 = t1470;
             let t1471 = lit::<T>(0.005) * t533;
             let t1472 = -t1471;
             let t1473 = t1472 - t1471;
             let t1474 = t1265 + t1473;
-            dc_dqd[6][5] = t1474;
+            dc_dqd.47 = t1474;
             let t1475 = t49 * lit::<T>(-0.12228);
             let t1476 = t48 * lit::<T>(-0.12228);
             let t1477 = t49 * t1277;
@@ -16800,7 +16864,7 @@ pub mod fma {
             let t1493 = T::mul_add(t49, t1430, -t1492);
             let t1495 = t49 * t1431;
             let t1496 = T::mul_add(t48, t1430, t1495);
-            dc_dqd[4][5] = t1496;
+            dc_dqd.33 = t1496;
             let t1499 = T::mul_add(lit::<T>(0.2155), t1425, t1493);
             let t1500 = T::mul_add(lit::<T>(0.2155), t1487, -t1432);
             let t1502 = t48 * t1450;
@@ -16811,7 +16875,7 @@ pub mod fma {
             let t1509 = T::mul_add(t49, t1447, -t1508);
             let t1511 = t49 * t1448;
             let t1512 = T::mul_add(t48, t1447, t1511);
-            dc_dq[4][5] = t1512;
+            dc_dq.33 = t1512;
             let t1515 = T::mul_add(lit::<T>(0.2155), t1446, t1509);
             let t1516 = T::mul_add(lit::<T>(0.2155), t1503, -t1443);
             let t1517 = t48 * t1453;
@@ -16830,7 +16894,7 @@ pub mod fma {
             let t1534 = T::mul_add(t49, t1242, -t1533);
             let t1536 = t49 * t1147;
             let t1537 = T::mul_add(t48, t1242, t1536);
-            dc_dqd[4][6] = t1537;
+            dc_dqd.34 = t1537;
             let t1540 = T::mul_add(lit::<T>(0.2155), t1233, t1534);
             let t1541 = T::mul_add(lit::<T>(0.2155), t1530, -t1243);
             let t1543 = t48 * t1217;
@@ -16841,7 +16905,7 @@ pub mod fma {
             let t1550 = T::mul_add(t49, t1258, -t1549);
             let t1552 = t49 * t1214;
             let t1553 = T::mul_add(t48, t1258, t1552);
-            dc_dq[4][6] = t1553;
+            dc_dq.34 = t1553;
             let t1556 = T::mul_add(lit::<T>(0.2155), t1249, t1550);
             let t1557 = T::mul_add(lit::<T>(0.2155), t1544, -t1259);
             let t1559 = T::mul_add(t49, t1262, -t1533);
@@ -17057,12 +17121,12 @@ pub mod fma {
             let t1839 = T::mul_add(t388, t1830, t1837);
             let t1841 = T::mul_add(-t385, t1831, t1839);
             let t1842 = t1834 + t1841;
-            dc_dq[4][4] = t1842;
+            dc_dq.32 = t1842;
             let t1844 = T::mul_add(t388, lit::<T>(-0.07278000000000001), t1686);
             let t1845 = t1844 - t1689;
             let t1846 = t1845 + t1845;
             let t1847 = t1654 + t1846;
-            dc_dqd[4][4] = t1847;
+            dc_dqd.32 = t1847;
             let t1849 = t922 * t1484;
             let t1850 = T::mul_add(t921, t1479, t1849);
             let t1852 = T::mul_add(t909, t1482, t1850);
@@ -17072,24 +17136,24 @@ pub mod fma {
             let t1859 = T::mul_add(t382, t1521, -t1858);
             let t1861 = T::mul_add(-t388, t1517, t1859);
             let t1862 = t1856 + t1861;
-            dc_dq[5][4] = t1862;
+            dc_dq.39 = t1862;
             let t1864 = t379 * t1484;
             let t1865 = T::mul_add(t382, t1479, -t1864);
             let t1867 = T::mul_add(t388, t1475, t1865);
             let t1868 = t1867 + t1867;
             let t1869 = t1525 + t1868;
-            dc_dqd[5][4] = t1869;
+            dc_dqd.39 = t1869;
             let t1870 = t921 * t1528;
             let t1872 = T::mul_add(t909, t1529, -t1870);
             let t1874 = t379 * t1265;
             let t1875 = T::mul_add(t382, t1559, t1874);
             let t1876 = t1872 + t1875;
-            dc_dq[6][4] = t1876;
+            dc_dq.46 = t1876;
             let t1877 = t382 * t1528;
             let t1878 = -t1877;
             let t1879 = t1878 - t1877;
             let t1880 = t1561 + t1879;
-            dc_dqd[6][4] = t1880;
+            dc_dqd.46 = t1880;
             let t1882 = t37 * t1603;
             let t1883 = T::mul_add(-t38, lit::<T>(-0.07278000000000001), t1882);
             let t1885 = t38 * t1603;
@@ -17112,7 +17176,7 @@ pub mod fma {
             let t1908 = T::mul_add(t37, t1807, t1907);
             let t1911 = T::mul_add(lit::<T>(0.1845), t1902, t1905);
             let t1912 = T::mul_add(-lit::<T>(0.1845), t1899, t1908);
-            dc_dqd[3][4] = t1912;
+            dc_dqd.25 = t1912;
             let t1913 = t38 * t1826;
             let t1915 = T::mul_add(t37, t1827, -t1913);
             let t1917 = t38 * t1827;
@@ -17124,7 +17188,7 @@ pub mod fma {
             let t1924 = T::mul_add(t37, t1824, t1923);
             let t1927 = T::mul_add(lit::<T>(0.1845), t1918, t1921);
             let t1928 = T::mul_add(-lit::<T>(0.1845), t1915, t1924);
-            dc_dq[3][4] = t1928;
+            dc_dq.25 = t1928;
             let t1929 = t38 * t1830;
             let t1931 = T::mul_add(t37, t1831, -t1929);
             let t1933 = t38 * t1831;
@@ -17157,7 +17221,7 @@ pub mod fma {
             let t1969 = T::mul_add(t37, t1499, t1968);
             let t1972 = T::mul_add(lit::<T>(0.1845), t1963, t1966);
             let t1973 = T::mul_add(-lit::<T>(0.1845), t1960, t1969);
-            dc_dqd[3][5] = t1973;
+            dc_dqd.26 = t1973;
             let t1974 = t38 * t1503;
             let t1975 = -t1974;
             let t1977 = T::mul_add(-t37, t1446, t1975);
@@ -17170,7 +17234,7 @@ pub mod fma {
             let t1986 = T::mul_add(t37, t1515, t1985);
             let t1989 = T::mul_add(lit::<T>(0.1845), t1980, t1983);
             let t1990 = T::mul_add(-lit::<T>(0.1845), t1977, t1986);
-            dc_dq[3][5] = t1990;
+            dc_dq.26 = t1990;
             let t1991 = t38 * t1517;
             let t1992 = t37 * t1517;
             s.61 = t1992;
@@ -17195,7 +17259,7 @@ pub mod fma {
             let t2017 = T::mul_add(t37, t1540, t2016);
             let t2020 = T::mul_add(lit::<T>(0.1845), t2011, t2014);
             let t2021 = T::mul_add(-lit::<T>(0.1845), t2008, t2017);
-            dc_dqd[3][6] = t2021;
+            dc_dqd.27 = t2021;
             let t2022 = t38 * t1544;
             let t2023 = -t2022;
             let t2025 = T::mul_add(-t37, t1249, t2023);
@@ -17208,7 +17272,7 @@ pub mod fma {
             let t2034 = T::mul_add(t37, t1556, t2033);
             let t2037 = T::mul_add(lit::<T>(0.1845), t2028, t2031);
             let t2038 = T::mul_add(-lit::<T>(0.1845), t2025, t2034);
-            dc_dq[3][6] = t2038;
+            dc_dq.27 = t2038;
             let t2039 = t38 * t1559;
             let t2040 = -t2039;
             let t2042 = T::mul_add(-t37, t1265, t2040);
@@ -17447,12 +17511,12 @@ pub mod fma {
             let t2323 = T::mul_add(-t254, t2315, t2321);
             let t2325 = T::mul_add(-t253, t2316, t2323);
             let t2326 = t2318 + t2325;
-            dc_dq[3][3] = t2326;
+            dc_dq.24 = t2326;
             let t2327 = t2173 + t2177;
             let t2328 = t2327 - t2176;
             let t2329 = t2328 + t2328;
             let t2330 = t2139 + t2329;
-            dc_dqd[3][3] = t2330;
+            dc_dqd.24 = t2330;
             let t2332 = t901 * t1602;
             let t2333 = T::mul_add(t900, t1895, t2332);
             let t2335 = T::mul_add(t888, t1896, t2333);
@@ -17462,13 +17526,13 @@ pub mod fma {
             let t2342 = T::mul_add(t252, t1943, -t2341);
             let t2344 = T::mul_add(-t254, t1931, t2342);
             let t2345 = t2339 + t2344;
-            dc_dq[4][3] = t2345;
+            dc_dq.31 = t2345;
             let t2347 = t249 * t1602;
             let t2348 = T::mul_add(t252, t1895, -t2347);
             let t2350 = T::mul_add(-t254, t1883, t2348);
             let t2351 = t2350 + t2350;
             let t2352 = t1944 + t2351;
-            dc_dqd[4][3] = t2352;
+            dc_dqd.31 = t2352;
             let t2354 = t901 * t1482;
             let t2355 = T::mul_add(t900, t1955, t2354);
             let t2357 = T::mul_add(t888, t1956, t2355);
@@ -17480,26 +17544,26 @@ pub mod fma {
             let t2368 = T::mul_add(-t254, t1991, t2366);
             let t2370 = T::mul_add(-t253, t1518, t2368);
             let t2371 = t2363 + t2370;
-            dc_dq[5][3] = t2371;
+            dc_dq.38 = t2371;
             let t2373 = t249 * t1482;
             let t2374 = T::mul_add(t252, t1955, -t2373);
             let t2376 = T::mul_add(t254, t1945, t2374);
             let t2378 = T::mul_add(-t253, t1476, t2376);
             let t2379 = t2378 + t2378;
             let t2380 = t2002 + t2379;
-            dc_dqd[5][3] = t2380;
+            dc_dqd.38 = t2380;
             let t2382 = t901 * t1529;
             let t2383 = T::mul_add(t900, t2003, t2382);
             let t2385 = T::mul_add(-t888, t2004, t2383);
             let t2387 = t249 * t1561;
             let t2388 = T::mul_add(t252, t2042, -t2387);
             let t2389 = t2385 + t2388;
-            dc_dq[6][3] = t2389;
+            dc_dq.45 = t2389;
             let t2391 = t249 * t1529;
             let t2392 = T::mul_add(t252, t2003, -t2391);
             let t2393 = t2392 + t2392;
             let t2394 = t2045 + t2393;
-            dc_dqd[6][3] = t2394;
+            dc_dqd.45 = t2394;
             let t2395 = t28 * t2089;
             s.89 = t2395;
             let t2396 = -t2395;
@@ -17529,7 +17593,7 @@ pub mod fma {
             let t2417 = t28 * t2293;
             let t2418 = T::mul_add(t27, t2292, t2417);
             s.99 = t2418;
-            dc_dqd[2][3] = t2418;
+            dc_dqd.17 = t2418;
             let t2421 = T::mul_add(lit::<T>(0.2155), t2287, t2415);
             s.100 = t2421;
             let t2422 = T::mul_add(lit::<T>(0.2155), t2412, -t2294);
@@ -17542,7 +17606,7 @@ pub mod fma {
             let t2430 = t28 * t2310;
             let t2431 = T::mul_add(t27, t2309, t2430);
             s.103 = t2431;
-            dc_dq[2][3] = t2431;
+            dc_dq.17 = t2431;
             let t2434 = T::mul_add(lit::<T>(0.2155), t2308, t2428);
             s.104 = t2434;
             let t2435 = T::mul_add(lit::<T>(0.2155), t2425, -t2305);
@@ -17579,7 +17643,7 @@ pub mod fma {
             let t2466 = t28 * t1809;
             let t2467 = T::mul_add(t27, t1911, t2466);
             s.116 = t2467;
-            dc_dqd[2][4] = t2467;
+            dc_dqd.18 = t2467;
             let t2470 = T::mul_add(lit::<T>(0.2155), t1902, t2464);
             s.117 = t2470;
             let t2471 = T::mul_add(lit::<T>(0.2155), t2461, -t1912);
@@ -17592,7 +17656,7 @@ pub mod fma {
             let t2479 = t28 * t1820;
             let t2480 = T::mul_add(t27, t1927, t2479);
             s.120 = t2480;
-            dc_dq[2][4] = t2480;
+            dc_dq.18 = t2480;
             let t2483 = T::mul_add(lit::<T>(0.2155), t1918, t2477);
             s.121 = t2483;
             let t2484 = T::mul_add(lit::<T>(0.2155), t2474, -t1928);
@@ -17632,7 +17696,7 @@ pub mod fma {
             let t2520 = t28 * t1496;
             let t2521 = T::mul_add(t27, t1972, t2520);
             s.133 = t2521;
-            dc_dqd[2][5] = t2521;
+            dc_dqd.19 = t2521;
             let t2524 = T::mul_add(lit::<T>(0.2155), t1963, t2518);
             s.134 = t2524;
             let t2525 = T::mul_add(lit::<T>(0.2155), t2515, -t1973);
@@ -17645,7 +17709,7 @@ pub mod fma {
             let t2533 = t28 * t1512;
             let t2534 = T::mul_add(t27, t1989, t2533);
             s.137 = t2534;
-            dc_dq[2][5] = t2534;
+            dc_dq.19 = t2534;
             let t2537 = T::mul_add(lit::<T>(0.2155), t1980, t2531);
             s.138 = t2537;
             let t2538 = T::mul_add(lit::<T>(0.2155), t2528, -t1990);
@@ -17676,7 +17740,7 @@ pub mod fma {
             let t2565 = t28 * t1537;
             let t2566 = T::mul_add(t27, t2020, t2565);
             s.147 = t2566;
-            dc_dqd[2][6] = t2566;
+            dc_dqd.20 = t2566;
             let t2569 = T::mul_add(lit::<T>(0.2155), t2011, t2563);
             s.148 = t2569;
             let t2570 = T::mul_add(lit::<T>(0.2155), t2560, -t2021);
@@ -17689,7 +17753,7 @@ pub mod fma {
             let t2578 = t28 * t1553;
             let t2579 = T::mul_add(t27, t2037, t2578);
             s.151 = t2579;
-            dc_dq[2][6] = t2579;
+            dc_dq.20 = t2579;
             let t2582 = T::mul_add(lit::<T>(0.2155), t2028, t2576);
             s.152 = t2582;
             let t2583 = T::mul_add(lit::<T>(0.2155), t2573, -t2038);
@@ -17712,6 +17776,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
             let t2586 = T::mul_add(-s.4, s.53, s.154);
             let t2588 = s.5 * s.53;
             let t2589 = T::mul_add(s.4, s.65, t2588);
@@ -17911,12 +17981,12 @@ pub mod fma {
             let t2847 = T::mul_add(s.18, t2839, t2845);
             let t2849 = T::mul_add(-s.17, t2840, t2847);
             let t2850 = t2842 + t2849;
-            dc_dq[2][2] = t2850;
+            dc_dq.16 = t2850;
             let t2851 = t2715 - t2720;
             let t2852 = t2851 - t2718;
             let t2853 = t2852 + t2852;
             let t2854 = t2681 + t2853;
-            dc_dqd[2][2] = t2854;
+            dc_dqd.16 = t2854;
             let t2856 = s.35 * s.97;
             let t2857 = T::mul_add(s.34, s.95, t2856);
             let t2859 = T::mul_add(s.32, s.96, t2857);
@@ -17926,13 +17996,13 @@ pub mod fma {
             let t2865 = T::mul_add(s.16, s.107, -t2864);
             let t2867 = T::mul_add(s.18, s.106, t2865);
             let t2868 = t2862 + t2867;
-            dc_dq[3][2] = t2868;
+            dc_dq.23 = t2868;
             let t2870 = s.15 * s.97;
             let t2871 = T::mul_add(s.16, s.95, -t2870);
             let t2873 = T::mul_add(s.18, s.91, t2871);
             let t2874 = t2873 + t2873;
             let t2875 = s.108 + t2874;
-            dc_dqd[3][2] = t2875;
+            dc_dqd.23 = t2875;
             let t2877 = s.35 * s.114;
             let t2878 = T::mul_add(s.34, s.113, t2877);
             let t2880 = T::mul_add(s.32, s.112, t2878);
@@ -17944,14 +18014,14 @@ pub mod fma {
             let t2891 = T::mul_add(s.18, s.123, t2889);
             let t2893 = T::mul_add(s.17, s.57, t2891);
             let t2894 = t2886 + t2893;
-            dc_dq[4][2] = t2894;
+            dc_dq.30 = t2894;
             let t2896 = s.15 * s.114;
             let t2897 = T::mul_add(s.16, s.113, -t2896);
             let t2899 = T::mul_add(s.18, s.110, t2897);
             let t2901 = T::mul_add(s.17, s.54, t2899);
             let t2902 = t2901 + t2901;
             let t2903 = s.124 + t2902;
-            dc_dqd[4][2] = t2903;
+            dc_dqd.30 = t2903;
             let t2905 = s.35 * s.131;
             let t2906 = T::mul_add(s.34, s.130, t2905);
             let t2908 = T::mul_add(s.32, s.129, t2906);
@@ -17963,26 +18033,26 @@ pub mod fma {
             let t2919 = T::mul_add(s.18, s.140, t2917);
             let t2921 = T::mul_add(-s.17, s.61, t2919);
             let t2922 = t2914 + t2921;
-            dc_dq[5][2] = t2922;
+            dc_dq.37 = t2922;
             let t2924 = s.15 * s.131;
             let t2925 = T::mul_add(s.16, s.130, -t2924);
             let t2927 = T::mul_add(s.18, s.127, t2925);
             let t2929 = T::mul_add(s.17, s.58, t2927);
             let t2930 = t2929 + t2929;
             let t2931 = s.141 + t2930;
-            dc_dqd[5][2] = t2931;
+            dc_dqd.37 = t2931;
             let t2933 = s.35 * s.62;
             let t2934 = T::mul_add(s.34, s.144, t2933);
             let t2936 = T::mul_add(s.32, s.145, t2934);
             let t2938 = s.15 * s.66;
             let t2939 = T::mul_add(s.16, t2586, t2938);
             let t2940 = t2936 + t2939;
-            dc_dq[6][2] = t2940;
+            dc_dq.44 = t2940;
             let t2942 = s.15 * s.62;
             let t2943 = T::mul_add(s.16, s.144, -t2942);
             let t2944 = t2943 + t2943;
             let t2945 = t2589 + t2944;
-            dc_dqd[6][2] = t2945;
+            dc_dqd.44 = t2945;
             let t2947 = s.2 * s.92;
             let t2948 = T::mul_add(s.3, t2631, t2947);
             let t2949 = s.2 * t2631;
@@ -18004,7 +18074,7 @@ pub mod fma {
             let t2973 = T::mul_add(s.2, t2818, t2972);
             let t2976 = T::mul_add(lit::<T>(0.2045), t2967, t2970);
             let t2977 = T::mul_add(-lit::<T>(0.2045), t2964, t2973);
-            dc_dqd[1][2] = t2977;
+            dc_dqd.9 = t2977;
             let t2978 = s.3 * t2835;
             let t2980 = T::mul_add(s.2, t2836, -t2978);
             let t2982 = s.3 * t2836;
@@ -18015,7 +18085,7 @@ pub mod fma {
             let t2989 = T::mul_add(s.2, t2833, t2988);
             let t2992 = T::mul_add(lit::<T>(0.2045), t2983, t2986);
             let t2993 = T::mul_add(-lit::<T>(0.2045), t2980, t2989);
-            dc_dq[1][2] = t2993;
+            dc_dq.9 = t2993;
             let t2994 = s.3 * t2839;
             let t2996 = T::mul_add(s.2, t2840, -t2994);
             let t2998 = s.3 * t2840;
@@ -18045,7 +18115,7 @@ pub mod fma {
             let t3034 = T::mul_add(s.2, s.100, t3033);
             let t3037 = T::mul_add(lit::<T>(0.2045), t3028, t3031);
             let t3038 = T::mul_add(-lit::<T>(0.2045), t3025, t3034);
-            dc_dqd[1][3] = t3038;
+            dc_dqd.10 = t3038;
             let t3039 = s.3 * s.102;
             let t3040 = -t3039;
             let t3042 = T::mul_add(-s.2, s.88, t3040);
@@ -18057,7 +18127,7 @@ pub mod fma {
             let t3051 = T::mul_add(s.2, s.104, t3050);
             let t3054 = T::mul_add(lit::<T>(0.2045), t3045, t3048);
             let t3055 = T::mul_add(-lit::<T>(0.2045), t3042, t3051);
-            dc_dq[1][3] = t3055;
+            dc_dq.10 = t3055;
             let t3056 = s.3 * s.106;
             let t3057 = s.2 * s.106;
             let t3058 = s.3 * s.107;
@@ -18088,7 +18158,7 @@ pub mod fma {
             let t3097 = T::mul_add(s.2, s.117, t3096);
             let t3100 = T::mul_add(lit::<T>(0.2045), t3091, t3094);
             let t3101 = T::mul_add(-lit::<T>(0.2045), t3088, t3097);
-            dc_dqd[1][4] = t3101;
+            dc_dqd.11 = t3101;
             let t3102 = s.3 * s.119;
             let t3103 = -t3102;
             let t3105 = T::mul_add(-s.2, s.56, t3103);
@@ -18100,7 +18170,7 @@ pub mod fma {
             let t3114 = T::mul_add(s.2, s.121, t3113);
             let t3117 = T::mul_add(lit::<T>(0.2045), t3108, t3111);
             let t3118 = T::mul_add(-lit::<T>(0.2045), t3105, t3114);
-            dc_dq[1][4] = t3118;
+            dc_dq.11 = t3118;
             let t3119 = s.3 * s.123;
             let t3120 = -t3119;
             let t3122 = T::mul_add(-s.2, s.57, t3120);
@@ -18134,7 +18204,7 @@ pub mod fma {
             let t3165 = T::mul_add(s.2, s.134, t3164);
             let t3168 = T::mul_add(lit::<T>(0.2045), t3159, t3162);
             let t3169 = T::mul_add(-lit::<T>(0.2045), t3156, t3165);
-            dc_dqd[1][5] = t3169;
+            dc_dqd.12 = t3169;
             let t3170 = s.3 * s.136;
             let t3171 = -t3170;
             let t3173 = T::mul_add(-s.2, s.60, t3171);
@@ -18146,7 +18216,7 @@ pub mod fma {
             let t3182 = T::mul_add(s.2, s.138, t3181);
             let t3185 = T::mul_add(lit::<T>(0.2045), t3176, t3179);
             let t3186 = T::mul_add(-lit::<T>(0.2045), t3173, t3182);
-            dc_dq[1][5] = t3186;
+            dc_dq.12 = t3186;
             let t3187 = s.3 * s.140;
             let t3189 = T::mul_add(s.2, s.61, -t3187);
             let t3191 = s.3 * s.61;
@@ -18172,7 +18242,7 @@ pub mod fma {
             let t3221 = T::mul_add(s.2, s.148, t3220);
             let t3224 = T::mul_add(lit::<T>(0.2045), t3215, t3218);
             let t3225 = T::mul_add(-lit::<T>(0.2045), t3212, t3221);
-            dc_dqd[1][6] = t3225;
+            dc_dqd.13 = t3225;
             let t3226 = s.3 * s.150;
             let t3227 = -t3226;
             let t3229 = T::mul_add(-s.2, s.64, t3227);
@@ -18184,7 +18254,7 @@ pub mod fma {
             let t3238 = T::mul_add(s.2, s.152, t3237);
             let t3241 = T::mul_add(lit::<T>(0.2045), t3232, t3235);
             let t3242 = T::mul_add(-lit::<T>(0.2045), t3229, t3238);
-            dc_dq[1][6] = t3242;
+            dc_dq.13 = t3242;
             let t3243 = s.3 * t2586;
             let t3244 = -t3243;
             let t3246 = T::mul_add(-s.2, s.66, t3244);
@@ -18302,7 +18372,7 @@ pub mod fma {
             let t3405 = t3400 + t3403;
             let t3406 = t3401 + t3404;
             let t3407 = t3340 + t3402;
-            dc_dqd[1][1] = t3407;
+            dc_dqd.8 = t3407;
             let t3408 = T::mul_add(-s.6, t3361, t3394);
             let t3409 = T::mul_add(-s.7, t3361, t3397);
             let t3410 = t3390 + t3408;
@@ -18316,7 +18386,7 @@ pub mod fma {
             let t3419 = s.6 * t3415;
             let t3420 = T::mul_add(s.7, t3414, -t3419);
             let t3421 = t3417 + t3420;
-            dc_dq[1][1] = t3421;
+            dc_dq.8 = t3421;
             let t3423 = s.8 * t2630;
             let t3424 = T::mul_add(s.9, t2960, -t3423);
             let t3426 = T::mul_add(s.31, t2961, t3424);
@@ -18324,12 +18394,12 @@ pub mod fma {
             let t3430 = s.6 * t2681;
             let t3431 = T::mul_add(s.7, t3008, -t3430);
             let t3432 = t3428 + t3431;
-            dc_dq[2][1] = t3432;
+            dc_dq.15 = t3432;
             let t3434 = s.6 * t2630;
             let t3435 = T::mul_add(s.7, t2960, -t3434);
             let t3436 = t3435 + t3435;
             let t3437 = t3009 + t3436;
-            dc_dqd[2][1] = t3437;
+            dc_dqd.15 = t3437;
             let t3439 = s.8 * s.96;
             let t3440 = T::mul_add(s.9, t3020, -t3439);
             let t3442 = T::mul_add(s.31, t3021, t3440);
@@ -18338,12 +18408,12 @@ pub mod fma {
             let t3448 = s.6 * s.108;
             let t3449 = T::mul_add(s.7, t3066, -t3448);
             let t3450 = t3446 + t3449;
-            dc_dq[3][1] = t3450;
+            dc_dq.22 = t3450;
             let t3452 = s.6 * s.96;
             let t3453 = T::mul_add(s.7, t3020, -t3452);
             let t3454 = t3453 + t3453;
             let t3455 = t3067 + t3454;
-            dc_dqd[3][1] = t3455;
+            dc_dqd.22 = t3455;
             let t3457 = s.8 * s.112;
             let t3458 = T::mul_add(s.9, t3083, -t3457);
             let t3460 = T::mul_add(s.31, t3084, t3458);
@@ -18352,12 +18422,12 @@ pub mod fma {
             let t3466 = s.6 * s.124;
             let t3467 = T::mul_add(s.7, t3134, -t3466);
             let t3468 = t3464 + t3467;
-            dc_dq[4][1] = t3468;
+            dc_dq.29 = t3468;
             let t3470 = s.6 * s.112;
             let t3471 = T::mul_add(s.7, t3083, -t3470);
             let t3472 = t3471 + t3471;
             let t3473 = t3135 + t3472;
-            dc_dqd[4][1] = t3473;
+            dc_dqd.29 = t3473;
             let t3475 = s.8 * s.129;
             let t3476 = T::mul_add(s.9, t3151, -t3475);
             let t3478 = T::mul_add(s.31, t3152, t3476);
@@ -18366,78 +18436,78 @@ pub mod fma {
             let t3484 = s.6 * s.141;
             let t3485 = T::mul_add(s.7, t3201, -t3484);
             let t3486 = t3482 + t3485;
-            dc_dq[5][1] = t3486;
+            dc_dq.36 = t3486;
             let t3488 = s.6 * s.129;
             let t3489 = T::mul_add(s.7, t3151, -t3488);
             let t3490 = t3489 + t3489;
             let t3491 = t3202 + t3490;
-            dc_dqd[5][1] = t3491;
+            dc_dqd.36 = t3491;
             let t3493 = s.8 * s.145;
             let t3494 = T::mul_add(s.9, t3205, -t3493);
             let t3496 = T::mul_add(s.31, t3208, t3494);
             let t3498 = s.6 * t2589;
             let t3499 = T::mul_add(s.7, t3246, -t3498);
             let t3500 = t3496 + t3499;
-            dc_dq[6][1] = t3500;
+            dc_dq.43 = t3500;
             let t3502 = s.6 * s.145;
             let t3503 = T::mul_add(s.7, t3205, -t3502);
             let t3504 = t3503 + t3503;
             let t3505 = t3249 + t3504;
-            dc_dqd[6][1] = t3505;
+            dc_dqd.43 = t3505;
             let t3507 = s.1 * t3406;
             let t3508 = T::mul_add(s.0, t3405, t3507);
-            dc_dqd[0][1] = t3508;
+            dc_dqd.1 = t3508;
             let t3510 = s.1 * t3413;
             let t3511 = T::mul_add(s.0, t3412, t3510);
-            dc_dq[0][1] = t3511;
+            dc_dq.1 = t3511;
             let t3513 = s.1 * t3415;
             let t3514 = T::mul_add(s.0, t3414, t3513);
-            dc_dqd[1][0] = t3514;
+            dc_dqd.7 = t3514;
             let t3516 = s.1 * t2820;
             let t3517 = T::mul_add(s.0, t2976, t3516);
-            dc_dqd[0][2] = t3517;
+            dc_dqd.2 = t3517;
             let t3519 = s.1 * t2830;
             let t3520 = T::mul_add(s.0, t2992, t3519);
-            dc_dq[0][2] = t3520;
+            dc_dq.2 = t3520;
             let t3522 = s.1 * t2681;
             let t3523 = T::mul_add(s.0, t3008, t3522);
-            dc_dqd[2][0] = t3523;
+            dc_dqd.14 = t3523;
             let t3525 = s.1 * s.99;
             let t3526 = T::mul_add(s.0, t3037, t3525);
-            dc_dqd[0][3] = t3526;
+            dc_dqd.3 = t3526;
             let t3528 = s.1 * s.103;
             let t3529 = T::mul_add(s.0, t3054, t3528);
-            dc_dq[0][3] = t3529;
+            dc_dq.3 = t3529;
             let t3531 = s.1 * s.108;
             let t3532 = T::mul_add(s.0, t3066, t3531);
-            dc_dqd[3][0] = t3532;
+            dc_dqd.21 = t3532;
             let t3534 = s.1 * s.116;
             let t3535 = T::mul_add(s.0, t3100, t3534);
-            dc_dqd[0][4] = t3535;
+            dc_dqd.4 = t3535;
             let t3537 = s.1 * s.120;
             let t3538 = T::mul_add(s.0, t3117, t3537);
-            dc_dq[0][4] = t3538;
+            dc_dq.4 = t3538;
             let t3540 = s.1 * s.124;
             let t3541 = T::mul_add(s.0, t3134, t3540);
-            dc_dqd[4][0] = t3541;
+            dc_dqd.28 = t3541;
             let t3543 = s.1 * s.133;
             let t3544 = T::mul_add(s.0, t3168, t3543);
-            dc_dqd[0][5] = t3544;
+            dc_dqd.5 = t3544;
             let t3546 = s.1 * s.137;
             let t3547 = T::mul_add(s.0, t3185, t3546);
-            dc_dq[0][5] = t3547;
+            dc_dq.5 = t3547;
             let t3549 = s.1 * s.141;
             let t3550 = T::mul_add(s.0, t3201, t3549);
-            dc_dqd[5][0] = t3550;
+            dc_dqd.35 = t3550;
             let t3552 = s.1 * s.147;
             let t3553 = T::mul_add(s.0, t3224, t3552);
-            dc_dqd[0][6] = t3553;
+            dc_dqd.6 = t3553;
             let t3555 = s.1 * s.151;
             let t3556 = T::mul_add(s.0, t3241, t3555);
-            dc_dq[0][6] = t3556;
+            dc_dq.6 = t3556;
             let t3558 = s.1 * t2589;
             let t3559 = T::mul_add(s.0, t3246, t3558);
-            dc_dqd[6][0] = t3559;
+            dc_dqd.42 = t3559;
             let t3561 = s.1 * t3342;
             let t3562 = T::mul_add(s.0, t3341, t3561);
             let t3565 = s.1 * t3336;
@@ -18450,7 +18520,7 @@ pub mod fma {
             let t3574 = t3569 + t3569;
             let t3575 = t3573 - t3574;
             let t3576 = T::mul_add(lit::<T>(2.0), t3569, t3575);
-            dc_dqd[0][0] = t3576;
+            dc_dqd.0 = t3576;
         }
     }
     use rnea_grad_part1::rnea_grad_part1;
@@ -21253,6 +21323,17 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 7 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f7<T>(T, T, T, T, T, T, T);
+    /// An array of 49 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -21267,6 +21348,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t5 = q[1].sin();
             s.0 = t5;
             let t6 = q[1].cos();
@@ -22397,39 +22485,39 @@ pub mod fma {
             let t1438 = T::mul_add(t1386, t1430, t1434);
             let t1440 = T::mul_add(t1390, t1436, t1438);
             let t1441 = t1393 * t1440;
-            qdd[0] = t1441;
+            qdd.0 = t1441;
             let t1448 = t1390 * t1441;
             let t1449 = T::mul_add(t1389, t1436, t1448);
-            qdd[1] = t1449;
+            qdd.1 = t1449;
             let t1450 = t1381 * t1449;
             let t1451 = T::mul_add(t1380, t1430, t1450);
             let t1453 = T::mul_add(t1386, t1441, t1451);
-            qdd[2] = t1453;
+            qdd.2 = t1453;
             let t1454 = t1365 * t1453;
             let t1455 = T::mul_add(t1364, t1422, t1454);
             let t1457 = T::mul_add(t1372, t1449, t1455);
             let t1459 = T::mul_add(t1377, t1441, t1457);
-            qdd[3] = t1459;
+            qdd.3 = t1459;
             let t1460 = t1340 * t1459;
             let t1461 = T::mul_add(t1339, t1412, t1460);
             let t1463 = T::mul_add(t1349, t1453, t1461);
             let t1465 = T::mul_add(t1356, t1449, t1463);
             let t1467 = T::mul_add(t1361, t1441, t1465);
-            qdd[4] = t1467;
+            qdd.4 = t1467;
             let t1468 = t1304 * t1467;
             let t1469 = T::mul_add(t1303, t1399, t1468);
             let t1471 = T::mul_add(t1315, t1459, t1469);
             let t1473 = T::mul_add(t1324, t1453, t1471);
             let t1475 = T::mul_add(t1331, t1449, t1473);
             let t1477 = T::mul_add(t1336, t1441, t1475);
-            qdd[5] = t1477;
+            qdd.5 = t1477;
             let t1478 = t1268 * t1467;
             let t1479 = T::mul_add(lit::<T>(-200.0), t1400, t1478);
             let t1481 = T::mul_add(-t1279, t1459, t1479);
             let t1483 = T::mul_add(t1288, t1453, t1481);
             let t1485 = T::mul_add(t1295, t1449, t1483);
             let t1487 = T::mul_add(t1300, t1441, t1485);
-            qdd[6] = t1487;
+            qdd.6 = t1487;
             let t1488 = t5 * t1441;
             s.152 = t1488;
             let t1489 = t6 * t1441;
@@ -23395,6 +23483,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t2593 = s.121 + s.263;
             let t2594 = s.122 + s.262;
             let t2595 = s.123 + s.260;
@@ -24557,39 +24652,39 @@ pub mod fma {
             let t4253 = T::mul_add(s.148, t4245, t4249);
             let t4255 = T::mul_add(s.150, t4251, t4253);
             let t4256 = s.151 * t4255;
-            dqdd_dq[0][1] = t4256;
+            dqdd_dq.1 = t4256;
             let t4263 = s.150 * t4256;
             let t4264 = T::mul_add(s.149, t4251, t4263);
-            dqdd_dq[1][1] = t4264;
+            dqdd_dq.8 = t4264;
             let t4265 = s.147 * t4264;
             let t4266 = T::mul_add(s.146, t4245, t4265);
             let t4268 = T::mul_add(s.148, t4256, t4266);
-            dqdd_dq[2][1] = t4268;
+            dqdd_dq.15 = t4268;
             let t4269 = s.143 * t4268;
             let t4270 = T::mul_add(s.142, t4237, t4269);
             let t4272 = T::mul_add(s.144, t4264, t4270);
             let t4274 = T::mul_add(s.145, t4256, t4272);
-            dqdd_dq[3][1] = t4274;
+            dqdd_dq.22 = t4274;
             let t4275 = s.138 * t4274;
             let t4276 = T::mul_add(s.137, t4227, t4275);
             let t4278 = T::mul_add(s.139, t4268, t4276);
             let t4280 = T::mul_add(s.140, t4264, t4278);
             let t4282 = T::mul_add(s.141, t4256, t4280);
-            dqdd_dq[4][1] = t4282;
+            dqdd_dq.29 = t4282;
             let t4283 = s.132 * t4282;
             let t4284 = T::mul_add(s.131, t4125, t4283);
             let t4286 = T::mul_add(s.133, t4274, t4284);
             let t4288 = T::mul_add(s.134, t4268, t4286);
             let t4290 = T::mul_add(s.135, t4264, t4288);
             let t4292 = T::mul_add(s.136, t4256, t4290);
-            dqdd_dq[5][1] = t4292;
+            dqdd_dq.36 = t4292;
             let t4293 = s.126 * t4282;
             let t4294 = T::mul_add(lit::<T>(-200.0), t4139, t4293);
             let t4296 = T::mul_add(-s.127, t4274, t4294);
             let t4298 = T::mul_add(s.128, t4268, t4296);
             let t4300 = T::mul_add(s.129, t4264, t4298);
             let t4302 = T::mul_add(s.130, t4256, t4300);
-            dqdd_dq[6][1] = t4302;
+            dqdd_dq.43 = t4302;
             let t4304 = T::mul_add(s.126, t3690, t3644);
             let t4306 = T::mul_add(-s.127, t3690, t3618);
             let t4308 = T::mul_add(s.128, t3690, t3600);
@@ -24611,39 +24706,39 @@ pub mod fma {
             let t4340 = T::mul_add(s.148, t4332, t4336);
             let t4342 = T::mul_add(s.150, t4338, t4340);
             let t4343 = s.151 * t4342;
-            dqdd_dq[0][2] = t4343;
+            dqdd_dq.2 = t4343;
             let t4350 = s.150 * t4343;
             let t4351 = T::mul_add(s.149, t4338, t4350);
-            dqdd_dq[1][2] = t4351;
+            dqdd_dq.9 = t4351;
             let t4352 = s.147 * t4351;
             let t4353 = T::mul_add(s.146, t4332, t4352);
             let t4355 = T::mul_add(s.148, t4343, t4353);
-            dqdd_dq[2][2] = t4355;
+            dqdd_dq.16 = t4355;
             let t4356 = s.143 * t4355;
             let t4357 = T::mul_add(s.142, t4324, t4356);
             let t4359 = T::mul_add(s.144, t4351, t4357);
             let t4361 = T::mul_add(s.145, t4343, t4359);
-            dqdd_dq[3][2] = t4361;
+            dqdd_dq.23 = t4361;
             let t4362 = s.138 * t4361;
             let t4363 = T::mul_add(s.137, t4314, t4362);
             let t4365 = T::mul_add(s.139, t4355, t4363);
             let t4367 = T::mul_add(s.140, t4351, t4365);
             let t4369 = T::mul_add(s.141, t4343, t4367);
-            dqdd_dq[4][2] = t4369;
+            dqdd_dq.30 = t4369;
             let t4370 = s.132 * t4369;
             let t4371 = T::mul_add(s.131, t3672, t4370);
             let t4373 = T::mul_add(s.133, t4361, t4371);
             let t4375 = T::mul_add(s.134, t4355, t4373);
             let t4377 = T::mul_add(s.135, t4351, t4375);
             let t4379 = T::mul_add(s.136, t4343, t4377);
-            dqdd_dq[5][2] = t4379;
+            dqdd_dq.37 = t4379;
             let t4380 = s.126 * t4369;
             let t4381 = T::mul_add(lit::<T>(-200.0), t3690, t4380);
             let t4383 = T::mul_add(-s.127, t4361, t4381);
             let t4385 = T::mul_add(s.128, t4355, t4383);
             let t4387 = T::mul_add(s.129, t4351, t4385);
             let t4389 = T::mul_add(s.130, t4343, t4387);
-            dqdd_dq[6][2] = t4389;
+            dqdd_dq.44 = t4389;
             let t4391 = T::mul_add(s.126, t3233, t3189);
             let t4393 = T::mul_add(-s.127, t3233, t3170);
             let t4395 = T::mul_add(s.128, t3233, t3260);
@@ -24665,39 +24760,39 @@ pub mod fma {
             let t4427 = T::mul_add(s.148, t4419, t4423);
             let t4429 = T::mul_add(s.150, t4425, t4427);
             let t4430 = s.151 * t4429;
-            dqdd_dq[0][3] = t4430;
+            dqdd_dq.3 = t4430;
             let t4437 = s.150 * t4430;
             let t4438 = T::mul_add(s.149, t4425, t4437);
-            dqdd_dq[1][3] = t4438;
+            dqdd_dq.10 = t4438;
             let t4439 = s.147 * t4438;
             let t4440 = T::mul_add(s.146, t4419, t4439);
             let t4442 = T::mul_add(s.148, t4430, t4440);
-            dqdd_dq[2][3] = t4442;
+            dqdd_dq.17 = t4442;
             let t4443 = s.143 * t4442;
             let t4444 = T::mul_add(s.142, t4411, t4443);
             let t4446 = T::mul_add(s.144, t4438, t4444);
             let t4448 = T::mul_add(s.145, t4430, t4446);
-            dqdd_dq[3][3] = t4448;
+            dqdd_dq.24 = t4448;
             let t4449 = s.138 * t4448;
             let t4450 = T::mul_add(s.137, t4401, t4449);
             let t4452 = T::mul_add(s.139, t4442, t4450);
             let t4454 = T::mul_add(s.140, t4438, t4452);
             let t4456 = T::mul_add(s.141, t4430, t4454);
-            dqdd_dq[4][3] = t4456;
+            dqdd_dq.31 = t4456;
             let t4457 = s.132 * t4456;
             let t4458 = T::mul_add(s.131, t3215, t4457);
             let t4460 = T::mul_add(s.133, t4448, t4458);
             let t4462 = T::mul_add(s.134, t4442, t4460);
             let t4464 = T::mul_add(s.135, t4438, t4462);
             let t4466 = T::mul_add(s.136, t4430, t4464);
-            dqdd_dq[5][3] = t4466;
+            dqdd_dq.38 = t4466;
             let t4467 = s.126 * t4456;
             let t4468 = T::mul_add(lit::<T>(-200.0), t3233, t4467);
             let t4470 = T::mul_add(-s.127, t4448, t4468);
             let t4472 = T::mul_add(s.128, t4442, t4470);
             let t4474 = T::mul_add(s.129, t4438, t4472);
             let t4476 = T::mul_add(s.130, t4430, t4474);
-            dqdd_dq[6][3] = t4476;
+            dqdd_dq.45 = t4476;
             let t4478 = T::mul_add(s.126, t2796, t2762);
             let t4480 = T::mul_add(-s.127, t2796, t2832);
             let t4482 = T::mul_add(s.128, t2796, t3297);
@@ -24719,39 +24814,39 @@ pub mod fma {
             let t4514 = T::mul_add(s.148, t4506, t4510);
             let t4516 = T::mul_add(s.150, t4512, t4514);
             let t4517 = s.151 * t4516;
-            dqdd_dq[0][4] = t4517;
+            dqdd_dq.4 = t4517;
             let t4524 = s.150 * t4517;
             let t4525 = T::mul_add(s.149, t4512, t4524);
-            dqdd_dq[1][4] = t4525;
+            dqdd_dq.11 = t4525;
             let t4526 = s.147 * t4525;
             let t4527 = T::mul_add(s.146, t4506, t4526);
             let t4529 = T::mul_add(s.148, t4517, t4527);
-            dqdd_dq[2][4] = t4529;
+            dqdd_dq.18 = t4529;
             let t4530 = s.143 * t4529;
             let t4531 = T::mul_add(s.142, t4498, t4530);
             let t4533 = T::mul_add(s.144, t4525, t4531);
             let t4535 = T::mul_add(s.145, t4517, t4533);
-            dqdd_dq[3][4] = t4535;
+            dqdd_dq.25 = t4535;
             let t4536 = s.138 * t4535;
             let t4537 = T::mul_add(s.137, t4488, t4536);
             let t4539 = T::mul_add(s.139, t4529, t4537);
             let t4541 = T::mul_add(s.140, t4525, t4539);
             let t4543 = T::mul_add(s.141, t4517, t4541);
-            dqdd_dq[4][4] = t4543;
+            dqdd_dq.32 = t4543;
             let t4544 = s.132 * t4543;
             let t4545 = T::mul_add(s.131, t2782, t4544);
             let t4547 = T::mul_add(s.133, t4535, t4545);
             let t4549 = T::mul_add(s.134, t4529, t4547);
             let t4551 = T::mul_add(s.135, t4525, t4549);
             let t4553 = T::mul_add(s.136, t4517, t4551);
-            dqdd_dq[5][4] = t4553;
+            dqdd_dq.39 = t4553;
             let t4554 = s.126 * t4543;
             let t4555 = T::mul_add(lit::<T>(-200.0), t2796, t4554);
             let t4557 = T::mul_add(-s.127, t4535, t4555);
             let t4559 = T::mul_add(s.128, t4529, t4557);
             let t4561 = T::mul_add(s.129, t4525, t4559);
             let t4563 = T::mul_add(s.130, t4517, t4561);
-            dqdd_dq[6][4] = t4563;
+            dqdd_dq.46 = t4563;
             let t4565 = T::mul_add(s.126, s.222, s.231);
             let t4567 = T::mul_add(-s.127, s.222, t2882);
             let t4569 = T::mul_add(s.128, s.222, t3334);
@@ -24773,39 +24868,39 @@ pub mod fma {
             let t4601 = T::mul_add(s.148, t4593, t4597);
             let t4603 = T::mul_add(s.150, t4599, t4601);
             let t4604 = s.151 * t4603;
-            dqdd_dq[0][5] = t4604;
+            dqdd_dq.5 = t4604;
             let t4611 = s.150 * t4604;
             let t4612 = T::mul_add(s.149, t4599, t4611);
-            dqdd_dq[1][5] = t4612;
+            dqdd_dq.12 = t4612;
             let t4613 = s.147 * t4612;
             let t4614 = T::mul_add(s.146, t4593, t4613);
             let t4616 = T::mul_add(s.148, t4604, t4614);
-            dqdd_dq[2][5] = t4616;
+            dqdd_dq.19 = t4616;
             let t4617 = s.143 * t4616;
             let t4618 = T::mul_add(s.142, t4585, t4617);
             let t4620 = T::mul_add(s.144, t4612, t4618);
             let t4622 = T::mul_add(s.145, t4604, t4620);
-            dqdd_dq[3][5] = t4622;
+            dqdd_dq.26 = t4622;
             let t4623 = s.138 * t4622;
             let t4624 = T::mul_add(s.137, t4575, t4623);
             let t4626 = T::mul_add(s.139, t4616, t4624);
             let t4628 = T::mul_add(s.140, t4612, t4626);
             let t4630 = T::mul_add(s.141, t4604, t4628);
-            dqdd_dq[4][5] = t4630;
+            dqdd_dq.33 = t4630;
             let t4631 = s.132 * t4630;
             let t4632 = T::mul_add(s.131, s.220, t4631);
             let t4634 = T::mul_add(s.133, t4622, t4632);
             let t4636 = T::mul_add(s.134, t4616, t4634);
             let t4638 = T::mul_add(s.135, t4612, t4636);
             let t4640 = T::mul_add(s.136, t4604, t4638);
-            dqdd_dq[5][5] = t4640;
+            dqdd_dq.40 = t4640;
             let t4641 = s.126 * t4630;
             let t4642 = T::mul_add(lit::<T>(-200.0), s.222, t4641);
             let t4644 = T::mul_add(-s.127, t4622, t4642);
             let t4646 = T::mul_add(s.128, t4616, t4644);
             let t4648 = T::mul_add(s.129, t4612, t4646);
             let t4650 = T::mul_add(s.130, t4604, t4648);
-            dqdd_dq[6][5] = t4650;
+            dqdd_dq.47 = t4650;
             let t4652 = T::mul_add(s.126, s.211, s.246);
             let t4654 = T::mul_add(-s.127, s.211, t2928);
             let t4656 = T::mul_add(s.128, s.211, t3373);
@@ -24827,39 +24922,39 @@ pub mod fma {
             let t4688 = T::mul_add(s.148, t4680, t4684);
             let t4690 = T::mul_add(s.150, t4686, t4688);
             let t4691 = s.151 * t4690;
-            dqdd_dq[0][6] = t4691;
+            dqdd_dq.6 = t4691;
             let t4698 = s.150 * t4691;
             let t4699 = T::mul_add(s.149, t4686, t4698);
-            dqdd_dq[1][6] = t4699;
+            dqdd_dq.13 = t4699;
             let t4700 = s.147 * t4699;
             let t4701 = T::mul_add(s.146, t4680, t4700);
             let t4703 = T::mul_add(s.148, t4691, t4701);
-            dqdd_dq[2][6] = t4703;
+            dqdd_dq.20 = t4703;
             let t4704 = s.143 * t4703;
             let t4705 = T::mul_add(s.142, t4672, t4704);
             let t4707 = T::mul_add(s.144, t4699, t4705);
             let t4709 = T::mul_add(s.145, t4691, t4707);
-            dqdd_dq[3][6] = t4709;
+            dqdd_dq.27 = t4709;
             let t4710 = s.138 * t4709;
             let t4711 = T::mul_add(s.137, t4662, t4710);
             let t4713 = T::mul_add(s.139, t4703, t4711);
             let t4715 = T::mul_add(s.140, t4699, t4713);
             let t4717 = T::mul_add(s.141, t4691, t4715);
-            dqdd_dq[4][6] = t4717;
+            dqdd_dq.34 = t4717;
             let t4718 = s.132 * t4717;
             let t4719 = T::mul_add(s.131, s.215, t4718);
             let t4721 = T::mul_add(s.133, t4709, t4719);
             let t4723 = T::mul_add(s.134, t4703, t4721);
             let t4725 = T::mul_add(s.135, t4699, t4723);
             let t4727 = T::mul_add(s.136, t4691, t4725);
-            dqdd_dq[5][6] = t4727;
+            dqdd_dq.41 = t4727;
             let t4728 = s.126 * t4717;
             let t4729 = T::mul_add(lit::<T>(-200.0), s.211, t4728);
             let t4731 = T::mul_add(-s.127, t4709, t4729);
             let t4733 = T::mul_add(s.128, t4703, t4731);
             let t4735 = T::mul_add(s.129, t4699, t4733);
             let t4737 = T::mul_add(s.130, t4691, t4735);
-            dqdd_dq[6][6] = t4737;
+            dqdd_dq.48 = t4737;
             let t4739 = T::mul_add(s.126, t4198, t4180);
             let t4741 = T::mul_add(-s.127, t4198, t4171);
             let t4743 = T::mul_add(s.128, t4198, t4162);
@@ -24881,39 +24976,39 @@ pub mod fma {
             let t4775 = T::mul_add(s.148, t4767, t4771);
             let t4777 = T::mul_add(s.150, t4773, t4775);
             let t4778 = s.151 * t4777;
-            dqdd_dqd[0][0] = t4778;
+            dqdd_dqd.0 = t4778;
             let t4785 = s.150 * t4778;
             let t4786 = T::mul_add(s.149, t4773, t4785);
-            dqdd_dqd[1][0] = t4786;
+            dqdd_dqd.7 = t4786;
             let t4787 = s.147 * t4786;
             let t4788 = T::mul_add(s.146, t4767, t4787);
             let t4790 = T::mul_add(s.148, t4778, t4788);
-            dqdd_dqd[2][0] = t4790;
+            dqdd_dqd.14 = t4790;
             let t4791 = s.143 * t4790;
             let t4792 = T::mul_add(s.142, t4759, t4791);
             let t4794 = T::mul_add(s.144, t4786, t4792);
             let t4796 = T::mul_add(s.145, t4778, t4794);
-            dqdd_dqd[3][0] = t4796;
+            dqdd_dqd.21 = t4796;
             let t4797 = s.138 * t4796;
             let t4798 = T::mul_add(s.137, t4749, t4797);
             let t4800 = T::mul_add(s.139, t4790, t4798);
             let t4802 = T::mul_add(s.140, t4786, t4800);
             let t4804 = T::mul_add(s.141, t4778, t4802);
-            dqdd_dqd[4][0] = t4804;
+            dqdd_dqd.28 = t4804;
             let t4805 = s.132 * t4804;
             let t4806 = T::mul_add(s.131, t4189, t4805);
             let t4808 = T::mul_add(s.133, t4796, t4806);
             let t4810 = T::mul_add(s.134, t4790, t4808);
             let t4812 = T::mul_add(s.135, t4786, t4810);
             let t4814 = T::mul_add(s.136, t4778, t4812);
-            dqdd_dqd[5][0] = t4814;
+            dqdd_dqd.35 = t4814;
             let t4815 = s.126 * t4804;
             let t4816 = T::mul_add(lit::<T>(-200.0), t4198, t4815);
             let t4818 = T::mul_add(-s.127, t4796, t4816);
             let t4820 = T::mul_add(s.128, t4790, t4818);
             let t4822 = T::mul_add(s.129, t4786, t4820);
             let t4824 = T::mul_add(s.130, t4778, t4822);
-            dqdd_dqd[6][0] = t4824;
+            dqdd_dqd.42 = t4824;
             let t4826 = T::mul_add(s.126, t4144, t4112);
             let t4828 = T::mul_add(-s.127, t4144, t4094);
             let t4830 = T::mul_add(s.128, t4144, t4076);
@@ -24935,39 +25030,39 @@ pub mod fma {
             let t4862 = T::mul_add(s.148, t4854, t4858);
             let t4864 = T::mul_add(s.150, t4860, t4862);
             let t4865 = s.151 * t4864;
-            dqdd_dqd[0][1] = t4865;
+            dqdd_dqd.1 = t4865;
             let t4872 = s.150 * t4865;
             let t4873 = T::mul_add(s.149, t4860, t4872);
-            dqdd_dqd[1][1] = t4873;
+            dqdd_dqd.8 = t4873;
             let t4874 = s.147 * t4873;
             let t4875 = T::mul_add(s.146, t4854, t4874);
             let t4877 = T::mul_add(s.148, t4865, t4875);
-            dqdd_dqd[2][1] = t4877;
+            dqdd_dqd.15 = t4877;
             let t4878 = s.143 * t4877;
             let t4879 = T::mul_add(s.142, t4846, t4878);
             let t4881 = T::mul_add(s.144, t4873, t4879);
             let t4883 = T::mul_add(s.145, t4865, t4881);
-            dqdd_dqd[3][1] = t4883;
+            dqdd_dqd.22 = t4883;
             let t4884 = s.138 * t4883;
             let t4885 = T::mul_add(s.137, t4836, t4884);
             let t4887 = T::mul_add(s.139, t4877, t4885);
             let t4889 = T::mul_add(s.140, t4873, t4887);
             let t4891 = T::mul_add(s.141, t4865, t4889);
-            dqdd_dqd[4][1] = t4891;
+            dqdd_dqd.29 = t4891;
             let t4892 = s.132 * t4891;
             let t4893 = T::mul_add(s.131, t4130, t4892);
             let t4895 = T::mul_add(s.133, t4883, t4893);
             let t4897 = T::mul_add(s.134, t4877, t4895);
             let t4899 = T::mul_add(s.135, t4873, t4897);
             let t4901 = T::mul_add(s.136, t4865, t4899);
-            dqdd_dqd[5][1] = t4901;
+            dqdd_dqd.36 = t4901;
             let t4902 = s.126 * t4891;
             let t4903 = T::mul_add(lit::<T>(-200.0), t4144, t4902);
             let t4905 = T::mul_add(-s.127, t4883, t4903);
             let t4907 = T::mul_add(s.128, t4877, t4905);
             let t4909 = T::mul_add(s.129, t4873, t4907);
             let t4911 = T::mul_add(s.130, t4865, t4909);
-            dqdd_dqd[6][1] = t4911;
+            dqdd_dqd.43 = t4911;
             let t4913 = T::mul_add(s.126, t3695, t3653);
             let t4915 = T::mul_add(-s.127, t3695, t3625);
             let t4917 = T::mul_add(s.128, t3695, t3604);
@@ -24989,39 +25084,39 @@ pub mod fma {
             let t4949 = T::mul_add(s.148, t4941, t4945);
             let t4951 = T::mul_add(s.150, t4947, t4949);
             let t4952 = s.151 * t4951;
-            dqdd_dqd[0][2] = t4952;
+            dqdd_dqd.2 = t4952;
             let t4959 = s.150 * t4952;
             let t4960 = T::mul_add(s.149, t4947, t4959);
-            dqdd_dqd[1][2] = t4960;
+            dqdd_dqd.9 = t4960;
             let t4961 = s.147 * t4960;
             let t4962 = T::mul_add(s.146, t4941, t4961);
             let t4964 = T::mul_add(s.148, t4952, t4962);
-            dqdd_dqd[2][2] = t4964;
+            dqdd_dqd.16 = t4964;
             let t4965 = s.143 * t4964;
             let t4966 = T::mul_add(s.142, t4933, t4965);
             let t4968 = T::mul_add(s.144, t4960, t4966);
             let t4970 = T::mul_add(s.145, t4952, t4968);
-            dqdd_dqd[3][2] = t4970;
+            dqdd_dqd.23 = t4970;
             let t4971 = s.138 * t4970;
             let t4972 = T::mul_add(s.137, t4923, t4971);
             let t4974 = T::mul_add(s.139, t4964, t4972);
             let t4976 = T::mul_add(s.140, t4960, t4974);
             let t4978 = T::mul_add(s.141, t4952, t4976);
-            dqdd_dqd[4][2] = t4978;
+            dqdd_dqd.30 = t4978;
             let t4979 = s.132 * t4978;
             let t4980 = T::mul_add(s.131, t3681, t4979);
             let t4982 = T::mul_add(s.133, t4970, t4980);
             let t4984 = T::mul_add(s.134, t4964, t4982);
             let t4986 = T::mul_add(s.135, t4960, t4984);
             let t4988 = T::mul_add(s.136, t4952, t4986);
-            dqdd_dqd[5][2] = t4988;
+            dqdd_dqd.37 = t4988;
             let t4989 = s.126 * t4978;
             let t4990 = T::mul_add(lit::<T>(-200.0), t3695, t4989);
             let t4992 = T::mul_add(-s.127, t4970, t4990);
             let t4994 = T::mul_add(s.128, t4964, t4992);
             let t4996 = T::mul_add(s.129, t4960, t4994);
             let t4998 = T::mul_add(s.130, t4952, t4996);
-            dqdd_dqd[6][2] = t4998;
+            dqdd_dqd.44 = t4998;
             let t5000 = T::mul_add(s.126, t3238, t3196);
             let t5002 = T::mul_add(-s.127, t3238, t3174);
             let t5004 = T::mul_add(s.128, t3238, t3247);
@@ -25043,39 +25138,39 @@ pub mod fma {
             let t5036 = T::mul_add(s.148, t5028, t5032);
             let t5038 = T::mul_add(s.150, t5034, t5036);
             let t5039 = s.151 * t5038;
-            dqdd_dqd[0][3] = t5039;
+            dqdd_dqd.3 = t5039;
             let t5046 = s.150 * t5039;
             let t5047 = T::mul_add(s.149, t5034, t5046);
-            dqdd_dqd[1][3] = t5047;
+            dqdd_dqd.10 = t5047;
             let t5048 = s.147 * t5047;
             let t5049 = T::mul_add(s.146, t5028, t5048);
             let t5051 = T::mul_add(s.148, t5039, t5049);
-            dqdd_dqd[2][3] = t5051;
+            dqdd_dqd.17 = t5051;
             let t5052 = s.143 * t5051;
             let t5053 = T::mul_add(s.142, t5020, t5052);
             let t5055 = T::mul_add(s.144, t5047, t5053);
             let t5057 = T::mul_add(s.145, t5039, t5055);
-            dqdd_dqd[3][3] = t5057;
+            dqdd_dqd.24 = t5057;
             let t5058 = s.138 * t5057;
             let t5059 = T::mul_add(s.137, t5010, t5058);
             let t5061 = T::mul_add(s.139, t5051, t5059);
             let t5063 = T::mul_add(s.140, t5047, t5061);
             let t5065 = T::mul_add(s.141, t5039, t5063);
-            dqdd_dqd[4][3] = t5065;
+            dqdd_dqd.31 = t5065;
             let t5066 = s.132 * t5065;
             let t5067 = T::mul_add(s.131, t3224, t5066);
             let t5069 = T::mul_add(s.133, t5057, t5067);
             let t5071 = T::mul_add(s.134, t5051, t5069);
             let t5073 = T::mul_add(s.135, t5047, t5071);
             let t5075 = T::mul_add(s.136, t5039, t5073);
-            dqdd_dqd[5][3] = t5075;
+            dqdd_dqd.38 = t5075;
             let t5076 = s.126 * t5065;
             let t5077 = T::mul_add(lit::<T>(-200.0), t3238, t5076);
             let t5079 = T::mul_add(-s.127, t5057, t5077);
             let t5081 = T::mul_add(s.128, t5051, t5079);
             let t5083 = T::mul_add(s.129, t5047, t5081);
             let t5085 = T::mul_add(s.130, t5039, t5083);
-            dqdd_dqd[6][3] = t5085;
+            dqdd_dqd.45 = t5085;
             let t5087 = T::mul_add(s.126, t2800, t2767);
             s.277 = t5087;
             let t5089 = T::mul_add(-s.127, t2800, t2816);
@@ -25101,6 +25196,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t5093 = s.271 + s.280;
             let t5095 = T::mul_add(s.130, s.266, s.274);
             let t5097 = T::mul_add(s.132, s.265, s.277);
@@ -25119,39 +25221,39 @@ pub mod fma {
             let t5123 = T::mul_add(s.148, t5115, t5119);
             let t5125 = T::mul_add(s.150, t5121, t5123);
             let t5126 = s.151 * t5125;
-            dqdd_dqd[0][4] = t5126;
+            dqdd_dqd.4 = t5126;
             let t5133 = s.150 * t5126;
             let t5134 = T::mul_add(s.149, t5121, t5133);
-            dqdd_dqd[1][4] = t5134;
+            dqdd_dqd.11 = t5134;
             let t5135 = s.147 * t5134;
             let t5136 = T::mul_add(s.146, t5115, t5135);
             let t5138 = T::mul_add(s.148, t5126, t5136);
-            dqdd_dqd[2][4] = t5138;
+            dqdd_dqd.18 = t5138;
             let t5139 = s.143 * t5138;
             let t5140 = T::mul_add(s.142, t5107, t5139);
             let t5142 = T::mul_add(s.144, t5134, t5140);
             let t5144 = T::mul_add(s.145, t5126, t5142);
-            dqdd_dqd[3][4] = t5144;
+            dqdd_dqd.25 = t5144;
             let t5145 = s.138 * t5144;
             let t5146 = T::mul_add(s.137, t5097, t5145);
             let t5148 = T::mul_add(s.139, t5138, t5146);
             let t5150 = T::mul_add(s.140, t5134, t5148);
             let t5152 = T::mul_add(s.141, t5126, t5150);
-            dqdd_dqd[4][4] = t5152;
+            dqdd_dqd.32 = t5152;
             let t5153 = s.132 * t5152;
             let t5154 = T::mul_add(s.131, s.265, t5153);
             let t5156 = T::mul_add(s.133, t5144, t5154);
             let t5158 = T::mul_add(s.134, t5138, t5156);
             let t5160 = T::mul_add(s.135, t5134, t5158);
             let t5162 = T::mul_add(s.136, t5126, t5160);
-            dqdd_dqd[5][4] = t5162;
+            dqdd_dqd.39 = t5162;
             let t5163 = s.126 * t5152;
             let t5164 = T::mul_add(lit::<T>(-200.0), s.266, t5163);
             let t5166 = T::mul_add(-s.127, t5144, t5164);
             let t5168 = T::mul_add(s.128, t5138, t5166);
             let t5170 = T::mul_add(s.129, t5134, t5168);
             let t5172 = T::mul_add(s.130, t5126, t5170);
-            dqdd_dqd[6][4] = t5172;
+            dqdd_dqd.46 = t5172;
             let t5174 = T::mul_add(s.126, s.223, s.226);
             let t5176 = T::mul_add(-s.127, s.223, s.267);
             let t5178 = T::mul_add(s.128, s.223, s.269);
@@ -25173,39 +25275,39 @@ pub mod fma {
             let t5210 = T::mul_add(s.148, t5202, t5206);
             let t5212 = T::mul_add(s.150, t5208, t5210);
             let t5213 = s.151 * t5212;
-            dqdd_dqd[0][5] = t5213;
+            dqdd_dqd.5 = t5213;
             let t5220 = s.150 * t5213;
             let t5221 = T::mul_add(s.149, t5208, t5220);
-            dqdd_dqd[1][5] = t5221;
+            dqdd_dqd.12 = t5221;
             let t5222 = s.147 * t5221;
             let t5223 = T::mul_add(s.146, t5202, t5222);
             let t5225 = T::mul_add(s.148, t5213, t5223);
-            dqdd_dqd[2][5] = t5225;
+            dqdd_dqd.19 = t5225;
             let t5226 = s.143 * t5225;
             let t5227 = T::mul_add(s.142, t5194, t5226);
             let t5229 = T::mul_add(s.144, t5221, t5227);
             let t5231 = T::mul_add(s.145, t5213, t5229);
-            dqdd_dqd[3][5] = t5231;
+            dqdd_dqd.26 = t5231;
             let t5232 = s.138 * t5231;
             let t5233 = T::mul_add(s.137, t5184, t5232);
             let t5235 = T::mul_add(s.139, t5225, t5233);
             let t5237 = T::mul_add(s.140, t5221, t5235);
             let t5239 = T::mul_add(s.141, t5213, t5237);
-            dqdd_dqd[4][5] = t5239;
+            dqdd_dqd.33 = t5239;
             let t5240 = s.132 * t5239;
             let t5241 = T::mul_add(s.131, s.221, t5240);
             let t5243 = T::mul_add(s.133, t5231, t5241);
             let t5245 = T::mul_add(s.134, t5225, t5243);
             let t5247 = T::mul_add(s.135, t5221, t5245);
             let t5249 = T::mul_add(s.136, t5213, t5247);
-            dqdd_dqd[5][5] = t5249;
+            dqdd_dqd.40 = t5249;
             let t5250 = s.126 * t5239;
             let t5251 = T::mul_add(lit::<T>(-200.0), s.223, t5250);
             let t5253 = T::mul_add(-s.127, t5231, t5251);
             let t5255 = T::mul_add(s.128, t5225, t5253);
             let t5257 = T::mul_add(s.129, t5221, t5255);
             let t5259 = T::mul_add(s.130, t5213, t5257);
-            dqdd_dqd[6][5] = t5259;
+            dqdd_dqd.47 = t5259;
             let t5261 = T::mul_add(s.126, s.210, s.241);
             let t5263 = T::mul_add(-s.127, s.210, s.268);
             let t5265 = T::mul_add(s.128, s.210, s.270);
@@ -25227,39 +25329,39 @@ pub mod fma {
             let t5297 = T::mul_add(s.148, t5289, t5293);
             let t5299 = T::mul_add(s.150, t5295, t5297);
             let t5300 = s.151 * t5299;
-            dqdd_dqd[0][6] = t5300;
+            dqdd_dqd.6 = t5300;
             let t5307 = s.150 * t5300;
             let t5308 = T::mul_add(s.149, t5295, t5307);
-            dqdd_dqd[1][6] = t5308;
+            dqdd_dqd.13 = t5308;
             let t5309 = s.147 * t5308;
             let t5310 = T::mul_add(s.146, t5289, t5309);
             let t5312 = T::mul_add(s.148, t5300, t5310);
-            dqdd_dqd[2][6] = t5312;
+            dqdd_dqd.20 = t5312;
             let t5313 = s.143 * t5312;
             let t5314 = T::mul_add(s.142, t5281, t5313);
             let t5316 = T::mul_add(s.144, t5308, t5314);
             let t5318 = T::mul_add(s.145, t5300, t5316);
-            dqdd_dqd[3][6] = t5318;
+            dqdd_dqd.27 = t5318;
             let t5319 = s.138 * t5318;
             let t5320 = T::mul_add(s.137, t5271, t5319);
             let t5322 = T::mul_add(s.139, t5312, t5320);
             let t5324 = T::mul_add(s.140, t5308, t5322);
             let t5326 = T::mul_add(s.141, t5300, t5324);
-            dqdd_dqd[4][6] = t5326;
+            dqdd_dqd.34 = t5326;
             let t5327 = s.132 * t5326;
             let t5328 = T::mul_add(s.131, s.213, t5327);
             let t5330 = T::mul_add(s.133, t5318, t5328);
             let t5332 = T::mul_add(s.134, t5312, t5330);
             let t5334 = T::mul_add(s.135, t5308, t5332);
             let t5336 = T::mul_add(s.136, t5300, t5334);
-            dqdd_dqd[5][6] = t5336;
+            dqdd_dqd.41 = t5336;
             let t5337 = s.126 * t5326;
             let t5338 = T::mul_add(lit::<T>(-200.0), s.210, t5337);
             let t5340 = T::mul_add(-s.127, t5318, t5338);
             let t5342 = T::mul_add(s.128, t5312, t5340);
             let t5344 = T::mul_add(s.129, t5308, t5342);
             let t5346 = T::mul_add(s.130, t5300, t5344);
-            dqdd_dqd[6][6] = t5346;
+            dqdd_dqd.48 = t5346;
         }
     }
     use fd_grad_part2::fd_grad_part2;

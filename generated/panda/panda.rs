@@ -1930,6 +1930,14 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 81 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f81<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -1942,6 +1950,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
             let t2 = q[1].sin();
             s.0 = t2;
             let t3 = q[1].cos();
@@ -3720,7 +3734,7 @@ pub mod portable {
             let t1746 = t1736 - t1125;
             s.130 = t1746;
             let t1747 = t1443 * lit::<T>(-0.015);
-            dc_dq[8][8] = t1747;
+            dc_dq.80 = t1747;
             let t1753 = t94 * lit::<T>(-0.010606601717798213);
             let t1754 = t95 * lit::<T>(-0.010606601717798212);
             let t1755 = t1754 - t1753;
@@ -3736,7 +3750,7 @@ pub mod portable {
             let t1765 = t94 * t1757;
             let t1766 = t95 * t1756;
             let t1767 = t1766 - t1765;
-            dc_dqd[6][8] = t1767;
+            dc_dqd.62 = t1767;
             let t1768 = lit::<T>(0.7071067811865476) * t1733;
             let t1769 = lit::<T>(0.7071067811865475) * t1734;
             let t1770 = t1768 + t1769;
@@ -3762,7 +3776,7 @@ pub mod portable {
             let t1790 = t1776 + t1783;
             let t1791 = t1779 + t1786;
             let t1792 = t1155 + t1789;
-            dc_dq[6][8] = t1792;
+            dc_dq.62 = t1792;
             let t1793 = lit::<T>(0.7071067811865476) * t1745;
             let t1794 = lit::<T>(-0.7071067811865475) * t1745;
             let t1795 = t94 * t94;
@@ -3863,7 +3877,7 @@ pub mod portable {
             let t1891 = -t1730;
             let t1892 = lit::<T>(0.015) * t1440;
             let t1893 = lit::<T>(0.015) * t1438;
-            dc_dq[7][7] = t1893;
+            dc_dq.70 = t1893;
             let t1894 = lit::<T>(0.015) * t1441;
             s.131 = t1894;
             let t1895 = -t1042;
@@ -3893,7 +3907,7 @@ pub mod portable {
             let t1920 = t88 * t1913;
             let t1921 = t89 * t1912;
             let t1922 = t1920 - t1921;
-            dc_dqd[6][7] = t1922;
+            dc_dqd.61 = t1922;
             let t1923 = lit::<T>(0.7071067811865476) * t1892;
             let t1924 = lit::<T>(0.7071067811865475) * t1893;
             let t1925 = t1923 + t1924;
@@ -3918,7 +3932,7 @@ pub mod portable {
             let t1944 = t1931 + t1937;
             let t1945 = t1934 + t1940;
             let t1946 = t1943 - t1082;
-            dc_dq[6][7] = t1946;
+            dc_dq.61 = t1946;
             let t1947 = lit::<T>(0.7071067811865476) * t1904;
             let t1948 = lit::<T>(-0.7071067811865475) * t1904;
             let t1949 = t88 * t88;
@@ -4166,12 +4180,12 @@ pub mod portable {
             let t2191 = t826 * t2183;
             let t2192 = t2190 - t2191;
             let t2193 = t2185 + t2192;
-            dc_dq[6][6] = t2193;
+            dc_dq.60 = t2193;
             let t2194 = t2038 - t2043;
             let t2195 = t2194 - t2041;
             let t2196 = t2195 + t2195;
             let t2197 = t2014 + t2196;
-            dc_dqd[6][6] = t2197;
+            dc_dqd.60 = t2197;
             let t2198 = t1430 * lit::<T>(-0.0017543319241238244);
             let t2199 = t1431 * lit::<T>(0.0017543319241238242);
             let t2200 = t2198 + t2199;
@@ -4185,7 +4199,7 @@ pub mod portable {
             let t2208 = t820 * t1948;
             let t2209 = t2207 - t2208;
             let t2210 = t2206 + t2209;
-            dc_dq[7][6] = t2210;
+            dc_dq.69 = t2210;
             let t2211 = t823 * lit::<T>(-0.0017543319241238244);
             let t2212 = t820 * lit::<T>(0.0017543319241238242);
             let t2213 = t2211 - t2212;
@@ -4195,7 +4209,7 @@ pub mod portable {
             let t2217 = t2215 - t2216;
             let t2218 = t2217 + t2217;
             let t2219 = t1905 + t2218;
-            dc_dqd[7][6] = t2219;
+            dc_dqd.69 = t2219;
             let t2220 = t1430 * lit::<T>(0.0017543319241238244);
             let t2221 = t1431 * lit::<T>(-0.0017543319241238242);
             let t2222 = t2220 + t2221;
@@ -4209,7 +4223,7 @@ pub mod portable {
             let t2230 = t820 * t1794;
             let t2231 = t2229 - t2230;
             let t2232 = t2228 + t2231;
-            dc_dq[8][6] = t2232;
+            dc_dq.78 = t2232;
             let t2233 = t823 * lit::<T>(0.0017543319241238244);
             let t2234 = t820 * lit::<T>(-0.0017543319241238242);
             let t2235 = t2233 - t2234;
@@ -4219,7 +4233,7 @@ pub mod portable {
             let t2239 = t2237 - t2238;
             let t2240 = t2239 + t2239;
             let t2241 = t1746 + t2240;
-            dc_dqd[8][6] = t2241;
+            dc_dqd.78 = t2241;
             let t2242 = t72 * t1977;
             let t2243 = -t2242;
             let t2244 = t71 * t1976;
@@ -4263,7 +4277,7 @@ pub mod portable {
             s.144 = t2273;
             let t2274 = t2270 - t2272;
             s.145 = t2274;
-            dc_dqd[5][6] = t2274;
+            dc_dqd.51 = t2274;
             let t2275 = t72 * t2178;
             let t2276 = t71 * t2179;
             let t2277 = t2275 - t2276;
@@ -4286,7 +4300,7 @@ pub mod portable {
             s.149 = t2290;
             let t2291 = t2287 - t2289;
             s.150 = t2291;
-            dc_dq[5][6] = t2291;
+            dc_dq.51 = t2291;
             let t2292 = t72 * t2182;
             let t2293 = t71 * t2183;
             let t2294 = t2292 - t2293;
@@ -4349,7 +4363,7 @@ pub mod portable {
             s.164 = t2337;
             let t2338 = t2334 - t2336;
             s.165 = t2338;
-            dc_dqd[5][7] = t2338;
+            dc_dqd.52 = t2338;
             let t2339 = t72 * t1925;
             let t2340 = t71 * t1928;
             let t2341 = t2339 - t2340;
@@ -4372,7 +4386,7 @@ pub mod portable {
             s.169 = t2354;
             let t2355 = t2351 - t2353;
             s.170 = t2355;
-            dc_dq[5][7] = t2355;
+            dc_dq.52 = t2355;
             let t2356 = t72 * t1947;
             let t2357 = t71 * t1948;
             let t2358 = t2356 - t2357;
@@ -4423,7 +4437,7 @@ pub mod portable {
             s.181 = t2392;
             let t2393 = t2389 - t2391;
             s.182 = t2393;
-            dc_dqd[5][8] = t2393;
+            dc_dqd.53 = t2393;
             let t2394 = t72 * t1770;
             let t2395 = t71 * t1773;
             let t2396 = t2394 - t2395;
@@ -4446,7 +4460,7 @@ pub mod portable {
             s.186 = t2409;
             let t2410 = t2406 - t2408;
             s.187 = t2410;
-            dc_dq[5][8] = t2410;
+            dc_dq.53 = t2410;
             let t2411 = t72 * t1793;
             let t2412 = t71 * t1794;
             let t2413 = t2411 - t2412;
@@ -4709,6 +4723,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
             let t2618 = s.49 * s.202;
             let t2619 = s.233 - t2618;
             let t2620 = s.51 * s.206;
@@ -4794,13 +4814,13 @@ pub mod portable {
             let t2700 = s.51 * t2691;
             let t2701 = t2699 - t2700;
             let t2702 = t2694 + t2701;
-            dc_dq[5][5] = t2702;
+            dc_dq.50 = t2702;
             let t2703 = s.52 * lit::<T>(0.17380470556900002);
             let t2704 = s.213 + t2703;
             let t2705 = t2704 - s.214;
             let t2706 = t2705 + t2705;
             let t2707 = s.203 + t2706;
-            dc_dqd[5][5] = t2707;
+            dc_dqd.50 = t2707;
             let t2708 = s.92 * s.138;
             let t2709 = s.93 * s.140;
             let t2710 = t2708 + t2709;
@@ -4816,7 +4836,7 @@ pub mod portable {
             let t2720 = s.52 * s.151;
             let t2721 = t2719 + t2720;
             let t2722 = t2716 + t2721;
-            dc_dq[6][5] = t2722;
+            dc_dq.59 = t2722;
             let t2723 = s.50 * s.138;
             let t2724 = s.49 * s.140;
             let t2725 = t2723 - t2724;
@@ -4824,7 +4844,7 @@ pub mod portable {
             let t2727 = t2725 + t2726;
             let t2728 = t2727 + t2727;
             let t2729 = s.154 + t2728;
-            dc_dqd[6][5] = t2729;
+            dc_dqd.59 = t2729;
             let t2730 = s.92 * s.158;
             let t2731 = s.93 * s.160;
             let t2732 = t2730 + t2731;
@@ -4838,7 +4858,7 @@ pub mod portable {
             let t2740 = s.49 * s.133;
             let t2741 = t2739 + t2740;
             let t2742 = t2738 + t2741;
-            dc_dq[7][5] = t2742;
+            dc_dq.68 = t2742;
             let t2743 = s.50 * s.158;
             let t2744 = s.49 * s.160;
             let t2745 = t2743 - t2744;
@@ -4846,7 +4866,7 @@ pub mod portable {
             let t2747 = t2745 + t2746;
             let t2748 = t2747 + t2747;
             let t2749 = s.172 + t2748;
-            dc_dqd[7][5] = t2749;
+            dc_dqd.68 = t2749;
             let t2750 = s.92 * s.175;
             let t2751 = s.93 * s.177;
             let t2752 = t2750 + t2751;
@@ -4860,7 +4880,7 @@ pub mod portable {
             let t2760 = s.49 * s.130;
             let t2761 = t2759 + t2760;
             let t2762 = t2758 + t2761;
-            dc_dq[8][5] = t2762;
+            dc_dq.77 = t2762;
             let t2763 = s.50 * s.175;
             let t2764 = s.49 * s.177;
             let t2765 = t2763 - t2764;
@@ -4868,7 +4888,7 @@ pub mod portable {
             let t2767 = t2765 + t2766;
             let t2768 = t2767 + t2767;
             let t2769 = s.189 + t2768;
-            dc_dqd[8][5] = t2769;
+            dc_dqd.77 = t2769;
             let t2770 = s.9 * lit::<T>(0.17380470556900002);
             let t2771 = s.8 * s.196;
             let t2772 = t2770 - t2771;
@@ -4893,7 +4913,7 @@ pub mod portable {
             let t2791 = s.8 * t2667;
             let t2792 = s.9 * t2668;
             let t2793 = t2791 + t2792;
-            dc_dqd[4][5] = t2793;
+            dc_dqd.41 = t2793;
             let t2794 = s.9 * t2686;
             let t2795 = s.8 * t2687;
             let t2796 = t2794 - t2795;
@@ -4906,7 +4926,7 @@ pub mod portable {
             let t2803 = s.8 * t2684;
             let t2804 = s.9 * t2685;
             let t2805 = t2803 + t2804;
-            dc_dq[4][5] = t2805;
+            dc_dq.41 = t2805;
             let t2806 = s.9 * t2690;
             let t2807 = s.8 * t2691;
             let t2808 = t2806 - t2807;
@@ -4939,7 +4959,7 @@ pub mod portable {
             let t2835 = s.8 * s.143;
             let t2836 = s.9 * s.144;
             let t2837 = t2835 + t2836;
-            dc_dqd[4][6] = t2837;
+            dc_dqd.42 = t2837;
             let t2838 = s.9 * s.146;
             let t2839 = s.8 * s.135;
             let t2840 = t2838 + t2839;
@@ -4952,7 +4972,7 @@ pub mod portable {
             let t2847 = s.8 * s.148;
             let t2848 = s.9 * s.149;
             let t2849 = t2847 + t2848;
-            dc_dq[4][6] = t2849;
+            dc_dq.42 = t2849;
             let t2850 = s.9 * s.151;
             let t2851 = s.8 * s.151;
             let t2852 = s.9 * s.153;
@@ -4981,7 +5001,7 @@ pub mod portable {
             let t2875 = s.8 * s.163;
             let t2876 = s.9 * s.164;
             let t2877 = t2875 + t2876;
-            dc_dqd[4][7] = t2877;
+            dc_dqd.43 = t2877;
             let t2878 = s.9 * s.166;
             let t2879 = s.8 * s.131;
             let t2880 = t2878 + t2879;
@@ -4994,7 +5014,7 @@ pub mod portable {
             let t2887 = s.8 * s.168;
             let t2888 = s.9 * s.169;
             let t2889 = t2887 + t2888;
-            dc_dq[4][7] = t2889;
+            dc_dq.43 = t2889;
             let t2890 = s.9 * s.171;
             let t2891 = s.8 * s.133;
             let t2892 = t2890 + t2891;
@@ -5021,7 +5041,7 @@ pub mod portable {
             let t2913 = s.8 * s.180;
             let t2914 = s.9 * s.181;
             let t2915 = t2913 + t2914;
-            dc_dqd[4][8] = t2915;
+            dc_dqd.44 = t2915;
             let t2916 = s.9 * s.183;
             let t2917 = s.8 * s.128;
             let t2918 = t2916 + t2917;
@@ -5034,7 +5054,7 @@ pub mod portable {
             let t2925 = s.8 * s.185;
             let t2926 = s.9 * s.186;
             let t2927 = t2925 + t2926;
-            dc_dq[4][8] = t2927;
+            dc_dq.44 = t2927;
             let t2928 = s.9 * s.188;
             let t2929 = s.8 * s.130;
             let t2930 = t2928 + t2929;
@@ -5296,12 +5316,12 @@ pub mod portable {
             let t3187 = s.41 * t3179;
             let t3188 = t3186 - t3187;
             let t3189 = t3181 + t3188;
-            dc_dq[4][4] = t3189;
+            dc_dq.40 = t3189;
             let t3190 = t3034 - t3039;
             let t3191 = t3190 - t3037;
             let t3192 = t3191 + t3191;
             let t3193 = t3004 + t3192;
-            dc_dqd[4][4] = t3193;
+            dc_dqd.40 = t3193;
             let t3194 = s.86 * t2778;
             let t3195 = s.87 * s.195;
             let t3196 = t3194 - t3195;
@@ -5317,7 +5337,7 @@ pub mod portable {
             let t3206 = s.42 * t2808;
             let t3207 = t3205 + t3206;
             let t3208 = t3202 + t3207;
-            dc_dq[5][4] = t3208;
+            dc_dq.49 = t3208;
             let t3209 = s.40 * t2778;
             let t3210 = s.39 * s.195;
             let t3211 = t3209 + t3210;
@@ -5325,7 +5345,7 @@ pub mod portable {
             let t3213 = t3211 + t3212;
             let t3214 = t3213 + t3213;
             let t3215 = t2817 + t3214;
-            dc_dqd[5][4] = t3215;
+            dc_dqd.49 = t3215;
             let t3216 = s.86 * t2822;
             let t3217 = s.87 * s.139;
             let t3218 = t3216 - t3217;
@@ -5345,7 +5365,7 @@ pub mod portable {
             let t3232 = s.41 * s.152;
             let t3233 = t3231 + t3232;
             let t3234 = t3226 + t3233;
-            dc_dq[6][4] = t3234;
+            dc_dq.58 = t3234;
             let t3235 = s.40 * t2822;
             let t3236 = s.39 * s.139;
             let t3237 = t3235 + t3236;
@@ -5355,7 +5375,7 @@ pub mod portable {
             let t3241 = t3239 + t3240;
             let t3242 = t3241 + t3241;
             let t3243 = t2857 + t3242;
-            dc_dqd[6][4] = t3243;
+            dc_dqd.58 = t3243;
             let t3244 = s.86 * t2862;
             let t3245 = s.87 * s.159;
             let t3246 = t3244 - t3245;
@@ -5371,7 +5391,7 @@ pub mod portable {
             let t3256 = s.39 * s.172;
             let t3257 = t3255 + t3256;
             let t3258 = t3254 + t3257;
-            dc_dq[7][4] = t3258;
+            dc_dq.67 = t3258;
             let t3259 = s.40 * t2862;
             let t3260 = s.39 * s.159;
             let t3261 = t3259 + t3260;
@@ -5381,7 +5401,7 @@ pub mod portable {
             let t3265 = t3263 + t3264;
             let t3266 = t3265 + t3265;
             let t3267 = t2895 + t3266;
-            dc_dqd[7][4] = t3267;
+            dc_dqd.67 = t3267;
             let t3268 = s.86 * t2900;
             let t3269 = s.87 * s.176;
             let t3270 = t3268 - t3269;
@@ -5397,7 +5417,7 @@ pub mod portable {
             let t3280 = s.39 * s.189;
             let t3281 = t3279 + t3280;
             let t3282 = t3278 + t3281;
-            dc_dq[8][4] = t3282;
+            dc_dq.76 = t3282;
             let t3283 = s.40 * t2900;
             let t3284 = s.39 * s.176;
             let t3285 = t3283 + t3284;
@@ -5407,7 +5427,7 @@ pub mod portable {
             let t3289 = t3287 + t3288;
             let t3290 = t3289 + t3289;
             let t3291 = t2933 + t3290;
-            dc_dqd[8][4] = t3291;
+            dc_dqd.76 = t3291;
             let t3292 = s.7 * t2965;
             let t3293 = -t3292;
             let t3294 = s.6 * t2964;
@@ -5451,7 +5471,7 @@ pub mod portable {
             let t3332 = t3322 + t3327;
             let t3333 = t3157 - t3328;
             let t3334 = t3326 + t3331;
-            dc_dqd[3][4] = t3334;
+            dc_dqd.31 = t3334;
             let t3335 = s.7 * t3174;
             let t3336 = s.6 * t3175;
             let t3337 = t3335 - t3336;
@@ -5474,7 +5494,7 @@ pub mod portable {
             let t3354 = t3344 + t3349;
             let t3355 = t3168 - t3350;
             let t3356 = t3348 + t3353;
-            dc_dq[3][4] = t3356;
+            dc_dq.31 = t3356;
             let t3357 = s.7 * t3178;
             let t3358 = s.6 * t3179;
             let t3359 = t3357 - t3358;
@@ -5531,7 +5551,7 @@ pub mod portable {
             let t3410 = t3401 + t3405;
             let t3411 = t2793 - t3406;
             let t3412 = t3404 + t3409;
-            dc_dqd[3][5] = t3412;
+            dc_dqd.32 = t3412;
             let t3413 = s.7 * t2796;
             let t3414 = s.6 * t2683;
             let t3415 = t3413 + t3414;
@@ -5553,7 +5573,7 @@ pub mod portable {
             let t3430 = t3421 + t3425;
             let t3431 = t2805 - t3426;
             let t3432 = t3424 + t3429;
-            dc_dq[3][5] = t3432;
+            dc_dq.32 = t3432;
             let t3433 = s.7 * t2808;
             let t3434 = s.6 * t2808;
             s.235 = t3434;
@@ -5613,7 +5633,7 @@ pub mod portable {
             let t3486 = t3477 + t3481;
             let t3487 = t2837 - t3482;
             let t3488 = t3480 + t3485;
-            dc_dqd[3][6] = t3488;
+            dc_dqd.33 = t3488;
             let t3489 = s.7 * t2840;
             let t3490 = s.6 * s.147;
             let t3491 = t3489 + t3490;
@@ -5635,7 +5655,7 @@ pub mod portable {
             let t3506 = t3497 + t3501;
             let t3507 = t2849 - t3502;
             let t3508 = t3500 + t3505;
-            dc_dq[3][6] = t3508;
+            dc_dq.33 = t3508;
             let t3509 = s.7 * t2850;
             let t3510 = s.6 * s.152;
             let t3511 = t3509 + t3510;
@@ -5699,7 +5719,7 @@ pub mod portable {
             let t3566 = t3557 + t3561;
             let t3567 = t2877 - t3562;
             let t3568 = t3560 + t3565;
-            dc_dqd[3][7] = t3568;
+            dc_dqd.34 = t3568;
             let t3569 = s.7 * t2880;
             let t3570 = s.6 * s.167;
             let t3571 = t3569 + t3570;
@@ -5721,7 +5741,7 @@ pub mod portable {
             let t3586 = t3577 + t3581;
             let t3587 = t2889 - t3582;
             let t3588 = t3580 + t3585;
-            dc_dq[3][7] = t3588;
+            dc_dq.34 = t3588;
             let t3589 = s.7 * t2892;
             let t3590 = s.6 * s.172;
             let t3591 = t3589 + t3590;
@@ -5771,7 +5791,7 @@ pub mod portable {
             let t3632 = t3623 + t3627;
             let t3633 = t2915 - t3628;
             let t3634 = t3626 + t3631;
-            dc_dqd[3][8] = t3634;
+            dc_dqd.35 = t3634;
             let t3635 = s.7 * t2918;
             let t3636 = s.6 * s.184;
             let t3637 = t3635 + t3636;
@@ -5793,7 +5813,7 @@ pub mod portable {
             let t3652 = t3643 + t3647;
             let t3653 = t2927 - t3648;
             let t3654 = t3646 + t3651;
-            dc_dq[3][8] = t3654;
+            dc_dq.35 = t3654;
             let t3655 = s.7 * t2930;
             let t3656 = s.6 * s.189;
             let t3657 = t3655 + t3656;
@@ -6115,12 +6135,12 @@ pub mod portable {
             let t3979 = s.31 * t3971;
             let t3980 = t3978 - t3979;
             let t3981 = t3973 + t3980;
-            dc_dq[3][3] = t3981;
+            dc_dq.30 = t3981;
             let t3982 = t3826 - t3831;
             let t3983 = t3982 - t3829;
             let t3984 = t3983 + t3983;
             let t3985 = t3786 + t3984;
-            dc_dqd[3][3] = t3985;
+            dc_dqd.30 = t3985;
             let t3986 = s.80 * t3310;
             let t3987 = s.81 * t3311;
             let t3988 = t3986 + t3987;
@@ -6136,7 +6156,7 @@ pub mod portable {
             let t3998 = s.32 * t3359;
             let t3999 = t3997 + t3998;
             let t4000 = t3994 + t3999;
-            dc_dq[4][3] = t4000;
+            dc_dq.39 = t4000;
             let t4001 = s.30 * t3310;
             let t4002 = s.29 * t3311;
             let t4003 = t4001 - t4002;
@@ -6144,7 +6164,7 @@ pub mod portable {
             let t4005 = t4003 + t4004;
             let t4006 = t4005 + t4005;
             let t4007 = t3376 + t4006;
-            dc_dqd[4][3] = t4007;
+            dc_dqd.39 = t4007;
             let t4008 = s.80 * t3390;
             let t4009 = s.81 * t3391;
             let t4010 = t4008 + t4009;
@@ -6164,7 +6184,7 @@ pub mod portable {
             let t4024 = s.31 * t2811;
             let t4025 = t4023 - t4024;
             let t4026 = t4018 + t4025;
-            dc_dq[5][3] = t4026;
+            dc_dq.48 = t4026;
             let t4027 = s.30 * t3390;
             let t4028 = s.29 * t3391;
             let t4029 = t4027 - t4028;
@@ -6174,7 +6194,7 @@ pub mod portable {
             let t4033 = t4031 - t4032;
             let t4034 = t4033 + t4033;
             let t4035 = t3448 + t4034;
-            dc_dqd[5][3] = t4035;
+            dc_dqd.48 = t4035;
             let t4036 = s.80 * t3466;
             let t4037 = s.81 * t3467;
             let t4038 = t4036 + t4037;
@@ -6194,7 +6214,7 @@ pub mod portable {
             let t4052 = s.31 * t2851;
             let t4053 = t4051 - t4052;
             let t4054 = t4046 + t4053;
-            dc_dq[6][3] = t4054;
+            dc_dq.57 = t4054;
             let t4055 = s.30 * t3466;
             let t4056 = s.29 * t3467;
             let t4057 = t4055 - t4056;
@@ -6204,7 +6224,7 @@ pub mod portable {
             let t4061 = t4059 - t4060;
             let t4062 = t4061 + t4061;
             let t4063 = t3528 + t4062;
-            dc_dqd[6][3] = t4063;
+            dc_dqd.57 = t4063;
             let t4064 = s.80 * t3546;
             let t4065 = s.81 * t3547;
             let t4066 = t4064 + t4065;
@@ -6220,7 +6240,7 @@ pub mod portable {
             let t4076 = s.29 * t2895;
             let t4077 = t4075 - t4076;
             let t4078 = t4074 + t4077;
-            dc_dq[7][3] = t4078;
+            dc_dq.66 = t4078;
             let t4079 = s.30 * t3546;
             let t4080 = s.29 * t3547;
             let t4081 = t4079 - t4080;
@@ -6230,7 +6250,7 @@ pub mod portable {
             let t4085 = t4083 - t4084;
             let t4086 = t4085 + t4085;
             let t4087 = t3594 + t4086;
-            dc_dqd[7][3] = t4087;
+            dc_dqd.66 = t4087;
             let t4088 = s.80 * t3612;
             let t4089 = s.81 * t3613;
             let t4090 = t4088 + t4089;
@@ -6246,7 +6266,7 @@ pub mod portable {
             let t4100 = s.29 * t2933;
             let t4101 = t4099 - t4100;
             let t4102 = t4098 + t4101;
-            dc_dq[8][3] = t4102;
+            dc_dq.75 = t4102;
             let t4103 = s.30 * t3612;
             let t4104 = s.29 * t3613;
             let t4105 = t4103 - t4104;
@@ -6256,7 +6276,7 @@ pub mod portable {
             let t4109 = t4107 - t4108;
             let t4110 = t4109 + t4109;
             let t4111 = t3660 + t4110;
-            dc_dqd[8][3] = t4111;
+            dc_dqd.75 = t4111;
             let t4112 = s.5 * t3723;
             let t4113 = -t4112;
             let t4114 = s.4 * t3722;
@@ -6293,7 +6313,7 @@ pub mod portable {
             let t4143 = t4137 - t4141;
             let t4144 = t4140 - t4142;
             s.250 = t4144;
-            dc_dqd[2][3] = t4144;
+            dc_dqd.21 = t4144;
             let t4145 = s.5 * t3966;
             let t4146 = s.4 * t3967;
             let t4147 = t4145 - t4146;
@@ -6312,7 +6332,7 @@ pub mod portable {
             let t4160 = t4154 - t4158;
             let t4161 = t4157 - t4159;
             s.251 = t4161;
-            dc_dq[2][3] = t4161;
+            dc_dq.21 = t4161;
             let t4162 = s.5 * t3970;
             let t4163 = s.4 * t3971;
             let t4164 = t4162 - t4163;
@@ -6362,7 +6382,7 @@ pub mod portable {
             let t4205 = t4199 - t4203;
             let t4206 = t4202 - t4204;
             s.255 = t4206;
-            dc_dqd[2][4] = t4206;
+            dc_dqd.22 = t4206;
             let t4207 = s.5 * t3337;
             let t4208 = s.4 * t3171;
             let t4209 = t4207 - t4208;
@@ -6381,7 +6401,7 @@ pub mod portable {
             let t4222 = t4216 - t4220;
             let t4223 = t4219 - t4221;
             s.256 = t4223;
-            dc_dq[2][4] = t4223;
+            dc_dq.22 = t4223;
             let t4224 = s.5 * t3359;
             let t4225 = s.4 * t3359;
             let t4226 = s.5 * t3374;
@@ -6433,7 +6453,7 @@ pub mod portable {
             let t4269 = t4263 - t4267;
             let t4270 = t4266 - t4268;
             s.260 = t4270;
-            dc_dqd[2][5] = t4270;
+            dc_dqd.23 = t4270;
             let t4271 = s.5 * t3415;
             let t4272 = s.4 * t2799;
             let t4273 = t4271 - t4272;
@@ -6455,7 +6475,7 @@ pub mod portable {
             s.263 = t4286;
             let t4287 = t4283 - t4285;
             s.264 = t4287;
-            dc_dq[2][5] = t4287;
+            dc_dq.23 = t4287;
             let t4288 = s.5 * t3433;
             let t4289 = s.4 * t2811;
             let t4290 = t4288 - t4289;
@@ -6520,7 +6540,7 @@ pub mod portable {
             s.276 = t4337;
             let t4338 = t4334 - t4336;
             s.277 = t4338;
-            dc_dqd[2][6] = t4338;
+            dc_dqd.24 = t4338;
             let t4339 = s.5 * t3491;
             let t4340 = s.4 * t2843;
             let t4341 = t4339 - t4340;
@@ -6542,7 +6562,7 @@ pub mod portable {
             s.280 = t4354;
             let t4355 = t4351 - t4353;
             s.281 = t4355;
-            dc_dq[2][6] = t4355;
+            dc_dq.24 = t4355;
             let t4356 = s.5 * t3511;
             let t4357 = s.4 * t2851;
             let t4358 = t4356 - t4357;
@@ -6607,7 +6627,7 @@ pub mod portable {
             s.293 = t4405;
             let t4406 = t4402 - t4404;
             s.294 = t4406;
-            dc_dqd[2][7] = t4406;
+            dc_dqd.25 = t4406;
             let t4407 = s.5 * t3571;
             let t4408 = s.4 * t2883;
             let t4409 = t4407 - t4408;
@@ -6629,7 +6649,7 @@ pub mod portable {
             s.297 = t4422;
             let t4423 = t4419 - t4421;
             s.298 = t4423;
-            dc_dq[2][7] = t4423;
+            dc_dq.25 = t4423;
             let t4424 = s.5 * t3591;
             let t4425 = s.4 * t2895;
             let t4426 = t4424 - t4425;
@@ -6681,7 +6701,7 @@ pub mod portable {
             s.308 = t4462;
             let t4463 = t4459 - t4461;
             s.309 = t4463;
-            dc_dqd[2][8] = t4463;
+            dc_dqd.26 = t4463;
             let t4464 = s.5 * t3637;
             let t4465 = s.4 * t2921;
             let t4466 = t4464 - t4465;
@@ -6703,7 +6723,7 @@ pub mod portable {
             s.312 = t4479;
             let t4480 = t4476 - t4478;
             s.313 = t4480;
-            dc_dq[2][8] = t4480;
+            dc_dq.26 = t4480;
             let t4481 = s.5 * t3657;
             let t4482 = s.4 * t2933;
             let t4483 = t4481 - t4482;
@@ -6994,12 +7014,12 @@ pub mod portable {
             let t4748 = s.21 * t4740;
             let t4749 = t4747 - t4748;
             let t4750 = t4742 + t4749;
-            dc_dq[2][2] = t4750;
+            dc_dq.20 = t4750;
             let t4751 = t4615 - t4620;
             let t4752 = t4751 - t4618;
             let t4753 = t4752 + t4752;
             let t4754 = t4580 + t4753;
-            dc_dqd[2][2] = t4754;
+            dc_dqd.20 = t4754;
             let t4755 = s.74 * t4121;
             let t4756 = s.75 * t4127;
             let t4757 = t4755 + t4756;
@@ -7015,7 +7035,7 @@ pub mod portable {
             let t4767 = s.22 * t4164;
             let t4768 = t4766 + t4767;
             let t4769 = t4763 + t4768;
-            dc_dq[3][2] = t4769;
+            dc_dq.29 = t4769;
             let t4770 = s.20 * t4121;
             let t4771 = s.19 * t4127;
             let t4772 = t4770 - t4771;
@@ -7023,7 +7043,7 @@ pub mod portable {
             let t4774 = t4772 + t4773;
             let t4775 = t4774 + t4774;
             let t4776 = t4174 + t4775;
-            dc_dqd[3][2] = t4776;
+            dc_dqd.29 = t4776;
             let t4777 = s.74 * t4181;
             let t4778 = s.75 * t4188;
             let t4779 = t4777 + t4778;
@@ -7043,7 +7063,7 @@ pub mod portable {
             let t4793 = s.21 * t3363;
             let t4794 = t4792 + t4793;
             let t4795 = t4787 + t4794;
-            dc_dq[4][2] = t4795;
+            dc_dq.38 = t4795;
             let t4796 = s.20 * t4181;
             let t4797 = s.19 * t4188;
             let t4798 = t4796 - t4797;
@@ -7053,7 +7073,7 @@ pub mod portable {
             let t4802 = t4800 + t4801;
             let t4803 = t4802 + t4802;
             let t4804 = t4236 + t4803;
-            dc_dqd[4][2] = t4804;
+            dc_dqd.38 = t4804;
             let t4805 = s.74 * t4245;
             let t4806 = s.75 * t4252;
             let t4807 = t4805 + t4806;
@@ -7073,7 +7093,7 @@ pub mod portable {
             let t4821 = s.21 * t3434;
             let t4822 = t4820 - t4821;
             let t4823 = t4815 + t4822;
-            dc_dq[5][2] = t4823;
+            dc_dq.47 = t4823;
             let t4824 = s.20 * t4245;
             let t4825 = s.19 * t4252;
             let t4826 = t4824 - t4825;
@@ -7083,7 +7103,7 @@ pub mod portable {
             let t4830 = t4828 - t4829;
             let t4831 = t4830 + t4830;
             let t4832 = t4304 + t4831;
-            dc_dqd[5][2] = t4832;
+            dc_dqd.47 = t4832;
             let t4833 = s.74 * t4313;
             let t4834 = s.75 * t4320;
             let t4835 = t4833 + t4834;
@@ -7103,7 +7123,7 @@ pub mod portable {
             let t4849 = s.21 * t3514;
             let t4850 = t4848 + t4849;
             let t4851 = t4843 + t4850;
-            dc_dq[6][2] = t4851;
+            dc_dq.56 = t4851;
             let t4852 = s.20 * t4313;
             let t4853 = s.19 * t4320;
             let t4854 = t4852 - t4853;
@@ -7113,7 +7133,7 @@ pub mod portable {
             let t4858 = t4856 + t4857;
             let t4859 = t4858 + t4858;
             let t4860 = t4372 + t4859;
-            dc_dqd[6][2] = t4860;
+            dc_dqd.56 = t4860;
             let t4861 = s.74 * t4381;
             let t4862 = s.75 * t4388;
             let t4863 = t4861 + t4862;
@@ -7129,7 +7149,7 @@ pub mod portable {
             let t4873 = s.19 * t3594;
             let t4874 = t4872 + t4873;
             let t4875 = t4871 + t4874;
-            dc_dq[7][2] = t4875;
+            dc_dq.65 = t4875;
             let t4876 = s.20 * t4381;
             let t4877 = s.19 * t4388;
             let t4878 = t4876 - t4877;
@@ -7139,7 +7159,7 @@ pub mod portable {
             let t4882 = t4880 + t4881;
             let t4883 = t4882 + t4882;
             let t4884 = t4429 + t4883;
-            dc_dqd[7][2] = t4884;
+            dc_dqd.65 = t4884;
             let t4885 = s.74 * t4438;
             let t4886 = s.75 * t4445;
             let t4887 = t4885 + t4886;
@@ -7155,7 +7175,7 @@ pub mod portable {
             let t4897 = s.19 * t3660;
             let t4898 = t4896 + t4897;
             let t4899 = t4895 + t4898;
-            dc_dq[8][2] = t4899;
+            dc_dq.74 = t4899;
             let t4900 = s.20 * t4438;
             let t4901 = s.19 * t4445;
             let t4902 = t4900 - t4901;
@@ -7165,7 +7185,7 @@ pub mod portable {
             let t4906 = t4904 + t4905;
             let t4907 = t4906 + t4906;
             let t4908 = t4486 + t4907;
-            dc_dqd[8][2] = t4908;
+            dc_dqd.74 = t4908;
             let t4909 = s.3 * t4530;
             s.337 = t4909;
             let t4910 = -t4909;
@@ -7210,7 +7230,7 @@ pub mod portable {
             let t4940 = t4934 + t4938;
             s.347 = t4940;
             let t4941 = t4937 - t4939;
-            dc_dqd[1][2] = t4941;
+            dc_dqd.11 = t4941;
             let t4942 = s.3 * t4735;
             let t4943 = s.2 * t4736;
             let t4944 = t4942 - t4943;
@@ -7228,7 +7248,7 @@ pub mod portable {
             let t4956 = t4950 + t4954;
             s.348 = t4956;
             let t4957 = t4953 - t4955;
-            dc_dq[1][2] = t4957;
+            dc_dq.11 = t4957;
             let t4958 = s.3 * t4739;
             let t4959 = s.2 * t4740;
             let t4960 = t4958 - t4959;
@@ -7279,7 +7299,7 @@ pub mod portable {
             let t5000 = t4994 + t4998;
             s.354 = t5000;
             let t5001 = t4997 - t4999;
-            dc_dqd[1][3] = t5001;
+            dc_dqd.12 = t5001;
             let t5002 = s.3 * t4147;
             let t5003 = s.2 * t3963;
             let t5004 = t5002 + t5003;
@@ -7297,7 +7317,7 @@ pub mod portable {
             let t5016 = t5010 + t5014;
             s.355 = t5016;
             let t5017 = t5013 - t5015;
-            dc_dq[1][3] = t5017;
+            dc_dq.12 = t5017;
             let t5018 = s.3 * t4164;
             let t5019 = s.2 * t4164;
             let t5020 = s.3 * t4170;
@@ -7348,7 +7368,7 @@ pub mod portable {
             let t5060 = t5054 + t5058;
             s.361 = t5060;
             let t5061 = t5057 - t5059;
-            dc_dqd[1][4] = t5061;
+            dc_dqd.13 = t5061;
             let t5062 = s.3 * t4209;
             let t5063 = s.2 * t3341;
             let t5064 = t5062 + t5063;
@@ -7366,7 +7386,7 @@ pub mod portable {
             let t5076 = t5070 + t5074;
             s.362 = t5076;
             let t5077 = t5073 - t5075;
-            dc_dq[1][4] = t5077;
+            dc_dq.13 = t5077;
             let t5078 = s.3 * t4224;
             let t5079 = s.2 * t3363;
             let t5080 = t5078 + t5079;
@@ -7421,7 +7441,7 @@ pub mod portable {
             let t5124 = t5118 + t5122;
             s.368 = t5124;
             let t5125 = t5121 - t5123;
-            dc_dqd[1][5] = t5125;
+            dc_dqd.14 = t5125;
             let t5126 = s.3 * t4273;
             let t5127 = s.2 * t3418;
             let t5128 = t5126 + t5127;
@@ -7441,6 +7461,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
             let t5129 = s.2 * s.261;
             let t5130 = s.3 * s.234;
             let t5131 = t5129 - t5130;
@@ -7454,7 +7480,7 @@ pub mod portable {
             let t5139 = lit::<T>(-0.316) * s.369;
             let t5140 = t5134 + t5138;
             let t5141 = t5137 - t5139;
-            dc_dq[1][5] = t5141;
+            dc_dq.14 = t5141;
             let t5142 = s.3 * s.265;
             let t5143 = s.2 * s.235;
             let t5144 = t5142 - t5143;
@@ -7503,7 +7529,7 @@ pub mod portable {
             let t5187 = lit::<T>(-0.316) * t5176;
             let t5188 = t5182 + t5186;
             let t5189 = t5185 - t5187;
-            dc_dqd[1][6] = t5189;
+            dc_dqd.15 = t5189;
             let t5190 = s.3 * s.278;
             let t5191 = s.2 * s.238;
             let t5192 = t5190 + t5191;
@@ -7520,7 +7546,7 @@ pub mod portable {
             let t5203 = lit::<T>(-0.316) * t5192;
             let t5204 = t5198 + t5202;
             let t5205 = t5201 - t5203;
-            dc_dq[1][6] = t5205;
+            dc_dq.15 = t5205;
             let t5206 = s.3 * s.282;
             let t5207 = s.2 * s.239;
             let t5208 = t5206 + t5207;
@@ -7569,7 +7595,7 @@ pub mod portable {
             let t5251 = lit::<T>(-0.316) * t5240;
             let t5252 = t5246 + t5250;
             let t5253 = t5249 - t5251;
-            dc_dqd[1][7] = t5253;
+            dc_dqd.16 = t5253;
             let t5254 = s.3 * s.295;
             let t5255 = s.2 * s.242;
             let t5256 = t5254 + t5255;
@@ -7586,7 +7612,7 @@ pub mod portable {
             let t5267 = lit::<T>(-0.316) * t5256;
             let t5268 = t5262 + t5266;
             let t5269 = t5265 - t5267;
-            dc_dq[1][7] = t5269;
+            dc_dq.16 = t5269;
             let t5270 = s.3 * s.299;
             let t5271 = s.2 * s.243;
             let t5272 = t5270 + t5271;
@@ -7625,7 +7651,7 @@ pub mod portable {
             let t5305 = lit::<T>(-0.316) * t5294;
             let t5306 = t5300 + t5304;
             let t5307 = t5303 - t5305;
-            dc_dqd[1][8] = t5307;
+            dc_dqd.17 = t5307;
             let t5308 = s.3 * s.310;
             let t5309 = s.2 * s.246;
             let t5310 = t5308 + t5309;
@@ -7642,7 +7668,7 @@ pub mod portable {
             let t5321 = lit::<T>(-0.316) * t5310;
             let t5322 = t5316 + t5320;
             let t5323 = t5319 - t5321;
-            dc_dq[1][8] = t5323;
+            dc_dq.17 = t5323;
             let t5324 = s.3 * s.314;
             let t5325 = s.2 * s.247;
             let t5326 = t5324 + t5325;
@@ -7809,7 +7835,7 @@ pub mod portable {
             let t5489 = t5484 + t5487;
             let t5490 = t5485 + t5488;
             let t5491 = t5426 + t5486;
-            dc_dqd[1][1] = t5491;
+            dc_dqd.10 = t5491;
             let t5492 = t5478 + t5482;
             let t5493 = t5481 + t5483;
             let t5494 = t5474 + t5492;
@@ -7824,7 +7850,7 @@ pub mod portable {
             let t5503 = s.10 * t5499;
             let t5504 = t5503 - t5502;
             let t5505 = t5501 + t5504;
-            dc_dq[1][1] = t5505;
+            dc_dq.10 = t5505;
             let t5506 = s.13 * s.345;
             let t5507 = -t5506;
             let t5508 = s.12 * s.319;
@@ -7838,14 +7864,14 @@ pub mod portable {
             let t5516 = s.10 * s.326;
             let t5517 = t5515 - t5516;
             let t5518 = t5513 + t5517;
-            dc_dq[2][1] = t5518;
+            dc_dq.19 = t5518;
             let t5519 = s.11 * s.345;
             let t5520 = -t5519;
             let t5521 = s.10 * s.319;
             let t5522 = t5520 - t5521;
             let t5523 = t5522 + t5522;
             let t5524 = s.350 + t5523;
-            dc_dqd[2][1] = t5524;
+            dc_dqd.19 = t5524;
             let t5525 = s.13 * s.352;
             let t5526 = -t5525;
             let t5527 = s.12 * s.249;
@@ -7861,14 +7887,14 @@ pub mod portable {
             let t5537 = s.10 * s.252;
             let t5538 = t5536 - t5537;
             let t5539 = t5534 + t5538;
-            dc_dq[3][1] = t5539;
+            dc_dq.28 = t5539;
             let t5540 = s.11 * s.352;
             let t5541 = -t5540;
             let t5542 = s.10 * s.249;
             let t5543 = t5541 - t5542;
             let t5544 = t5543 + t5543;
             let t5545 = s.357 + t5544;
-            dc_dqd[3][1] = t5545;
+            dc_dqd.28 = t5545;
             let t5546 = s.13 * s.359;
             let t5547 = -t5546;
             let t5548 = s.12 * s.254;
@@ -7884,14 +7910,14 @@ pub mod portable {
             let t5558 = s.10 * s.257;
             let t5559 = t5557 - t5558;
             let t5560 = t5555 + t5559;
-            dc_dq[4][1] = t5560;
+            dc_dq.37 = t5560;
             let t5561 = s.11 * s.359;
             let t5562 = -t5561;
             let t5563 = s.10 * s.254;
             let t5564 = t5562 - t5563;
             let t5565 = t5564 + t5564;
             let t5566 = s.364 + t5565;
-            dc_dqd[4][1] = t5566;
+            dc_dqd.37 = t5566;
             let t5567 = s.13 * s.366;
             let t5568 = -t5567;
             let t5569 = s.12 * s.259;
@@ -7907,14 +7933,14 @@ pub mod portable {
             let t5579 = s.10 * s.268;
             let t5580 = t5578 - t5579;
             let t5581 = t5576 + t5580;
-            dc_dq[5][1] = t5581;
+            dc_dq.46 = t5581;
             let t5582 = s.11 * s.366;
             let t5583 = -t5582;
             let t5584 = s.10 * s.259;
             let t5585 = t5583 - t5584;
             let t5586 = t5585 + t5585;
             let t5587 = t5157 + t5586;
-            dc_dqd[5][1] = t5587;
+            dc_dqd.46 = t5587;
             let t5588 = s.13 * t5172;
             let t5589 = -t5588;
             let t5590 = s.12 * s.273;
@@ -7930,14 +7956,14 @@ pub mod portable {
             let t5600 = s.10 * s.285;
             let t5601 = t5599 - t5600;
             let t5602 = t5597 + t5601;
-            dc_dq[6][1] = t5602;
+            dc_dq.55 = t5602;
             let t5603 = s.11 * t5172;
             let t5604 = -t5603;
             let t5605 = s.10 * s.273;
             let t5606 = t5604 - t5605;
             let t5607 = t5606 + t5606;
             let t5608 = t5221 + t5607;
-            dc_dqd[6][1] = t5608;
+            dc_dqd.55 = t5608;
             let t5609 = s.13 * t5236;
             let t5610 = -t5609;
             let t5611 = s.12 * s.290;
@@ -7953,14 +7979,14 @@ pub mod portable {
             let t5621 = s.10 * s.300;
             let t5622 = t5620 - t5621;
             let t5623 = t5618 + t5622;
-            dc_dq[7][1] = t5623;
+            dc_dq.64 = t5623;
             let t5624 = s.11 * t5236;
             let t5625 = -t5624;
             let t5626 = s.10 * s.290;
             let t5627 = t5625 - t5626;
             let t5628 = t5627 + t5627;
             let t5629 = t5275 + t5628;
-            dc_dqd[7][1] = t5629;
+            dc_dqd.64 = t5629;
             let t5630 = s.13 * t5290;
             let t5631 = -t5630;
             let t5632 = s.12 * s.305;
@@ -7976,113 +8002,113 @@ pub mod portable {
             let t5642 = s.10 * s.315;
             let t5643 = t5641 - t5642;
             let t5644 = t5639 + t5643;
-            dc_dq[8][1] = t5644;
+            dc_dq.73 = t5644;
             let t5645 = s.11 * t5290;
             let t5646 = -t5645;
             let t5647 = s.10 * s.305;
             let t5648 = t5646 - t5647;
             let t5649 = t5648 + t5648;
             let t5650 = t5329 + t5649;
-            dc_dqd[8][1] = t5650;
+            dc_dqd.73 = t5650;
             let t5651 = s.0 * t5489;
             let t5652 = -t5651;
             let t5653 = s.1 * t5490;
             let t5654 = t5652 - t5653;
-            dc_dqd[0][1] = t5654;
+            dc_dqd.1 = t5654;
             let t5655 = s.0 * t5496;
             let t5656 = -t5655;
             let t5657 = s.1 * t5497;
             let t5658 = t5656 - t5657;
-            dc_dq[0][1] = t5658;
+            dc_dq.1 = t5658;
             let t5659 = s.0 * t5498;
             let t5660 = -t5659;
             let t5661 = s.1 * t5499;
             let t5662 = t5660 - t5661;
-            dc_dqd[1][0] = t5662;
+            dc_dqd.9 = t5662;
             let t5663 = s.0 * s.347;
             let t5664 = s.1 * s.335;
             let t5665 = t5664 - t5663;
-            dc_dqd[0][2] = t5665;
+            dc_dqd.2 = t5665;
             let t5666 = s.0 * s.348;
             let t5667 = s.1 * s.336;
             let t5668 = t5667 - t5666;
-            dc_dq[0][2] = t5668;
+            dc_dq.2 = t5668;
             let t5669 = s.0 * s.349;
             let t5670 = s.1 * s.326;
             let t5671 = t5670 - t5669;
-            dc_dqd[2][0] = t5671;
+            dc_dqd.18 = t5671;
             let t5672 = s.0 * s.354;
             let t5673 = s.1 * s.250;
             let t5674 = t5673 - t5672;
-            dc_dqd[0][3] = t5674;
+            dc_dqd.3 = t5674;
             let t5675 = s.0 * s.355;
             let t5676 = s.1 * s.251;
             let t5677 = t5676 - t5675;
-            dc_dq[0][3] = t5677;
+            dc_dq.3 = t5677;
             let t5678 = s.0 * s.356;
             let t5679 = s.1 * s.252;
             let t5680 = t5679 - t5678;
-            dc_dqd[3][0] = t5680;
+            dc_dqd.27 = t5680;
             let t5681 = s.0 * s.361;
             let t5682 = s.1 * s.255;
             let t5683 = t5682 - t5681;
-            dc_dqd[0][4] = t5683;
+            dc_dqd.4 = t5683;
             let t5684 = s.0 * s.362;
             let t5685 = s.1 * s.256;
             let t5686 = t5685 - t5684;
-            dc_dq[0][4] = t5686;
+            dc_dq.4 = t5686;
             let t5687 = s.0 * s.363;
             let t5688 = s.1 * s.257;
             let t5689 = t5688 - t5687;
-            dc_dqd[4][0] = t5689;
+            dc_dqd.36 = t5689;
             let t5690 = s.0 * s.368;
             let t5691 = s.1 * s.260;
             let t5692 = t5691 - t5690;
-            dc_dqd[0][5] = t5692;
+            dc_dqd.5 = t5692;
             let t5693 = s.0 * t5140;
             let t5694 = s.1 * s.264;
             let t5695 = t5694 - t5693;
-            dc_dq[0][5] = t5695;
+            dc_dq.5 = t5695;
             let t5696 = s.0 * t5156;
             let t5697 = s.1 * s.268;
             let t5698 = t5697 - t5696;
-            dc_dqd[5][0] = t5698;
+            dc_dqd.45 = t5698;
             let t5699 = s.0 * t5188;
             let t5700 = s.1 * s.277;
             let t5701 = t5700 - t5699;
-            dc_dqd[0][6] = t5701;
+            dc_dqd.6 = t5701;
             let t5702 = s.0 * t5204;
             let t5703 = s.1 * s.281;
             let t5704 = t5703 - t5702;
-            dc_dq[0][6] = t5704;
+            dc_dq.6 = t5704;
             let t5705 = s.0 * t5220;
             let t5706 = s.1 * s.285;
             let t5707 = t5706 - t5705;
-            dc_dqd[6][0] = t5707;
+            dc_dqd.54 = t5707;
             let t5708 = s.0 * t5252;
             let t5709 = s.1 * s.294;
             let t5710 = t5709 - t5708;
-            dc_dqd[0][7] = t5710;
+            dc_dqd.7 = t5710;
             let t5711 = s.0 * t5268;
             let t5712 = s.1 * s.298;
             let t5713 = t5712 - t5711;
-            dc_dq[0][7] = t5713;
+            dc_dq.7 = t5713;
             let t5714 = s.0 * t5272;
             let t5715 = s.1 * s.300;
             let t5716 = t5715 - t5714;
-            dc_dqd[7][0] = t5716;
+            dc_dqd.63 = t5716;
             let t5717 = s.0 * t5306;
             let t5718 = s.1 * s.309;
             let t5719 = t5718 - t5717;
-            dc_dqd[0][8] = t5719;
+            dc_dqd.8 = t5719;
             let t5720 = s.0 * t5322;
             let t5721 = s.1 * s.313;
             let t5722 = t5721 - t5720;
-            dc_dq[0][8] = t5722;
+            dc_dq.8 = t5722;
             let t5723 = s.0 * t5326;
             let t5724 = s.1 * s.315;
             let t5725 = t5724 - t5723;
-            dc_dqd[8][0] = t5725;
+            dc_dqd.72 = t5725;
             let t5726 = s.0 * t5422;
             let t5727 = -t5726;
             let t5728 = s.0 * t5421;
@@ -8095,7 +8121,7 @@ pub mod portable {
             let t5735 = -t5734;
             let t5736 = s.1 * t5733;
             let t5737 = t5735 - t5736;
-            dc_dqd[0][0] = t5737;
+            dc_dqd.0 = t5737;
         }
     }
     use rnea_grad_part2::rnea_grad_part2;
@@ -8922,6 +8948,14 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 81 entries of `minv`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct minv_f81<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod minv_part0 {
         use super::*;
         #[inline(never)]
@@ -8931,6 +8965,7 @@ pub mod portable {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f81<T>) };
             let t3 = q[1].sin();
             let t4 = q[1].cos();
             let t13 = q[2].sin();
@@ -10821,39 +10856,39 @@ pub mod portable {
             let t1973 = t1971 - t1972;
             let t1974 = lit::<T>(0.009213163777211224) + t1973;
             let t1975 = lit::<T>(1.0) / t1974;
-            minv[0][0] = t1975;
+            minv.0 = t1975;
             let t1976 = t1899 * t1975;
             let t1977 = -t1976;
-            minv[0][1] = t1977;
-            minv[1][0] = t1977;
+            minv.1 = t1977;
+            minv.9 = t1977;
             let t1978 = t1907 * t1975;
             let t1979 = -t1978;
-            minv[0][2] = t1979;
-            minv[2][0] = t1979;
+            minv.2 = t1979;
+            minv.18 = t1979;
             let t1980 = t1915 * t1975;
             let t1981 = -t1980;
-            minv[0][3] = t1981;
-            minv[3][0] = t1981;
+            minv.3 = t1981;
+            minv.27 = t1981;
             let t1982 = t1923 * t1975;
             let t1983 = -t1982;
-            minv[0][4] = t1983;
-            minv[4][0] = t1983;
+            minv.4 = t1983;
+            minv.36 = t1983;
             let t1984 = t1931 * t1975;
             let t1985 = -t1984;
-            minv[0][5] = t1985;
-            minv[5][0] = t1985;
+            minv.5 = t1985;
+            minv.45 = t1985;
             let t1986 = t1939 * t1975;
             let t1987 = -t1986;
-            minv[0][6] = t1987;
-            minv[6][0] = t1987;
+            minv.6 = t1987;
+            minv.54 = t1987;
             let t1988 = t1947 * t1975;
             let t1989 = -t1988;
-            minv[0][7] = t1989;
-            minv[7][0] = t1989;
+            minv.7 = t1989;
+            minv.63 = t1989;
             let t1990 = t1955 * t1975;
             let t1991 = -t1990;
-            minv[0][8] = t1991;
-            minv[8][0] = t1991;
+            minv.8 = t1991;
+            minv.72 = t1991;
             let t1992 = t3 * t1976;
             let t1993 = t4 * t1976;
             let t1994 = t1875 * t1992;
@@ -10861,7 +10896,7 @@ pub mod portable {
             let t1996 = t1994 + t1995;
             let t1997 = t1879 * t1996;
             let t1998 = t1879 - t1997;
-            minv[1][1] = t1998;
+            minv.10 = t1998;
             let t1999 = t3 * t1978;
             let t2000 = t4 * t1978;
             let t2001 = t1875 * t1999;
@@ -10869,8 +10904,8 @@ pub mod portable {
             let t2003 = t2001 + t2002;
             let t2004 = t1879 * t2003;
             let t2005 = t1881 - t2004;
-            minv[1][2] = t2005;
-            minv[2][1] = t2005;
+            minv.11 = t2005;
+            minv.19 = t2005;
             let t2006 = t3 * t1980;
             let t2007 = t4 * t1980;
             let t2008 = t1875 * t2006;
@@ -10878,8 +10913,8 @@ pub mod portable {
             let t2010 = t2008 + t2009;
             let t2011 = t1879 * t2010;
             let t2012 = t1883 - t2011;
-            minv[1][3] = t2012;
-            minv[3][1] = t2012;
+            minv.12 = t2012;
+            minv.28 = t2012;
             let t2013 = t3 * t1982;
             let t2014 = t4 * t1982;
             let t2015 = t1875 * t2013;
@@ -10887,8 +10922,8 @@ pub mod portable {
             let t2017 = t2015 + t2016;
             let t2018 = t1879 * t2017;
             let t2019 = t1885 - t2018;
-            minv[1][4] = t2019;
-            minv[4][1] = t2019;
+            minv.13 = t2019;
+            minv.37 = t2019;
             let t2020 = t3 * t1984;
             let t2021 = t4 * t1984;
             let t2022 = t1875 * t2020;
@@ -10896,8 +10931,8 @@ pub mod portable {
             let t2024 = t2022 + t2023;
             let t2025 = t1879 * t2024;
             let t2026 = t1887 - t2025;
-            minv[1][5] = t2026;
-            minv[5][1] = t2026;
+            minv.14 = t2026;
+            minv.46 = t2026;
             let t2027 = t3 * t1986;
             let t2028 = t4 * t1986;
             let t2029 = t1875 * t2027;
@@ -10905,8 +10940,8 @@ pub mod portable {
             let t2031 = t2029 + t2030;
             let t2032 = t1879 * t2031;
             let t2033 = t1889 - t2032;
-            minv[1][6] = t2033;
-            minv[6][1] = t2033;
+            minv.15 = t2033;
+            minv.55 = t2033;
             let t2034 = t3 * t1988;
             let t2035 = t4 * t1988;
             let t2036 = t1875 * t2034;
@@ -10914,8 +10949,8 @@ pub mod portable {
             let t2038 = t2036 + t2037;
             let t2039 = t1879 * t2038;
             let t2040 = t1891 - t2039;
-            minv[1][7] = t2040;
-            minv[7][1] = t2040;
+            minv.16 = t2040;
+            minv.64 = t2040;
             let t2041 = t3 * t1990;
             let t2042 = t4 * t1990;
             let t2043 = t1875 * t2041;
@@ -10923,8 +10958,8 @@ pub mod portable {
             let t2045 = t2043 + t2044;
             let t2046 = t1879 * t2045;
             let t2047 = t1893 - t2046;
-            minv[1][8] = t2047;
-            minv[8][1] = t2047;
+            minv.17 = t2047;
+            minv.73 = t2047;
             let t2048 = lit::<T>(-0.316) * t2005;
             let t2049 = lit::<T>(-0.316) * t1999;
             let t2050 = t14 * t1999;
@@ -10950,7 +10985,7 @@ pub mod portable {
             let t2070 = t2068 + t2069;
             let t2071 = t1547 * t2070;
             let t2072 = t1547 - t2071;
-            minv[2][2] = t2072;
+            minv.20 = t2072;
             let t2073 = lit::<T>(-0.316) * t2012;
             let t2074 = lit::<T>(-0.316) * t2006;
             let t2075 = t14 * t2006;
@@ -10976,8 +11011,8 @@ pub mod portable {
             let t2095 = t2093 + t2094;
             let t2096 = t1547 * t2095;
             let t2097 = t1549 - t2096;
-            minv[2][3] = t2097;
-            minv[3][2] = t2097;
+            minv.21 = t2097;
+            minv.29 = t2097;
             let t2098 = t2097 - t2007;
             let t2099 = lit::<T>(-0.316) * t2019;
             let t2100 = lit::<T>(-0.316) * t2013;
@@ -11004,8 +11039,8 @@ pub mod portable {
             let t2121 = t2119 + t2120;
             let t2122 = t1547 * t2121;
             let t2123 = t1551 - t2122;
-            minv[2][4] = t2123;
-            minv[4][2] = t2123;
+            minv.22 = t2123;
+            minv.38 = t2123;
             let t2124 = t2123 - t2014;
             let t2125 = lit::<T>(-0.316) * t2026;
             let t2126 = lit::<T>(-0.316) * t2020;
@@ -11032,8 +11067,8 @@ pub mod portable {
             let t2147 = t2145 + t2146;
             let t2148 = t1547 * t2147;
             let t2149 = t1553 - t2148;
-            minv[2][5] = t2149;
-            minv[5][2] = t2149;
+            minv.23 = t2149;
+            minv.47 = t2149;
             let t2150 = t2149 - t2021;
             let t2151 = lit::<T>(-0.316) * t2033;
             let t2152 = lit::<T>(-0.316) * t2027;
@@ -11060,8 +11095,8 @@ pub mod portable {
             let t2173 = t2171 + t2172;
             let t2174 = t1547 * t2173;
             let t2175 = t1555 - t2174;
-            minv[2][6] = t2175;
-            minv[6][2] = t2175;
+            minv.24 = t2175;
+            minv.56 = t2175;
             let t2176 = t2175 - t2028;
             let t2177 = lit::<T>(-0.316) * t2040;
             let t2178 = lit::<T>(-0.316) * t2034;
@@ -11088,8 +11123,8 @@ pub mod portable {
             let t2199 = t2197 + t2198;
             let t2200 = t1547 * t2199;
             let t2201 = t1557 - t2200;
-            minv[2][7] = t2201;
-            minv[7][2] = t2201;
+            minv.25 = t2201;
+            minv.65 = t2201;
             let t2202 = t2201 - t2035;
             let t2203 = lit::<T>(-0.316) * t2047;
             let t2204 = lit::<T>(-0.316) * t2041;
@@ -11116,8 +11151,8 @@ pub mod portable {
             let t2225 = t2223 + t2224;
             let t2226 = t1547 * t2225;
             let t2227 = t1559 - t2226;
-            minv[2][8] = t2227;
-            minv[8][2] = t2227;
+            minv.26 = t2227;
+            minv.74 = t2227;
             let t2228 = t2227 - t2042;
             let t2229 = lit::<T>(0.0825) * t2098;
             let t2230 = lit::<T>(0.0825) * t2080;
@@ -11148,7 +11183,7 @@ pub mod portable {
             let t2255 = t2253 - t2254;
             let t2256 = t1179 * t2255;
             let t2257 = t1179 - t2256;
-            minv[3][3] = t2257;
+            minv.30 = t2257;
             let t2258 = lit::<T>(0.0825) * t2124;
             let t2259 = lit::<T>(0.0825) * t2106;
             let t2260 = t2112 + t2258;
@@ -11179,8 +11214,8 @@ pub mod portable {
             let t2285 = t2283 - t2284;
             let t2286 = t1179 * t2285;
             let t2287 = t1181 - t2286;
-            minv[3][4] = t2287;
-            minv[4][3] = t2287;
+            minv.31 = t2287;
+            minv.39 = t2287;
             let t2288 = t2287 - t2106;
             let t2289 = lit::<T>(0.0825) * t2150;
             let t2290 = lit::<T>(0.0825) * t2132;
@@ -11212,8 +11247,8 @@ pub mod portable {
             let t2316 = t2314 - t2315;
             let t2317 = t1179 * t2316;
             let t2318 = t1183 - t2317;
-            minv[3][5] = t2318;
-            minv[5][3] = t2318;
+            minv.32 = t2318;
+            minv.48 = t2318;
             let t2319 = t2318 - t2132;
             let t2320 = lit::<T>(0.0825) * t2176;
             let t2321 = lit::<T>(0.0825) * t2158;
@@ -11245,8 +11280,8 @@ pub mod portable {
             let t2347 = t2345 - t2346;
             let t2348 = t1179 * t2347;
             let t2349 = t1185 - t2348;
-            minv[3][6] = t2349;
-            minv[6][3] = t2349;
+            minv.33 = t2349;
+            minv.57 = t2349;
             let t2350 = t2349 - t2158;
             let t2351 = lit::<T>(0.0825) * t2202;
             let t2352 = lit::<T>(0.0825) * t2184;
@@ -11278,8 +11313,8 @@ pub mod portable {
             let t2378 = t2376 - t2377;
             let t2379 = t1179 * t2378;
             let t2380 = t1187 - t2379;
-            minv[3][7] = t2380;
-            minv[7][3] = t2380;
+            minv.34 = t2380;
+            minv.66 = t2380;
             let t2381 = t2380 - t2184;
             let t2382 = lit::<T>(0.0825) * t2228;
             let t2383 = lit::<T>(0.0825) * t2210;
@@ -11311,8 +11346,8 @@ pub mod portable {
             let t2409 = t2407 - t2408;
             let t2410 = t1179 * t2409;
             let t2411 = t1189 - t2410;
-            minv[3][8] = t2411;
-            minv[8][3] = t2411;
+            minv.35 = t2411;
+            minv.75 = t2411;
             let t2412 = t2411 - t2210;
             let t2413 = lit::<T>(0.384) * t2288;
             let t2414 = lit::<T>(-0.0825) * t2288;
@@ -11349,7 +11384,7 @@ pub mod portable {
             let t2445 = t2443 + t2444;
             let t2446 = t710 * t2445;
             let t2447 = t710 - t2446;
-            minv[4][4] = t2447;
+            minv.40 = t2447;
             let t2448 = lit::<T>(0.384) * t2319;
             let t2449 = lit::<T>(-0.0825) * t2319;
             let t2450 = lit::<T>(-0.0825) * t2297;
@@ -11386,8 +11421,8 @@ pub mod portable {
             let t2480 = t2478 + t2479;
             let t2481 = t710 * t2480;
             let t2482 = t712 - t2481;
-            minv[4][5] = t2482;
-            minv[5][4] = t2482;
+            minv.41 = t2482;
+            minv.49 = t2482;
             let t2483 = t2297 + t2482;
             let t2484 = lit::<T>(0.384) * t2350;
             let t2485 = lit::<T>(-0.0825) * t2350;
@@ -11429,8 +11464,8 @@ pub mod portable {
             let t2516 = t2514 + t2515;
             let t2517 = t710 * t2516;
             let t2518 = t714 - t2517;
-            minv[4][6] = t2518;
-            minv[6][4] = t2518;
+            minv.42 = t2518;
+            minv.58 = t2518;
             let t2519 = t2328 + t2518;
             s.32 = t2519;
             let t2520 = lit::<T>(0.384) * t2381;
@@ -11473,8 +11508,8 @@ pub mod portable {
             let t2552 = t2550 + t2551;
             let t2553 = t710 * t2552;
             let t2554 = t716 - t2553;
-            minv[4][7] = t2554;
-            minv[7][4] = t2554;
+            minv.43 = t2554;
+            minv.67 = t2554;
             let t2555 = t2359 + t2554;
             s.38 = t2555;
             let t2556 = lit::<T>(0.384) * t2412;
@@ -11517,8 +11552,8 @@ pub mod portable {
             let t2588 = t2586 + t2587;
             let t2589 = t710 * t2588;
             let t2590 = t718 - t2589;
-            minv[4][8] = t2590;
-            minv[8][4] = t2590;
+            minv.44 = t2590;
+            minv.76 = t2590;
             let t2591 = t2390 + t2590;
             s.44 = t2591;
             let t2592 = t55 * t2458;
@@ -11555,12 +11590,13 @@ pub mod portable {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f81<T>) };
             let t2612 = s.45 + s.46;
             let t2613 = s.16 * s.26;
             let t2614 = t2612 - t2613;
             let t2615 = s.22 * t2614;
             let t2616 = s.22 - t2615;
-            minv[5][5] = t2616;
+            minv.50 = t2616;
             let t2617 = s.1 * s.28;
             let t2618 = s.0 * s.32;
             let t2619 = t2617 + t2618;
@@ -11587,8 +11623,8 @@ pub mod portable {
             let t2640 = t2638 - t2639;
             let t2641 = s.22 * t2640;
             let t2642 = s.23 - t2641;
-            minv[5][6] = t2642;
-            minv[6][5] = t2642;
+            minv.51 = t2642;
+            minv.59 = t2642;
             let t2643 = t2642 - s.29;
             let t2644 = s.1 * s.34;
             let t2645 = s.0 * s.38;
@@ -11616,8 +11652,8 @@ pub mod portable {
             let t2667 = t2665 - t2666;
             let t2668 = s.22 * t2667;
             let t2669 = s.24 - t2668;
-            minv[5][7] = t2669;
-            minv[7][5] = t2669;
+            minv.52 = t2669;
+            minv.68 = t2669;
             let t2670 = t2669 - s.35;
             let t2671 = s.1 * s.40;
             let t2672 = s.0 * s.44;
@@ -11645,8 +11681,8 @@ pub mod portable {
             let t2694 = t2692 - t2693;
             let t2695 = s.22 * t2694;
             let t2696 = s.25 - t2695;
-            minv[5][8] = t2696;
-            minv[8][5] = t2696;
+            minv.53 = t2696;
+            minv.77 = t2696;
             let t2697 = t2696 - s.41;
             let t2698 = lit::<T>(0.088) * t2622;
             let t2699 = t2629 - t2698;
@@ -11673,7 +11709,7 @@ pub mod portable {
             let t2720 = t2718 + t2719;
             let t2721 = s.13 * t2720;
             let t2722 = s.13 - t2721;
-            minv[6][6] = t2722;
+            minv.60 = t2722;
             let t2723 = lit::<T>(0.088) * t2649;
             let t2724 = t2656 - t2723;
             let t2725 = s.3 * t2646;
@@ -11699,8 +11735,8 @@ pub mod portable {
             let t2745 = t2743 + t2744;
             let t2746 = s.13 * t2745;
             let t2747 = s.14 - t2746;
-            minv[6][7] = t2747;
-            minv[7][6] = t2747;
+            minv.61 = t2747;
+            minv.69 = t2747;
             let t2748 = t2747 - t2649;
             let t2749 = lit::<T>(0.088) * t2676;
             let t2750 = t2683 - t2749;
@@ -11727,8 +11763,8 @@ pub mod portable {
             let t2771 = t2769 + t2770;
             let t2772 = s.13 * t2771;
             let t2773 = s.15 - t2772;
-            minv[6][8] = t2773;
-            minv[8][6] = t2773;
+            minv.62 = t2773;
+            minv.78 = t2773;
             let t2774 = t2773 - t2676;
             let t2775 = s.5 * t2748;
             let t2776 = lit::<T>(0.1654) * t2730;
@@ -11744,7 +11780,7 @@ pub mod portable {
             let t2786 = lit::<T>(0.015) * t2785;
             let t2787 = lit::<T>(66.66666666666667) * t2786;
             let t2788 = lit::<T>(66.66666666666667) - t2787;
-            minv[7][7] = t2788;
+            minv.70 = t2788;
             let t2789 = s.5 * t2774;
             let t2790 = lit::<T>(0.1654) * t2756;
             let t2791 = t2789 - t2790;
@@ -11759,8 +11795,8 @@ pub mod portable {
             let t2800 = lit::<T>(0.015) * t2799;
             let t2801 = lit::<T>(66.66666666666667) * t2800;
             let t2802 = -t2801;
-            minv[7][8] = t2802;
-            minv[8][7] = t2802;
+            minv.71 = t2802;
+            minv.79 = t2802;
             let t2803 = s.7 * t2774;
             let t2804 = -t2803;
             let t2805 = t2804 - t2790;
@@ -11774,7 +11810,7 @@ pub mod portable {
             let t2813 = lit::<T>(-0.015) * t2812;
             let t2814 = lit::<T>(66.66666666666667) * t2813;
             let t2815 = lit::<T>(66.66666666666667) - t2814;
-            minv[8][8] = t2815;
+            minv.80 = t2815;
         }
     }
     use minv_part1::minv_part1;
@@ -11793,6 +11829,10 @@ pub mod portable {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct fd_slots<T>(T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 9 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f9<T>(T, T, T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -11804,6 +11844,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f9<T>) };
             let t3 = q[1].sin();
             let t4 = q[1].cos();
             let t15 = q[2].sin();
@@ -14112,7 +14153,7 @@ pub mod portable {
             let t2435 = t2430 * lit::<T>(9.81);
             let t2436 = t2433 - t2435;
             let t2437 = t2432 * t2436;
-            qdd[0] = t2437;
+            qdd.0 = t2437;
             let t2438 = t3 * t2437;
             let t2439 = -t2438;
             let t2440 = t4 * t2437;
@@ -14130,7 +14171,7 @@ pub mod portable {
             let t2452 = t2450 - t2451;
             let t2453 = t2373 - t2452;
             let t2454 = t2372 * t2453;
-            qdd[1] = t2454;
+            qdd.1 = t2454;
             let t2455 = lit::<T>(-0.316) * t2454;
             let t2456 = lit::<T>(-0.316) * t2444;
             let t2457 = t2442 - t2455;
@@ -14163,7 +14204,7 @@ pub mod portable {
             let t2484 = t2482 + t2483;
             let t2485 = t2102 - t2484;
             let t2486 = t2101 * t2485;
-            qdd[2] = t2486;
+            qdd.2 = t2486;
             let t2487 = t2486 - t2445;
             let t2488 = lit::<T>(0.0825) * t2487;
             let t2489 = lit::<T>(0.0825) * t2471;
@@ -14199,7 +14240,7 @@ pub mod portable {
             let t2519 = t2517 - t2518;
             let t2520 = t1796 - t2519;
             let t2521 = t1795 * t2520;
-            qdd[3] = t2521;
+            qdd.3 = t2521;
             let t2522 = t2521 - t2471;
             let t2523 = lit::<T>(0.384) * t2522;
             let t2524 = lit::<T>(-0.0825) * t2522;
@@ -14240,7 +14281,7 @@ pub mod portable {
             let t2559 = t2557 + t2558;
             let t2560 = t1403 - t2559;
             let t2561 = t1402 * t2560;
-            qdd[4] = t2561;
+            qdd.4 = t2561;
             let t2562 = t2506 + t2561;
             let t2563 = t58 * t2545;
             let t2564 = t57 * t2562;
@@ -14272,7 +14313,7 @@ pub mod portable {
             let t2590 = t2588 - t2589;
             let t2591 = t1172 - t2590;
             let t2592 = t1171 * t2591;
-            qdd[5] = t2592;
+            qdd.5 = t2592;
             let t2593 = t2592 - t2546;
             let t2594 = lit::<T>(0.088) * t2577;
             let t2595 = t2575 - t2594;
@@ -14305,7 +14346,7 @@ pub mod portable {
             let t2620 = t2618 + t2619;
             let t2621 = t904 - t2620;
             let t2622 = t903 * t2621;
-            qdd[6] = t2622;
+            qdd.6 = t2622;
             let t2623 = t2622 - t2577;
             s.6 = t2623;
             let t2624 = t89 * t2623;
@@ -14336,11 +14377,12 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f9<T>) };
             let t2634 = s.9 + s.10;
             let t2635 = lit::<T>(0.015) * t2634;
             let t2636 = s.3 - t2635;
             let t2637 = lit::<T>(66.66666666666667) * t2636;
-            qdd[7] = t2637;
+            qdd.7 = t2637;
             let t2638 = s.1 * s.6;
             let t2639 = -t2638;
             let t2640 = t2639 - s.7;
@@ -14354,7 +14396,7 @@ pub mod portable {
             let t2648 = lit::<T>(-0.015) * t2647;
             let t2649 = s.2 - t2648;
             let t2650 = lit::<T>(66.66666666666667) * t2649;
-            qdd[8] = t2650;
+            qdd.8 = t2650;
         }
     }
     use fd_part1::fd_part1;
@@ -14405,6 +14447,18 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 9 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f9<T>(T, T, T, T, T, T, T, T, T);
+    /// An array of 81 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f81<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -14418,6 +14472,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f9<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
             let t4 = q[1].sin();
             s.0 = t4;
             let t5 = q[1].cos();
@@ -17156,7 +17217,7 @@ pub mod portable {
             let t2414 = t2333 * t2411;
             let t2415 = t2413 + t2414;
             let t2416 = t2336 * t2415;
-            qdd[0] = t2416;
+            qdd.0 = t2416;
             let t2417 = t2332 * t2411;
             let t2418 = t2323 * t2405;
             let t2419 = t2307 * t2397;
@@ -17167,19 +17228,19 @@ pub mod portable {
             let t2424 = lit::<T>(-66.66666666666667) * t2345;
             let t2425 = t2333 * t2416;
             let t2426 = t2417 + t2425;
-            qdd[1] = t2426;
+            qdd.1 = t2426;
             let t2427 = t2324 * t2426;
             let t2428 = t2418 + t2427;
             let t2429 = t2329 * t2416;
             let t2430 = t2428 + t2429;
-            qdd[2] = t2430;
+            qdd.2 = t2430;
             let t2431 = t2308 * t2430;
             let t2432 = t2419 + t2431;
             let t2433 = t2315 * t2426;
             let t2434 = t2432 + t2433;
             let t2435 = t2320 * t2416;
             let t2436 = t2434 + t2435;
-            qdd[3] = t2436;
+            qdd.3 = t2436;
             let t2437 = t2283 * t2436;
             let t2438 = t2420 + t2437;
             let t2439 = t2292 * t2430;
@@ -17189,7 +17250,7 @@ pub mod portable {
             let t2443 = t2304 * t2416;
             let t2444 = t2442 + t2443;
             s.455 = t2444;
-            qdd[4] = t2444;
+            qdd.4 = t2444;
             let t2445 = t2247 * t2444;
             let t2446 = t2421 + t2445;
             let t2447 = t2258 * t2436;
@@ -17201,7 +17262,7 @@ pub mod portable {
             let t2453 = t2279 * t2416;
             let t2454 = t2452 + t2453;
             s.456 = t2454;
-            qdd[5] = t2454;
+            qdd.5 = t2454;
             let t2455 = t2198 * t2454;
             let t2456 = t2422 + t2455;
             let t2457 = t2211 * t2444;
@@ -17215,7 +17276,7 @@ pub mod portable {
             let t2465 = t2243 * t2416;
             let t2466 = t2464 + t2465;
             s.457 = t2466;
-            qdd[6] = t2466;
+            qdd.6 = t2466;
             let t2467 = t2134 * t2466;
             let t2468 = t2423 + t2467;
             let t2469 = t2149 * t2454;
@@ -17231,7 +17292,7 @@ pub mod portable {
             let t2479 = t2194 * t2416;
             let t2480 = t2478 + t2479;
             s.458 = t2480;
-            qdd[7] = t2480;
+            qdd.7 = t2480;
             let t2481 = t2071 * t2466;
             let t2482 = t2424 + t2481;
             let t2483 = t2086 * t2454;
@@ -17247,7 +17308,7 @@ pub mod portable {
             let t2493 = t2131 * t2416;
             let t2494 = t2492 + t2493;
             s.459 = t2494;
-            qdd[8] = t2494;
+            qdd.8 = t2494;
             let t2495 = t4 * t2416;
             s.460 = t2495;
             let t2496 = -t2495;
@@ -17438,6 +17499,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f9<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
             let t2634 = s.483 + s.486;
             let t2635 = s.484 + s.487;
             let t2636 = s.485 + s.488;
@@ -20146,6 +20214,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f9<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
             let t5134 = s.681 - s.686;
             let t5135 = s.7 * s.679;
             let t5136 = s.6 * s.680;
@@ -21948,7 +22023,7 @@ pub mod portable {
             let t6876 = s.453 * t6873;
             let t6877 = t6875 + t6876;
             let t6878 = s.454 * t6877;
-            dqdd_dq[0][1] = t6878;
+            dqdd_dq.1 = t6878;
             let t6879 = s.452 * t6873;
             let t6880 = s.449 * t6867;
             let t6881 = s.445 * t6859;
@@ -21959,19 +22034,19 @@ pub mod portable {
             let t6886 = lit::<T>(-66.66666666666667) * t6714;
             let t6887 = s.453 * t6878;
             let t6888 = t6879 + t6887;
-            dqdd_dq[1][1] = t6888;
+            dqdd_dq.10 = t6888;
             let t6889 = s.450 * t6888;
             let t6890 = t6880 + t6889;
             let t6891 = s.451 * t6878;
             let t6892 = t6890 + t6891;
-            dqdd_dq[2][1] = t6892;
+            dqdd_dq.19 = t6892;
             let t6893 = s.446 * t6892;
             let t6894 = t6881 + t6893;
             let t6895 = s.447 * t6888;
             let t6896 = t6894 + t6895;
             let t6897 = s.448 * t6878;
             let t6898 = t6896 + t6897;
-            dqdd_dq[3][1] = t6898;
+            dqdd_dq.28 = t6898;
             let t6899 = s.441 * t6898;
             let t6900 = t6882 + t6899;
             let t6901 = s.442 * t6892;
@@ -21980,7 +22055,7 @@ pub mod portable {
             let t6904 = t6902 + t6903;
             let t6905 = s.444 * t6878;
             let t6906 = t6904 + t6905;
-            dqdd_dq[4][1] = t6906;
+            dqdd_dq.37 = t6906;
             let t6907 = s.435 * t6906;
             let t6908 = t6883 + t6907;
             let t6909 = s.436 * t6898;
@@ -21991,7 +22066,7 @@ pub mod portable {
             let t6914 = t6912 + t6913;
             let t6915 = s.439 * t6878;
             let t6916 = t6914 + t6915;
-            dqdd_dq[5][1] = t6916;
+            dqdd_dq.46 = t6916;
             let t6917 = s.428 * t6916;
             let t6918 = t6884 + t6917;
             let t6919 = s.429 * t6906;
@@ -22004,7 +22079,7 @@ pub mod portable {
             let t6926 = t6924 + t6925;
             let t6927 = s.433 * t6878;
             let t6928 = t6926 + t6927;
-            dqdd_dq[6][1] = t6928;
+            dqdd_dq.55 = t6928;
             let t6929 = s.420 * t6928;
             let t6930 = t6885 + t6929;
             let t6931 = s.421 * t6916;
@@ -22019,7 +22094,7 @@ pub mod portable {
             let t6940 = t6938 + t6939;
             let t6941 = s.426 * t6878;
             let t6942 = t6940 + t6941;
-            dqdd_dq[7][1] = t6942;
+            dqdd_dq.64 = t6942;
             let t6943 = s.413 * t6928;
             let t6944 = t6886 + t6943;
             let t6945 = s.414 * t6916;
@@ -22034,7 +22109,7 @@ pub mod portable {
             let t6954 = t6952 + t6953;
             let t6955 = s.419 * t6878;
             let t6956 = t6954 + t6955;
-            dqdd_dq[8][1] = t6956;
+            dqdd_dq.73 = t6956;
             let t6957 = s.413 * t6125;
             let t6958 = t6077 + t6957;
             let t6959 = s.414 * t6125;
@@ -22106,7 +22181,7 @@ pub mod portable {
             let t7025 = s.453 * t7022;
             let t7026 = t7024 + t7025;
             let t7027 = s.454 * t7026;
-            dqdd_dq[0][2] = t7027;
+            dqdd_dq.2 = t7027;
             let t7028 = s.452 * t7022;
             let t7029 = s.449 * t7016;
             let t7030 = s.445 * t7008;
@@ -22117,19 +22192,19 @@ pub mod portable {
             let t7035 = lit::<T>(-66.66666666666667) * t6125;
             let t7036 = s.453 * t7027;
             let t7037 = t7028 + t7036;
-            dqdd_dq[1][2] = t7037;
+            dqdd_dq.11 = t7037;
             let t7038 = s.450 * t7037;
             let t7039 = t7029 + t7038;
             let t7040 = s.451 * t7027;
             let t7041 = t7039 + t7040;
-            dqdd_dq[2][2] = t7041;
+            dqdd_dq.20 = t7041;
             let t7042 = s.446 * t7041;
             let t7043 = t7030 + t7042;
             let t7044 = s.447 * t7037;
             let t7045 = t7043 + t7044;
             let t7046 = s.448 * t7027;
             let t7047 = t7045 + t7046;
-            dqdd_dq[3][2] = t7047;
+            dqdd_dq.29 = t7047;
             let t7048 = s.441 * t7047;
             let t7049 = t7031 + t7048;
             let t7050 = s.442 * t7041;
@@ -22138,7 +22213,7 @@ pub mod portable {
             let t7053 = t7051 + t7052;
             let t7054 = s.444 * t7027;
             let t7055 = t7053 + t7054;
-            dqdd_dq[4][2] = t7055;
+            dqdd_dq.38 = t7055;
             let t7056 = s.435 * t7055;
             let t7057 = t7032 + t7056;
             let t7058 = s.436 * t7047;
@@ -22149,7 +22224,7 @@ pub mod portable {
             let t7063 = t7061 + t7062;
             let t7064 = s.439 * t7027;
             let t7065 = t7063 + t7064;
-            dqdd_dq[5][2] = t7065;
+            dqdd_dq.47 = t7065;
             let t7066 = s.428 * t7065;
             let t7067 = t7033 + t7066;
             let t7068 = s.429 * t7055;
@@ -22162,7 +22237,7 @@ pub mod portable {
             let t7075 = t7073 + t7074;
             let t7076 = s.433 * t7027;
             let t7077 = t7075 + t7076;
-            dqdd_dq[6][2] = t7077;
+            dqdd_dq.56 = t7077;
             let t7078 = s.420 * t7077;
             let t7079 = t7034 + t7078;
             let t7080 = s.421 * t7065;
@@ -22177,7 +22252,7 @@ pub mod portable {
             let t7089 = t7087 + t7088;
             let t7090 = s.426 * t7027;
             let t7091 = t7089 + t7090;
-            dqdd_dq[7][2] = t7091;
+            dqdd_dq.65 = t7091;
             let t7092 = s.413 * t7077;
             let t7093 = t7035 + t7092;
             let t7094 = s.414 * t7065;
@@ -22192,7 +22267,7 @@ pub mod portable {
             let t7103 = t7101 + t7102;
             let t7104 = s.419 * t7027;
             let t7105 = t7103 + t7104;
-            dqdd_dq[8][2] = t7105;
+            dqdd_dq.74 = t7105;
             let t7106 = s.413 * t5471;
             let t7107 = t5423 + t7106;
             let t7108 = s.414 * t5471;
@@ -22264,7 +22339,7 @@ pub mod portable {
             let t7174 = s.453 * t7171;
             let t7175 = t7173 + t7174;
             let t7176 = s.454 * t7175;
-            dqdd_dq[0][3] = t7176;
+            dqdd_dq.3 = t7176;
             let t7177 = s.452 * t7171;
             let t7178 = s.449 * t7165;
             let t7179 = s.445 * t7157;
@@ -22275,19 +22350,19 @@ pub mod portable {
             let t7184 = lit::<T>(-66.66666666666667) * t5471;
             let t7185 = s.453 * t7176;
             let t7186 = t7177 + t7185;
-            dqdd_dq[1][3] = t7186;
+            dqdd_dq.12 = t7186;
             let t7187 = s.450 * t7186;
             let t7188 = t7178 + t7187;
             let t7189 = s.451 * t7176;
             let t7190 = t7188 + t7189;
-            dqdd_dq[2][3] = t7190;
+            dqdd_dq.21 = t7190;
             let t7191 = s.446 * t7190;
             let t7192 = t7179 + t7191;
             let t7193 = s.447 * t7186;
             let t7194 = t7192 + t7193;
             let t7195 = s.448 * t7176;
             let t7196 = t7194 + t7195;
-            dqdd_dq[3][3] = t7196;
+            dqdd_dq.30 = t7196;
             let t7197 = s.441 * t7196;
             let t7198 = t7180 + t7197;
             let t7199 = s.442 * t7190;
@@ -22296,7 +22371,7 @@ pub mod portable {
             let t7202 = t7200 + t7201;
             let t7203 = s.444 * t7176;
             let t7204 = t7202 + t7203;
-            dqdd_dq[4][3] = t7204;
+            dqdd_dq.39 = t7204;
             let t7205 = s.435 * t7204;
             let t7206 = t7181 + t7205;
             let t7207 = s.436 * t7196;
@@ -22307,7 +22382,7 @@ pub mod portable {
             let t7212 = t7210 + t7211;
             let t7213 = s.439 * t7176;
             let t7214 = t7212 + t7213;
-            dqdd_dq[5][3] = t7214;
+            dqdd_dq.48 = t7214;
             let t7215 = s.428 * t7214;
             let t7216 = t7182 + t7215;
             let t7217 = s.429 * t7204;
@@ -22320,7 +22395,7 @@ pub mod portable {
             let t7224 = t7222 + t7223;
             let t7225 = s.433 * t7176;
             let t7226 = t7224 + t7225;
-            dqdd_dq[6][3] = t7226;
+            dqdd_dq.57 = t7226;
             let t7227 = s.420 * t7226;
             let t7228 = t7183 + t7227;
             let t7229 = s.421 * t7214;
@@ -22335,7 +22410,7 @@ pub mod portable {
             let t7238 = t7236 + t7237;
             let t7239 = s.426 * t7176;
             let t7240 = t7238 + t7239;
-            dqdd_dq[7][3] = t7240;
+            dqdd_dq.66 = t7240;
             let t7241 = s.413 * t7226;
             let t7242 = t7184 + t7241;
             let t7243 = s.414 * t7214;
@@ -22350,7 +22425,7 @@ pub mod portable {
             let t7252 = t7250 + t7251;
             let t7253 = s.419 * t7176;
             let t7254 = t7252 + t7253;
-            dqdd_dq[8][3] = t7254;
+            dqdd_dq.75 = t7254;
             let t7255 = s.413 * s.606;
             let t7256 = s.602 + t7255;
             let t7257 = s.414 * s.606;
@@ -22422,7 +22497,7 @@ pub mod portable {
             let t7323 = s.453 * t7320;
             let t7324 = t7322 + t7323;
             let t7325 = s.454 * t7324;
-            dqdd_dq[0][4] = t7325;
+            dqdd_dq.4 = t7325;
             let t7326 = s.452 * t7320;
             let t7327 = s.449 * t7314;
             let t7328 = s.445 * t7306;
@@ -22433,19 +22508,19 @@ pub mod portable {
             let t7333 = lit::<T>(-66.66666666666667) * s.606;
             let t7334 = s.453 * t7325;
             let t7335 = t7326 + t7334;
-            dqdd_dq[1][4] = t7335;
+            dqdd_dq.13 = t7335;
             let t7336 = s.450 * t7335;
             let t7337 = t7327 + t7336;
             let t7338 = s.451 * t7325;
             let t7339 = t7337 + t7338;
-            dqdd_dq[2][4] = t7339;
+            dqdd_dq.22 = t7339;
             let t7340 = s.446 * t7339;
             let t7341 = t7328 + t7340;
             let t7342 = s.447 * t7335;
             let t7343 = t7341 + t7342;
             let t7344 = s.448 * t7325;
             let t7345 = t7343 + t7344;
-            dqdd_dq[3][4] = t7345;
+            dqdd_dq.31 = t7345;
             let t7346 = s.441 * t7345;
             let t7347 = t7329 + t7346;
             let t7348 = s.442 * t7339;
@@ -22454,7 +22529,7 @@ pub mod portable {
             let t7351 = t7349 + t7350;
             let t7352 = s.444 * t7325;
             let t7353 = t7351 + t7352;
-            dqdd_dq[4][4] = t7353;
+            dqdd_dq.40 = t7353;
             let t7354 = s.435 * t7353;
             let t7355 = t7330 + t7354;
             let t7356 = s.436 * t7345;
@@ -22465,7 +22540,7 @@ pub mod portable {
             let t7361 = t7359 + t7360;
             let t7362 = s.439 * t7325;
             let t7363 = t7361 + t7362;
-            dqdd_dq[5][4] = t7363;
+            dqdd_dq.49 = t7363;
             let t7364 = s.428 * t7363;
             let t7365 = t7331 + t7364;
             let t7366 = s.429 * t7353;
@@ -22478,7 +22553,7 @@ pub mod portable {
             let t7373 = t7371 + t7372;
             let t7374 = s.433 * t7325;
             let t7375 = t7373 + t7374;
-            dqdd_dq[6][4] = t7375;
+            dqdd_dq.58 = t7375;
             let t7376 = s.420 * t7375;
             let t7377 = t7332 + t7376;
             let t7378 = s.421 * t7363;
@@ -22493,7 +22568,7 @@ pub mod portable {
             let t7387 = t7385 + t7386;
             let t7388 = s.426 * t7325;
             let t7389 = t7387 + t7388;
-            dqdd_dq[7][4] = t7389;
+            dqdd_dq.67 = t7389;
             let t7390 = s.413 * t7375;
             let t7391 = t7333 + t7390;
             let t7392 = s.414 * t7363;
@@ -22508,7 +22583,7 @@ pub mod portable {
             let t7401 = t7399 + t7400;
             let t7402 = s.419 * t7325;
             let t7403 = t7401 + t7402;
-            dqdd_dq[8][4] = t7403;
+            dqdd_dq.76 = t7403;
             let t7404 = s.413 * s.566;
             let t7405 = s.562 + t7404;
             let t7406 = s.414 * s.566;
@@ -22580,7 +22655,7 @@ pub mod portable {
             let t7472 = s.453 * t7469;
             let t7473 = t7471 + t7472;
             let t7474 = s.454 * t7473;
-            dqdd_dq[0][5] = t7474;
+            dqdd_dq.5 = t7474;
             let t7475 = s.452 * t7469;
             let t7476 = s.449 * t7463;
             let t7477 = s.445 * t7455;
@@ -22591,19 +22666,19 @@ pub mod portable {
             let t7482 = lit::<T>(-66.66666666666667) * s.566;
             let t7483 = s.453 * t7474;
             let t7484 = t7475 + t7483;
-            dqdd_dq[1][5] = t7484;
+            dqdd_dq.14 = t7484;
             let t7485 = s.450 * t7484;
             let t7486 = t7476 + t7485;
             let t7487 = s.451 * t7474;
             let t7488 = t7486 + t7487;
-            dqdd_dq[2][5] = t7488;
+            dqdd_dq.23 = t7488;
             let t7489 = s.446 * t7488;
             let t7490 = t7477 + t7489;
             let t7491 = s.447 * t7484;
             let t7492 = t7490 + t7491;
             let t7493 = s.448 * t7474;
             let t7494 = t7492 + t7493;
-            dqdd_dq[3][5] = t7494;
+            dqdd_dq.32 = t7494;
             let t7495 = s.441 * t7494;
             let t7496 = t7478 + t7495;
             let t7497 = s.442 * t7488;
@@ -22612,7 +22687,7 @@ pub mod portable {
             let t7500 = t7498 + t7499;
             let t7501 = s.444 * t7474;
             let t7502 = t7500 + t7501;
-            dqdd_dq[4][5] = t7502;
+            dqdd_dq.41 = t7502;
             let t7503 = s.435 * t7502;
             let t7504 = t7479 + t7503;
             let t7505 = s.436 * t7494;
@@ -22623,7 +22698,7 @@ pub mod portable {
             let t7510 = t7508 + t7509;
             let t7511 = s.439 * t7474;
             let t7512 = t7510 + t7511;
-            dqdd_dq[5][5] = t7512;
+            dqdd_dq.50 = t7512;
             let t7513 = s.428 * t7512;
             let t7514 = t7480 + t7513;
             let t7515 = s.429 * t7502;
@@ -22636,7 +22711,7 @@ pub mod portable {
             let t7522 = t7520 + t7521;
             let t7523 = s.433 * t7474;
             let t7524 = t7522 + t7523;
-            dqdd_dq[6][5] = t7524;
+            dqdd_dq.59 = t7524;
             let t7525 = s.420 * t7524;
             let t7526 = t7481 + t7525;
             let t7527 = s.421 * t7512;
@@ -22651,7 +22726,7 @@ pub mod portable {
             let t7536 = t7534 + t7535;
             let t7537 = s.426 * t7474;
             let t7538 = t7536 + t7537;
-            dqdd_dq[7][5] = t7538;
+            dqdd_dq.68 = t7538;
             let t7539 = s.413 * t7524;
             let t7540 = t7482 + t7539;
             let t7541 = s.414 * t7512;
@@ -22666,7 +22741,7 @@ pub mod portable {
             let t7550 = t7548 + t7549;
             let t7551 = s.419 * t7474;
             let t7552 = t7550 + t7551;
-            dqdd_dq[8][5] = t7552;
+            dqdd_dq.77 = t7552;
             let t7553 = s.413 * s.552;
             let t7554 = s.548 + t7553;
             let t7555 = s.414 * s.552;
@@ -22739,7 +22814,7 @@ pub mod portable {
             let t7622 = t7620 + t7621;
             let t7623 = s.454 * t7622;
             s.158 = t7623;
-            dqdd_dq[0][6] = t7623;
+            dqdd_dq.6 = t7623;
             let t7624 = s.452 * t7618;
             let t7625 = s.449 * t7612;
             s.159 = t7625;
@@ -22758,7 +22833,7 @@ pub mod portable {
             let t7632 = s.453 * t7623;
             let t7633 = t7624 + t7632;
             s.185 = t7633;
-            dqdd_dq[1][6] = t7633;
+            dqdd_dq.15 = t7633;
         }
     }
     use fd_grad_part2::fd_grad_part2;
@@ -22775,18 +22850,25 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f9<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
             let t7634 = s.450 * s.185;
             let t7635 = s.159 + t7634;
             let t7636 = s.451 * s.158;
             let t7637 = t7635 + t7636;
-            dqdd_dq[2][6] = t7637;
+            dqdd_dq.24 = t7637;
             let t7638 = s.446 * t7637;
             let t7639 = s.160 + t7638;
             let t7640 = s.447 * s.185;
             let t7641 = t7639 + t7640;
             let t7642 = s.448 * s.158;
             let t7643 = t7641 + t7642;
-            dqdd_dq[3][6] = t7643;
+            dqdd_dq.33 = t7643;
             let t7644 = s.441 * t7643;
             let t7645 = s.162 + t7644;
             let t7646 = s.442 * t7637;
@@ -22795,7 +22877,7 @@ pub mod portable {
             let t7649 = t7647 + t7648;
             let t7650 = s.444 * s.158;
             let t7651 = t7649 + t7650;
-            dqdd_dq[4][6] = t7651;
+            dqdd_dq.42 = t7651;
             let t7652 = s.435 * t7651;
             let t7653 = s.163 + t7652;
             let t7654 = s.436 * t7643;
@@ -22806,7 +22888,7 @@ pub mod portable {
             let t7659 = t7657 + t7658;
             let t7660 = s.439 * s.158;
             let t7661 = t7659 + t7660;
-            dqdd_dq[5][6] = t7661;
+            dqdd_dq.51 = t7661;
             let t7662 = s.428 * t7661;
             let t7663 = s.181 + t7662;
             let t7664 = s.429 * t7651;
@@ -22819,7 +22901,7 @@ pub mod portable {
             let t7671 = t7669 + t7670;
             let t7672 = s.433 * s.158;
             let t7673 = t7671 + t7672;
-            dqdd_dq[6][6] = t7673;
+            dqdd_dq.60 = t7673;
             let t7674 = s.420 * t7673;
             let t7675 = s.182 + t7674;
             let t7676 = s.421 * t7661;
@@ -22834,7 +22916,7 @@ pub mod portable {
             let t7685 = t7683 + t7684;
             let t7686 = s.426 * s.158;
             let t7687 = t7685 + t7686;
-            dqdd_dq[7][6] = t7687;
+            dqdd_dq.69 = t7687;
             let t7688 = s.413 * t7673;
             let t7689 = s.184 + t7688;
             let t7690 = s.414 * t7661;
@@ -22849,7 +22931,7 @@ pub mod portable {
             let t7699 = t7697 + t7698;
             let t7700 = s.419 * s.158;
             let t7701 = t7699 + t7700;
-            dqdd_dq[8][6] = t7701;
+            dqdd_dq.78 = t7701;
             let t7702 = s.420 * s.545;
             let t7703 = s.547 + t7702;
             let t7704 = s.421 * s.545;
@@ -22907,7 +22989,7 @@ pub mod portable {
             let t7756 = s.453 * t7753;
             let t7757 = t7755 + t7756;
             let t7758 = s.454 * t7757;
-            dqdd_dq[0][7] = t7758;
+            dqdd_dq.7 = t7758;
             let t7759 = s.452 * t7753;
             let t7760 = s.449 * t7747;
             let t7761 = s.445 * t7739;
@@ -22917,19 +22999,19 @@ pub mod portable {
             let t7765 = lit::<T>(-66.66666666666667) * s.545;
             let t7766 = s.453 * t7758;
             let t7767 = t7759 + t7766;
-            dqdd_dq[1][7] = t7767;
+            dqdd_dq.16 = t7767;
             let t7768 = s.450 * t7767;
             let t7769 = t7760 + t7768;
             let t7770 = s.451 * t7758;
             let t7771 = t7769 + t7770;
-            dqdd_dq[2][7] = t7771;
+            dqdd_dq.25 = t7771;
             let t7772 = s.446 * t7771;
             let t7773 = t7761 + t7772;
             let t7774 = s.447 * t7767;
             let t7775 = t7773 + t7774;
             let t7776 = s.448 * t7758;
             let t7777 = t7775 + t7776;
-            dqdd_dq[3][7] = t7777;
+            dqdd_dq.34 = t7777;
             let t7778 = s.441 * t7777;
             let t7779 = t7762 + t7778;
             let t7780 = s.442 * t7771;
@@ -22938,7 +23020,7 @@ pub mod portable {
             let t7783 = t7781 + t7782;
             let t7784 = s.444 * t7758;
             let t7785 = t7783 + t7784;
-            dqdd_dq[4][7] = t7785;
+            dqdd_dq.43 = t7785;
             let t7786 = s.435 * t7785;
             let t7787 = t7763 + t7786;
             let t7788 = s.436 * t7777;
@@ -22949,7 +23031,7 @@ pub mod portable {
             let t7793 = t7791 + t7792;
             let t7794 = s.439 * t7758;
             let t7795 = t7793 + t7794;
-            dqdd_dq[5][7] = t7795;
+            dqdd_dq.52 = t7795;
             let t7796 = s.428 * t7795;
             let t7797 = t7764 + t7796;
             let t7798 = s.429 * t7785;
@@ -22962,7 +23044,7 @@ pub mod portable {
             let t7805 = t7803 + t7804;
             let t7806 = s.433 * t7758;
             let t7807 = t7805 + t7806;
-            dqdd_dq[6][7] = t7807;
+            dqdd_dq.61 = t7807;
             let t7808 = s.420 * t7807;
             let t7809 = t7765 + t7808;
             let t7810 = s.421 * t7795;
@@ -22977,7 +23059,7 @@ pub mod portable {
             let t7819 = t7817 + t7818;
             let t7820 = s.426 * t7758;
             let t7821 = t7819 + t7820;
-            dqdd_dq[7][7] = t7821;
+            dqdd_dq.70 = t7821;
             let t7822 = s.413 * t7807;
             let t7823 = s.414 * t7795;
             let t7824 = t7822 + t7823;
@@ -22991,7 +23073,7 @@ pub mod portable {
             let t7832 = t7830 + t7831;
             let t7833 = s.419 * t7758;
             let t7834 = t7832 + t7833;
-            dqdd_dq[8][7] = t7834;
+            dqdd_dq.79 = t7834;
             let t7835 = s.413 * s.542;
             let t7836 = s.544 + t7835;
             let t7837 = s.414 * s.542;
@@ -23049,7 +23131,7 @@ pub mod portable {
             let t7889 = s.453 * t7886;
             let t7890 = t7888 + t7889;
             let t7891 = s.454 * t7890;
-            dqdd_dq[0][8] = t7891;
+            dqdd_dq.8 = t7891;
             let t7892 = s.452 * t7886;
             let t7893 = s.449 * t7880;
             let t7894 = s.445 * t7872;
@@ -23059,19 +23141,19 @@ pub mod portable {
             let t7898 = lit::<T>(-66.66666666666667) * s.542;
             let t7899 = s.453 * t7891;
             let t7900 = t7892 + t7899;
-            dqdd_dq[1][8] = t7900;
+            dqdd_dq.17 = t7900;
             let t7901 = s.450 * t7900;
             let t7902 = t7893 + t7901;
             let t7903 = s.451 * t7891;
             let t7904 = t7902 + t7903;
-            dqdd_dq[2][8] = t7904;
+            dqdd_dq.26 = t7904;
             let t7905 = s.446 * t7904;
             let t7906 = t7894 + t7905;
             let t7907 = s.447 * t7900;
             let t7908 = t7906 + t7907;
             let t7909 = s.448 * t7891;
             let t7910 = t7908 + t7909;
-            dqdd_dq[3][8] = t7910;
+            dqdd_dq.35 = t7910;
             let t7911 = s.441 * t7910;
             let t7912 = t7895 + t7911;
             let t7913 = s.442 * t7904;
@@ -23080,7 +23162,7 @@ pub mod portable {
             let t7916 = t7914 + t7915;
             let t7917 = s.444 * t7891;
             let t7918 = t7916 + t7917;
-            dqdd_dq[4][8] = t7918;
+            dqdd_dq.44 = t7918;
             let t7919 = s.435 * t7918;
             let t7920 = t7896 + t7919;
             let t7921 = s.436 * t7910;
@@ -23091,7 +23173,7 @@ pub mod portable {
             let t7926 = t7924 + t7925;
             let t7927 = s.439 * t7891;
             let t7928 = t7926 + t7927;
-            dqdd_dq[5][8] = t7928;
+            dqdd_dq.53 = t7928;
             let t7929 = s.428 * t7928;
             let t7930 = t7897 + t7929;
             let t7931 = s.429 * t7918;
@@ -23104,7 +23186,7 @@ pub mod portable {
             let t7938 = t7936 + t7937;
             let t7939 = s.433 * t7891;
             let t7940 = t7938 + t7939;
-            dqdd_dq[6][8] = t7940;
+            dqdd_dq.62 = t7940;
             let t7941 = s.420 * t7940;
             let t7942 = s.421 * t7928;
             let t7943 = t7941 + t7942;
@@ -23118,7 +23200,7 @@ pub mod portable {
             let t7951 = t7949 + t7950;
             let t7952 = s.426 * t7891;
             let t7953 = t7951 + t7952;
-            dqdd_dq[7][8] = t7953;
+            dqdd_dq.71 = t7953;
             let t7954 = s.413 * t7940;
             let t7955 = t7898 + t7954;
             let t7956 = s.414 * t7928;
@@ -23133,7 +23215,7 @@ pub mod portable {
             let t7965 = t7963 + t7964;
             let t7966 = s.419 * t7891;
             let t7967 = t7965 + t7966;
-            dqdd_dq[8][8] = t7967;
+            dqdd_dq.80 = t7967;
             let t7968 = s.413 * s.156;
             let t7969 = s.136 + t7968;
             let t7970 = s.414 * s.156;
@@ -23205,7 +23287,7 @@ pub mod portable {
             let t8036 = s.453 * t8033;
             let t8037 = t8035 + t8036;
             let t8038 = s.454 * t8037;
-            dqdd_dqd[0][0] = t8038;
+            dqdd_dqd.0 = t8038;
             let t8039 = s.452 * t8033;
             let t8040 = s.449 * t8027;
             let t8041 = s.445 * t8019;
@@ -23216,19 +23298,19 @@ pub mod portable {
             let t8046 = lit::<T>(-66.66666666666667) * s.156;
             let t8047 = s.453 * t8038;
             let t8048 = t8039 + t8047;
-            dqdd_dqd[1][0] = t8048;
+            dqdd_dqd.9 = t8048;
             let t8049 = s.450 * t8048;
             let t8050 = t8040 + t8049;
             let t8051 = s.451 * t8038;
             let t8052 = t8050 + t8051;
-            dqdd_dqd[2][0] = t8052;
+            dqdd_dqd.18 = t8052;
             let t8053 = s.446 * t8052;
             let t8054 = t8041 + t8053;
             let t8055 = s.447 * t8048;
             let t8056 = t8054 + t8055;
             let t8057 = s.448 * t8038;
             let t8058 = t8056 + t8057;
-            dqdd_dqd[3][0] = t8058;
+            dqdd_dqd.27 = t8058;
             let t8059 = s.441 * t8058;
             let t8060 = t8042 + t8059;
             let t8061 = s.442 * t8052;
@@ -23237,7 +23319,7 @@ pub mod portable {
             let t8064 = t8062 + t8063;
             let t8065 = s.444 * t8038;
             let t8066 = t8064 + t8065;
-            dqdd_dqd[4][0] = t8066;
+            dqdd_dqd.36 = t8066;
             let t8067 = s.435 * t8066;
             let t8068 = t8043 + t8067;
             let t8069 = s.436 * t8058;
@@ -23248,7 +23330,7 @@ pub mod portable {
             let t8074 = t8072 + t8073;
             let t8075 = s.439 * t8038;
             let t8076 = t8074 + t8075;
-            dqdd_dqd[5][0] = t8076;
+            dqdd_dqd.45 = t8076;
             let t8077 = s.428 * t8076;
             let t8078 = t8044 + t8077;
             let t8079 = s.429 * t8066;
@@ -23261,7 +23343,7 @@ pub mod portable {
             let t8086 = t8084 + t8085;
             let t8087 = s.433 * t8038;
             let t8088 = t8086 + t8087;
-            dqdd_dqd[6][0] = t8088;
+            dqdd_dqd.54 = t8088;
             let t8089 = s.420 * t8088;
             let t8090 = t8045 + t8089;
             let t8091 = s.421 * t8076;
@@ -23276,7 +23358,7 @@ pub mod portable {
             let t8100 = t8098 + t8099;
             let t8101 = s.426 * t8038;
             let t8102 = t8100 + t8101;
-            dqdd_dqd[7][0] = t8102;
+            dqdd_dqd.63 = t8102;
             let t8103 = s.413 * t8088;
             let t8104 = t8046 + t8103;
             let t8105 = s.414 * t8076;
@@ -23291,7 +23373,7 @@ pub mod portable {
             let t8114 = t8112 + t8113;
             let t8115 = s.419 * t8038;
             let t8116 = t8114 + t8115;
-            dqdd_dqd[8][0] = t8116;
+            dqdd_dqd.72 = t8116;
             let t8117 = s.413 * s.45;
             let t8118 = s.43 + t8117;
             let t8119 = s.414 * s.45;
@@ -23363,7 +23445,7 @@ pub mod portable {
             let t8185 = s.453 * t8182;
             let t8186 = t8184 + t8185;
             let t8187 = s.454 * t8186;
-            dqdd_dqd[0][1] = t8187;
+            dqdd_dqd.1 = t8187;
             let t8188 = s.452 * t8182;
             let t8189 = s.449 * t8176;
             let t8190 = s.445 * t8168;
@@ -23374,19 +23456,19 @@ pub mod portable {
             let t8195 = lit::<T>(-66.66666666666667) * s.45;
             let t8196 = s.453 * t8187;
             let t8197 = t8188 + t8196;
-            dqdd_dqd[1][1] = t8197;
+            dqdd_dqd.10 = t8197;
             let t8198 = s.450 * t8197;
             let t8199 = t8189 + t8198;
             let t8200 = s.451 * t8187;
             let t8201 = t8199 + t8200;
-            dqdd_dqd[2][1] = t8201;
+            dqdd_dqd.19 = t8201;
             let t8202 = s.446 * t8201;
             let t8203 = t8190 + t8202;
             let t8204 = s.447 * t8197;
             let t8205 = t8203 + t8204;
             let t8206 = s.448 * t8187;
             let t8207 = t8205 + t8206;
-            dqdd_dqd[3][1] = t8207;
+            dqdd_dqd.28 = t8207;
             let t8208 = s.441 * t8207;
             let t8209 = t8191 + t8208;
             let t8210 = s.442 * t8201;
@@ -23395,7 +23477,7 @@ pub mod portable {
             let t8213 = t8211 + t8212;
             let t8214 = s.444 * t8187;
             let t8215 = t8213 + t8214;
-            dqdd_dqd[4][1] = t8215;
+            dqdd_dqd.37 = t8215;
             let t8216 = s.435 * t8215;
             let t8217 = t8192 + t8216;
             let t8218 = s.436 * t8207;
@@ -23406,7 +23488,7 @@ pub mod portable {
             let t8223 = t8221 + t8222;
             let t8224 = s.439 * t8187;
             let t8225 = t8223 + t8224;
-            dqdd_dqd[5][1] = t8225;
+            dqdd_dqd.46 = t8225;
             let t8226 = s.428 * t8225;
             let t8227 = t8193 + t8226;
             let t8228 = s.429 * t8215;
@@ -23419,7 +23501,7 @@ pub mod portable {
             let t8235 = t8233 + t8234;
             let t8236 = s.433 * t8187;
             let t8237 = t8235 + t8236;
-            dqdd_dqd[6][1] = t8237;
+            dqdd_dqd.55 = t8237;
             let t8238 = s.420 * t8237;
             let t8239 = t8194 + t8238;
             let t8240 = s.421 * t8225;
@@ -23434,7 +23516,7 @@ pub mod portable {
             let t8249 = t8247 + t8248;
             let t8250 = s.426 * t8187;
             let t8251 = t8249 + t8250;
-            dqdd_dqd[7][1] = t8251;
+            dqdd_dqd.64 = t8251;
             let t8252 = s.413 * t8237;
             let t8253 = t8195 + t8252;
             let t8254 = s.414 * t8225;
@@ -23449,7 +23531,7 @@ pub mod portable {
             let t8263 = t8261 + t8262;
             let t8264 = s.419 * t8187;
             let t8265 = t8263 + t8264;
-            dqdd_dqd[8][1] = t8265;
+            dqdd_dqd.73 = t8265;
             let t8266 = s.413 * s.28;
             let t8267 = s.26 + t8266;
             let t8268 = s.414 * s.28;
@@ -23521,7 +23603,7 @@ pub mod portable {
             let t8334 = s.453 * t8331;
             let t8335 = t8333 + t8334;
             let t8336 = s.454 * t8335;
-            dqdd_dqd[0][2] = t8336;
+            dqdd_dqd.2 = t8336;
             let t8337 = s.452 * t8331;
             let t8338 = s.449 * t8325;
             let t8339 = s.445 * t8317;
@@ -23532,19 +23614,19 @@ pub mod portable {
             let t8344 = lit::<T>(-66.66666666666667) * s.28;
             let t8345 = s.453 * t8336;
             let t8346 = t8337 + t8345;
-            dqdd_dqd[1][2] = t8346;
+            dqdd_dqd.11 = t8346;
             let t8347 = s.450 * t8346;
             let t8348 = t8338 + t8347;
             let t8349 = s.451 * t8336;
             let t8350 = t8348 + t8349;
-            dqdd_dqd[2][2] = t8350;
+            dqdd_dqd.20 = t8350;
             let t8351 = s.446 * t8350;
             let t8352 = t8339 + t8351;
             let t8353 = s.447 * t8346;
             let t8354 = t8352 + t8353;
             let t8355 = s.448 * t8336;
             let t8356 = t8354 + t8355;
-            dqdd_dqd[3][2] = t8356;
+            dqdd_dqd.29 = t8356;
             let t8357 = s.441 * t8356;
             let t8358 = t8340 + t8357;
             let t8359 = s.442 * t8350;
@@ -23553,7 +23635,7 @@ pub mod portable {
             let t8362 = t8360 + t8361;
             let t8363 = s.444 * t8336;
             let t8364 = t8362 + t8363;
-            dqdd_dqd[4][2] = t8364;
+            dqdd_dqd.38 = t8364;
             let t8365 = s.435 * t8364;
             let t8366 = t8341 + t8365;
             let t8367 = s.436 * t8356;
@@ -23564,7 +23646,7 @@ pub mod portable {
             let t8372 = t8370 + t8371;
             let t8373 = s.439 * t8336;
             let t8374 = t8372 + t8373;
-            dqdd_dqd[5][2] = t8374;
+            dqdd_dqd.47 = t8374;
             let t8375 = s.428 * t8374;
             let t8376 = t8342 + t8375;
             let t8377 = s.429 * t8364;
@@ -23577,7 +23659,7 @@ pub mod portable {
             let t8384 = t8382 + t8383;
             let t8385 = s.433 * t8336;
             let t8386 = t8384 + t8385;
-            dqdd_dqd[6][2] = t8386;
+            dqdd_dqd.56 = t8386;
             let t8387 = s.420 * t8386;
             let t8388 = t8343 + t8387;
             let t8389 = s.421 * t8374;
@@ -23592,7 +23674,7 @@ pub mod portable {
             let t8398 = t8396 + t8397;
             let t8399 = s.426 * t8336;
             let t8400 = t8398 + t8399;
-            dqdd_dqd[7][2] = t8400;
+            dqdd_dqd.65 = t8400;
             let t8401 = s.413 * t8386;
             let t8402 = t8344 + t8401;
             let t8403 = s.414 * t8374;
@@ -23607,7 +23689,7 @@ pub mod portable {
             let t8412 = t8410 + t8411;
             let t8413 = s.419 * t8336;
             let t8414 = t8412 + t8413;
-            dqdd_dqd[8][2] = t8414;
+            dqdd_dqd.74 = t8414;
             let t8415 = s.413 * s.13;
             let t8416 = s.11 + t8415;
             let t8417 = s.414 * s.13;
@@ -23679,7 +23761,7 @@ pub mod portable {
             let t8483 = s.453 * t8480;
             let t8484 = t8482 + t8483;
             let t8485 = s.454 * t8484;
-            dqdd_dqd[0][3] = t8485;
+            dqdd_dqd.3 = t8485;
             let t8486 = s.452 * t8480;
             let t8487 = s.449 * t8474;
             let t8488 = s.445 * t8466;
@@ -23690,19 +23772,19 @@ pub mod portable {
             let t8493 = lit::<T>(-66.66666666666667) * s.13;
             let t8494 = s.453 * t8485;
             let t8495 = t8486 + t8494;
-            dqdd_dqd[1][3] = t8495;
+            dqdd_dqd.12 = t8495;
             let t8496 = s.450 * t8495;
             let t8497 = t8487 + t8496;
             let t8498 = s.451 * t8485;
             let t8499 = t8497 + t8498;
-            dqdd_dqd[2][3] = t8499;
+            dqdd_dqd.21 = t8499;
             let t8500 = s.446 * t8499;
             let t8501 = t8488 + t8500;
             let t8502 = s.447 * t8495;
             let t8503 = t8501 + t8502;
             let t8504 = s.448 * t8485;
             let t8505 = t8503 + t8504;
-            dqdd_dqd[3][3] = t8505;
+            dqdd_dqd.30 = t8505;
             let t8506 = s.441 * t8505;
             let t8507 = t8489 + t8506;
             let t8508 = s.442 * t8499;
@@ -23711,7 +23793,7 @@ pub mod portable {
             let t8511 = t8509 + t8510;
             let t8512 = s.444 * t8485;
             let t8513 = t8511 + t8512;
-            dqdd_dqd[4][3] = t8513;
+            dqdd_dqd.39 = t8513;
             let t8514 = s.435 * t8513;
             let t8515 = t8490 + t8514;
             let t8516 = s.436 * t8505;
@@ -23722,7 +23804,7 @@ pub mod portable {
             let t8521 = t8519 + t8520;
             let t8522 = s.439 * t8485;
             let t8523 = t8521 + t8522;
-            dqdd_dqd[5][3] = t8523;
+            dqdd_dqd.48 = t8523;
             let t8524 = s.428 * t8523;
             let t8525 = t8491 + t8524;
             let t8526 = s.429 * t8513;
@@ -23735,7 +23817,7 @@ pub mod portable {
             let t8533 = t8531 + t8532;
             let t8534 = s.433 * t8485;
             let t8535 = t8533 + t8534;
-            dqdd_dqd[6][3] = t8535;
+            dqdd_dqd.57 = t8535;
             let t8536 = s.420 * t8535;
             let t8537 = t8492 + t8536;
             let t8538 = s.421 * t8523;
@@ -23750,7 +23832,7 @@ pub mod portable {
             let t8547 = t8545 + t8546;
             let t8548 = s.426 * t8485;
             let t8549 = t8547 + t8548;
-            dqdd_dqd[7][3] = t8549;
+            dqdd_dqd.66 = t8549;
             let t8550 = s.413 * t8535;
             let t8551 = t8493 + t8550;
             let t8552 = s.414 * t8523;
@@ -23765,7 +23847,7 @@ pub mod portable {
             let t8561 = t8559 + t8560;
             let t8562 = s.419 * t8485;
             let t8563 = t8561 + t8562;
-            dqdd_dqd[8][3] = t8563;
+            dqdd_dqd.75 = t8563;
             let t8564 = s.413 * s.607;
             let t8565 = s.603 + t8564;
             let t8566 = s.414 * s.607;
@@ -23837,7 +23919,7 @@ pub mod portable {
             let t8632 = s.453 * t8629;
             let t8633 = t8631 + t8632;
             let t8634 = s.454 * t8633;
-            dqdd_dqd[0][4] = t8634;
+            dqdd_dqd.4 = t8634;
             let t8635 = s.452 * t8629;
             let t8636 = s.449 * t8623;
             let t8637 = s.445 * t8615;
@@ -23848,19 +23930,19 @@ pub mod portable {
             let t8642 = lit::<T>(-66.66666666666667) * s.607;
             let t8643 = s.453 * t8634;
             let t8644 = t8635 + t8643;
-            dqdd_dqd[1][4] = t8644;
+            dqdd_dqd.13 = t8644;
             let t8645 = s.450 * t8644;
             let t8646 = t8636 + t8645;
             let t8647 = s.451 * t8634;
             let t8648 = t8646 + t8647;
-            dqdd_dqd[2][4] = t8648;
+            dqdd_dqd.22 = t8648;
             let t8649 = s.446 * t8648;
             let t8650 = t8637 + t8649;
             let t8651 = s.447 * t8644;
             let t8652 = t8650 + t8651;
             let t8653 = s.448 * t8634;
             let t8654 = t8652 + t8653;
-            dqdd_dqd[3][4] = t8654;
+            dqdd_dqd.31 = t8654;
             let t8655 = s.441 * t8654;
             let t8656 = t8638 + t8655;
             let t8657 = s.442 * t8648;
@@ -23869,7 +23951,7 @@ pub mod portable {
             let t8660 = t8658 + t8659;
             let t8661 = s.444 * t8634;
             let t8662 = t8660 + t8661;
-            dqdd_dqd[4][4] = t8662;
+            dqdd_dqd.40 = t8662;
             let t8663 = s.435 * t8662;
             let t8664 = t8639 + t8663;
             let t8665 = s.436 * t8654;
@@ -23880,7 +23962,7 @@ pub mod portable {
             let t8670 = t8668 + t8669;
             let t8671 = s.439 * t8634;
             let t8672 = t8670 + t8671;
-            dqdd_dqd[5][4] = t8672;
+            dqdd_dqd.49 = t8672;
             let t8673 = s.428 * t8672;
             let t8674 = t8640 + t8673;
             let t8675 = s.429 * t8662;
@@ -23893,7 +23975,7 @@ pub mod portable {
             let t8682 = t8680 + t8681;
             let t8683 = s.433 * t8634;
             let t8684 = t8682 + t8683;
-            dqdd_dqd[6][4] = t8684;
+            dqdd_dqd.58 = t8684;
             let t8685 = s.420 * t8684;
             let t8686 = t8641 + t8685;
             let t8687 = s.421 * t8672;
@@ -23908,7 +23990,7 @@ pub mod portable {
             let t8696 = t8694 + t8695;
             let t8697 = s.426 * t8634;
             let t8698 = t8696 + t8697;
-            dqdd_dqd[7][4] = t8698;
+            dqdd_dqd.67 = t8698;
             let t8699 = s.413 * t8684;
             let t8700 = t8642 + t8699;
             let t8701 = s.414 * t8672;
@@ -23923,7 +24005,7 @@ pub mod portable {
             let t8710 = t8708 + t8709;
             let t8711 = s.419 * t8634;
             let t8712 = t8710 + t8711;
-            dqdd_dqd[8][4] = t8712;
+            dqdd_dqd.76 = t8712;
             let t8713 = s.413 * s.567;
             let t8714 = s.563 + t8713;
             let t8715 = s.414 * s.567;
@@ -23995,7 +24077,7 @@ pub mod portable {
             let t8781 = s.453 * t8778;
             let t8782 = t8780 + t8781;
             let t8783 = s.454 * t8782;
-            dqdd_dqd[0][5] = t8783;
+            dqdd_dqd.5 = t8783;
             let t8784 = s.452 * t8778;
             let t8785 = s.449 * t8772;
             let t8786 = s.445 * t8764;
@@ -24006,19 +24088,19 @@ pub mod portable {
             let t8791 = lit::<T>(-66.66666666666667) * s.567;
             let t8792 = s.453 * t8783;
             let t8793 = t8784 + t8792;
-            dqdd_dqd[1][5] = t8793;
+            dqdd_dqd.14 = t8793;
             let t8794 = s.450 * t8793;
             let t8795 = t8785 + t8794;
             let t8796 = s.451 * t8783;
             let t8797 = t8795 + t8796;
-            dqdd_dqd[2][5] = t8797;
+            dqdd_dqd.23 = t8797;
             let t8798 = s.446 * t8797;
             let t8799 = t8786 + t8798;
             let t8800 = s.447 * t8793;
             let t8801 = t8799 + t8800;
             let t8802 = s.448 * t8783;
             let t8803 = t8801 + t8802;
-            dqdd_dqd[3][5] = t8803;
+            dqdd_dqd.32 = t8803;
             let t8804 = s.441 * t8803;
             let t8805 = t8787 + t8804;
             let t8806 = s.442 * t8797;
@@ -24027,7 +24109,7 @@ pub mod portable {
             let t8809 = t8807 + t8808;
             let t8810 = s.444 * t8783;
             let t8811 = t8809 + t8810;
-            dqdd_dqd[4][5] = t8811;
+            dqdd_dqd.41 = t8811;
             let t8812 = s.435 * t8811;
             let t8813 = t8788 + t8812;
             let t8814 = s.436 * t8803;
@@ -24038,7 +24120,7 @@ pub mod portable {
             let t8819 = t8817 + t8818;
             let t8820 = s.439 * t8783;
             let t8821 = t8819 + t8820;
-            dqdd_dqd[5][5] = t8821;
+            dqdd_dqd.50 = t8821;
             let t8822 = s.428 * t8821;
             let t8823 = t8789 + t8822;
             let t8824 = s.429 * t8811;
@@ -24051,7 +24133,7 @@ pub mod portable {
             let t8831 = t8829 + t8830;
             let t8832 = s.433 * t8783;
             let t8833 = t8831 + t8832;
-            dqdd_dqd[6][5] = t8833;
+            dqdd_dqd.59 = t8833;
             let t8834 = s.420 * t8833;
             let t8835 = t8790 + t8834;
             let t8836 = s.421 * t8821;
@@ -24066,7 +24148,7 @@ pub mod portable {
             let t8845 = t8843 + t8844;
             let t8846 = s.426 * t8783;
             let t8847 = t8845 + t8846;
-            dqdd_dqd[7][5] = t8847;
+            dqdd_dqd.68 = t8847;
             let t8848 = s.413 * t8833;
             let t8849 = t8791 + t8848;
             let t8850 = s.414 * t8821;
@@ -24081,7 +24163,7 @@ pub mod portable {
             let t8859 = t8857 + t8858;
             let t8860 = s.419 * t8783;
             let t8861 = t8859 + t8860;
-            dqdd_dqd[8][5] = t8861;
+            dqdd_dqd.77 = t8861;
             let t8862 = s.413 * s.553;
             let t8863 = s.549 + t8862;
             let t8864 = s.414 * s.553;
@@ -24153,7 +24235,7 @@ pub mod portable {
             let t8930 = s.453 * t8927;
             let t8931 = t8929 + t8930;
             let t8932 = s.454 * t8931;
-            dqdd_dqd[0][6] = t8932;
+            dqdd_dqd.6 = t8932;
             let t8933 = s.452 * t8927;
             let t8934 = s.449 * t8921;
             let t8935 = s.445 * t8913;
@@ -24164,19 +24246,19 @@ pub mod portable {
             let t8940 = lit::<T>(-66.66666666666667) * s.553;
             let t8941 = s.453 * t8932;
             let t8942 = t8933 + t8941;
-            dqdd_dqd[1][6] = t8942;
+            dqdd_dqd.15 = t8942;
             let t8943 = s.450 * t8942;
             let t8944 = t8934 + t8943;
             let t8945 = s.451 * t8932;
             let t8946 = t8944 + t8945;
-            dqdd_dqd[2][6] = t8946;
+            dqdd_dqd.24 = t8946;
             let t8947 = s.446 * t8946;
             let t8948 = t8935 + t8947;
             let t8949 = s.447 * t8942;
             let t8950 = t8948 + t8949;
             let t8951 = s.448 * t8932;
             let t8952 = t8950 + t8951;
-            dqdd_dqd[3][6] = t8952;
+            dqdd_dqd.33 = t8952;
             let t8953 = s.441 * t8952;
             let t8954 = t8936 + t8953;
             let t8955 = s.442 * t8946;
@@ -24185,7 +24267,7 @@ pub mod portable {
             let t8958 = t8956 + t8957;
             let t8959 = s.444 * t8932;
             let t8960 = t8958 + t8959;
-            dqdd_dqd[4][6] = t8960;
+            dqdd_dqd.42 = t8960;
             let t8961 = s.435 * t8960;
             let t8962 = t8937 + t8961;
             let t8963 = s.436 * t8952;
@@ -24196,7 +24278,7 @@ pub mod portable {
             let t8968 = t8966 + t8967;
             let t8969 = s.439 * t8932;
             let t8970 = t8968 + t8969;
-            dqdd_dqd[5][6] = t8970;
+            dqdd_dqd.51 = t8970;
             let t8971 = s.428 * t8970;
             let t8972 = t8938 + t8971;
             let t8973 = s.429 * t8960;
@@ -24209,7 +24291,7 @@ pub mod portable {
             let t8980 = t8978 + t8979;
             let t8981 = s.433 * t8932;
             let t8982 = t8980 + t8981;
-            dqdd_dqd[6][6] = t8982;
+            dqdd_dqd.60 = t8982;
             let t8983 = s.420 * t8982;
             let t8984 = t8939 + t8983;
             let t8985 = s.421 * t8970;
@@ -24224,7 +24306,7 @@ pub mod portable {
             let t8994 = t8992 + t8993;
             let t8995 = s.426 * t8932;
             let t8996 = t8994 + t8995;
-            dqdd_dqd[7][6] = t8996;
+            dqdd_dqd.69 = t8996;
             let t8997 = s.413 * t8982;
             let t8998 = t8940 + t8997;
             let t8999 = s.414 * t8970;
@@ -24239,7 +24321,7 @@ pub mod portable {
             let t9008 = t9006 + t9007;
             let t9009 = s.419 * t8932;
             let t9010 = t9008 + t9009;
-            dqdd_dqd[8][6] = t9010;
+            dqdd_dqd.78 = t9010;
             let t9011 = s.428 * s.546;
             let t9012 = s.556 + t9011;
             let t9013 = s.429 * s.546;
@@ -24283,7 +24365,7 @@ pub mod portable {
             let t9051 = s.453 * t9048;
             let t9052 = t9050 + t9051;
             let t9053 = s.454 * t9052;
-            dqdd_dqd[0][7] = t9053;
+            dqdd_dqd.7 = t9053;
             let t9054 = s.452 * t9048;
             let t9055 = s.449 * t9042;
             let t9056 = s.445 * t9034;
@@ -24292,19 +24374,19 @@ pub mod portable {
             let t9059 = s.427 * s.546;
             let t9060 = s.453 * t9053;
             let t9061 = t9054 + t9060;
-            dqdd_dqd[1][7] = t9061;
+            dqdd_dqd.16 = t9061;
             let t9062 = s.450 * t9061;
             let t9063 = t9055 + t9062;
             let t9064 = s.451 * t9053;
             let t9065 = t9063 + t9064;
-            dqdd_dqd[2][7] = t9065;
+            dqdd_dqd.25 = t9065;
             let t9066 = s.446 * t9065;
             let t9067 = t9056 + t9066;
             let t9068 = s.447 * t9061;
             let t9069 = t9067 + t9068;
             let t9070 = s.448 * t9053;
             let t9071 = t9069 + t9070;
-            dqdd_dqd[3][7] = t9071;
+            dqdd_dqd.34 = t9071;
             let t9072 = s.441 * t9071;
             let t9073 = t9057 + t9072;
             let t9074 = s.442 * t9065;
@@ -24313,7 +24395,7 @@ pub mod portable {
             let t9077 = t9075 + t9076;
             let t9078 = s.444 * t9053;
             let t9079 = t9077 + t9078;
-            dqdd_dqd[4][7] = t9079;
+            dqdd_dqd.43 = t9079;
             let t9080 = s.435 * t9079;
             let t9081 = t9058 + t9080;
             let t9082 = s.436 * t9071;
@@ -24324,7 +24406,7 @@ pub mod portable {
             let t9087 = t9085 + t9086;
             let t9088 = s.439 * t9053;
             let t9089 = t9087 + t9088;
-            dqdd_dqd[5][7] = t9089;
+            dqdd_dqd.52 = t9089;
             let t9090 = s.428 * t9089;
             let t9091 = t9059 + t9090;
             let t9092 = s.429 * t9079;
@@ -24337,7 +24419,7 @@ pub mod portable {
             let t9099 = t9097 + t9098;
             let t9100 = s.433 * t9053;
             let t9101 = t9099 + t9100;
-            dqdd_dqd[6][7] = t9101;
+            dqdd_dqd.61 = t9101;
             let t9102 = s.420 * t9101;
             let t9103 = s.421 * t9089;
             let t9104 = t9102 + t9103;
@@ -24351,7 +24433,7 @@ pub mod portable {
             let t9112 = t9110 + t9111;
             let t9113 = s.426 * t9053;
             let t9114 = t9112 + t9113;
-            dqdd_dqd[7][7] = t9114;
+            dqdd_dqd.70 = t9114;
             let t9115 = s.413 * t9101;
             let t9116 = s.414 * t9089;
             let t9117 = t9115 + t9116;
@@ -24365,7 +24447,7 @@ pub mod portable {
             let t9125 = t9123 + t9124;
             let t9126 = s.419 * t9053;
             let t9127 = t9125 + t9126;
-            dqdd_dqd[8][7] = t9127;
+            dqdd_dqd.79 = t9127;
             let t9128 = s.428 * s.543;
             let t9129 = s.558 + t9128;
             let t9130 = s.429 * s.543;
@@ -24409,7 +24491,7 @@ pub mod portable {
             let t9168 = s.453 * t9165;
             let t9169 = t9167 + t9168;
             let t9170 = s.454 * t9169;
-            dqdd_dqd[0][8] = t9170;
+            dqdd_dqd.8 = t9170;
             let t9171 = s.452 * t9165;
             let t9172 = s.449 * t9159;
             let t9173 = s.445 * t9151;
@@ -24418,19 +24500,19 @@ pub mod portable {
             let t9176 = s.427 * s.543;
             let t9177 = s.453 * t9170;
             let t9178 = t9171 + t9177;
-            dqdd_dqd[1][8] = t9178;
+            dqdd_dqd.17 = t9178;
             let t9179 = s.450 * t9178;
             let t9180 = t9172 + t9179;
             let t9181 = s.451 * t9170;
             let t9182 = t9180 + t9181;
-            dqdd_dqd[2][8] = t9182;
+            dqdd_dqd.26 = t9182;
             let t9183 = s.446 * t9182;
             let t9184 = t9173 + t9183;
             let t9185 = s.447 * t9178;
             let t9186 = t9184 + t9185;
             let t9187 = s.448 * t9170;
             let t9188 = t9186 + t9187;
-            dqdd_dqd[3][8] = t9188;
+            dqdd_dqd.35 = t9188;
             let t9189 = s.441 * t9188;
             let t9190 = t9174 + t9189;
             let t9191 = s.442 * t9182;
@@ -24439,7 +24521,7 @@ pub mod portable {
             let t9194 = t9192 + t9193;
             let t9195 = s.444 * t9170;
             let t9196 = t9194 + t9195;
-            dqdd_dqd[4][8] = t9196;
+            dqdd_dqd.44 = t9196;
             let t9197 = s.435 * t9196;
             let t9198 = t9175 + t9197;
             let t9199 = s.436 * t9188;
@@ -24450,7 +24532,7 @@ pub mod portable {
             let t9204 = t9202 + t9203;
             let t9205 = s.439 * t9170;
             let t9206 = t9204 + t9205;
-            dqdd_dqd[5][8] = t9206;
+            dqdd_dqd.53 = t9206;
             let t9207 = s.428 * t9206;
             let t9208 = t9176 + t9207;
             let t9209 = s.429 * t9196;
@@ -24463,7 +24545,7 @@ pub mod portable {
             let t9216 = t9214 + t9215;
             let t9217 = s.433 * t9170;
             let t9218 = t9216 + t9217;
-            dqdd_dqd[6][8] = t9218;
+            dqdd_dqd.62 = t9218;
             let t9219 = s.420 * t9218;
             let t9220 = s.421 * t9206;
             let t9221 = t9219 + t9220;
@@ -24477,7 +24559,7 @@ pub mod portable {
             let t9229 = t9227 + t9228;
             let t9230 = s.426 * t9170;
             let t9231 = t9229 + t9230;
-            dqdd_dqd[7][8] = t9231;
+            dqdd_dqd.71 = t9231;
             let t9232 = s.413 * t9218;
             let t9233 = s.414 * t9206;
             let t9234 = t9232 + t9233;
@@ -24491,7 +24573,7 @@ pub mod portable {
             let t9242 = t9240 + t9241;
             let t9243 = s.419 * t9170;
             let t9244 = t9242 + t9243;
-            dqdd_dqd[8][8] = t9244;
+            dqdd_dqd.80 = t9244;
         }
     }
     use fd_grad_part3::fd_grad_part3;
@@ -25569,6 +25651,14 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 81 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f81<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -25582,6 +25672,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
             let t2 = q[1].sin();
             s.0 = t2;
             let t3 = q[1].cos();
@@ -26990,7 +27086,7 @@ pub mod fma {
             let t1746 = t1736 - t1125;
             s.130 = t1746;
             let t1747 = t1443 * lit::<T>(-0.015);
-            dc_dq[8][8] = t1747;
+            dc_dq.80 = t1747;
             let t1753 = t94 * lit::<T>(-0.010606601717798213);
             let t1755 = T::mul_add(t95, lit::<T>(-0.010606601717798212), -t1753);
             let t1756 = lit::<T>(0.7071067811865476) * t1742;
@@ -27002,7 +27098,7 @@ pub mod fma {
             let t1764 = T::mul_add(lit::<T>(0.1654), t1756, t1763);
             let t1765 = t94 * t1757;
             let t1767 = T::mul_add(t95, t1756, -t1765);
-            dc_dqd[6][8] = t1767;
+            dc_dqd.62 = t1767;
             let t1769 = lit::<T>(0.7071067811865475) * t1734;
             let t1770 = T::mul_add(lit::<T>(0.7071067811865476), t1733, t1769);
             let t1772 = lit::<T>(0.7071067811865476) * t1734;
@@ -27021,7 +27117,7 @@ pub mod fma {
             let t1790 = t1776 + t1783;
             let t1791 = t1779 + t1786;
             let t1792 = t1155 + t1789;
-            dc_dq[6][8] = t1792;
+            dc_dq.62 = t1792;
             let t1793 = lit::<T>(0.7071067811865476) * t1745;
             let t1794 = lit::<T>(-0.7071067811865475) * t1745;
             let t1795 = t94 * t94;
@@ -27136,7 +27232,7 @@ pub mod fma {
             let t1891 = -t1730;
             let t1892 = lit::<T>(0.015) * t1440;
             let t1893 = lit::<T>(0.015) * t1438;
-            dc_dq[7][7] = t1893;
+            dc_dq.70 = t1893;
             let t1894 = lit::<T>(0.015) * t1441;
             s.131 = t1894;
             let t1895 = -t1042;
@@ -27162,7 +27258,7 @@ pub mod fma {
             let t1919 = T::mul_add(lit::<T>(0.1654), t1912, -t1918);
             let t1921 = t89 * t1912;
             let t1922 = T::mul_add(t88, t1913, -t1921);
-            dc_dqd[6][7] = t1922;
+            dc_dqd.61 = t1922;
             let t1924 = lit::<T>(0.7071067811865475) * t1893;
             let t1925 = T::mul_add(lit::<T>(0.7071067811865476), t1892, t1924);
             let t1927 = lit::<T>(0.7071067811865476) * t1893;
@@ -27180,7 +27276,7 @@ pub mod fma {
             let t1944 = t1931 + t1937;
             let t1945 = t1934 + t1940;
             let t1946 = t1943 - t1082;
-            dc_dq[6][7] = t1946;
+            dc_dq.61 = t1946;
             let t1947 = lit::<T>(0.7071067811865476) * t1904;
             let t1948 = lit::<T>(-0.7071067811865475) * t1904;
             let t1949 = t88 * t88;
@@ -27387,12 +27483,12 @@ pub mod fma {
             let t2190 = T::mul_add(t829, t2182, t2188);
             let t2192 = T::mul_add(-t826, t2183, t2190);
             let t2193 = t2185 + t2192;
-            dc_dq[6][6] = t2193;
+            dc_dq.60 = t2193;
             let t2194 = t2038 - t2043;
             let t2195 = t2194 - t2041;
             let t2196 = t2195 + t2195;
             let t2197 = t2014 + t2196;
-            dc_dqd[6][6] = t2197;
+            dc_dqd.60 = t2197;
             let t2199 = t1431 * lit::<T>(0.0017543319241238242);
             let t2200 = T::mul_add(t1430, lit::<T>(-0.0017543319241238244), t2199);
             let t2202 = T::mul_add(t1416, t1911, t2200);
@@ -27401,14 +27497,14 @@ pub mod fma {
             let t2208 = t820 * t1948;
             let t2209 = T::mul_add(t823, t1947, -t2208);
             let t2210 = t2206 + t2209;
-            dc_dq[7][6] = t2210;
+            dc_dq.69 = t2210;
             let t2212 = t820 * lit::<T>(0.0017543319241238242);
             let t2213 = T::mul_add(t823, lit::<T>(-0.0017543319241238244), -t2212);
             let t2215 = T::mul_add(t829, lit::<T>(0.010606601717798212), t2213);
             let t2217 = T::mul_add(-t826, lit::<T>(0.010606601717798213), t2215);
             let t2218 = t2217 + t2217;
             let t2219 = t1905 + t2218;
-            dc_dqd[7][6] = t2219;
+            dc_dqd.69 = t2219;
             let t2221 = t1431 * lit::<T>(-0.0017543319241238242);
             let t2222 = T::mul_add(t1430, lit::<T>(0.0017543319241238244), t2221);
             let t2224 = T::mul_add(t1416, t1755, t2222);
@@ -27417,14 +27513,14 @@ pub mod fma {
             let t2230 = t820 * t1794;
             let t2231 = T::mul_add(t823, t1793, -t2230);
             let t2232 = t2228 + t2231;
-            dc_dq[8][6] = t2232;
+            dc_dq.78 = t2232;
             let t2234 = t820 * lit::<T>(-0.0017543319241238242);
             let t2235 = T::mul_add(t823, lit::<T>(0.0017543319241238244), -t2234);
             let t2237 = T::mul_add(t829, lit::<T>(-0.010606601717798212), t2235);
             let t2239 = T::mul_add(-t826, lit::<T>(-0.010606601717798213), t2237);
             let t2240 = t2239 + t2239;
             let t2241 = t1746 + t2240;
-            dc_dqd[8][6] = t2241;
+            dc_dqd.78 = t2241;
             let t2242 = t72 * t1977;
             let t2243 = -t2242;
             let t2244 = t71 * t1976;
@@ -27460,7 +27556,7 @@ pub mod fma {
             s.144 = t2273;
             let t2274 = T::mul_add(-lit::<T>(0.088), t2154, t2270);
             s.145 = t2274;
-            dc_dqd[5][6] = t2274;
+            dc_dqd.51 = t2274;
             let t2276 = t71 * t2179;
             let t2277 = T::mul_add(t72, t2178, -t2276);
             s.146 = t2277;
@@ -27477,7 +27573,7 @@ pub mod fma {
             s.149 = t2290;
             let t2291 = T::mul_add(-lit::<T>(0.088), t2175, t2287);
             s.150 = t2291;
-            dc_dq[5][6] = t2291;
+            dc_dq.51 = t2291;
             let t2293 = t71 * t2183;
             let t2294 = T::mul_add(t72, t2182, -t2293);
             s.151 = t2294;
@@ -27524,7 +27620,7 @@ pub mod fma {
             s.164 = t2337;
             let t2338 = T::mul_add(-lit::<T>(0.088), t1902, t2334);
             s.165 = t2338;
-            dc_dqd[5][7] = t2338;
+            dc_dqd.52 = t2338;
             let t2340 = t71 * t1928;
             let t2341 = T::mul_add(t72, t1925, -t2340);
             s.166 = t2341;
@@ -27541,7 +27637,7 @@ pub mod fma {
             s.169 = t2354;
             let t2355 = T::mul_add(-lit::<T>(0.088), t1894, t2351);
             s.170 = t2355;
-            dc_dq[5][7] = t2355;
+            dc_dq.52 = t2355;
             let t2357 = t71 * t1948;
             let t2358 = T::mul_add(t72, t1947, -t2357);
             s.171 = t2358;
@@ -27579,7 +27675,7 @@ pub mod fma {
             s.181 = t2392;
             let t2393 = T::mul_add(-lit::<T>(0.088), t1743, t2389);
             s.182 = t2393;
-            dc_dqd[5][8] = t2393;
+            dc_dqd.53 = t2393;
             let t2395 = t71 * t1773;
             let t2396 = T::mul_add(t72, t1770, -t2395);
             s.183 = t2396;
@@ -27596,7 +27692,7 @@ pub mod fma {
             s.186 = t2409;
             let t2410 = T::mul_add(-lit::<T>(0.088), t1735, t2406);
             s.187 = t2410;
-            dc_dq[5][8] = t2410;
+            dc_dq.53 = t2410;
             let t2412 = t71 * t1794;
             let t2413 = T::mul_add(t72, t1793, -t2412);
             s.188 = t2413;
@@ -27805,6 +27901,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
             let t2619 = T::mul_add(-s.49, s.202, s.233);
             let t2622 = s.51 * s.204;
             let t2623 = -t2622;
@@ -27874,12 +27976,12 @@ pub mod fma {
             let t2699 = T::mul_add(s.52, t2690, t2697);
             let t2701 = T::mul_add(-s.51, t2691, t2699);
             let t2702 = t2694 + t2701;
-            dc_dq[5][5] = t2702;
+            dc_dq.50 = t2702;
             let t2704 = T::mul_add(s.52, lit::<T>(0.17380470556900002), s.213);
             let t2705 = t2704 - s.214;
             let t2706 = t2705 + t2705;
             let t2707 = s.203 + t2706;
-            dc_dqd[5][5] = t2707;
+            dc_dqd.50 = t2707;
             let t2709 = s.93 * s.140;
             let t2710 = T::mul_add(s.92, s.138, t2709);
             let t2712 = T::mul_add(s.90, s.139, t2710);
@@ -27889,13 +27991,13 @@ pub mod fma {
             let t2719 = T::mul_add(s.50, s.153, -t2718);
             let t2721 = T::mul_add(s.52, s.151, t2719);
             let t2722 = t2716 + t2721;
-            dc_dq[6][5] = t2722;
+            dc_dq.59 = t2722;
             let t2724 = s.49 * s.140;
             let t2725 = T::mul_add(s.50, s.138, -t2724);
             let t2727 = T::mul_add(s.52, s.136, t2725);
             let t2728 = t2727 + t2727;
             let t2729 = s.154 + t2728;
-            dc_dqd[6][5] = t2729;
+            dc_dqd.59 = t2729;
             let t2731 = s.93 * s.160;
             let t2732 = T::mul_add(s.92, s.158, t2731);
             let t2734 = T::mul_add(s.90, s.159, t2732);
@@ -27904,13 +28006,13 @@ pub mod fma {
             let t2740 = s.49 * s.133;
             let t2741 = T::mul_add(s.50, s.171, t2740);
             let t2742 = t2738 + t2741;
-            dc_dq[7][5] = t2742;
+            dc_dq.68 = t2742;
             let t2744 = s.49 * s.160;
             let t2745 = T::mul_add(s.50, s.158, -t2744);
             let t2747 = T::mul_add(s.52, s.156, t2745);
             let t2748 = t2747 + t2747;
             let t2749 = s.172 + t2748;
-            dc_dqd[7][5] = t2749;
+            dc_dqd.68 = t2749;
             let t2751 = s.93 * s.177;
             let t2752 = T::mul_add(s.92, s.175, t2751);
             let t2754 = T::mul_add(s.90, s.176, t2752);
@@ -27919,13 +28021,13 @@ pub mod fma {
             let t2760 = s.49 * s.130;
             let t2761 = T::mul_add(s.50, s.188, t2760);
             let t2762 = t2758 + t2761;
-            dc_dq[8][5] = t2762;
+            dc_dq.77 = t2762;
             let t2764 = s.49 * s.177;
             let t2765 = T::mul_add(s.50, s.175, -t2764);
             let t2767 = T::mul_add(s.52, s.173, t2765);
             let t2768 = t2767 + t2767;
             let t2769 = s.189 + t2768;
-            dc_dqd[8][5] = t2769;
+            dc_dqd.77 = t2769;
             let t2771 = s.8 * s.196;
             let t2772 = T::mul_add(s.9, lit::<T>(0.17380470556900002), -t2771);
             let t2774 = s.9 * s.196;
@@ -27943,7 +28045,7 @@ pub mod fma {
             let t2790 = T::mul_add(s.9, t2667, -t2789);
             let t2792 = s.9 * t2668;
             let t2793 = T::mul_add(s.8, t2667, t2792);
-            dc_dqd[4][5] = t2793;
+            dc_dqd.41 = t2793;
             let t2795 = s.8 * t2687;
             let t2796 = T::mul_add(s.9, t2686, -t2795);
             let t2798 = s.9 * t2687;
@@ -27952,7 +28054,7 @@ pub mod fma {
             let t2802 = T::mul_add(s.9, t2684, -t2801);
             let t2804 = s.9 * t2685;
             let t2805 = T::mul_add(s.8, t2684, t2804);
-            dc_dq[4][5] = t2805;
+            dc_dq.41 = t2805;
             let t2807 = s.8 * t2691;
             let t2808 = T::mul_add(s.9, t2690, -t2807);
             let t2810 = s.9 * t2691;
@@ -27975,7 +28077,7 @@ pub mod fma {
             let t2834 = T::mul_add(s.9, s.143, -t2833);
             let t2836 = s.9 * s.144;
             let t2837 = T::mul_add(s.8, s.143, t2836);
-            dc_dqd[4][6] = t2837;
+            dc_dqd.42 = t2837;
             let t2839 = s.8 * s.135;
             let t2840 = T::mul_add(s.9, s.146, t2839);
             let t2842 = s.9 * s.135;
@@ -27984,7 +28086,7 @@ pub mod fma {
             let t2846 = T::mul_add(s.9, s.148, -t2845);
             let t2848 = s.9 * s.149;
             let t2849 = T::mul_add(s.8, s.148, t2848);
-            dc_dq[4][6] = t2849;
+            dc_dq.42 = t2849;
             let t2850 = s.9 * s.151;
             let t2851 = s.8 * s.151;
             let t2853 = s.8 * s.155;
@@ -28005,7 +28107,7 @@ pub mod fma {
             let t2874 = T::mul_add(s.9, s.163, -t2873);
             let t2876 = s.9 * s.164;
             let t2877 = T::mul_add(s.8, s.163, t2876);
-            dc_dqd[4][7] = t2877;
+            dc_dqd.43 = t2877;
             let t2879 = s.8 * s.131;
             let t2880 = T::mul_add(s.9, s.166, t2879);
             let t2882 = s.9 * s.131;
@@ -28014,7 +28116,7 @@ pub mod fma {
             let t2886 = T::mul_add(s.9, s.168, -t2885);
             let t2888 = s.9 * s.169;
             let t2889 = T::mul_add(s.8, s.168, t2888);
-            dc_dq[4][7] = t2889;
+            dc_dq.43 = t2889;
             let t2891 = s.8 * s.133;
             let t2892 = T::mul_add(s.9, s.171, t2891);
             let t2894 = s.9 * s.133;
@@ -28033,7 +28135,7 @@ pub mod fma {
             let t2912 = T::mul_add(s.9, s.180, -t2911);
             let t2914 = s.9 * s.181;
             let t2915 = T::mul_add(s.8, s.180, t2914);
-            dc_dqd[4][8] = t2915;
+            dc_dqd.44 = t2915;
             let t2917 = s.8 * s.128;
             let t2918 = T::mul_add(s.9, s.183, t2917);
             let t2920 = s.9 * s.128;
@@ -28042,7 +28144,7 @@ pub mod fma {
             let t2924 = T::mul_add(s.9, s.185, -t2923);
             let t2926 = s.9 * s.186;
             let t2927 = T::mul_add(s.8, s.185, t2926);
-            dc_dq[4][8] = t2927;
+            dc_dq.44 = t2927;
             let t2929 = s.8 * s.130;
             let t2930 = T::mul_add(s.9, s.188, t2929);
             let t2932 = s.9 * s.130;
@@ -28239,12 +28341,12 @@ pub mod fma {
             let t3186 = T::mul_add(s.42, t3178, t3184);
             let t3188 = T::mul_add(-s.41, t3179, t3186);
             let t3189 = t3181 + t3188;
-            dc_dq[4][4] = t3189;
+            dc_dq.40 = t3189;
             let t3190 = t3034 - t3039;
             let t3191 = t3190 - t3037;
             let t3192 = t3191 + t3191;
             let t3193 = t3004 + t3192;
-            dc_dqd[4][4] = t3193;
+            dc_dqd.40 = t3193;
             let t3195 = s.87 * s.195;
             let t3196 = T::mul_add(s.86, t2778, -t3195);
             let t3198 = T::mul_add(s.84, t2781, t3196);
@@ -28254,13 +28356,13 @@ pub mod fma {
             let t3205 = T::mul_add(s.40, t2814, t3204);
             let t3207 = T::mul_add(s.42, t2808, t3205);
             let t3208 = t3202 + t3207;
-            dc_dq[5][4] = t3208;
+            dc_dq.49 = t3208;
             let t3210 = s.39 * s.195;
             let t3211 = T::mul_add(s.40, t2778, t3210);
             let t3213 = T::mul_add(s.42, t2772, t3211);
             let t3214 = t3213 + t3213;
             let t3215 = t2817 + t3214;
-            dc_dqd[5][4] = t3215;
+            dc_dqd.49 = t3215;
             let t3217 = s.87 * s.139;
             let t3218 = T::mul_add(s.86, t2822, -t3217);
             let t3220 = T::mul_add(s.84, t2825, t3218);
@@ -28272,14 +28374,14 @@ pub mod fma {
             let t3231 = T::mul_add(s.42, t2850, t3229);
             let t3233 = T::mul_add(s.41, s.152, t3231);
             let t3234 = t3226 + t3233;
-            dc_dq[6][4] = t3234;
+            dc_dq.58 = t3234;
             let t3236 = s.39 * s.139;
             let t3237 = T::mul_add(s.40, t2822, t3236);
             let t3239 = T::mul_add(s.42, t2818, t3237);
             let t3241 = T::mul_add(s.41, s.137, t3239);
             let t3242 = t3241 + t3241;
             let t3243 = t2857 + t3242;
-            dc_dqd[6][4] = t3243;
+            dc_dqd.58 = t3243;
             let t3245 = s.87 * s.159;
             let t3246 = T::mul_add(s.86, t2862, -t3245);
             let t3248 = T::mul_add(s.84, t2865, t3246);
@@ -28289,14 +28391,14 @@ pub mod fma {
             let t3256 = s.39 * s.172;
             let t3257 = T::mul_add(s.40, t2892, t3256);
             let t3258 = t3254 + t3257;
-            dc_dq[7][4] = t3258;
+            dc_dq.67 = t3258;
             let t3260 = s.39 * s.159;
             let t3261 = T::mul_add(s.40, t2862, t3260);
             let t3263 = T::mul_add(s.42, t2858, t3261);
             let t3265 = T::mul_add(s.41, s.157, t3263);
             let t3266 = t3265 + t3265;
             let t3267 = t2895 + t3266;
-            dc_dqd[7][4] = t3267;
+            dc_dqd.67 = t3267;
             let t3269 = s.87 * s.176;
             let t3270 = T::mul_add(s.86, t2900, -t3269);
             let t3272 = T::mul_add(s.84, t2903, t3270);
@@ -28306,14 +28408,14 @@ pub mod fma {
             let t3280 = s.39 * s.189;
             let t3281 = T::mul_add(s.40, t2930, t3280);
             let t3282 = t3278 + t3281;
-            dc_dq[8][4] = t3282;
+            dc_dq.76 = t3282;
             let t3284 = s.39 * s.176;
             let t3285 = T::mul_add(s.40, t2900, t3284);
             let t3287 = T::mul_add(s.42, t2896, t3285);
             let t3289 = T::mul_add(s.41, s.174, t3287);
             let t3290 = t3289 + t3289;
             let t3291 = t2933 + t3290;
-            dc_dqd[8][4] = t3291;
+            dc_dqd.76 = t3291;
             let t3292 = s.7 * t2965;
             let t3293 = -t3292;
             let t3294 = s.6 * t2964;
@@ -28345,7 +28447,7 @@ pub mod fma {
             let t3332 = T::mul_add(lit::<T>(0.384), t3319, t3322);
             let t3333 = T::mul_add(-lit::<T>(-0.0825), t3319, t3157);
             let t3334 = t3326 + t3331;
-            dc_dqd[3][4] = t3334;
+            dc_dqd.31 = t3334;
             let t3336 = s.6 * t3175;
             let t3337 = T::mul_add(s.7, t3174, -t3336);
             let t3338 = s.6 * t3174;
@@ -28361,7 +28463,7 @@ pub mod fma {
             let t3354 = T::mul_add(lit::<T>(0.384), t3341, t3344);
             let t3355 = T::mul_add(-lit::<T>(-0.0825), t3341, t3168);
             let t3356 = t3348 + t3353;
-            dc_dq[3][4] = t3356;
+            dc_dq.31 = t3356;
             let t3358 = s.6 * t3179;
             let t3359 = T::mul_add(s.7, t3178, -t3358);
             let t3360 = s.6 * t3178;
@@ -28399,7 +28501,7 @@ pub mod fma {
             let t3410 = T::mul_add(lit::<T>(0.384), t3398, t3401);
             let t3411 = T::mul_add(-lit::<T>(-0.0825), t3398, t2793);
             let t3412 = t3404 + t3409;
-            dc_dqd[3][5] = t3412;
+            dc_dqd.32 = t3412;
             let t3414 = s.6 * t2683;
             let t3415 = T::mul_add(s.7, t2796, t3414);
             let t3416 = s.6 * t2796;
@@ -28414,7 +28516,7 @@ pub mod fma {
             let t3430 = T::mul_add(lit::<T>(0.384), t3418, t3421);
             let t3431 = T::mul_add(-lit::<T>(-0.0825), t3418, t2805);
             let t3432 = t3424 + t3429;
-            dc_dq[3][5] = t3432;
+            dc_dq.32 = t3432;
             let t3433 = s.7 * t2808;
             let t3434 = s.6 * t2808;
             s.235 = t3434;
@@ -28455,7 +28557,7 @@ pub mod fma {
             let t3486 = T::mul_add(lit::<T>(0.384), t3474, t3477);
             let t3487 = T::mul_add(-lit::<T>(-0.0825), t3474, t2837);
             let t3488 = t3480 + t3485;
-            dc_dqd[3][6] = t3488;
+            dc_dqd.33 = t3488;
             let t3490 = s.6 * s.147;
             let t3491 = T::mul_add(s.7, t2840, t3490);
             let t3492 = s.6 * t2840;
@@ -28470,7 +28572,7 @@ pub mod fma {
             let t3506 = T::mul_add(lit::<T>(0.384), t3494, t3497);
             let t3507 = T::mul_add(-lit::<T>(-0.0825), t3494, t2849);
             let t3508 = t3500 + t3505;
-            dc_dq[3][6] = t3508;
+            dc_dq.33 = t3508;
             let t3510 = s.6 * s.152;
             let t3511 = T::mul_add(s.7, t2850, t3510);
             let t3512 = s.6 * t2850;
@@ -28513,7 +28615,7 @@ pub mod fma {
             let t3566 = T::mul_add(lit::<T>(0.384), t3554, t3557);
             let t3567 = T::mul_add(-lit::<T>(-0.0825), t3554, t2877);
             let t3568 = t3560 + t3565;
-            dc_dqd[3][7] = t3568;
+            dc_dqd.34 = t3568;
             let t3570 = s.6 * s.167;
             let t3571 = T::mul_add(s.7, t2880, t3570);
             let t3572 = s.6 * t2880;
@@ -28528,7 +28630,7 @@ pub mod fma {
             let t3586 = T::mul_add(lit::<T>(0.384), t3574, t3577);
             let t3587 = T::mul_add(-lit::<T>(-0.0825), t3574, t2889);
             let t3588 = t3580 + t3585;
-            dc_dq[3][7] = t3588;
+            dc_dq.34 = t3588;
             let t3590 = s.6 * s.172;
             let t3591 = T::mul_add(s.7, t2892, t3590);
             let t3592 = s.6 * t2892;
@@ -28562,7 +28664,7 @@ pub mod fma {
             let t3632 = T::mul_add(lit::<T>(0.384), t3620, t3623);
             let t3633 = T::mul_add(-lit::<T>(-0.0825), t3620, t2915);
             let t3634 = t3626 + t3631;
-            dc_dqd[3][8] = t3634;
+            dc_dqd.35 = t3634;
             let t3636 = s.6 * s.184;
             let t3637 = T::mul_add(s.7, t2918, t3636);
             let t3638 = s.6 * t2918;
@@ -28577,7 +28679,7 @@ pub mod fma {
             let t3652 = T::mul_add(lit::<T>(0.384), t3640, t3643);
             let t3653 = T::mul_add(-lit::<T>(-0.0825), t3640, t2927);
             let t3654 = t3646 + t3651;
-            dc_dq[3][8] = t3654;
+            dc_dq.35 = t3654;
             let t3656 = s.6 * s.189;
             let t3657 = T::mul_add(s.7, t2930, t3656);
             let t3658 = s.6 * t2930;
@@ -28829,12 +28931,12 @@ pub mod fma {
             let t3978 = T::mul_add(s.32, t3970, t3976);
             let t3980 = T::mul_add(-s.31, t3971, t3978);
             let t3981 = t3973 + t3980;
-            dc_dq[3][3] = t3981;
+            dc_dq.30 = t3981;
             let t3982 = t3826 - t3831;
             let t3983 = t3982 - t3829;
             let t3984 = t3983 + t3983;
             let t3985 = t3786 + t3984;
-            dc_dqd[3][3] = t3985;
+            dc_dqd.30 = t3985;
             let t3987 = s.81 * t3311;
             let t3988 = T::mul_add(s.80, t3310, t3987);
             let t3990 = T::mul_add(s.78, t3312, t3988);
@@ -28844,13 +28946,13 @@ pub mod fma {
             let t3997 = T::mul_add(s.30, t3374, -t3996);
             let t3999 = T::mul_add(s.32, t3359, t3997);
             let t4000 = t3994 + t3999;
-            dc_dq[4][3] = t4000;
+            dc_dq.39 = t4000;
             let t4002 = s.29 * t3311;
             let t4003 = T::mul_add(s.30, t3310, -t4002);
             let t4005 = T::mul_add(s.32, t3296, t4003);
             let t4006 = t4005 + t4005;
             let t4007 = t3376 + t4006;
-            dc_dqd[4][3] = t4007;
+            dc_dqd.39 = t4007;
             let t4009 = s.81 * t3391;
             let t4010 = T::mul_add(s.80, t3390, t4009);
             let t4012 = T::mul_add(s.78, t3392, t4010);
@@ -28862,14 +28964,14 @@ pub mod fma {
             let t4023 = T::mul_add(s.32, t3433, t4021);
             let t4025 = T::mul_add(-s.31, t2811, t4023);
             let t4026 = t4018 + t4025;
-            dc_dq[5][3] = t4026;
+            dc_dq.48 = t4026;
             let t4028 = s.29 * t3391;
             let t4029 = T::mul_add(s.30, t3390, -t4028);
             let t4031 = T::mul_add(s.32, t3377, t4029);
             let t4033 = T::mul_add(-s.31, t2775, t4031);
             let t4034 = t4033 + t4033;
             let t4035 = t3448 + t4034;
-            dc_dqd[5][3] = t4035;
+            dc_dqd.48 = t4035;
             let t4037 = s.81 * t3467;
             let t4038 = T::mul_add(s.80, t3466, t4037);
             let t4040 = T::mul_add(s.78, t3468, t4038);
@@ -28881,14 +28983,14 @@ pub mod fma {
             let t4051 = T::mul_add(s.32, t3511, t4049);
             let t4053 = T::mul_add(-s.31, t2851, t4051);
             let t4054 = t4046 + t4053;
-            dc_dq[6][3] = t4054;
+            dc_dq.57 = t4054;
             let t4056 = s.29 * t3467;
             let t4057 = T::mul_add(s.30, t3466, -t4056);
             let t4059 = T::mul_add(s.32, t3451, t4057);
             let t4061 = T::mul_add(-s.31, t2819, t4059);
             let t4062 = t4061 + t4061;
             let t4063 = t3528 + t4062;
-            dc_dqd[6][3] = t4063;
+            dc_dqd.57 = t4063;
             let t4065 = s.81 * t3547;
             let t4066 = T::mul_add(s.80, t3546, t4065);
             let t4068 = T::mul_add(s.78, t3548, t4066);
@@ -28898,14 +29000,14 @@ pub mod fma {
             let t4076 = s.29 * t2895;
             let t4077 = T::mul_add(s.30, t3591, -t4076);
             let t4078 = t4074 + t4077;
-            dc_dq[7][3] = t4078;
+            dc_dq.66 = t4078;
             let t4080 = s.29 * t3547;
             let t4081 = T::mul_add(s.30, t3546, -t4080);
             let t4083 = T::mul_add(s.32, t3531, t4081);
             let t4085 = T::mul_add(-s.31, t2859, t4083);
             let t4086 = t4085 + t4085;
             let t4087 = t3594 + t4086;
-            dc_dqd[7][3] = t4087;
+            dc_dqd.66 = t4087;
             let t4089 = s.81 * t3613;
             let t4090 = T::mul_add(s.80, t3612, t4089);
             let t4092 = T::mul_add(s.78, t3614, t4090);
@@ -28915,14 +29017,14 @@ pub mod fma {
             let t4100 = s.29 * t2933;
             let t4101 = T::mul_add(s.30, t3657, -t4100);
             let t4102 = t4098 + t4101;
-            dc_dq[8][3] = t4102;
+            dc_dq.75 = t4102;
             let t4104 = s.29 * t3613;
             let t4105 = T::mul_add(s.30, t3612, -t4104);
             let t4107 = T::mul_add(s.32, t3597, t4105);
             let t4109 = T::mul_add(-s.31, t2897, t4107);
             let t4110 = t4109 + t4109;
             let t4111 = t3660 + t4110;
-            dc_dqd[8][3] = t4111;
+            dc_dqd.75 = t4111;
             let t4112 = s.5 * t3723;
             let t4113 = -t4112;
             let t4114 = s.4 * t3722;
@@ -28951,7 +29053,7 @@ pub mod fma {
             let t4143 = T::mul_add(-lit::<T>(0.0825), t4133, t4137);
             let t4144 = T::mul_add(-lit::<T>(0.0825), t3942, t4140);
             s.250 = t4144;
-            dc_dqd[2][3] = t4144;
+            dc_dqd.21 = t4144;
             let t4146 = s.4 * t3967;
             let t4147 = T::mul_add(s.5, t3966, -t4146);
             let t4149 = s.5 * t3967;
@@ -28964,7 +29066,7 @@ pub mod fma {
             let t4160 = T::mul_add(-lit::<T>(0.0825), t4150, t4154);
             let t4161 = T::mul_add(-lit::<T>(0.0825), t3963, t4157);
             s.251 = t4161;
-            dc_dq[2][3] = t4161;
+            dc_dq.21 = t4161;
             let t4163 = s.4 * t3971;
             let t4164 = T::mul_add(s.5, t3970, -t4163);
             let t4166 = s.5 * t3971;
@@ -28999,7 +29101,7 @@ pub mod fma {
             let t4205 = T::mul_add(-lit::<T>(0.0825), t4195, t4199);
             let t4206 = T::mul_add(-lit::<T>(0.0825), t3319, t4202);
             s.255 = t4206;
-            dc_dqd[2][4] = t4206;
+            dc_dqd.22 = t4206;
             let t4208 = s.4 * t3171;
             let t4209 = T::mul_add(s.5, t3337, -t4208);
             let t4211 = s.5 * t3171;
@@ -29012,7 +29114,7 @@ pub mod fma {
             let t4222 = T::mul_add(-lit::<T>(0.0825), t4212, t4216);
             let t4223 = T::mul_add(-lit::<T>(0.0825), t3341, t4219);
             s.256 = t4223;
-            dc_dq[2][4] = t4223;
+            dc_dq.22 = t4223;
             let t4224 = s.5 * t3359;
             let t4225 = s.4 * t3359;
             let t4227 = s.4 * t3375;
@@ -29048,7 +29150,7 @@ pub mod fma {
             let t4269 = T::mul_add(-lit::<T>(0.0825), t4259, t4263);
             let t4270 = T::mul_add(-lit::<T>(0.0825), t3398, t4266);
             s.260 = t4270;
-            dc_dqd[2][5] = t4270;
+            dc_dqd.23 = t4270;
             let t4272 = s.4 * t2799;
             let t4273 = T::mul_add(s.5, t3415, -t4272);
             s.261 = t4273;
@@ -29064,7 +29166,7 @@ pub mod fma {
             s.263 = t4286;
             let t4287 = T::mul_add(-lit::<T>(0.0825), t3418, t4283);
             s.264 = t4287;
-            dc_dq[2][5] = t4287;
+            dc_dq.23 = t4287;
             let t4289 = s.4 * t2811;
             let t4290 = T::mul_add(s.5, t3433, -t4289);
             s.265 = t4290;
@@ -29111,7 +29213,7 @@ pub mod fma {
             s.276 = t4337;
             let t4338 = T::mul_add(-lit::<T>(0.0825), t3474, t4334);
             s.277 = t4338;
-            dc_dqd[2][6] = t4338;
+            dc_dqd.24 = t4338;
             let t4340 = s.4 * t2843;
             let t4341 = T::mul_add(s.5, t3491, -t4340);
             s.278 = t4341;
@@ -29127,7 +29229,7 @@ pub mod fma {
             s.280 = t4354;
             let t4355 = T::mul_add(-lit::<T>(0.0825), t3494, t4351);
             s.281 = t4355;
-            dc_dq[2][6] = t4355;
+            dc_dq.24 = t4355;
             let t4357 = s.4 * t2851;
             let t4358 = T::mul_add(s.5, t3511, -t4357);
             s.282 = t4358;
@@ -29174,7 +29276,7 @@ pub mod fma {
             s.293 = t4405;
             let t4406 = T::mul_add(-lit::<T>(0.0825), t3554, t4402);
             s.294 = t4406;
-            dc_dqd[2][7] = t4406;
+            dc_dqd.25 = t4406;
             let t4408 = s.4 * t2883;
             let t4409 = T::mul_add(s.5, t3571, -t4408);
             s.295 = t4409;
@@ -29190,7 +29292,7 @@ pub mod fma {
             s.297 = t4422;
             let t4423 = T::mul_add(-lit::<T>(0.0825), t3574, t4419);
             s.298 = t4423;
-            dc_dq[2][7] = t4423;
+            dc_dq.25 = t4423;
             let t4425 = s.4 * t2895;
             let t4426 = T::mul_add(s.5, t3591, -t4425);
             s.299 = t4426;
@@ -29228,7 +29330,7 @@ pub mod fma {
             s.308 = t4462;
             let t4463 = T::mul_add(-lit::<T>(0.0825), t3620, t4459);
             s.309 = t4463;
-            dc_dqd[2][8] = t4463;
+            dc_dqd.26 = t4463;
             let t4465 = s.4 * t2921;
             let t4466 = T::mul_add(s.5, t3637, -t4465);
             s.310 = t4466;
@@ -29244,7 +29346,7 @@ pub mod fma {
             s.312 = t4479;
             let t4480 = T::mul_add(-lit::<T>(0.0825), t3640, t4476);
             s.313 = t4480;
-            dc_dq[2][8] = t4480;
+            dc_dq.26 = t4480;
             let t4482 = s.4 * t2933;
             let t4483 = T::mul_add(s.5, t3657, -t4482);
             s.314 = t4483;
@@ -29471,12 +29573,12 @@ pub mod fma {
             let t4747 = T::mul_add(s.22, t4739, t4745);
             let t4749 = T::mul_add(-s.21, t4740, t4747);
             let t4750 = t4742 + t4749;
-            dc_dq[2][2] = t4750;
+            dc_dq.20 = t4750;
             let t4751 = t4615 - t4620;
             let t4752 = t4751 - t4618;
             let t4753 = t4752 + t4752;
             let t4754 = t4580 + t4753;
-            dc_dqd[2][2] = t4754;
+            dc_dqd.20 = t4754;
             let t4756 = s.75 * t4127;
             let t4757 = T::mul_add(s.74, t4121, t4756);
             let t4759 = T::mul_add(s.72, t4125, t4757);
@@ -29486,13 +29588,13 @@ pub mod fma {
             let t4766 = T::mul_add(s.20, t4170, -t4765);
             let t4768 = T::mul_add(s.22, t4164, t4766);
             let t4769 = t4763 + t4768;
-            dc_dq[3][2] = t4769;
+            dc_dq.29 = t4769;
             let t4771 = s.19 * t4127;
             let t4772 = T::mul_add(s.20, t4121, -t4771);
             let t4774 = T::mul_add(s.22, t4115, t4772);
             let t4775 = t4774 + t4774;
             let t4776 = t4174 + t4775;
-            dc_dqd[3][2] = t4776;
+            dc_dqd.29 = t4776;
             let t4778 = s.75 * t4188;
             let t4779 = T::mul_add(s.74, t4181, t4778);
             let t4781 = T::mul_add(s.72, t4189, t4779);
@@ -29504,14 +29606,14 @@ pub mod fma {
             let t4792 = T::mul_add(s.22, t4224, t4790);
             let t4794 = T::mul_add(s.21, t3363, t4792);
             let t4795 = t4787 + t4794;
-            dc_dq[4][2] = t4795;
+            dc_dq.38 = t4795;
             let t4797 = s.19 * t4188;
             let t4798 = T::mul_add(s.20, t4181, -t4797);
             let t4800 = T::mul_add(s.22, t4177, t4798);
             let t4802 = T::mul_add(s.21, t3299, t4800);
             let t4803 = t4802 + t4802;
             let t4804 = t4236 + t4803;
-            dc_dqd[4][2] = t4804;
+            dc_dqd.38 = t4804;
             let t4806 = s.75 * t4252;
             let t4807 = T::mul_add(s.74, t4245, t4806);
             let t4809 = T::mul_add(s.72, t4253, t4807);
@@ -29523,14 +29625,14 @@ pub mod fma {
             let t4820 = T::mul_add(s.22, t4290, t4818);
             let t4822 = T::mul_add(-s.21, t3434, t4820);
             let t4823 = t4815 + t4822;
-            dc_dq[5][2] = t4823;
+            dc_dq.47 = t4823;
             let t4825 = s.19 * t4252;
             let t4826 = T::mul_add(s.20, t4245, -t4825);
             let t4828 = T::mul_add(s.22, t4239, t4826);
             let t4830 = T::mul_add(-s.21, t3378, t4828);
             let t4831 = t4830 + t4830;
             let t4832 = t4304 + t4831;
-            dc_dqd[5][2] = t4832;
+            dc_dqd.47 = t4832;
             let t4834 = s.75 * t4320;
             let t4835 = T::mul_add(s.74, t4313, t4834);
             let t4837 = T::mul_add(s.72, t4321, t4835);
@@ -29542,14 +29644,14 @@ pub mod fma {
             let t4848 = T::mul_add(s.22, t4358, t4846);
             let t4850 = T::mul_add(s.21, t3514, t4848);
             let t4851 = t4843 + t4850;
-            dc_dq[6][2] = t4851;
+            dc_dq.56 = t4851;
             let t4853 = s.19 * t4320;
             let t4854 = T::mul_add(s.20, t4313, -t4853);
             let t4856 = T::mul_add(s.22, t4307, t4854);
             let t4858 = T::mul_add(s.21, t3454, t4856);
             let t4859 = t4858 + t4858;
             let t4860 = t4372 + t4859;
-            dc_dqd[6][2] = t4860;
+            dc_dqd.56 = t4860;
             let t4862 = s.75 * t4388;
             let t4863 = T::mul_add(s.74, t4381, t4862);
             let t4865 = T::mul_add(s.72, t4389, t4863);
@@ -29559,14 +29661,14 @@ pub mod fma {
             let t4873 = s.19 * t3594;
             let t4874 = T::mul_add(s.20, t4426, t4873);
             let t4875 = t4871 + t4874;
-            dc_dq[7][2] = t4875;
+            dc_dq.65 = t4875;
             let t4877 = s.19 * t4388;
             let t4878 = T::mul_add(s.20, t4381, -t4877);
             let t4880 = T::mul_add(s.22, t4375, t4878);
             let t4882 = T::mul_add(s.21, t3534, t4880);
             let t4883 = t4882 + t4882;
             let t4884 = t4429 + t4883;
-            dc_dqd[7][2] = t4884;
+            dc_dqd.65 = t4884;
             let t4886 = s.75 * t4445;
             let t4887 = T::mul_add(s.74, t4438, t4886);
             let t4889 = T::mul_add(s.72, t4446, t4887);
@@ -29576,14 +29678,14 @@ pub mod fma {
             let t4897 = s.19 * t3660;
             let t4898 = T::mul_add(s.20, t4483, t4897);
             let t4899 = t4895 + t4898;
-            dc_dq[8][2] = t4899;
+            dc_dq.74 = t4899;
             let t4901 = s.19 * t4445;
             let t4902 = T::mul_add(s.20, t4438, -t4901);
             let t4904 = T::mul_add(s.22, t4432, t4902);
             let t4906 = T::mul_add(s.21, t3600, t4904);
             let t4907 = t4906 + t4906;
             let t4908 = t4486 + t4907;
-            dc_dqd[8][2] = t4908;
+            dc_dqd.74 = t4908;
             let t4909 = s.3 * t4530;
             s.337 = t4909;
             let t4910 = -t4909;
@@ -29619,7 +29721,7 @@ pub mod fma {
             let t4940 = T::mul_add(lit::<T>(-0.316), t4931, t4934);
             s.347 = t4940;
             let t4941 = T::mul_add(-lit::<T>(-0.316), t4928, t4937);
-            dc_dqd[1][2] = t4941;
+            dc_dqd.11 = t4941;
             let t4943 = s.2 * t4736;
             let t4944 = T::mul_add(s.3, t4735, -t4943);
             let t4946 = s.3 * t4736;
@@ -29631,7 +29733,7 @@ pub mod fma {
             let t4956 = T::mul_add(lit::<T>(-0.316), t4947, t4950);
             s.348 = t4956;
             let t4957 = T::mul_add(-lit::<T>(-0.316), t4944, t4953);
-            dc_dq[1][2] = t4957;
+            dc_dq.11 = t4957;
             let t4959 = s.2 * t4740;
             let t4960 = T::mul_add(s.3, t4739, -t4959);
             let t4962 = s.3 * t4740;
@@ -29666,7 +29768,7 @@ pub mod fma {
             let t5000 = T::mul_add(lit::<T>(-0.316), t4991, t4994);
             s.354 = t5000;
             let t5001 = T::mul_add(-lit::<T>(-0.316), t4988, t4997);
-            dc_dqd[1][3] = t5001;
+            dc_dqd.12 = t5001;
             let t5003 = s.2 * t3963;
             let t5004 = T::mul_add(s.3, t4147, t5003);
             let t5006 = s.3 * t3963;
@@ -29678,7 +29780,7 @@ pub mod fma {
             let t5016 = T::mul_add(lit::<T>(-0.316), t5007, t5010);
             s.355 = t5016;
             let t5017 = T::mul_add(-lit::<T>(-0.316), t5004, t5013);
-            dc_dq[1][3] = t5017;
+            dc_dq.12 = t5017;
             let t5018 = s.3 * t4164;
             let t5019 = s.2 * t4164;
             let t5021 = s.2 * t4176;
@@ -29713,7 +29815,7 @@ pub mod fma {
             let t5060 = T::mul_add(lit::<T>(-0.316), t5051, t5054);
             s.361 = t5060;
             let t5061 = T::mul_add(-lit::<T>(-0.316), t5048, t5057);
-            dc_dqd[1][4] = t5061;
+            dc_dqd.13 = t5061;
             let t5063 = s.2 * t3341;
             let t5064 = T::mul_add(s.3, t4209, t5063);
             let t5066 = s.3 * t3341;
@@ -29725,7 +29827,7 @@ pub mod fma {
             let t5076 = T::mul_add(lit::<T>(-0.316), t5067, t5070);
             s.362 = t5076;
             let t5077 = T::mul_add(-lit::<T>(-0.316), t5064, t5073);
-            dc_dq[1][4] = t5077;
+            dc_dq.13 = t5077;
             let t5079 = s.2 * t3363;
             let t5080 = T::mul_add(s.3, t4224, t5079);
             let t5082 = s.3 * t3363;
@@ -29762,7 +29864,7 @@ pub mod fma {
             let t5124 = T::mul_add(lit::<T>(-0.316), t5115, t5118);
             s.368 = t5124;
             let t5125 = T::mul_add(-lit::<T>(-0.316), t5112, t5121);
-            dc_dqd[1][5] = t5125;
+            dc_dqd.14 = t5125;
             let t5127 = s.2 * t3418;
             let t5128 = T::mul_add(s.3, t4273, t5127);
             s.369 = t5128;
@@ -29782,6 +29884,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f81<T>)
+            };
             let t5130 = s.3 * s.234;
             let t5131 = T::mul_add(s.2, s.261, -t5130);
             let t5133 = s.2 * s.263;
@@ -29790,7 +29898,7 @@ pub mod fma {
             let t5137 = T::mul_add(s.2, s.262, t5136);
             let t5140 = T::mul_add(lit::<T>(-0.316), t5131, t5134);
             let t5141 = T::mul_add(-lit::<T>(-0.316), s.369, t5137);
-            dc_dq[1][5] = t5141;
+            dc_dq.14 = t5141;
             let t5143 = s.2 * s.235;
             let t5144 = T::mul_add(s.3, s.265, -t5143);
             let t5146 = s.3 * s.235;
@@ -29821,7 +29929,7 @@ pub mod fma {
             let t5185 = T::mul_add(s.2, s.275, t5184);
             let t5188 = T::mul_add(lit::<T>(-0.316), t5179, t5182);
             let t5189 = T::mul_add(-lit::<T>(-0.316), t5176, t5185);
-            dc_dqd[1][6] = t5189;
+            dc_dqd.15 = t5189;
             let t5191 = s.2 * s.238;
             let t5192 = T::mul_add(s.3, s.278, t5191);
             let t5194 = s.3 * s.238;
@@ -29832,7 +29940,7 @@ pub mod fma {
             let t5201 = T::mul_add(s.2, s.279, t5200);
             let t5204 = T::mul_add(lit::<T>(-0.316), t5195, t5198);
             let t5205 = T::mul_add(-lit::<T>(-0.316), t5192, t5201);
-            dc_dq[1][6] = t5205;
+            dc_dq.15 = t5205;
             let t5207 = s.2 * s.239;
             let t5208 = T::mul_add(s.3, s.282, t5207);
             let t5210 = s.3 * s.239;
@@ -29863,7 +29971,7 @@ pub mod fma {
             let t5249 = T::mul_add(s.2, s.292, t5248);
             let t5252 = T::mul_add(lit::<T>(-0.316), t5243, t5246);
             let t5253 = T::mul_add(-lit::<T>(-0.316), t5240, t5249);
-            dc_dqd[1][7] = t5253;
+            dc_dqd.16 = t5253;
             let t5255 = s.2 * s.242;
             let t5256 = T::mul_add(s.3, s.295, t5255);
             let t5258 = s.3 * s.242;
@@ -29874,7 +29982,7 @@ pub mod fma {
             let t5265 = T::mul_add(s.2, s.296, t5264);
             let t5268 = T::mul_add(lit::<T>(-0.316), t5259, t5262);
             let t5269 = T::mul_add(-lit::<T>(-0.316), t5256, t5265);
-            dc_dq[1][7] = t5269;
+            dc_dq.16 = t5269;
             let t5271 = s.2 * s.243;
             let t5272 = T::mul_add(s.3, s.299, t5271);
             let t5274 = s.3 * s.243;
@@ -29899,7 +30007,7 @@ pub mod fma {
             let t5303 = T::mul_add(s.2, s.307, t5302);
             let t5306 = T::mul_add(lit::<T>(-0.316), t5297, t5300);
             let t5307 = T::mul_add(-lit::<T>(-0.316), t5294, t5303);
-            dc_dqd[1][8] = t5307;
+            dc_dqd.17 = t5307;
             let t5309 = s.2 * s.246;
             let t5310 = T::mul_add(s.3, s.310, t5309);
             let t5312 = s.3 * s.246;
@@ -29910,7 +30018,7 @@ pub mod fma {
             let t5319 = T::mul_add(s.2, s.311, t5318);
             let t5322 = T::mul_add(lit::<T>(-0.316), t5313, t5316);
             let t5323 = T::mul_add(-lit::<T>(-0.316), t5310, t5319);
-            dc_dq[1][8] = t5323;
+            dc_dq.17 = t5323;
             let t5325 = s.2 * s.247;
             let t5326 = T::mul_add(s.3, s.314, t5325);
             let t5328 = s.3 * s.247;
@@ -30031,7 +30139,7 @@ pub mod fma {
             let t5489 = t5484 + t5487;
             let t5490 = t5485 + t5488;
             let t5491 = t5426 + t5486;
-            dc_dqd[1][1] = t5491;
+            dc_dqd.10 = t5491;
             let t5492 = T::mul_add(s.10, t5445, t5478);
             let t5493 = T::mul_add(s.11, t5445, t5481);
             let t5494 = t5474 + t5492;
@@ -30045,7 +30153,7 @@ pub mod fma {
             let t5502 = s.11 * t5498;
             let t5504 = T::mul_add(s.10, t5499, -t5502);
             let t5505 = t5501 + t5504;
-            dc_dq[1][1] = t5505;
+            dc_dq.10 = t5505;
             let t5506 = s.13 * s.345;
             let t5507 = -t5506;
             let t5509 = T::mul_add(-s.12, s.319, t5507);
@@ -30055,13 +30163,13 @@ pub mod fma {
             let t5515 = -t5514;
             let t5517 = T::mul_add(-s.10, s.326, t5515);
             let t5518 = t5513 + t5517;
-            dc_dq[2][1] = t5518;
+            dc_dq.19 = t5518;
             let t5519 = s.11 * s.345;
             let t5520 = -t5519;
             let t5522 = T::mul_add(-s.10, s.319, t5520);
             let t5523 = t5522 + t5522;
             let t5524 = s.350 + t5523;
-            dc_dqd[2][1] = t5524;
+            dc_dqd.19 = t5524;
             let t5525 = s.13 * s.352;
             let t5526 = -t5525;
             let t5528 = T::mul_add(-s.12, s.249, t5526);
@@ -30072,13 +30180,13 @@ pub mod fma {
             let t5536 = -t5535;
             let t5538 = T::mul_add(-s.10, s.252, t5536);
             let t5539 = t5534 + t5538;
-            dc_dq[3][1] = t5539;
+            dc_dq.28 = t5539;
             let t5540 = s.11 * s.352;
             let t5541 = -t5540;
             let t5543 = T::mul_add(-s.10, s.249, t5541);
             let t5544 = t5543 + t5543;
             let t5545 = s.357 + t5544;
-            dc_dqd[3][1] = t5545;
+            dc_dqd.28 = t5545;
             let t5546 = s.13 * s.359;
             let t5547 = -t5546;
             let t5549 = T::mul_add(-s.12, s.254, t5547);
@@ -30089,13 +30197,13 @@ pub mod fma {
             let t5557 = -t5556;
             let t5559 = T::mul_add(-s.10, s.257, t5557);
             let t5560 = t5555 + t5559;
-            dc_dq[4][1] = t5560;
+            dc_dq.37 = t5560;
             let t5561 = s.11 * s.359;
             let t5562 = -t5561;
             let t5564 = T::mul_add(-s.10, s.254, t5562);
             let t5565 = t5564 + t5564;
             let t5566 = s.364 + t5565;
-            dc_dqd[4][1] = t5566;
+            dc_dqd.37 = t5566;
             let t5567 = s.13 * s.366;
             let t5568 = -t5567;
             let t5570 = T::mul_add(-s.12, s.259, t5568);
@@ -30106,13 +30214,13 @@ pub mod fma {
             let t5578 = -t5577;
             let t5580 = T::mul_add(-s.10, s.268, t5578);
             let t5581 = t5576 + t5580;
-            dc_dq[5][1] = t5581;
+            dc_dq.46 = t5581;
             let t5582 = s.11 * s.366;
             let t5583 = -t5582;
             let t5585 = T::mul_add(-s.10, s.259, t5583);
             let t5586 = t5585 + t5585;
             let t5587 = t5157 + t5586;
-            dc_dqd[5][1] = t5587;
+            dc_dqd.46 = t5587;
             let t5588 = s.13 * t5172;
             let t5589 = -t5588;
             let t5591 = T::mul_add(-s.12, s.273, t5589);
@@ -30123,13 +30231,13 @@ pub mod fma {
             let t5599 = -t5598;
             let t5601 = T::mul_add(-s.10, s.285, t5599);
             let t5602 = t5597 + t5601;
-            dc_dq[6][1] = t5602;
+            dc_dq.55 = t5602;
             let t5603 = s.11 * t5172;
             let t5604 = -t5603;
             let t5606 = T::mul_add(-s.10, s.273, t5604);
             let t5607 = t5606 + t5606;
             let t5608 = t5221 + t5607;
-            dc_dqd[6][1] = t5608;
+            dc_dqd.55 = t5608;
             let t5609 = s.13 * t5236;
             let t5610 = -t5609;
             let t5612 = T::mul_add(-s.12, s.290, t5610);
@@ -30140,13 +30248,13 @@ pub mod fma {
             let t5620 = -t5619;
             let t5622 = T::mul_add(-s.10, s.300, t5620);
             let t5623 = t5618 + t5622;
-            dc_dq[7][1] = t5623;
+            dc_dq.64 = t5623;
             let t5624 = s.11 * t5236;
             let t5625 = -t5624;
             let t5627 = T::mul_add(-s.10, s.290, t5625);
             let t5628 = t5627 + t5627;
             let t5629 = t5275 + t5628;
-            dc_dqd[7][1] = t5629;
+            dc_dqd.64 = t5629;
             let t5630 = s.13 * t5290;
             let t5631 = -t5630;
             let t5633 = T::mul_add(-s.12, s.305, t5631);
@@ -30157,88 +30265,88 @@ pub mod fma {
             let t5641 = -t5640;
             let t5643 = T::mul_add(-s.10, s.315, t5641);
             let t5644 = t5639 + t5643;
-            dc_dq[8][1] = t5644;
+            dc_dq.73 = t5644;
             let t5645 = s.11 * t5290;
             let t5646 = -t5645;
             let t5648 = T::mul_add(-s.10, s.305, t5646);
             let t5649 = t5648 + t5648;
             let t5650 = t5329 + t5649;
-            dc_dqd[8][1] = t5650;
+            dc_dqd.73 = t5650;
             let t5651 = s.0 * t5489;
             let t5652 = -t5651;
             let t5654 = T::mul_add(-s.1, t5490, t5652);
-            dc_dqd[0][1] = t5654;
+            dc_dqd.1 = t5654;
             let t5655 = s.0 * t5496;
             let t5656 = -t5655;
             let t5658 = T::mul_add(-s.1, t5497, t5656);
-            dc_dq[0][1] = t5658;
+            dc_dq.1 = t5658;
             let t5659 = s.0 * t5498;
             let t5660 = -t5659;
             let t5662 = T::mul_add(-s.1, t5499, t5660);
-            dc_dqd[1][0] = t5662;
+            dc_dqd.9 = t5662;
             let t5663 = s.0 * s.347;
             let t5665 = T::mul_add(s.1, s.335, -t5663);
-            dc_dqd[0][2] = t5665;
+            dc_dqd.2 = t5665;
             let t5666 = s.0 * s.348;
             let t5668 = T::mul_add(s.1, s.336, -t5666);
-            dc_dq[0][2] = t5668;
+            dc_dq.2 = t5668;
             let t5669 = s.0 * s.349;
             let t5671 = T::mul_add(s.1, s.326, -t5669);
-            dc_dqd[2][0] = t5671;
+            dc_dqd.18 = t5671;
             let t5672 = s.0 * s.354;
             let t5674 = T::mul_add(s.1, s.250, -t5672);
-            dc_dqd[0][3] = t5674;
+            dc_dqd.3 = t5674;
             let t5675 = s.0 * s.355;
             let t5677 = T::mul_add(s.1, s.251, -t5675);
-            dc_dq[0][3] = t5677;
+            dc_dq.3 = t5677;
             let t5678 = s.0 * s.356;
             let t5680 = T::mul_add(s.1, s.252, -t5678);
-            dc_dqd[3][0] = t5680;
+            dc_dqd.27 = t5680;
             let t5681 = s.0 * s.361;
             let t5683 = T::mul_add(s.1, s.255, -t5681);
-            dc_dqd[0][4] = t5683;
+            dc_dqd.4 = t5683;
             let t5684 = s.0 * s.362;
             let t5686 = T::mul_add(s.1, s.256, -t5684);
-            dc_dq[0][4] = t5686;
+            dc_dq.4 = t5686;
             let t5687 = s.0 * s.363;
             let t5689 = T::mul_add(s.1, s.257, -t5687);
-            dc_dqd[4][0] = t5689;
+            dc_dqd.36 = t5689;
             let t5690 = s.0 * s.368;
             let t5692 = T::mul_add(s.1, s.260, -t5690);
-            dc_dqd[0][5] = t5692;
+            dc_dqd.5 = t5692;
             let t5693 = s.0 * t5140;
             let t5695 = T::mul_add(s.1, s.264, -t5693);
-            dc_dq[0][5] = t5695;
+            dc_dq.5 = t5695;
             let t5696 = s.0 * t5156;
             let t5698 = T::mul_add(s.1, s.268, -t5696);
-            dc_dqd[5][0] = t5698;
+            dc_dqd.45 = t5698;
             let t5699 = s.0 * t5188;
             let t5701 = T::mul_add(s.1, s.277, -t5699);
-            dc_dqd[0][6] = t5701;
+            dc_dqd.6 = t5701;
             let t5702 = s.0 * t5204;
             let t5704 = T::mul_add(s.1, s.281, -t5702);
-            dc_dq[0][6] = t5704;
+            dc_dq.6 = t5704;
             let t5705 = s.0 * t5220;
             let t5707 = T::mul_add(s.1, s.285, -t5705);
-            dc_dqd[6][0] = t5707;
+            dc_dqd.54 = t5707;
             let t5708 = s.0 * t5252;
             let t5710 = T::mul_add(s.1, s.294, -t5708);
-            dc_dqd[0][7] = t5710;
+            dc_dqd.7 = t5710;
             let t5711 = s.0 * t5268;
             let t5713 = T::mul_add(s.1, s.298, -t5711);
-            dc_dq[0][7] = t5713;
+            dc_dq.7 = t5713;
             let t5714 = s.0 * t5272;
             let t5716 = T::mul_add(s.1, s.300, -t5714);
-            dc_dqd[7][0] = t5716;
+            dc_dqd.63 = t5716;
             let t5717 = s.0 * t5306;
             let t5719 = T::mul_add(s.1, s.309, -t5717);
-            dc_dqd[0][8] = t5719;
+            dc_dqd.8 = t5719;
             let t5720 = s.0 * t5322;
             let t5722 = T::mul_add(s.1, s.313, -t5720);
-            dc_dq[0][8] = t5722;
+            dc_dq.8 = t5722;
             let t5723 = s.0 * t5326;
             let t5725 = T::mul_add(s.1, s.315, -t5723);
-            dc_dqd[8][0] = t5725;
+            dc_dqd.72 = t5725;
             let t5726 = s.0 * t5422;
             let t5727 = -t5726;
             let t5728 = s.0 * t5421;
@@ -30248,7 +30356,7 @@ pub mod fma {
             let t5734 = s.0 * t5731;
             let t5735 = -t5734;
             let t5737 = T::mul_add(-s.1, t5733, t5735);
-            dc_dqd[0][0] = t5737;
+            dc_dqd.0 = t5737;
         }
     }
     use rnea_grad_part2::rnea_grad_part2;
@@ -30902,6 +31010,14 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 81 entries of `minv`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct minv_f81<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod minv_part0 {
         use super::*;
         #[inline(never)]
@@ -30912,6 +31028,7 @@ pub mod fma {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f81<T>) };
             let t3 = q[1].sin();
             let t4 = q[1].cos();
             let t13 = q[2].sin();
@@ -32180,94 +32297,94 @@ pub mod fma {
             let t1973 = T::mul_add(-t4, t1969, t1971);
             let t1974 = lit::<T>(0.009213163777211224) + t1973;
             let t1975 = lit::<T>(1.0) / t1974;
-            minv[0][0] = t1975;
+            minv.0 = t1975;
             let t1976 = t1899 * t1975;
             let t1977 = -t1976;
-            minv[0][1] = t1977;
-            minv[1][0] = t1977;
+            minv.1 = t1977;
+            minv.9 = t1977;
             let t1978 = t1907 * t1975;
             let t1979 = -t1978;
-            minv[0][2] = t1979;
-            minv[2][0] = t1979;
+            minv.2 = t1979;
+            minv.18 = t1979;
             let t1980 = t1915 * t1975;
             let t1981 = -t1980;
-            minv[0][3] = t1981;
-            minv[3][0] = t1981;
+            minv.3 = t1981;
+            minv.27 = t1981;
             let t1982 = t1923 * t1975;
             let t1983 = -t1982;
-            minv[0][4] = t1983;
-            minv[4][0] = t1983;
+            minv.4 = t1983;
+            minv.36 = t1983;
             let t1984 = t1931 * t1975;
             let t1985 = -t1984;
-            minv[0][5] = t1985;
-            minv[5][0] = t1985;
+            minv.5 = t1985;
+            minv.45 = t1985;
             let t1986 = t1939 * t1975;
             let t1987 = -t1986;
-            minv[0][6] = t1987;
-            minv[6][0] = t1987;
+            minv.6 = t1987;
+            minv.54 = t1987;
             let t1988 = t1947 * t1975;
             let t1989 = -t1988;
-            minv[0][7] = t1989;
-            minv[7][0] = t1989;
+            minv.7 = t1989;
+            minv.63 = t1989;
             let t1990 = t1955 * t1975;
             let t1991 = -t1990;
-            minv[0][8] = t1991;
-            minv[8][0] = t1991;
+            minv.8 = t1991;
+            minv.72 = t1991;
             let t1992 = t3 * t1976;
             let t1993 = t4 * t1976;
             let t1995 = t1877 * t1993;
             let t1996 = T::mul_add(t1875, t1992, t1995);
             let t1998 = T::mul_add(-t1879, t1996, t1879);
-            minv[1][1] = t1998;
+            minv.10 = t1998;
             let t1999 = t3 * t1978;
             let t2000 = t4 * t1978;
             let t2002 = t1877 * t2000;
             let t2003 = T::mul_add(t1875, t1999, t2002);
             let t2005 = T::mul_add(-t1879, t2003, t1881);
-            minv[1][2] = t2005;
-            minv[2][1] = t2005;
+            minv.11 = t2005;
+            minv.19 = t2005;
             let t2006 = t3 * t1980;
             let t2007 = t4 * t1980;
             let t2009 = t1877 * t2007;
             let t2010 = T::mul_add(t1875, t2006, t2009);
             let t2012 = T::mul_add(-t1879, t2010, t1883);
-            minv[1][3] = t2012;
-            minv[3][1] = t2012;
+            minv.12 = t2012;
+            minv.28 = t2012;
             let t2013 = t3 * t1982;
             let t2014 = t4 * t1982;
             let t2016 = t1877 * t2014;
             let t2017 = T::mul_add(t1875, t2013, t2016);
             let t2019 = T::mul_add(-t1879, t2017, t1885);
-            minv[1][4] = t2019;
-            minv[4][1] = t2019;
+            minv.13 = t2019;
+            minv.37 = t2019;
             let t2020 = t3 * t1984;
             let t2021 = t4 * t1984;
             let t2023 = t1877 * t2021;
             let t2024 = T::mul_add(t1875, t2020, t2023);
             let t2026 = T::mul_add(-t1879, t2024, t1887);
-            minv[1][5] = t2026;
-            minv[5][1] = t2026;
+            minv.14 = t2026;
+            minv.46 = t2026;
             let t2027 = t3 * t1986;
             let t2028 = t4 * t1986;
             let t2030 = t1877 * t2028;
             let t2031 = T::mul_add(t1875, t2027, t2030);
             let t2033 = T::mul_add(-t1879, t2031, t1889);
-            minv[1][6] = t2033;
-            minv[6][1] = t2033;
+            minv.15 = t2033;
+            minv.55 = t2033;
             let t2034 = t3 * t1988;
             let t2035 = t4 * t1988;
             let t2037 = t1877 * t2035;
             let t2038 = T::mul_add(t1875, t2034, t2037);
             let t2040 = T::mul_add(-t1879, t2038, t1891);
-            minv[1][7] = t2040;
-            minv[7][1] = t2040;
+            minv.16 = t2040;
+            minv.64 = t2040;
             let t2041 = t3 * t1990;
             let t2042 = t4 * t1990;
             let t2044 = t1877 * t2042;
             let t2045 = T::mul_add(t1875, t2041, t2044);
             let t2047 = T::mul_add(-t1879, t2045, t1893);
-            minv[1][8] = t2047;
-            minv[8][1] = t2047;
+            minv.17 = t2047;
+            minv.73 = t2047;
             let t2048 = lit::<T>(-0.316) * t2005;
             let t2049 = lit::<T>(-0.316) * t1999;
             let t2051 = t13 * t2005;
@@ -32284,7 +32401,7 @@ pub mod fma {
             let t2068 = T::mul_add(t1543, t2058, t2066);
             let t2070 = T::mul_add(t1544, t2061, t2068);
             let t2072 = T::mul_add(-t1547, t2070, t1547);
-            minv[2][2] = t2072;
+            minv.20 = t2072;
             let t2073 = lit::<T>(-0.316) * t2012;
             let t2074 = lit::<T>(-0.316) * t2006;
             let t2076 = t13 * t2012;
@@ -32301,8 +32418,8 @@ pub mod fma {
             let t2093 = T::mul_add(t1543, t2083, t2091);
             let t2095 = T::mul_add(t1544, t2086, t2093);
             let t2097 = T::mul_add(-t1547, t2095, t1549);
-            minv[2][3] = t2097;
-            minv[3][2] = t2097;
+            minv.21 = t2097;
+            minv.29 = t2097;
             let t2098 = t2097 - t2007;
             let t2099 = lit::<T>(-0.316) * t2019;
             let t2100 = lit::<T>(-0.316) * t2013;
@@ -32320,8 +32437,8 @@ pub mod fma {
             let t2119 = T::mul_add(t1543, t2109, t2117);
             let t2121 = T::mul_add(t1544, t2112, t2119);
             let t2123 = T::mul_add(-t1547, t2121, t1551);
-            minv[2][4] = t2123;
-            minv[4][2] = t2123;
+            minv.22 = t2123;
+            minv.38 = t2123;
             let t2124 = t2123 - t2014;
             let t2125 = lit::<T>(-0.316) * t2026;
             let t2126 = lit::<T>(-0.316) * t2020;
@@ -32339,8 +32456,8 @@ pub mod fma {
             let t2145 = T::mul_add(t1543, t2135, t2143);
             let t2147 = T::mul_add(t1544, t2138, t2145);
             let t2149 = T::mul_add(-t1547, t2147, t1553);
-            minv[2][5] = t2149;
-            minv[5][2] = t2149;
+            minv.23 = t2149;
+            minv.47 = t2149;
             let t2150 = t2149 - t2021;
             let t2151 = lit::<T>(-0.316) * t2033;
             let t2152 = lit::<T>(-0.316) * t2027;
@@ -32358,8 +32475,8 @@ pub mod fma {
             let t2171 = T::mul_add(t1543, t2161, t2169);
             let t2173 = T::mul_add(t1544, t2164, t2171);
             let t2175 = T::mul_add(-t1547, t2173, t1555);
-            minv[2][6] = t2175;
-            minv[6][2] = t2175;
+            minv.24 = t2175;
+            minv.56 = t2175;
             let t2176 = t2175 - t2028;
             let t2177 = lit::<T>(-0.316) * t2040;
             let t2178 = lit::<T>(-0.316) * t2034;
@@ -32377,8 +32494,8 @@ pub mod fma {
             let t2197 = T::mul_add(t1543, t2187, t2195);
             let t2199 = T::mul_add(t1544, t2190, t2197);
             let t2201 = T::mul_add(-t1547, t2199, t1557);
-            minv[2][7] = t2201;
-            minv[7][2] = t2201;
+            minv.25 = t2201;
+            minv.65 = t2201;
             let t2202 = t2201 - t2035;
             let t2203 = lit::<T>(-0.316) * t2047;
             let t2204 = lit::<T>(-0.316) * t2041;
@@ -32396,8 +32513,8 @@ pub mod fma {
             let t2223 = T::mul_add(t1543, t2213, t2221);
             let t2225 = T::mul_add(t1544, t2216, t2223);
             let t2227 = T::mul_add(-t1547, t2225, t1559);
-            minv[2][8] = t2227;
-            minv[8][2] = t2227;
+            minv.26 = t2227;
+            minv.74 = t2227;
             let t2228 = t2227 - t2042;
             let t2230 = lit::<T>(0.0825) * t2080;
             let t2231 = T::mul_add(lit::<T>(0.0825), t2098, t2086);
@@ -32417,7 +32534,7 @@ pub mod fma {
             let t2253 = T::mul_add(t1175, t2244, t2251);
             let t2255 = T::mul_add(-t1163, t2231, t2253);
             let t2257 = T::mul_add(-t1179, t2255, t1179);
-            minv[3][3] = t2257;
+            minv.30 = t2257;
             let t2259 = lit::<T>(0.0825) * t2106;
             let t2260 = T::mul_add(lit::<T>(0.0825), t2124, t2112);
             let t2262 = t26 * t2124;
@@ -32437,8 +32554,8 @@ pub mod fma {
             let t2283 = T::mul_add(t1175, t2273, t2281);
             let t2285 = T::mul_add(-t1163, t2260, t2283);
             let t2287 = T::mul_add(-t1179, t2285, t1181);
-            minv[3][4] = t2287;
-            minv[4][3] = t2287;
+            minv.31 = t2287;
+            minv.39 = t2287;
             let t2288 = t2287 - t2106;
             let t2290 = lit::<T>(0.0825) * t2132;
             let t2291 = T::mul_add(lit::<T>(0.0825), t2150, t2138);
@@ -32459,8 +32576,8 @@ pub mod fma {
             let t2314 = T::mul_add(t1175, t2304, t2312);
             let t2316 = T::mul_add(-t1163, t2291, t2314);
             let t2318 = T::mul_add(-t1179, t2316, t1183);
-            minv[3][5] = t2318;
-            minv[5][3] = t2318;
+            minv.32 = t2318;
+            minv.48 = t2318;
             let t2319 = t2318 - t2132;
             let t2321 = lit::<T>(0.0825) * t2158;
             let t2322 = T::mul_add(lit::<T>(0.0825), t2176, t2164);
@@ -32481,8 +32598,8 @@ pub mod fma {
             let t2345 = T::mul_add(t1175, t2335, t2343);
             let t2347 = T::mul_add(-t1163, t2322, t2345);
             let t2349 = T::mul_add(-t1179, t2347, t1185);
-            minv[3][6] = t2349;
-            minv[6][3] = t2349;
+            minv.33 = t2349;
+            minv.57 = t2349;
             let t2350 = t2349 - t2158;
             let t2352 = lit::<T>(0.0825) * t2184;
             let t2353 = T::mul_add(lit::<T>(0.0825), t2202, t2190);
@@ -32503,8 +32620,8 @@ pub mod fma {
             let t2376 = T::mul_add(t1175, t2366, t2374);
             let t2378 = T::mul_add(-t1163, t2353, t2376);
             let t2380 = T::mul_add(-t1179, t2378, t1187);
-            minv[3][7] = t2380;
-            minv[7][3] = t2380;
+            minv.34 = t2380;
+            minv.66 = t2380;
             let t2381 = t2380 - t2184;
             let t2383 = lit::<T>(0.0825) * t2210;
             let t2384 = T::mul_add(lit::<T>(0.0825), t2228, t2216);
@@ -32525,8 +32642,8 @@ pub mod fma {
             let t2407 = T::mul_add(t1175, t2397, t2405);
             let t2409 = T::mul_add(-t1163, t2384, t2407);
             let t2411 = T::mul_add(-t1179, t2409, t1189);
-            minv[3][8] = t2411;
-            minv[8][3] = t2411;
+            minv.35 = t2411;
+            minv.75 = t2411;
             let t2412 = t2411 - t2210;
             let t2416 = lit::<T>(0.384) * t2263;
             let t2417 = T::mul_add(lit::<T>(-0.0825), t2266, -t2416);
@@ -32550,7 +32667,7 @@ pub mod fma {
             let t2443 = T::mul_add(t706, t2434, t2441);
             let t2445 = T::mul_add(t694, t2419, t2443);
             let t2447 = T::mul_add(-t710, t2445, t710);
-            minv[4][4] = t2447;
+            minv.40 = t2447;
             let t2451 = lit::<T>(0.384) * t2294;
             let t2452 = T::mul_add(lit::<T>(-0.0825), t2297, -t2451);
             let t2453 = T::mul_add(-lit::<T>(0.384), t2319, t2300);
@@ -32574,8 +32691,8 @@ pub mod fma {
             let t2478 = T::mul_add(t706, t2469, t2476);
             let t2480 = T::mul_add(t694, t2454, t2478);
             let t2482 = T::mul_add(-t710, t2480, t712);
-            minv[4][5] = t2482;
-            minv[5][4] = t2482;
+            minv.41 = t2482;
+            minv.49 = t2482;
             let t2483 = t2297 + t2482;
             let t2487 = lit::<T>(0.384) * t2325;
             let t2488 = T::mul_add(lit::<T>(-0.0825), t2328, -t2487);
@@ -32604,8 +32721,8 @@ pub mod fma {
             let t2514 = T::mul_add(t706, t2505, t2512);
             let t2516 = T::mul_add(t694, t2490, t2514);
             let t2518 = T::mul_add(-t710, t2516, t714);
-            minv[4][6] = t2518;
-            minv[6][4] = t2518;
+            minv.42 = t2518;
+            minv.58 = t2518;
             let t2519 = t2328 + t2518;
             s.32 = t2519;
             let t2523 = lit::<T>(0.384) * t2356;
@@ -32635,8 +32752,8 @@ pub mod fma {
             let t2550 = T::mul_add(t706, t2541, t2548);
             let t2552 = T::mul_add(t694, t2526, t2550);
             let t2554 = T::mul_add(-t710, t2552, t716);
-            minv[4][7] = t2554;
-            minv[7][4] = t2554;
+            minv.43 = t2554;
+            minv.67 = t2554;
             let t2555 = t2359 + t2554;
             s.38 = t2555;
             let t2559 = lit::<T>(0.384) * t2387;
@@ -32666,8 +32783,8 @@ pub mod fma {
             let t2586 = T::mul_add(t706, t2577, t2584);
             let t2588 = T::mul_add(t694, t2562, t2586);
             let t2590 = T::mul_add(-t710, t2588, t718);
-            minv[4][8] = t2590;
-            minv[8][4] = t2590;
+            minv.44 = t2590;
+            minv.76 = t2590;
             let t2591 = t2390 + t2590;
             s.44 = t2591;
             let t2593 = t54 * t2483;
@@ -32698,10 +32815,11 @@ pub mod fma {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f81<T>) };
             let t2612 = s.45 + s.46;
             let t2614 = T::mul_add(-s.16, s.26, t2612);
             let t2616 = T::mul_add(-s.22, t2614, s.22);
-            minv[5][5] = t2616;
+            minv.50 = t2616;
             let t2618 = s.0 * s.32;
             let t2619 = T::mul_add(s.1, s.28, t2618);
             let t2620 = s.0 * s.28;
@@ -32718,8 +32836,8 @@ pub mod fma {
             let t2638 = T::mul_add(s.21, t2628, t2636);
             let t2640 = T::mul_add(-s.16, s.31, t2638);
             let t2642 = T::mul_add(-s.22, t2640, s.23);
-            minv[5][6] = t2642;
-            minv[6][5] = t2642;
+            minv.51 = t2642;
+            minv.59 = t2642;
             let t2643 = t2642 - s.29;
             let t2645 = s.0 * s.38;
             let t2646 = T::mul_add(s.1, s.34, t2645);
@@ -32737,8 +32855,8 @@ pub mod fma {
             let t2665 = T::mul_add(s.21, t2655, t2663);
             let t2667 = T::mul_add(-s.16, s.37, t2665);
             let t2669 = T::mul_add(-s.22, t2667, s.24);
-            minv[5][7] = t2669;
-            minv[7][5] = t2669;
+            minv.52 = t2669;
+            minv.68 = t2669;
             let t2670 = t2669 - s.35;
             let t2672 = s.0 * s.44;
             let t2673 = T::mul_add(s.1, s.40, t2672);
@@ -32756,8 +32874,8 @@ pub mod fma {
             let t2692 = T::mul_add(s.21, t2682, t2690);
             let t2694 = T::mul_add(-s.16, s.43, t2692);
             let t2696 = T::mul_add(-s.22, t2694, s.25);
-            minv[5][8] = t2696;
-            minv[8][5] = t2696;
+            minv.53 = t2696;
+            minv.77 = t2696;
             let t2697 = t2696 - s.41;
             let t2699 = T::mul_add(-lit::<T>(0.088), t2622, t2629);
             let t2701 = s.2 * t2643;
@@ -32774,7 +32892,7 @@ pub mod fma {
             let t2718 = T::mul_add(s.11, t2708, t2716);
             let t2720 = T::mul_add(s.12, t2711, t2718);
             let t2722 = T::mul_add(-s.13, t2720, s.13);
-            minv[6][6] = t2722;
+            minv.60 = t2722;
             let t2724 = T::mul_add(-lit::<T>(0.088), t2649, t2656);
             let t2726 = s.2 * t2670;
             let t2727 = T::mul_add(s.3, t2646, t2726);
@@ -32790,8 +32908,8 @@ pub mod fma {
             let t2743 = T::mul_add(s.11, t2733, t2741);
             let t2745 = T::mul_add(s.12, t2736, t2743);
             let t2747 = T::mul_add(-s.13, t2745, s.14);
-            minv[6][7] = t2747;
-            minv[7][6] = t2747;
+            minv.61 = t2747;
+            minv.69 = t2747;
             let t2748 = t2747 - t2649;
             let t2750 = T::mul_add(-lit::<T>(0.088), t2676, t2683);
             let t2752 = s.2 * t2697;
@@ -32808,8 +32926,8 @@ pub mod fma {
             let t2769 = T::mul_add(s.11, t2759, t2767);
             let t2771 = T::mul_add(s.12, t2762, t2769);
             let t2773 = T::mul_add(-s.13, t2771, s.15);
-            minv[6][8] = t2773;
-            minv[8][6] = t2773;
+            minv.62 = t2773;
+            minv.78 = t2773;
             let t2774 = t2773 - t2676;
             let t2776 = lit::<T>(0.1654) * t2730;
             let t2777 = T::mul_add(s.5, t2748, -t2776);
@@ -32825,7 +32943,7 @@ pub mod fma {
                 t2786,
                 lit::<T>(66.66666666666667),
             );
-            minv[7][7] = t2788;
+            minv.70 = t2788;
             let t2790 = lit::<T>(0.1654) * t2756;
             let t2791 = T::mul_add(s.5, t2774, -t2790);
             let t2792 = lit::<T>(0.1654) * t2753;
@@ -32837,8 +32955,8 @@ pub mod fma {
             let t2800 = lit::<T>(0.015) * t2799;
             let t2801 = lit::<T>(66.66666666666667) * t2800;
             let t2802 = -t2801;
-            minv[7][8] = t2802;
-            minv[8][7] = t2802;
+            minv.71 = t2802;
+            minv.79 = t2802;
             let t2803 = s.7 * t2774;
             let t2804 = -t2803;
             let t2805 = t2804 - t2790;
@@ -32853,7 +32971,7 @@ pub mod fma {
                 t2813,
                 lit::<T>(66.66666666666667),
             );
-            minv[8][8] = t2815;
+            minv.80 = t2815;
         }
     }
     use minv_part1::minv_part1;
@@ -32886,6 +33004,10 @@ pub mod fma {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct fd_slots<T>(T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 9 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f9<T>(T, T, T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -32898,6 +33020,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f9<T>) };
             let t3 = q[1].sin();
             let t4 = q[1].cos();
             let t15 = q[2].sin();
@@ -34482,7 +34605,7 @@ pub mod fma {
             let t2433 = tau[0] - t2406;
             let t2436 = T::mul_add(-t2430, lit::<T>(9.81), t2433);
             let t2437 = t2432 * t2436;
-            qdd[0] = t2437;
+            qdd.0 = t2437;
             let t2438 = t3 * t2437;
             let t2439 = -t2438;
             let t2441 = t3 * lit::<T>(9.81);
@@ -34496,7 +34619,7 @@ pub mod fma {
             let t2452 = T::mul_add(-t2371, t2443, t2450);
             let t2453 = t2373 - t2452;
             let t2454 = t2372 * t2453;
-            qdd[1] = t2454;
+            qdd.1 = t2454;
             let t2456 = lit::<T>(-0.316) * t2444;
             let t2457 = T::mul_add(-lit::<T>(-0.316), t2454, t2442);
             let t2459 = t15 * t2454;
@@ -34519,7 +34642,7 @@ pub mod fma {
             let t2484 = T::mul_add(t2086, t2443, t2482);
             let t2485 = t2102 - t2484;
             let t2486 = t2101 * t2485;
-            qdd[2] = t2486;
+            qdd.2 = t2486;
             let t2487 = t2486 - t2445;
             let t2490 = T::mul_add(lit::<T>(0.0825), t2487, t2473);
             let t2491 = T::mul_add(-lit::<T>(0.0825), t2471, t2443);
@@ -34544,7 +34667,7 @@ pub mod fma {
             let t2519 = T::mul_add(-t1779, t2490, t2517);
             let t2520 = t1796 - t2519;
             let t2521 = t1795 * t2520;
-            qdd[3] = t2521;
+            qdd.3 = t2521;
             let t2522 = t2521 - t2471;
             let t2526 = lit::<T>(0.384) * t2505;
             let t2527 = T::mul_add(lit::<T>(-0.0825), t2506, -t2526);
@@ -34573,7 +34696,7 @@ pub mod fma {
             let t2559 = T::mul_add(t1386, t2529, t2557);
             let t2560 = t1403 - t2559;
             let t2561 = t1402 * t2560;
-            qdd[4] = t2561;
+            qdd.4 = t2561;
             let t2562 = t2506 + t2561;
             let t2564 = t57 * t2562;
             let t2565 = T::mul_add(t58, t2545, t2564);
@@ -34596,7 +34719,7 @@ pub mod fma {
             let t2590 = T::mul_add(-t1153, t2548, t2588);
             let t2591 = t1172 - t2590;
             let t2592 = t1171 * t2591;
-            qdd[5] = t2592;
+            qdd.5 = t2592;
             let t2593 = t2592 - t2546;
             let t2595 = T::mul_add(-lit::<T>(0.088), t2577, t2575);
             let t2597 = t71 * t2593;
@@ -34620,7 +34743,7 @@ pub mod fma {
             let t2620 = T::mul_add(t901, t2611, t2618);
             let t2621 = t904 - t2620;
             let t2622 = t903 * t2621;
-            qdd[6] = t2622;
+            qdd.6 = t2622;
             let t2623 = t2622 - t2577;
             s.6 = t2623;
             let t2625 = lit::<T>(0.1654) * t2609;
@@ -34650,10 +34773,11 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f9<T>) };
             let t2634 = s.9 + s.10;
             let t2636 = T::mul_add(-lit::<T>(0.015), t2634, s.3);
             let t2637 = lit::<T>(66.66666666666667) * t2636;
-            qdd[7] = t2637;
+            qdd.7 = t2637;
             let t2638 = s.1 * s.6;
             let t2639 = -t2638;
             let t2640 = t2639 - s.7;
@@ -34664,7 +34788,7 @@ pub mod fma {
             let t2647 = T::mul_add(lit::<T>(0.7071067811865475), t2643, t2646);
             let t2649 = T::mul_add(-lit::<T>(-0.015), t2647, s.2);
             let t2650 = lit::<T>(66.66666666666667) * t2649;
-            qdd[8] = t2650;
+            qdd.8 = t2650;
         }
     }
     use fd_part1::fd_part1;
@@ -34731,6 +34855,18 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 9 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f9<T>(T, T, T, T, T, T, T, T, T);
+    /// An array of 81 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f81<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -34745,6 +34881,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f9<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
             let t4 = q[1].sin();
             s.0 = t4;
             let t5 = q[1].cos();
@@ -36899,26 +37042,26 @@ pub mod fma {
             let t2413 = T::mul_add(t2329, t2405, t2409);
             let t2415 = T::mul_add(t2333, t2411, t2413);
             let t2416 = t2336 * t2415;
-            qdd[0] = t2416;
+            qdd.0 = t2416;
             let t2425 = t2333 * t2416;
             let t2426 = T::mul_add(t2332, t2411, t2425);
-            qdd[1] = t2426;
+            qdd.1 = t2426;
             let t2427 = t2324 * t2426;
             let t2428 = T::mul_add(t2323, t2405, t2427);
             let t2430 = T::mul_add(t2329, t2416, t2428);
-            qdd[2] = t2430;
+            qdd.2 = t2430;
             let t2431 = t2308 * t2430;
             let t2432 = T::mul_add(t2307, t2397, t2431);
             let t2434 = T::mul_add(t2315, t2426, t2432);
             let t2436 = T::mul_add(t2320, t2416, t2434);
-            qdd[3] = t2436;
+            qdd.3 = t2436;
             let t2437 = t2283 * t2436;
             let t2438 = T::mul_add(t2282, t2387, t2437);
             let t2440 = T::mul_add(t2292, t2430, t2438);
             let t2442 = T::mul_add(t2299, t2426, t2440);
             let t2444 = T::mul_add(t2304, t2416, t2442);
             s.455 = t2444;
-            qdd[4] = t2444;
+            qdd.4 = t2444;
             let t2445 = t2247 * t2444;
             let t2446 = T::mul_add(t2246, t2375, t2445);
             let t2448 = T::mul_add(t2258, t2436, t2446);
@@ -36926,7 +37069,7 @@ pub mod fma {
             let t2452 = T::mul_add(t2274, t2426, t2450);
             let t2454 = T::mul_add(t2279, t2416, t2452);
             s.456 = t2454;
-            qdd[5] = t2454;
+            qdd.5 = t2454;
             let t2455 = t2198 * t2454;
             let t2456 = T::mul_add(t2197, t2361, t2455);
             let t2458 = T::mul_add(t2211, t2444, t2456);
@@ -36935,7 +37078,7 @@ pub mod fma {
             let t2464 = T::mul_add(t2238, t2426, t2462);
             let t2466 = T::mul_add(t2243, t2416, t2464);
             s.457 = t2466;
-            qdd[6] = t2466;
+            qdd.6 = t2466;
             let t2467 = t2134 * t2466;
             let t2468 = T::mul_add(lit::<T>(-66.66666666666667), t2344, t2467);
             let t2470 = T::mul_add(t2149, t2454, t2468);
@@ -36945,7 +37088,7 @@ pub mod fma {
             let t2478 = T::mul_add(t2189, t2426, t2476);
             let t2480 = T::mul_add(t2194, t2416, t2478);
             s.458 = t2480;
-            qdd[7] = t2480;
+            qdd.7 = t2480;
             let t2481 = t2071 * t2466;
             let t2482 = T::mul_add(lit::<T>(-66.66666666666667), t2345, t2481);
             let t2484 = T::mul_add(t2086, t2454, t2482);
@@ -36955,7 +37098,7 @@ pub mod fma {
             let t2492 = T::mul_add(t2126, t2426, t2490);
             let t2494 = T::mul_add(t2131, t2416, t2492);
             s.459 = t2494;
-            qdd[8] = t2494;
+            qdd.8 = t2494;
             let t2495 = t4 * t2416;
             s.460 = t2495;
             let t2496 = -t2495;
@@ -37107,6 +37250,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f9<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
             let t2634 = s.483 + s.486;
             let t2635 = s.484 + s.487;
             let t2636 = s.485 + s.488;
@@ -39184,6 +39334,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f9<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
             let t5134 = s.681 - s.686;
             let t5136 = s.6 * s.680;
             let t5137 = T::mul_add(s.7, s.679, -t5136);
@@ -40423,32 +40580,32 @@ pub mod fma {
             let t6875 = T::mul_add(s.451, t6867, t6871);
             let t6877 = T::mul_add(s.453, t6873, t6875);
             let t6878 = s.454 * t6877;
-            dqdd_dq[0][1] = t6878;
+            dqdd_dq.1 = t6878;
             let t6887 = s.453 * t6878;
             let t6888 = T::mul_add(s.452, t6873, t6887);
-            dqdd_dq[1][1] = t6888;
+            dqdd_dq.10 = t6888;
             let t6889 = s.450 * t6888;
             let t6890 = T::mul_add(s.449, t6867, t6889);
             let t6892 = T::mul_add(s.451, t6878, t6890);
-            dqdd_dq[2][1] = t6892;
+            dqdd_dq.19 = t6892;
             let t6893 = s.446 * t6892;
             let t6894 = T::mul_add(s.445, t6859, t6893);
             let t6896 = T::mul_add(s.447, t6888, t6894);
             let t6898 = T::mul_add(s.448, t6878, t6896);
-            dqdd_dq[3][1] = t6898;
+            dqdd_dq.28 = t6898;
             let t6899 = s.441 * t6898;
             let t6900 = T::mul_add(s.440, t6849, t6899);
             let t6902 = T::mul_add(s.442, t6892, t6900);
             let t6904 = T::mul_add(s.443, t6888, t6902);
             let t6906 = T::mul_add(s.444, t6878, t6904);
-            dqdd_dq[4][1] = t6906;
+            dqdd_dq.37 = t6906;
             let t6907 = s.435 * t6906;
             let t6908 = T::mul_add(s.434, t6837, t6907);
             let t6910 = T::mul_add(s.436, t6898, t6908);
             let t6912 = T::mul_add(s.437, t6892, t6910);
             let t6914 = T::mul_add(s.438, t6888, t6912);
             let t6916 = T::mul_add(s.439, t6878, t6914);
-            dqdd_dq[5][1] = t6916;
+            dqdd_dq.46 = t6916;
             let t6917 = s.428 * t6916;
             let t6918 = T::mul_add(s.427, t6823, t6917);
             let t6920 = T::mul_add(s.429, t6906, t6918);
@@ -40456,7 +40613,7 @@ pub mod fma {
             let t6924 = T::mul_add(s.431, t6892, t6922);
             let t6926 = T::mul_add(s.432, t6888, t6924);
             let t6928 = T::mul_add(s.433, t6878, t6926);
-            dqdd_dq[6][1] = t6928;
+            dqdd_dq.55 = t6928;
             let t6929 = s.420 * t6928;
             let t6930 = T::mul_add(lit::<T>(-66.66666666666667), t6693, t6929);
             let t6932 = T::mul_add(s.421, t6916, t6930);
@@ -40465,7 +40622,7 @@ pub mod fma {
             let t6938 = T::mul_add(s.424, t6892, t6936);
             let t6940 = T::mul_add(s.425, t6888, t6938);
             let t6942 = T::mul_add(s.426, t6878, t6940);
-            dqdd_dq[7][1] = t6942;
+            dqdd_dq.64 = t6942;
             let t6943 = s.413 * t6928;
             let t6944 = T::mul_add(lit::<T>(-66.66666666666667), t6714, t6943);
             let t6946 = T::mul_add(s.414, t6916, t6944);
@@ -40474,7 +40631,7 @@ pub mod fma {
             let t6952 = T::mul_add(s.417, t6892, t6950);
             let t6954 = T::mul_add(s.418, t6888, t6952);
             let t6956 = T::mul_add(s.419, t6878, t6954);
-            dqdd_dq[8][1] = t6956;
+            dqdd_dq.73 = t6956;
             let t6958 = T::mul_add(s.413, t6125, t6077);
             let t6960 = T::mul_add(s.414, t6125, t6049);
             let t6962 = T::mul_add(s.415, t6125, t6021);
@@ -40511,32 +40668,32 @@ pub mod fma {
             let t7024 = T::mul_add(s.451, t7016, t7020);
             let t7026 = T::mul_add(s.453, t7022, t7024);
             let t7027 = s.454 * t7026;
-            dqdd_dq[0][2] = t7027;
+            dqdd_dq.2 = t7027;
             let t7036 = s.453 * t7027;
             let t7037 = T::mul_add(s.452, t7022, t7036);
-            dqdd_dq[1][2] = t7037;
+            dqdd_dq.11 = t7037;
             let t7038 = s.450 * t7037;
             let t7039 = T::mul_add(s.449, t7016, t7038);
             let t7041 = T::mul_add(s.451, t7027, t7039);
-            dqdd_dq[2][2] = t7041;
+            dqdd_dq.20 = t7041;
             let t7042 = s.446 * t7041;
             let t7043 = T::mul_add(s.445, t7008, t7042);
             let t7045 = T::mul_add(s.447, t7037, t7043);
             let t7047 = T::mul_add(s.448, t7027, t7045);
-            dqdd_dq[3][2] = t7047;
+            dqdd_dq.29 = t7047;
             let t7048 = s.441 * t7047;
             let t7049 = T::mul_add(s.440, t6998, t7048);
             let t7051 = T::mul_add(s.442, t7041, t7049);
             let t7053 = T::mul_add(s.443, t7037, t7051);
             let t7055 = T::mul_add(s.444, t7027, t7053);
-            dqdd_dq[4][2] = t7055;
+            dqdd_dq.38 = t7055;
             let t7056 = s.435 * t7055;
             let t7057 = T::mul_add(s.434, t6986, t7056);
             let t7059 = T::mul_add(s.436, t7047, t7057);
             let t7061 = T::mul_add(s.437, t7041, t7059);
             let t7063 = T::mul_add(s.438, t7037, t7061);
             let t7065 = T::mul_add(s.439, t7027, t7063);
-            dqdd_dq[5][2] = t7065;
+            dqdd_dq.47 = t7065;
             let t7066 = s.428 * t7065;
             let t7067 = T::mul_add(s.427, t6972, t7066);
             let t7069 = T::mul_add(s.429, t7055, t7067);
@@ -40544,7 +40701,7 @@ pub mod fma {
             let t7073 = T::mul_add(s.431, t7041, t7071);
             let t7075 = T::mul_add(s.432, t7037, t7073);
             let t7077 = T::mul_add(s.433, t7027, t7075);
-            dqdd_dq[6][2] = t7077;
+            dqdd_dq.56 = t7077;
             let t7078 = s.420 * t7077;
             let t7079 = T::mul_add(lit::<T>(-66.66666666666667), t6101, t7078);
             let t7081 = T::mul_add(s.421, t7065, t7079);
@@ -40553,7 +40710,7 @@ pub mod fma {
             let t7087 = T::mul_add(s.424, t7041, t7085);
             let t7089 = T::mul_add(s.425, t7037, t7087);
             let t7091 = T::mul_add(s.426, t7027, t7089);
-            dqdd_dq[7][2] = t7091;
+            dqdd_dq.65 = t7091;
             let t7092 = s.413 * t7077;
             let t7093 = T::mul_add(lit::<T>(-66.66666666666667), t6125, t7092);
             let t7095 = T::mul_add(s.414, t7065, t7093);
@@ -40562,7 +40719,7 @@ pub mod fma {
             let t7101 = T::mul_add(s.417, t7041, t7099);
             let t7103 = T::mul_add(s.418, t7037, t7101);
             let t7105 = T::mul_add(s.419, t7027, t7103);
-            dqdd_dq[8][2] = t7105;
+            dqdd_dq.74 = t7105;
             let t7107 = T::mul_add(s.413, t5471, t5423);
             let t7109 = T::mul_add(s.414, t5471, t5395);
             let t7111 = T::mul_add(s.415, t5471, t5369);
@@ -40599,32 +40756,32 @@ pub mod fma {
             let t7173 = T::mul_add(s.451, t7165, t7169);
             let t7175 = T::mul_add(s.453, t7171, t7173);
             let t7176 = s.454 * t7175;
-            dqdd_dq[0][3] = t7176;
+            dqdd_dq.3 = t7176;
             let t7185 = s.453 * t7176;
             let t7186 = T::mul_add(s.452, t7171, t7185);
-            dqdd_dq[1][3] = t7186;
+            dqdd_dq.12 = t7186;
             let t7187 = s.450 * t7186;
             let t7188 = T::mul_add(s.449, t7165, t7187);
             let t7190 = T::mul_add(s.451, t7176, t7188);
-            dqdd_dq[2][3] = t7190;
+            dqdd_dq.21 = t7190;
             let t7191 = s.446 * t7190;
             let t7192 = T::mul_add(s.445, t7157, t7191);
             let t7194 = T::mul_add(s.447, t7186, t7192);
             let t7196 = T::mul_add(s.448, t7176, t7194);
-            dqdd_dq[3][3] = t7196;
+            dqdd_dq.30 = t7196;
             let t7197 = s.441 * t7196;
             let t7198 = T::mul_add(s.440, t7147, t7197);
             let t7200 = T::mul_add(s.442, t7190, t7198);
             let t7202 = T::mul_add(s.443, t7186, t7200);
             let t7204 = T::mul_add(s.444, t7176, t7202);
-            dqdd_dq[4][3] = t7204;
+            dqdd_dq.39 = t7204;
             let t7205 = s.435 * t7204;
             let t7206 = T::mul_add(s.434, t7135, t7205);
             let t7208 = T::mul_add(s.436, t7196, t7206);
             let t7210 = T::mul_add(s.437, t7190, t7208);
             let t7212 = T::mul_add(s.438, t7186, t7210);
             let t7214 = T::mul_add(s.439, t7176, t7212);
-            dqdd_dq[5][3] = t7214;
+            dqdd_dq.48 = t7214;
             let t7215 = s.428 * t7214;
             let t7216 = T::mul_add(s.427, t7121, t7215);
             let t7218 = T::mul_add(s.429, t7204, t7216);
@@ -40632,7 +40789,7 @@ pub mod fma {
             let t7222 = T::mul_add(s.431, t7190, t7220);
             let t7224 = T::mul_add(s.432, t7186, t7222);
             let t7226 = T::mul_add(s.433, t7176, t7224);
-            dqdd_dq[6][3] = t7226;
+            dqdd_dq.57 = t7226;
             let t7227 = s.420 * t7226;
             let t7228 = T::mul_add(lit::<T>(-66.66666666666667), t5447, t7227);
             let t7230 = T::mul_add(s.421, t7214, t7228);
@@ -40641,7 +40798,7 @@ pub mod fma {
             let t7236 = T::mul_add(s.424, t7190, t7234);
             let t7238 = T::mul_add(s.425, t7186, t7236);
             let t7240 = T::mul_add(s.426, t7176, t7238);
-            dqdd_dq[7][3] = t7240;
+            dqdd_dq.66 = t7240;
             let t7241 = s.413 * t7226;
             let t7242 = T::mul_add(lit::<T>(-66.66666666666667), t5471, t7241);
             let t7244 = T::mul_add(s.414, t7214, t7242);
@@ -40650,7 +40807,7 @@ pub mod fma {
             let t7250 = T::mul_add(s.417, t7190, t7248);
             let t7252 = T::mul_add(s.418, t7186, t7250);
             let t7254 = T::mul_add(s.419, t7176, t7252);
-            dqdd_dq[8][3] = t7254;
+            dqdd_dq.75 = t7254;
             let t7256 = T::mul_add(s.413, s.606, s.602);
             let t7258 = T::mul_add(s.414, s.606, s.600);
             let t7260 = T::mul_add(s.415, s.606, s.598);
@@ -40687,32 +40844,32 @@ pub mod fma {
             let t7322 = T::mul_add(s.451, t7314, t7318);
             let t7324 = T::mul_add(s.453, t7320, t7322);
             let t7325 = s.454 * t7324;
-            dqdd_dq[0][4] = t7325;
+            dqdd_dq.4 = t7325;
             let t7334 = s.453 * t7325;
             let t7335 = T::mul_add(s.452, t7320, t7334);
-            dqdd_dq[1][4] = t7335;
+            dqdd_dq.13 = t7335;
             let t7336 = s.450 * t7335;
             let t7337 = T::mul_add(s.449, t7314, t7336);
             let t7339 = T::mul_add(s.451, t7325, t7337);
-            dqdd_dq[2][4] = t7339;
+            dqdd_dq.22 = t7339;
             let t7340 = s.446 * t7339;
             let t7341 = T::mul_add(s.445, t7306, t7340);
             let t7343 = T::mul_add(s.447, t7335, t7341);
             let t7345 = T::mul_add(s.448, t7325, t7343);
-            dqdd_dq[3][4] = t7345;
+            dqdd_dq.31 = t7345;
             let t7346 = s.441 * t7345;
             let t7347 = T::mul_add(s.440, t7296, t7346);
             let t7349 = T::mul_add(s.442, t7339, t7347);
             let t7351 = T::mul_add(s.443, t7335, t7349);
             let t7353 = T::mul_add(s.444, t7325, t7351);
-            dqdd_dq[4][4] = t7353;
+            dqdd_dq.40 = t7353;
             let t7354 = s.435 * t7353;
             let t7355 = T::mul_add(s.434, t7284, t7354);
             let t7357 = T::mul_add(s.436, t7345, t7355);
             let t7359 = T::mul_add(s.437, t7339, t7357);
             let t7361 = T::mul_add(s.438, t7335, t7359);
             let t7363 = T::mul_add(s.439, t7325, t7361);
-            dqdd_dq[5][4] = t7363;
+            dqdd_dq.49 = t7363;
             let t7364 = s.428 * t7363;
             let t7365 = T::mul_add(s.427, t7270, t7364);
             let t7367 = T::mul_add(s.429, t7353, t7365);
@@ -40720,7 +40877,7 @@ pub mod fma {
             let t7371 = T::mul_add(s.431, t7339, t7369);
             let t7373 = T::mul_add(s.432, t7335, t7371);
             let t7375 = T::mul_add(s.433, t7325, t7373);
-            dqdd_dq[6][4] = t7375;
+            dqdd_dq.58 = t7375;
             let t7376 = s.420 * t7375;
             let t7377 = T::mul_add(lit::<T>(-66.66666666666667), s.604, t7376);
             let t7379 = T::mul_add(s.421, t7363, t7377);
@@ -40729,7 +40886,7 @@ pub mod fma {
             let t7385 = T::mul_add(s.424, t7339, t7383);
             let t7387 = T::mul_add(s.425, t7335, t7385);
             let t7389 = T::mul_add(s.426, t7325, t7387);
-            dqdd_dq[7][4] = t7389;
+            dqdd_dq.67 = t7389;
             let t7390 = s.413 * t7375;
             let t7391 = T::mul_add(lit::<T>(-66.66666666666667), s.606, t7390);
             let t7393 = T::mul_add(s.414, t7363, t7391);
@@ -40738,7 +40895,7 @@ pub mod fma {
             let t7399 = T::mul_add(s.417, t7339, t7397);
             let t7401 = T::mul_add(s.418, t7335, t7399);
             let t7403 = T::mul_add(s.419, t7325, t7401);
-            dqdd_dq[8][4] = t7403;
+            dqdd_dq.76 = t7403;
             let t7405 = T::mul_add(s.413, s.566, s.562);
             let t7407 = T::mul_add(s.414, s.566, s.560);
             let t7409 = T::mul_add(s.415, s.566, s.571);
@@ -40775,32 +40932,32 @@ pub mod fma {
             let t7471 = T::mul_add(s.451, t7463, t7467);
             let t7473 = T::mul_add(s.453, t7469, t7471);
             let t7474 = s.454 * t7473;
-            dqdd_dq[0][5] = t7474;
+            dqdd_dq.5 = t7474;
             let t7483 = s.453 * t7474;
             let t7484 = T::mul_add(s.452, t7469, t7483);
-            dqdd_dq[1][5] = t7484;
+            dqdd_dq.14 = t7484;
             let t7485 = s.450 * t7484;
             let t7486 = T::mul_add(s.449, t7463, t7485);
             let t7488 = T::mul_add(s.451, t7474, t7486);
-            dqdd_dq[2][5] = t7488;
+            dqdd_dq.23 = t7488;
             let t7489 = s.446 * t7488;
             let t7490 = T::mul_add(s.445, t7455, t7489);
             let t7492 = T::mul_add(s.447, t7484, t7490);
             let t7494 = T::mul_add(s.448, t7474, t7492);
-            dqdd_dq[3][5] = t7494;
+            dqdd_dq.32 = t7494;
             let t7495 = s.441 * t7494;
             let t7496 = T::mul_add(s.440, t7445, t7495);
             let t7498 = T::mul_add(s.442, t7488, t7496);
             let t7500 = T::mul_add(s.443, t7484, t7498);
             let t7502 = T::mul_add(s.444, t7474, t7500);
-            dqdd_dq[4][5] = t7502;
+            dqdd_dq.41 = t7502;
             let t7503 = s.435 * t7502;
             let t7504 = T::mul_add(s.434, t7433, t7503);
             let t7506 = T::mul_add(s.436, t7494, t7504);
             let t7508 = T::mul_add(s.437, t7488, t7506);
             let t7510 = T::mul_add(s.438, t7484, t7508);
             let t7512 = T::mul_add(s.439, t7474, t7510);
-            dqdd_dq[5][5] = t7512;
+            dqdd_dq.50 = t7512;
             let t7513 = s.428 * t7512;
             let t7514 = T::mul_add(s.427, t7419, t7513);
             let t7516 = T::mul_add(s.429, t7502, t7514);
@@ -40808,7 +40965,7 @@ pub mod fma {
             let t7520 = T::mul_add(s.431, t7488, t7518);
             let t7522 = T::mul_add(s.432, t7484, t7520);
             let t7524 = T::mul_add(s.433, t7474, t7522);
-            dqdd_dq[6][5] = t7524;
+            dqdd_dq.59 = t7524;
             let t7525 = s.420 * t7524;
             let t7526 = T::mul_add(lit::<T>(-66.66666666666667), s.564, t7525);
             let t7528 = T::mul_add(s.421, t7512, t7526);
@@ -40817,7 +40974,7 @@ pub mod fma {
             let t7534 = T::mul_add(s.424, t7488, t7532);
             let t7536 = T::mul_add(s.425, t7484, t7534);
             let t7538 = T::mul_add(s.426, t7474, t7536);
-            dqdd_dq[7][5] = t7538;
+            dqdd_dq.68 = t7538;
             let t7539 = s.413 * t7524;
             let t7540 = T::mul_add(lit::<T>(-66.66666666666667), s.566, t7539);
             let t7542 = T::mul_add(s.414, t7512, t7540);
@@ -40826,7 +40983,7 @@ pub mod fma {
             let t7548 = T::mul_add(s.417, t7488, t7546);
             let t7550 = T::mul_add(s.418, t7484, t7548);
             let t7552 = T::mul_add(s.419, t7474, t7550);
-            dqdd_dq[8][5] = t7552;
+            dqdd_dq.77 = t7552;
             let t7554 = T::mul_add(s.413, s.552, s.548);
             let t7556 = T::mul_add(s.414, s.552, s.555);
             let t7558 = T::mul_add(s.415, s.552, s.576);
@@ -40864,7 +41021,7 @@ pub mod fma {
             let t7622 = T::mul_add(s.453, t7618, t7620);
             let t7623 = s.454 * t7622;
             s.158 = t7623;
-            dqdd_dq[0][6] = t7623;
+            dqdd_dq.6 = t7623;
             let t7625 = s.449 * t7612;
             s.159 = t7625;
             let t7626 = s.445 * t7604;
@@ -40882,7 +41039,7 @@ pub mod fma {
             let t7632 = s.453 * t7623;
             let t7633 = T::mul_add(s.452, t7618, t7632);
             s.185 = t7633;
-            dqdd_dq[1][6] = t7633;
+            dqdd_dq.15 = t7633;
         }
     }
     use fd_grad_part2::fd_grad_part2;
@@ -40900,31 +41057,38 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f9<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f81<T>)
+            };
             let t7635 = T::mul_add(s.450, s.185, s.159);
             let t7637 = T::mul_add(s.451, s.158, t7635);
-            dqdd_dq[2][6] = t7637;
+            dqdd_dq.24 = t7637;
             let t7639 = T::mul_add(s.446, t7637, s.160);
             let t7641 = T::mul_add(s.447, s.185, t7639);
             let t7643 = T::mul_add(s.448, s.158, t7641);
-            dqdd_dq[3][6] = t7643;
+            dqdd_dq.33 = t7643;
             let t7645 = T::mul_add(s.441, t7643, s.162);
             let t7647 = T::mul_add(s.442, t7637, t7645);
             let t7649 = T::mul_add(s.443, s.185, t7647);
             let t7651 = T::mul_add(s.444, s.158, t7649);
-            dqdd_dq[4][6] = t7651;
+            dqdd_dq.42 = t7651;
             let t7653 = T::mul_add(s.435, t7651, s.163);
             let t7655 = T::mul_add(s.436, t7643, t7653);
             let t7657 = T::mul_add(s.437, t7637, t7655);
             let t7659 = T::mul_add(s.438, s.185, t7657);
             let t7661 = T::mul_add(s.439, s.158, t7659);
-            dqdd_dq[5][6] = t7661;
+            dqdd_dq.51 = t7661;
             let t7663 = T::mul_add(s.428, t7661, s.181);
             let t7665 = T::mul_add(s.429, t7651, t7663);
             let t7667 = T::mul_add(s.430, t7643, t7665);
             let t7669 = T::mul_add(s.431, t7637, t7667);
             let t7671 = T::mul_add(s.432, s.185, t7669);
             let t7673 = T::mul_add(s.433, s.158, t7671);
-            dqdd_dq[6][6] = t7673;
+            dqdd_dq.60 = t7673;
             let t7675 = T::mul_add(s.420, t7673, s.182);
             let t7677 = T::mul_add(s.421, t7661, t7675);
             let t7679 = T::mul_add(s.422, t7651, t7677);
@@ -40932,7 +41096,7 @@ pub mod fma {
             let t7683 = T::mul_add(s.424, t7637, t7681);
             let t7685 = T::mul_add(s.425, s.185, t7683);
             let t7687 = T::mul_add(s.426, s.158, t7685);
-            dqdd_dq[7][6] = t7687;
+            dqdd_dq.69 = t7687;
             let t7689 = T::mul_add(s.413, t7673, s.184);
             let t7691 = T::mul_add(s.414, t7661, t7689);
             let t7693 = T::mul_add(s.415, t7651, t7691);
@@ -40940,7 +41104,7 @@ pub mod fma {
             let t7697 = T::mul_add(s.417, t7637, t7695);
             let t7699 = T::mul_add(s.418, s.185, t7697);
             let t7701 = T::mul_add(s.419, s.158, t7699);
-            dqdd_dq[8][6] = t7701;
+            dqdd_dq.78 = t7701;
             let t7703 = T::mul_add(s.420, s.545, s.547);
             let t7705 = T::mul_add(s.421, s.545, s.557);
             let t7707 = T::mul_add(s.422, s.545, s.581);
@@ -40970,32 +41134,32 @@ pub mod fma {
             let t7755 = T::mul_add(s.451, t7747, t7751);
             let t7757 = T::mul_add(s.453, t7753, t7755);
             let t7758 = s.454 * t7757;
-            dqdd_dq[0][7] = t7758;
+            dqdd_dq.7 = t7758;
             let t7766 = s.453 * t7758;
             let t7767 = T::mul_add(s.452, t7753, t7766);
-            dqdd_dq[1][7] = t7767;
+            dqdd_dq.16 = t7767;
             let t7768 = s.450 * t7767;
             let t7769 = T::mul_add(s.449, t7747, t7768);
             let t7771 = T::mul_add(s.451, t7758, t7769);
-            dqdd_dq[2][7] = t7771;
+            dqdd_dq.25 = t7771;
             let t7772 = s.446 * t7771;
             let t7773 = T::mul_add(s.445, t7739, t7772);
             let t7775 = T::mul_add(s.447, t7767, t7773);
             let t7777 = T::mul_add(s.448, t7758, t7775);
-            dqdd_dq[3][7] = t7777;
+            dqdd_dq.34 = t7777;
             let t7778 = s.441 * t7777;
             let t7779 = T::mul_add(s.440, t7729, t7778);
             let t7781 = T::mul_add(s.442, t7771, t7779);
             let t7783 = T::mul_add(s.443, t7767, t7781);
             let t7785 = T::mul_add(s.444, t7758, t7783);
-            dqdd_dq[4][7] = t7785;
+            dqdd_dq.43 = t7785;
             let t7786 = s.435 * t7785;
             let t7787 = T::mul_add(s.434, t7717, t7786);
             let t7789 = T::mul_add(s.436, t7777, t7787);
             let t7791 = T::mul_add(s.437, t7771, t7789);
             let t7793 = T::mul_add(s.438, t7767, t7791);
             let t7795 = T::mul_add(s.439, t7758, t7793);
-            dqdd_dq[5][7] = t7795;
+            dqdd_dq.52 = t7795;
             let t7796 = s.428 * t7795;
             let t7797 = T::mul_add(s.427, t7703, t7796);
             let t7799 = T::mul_add(s.429, t7785, t7797);
@@ -41003,7 +41167,7 @@ pub mod fma {
             let t7803 = T::mul_add(s.431, t7771, t7801);
             let t7805 = T::mul_add(s.432, t7767, t7803);
             let t7807 = T::mul_add(s.433, t7758, t7805);
-            dqdd_dq[6][7] = t7807;
+            dqdd_dq.61 = t7807;
             let t7808 = s.420 * t7807;
             let t7809 = T::mul_add(lit::<T>(-66.66666666666667), s.545, t7808);
             let t7811 = T::mul_add(s.421, t7795, t7809);
@@ -41012,7 +41176,7 @@ pub mod fma {
             let t7817 = T::mul_add(s.424, t7771, t7815);
             let t7819 = T::mul_add(s.425, t7767, t7817);
             let t7821 = T::mul_add(s.426, t7758, t7819);
-            dqdd_dq[7][7] = t7821;
+            dqdd_dq.70 = t7821;
             let t7823 = s.414 * t7795;
             let t7824 = T::mul_add(s.413, t7807, t7823);
             let t7826 = T::mul_add(s.415, t7785, t7824);
@@ -41020,7 +41184,7 @@ pub mod fma {
             let t7830 = T::mul_add(s.417, t7771, t7828);
             let t7832 = T::mul_add(s.418, t7767, t7830);
             let t7834 = T::mul_add(s.419, t7758, t7832);
-            dqdd_dq[8][7] = t7834;
+            dqdd_dq.79 = t7834;
             let t7836 = T::mul_add(s.413, s.542, s.544);
             let t7838 = T::mul_add(s.414, s.542, s.559);
             let t7840 = T::mul_add(s.415, s.542, s.586);
@@ -41050,32 +41214,32 @@ pub mod fma {
             let t7888 = T::mul_add(s.451, t7880, t7884);
             let t7890 = T::mul_add(s.453, t7886, t7888);
             let t7891 = s.454 * t7890;
-            dqdd_dq[0][8] = t7891;
+            dqdd_dq.8 = t7891;
             let t7899 = s.453 * t7891;
             let t7900 = T::mul_add(s.452, t7886, t7899);
-            dqdd_dq[1][8] = t7900;
+            dqdd_dq.17 = t7900;
             let t7901 = s.450 * t7900;
             let t7902 = T::mul_add(s.449, t7880, t7901);
             let t7904 = T::mul_add(s.451, t7891, t7902);
-            dqdd_dq[2][8] = t7904;
+            dqdd_dq.26 = t7904;
             let t7905 = s.446 * t7904;
             let t7906 = T::mul_add(s.445, t7872, t7905);
             let t7908 = T::mul_add(s.447, t7900, t7906);
             let t7910 = T::mul_add(s.448, t7891, t7908);
-            dqdd_dq[3][8] = t7910;
+            dqdd_dq.35 = t7910;
             let t7911 = s.441 * t7910;
             let t7912 = T::mul_add(s.440, t7862, t7911);
             let t7914 = T::mul_add(s.442, t7904, t7912);
             let t7916 = T::mul_add(s.443, t7900, t7914);
             let t7918 = T::mul_add(s.444, t7891, t7916);
-            dqdd_dq[4][8] = t7918;
+            dqdd_dq.44 = t7918;
             let t7919 = s.435 * t7918;
             let t7920 = T::mul_add(s.434, t7850, t7919);
             let t7922 = T::mul_add(s.436, t7910, t7920);
             let t7924 = T::mul_add(s.437, t7904, t7922);
             let t7926 = T::mul_add(s.438, t7900, t7924);
             let t7928 = T::mul_add(s.439, t7891, t7926);
-            dqdd_dq[5][8] = t7928;
+            dqdd_dq.53 = t7928;
             let t7929 = s.428 * t7928;
             let t7930 = T::mul_add(s.427, t7836, t7929);
             let t7932 = T::mul_add(s.429, t7918, t7930);
@@ -41083,7 +41247,7 @@ pub mod fma {
             let t7936 = T::mul_add(s.431, t7904, t7934);
             let t7938 = T::mul_add(s.432, t7900, t7936);
             let t7940 = T::mul_add(s.433, t7891, t7938);
-            dqdd_dq[6][8] = t7940;
+            dqdd_dq.62 = t7940;
             let t7942 = s.421 * t7928;
             let t7943 = T::mul_add(s.420, t7940, t7942);
             let t7945 = T::mul_add(s.422, t7918, t7943);
@@ -41091,7 +41255,7 @@ pub mod fma {
             let t7949 = T::mul_add(s.424, t7904, t7947);
             let t7951 = T::mul_add(s.425, t7900, t7949);
             let t7953 = T::mul_add(s.426, t7891, t7951);
-            dqdd_dq[7][8] = t7953;
+            dqdd_dq.71 = t7953;
             let t7954 = s.413 * t7940;
             let t7955 = T::mul_add(lit::<T>(-66.66666666666667), s.542, t7954);
             let t7957 = T::mul_add(s.414, t7928, t7955);
@@ -41100,7 +41264,7 @@ pub mod fma {
             let t7963 = T::mul_add(s.417, t7904, t7961);
             let t7965 = T::mul_add(s.418, t7900, t7963);
             let t7967 = T::mul_add(s.419, t7891, t7965);
-            dqdd_dq[8][8] = t7967;
+            dqdd_dq.80 = t7967;
             let t7969 = T::mul_add(s.413, s.156, s.136);
             let t7971 = T::mul_add(s.414, s.156, s.134);
             let t7973 = T::mul_add(s.415, s.156, s.132);
@@ -41137,32 +41301,32 @@ pub mod fma {
             let t8035 = T::mul_add(s.451, t8027, t8031);
             let t8037 = T::mul_add(s.453, t8033, t8035);
             let t8038 = s.454 * t8037;
-            dqdd_dqd[0][0] = t8038;
+            dqdd_dqd.0 = t8038;
             let t8047 = s.453 * t8038;
             let t8048 = T::mul_add(s.452, t8033, t8047);
-            dqdd_dqd[1][0] = t8048;
+            dqdd_dqd.9 = t8048;
             let t8049 = s.450 * t8048;
             let t8050 = T::mul_add(s.449, t8027, t8049);
             let t8052 = T::mul_add(s.451, t8038, t8050);
-            dqdd_dqd[2][0] = t8052;
+            dqdd_dqd.18 = t8052;
             let t8053 = s.446 * t8052;
             let t8054 = T::mul_add(s.445, t8019, t8053);
             let t8056 = T::mul_add(s.447, t8048, t8054);
             let t8058 = T::mul_add(s.448, t8038, t8056);
-            dqdd_dqd[3][0] = t8058;
+            dqdd_dqd.27 = t8058;
             let t8059 = s.441 * t8058;
             let t8060 = T::mul_add(s.440, t8009, t8059);
             let t8062 = T::mul_add(s.442, t8052, t8060);
             let t8064 = T::mul_add(s.443, t8048, t8062);
             let t8066 = T::mul_add(s.444, t8038, t8064);
-            dqdd_dqd[4][0] = t8066;
+            dqdd_dqd.36 = t8066;
             let t8067 = s.435 * t8066;
             let t8068 = T::mul_add(s.434, t7997, t8067);
             let t8070 = T::mul_add(s.436, t8058, t8068);
             let t8072 = T::mul_add(s.437, t8052, t8070);
             let t8074 = T::mul_add(s.438, t8048, t8072);
             let t8076 = T::mul_add(s.439, t8038, t8074);
-            dqdd_dqd[5][0] = t8076;
+            dqdd_dqd.45 = t8076;
             let t8077 = s.428 * t8076;
             let t8078 = T::mul_add(s.427, t7983, t8077);
             let t8080 = T::mul_add(s.429, t8066, t8078);
@@ -41170,7 +41334,7 @@ pub mod fma {
             let t8084 = T::mul_add(s.431, t8052, t8082);
             let t8086 = T::mul_add(s.432, t8048, t8084);
             let t8088 = T::mul_add(s.433, t8038, t8086);
-            dqdd_dqd[6][0] = t8088;
+            dqdd_dqd.54 = t8088;
             let t8089 = s.420 * t8088;
             let t8090 = T::mul_add(lit::<T>(-66.66666666666667), s.140, t8089);
             let t8092 = T::mul_add(s.421, t8076, t8090);
@@ -41179,7 +41343,7 @@ pub mod fma {
             let t8098 = T::mul_add(s.424, t8052, t8096);
             let t8100 = T::mul_add(s.425, t8048, t8098);
             let t8102 = T::mul_add(s.426, t8038, t8100);
-            dqdd_dqd[7][0] = t8102;
+            dqdd_dqd.63 = t8102;
             let t8103 = s.413 * t8088;
             let t8104 = T::mul_add(lit::<T>(-66.66666666666667), s.156, t8103);
             let t8106 = T::mul_add(s.414, t8076, t8104);
@@ -41188,7 +41352,7 @@ pub mod fma {
             let t8112 = T::mul_add(s.417, t8052, t8110);
             let t8114 = T::mul_add(s.418, t8048, t8112);
             let t8116 = T::mul_add(s.419, t8038, t8114);
-            dqdd_dqd[8][0] = t8116;
+            dqdd_dqd.72 = t8116;
             let t8118 = T::mul_add(s.413, s.45, s.43);
             let t8120 = T::mul_add(s.414, s.45, s.42);
             let t8122 = T::mul_add(s.415, s.45, s.41);
@@ -41225,32 +41389,32 @@ pub mod fma {
             let t8184 = T::mul_add(s.451, t8176, t8180);
             let t8186 = T::mul_add(s.453, t8182, t8184);
             let t8187 = s.454 * t8186;
-            dqdd_dqd[0][1] = t8187;
+            dqdd_dqd.1 = t8187;
             let t8196 = s.453 * t8187;
             let t8197 = T::mul_add(s.452, t8182, t8196);
-            dqdd_dqd[1][1] = t8197;
+            dqdd_dqd.10 = t8197;
             let t8198 = s.450 * t8197;
             let t8199 = T::mul_add(s.449, t8176, t8198);
             let t8201 = T::mul_add(s.451, t8187, t8199);
-            dqdd_dqd[2][1] = t8201;
+            dqdd_dqd.19 = t8201;
             let t8202 = s.446 * t8201;
             let t8203 = T::mul_add(s.445, t8168, t8202);
             let t8205 = T::mul_add(s.447, t8197, t8203);
             let t8207 = T::mul_add(s.448, t8187, t8205);
-            dqdd_dqd[3][1] = t8207;
+            dqdd_dqd.28 = t8207;
             let t8208 = s.441 * t8207;
             let t8209 = T::mul_add(s.440, t8158, t8208);
             let t8211 = T::mul_add(s.442, t8201, t8209);
             let t8213 = T::mul_add(s.443, t8197, t8211);
             let t8215 = T::mul_add(s.444, t8187, t8213);
-            dqdd_dqd[4][1] = t8215;
+            dqdd_dqd.37 = t8215;
             let t8216 = s.435 * t8215;
             let t8217 = T::mul_add(s.434, t8146, t8216);
             let t8219 = T::mul_add(s.436, t8207, t8217);
             let t8221 = T::mul_add(s.437, t8201, t8219);
             let t8223 = T::mul_add(s.438, t8197, t8221);
             let t8225 = T::mul_add(s.439, t8187, t8223);
-            dqdd_dqd[5][1] = t8225;
+            dqdd_dqd.46 = t8225;
             let t8226 = s.428 * t8225;
             let t8227 = T::mul_add(s.427, t8132, t8226);
             let t8229 = T::mul_add(s.429, t8215, t8227);
@@ -41258,7 +41422,7 @@ pub mod fma {
             let t8233 = T::mul_add(s.431, t8201, t8231);
             let t8235 = T::mul_add(s.432, t8197, t8233);
             let t8237 = T::mul_add(s.433, t8187, t8235);
-            dqdd_dqd[6][1] = t8237;
+            dqdd_dqd.55 = t8237;
             let t8238 = s.420 * t8237;
             let t8239 = T::mul_add(lit::<T>(-66.66666666666667), s.44, t8238);
             let t8241 = T::mul_add(s.421, t8225, t8239);
@@ -41267,7 +41431,7 @@ pub mod fma {
             let t8247 = T::mul_add(s.424, t8201, t8245);
             let t8249 = T::mul_add(s.425, t8197, t8247);
             let t8251 = T::mul_add(s.426, t8187, t8249);
-            dqdd_dqd[7][1] = t8251;
+            dqdd_dqd.64 = t8251;
             let t8252 = s.413 * t8237;
             let t8253 = T::mul_add(lit::<T>(-66.66666666666667), s.45, t8252);
             let t8255 = T::mul_add(s.414, t8225, t8253);
@@ -41276,7 +41440,7 @@ pub mod fma {
             let t8261 = T::mul_add(s.417, t8201, t8259);
             let t8263 = T::mul_add(s.418, t8197, t8261);
             let t8265 = T::mul_add(s.419, t8187, t8263);
-            dqdd_dqd[8][1] = t8265;
+            dqdd_dqd.73 = t8265;
             let t8267 = T::mul_add(s.413, s.28, s.26);
             let t8269 = T::mul_add(s.414, s.28, s.25);
             let t8271 = T::mul_add(s.415, s.28, s.24);
@@ -41313,32 +41477,32 @@ pub mod fma {
             let t8333 = T::mul_add(s.451, t8325, t8329);
             let t8335 = T::mul_add(s.453, t8331, t8333);
             let t8336 = s.454 * t8335;
-            dqdd_dqd[0][2] = t8336;
+            dqdd_dqd.2 = t8336;
             let t8345 = s.453 * t8336;
             let t8346 = T::mul_add(s.452, t8331, t8345);
-            dqdd_dqd[1][2] = t8346;
+            dqdd_dqd.11 = t8346;
             let t8347 = s.450 * t8346;
             let t8348 = T::mul_add(s.449, t8325, t8347);
             let t8350 = T::mul_add(s.451, t8336, t8348);
-            dqdd_dqd[2][2] = t8350;
+            dqdd_dqd.20 = t8350;
             let t8351 = s.446 * t8350;
             let t8352 = T::mul_add(s.445, t8317, t8351);
             let t8354 = T::mul_add(s.447, t8346, t8352);
             let t8356 = T::mul_add(s.448, t8336, t8354);
-            dqdd_dqd[3][2] = t8356;
+            dqdd_dqd.29 = t8356;
             let t8357 = s.441 * t8356;
             let t8358 = T::mul_add(s.440, t8307, t8357);
             let t8360 = T::mul_add(s.442, t8350, t8358);
             let t8362 = T::mul_add(s.443, t8346, t8360);
             let t8364 = T::mul_add(s.444, t8336, t8362);
-            dqdd_dqd[4][2] = t8364;
+            dqdd_dqd.38 = t8364;
             let t8365 = s.435 * t8364;
             let t8366 = T::mul_add(s.434, t8295, t8365);
             let t8368 = T::mul_add(s.436, t8356, t8366);
             let t8370 = T::mul_add(s.437, t8350, t8368);
             let t8372 = T::mul_add(s.438, t8346, t8370);
             let t8374 = T::mul_add(s.439, t8336, t8372);
-            dqdd_dqd[5][2] = t8374;
+            dqdd_dqd.47 = t8374;
             let t8375 = s.428 * t8374;
             let t8376 = T::mul_add(s.427, t8281, t8375);
             let t8378 = T::mul_add(s.429, t8364, t8376);
@@ -41346,7 +41510,7 @@ pub mod fma {
             let t8382 = T::mul_add(s.431, t8350, t8380);
             let t8384 = T::mul_add(s.432, t8346, t8382);
             let t8386 = T::mul_add(s.433, t8336, t8384);
-            dqdd_dqd[6][2] = t8386;
+            dqdd_dqd.56 = t8386;
             let t8387 = s.420 * t8386;
             let t8388 = T::mul_add(lit::<T>(-66.66666666666667), s.27, t8387);
             let t8390 = T::mul_add(s.421, t8374, t8388);
@@ -41355,7 +41519,7 @@ pub mod fma {
             let t8396 = T::mul_add(s.424, t8350, t8394);
             let t8398 = T::mul_add(s.425, t8346, t8396);
             let t8400 = T::mul_add(s.426, t8336, t8398);
-            dqdd_dqd[7][2] = t8400;
+            dqdd_dqd.65 = t8400;
             let t8401 = s.413 * t8386;
             let t8402 = T::mul_add(lit::<T>(-66.66666666666667), s.28, t8401);
             let t8404 = T::mul_add(s.414, t8374, t8402);
@@ -41364,7 +41528,7 @@ pub mod fma {
             let t8410 = T::mul_add(s.417, t8350, t8408);
             let t8412 = T::mul_add(s.418, t8346, t8410);
             let t8414 = T::mul_add(s.419, t8336, t8412);
-            dqdd_dqd[8][2] = t8414;
+            dqdd_dqd.74 = t8414;
             let t8416 = T::mul_add(s.413, s.13, s.11);
             let t8418 = T::mul_add(s.414, s.13, s.10);
             let t8420 = T::mul_add(s.415, s.13, s.9);
@@ -41401,32 +41565,32 @@ pub mod fma {
             let t8482 = T::mul_add(s.451, t8474, t8478);
             let t8484 = T::mul_add(s.453, t8480, t8482);
             let t8485 = s.454 * t8484;
-            dqdd_dqd[0][3] = t8485;
+            dqdd_dqd.3 = t8485;
             let t8494 = s.453 * t8485;
             let t8495 = T::mul_add(s.452, t8480, t8494);
-            dqdd_dqd[1][3] = t8495;
+            dqdd_dqd.12 = t8495;
             let t8496 = s.450 * t8495;
             let t8497 = T::mul_add(s.449, t8474, t8496);
             let t8499 = T::mul_add(s.451, t8485, t8497);
-            dqdd_dqd[2][3] = t8499;
+            dqdd_dqd.21 = t8499;
             let t8500 = s.446 * t8499;
             let t8501 = T::mul_add(s.445, t8466, t8500);
             let t8503 = T::mul_add(s.447, t8495, t8501);
             let t8505 = T::mul_add(s.448, t8485, t8503);
-            dqdd_dqd[3][3] = t8505;
+            dqdd_dqd.30 = t8505;
             let t8506 = s.441 * t8505;
             let t8507 = T::mul_add(s.440, t8456, t8506);
             let t8509 = T::mul_add(s.442, t8499, t8507);
             let t8511 = T::mul_add(s.443, t8495, t8509);
             let t8513 = T::mul_add(s.444, t8485, t8511);
-            dqdd_dqd[4][3] = t8513;
+            dqdd_dqd.39 = t8513;
             let t8514 = s.435 * t8513;
             let t8515 = T::mul_add(s.434, t8444, t8514);
             let t8517 = T::mul_add(s.436, t8505, t8515);
             let t8519 = T::mul_add(s.437, t8499, t8517);
             let t8521 = T::mul_add(s.438, t8495, t8519);
             let t8523 = T::mul_add(s.439, t8485, t8521);
-            dqdd_dqd[5][3] = t8523;
+            dqdd_dqd.48 = t8523;
             let t8524 = s.428 * t8523;
             let t8525 = T::mul_add(s.427, t8430, t8524);
             let t8527 = T::mul_add(s.429, t8513, t8525);
@@ -41434,7 +41598,7 @@ pub mod fma {
             let t8531 = T::mul_add(s.431, t8499, t8529);
             let t8533 = T::mul_add(s.432, t8495, t8531);
             let t8535 = T::mul_add(s.433, t8485, t8533);
-            dqdd_dqd[6][3] = t8535;
+            dqdd_dqd.57 = t8535;
             let t8536 = s.420 * t8535;
             let t8537 = T::mul_add(lit::<T>(-66.66666666666667), s.12, t8536);
             let t8539 = T::mul_add(s.421, t8523, t8537);
@@ -41443,7 +41607,7 @@ pub mod fma {
             let t8545 = T::mul_add(s.424, t8499, t8543);
             let t8547 = T::mul_add(s.425, t8495, t8545);
             let t8549 = T::mul_add(s.426, t8485, t8547);
-            dqdd_dqd[7][3] = t8549;
+            dqdd_dqd.66 = t8549;
             let t8550 = s.413 * t8535;
             let t8551 = T::mul_add(lit::<T>(-66.66666666666667), s.13, t8550);
             let t8553 = T::mul_add(s.414, t8523, t8551);
@@ -41452,7 +41616,7 @@ pub mod fma {
             let t8559 = T::mul_add(s.417, t8499, t8557);
             let t8561 = T::mul_add(s.418, t8495, t8559);
             let t8563 = T::mul_add(s.419, t8485, t8561);
-            dqdd_dqd[8][3] = t8563;
+            dqdd_dqd.75 = t8563;
             let t8565 = T::mul_add(s.413, s.607, s.603);
             let t8567 = T::mul_add(s.414, s.607, s.601);
             let t8569 = T::mul_add(s.415, s.607, s.599);
@@ -41489,32 +41653,32 @@ pub mod fma {
             let t8631 = T::mul_add(s.451, t8623, t8627);
             let t8633 = T::mul_add(s.453, t8629, t8631);
             let t8634 = s.454 * t8633;
-            dqdd_dqd[0][4] = t8634;
+            dqdd_dqd.4 = t8634;
             let t8643 = s.453 * t8634;
             let t8644 = T::mul_add(s.452, t8629, t8643);
-            dqdd_dqd[1][4] = t8644;
+            dqdd_dqd.13 = t8644;
             let t8645 = s.450 * t8644;
             let t8646 = T::mul_add(s.449, t8623, t8645);
             let t8648 = T::mul_add(s.451, t8634, t8646);
-            dqdd_dqd[2][4] = t8648;
+            dqdd_dqd.22 = t8648;
             let t8649 = s.446 * t8648;
             let t8650 = T::mul_add(s.445, t8615, t8649);
             let t8652 = T::mul_add(s.447, t8644, t8650);
             let t8654 = T::mul_add(s.448, t8634, t8652);
-            dqdd_dqd[3][4] = t8654;
+            dqdd_dqd.31 = t8654;
             let t8655 = s.441 * t8654;
             let t8656 = T::mul_add(s.440, t8605, t8655);
             let t8658 = T::mul_add(s.442, t8648, t8656);
             let t8660 = T::mul_add(s.443, t8644, t8658);
             let t8662 = T::mul_add(s.444, t8634, t8660);
-            dqdd_dqd[4][4] = t8662;
+            dqdd_dqd.40 = t8662;
             let t8663 = s.435 * t8662;
             let t8664 = T::mul_add(s.434, t8593, t8663);
             let t8666 = T::mul_add(s.436, t8654, t8664);
             let t8668 = T::mul_add(s.437, t8648, t8666);
             let t8670 = T::mul_add(s.438, t8644, t8668);
             let t8672 = T::mul_add(s.439, t8634, t8670);
-            dqdd_dqd[5][4] = t8672;
+            dqdd_dqd.49 = t8672;
             let t8673 = s.428 * t8672;
             let t8674 = T::mul_add(s.427, t8579, t8673);
             let t8676 = T::mul_add(s.429, t8662, t8674);
@@ -41522,7 +41686,7 @@ pub mod fma {
             let t8680 = T::mul_add(s.431, t8648, t8678);
             let t8682 = T::mul_add(s.432, t8644, t8680);
             let t8684 = T::mul_add(s.433, t8634, t8682);
-            dqdd_dqd[6][4] = t8684;
+            dqdd_dqd.58 = t8684;
             let t8685 = s.420 * t8684;
             let t8686 = T::mul_add(lit::<T>(-66.66666666666667), s.605, t8685);
             let t8688 = T::mul_add(s.421, t8672, t8686);
@@ -41531,7 +41695,7 @@ pub mod fma {
             let t8694 = T::mul_add(s.424, t8648, t8692);
             let t8696 = T::mul_add(s.425, t8644, t8694);
             let t8698 = T::mul_add(s.426, t8634, t8696);
-            dqdd_dqd[7][4] = t8698;
+            dqdd_dqd.67 = t8698;
             let t8699 = s.413 * t8684;
             let t8700 = T::mul_add(lit::<T>(-66.66666666666667), s.607, t8699);
             let t8702 = T::mul_add(s.414, t8672, t8700);
@@ -41540,7 +41704,7 @@ pub mod fma {
             let t8708 = T::mul_add(s.417, t8648, t8706);
             let t8710 = T::mul_add(s.418, t8644, t8708);
             let t8712 = T::mul_add(s.419, t8634, t8710);
-            dqdd_dqd[8][4] = t8712;
+            dqdd_dqd.76 = t8712;
             let t8714 = T::mul_add(s.413, s.567, s.563);
             let t8716 = T::mul_add(s.414, s.567, s.561);
             let t8718 = T::mul_add(s.415, s.567, s.569);
@@ -41577,32 +41741,32 @@ pub mod fma {
             let t8780 = T::mul_add(s.451, t8772, t8776);
             let t8782 = T::mul_add(s.453, t8778, t8780);
             let t8783 = s.454 * t8782;
-            dqdd_dqd[0][5] = t8783;
+            dqdd_dqd.5 = t8783;
             let t8792 = s.453 * t8783;
             let t8793 = T::mul_add(s.452, t8778, t8792);
-            dqdd_dqd[1][5] = t8793;
+            dqdd_dqd.14 = t8793;
             let t8794 = s.450 * t8793;
             let t8795 = T::mul_add(s.449, t8772, t8794);
             let t8797 = T::mul_add(s.451, t8783, t8795);
-            dqdd_dqd[2][5] = t8797;
+            dqdd_dqd.23 = t8797;
             let t8798 = s.446 * t8797;
             let t8799 = T::mul_add(s.445, t8764, t8798);
             let t8801 = T::mul_add(s.447, t8793, t8799);
             let t8803 = T::mul_add(s.448, t8783, t8801);
-            dqdd_dqd[3][5] = t8803;
+            dqdd_dqd.32 = t8803;
             let t8804 = s.441 * t8803;
             let t8805 = T::mul_add(s.440, t8754, t8804);
             let t8807 = T::mul_add(s.442, t8797, t8805);
             let t8809 = T::mul_add(s.443, t8793, t8807);
             let t8811 = T::mul_add(s.444, t8783, t8809);
-            dqdd_dqd[4][5] = t8811;
+            dqdd_dqd.41 = t8811;
             let t8812 = s.435 * t8811;
             let t8813 = T::mul_add(s.434, t8742, t8812);
             let t8815 = T::mul_add(s.436, t8803, t8813);
             let t8817 = T::mul_add(s.437, t8797, t8815);
             let t8819 = T::mul_add(s.438, t8793, t8817);
             let t8821 = T::mul_add(s.439, t8783, t8819);
-            dqdd_dqd[5][5] = t8821;
+            dqdd_dqd.50 = t8821;
             let t8822 = s.428 * t8821;
             let t8823 = T::mul_add(s.427, t8728, t8822);
             let t8825 = T::mul_add(s.429, t8811, t8823);
@@ -41610,7 +41774,7 @@ pub mod fma {
             let t8829 = T::mul_add(s.431, t8797, t8827);
             let t8831 = T::mul_add(s.432, t8793, t8829);
             let t8833 = T::mul_add(s.433, t8783, t8831);
-            dqdd_dqd[6][5] = t8833;
+            dqdd_dqd.59 = t8833;
             let t8834 = s.420 * t8833;
             let t8835 = T::mul_add(lit::<T>(-66.66666666666667), s.565, t8834);
             let t8837 = T::mul_add(s.421, t8821, t8835);
@@ -41619,7 +41783,7 @@ pub mod fma {
             let t8843 = T::mul_add(s.424, t8797, t8841);
             let t8845 = T::mul_add(s.425, t8793, t8843);
             let t8847 = T::mul_add(s.426, t8783, t8845);
-            dqdd_dqd[7][5] = t8847;
+            dqdd_dqd.68 = t8847;
             let t8848 = s.413 * t8833;
             let t8849 = T::mul_add(lit::<T>(-66.66666666666667), s.567, t8848);
             let t8851 = T::mul_add(s.414, t8821, t8849);
@@ -41628,7 +41792,7 @@ pub mod fma {
             let t8857 = T::mul_add(s.417, t8797, t8855);
             let t8859 = T::mul_add(s.418, t8793, t8857);
             let t8861 = T::mul_add(s.419, t8783, t8859);
-            dqdd_dqd[8][5] = t8861;
+            dqdd_dqd.77 = t8861;
             let t8863 = T::mul_add(s.413, s.553, s.549);
             let t8865 = T::mul_add(s.414, s.553, s.554);
             let t8867 = T::mul_add(s.415, s.553, s.574);
@@ -41665,32 +41829,32 @@ pub mod fma {
             let t8929 = T::mul_add(s.451, t8921, t8925);
             let t8931 = T::mul_add(s.453, t8927, t8929);
             let t8932 = s.454 * t8931;
-            dqdd_dqd[0][6] = t8932;
+            dqdd_dqd.6 = t8932;
             let t8941 = s.453 * t8932;
             let t8942 = T::mul_add(s.452, t8927, t8941);
-            dqdd_dqd[1][6] = t8942;
+            dqdd_dqd.15 = t8942;
             let t8943 = s.450 * t8942;
             let t8944 = T::mul_add(s.449, t8921, t8943);
             let t8946 = T::mul_add(s.451, t8932, t8944);
-            dqdd_dqd[2][6] = t8946;
+            dqdd_dqd.24 = t8946;
             let t8947 = s.446 * t8946;
             let t8948 = T::mul_add(s.445, t8913, t8947);
             let t8950 = T::mul_add(s.447, t8942, t8948);
             let t8952 = T::mul_add(s.448, t8932, t8950);
-            dqdd_dqd[3][6] = t8952;
+            dqdd_dqd.33 = t8952;
             let t8953 = s.441 * t8952;
             let t8954 = T::mul_add(s.440, t8903, t8953);
             let t8956 = T::mul_add(s.442, t8946, t8954);
             let t8958 = T::mul_add(s.443, t8942, t8956);
             let t8960 = T::mul_add(s.444, t8932, t8958);
-            dqdd_dqd[4][6] = t8960;
+            dqdd_dqd.42 = t8960;
             let t8961 = s.435 * t8960;
             let t8962 = T::mul_add(s.434, t8891, t8961);
             let t8964 = T::mul_add(s.436, t8952, t8962);
             let t8966 = T::mul_add(s.437, t8946, t8964);
             let t8968 = T::mul_add(s.438, t8942, t8966);
             let t8970 = T::mul_add(s.439, t8932, t8968);
-            dqdd_dqd[5][6] = t8970;
+            dqdd_dqd.51 = t8970;
             let t8971 = s.428 * t8970;
             let t8972 = T::mul_add(s.427, t8877, t8971);
             let t8974 = T::mul_add(s.429, t8960, t8972);
@@ -41698,7 +41862,7 @@ pub mod fma {
             let t8978 = T::mul_add(s.431, t8946, t8976);
             let t8980 = T::mul_add(s.432, t8942, t8978);
             let t8982 = T::mul_add(s.433, t8932, t8980);
-            dqdd_dqd[6][6] = t8982;
+            dqdd_dqd.60 = t8982;
             let t8983 = s.420 * t8982;
             let t8984 = T::mul_add(lit::<T>(-66.66666666666667), s.551, t8983);
             let t8986 = T::mul_add(s.421, t8970, t8984);
@@ -41707,7 +41871,7 @@ pub mod fma {
             let t8992 = T::mul_add(s.424, t8946, t8990);
             let t8994 = T::mul_add(s.425, t8942, t8992);
             let t8996 = T::mul_add(s.426, t8932, t8994);
-            dqdd_dqd[7][6] = t8996;
+            dqdd_dqd.69 = t8996;
             let t8997 = s.413 * t8982;
             let t8998 = T::mul_add(lit::<T>(-66.66666666666667), s.553, t8997);
             let t9000 = T::mul_add(s.414, t8970, t8998);
@@ -41716,7 +41880,7 @@ pub mod fma {
             let t9006 = T::mul_add(s.417, t8946, t9004);
             let t9008 = T::mul_add(s.418, t8942, t9006);
             let t9010 = T::mul_add(s.419, t8932, t9008);
-            dqdd_dqd[8][6] = t9010;
+            dqdd_dqd.78 = t9010;
             let t9012 = T::mul_add(s.428, s.546, s.556);
             let t9014 = T::mul_add(s.429, s.546, s.579);
             let t9016 = T::mul_add(s.430, s.546, s.657);
@@ -41739,32 +41903,32 @@ pub mod fma {
             let t9050 = T::mul_add(s.451, t9042, t9046);
             let t9052 = T::mul_add(s.453, t9048, t9050);
             let t9053 = s.454 * t9052;
-            dqdd_dqd[0][7] = t9053;
+            dqdd_dqd.7 = t9053;
             let t9060 = s.453 * t9053;
             let t9061 = T::mul_add(s.452, t9048, t9060);
-            dqdd_dqd[1][7] = t9061;
+            dqdd_dqd.16 = t9061;
             let t9062 = s.450 * t9061;
             let t9063 = T::mul_add(s.449, t9042, t9062);
             let t9065 = T::mul_add(s.451, t9053, t9063);
-            dqdd_dqd[2][7] = t9065;
+            dqdd_dqd.25 = t9065;
             let t9066 = s.446 * t9065;
             let t9067 = T::mul_add(s.445, t9034, t9066);
             let t9069 = T::mul_add(s.447, t9061, t9067);
             let t9071 = T::mul_add(s.448, t9053, t9069);
-            dqdd_dqd[3][7] = t9071;
+            dqdd_dqd.34 = t9071;
             let t9072 = s.441 * t9071;
             let t9073 = T::mul_add(s.440, t9024, t9072);
             let t9075 = T::mul_add(s.442, t9065, t9073);
             let t9077 = T::mul_add(s.443, t9061, t9075);
             let t9079 = T::mul_add(s.444, t9053, t9077);
-            dqdd_dqd[4][7] = t9079;
+            dqdd_dqd.43 = t9079;
             let t9080 = s.435 * t9079;
             let t9081 = T::mul_add(s.434, t9012, t9080);
             let t9083 = T::mul_add(s.436, t9071, t9081);
             let t9085 = T::mul_add(s.437, t9065, t9083);
             let t9087 = T::mul_add(s.438, t9061, t9085);
             let t9089 = T::mul_add(s.439, t9053, t9087);
-            dqdd_dqd[5][7] = t9089;
+            dqdd_dqd.52 = t9089;
             let t9090 = s.428 * t9089;
             let t9091 = T::mul_add(s.427, s.546, t9090);
             let t9093 = T::mul_add(s.429, t9079, t9091);
@@ -41772,7 +41936,7 @@ pub mod fma {
             let t9097 = T::mul_add(s.431, t9065, t9095);
             let t9099 = T::mul_add(s.432, t9061, t9097);
             let t9101 = T::mul_add(s.433, t9053, t9099);
-            dqdd_dqd[6][7] = t9101;
+            dqdd_dqd.61 = t9101;
             let t9103 = s.421 * t9089;
             let t9104 = T::mul_add(s.420, t9101, t9103);
             let t9106 = T::mul_add(s.422, t9079, t9104);
@@ -41780,7 +41944,7 @@ pub mod fma {
             let t9110 = T::mul_add(s.424, t9065, t9108);
             let t9112 = T::mul_add(s.425, t9061, t9110);
             let t9114 = T::mul_add(s.426, t9053, t9112);
-            dqdd_dqd[7][7] = t9114;
+            dqdd_dqd.70 = t9114;
             let t9116 = s.414 * t9089;
             let t9117 = T::mul_add(s.413, t9101, t9116);
             let t9119 = T::mul_add(s.415, t9079, t9117);
@@ -41788,7 +41952,7 @@ pub mod fma {
             let t9123 = T::mul_add(s.417, t9065, t9121);
             let t9125 = T::mul_add(s.418, t9061, t9123);
             let t9127 = T::mul_add(s.419, t9053, t9125);
-            dqdd_dqd[8][7] = t9127;
+            dqdd_dqd.79 = t9127;
             let t9129 = T::mul_add(s.428, s.543, s.558);
             let t9131 = T::mul_add(s.429, s.543, s.584);
             let t9133 = T::mul_add(s.430, s.543, s.669);
@@ -41811,32 +41975,32 @@ pub mod fma {
             let t9167 = T::mul_add(s.451, t9159, t9163);
             let t9169 = T::mul_add(s.453, t9165, t9167);
             let t9170 = s.454 * t9169;
-            dqdd_dqd[0][8] = t9170;
+            dqdd_dqd.8 = t9170;
             let t9177 = s.453 * t9170;
             let t9178 = T::mul_add(s.452, t9165, t9177);
-            dqdd_dqd[1][8] = t9178;
+            dqdd_dqd.17 = t9178;
             let t9179 = s.450 * t9178;
             let t9180 = T::mul_add(s.449, t9159, t9179);
             let t9182 = T::mul_add(s.451, t9170, t9180);
-            dqdd_dqd[2][8] = t9182;
+            dqdd_dqd.26 = t9182;
             let t9183 = s.446 * t9182;
             let t9184 = T::mul_add(s.445, t9151, t9183);
             let t9186 = T::mul_add(s.447, t9178, t9184);
             let t9188 = T::mul_add(s.448, t9170, t9186);
-            dqdd_dqd[3][8] = t9188;
+            dqdd_dqd.35 = t9188;
             let t9189 = s.441 * t9188;
             let t9190 = T::mul_add(s.440, t9141, t9189);
             let t9192 = T::mul_add(s.442, t9182, t9190);
             let t9194 = T::mul_add(s.443, t9178, t9192);
             let t9196 = T::mul_add(s.444, t9170, t9194);
-            dqdd_dqd[4][8] = t9196;
+            dqdd_dqd.44 = t9196;
             let t9197 = s.435 * t9196;
             let t9198 = T::mul_add(s.434, t9129, t9197);
             let t9200 = T::mul_add(s.436, t9188, t9198);
             let t9202 = T::mul_add(s.437, t9182, t9200);
             let t9204 = T::mul_add(s.438, t9178, t9202);
             let t9206 = T::mul_add(s.439, t9170, t9204);
-            dqdd_dqd[5][8] = t9206;
+            dqdd_dqd.53 = t9206;
             let t9207 = s.428 * t9206;
             let t9208 = T::mul_add(s.427, s.543, t9207);
             let t9210 = T::mul_add(s.429, t9196, t9208);
@@ -41844,7 +42008,7 @@ pub mod fma {
             let t9214 = T::mul_add(s.431, t9182, t9212);
             let t9216 = T::mul_add(s.432, t9178, t9214);
             let t9218 = T::mul_add(s.433, t9170, t9216);
-            dqdd_dqd[6][8] = t9218;
+            dqdd_dqd.62 = t9218;
             let t9220 = s.421 * t9206;
             let t9221 = T::mul_add(s.420, t9218, t9220);
             let t9223 = T::mul_add(s.422, t9196, t9221);
@@ -41852,7 +42016,7 @@ pub mod fma {
             let t9227 = T::mul_add(s.424, t9182, t9225);
             let t9229 = T::mul_add(s.425, t9178, t9227);
             let t9231 = T::mul_add(s.426, t9170, t9229);
-            dqdd_dqd[7][8] = t9231;
+            dqdd_dqd.71 = t9231;
             let t9233 = s.414 * t9206;
             let t9234 = T::mul_add(s.413, t9218, t9233);
             let t9236 = T::mul_add(s.415, t9196, t9234);
@@ -41860,7 +42024,7 @@ pub mod fma {
             let t9240 = T::mul_add(s.417, t9182, t9238);
             let t9242 = T::mul_add(s.418, t9178, t9240);
             let t9244 = T::mul_add(s.419, t9170, t9242);
-            dqdd_dqd[8][8] = t9244;
+            dqdd_dqd.80 = t9244;
         }
     }
     use fd_grad_part3::fd_grad_part3;

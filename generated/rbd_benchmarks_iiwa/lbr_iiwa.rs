@@ -1722,6 +1722,13 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T,
     );
+    /// An array of 49 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -1734,6 +1741,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
             let t6 = q[1].sin();
             s.0 = t6;
             let t7 = q[1].cos();
@@ -3146,7 +3159,7 @@ pub mod portable {
             let t1398 = t1397 - t891;
             let t1399 = t1393 + t1393;
             let t1400 = t1394 - t1399;
-            dc_dqd[6][6] = t1400;
+            dc_dqd.48 = t1400;
             let t1401 = -t895;
             let t1402 = t891 - t888;
             let t1403 = t1401 - t893;
@@ -3227,7 +3240,7 @@ pub mod portable {
             let t1478 = t830 * t1476;
             let t1479 = t1477 - t1478;
             let t1480 = t1406 + t1479;
-            dc_dq[6][6] = t1480;
+            dc_dq.48 = t1480;
             let t1482 = t86 * t1457;
             let t1483 = t89 * t1458;
             let t1484 = t1482 + t1483;
@@ -3253,7 +3266,7 @@ pub mod portable {
             let t1504 = lit::<T>(0.081) * t1484;
             let t1505 = t1493 + t1503;
             let t1506 = t1502 - t1504;
-            dc_dqd[5][6] = t1506;
+            dc_dqd.41 = t1506;
             let t1507 = t86 * t1473;
             let t1508 = t89 * t1474;
             let t1509 = t1507 + t1508;
@@ -3282,7 +3295,7 @@ pub mod portable {
             let t1532 = lit::<T>(0.081) * t1509;
             let t1533 = t1521 + t1531;
             let t1534 = t1530 - t1532;
-            dc_dq[5][6] = t1534;
+            dc_dq.41 = t1534;
             let t1535 = t86 * t1475;
             let t1536 = t89 * t1476;
             let t1537 = t1535 + t1536;
@@ -3561,12 +3574,12 @@ pub mod portable {
             let t1818 = t688 * t1812;
             let t1819 = t1817 - t1818;
             let t1820 = t1814 + t1819;
-            dc_dq[5][5] = t1820;
+            dc_dq.40 = t1820;
             let t1821 = t693 * lit::<T>(-0.03138);
             let t1822 = t1689 + t1821;
             let t1823 = t1822 + t1822;
             let t1824 = t1658 + t1823;
-            dc_dqd[5][5] = t1824;
+            dc_dqd.40 = t1824;
             let t1825 = lit::<T>(0.001) * t1195;
             let t1826 = t1182 * lit::<T>(-4.8965888601467474e-15);
             let t1827 = t1825 + t1826;
@@ -3574,12 +3587,12 @@ pub mod portable {
             let t1829 = t676 * t1541;
             let t1830 = t1828 - t1829;
             let t1831 = t1827 + t1830;
-            dc_dq[6][5] = t1831;
+            dc_dq.47 = t1831;
             let t1832 = lit::<T>(0.001) * t676;
             let t1833 = -t1832;
             let t1834 = t1833 - t1832;
             let t1835 = t1545 + t1834;
-            dc_dqd[6][5] = t1835;
+            dc_dqd.47 = t1835;
             let t1836 = t71 * lit::<T>(-0.03138);
             let t1837 = t72 * lit::<T>(-0.03138);
             let t1838 = t70 * lit::<T>(-0.03138);
@@ -3623,7 +3636,7 @@ pub mod portable {
             let t1876 = t1874 + t1875;
             let t1877 = lit::<T>(4.8965888601467475e-12) * t1791;
             let t1878 = t1876 + t1877;
-            dc_dqd[4][5] = t1878;
+            dc_dqd.33 = t1878;
             let t1879 = lit::<T>(0.2155) * t1861;
             let t1880 = lit::<T>(0.2155) * t1857;
             let t1881 = t1869 - t1879;
@@ -3652,7 +3665,7 @@ pub mod portable {
             let t1904 = t1902 + t1903;
             let t1905 = lit::<T>(4.8965888601467475e-12) * t1802;
             let t1906 = t1904 + t1905;
-            dc_dq[4][5] = t1906;
+            dc_dq.33 = t1906;
             let t1907 = lit::<T>(0.2155) * t1889;
             let t1908 = lit::<T>(0.2155) * t1885;
             let t1909 = t1897 - t1907;
@@ -3718,7 +3731,7 @@ pub mod portable {
             let t1959 = lit::<T>(4.8965888601467475e-12) * t1506;
             let t1960 = t1958 + t1959;
             s.102 = t1960;
-            dc_dqd[4][6] = t1960;
+            dc_dqd.34 = t1960;
             let t1961 = lit::<T>(0.2155) * t1943;
             let t1962 = lit::<T>(0.2155) * t1939;
             let t1963 = t1951 - t1961;
@@ -3753,7 +3766,7 @@ pub mod portable {
             let t1987 = lit::<T>(4.8965888601467475e-12) * t1534;
             let t1988 = t1986 + t1987;
             s.108 = t1988;
-            dc_dq[4][6] = t1988;
+            dc_dq.34 = t1988;
             let t1989 = lit::<T>(0.2155) * t1971;
             let t1990 = lit::<T>(0.2155) * t1967;
             let t1991 = t1979 - t1989;
@@ -4148,12 +4161,12 @@ pub mod portable {
             let t2357 = t502 * t2349;
             let t2358 = t2356 - t2357;
             let t2359 = t2351 + t2358;
-            dc_dq[4][4] = t2359;
+            dc_dq.32 = t2359;
             let t2360 = t2204 - t2209;
             let t2361 = t2360 - t2207;
             let t2362 = t2361 + t2361;
             let t2363 = t2162 + t2362;
-            dc_dqd[4][4] = t2363;
+            dc_dqd.32 = t2363;
             let t2364 = t1173 * t1853;
             let t2365 = t1174 * t1854;
             let t2366 = t2364 + t2365;
@@ -4173,7 +4186,7 @@ pub mod portable {
             let t2380 = t502 * t1912;
             let t2381 = t2379 - t2380;
             let t2382 = t2374 + t2381;
-            dc_dq[5][4] = t2382;
+            dc_dq.39 = t2382;
             let t2383 = t495 * t1853;
             let t2384 = t490 * t1854;
             let t2385 = t2383 - t2384;
@@ -4183,7 +4196,7 @@ pub mod portable {
             let t2389 = t2387 - t2388;
             let t2390 = t2389 + t2389;
             let t2391 = t1925 + t2390;
-            dc_dqd[5][4] = t2391;
+            dc_dqd.39 = t2391;
             let t2392 = t1173 * t1930;
             let t2393 = t1174 * t1933;
             let t2394 = t2393 - t2392;
@@ -4193,14 +4206,14 @@ pub mod portable {
             let t2398 = t490 * t1999;
             let t2399 = t2397 - t2398;
             let t2400 = t2396 + t2399;
-            dc_dq[6][4] = t2400;
+            dc_dq.46 = t2400;
             let t2401 = t495 * t1930;
             let t2402 = -t2401;
             let t2403 = t490 * t1933;
             let t2404 = t2402 - t2403;
             let t2405 = t2404 + t2404;
             let t2406 = t2004 + t2405;
-            dc_dqd[6][4] = t2406;
+            dc_dqd.46 = t2406;
             let t2407 = t53 * t2079;
             let t2408 = t56 * t2078;
             s.137 = t2408;
@@ -4269,7 +4282,7 @@ pub mod portable {
             s.150 = t2458;
             let t2459 = t2455 - t2457;
             s.151 = t2459;
-            dc_dqd[3][4] = t2459;
+            dc_dqd.25 = t2459;
             let t2460 = t53 * t2344;
             let t2461 = t56 * t2345;
             let t2462 = t2460 + t2461;
@@ -4304,7 +4317,7 @@ pub mod portable {
             s.156 = t2486;
             let t2487 = t2483 - t2485;
             s.157 = t2487;
-            dc_dq[3][4] = t2487;
+            dc_dq.25 = t2487;
             let t2488 = t53 * t2348;
             let t2489 = t56 * t2349;
             let t2490 = t2488 + t2489;
@@ -4405,7 +4418,7 @@ pub mod portable {
             s.175 = t2567;
             let t2568 = t2564 - t2566;
             s.176 = t2568;
-            dc_dqd[3][5] = t2568;
+            dc_dqd.26 = t2568;
             let t2569 = t53 * t1885;
             let t2570 = t56 * t1889;
             let t2571 = t2569 + t2570;
@@ -4455,9 +4468,15 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
             let t2595 = s.180 + s.183;
             let t2596 = s.182 - s.184;
-            dc_dq[3][5] = t2596;
+            dc_dq.26 = t2596;
             let t2597 = s.10 * s.90;
             let t2598 = s.12 * s.91;
             let t2599 = t2598 - t2597;
@@ -4526,7 +4545,7 @@ pub mod portable {
             let t2662 = lit::<T>(0.1845) * t2639;
             let t2663 = t2651 + t2661;
             let t2664 = t2660 - t2662;
-            dc_dqd[3][6] = t2664;
+            dc_dqd.27 = t2664;
             let t2665 = s.10 * s.105;
             let t2666 = s.12 * s.106;
             let t2667 = t2665 + t2666;
@@ -4555,7 +4574,7 @@ pub mod portable {
             let t2690 = lit::<T>(0.1845) * t2667;
             let t2691 = t2679 + t2689;
             let t2692 = t2688 - t2690;
-            dc_dq[3][6] = t2692;
+            dc_dq.27 = t2692;
             let t2693 = s.10 * s.111;
             let t2694 = s.12 * s.112;
             let t2695 = t2693 + t2694;
@@ -4926,12 +4945,12 @@ pub mod portable {
             let t3063 = s.34 * t3055;
             let t3064 = t3062 - t3063;
             let t3065 = t3057 + t3064;
-            dc_dq[3][3] = t3065;
+            dc_dq.24 = t3065;
             let t3066 = t2910 - t2915;
             let t3067 = t3066 - t2913;
             let t3068 = t3067 + t3067;
             let t3069 = t2864 + t3068;
-            dc_dqd[3][3] = t3069;
+            dc_dqd.24 = t3069;
             let t3070 = s.63 * s.144;
             let t3071 = s.64 * s.142;
             let t3072 = t3070 + t3071;
@@ -4951,7 +4970,7 @@ pub mod portable {
             let t3086 = s.34 * s.159;
             let t3087 = t3085 - t3086;
             let t3088 = t3080 + t3087;
-            dc_dq[4][3] = t3088;
+            dc_dq.31 = t3088;
             let t3089 = s.33 * s.144;
             let t3090 = s.32 * s.142;
             let t3091 = t3089 - t3090;
@@ -4961,7 +4980,7 @@ pub mod portable {
             let t3095 = t3093 - t3094;
             let t3096 = t3095 + t3095;
             let t3097 = s.164 + t3096;
-            dc_dqd[4][3] = t3097;
+            dc_dqd.31 = t3097;
             let t3098 = s.63 * s.169;
             let t3099 = s.64 * s.168;
             let t3100 = t3098 + t3099;
@@ -4981,7 +5000,7 @@ pub mod portable {
             let t3114 = s.34 * t2603;
             let t3115 = t3113 - t3114;
             let t3116 = t3108 + t3115;
-            dc_dq[5][3] = t3116;
+            dc_dq.38 = t3116;
             let t3117 = s.33 * s.169;
             let t3118 = s.32 * s.168;
             let t3119 = t3117 - t3118;
@@ -4991,7 +5010,7 @@ pub mod portable {
             let t3123 = t3121 - t3122;
             let t3124 = t3123 + t3123;
             let t3125 = t2624 + t3124;
-            dc_dqd[5][3] = t3125;
+            dc_dqd.38 = t3125;
             let t3126 = s.63 * t2627;
             let t3127 = s.64 * t2631;
             let t3128 = t3126 + t3127;
@@ -5001,13 +5020,13 @@ pub mod portable {
             let t3132 = s.32 * t2699;
             let t3133 = t3131 - t3132;
             let t3134 = t3130 + t3133;
-            dc_dq[6][3] = t3134;
+            dc_dq.45 = t3134;
             let t3135 = s.33 * t2627;
             let t3136 = s.32 * t2631;
             let t3137 = t3135 - t3136;
             let t3138 = t3137 + t3137;
             let t3139 = t2704 + t3138;
-            dc_dqd[6][3] = t3139;
+            dc_dqd.45 = t3139;
             let t3140 = s.7 * t2780;
             let t3141 = -t3140;
             let t3142 = s.6 * t2706;
@@ -5058,7 +5077,7 @@ pub mod portable {
             let t3187 = t3185 + t3186;
             let t3188 = lit::<T>(4.8965888601467475e-12) * t3033;
             let t3189 = t3187 + t3188;
-            dc_dqd[2][3] = t3189;
+            dc_dqd.17 = t3189;
             let t3190 = lit::<T>(0.2155) * t3172;
             let t3191 = lit::<T>(0.2155) * t3168;
             let t3192 = t3180 - t3190;
@@ -5087,7 +5106,7 @@ pub mod portable {
             let t3215 = t3213 + t3214;
             let t3216 = lit::<T>(4.8965888601467475e-12) * t3044;
             let t3217 = t3215 + t3216;
-            dc_dq[2][3] = t3217;
+            dc_dq.17 = t3217;
             let t3218 = lit::<T>(0.2155) * t3200;
             let t3219 = lit::<T>(0.2155) * t3196;
             let t3220 = t3208 - t3218;
@@ -5169,7 +5188,7 @@ pub mod portable {
             let t3296 = t3294 + t3295;
             let t3297 = lit::<T>(4.8965888601467475e-12) * s.151;
             let t3298 = t3296 + t3297;
-            dc_dqd[2][4] = t3298;
+            dc_dqd.18 = t3298;
             let t3299 = lit::<T>(0.2155) * t3281;
             let t3300 = lit::<T>(0.2155) * t3277;
             let t3301 = t3289 - t3299;
@@ -5198,7 +5217,7 @@ pub mod portable {
             let t3324 = t3322 + t3323;
             let t3325 = lit::<T>(4.8965888601467475e-12) * s.157;
             let t3326 = t3324 + t3325;
-            dc_dq[2][4] = t3326;
+            dc_dq.18 = t3326;
             let t3327 = lit::<T>(0.2155) * t3309;
             let t3328 = lit::<T>(0.2155) * t3305;
             let t3329 = t3317 - t3327;
@@ -5283,7 +5302,7 @@ pub mod portable {
             let t3408 = t3406 + t3407;
             let t3409 = lit::<T>(4.8965888601467475e-12) * s.176;
             let t3410 = t3408 + t3409;
-            dc_dqd[2][5] = t3410;
+            dc_dqd.19 = t3410;
             let t3411 = lit::<T>(0.2155) * t3393;
             let t3412 = lit::<T>(0.2155) * t3389;
             let t3413 = t3401 - t3411;
@@ -5312,7 +5331,7 @@ pub mod portable {
             let t3436 = t3434 + t3435;
             let t3437 = lit::<T>(4.8965888601467475e-12) * t2596;
             let t3438 = t3436 + t3437;
-            dc_dq[2][5] = t3438;
+            dc_dq.19 = t3438;
             let t3439 = lit::<T>(0.2155) * t3421;
             let t3440 = lit::<T>(0.2155) * t3417;
             let t3441 = t3429 - t3439;
@@ -5381,7 +5400,7 @@ pub mod portable {
             let t3504 = t3502 + t3503;
             let t3505 = lit::<T>(4.8965888601467475e-12) * t2664;
             let t3506 = t3504 + t3505;
-            dc_dqd[2][6] = t3506;
+            dc_dqd.20 = t3506;
             let t3507 = lit::<T>(0.2155) * t3489;
             let t3508 = lit::<T>(0.2155) * t3485;
             let t3509 = t3497 - t3507;
@@ -5410,7 +5429,7 @@ pub mod portable {
             let t3532 = t3530 + t3531;
             let t3533 = lit::<T>(4.8965888601467475e-12) * t2692;
             let t3534 = t3532 + t3533;
-            dc_dq[2][6] = t3534;
+            dc_dq.20 = t3534;
             let t3535 = lit::<T>(0.2155) * t3517;
             let t3536 = lit::<T>(0.2155) * t3513;
             let t3537 = t3525 - t3535;
@@ -5780,12 +5799,12 @@ pub mod portable {
             let t3904 = s.24 * t3896;
             let t3905 = t3903 - t3904;
             let t3906 = t3898 + t3905;
-            dc_dq[2][2] = t3906;
+            dc_dq.16 = t3906;
             let t3907 = t3751 - t3756;
             let t3908 = t3907 - t3754;
             let t3909 = t3908 + t3908;
             let t3910 = t3705 + t3909;
-            dc_dqd[2][2] = t3910;
+            dc_dqd.16 = t3910;
             let t3911 = s.57 * t3164;
             let t3912 = s.58 * t3165;
             let t3913 = t3911 + t3912;
@@ -5804,7 +5823,7 @@ pub mod portable {
             let t3926 = s.24 * t3227;
             let t3927 = t3925 - t3926;
             let t3928 = t3920 + t3927;
-            dc_dq[3][2] = t3928;
+            dc_dq.23 = t3928;
             let t3929 = s.23 * t3164;
             let t3930 = s.22 * t3165;
             let t3931 = t3929 - t3930;
@@ -5814,7 +5833,7 @@ pub mod portable {
             let t3935 = t3933 - t3934;
             let t3936 = t3935 + t3935;
             let t3937 = t3242 + t3936;
-            dc_dqd[3][2] = t3937;
+            dc_dqd.23 = t3937;
             let t3938 = s.57 * t3273;
             let t3939 = s.58 * t3274;
             let t3940 = t3938 + t3939;
@@ -5834,7 +5853,7 @@ pub mod portable {
             let t3954 = s.24 * t3337;
             let t3955 = t3953 - t3954;
             let t3956 = t3948 + t3955;
-            dc_dq[4][2] = t3956;
+            dc_dq.30 = t3956;
             let t3957 = s.23 * t3273;
             let t3958 = s.22 * t3274;
             let t3959 = t3957 - t3958;
@@ -5844,7 +5863,7 @@ pub mod portable {
             let t3963 = t3961 - t3962;
             let t3964 = t3963 + t3963;
             let t3965 = t3354 + t3964;
-            dc_dqd[4][2] = t3965;
+            dc_dqd.30 = t3965;
             let t3966 = s.57 * t3385;
             let t3967 = s.58 * t3386;
             let t3968 = t3966 + t3967;
@@ -5864,7 +5883,7 @@ pub mod portable {
             let t3982 = s.24 * t3449;
             let t3983 = t3981 - t3982;
             let t3984 = t3976 + t3983;
-            dc_dq[5][2] = t3984;
+            dc_dq.37 = t3984;
             let t3985 = s.23 * t3385;
             let t3986 = s.22 * t3386;
             let t3987 = t3985 - t3986;
@@ -5874,7 +5893,7 @@ pub mod portable {
             let t3991 = t3989 - t3990;
             let t3992 = t3991 + t3991;
             let t3993 = t3466 + t3992;
-            dc_dqd[5][2] = t3993;
+            dc_dqd.37 = t3993;
             let t3994 = s.57 * t3473;
             let t3995 = s.58 * t3477;
             let t3996 = t3994 + t3995;
@@ -5884,13 +5903,13 @@ pub mod portable {
             let t4000 = s.22 * t3545;
             let t4001 = t3999 - t4000;
             let t4002 = t3998 + t4001;
-            dc_dq[6][2] = t4002;
+            dc_dq.44 = t4002;
             let t4003 = s.23 * t3473;
             let t4004 = s.22 * t3477;
             let t4005 = t4003 - t4004;
             let t4006 = t4005 + t4005;
             let t4007 = t3550 + t4006;
-            dc_dqd[6][2] = t4007;
+            dc_dqd.44 = t4007;
             let t4008 = s.3 * t3622;
             let t4009 = s.2 * t3149;
             let t4010 = t4008 + t4009;
@@ -5946,7 +5965,7 @@ pub mod portable {
             let t4060 = lit::<T>(0.2045) * t4039;
             let t4061 = t4049 + t4059;
             let t4062 = t4058 - t4060;
-            dc_dqd[1][2] = t4062;
+            dc_dqd.9 = t4062;
             let t4063 = s.3 * t3891;
             let t4064 = s.2 * t3892;
             let t4065 = t4064 - t4063;
@@ -5975,7 +5994,7 @@ pub mod portable {
             let t4088 = lit::<T>(0.2045) * t4067;
             let t4089 = t4077 + t4087;
             let t4090 = t4086 - t4088;
-            dc_dq[1][2] = t4090;
+            dc_dq.9 = t4090;
             let t4091 = s.3 * t3895;
             let t4092 = s.2 * t3896;
             let t4093 = t4092 - t4091;
@@ -6059,7 +6078,7 @@ pub mod portable {
             let t4171 = lit::<T>(0.2045) * t4150;
             let t4172 = t4160 + t4170;
             let t4173 = t4169 - t4171;
-            dc_dqd[1][3] = t4173;
+            dc_dqd.10 = t4173;
             let t4174 = s.3 * t3196;
             let t4175 = s.2 * t3200;
             let t4176 = t4175 - t4174;
@@ -6088,7 +6107,7 @@ pub mod portable {
             let t4199 = lit::<T>(0.2045) * t4178;
             let t4200 = t4188 + t4198;
             let t4201 = t4197 - t4199;
-            dc_dq[1][3] = t4201;
+            dc_dq.10 = t4201;
             let t4202 = s.3 * t3224;
             let t4203 = s.2 * t3227;
             let t4204 = t4203 - t4202;
@@ -6177,7 +6196,7 @@ pub mod portable {
             let t4287 = lit::<T>(0.2045) * t4266;
             let t4288 = t4276 + t4286;
             let t4289 = t4285 - t4287;
-            dc_dqd[1][4] = t4289;
+            dc_dqd.11 = t4289;
             let t4290 = s.3 * t3305;
             let t4291 = s.2 * t3309;
             let t4292 = t4291 - t4290;
@@ -6206,7 +6225,7 @@ pub mod portable {
             let t4315 = lit::<T>(0.2045) * t4294;
             let t4316 = t4304 + t4314;
             let t4317 = t4313 - t4315;
-            dc_dq[1][4] = t4317;
+            dc_dq.11 = t4317;
             let t4318 = s.3 * t3333;
             let t4319 = s.2 * t3337;
             let t4320 = t4319 - t4318;
@@ -6295,7 +6314,7 @@ pub mod portable {
             let t4403 = lit::<T>(0.2045) * t4382;
             let t4404 = t4392 + t4402;
             let t4405 = t4401 - t4403;
-            dc_dqd[1][5] = t4405;
+            dc_dqd.12 = t4405;
             let t4406 = s.3 * t3417;
             let t4407 = s.2 * t3421;
             let t4408 = t4407 - t4406;
@@ -6324,7 +6343,7 @@ pub mod portable {
             let t4431 = lit::<T>(0.2045) * t4410;
             let t4432 = t4420 + t4430;
             let t4433 = t4429 - t4431;
-            dc_dq[1][5] = t4433;
+            dc_dq.12 = t4433;
             let t4434 = s.3 * t3445;
             let t4435 = s.2 * t3449;
             let t4436 = t4435 - t4434;
@@ -6395,7 +6414,7 @@ pub mod portable {
             let t4501 = lit::<T>(0.2045) * t4480;
             let t4502 = t4490 + t4500;
             let t4503 = t4499 - t4501;
-            dc_dqd[1][6] = t4503;
+            dc_dqd.13 = t4503;
             let t4504 = s.3 * t3513;
             let t4505 = s.2 * t3517;
             let t4506 = t4505 - t4504;
@@ -6424,7 +6443,7 @@ pub mod portable {
             let t4529 = lit::<T>(0.2045) * t4508;
             let t4530 = t4518 + t4528;
             let t4531 = t4527 - t4529;
-            dc_dq[1][6] = t4531;
+            dc_dq.13 = t4531;
             let t4532 = s.3 * t3541;
             let t4533 = s.2 * t3545;
             let t4534 = t4533 - t4532;
@@ -6711,7 +6730,7 @@ pub mod portable {
             let t4817 = t4812 + t4815;
             let t4818 = t4813 + t4816;
             let t4819 = t4730 + t4814;
-            dc_dqd[1][1] = t4819;
+            dc_dqd.8 = t4819;
             let t4820 = t4800 - t4807;
             let t4821 = t4803 - t4808;
             let t4822 = t4806 + t4811;
@@ -6728,7 +6747,7 @@ pub mod portable {
             let t4833 = s.15 * t4829;
             let t4834 = t4832 - t4833;
             let t4835 = t4831 + t4834;
-            dc_dq[1][1] = t4835;
+            dc_dq.8 = t4835;
             let t4836 = s.53 * t4033;
             let t4837 = s.54 * t4025;
             let t4838 = t4836 + t4837;
@@ -6742,13 +6761,13 @@ pub mod portable {
             let t4846 = s.15 * t4105;
             let t4847 = t4845 - t4846;
             let t4848 = t4844 + t4847;
-            dc_dq[2][1] = t4848;
+            dc_dq.15 = t4848;
             let t4849 = s.16 * t4033;
             let t4850 = s.15 * t4025;
             let t4851 = t4849 - t4850;
             let t4852 = t4851 + t4851;
             let t4853 = t4114 + t4852;
-            dc_dqd[2][1] = t4853;
+            dc_dqd.15 = t4853;
             let t4854 = s.53 * t4144;
             let t4855 = s.54 * t4137;
             let t4856 = t4854 + t4855;
@@ -6762,13 +6781,13 @@ pub mod portable {
             let t4864 = s.15 * t4220;
             let t4865 = t4863 - t4864;
             let t4866 = t4862 + t4865;
-            dc_dq[3][1] = t4866;
+            dc_dq.22 = t4866;
             let t4867 = s.16 * t4144;
             let t4868 = s.15 * t4137;
             let t4869 = t4867 - t4868;
             let t4870 = t4869 + t4869;
             let t4871 = t4229 + t4870;
-            dc_dqd[3][1] = t4871;
+            dc_dqd.22 = t4871;
             let t4872 = s.53 * t4260;
             let t4873 = s.54 * t4252;
             let t4874 = t4872 + t4873;
@@ -6782,13 +6801,13 @@ pub mod portable {
             let t4882 = s.15 * t4336;
             let t4883 = t4881 - t4882;
             let t4884 = t4880 + t4883;
-            dc_dq[4][1] = t4884;
+            dc_dq.29 = t4884;
             let t4885 = s.16 * t4260;
             let t4886 = s.15 * t4252;
             let t4887 = t4885 - t4886;
             let t4888 = t4887 + t4887;
             let t4889 = t4345 + t4888;
-            dc_dqd[4][1] = t4889;
+            dc_dqd.29 = t4889;
             let t4890 = s.53 * t4376;
             let t4891 = s.54 * t4368;
             let t4892 = t4890 + t4891;
@@ -6802,13 +6821,13 @@ pub mod portable {
             let t4900 = s.15 * t4452;
             let t4901 = t4899 - t4900;
             let t4902 = t4898 + t4901;
-            dc_dq[5][1] = t4902;
+            dc_dq.36 = t4902;
             let t4903 = s.16 * t4376;
             let t4904 = s.15 * t4368;
             let t4905 = t4903 - t4904;
             let t4906 = t4905 + t4905;
             let t4907 = t4461 + t4906;
-            dc_dqd[5][1] = t4907;
+            dc_dqd.36 = t4907;
             let t4908 = s.53 * t4466;
             let t4909 = s.54 * t4470;
             let t4910 = t4908 + t4909;
@@ -6818,121 +6837,121 @@ pub mod portable {
             let t4914 = s.15 * t4540;
             let t4915 = t4913 - t4914;
             let t4916 = t4912 + t4915;
-            dc_dq[6][1] = t4916;
+            dc_dq.43 = t4916;
             let t4917 = s.16 * t4466;
             let t4918 = s.15 * t4470;
             let t4919 = t4917 - t4918;
             let t4920 = t4919 + t4919;
             let t4921 = t4545 + t4920;
-            dc_dqd[6][1] = t4921;
+            dc_dqd.43 = t4921;
             let t4922 = s.0 * t4817;
             let t4923 = s.1 * t4818;
             let t4924 = t4922 + t4923;
             let t4925 = lit::<T>(4.8965888601467475e-12) * t4819;
             let t4926 = t4924 + t4925;
-            dc_dqd[0][1] = t4926;
+            dc_dqd.1 = t4926;
             let t4927 = s.0 * t4826;
             let t4928 = s.1 * t4827;
             let t4929 = t4927 + t4928;
             let t4930 = lit::<T>(4.8965888601467475e-12) * t4825;
             let t4931 = t4929 + t4930;
-            dc_dq[0][1] = t4931;
+            dc_dq.1 = t4931;
             let t4932 = s.0 * t4828;
             let t4933 = s.1 * t4829;
             let t4934 = t4932 + t4933;
             let t4935 = lit::<T>(4.8965888601467475e-12) * t4730;
             let t4936 = t4934 + t4935;
-            dc_dqd[1][0] = t4936;
+            dc_dqd.7 = t4936;
             let t4937 = s.0 * t4061;
             let t4938 = s.1 * t4053;
             let t4939 = t4937 + t4938;
             let t4940 = lit::<T>(4.8965888601467475e-12) * t4062;
             let t4941 = t4939 + t4940;
-            dc_dqd[0][2] = t4941;
+            dc_dqd.2 = t4941;
             let t4942 = s.0 * t4089;
             let t4943 = s.1 * t4081;
             let t4944 = t4942 + t4943;
             let t4945 = lit::<T>(4.8965888601467475e-12) * t4090;
             let t4946 = t4944 + t4945;
-            dc_dq[0][2] = t4946;
+            dc_dq.2 = t4946;
             let t4947 = s.0 * t4113;
             let t4948 = s.1 * t4105;
             let t4949 = t4947 + t4948;
             let t4950 = lit::<T>(4.8965888601467475e-12) * t4114;
             let t4951 = t4949 + t4950;
-            dc_dqd[2][0] = t4951;
+            dc_dqd.14 = t4951;
             let t4952 = s.0 * t4172;
             let t4953 = s.1 * t4164;
             let t4954 = t4952 + t4953;
             let t4955 = lit::<T>(4.8965888601467475e-12) * t4173;
             let t4956 = t4954 + t4955;
-            dc_dqd[0][3] = t4956;
+            dc_dqd.3 = t4956;
             let t4957 = s.0 * t4200;
             let t4958 = s.1 * t4192;
             let t4959 = t4957 + t4958;
             let t4960 = lit::<T>(4.8965888601467475e-12) * t4201;
             let t4961 = t4959 + t4960;
-            dc_dq[0][3] = t4961;
+            dc_dq.3 = t4961;
             let t4962 = s.0 * t4228;
             let t4963 = s.1 * t4220;
             let t4964 = t4962 + t4963;
             let t4965 = lit::<T>(4.8965888601467475e-12) * t4229;
             let t4966 = t4964 + t4965;
-            dc_dqd[3][0] = t4966;
+            dc_dqd.21 = t4966;
             let t4967 = s.0 * t4288;
             let t4968 = s.1 * t4280;
             let t4969 = t4967 + t4968;
             let t4970 = lit::<T>(4.8965888601467475e-12) * t4289;
             let t4971 = t4969 + t4970;
-            dc_dqd[0][4] = t4971;
+            dc_dqd.4 = t4971;
             let t4972 = s.0 * t4316;
             let t4973 = s.1 * t4308;
             let t4974 = t4972 + t4973;
             let t4975 = lit::<T>(4.8965888601467475e-12) * t4317;
             let t4976 = t4974 + t4975;
-            dc_dq[0][4] = t4976;
+            dc_dq.4 = t4976;
             let t4977 = s.0 * t4344;
             let t4978 = s.1 * t4336;
             let t4979 = t4977 + t4978;
             let t4980 = lit::<T>(4.8965888601467475e-12) * t4345;
             let t4981 = t4979 + t4980;
-            dc_dqd[4][0] = t4981;
+            dc_dqd.28 = t4981;
             let t4982 = s.0 * t4404;
             let t4983 = s.1 * t4396;
             let t4984 = t4982 + t4983;
             let t4985 = lit::<T>(4.8965888601467475e-12) * t4405;
             let t4986 = t4984 + t4985;
-            dc_dqd[0][5] = t4986;
+            dc_dqd.5 = t4986;
             let t4987 = s.0 * t4432;
             let t4988 = s.1 * t4424;
             let t4989 = t4987 + t4988;
             let t4990 = lit::<T>(4.8965888601467475e-12) * t4433;
             let t4991 = t4989 + t4990;
-            dc_dq[0][5] = t4991;
+            dc_dq.5 = t4991;
             let t4992 = s.0 * t4460;
             let t4993 = s.1 * t4452;
             let t4994 = t4992 + t4993;
             let t4995 = lit::<T>(4.8965888601467475e-12) * t4461;
             let t4996 = t4994 + t4995;
-            dc_dqd[5][0] = t4996;
+            dc_dqd.35 = t4996;
             let t4997 = s.0 * t4502;
             let t4998 = s.1 * t4494;
             let t4999 = t4997 + t4998;
             let t5000 = lit::<T>(4.8965888601467475e-12) * t4503;
             let t5001 = t4999 + t5000;
-            dc_dqd[0][6] = t5001;
+            dc_dqd.6 = t5001;
             let t5002 = s.0 * t4530;
             let t5003 = s.1 * t4522;
             let t5004 = t5002 + t5003;
             let t5005 = lit::<T>(4.8965888601467475e-12) * t4531;
             let t5006 = t5004 + t5005;
-            dc_dq[0][6] = t5006;
+            dc_dq.6 = t5006;
             let t5007 = s.0 * t4536;
             let t5008 = s.1 * t4540;
             let t5009 = t5007 + t5008;
             let t5010 = lit::<T>(4.8965888601467475e-12) * t4545;
             let t5011 = t5009 + t5010;
-            dc_dqd[6][0] = t5011;
+            dc_dqd.42 = t5011;
             let t5012 = s.0 * t4731;
             let t5013 = s.1 * t4732;
             let t5014 = t5012 + t5013;
@@ -6962,7 +6981,7 @@ pub mod portable {
             let t5038 = t5031 + t5031;
             let t5039 = t5037 - t5038;
             let t5040 = t5032 + t5039;
-            dc_dqd[0][0] = t5040;
+            dc_dqd.0 = t5040;
         }
     }
     use rnea_grad_part1::rnea_grad_part1;
@@ -7777,6 +7796,13 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 49 entries of `minv`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct minv_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod minv_part0 {
         use super::*;
         #[inline(never)]
@@ -7786,6 +7812,7 @@ pub mod portable {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f49<T>) };
             let t6 = q[1].sin();
             let t7 = q[1].cos();
             let t16 = q[2].sin();
@@ -10049,31 +10076,31 @@ pub mod portable {
             let t2291 = t2289 + t2290;
             let t2292 = lit::<T>(0.0236) + t2291;
             let t2293 = lit::<T>(1.0) / t2292;
-            minv[0][0] = t2293;
+            minv.0 = t2293;
             let t2294 = t2204 * t2293;
             let t2295 = -t2294;
-            minv[0][1] = t2295;
-            minv[1][0] = t2295;
+            minv.1 = t2295;
+            minv.7 = t2295;
             let t2296 = t2215 * t2293;
             let t2297 = -t2296;
-            minv[0][2] = t2297;
-            minv[2][0] = t2297;
+            minv.2 = t2297;
+            minv.14 = t2297;
             let t2298 = t2226 * t2293;
             let t2299 = -t2298;
-            minv[0][3] = t2299;
-            minv[3][0] = t2299;
+            minv.3 = t2299;
+            minv.21 = t2299;
             let t2300 = t2237 * t2293;
             let t2301 = -t2300;
-            minv[0][4] = t2301;
-            minv[4][0] = t2301;
+            minv.4 = t2301;
+            minv.28 = t2301;
             let t2302 = t2248 * t2293;
             let t2303 = -t2302;
-            minv[0][5] = t2303;
-            minv[5][0] = t2303;
+            minv.5 = t2303;
+            minv.35 = t2303;
             let t2304 = t2259 * t2293;
             let t2305 = -t2304;
-            minv[0][6] = t2305;
-            minv[6][0] = t2305;
+            minv.6 = t2305;
+            minv.42 = t2305;
             let t2306 = t6 * t2294;
             let t2307 = t7 * t2294;
             let t2308 = lit::<T>(4.8965888601467475e-12) * t2294;
@@ -10085,7 +10112,7 @@ pub mod portable {
             let t2314 = t2312 - t2313;
             let t2315 = t2186 * t2314;
             let t2316 = t2186 - t2315;
-            minv[1][1] = t2316;
+            minv.8 = t2316;
             let t2317 = t6 * t2296;
             let t2318 = t7 * t2296;
             let t2319 = lit::<T>(4.8965888601467475e-12) * t2296;
@@ -10097,8 +10124,8 @@ pub mod portable {
             let t2325 = t2323 - t2324;
             let t2326 = t2186 * t2325;
             let t2327 = t2188 - t2326;
-            minv[1][2] = t2327;
-            minv[2][1] = t2327;
+            minv.9 = t2327;
+            minv.15 = t2327;
             let t2328 = t2327 - t2319;
             let t2329 = t6 * t2298;
             let t2330 = t7 * t2298;
@@ -10111,8 +10138,8 @@ pub mod portable {
             let t2337 = t2335 - t2336;
             let t2338 = t2186 * t2337;
             let t2339 = t2190 - t2338;
-            minv[1][3] = t2339;
-            minv[3][1] = t2339;
+            minv.10 = t2339;
+            minv.22 = t2339;
             let t2340 = t2339 - t2331;
             let t2341 = t6 * t2300;
             let t2342 = t7 * t2300;
@@ -10125,8 +10152,8 @@ pub mod portable {
             let t2349 = t2347 - t2348;
             let t2350 = t2186 * t2349;
             let t2351 = t2192 - t2350;
-            minv[1][4] = t2351;
-            minv[4][1] = t2351;
+            minv.11 = t2351;
+            minv.29 = t2351;
             let t2352 = t2351 - t2343;
             let t2353 = t6 * t2302;
             let t2354 = t7 * t2302;
@@ -10139,8 +10166,8 @@ pub mod portable {
             let t2361 = t2359 - t2360;
             let t2362 = t2186 * t2361;
             let t2363 = t2194 - t2362;
-            minv[1][5] = t2363;
-            minv[5][1] = t2363;
+            minv.12 = t2363;
+            minv.36 = t2363;
             let t2364 = t2363 - t2355;
             let t2365 = t6 * t2304;
             let t2366 = t7 * t2304;
@@ -10153,8 +10180,8 @@ pub mod portable {
             let t2373 = t2371 - t2372;
             let t2374 = t2186 * t2373;
             let t2375 = t2196 - t2374;
-            minv[1][6] = t2375;
-            minv[6][1] = t2375;
+            minv.13 = t2375;
+            minv.43 = t2375;
             let t2376 = t2375 - t2367;
             let t2377 = lit::<T>(0.2045) * t2328;
             let t2378 = lit::<T>(0.2045) * t2317;
@@ -10198,7 +10225,7 @@ pub mod portable {
             let t2416 = t2414 + t2415;
             let t2417 = t1718 * t2416;
             let t2418 = t1718 - t2417;
-            minv[2][2] = t2418;
+            minv.16 = t2418;
             let t2419 = lit::<T>(0.2045) * t2340;
             let t2420 = lit::<T>(0.2045) * t2329;
             let t2421 = t17 * t2329;
@@ -10246,8 +10273,8 @@ pub mod portable {
             let t2458 = t2456 + t2457;
             let t2459 = t1718 * t2458;
             let t2460 = t1720 - t2459;
-            minv[2][3] = t2460;
-            minv[3][2] = t2460;
+            minv.17 = t2460;
+            minv.23 = t2460;
             let t2461 = t2436 + t2460;
             s.52 = t2461;
             let t2462 = lit::<T>(0.2045) * t2352;
@@ -10297,8 +10324,8 @@ pub mod portable {
             let t2501 = t2499 + t2500;
             let t2502 = t1718 * t2501;
             let t2503 = t1722 - t2502;
-            minv[2][4] = t2503;
-            minv[4][2] = t2503;
+            minv.18 = t2503;
+            minv.30 = t2503;
             let t2504 = t2479 + t2503;
             s.58 = t2504;
             let t2505 = lit::<T>(0.2045) * t2364;
@@ -10348,8 +10375,8 @@ pub mod portable {
             let t2544 = t2542 + t2543;
             let t2545 = t1718 * t2544;
             let t2546 = t1724 - t2545;
-            minv[2][5] = t2546;
-            minv[5][2] = t2546;
+            minv.19 = t2546;
+            minv.37 = t2546;
             let t2547 = t2522 + t2546;
             s.64 = t2547;
             let t2548 = lit::<T>(0.2045) * t2376;
@@ -10401,6 +10428,7 @@ pub mod portable {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f49<T>) };
             let t2578 = s.42 * s.66;
             let t2579 = s.71 + t2578;
             let t2580 = s.43 * s.67;
@@ -10413,8 +10441,8 @@ pub mod portable {
             let t2587 = t2585 + t2586;
             let t2588 = s.45 * t2587;
             let t2589 = s.46 - t2588;
-            minv[2][6] = t2589;
-            minv[6][2] = t2589;
+            minv.20 = t2589;
+            minv.44 = t2589;
             let t2590 = s.67 + t2589;
             let t2591 = lit::<T>(0.2155) * s.48;
             let t2592 = lit::<T>(0.2155) * s.47;
@@ -10457,7 +10485,7 @@ pub mod portable {
             let t2629 = t2627 + t2628;
             let t2630 = s.36 * t2629;
             let t2631 = s.36 - t2630;
-            minv[3][3] = t2631;
+            minv.24 = t2631;
             let t2632 = lit::<T>(0.2155) * s.54;
             let t2633 = lit::<T>(0.2155) * s.53;
             let t2634 = s.55 + t2632;
@@ -10499,8 +10527,8 @@ pub mod portable {
             let t2670 = t2668 + t2669;
             let t2671 = s.36 * t2670;
             let t2672 = s.37 - t2671;
-            minv[3][4] = t2672;
-            minv[4][3] = t2672;
+            minv.25 = t2672;
+            minv.31 = t2672;
             let t2673 = t2647 + t2672;
             let t2674 = lit::<T>(0.2155) * s.60;
             let t2675 = lit::<T>(0.2155) * s.59;
@@ -10543,8 +10571,8 @@ pub mod portable {
             let t2712 = t2710 + t2711;
             let t2713 = s.36 * t2712;
             let t2714 = s.38 - t2713;
-            minv[3][5] = t2714;
-            minv[5][3] = t2714;
+            minv.26 = t2714;
+            minv.38 = t2714;
             let t2715 = t2689 + t2714;
             let t2716 = lit::<T>(0.2155) * s.66;
             let t2717 = lit::<T>(0.2155) * s.65;
@@ -10587,8 +10615,8 @@ pub mod portable {
             let t2754 = t2752 + t2753;
             let t2755 = s.36 * t2754;
             let t2756 = s.39 - t2755;
-            minv[3][6] = t2756;
-            minv[6][3] = t2756;
+            minv.27 = t2756;
+            minv.45 = t2756;
             let t2757 = t2731 + t2756;
             let t2758 = lit::<T>(0.1845) * t2673;
             let t2759 = lit::<T>(0.1845) * t2640;
@@ -10631,7 +10659,7 @@ pub mod portable {
             let t2796 = t2794 + t2795;
             let t2797 = s.27 * t2796;
             let t2798 = s.27 - t2797;
-            minv[4][4] = t2798;
+            minv.32 = t2798;
             let t2799 = lit::<T>(0.1845) * t2715;
             let t2800 = lit::<T>(0.1845) * t2682;
             let t2801 = t2694 - t2799;
@@ -10673,8 +10701,8 @@ pub mod portable {
             let t2837 = t2835 + t2836;
             let t2838 = s.27 * t2837;
             let t2839 = s.28 - t2838;
-            minv[4][5] = t2839;
-            minv[5][4] = t2839;
+            minv.33 = t2839;
+            minv.39 = t2839;
             let t2840 = t2814 + t2839;
             let t2841 = lit::<T>(0.1845) * t2757;
             let t2842 = lit::<T>(0.1845) * t2724;
@@ -10717,8 +10745,8 @@ pub mod portable {
             let t2879 = t2877 + t2878;
             let t2880 = s.27 * t2879;
             let t2881 = s.29 - t2880;
-            minv[4][6] = t2881;
-            minv[6][4] = t2881;
+            minv.34 = t2881;
+            minv.46 = t2881;
             let t2882 = t2856 + t2881;
             let t2883 = lit::<T>(0.2155) * t2812;
             let t2884 = lit::<T>(0.2155) * t2807;
@@ -10761,7 +10789,7 @@ pub mod portable {
             let t2921 = t2919 + t2920;
             let t2922 = s.19 * t2921;
             let t2923 = s.19 - t2922;
-            minv[5][5] = t2923;
+            minv.40 = t2923;
             let t2924 = lit::<T>(0.2155) * t2854;
             let t2925 = lit::<T>(0.2155) * t2849;
             let t2926 = t2861 + t2924;
@@ -10803,15 +10831,15 @@ pub mod portable {
             let t2962 = t2960 + t2961;
             let t2963 = s.19 * t2962;
             let t2964 = s.20 - t2963;
-            minv[5][6] = t2964;
-            minv[6][5] = t2964;
+            minv.41 = t2964;
+            minv.47 = t2964;
             let t2965 = t2939 + t2964;
             let t2966 = lit::<T>(-4.8965888601467475e-12) * t2965;
             let t2967 = t2937 + t2966;
             let t2968 = lit::<T>(0.001) * t2967;
             let t2969 = lit::<T>(1000.0) * t2968;
             let t2970 = lit::<T>(1000.0) - t2969;
-            minv[6][6] = t2970;
+            minv.48 = t2970;
         }
     }
     use minv_part1::minv_part1;
@@ -10835,6 +10863,10 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 7 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f7<T>(T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -10846,6 +10878,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f7<T>) };
             let t6 = q[1].sin();
             s.0 = t6;
             let t7 = q[1].cos();
@@ -13466,6 +13499,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f7<T>) };
             let t2598 = lit::<T>(-2.0682310711021444e-13) * s.81;
             let t2599 = s.105 + t2598;
             let t2600 = s.3 * s.79;
@@ -13719,7 +13753,7 @@ pub mod portable {
             let t2849 = t2844 * lit::<T>(9.81);
             let t2850 = t2847 - t2849;
             let t2851 = t2846 * t2850;
-            qdd[0] = t2851;
+            qdd.0 = t2851;
             let t2852 = s.0 * t2851;
             let t2853 = s.1 * t2851;
             let t2854 = lit::<T>(4.8965888601467475e-12) * t2851;
@@ -13740,7 +13774,7 @@ pub mod portable {
             let t2870 = t2868 + t2869;
             let t2871 = t2747 - t2870;
             let t2872 = t2746 * t2871;
-            qdd[1] = t2872;
+            qdd.1 = t2872;
             let t2873 = t2854 + t2872;
             let t2874 = lit::<T>(0.2045) * t2873;
             let t2875 = lit::<T>(0.2045) * t2858;
@@ -13791,7 +13825,7 @@ pub mod portable {
             let t2920 = t2918 + t2919;
             let t2921 = s.69 - t2920;
             let t2922 = s.68 * t2921;
-            qdd[2] = t2922;
+            qdd.2 = t2922;
             let t2923 = t2891 + t2922;
             let t2924 = lit::<T>(0.2155) * t2907;
             let t2925 = lit::<T>(0.2155) * t2906;
@@ -13838,7 +13872,7 @@ pub mod portable {
             let t2966 = t2964 + t2965;
             let t2967 = s.61 - t2966;
             let t2968 = s.60 * t2967;
-            qdd[3] = t2968;
+            qdd.3 = t2968;
             let t2969 = t2939 + t2968;
             let t2970 = lit::<T>(0.1845) * t2969;
             let t2971 = lit::<T>(0.1845) * t2952;
@@ -13885,7 +13919,7 @@ pub mod portable {
             let t3012 = t3010 + t3011;
             let t3013 = s.53 - t3012;
             let t3014 = s.52 * t3013;
-            qdd[4] = t3014;
+            qdd.4 = t3014;
             let t3015 = t2985 + t3014;
             let t3016 = lit::<T>(0.2155) * t2999;
             let t3017 = lit::<T>(0.2155) * t2998;
@@ -13932,14 +13966,14 @@ pub mod portable {
             let t3058 = t3056 + t3057;
             let t3059 = s.45 - t3058;
             let t3060 = s.44 * t3059;
-            qdd[5] = t3060;
+            qdd.5 = t3060;
             let t3061 = t3031 + t3060;
             let t3062 = lit::<T>(-4.8965888601467475e-12) * t3061;
             let t3063 = t3045 + t3062;
             let t3064 = lit::<T>(0.001) * t3063;
             let t3065 = s.37 - t3064;
             let t3066 = lit::<T>(1000.0) * t3065;
-            qdd[6] = t3066;
+            qdd.6 = t3066;
         }
     }
     use fd_part1::fd_part1;
@@ -13983,6 +14017,17 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 7 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f7<T>(T, T, T, T, T, T, T);
+    /// An array of 49 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -13996,6 +14041,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t8 = q[1].sin();
             s.0 = t8;
             let t9 = q[1].cos();
@@ -16235,7 +16287,7 @@ pub mod portable {
             let t2039 = t1988 * t2036;
             let t2040 = t2038 + t2039;
             let t2041 = t1991 * t2040;
-            qdd[0] = t2041;
+            qdd.0 = t2041;
             let t2042 = t1987 * t2036;
             let t2043 = t1978 * t2030;
             let t2044 = t1962 * t2022;
@@ -16244,19 +16296,19 @@ pub mod portable {
             let t2047 = lit::<T>(-1000.0) * t1998;
             let t2048 = t1988 * t2041;
             let t2049 = t2042 + t2048;
-            qdd[1] = t2049;
+            qdd.1 = t2049;
             let t2050 = t1979 * t2049;
             let t2051 = t2043 + t2050;
             let t2052 = t1984 * t2041;
             let t2053 = t2051 + t2052;
-            qdd[2] = t2053;
+            qdd.2 = t2053;
             let t2054 = t1963 * t2053;
             let t2055 = t2044 + t2054;
             let t2056 = t1970 * t2049;
             let t2057 = t2055 + t2056;
             let t2058 = t1975 * t2041;
             let t2059 = t2057 + t2058;
-            qdd[3] = t2059;
+            qdd.3 = t2059;
             let t2060 = t1938 * t2059;
             let t2061 = t2045 + t2060;
             let t2062 = t1947 * t2053;
@@ -16265,7 +16317,7 @@ pub mod portable {
             let t2065 = t2063 + t2064;
             let t2066 = t1959 * t2041;
             let t2067 = t2065 + t2066;
-            qdd[4] = t2067;
+            qdd.4 = t2067;
             let t2068 = t1902 * t2067;
             let t2069 = t2046 + t2068;
             let t2070 = t1913 * t2059;
@@ -16276,7 +16328,7 @@ pub mod portable {
             let t2075 = t2073 + t2074;
             let t2076 = t1934 * t2041;
             let t2077 = t2075 + t2076;
-            qdd[5] = t2077;
+            qdd.5 = t2077;
             let t2078 = lit::<T>(-4.8965888601467475e-12) * t2077;
             let t2079 = t2047 - t2078;
             let t2080 = t1866 * t2067;
@@ -16289,7 +16341,7 @@ pub mod portable {
             let t2087 = t2085 + t2086;
             let t2088 = t1898 * t2041;
             let t2089 = t2087 + t2088;
-            qdd[6] = t2089;
+            qdd.6 = t2089;
             let t2090 = t8 * t2041;
             let t2091 = t9 * t2041;
             let t2092 = lit::<T>(4.8965888601467475e-12) * t2041;
@@ -16870,6 +16922,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t2606 = -s.350;
             let t2607 = s.154 * s.154;
             let t2608 = t2606 - t2607;
@@ -19536,6 +19595,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t5106 = s.499 + s.500;
             let t5107 = s.467 + t5106;
             let t5108 = s.2 * s.477;
@@ -20319,7 +20385,7 @@ pub mod portable {
             let t5886 = s.301 * t5883;
             let t5887 = t5885 + t5886;
             let t5888 = s.302 * t5887;
-            dqdd_dq[0][1] = t5888;
+            dqdd_dq.1 = t5888;
             let t5889 = s.300 * t5883;
             let t5890 = s.297 * t5877;
             let t5891 = s.293 * t5869;
@@ -20328,19 +20394,19 @@ pub mod portable {
             let t5894 = lit::<T>(-1000.0) * t5721;
             let t5895 = s.301 * t5888;
             let t5896 = t5889 + t5895;
-            dqdd_dq[1][1] = t5896;
+            dqdd_dq.8 = t5896;
             let t5897 = s.298 * t5896;
             let t5898 = t5890 + t5897;
             let t5899 = s.299 * t5888;
             let t5900 = t5898 + t5899;
-            dqdd_dq[2][1] = t5900;
+            dqdd_dq.15 = t5900;
             let t5901 = s.294 * t5900;
             let t5902 = t5891 + t5901;
             let t5903 = s.295 * t5896;
             let t5904 = t5902 + t5903;
             let t5905 = s.296 * t5888;
             let t5906 = t5904 + t5905;
-            dqdd_dq[3][1] = t5906;
+            dqdd_dq.22 = t5906;
             let t5907 = s.289 * t5906;
             let t5908 = t5892 + t5907;
             let t5909 = s.290 * t5900;
@@ -20349,7 +20415,7 @@ pub mod portable {
             let t5912 = t5910 + t5911;
             let t5913 = s.292 * t5888;
             let t5914 = t5912 + t5913;
-            dqdd_dq[4][1] = t5914;
+            dqdd_dq.29 = t5914;
             let t5915 = s.283 * t5914;
             let t5916 = t5893 + t5915;
             let t5917 = s.284 * t5906;
@@ -20360,7 +20426,7 @@ pub mod portable {
             let t5922 = t5920 + t5921;
             let t5923 = s.287 * t5888;
             let t5924 = t5922 + t5923;
-            dqdd_dq[5][1] = t5924;
+            dqdd_dq.36 = t5924;
             let t5925 = lit::<T>(-4.8965888601467475e-12) * t5924;
             let t5926 = t5894 - t5925;
             let t5927 = s.277 * t5914;
@@ -20373,7 +20439,7 @@ pub mod portable {
             let t5934 = t5932 + t5933;
             let t5935 = s.281 * t5888;
             let t5936 = t5934 + t5935;
-            dqdd_dq[6][1] = t5936;
+            dqdd_dq.43 = t5936;
             let t5937 = lit::<T>(-4.8965888601467475e-12) * s.487;
             let t5938 = s.485 - t5937;
             let t5939 = s.277 * s.487;
@@ -20417,7 +20483,7 @@ pub mod portable {
             let t5977 = s.301 * t5974;
             let t5978 = t5976 + t5977;
             let t5979 = s.302 * t5978;
-            dqdd_dq[0][2] = t5979;
+            dqdd_dq.2 = t5979;
             let t5980 = s.300 * t5974;
             let t5981 = s.297 * t5968;
             let t5982 = s.293 * t5960;
@@ -20426,19 +20492,19 @@ pub mod portable {
             let t5985 = lit::<T>(-1000.0) * s.487;
             let t5986 = s.301 * t5979;
             let t5987 = t5980 + t5986;
-            dqdd_dq[1][2] = t5987;
+            dqdd_dq.9 = t5987;
             let t5988 = s.298 * t5987;
             let t5989 = t5981 + t5988;
             let t5990 = s.299 * t5979;
             let t5991 = t5989 + t5990;
-            dqdd_dq[2][2] = t5991;
+            dqdd_dq.16 = t5991;
             let t5992 = s.294 * t5991;
             let t5993 = t5982 + t5992;
             let t5994 = s.295 * t5987;
             let t5995 = t5993 + t5994;
             let t5996 = s.296 * t5979;
             let t5997 = t5995 + t5996;
-            dqdd_dq[3][2] = t5997;
+            dqdd_dq.23 = t5997;
             let t5998 = s.289 * t5997;
             let t5999 = t5983 + t5998;
             let t6000 = s.290 * t5991;
@@ -20447,7 +20513,7 @@ pub mod portable {
             let t6003 = t6001 + t6002;
             let t6004 = s.292 * t5979;
             let t6005 = t6003 + t6004;
-            dqdd_dq[4][2] = t6005;
+            dqdd_dq.30 = t6005;
             let t6006 = s.283 * t6005;
             let t6007 = t5984 + t6006;
             let t6008 = s.284 * t5997;
@@ -20458,7 +20524,7 @@ pub mod portable {
             let t6013 = t6011 + t6012;
             let t6014 = s.287 * t5979;
             let t6015 = t6013 + t6014;
-            dqdd_dq[5][2] = t6015;
+            dqdd_dq.37 = t6015;
             let t6016 = lit::<T>(-4.8965888601467475e-12) * t6015;
             let t6017 = t5985 - t6016;
             let t6018 = s.277 * t6005;
@@ -20471,7 +20537,7 @@ pub mod portable {
             let t6025 = t6023 + t6024;
             let t6026 = s.281 * t5979;
             let t6027 = t6025 + t6026;
-            dqdd_dq[6][2] = t6027;
+            dqdd_dq.44 = t6027;
             let t6028 = lit::<T>(-4.8965888601467475e-12) * s.391;
             let t6029 = s.389 - t6028;
             let t6030 = s.277 * s.391;
@@ -20515,7 +20581,7 @@ pub mod portable {
             let t6068 = s.301 * t6065;
             let t6069 = t6067 + t6068;
             let t6070 = s.302 * t6069;
-            dqdd_dq[0][3] = t6070;
+            dqdd_dq.3 = t6070;
             let t6071 = s.300 * t6065;
             let t6072 = s.297 * t6059;
             let t6073 = s.293 * t6051;
@@ -20524,19 +20590,19 @@ pub mod portable {
             let t6076 = lit::<T>(-1000.0) * s.391;
             let t6077 = s.301 * t6070;
             let t6078 = t6071 + t6077;
-            dqdd_dq[1][3] = t6078;
+            dqdd_dq.10 = t6078;
             let t6079 = s.298 * t6078;
             let t6080 = t6072 + t6079;
             let t6081 = s.299 * t6070;
             let t6082 = t6080 + t6081;
-            dqdd_dq[2][3] = t6082;
+            dqdd_dq.17 = t6082;
             let t6083 = s.294 * t6082;
             let t6084 = t6073 + t6083;
             let t6085 = s.295 * t6078;
             let t6086 = t6084 + t6085;
             let t6087 = s.296 * t6070;
             let t6088 = t6086 + t6087;
-            dqdd_dq[3][3] = t6088;
+            dqdd_dq.24 = t6088;
             let t6089 = s.289 * t6088;
             let t6090 = t6074 + t6089;
             let t6091 = s.290 * t6082;
@@ -20545,7 +20611,7 @@ pub mod portable {
             let t6094 = t6092 + t6093;
             let t6095 = s.292 * t6070;
             let t6096 = t6094 + t6095;
-            dqdd_dq[4][3] = t6096;
+            dqdd_dq.31 = t6096;
             let t6097 = s.283 * t6096;
             let t6098 = t6075 + t6097;
             let t6099 = s.284 * t6088;
@@ -20556,7 +20622,7 @@ pub mod portable {
             let t6104 = t6102 + t6103;
             let t6105 = s.287 * t6070;
             let t6106 = t6104 + t6105;
-            dqdd_dq[5][3] = t6106;
+            dqdd_dq.38 = t6106;
             let t6107 = lit::<T>(-4.8965888601467475e-12) * t6106;
             let t6108 = t6076 - t6107;
             let t6109 = s.277 * t6096;
@@ -20569,7 +20635,7 @@ pub mod portable {
             let t6116 = t6114 + t6115;
             let t6117 = s.281 * t6070;
             let t6118 = t6116 + t6117;
-            dqdd_dq[6][3] = t6118;
+            dqdd_dq.45 = t6118;
             let t6119 = lit::<T>(-4.8965888601467475e-12) * s.377;
             let t6120 = s.375 - t6119;
             let t6121 = s.277 * s.377;
@@ -20613,7 +20679,7 @@ pub mod portable {
             let t6159 = s.301 * t6156;
             let t6160 = t6158 + t6159;
             let t6161 = s.302 * t6160;
-            dqdd_dq[0][4] = t6161;
+            dqdd_dq.4 = t6161;
             let t6162 = s.300 * t6156;
             let t6163 = s.297 * t6150;
             let t6164 = s.293 * t6142;
@@ -20622,19 +20688,19 @@ pub mod portable {
             let t6167 = lit::<T>(-1000.0) * s.377;
             let t6168 = s.301 * t6161;
             let t6169 = t6162 + t6168;
-            dqdd_dq[1][4] = t6169;
+            dqdd_dq.11 = t6169;
             let t6170 = s.298 * t6169;
             let t6171 = t6163 + t6170;
             let t6172 = s.299 * t6161;
             let t6173 = t6171 + t6172;
-            dqdd_dq[2][4] = t6173;
+            dqdd_dq.18 = t6173;
             let t6174 = s.294 * t6173;
             let t6175 = t6164 + t6174;
             let t6176 = s.295 * t6169;
             let t6177 = t6175 + t6176;
             let t6178 = s.296 * t6161;
             let t6179 = t6177 + t6178;
-            dqdd_dq[3][4] = t6179;
+            dqdd_dq.25 = t6179;
             let t6180 = s.289 * t6179;
             let t6181 = t6165 + t6180;
             let t6182 = s.290 * t6173;
@@ -20643,7 +20709,7 @@ pub mod portable {
             let t6185 = t6183 + t6184;
             let t6186 = s.292 * t6161;
             let t6187 = t6185 + t6186;
-            dqdd_dq[4][4] = t6187;
+            dqdd_dq.32 = t6187;
             let t6188 = s.283 * t6187;
             let t6189 = t6166 + t6188;
             let t6190 = s.284 * t6179;
@@ -20654,7 +20720,7 @@ pub mod portable {
             let t6195 = t6193 + t6194;
             let t6196 = s.287 * t6161;
             let t6197 = t6195 + t6196;
-            dqdd_dq[5][4] = t6197;
+            dqdd_dq.39 = t6197;
             let t6198 = lit::<T>(-4.8965888601467475e-12) * t6197;
             let t6199 = t6167 - t6198;
             let t6200 = s.277 * t6187;
@@ -20667,7 +20733,7 @@ pub mod portable {
             let t6207 = t6205 + t6206;
             let t6208 = s.281 * t6161;
             let t6209 = t6207 + t6208;
-            dqdd_dq[6][4] = t6209;
+            dqdd_dq.46 = t6209;
             let t6210 = lit::<T>(-4.8965888601467475e-12) * s.367;
             let t6211 = s.365 - t6210;
             let t6212 = s.277 * s.367;
@@ -20711,7 +20777,7 @@ pub mod portable {
             let t6250 = s.301 * t6247;
             let t6251 = t6249 + t6250;
             let t6252 = s.302 * t6251;
-            dqdd_dq[0][5] = t6252;
+            dqdd_dq.5 = t6252;
             let t6253 = s.300 * t6247;
             let t6254 = s.297 * t6241;
             let t6255 = s.293 * t6233;
@@ -20720,19 +20786,19 @@ pub mod portable {
             let t6258 = lit::<T>(-1000.0) * s.367;
             let t6259 = s.301 * t6252;
             let t6260 = t6253 + t6259;
-            dqdd_dq[1][5] = t6260;
+            dqdd_dq.12 = t6260;
             let t6261 = s.298 * t6260;
             let t6262 = t6254 + t6261;
             let t6263 = s.299 * t6252;
             let t6264 = t6262 + t6263;
-            dqdd_dq[2][5] = t6264;
+            dqdd_dq.19 = t6264;
             let t6265 = s.294 * t6264;
             let t6266 = t6255 + t6265;
             let t6267 = s.295 * t6260;
             let t6268 = t6266 + t6267;
             let t6269 = s.296 * t6252;
             let t6270 = t6268 + t6269;
-            dqdd_dq[3][5] = t6270;
+            dqdd_dq.26 = t6270;
             let t6271 = s.289 * t6270;
             let t6272 = t6256 + t6271;
             let t6273 = s.290 * t6264;
@@ -20741,7 +20807,7 @@ pub mod portable {
             let t6276 = t6274 + t6275;
             let t6277 = s.292 * t6252;
             let t6278 = t6276 + t6277;
-            dqdd_dq[4][5] = t6278;
+            dqdd_dq.33 = t6278;
             let t6279 = s.283 * t6278;
             let t6280 = t6257 + t6279;
             let t6281 = s.284 * t6270;
@@ -20752,7 +20818,7 @@ pub mod portable {
             let t6286 = t6284 + t6285;
             let t6287 = s.287 * t6252;
             let t6288 = t6286 + t6287;
-            dqdd_dq[5][5] = t6288;
+            dqdd_dq.40 = t6288;
             let t6289 = lit::<T>(-4.8965888601467475e-12) * t6288;
             let t6290 = t6258 - t6289;
             let t6291 = s.277 * t6278;
@@ -20765,7 +20831,7 @@ pub mod portable {
             let t6298 = t6296 + t6297;
             let t6299 = s.281 * t6252;
             let t6300 = t6298 + t6299;
-            dqdd_dq[6][5] = t6300;
+            dqdd_dq.47 = t6300;
             let t6301 = lit::<T>(-4.8965888601467475e-12) * s.361;
             let t6302 = s.364 - t6301;
             let t6303 = s.277 * s.361;
@@ -20809,7 +20875,7 @@ pub mod portable {
             let t6341 = s.301 * t6338;
             let t6342 = t6340 + t6341;
             let t6343 = s.302 * t6342;
-            dqdd_dq[0][6] = t6343;
+            dqdd_dq.6 = t6343;
             let t6344 = s.300 * t6338;
             let t6345 = s.297 * t6332;
             let t6346 = s.293 * t6324;
@@ -20818,19 +20884,19 @@ pub mod portable {
             let t6349 = lit::<T>(-1000.0) * s.361;
             let t6350 = s.301 * t6343;
             let t6351 = t6344 + t6350;
-            dqdd_dq[1][6] = t6351;
+            dqdd_dq.13 = t6351;
             let t6352 = s.298 * t6351;
             let t6353 = t6345 + t6352;
             let t6354 = s.299 * t6343;
             let t6355 = t6353 + t6354;
-            dqdd_dq[2][6] = t6355;
+            dqdd_dq.20 = t6355;
             let t6356 = s.294 * t6355;
             let t6357 = t6346 + t6356;
             let t6358 = s.295 * t6351;
             let t6359 = t6357 + t6358;
             let t6360 = s.296 * t6343;
             let t6361 = t6359 + t6360;
-            dqdd_dq[3][6] = t6361;
+            dqdd_dq.27 = t6361;
             let t6362 = s.289 * t6361;
             let t6363 = t6347 + t6362;
             let t6364 = s.290 * t6355;
@@ -20839,7 +20905,7 @@ pub mod portable {
             let t6367 = t6365 + t6366;
             let t6368 = s.292 * t6343;
             let t6369 = t6367 + t6368;
-            dqdd_dq[4][6] = t6369;
+            dqdd_dq.34 = t6369;
             let t6370 = s.283 * t6369;
             let t6371 = t6348 + t6370;
             let t6372 = s.284 * t6361;
@@ -20850,7 +20916,7 @@ pub mod portable {
             let t6377 = t6375 + t6376;
             let t6378 = s.287 * t6343;
             let t6379 = t6377 + t6378;
-            dqdd_dq[5][6] = t6379;
+            dqdd_dq.41 = t6379;
             let t6380 = lit::<T>(-4.8965888601467475e-12) * t6379;
             let t6381 = t6349 - t6380;
             let t6382 = s.277 * t6369;
@@ -20863,7 +20929,7 @@ pub mod portable {
             let t6389 = t6387 + t6388;
             let t6390 = s.281 * t6343;
             let t6391 = t6389 + t6390;
-            dqdd_dq[6][6] = t6391;
+            dqdd_dq.48 = t6391;
             let t6392 = lit::<T>(-4.8965888601467475e-12) * t5816;
             let t6393 = t5801 - t6392;
             let t6394 = s.277 * t5816;
@@ -20907,7 +20973,7 @@ pub mod portable {
             let t6432 = s.301 * t6429;
             let t6433 = t6431 + t6432;
             let t6434 = s.302 * t6433;
-            dqdd_dqd[0][0] = t6434;
+            dqdd_dqd.0 = t6434;
             let t6435 = s.300 * t6429;
             let t6436 = s.297 * t6423;
             let t6437 = s.293 * t6415;
@@ -20916,19 +20982,19 @@ pub mod portable {
             let t6440 = lit::<T>(-1000.0) * t5816;
             let t6441 = s.301 * t6434;
             let t6442 = t6435 + t6441;
-            dqdd_dqd[1][0] = t6442;
+            dqdd_dqd.7 = t6442;
             let t6443 = s.298 * t6442;
             let t6444 = t6436 + t6443;
             let t6445 = s.299 * t6434;
             let t6446 = t6444 + t6445;
-            dqdd_dqd[2][0] = t6446;
+            dqdd_dqd.14 = t6446;
             let t6447 = s.294 * t6446;
             let t6448 = t6437 + t6447;
             let t6449 = s.295 * t6442;
             let t6450 = t6448 + t6449;
             let t6451 = s.296 * t6434;
             let t6452 = t6450 + t6451;
-            dqdd_dqd[3][0] = t6452;
+            dqdd_dqd.21 = t6452;
             let t6453 = s.289 * t6452;
             let t6454 = t6438 + t6453;
             let t6455 = s.290 * t6446;
@@ -20937,7 +21003,7 @@ pub mod portable {
             let t6458 = t6456 + t6457;
             let t6459 = s.292 * t6434;
             let t6460 = t6458 + t6459;
-            dqdd_dqd[4][0] = t6460;
+            dqdd_dqd.28 = t6460;
             let t6461 = s.283 * t6460;
             let t6462 = t6439 + t6461;
             let t6463 = s.284 * t6452;
@@ -20948,7 +21014,7 @@ pub mod portable {
             let t6468 = t6466 + t6467;
             let t6469 = s.287 * t6434;
             let t6470 = t6468 + t6469;
-            dqdd_dqd[5][0] = t6470;
+            dqdd_dqd.35 = t6470;
             let t6471 = lit::<T>(-4.8965888601467475e-12) * t6470;
             let t6472 = t6440 - t6471;
             let t6473 = s.277 * t6460;
@@ -20961,7 +21027,7 @@ pub mod portable {
             let t6480 = t6478 + t6479;
             let t6481 = s.281 * t6434;
             let t6482 = t6480 + t6481;
-            dqdd_dqd[6][0] = t6482;
+            dqdd_dqd.42 = t6482;
             let t6483 = lit::<T>(-4.8965888601467475e-12) * t5726;
             let t6484 = t5712 - t6483;
             let t6485 = s.277 * t5726;
@@ -21005,7 +21071,7 @@ pub mod portable {
             let t6523 = s.301 * t6520;
             let t6524 = t6522 + t6523;
             let t6525 = s.302 * t6524;
-            dqdd_dqd[0][1] = t6525;
+            dqdd_dqd.1 = t6525;
             let t6526 = s.300 * t6520;
             let t6527 = s.297 * t6514;
             let t6528 = s.293 * t6506;
@@ -21014,19 +21080,19 @@ pub mod portable {
             let t6531 = lit::<T>(-1000.0) * t5726;
             let t6532 = s.301 * t6525;
             let t6533 = t6526 + t6532;
-            dqdd_dqd[1][1] = t6533;
+            dqdd_dqd.8 = t6533;
             let t6534 = s.298 * t6533;
             let t6535 = t6527 + t6534;
             let t6536 = s.299 * t6525;
             let t6537 = t6535 + t6536;
-            dqdd_dqd[2][1] = t6537;
+            dqdd_dqd.15 = t6537;
             let t6538 = s.294 * t6537;
             let t6539 = t6528 + t6538;
             let t6540 = s.295 * t6533;
             let t6541 = t6539 + t6540;
             let t6542 = s.296 * t6525;
             let t6543 = t6541 + t6542;
-            dqdd_dqd[3][1] = t6543;
+            dqdd_dqd.22 = t6543;
             let t6544 = s.289 * t6543;
             let t6545 = t6529 + t6544;
             let t6546 = s.290 * t6537;
@@ -21035,7 +21101,7 @@ pub mod portable {
             let t6549 = t6547 + t6548;
             let t6550 = s.292 * t6525;
             let t6551 = t6549 + t6550;
-            dqdd_dqd[4][1] = t6551;
+            dqdd_dqd.29 = t6551;
             let t6552 = s.283 * t6551;
             let t6553 = t6530 + t6552;
             let t6554 = s.284 * t6543;
@@ -21046,7 +21112,7 @@ pub mod portable {
             let t6559 = t6557 + t6558;
             let t6560 = s.287 * t6525;
             let t6561 = t6559 + t6560;
-            dqdd_dqd[5][1] = t6561;
+            dqdd_dqd.36 = t6561;
             let t6562 = lit::<T>(-4.8965888601467475e-12) * t6561;
             let t6563 = t6531 - t6562;
             let t6564 = s.277 * t6551;
@@ -21059,7 +21125,7 @@ pub mod portable {
             let t6571 = t6569 + t6570;
             let t6572 = s.281 * t6525;
             let t6573 = t6571 + t6572;
-            dqdd_dqd[6][1] = t6573;
+            dqdd_dqd.43 = t6573;
             let t6574 = lit::<T>(-4.8965888601467475e-12) * s.488;
             let t6575 = s.486 - t6574;
             let t6576 = s.277 * s.488;
@@ -21103,7 +21169,7 @@ pub mod portable {
             let t6614 = s.301 * t6611;
             let t6615 = t6613 + t6614;
             let t6616 = s.302 * t6615;
-            dqdd_dqd[0][2] = t6616;
+            dqdd_dqd.2 = t6616;
             let t6617 = s.300 * t6611;
             let t6618 = s.297 * t6605;
             let t6619 = s.293 * t6597;
@@ -21112,19 +21178,19 @@ pub mod portable {
             let t6622 = lit::<T>(-1000.0) * s.488;
             let t6623 = s.301 * t6616;
             let t6624 = t6617 + t6623;
-            dqdd_dqd[1][2] = t6624;
+            dqdd_dqd.9 = t6624;
             let t6625 = s.298 * t6624;
             let t6626 = t6618 + t6625;
             let t6627 = s.299 * t6616;
             let t6628 = t6626 + t6627;
-            dqdd_dqd[2][2] = t6628;
+            dqdd_dqd.16 = t6628;
             let t6629 = s.294 * t6628;
             let t6630 = t6619 + t6629;
             let t6631 = s.295 * t6624;
             let t6632 = t6630 + t6631;
             let t6633 = s.296 * t6616;
             let t6634 = t6632 + t6633;
-            dqdd_dqd[3][2] = t6634;
+            dqdd_dqd.23 = t6634;
             let t6635 = s.289 * t6634;
             let t6636 = t6620 + t6635;
             let t6637 = s.290 * t6628;
@@ -21133,7 +21199,7 @@ pub mod portable {
             let t6640 = t6638 + t6639;
             let t6641 = s.292 * t6616;
             let t6642 = t6640 + t6641;
-            dqdd_dqd[4][2] = t6642;
+            dqdd_dqd.30 = t6642;
             let t6643 = s.283 * t6642;
             let t6644 = t6621 + t6643;
             let t6645 = s.284 * t6634;
@@ -21144,7 +21210,7 @@ pub mod portable {
             let t6650 = t6648 + t6649;
             let t6651 = s.287 * t6616;
             let t6652 = t6650 + t6651;
-            dqdd_dqd[5][2] = t6652;
+            dqdd_dqd.37 = t6652;
             let t6653 = lit::<T>(-4.8965888601467475e-12) * t6652;
             let t6654 = t6622 - t6653;
             let t6655 = s.277 * t6642;
@@ -21157,7 +21223,7 @@ pub mod portable {
             let t6662 = t6660 + t6661;
             let t6663 = s.281 * t6616;
             let t6664 = t6662 + t6663;
-            dqdd_dqd[6][2] = t6664;
+            dqdd_dqd.44 = t6664;
             let t6665 = lit::<T>(-4.8965888601467475e-12) * s.392;
             let t6666 = s.390 - t6665;
             let t6667 = s.277 * s.392;
@@ -21201,7 +21267,7 @@ pub mod portable {
             let t6705 = s.301 * t6702;
             let t6706 = t6704 + t6705;
             let t6707 = s.302 * t6706;
-            dqdd_dqd[0][3] = t6707;
+            dqdd_dqd.3 = t6707;
             let t6708 = s.300 * t6702;
             let t6709 = s.297 * t6696;
             let t6710 = s.293 * t6688;
@@ -21210,19 +21276,19 @@ pub mod portable {
             let t6713 = lit::<T>(-1000.0) * s.392;
             let t6714 = s.301 * t6707;
             let t6715 = t6708 + t6714;
-            dqdd_dqd[1][3] = t6715;
+            dqdd_dqd.10 = t6715;
             let t6716 = s.298 * t6715;
             let t6717 = t6709 + t6716;
             let t6718 = s.299 * t6707;
             let t6719 = t6717 + t6718;
-            dqdd_dqd[2][3] = t6719;
+            dqdd_dqd.17 = t6719;
             let t6720 = s.294 * t6719;
             let t6721 = t6710 + t6720;
             let t6722 = s.295 * t6715;
             let t6723 = t6721 + t6722;
             let t6724 = s.296 * t6707;
             let t6725 = t6723 + t6724;
-            dqdd_dqd[3][3] = t6725;
+            dqdd_dqd.24 = t6725;
             let t6726 = s.289 * t6725;
             let t6727 = t6711 + t6726;
             let t6728 = s.290 * t6719;
@@ -21231,7 +21297,7 @@ pub mod portable {
             let t6731 = t6729 + t6730;
             let t6732 = s.292 * t6707;
             let t6733 = t6731 + t6732;
-            dqdd_dqd[4][3] = t6733;
+            dqdd_dqd.31 = t6733;
             let t6734 = s.283 * t6733;
             let t6735 = t6712 + t6734;
             let t6736 = s.284 * t6725;
@@ -21242,7 +21308,7 @@ pub mod portable {
             let t6741 = t6739 + t6740;
             let t6742 = s.287 * t6707;
             let t6743 = t6741 + t6742;
-            dqdd_dqd[5][3] = t6743;
+            dqdd_dqd.38 = t6743;
             let t6744 = lit::<T>(-4.8965888601467475e-12) * t6743;
             let t6745 = t6713 - t6744;
             let t6746 = s.277 * t6733;
@@ -21255,7 +21321,7 @@ pub mod portable {
             let t6753 = t6751 + t6752;
             let t6754 = s.281 * t6707;
             let t6755 = t6753 + t6754;
-            dqdd_dqd[6][3] = t6755;
+            dqdd_dqd.45 = t6755;
             let t6756 = lit::<T>(-4.8965888601467475e-12) * s.378;
             let t6757 = s.376 - t6756;
             let t6758 = s.277 * s.378;
@@ -21299,7 +21365,7 @@ pub mod portable {
             let t6796 = s.301 * t6793;
             let t6797 = t6795 + t6796;
             let t6798 = s.302 * t6797;
-            dqdd_dqd[0][4] = t6798;
+            dqdd_dqd.4 = t6798;
             let t6799 = s.300 * t6793;
             let t6800 = s.297 * t6787;
             let t6801 = s.293 * t6779;
@@ -21308,19 +21374,19 @@ pub mod portable {
             let t6804 = lit::<T>(-1000.0) * s.378;
             let t6805 = s.301 * t6798;
             let t6806 = t6799 + t6805;
-            dqdd_dqd[1][4] = t6806;
+            dqdd_dqd.11 = t6806;
             let t6807 = s.298 * t6806;
             let t6808 = t6800 + t6807;
             let t6809 = s.299 * t6798;
             let t6810 = t6808 + t6809;
-            dqdd_dqd[2][4] = t6810;
+            dqdd_dqd.18 = t6810;
             let t6811 = s.294 * t6810;
             let t6812 = t6801 + t6811;
             let t6813 = s.295 * t6806;
             let t6814 = t6812 + t6813;
             let t6815 = s.296 * t6798;
             let t6816 = t6814 + t6815;
-            dqdd_dqd[3][4] = t6816;
+            dqdd_dqd.25 = t6816;
             let t6817 = s.289 * t6816;
             let t6818 = t6802 + t6817;
             let t6819 = s.290 * t6810;
@@ -21329,7 +21395,7 @@ pub mod portable {
             let t6822 = t6820 + t6821;
             let t6823 = s.292 * t6798;
             let t6824 = t6822 + t6823;
-            dqdd_dqd[4][4] = t6824;
+            dqdd_dqd.32 = t6824;
             let t6825 = s.283 * t6824;
             let t6826 = t6803 + t6825;
             let t6827 = s.284 * t6816;
@@ -21340,7 +21406,7 @@ pub mod portable {
             let t6832 = t6830 + t6831;
             let t6833 = s.287 * t6798;
             let t6834 = t6832 + t6833;
-            dqdd_dqd[5][4] = t6834;
+            dqdd_dqd.39 = t6834;
             let t6835 = lit::<T>(-4.8965888601467475e-12) * t6834;
             let t6836 = t6804 - t6835;
             let t6837 = s.277 * t6824;
@@ -21353,7 +21419,7 @@ pub mod portable {
             let t6844 = t6842 + t6843;
             let t6845 = s.281 * t6798;
             let t6846 = t6844 + t6845;
-            dqdd_dqd[6][4] = t6846;
+            dqdd_dqd.46 = t6846;
             let t6847 = lit::<T>(-4.8965888601467475e-12) * s.368;
             let t6848 = s.366 - t6847;
             let t6849 = s.277 * s.368;
@@ -21397,7 +21463,7 @@ pub mod portable {
             let t6887 = s.301 * t6884;
             let t6888 = t6886 + t6887;
             let t6889 = s.302 * t6888;
-            dqdd_dqd[0][5] = t6889;
+            dqdd_dqd.5 = t6889;
             let t6890 = s.300 * t6884;
             let t6891 = s.297 * t6878;
             let t6892 = s.293 * t6870;
@@ -21406,19 +21472,19 @@ pub mod portable {
             let t6895 = lit::<T>(-1000.0) * s.368;
             let t6896 = s.301 * t6889;
             let t6897 = t6890 + t6896;
-            dqdd_dqd[1][5] = t6897;
+            dqdd_dqd.12 = t6897;
             let t6898 = s.298 * t6897;
             let t6899 = t6891 + t6898;
             let t6900 = s.299 * t6889;
             let t6901 = t6899 + t6900;
-            dqdd_dqd[2][5] = t6901;
+            dqdd_dqd.19 = t6901;
             let t6902 = s.294 * t6901;
             let t6903 = t6892 + t6902;
             let t6904 = s.295 * t6897;
             let t6905 = t6903 + t6904;
             let t6906 = s.296 * t6889;
             let t6907 = t6905 + t6906;
-            dqdd_dqd[3][5] = t6907;
+            dqdd_dqd.26 = t6907;
             let t6908 = s.289 * t6907;
             let t6909 = t6893 + t6908;
             let t6910 = s.290 * t6901;
@@ -21427,7 +21493,7 @@ pub mod portable {
             let t6913 = t6911 + t6912;
             let t6914 = s.292 * t6889;
             let t6915 = t6913 + t6914;
-            dqdd_dqd[4][5] = t6915;
+            dqdd_dqd.33 = t6915;
             let t6916 = s.283 * t6915;
             let t6917 = t6894 + t6916;
             let t6918 = s.284 * t6907;
@@ -21438,7 +21504,7 @@ pub mod portable {
             let t6923 = t6921 + t6922;
             let t6924 = s.287 * t6889;
             let t6925 = t6923 + t6924;
-            dqdd_dqd[5][5] = t6925;
+            dqdd_dqd.40 = t6925;
             let t6926 = lit::<T>(-4.8965888601467475e-12) * t6925;
             let t6927 = t6895 - t6926;
             let t6928 = s.277 * t6915;
@@ -21451,7 +21517,7 @@ pub mod portable {
             let t6935 = t6933 + t6934;
             let t6936 = s.281 * t6889;
             let t6937 = t6935 + t6936;
-            dqdd_dqd[6][5] = t6937;
+            dqdd_dqd.47 = t6937;
             let t6938 = s.363 - s.362;
             let t6939 = s.277 * s.360;
             let t6940 = s.371 + t6939;
@@ -21494,7 +21560,7 @@ pub mod portable {
             let t6977 = s.301 * t6974;
             let t6978 = t6976 + t6977;
             let t6979 = s.302 * t6978;
-            dqdd_dqd[0][6] = t6979;
+            dqdd_dqd.6 = t6979;
             let t6980 = s.300 * t6974;
             let t6981 = s.297 * t6968;
             let t6982 = s.293 * t6960;
@@ -21503,19 +21569,19 @@ pub mod portable {
             let t6985 = lit::<T>(-1000.0) * s.360;
             let t6986 = s.301 * t6979;
             let t6987 = t6980 + t6986;
-            dqdd_dqd[1][6] = t6987;
+            dqdd_dqd.13 = t6987;
             let t6988 = s.298 * t6987;
             let t6989 = t6981 + t6988;
             let t6990 = s.299 * t6979;
             let t6991 = t6989 + t6990;
-            dqdd_dqd[2][6] = t6991;
+            dqdd_dqd.20 = t6991;
             let t6992 = s.294 * t6991;
             let t6993 = t6982 + t6992;
             let t6994 = s.295 * t6987;
             let t6995 = t6993 + t6994;
             let t6996 = s.296 * t6979;
             let t6997 = t6995 + t6996;
-            dqdd_dqd[3][6] = t6997;
+            dqdd_dqd.27 = t6997;
             let t6998 = s.289 * t6997;
             let t6999 = t6983 + t6998;
             let t7000 = s.290 * t6991;
@@ -21524,7 +21590,7 @@ pub mod portable {
             let t7003 = t7001 + t7002;
             let t7004 = s.292 * t6979;
             let t7005 = t7003 + t7004;
-            dqdd_dqd[4][6] = t7005;
+            dqdd_dqd.34 = t7005;
             let t7006 = s.283 * t7005;
             let t7007 = t6984 + t7006;
             let t7008 = s.284 * t6997;
@@ -21535,7 +21601,7 @@ pub mod portable {
             let t7013 = t7011 + t7012;
             let t7014 = s.287 * t6979;
             let t7015 = t7013 + t7014;
-            dqdd_dqd[5][6] = t7015;
+            dqdd_dqd.41 = t7015;
             let t7016 = lit::<T>(-4.8965888601467475e-12) * t7015;
             let t7017 = t6985 - t7016;
             let t7018 = s.277 * t7005;
@@ -21548,7 +21614,7 @@ pub mod portable {
             let t7025 = t7023 + t7024;
             let t7026 = s.281 * t6979;
             let t7027 = t7025 + t7026;
-            dqdd_dqd[6][6] = t7027;
+            dqdd_dqd.48 = t7027;
         }
     }
     use fd_grad_part2::fd_grad_part2;
@@ -22413,6 +22479,13 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T,
     );
+    /// An array of 49 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -22426,6 +22499,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
             let t6 = q[1].sin();
             s.0 = t6;
             let t7 = q[1].cos();
@@ -23467,7 +23546,7 @@ pub mod fma {
             let t1398 = t1397 - t891;
             let t1399 = t1393 + t1393;
             let t1400 = t1394 - t1399;
-            dc_dqd[6][6] = t1400;
+            dc_dqd.48 = t1400;
             let t1401 = -t895;
             let t1402 = t891 - t888;
             let t1403 = t1401 - t893;
@@ -23538,7 +23617,7 @@ pub mod fma {
             let t1478 = t830 * t1476;
             let t1479 = T::mul_add(t835, t1475, -t1478);
             let t1480 = t1406 + t1479;
-            dc_dq[6][6] = t1480;
+            dc_dq.48 = t1480;
             let t1483 = t89 * t1458;
             let t1484 = T::mul_add(t86, t1457, t1483);
             let t1486 = t90 * t1458;
@@ -23556,7 +23635,7 @@ pub mod fma {
             let t1502 = t1500 + t1501;
             let t1505 = T::mul_add(lit::<T>(0.081), t1490, t1493);
             let t1506 = T::mul_add(-lit::<T>(0.081), t1484, t1502);
-            dc_dqd[5][6] = t1506;
+            dc_dqd.41 = t1506;
             let t1508 = t89 * t1474;
             let t1509 = T::mul_add(t86, t1473, t1508);
             let t1511 = t90 * t1474;
@@ -23575,7 +23654,7 @@ pub mod fma {
             let t1530 = T::mul_add(lit::<T>(-4.8965888601467475e-12), t1467, t1528);
             let t1533 = T::mul_add(lit::<T>(0.081), t1518, t1521);
             let t1534 = T::mul_add(-lit::<T>(0.081), t1509, t1530);
-            dc_dq[5][6] = t1534;
+            dc_dq.41 = t1534;
             let t1536 = t89 * t1476;
             let t1537 = T::mul_add(t86, t1475, t1536);
             let t1539 = t90 * t1476;
@@ -23794,22 +23873,22 @@ pub mod fma {
             let t1817 = T::mul_add(t681, t1810, -t1816);
             let t1819 = T::mul_add(-t688, t1812, t1817);
             let t1820 = t1814 + t1819;
-            dc_dq[5][5] = t1820;
+            dc_dq.40 = t1820;
             let t1822 = T::mul_add(t693, lit::<T>(-0.03138), t1689);
             let t1823 = t1822 + t1822;
             let t1824 = t1658 + t1823;
-            dc_dqd[5][5] = t1824;
+            dc_dqd.40 = t1824;
             let t1826 = t1182 * lit::<T>(-4.8965888601467474e-15);
             let t1827 = T::mul_add(lit::<T>(0.001), t1195, t1826);
             let t1829 = t676 * t1541;
             let t1830 = T::mul_add(t681, t1537, -t1829);
             let t1831 = t1827 + t1830;
-            dc_dq[6][5] = t1831;
+            dc_dq.47 = t1831;
             let t1832 = lit::<T>(0.001) * t676;
             let t1833 = -t1832;
             let t1834 = t1833 - t1832;
             let t1835 = t1545 + t1834;
-            dc_dqd[6][5] = t1835;
+            dc_dqd.47 = t1835;
             let t1836 = t71 * lit::<T>(-0.03138);
             let t1837 = t72 * lit::<T>(-0.03138);
             let t1838 = t70 * lit::<T>(-0.03138);
@@ -23839,7 +23918,7 @@ pub mod fma {
             let t1875 = t71 * t1790;
             let t1876 = T::mul_add(t70, t1789, t1875);
             let t1878 = T::mul_add(lit::<T>(4.8965888601467475e-12), t1791, t1876);
-            dc_dqd[4][5] = t1878;
+            dc_dqd.33 = t1878;
             let t1881 = T::mul_add(-lit::<T>(0.2155), t1861, t1869);
             let t1882 = T::mul_add(lit::<T>(0.2155), t1857, t1873);
             let t1884 = t70 * t1809;
@@ -23858,7 +23937,7 @@ pub mod fma {
             let t1903 = t71 * t1807;
             let t1904 = T::mul_add(t70, t1806, t1903);
             let t1906 = T::mul_add(lit::<T>(4.8965888601467475e-12), t1802, t1904);
-            dc_dq[4][5] = t1906;
+            dc_dq.33 = t1906;
             let t1909 = T::mul_add(-lit::<T>(0.2155), t1889, t1897);
             let t1910 = T::mul_add(lit::<T>(0.2155), t1885, t1901);
             let t1911 = t70 * t1812;
@@ -23915,7 +23994,7 @@ pub mod fma {
             let t1958 = T::mul_add(t70, t1505, t1957);
             let t1960 = T::mul_add(lit::<T>(4.8965888601467475e-12), t1506, t1958);
             s.102 = t1960;
-            dc_dqd[4][6] = t1960;
+            dc_dqd.34 = t1960;
             let t1963 = T::mul_add(-lit::<T>(0.2155), t1943, t1951);
             s.103 = t1963;
             let t1964 = T::mul_add(lit::<T>(0.2155), t1939, t1955);
@@ -23940,7 +24019,7 @@ pub mod fma {
             let t1986 = T::mul_add(t70, t1533, t1985);
             let t1988 = T::mul_add(lit::<T>(4.8965888601467475e-12), t1534, t1986);
             s.108 = t1988;
-            dc_dq[4][6] = t1988;
+            dc_dq.34 = t1988;
             let t1991 = T::mul_add(-lit::<T>(0.2155), t1971, t1979);
             s.109 = t1991;
             let t1992 = T::mul_add(lit::<T>(0.2155), t1967, t1983);
@@ -24248,12 +24327,12 @@ pub mod fma {
             let t2356 = T::mul_add(t507, t2348, t2354);
             let t2358 = T::mul_add(-t502, t2349, t2356);
             let t2359 = t2351 + t2358;
-            dc_dq[4][4] = t2359;
+            dc_dq.32 = t2359;
             let t2360 = t2204 - t2209;
             let t2361 = t2360 - t2207;
             let t2362 = t2361 + t2361;
             let t2363 = t2162 + t2362;
-            dc_dqd[4][4] = t2363;
+            dc_dqd.32 = t2363;
             let t2365 = t1174 * t1854;
             let t2366 = T::mul_add(t1173, t1853, t2365);
             let t2368 = T::mul_add(t1161, t1850, t2366);
@@ -24265,27 +24344,27 @@ pub mod fma {
             let t2379 = T::mul_add(-t507, t1911, t2377);
             let t2381 = T::mul_add(-t502, t1912, t2379);
             let t2382 = t2374 + t2381;
-            dc_dq[5][4] = t2382;
+            dc_dq.39 = t2382;
             let t2384 = t490 * t1854;
             let t2385 = T::mul_add(t495, t1853, -t2384);
             let t2387 = T::mul_add(t507, t1836, t2385);
             let t2389 = T::mul_add(-t502, t1837, t2387);
             let t2390 = t2389 + t2389;
             let t2391 = t1925 + t2390;
-            dc_dqd[5][4] = t2391;
+            dc_dqd.39 = t2391;
             let t2392 = t1173 * t1930;
             let t2394 = T::mul_add(t1174, t1933, -t2392);
             let t2396 = T::mul_add(t1161, t1936, t2394);
             let t2398 = t490 * t1999;
             let t2399 = T::mul_add(t495, t1995, -t2398);
             let t2400 = t2396 + t2399;
-            dc_dq[6][4] = t2400;
+            dc_dq.46 = t2400;
             let t2401 = t495 * t1930;
             let t2402 = -t2401;
             let t2404 = T::mul_add(-t490, t1933, t2402);
             let t2405 = t2404 + t2404;
             let t2406 = t2004 + t2405;
-            dc_dqd[6][4] = t2406;
+            dc_dqd.46 = t2406;
             let t2408 = t56 * t2078;
             s.137 = t2408;
             let t2409 = T::mul_add(-t53, t2079, t2408);
@@ -24335,7 +24414,7 @@ pub mod fma {
             s.150 = t2458;
             let t2459 = T::mul_add(-lit::<T>(0.1845), t2434, t2455);
             s.151 = t2459;
-            dc_dqd[3][4] = t2459;
+            dc_dqd.25 = t2459;
             let t2461 = t56 * t2345;
             let t2462 = T::mul_add(t53, t2344, t2461);
             s.152 = t2462;
@@ -24360,7 +24439,7 @@ pub mod fma {
             s.156 = t2486;
             let t2487 = T::mul_add(-lit::<T>(0.1845), t2462, t2483);
             s.157 = t2487;
-            dc_dq[3][4] = t2487;
+            dc_dq.25 = t2487;
             let t2489 = t56 * t2349;
             let t2490 = T::mul_add(t53, t2348, t2489);
             s.158 = t2490;
@@ -24433,7 +24512,7 @@ pub mod fma {
             s.175 = t2567;
             let t2568 = T::mul_add(-lit::<T>(0.1845), t2543, t2564);
             s.176 = t2568;
-            dc_dqd[3][5] = t2568;
+            dc_dqd.26 = t2568;
             let t2570 = t56 * t1889;
             let t2571 = T::mul_add(t53, t1885, t2570);
             s.177 = t2571;
@@ -24476,9 +24555,15 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f49<T>)
+            };
             let t2595 = s.180 + s.183;
             let t2596 = s.182 - s.184;
-            dc_dq[3][5] = t2596;
+            dc_dq.26 = t2596;
             let t2597 = s.10 * s.90;
             let t2599 = T::mul_add(s.12, s.91, -t2597);
             let t2600 = s.11 * s.90;
@@ -24523,7 +24608,7 @@ pub mod fma {
             let t2660 = T::mul_add(lit::<T>(-4.8965888601467475e-12), s.102, t2658);
             let t2663 = T::mul_add(lit::<T>(0.1845), t2648, t2651);
             let t2664 = T::mul_add(-lit::<T>(0.1845), t2639, t2660);
-            dc_dqd[3][6] = t2664;
+            dc_dqd.27 = t2664;
             let t2666 = s.12 * s.106;
             let t2667 = T::mul_add(s.10, s.105, t2666);
             let t2669 = s.13 * s.106;
@@ -24542,7 +24627,7 @@ pub mod fma {
             let t2688 = T::mul_add(lit::<T>(-4.8965888601467475e-12), s.108, t2686);
             let t2691 = T::mul_add(lit::<T>(0.1845), t2676, t2679);
             let t2692 = T::mul_add(-lit::<T>(0.1845), t2667, t2688);
-            dc_dq[3][6] = t2692;
+            dc_dq.27 = t2692;
             let t2694 = s.12 * s.112;
             let t2695 = T::mul_add(s.10, s.111, t2694);
             let t2697 = s.13 * s.112;
@@ -24816,12 +24901,12 @@ pub mod fma {
             let t3062 = T::mul_add(s.35, t3054, t3060);
             let t3064 = T::mul_add(-s.34, t3055, t3062);
             let t3065 = t3057 + t3064;
-            dc_dq[3][3] = t3065;
+            dc_dq.24 = t3065;
             let t3066 = t2910 - t2915;
             let t3067 = t3066 - t2913;
             let t3068 = t3067 + t3067;
             let t3069 = t2864 + t3068;
-            dc_dqd[3][3] = t3069;
+            dc_dqd.24 = t3069;
             let t3071 = s.64 * s.142;
             let t3072 = T::mul_add(s.63, s.144, t3071);
             let t3074 = T::mul_add(s.61, s.145, t3072);
@@ -24833,14 +24918,14 @@ pub mod fma {
             let t3085 = T::mul_add(s.35, s.158, t3083);
             let t3087 = T::mul_add(-s.34, s.159, t3085);
             let t3088 = t3080 + t3087;
-            dc_dq[4][3] = t3088;
+            dc_dq.31 = t3088;
             let t3090 = s.32 * s.142;
             let t3091 = T::mul_add(s.33, s.144, -t3090);
             let t3093 = T::mul_add(s.35, s.138, t3091);
             let t3095 = T::mul_add(-s.34, s.139, t3093);
             let t3096 = t3095 + t3095;
             let t3097 = s.164 + t3096;
-            dc_dqd[4][3] = t3097;
+            dc_dqd.31 = t3097;
             let t3099 = s.64 * s.168;
             let t3100 = T::mul_add(s.63, s.169, t3099);
             let t3102 = T::mul_add(s.61, s.170, t3100);
@@ -24852,26 +24937,26 @@ pub mod fma {
             let t3113 = T::mul_add(s.35, t2599, t3111);
             let t3115 = T::mul_add(-s.34, t2603, t3113);
             let t3116 = t3108 + t3115;
-            dc_dq[5][3] = t3116;
+            dc_dq.38 = t3116;
             let t3118 = s.32 * s.168;
             let t3119 = T::mul_add(s.33, s.169, -t3118);
             let t3121 = T::mul_add(s.35, s.165, t3119);
             let t3123 = T::mul_add(-s.34, s.166, t3121);
             let t3124 = t3123 + t3123;
             let t3125 = t2624 + t3124;
-            dc_dqd[5][3] = t3125;
+            dc_dqd.38 = t3125;
             let t3127 = s.64 * t2631;
             let t3128 = T::mul_add(s.63, t2627, t3127);
             let t3130 = T::mul_add(s.61, t2636, t3128);
             let t3132 = s.32 * t2699;
             let t3133 = T::mul_add(s.33, t2695, -t3132);
             let t3134 = t3130 + t3133;
-            dc_dq[6][3] = t3134;
+            dc_dq.45 = t3134;
             let t3136 = s.32 * t2631;
             let t3137 = T::mul_add(s.33, t2627, -t3136);
             let t3138 = t3137 + t3137;
             let t3139 = t2704 + t3138;
-            dc_dqd[6][3] = t3139;
+            dc_dqd.45 = t3139;
             let t3140 = s.7 * t2780;
             let t3141 = -t3140;
             let t3142 = s.6 * t2706;
@@ -24906,7 +24991,7 @@ pub mod fma {
             let t3186 = s.7 * t3032;
             let t3187 = T::mul_add(s.6, t3031, t3186);
             let t3189 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3033, t3187);
-            dc_dqd[2][3] = t3189;
+            dc_dqd.17 = t3189;
             let t3192 = T::mul_add(-lit::<T>(0.2155), t3172, t3180);
             let t3193 = T::mul_add(lit::<T>(0.2155), t3168, t3184);
             let t3195 = s.6 * t3051;
@@ -24925,7 +25010,7 @@ pub mod fma {
             let t3214 = s.7 * t3049;
             let t3215 = T::mul_add(s.6, t3048, t3214);
             let t3217 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3044, t3215);
-            dc_dq[2][3] = t3217;
+            dc_dq.17 = t3217;
             let t3220 = T::mul_add(-lit::<T>(0.2155), t3200, t3208);
             let t3221 = T::mul_add(lit::<T>(0.2155), t3196, t3212);
             let t3223 = s.6 * t3055;
@@ -24979,7 +25064,7 @@ pub mod fma {
             let t3295 = s.7 * s.149;
             let t3296 = T::mul_add(s.6, s.150, t3295);
             let t3298 = T::mul_add(lit::<T>(4.8965888601467475e-12), s.151, t3296);
-            dc_dqd[2][4] = t3298;
+            dc_dqd.18 = t3298;
             let t3301 = T::mul_add(-lit::<T>(0.2155), t3281, t3289);
             let t3302 = T::mul_add(lit::<T>(0.2155), t3277, t3293);
             let t3304 = s.6 * s.153;
@@ -24998,7 +25083,7 @@ pub mod fma {
             let t3323 = s.7 * s.155;
             let t3324 = T::mul_add(s.6, s.156, t3323);
             let t3326 = T::mul_add(lit::<T>(4.8965888601467475e-12), s.157, t3324);
-            dc_dq[2][4] = t3326;
+            dc_dq.18 = t3326;
             let t3329 = T::mul_add(-lit::<T>(0.2155), t3309, t3317);
             let t3330 = T::mul_add(lit::<T>(0.2155), t3305, t3321);
             let t3332 = s.6 * s.159;
@@ -25053,7 +25138,7 @@ pub mod fma {
             let t3407 = s.7 * s.174;
             let t3408 = T::mul_add(s.6, s.175, t3407);
             let t3410 = T::mul_add(lit::<T>(4.8965888601467475e-12), s.176, t3408);
-            dc_dqd[2][5] = t3410;
+            dc_dqd.19 = t3410;
             let t3413 = T::mul_add(-lit::<T>(0.2155), t3393, t3401);
             let t3414 = T::mul_add(lit::<T>(0.2155), t3389, t3405);
             let t3416 = s.6 * s.178;
@@ -25072,7 +25157,7 @@ pub mod fma {
             let t3435 = s.7 * s.181;
             let t3436 = T::mul_add(s.6, t2595, t3435);
             let t3438 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2596, t3436);
-            dc_dq[2][5] = t3438;
+            dc_dq.19 = t3438;
             let t3441 = T::mul_add(-lit::<T>(0.2155), t3421, t3429);
             let t3442 = T::mul_add(lit::<T>(0.2155), t3417, t3433);
             let t3444 = s.6 * t2603;
@@ -25117,7 +25202,7 @@ pub mod fma {
             let t3503 = s.7 * t2655;
             let t3504 = T::mul_add(s.6, t2663, t3503);
             let t3506 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2664, t3504);
-            dc_dqd[2][6] = t3506;
+            dc_dqd.20 = t3506;
             let t3509 = T::mul_add(-lit::<T>(0.2155), t3489, t3497);
             let t3510 = T::mul_add(lit::<T>(0.2155), t3485, t3501);
             let t3512 = s.6 * t2671;
@@ -25136,7 +25221,7 @@ pub mod fma {
             let t3531 = s.7 * t2683;
             let t3532 = T::mul_add(s.6, t2691, t3531);
             let t3534 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2692, t3532);
-            dc_dq[2][6] = t3534;
+            dc_dq.20 = t3534;
             let t3537 = T::mul_add(-lit::<T>(0.2155), t3517, t3525);
             let t3538 = T::mul_add(lit::<T>(0.2155), t3513, t3529);
             let t3540 = s.6 * t2699;
@@ -25410,12 +25495,12 @@ pub mod fma {
             let t3903 = T::mul_add(s.25, t3895, t3901);
             let t3905 = T::mul_add(-s.24, t3896, t3903);
             let t3906 = t3898 + t3905;
-            dc_dq[2][2] = t3906;
+            dc_dq.16 = t3906;
             let t3907 = t3751 - t3756;
             let t3908 = t3907 - t3754;
             let t3909 = t3908 + t3908;
             let t3910 = t3705 + t3909;
-            dc_dqd[2][2] = t3910;
+            dc_dqd.16 = t3910;
             let t3912 = s.58 * t3165;
             let t3913 = T::mul_add(s.57, t3164, t3912);
             let t3915 = T::mul_add(s.55, t3161, t3913);
@@ -25427,14 +25512,14 @@ pub mod fma {
             let t3925 = T::mul_add(s.25, t3224, t3923);
             let t3927 = T::mul_add(-s.24, t3227, t3925);
             let t3928 = t3920 + t3927;
-            dc_dq[3][2] = t3928;
+            dc_dq.23 = t3928;
             let t3930 = s.22 * t3165;
             let t3931 = T::mul_add(s.23, t3164, -t3930);
             let t3933 = T::mul_add(s.25, t3143, t3931);
             let t3935 = T::mul_add(-s.24, t3146, t3933);
             let t3936 = t3935 + t3935;
             let t3937 = t3242 + t3936;
-            dc_dqd[3][2] = t3937;
+            dc_dqd.23 = t3937;
             let t3939 = s.58 * t3274;
             let t3940 = T::mul_add(s.57, t3273, t3939);
             let t3942 = T::mul_add(s.55, t3270, t3940);
@@ -25446,14 +25531,14 @@ pub mod fma {
             let t3953 = T::mul_add(s.25, t3333, t3951);
             let t3955 = T::mul_add(-s.24, t3337, t3953);
             let t3956 = t3948 + t3955;
-            dc_dq[4][2] = t3956;
+            dc_dq.30 = t3956;
             let t3958 = s.22 * t3274;
             let t3959 = T::mul_add(s.23, t3273, -t3958);
             let t3961 = T::mul_add(s.25, t3249, t3959);
             let t3963 = T::mul_add(-s.24, t3253, t3961);
             let t3964 = t3963 + t3963;
             let t3965 = t3354 + t3964;
-            dc_dqd[4][2] = t3965;
+            dc_dqd.30 = t3965;
             let t3967 = s.58 * t3386;
             let t3968 = T::mul_add(s.57, t3385, t3967);
             let t3970 = T::mul_add(s.55, t3382, t3968);
@@ -25465,26 +25550,26 @@ pub mod fma {
             let t3981 = T::mul_add(s.25, t3445, t3979);
             let t3983 = T::mul_add(-s.24, t3449, t3981);
             let t3984 = t3976 + t3983;
-            dc_dq[5][2] = t3984;
+            dc_dq.37 = t3984;
             let t3986 = s.22 * t3386;
             let t3987 = T::mul_add(s.23, t3385, -t3986);
             let t3989 = T::mul_add(s.25, t3361, t3987);
             let t3991 = T::mul_add(-s.24, t3365, t3989);
             let t3992 = t3991 + t3991;
             let t3993 = t3466 + t3992;
-            dc_dqd[5][2] = t3993;
+            dc_dqd.37 = t3993;
             let t3995 = s.58 * t3477;
             let t3996 = T::mul_add(s.57, t3473, t3995);
             let t3998 = T::mul_add(s.55, t3482, t3996);
             let t4000 = s.22 * t3545;
             let t4001 = T::mul_add(s.23, t3541, -t4000);
             let t4002 = t3998 + t4001;
-            dc_dq[6][2] = t4002;
+            dc_dq.44 = t4002;
             let t4004 = s.22 * t3477;
             let t4005 = T::mul_add(s.23, t3473, -t4004);
             let t4006 = t4005 + t4005;
             let t4007 = t3550 + t4006;
-            dc_dqd[6][2] = t4007;
+            dc_dqd.44 = t4007;
             let t4009 = s.2 * t3149;
             let t4010 = T::mul_add(s.3, t3622, t4009);
             let t4011 = s.4 * t3622;
@@ -25520,7 +25605,7 @@ pub mod fma {
             let t4058 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3874, t4056);
             let t4061 = T::mul_add(lit::<T>(0.2045), t4044, t4049);
             let t4062 = T::mul_add(-lit::<T>(0.2045), t4039, t4058);
-            dc_dqd[1][2] = t4062;
+            dc_dqd.9 = t4062;
             let t4063 = s.3 * t3891;
             let t4065 = T::mul_add(s.2, t3892, -t4063);
             let t4067 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3888, t4065);
@@ -25538,7 +25623,7 @@ pub mod fma {
             let t4086 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3885, t4084);
             let t4089 = T::mul_add(lit::<T>(0.2045), t4072, t4077);
             let t4090 = T::mul_add(-lit::<T>(0.2045), t4067, t4086);
-            dc_dq[1][2] = t4090;
+            dc_dq.9 = t4090;
             let t4091 = s.3 * t3895;
             let t4093 = T::mul_add(s.2, t3896, -t4091);
             let t4095 = s.3 * t3896;
@@ -25593,7 +25678,7 @@ pub mod fma {
             let t4169 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3189, t4167);
             let t4172 = T::mul_add(lit::<T>(0.2045), t4155, t4160);
             let t4173 = T::mul_add(-lit::<T>(0.2045), t4150, t4169);
-            dc_dqd[1][3] = t4173;
+            dc_dqd.10 = t4173;
             let t4174 = s.3 * t3196;
             let t4176 = T::mul_add(s.2, t3200, -t4174);
             let t4178 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3205, t4176);
@@ -25611,7 +25696,7 @@ pub mod fma {
             let t4197 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3217, t4195);
             let t4200 = T::mul_add(lit::<T>(0.2045), t4183, t4188);
             let t4201 = T::mul_add(-lit::<T>(0.2045), t4178, t4197);
-            dc_dq[1][3] = t4201;
+            dc_dq.10 = t4201;
             let t4202 = s.3 * t3224;
             let t4204 = T::mul_add(s.2, t3227, -t4202);
             let t4206 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3230, t4204);
@@ -25666,7 +25751,7 @@ pub mod fma {
             let t4285 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3298, t4283);
             let t4288 = T::mul_add(lit::<T>(0.2045), t4271, t4276);
             let t4289 = T::mul_add(-lit::<T>(0.2045), t4266, t4285);
-            dc_dqd[1][4] = t4289;
+            dc_dqd.11 = t4289;
             let t4290 = s.3 * t3305;
             let t4292 = T::mul_add(s.2, t3309, -t4290);
             let t4294 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3314, t4292);
@@ -25684,7 +25769,7 @@ pub mod fma {
             let t4313 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3326, t4311);
             let t4316 = T::mul_add(lit::<T>(0.2045), t4299, t4304);
             let t4317 = T::mul_add(-lit::<T>(0.2045), t4294, t4313);
-            dc_dq[1][4] = t4317;
+            dc_dq.11 = t4317;
             let t4318 = s.3 * t3333;
             let t4320 = T::mul_add(s.2, t3337, -t4318);
             let t4322 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3342, t4320);
@@ -25739,7 +25824,7 @@ pub mod fma {
             let t4401 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3410, t4399);
             let t4404 = T::mul_add(lit::<T>(0.2045), t4387, t4392);
             let t4405 = T::mul_add(-lit::<T>(0.2045), t4382, t4401);
-            dc_dqd[1][5] = t4405;
+            dc_dqd.12 = t4405;
             let t4406 = s.3 * t3417;
             let t4408 = T::mul_add(s.2, t3421, -t4406);
             let t4410 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3426, t4408);
@@ -25757,7 +25842,7 @@ pub mod fma {
             let t4429 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3438, t4427);
             let t4432 = T::mul_add(lit::<T>(0.2045), t4415, t4420);
             let t4433 = T::mul_add(-lit::<T>(0.2045), t4410, t4429);
-            dc_dq[1][5] = t4433;
+            dc_dq.12 = t4433;
             let t4434 = s.3 * t3445;
             let t4436 = T::mul_add(s.2, t3449, -t4434);
             let t4438 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3454, t4436);
@@ -25801,7 +25886,7 @@ pub mod fma {
             let t4499 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3506, t4497);
             let t4502 = T::mul_add(lit::<T>(0.2045), t4485, t4490);
             let t4503 = T::mul_add(-lit::<T>(0.2045), t4480, t4499);
-            dc_dqd[1][6] = t4503;
+            dc_dqd.13 = t4503;
             let t4504 = s.3 * t3513;
             let t4506 = T::mul_add(s.2, t3517, -t4504);
             let t4508 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3522, t4506);
@@ -25819,7 +25904,7 @@ pub mod fma {
             let t4527 = T::mul_add(lit::<T>(4.8965888601467475e-12), t3534, t4525);
             let t4530 = T::mul_add(lit::<T>(0.2045), t4513, t4518);
             let t4531 = T::mul_add(-lit::<T>(0.2045), t4508, t4527);
-            dc_dq[1][6] = t4531;
+            dc_dq.13 = t4531;
             let t4532 = s.3 * t3541;
             let t4534 = T::mul_add(s.2, t3545, -t4532);
             let t4536 = T::mul_add(lit::<T>(-2.0682310711021444e-13), t3550, t4534);
@@ -26018,7 +26103,7 @@ pub mod fma {
             let t4817 = t4812 + t4815;
             let t4818 = t4813 + t4816;
             let t4819 = t4730 + t4814;
-            dc_dqd[1][1] = t4819;
+            dc_dqd.8 = t4819;
             let t4820 = T::mul_add(-s.15, t4764, t4800);
             let t4821 = T::mul_add(-s.16, t4764, t4803);
             let t4822 = t4806 + t4811;
@@ -26034,7 +26119,7 @@ pub mod fma {
             let t4833 = s.15 * t4829;
             let t4834 = T::mul_add(s.16, t4828, -t4833);
             let t4835 = t4831 + t4834;
-            dc_dq[1][1] = t4835;
+            dc_dq.8 = t4835;
             let t4837 = s.54 * t4025;
             let t4838 = T::mul_add(s.53, t4033, t4837);
             let t4840 = T::mul_add(s.52, t4034, t4838);
@@ -26043,12 +26128,12 @@ pub mod fma {
             let t4846 = s.15 * t4105;
             let t4847 = T::mul_add(s.16, t4113, -t4846);
             let t4848 = t4844 + t4847;
-            dc_dq[2][1] = t4848;
+            dc_dq.15 = t4848;
             let t4850 = s.15 * t4025;
             let t4851 = T::mul_add(s.16, t4033, -t4850);
             let t4852 = t4851 + t4851;
             let t4853 = t4114 + t4852;
-            dc_dqd[2][1] = t4853;
+            dc_dqd.15 = t4853;
             let t4855 = s.54 * t4137;
             let t4856 = T::mul_add(s.53, t4144, t4855);
             let t4858 = T::mul_add(s.52, t4145, t4856);
@@ -26057,12 +26142,12 @@ pub mod fma {
             let t4864 = s.15 * t4220;
             let t4865 = T::mul_add(s.16, t4228, -t4864);
             let t4866 = t4862 + t4865;
-            dc_dq[3][1] = t4866;
+            dc_dq.22 = t4866;
             let t4868 = s.15 * t4137;
             let t4869 = T::mul_add(s.16, t4144, -t4868);
             let t4870 = t4869 + t4869;
             let t4871 = t4229 + t4870;
-            dc_dqd[3][1] = t4871;
+            dc_dqd.22 = t4871;
             let t4873 = s.54 * t4252;
             let t4874 = T::mul_add(s.53, t4260, t4873);
             let t4876 = T::mul_add(s.52, t4261, t4874);
@@ -26071,12 +26156,12 @@ pub mod fma {
             let t4882 = s.15 * t4336;
             let t4883 = T::mul_add(s.16, t4344, -t4882);
             let t4884 = t4880 + t4883;
-            dc_dq[4][1] = t4884;
+            dc_dq.29 = t4884;
             let t4886 = s.15 * t4252;
             let t4887 = T::mul_add(s.16, t4260, -t4886);
             let t4888 = t4887 + t4887;
             let t4889 = t4345 + t4888;
-            dc_dqd[4][1] = t4889;
+            dc_dqd.29 = t4889;
             let t4891 = s.54 * t4368;
             let t4892 = T::mul_add(s.53, t4376, t4891);
             let t4894 = T::mul_add(s.52, t4377, t4892);
@@ -26085,97 +26170,97 @@ pub mod fma {
             let t4900 = s.15 * t4452;
             let t4901 = T::mul_add(s.16, t4460, -t4900);
             let t4902 = t4898 + t4901;
-            dc_dq[5][1] = t4902;
+            dc_dq.36 = t4902;
             let t4904 = s.15 * t4368;
             let t4905 = T::mul_add(s.16, t4376, -t4904);
             let t4906 = t4905 + t4905;
             let t4907 = t4461 + t4906;
-            dc_dqd[5][1] = t4907;
+            dc_dqd.36 = t4907;
             let t4909 = s.54 * t4470;
             let t4910 = T::mul_add(s.53, t4466, t4909);
             let t4912 = T::mul_add(s.52, t4475, t4910);
             let t4914 = s.15 * t4540;
             let t4915 = T::mul_add(s.16, t4536, -t4914);
             let t4916 = t4912 + t4915;
-            dc_dq[6][1] = t4916;
+            dc_dq.43 = t4916;
             let t4918 = s.15 * t4470;
             let t4919 = T::mul_add(s.16, t4466, -t4918);
             let t4920 = t4919 + t4919;
             let t4921 = t4545 + t4920;
-            dc_dqd[6][1] = t4921;
+            dc_dqd.43 = t4921;
             let t4923 = s.1 * t4818;
             let t4924 = T::mul_add(s.0, t4817, t4923);
             let t4926 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4819, t4924);
-            dc_dqd[0][1] = t4926;
+            dc_dqd.1 = t4926;
             let t4928 = s.1 * t4827;
             let t4929 = T::mul_add(s.0, t4826, t4928);
             let t4931 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4825, t4929);
-            dc_dq[0][1] = t4931;
+            dc_dq.1 = t4931;
             let t4933 = s.1 * t4829;
             let t4934 = T::mul_add(s.0, t4828, t4933);
             let t4935 = lit::<T>(4.8965888601467475e-12) * t4730;
             let t4936 = t4934 + t4935;
-            dc_dqd[1][0] = t4936;
+            dc_dqd.7 = t4936;
             let t4938 = s.1 * t4053;
             let t4939 = T::mul_add(s.0, t4061, t4938);
             let t4941 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4062, t4939);
-            dc_dqd[0][2] = t4941;
+            dc_dqd.2 = t4941;
             let t4943 = s.1 * t4081;
             let t4944 = T::mul_add(s.0, t4089, t4943);
             let t4946 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4090, t4944);
-            dc_dq[0][2] = t4946;
+            dc_dq.2 = t4946;
             let t4948 = s.1 * t4105;
             let t4949 = T::mul_add(s.0, t4113, t4948);
             let t4951 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4114, t4949);
-            dc_dqd[2][0] = t4951;
+            dc_dqd.14 = t4951;
             let t4953 = s.1 * t4164;
             let t4954 = T::mul_add(s.0, t4172, t4953);
             let t4956 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4173, t4954);
-            dc_dqd[0][3] = t4956;
+            dc_dqd.3 = t4956;
             let t4958 = s.1 * t4192;
             let t4959 = T::mul_add(s.0, t4200, t4958);
             let t4961 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4201, t4959);
-            dc_dq[0][3] = t4961;
+            dc_dq.3 = t4961;
             let t4963 = s.1 * t4220;
             let t4964 = T::mul_add(s.0, t4228, t4963);
             let t4966 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4229, t4964);
-            dc_dqd[3][0] = t4966;
+            dc_dqd.21 = t4966;
             let t4968 = s.1 * t4280;
             let t4969 = T::mul_add(s.0, t4288, t4968);
             let t4971 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4289, t4969);
-            dc_dqd[0][4] = t4971;
+            dc_dqd.4 = t4971;
             let t4973 = s.1 * t4308;
             let t4974 = T::mul_add(s.0, t4316, t4973);
             let t4976 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4317, t4974);
-            dc_dq[0][4] = t4976;
+            dc_dq.4 = t4976;
             let t4978 = s.1 * t4336;
             let t4979 = T::mul_add(s.0, t4344, t4978);
             let t4981 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4345, t4979);
-            dc_dqd[4][0] = t4981;
+            dc_dqd.28 = t4981;
             let t4983 = s.1 * t4396;
             let t4984 = T::mul_add(s.0, t4404, t4983);
             let t4986 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4405, t4984);
-            dc_dqd[0][5] = t4986;
+            dc_dqd.5 = t4986;
             let t4988 = s.1 * t4424;
             let t4989 = T::mul_add(s.0, t4432, t4988);
             let t4991 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4433, t4989);
-            dc_dq[0][5] = t4991;
+            dc_dq.5 = t4991;
             let t4993 = s.1 * t4452;
             let t4994 = T::mul_add(s.0, t4460, t4993);
             let t4996 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4461, t4994);
-            dc_dqd[5][0] = t4996;
+            dc_dqd.35 = t4996;
             let t4998 = s.1 * t4494;
             let t4999 = T::mul_add(s.0, t4502, t4998);
             let t5001 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4503, t4999);
-            dc_dqd[0][6] = t5001;
+            dc_dqd.6 = t5001;
             let t5003 = s.1 * t4522;
             let t5004 = T::mul_add(s.0, t4530, t5003);
             let t5006 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4531, t5004);
-            dc_dq[0][6] = t5006;
+            dc_dq.6 = t5006;
             let t5008 = s.1 * t4540;
             let t5009 = T::mul_add(s.0, t4536, t5008);
             let t5011 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4545, t5009);
-            dc_dqd[6][0] = t5011;
+            dc_dqd.42 = t5011;
             let t5013 = s.1 * t4732;
             let t5014 = T::mul_add(s.0, t4731, t5013);
             let t5016 = T::mul_add(lit::<T>(4.8965888601467475e-12), t4733, t5014);
@@ -26195,7 +26280,7 @@ pub mod fma {
             let t5038 = t5031 + t5031;
             let t5039 = t5037 - t5038;
             let t5040 = T::mul_add(lit::<T>(2.0), t5031, t5039);
-            dc_dqd[0][0] = t5040;
+            dc_dqd.0 = t5040;
         }
     }
     use rnea_grad_part1::rnea_grad_part1;
@@ -26806,6 +26891,13 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 49 entries of `minv`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct minv_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod minv_part0 {
         use super::*;
         #[inline(never)]
@@ -26816,6 +26908,7 @@ pub mod fma {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f49<T>) };
             let t6 = q[1].sin();
             let t7 = q[1].cos();
             let t16 = q[2].sin();
@@ -28287,31 +28380,31 @@ pub mod fma {
             let t2291 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2286, t2289);
             let t2292 = lit::<T>(0.0236) + t2291;
             let t2293 = lit::<T>(1.0) / t2292;
-            minv[0][0] = t2293;
+            minv.0 = t2293;
             let t2294 = t2204 * t2293;
             let t2295 = -t2294;
-            minv[0][1] = t2295;
-            minv[1][0] = t2295;
+            minv.1 = t2295;
+            minv.7 = t2295;
             let t2296 = t2215 * t2293;
             let t2297 = -t2296;
-            minv[0][2] = t2297;
-            minv[2][0] = t2297;
+            minv.2 = t2297;
+            minv.14 = t2297;
             let t2298 = t2226 * t2293;
             let t2299 = -t2298;
-            minv[0][3] = t2299;
-            minv[3][0] = t2299;
+            minv.3 = t2299;
+            minv.21 = t2299;
             let t2300 = t2237 * t2293;
             let t2301 = -t2300;
-            minv[0][4] = t2301;
-            minv[4][0] = t2301;
+            minv.4 = t2301;
+            minv.28 = t2301;
             let t2302 = t2248 * t2293;
             let t2303 = -t2302;
-            minv[0][5] = t2303;
-            minv[5][0] = t2303;
+            minv.5 = t2303;
+            minv.35 = t2303;
             let t2304 = t2259 * t2293;
             let t2305 = -t2304;
-            minv[0][6] = t2305;
-            minv[6][0] = t2305;
+            minv.6 = t2305;
+            minv.42 = t2305;
             let t2306 = t6 * t2294;
             let t2307 = t7 * t2294;
             let t2308 = lit::<T>(4.8965888601467475e-12) * t2294;
@@ -28320,7 +28413,7 @@ pub mod fma {
             let t2312 = T::mul_add(-t2184, t2307, t2310);
             let t2314 = T::mul_add(-t2185, t2308, t2312);
             let t2316 = T::mul_add(-t2186, t2314, t2186);
-            minv[1][1] = t2316;
+            minv.8 = t2316;
             let t2317 = t6 * t2296;
             let t2318 = t7 * t2296;
             let t2319 = lit::<T>(4.8965888601467475e-12) * t2296;
@@ -28329,8 +28422,8 @@ pub mod fma {
             let t2323 = T::mul_add(-t2184, t2318, t2321);
             let t2325 = T::mul_add(-t2185, t2319, t2323);
             let t2327 = T::mul_add(-t2186, t2325, t2188);
-            minv[1][2] = t2327;
-            minv[2][1] = t2327;
+            minv.9 = t2327;
+            minv.15 = t2327;
             let t2328 = t2327 - t2319;
             let t2329 = t6 * t2298;
             let t2330 = t7 * t2298;
@@ -28340,8 +28433,8 @@ pub mod fma {
             let t2335 = T::mul_add(-t2184, t2330, t2333);
             let t2337 = T::mul_add(-t2185, t2331, t2335);
             let t2339 = T::mul_add(-t2186, t2337, t2190);
-            minv[1][3] = t2339;
-            minv[3][1] = t2339;
+            minv.10 = t2339;
+            minv.22 = t2339;
             let t2340 = t2339 - t2331;
             let t2341 = t6 * t2300;
             let t2342 = t7 * t2300;
@@ -28351,8 +28444,8 @@ pub mod fma {
             let t2347 = T::mul_add(-t2184, t2342, t2345);
             let t2349 = T::mul_add(-t2185, t2343, t2347);
             let t2351 = T::mul_add(-t2186, t2349, t2192);
-            minv[1][4] = t2351;
-            minv[4][1] = t2351;
+            minv.11 = t2351;
+            minv.29 = t2351;
             let t2352 = t2351 - t2343;
             let t2353 = t6 * t2302;
             let t2354 = t7 * t2302;
@@ -28362,8 +28455,8 @@ pub mod fma {
             let t2359 = T::mul_add(-t2184, t2354, t2357);
             let t2361 = T::mul_add(-t2185, t2355, t2359);
             let t2363 = T::mul_add(-t2186, t2361, t2194);
-            minv[1][5] = t2363;
-            minv[5][1] = t2363;
+            minv.12 = t2363;
+            minv.36 = t2363;
             let t2364 = t2363 - t2355;
             let t2365 = t6 * t2304;
             let t2366 = t7 * t2304;
@@ -28373,8 +28466,8 @@ pub mod fma {
             let t2371 = T::mul_add(-t2184, t2366, t2369);
             let t2373 = T::mul_add(-t2185, t2367, t2371);
             let t2375 = T::mul_add(-t2186, t2373, t2196);
-            minv[1][6] = t2375;
-            minv[6][1] = t2375;
+            minv.13 = t2375;
+            minv.43 = t2375;
             let t2376 = t2375 - t2367;
             let t2377 = lit::<T>(0.2045) * t2328;
             let t2378 = lit::<T>(0.2045) * t2317;
@@ -28404,7 +28497,7 @@ pub mod fma {
             let t2414 = T::mul_add(t1651, t2401, t2412);
             let t2416 = T::mul_add(t1702, t2405, t2414);
             let t2418 = T::mul_add(-t1718, t2416, t1718);
-            minv[2][2] = t2418;
+            minv.16 = t2418;
             let t2419 = lit::<T>(0.2045) * t2340;
             let t2420 = lit::<T>(0.2045) * t2329;
             let t2422 = t20 * t2330;
@@ -28438,8 +28531,8 @@ pub mod fma {
             let t2456 = T::mul_add(t1651, t2443, t2454);
             let t2458 = T::mul_add(t1702, t2447, t2456);
             let t2460 = T::mul_add(-t1718, t2458, t1720);
-            minv[2][3] = t2460;
-            minv[3][2] = t2460;
+            minv.17 = t2460;
+            minv.23 = t2460;
             let t2461 = t2436 + t2460;
             s.52 = t2461;
             let t2462 = lit::<T>(0.2045) * t2352;
@@ -28475,8 +28568,8 @@ pub mod fma {
             let t2499 = T::mul_add(t1651, t2486, t2497);
             let t2501 = T::mul_add(t1702, t2490, t2499);
             let t2503 = T::mul_add(-t1718, t2501, t1722);
-            minv[2][4] = t2503;
-            minv[4][2] = t2503;
+            minv.18 = t2503;
+            minv.30 = t2503;
             let t2504 = t2479 + t2503;
             s.58 = t2504;
             let t2505 = lit::<T>(0.2045) * t2364;
@@ -28512,8 +28605,8 @@ pub mod fma {
             let t2542 = T::mul_add(t1651, t2529, t2540);
             let t2544 = T::mul_add(t1702, t2533, t2542);
             let t2546 = T::mul_add(-t1718, t2544, t1724);
-            minv[2][5] = t2546;
-            minv[5][2] = t2546;
+            minv.19 = t2546;
+            minv.37 = t2546;
             let t2547 = t2522 + t2546;
             s.64 = t2547;
             let t2548 = lit::<T>(0.2045) * t2376;
@@ -28558,14 +28651,15 @@ pub mod fma {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f49<T>) };
             let t2579 = T::mul_add(s.42, s.66, s.71);
             let t2581 = T::mul_add(s.43, s.67, t2579);
             let t2583 = T::mul_add(s.44, s.68, t2581);
             let t2585 = T::mul_add(s.40, s.69, t2583);
             let t2587 = T::mul_add(s.41, s.70, t2585);
             let t2589 = T::mul_add(-s.45, t2587, s.46);
-            minv[2][6] = t2589;
-            minv[6][2] = t2589;
+            minv.20 = t2589;
+            minv.44 = t2589;
             let t2590 = s.67 + t2589;
             let t2593 = T::mul_add(lit::<T>(0.2155), s.48, s.49);
             let t2594 = T::mul_add(-lit::<T>(0.2155), s.47, s.50);
@@ -28590,7 +28684,7 @@ pub mod fma {
             let t2627 = T::mul_add(s.31, t2616, t2625);
             let t2629 = T::mul_add(s.32, t2618, t2627);
             let t2631 = T::mul_add(-s.36, t2629, s.36);
-            minv[3][3] = t2631;
+            minv.24 = t2631;
             let t2634 = T::mul_add(lit::<T>(0.2155), s.54, s.55);
             let t2635 = T::mul_add(-lit::<T>(0.2155), s.53, s.56);
             let t2637 = s.2 * s.54;
@@ -28614,8 +28708,8 @@ pub mod fma {
             let t2668 = T::mul_add(s.31, t2657, t2666);
             let t2670 = T::mul_add(s.32, t2659, t2668);
             let t2672 = T::mul_add(-s.36, t2670, s.37);
-            minv[3][4] = t2672;
-            minv[4][3] = t2672;
+            minv.25 = t2672;
+            minv.31 = t2672;
             let t2673 = t2647 + t2672;
             let t2676 = T::mul_add(lit::<T>(0.2155), s.60, s.61);
             let t2677 = T::mul_add(-lit::<T>(0.2155), s.59, s.62);
@@ -28640,8 +28734,8 @@ pub mod fma {
             let t2710 = T::mul_add(s.31, t2699, t2708);
             let t2712 = T::mul_add(s.32, t2701, t2710);
             let t2714 = T::mul_add(-s.36, t2712, s.38);
-            minv[3][5] = t2714;
-            minv[5][3] = t2714;
+            minv.26 = t2714;
+            minv.38 = t2714;
             let t2715 = t2689 + t2714;
             let t2718 = T::mul_add(lit::<T>(0.2155), s.66, s.68);
             let t2719 = T::mul_add(-lit::<T>(0.2155), s.65, s.69);
@@ -28666,8 +28760,8 @@ pub mod fma {
             let t2752 = T::mul_add(s.31, t2741, t2750);
             let t2754 = T::mul_add(s.32, t2743, t2752);
             let t2756 = T::mul_add(-s.36, t2754, s.39);
-            minv[3][6] = t2756;
-            minv[6][3] = t2756;
+            minv.27 = t2756;
+            minv.45 = t2756;
             let t2757 = t2731 + t2756;
             let t2760 = T::mul_add(-lit::<T>(0.1845), t2673, t2652);
             let t2761 = T::mul_add(lit::<T>(0.1845), t2640, t2659);
@@ -28692,7 +28786,7 @@ pub mod fma {
             let t2794 = T::mul_add(s.26, t2783, t2792);
             let t2796 = T::mul_add(s.21, t2785, t2794);
             let t2798 = T::mul_add(-s.27, t2796, s.27);
-            minv[4][4] = t2798;
+            minv.32 = t2798;
             let t2801 = T::mul_add(-lit::<T>(0.1845), t2715, t2694);
             let t2802 = T::mul_add(lit::<T>(0.1845), t2682, t2701);
             let t2804 = s.5 * t2687;
@@ -28716,8 +28810,8 @@ pub mod fma {
             let t2835 = T::mul_add(s.26, t2824, t2833);
             let t2837 = T::mul_add(s.21, t2826, t2835);
             let t2839 = T::mul_add(-s.27, t2837, s.28);
-            minv[4][5] = t2839;
-            minv[5][4] = t2839;
+            minv.33 = t2839;
+            minv.39 = t2839;
             let t2840 = t2814 + t2839;
             let t2843 = T::mul_add(-lit::<T>(0.1845), t2757, t2736);
             let t2844 = T::mul_add(lit::<T>(0.1845), t2724, t2743);
@@ -28742,8 +28836,8 @@ pub mod fma {
             let t2877 = T::mul_add(s.26, t2866, t2875);
             let t2879 = T::mul_add(s.21, t2868, t2877);
             let t2881 = T::mul_add(-s.27, t2879, s.29);
-            minv[4][6] = t2881;
-            minv[6][4] = t2881;
+            minv.34 = t2881;
+            minv.46 = t2881;
             let t2882 = t2856 + t2881;
             let t2885 = T::mul_add(lit::<T>(0.2155), t2812, t2819);
             let t2886 = T::mul_add(-lit::<T>(0.2155), t2807, t2824);
@@ -28768,7 +28862,7 @@ pub mod fma {
             let t2919 = T::mul_add(s.14, t2908, t2917);
             let t2921 = T::mul_add(s.15, t2910, t2919);
             let t2923 = T::mul_add(-s.19, t2921, s.19);
-            minv[5][5] = t2923;
+            minv.40 = t2923;
             let t2926 = T::mul_add(lit::<T>(0.2155), t2854, t2861);
             let t2927 = T::mul_add(-lit::<T>(0.2155), t2849, t2866);
             let t2929 = s.11 * t2854;
@@ -28792,13 +28886,13 @@ pub mod fma {
             let t2960 = T::mul_add(s.14, t2949, t2958);
             let t2962 = T::mul_add(s.15, t2951, t2960);
             let t2964 = T::mul_add(-s.19, t2962, s.20);
-            minv[5][6] = t2964;
-            minv[6][5] = t2964;
+            minv.41 = t2964;
+            minv.47 = t2964;
             let t2965 = t2939 + t2964;
             let t2967 = T::mul_add(lit::<T>(-4.8965888601467475e-12), t2965, t2937);
             let t2968 = lit::<T>(0.001) * t2967;
             let t2970 = T::mul_add(-lit::<T>(1000.0), t2968, lit::<T>(1000.0));
-            minv[6][6] = t2970;
+            minv.48 = t2970;
         }
     }
     use minv_part1::minv_part1;
@@ -28836,6 +28930,10 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 7 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f7<T>(T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -28848,6 +28946,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f7<T>) };
             let t6 = q[1].sin();
             s.0 = t6;
             let t7 = q[1].cos();
@@ -30606,6 +30705,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f7<T>) };
             let t2599 = T::mul_add(lit::<T>(-2.0682310711021444e-13), s.81, s.105);
             let t2600 = s.3 * s.79;
             let t2602 = T::mul_add(s.2, s.81, -t2600);
@@ -30768,7 +30868,7 @@ pub mod fma {
             let t2847 = tau[0] - t2804;
             let t2850 = T::mul_add(-t2844, lit::<T>(9.81), t2847);
             let t2851 = t2846 * t2850;
-            qdd[0] = t2851;
+            qdd.0 = t2851;
             let t2854 = lit::<T>(4.8965888601467475e-12) * t2851;
             let t2855 = s.0 * lit::<T>(9.81);
             let t2856 = s.1 * lit::<T>(9.81);
@@ -30782,7 +30882,7 @@ pub mod fma {
             let t2870 = T::mul_add(t2733, lit::<T>(4.8035536718039596e-11), t2868);
             let t2871 = t2747 - t2870;
             let t2872 = t2746 * t2871;
-            qdd[1] = t2872;
+            qdd.1 = t2872;
             let t2873 = t2854 + t2872;
             let t2876 = T::mul_add(-lit::<T>(0.2045), t2873, t2855);
             let t2877 = T::mul_add(
@@ -30818,7 +30918,7 @@ pub mod fma {
             let t2920 = T::mul_add(s.64, t2905, t2918);
             let t2921 = s.69 - t2920;
             let t2922 = s.68 * t2921;
-            qdd[2] = t2922;
+            qdd.2 = t2922;
             let t2923 = t2891 + t2922;
             let t2926 = T::mul_add(lit::<T>(0.2155), t2907, t2908);
             let t2927 = T::mul_add(-lit::<T>(0.2155), t2906, t2909);
@@ -30848,7 +30948,7 @@ pub mod fma {
             let t2966 = T::mul_add(s.56, t2951, t2964);
             let t2967 = s.61 - t2966;
             let t2968 = s.60 * t2967;
-            qdd[3] = t2968;
+            qdd.3 = t2968;
             let t2969 = t2939 + t2968;
             let t2972 = T::mul_add(-lit::<T>(0.1845), t2969, t2954);
             let t2973 = T::mul_add(lit::<T>(0.1845), t2952, t2951);
@@ -30878,7 +30978,7 @@ pub mod fma {
             let t3012 = T::mul_add(s.46, t2997, t3010);
             let t3013 = s.53 - t3012;
             let t3014 = s.52 * t3013;
-            qdd[4] = t3014;
+            qdd.4 = t3014;
             let t3015 = t2985 + t3014;
             let t3018 = T::mul_add(lit::<T>(0.2155), t2999, t3000);
             let t3019 = T::mul_add(-lit::<T>(0.2155), t2998, t3001);
@@ -30908,12 +31008,12 @@ pub mod fma {
             let t3058 = T::mul_add(s.40, t3043, t3056);
             let t3059 = s.45 - t3058;
             let t3060 = s.44 * t3059;
-            qdd[5] = t3060;
+            qdd.5 = t3060;
             let t3061 = t3031 + t3060;
             let t3063 = T::mul_add(lit::<T>(-4.8965888601467475e-12), t3061, t3045);
             let t3065 = T::mul_add(-lit::<T>(0.001), t3063, s.37);
             let t3066 = lit::<T>(1000.0) * t3065;
-            qdd[6] = t3066;
+            qdd.6 = t3066;
         }
     }
     use fd_part1::fd_part1;
@@ -30973,6 +31073,17 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 7 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f7<T>(T, T, T, T, T, T, T);
+    /// An array of 49 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f49<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -30987,6 +31098,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t8 = q[1].sin();
             s.0 = t8;
             let t9 = q[1].cos();
@@ -32659,32 +32777,32 @@ pub mod fma {
             let t2038 = T::mul_add(t1984, t2030, t2034);
             let t2040 = T::mul_add(t1988, t2036, t2038);
             let t2041 = t1991 * t2040;
-            qdd[0] = t2041;
+            qdd.0 = t2041;
             let t2048 = t1988 * t2041;
             let t2049 = T::mul_add(t1987, t2036, t2048);
-            qdd[1] = t2049;
+            qdd.1 = t2049;
             let t2050 = t1979 * t2049;
             let t2051 = T::mul_add(t1978, t2030, t2050);
             let t2053 = T::mul_add(t1984, t2041, t2051);
-            qdd[2] = t2053;
+            qdd.2 = t2053;
             let t2054 = t1963 * t2053;
             let t2055 = T::mul_add(t1962, t2022, t2054);
             let t2057 = T::mul_add(t1970, t2049, t2055);
             let t2059 = T::mul_add(t1975, t2041, t2057);
-            qdd[3] = t2059;
+            qdd.3 = t2059;
             let t2060 = t1938 * t2059;
             let t2061 = T::mul_add(t1937, t2012, t2060);
             let t2063 = T::mul_add(t1947, t2053, t2061);
             let t2065 = T::mul_add(t1954, t2049, t2063);
             let t2067 = T::mul_add(t1959, t2041, t2065);
-            qdd[4] = t2067;
+            qdd.4 = t2067;
             let t2068 = t1902 * t2067;
             let t2069 = T::mul_add(t1901, t2000, t2068);
             let t2071 = T::mul_add(t1913, t2059, t2069);
             let t2073 = T::mul_add(t1922, t2053, t2071);
             let t2075 = T::mul_add(t1929, t2049, t2073);
             let t2077 = T::mul_add(t1934, t2041, t2075);
-            qdd[5] = t2077;
+            qdd.5 = t2077;
             let t2078 = lit::<T>(-4.8965888601467475e-12) * t2077;
             let t2079 = T::mul_add(lit::<T>(-1000.0), t1998, -t2078);
             let t2081 = T::mul_add(t1866, t2067, t2079);
@@ -32692,7 +32810,7 @@ pub mod fma {
             let t2085 = T::mul_add(t1886, t2053, t2083);
             let t2087 = T::mul_add(t1893, t2049, t2085);
             let t2089 = T::mul_add(t1898, t2041, t2087);
-            qdd[6] = t2089;
+            qdd.6 = t2089;
             let t2090 = t8 * t2041;
             let t2091 = t9 * t2041;
             let t2093 = T::mul_add(lit::<T>(4.8965888601467475e-12), t2041, t2049);
@@ -33111,6 +33229,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t2606 = -s.350;
             let t2608 = T::mul_add(-s.154, s.154, t2606);
             let t2611 = s.153 * s.156;
@@ -35077,6 +35202,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f7<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f49<T>)
+            };
             let t5106 = s.499 + s.500;
             let t5107 = s.467 + t5106;
             let t5109 = s.3 * s.478;
@@ -35578,32 +35710,32 @@ pub mod fma {
             let t5885 = T::mul_add(s.299, t5877, t5881);
             let t5887 = T::mul_add(s.301, t5883, t5885);
             let t5888 = s.302 * t5887;
-            dqdd_dq[0][1] = t5888;
+            dqdd_dq.1 = t5888;
             let t5895 = s.301 * t5888;
             let t5896 = T::mul_add(s.300, t5883, t5895);
-            dqdd_dq[1][1] = t5896;
+            dqdd_dq.8 = t5896;
             let t5897 = s.298 * t5896;
             let t5898 = T::mul_add(s.297, t5877, t5897);
             let t5900 = T::mul_add(s.299, t5888, t5898);
-            dqdd_dq[2][1] = t5900;
+            dqdd_dq.15 = t5900;
             let t5901 = s.294 * t5900;
             let t5902 = T::mul_add(s.293, t5869, t5901);
             let t5904 = T::mul_add(s.295, t5896, t5902);
             let t5906 = T::mul_add(s.296, t5888, t5904);
-            dqdd_dq[3][1] = t5906;
+            dqdd_dq.22 = t5906;
             let t5907 = s.289 * t5906;
             let t5908 = T::mul_add(s.288, t5859, t5907);
             let t5910 = T::mul_add(s.290, t5900, t5908);
             let t5912 = T::mul_add(s.291, t5896, t5910);
             let t5914 = T::mul_add(s.292, t5888, t5912);
-            dqdd_dq[4][1] = t5914;
+            dqdd_dq.29 = t5914;
             let t5915 = s.283 * t5914;
             let t5916 = T::mul_add(s.282, t5847, t5915);
             let t5918 = T::mul_add(s.284, t5906, t5916);
             let t5920 = T::mul_add(s.285, t5900, t5918);
             let t5922 = T::mul_add(s.286, t5896, t5920);
             let t5924 = T::mul_add(s.287, t5888, t5922);
-            dqdd_dq[5][1] = t5924;
+            dqdd_dq.36 = t5924;
             let t5925 = lit::<T>(-4.8965888601467475e-12) * t5924;
             let t5926 = T::mul_add(lit::<T>(-1000.0), t5721, -t5925);
             let t5928 = T::mul_add(s.277, t5914, t5926);
@@ -35611,7 +35743,7 @@ pub mod fma {
             let t5932 = T::mul_add(s.279, t5900, t5930);
             let t5934 = T::mul_add(s.280, t5896, t5932);
             let t5936 = T::mul_add(s.281, t5888, t5934);
-            dqdd_dq[6][1] = t5936;
+            dqdd_dq.43 = t5936;
             let t5938 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.487, s.485);
             let t5940 = T::mul_add(s.277, s.487, s.483);
             let t5942 = T::mul_add(s.278, s.487, s.481);
@@ -35634,32 +35766,32 @@ pub mod fma {
             let t5976 = T::mul_add(s.299, t5968, t5972);
             let t5978 = T::mul_add(s.301, t5974, t5976);
             let t5979 = s.302 * t5978;
-            dqdd_dq[0][2] = t5979;
+            dqdd_dq.2 = t5979;
             let t5986 = s.301 * t5979;
             let t5987 = T::mul_add(s.300, t5974, t5986);
-            dqdd_dq[1][2] = t5987;
+            dqdd_dq.9 = t5987;
             let t5988 = s.298 * t5987;
             let t5989 = T::mul_add(s.297, t5968, t5988);
             let t5991 = T::mul_add(s.299, t5979, t5989);
-            dqdd_dq[2][2] = t5991;
+            dqdd_dq.16 = t5991;
             let t5992 = s.294 * t5991;
             let t5993 = T::mul_add(s.293, t5960, t5992);
             let t5995 = T::mul_add(s.295, t5987, t5993);
             let t5997 = T::mul_add(s.296, t5979, t5995);
-            dqdd_dq[3][2] = t5997;
+            dqdd_dq.23 = t5997;
             let t5998 = s.289 * t5997;
             let t5999 = T::mul_add(s.288, t5950, t5998);
             let t6001 = T::mul_add(s.290, t5991, t5999);
             let t6003 = T::mul_add(s.291, t5987, t6001);
             let t6005 = T::mul_add(s.292, t5979, t6003);
-            dqdd_dq[4][2] = t6005;
+            dqdd_dq.30 = t6005;
             let t6006 = s.283 * t6005;
             let t6007 = T::mul_add(s.282, t5938, t6006);
             let t6009 = T::mul_add(s.284, t5997, t6007);
             let t6011 = T::mul_add(s.285, t5991, t6009);
             let t6013 = T::mul_add(s.286, t5987, t6011);
             let t6015 = T::mul_add(s.287, t5979, t6013);
-            dqdd_dq[5][2] = t6015;
+            dqdd_dq.37 = t6015;
             let t6016 = lit::<T>(-4.8965888601467475e-12) * t6015;
             let t6017 = T::mul_add(lit::<T>(-1000.0), s.487, -t6016);
             let t6019 = T::mul_add(s.277, t6005, t6017);
@@ -35667,7 +35799,7 @@ pub mod fma {
             let t6023 = T::mul_add(s.279, t5991, t6021);
             let t6025 = T::mul_add(s.280, t5987, t6023);
             let t6027 = T::mul_add(s.281, t5979, t6025);
-            dqdd_dq[6][2] = t6027;
+            dqdd_dq.44 = t6027;
             let t6029 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.391, s.389);
             let t6031 = T::mul_add(s.277, s.391, s.387);
             let t6033 = T::mul_add(s.278, s.391, s.385);
@@ -35690,32 +35822,32 @@ pub mod fma {
             let t6067 = T::mul_add(s.299, t6059, t6063);
             let t6069 = T::mul_add(s.301, t6065, t6067);
             let t6070 = s.302 * t6069;
-            dqdd_dq[0][3] = t6070;
+            dqdd_dq.3 = t6070;
             let t6077 = s.301 * t6070;
             let t6078 = T::mul_add(s.300, t6065, t6077);
-            dqdd_dq[1][3] = t6078;
+            dqdd_dq.10 = t6078;
             let t6079 = s.298 * t6078;
             let t6080 = T::mul_add(s.297, t6059, t6079);
             let t6082 = T::mul_add(s.299, t6070, t6080);
-            dqdd_dq[2][3] = t6082;
+            dqdd_dq.17 = t6082;
             let t6083 = s.294 * t6082;
             let t6084 = T::mul_add(s.293, t6051, t6083);
             let t6086 = T::mul_add(s.295, t6078, t6084);
             let t6088 = T::mul_add(s.296, t6070, t6086);
-            dqdd_dq[3][3] = t6088;
+            dqdd_dq.24 = t6088;
             let t6089 = s.289 * t6088;
             let t6090 = T::mul_add(s.288, t6041, t6089);
             let t6092 = T::mul_add(s.290, t6082, t6090);
             let t6094 = T::mul_add(s.291, t6078, t6092);
             let t6096 = T::mul_add(s.292, t6070, t6094);
-            dqdd_dq[4][3] = t6096;
+            dqdd_dq.31 = t6096;
             let t6097 = s.283 * t6096;
             let t6098 = T::mul_add(s.282, t6029, t6097);
             let t6100 = T::mul_add(s.284, t6088, t6098);
             let t6102 = T::mul_add(s.285, t6082, t6100);
             let t6104 = T::mul_add(s.286, t6078, t6102);
             let t6106 = T::mul_add(s.287, t6070, t6104);
-            dqdd_dq[5][3] = t6106;
+            dqdd_dq.38 = t6106;
             let t6107 = lit::<T>(-4.8965888601467475e-12) * t6106;
             let t6108 = T::mul_add(lit::<T>(-1000.0), s.391, -t6107);
             let t6110 = T::mul_add(s.277, t6096, t6108);
@@ -35723,7 +35855,7 @@ pub mod fma {
             let t6114 = T::mul_add(s.279, t6082, t6112);
             let t6116 = T::mul_add(s.280, t6078, t6114);
             let t6118 = T::mul_add(s.281, t6070, t6116);
-            dqdd_dq[6][3] = t6118;
+            dqdd_dq.45 = t6118;
             let t6120 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.377, s.375);
             let t6122 = T::mul_add(s.277, s.377, s.373);
             let t6124 = T::mul_add(s.278, s.377, s.380);
@@ -35746,32 +35878,32 @@ pub mod fma {
             let t6158 = T::mul_add(s.299, t6150, t6154);
             let t6160 = T::mul_add(s.301, t6156, t6158);
             let t6161 = s.302 * t6160;
-            dqdd_dq[0][4] = t6161;
+            dqdd_dq.4 = t6161;
             let t6168 = s.301 * t6161;
             let t6169 = T::mul_add(s.300, t6156, t6168);
-            dqdd_dq[1][4] = t6169;
+            dqdd_dq.11 = t6169;
             let t6170 = s.298 * t6169;
             let t6171 = T::mul_add(s.297, t6150, t6170);
             let t6173 = T::mul_add(s.299, t6161, t6171);
-            dqdd_dq[2][4] = t6173;
+            dqdd_dq.18 = t6173;
             let t6174 = s.294 * t6173;
             let t6175 = T::mul_add(s.293, t6142, t6174);
             let t6177 = T::mul_add(s.295, t6169, t6175);
             let t6179 = T::mul_add(s.296, t6161, t6177);
-            dqdd_dq[3][4] = t6179;
+            dqdd_dq.25 = t6179;
             let t6180 = s.289 * t6179;
             let t6181 = T::mul_add(s.288, t6132, t6180);
             let t6183 = T::mul_add(s.290, t6173, t6181);
             let t6185 = T::mul_add(s.291, t6169, t6183);
             let t6187 = T::mul_add(s.292, t6161, t6185);
-            dqdd_dq[4][4] = t6187;
+            dqdd_dq.32 = t6187;
             let t6188 = s.283 * t6187;
             let t6189 = T::mul_add(s.282, t6120, t6188);
             let t6191 = T::mul_add(s.284, t6179, t6189);
             let t6193 = T::mul_add(s.285, t6173, t6191);
             let t6195 = T::mul_add(s.286, t6169, t6193);
             let t6197 = T::mul_add(s.287, t6161, t6195);
-            dqdd_dq[5][4] = t6197;
+            dqdd_dq.39 = t6197;
             let t6198 = lit::<T>(-4.8965888601467475e-12) * t6197;
             let t6199 = T::mul_add(lit::<T>(-1000.0), s.377, -t6198);
             let t6201 = T::mul_add(s.277, t6187, t6199);
@@ -35779,7 +35911,7 @@ pub mod fma {
             let t6205 = T::mul_add(s.279, t6173, t6203);
             let t6207 = T::mul_add(s.280, t6169, t6205);
             let t6209 = T::mul_add(s.281, t6161, t6207);
-            dqdd_dq[6][4] = t6209;
+            dqdd_dq.46 = t6209;
             let t6211 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.367, s.365);
             let t6213 = T::mul_add(s.277, s.367, s.370);
             let t6215 = T::mul_add(s.278, s.367, s.382);
@@ -35802,32 +35934,32 @@ pub mod fma {
             let t6249 = T::mul_add(s.299, t6241, t6245);
             let t6251 = T::mul_add(s.301, t6247, t6249);
             let t6252 = s.302 * t6251;
-            dqdd_dq[0][5] = t6252;
+            dqdd_dq.5 = t6252;
             let t6259 = s.301 * t6252;
             let t6260 = T::mul_add(s.300, t6247, t6259);
-            dqdd_dq[1][5] = t6260;
+            dqdd_dq.12 = t6260;
             let t6261 = s.298 * t6260;
             let t6262 = T::mul_add(s.297, t6241, t6261);
             let t6264 = T::mul_add(s.299, t6252, t6262);
-            dqdd_dq[2][5] = t6264;
+            dqdd_dq.19 = t6264;
             let t6265 = s.294 * t6264;
             let t6266 = T::mul_add(s.293, t6233, t6265);
             let t6268 = T::mul_add(s.295, t6260, t6266);
             let t6270 = T::mul_add(s.296, t6252, t6268);
-            dqdd_dq[3][5] = t6270;
+            dqdd_dq.26 = t6270;
             let t6271 = s.289 * t6270;
             let t6272 = T::mul_add(s.288, t6223, t6271);
             let t6274 = T::mul_add(s.290, t6264, t6272);
             let t6276 = T::mul_add(s.291, t6260, t6274);
             let t6278 = T::mul_add(s.292, t6252, t6276);
-            dqdd_dq[4][5] = t6278;
+            dqdd_dq.33 = t6278;
             let t6279 = s.283 * t6278;
             let t6280 = T::mul_add(s.282, t6211, t6279);
             let t6282 = T::mul_add(s.284, t6270, t6280);
             let t6284 = T::mul_add(s.285, t6264, t6282);
             let t6286 = T::mul_add(s.286, t6260, t6284);
             let t6288 = T::mul_add(s.287, t6252, t6286);
-            dqdd_dq[5][5] = t6288;
+            dqdd_dq.40 = t6288;
             let t6289 = lit::<T>(-4.8965888601467475e-12) * t6288;
             let t6290 = T::mul_add(lit::<T>(-1000.0), s.367, -t6289);
             let t6292 = T::mul_add(s.277, t6278, t6290);
@@ -35835,7 +35967,7 @@ pub mod fma {
             let t6296 = T::mul_add(s.279, t6264, t6294);
             let t6298 = T::mul_add(s.280, t6260, t6296);
             let t6300 = T::mul_add(s.281, t6252, t6298);
-            dqdd_dq[6][5] = t6300;
+            dqdd_dq.47 = t6300;
             let t6302 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.361, s.364);
             let t6304 = T::mul_add(s.277, s.361, s.372);
             let t6306 = T::mul_add(s.278, s.361, s.384);
@@ -35858,32 +35990,32 @@ pub mod fma {
             let t6340 = T::mul_add(s.299, t6332, t6336);
             let t6342 = T::mul_add(s.301, t6338, t6340);
             let t6343 = s.302 * t6342;
-            dqdd_dq[0][6] = t6343;
+            dqdd_dq.6 = t6343;
             let t6350 = s.301 * t6343;
             let t6351 = T::mul_add(s.300, t6338, t6350);
-            dqdd_dq[1][6] = t6351;
+            dqdd_dq.13 = t6351;
             let t6352 = s.298 * t6351;
             let t6353 = T::mul_add(s.297, t6332, t6352);
             let t6355 = T::mul_add(s.299, t6343, t6353);
-            dqdd_dq[2][6] = t6355;
+            dqdd_dq.20 = t6355;
             let t6356 = s.294 * t6355;
             let t6357 = T::mul_add(s.293, t6324, t6356);
             let t6359 = T::mul_add(s.295, t6351, t6357);
             let t6361 = T::mul_add(s.296, t6343, t6359);
-            dqdd_dq[3][6] = t6361;
+            dqdd_dq.27 = t6361;
             let t6362 = s.289 * t6361;
             let t6363 = T::mul_add(s.288, t6314, t6362);
             let t6365 = T::mul_add(s.290, t6355, t6363);
             let t6367 = T::mul_add(s.291, t6351, t6365);
             let t6369 = T::mul_add(s.292, t6343, t6367);
-            dqdd_dq[4][6] = t6369;
+            dqdd_dq.34 = t6369;
             let t6370 = s.283 * t6369;
             let t6371 = T::mul_add(s.282, t6302, t6370);
             let t6373 = T::mul_add(s.284, t6361, t6371);
             let t6375 = T::mul_add(s.285, t6355, t6373);
             let t6377 = T::mul_add(s.286, t6351, t6375);
             let t6379 = T::mul_add(s.287, t6343, t6377);
-            dqdd_dq[5][6] = t6379;
+            dqdd_dq.41 = t6379;
             let t6380 = lit::<T>(-4.8965888601467475e-12) * t6379;
             let t6381 = T::mul_add(lit::<T>(-1000.0), s.361, -t6380);
             let t6383 = T::mul_add(s.277, t6369, t6381);
@@ -35891,7 +36023,7 @@ pub mod fma {
             let t6387 = T::mul_add(s.279, t6355, t6385);
             let t6389 = T::mul_add(s.280, t6351, t6387);
             let t6391 = T::mul_add(s.281, t6343, t6389);
-            dqdd_dq[6][6] = t6391;
+            dqdd_dq.48 = t6391;
             let t6393 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), t5816, t5801);
             let t6395 = T::mul_add(s.277, t5816, t5786);
             let t6397 = T::mul_add(s.278, t5816, t5771);
@@ -35914,32 +36046,32 @@ pub mod fma {
             let t6431 = T::mul_add(s.299, t6423, t6427);
             let t6433 = T::mul_add(s.301, t6429, t6431);
             let t6434 = s.302 * t6433;
-            dqdd_dqd[0][0] = t6434;
+            dqdd_dqd.0 = t6434;
             let t6441 = s.301 * t6434;
             let t6442 = T::mul_add(s.300, t6429, t6441);
-            dqdd_dqd[1][0] = t6442;
+            dqdd_dqd.7 = t6442;
             let t6443 = s.298 * t6442;
             let t6444 = T::mul_add(s.297, t6423, t6443);
             let t6446 = T::mul_add(s.299, t6434, t6444);
-            dqdd_dqd[2][0] = t6446;
+            dqdd_dqd.14 = t6446;
             let t6447 = s.294 * t6446;
             let t6448 = T::mul_add(s.293, t6415, t6447);
             let t6450 = T::mul_add(s.295, t6442, t6448);
             let t6452 = T::mul_add(s.296, t6434, t6450);
-            dqdd_dqd[3][0] = t6452;
+            dqdd_dqd.21 = t6452;
             let t6453 = s.289 * t6452;
             let t6454 = T::mul_add(s.288, t6405, t6453);
             let t6456 = T::mul_add(s.290, t6446, t6454);
             let t6458 = T::mul_add(s.291, t6442, t6456);
             let t6460 = T::mul_add(s.292, t6434, t6458);
-            dqdd_dqd[4][0] = t6460;
+            dqdd_dqd.28 = t6460;
             let t6461 = s.283 * t6460;
             let t6462 = T::mul_add(s.282, t6393, t6461);
             let t6464 = T::mul_add(s.284, t6452, t6462);
             let t6466 = T::mul_add(s.285, t6446, t6464);
             let t6468 = T::mul_add(s.286, t6442, t6466);
             let t6470 = T::mul_add(s.287, t6434, t6468);
-            dqdd_dqd[5][0] = t6470;
+            dqdd_dqd.35 = t6470;
             let t6471 = lit::<T>(-4.8965888601467475e-12) * t6470;
             let t6472 = T::mul_add(lit::<T>(-1000.0), t5816, -t6471);
             let t6474 = T::mul_add(s.277, t6460, t6472);
@@ -35947,7 +36079,7 @@ pub mod fma {
             let t6478 = T::mul_add(s.279, t6446, t6476);
             let t6480 = T::mul_add(s.280, t6442, t6478);
             let t6482 = T::mul_add(s.281, t6434, t6480);
-            dqdd_dqd[6][0] = t6482;
+            dqdd_dqd.42 = t6482;
             let t6484 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), t5726, t5712);
             let t6486 = T::mul_add(s.277, t5726, t5694);
             let t6488 = T::mul_add(s.278, t5726, t5676);
@@ -35970,32 +36102,32 @@ pub mod fma {
             let t6522 = T::mul_add(s.299, t6514, t6518);
             let t6524 = T::mul_add(s.301, t6520, t6522);
             let t6525 = s.302 * t6524;
-            dqdd_dqd[0][1] = t6525;
+            dqdd_dqd.1 = t6525;
             let t6532 = s.301 * t6525;
             let t6533 = T::mul_add(s.300, t6520, t6532);
-            dqdd_dqd[1][1] = t6533;
+            dqdd_dqd.8 = t6533;
             let t6534 = s.298 * t6533;
             let t6535 = T::mul_add(s.297, t6514, t6534);
             let t6537 = T::mul_add(s.299, t6525, t6535);
-            dqdd_dqd[2][1] = t6537;
+            dqdd_dqd.15 = t6537;
             let t6538 = s.294 * t6537;
             let t6539 = T::mul_add(s.293, t6506, t6538);
             let t6541 = T::mul_add(s.295, t6533, t6539);
             let t6543 = T::mul_add(s.296, t6525, t6541);
-            dqdd_dqd[3][1] = t6543;
+            dqdd_dqd.22 = t6543;
             let t6544 = s.289 * t6543;
             let t6545 = T::mul_add(s.288, t6496, t6544);
             let t6547 = T::mul_add(s.290, t6537, t6545);
             let t6549 = T::mul_add(s.291, t6533, t6547);
             let t6551 = T::mul_add(s.292, t6525, t6549);
-            dqdd_dqd[4][1] = t6551;
+            dqdd_dqd.29 = t6551;
             let t6552 = s.283 * t6551;
             let t6553 = T::mul_add(s.282, t6484, t6552);
             let t6555 = T::mul_add(s.284, t6543, t6553);
             let t6557 = T::mul_add(s.285, t6537, t6555);
             let t6559 = T::mul_add(s.286, t6533, t6557);
             let t6561 = T::mul_add(s.287, t6525, t6559);
-            dqdd_dqd[5][1] = t6561;
+            dqdd_dqd.36 = t6561;
             let t6562 = lit::<T>(-4.8965888601467475e-12) * t6561;
             let t6563 = T::mul_add(lit::<T>(-1000.0), t5726, -t6562);
             let t6565 = T::mul_add(s.277, t6551, t6563);
@@ -36003,7 +36135,7 @@ pub mod fma {
             let t6569 = T::mul_add(s.279, t6537, t6567);
             let t6571 = T::mul_add(s.280, t6533, t6569);
             let t6573 = T::mul_add(s.281, t6525, t6571);
-            dqdd_dqd[6][1] = t6573;
+            dqdd_dqd.43 = t6573;
             let t6575 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.488, s.486);
             let t6577 = T::mul_add(s.277, s.488, s.484);
             let t6579 = T::mul_add(s.278, s.488, s.482);
@@ -36026,32 +36158,32 @@ pub mod fma {
             let t6613 = T::mul_add(s.299, t6605, t6609);
             let t6615 = T::mul_add(s.301, t6611, t6613);
             let t6616 = s.302 * t6615;
-            dqdd_dqd[0][2] = t6616;
+            dqdd_dqd.2 = t6616;
             let t6623 = s.301 * t6616;
             let t6624 = T::mul_add(s.300, t6611, t6623);
-            dqdd_dqd[1][2] = t6624;
+            dqdd_dqd.9 = t6624;
             let t6625 = s.298 * t6624;
             let t6626 = T::mul_add(s.297, t6605, t6625);
             let t6628 = T::mul_add(s.299, t6616, t6626);
-            dqdd_dqd[2][2] = t6628;
+            dqdd_dqd.16 = t6628;
             let t6629 = s.294 * t6628;
             let t6630 = T::mul_add(s.293, t6597, t6629);
             let t6632 = T::mul_add(s.295, t6624, t6630);
             let t6634 = T::mul_add(s.296, t6616, t6632);
-            dqdd_dqd[3][2] = t6634;
+            dqdd_dqd.23 = t6634;
             let t6635 = s.289 * t6634;
             let t6636 = T::mul_add(s.288, t6587, t6635);
             let t6638 = T::mul_add(s.290, t6628, t6636);
             let t6640 = T::mul_add(s.291, t6624, t6638);
             let t6642 = T::mul_add(s.292, t6616, t6640);
-            dqdd_dqd[4][2] = t6642;
+            dqdd_dqd.30 = t6642;
             let t6643 = s.283 * t6642;
             let t6644 = T::mul_add(s.282, t6575, t6643);
             let t6646 = T::mul_add(s.284, t6634, t6644);
             let t6648 = T::mul_add(s.285, t6628, t6646);
             let t6650 = T::mul_add(s.286, t6624, t6648);
             let t6652 = T::mul_add(s.287, t6616, t6650);
-            dqdd_dqd[5][2] = t6652;
+            dqdd_dqd.37 = t6652;
             let t6653 = lit::<T>(-4.8965888601467475e-12) * t6652;
             let t6654 = T::mul_add(lit::<T>(-1000.0), s.488, -t6653);
             let t6656 = T::mul_add(s.277, t6642, t6654);
@@ -36059,7 +36191,7 @@ pub mod fma {
             let t6660 = T::mul_add(s.279, t6628, t6658);
             let t6662 = T::mul_add(s.280, t6624, t6660);
             let t6664 = T::mul_add(s.281, t6616, t6662);
-            dqdd_dqd[6][2] = t6664;
+            dqdd_dqd.44 = t6664;
             let t6666 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.392, s.390);
             let t6668 = T::mul_add(s.277, s.392, s.388);
             let t6670 = T::mul_add(s.278, s.392, s.386);
@@ -36082,32 +36214,32 @@ pub mod fma {
             let t6704 = T::mul_add(s.299, t6696, t6700);
             let t6706 = T::mul_add(s.301, t6702, t6704);
             let t6707 = s.302 * t6706;
-            dqdd_dqd[0][3] = t6707;
+            dqdd_dqd.3 = t6707;
             let t6714 = s.301 * t6707;
             let t6715 = T::mul_add(s.300, t6702, t6714);
-            dqdd_dqd[1][3] = t6715;
+            dqdd_dqd.10 = t6715;
             let t6716 = s.298 * t6715;
             let t6717 = T::mul_add(s.297, t6696, t6716);
             let t6719 = T::mul_add(s.299, t6707, t6717);
-            dqdd_dqd[2][3] = t6719;
+            dqdd_dqd.17 = t6719;
             let t6720 = s.294 * t6719;
             let t6721 = T::mul_add(s.293, t6688, t6720);
             let t6723 = T::mul_add(s.295, t6715, t6721);
             let t6725 = T::mul_add(s.296, t6707, t6723);
-            dqdd_dqd[3][3] = t6725;
+            dqdd_dqd.24 = t6725;
             let t6726 = s.289 * t6725;
             let t6727 = T::mul_add(s.288, t6678, t6726);
             let t6729 = T::mul_add(s.290, t6719, t6727);
             let t6731 = T::mul_add(s.291, t6715, t6729);
             let t6733 = T::mul_add(s.292, t6707, t6731);
-            dqdd_dqd[4][3] = t6733;
+            dqdd_dqd.31 = t6733;
             let t6734 = s.283 * t6733;
             let t6735 = T::mul_add(s.282, t6666, t6734);
             let t6737 = T::mul_add(s.284, t6725, t6735);
             let t6739 = T::mul_add(s.285, t6719, t6737);
             let t6741 = T::mul_add(s.286, t6715, t6739);
             let t6743 = T::mul_add(s.287, t6707, t6741);
-            dqdd_dqd[5][3] = t6743;
+            dqdd_dqd.38 = t6743;
             let t6744 = lit::<T>(-4.8965888601467475e-12) * t6743;
             let t6745 = T::mul_add(lit::<T>(-1000.0), s.392, -t6744);
             let t6747 = T::mul_add(s.277, t6733, t6745);
@@ -36115,7 +36247,7 @@ pub mod fma {
             let t6751 = T::mul_add(s.279, t6719, t6749);
             let t6753 = T::mul_add(s.280, t6715, t6751);
             let t6755 = T::mul_add(s.281, t6707, t6753);
-            dqdd_dqd[6][3] = t6755;
+            dqdd_dqd.45 = t6755;
             let t6757 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.378, s.376);
             let t6759 = T::mul_add(s.277, s.378, s.374);
             let t6761 = T::mul_add(s.278, s.378, s.379);
@@ -36138,32 +36270,32 @@ pub mod fma {
             let t6795 = T::mul_add(s.299, t6787, t6791);
             let t6797 = T::mul_add(s.301, t6793, t6795);
             let t6798 = s.302 * t6797;
-            dqdd_dqd[0][4] = t6798;
+            dqdd_dqd.4 = t6798;
             let t6805 = s.301 * t6798;
             let t6806 = T::mul_add(s.300, t6793, t6805);
-            dqdd_dqd[1][4] = t6806;
+            dqdd_dqd.11 = t6806;
             let t6807 = s.298 * t6806;
             let t6808 = T::mul_add(s.297, t6787, t6807);
             let t6810 = T::mul_add(s.299, t6798, t6808);
-            dqdd_dqd[2][4] = t6810;
+            dqdd_dqd.18 = t6810;
             let t6811 = s.294 * t6810;
             let t6812 = T::mul_add(s.293, t6779, t6811);
             let t6814 = T::mul_add(s.295, t6806, t6812);
             let t6816 = T::mul_add(s.296, t6798, t6814);
-            dqdd_dqd[3][4] = t6816;
+            dqdd_dqd.25 = t6816;
             let t6817 = s.289 * t6816;
             let t6818 = T::mul_add(s.288, t6769, t6817);
             let t6820 = T::mul_add(s.290, t6810, t6818);
             let t6822 = T::mul_add(s.291, t6806, t6820);
             let t6824 = T::mul_add(s.292, t6798, t6822);
-            dqdd_dqd[4][4] = t6824;
+            dqdd_dqd.32 = t6824;
             let t6825 = s.283 * t6824;
             let t6826 = T::mul_add(s.282, t6757, t6825);
             let t6828 = T::mul_add(s.284, t6816, t6826);
             let t6830 = T::mul_add(s.285, t6810, t6828);
             let t6832 = T::mul_add(s.286, t6806, t6830);
             let t6834 = T::mul_add(s.287, t6798, t6832);
-            dqdd_dqd[5][4] = t6834;
+            dqdd_dqd.39 = t6834;
             let t6835 = lit::<T>(-4.8965888601467475e-12) * t6834;
             let t6836 = T::mul_add(lit::<T>(-1000.0), s.378, -t6835);
             let t6838 = T::mul_add(s.277, t6824, t6836);
@@ -36171,7 +36303,7 @@ pub mod fma {
             let t6842 = T::mul_add(s.279, t6810, t6840);
             let t6844 = T::mul_add(s.280, t6806, t6842);
             let t6846 = T::mul_add(s.281, t6798, t6844);
-            dqdd_dqd[6][4] = t6846;
+            dqdd_dqd.46 = t6846;
             let t6848 = T::mul_add(-lit::<T>(-4.8965888601467475e-12), s.368, s.366);
             let t6850 = T::mul_add(s.277, s.368, s.369);
             let t6852 = T::mul_add(s.278, s.368, s.381);
@@ -36194,32 +36326,32 @@ pub mod fma {
             let t6886 = T::mul_add(s.299, t6878, t6882);
             let t6888 = T::mul_add(s.301, t6884, t6886);
             let t6889 = s.302 * t6888;
-            dqdd_dqd[0][5] = t6889;
+            dqdd_dqd.5 = t6889;
             let t6896 = s.301 * t6889;
             let t6897 = T::mul_add(s.300, t6884, t6896);
-            dqdd_dqd[1][5] = t6897;
+            dqdd_dqd.12 = t6897;
             let t6898 = s.298 * t6897;
             let t6899 = T::mul_add(s.297, t6878, t6898);
             let t6901 = T::mul_add(s.299, t6889, t6899);
-            dqdd_dqd[2][5] = t6901;
+            dqdd_dqd.19 = t6901;
             let t6902 = s.294 * t6901;
             let t6903 = T::mul_add(s.293, t6870, t6902);
             let t6905 = T::mul_add(s.295, t6897, t6903);
             let t6907 = T::mul_add(s.296, t6889, t6905);
-            dqdd_dqd[3][5] = t6907;
+            dqdd_dqd.26 = t6907;
             let t6908 = s.289 * t6907;
             let t6909 = T::mul_add(s.288, t6860, t6908);
             let t6911 = T::mul_add(s.290, t6901, t6909);
             let t6913 = T::mul_add(s.291, t6897, t6911);
             let t6915 = T::mul_add(s.292, t6889, t6913);
-            dqdd_dqd[4][5] = t6915;
+            dqdd_dqd.33 = t6915;
             let t6916 = s.283 * t6915;
             let t6917 = T::mul_add(s.282, t6848, t6916);
             let t6919 = T::mul_add(s.284, t6907, t6917);
             let t6921 = T::mul_add(s.285, t6901, t6919);
             let t6923 = T::mul_add(s.286, t6897, t6921);
             let t6925 = T::mul_add(s.287, t6889, t6923);
-            dqdd_dqd[5][5] = t6925;
+            dqdd_dqd.40 = t6925;
             let t6926 = lit::<T>(-4.8965888601467475e-12) * t6925;
             let t6927 = T::mul_add(lit::<T>(-1000.0), s.368, -t6926);
             let t6929 = T::mul_add(s.277, t6915, t6927);
@@ -36227,7 +36359,7 @@ pub mod fma {
             let t6933 = T::mul_add(s.279, t6901, t6931);
             let t6935 = T::mul_add(s.280, t6897, t6933);
             let t6937 = T::mul_add(s.281, t6889, t6935);
-            dqdd_dqd[6][5] = t6937;
+            dqdd_dqd.47 = t6937;
             let t6938 = s.363 - s.362;
             let t6940 = T::mul_add(s.277, s.360, s.371);
             let t6942 = T::mul_add(s.278, s.360, s.383);
@@ -36250,32 +36382,32 @@ pub mod fma {
             let t6976 = T::mul_add(s.299, t6968, t6972);
             let t6978 = T::mul_add(s.301, t6974, t6976);
             let t6979 = s.302 * t6978;
-            dqdd_dqd[0][6] = t6979;
+            dqdd_dqd.6 = t6979;
             let t6986 = s.301 * t6979;
             let t6987 = T::mul_add(s.300, t6974, t6986);
-            dqdd_dqd[1][6] = t6987;
+            dqdd_dqd.13 = t6987;
             let t6988 = s.298 * t6987;
             let t6989 = T::mul_add(s.297, t6968, t6988);
             let t6991 = T::mul_add(s.299, t6979, t6989);
-            dqdd_dqd[2][6] = t6991;
+            dqdd_dqd.20 = t6991;
             let t6992 = s.294 * t6991;
             let t6993 = T::mul_add(s.293, t6960, t6992);
             let t6995 = T::mul_add(s.295, t6987, t6993);
             let t6997 = T::mul_add(s.296, t6979, t6995);
-            dqdd_dqd[3][6] = t6997;
+            dqdd_dqd.27 = t6997;
             let t6998 = s.289 * t6997;
             let t6999 = T::mul_add(s.288, t6950, t6998);
             let t7001 = T::mul_add(s.290, t6991, t6999);
             let t7003 = T::mul_add(s.291, t6987, t7001);
             let t7005 = T::mul_add(s.292, t6979, t7003);
-            dqdd_dqd[4][6] = t7005;
+            dqdd_dqd.34 = t7005;
             let t7006 = s.283 * t7005;
             let t7007 = T::mul_add(s.282, t6938, t7006);
             let t7009 = T::mul_add(s.284, t6997, t7007);
             let t7011 = T::mul_add(s.285, t6991, t7009);
             let t7013 = T::mul_add(s.286, t6987, t7011);
             let t7015 = T::mul_add(s.287, t6979, t7013);
-            dqdd_dqd[5][6] = t7015;
+            dqdd_dqd.41 = t7015;
             let t7016 = lit::<T>(-4.8965888601467475e-12) * t7015;
             let t7017 = T::mul_add(lit::<T>(-1000.0), s.360, -t7016);
             let t7019 = T::mul_add(s.277, t7005, t7017);
@@ -36283,7 +36415,7 @@ pub mod fma {
             let t7023 = T::mul_add(s.279, t6991, t7021);
             let t7025 = T::mul_add(s.280, t6987, t7023);
             let t7027 = T::mul_add(s.281, t6979, t7025);
-            dqdd_dqd[6][6] = t7027;
+            dqdd_dqd.48 = t7027;
         }
     }
     use fd_grad_part2::fd_grad_part2;

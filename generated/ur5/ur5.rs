@@ -6732,6 +6732,17 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 6 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f6<T>(T, T, T, T, T, T);
+    /// An array of 36 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f36<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -6745,6 +6756,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f6<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
             let t6 = q[1].sin();
             let t7 = q[1].cos();
             let t8 = lit::<T>(4.8965888601467475e-12) * t7;
@@ -7648,7 +7666,7 @@ pub mod portable {
             let t930 = t898 * t927;
             let t931 = t929 + t930;
             let t932 = t901 * t931;
-            qdd[0] = t932;
+            qdd.0 = t932;
             let t933 = t897 * t927;
             let t934 = t888 * t921;
             let t935 = t872 * t915;
@@ -7656,19 +7674,19 @@ pub mod portable {
             let t937 = lit::<T>(-58.355064750790525) * t907;
             let t938 = t898 * t932;
             let t939 = t933 + t938;
-            qdd[1] = t939;
+            qdd.1 = t939;
             let t940 = t889 * t939;
             let t941 = t934 + t940;
             let t942 = t894 * t932;
             let t943 = t941 + t942;
-            qdd[2] = t943;
+            qdd.2 = t943;
             let t944 = t873 * t943;
             let t945 = t935 + t944;
             let t946 = t880 * t939;
             let t947 = t945 + t946;
             let t948 = t885 * t932;
             let t949 = t947 + t948;
-            qdd[3] = t949;
+            qdd.3 = t949;
             let t950 = t857 * t949;
             let t951 = t936 + t950;
             let t952 = t857 * t943;
@@ -7677,7 +7695,7 @@ pub mod portable {
             let t955 = t953 + t954;
             let t956 = t869 * t932;
             let t957 = t955 + t956;
-            qdd[4] = t957;
+            qdd.4 = t957;
             let t958 = t841 * t949;
             let t959 = t937 + t958;
             let t960 = t841 * t943;
@@ -7686,7 +7704,7 @@ pub mod portable {
             let t963 = t961 + t962;
             let t964 = t853 * t932;
             let t965 = t963 + t964;
-            qdd[5] = t965;
+            qdd.5 = t965;
             let t966 = lit::<T>(0.13585) * t932;
             let t967 = t12 * t932;
             s.38 = t967;
@@ -9427,6 +9445,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f6<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
             let t2568 = s.159 - s.158;
             let t2569 = s.20 * s.132;
             let t2570 = s.19 * s.135;
@@ -9687,7 +9712,7 @@ pub mod portable {
             let t2825 = s.36 * t2822;
             let t2826 = t2824 + t2825;
             let t2827 = s.37 * t2826;
-            dqdd_dq[0][1] = t2827;
+            dqdd_dq.1 = t2827;
             let t2828 = s.35 * t2822;
             let t2829 = s.32 * t2816;
             let t2830 = s.28 * t2810;
@@ -9695,19 +9720,19 @@ pub mod portable {
             let t2832 = lit::<T>(-58.355064750790525) * t2690;
             let t2833 = s.36 * t2827;
             let t2834 = t2828 + t2833;
-            dqdd_dq[1][1] = t2834;
+            dqdd_dq.7 = t2834;
             let t2835 = s.33 * t2834;
             let t2836 = t2829 + t2835;
             let t2837 = s.34 * t2827;
             let t2838 = t2836 + t2837;
-            dqdd_dq[2][1] = t2838;
+            dqdd_dq.13 = t2838;
             let t2839 = s.29 * t2838;
             let t2840 = t2830 + t2839;
             let t2841 = s.30 * t2834;
             let t2842 = t2840 + t2841;
             let t2843 = s.31 * t2827;
             let t2844 = t2842 + t2843;
-            dqdd_dq[3][1] = t2844;
+            dqdd_dq.19 = t2844;
             let t2845 = s.26 * t2844;
             let t2846 = t2831 + t2845;
             let t2847 = s.26 * t2838;
@@ -9716,7 +9741,7 @@ pub mod portable {
             let t2850 = t2848 + t2849;
             let t2851 = s.27 * t2827;
             let t2852 = t2850 + t2851;
-            dqdd_dq[4][1] = t2852;
+            dqdd_dq.25 = t2852;
             let t2853 = s.23 * t2844;
             let t2854 = t2832 + t2853;
             let t2855 = s.23 * t2838;
@@ -9725,7 +9750,7 @@ pub mod portable {
             let t2858 = t2856 + t2857;
             let t2859 = s.24 * t2827;
             let t2860 = t2858 + t2859;
-            dqdd_dq[5][1] = t2860;
+            dqdd_dq.31 = t2860;
             let t2861 = s.23 * s.80;
             let t2862 = s.76 + t2861;
             let t2863 = s.74 + t2861;
@@ -9751,7 +9776,7 @@ pub mod portable {
             let t2883 = s.36 * t2880;
             let t2884 = t2882 + t2883;
             let t2885 = s.37 * t2884;
-            dqdd_dq[0][2] = t2885;
+            dqdd_dq.2 = t2885;
             let t2886 = s.35 * t2880;
             let t2887 = s.32 * t2874;
             let t2888 = s.28 * t2868;
@@ -9759,19 +9784,19 @@ pub mod portable {
             let t2890 = lit::<T>(-58.355064750790525) * s.80;
             let t2891 = s.36 * t2885;
             let t2892 = t2886 + t2891;
-            dqdd_dq[1][2] = t2892;
+            dqdd_dq.8 = t2892;
             let t2893 = s.33 * t2892;
             let t2894 = t2887 + t2893;
             let t2895 = s.34 * t2885;
             let t2896 = t2894 + t2895;
-            dqdd_dq[2][2] = t2896;
+            dqdd_dq.14 = t2896;
             let t2897 = s.29 * t2896;
             let t2898 = t2888 + t2897;
             let t2899 = s.30 * t2892;
             let t2900 = t2898 + t2899;
             let t2901 = s.31 * t2885;
             let t2902 = t2900 + t2901;
-            dqdd_dq[3][2] = t2902;
+            dqdd_dq.20 = t2902;
             let t2903 = s.26 * t2902;
             let t2904 = t2889 + t2903;
             let t2905 = s.26 * t2896;
@@ -9780,7 +9805,7 @@ pub mod portable {
             let t2908 = t2906 + t2907;
             let t2909 = s.27 * t2885;
             let t2910 = t2908 + t2909;
-            dqdd_dq[4][2] = t2910;
+            dqdd_dq.26 = t2910;
             let t2911 = s.23 * t2902;
             let t2912 = t2890 + t2911;
             let t2913 = s.23 * t2896;
@@ -9789,7 +9814,7 @@ pub mod portable {
             let t2916 = t2914 + t2915;
             let t2917 = s.24 * t2885;
             let t2918 = t2916 + t2917;
-            dqdd_dq[5][2] = t2918;
+            dqdd_dq.32 = t2918;
             let t2919 = s.23 * s.65;
             let t2920 = s.62 + t2919;
             let t2921 = s.68 + t2919;
@@ -9815,7 +9840,7 @@ pub mod portable {
             let t2941 = s.36 * t2938;
             let t2942 = t2940 + t2941;
             let t2943 = s.37 * t2942;
-            dqdd_dq[0][3] = t2943;
+            dqdd_dq.3 = t2943;
             let t2944 = s.35 * t2938;
             let t2945 = s.32 * t2932;
             let t2946 = s.28 * t2926;
@@ -9823,19 +9848,19 @@ pub mod portable {
             let t2948 = lit::<T>(-58.355064750790525) * s.65;
             let t2949 = s.36 * t2943;
             let t2950 = t2944 + t2949;
-            dqdd_dq[1][3] = t2950;
+            dqdd_dq.9 = t2950;
             let t2951 = s.33 * t2950;
             let t2952 = t2945 + t2951;
             let t2953 = s.34 * t2943;
             let t2954 = t2952 + t2953;
-            dqdd_dq[2][3] = t2954;
+            dqdd_dq.15 = t2954;
             let t2955 = s.29 * t2954;
             let t2956 = t2946 + t2955;
             let t2957 = s.30 * t2950;
             let t2958 = t2956 + t2957;
             let t2959 = s.31 * t2943;
             let t2960 = t2958 + t2959;
-            dqdd_dq[3][3] = t2960;
+            dqdd_dq.21 = t2960;
             let t2961 = s.26 * t2960;
             let t2962 = t2947 + t2961;
             let t2963 = s.26 * t2954;
@@ -9844,7 +9869,7 @@ pub mod portable {
             let t2966 = t2964 + t2965;
             let t2967 = s.27 * t2943;
             let t2968 = t2966 + t2967;
-            dqdd_dq[4][3] = t2968;
+            dqdd_dq.27 = t2968;
             let t2969 = s.23 * t2960;
             let t2970 = t2948 + t2969;
             let t2971 = s.23 * t2954;
@@ -9853,7 +9878,7 @@ pub mod portable {
             let t2974 = t2972 + t2973;
             let t2975 = s.24 * t2943;
             let t2976 = t2974 + t2975;
-            dqdd_dq[5][3] = t2976;
+            dqdd_dq.33 = t2976;
             let t2977 = s.23 * s.52;
             let t2978 = s.55 + t2977;
             let t2979 = s.70 + t2977;
@@ -9879,7 +9904,7 @@ pub mod portable {
             let t2999 = s.36 * t2996;
             let t3000 = t2998 + t2999;
             let t3001 = s.37 * t3000;
-            dqdd_dq[0][4] = t3001;
+            dqdd_dq.4 = t3001;
             let t3002 = s.35 * t2996;
             let t3003 = s.32 * t2990;
             let t3004 = s.28 * t2984;
@@ -9887,19 +9912,19 @@ pub mod portable {
             let t3006 = lit::<T>(-58.355064750790525) * s.52;
             let t3007 = s.36 * t3001;
             let t3008 = t3002 + t3007;
-            dqdd_dq[1][4] = t3008;
+            dqdd_dq.10 = t3008;
             let t3009 = s.33 * t3008;
             let t3010 = t3003 + t3009;
             let t3011 = s.34 * t3001;
             let t3012 = t3010 + t3011;
-            dqdd_dq[2][4] = t3012;
+            dqdd_dq.16 = t3012;
             let t3013 = s.29 * t3012;
             let t3014 = t3004 + t3013;
             let t3015 = s.30 * t3008;
             let t3016 = t3014 + t3015;
             let t3017 = s.31 * t3001;
             let t3018 = t3016 + t3017;
-            dqdd_dq[3][4] = t3018;
+            dqdd_dq.22 = t3018;
             let t3019 = s.26 * t3018;
             let t3020 = t3005 + t3019;
             let t3021 = s.26 * t3012;
@@ -9908,7 +9933,7 @@ pub mod portable {
             let t3024 = t3022 + t3023;
             let t3025 = s.27 * t3001;
             let t3026 = t3024 + t3025;
-            dqdd_dq[4][4] = t3026;
+            dqdd_dq.28 = t3026;
             let t3027 = s.23 * t3018;
             let t3028 = t3006 + t3027;
             let t3029 = s.23 * t3012;
@@ -9917,7 +9942,7 @@ pub mod portable {
             let t3032 = t3030 + t3031;
             let t3033 = s.24 * t3001;
             let t3034 = t3032 + t3033;
-            dqdd_dq[5][4] = t3034;
+            dqdd_dq.34 = t3034;
             let t3035 = s.23 * s.47;
             let t3036 = s.58 + t3035;
             let t3037 = s.72 + t3035;
@@ -9943,7 +9968,7 @@ pub mod portable {
             let t3057 = s.36 * t3054;
             let t3058 = t3056 + t3057;
             let t3059 = s.37 * t3058;
-            dqdd_dq[0][5] = t3059;
+            dqdd_dq.5 = t3059;
             let t3060 = s.35 * t3054;
             let t3061 = s.32 * t3048;
             let t3062 = s.28 * t3042;
@@ -9951,19 +9976,19 @@ pub mod portable {
             let t3064 = lit::<T>(-58.355064750790525) * s.47;
             let t3065 = s.36 * t3059;
             let t3066 = t3060 + t3065;
-            dqdd_dq[1][5] = t3066;
+            dqdd_dq.11 = t3066;
             let t3067 = s.33 * t3066;
             let t3068 = t3061 + t3067;
             let t3069 = s.34 * t3059;
             let t3070 = t3068 + t3069;
-            dqdd_dq[2][5] = t3070;
+            dqdd_dq.17 = t3070;
             let t3071 = s.29 * t3070;
             let t3072 = t3062 + t3071;
             let t3073 = s.30 * t3066;
             let t3074 = t3072 + t3073;
             let t3075 = s.31 * t3059;
             let t3076 = t3074 + t3075;
-            dqdd_dq[3][5] = t3076;
+            dqdd_dq.23 = t3076;
             let t3077 = s.26 * t3076;
             let t3078 = t3063 + t3077;
             let t3079 = s.26 * t3070;
@@ -9972,7 +9997,7 @@ pub mod portable {
             let t3082 = t3080 + t3081;
             let t3083 = s.27 * t3059;
             let t3084 = t3082 + t3083;
-            dqdd_dq[4][5] = t3084;
+            dqdd_dq.29 = t3084;
             let t3085 = s.23 * t3076;
             let t3086 = t3064 + t3085;
             let t3087 = s.23 * t3070;
@@ -9981,7 +10006,7 @@ pub mod portable {
             let t3090 = t3088 + t3089;
             let t3091 = s.24 * t3059;
             let t3092 = t3090 + t3091;
-            dqdd_dq[5][5] = t3092;
+            dqdd_dq.35 = t3092;
             let t3093 = s.23 * t2790;
             let t3094 = t2752 + t3093;
             let t3095 = t2733 + t3093;
@@ -10007,7 +10032,7 @@ pub mod portable {
             let t3115 = s.36 * t3112;
             let t3116 = t3114 + t3115;
             let t3117 = s.37 * t3116;
-            dqdd_dqd[0][0] = t3117;
+            dqdd_dqd.0 = t3117;
             let t3118 = s.35 * t3112;
             let t3119 = s.32 * t3106;
             let t3120 = s.28 * t3100;
@@ -10015,19 +10040,19 @@ pub mod portable {
             let t3122 = lit::<T>(-58.355064750790525) * t2790;
             let t3123 = s.36 * t3117;
             let t3124 = t3118 + t3123;
-            dqdd_dqd[1][0] = t3124;
+            dqdd_dqd.6 = t3124;
             let t3125 = s.33 * t3124;
             let t3126 = t3119 + t3125;
             let t3127 = s.34 * t3117;
             let t3128 = t3126 + t3127;
-            dqdd_dqd[2][0] = t3128;
+            dqdd_dqd.12 = t3128;
             let t3129 = s.29 * t3128;
             let t3130 = t3120 + t3129;
             let t3131 = s.30 * t3124;
             let t3132 = t3130 + t3131;
             let t3133 = s.31 * t3117;
             let t3134 = t3132 + t3133;
-            dqdd_dqd[3][0] = t3134;
+            dqdd_dqd.18 = t3134;
             let t3135 = s.26 * t3134;
             let t3136 = t3121 + t3135;
             let t3137 = s.26 * t3128;
@@ -10036,7 +10061,7 @@ pub mod portable {
             let t3140 = t3138 + t3139;
             let t3141 = s.27 * t3117;
             let t3142 = t3140 + t3141;
-            dqdd_dqd[4][0] = t3142;
+            dqdd_dqd.24 = t3142;
             let t3143 = s.23 * t3134;
             let t3144 = t3122 + t3143;
             let t3145 = s.23 * t3128;
@@ -10045,7 +10070,7 @@ pub mod portable {
             let t3148 = t3146 + t3147;
             let t3149 = s.24 * t3117;
             let t3150 = t3148 + t3149;
-            dqdd_dqd[5][0] = t3150;
+            dqdd_dqd.30 = t3150;
             let t3151 = s.23 * t2695;
             let t3152 = t2667 + t3151;
             let t3153 = t2645 + t3151;
@@ -10071,7 +10096,7 @@ pub mod portable {
             let t3173 = s.36 * t3170;
             let t3174 = t3172 + t3173;
             let t3175 = s.37 * t3174;
-            dqdd_dqd[0][1] = t3175;
+            dqdd_dqd.1 = t3175;
             let t3176 = s.35 * t3170;
             let t3177 = s.32 * t3164;
             let t3178 = s.28 * t3158;
@@ -10079,19 +10104,19 @@ pub mod portable {
             let t3180 = lit::<T>(-58.355064750790525) * t2695;
             let t3181 = s.36 * t3175;
             let t3182 = t3176 + t3181;
-            dqdd_dqd[1][1] = t3182;
+            dqdd_dqd.7 = t3182;
             let t3183 = s.33 * t3182;
             let t3184 = t3177 + t3183;
             let t3185 = s.34 * t3175;
             let t3186 = t3184 + t3185;
-            dqdd_dqd[2][1] = t3186;
+            dqdd_dqd.13 = t3186;
             let t3187 = s.29 * t3186;
             let t3188 = t3178 + t3187;
             let t3189 = s.30 * t3182;
             let t3190 = t3188 + t3189;
             let t3191 = s.31 * t3175;
             let t3192 = t3190 + t3191;
-            dqdd_dqd[3][1] = t3192;
+            dqdd_dqd.19 = t3192;
             let t3193 = s.26 * t3192;
             let t3194 = t3179 + t3193;
             let t3195 = s.26 * t3186;
@@ -10100,7 +10125,7 @@ pub mod portable {
             let t3198 = t3196 + t3197;
             let t3199 = s.27 * t3175;
             let t3200 = t3198 + t3199;
-            dqdd_dqd[4][1] = t3200;
+            dqdd_dqd.25 = t3200;
             let t3201 = s.23 * t3192;
             let t3202 = t3180 + t3201;
             let t3203 = s.23 * t3186;
@@ -10109,7 +10134,7 @@ pub mod portable {
             let t3206 = t3204 + t3205;
             let t3207 = s.24 * t3175;
             let t3208 = t3206 + t3207;
-            dqdd_dqd[5][1] = t3208;
+            dqdd_dqd.31 = t3208;
             let t3209 = s.23 * s.81;
             let t3210 = s.77 + t3209;
             let t3211 = s.75 + t3209;
@@ -10135,7 +10160,7 @@ pub mod portable {
             let t3231 = s.36 * t3228;
             let t3232 = t3230 + t3231;
             let t3233 = s.37 * t3232;
-            dqdd_dqd[0][2] = t3233;
+            dqdd_dqd.2 = t3233;
             let t3234 = s.35 * t3228;
             let t3235 = s.32 * t3222;
             let t3236 = s.28 * t3216;
@@ -10143,19 +10168,19 @@ pub mod portable {
             let t3238 = lit::<T>(-58.355064750790525) * s.81;
             let t3239 = s.36 * t3233;
             let t3240 = t3234 + t3239;
-            dqdd_dqd[1][2] = t3240;
+            dqdd_dqd.8 = t3240;
             let t3241 = s.33 * t3240;
             let t3242 = t3235 + t3241;
             let t3243 = s.34 * t3233;
             let t3244 = t3242 + t3243;
-            dqdd_dqd[2][2] = t3244;
+            dqdd_dqd.14 = t3244;
             let t3245 = s.29 * t3244;
             let t3246 = t3236 + t3245;
             let t3247 = s.30 * t3240;
             let t3248 = t3246 + t3247;
             let t3249 = s.31 * t3233;
             let t3250 = t3248 + t3249;
-            dqdd_dqd[3][2] = t3250;
+            dqdd_dqd.20 = t3250;
             let t3251 = s.26 * t3250;
             let t3252 = t3237 + t3251;
             let t3253 = s.26 * t3244;
@@ -10164,7 +10189,7 @@ pub mod portable {
             let t3256 = t3254 + t3255;
             let t3257 = s.27 * t3233;
             let t3258 = t3256 + t3257;
-            dqdd_dqd[4][2] = t3258;
+            dqdd_dqd.26 = t3258;
             let t3259 = s.23 * t3250;
             let t3260 = t3238 + t3259;
             let t3261 = s.23 * t3244;
@@ -10173,7 +10198,7 @@ pub mod portable {
             let t3264 = t3262 + t3263;
             let t3265 = s.24 * t3233;
             let t3266 = t3264 + t3265;
-            dqdd_dqd[5][2] = t3266;
+            dqdd_dqd.32 = t3266;
             let t3267 = s.23 * s.66;
             let t3268 = s.61 + t3267;
             let t3269 = s.67 + t3267;
@@ -10199,7 +10224,7 @@ pub mod portable {
             let t3289 = s.36 * t3286;
             let t3290 = t3288 + t3289;
             let t3291 = s.37 * t3290;
-            dqdd_dqd[0][3] = t3291;
+            dqdd_dqd.3 = t3291;
             let t3292 = s.35 * t3286;
             let t3293 = s.32 * t3280;
             let t3294 = s.28 * t3274;
@@ -10207,19 +10232,19 @@ pub mod portable {
             let t3296 = lit::<T>(-58.355064750790525) * s.66;
             let t3297 = s.36 * t3291;
             let t3298 = t3292 + t3297;
-            dqdd_dqd[1][3] = t3298;
+            dqdd_dqd.9 = t3298;
             let t3299 = s.33 * t3298;
             let t3300 = t3293 + t3299;
             let t3301 = s.34 * t3291;
             let t3302 = t3300 + t3301;
-            dqdd_dqd[2][3] = t3302;
+            dqdd_dqd.15 = t3302;
             let t3303 = s.29 * t3302;
             let t3304 = t3294 + t3303;
             let t3305 = s.30 * t3298;
             let t3306 = t3304 + t3305;
             let t3307 = s.31 * t3291;
             let t3308 = t3306 + t3307;
-            dqdd_dqd[3][3] = t3308;
+            dqdd_dqd.21 = t3308;
             let t3309 = s.26 * t3308;
             let t3310 = t3295 + t3309;
             let t3311 = s.26 * t3302;
@@ -10228,7 +10253,7 @@ pub mod portable {
             let t3314 = t3312 + t3313;
             let t3315 = s.27 * t3291;
             let t3316 = t3314 + t3315;
-            dqdd_dqd[4][3] = t3316;
+            dqdd_dqd.27 = t3316;
             let t3317 = s.23 * t3308;
             let t3318 = t3296 + t3317;
             let t3319 = s.23 * t3302;
@@ -10237,7 +10262,7 @@ pub mod portable {
             let t3322 = t3320 + t3321;
             let t3323 = s.24 * t3291;
             let t3324 = t3322 + t3323;
-            dqdd_dqd[5][3] = t3324;
+            dqdd_dqd.33 = t3324;
             let t3325 = s.23 * s.53;
             let t3326 = s.54 + t3325;
             let t3327 = s.69 + t3325;
@@ -10263,7 +10288,7 @@ pub mod portable {
             let t3347 = s.36 * t3344;
             let t3348 = t3346 + t3347;
             let t3349 = s.37 * t3348;
-            dqdd_dqd[0][4] = t3349;
+            dqdd_dqd.4 = t3349;
             let t3350 = s.35 * t3344;
             let t3351 = s.32 * t3338;
             let t3352 = s.28 * t3332;
@@ -10271,19 +10296,19 @@ pub mod portable {
             let t3354 = lit::<T>(-58.355064750790525) * s.53;
             let t3355 = s.36 * t3349;
             let t3356 = t3350 + t3355;
-            dqdd_dqd[1][4] = t3356;
+            dqdd_dqd.10 = t3356;
             let t3357 = s.33 * t3356;
             let t3358 = t3351 + t3357;
             let t3359 = s.34 * t3349;
             let t3360 = t3358 + t3359;
-            dqdd_dqd[2][4] = t3360;
+            dqdd_dqd.16 = t3360;
             let t3361 = s.29 * t3360;
             let t3362 = t3352 + t3361;
             let t3363 = s.30 * t3356;
             let t3364 = t3362 + t3363;
             let t3365 = s.31 * t3349;
             let t3366 = t3364 + t3365;
-            dqdd_dqd[3][4] = t3366;
+            dqdd_dqd.22 = t3366;
             let t3367 = s.26 * t3366;
             let t3368 = t3353 + t3367;
             let t3369 = s.26 * t3360;
@@ -10292,7 +10317,7 @@ pub mod portable {
             let t3372 = t3370 + t3371;
             let t3373 = s.27 * t3349;
             let t3374 = t3372 + t3373;
-            dqdd_dqd[4][4] = t3374;
+            dqdd_dqd.28 = t3374;
             let t3375 = s.23 * t3366;
             let t3376 = t3354 + t3375;
             let t3377 = s.23 * t3360;
@@ -10301,7 +10326,7 @@ pub mod portable {
             let t3380 = t3378 + t3379;
             let t3381 = s.24 * t3349;
             let t3382 = t3380 + t3381;
-            dqdd_dqd[5][4] = t3382;
+            dqdd_dqd.34 = t3382;
             let t3383 = s.26 * s.48;
             let t3384 = s.57 + t3383;
             let t3385 = s.71 + t3383;
@@ -10321,26 +10346,26 @@ pub mod portable {
             let t3399 = s.36 * t3396;
             let t3400 = t3398 + t3399;
             let t3401 = s.37 * t3400;
-            dqdd_dqd[0][5] = t3401;
+            dqdd_dqd.5 = t3401;
             let t3402 = s.35 * t3396;
             let t3403 = s.32 * t3390;
             let t3404 = s.28 * t3384;
             let t3405 = s.25 * s.48;
             let t3406 = s.36 * t3401;
             let t3407 = t3402 + t3406;
-            dqdd_dqd[1][5] = t3407;
+            dqdd_dqd.11 = t3407;
             let t3408 = s.33 * t3407;
             let t3409 = t3403 + t3408;
             let t3410 = s.34 * t3401;
             let t3411 = t3409 + t3410;
-            dqdd_dqd[2][5] = t3411;
+            dqdd_dqd.17 = t3411;
             let t3412 = s.29 * t3411;
             let t3413 = t3404 + t3412;
             let t3414 = s.30 * t3407;
             let t3415 = t3413 + t3414;
             let t3416 = s.31 * t3401;
             let t3417 = t3415 + t3416;
-            dqdd_dqd[3][5] = t3417;
+            dqdd_dqd.23 = t3417;
             let t3418 = s.26 * t3417;
             let t3419 = t3405 + t3418;
             let t3420 = s.26 * t3411;
@@ -10349,7 +10374,7 @@ pub mod portable {
             let t3423 = t3421 + t3422;
             let t3424 = s.27 * t3401;
             let t3425 = t3423 + t3424;
-            dqdd_dqd[4][5] = t3425;
+            dqdd_dqd.29 = t3425;
             let t3426 = s.23 * t3417;
             let t3427 = s.23 * t3411;
             let t3428 = t3426 + t3427;
@@ -10357,7 +10382,7 @@ pub mod portable {
             let t3430 = t3428 + t3429;
             let t3431 = s.24 * t3401;
             let t3432 = t3430 + t3431;
-            dqdd_dqd[5][5] = t3432;
+            dqdd_dqd.35 = t3432;
         }
     }
     use fd_grad_part1::fd_grad_part1;
@@ -14876,6 +14901,17 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 6 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f6<T>(T, T, T, T, T, T);
+    /// An array of 36 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f36<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -14890,6 +14926,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f6<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
             let t6 = q[1].sin();
             let t7 = q[1].cos();
             let t9 = T::mul_add(lit::<T>(4.8965888601467475e-12), t7, -t6);
@@ -15569,31 +15612,31 @@ pub mod fma {
             let t929 = T::mul_add(t894, t921, t925);
             let t931 = T::mul_add(t898, t927, t929);
             let t932 = t901 * t931;
-            qdd[0] = t932;
+            qdd.0 = t932;
             let t938 = t898 * t932;
             let t939 = T::mul_add(t897, t927, t938);
-            qdd[1] = t939;
+            qdd.1 = t939;
             let t940 = t889 * t939;
             let t941 = T::mul_add(t888, t921, t940);
             let t943 = T::mul_add(t894, t932, t941);
-            qdd[2] = t943;
+            qdd.2 = t943;
             let t944 = t873 * t943;
             let t945 = T::mul_add(t872, t915, t944);
             let t947 = T::mul_add(t880, t939, t945);
             let t949 = T::mul_add(t885, t932, t947);
-            qdd[3] = t949;
+            qdd.3 = t949;
             let t950 = t857 * t949;
             let t951 = T::mul_add(t856, t906, t950);
             let t953 = T::mul_add(t857, t943, t951);
             let t955 = T::mul_add(t857, t939, t953);
             let t957 = T::mul_add(t869, t932, t955);
-            qdd[4] = t957;
+            qdd.4 = t957;
             let t958 = t841 * t949;
             let t959 = T::mul_add(lit::<T>(-58.355064750790525), t907, t958);
             let t961 = T::mul_add(t841, t943, t959);
             let t963 = T::mul_add(t841, t939, t961);
             let t965 = T::mul_add(t853, t932, t963);
-            qdd[5] = t965;
+            qdd.5 = t965;
             let t966 = lit::<T>(0.13585) * t932;
             let t967 = t12 * t932;
             s.38 = t967;
@@ -16914,6 +16957,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f6<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
             let t2568 = s.159 - s.158;
             let t2569 = s.20 * s.132;
             let t2571 = T::mul_add(s.19, s.135, -t2569);
@@ -17095,31 +17145,31 @@ pub mod fma {
             let t2824 = T::mul_add(s.34, t2816, t2820);
             let t2826 = T::mul_add(s.36, t2822, t2824);
             let t2827 = s.37 * t2826;
-            dqdd_dq[0][1] = t2827;
+            dqdd_dq.1 = t2827;
             let t2833 = s.36 * t2827;
             let t2834 = T::mul_add(s.35, t2822, t2833);
-            dqdd_dq[1][1] = t2834;
+            dqdd_dq.7 = t2834;
             let t2835 = s.33 * t2834;
             let t2836 = T::mul_add(s.32, t2816, t2835);
             let t2838 = T::mul_add(s.34, t2827, t2836);
-            dqdd_dq[2][1] = t2838;
+            dqdd_dq.13 = t2838;
             let t2839 = s.29 * t2838;
             let t2840 = T::mul_add(s.28, t2810, t2839);
             let t2842 = T::mul_add(s.30, t2834, t2840);
             let t2844 = T::mul_add(s.31, t2827, t2842);
-            dqdd_dq[3][1] = t2844;
+            dqdd_dq.19 = t2844;
             let t2845 = s.26 * t2844;
             let t2846 = T::mul_add(s.25, t2676, t2845);
             let t2848 = T::mul_add(s.26, t2838, t2846);
             let t2850 = T::mul_add(s.26, t2834, t2848);
             let t2852 = T::mul_add(s.27, t2827, t2850);
-            dqdd_dq[4][1] = t2852;
+            dqdd_dq.25 = t2852;
             let t2853 = s.23 * t2844;
             let t2854 = T::mul_add(lit::<T>(-58.355064750790525), t2690, t2853);
             let t2856 = T::mul_add(s.23, t2838, t2854);
             let t2858 = T::mul_add(s.23, t2834, t2856);
             let t2860 = T::mul_add(s.24, t2827, t2858);
-            dqdd_dq[5][1] = t2860;
+            dqdd_dq.31 = t2860;
             let t2861 = s.23 * s.80;
             let t2862 = s.76 + t2861;
             let t2863 = s.74 + t2861;
@@ -17137,31 +17187,31 @@ pub mod fma {
             let t2882 = T::mul_add(s.34, t2874, t2878);
             let t2884 = T::mul_add(s.36, t2880, t2882);
             let t2885 = s.37 * t2884;
-            dqdd_dq[0][2] = t2885;
+            dqdd_dq.2 = t2885;
             let t2891 = s.36 * t2885;
             let t2892 = T::mul_add(s.35, t2880, t2891);
-            dqdd_dq[1][2] = t2892;
+            dqdd_dq.8 = t2892;
             let t2893 = s.33 * t2892;
             let t2894 = T::mul_add(s.32, t2874, t2893);
             let t2896 = T::mul_add(s.34, t2885, t2894);
-            dqdd_dq[2][2] = t2896;
+            dqdd_dq.14 = t2896;
             let t2897 = s.29 * t2896;
             let t2898 = T::mul_add(s.28, t2868, t2897);
             let t2900 = T::mul_add(s.30, t2892, t2898);
             let t2902 = T::mul_add(s.31, t2885, t2900);
-            dqdd_dq[3][2] = t2902;
+            dqdd_dq.20 = t2902;
             let t2903 = s.26 * t2902;
             let t2904 = T::mul_add(s.25, s.78, t2903);
             let t2906 = T::mul_add(s.26, t2896, t2904);
             let t2908 = T::mul_add(s.26, t2892, t2906);
             let t2910 = T::mul_add(s.27, t2885, t2908);
-            dqdd_dq[4][2] = t2910;
+            dqdd_dq.26 = t2910;
             let t2911 = s.23 * t2902;
             let t2912 = T::mul_add(lit::<T>(-58.355064750790525), s.80, t2911);
             let t2914 = T::mul_add(s.23, t2896, t2912);
             let t2916 = T::mul_add(s.23, t2892, t2914);
             let t2918 = T::mul_add(s.24, t2885, t2916);
-            dqdd_dq[5][2] = t2918;
+            dqdd_dq.32 = t2918;
             let t2919 = s.23 * s.65;
             let t2920 = s.62 + t2919;
             let t2921 = s.68 + t2919;
@@ -17179,31 +17229,31 @@ pub mod fma {
             let t2940 = T::mul_add(s.34, t2932, t2936);
             let t2942 = T::mul_add(s.36, t2938, t2940);
             let t2943 = s.37 * t2942;
-            dqdd_dq[0][3] = t2943;
+            dqdd_dq.3 = t2943;
             let t2949 = s.36 * t2943;
             let t2950 = T::mul_add(s.35, t2938, t2949);
-            dqdd_dq[1][3] = t2950;
+            dqdd_dq.9 = t2950;
             let t2951 = s.33 * t2950;
             let t2952 = T::mul_add(s.32, t2932, t2951);
             let t2954 = T::mul_add(s.34, t2943, t2952);
-            dqdd_dq[2][3] = t2954;
+            dqdd_dq.15 = t2954;
             let t2955 = s.29 * t2954;
             let t2956 = T::mul_add(s.28, t2926, t2955);
             let t2958 = T::mul_add(s.30, t2950, t2956);
             let t2960 = T::mul_add(s.31, t2943, t2958);
-            dqdd_dq[3][3] = t2960;
+            dqdd_dq.21 = t2960;
             let t2961 = s.26 * t2960;
             let t2962 = T::mul_add(s.25, s.63, t2961);
             let t2964 = T::mul_add(s.26, t2954, t2962);
             let t2966 = T::mul_add(s.26, t2950, t2964);
             let t2968 = T::mul_add(s.27, t2943, t2966);
-            dqdd_dq[4][3] = t2968;
+            dqdd_dq.27 = t2968;
             let t2969 = s.23 * t2960;
             let t2970 = T::mul_add(lit::<T>(-58.355064750790525), s.65, t2969);
             let t2972 = T::mul_add(s.23, t2954, t2970);
             let t2974 = T::mul_add(s.23, t2950, t2972);
             let t2976 = T::mul_add(s.24, t2943, t2974);
-            dqdd_dq[5][3] = t2976;
+            dqdd_dq.33 = t2976;
             let t2977 = s.23 * s.52;
             let t2978 = s.55 + t2977;
             let t2979 = s.70 + t2977;
@@ -17221,31 +17271,31 @@ pub mod fma {
             let t2998 = T::mul_add(s.34, t2990, t2994);
             let t3000 = T::mul_add(s.36, t2996, t2998);
             let t3001 = s.37 * t3000;
-            dqdd_dq[0][4] = t3001;
+            dqdd_dq.4 = t3001;
             let t3007 = s.36 * t3001;
             let t3008 = T::mul_add(s.35, t2996, t3007);
-            dqdd_dq[1][4] = t3008;
+            dqdd_dq.10 = t3008;
             let t3009 = s.33 * t3008;
             let t3010 = T::mul_add(s.32, t2990, t3009);
             let t3012 = T::mul_add(s.34, t3001, t3010);
-            dqdd_dq[2][4] = t3012;
+            dqdd_dq.16 = t3012;
             let t3013 = s.29 * t3012;
             let t3014 = T::mul_add(s.28, t2984, t3013);
             let t3016 = T::mul_add(s.30, t3008, t3014);
             let t3018 = T::mul_add(s.31, t3001, t3016);
-            dqdd_dq[3][4] = t3018;
+            dqdd_dq.22 = t3018;
             let t3019 = s.26 * t3018;
             let t3020 = T::mul_add(s.25, s.51, t3019);
             let t3022 = T::mul_add(s.26, t3012, t3020);
             let t3024 = T::mul_add(s.26, t3008, t3022);
             let t3026 = T::mul_add(s.27, t3001, t3024);
-            dqdd_dq[4][4] = t3026;
+            dqdd_dq.28 = t3026;
             let t3027 = s.23 * t3018;
             let t3028 = T::mul_add(lit::<T>(-58.355064750790525), s.52, t3027);
             let t3030 = T::mul_add(s.23, t3012, t3028);
             let t3032 = T::mul_add(s.23, t3008, t3030);
             let t3034 = T::mul_add(s.24, t3001, t3032);
-            dqdd_dq[5][4] = t3034;
+            dqdd_dq.34 = t3034;
             let t3035 = s.23 * s.47;
             let t3036 = s.58 + t3035;
             let t3037 = s.72 + t3035;
@@ -17263,31 +17313,31 @@ pub mod fma {
             let t3056 = T::mul_add(s.34, t3048, t3052);
             let t3058 = T::mul_add(s.36, t3054, t3056);
             let t3059 = s.37 * t3058;
-            dqdd_dq[0][5] = t3059;
+            dqdd_dq.5 = t3059;
             let t3065 = s.36 * t3059;
             let t3066 = T::mul_add(s.35, t3054, t3065);
-            dqdd_dq[1][5] = t3066;
+            dqdd_dq.11 = t3066;
             let t3067 = s.33 * t3066;
             let t3068 = T::mul_add(s.32, t3048, t3067);
             let t3070 = T::mul_add(s.34, t3059, t3068);
-            dqdd_dq[2][5] = t3070;
+            dqdd_dq.17 = t3070;
             let t3071 = s.29 * t3070;
             let t3072 = T::mul_add(s.28, t3042, t3071);
             let t3074 = T::mul_add(s.30, t3066, t3072);
             let t3076 = T::mul_add(s.31, t3059, t3074);
-            dqdd_dq[3][5] = t3076;
+            dqdd_dq.23 = t3076;
             let t3077 = s.26 * t3076;
             let t3078 = T::mul_add(s.25, s.49, t3077);
             let t3080 = T::mul_add(s.26, t3070, t3078);
             let t3082 = T::mul_add(s.26, t3066, t3080);
             let t3084 = T::mul_add(s.27, t3059, t3082);
-            dqdd_dq[4][5] = t3084;
+            dqdd_dq.29 = t3084;
             let t3085 = s.23 * t3076;
             let t3086 = T::mul_add(lit::<T>(-58.355064750790525), s.47, t3085);
             let t3088 = T::mul_add(s.23, t3070, t3086);
             let t3090 = T::mul_add(s.23, t3066, t3088);
             let t3092 = T::mul_add(s.24, t3059, t3090);
-            dqdd_dq[5][5] = t3092;
+            dqdd_dq.35 = t3092;
             let t3093 = s.23 * t2790;
             let t3094 = t2752 + t3093;
             let t3095 = t2733 + t3093;
@@ -17305,31 +17355,31 @@ pub mod fma {
             let t3114 = T::mul_add(s.34, t3106, t3110);
             let t3116 = T::mul_add(s.36, t3112, t3114);
             let t3117 = s.37 * t3116;
-            dqdd_dqd[0][0] = t3117;
+            dqdd_dqd.0 = t3117;
             let t3123 = s.36 * t3117;
             let t3124 = T::mul_add(s.35, t3112, t3123);
-            dqdd_dqd[1][0] = t3124;
+            dqdd_dqd.6 = t3124;
             let t3125 = s.33 * t3124;
             let t3126 = T::mul_add(s.32, t3106, t3125);
             let t3128 = T::mul_add(s.34, t3117, t3126);
-            dqdd_dqd[2][0] = t3128;
+            dqdd_dqd.12 = t3128;
             let t3129 = s.29 * t3128;
             let t3130 = T::mul_add(s.28, t3100, t3129);
             let t3132 = T::mul_add(s.30, t3124, t3130);
             let t3134 = T::mul_add(s.31, t3117, t3132);
-            dqdd_dqd[3][0] = t3134;
+            dqdd_dqd.18 = t3134;
             let t3135 = s.26 * t3134;
             let t3136 = T::mul_add(s.25, t2771, t3135);
             let t3138 = T::mul_add(s.26, t3128, t3136);
             let t3140 = T::mul_add(s.26, t3124, t3138);
             let t3142 = T::mul_add(s.27, t3117, t3140);
-            dqdd_dqd[4][0] = t3142;
+            dqdd_dqd.24 = t3142;
             let t3143 = s.23 * t3134;
             let t3144 = T::mul_add(lit::<T>(-58.355064750790525), t2790, t3143);
             let t3146 = T::mul_add(s.23, t3128, t3144);
             let t3148 = T::mul_add(s.23, t3124, t3146);
             let t3150 = T::mul_add(s.24, t3117, t3148);
-            dqdd_dqd[5][0] = t3150;
+            dqdd_dqd.30 = t3150;
             let t3151 = s.23 * t2695;
             let t3152 = t2667 + t3151;
             let t3153 = t2645 + t3151;
@@ -17347,31 +17397,31 @@ pub mod fma {
             let t3172 = T::mul_add(s.34, t3164, t3168);
             let t3174 = T::mul_add(s.36, t3170, t3172);
             let t3175 = s.37 * t3174;
-            dqdd_dqd[0][1] = t3175;
+            dqdd_dqd.1 = t3175;
             let t3181 = s.36 * t3175;
             let t3182 = T::mul_add(s.35, t3170, t3181);
-            dqdd_dqd[1][1] = t3182;
+            dqdd_dqd.7 = t3182;
             let t3183 = s.33 * t3182;
             let t3184 = T::mul_add(s.32, t3164, t3183);
             let t3186 = T::mul_add(s.34, t3175, t3184);
-            dqdd_dqd[2][1] = t3186;
+            dqdd_dqd.13 = t3186;
             let t3187 = s.29 * t3186;
             let t3188 = T::mul_add(s.28, t3158, t3187);
             let t3190 = T::mul_add(s.30, t3182, t3188);
             let t3192 = T::mul_add(s.31, t3175, t3190);
-            dqdd_dqd[3][1] = t3192;
+            dqdd_dqd.19 = t3192;
             let t3193 = s.26 * t3192;
             let t3194 = T::mul_add(s.25, t2681, t3193);
             let t3196 = T::mul_add(s.26, t3186, t3194);
             let t3198 = T::mul_add(s.26, t3182, t3196);
             let t3200 = T::mul_add(s.27, t3175, t3198);
-            dqdd_dqd[4][1] = t3200;
+            dqdd_dqd.25 = t3200;
             let t3201 = s.23 * t3192;
             let t3202 = T::mul_add(lit::<T>(-58.355064750790525), t2695, t3201);
             let t3204 = T::mul_add(s.23, t3186, t3202);
             let t3206 = T::mul_add(s.23, t3182, t3204);
             let t3208 = T::mul_add(s.24, t3175, t3206);
-            dqdd_dqd[5][1] = t3208;
+            dqdd_dqd.31 = t3208;
             let t3209 = s.23 * s.81;
             let t3210 = s.77 + t3209;
             let t3211 = s.75 + t3209;
@@ -17389,31 +17439,31 @@ pub mod fma {
             let t3230 = T::mul_add(s.34, t3222, t3226);
             let t3232 = T::mul_add(s.36, t3228, t3230);
             let t3233 = s.37 * t3232;
-            dqdd_dqd[0][2] = t3233;
+            dqdd_dqd.2 = t3233;
             let t3239 = s.36 * t3233;
             let t3240 = T::mul_add(s.35, t3228, t3239);
-            dqdd_dqd[1][2] = t3240;
+            dqdd_dqd.8 = t3240;
             let t3241 = s.33 * t3240;
             let t3242 = T::mul_add(s.32, t3222, t3241);
             let t3244 = T::mul_add(s.34, t3233, t3242);
-            dqdd_dqd[2][2] = t3244;
+            dqdd_dqd.14 = t3244;
             let t3245 = s.29 * t3244;
             let t3246 = T::mul_add(s.28, t3216, t3245);
             let t3248 = T::mul_add(s.30, t3240, t3246);
             let t3250 = T::mul_add(s.31, t3233, t3248);
-            dqdd_dqd[3][2] = t3250;
+            dqdd_dqd.20 = t3250;
             let t3251 = s.26 * t3250;
             let t3252 = T::mul_add(s.25, s.79, t3251);
             let t3254 = T::mul_add(s.26, t3244, t3252);
             let t3256 = T::mul_add(s.26, t3240, t3254);
             let t3258 = T::mul_add(s.27, t3233, t3256);
-            dqdd_dqd[4][2] = t3258;
+            dqdd_dqd.26 = t3258;
             let t3259 = s.23 * t3250;
             let t3260 = T::mul_add(lit::<T>(-58.355064750790525), s.81, t3259);
             let t3262 = T::mul_add(s.23, t3244, t3260);
             let t3264 = T::mul_add(s.23, t3240, t3262);
             let t3266 = T::mul_add(s.24, t3233, t3264);
-            dqdd_dqd[5][2] = t3266;
+            dqdd_dqd.32 = t3266;
             let t3267 = s.23 * s.66;
             let t3268 = s.61 + t3267;
             let t3269 = s.67 + t3267;
@@ -17431,31 +17481,31 @@ pub mod fma {
             let t3288 = T::mul_add(s.34, t3280, t3284);
             let t3290 = T::mul_add(s.36, t3286, t3288);
             let t3291 = s.37 * t3290;
-            dqdd_dqd[0][3] = t3291;
+            dqdd_dqd.3 = t3291;
             let t3297 = s.36 * t3291;
             let t3298 = T::mul_add(s.35, t3286, t3297);
-            dqdd_dqd[1][3] = t3298;
+            dqdd_dqd.9 = t3298;
             let t3299 = s.33 * t3298;
             let t3300 = T::mul_add(s.32, t3280, t3299);
             let t3302 = T::mul_add(s.34, t3291, t3300);
-            dqdd_dqd[2][3] = t3302;
+            dqdd_dqd.15 = t3302;
             let t3303 = s.29 * t3302;
             let t3304 = T::mul_add(s.28, t3274, t3303);
             let t3306 = T::mul_add(s.30, t3298, t3304);
             let t3308 = T::mul_add(s.31, t3291, t3306);
-            dqdd_dqd[3][3] = t3308;
+            dqdd_dqd.21 = t3308;
             let t3309 = s.26 * t3308;
             let t3310 = T::mul_add(s.25, s.64, t3309);
             let t3312 = T::mul_add(s.26, t3302, t3310);
             let t3314 = T::mul_add(s.26, t3298, t3312);
             let t3316 = T::mul_add(s.27, t3291, t3314);
-            dqdd_dqd[4][3] = t3316;
+            dqdd_dqd.27 = t3316;
             let t3317 = s.23 * t3308;
             let t3318 = T::mul_add(lit::<T>(-58.355064750790525), s.66, t3317);
             let t3320 = T::mul_add(s.23, t3302, t3318);
             let t3322 = T::mul_add(s.23, t3298, t3320);
             let t3324 = T::mul_add(s.24, t3291, t3322);
-            dqdd_dqd[5][3] = t3324;
+            dqdd_dqd.33 = t3324;
             let t3325 = s.23 * s.53;
             let t3326 = s.54 + t3325;
             let t3327 = s.69 + t3325;
@@ -17473,31 +17523,31 @@ pub mod fma {
             let t3346 = T::mul_add(s.34, t3338, t3342);
             let t3348 = T::mul_add(s.36, t3344, t3346);
             let t3349 = s.37 * t3348;
-            dqdd_dqd[0][4] = t3349;
+            dqdd_dqd.4 = t3349;
             let t3355 = s.36 * t3349;
             let t3356 = T::mul_add(s.35, t3344, t3355);
-            dqdd_dqd[1][4] = t3356;
+            dqdd_dqd.10 = t3356;
             let t3357 = s.33 * t3356;
             let t3358 = T::mul_add(s.32, t3338, t3357);
             let t3360 = T::mul_add(s.34, t3349, t3358);
-            dqdd_dqd[2][4] = t3360;
+            dqdd_dqd.16 = t3360;
             let t3361 = s.29 * t3360;
             let t3362 = T::mul_add(s.28, t3332, t3361);
             let t3364 = T::mul_add(s.30, t3356, t3362);
             let t3366 = T::mul_add(s.31, t3349, t3364);
-            dqdd_dqd[3][4] = t3366;
+            dqdd_dqd.22 = t3366;
             let t3367 = s.26 * t3366;
             let t3368 = T::mul_add(s.25, s.50, t3367);
             let t3370 = T::mul_add(s.26, t3360, t3368);
             let t3372 = T::mul_add(s.26, t3356, t3370);
             let t3374 = T::mul_add(s.27, t3349, t3372);
-            dqdd_dqd[4][4] = t3374;
+            dqdd_dqd.28 = t3374;
             let t3375 = s.23 * t3366;
             let t3376 = T::mul_add(lit::<T>(-58.355064750790525), s.53, t3375);
             let t3378 = T::mul_add(s.23, t3360, t3376);
             let t3380 = T::mul_add(s.23, t3356, t3378);
             let t3382 = T::mul_add(s.24, t3349, t3380);
-            dqdd_dqd[5][4] = t3382;
+            dqdd_dqd.34 = t3382;
             let t3383 = s.26 * s.48;
             let t3384 = s.57 + t3383;
             let t3385 = s.71 + t3383;
@@ -17510,30 +17560,30 @@ pub mod fma {
             let t3398 = T::mul_add(s.34, t3390, t3394);
             let t3400 = T::mul_add(s.36, t3396, t3398);
             let t3401 = s.37 * t3400;
-            dqdd_dqd[0][5] = t3401;
+            dqdd_dqd.5 = t3401;
             let t3406 = s.36 * t3401;
             let t3407 = T::mul_add(s.35, t3396, t3406);
-            dqdd_dqd[1][5] = t3407;
+            dqdd_dqd.11 = t3407;
             let t3408 = s.33 * t3407;
             let t3409 = T::mul_add(s.32, t3390, t3408);
             let t3411 = T::mul_add(s.34, t3401, t3409);
-            dqdd_dqd[2][5] = t3411;
+            dqdd_dqd.17 = t3411;
             let t3412 = s.29 * t3411;
             let t3413 = T::mul_add(s.28, t3384, t3412);
             let t3415 = T::mul_add(s.30, t3407, t3413);
             let t3417 = T::mul_add(s.31, t3401, t3415);
-            dqdd_dqd[3][5] = t3417;
+            dqdd_dqd.23 = t3417;
             let t3418 = s.26 * t3417;
             let t3419 = T::mul_add(s.25, s.48, t3418);
             let t3421 = T::mul_add(s.26, t3411, t3419);
             let t3423 = T::mul_add(s.26, t3407, t3421);
             let t3425 = T::mul_add(s.27, t3401, t3423);
-            dqdd_dqd[4][5] = t3425;
+            dqdd_dqd.29 = t3425;
             let t3427 = s.23 * t3411;
             let t3428 = T::mul_add(s.23, t3417, t3427);
             let t3430 = T::mul_add(s.23, t3407, t3428);
             let t3432 = T::mul_add(s.24, t3401, t3430);
-            dqdd_dqd[5][5] = t3432;
+            dqdd_dqd.35 = t3432;
         }
     }
     use fd_grad_part1::fd_grad_part1;

@@ -624,6 +624,10 @@ pub mod portable {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct rnea_slots<T>(T, T, T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 2 entries of `rnea`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_f2<T>(T, T);
     mod rnea_part0 {
         use super::*;
         #[inline(never)]
@@ -635,6 +639,7 @@ pub mod portable {
             s: &mut rnea_slots<T>,
             c: &mut [T; NV],
         ) {
+            let c = unsafe { &mut *(c as *mut [T; NV] as *mut rnea_f2<T>) };
             let t1 = q[0].sin();
             let t2 = q[0].cos();
             let t8 = q[1].sin();
@@ -703,6 +708,7 @@ pub mod portable {
             s: &mut rnea_slots<T>,
             c: &mut [T; NV],
         ) {
+            let c = unsafe { &mut *(c as *mut [T; NV] as *mut rnea_f2<T>) };
             let t55 = lit::<T>(6.43853298e-11) * s.6;
             let t56 = lit::<T>(0.33238) * s.7;
             let t57 = lit::<T>(0.33238) * s.8;
@@ -716,7 +722,7 @@ pub mod portable {
             let t65 = s.5 * s.10;
             let t66 = s.5 * s.9;
             let t67 = t58 + t64;
-            c[1] = t67;
+            c.1 = t67;
             let t68 = t59 - t65;
             let t69 = t60 + t66;
             let t70 = s.1 * t68;
@@ -725,7 +731,7 @@ pub mod portable {
             let t73 = lit::<T>(0.1) * t72;
             let t74 = t67 - t73;
             let t75 = s.2 + t74;
-            c[0] = t75;
+            c.0 = t75;
         }
     }
     use rnea_part1::rnea_part1;
@@ -753,6 +759,10 @@ pub mod portable {
     struct rnea_grad_slots<T>(
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 4 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f4<T>(T, T, T, T);
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -765,6 +775,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
             let t1 = q[0].sin();
             let t2 = q[0].cos();
             let t7 = q[1].sin();
@@ -835,6 +851,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
             let t53 = qd[0] * s.4;
             let t54 = qd[0] * s.5;
             let t55 = s.7 - t53;
@@ -884,7 +906,7 @@ pub mod portable {
             let t91 = t66 + t90;
             let t92 = s.4 * t89;
             let t93 = t91 + t92;
-            dc_dq[1][1] = t93;
+            dc_dq.3 = t93;
             let t94 = s.5 * lit::<T>(-0.0335304944);
             s.25 = t94;
         }
@@ -902,10 +924,16 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
             let t95 = s.16 + s.25;
             let t96 = t95 + t95;
             let t97 = s.17 + t96;
-            dc_dqd[1][1] = t97;
+            dc_dqd.3 = t97;
             let t98 = s.1 * lit::<T>(-0.0335304944);
             let t99 = s.0 * lit::<T>(6.43853298e-11);
             let t100 = t98 - t99;
@@ -918,17 +946,17 @@ pub mod portable {
             let t106 = t104 - t105;
             let t107 = lit::<T>(0.1) * t106;
             let t108 = s.18 - t107;
-            dc_dqd[0][1] = t108;
+            dc_dqd.1 = t108;
             let t109 = s.1 * s.22;
             let t110 = s.0 * s.23;
             let t111 = t109 - t110;
             let t112 = lit::<T>(0.1) * t111;
             let t113 = s.21 - t112;
-            dc_dq[0][1] = t113;
+            dc_dq.1 = t113;
             let t114 = s.0 * s.24;
             let t115 = lit::<T>(0.1) * t114;
             let t116 = s.17 + t115;
-            dc_dqd[1][0] = t116;
+            dc_dqd.2 = t116;
             let t117 = s.0 * lit::<T>(0.0335304944);
             let t118 = t102 - t117;
             let t119 = s.1 * lit::<T>(0.0335304944);
@@ -942,12 +970,12 @@ pub mod portable {
             let t128 = lit::<T>(0.1) * t127;
             let t129 = lit::<T>(2.0) * t128;
             let t130 = s.17 + t129;
-            dc_dqd[0][0] = t130;
+            dc_dqd.0 = t130;
             let t131 = s.2 * t123;
             let t132 = s.3 * t124;
             let t133 = -t132;
             let t134 = t133 - t131;
-            dc_dq[0][0] = t134;
+            dc_dq.0 = t134;
             let t135 = s.3 * t100;
             s.5 = t135;
         }
@@ -965,9 +993,15 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
             let t136 = s.2 * s.4;
             let t137 = s.5 - t136;
-            dc_dq[1][0] = t137;
+            dc_dq.2 = t137;
         }
     }
     use rnea_grad_part3::rnea_grad_part3;
@@ -1056,6 +1090,10 @@ pub mod portable {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct fd_slots<T>(T, T, T, T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 2 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f2<T>(T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -1067,6 +1105,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f2<T>) };
             let t2 = q[0].sin();
             s.0 = t2;
             let t3 = q[0].cos();
@@ -1131,6 +1170,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f2<T>) };
             let t59 = s.2 * s.8;
             let t60 = s.9 - t59;
             let t61 = lit::<T>(0.1) * t60;
@@ -1190,13 +1230,14 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f2<T>) };
             let t101 = s.1 * lit::<T>(9.81);
             let t102 = s.10 * s.14;
             let t103 = s.11 * t101;
             let t104 = t102 + t103;
             let t105 = s.13 - t104;
             let t106 = s.12 * t105;
-            qdd[0] = t106;
+            qdd.0 = t106;
             let t107 = lit::<T>(0.1) * t106;
             let t108 = s.14 - t107;
             let t109 = s.3 * t108;
@@ -1214,7 +1255,7 @@ pub mod portable {
             let t121 = t119 + t120;
             let t122 = s.6 - t121;
             let t123 = lit::<T>(219.4013895236754) * t122;
-            qdd[1] = t123;
+            qdd.1 = t123;
         }
     }
     use fd_part2::fd_part2;
@@ -1245,6 +1286,14 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 2 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f2<T>(T, T);
+    /// An array of 4 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f4<T>(T, T, T, T);
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -1258,6 +1307,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t1 = q[0].sin();
             let t2 = q[0].cos();
             let t9 = q[1].sin();
@@ -1333,6 +1389,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t61 = qd[1] * s.11;
             s.19 = t61;
             let t62 = s.14 + s.18;
@@ -1383,7 +1446,7 @@ pub mod portable {
             let t99 = t96 + t98;
             let t100 = t95 * t99;
             s.29 = t100;
-            qdd[0] = t100;
+            qdd.0 = t100;
             let t101 = lit::<T>(-219.4013895236754) * t97;
             s.30 = t101;
         }
@@ -1402,9 +1465,16 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t102 = s.27 * s.29;
             let t103 = s.30 + t102;
-            qdd[1] = t103;
+            qdd.1 = t103;
             let t104 = lit::<T>(0.1) * s.29;
             let t105 = s.8 - t104;
             let t106 = s.1 * t105;
@@ -1474,6 +1544,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t142 = s.37 - s.39;
             let t143 = s.31 + s.31;
             let t144 = s.22 + s.22;
@@ -1536,6 +1613,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t182 = s.17 + s.25;
             let t183 = s.3 * s.8;
             let t184 = s.4 * s.9;
@@ -1547,35 +1631,35 @@ pub mod portable {
             let t190 = s.27 * t189;
             let t191 = t186 + t190;
             let t192 = s.28 * t191;
-            dqdd_dq[0][0] = t192;
+            dqdd_dq.0 = t192;
             let t193 = lit::<T>(-219.4013895236754) * t189;
             let t194 = s.27 * t192;
             let t195 = t193 + t194;
-            dqdd_dq[1][0] = t195;
+            dqdd_dq.2 = t195;
             let t196 = s.27 * s.13;
             let t197 = s.19 + t196;
             let t198 = s.28 * t197;
-            dqdd_dq[0][1] = t198;
+            dqdd_dq.1 = t198;
             let t199 = lit::<T>(-219.4013895236754) * s.13;
             let t200 = s.27 * t198;
             let t201 = t199 + t200;
-            dqdd_dq[1][1] = t201;
+            dqdd_dq.3 = t201;
             let t202 = s.27 * s.20;
             let t203 = t182 + t202;
             let t204 = s.28 * t203;
-            dqdd_dqd[0][0] = t204;
+            dqdd_dqd.0 = t204;
             let t205 = lit::<T>(-219.4013895236754) * s.20;
             let t206 = s.27 * t204;
             let t207 = t205 + t206;
-            dqdd_dqd[1][0] = t207;
+            dqdd_dqd.2 = t207;
             let t208 = s.27 * s.15;
             let t209 = s.18 + t208;
             let t210 = s.28 * t209;
-            dqdd_dqd[0][1] = t210;
+            dqdd_dqd.1 = t210;
             let t211 = lit::<T>(-219.4013895236754) * s.15;
             let t212 = s.27 * t210;
             let t213 = t211 + t212;
-            dqdd_dqd[1][1] = t213;
+            dqdd_dqd.3 = t213;
         }
     }
     use fd_grad_part4::fd_grad_part4;
@@ -1667,6 +1751,10 @@ pub mod fma {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct rnea_slots<T>(T, T, T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 2 entries of `rnea`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_f2<T>(T, T);
     mod rnea_part0 {
         use super::*;
         #[inline(never)]
@@ -1679,6 +1767,7 @@ pub mod fma {
             s: &mut rnea_slots<T>,
             c: &mut [T; NV],
         ) {
+            let c = unsafe { &mut *(c as *mut [T; NV] as *mut rnea_f2<T>) };
             let t1 = q[0].sin();
             let t2 = q[0].cos();
             let t8 = q[1].sin();
@@ -1738,6 +1827,7 @@ pub mod fma {
             s: &mut rnea_slots<T>,
             c: &mut [T; NV],
         ) {
+            let c = unsafe { &mut *(c as *mut [T; NV] as *mut rnea_f2<T>) };
             let t57 = lit::<T>(0.33238) * s.8;
             let t58 = s.11 + s.12;
             let t59 = T::mul_add(lit::<T>(0.33238), s.7, -s.13);
@@ -1746,14 +1836,14 @@ pub mod fma {
             let t62 = -t61;
             let t64 = T::mul_add(-s.4, s.9, t62);
             let t67 = t58 + t64;
-            c[1] = t67;
+            c.1 = t67;
             let t68 = T::mul_add(-s.5, s.10, t59);
             let t69 = T::mul_add(s.5, s.9, t60);
             let t71 = s.0 * t69;
             let t72 = T::mul_add(s.1, t68, -t71);
             let t74 = T::mul_add(-lit::<T>(0.1), t72, t67);
             let t75 = s.2 + t74;
-            c[0] = t75;
+            c.0 = t75;
         }
     }
     use rnea_part1::rnea_part1;
@@ -1796,6 +1886,10 @@ pub mod fma {
     struct rnea_grad_slots<T>(
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 4 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f4<T>(T, T, T, T);
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -1809,6 +1903,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
             let t1 = q[0].sin();
             let t2 = q[0].cos();
             let t7 = q[1].sin();
@@ -1870,6 +1970,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
             let t55 = T::mul_add(-qd[0], s.4, s.7);
             let t56 = T::mul_add(qd[0], s.5, -s.6);
             let t58 = -s.8;
@@ -1910,7 +2016,7 @@ pub mod fma {
             s.24 = t89;
             let t91 = T::mul_add(t55, lit::<T>(-0.0335304944), t66);
             let t93 = T::mul_add(s.4, t89, t91);
-            dc_dq[1][1] = t93;
+            dc_dq.3 = t93;
             let t94 = s.5 * lit::<T>(-0.0335304944);
             s.25 = t94;
         }
@@ -1929,10 +2035,16 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
             let t95 = s.16 + s.25;
             let t96 = t95 + t95;
             let t97 = s.17 + t96;
-            dc_dqd[1][1] = t97;
+            dc_dqd.3 = t97;
             let t99 = s.0 * lit::<T>(6.43853298e-11);
             let t100 = T::mul_add(s.1, lit::<T>(-0.0335304944), -t99);
             let t102 = s.1 * lit::<T>(6.43853298e-11);
@@ -1941,14 +2053,14 @@ pub mod fma {
             let t105 = s.0 * s.20;
             let t106 = T::mul_add(s.1, s.19, -t105);
             let t108 = T::mul_add(-lit::<T>(0.1), t106, s.18);
-            dc_dqd[0][1] = t108;
+            dc_dqd.1 = t108;
             let t110 = s.0 * s.23;
             let t111 = T::mul_add(s.1, s.22, -t110);
             let t113 = T::mul_add(-lit::<T>(0.1), t111, s.21);
-            dc_dq[0][1] = t113;
+            dc_dq.1 = t113;
             let t114 = s.0 * s.24;
             let t116 = T::mul_add(lit::<T>(0.1), t114, s.17);
-            dc_dqd[1][0] = t116;
+            dc_dqd.2 = t116;
             let t118 = T::mul_add(-s.0, lit::<T>(0.0335304944), t102);
             let t120 = T::mul_add(s.1, lit::<T>(0.0335304944), t99);
             let t122 = t120 + lit::<T>(0.033238000000000004);
@@ -1958,11 +2070,11 @@ pub mod fma {
             let t127 = T::mul_add(s.0, s.15, t126);
             let t128 = lit::<T>(0.1) * t127;
             let t130 = T::mul_add(lit::<T>(2.0), t128, s.17);
-            dc_dqd[0][0] = t130;
+            dc_dqd.0 = t130;
             let t132 = s.3 * t124;
             let t133 = -t132;
             let t134 = T::mul_add(-s.2, t123, t133);
-            dc_dq[0][0] = t134;
+            dc_dq.0 = t134;
             let t135 = s.3 * t100;
             s.5 = t135;
         }
@@ -1981,8 +2093,14 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f4<T>)
+            };
             let t137 = T::mul_add(-s.2, s.4, s.5);
-            dc_dq[1][0] = t137;
+            dc_dq.2 = t137;
         }
     }
     use rnea_grad_part3::rnea_grad_part3;
@@ -2093,6 +2211,10 @@ pub mod fma {
     #[repr(C)]
     #[allow(non_camel_case_types, dead_code)]
     struct fd_slots<T>(T, T, T, T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 2 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f2<T>(T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -2105,6 +2227,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f2<T>) };
             let t2 = q[0].sin();
             s.0 = t2;
             let t3 = q[0].cos();
@@ -2160,6 +2283,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f2<T>) };
             let t60 = T::mul_add(-s.2, s.8, s.9);
             let t62 = T::mul_add(-lit::<T>(0.1), t60, s.7);
             let t64 = s.3 * lit::<T>(-0.1);
@@ -2206,12 +2330,13 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f2<T>) };
             let t101 = s.1 * lit::<T>(9.81);
             let t103 = s.11 * t101;
             let t104 = T::mul_add(s.10, s.14, t103);
             let t105 = s.13 - t104;
             let t106 = s.12 * t105;
-            qdd[0] = t106;
+            qdd.0 = t106;
             let t108 = T::mul_add(-lit::<T>(0.1), t106, s.14);
             let t110 = s.2 * t101;
             let t111 = T::mul_add(s.3, t108, t110);
@@ -2224,7 +2349,7 @@ pub mod fma {
             let t121 = T::mul_add(lit::<T>(6.43853298e-11), t116, t119);
             let t122 = s.6 - t121;
             let t123 = lit::<T>(219.4013895236754) * t122;
-            qdd[1] = t123;
+            qdd.1 = t123;
         }
     }
     use fd_part2::fd_part2;
@@ -2271,6 +2396,14 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 2 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f2<T>(T, T);
+    /// An array of 4 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f4<T>(T, T, T, T);
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -2285,6 +2418,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t1 = q[0].sin();
             let t2 = q[0].cos();
             let t9 = q[1].sin();
@@ -2351,6 +2491,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t61 = qd[1] * s.11;
             s.19 = t61;
             let t62 = s.14 + s.18;
@@ -2392,7 +2539,7 @@ pub mod fma {
             let t99 = T::mul_add(t92, t97, t96);
             let t100 = t95 * t99;
             s.29 = t100;
-            qdd[0] = t100;
+            qdd.0 = t100;
             let t101 = lit::<T>(-219.4013895236754) * t97;
             s.30 = t101;
         }
@@ -2412,8 +2559,15 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t103 = T::mul_add(s.27, s.29, s.30);
-            qdd[1] = t103;
+            qdd.1 = t103;
             let t105 = T::mul_add(-lit::<T>(0.1), s.29, s.8);
             let t107 = T::mul_add(s.1, t105, s.13);
             let t109 = T::mul_add(-s.0, t105, s.15);
@@ -2475,6 +2629,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t142 = s.37 - s.39;
             let t143 = s.31 + s.31;
             let t144 = s.22 + s.22;
@@ -2529,6 +2690,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f2<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f4<T>)
+            };
             let t182 = s.17 + s.25;
             let t184 = s.4 * s.9;
             let t185 = -t184;
@@ -2537,28 +2705,28 @@ pub mod fma {
             let t189 = T::mul_add(s.5, s.9, -t188);
             let t191 = T::mul_add(s.27, t189, t186);
             let t192 = s.28 * t191;
-            dqdd_dq[0][0] = t192;
+            dqdd_dq.0 = t192;
             let t194 = s.27 * t192;
             let t195 = T::mul_add(lit::<T>(-219.4013895236754), t189, t194);
-            dqdd_dq[1][0] = t195;
+            dqdd_dq.2 = t195;
             let t197 = T::mul_add(s.27, s.13, s.19);
             let t198 = s.28 * t197;
-            dqdd_dq[0][1] = t198;
+            dqdd_dq.1 = t198;
             let t200 = s.27 * t198;
             let t201 = T::mul_add(lit::<T>(-219.4013895236754), s.13, t200);
-            dqdd_dq[1][1] = t201;
+            dqdd_dq.3 = t201;
             let t203 = T::mul_add(s.27, s.20, t182);
             let t204 = s.28 * t203;
-            dqdd_dqd[0][0] = t204;
+            dqdd_dqd.0 = t204;
             let t206 = s.27 * t204;
             let t207 = T::mul_add(lit::<T>(-219.4013895236754), s.20, t206);
-            dqdd_dqd[1][0] = t207;
+            dqdd_dqd.2 = t207;
             let t209 = T::mul_add(s.27, s.15, s.18);
             let t210 = s.28 * t209;
-            dqdd_dqd[0][1] = t210;
+            dqdd_dqd.1 = t210;
             let t212 = s.27 * t210;
             let t213 = T::mul_add(lit::<T>(-219.4013895236754), s.15, t212);
-            dqdd_dqd[1][1] = t213;
+            dqdd_dqd.3 = t213;
         }
     }
     use fd_grad_part4::fd_grad_part4;

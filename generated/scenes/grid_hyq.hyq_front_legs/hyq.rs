@@ -5893,6 +5893,17 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 6 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f6<T>(T, T, T, T, T, T);
+    /// An array of 36 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f36<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -5906,6 +5917,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f6<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
             let t4 = q[0].sin();
             let t5 = q[0].cos();
             let t10 = q[1].sin();
@@ -6840,29 +6858,29 @@ pub mod portable {
             let t967 = t947 * t964;
             let t968 = t966 + t967;
             let t969 = t950 * t968;
-            qdd[0] = t969;
+            qdd.0 = t969;
             let t970 = t946 * t964;
             let t971 = lit::<T>(-38.19145529132263) * t953;
             let t972 = t937 * t962;
-            qdd[3] = t972;
+            qdd.3 = t972;
             let t973 = t933 * t958;
             let t974 = lit::<T>(-38.19145529132263) * t956;
             let t975 = t947 * t969;
             let t976 = t970 + t975;
-            qdd[1] = t976;
+            qdd.1 = t976;
             let t977 = t938 * t976;
             let t978 = t971 + t977;
             let t979 = t943 * t969;
             let t980 = t978 + t979;
-            qdd[2] = t980;
+            qdd.2 = t980;
             let t981 = t934 * t972;
             let t982 = t973 + t981;
-            qdd[4] = t982;
+            qdd.4 = t982;
             let t983 = t925 * t982;
             let t984 = t974 + t983;
             let t985 = t930 * t972;
             let t986 = t984 + t985;
-            qdd[5] = t986;
+            qdd.5 = t986;
             let t987 = lit::<T>(0.08) * t969;
             let t988 = t303 + t987;
             let t989 = t10 * t969;
@@ -8502,6 +8520,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f6<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
             let t2558 = s.72 + s.73;
             let t2559 = t2558 - s.40;
             let t2560 = s.0 * s.44;
@@ -8573,17 +8598,17 @@ pub mod portable {
             let t2626 = s.20 * t2623;
             let t2627 = t2625 + t2626;
             let t2628 = s.21 * t2627;
-            dqdd_dq[0][0] = t2628;
+            dqdd_dq.0 = t2628;
             let t2629 = s.19 * t2623;
             let t2630 = lit::<T>(-38.19145529132263) * t2621;
             let t2631 = s.20 * t2628;
             let t2632 = t2629 + t2631;
-            dqdd_dq[1][0] = t2632;
+            dqdd_dq.6 = t2632;
             let t2633 = s.17 * t2632;
             let t2634 = t2630 + t2633;
             let t2635 = s.18 * t2628;
             let t2636 = t2634 + t2635;
-            dqdd_dq[2][0] = t2636;
+            dqdd_dq.12 = t2636;
             let t2637 = s.17 * s.66;
             let t2638 = s.64 + t2637;
             let t2639 = s.18 * s.66;
@@ -8591,17 +8616,17 @@ pub mod portable {
             let t2641 = s.20 * t2638;
             let t2642 = t2640 + t2641;
             let t2643 = s.21 * t2642;
-            dqdd_dq[0][1] = t2643;
+            dqdd_dq.1 = t2643;
             let t2644 = s.19 * t2638;
             let t2645 = lit::<T>(-38.19145529132263) * s.66;
             let t2646 = s.20 * t2643;
             let t2647 = t2644 + t2646;
-            dqdd_dq[1][1] = t2647;
+            dqdd_dq.7 = t2647;
             let t2648 = s.17 * t2647;
             let t2649 = t2645 + t2648;
             let t2650 = s.18 * t2643;
             let t2651 = t2649 + t2650;
-            dqdd_dq[2][1] = t2651;
+            dqdd_dq.13 = t2651;
             let t2652 = s.17 * s.42;
             let t2653 = s.51 + t2652;
             let t2654 = s.18 * s.42;
@@ -8609,17 +8634,17 @@ pub mod portable {
             let t2656 = s.20 * t2653;
             let t2657 = t2655 + t2656;
             let t2658 = s.21 * t2657;
-            dqdd_dq[0][2] = t2658;
+            dqdd_dq.2 = t2658;
             let t2659 = s.19 * t2653;
             let t2660 = lit::<T>(-38.19145529132263) * s.42;
             let t2661 = s.20 * t2658;
             let t2662 = t2659 + t2661;
-            dqdd_dq[1][2] = t2662;
+            dqdd_dq.8 = t2662;
             let t2663 = s.17 * t2662;
             let t2664 = t2660 + t2663;
             let t2665 = s.18 * t2658;
             let t2666 = t2664 + t2665;
-            dqdd_dq[2][2] = t2666;
+            dqdd_dq.14 = t2666;
             let t2667 = s.12 * s.39;
             let t2668 = s.38 + t2667;
             let t2669 = s.13 * s.39;
@@ -8627,17 +8652,17 @@ pub mod portable {
             let t2671 = s.15 * t2668;
             let t2672 = t2670 + t2671;
             let t2673 = s.16 * t2672;
-            dqdd_dq[3][3] = t2673;
+            dqdd_dq.21 = t2673;
             let t2674 = s.14 * t2668;
             let t2675 = lit::<T>(-38.19145529132263) * s.39;
             let t2676 = s.15 * t2673;
             let t2677 = t2674 + t2676;
-            dqdd_dq[4][3] = t2677;
+            dqdd_dq.27 = t2677;
             let t2678 = s.12 * t2677;
             let t2679 = t2675 + t2678;
             let t2680 = s.13 * t2673;
             let t2681 = t2679 + t2680;
-            dqdd_dq[5][3] = t2681;
+            dqdd_dq.33 = t2681;
             let t2682 = s.12 * s.28;
             let t2683 = s.26 + t2682;
             let t2684 = s.13 * s.28;
@@ -8645,17 +8670,17 @@ pub mod portable {
             let t2686 = s.15 * t2683;
             let t2687 = t2685 + t2686;
             let t2688 = s.16 * t2687;
-            dqdd_dq[3][4] = t2688;
+            dqdd_dq.22 = t2688;
             let t2689 = s.14 * t2683;
             let t2690 = lit::<T>(-38.19145529132263) * s.28;
             let t2691 = s.15 * t2688;
             let t2692 = t2689 + t2691;
-            dqdd_dq[4][4] = t2692;
+            dqdd_dq.28 = t2692;
             let t2693 = s.12 * t2692;
             let t2694 = t2690 + t2693;
             let t2695 = s.13 * t2688;
             let t2696 = t2694 + t2695;
-            dqdd_dq[5][4] = t2696;
+            dqdd_dq.34 = t2696;
             let t2697 = s.12 * s.22;
             let t2698 = s.25 + t2697;
             let t2699 = s.13 * s.22;
@@ -8663,17 +8688,17 @@ pub mod portable {
             let t2701 = s.15 * t2698;
             let t2702 = t2700 + t2701;
             let t2703 = s.16 * t2702;
-            dqdd_dq[3][5] = t2703;
+            dqdd_dq.23 = t2703;
             let t2704 = s.14 * t2698;
             let t2705 = lit::<T>(-38.19145529132263) * s.22;
             let t2706 = s.15 * t2703;
             let t2707 = t2704 + t2706;
-            dqdd_dq[4][5] = t2707;
+            dqdd_dq.29 = t2707;
             let t2708 = s.12 * t2707;
             let t2709 = t2705 + t2708;
             let t2710 = s.13 * t2703;
             let t2711 = t2709 + t2710;
-            dqdd_dq[5][5] = t2711;
+            dqdd_dq.35 = t2711;
             let t2712 = s.17 * t2587;
             let t2713 = s.71 + t2712;
             let t2714 = s.18 * t2587;
@@ -8681,17 +8706,17 @@ pub mod portable {
             let t2716 = s.20 * t2713;
             let t2717 = t2715 + t2716;
             let t2718 = s.21 * t2717;
-            dqdd_dqd[0][0] = t2718;
+            dqdd_dqd.0 = t2718;
             let t2719 = s.19 * t2713;
             let t2720 = lit::<T>(-38.19145529132263) * t2587;
             let t2721 = s.20 * t2718;
             let t2722 = t2719 + t2721;
-            dqdd_dqd[1][0] = t2722;
+            dqdd_dqd.6 = t2722;
             let t2723 = s.17 * t2722;
             let t2724 = t2720 + t2723;
             let t2725 = s.18 * t2718;
             let t2726 = t2724 + t2725;
-            dqdd_dqd[2][0] = t2726;
+            dqdd_dqd.12 = t2726;
             let t2727 = s.17 * s.67;
             let t2728 = s.65 + t2727;
             let t2729 = s.18 * s.67;
@@ -8699,17 +8724,17 @@ pub mod portable {
             let t2731 = s.20 * t2728;
             let t2732 = t2730 + t2731;
             let t2733 = s.21 * t2732;
-            dqdd_dqd[0][1] = t2733;
+            dqdd_dqd.1 = t2733;
             let t2734 = s.19 * t2728;
             let t2735 = lit::<T>(-38.19145529132263) * s.67;
             let t2736 = s.20 * t2733;
             let t2737 = t2734 + t2736;
-            dqdd_dqd[1][1] = t2737;
+            dqdd_dqd.7 = t2737;
             let t2738 = s.17 * t2737;
             let t2739 = t2735 + t2738;
             let t2740 = s.18 * t2733;
             let t2741 = t2739 + t2740;
-            dqdd_dqd[2][1] = t2741;
+            dqdd_dqd.13 = t2741;
             let t2742 = s.17 * s.43;
             let t2743 = s.46 + t2742;
             let t2744 = s.18 * s.43;
@@ -8717,17 +8742,17 @@ pub mod portable {
             let t2746 = s.20 * t2743;
             let t2747 = t2745 + t2746;
             let t2748 = s.21 * t2747;
-            dqdd_dqd[0][2] = t2748;
+            dqdd_dqd.2 = t2748;
             let t2749 = s.19 * t2743;
             let t2750 = lit::<T>(-38.19145529132263) * s.43;
             let t2751 = s.20 * t2748;
             let t2752 = t2749 + t2751;
-            dqdd_dqd[1][2] = t2752;
+            dqdd_dqd.8 = t2752;
             let t2753 = s.17 * t2752;
             let t2754 = t2750 + t2753;
             let t2755 = s.18 * t2748;
             let t2756 = t2754 + t2755;
-            dqdd_dqd[2][2] = t2756;
+            dqdd_dqd.14 = t2756;
             let t2757 = s.12 * s.35;
             let t2758 = s.32 + t2757;
             let t2759 = s.13 * s.35;
@@ -8735,17 +8760,17 @@ pub mod portable {
             let t2761 = s.15 * t2758;
             let t2762 = t2760 + t2761;
             let t2763 = s.16 * t2762;
-            dqdd_dqd[3][3] = t2763;
+            dqdd_dqd.21 = t2763;
             let t2764 = s.14 * t2758;
             let t2765 = lit::<T>(-38.19145529132263) * s.35;
             let t2766 = s.15 * t2763;
             let t2767 = t2764 + t2766;
-            dqdd_dqd[4][3] = t2767;
+            dqdd_dqd.27 = t2767;
             let t2768 = s.12 * t2767;
             let t2769 = t2765 + t2768;
             let t2770 = s.13 * t2763;
             let t2771 = t2769 + t2770;
-            dqdd_dqd[5][3] = t2771;
+            dqdd_dqd.33 = t2771;
             let t2772 = s.12 * s.29;
             let t2773 = s.27 + t2772;
             let t2774 = s.13 * s.29;
@@ -8753,17 +8778,17 @@ pub mod portable {
             let t2776 = s.15 * t2773;
             let t2777 = t2775 + t2776;
             let t2778 = s.16 * t2777;
-            dqdd_dqd[3][4] = t2778;
+            dqdd_dqd.22 = t2778;
             let t2779 = s.14 * t2773;
             let t2780 = lit::<T>(-38.19145529132263) * s.29;
             let t2781 = s.15 * t2778;
             let t2782 = t2779 + t2781;
-            dqdd_dqd[4][4] = t2782;
+            dqdd_dqd.28 = t2782;
             let t2783 = s.12 * t2782;
             let t2784 = t2780 + t2783;
             let t2785 = s.13 * t2778;
             let t2786 = t2784 + t2785;
-            dqdd_dqd[5][4] = t2786;
+            dqdd_dqd.34 = t2786;
             let t2787 = s.12 * s.23;
             let t2788 = s.24 + t2787;
             let t2789 = s.13 * s.23;
@@ -8771,17 +8796,17 @@ pub mod portable {
             let t2791 = s.15 * t2788;
             let t2792 = t2790 + t2791;
             let t2793 = s.16 * t2792;
-            dqdd_dqd[3][5] = t2793;
+            dqdd_dqd.23 = t2793;
             let t2794 = s.14 * t2788;
             let t2795 = lit::<T>(-38.19145529132263) * s.23;
             let t2796 = s.15 * t2793;
             let t2797 = t2794 + t2796;
-            dqdd_dqd[4][5] = t2797;
+            dqdd_dqd.29 = t2797;
             let t2798 = s.12 * t2797;
             let t2799 = t2795 + t2798;
             let t2800 = s.13 * t2793;
             let t2801 = t2799 + t2800;
-            dqdd_dqd[5][5] = t2801;
+            dqdd_dqd.35 = t2801;
         }
     }
     use fd_grad_part1::fd_grad_part1;
@@ -12740,6 +12765,17 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 6 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f6<T>(T, T, T, T, T, T);
+    /// An array of 36 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f36<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -12754,6 +12790,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f6<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
             let t4 = q[0].sin();
             let t5 = q[0].cos();
             let t10 = q[1].sin();
@@ -13467,23 +13510,23 @@ pub mod fma {
             let t966 = T::mul_add(t943, t953, t951);
             let t968 = T::mul_add(t947, t964, t966);
             let t969 = t950 * t968;
-            qdd[0] = t969;
+            qdd.0 = t969;
             let t972 = t937 * t962;
-            qdd[3] = t972;
+            qdd.3 = t972;
             let t975 = t947 * t969;
             let t976 = T::mul_add(t946, t964, t975);
-            qdd[1] = t976;
+            qdd.1 = t976;
             let t977 = t938 * t976;
             let t978 = T::mul_add(lit::<T>(-38.19145529132263), t953, t977);
             let t980 = T::mul_add(t943, t969, t978);
-            qdd[2] = t980;
+            qdd.2 = t980;
             let t981 = t934 * t972;
             let t982 = T::mul_add(t933, t958, t981);
-            qdd[4] = t982;
+            qdd.4 = t982;
             let t983 = t925 * t982;
             let t984 = T::mul_add(lit::<T>(-38.19145529132263), t956, t983);
             let t986 = T::mul_add(t930, t972, t984);
-            qdd[5] = t986;
+            qdd.5 = t986;
             let t988 = T::mul_add(lit::<T>(0.08), t969, t303);
             let t989 = t10 * t969;
             let t990 = t11 * t969;
@@ -14733,6 +14776,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f6<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f36<T>)
+            };
             let t2558 = s.72 + s.73;
             let t2559 = t2558 - s.40;
             let t2561 = s.1 * s.45;
@@ -14778,146 +14828,146 @@ pub mod fma {
             let t2625 = T::mul_add(s.18, t2621, t2615);
             let t2627 = T::mul_add(s.20, t2623, t2625);
             let t2628 = s.21 * t2627;
-            dqdd_dq[0][0] = t2628;
+            dqdd_dq.0 = t2628;
             let t2631 = s.20 * t2628;
             let t2632 = T::mul_add(s.19, t2623, t2631);
-            dqdd_dq[1][0] = t2632;
+            dqdd_dq.6 = t2632;
             let t2633 = s.17 * t2632;
             let t2634 = T::mul_add(lit::<T>(-38.19145529132263), t2621, t2633);
             let t2636 = T::mul_add(s.18, t2628, t2634);
-            dqdd_dq[2][0] = t2636;
+            dqdd_dq.12 = t2636;
             let t2638 = T::mul_add(s.17, s.66, s.64);
             let t2640 = T::mul_add(s.18, s.66, s.69);
             let t2642 = T::mul_add(s.20, t2638, t2640);
             let t2643 = s.21 * t2642;
-            dqdd_dq[0][1] = t2643;
+            dqdd_dq.1 = t2643;
             let t2646 = s.20 * t2643;
             let t2647 = T::mul_add(s.19, t2638, t2646);
-            dqdd_dq[1][1] = t2647;
+            dqdd_dq.7 = t2647;
             let t2648 = s.17 * t2647;
             let t2649 = T::mul_add(lit::<T>(-38.19145529132263), s.66, t2648);
             let t2651 = T::mul_add(s.18, t2643, t2649);
-            dqdd_dq[2][1] = t2651;
+            dqdd_dq.13 = t2651;
             let t2653 = T::mul_add(s.17, s.42, s.51);
             let t2655 = T::mul_add(s.18, s.42, t2577);
             let t2657 = T::mul_add(s.20, t2653, t2655);
             let t2658 = s.21 * t2657;
-            dqdd_dq[0][2] = t2658;
+            dqdd_dq.2 = t2658;
             let t2661 = s.20 * t2658;
             let t2662 = T::mul_add(s.19, t2653, t2661);
-            dqdd_dq[1][2] = t2662;
+            dqdd_dq.8 = t2662;
             let t2663 = s.17 * t2662;
             let t2664 = T::mul_add(lit::<T>(-38.19145529132263), s.42, t2663);
             let t2666 = T::mul_add(s.18, t2658, t2664);
-            dqdd_dq[2][2] = t2666;
+            dqdd_dq.14 = t2666;
             let t2668 = T::mul_add(s.12, s.39, s.38);
             let t2670 = T::mul_add(s.13, s.39, s.37);
             let t2672 = T::mul_add(s.15, t2668, t2670);
             let t2673 = s.16 * t2672;
-            dqdd_dq[3][3] = t2673;
+            dqdd_dq.21 = t2673;
             let t2676 = s.15 * t2673;
             let t2677 = T::mul_add(s.14, t2668, t2676);
-            dqdd_dq[4][3] = t2677;
+            dqdd_dq.27 = t2677;
             let t2678 = s.12 * t2677;
             let t2679 = T::mul_add(lit::<T>(-38.19145529132263), s.39, t2678);
             let t2681 = T::mul_add(s.13, t2673, t2679);
-            dqdd_dq[5][3] = t2681;
+            dqdd_dq.33 = t2681;
             let t2683 = T::mul_add(s.12, s.28, s.26);
             let t2685 = T::mul_add(s.13, s.28, s.31);
             let t2687 = T::mul_add(s.15, t2683, t2685);
             let t2688 = s.16 * t2687;
-            dqdd_dq[3][4] = t2688;
+            dqdd_dq.22 = t2688;
             let t2691 = s.15 * t2688;
             let t2692 = T::mul_add(s.14, t2683, t2691);
-            dqdd_dq[4][4] = t2692;
+            dqdd_dq.28 = t2692;
             let t2693 = s.12 * t2692;
             let t2694 = T::mul_add(lit::<T>(-38.19145529132263), s.28, t2693);
             let t2696 = T::mul_add(s.13, t2688, t2694);
-            dqdd_dq[5][4] = t2696;
+            dqdd_dq.34 = t2696;
             let t2698 = T::mul_add(s.12, s.22, s.25);
             let t2700 = T::mul_add(s.13, s.22, s.34);
             let t2702 = T::mul_add(s.15, t2698, t2700);
             let t2703 = s.16 * t2702;
-            dqdd_dq[3][5] = t2703;
+            dqdd_dq.23 = t2703;
             let t2706 = s.15 * t2703;
             let t2707 = T::mul_add(s.14, t2698, t2706);
-            dqdd_dq[4][5] = t2707;
+            dqdd_dq.29 = t2707;
             let t2708 = s.12 * t2707;
             let t2709 = T::mul_add(lit::<T>(-38.19145529132263), s.22, t2708);
             let t2711 = T::mul_add(s.13, t2703, t2709);
-            dqdd_dq[5][5] = t2711;
+            dqdd_dq.35 = t2711;
             let t2713 = T::mul_add(s.17, t2587, s.71);
             let t2715 = T::mul_add(s.18, t2587, t2612);
             let t2717 = T::mul_add(s.20, t2713, t2715);
             let t2718 = s.21 * t2717;
-            dqdd_dqd[0][0] = t2718;
+            dqdd_dqd.0 = t2718;
             let t2721 = s.20 * t2718;
             let t2722 = T::mul_add(s.19, t2713, t2721);
-            dqdd_dqd[1][0] = t2722;
+            dqdd_dqd.6 = t2722;
             let t2723 = s.17 * t2722;
             let t2724 = T::mul_add(lit::<T>(-38.19145529132263), t2587, t2723);
             let t2726 = T::mul_add(s.18, t2718, t2724);
-            dqdd_dqd[2][0] = t2726;
+            dqdd_dqd.12 = t2726;
             let t2728 = T::mul_add(s.17, s.67, s.65);
             let t2730 = T::mul_add(s.18, s.67, s.68);
             let t2732 = T::mul_add(s.20, t2728, t2730);
             let t2733 = s.21 * t2732;
-            dqdd_dqd[0][1] = t2733;
+            dqdd_dqd.1 = t2733;
             let t2736 = s.20 * t2733;
             let t2737 = T::mul_add(s.19, t2728, t2736);
-            dqdd_dqd[1][1] = t2737;
+            dqdd_dqd.7 = t2737;
             let t2738 = s.17 * t2737;
             let t2739 = T::mul_add(lit::<T>(-38.19145529132263), s.67, t2738);
             let t2741 = T::mul_add(s.18, t2733, t2739);
-            dqdd_dqd[2][1] = t2741;
+            dqdd_dqd.13 = t2741;
             let t2743 = T::mul_add(s.17, s.43, s.46);
             let t2745 = T::mul_add(s.18, s.43, t2566);
             let t2747 = T::mul_add(s.20, t2743, t2745);
             let t2748 = s.21 * t2747;
-            dqdd_dqd[0][2] = t2748;
+            dqdd_dqd.2 = t2748;
             let t2751 = s.20 * t2748;
             let t2752 = T::mul_add(s.19, t2743, t2751);
-            dqdd_dqd[1][2] = t2752;
+            dqdd_dqd.8 = t2752;
             let t2753 = s.17 * t2752;
             let t2754 = T::mul_add(lit::<T>(-38.19145529132263), s.43, t2753);
             let t2756 = T::mul_add(s.18, t2748, t2754);
-            dqdd_dqd[2][2] = t2756;
+            dqdd_dqd.14 = t2756;
             let t2758 = T::mul_add(s.12, s.35, s.32);
             let t2760 = T::mul_add(s.13, s.35, s.36);
             let t2762 = T::mul_add(s.15, t2758, t2760);
             let t2763 = s.16 * t2762;
-            dqdd_dqd[3][3] = t2763;
+            dqdd_dqd.21 = t2763;
             let t2766 = s.15 * t2763;
             let t2767 = T::mul_add(s.14, t2758, t2766);
-            dqdd_dqd[4][3] = t2767;
+            dqdd_dqd.27 = t2767;
             let t2768 = s.12 * t2767;
             let t2769 = T::mul_add(lit::<T>(-38.19145529132263), s.35, t2768);
             let t2771 = T::mul_add(s.13, t2763, t2769);
-            dqdd_dqd[5][3] = t2771;
+            dqdd_dqd.33 = t2771;
             let t2773 = T::mul_add(s.12, s.29, s.27);
             let t2775 = T::mul_add(s.13, s.29, s.30);
             let t2777 = T::mul_add(s.15, t2773, t2775);
             let t2778 = s.16 * t2777;
-            dqdd_dqd[3][4] = t2778;
+            dqdd_dqd.22 = t2778;
             let t2781 = s.15 * t2778;
             let t2782 = T::mul_add(s.14, t2773, t2781);
-            dqdd_dqd[4][4] = t2782;
+            dqdd_dqd.28 = t2782;
             let t2783 = s.12 * t2782;
             let t2784 = T::mul_add(lit::<T>(-38.19145529132263), s.29, t2783);
             let t2786 = T::mul_add(s.13, t2778, t2784);
-            dqdd_dqd[5][4] = t2786;
+            dqdd_dqd.34 = t2786;
             let t2788 = T::mul_add(s.12, s.23, s.24);
             let t2790 = T::mul_add(s.13, s.23, s.33);
             let t2792 = T::mul_add(s.15, t2788, t2790);
             let t2793 = s.16 * t2792;
-            dqdd_dqd[3][5] = t2793;
+            dqdd_dqd.23 = t2793;
             let t2796 = s.15 * t2793;
             let t2797 = T::mul_add(s.14, t2788, t2796);
-            dqdd_dqd[4][5] = t2797;
+            dqdd_dqd.29 = t2797;
             let t2798 = s.12 * t2797;
             let t2799 = T::mul_add(lit::<T>(-38.19145529132263), s.23, t2798);
             let t2801 = T::mul_add(s.13, t2793, t2799);
-            dqdd_dqd[5][5] = t2801;
+            dqdd_dqd.35 = t2801;
         }
     }
     use fd_grad_part1::fd_grad_part1;

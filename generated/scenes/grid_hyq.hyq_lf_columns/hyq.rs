@@ -5051,6 +5051,10 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -5062,6 +5066,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f12<T>) };
             let t2 = q[0].sin();
             s.0 = t2;
             let t3 = q[0].cos();
@@ -7692,6 +7697,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f12<T>) };
             let t2598 = s.1 * lit::<T>(9.81);
             let t2599 = s.0 * lit::<T>(9.81);
             let t2601 = s.111 * t2598;
@@ -7701,7 +7707,7 @@ pub mod portable {
             let t2605 = t2603 + t2604;
             let t2606 = s.115 - t2605;
             let t2607 = s.114 * t2606;
-            qdd[0] = t2607;
+            qdd.0 = t2607;
             let t2608 = lit::<T>(0.08) * t2607;
             let t2609 = t2599 + t2608;
             let t2610 = s.2 * t2607;
@@ -7732,7 +7738,7 @@ pub mod portable {
             let t2635 = t2633 + t2634;
             let t2636 = s.110 - t2635;
             let t2637 = s.109 * t2636;
-            qdd[1] = t2637;
+            qdd.1 = t2637;
             let t2638 = t2612 + t2637;
             let t2639 = lit::<T>(0.35) * t2638;
             let t2640 = t2626 + t2639;
@@ -7763,7 +7769,7 @@ pub mod portable {
             let t2665 = t2663 + t2664;
             let t2666 = s.103 - t2665;
             let t2667 = lit::<T>(38.19145529132263) * t2666;
-            qdd[2] = t2667;
+            qdd.2 = t2667;
             let t2668 = s.9 * lit::<T>(9.81);
             let t2669 = s.8 * lit::<T>(9.81);
             let t2670 = s.98 * t2668;
@@ -7773,7 +7779,7 @@ pub mod portable {
             let t2674 = t2672 + t2673;
             let t2675 = s.102 - t2674;
             let t2676 = s.101 * t2675;
-            qdd[3] = t2676;
+            qdd.3 = t2676;
             let t2677 = lit::<T>(0.08) * t2676;
             let t2678 = t2669 + t2677;
             let t2679 = s.10 * t2676;
@@ -7804,7 +7810,7 @@ pub mod portable {
             let t2704 = t2702 + t2703;
             let t2705 = s.97 - t2704;
             let t2706 = s.96 * t2705;
-            qdd[4] = t2706;
+            qdd.4 = t2706;
             let t2707 = t2681 + t2706;
             let t2708 = lit::<T>(0.35) * t2707;
             let t2709 = t2695 + t2708;
@@ -7835,7 +7841,7 @@ pub mod portable {
             let t2734 = t2732 + t2733;
             let t2735 = s.90 - t2734;
             let t2736 = lit::<T>(38.19145529132263) * t2735;
-            qdd[5] = t2736;
+            qdd.5 = t2736;
             let t2737 = s.17 * lit::<T>(9.81);
             let t2738 = s.16 * lit::<T>(9.81);
             let t2739 = s.85 * t2737;
@@ -7845,7 +7851,7 @@ pub mod portable {
             let t2743 = t2741 + t2742;
             let t2744 = s.89 - t2743;
             let t2745 = s.88 * t2744;
-            qdd[6] = t2745;
+            qdd.6 = t2745;
             let t2746 = lit::<T>(0.08) * t2745;
             let t2747 = t2738 + t2746;
             let t2748 = s.18 * t2745;
@@ -7877,7 +7883,7 @@ pub mod portable {
             let t2774 = t2772 + t2773;
             let t2775 = s.84 - t2774;
             let t2776 = s.83 * t2775;
-            qdd[7] = t2776;
+            qdd.7 = t2776;
             let t2777 = t2751 + t2776;
             let t2778 = lit::<T>(0.35) * t2777;
             let t2779 = t2765 + t2778;
@@ -7908,7 +7914,7 @@ pub mod portable {
             let t2804 = t2802 + t2803;
             let t2805 = s.77 - t2804;
             let t2806 = lit::<T>(38.19145529132263) * t2805;
-            qdd[8] = t2806;
+            qdd.8 = t2806;
             let t2807 = s.25 * lit::<T>(9.81);
             let t2808 = s.24 * lit::<T>(9.81);
             let t2809 = s.72 * t2807;
@@ -7918,7 +7924,7 @@ pub mod portable {
             let t2813 = t2811 + t2812;
             let t2814 = s.76 - t2813;
             let t2815 = s.75 * t2814;
-            qdd[9] = t2815;
+            qdd.9 = t2815;
             let t2816 = lit::<T>(0.08) * t2815;
             let t2817 = t2808 + t2816;
             let t2818 = s.26 * t2815;
@@ -7950,7 +7956,7 @@ pub mod portable {
             let t2844 = t2842 + t2843;
             let t2845 = s.71 - t2844;
             let t2846 = s.70 * t2845;
-            qdd[10] = t2846;
+            qdd.10 = t2846;
             let t2847 = t2821 + t2846;
             let t2848 = lit::<T>(0.35) * t2847;
             let t2849 = t2835 + t2848;
@@ -7981,7 +7987,7 @@ pub mod portable {
             let t2874 = t2872 + t2873;
             let t2875 = s.64 - t2874;
             let t2876 = lit::<T>(38.19145529132263) * t2875;
-            qdd[11] = t2876;
+            qdd.11 = t2876;
         }
     }
     use fd_part1::fd_part1;
@@ -8010,6 +8016,20 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 144 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -8023,6 +8043,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t4 = q[0].sin();
             let t5 = q[0].cos();
             let t10 = q[1].sin();
@@ -9833,53 +9860,53 @@ pub mod portable {
             let t1863 = t1825 * t1860;
             let t1864 = t1862 + t1863;
             let t1865 = t1828 * t1864;
-            qdd[0] = t1865;
+            qdd.0 = t1865;
             let t1866 = t1824 * t1860;
             let t1867 = lit::<T>(-38.19145529132263) * t1831;
             let t1868 = t1815 * t1858;
-            qdd[3] = t1868;
+            qdd.3 = t1868;
             let t1869 = t1811 * t1854;
             let t1870 = lit::<T>(-38.19145529132263) * t1834;
             let t1871 = t1802 * t1852;
-            qdd[6] = t1871;
+            qdd.6 = t1871;
             let t1872 = t1798 * t1848;
             let t1873 = lit::<T>(-38.19145529132263) * t1837;
             let t1874 = t1789 * t1846;
-            qdd[9] = t1874;
+            qdd.9 = t1874;
             let t1875 = t1785 * t1842;
             let t1876 = lit::<T>(-38.19145529132263) * t1840;
             let t1877 = t1825 * t1865;
             let t1878 = t1866 + t1877;
-            qdd[1] = t1878;
+            qdd.1 = t1878;
             let t1879 = t1816 * t1878;
             let t1880 = t1867 + t1879;
             let t1881 = t1821 * t1865;
             let t1882 = t1880 + t1881;
-            qdd[2] = t1882;
+            qdd.2 = t1882;
             let t1883 = t1812 * t1868;
             let t1884 = t1869 + t1883;
-            qdd[4] = t1884;
+            qdd.4 = t1884;
             let t1885 = t1803 * t1884;
             let t1886 = t1870 + t1885;
             let t1887 = t1808 * t1868;
             let t1888 = t1886 + t1887;
-            qdd[5] = t1888;
+            qdd.5 = t1888;
             let t1889 = t1799 * t1871;
             let t1890 = t1872 + t1889;
-            qdd[7] = t1890;
+            qdd.7 = t1890;
             let t1891 = t1790 * t1890;
             let t1892 = t1873 + t1891;
             let t1893 = t1795 * t1871;
             let t1894 = t1892 + t1893;
-            qdd[8] = t1894;
+            qdd.8 = t1894;
             let t1895 = t1786 * t1874;
             let t1896 = t1875 + t1895;
-            qdd[10] = t1896;
+            qdd.10 = t1896;
             let t1897 = t1777 * t1896;
             let t1898 = t1876 + t1897;
             let t1899 = t1782 * t1874;
             let t1900 = t1898 + t1899;
-            qdd[11] = t1900;
+            qdd.11 = t1900;
             let t1901 = lit::<T>(0.08) * t1865;
             let t1902 = t535 + t1901;
             let t1903 = t10 * t1865;
@@ -10631,6 +10658,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t2582 = s.78 + s.79;
             let t2583 = s.19 * s.76;
             let t2584 = t2582 - t2583;
@@ -10770,17 +10804,17 @@ pub mod portable {
             let t2718 = s.24 * t2715;
             let t2719 = t2717 + t2718;
             let t2720 = s.25 * t2719;
-            dqdd_dq[0][0] = t2720;
+            dqdd_dq.0 = t2720;
             let t2721 = s.23 * t2715;
             let t2722 = lit::<T>(-38.19145529132263) * t2713;
             let t2723 = s.24 * t2720;
             let t2724 = t2721 + t2723;
-            dqdd_dq[1][0] = t2724;
+            dqdd_dq.12 = t2724;
             let t2725 = s.21 * t2724;
             let t2726 = t2722 + t2725;
             let t2727 = s.22 * t2720;
             let t2728 = t2726 + t2727;
-            dqdd_dq[2][0] = t2728;
+            dqdd_dq.24 = t2728;
             let t2729 = s.21 * t2606;
             let t2730 = t2585 + t2729;
             let t2731 = s.22 * t2606;
@@ -10788,17 +10822,17 @@ pub mod portable {
             let t2733 = s.24 * t2730;
             let t2734 = t2732 + t2733;
             let t2735 = s.25 * t2734;
-            dqdd_dq[0][1] = t2735;
+            dqdd_dq.1 = t2735;
             let t2736 = s.23 * t2730;
             let t2737 = lit::<T>(-38.19145529132263) * t2606;
             let t2738 = s.24 * t2735;
             let t2739 = t2736 + t2738;
-            dqdd_dq[1][1] = t2739;
+            dqdd_dq.13 = t2739;
             let t2740 = s.21 * t2739;
             let t2741 = t2737 + t2740;
             let t2742 = s.22 * t2735;
             let t2743 = t2741 + t2742;
-            dqdd_dq[2][1] = t2743;
+            dqdd_dq.25 = t2743;
             let t2744 = s.21 * s.33;
             let t2745 = s.44 + t2744;
             let t2746 = s.22 * s.33;
@@ -10806,17 +10840,17 @@ pub mod portable {
             let t2748 = s.24 * t2745;
             let t2749 = t2747 + t2748;
             let t2750 = s.25 * t2749;
-            dqdd_dq[0][2] = t2750;
+            dqdd_dq.2 = t2750;
             let t2751 = s.23 * t2745;
             let t2752 = lit::<T>(-38.19145529132263) * s.33;
             let t2753 = s.24 * t2750;
             let t2754 = t2751 + t2753;
-            dqdd_dq[1][2] = t2754;
+            dqdd_dq.14 = t2754;
             let t2755 = s.21 * t2754;
             let t2756 = t2752 + t2755;
             let t2757 = s.22 * t2750;
             let t2758 = t2756 + t2757;
-            dqdd_dq[2][2] = t2758;
+            dqdd_dq.26 = t2758;
             let t2759 = s.21 * t2679;
             let t2760 = t2647 + t2759;
             let t2761 = s.22 * t2679;
@@ -10824,17 +10858,17 @@ pub mod portable {
             let t2763 = s.24 * t2760;
             let t2764 = t2762 + t2763;
             let t2765 = s.25 * t2764;
-            dqdd_dqd[0][0] = t2765;
+            dqdd_dqd.0 = t2765;
             let t2766 = s.23 * t2760;
             let t2767 = lit::<T>(-38.19145529132263) * t2679;
             let t2768 = s.24 * t2765;
             let t2769 = t2766 + t2768;
-            dqdd_dqd[1][0] = t2769;
+            dqdd_dqd.12 = t2769;
             let t2770 = s.21 * t2769;
             let t2771 = t2767 + t2770;
             let t2772 = s.22 * t2765;
             let t2773 = t2771 + t2772;
-            dqdd_dqd[2][0] = t2773;
+            dqdd_dqd.24 = t2773;
             let t2774 = s.21 * t2615;
             let t2775 = t2589 + t2774;
             let t2776 = s.22 * t2615;
@@ -10842,17 +10876,17 @@ pub mod portable {
             let t2778 = s.24 * t2775;
             let t2779 = t2777 + t2778;
             let t2780 = s.25 * t2779;
-            dqdd_dqd[0][1] = t2780;
+            dqdd_dqd.1 = t2780;
             let t2781 = s.23 * t2775;
             let t2782 = lit::<T>(-38.19145529132263) * t2615;
             let t2783 = s.24 * t2780;
             let t2784 = t2781 + t2783;
-            dqdd_dqd[1][1] = t2784;
+            dqdd_dqd.13 = t2784;
             let t2785 = s.21 * t2784;
             let t2786 = t2782 + t2785;
             let t2787 = s.22 * t2780;
             let t2788 = t2786 + t2787;
-            dqdd_dqd[2][1] = t2788;
+            dqdd_dqd.25 = t2788;
             let t2789 = s.21 * s.34;
             let t2790 = s.39 + t2789;
             let t2791 = s.22 * s.34;
@@ -10860,17 +10894,17 @@ pub mod portable {
             let t2793 = s.24 * t2790;
             let t2794 = t2792 + t2793;
             let t2795 = s.25 * t2794;
-            dqdd_dqd[0][2] = t2795;
+            dqdd_dqd.2 = t2795;
             let t2796 = s.23 * t2790;
             let t2797 = lit::<T>(-38.19145529132263) * s.34;
             let t2798 = s.24 * t2795;
             let t2799 = t2796 + t2798;
-            dqdd_dqd[1][2] = t2799;
+            dqdd_dqd.14 = t2799;
             let t2800 = s.21 * t2799;
             let t2801 = t2797 + t2800;
             let t2802 = s.22 * t2795;
             let t2803 = t2801 + t2802;
-            dqdd_dqd[2][2] = t2803;
+            dqdd_dqd.26 = t2803;
         }
     }
     use fd_grad_part1::fd_grad_part1;
@@ -14217,6 +14251,10 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -14229,6 +14267,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f12<T>) };
             let t2 = q[0].sin();
             s.0 = t2;
             let t3 = q[0].cos();
@@ -16050,6 +16089,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f12<T>) };
             let t2598 = s.1 * lit::<T>(9.81);
             let t2599 = s.0 * lit::<T>(9.81);
             let t2601 = s.111 * t2598;
@@ -16057,7 +16097,7 @@ pub mod fma {
             let t2605 = T::mul_add(s.112, lit::<T>(4.8035536718039596e-11), t2603);
             let t2606 = s.115 - t2605;
             let t2607 = s.114 * t2606;
-            qdd[0] = t2607;
+            qdd.0 = t2607;
             let t2609 = T::mul_add(lit::<T>(0.08), t2607, t2599);
             let t2612 = lit::<T>(4.8965888601467475e-12) * t2607;
             let t2613 = s.3 * t2598;
@@ -16077,7 +16117,7 @@ pub mod fma {
             let t2635 = T::mul_add(s.108, t2626, t2633);
             let t2636 = s.110 - t2635;
             let t2637 = s.109 * t2636;
-            qdd[1] = t2637;
+            qdd.1 = t2637;
             let t2638 = t2612 + t2637;
             let t2640 = T::mul_add(lit::<T>(0.35), t2638, t2626);
             let t2642 = s.6 * t2624;
@@ -16099,7 +16139,7 @@ pub mod fma {
             let t2665 = T::mul_add(lit::<T>(0.11047740000000002), t2656, t2663);
             let t2666 = s.103 - t2665;
             let t2667 = lit::<T>(38.19145529132263) * t2666;
-            qdd[2] = t2667;
+            qdd.2 = t2667;
             let t2668 = s.9 * lit::<T>(9.81);
             let t2669 = s.8 * lit::<T>(9.81);
             let t2670 = s.98 * t2668;
@@ -16107,7 +16147,7 @@ pub mod fma {
             let t2674 = T::mul_add(s.99, lit::<T>(4.8035536718039596e-11), t2672);
             let t2675 = s.102 - t2674;
             let t2676 = s.101 * t2675;
-            qdd[3] = t2676;
+            qdd.3 = t2676;
             let t2678 = T::mul_add(lit::<T>(0.08), t2676, t2669);
             let t2681 = lit::<T>(4.8965888601467475e-12) * t2676;
             let t2682 = s.11 * t2668;
@@ -16127,7 +16167,7 @@ pub mod fma {
             let t2704 = T::mul_add(s.95, t2695, t2702);
             let t2705 = s.97 - t2704;
             let t2706 = s.96 * t2705;
-            qdd[4] = t2706;
+            qdd.4 = t2706;
             let t2707 = t2681 + t2706;
             let t2709 = T::mul_add(lit::<T>(0.35), t2707, t2695);
             let t2711 = s.14 * t2693;
@@ -16149,7 +16189,7 @@ pub mod fma {
             let t2734 = T::mul_add(lit::<T>(0.11047740000000002), t2725, t2732);
             let t2735 = s.90 - t2734;
             let t2736 = lit::<T>(38.19145529132263) * t2735;
-            qdd[5] = t2736;
+            qdd.5 = t2736;
             let t2737 = s.17 * lit::<T>(9.81);
             let t2738 = s.16 * lit::<T>(9.81);
             let t2739 = s.85 * t2737;
@@ -16157,7 +16197,7 @@ pub mod fma {
             let t2743 = T::mul_add(s.86, lit::<T>(4.8035536718039596e-11), t2741);
             let t2744 = s.89 - t2743;
             let t2745 = s.88 * t2744;
-            qdd[6] = t2745;
+            qdd.6 = t2745;
             let t2747 = T::mul_add(lit::<T>(0.08), t2745, t2738);
             let t2748 = s.18 * t2745;
             let t2749 = -t2748;
@@ -16179,7 +16219,7 @@ pub mod fma {
             let t2774 = T::mul_add(s.82, t2765, t2772);
             let t2775 = s.84 - t2774;
             let t2776 = s.83 * t2775;
-            qdd[7] = t2776;
+            qdd.7 = t2776;
             let t2777 = t2751 + t2776;
             let t2779 = T::mul_add(lit::<T>(0.35), t2777, t2765);
             let t2781 = s.22 * t2763;
@@ -16201,7 +16241,7 @@ pub mod fma {
             let t2804 = T::mul_add(lit::<T>(0.11047740000000002), t2795, t2802);
             let t2805 = s.77 - t2804;
             let t2806 = lit::<T>(38.19145529132263) * t2805;
-            qdd[8] = t2806;
+            qdd.8 = t2806;
             let t2807 = s.25 * lit::<T>(9.81);
             let t2808 = s.24 * lit::<T>(9.81);
             let t2809 = s.72 * t2807;
@@ -16209,7 +16249,7 @@ pub mod fma {
             let t2813 = T::mul_add(s.73, lit::<T>(4.8035536718039596e-11), t2811);
             let t2814 = s.76 - t2813;
             let t2815 = s.75 * t2814;
-            qdd[9] = t2815;
+            qdd.9 = t2815;
             let t2817 = T::mul_add(lit::<T>(0.08), t2815, t2808);
             let t2818 = s.26 * t2815;
             let t2819 = -t2818;
@@ -16231,7 +16271,7 @@ pub mod fma {
             let t2844 = T::mul_add(s.69, t2835, t2842);
             let t2845 = s.71 - t2844;
             let t2846 = s.70 * t2845;
-            qdd[10] = t2846;
+            qdd.10 = t2846;
             let t2847 = t2821 + t2846;
             let t2849 = T::mul_add(lit::<T>(0.35), t2847, t2835);
             let t2851 = s.30 * t2833;
@@ -16253,7 +16293,7 @@ pub mod fma {
             let t2874 = T::mul_add(lit::<T>(0.11047740000000002), t2865, t2872);
             let t2875 = s.64 - t2874;
             let t2876 = lit::<T>(38.19145529132263) * t2875;
-            qdd[11] = t2876;
+            qdd.11 = t2876;
         }
     }
     use fd_part1::fd_part1;
@@ -16298,6 +16338,20 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 144 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -16312,6 +16366,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t4 = q[0].sin();
             let t5 = q[0].cos();
             let t10 = q[1].sin();
@@ -17601,41 +17662,41 @@ pub mod fma {
             let t1862 = T::mul_add(t1821, t1831, t1829);
             let t1864 = T::mul_add(t1825, t1860, t1862);
             let t1865 = t1828 * t1864;
-            qdd[0] = t1865;
+            qdd.0 = t1865;
             let t1868 = t1815 * t1858;
-            qdd[3] = t1868;
+            qdd.3 = t1868;
             let t1871 = t1802 * t1852;
-            qdd[6] = t1871;
+            qdd.6 = t1871;
             let t1874 = t1789 * t1846;
-            qdd[9] = t1874;
+            qdd.9 = t1874;
             let t1877 = t1825 * t1865;
             let t1878 = T::mul_add(t1824, t1860, t1877);
-            qdd[1] = t1878;
+            qdd.1 = t1878;
             let t1879 = t1816 * t1878;
             let t1880 = T::mul_add(lit::<T>(-38.19145529132263), t1831, t1879);
             let t1882 = T::mul_add(t1821, t1865, t1880);
-            qdd[2] = t1882;
+            qdd.2 = t1882;
             let t1883 = t1812 * t1868;
             let t1884 = T::mul_add(t1811, t1854, t1883);
-            qdd[4] = t1884;
+            qdd.4 = t1884;
             let t1885 = t1803 * t1884;
             let t1886 = T::mul_add(lit::<T>(-38.19145529132263), t1834, t1885);
             let t1888 = T::mul_add(t1808, t1868, t1886);
-            qdd[5] = t1888;
+            qdd.5 = t1888;
             let t1889 = t1799 * t1871;
             let t1890 = T::mul_add(t1798, t1848, t1889);
-            qdd[7] = t1890;
+            qdd.7 = t1890;
             let t1891 = t1790 * t1890;
             let t1892 = T::mul_add(lit::<T>(-38.19145529132263), t1837, t1891);
             let t1894 = T::mul_add(t1795, t1871, t1892);
-            qdd[8] = t1894;
+            qdd.8 = t1894;
             let t1895 = t1786 * t1874;
             let t1896 = T::mul_add(t1785, t1842, t1895);
-            qdd[10] = t1896;
+            qdd.10 = t1896;
             let t1897 = t1777 * t1896;
             let t1898 = T::mul_add(lit::<T>(-38.19145529132263), t1840, t1897);
             let t1900 = T::mul_add(t1782, t1874, t1898);
-            qdd[11] = t1900;
+            qdd.11 = t1900;
             let t1902 = T::mul_add(lit::<T>(0.08), t1865, t535);
             let t1903 = t10 * t1865;
             let t1904 = t11 * t1865;
@@ -18227,6 +18288,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t2582 = s.78 + s.79;
             let t2584 = T::mul_add(-s.19, s.76, t2582);
             let t2585 = s.77 + t2584;
@@ -18317,74 +18385,74 @@ pub mod fma {
             let t2717 = T::mul_add(s.22, t2713, t2707);
             let t2719 = T::mul_add(s.24, t2715, t2717);
             let t2720 = s.25 * t2719;
-            dqdd_dq[0][0] = t2720;
+            dqdd_dq.0 = t2720;
             let t2723 = s.24 * t2720;
             let t2724 = T::mul_add(s.23, t2715, t2723);
-            dqdd_dq[1][0] = t2724;
+            dqdd_dq.12 = t2724;
             let t2725 = s.21 * t2724;
             let t2726 = T::mul_add(lit::<T>(-38.19145529132263), t2713, t2725);
             let t2728 = T::mul_add(s.22, t2720, t2726);
-            dqdd_dq[2][0] = t2728;
+            dqdd_dq.24 = t2728;
             let t2730 = T::mul_add(s.21, t2606, t2585);
             let t2732 = T::mul_add(s.22, t2606, t2637);
             let t2734 = T::mul_add(s.24, t2730, t2732);
             let t2735 = s.25 * t2734;
-            dqdd_dq[0][1] = t2735;
+            dqdd_dq.1 = t2735;
             let t2738 = s.24 * t2735;
             let t2739 = T::mul_add(s.23, t2730, t2738);
-            dqdd_dq[1][1] = t2739;
+            dqdd_dq.13 = t2739;
             let t2740 = s.21 * t2739;
             let t2741 = T::mul_add(lit::<T>(-38.19145529132263), t2606, t2740);
             let t2743 = T::mul_add(s.22, t2735, t2741);
-            dqdd_dq[2][1] = t2743;
+            dqdd_dq.25 = t2743;
             let t2745 = T::mul_add(s.21, s.33, s.44);
             let t2747 = T::mul_add(s.22, s.33, t2669);
             let t2749 = T::mul_add(s.24, t2745, t2747);
             let t2750 = s.25 * t2749;
-            dqdd_dq[0][2] = t2750;
+            dqdd_dq.2 = t2750;
             let t2753 = s.24 * t2750;
             let t2754 = T::mul_add(s.23, t2745, t2753);
-            dqdd_dq[1][2] = t2754;
+            dqdd_dq.14 = t2754;
             let t2755 = s.21 * t2754;
             let t2756 = T::mul_add(lit::<T>(-38.19145529132263), s.33, t2755);
             let t2758 = T::mul_add(s.22, t2750, t2756);
-            dqdd_dq[2][2] = t2758;
+            dqdd_dq.26 = t2758;
             let t2760 = T::mul_add(s.21, t2679, t2647);
             let t2762 = T::mul_add(s.22, t2679, t2704);
             let t2764 = T::mul_add(s.24, t2760, t2762);
             let t2765 = s.25 * t2764;
-            dqdd_dqd[0][0] = t2765;
+            dqdd_dqd.0 = t2765;
             let t2768 = s.24 * t2765;
             let t2769 = T::mul_add(s.23, t2760, t2768);
-            dqdd_dqd[1][0] = t2769;
+            dqdd_dqd.12 = t2769;
             let t2770 = s.21 * t2769;
             let t2771 = T::mul_add(lit::<T>(-38.19145529132263), t2679, t2770);
             let t2773 = T::mul_add(s.22, t2765, t2771);
-            dqdd_dqd[2][0] = t2773;
+            dqdd_dqd.24 = t2773;
             let t2775 = T::mul_add(s.21, t2615, t2589);
             let t2777 = T::mul_add(s.22, t2615, t2626);
             let t2779 = T::mul_add(s.24, t2775, t2777);
             let t2780 = s.25 * t2779;
-            dqdd_dqd[0][1] = t2780;
+            dqdd_dqd.1 = t2780;
             let t2783 = s.24 * t2780;
             let t2784 = T::mul_add(s.23, t2775, t2783);
-            dqdd_dqd[1][1] = t2784;
+            dqdd_dqd.13 = t2784;
             let t2785 = s.21 * t2784;
             let t2786 = T::mul_add(lit::<T>(-38.19145529132263), t2615, t2785);
             let t2788 = T::mul_add(s.22, t2780, t2786);
-            dqdd_dqd[2][1] = t2788;
+            dqdd_dqd.25 = t2788;
             let t2790 = T::mul_add(s.21, s.34, s.39);
             let t2792 = T::mul_add(s.22, s.34, t2658);
             let t2794 = T::mul_add(s.24, t2790, t2792);
             let t2795 = s.25 * t2794;
-            dqdd_dqd[0][2] = t2795;
+            dqdd_dqd.2 = t2795;
             let t2798 = s.24 * t2795;
             let t2799 = T::mul_add(s.23, t2790, t2798);
-            dqdd_dqd[1][2] = t2799;
+            dqdd_dqd.14 = t2799;
             let t2800 = s.21 * t2799;
             let t2801 = T::mul_add(lit::<T>(-38.19145529132263), s.34, t2800);
             let t2803 = T::mul_add(s.22, t2795, t2801);
-            dqdd_dqd[2][2] = t2803;
+            dqdd_dqd.26 = t2803;
         }
     }
     use fd_grad_part1::fd_grad_part1;

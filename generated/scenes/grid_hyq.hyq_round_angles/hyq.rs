@@ -537,6 +537,16 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 144 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -549,6 +559,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
             let t2 = q[0].sin();
             let t3 = q[0].cos();
             let t7 = q[1].sin();
@@ -2128,13 +2144,13 @@ pub mod portable {
             let t1527 = t783 * t1518;
             let t1528 = t1526 - t1527;
             let t1529 = t1521 + t1528;
-            dc_dq[11][11] = t1529;
+            dc_dq.143 = t1529;
             let t1530 = lit::<T>(3.524e-5) * t784;
             let t1531 = t1387 + t1530;
             let t1532 = t1531 - t1358;
             let t1533 = t1532 + t1532;
             let t1534 = t1384 + t1533;
-            dc_dqd[11][11] = t1534;
+            dc_dqd.143 = t1534;
             let t1535 = lit::<T>(3.524e-5) * t64;
             let t1536 = lit::<T>(0.11047740000000002) * t63;
             let t1537 = t1535 - t1536;
@@ -2162,7 +2178,7 @@ pub mod portable {
             let t1559 = lit::<T>(0.35) * t1551;
             let t1560 = t1557 - t1558;
             let t1561 = t1496 + t1559;
-            dc_dqd[10][11] = t1561;
+            dc_dqd.131 = t1561;
             let t1562 = t63 * t1513;
             let t1563 = t64 * t1514;
             let t1564 = t1562 + t1563;
@@ -2176,7 +2192,7 @@ pub mod portable {
             let t1572 = lit::<T>(0.35) * t1564;
             let t1573 = t1570 - t1571;
             let t1574 = t1507 + t1572;
-            dc_dq[10][11] = t1574;
+            dc_dq.131 = t1574;
             let t1575 = t63 * t1517;
             let t1576 = t64 * t1518;
             let t1577 = t1575 + t1576;
@@ -2363,7 +2379,7 @@ pub mod portable {
             let t1762 = t1756 + t1760;
             let t1763 = t1757 + t1761;
             let t1764 = t1680 + t1758;
-            dc_dqd[10][10] = t1764;
+            dc_dqd.130 = t1764;
             let t1765 = t1743 + t1750;
             let t1766 = t1746 + t1751;
             let t1767 = t1755 - t1749;
@@ -2380,7 +2396,7 @@ pub mod portable {
             let t1778 = t709 * t1774;
             let t1779 = t1778 - t1777;
             let t1780 = t1776 + t1779;
-            dc_dq[10][10] = t1780;
+            dc_dq.130 = t1780;
             let t1781 = t715 * t1543;
             let t1782 = t713 * t1546;
             let t1783 = t1782 - t1781;
@@ -2394,13 +2410,13 @@ pub mod portable {
             let t1791 = t709 * t1583;
             let t1792 = t1791 - t1790;
             let t1793 = t1789 + t1792;
-            dc_dq[11][10] = t1793;
+            dc_dq.142 = t1793;
             let t1794 = t710 * t1543;
             let t1795 = t709 * t1546;
             let t1796 = t1795 - t1794;
             let t1797 = t1796 + t1796;
             let t1798 = t1585 + t1797;
-            dc_dqd[11][10] = t1798;
+            dc_dqd.142 = t1798;
             let t1799 = t61 * t1632;
             let t1800 = -t1799;
             let t1801 = t60 * t1631;
@@ -2413,19 +2429,19 @@ pub mod portable {
             let t1808 = t1806 - t1807;
             let t1809 = lit::<T>(0.08) * t1759;
             let t1810 = t1808 + t1809;
-            dc_dqd[9][10] = t1810;
+            dc_dqd.118 = t1810;
             let t1811 = t60 * t1771;
             let t1812 = -t1811;
             let t1813 = t61 * t1772;
             let t1814 = t1812 - t1813;
             let t1815 = lit::<T>(0.08) * t1770;
             let t1816 = t1814 + t1815;
-            dc_dq[9][10] = t1816;
+            dc_dq.118 = t1816;
             let t1817 = t60 * t1773;
             let t1818 = -t1817;
             let t1819 = t61 * t1774;
             let t1820 = t1818 - t1819;
-            dc_dqd[10][9] = t1820;
+            dc_dqd.129 = t1820;
             let t1821 = t61 * t1537;
             let t1822 = t60 * t1540;
             let t1823 = t1821 - t1822;
@@ -2435,19 +2451,19 @@ pub mod portable {
             let t1827 = t1825 - t1826;
             let t1828 = lit::<T>(0.08) * t1489;
             let t1829 = t1827 + t1828;
-            dc_dqd[9][11] = t1829;
+            dc_dqd.119 = t1829;
             let t1830 = t60 * t1567;
             let t1831 = -t1830;
             let t1832 = t61 * t1573;
             let t1833 = t1831 - t1832;
             let t1834 = lit::<T>(0.08) * t1510;
             let t1835 = t1833 + t1834;
-            dc_dq[9][11] = t1835;
+            dc_dq.119 = t1835;
             let t1836 = t60 * t1580;
             let t1837 = -t1836;
             let t1838 = t61 * t1583;
             let t1839 = t1837 - t1838;
-            dc_dqd[11][9] = t1839;
+            dc_dqd.141 = t1839;
             let t1840 = t1804 - t1803;
             let t1842 = t1840 + lit::<T>(0.28152);
             let t1843 = lit::<T>(0.12490590000000001) + t1842;
@@ -2469,15 +2485,15 @@ pub mod portable {
             let t1859 = t61 * t1854;
             let t1860 = t1858 - t1859;
             let t1861 = t1856 + t1860;
-            dc_dqd[9][9] = t1861;
+            dc_dqd.117 = t1861;
             let t1862 = t706 * t1843;
             let t1863 = lit::<T>(-8.81e-5) * t707;
             let t1864 = t1862 + t1863;
-            dc_dq[9][9] = t1864;
+            dc_dq.117 = t1864;
             let t1865 = t707 * t1802;
-            dc_dq[10][9] = t1865;
+            dc_dq.129 = t1865;
             let t1866 = t707 * t1823;
-            dc_dq[11][9] = t1866;
+            dc_dq.141 = t1866;
             let t1867 = t1273 - t608;
             let t1868 = t604 - t1275;
             let t1869 = t1261 - t1269;
@@ -2623,13 +2639,13 @@ pub mod portable {
             let t2009 = t575 * t2000;
             let t2010 = t2008 - t2009;
             let t2011 = t2003 + t2010;
-            dc_dq[8][8] = t2011;
+            dc_dq.104 = t2011;
             let t2012 = lit::<T>(-3.524e-5) * t576;
             let t2013 = t1869 + t2012;
             let t2014 = t2013 - t1278;
             let t2015 = t2014 + t2014;
             let t2016 = t1304 + t2015;
-            dc_dqd[8][8] = t2016;
+            dc_dqd.104 = t2016;
             let t2017 = lit::<T>(-3.524e-5) * t55;
             let t2018 = lit::<T>(0.11047740000000002) * t54;
             let t2019 = t2017 - t2018;
@@ -2657,7 +2673,7 @@ pub mod portable {
             let t2041 = lit::<T>(0.35) * t2033;
             let t2042 = t2039 - t2040;
             let t2043 = t1978 + t2041;
-            dc_dqd[7][8] = t2043;
+            dc_dqd.92 = t2043;
             let t2044 = t54 * t1995;
             let t2045 = t55 * t1996;
             let t2046 = t2044 + t2045;
@@ -2671,7 +2687,7 @@ pub mod portable {
             let t2054 = lit::<T>(0.35) * t2046;
             let t2055 = t2052 - t2053;
             let t2056 = t1989 + t2054;
-            dc_dq[7][8] = t2056;
+            dc_dq.92 = t2056;
             let t2057 = t54 * t1999;
             let t2058 = t55 * t2000;
             let t2059 = t2057 + t2058;
@@ -2858,7 +2874,7 @@ pub mod portable {
             let t2241 = t2235 + t2239;
             let t2242 = t2236 + t2240;
             let t2243 = t2159 + t2237;
-            dc_dqd[7][7] = t2243;
+            dc_dqd.91 = t2243;
             let t2244 = t2222 + t2229;
             let t2245 = t2225 + t2230;
             let t2246 = t2234 - t2228;
@@ -2875,7 +2891,7 @@ pub mod portable {
             let t2257 = t501 * t2253;
             let t2258 = t2257 - t2256;
             let t2259 = t2255 + t2258;
-            dc_dq[7][7] = t2259;
+            dc_dq.91 = t2259;
             let t2260 = t507 * t2025;
             let t2261 = t505 * t2028;
             let t2262 = t2261 - t2260;
@@ -2889,13 +2905,13 @@ pub mod portable {
             let t2270 = t501 * t2065;
             let t2271 = t2270 - t2269;
             let t2272 = t2268 + t2271;
-            dc_dq[8][7] = t2272;
+            dc_dq.103 = t2272;
             let t2273 = t502 * t2025;
             let t2274 = t501 * t2028;
             let t2275 = t2274 - t2273;
             let t2276 = t2275 + t2275;
             let t2277 = t2067 + t2276;
-            dc_dqd[8][7] = t2277;
+            dc_dqd.103 = t2277;
             let t2278 = t52 * t2111;
             let t2279 = -t2278;
             let t2280 = t51 * t2110;
@@ -2908,19 +2924,19 @@ pub mod portable {
             let t2287 = t2285 - t2286;
             let t2288 = lit::<T>(0.08) * t2238;
             let t2289 = t2287 + t2288;
-            dc_dqd[6][7] = t2289;
+            dc_dqd.79 = t2289;
             let t2290 = t51 * t2250;
             let t2291 = -t2290;
             let t2292 = t52 * t2251;
             let t2293 = t2291 - t2292;
             let t2294 = lit::<T>(0.08) * t2249;
             let t2295 = t2293 + t2294;
-            dc_dq[6][7] = t2295;
+            dc_dq.79 = t2295;
             let t2296 = t51 * t2252;
             let t2297 = -t2296;
             let t2298 = t52 * t2253;
             let t2299 = t2297 - t2298;
-            dc_dqd[7][6] = t2299;
+            dc_dqd.90 = t2299;
             let t2300 = t52 * t2019;
             let t2301 = t51 * t2022;
             let t2302 = t2300 - t2301;
@@ -2930,19 +2946,19 @@ pub mod portable {
             let t2306 = t2304 - t2305;
             let t2307 = lit::<T>(0.08) * t1971;
             let t2308 = t2306 + t2307;
-            dc_dqd[6][8] = t2308;
+            dc_dqd.80 = t2308;
             let t2309 = t51 * t2049;
             let t2310 = -t2309;
             let t2311 = t52 * t2055;
             let t2312 = t2310 - t2311;
             let t2313 = lit::<T>(0.08) * t1992;
             let t2314 = t2312 + t2313;
-            dc_dq[6][8] = t2314;
+            dc_dq.80 = t2314;
             let t2315 = t51 * t2062;
             let t2316 = -t2315;
             let t2317 = t52 * t2065;
             let t2318 = t2316 - t2317;
-            dc_dqd[8][6] = t2318;
+            dc_dqd.102 = t2318;
             let t2319 = t2283 - t2282;
             let t2320 = lit::<T>(0.28152) + t2319;
             let t2321 = lit::<T>(0.12490590000000001) + t2320;
@@ -2964,15 +2980,15 @@ pub mod portable {
             let t2337 = t52 * t2332;
             let t2338 = t2336 - t2337;
             let t2339 = t2334 + t2338;
-            dc_dqd[6][6] = t2339;
+            dc_dqd.78 = t2339;
             let t2340 = t498 * t2321;
             let t2341 = lit::<T>(8.81e-5) * t499;
             let t2342 = t2340 + t2341;
-            dc_dq[6][6] = t2342;
+            dc_dq.78 = t2342;
             let t2343 = t499 * t2281;
-            dc_dq[7][6] = t2343;
+            dc_dq.90 = t2343;
             let t2344 = t499 * t2302;
-            dc_dq[8][6] = t2344;
+            dc_dq.102 = t2344;
             let t2345 = t1193 - t400;
             let t2346 = t396 - t1195;
             let t2347 = t1181 - t1189;
@@ -3120,13 +3136,13 @@ pub mod portable {
             let t2487 = t367 * t2478;
             let t2488 = t2486 - t2487;
             let t2489 = t2481 + t2488;
-            dc_dq[5][5] = t2489;
+            dc_dq.65 = t2489;
             let t2490 = lit::<T>(3.524e-5) * t368;
             let t2491 = t2347 + t2490;
             let t2492 = t2491 - t1198;
             let t2493 = t2492 + t2492;
             let t2494 = t1224 + t2493;
-            dc_dqd[5][5] = t2494;
+            dc_dqd.65 = t2494;
             let t2495 = lit::<T>(3.524e-5) * t42;
             let t2496 = lit::<T>(0.11047740000000002) * t41;
             let t2497 = t2495 - t2496;
@@ -3161,7 +3177,7 @@ pub mod portable {
             let t2520 = t2517 - t2518;
             s.124 = t2520;
             let t2521 = t2456 + t2519;
-            dc_dqd[4][5] = t2521;
+            dc_dqd.53 = t2521;
             let t2522 = t41 * t2473;
             let t2523 = t42 * t2474;
             let t2524 = t2522 + t2523;
@@ -3177,7 +3193,7 @@ pub mod portable {
             let t2533 = t2530 - t2531;
             s.126 = t2533;
             let t2534 = t2467 + t2532;
-            dc_dq[4][5] = t2534;
+            dc_dq.53 = t2534;
             let t2535 = t41 * t2477;
             let t2536 = t42 * t2478;
             let t2537 = t2535 + t2536;
@@ -3241,6 +3257,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
             let t2573 = s.120 - lit::<T>(3.0835e-5);
             let t2574 = s.6 * s.132;
             let t2575 = s.7 * s.133;
@@ -3391,7 +3413,7 @@ pub mod portable {
             let t2720 = t2714 + t2718;
             let t2721 = t2715 + t2719;
             let t2722 = t2636 + t2716;
-            dc_dqd[4][4] = t2722;
+            dc_dqd.52 = t2722;
             let t2723 = t2701 - t2709;
             let t2724 = t2704 - t2710;
             let t2725 = t2713 - t2708;
@@ -3408,7 +3430,7 @@ pub mod portable {
             let t2736 = s.49 * t2732;
             let t2737 = t2735 - t2736;
             let t2738 = t2734 + t2737;
-            dc_dq[4][4] = t2738;
+            dc_dq.52 = t2738;
             let t2739 = s.52 * s.120;
             let t2740 = s.51 * s.121;
             let t2741 = t2739 - t2740;
@@ -3422,13 +3444,13 @@ pub mod portable {
             let t2749 = s.49 * s.128;
             let t2750 = t2748 - t2749;
             let t2751 = t2747 + t2750;
-            dc_dq[5][4] = t2751;
+            dc_dq.64 = t2751;
             let t2752 = s.50 * s.120;
             let t2753 = s.49 * s.121;
             let t2754 = t2752 - t2753;
             let t2755 = t2754 + t2754;
             let t2756 = s.129 + t2755;
-            dc_dqd[5][4] = t2756;
+            dc_dqd.64 = t2756;
             let t2757 = s.5 * t2588;
             let t2758 = -t2757;
             let t2759 = s.4 * t2587;
@@ -3441,17 +3463,17 @@ pub mod portable {
             let t2766 = t2764 + t2765;
             let t2767 = lit::<T>(0.08) * t2717;
             let t2768 = t2766 - t2767;
-            dc_dqd[3][4] = t2768;
+            dc_dqd.40 = t2768;
             let t2769 = s.4 * t2729;
             let t2770 = s.5 * t2730;
             let t2771 = t2769 + t2770;
             let t2772 = lit::<T>(0.08) * t2728;
             let t2773 = t2771 - t2772;
-            dc_dq[3][4] = t2773;
+            dc_dq.40 = t2773;
             let t2774 = s.4 * t2731;
             let t2775 = s.5 * t2732;
             let t2776 = t2774 + t2775;
-            dc_dqd[4][3] = t2776;
+            dc_dqd.51 = t2776;
             let t2777 = s.5 * s.118;
             let t2778 = s.4 * s.119;
             let t2779 = t2777 - t2778;
@@ -3460,17 +3482,17 @@ pub mod portable {
             let t2782 = t2780 + t2781;
             let t2783 = lit::<T>(0.08) * s.116;
             let t2784 = t2782 - t2783;
-            dc_dqd[3][5] = t2784;
+            dc_dqd.41 = t2784;
             let t2785 = s.4 * s.125;
             let t2786 = s.5 * s.126;
             let t2787 = t2785 + t2786;
             let t2788 = lit::<T>(0.08) * s.117;
             let t2789 = t2787 - t2788;
-            dc_dq[3][5] = t2789;
+            dc_dq.41 = t2789;
             let t2790 = s.4 * s.127;
             let t2791 = s.5 * s.128;
             let t2792 = t2790 + t2791;
-            dc_dqd[5][3] = t2792;
+            dc_dqd.63 = t2792;
             let t2793 = lit::<T>(0.28152) + t2763;
             let t2794 = lit::<T>(0.12490590000000001) + t2793;
             let t2795 = s.5 * t2637;
@@ -3488,15 +3510,15 @@ pub mod portable {
             let t2807 = s.5 * t2803;
             let t2808 = t2806 + t2807;
             let t2809 = t2805 + t2808;
-            dc_dqd[3][3] = t2809;
+            dc_dqd.39 = t2809;
             let t2810 = s.47 * t2794;
             let t2811 = lit::<T>(8.81e-5) * s.48;
             let t2812 = t2810 + t2811;
-            dc_dq[3][3] = t2812;
+            dc_dq.39 = t2812;
             let t2813 = s.48 * t2760;
-            dc_dq[4][3] = t2813;
+            dc_dq.51 = t2813;
             let t2814 = s.48 * t2779;
-            dc_dq[5][3] = t2814;
+            dc_dq.63 = t2814;
             let t2815 = s.91 - s.24;
             let t2816 = s.23 - s.92;
             let t2817 = s.89 - s.90;
@@ -3642,13 +3664,13 @@ pub mod portable {
             let t2957 = s.21 * t2948;
             let t2958 = t2956 - t2957;
             let t2959 = t2951 + t2958;
-            dc_dq[2][2] = t2959;
+            dc_dq.26 = t2959;
             let t2960 = lit::<T>(-3.524e-5) * s.22;
             let t2961 = t2817 + t2960;
             let t2962 = t2961 - s.93;
             let t2963 = t2962 + t2962;
             let t2964 = s.100 + t2963;
-            dc_dqd[2][2] = t2964;
+            dc_dqd.26 = t2964;
             let t2965 = s.3 * lit::<T>(-3.524e-5);
             let t2966 = s.2 * lit::<T>(0.11047740000000002);
             let t2967 = t2965 - t2966;
@@ -3676,7 +3698,7 @@ pub mod portable {
             let t2989 = lit::<T>(0.35) * t2981;
             let t2990 = t2987 - t2988;
             let t2991 = t2926 + t2989;
-            dc_dqd[1][2] = t2991;
+            dc_dqd.14 = t2991;
             let t2992 = s.2 * t2943;
             let t2993 = s.3 * t2944;
             let t2994 = t2992 + t2993;
@@ -3690,7 +3712,7 @@ pub mod portable {
             let t3002 = lit::<T>(0.35) * t2994;
             let t3003 = t3000 - t3001;
             let t3004 = t2937 + t3002;
-            dc_dq[1][2] = t3004;
+            dc_dq.14 = t3004;
             let t3005 = s.2 * t2947;
             let t3006 = s.3 * t2948;
             let t3007 = t3005 + t3006;
@@ -3879,7 +3901,7 @@ pub mod portable {
             let t3190 = t3184 + t3188;
             let t3191 = t3185 + t3189;
             let t3192 = t3106 + t3186;
-            dc_dqd[1][1] = t3192;
+            dc_dqd.13 = t3192;
             let t3193 = t3171 - t3179;
             let t3194 = t3174 - t3180;
             let t3195 = t3183 - t3178;
@@ -3896,7 +3918,7 @@ pub mod portable {
             let t3206 = s.10 * t3202;
             let t3207 = t3205 - t3206;
             let t3208 = t3204 + t3207;
-            dc_dq[1][1] = t3208;
+            dc_dq.13 = t3208;
             let t3209 = s.13 * t2973;
             let t3210 = s.12 * t2976;
             let t3211 = t3209 - t3210;
@@ -3910,13 +3932,13 @@ pub mod portable {
             let t3219 = s.10 * t3013;
             let t3220 = t3218 - t3219;
             let t3221 = t3217 + t3220;
-            dc_dq[2][1] = t3221;
+            dc_dq.25 = t3221;
             let t3222 = s.11 * t2973;
             let t3223 = s.10 * t2976;
             let t3224 = t3222 - t3223;
             let t3225 = t3224 + t3224;
             let t3226 = t3015 + t3225;
-            dc_dqd[2][1] = t3226;
+            dc_dqd.25 = t3226;
             let t3227 = s.1 * t3058;
             let t3228 = -t3227;
             let t3229 = s.0 * t3057;
@@ -3929,17 +3951,17 @@ pub mod portable {
             let t3236 = t3234 + t3235;
             let t3237 = lit::<T>(0.08) * t3187;
             let t3238 = t3236 - t3237;
-            dc_dqd[0][1] = t3238;
+            dc_dqd.1 = t3238;
             let t3239 = s.0 * t3199;
             let t3240 = s.1 * t3200;
             let t3241 = t3239 + t3240;
             let t3242 = lit::<T>(0.08) * t3198;
             let t3243 = t3241 - t3242;
-            dc_dq[0][1] = t3243;
+            dc_dq.1 = t3243;
             let t3244 = s.0 * t3201;
             let t3245 = s.1 * t3202;
             let t3246 = t3244 + t3245;
-            dc_dqd[1][0] = t3246;
+            dc_dqd.12 = t3246;
             let t3247 = s.1 * t2967;
             let t3248 = s.0 * t2970;
             let t3249 = t3247 - t3248;
@@ -3948,17 +3970,17 @@ pub mod portable {
             let t3252 = t3250 + t3251;
             let t3253 = lit::<T>(0.08) * t2919;
             let t3254 = t3252 - t3253;
-            dc_dqd[0][2] = t3254;
+            dc_dqd.2 = t3254;
             let t3255 = s.0 * t2997;
             let t3256 = s.1 * t3003;
             let t3257 = t3255 + t3256;
             let t3258 = lit::<T>(0.08) * t2940;
             let t3259 = t3257 - t3258;
-            dc_dq[0][2] = t3259;
+            dc_dq.2 = t3259;
             let t3260 = s.0 * t3010;
             let t3261 = s.1 * t3013;
             let t3262 = t3260 + t3261;
-            dc_dqd[2][0] = t3262;
+            dc_dqd.24 = t3262;
             let t3263 = lit::<T>(0.28152) + t3233;
             let t3264 = lit::<T>(0.12490590000000001) + t3263;
             let t3265 = s.1 * t3107;
@@ -3976,15 +3998,15 @@ pub mod portable {
             let t3277 = s.1 * t3273;
             let t3278 = t3276 + t3277;
             let t3279 = t3275 + t3278;
-            dc_dqd[0][0] = t3279;
+            dc_dqd.0 = t3279;
             let t3280 = s.8 * t3264;
             let t3281 = lit::<T>(-8.81e-5) * s.9;
             let t3282 = t3280 + t3281;
-            dc_dq[0][0] = t3282;
+            dc_dq.0 = t3282;
             let t3283 = s.9 * t3230;
-            dc_dq[1][0] = t3283;
+            dc_dq.12 = t3283;
             let t3284 = s.9 * t3249;
-            dc_dq[2][0] = t3284;
+            dc_dq.24 = t3284;
         }
     }
     use rnea_grad_part1::rnea_grad_part1;
@@ -4023,6 +4045,20 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 144 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -4036,6 +4072,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t3 = q[0].sin();
             let t4 = q[0].cos();
             let t9 = q[1].sin();
@@ -5711,53 +5754,53 @@ pub mod portable {
             let t1536 = t1498 * t1533;
             let t1537 = t1535 + t1536;
             let t1538 = t1501 * t1537;
-            qdd[0] = t1538;
+            qdd.0 = t1538;
             let t1539 = t1497 * t1533;
             let t1540 = lit::<T>(-38.19145529132263) * t1504;
             let t1541 = t1488 * t1531;
-            qdd[3] = t1541;
+            qdd.3 = t1541;
             let t1542 = t1484 * t1527;
             let t1543 = lit::<T>(-38.19145529132263) * t1507;
             let t1544 = t1475 * t1525;
-            qdd[6] = t1544;
+            qdd.6 = t1544;
             let t1545 = t1471 * t1521;
             let t1546 = lit::<T>(-38.19145529132263) * t1510;
             let t1547 = t1462 * t1519;
-            qdd[9] = t1547;
+            qdd.9 = t1547;
             let t1548 = t1458 * t1515;
             let t1549 = lit::<T>(-38.19145529132263) * t1513;
             let t1550 = t1498 * t1538;
             let t1551 = t1539 + t1550;
-            qdd[1] = t1551;
+            qdd.1 = t1551;
             let t1552 = t1489 * t1551;
             let t1553 = t1540 + t1552;
             let t1554 = t1494 * t1538;
             let t1555 = t1553 + t1554;
-            qdd[2] = t1555;
+            qdd.2 = t1555;
             let t1556 = t1485 * t1541;
             let t1557 = t1542 + t1556;
-            qdd[4] = t1557;
+            qdd.4 = t1557;
             let t1558 = t1476 * t1557;
             let t1559 = t1543 + t1558;
             let t1560 = t1481 * t1541;
             let t1561 = t1559 + t1560;
-            qdd[5] = t1561;
+            qdd.5 = t1561;
             let t1562 = t1472 * t1544;
             let t1563 = t1545 + t1562;
-            qdd[7] = t1563;
+            qdd.7 = t1563;
             let t1564 = t1463 * t1563;
             let t1565 = t1546 + t1564;
             let t1566 = t1468 * t1544;
             let t1567 = t1565 + t1566;
-            qdd[8] = t1567;
+            qdd.8 = t1567;
             let t1568 = t1459 * t1547;
             let t1569 = t1548 + t1568;
-            qdd[10] = t1569;
+            qdd.10 = t1569;
             let t1570 = t1450 * t1569;
             let t1571 = t1549 + t1570;
             let t1572 = t1455 * t1547;
             let t1573 = t1571 + t1572;
-            qdd[11] = t1573;
+            qdd.11 = t1573;
             let t1574 = lit::<T>(0.08) * t1538;
             let t1575 = t468 + t1574;
             let t1576 = t9 * t1538;
@@ -6929,6 +6972,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t2578 = s.362 + s.362;
             let t2579 = s.364 - t2578;
             let t2580 = s.363 + t2579;
@@ -8340,17 +8390,17 @@ pub mod portable {
             let t3986 = s.212 * t3983;
             let t3987 = t3985 + t3986;
             let t3988 = s.213 * t3987;
-            dqdd_dq[0][0] = t3988;
+            dqdd_dq.0 = t3988;
             let t3989 = s.211 * t3983;
             let t3990 = lit::<T>(-38.19145529132263) * t3981;
             let t3991 = s.212 * t3988;
             let t3992 = t3989 + t3991;
-            dqdd_dq[1][0] = t3992;
+            dqdd_dq.12 = t3992;
             let t3993 = s.209 * t3992;
             let t3994 = t3990 + t3993;
             let t3995 = s.210 * t3988;
             let t3996 = t3994 + t3995;
-            dqdd_dq[2][0] = t3996;
+            dqdd_dq.24 = t3996;
             let t3997 = s.209 * t3930;
             let t3998 = t3917 + t3997;
             let t3999 = s.210 * t3930;
@@ -8358,17 +8408,17 @@ pub mod portable {
             let t4001 = s.212 * t3998;
             let t4002 = t4000 + t4001;
             let t4003 = s.213 * t4002;
-            dqdd_dq[0][1] = t4003;
+            dqdd_dq.1 = t4003;
             let t4004 = s.211 * t3998;
             let t4005 = lit::<T>(-38.19145529132263) * t3930;
             let t4006 = s.212 * t4003;
             let t4007 = t4004 + t4006;
-            dqdd_dq[1][1] = t4007;
+            dqdd_dq.13 = t4007;
             let t4008 = s.209 * t4007;
             let t4009 = t4005 + t4008;
             let t4010 = s.210 * t4003;
             let t4011 = t4009 + t4010;
-            dqdd_dq[2][1] = t4011;
+            dqdd_dq.25 = t4011;
             let t4012 = s.209 * t3725;
             let t4013 = t3756 + t4012;
             let t4014 = s.210 * t3725;
@@ -8376,17 +8426,17 @@ pub mod portable {
             let t4016 = s.212 * t4013;
             let t4017 = t4015 + t4016;
             let t4018 = s.213 * t4017;
-            dqdd_dq[0][2] = t4018;
+            dqdd_dq.2 = t4018;
             let t4019 = s.211 * t4013;
             let t4020 = lit::<T>(-38.19145529132263) * t3725;
             let t4021 = s.212 * t4018;
             let t4022 = t4019 + t4021;
-            dqdd_dq[1][2] = t4022;
+            dqdd_dq.14 = t4022;
             let t4023 = s.209 * t4022;
             let t4024 = t4020 + t4023;
             let t4025 = s.210 * t4018;
             let t4026 = t4024 + t4025;
-            dqdd_dq[2][2] = t4026;
+            dqdd_dq.26 = t4026;
             let t4027 = s.204 * t3580;
             let t4028 = t3579 + t4027;
             let t4029 = s.205 * t3580;
@@ -8394,17 +8444,17 @@ pub mod portable {
             let t4031 = s.207 * t4028;
             let t4032 = t4030 + t4031;
             let t4033 = s.208 * t4032;
-            dqdd_dq[3][3] = t4033;
+            dqdd_dq.39 = t4033;
             let t4034 = s.206 * t4028;
             let t4035 = lit::<T>(-38.19145529132263) * t3580;
             let t4036 = s.207 * t4033;
             let t4037 = t4034 + t4036;
-            dqdd_dq[4][3] = t4037;
+            dqdd_dq.51 = t4037;
             let t4038 = s.204 * t4037;
             let t4039 = t4035 + t4038;
             let t4040 = s.205 * t4033;
             let t4041 = t4039 + t4040;
-            dqdd_dq[5][3] = t4041;
+            dqdd_dq.63 = t4041;
             let t4042 = s.204 * t3529;
             let t4043 = t3516 + t4042;
             let t4044 = s.205 * t3529;
@@ -8412,17 +8462,17 @@ pub mod portable {
             let t4046 = s.207 * t4043;
             let t4047 = t4045 + t4046;
             let t4048 = s.208 * t4047;
-            dqdd_dq[3][4] = t4048;
+            dqdd_dq.40 = t4048;
             let t4049 = s.206 * t4043;
             let t4050 = lit::<T>(-38.19145529132263) * t3529;
             let t4051 = s.207 * t4048;
             let t4052 = t4049 + t4051;
-            dqdd_dq[4][4] = t4052;
+            dqdd_dq.52 = t4052;
             let t4053 = s.204 * t4052;
             let t4054 = t4050 + t4053;
             let t4055 = s.205 * t4048;
             let t4056 = t4054 + t4055;
-            dqdd_dq[5][4] = t4056;
+            dqdd_dq.64 = t4056;
             let t4057 = s.204 * t3324;
             let t4058 = t3355 + t4057;
             let t4059 = s.205 * t3324;
@@ -8430,17 +8480,17 @@ pub mod portable {
             let t4061 = s.207 * t4058;
             let t4062 = t4060 + t4061;
             let t4063 = s.208 * t4062;
-            dqdd_dq[3][5] = t4063;
+            dqdd_dq.41 = t4063;
             let t4064 = s.206 * t4058;
             let t4065 = lit::<T>(-38.19145529132263) * t3324;
             let t4066 = s.207 * t4063;
             let t4067 = t4064 + t4066;
-            dqdd_dq[4][5] = t4067;
+            dqdd_dq.53 = t4067;
             let t4068 = s.204 * t4067;
             let t4069 = t4065 + t4068;
             let t4070 = s.205 * t4063;
             let t4071 = t4069 + t4070;
-            dqdd_dq[5][5] = t4071;
+            dqdd_dq.65 = t4071;
             let t4072 = s.199 * t3179;
             let t4073 = t3178 + t4072;
             let t4074 = s.200 * t3179;
@@ -8448,17 +8498,17 @@ pub mod portable {
             let t4076 = s.202 * t4073;
             let t4077 = t4075 + t4076;
             let t4078 = s.203 * t4077;
-            dqdd_dq[6][6] = t4078;
+            dqdd_dq.78 = t4078;
             let t4079 = s.201 * t4073;
             let t4080 = lit::<T>(-38.19145529132263) * t3179;
             let t4081 = s.202 * t4078;
             let t4082 = t4079 + t4081;
-            dqdd_dq[7][6] = t4082;
+            dqdd_dq.90 = t4082;
             let t4083 = s.199 * t4082;
             let t4084 = t4080 + t4083;
             let t4085 = s.200 * t4078;
             let t4086 = t4084 + t4085;
-            dqdd_dq[8][6] = t4086;
+            dqdd_dq.102 = t4086;
             let t4087 = s.199 * t3119;
             let t4088 = t3106 + t4087;
             let t4089 = s.200 * t3119;
@@ -8466,17 +8516,17 @@ pub mod portable {
             let t4091 = s.202 * t4088;
             let t4092 = t4090 + t4091;
             let t4093 = s.203 * t4092;
-            dqdd_dq[6][7] = t4093;
+            dqdd_dq.79 = t4093;
             let t4094 = s.201 * t4088;
             let t4095 = lit::<T>(-38.19145529132263) * t3119;
             let t4096 = s.202 * t4093;
             let t4097 = t4094 + t4096;
-            dqdd_dq[7][7] = t4097;
+            dqdd_dq.91 = t4097;
             let t4098 = s.199 * t4097;
             let t4099 = t4095 + t4098;
             let t4100 = s.200 * t4093;
             let t4101 = t4099 + t4100;
-            dqdd_dq[8][7] = t4101;
+            dqdd_dq.103 = t4101;
             let t4102 = s.199 * t2916;
             let t4103 = t2947 + t4102;
             let t4104 = s.200 * t2916;
@@ -8484,17 +8534,17 @@ pub mod portable {
             let t4106 = s.202 * t4103;
             let t4107 = t4105 + t4106;
             let t4108 = s.203 * t4107;
-            dqdd_dq[6][8] = t4108;
+            dqdd_dq.80 = t4108;
             let t4109 = s.201 * t4103;
             let t4110 = lit::<T>(-38.19145529132263) * t2916;
             let t4111 = s.202 * t4108;
             let t4112 = t4109 + t4111;
-            dqdd_dq[7][8] = t4112;
+            dqdd_dq.92 = t4112;
             let t4113 = s.199 * t4112;
             let t4114 = t4110 + t4113;
             let t4115 = s.200 * t4108;
             let t4116 = t4114 + t4115;
-            dqdd_dq[8][8] = t4116;
+            dqdd_dq.104 = t4116;
             let t4117 = s.194 * t2771;
             let t4118 = t2770 + t4117;
             let t4119 = s.195 * t2771;
@@ -8502,17 +8552,17 @@ pub mod portable {
             let t4121 = s.197 * t4118;
             let t4122 = t4120 + t4121;
             let t4123 = s.198 * t4122;
-            dqdd_dq[9][9] = t4123;
+            dqdd_dq.117 = t4123;
             let t4124 = s.196 * t4118;
             let t4125 = lit::<T>(-38.19145529132263) * t2771;
             let t4126 = s.197 * t4123;
             let t4127 = t4124 + t4126;
-            dqdd_dq[10][9] = t4127;
+            dqdd_dq.129 = t4127;
             let t4128 = s.194 * t4127;
             let t4129 = t4125 + t4128;
             let t4130 = s.195 * t4123;
             let t4131 = t4129 + t4130;
-            dqdd_dq[11][9] = t4131;
+            dqdd_dq.141 = t4131;
             let t4132 = s.194 * t2711;
             let t4133 = t2698 + t4132;
             let t4134 = s.195 * t2711;
@@ -8520,17 +8570,17 @@ pub mod portable {
             let t4136 = s.197 * t4133;
             let t4137 = t4135 + t4136;
             let t4138 = s.198 * t4137;
-            dqdd_dq[9][10] = t4138;
+            dqdd_dq.118 = t4138;
             let t4139 = s.196 * t4133;
             let t4140 = lit::<T>(-38.19145529132263) * t2711;
             let t4141 = s.197 * t4138;
             let t4142 = t4139 + t4141;
-            dqdd_dq[10][10] = t4142;
+            dqdd_dq.130 = t4142;
             let t4143 = s.194 * t4142;
             let t4144 = t4140 + t4143;
             let t4145 = s.195 * t4138;
             let t4146 = t4144 + t4145;
-            dqdd_dq[11][10] = t4146;
+            dqdd_dq.142 = t4146;
             let t4147 = s.194 * s.345;
             let t4148 = s.352 + t4147;
             let t4149 = s.195 * s.345;
@@ -8538,17 +8588,17 @@ pub mod portable {
             let t4151 = s.197 * t4148;
             let t4152 = t4150 + t4151;
             let t4153 = s.198 * t4152;
-            dqdd_dq[9][11] = t4153;
+            dqdd_dq.119 = t4153;
             let t4154 = s.196 * t4148;
             let t4155 = lit::<T>(-38.19145529132263) * s.345;
             let t4156 = s.197 * t4153;
             let t4157 = t4154 + t4156;
-            dqdd_dq[10][11] = t4157;
+            dqdd_dq.131 = t4157;
             let t4158 = s.194 * t4157;
             let t4159 = t4155 + t4158;
             let t4160 = s.195 * t4153;
             let t4161 = t4159 + t4160;
-            dqdd_dq[11][11] = t4161;
+            dqdd_dq.143 = t4161;
             let t4162 = s.209 * t3961;
             let t4163 = t3948 + t4162;
             let t4164 = s.210 * t3961;
@@ -8556,17 +8606,17 @@ pub mod portable {
             let t4166 = s.212 * t4163;
             let t4167 = t4165 + t4166;
             let t4168 = s.213 * t4167;
-            dqdd_dqd[0][0] = t4168;
+            dqdd_dqd.0 = t4168;
             let t4169 = s.211 * t4163;
             let t4170 = lit::<T>(-38.19145529132263) * t3961;
             let t4171 = s.212 * t4168;
             let t4172 = t4169 + t4171;
-            dqdd_dqd[1][0] = t4172;
+            dqdd_dqd.12 = t4172;
             let t4173 = s.209 * t4172;
             let t4174 = t4170 + t4173;
             let t4175 = s.210 * t4168;
             let t4176 = t4174 + t4175;
-            dqdd_dqd[2][0] = t4176;
+            dqdd_dqd.24 = t4176;
             let t4177 = s.209 * t3935;
             let t4178 = t3901 + t4177;
             let t4179 = s.210 * t3935;
@@ -8574,17 +8624,17 @@ pub mod portable {
             let t4181 = s.212 * t4178;
             let t4182 = t4180 + t4181;
             let t4183 = s.213 * t4182;
-            dqdd_dqd[0][1] = t4183;
+            dqdd_dqd.1 = t4183;
             let t4184 = s.211 * t4178;
             let t4185 = lit::<T>(-38.19145529132263) * t3935;
             let t4186 = s.212 * t4183;
             let t4187 = t4184 + t4186;
-            dqdd_dqd[1][1] = t4187;
+            dqdd_dqd.13 = t4187;
             let t4188 = s.209 * t4187;
             let t4189 = t4185 + t4188;
             let t4190 = s.210 * t4183;
             let t4191 = t4189 + t4190;
-            dqdd_dqd[2][1] = t4191;
+            dqdd_dqd.25 = t4191;
             let t4192 = s.209 * t3730;
             let t4193 = t3743 + t4192;
             let t4194 = s.210 * t3730;
@@ -8592,17 +8642,17 @@ pub mod portable {
             let t4196 = s.212 * t4193;
             let t4197 = t4195 + t4196;
             let t4198 = s.213 * t4197;
-            dqdd_dqd[0][2] = t4198;
+            dqdd_dqd.2 = t4198;
             let t4199 = s.211 * t4193;
             let t4200 = lit::<T>(-38.19145529132263) * t3730;
             let t4201 = s.212 * t4198;
             let t4202 = t4199 + t4201;
-            dqdd_dqd[1][2] = t4202;
+            dqdd_dqd.14 = t4202;
             let t4203 = s.209 * t4202;
             let t4204 = t4200 + t4203;
             let t4205 = s.210 * t4198;
             let t4206 = t4204 + t4205;
-            dqdd_dqd[2][2] = t4206;
+            dqdd_dqd.26 = t4206;
             let t4207 = s.204 * t3560;
             let t4208 = t3547 + t4207;
             let t4209 = s.205 * t3560;
@@ -8610,17 +8660,17 @@ pub mod portable {
             let t4211 = s.207 * t4208;
             let t4212 = t4210 + t4211;
             let t4213 = s.208 * t4212;
-            dqdd_dqd[3][3] = t4213;
+            dqdd_dqd.39 = t4213;
             let t4214 = s.206 * t4208;
             let t4215 = lit::<T>(-38.19145529132263) * t3560;
             let t4216 = s.207 * t4213;
             let t4217 = t4214 + t4216;
-            dqdd_dqd[4][3] = t4217;
+            dqdd_dqd.51 = t4217;
             let t4218 = s.204 * t4217;
             let t4219 = t4215 + t4218;
             let t4220 = s.205 * t4213;
             let t4221 = t4219 + t4220;
-            dqdd_dqd[5][3] = t4221;
+            dqdd_dqd.63 = t4221;
             let t4222 = s.204 * t3534;
             let t4223 = t3500 + t4222;
             let t4224 = s.205 * t3534;
@@ -8628,17 +8678,17 @@ pub mod portable {
             let t4226 = s.207 * t4223;
             let t4227 = t4225 + t4226;
             let t4228 = s.208 * t4227;
-            dqdd_dqd[3][4] = t4228;
+            dqdd_dqd.40 = t4228;
             let t4229 = s.206 * t4223;
             let t4230 = lit::<T>(-38.19145529132263) * t3534;
             let t4231 = s.207 * t4228;
             let t4232 = t4229 + t4231;
-            dqdd_dqd[4][4] = t4232;
+            dqdd_dqd.52 = t4232;
             let t4233 = s.204 * t4232;
             let t4234 = t4230 + t4233;
             let t4235 = s.205 * t4228;
             let t4236 = t4234 + t4235;
-            dqdd_dqd[5][4] = t4236;
+            dqdd_dqd.64 = t4236;
             let t4237 = s.204 * t3329;
             let t4238 = t3342 + t4237;
             let t4239 = s.205 * t3329;
@@ -8646,17 +8696,17 @@ pub mod portable {
             let t4241 = s.207 * t4238;
             let t4242 = t4240 + t4241;
             let t4243 = s.208 * t4242;
-            dqdd_dqd[3][5] = t4243;
+            dqdd_dqd.41 = t4243;
             let t4244 = s.206 * t4238;
             let t4245 = lit::<T>(-38.19145529132263) * t3329;
             let t4246 = s.207 * t4243;
             let t4247 = t4244 + t4246;
-            dqdd_dqd[4][5] = t4247;
+            dqdd_dqd.53 = t4247;
             let t4248 = s.204 * t4247;
             let t4249 = t4245 + t4248;
             let t4250 = s.205 * t4243;
             let t4251 = t4249 + t4250;
-            dqdd_dqd[5][5] = t4251;
+            dqdd_dqd.65 = t4251;
             let t4252 = s.199 * t3156;
             let t4253 = t3140 + t4252;
             let t4254 = s.200 * t3156;
@@ -8664,17 +8714,17 @@ pub mod portable {
             let t4256 = s.202 * t4253;
             let t4257 = t4255 + t4256;
             let t4258 = s.203 * t4257;
-            dqdd_dqd[6][6] = t4258;
+            dqdd_dqd.78 = t4258;
             let t4259 = s.201 * t4253;
             let t4260 = lit::<T>(-38.19145529132263) * t3156;
             let t4261 = s.202 * t4258;
             let t4262 = t4259 + t4261;
-            dqdd_dqd[7][6] = t4262;
+            dqdd_dqd.90 = t4262;
             let t4263 = s.199 * t4262;
             let t4264 = t4260 + t4263;
             let t4265 = s.200 * t4258;
             let t4266 = t4264 + t4265;
-            dqdd_dqd[8][6] = t4266;
+            dqdd_dqd.102 = t4266;
             let t4267 = s.199 * t3124;
             let t4268 = t3090 + t4267;
             let t4269 = s.200 * t3124;
@@ -8682,17 +8732,17 @@ pub mod portable {
             let t4271 = s.202 * t4268;
             let t4272 = t4270 + t4271;
             let t4273 = s.203 * t4272;
-            dqdd_dqd[6][7] = t4273;
+            dqdd_dqd.79 = t4273;
             let t4274 = s.201 * t4268;
             let t4275 = lit::<T>(-38.19145529132263) * t3124;
             let t4276 = s.202 * t4273;
             let t4277 = t4274 + t4276;
-            dqdd_dqd[7][7] = t4277;
+            dqdd_dqd.91 = t4277;
             let t4278 = s.199 * t4277;
             let t4279 = t4275 + t4278;
             let t4280 = s.200 * t4273;
             let t4281 = t4279 + t4280;
-            dqdd_dqd[8][7] = t4281;
+            dqdd_dqd.103 = t4281;
             let t4282 = s.199 * t2921;
             let t4283 = t2934 + t4282;
             let t4284 = s.200 * t2921;
@@ -8700,17 +8750,17 @@ pub mod portable {
             let t4286 = s.202 * t4283;
             let t4287 = t4285 + t4286;
             let t4288 = s.203 * t4287;
-            dqdd_dqd[6][8] = t4288;
+            dqdd_dqd.80 = t4288;
             let t4289 = s.201 * t4283;
             let t4290 = lit::<T>(-38.19145529132263) * t2921;
             let t4291 = s.202 * t4288;
             let t4292 = t4289 + t4291;
-            dqdd_dqd[7][8] = t4292;
+            dqdd_dqd.92 = t4292;
             let t4293 = s.199 * t4292;
             let t4294 = t4290 + t4293;
             let t4295 = s.200 * t4288;
             let t4296 = t4294 + t4295;
-            dqdd_dqd[8][8] = t4296;
+            dqdd_dqd.104 = t4296;
             let t4297 = s.194 * t2748;
             let t4298 = t2732 + t4297;
             let t4299 = s.195 * t2748;
@@ -8718,17 +8768,17 @@ pub mod portable {
             let t4301 = s.197 * t4298;
             let t4302 = t4300 + t4301;
             let t4303 = s.198 * t4302;
-            dqdd_dqd[9][9] = t4303;
+            dqdd_dqd.117 = t4303;
             let t4304 = s.196 * t4298;
             let t4305 = lit::<T>(-38.19145529132263) * t2748;
             let t4306 = s.197 * t4303;
             let t4307 = t4304 + t4306;
-            dqdd_dqd[10][9] = t4307;
+            dqdd_dqd.129 = t4307;
             let t4308 = s.194 * t4307;
             let t4309 = t4305 + t4308;
             let t4310 = s.195 * t4303;
             let t4311 = t4309 + t4310;
-            dqdd_dqd[11][9] = t4311;
+            dqdd_dqd.141 = t4311;
             let t4312 = s.194 * t2716;
             let t4313 = t2682 + t4312;
             let t4314 = s.195 * t2716;
@@ -8736,17 +8786,17 @@ pub mod portable {
             let t4316 = s.197 * t4313;
             let t4317 = t4315 + t4316;
             let t4318 = s.198 * t4317;
-            dqdd_dqd[9][10] = t4318;
+            dqdd_dqd.118 = t4318;
             let t4319 = s.196 * t4313;
             let t4320 = lit::<T>(-38.19145529132263) * t2716;
             let t4321 = s.197 * t4318;
             let t4322 = t4319 + t4321;
-            dqdd_dqd[10][10] = t4322;
+            dqdd_dqd.130 = t4322;
             let t4323 = s.194 * t4322;
             let t4324 = t4320 + t4323;
             let t4325 = s.195 * t4318;
             let t4326 = t4324 + t4325;
-            dqdd_dqd[11][10] = t4326;
+            dqdd_dqd.142 = t4326;
             let t4327 = s.194 * s.346;
             let t4328 = s.349 + t4327;
             let t4329 = s.195 * s.346;
@@ -8754,17 +8804,17 @@ pub mod portable {
             let t4331 = s.197 * t4328;
             let t4332 = t4330 + t4331;
             let t4333 = s.198 * t4332;
-            dqdd_dqd[9][11] = t4333;
+            dqdd_dqd.119 = t4333;
             let t4334 = s.196 * t4328;
             let t4335 = lit::<T>(-38.19145529132263) * s.346;
             let t4336 = s.197 * t4333;
             let t4337 = t4334 + t4336;
-            dqdd_dqd[10][11] = t4337;
+            dqdd_dqd.131 = t4337;
             let t4338 = s.194 * t4337;
             let t4339 = t4335 + t4338;
             let t4340 = s.195 * t4333;
             let t4341 = t4339 + t4340;
-            dqdd_dqd[11][11] = t4341;
+            dqdd_dqd.143 = t4341;
         }
     }
     use fd_grad_part1::fd_grad_part1;
@@ -8816,6 +8866,16 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 144 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -8829,6 +8889,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
             let t2 = q[0].sin();
             let t3 = q[0].cos();
             let t7 = q[1].sin();
@@ -10090,12 +10156,12 @@ pub mod fma {
             let t1526 = T::mul_add(t784, t1517, t1524);
             let t1528 = T::mul_add(-t783, t1518, t1526);
             let t1529 = t1521 + t1528;
-            dc_dq[11][11] = t1529;
+            dc_dq.143 = t1529;
             let t1531 = T::mul_add(lit::<T>(3.524e-5), t784, t1387);
             let t1532 = t1531 - t1358;
             let t1533 = t1532 + t1532;
             let t1534 = t1384 + t1533;
-            dc_dqd[11][11] = t1534;
+            dc_dqd.143 = t1534;
             let t1536 = lit::<T>(0.11047740000000002) * t63;
             let t1537 = T::mul_add(lit::<T>(3.524e-5), t64, -t1536);
             let t1539 = lit::<T>(0.11047740000000002) * t64;
@@ -10117,7 +10183,7 @@ pub mod fma {
             let t1557 = T::mul_add(t63, t1494, t1556);
             let t1560 = T::mul_add(-lit::<T>(0.35), t1489, t1557);
             let t1561 = T::mul_add(lit::<T>(0.35), t1551, t1496);
-            dc_dqd[10][11] = t1561;
+            dc_dqd.131 = t1561;
             let t1563 = t64 * t1514;
             let t1564 = T::mul_add(t63, t1513, t1563);
             let t1566 = t63 * t1512;
@@ -10126,7 +10192,7 @@ pub mod fma {
             let t1570 = T::mul_add(t63, t1511, t1569);
             let t1573 = T::mul_add(-lit::<T>(0.35), t1510, t1570);
             let t1574 = T::mul_add(lit::<T>(0.35), t1564, t1507);
-            dc_dq[10][11] = t1574;
+            dc_dq.131 = t1574;
             let t1576 = t64 * t1518;
             let t1577 = T::mul_add(t63, t1517, t1576);
             let t1579 = t63 * t1516;
@@ -10259,7 +10325,7 @@ pub mod fma {
             let t1762 = t1756 + t1760;
             let t1763 = t1757 + t1761;
             let t1764 = t1680 + t1758;
-            dc_dqd[10][10] = t1764;
+            dc_dqd.130 = t1764;
             let t1765 = T::mul_add(t709, t1701, t1743);
             let t1766 = T::mul_add(t710, t1701, t1746);
             let t1767 = t1755 - t1749;
@@ -10275,7 +10341,7 @@ pub mod fma {
             let t1777 = t710 * t1773;
             let t1779 = T::mul_add(t709, t1774, -t1777);
             let t1780 = t1776 + t1779;
-            dc_dq[10][10] = t1780;
+            dc_dq.130 = t1780;
             let t1781 = t715 * t1543;
             let t1783 = T::mul_add(t713, t1546, -t1781);
             let t1785 = T::mul_add(t1044, t1548, t1783);
@@ -10284,12 +10350,12 @@ pub mod fma {
             let t1790 = t710 * t1580;
             let t1792 = T::mul_add(t709, t1583, -t1790);
             let t1793 = t1789 + t1792;
-            dc_dq[11][10] = t1793;
+            dc_dq.142 = t1793;
             let t1794 = t710 * t1543;
             let t1796 = T::mul_add(t709, t1546, -t1794);
             let t1797 = t1796 + t1796;
             let t1798 = t1585 + t1797;
-            dc_dqd[11][10] = t1798;
+            dc_dqd.142 = t1798;
             let t1799 = t61 * t1632;
             let t1800 = -t1799;
             let t1802 = T::mul_add(-t60, t1631, t1800);
@@ -10298,32 +10364,32 @@ pub mod fma {
             let t1806 = -t1805;
             let t1808 = T::mul_add(-t61, t1763, t1806);
             let t1810 = T::mul_add(lit::<T>(0.08), t1759, t1808);
-            dc_dqd[9][10] = t1810;
+            dc_dqd.118 = t1810;
             let t1811 = t60 * t1771;
             let t1812 = -t1811;
             let t1814 = T::mul_add(-t61, t1772, t1812);
             let t1816 = T::mul_add(lit::<T>(0.08), t1770, t1814);
-            dc_dq[9][10] = t1816;
+            dc_dq.118 = t1816;
             let t1817 = t60 * t1773;
             let t1818 = -t1817;
             let t1820 = T::mul_add(-t61, t1774, t1818);
-            dc_dqd[10][9] = t1820;
+            dc_dqd.129 = t1820;
             let t1822 = t60 * t1540;
             let t1823 = T::mul_add(t61, t1537, -t1822);
             let t1824 = t60 * t1554;
             let t1825 = -t1824;
             let t1827 = T::mul_add(-t61, t1560, t1825);
             let t1829 = T::mul_add(lit::<T>(0.08), t1489, t1827);
-            dc_dqd[9][11] = t1829;
+            dc_dqd.119 = t1829;
             let t1830 = t60 * t1567;
             let t1831 = -t1830;
             let t1833 = T::mul_add(-t61, t1573, t1831);
             let t1835 = T::mul_add(lit::<T>(0.08), t1510, t1833);
-            dc_dq[9][11] = t1835;
+            dc_dq.119 = t1835;
             let t1836 = t60 * t1580;
             let t1837 = -t1836;
             let t1839 = T::mul_add(-t61, t1583, t1837);
-            dc_dqd[11][9] = t1839;
+            dc_dqd.141 = t1839;
             let t1840 = T::mul_add(t61, t1631, -t1803);
             let t1842 = t1840 + lit::<T>(0.28152);
             let t1843 = lit::<T>(0.12490590000000001) + t1842;
@@ -10340,14 +10406,14 @@ pub mod fma {
             let t1858 = -t1857;
             let t1860 = T::mul_add(-t61, t1854, t1858);
             let t1861 = T::mul_add(lit::<T>(2.0), t1855, t1860);
-            dc_dqd[9][9] = t1861;
+            dc_dqd.117 = t1861;
             let t1863 = lit::<T>(-8.81e-5) * t707;
             let t1864 = T::mul_add(t706, t1843, t1863);
-            dc_dq[9][9] = t1864;
+            dc_dq.117 = t1864;
             let t1865 = t707 * t1802;
-            dc_dq[10][9] = t1865;
+            dc_dq.129 = t1865;
             let t1866 = t707 * t1823;
-            dc_dq[11][9] = t1866;
+            dc_dq.141 = t1866;
             let t1867 = t1273 - t608;
             let t1868 = t604 - t1275;
             let t1869 = t1261 - t1269;
@@ -10463,12 +10529,12 @@ pub mod fma {
             let t2008 = T::mul_add(t576, t1999, t2006);
             let t2010 = T::mul_add(-t575, t2000, t2008);
             let t2011 = t2003 + t2010;
-            dc_dq[8][8] = t2011;
+            dc_dq.104 = t2011;
             let t2013 = T::mul_add(lit::<T>(-3.524e-5), t576, t1869);
             let t2014 = t2013 - t1278;
             let t2015 = t2014 + t2014;
             let t2016 = t1304 + t2015;
-            dc_dqd[8][8] = t2016;
+            dc_dqd.104 = t2016;
             let t2018 = lit::<T>(0.11047740000000002) * t54;
             let t2019 = T::mul_add(lit::<T>(-3.524e-5), t55, -t2018);
             let t2021 = lit::<T>(0.11047740000000002) * t55;
@@ -10490,7 +10556,7 @@ pub mod fma {
             let t2039 = T::mul_add(t54, t1976, t2038);
             let t2042 = T::mul_add(-lit::<T>(0.35), t1971, t2039);
             let t2043 = T::mul_add(lit::<T>(0.35), t2033, t1978);
-            dc_dqd[7][8] = t2043;
+            dc_dqd.92 = t2043;
             let t2045 = t55 * t1996;
             let t2046 = T::mul_add(t54, t1995, t2045);
             let t2048 = t54 * t1994;
@@ -10499,7 +10565,7 @@ pub mod fma {
             let t2052 = T::mul_add(t54, t1993, t2051);
             let t2055 = T::mul_add(-lit::<T>(0.35), t1992, t2052);
             let t2056 = T::mul_add(lit::<T>(0.35), t2046, t1989);
-            dc_dq[7][8] = t2056;
+            dc_dq.92 = t2056;
             let t2058 = t55 * t2000;
             let t2059 = T::mul_add(t54, t1999, t2058);
             let t2061 = t54 * t1998;
@@ -10632,7 +10698,7 @@ pub mod fma {
             let t2241 = t2235 + t2239;
             let t2242 = t2236 + t2240;
             let t2243 = t2159 + t2237;
-            dc_dqd[7][7] = t2243;
+            dc_dqd.91 = t2243;
             let t2244 = T::mul_add(t501, t2180, t2222);
             let t2245 = T::mul_add(t502, t2180, t2225);
             let t2246 = t2234 - t2228;
@@ -10648,7 +10714,7 @@ pub mod fma {
             let t2256 = t502 * t2252;
             let t2258 = T::mul_add(t501, t2253, -t2256);
             let t2259 = t2255 + t2258;
-            dc_dq[7][7] = t2259;
+            dc_dq.91 = t2259;
             let t2260 = t507 * t2025;
             let t2262 = T::mul_add(t505, t2028, -t2260);
             let t2264 = T::mul_add(t1015, t2030, t2262);
@@ -10657,12 +10723,12 @@ pub mod fma {
             let t2269 = t502 * t2062;
             let t2271 = T::mul_add(t501, t2065, -t2269);
             let t2272 = t2268 + t2271;
-            dc_dq[8][7] = t2272;
+            dc_dq.103 = t2272;
             let t2273 = t502 * t2025;
             let t2275 = T::mul_add(t501, t2028, -t2273);
             let t2276 = t2275 + t2275;
             let t2277 = t2067 + t2276;
-            dc_dqd[8][7] = t2277;
+            dc_dqd.103 = t2277;
             let t2278 = t52 * t2111;
             let t2279 = -t2278;
             let t2281 = T::mul_add(-t51, t2110, t2279);
@@ -10671,32 +10737,32 @@ pub mod fma {
             let t2285 = -t2284;
             let t2287 = T::mul_add(-t52, t2242, t2285);
             let t2289 = T::mul_add(lit::<T>(0.08), t2238, t2287);
-            dc_dqd[6][7] = t2289;
+            dc_dqd.79 = t2289;
             let t2290 = t51 * t2250;
             let t2291 = -t2290;
             let t2293 = T::mul_add(-t52, t2251, t2291);
             let t2295 = T::mul_add(lit::<T>(0.08), t2249, t2293);
-            dc_dq[6][7] = t2295;
+            dc_dq.79 = t2295;
             let t2296 = t51 * t2252;
             let t2297 = -t2296;
             let t2299 = T::mul_add(-t52, t2253, t2297);
-            dc_dqd[7][6] = t2299;
+            dc_dqd.90 = t2299;
             let t2301 = t51 * t2022;
             let t2302 = T::mul_add(t52, t2019, -t2301);
             let t2303 = t51 * t2036;
             let t2304 = -t2303;
             let t2306 = T::mul_add(-t52, t2042, t2304);
             let t2308 = T::mul_add(lit::<T>(0.08), t1971, t2306);
-            dc_dqd[6][8] = t2308;
+            dc_dqd.80 = t2308;
             let t2309 = t51 * t2049;
             let t2310 = -t2309;
             let t2312 = T::mul_add(-t52, t2055, t2310);
             let t2314 = T::mul_add(lit::<T>(0.08), t1992, t2312);
-            dc_dq[6][8] = t2314;
+            dc_dq.80 = t2314;
             let t2315 = t51 * t2062;
             let t2316 = -t2315;
             let t2318 = T::mul_add(-t52, t2065, t2316);
-            dc_dqd[8][6] = t2318;
+            dc_dqd.102 = t2318;
             let t2319 = T::mul_add(t52, t2110, -t2282);
             let t2320 = lit::<T>(0.28152) + t2319;
             let t2321 = lit::<T>(0.12490590000000001) + t2320;
@@ -10713,14 +10779,14 @@ pub mod fma {
             let t2336 = -t2335;
             let t2338 = T::mul_add(-t52, t2332, t2336);
             let t2339 = T::mul_add(lit::<T>(2.0), t2333, t2338);
-            dc_dqd[6][6] = t2339;
+            dc_dqd.78 = t2339;
             let t2341 = lit::<T>(8.81e-5) * t499;
             let t2342 = T::mul_add(t498, t2321, t2341);
-            dc_dq[6][6] = t2342;
+            dc_dq.78 = t2342;
             let t2343 = t499 * t2281;
-            dc_dq[7][6] = t2343;
+            dc_dq.90 = t2343;
             let t2344 = t499 * t2302;
-            dc_dq[8][6] = t2344;
+            dc_dq.102 = t2344;
             let t2345 = t1193 - t400;
             let t2346 = t396 - t1195;
             let t2347 = t1181 - t1189;
@@ -10838,12 +10904,12 @@ pub mod fma {
             let t2486 = T::mul_add(t368, t2477, t2484);
             let t2488 = T::mul_add(-t367, t2478, t2486);
             let t2489 = t2481 + t2488;
-            dc_dq[5][5] = t2489;
+            dc_dq.65 = t2489;
             let t2491 = T::mul_add(lit::<T>(3.524e-5), t368, t2347);
             let t2492 = t2491 - t1198;
             let t2493 = t2492 + t2492;
             let t2494 = t1224 + t2493;
-            dc_dqd[5][5] = t2494;
+            dc_dqd.65 = t2494;
             let t2496 = lit::<T>(0.11047740000000002) * t41;
             let t2497 = T::mul_add(lit::<T>(3.524e-5), t42, -t2496);
             s.118 = t2497;
@@ -10872,7 +10938,7 @@ pub mod fma {
             let t2520 = T::mul_add(-lit::<T>(0.35), t2449, t2517);
             s.124 = t2520;
             let t2521 = T::mul_add(lit::<T>(0.35), t2511, t2456);
-            dc_dqd[4][5] = t2521;
+            dc_dqd.53 = t2521;
             let t2523 = t42 * t2474;
             let t2524 = T::mul_add(t41, t2473, t2523);
             let t2526 = t41 * t2472;
@@ -10883,7 +10949,7 @@ pub mod fma {
             let t2533 = T::mul_add(-lit::<T>(0.35), t2470, t2530);
             s.126 = t2533;
             let t2534 = T::mul_add(lit::<T>(0.35), t2524, t2467);
-            dc_dq[4][5] = t2534;
+            dc_dq.53 = t2534;
             let t2536 = t42 * t2478;
             let t2537 = T::mul_add(t41, t2477, t2536);
             let t2539 = t41 * t2476;
@@ -10935,6 +11001,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f144<T>)
+            };
             let t2573 = s.120 - lit::<T>(3.0835e-5);
             let t2575 = s.7 * s.133;
             let t2576 = T::mul_add(s.6, s.132, t2575);
@@ -11044,7 +11116,7 @@ pub mod fma {
             let t2720 = t2714 + t2718;
             let t2721 = t2715 + t2719;
             let t2722 = t2636 + t2716;
-            dc_dqd[4][4] = t2722;
+            dc_dqd.52 = t2722;
             let t2723 = T::mul_add(-s.49, t2657, t2701);
             let t2724 = T::mul_add(-s.50, t2657, t2704);
             let t2725 = t2713 - t2708;
@@ -11060,7 +11132,7 @@ pub mod fma {
             let t2736 = s.49 * t2732;
             let t2737 = T::mul_add(s.50, t2731, -t2736);
             let t2738 = t2734 + t2737;
-            dc_dq[4][4] = t2738;
+            dc_dq.52 = t2738;
             let t2740 = s.51 * s.121;
             let t2741 = T::mul_add(s.52, s.120, -t2740);
             let t2743 = T::mul_add(s.77, s.122, t2741);
@@ -11069,12 +11141,12 @@ pub mod fma {
             let t2749 = s.49 * s.128;
             let t2750 = T::mul_add(s.50, s.127, -t2749);
             let t2751 = t2747 + t2750;
-            dc_dq[5][4] = t2751;
+            dc_dq.64 = t2751;
             let t2753 = s.49 * s.121;
             let t2754 = T::mul_add(s.50, s.120, -t2753);
             let t2755 = t2754 + t2754;
             let t2756 = s.129 + t2755;
-            dc_dqd[5][4] = t2756;
+            dc_dqd.64 = t2756;
             let t2757 = s.5 * t2588;
             let t2758 = -t2757;
             let t2760 = T::mul_add(-s.4, t2587, t2758);
@@ -11083,27 +11155,27 @@ pub mod fma {
             let t2765 = s.5 * t2721;
             let t2766 = T::mul_add(s.4, t2720, t2765);
             let t2768 = T::mul_add(-lit::<T>(0.08), t2717, t2766);
-            dc_dqd[3][4] = t2768;
+            dc_dqd.40 = t2768;
             let t2770 = s.5 * t2730;
             let t2771 = T::mul_add(s.4, t2729, t2770);
             let t2773 = T::mul_add(-lit::<T>(0.08), t2728, t2771);
-            dc_dq[3][4] = t2773;
+            dc_dq.40 = t2773;
             let t2775 = s.5 * t2732;
             let t2776 = T::mul_add(s.4, t2731, t2775);
-            dc_dqd[4][3] = t2776;
+            dc_dqd.51 = t2776;
             let t2778 = s.4 * s.119;
             let t2779 = T::mul_add(s.5, s.118, -t2778);
             let t2781 = s.5 * s.124;
             let t2782 = T::mul_add(s.4, s.123, t2781);
             let t2784 = T::mul_add(-lit::<T>(0.08), s.116, t2782);
-            dc_dqd[3][5] = t2784;
+            dc_dqd.41 = t2784;
             let t2786 = s.5 * s.126;
             let t2787 = T::mul_add(s.4, s.125, t2786);
             let t2789 = T::mul_add(-lit::<T>(0.08), s.117, t2787);
-            dc_dq[3][5] = t2789;
+            dc_dq.41 = t2789;
             let t2791 = s.5 * s.128;
             let t2792 = T::mul_add(s.4, s.127, t2791);
-            dc_dqd[5][3] = t2792;
+            dc_dqd.63 = t2792;
             let t2793 = lit::<T>(0.28152) + t2763;
             let t2794 = lit::<T>(0.12490590000000001) + t2793;
             let t2796 = s.4 * t2638;
@@ -11116,14 +11188,14 @@ pub mod fma {
             let t2807 = s.5 * t2803;
             let t2808 = T::mul_add(s.4, t2801, t2807);
             let t2809 = T::mul_add(lit::<T>(2.0), t2804, t2808);
-            dc_dqd[3][3] = t2809;
+            dc_dqd.39 = t2809;
             let t2811 = lit::<T>(8.81e-5) * s.48;
             let t2812 = T::mul_add(s.47, t2794, t2811);
-            dc_dq[3][3] = t2812;
+            dc_dq.39 = t2812;
             let t2813 = s.48 * t2760;
-            dc_dq[4][3] = t2813;
+            dc_dq.51 = t2813;
             let t2814 = s.48 * t2779;
-            dc_dq[5][3] = t2814;
+            dc_dq.63 = t2814;
             let t2815 = s.91 - s.24;
             let t2816 = s.23 - s.92;
             let t2817 = s.89 - s.90;
@@ -11239,12 +11311,12 @@ pub mod fma {
             let t2956 = T::mul_add(s.22, t2947, t2954);
             let t2958 = T::mul_add(-s.21, t2948, t2956);
             let t2959 = t2951 + t2958;
-            dc_dq[2][2] = t2959;
+            dc_dq.26 = t2959;
             let t2961 = T::mul_add(lit::<T>(-3.524e-5), s.22, t2817);
             let t2962 = t2961 - s.93;
             let t2963 = t2962 + t2962;
             let t2964 = s.100 + t2963;
-            dc_dqd[2][2] = t2964;
+            dc_dqd.26 = t2964;
             let t2966 = s.2 * lit::<T>(0.11047740000000002);
             let t2967 = T::mul_add(s.3, lit::<T>(-3.524e-5), -t2966);
             let t2969 = s.3 * lit::<T>(0.11047740000000002);
@@ -11266,7 +11338,7 @@ pub mod fma {
             let t2987 = T::mul_add(s.2, t2924, t2986);
             let t2990 = T::mul_add(-lit::<T>(0.35), t2919, t2987);
             let t2991 = T::mul_add(lit::<T>(0.35), t2981, t2926);
-            dc_dqd[1][2] = t2991;
+            dc_dqd.14 = t2991;
             let t2993 = s.3 * t2944;
             let t2994 = T::mul_add(s.2, t2943, t2993);
             let t2996 = s.2 * t2942;
@@ -11275,7 +11347,7 @@ pub mod fma {
             let t3000 = T::mul_add(s.2, t2941, t2999);
             let t3003 = T::mul_add(-lit::<T>(0.35), t2940, t3000);
             let t3004 = T::mul_add(lit::<T>(0.35), t2994, t2937);
-            dc_dq[1][2] = t3004;
+            dc_dq.14 = t3004;
             let t3006 = s.3 * t2948;
             let t3007 = T::mul_add(s.2, t2947, t3006);
             let t3009 = s.2 * t2946;
@@ -11410,7 +11482,7 @@ pub mod fma {
             let t3190 = t3184 + t3188;
             let t3191 = t3185 + t3189;
             let t3192 = t3106 + t3186;
-            dc_dqd[1][1] = t3192;
+            dc_dqd.13 = t3192;
             let t3193 = T::mul_add(-s.10, t3127, t3171);
             let t3194 = T::mul_add(-s.11, t3127, t3174);
             let t3195 = t3183 - t3178;
@@ -11426,7 +11498,7 @@ pub mod fma {
             let t3206 = s.10 * t3202;
             let t3207 = T::mul_add(s.11, t3201, -t3206);
             let t3208 = t3204 + t3207;
-            dc_dq[1][1] = t3208;
+            dc_dq.13 = t3208;
             let t3210 = s.12 * t2976;
             let t3211 = T::mul_add(s.13, t2973, -t3210);
             let t3213 = T::mul_add(s.68, t2978, t3211);
@@ -11435,12 +11507,12 @@ pub mod fma {
             let t3219 = s.10 * t3013;
             let t3220 = T::mul_add(s.11, t3010, -t3219);
             let t3221 = t3217 + t3220;
-            dc_dq[2][1] = t3221;
+            dc_dq.25 = t3221;
             let t3223 = s.10 * t2976;
             let t3224 = T::mul_add(s.11, t2973, -t3223);
             let t3225 = t3224 + t3224;
             let t3226 = t3015 + t3225;
-            dc_dqd[2][1] = t3226;
+            dc_dqd.25 = t3226;
             let t3227 = s.1 * t3058;
             let t3228 = -t3227;
             let t3230 = T::mul_add(-s.0, t3057, t3228);
@@ -11449,27 +11521,27 @@ pub mod fma {
             let t3235 = s.1 * t3191;
             let t3236 = T::mul_add(s.0, t3190, t3235);
             let t3238 = T::mul_add(-lit::<T>(0.08), t3187, t3236);
-            dc_dqd[0][1] = t3238;
+            dc_dqd.1 = t3238;
             let t3240 = s.1 * t3200;
             let t3241 = T::mul_add(s.0, t3199, t3240);
             let t3243 = T::mul_add(-lit::<T>(0.08), t3198, t3241);
-            dc_dq[0][1] = t3243;
+            dc_dq.1 = t3243;
             let t3245 = s.1 * t3202;
             let t3246 = T::mul_add(s.0, t3201, t3245);
-            dc_dqd[1][0] = t3246;
+            dc_dqd.12 = t3246;
             let t3248 = s.0 * t2970;
             let t3249 = T::mul_add(s.1, t2967, -t3248);
             let t3251 = s.1 * t2990;
             let t3252 = T::mul_add(s.0, t2984, t3251);
             let t3254 = T::mul_add(-lit::<T>(0.08), t2919, t3252);
-            dc_dqd[0][2] = t3254;
+            dc_dqd.2 = t3254;
             let t3256 = s.1 * t3003;
             let t3257 = T::mul_add(s.0, t2997, t3256);
             let t3259 = T::mul_add(-lit::<T>(0.08), t2940, t3257);
-            dc_dq[0][2] = t3259;
+            dc_dq.2 = t3259;
             let t3261 = s.1 * t3013;
             let t3262 = T::mul_add(s.0, t3010, t3261);
-            dc_dqd[2][0] = t3262;
+            dc_dqd.24 = t3262;
             let t3263 = lit::<T>(0.28152) + t3233;
             let t3264 = lit::<T>(0.12490590000000001) + t3263;
             let t3266 = s.0 * t3108;
@@ -11482,14 +11554,14 @@ pub mod fma {
             let t3277 = s.1 * t3273;
             let t3278 = T::mul_add(s.0, t3271, t3277);
             let t3279 = T::mul_add(lit::<T>(2.0), t3274, t3278);
-            dc_dqd[0][0] = t3279;
+            dc_dqd.0 = t3279;
             let t3281 = lit::<T>(-8.81e-5) * s.9;
             let t3282 = T::mul_add(s.8, t3264, t3281);
-            dc_dq[0][0] = t3282;
+            dc_dq.0 = t3282;
             let t3283 = s.9 * t3230;
-            dc_dq[1][0] = t3283;
+            dc_dq.12 = t3283;
             let t3284 = s.9 * t3249;
-            dc_dq[2][0] = t3284;
+            dc_dq.24 = t3284;
         }
     }
     use rnea_grad_part1::rnea_grad_part1;
@@ -11544,6 +11616,20 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T,
     );
+    /// An array of 12 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f12<T>(T, T, T, T, T, T, T, T, T, T, T, T);
+    /// An array of 144 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f144<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -11558,6 +11644,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t3 = q[0].sin();
             let t4 = q[0].cos();
             let t9 = q[1].sin();
@@ -12893,41 +12986,41 @@ pub mod fma {
             let t1535 = T::mul_add(t1494, t1504, t1502);
             let t1537 = T::mul_add(t1498, t1533, t1535);
             let t1538 = t1501 * t1537;
-            qdd[0] = t1538;
+            qdd.0 = t1538;
             let t1541 = t1488 * t1531;
-            qdd[3] = t1541;
+            qdd.3 = t1541;
             let t1544 = t1475 * t1525;
-            qdd[6] = t1544;
+            qdd.6 = t1544;
             let t1547 = t1462 * t1519;
-            qdd[9] = t1547;
+            qdd.9 = t1547;
             let t1550 = t1498 * t1538;
             let t1551 = T::mul_add(t1497, t1533, t1550);
-            qdd[1] = t1551;
+            qdd.1 = t1551;
             let t1552 = t1489 * t1551;
             let t1553 = T::mul_add(lit::<T>(-38.19145529132263), t1504, t1552);
             let t1555 = T::mul_add(t1494, t1538, t1553);
-            qdd[2] = t1555;
+            qdd.2 = t1555;
             let t1556 = t1485 * t1541;
             let t1557 = T::mul_add(t1484, t1527, t1556);
-            qdd[4] = t1557;
+            qdd.4 = t1557;
             let t1558 = t1476 * t1557;
             let t1559 = T::mul_add(lit::<T>(-38.19145529132263), t1507, t1558);
             let t1561 = T::mul_add(t1481, t1541, t1559);
-            qdd[5] = t1561;
+            qdd.5 = t1561;
             let t1562 = t1472 * t1544;
             let t1563 = T::mul_add(t1471, t1521, t1562);
-            qdd[7] = t1563;
+            qdd.7 = t1563;
             let t1564 = t1463 * t1563;
             let t1565 = T::mul_add(lit::<T>(-38.19145529132263), t1510, t1564);
             let t1567 = T::mul_add(t1468, t1544, t1565);
-            qdd[8] = t1567;
+            qdd.8 = t1567;
             let t1568 = t1459 * t1547;
             let t1569 = T::mul_add(t1458, t1515, t1568);
-            qdd[10] = t1569;
+            qdd.10 = t1569;
             let t1570 = t1450 * t1569;
             let t1571 = T::mul_add(lit::<T>(-38.19145529132263), t1513, t1570);
             let t1573 = T::mul_add(t1455, t1547, t1571);
-            qdd[11] = t1573;
+            qdd.11 = t1573;
             let t1575 = T::mul_add(lit::<T>(0.08), t1538, t468);
             let t1576 = t9 * t1538;
             s.214 = t1576;
@@ -13860,6 +13953,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f12<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f144<T>)
+            };
             let t2578 = s.362 + s.362;
             let t2579 = s.364 - t2578;
             let t2580 = s.363 + t2579;
@@ -14887,293 +14987,293 @@ pub mod fma {
             let t3985 = T::mul_add(s.210, t3981, t3979);
             let t3987 = T::mul_add(s.212, t3983, t3985);
             let t3988 = s.213 * t3987;
-            dqdd_dq[0][0] = t3988;
+            dqdd_dq.0 = t3988;
             let t3991 = s.212 * t3988;
             let t3992 = T::mul_add(s.211, t3983, t3991);
-            dqdd_dq[1][0] = t3992;
+            dqdd_dq.12 = t3992;
             let t3993 = s.209 * t3992;
             let t3994 = T::mul_add(lit::<T>(-38.19145529132263), t3981, t3993);
             let t3996 = T::mul_add(s.210, t3988, t3994);
-            dqdd_dq[2][0] = t3996;
+            dqdd_dq.24 = t3996;
             let t3998 = T::mul_add(s.209, t3930, t3917);
             let t4000 = T::mul_add(s.210, t3930, t3945);
             let t4002 = T::mul_add(s.212, t3998, t4000);
             let t4003 = s.213 * t4002;
-            dqdd_dq[0][1] = t4003;
+            dqdd_dq.1 = t4003;
             let t4006 = s.212 * t4003;
             let t4007 = T::mul_add(s.211, t3998, t4006);
-            dqdd_dq[1][1] = t4007;
+            dqdd_dq.13 = t4007;
             let t4008 = s.209 * t4007;
             let t4009 = T::mul_add(lit::<T>(-38.19145529132263), t3930, t4008);
             let t4011 = T::mul_add(s.210, t4003, t4009);
-            dqdd_dq[2][1] = t4011;
+            dqdd_dq.25 = t4011;
             let t4013 = T::mul_add(s.209, t3725, t3756);
             let t4015 = T::mul_add(s.210, t3725, t3958);
             let t4017 = T::mul_add(s.212, t4013, t4015);
             let t4018 = s.213 * t4017;
-            dqdd_dq[0][2] = t4018;
+            dqdd_dq.2 = t4018;
             let t4021 = s.212 * t4018;
             let t4022 = T::mul_add(s.211, t4013, t4021);
-            dqdd_dq[1][2] = t4022;
+            dqdd_dq.14 = t4022;
             let t4023 = s.209 * t4022;
             let t4024 = T::mul_add(lit::<T>(-38.19145529132263), t3725, t4023);
             let t4026 = T::mul_add(s.210, t4018, t4024);
-            dqdd_dq[2][2] = t4026;
+            dqdd_dq.26 = t4026;
             let t4027 = s.204 * t3580;
             let t4028 = T::mul_add(s.65, s.114, t4027);
             let t4030 = T::mul_add(s.205, t3580, t3578);
             let t4032 = T::mul_add(s.207, t4028, t4030);
             let t4033 = s.208 * t4032;
-            dqdd_dq[3][3] = t4033;
+            dqdd_dq.39 = t4033;
             let t4036 = s.207 * t4033;
             let t4037 = T::mul_add(s.206, t4028, t4036);
-            dqdd_dq[4][3] = t4037;
+            dqdd_dq.51 = t4037;
             let t4038 = s.204 * t4037;
             let t4039 = T::mul_add(lit::<T>(-38.19145529132263), t3580, t4038);
             let t4041 = T::mul_add(s.205, t4033, t4039);
-            dqdd_dq[5][3] = t4041;
+            dqdd_dq.63 = t4041;
             let t4043 = T::mul_add(s.204, t3529, t3516);
             let t4045 = T::mul_add(s.205, t3529, t3544);
             let t4047 = T::mul_add(s.207, t4043, t4045);
             let t4048 = s.208 * t4047;
-            dqdd_dq[3][4] = t4048;
+            dqdd_dq.40 = t4048;
             let t4051 = s.207 * t4048;
             let t4052 = T::mul_add(s.206, t4043, t4051);
-            dqdd_dq[4][4] = t4052;
+            dqdd_dq.52 = t4052;
             let t4053 = s.204 * t4052;
             let t4054 = T::mul_add(lit::<T>(-38.19145529132263), t3529, t4053);
             let t4056 = T::mul_add(s.205, t4048, t4054);
-            dqdd_dq[5][4] = t4056;
+            dqdd_dq.64 = t4056;
             let t4058 = T::mul_add(s.204, t3324, t3355);
             let t4060 = T::mul_add(s.205, t3324, t3557);
             let t4062 = T::mul_add(s.207, t4058, t4060);
             let t4063 = s.208 * t4062;
-            dqdd_dq[3][5] = t4063;
+            dqdd_dq.41 = t4063;
             let t4066 = s.207 * t4063;
             let t4067 = T::mul_add(s.206, t4058, t4066);
-            dqdd_dq[4][5] = t4067;
+            dqdd_dq.53 = t4067;
             let t4068 = s.204 * t4067;
             let t4069 = T::mul_add(lit::<T>(-38.19145529132263), t3324, t4068);
             let t4071 = T::mul_add(s.205, t4063, t4069);
-            dqdd_dq[5][5] = t4071;
+            dqdd_dq.65 = t4071;
             let t4072 = s.199 * t3179;
             let t4073 = T::mul_add(s.70, s.147, t4072);
             let t4075 = T::mul_add(s.200, t3179, t3177);
             let t4077 = T::mul_add(s.202, t4073, t4075);
             let t4078 = s.203 * t4077;
-            dqdd_dq[6][6] = t4078;
+            dqdd_dq.78 = t4078;
             let t4081 = s.202 * t4078;
             let t4082 = T::mul_add(s.201, t4073, t4081);
-            dqdd_dq[7][6] = t4082;
+            dqdd_dq.90 = t4082;
             let t4083 = s.199 * t4082;
             let t4084 = T::mul_add(lit::<T>(-38.19145529132263), t3179, t4083);
             let t4086 = T::mul_add(s.200, t4078, t4084);
-            dqdd_dq[8][6] = t4086;
+            dqdd_dq.102 = t4086;
             let t4088 = T::mul_add(s.199, t3119, t3106);
             let t4090 = T::mul_add(s.200, t3119, t3136);
             let t4092 = T::mul_add(s.202, t4088, t4090);
             let t4093 = s.203 * t4092;
-            dqdd_dq[6][7] = t4093;
+            dqdd_dq.79 = t4093;
             let t4096 = s.202 * t4093;
             let t4097 = T::mul_add(s.201, t4088, t4096);
-            dqdd_dq[7][7] = t4097;
+            dqdd_dq.91 = t4097;
             let t4098 = s.199 * t4097;
             let t4099 = T::mul_add(lit::<T>(-38.19145529132263), t3119, t4098);
             let t4101 = T::mul_add(s.200, t4093, t4099);
-            dqdd_dq[8][7] = t4101;
+            dqdd_dq.103 = t4101;
             let t4103 = T::mul_add(s.199, t2916, t2947);
             let t4105 = T::mul_add(s.200, t2916, t3152);
             let t4107 = T::mul_add(s.202, t4103, t4105);
             let t4108 = s.203 * t4107;
-            dqdd_dq[6][8] = t4108;
+            dqdd_dq.80 = t4108;
             let t4111 = s.202 * t4108;
             let t4112 = T::mul_add(s.201, t4103, t4111);
-            dqdd_dq[7][8] = t4112;
+            dqdd_dq.92 = t4112;
             let t4113 = s.199 * t4112;
             let t4114 = T::mul_add(lit::<T>(-38.19145529132263), t2916, t4113);
             let t4116 = T::mul_add(s.200, t4108, t4114);
-            dqdd_dq[8][8] = t4116;
+            dqdd_dq.104 = t4116;
             let t4117 = s.194 * t2771;
             let t4118 = T::mul_add(s.75, s.180, t4117);
             let t4120 = T::mul_add(s.195, t2771, t2769);
             let t4122 = T::mul_add(s.197, t4118, t4120);
             let t4123 = s.198 * t4122;
-            dqdd_dq[9][9] = t4123;
+            dqdd_dq.117 = t4123;
             let t4126 = s.197 * t4123;
             let t4127 = T::mul_add(s.196, t4118, t4126);
-            dqdd_dq[10][9] = t4127;
+            dqdd_dq.129 = t4127;
             let t4128 = s.194 * t4127;
             let t4129 = T::mul_add(lit::<T>(-38.19145529132263), t2771, t4128);
             let t4131 = T::mul_add(s.195, t4123, t4129);
-            dqdd_dq[11][9] = t4131;
+            dqdd_dq.141 = t4131;
             let t4133 = T::mul_add(s.194, t2711, t2698);
             let t4135 = T::mul_add(s.195, t2711, t2728);
             let t4137 = T::mul_add(s.197, t4133, t4135);
             let t4138 = s.198 * t4137;
-            dqdd_dq[9][10] = t4138;
+            dqdd_dq.118 = t4138;
             let t4141 = s.197 * t4138;
             let t4142 = T::mul_add(s.196, t4133, t4141);
-            dqdd_dq[10][10] = t4142;
+            dqdd_dq.130 = t4142;
             let t4143 = s.194 * t4142;
             let t4144 = T::mul_add(lit::<T>(-38.19145529132263), t2711, t4143);
             let t4146 = T::mul_add(s.195, t4138, t4144);
-            dqdd_dq[11][10] = t4146;
+            dqdd_dq.142 = t4146;
             let t4148 = T::mul_add(s.194, s.345, s.352);
             let t4150 = T::mul_add(s.195, s.345, t2744);
             let t4152 = T::mul_add(s.197, t4148, t4150);
             let t4153 = s.198 * t4152;
-            dqdd_dq[9][11] = t4153;
+            dqdd_dq.119 = t4153;
             let t4156 = s.197 * t4153;
             let t4157 = T::mul_add(s.196, t4148, t4156);
-            dqdd_dq[10][11] = t4157;
+            dqdd_dq.131 = t4157;
             let t4158 = s.194 * t4157;
             let t4159 = T::mul_add(lit::<T>(-38.19145529132263), s.345, t4158);
             let t4161 = T::mul_add(s.195, t4153, t4159);
-            dqdd_dq[11][11] = t4161;
+            dqdd_dq.143 = t4161;
             let t4163 = T::mul_add(s.209, t3961, t3948);
             let t4165 = T::mul_add(s.210, t3961, t3976);
             let t4167 = T::mul_add(s.212, t4163, t4165);
             let t4168 = s.213 * t4167;
-            dqdd_dqd[0][0] = t4168;
+            dqdd_dqd.0 = t4168;
             let t4171 = s.212 * t4168;
             let t4172 = T::mul_add(s.211, t4163, t4171);
-            dqdd_dqd[1][0] = t4172;
+            dqdd_dqd.12 = t4172;
             let t4173 = s.209 * t4172;
             let t4174 = T::mul_add(lit::<T>(-38.19145529132263), t3961, t4173);
             let t4176 = T::mul_add(s.210, t4168, t4174);
-            dqdd_dqd[2][0] = t4176;
+            dqdd_dqd.24 = t4176;
             let t4178 = T::mul_add(s.209, t3935, t3901);
             let t4180 = T::mul_add(s.210, t3935, t3940);
             let t4182 = T::mul_add(s.212, t4178, t4180);
             let t4183 = s.213 * t4182;
-            dqdd_dqd[0][1] = t4183;
+            dqdd_dqd.1 = t4183;
             let t4186 = s.212 * t4183;
             let t4187 = T::mul_add(s.211, t4178, t4186);
-            dqdd_dqd[1][1] = t4187;
+            dqdd_dqd.13 = t4187;
             let t4188 = s.209 * t4187;
             let t4189 = T::mul_add(lit::<T>(-38.19145529132263), t3935, t4188);
             let t4191 = T::mul_add(s.210, t4183, t4189);
-            dqdd_dqd[2][1] = t4191;
+            dqdd_dqd.25 = t4191;
             let t4193 = T::mul_add(s.209, t3730, t3743);
             let t4195 = T::mul_add(s.210, t3730, t3953);
             let t4197 = T::mul_add(s.212, t4193, t4195);
             let t4198 = s.213 * t4197;
-            dqdd_dqd[0][2] = t4198;
+            dqdd_dqd.2 = t4198;
             let t4201 = s.212 * t4198;
             let t4202 = T::mul_add(s.211, t4193, t4201);
-            dqdd_dqd[1][2] = t4202;
+            dqdd_dqd.14 = t4202;
             let t4203 = s.209 * t4202;
             let t4204 = T::mul_add(lit::<T>(-38.19145529132263), t3730, t4203);
             let t4206 = T::mul_add(s.210, t4198, t4204);
-            dqdd_dqd[2][2] = t4206;
+            dqdd_dqd.26 = t4206;
             let t4208 = T::mul_add(s.204, t3560, t3547);
             let t4210 = T::mul_add(s.205, t3560, t3575);
             let t4212 = T::mul_add(s.207, t4208, t4210);
             let t4213 = s.208 * t4212;
-            dqdd_dqd[3][3] = t4213;
+            dqdd_dqd.39 = t4213;
             let t4216 = s.207 * t4213;
             let t4217 = T::mul_add(s.206, t4208, t4216);
-            dqdd_dqd[4][3] = t4217;
+            dqdd_dqd.51 = t4217;
             let t4218 = s.204 * t4217;
             let t4219 = T::mul_add(lit::<T>(-38.19145529132263), t3560, t4218);
             let t4221 = T::mul_add(s.205, t4213, t4219);
-            dqdd_dqd[5][3] = t4221;
+            dqdd_dqd.63 = t4221;
             let t4223 = T::mul_add(s.204, t3534, t3500);
             let t4225 = T::mul_add(s.205, t3534, t3539);
             let t4227 = T::mul_add(s.207, t4223, t4225);
             let t4228 = s.208 * t4227;
-            dqdd_dqd[3][4] = t4228;
+            dqdd_dqd.40 = t4228;
             let t4231 = s.207 * t4228;
             let t4232 = T::mul_add(s.206, t4223, t4231);
-            dqdd_dqd[4][4] = t4232;
+            dqdd_dqd.52 = t4232;
             let t4233 = s.204 * t4232;
             let t4234 = T::mul_add(lit::<T>(-38.19145529132263), t3534, t4233);
             let t4236 = T::mul_add(s.205, t4228, t4234);
-            dqdd_dqd[5][4] = t4236;
+            dqdd_dqd.64 = t4236;
             let t4238 = T::mul_add(s.204, t3329, t3342);
             let t4240 = T::mul_add(s.205, t3329, t3552);
             let t4242 = T::mul_add(s.207, t4238, t4240);
             let t4243 = s.208 * t4242;
-            dqdd_dqd[3][5] = t4243;
+            dqdd_dqd.41 = t4243;
             let t4246 = s.207 * t4243;
             let t4247 = T::mul_add(s.206, t4238, t4246);
-            dqdd_dqd[4][5] = t4247;
+            dqdd_dqd.53 = t4247;
             let t4248 = s.204 * t4247;
             let t4249 = T::mul_add(lit::<T>(-38.19145529132263), t3329, t4248);
             let t4251 = T::mul_add(s.205, t4243, t4249);
-            dqdd_dqd[5][5] = t4251;
+            dqdd_dqd.65 = t4251;
             let t4253 = T::mul_add(s.199, t3156, t3140);
             let t4255 = T::mul_add(s.200, t3156, t3174);
             let t4257 = T::mul_add(s.202, t4253, t4255);
             let t4258 = s.203 * t4257;
-            dqdd_dqd[6][6] = t4258;
+            dqdd_dqd.78 = t4258;
             let t4261 = s.202 * t4258;
             let t4262 = T::mul_add(s.201, t4253, t4261);
-            dqdd_dqd[7][6] = t4262;
+            dqdd_dqd.90 = t4262;
             let t4263 = s.199 * t4262;
             let t4264 = T::mul_add(lit::<T>(-38.19145529132263), t3156, t4263);
             let t4266 = T::mul_add(s.200, t4258, t4264);
-            dqdd_dqd[8][6] = t4266;
+            dqdd_dqd.102 = t4266;
             let t4268 = T::mul_add(s.199, t3124, t3090);
             let t4270 = T::mul_add(s.200, t3124, t3130);
             let t4272 = T::mul_add(s.202, t4268, t4270);
             let t4273 = s.203 * t4272;
-            dqdd_dqd[6][7] = t4273;
+            dqdd_dqd.79 = t4273;
             let t4276 = s.202 * t4273;
             let t4277 = T::mul_add(s.201, t4268, t4276);
-            dqdd_dqd[7][7] = t4277;
+            dqdd_dqd.91 = t4277;
             let t4278 = s.199 * t4277;
             let t4279 = T::mul_add(lit::<T>(-38.19145529132263), t3124, t4278);
             let t4281 = T::mul_add(s.200, t4273, t4279);
-            dqdd_dqd[8][7] = t4281;
+            dqdd_dqd.103 = t4281;
             let t4283 = T::mul_add(s.199, t2921, t2934);
             let t4285 = T::mul_add(s.200, t2921, t3146);
             let t4287 = T::mul_add(s.202, t4283, t4285);
             let t4288 = s.203 * t4287;
-            dqdd_dqd[6][8] = t4288;
+            dqdd_dqd.80 = t4288;
             let t4291 = s.202 * t4288;
             let t4292 = T::mul_add(s.201, t4283, t4291);
-            dqdd_dqd[7][8] = t4292;
+            dqdd_dqd.92 = t4292;
             let t4293 = s.199 * t4292;
             let t4294 = T::mul_add(lit::<T>(-38.19145529132263), t2921, t4293);
             let t4296 = T::mul_add(s.200, t4288, t4294);
-            dqdd_dqd[8][8] = t4296;
+            dqdd_dqd.104 = t4296;
             let t4298 = T::mul_add(s.194, t2748, t2732);
             let t4300 = T::mul_add(s.195, t2748, t2766);
             let t4302 = T::mul_add(s.197, t4298, t4300);
             let t4303 = s.198 * t4302;
-            dqdd_dqd[9][9] = t4303;
+            dqdd_dqd.117 = t4303;
             let t4306 = s.197 * t4303;
             let t4307 = T::mul_add(s.196, t4298, t4306);
-            dqdd_dqd[10][9] = t4307;
+            dqdd_dqd.129 = t4307;
             let t4308 = s.194 * t4307;
             let t4309 = T::mul_add(lit::<T>(-38.19145529132263), t2748, t4308);
             let t4311 = T::mul_add(s.195, t4303, t4309);
-            dqdd_dqd[11][9] = t4311;
+            dqdd_dqd.141 = t4311;
             let t4313 = T::mul_add(s.194, t2716, t2682);
             let t4315 = T::mul_add(s.195, t2716, t2722);
             let t4317 = T::mul_add(s.197, t4313, t4315);
             let t4318 = s.198 * t4317;
-            dqdd_dqd[9][10] = t4318;
+            dqdd_dqd.118 = t4318;
             let t4321 = s.197 * t4318;
             let t4322 = T::mul_add(s.196, t4313, t4321);
-            dqdd_dqd[10][10] = t4322;
+            dqdd_dqd.130 = t4322;
             let t4323 = s.194 * t4322;
             let t4324 = T::mul_add(lit::<T>(-38.19145529132263), t2716, t4323);
             let t4326 = T::mul_add(s.195, t4318, t4324);
-            dqdd_dqd[11][10] = t4326;
+            dqdd_dqd.142 = t4326;
             let t4328 = T::mul_add(s.194, s.346, s.349);
             let t4330 = T::mul_add(s.195, s.346, t2738);
             let t4332 = T::mul_add(s.197, t4328, t4330);
             let t4333 = s.198 * t4332;
-            dqdd_dqd[9][11] = t4333;
+            dqdd_dqd.119 = t4333;
             let t4336 = s.197 * t4333;
             let t4337 = T::mul_add(s.196, t4328, t4336);
-            dqdd_dqd[10][11] = t4337;
+            dqdd_dqd.131 = t4337;
             let t4338 = s.194 * t4337;
             let t4339 = T::mul_add(lit::<T>(-38.19145529132263), s.346, t4338);
             let t4341 = T::mul_add(s.195, t4333, t4339);
-            dqdd_dqd[11][11] = t4341;
+            dqdd_dqd.143 = t4341;
         }
     }
     use fd_grad_part1::fd_grad_part1;

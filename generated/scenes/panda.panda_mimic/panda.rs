@@ -1918,6 +1918,14 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 64 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f64<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -1930,6 +1938,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
             let t2 = q[1].sin();
             s.0 = t2;
             let t3 = q[1].cos();
@@ -4121,12 +4135,12 @@ pub mod portable {
             let t2155 = t821 * t2147;
             let t2156 = t2154 - t2155;
             let t2157 = t2149 + t2156;
-            dc_dq[6][6] = t2157;
+            dc_dq.54 = t2157;
             let t2158 = t2002 - t2007;
             let t2159 = t2158 - t2005;
             let t2160 = t2159 + t2159;
             let t2161 = t1978 + t2160;
-            dc_dqd[6][6] = t2161;
+            dc_dqd.54 = t2161;
             let t2162 = t1415 * lit::<T>(-0.0017543319241238244);
             let t2163 = t1416 * lit::<T>(0.0017543319241238242);
             let t2164 = t2162 + t2163;
@@ -4218,7 +4232,7 @@ pub mod portable {
             s.154 = t2237;
             let t2238 = t2234 - t2236;
             s.155 = t2238;
-            dc_dqd[5][6] = t2238;
+            dc_dqd.46 = t2238;
             let t2239 = t72 * t2142;
             let t2240 = t71 * t2143;
             let t2241 = t2239 - t2240;
@@ -4241,7 +4255,7 @@ pub mod portable {
             s.159 = t2254;
             let t2255 = t2251 - t2253;
             s.160 = t2255;
-            dc_dq[5][6] = t2255;
+            dc_dq.46 = t2255;
             let t2256 = t72 * t2146;
             let t2257 = t71 * t2147;
             let t2258 = t2256 - t2257;
@@ -4704,6 +4718,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
             let t2615 = s.50 * s.221;
             let t2616 = s.49 * s.220;
             let t2617 = t2615 + t2616;
@@ -4756,13 +4776,13 @@ pub mod portable {
             let t2664 = s.51 * t2655;
             let t2665 = t2663 - t2664;
             let t2666 = t2658 + t2665;
-            dc_dq[5][5] = t2666;
+            dc_dq.45 = t2666;
             let t2667 = s.52 * lit::<T>(0.17380470556900002);
             let t2668 = s.223 + t2667;
             let t2669 = t2668 - s.224;
             let t2670 = t2669 + t2669;
             let t2671 = s.213 + t2670;
-            dc_dqd[5][5] = t2671;
+            dc_dqd.45 = t2671;
             let t2672 = s.92 * s.148;
             let t2673 = s.93 * s.150;
             let t2674 = t2672 + t2673;
@@ -4778,7 +4798,7 @@ pub mod portable {
             let t2684 = s.52 * s.161;
             let t2685 = t2683 + t2684;
             let t2686 = t2680 + t2685;
-            dc_dq[6][5] = t2686;
+            dc_dq.53 = t2686;
             let t2687 = s.50 * s.148;
             let t2688 = s.49 * s.150;
             let t2689 = t2687 - t2688;
@@ -4786,7 +4806,7 @@ pub mod portable {
             let t2691 = t2689 + t2690;
             let t2692 = t2691 + t2691;
             let t2693 = s.164 + t2692;
-            dc_dqd[6][5] = t2693;
+            dc_dqd.53 = t2693;
             let t2694 = s.92 * s.168;
             let t2695 = s.93 * s.170;
             let t2696 = t2694 + t2695;
@@ -4855,7 +4875,7 @@ pub mod portable {
             let t2755 = s.8 * t2631;
             let t2756 = s.9 * t2632;
             let t2757 = t2755 + t2756;
-            dc_dqd[4][5] = t2757;
+            dc_dqd.37 = t2757;
             let t2758 = s.9 * t2650;
             let t2759 = s.8 * t2651;
             let t2760 = t2758 - t2759;
@@ -4868,7 +4888,7 @@ pub mod portable {
             let t2767 = s.8 * t2648;
             let t2768 = s.9 * t2649;
             let t2769 = t2767 + t2768;
-            dc_dq[4][5] = t2769;
+            dc_dq.37 = t2769;
             let t2770 = s.9 * t2654;
             let t2771 = s.8 * t2655;
             let t2772 = t2770 - t2771;
@@ -4901,7 +4921,7 @@ pub mod portable {
             let t2799 = s.8 * s.153;
             let t2800 = s.9 * s.154;
             let t2801 = t2799 + t2800;
-            dc_dqd[4][6] = t2801;
+            dc_dqd.38 = t2801;
             let t2802 = s.9 * s.156;
             let t2803 = s.8 * s.141;
             let t2804 = t2802 + t2803;
@@ -4914,7 +4934,7 @@ pub mod portable {
             let t2811 = s.8 * s.158;
             let t2812 = s.9 * s.159;
             let t2813 = t2811 + t2812;
-            dc_dq[4][6] = t2813;
+            dc_dq.38 = t2813;
             let t2814 = s.9 * s.161;
             let t2815 = s.8 * s.161;
             let t2816 = s.9 * s.163;
@@ -5258,12 +5278,12 @@ pub mod portable {
             let t3151 = s.41 * t3143;
             let t3152 = t3150 - t3151;
             let t3153 = t3145 + t3152;
-            dc_dq[4][4] = t3153;
+            dc_dq.36 = t3153;
             let t3154 = t2998 - t3003;
             let t3155 = t3154 - t3001;
             let t3156 = t3155 + t3155;
             let t3157 = t2968 + t3156;
-            dc_dqd[4][4] = t3157;
+            dc_dqd.36 = t3157;
             let t3158 = s.86 * t2742;
             let t3159 = s.87 * s.205;
             let t3160 = t3158 - t3159;
@@ -5279,7 +5299,7 @@ pub mod portable {
             let t3170 = s.42 * t2772;
             let t3171 = t3169 + t3170;
             let t3172 = t3166 + t3171;
-            dc_dq[5][4] = t3172;
+            dc_dq.44 = t3172;
             let t3173 = s.40 * t2742;
             let t3174 = s.39 * s.205;
             let t3175 = t3173 + t3174;
@@ -5287,7 +5307,7 @@ pub mod portable {
             let t3177 = t3175 + t3176;
             let t3178 = t3177 + t3177;
             let t3179 = t2781 + t3178;
-            dc_dqd[5][4] = t3179;
+            dc_dqd.44 = t3179;
             let t3180 = s.86 * t2786;
             let t3181 = s.87 * s.149;
             let t3182 = t3180 - t3181;
@@ -5307,7 +5327,7 @@ pub mod portable {
             let t3196 = s.41 * s.162;
             let t3197 = t3195 + t3196;
             let t3198 = t3190 + t3197;
-            dc_dq[6][4] = t3198;
+            dc_dq.52 = t3198;
             let t3199 = s.40 * t2786;
             let t3200 = s.39 * s.149;
             let t3201 = t3199 + t3200;
@@ -5317,7 +5337,7 @@ pub mod portable {
             let t3205 = t3203 + t3204;
             let t3206 = t3205 + t3205;
             let t3207 = t2821 + t3206;
-            dc_dqd[6][4] = t3207;
+            dc_dqd.52 = t3207;
             let t3208 = s.86 * t2826;
             let t3209 = s.87 * s.169;
             let t3210 = t3208 - t3209;
@@ -5413,7 +5433,7 @@ pub mod portable {
             let t3296 = t3286 + t3291;
             let t3297 = t3121 - t3292;
             let t3298 = t3290 + t3295;
-            dc_dqd[3][4] = t3298;
+            dc_dqd.28 = t3298;
             let t3299 = s.7 * t3138;
             let t3300 = s.6 * t3139;
             let t3301 = t3299 - t3300;
@@ -5436,7 +5456,7 @@ pub mod portable {
             let t3318 = t3308 + t3313;
             let t3319 = t3132 - t3314;
             let t3320 = t3312 + t3317;
-            dc_dq[3][4] = t3320;
+            dc_dq.28 = t3320;
             let t3321 = s.7 * t3142;
             let t3322 = s.6 * t3143;
             let t3323 = t3321 - t3322;
@@ -5493,7 +5513,7 @@ pub mod portable {
             let t3374 = t3365 + t3369;
             let t3375 = t2757 - t3370;
             let t3376 = t3368 + t3373;
-            dc_dqd[3][5] = t3376;
+            dc_dqd.29 = t3376;
             let t3377 = s.7 * t2760;
             let t3378 = s.6 * t2647;
             let t3379 = t3377 + t3378;
@@ -5514,7 +5534,7 @@ pub mod portable {
             let t3394 = t3385 + t3389;
             let t3395 = t2769 - t3390;
             let t3396 = t3388 + t3393;
-            dc_dq[3][5] = t3396;
+            dc_dq.29 = t3396;
             let t3397 = s.7 * t2772;
             let t3398 = s.6 * t2772;
             let t3399 = s.7 * t2778;
@@ -5573,7 +5593,7 @@ pub mod portable {
             let t3450 = t3441 + t3445;
             let t3451 = t2801 - t3446;
             let t3452 = t3444 + t3449;
-            dc_dqd[3][6] = t3452;
+            dc_dqd.30 = t3452;
             let t3453 = s.7 * t2804;
             let t3454 = s.6 * s.157;
             let t3455 = t3453 + t3454;
@@ -5595,7 +5615,7 @@ pub mod portable {
             let t3470 = t3461 + t3465;
             let t3471 = t2813 - t3466;
             let t3472 = t3464 + t3469;
-            dc_dq[3][6] = t3472;
+            dc_dq.30 = t3472;
             let t3473 = s.7 * t2814;
             let t3474 = s.6 * s.162;
             let t3475 = t3473 + t3474;
@@ -6075,12 +6095,12 @@ pub mod portable {
             let t3943 = s.31 * t3935;
             let t3944 = t3942 - t3943;
             let t3945 = t3937 + t3944;
-            dc_dq[3][3] = t3945;
+            dc_dq.27 = t3945;
             let t3946 = t3790 - t3795;
             let t3947 = t3946 - t3793;
             let t3948 = t3947 + t3947;
             let t3949 = t3750 + t3948;
-            dc_dqd[3][3] = t3949;
+            dc_dqd.27 = t3949;
             let t3950 = s.80 * t3274;
             let t3951 = s.81 * t3275;
             let t3952 = t3950 + t3951;
@@ -6096,7 +6116,7 @@ pub mod portable {
             let t3962 = s.32 * t3323;
             let t3963 = t3961 + t3962;
             let t3964 = t3958 + t3963;
-            dc_dq[4][3] = t3964;
+            dc_dq.35 = t3964;
             let t3965 = s.30 * t3274;
             let t3966 = s.29 * t3275;
             let t3967 = t3965 - t3966;
@@ -6104,7 +6124,7 @@ pub mod portable {
             let t3969 = t3967 + t3968;
             let t3970 = t3969 + t3969;
             let t3971 = t3340 + t3970;
-            dc_dqd[4][3] = t3971;
+            dc_dqd.35 = t3971;
             let t3972 = s.80 * t3354;
             let t3973 = s.81 * t3355;
             let t3974 = t3972 + t3973;
@@ -6124,7 +6144,7 @@ pub mod portable {
             let t3988 = s.31 * t2775;
             let t3989 = t3987 - t3988;
             let t3990 = t3982 + t3989;
-            dc_dq[5][3] = t3990;
+            dc_dq.43 = t3990;
             let t3991 = s.30 * t3354;
             let t3992 = s.29 * t3355;
             let t3993 = t3991 - t3992;
@@ -6134,7 +6154,7 @@ pub mod portable {
             let t3997 = t3995 - t3996;
             let t3998 = t3997 + t3997;
             let t3999 = t3412 + t3998;
-            dc_dqd[5][3] = t3999;
+            dc_dqd.43 = t3999;
             let t4000 = s.80 * t3430;
             let t4001 = s.81 * t3431;
             let t4002 = t4000 + t4001;
@@ -6154,7 +6174,7 @@ pub mod portable {
             let t4016 = s.31 * t2815;
             let t4017 = t4015 - t4016;
             let t4018 = t4010 + t4017;
-            dc_dq[6][3] = t4018;
+            dc_dq.51 = t4018;
             let t4019 = s.30 * t3430;
             let t4020 = s.29 * t3431;
             let t4021 = t4019 - t4020;
@@ -6164,7 +6184,7 @@ pub mod portable {
             let t4025 = t4023 - t4024;
             let t4026 = t4025 + t4025;
             let t4027 = t3492 + t4026;
-            dc_dqd[6][3] = t4027;
+            dc_dqd.51 = t4027;
             let t4028 = s.80 * t3510;
             let t4029 = s.81 * t3511;
             let t4030 = t4028 + t4029;
@@ -6253,7 +6273,7 @@ pub mod portable {
             let t4107 = t4101 - t4105;
             let t4108 = t4104 - t4106;
             s.289 = t4108;
-            dc_dqd[2][3] = t4108;
+            dc_dqd.19 = t4108;
             let t4109 = s.5 * t3930;
             let t4110 = s.4 * t3931;
             let t4111 = t4109 - t4110;
@@ -6272,7 +6292,7 @@ pub mod portable {
             let t4124 = t4118 - t4122;
             let t4125 = t4121 - t4123;
             s.290 = t4125;
-            dc_dq[2][3] = t4125;
+            dc_dq.19 = t4125;
             let t4126 = s.5 * t3934;
             let t4127 = s.4 * t3935;
             let t4128 = t4126 - t4127;
@@ -6322,7 +6342,7 @@ pub mod portable {
             let t4169 = t4163 - t4167;
             let t4170 = t4166 - t4168;
             s.294 = t4170;
-            dc_dqd[2][4] = t4170;
+            dc_dqd.20 = t4170;
             let t4171 = s.5 * t3301;
             let t4172 = s.4 * t3135;
             let t4173 = t4171 - t4172;
@@ -6341,7 +6361,7 @@ pub mod portable {
             let t4186 = t4180 - t4184;
             let t4187 = t4183 - t4185;
             s.295 = t4187;
-            dc_dq[2][4] = t4187;
+            dc_dq.20 = t4187;
             let t4188 = s.5 * t3323;
             let t4189 = s.4 * t3323;
             let t4190 = s.5 * t3338;
@@ -6393,7 +6413,7 @@ pub mod portable {
             let t4233 = t4227 - t4231;
             let t4234 = t4230 - t4232;
             s.299 = t4234;
-            dc_dqd[2][5] = t4234;
+            dc_dqd.21 = t4234;
             let t4235 = s.5 * t3379;
             let t4236 = s.4 * t2763;
             let t4237 = t4235 - t4236;
@@ -6412,7 +6432,7 @@ pub mod portable {
             let t4250 = t4244 - t4248;
             let t4251 = t4247 - t4249;
             s.300 = t4251;
-            dc_dq[2][5] = t4251;
+            dc_dq.21 = t4251;
             let t4252 = s.5 * t3397;
             let t4253 = s.4 * t2775;
             let t4254 = t4252 - t4253;
@@ -6473,7 +6493,7 @@ pub mod portable {
             s.308 = t4301;
             let t4302 = t4298 - t4300;
             s.309 = t4302;
-            dc_dqd[2][6] = t4302;
+            dc_dqd.22 = t4302;
             let t4303 = s.5 * t3455;
             let t4304 = s.4 * t2807;
             let t4305 = t4303 - t4304;
@@ -6495,7 +6515,7 @@ pub mod portable {
             s.312 = t4318;
             let t4319 = t4315 - t4317;
             s.313 = t4319;
-            dc_dq[2][6] = t4319;
+            dc_dq.22 = t4319;
             let t4320 = s.5 * t3475;
             let t4321 = s.4 * t2815;
             let t4322 = t4320 - t4321;
@@ -6943,12 +6963,12 @@ pub mod portable {
             let t4712 = s.21 * t4704;
             let t4713 = t4711 - t4712;
             let t4714 = t4706 + t4713;
-            dc_dq[2][2] = t4714;
+            dc_dq.18 = t4714;
             let t4715 = t4579 - t4584;
             let t4716 = t4715 - t4582;
             let t4717 = t4716 + t4716;
             let t4718 = t4544 + t4717;
-            dc_dqd[2][2] = t4718;
+            dc_dqd.18 = t4718;
             let t4719 = s.74 * t4085;
             let t4720 = s.75 * t4091;
             let t4721 = t4719 + t4720;
@@ -6964,7 +6984,7 @@ pub mod portable {
             let t4731 = s.22 * t4128;
             let t4732 = t4730 + t4731;
             let t4733 = t4727 + t4732;
-            dc_dq[3][2] = t4733;
+            dc_dq.26 = t4733;
             let t4734 = s.20 * t4085;
             let t4735 = s.19 * t4091;
             let t4736 = t4734 - t4735;
@@ -6972,7 +6992,7 @@ pub mod portable {
             let t4738 = t4736 + t4737;
             let t4739 = t4738 + t4738;
             let t4740 = t4138 + t4739;
-            dc_dqd[3][2] = t4740;
+            dc_dqd.26 = t4740;
             let t4741 = s.74 * t4145;
             let t4742 = s.75 * t4152;
             let t4743 = t4741 + t4742;
@@ -6992,7 +7012,7 @@ pub mod portable {
             let t4757 = s.21 * t3327;
             let t4758 = t4756 + t4757;
             let t4759 = t4751 + t4758;
-            dc_dq[4][2] = t4759;
+            dc_dq.34 = t4759;
             let t4760 = s.20 * t4145;
             let t4761 = s.19 * t4152;
             let t4762 = t4760 - t4761;
@@ -7002,7 +7022,7 @@ pub mod portable {
             let t4766 = t4764 + t4765;
             let t4767 = t4766 + t4766;
             let t4768 = t4200 + t4767;
-            dc_dqd[4][2] = t4768;
+            dc_dqd.34 = t4768;
             let t4769 = s.74 * t4209;
             let t4770 = s.75 * t4216;
             let t4771 = t4769 + t4770;
@@ -7022,7 +7042,7 @@ pub mod portable {
             let t4785 = s.21 * t3398;
             let t4786 = t4784 - t4785;
             let t4787 = t4779 + t4786;
-            dc_dq[5][2] = t4787;
+            dc_dq.42 = t4787;
             let t4788 = s.20 * t4209;
             let t4789 = s.19 * t4216;
             let t4790 = t4788 - t4789;
@@ -7032,7 +7052,7 @@ pub mod portable {
             let t4794 = t4792 - t4793;
             let t4795 = t4794 + t4794;
             let t4796 = t4268 + t4795;
-            dc_dqd[5][2] = t4796;
+            dc_dqd.42 = t4796;
             let t4797 = s.74 * t4277;
             let t4798 = s.75 * t4284;
             let t4799 = t4797 + t4798;
@@ -7052,7 +7072,7 @@ pub mod portable {
             let t4813 = s.21 * t3478;
             let t4814 = t4812 + t4813;
             let t4815 = t4807 + t4814;
-            dc_dq[6][2] = t4815;
+            dc_dq.50 = t4815;
             let t4816 = s.20 * t4277;
             let t4817 = s.19 * t4284;
             let t4818 = t4816 - t4817;
@@ -7062,7 +7082,7 @@ pub mod portable {
             let t4822 = t4820 + t4821;
             let t4823 = t4822 + t4822;
             let t4824 = t4336 + t4823;
-            dc_dqd[6][2] = t4824;
+            dc_dqd.50 = t4824;
             let t4825 = s.74 * t4345;
             let t4826 = s.75 * t4352;
             let t4827 = t4825 + t4826;
@@ -7159,7 +7179,7 @@ pub mod portable {
             let t4904 = t4898 + t4902;
             s.383 = t4904;
             let t4905 = t4901 - t4903;
-            dc_dqd[1][2] = t4905;
+            dc_dqd.10 = t4905;
             let t4906 = s.3 * t4699;
             let t4907 = s.2 * t4700;
             let t4908 = t4906 - t4907;
@@ -7177,7 +7197,7 @@ pub mod portable {
             let t4920 = t4914 + t4918;
             s.384 = t4920;
             let t4921 = t4917 - t4919;
-            dc_dq[1][2] = t4921;
+            dc_dq.10 = t4921;
             let t4922 = s.3 * t4703;
             let t4923 = s.2 * t4704;
             let t4924 = t4922 - t4923;
@@ -7228,7 +7248,7 @@ pub mod portable {
             let t4964 = t4958 + t4962;
             s.390 = t4964;
             let t4965 = t4961 - t4963;
-            dc_dqd[1][3] = t4965;
+            dc_dqd.11 = t4965;
             let t4966 = s.3 * t4111;
             let t4967 = s.2 * t3927;
             let t4968 = t4966 + t4967;
@@ -7246,7 +7266,7 @@ pub mod portable {
             let t4980 = t4974 + t4978;
             s.391 = t4980;
             let t4981 = t4977 - t4979;
-            dc_dq[1][3] = t4981;
+            dc_dq.11 = t4981;
             let t4982 = s.3 * t4128;
             let t4983 = s.2 * t4128;
             let t4984 = s.3 * t4134;
@@ -7297,7 +7317,7 @@ pub mod portable {
             let t5024 = t5018 + t5022;
             s.397 = t5024;
             let t5025 = t5021 - t5023;
-            dc_dqd[1][4] = t5025;
+            dc_dqd.12 = t5025;
             let t5026 = s.3 * t4173;
             let t5027 = s.2 * t3305;
             let t5028 = t5026 + t5027;
@@ -7315,7 +7335,7 @@ pub mod portable {
             let t5040 = t5034 + t5038;
             s.398 = t5040;
             let t5041 = t5037 - t5039;
-            dc_dq[1][4] = t5041;
+            dc_dq.12 = t5041;
             let t5042 = s.3 * t4188;
             let t5043 = s.2 * t3327;
             let t5044 = t5042 + t5043;
@@ -7370,7 +7390,7 @@ pub mod portable {
             let t5088 = t5082 + t5086;
             s.404 = t5088;
             let t5089 = t5085 - t5087;
-            dc_dqd[1][5] = t5089;
+            dc_dqd.13 = t5089;
             let t5090 = s.3 * t4237;
             let t5091 = s.2 * t3382;
             let t5092 = t5090 + t5091;
@@ -7388,7 +7408,7 @@ pub mod portable {
             let t5104 = t5098 + t5102;
             s.405 = t5104;
             let t5105 = t5101 - t5103;
-            dc_dq[1][5] = t5105;
+            dc_dq.13 = t5105;
             let t5106 = s.3 * t4254;
             let t5107 = s.2 * t3398;
             let t5108 = t5106 - t5107;
@@ -7428,6 +7448,12 @@ pub mod portable {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
             let t5126 = s.3 * s.267;
             let t5127 = s.409 - t5126;
             let t5128 = s.3 * s.303;
@@ -7456,7 +7482,7 @@ pub mod portable {
             let t5151 = lit::<T>(-0.316) * t5140;
             let t5152 = t5146 + t5150;
             let t5153 = t5149 - t5151;
-            dc_dqd[1][6] = t5153;
+            dc_dqd.14 = t5153;
             let t5154 = s.3 * s.310;
             let t5155 = s.2 * s.269;
             let t5156 = t5154 + t5155;
@@ -7473,7 +7499,7 @@ pub mod portable {
             let t5167 = lit::<T>(-0.316) * t5156;
             let t5168 = t5162 + t5166;
             let t5169 = t5165 - t5167;
-            dc_dq[1][6] = t5169;
+            dc_dq.14 = t5169;
             let t5170 = s.3 * s.314;
             let t5171 = s.2 * s.270;
             let t5172 = t5170 + t5171;
@@ -7758,7 +7784,7 @@ pub mod portable {
             let t5453 = t5448 + t5451;
             let t5454 = t5449 + t5452;
             let t5455 = t5390 + t5450;
-            dc_dqd[1][1] = t5455;
+            dc_dqd.9 = t5455;
             let t5456 = t5442 + t5446;
             let t5457 = t5445 + t5447;
             let t5458 = t5438 + t5456;
@@ -7773,7 +7799,7 @@ pub mod portable {
             let t5467 = s.10 * t5463;
             let t5468 = t5467 - t5466;
             let t5469 = t5465 + t5468;
-            dc_dq[1][1] = t5469;
+            dc_dq.9 = t5469;
             let t5470 = s.13 * s.381;
             let t5471 = -t5470;
             let t5472 = s.12 * s.351;
@@ -7787,14 +7813,14 @@ pub mod portable {
             let t5480 = s.10 * s.358;
             let t5481 = t5479 - t5480;
             let t5482 = t5477 + t5481;
-            dc_dq[2][1] = t5482;
+            dc_dq.17 = t5482;
             let t5483 = s.11 * s.381;
             let t5484 = -t5483;
             let t5485 = s.10 * s.351;
             let t5486 = t5484 - t5485;
             let t5487 = t5486 + t5486;
             let t5488 = s.386 + t5487;
-            dc_dqd[2][1] = t5488;
+            dc_dqd.17 = t5488;
             let t5489 = s.13 * s.388;
             let t5490 = -t5489;
             let t5491 = s.12 * s.288;
@@ -7810,14 +7836,14 @@ pub mod portable {
             let t5501 = s.10 * s.291;
             let t5502 = t5500 - t5501;
             let t5503 = t5498 + t5502;
-            dc_dq[3][1] = t5503;
+            dc_dq.25 = t5503;
             let t5504 = s.11 * s.388;
             let t5505 = -t5504;
             let t5506 = s.10 * s.288;
             let t5507 = t5505 - t5506;
             let t5508 = t5507 + t5507;
             let t5509 = s.393 + t5508;
-            dc_dqd[3][1] = t5509;
+            dc_dqd.25 = t5509;
             let t5510 = s.13 * s.395;
             let t5511 = -t5510;
             let t5512 = s.12 * s.293;
@@ -7833,14 +7859,14 @@ pub mod portable {
             let t5522 = s.10 * s.296;
             let t5523 = t5521 - t5522;
             let t5524 = t5519 + t5523;
-            dc_dq[4][1] = t5524;
+            dc_dq.33 = t5524;
             let t5525 = s.11 * s.395;
             let t5526 = -t5525;
             let t5527 = s.10 * s.293;
             let t5528 = t5526 - t5527;
             let t5529 = t5528 + t5528;
             let t5530 = s.400 + t5529;
-            dc_dqd[4][1] = t5530;
+            dc_dqd.33 = t5530;
             let t5531 = s.13 * s.402;
             let t5532 = -t5531;
             let t5533 = s.12 * s.298;
@@ -7856,14 +7882,14 @@ pub mod portable {
             let t5543 = s.10 * s.301;
             let t5544 = t5542 - t5543;
             let t5545 = t5540 + t5544;
-            dc_dq[5][1] = t5545;
+            dc_dq.41 = t5545;
             let t5546 = s.11 * s.402;
             let t5547 = -t5546;
             let t5548 = s.10 * s.298;
             let t5549 = t5547 - t5548;
             let t5550 = t5549 + t5549;
             let t5551 = s.407 + t5550;
-            dc_dqd[5][1] = t5551;
+            dc_dqd.41 = t5551;
             let t5552 = s.13 * t5136;
             let t5553 = -t5552;
             let t5554 = s.12 * s.305;
@@ -7879,14 +7905,14 @@ pub mod portable {
             let t5564 = s.10 * s.317;
             let t5565 = t5563 - t5564;
             let t5566 = t5561 + t5565;
-            dc_dq[6][1] = t5566;
+            dc_dq.49 = t5566;
             let t5567 = s.11 * t5136;
             let t5568 = -t5567;
             let t5569 = s.10 * s.305;
             let t5570 = t5568 - t5569;
             let t5571 = t5570 + t5570;
             let t5572 = t5185 + t5571;
-            dc_dqd[6][1] = t5572;
+            dc_dqd.49 = t5572;
             let t5573 = s.13 * t5200;
             let t5574 = -t5573;
             let t5575 = s.12 * s.322;
@@ -7933,77 +7959,77 @@ pub mod portable {
             let t5616 = -t5615;
             let t5617 = s.1 * t5454;
             let t5618 = t5616 - t5617;
-            dc_dqd[0][1] = t5618;
+            dc_dqd.1 = t5618;
             let t5619 = s.0 * t5460;
             let t5620 = -t5619;
             let t5621 = s.1 * t5461;
             let t5622 = t5620 - t5621;
-            dc_dq[0][1] = t5622;
+            dc_dq.1 = t5622;
             let t5623 = s.0 * t5462;
             let t5624 = -t5623;
             let t5625 = s.1 * t5463;
             let t5626 = t5624 - t5625;
-            dc_dqd[1][0] = t5626;
+            dc_dqd.8 = t5626;
             let t5627 = s.0 * s.383;
             let t5628 = s.1 * s.367;
             let t5629 = t5628 - t5627;
-            dc_dqd[0][2] = t5629;
+            dc_dqd.2 = t5629;
             let t5630 = s.0 * s.384;
             let t5631 = s.1 * s.368;
             let t5632 = t5631 - t5630;
-            dc_dq[0][2] = t5632;
+            dc_dq.2 = t5632;
             let t5633 = s.0 * s.385;
             let t5634 = s.1 * s.358;
             let t5635 = t5634 - t5633;
-            dc_dqd[2][0] = t5635;
+            dc_dqd.16 = t5635;
             let t5636 = s.0 * s.390;
             let t5637 = s.1 * s.289;
             let t5638 = t5637 - t5636;
-            dc_dqd[0][3] = t5638;
+            dc_dqd.3 = t5638;
             let t5639 = s.0 * s.391;
             let t5640 = s.1 * s.290;
             let t5641 = t5640 - t5639;
-            dc_dq[0][3] = t5641;
+            dc_dq.3 = t5641;
             let t5642 = s.0 * s.392;
             let t5643 = s.1 * s.291;
             let t5644 = t5643 - t5642;
-            dc_dqd[3][0] = t5644;
+            dc_dqd.24 = t5644;
             let t5645 = s.0 * s.397;
             let t5646 = s.1 * s.294;
             let t5647 = t5646 - t5645;
-            dc_dqd[0][4] = t5647;
+            dc_dqd.4 = t5647;
             let t5648 = s.0 * s.398;
             let t5649 = s.1 * s.295;
             let t5650 = t5649 - t5648;
-            dc_dq[0][4] = t5650;
+            dc_dq.4 = t5650;
             let t5651 = s.0 * s.399;
             let t5652 = s.1 * s.296;
             let t5653 = t5652 - t5651;
-            dc_dqd[4][0] = t5653;
+            dc_dqd.32 = t5653;
             let t5654 = s.0 * s.404;
             let t5655 = s.1 * s.299;
             let t5656 = t5655 - t5654;
-            dc_dqd[0][5] = t5656;
+            dc_dqd.5 = t5656;
             let t5657 = s.0 * s.405;
             let t5658 = s.1 * s.300;
             let t5659 = t5658 - t5657;
-            dc_dq[0][5] = t5659;
+            dc_dq.5 = t5659;
             let t5660 = s.0 * s.406;
             let t5661 = s.1 * s.301;
             let t5662 = t5661 - t5660;
-            dc_dqd[5][0] = t5662;
+            dc_dqd.40 = t5662;
             let t5663 = s.0 * t5152;
             let t5664 = s.1 * s.309;
             let t5665 = t5664 - t5663;
-            dc_dqd[0][6] = t5665;
+            dc_dqd.6 = t5665;
             let t5666 = s.0 * t5168;
             let t5667 = s.1 * s.313;
             let t5668 = t5667 - t5666;
-            dc_dq[0][6] = t5668;
+            dc_dq.6 = t5668;
             let t5669 = s.0 * t5184;
             let t5670 = s.1 * s.317;
             let t5671 = t5670 - t5669;
-            dc_dqd[6][0] = t5671;
+            dc_dqd.48 = t5671;
             let t5672 = s.0 * t5216;
             let t5673 = s.1 * s.326;
             let t5674 = t5673 - t5672;
@@ -8034,63 +8060,63 @@ pub mod portable {
             let t5699 = -t5698;
             let t5700 = s.1 * t5697;
             let t5701 = t5699 - t5700;
-            dc_dqd[0][0] = t5701;
+            dc_dqd.0 = t5701;
             let t5702 = t5677 + t5686;
-            dc_dq[0][7] = t5702;
+            dc_dq.7 = t5702;
             let t5703 = t5233 + t5287;
-            dc_dq[1][7] = t5703;
+            dc_dq.15 = t5703;
             let t5704 = s.330 + s.345;
-            dc_dq[2][7] = t5704;
+            dc_dq.23 = t5704;
             let t5705 = s.275 + s.281;
-            dc_dq[3][7] = t5705;
+            dc_dq.31 = t5705;
             let t5706 = s.260 + s.262;
-            dc_dq[4][7] = t5706;
+            dc_dq.39 = t5706;
             let t5707 = s.180 + s.197;
-            dc_dq[5][7] = t5707;
+            dc_dq.47 = t5707;
             let t5708 = s.133 + s.139;
-            dc_dq[6][7] = t5708;
+            dc_dq.55 = t5708;
             let t5709 = t5587 + t5608;
-            dc_dq[7][1] = t5709;
+            dc_dq.57 = t5709;
             let t5710 = s.369 + s.371;
-            dc_dq[7][2] = t5710;
+            dc_dq.58 = t5710;
             let t5711 = s.283 + s.285;
-            dc_dq[7][3] = t5711;
+            dc_dq.59 = t5711;
             let t5712 = s.263 + s.265;
-            dc_dq[7][4] = t5712;
+            dc_dq.60 = t5712;
             let t5713 = s.255 + s.257;
-            dc_dq[7][5] = t5713;
+            dc_dq.61 = t5713;
             let t5714 = s.142 + s.144;
-            dc_dq[7][6] = t5714;
+            dc_dq.62 = t5714;
             let t5715 = s.131 + s.134;
-            dc_dq[7][7] = t5715;
+            dc_dq.63 = t5715;
             let t5716 = t5674 + t5683;
-            dc_dqd[0][7] = t5716;
+            dc_dqd.7 = t5716;
             let t5717 = t5217 + t5271;
-            dc_dqd[1][7] = t5717;
+            dc_dqd.15 = t5717;
             let t5718 = s.326 + s.341;
-            dc_dqd[2][7] = t5718;
+            dc_dqd.23 = t5718;
             let t5719 = s.273 + s.279;
-            dc_dqd[3][7] = t5719;
+            dc_dqd.31 = t5719;
             let t5720 = s.259 + s.261;
-            dc_dqd[4][7] = t5720;
+            dc_dqd.39 = t5720;
             let t5721 = s.175 + s.192;
-            dc_dqd[5][7] = t5721;
+            dc_dqd.47 = t5721;
             let t5722 = s.132 + s.138;
-            dc_dqd[6][7] = t5722;
+            dc_dqd.55 = t5722;
             let t5723 = t5680 + t5689;
-            dc_dqd[7][0] = t5723;
+            dc_dqd.56 = t5723;
             let t5724 = t5593 + t5614;
-            dc_dqd[7][1] = t5724;
+            dc_dqd.57 = t5724;
             let t5725 = s.370 + s.372;
-            dc_dqd[7][2] = t5725;
+            dc_dqd.58 = t5725;
             let t5726 = s.284 + s.286;
-            dc_dqd[7][3] = t5726;
+            dc_dqd.59 = t5726;
             let t5727 = s.264 + s.266;
-            dc_dqd[7][4] = t5727;
+            dc_dqd.60 = t5727;
             let t5728 = s.256 + s.258;
-            dc_dqd[7][5] = t5728;
+            dc_dqd.61 = t5728;
             let t5729 = s.143 + s.145;
-            dc_dqd[7][6] = t5729;
+            dc_dqd.62 = t5729;
         }
     }
     use rnea_grad_part2::rnea_grad_part2;
@@ -8887,6 +8913,14 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 64 entries of `minv`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct minv_f64<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T,
+    );
     mod minv_part0 {
         use super::*;
         #[inline(never)]
@@ -8896,6 +8930,7 @@ pub mod portable {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f64<T>) };
             let t3 = q[1].sin();
             let t4 = q[1].cos();
             let t13 = q[2].sin();
@@ -11490,6 +11525,7 @@ pub mod portable {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f64<T>) };
             let t2611 = s.80 + s.81;
             let t2612 = s.17 * s.57;
             let t2613 = t2611 - t2612;
@@ -11692,140 +11728,140 @@ pub mod portable {
             let t2810 = t2800 / t2802;
             let t2811 = t2793 * t2803;
             let t2812 = s.24 - t2811;
-            minv[0][0] = t2812;
+            minv.0 = t2812;
             let t2813 = t2794 * t2803;
             let t2814 = s.25 - t2813;
-            minv[0][1] = t2814;
-            minv[1][0] = t2814;
+            minv.1 = t2814;
+            minv.8 = t2814;
             let t2815 = t2795 * t2803;
             let t2816 = s.26 - t2815;
-            minv[0][2] = t2816;
-            minv[2][0] = t2816;
+            minv.2 = t2816;
+            minv.16 = t2816;
             let t2817 = t2796 * t2803;
             let t2818 = s.27 - t2817;
-            minv[0][3] = t2818;
-            minv[3][0] = t2818;
+            minv.3 = t2818;
+            minv.24 = t2818;
             let t2819 = t2797 * t2803;
             let t2820 = s.28 - t2819;
-            minv[0][4] = t2820;
-            minv[4][0] = t2820;
+            minv.4 = t2820;
+            minv.32 = t2820;
             let t2821 = t2798 * t2803;
             let t2822 = s.29 - t2821;
-            minv[0][5] = t2822;
-            minv[5][0] = t2822;
+            minv.5 = t2822;
+            minv.40 = t2822;
             let t2823 = t2799 * t2803;
             let t2824 = s.30 - t2823;
-            minv[0][6] = t2824;
-            minv[6][0] = t2824;
+            minv.6 = t2824;
+            minv.48 = t2824;
             let t2825 = t2800 * t2803;
             let t2826 = s.32 - t2825;
-            minv[0][7] = t2826;
-            minv[7][0] = t2826;
+            minv.7 = t2826;
+            minv.56 = t2826;
             let t2827 = t2794 * t2804;
             let t2828 = s.34 - t2827;
-            minv[1][1] = t2828;
+            minv.9 = t2828;
             let t2829 = t2795 * t2804;
             let t2830 = s.35 - t2829;
-            minv[1][2] = t2830;
-            minv[2][1] = t2830;
+            minv.10 = t2830;
+            minv.17 = t2830;
             let t2831 = t2796 * t2804;
             let t2832 = s.36 - t2831;
-            minv[1][3] = t2832;
-            minv[3][1] = t2832;
+            minv.11 = t2832;
+            minv.25 = t2832;
             let t2833 = t2797 * t2804;
             let t2834 = s.37 - t2833;
-            minv[1][4] = t2834;
-            minv[4][1] = t2834;
+            minv.12 = t2834;
+            minv.33 = t2834;
             let t2835 = t2798 * t2804;
             let t2836 = s.38 - t2835;
-            minv[1][5] = t2836;
-            minv[5][1] = t2836;
+            minv.13 = t2836;
+            minv.41 = t2836;
             let t2837 = t2799 * t2804;
             let t2838 = s.39 - t2837;
-            minv[1][6] = t2838;
-            minv[6][1] = t2838;
+            minv.14 = t2838;
+            minv.49 = t2838;
             let t2839 = t2800 * t2804;
             let t2840 = s.40 - t2839;
-            minv[1][7] = t2840;
-            minv[7][1] = t2840;
+            minv.15 = t2840;
+            minv.57 = t2840;
             let t2841 = t2795 * t2805;
             let t2842 = s.42 - t2841;
-            minv[2][2] = t2842;
+            minv.18 = t2842;
             let t2843 = t2796 * t2805;
             let t2844 = s.43 - t2843;
-            minv[2][3] = t2844;
-            minv[3][2] = t2844;
+            minv.19 = t2844;
+            minv.26 = t2844;
             let t2845 = t2797 * t2805;
             let t2846 = s.44 - t2845;
-            minv[2][4] = t2846;
-            minv[4][2] = t2846;
+            minv.20 = t2846;
+            minv.34 = t2846;
             let t2847 = t2798 * t2805;
             let t2848 = s.45 - t2847;
-            minv[2][5] = t2848;
-            minv[5][2] = t2848;
+            minv.21 = t2848;
+            minv.42 = t2848;
             let t2849 = t2799 * t2805;
             let t2850 = s.46 - t2849;
-            minv[2][6] = t2850;
-            minv[6][2] = t2850;
+            minv.22 = t2850;
+            minv.50 = t2850;
             let t2851 = t2800 * t2805;
             let t2852 = s.47 - t2851;
-            minv[2][7] = t2852;
-            minv[7][2] = t2852;
+            minv.23 = t2852;
+            minv.58 = t2852;
             let t2853 = t2796 * t2806;
             let t2854 = s.49 - t2853;
-            minv[3][3] = t2854;
+            minv.27 = t2854;
             let t2855 = t2797 * t2806;
             let t2856 = s.50 - t2855;
-            minv[3][4] = t2856;
-            minv[4][3] = t2856;
+            minv.28 = t2856;
+            minv.35 = t2856;
             let t2857 = t2798 * t2806;
             let t2858 = s.51 - t2857;
-            minv[3][5] = t2858;
-            minv[5][3] = t2858;
+            minv.29 = t2858;
+            minv.43 = t2858;
             let t2859 = t2799 * t2806;
             let t2860 = s.52 - t2859;
-            minv[3][6] = t2860;
-            minv[6][3] = t2860;
+            minv.30 = t2860;
+            minv.51 = t2860;
             let t2861 = t2800 * t2806;
             let t2862 = s.53 - t2861;
-            minv[3][7] = t2862;
-            minv[7][3] = t2862;
+            minv.31 = t2862;
+            minv.59 = t2862;
             let t2863 = t2797 * t2807;
             let t2864 = s.55 - t2863;
-            minv[4][4] = t2864;
+            minv.36 = t2864;
             let t2865 = t2798 * t2807;
             let t2866 = s.56 - t2865;
-            minv[4][5] = t2866;
-            minv[5][4] = t2866;
+            minv.37 = t2866;
+            minv.44 = t2866;
             let t2867 = t2799 * t2807;
             let t2868 = s.59 - t2867;
-            minv[4][6] = t2868;
-            minv[6][4] = t2868;
+            minv.38 = t2868;
+            minv.52 = t2868;
             let t2869 = t2800 * t2807;
             let t2870 = s.65 - t2869;
-            minv[4][7] = t2870;
-            minv[7][4] = t2870;
+            minv.39 = t2870;
+            minv.60 = t2870;
             let t2871 = t2798 * t2808;
             let t2872 = s.74 - t2871;
-            minv[5][5] = t2872;
+            minv.45 = t2872;
             let t2873 = t2799 * t2808;
             let t2874 = t2621 - t2873;
-            minv[5][6] = t2874;
-            minv[6][5] = t2874;
+            minv.46 = t2874;
+            minv.53 = t2874;
             let t2875 = t2800 * t2808;
             let t2876 = t2648 - t2875;
-            minv[5][7] = t2876;
-            minv[7][5] = t2876;
+            minv.47 = t2876;
+            minv.61 = t2876;
             let t2877 = t2799 * t2809;
             let t2878 = t2701 - t2877;
-            minv[6][6] = t2878;
+            minv.54 = t2878;
             let t2879 = t2800 * t2809;
             let t2880 = t2726 - t2879;
-            minv[6][7] = t2880;
-            minv[7][6] = t2880;
+            minv.55 = t2880;
+            minv.62 = t2880;
             let t2881 = t2800 * t2810;
             let t2882 = t2767 - t2881;
-            minv[7][7] = t2882;
+            minv.63 = t2882;
         }
     }
     use minv_part1::minv_part1;
@@ -11848,6 +11884,10 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 8 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f8<T>(T, T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -11859,6 +11899,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f8<T>) };
             let t3 = q[1].sin();
             s.0 = t3;
             let t4 = q[1].cos();
@@ -14442,6 +14483,7 @@ pub mod portable {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f8<T>) };
             let t2636 = s.18 * s.62;
             let t2637 = s.19 * s.62;
             let t2638 = lit::<T>(-0.11695546160825496) - s.66;
@@ -15125,28 +15167,28 @@ pub mod portable {
             let t3316 = s.60 - s.59;
             let t3317 = t3308 * t3316;
             let t3318 = s.52 - t3317;
-            qdd[0] = t3318;
+            qdd.0 = t3318;
             let t3319 = t3309 * t3316;
             let t3320 = s.53 - t3319;
-            qdd[1] = t3320;
+            qdd.1 = t3320;
             let t3321 = t3310 * t3316;
             let t3322 = s.54 - t3321;
-            qdd[2] = t3322;
+            qdd.2 = t3322;
             let t3323 = t3311 * t3316;
             let t3324 = s.55 - t3323;
-            qdd[3] = t3324;
+            qdd.3 = t3324;
             let t3325 = t3312 * t3316;
             let t3326 = s.56 - t3325;
-            qdd[4] = t3326;
+            qdd.4 = t3326;
             let t3327 = t3313 * t3316;
             let t3328 = s.57 - t3327;
-            qdd[5] = t3328;
+            qdd.5 = t3328;
             let t3329 = t3314 * t3316;
             let t3330 = s.58 - t3329;
-            qdd[6] = t3330;
+            qdd.6 = t3330;
             let t3331 = t3315 * t3316;
             let t3332 = s.59 - t3331;
-            qdd[7] = t3332;
+            qdd.7 = t3332;
         }
     }
     use fd_part1::fd_part1;
@@ -15192,6 +15234,18 @@ pub mod portable {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 8 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f8<T>(T, T, T, T, T, T, T, T);
+    /// An array of 64 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f64<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -15205,6 +15259,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t4 = q[1].sin();
             s.0 = t4;
             let t5 = q[1].cos();
@@ -18076,6 +18137,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t2643 = s.353 - s.354;
             let t2644 = s.10 * s.275;
             let t2645 = s.11 * s.276;
@@ -19701,28 +19769,28 @@ pub mod portable {
             let t4265 = s.347 - s.346;
             let t4266 = t4257 * t4265;
             let t4267 = s.336 - t4266;
-            qdd[0] = t4267;
+            qdd.0 = t4267;
             let t4268 = t4258 * t4265;
             let t4269 = s.340 - t4268;
-            qdd[1] = t4269;
+            qdd.1 = t4269;
             let t4270 = t4259 * t4265;
             let t4271 = s.341 - t4270;
-            qdd[2] = t4271;
+            qdd.2 = t4271;
             let t4272 = t4260 * t4265;
             let t4273 = s.342 - t4272;
-            qdd[3] = t4273;
+            qdd.3 = t4273;
             let t4274 = t4261 * t4265;
             let t4275 = s.343 - t4274;
-            qdd[4] = t4275;
+            qdd.4 = t4275;
             let t4276 = t4262 * t4265;
             let t4277 = s.344 - t4276;
-            qdd[5] = t4277;
+            qdd.5 = t4277;
             let t4278 = t4263 * t4265;
             let t4279 = s.345 - t4278;
-            qdd[6] = t4279;
+            qdd.6 = t4279;
             let t4280 = t4264 * t4265;
             let t4281 = s.346 - t4280;
-            qdd[7] = t4281;
+            qdd.7 = t4281;
             let t4282 = t4247 * t4257;
             let t4283 = s.335 - t4282;
             s.355 = t4283;
@@ -20718,6 +20786,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t5144 = s.465 + s.466;
             let t5145 = t5144 - s.44;
             s.16 = t5145;
@@ -23442,6 +23517,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t7662 = s.503 + s.504;
             let t7663 = s.430 * s.301;
             let t7664 = t7662 + t7663;
@@ -25226,7 +25308,7 @@ pub mod portable {
             let t9373 = s.362 * t9339;
             let t9374 = t9372 + t9373;
             let t9375 = -t9374;
-            dqdd_dq[0][1] = t9375;
+            dqdd_dq.1 = t9375;
             let t9376 = s.355 * t9262;
             let t9377 = s.356 * t8551;
             let t9378 = t9376 + t9377;
@@ -25243,7 +25325,7 @@ pub mod portable {
             let t9389 = s.362 * t9340;
             let t9390 = t9388 + t9389;
             let t9391 = -t9390;
-            dqdd_dq[0][2] = t9391;
+            dqdd_dq.2 = t9391;
             let t9392 = s.355 * t9271;
             let t9393 = s.356 * t8611;
             let t9394 = t9392 + t9393;
@@ -25260,7 +25342,7 @@ pub mod portable {
             let t9405 = s.362 * t9341;
             let t9406 = t9404 + t9405;
             let t9407 = -t9406;
-            dqdd_dq[0][3] = t9407;
+            dqdd_dq.3 = t9407;
             let t9408 = s.355 * t9280;
             let t9409 = s.356 * t8671;
             let t9410 = t9408 + t9409;
@@ -25277,7 +25359,7 @@ pub mod portable {
             let t9421 = s.362 * t9342;
             let t9422 = t9420 + t9421;
             let t9423 = -t9422;
-            dqdd_dq[0][4] = t9423;
+            dqdd_dq.4 = t9423;
             let t9424 = s.355 * t9289;
             let t9425 = s.356 * t8735;
             let t9426 = t9424 + t9425;
@@ -25294,7 +25376,7 @@ pub mod portable {
             let t9437 = s.362 * t9343;
             let t9438 = t9436 + t9437;
             let t9439 = -t9438;
-            dqdd_dq[0][5] = t9439;
+            dqdd_dq.5 = t9439;
             let t9440 = s.355 * t9298;
             let t9441 = s.356 * t8799;
             let t9442 = t9440 + t9441;
@@ -25311,7 +25393,7 @@ pub mod portable {
             let t9453 = s.362 * t9344;
             let t9454 = t9452 + t9453;
             let t9455 = -t9454;
-            dqdd_dq[0][6] = t9455;
+            dqdd_dq.6 = t9455;
             let t9456 = s.355 * t9332;
             let t9457 = s.356 * t9333;
             let t9458 = t9456 + t9457;
@@ -25328,7 +25410,7 @@ pub mod portable {
             let t9469 = s.362 * t9345;
             let t9470 = t9468 + t9469;
             let t9471 = -t9470;
-            dqdd_dq[0][7] = t9471;
+            dqdd_dq.7 = t9471;
             let t9472 = s.356 * t9252;
             let t9473 = s.363 * t9099;
             let t9474 = t9472 + t9473;
@@ -25345,7 +25427,7 @@ pub mod portable {
             let t9485 = s.369 * t9339;
             let t9486 = t9484 + t9485;
             let t9487 = -t9486;
-            dqdd_dq[1][1] = t9487;
+            dqdd_dq.9 = t9487;
             let t9488 = s.356 * t9262;
             let t9489 = s.363 * t8551;
             let t9490 = t9488 + t9489;
@@ -25362,7 +25444,7 @@ pub mod portable {
             let t9501 = s.369 * t9340;
             let t9502 = t9500 + t9501;
             let t9503 = -t9502;
-            dqdd_dq[1][2] = t9503;
+            dqdd_dq.10 = t9503;
             let t9504 = s.356 * t9271;
             let t9505 = s.363 * t8611;
             let t9506 = t9504 + t9505;
@@ -25379,7 +25461,7 @@ pub mod portable {
             let t9517 = s.369 * t9341;
             let t9518 = t9516 + t9517;
             let t9519 = -t9518;
-            dqdd_dq[1][3] = t9519;
+            dqdd_dq.11 = t9519;
             let t9520 = s.356 * t9280;
             let t9521 = s.363 * t8671;
             let t9522 = t9520 + t9521;
@@ -25396,7 +25478,7 @@ pub mod portable {
             let t9533 = s.369 * t9342;
             let t9534 = t9532 + t9533;
             let t9535 = -t9534;
-            dqdd_dq[1][4] = t9535;
+            dqdd_dq.12 = t9535;
             let t9536 = s.356 * t9289;
             let t9537 = s.363 * t8735;
             let t9538 = t9536 + t9537;
@@ -25413,7 +25495,7 @@ pub mod portable {
             let t9549 = s.369 * t9343;
             let t9550 = t9548 + t9549;
             let t9551 = -t9550;
-            dqdd_dq[1][5] = t9551;
+            dqdd_dq.13 = t9551;
             let t9552 = s.356 * t9298;
             let t9553 = s.363 * t8799;
             let t9554 = t9552 + t9553;
@@ -25430,7 +25512,7 @@ pub mod portable {
             let t9565 = s.369 * t9344;
             let t9566 = t9564 + t9565;
             let t9567 = -t9566;
-            dqdd_dq[1][6] = t9567;
+            dqdd_dq.14 = t9567;
             let t9568 = s.356 * t9332;
             let t9569 = s.363 * t9333;
             let t9570 = t9568 + t9569;
@@ -25447,7 +25529,7 @@ pub mod portable {
             let t9581 = s.369 * t9345;
             let t9582 = t9580 + t9581;
             let t9583 = -t9582;
-            dqdd_dq[1][7] = t9583;
+            dqdd_dq.15 = t9583;
             let t9584 = s.357 * t9252;
             let t9585 = s.364 * t9099;
             let t9586 = t9584 + t9585;
@@ -25464,7 +25546,7 @@ pub mod portable {
             let t9597 = s.375 * t9339;
             let t9598 = t9596 + t9597;
             let t9599 = -t9598;
-            dqdd_dq[2][1] = t9599;
+            dqdd_dq.17 = t9599;
             let t9600 = s.357 * t9262;
             let t9601 = s.364 * t8551;
             let t9602 = t9600 + t9601;
@@ -25481,7 +25563,7 @@ pub mod portable {
             let t9613 = s.375 * t9340;
             let t9614 = t9612 + t9613;
             let t9615 = -t9614;
-            dqdd_dq[2][2] = t9615;
+            dqdd_dq.18 = t9615;
             let t9616 = s.357 * t9271;
             let t9617 = s.364 * t8611;
             let t9618 = t9616 + t9617;
@@ -25498,7 +25580,7 @@ pub mod portable {
             let t9629 = s.375 * t9341;
             let t9630 = t9628 + t9629;
             let t9631 = -t9630;
-            dqdd_dq[2][3] = t9631;
+            dqdd_dq.19 = t9631;
             let t9632 = s.357 * t9280;
             let t9633 = s.364 * t8671;
             let t9634 = t9632 + t9633;
@@ -25515,7 +25597,7 @@ pub mod portable {
             let t9645 = s.375 * t9342;
             let t9646 = t9644 + t9645;
             let t9647 = -t9646;
-            dqdd_dq[2][4] = t9647;
+            dqdd_dq.20 = t9647;
             let t9648 = s.357 * t9289;
             let t9649 = s.364 * t8735;
             let t9650 = t9648 + t9649;
@@ -25532,7 +25614,7 @@ pub mod portable {
             let t9661 = s.375 * t9343;
             let t9662 = t9660 + t9661;
             let t9663 = -t9662;
-            dqdd_dq[2][5] = t9663;
+            dqdd_dq.21 = t9663;
             let t9664 = s.357 * t9298;
             let t9665 = s.364 * t8799;
             let t9666 = t9664 + t9665;
@@ -25549,7 +25631,7 @@ pub mod portable {
             let t9677 = s.375 * t9344;
             let t9678 = t9676 + t9677;
             let t9679 = -t9678;
-            dqdd_dq[2][6] = t9679;
+            dqdd_dq.22 = t9679;
             let t9680 = s.357 * t9332;
             let t9681 = s.364 * t9333;
             let t9682 = t9680 + t9681;
@@ -25566,7 +25648,7 @@ pub mod portable {
             let t9693 = s.375 * t9345;
             let t9694 = t9692 + t9693;
             let t9695 = -t9694;
-            dqdd_dq[2][7] = t9695;
+            dqdd_dq.23 = t9695;
             let t9696 = s.358 * t9252;
             let t9697 = s.365 * t9099;
             let t9698 = t9696 + t9697;
@@ -25583,7 +25665,7 @@ pub mod portable {
             let t9709 = s.380 * t9339;
             let t9710 = t9708 + t9709;
             let t9711 = -t9710;
-            dqdd_dq[3][1] = t9711;
+            dqdd_dq.25 = t9711;
             let t9712 = s.358 * t9262;
             let t9713 = s.365 * t8551;
             let t9714 = t9712 + t9713;
@@ -25600,7 +25682,7 @@ pub mod portable {
             let t9725 = s.380 * t9340;
             let t9726 = t9724 + t9725;
             let t9727 = -t9726;
-            dqdd_dq[3][2] = t9727;
+            dqdd_dq.26 = t9727;
             let t9728 = s.358 * t9271;
             let t9729 = s.365 * t8611;
             let t9730 = t9728 + t9729;
@@ -25617,7 +25699,7 @@ pub mod portable {
             let t9741 = s.380 * t9341;
             let t9742 = t9740 + t9741;
             let t9743 = -t9742;
-            dqdd_dq[3][3] = t9743;
+            dqdd_dq.27 = t9743;
             let t9744 = s.358 * t9280;
             let t9745 = s.365 * t8671;
             let t9746 = t9744 + t9745;
@@ -25634,7 +25716,7 @@ pub mod portable {
             let t9757 = s.380 * t9342;
             let t9758 = t9756 + t9757;
             let t9759 = -t9758;
-            dqdd_dq[3][4] = t9759;
+            dqdd_dq.28 = t9759;
             let t9760 = s.358 * t9289;
             let t9761 = s.365 * t8735;
             let t9762 = t9760 + t9761;
@@ -25651,7 +25733,7 @@ pub mod portable {
             let t9773 = s.380 * t9343;
             let t9774 = t9772 + t9773;
             let t9775 = -t9774;
-            dqdd_dq[3][5] = t9775;
+            dqdd_dq.29 = t9775;
             let t9776 = s.358 * t9298;
             let t9777 = s.365 * t8799;
             let t9778 = t9776 + t9777;
@@ -25668,7 +25750,7 @@ pub mod portable {
             let t9789 = s.380 * t9344;
             let t9790 = t9788 + t9789;
             let t9791 = -t9790;
-            dqdd_dq[3][6] = t9791;
+            dqdd_dq.30 = t9791;
             let t9792 = s.358 * t9332;
             let t9793 = s.365 * t9333;
             let t9794 = t9792 + t9793;
@@ -25685,7 +25767,7 @@ pub mod portable {
             let t9805 = s.380 * t9345;
             let t9806 = t9804 + t9805;
             let t9807 = -t9806;
-            dqdd_dq[3][7] = t9807;
+            dqdd_dq.31 = t9807;
             let t9808 = s.359 * t9252;
             let t9809 = s.366 * t9099;
             let t9810 = t9808 + t9809;
@@ -25702,7 +25784,7 @@ pub mod portable {
             let t9821 = s.384 * t9339;
             let t9822 = t9820 + t9821;
             let t9823 = -t9822;
-            dqdd_dq[4][1] = t9823;
+            dqdd_dq.33 = t9823;
             let t9824 = s.359 * t9262;
             let t9825 = s.366 * t8551;
             let t9826 = t9824 + t9825;
@@ -25719,7 +25801,7 @@ pub mod portable {
             let t9837 = s.384 * t9340;
             let t9838 = t9836 + t9837;
             let t9839 = -t9838;
-            dqdd_dq[4][2] = t9839;
+            dqdd_dq.34 = t9839;
             let t9840 = s.359 * t9271;
             let t9841 = s.366 * t8611;
             let t9842 = t9840 + t9841;
@@ -25736,7 +25818,7 @@ pub mod portable {
             let t9853 = s.384 * t9341;
             let t9854 = t9852 + t9853;
             let t9855 = -t9854;
-            dqdd_dq[4][3] = t9855;
+            dqdd_dq.35 = t9855;
             let t9856 = s.359 * t9280;
             let t9857 = s.366 * t8671;
             let t9858 = t9856 + t9857;
@@ -25753,7 +25835,7 @@ pub mod portable {
             let t9869 = s.384 * t9342;
             let t9870 = t9868 + t9869;
             let t9871 = -t9870;
-            dqdd_dq[4][4] = t9871;
+            dqdd_dq.36 = t9871;
             let t9872 = s.359 * t9289;
             let t9873 = s.366 * t8735;
             let t9874 = t9872 + t9873;
@@ -25770,7 +25852,7 @@ pub mod portable {
             let t9885 = s.384 * t9343;
             let t9886 = t9884 + t9885;
             let t9887 = -t9886;
-            dqdd_dq[4][5] = t9887;
+            dqdd_dq.37 = t9887;
             let t9888 = s.359 * t9298;
             let t9889 = s.366 * t8799;
             let t9890 = t9888 + t9889;
@@ -25787,7 +25869,7 @@ pub mod portable {
             let t9901 = s.384 * t9344;
             let t9902 = t9900 + t9901;
             let t9903 = -t9902;
-            dqdd_dq[4][6] = t9903;
+            dqdd_dq.38 = t9903;
             let t9904 = s.359 * t9332;
             let t9905 = s.366 * t9333;
             let t9906 = t9904 + t9905;
@@ -25804,7 +25886,7 @@ pub mod portable {
             let t9917 = s.384 * t9345;
             let t9918 = t9916 + t9917;
             let t9919 = -t9918;
-            dqdd_dq[4][7] = t9919;
+            dqdd_dq.39 = t9919;
             let t9920 = s.360 * t9252;
             let t9921 = s.367 * t9099;
             let t9922 = t9920 + t9921;
@@ -25821,7 +25903,7 @@ pub mod portable {
             let t9933 = s.387 * t9339;
             let t9934 = t9932 + t9933;
             let t9935 = -t9934;
-            dqdd_dq[5][1] = t9935;
+            dqdd_dq.41 = t9935;
             let t9936 = s.360 * t9262;
             let t9937 = s.367 * t8551;
             let t9938 = t9936 + t9937;
@@ -25838,7 +25920,7 @@ pub mod portable {
             let t9949 = s.387 * t9340;
             let t9950 = t9948 + t9949;
             let t9951 = -t9950;
-            dqdd_dq[5][2] = t9951;
+            dqdd_dq.42 = t9951;
             let t9952 = s.360 * t9271;
             let t9953 = s.367 * t8611;
             let t9954 = t9952 + t9953;
@@ -25855,7 +25937,7 @@ pub mod portable {
             let t9965 = s.387 * t9341;
             let t9966 = t9964 + t9965;
             let t9967 = -t9966;
-            dqdd_dq[5][3] = t9967;
+            dqdd_dq.43 = t9967;
             let t9968 = s.360 * t9280;
             let t9969 = s.367 * t8671;
             let t9970 = t9968 + t9969;
@@ -25872,7 +25954,7 @@ pub mod portable {
             let t9981 = s.387 * t9342;
             let t9982 = t9980 + t9981;
             let t9983 = -t9982;
-            dqdd_dq[5][4] = t9983;
+            dqdd_dq.44 = t9983;
             let t9984 = s.360 * t9289;
             let t9985 = s.367 * t8735;
             let t9986 = t9984 + t9985;
@@ -25889,7 +25971,7 @@ pub mod portable {
             let t9997 = s.387 * t9343;
             let t9998 = t9996 + t9997;
             let t9999 = -t9998;
-            dqdd_dq[5][5] = t9999;
+            dqdd_dq.45 = t9999;
             let t10000 = s.360 * t9298;
             let t10001 = s.367 * t8799;
             let t10002 = t10000 + t10001;
@@ -25906,7 +25988,7 @@ pub mod portable {
             let t10013 = s.387 * t9344;
             let t10014 = t10012 + t10013;
             let t10015 = -t10014;
-            dqdd_dq[5][6] = t10015;
+            dqdd_dq.46 = t10015;
             let t10016 = s.360 * t9332;
             let t10017 = s.367 * t9333;
             let t10018 = t10016 + t10017;
@@ -25923,7 +26005,7 @@ pub mod portable {
             let t10029 = s.387 * t9345;
             let t10030 = t10028 + t10029;
             let t10031 = -t10030;
-            dqdd_dq[5][7] = t10031;
+            dqdd_dq.47 = t10031;
             let t10032 = s.361 * t9252;
             let t10033 = s.368 * t9099;
             let t10034 = t10032 + t10033;
@@ -25940,7 +26022,7 @@ pub mod portable {
             let t10045 = s.389 * t9339;
             let t10046 = t10044 + t10045;
             let t10047 = -t10046;
-            dqdd_dq[6][1] = t10047;
+            dqdd_dq.49 = t10047;
             let t10048 = s.361 * t9262;
             let t10049 = s.368 * t8551;
             let t10050 = t10048 + t10049;
@@ -25957,7 +26039,7 @@ pub mod portable {
             let t10061 = s.389 * t9340;
             let t10062 = t10060 + t10061;
             let t10063 = -t10062;
-            dqdd_dq[6][2] = t10063;
+            dqdd_dq.50 = t10063;
             let t10064 = s.361 * t9271;
             let t10065 = s.368 * t8611;
             let t10066 = t10064 + t10065;
@@ -25974,7 +26056,7 @@ pub mod portable {
             let t10077 = s.389 * t9341;
             let t10078 = t10076 + t10077;
             let t10079 = -t10078;
-            dqdd_dq[6][3] = t10079;
+            dqdd_dq.51 = t10079;
             let t10080 = s.361 * t9280;
             let t10081 = s.368 * t8671;
             let t10082 = t10080 + t10081;
@@ -25991,7 +26073,7 @@ pub mod portable {
             let t10093 = s.389 * t9342;
             let t10094 = t10092 + t10093;
             let t10095 = -t10094;
-            dqdd_dq[6][4] = t10095;
+            dqdd_dq.52 = t10095;
             let t10096 = s.361 * t9289;
             let t10097 = s.368 * t8735;
             let t10098 = t10096 + t10097;
@@ -26008,7 +26090,7 @@ pub mod portable {
             let t10109 = s.389 * t9343;
             let t10110 = t10108 + t10109;
             let t10111 = -t10110;
-            dqdd_dq[6][5] = t10111;
+            dqdd_dq.53 = t10111;
             let t10112 = s.361 * t9298;
             let t10113 = s.368 * t8799;
             let t10114 = t10112 + t10113;
@@ -26025,7 +26107,7 @@ pub mod portable {
             let t10125 = s.389 * t9344;
             let t10126 = t10124 + t10125;
             let t10127 = -t10126;
-            dqdd_dq[6][6] = t10127;
+            dqdd_dq.54 = t10127;
             let t10128 = s.361 * t9332;
             let t10129 = s.368 * t9333;
             let t10130 = t10128 + t10129;
@@ -26042,7 +26124,7 @@ pub mod portable {
             let t10141 = s.389 * t9345;
             let t10142 = t10140 + t10141;
             let t10143 = -t10142;
-            dqdd_dq[6][7] = t10143;
+            dqdd_dq.55 = t10143;
             let t10144 = s.362 * t9252;
             let t10145 = s.369 * t9099;
             let t10146 = t10144 + t10145;
@@ -26059,7 +26141,7 @@ pub mod portable {
             let t10157 = s.390 * t9339;
             let t10158 = t10156 + t10157;
             let t10159 = -t10158;
-            dqdd_dq[7][1] = t10159;
+            dqdd_dq.57 = t10159;
             let t10160 = s.362 * t9262;
             let t10161 = s.369 * t8551;
             let t10162 = t10160 + t10161;
@@ -26084,6 +26166,13 @@ pub mod portable {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t10167 = s.384 * s.72;
             let t10168 = s.157 + t10167;
             let t10169 = s.387 * s.78;
@@ -26093,7 +26182,7 @@ pub mod portable {
             let t10173 = s.390 * s.131;
             let t10174 = t10172 + t10173;
             let t10175 = -t10174;
-            dqdd_dq[7][2] = t10175;
+            dqdd_dq.58 = t10175;
             let t10176 = s.362 * s.102;
             let t10177 = s.369 * s.84;
             let t10178 = t10176 + t10177;
@@ -26110,7 +26199,7 @@ pub mod portable {
             let t10189 = s.390 * s.132;
             let t10190 = t10188 + t10189;
             let t10191 = -t10190;
-            dqdd_dq[7][3] = t10191;
+            dqdd_dq.59 = t10191;
             let t10192 = s.362 * s.111;
             let t10193 = s.369 * s.86;
             let t10194 = t10192 + t10193;
@@ -26127,7 +26216,7 @@ pub mod portable {
             let t10205 = s.390 * s.133;
             let t10206 = t10204 + t10205;
             let t10207 = -t10206;
-            dqdd_dq[7][4] = t10207;
+            dqdd_dq.60 = t10207;
             let t10208 = s.362 * s.114;
             let t10209 = s.369 * s.88;
             let t10210 = t10208 + t10209;
@@ -26144,7 +26233,7 @@ pub mod portable {
             let t10221 = s.390 * s.134;
             let t10222 = t10220 + t10221;
             let t10223 = -t10222;
-            dqdd_dq[7][5] = t10223;
+            dqdd_dq.61 = t10223;
             let t10224 = s.362 * s.121;
             let t10225 = s.369 * s.90;
             let t10226 = t10224 + t10225;
@@ -26161,7 +26250,7 @@ pub mod portable {
             let t10237 = s.390 * s.135;
             let t10238 = t10236 + t10237;
             let t10239 = -t10238;
-            dqdd_dq[7][6] = t10239;
+            dqdd_dq.62 = t10239;
             let t10240 = s.362 * s.124;
             let t10241 = s.369 * s.125;
             let t10242 = t10240 + t10241;
@@ -26178,7 +26267,7 @@ pub mod portable {
             let t10253 = s.390 * s.136;
             let t10254 = t10252 + t10253;
             let t10255 = -t10254;
-            dqdd_dq[7][7] = t10255;
+            dqdd_dq.63 = t10255;
             let t10256 = s.355 * s.123;
             let t10257 = s.356 * s.98;
             let t10258 = t10256 + t10257;
@@ -26195,7 +26284,7 @@ pub mod portable {
             let t10269 = s.362 * s.144;
             let t10270 = t10268 + t10269;
             let t10271 = -t10270;
-            dqdd_dqd[0][0] = t10271;
+            dqdd_dqd.0 = t10271;
             let t10272 = s.355 * s.97;
             let t10273 = s.356 * s.91;
             let t10274 = t10272 + t10273;
@@ -26212,7 +26301,7 @@ pub mod portable {
             let t10285 = s.362 * s.145;
             let t10286 = t10284 + t10285;
             let t10287 = -t10286;
-            dqdd_dqd[0][1] = t10287;
+            dqdd_dqd.1 = t10287;
             let t10288 = s.355 * s.99;
             let t10289 = s.356 * s.82;
             let t10290 = t10288 + t10289;
@@ -26229,7 +26318,7 @@ pub mod portable {
             let t10301 = s.362 * s.146;
             let t10302 = t10300 + t10301;
             let t10303 = -t10302;
-            dqdd_dqd[0][2] = t10303;
+            dqdd_dqd.2 = t10303;
             let t10304 = s.355 * s.101;
             let t10305 = s.356 * s.83;
             let t10306 = t10304 + t10305;
@@ -26246,7 +26335,7 @@ pub mod portable {
             let t10317 = s.362 * s.153;
             let t10318 = t10316 + t10317;
             let t10319 = -t10318;
-            dqdd_dqd[0][3] = t10319;
+            dqdd_dqd.3 = t10319;
             let t10320 = s.355 * s.110;
             let t10321 = s.356 * s.85;
             let t10322 = t10320 + t10321;
@@ -26263,7 +26352,7 @@ pub mod portable {
             let t10333 = s.362 * s.154;
             let t10334 = t10332 + t10333;
             let t10335 = -t10334;
-            dqdd_dqd[0][4] = t10335;
+            dqdd_dqd.4 = t10335;
             let t10336 = s.355 * s.113;
             let t10337 = s.356 * s.87;
             let t10338 = t10336 + t10337;
@@ -26280,7 +26369,7 @@ pub mod portable {
             let t10349 = s.362 * s.155;
             let t10350 = t10348 + t10349;
             let t10351 = -t10350;
-            dqdd_dqd[0][5] = t10351;
+            dqdd_dqd.5 = t10351;
             let t10352 = s.355 * s.120;
             let t10353 = s.356 * s.89;
             let t10354 = t10352 + t10353;
@@ -26297,7 +26386,7 @@ pub mod portable {
             let t10365 = s.362 * s.156;
             let t10366 = t10364 + t10365;
             let t10367 = -t10366;
-            dqdd_dqd[0][6] = t10367;
+            dqdd_dqd.6 = t10367;
             let t10368 = s.355 * s.137;
             let t10369 = s.356 * s.138;
             let t10370 = t10368 + t10369;
@@ -26312,7 +26401,7 @@ pub mod portable {
             let t10379 = s.361 * s.143;
             let t10380 = t10378 + t10379;
             let t10381 = -t10380;
-            dqdd_dqd[0][7] = t10381;
+            dqdd_dqd.7 = t10381;
             let t10382 = s.356 * s.123;
             let t10383 = s.363 * s.98;
             let t10384 = t10382 + t10383;
@@ -26329,7 +26418,7 @@ pub mod portable {
             let t10395 = s.369 * s.144;
             let t10396 = t10394 + t10395;
             let t10397 = -t10396;
-            dqdd_dqd[1][0] = t10397;
+            dqdd_dqd.8 = t10397;
             let t10398 = s.356 * s.97;
             let t10399 = s.363 * s.91;
             let t10400 = t10398 + t10399;
@@ -26346,7 +26435,7 @@ pub mod portable {
             let t10411 = s.369 * s.145;
             let t10412 = t10410 + t10411;
             let t10413 = -t10412;
-            dqdd_dqd[1][1] = t10413;
+            dqdd_dqd.9 = t10413;
             let t10414 = s.356 * s.99;
             let t10415 = s.363 * s.82;
             let t10416 = t10414 + t10415;
@@ -26363,7 +26452,7 @@ pub mod portable {
             let t10427 = s.369 * s.146;
             let t10428 = t10426 + t10427;
             let t10429 = -t10428;
-            dqdd_dqd[1][2] = t10429;
+            dqdd_dqd.10 = t10429;
             let t10430 = s.356 * s.101;
             let t10431 = s.363 * s.83;
             let t10432 = t10430 + t10431;
@@ -26380,7 +26469,7 @@ pub mod portable {
             let t10443 = s.369 * s.153;
             let t10444 = t10442 + t10443;
             let t10445 = -t10444;
-            dqdd_dqd[1][3] = t10445;
+            dqdd_dqd.11 = t10445;
             let t10446 = s.356 * s.110;
             let t10447 = s.363 * s.85;
             let t10448 = t10446 + t10447;
@@ -26397,7 +26486,7 @@ pub mod portable {
             let t10459 = s.369 * s.154;
             let t10460 = t10458 + t10459;
             let t10461 = -t10460;
-            dqdd_dqd[1][4] = t10461;
+            dqdd_dqd.12 = t10461;
             let t10462 = s.356 * s.113;
             let t10463 = s.363 * s.87;
             let t10464 = t10462 + t10463;
@@ -26414,7 +26503,7 @@ pub mod portable {
             let t10475 = s.369 * s.155;
             let t10476 = t10474 + t10475;
             let t10477 = -t10476;
-            dqdd_dqd[1][5] = t10477;
+            dqdd_dqd.13 = t10477;
             let t10478 = s.356 * s.120;
             let t10479 = s.363 * s.89;
             let t10480 = t10478 + t10479;
@@ -26431,7 +26520,7 @@ pub mod portable {
             let t10491 = s.369 * s.156;
             let t10492 = t10490 + t10491;
             let t10493 = -t10492;
-            dqdd_dqd[1][6] = t10493;
+            dqdd_dqd.14 = t10493;
             let t10494 = s.356 * s.137;
             let t10495 = s.363 * s.138;
             let t10496 = t10494 + t10495;
@@ -26446,7 +26535,7 @@ pub mod portable {
             let t10505 = s.368 * s.143;
             let t10506 = t10504 + t10505;
             let t10507 = -t10506;
-            dqdd_dqd[1][7] = t10507;
+            dqdd_dqd.15 = t10507;
             let t10508 = s.357 * s.123;
             let t10509 = s.364 * s.98;
             let t10510 = t10508 + t10509;
@@ -26463,7 +26552,7 @@ pub mod portable {
             let t10521 = s.375 * s.144;
             let t10522 = t10520 + t10521;
             let t10523 = -t10522;
-            dqdd_dqd[2][0] = t10523;
+            dqdd_dqd.16 = t10523;
             let t10524 = s.357 * s.97;
             let t10525 = s.364 * s.91;
             let t10526 = t10524 + t10525;
@@ -26480,7 +26569,7 @@ pub mod portable {
             let t10537 = s.375 * s.145;
             let t10538 = t10536 + t10537;
             let t10539 = -t10538;
-            dqdd_dqd[2][1] = t10539;
+            dqdd_dqd.17 = t10539;
             let t10540 = s.357 * s.99;
             let t10541 = s.364 * s.82;
             let t10542 = t10540 + t10541;
@@ -26497,7 +26586,7 @@ pub mod portable {
             let t10553 = s.375 * s.146;
             let t10554 = t10552 + t10553;
             let t10555 = -t10554;
-            dqdd_dqd[2][2] = t10555;
+            dqdd_dqd.18 = t10555;
             let t10556 = s.357 * s.101;
             let t10557 = s.364 * s.83;
             let t10558 = t10556 + t10557;
@@ -26514,7 +26603,7 @@ pub mod portable {
             let t10569 = s.375 * s.153;
             let t10570 = t10568 + t10569;
             let t10571 = -t10570;
-            dqdd_dqd[2][3] = t10571;
+            dqdd_dqd.19 = t10571;
             let t10572 = s.357 * s.110;
             let t10573 = s.364 * s.85;
             let t10574 = t10572 + t10573;
@@ -26531,7 +26620,7 @@ pub mod portable {
             let t10585 = s.375 * s.154;
             let t10586 = t10584 + t10585;
             let t10587 = -t10586;
-            dqdd_dqd[2][4] = t10587;
+            dqdd_dqd.20 = t10587;
             let t10588 = s.357 * s.113;
             let t10589 = s.364 * s.87;
             let t10590 = t10588 + t10589;
@@ -26548,7 +26637,7 @@ pub mod portable {
             let t10601 = s.375 * s.155;
             let t10602 = t10600 + t10601;
             let t10603 = -t10602;
-            dqdd_dqd[2][5] = t10603;
+            dqdd_dqd.21 = t10603;
             let t10604 = s.357 * s.120;
             let t10605 = s.364 * s.89;
             let t10606 = t10604 + t10605;
@@ -26565,7 +26654,7 @@ pub mod portable {
             let t10617 = s.375 * s.156;
             let t10618 = t10616 + t10617;
             let t10619 = -t10618;
-            dqdd_dqd[2][6] = t10619;
+            dqdd_dqd.22 = t10619;
             let t10620 = s.357 * s.137;
             let t10621 = s.364 * s.138;
             let t10622 = t10620 + t10621;
@@ -26580,7 +26669,7 @@ pub mod portable {
             let t10631 = s.374 * s.143;
             let t10632 = t10630 + t10631;
             let t10633 = -t10632;
-            dqdd_dqd[2][7] = t10633;
+            dqdd_dqd.23 = t10633;
             let t10634 = s.358 * s.123;
             let t10635 = s.365 * s.98;
             let t10636 = t10634 + t10635;
@@ -26597,7 +26686,7 @@ pub mod portable {
             let t10647 = s.380 * s.144;
             let t10648 = t10646 + t10647;
             let t10649 = -t10648;
-            dqdd_dqd[3][0] = t10649;
+            dqdd_dqd.24 = t10649;
             let t10650 = s.358 * s.97;
             let t10651 = s.365 * s.91;
             let t10652 = t10650 + t10651;
@@ -26614,7 +26703,7 @@ pub mod portable {
             let t10663 = s.380 * s.145;
             let t10664 = t10662 + t10663;
             let t10665 = -t10664;
-            dqdd_dqd[3][1] = t10665;
+            dqdd_dqd.25 = t10665;
             let t10666 = s.358 * s.99;
             let t10667 = s.365 * s.82;
             let t10668 = t10666 + t10667;
@@ -26631,7 +26720,7 @@ pub mod portable {
             let t10679 = s.380 * s.146;
             let t10680 = t10678 + t10679;
             let t10681 = -t10680;
-            dqdd_dqd[3][2] = t10681;
+            dqdd_dqd.26 = t10681;
             let t10682 = s.358 * s.101;
             let t10683 = s.365 * s.83;
             let t10684 = t10682 + t10683;
@@ -26648,7 +26737,7 @@ pub mod portable {
             let t10695 = s.380 * s.153;
             let t10696 = t10694 + t10695;
             let t10697 = -t10696;
-            dqdd_dqd[3][3] = t10697;
+            dqdd_dqd.27 = t10697;
             let t10698 = s.358 * s.110;
             let t10699 = s.365 * s.85;
             let t10700 = t10698 + t10699;
@@ -26665,7 +26754,7 @@ pub mod portable {
             let t10711 = s.380 * s.154;
             let t10712 = t10710 + t10711;
             let t10713 = -t10712;
-            dqdd_dqd[3][4] = t10713;
+            dqdd_dqd.28 = t10713;
             let t10714 = s.358 * s.113;
             let t10715 = s.365 * s.87;
             let t10716 = t10714 + t10715;
@@ -26682,7 +26771,7 @@ pub mod portable {
             let t10727 = s.380 * s.155;
             let t10728 = t10726 + t10727;
             let t10729 = -t10728;
-            dqdd_dqd[3][5] = t10729;
+            dqdd_dqd.29 = t10729;
             let t10730 = s.358 * s.120;
             let t10731 = s.365 * s.89;
             let t10732 = t10730 + t10731;
@@ -26699,7 +26788,7 @@ pub mod portable {
             let t10743 = s.380 * s.156;
             let t10744 = t10742 + t10743;
             let t10745 = -t10744;
-            dqdd_dqd[3][6] = t10745;
+            dqdd_dqd.30 = t10745;
             let t10746 = s.358 * s.137;
             let t10747 = s.365 * s.138;
             let t10748 = t10746 + t10747;
@@ -26714,7 +26803,7 @@ pub mod portable {
             let t10757 = s.379 * s.143;
             let t10758 = t10756 + t10757;
             let t10759 = -t10758;
-            dqdd_dqd[3][7] = t10759;
+            dqdd_dqd.31 = t10759;
             let t10760 = s.359 * s.123;
             let t10761 = s.366 * s.98;
             let t10762 = t10760 + t10761;
@@ -26731,7 +26820,7 @@ pub mod portable {
             let t10773 = s.384 * s.144;
             let t10774 = t10772 + t10773;
             let t10775 = -t10774;
-            dqdd_dqd[4][0] = t10775;
+            dqdd_dqd.32 = t10775;
             let t10776 = s.359 * s.97;
             let t10777 = s.366 * s.91;
             let t10778 = t10776 + t10777;
@@ -26748,7 +26837,7 @@ pub mod portable {
             let t10789 = s.384 * s.145;
             let t10790 = t10788 + t10789;
             let t10791 = -t10790;
-            dqdd_dqd[4][1] = t10791;
+            dqdd_dqd.33 = t10791;
             let t10792 = s.359 * s.99;
             let t10793 = s.366 * s.82;
             let t10794 = t10792 + t10793;
@@ -26765,7 +26854,7 @@ pub mod portable {
             let t10805 = s.384 * s.146;
             let t10806 = t10804 + t10805;
             let t10807 = -t10806;
-            dqdd_dqd[4][2] = t10807;
+            dqdd_dqd.34 = t10807;
             let t10808 = s.359 * s.101;
             let t10809 = s.366 * s.83;
             let t10810 = t10808 + t10809;
@@ -26782,7 +26871,7 @@ pub mod portable {
             let t10821 = s.384 * s.153;
             let t10822 = t10820 + t10821;
             let t10823 = -t10822;
-            dqdd_dqd[4][3] = t10823;
+            dqdd_dqd.35 = t10823;
             let t10824 = s.359 * s.110;
             let t10825 = s.366 * s.85;
             let t10826 = t10824 + t10825;
@@ -26799,7 +26888,7 @@ pub mod portable {
             let t10837 = s.384 * s.154;
             let t10838 = t10836 + t10837;
             let t10839 = -t10838;
-            dqdd_dqd[4][4] = t10839;
+            dqdd_dqd.36 = t10839;
             let t10840 = s.359 * s.113;
             let t10841 = s.366 * s.87;
             let t10842 = t10840 + t10841;
@@ -26816,7 +26905,7 @@ pub mod portable {
             let t10853 = s.384 * s.155;
             let t10854 = t10852 + t10853;
             let t10855 = -t10854;
-            dqdd_dqd[4][5] = t10855;
+            dqdd_dqd.37 = t10855;
             let t10856 = s.359 * s.120;
             let t10857 = s.366 * s.89;
             let t10858 = t10856 + t10857;
@@ -26833,7 +26922,7 @@ pub mod portable {
             let t10869 = s.384 * s.156;
             let t10870 = t10868 + t10869;
             let t10871 = -t10870;
-            dqdd_dqd[4][6] = t10871;
+            dqdd_dqd.38 = t10871;
             let t10872 = s.359 * s.137;
             let t10873 = s.366 * s.138;
             let t10874 = t10872 + t10873;
@@ -26848,7 +26937,7 @@ pub mod portable {
             let t10883 = s.383 * s.143;
             let t10884 = t10882 + t10883;
             let t10885 = -t10884;
-            dqdd_dqd[4][7] = t10885;
+            dqdd_dqd.39 = t10885;
             let t10886 = s.360 * s.123;
             let t10887 = s.367 * s.98;
             let t10888 = t10886 + t10887;
@@ -26865,7 +26954,7 @@ pub mod portable {
             let t10899 = s.387 * s.144;
             let t10900 = t10898 + t10899;
             let t10901 = -t10900;
-            dqdd_dqd[5][0] = t10901;
+            dqdd_dqd.40 = t10901;
             let t10902 = s.360 * s.97;
             let t10903 = s.367 * s.91;
             let t10904 = t10902 + t10903;
@@ -26882,7 +26971,7 @@ pub mod portable {
             let t10915 = s.387 * s.145;
             let t10916 = t10914 + t10915;
             let t10917 = -t10916;
-            dqdd_dqd[5][1] = t10917;
+            dqdd_dqd.41 = t10917;
             let t10918 = s.360 * s.99;
             let t10919 = s.367 * s.82;
             let t10920 = t10918 + t10919;
@@ -26899,7 +26988,7 @@ pub mod portable {
             let t10931 = s.387 * s.146;
             let t10932 = t10930 + t10931;
             let t10933 = -t10932;
-            dqdd_dqd[5][2] = t10933;
+            dqdd_dqd.42 = t10933;
             let t10934 = s.360 * s.101;
             let t10935 = s.367 * s.83;
             let t10936 = t10934 + t10935;
@@ -26916,7 +27005,7 @@ pub mod portable {
             let t10947 = s.387 * s.153;
             let t10948 = t10946 + t10947;
             let t10949 = -t10948;
-            dqdd_dqd[5][3] = t10949;
+            dqdd_dqd.43 = t10949;
             let t10950 = s.360 * s.110;
             let t10951 = s.367 * s.85;
             let t10952 = t10950 + t10951;
@@ -26933,7 +27022,7 @@ pub mod portable {
             let t10963 = s.387 * s.154;
             let t10964 = t10962 + t10963;
             let t10965 = -t10964;
-            dqdd_dqd[5][4] = t10965;
+            dqdd_dqd.44 = t10965;
             let t10966 = s.360 * s.113;
             let t10967 = s.367 * s.87;
             let t10968 = t10966 + t10967;
@@ -26950,7 +27039,7 @@ pub mod portable {
             let t10979 = s.387 * s.155;
             let t10980 = t10978 + t10979;
             let t10981 = -t10980;
-            dqdd_dqd[5][5] = t10981;
+            dqdd_dqd.45 = t10981;
             let t10982 = s.360 * s.120;
             let t10983 = s.367 * s.89;
             let t10984 = t10982 + t10983;
@@ -26967,7 +27056,7 @@ pub mod portable {
             let t10995 = s.387 * s.156;
             let t10996 = t10994 + t10995;
             let t10997 = -t10996;
-            dqdd_dqd[5][6] = t10997;
+            dqdd_dqd.46 = t10997;
             let t10998 = s.360 * s.137;
             let t10999 = s.367 * s.138;
             let t11000 = t10998 + t10999;
@@ -26982,7 +27071,7 @@ pub mod portable {
             let t11009 = s.386 * s.143;
             let t11010 = t11008 + t11009;
             let t11011 = -t11010;
-            dqdd_dqd[5][7] = t11011;
+            dqdd_dqd.47 = t11011;
             let t11012 = s.361 * s.123;
             let t11013 = s.368 * s.98;
             let t11014 = t11012 + t11013;
@@ -26999,7 +27088,7 @@ pub mod portable {
             let t11025 = s.389 * s.144;
             let t11026 = t11024 + t11025;
             let t11027 = -t11026;
-            dqdd_dqd[6][0] = t11027;
+            dqdd_dqd.48 = t11027;
             let t11028 = s.361 * s.97;
             let t11029 = s.368 * s.91;
             let t11030 = t11028 + t11029;
@@ -27016,7 +27105,7 @@ pub mod portable {
             let t11041 = s.389 * s.145;
             let t11042 = t11040 + t11041;
             let t11043 = -t11042;
-            dqdd_dqd[6][1] = t11043;
+            dqdd_dqd.49 = t11043;
             let t11044 = s.361 * s.99;
             let t11045 = s.368 * s.82;
             let t11046 = t11044 + t11045;
@@ -27033,7 +27122,7 @@ pub mod portable {
             let t11057 = s.389 * s.146;
             let t11058 = t11056 + t11057;
             let t11059 = -t11058;
-            dqdd_dqd[6][2] = t11059;
+            dqdd_dqd.50 = t11059;
             let t11060 = s.361 * s.101;
             let t11061 = s.368 * s.83;
             let t11062 = t11060 + t11061;
@@ -27050,7 +27139,7 @@ pub mod portable {
             let t11073 = s.389 * s.153;
             let t11074 = t11072 + t11073;
             let t11075 = -t11074;
-            dqdd_dqd[6][3] = t11075;
+            dqdd_dqd.51 = t11075;
             let t11076 = s.361 * s.110;
             let t11077 = s.368 * s.85;
             let t11078 = t11076 + t11077;
@@ -27067,7 +27156,7 @@ pub mod portable {
             let t11089 = s.389 * s.154;
             let t11090 = t11088 + t11089;
             let t11091 = -t11090;
-            dqdd_dqd[6][4] = t11091;
+            dqdd_dqd.52 = t11091;
             let t11092 = s.361 * s.113;
             let t11093 = s.368 * s.87;
             let t11094 = t11092 + t11093;
@@ -27084,7 +27173,7 @@ pub mod portable {
             let t11105 = s.389 * s.155;
             let t11106 = t11104 + t11105;
             let t11107 = -t11106;
-            dqdd_dqd[6][5] = t11107;
+            dqdd_dqd.53 = t11107;
             let t11108 = s.361 * s.120;
             let t11109 = s.368 * s.89;
             let t11110 = t11108 + t11109;
@@ -27101,7 +27190,7 @@ pub mod portable {
             let t11121 = s.389 * s.156;
             let t11122 = t11120 + t11121;
             let t11123 = -t11122;
-            dqdd_dqd[6][6] = t11123;
+            dqdd_dqd.54 = t11123;
             let t11124 = s.361 * s.137;
             let t11125 = s.368 * s.138;
             let t11126 = t11124 + t11125;
@@ -27116,7 +27205,7 @@ pub mod portable {
             let t11135 = s.388 * s.143;
             let t11136 = t11134 + t11135;
             let t11137 = -t11136;
-            dqdd_dqd[6][7] = t11137;
+            dqdd_dqd.55 = t11137;
             let t11138 = s.362 * s.123;
             let t11139 = s.369 * s.98;
             let t11140 = t11138 + t11139;
@@ -27133,7 +27222,7 @@ pub mod portable {
             let t11151 = s.390 * s.144;
             let t11152 = t11150 + t11151;
             let t11153 = -t11152;
-            dqdd_dqd[7][0] = t11153;
+            dqdd_dqd.56 = t11153;
             let t11154 = s.362 * s.97;
             let t11155 = s.369 * s.91;
             let t11156 = t11154 + t11155;
@@ -27150,7 +27239,7 @@ pub mod portable {
             let t11167 = s.390 * s.145;
             let t11168 = t11166 + t11167;
             let t11169 = -t11168;
-            dqdd_dqd[7][1] = t11169;
+            dqdd_dqd.57 = t11169;
             let t11170 = s.362 * s.99;
             let t11171 = s.369 * s.82;
             let t11172 = t11170 + t11171;
@@ -27167,7 +27256,7 @@ pub mod portable {
             let t11183 = s.390 * s.146;
             let t11184 = t11182 + t11183;
             let t11185 = -t11184;
-            dqdd_dqd[7][2] = t11185;
+            dqdd_dqd.58 = t11185;
             let t11186 = s.362 * s.101;
             let t11187 = s.369 * s.83;
             let t11188 = t11186 + t11187;
@@ -27184,7 +27273,7 @@ pub mod portable {
             let t11199 = s.390 * s.153;
             let t11200 = t11198 + t11199;
             let t11201 = -t11200;
-            dqdd_dqd[7][3] = t11201;
+            dqdd_dqd.59 = t11201;
             let t11202 = s.362 * s.110;
             let t11203 = s.369 * s.85;
             let t11204 = t11202 + t11203;
@@ -27201,7 +27290,7 @@ pub mod portable {
             let t11215 = s.390 * s.154;
             let t11216 = t11214 + t11215;
             let t11217 = -t11216;
-            dqdd_dqd[7][4] = t11217;
+            dqdd_dqd.60 = t11217;
             let t11218 = s.362 * s.113;
             let t11219 = s.369 * s.87;
             let t11220 = t11218 + t11219;
@@ -27218,7 +27307,7 @@ pub mod portable {
             let t11231 = s.390 * s.155;
             let t11232 = t11230 + t11231;
             let t11233 = -t11232;
-            dqdd_dqd[7][5] = t11233;
+            dqdd_dqd.61 = t11233;
             let t11234 = s.362 * s.120;
             let t11235 = s.369 * s.89;
             let t11236 = t11234 + t11235;
@@ -27235,7 +27324,7 @@ pub mod portable {
             let t11247 = s.390 * s.156;
             let t11248 = t11246 + t11247;
             let t11249 = -t11248;
-            dqdd_dqd[7][6] = t11249;
+            dqdd_dqd.62 = t11249;
             let t11250 = s.362 * s.137;
             let t11251 = s.369 * s.138;
             let t11252 = t11250 + t11251;
@@ -27250,7 +27339,7 @@ pub mod portable {
             let t11261 = s.389 * s.143;
             let t11262 = t11260 + t11261;
             let t11263 = -t11262;
-            dqdd_dqd[7][7] = t11263;
+            dqdd_dqd.63 = t11263;
         }
     }
     use fd_grad_part4::fd_grad_part4;
@@ -28322,6 +28411,14 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 64 entries of `rnea_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct rnea_grad_f64<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T,
+    );
     mod rnea_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -28335,6 +28432,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
             let t2 = q[1].sin();
             s.0 = t2;
             let t3 = q[1].cos();
@@ -30106,12 +30209,12 @@ pub mod fma {
             let t2154 = T::mul_add(t824, t2146, t2152);
             let t2156 = T::mul_add(-t821, t2147, t2154);
             let t2157 = t2149 + t2156;
-            dc_dq[6][6] = t2157;
+            dc_dq.54 = t2157;
             let t2158 = t2002 - t2007;
             let t2159 = t2158 - t2005;
             let t2160 = t2159 + t2159;
             let t2161 = t1978 + t2160;
-            dc_dqd[6][6] = t2161;
+            dc_dqd.54 = t2161;
             let t2163 = t1416 * lit::<T>(0.0017543319241238242);
             let t2164 = T::mul_add(t1415, lit::<T>(-0.0017543319241238244), t2163);
             let t2166 = T::mul_add(t1401, t1896, t2164);
@@ -30179,7 +30282,7 @@ pub mod fma {
             s.154 = t2237;
             let t2238 = T::mul_add(-lit::<T>(0.088), t2118, t2234);
             s.155 = t2238;
-            dc_dqd[5][6] = t2238;
+            dc_dqd.46 = t2238;
             let t2240 = t71 * t2143;
             let t2241 = T::mul_add(t72, t2142, -t2240);
             s.156 = t2241;
@@ -30196,7 +30299,7 @@ pub mod fma {
             s.159 = t2254;
             let t2255 = T::mul_add(-lit::<T>(0.088), t2139, t2251);
             s.160 = t2255;
-            dc_dq[5][6] = t2255;
+            dc_dq.46 = t2255;
             let t2257 = t71 * t2147;
             let t2258 = T::mul_add(t72, t2146, -t2257);
             s.161 = t2258;
@@ -30557,6 +30660,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
             let t2616 = s.49 * s.220;
             let t2617 = T::mul_add(s.50, s.221, t2616);
             let t2618 = s.247 - s.250;
@@ -30604,12 +30713,12 @@ pub mod fma {
             let t2663 = T::mul_add(s.52, t2654, t2661);
             let t2665 = T::mul_add(-s.51, t2655, t2663);
             let t2666 = t2658 + t2665;
-            dc_dq[5][5] = t2666;
+            dc_dq.45 = t2666;
             let t2668 = T::mul_add(s.52, lit::<T>(0.17380470556900002), s.223);
             let t2669 = t2668 - s.224;
             let t2670 = t2669 + t2669;
             let t2671 = s.213 + t2670;
-            dc_dqd[5][5] = t2671;
+            dc_dqd.45 = t2671;
             let t2673 = s.93 * s.150;
             let t2674 = T::mul_add(s.92, s.148, t2673);
             let t2676 = T::mul_add(s.90, s.149, t2674);
@@ -30619,13 +30728,13 @@ pub mod fma {
             let t2683 = T::mul_add(s.50, s.163, -t2682);
             let t2685 = T::mul_add(s.52, s.161, t2683);
             let t2686 = t2680 + t2685;
-            dc_dq[6][5] = t2686;
+            dc_dq.53 = t2686;
             let t2688 = s.49 * s.150;
             let t2689 = T::mul_add(s.50, s.148, -t2688);
             let t2691 = T::mul_add(s.52, s.146, t2689);
             let t2692 = t2691 + t2691;
             let t2693 = s.164 + t2692;
-            dc_dqd[6][5] = t2693;
+            dc_dqd.53 = t2693;
             let t2695 = s.93 * s.170;
             let t2696 = T::mul_add(s.92, s.168, t2695);
             let t2698 = T::mul_add(s.90, s.169, t2696);
@@ -30673,7 +30782,7 @@ pub mod fma {
             let t2754 = T::mul_add(s.9, t2631, -t2753);
             let t2756 = s.9 * t2632;
             let t2757 = T::mul_add(s.8, t2631, t2756);
-            dc_dqd[4][5] = t2757;
+            dc_dqd.37 = t2757;
             let t2759 = s.8 * t2651;
             let t2760 = T::mul_add(s.9, t2650, -t2759);
             let t2762 = s.9 * t2651;
@@ -30682,7 +30791,7 @@ pub mod fma {
             let t2766 = T::mul_add(s.9, t2648, -t2765);
             let t2768 = s.9 * t2649;
             let t2769 = T::mul_add(s.8, t2648, t2768);
-            dc_dq[4][5] = t2769;
+            dc_dq.37 = t2769;
             let t2771 = s.8 * t2655;
             let t2772 = T::mul_add(s.9, t2654, -t2771);
             let t2774 = s.9 * t2655;
@@ -30705,7 +30814,7 @@ pub mod fma {
             let t2798 = T::mul_add(s.9, s.153, -t2797);
             let t2800 = s.9 * s.154;
             let t2801 = T::mul_add(s.8, s.153, t2800);
-            dc_dqd[4][6] = t2801;
+            dc_dqd.38 = t2801;
             let t2803 = s.8 * s.141;
             let t2804 = T::mul_add(s.9, s.156, t2803);
             let t2806 = s.9 * s.141;
@@ -30714,7 +30823,7 @@ pub mod fma {
             let t2810 = T::mul_add(s.9, s.158, -t2809);
             let t2812 = s.9 * s.159;
             let t2813 = T::mul_add(s.8, s.158, t2812);
-            dc_dq[4][6] = t2813;
+            dc_dq.38 = t2813;
             let t2814 = s.9 * s.161;
             let t2815 = s.8 * s.161;
             let t2817 = s.8 * s.165;
@@ -30969,12 +31078,12 @@ pub mod fma {
             let t3150 = T::mul_add(s.42, t3142, t3148);
             let t3152 = T::mul_add(-s.41, t3143, t3150);
             let t3153 = t3145 + t3152;
-            dc_dq[4][4] = t3153;
+            dc_dq.36 = t3153;
             let t3154 = t2998 - t3003;
             let t3155 = t3154 - t3001;
             let t3156 = t3155 + t3155;
             let t3157 = t2968 + t3156;
-            dc_dqd[4][4] = t3157;
+            dc_dqd.36 = t3157;
             let t3159 = s.87 * s.205;
             let t3160 = T::mul_add(s.86, t2742, -t3159);
             let t3162 = T::mul_add(s.84, t2745, t3160);
@@ -30984,13 +31093,13 @@ pub mod fma {
             let t3169 = T::mul_add(s.40, t2778, t3168);
             let t3171 = T::mul_add(s.42, t2772, t3169);
             let t3172 = t3166 + t3171;
-            dc_dq[5][4] = t3172;
+            dc_dq.44 = t3172;
             let t3174 = s.39 * s.205;
             let t3175 = T::mul_add(s.40, t2742, t3174);
             let t3177 = T::mul_add(s.42, t2736, t3175);
             let t3178 = t3177 + t3177;
             let t3179 = t2781 + t3178;
-            dc_dqd[5][4] = t3179;
+            dc_dqd.44 = t3179;
             let t3181 = s.87 * s.149;
             let t3182 = T::mul_add(s.86, t2786, -t3181);
             let t3184 = T::mul_add(s.84, t2789, t3182);
@@ -31002,14 +31111,14 @@ pub mod fma {
             let t3195 = T::mul_add(s.42, t2814, t3193);
             let t3197 = T::mul_add(s.41, s.162, t3195);
             let t3198 = t3190 + t3197;
-            dc_dq[6][4] = t3198;
+            dc_dq.52 = t3198;
             let t3200 = s.39 * s.149;
             let t3201 = T::mul_add(s.40, t2786, t3200);
             let t3203 = T::mul_add(s.42, t2782, t3201);
             let t3205 = T::mul_add(s.41, s.147, t3203);
             let t3206 = t3205 + t3205;
             let t3207 = t2821 + t3206;
-            dc_dqd[6][4] = t3207;
+            dc_dqd.52 = t3207;
             let t3209 = s.87 * s.169;
             let t3210 = T::mul_add(s.86, t2826, -t3209);
             let t3212 = T::mul_add(s.84, t2829, t3210);
@@ -31075,7 +31184,7 @@ pub mod fma {
             let t3296 = T::mul_add(lit::<T>(0.384), t3283, t3286);
             let t3297 = T::mul_add(-lit::<T>(-0.0825), t3283, t3121);
             let t3298 = t3290 + t3295;
-            dc_dqd[3][4] = t3298;
+            dc_dqd.28 = t3298;
             let t3300 = s.6 * t3139;
             let t3301 = T::mul_add(s.7, t3138, -t3300);
             let t3302 = s.6 * t3138;
@@ -31091,7 +31200,7 @@ pub mod fma {
             let t3318 = T::mul_add(lit::<T>(0.384), t3305, t3308);
             let t3319 = T::mul_add(-lit::<T>(-0.0825), t3305, t3132);
             let t3320 = t3312 + t3317;
-            dc_dq[3][4] = t3320;
+            dc_dq.28 = t3320;
             let t3322 = s.6 * t3143;
             let t3323 = T::mul_add(s.7, t3142, -t3322);
             let t3324 = s.6 * t3142;
@@ -31129,7 +31238,7 @@ pub mod fma {
             let t3374 = T::mul_add(lit::<T>(0.384), t3362, t3365);
             let t3375 = T::mul_add(-lit::<T>(-0.0825), t3362, t2757);
             let t3376 = t3368 + t3373;
-            dc_dqd[3][5] = t3376;
+            dc_dqd.29 = t3376;
             let t3378 = s.6 * t2647;
             let t3379 = T::mul_add(s.7, t2760, t3378);
             let t3380 = s.6 * t2760;
@@ -31143,7 +31252,7 @@ pub mod fma {
             let t3394 = T::mul_add(lit::<T>(0.384), t3382, t3385);
             let t3395 = T::mul_add(-lit::<T>(-0.0825), t3382, t2769);
             let t3396 = t3388 + t3393;
-            dc_dq[3][5] = t3396;
+            dc_dq.29 = t3396;
             let t3397 = s.7 * t2772;
             let t3398 = s.6 * t2772;
             let t3400 = s.6 * s.213;
@@ -31183,7 +31292,7 @@ pub mod fma {
             let t3450 = T::mul_add(lit::<T>(0.384), t3438, t3441);
             let t3451 = T::mul_add(-lit::<T>(-0.0825), t3438, t2801);
             let t3452 = t3444 + t3449;
-            dc_dqd[3][6] = t3452;
+            dc_dqd.30 = t3452;
             let t3454 = s.6 * s.157;
             let t3455 = T::mul_add(s.7, t2804, t3454);
             let t3456 = s.6 * t2804;
@@ -31198,7 +31307,7 @@ pub mod fma {
             let t3470 = T::mul_add(lit::<T>(0.384), t3458, t3461);
             let t3471 = T::mul_add(-lit::<T>(-0.0825), t3458, t2813);
             let t3472 = t3464 + t3469;
-            dc_dq[3][6] = t3472;
+            dc_dq.30 = t3472;
             let t3474 = s.6 * s.162;
             let t3475 = T::mul_add(s.7, t2814, t3474);
             let t3476 = s.6 * t2814;
@@ -31557,12 +31666,12 @@ pub mod fma {
             let t3942 = T::mul_add(s.32, t3934, t3940);
             let t3944 = T::mul_add(-s.31, t3935, t3942);
             let t3945 = t3937 + t3944;
-            dc_dq[3][3] = t3945;
+            dc_dq.27 = t3945;
             let t3946 = t3790 - t3795;
             let t3947 = t3946 - t3793;
             let t3948 = t3947 + t3947;
             let t3949 = t3750 + t3948;
-            dc_dqd[3][3] = t3949;
+            dc_dqd.27 = t3949;
             let t3951 = s.81 * t3275;
             let t3952 = T::mul_add(s.80, t3274, t3951);
             let t3954 = T::mul_add(s.78, t3276, t3952);
@@ -31572,13 +31681,13 @@ pub mod fma {
             let t3961 = T::mul_add(s.30, t3338, -t3960);
             let t3963 = T::mul_add(s.32, t3323, t3961);
             let t3964 = t3958 + t3963;
-            dc_dq[4][3] = t3964;
+            dc_dq.35 = t3964;
             let t3966 = s.29 * t3275;
             let t3967 = T::mul_add(s.30, t3274, -t3966);
             let t3969 = T::mul_add(s.32, t3260, t3967);
             let t3970 = t3969 + t3969;
             let t3971 = t3340 + t3970;
-            dc_dqd[4][3] = t3971;
+            dc_dqd.35 = t3971;
             let t3973 = s.81 * t3355;
             let t3974 = T::mul_add(s.80, t3354, t3973);
             let t3976 = T::mul_add(s.78, t3356, t3974);
@@ -31590,14 +31699,14 @@ pub mod fma {
             let t3987 = T::mul_add(s.32, t3397, t3985);
             let t3989 = T::mul_add(-s.31, t2775, t3987);
             let t3990 = t3982 + t3989;
-            dc_dq[5][3] = t3990;
+            dc_dq.43 = t3990;
             let t3992 = s.29 * t3355;
             let t3993 = T::mul_add(s.30, t3354, -t3992);
             let t3995 = T::mul_add(s.32, t3341, t3993);
             let t3997 = T::mul_add(-s.31, t2739, t3995);
             let t3998 = t3997 + t3997;
             let t3999 = t3412 + t3998;
-            dc_dqd[5][3] = t3999;
+            dc_dqd.43 = t3999;
             let t4001 = s.81 * t3431;
             let t4002 = T::mul_add(s.80, t3430, t4001);
             let t4004 = T::mul_add(s.78, t3432, t4002);
@@ -31609,14 +31718,14 @@ pub mod fma {
             let t4015 = T::mul_add(s.32, t3475, t4013);
             let t4017 = T::mul_add(-s.31, t2815, t4015);
             let t4018 = t4010 + t4017;
-            dc_dq[6][3] = t4018;
+            dc_dq.51 = t4018;
             let t4020 = s.29 * t3431;
             let t4021 = T::mul_add(s.30, t3430, -t4020);
             let t4023 = T::mul_add(s.32, t3415, t4021);
             let t4025 = T::mul_add(-s.31, t2783, t4023);
             let t4026 = t4025 + t4025;
             let t4027 = t3492 + t4026;
-            dc_dqd[6][3] = t4027;
+            dc_dqd.51 = t4027;
             let t4029 = s.81 * t3511;
             let t4030 = T::mul_add(s.80, t3510, t4029);
             let t4032 = T::mul_add(s.78, t3512, t4030);
@@ -31679,7 +31788,7 @@ pub mod fma {
             let t4107 = T::mul_add(-lit::<T>(0.0825), t4097, t4101);
             let t4108 = T::mul_add(-lit::<T>(0.0825), t3906, t4104);
             s.289 = t4108;
-            dc_dqd[2][3] = t4108;
+            dc_dqd.19 = t4108;
             let t4110 = s.4 * t3931;
             let t4111 = T::mul_add(s.5, t3930, -t4110);
             let t4113 = s.5 * t3931;
@@ -31692,7 +31801,7 @@ pub mod fma {
             let t4124 = T::mul_add(-lit::<T>(0.0825), t4114, t4118);
             let t4125 = T::mul_add(-lit::<T>(0.0825), t3927, t4121);
             s.290 = t4125;
-            dc_dq[2][3] = t4125;
+            dc_dq.19 = t4125;
             let t4127 = s.4 * t3935;
             let t4128 = T::mul_add(s.5, t3934, -t4127);
             let t4130 = s.5 * t3935;
@@ -31727,7 +31836,7 @@ pub mod fma {
             let t4169 = T::mul_add(-lit::<T>(0.0825), t4159, t4163);
             let t4170 = T::mul_add(-lit::<T>(0.0825), t3283, t4166);
             s.294 = t4170;
-            dc_dqd[2][4] = t4170;
+            dc_dqd.20 = t4170;
             let t4172 = s.4 * t3135;
             let t4173 = T::mul_add(s.5, t3301, -t4172);
             let t4175 = s.5 * t3135;
@@ -31740,7 +31849,7 @@ pub mod fma {
             let t4186 = T::mul_add(-lit::<T>(0.0825), t4176, t4180);
             let t4187 = T::mul_add(-lit::<T>(0.0825), t3305, t4183);
             s.295 = t4187;
-            dc_dq[2][4] = t4187;
+            dc_dq.20 = t4187;
             let t4188 = s.5 * t3323;
             let t4189 = s.4 * t3323;
             let t4191 = s.4 * t3339;
@@ -31776,7 +31885,7 @@ pub mod fma {
             let t4233 = T::mul_add(-lit::<T>(0.0825), t4223, t4227);
             let t4234 = T::mul_add(-lit::<T>(0.0825), t3362, t4230);
             s.299 = t4234;
-            dc_dqd[2][5] = t4234;
+            dc_dqd.21 = t4234;
             let t4236 = s.4 * t2763;
             let t4237 = T::mul_add(s.5, t3379, -t4236);
             let t4239 = s.5 * t2763;
@@ -31789,7 +31898,7 @@ pub mod fma {
             let t4250 = T::mul_add(-lit::<T>(0.0825), t4240, t4244);
             let t4251 = T::mul_add(-lit::<T>(0.0825), t3382, t4247);
             s.300 = t4251;
-            dc_dq[2][5] = t4251;
+            dc_dq.21 = t4251;
             let t4253 = s.4 * t2775;
             let t4254 = T::mul_add(s.5, t3397, -t4253);
             let t4256 = s.5 * t2775;
@@ -31832,7 +31941,7 @@ pub mod fma {
             s.308 = t4301;
             let t4302 = T::mul_add(-lit::<T>(0.0825), t3438, t4298);
             s.309 = t4302;
-            dc_dqd[2][6] = t4302;
+            dc_dqd.22 = t4302;
             let t4304 = s.4 * t2807;
             let t4305 = T::mul_add(s.5, t3455, -t4304);
             s.310 = t4305;
@@ -31848,7 +31957,7 @@ pub mod fma {
             s.312 = t4318;
             let t4319 = T::mul_add(-lit::<T>(0.0825), t3458, t4315);
             s.313 = t4319;
-            dc_dq[2][6] = t4319;
+            dc_dq.22 = t4319;
             let t4321 = s.4 * t2815;
             let t4322 = T::mul_add(s.5, t3475, -t4321);
             s.314 = t4322;
@@ -32188,12 +32297,12 @@ pub mod fma {
             let t4711 = T::mul_add(s.22, t4703, t4709);
             let t4713 = T::mul_add(-s.21, t4704, t4711);
             let t4714 = t4706 + t4713;
-            dc_dq[2][2] = t4714;
+            dc_dq.18 = t4714;
             let t4715 = t4579 - t4584;
             let t4716 = t4715 - t4582;
             let t4717 = t4716 + t4716;
             let t4718 = t4544 + t4717;
-            dc_dqd[2][2] = t4718;
+            dc_dqd.18 = t4718;
             let t4720 = s.75 * t4091;
             let t4721 = T::mul_add(s.74, t4085, t4720);
             let t4723 = T::mul_add(s.72, t4089, t4721);
@@ -32203,13 +32312,13 @@ pub mod fma {
             let t4730 = T::mul_add(s.20, t4134, -t4729);
             let t4732 = T::mul_add(s.22, t4128, t4730);
             let t4733 = t4727 + t4732;
-            dc_dq[3][2] = t4733;
+            dc_dq.26 = t4733;
             let t4735 = s.19 * t4091;
             let t4736 = T::mul_add(s.20, t4085, -t4735);
             let t4738 = T::mul_add(s.22, t4079, t4736);
             let t4739 = t4738 + t4738;
             let t4740 = t4138 + t4739;
-            dc_dqd[3][2] = t4740;
+            dc_dqd.26 = t4740;
             let t4742 = s.75 * t4152;
             let t4743 = T::mul_add(s.74, t4145, t4742);
             let t4745 = T::mul_add(s.72, t4153, t4743);
@@ -32221,14 +32330,14 @@ pub mod fma {
             let t4756 = T::mul_add(s.22, t4188, t4754);
             let t4758 = T::mul_add(s.21, t3327, t4756);
             let t4759 = t4751 + t4758;
-            dc_dq[4][2] = t4759;
+            dc_dq.34 = t4759;
             let t4761 = s.19 * t4152;
             let t4762 = T::mul_add(s.20, t4145, -t4761);
             let t4764 = T::mul_add(s.22, t4141, t4762);
             let t4766 = T::mul_add(s.21, t3263, t4764);
             let t4767 = t4766 + t4766;
             let t4768 = t4200 + t4767;
-            dc_dqd[4][2] = t4768;
+            dc_dqd.34 = t4768;
             let t4770 = s.75 * t4216;
             let t4771 = T::mul_add(s.74, t4209, t4770);
             let t4773 = T::mul_add(s.72, t4217, t4771);
@@ -32240,14 +32349,14 @@ pub mod fma {
             let t4784 = T::mul_add(s.22, t4254, t4782);
             let t4786 = T::mul_add(-s.21, t3398, t4784);
             let t4787 = t4779 + t4786;
-            dc_dq[5][2] = t4787;
+            dc_dq.42 = t4787;
             let t4789 = s.19 * t4216;
             let t4790 = T::mul_add(s.20, t4209, -t4789);
             let t4792 = T::mul_add(s.22, t4203, t4790);
             let t4794 = T::mul_add(-s.21, t3342, t4792);
             let t4795 = t4794 + t4794;
             let t4796 = t4268 + t4795;
-            dc_dqd[5][2] = t4796;
+            dc_dqd.42 = t4796;
             let t4798 = s.75 * t4284;
             let t4799 = T::mul_add(s.74, t4277, t4798);
             let t4801 = T::mul_add(s.72, t4285, t4799);
@@ -32259,14 +32368,14 @@ pub mod fma {
             let t4812 = T::mul_add(s.22, t4322, t4810);
             let t4814 = T::mul_add(s.21, t3478, t4812);
             let t4815 = t4807 + t4814;
-            dc_dq[6][2] = t4815;
+            dc_dq.50 = t4815;
             let t4817 = s.19 * t4284;
             let t4818 = T::mul_add(s.20, t4277, -t4817);
             let t4820 = T::mul_add(s.22, t4271, t4818);
             let t4822 = T::mul_add(s.21, t3418, t4820);
             let t4823 = t4822 + t4822;
             let t4824 = t4336 + t4823;
-            dc_dqd[6][2] = t4824;
+            dc_dqd.50 = t4824;
             let t4826 = s.75 * t4352;
             let t4827 = T::mul_add(s.74, t4345, t4826);
             let t4829 = T::mul_add(s.72, t4353, t4827);
@@ -32336,7 +32445,7 @@ pub mod fma {
             let t4904 = T::mul_add(lit::<T>(-0.316), t4895, t4898);
             s.383 = t4904;
             let t4905 = T::mul_add(-lit::<T>(-0.316), t4892, t4901);
-            dc_dqd[1][2] = t4905;
+            dc_dqd.10 = t4905;
             let t4907 = s.2 * t4700;
             let t4908 = T::mul_add(s.3, t4699, -t4907);
             let t4910 = s.3 * t4700;
@@ -32348,7 +32457,7 @@ pub mod fma {
             let t4920 = T::mul_add(lit::<T>(-0.316), t4911, t4914);
             s.384 = t4920;
             let t4921 = T::mul_add(-lit::<T>(-0.316), t4908, t4917);
-            dc_dq[1][2] = t4921;
+            dc_dq.10 = t4921;
             let t4923 = s.2 * t4704;
             let t4924 = T::mul_add(s.3, t4703, -t4923);
             let t4926 = s.3 * t4704;
@@ -32383,7 +32492,7 @@ pub mod fma {
             let t4964 = T::mul_add(lit::<T>(-0.316), t4955, t4958);
             s.390 = t4964;
             let t4965 = T::mul_add(-lit::<T>(-0.316), t4952, t4961);
-            dc_dqd[1][3] = t4965;
+            dc_dqd.11 = t4965;
             let t4967 = s.2 * t3927;
             let t4968 = T::mul_add(s.3, t4111, t4967);
             let t4970 = s.3 * t3927;
@@ -32395,7 +32504,7 @@ pub mod fma {
             let t4980 = T::mul_add(lit::<T>(-0.316), t4971, t4974);
             s.391 = t4980;
             let t4981 = T::mul_add(-lit::<T>(-0.316), t4968, t4977);
-            dc_dq[1][3] = t4981;
+            dc_dq.11 = t4981;
             let t4982 = s.3 * t4128;
             let t4983 = s.2 * t4128;
             let t4985 = s.2 * t4140;
@@ -32430,7 +32539,7 @@ pub mod fma {
             let t5024 = T::mul_add(lit::<T>(-0.316), t5015, t5018);
             s.397 = t5024;
             let t5025 = T::mul_add(-lit::<T>(-0.316), t5012, t5021);
-            dc_dqd[1][4] = t5025;
+            dc_dqd.12 = t5025;
             let t5027 = s.2 * t3305;
             let t5028 = T::mul_add(s.3, t4173, t5027);
             let t5030 = s.3 * t3305;
@@ -32442,7 +32551,7 @@ pub mod fma {
             let t5040 = T::mul_add(lit::<T>(-0.316), t5031, t5034);
             s.398 = t5040;
             let t5041 = T::mul_add(-lit::<T>(-0.316), t5028, t5037);
-            dc_dq[1][4] = t5041;
+            dc_dq.12 = t5041;
             let t5043 = s.2 * t3327;
             let t5044 = T::mul_add(s.3, t4188, t5043);
             let t5046 = s.3 * t3327;
@@ -32479,7 +32588,7 @@ pub mod fma {
             let t5088 = T::mul_add(lit::<T>(-0.316), t5079, t5082);
             s.404 = t5088;
             let t5089 = T::mul_add(-lit::<T>(-0.316), t5076, t5085);
-            dc_dqd[1][5] = t5089;
+            dc_dqd.13 = t5089;
             let t5091 = s.2 * t3382;
             let t5092 = T::mul_add(s.3, t4237, t5091);
             let t5094 = s.3 * t3382;
@@ -32491,7 +32600,7 @@ pub mod fma {
             let t5104 = T::mul_add(lit::<T>(-0.316), t5095, t5098);
             s.405 = t5104;
             let t5105 = T::mul_add(-lit::<T>(-0.316), t5092, t5101);
-            dc_dq[1][5] = t5105;
+            dc_dq.13 = t5105;
             let t5107 = s.2 * t3398;
             let t5108 = T::mul_add(s.3, t4254, -t5107);
             let t5110 = s.3 * t3398;
@@ -32525,6 +32634,12 @@ pub mod fma {
             dc_dq: &mut [[T; NV]; NV],
             dc_dqd: &mut [[T; NV]; NV],
         ) {
+            let dc_dq = unsafe {
+                &mut *(dc_dq as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
+            let dc_dqd = unsafe {
+                &mut *(dc_dqd as *mut [[T; NV]; NV] as *mut rnea_grad_f64<T>)
+            };
             let t5127 = T::mul_add(-s.3, s.267, s.409);
             let t5129 = s.2 * s.304;
             let t5130 = T::mul_add(s.3, s.303, -t5129);
@@ -32542,7 +32657,7 @@ pub mod fma {
             let t5149 = T::mul_add(s.2, s.307, t5148);
             let t5152 = T::mul_add(lit::<T>(-0.316), t5143, t5146);
             let t5153 = T::mul_add(-lit::<T>(-0.316), t5140, t5149);
-            dc_dqd[1][6] = t5153;
+            dc_dqd.14 = t5153;
             let t5155 = s.2 * s.269;
             let t5156 = T::mul_add(s.3, s.310, t5155);
             let t5158 = s.3 * s.269;
@@ -32553,7 +32668,7 @@ pub mod fma {
             let t5165 = T::mul_add(s.2, s.311, t5164);
             let t5168 = T::mul_add(lit::<T>(-0.316), t5159, t5162);
             let t5169 = T::mul_add(-lit::<T>(-0.316), t5156, t5165);
-            dc_dq[1][6] = t5169;
+            dc_dq.14 = t5169;
             let t5171 = s.2 * s.270;
             let t5172 = T::mul_add(s.3, s.314, t5171);
             let t5174 = s.3 * s.270;
@@ -32748,7 +32863,7 @@ pub mod fma {
             let t5453 = t5448 + t5451;
             let t5454 = t5449 + t5452;
             let t5455 = t5390 + t5450;
-            dc_dqd[1][1] = t5455;
+            dc_dqd.9 = t5455;
             let t5456 = T::mul_add(s.10, t5409, t5442);
             let t5457 = T::mul_add(s.11, t5409, t5445);
             let t5458 = t5438 + t5456;
@@ -32762,7 +32877,7 @@ pub mod fma {
             let t5466 = s.11 * t5462;
             let t5468 = T::mul_add(s.10, t5463, -t5466);
             let t5469 = t5465 + t5468;
-            dc_dq[1][1] = t5469;
+            dc_dq.9 = t5469;
             let t5470 = s.13 * s.381;
             let t5471 = -t5470;
             let t5473 = T::mul_add(-s.12, s.351, t5471);
@@ -32772,13 +32887,13 @@ pub mod fma {
             let t5479 = -t5478;
             let t5481 = T::mul_add(-s.10, s.358, t5479);
             let t5482 = t5477 + t5481;
-            dc_dq[2][1] = t5482;
+            dc_dq.17 = t5482;
             let t5483 = s.11 * s.381;
             let t5484 = -t5483;
             let t5486 = T::mul_add(-s.10, s.351, t5484);
             let t5487 = t5486 + t5486;
             let t5488 = s.386 + t5487;
-            dc_dqd[2][1] = t5488;
+            dc_dqd.17 = t5488;
             let t5489 = s.13 * s.388;
             let t5490 = -t5489;
             let t5492 = T::mul_add(-s.12, s.288, t5490);
@@ -32789,13 +32904,13 @@ pub mod fma {
             let t5500 = -t5499;
             let t5502 = T::mul_add(-s.10, s.291, t5500);
             let t5503 = t5498 + t5502;
-            dc_dq[3][1] = t5503;
+            dc_dq.25 = t5503;
             let t5504 = s.11 * s.388;
             let t5505 = -t5504;
             let t5507 = T::mul_add(-s.10, s.288, t5505);
             let t5508 = t5507 + t5507;
             let t5509 = s.393 + t5508;
-            dc_dqd[3][1] = t5509;
+            dc_dqd.25 = t5509;
             let t5510 = s.13 * s.395;
             let t5511 = -t5510;
             let t5513 = T::mul_add(-s.12, s.293, t5511);
@@ -32806,13 +32921,13 @@ pub mod fma {
             let t5521 = -t5520;
             let t5523 = T::mul_add(-s.10, s.296, t5521);
             let t5524 = t5519 + t5523;
-            dc_dq[4][1] = t5524;
+            dc_dq.33 = t5524;
             let t5525 = s.11 * s.395;
             let t5526 = -t5525;
             let t5528 = T::mul_add(-s.10, s.293, t5526);
             let t5529 = t5528 + t5528;
             let t5530 = s.400 + t5529;
-            dc_dqd[4][1] = t5530;
+            dc_dqd.33 = t5530;
             let t5531 = s.13 * s.402;
             let t5532 = -t5531;
             let t5534 = T::mul_add(-s.12, s.298, t5532);
@@ -32823,13 +32938,13 @@ pub mod fma {
             let t5542 = -t5541;
             let t5544 = T::mul_add(-s.10, s.301, t5542);
             let t5545 = t5540 + t5544;
-            dc_dq[5][1] = t5545;
+            dc_dq.41 = t5545;
             let t5546 = s.11 * s.402;
             let t5547 = -t5546;
             let t5549 = T::mul_add(-s.10, s.298, t5547);
             let t5550 = t5549 + t5549;
             let t5551 = s.407 + t5550;
-            dc_dqd[5][1] = t5551;
+            dc_dqd.41 = t5551;
             let t5552 = s.13 * t5136;
             let t5553 = -t5552;
             let t5555 = T::mul_add(-s.12, s.305, t5553);
@@ -32840,13 +32955,13 @@ pub mod fma {
             let t5563 = -t5562;
             let t5565 = T::mul_add(-s.10, s.317, t5563);
             let t5566 = t5561 + t5565;
-            dc_dq[6][1] = t5566;
+            dc_dq.49 = t5566;
             let t5567 = s.11 * t5136;
             let t5568 = -t5567;
             let t5570 = T::mul_add(-s.10, s.305, t5568);
             let t5571 = t5570 + t5570;
             let t5572 = t5185 + t5571;
-            dc_dqd[6][1] = t5572;
+            dc_dqd.49 = t5572;
             let t5573 = s.13 * t5200;
             let t5574 = -t5573;
             let t5576 = T::mul_add(-s.12, s.322, t5574);
@@ -32880,60 +32995,60 @@ pub mod fma {
             let t5615 = s.0 * t5453;
             let t5616 = -t5615;
             let t5618 = T::mul_add(-s.1, t5454, t5616);
-            dc_dqd[0][1] = t5618;
+            dc_dqd.1 = t5618;
             let t5619 = s.0 * t5460;
             let t5620 = -t5619;
             let t5622 = T::mul_add(-s.1, t5461, t5620);
-            dc_dq[0][1] = t5622;
+            dc_dq.1 = t5622;
             let t5623 = s.0 * t5462;
             let t5624 = -t5623;
             let t5626 = T::mul_add(-s.1, t5463, t5624);
-            dc_dqd[1][0] = t5626;
+            dc_dqd.8 = t5626;
             let t5627 = s.0 * s.383;
             let t5629 = T::mul_add(s.1, s.367, -t5627);
-            dc_dqd[0][2] = t5629;
+            dc_dqd.2 = t5629;
             let t5630 = s.0 * s.384;
             let t5632 = T::mul_add(s.1, s.368, -t5630);
-            dc_dq[0][2] = t5632;
+            dc_dq.2 = t5632;
             let t5633 = s.0 * s.385;
             let t5635 = T::mul_add(s.1, s.358, -t5633);
-            dc_dqd[2][0] = t5635;
+            dc_dqd.16 = t5635;
             let t5636 = s.0 * s.390;
             let t5638 = T::mul_add(s.1, s.289, -t5636);
-            dc_dqd[0][3] = t5638;
+            dc_dqd.3 = t5638;
             let t5639 = s.0 * s.391;
             let t5641 = T::mul_add(s.1, s.290, -t5639);
-            dc_dq[0][3] = t5641;
+            dc_dq.3 = t5641;
             let t5642 = s.0 * s.392;
             let t5644 = T::mul_add(s.1, s.291, -t5642);
-            dc_dqd[3][0] = t5644;
+            dc_dqd.24 = t5644;
             let t5645 = s.0 * s.397;
             let t5647 = T::mul_add(s.1, s.294, -t5645);
-            dc_dqd[0][4] = t5647;
+            dc_dqd.4 = t5647;
             let t5648 = s.0 * s.398;
             let t5650 = T::mul_add(s.1, s.295, -t5648);
-            dc_dq[0][4] = t5650;
+            dc_dq.4 = t5650;
             let t5651 = s.0 * s.399;
             let t5653 = T::mul_add(s.1, s.296, -t5651);
-            dc_dqd[4][0] = t5653;
+            dc_dqd.32 = t5653;
             let t5654 = s.0 * s.404;
             let t5656 = T::mul_add(s.1, s.299, -t5654);
-            dc_dqd[0][5] = t5656;
+            dc_dqd.5 = t5656;
             let t5657 = s.0 * s.405;
             let t5659 = T::mul_add(s.1, s.300, -t5657);
-            dc_dq[0][5] = t5659;
+            dc_dq.5 = t5659;
             let t5660 = s.0 * s.406;
             let t5662 = T::mul_add(s.1, s.301, -t5660);
-            dc_dqd[5][0] = t5662;
+            dc_dqd.40 = t5662;
             let t5663 = s.0 * t5152;
             let t5665 = T::mul_add(s.1, s.309, -t5663);
-            dc_dqd[0][6] = t5665;
+            dc_dqd.6 = t5665;
             let t5666 = s.0 * t5168;
             let t5668 = T::mul_add(s.1, s.313, -t5666);
-            dc_dq[0][6] = t5668;
+            dc_dq.6 = t5668;
             let t5669 = s.0 * t5184;
             let t5671 = T::mul_add(s.1, s.317, -t5669);
-            dc_dqd[6][0] = t5671;
+            dc_dqd.48 = t5671;
             let t5672 = s.0 * t5216;
             let t5674 = T::mul_add(s.1, s.326, -t5672);
             let t5675 = s.0 * t5232;
@@ -32955,63 +33070,63 @@ pub mod fma {
             let t5698 = s.0 * t5695;
             let t5699 = -t5698;
             let t5701 = T::mul_add(-s.1, t5697, t5699);
-            dc_dqd[0][0] = t5701;
+            dc_dqd.0 = t5701;
             let t5702 = t5677 + t5686;
-            dc_dq[0][7] = t5702;
+            dc_dq.7 = t5702;
             let t5703 = t5233 + t5287;
-            dc_dq[1][7] = t5703;
+            dc_dq.15 = t5703;
             let t5704 = s.330 + s.345;
-            dc_dq[2][7] = t5704;
+            dc_dq.23 = t5704;
             let t5705 = s.275 + s.281;
-            dc_dq[3][7] = t5705;
+            dc_dq.31 = t5705;
             let t5706 = s.260 + s.262;
-            dc_dq[4][7] = t5706;
+            dc_dq.39 = t5706;
             let t5707 = s.180 + s.197;
-            dc_dq[5][7] = t5707;
+            dc_dq.47 = t5707;
             let t5708 = s.133 + s.139;
-            dc_dq[6][7] = t5708;
+            dc_dq.55 = t5708;
             let t5709 = t5587 + t5608;
-            dc_dq[7][1] = t5709;
+            dc_dq.57 = t5709;
             let t5710 = s.369 + s.371;
-            dc_dq[7][2] = t5710;
+            dc_dq.58 = t5710;
             let t5711 = s.283 + s.285;
-            dc_dq[7][3] = t5711;
+            dc_dq.59 = t5711;
             let t5712 = s.263 + s.265;
-            dc_dq[7][4] = t5712;
+            dc_dq.60 = t5712;
             let t5713 = s.255 + s.257;
-            dc_dq[7][5] = t5713;
+            dc_dq.61 = t5713;
             let t5714 = s.142 + s.144;
-            dc_dq[7][6] = t5714;
+            dc_dq.62 = t5714;
             let t5715 = s.131 + s.134;
-            dc_dq[7][7] = t5715;
+            dc_dq.63 = t5715;
             let t5716 = t5674 + t5683;
-            dc_dqd[0][7] = t5716;
+            dc_dqd.7 = t5716;
             let t5717 = t5217 + t5271;
-            dc_dqd[1][7] = t5717;
+            dc_dqd.15 = t5717;
             let t5718 = s.326 + s.341;
-            dc_dqd[2][7] = t5718;
+            dc_dqd.23 = t5718;
             let t5719 = s.273 + s.279;
-            dc_dqd[3][7] = t5719;
+            dc_dqd.31 = t5719;
             let t5720 = s.259 + s.261;
-            dc_dqd[4][7] = t5720;
+            dc_dqd.39 = t5720;
             let t5721 = s.175 + s.192;
-            dc_dqd[5][7] = t5721;
+            dc_dqd.47 = t5721;
             let t5722 = s.132 + s.138;
-            dc_dqd[6][7] = t5722;
+            dc_dqd.55 = t5722;
             let t5723 = t5680 + t5689;
-            dc_dqd[7][0] = t5723;
+            dc_dqd.56 = t5723;
             let t5724 = t5593 + t5614;
-            dc_dqd[7][1] = t5724;
+            dc_dqd.57 = t5724;
             let t5725 = s.370 + s.372;
-            dc_dqd[7][2] = t5725;
+            dc_dqd.58 = t5725;
             let t5726 = s.284 + s.286;
-            dc_dqd[7][3] = t5726;
+            dc_dqd.59 = t5726;
             let t5727 = s.264 + s.266;
-            dc_dqd[7][4] = t5727;
+            dc_dqd.60 = t5727;
             let t5728 = s.256 + s.258;
-            dc_dqd[7][5] = t5728;
+            dc_dqd.61 = t5728;
             let t5729 = s.143 + s.145;
-            dc_dqd[7][6] = t5729;
+            dc_dqd.62 = t5729;
         }
     }
     use rnea_grad_part2::rnea_grad_part2;
@@ -33648,6 +33763,14 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 64 entries of `minv`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct minv_f64<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T,
+    );
     mod minv_part0 {
         use super::*;
         #[inline(never)]
@@ -33658,6 +33781,7 @@ pub mod fma {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f64<T>) };
             let t3 = q[1].sin();
             let t4 = q[1].cos();
             let t13 = q[2].sin();
@@ -35415,6 +35539,7 @@ pub mod fma {
             s: &mut minv_slots<T>,
             minv: &mut [[T; NV]; NV],
         ) {
+            let minv = unsafe { &mut *(minv as *mut [[T; NV]; NV] as *mut minv_f64<T>) };
             let t2611 = s.80 + s.81;
             let t2613 = T::mul_add(-s.17, s.57, t2611);
             let t2615 = T::mul_add(s.18, s.77, t2613);
@@ -35562,105 +35687,105 @@ pub mod fma {
             let t2809 = t2799 / t2802;
             let t2810 = t2800 / t2802;
             let t2812 = T::mul_add(-t2793, t2803, s.24);
-            minv[0][0] = t2812;
+            minv.0 = t2812;
             let t2814 = T::mul_add(-t2794, t2803, s.25);
-            minv[0][1] = t2814;
-            minv[1][0] = t2814;
+            minv.1 = t2814;
+            minv.8 = t2814;
             let t2816 = T::mul_add(-t2795, t2803, s.26);
-            minv[0][2] = t2816;
-            minv[2][0] = t2816;
+            minv.2 = t2816;
+            minv.16 = t2816;
             let t2818 = T::mul_add(-t2796, t2803, s.27);
-            minv[0][3] = t2818;
-            minv[3][0] = t2818;
+            minv.3 = t2818;
+            minv.24 = t2818;
             let t2820 = T::mul_add(-t2797, t2803, s.28);
-            minv[0][4] = t2820;
-            minv[4][0] = t2820;
+            minv.4 = t2820;
+            minv.32 = t2820;
             let t2822 = T::mul_add(-t2798, t2803, s.29);
-            minv[0][5] = t2822;
-            minv[5][0] = t2822;
+            minv.5 = t2822;
+            minv.40 = t2822;
             let t2824 = T::mul_add(-t2799, t2803, s.30);
-            minv[0][6] = t2824;
-            minv[6][0] = t2824;
+            minv.6 = t2824;
+            minv.48 = t2824;
             let t2826 = T::mul_add(-t2800, t2803, s.32);
-            minv[0][7] = t2826;
-            minv[7][0] = t2826;
+            minv.7 = t2826;
+            minv.56 = t2826;
             let t2828 = T::mul_add(-t2794, t2804, s.34);
-            minv[1][1] = t2828;
+            minv.9 = t2828;
             let t2830 = T::mul_add(-t2795, t2804, s.35);
-            minv[1][2] = t2830;
-            minv[2][1] = t2830;
+            minv.10 = t2830;
+            minv.17 = t2830;
             let t2832 = T::mul_add(-t2796, t2804, s.36);
-            minv[1][3] = t2832;
-            minv[3][1] = t2832;
+            minv.11 = t2832;
+            minv.25 = t2832;
             let t2834 = T::mul_add(-t2797, t2804, s.37);
-            minv[1][4] = t2834;
-            minv[4][1] = t2834;
+            minv.12 = t2834;
+            minv.33 = t2834;
             let t2836 = T::mul_add(-t2798, t2804, s.38);
-            minv[1][5] = t2836;
-            minv[5][1] = t2836;
+            minv.13 = t2836;
+            minv.41 = t2836;
             let t2838 = T::mul_add(-t2799, t2804, s.39);
-            minv[1][6] = t2838;
-            minv[6][1] = t2838;
+            minv.14 = t2838;
+            minv.49 = t2838;
             let t2840 = T::mul_add(-t2800, t2804, s.40);
-            minv[1][7] = t2840;
-            minv[7][1] = t2840;
+            minv.15 = t2840;
+            minv.57 = t2840;
             let t2842 = T::mul_add(-t2795, t2805, s.42);
-            minv[2][2] = t2842;
+            minv.18 = t2842;
             let t2844 = T::mul_add(-t2796, t2805, s.43);
-            minv[2][3] = t2844;
-            minv[3][2] = t2844;
+            minv.19 = t2844;
+            minv.26 = t2844;
             let t2846 = T::mul_add(-t2797, t2805, s.44);
-            minv[2][4] = t2846;
-            minv[4][2] = t2846;
+            minv.20 = t2846;
+            minv.34 = t2846;
             let t2848 = T::mul_add(-t2798, t2805, s.45);
-            minv[2][5] = t2848;
-            minv[5][2] = t2848;
+            minv.21 = t2848;
+            minv.42 = t2848;
             let t2850 = T::mul_add(-t2799, t2805, s.46);
-            minv[2][6] = t2850;
-            minv[6][2] = t2850;
+            minv.22 = t2850;
+            minv.50 = t2850;
             let t2852 = T::mul_add(-t2800, t2805, s.47);
-            minv[2][7] = t2852;
-            minv[7][2] = t2852;
+            minv.23 = t2852;
+            minv.58 = t2852;
             let t2854 = T::mul_add(-t2796, t2806, s.49);
-            minv[3][3] = t2854;
+            minv.27 = t2854;
             let t2856 = T::mul_add(-t2797, t2806, s.50);
-            minv[3][4] = t2856;
-            minv[4][3] = t2856;
+            minv.28 = t2856;
+            minv.35 = t2856;
             let t2858 = T::mul_add(-t2798, t2806, s.51);
-            minv[3][5] = t2858;
-            minv[5][3] = t2858;
+            minv.29 = t2858;
+            minv.43 = t2858;
             let t2860 = T::mul_add(-t2799, t2806, s.52);
-            minv[3][6] = t2860;
-            minv[6][3] = t2860;
+            minv.30 = t2860;
+            minv.51 = t2860;
             let t2862 = T::mul_add(-t2800, t2806, s.53);
-            minv[3][7] = t2862;
-            minv[7][3] = t2862;
+            minv.31 = t2862;
+            minv.59 = t2862;
             let t2864 = T::mul_add(-t2797, t2807, s.55);
-            minv[4][4] = t2864;
+            minv.36 = t2864;
             let t2866 = T::mul_add(-t2798, t2807, s.56);
-            minv[4][5] = t2866;
-            minv[5][4] = t2866;
+            minv.37 = t2866;
+            minv.44 = t2866;
             let t2868 = T::mul_add(-t2799, t2807, s.59);
-            minv[4][6] = t2868;
-            minv[6][4] = t2868;
+            minv.38 = t2868;
+            minv.52 = t2868;
             let t2870 = T::mul_add(-t2800, t2807, s.65);
-            minv[4][7] = t2870;
-            minv[7][4] = t2870;
+            minv.39 = t2870;
+            minv.60 = t2870;
             let t2872 = T::mul_add(-t2798, t2808, s.74);
-            minv[5][5] = t2872;
+            minv.45 = t2872;
             let t2874 = T::mul_add(-t2799, t2808, t2621);
-            minv[5][6] = t2874;
-            minv[6][5] = t2874;
+            minv.46 = t2874;
+            minv.53 = t2874;
             let t2876 = T::mul_add(-t2800, t2808, t2648);
-            minv[5][7] = t2876;
-            minv[7][5] = t2876;
+            minv.47 = t2876;
+            minv.61 = t2876;
             let t2878 = T::mul_add(-t2799, t2809, t2701);
-            minv[6][6] = t2878;
+            minv.54 = t2878;
             let t2880 = T::mul_add(-t2800, t2809, t2726);
-            minv[6][7] = t2880;
-            minv[7][6] = t2880;
+            minv.55 = t2880;
+            minv.62 = t2880;
             let t2882 = T::mul_add(-t2800, t2810, t2767);
-            minv[7][7] = t2882;
+            minv.63 = t2882;
         }
     }
     use minv_part1::minv_part1;
@@ -35697,6 +35822,10 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 8 entries of `fd`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_f8<T>(T, T, T, T, T, T, T, T);
     mod fd_part0 {
         use super::*;
         #[inline(never)]
@@ -35709,6 +35838,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f8<T>) };
             let t3 = q[1].sin();
             s.0 = t3;
             let t4 = q[1].cos();
@@ -37525,6 +37655,7 @@ pub mod fma {
             s: &mut fd_slots<T>,
             qdd: &mut [T; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_f8<T>) };
             let t2638 = lit::<T>(-0.11695546160825496) - s.66;
             let t2639 = lit::<T>(0.11695546160825494) - s.67;
             let t2640 = s.14 - s.68;
@@ -37985,21 +38116,21 @@ pub mod fma {
             let t3315 = t3305 / t3307;
             let t3316 = s.60 - s.59;
             let t3318 = T::mul_add(-t3308, t3316, s.52);
-            qdd[0] = t3318;
+            qdd.0 = t3318;
             let t3320 = T::mul_add(-t3309, t3316, s.53);
-            qdd[1] = t3320;
+            qdd.1 = t3320;
             let t3322 = T::mul_add(-t3310, t3316, s.54);
-            qdd[2] = t3322;
+            qdd.2 = t3322;
             let t3324 = T::mul_add(-t3311, t3316, s.55);
-            qdd[3] = t3324;
+            qdd.3 = t3324;
             let t3326 = T::mul_add(-t3312, t3316, s.56);
-            qdd[4] = t3326;
+            qdd.4 = t3326;
             let t3328 = T::mul_add(-t3313, t3316, s.57);
-            qdd[5] = t3328;
+            qdd.5 = t3328;
             let t3330 = T::mul_add(-t3314, t3316, s.58);
-            qdd[6] = t3330;
+            qdd.6 = t3330;
             let t3332 = T::mul_add(-t3315, t3316, s.59);
-            qdd[7] = t3332;
+            qdd.7 = t3332;
         }
     }
     use fd_part1::fd_part1;
@@ -38061,6 +38192,18 @@ pub mod fma {
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
         T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
     );
+    /// An array of 8 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f8<T>(T, T, T, T, T, T, T, T);
+    /// An array of 64 entries of `fd_grad`'s, one field per entry.
+    #[repr(C)]
+    #[allow(non_camel_case_types, dead_code)]
+    struct fd_grad_f64<T>(
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T, T,
+        T, T, T, T,
+    );
     mod fd_grad_part0 {
         use super::*;
         #[inline(never)]
@@ -38075,6 +38218,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t4 = q[1].sin();
             s.0 = t4;
             let t5 = q[1].cos();
@@ -40239,6 +40389,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t2643 = s.353 - s.354;
             let t2645 = s.11 * s.276;
             let t2646 = T::mul_add(s.10, s.275, t2645);
@@ -41310,21 +41467,21 @@ pub mod fma {
             let t4264 = t4254 / t4256;
             let t4265 = s.347 - s.346;
             let t4267 = T::mul_add(-t4257, t4265, s.336);
-            qdd[0] = t4267;
+            qdd.0 = t4267;
             let t4269 = T::mul_add(-t4258, t4265, s.340);
-            qdd[1] = t4269;
+            qdd.1 = t4269;
             let t4271 = T::mul_add(-t4259, t4265, s.341);
-            qdd[2] = t4271;
+            qdd.2 = t4271;
             let t4273 = T::mul_add(-t4260, t4265, s.342);
-            qdd[3] = t4273;
+            qdd.3 = t4273;
             let t4275 = T::mul_add(-t4261, t4265, s.343);
-            qdd[4] = t4275;
+            qdd.4 = t4275;
             let t4277 = T::mul_add(-t4262, t4265, s.344);
-            qdd[5] = t4277;
+            qdd.5 = t4277;
             let t4279 = T::mul_add(-t4263, t4265, s.345);
-            qdd[6] = t4279;
+            qdd.6 = t4279;
             let t4281 = T::mul_add(-t4264, t4265, s.346);
-            qdd[7] = t4281;
+            qdd.7 = t4281;
             let t4283 = T::mul_add(-t4247, t4257, s.335);
             s.355 = t4283;
             let t4285 = T::mul_add(-t4248, t4257, t3411);
@@ -42087,6 +42244,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t5144 = s.465 + s.466;
             let t5145 = t5144 - s.44;
             s.16 = t5145;
@@ -44183,6 +44347,13 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t7662 = s.503 + s.504;
             let t7664 = T::mul_add(s.430, s.301, t7662);
             let t7666 = T::mul_add(s.431, s.76, t7664);
@@ -45430,7 +45601,7 @@ pub mod fma {
             let t9372 = T::mul_add(s.361, t9196, t9370);
             let t9374 = T::mul_add(s.362, t9339, t9372);
             let t9375 = -t9374;
-            dqdd_dq[0][1] = t9375;
+            dqdd_dq.1 = t9375;
             let t9377 = s.356 * t8551;
             let t9378 = T::mul_add(s.355, t9262, t9377);
             let t9380 = T::mul_add(s.357, t8344, t9378);
@@ -45440,7 +45611,7 @@ pub mod fma {
             let t9388 = T::mul_add(s.361, t8445, t9386);
             let t9390 = T::mul_add(s.362, t9340, t9388);
             let t9391 = -t9390;
-            dqdd_dq[0][2] = t9391;
+            dqdd_dq.2 = t9391;
             let t9393 = s.356 * t8611;
             let t9394 = T::mul_add(s.355, t9271, t9393);
             let t9396 = T::mul_add(s.357, t7755, t9394);
@@ -45450,7 +45621,7 @@ pub mod fma {
             let t9404 = T::mul_add(s.361, s.501, t9402);
             let t9406 = T::mul_add(s.362, t9341, t9404);
             let t9407 = -t9406;
-            dqdd_dq[0][3] = t9407;
+            dqdd_dq.3 = t9407;
             let t9409 = s.356 * t8671;
             let t9410 = T::mul_add(s.355, t9280, t9409);
             let t9412 = T::mul_add(s.357, t7817, t9410);
@@ -45460,7 +45631,7 @@ pub mod fma {
             let t9420 = T::mul_add(s.361, s.159, t9418);
             let t9422 = T::mul_add(s.362, t9342, t9420);
             let t9423 = -t9422;
-            dqdd_dq[0][4] = t9423;
+            dqdd_dq.4 = t9423;
             let t9425 = s.356 * t8735;
             let t9426 = T::mul_add(s.355, t9289, t9425);
             let t9428 = T::mul_add(s.357, t7881, t9426);
@@ -45470,7 +45641,7 @@ pub mod fma {
             let t9436 = T::mul_add(s.361, s.46, t9434);
             let t9438 = T::mul_add(s.362, t9343, t9436);
             let t9439 = -t9438;
-            dqdd_dq[0][5] = t9439;
+            dqdd_dq.5 = t9439;
             let t9441 = s.356 * t8799;
             let t9442 = T::mul_add(s.355, t9298, t9441);
             let t9444 = T::mul_add(s.357, t7949, t9442);
@@ -45480,7 +45651,7 @@ pub mod fma {
             let t9452 = T::mul_add(s.361, s.27, t9450);
             let t9454 = T::mul_add(s.362, t9344, t9452);
             let t9455 = -t9454;
-            dqdd_dq[0][6] = t9455;
+            dqdd_dq.6 = t9455;
             let t9457 = s.356 * t9333;
             let t9458 = T::mul_add(s.355, t9332, t9457);
             let t9460 = T::mul_add(s.357, t9334, t9458);
@@ -45490,7 +45661,7 @@ pub mod fma {
             let t9468 = T::mul_add(s.361, t9338, t9466);
             let t9470 = T::mul_add(s.362, t9345, t9468);
             let t9471 = -t9470;
-            dqdd_dq[0][7] = t9471;
+            dqdd_dq.7 = t9471;
             let t9473 = s.363 * t9099;
             let t9474 = T::mul_add(s.356, t9252, t9473);
             let t9476 = T::mul_add(s.364, t9112, t9474);
@@ -45500,7 +45671,7 @@ pub mod fma {
             let t9484 = T::mul_add(s.368, t9196, t9482);
             let t9486 = T::mul_add(s.369, t9339, t9484);
             let t9487 = -t9486;
-            dqdd_dq[1][1] = t9487;
+            dqdd_dq.9 = t9487;
             let t9489 = s.363 * t8551;
             let t9490 = T::mul_add(s.356, t9262, t9489);
             let t9492 = T::mul_add(s.364, t8344, t9490);
@@ -45510,7 +45681,7 @@ pub mod fma {
             let t9500 = T::mul_add(s.368, t8445, t9498);
             let t9502 = T::mul_add(s.369, t9340, t9500);
             let t9503 = -t9502;
-            dqdd_dq[1][2] = t9503;
+            dqdd_dq.10 = t9503;
             let t9505 = s.363 * t8611;
             let t9506 = T::mul_add(s.356, t9271, t9505);
             let t9508 = T::mul_add(s.364, t7755, t9506);
@@ -45520,7 +45691,7 @@ pub mod fma {
             let t9516 = T::mul_add(s.368, s.501, t9514);
             let t9518 = T::mul_add(s.369, t9341, t9516);
             let t9519 = -t9518;
-            dqdd_dq[1][3] = t9519;
+            dqdd_dq.11 = t9519;
             let t9521 = s.363 * t8671;
             let t9522 = T::mul_add(s.356, t9280, t9521);
             let t9524 = T::mul_add(s.364, t7817, t9522);
@@ -45530,7 +45701,7 @@ pub mod fma {
             let t9532 = T::mul_add(s.368, s.159, t9530);
             let t9534 = T::mul_add(s.369, t9342, t9532);
             let t9535 = -t9534;
-            dqdd_dq[1][4] = t9535;
+            dqdd_dq.12 = t9535;
             let t9537 = s.363 * t8735;
             let t9538 = T::mul_add(s.356, t9289, t9537);
             let t9540 = T::mul_add(s.364, t7881, t9538);
@@ -45540,7 +45711,7 @@ pub mod fma {
             let t9548 = T::mul_add(s.368, s.46, t9546);
             let t9550 = T::mul_add(s.369, t9343, t9548);
             let t9551 = -t9550;
-            dqdd_dq[1][5] = t9551;
+            dqdd_dq.13 = t9551;
             let t9553 = s.363 * t8799;
             let t9554 = T::mul_add(s.356, t9298, t9553);
             let t9556 = T::mul_add(s.364, t7949, t9554);
@@ -45550,7 +45721,7 @@ pub mod fma {
             let t9564 = T::mul_add(s.368, s.27, t9562);
             let t9566 = T::mul_add(s.369, t9344, t9564);
             let t9567 = -t9566;
-            dqdd_dq[1][6] = t9567;
+            dqdd_dq.14 = t9567;
             let t9569 = s.363 * t9333;
             let t9570 = T::mul_add(s.356, t9332, t9569);
             let t9572 = T::mul_add(s.364, t9334, t9570);
@@ -45560,7 +45731,7 @@ pub mod fma {
             let t9580 = T::mul_add(s.368, t9338, t9578);
             let t9582 = T::mul_add(s.369, t9345, t9580);
             let t9583 = -t9582;
-            dqdd_dq[1][7] = t9583;
+            dqdd_dq.15 = t9583;
             let t9585 = s.364 * t9099;
             let t9586 = T::mul_add(s.357, t9252, t9585);
             let t9588 = T::mul_add(s.370, t9112, t9586);
@@ -45570,7 +45741,7 @@ pub mod fma {
             let t9596 = T::mul_add(s.374, t9196, t9594);
             let t9598 = T::mul_add(s.375, t9339, t9596);
             let t9599 = -t9598;
-            dqdd_dq[2][1] = t9599;
+            dqdd_dq.17 = t9599;
             let t9601 = s.364 * t8551;
             let t9602 = T::mul_add(s.357, t9262, t9601);
             let t9604 = T::mul_add(s.370, t8344, t9602);
@@ -45580,7 +45751,7 @@ pub mod fma {
             let t9612 = T::mul_add(s.374, t8445, t9610);
             let t9614 = T::mul_add(s.375, t9340, t9612);
             let t9615 = -t9614;
-            dqdd_dq[2][2] = t9615;
+            dqdd_dq.18 = t9615;
             let t9617 = s.364 * t8611;
             let t9618 = T::mul_add(s.357, t9271, t9617);
             let t9620 = T::mul_add(s.370, t7755, t9618);
@@ -45590,7 +45761,7 @@ pub mod fma {
             let t9628 = T::mul_add(s.374, s.501, t9626);
             let t9630 = T::mul_add(s.375, t9341, t9628);
             let t9631 = -t9630;
-            dqdd_dq[2][3] = t9631;
+            dqdd_dq.19 = t9631;
             let t9633 = s.364 * t8671;
             let t9634 = T::mul_add(s.357, t9280, t9633);
             let t9636 = T::mul_add(s.370, t7817, t9634);
@@ -45600,7 +45771,7 @@ pub mod fma {
             let t9644 = T::mul_add(s.374, s.159, t9642);
             let t9646 = T::mul_add(s.375, t9342, t9644);
             let t9647 = -t9646;
-            dqdd_dq[2][4] = t9647;
+            dqdd_dq.20 = t9647;
             let t9649 = s.364 * t8735;
             let t9650 = T::mul_add(s.357, t9289, t9649);
             let t9652 = T::mul_add(s.370, t7881, t9650);
@@ -45610,7 +45781,7 @@ pub mod fma {
             let t9660 = T::mul_add(s.374, s.46, t9658);
             let t9662 = T::mul_add(s.375, t9343, t9660);
             let t9663 = -t9662;
-            dqdd_dq[2][5] = t9663;
+            dqdd_dq.21 = t9663;
             let t9665 = s.364 * t8799;
             let t9666 = T::mul_add(s.357, t9298, t9665);
             let t9668 = T::mul_add(s.370, t7949, t9666);
@@ -45620,7 +45791,7 @@ pub mod fma {
             let t9676 = T::mul_add(s.374, s.27, t9674);
             let t9678 = T::mul_add(s.375, t9344, t9676);
             let t9679 = -t9678;
-            dqdd_dq[2][6] = t9679;
+            dqdd_dq.22 = t9679;
             let t9681 = s.364 * t9333;
             let t9682 = T::mul_add(s.357, t9332, t9681);
             let t9684 = T::mul_add(s.370, t9334, t9682);
@@ -45630,7 +45801,7 @@ pub mod fma {
             let t9692 = T::mul_add(s.374, t9338, t9690);
             let t9694 = T::mul_add(s.375, t9345, t9692);
             let t9695 = -t9694;
-            dqdd_dq[2][7] = t9695;
+            dqdd_dq.23 = t9695;
             let t9697 = s.365 * t9099;
             let t9698 = T::mul_add(s.358, t9252, t9697);
             let t9700 = T::mul_add(s.371, t9112, t9698);
@@ -45640,7 +45811,7 @@ pub mod fma {
             let t9708 = T::mul_add(s.379, t9196, t9706);
             let t9710 = T::mul_add(s.380, t9339, t9708);
             let t9711 = -t9710;
-            dqdd_dq[3][1] = t9711;
+            dqdd_dq.25 = t9711;
             let t9713 = s.365 * t8551;
             let t9714 = T::mul_add(s.358, t9262, t9713);
             let t9716 = T::mul_add(s.371, t8344, t9714);
@@ -45650,7 +45821,7 @@ pub mod fma {
             let t9724 = T::mul_add(s.379, t8445, t9722);
             let t9726 = T::mul_add(s.380, t9340, t9724);
             let t9727 = -t9726;
-            dqdd_dq[3][2] = t9727;
+            dqdd_dq.26 = t9727;
             let t9729 = s.365 * t8611;
             let t9730 = T::mul_add(s.358, t9271, t9729);
             let t9732 = T::mul_add(s.371, t7755, t9730);
@@ -45660,7 +45831,7 @@ pub mod fma {
             let t9740 = T::mul_add(s.379, s.501, t9738);
             let t9742 = T::mul_add(s.380, t9341, t9740);
             let t9743 = -t9742;
-            dqdd_dq[3][3] = t9743;
+            dqdd_dq.27 = t9743;
             let t9745 = s.365 * t8671;
             let t9746 = T::mul_add(s.358, t9280, t9745);
             let t9748 = T::mul_add(s.371, t7817, t9746);
@@ -45670,7 +45841,7 @@ pub mod fma {
             let t9756 = T::mul_add(s.379, s.159, t9754);
             let t9758 = T::mul_add(s.380, t9342, t9756);
             let t9759 = -t9758;
-            dqdd_dq[3][4] = t9759;
+            dqdd_dq.28 = t9759;
             let t9761 = s.365 * t8735;
             let t9762 = T::mul_add(s.358, t9289, t9761);
             let t9764 = T::mul_add(s.371, t7881, t9762);
@@ -45680,7 +45851,7 @@ pub mod fma {
             let t9772 = T::mul_add(s.379, s.46, t9770);
             let t9774 = T::mul_add(s.380, t9343, t9772);
             let t9775 = -t9774;
-            dqdd_dq[3][5] = t9775;
+            dqdd_dq.29 = t9775;
             let t9777 = s.365 * t8799;
             let t9778 = T::mul_add(s.358, t9298, t9777);
             let t9780 = T::mul_add(s.371, t7949, t9778);
@@ -45690,7 +45861,7 @@ pub mod fma {
             let t9788 = T::mul_add(s.379, s.27, t9786);
             let t9790 = T::mul_add(s.380, t9344, t9788);
             let t9791 = -t9790;
-            dqdd_dq[3][6] = t9791;
+            dqdd_dq.30 = t9791;
             let t9793 = s.365 * t9333;
             let t9794 = T::mul_add(s.358, t9332, t9793);
             let t9796 = T::mul_add(s.371, t9334, t9794);
@@ -45700,7 +45871,7 @@ pub mod fma {
             let t9804 = T::mul_add(s.379, t9338, t9802);
             let t9806 = T::mul_add(s.380, t9345, t9804);
             let t9807 = -t9806;
-            dqdd_dq[3][7] = t9807;
+            dqdd_dq.31 = t9807;
             let t9809 = s.366 * t9099;
             let t9810 = T::mul_add(s.359, t9252, t9809);
             let t9812 = T::mul_add(s.372, t9112, t9810);
@@ -45710,7 +45881,7 @@ pub mod fma {
             let t9820 = T::mul_add(s.383, t9196, t9818);
             let t9822 = T::mul_add(s.384, t9339, t9820);
             let t9823 = -t9822;
-            dqdd_dq[4][1] = t9823;
+            dqdd_dq.33 = t9823;
             let t9825 = s.366 * t8551;
             let t9826 = T::mul_add(s.359, t9262, t9825);
             let t9828 = T::mul_add(s.372, t8344, t9826);
@@ -45720,7 +45891,7 @@ pub mod fma {
             let t9836 = T::mul_add(s.383, t8445, t9834);
             let t9838 = T::mul_add(s.384, t9340, t9836);
             let t9839 = -t9838;
-            dqdd_dq[4][2] = t9839;
+            dqdd_dq.34 = t9839;
             let t9841 = s.366 * t8611;
             let t9842 = T::mul_add(s.359, t9271, t9841);
             let t9844 = T::mul_add(s.372, t7755, t9842);
@@ -45730,7 +45901,7 @@ pub mod fma {
             let t9852 = T::mul_add(s.383, s.501, t9850);
             let t9854 = T::mul_add(s.384, t9341, t9852);
             let t9855 = -t9854;
-            dqdd_dq[4][3] = t9855;
+            dqdd_dq.35 = t9855;
             let t9857 = s.366 * t8671;
             let t9858 = T::mul_add(s.359, t9280, t9857);
             let t9860 = T::mul_add(s.372, t7817, t9858);
@@ -45740,7 +45911,7 @@ pub mod fma {
             let t9868 = T::mul_add(s.383, s.159, t9866);
             let t9870 = T::mul_add(s.384, t9342, t9868);
             let t9871 = -t9870;
-            dqdd_dq[4][4] = t9871;
+            dqdd_dq.36 = t9871;
             let t9873 = s.366 * t8735;
             let t9874 = T::mul_add(s.359, t9289, t9873);
             let t9876 = T::mul_add(s.372, t7881, t9874);
@@ -45750,7 +45921,7 @@ pub mod fma {
             let t9884 = T::mul_add(s.383, s.46, t9882);
             let t9886 = T::mul_add(s.384, t9343, t9884);
             let t9887 = -t9886;
-            dqdd_dq[4][5] = t9887;
+            dqdd_dq.37 = t9887;
             let t9889 = s.366 * t8799;
             let t9890 = T::mul_add(s.359, t9298, t9889);
             let t9892 = T::mul_add(s.372, t7949, t9890);
@@ -45760,7 +45931,7 @@ pub mod fma {
             let t9900 = T::mul_add(s.383, s.27, t9898);
             let t9902 = T::mul_add(s.384, t9344, t9900);
             let t9903 = -t9902;
-            dqdd_dq[4][6] = t9903;
+            dqdd_dq.38 = t9903;
             let t9905 = s.366 * t9333;
             let t9906 = T::mul_add(s.359, t9332, t9905);
             let t9908 = T::mul_add(s.372, t9334, t9906);
@@ -45770,7 +45941,7 @@ pub mod fma {
             let t9916 = T::mul_add(s.383, t9338, t9914);
             let t9918 = T::mul_add(s.384, t9345, t9916);
             let t9919 = -t9918;
-            dqdd_dq[4][7] = t9919;
+            dqdd_dq.39 = t9919;
             let t9921 = s.367 * t9099;
             let t9922 = T::mul_add(s.360, t9252, t9921);
             let t9924 = T::mul_add(s.373, t9112, t9922);
@@ -45780,7 +45951,7 @@ pub mod fma {
             let t9932 = T::mul_add(s.386, t9196, t9930);
             let t9934 = T::mul_add(s.387, t9339, t9932);
             let t9935 = -t9934;
-            dqdd_dq[5][1] = t9935;
+            dqdd_dq.41 = t9935;
             let t9937 = s.367 * t8551;
             let t9938 = T::mul_add(s.360, t9262, t9937);
             let t9940 = T::mul_add(s.373, t8344, t9938);
@@ -45790,7 +45961,7 @@ pub mod fma {
             let t9948 = T::mul_add(s.386, t8445, t9946);
             let t9950 = T::mul_add(s.387, t9340, t9948);
             let t9951 = -t9950;
-            dqdd_dq[5][2] = t9951;
+            dqdd_dq.42 = t9951;
             let t9953 = s.367 * t8611;
             let t9954 = T::mul_add(s.360, t9271, t9953);
             let t9956 = T::mul_add(s.373, t7755, t9954);
@@ -45800,7 +45971,7 @@ pub mod fma {
             let t9964 = T::mul_add(s.386, s.501, t9962);
             let t9966 = T::mul_add(s.387, t9341, t9964);
             let t9967 = -t9966;
-            dqdd_dq[5][3] = t9967;
+            dqdd_dq.43 = t9967;
             let t9969 = s.367 * t8671;
             let t9970 = T::mul_add(s.360, t9280, t9969);
             let t9972 = T::mul_add(s.373, t7817, t9970);
@@ -45810,7 +45981,7 @@ pub mod fma {
             let t9980 = T::mul_add(s.386, s.159, t9978);
             let t9982 = T::mul_add(s.387, t9342, t9980);
             let t9983 = -t9982;
-            dqdd_dq[5][4] = t9983;
+            dqdd_dq.44 = t9983;
             let t9985 = s.367 * t8735;
             let t9986 = T::mul_add(s.360, t9289, t9985);
             let t9988 = T::mul_add(s.373, t7881, t9986);
@@ -45820,7 +45991,7 @@ pub mod fma {
             let t9996 = T::mul_add(s.386, s.46, t9994);
             let t9998 = T::mul_add(s.387, t9343, t9996);
             let t9999 = -t9998;
-            dqdd_dq[5][5] = t9999;
+            dqdd_dq.45 = t9999;
             let t10001 = s.367 * t8799;
             let t10002 = T::mul_add(s.360, t9298, t10001);
             let t10004 = T::mul_add(s.373, t7949, t10002);
@@ -45830,7 +46001,7 @@ pub mod fma {
             let t10012 = T::mul_add(s.386, s.27, t10010);
             let t10014 = T::mul_add(s.387, t9344, t10012);
             let t10015 = -t10014;
-            dqdd_dq[5][6] = t10015;
+            dqdd_dq.46 = t10015;
             let t10017 = s.367 * t9333;
             let t10018 = T::mul_add(s.360, t9332, t10017);
             let t10020 = T::mul_add(s.373, t9334, t10018);
@@ -45840,7 +46011,7 @@ pub mod fma {
             let t10028 = T::mul_add(s.386, t9338, t10026);
             let t10030 = T::mul_add(s.387, t9345, t10028);
             let t10031 = -t10030;
-            dqdd_dq[5][7] = t10031;
+            dqdd_dq.47 = t10031;
             let t10033 = s.368 * t9099;
             let t10034 = T::mul_add(s.361, t9252, t10033);
             let t10036 = T::mul_add(s.374, t9112, t10034);
@@ -45850,7 +46021,7 @@ pub mod fma {
             let t10044 = T::mul_add(s.388, t9196, t10042);
             let t10046 = T::mul_add(s.389, t9339, t10044);
             let t10047 = -t10046;
-            dqdd_dq[6][1] = t10047;
+            dqdd_dq.49 = t10047;
             let t10049 = s.368 * t8551;
             let t10050 = T::mul_add(s.361, t9262, t10049);
             let t10052 = T::mul_add(s.374, t8344, t10050);
@@ -45860,7 +46031,7 @@ pub mod fma {
             let t10060 = T::mul_add(s.388, t8445, t10058);
             let t10062 = T::mul_add(s.389, t9340, t10060);
             let t10063 = -t10062;
-            dqdd_dq[6][2] = t10063;
+            dqdd_dq.50 = t10063;
             let t10065 = s.368 * t8611;
             let t10066 = T::mul_add(s.361, t9271, t10065);
             let t10068 = T::mul_add(s.374, t7755, t10066);
@@ -45870,7 +46041,7 @@ pub mod fma {
             let t10076 = T::mul_add(s.388, s.501, t10074);
             let t10078 = T::mul_add(s.389, t9341, t10076);
             let t10079 = -t10078;
-            dqdd_dq[6][3] = t10079;
+            dqdd_dq.51 = t10079;
             let t10081 = s.368 * t8671;
             let t10082 = T::mul_add(s.361, t9280, t10081);
             let t10084 = T::mul_add(s.374, t7817, t10082);
@@ -45880,7 +46051,7 @@ pub mod fma {
             let t10092 = T::mul_add(s.388, s.159, t10090);
             let t10094 = T::mul_add(s.389, t9342, t10092);
             let t10095 = -t10094;
-            dqdd_dq[6][4] = t10095;
+            dqdd_dq.52 = t10095;
             let t10097 = s.368 * t8735;
             let t10098 = T::mul_add(s.361, t9289, t10097);
             let t10100 = T::mul_add(s.374, t7881, t10098);
@@ -45890,7 +46061,7 @@ pub mod fma {
             let t10108 = T::mul_add(s.388, s.46, t10106);
             let t10110 = T::mul_add(s.389, t9343, t10108);
             let t10111 = -t10110;
-            dqdd_dq[6][5] = t10111;
+            dqdd_dq.53 = t10111;
             let t10113 = s.368 * t8799;
             let t10114 = T::mul_add(s.361, t9298, t10113);
             let t10116 = T::mul_add(s.374, t7949, t10114);
@@ -45900,7 +46071,7 @@ pub mod fma {
             let t10124 = T::mul_add(s.388, s.27, t10122);
             let t10126 = T::mul_add(s.389, t9344, t10124);
             let t10127 = -t10126;
-            dqdd_dq[6][6] = t10127;
+            dqdd_dq.54 = t10127;
             let t10129 = s.368 * t9333;
             let t10130 = T::mul_add(s.361, t9332, t10129);
             let t10132 = T::mul_add(s.374, t9334, t10130);
@@ -45910,7 +46081,7 @@ pub mod fma {
             let t10140 = T::mul_add(s.388, t9338, t10138);
             let t10142 = T::mul_add(s.389, t9345, t10140);
             let t10143 = -t10142;
-            dqdd_dq[6][7] = t10143;
+            dqdd_dq.55 = t10143;
             let t10145 = s.369 * t9099;
             let t10146 = T::mul_add(s.362, t9252, t10145);
             let t10148 = T::mul_add(s.375, t9112, t10146);
@@ -45920,7 +46091,7 @@ pub mod fma {
             let t10156 = T::mul_add(s.389, t9196, t10154);
             let t10158 = T::mul_add(s.390, t9339, t10156);
             let t10159 = -t10158;
-            dqdd_dq[7][1] = t10159;
+            dqdd_dq.57 = t10159;
             let t10161 = s.369 * t8551;
             let t10162 = T::mul_add(s.362, t9262, t10161);
             let t10164 = T::mul_add(s.375, t8344, t10162);
@@ -45943,12 +46114,19 @@ pub mod fma {
             dqdd_dq: &mut [[T; NV]; NV],
             dqdd_dqd: &mut [[T; NV]; NV],
         ) {
+            let qdd = unsafe { &mut *(qdd as *mut [T; NV] as *mut fd_grad_f8<T>) };
+            let dqdd_dq = unsafe {
+                &mut *(dqdd_dq as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
+            let dqdd_dqd = unsafe {
+                &mut *(dqdd_dqd as *mut [[T; NV]; NV] as *mut fd_grad_f64<T>)
+            };
             let t10168 = T::mul_add(s.384, s.72, s.157);
             let t10170 = T::mul_add(s.387, s.78, t10168);
             let t10172 = T::mul_add(s.389, s.80, t10170);
             let t10174 = T::mul_add(s.390, s.131, t10172);
             let t10175 = -t10174;
-            dqdd_dq[7][2] = t10175;
+            dqdd_dq.58 = t10175;
             let t10177 = s.369 * s.84;
             let t10178 = T::mul_add(s.362, s.102, t10177);
             let t10180 = T::mul_add(s.375, s.7, t10178);
@@ -45958,7 +46136,7 @@ pub mod fma {
             let t10188 = T::mul_add(s.389, s.501, t10186);
             let t10190 = T::mul_add(s.390, s.132, t10188);
             let t10191 = -t10190;
-            dqdd_dq[7][3] = t10191;
+            dqdd_dq.59 = t10191;
             let t10193 = s.369 * s.86;
             let t10194 = T::mul_add(s.362, s.111, t10193);
             let t10196 = T::mul_add(s.375, s.9, t10194);
@@ -45968,7 +46146,7 @@ pub mod fma {
             let t10204 = T::mul_add(s.389, s.159, t10202);
             let t10206 = T::mul_add(s.390, s.133, t10204);
             let t10207 = -t10206;
-            dqdd_dq[7][4] = t10207;
+            dqdd_dq.60 = t10207;
             let t10209 = s.369 * s.88;
             let t10210 = T::mul_add(s.362, s.114, t10209);
             let t10212 = T::mul_add(s.375, s.11, t10210);
@@ -45978,7 +46156,7 @@ pub mod fma {
             let t10220 = T::mul_add(s.389, s.46, t10218);
             let t10222 = T::mul_add(s.390, s.134, t10220);
             let t10223 = -t10222;
-            dqdd_dq[7][5] = t10223;
+            dqdd_dq.61 = t10223;
             let t10225 = s.369 * s.90;
             let t10226 = T::mul_add(s.362, s.121, t10225);
             let t10228 = T::mul_add(s.375, s.13, t10226);
@@ -45988,7 +46166,7 @@ pub mod fma {
             let t10236 = T::mul_add(s.389, s.27, t10234);
             let t10238 = T::mul_add(s.390, s.135, t10236);
             let t10239 = -t10238;
-            dqdd_dq[7][6] = t10239;
+            dqdd_dq.62 = t10239;
             let t10241 = s.369 * s.125;
             let t10242 = T::mul_add(s.362, s.124, t10241);
             let t10244 = T::mul_add(s.375, s.126, t10242);
@@ -45998,7 +46176,7 @@ pub mod fma {
             let t10252 = T::mul_add(s.389, s.130, t10250);
             let t10254 = T::mul_add(s.390, s.136, t10252);
             let t10255 = -t10254;
-            dqdd_dq[7][7] = t10255;
+            dqdd_dq.63 = t10255;
             let t10257 = s.356 * s.98;
             let t10258 = T::mul_add(s.355, s.123, t10257);
             let t10260 = T::mul_add(s.357, s.100, t10258);
@@ -46008,7 +46186,7 @@ pub mod fma {
             let t10268 = T::mul_add(s.361, s.122, t10266);
             let t10270 = T::mul_add(s.362, s.144, t10268);
             let t10271 = -t10270;
-            dqdd_dqd[0][0] = t10271;
+            dqdd_dqd.0 = t10271;
             let t10273 = s.356 * s.91;
             let t10274 = T::mul_add(s.355, s.97, t10273);
             let t10276 = T::mul_add(s.357, s.92, t10274);
@@ -46018,7 +46196,7 @@ pub mod fma {
             let t10284 = T::mul_add(s.361, s.96, t10282);
             let t10286 = T::mul_add(s.362, s.145, t10284);
             let t10287 = -t10286;
-            dqdd_dqd[0][1] = t10287;
+            dqdd_dqd.1 = t10287;
             let t10289 = s.356 * s.82;
             let t10290 = T::mul_add(s.355, s.99, t10289);
             let t10292 = T::mul_add(s.357, s.44, t10290);
@@ -46028,7 +46206,7 @@ pub mod fma {
             let t10300 = T::mul_add(s.361, s.81, t10298);
             let t10302 = T::mul_add(s.362, s.146, t10300);
             let t10303 = -t10302;
-            dqdd_dqd[0][2] = t10303;
+            dqdd_dqd.2 = t10303;
             let t10305 = s.356 * s.83;
             let t10306 = T::mul_add(s.355, s.101, t10305);
             let t10308 = T::mul_add(s.357, s.6, t10306);
@@ -46038,7 +46216,7 @@ pub mod fma {
             let t10316 = T::mul_add(s.361, s.502, t10314);
             let t10318 = T::mul_add(s.362, s.153, t10316);
             let t10319 = -t10318;
-            dqdd_dqd[0][3] = t10319;
+            dqdd_dqd.3 = t10319;
             let t10321 = s.356 * s.85;
             let t10322 = T::mul_add(s.355, s.110, t10321);
             let t10324 = T::mul_add(s.357, s.8, t10322);
@@ -46048,7 +46226,7 @@ pub mod fma {
             let t10332 = T::mul_add(s.361, s.160, t10330);
             let t10334 = T::mul_add(s.362, s.154, t10332);
             let t10335 = -t10334;
-            dqdd_dqd[0][4] = t10335;
+            dqdd_dqd.4 = t10335;
             let t10337 = s.356 * s.87;
             let t10338 = T::mul_add(s.355, s.113, t10337);
             let t10340 = T::mul_add(s.357, s.10, t10338);
@@ -46058,7 +46236,7 @@ pub mod fma {
             let t10348 = T::mul_add(s.361, s.47, t10346);
             let t10350 = T::mul_add(s.362, s.155, t10348);
             let t10351 = -t10350;
-            dqdd_dqd[0][5] = t10351;
+            dqdd_dqd.5 = t10351;
             let t10353 = s.356 * s.89;
             let t10354 = T::mul_add(s.355, s.120, t10353);
             let t10356 = T::mul_add(s.357, s.12, t10354);
@@ -46068,7 +46246,7 @@ pub mod fma {
             let t10364 = T::mul_add(s.361, s.28, t10362);
             let t10366 = T::mul_add(s.362, s.156, t10364);
             let t10367 = -t10366;
-            dqdd_dqd[0][6] = t10367;
+            dqdd_dqd.6 = t10367;
             let t10369 = s.356 * s.138;
             let t10370 = T::mul_add(s.355, s.137, t10369);
             let t10372 = T::mul_add(s.357, s.139, t10370);
@@ -46077,7 +46255,7 @@ pub mod fma {
             let t10378 = T::mul_add(s.360, s.142, t10376);
             let t10380 = T::mul_add(s.361, s.143, t10378);
             let t10381 = -t10380;
-            dqdd_dqd[0][7] = t10381;
+            dqdd_dqd.7 = t10381;
             let t10383 = s.363 * s.98;
             let t10384 = T::mul_add(s.356, s.123, t10383);
             let t10386 = T::mul_add(s.364, s.100, t10384);
@@ -46087,7 +46265,7 @@ pub mod fma {
             let t10394 = T::mul_add(s.368, s.122, t10392);
             let t10396 = T::mul_add(s.369, s.144, t10394);
             let t10397 = -t10396;
-            dqdd_dqd[1][0] = t10397;
+            dqdd_dqd.8 = t10397;
             let t10399 = s.363 * s.91;
             let t10400 = T::mul_add(s.356, s.97, t10399);
             let t10402 = T::mul_add(s.364, s.92, t10400);
@@ -46097,7 +46275,7 @@ pub mod fma {
             let t10410 = T::mul_add(s.368, s.96, t10408);
             let t10412 = T::mul_add(s.369, s.145, t10410);
             let t10413 = -t10412;
-            dqdd_dqd[1][1] = t10413;
+            dqdd_dqd.9 = t10413;
             let t10415 = s.363 * s.82;
             let t10416 = T::mul_add(s.356, s.99, t10415);
             let t10418 = T::mul_add(s.364, s.44, t10416);
@@ -46107,7 +46285,7 @@ pub mod fma {
             let t10426 = T::mul_add(s.368, s.81, t10424);
             let t10428 = T::mul_add(s.369, s.146, t10426);
             let t10429 = -t10428;
-            dqdd_dqd[1][2] = t10429;
+            dqdd_dqd.10 = t10429;
             let t10431 = s.363 * s.83;
             let t10432 = T::mul_add(s.356, s.101, t10431);
             let t10434 = T::mul_add(s.364, s.6, t10432);
@@ -46117,7 +46295,7 @@ pub mod fma {
             let t10442 = T::mul_add(s.368, s.502, t10440);
             let t10444 = T::mul_add(s.369, s.153, t10442);
             let t10445 = -t10444;
-            dqdd_dqd[1][3] = t10445;
+            dqdd_dqd.11 = t10445;
             let t10447 = s.363 * s.85;
             let t10448 = T::mul_add(s.356, s.110, t10447);
             let t10450 = T::mul_add(s.364, s.8, t10448);
@@ -46127,7 +46305,7 @@ pub mod fma {
             let t10458 = T::mul_add(s.368, s.160, t10456);
             let t10460 = T::mul_add(s.369, s.154, t10458);
             let t10461 = -t10460;
-            dqdd_dqd[1][4] = t10461;
+            dqdd_dqd.12 = t10461;
             let t10463 = s.363 * s.87;
             let t10464 = T::mul_add(s.356, s.113, t10463);
             let t10466 = T::mul_add(s.364, s.10, t10464);
@@ -46137,7 +46315,7 @@ pub mod fma {
             let t10474 = T::mul_add(s.368, s.47, t10472);
             let t10476 = T::mul_add(s.369, s.155, t10474);
             let t10477 = -t10476;
-            dqdd_dqd[1][5] = t10477;
+            dqdd_dqd.13 = t10477;
             let t10479 = s.363 * s.89;
             let t10480 = T::mul_add(s.356, s.120, t10479);
             let t10482 = T::mul_add(s.364, s.12, t10480);
@@ -46147,7 +46325,7 @@ pub mod fma {
             let t10490 = T::mul_add(s.368, s.28, t10488);
             let t10492 = T::mul_add(s.369, s.156, t10490);
             let t10493 = -t10492;
-            dqdd_dqd[1][6] = t10493;
+            dqdd_dqd.14 = t10493;
             let t10495 = s.363 * s.138;
             let t10496 = T::mul_add(s.356, s.137, t10495);
             let t10498 = T::mul_add(s.364, s.139, t10496);
@@ -46156,7 +46334,7 @@ pub mod fma {
             let t10504 = T::mul_add(s.367, s.142, t10502);
             let t10506 = T::mul_add(s.368, s.143, t10504);
             let t10507 = -t10506;
-            dqdd_dqd[1][7] = t10507;
+            dqdd_dqd.15 = t10507;
             let t10509 = s.364 * s.98;
             let t10510 = T::mul_add(s.357, s.123, t10509);
             let t10512 = T::mul_add(s.370, s.100, t10510);
@@ -46166,7 +46344,7 @@ pub mod fma {
             let t10520 = T::mul_add(s.374, s.122, t10518);
             let t10522 = T::mul_add(s.375, s.144, t10520);
             let t10523 = -t10522;
-            dqdd_dqd[2][0] = t10523;
+            dqdd_dqd.16 = t10523;
             let t10525 = s.364 * s.91;
             let t10526 = T::mul_add(s.357, s.97, t10525);
             let t10528 = T::mul_add(s.370, s.92, t10526);
@@ -46176,7 +46354,7 @@ pub mod fma {
             let t10536 = T::mul_add(s.374, s.96, t10534);
             let t10538 = T::mul_add(s.375, s.145, t10536);
             let t10539 = -t10538;
-            dqdd_dqd[2][1] = t10539;
+            dqdd_dqd.17 = t10539;
             let t10541 = s.364 * s.82;
             let t10542 = T::mul_add(s.357, s.99, t10541);
             let t10544 = T::mul_add(s.370, s.44, t10542);
@@ -46186,7 +46364,7 @@ pub mod fma {
             let t10552 = T::mul_add(s.374, s.81, t10550);
             let t10554 = T::mul_add(s.375, s.146, t10552);
             let t10555 = -t10554;
-            dqdd_dqd[2][2] = t10555;
+            dqdd_dqd.18 = t10555;
             let t10557 = s.364 * s.83;
             let t10558 = T::mul_add(s.357, s.101, t10557);
             let t10560 = T::mul_add(s.370, s.6, t10558);
@@ -46196,7 +46374,7 @@ pub mod fma {
             let t10568 = T::mul_add(s.374, s.502, t10566);
             let t10570 = T::mul_add(s.375, s.153, t10568);
             let t10571 = -t10570;
-            dqdd_dqd[2][3] = t10571;
+            dqdd_dqd.19 = t10571;
             let t10573 = s.364 * s.85;
             let t10574 = T::mul_add(s.357, s.110, t10573);
             let t10576 = T::mul_add(s.370, s.8, t10574);
@@ -46206,7 +46384,7 @@ pub mod fma {
             let t10584 = T::mul_add(s.374, s.160, t10582);
             let t10586 = T::mul_add(s.375, s.154, t10584);
             let t10587 = -t10586;
-            dqdd_dqd[2][4] = t10587;
+            dqdd_dqd.20 = t10587;
             let t10589 = s.364 * s.87;
             let t10590 = T::mul_add(s.357, s.113, t10589);
             let t10592 = T::mul_add(s.370, s.10, t10590);
@@ -46216,7 +46394,7 @@ pub mod fma {
             let t10600 = T::mul_add(s.374, s.47, t10598);
             let t10602 = T::mul_add(s.375, s.155, t10600);
             let t10603 = -t10602;
-            dqdd_dqd[2][5] = t10603;
+            dqdd_dqd.21 = t10603;
             let t10605 = s.364 * s.89;
             let t10606 = T::mul_add(s.357, s.120, t10605);
             let t10608 = T::mul_add(s.370, s.12, t10606);
@@ -46226,7 +46404,7 @@ pub mod fma {
             let t10616 = T::mul_add(s.374, s.28, t10614);
             let t10618 = T::mul_add(s.375, s.156, t10616);
             let t10619 = -t10618;
-            dqdd_dqd[2][6] = t10619;
+            dqdd_dqd.22 = t10619;
             let t10621 = s.364 * s.138;
             let t10622 = T::mul_add(s.357, s.137, t10621);
             let t10624 = T::mul_add(s.370, s.139, t10622);
@@ -46235,7 +46413,7 @@ pub mod fma {
             let t10630 = T::mul_add(s.373, s.142, t10628);
             let t10632 = T::mul_add(s.374, s.143, t10630);
             let t10633 = -t10632;
-            dqdd_dqd[2][7] = t10633;
+            dqdd_dqd.23 = t10633;
             let t10635 = s.365 * s.98;
             let t10636 = T::mul_add(s.358, s.123, t10635);
             let t10638 = T::mul_add(s.371, s.100, t10636);
@@ -46245,7 +46423,7 @@ pub mod fma {
             let t10646 = T::mul_add(s.379, s.122, t10644);
             let t10648 = T::mul_add(s.380, s.144, t10646);
             let t10649 = -t10648;
-            dqdd_dqd[3][0] = t10649;
+            dqdd_dqd.24 = t10649;
             let t10651 = s.365 * s.91;
             let t10652 = T::mul_add(s.358, s.97, t10651);
             let t10654 = T::mul_add(s.371, s.92, t10652);
@@ -46255,7 +46433,7 @@ pub mod fma {
             let t10662 = T::mul_add(s.379, s.96, t10660);
             let t10664 = T::mul_add(s.380, s.145, t10662);
             let t10665 = -t10664;
-            dqdd_dqd[3][1] = t10665;
+            dqdd_dqd.25 = t10665;
             let t10667 = s.365 * s.82;
             let t10668 = T::mul_add(s.358, s.99, t10667);
             let t10670 = T::mul_add(s.371, s.44, t10668);
@@ -46265,7 +46443,7 @@ pub mod fma {
             let t10678 = T::mul_add(s.379, s.81, t10676);
             let t10680 = T::mul_add(s.380, s.146, t10678);
             let t10681 = -t10680;
-            dqdd_dqd[3][2] = t10681;
+            dqdd_dqd.26 = t10681;
             let t10683 = s.365 * s.83;
             let t10684 = T::mul_add(s.358, s.101, t10683);
             let t10686 = T::mul_add(s.371, s.6, t10684);
@@ -46275,7 +46453,7 @@ pub mod fma {
             let t10694 = T::mul_add(s.379, s.502, t10692);
             let t10696 = T::mul_add(s.380, s.153, t10694);
             let t10697 = -t10696;
-            dqdd_dqd[3][3] = t10697;
+            dqdd_dqd.27 = t10697;
             let t10699 = s.365 * s.85;
             let t10700 = T::mul_add(s.358, s.110, t10699);
             let t10702 = T::mul_add(s.371, s.8, t10700);
@@ -46285,7 +46463,7 @@ pub mod fma {
             let t10710 = T::mul_add(s.379, s.160, t10708);
             let t10712 = T::mul_add(s.380, s.154, t10710);
             let t10713 = -t10712;
-            dqdd_dqd[3][4] = t10713;
+            dqdd_dqd.28 = t10713;
             let t10715 = s.365 * s.87;
             let t10716 = T::mul_add(s.358, s.113, t10715);
             let t10718 = T::mul_add(s.371, s.10, t10716);
@@ -46295,7 +46473,7 @@ pub mod fma {
             let t10726 = T::mul_add(s.379, s.47, t10724);
             let t10728 = T::mul_add(s.380, s.155, t10726);
             let t10729 = -t10728;
-            dqdd_dqd[3][5] = t10729;
+            dqdd_dqd.29 = t10729;
             let t10731 = s.365 * s.89;
             let t10732 = T::mul_add(s.358, s.120, t10731);
             let t10734 = T::mul_add(s.371, s.12, t10732);
@@ -46305,7 +46483,7 @@ pub mod fma {
             let t10742 = T::mul_add(s.379, s.28, t10740);
             let t10744 = T::mul_add(s.380, s.156, t10742);
             let t10745 = -t10744;
-            dqdd_dqd[3][6] = t10745;
+            dqdd_dqd.30 = t10745;
             let t10747 = s.365 * s.138;
             let t10748 = T::mul_add(s.358, s.137, t10747);
             let t10750 = T::mul_add(s.371, s.139, t10748);
@@ -46314,7 +46492,7 @@ pub mod fma {
             let t10756 = T::mul_add(s.378, s.142, t10754);
             let t10758 = T::mul_add(s.379, s.143, t10756);
             let t10759 = -t10758;
-            dqdd_dqd[3][7] = t10759;
+            dqdd_dqd.31 = t10759;
             let t10761 = s.366 * s.98;
             let t10762 = T::mul_add(s.359, s.123, t10761);
             let t10764 = T::mul_add(s.372, s.100, t10762);
@@ -46324,7 +46502,7 @@ pub mod fma {
             let t10772 = T::mul_add(s.383, s.122, t10770);
             let t10774 = T::mul_add(s.384, s.144, t10772);
             let t10775 = -t10774;
-            dqdd_dqd[4][0] = t10775;
+            dqdd_dqd.32 = t10775;
             let t10777 = s.366 * s.91;
             let t10778 = T::mul_add(s.359, s.97, t10777);
             let t10780 = T::mul_add(s.372, s.92, t10778);
@@ -46334,7 +46512,7 @@ pub mod fma {
             let t10788 = T::mul_add(s.383, s.96, t10786);
             let t10790 = T::mul_add(s.384, s.145, t10788);
             let t10791 = -t10790;
-            dqdd_dqd[4][1] = t10791;
+            dqdd_dqd.33 = t10791;
             let t10793 = s.366 * s.82;
             let t10794 = T::mul_add(s.359, s.99, t10793);
             let t10796 = T::mul_add(s.372, s.44, t10794);
@@ -46344,7 +46522,7 @@ pub mod fma {
             let t10804 = T::mul_add(s.383, s.81, t10802);
             let t10806 = T::mul_add(s.384, s.146, t10804);
             let t10807 = -t10806;
-            dqdd_dqd[4][2] = t10807;
+            dqdd_dqd.34 = t10807;
             let t10809 = s.366 * s.83;
             let t10810 = T::mul_add(s.359, s.101, t10809);
             let t10812 = T::mul_add(s.372, s.6, t10810);
@@ -46354,7 +46532,7 @@ pub mod fma {
             let t10820 = T::mul_add(s.383, s.502, t10818);
             let t10822 = T::mul_add(s.384, s.153, t10820);
             let t10823 = -t10822;
-            dqdd_dqd[4][3] = t10823;
+            dqdd_dqd.35 = t10823;
             let t10825 = s.366 * s.85;
             let t10826 = T::mul_add(s.359, s.110, t10825);
             let t10828 = T::mul_add(s.372, s.8, t10826);
@@ -46364,7 +46542,7 @@ pub mod fma {
             let t10836 = T::mul_add(s.383, s.160, t10834);
             let t10838 = T::mul_add(s.384, s.154, t10836);
             let t10839 = -t10838;
-            dqdd_dqd[4][4] = t10839;
+            dqdd_dqd.36 = t10839;
             let t10841 = s.366 * s.87;
             let t10842 = T::mul_add(s.359, s.113, t10841);
             let t10844 = T::mul_add(s.372, s.10, t10842);
@@ -46374,7 +46552,7 @@ pub mod fma {
             let t10852 = T::mul_add(s.383, s.47, t10850);
             let t10854 = T::mul_add(s.384, s.155, t10852);
             let t10855 = -t10854;
-            dqdd_dqd[4][5] = t10855;
+            dqdd_dqd.37 = t10855;
             let t10857 = s.366 * s.89;
             let t10858 = T::mul_add(s.359, s.120, t10857);
             let t10860 = T::mul_add(s.372, s.12, t10858);
@@ -46384,7 +46562,7 @@ pub mod fma {
             let t10868 = T::mul_add(s.383, s.28, t10866);
             let t10870 = T::mul_add(s.384, s.156, t10868);
             let t10871 = -t10870;
-            dqdd_dqd[4][6] = t10871;
+            dqdd_dqd.38 = t10871;
             let t10873 = s.366 * s.138;
             let t10874 = T::mul_add(s.359, s.137, t10873);
             let t10876 = T::mul_add(s.372, s.139, t10874);
@@ -46393,7 +46571,7 @@ pub mod fma {
             let t10882 = T::mul_add(s.382, s.142, t10880);
             let t10884 = T::mul_add(s.383, s.143, t10882);
             let t10885 = -t10884;
-            dqdd_dqd[4][7] = t10885;
+            dqdd_dqd.39 = t10885;
             let t10887 = s.367 * s.98;
             let t10888 = T::mul_add(s.360, s.123, t10887);
             let t10890 = T::mul_add(s.373, s.100, t10888);
@@ -46403,7 +46581,7 @@ pub mod fma {
             let t10898 = T::mul_add(s.386, s.122, t10896);
             let t10900 = T::mul_add(s.387, s.144, t10898);
             let t10901 = -t10900;
-            dqdd_dqd[5][0] = t10901;
+            dqdd_dqd.40 = t10901;
             let t10903 = s.367 * s.91;
             let t10904 = T::mul_add(s.360, s.97, t10903);
             let t10906 = T::mul_add(s.373, s.92, t10904);
@@ -46413,7 +46591,7 @@ pub mod fma {
             let t10914 = T::mul_add(s.386, s.96, t10912);
             let t10916 = T::mul_add(s.387, s.145, t10914);
             let t10917 = -t10916;
-            dqdd_dqd[5][1] = t10917;
+            dqdd_dqd.41 = t10917;
             let t10919 = s.367 * s.82;
             let t10920 = T::mul_add(s.360, s.99, t10919);
             let t10922 = T::mul_add(s.373, s.44, t10920);
@@ -46423,7 +46601,7 @@ pub mod fma {
             let t10930 = T::mul_add(s.386, s.81, t10928);
             let t10932 = T::mul_add(s.387, s.146, t10930);
             let t10933 = -t10932;
-            dqdd_dqd[5][2] = t10933;
+            dqdd_dqd.42 = t10933;
             let t10935 = s.367 * s.83;
             let t10936 = T::mul_add(s.360, s.101, t10935);
             let t10938 = T::mul_add(s.373, s.6, t10936);
@@ -46433,7 +46611,7 @@ pub mod fma {
             let t10946 = T::mul_add(s.386, s.502, t10944);
             let t10948 = T::mul_add(s.387, s.153, t10946);
             let t10949 = -t10948;
-            dqdd_dqd[5][3] = t10949;
+            dqdd_dqd.43 = t10949;
             let t10951 = s.367 * s.85;
             let t10952 = T::mul_add(s.360, s.110, t10951);
             let t10954 = T::mul_add(s.373, s.8, t10952);
@@ -46443,7 +46621,7 @@ pub mod fma {
             let t10962 = T::mul_add(s.386, s.160, t10960);
             let t10964 = T::mul_add(s.387, s.154, t10962);
             let t10965 = -t10964;
-            dqdd_dqd[5][4] = t10965;
+            dqdd_dqd.44 = t10965;
             let t10967 = s.367 * s.87;
             let t10968 = T::mul_add(s.360, s.113, t10967);
             let t10970 = T::mul_add(s.373, s.10, t10968);
@@ -46453,7 +46631,7 @@ pub mod fma {
             let t10978 = T::mul_add(s.386, s.47, t10976);
             let t10980 = T::mul_add(s.387, s.155, t10978);
             let t10981 = -t10980;
-            dqdd_dqd[5][5] = t10981;
+            dqdd_dqd.45 = t10981;
             let t10983 = s.367 * s.89;
             let t10984 = T::mul_add(s.360, s.120, t10983);
             let t10986 = T::mul_add(s.373, s.12, t10984);
@@ -46463,7 +46641,7 @@ pub mod fma {
             let t10994 = T::mul_add(s.386, s.28, t10992);
             let t10996 = T::mul_add(s.387, s.156, t10994);
             let t10997 = -t10996;
-            dqdd_dqd[5][6] = t10997;
+            dqdd_dqd.46 = t10997;
             let t10999 = s.367 * s.138;
             let t11000 = T::mul_add(s.360, s.137, t10999);
             let t11002 = T::mul_add(s.373, s.139, t11000);
@@ -46472,7 +46650,7 @@ pub mod fma {
             let t11008 = T::mul_add(s.385, s.142, t11006);
             let t11010 = T::mul_add(s.386, s.143, t11008);
             let t11011 = -t11010;
-            dqdd_dqd[5][7] = t11011;
+            dqdd_dqd.47 = t11011;
             let t11013 = s.368 * s.98;
             let t11014 = T::mul_add(s.361, s.123, t11013);
             let t11016 = T::mul_add(s.374, s.100, t11014);
@@ -46482,7 +46660,7 @@ pub mod fma {
             let t11024 = T::mul_add(s.388, s.122, t11022);
             let t11026 = T::mul_add(s.389, s.144, t11024);
             let t11027 = -t11026;
-            dqdd_dqd[6][0] = t11027;
+            dqdd_dqd.48 = t11027;
             let t11029 = s.368 * s.91;
             let t11030 = T::mul_add(s.361, s.97, t11029);
             let t11032 = T::mul_add(s.374, s.92, t11030);
@@ -46492,7 +46670,7 @@ pub mod fma {
             let t11040 = T::mul_add(s.388, s.96, t11038);
             let t11042 = T::mul_add(s.389, s.145, t11040);
             let t11043 = -t11042;
-            dqdd_dqd[6][1] = t11043;
+            dqdd_dqd.49 = t11043;
             let t11045 = s.368 * s.82;
             let t11046 = T::mul_add(s.361, s.99, t11045);
             let t11048 = T::mul_add(s.374, s.44, t11046);
@@ -46502,7 +46680,7 @@ pub mod fma {
             let t11056 = T::mul_add(s.388, s.81, t11054);
             let t11058 = T::mul_add(s.389, s.146, t11056);
             let t11059 = -t11058;
-            dqdd_dqd[6][2] = t11059;
+            dqdd_dqd.50 = t11059;
             let t11061 = s.368 * s.83;
             let t11062 = T::mul_add(s.361, s.101, t11061);
             let t11064 = T::mul_add(s.374, s.6, t11062);
@@ -46512,7 +46690,7 @@ pub mod fma {
             let t11072 = T::mul_add(s.388, s.502, t11070);
             let t11074 = T::mul_add(s.389, s.153, t11072);
             let t11075 = -t11074;
-            dqdd_dqd[6][3] = t11075;
+            dqdd_dqd.51 = t11075;
             let t11077 = s.368 * s.85;
             let t11078 = T::mul_add(s.361, s.110, t11077);
             let t11080 = T::mul_add(s.374, s.8, t11078);
@@ -46522,7 +46700,7 @@ pub mod fma {
             let t11088 = T::mul_add(s.388, s.160, t11086);
             let t11090 = T::mul_add(s.389, s.154, t11088);
             let t11091 = -t11090;
-            dqdd_dqd[6][4] = t11091;
+            dqdd_dqd.52 = t11091;
             let t11093 = s.368 * s.87;
             let t11094 = T::mul_add(s.361, s.113, t11093);
             let t11096 = T::mul_add(s.374, s.10, t11094);
@@ -46532,7 +46710,7 @@ pub mod fma {
             let t11104 = T::mul_add(s.388, s.47, t11102);
             let t11106 = T::mul_add(s.389, s.155, t11104);
             let t11107 = -t11106;
-            dqdd_dqd[6][5] = t11107;
+            dqdd_dqd.53 = t11107;
             let t11109 = s.368 * s.89;
             let t11110 = T::mul_add(s.361, s.120, t11109);
             let t11112 = T::mul_add(s.374, s.12, t11110);
@@ -46542,7 +46720,7 @@ pub mod fma {
             let t11120 = T::mul_add(s.388, s.28, t11118);
             let t11122 = T::mul_add(s.389, s.156, t11120);
             let t11123 = -t11122;
-            dqdd_dqd[6][6] = t11123;
+            dqdd_dqd.54 = t11123;
             let t11125 = s.368 * s.138;
             let t11126 = T::mul_add(s.361, s.137, t11125);
             let t11128 = T::mul_add(s.374, s.139, t11126);
@@ -46551,7 +46729,7 @@ pub mod fma {
             let t11134 = T::mul_add(s.386, s.142, t11132);
             let t11136 = T::mul_add(s.388, s.143, t11134);
             let t11137 = -t11136;
-            dqdd_dqd[6][7] = t11137;
+            dqdd_dqd.55 = t11137;
             let t11139 = s.369 * s.98;
             let t11140 = T::mul_add(s.362, s.123, t11139);
             let t11142 = T::mul_add(s.375, s.100, t11140);
@@ -46561,7 +46739,7 @@ pub mod fma {
             let t11150 = T::mul_add(s.389, s.122, t11148);
             let t11152 = T::mul_add(s.390, s.144, t11150);
             let t11153 = -t11152;
-            dqdd_dqd[7][0] = t11153;
+            dqdd_dqd.56 = t11153;
             let t11155 = s.369 * s.91;
             let t11156 = T::mul_add(s.362, s.97, t11155);
             let t11158 = T::mul_add(s.375, s.92, t11156);
@@ -46571,7 +46749,7 @@ pub mod fma {
             let t11166 = T::mul_add(s.389, s.96, t11164);
             let t11168 = T::mul_add(s.390, s.145, t11166);
             let t11169 = -t11168;
-            dqdd_dqd[7][1] = t11169;
+            dqdd_dqd.57 = t11169;
             let t11171 = s.369 * s.82;
             let t11172 = T::mul_add(s.362, s.99, t11171);
             let t11174 = T::mul_add(s.375, s.44, t11172);
@@ -46581,7 +46759,7 @@ pub mod fma {
             let t11182 = T::mul_add(s.389, s.81, t11180);
             let t11184 = T::mul_add(s.390, s.146, t11182);
             let t11185 = -t11184;
-            dqdd_dqd[7][2] = t11185;
+            dqdd_dqd.58 = t11185;
             let t11187 = s.369 * s.83;
             let t11188 = T::mul_add(s.362, s.101, t11187);
             let t11190 = T::mul_add(s.375, s.6, t11188);
@@ -46591,7 +46769,7 @@ pub mod fma {
             let t11198 = T::mul_add(s.389, s.502, t11196);
             let t11200 = T::mul_add(s.390, s.153, t11198);
             let t11201 = -t11200;
-            dqdd_dqd[7][3] = t11201;
+            dqdd_dqd.59 = t11201;
             let t11203 = s.369 * s.85;
             let t11204 = T::mul_add(s.362, s.110, t11203);
             let t11206 = T::mul_add(s.375, s.8, t11204);
@@ -46601,7 +46779,7 @@ pub mod fma {
             let t11214 = T::mul_add(s.389, s.160, t11212);
             let t11216 = T::mul_add(s.390, s.154, t11214);
             let t11217 = -t11216;
-            dqdd_dqd[7][4] = t11217;
+            dqdd_dqd.60 = t11217;
             let t11219 = s.369 * s.87;
             let t11220 = T::mul_add(s.362, s.113, t11219);
             let t11222 = T::mul_add(s.375, s.10, t11220);
@@ -46611,7 +46789,7 @@ pub mod fma {
             let t11230 = T::mul_add(s.389, s.47, t11228);
             let t11232 = T::mul_add(s.390, s.155, t11230);
             let t11233 = -t11232;
-            dqdd_dqd[7][5] = t11233;
+            dqdd_dqd.61 = t11233;
             let t11235 = s.369 * s.89;
             let t11236 = T::mul_add(s.362, s.120, t11235);
             let t11238 = T::mul_add(s.375, s.12, t11236);
@@ -46621,7 +46799,7 @@ pub mod fma {
             let t11246 = T::mul_add(s.389, s.28, t11244);
             let t11248 = T::mul_add(s.390, s.156, t11246);
             let t11249 = -t11248;
-            dqdd_dqd[7][6] = t11249;
+            dqdd_dqd.62 = t11249;
             let t11251 = s.369 * s.138;
             let t11252 = T::mul_add(s.362, s.137, t11251);
             let t11254 = T::mul_add(s.375, s.139, t11252);
@@ -46630,7 +46808,7 @@ pub mod fma {
             let t11260 = T::mul_add(s.387, s.142, t11258);
             let t11262 = T::mul_add(s.389, s.143, t11260);
             let t11263 = -t11262;
-            dqdd_dqd[7][7] = t11263;
+            dqdd_dqd.63 = t11263;
         }
     }
     use fd_grad_part4::fd_grad_part4;

@@ -26,17 +26,17 @@ pub(super) fn module_items(source: &str) -> Result<String, String> {
     Ok(body.find(USE).map_or(body, |at| &body[at + USE.len()..]).to_string())
 }
 
-/// Puts the fields of each slots struct (`struct k_slots<T>(T, T, ...)`, thousands of
-/// them, which prettyplease writes one per line) on lines of up to 100 columns.
+/// Puts the fields of each struct of entries (`struct k_slots<T>(T, T, ...)`, thousands
+/// of them, which prettyplease writes one per line) on lines of up to 100 columns.
 pub(super) fn compact_slots(text: String) -> String {
-    if !text.contains("_slots<T>(\n") {
+    if !text.contains("<T>(\n") {
         return text;
     }
     let mut out = String::with_capacity(text.len());
     let mut lines = text.split_inclusive('\n').peekable();
     while let Some(line) = lines.next() {
         out.push_str(line);
-        if !line.ends_with("_slots<T>(\n") {
+        if !(line.trim_start().starts_with("struct ") && line.ends_with("<T>(\n")) {
             continue;
         }
         let mut fields = 0;
