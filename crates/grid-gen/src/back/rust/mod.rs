@@ -523,12 +523,13 @@ fn emit_kernel(
             if block.columns() > 0 {
                 let _ = writeln!(out, "{name}_cols{b}(&mut pb{b}, &pc);");
             }
-            if block.stores.is_empty() {
+            // A block of no columns stores nothing (each store has one entry per column).
+            let cols = block.columns();
+            if cols == 0 || block.stores.is_empty() {
                 continue;
             }
             // The stores read and write views, in a scope of their own so that the views'
             // borrows end before anything else touches the arrays.
-            let cols = block.columns();
             let view = |n: &str, owned: bool, mutable: bool| {
                 let (ty, len) = arrays
                     .iter()
