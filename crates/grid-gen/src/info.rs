@@ -307,10 +307,15 @@ impl Info {
         .with_rust_size(model, gravity, gradient, solve)
     }
 
+    /// The kernels `ops` counted whose general graph fit the node limit too: the others
+    /// are large enough that `info` leaves their Rust, WGSL and Verilog out, to keep its
+    /// time and memory bounded (a 400-link chain's `rnea_grad`).
+    fn fully_counted(&self) -> impl Iterator<Item = &KernelStats> {
+        self.ops.iter().filter(|k| k.before.is_some())
+    }
+
     /// The Rust each kernel `ops` counted adds to a module: the module with that kernel
     /// alone, less the module with none (the constants and helpers every module has).
-    /// Every counted kernel, a humanoid's contact step too: its specialised graph fits the
-    /// node limit, which bounds the emitting as it bounds the counting.
     fn with_rust_size(
         mut self,
         model: &Model,
@@ -318,7 +323,7 @@ impl Info {
         gradient: ir::Gradient,
         solve: ir::Solve,
     ) -> Self {
-        let kernels: Vec<ir::KernelKind> = self.ops.iter().map(|k| k.kernel).collect();
+        let kernels: Vec<ir::KernelKind> = self.fully_counted().map(|k| k.kernel).collect();
         let lower = ir::LowerOptions {
             kernels,
             max_nodes: ir::STATS_MAX_NODES,
