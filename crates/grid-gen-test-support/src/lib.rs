@@ -561,6 +561,8 @@ pub fn kernel_args_corrected<'a>(
             Input::Active => active,
             Input::Gains => corr.gains,
             Input::ContactRef => corr.refs,
+            // Only a step kernel's rest takes the callee's outputs; no kernel's arguments do.
+            Input::Called(_) => &[],
         })
         .collect()
 }

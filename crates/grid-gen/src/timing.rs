@@ -94,6 +94,8 @@ fn call_args(inputs: &[crate::ir::Input]) -> String {
             Input::Active => "&x.5",
             Input::Gains => "&x.6",
             Input::ContactRef => "&x.7",
+            // Only a step kernel's rest takes these, and only the kernels are timed.
+            Input::Called(_) => "unreachable!()",
         })
         .collect();
     args.join(", ")

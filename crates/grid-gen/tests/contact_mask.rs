@@ -285,3 +285,133 @@ fn masked_contacts_compile_and_match_the_reference() {
     });
     println!("iiwa contact_fd_grad in four modes, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
 }
+
+/// A step kernel whose contact kernel is in the module shares it ([`ir::Call`]): the
+/// callee's values, fed to the rest, give the whole graph's. Floating HyQ with four masked
+/// feet and a force on its base, both Euler schemes, run-time dt, three modes.
+#[test]
+fn the_step_kernels_rest_after_their_callee_is_the_whole_kernel() {
+    let g = reference::DEFAULT_GRAVITY;
+    let mut rng = Rng(61);
+    let mut worst: f64 = 0.0;
+    for scheme in [Scheme::SemiImplicitEuler, Scheme::ExplicitEuler] {
+        let m = with_runtime_step(&standing_hyq(), scheme);
+        let module = ir::lower(&m, g, &LowerOptions::default()).unwrap();
+        let nv = m.nv();
+        for f in module.functions.iter().filter(|f| f.kind.is_step()) {
+            let call = f.call.as_ref().unwrap_or_else(|| panic!("{} shares its callee", f.kind));
+            let callee = module.function(call.callee).unwrap();
+            for bits in [0b1111, 0b0110, 0b0000] {
+                let (active, _) = mask(bits, 4);
+                let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
+                let (qd, u, fext) =
+                    (rng.vec(nv, -2.0, 2.0), rng.vec(m.nu(), -10.0, 10.0), rng.vec(6, -20.0, 20.0));
+                let ext = reference::External { fext: &fext, lambda: &[] };
+                let dt = [0.01];
+                let args = kernel_args_masked(f.inputs(), &q, &qd, &u, ext, &dt, &active);
+                let whole = f.eval(&args);
+                let tau = actuated_tau(&m, &u);
+                let called = callee.eval(&kernel_args_masked(
+                    callee.inputs(),
+                    &q,
+                    &qd,
+                    &tau,
+                    ext,
+                    &dt,
+                    &active,
+                ));
+                let mut rest_args: Vec<&[f64]> = args.clone();
+                rest_args.extend(called.iter().map(Vec::as_slice));
+                assert_eq!(rest_args.len(), call.rest.inputs().len());
+                let parted = call.rest.eval(&rest_args);
+                for ((o, a), b) in f.outputs.iter().zip(&whole).zip(&parted) {
+                    let e = rel_err(&col(a), &col(b));
+                    worst = worst.max(e);
+                    // Two roundings of the same values: the callee forms all of ∂q̈/∂τ's
+                    // symmetric half where the whole kernel forms the actuated columns, and
+                    // mirrors the other entries (measured 7e-14); the f64 bound of every test.
+                    assert!(e < 1e-12, "{scheme:?} {} {} mode {bits:04b}: {e:.2e}", f.kind, o.name);
+                }
+            }
+        }
+    }
+    println!(
+        "step kernels as callee and rest: worst {worst:.2e} from the whole graph (bound 1e-12)"
+    );
+}
+
+/// The shared step kernels through the generated Rust, compiled and run: iiwa with masked
+/// points at its fifth and seventh links, joints 3 and 6 unactuated (so the callee's τ is
+/// spread), a run-time dt and every contact and step kernel, so that `step` calls
+/// `contact_fd` and `step_grad` calls `contact_fd_grad`. Four modes, both copies, against
+/// the reference holding just the active contacts.
+#[test]
+fn shared_step_kernels_compile_and_match_the_reference() {
+    use grid_gen::generate::{generate, Options, Target};
+    let points = [("iiwa_link_5", ContactKind::Point), ("iiwa_link_7", ContactKind::Point)];
+    let mut model = with_forces(&load("grid_iiwa"), &[], &points);
+    model.specialisation.contact_mask = true;
+    model.specialisation.actuated = Some(vec![0, 1, 3, 4, 6]);
+    let model = with_runtime_step(&model, Scheme::SemiImplicitEuler);
+    let kernels = vec![
+        KernelKind::Step,
+        KernelKind::StepGrad,
+        KernelKind::ContactFd,
+        KernelKind::ContactFdGrad,
+    ];
+    let lower = LowerOptions { kernels, ..LowerOptions::default() };
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
+    for shared in ["fn step_rest<", "fn step_grad_rest<", "called_tau[3] = tau[2];"] {
+        assert!(file.contents.contains(shared), "the module shares: {shared}");
+    }
+    let said = compile_and_run(
+        "sharedstep",
+        &file.contents,
+        &[
+            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
+            SEEDED_STATE_RS,
+            r#"fn main() {
+    for k in 0..4 {
+        let x: [[f64; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s)));
+        let u: [f64; NU] = std::array::from_fn(|i| x[2][i]);
+        let active = [(k & 1) as f64, (k >> 1 & 1) as f64];
+        let dt = [0.01];
+        let mut all: Vec<f64> = Vec::new();
+        for one in [step(&x[0], &x[1], &u, &active, &dt), portable::step(&x[0], &x[1], &u, &active, &dt)] {
+            all.extend(one.0.iter().chain(&one.1).chain(&one.2));
+        }
+        for g in [step_grad(&x[0], &x[1], &u, &active, &dt), portable::step_grad(&x[0], &x[1], &u, &active, &dt)] {
+            all.extend(g.0.iter().chain(&g.1).chain(g.2.as_flattened()).chain(g.3.as_flattened()));
+            all.extend(g.4.iter().chain(g.5.as_flattened()).chain(g.6.as_flattened()));
+        }
+        let all: Vec<String> = all.iter().map(|x| format!("{x:?}")).collect();
+        println!("{}", all.join(" "));
+    }
+}
+"#,
+        ]
+        .concat(),
+    );
+    let nv = model.nv();
+    // f64 kernels are held to 1e-12 of the reference, as everywhere.
+    let worst = worst_line_error(&said, 4, 0, 1e-12, |k, _| {
+        let x: Vec<Vec<f64>> =
+            (0..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+        let u = &x[2][..model.nu()];
+        let active = [k & 1 == 1, k >> 1 & 1 == 1];
+        let g = reference::DEFAULT_GRAVITY;
+        let mut want = Vec::new();
+        for kind in [KernelKind::Step, KernelKind::StepGrad] {
+            let values =
+                reference_masked_outputs(kind, &model, &x[0], &x[1], u, g, &[], 0.01, &active);
+            let one: Vec<f64> =
+                values.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
+            want.extend(one.iter().chain(&one).copied());
+        }
+        want
+    });
+    println!("iiwa step and step_grad through their callees, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
+}

@@ -119,7 +119,8 @@ impl Bounds {
                 | Input::ContactRef
                 | Input::Dt
                 | Input::V
-                | Input::Q1,
+                | Input::Q1
+                | Input::Called(_),
                 _,
             ) => (f64::NEG_INFINITY, f64::INFINITY),
             Port::Value(Input::Fext | Input::Lambda, _) => (-self.force, self.force),

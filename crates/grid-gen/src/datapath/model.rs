@@ -42,7 +42,8 @@ pub fn port_values(dp: &Datapath, q: &[f64], qd: &[f64], qdd: &[f64], rest: &[f6
                     | Input::ContactRef
                     | Input::Dt
                     | Input::V
-                    | Input::Q1 => (rest, 0),
+                    | Input::Q1
+                    | Input::Called(_) => (rest, 0),
                     Input::Lambda => (rest, lambda_at),
                 };
                 v[at + j as usize]

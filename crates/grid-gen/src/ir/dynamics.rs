@@ -115,6 +115,9 @@ pub(crate) struct Dynamics<'a> {
     /// The sign nodes of the logarithms [`Self::contact_accelerations`] took (a wrench
     /// contact's Baumgarte error), whose tangents the derivatives hold at 0.
     log_signs: Vec<Id>,
+    /// Whether the step kernels take the contact kernel's outputs as inputs
+    /// ([`Input::Called`]) instead of recording it: a step kernel's rest ([`crate::ir::Call`]).
+    pub called: bool,
 }
 
 /// The RNEA quantities the gradient needs.
@@ -163,6 +166,7 @@ impl<'a> Dynamics<'a> {
             fd_solves: None,
             solve: Solve::Minv,
             forces: Forces::default(),
+            called: false,
             config: None,
             log_signs: Vec::new(),
         }

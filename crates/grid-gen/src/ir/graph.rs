@@ -42,7 +42,23 @@ pub enum Input {
     V,
     /// A second configuration, nq entries: `difference`'s and `ddifference`'s `q1`.
     Q1,
+    /// Output `k` of the contact kernel that a step kernel's rest takes from its call
+    /// ([`crate::ir::Call`]): `contact_fd_grad`'s outputs in order, of which `contact_fd`'s
+    /// are the first two. Only the Rust backend sees these inputs.
+    Called(u8),
 }
+
+/// The Rust names of [`Input::Called`]'s inputs: `contact_fd_grad`'s outputs, prefixed.
+const CALLED: [&str; 8] = [
+    "called_qdd",
+    "called_lambda",
+    "called_dqdd_dq",
+    "called_dqdd_dqd",
+    "called_dqdd_dtau",
+    "called_dlambda_dq",
+    "called_dlambda_dqd",
+    "called_dlambda_dtau",
+];
 
 /// Which of a WGSL kernel's three input buffers holds an input: `q`, `qd` (q̇, or the
 /// Lie-group kernels' tangent `v`), or `u`, which packs every other input in argument order.
@@ -68,6 +84,7 @@ impl Input {
             Input::Dt => "dt",
             Input::V => "v",
             Input::Q1 => "q1",
+            Input::Called(k) => CALLED[usize::from(k) % CALLED.len()],
         }
     }
 
@@ -98,7 +115,14 @@ impl Input {
             Input::ContactRef => dims.ncontact_ref,
             Input::Dt => 1,
             Input::Qd | Input::Qdd | Input::Tau | Input::V => dims.nv,
+            Input::Called(k) => Input::called_shape(k).len(dims),
         }
+    }
+
+    /// The shape of [`Input::Called`]`(k)`: `contact_fd_grad`'s output k's.
+    pub fn called_shape(k: u8) -> crate::ir::Shape {
+        let outputs = crate::ir::KernelKind::ContactFdGrad.outputs();
+        outputs[usize::from(k).min(outputs.len() - 1)].shape
     }
 }
 

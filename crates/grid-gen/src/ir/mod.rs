@@ -18,7 +18,7 @@ mod validate;
 pub use graph::{Buffer, Id, Input, Node, Op, Stage};
 pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve, UPacking};
 pub use module::{
-    lower, lower_function, ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Contact,
+    lower, lower_function, Call, ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Contact,
     CoupledJoint, DenseProduct, EvalNumber, Function, LowerError, LowerOptions, Module, Operand,
     Output, Robot, SphericalJoint, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
 };

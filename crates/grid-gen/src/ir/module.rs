@@ -336,6 +336,21 @@ pub struct Function {
     /// are; a backend may instead run the program with the columns innermost (the Rust
     /// backend's vectorised loops). `None` where a scene selects entries.
     pub program: Option<ColumnProgram>,
+    /// A step kernel that a backend may run as its contact kernel, called, then `rest`.
+    /// The graph holds the whole kernel, which every backend may run as it is.
+    pub call: Option<Box<Call>>,
+}
+
+/// What a step kernel shares with the contact kernel of its module (`step` with
+/// `contact_fd`, `step_grad` with `contact_fd_grad`): the callee run on the step's inputs
+/// (its actuated τ spread over the coordinates, no `dt`), then `rest`, the step's own work,
+/// whose inputs are the step's and then the callee's outputs ([`Input::Called`]). The Rust
+/// backend calls the callee instead of repeating it, which roughly halves a humanoid's
+/// library (the book, Compile time).
+#[derive(Clone, Debug, PartialEq)]
+pub struct Call {
+    pub callee: KernelKind,
+    pub rest: Function,
 }
 
 /// A program over a small register file of rows, run over many columns at once: each
@@ -581,7 +596,57 @@ pub fn lower_function(
     }
     validate(&f, &Robot::of(model).dims())
         .map_err(|error| LowerError::Invalid { kernel: kind, error })?;
+    let mut f = f;
+    f.call = shared_call(model, gravity, kind, options)?.map(Box::new);
     Ok(f)
+}
+
+/// The [`Call`] of a step kernel whose contact kernel the module holds too: with contacts,
+/// folded and sparse (the general graphs are for counting), a scheme other than RK4 (whose
+/// stages run at other states), no selected entries, and callee outputs that input indices
+/// can address.
+fn shared_call(
+    model: &Model,
+    gravity: [f64; 3],
+    kind: KernelKind,
+    options: &LowerOptions,
+) -> Result<Option<Call>, LowerError> {
+    let spec = &model.specialisation;
+    let callee = match kind {
+        KernelKind::Step => KernelKind::ContactFd,
+        KernelKind::StepGrad => KernelKind::ContactFdGrad,
+        _ => return Ok(None),
+    };
+    let scheme = spec.step.map(|s| s.scheme);
+    let nv = model.nv();
+    if spec.contacts.is_empty()
+        || scheme.is_none_or(|s| s == crate::model::Scheme::Rk4)
+        || !(options.fold && options.sparse)
+        || spec.selects()
+        || !options.kernels.contains(&callee)
+        || !callee.exists_for(spec)
+        || nv * nv.max(Robot::of(model).nlambda()) > usize::from(u16::MAX)
+    {
+        return Ok(None);
+    }
+    let mut d = Dynamics::new(model, gravity, true, true, options.max_nodes);
+    d.called = true;
+    let outputs = kind.record(&mut d);
+    if d.g.exhausted() {
+        return Err(LowerError::TooLarge {
+            robot: model.name.clone(),
+            nv,
+            kernel: kind,
+            limit: options.max_nodes,
+        });
+    }
+    let mut rest = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, None, None);
+    rest.inputs = kind.inputs_for(spec);
+    let called = callee.outputs().len() as u8;
+    rest.inputs.extend((0..called).map(Input::Called));
+    rest.dims = Robot::of(model).dims();
+    validate(&rest, &rest.dims).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
+    Ok(Some(Call { callee, rest }))
 }
 
 /// The most joints on one path from the root for which `fd_grad` may use [`Solve::Ltdl`].
@@ -750,6 +815,7 @@ fn freeze(
         solve: None,
         product,
         program,
+        call: None,
     }
 }
 

@@ -113,13 +113,24 @@ fn literal(c: f64) -> String {
 fn operand(k: &Function, names: &Chunks, here: usize, id: Id) -> String {
     match k.op(id) {
         Op::Const(c) => format!("lit::<T>({})", literal(c)),
-        Op::Input(which, j) => format!("{}[{j}]", which.name()),
+        Op::Input(which, j) => input_place(k, which, j),
         _ if names.chunk_of[id.0 as usize] == Some(here as u32) => format!("t{}", id.0),
         _ => format!(
             "s.{}",
             names.slot[id.0 as usize].expect("values read by a later chunk have a slot")
         ),
     }
+}
+
+/// Entry `j` of an input: `q[3]`; a rest's callee outputs in their own shapes
+/// (`called_dqdd_dq[2][5]`).
+fn input_place(k: &Function, which: crate::ir::Input, j: u16) -> String {
+    let index = match which {
+        crate::ir::Input::Called(c) => crate::ir::Input::called_shape(c).index(j.into(), &k.dims),
+        _ => vec![j.into()],
+    };
+    let index: String = index.iter().map(|i| format!("[{i}]")).collect();
+    format!("{}{index}", which.name())
 }
 
 /// The machine-code copy a function is emitted for.
@@ -309,6 +320,7 @@ fn operand_names(p: &DenseProduct) -> Vec<String> {
 fn emit_kernel(
     out: &mut String,
     k: &Function,
+    name: &str,
     nv: usize,
     q_len: &str,
     options: &RustOptions,
@@ -355,7 +367,6 @@ fn emit_kernel(
         }
     }
     let chunks = &names.chunks;
-    let name = k.kind.name();
     let Signature { args, arg_names, ret_type } = Signature::of(k, q_len);
     let ret_value = return_value(k);
     let (mut inline_outputs, mut sinks) = output_stores(k);
@@ -455,7 +466,16 @@ fn emit_kernel(
     };
 
     let attr = copy.attribute();
-    let _ = writeln!(out, "/// {}", k.doc());
+    let doc = if name == k.kind.name() {
+        k.doc()
+    } else {
+        format!(
+            "The part of [`{}`] after the kernel it calls (see [`{}`]).",
+            k.kind.name(),
+            k.kind.name()
+        )
+    };
+    let _ = writeln!(out, "/// {doc}");
     let _ = writeln!(
         out,
         "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]"
@@ -625,6 +645,108 @@ fn emit_kernel(
         for (b, block) in p.blocks.iter().enumerate().filter(|(_, b)| b.columns() > 0) {
             emit_program_block(out, k, block, p.rows, c, &format!("{name}_cols{b}"), copy);
         }
+    }
+}
+
+/// A kernel that runs its callee and then its rest ([`crate::ir::Call`]): the callee's
+/// outputs are the rest's last inputs, and the callee takes the kernel's inputs with the
+/// actuated τ spread over the coordinates (0 elsewhere) and without `dt`. A SIMD copy's
+/// `{name}_into` passes its outputs on to the rest's.
+fn emit_call(
+    out: &mut String,
+    k: &Function,
+    call: &crate::ir::Call,
+    robot: &crate::ir::Robot,
+    copy: Copy,
+) {
+    use crate::ir::Input;
+    let name = k.kind.name();
+    let callee = call.callee.name();
+    let Signature { args, arg_names, ret_type } = Signature::of(k, q_len(robot));
+    let attr = copy.attribute();
+    let into = copy != Copy::Portable;
+    let callee_outputs = call.callee.outputs();
+    let callee_args: Vec<&str> = call
+        .callee
+        .inputs_for(&robot.specialisation)
+        .iter()
+        .map(|i| if *i == Input::Tau { "&called_tau" } else { i.name() })
+        .collect();
+    let rest_args: Vec<String> = call
+        .rest
+        .inputs()
+        .iter()
+        .map(|i| {
+            if matches!(i, Input::Called(_)) {
+                format!("&{}", i.name())
+            } else {
+                i.name().to_string()
+            }
+        })
+        .collect();
+    let mut body = String::new();
+    let _ = writeln!(body, "let mut called_tau = [lit::<T>(0.0); NV];");
+    for (i, &c) in robot.actuated.iter().enumerate() {
+        let _ = writeln!(body, "called_tau[{c}] = tau[{i}];");
+    }
+    let called: Vec<&str> =
+        (0..callee_outputs.len()).map(|c| Input::Called(c as u8).name()).collect();
+    if into {
+        for (c, o) in called.iter().zip(callee_outputs) {
+            let _ = writeln!(body, "let mut {c} = {};", array_of(o.shape, "lit::<T>(0.0)"));
+        }
+        let refs: Vec<String> = called.iter().map(|c| format!("&mut {c}")).collect();
+        let _ = writeln!(body, "{callee}_into({}, {});", callee_args.join(", "), refs.join(", "));
+        let outs: Vec<&str> = k.outputs.iter().map(|o| o.name).collect();
+        let _ = writeln!(body, "{name}_rest_into({}, {});", rest_args.join(", "), outs.join(", "));
+    } else {
+        let _ =
+            writeln!(body, "let ({}) = {callee}({});", called.join(", "), callee_args.join(", "));
+        let _ = writeln!(body, "{name}_rest({})", rest_args.join(", "));
+    }
+    let _ = writeln!(out, "/// {}", k.doc());
+    let _ = writeln!(
+        out,
+        "///
+/// Runs [`{callee}`], then [`{name}_rest`] on its outputs.
+         #[inline]
+{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]"
+    );
+    let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
+    if into {
+        emit_output_init(out, k);
+        let _ = writeln!(
+            out,
+            "{name}_into({}, {});
+{}
+}}
+",
+            arg_names.join(", "),
+            output_refs(k),
+            return_value(k)
+        );
+        let params: Vec<String> = k
+            .outputs
+            .iter()
+            .map(|o| format!("{}: &mut {}", o.name, output_type(o.shape)))
+            .collect();
+        let _ = writeln!(
+            out,
+            "/// [`{name}`] into outputs that start at zero (see [`{callee}_into`]).
+             #[inline]
+{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]
+             pub(super) fn {name}_into<T: Real>({}, {}) {{
+{body}}}
+",
+            args.join(", "),
+            params.join(", ")
+        );
+    } else {
+        let _ = writeln!(
+            out,
+            "{body}}}
+"
+        );
     }
 }
 
@@ -906,7 +1028,12 @@ impl Signature {
             args: k
                 .inputs()
                 .iter()
-                .map(|i| format!("{}: &[T; {}]", i.name(), input_len(*i, q_len)))
+                .map(|i| match *i {
+                    crate::ir::Input::Called(c) => {
+                        format!("{}: &{}", i.name(), output_type(crate::ir::Input::called_shape(c)))
+                    }
+                    _ => format!("{}: &[T; {}]", i.name(), input_len(*i, q_len)),
+                })
                 .collect(),
             arg_names: k.inputs().iter().map(|i| i.name()).collect(),
             ret_type: if ret.len() == 1 { ret[0].clone() } else { format!("({})", ret.join(", ")) },
@@ -930,6 +1057,13 @@ pub(super) fn input_len(input: crate::ir::Input, q_len: &str) -> &str {
         | crate::ir::Input::Qdd
         | crate::ir::Input::Tau
         | crate::ir::Input::V => "NV",
+        // In their shapes (see `Signature::of`); flat, these lengths.
+        crate::ir::Input::Called(c) => match crate::ir::Input::called_shape(c) {
+            Shape::Lambda => "NLAMBDA",
+            Shape::Matrix => "NV * NV",
+            Shape::LambdaBy => "NLAMBDA * NV",
+            _ => "NV",
+        },
     }
 }
 
@@ -1478,7 +1612,14 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
         Piece::Start(header) => format::module_start(header),
         Piece::Kernel(k, copy) => {
             let mut item = String::new();
-            emit_kernel(&mut item, k, nv, q_len(robot), options, copy);
+            match &k.call {
+                Some(call) => {
+                    let rest = format!("{}_rest", k.kind.name());
+                    emit_kernel(&mut item, &call.rest, &rest, nv, q_len(robot), options, copy);
+                    emit_call(&mut item, k, call, robot, copy);
+                }
+                None => emit_kernel(&mut item, k, k.kind.name(), nv, q_len(robot), options, copy),
+            }
             format::module_items(&item).map(format::compact_slots)
         }
         Piece::Runner(copy) => {

@@ -205,6 +205,12 @@ impl Dynamics<'_> {
         self.model.specialisation.fd_grad_minv
     }
 
+    /// The input nodes of the contact kernel's output `k` ([`Input::Called`]), flat.
+    fn called_inputs(&mut self, k: u8) -> Vec<Id> {
+        let n = Input::Called(k).len(&crate::ir::Robot::of(self.model).dims());
+        (0..n).map(|j| self.g.input(Input::Called(k), j)).collect()
+    }
+
     /// One node per actuated coordinate's force.
     pub fn actuated_inputs(&mut self) -> Vec<Id> {
         (0..self.model.nu()).map(|i| self.g.input(Input::TauActuated, i)).collect()
@@ -361,6 +367,10 @@ impl Dynamics<'_> {
     /// contacts held rigid when it declares any (`contact_fd`, as Crocoddyl's contact
     /// dynamics inside its integrated action models); and then the contacts' forces λ.
     fn step_acceleration(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Option<Vec<Id>>) {
+        if self.called && self.declares_contacts() {
+            let (qdd, lambda) = (self.called_inputs(0), self.called_inputs(1));
+            return (qdd, Some(lambda));
+        }
         if self.declares_contacts() {
             let c = self.contact_fd(qd, tau);
             return (c.qdd, Some(c.lambda));
@@ -378,6 +388,27 @@ impl Dynamics<'_> {
         tau_cols: &[usize],
         s: Scalar,
     ) -> (Vec<Id>, Mat, Mat, Mat, Option<StepLambda>) {
+        if self.called && self.declares_contacts() {
+            // contact_fd_grad's outputs, as its kernel lays them out: τ's columns are all
+            // of them, of which the step reads the actuated.
+            let nv = self.model.nv();
+            let (qdd, lambda) = (self.called_inputs(0), self.called_inputs(1));
+            let mut by = |k: u8, cols: Option<&[usize]>| -> Mat {
+                let flat = self.called_inputs(k);
+                flat.chunks(nv.max(1))
+                    .map(|row| match cols {
+                        Some(cols) => cols.iter().map(|&c| row[c]).collect(),
+                        None => row.to_vec(),
+                    })
+                    .collect()
+            };
+            let (dq, dqd, dtau) = (by(2, None), by(3, None), by(4, Some(tau_cols)));
+            let lam =
+                StepLambda { lambda, dq: by(5, None), dqd: by(6, None), du: by(7, Some(tau_cols)) };
+            let (dq, dqd, dtau) =
+                (self.scaled(&dq, s), self.scaled(&dqd, s), self.scaled(&dtau, s));
+            return (qdd, dq, dqd, dtau, Some(lam));
+        }
         if self.declares_contacts() {
             // contact_fd_grad's program (its combination over the columns) is left in
             // `self.program` for the Euler steps to extend ([`step_program`]).
