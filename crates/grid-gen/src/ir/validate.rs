@@ -94,6 +94,7 @@ mod tests {
             }],
             product: None,
             program: None,
+            call: None,
         }
     }
 
