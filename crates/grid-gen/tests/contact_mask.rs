@@ -288,14 +288,21 @@ fn masked_contacts_compile_and_match_the_reference() {
 
 /// A step kernel whose contact kernel is in the module shares it ([`ir::Call`]): the
 /// callee's values, fed to the rest, give the whole graph's. Floating HyQ with four masked
-/// feet and a force on its base, both Euler schemes, run-time dt, three modes.
+/// feet and a force on its base, a run-time dt, three modes: both Euler schemes, and the
+/// semi-implicit one with the feet stabilised (Baumgarte's gains and references, which the
+/// callee takes too).
 #[test]
 fn the_step_kernels_rest_after_their_callee_is_the_whole_kernel() {
     let g = reference::DEFAULT_GRAVITY;
     let mut rng = Rng(61);
     let mut worst: f64 = 0.0;
-    for scheme in [Scheme::SemiImplicitEuler, Scheme::ExplicitEuler] {
-        let m = with_runtime_step(&standing_hyq(), scheme);
+    for (scheme, baumgarte) in [
+        (Scheme::SemiImplicitEuler, false),
+        (Scheme::ExplicitEuler, false),
+        (Scheme::SemiImplicitEuler, true),
+    ] {
+        let mut m = with_runtime_step(&standing_hyq(), scheme);
+        m.specialisation.baumgarte = baumgarte;
         let module = ir::lower(&m, g, &LowerOptions::default()).unwrap();
         let nv = m.nv();
         for f in module.functions.iter().filter(|f| f.kind.is_step()) {
@@ -306,12 +313,14 @@ fn the_step_kernels_rest_after_their_callee_is_the_whole_kernel() {
                 let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());
                 let (qd, u, fext) =
                     (rng.vec(nv, -2.0, 2.0), rng.vec(m.nu(), -10.0, 10.0), rng.vec(6, -20.0, 20.0));
+                let (gains, refs) = (rng.vec(8, 0.0, 30.0), rng.vec(12, -1.0, 1.0));
+                let corr = reference::Baumgarte { gains: &gains, refs: &refs };
                 let ext = reference::External { fext: &fext, lambda: &[] };
                 let dt = [0.01];
-                let args = kernel_args_masked(f.inputs(), &q, &qd, &u, ext, &dt, &active);
+                let args = kernel_args_corrected(f.inputs(), &q, &qd, &u, ext, &dt, &active, corr);
                 let whole = f.eval(&args);
                 let tau = actuated_tau(&m, &u);
-                let called = callee.eval(&kernel_args_masked(
+                let called = callee.eval(&kernel_args_corrected(
                     callee.inputs(),
                     &q,
                     &qd,
@@ -319,6 +328,7 @@ fn the_step_kernels_rest_after_their_callee_is_the_whole_kernel() {
                     ext,
                     &dt,
                     &active,
+                    corr,
                 ));
                 let mut rest_args: Vec<&[f64]> = args.clone();
                 rest_args.extend(called.iter().map(Vec::as_slice));
@@ -330,7 +340,12 @@ fn the_step_kernels_rest_after_their_callee_is_the_whole_kernel() {
                     // Two roundings of the same values: the callee forms all of ∂q̈/∂τ's
                     // symmetric half where the whole kernel forms the actuated columns, and
                     // mirrors the other entries (measured 7e-14); the f64 bound of every test.
-                    assert!(e < 1e-12, "{scheme:?} {} {} mode {bits:04b}: {e:.2e}", f.kind, o.name);
+                    assert!(
+                        e < 1e-12,
+                        "{scheme:?} baumgarte {baumgarte} {} {} mode {bits:04b}: {e:.2e}",
+                        f.kind,
+                        o.name
+                    );
                 }
             }
         }
