@@ -367,7 +367,7 @@ fn emit_kernel(
         }
     }
     let chunks = &names.chunks;
-    let Signature { args, arg_names, ret_type } = Signature::of(k, q_len);
+    let Signature { args, arg_names, .. } = Signature::of(k, q_len);
     let ret_value = return_value(k);
     let (mut inline_outputs, mut sinks) = output_stores(k);
     let operand_mats = looped.map(operand_names).unwrap_or_default();
@@ -475,37 +475,9 @@ fn emit_kernel(
             k.kind.name()
         )
     };
-    let _ = writeln!(out, "/// {doc}");
-    let _ = writeln!(
-        out,
-        "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]"
-    );
-    let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
-    emit_output_init(out, k);
-    // A SIMD copy's body writes into its caller's outputs (`{name}_into`), which the
-    // dispatcher passes as its own: see `emit_dispatcher`.
-    let into = copy != Copy::Portable;
-    if into {
-        let _ = writeln!(
-            out,
-            "{name}_into({}, {});\n{ret_value}\n}}\n",
-            arg_names.join(", "),
-            output_refs(k)
-        );
-        let params: Vec<String> = k
-            .outputs
-            .iter()
-            .map(|o| format!("{}: &mut {}", o.name, output_type(o.shape)))
-            .collect();
-        let _ = writeln!(
-            out,
-            "/// [`{name}`] into outputs that start at zero, set by `T::k(0.0)` (which has run the\n\
-             /// CPU check that makes `lit` sound for the SIMD types).\n\
-             #[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]\n\
-             pub(super) fn {name}_into<T: Real>({}, {}) {{",
-            args.join(", "),
-            params.join(", ")
-        );
+    let into = open_function(out, k, name, &doc, q_len, copy);
+    if !into {
+        emit_output_init(out, k);
     }
     for (m, ty) in &locals {
         let _ = writeln!(out, "let mut {m} = {};", ty.replace("T;", "lit::<T>(0.0);"));
@@ -662,8 +634,6 @@ fn emit_call(
     use crate::ir::Input;
     let name = k.kind.name();
     let callee = call.callee.name();
-    let Signature { args, arg_names, ret_type } = Signature::of(k, q_len(robot));
-    let attr = copy.attribute();
     let into = copy != Copy::Portable;
     let callee_outputs = call.callee.outputs();
     let callee_args: Vec<&str> = call
@@ -704,23 +674,39 @@ fn emit_call(
             writeln!(body, "let ({}) = {callee}({});", called.join(", "), callee_args.join(", "));
         let _ = writeln!(body, "{name}_rest({})", rest_args.join(", "));
     }
-    let _ = writeln!(out, "/// {}", k.doc());
+    let doc =
+        format!("{}\n///\n/// Runs [`{callee}`], then [`{name}_rest`] on its outputs.", k.doc());
+    open_function(out, k, name, &doc, q_len(robot), copy);
+    let _ = writeln!(out, "{body}}}\n");
+}
+
+/// Opens a copy's public function `name` (its doc, attributes and signature). In a SIMD copy
+/// it also writes the whole of it, which sets the outputs by the checked `T::k` and hands
+/// them to `{name}_into`, and opens `{name}_into`: a SIMD copy's body writes into its
+/// caller's outputs, which the dispatcher passes as its own (see `emit_dispatcher`). The
+/// caller writes the body next; returns whether that is `{name}_into`'s.
+fn open_function(
+    out: &mut String,
+    k: &Function,
+    name: &str,
+    doc: &str,
+    q_len: &str,
+    copy: Copy,
+) -> bool {
+    let Signature { args, arg_names, ret_type } = Signature::of(k, q_len);
+    let attr = copy.attribute();
+    let _ = writeln!(out, "/// {doc}");
     let _ = writeln!(
         out,
-        "///
-/// Runs [`{callee}`], then [`{name}_rest`] on its outputs.
-         #[inline]
-{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]"
+        "#[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]"
     );
     let _ = writeln!(out, "pub fn {name}<T: Real>({}) -> {ret_type} {{", args.join(", "));
+    let into = copy != Copy::Portable;
     if into {
         emit_output_init(out, k);
         let _ = writeln!(
             out,
-            "{name}_into({}, {});
-{}
-}}
-",
+            "{name}_into({}, {});\n{}\n}}\n",
             arg_names.join(", "),
             output_refs(k),
             return_value(k)
@@ -732,22 +718,15 @@ fn emit_call(
             .collect();
         let _ = writeln!(
             out,
-            "/// [`{name}`] into outputs that start at zero (see [`{callee}_into`]).
-             #[inline]
-{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]
-             pub(super) fn {name}_into<T: Real>({}, {}) {{
-{body}}}
-",
+            "/// [`{name}`] into outputs that start at zero, set by `T::k(0.0)` (which has run the\n\
+             /// CPU check that makes `lit` sound for the SIMD types).\n\
+             #[inline]\n{attr}#[allow(clippy::all, unused_variables, unused_mut, dead_code)]\n\
+             pub(super) fn {name}_into<T: Real>({}, {}) {{",
             args.join(", "),
             params.join(", ")
         );
-    } else {
-        let _ = writeln!(
-            out,
-            "{body}}}
-"
-        );
     }
+    into
 }
 
 /// Writes a loop operand into `place` (a local matrix, which starts at zero): a node's
