@@ -430,3 +430,76 @@ fn shared_step_kernels_compile_and_match_the_reference() {
     });
     println!("iiwa step and step_grad through their callees, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
 }
+
+/// The same on a floating base, where the rest composes the free-flyer's block of `dt Jv`
+/// and `Jq` with every column: floating iiwa, masked points at its fifth and seventh links,
+/// the semi-implicit step with a run-time dt, four modes, both copies.
+#[test]
+fn shared_floating_step_grad_compiles_and_matches_the_reference() {
+    use grid_gen::generate::{generate, Options, Target};
+    let points = [("iiwa_link_5", ContactKind::Point), ("iiwa_link_7", ContactKind::Point)];
+    let mut model = with_forces(&load_floating("grid_iiwa"), &[], &points);
+    model.specialisation.contact_mask = true;
+    let model = with_runtime_step(&model, Scheme::SemiImplicitEuler);
+    let lower = LowerOptions {
+        kernels: vec![KernelKind::StepGrad, KernelKind::ContactFdGrad],
+        ..LowerOptions::default()
+    };
+    let lowered = ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+    assert!(lowered.functions[0].call.is_some(), "step_grad calls contact_fd_grad");
+    let (nv, nu) = (model.nv(), model.nu());
+    let file =
+        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+            .unwrap()
+            .remove(0);
+    assert!(file.contents.contains("fn step_grad_rest<"), "the module shares contact_fd_grad");
+    let said = compile_and_run(
+        "sharedfloatingstep",
+        &file.contents,
+        &[
+            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
+            SEEDED_STATE_RS,
+            r#"fn main() {
+    for k in 0..4 {
+        let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
+        let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+        for x in &mut q[3..7] { *x /= n; }
+        let qd: [f64; NV] = std::array::from_fn(|i| state(k, i, 1));
+        let u: [f64; NU] = std::array::from_fn(|i| state(k, i, 2));
+        let active = [(k & 1) as f64, (k >> 1 & 1) as f64];
+        let dt = [0.01];
+        let mut all: Vec<f64> = q.to_vec();
+        for g in [step_grad(&q, &qd, &u, &active, &dt), portable::step_grad(&q, &qd, &u, &active, &dt)] {
+            all.extend(g.0.iter().chain(&g.1).chain(g.2.as_flattened()).chain(g.3.as_flattened()));
+            all.extend(g.4.iter().chain(g.5.as_flattened()).chain(g.6.as_flattened()));
+        }
+        let all: Vec<String> = all.iter().map(|x| format!("{x:?}")).collect();
+        println!("{}", all.join(" "));
+    }
+}
+"#,
+        ]
+        .concat(),
+    );
+    // f64 kernels are held to 1e-12 of the reference, as everywhere.
+    let worst = worst_line_error(&said, 4, model.nq(), 1e-12, |k, q| {
+        let qd: Vec<f64> = (0..nv).map(|i| seeded_state(k, i, 1)).collect();
+        let u: Vec<f64> = (0..nu).map(|i| seeded_state(k, i, 2)).collect();
+        let active = [k & 1 == 1, k >> 1 & 1 == 1];
+        let g = reference::DEFAULT_GRAVITY;
+        let values = reference_masked_outputs(
+            KernelKind::StepGrad,
+            &model,
+            q,
+            &qd,
+            &u,
+            g,
+            &[],
+            0.01,
+            &active,
+        );
+        let one: Vec<f64> = values.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
+        one.iter().chain(&one).copied().collect()
+    });
+    println!("floating iiwa step_grad through contact_fd_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
+}

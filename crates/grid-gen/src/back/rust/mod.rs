@@ -125,12 +125,52 @@ fn operand(k: &Function, names: &Chunks, here: usize, id: Id) -> String {
 /// Entry `j` of an input: `q[3]`; a rest's callee outputs in their own shapes
 /// (`called_dqdd_dq[2][5]`).
 fn input_place(k: &Function, which: crate::ir::Input, j: u16) -> String {
-    let index = match which {
+    let index: String = input_index(k, which, j).iter().map(|i| format!("[{i}]")).collect();
+    format!("{}{index}", which.name())
+}
+
+/// The indices of entry `j` of an input in its own shape.
+fn input_index(k: &Function, which: crate::ir::Input, j: u16) -> Vec<usize> {
+    match which {
         crate::ir::Input::Called(c) => crate::ir::Input::called_shape(c).index(j.into(), &k.dims),
         _ => vec![j.into()],
+    }
+}
+
+/// Where consecutive entries lie in one innermost row of an array: the place of the row
+/// (`a[3]`) and the first entry's index in it, if `index` gives each entry's indices.
+fn row_run(name: &str, n: usize, index: impl Fn(usize) -> Vec<usize>) -> Option<(String, usize)> {
+    let (first, last) = (index(0), index(n.checked_sub(1)?));
+    let (prefix, start) = first.split_last().map(|(s, p)| (p, *s))?;
+    let consecutive = (0..n).all(|i| {
+        let at = index(i);
+        at.split_last().is_some_and(|(s, p)| p == prefix && *s == start + i)
+    });
+    (consecutive && last.len() == first.len()).then(|| {
+        (format!("{name}{}", prefix.iter().map(|i| format!("[{i}]")).collect::<String>()), start)
+    })
+}
+
+/// A program's init row that copies consecutive entries of one input (the callee's
+/// outputs in a step's rest), as one loop instead of a statement per column.
+fn init_row_copy(k: &Function, ops: &[Operand], place: &str) -> Option<String> {
+    let input = |o: &Operand| match *o {
+        Operand::Node(id) | Operand::Neg(id) => match k.op(id) {
+            Op::Input(which, j) => Some((which, j, matches!(o, Operand::Neg(_)))),
+            _ => None,
+        },
+        Operand::Const(_) => None,
     };
-    let index: String = index.iter().map(|i| format!("[{i}]")).collect();
-    format!("{}{index}", which.name())
+    let (which, j0, neg) = input(ops.first()?)?;
+    let same = ops.iter().enumerate().all(|(c, o)| {
+        input(o).is_some_and(|(w, j, n)| {
+            w == which && usize::from(j) == usize::from(j0) + c && n == neg
+        })
+    });
+    let (row, start) =
+        row_run(which.name(), ops.len(), |c| input_index(k, which, j0.saturating_add(c as u16)))?;
+    let sign = if neg { "-" } else { "" };
+    same.then(|| format!("for c in 0..{} {{ {place}[c] = {sign}{row}[{start} + c]; }}", ops.len()))
 }
 
 /// The machine-code copy a function is emitted for.
@@ -419,6 +459,8 @@ fn emit_kernel(
     // The operands reach their matrices as outputs do; negations and constants the graph
     // no longer holds are written just before the loop (`fixups`).
     let mut fixups = Vec::new();
+    // A program's init rows that copy an input's row, as loops run before the program.
+    let mut row_copies = Vec::new();
     if let Some(p) = looped {
         for (m, ids) in operand_mats.iter().zip(std::iter::once(&p.minv).chain(&p.dc)) {
             for (flat, &o) in ids.iter().enumerate() {
@@ -429,13 +471,20 @@ fn emit_kernel(
     }
     if let (Some(p), Some(c)) = (program, &coefs) {
         let places = c.slots.iter().enumerate().map(|(i, &o)| (format!("pc[{i}]"), o));
-        let inits = p.blocks.iter().enumerate().flat_map(|(b, block)| {
-            block.init.iter().enumerate().flat_map(move |(row, ops)| {
-                ops.iter().enumerate().map(move |(col, &o)| (format!("pb{b}[{row}][{col}]"), o))
-            })
-        });
-        for (place, o) in places.chain(inits) {
+        for (place, o) in places {
             place_operand(k, place, o, &mut fixups, &mut inline_outputs, &mut sinks);
+        }
+        for (b, block) in p.blocks.iter().enumerate() {
+            for (row, ops) in block.init.iter().enumerate() {
+                if let Some(copy) = init_row_copy(k, ops, &format!("pb{b}[{row}]")) {
+                    row_copies.push(copy);
+                    continue;
+                }
+                for (col, &o) in ops.iter().enumerate() {
+                    let place = format!("pb{b}[{row}][{col}]");
+                    place_operand(k, place, o, &mut fixups, &mut inline_outputs, &mut sinks);
+                }
+            }
         }
     }
     // In a part, the arrays are views with one field per entry (see `arrays`).
@@ -508,7 +557,7 @@ fn emit_kernel(
         emit_product_loop(out, k, p, &operand_mats, &fixups, nv);
     }
     if let Some(p) = program {
-        for f in &fixups {
+        for f in row_copies.iter().chain(&fixups) {
             let _ = writeln!(out, "{f}");
         }
         for (b, block) in p.blocks.iter().enumerate() {
@@ -532,14 +581,35 @@ fn emit_kernel(
                 let from = if owned { format!("{r}{n}") } else { format!("{r}*{n}") };
                 format!("let {n} = unsafe {{ {r}*({from} as {p} {ty} as {p} {name}_f{len}<T>) }};")
             };
+            // A store into consecutive entries of one row of its output is one loop; the
+            // others, one statement per column through the views.
+            let mut scattered = Vec::new();
+            for st in &block.stores {
+                let o = &k.outputs[st.output];
+                let run = row_run(o.name, cols, |c| o.shape.index(st.flat[c], &k.dims));
+                match run {
+                    Some((place, start)) => {
+                        let sign = if st.negate { "-" } else { "" };
+                        let _ = writeln!(
+                            out,
+                            "for c in 0..{cols} {{ {place}[{start} + c] = {sign}pb{b}[{}][c]; }}",
+                            st.row
+                        );
+                    }
+                    None => scattered.push(st),
+                }
+            }
+            if scattered.is_empty() {
+                continue;
+            }
             let _ = writeln!(out, "{{\n{}", view(&format!("pb{b}"), true, false));
-            let mut written: Vec<usize> = block.stores.iter().map(|st| st.output).collect();
+            let mut written: Vec<usize> = scattered.iter().map(|st| st.output).collect();
             written.sort_unstable();
             written.dedup();
             for o in written {
                 let _ = writeln!(out, "{}", view(k.outputs[o].name, !into, true));
             }
-            for st in &block.stores {
+            for st in scattered {
                 let sign = if st.negate { "-" } else { "" };
                 for (col, &flat) in st.flat.iter().enumerate() {
                     let place = field(&output_place(k, st.output, flat, &k.dims));
