@@ -687,7 +687,7 @@ pub fn assert_program_looped(text: &str, kernel: &str, blocks: usize) {
         ("fma", fma, "a[c] = T::mul_add(k, s[c], a[c])"),
     ] {
         for b in 0..blocks {
-            let call = format!("{kernel}_cols{b}(&mut pb{b}, &pc);");
+            let call = format!("{kernel}_cols{b}(&rows, &pc);");
             assert_eq!(text.matches(&call).count(), 1, "the {copy} copy calls {call}");
         }
         assert!(text.contains(term), "the {copy} copy's loops: `{term}`");

@@ -640,7 +640,8 @@ fn shared_call(
             limit: options.max_nodes,
         });
     }
-    let mut rest = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, None, None);
+    let program = d.program.take();
+    let mut rest = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, None, program);
     rest.inputs = kind.inputs_for(spec);
     let called = callee.outputs().len() as u8;
     rest.inputs.extend((0..called).map(Input::Called));

@@ -14,7 +14,8 @@ use super::names::{identifier, string_literal};
 use super::{GeneratedFile, Target};
 use crate::ir::schedule::Chunks;
 use crate::ir::{
-    ColumnProgram, ColumnStep, DenseProduct, Function, Id, Module, Op, Operand, Shape, Stage,
+    ColumnProgram, ColumnStep, ColumnStore, DenseProduct, Function, Id, Module, Op, Operand, Shape,
+    Stage,
 };
 
 /// The public API of a module with `kernels`, for the file's header.
@@ -153,7 +154,7 @@ fn row_run(name: &str, n: usize, index: impl Fn(usize) -> Vec<usize>) -> Option<
 
 /// A program's init row that copies consecutive entries of one input (the callee's
 /// outputs in a step's rest), as one loop instead of a statement per column.
-fn init_row_copy(k: &Function, ops: &[Operand], place: &str) -> Option<String> {
+fn init_row_copy(k: &Function, ops: &[Operand], place: &str, at: usize) -> Option<String> {
     let input = |o: &Operand| match *o {
         Operand::Node(id) | Operand::Neg(id) => match k.op(id) {
             Op::Input(which, j) => Some((which, j, matches!(o, Operand::Neg(_)))),
@@ -170,7 +171,9 @@ fn init_row_copy(k: &Function, ops: &[Operand], place: &str) -> Option<String> {
     let (row, start) =
         row_run(which.name(), ops.len(), |c| input_index(k, which, j0.saturating_add(c as u16)))?;
     let sign = if neg { "-" } else { "" };
-    same.then(|| format!("for c in 0..{} {{ {place}[c] = {sign}{row}[{start} + c]; }}", ops.len()))
+    same.then(|| {
+        format!("for c in 0..{} {{ {place}[{at} + c] = {sign}{row}[{start} + c]; }}", ops.len())
+    })
 }
 
 /// The machine-code copy a function is emitted for.
@@ -414,11 +417,19 @@ fn emit_kernel(
     // Local arrays the operands are stored into, with their types.
     let mut locals: Vec<(String, String)> =
         operand_mats.iter().map(|m| (m.clone(), "[[T; NV]; NV]".to_string())).collect();
+    let layouts: Vec<BlockLayout> = program
+        .map(|p| p.blocks.iter().map(|b| BlockLayout::of(k, b, p.rows)).collect())
+        .unwrap_or_default();
     if let (Some(p), Some(c)) = (program, &coefs) {
         // One slot more than the coefficients: a zero, for a step that scales by zero.
         locals.push(("pc".to_string(), format!("[T; {}]", c.slots.len() + 1)));
         for (b, block) in p.blocks.iter().enumerate() {
-            locals.push((format!("pb{b}"), format!("[[T; {}]; {}]", block.columns(), p.rows)));
+            if layouts[b].scratch > 0 {
+                locals.push((
+                    format!("pb{b}"),
+                    format!("[[T; {}]; {}]", block.columns(), layouts[b].scratch),
+                ));
+            }
         }
     }
     // Each array a part writes by constant index, as a `repr(C)` tuple struct of its
@@ -474,14 +485,31 @@ fn emit_kernel(
         for (place, o) in places {
             place_operand(k, place, o, &mut fixups, &mut inline_outputs, &mut sinks);
         }
+        // The program writes its stored entries: the graph's own stores of them go (their
+        // nodes are not emitted, but a constant or an input's would be).
+        let stored: std::collections::HashSet<String> = p
+            .blocks
+            .iter()
+            .flat_map(|b| b.stores.iter())
+            .flat_map(|st| st.flat.iter().map(|&f| output_place(k, st.output, f, &k.dims)))
+            .collect();
+        inline_outputs.retain(|(place, _)| !stored.contains(place));
+        for places in sinks.values_mut() {
+            places.retain(|place| !stored.contains(place));
+        }
         for (b, block) in p.blocks.iter().enumerate() {
             for (row, ops) in block.init.iter().enumerate() {
-                if let Some(copy) = init_row_copy(k, ops, &format!("pb{b}[{row}]")) {
+                let (dst, start) = match &layouts[b].homes[row] {
+                    RowHome::Output { row: prefix, start, .. } => (prefix.clone(), *start),
+                    RowHome::Scratch(i) => (format!("pb{b}[{i}]"), 0),
+                    RowHome::Unused => continue,
+                };
+                if let Some(copy) = init_row_copy(k, ops, &dst, start) {
                     row_copies.push(copy);
                     continue;
                 }
                 for (col, &o) in ops.iter().enumerate() {
-                    let place = format!("pb{b}[{row}][{col}]");
+                    let place = layouts[b].place(k, b, block, row, col);
                     place_operand(k, place, o, &mut fixups, &mut inline_outputs, &mut sinks);
                 }
             }
@@ -561,12 +589,57 @@ fn emit_kernel(
             let _ = writeln!(out, "{f}");
         }
         for (b, block) in p.blocks.iter().enumerate() {
-            if block.columns() > 0 {
-                let _ = writeln!(out, "{name}_cols{b}(&mut pb{b}, &pc);");
-            }
             // A block of no columns stores nothing (each store has one entry per column).
             let cols = block.columns();
-            if cols == 0 || block.stores.is_empty() {
+            if cols == 0 {
+                continue;
+            }
+            // The block's rows as pointers into the outputs and its scratch rows, each from
+            // one raw pointer per array so that none invalidates another.
+            let layout = &layouts[b];
+            let _ = writeln!(out, "{{");
+            let mut bases: Vec<&str> =
+                layout.homes.iter().filter_map(|h| h.output().map(|o| k.outputs[o].name)).collect();
+            bases.sort_unstable();
+            bases.dedup();
+            for n in &bases {
+                let ty = &arrays.iter().find(|(m, _, _)| m == n).expect("an output").1;
+                let from = if into { n.to_string() } else { format!("&mut {n}") };
+                let _ = writeln!(out, "let p_{n} = {from} as *mut {ty} as *mut T;");
+            }
+            if layout.scratch > 0 {
+                let _ = writeln!(
+                    out,
+                    "let p_pb = &mut pb{b} as *mut [[T; {cols}]; {}] as *mut T;",
+                    layout.scratch
+                );
+            }
+            let rows: Vec<String> = layout
+                .homes
+                .iter()
+                .map(|h| match h {
+                    RowHome::Output { output, first, .. } => {
+                        format!("p_{}.add({first}) as *mut [T; {cols}]", k.outputs[*output].name)
+                    }
+                    RowHome::Scratch(i) => format!("p_pb.add({}) as *mut [T; {cols}]", i * cols),
+                    RowHome::Unused => "core::ptr::null_mut()".to_string(),
+                })
+                .collect();
+            let _ = writeln!(
+                out,
+                "// SAFETY: each row is {cols} entries of one array, and no two rows overlap.
+                 let rows: [*mut [T; {cols}]; {}] = unsafe {{ [{}] }};
+                 {name}_cols{b}(&rows, &pc);
+}}",
+                rows.len(),
+                rows.join(", ")
+            );
+            let stores: Vec<&ColumnStore> = block
+                .stores
+                .iter()
+                .filter(|st| !matches!(layout.homes[st.row], RowHome::Output { .. }))
+                .collect();
+            if stores.is_empty() {
                 continue;
             }
             // The stores read and write views, in a scope of their own so that the views'
@@ -584,7 +657,8 @@ fn emit_kernel(
             // A store into consecutive entries of one row of its output is one loop; the
             // others, one statement per column through the views.
             let mut scattered = Vec::new();
-            for st in &block.stores {
+            for st in stores {
+                let RowHome::Scratch(i) = layout.homes[st.row] else { continue };
                 let o = &k.outputs[st.output];
                 let run = row_run(o.name, cols, |c| o.shape.index(st.flat[c], &k.dims));
                 match run {
@@ -592,28 +666,27 @@ fn emit_kernel(
                         let sign = if st.negate { "-" } else { "" };
                         let _ = writeln!(
                             out,
-                            "for c in 0..{cols} {{ {place}[{start} + c] = {sign}pb{b}[{}][c]; }}",
-                            st.row
+                            "for c in 0..{cols} {{ {place}[{start} + c] = {sign}pb{b}[{i}][c]; }}"
                         );
                     }
-                    None => scattered.push(st),
+                    None => scattered.push((st, i)),
                 }
             }
             if scattered.is_empty() {
                 continue;
             }
             let _ = writeln!(out, "{{\n{}", view(&format!("pb{b}"), true, false));
-            let mut written: Vec<usize> = scattered.iter().map(|st| st.output).collect();
+            let mut written: Vec<usize> = scattered.iter().map(|(st, _)| st.output).collect();
             written.sort_unstable();
             written.dedup();
             for o in written {
                 let _ = writeln!(out, "{}", view(k.outputs[o].name, !into, true));
             }
-            for st in scattered {
+            for (st, i) in scattered {
                 let sign = if st.negate { "-" } else { "" };
                 for (col, &flat) in st.flat.iter().enumerate() {
                     let place = field(&output_place(k, st.output, flat, &k.dims));
-                    let _ = writeln!(out, "{place} = {sign}pb{b}.{};", st.row * cols + col);
+                    let _ = writeln!(out, "{place} = {sign}pb{b}.{};", i * cols + col);
                 }
             }
             let _ = writeln!(out, "}}");
@@ -872,6 +945,96 @@ impl ProgramCoefs {
     }
 }
 
+/// Where a program block's row lives while the block runs.
+enum RowHome {
+    /// In the one output row it is stored to, unnegated: entries `first..` of `output` (flat),
+    /// `row[start..]` as a place.
+    Output { output: usize, first: usize, row: String, start: usize },
+    /// Row `i` of the block's scratch array `pb{b}`.
+    Scratch(usize),
+    /// Neither read, written nor stored by the block.
+    Unused,
+}
+
+impl RowHome {
+    fn output(&self) -> Option<usize> {
+        match self {
+            RowHome::Output { output, .. } => Some(*output),
+            _ => None,
+        }
+    }
+}
+
+/// A program block's rows: a row stored once, unnegated, into consecutive entries of one
+/// output row runs there, so that the block writes its results where they are returned
+/// instead of into a scratch array that is zeroed, filled and copied out on every call (on
+/// a humanoid's step those arrays were 88 kB); the others are scratch rows.
+struct BlockLayout {
+    homes: Vec<RowHome>,
+    scratch: usize,
+}
+
+impl BlockLayout {
+    fn of(k: &Function, block: &crate::ir::ColumnBlock, rows: usize) -> Self {
+        let mut used = vec![false; rows];
+        let mut stores = vec![0usize; rows];
+        for step in &block.steps {
+            match *step {
+                ColumnStep::Sub { dst, src, .. } => {
+                    used[dst] = true;
+                    used[src] = true;
+                }
+                ColumnStep::Mul { dst, .. } => used[dst] = true,
+            }
+        }
+        for st in &block.stores {
+            stores[st.row] += 1;
+        }
+        let cols = block.columns();
+        let mut scratch = 0;
+        let homes = (0..rows)
+            .map(|r| {
+                let store = block.stores.iter().find(|st| st.row == r);
+                let run = store.filter(|st| stores[r] == 1 && !st.negate).and_then(|st| {
+                    let o = &k.outputs[st.output];
+                    row_run(o.name, cols, |c| o.shape.index(st.flat[c], &k.dims))
+                        .map(|(row, start)| (st, row, start))
+                });
+                match run {
+                    Some((st, row, start)) => {
+                        RowHome::Output { output: st.output, first: st.flat[0], row, start }
+                    }
+                    None if used[r] || stores[r] > 0 => {
+                        scratch += 1;
+                        RowHome::Scratch(scratch - 1)
+                    }
+                    None => RowHome::Unused,
+                }
+            })
+            .collect();
+        BlockLayout { homes, scratch }
+    }
+
+    /// The place of entry `col` of row `row` in block `b`.
+    fn place(
+        &self,
+        k: &Function,
+        b: usize,
+        block: &crate::ir::ColumnBlock,
+        row: usize,
+        col: usize,
+    ) -> String {
+        match &self.homes[row] {
+            RowHome::Output { output, .. } => {
+                let st = block.stores.iter().find(|st| st.row == row).expect("stored");
+                output_place(k, *output, st.flat[col], &k.dims)
+            }
+            RowHome::Scratch(i) => format!("pb{b}[{i}][{col}]"),
+            RowHome::Unused => unreachable!("unused rows have no places"),
+        }
+    }
+}
+
 /// The nodes that only a [`ColumnProgram`]'s stored outputs read, which its loops compute
 /// instead: everything else (the other outputs, the program's operands and what they read)
 /// is still emitted.
@@ -954,7 +1117,7 @@ fn emit_program_block(
     let _ = writeln!(
         out,
         "#[inline(never)]\n{}#[allow(clippy::all, unused_variables)]\n\
-         fn {fn_name}<T: Real>(x: &mut [[T; {cols}]; {rows}], pc: &[T; {}]) {{\n\
+         fn {fn_name}<T: Real>(x: &[*mut [T; {cols}]; {rows}], pc: &[T; {}]) {{\n\
          static GROUPS: [(u32, u32, u32); {}] = [{}];\n\
          static TERMS: [(u32, u32); {}] = [{}];\n\
          run_columns(x, pc, &GROUPS, &TERMS);\n}}\n",
@@ -980,18 +1143,20 @@ fn emit_column_runner(out: &mut String, copy: Copy) {
         out,
         "/// Runs one block of a column program from its tables: per group `(row, first, n)` the\n\
          /// row less its `n` terms `(slot, source row)` from `first` on, or with `n = 0` the row\n\
-         /// times slot `first`.\n\
+         /// times slot `first`. The rows are pointers (into the outputs, or scratch rows): every\n\
+         /// one the tables name is valid for `C` entries, and no two overlap.\n\
          #[inline(never)]\n{}#[allow(clippy::all, dead_code)]\n\
-         fn run_columns<T: Real, const C: usize>(x: &mut [[T; C]], pc: &[T], groups: &[(u32, u32, u32)], terms: &[(u32, u32)]) {{\n\
+         fn run_columns<T: Real, const C: usize>(x: &[*mut [T; C]], pc: &[T], groups: &[(u32, u32, u32)], terms: &[(u32, u32)]) {{\n\
          for &(dst, first, n) in groups {{\n\
-         let dst = dst as usize;\n\
-         if n == 0 {{ let k = pc[first as usize]; for c in 0..C {{ x[dst][c] = x[dst][c] * k; }} continue; }}\n\
-         let mut a = x[dst];\n\
+         let d = x[dst as usize];\n\
+         // SAFETY: as above; each row is read or written while no reference to it lives.\n\
+         if n == 0 {{ let k = pc[first as usize]; let r = unsafe {{ &mut *d }}; for c in 0..C {{ r[c] = r[c] * k; }} continue; }}\n\
+         let mut a = unsafe {{ *d }};\n\
          for &(slot, src) in &terms[first as usize..(first + n) as usize] {{\n\
-         let s = &x[src as usize];\n\
+         let s = unsafe {{ &*x[src as usize] }};\n\
          {term}\n\
          }}\n\
-         x[dst] = a;\n\
+         unsafe {{ *d = a; }}\n\
          }}\n\
          }}\n",
         copy.attribute()

@@ -405,6 +405,27 @@ impl Dynamics<'_> {
             let (dq, dqd, dtau) = (by(2, None), by(3, None), by(4, Some(tau_cols)));
             let lam =
                 StepLambda { lambda, dq: by(5, None), dqd: by(6, None), du: by(7, Some(tau_cols)) };
+            // The composition runs over the columns as the whole kernel's does
+            // ([`step_program`]), from the callee's ∂q̈/∂u as they come: a combination of
+            // no steps. λ's derivatives are the callee's, copied, so they have no rows here.
+            let blocks = [&dq, &dqd, &dtau]
+                .iter()
+                .enumerate()
+                .map(|(which, m)| {
+                    let cols = m.first().map_or(0, Vec::len);
+                    let init =
+                        m.iter().map(|row| row.iter().map(|&id| Operand::Node(id)).collect());
+                    // step_program reads which of u the block is from its first store.
+                    let store = ColumnStore {
+                        row: 0,
+                        output: 2 + which,
+                        flat: (0..cols).collect(),
+                        negate: false,
+                    };
+                    ColumnBlock { init: init.collect(), steps: Vec::new(), stores: vec![store] }
+                })
+                .collect();
+            self.program = Some(ColumnProgram { rows: nv, blocks });
             let (dq, dqd, dtau) =
                 (self.scaled(&dq, s), self.scaled(&dqd, s), self.scaled(&dtau, s));
             return (qdd, dq, dqd, dtau, Some(lam));
