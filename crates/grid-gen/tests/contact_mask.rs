@@ -362,72 +362,14 @@ fn the_step_kernels_rest_after_their_callee_is_the_whole_kernel() {
 /// the reference holding just the active contacts.
 #[test]
 fn shared_step_kernels_compile_and_match_the_reference() {
-    use grid_gen::generate::{generate, Options, Target};
     let points = [("iiwa_link_5", ContactKind::Point), ("iiwa_link_7", ContactKind::Point)];
     let mut model = with_forces(&load("grid_iiwa"), &[], &points);
     model.specialisation.contact_mask = true;
     model.specialisation.actuated = Some(vec![0, 1, 3, 4, 6]);
     let model = with_runtime_step(&model, Scheme::SemiImplicitEuler);
-    let kernels = vec![
-        KernelKind::Step,
-        KernelKind::StepGrad,
-        KernelKind::ContactFd,
-        KernelKind::ContactFdGrad,
-    ];
-    let lower = LowerOptions { kernels, ..LowerOptions::default() };
-    let file =
-        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
-            .unwrap()
-            .remove(0);
-    for shared in ["fn step_rest<", "fn step_grad_rest<", "called_tau[3] = tau[2];"] {
-        assert!(file.contents.contains(shared), "the module shares: {shared}");
-    }
-    let said = compile_and_run(
-        "sharedstep",
-        &file.contents,
-        &[
-            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
-            SEEDED_STATE_RS,
-            r#"fn main() {
-    for k in 0..4 {
-        let x: [[f64; NV]; 3] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s)));
-        let u: [f64; NU] = std::array::from_fn(|i| x[2][i]);
-        let active = [(k & 1) as f64, (k >> 1 & 1) as f64];
-        let dt = [0.01];
-        let mut all: Vec<f64> = Vec::new();
-        for one in [step(&x[0], &x[1], &u, &active, &dt), portable::step(&x[0], &x[1], &u, &active, &dt)] {
-            all.extend(one.0.iter().chain(&one.1).chain(&one.2));
-        }
-        for g in [step_grad(&x[0], &x[1], &u, &active, &dt), portable::step_grad(&x[0], &x[1], &u, &active, &dt)] {
-            all.extend(g.0.iter().chain(&g.1).chain(g.2.as_flattened()).chain(g.3.as_flattened()));
-            all.extend(g.4.iter().chain(g.5.as_flattened()).chain(g.6.as_flattened()));
-        }
-        let all: Vec<String> = all.iter().map(|x| format!("{x:?}")).collect();
-        println!("{}", all.join(" "));
-    }
-}
-"#,
-        ]
-        .concat(),
-    );
-    let nv = model.nv();
-    // f64 kernels are held to 1e-12 of the reference, as everywhere.
-    let worst = worst_line_error(&said, 4, 0, 1e-12, |k, _| {
-        let x: Vec<Vec<f64>> =
-            (0..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
-        let u = &x[2][..model.nu()];
-        let active = [k & 1 == 1, k >> 1 & 1 == 1];
-        let g = reference::DEFAULT_GRAVITY;
-        let mut want = Vec::new();
-        for kind in [KernelKind::Step, KernelKind::StepGrad] {
-            let values =
-                reference_masked_outputs(kind, &model, &x[0], &x[1], u, g, &[], 0.01, &active);
-            let one: Vec<f64> =
-                values.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
-            want.extend(one.iter().chain(&one).copied());
-        }
-        want
-    });
+    let kernels =
+        [KernelKind::Step, KernelKind::StepGrad, KernelKind::ContactFd, KernelKind::ContactFdGrad];
+    let worst = shared_steps_against_the_reference("sharedstep", &model, &kernels);
     println!("iiwa step and step_grad through their callees, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
 }
 
@@ -436,39 +378,60 @@ fn shared_step_kernels_compile_and_match_the_reference() {
 /// the semi-implicit step with a run-time dt, four modes, both copies.
 #[test]
 fn shared_floating_step_grad_compiles_and_matches_the_reference() {
-    use grid_gen::generate::{generate, Options, Target};
     let points = [("iiwa_link_5", ContactKind::Point), ("iiwa_link_7", ContactKind::Point)];
     let mut model = with_forces(&load_floating("grid_iiwa"), &[], &points);
     model.specialisation.contact_mask = true;
     let model = with_runtime_step(&model, Scheme::SemiImplicitEuler);
-    let lower = LowerOptions {
-        kernels: vec![KernelKind::StepGrad, KernelKind::ContactFdGrad],
-        ..LowerOptions::default()
-    };
-    let lowered = ir::lower(&model, reference::DEFAULT_GRAVITY, &lower).unwrap();
-    assert!(lowered.functions[0].call.is_some(), "step_grad calls contact_fd_grad");
-    let (nv, nu) = (model.nv(), model.nu());
+    let kernels = [KernelKind::StepGrad, KernelKind::ContactFdGrad];
+    let worst = shared_steps_against_the_reference("sharedfloatingstep", &model, &kernels);
+    println!("floating iiwa step_grad through contact_fd_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
+}
+
+/// A masked contact model's module with `kernels` (step kernels and their callees),
+/// checked to share (each step kernel's rest; the spread τ where joints are unactuated),
+/// compiled and run in four modes, both copies: its step kernels' outputs against the
+/// reference holding just the active contacts, f64's 1e-12 as everywhere. The worst error.
+fn shared_steps_against_the_reference(label: &str, model: &Model, kernels: &[KernelKind]) -> f64 {
+    use grid_gen::generate::{generate, Options, Target};
+    let steps: Vec<KernelKind> = kernels.iter().copied().filter(|k| k.is_step()).collect();
+    let lower = LowerOptions { kernels: kernels.to_vec(), ..LowerOptions::default() };
+    let lowered = ir::lower(model, reference::DEFAULT_GRAVITY, &lower).unwrap();
+    for f in lowered.functions.iter().filter(|f| f.kind.is_step()) {
+        assert!(f.call.is_some(), "{} calls its contact kernel", f.kind);
+    }
     let file =
-        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+        generate(model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
             .unwrap()
             .remove(0);
-    assert!(file.contents.contains("fn step_grad_rest<"), "the module shares contact_fd_grad");
-    let said = compile_and_run(
-        "sharedfloatingstep",
-        &file.contents,
-        &[
-            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
-            SEEDED_STATE_RS,
-            r#"fn main() {
+    for kind in &steps {
+        let rest = format!("fn {kind}_rest<");
+        assert!(file.contents.contains(&rest), "the module shares: {rest}");
+    }
+    if model.specialisation.actuated.is_some() {
+        // iiwa's joints 3 and 6 unactuated: its τ's third entry is coordinate 3's.
+        assert!(file.contents.contains("called_tau[3] = tau[2];"), "the callee's τ is spread");
+    }
+    let mut calls = String::new();
+    if steps.contains(&KernelKind::Step) {
+        calls.push_str(
+            "for one in [step(&q, &qd, &u, &active, &dt), portable::step(&q, &qd, &u, &active, &dt)] {
+            all.extend(one.0.iter().chain(&one.1).chain(&one.2));
+        }\n",
+        );
+    }
+    let main = r#"fn main() {
     for k in 0..4 {
         let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
-        let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
-        for x in &mut q[3..7] { *x /= n; }
+        if NQ > NV {
+            let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+            for x in &mut q[3..7] { *x /= n; }
+        }
         let qd: [f64; NV] = std::array::from_fn(|i| state(k, i, 1));
         let u: [f64; NU] = std::array::from_fn(|i| state(k, i, 2));
         let active = [(k & 1) as f64, (k >> 1 & 1) as f64];
         let dt = [0.01];
         let mut all: Vec<f64> = q.to_vec();
+        CALLS
         for g in [step_grad(&q, &qd, &u, &active, &dt), portable::step_grad(&q, &qd, &u, &active, &dt)] {
             all.extend(g.0.iter().chain(&g.1).chain(g.2.as_flattened()).chain(g.3.as_flattened()));
             all.extend(g.4.iter().chain(g.5.as_flattened()).chain(g.6.as_flattened()));
@@ -477,29 +440,27 @@ fn shared_floating_step_grad_compiles_and_matches_the_reference() {
         println!("{}", all.join(" "));
     }
 }
-"#,
-        ]
-        .concat(),
+"#
+    .replace("CALLS", &calls);
+    let said = compile_and_run(
+        label,
+        &file.contents,
+        &["mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n", SEEDED_STATE_RS, &main]
+            .concat(),
     );
-    // f64 kernels are held to 1e-12 of the reference, as everywhere.
-    let worst = worst_line_error(&said, 4, model.nq(), 1e-12, |k, q| {
+    let (nv, nu) = (model.nv(), model.nu());
+    worst_line_error(&said, 4, model.nq(), 1e-12, |k, q| {
         let qd: Vec<f64> = (0..nv).map(|i| seeded_state(k, i, 1)).collect();
         let u: Vec<f64> = (0..nu).map(|i| seeded_state(k, i, 2)).collect();
         let active = [k & 1 == 1, k >> 1 & 1 == 1];
         let g = reference::DEFAULT_GRAVITY;
-        let values = reference_masked_outputs(
-            KernelKind::StepGrad,
-            &model,
-            q,
-            &qd,
-            &u,
-            g,
-            &[],
-            0.01,
-            &active,
-        );
-        let one: Vec<f64> = values.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
-        one.iter().chain(&one).copied().collect()
-    });
-    println!("floating iiwa step_grad through contact_fd_grad, compiled: worst {worst:.2e} from the reference (bound 1e-12)");
+        let mut want = Vec::new();
+        for &kind in &steps {
+            let values = reference_masked_outputs(kind, model, q, &qd, &u, g, &[], 0.01, &active);
+            let one: Vec<f64> =
+                values.iter().flat_map(|m| m.transpose().as_slice().to_vec()).collect();
+            want.extend(one.iter().chain(&one).copied());
+        }
+        want
+    })
 }

@@ -168,12 +168,13 @@ fn init_row_copy(k: &Function, ops: &[Operand], place: &str, at: usize) -> Optio
             w == which && usize::from(j) == usize::from(j0) + c && n == neg
         })
     });
+    if !same {
+        return None;
+    }
     let (row, start) =
         row_run(which.name(), ops.len(), |c| input_index(k, which, j0.saturating_add(c as u16)))?;
     let sign = if neg { "-" } else { "" };
-    same.then(|| {
-        format!("for c in 0..{} {{ {place}[{at} + c] = {sign}{row}[{start} + c]; }}", ops.len())
-    })
+    Some(format!("for c in 0..{} {{ {place}[{at} + c] = {sign}{row}[{start} + c]; }}", ops.len()))
 }
 
 /// The machine-code copy a function is emitted for.
