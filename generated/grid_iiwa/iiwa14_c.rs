@@ -1094,9 +1094,8 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `integrate(q, v) -> q_next` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
-    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
-    /// bit-identical to one call per state.
+    /// `integrate(q, v) -> q_next` for each state: entry `i` of every slice is state `i`. On every core; one state per
+    /// kernel call: SIMD lanes do not pay for this kernel, or were turned off (`BatchLanes`).
     ///
     /// # Panics
     /// If the slices' lengths differ.
@@ -1111,54 +1110,13 @@ pub mod iiwa14_batch {
             "integrate: every slice holds one entry per state"
         );
         let o0 = Out(q_next.as_mut_ptr());
-        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
-            8
-        } else {
-            4
-        };
+        let lanes = 1;
         grid_gen_runtime::for_each_lanes(
             n,
             lanes,
             |range| {
                 #[allow(unused_mut)]
                 let mut i = range.start;
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if T::IS_F64
-                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
-                        && F64x4::supported()
-                    {
-                        while i + 4 <= range.end {
-                            unsafe {
-                                let r0 = super::iiwa14::integrate(
-                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
-                                    &gather::<T, f64, F64x4, NV, 4>(v, i),
-                                );
-                                for l in 0..4 {
-                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
-                                }
-                            }
-                            i += 4;
-                        }
-                    }
-                    if T::IS_F32
-                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
-                        && F32x8::supported()
-                    {
-                        while i + 8 <= range.end {
-                            unsafe {
-                                let r0 = super::iiwa14::integrate(
-                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
-                                    &gather::<T, f32, F32x8, NV, 8>(v, i),
-                                );
-                                for l in 0..8 {
-                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
-                                }
-                            }
-                            i += 8;
-                        }
-                    }
-                }
                 for i in i..range.end {
                     let r0 = super::iiwa14::integrate(&q[i], &v[i]);
                     unsafe {
@@ -1248,9 +1206,8 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `dintegrate(q, v) -> (dq, dv)` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
-    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
-    /// bit-identical to one call per state.
+    /// `dintegrate(q, v) -> (dq, dv)` for each state: entry `i` of every slice is state `i`. On every core; one state per
+    /// kernel call: SIMD lanes do not pay for this kernel, or were turned off (`BatchLanes`).
     ///
     /// # Panics
     /// If the slices' lengths differ.
@@ -1267,56 +1224,13 @@ pub mod iiwa14_batch {
         );
         let o0 = Out(dq.as_mut_ptr());
         let o1 = Out(dv.as_mut_ptr());
-        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
-            8
-        } else {
-            4
-        };
+        let lanes = 1;
         grid_gen_runtime::for_each_lanes(
             n,
             lanes,
             |range| {
                 #[allow(unused_mut)]
                 let mut i = range.start;
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if T::IS_F64
-                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
-                        && F64x4::supported()
-                    {
-                        while i + 4 <= range.end {
-                            unsafe {
-                                let (r0, r1) = super::iiwa14::dintegrate(
-                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
-                                    &gather::<T, f64, F64x4, NV, 4>(v, i),
-                                );
-                                for l in 0..4 {
-                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
-                                    o1.write(i + l, lane::<_, _, f64, 4>(&r1, l));
-                                }
-                            }
-                            i += 4;
-                        }
-                    }
-                    if T::IS_F32
-                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
-                        && F32x8::supported()
-                    {
-                        while i + 8 <= range.end {
-                            unsafe {
-                                let (r0, r1) = super::iiwa14::dintegrate(
-                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
-                                    &gather::<T, f32, F32x8, NV, 8>(v, i),
-                                );
-                                for l in 0..8 {
-                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
-                                    o1.write(i + l, lane::<_, _, f32, 8>(&r1, l));
-                                }
-                            }
-                            i += 8;
-                        }
-                    }
-                }
                 for i in i..range.end {
                     let (r0, r1) = super::iiwa14::dintegrate(&q[i], &v[i]);
                     unsafe {
@@ -1413,9 +1327,8 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `difference(q, q1) -> v` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
-    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
-    /// bit-identical to one call per state.
+    /// `difference(q, q1) -> v` for each state: entry `i` of every slice is state `i`. On every core; one state per
+    /// kernel call: SIMD lanes do not pay for this kernel, or were turned off (`BatchLanes`).
     ///
     /// # Panics
     /// If the slices' lengths differ.
@@ -1430,54 +1343,13 @@ pub mod iiwa14_batch {
             "difference: every slice holds one entry per state"
         );
         let o0 = Out(v.as_mut_ptr());
-        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
-            8
-        } else {
-            4
-        };
+        let lanes = 1;
         grid_gen_runtime::for_each_lanes(
             n,
             lanes,
             |range| {
                 #[allow(unused_mut)]
                 let mut i = range.start;
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if T::IS_F64
-                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
-                        && F64x4::supported()
-                    {
-                        while i + 4 <= range.end {
-                            unsafe {
-                                let r0 = super::iiwa14::difference(
-                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
-                                    &gather::<T, f64, F64x4, NV, 4>(q1, i),
-                                );
-                                for l in 0..4 {
-                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
-                                }
-                            }
-                            i += 4;
-                        }
-                    }
-                    if T::IS_F32
-                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
-                        && F32x8::supported()
-                    {
-                        while i + 8 <= range.end {
-                            unsafe {
-                                let r0 = super::iiwa14::difference(
-                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
-                                    &gather::<T, f32, F32x8, NV, 8>(q1, i),
-                                );
-                                for l in 0..8 {
-                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
-                                }
-                            }
-                            i += 8;
-                        }
-                    }
-                }
                 for i in i..range.end {
                     let r0 = super::iiwa14::difference(&q[i], &q1[i]);
                     unsafe {
@@ -1567,9 +1439,8 @@ pub mod iiwa14_batch {
         }
         GRID_GEN_OK
     }
-    /// `ddifference(q, q1) -> (dq, dq1)` for each state: entry `i` of every slice is state `i`. On every core; in f64 and
-    /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,
-    /// bit-identical to one call per state.
+    /// `ddifference(q, q1) -> (dq, dq1)` for each state: entry `i` of every slice is state `i`. On every core; one state per
+    /// kernel call: SIMD lanes do not pay for this kernel, or were turned off (`BatchLanes`).
     ///
     /// # Panics
     /// If the slices' lengths differ.
@@ -1586,56 +1457,13 @@ pub mod iiwa14_batch {
         );
         let o0 = Out(dq.as_mut_ptr());
         let o1 = Out(dq1.as_mut_ptr());
-        let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {
-            8
-        } else {
-            4
-        };
+        let lanes = 1;
         grid_gen_runtime::for_each_lanes(
             n,
             lanes,
             |range| {
                 #[allow(unused_mut)]
                 let mut i = range.start;
-                #[cfg(target_arch = "x86_64")]
-                {
-                    if T::IS_F64
-                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f64>()
-                        && F64x4::supported()
-                    {
-                        while i + 4 <= range.end {
-                            unsafe {
-                                let (r0, r1) = super::iiwa14::ddifference(
-                                    &gather::<T, f64, F64x4, NV, 4>(q, i),
-                                    &gather::<T, f64, F64x4, NV, 4>(q1, i),
-                                );
-                                for l in 0..4 {
-                                    o0.write(i + l, lane::<_, _, f64, 4>(&r0, l));
-                                    o1.write(i + l, lane::<_, _, f64, 4>(&r1, l));
-                                }
-                            }
-                            i += 4;
-                        }
-                    }
-                    if T::IS_F32
-                        && core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>()
-                        && F32x8::supported()
-                    {
-                        while i + 8 <= range.end {
-                            unsafe {
-                                let (r0, r1) = super::iiwa14::ddifference(
-                                    &gather::<T, f32, F32x8, NV, 8>(q, i),
-                                    &gather::<T, f32, F32x8, NV, 8>(q1, i),
-                                );
-                                for l in 0..8 {
-                                    o0.write(i + l, lane::<_, _, f32, 8>(&r0, l));
-                                    o1.write(i + l, lane::<_, _, f32, 8>(&r1, l));
-                                }
-                            }
-                            i += 8;
-                        }
-                    }
-                }
                 for i in i..range.end {
                     let (r0, r1) = super::iiwa14::ddifference(&q[i], &q1[i]);
                     unsafe {

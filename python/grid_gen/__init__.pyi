@@ -28,6 +28,7 @@ def load(
     baumgarte: Optional[bool] = None,
     gravity: Optional[Sequence[float]] = None,
     round_angles: Optional[float] = None,
+    batch_lanes: str = "auto",
 ) -> Robot: ...
 
 class Kernel:

@@ -100,7 +100,7 @@ impl SceneKeywords {
 /// URDF) for a robot it cannot use. `keywords`: `grid_gen.load`'s scene keywords, a dict
 /// (see [`SceneKeywords`]).
 #[pyfunction]
-#[pyo3(signature = (urdf, out_dir, floating_base=false, scene=None, frames=None, kernels=None, precision="f64", keywords=None))]
+#[pyo3(signature = (urdf, out_dir, floating_base=false, scene=None, frames=None, kernels=None, precision="f64", keywords=None, batch_lanes="auto"))]
 #[allow(clippy::too_many_arguments)]
 fn generate(
     urdf: &str,
@@ -111,6 +111,7 @@ fn generate(
     kernels: Option<Vec<String>>,
     precision: &str,
     keywords: Option<SceneKeywords>,
+    batch_lanes: &str,
 ) -> PyResult<Vec<String>> {
     use grid_gen::generate::Target;
     if !std::path::Path::new(urdf).is_file() {
@@ -126,6 +127,16 @@ fn generate(
             )))
         }
     };
+    let lanes = match batch_lanes {
+        "auto" => grid_gen::back::c::BatchLanes::Auto,
+        "all" => grid_gen::back::c::BatchLanes::All,
+        "none" => grid_gen::back::c::BatchLanes::None,
+        other => {
+            return Err(PyValueError::new_err(format!(
+                "batch_lanes must be \"auto\", \"all\" or \"none\", not {other:?}"
+            )))
+        }
+    };
     let mut b = grid_gen::Builder::new();
     // One copy of the kernels, this machine's: the library runs where it is compiled (the
     // cache key holds `host_copies()`), and one copy compiles about 4x faster than the
@@ -134,6 +145,7 @@ fn generate(
         .out_dir(out_dir)
         .emit(&[Target::Rust, Target::C])
         .c_precision(f64, f32)
+        .batch_lanes(lanes)
         .copies(grid_gen::back::rust::Copies::host())
         .quiet(true);
     // False is the default, not a request to take away a scene's floating base.

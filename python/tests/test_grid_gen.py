@@ -266,6 +266,18 @@ def test_bad_arguments_raise_value_errors_that_name_them(iiwa):
         iiwa.fd(q, qd, qdd=tau)
 
 
+def test_batches_without_lanes_give_the_same_bits(iiwa):
+    # A lane runs a one-state call's operations, so a library without lanes (one state per
+    # kernel call) returns the same bits as the default one, which runs iiwa's dynamics
+    # kernels four states per call. 67 states: whole groups of four and a remainder.
+    plain = grid_gen.load(IIWA, kernels=["fd", "fd_grad"], batch_lanes="none")
+    q, qd, tau = random_states(iiwa, 67, seed=11)
+    for name in ("fd", "fd_grad"):
+        got, want = getattr(plain, name)(q, qd, tau), getattr(iiwa, name)(q, qd, tau)
+        for g, w in zip(got if isinstance(got, tuple) else (got,), want if isinstance(want, tuple) else (want,)):
+            assert np.array_equal(g, w), name
+
+
 def test_bad_robots_and_options_raise_before_compiling(tmp_path):
     with pytest.raises(FileNotFoundError):
         grid_gen.load(tmp_path / "missing.urdf")
@@ -275,6 +287,8 @@ def test_bad_robots_and_options_raise_before_compiling(tmp_path):
         grid_gen.load(IIWA, kernels=["fd_grad", "teleport"])
     with pytest.raises(ValueError, match="precision"):
         grid_gen.load(IIWA, precision="f16")
+    with pytest.raises(ValueError, match="batch_lanes"):
+        grid_gen.load(IIWA, batch_lanes="some")
     broken = tmp_path / "broken.urdf"
     broken.write_text('<robot name="r">\n  <link name="a"/>\n  <joint name="j" type="revolute"><parent link="a"/><child link="nowhere"/></joint>\n</robot>\n')
     with pytest.raises(ValueError) as e:

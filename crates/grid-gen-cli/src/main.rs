@@ -409,6 +409,12 @@ enum Command {
         /// `fma` where it has them, else `portable`).
         #[arg(long, value_name = "COPIES", default_value = "dispatch", value_parser = parse_copies)]
         copies: grid_gen::back::rust::Copies,
+        /// Which kernels' C and batch entry points (`--backend c`) run four f64 or eight f32
+        /// states per call in SIMD lanes: `auto` (where lanes were measured to pay: at most
+        /// 150,000 operations and 6 per output entry), `all` or `none`. Each kernel with
+        /// lanes is compiled twice (the book, Compile time).
+        #[arg(long, value_name = "WHICH", default_value = "auto")]
+        batch_lanes: grid_gen::back::c::BatchLanes,
         #[command(flatten)]
         wgsl: WgslArgs,
         #[command(flatten)]
@@ -702,7 +708,17 @@ fn write_generated(
 
 fn run(cli: Cli) -> ExitCode {
     match cli.command {
-        Command::Generate { urdf, out, backend, check, avx512, copies, wgsl, verilog } => {
+        Command::Generate {
+            urdf,
+            out,
+            backend,
+            check,
+            avx512,
+            copies,
+            batch_lanes,
+            wgsl,
+            verilog,
+        } => {
             let (mut config, loaded) = match load(&urdf, &cli.model) {
                 Ok(loaded) => loaded,
                 Err(code) => return code,
@@ -723,6 +739,7 @@ fn run(cli: Cli) -> ExitCode {
             config.options.targets = backend;
             config.options.rust.avx512 = avx512;
             config.options.rust.copies = copies;
+            config.options.c.lanes = batch_lanes;
             config.options.wgsl = wgsl.options();
             config.options.verilog = match verilog.options() {
                 Ok(v) => v,

@@ -301,7 +301,16 @@ impl Builder {
     /// The scalar types of the C target's entry points (default both; a loader that needs
     /// one halves the library's compile time).
     pub fn c_precision(&mut self, f64: bool, f32: bool) -> &mut Self {
-        self.config.options.c = crate::back::c::COptions { f64, f32 };
+        self.config.options.c.f64 = f64;
+        self.config.options.c.f32 = f32;
+        self
+    }
+
+    /// Which kernels' batch entry points run several states per call in SIMD lanes
+    /// (default [`BatchLanes::Auto`](crate::back::c::BatchLanes::Auto): where lanes were
+    /// measured to pay). Each kernel with lanes is compiled twice.
+    pub fn batch_lanes(&mut self, lanes: crate::back::c::BatchLanes) -> &mut Self {
+        self.config.options.c.lanes = lanes;
         self
     }
 

@@ -176,6 +176,10 @@ pub struct RustSize {
     pub kernel: ir::KernelKind,
     pub bytes: usize,
     pub lines: usize,
+    /// Whether the batch entry points (`--backend c`, Python) run this kernel on several
+    /// states per call in SIMD lanes under `--batch-lanes auto`, which compiles it a second
+    /// time ([`crate::back::c::lanes_pay`]).
+    pub batch_lanes: bool,
 }
 
 /// The most operations of a specialised kernel whose general graph is over the node limit
@@ -354,6 +358,7 @@ impl Info {
                     kernel: f.kind,
                     bytes: bytes.saturating_sub(base_bytes),
                     lines: lines.saturating_sub(base_lines),
+                    batch_lanes: crate::back::c::lanes_pay(f, crate::back::c::BatchLanes::Auto),
                 });
             }
         }
@@ -713,6 +718,21 @@ impl Info {
             }
             s.pop();
             s.push('\n');
+            let (lanes, single): (Vec<&RustSize>, Vec<&RustSize>) =
+                self.rust_size.iter().partition(|r| r.batch_lanes);
+            let names = |v: Vec<&RustSize>| {
+                let n: Vec<&str> = v.iter().map(|r| r.kernel.name()).collect();
+                if n.is_empty() {
+                    "none".to_string()
+                } else {
+                    n.join(", ")
+                }
+            };
+            s.push_str(&format!(
+                "batches in SIMD lanes (--batch-lanes auto; each such kernel compiled twice): {}; one state per call: {}\n",
+                names(lanes),
+                names(single)
+            ));
         }
         if !self.gradient_costs.is_empty() {
             let pairs = self.sparsity.dv_dq.nonzero;

@@ -27,11 +27,56 @@ pub struct COptions {
     pub f64: bool,
     /// Emit the f32 entry points.
     pub f32: bool,
+    /// Which kernels' batches run several states per call in SIMD lanes.
+    pub lanes: BatchLanes,
 }
 
 impl Default for COptions {
     fn default() -> Self {
-        COptions { f64: true, f32: true }
+        COptions { f64: true, f32: true, lanes: BatchLanes::Auto }
+    }
+}
+
+/// Which batch entry points evaluate four f64 (`F64x4`) or eight f32 (`F32x8`) states per
+/// kernel call where the CPU has AVX2 and FMA. Each such kernel is compiled a second time
+/// for its lane type: on a humanoid with contacts, half of the library's compile time.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum BatchLanes {
+    /// The kernels where lanes were measured to pay ([`lanes_pay`]); one state per call
+    /// for the others.
+    #[default]
+    Auto,
+    /// Every kernel: the most throughput for mid-sized kernels, the longest compile.
+    All,
+    /// No kernel: one state per call, the shortest compile.
+    None,
+}
+
+/// At most this many operations (after specialisation) for lanes to pay: measured per
+/// kernel on this project's 2-core machine (an Intel Xeon, 2 MiB of L2 per core; the book,
+/// Compile time, "Lanes where they pay"), one core, batches of 64. Lanes gain 1.4x to 3.2x per state up to floating
+/// Atlas's `fd_grad` (124,000 operations: 1.43x) and HyQ's `contact_fd_grad` (81,000:
+/// 1.68x), and 0.9x to 1.2x above (Atlas's `contact_fd_grad`, 280,000, and `step_grad`,
+/// 285,000): four states' intermediates no longer fit the caches, and the second
+/// compilation of those two kernels is 9 s of the humanoid's 51.
+pub const LANES_MAX_OPS: usize = 150_000;
+
+/// At least this many operations per output entry for lanes to pay: taking the lanes
+/// apart costs per entry. Atlas's `mass_matrix` (6,163 operations, 1,296 entries: 4.8)
+/// runs at 0.7x in lanes, iiwa's (380, 49: 7.8) at 1.3x; `integrate` (1 per entry) at 0.8x.
+pub const LANES_MIN_OPS_PER_ENTRY: usize = 6;
+
+/// Whether a kernel's batches evaluate states in SIMD lanes under `lanes`.
+pub fn lanes_pay(k: &Function, lanes: BatchLanes) -> bool {
+    match lanes {
+        BatchLanes::All => true,
+        BatchLanes::None => false,
+        BatchLanes::Auto => {
+            let ops = k.counts().total();
+            let entries: usize = k.outputs.iter().map(|o| o.ids.len()).sum();
+            ops <= LANES_MAX_OPS && ops >= LANES_MIN_OPS_PER_ENTRY * entries
+        }
     }
 }
 
@@ -256,11 +301,16 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
             .chain(k.outputs.iter().map(|o| o.name))
             .map(|n| format!("{n}.len() == n"))
             .collect();
+        let lanes = lanes_pay(k, options.lanes);
+        let per_call = if lanes {
+            "in f64 and\n/// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,\n\
+             /// bit-identical to one call per state."
+        } else {
+            "one state per\n/// kernel call: SIMD lanes do not pay for this kernel, or were turned off (`BatchLanes`)."
+        };
         let _ = writeln!(
             out,
-            "/// `{}` for each state: entry `i` of every slice is state `i`. On every core; in f64 and\n\
-             /// f32, four or eight states per call (`F64x4`, `F32x8`) where the CPU has AVX2 and FMA,\n\
-             /// bit-identical to one call per state.\n///\n/// # Panics\n/// If the slices' lengths differ.\n\
+            "/// `{}` for each state: entry `i` of every slice is state `i`. On every core; {per_call}\n///\n/// # Panics\n/// If the slices' lengths differ.\n\
              pub fn {name}<T: Real + Send + Sync + 'static>({}) {{\nlet n = {first}.len();\nassert!({}, \"{name}: every slice holds one entry per state\");",
             k.signature(),
             args.iter().chain(&outs).cloned().collect::<Vec<_>>().join(", "),
@@ -310,15 +360,27 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
                 gathered.join(", ")
             )
         };
+        // Without lanes the kernel is instantiated for T alone, and the states are claimed one
+        // at a time.
+        let (group, simd_code) = if lanes {
+            (
+                "if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() { 8 } else { 4 }",
+                format!(
+                    "#[cfg(target_arch = \"x86_64\")]\n{{\n{}\n{}\n}}\n",
+                    simd("F64x4", "f64", 4, "IS_F64"),
+                    simd("F32x8", "f32", 8, "IS_F32")
+                ),
+            )
+        } else {
+            ("1", String::new())
+        };
         let _ = writeln!(
             out,
-            "let lanes = if core::any::TypeId::of::<T>() == core::any::TypeId::of::<f32>() {{ 8 }} else {{ 4 }};\n\
+            "let lanes = {group};\n\
              grid_gen_runtime::for_each_lanes(n, lanes, |range| {{\n#[allow(unused_mut)]\nlet mut i = range.start;\n\
-             #[cfg(target_arch = \"x86_64\")]\n{{\n{}\n{}\n}}\n\
+             {simd_code}\
              for i in i..range.end {{\nlet {pattern} = super::{stem}::{name}({});\n\
              // SAFETY: i < n, every output's length, and no two ranges meet.\nunsafe {{ {writes} }}\n}}\n}});\n}}\n",
-            simd("F64x4", "f64", 4, "IS_F64"),
-            simd("F32x8", "f32", 8, "IS_F32"),
             call.join(", ")
         );
         // The C entry points.
@@ -590,6 +652,28 @@ pub fn emit(module: &Module, options: &COptions) -> Result<Vec<GeneratedFile>, C
 #[cfg(test)]
 mod tests {
     use super::*;
+
+    /// `auto`'s size bound: a kernel of `LANES_MAX_OPS` operations keeps its lanes and one
+    /// more loses them (iiwa's `fd` padded with additions; no bundled robot's test module
+    /// is that large, the humanoid's `contact_fd_grad` is).
+    #[test]
+    fn lanes_stop_above_the_measured_size() {
+        use crate::ir::{lower_function, Id, KernelKind, LowerOptions, Node, Op};
+        let path = concat!(env!("CARGO_MANIFEST_DIR"), "/../../robots/grid_iiwa.urdf");
+        let text = std::fs::read_to_string(path).unwrap();
+        let (model, _) = crate::Model::from_urdf_str(path, &text, false).unwrap();
+        let mut f =
+            lower_function(&model, [0.0, 0.0, -9.81], KernelKind::Fd, &LowerOptions::default())
+                .unwrap();
+        assert!(lanes_pay(&f, BatchLanes::Auto));
+        let pad = Node { op: Op::Add(Id(0), Id(0)), ..f.nodes[0] };
+        let ops = f.counts().total();
+        f.nodes.extend(std::iter::repeat_n(pad, LANES_MAX_OPS - ops));
+        assert!(lanes_pay(&f, BatchLanes::Auto));
+        f.nodes.push(pad);
+        assert!(!lanes_pay(&f, BatchLanes::Auto));
+        assert!(lanes_pay(&f, BatchLanes::All));
+    }
 
     #[test]
     fn c_strings_escape_everything_that_could_end_or_bend_them() {
