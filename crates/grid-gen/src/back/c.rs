@@ -55,11 +55,11 @@ pub enum BatchLanes {
 
 /// At most this many operations (after specialisation) for lanes to pay: measured per
 /// kernel on this project's 2-core machine (an Intel Xeon, 2 MiB of L2 per core; the book,
-/// Compile time, "Lanes where they pay"), one core, batches of 64. Lanes gain 1.4x to 3.2x per state up to floating
-/// Atlas's `fd_grad` (124,000 operations: 1.43x) and HyQ's `contact_fd_grad` (81,000:
-/// 1.68x), and 0.9x to 1.2x above (Atlas's `contact_fd_grad`, 280,000, and `step_grad`,
-/// 285,000): four states' intermediates no longer fit the caches, and the second
-/// compilation of those two kernels is 9 s of the humanoid's 51.
+/// Compile time, "Lanes where they pay"), one core, batches of 64. Lanes gain 1.3x to 3.2x
+/// per state up to floating Atlas's `fd_grad` (124,000 operations: 1.43x) and HyQ's
+/// `contact_fd_grad` (81,000: 1.68x), and 0.9x to 1.2x above (Atlas's `contact_fd_grad`,
+/// 280,000, and `step_grad`, 285,000): four states' intermediates no longer fit the
+/// caches. Their second compilation (with `mass_matrix`'s) was 9 s of the humanoid's 51.
 pub const LANES_MAX_OPS: usize = 150_000;
 
 /// At least this many operations per output entry for lanes to pay: taking the lanes
