@@ -7,8 +7,9 @@ Prints a markdown table; the first row is the cache's first robot, which also bu
 runtime.
 
 Usage: target/python/bin/python scripts/build_cost.py [CASE ...], a CASE being
-`URDF[:SCENE[:floating[:LANES]]]`, LANES one of `grid_gen.load`'s `batch_lanes` (auto, all,
-none; default auto) (default: the cases below). Needs the CLI built in release
+`URDF[:SCENE[:floating[:LANES[:CALLS]]]]`, LANES one of `grid_gen.load`'s `batch_lanes`
+(auto, all, none; default auto) and CALLS its `calls` (auto, all; default auto), which the
+generation takes too (default: the cases below). Needs the CLI built in release
 (`cargo build --release -p grid-gen-cli`) and the Python package installed in the
 interpreter that runs it (`pip install ./python`, as `scripts/test.sh` does). A benchmark,
 not a test: run it on an idle machine and compare rows of one run.
@@ -88,10 +89,10 @@ def main():
     print("| robot | scene | lines | MB | generate (s) | generate peak (MiB) | `grid_gen.load` (s) | load peak (MiB) |")
     print("|---|---|---|---|---|---|---|---|")
     for case in cases:
-        urdf, scene, floating, lanes = (case.split(":") + ["", "", ""])[:4]
-        lanes = lanes or "auto"
+        urdf, scene, floating, lanes, calls = (case.split(":") + ["", "", "", ""])[:5]
+        lanes, calls = lanes or "auto", calls or "auto"
         out = tempfile.mkdtemp(prefix="grid-gen-build-cost-gen-")
-        cmd = [CLI, urdf, "-o", out, "--backend", "rust"]
+        cmd = [CLI, urdf, "-o", out, "--backend", "rust", "--calls", calls]
         cmd += ["--scene", scene] if scene else []
         cmd += ["--floating-base"] if floating else []
         gen_s, gen_peak = measured(cmd)
@@ -99,11 +100,12 @@ def main():
         text = open(module).read()
         load = (
             f"import grid_gen; grid_gen.load({urdf!r}, scene={scene or None!r}, "
-            f"floating_base={bool(floating)}, verbose=False, batch_lanes={lanes!r})"
+            f"floating_base={bool(floating)}, verbose=False, batch_lanes={lanes!r}, calls={calls!r})"
         )
         load_s, load_peak = measured([sys.executable, "-c", load], env)
         what = os.path.basename(scene) if scene else ("floating base" if floating else "every kernel")
         what += "" if lanes == "auto" else f", `batch_lanes={lanes!r}`"
+        what += "" if calls == "auto" else f", `calls={calls!r}`"
         print(
             f"| {os.path.basename(urdf)} | {what} | {text.count(chr(10))} | {len(text) / 1e6:.1f} | "
             f"{gen_s:.1f} | {gen_peak / mib:.0f} | {load_s:.1f} | {load_peak / mib:.0f} |",

@@ -29,6 +29,7 @@ def load(
     gravity: Optional[Sequence[float]] = None,
     round_angles: Optional[float] = None,
     batch_lanes: str = "auto",
+    calls: str = "auto",
 ) -> Robot: ...
 
 class Kernel:

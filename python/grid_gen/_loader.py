@@ -18,6 +18,7 @@ from ._robot import Robot
 
 _PRECISIONS = ("f64", "f32")
 _BATCH_LANES = ("auto", "all", "none")
+_CALLS = ("auto", "all")
 
 
 def cache_dir() -> Path:
@@ -94,6 +95,7 @@ def load(
     gravity: Optional[Sequence[float]] = None,
     round_angles: Optional[float] = None,
     batch_lanes: str = "auto",
+    calls: str = "auto",
 ) -> Robot:
     """Loads a robot's kernels, compiling them on the first load.
 
@@ -125,6 +127,11 @@ def load(
     kernels of at most 150,000 operations and 6 per output entry), "all" or "none". Each
     kernel with lanes is compiled twice: "none" halves a humanoid's compile time, and its
     mid-sized kernels' batches run 1.4x to 3x slower per state (the book, Compile time).
+    calls: which kernels call other kernels of the library instead of holding their work:
+    "auto" (where it costs no speed: the step calls its contact kernel) or "all" (also
+    fd_grad and contact_fd_grad call fd, contact_fd and rnea_grad on trees deeper than 12
+    joints: a humanoid loads in 30 s instead of 42 s, its fd_grad 1.13x and step_grad
+    1.29x slower; the book, Compile time).
 
     A compiled robot is cached (see `cache_dir`) under a hash of the URDF, the scene, the
     options and this grid-gen, and loads again in milliseconds. Raises ValueError for a
@@ -135,6 +142,8 @@ def load(
         raise ValueError(f"precision must be one of {_PRECISIONS}, not {precision!r}")
     if batch_lanes not in _BATCH_LANES:
         raise ValueError(f"batch_lanes must be one of {_BATCH_LANES}, not {batch_lanes!r}")
+    if calls not in _CALLS:
+        raise ValueError(f"calls must be one of {_CALLS}, not {calls!r}")
     urdf_path = Path(urdf)
     if not urdf_path.is_file():
         raise FileNotFoundError(f"no URDF at {urdf_path}")
@@ -158,6 +167,7 @@ def load(
         "precision": precision,
         "keywords": keywords,
         "batch_lanes": batch_lanes,
+        "calls": calls,
         # The one copy of the kernels compiled (this CPU's): a shared cache never hands a
         # machine a library built for features it lacks.
         "copies": _native.host_copies(),
@@ -166,7 +176,7 @@ def load(
     cache = cache_dir()
     lib = cache / "robots" / key / _library_name("robot")
     if not lib.exists():
-        _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes)
+        _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes, calls)
     prefix = json.loads((lib.parent / "source.json").read_text())["prefix"]
     return Robot(str(lib), prefix, precision)
 
@@ -227,11 +237,11 @@ def _library_name(stem: str) -> str:
     return f"lib{stem}.so"
 
 
-def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes) -> None:
+def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes, calls) -> None:
     cargo = _cargo()
     crate = cache / "build" / key
     try:
-        _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes)
+        _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes, calls)
     except BaseException:
         # A failed load leaves nothing behind: the next load starts afresh, and the cache
         # holds only robots that load.
@@ -240,7 +250,7 @@ def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kern
         raise
 
 
-def _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes) -> None:
+def _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes, calls) -> None:
     src = crate / "src"
     # The generator's errors (a bad URDF, an unknown frame) come before any compiling, and
     # before anything is written.
@@ -255,6 +265,7 @@ def _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frame
             precision=precision,
             keywords=keywords,
             batch_lanes=batch_lanes,
+            calls=calls,
         )
         src.mkdir(parents=True, exist_ok=True)
         for f in files:
@@ -294,7 +305,7 @@ def _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frame
     # The C names' prefix (`<prefix>_fd_grad_f64`), and where the library came from.
     prefix = ("robot" + stem) if stem.startswith("_") else stem
     source = {"prefix": prefix, "urdf": str(urdf_path.resolve()), "scene": str(scene_path.resolve()) if scene_path else None}
-    source.update(floating_base=bool(floating_base), frames=frames, kernels=kernels, precision=precision, keywords=keywords, batch_lanes=batch_lanes)
+    source.update(floating_base=bool(floating_base), frames=frames, kernels=kernels, precision=precision, keywords=keywords, batch_lanes=batch_lanes, calls=calls)
     (lib.parent / "source.json").write_text(json.dumps(source, indent=1))
     # Copy, then rename: a concurrent load sees the whole library or none.
     fd, tmp = tempfile.mkstemp(dir=lib.parent, suffix=".tmp")

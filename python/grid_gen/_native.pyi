@@ -12,6 +12,7 @@ def generate(
     precision: str = "f64",
     keywords: Optional[Dict[str, Any]] = None,
     batch_lanes: str = "auto",
+    calls: str = "auto",
 ) -> List[str]:
     """Writes the robot's Rust module and C ABI into out_dir; returns the file names.
     Raises ValueError (with the URDF's diagnostics) or FileNotFoundError."""

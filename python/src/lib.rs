@@ -100,7 +100,7 @@ impl SceneKeywords {
 /// URDF) for a robot it cannot use. `keywords`: `grid_gen.load`'s scene keywords, a dict
 /// (see [`SceneKeywords`]).
 #[pyfunction]
-#[pyo3(signature = (urdf, out_dir, floating_base=false, scene=None, frames=None, kernels=None, precision="f64", keywords=None, batch_lanes="auto"))]
+#[pyo3(signature = (urdf, out_dir, floating_base=false, scene=None, frames=None, kernels=None, precision="f64", keywords=None, batch_lanes="auto", calls="auto"))]
 #[allow(clippy::too_many_arguments)]
 fn generate(
     urdf: &str,
@@ -112,6 +112,7 @@ fn generate(
     precision: &str,
     keywords: Option<SceneKeywords>,
     batch_lanes: &str,
+    calls: &str,
 ) -> PyResult<Vec<String>> {
     use grid_gen::generate::Target;
     if !std::path::Path::new(urdf).is_file() {
@@ -137,6 +138,9 @@ fn generate(
             )))
         }
     };
+    let calls = grid_gen::ir::Calls::parse(calls).ok_or_else(|| {
+        PyValueError::new_err(format!("calls must be \"auto\" or \"all\", not {calls:?}"))
+    })?;
     let mut b = grid_gen::Builder::new();
     // One copy of the kernels, this machine's: the library runs where it is compiled (the
     // cache key holds `host_copies()`), and one copy compiles about 4x faster than the
@@ -146,6 +150,7 @@ fn generate(
         .emit(&[Target::Rust, Target::C])
         .c_precision(f64, f32)
         .batch_lanes(lanes)
+        .calls(calls)
         .copies(grid_gen::back::rust::Copies::host())
         .quiet(true);
     // False is the default, not a request to take away a scene's floating base.

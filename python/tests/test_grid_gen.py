@@ -278,6 +278,49 @@ def test_batches_without_lanes_give_the_same_bits(iiwa):
             assert np.array_equal(g, w), name
 
 
+def y_tree_urdf() -> str:
+    """Two arms of seven links on a base with mass: on a floating base, 13 joints deep, so
+    fd_grad factorises M with q̈ by ABA (the LTDL solve), where calls="all" applies."""
+    links = ['<link name="base"><inertial><mass value="4"/><inertia ixx="0.05" ixy="0" ixz="0" iyy="0.06" iyz="0" izz="0.07"/></inertial></link>']
+    joints = []
+    for arm, side in (("a", "0.2"), ("b", "-0.2")):
+        parent = "base"
+        for i in range(7):
+            axis = ("1 0 0", "0 1 0", "0 0 1")[i % 3]
+            links.append(
+                f'<link name="{arm}{i}"><inertial><origin xyz="0 0 0.05"/><mass value="1"/>'
+                '<inertia ixx="0.01" ixy="0" ixz="0" iyy="0.012" iyz="0" izz="0.014"/></inertial></link>'
+            )
+            joints.append(
+                f'<joint name="{arm}j{i}" type="revolute"><parent link="{parent}"/><child link="{arm}{i}"/>'
+                f'<origin xyz="{side if i == 0 else 0} 0 0.1"/><axis xyz="{axis}"/>'
+                '<limit lower="-3" upper="3" effort="100" velocity="10"/></joint>'
+            )
+            parent = f"{arm}{i}"
+    return '<robot name="y_tree">\n' + "\n".join(links + joints) + "\n</robot>\n"
+
+
+def test_calls_all_runs_fd_grad_through_its_callees(tmp_path):
+    # calls="all" makes fd_grad call fd and rnea_grad (less to compile, a little slower;
+    # the book, Compile time): the module holds fd_grad's rest, and the values are the
+    # whole kernel's to round-off (two roundings of the same operations; the Rust tests
+    # measure 5e-14 against the reference).
+    urdf = tmp_path / "y_tree.urdf"
+    urdf.write_text(y_tree_urdf())
+    kernels = ["rnea_grad", "fd", "fd_grad"]
+    for calls, rest in (("auto", False), ("all", True)):
+        out = tmp_path / calls
+        files = grid_gen._native.generate(str(urdf), str(out), floating_base=True, kernels=kernels, calls=calls)
+        module = next(f for f in files if f.endswith(".rs") and not f.endswith("_c.rs"))
+        assert ("fn fd_grad_rest<" in (out / module).read_text()) == rest, calls
+    whole = grid_gen.load(urdf, floating_base=True, kernels=kernels)
+    called = grid_gen.load(urdf, floating_base=True, kernels=kernels, calls="all")
+    q, qd, tau = random_states(whole, 33, seed=13)
+    err = max(rel(g, w) for g, w in zip(called.fd_grad(q, qd, tau), whole.fd_grad(q, qd, tau)))
+    print(f"y_tree fd_grad through fd and rnea_grad: {err:.1e} from the whole kernel")
+    assert err < 1e-12
+
+
 def test_bad_robots_and_options_raise_before_compiling(tmp_path):
     with pytest.raises(FileNotFoundError):
         grid_gen.load(tmp_path / "missing.urdf")
@@ -289,6 +332,8 @@ def test_bad_robots_and_options_raise_before_compiling(tmp_path):
         grid_gen.load(IIWA, precision="f16")
     with pytest.raises(ValueError, match="batch_lanes"):
         grid_gen.load(IIWA, batch_lanes="some")
+    with pytest.raises(ValueError, match="calls"):
+        grid_gen.load(IIWA, calls="some")
     broken = tmp_path / "broken.urdf"
     broken.write_text('<robot name="r">\n  <link name="a"/>\n  <joint name="j" type="revolute"><parent link="a"/><child link="nowhere"/></joint>\n</robot>\n')
     with pytest.raises(ValueError) as e:

@@ -129,6 +129,12 @@ impl Builder {
         self
     }
 
+    /// Which kernels call other kernels of their module ([`crate::ir::Calls`]).
+    pub fn calls(&mut self, calls: crate::ir::Calls) -> &mut Self {
+        self.config.options.lower.calls = calls;
+        self
+    }
+
     /// A scene file (TOML; see [`crate::scene`]): locked joints, kept or dropped subtrees,
     /// payloads, gravity (which [`Builder::gravity`] replaces) and the kernels to
     /// generate. Cargo is told to rerun the build script when it changes.

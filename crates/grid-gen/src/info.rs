@@ -168,6 +168,8 @@ pub struct Info {
     /// The generated Rust each counted kernel adds to a module (`--backend rust`, default
     /// options: the portable and `fma` copies), what rustc has to compile.
     pub rust_size: Vec<RustSize>,
+    /// The `--calls` the sizes in [`Info::rust_size`] were generated with.
+    pub calls: ir::Calls,
 }
 
 /// One kernel's generated Rust, in [`Info`]: what the module grows by with it.
@@ -180,6 +182,9 @@ pub struct RustSize {
     /// states per call in SIMD lanes under `--batch-lanes auto`, which compiles it a second
     /// time ([`crate::back::c::lanes_pay`]).
     pub batch_lanes: bool,
+    /// The kernels this one calls instead of holding their work, under [`Info::calls`]
+    /// ([`ir::Call`]); its lines are its own work and the calls.
+    pub calls: Vec<ir::KernelKind>,
 }
 
 /// The most operations of a specialised kernel whose general graph is over the node limit
@@ -196,16 +201,23 @@ pub const WGSL_STATS_MAX_WORK: usize = 50_000_000;
 impl Info {
     /// The summary with default gravity and the gradient formulation picked by op count.
     pub fn new(model: &Model) -> Self {
-        Info::with_options(model, DEFAULT_GRAVITY, ir::Gradient::Auto, ir::Solve::Auto)
+        Info::with_options(
+            model,
+            DEFAULT_GRAVITY,
+            ir::Gradient::Auto,
+            ir::Solve::Auto,
+            ir::Calls::Auto,
+        )
     }
 
-    /// The summary of the kernels generated with this gravity, gradient formulation and
-    /// solve.
+    /// The summary of the kernels generated with this gravity, gradient formulation, solve
+    /// and calls.
     pub fn with_options(
         model: &Model,
         gravity: [f64; 3],
         gradient: ir::Gradient,
         solve: ir::Solve,
+        calls: ir::Calls,
     ) -> Self {
         let coordinates = model.coordinate_joints();
         let names = |set: &Option<Vec<usize>>| {
@@ -310,12 +322,13 @@ impl Info {
             wgsl: Vec::new(),
             wgsl_skipped: None,
             rust_size: Vec::new(),
+            calls,
         }
         .with_ops(ir::stats(model, gravity, gradient, solve, ir::STATS_MAX_NODES))
         .with_gradient_costs(model, gravity)
         .with_verilog(model, gravity, gradient, solve)
         .with_wgsl(model, gravity, gradient, solve)
-        .with_rust_size(model, gravity, gradient, solve)
+        .with_rust_size(model, gravity, gradient, solve, calls)
     }
 
     /// The Rust each kernel `ops` counted adds to a module: the module with that kernel
@@ -329,6 +342,7 @@ impl Info {
         gravity: [f64; 3],
         gradient: ir::Gradient,
         solve: ir::Solve,
+        calls: ir::Calls,
     ) -> Self {
         let kernels: Vec<ir::KernelKind> = self
             .ops
@@ -341,9 +355,11 @@ impl Info {
             max_nodes: ir::STATS_MAX_NODES,
             gradient,
             solve,
+            calls,
             ..ir::LowerOptions::default()
         };
         let Ok(module) = ir::lower(model, gravity, &lower) else { return self };
+        self.calls = calls;
         let options = crate::back::rust::RustOptions::default();
         let size = |functions: Vec<ir::Function>| {
             let m = ir::Module { functions, ..module.clone() };
@@ -359,6 +375,7 @@ impl Info {
                     bytes: bytes.saturating_sub(base_bytes),
                     lines: lines.saturating_sub(base_lines),
                     batch_lanes: crate::back::c::lanes_pay(f, crate::back::c::BatchLanes::Auto),
+                    calls: f.call.as_ref().map_or(Vec::new(), |c| c.callees.clone()),
                 });
             }
         }
@@ -732,6 +749,20 @@ impl Info {
                 "batches in SIMD lanes (--batch-lanes auto; each such kernel compiled twice): {}; one state per call: {}\n",
                 names(lanes),
                 names(single)
+            ));
+            let calling: Vec<String> = self
+                .rust_size
+                .iter()
+                .filter(|r| !r.calls.is_empty())
+                .map(|r| {
+                    let callees: Vec<&str> = r.calls.iter().map(|c| c.name()).collect();
+                    format!("{} calls {}", r.kernel.name(), callees.join(" and "))
+                })
+                .collect();
+            s.push_str(&format!(
+                "kernels that call others instead of holding their work (--calls {}): {}\n",
+                self.calls.name(),
+                if calling.is_empty() { "none".to_string() } else { calling.join("; ") }
             ));
         }
         if !self.gradient_costs.is_empty() {

@@ -307,7 +307,7 @@ fn the_step_kernels_rest_after_their_callee_is_the_whole_kernel() {
         let nv = m.nv();
         for f in module.functions.iter().filter(|f| f.kind.is_step()) {
             let call = f.call.as_ref().unwrap_or_else(|| panic!("{} shares its callee", f.kind));
-            let callee = module.function(call.callee).unwrap();
+            let callee = module.function(call.callees[0]).unwrap();
             for bits in [0b1111, 0b0110, 0b0000] {
                 let (active, _) = mask(bits, 4);
                 let q = m.q_from_joints(&rng.vec(nv, -3.0, 3.0), rng.base_pose());

@@ -115,9 +115,13 @@ pub(crate) struct Dynamics<'a> {
     /// The sign nodes of the logarithms [`Self::contact_accelerations`] took (a wrench
     /// contact's Baumgarte error), whose tangents the derivatives hold at 0.
     log_signs: Vec<Id>,
-    /// Whether the step kernels take the contact kernel's outputs as inputs
-    /// ([`Input::Called`]) instead of recording it: a step kernel's rest ([`crate::ir::Call`]).
+    /// Whether the kernel takes its callees' outputs as inputs ([`Input::Called`]) instead
+    /// of recording their work: a kernel's rest ([`crate::ir::Call`]). The step kernels take
+    /// the contact kernel's, `fd_grad` `fd`'s q̈ and `rnea_grad`'s ∂c/∂u.
     pub called: bool,
+    /// In a rest, the q̈ a callee gave, where `fd_grad`'s work takes it from another callee
+    /// than `fd` (`contact_fd_grad`'s, from `contact_fd`).
+    called_qdd: Option<Vec<Id>>,
 }
 
 /// The RNEA quantities the gradient needs.
@@ -167,6 +171,7 @@ impl<'a> Dynamics<'a> {
             solve: Solve::Minv,
             forces: Forces::default(),
             called: false,
+            called_qdd: None,
             config: None,
             log_signs: Vec::new(),
         }

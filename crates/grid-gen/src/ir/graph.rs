@@ -42,23 +42,31 @@ pub enum Input {
     V,
     /// A second configuration, nq entries: `difference`'s and `ddifference`'s `q1`.
     Q1,
-    /// Output `k` of the contact kernel that a step kernel's rest takes from its call
-    /// ([`crate::ir::Call`]): `contact_fd_grad`'s outputs in order, of which `contact_fd`'s
-    /// are the first two. Only the Rust backend sees these inputs.
+    /// A callee's output that a kernel's rest takes from its call ([`crate::ir::Call`]):
+    /// entry `k` of [`CALLED`]. Only the Rust backend sees these inputs.
     Called(u8),
 }
 
-/// The Rust names of [`Input::Called`]'s inputs: `contact_fd_grad`'s outputs, prefixed.
-const CALLED: [&str; 8] = [
-    "called_qdd",
-    "called_lambda",
-    "called_dqdd_dq",
-    "called_dqdd_dqd",
-    "called_dqdd_dtau",
-    "called_dlambda_dq",
-    "called_dlambda_dqd",
-    "called_dlambda_dtau",
-];
+/// The callee outputs that a kernel's rest may take ([`Input::Called`]`(k)` is entry k):
+/// the Rust name its rest and its call give it, the kernels that return it, and its
+/// output's name there. The contact kernel that a step kernel calls returns the first
+/// eight (`contact_fd` the first two); `fd_grad` calls `fd` and `rnea_grad`.
+pub const CALLED: [(&str, &[crate::ir::KernelKind], &str); 11] = {
+    use crate::ir::KernelKind::{ContactFd, ContactFdGrad, Fd, RneaGrad};
+    [
+        ("called_qdd", &[ContactFd, ContactFdGrad], "qdd"),
+        ("called_lambda", &[ContactFd, ContactFdGrad], "lambda"),
+        ("called_dqdd_dq", &[ContactFdGrad], "dqdd_dq"),
+        ("called_dqdd_dqd", &[ContactFdGrad], "dqdd_dqd"),
+        ("called_dqdd_dtau", &[ContactFdGrad], "dqdd_dtau"),
+        ("called_dlambda_dq", &[ContactFdGrad], "dlambda_dq"),
+        ("called_dlambda_dqd", &[ContactFdGrad], "dlambda_dqd"),
+        ("called_dlambda_dtau", &[ContactFdGrad], "dlambda_dtau"),
+        ("fd_qdd", &[Fd], "qdd"),
+        ("rnea_grad_dc_dq", &[RneaGrad], "dc_dq"),
+        ("rnea_grad_dc_dqd", &[RneaGrad], "dc_dqd"),
+    ]
+};
 
 /// Which of a WGSL kernel's three input buffers holds an input: `q`, `qd` (q̇, or the
 /// Lie-group kernels' tangent `v`), or `u`, which packs every other input in argument order.
@@ -84,7 +92,7 @@ impl Input {
             Input::Dt => "dt",
             Input::V => "v",
             Input::Q1 => "q1",
-            Input::Called(k) => CALLED[usize::from(k) % CALLED.len()],
+            Input::Called(k) => CALLED[usize::from(k) % CALLED.len()].0,
         }
     }
 
@@ -119,10 +127,20 @@ impl Input {
         }
     }
 
-    /// The shape of [`Input::Called`]`(k)`: `contact_fd_grad`'s output k's.
+    /// The shape of [`Input::Called`]`(k)`: its output's in the kernels that return it.
     pub fn called_shape(k: u8) -> crate::ir::Shape {
-        let outputs = crate::ir::KernelKind::ContactFdGrad.outputs();
-        outputs[usize::from(k).min(outputs.len() - 1)].shape
+        let (_, kernels, output) = CALLED[usize::from(k) % CALLED.len()];
+        let outputs = kernels[0].outputs();
+        outputs.iter().find(|o| o.name == output).map_or(outputs[0].shape, |o| o.shape)
+    }
+
+    /// The [`Input::Called`] that carries output `output` of a call to `callee`, if a rest
+    /// may take it.
+    pub fn called(callee: crate::ir::KernelKind, output: &str) -> Option<Input> {
+        CALLED
+            .iter()
+            .position(|(_, kernels, name)| *name == output && kernels.contains(&callee))
+            .map(|k| Input::Called(k as u8))
     }
 }
 

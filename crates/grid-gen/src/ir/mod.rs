@@ -18,9 +18,9 @@ mod validate;
 pub use graph::{Buffer, Id, Input, Node, Op, Stage};
 pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve, UPacking};
 pub use module::{
-    lower, lower_function, Call, ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Contact,
-    CoupledJoint, DenseProduct, EvalNumber, Function, LowerError, LowerOptions, Module, Operand,
-    Output, Robot, SphericalJoint, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
+    lower, lower_function, Call, Calls, ColumnBlock, ColumnProgram, ColumnStep, ColumnStore,
+    Contact, CoupledJoint, DenseProduct, EvalNumber, Function, LowerError, LowerOptions, Module,
+    Operand, Output, Robot, SphericalJoint, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
 };
 pub use spatial::SNAP;
 pub use stats::{stats, KernelStats, OpCounts, Skipped, Stats, STATS_MAX_NODES};

@@ -33,6 +33,37 @@ pub struct LowerOptions {
     pub gradient: Gradient,
     /// How `fd_grad` gets q̈ and applies M⁻¹.
     pub solve: Solve,
+    /// Which kernels call other kernels of their module ([`Call`]).
+    pub calls: Calls,
+}
+
+/// Which kernels call other kernels of their module instead of holding their work
+/// ([`Call`]): less code to compile, and less sharing between the parts.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+#[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
+pub enum Calls {
+    /// Where calling costs no speed: a step kernel calls its contact kernel.
+    #[default]
+    Auto,
+    /// Also `fd_grad` calls `fd` and `rnea_grad`, and `contact_fd_grad` `contact_fd` and
+    /// `rnea_grad`, where they factorise M with q̈ by ABA (trees deeper than
+    /// [`CRBA_MAX_DEPTH`]): a humanoid's library loaded in 30 s instead of 42 s, with its
+    /// `fd_grad` 1.13x and `step_grad` 1.29x slower (the book, Compile time).
+    All,
+}
+
+impl Calls {
+    pub fn name(self) -> &'static str {
+        match self {
+            Calls::Auto => "auto",
+            Calls::All => "all",
+        }
+    }
+
+    pub fn parse(name: &str) -> Option<Calls> {
+        [Calls::Auto, Calls::All].into_iter().find(|c| c.name() == name)
+    }
 }
 
 impl Default for LowerOptions {
@@ -44,6 +75,7 @@ impl Default for LowerOptions {
             max_nodes: DEFAULT_MAX_NODES,
             gradient: Gradient::Auto,
             solve: Solve::Auto,
+            calls: Calls::Auto,
         }
     }
 }
@@ -336,20 +368,27 @@ pub struct Function {
     /// are; a backend may instead run the program with the columns innermost (the Rust
     /// backend's vectorised loops). `None` where a scene selects entries.
     pub program: Option<ColumnProgram>,
-    /// A step kernel that a backend may run as its contact kernel, called, then `rest`.
-    /// The graph holds the whole kernel, which every backend may run as it is.
+    /// A kernel that a backend may run as other kernels of its module, called, then
+    /// `rest`. The graph holds the whole kernel, which every backend may run as it is.
     pub call: Option<Box<Call>>,
 }
 
-/// What a step kernel shares with the contact kernel of its module (`step` with
-/// `contact_fd`, `step_grad` with `contact_fd_grad`): the callee run on the step's inputs
-/// (its actuated τ spread over the coordinates, no `dt`), then `rest`, the step's own work,
-/// whose inputs are the step's and then the callee's outputs ([`Input::Called`]). The Rust
-/// backend calls the callee instead of repeating it: a quarter of a humanoid's library,
-/// and almost half of a quadruped's gait library (the book, Compile time).
+/// What a kernel shares with other kernels of its module: the callees run in order, then
+/// `rest`, the kernel's own work, whose inputs are the kernel's and then the callees'
+/// outputs that it reads ([`Input::Called`]). A callee takes the kernel's inputs of the
+/// same name, a step's actuated τ spread over the coordinates (`called_tau`), and what the
+/// kernel does not take (`qdd`, `lambda`) from an earlier callee.
+/// - `step` calls `contact_fd` and `step_grad` `contact_fd_grad`: a quarter of a
+///   humanoid's library, and almost half of a quadruped's gait library (the book, Compile
+///   time).
+/// - With [`Calls::All`], `fd_grad` calls `fd` for q̈ and `rnea_grad` for ∂c/∂u there,
+///   and keeps M's factorisation and the solves; `contact_fd_grad` calls `contact_fd` for
+///   q̈ and λ and `rnea_grad` at them, and keeps J, K and the columns.
+///
+/// The Rust backend calls the callees instead of repeating them.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Call {
-    pub callee: KernelKind,
+    pub callees: Vec<KernelKind>,
     pub rest: Function,
 }
 
@@ -597,40 +636,71 @@ pub fn lower_function(
     validate(&f, &Robot::of(model).dims())
         .map_err(|error| LowerError::Invalid { kernel: kind, error })?;
     let mut f = f;
-    f.call = shared_call(model, gravity, kind, options)?.map(Box::new);
+    f.call = shared_call(model, gravity, &f, options)?.map(Box::new);
     Ok(f)
 }
 
-/// The [`Call`] of a step kernel whose contact kernel the module holds too: with contacts,
-/// folded and sparse (the general graphs are for counting), a scheme other than RK4 (whose
-/// stages run at other states), no selected entries, and callee outputs that input indices
-/// can address.
+/// The [`Call`] of a kernel whose callees the module holds too, with the rest folded and
+/// sparse (the general graphs are for counting) and no selected entries.
+/// - A step kernel calls its contact kernel: with contacts, a scheme other than RK4 (whose
+///   stages run at other states), and callee outputs that input indices can address.
+/// - With [`Calls::All`], `fd_grad` calls `fd` and `rnea_grad`, and `contact_fd_grad`
+///   `contact_fd` and `rnea_grad`, where they factorised M with q̈ by ABA ([`Solve::Ltdl`])
+///   and have no coupled mimic joints.
 fn shared_call(
     model: &Model,
     gravity: [f64; 3],
-    kind: KernelKind,
+    f: &Function,
     options: &LowerOptions,
 ) -> Result<Option<Call>, LowerError> {
     let spec = &model.specialisation;
-    let callee = match kind {
-        KernelKind::Step => KernelKind::ContactFd,
-        KernelKind::StepGrad => KernelKind::ContactFdGrad,
+    let kind = f.kind;
+    let nv = model.nv();
+    let holds = |k: &KernelKind| options.kernels.contains(k) && k.exists_for(spec);
+    let common = options.fold && options.sparse && !spec.selects();
+    let callees = match kind {
+        KernelKind::Step | KernelKind::StepGrad => {
+            let callee = if kind == KernelKind::Step {
+                KernelKind::ContactFd
+            } else {
+                KernelKind::ContactFdGrad
+            };
+            let scheme = spec.step.map(|s| s.scheme);
+            if spec.contacts.is_empty()
+                || scheme.is_none_or(|s| s == crate::model::Scheme::Rk4)
+                || !common
+                || !holds(&callee)
+                || nv * nv.max(Robot::of(model).nlambda()) > usize::from(u16::MAX)
+            {
+                return Ok(None);
+            }
+            vec![callee]
+        }
+        KernelKind::FdGrad | KernelKind::ContactFdGrad => {
+            let first =
+                if kind == KernelKind::FdGrad { KernelKind::Fd } else { KernelKind::ContactFd };
+            let callees = vec![first, KernelKind::RneaGrad];
+            if options.calls != Calls::All
+                || f.solve != Some(Solve::Ltdl)
+                || !common
+                || model.has_coupled()
+                || !callees.iter().all(holds)
+                || nv * nv > usize::from(u16::MAX)
+            {
+                return Ok(None);
+            }
+            callees
+        }
         _ => return Ok(None),
     };
-    let scheme = spec.step.map(|s| s.scheme);
-    let nv = model.nv();
-    if spec.contacts.is_empty()
-        || scheme.is_none_or(|s| s == crate::model::Scheme::Rk4)
-        || !(options.fold && options.sparse)
-        || spec.selects()
-        || !options.kernels.contains(&callee)
-        || !callee.exists_for(spec)
-        || nv * nv.max(Robot::of(model).nlambda()) > usize::from(u16::MAX)
-    {
-        return Ok(None);
-    }
     let mut d = Dynamics::new(model, gravity, true, true, options.max_nodes);
     d.called = true;
+    if let Some(gradient) = f.gradient {
+        d.gradient = gradient;
+    }
+    if let Some(solve) = f.solve {
+        d.solve = solve;
+    }
     let outputs = kind.record(&mut d);
     if d.g.exhausted() {
         return Err(LowerError::TooLarge {
@@ -643,11 +713,12 @@ fn shared_call(
     let program = d.program.take();
     let mut rest = freeze(kind, &kind.outputs_for(spec), &d.g, outputs, None, program);
     rest.inputs = kind.inputs_for(spec);
-    let called = callee.outputs().len() as u8;
-    rest.inputs.extend((0..called).map(Input::Called));
+    for callee in &callees {
+        rest.inputs.extend(callee.outputs().iter().filter_map(|o| Input::called(*callee, o.name)));
+    }
     rest.dims = Robot::of(model).dims();
     validate(&rest, &rest.dims).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
-    Ok(Some(Call { callee, rest }))
+    Ok(Some(Call { callees, rest }))
 }
 
 /// The most joints on one path from the root for which `fd_grad` may use [`Solve::Ltdl`].

@@ -764,10 +764,11 @@ fn emit_kernel(
     }
 }
 
-/// A kernel that runs its callee and then its rest ([`crate::ir::Call`]): the callee's
-/// outputs are the rest's last inputs, and the callee takes the kernel's inputs with the
-/// actuated τ spread over the coordinates (0 elsewhere) and without `dt`. A SIMD copy's
-/// `{name}_into` passes its outputs on to the rest's.
+/// A kernel that runs its callees and then its rest ([`crate::ir::Call`]): the callees'
+/// outputs that the rest reads are its last inputs. A callee takes the kernel's inputs of
+/// the same name, a step's actuated τ spread over the coordinates (0 elsewhere), and what
+/// the kernel does not take (`qdd`, `lambda`) from an earlier callee. A SIMD copy's `{name}_into` passes its outputs on to
+/// the rest's.
 fn emit_call(
     out: &mut String,
     k: &Function,
@@ -777,15 +778,8 @@ fn emit_call(
 ) {
     use crate::ir::Input;
     let name = k.kind.name();
-    let callee = call.callee.name();
     let into = copy != Copy::Portable;
-    let callee_outputs = call.callee.outputs();
-    let callee_args: Vec<&str> = call
-        .callee
-        .inputs_for(&robot.specialisation)
-        .iter()
-        .map(|i| if *i == Input::Tau { "&called_tau" } else { i.name() })
-        .collect();
+    let spec = &robot.specialisation;
     let rest_args: Vec<String> = call
         .rest
         .inputs()
@@ -799,27 +793,74 @@ fn emit_call(
         })
         .collect();
     let mut body = String::new();
-    let _ = writeln!(body, "let mut called_tau = [lit::<T>(0.0); NV];");
-    for (i, &c) in robot.actuated.iter().enumerate() {
-        let _ = writeln!(body, "called_tau[{c}] = tau[{i}];");
-    }
-    let called: Vec<&str> =
-        (0..callee_outputs.len()).map(|c| Input::Called(c as u8).name()).collect();
-    if into {
-        for (c, o) in called.iter().zip(callee_outputs) {
-            let _ = writeln!(body, "let mut {c} = {};", array_of(o.shape, "lit::<T>(0.0)"));
+    let spread = k.inputs().contains(&Input::TauActuated);
+    if spread {
+        let _ = writeln!(body, "let mut called_tau = [lit::<T>(0.0); NV];");
+        for (i, &c) in robot.actuated.iter().enumerate() {
+            let _ = writeln!(body, "called_tau[{c}] = tau[{i}];");
         }
-        let refs: Vec<String> = called.iter().map(|c| format!("&mut {c}")).collect();
-        let _ = writeln!(body, "{callee}_into({}, {});", callee_args.join(", "), refs.join(", "));
+    }
+    for (at, callee) in call.callees.iter().enumerate() {
+        let args: Vec<String> = callee
+            .inputs_for(spec)
+            .iter()
+            .map(|i| match *i {
+                Input::Tau if spread => "&called_tau".to_string(),
+                _ if k.inputs().contains(i) => i.name().to_string(),
+                // q̈ or λ from an earlier callee.
+                _ => {
+                    let from = call.callees[..at]
+                        .iter()
+                        .find_map(|c| Input::called(*c, i.name()))
+                        .expect("an earlier callee gives what the kernel does not take");
+                    format!("&{}", from.name())
+                }
+            })
+            .collect();
+        // Each output under its `CALLED` name where the rest may read it.
+        let bound: Vec<(String, crate::ir::Shape)> = callee
+            .outputs_for(spec)
+            .iter()
+            .enumerate()
+            .map(|(j, o)| {
+                let name = match Input::called(*callee, o.name) {
+                    Some(c) => c.name().to_string(),
+                    None if into => format!("unread_{at}_{j}"),
+                    None => "_".to_string(),
+                };
+                (name, o.shape)
+            })
+            .collect();
+        let callee_name = callee.name();
+        if into {
+            for (c, shape) in &bound {
+                let _ = writeln!(body, "let mut {c} = {};", array_of(*shape, "lit::<T>(0.0)"));
+            }
+            let refs: Vec<String> = bound.iter().map(|(c, _)| format!("&mut {c}")).collect();
+            let _ = writeln!(body, "{callee_name}_into({}, {});", args.join(", "), refs.join(", "));
+        } else {
+            let names: Vec<&str> = bound.iter().map(|(c, _)| c.as_str()).collect();
+            let pattern = if names.len() == 1 {
+                names[0].to_string()
+            } else {
+                format!("({})", names.join(", "))
+            };
+            let _ = writeln!(body, "let {pattern} = {callee_name}({});", args.join(", "));
+        }
+    }
+    if into {
         let outs: Vec<&str> = k.outputs.iter().map(|o| o.name).collect();
         let _ = writeln!(body, "{name}_rest_into({}, {});", rest_args.join(", "), outs.join(", "));
     } else {
-        let _ =
-            writeln!(body, "let ({}) = {callee}({});", called.join(", "), callee_args.join(", "));
         let _ = writeln!(body, "{name}_rest({})", rest_args.join(", "));
     }
-    let doc =
-        format!("{}\n///\n/// Runs [`{callee}`], then [`{name}_rest`] on its outputs.", k.doc());
+    let calls: Vec<String> = call.callees.iter().map(|c| format!("[`{c}`]")).collect();
+    let their = if calls.len() == 1 { "its" } else { "their" };
+    let doc = format!(
+        "{}\n///\n/// Runs {}, then [`{name}_rest`] on {their} outputs.",
+        k.doc(),
+        calls.join(", ")
+    );
     open_function(out, k, name, &doc, q_len(robot), copy);
     let _ = writeln!(out, "{body}}}\n");
 }

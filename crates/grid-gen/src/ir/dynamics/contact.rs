@@ -18,6 +18,7 @@
 //! formed). `F_u`'s free-flyer columns come without a solve (`fd_grad.rs`).
 
 use super::super::graph::{Graph, Id, Input, Stage};
+use super::super::kernel::KernelKind;
 use super::super::kernel::Solve;
 use super::super::module::{ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Operand};
 use super::super::spatial::{self as sp, k, V3};
@@ -288,7 +289,15 @@ impl Dynamics<'_> {
     /// ∂λ/∂q̇, ∂λ/∂τ)`, each as rows (one row for the vectors); the τ derivatives have one
     /// column per coordinate of `tau_cols` (the step kernels need only the actuated ones).
     pub fn contact_fd_grad(&mut self, qd: &[Id], tau: &[Id], tau_cols: &[usize]) -> Vec<Mat> {
-        let sol = self.contact_fd(qd, tau);
+        let mut sol = self.contact_fd(qd, tau);
+        if self.called {
+            // A rest: q̈ and λ from the call to `contact_fd` (the free acceleration, the
+            // contacts' bias and the last solves drop out when the graph is frozen); J, G and
+            // K's factors stay, for the columns.
+            sol.qdd = self.called_inputs(Input::called(KernelKind::ContactFd, "qdd"));
+            sol.lambda = self.called_inputs(Input::called(KernelKind::ContactFd, "lambda"));
+            self.called_qdd = Some(sol.qdd.clone());
+        }
         let (nv, nl) = (qd.len(), sol.lambda.len());
         // ∂q̈/∂u at fixed λ: fd_grad with the solved forces as the contacts' forces; its
         // q̈ is sol.qdd by ABA (or the factorisation) under them, so its RNEA gradient is

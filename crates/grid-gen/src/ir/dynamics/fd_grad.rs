@@ -3,7 +3,7 @@
 //! floating base, six columns come from the free-flyer's invariances without a solve.
 
 use super::super::graph::{Graph, Id, Stage};
-use super::super::kernel::Solve;
+use super::super::kernel::{KernelKind, Solve};
 use super::super::module::{ColumnBlock, ColumnProgram, ColumnStep, ColumnStore, Operand};
 use super::{strict_ancestors, Dynamics, Mat, Rnea, Scalar};
 use crate::model::Model;
@@ -147,12 +147,34 @@ impl Dynamics<'_> {
             );
         }
         let f = self.ltdl(m);
-        let qdd = by_aba.unwrap_or_else(|| {
+        let mut qdd = by_aba.unwrap_or_else(|| {
             let b: Vec<Id> = (0..n).map(|i| self.g.sub(bias[i], tau[i])).collect();
             f.solve(&mut self.g, self.model, b)
         });
         let r = self.rnea(qd, &qdd);
-        let (dc_q, dc_qd) = self.rnea_grad(&r, qd);
+        let (mut dc_q, mut dc_qd) = self.rnea_grad(&r, qd);
+        if self.called {
+            // A rest: q̈ and ∂c/∂u from the calls to `fd` and `rnea_grad`, except where the
+            // graph above folded an entry to a constant (joints on different branches),
+            // which the solves keep folding. The recorded nodes left unread are dropped
+            // when the graph is frozen; the base's gravity, which the free-flyer's columns
+            // read from `r`, is a few of them.
+            qdd = match self.called_qdd.clone() {
+                Some(qdd) => qdd,
+                None => self.called_inputs(crate::ir::Input::called(KernelKind::Fd, "qdd")),
+            };
+            for (dc, output) in [(&mut dc_q, "dc_dq"), (&mut dc_qd, "dc_dqd")] {
+                let flat =
+                    self.called_inputs(crate::ir::Input::called(KernelKind::RneaGrad, output));
+                for (row, entries) in dc.iter_mut().enumerate() {
+                    for (c, x) in entries.iter_mut().enumerate() {
+                        if !matches!(self.g.nodes[x.0 as usize].op, crate::ir::Op::Const(_)) {
+                            *x = flat[row * n + c];
+                        }
+                    }
+                }
+            }
+        }
         if self.exhausted() {
             return (qdd, dc_q, dc_qd, empty(columns.len()), vec![vec![zero; n]; rhs.len()]);
         }

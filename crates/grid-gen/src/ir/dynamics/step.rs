@@ -205,10 +205,11 @@ impl Dynamics<'_> {
         self.model.specialisation.fd_grad_minv
     }
 
-    /// The input nodes of the contact kernel's output `k` ([`Input::Called`]), flat.
-    fn called_inputs(&mut self, k: u8) -> Vec<Id> {
-        let n = Input::Called(k).len(&crate::ir::Robot::of(self.model).dims());
-        (0..n).map(|j| self.g.input(Input::Called(k), j)).collect()
+    /// The input nodes of a callee's output ([`Input::Called`]), flat.
+    pub(super) fn called_inputs(&mut self, called: Option<Input>) -> Vec<Id> {
+        let called = called.expect("a rest takes only outputs in `CALLED`");
+        let n = called.len(&crate::ir::Robot::of(self.model).dims());
+        (0..n).map(|j| self.g.input(called, j)).collect()
     }
 
     /// One node per actuated coordinate's force.
@@ -368,7 +369,10 @@ impl Dynamics<'_> {
     /// dynamics inside its integrated action models); and then the contacts' forces λ.
     fn step_acceleration(&mut self, qd: &[Id], tau: &[Id]) -> (Vec<Id>, Option<Vec<Id>>) {
         if self.called && self.declares_contacts() {
-            let (qdd, lambda) = (self.called_inputs(0), self.called_inputs(1));
+            let (qdd, lambda) = (
+                self.called_inputs(Some(Input::Called(0))),
+                self.called_inputs(Some(Input::Called(1))),
+            );
             return (qdd, Some(lambda));
         }
         if self.declares_contacts() {
@@ -392,9 +396,12 @@ impl Dynamics<'_> {
             // contact_fd_grad's outputs, as its kernel lays them out: τ's columns are all
             // of them, of which the step reads the actuated.
             let nv = self.model.nv();
-            let (qdd, lambda) = (self.called_inputs(0), self.called_inputs(1));
+            let (qdd, lambda) = (
+                self.called_inputs(Some(Input::Called(0))),
+                self.called_inputs(Some(Input::Called(1))),
+            );
             let mut by = |k: u8, cols: Option<&[usize]>| -> Mat {
-                let flat = self.called_inputs(k);
+                let flat = self.called_inputs(Some(Input::Called(k)));
                 flat.chunks(nv.max(1))
                     .map(|row| match cols {
                         Some(cols) => cols.iter().map(|&c| row[c]).collect(),
