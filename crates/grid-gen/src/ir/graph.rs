@@ -50,7 +50,8 @@ pub enum Input {
 /// The callee outputs that a kernel's rest may take ([`Input::Called`]`(k)` is entry k):
 /// the Rust name its rest and its call give it, the kernels that return it, and its
 /// output's name there. The contact kernel that a step kernel calls returns the first
-/// eight (`contact_fd` the first two); `fd_grad` calls `fd` and `rnea_grad`.
+/// eight (`contact_fd` the first two); with `calls = all`, `fd_grad` reads `fd`'s q̈ and
+/// `rnea_grad`'s two, and `contact_fd_grad` `contact_fd`'s two and `rnea_grad`'s.
 pub const CALLED: [(&str, &[crate::ir::KernelKind], &str); 11] = {
     use crate::ir::KernelKind::{ContactFd, ContactFdGrad, Fd, RneaGrad};
     [

@@ -154,11 +154,12 @@ impl Dynamics<'_> {
         let r = self.rnea(qd, &qdd);
         let (mut dc_q, mut dc_qd) = self.rnea_grad(&r, qd);
         if self.called {
-            // A rest: q̈ and ∂c/∂u from the calls to `fd` and `rnea_grad`, except where the
-            // graph above folded an entry to a constant (joints on different branches),
-            // which the solves keep folding. The recorded nodes left unread are dropped
-            // when the graph is frozen; the base's gravity, which the free-flyer's columns
-            // read from `r`, is a few of them.
+            // A rest: q̈ from the call to `fd` (or `contact_fd`, which set `called_qdd`) and
+            // ∂c/∂u from the call to `rnea_grad`, except where the graph above folded an
+            // entry to a constant (joints on different branches), which the solves keep
+            // folding. The recorded nodes left unread are dropped when the graph is frozen;
+            // the base's gravity, which the free-flyer's columns read from `r`, is a few of
+            // them.
             qdd = match self.called_qdd.clone() {
                 Some(qdd) => qdd,
                 None => self.called_inputs(crate::ir::Input::called(KernelKind::Fd, "qdd")),
