@@ -18,7 +18,7 @@ from ._robot import Robot
 
 _PRECISIONS = ("f64", "f32")
 _BATCH_LANES = ("auto", "all", "none")
-_CALLS = ("auto", "all")
+_CALLS = ("auto", "all", "rnea_grad")
 
 
 def cache_dir() -> Path:

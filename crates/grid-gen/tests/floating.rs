@@ -193,30 +193,7 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
     let text = &file.contents;
     assert_program_looped(text, "fd_grad", 2);
     // Three lines from the portable copy, then three from the fma copy where it runs.
-    let said = compile_and_run(
-        "floating_atlas_loops",
-        text,
-        &[
-            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
-            SEEDED_STATE_RS,
-            r#"fn main() {
-    let copies = if has_fma() { 2 } else { 1 };
-    for copy in 0..copies {
-        for k in 0..3 {
-            let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
-            let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
-            for x in &mut q[3..7] { *x /= n; }
-            let x: [[f64; NV]; 2] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s + 1)));
-            let (a, aq, av) = if copy == 1 { unsafe { fma::fd_grad(&q, &x[0], &x[1]) } } else { portable::fd_grad(&q, &x[0], &x[1]) };
-            let all: Vec<String> = q.iter().chain(&a).chain(aq.as_flattened()).chain(av.as_flattened()).map(|x| format!("{x:?}")).collect();
-            println!("{}", all.join(" "));
-        }
-    }
-}
-"#,
-        ]
-        .concat(),
-    );
+    let said = run_fd_grad_copies("floating_atlas_loops", text);
     let (nv, nq) = (model.nv(), model.nq());
     // State k's q̇ and τ, as the program drew them.
     let inputs = |k: usize| -> Vec<Vec<f64>> {
@@ -255,11 +232,12 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
 }
 
 /// With `calls = all`, an `fd_grad` that factorises M with q̈ by ABA calls `fd` and
-/// `rnea_grad` and keeps the rest ([`grid_gen::ir::Call`]): a floating 14-link chain with
-/// the LTDL solve. The rest fed the callees' values gives the whole graph's (two roundings
-/// of the same operations, 1e-12 as every f64 bound); the module, compiled by rustc and
-/// run on three states in both copies, gives the reference's at 1e-12; the default
-/// (`auto`) keeps `fd_grad` whole.
+/// `rnea_grad` and keeps the rest ([`grid_gen::ir::Call`]); with `calls = rnea_grad` it
+/// computes q̈ itself and calls `rnea_grad` there, between its parts: a floating 14-link
+/// chain with the LTDL solve. The rest fed the callees' values gives the whole graph's
+/// (two roundings of the same operations, 1e-12 as every f64 bound); the module, compiled
+/// by rustc and run on three states in both copies, gives the reference's at 1e-12; the
+/// default (`auto`) keeps `fd_grad` whole.
 #[test]
 fn fd_grad_calls_fd_and_rnea_grad_when_asked() {
     use grid_gen::generate::{generate, Options, Target};
@@ -269,44 +247,93 @@ fn fd_grad_calls_fd_and_rnea_grad_when_asked() {
     let kernels = vec![KernelKind::RneaGrad, KernelKind::Fd, KernelKind::FdGrad];
     let whole =
         LowerOptions { kernels: kernels.clone(), solve: Solve::Ltdl, ..LowerOptions::default() };
-    let lower = LowerOptions { calls: Calls::All, ..whole.clone() };
     let by_default = ir::lower(&model, g, &whole).unwrap();
     assert!(by_default.functions.iter().all(|f| f.call.is_none()), "auto keeps fd_grad whole");
-    let lowered = ir::lower(&model, g, &lower).unwrap();
-    let f = lowered.function(KernelKind::FdGrad).unwrap();
-    let call = f.call.as_ref().expect("fd_grad calls");
-    assert_eq!(call.callees, vec![KernelKind::Fd, KernelKind::RneaGrad]);
     let (nv, nq) = (model.nv(), model.nq());
-    let mut worst: f64 = 0.0;
-    for k in 0..3 {
-        let joints: Vec<f64> = (0..nv - 6).map(|i| 2.0 * seeded_state(k, i, 0)).collect();
-        let q = model.q_from_joints(&joints, [0.1, -0.2, 0.3, 0.5, -0.5, 0.5, 0.5]);
-        let x: Vec<Vec<f64>> =
-            (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
-        let args = kernel_args(f.inputs(), &q, &x[0], &x[1]);
-        let all = f.eval(&args);
-        let fd = lowered.function(KernelKind::Fd).unwrap();
-        let qdd = fd.eval(&kernel_args(fd.inputs(), &q, &x[0], &x[1])).remove(0);
-        let rg = lowered.function(KernelKind::RneaGrad).unwrap();
-        let dc = rg.eval(&kernel_args(rg.inputs(), &q, &x[0], &qdd));
-        let mut rest_args = args.clone();
-        rest_args.push(&qdd);
-        rest_args.extend(dc.iter().map(Vec::as_slice));
-        assert_eq!(rest_args.len(), call.rest.inputs().len());
-        for (a, b) in all.iter().zip(&call.rest.eval(&rest_args)) {
-            worst = worst.max(rel_err(&col(a), &col(b)));
+    for calls in [Calls::All, Calls::RneaGrad] {
+        let lower = LowerOptions { calls, ..whole.clone() };
+        let lowered = ir::lower(&model, g, &lower).unwrap();
+        let f = lowered.function(KernelKind::FdGrad).unwrap();
+        let call = f.call.as_ref().expect("fd_grad calls");
+        let own = calls == Calls::RneaGrad;
+        let callees = if own {
+            vec![KernelKind::RneaGrad]
+        } else {
+            vec![KernelKind::Fd, KernelKind::RneaGrad]
+        };
+        assert_eq!(call.callees, callees);
+        assert_eq!(call.ahead.is_empty(), !own, "only a kernel that computes q̈ splits");
+        let mut worst: f64 = 0.0;
+        for k in 0..3 {
+            let joints: Vec<f64> = (0..nv - 6).map(|i| 2.0 * seeded_state(k, i, 0)).collect();
+            let q = model.q_from_joints(&joints, [0.1, -0.2, 0.3, 0.5, -0.5, 0.5, 0.5]);
+            let x: Vec<Vec<f64>> =
+                (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+            let args = kernel_args(f.inputs(), &q, &x[0], &x[1]);
+            let all = f.eval(&args);
+            // q̈ from `fd`, or the kernel's own (its first output).
+            let fd = lowered.function(KernelKind::Fd).unwrap();
+            let qdd = if own {
+                all[0].clone()
+            } else {
+                fd.eval(&kernel_args(fd.inputs(), &q, &x[0], &x[1])).remove(0)
+            };
+            let rg = lowered.function(KernelKind::RneaGrad).unwrap();
+            let dc = rg.eval(&kernel_args(rg.inputs(), &q, &x[0], &qdd));
+            let mut rest_args = args.clone();
+            if !own {
+                rest_args.push(&qdd);
+            }
+            rest_args.extend(dc.iter().map(Vec::as_slice));
+            assert_eq!(rest_args.len(), call.rest.inputs().len());
+            for (a, b) in all.iter().zip(&call.rest.eval(&rest_args)) {
+                worst = worst.max(rel_err(&col(a), &col(b)));
+            }
+        }
+        let name = calls.name();
+        assert!(worst < 1e-12, "{name}: rest after its callees: {worst:.2e} from the whole graph");
+        println!("calls={name}: fd_grad's rest with its callees' values: worst {worst:.2e} from the whole graph (bound 1e-12)");
+        let file =
+            generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+                .unwrap()
+                .remove(0);
+        let text = &file.contents;
+        assert_eq!(text.contains("fn fd_grad_rest<"), !own, "a rest of its own unless split");
+        if own {
+            assert!(text.contains("= rnea_grad(q, qd, &qdd)"), "fd_grad calls rnea_grad at its q̈");
+        }
+        let said = run_fd_grad_copies(&format!("fd_grad_calls_{name}"), text);
+        let inputs = |k: usize| -> Vec<Vec<f64>> {
+            (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect()
+        };
+        let lines: Vec<&str> = said.lines().collect();
+        let copies = lines.len() / 3;
+        assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
+        for (copy, copy_name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
+            let worst = worst_line_error(
+                &lines[3 * copy..3 * copy + 3].join("\n"),
+                3,
+                nq,
+                1e-12,
+                |k, q| {
+                    let x = inputs(k);
+                    reference_outputs(KernelKind::FdGrad, &model, q, &x[0], &x[1], g)
+                        .iter()
+                        .flat_map(|m| m.transpose().as_slice().to_vec())
+                        .collect()
+                },
+            );
+            println!("calls={name}: floating 14-link chain fd_grad, {copy_name} copy: worst {worst:.2e} from the reference (bound 1e-12)");
         }
     }
-    assert!(worst < 1e-12, "rest after its callees: {worst:.2e} from the whole graph");
-    println!("fd_grad's rest after fd and rnea_grad: worst {worst:.2e} from the whole graph (bound 1e-12)");
-    let file =
-        generate(&model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
-            .unwrap()
-            .remove(0);
-    let text = &file.contents;
-    assert!(text.contains("fn fd_grad_rest<"), "the module holds fd_grad's rest");
-    let said = compile_and_run(
-        "fd_grad_calls",
+}
+
+/// Compiles `text` (a floating robot's module) and runs its `fd_grad` on the first three
+/// seeded states, normalised quaternion, in the portable copy and in the `fma` copy where
+/// the CPU runs it: one line per state and copy, q then the outputs, row-major.
+fn run_fd_grad_copies(name: &str, text: &str) -> String {
+    compile_and_run(
+        name,
         text,
         &[
             "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
@@ -328,24 +355,7 @@ fn fd_grad_calls_fd_and_rnea_grad_when_asked() {
 "#,
         ]
         .concat(),
-    );
-    let inputs = |k: usize| -> Vec<Vec<f64>> {
-        (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect()
-    };
-    let lines: Vec<&str> = said.lines().collect();
-    let copies = lines.len() / 3;
-    assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
-    for (copy, name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
-        let worst =
-            worst_line_error(&lines[3 * copy..3 * copy + 3].join("\n"), 3, nq, 1e-12, |k, q| {
-                let x = inputs(k);
-                reference_outputs(KernelKind::FdGrad, &model, q, &x[0], &x[1], g)
-                    .iter()
-                    .flat_map(|m| m.transpose().as_slice().to_vec())
-                    .collect()
-            });
-        println!("floating 14-link chain fd_grad through fd and rnea_grad, {name} copy: worst {worst:.2e} from the reference (bound 1e-12)");
-    }
+    )
 }
 
 /// A 14-link chain on a floating base, deeper than `CRBA_MAX_DEPTH`. The base link carries
@@ -361,7 +371,8 @@ fn floating_chain14() -> Model {
 }
 
 /// With `calls = all`, `contact_fd_grad` calls `contact_fd` and `rnea_grad` (at its q̈ and
-/// λ) and keeps J, K and the columns: the floating 14-link chain holding its tip (6-D) and
+/// λ) and keeps J, K and the columns; with `calls = rnea_grad` it computes q̈ and λ and
+/// calls `rnea_grad` there, between its parts: the floating 14-link chain holding its tip (6-D) and
 /// its seventh link (a point), the LTDL solve. The rest fed the callees' values gives the
 /// whole graph's, and so does the module, compiled and run on three states in both copies
 /// (1e-12, two roundings of the same operations; the whole graph is held to Pinocchio by
@@ -379,7 +390,6 @@ fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
     let g = reference::DEFAULT_GRAVITY;
     let kernels = vec![KernelKind::RneaGrad, KernelKind::ContactFd, KernelKind::ContactFdGrad];
     let whole = LowerOptions { kernels, solve: Solve::Ltdl, ..LowerOptions::default() };
-    let lower = LowerOptions { calls: Calls::All, ..whole.clone() };
     let (nv, nq) = (plain.nv(), plain.nq());
     let state = |k: usize| -> (Vec<f64>, Vec<Vec<f64>>) {
         let mut q: Vec<f64> = (0..nq).map(|i| seeded_state(k, i, 0)).collect();
@@ -395,93 +405,116 @@ fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
     masked.specialisation.baumgarte = true;
     let (gains, refs) =
         ([20.0, 5.0, 30.0, 8.0], [0.1, 0.2, 1.3, 0.5, -0.5, 0.5, 0.5, -0.1, 0.3, 0.7]);
-    let mut worst: f64 = 0.0;
-    for model in [&plain, &masked] {
-        let by_default = ir::lower(model, g, &whole).unwrap();
-        let f = by_default.function(KernelKind::ContactFdGrad).unwrap();
-        assert!(f.call.is_none(), "auto keeps contact_fd_grad whole");
-        let lowered = ir::lower(model, g, &lower).unwrap();
-        let call =
-            lowered.function(KernelKind::ContactFdGrad).unwrap().call.as_ref().expect("calls");
-        assert_eq!(call.callees, vec![KernelKind::ContactFd, KernelKind::RneaGrad]);
-        let corr = reference::Baumgarte { gains: &gains, refs: &refs };
-        for k in 0..3 {
-            let (q, x) = state(k);
-            let active = [1.0, (k % 2) as f64];
-            let none = reference::External::NONE;
-            let args =
-                kernel_args_corrected(f.inputs(), &q, &x[0], &x[1], none, &[], &active, corr);
-            let all = f.eval(&args);
-            let cfd = lowered.function(KernelKind::ContactFd).unwrap();
-            let sol = cfd.eval(&kernel_args_corrected(
-                cfd.inputs(),
-                &q,
-                &x[0],
-                &x[1],
-                none,
-                &[],
-                &active,
-                corr,
-            ));
-            let rg = lowered.function(KernelKind::RneaGrad).unwrap();
-            let ext = reference::External { fext: &[], lambda: &sol[1] };
-            let dc = rg.eval(&kernel_args_with(rg.inputs(), &q, &x[0], &sol[0], ext));
-            let mut rest_args = args.clone();
-            rest_args.extend(sol.iter().map(Vec::as_slice));
-            rest_args.extend(dc.iter().take(2).map(Vec::as_slice));
-            assert_eq!(rest_args.len(), call.rest.inputs().len());
-            for (a, b) in all.iter().zip(&call.rest.eval(&rest_args)) {
-                worst = worst.max(rel_err(&col(a), &col(b)));
+    for calls in [Calls::All, Calls::RneaGrad] {
+        let lower = LowerOptions { calls, ..whole.clone() };
+        let own = calls == Calls::RneaGrad;
+        let name = calls.name();
+        let mut worst: f64 = 0.0;
+        for model in [&plain, &masked] {
+            let by_default = ir::lower(model, g, &whole).unwrap();
+            let f = by_default.function(KernelKind::ContactFdGrad).unwrap();
+            assert!(f.call.is_none(), "auto keeps contact_fd_grad whole");
+            let lowered = ir::lower(model, g, &lower).unwrap();
+            let call =
+                lowered.function(KernelKind::ContactFdGrad).unwrap().call.as_ref().expect("calls");
+            let callees = if own {
+                vec![KernelKind::RneaGrad]
+            } else {
+                vec![KernelKind::ContactFd, KernelKind::RneaGrad]
+            };
+            assert_eq!(call.callees, callees);
+            let corr = reference::Baumgarte { gains: &gains, refs: &refs };
+            for k in 0..3 {
+                let (q, x) = state(k);
+                let active = [1.0, (k % 2) as f64];
+                let none = reference::External::NONE;
+                let args =
+                    kernel_args_corrected(f.inputs(), &q, &x[0], &x[1], none, &[], &active, corr);
+                let all = f.eval(&args);
+                let cfd = lowered.function(KernelKind::ContactFd).unwrap();
+                // q̈ and λ from `contact_fd`, or the kernel's own (its first outputs).
+                let sol = if own {
+                    all[..2].to_vec()
+                } else {
+                    cfd.eval(&kernel_args_corrected(
+                        cfd.inputs(),
+                        &q,
+                        &x[0],
+                        &x[1],
+                        none,
+                        &[],
+                        &active,
+                        corr,
+                    ))
+                };
+                let rg = lowered.function(KernelKind::RneaGrad).unwrap();
+                let ext = reference::External { fext: &[], lambda: &sol[1] };
+                let dc = rg.eval(&kernel_args_with(rg.inputs(), &q, &x[0], &sol[0], ext));
+                let mut rest_args = args.clone();
+                if !own {
+                    rest_args.extend(sol.iter().map(Vec::as_slice));
+                }
+                rest_args.extend(dc.iter().take(2).map(Vec::as_slice));
+                assert_eq!(rest_args.len(), call.rest.inputs().len());
+                for (a, b) in all.iter().zip(&call.rest.eval(&rest_args)) {
+                    worst = worst.max(rel_err(&col(a), &col(b)));
+                }
+            }
+        }
+        let model = &plain;
+        let f = ir::lower(model, g, &whole)
+            .unwrap()
+            .functions
+            .into_iter()
+            .find(|f| f.kind == KernelKind::ContactFdGrad)
+            .unwrap();
+        assert!(worst < 1e-12, "{name}: rest after its callees: {worst:.2e} from the whole graph");
+        println!("calls={name}: contact_fd_grad's rest with its callees' values, plain, masked and stabilised: worst {worst:.2e} from the whole graph (bound 1e-12)");
+        let file =
+            generate(model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
+                .unwrap()
+                .remove(0);
+        let split = !file.contents.contains("fn contact_fd_grad_rest<");
+        assert_eq!(split, own, "a rest of its own unless split");
+        let said = compile_and_run(
+            &format!("contact_fd_grad_calls_{name}"),
+            &file.contents,
+            &[
+                "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
+                SEEDED_STATE_RS,
+                r#"fn main() {
+        let copies = if has_fma() { 2 } else { 1 };
+        for copy in 0..copies {
+            for k in 0..3 {
+                let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
+                let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
+                for x in &mut q[3..7] { *x /= n; }
+                let x: [[f64; NV]; 2] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s + 1)));
+                let o = if copy == 1 { unsafe { fma::contact_fd_grad(&q, &x[0], &x[1]) } } else { portable::contact_fd_grad(&q, &x[0], &x[1]) };
+                let all: Vec<String> = q.iter().chain(&o.0).chain(&o.1).chain(o.2.as_flattened()).chain(o.3.as_flattened()).chain(o.4.as_flattened()).chain(o.5.as_flattened()).chain(o.6.as_flattened()).chain(o.7.as_flattened()).map(|x| format!("{x:?}")).collect();
+                println!("{}", all.join(" "));
             }
         }
     }
-    let model = &plain;
-    let f = ir::lower(model, g, &whole)
-        .unwrap()
-        .functions
-        .into_iter()
-        .find(|f| f.kind == KernelKind::ContactFdGrad)
-        .unwrap();
-    assert!(worst < 1e-12, "rest after its callees: {worst:.2e} from the whole graph");
-    println!("contact_fd_grad's rest after contact_fd and rnea_grad, plain, masked and stabilised: worst {worst:.2e} from the whole graph (bound 1e-12)");
-    let file =
-        generate(model, &Options { targets: vec![Target::Rust], lower, ..Options::default() })
-            .unwrap()
-            .remove(0);
-    assert!(file.contents.contains("fn contact_fd_grad_rest<"), "the module holds the rest");
-    let said = compile_and_run(
-        "contact_fd_grad_calls",
-        &file.contents,
-        &[
-            "mod robot { include!(\"robot.rs\"); }\nuse robot::*;\n",
-            SEEDED_STATE_RS,
-            r#"fn main() {
-    let copies = if has_fma() { 2 } else { 1 };
-    for copy in 0..copies {
-        for k in 0..3 {
-            let mut q: [f64; NQ] = std::array::from_fn(|i| state(k, i, 0));
-            let n = q[3..7].iter().map(|x| x * x).sum::<f64>().sqrt();
-            for x in &mut q[3..7] { *x /= n; }
-            let x: [[f64; NV]; 2] = std::array::from_fn(|s| std::array::from_fn(|i| state(k, i, s + 1)));
-            let o = if copy == 1 { unsafe { fma::contact_fd_grad(&q, &x[0], &x[1]) } } else { portable::contact_fd_grad(&q, &x[0], &x[1]) };
-            let all: Vec<String> = q.iter().chain(&o.0).chain(&o.1).chain(o.2.as_flattened()).chain(o.3.as_flattened()).chain(o.4.as_flattened()).chain(o.5.as_flattened()).chain(o.6.as_flattened()).chain(o.7.as_flattened()).map(|x| format!("{x:?}")).collect();
-            println!("{}", all.join(" "));
+    "#,
+            ]
+            .concat(),
+        );
+        let lines: Vec<&str> = said.lines().collect();
+        let copies = lines.len() / 3;
+        assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
+        for (copy, copy_name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
+            let worst = worst_line_error(
+                &lines[3 * copy..3 * copy + 3].join("\n"),
+                3,
+                nq,
+                1e-12,
+                |k, _| {
+                    let (q, x) = state(k);
+                    f.eval(&kernel_args(f.inputs(), &q, &x[0], &x[1])).concat()
+                },
+            );
+            println!("calls={name}: floating chain contact_fd_grad, {copy_name} copy: worst {worst:.2e} from the whole graph (bound 1e-12)");
         }
-    }
-}
-"#,
-        ]
-        .concat(),
-    );
-    let lines: Vec<&str> = said.lines().collect();
-    let copies = lines.len() / 3;
-    assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
-    for (copy, name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
-        let worst =
-            worst_line_error(&lines[3 * copy..3 * copy + 3].join("\n"), 3, nq, 1e-12, |k, _| {
-                let (q, x) = state(k);
-                f.eval(&kernel_args(f.inputs(), &q, &x[0], &x[1])).concat()
-            });
-        println!("floating chain contact_fd_grad through contact_fd and rnea_grad, {name} copy: worst {worst:.2e} from the whole graph (bound 1e-12)");
     }
 }

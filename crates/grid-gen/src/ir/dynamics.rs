@@ -122,6 +122,9 @@ pub(crate) struct Dynamics<'a> {
     /// In a rest, the q̈ a callee gave, where `fd_grad`'s work takes it from another callee
     /// than `fd` (`contact_fd_grad`'s, from `contact_fd`).
     called_qdd: Option<Vec<Id>>,
+    /// In a rest, whether q̈ and λ are the kernel's own (its callee is `rnea_grad` alone,
+    /// [`crate::ir::Calls::RneaGrad`]) rather than a callee's.
+    pub own_qdd: bool,
 }
 
 /// The RNEA quantities the gradient needs.
@@ -172,6 +175,7 @@ impl<'a> Dynamics<'a> {
             forces: Forces::default(),
             called: false,
             called_qdd: None,
+            own_qdd: false,
             config: None,
             log_signs: Vec::new(),
         }

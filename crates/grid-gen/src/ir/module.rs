@@ -51,6 +51,11 @@ pub enum Calls {
     /// [`CRBA_MAX_DEPTH`]): a humanoid's library loaded in 30 s instead of 42 s, with its
     /// `fd_grad` 1.13x and `step_grad` 1.29x slower (the book, Compile time).
     All,
+    /// `fd_grad` and `contact_fd_grad` compute q̈ (and λ) themselves and call `rnea_grad`
+    /// at them, where [`Calls::All`] would call: their work before the call and after it
+    /// share their values, so only the sharing with `rnea_grad`'s work is lost.
+    #[cfg_attr(feature = "clap", value(name = "rnea_grad"))]
+    RneaGrad,
 }
 
 impl Calls {
@@ -58,11 +63,12 @@ impl Calls {
         match self {
             Calls::Auto => "auto",
             Calls::All => "all",
+            Calls::RneaGrad => "rnea_grad",
         }
     }
 
     pub fn parse(name: &str) -> Option<Calls> {
-        [Calls::Auto, Calls::All].into_iter().find(|c| c.name() == name)
+        [Calls::Auto, Calls::All, Calls::RneaGrad].into_iter().find(|c| c.name() == name)
     }
 }
 
@@ -390,6 +396,11 @@ pub struct Function {
 pub struct Call {
     pub callees: Vec<KernelKind>,
     pub rest: Function,
+    /// Empty where the callees run first. Otherwise the rest computes the callees'
+    /// arguments that the kernel does not take (its outputs `qdd`, `lambda`), and this
+    /// marks, per node of the rest, the nodes those depend on: they run, then the callees,
+    /// then the other nodes, which read both ([`Calls::RneaGrad`]).
+    pub ahead: Vec<bool>,
 }
 
 /// A program over a small register file of rows, run over many columns at once: each
@@ -679,8 +690,15 @@ fn shared_call(
         KernelKind::FdGrad | KernelKind::ContactFdGrad => {
             let first =
                 if kind == KernelKind::FdGrad { KernelKind::Fd } else { KernelKind::ContactFd };
-            let callees = vec![first, KernelKind::RneaGrad];
-            if options.calls != Calls::All
+            let callees = match options.calls {
+                // `fd_grad` at its own q̈ measured 1.10x slower split (M's composite
+                // inertias are the IDSVA gradient's own nodes only in the whole graph);
+                // `contact_fd_grad` no slower (the book, Compile time).
+                Calls::Auto if kind == KernelKind::FdGrad => return Ok(None),
+                Calls::Auto | Calls::RneaGrad => vec![KernelKind::RneaGrad],
+                Calls::All => vec![first, KernelKind::RneaGrad],
+            };
+            if f.solve != Some(Solve::Ltdl)
                 || f.solve != Some(Solve::Ltdl)
                 || !common
                 || model.has_coupled()
@@ -693,8 +711,12 @@ fn shared_call(
         }
         _ => return Ok(None),
     };
+    // The rest computes the callees' arguments itself when its first callee is not `fd`
+    // or `contact_fd` (the step's contact kernel, or `fd` under `Calls::All`).
+    let own = callees[0] == KernelKind::RneaGrad;
     let mut d = Dynamics::new(model, gravity, true, true, options.max_nodes);
     d.called = true;
+    d.own_qdd = own;
     if let Some(gradient) = f.gradient {
         d.gradient = gradient;
     }
@@ -718,7 +740,52 @@ fn shared_call(
     }
     rest.dims = Robot::of(model).dims();
     validate(&rest, &rest.dims).map_err(|error| LowerError::Invalid { kernel: kind, error })?;
-    Ok(Some(Call { callees, rest }))
+    let ahead = if own { ahead_of_call(&rest, &callees, spec) } else { Vec::new() };
+    if own && ahead.is_empty() {
+        return Ok(None);
+    }
+    Ok(Some(Call { callees, rest, ahead }))
+}
+
+/// The nodes of `rest` that the callees' arguments among its outputs depend on (what
+/// runs before the call, [`Call::ahead`]); empty where one of them reads a callee's output.
+fn ahead_of_call(
+    rest: &Function,
+    callees: &[KernelKind],
+    spec: &crate::model::Specialisation,
+) -> Vec<bool> {
+    let takes = rest.inputs();
+    let mut ahead = vec![false; rest.nodes.len()];
+    for callee in callees {
+        for input in callee.inputs_for(spec) {
+            if takes.contains(&input) {
+                continue;
+            }
+            let Some(o) = rest.outputs.iter().find(|o| o.name == input.name()) else {
+                return Vec::new();
+            };
+            for id in &o.ids {
+                ahead[id.0 as usize] = true;
+            }
+        }
+    }
+    // Nodes come after their operands: one pass from the last marks every ancestor.
+    for i in (0..rest.nodes.len()).rev() {
+        if ahead[i] {
+            for o in rest.nodes[i].op.operands() {
+                ahead[o.0 as usize] = true;
+            }
+        }
+    }
+    let reads_callee = rest
+        .nodes
+        .iter()
+        .zip(&ahead)
+        .any(|(n, &a)| a && matches!(n.op, Op::Input(Input::Called(_), _)));
+    if reads_callee {
+        return Vec::new();
+    }
+    ahead
 }
 
 /// The most joints on one path from the root for which `fd_grad` may use [`Solve::Ltdl`].

@@ -27,24 +27,43 @@ pub struct Chunks {
 
 impl Chunks {
     pub fn new(f: &Function, size: usize) -> Chunks {
+        Chunks::split(f, size, &[]).0
+    }
+
+    /// Chunks of which the first ones hold exactly the nodes marked `ahead` (closed under
+    /// operands, as [`crate::ir::Call::ahead`]), so that a call can run between them and
+    /// the others; returns the number of those first chunks. No marks: [`Chunks::new`].
+    pub fn split(f: &Function, size: usize, ahead: &[bool]) -> (Chunks, usize) {
         let size = size.max(1);
         let mut chunks: Vec<Vec<Id>> = vec![Vec::new()];
         let mut chunk_of = vec![None; f.nodes.len()];
-        for i in 0..f.nodes.len() {
-            let id = Id(i as u32);
-            if !f.is_operation(id) {
-                continue;
+        let mut first = 0;
+        let groups: &[Option<bool>] =
+            if ahead.is_empty() { &[None] } else { &[Some(true), Some(false)] };
+        for &group in groups {
+            if group == Some(false) {
+                // The other nodes start a chunk of their own.
+                if chunks.last().is_some_and(|c| !c.is_empty()) {
+                    chunks.push(Vec::new());
+                }
+                first = chunks.len() - 1;
             }
-            if chunks.last().is_some_and(|c| c.len() >= size) {
-                chunks.push(Vec::new());
+            for i in 0..f.nodes.len() {
+                let id = Id(i as u32);
+                if !f.is_operation(id) || group.is_some_and(|g| ahead[i] != g) {
+                    continue;
+                }
+                if chunks.last().is_some_and(|c| c.len() >= size) {
+                    chunks.push(Vec::new());
+                }
+                if let Some(c) = chunks.last_mut() {
+                    c.push(id);
+                }
+                chunk_of[i] = Some((chunks.len() - 1) as u32);
             }
-            if let Some(c) = chunks.last_mut() {
-                c.push(id);
-            }
-            chunk_of[i] = Some((chunks.len() - 1) as u32);
         }
         let (slot, slots) = assign_slots(f, &chunk_of, &chunks);
-        Chunks { chunks, chunk_of, slot, slots }
+        (Chunks { chunks, chunk_of, slot, slots }, first)
     }
 }
 

@@ -361,6 +361,13 @@ fn operand_names(p: &DenseProduct) -> Vec<String> {
     std::iter::once("pm".to_string()).chain((0..p.dc.len()).map(|i| format!("pd{i}"))).collect()
 }
 
+/// A kernel whose rest computes its callees' arguments ([`crate::ir::Call::ahead`]): the
+/// kernel, its call and its robot.
+type Within<'a> = (&'a Function, &'a crate::ir::Call, &'a crate::ir::Robot);
+
+/// Writes one copy of kernel `k` as the function `name`. With `within`, `k` is that kernel's
+/// rest, written as the kernel itself: its parts before the call, the call, the others.
+#[allow(clippy::too_many_arguments)]
 fn emit_kernel(
     out: &mut String,
     k: &Function,
@@ -369,8 +376,12 @@ fn emit_kernel(
     q_len: &str,
     options: &RustOptions,
     copy: Copy,
+    within: Option<Within>,
 ) {
-    let names = Chunks::new(k, options.chunk);
+    let (names, first_after) = match within {
+        Some((_, call, _)) => Chunks::split(k, options.chunk, &call.ahead),
+        None => (Chunks::new(k, options.chunk), 0),
+    };
     let looped = looped_product(k, nv, copy);
     // Every copy runs a program as loops: the portable one too, since on a target without
     // the SIMD copies (aarch64, or x86-64 without FMA) its straight-line form is the
@@ -517,13 +528,22 @@ fn emit_kernel(
         }
     }
     // In a part, the arrays are views with one field per entry (see `arrays`).
-    let parted = chunks.len() > 1;
+    let parted = chunks.len() > 1 || within.is_some();
+    // A part before the call takes no callee's output.
+    let takes = |c: usize, i: usize| {
+        within.is_none()
+            || c >= first_after
+            || !matches!(k.inputs()[i], crate::ir::Input::Called(_))
+    };
     let at = |place: &str| if parted { field(place) } else { place.to_string() };
     let body = |c: usize, ids: &[Id]| -> String {
         let mut b = String::new();
-        if c == 0 {
-            for (place, id) in &inline_outputs {
-                let _ = writeln!(b, "{} = {};", at(place), operand(k, &names, 0, *id));
+        // Within a kernel, the entries that copy a callee's outputs wait for the call.
+        let called = |id: Id| matches!(k.op(id), Op::Input(crate::ir::Input::Called(_), _));
+        for (place, id) in &inline_outputs {
+            let due = if within.is_some() && called(*id) { first_after } else { 0 };
+            if c == due {
+                let _ = writeln!(b, "{} = {};", at(place), operand(k, &names, c, *id));
             }
         }
         for &id in ids {
@@ -544,7 +564,14 @@ fn emit_kernel(
     };
 
     let attr = copy.attribute();
-    let doc = if name == k.kind.name() {
+    let doc = if let Some((_, call, _)) = within {
+        let calls: Vec<String> = call.callees.iter().map(|c| format!("[`{c}`]")).collect();
+        format!(
+            "{}\n///\n/// Computes its q̈ (and λ), runs {} there, then the rest of its work.",
+            k.doc(),
+            calls.join(", ")
+        )
+    } else if name == k.kind.name() {
         k.doc()
     } else {
         format!(
@@ -553,14 +580,14 @@ fn emit_kernel(
             k.kind.name()
         )
     };
-    let into = open_function(out, k, name, &doc, q_len, copy);
+    let into = open_function(out, within.map_or(k, |w| w.0), name, &doc, q_len, copy);
     if !into {
         emit_output_init(out, k);
     }
     for (m, ty) in &locals {
         let _ = writeln!(out, "let mut {m} = {};", ty.replace("T;", "lit::<T>(0.0);"));
     }
-    if chunks.len() == 1 {
+    if !parted {
         out.push_str(&body(0, &chunks[0]));
     } else {
         let _ = writeln!(
@@ -578,8 +605,18 @@ fn emit_kernel(
             .chain(locals.iter().map(|(m, _)| format!("&mut {m}")))
             .collect();
         for c in 0..chunks.len() {
-            let _ =
-                writeln!(out, "{name}_part{c}({}, s, {});", arg_names.join(", "), outs.join(", "));
+            if let Some((outer, call, robot)) = within.filter(|_| c == first_after) {
+                write_callee_calls(out, outer, &call.callees, robot, into, true);
+            }
+            // Within a kernel, the callees' outputs are its locals.
+            let passed: Vec<String> = (0..arg_names.len())
+                .filter(|&i| takes(c, i))
+                .map(|i| match k.inputs()[i] {
+                    crate::ir::Input::Called(_) if within.is_some() => format!("&{}", arg_names[i]),
+                    _ => arg_names[i].to_string(),
+                })
+                .collect();
+            let _ = writeln!(out, "{name}_part{c}({}, s, {});", passed.join(", "), outs.join(", "));
         }
     }
     if let Some(p) = looped {
@@ -698,7 +735,7 @@ fn emit_kernel(
     } else {
         let _ = writeln!(out, "{ret_value}\n}}\n");
     }
-    if chunks.len() > 1 {
+    if parted {
         // The values one part passes to a later one, as fields rather than an array's
         // entries: rustc type-checks `s.584` on a generic `T` several times faster than
         // `s[584]` (an `Index` obligation per access). Floating HyQ's gait library: the
@@ -744,7 +781,11 @@ fn emit_kernel(
             let _ = writeln!(
                 out,
                 "pub(super) fn {name}_part{c}<T: Real>({}, s: &mut {name}_slots<T>, {}) {{",
-                args.join(", "),
+                (0..args.len())
+                    .filter(|&i| takes(c, i))
+                    .map(|i| args[i].as_str())
+                    .collect::<Vec<_>>()
+                    .join(", "),
                 outs.join(", ")
             );
             for (m, ty, len) in arrays.iter().filter(|a| a.2 > 0) {
@@ -764,35 +805,21 @@ fn emit_kernel(
     }
 }
 
-/// A kernel that runs its callees and then its rest ([`crate::ir::Call`]): the callees'
-/// outputs that the rest reads are its last inputs. A callee takes the kernel's inputs of
-/// the same name, a step's actuated τ spread over the coordinates (0 elsewhere), and what
-/// the kernel does not take (`qdd`, `lambda`) from an earlier callee. A SIMD copy's `{name}_into` passes its outputs on to
-/// the rest's.
-fn emit_call(
-    out: &mut String,
+/// Writes the calls to `callees` ([`crate::ir::Call`]) into `body`, each output bound under
+/// its `CALLED` name where a rest may read it. A callee takes the kernel's inputs of the
+/// same name, a step's actuated τ spread over the coordinates (0 elsewhere), and what the
+/// kernel does not take (`qdd`, `lambda`) from an earlier callee, or, with `own`, from the
+/// kernel's outputs of that name, which its parts before the call have set.
+fn write_callee_calls(
+    body: &mut String,
     k: &Function,
-    call: &crate::ir::Call,
+    callees: &[crate::ir::KernelKind],
     robot: &crate::ir::Robot,
-    copy: Copy,
+    into: bool,
+    own: bool,
 ) {
     use crate::ir::Input;
-    let name = k.kind.name();
-    let into = copy != Copy::Portable;
     let spec = &robot.specialisation;
-    let rest_args: Vec<String> = call
-        .rest
-        .inputs()
-        .iter()
-        .map(|i| {
-            if matches!(i, Input::Called(_)) {
-                format!("&{}", i.name())
-            } else {
-                i.name().to_string()
-            }
-        })
-        .collect();
-    let mut body = String::new();
     let spread = k.inputs().contains(&Input::TauActuated);
     if spread {
         let _ = writeln!(body, "let mut called_tau = [lit::<T>(0.0); NV];");
@@ -800,16 +827,26 @@ fn emit_call(
             let _ = writeln!(body, "called_tau[{c}] = tau[{i}];");
         }
     }
-    for (at, callee) in call.callees.iter().enumerate() {
+    for (at, callee) in callees.iter().enumerate() {
         let args: Vec<String> = callee
             .inputs_for(spec)
             .iter()
             .map(|i| match *i {
                 Input::Tau if spread => "&called_tau".to_string(),
                 _ if k.inputs().contains(i) => i.name().to_string(),
+                // An output of the kernel's: a reference in `_into` already.
+                _ if own => {
+                    let o = k.outputs.iter().find(|o| o.name == i.name());
+                    let o = o.expect("a kernel that computes its callees' arguments outputs them");
+                    if into {
+                        format!("&*{}", o.name)
+                    } else {
+                        format!("&{}", o.name)
+                    }
+                }
                 // q̈ or λ from an earlier callee.
                 _ => {
-                    let from = call.callees[..at]
+                    let from = callees[..at]
                         .iter()
                         .find_map(|c| Input::called(*c, i.name()))
                         .expect("an earlier callee gives what the kernel does not take");
@@ -848,6 +885,37 @@ fn emit_call(
             let _ = writeln!(body, "let {pattern} = {callee_name}({});", args.join(", "));
         }
     }
+}
+
+/// A kernel that runs its callees and then its rest ([`crate::ir::Call`]): the callees'
+/// outputs that the rest reads are its last inputs. A callee takes the kernel's inputs of
+/// the same name, a step's actuated τ spread over the coordinates (0 elsewhere), and what
+/// the kernel does not take (`qdd`, `lambda`) from an earlier callee. A SIMD copy's `{name}_into` passes its outputs on to
+/// the rest's.
+fn emit_call(
+    out: &mut String,
+    k: &Function,
+    call: &crate::ir::Call,
+    robot: &crate::ir::Robot,
+    copy: Copy,
+) {
+    use crate::ir::Input;
+    let name = k.kind.name();
+    let into = copy != Copy::Portable;
+    let rest_args: Vec<String> = call
+        .rest
+        .inputs()
+        .iter()
+        .map(|i| {
+            if matches!(i, Input::Called(_)) {
+                format!("&{}", i.name())
+            } else {
+                i.name().to_string()
+            }
+        })
+        .collect();
+    let mut body = String::new();
+    write_callee_calls(&mut body, k, &call.callees, robot, into, false);
     if into {
         let outs: Vec<&str> = k.outputs.iter().map(|o| o.name).collect();
         let _ = writeln!(body, "{name}_rest_into({}, {});", rest_args.join(", "), outs.join(", "));
@@ -1869,12 +1937,38 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
         Piece::Kernel(k, copy) => {
             let mut item = String::new();
             match &k.call {
+                Some(call) if !call.ahead.is_empty() => {
+                    let within = Some((k, &**call, robot));
+                    let name = k.kind.name();
+                    emit_kernel(
+                        &mut item,
+                        &call.rest,
+                        name,
+                        nv,
+                        q_len(robot),
+                        options,
+                        copy,
+                        within,
+                    );
+                }
                 Some(call) => {
                     let rest = format!("{}_rest", k.kind.name());
-                    emit_kernel(&mut item, &call.rest, &rest, nv, q_len(robot), options, copy);
+                    emit_kernel(
+                        &mut item,
+                        &call.rest,
+                        &rest,
+                        nv,
+                        q_len(robot),
+                        options,
+                        copy,
+                        None,
+                    );
                     emit_call(&mut item, k, call, robot, copy);
                 }
-                None => emit_kernel(&mut item, k, k.kind.name(), nv, q_len(robot), options, copy),
+                None => {
+                    let name = k.kind.name();
+                    emit_kernel(&mut item, k, name, nv, q_len(robot), options, copy, None)
+                }
             }
             format::module_items(&item).map(format::compact_slots)
         }

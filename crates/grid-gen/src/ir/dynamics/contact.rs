@@ -293,9 +293,12 @@ impl Dynamics<'_> {
         if self.called {
             // A rest: q̈ and λ from the call to `contact_fd` (the free acceleration, the
             // contacts' bias and the last solves drop out when the graph is frozen); J, G and
-            // K's factors stay, for the columns.
-            sol.qdd = self.called_inputs(Input::called(KernelKind::ContactFd, "qdd"));
-            sol.lambda = self.called_inputs(Input::called(KernelKind::ContactFd, "lambda"));
+            // K's factors stay, for the columns. Or its own, which `rnea_grad` is called at:
+            // then `fd_grad` below takes this q̈ rather than ABA's under λ.
+            if !self.own_qdd {
+                sol.qdd = self.called_inputs(Input::called(KernelKind::ContactFd, "qdd"));
+                sol.lambda = self.called_inputs(Input::called(KernelKind::ContactFd, "lambda"));
+            }
             self.called_qdd = Some(sol.qdd.clone());
         }
         let (nv, nl) = (qd.len(), sol.lambda.len());

@@ -162,6 +162,8 @@ impl Dynamics<'_> {
             // them.
             qdd = match self.called_qdd.clone() {
                 Some(qdd) => qdd,
+                // Its own q̈, at which the kernel calls `rnea_grad`.
+                None if self.own_qdd => qdd,
                 None => self.called_inputs(crate::ir::Input::called(KernelKind::Fd, "qdd")),
             };
             for (dc, output) in [(&mut dc_q, "dc_dq"), (&mut dc_qd, "dc_dqd")] {
