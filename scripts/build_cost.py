@@ -8,7 +8,7 @@ runtime.
 
 Usage: target/python/bin/python scripts/build_cost.py [CASE ...], a CASE being
 `URDF[:SCENE[:floating[:LANES[:CALLS]]]]`, LANES one of `grid_gen.load`'s `batch_lanes`
-(auto, all, none; default auto) and CALLS its `calls` (auto, all; default auto), which the
+(auto, all, none; default auto) and CALLS its `calls` (auto, all, rnea_grad; default auto), which the
 generation takes too (default: the cases below). Needs the CLI built in release
 (`cargo build --release -p grid-gen-cli`) and the Python package installed in the
 interpreter that runs it (`pip install ./python`, as `scripts/test.sh` does). A benchmark,

@@ -128,10 +128,11 @@ def load(
     kernel with lanes is compiled twice: "none" halves a humanoid's compile time, and its
     mid-sized kernels' batches run 1.4x to 3x slower per state (the book, Compile time).
     calls: which kernels call other kernels of the library instead of holding their work:
-    "auto" (where it costs no speed: the step calls its contact kernel) or "all" (also
-    fd_grad and contact_fd_grad call fd, contact_fd and rnea_grad on trees deeper than 12
-    joints: a humanoid loads in 30 s instead of 42 s, its fd_grad 1.13x and step_grad
-    1.29x slower; the book, Compile time).
+    "auto" (where it costs no speed: the step calls its contact kernel), "rnea_grad" (also
+    fd_grad and contact_fd_grad call rnea_grad at their own q-ddot on trees deeper than 12
+    joints: a humanoid loads in about 32 s instead of 37 s to 43 s, those two 1.07x to
+    1.12x slower, step_grad as fast) or "all" (they call fd or contact_fd for q-ddot too:
+    30 s, fd_grad 1.13x and step_grad 1.2x slower; the book, Compile time).
 
     A compiled robot is cached (see `cache_dir`) under a hash of the URDF, the scene, the
     options and this grid-gen, and loads again in milliseconds. Raises ValueError for a

@@ -301,24 +301,28 @@ def y_tree_urdf() -> str:
 
 
 def test_calls_all_runs_fd_grad_through_its_callees(tmp_path):
-    # calls="all" makes fd_grad call fd and rnea_grad (less to compile, a little slower;
-    # the book, Compile time): the module holds fd_grad's rest, and the values are the
-    # whole kernel's to round-off (two roundings of the same operations; the Rust tests
-    # measure 5e-14 against the reference).
+    # calls="all" makes fd_grad call fd and rnea_grad, calls="rnea_grad" compute q̈ and
+    # call rnea_grad there (less to compile, a little slower; the book, Compile time):
+    # the module holds fd_grad's rest, or fd_grad calls rnea_grad between its parts, and
+    # the values are the whole kernel's to round-off (two roundings of the same
+    # operations; the Rust tests measure 5e-14 against the reference).
     urdf = tmp_path / "y_tree.urdf"
     urdf.write_text(y_tree_urdf())
     kernels = ["rnea_grad", "fd", "fd_grad"]
-    for calls, rest in (("auto", False), ("all", True)):
+    for calls, rest, between in (("auto", False, False), ("all", True, False), ("rnea_grad", False, True)):
         out = tmp_path / calls
         files = grid_gen._native.generate(str(urdf), str(out), floating_base=True, kernels=kernels, calls=calls)
         module = next(f for f in files if f.endswith(".rs") and not f.endswith("_c.rs"))
-        assert ("fn fd_grad_rest<" in (out / module).read_text()) == rest, calls
+        text = (out / module).read_text()
+        assert ("fn fd_grad_rest<" in text) == rest, calls
+        assert ("= rnea_grad(q, qd, &qdd)" in text) == between, calls
     whole = grid_gen.load(urdf, floating_base=True, kernels=kernels)
-    called = grid_gen.load(urdf, floating_base=True, kernels=kernels, calls="all")
     q, qd, tau = random_states(whole, 33, seed=13)
-    err = max(rel(g, w) for g, w in zip(called.fd_grad(q, qd, tau), whole.fd_grad(q, qd, tau)))
-    print(f"y_tree fd_grad through fd and rnea_grad: {err:.1e} from the whole kernel")
-    assert err < 1e-12
+    for calls in ("all", "rnea_grad"):
+        called = grid_gen.load(urdf, floating_base=True, kernels=kernels, calls=calls)
+        err = max(rel(g, w) for g, w in zip(called.fd_grad(q, qd, tau), whole.fd_grad(q, qd, tau)))
+        print(f"y_tree fd_grad with calls={calls}: {err:.1e} from the whole kernel")
+        assert err < 1e-12, calls
 
 
 def test_bad_robots_and_options_raise_before_compiling(tmp_path):

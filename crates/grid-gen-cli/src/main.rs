@@ -263,10 +263,12 @@ struct ModelArgs {
     )]
     solve: grid_gen::ir::Solve,
     /// Which kernels call other kernels of their module instead of holding their work:
-    /// `auto` (where it costs no speed: a step kernel calls its contact kernel) or `all`
-    /// (also `fd_grad` and `contact_fd_grad` call `fd`, `contact_fd` and `rnea_grad` on
-    /// trees deeper than 12 joints: a humanoid's library compiles in 0.7x the time, its
-    /// `fd_grad` 1.13x and `step_grad` 1.29x slower; the book, Compile time).
+    /// `auto` (where it costs no speed: a step kernel calls its contact kernel),
+    /// `rnea_grad` (also `fd_grad` and `contact_fd_grad` call `rnea_grad` at their own q̈
+    /// on trees deeper than 12 joints: a humanoid's library compiles in 0.8x the time,
+    /// those two 1.07x to 1.12x slower, `step_grad` as fast) or `all` (they call `fd` or
+    /// `contact_fd` for q̈ too: 0.7x the time, `fd_grad` 1.13x and `step_grad` 1.2x slower;
+    /// the book, Compile time).
     #[arg(long, value_name = "WHICH", default_value = "auto", global = true)]
     calls: grid_gen::ir::Calls,
     /// Put a free-flyer between the world and the root link (Pinocchio's conventions:

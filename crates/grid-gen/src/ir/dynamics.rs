@@ -119,9 +119,10 @@ pub(crate) struct Dynamics<'a> {
     /// of recording their work: a kernel's rest ([`crate::ir::Call`]). The step kernels take
     /// the contact kernel's, `fd_grad` `fd`'s q̈ and `rnea_grad`'s ∂c/∂u.
     pub called: bool,
-    /// In a rest, the q̈ a callee gave, where `fd_grad`'s work takes it from another callee
-    /// than `fd` (`contact_fd_grad`'s, from `contact_fd`).
-    called_qdd: Option<Vec<Id>>,
+    /// The q̈ that the next [`Self::fd_grad`] takes instead of ABA's: `contact_fd_grad`'s
+    /// solved q̈ (its own, or in a rest the one its callee `contact_fd` gave), at which
+    /// Pinocchio's `computeConstraintDynamicsDerivatives` differentiates too.
+    given_qdd: Option<Vec<Id>>,
     /// In a rest, whether q̈ and λ are the kernel's own (its callee is `rnea_grad` alone,
     /// [`crate::ir::Calls::RneaGrad`]) rather than a callee's.
     pub own_qdd: bool,
@@ -174,7 +175,7 @@ impl<'a> Dynamics<'a> {
             solve: Solve::Minv,
             forces: Forces::default(),
             called: false,
-            called_qdd: None,
+            given_qdd: None,
             own_qdd: false,
             config: None,
             log_signs: Vec::new(),

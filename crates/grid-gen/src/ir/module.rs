@@ -53,7 +53,10 @@ pub enum Calls {
     All,
     /// `fd_grad` and `contact_fd_grad` compute q̈ (and λ) themselves and call `rnea_grad`
     /// at them, where [`Calls::All`] would call: their work before the call and after it
-    /// share their values, so only the sharing with `rnea_grad`'s work is lost.
+    /// share their values, and only the sharing with `rnea_grad`'s is lost (M's composite
+    /// inertias, the IDSVA gradient's own nodes): the humanoid's library loaded in about
+    /// 32 s, its `fd_grad` and `contact_fd_grad` 1.07x to 1.12x slower, `step_grad` as fast
+    /// (the book, Compile time).
     #[cfg_attr(feature = "clap", value(name = "rnea_grad"))]
     RneaGrad,
 }
@@ -383,13 +386,15 @@ pub struct Function {
 /// `rest`, the kernel's own work, whose inputs are the kernel's and then the callees'
 /// outputs that it reads ([`Input::Called`]). A callee takes the kernel's inputs of the
 /// same name, a step's actuated τ spread over the coordinates (`called_tau`), and what the
-/// kernel does not take (`qdd`, `lambda`) from an earlier callee.
+/// kernel does not take (`qdd`, `lambda`) from an earlier callee, or from the rest itself
+/// when [`Call::ahead`] is set.
 /// - `step` calls `contact_fd` and `step_grad` `contact_fd_grad`: a quarter of a
 ///   humanoid's library, and almost half of a quadruped's gait library (the book, Compile
 ///   time).
 /// - With [`Calls::All`], `fd_grad` calls `fd` for q̈ and `rnea_grad` for ∂c/∂u there,
 ///   and keeps M's factorisation and the solves; `contact_fd_grad` calls `contact_fd` for
 ///   q̈ and λ and `rnea_grad` at them, and keeps J, K and the columns.
+/// - With [`Calls::RneaGrad`], both compute q̈ (and λ) and call `rnea_grad` there.
 ///
 /// The Rust backend calls the callees instead of repeating them.
 #[derive(Clone, Debug, PartialEq)]
@@ -656,7 +661,8 @@ pub fn lower_function(
 /// - A step kernel calls its contact kernel: with contacts, a scheme other than RK4 (whose
 ///   stages run at other states), and callee outputs that input indices can address.
 /// - With [`Calls::All`], `fd_grad` calls `fd` and `rnea_grad`, and `contact_fd_grad`
-///   `contact_fd` and `rnea_grad`, where they factorised M with q̈ by ABA ([`Solve::Ltdl`])
+///   `contact_fd` and `rnea_grad`; with [`Calls::RneaGrad`] both call `rnea_grad` alone;
+///   where they factorised M with q̈ by ABA ([`Solve::Ltdl`])
 ///   and have no coupled mimic joints.
 fn shared_call(
     model: &Model,
@@ -691,11 +697,8 @@ fn shared_call(
             let first =
                 if kind == KernelKind::FdGrad { KernelKind::Fd } else { KernelKind::ContactFd };
             let callees = match options.calls {
-                // `fd_grad` at its own q̈ measured 1.10x slower split (M's composite
-                // inertias are the IDSVA gradient's own nodes only in the whole graph);
-                // `contact_fd_grad` no slower (the book, Compile time).
-                Calls::Auto if kind == KernelKind::FdGrad => return Ok(None),
-                Calls::Auto | Calls::RneaGrad => vec![KernelKind::RneaGrad],
+                Calls::Auto => return Ok(None),
+                Calls::RneaGrad => vec![KernelKind::RneaGrad],
                 Calls::All => vec![first, KernelKind::RneaGrad],
             };
             if f.solve != Some(Solve::Ltdl)

@@ -290,17 +290,16 @@ impl Dynamics<'_> {
     /// column per coordinate of `tau_cols` (the step kernels need only the actuated ones).
     pub fn contact_fd_grad(&mut self, qd: &[Id], tau: &[Id], tau_cols: &[usize]) -> Vec<Mat> {
         let mut sol = self.contact_fd(qd, tau);
-        if self.called {
+        if self.called && !self.own_qdd {
             // A rest: q̈ and λ from the call to `contact_fd` (the free acceleration, the
             // contacts' bias and the last solves drop out when the graph is frozen); J, G and
-            // K's factors stay, for the columns. Or its own, which `rnea_grad` is called at:
-            // then `fd_grad` below takes this q̈ rather than ABA's under λ.
-            if !self.own_qdd {
-                sol.qdd = self.called_inputs(Input::called(KernelKind::ContactFd, "qdd"));
-                sol.lambda = self.called_inputs(Input::called(KernelKind::ContactFd, "lambda"));
-            }
-            self.called_qdd = Some(sol.qdd.clone());
+            // K's factors stay, for the columns.
+            sol.qdd = self.called_inputs(Input::called(KernelKind::ContactFd, "qdd"));
+            sol.lambda = self.called_inputs(Input::called(KernelKind::ContactFd, "lambda"));
         }
+        // `fd_grad` below differentiates at this q̈ instead of solving ABA under λ for it
+        // again (the same value to round-off; the kernel's `rnea_grad` call takes it too).
+        self.given_qdd = Some(sol.qdd.clone());
         let (nv, nl) = (qd.len(), sol.lambda.len());
         // ∂q̈/∂u at fixed λ: fd_grad with the solved forces as the contacts' forces; its
         // q̈ is sol.qdd by ABA (or the factorisation) under them, so its RNEA gradient is

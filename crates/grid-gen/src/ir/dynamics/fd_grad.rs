@@ -44,7 +44,10 @@ impl Dynamics<'_> {
         // The constrained M⁻¹ of coupled mimic joints comes from the direct route.
         self.solve = Solve::Minv;
         let n = self.model.nv();
-        let (qdd, mi) = self.fd_minv(qd, tau);
+        let (mut qdd, mi) = self.fd_minv(qd, tau);
+        if let Some(given) = self.given_qdd.take() {
+            qdd = given;
+        }
         let (qd, qdd_joints) = (self.expand(qd), self.expand(&qdd));
         let r = self.rnea(&qd, &qdd_joints);
         let (dc_q, dc_qd) = self.rnea_grad(&r, &qd);
@@ -151,21 +154,19 @@ impl Dynamics<'_> {
             let b: Vec<Id> = (0..n).map(|i| self.g.sub(bias[i], tau[i])).collect();
             f.solve(&mut self.g, self.model, b)
         });
+        // A given q̈ (`contact_fd_grad`'s), or in a rest whose first callee is `fd`, its q̈;
+        // ABA's nodes then drop out when the graph is frozen.
+        if let Some(given) = self.given_qdd.take() {
+            qdd = given;
+        } else if self.called && !self.own_qdd {
+            qdd = self.called_inputs(crate::ir::Input::called(KernelKind::Fd, "qdd"));
+        }
         let r = self.rnea(qd, &qdd);
         let (mut dc_q, mut dc_qd) = self.rnea_grad(&r, qd);
         if self.called {
-            // A rest: q̈ from the call to `fd` (or `contact_fd`, which set `called_qdd`) and
-            // ∂c/∂u from the call to `rnea_grad`, except where the graph above folded an
-            // entry to a constant (joints on different branches), which the solves keep
-            // folding. The recorded nodes left unread are dropped when the graph is frozen;
-            // the base's gravity, which the free-flyer's columns read from `r`, is a few of
-            // them.
-            qdd = match self.called_qdd.clone() {
-                Some(qdd) => qdd,
-                // Its own q̈, at which the kernel calls `rnea_grad`.
-                None if self.own_qdd => qdd,
-                None => self.called_inputs(crate::ir::Input::called(KernelKind::Fd, "qdd")),
-            };
+            // A rest: ∂c/∂u from the call to `rnea_grad`, except where the graph above folded
+            // an entry to a constant (joints on different branches), which the solves keep
+            // folding. The recorded nodes left unread are dropped when the graph is frozen.
             for (dc, output) in [(&mut dc_q, "dc_dq"), (&mut dc_qd, "dc_dqd")] {
                 let flat =
                     self.called_inputs(crate::ir::Input::called(KernelKind::RneaGrad, output));
