@@ -139,7 +139,9 @@ fn generate(
         }
     };
     let calls = grid_gen::ir::Calls::parse(calls).ok_or_else(|| {
-        PyValueError::new_err(format!("calls must be \"auto\", \"rnea_grad\" or \"all\", not {calls:?}"))
+        PyValueError::new_err(format!(
+            "calls must be \"auto\", \"rnea_grad\" or \"all\", not {calls:?}"
+        ))
     })?;
     let mut b = grid_gen::Builder::new();
     // One copy of the kernels, this machine's: the library runs where it is compiled (the
