@@ -415,6 +415,11 @@ pub struct Call {
 pub struct ColumnProgram {
     pub rows: usize,
     pub blocks: Vec<ColumnBlock>,
+    /// The graph's straight-line operations that the program replaces, where a backend
+    /// may run them instead when they are few (`fd_grad`'s solves: which is faster depends
+    /// on the instruction cache, a backend's choice); `None` where the program is the
+    /// cheaper form everywhere (the contact and step combinations).
+    pub replaces: Option<usize>,
 }
 
 /// One set of columns of a [`ColumnProgram`].
@@ -490,7 +495,7 @@ impl ColumnProgram {
                 Some(ColumnBlock { init, steps, stores: b.stores.clone() })
             })
             .collect::<Option<Vec<_>>>()?;
-        Some(ColumnProgram { rows: self.rows, blocks })
+        Some(ColumnProgram { rows: self.rows, blocks, replaces: self.replaces })
     }
 }
 

@@ -361,6 +361,34 @@ fn operand_names(p: &DenseProduct) -> Vec<String> {
     std::iter::once("pm".to_string()).chain((0..p.dc.len()).map(|i| format!("pd{i}"))).collect()
 }
 
+/// The fewest operations of `fd_grad`'s straight-line solves for which this backend runs
+/// them as their per-column program instead ([`ColumnProgram::replaces`]), where the program
+/// does at most 1.5 times their operations (it cannot skip the steps a column's zeros make
+/// empty).
+/// Measured with `grid-gen bench --backend rust`, the `fma` copy, side by side with the
+/// straight-line solves (2026-11-27, AMD EPYC, 32 KiB instruction cache): floating Atlas's
+/// solves, 81,054 operations straight and 87,912 as a program, went from 19.2 to 14.3 µs;
+/// floating HyQ's, 11,556 and 12,960, from 2.7 to 2.9 µs; fixed Atlas's, 16,854 and 32,400,
+/// from 5.5 to 7.5 µs. Straight-line code that fits the instruction caches, or nearly, runs
+/// faster than loops that load and store every row at every step; floating Atlas's streams
+/// from L2 on every call (`scripts/cache_stats.py`: every line of Atlas's kernels misses
+/// the L1 instruction cache on every call). A CPU with another instruction cache may want
+/// another threshold: it is this backend's, not the IR's.
+const PROGRAM_MIN_OPS: usize = 32_000;
+
+/// The column program a copy of `k` runs instead of the graph's statements for its
+/// outputs, if any: every program that is cheaper everywhere, and one that replaces
+/// straight-line code where that code is large ([`PROGRAM_MIN_OPS`]).
+fn runs_program(k: &Function) -> Option<&ColumnProgram> {
+    k.program.as_ref().filter(|p| match p.replaces {
+        None => true,
+        Some(straight) => {
+            let looped: usize = p.blocks.iter().map(|b| 2 * b.steps.len() * b.columns()).sum();
+            straight >= PROGRAM_MIN_OPS && 2 * looped <= 3 * straight
+        }
+    })
+}
+
 /// A kernel whose rest computes its callees' arguments ([`crate::ir::Call::ahead`]): the
 /// kernel, its call and its robot.
 type Within<'a> = (&'a Function, &'a crate::ir::Call, &'a crate::ir::Robot);
@@ -388,7 +416,7 @@ fn emit_kernel(
     // instruction-cache-bound code the program replaces (side by side, portable copy on
     // x86-64: floating HyQ's `contact_fd_grad` 20 -> 13 us, floating Atlas's `fd_grad` 33 ->
     // 23 us; docs/bench/portable-loops-2026-11-27.md).
-    let program = k.program.as_ref().filter(|_| looped.is_none());
+    let program = runs_program(k).filter(|_| looped.is_none());
     let coefs = program.map(|p| ProgramCoefs::of(k, p));
     // With a looped product, the graph's product nodes are not emitted; with a program, the
     // nodes only its outputs read.
@@ -1912,7 +1940,10 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
          /// Calling them on a CPU without those features is undefined behaviour.\n#[cfg(target_arch = \"x86_64\")]\npub mod avx512 {\nuse super::*;\n",
         ),
     ];
-    let has_program = module.functions.iter().any(|f| f.program.is_some());
+    let has_program = module.functions.iter().any(|f| {
+        runs_program(f).is_some()
+            || f.call.as_ref().is_some_and(|c| runs_program(&c.rest).is_some())
+    });
     // Every piece of the file, each emitted and formatted on its own (on every core, in
     // order): the top-level items, then per copy its header, its kernels and its runner.
     enum Piece<'a> {

@@ -408,7 +408,7 @@ impl Dynamics<'_> {
                 blocks.push(combination_block(&sol, given, &[], a, at));
             }
         }
-        self.program = Some(ColumnProgram { rows: nv + nl, blocks });
+        self.program = Some(ColumnProgram { rows: nv + nl, blocks, replaces: None });
         let mut out = vec![vec![sol.qdd], vec![sol.lambda]];
         out.extend(outs_q);
         out.extend(outs_l);

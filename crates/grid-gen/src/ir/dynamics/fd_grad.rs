@@ -208,13 +208,13 @@ impl Dynamics<'_> {
             known: [known_q.clone(), known_qd.clone()],
         });
         let straight = self.g.nodes.len() - before;
-        if s.is_one() && straight >= PROGRAM_MIN_OPS {
+        if s.is_one() {
+            // The Rust backend runs it where the straight-line solves are many
+            // (`back::rust::runs_program`).
             let blocks = [(&dc_q, &known_q, 1), (&dc_qd, &known_qd, 2)]
                 .map(|(dc, known, output)| solve_block(&fs, self.model, dc, known, output));
-            let looped: usize = blocks.iter().map(|b| 2 * b.steps.len() * b.columns()).sum();
-            if 2 * looped <= 3 * straight {
-                self.program = Some(ColumnProgram { rows: n, blocks: blocks.into() });
-            }
+            let blocks = blocks.into();
+            self.program = Some(ColumnProgram { rows: n, blocks, replaces: Some(straight) });
         }
         // M⁻¹ e_c = −M⁻¹ (−e_c): no negation is left to store.
         let mut picked = vec![vec![zero; columns.len()]; n];
@@ -325,19 +325,6 @@ impl Ltdl {
         steps
     }
 }
-
-/// The fewest operations of `fd_grad`'s straight-line solves for which the Rust backend
-/// runs them as a per-column program instead ([`solve_block`]), where the program does at
-/// most 1.5 times their operations (it cannot skip the steps a column's zeros make empty).
-/// Measured with `grid-gen bench --backend rust`, the `fma` copy, side by side with the
-/// straight-line solves (2026-11-27, AMD EPYC, 32 KiB instruction cache): floating Atlas's
-/// solves, 81,054 operations straight and 87,912 as a program, went from 19.2 to 14.3 µs;
-/// floating HyQ's, 11,556 and 12,960, from 2.7 to 2.9 µs; fixed Atlas's, 16,854 and 32,400,
-/// from 5.5 to 7.5 µs. Straight-line code that fits the instruction caches, or nearly, runs
-/// faster than loops that load and store every row at every step; floating Atlas's streams
-/// from L2 on every call (`scripts/cache_stats.py`: every line of Atlas's kernels misses
-/// the L1 instruction cache on every call).
-const PROGRAM_MIN_OPS: usize = 32_000;
 
 /// The solves of [`Dynamics::fd_grad_ltdl`] for the columns of `dc` that are not `known`,
 /// as a per-column program that stores `−M⁻¹ dc` into output `output` (`fd_grad`'s

@@ -432,7 +432,7 @@ impl Dynamics<'_> {
                     ColumnBlock { init: init.collect(), steps: Vec::new(), stores: vec![store] }
                 })
                 .collect();
-            self.program = Some(ColumnProgram { rows: nv, blocks });
+            self.program = Some(ColumnProgram { rows: nv, blocks, replaces: None });
             let (dq, dqd, dtau) =
                 (self.scaled(&dq, s), self.scaled(&dqd, s), self.scaled(&dtau, s));
             return (qdd, dq, dqd, dtau, Some(lam));
@@ -813,7 +813,7 @@ fn step_program(
             ColumnBlock { init, steps, stores }
         })
         .collect();
-    ColumnProgram { rows, blocks }
+    ColumnProgram { rows, blocks, replaces: None }
 }
 
 /// The state's block-diagonal Jacobian `[[J, 0], [0, I]]` (q's block `j`, q̇'s identity).
