@@ -445,7 +445,8 @@ pub enum ColumnStep {
 #[derive(Clone, Debug, PartialEq)]
 pub struct ColumnStore {
     pub row: usize,
-    pub output: usize,
+    /// A name of [`Function::outputs`].
+    pub output: &'static str,
     pub flat: Vec<usize>,
     pub negate: bool,
 }
@@ -505,8 +506,8 @@ impl ColumnProgram {
 pub struct DenseProduct {
     pub minv: Vec<Operand>,
     pub dc: Vec<Vec<Operand>>,
-    /// Index in [`Function::outputs`] of each product, in the order of `dc`.
-    pub outputs: Vec<usize>,
+    /// The output each product is, in the order of `dc` (a name of [`Function::outputs`]).
+    pub outputs: Vec<&'static str>,
 }
 
 /// One entry of a [`DenseProduct`] operand: a node's value, its negation, or a constant.
@@ -987,6 +988,11 @@ impl Function {
             doc.push_str(" The contacts of `CONTACTS` are held rigid: qdd is `contact_fd`'s, lambda solved at each stage's state.");
         }
         doc
+    }
+
+    /// The position of the output named `name` in [`Self::outputs`].
+    pub fn output_index(&self, name: &str) -> Option<usize> {
+        self.outputs.iter().position(|o| o.name == name)
     }
 
     pub fn inputs(&self) -> &[Input] {

@@ -1,6 +1,7 @@
 //! IR validation, run on every lowered function: what every backend may rely on. Operands
 //! come before their users, constants are finite, inputs are kernel inputs within the
-//! robot's joints, outputs have their declared length and point at existing nodes.
+//! robot's joints, outputs have their declared length and point at existing nodes, and a
+//! product or program writes only outputs the function has.
 
 use super::graph::{Id, Op};
 use super::module::Function;
@@ -17,6 +18,8 @@ pub enum ValidationError {
     OutputLength { output: &'static str, got: usize, expected: usize },
     #[error("output `{output}` refers to node {node}, past the last node")]
     OutputRange { output: &'static str, node: u32 },
+    #[error("the kernel's {what} writes output `{output}`, which it does not have")]
+    UnknownOutput { what: &'static str, output: &'static str },
 }
 
 /// Checks `f` for a robot of sizes `dims`.
@@ -51,6 +54,13 @@ pub fn validate(f: &Function, dims: &crate::ir::Dims) -> Result<(), ValidationEr
         }
         if let Some(id) = o.ids.iter().find(|id| id.0 as usize >= f.nodes.len()) {
             return Err(ValidationError::OutputRange { output: o.name, node: id.0 });
+        }
+    }
+    let products = f.product.iter().flat_map(|p| p.outputs.iter().map(|&o| ("product", o)));
+    let stores = f.program.iter().flat_map(|p| p.blocks.iter()).flat_map(|b| &b.stores);
+    for (what, output) in products.chain(stores.map(|st| ("program", st.output))) {
+        if f.output_index(output).is_none() {
+            return Err(ValidationError::UnknownOutput { what, output });
         }
     }
     Ok(())
@@ -130,6 +140,14 @@ mod tests {
         assert_eq!(
             validate(&f, &dims(1)),
             Err(ValidationError::OutputRange { output: "c", node: 5 })
+        );
+        let mut f = function(vec![Op::Const(1.0)], vec![0]);
+        let store = crate::ir::ColumnStore { row: 0, output: "dc", flat: vec![0], negate: false };
+        let block = crate::ir::ColumnBlock { init: vec![], steps: vec![], stores: vec![store] };
+        f.program = Some(crate::ir::ColumnProgram { rows: 1, blocks: vec![block], replaces: None });
+        assert_eq!(
+            validate(&f, &dims(1)),
+            Err(ValidationError::UnknownOutput { what: "program", output: "dc" })
         );
     }
 }

@@ -351,8 +351,7 @@ fn looped_product(k: &Function, nv: usize, copy: Copy) -> Option<&DenseProduct> 
         k.nodes.iter().any(|n| n.stage != Stage::Combine && n.op.operands().any(combine))
             || k.outputs
                 .iter()
-                .enumerate()
-                .any(|(o, out)| !p.outputs.contains(&o) && out.ids.iter().any(|&id| combine(id)));
+                .any(|out| !p.outputs.contains(&out.name) && out.ids.iter().any(|&id| combine(id)));
     (!read_elsewhere && 4 * nonzero >= 3 * p.dc.len() * nv * nv).then_some(p)
 }
 
@@ -387,6 +386,12 @@ fn runs_program(k: &Function) -> Option<&ColumnProgram> {
             straight >= PROGRAM_MIN_OPS && 2 * looped <= 3 * straight
         }
     })
+}
+
+/// The position of output `name` of `k`, which a program or a product stores into
+/// (`ir::validate` checks that `k` has it).
+fn out_index(k: &Function, name: &str) -> usize {
+    k.output_index(name).expect("a validated kernel's program and product store into its outputs")
 }
 
 /// A kernel whose rest computes its callees' arguments ([`crate::ir::Call::ahead`]): the
@@ -531,7 +536,9 @@ fn emit_kernel(
             .blocks
             .iter()
             .flat_map(|b| b.stores.iter())
-            .flat_map(|st| st.flat.iter().map(|&f| output_place(k, st.output, f, &k.dims)))
+            .flat_map(|st| {
+                st.flat.iter().map(|&f| output_place(k, out_index(k, st.output), f, &k.dims))
+            })
             .collect();
         inline_outputs.retain(|(place, _)| !stored.contains(place));
         for places in sinks.values_mut() {
@@ -725,7 +732,7 @@ fn emit_kernel(
             let mut scattered = Vec::new();
             for st in stores {
                 let RowHome::Scratch(i) = layout.homes[st.row] else { continue };
-                let o = &k.outputs[st.output];
+                let o = &k.outputs[out_index(k, st.output)];
                 let run = row_run(o.name, cols, |c| o.shape.index(st.flat[c], &k.dims));
                 match run {
                     Some((place, start)) => {
@@ -742,7 +749,8 @@ fn emit_kernel(
                 continue;
             }
             let _ = writeln!(out, "{{\n{}", view(&format!("pb{b}"), true, false));
-            let mut written: Vec<usize> = scattered.iter().map(|(st, _)| st.output).collect();
+            let mut written: Vec<usize> =
+                scattered.iter().map(|(st, _)| out_index(k, st.output)).collect();
             written.sort_unstable();
             written.dedup();
             for o in written {
@@ -751,7 +759,7 @@ fn emit_kernel(
             for (st, i) in scattered {
                 let sign = if st.negate { "-" } else { "" };
                 for (col, &flat) in st.flat.iter().enumerate() {
-                    let place = field(&output_place(k, st.output, flat, &k.dims));
+                    let place = field(&output_place(k, out_index(k, st.output), flat, &k.dims));
                     let _ = writeln!(out, "{place} = {sign}pb{b}.{};", i * cols + col);
                 }
             }
@@ -1134,14 +1142,17 @@ impl BlockLayout {
             .map(|r| {
                 let store = block.stores.iter().find(|st| st.row == r);
                 let run = store.filter(|st| stores[r] == 1 && !st.negate).and_then(|st| {
-                    let o = &k.outputs[st.output];
+                    let o = &k.outputs[out_index(k, st.output)];
                     row_run(o.name, cols, |c| o.shape.index(st.flat[c], &k.dims))
                         .map(|(row, start)| (st, row, start))
                 });
                 match run {
-                    Some((st, row, start)) => {
-                        RowHome::Output { output: st.output, first: st.flat[0], row, start }
-                    }
+                    Some((st, row, start)) => RowHome::Output {
+                        output: out_index(k, st.output),
+                        first: st.flat[0],
+                        row,
+                        start,
+                    },
                     None if used[r] || stores[r] > 0 => {
                         scratch += 1;
                         RowHome::Scratch(scratch - 1)
@@ -1181,7 +1192,7 @@ fn program_skip(k: &Function, p: &ColumnProgram) -> Vec<bool> {
         .blocks
         .iter()
         .flat_map(|b| b.stores.iter())
-        .flat_map(|st| st.flat.iter().map(move |&f| (st.output, f)))
+        .flat_map(|st| st.flat.iter().map(move |&f| (out_index(k, st.output), f)))
         .collect();
     let mut live = vec![false; k.nodes.len()];
     for (oi, o) in k.outputs.iter().enumerate() {
@@ -1326,11 +1337,11 @@ fn emit_product_loop(
         let _ = writeln!(out, "{a}[c] = T::mul_add(m, {d}[j][c], {a}[c]);");
     }
     let _ = writeln!(out, "}}\n}}\nfor c in 0..NV {{");
-    for (a, &o) in accs.iter().zip(&p.outputs) {
-        let _ = writeln!(out, "{}[i][c] = -{a}[c];", k.outputs[o].name);
+    for (a, o) in accs.iter().zip(&p.outputs) {
+        let _ = writeln!(out, "{o}[i][c] = -{a}[c];");
     }
     let _ = writeln!(out, "}}\n}}");
-    for &o in &p.outputs {
+    for o in p.outputs.iter().map(|o| out_index(k, o)) {
         for (flat, &id) in k.outputs[o].ids.iter().enumerate() {
             if let Op::Const(c) = k.op(id) {
                 let _ = writeln!(

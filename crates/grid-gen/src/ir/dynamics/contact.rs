@@ -416,6 +416,12 @@ impl Dynamics<'_> {
     }
 }
 
+/// `contact_fd_grad`'s derivatives of q̈ by q, q̇ and τ: the outputs its program's blocks
+/// store into, in the order of `which` (and [`step_program`] reads back).
+///
+/// [`step_program`]: super::step
+pub(super) const DQDD_BY: [&str; 3] = ["dqdd_dq", "dqdd_dqd", "dqdd_dtau"];
+
 /// The contact mask per row of λ (each contact's `active` input repeated over its 3 or 6
 /// rows), when the model masks its contacts.
 fn mask_rows(g: &mut Graph, spec: &crate::model::Specialisation) -> Option<Vec<Id>> {
@@ -539,14 +545,14 @@ fn combination_block(
     let mut stores: Vec<ColumnStore> = (0..nv)
         .map(|i| ColumnStore {
             row: i,
-            output: 2 + which,
+            output: DQDD_BY[which],
             flat: cols.iter().map(|&c| i * width + c).collect(),
             negate: false,
         })
         .collect();
     stores.extend((0..nl).map(|r| ColumnStore {
         row: nv + r,
-        output: 5 + which,
+        output: ["dlambda_dq", "dlambda_dqd", "dlambda_dtau"][which],
         flat: cols.iter().map(|&c| r * width + c).collect(),
         negate: true,
     }));

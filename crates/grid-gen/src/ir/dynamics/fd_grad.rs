@@ -91,7 +91,7 @@ impl Dynamics<'_> {
         self.product = Some(super::super::module::DenseProduct {
             minv: flat(&mi),
             dc: vec![flat(&dc_q), flat(&dc_qd)],
-            outputs: vec![1, 2],
+            outputs: vec!["dqdd_dq", "dqdd_dqd"],
         });
         let mut picked: Mat =
             mi.iter().map(|row| columns.iter().map(|&c| row[c]).collect()).collect();
@@ -211,7 +211,7 @@ impl Dynamics<'_> {
         if s.is_one() {
             // The Rust backend runs it where the straight-line solves are many
             // (`back::rust::runs_program`).
-            let blocks = [(&dc_q, &known_q, 1), (&dc_qd, &known_qd, 2)]
+            let blocks = [(&dc_q, &known_q, "dqdd_dq"), (&dc_qd, &known_qd, "dqdd_dqd")]
                 .map(|(dc, known, output)| solve_block(&fs, self.model, dc, known, output));
             let blocks = blocks.into();
             self.program = Some(ColumnProgram { rows: n, blocks, replaces: Some(straight) });
@@ -327,8 +327,8 @@ impl Ltdl {
 }
 
 /// The solves of [`Dynamics::fd_grad_ltdl`] for the columns of `dc` that are not `known`,
-/// as a per-column program that stores `−M⁻¹ dc` into output `output` (`fd_grad`'s
-/// ∂q̈/∂q is 1, ∂q̈/∂q̇ 2): [`Ltdl::solve`]'s steps for every column, where the
+/// as a per-column program that stores `−M⁻¹ dc` into output `output` (`dqdd_dq` or
+/// `dqdd_dqd`): [`Ltdl::solve`]'s steps for every column, where the
 /// graph's straight-line solves drop the steps a column's zeros make empty. On a floating
 /// base every column reaches every joint (the base is an ancestor of all), so the
 /// straight-line solves are as long as the program's, and the Rust backend runs the
@@ -338,7 +338,7 @@ fn solve_block(
     model: &Model,
     dc: &Mat,
     known: &[Option<Vec<Id>>],
-    output: usize,
+    output: &'static str,
 ) -> ColumnBlock {
     let n = dc.len();
     let cols: Vec<usize> = (0..n).filter(|&c| known[c].is_none()).collect();

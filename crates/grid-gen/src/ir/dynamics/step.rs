@@ -425,7 +425,7 @@ impl Dynamics<'_> {
                     // step_program reads which of u the block is from its first store.
                     let store = ColumnStore {
                         row: 0,
-                        output: 2 + which,
+                        output: super::contact::DQDD_BY[which],
                         flat: (0..cols).collect(),
                         negate: false,
                     };
@@ -748,8 +748,10 @@ fn step_program(
         .into_iter()
         .map(|b| {
             // Which of u = q, q̇, τ the block is, and its columns of u: where the
-            // combination stores its row 0 (output 2 + which, entry c).
-            let (which, cols) = (b.stores[0].output - 2, b.stores[0].flat.clone());
+            // combination stores its row 0 (output `DQDD_BY[which]`, entry c).
+            let which = super::contact::DQDD_BY.iter().position(|&o| o == b.stores[0].output);
+            let which = which.expect("a contact combination stores q̈'s derivatives first");
+            let cols = b.stores[0].flat.clone();
             let columns = cols.len();
             let mut init = b.init;
             let constant = |x: f64| vec![Operand::Const(x); columns];
@@ -794,16 +796,17 @@ fn step_program(
             // A (2nv x 2nv) and dλ/dx (nλ x 2nv) take q's columns then q̇'s; B (2nv x nu)
             // and dλ/du (nλ x nu) τ's.
             let (width, at, out_x, out_l) = match which {
-                0 => (nx, 0, 2, 5),
-                1 => (nx, nv, 2, 5),
-                _ => (nu, 0, 3, 6),
+                0 => (nx, 0, "a", "dlambda_dx"),
+                1 => (nx, nv, "a", "dlambda_dx"),
+                _ => (nu, 0, "b", "dlambda_du"),
             };
-            let store = |row: usize, out_row: usize, output: usize, negate: bool| ColumnStore {
-                row,
-                output,
-                flat: cols.iter().map(|&c| out_row * width + at + c).collect(),
-                negate,
-            };
+            let store =
+                |row: usize, out_row: usize, output: &'static str, negate: bool| ColumnStore {
+                    row,
+                    output,
+                    flat: cols.iter().map(|&c| out_row * width + at + c).collect(),
+                    negate,
+                };
             let mut stores: Vec<ColumnStore> =
                 (0..nv).map(|i| store(i, nv + i, out_x, false)).collect();
             if semi.is_some() {
