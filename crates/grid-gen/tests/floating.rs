@@ -205,21 +205,12 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
     let inputs = |k: usize| -> Vec<Vec<f64>> {
         (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect()
     };
-    let lines: Vec<&str> = said.lines().collect();
-    let copies = lines.len() / 3;
-    assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
-    for (copy, name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
-        let worst =
-            worst_line_error(&lines[3 * copy..3 * copy + 3].join("\n"), 3, nq, 1e-12, |k, q| {
-                let x = inputs(k);
-                reference_outputs(KernelKind::FdGrad, &model, q, &x[0], &x[1], g)
-                    .iter()
-                    .flat_map(|m| m.transpose().as_slice().to_vec())
-                    .collect()
-            });
+    let worst = worst_per_copy(&said, nq, 1e-12, fd_grad_reference(&model, g));
+    for (name, worst) in &worst {
         println!("floating Atlas fd_grad, looped solves, {name} copy: worst {worst:.2e} from the reference (bound 1e-12)");
     }
-    if copies == 1 {
+    let lines: Vec<&str> = said.lines().collect();
+    if worst.len() == 1 {
         println!("no AVX2 and FMA here: the fma copy's loops are not run");
     }
     // The portable copy's loops are the graph's operations in the graph's order (the
@@ -309,28 +300,46 @@ fn fd_grad_calls_fd_and_rnea_grad_when_asked() {
             assert!(text.contains("= rnea_grad(q, qd, &qdd)"), "fd_grad calls rnea_grad at its q̈");
         }
         let said = run_fd_grad_copies(&format!("fd_grad_calls_{name}"), text);
-        let inputs = |k: usize| -> Vec<Vec<f64>> {
-            (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect()
-        };
-        let lines: Vec<&str> = said.lines().collect();
-        let copies = lines.len() / 3;
-        assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
-        for (copy, copy_name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
-            let worst = worst_line_error(
-                &lines[3 * copy..3 * copy + 3].join("\n"),
-                3,
-                nq,
-                1e-12,
-                |k, q| {
-                    let x = inputs(k);
-                    reference_outputs(KernelKind::FdGrad, &model, q, &x[0], &x[1], g)
-                        .iter()
-                        .flat_map(|m| m.transpose().as_slice().to_vec())
-                        .collect()
-                },
-            );
+        for (copy_name, worst) in worst_per_copy(&said, nq, 1e-12, fd_grad_reference(&model, g)) {
             println!("calls={name}: floating 14-link chain fd_grad, {copy_name} copy: worst {worst:.2e} from the reference (bound 1e-12)");
         }
+    }
+}
+
+/// `said` (three states per copy, as [`run_fd_grad_copies`] prints them) split by copy:
+/// each copy's name and its worst error against `want` ([`worst_line_error`], q first on
+/// each line, every entry within `bound`).
+fn worst_per_copy(
+    said: &str,
+    nq: usize,
+    bound: f64,
+    mut want: impl FnMut(usize, &[f64]) -> Vec<f64>,
+) -> Vec<(&'static str, f64)> {
+    let lines: Vec<&str> = said.lines().collect();
+    let copies = lines.len() / 3;
+    assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
+    ["portable", "fma"]
+        .into_iter()
+        .take(copies)
+        .enumerate()
+        .map(|(copy, name)| {
+            let mine = lines[3 * copy..3 * copy + 3].join("\n");
+            (name, worst_line_error(&mine, 3, nq, bound, &mut want))
+        })
+        .collect()
+}
+
+/// The reference's `fd_grad` of `model` at seeded state k's q̇ and τ and the q a compiled
+/// program printed, row-major: what [`run_fd_grad_copies`]' lines hold after q.
+fn fd_grad_reference(model: &Model, g: [f64; 3]) -> impl FnMut(usize, &[f64]) -> Vec<f64> + '_ {
+    let nv = model.nv();
+    move |k, q| {
+        let x: Vec<Vec<f64>> =
+            (1..3).map(|s| (0..nv).map(|i| seeded_state(k, i, s)).collect()).collect();
+        reference_outputs(grid_gen::ir::KernelKind::FdGrad, model, q, &x[0], &x[1], g)
+            .iter()
+            .flat_map(|m| m.transpose().as_slice().to_vec())
+            .collect()
     }
 }
 
@@ -506,20 +515,11 @@ fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
             ]
             .concat(),
         );
-        let lines: Vec<&str> = said.lines().collect();
-        let copies = lines.len() / 3;
-        assert!(copies >= 1 && lines.len() == 3 * copies, "three states per copy: {said}");
-        for (copy, copy_name) in ["portable", "fma"].into_iter().enumerate().take(copies) {
-            let worst = worst_line_error(
-                &lines[3 * copy..3 * copy + 3].join("\n"),
-                3,
-                nq,
-                1e-12,
-                |k, _| {
-                    let (q, x) = state(k);
-                    f.eval(&kernel_args(f.inputs(), &q, &x[0], &x[1])).concat()
-                },
-            );
+        let whole = |k: usize, _: &[f64]| {
+            let (q, x) = state(k);
+            f.eval(&kernel_args(f.inputs(), &q, &x[0], &x[1])).concat()
+        };
+        for (copy_name, worst) in worst_per_copy(&said, nq, 1e-12, whole) {
             println!("calls={name}: floating chain contact_fd_grad, {copy_name} copy: worst {worst:.2e} from the whole graph (bound 1e-12)");
         }
     }
