@@ -5,7 +5,11 @@ architecture it prints the ECP5 cells (MULT18X18D multipliers, LUT4, TRELLIS_FF,
 DP16KD block RAM), whether they fit the largest part (LFE5UM-85: 156 multipliers,
 83 640 LUTs), and, for those that fit, nextpnr-ecp5's post-placement clock estimate
 (an estimate: no routing), the states per second it implies (clock / cycles per state)
-and the latency in microseconds. Prints a markdown table.
+and the latency in microseconds. A pipelined netlist, too large to place whole, gets the
+estimate of its slowest stage path (`info --json`'s `stage_path`: the chain of cells
+between two of its registers that sets its clock) placed alone between registers: the
+clock it would run at if it fitted, ignoring routing across the whole design and the
+stage's overflow OR. Prints a markdown table.
 
 The shared netlists are synthesised whole (flattened, as nextpnr needs). A pipelined
 netlist is every operation its own unit: its counts are its two cells' (each synthesised
@@ -87,6 +91,36 @@ def clock_estimate(nextpnr, json_path):
     return float(found[-1]) if found else None
 
 
+def stage_chain(path, top, cells, width):
+    """A copy of the netlist with a module `chain` appended: the stage path's cells (the
+    netlist's own `<top>_mul`, `_add`, `_recip`) in series between input and output
+    registers, the slowest chain between two of the netlist's registers (`info --json`'s
+    `stage_path`). Placed alone it gives that stage's delay: the clock of a pipelined
+    netlist, which is too large to place whole. Returns the new file's path."""
+    w = width - 1
+    lines = [
+        "",
+        "// The netlist's slowest stage path, between registers (scripts/fpga.py).",
+        f"module chain (input wire clk, input wire signed [{w}:0] a_in, input wire signed [{w}:0] b_in,",
+        f"              output reg signed [{w}:0] y_out, output reg ovf_out);",
+        f"    reg signed [{w}:0] a, b;",
+    ]
+    prev, flags = "a", []
+    for i, cell in enumerate(cells):
+        lines.append(f"    wire signed [{w}:0] y{i};")
+        lines.append(f"    wire o{i};")
+        ports = {"mul": f".a({prev}), .b(b)", "add": f".a({prev}), .b(b), .sub(1'b0)", "recip": f".a({prev})"}[cell]
+        lines.append(f"    {top}_{cell} c{i} ({ports}, .y(y{i}), .ovf(o{i}));")
+        prev = f"y{i}"
+        flags.append(f"o{i}")
+    lines.append(f"    always @(posedge clk) begin a <= a_in; b <= b_in; y_out <= {prev}; ovf_out <= {' | '.join(flags)}; end")
+    lines.append("endmodule")
+    out = path[:-2] + "_chain.v"
+    with open(path) as f, open(out, "w") as g:
+        g.write(f.read() + "\n".join(lines) + "\n")
+    return out
+
+
 def main():
     args = sys.argv[1:]
     archs = ARCHS
@@ -154,6 +188,7 @@ def main():
                                 row[c] = sum(n * cells(r, c) for r, n in reports)
                             row["TRELLIS_FF"] += s["registers"] * width
                             row["how"] = "cells x units"
+                            row["stage_path"] = s.get("stage_path")
                         else:
                             j = os.path.join(d, top + ".json")
                             report = synthesise(yosys, path, top, json_out=j)
@@ -165,6 +200,12 @@ def main():
                         row["mhz"] = None
                         if row["fits"] and nextpnr and arch[1] == "shared":
                             row["mhz"] = clock_estimate(nextpnr, j)
+                        elif nextpnr and row.get("stage_path"):
+                            # Too large to place whole: its slowest stage path, placed alone.
+                            chain = stage_chain(path, top, row["stage_path"], width)
+                            j = chain[:-2] + ".json"
+                            synthesise(yosys, chain, "chain", json_out=j)
+                            row["mhz"] = clock_estimate(nextpnr, j)
                         print(json.dumps(row), file=sys.stderr, flush=True)
                         rows.append(row)
     print("| robot | netlist | arch | format | MULT18X18D | LUT4 | FF | DP16KD | counted | fits LFE5UM-85 | clock (estimate) | cycles per state | latency | states/s |")
@@ -173,9 +214,12 @@ def main():
         mhz = r["mhz"]
         rate = f"{mhz * 1e6 / r['cycles_per_state']:.3g}" if mhz and r["cycles_per_state"] else ""
         latency = f"{r['latency_cycles'] / mhz:.2f} µs" if mhz and r["latency_cycles"] else f"{r['latency_cycles']} cycles"
+        clock = f"{mhz:.1f} MHz" if mhz else ""
+        if mhz and r.get("stage_path"):
+            clock += f" (stage path {'-'.join(r['stage_path'])})"
         print(f"| {r['robot']} | {r['netlist']} | {r['arch']} | {r['format']} | {r['MULT18X18D']} | {r['LUT4']} | "
               f"{r['TRELLIS_FF']} | {r['DP16KD']} | {r['how']} | {'yes' if r['fits'] else 'no'} | "
-              f"{f'{mhz:.1f} MHz' if mhz else ''} | {r['cycles_per_state']} | {latency} | {rate} |")
+              f"{clock} | {r['cycles_per_state']} | {latency} | {rate} |")
 
 
 if __name__ == "__main__":

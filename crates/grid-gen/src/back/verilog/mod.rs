@@ -179,6 +179,10 @@ pub struct NetlistStats {
     pub latency_cycles: usize,
     /// Clock cycles between successive states.
     pub cycles_per_state: usize,
+    /// Pipelined: the cells of the slowest chain between two registers, in order
+    /// ([`Stages::slowest_path`]), which sets the clock.
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub stage_path: Option<Vec<&'static str>>,
     /// Non-zero output ports.
     pub outputs: usize,
     /// Analysed worst-case |fixed − exact| over the outputs, for inputs within the bounds.
@@ -554,6 +558,10 @@ impl Netlist {
             registers,
             latency_cycles,
             cycles_per_state,
+            stage_path: match &self.layout {
+                Layout::Pipelined(st) => Some(st.slowest_path(dp)),
+                Layout::Shared(_) => None,
+            },
             outputs: dp.nonzero_outputs().len(),
             error_bound: self.analysis.output_error,
             range_bound: match self.measured {

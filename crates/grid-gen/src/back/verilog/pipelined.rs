@@ -52,6 +52,61 @@ impl Stages {
     pub fn registers(&self) -> usize {
         self.stage.iter().zip(&self.last).map(|(s, l)| l.saturating_sub(*s) as usize).sum()
     }
+
+    /// The cells along the slowest chain of operations between two register boundaries, in
+    /// dependence order (`"recip"`, `"mul"`, `"add"`; `add` also subtracts and negates):
+    /// what sets the clock, for a timing tool to place alone (`scripts/fpga.py`). Which
+    /// chain is slowest is judged by a divider outweighing any chain of multipliers and a
+    /// multiplier any chain of adders within a stage, as they do on an FPGA (on ECP5,
+    /// nextpnr-ecp5 put one 49-bit multiplier at 18.8 ns and one adder at 5.4 ns).
+    pub fn slowest_path(&self, dp: &Datapath) -> Vec<&'static str> {
+        let cell = |op: &HwOp| match op {
+            HwOp::Recip(_) => "recip",
+            HwOp::Mul(..) => "mul",
+            _ => "add",
+        };
+        // Weights that order chains as the paragraph above says: a stage holds at most
+        // `stage_depth` operations on one chain.
+        let k = u64::from(self.stage_depth) + 1;
+        let weight = |op: &HwOp| match op {
+            HwOp::Recip(_) => k * k,
+            HwOp::Mul(..) => k,
+            _ => 1,
+        };
+        // Per operation: the slowest chain ending at it within its stage, and the operand
+        // it continues.
+        let mut best = vec![0u64; dp.nodes.len()];
+        let mut from: Vec<Option<usize>> = vec![None; dp.nodes.len()];
+        for (i, op) in dp.nodes.iter().enumerate() {
+            if !op.is_operation() {
+                continue;
+            }
+            let mut before = 0;
+            for a in op.operands() {
+                let a = a.0 as usize;
+                if self.stage[a] == self.stage[i] && dp.nodes[a].is_operation() && best[a] > before
+                {
+                    before = best[a];
+                    from[i] = Some(a);
+                }
+            }
+            best[i] = before + weight(op);
+        }
+        let Some(end) = (0..dp.nodes.len()).max_by_key(|&i| (best[i], std::cmp::Reverse(i))) else {
+            return Vec::new();
+        };
+        if best[end] == 0 {
+            return Vec::new();
+        }
+        let mut path = vec![cell(&dp.nodes[end])];
+        let mut at = end;
+        while let Some(a) = from[at] {
+            path.push(cell(&dp.nodes[a]));
+            at = a;
+        }
+        path.reverse();
+        path
+    }
 }
 
 /// How a node is read in stage `s`.
@@ -156,4 +211,68 @@ pub fn top(n: &Netlist, st: &Stages) -> String {
     }
     let _ = writeln!(v, "endmodule");
     v
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::datapath::{DatapathOutput, Port};
+
+    /// A datapath of two ports and `ops` (node 2 on), whose last node is the output.
+    fn datapath(ops: Vec<HwOp>) -> Datapath {
+        let mut nodes = vec![HwOp::Port(0), HwOp::Port(1)];
+        nodes.extend(ops);
+        let last = HwId(nodes.len() as u32 - 1);
+        Datapath {
+            kernel: "test",
+            nv: 1,
+            dims: crate::ir::Dims { nq: 1, nv: 1, ..Default::default() },
+            ports: vec![Port::Sin(0), Port::Cos(0)],
+            links: vec![None; nodes.len()],
+            clamps: vec![None; nodes.len()],
+            factor: Default::default(),
+            nodes,
+            outputs: vec![DatapathOutput {
+                name: "c",
+                shape: crate::ir::Shape::Vector,
+                ids: vec![last],
+            }],
+        }
+    }
+
+    #[test]
+    fn the_slowest_path_stays_within_a_stage() {
+        use HwOp::*;
+        // mul, add, mul, negate in a chain, and an adder beside it.
+        let dp = datapath(vec![
+            Mul(HwId(0), HwId(1)),
+            Add(HwId(2), HwId(0)),
+            Add(HwId(0), HwId(1)),
+            Mul(HwId(3), HwId(4)),
+            Neg(HwId(5)),
+        ]);
+        assert_eq!(Stages::new(&dp, 4).slowest_path(&dp), ["mul", "add", "mul", "add"]);
+        // Two levels per stage: the chain is cut by a register after the first add.
+        assert_eq!(Stages::new(&dp, 2).slowest_path(&dp), ["mul", "add"]);
+        assert_eq!(Stages::new(&dp, 1).slowest_path(&dp), ["mul"]);
+    }
+
+    #[test]
+    fn a_divider_outweighs_a_chain_of_multipliers() {
+        use HwOp::*;
+        let dp = datapath(vec![
+            Mul(HwId(0), HwId(1)),
+            Mul(HwId(2), HwId(1)),
+            Mul(HwId(3), HwId(1)),
+            Add(HwId(0), HwId(1)),
+            Recip(HwId(5)),
+            Add(HwId(4), HwId(6)),
+        ]);
+        // Stage one holds the three products and add-then-divide; the final add is level 4.
+        assert_eq!(Stages::new(&dp, 4).slowest_path(&dp), ["add", "recip", "add"]);
+        // Three levels: the final add is cut off, and the divider still outweighs the three
+        // products; one level: the divider alone.
+        assert_eq!(Stages::new(&dp, 3).slowest_path(&dp), ["add", "recip"]);
+        assert_eq!(Stages::new(&dp, 1).slowest_path(&dp), ["recip"]);
+    }
 }
