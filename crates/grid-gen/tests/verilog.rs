@@ -1218,3 +1218,42 @@ fn fd_grad_auto_picks_chip_where_it_fits() {
     assert!(n.top.ends_with("_fd_grad_host"), "{}", n.top);
     assert_eq!(n.stats().partition, Some(FdGradPartition::Host));
 }
+
+/// `info`'s stage path (what `scripts/fpga.py` places for a pipelined netlist's clock)
+/// names cells the netlist holds, as many as a stage's levels at most; the chip partition's
+/// runs through its divider, and a shared netlist has none.
+#[test]
+fn the_stage_path_names_the_netlists_own_cells() {
+    let chip = VerilogOptions {
+        kernels: vec![KernelKind::RneaGrad],
+        fd_grad: Some(FdGradPartition::Chip),
+        ..VerilogOptions::default()
+    };
+    let kernels =
+        vec![KernelKind::RneaGrad, KernelKind::MassMatrix, KernelKind::Rnea, KernelKind::Minv];
+    let options = LowerOptions { kernels, ..LowerOptions::default() };
+    let m = ir::lower(&load("double_pendulum_continuous"), GRAVITY, &options).unwrap();
+    let netlists = plan(&m, &chip).unwrap();
+    assert_eq!(netlists.len(), 2, "rnea_grad and fd_grad's chip partition");
+    for n in netlists {
+        let s = n.stats();
+        let path = s.stage_path.clone().expect("a pipelined netlist has a stage path");
+        assert!(
+            !path.is_empty() && path.len() <= s.stage_depth.unwrap() as usize,
+            "{}: {path:?}",
+            n.top
+        );
+        let text = n.verilog(&m.robot);
+        for cell in &path {
+            assert!(text.contains(&format!("module {}_{cell} (", n.top)), "{}: no {cell}", n.top);
+        }
+        assert_eq!(
+            path.contains(&"recip"),
+            n.top.ends_with("_fd_grad_chip"),
+            "{}: {path:?}",
+            n.top
+        );
+    }
+    let shared = VerilogOptions { arch: BOTH[1], ..chip };
+    assert!(plan(&m, &shared).unwrap().iter().all(|n| n.stats().stage_path.is_none()));
+}
