@@ -776,7 +776,7 @@ impl Info {
             s.push('\n');
         }
         if !self.verilog.is_empty() {
-            s.push_str("verilog netlists (default options; multipliers/adders/registers, cycles per state, latency, format, error bound):\n");
+            s.push_str("verilog netlists (default options; multipliers/adders/registers, cycles per state, latency, format, error bound; pipelined: the slowest stage's cells):\n");
         }
         for v in &self.verilog {
             let name = match v.partition {
@@ -784,7 +784,7 @@ impl Info {
                 None => v.kernel.name().to_string(),
             };
             s.push_str(&format!(
-                "  {:<w$} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  {}\n",
+                "  {:<w$} {:<9} {:>5}/{:>5}/{:>5}  {:>4} per state  latency {:>4}  {}  {}{}\n",
                 name,
                 v.arch,
                 v.multipliers,
@@ -799,6 +799,10 @@ impl Info {
                     }
                     (Some(e), _, _) => format!("error {e:.1e} measured (no proven format)"),
                     (None, _, _) => format!("error <= {:.1e}", v.error_bound),
+                },
+                match &v.stage_path {
+                    Some(path) => format!("  stage {}", path.join("-")),
+                    None => String::new(),
                 }
             ));
         }
