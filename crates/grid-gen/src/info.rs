@@ -207,17 +207,19 @@ impl Info {
             ir::Gradient::Auto,
             ir::Solve::Auto,
             ir::Calls::Auto,
+            DEFAULT_STAGE_DEPTH,
         )
     }
 
     /// The summary of the kernels generated with this gravity, gradient formulation, solve
-    /// and calls.
+    /// and calls, and the pipelined Verilog netlists at this stage depth.
     pub fn with_options(
         model: &Model,
         gravity: [f64; 3],
         gradient: ir::Gradient,
         solve: ir::Solve,
         calls: ir::Calls,
+        stage_depth: u32,
     ) -> Self {
         let coordinates = model.coordinate_joints();
         let names = |set: &Option<Vec<usize>>| {
@@ -326,7 +328,7 @@ impl Info {
         }
         .with_ops(ir::stats(model, gravity, gradient, solve, ir::STATS_MAX_NODES))
         .with_gradient_costs(model, gravity)
-        .with_verilog(model, gravity, gradient, solve)
+        .with_verilog(model, gravity, gradient, solve, stage_depth)
         .with_wgsl(model, gravity, gradient, solve)
         .with_rust_size(model, gravity, gradient, solve, calls)
     }
@@ -444,6 +446,7 @@ impl Info {
         gravity: [f64; 3],
         gradient: ir::Gradient,
         solve: ir::Solve,
+        stage_depth: u32,
     ) -> Self {
         if let Some(k) = self.ops_skipped.iter().find(|k| DEFAULT_KERNELS.contains(&k.kernel)) {
             self.verilog_skipped =
@@ -474,7 +477,7 @@ impl Info {
             ir::lower(model, gravity, &lower).map_err(|e| e.to_string()).and_then(|module| {
                 let mut all = Vec::new();
                 let archs = [
-                    Arch::Pipelined { stage_depth: DEFAULT_STAGE_DEPTH },
+                    Arch::Pipelined { stage_depth },
                     Arch::Shared { multipliers: DEFAULT_MULTIPLIERS, adders: DEFAULT_ADDERS },
                 ];
                 for arch in archs {
@@ -776,7 +779,7 @@ impl Info {
             s.push('\n');
         }
         if !self.verilog.is_empty() {
-            s.push_str("verilog netlists (default options; multipliers/adders/registers, cycles per state, latency, format, error bound; pipelined: the slowest stage's cells):\n");
+            s.push_str("verilog netlists (default options but --stage-depth; multipliers/adders/registers, cycles per state, latency, format, error bound; pipelined: the slowest stage's cells):\n");
         }
         for v in &self.verilog {
             let name = match v.partition {
