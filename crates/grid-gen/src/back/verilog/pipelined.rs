@@ -56,21 +56,20 @@ impl Stages {
     /// The cells along the slowest chain of operations between two register boundaries, in
     /// dependence order (`"recip"`, `"mul"`, `"add"`; `add` also subtracts and negates):
     /// what sets the clock, for a timing tool to place alone (`scripts/fpga.py`). Which
-    /// chain is slowest is judged by a divider outweighing any chain of multipliers and a
-    /// multiplier any chain of adders within a stage, as they do on an FPGA (on ECP5,
-    /// nextpnr-ecp5 put one 49-bit multiplier at 18.8 ns and one adder at 5.4 ns).
+    /// chain is slowest is judged by a multiplier weighing three adders and a divider more
+    /// than any chain without one: on ECP5, nextpnr-ecp5 put one 49-bit multiplier between
+    /// registers at 18.8 ns, one adder at 5.4 ns and four adders in series at 21.1 ns.
     pub fn slowest_path(&self, dp: &Datapath) -> Vec<&'static str> {
         let cell = |op: &HwOp| match op {
             HwOp::Recip(_) => "recip",
             HwOp::Mul(..) => "mul",
             _ => "add",
         };
-        // Weights that order chains as the paragraph above says: a stage holds at most
-        // `stage_depth` operations on one chain.
-        let k = u64::from(self.stage_depth) + 1;
+        // A stage holds at most `stage_depth` operations on one chain, so a divider weighing
+        // 3 * stage_depth + 1 outweighs every chain without one.
         let weight = |op: &HwOp| match op {
-            HwOp::Recip(_) => k * k,
-            HwOp::Mul(..) => k,
+            HwOp::Recip(_) => 3 * u64::from(self.stage_depth) + 1,
+            HwOp::Mul(..) => 3,
             _ => 1,
         };
         // Per operation: the slowest chain ending at it within its stage, and the operand
@@ -255,6 +254,22 @@ mod tests {
         // Two levels per stage: the chain is cut by a register after the first add.
         assert_eq!(Stages::new(&dp, 2).slowest_path(&dp), ["mul", "add"]);
         assert_eq!(Stages::new(&dp, 1).slowest_path(&dp), ["mul"]);
+    }
+
+    #[test]
+    fn four_adders_outweigh_one_multiplier() {
+        use HwOp::*;
+        // A lone product beside four additions in series.
+        let dp = datapath(vec![
+            Mul(HwId(0), HwId(1)),
+            Add(HwId(0), HwId(1)),
+            Add(HwId(3), HwId(1)),
+            Add(HwId(4), HwId(1)),
+            Sub(HwId(5), HwId(2)),
+        ]);
+        assert_eq!(Stages::new(&dp, 4).slowest_path(&dp), ["add", "add", "add", "add"]);
+        // Two levels: the lone product outweighs two adders in series.
+        assert_eq!(Stages::new(&dp, 2).slowest_path(&dp), ["mul"]);
     }
 
     #[test]
