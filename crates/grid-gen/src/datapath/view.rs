@@ -181,6 +181,23 @@ pub struct Datapath {
 }
 
 impl Datapath {
+    /// A one-joint datapath of `nodes` (ports 0 and 1 are sin q₀ and cos q₀) whose one
+    /// output is `output`: what the backends' unit tests schedule.
+    #[cfg(test)]
+    pub(crate) fn for_test(nodes: Vec<HwOp>, output: HwId) -> Datapath {
+        Datapath {
+            kernel: "test",
+            nv: 1,
+            dims: crate::ir::Dims { nq: 1, nv: 1, ..Default::default() },
+            ports: vec![Port::Sin(0), Port::Cos(0)],
+            links: vec![None; nodes.len()],
+            clamps: vec![None; nodes.len()],
+            factor: Default::default(),
+            nodes,
+            outputs: vec![DatapathOutput { name: "c", shape: Shape::Vector, ids: vec![output] }],
+        }
+    }
+
     /// Converts a frozen IR function; fails on division and on sin/cos of anything but
     /// an input position.
     pub fn new(f: &Function, nv: usize) -> Result<Datapath, FixedError> {

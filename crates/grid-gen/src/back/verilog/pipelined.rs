@@ -215,28 +215,13 @@ pub fn top(n: &Netlist, st: &Stages) -> String {
 #[cfg(test)]
 mod tests {
     use super::*;
-    use crate::datapath::{DatapathOutput, Port};
 
     /// A datapath of two ports and `ops` (node 2 on), whose last node is the output.
     fn datapath(ops: Vec<HwOp>) -> Datapath {
         let mut nodes = vec![HwOp::Port(0), HwOp::Port(1)];
         nodes.extend(ops);
         let last = HwId(nodes.len() as u32 - 1);
-        Datapath {
-            kernel: "test",
-            nv: 1,
-            dims: crate::ir::Dims { nq: 1, nv: 1, ..Default::default() },
-            ports: vec![Port::Sin(0), Port::Cos(0)],
-            links: vec![None; nodes.len()],
-            clamps: vec![None; nodes.len()],
-            factor: Default::default(),
-            nodes,
-            outputs: vec![DatapathOutput {
-                name: "c",
-                shape: crate::ir::Shape::Vector,
-                ids: vec![last],
-            }],
-        }
+        Datapath::for_test(nodes, last)
     }
 
     #[test]

@@ -159,31 +159,7 @@ mod tests {
             Add(HwId(3), HwId(4)),
             Neg(HwId(5)),
         ];
-        Datapath {
-            kernel: "test",
-            nv: 1,
-            dims: crate::ir::Dims {
-                nq: 1,
-                nv: 1,
-                nu: 0,
-                nframes: 0,
-                nfext: 0,
-                nlambda: 0,
-                ncontacts: 0,
-                nbaumgarte: 0,
-                ncontact_ref: 0,
-            },
-            ports: vec![crate::datapath::Port::Sin(0), crate::datapath::Port::Cos(0)],
-            links: vec![None; nodes.len()],
-            clamps: vec![None; nodes.len()],
-            factor: Default::default(),
-            nodes,
-            outputs: vec![crate::datapath::DatapathOutput {
-                name: "c",
-                shape: crate::ir::Shape::Vector,
-                ids: vec![HwId(6)],
-            }],
-        }
+        Datapath::for_test(nodes, HwId(6))
     }
 
     #[test]
