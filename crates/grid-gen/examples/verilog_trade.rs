@@ -18,7 +18,11 @@ fn cell_gates(f: &Format, kind: &str) -> usize {
     let dir = std::env::temp_dir().join(format!("grid-gen-trade-{}", std::process::id()));
     std::fs::create_dir_all(&dir).expect("temp dir");
     let v = dir.join("cells.v");
-    std::fs::write(&v, grid_gen::back::verilog::cell_modules("t", f, false)).expect("write");
+    std::fs::write(
+        &v,
+        grid_gen::back::verilog::cell_modules("t", f, grid_gen::back::verilog::Divider::None),
+    )
+    .expect("write");
     let stat = dir.join("stat.txt");
     let script = format!(
         "read_verilog {}; synth -top t_{kind}; tee -q -o {} stat",

@@ -1257,3 +1257,86 @@ fn the_stage_path_names_the_netlists_own_cells() {
     let shared = VerilogOptions { arch: BOTH[1], ..chip };
     assert!(plan(&m, &shared).unwrap().iter().all(|n| n.stats().stage_path.is_none()));
 }
+
+/// The pipelined divider (`Divider::Pipelined`) gives the combinational one's quotient and
+/// flag, delayed by its stages less one, for every input of 12-bit formats whose dividend
+/// 2^(2 FRAC) sits below, inside and above the quotient's bits, in one to eleven stages
+/// (one restoring step each). The combinational cell is the one the shared netlists
+/// simulate bit for bit against the software model.
+#[test]
+fn the_pipelined_divider_matches_the_combinational_one_on_every_input() {
+    use grid_gen::back::verilog::{cell_modules, Divider};
+    use grid_gen::datapath::Format;
+    if !tool_or_skip("Icarus Verilog", sim::available()) {
+        return;
+    }
+    let w = 12u32;
+    let dir = std::env::temp_dir().join(format!("grid-gen-recip-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    for frac in [0, 3, 5, 6, 7, 11] {
+        let f = Format::new(w, frac, Rounding::Truncate).unwrap();
+        for stages in [1u32, 2, 4, 11] {
+            let tb = format!(
+                "module tb;
+    reg clk = 0;
+    reg signed [{wm}:0] a;
+    reg signed [{wm}:0] hist [0:{sm}];
+    wire signed [{wm}:0] yp, yc;
+    wire op, oc;
+    p_recip up (.clk(clk), .a(a), .y(yp), .ovf(op));
+    c_recip uc (.a(hist[{sm}]), .y(yc), .ovf(oc));
+    integer i, k, bad;
+    initial begin
+        bad = 0;
+        for (i = 0; i < {n}; i = i + 1) begin
+            a = i;
+            for (k = {sm}; k > 0; k = k - 1) hist[k] = hist[k - 1];
+            hist[0] = a;
+            #1;
+            if (i >= {sm} && (yp !== yc || op !== oc)) begin
+                if (bad == 0) $display(\"first: a=%0d y=%0d/%0d ovf=%0d/%0d\", hist[{sm}], yp, yc, op, oc);
+                bad = bad + 1;
+            end
+            clk = 1; #1; clk = 0;
+        end
+        $display(\"mismatches %0d\", bad);
+        $finish;
+    end
+endmodule
+",
+                wm = w - 1,
+                sm = stages - 1,
+                n = (1u32 << w) + stages,
+            );
+            let v = dir.join("recip.v");
+            std::fs::write(
+                &v,
+                format!(
+                    "{}{}{tb}",
+                    cell_modules("p", &f, Divider::Pipelined(stages)),
+                    cell_modules("c", &f, Divider::Combinational)
+                ),
+            )
+            .unwrap();
+            let image = dir.join("recip.vvp");
+            let run = |cmd: &mut std::process::Command| {
+                let out = cmd.output().unwrap();
+                let text = format!(
+                    "{}{}",
+                    String::from_utf8_lossy(&out.stdout),
+                    String::from_utf8_lossy(&out.stderr)
+                );
+                assert!(out.status.success(), "{}: {text}", f.label());
+                text
+            };
+            run(std::process::Command::new("iverilog")
+                .args(["-g2005", "-o"])
+                .arg(&image)
+                .args(["-s", "tb"])
+                .arg(&v));
+            let text = run(std::process::Command::new("vvp").arg("-n").arg(&image));
+            assert!(text.contains("mismatches 0"), "{} in {stages} stages: {text}", f.label());
+        }
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

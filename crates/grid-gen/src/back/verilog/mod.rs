@@ -10,7 +10,7 @@
 mod cells;
 /// The two arithmetic cell modules of a format (`<top>_mul`, `<top>_add`), for synthesising
 /// one cell on its own (the book's per-width gate counts).
-pub use cells::cells as cell_modules;
+pub use cells::{cells as cell_modules, Divider};
 mod pipelined;
 mod ports;
 mod schedule;
@@ -173,7 +173,12 @@ pub struct NetlistStats {
     /// coordinate; shared: one).
     #[serde(skip_serializing_if = "is_zero")]
     pub dividers: usize,
-    /// Data registers (each WIDTH bits), control excluded.
+    /// Pipelined, with dividers: the clock stages each divider spans
+    /// ([`Stages::divider_stages`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub divider_stages: Option<u32>,
+    /// Data registers (each WIDTH bits), control excluded; a pipelined divider's remainder,
+    /// divisor and partial quotient count as three at each boundary inside it.
     pub registers: usize,
     /// Clock edges from the edge that takes a state to the one that raises `out_valid`.
     pub latency_cycles: usize,
@@ -435,7 +440,7 @@ fn netlist(
             (format, analysis, None)
         }
     };
-    let layout = layout_of(&datapath, options.arch);
+    let layout = layout_of(&datapath, options.arch, format.width);
     let names = PortNames::new(&module.robot, &datapath);
     Ok(Netlist {
         kind,
@@ -451,12 +456,14 @@ fn netlist(
     })
 }
 
-fn layout_of(datapath: &Datapath, arch: Arch) -> Layout {
+fn layout_of(datapath: &Datapath, arch: Arch, width: u32) -> Layout {
     match arch {
         Arch::Shared { multipliers, adders } => {
             Layout::Shared(SharedSchedule::new(datapath, multipliers, adders))
         }
-        Arch::Pipelined { stage_depth } => Layout::Pipelined(Stages::new(datapath, stage_depth)),
+        Arch::Pipelined { stage_depth } => {
+            Layout::Pipelined(Stages::new(datapath, stage_depth, width))
+        }
     }
 }
 
@@ -532,7 +539,7 @@ impl Netlist {
                 dp.constant_muls(),
                 adds,
                 dp.reciprocals(),
-                st.registers(),
+                st.registers(dp),
                 st.count as usize + 1,
                 1,
             ),
@@ -555,6 +562,10 @@ impl Netlist {
             constant_multipliers,
             adders,
             dividers,
+            divider_stages: match &self.layout {
+                Layout::Pipelined(st) if dividers > 0 => Some(st.divider_stages),
+                _ => None,
+            },
             registers,
             latency_cycles,
             cycles_per_state,
@@ -590,7 +601,12 @@ impl Netlist {
     /// The netlist (cells and top module) as Verilog-2005.
     pub fn verilog(&self, robot: &crate::ir::Robot) -> String {
         let mut out = self.header(robot);
-        out.push_str(&cells::cells(&self.top, &self.format, self.datapath.reciprocals() > 0));
+        let divider = match (&self.layout, self.datapath.reciprocals()) {
+            (_, 0) => Divider::None,
+            (Layout::Pipelined(st), _) => Divider::Pipelined(st.divider_stages),
+            (Layout::Shared(_), _) => Divider::Combinational,
+        };
+        out.push_str(&cells::cells(&self.top, &self.format, divider));
         match &self.layout {
             Layout::Pipelined(st) => out.push_str(&pipelined::top(self, st)),
             Layout::Shared(s) => out.push_str(&shared::top(self, s)),

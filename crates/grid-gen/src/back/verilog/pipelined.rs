@@ -3,6 +3,9 @@
 //! A value computed in stage t and read in stage s > t travels through registers
 //! `p<t>_n<id>` … `p<s-1>_n<id>`; inputs are registered on entry (stage 0) and outputs
 //! leave from the last stage's registers. The overflow flag travels with the data.
+//! A reciprocal is a divider pipelined over [`Stages::divider_stages`] stages of its own
+//! (`cells::pipelined_recip`): it reads its operand's register and its consumers read its
+//! result's, so no stage holds a divider in series with other cells.
 
 use std::fmt::Write;
 
@@ -15,7 +18,10 @@ use crate::datapath::{Datapath, HwId, HwOp};
 pub struct Stages {
     /// Levels of dependence depth per stage.
     pub stage_depth: u32,
-    /// 0 for ports and constants.
+    /// Stages one reciprocal spans: its `WIDTH - 1` restoring steps, at most
+    /// [`Stages::steps_per_stage`] of them per stage.
+    pub divider_stages: u32,
+    /// 0 for ports and constants; a reciprocal's last stage.
     pub stage: Vec<u32>,
     /// Stages after the input registers (at least 1).
     pub count: u32,
@@ -25,15 +31,41 @@ pub struct Stages {
 }
 
 impl Stages {
-    pub fn new(dp: &Datapath, stage_depth: u32) -> Stages {
-        let stage: Vec<u32> = dp.depths().iter().map(|d| d.div_ceil(stage_depth)).collect();
+    /// A divider's restoring steps per stage: a step is a subtraction and a select, about
+    /// an adder, so a stage of them weighs what `stage_depth` multipliers do (three adders
+    /// each, see [`Stages::slowest_path`]).
+    pub fn steps_per_stage(stage_depth: u32) -> u32 {
+        3 * stage_depth
+    }
+
+    /// Stages for `dp` in a format `width` bits wide (which sets the divider's steps).
+    pub fn new(dp: &Datapath, stage_depth: u32, width: u32) -> Stages {
+        let divider_stages =
+            (width.saturating_sub(1)).div_ceil(Self::steps_per_stage(stage_depth)).max(1);
+        // Levels of dependence depth, a reciprocal's ending its last stage.
+        let mut level = vec![0u32; dp.nodes.len()];
+        let mut stage = vec![0u32; dp.nodes.len()];
+        for (i, op) in dp.nodes.iter().enumerate() {
+            match op {
+                HwOp::Port(_) | HwOp::Const(_) => {}
+                HwOp::Recip(a) => {
+                    stage[i] = stage[a.0 as usize] + divider_stages;
+                    level[i] = stage[i] * stage_depth;
+                }
+                _ => {
+                    level[i] = 1 + op.operands().map(|a| level[a.0 as usize]).max().unwrap_or(0);
+                    stage[i] = level[i].div_ceil(stage_depth);
+                }
+            }
+        }
         let count = stage.iter().copied().max().unwrap_or(0).max(1);
         let mut last = stage.clone();
         for (i, op) in dp.nodes.iter().enumerate() {
             for a in op.operands() {
                 let a = a.0 as usize;
-                if stage[i] > stage[a] {
-                    last[a] = last[a].max(stage[i]);
+                let read = Self::read_stage(op, stage[i], stage[a]);
+                if read > stage[a] {
+                    last[a] = last[a].max(read);
                 }
             }
         }
@@ -45,30 +77,42 @@ impl Stages {
                 last[i] = stage[i];
             }
         }
-        Stages { stage_depth, stage, count, last }
+        Stages { stage_depth, divider_stages, stage, count, last }
     }
 
-    /// Data registers: one per value per stage boundary it crosses.
-    pub fn registers(&self) -> usize {
-        self.stage.iter().zip(&self.last).map(|(s, l)| l.saturating_sub(*s) as usize).sum()
+    /// The stage in which `op`, computed in stage `at`, reads an operand computed in stage
+    /// `from`: a reciprocal reads its operand's register in its first stage.
+    fn read_stage(op: &HwOp, at: u32, from: u32) -> u32 {
+        match op {
+            HwOp::Recip(_) => from + 1,
+            _ => at,
+        }
+    }
+
+    /// Data registers: one per value per stage boundary it crosses, and a divider's
+    /// remainder, divisor and partial quotient at each of its inner boundaries.
+    pub fn registers(&self, dp: &Datapath) -> usize {
+        let values: usize =
+            self.stage.iter().zip(&self.last).map(|(s, l)| l.saturating_sub(*s) as usize).sum();
+        values + dp.reciprocals() * 3 * (self.divider_stages as usize - 1)
     }
 
     /// The cells along the slowest chain of operations between two register boundaries, in
     /// dependence order (`"recip"`, `"mul"`, `"add"`; `add` also subtracts and negates):
     /// what sets the clock, for a timing tool to place alone (`scripts/fpga.py`). Which
-    /// chain is slowest is judged by a multiplier weighing three adders and a divider more
-    /// than any chain without one: on ECP5, nextpnr-ecp5 put one 49-bit multiplier between
-    /// registers at 18.8 ns, one adder at 5.4 ns and four adders in series at 21.1 ns.
+    /// chain is slowest is judged by a multiplier weighing three adders and a divider's
+    /// stage as many adders as it has restoring steps: on ECP5, nextpnr-ecp5 put one 49-bit
+    /// multiplier between registers at 18.8 ns, one adder at 5.4 ns and four adders in
+    /// series at 21.1 ns. A divider is alone between its stages' registers, so `"recip"`
+    /// stands for the whole pipelined divider, whose slowest stage is its first.
     pub fn slowest_path(&self, dp: &Datapath) -> Vec<&'static str> {
         let cell = |op: &HwOp| match op {
             HwOp::Recip(_) => "recip",
             HwOp::Mul(..) => "mul",
             _ => "add",
         };
-        // A stage holds at most `stage_depth` operations on one chain, so a divider weighing
-        // 3 * stage_depth + 1 outweighs every chain without one.
         let weight = |op: &HwOp| match op {
-            HwOp::Recip(_) => 3 * u64::from(self.stage_depth) + 1,
+            HwOp::Recip(_) => u64::from(Self::steps_per_stage(self.stage_depth)),
             HwOp::Mul(..) => 3,
             _ => 1,
         };
@@ -180,10 +224,17 @@ pub fn top(n: &Netlist, st: &Stages) -> String {
                 }
                 HwOp::Neg(a) => ("add", literal(0, w), operand(n, st, a, s), Some("1'b1")),
                 HwOp::Mul(a, b) => ("mul", operand(n, st, a, s), operand(n, st, b, s), None),
-                HwOp::Recip(a) => ("recip", operand(n, st, a, s), String::new(), None),
+                HwOp::Recip(a) => {
+                    let from = st.stage[a.0 as usize];
+                    ("recip", operand(n, st, a, from + 1), String::new(), None)
+                }
                 HwOp::Port(_) | HwOp::Const(_) => unreachable!("operations only"),
             };
-            let sub = sub.map_or(String::new(), |s| format!(", .sub({s})"));
+            let sub = match (op, sub) {
+                (HwOp::Recip(_), _) => ", .clk(clk)".to_string(),
+                (_, Some(s)) => format!(", .sub({s})"),
+                (_, None) => String::new(),
+            };
             let b = if b.is_empty() { b } else { format!(", .b({b})") };
             let _ =
                 writeln!(v, "    {}_{cell} u{i} (.a({a}){b}{sub}, .y(n{i}), .ovf(o{i}));", n.top);
@@ -235,10 +286,10 @@ mod tests {
             Mul(HwId(3), HwId(4)),
             Neg(HwId(5)),
         ]);
-        assert_eq!(Stages::new(&dp, 4).slowest_path(&dp), ["mul", "add", "mul", "add"]);
+        assert_eq!(Stages::new(&dp, 4, 25).slowest_path(&dp), ["mul", "add", "mul", "add"]);
         // Two levels per stage: the chain is cut by a register after the first add.
-        assert_eq!(Stages::new(&dp, 2).slowest_path(&dp), ["mul", "add"]);
-        assert_eq!(Stages::new(&dp, 1).slowest_path(&dp), ["mul"]);
+        assert_eq!(Stages::new(&dp, 2, 25).slowest_path(&dp), ["mul", "add"]);
+        assert_eq!(Stages::new(&dp, 1, 25).slowest_path(&dp), ["mul"]);
     }
 
     #[test]
@@ -252,13 +303,13 @@ mod tests {
             Add(HwId(4), HwId(1)),
             Sub(HwId(5), HwId(2)),
         ]);
-        assert_eq!(Stages::new(&dp, 4).slowest_path(&dp), ["add", "add", "add", "add"]);
+        assert_eq!(Stages::new(&dp, 4, 25).slowest_path(&dp), ["add", "add", "add", "add"]);
         // Two levels: the lone product outweighs two adders in series.
-        assert_eq!(Stages::new(&dp, 2).slowest_path(&dp), ["mul"]);
+        assert_eq!(Stages::new(&dp, 2, 25).slowest_path(&dp), ["mul"]);
     }
 
     #[test]
-    fn a_divider_outweighs_a_chain_of_multipliers() {
+    fn a_divider_has_stages_of_its_own() {
         use HwOp::*;
         let dp = datapath(vec![
             Mul(HwId(0), HwId(1)),
@@ -268,11 +319,21 @@ mod tests {
             Recip(HwId(5)),
             Add(HwId(4), HwId(6)),
         ]);
-        // Stage one holds the three products and add-then-divide; the final add is level 4.
-        assert_eq!(Stages::new(&dp, 4).slowest_path(&dp), ["add", "recip", "add"]);
-        // Three levels: the final add is cut off, and the divider still outweighs the three
-        // products; one level: the divider alone.
-        assert_eq!(Stages::new(&dp, 3).slowest_path(&dp), ["add", "recip"]);
-        assert_eq!(Stages::new(&dp, 1).slowest_path(&dp), ["recip"]);
+        // 24 restoring steps (a 25-bit format), 12 per stage at four levels: two stages,
+        // after its operand's; the sum reading it starts the next.
+        let st = Stages::new(&dp, 4, 25);
+        assert_eq!(st.divider_stages, 2);
+        assert_eq!(st.stage, [0, 0, 1, 1, 1, 1, 3, 4]);
+        // The divisor is registered once (read in stage 2); the quotient once.
+        assert_eq!((st.last[5], st.last[6]), (2, 4));
+        // Values: the two ports once; node 4 at the ends of stages 1 to 3; nodes 5, 6 and 7
+        // (the output) once; the divider's remainder, divisor and quotient once.
+        assert_eq!(st.registers(&dp), 1 + 1 + 3 + 1 + 1 + 1 + 3);
+        // The divider's stage (12 steps) outweighs three products (nine adders).
+        assert_eq!(st.slowest_path(&dp), ["recip"]);
+        // One level per stage: three steps each, eight stages; a product outweighs them.
+        let st = Stages::new(&dp, 1, 25);
+        assert_eq!((st.divider_stages, st.stage[6], st.count), (8, 9, 10));
+        assert_eq!(st.slowest_path(&dp), ["mul"]);
     }
 }
