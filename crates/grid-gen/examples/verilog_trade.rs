@@ -109,9 +109,10 @@ fn main() {
         };
         let (muls, adds) = dp.op_counts();
         println!("{robot} rnea_grad: {muls} multipliers ({} by a constant), {adds} adders pipelined; {} per link", dp.constant_muls(), muls / nv);
+        // rnea_grad does not divide, so the width (which sets the divider's stages) is not read.
         let cycles: Vec<String> = [8, 32, 128]
             .iter()
-            .map(|&k| format!("M=A={k}: {}", SharedSchedule::new(&dp, k, k).cycles + 1))
+            .map(|&k| format!("M=A={k}: {}", SharedSchedule::new(&dp, k, k, 32).cycles + 1))
             .collect();
         println!("  shared cycles per state: {}", cycles.join(", "));
         println!(

@@ -14,14 +14,23 @@ pub fn literal(raw: i128, width: u32) -> String {
     format!("{width}'sh{:x}", raw as u128 & mask)
 }
 
+/// Clock stages of a pipelined divider in a `width`-bit format: its `width - 1` restoring
+/// steps, `3 * stage_depth` per stage. A step is a subtraction and a select, about an
+/// adder, so a stage of them weighs what `stage_depth` multipliers do (a multiplier
+/// weighs three adders: `pipelined::Stages::slowest_path`).
+pub fn divider_stages(width: u32, stage_depth: u32) -> u32 {
+    width.saturating_sub(1).div_ceil(3 * stage_depth).max(1)
+}
+
 /// How a netlist divides (`<top>_recip`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Divider {
     /// No reciprocal.
     None,
-    /// One combinational divider (the shared architecture's unit).
+    /// One combinational divider: no netlist uses it; it is the reference the pipelined
+    /// one is simulated against.
     Combinational,
-    /// A divider pipelined over this many clock stages (the pipelined architecture).
+    /// A divider pipelined over this many clock stages (every netlist that divides).
     Pipelined(u32),
 }
 

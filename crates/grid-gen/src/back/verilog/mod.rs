@@ -173,12 +173,12 @@ pub struct NetlistStats {
     /// coordinate; shared: one).
     #[serde(skip_serializing_if = "is_zero")]
     pub dividers: usize,
-    /// Pipelined, with dividers: the clock stages each divider spans
-    /// ([`Stages::divider_stages`]).
+    /// With dividers: the clock stages each divider spans ([`Stages::divider_stages`],
+    /// [`SharedSchedule::divider_stages`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub divider_stages: Option<u32>,
-    /// Data registers (each WIDTH bits), control excluded; a pipelined divider's remainder,
-    /// divisor and partial quotient count as three at each boundary inside it.
+    /// Data registers (each WIDTH bits), control excluded; a divider's remainder, divisor
+    /// and partial quotient count as three at each boundary inside it.
     pub registers: usize,
     /// Clock edges from the edge that takes a state to the one that raises `out_valid`.
     pub latency_cycles: usize,
@@ -459,7 +459,7 @@ fn netlist(
 fn layout_of(datapath: &Datapath, arch: Arch, width: u32) -> Layout {
     match arch {
         Arch::Shared { multipliers, adders } => {
-            Layout::Shared(SharedSchedule::new(datapath, multipliers, adders))
+            Layout::Shared(SharedSchedule::new(datapath, multipliers, adders, width))
         }
         Arch::Pipelined { stage_depth } => {
             Layout::Pipelined(Stages::new(datapath, stage_depth, width))
@@ -531,9 +531,15 @@ impl Netlist {
             latency_cycles,
             cycles_per_state,
         ) = match &self.layout {
-            Layout::Shared(s) => {
-                (s.multipliers, 0, s.adders, s.dividers, s.registers, s.cycles + 1, s.cycles + 1)
-            }
+            Layout::Shared(s) => (
+                s.multipliers,
+                0,
+                s.adders,
+                s.dividers,
+                s.registers + s.dividers * 3 * (s.divider_stages as usize - 1),
+                s.cycles + 1,
+                s.cycles + 1,
+            ),
             Layout::Pipelined(st) => (
                 muls,
                 dp.constant_muls(),
@@ -563,8 +569,9 @@ impl Netlist {
             adders,
             dividers,
             divider_stages: match &self.layout {
-                Layout::Pipelined(st) if dividers > 0 => Some(st.divider_stages),
-                _ => None,
+                _ if dividers == 0 => None,
+                Layout::Pipelined(st) => Some(st.divider_stages),
+                Layout::Shared(s) => Some(s.divider_stages),
             },
             registers,
             latency_cycles,
@@ -604,7 +611,7 @@ impl Netlist {
         let divider = match (&self.layout, self.datapath.reciprocals()) {
             (_, 0) => Divider::None,
             (Layout::Pipelined(st), _) => Divider::Pipelined(st.divider_stages),
-            (Layout::Shared(_), _) => Divider::Combinational,
+            (Layout::Shared(s), _) => Divider::Pipelined(s.divider_stages),
         };
         out.push_str(&cells::cells(&self.top, &self.format, divider));
         match &self.layout {

@@ -9,7 +9,7 @@
 
 use std::fmt::Write;
 
-use super::cells::literal;
+use super::cells::{divider_stages, literal};
 use super::Netlist;
 use crate::datapath::{Datapath, HwId, HwOp};
 
@@ -18,8 +18,7 @@ use crate::datapath::{Datapath, HwId, HwOp};
 pub struct Stages {
     /// Levels of dependence depth per stage.
     pub stage_depth: u32,
-    /// Stages one reciprocal spans: its `WIDTH - 1` restoring steps, at most
-    /// [`Stages::steps_per_stage`] of them per stage.
+    /// Stages one reciprocal spans ([`super::cells::divider_stages`]).
     pub divider_stages: u32,
     /// 0 for ports and constants; a reciprocal's last stage.
     pub stage: Vec<u32>,
@@ -31,17 +30,9 @@ pub struct Stages {
 }
 
 impl Stages {
-    /// A divider's restoring steps per stage: a step is a subtraction and a select, about
-    /// an adder, so a stage of them weighs what `stage_depth` multipliers do (three adders
-    /// each, see [`Stages::slowest_path`]).
-    pub fn steps_per_stage(stage_depth: u32) -> u32 {
-        3 * stage_depth
-    }
-
     /// Stages for `dp` in a format `width` bits wide (which sets the divider's steps).
     pub fn new(dp: &Datapath, stage_depth: u32, width: u32) -> Stages {
-        let divider_stages =
-            (width.saturating_sub(1)).div_ceil(Self::steps_per_stage(stage_depth)).max(1);
+        let divider_stages = divider_stages(width, stage_depth);
         // Levels of dependence depth, a reciprocal's ending its last stage.
         let mut level = vec![0u32; dp.nodes.len()];
         let mut stage = vec![0u32; dp.nodes.len()];
@@ -112,7 +103,8 @@ impl Stages {
             _ => "add",
         };
         let weight = |op: &HwOp| match op {
-            HwOp::Recip(_) => u64::from(Self::steps_per_stage(self.stage_depth)),
+            // Its stages' restoring steps, an adder each.
+            HwOp::Recip(_) => 3 * u64::from(self.stage_depth),
             HwOp::Mul(..) => 3,
             _ => 1,
         };

@@ -1,6 +1,7 @@
 //! The shared architecture's schedule: a cycle-by-cycle list schedule of the datapath on
 //! M multipliers and A adders, and one divider where the datapath has reciprocals (every
-//! operation one cycle, results registered), priority
+//! operation one cycle but a reciprocal, which the pipelined divider returns
+//! `divider_stages` cycles after it takes its operand; results registered), priority
 //! to the longest path to an output, then register allocation by live interval so that
 //! a register is reused once its value's last reader has run.
 
@@ -26,19 +27,31 @@ pub struct SharedSchedule {
     pub adders: usize,
     /// 1 where the datapath has reciprocals, else 0.
     pub dividers: usize,
+    /// Cycles from a reciprocal's operand to its result's register: the divider's stages
+    /// at one multiplier's delay each ([`super::cells::divider_stages`] at depth 1), as
+    /// the clock is one multiplication behind the operand multiplexers.
+    pub divider_stages: u32,
     /// Cycles of computation per state (the load cycle excluded).
     pub cycles: usize,
-    /// (cycle, unit) of each operation; `None` for ports and constants.
+    /// (cycle, unit) of each operation, the cycle it takes its operands; `None` for ports
+    /// and constants. Its result is written at the end of that cycle, or of
+    /// [`SharedSchedule::done`]'s for a reciprocal.
     pub slot: Vec<Option<(usize, Unit)>>,
     /// Register of each port and operation; `None` for constants.
     pub reg: Vec<Option<usize>>,
-    /// Data registers.
+    /// Data registers of the register file (the divider's own are inside its cell).
     pub registers: usize,
 }
 
 impl SharedSchedule {
-    pub fn new(dp: &Datapath, multipliers: usize, adders: usize) -> SharedSchedule {
+    /// The schedule of `dp` in a `width`-bit format (which sets the divider's stages).
+    pub fn new(dp: &Datapath, multipliers: usize, adders: usize, width: u32) -> SharedSchedule {
         let n = dp.nodes.len();
+        let divider_stages = super::cells::divider_stages(width, 1);
+        let latency = |i: usize| match dp.nodes[i] {
+            HwOp::Recip(_) => divider_stages as usize,
+            _ => 1,
+        };
         let mut users: Vec<Vec<usize>> = vec![Vec::new(); n];
         let mut waiting = vec![0usize; n];
         for (i, op) in dp.nodes.iter().enumerate() {
@@ -49,11 +62,11 @@ impl SharedSchedule {
                 }
             }
         }
-        // Longest path (in operations) from each node to the end.
+        // Longest path (in cycles) from each node to the end.
         let mut height = vec![0usize; n];
         for i in (0..n).rev() {
             if dp.nodes[i].is_operation() {
-                height[i] = 1 + users[i].iter().map(|&u| height[u]).max().unwrap_or(0);
+                height[i] = latency(i) + users[i].iter().map(|&u| height[u]).max().unwrap_or(0);
             }
         }
         let mut ready: [BinaryHeap<(usize, Reverse<usize>)>; 3] =
@@ -70,11 +83,21 @@ impl SharedSchedule {
             }
         }
         let mut slot = vec![None; n];
+        // The first cycle each operation's operands are all in registers, and the
+        // operations whose operands are scheduled but not yet all written.
+        let mut earliest = vec![0usize; n];
+        let mut pending: Vec<usize> = Vec::new();
         let mut left = dp.nodes.iter().filter(|o| o.is_operation()).count();
         let mut cycle = 0;
         let units = [multipliers, adders, dividers];
         while left > 0 {
-            let mut next = Vec::new();
+            pending.retain(|&s| {
+                let now = earliest[s] <= cycle;
+                if now {
+                    ready[kind(s)].push((height[s], Reverse(s)));
+                }
+                !now
+            });
             for (k, heap) in ready.iter_mut().enumerate() {
                 for u in 0..units[k] {
                     let Some((_, Reverse(i))) = heap.pop() else { break };
@@ -82,19 +105,19 @@ impl SharedSchedule {
                     slot[i] = Some((cycle, unit));
                     left -= 1;
                     for &s in &users[i] {
+                        earliest[s] = earliest[s].max(cycle + latency(i));
                         waiting[s] -= 1;
                         if waiting[s] == 0 {
-                            next.push(s);
+                            pending.push(s);
                         }
                     }
                 }
             }
-            for s in next {
-                ready[kind(s)].push((height[s], Reverse(s)));
-            }
             cycle += 1;
         }
-        let cycles = cycle.max(1);
+        // The cycle after the last result is written.
+        let cycles =
+            (0..n).filter_map(|i| slot[i].map(|(c, _)| c + latency(i))).max().unwrap_or(0).max(1);
 
         // Live intervals: defined at the end of its cycle (ports: on the load edge, -1),
         // last read in the cycle of its last user; outputs are held to the end.
@@ -112,7 +135,7 @@ impl SharedSchedule {
         let def = |i: usize| -> isize {
             match (dp.nodes[i], slot[i]) {
                 (HwOp::Port(_), _) => -1,
-                (_, Some((c, _))) => c as isize,
+                (_, Some((c, _))) => (c + latency(i) - 1) as isize,
                 _ => unreachable!("constants are not allocated"),
             }
         };
@@ -138,7 +161,25 @@ impl SharedSchedule {
             // A value nobody reads (a port only sin/cos would have used) frees at once.
             free.push(Reverse((last_use[i].max(d), r)));
         }
-        SharedSchedule { multipliers, adders, dividers, cycles, slot, reg, registers }
+        SharedSchedule {
+            multipliers,
+            adders,
+            dividers,
+            divider_stages,
+            cycles,
+            slot,
+            reg,
+            registers,
+        }
+    }
+
+    /// The cycle at whose end operation `i` (scheduled) writes its result.
+    pub fn done(&self, dp: &Datapath, i: usize) -> Option<usize> {
+        let (c, _) = self.slot[i]?;
+        Some(match dp.nodes[i] {
+            HwOp::Recip(_) => c + self.divider_stages as usize - 1,
+            _ => c,
+        })
     }
 }
 
@@ -164,7 +205,7 @@ mod tests {
 
     #[test]
     fn one_multiplier_serialises_the_products() {
-        let s = SharedSchedule::new(&graph(), 1, 1);
+        let s = SharedSchedule::new(&graph(), 1, 1, 16);
         assert_eq!(s.cycles, 4);
         let c = |i: usize| s.slot[i].unwrap().0;
         assert_ne!(c(3), c(4));
@@ -173,11 +214,35 @@ mod tests {
 
     #[test]
     fn registers_are_reused_after_the_last_read() {
-        let s = SharedSchedule::new(&graph(), 2, 1);
+        let s = SharedSchedule::new(&graph(), 2, 1, 16);
         assert_eq!(s.cycles, 3);
         // Ports (2 registers) die in cycle 0 when both products read them, so the
         // products reuse them; the sum and the negation reuse again.
         assert_eq!(s.registers, 2);
         assert!(s.reg[2].is_none());
+    }
+
+    #[test]
+    fn a_reciprocals_readers_wait_for_the_divider() {
+        use HwOp::*;
+        let nodes = vec![
+            Port(0),
+            Port(1),
+            Add(HwId(0), HwId(1)),
+            Recip(HwId(2)),
+            Mul(HwId(3), HwId(1)),
+            Mul(HwId(0), HwId(1)),
+            Add(HwId(4), HwId(5)),
+        ];
+        let dp = Datapath::for_test(nodes, HwId(6));
+        // 15 restoring steps at three per stage.
+        let s = SharedSchedule::new(&dp, 1, 1, 16);
+        assert_eq!(s.divider_stages, 5);
+        let c = |i: usize| s.slot[i].unwrap().0;
+        assert_eq!((c(2), c(3)), (0, 1));
+        // Written at the end of cycle 5, read from cycle 6; the other product fills cycle 0.
+        assert_eq!(s.done(&dp, 3), Some(5));
+        assert_eq!((c(4), c(5), c(6)), (6, 0, 7));
+        assert_eq!(s.cycles, 8);
     }
 }

@@ -58,17 +58,22 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
                 let _ = writeln!(v, "    reg {m}_s;\n    {}_add u{m} (.a({m}_a), .b({m}_b), .sub({m}_s), .y({m}_y), .ovf({m}_o));", n.top);
             }
             Unit::Div(_) => {
-                let _ =
-                    writeln!(v, "    {}_recip u{m} (.a({m}_a), .y({m}_y), .ovf({m}_o));", n.top);
+                let _ = writeln!(
+                    v,
+                    "    {}_recip u{m} (.clk(clk), .a({m}_a), .y({m}_y), .ovf({m}_o));",
+                    n.top
+                );
             }
         }
     }
 
-    // Operations by cycle.
+    // Operations by the cycle they take their operands, and by the cycle they write.
     let mut by_cycle: Vec<Vec<(usize, Unit)>> = vec![Vec::new(); s.cycles];
+    let mut writes: Vec<Vec<(usize, Unit)>> = vec![Vec::new(); s.cycles];
     for (i, slot) in s.slot.iter().enumerate() {
         if let Some((c, u)) = slot {
             by_cycle[*c].push((i, *u));
+            writes[s.done(dp, i).expect("scheduled")].push((i, *u));
         }
     }
 
@@ -122,13 +127,24 @@ pub fn top(n: &Netlist, s: &SharedSchedule) -> String {
         }
     }
     let _ = writeln!(v, "                end\n            end else begin");
-    let flags: Vec<String> = units.iter().map(|&u| format!("{}_o", unit_name(u))).collect();
+    // Idle multipliers and adders see zeros, so their flags count every cycle; the
+    // divider's pipeline holds other cycles' operands, so its flag counts only with the
+    // result it belongs to.
+    let flags: Vec<String> = units
+        .iter()
+        .filter(|u| !matches!(u, Unit::Div(_)))
+        .map(|&u| format!("{}_o", unit_name(u)))
+        .collect();
     let _ = writeln!(v, "                ovf <= ovf | {};", flags.join(" | "));
     let _ = writeln!(v, "                case (cyc)");
-    for (c, ops) in by_cycle.iter().enumerate() {
+    for (c, ops) in writes.iter().enumerate() {
         let _ = write!(v, "                    {counter_bits}'d{c}: begin");
         for &(i, u) in ops {
-            let _ = write!(v, " r{} <= {}_y;", s.reg[i].expect("allocated"), unit_name(u));
+            let m = unit_name(u);
+            let _ = write!(v, " r{} <= {m}_y;", s.reg[i].expect("allocated"));
+            if matches!(u, Unit::Div(_)) {
+                let _ = write!(v, " if ({m}_o) ovf <= 1'b1;");
+            }
         }
         let _ = writeln!(v, " end");
     }
