@@ -20,6 +20,8 @@ pub struct Stages {
     pub stage_depth: u32,
     /// Stages one reciprocal spans ([`super::cells::divider_stages`]).
     pub divider_stages: u32,
+    /// The most restoring steps in one of them (the format's WIDTH - 1 split evenly).
+    pub divider_steps: u32,
     /// 0 for ports and constants; a reciprocal's last stage.
     pub stage: Vec<u32>,
     /// Stages after the input registers (at least 1).
@@ -68,7 +70,8 @@ impl Stages {
                 last[i] = stage[i];
             }
         }
-        Stages { stage_depth, divider_stages, stage, count, last }
+        let divider_steps = width.saturating_sub(1).div_ceil(divider_stages);
+        Stages { stage_depth, divider_stages, divider_steps, stage, count, last }
     }
 
     /// The stage in which `op`, computed in stage `at`, reads an operand computed in stage
@@ -94,7 +97,8 @@ impl Stages {
     /// chain is slowest is judged by a multiplier weighing three adders and a divider's
     /// stage as many adders as it has restoring steps: on ECP5, nextpnr-ecp5 put one 49-bit
     /// multiplier between registers at 18.8 ns, one adder at 5.4 ns and four adders in
-    /// series at 21.1 ns. A divider is alone between its stages' registers, so `"recip"`
+    /// series at 21.1 ns; at 78 bits, four multipliers in series at 153 ns and a divider of
+    /// 11 steps a stage at 114 ns. A divider is alone between its stages' registers, so `"recip"`
     /// stands for the whole pipelined divider, whose slowest stage is its first.
     pub fn slowest_path(&self, dp: &Datapath) -> Vec<&'static str> {
         let cell = |op: &HwOp| match op {
@@ -103,8 +107,8 @@ impl Stages {
             _ => "add",
         };
         let weight = |op: &HwOp| match op {
-            // Its stages' restoring steps, an adder each.
-            HwOp::Recip(_) => 3 * u64::from(self.stage_depth),
+            // Its slowest stage's restoring steps, an adder each.
+            HwOp::Recip(_) => u64::from(self.divider_steps),
             HwOp::Mul(..) => 3,
             _ => 1,
         };
@@ -314,7 +318,7 @@ mod tests {
         // 24 restoring steps (a 25-bit format), 12 per stage at four levels: two stages,
         // after its operand's; the sum reading it starts the next.
         let st = Stages::new(&dp, 4, 25);
-        assert_eq!(st.divider_stages, 2);
+        assert_eq!((st.divider_stages, st.divider_steps), (2, 12));
         assert_eq!(st.stage, [0, 0, 1, 1, 1, 1, 3, 4]);
         // The divisor is registered once (read in stage 2); the quotient once.
         assert_eq!((st.last[5], st.last[6]), (2, 4));
