@@ -131,7 +131,11 @@ impl Stages {
             }
             best[i] = before + weight(op);
         }
-        let Some(end) = (0..dp.nodes.len()).max_by_key(|&i| (best[i], std::cmp::Reverse(i))) else {
+        // At equal weight a chain of operations goes first: four 78-bit multipliers placed
+        // slower than a divider's stage of twelve steps' weight.
+        let Some(end) = (0..dp.nodes.len()).max_by_key(|&i| {
+            (best[i], !matches!(dp.nodes[i], HwOp::Recip(_)), std::cmp::Reverse(i))
+        }) else {
             return Vec::new();
         };
         if best[end] == 0 {
@@ -327,7 +331,8 @@ mod tests {
         assert_eq!(st.registers(&dp), 1 + 1 + 3 + 1 + 1 + 1 + 3);
         // The divider's stage (12 steps) outweighs three products (nine adders).
         assert_eq!(st.slowest_path(&dp), ["recip"]);
-        // One level per stage: three steps each, eight stages; a product outweighs them.
+        // One level per stage: three steps each, eight stages; a product weighs as much and
+        // goes first.
         let st = Stages::new(&dp, 1, 25);
         assert_eq!((st.divider_stages, st.stage[6], st.count), (8, 9, 10));
         assert_eq!(st.slowest_path(&dp), ["mul"]);
