@@ -337,4 +337,14 @@ mod tests {
         assert_eq!((st.divider_stages, st.stage[6], st.count), (8, 9, 10));
         assert_eq!(st.slowest_path(&dp), ["mul"]);
     }
+
+    #[test]
+    fn at_equal_weight_the_path_is_the_operations() {
+        use HwOp::*;
+        // A divider of three steps a stage (a 10-bit format at one level) before a product.
+        let dp = datapath(vec![Recip(HwId(0)), Mul(HwId(0), HwId(1)), Add(HwId(2), HwId(3))]);
+        let st = Stages::new(&dp, 1, 10);
+        assert_eq!((st.divider_stages, st.divider_steps), (3, 3));
+        assert_eq!(st.slowest_path(&dp), ["mul"]);
+    }
 }
