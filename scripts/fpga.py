@@ -9,7 +9,9 @@ and the latency in microseconds. A pipelined netlist, too large to place whole, 
 estimate of its slowest stage path (`info --json`'s `stage_path`: the chain of cells
 between two of its registers that sets its clock) placed alone between registers: the
 clock it would run at if it fitted, ignoring routing across the whole design and the
-stage's overflow OR. Prints a markdown table.
+stage's overflow OR. A path `recip` is the netlist's whole pipelined divider, placed with
+its own registers (its slowest stage sets the estimate; 16 minutes of placement for the
+iiwa's 78-bit divider). Prints a markdown table.
 
 The shared netlists are synthesised whole (flattened, as nextpnr needs). A pipelined
 netlist is every operation its own unit: its counts are its two cells' (each synthesised
