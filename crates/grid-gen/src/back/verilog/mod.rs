@@ -679,9 +679,12 @@ impl Netlist {
                 h.push_str(&format!("// Architecture: shared, {multipliers} multipliers and {adders} adders; one state every {} clocks.\n", s.cycles_per_state))
             }
         }
-        let dividers = match s.dividers {
-            0 => String::new(),
-            d => format!(", {d} dividers"),
+        let dividers = match (s.dividers, s.divider_stages) {
+            (0, _) | (_, None) => String::new(),
+            (d, Some(k)) => {
+                let plural = if d == 1 { "" } else { "s" };
+                format!(", {d} divider{plural} pipelined over {k} stages")
+            }
         };
         h.push_str(&format!(
             "// Units: {} multipliers ({} by a constant), {} adders{dividers}, {} data registers.\n",
