@@ -48,10 +48,7 @@ impl SharedSchedule {
     pub fn new(dp: &Datapath, multipliers: usize, adders: usize, width: u32) -> SharedSchedule {
         let n = dp.nodes.len();
         let divider_stages = super::cells::divider_stages(width, 1);
-        let latency = |i: usize| match dp.nodes[i] {
-            HwOp::Recip(_) => divider_stages as usize,
-            _ => 1,
-        };
+        let latency = |i: usize| latency(&dp.nodes[i], divider_stages);
         let mut users: Vec<Vec<usize>> = vec![Vec::new(); n];
         let mut waiting = vec![0usize; n];
         for (i, op) in dp.nodes.iter().enumerate() {
@@ -176,10 +173,15 @@ impl SharedSchedule {
     /// The cycle at whose end operation `i` (scheduled) writes its result.
     pub fn done(&self, dp: &Datapath, i: usize) -> Option<usize> {
         let (c, _) = self.slot[i]?;
-        Some(match dp.nodes[i] {
-            HwOp::Recip(_) => c + self.divider_stages as usize - 1,
-            _ => c,
-        })
+        Some(c + latency(&dp.nodes[i], self.divider_stages) - 1)
+    }
+}
+
+/// Cycles from an operation's operands to its result's register.
+fn latency(op: &HwOp, divider_stages: u32) -> usize {
+    match op {
+        HwOp::Recip(_) => divider_stages as usize,
+        _ => 1,
     }
 }
 
