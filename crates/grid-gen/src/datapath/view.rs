@@ -389,18 +389,6 @@ impl Datapath {
         out
     }
 
-    /// Dependence depth of each node: 0 for ports and constants, else one more than its
-    /// deepest operand.
-    pub fn depths(&self) -> Vec<u32> {
-        let mut depth = vec![0u32; self.nodes.len()];
-        for (i, op) in self.nodes.iter().enumerate() {
-            if op.is_operation() {
-                depth[i] = 1 + op.operands().map(|a| depth[a.0 as usize]).max().unwrap_or(0);
-            }
-        }
-        depth
-    }
-
     /// (multiplications, additions/subtractions/negations).
     pub fn op_counts(&self) -> (usize, usize) {
         let muls = self.nodes.iter().filter(|o| o.is_mul()).count();

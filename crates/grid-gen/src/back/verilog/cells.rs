@@ -22,6 +22,12 @@ pub fn divider_stages(width: u32, stage_depth: u32) -> u32 {
     width.saturating_sub(1).div_ceil(3 * stage_depth).max(1)
 }
 
+/// Data registers (of WIDTH bits, about) inside `dividers` dividers of `stages` stages:
+/// the remainder, the divisor and the partial quotient at each inner boundary.
+pub fn divider_registers(dividers: usize, stages: u32) -> usize {
+    dividers * 3 * (stages as usize).saturating_sub(1)
+}
+
 /// How a netlist divides (`<top>_recip`).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Divider {

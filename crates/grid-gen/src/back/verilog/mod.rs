@@ -536,7 +536,7 @@ impl Netlist {
                 0,
                 s.adders,
                 s.dividers,
-                s.registers + s.dividers * 3 * (s.divider_stages as usize - 1),
+                s.registers + cells::divider_registers(s.dividers, s.divider_stages),
                 s.cycles + 1,
                 s.cycles + 1,
             ),

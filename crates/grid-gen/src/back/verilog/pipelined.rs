@@ -9,7 +9,7 @@
 
 use std::fmt::Write;
 
-use super::cells::{divider_stages, literal};
+use super::cells::{divider_registers, divider_stages, literal};
 use super::Netlist;
 use crate::datapath::{Datapath, HwId, HwOp};
 
@@ -88,7 +88,7 @@ impl Stages {
     pub fn registers(&self, dp: &Datapath) -> usize {
         let values: usize =
             self.stage.iter().zip(&self.last).map(|(s, l)| l.saturating_sub(*s) as usize).sum();
-        values + dp.reciprocals() * 3 * (self.divider_stages as usize - 1)
+        values + divider_registers(dp.reciprocals(), self.divider_stages)
     }
 
     /// The cells along the slowest chain of operations between two register boundaries, in
