@@ -14,9 +14,18 @@ with M for rnea; `fd_grad` with M^-1 for fd; `step_grad`'s A and B for step), ne
 differentiating through the kernels. A robot with contacts: `rnea` and `fd` take the contact
 forces as a fourth argument, `lam` (their rules pull back through `dc_dlambda`,
 `dqdd_dlambda`), and `step` returns `(q_next, qd_next, lam)`, the step's contact forces,
-whose cotangent its rule pulls back through `dlambda_dx` and `dlambda_du`. External forces,
-a contact mask, Baumgarte's inputs and a run-time dt are not covered (the kernels that take
-them are not wrapped: `step` is None).
+whose cotangent its rule pulls back through `dlambda_dx` and `dlambda_du`.
+
+A robot loaded with a run-time dt or a contact mask (`load(..., contact_mask=True)`, a step
+without `dt=`): `step(q, qd, tau, dt=None, active=None)`. `dt` is a scalar or one per state
+(the leading axes of q), and its cotangent is exact: semi-implicit Euler's x+ moves with dt
+by q̈ = (qd+ − qd)/dt in qd+ and by integrate's differential applied to qd+ + dt q̈ in q+
+(a floating base needs the `dintegrate` kernel for it; fixed joints' is the identity). The
+step's λ does not depend on dt. `active` is one bool per candidate contact (default: all
+hold), the same for every state or one row per state; any nonzero entry holds. A mask is
+discrete, so its cotangent is zero. Under `jit`, values cannot be checked: a dt that is
+not positive is stepped as given (the plain kernels raise on it). External forces and
+Baumgarte's inputs are not covered (a step that takes them is not wrapped: `step` is None).
 
 Each call is an XLA FFI custom call (`jax.ffi.ffi_call`, `vmap_method="broadcast_all"`): one
 small C++ handler, compiled once with the local C++ compiler against jaxlib's headers and
@@ -151,6 +160,10 @@ class Functions:
                 f"(nq {robot.nq}, nv {robot.nv}), whose quaternions it does not map onto the tangent space"
             )
         missing = [k for k in ("rnea", "rnea_grad", "mass_matrix", "fd", "fd_grad", "minv") if k not in robot.kernels]
+        stepped = "step" in robot.kernels and "step_grad" in robot.kernels
+        if stepped and floating and "dt" in dict(robot.step.inputs) and "dintegrate" not in robot.kernels:
+            # dt's cotangent moves q+ by integrate's differential (see the module doc).
+            missing.append("dintegrate")
         if missing:
             raise ValueError(f"grid_gen.jax needs the kernels {', '.join(missing)}; load the robot with them")
         contacts = bool(robot.contacts)
@@ -248,33 +261,81 @@ class Functions:
         self.rnea: Callable = differentiable("rnea", "rnea_grad", "mass_matrix", False, "dc_dlambda")
         self.fd: Callable = differentiable("fd", "fd_grad", "minv", True, "dqdd_dlambda")
         self.step: Optional[Callable] = None
-        if "step" in robot.kernels and "step_grad" in robot.kernels:
-            got = [n for n, _ in robot.step.inputs]
-            if got == ["q", "qd", "tau"]:
-                nv = robot.nv
+        names = [n for n, _ in robot.step.inputs] if stepped else []
+        if names[:3] == ["q", "qd", "tau"] and set(names[3:]) <= {"active", "dt"}:
+            nv = robot.nv
+            # The kernel's inputs after τ, in its order (the C ABI's): the mask, then dt.
+            extra = names[3:]
+            takes_dt, masked = "dt" in extra, "active" in extra
 
-                @jax.custom_vjp
-                def step(q, qd, tau):
-                    # With contacts, the step's λ at the knot follows: (q_next, qd_next, lam).
-                    return tuple(call("step", q, qd, tau))
+            @jax.custom_vjp
+            def step(q, qd, tau, *rest):
+                # With contacts, the step's λ at the knot follows: (q_next, qd_next, lam).
+                return tuple(call("step", q, qd, tau, *rest))
 
-                def step_fwd(q, qd, tau):
-                    out = call("step_grad", q, qd, tau)
-                    # (q_next, qd_next, A, B) and with contacts (lam, dlam_dx, dlam_du).
-                    value = (out[0], out[1]) + ((out[4],) if contacts else ())
-                    return value, (q, out[0], out[2], out[3], out[5:] if contacts else None)
+            def step_fwd(q, qd, tau, *rest):
+                out = call("step_grad", q, qd, tau, *rest)
+                # (q_next, qd_next, A, B) and with contacts (lam, dlam_dx, dlam_du).
+                value = (out[0], out[1]) + ((out[4],) if contacts else ())
+                return value, (q, qd, rest, out[0], out[1], out[2], out[3], out[5:] if contacts else None)
 
-                def step_bwd(res, g):
-                    q, q_next, a, b, dlam = res
-                    g_x = jnp.concatenate([v_cotangent(q_next, g[0]), g[1]], axis=-1)
-                    g_in, g_tau = vec_mat(g_x, a), vec_mat(g_x, b)
-                    if contacts:
-                        g_in = g_in + vec_mat(g[2], dlam[0])
-                        g_tau = g_tau + vec_mat(g[2], dlam[1])
-                    return q_cotangent(q, g_in[..., :nv]), g_in[..., nv:], g_tau
+            def step_bwd(res, g):
+                q, qd, rest, q_next, qd_next, a, b, dlam = res
+                g_qn = v_cotangent(q_next, g[0])
+                g_x = jnp.concatenate([g_qn, g[1]], axis=-1)
+                g_in, g_tau = vec_mat(g_x, a), vec_mat(g_x, b)
+                if contacts:
+                    g_in = g_in + vec_mat(g[2], dlam[0])
+                    g_tau = g_tau + vec_mat(g[2], dlam[1])
+                g_rest = []
+                for name, value in zip(extra, rest):
+                    if name == "active":
+                        g_rest.append(jnp.zeros_like(value))
+                        continue
+                    # qd+ = qd + dt q̈ and q+ = integrate(q, dt qd+): d qd+/d dt = q̈ and
+                    # d q+/d dt = J_v (qd+ + dt q̈) with J_v integrate's differential in v
+                    # (Pinocchio's dIntegrate ARG1, the identity on a fixed base's joints).
+                    # λ does not depend on dt. q̈ from the step's own values: f64 round-off
+                    # of |qd+| over dt, relative to |q̈|.
+                    qdd = (qd_next - qd) / value
+                    w = qd_next + value * qdd
+                    if floating:
+                        (_, j_v) = call("dintegrate", q, value * qd_next)
+                        w = jnp.einsum("...ij,...j->...i", j_v, w)
+                    g_dt = jnp.sum(g_qn * w, axis=-1) + jnp.sum(g[1] * qdd, axis=-1)
+                    g_rest.append(g_dt[..., None])
+                return (q_cotangent(q, g_in[..., :nv]), g_in[..., nv:], g_tau, *g_rest)
 
-                step.defvjp(step_fwd, step_bwd)
-                self.step = step
+            step.defvjp(step_fwd, step_bwd)
+            nc = len(robot.contacts)
+
+            def stepped_fn(q, qd, tau, dt=None, active=None):
+                dtype = jnp.dtype(robot.dtype)
+                args = [jnp.asarray(q, dtype), jnp.asarray(qd, dtype), jnp.asarray(tau, dtype)]
+                if takes_dt and dt is None:
+                    raise TypeError(f"{robot.name}'s step takes dt at run time: step(q, qd, tau, dt)")
+                if not takes_dt and dt is not None:
+                    raise TypeError(f"{robot.name}'s step has its dt folded in at load; it takes no dt")
+                if not masked and active is not None:
+                    raise TypeError(f"{robot.name}'s step holds every contact; load with contact_mask=True to choose them with active=")
+                rest = []
+                for name in extra:
+                    if name == "active":
+                        mask = jnp.ones((nc,), bool) if active is None else jnp.asarray(active)
+                        if mask.ndim < 1 or mask.shape[-1] != nc:
+                            raise ValueError(f"step: `active` has shape {mask.shape}; expected (..., {nc}), one per contact")
+                        # Any nonzero entry holds: the kernel reads exactly 1 or 0.
+                        rest.append(jnp.where(mask != 0, 1.0, 0.0).astype(dtype))
+                    else:
+                        h = jnp.asarray(dt, dtype)
+                        rest.append(h[..., None])
+                lead = jnp.broadcast_shapes(*(x.shape[:-1] for x in args + rest))
+                # Broadcast here, outside the custom_vjp, so that autodiff sums each
+                # input's cotangent over the axes it was broadcast along.
+                args = [jnp.broadcast_to(x, lead + x.shape[-1:]) for x in args + rest]
+                return step(*args)
+
+            self.step = stepped_fn if extra else step
 
 
 def wrap(robot: Robot, via: str = "ffi") -> Functions:
