@@ -98,6 +98,11 @@ def clock_estimate(nextpnr, json_path, timeout):
         print(f"nextpnr-ecp5 did not place {os.path.basename(json_path)} within {timeout} s", file=sys.stderr)
         return None
     found = re.findall(r"Max frequency for clock\s+'clk':\s+([\d.]+) MHz", out.stderr + out.stdout)
+    if not found:
+        # Say why, e.g. a stage path whose multipliers need more MULT18X18D than the part has.
+        errors = [l for l in (out.stderr + out.stdout).splitlines() if "ERROR" in l]
+        why = errors[-1].strip() if errors else f"exit status {out.returncode}, no clock in its report"
+        print(f"nextpnr-ecp5 gave no estimate for {os.path.basename(json_path)}: {why}", file=sys.stderr)
     return float(found[-1]) if found else None
 
 
