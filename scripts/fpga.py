@@ -178,7 +178,7 @@ def main():
                                     "--fd-grad-netlist", partition, *arch, *fixed, *depth], check=True,
                                    capture_output=True)
                     info = json.loads(subprocess.run(
-                        [CLI, "info", os.path.join(ROOT, robot), *base, "--json", *depth], check=True,
+                        [CLI, "info", os.path.join(ROOT, robot), *base, "--json", *depth, *fixed], check=True,
                         capture_output=True, text=True).stdout)
                     stats = {(v.get("partition") and "fd_grad_" + v["partition"] or v["kernel"], v["arch"]): v
                              for v in info["verilog"]}

@@ -165,6 +165,25 @@ struct VerilogArgs {
     tau_max: Option<f64>,
 }
 
+/// `--fixed`: `WIDTH.FRAC`, or `auto` (the narrowest format within `max_error`).
+fn format_choice(
+    fixed: &str,
+    max_error: f64,
+    rounding: grid_gen::datapath::Rounding,
+) -> Result<grid_gen::back::verilog::FormatChoice, String> {
+    use grid_gen::back::verilog::FormatChoice;
+    if fixed == "auto" {
+        return Ok(FormatChoice::Auto { max_error });
+    }
+    match grid_gen::datapath::Format::parse(fixed, rounding) {
+        Some(Ok(f)) => Ok(FormatChoice::Fixed { width: f.width, frac: f.frac }),
+        Some(Err(e)) => Err(format!("--fixed: {e}")),
+        None => {
+            Err(format!("--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{fixed}`"))
+        }
+    }
+}
+
 /// `--arch`: the Verilog architectures, whose sizes are their own flags.
 #[derive(clap::ValueEnum, Clone, Copy, PartialEq, Eq)]
 enum ArchChoice {
@@ -174,21 +193,8 @@ enum ArchChoice {
 
 impl VerilogArgs {
     fn options(&self) -> Result<grid_gen::back::verilog::VerilogOptions, String> {
-        use grid_gen::back::verilog::{Arch, FormatChoice, VerilogOptions};
-        let format = if self.fixed == "auto" {
-            FormatChoice::Auto { max_error: self.max_error }
-        } else {
-            match grid_gen::datapath::Format::parse(&self.fixed, self.rounding) {
-                Some(Ok(f)) => FormatChoice::Fixed { width: f.width, frac: f.frac },
-                Some(Err(e)) => return Err(format!("--fixed: {e}")),
-                None => {
-                    return Err(format!(
-                        "--fixed: expected WIDTH.FRAC such as 32.16, or auto; found `{}`",
-                        self.fixed
-                    ))
-                }
-            }
-        };
+        use grid_gen::back::verilog::{Arch, VerilogOptions};
+        let format = format_choice(&self.fixed, self.max_error, self.rounding)?;
         for (name, v) in [
             ("--qd-max", self.qd_max),
             ("--qdd-max", self.qdd_max),
@@ -441,9 +447,14 @@ enum Command {
         #[arg(long)]
         json: bool,
         /// The pipelined Verilog netlists' levels of dependence depth between registers,
-        /// as generation's --stage-depth (the other Verilog figures are at default options).
+        /// as generation's --stage-depth.
         #[arg(long, value_name = "K", default_value_t = grid_gen::back::verilog::DEFAULT_STAGE_DEPTH)]
         stage_depth: u32,
+        /// The Verilog netlists' number format, as generation's --fixed: `WIDTH.FRAC`, or
+        /// `auto` (the narrowest whose analysed error is within 1e-3). The other Verilog
+        /// figures are at default options.
+        #[arg(long, value_name = "WIDTH.FRAC|auto", default_value = "auto")]
+        fixed: String,
     },
     /// Evaluate the dynamics on states from a JSON file and print JSON.
     ///
@@ -746,6 +757,10 @@ fn run(cli: Cli) -> ExitCode {
                         cli.model.solve,
                         cli.model.calls,
                         verilog.stage_depth,
+                        match verilog.options() {
+                            Ok(v) => v.format,
+                            Err(e) => return fail(e),
+                        },
                     )
                     .to_text()
                         + &scene_lines(&loaded.scene)
@@ -763,8 +778,17 @@ fn run(cli: Cli) -> ExitCode {
             };
             write_generated(&loaded.model, &dir, &loaded.options(&config.options), check)
         }
-        Command::Info { urdf, json, stage_depth } => match load(&urdf, &cli.model) {
+        Command::Info { urdf, json, stage_depth, fixed } => match load(&urdf, &cli.model) {
             Ok((_, loaded)) => {
+                let default = grid_gen::back::verilog::VerilogOptions::default();
+                let format = match format_choice(
+                    &fixed,
+                    grid_gen::back::verilog::DEFAULT_MAX_ERROR,
+                    default.rounding,
+                ) {
+                    Ok(f) => f,
+                    Err(e) => return fail(e),
+                };
                 let info = Info::with_options(
                     &loaded.model,
                     loaded.gravity(),
@@ -772,6 +796,7 @@ fn run(cli: Cli) -> ExitCode {
                     cli.model.solve,
                     cli.model.calls,
                     stage_depth,
+                    format,
                 );
                 if json {
                     print(&(serde_json::to_string_pretty(&info).expect("info serialises") + "\n"))

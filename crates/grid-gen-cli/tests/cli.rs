@@ -135,6 +135,20 @@ fn info_json_has_the_documented_fields() {
         assert_eq!(b["stage_path"].as_array().unwrap().len(), 1, "{b}");
         assert!(b["registers"].as_u64() > a["registers"].as_u64(), "{a} vs {b}");
     }
+    // In the format asked for, every netlist: a wider one takes more divider stages (what
+    // scripts/fpga.py reads for a `--fixed` run).
+    let all = |v: &serde_json::Value| v["verilog"].as_array().unwrap().clone();
+    let wide = all(&json(&grid_gen(&["info", pendulum, "--json", "--fixed", "100.60"])));
+    let auto = all(&json(&grid_gen(&["info", pendulum, "--json"])));
+    assert!(!wide.is_empty() && wide.iter().all(|n| n["format"] == "100.60"), "{wide:?}");
+    let chip = |v: &[serde_json::Value]| {
+        let n = v.iter().find(|n| n["partition"] == "chip" && n["arch"] == "pipelined");
+        n.expect("a pipelined chip partition")["divider_stages"].as_u64().unwrap()
+    };
+    assert!(chip(&wide) > chip(&auto), "{} vs {}", chip(&wide), chip(&auto));
+    let bad = grid_gen(&["info", pendulum, "--fixed", "12.x"]);
+    assert!(!bad.status.success());
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("--fixed: expected WIDTH.FRAC"));
     let zero = grid_gen(&["info", pendulum, "--stage-depth", "0"]);
     assert!(String::from_utf8_lossy(&zero.stdout).contains("--stage-depth must be at least 1"));
     let panda = json(&grid_gen(&["info", "robots/panda.urdf", "--json"]));

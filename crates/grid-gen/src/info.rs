@@ -4,8 +4,8 @@
 use serde::Serialize;
 
 use crate::back::verilog::{
-    plan, Arch, FdGradPartition, NetlistStats, VerilogOptions, DEFAULT_ADDERS, DEFAULT_KERNELS,
-    DEFAULT_MULTIPLIERS, DEFAULT_STAGE_DEPTH,
+    plan, Arch, FdGradPartition, FormatChoice, NetlistStats, VerilogOptions, DEFAULT_ADDERS,
+    DEFAULT_KERNELS, DEFAULT_MAX_ERROR, DEFAULT_MULTIPLIERS, DEFAULT_STAGE_DEPTH,
 };
 use crate::back::wgsl::{emit_with_stats, EntryMeta, WgslOptions};
 use crate::ir::{self, KernelStats, Skipped};
@@ -147,8 +147,8 @@ pub struct Info {
     /// `rnea_grad` is over the node limit).
     pub gradient_costs: Vec<GradientCost>,
     /// The Verilog netlists `--backend verilog` builds with default options (format by
-    /// `--fixed auto --max-error 1e-3`), in both architectures: units, registers, cycles,
-    /// format and analysed error bound.
+    /// `--fixed auto --max-error 1e-3`, or `info --fixed`'s), in both architectures: units,
+    /// registers, cycles, format and analysed error bound.
     pub verilog: Vec<NetlistStats>,
     /// Why `verilog` is empty, when it is.
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -208,11 +208,13 @@ impl Info {
             ir::Solve::Auto,
             ir::Calls::Auto,
             DEFAULT_STAGE_DEPTH,
+            FormatChoice::Auto { max_error: DEFAULT_MAX_ERROR },
         )
     }
 
     /// The summary of the kernels generated with this gravity, gradient formulation, solve
-    /// and calls, and the pipelined Verilog netlists at this stage depth.
+    /// and calls, and the Verilog netlists in this format (the pipelined ones at this stage
+    /// depth).
     pub fn with_options(
         model: &Model,
         gravity: [f64; 3],
@@ -220,6 +222,7 @@ impl Info {
         solve: ir::Solve,
         calls: ir::Calls,
         stage_depth: u32,
+        format: FormatChoice,
     ) -> Self {
         let coordinates = model.coordinate_joints();
         let names = |set: &Option<Vec<usize>>| {
@@ -328,7 +331,7 @@ impl Info {
         }
         .with_ops(ir::stats(model, gravity, gradient, solve, ir::STATS_MAX_NODES))
         .with_gradient_costs(model, gravity)
-        .with_verilog(model, gravity, gradient, solve, stage_depth)
+        .with_verilog(model, gravity, gradient, solve, stage_depth, format)
         .with_wgsl(model, gravity, gradient, solve)
         .with_rust_size(model, gravity, gradient, solve, calls)
     }
@@ -447,6 +450,7 @@ impl Info {
         gradient: ir::Gradient,
         solve: ir::Solve,
         stage_depth: u32,
+        format: FormatChoice,
     ) -> Self {
         if let Some(k) = self.ops_skipped.iter().find(|k| DEFAULT_KERNELS.contains(&k.kernel)) {
             self.verilog_skipped =
@@ -481,9 +485,11 @@ impl Info {
                     Arch::Shared { multipliers: DEFAULT_MULTIPLIERS, adders: DEFAULT_ADDERS },
                 ];
                 for arch in archs {
-                    let netlists =
-                        plan(&module, &VerilogOptions { arch, ..VerilogOptions::default() })
-                            .map_err(|e| e.to_string())?;
+                    let netlists = plan(
+                        &module,
+                        &VerilogOptions { arch, format, ..VerilogOptions::default() },
+                    )
+                    .map_err(|e| e.to_string())?;
                     all.extend(netlists.iter().map(|n| n.stats()));
                 }
                 // fd_grad's partitions, where a format is found (a note says why not).
@@ -494,6 +500,7 @@ impl Info {
                     for arch in archs {
                         let options = VerilogOptions {
                             arch,
+                            format,
                             kernels: Vec::new(),
                             fd_grad: Some(partition),
                             ..VerilogOptions::default()
