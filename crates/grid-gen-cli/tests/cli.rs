@@ -678,8 +678,9 @@ fn what_a_new_user_tripped_over() {
 #[test]
 fn every_command_takes_only_its_own_flags() {
     let iiwa = "robots/grid_iiwa.urdf";
-    // A WGSL or Verilog setting means nothing to `info`: an error, not ignored.
-    for flag in [["--wgsl-workers", "7"], ["--fixed", "32.16"]] {
+    // A WGSL or Verilog setting means nothing to `info` (beyond its own --stage-depth and
+    // --fixed): an error, not ignored.
+    for flag in [["--wgsl-workers", "7"], ["--multipliers", "4"]] {
         let out = grid_gen(&["info", iiwa, flag[0], flag[1]]);
         assert_eq!(out.status.code(), Some(2), "{}", stderr(&out));
         assert!(stderr(&out).contains(&format!("unexpected argument '{}'", flag[0])));
