@@ -11,7 +11,7 @@ import subprocess
 import sys
 import tempfile
 from pathlib import Path
-from typing import Any, Dict, Mapping, Optional, Sequence, Tuple, Union
+from typing import Any, Dict, List, Mapping, Optional, Sequence, Tuple, Union
 
 from . import _native
 from ._robot import Robot
@@ -238,6 +238,57 @@ def _library_name(stem: str) -> str:
     return f"lib{stem}.so"
 
 
+# The kernels' weight (operations compiled, `<robot>_features.json`) above which a robot's
+# library compiles as one crate per core: the humanoid's default library (840,000)
+# built in 35 s instead of 44 s as two crates on this project's 2-core machine; below it the
+# extra crates' fixed cost is not repaid (the book, Compile time).
+SPLIT_MIN_WEIGHT = 300_000
+# Most crates: past four, each crate's share of rustc's front end is small.
+SPLIT_MAX_CRATES = 4
+
+
+def _cores() -> int:
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:
+        return os.cpu_count() or 1
+
+
+def _crate_groups(features) -> List[List[str]]:
+    """The kernels' features per crate: one crate for a small robot or a one-core machine,
+    else up to one per core, each kernel with the kernels it calls (they must share a
+    crate), the heaviest first into the lightest crate. The first crate also takes the
+    shared entry points (`common`)."""
+    kernels = features["kernels"]
+    names = [k["name"] for k in kernels]
+    weight = {k["name"]: k["weight"] for k in kernels}
+    parent = {n: n for n in names}
+
+    def root(n):
+        while parent[n] != n:
+            n = parent[n]
+        return n
+
+    for k in kernels:
+        for callee in k["calls"]:
+            if callee in parent:
+                parent[root(callee)] = root(k["name"])
+    parts: Dict[str, List[str]] = {}
+    for n in names:
+        parts.setdefault(root(n), []).append(n)
+    count = min(_cores(), SPLIT_MAX_CRATES, len(parts))
+    if sum(weight.values()) < SPLIT_MIN_WEIGHT or count < 2:
+        return [names + [features["common"]]]
+    groups: List[List[str]] = [[] for _ in range(count)]
+    loads = [0] * count
+    for part in sorted(parts.values(), key=lambda p: (-sum(weight[n] for n in p), p[0])):
+        i = loads.index(min(loads))
+        groups[i].extend(part)
+        loads[i] += sum(weight[n] for n in part)
+    groups[0].append(features["common"])
+    return [g for g in groups if g]
+
+
 def _compile(cache, key, lib, urdf_path, scene_path, floating_base, frames, kernels, precision, verbose, keywords, batch_lanes, calls) -> None:
     cargo = _cargo()
     crate = cache / "build" / key
@@ -267,24 +318,57 @@ def _build(cache, crate, lib, cargo, urdf_path, scene_path, floating_base, frame
             keywords=keywords,
             batch_lanes=batch_lanes,
             calls=calls,
+            kernel_features=True,
         )
         src.mkdir(parents=True, exist_ok=True)
         for f in files:
             _write_if_changed(src / f, (Path(scratch) / f).read_text())
     module = next(f for f in files if f.endswith(".rs") and not f.endswith("_c.rs"))
     stem = module[: -len(".rs")]
-    _write_if_changed(
-        src / "lib.rs",
-        f'mod {stem} {{\n    include!("{stem}.rs");\n}}\ninclude!("{stem}_c.rs");\n',
-    )
+    features = json.loads((src / f"{stem}_features.json").read_text())
+    groups = _crate_groups(features)
     runtime = _runtime_crate(cache)
     name = f"grid_gen_robot_{crate.name}"
-    _write_if_changed(
-        crate / "Cargo.toml",
-        f'[package]\nname = "{name}"\nversion = "0.1.0"\nedition = "2021"\n\n[lib]\ncrate-type = ["cdylib"]\n\n'
-        f'[dependencies]\ngrid-gen-runtime = {{ path = {json.dumps(str(runtime))} }}\n\n'
-        "[profile.release]\npanic = \"abort\"\n\n[workspace]\n",
-    )
+    # Every kernel's items sit behind a Cargo feature of its name (the shared entry points
+    # behind `common`); each crate that compiles the module declares them all.
+    declared = "".join(
+        f"{k['name']} = {json.dumps(k['calls'])}\n" for k in features["kernels"]
+    ) + f"{features['common']} = []\n"
+    runtime_dep = f'[dependencies]\ngrid-gen-runtime = {{ path = {json.dumps(str(runtime))} }}\n\n'
+    profile = "[profile.release]\npanic = \"abort\"\n\n"
+    if len(groups) == 1:
+        _write_if_changed(
+            src / "lib.rs",
+            f'mod {stem} {{\n    include!("{stem}.rs");\n}}\ninclude!("{stem}_c.rs");\n',
+        )
+        _write_if_changed(
+            crate / "Cargo.toml",
+            f'[package]\nname = "{name}"\nversion = "0.1.0"\nedition = "2021"\n\n[lib]\ncrate-type = ["cdylib"]\n\n'
+            f"[features]\ndefault = {json.dumps(groups[0])}\n{declared}\n{runtime_dep}{profile}[workspace]\n",
+        )
+    else:
+        # rustc's front end (parsing, type and borrow checking: a third of a humanoid's
+        # compile) runs on one thread per crate, so a large robot's kernels compile as
+        # several crates at once, one per core, which the library links (their
+        # `#[no_mangle]` entry points are its exports). The book, Compile time.
+        members = [f"k{i}" for i in range(len(groups))]
+        for member, group in zip(members, groups):
+            _write_if_changed(
+                crate / member / "src" / "lib.rs",
+                f'mod {stem} {{\n    include!("../../src/{stem}.rs");\n}}\ninclude!("../../src/{stem}_c.rs");\n',
+            )
+            _write_if_changed(
+                crate / member / "Cargo.toml",
+                f'[package]\nname = "{name}_{member}"\nversion = "0.1.0"\nedition = "2021"\n\n'
+                f"[features]\ndefault = {json.dumps(group)}\n{declared}\n{runtime_dep}",
+            )
+        _write_if_changed(src / "lib.rs", "".join(f"extern crate {name}_{m};\n" for m in members))
+        deps = "".join(f'{name}_{m} = {{ path = "{m}" }}\n' for m in members)
+        _write_if_changed(
+            crate / "Cargo.toml",
+            f'[package]\nname = "{name}"\nversion = "0.1.0"\nedition = "2021"\n\n[lib]\ncrate-type = ["cdylib"]\n\n'
+            f"[dependencies]\n{deps}\n{profile}[workspace]\nmembers = {json.dumps(members)}\n",
+        )
     if verbose:
         print(f"grid_gen: compiling {urdf_path.name} (first load of this robot; cached in {cache})", file=sys.stderr, flush=True)
     # Every robot's crate has the same dependencies: the first build's lock file serves the

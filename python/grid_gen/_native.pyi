@@ -13,6 +13,7 @@ def generate(
     keywords: Optional[Dict[str, Any]] = None,
     batch_lanes: str = "auto",
     calls: str = "auto",
+    kernel_features: bool = False,
 ) -> List[str]:
     """Writes the robot's Rust module and C ABI into out_dir; returns the file names.
     Raises ValueError (with the URDF's diagnostics) or FileNotFoundError."""

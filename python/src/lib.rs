@@ -100,7 +100,7 @@ impl SceneKeywords {
 /// URDF) for a robot it cannot use. `keywords`: `grid_gen.load`'s scene keywords, a dict
 /// (see [`SceneKeywords`]).
 #[pyfunction]
-#[pyo3(signature = (urdf, out_dir, floating_base=false, scene=None, frames=None, kernels=None, precision="f64", keywords=None, batch_lanes="auto", calls="auto"))]
+#[pyo3(signature = (urdf, out_dir, floating_base=false, scene=None, frames=None, kernels=None, precision="f64", keywords=None, batch_lanes="auto", calls="auto", kernel_features=false))]
 #[allow(clippy::too_many_arguments)]
 fn generate(
     urdf: &str,
@@ -113,6 +113,7 @@ fn generate(
     keywords: Option<SceneKeywords>,
     batch_lanes: &str,
     calls: &str,
+    kernel_features: bool,
 ) -> PyResult<Vec<String>> {
     use grid_gen::generate::Target;
     if !std::path::Path::new(urdf).is_file() {
@@ -153,6 +154,7 @@ fn generate(
         .c_precision(f64, f32)
         .batch_lanes(lanes)
         .calls(calls)
+        .kernel_features(kernel_features)
         .copies(grid_gen::back::rust::Copies::host())
         .quiet(true);
     // False is the default, not a request to take away a scene's floating base.

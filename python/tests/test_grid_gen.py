@@ -326,6 +326,61 @@ def test_calls_all_runs_fd_grad_through_its_callees(tmp_path):
         assert err < 1e-12, calls
 
 
+def test_a_large_robots_kernels_compile_as_crates_at_once(tmp_path, monkeypatch):
+    """Above `SPLIT_MIN_WEIGHT` (here forced to 0, on three cores) load compiles the
+    kernels as one crate per core, each kernel with the kernels it calls, and links them
+    into one library: every kernel gives the single crate's bits, and the C ABI's shared
+    state (the bad quaternion's state) is one for every crate."""
+    from grid_gen import _loader
+
+    urdf = tmp_path / "unseen_tree.urdf"
+    urdf.write_text(random_tree_urdf(seed=2029))
+    kernels = ["rnea", "fd", "fd_grad", "contact_fd", "contact_fd_grad", "step", "step_grad", "integrate"]
+    keywords = dict(floating_base=True, contacts={"l2": "point", "l4": "point"}, contact_mask=True, step="semi_implicit_euler")
+    # The single crate's library (another key: the kernels listed in another order).
+    whole = grid_gen.load(urdf, kernels=kernels[::-1], **keywords)
+    monkeypatch.setattr(_loader, "SPLIT_MIN_WEIGHT", 0)
+    monkeypatch.setattr(_loader, "_cores", lambda: 3)
+    split = grid_gen.load(urdf, kernels=kernels, **keywords)
+    build = _loader.cache_dir() / "build" / Path(split.library).parent.name
+    members = sorted(p.name for p in build.glob("k*") if (p / "Cargo.toml").exists())
+    assert members == ["k0", "k1", "k2"], members
+    # A kernel and its callee share a crate; only the first crate has the shared entry points.
+    defaults = {m: (build / m / "Cargo.toml").read_text().split("default = ")[1].split("\n")[0] for m in members}
+    assert sum('"common"' in d for d in defaults.values()) == 1 and '"common"' in defaults["k0"]
+    for caller, callee in (("step", "contact_fd"), ("step_grad", "contact_fd_grad")):
+        assert [m for m, d in defaults.items() if f'"{caller}"' in d] == [m for m, d in defaults.items() if f'"{callee}"' in d]
+    q, qd, tau = random_states(split, 9, seed=15)
+    u = tau[:, split.nv - split.nu :]
+    mode = np.array([[True, False]] * 9)
+    lam = np.random.default_rng(16).normal(size=(9, split.nlambda))
+    for name, args in (
+        ("rnea", (q, qd, tau, lam)),
+        ("fd", (q, qd, tau, lam)),
+        ("fd_grad", (q, qd, tau, lam)),
+        ("contact_fd", (q, qd, tau)),
+        ("contact_fd_grad", (q, qd, tau)),
+        ("step", (q, qd, u, 0.01)),
+        ("step_grad", (q, qd, u, 0.01)),
+        ("integrate", (q, qd)),
+    ):
+        extra = {"active": mode} if name.startswith(("contact", "step")) else {}
+        got, want = getattr(split, name)(*args, **extra), getattr(whole, name)(*args, **extra)
+        for g, w in zip(got if isinstance(got, tuple) else (got,), want if isinstance(want, tuple) else (want,)):
+            assert np.array_equal(g, w), name
+    # A bad quaternion at state 2, passed straight to each crate's entry points: every
+    # crate records it where the first crate's `bad_state` reads it.
+    bad = q.copy()
+    bad[2, 3:7] = 0.0
+    for name in kernels:
+        k = getattr(split, name)
+        ins = {"q": bad, "qd": qd, "tau": u if name.startswith("step") else tau, "qdd": tau, "v": qd, "lambda": np.zeros((9, split.nlambda)), "active": mode.astype(np.float64), "dt": np.full(9, 0.01)}
+        arrays = [np.ascontiguousarray(ins[n], dtype=np.float64) for n, _ in k.inputs]
+        outs = [np.zeros((9,) + dims) for _, dims in k.outputs]
+        status = k._fn(9, *[a.ctypes.data for a in arrays], *[o.ctypes.data for o in outs])
+        assert status == 3 and split._bad_state() == 2, (name, status, split._bad_state())
+
+
 def test_bad_robots_and_options_raise_before_compiling(tmp_path):
     with pytest.raises(FileNotFoundError):
         grid_gen.load(tmp_path / "missing.urdf")

@@ -27,6 +27,24 @@ pub fn threads() -> usize {
     }
 }
 
+thread_local! {
+    /// The state that made this thread's last call return `GRID_GEN_BAD_VALUE`, -1 before
+    /// any. Here rather than in each `<robot>_c.rs`, so that a library built from several
+    /// crates (`grid_gen.load` splits a large robot's kernels over a crate per core) has one.
+    static BAD_STATE: std::cell::Cell<i64> = const { std::cell::Cell::new(-1) };
+}
+
+/// Records the state that made this thread's call return `GRID_GEN_BAD_VALUE`.
+pub fn set_bad_state(state: i64) {
+    BAD_STATE.with(|b| b.set(state));
+}
+
+/// The state (from 0) that made this thread's last call return `GRID_GEN_BAD_VALUE`; -1
+/// before any.
+pub fn bad_state() -> i64 {
+    BAD_STATE.with(|b| b.get())
+}
+
 /// One pool per thread count asked for, built once; rayon's global pool serves 0.
 fn pool(n: usize) -> Option<Arc<rayon::ThreadPool>> {
     static POOLS: OnceLock<Mutex<HashMap<usize, Arc<rayon::ThreadPool>>>> = OnceLock::new();

@@ -320,6 +320,17 @@ impl Builder {
         self
     }
 
+    /// Gate each kernel's items in the Rust module and its C ABI behind a Cargo feature of
+    /// the kernel's name (shared entry points behind `common`) and write
+    /// `<robot>_features.json` (each kernel's feature, the kernels it calls, its weight), so
+    /// that a loader can compile a large robot's kernels in several crates at once (default
+    /// off; `grid_gen.load` turns it on).
+    pub fn kernel_features(&mut self, on: bool) -> &mut Self {
+        self.config.options.rust.kernel_features = on;
+        self.config.options.c.kernel_features = on;
+        self
+    }
+
     /// Refuse URDFs with warnings (such as physically implausible inertias, or a `<mimic>`
     /// naming an unknown joint): the build fails with every diagnostic. Default `false`:
     /// warnings are printed as `cargo:warning=` lines and generation goes on.

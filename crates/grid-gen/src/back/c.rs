@@ -29,11 +29,17 @@ pub struct COptions {
     pub f32: bool,
     /// Which kernels' batches run several states per call in SIMD lanes.
     pub lanes: BatchLanes,
+    /// Gate each kernel's items behind a Cargo feature of its name (and the shared entry
+    /// points behind `common`), and write `<robot>_features.json`, so that a loader can
+    /// compile the kernels in several crates at once ([`RustOptions::kernel_features`]).
+    ///
+    /// [`RustOptions::kernel_features`]: super::rust::RustOptions::kernel_features
+    pub kernel_features: bool,
 }
 
 impl Default for COptions {
     fn default() -> Self {
-        COptions { f64: true, f32: true, lanes: BatchLanes::Auto }
+        COptions { f64: true, f32: true, lanes: BatchLanes::Auto, kernel_features: false }
     }
 }
 
@@ -156,6 +162,30 @@ fn manifest(module: &Module, options: &COptions) -> String {
     manifest.to_string()
 }
 
+/// `<robot>_features.json` ([`COptions::kernel_features`]): each kernel's Cargo feature,
+/// the kernels it calls (whose features it needs, in the same crate), and its weight, the
+/// operations that crate compiles for it (its own, or its rest's, once per precision and
+/// once more with lanes), by which a loader balances its crates.
+fn features(module: &Module, options: &COptions) -> String {
+    let per_copy = precisions(options).len();
+    let kernels: Vec<serde_json::Value> = module
+        .functions
+        .iter()
+        .map(|k| {
+            let (calls, own) = match &k.call {
+                Some(call) => {
+                    (call.callees.iter().map(|c| c.name()).collect(), call.rest.nodes.len())
+                }
+                None => (Vec::new(), k.nodes.len()),
+            };
+            let copies = per_copy * if lanes_pay(k, options.lanes) { 2 } else { 1 };
+            serde_json::json!({"name": k.kind.name(), "calls": calls, "weight": own * copies})
+        })
+        .collect();
+    let features = serde_json::json!({"common": "common", "kernels": kernels});
+    serde_json::to_string_pretty(&features).unwrap_or_default() + "\n"
+}
+
 /// The largest per-state array of a kernel, in scalars: a batch longer than
 /// `isize::MAX / (this * size)` bytes cannot exist, and is a bad length.
 fn largest(k: &Function) -> usize {
@@ -212,6 +242,14 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
     let robot = &module.robot;
     let p = c_prefix(stem);
     let ql = q_len(robot);
+    let gate = |feature: &str| {
+        if options.kernel_features {
+            format!("#[cfg(feature = \"{feature}\")]\n")
+        } else {
+            String::new()
+        }
+    };
+    let common = gate("common");
     let mut out = String::new();
     let _ = writeln!(
         out,
@@ -239,15 +277,13 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
     let _ = writeln!(
         out,
         "/// Where each unit quaternion `[qx, qy, qz, qw]` starts in q.\nconst QUATERNIONS: [usize; {}] = [{}];\n\
-         thread_local! {{\n/// The state that made this thread's last call return GRID_GEN_BAD_VALUE.\n\
-         static BAD_STATE: core::cell::Cell<i64> = const {{ core::cell::Cell::new(-1) }};\n}}\n\
          /// The first state of q whose quaternion at `QUATERNIONS` has a norm more than 1e-6 from 1 (NaN\n\
          /// included): the kernels read them as rotations without normalising. Four values a quaternion and\n\
          /// state, read on the calling thread before the batch runs.\n\
          fn first_bad<S: Copy + Into<f64>, const N: usize>(q: &[[S; N]]) -> Option<usize> {{\n\
          q.iter().position(|s| {{\nQUATERNIONS.iter().any(|&at| {{\nlet n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();\n!((n2.sqrt() - 1.0).abs() <= 1e-6)\n}})\n}})\n}}\n\
          /// The state (from 0) that made this thread's last call return GRID_GEN_BAD_VALUE; -1 before any.\n\
-         #[unsafe(no_mangle)]\npub extern \"C\" fn {p}_bad_state() -> i64 {{\nBAD_STATE.with(|b| b.get())\n}}\n",
+         {common}#[unsafe(no_mangle)]\npub extern \"C\" fn {p}_bad_state() -> i64 {{\ngrid_gen_runtime::bad_state()\n}}\n",
         quats.len(),
         quats.join(", ")
     );
@@ -277,10 +313,10 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
     let _ = writeln!(
         out,
         "/// Sets the threads a batch runs on (0: every core, the default; 1: the calling thread).\n\
-         #[unsafe(no_mangle)]\npub extern \"C\" fn {p}_set_threads(n: usize) {{\ngrid_gen_runtime::set_threads(n);\n}}\n\n\
-         /// The threads a batch runs on now.\n#[unsafe(no_mangle)]\npub extern \"C\" fn {p}_threads() -> usize {{\ngrid_gen_runtime::threads()\n}}\n\n\
+         {common}#[unsafe(no_mangle)]\npub extern \"C\" fn {p}_set_threads(n: usize) {{\ngrid_gen_runtime::set_threads(n);\n}}\n\n\
+         /// The threads a batch runs on now.\n{common}#[unsafe(no_mangle)]\npub extern \"C\" fn {p}_threads() -> usize {{\ngrid_gen_runtime::threads()\n}}\n\n\
          /// What this library holds, as JSON (sizes, names, and each kernel's inputs and outputs); static, NUL-terminated.\n\
-         #[unsafe(no_mangle)]\npub extern \"C\" fn {p}_manifest() -> *const core::ffi::c_char {{\nMANIFEST.as_ptr().cast()\n}}\n"
+         {common}#[unsafe(no_mangle)]\npub extern \"C\" fn {p}_manifest() -> *const core::ffi::c_char {{\nMANIFEST.as_ptr().cast()\n}}\n"
     );
     for k in &module.functions {
         let name = k.kind.name();
@@ -311,8 +347,9 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
         let _ = writeln!(
             out,
             "/// `{}` for each state: entry `i` of every slice is state `i`. On every core; {per_call}\n///\n/// # Panics\n/// If the slices' lengths differ.\n\
-             pub fn {name}<T: Real + Send + Sync + 'static>({}) {{\nlet n = {first}.len();\nassert!({}, \"{name}: every slice holds one entry per state\");",
+             {}pub fn {name}<T: Real + Send + Sync + 'static>({}) {{\nlet n = {first}.len();\nassert!({}, \"{name}: every slice holds one entry per state\");",
             k.signature(),
+            gate(name),
             args.iter().chain(&outs).cloned().collect::<Vec<_>>().join(", "),
             if lens.is_empty() { "true".to_string() } else { lens.join(" && ") },
         );
@@ -395,7 +432,8 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
             let _ = writeln!(
                 out,
                 "/// `{name}` in {rt} for one state (`{stem}.h`).\n///\n/// # Safety\n/// Each pointer holds one state's array, aligned, and outputs overlap nothing.\n\
-                 #[unsafe(no_mangle)]\npub unsafe extern \"C\" fn {p}_{name}_{rt}({}) -> i32 {{\n// SAFETY: the caller's contract, for n = 1.\nunsafe {{ {p}_{name}_batch_{rt}(1, {}) }}\n}}\n",
+                 {}#[unsafe(no_mangle)]\npub unsafe extern \"C\" fn {p}_{name}_{rt}({}) -> i32 {{\n// SAFETY: the caller's contract, for n = 1.\nunsafe {{ {p}_{name}_batch_{rt}(1, {}) }}\n}}\n",
+                gate(name),
                 ptr_args.join(", "),
                 all.join(", ")
             );
@@ -403,8 +441,9 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
             let _ = writeln!(
                 out,
                 "/// `{name}` in {rt} for `n` states, on every core (`{stem}.h`).\n///\n/// # Safety\n/// Each pointer holds `n` states' arrays, aligned, and outputs overlap nothing.\n\
-                 #[unsafe(no_mangle)]\npub unsafe extern \"C\" fn {p}_{name}_batch_{rt}(n: usize, {}) -> i32 {{\nif n == 0 {{\nreturn GRID_GEN_OK;\n}}\n\
+                 {}#[unsafe(no_mangle)]\npub unsafe extern \"C\" fn {p}_{name}_batch_{rt}(n: usize, {}) -> i32 {{\nif n == 0 {{\nreturn GRID_GEN_OK;\n}}\n\
                  if {} {{\nreturn GRID_GEN_NULL_POINTER;\n}}\nif n > isize::MAX as usize / ({} * core::mem::size_of::<{rt}>()) {{\nreturn GRID_GEN_BAD_LENGTH;\n}}",
+                gate(name),
                 ptr_args.join(", "),
                 nulls.join(" || "),
                 largest(k)
@@ -432,14 +471,14 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
             for config in inputs.iter().filter(|i| !quats.is_empty() && i.is_config()) {
                 let _ = writeln!(
                     out,
-                    "if let Some(bad) = first_bad({}) {{\nBAD_STATE.with(|b| b.set(bad as i64));\nreturn GRID_GEN_BAD_VALUE;\n}}",
+                    "if let Some(bad) = first_bad({}) {{\ngrid_gen_runtime::set_bad_state(bad as i64);\nreturn GRID_GEN_BAD_VALUE;\n}}",
                     config.name()
                 );
             }
             if !ref_quats.is_empty() && inputs.contains(&Input::ContactRef) {
                 let _ = writeln!(
                     out,
-                    "if let Some(bad) = first_bad_ref(contact_ref) {{\nBAD_STATE.with(|b| b.set(bad as i64));\nreturn GRID_GEN_BAD_VALUE;\n}}"
+                    "if let Some(bad) = first_bad_ref(contact_ref) {{\ngrid_gen_runtime::set_bad_state(bad as i64);\nreturn GRID_GEN_BAD_VALUE;\n}}"
                 );
             }
             let _ =
@@ -640,13 +679,20 @@ pub fn emit(module: &Module, options: &COptions) -> Result<Vec<GeneratedFile>, C
         comment_text(&module.robot.name),
         crate::back::source_line(&module.robot.source),
     );
-    Ok(vec![
+    let mut files = vec![
         GeneratedFile {
             name: format!("{stem}_c.rs"),
             contents: header + &prettyplease::unparse(&file),
         },
         GeneratedFile { name: format!("{stem}.h"), contents: emit_header(module, options, &stem) },
-    ])
+    ];
+    if options.kernel_features {
+        files.push(GeneratedFile {
+            name: format!("{stem}_features.json"),
+            contents: features(module, options),
+        });
+    }
+    Ok(files)
 }
 
 #[cfg(test)]

@@ -18,9 +18,29 @@ pub(super) fn module_start(header: &str) -> Result<String, String> {
     Ok(text.strip_suffix("}\n").unwrap_or(&text).to_string())
 }
 
-/// Items inside a copy's module (after its `use super::*;`), formatted as they are there.
-pub(super) fn module_items(source: &str) -> Result<String, String> {
-    let text = items(&format!("mod m {{\nuse super::*;\n{source}}}\n"))?;
+/// Items inside a copy's module (after its `use super::*;`), formatted as they are there;
+/// each behind `#[cfg(feature = "<feature>")]` where a feature is given.
+pub(super) fn module_items(source: &str, feature: Option<&str>) -> Result<String, String> {
+    let source = format!("mod m {{\nuse super::*;\n{source}}}\n");
+    let text = match feature {
+        None => items(&source)?,
+        Some(feature) => {
+            let mut file = syn::parse_file(&source).map_err(|e| e.to_string())?;
+            let gate = syn::parse_str::<syn::ItemStruct>(&format!(
+                "#[cfg(feature = \"{feature}\")] struct S;"
+            ))
+            .map_err(|e| e.to_string())?
+            .attrs;
+            if let Some(syn::Item::Mod(m)) = file.items.first_mut() {
+                for item in m.content.iter_mut().flat_map(|(_, items)| items.iter_mut().skip(1)) {
+                    let attrs = attributes(item)
+                        .ok_or_else(|| format!("an item that feature {feature:?} cannot gate"))?;
+                    attrs.splice(0..0, gate.iter().cloned());
+                }
+            }
+            prettyplease::unparse(&file)
+        }
+    };
     let body = text.strip_suffix("}\n").unwrap_or(&text);
     const USE: &str = "    use super::*;\n";
     Ok(body.find(USE).map_or(body, |at| &body[at + USE.len()..]).to_string())
@@ -60,4 +80,22 @@ pub(super) fn compact_slots(text: String) -> String {
         }
     }
     out
+}
+
+/// An item's attributes (every kind of item the Rust backend writes has them).
+fn attributes(item: &mut syn::Item) -> Option<&mut Vec<syn::Attribute>> {
+    use syn::Item;
+    Some(match item {
+        Item::Const(i) => &mut i.attrs,
+        Item::Enum(i) => &mut i.attrs,
+        Item::Fn(i) => &mut i.attrs,
+        Item::Impl(i) => &mut i.attrs,
+        Item::Macro(i) => &mut i.attrs,
+        Item::Mod(i) => &mut i.attrs,
+        Item::Static(i) => &mut i.attrs,
+        Item::Struct(i) => &mut i.attrs,
+        Item::Type(i) => &mut i.attrs,
+        Item::Use(i) => &mut i.attrs,
+        _ => return None,
+    })
 }

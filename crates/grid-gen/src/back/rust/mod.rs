@@ -45,11 +45,17 @@ pub struct RustOptions {
     pub avx512: bool,
     /// Which copies of the kernels the module holds.
     pub copies: Copies,
+    /// Gate each kernel's items behind a Cargo feature of its name (`#[cfg(feature =
+    /// "fd_grad")]`), so that a loader can compile a large robot's kernels in several
+    /// crates at once, one per core: rustc's front end runs on one thread per crate
+    /// (`grid_gen.load`; the book, Compile time). Off by default: a module included as it
+    /// is holds every kernel.
+    pub kernel_features: bool,
 }
 
 impl Default for RustOptions {
     fn default() -> Self {
-        RustOptions { chunk: 2500, avx512: false, copies: Copies::Dispatch }
+        RustOptions { chunk: 2500, avx512: false, copies: Copies::Dispatch, kernel_features: false }
     }
 }
 
@@ -1928,6 +1934,9 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
     // The avx512 copy rides with the dispatched pair only.
     let avx512 = options.avx512 && options.copies == Copies::Dispatch;
     for k in &module.functions {
+        if options.kernel_features {
+            let _ = writeln!(out, "#[cfg(feature = \"{}\")]", k.kind.name());
+        }
         emit_dispatcher(&mut out, k, q_len(robot), avx512, options.copies);
     }
     let copies = [
@@ -2012,12 +2021,13 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
                     emit_kernel(&mut item, k, name, nv, q_len(robot), options, copy, None)
                 }
             }
-            format::module_items(&item).map(format::compact_slots)
+            let feature = options.kernel_features.then(|| k.kind.name());
+            format::module_items(&item, feature).map(format::compact_slots)
         }
         Piece::Runner(copy) => {
             let mut item = String::new();
             emit_column_runner(&mut item, copy);
-            format::module_items(&item)
+            format::module_items(&item, None)
         }
     });
     let mut code = String::new();
