@@ -327,7 +327,7 @@ def test_calls_all_runs_fd_grad_through_its_callees(tmp_path):
 
 
 def test_a_large_robots_kernels_compile_as_crates_at_once(tmp_path, monkeypatch):
-    """Above `SPLIT_MIN_WEIGHT` (here forced to 0, on three cores) load compiles the
+    """Above `SPLIT_MIN_WEIGHT` (here forced, on three cores) load compiles the
     kernels as one crate per core, each kernel with the kernels it calls, and links them
     into one library: every kernel gives the single crate's bits, and the C ABI's shared
     state (the bad quaternion's state) is one for every crate."""
@@ -338,7 +338,9 @@ def test_a_large_robots_kernels_compile_as_crates_at_once(tmp_path, monkeypatch)
     kernels = ["rnea", "fd", "fd_grad", "contact_fd", "contact_fd_grad", "step", "step_grad", "integrate"]
     keywords = dict(floating_base=True, contacts={"l2": "point", "l4": "point"}, contact_mask=True, step="semi_implicit_euler")
     # The single crate's library (another key: the kernels listed in another order).
+    monkeypatch.setattr(_loader, "SPLIT_MIN_WEIGHT", 10**12)
     whole = grid_gen.load(urdf, kernels=kernels[::-1], **keywords)
+    assert not (_loader.cache_dir() / "build" / Path(whole.library).parent.name / "k0").exists()
     monkeypatch.setattr(_loader, "SPLIT_MIN_WEIGHT", 0)
     monkeypatch.setattr(_loader, "_cores", lambda: 3)
     split = grid_gen.load(urdf, kernels=kernels, **keywords)

@@ -164,8 +164,9 @@ fn manifest(module: &Module, options: &COptions) -> String {
 
 /// `<robot>_features.json` ([`COptions::kernel_features`]): each kernel's Cargo feature,
 /// the kernels it calls (whose features it needs, in the same crate), and its weight, the
-/// operations that crate compiles for it (its own, or its rest's, once per precision and
-/// once more with lanes), by which a loader balances its crates.
+/// statements that crate compiles for it (its own, or its rest's, less what its column
+/// program loops over; once per precision and once more with lanes), by which a loader
+/// balances its crates.
 fn features(module: &Module, options: &COptions) -> String {
     let per_copy = precisions(options).len();
     let kernels: Vec<serde_json::Value> = module
@@ -173,10 +174,11 @@ fn features(module: &Module, options: &COptions) -> String {
         .iter()
         .map(|k| {
             let (calls, own) = match &k.call {
-                Some(call) => {
-                    (call.callees.iter().map(|c| c.name()).collect(), call.rest.nodes.len())
-                }
-                None => (Vec::new(), k.nodes.len()),
+                Some(call) => (
+                    call.callees.iter().map(|c| c.name()).collect(),
+                    super::rust::statements(&call.rest),
+                ),
+                None => (Vec::new(), super::rust::statements(k)),
             };
             let copies = per_copy * if lanes_pay(k, options.lanes) { 2 } else { 1 };
             serde_json::json!({"name": k.kind.name(), "calls": calls, "weight": own * copies})

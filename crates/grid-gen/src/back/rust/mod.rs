@@ -394,6 +394,21 @@ fn runs_program(k: &Function) -> Option<&ColumnProgram> {
     })
 }
 
+/// The operations a copy of `k` holds as statements: its graph's, less those its column
+/// program computes in loops instead. What rustc compiles for it, by which a loader
+/// balances the crates it builds ([`RustOptions::kernel_features`]).
+pub fn statements(k: &Function) -> usize {
+    let skip = runs_program(k).map(|p| program_skip(k, p));
+    k.nodes
+        .iter()
+        .enumerate()
+        .filter(|(i, n)| {
+            !matches!(n.op, Op::Input(..) | Op::Const(_))
+                && !skip.as_ref().is_some_and(|skip| skip[*i])
+        })
+        .count()
+}
+
 /// The position of output `name` of `k`, which a program or a product stores into
 /// (`ir::validate` checks that `k` has it).
 fn out_index(k: &Function, name: &str) -> usize {
