@@ -12,7 +12,9 @@ Usage: target/python/bin/python scripts/build_cost.py [CASE ...], a CASE being
 generation takes too (default: the cases below). Needs the CLI built in release
 (`cargo build --release -p grid-gen-cli`) and the Python package installed in the
 interpreter that runs it (`pip install ./python`, as `scripts/test.sh` does). A benchmark,
-not a test: run it on an idle machine and compare rows of one run.
+not a test: run it on an idle machine and compare rows of one run. `GRID_GEN_CRATES=1` in
+its environment loads each robot as one crate (the default is one crate per core; the
+book, Compile time, "A crate per core").
 """
 
 import os

@@ -529,3 +529,119 @@ fn batch_lanes_go_where_they_pay() {
     assert_eq!(with_lanes(BatchLanes::All), [&dynamics[..], &lie[..]].concat());
     assert!(with_lanes(BatchLanes::None).is_empty());
 }
+
+/// With `kernel_features`, each kernel's items in the module and its C ABI sit behind a
+/// Cargo feature of the kernel's name and the shared entry points behind `common`, and
+/// `<robot>_features.json` names each kernel's callees, so that a crate compiles only the
+/// kernels it turns on (`grid_gen.load` builds the others in other crates and links them:
+/// `python/tests`, `test_a_large_robots_kernels_compile_as_crates_at_once`). Without it,
+/// nothing is gated and there is no features file.
+#[test]
+fn kernel_features_gate_every_kernels_items() {
+    use grid_gen::generate::Target;
+    let model = load("grid_hyq");
+    let emit = |on: bool| {
+        let mut options = Options { targets: vec![Target::Rust, Target::C], ..Options::default() };
+        options.rust.kernel_features = on;
+        options.c.kernel_features = on;
+        options.lower.kernels = vec![
+            grid_gen::ir::KernelKind::Rnea,
+            grid_gen::ir::KernelKind::RneaGrad,
+            grid_gen::ir::KernelKind::Fd,
+            grid_gen::ir::KernelKind::FdGrad,
+        ];
+        generate(&model, &options).unwrap()
+    };
+    let plain = emit(false);
+    assert_eq!(plain.len(), 3, "the module, its C ABI and the header");
+    assert!(plain.iter().all(|f| !f.contents.contains("cfg(feature")));
+    let files = emit(true);
+    let features: serde_json::Value = serde_json::from_str(
+        &files.iter().find(|f| f.name.ends_with("_features.json")).unwrap().contents,
+    )
+    .unwrap();
+    let kernels: Vec<String> = features["kernels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|k| k["name"].as_str().unwrap().to_string())
+        .collect();
+    assert_eq!(kernels, ["rnea", "rnea_grad", "fd", "fd_grad"]);
+    assert!(features["kernels"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .all(|k| k["weight"].as_u64().unwrap() > 0));
+    let feature = |attrs: &[syn::Attribute]| -> Option<String> {
+        attrs.iter().find(|a| a.path().is_ident("cfg")).and_then(|a| {
+            let text = a.meta.require_list().ok()?.tokens.to_string();
+            let name = text.strip_prefix("feature = \"")?.strip_suffix('"')?;
+            Some(name.to_string())
+        })
+    };
+    // The kernel an item belongs to: the longest kernel name its own name starts with.
+    let owner = |name: &str| -> Option<String> {
+        kernels
+            .iter()
+            .filter(|k| name == k.as_str() || name.starts_with(&format!("{k}_")))
+            .max_by_key(|k| k.len())
+            .cloned()
+    };
+    let module = syn::parse_file(&files[0].contents).unwrap();
+    let mut gated = 0;
+    for item in &module.items {
+        match item {
+            syn::Item::Fn(f) if kernels.contains(&f.sig.ident.to_string()) => {
+                assert_eq!(feature(&f.attrs), Some(f.sig.ident.to_string()));
+                gated += 1;
+            }
+            syn::Item::Mod(m) if m.ident == "portable" || m.ident == "fma" => {
+                for inner in &m.content.as_ref().unwrap().1[1..] {
+                    let (name, attrs) = match inner {
+                        syn::Item::Fn(f) => (f.sig.ident.to_string(), &f.attrs),
+                        syn::Item::Struct(s) => (s.ident.to_string(), &s.attrs),
+                        syn::Item::Mod(m) => (m.ident.to_string(), &m.attrs),
+                        syn::Item::Use(u) => match &u.tree {
+                            syn::UseTree::Path(p) => (p.ident.to_string(), &u.attrs),
+                            _ => panic!("an unexpected `use` in {}", m.ident),
+                        },
+                        _ => panic!("an unexpected kind of item in {}", m.ident),
+                    };
+                    let Some(kernel) = owner(&name) else {
+                        // The column runner, which every kernel's program shares.
+                        assert_eq!(feature(attrs), None, "{name}");
+                        continue;
+                    };
+                    assert_eq!(feature(attrs), Some(kernel), "{}::{name}", m.ident);
+                    gated += 1;
+                }
+            }
+            _ => {}
+        }
+    }
+    assert!(gated > 4 * 4, "every copy's items were seen ({gated})");
+    let c = syn::parse_file(&files[1].contents).unwrap();
+    let syn::Item::Mod(batch) = &c.items[0] else { panic!("the C ABI is one module") };
+    let mut entry_points = 0;
+    for item in &batch.content.as_ref().unwrap().1 {
+        let syn::Item::Fn(f) = item else { continue };
+        let name = f.sig.ident.to_string();
+        let Some(rest) = name.strip_prefix("hyq_") else {
+            if kernels.contains(&name) {
+                assert_eq!(feature(&f.attrs), Some(name.clone()), "the batch function {name}");
+            } else {
+                assert!(feature(&f.attrs).is_none(), "{name}: a shared helper");
+            }
+            continue;
+        };
+        entry_points += 1;
+        let kernel = rest.strip_suffix("_f64").or(rest.strip_suffix("_f32")).unwrap_or(rest);
+        let kernel = kernel.strip_suffix("_batch").unwrap_or(kernel);
+        let want = if kernels.iter().any(|k| k == kernel) { kernel } else { "common" };
+        assert_eq!(feature(&f.attrs).as_deref(), Some(want), "{name}");
+    }
+    // Four kernels, two precisions, one state and a batch; four shared entry points: every
+    // exported function.
+    assert_eq!(entry_points, 4 * 2 * 2 + 4);
+    assert_eq!(files[1].contents.matches("no_mangle").count(), entry_points);
+}
