@@ -246,7 +246,7 @@ fn emit_rust(module: &Module, options: &COptions, stem: &str) -> String {
     let ql = q_len(robot);
     let gate = |feature: &str| {
         if options.kernel_features {
-            format!("#[cfg(feature = \"{feature}\")]\n")
+            super::feature_gate(feature)
         } else {
             String::new()
         }

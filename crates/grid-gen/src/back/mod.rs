@@ -23,6 +23,12 @@ pub fn source_line(source: &str) -> String {
     }
 }
 
+/// The attribute that compiles an item only with the Cargo feature `feature` (a kernel's
+/// name, or `common`: [`rust::RustOptions::kernel_features`]), with its line break.
+pub fn feature_gate(feature: &str) -> String {
+    format!("#[cfg(feature = \"{feature}\")]\n")
+}
+
 /// Header comment lines saying what the scene fixes (empty when nothing): a user reading
 /// the file must see that `qd` is ignored or that some gradient entries are written 0.
 pub fn specialisation_lines(robot: &crate::ir::Robot) -> String {

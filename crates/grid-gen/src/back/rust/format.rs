@@ -22,25 +22,23 @@ pub(super) fn module_start(header: &str) -> Result<String, String> {
 /// each behind `#[cfg(feature = "<feature>")]` where a feature is given.
 pub(super) fn module_items(source: &str, feature: Option<&str>) -> Result<String, String> {
     let source = format!("mod m {{\nuse super::*;\n{source}}}\n");
-    let text = match feature {
-        None => items(&source)?,
-        Some(feature) => {
-            let mut file = syn::parse_file(&source).map_err(|e| e.to_string())?;
-            let gate = syn::parse_str::<syn::ItemStruct>(&format!(
-                "#[cfg(feature = \"{feature}\")] struct S;"
-            ))
-            .map_err(|e| e.to_string())?
-            .attrs;
-            if let Some(syn::Item::Mod(m)) = file.items.first_mut() {
-                for item in m.content.iter_mut().flat_map(|(_, items)| items.iter_mut().skip(1)) {
-                    let attrs = attributes(item)
-                        .ok_or_else(|| format!("an item that feature {feature:?} cannot gate"))?;
-                    attrs.splice(0..0, gate.iter().cloned());
-                }
+    let mut file = syn::parse_file(&source).map_err(|e| e.to_string())?;
+    if let Some(feature) = feature {
+        let gate = syn::parse_str::<syn::ItemStruct>(&format!(
+            "{}struct S;",
+            super::super::feature_gate(feature)
+        ))
+        .map_err(|e| e.to_string())?
+        .attrs;
+        if let Some(syn::Item::Mod(m)) = file.items.first_mut() {
+            for item in m.content.iter_mut().flat_map(|(_, items)| items.iter_mut().skip(1)) {
+                let attrs = attributes(item)
+                    .ok_or_else(|| format!("an item that feature {feature:?} cannot gate"))?;
+                attrs.splice(0..0, gate.iter().cloned());
             }
-            prettyplease::unparse(&file)
         }
-    };
+    }
+    let text = prettyplease::unparse(&file);
     let body = text.strip_suffix("}\n").unwrap_or(&text);
     const USE: &str = "    use super::*;\n";
     Ok(body.find(USE).map_or(body, |at| &body[at + USE.len()..]).to_string())

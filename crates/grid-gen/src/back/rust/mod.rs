@@ -1950,7 +1950,7 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
     let avx512 = options.avx512 && options.copies == Copies::Dispatch;
     for k in &module.functions {
         if options.kernel_features {
-            let _ = writeln!(out, "#[cfg(feature = \"{}\")]", k.kind.name());
+            out.push_str(&super::feature_gate(k.kind.name()));
         }
         emit_dispatcher(&mut out, k, q_len(robot), avx512, options.copies);
     }
