@@ -12,7 +12,7 @@
 // - `rnea(q, qd, qdd) -> c`: inverse dynamics `c = M(q) qdd + C(q, qd) qd + g(q)`.
 // - `rnea_grad(q, qd, qdd) -> (dc_dq, dc_dqd)`: its analytical gradient.
 // - `mass_matrix(q) -> m`: the joint-space inertia matrix M(q).
-// - `minv(q) -> minv`: M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).
+// - `minv(q) -> minv`: M(q)^-1 (the function's doc says how it is formed).
 // - `fd(q, qd, tau) -> qdd`: forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`,
 //   by the O(nv) articulated-body algorithm.
 // - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics and its gradient `-M^-1 dc/du`
@@ -497,7 +497,7 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     }
     portable::mass_matrix(q)
 }
-/// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
+/// M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity.
 ///
 /// Runs [`fma::minv`] where [`has_fma`], else [`portable::minv`].
 #[inline]
@@ -846,48 +846,38 @@ pub mod portable {
         m[1][0] = t23;
         m
     }
-    /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
+    /// M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity.
     #[inline]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
     pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         let mut minv = [[T::k(0.0); NV]; NV];
         let t4 = q[1].sin();
         let t5 = q[1].cos();
-        let t13 = t5 * lit::<T>(-7.356637062775817);
-        let t14 = t4 * lit::<T>(1.4126230823060104e-8);
-        let t15 = t13 - t14;
-        let t16 = lit::<T>(0.1) * t15;
-        let t17 = lit::<T>(1.0) - t16;
-        let t21 = t5 * lit::<T>(-0.1);
-        let t22 = t4 * lit::<T>(-0.1);
-        let t23 = lit::<T>(0.08570832216376303) * t21;
-        let t24 = lit::<T>(4.736595035057242e-10) * t22;
-        let t25 = t23 - t24;
-        let t26 = lit::<T>(4.736595035057242e-10) * t21;
-        let t27 = lit::<T>(0.33238) * t22;
-        let t28 = t26 - t27;
-        let t29 = t5 * t25;
-        let t30 = t4 * t28;
-        let t31 = t29 - t30;
-        let t32 = lit::<T>(0.1) * t31;
-        let t33 = lit::<T>(0.0007545716336328686) - t32;
-        let t34 = lit::<T>(1.0) / t33;
-        minv[0][0] = t34;
-        let t35 = t17 * t34;
-        let t36 = -t35;
-        minv[0][1] = t36;
-        minv[1][0] = t36;
-        let t37 = lit::<T>(0.1) * t35;
-        let t38 = t5 * t37;
-        let t39 = t4 * t37;
-        let t40 = lit::<T>(0.004557856275072) * t35;
-        let t41 = lit::<T>(-0.0335304944) * t38;
-        let t42 = t41 - t40;
-        let t43 = lit::<T>(6.43853298e-11) * t39;
-        let t44 = t42 - t43;
-        let t45 = lit::<T>(219.4013895236754) * t44;
-        let t46 = lit::<T>(219.4013895236754) - t45;
-        minv[1][1] = t46;
+        let t9 = t4 * lit::<T>(6.43853298e-11);
+        let t10 = t5 * lit::<T>(0.0335304944);
+        let t11 = t9 + t10;
+        let t13 = lit::<T>(0.1) * t11;
+        let t14 = lit::<T>(-3.8305498717999996e-5) + t13;
+        let t16 = t14 * lit::<T>(2.0);
+        let t18 = t16 + lit::<T>(0.007958267272508);
+        let t19 = lit::<T>(0.0007545716336328686) + t18;
+        let t21 = t5 * lit::<T>(-0.0335304944);
+        let t22 = t21 - t9;
+        let t23 = lit::<T>(0.1) * t22;
+        let t24 = lit::<T>(0.004557856275072) - t23;
+        let t26 = t24 * lit::<T>(-219.4013895236754);
+        let t27 = t24 * t26;
+        let t28 = t19 + t27;
+        let t29 = lit::<T>(-1.0) / t28;
+        let t30 = -t29;
+        minv[0][0] = t30;
+        let t31 = t26 * t29;
+        let t32 = -t31;
+        minv[0][1] = t32;
+        minv[1][0] = t32;
+        let t34 = t26 * t31;
+        let t35 = lit::<T>(219.4013895236754) - t34;
+        minv[1][1] = t35;
         minv
     }
     /// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
@@ -1495,7 +1485,7 @@ pub mod fma {
         m[0][1] = t23;
         m[1][0] = t23;
     }
-    /// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
+    /// M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity.
     #[inline]
     #[target_feature(enable = "avx2,fma")]
     #[allow(clippy::all, unused_variables, unused_mut, dead_code)]
@@ -1512,36 +1502,24 @@ pub mod fma {
     pub(super) fn minv_into<T: Real>(q: &[T; NV], minv: &mut [[T; NV]; NV]) {
         let t4 = q[1].sin();
         let t5 = q[1].cos();
-        let t14 = t4 * lit::<T>(1.4126230823060104e-8);
-        let t15 = T::mul_add(t5, lit::<T>(-7.356637062775817), -t14);
-        let t17 = T::mul_add(-lit::<T>(0.1), t15, lit::<T>(1.0));
-        let t21 = t5 * lit::<T>(-0.1);
-        let t22 = t4 * lit::<T>(-0.1);
-        let t24 = lit::<T>(4.736595035057242e-10) * t22;
-        let t25 = T::mul_add(lit::<T>(0.08570832216376303), t21, -t24);
-        let t27 = lit::<T>(0.33238) * t22;
-        let t28 = T::mul_add(lit::<T>(4.736595035057242e-10), t21, -t27);
-        let t30 = t4 * t28;
-        let t31 = T::mul_add(t5, t25, -t30);
-        let t33 = T::mul_add(-lit::<T>(0.1), t31, lit::<T>(0.0007545716336328686));
-        let t34 = lit::<T>(1.0) / t33;
-        minv[0][0] = t34;
-        let t35 = t17 * t34;
-        let t36 = -t35;
-        minv[0][1] = t36;
-        minv[1][0] = t36;
-        let t37 = lit::<T>(0.1) * t35;
-        let t38 = t5 * t37;
-        let t39 = t4 * t37;
-        let t40 = lit::<T>(0.004557856275072) * t35;
-        let t42 = T::mul_add(lit::<T>(-0.0335304944), t38, -t40);
-        let t44 = T::mul_add(-lit::<T>(6.43853298e-11), t39, t42);
-        let t46 = T::mul_add(
-            -lit::<T>(219.4013895236754),
-            t44,
-            lit::<T>(219.4013895236754),
-        );
-        minv[1][1] = t46;
+        let t9 = t4 * lit::<T>(6.43853298e-11);
+        let t11 = T::mul_add(t5, lit::<T>(0.0335304944), t9);
+        let t14 = T::mul_add(lit::<T>(0.1), t11, lit::<T>(-3.8305498717999996e-5));
+        let t18 = T::mul_add(t14, lit::<T>(2.0), lit::<T>(0.007958267272508));
+        let t19 = lit::<T>(0.0007545716336328686) + t18;
+        let t22 = T::mul_add(t5, lit::<T>(-0.0335304944), -t9);
+        let t24 = T::mul_add(-lit::<T>(0.1), t22, lit::<T>(0.004557856275072));
+        let t26 = t24 * lit::<T>(-219.4013895236754);
+        let t28 = T::mul_add(t24, t26, t19);
+        let t29 = lit::<T>(-1.0) / t28;
+        let t30 = -t29;
+        minv[0][0] = t30;
+        let t31 = t26 * t29;
+        let t32 = -t31;
+        minv[0][1] = t32;
+        minv[1][0] = t32;
+        let t35 = T::mul_add(-t26, t31, lit::<T>(219.4013895236754));
+        minv[1][1] = t35;
     }
     /// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
     #[inline]

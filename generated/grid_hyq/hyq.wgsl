@@ -54,15 +54,15 @@
 // nv: 12
 // precision: f32
 // trig: accurate
-// tables: prog=81316 konst=76
+// tables: prog=76866 konst=70
 // entry: rnea kernel=rnea strategy=thread outputs=12 scratch=78 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=2 statements=1606 functions=4
 // entry: rnea_coop kernel=rnea strategy=cooperative outputs=12 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=1840 phases=25 stages=1 statements=1414 functions=3
 // entry: rnea_grad kernel=rnea_grad strategy=thread outputs=288 scratch=514 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=5 statements=5829 functions=10
 // entry: rnea_grad_coop kernel=rnea_grad strategy=cooperative outputs=288 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=4056 phases=30 stages=1 statements=4552 functions=3
 // entry: mass_matrix kernel=mass_matrix strategy=thread outputs=144 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=586 functions=2
 // entry: mass_matrix_coop kernel=mass_matrix strategy=cooperative outputs=144 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=560 phases=20 stages=1 statements=578 functions=3
-// entry: minv kernel=minv strategy=thread outputs=144 scratch=86 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=2 statements=1688 functions=4
-// entry: minv_coop kernel=minv strategy=cooperative outputs=144 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=1280 phases=46 stages=1 statements=1508 functions=3
+// entry: minv kernel=minv strategy=thread outputs=144 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=734 functions=2
+// entry: minv_coop kernel=minv strategy=cooperative outputs=144 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=560 phases=29 stages=1 statements=726 functions=3
 // entry: fd kernel=fd strategy=thread outputs=12 scratch=182 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=3 statements=3222 functions=6
 // entry: fd_coop kernel=fd strategy=cooperative outputs=12 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=2248 phases=56 stages=1 statements=2790 functions=3
 // entry: fd_grad kernel=fd_grad strategy=thread outputs=300 scratch=647 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=6 statements=7621 functions=12
@@ -8429,1016 +8429,598 @@ fn mass_matrix_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
     }
 }
 
-// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted. One invocation per state.
+// M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity. One invocation per state.
 fn minv_part0(s: u32, n: u32) {
     let t5 = q[1u * n + s];
-    let t20 = q[2u * n + s];
-    let t28 = q[4u * n + s];
-    let t36 = q[5u * n + s];
-    let t41 = q[7u * n + s];
-    let t46 = q[8u * n + s];
-    let t49 = q[10u * n + s];
-    let t54 = q[11u * n + s];
+    let t19 = q[2u * n + s];
+    let t30 = q[4u * n + s];
+    let t38 = q[5u * n + s];
+    let t44 = q[7u * n + s];
+    let t49 = q[8u * n + s];
+    let t52 = q[10u * n + s];
+    let t57 = q[11u * n + s];
     let t6 = gg_sin(t5);
     let t7 = gg_cos(t5);
     let t8 = 4.8965888e-12f * t6;
     let t9 = 4.8965888e-12f * t7;
-    let t21 = gg_sin(t20);
-    let t22 = gg_cos(t20);
-    let t29 = gg_sin(t28);
-    let t30 = gg_cos(t28);
-    let t31 = 4.8965888e-12f * t29;
-    let t32 = 4.8965888e-12f * t30;
-    let t37 = gg_sin(t36);
-    let t38 = gg_cos(t36);
-    let t42 = gg_sin(t41);
-    let t43 = gg_cos(t41);
-    let t44 = 4.8965888e-12f * t42;
-    let t45 = 4.8965888e-12f * t43;
-    let t47 = gg_sin(t46);
-    let t48 = gg_cos(t46);
+    let t20 = gg_sin(t19);
+    let t21 = gg_cos(t19);
+    let t31 = gg_sin(t30);
+    let t32 = gg_cos(t30);
+    let t33 = 4.8965888e-12f * t31;
+    let t34 = 4.8965888e-12f * t32;
+    let t39 = gg_sin(t38);
+    let t40 = gg_cos(t38);
+    let t45 = gg_sin(t44);
+    let t46 = gg_cos(t44);
+    let t47 = 4.8965888e-12f * t45;
+    let t48 = 4.8965888e-12f * t46;
     let t50 = gg_sin(t49);
     let t51 = gg_cos(t49);
-    let t52 = 4.8965888e-12f * t50;
-    let t53 = 4.8965888e-12f * t51;
-    let t55 = gg_sin(t54);
-    let t56 = gg_cos(t54);
-    let t64 = t56 * 0.001345867f;
-    let t65 = t55 * 4.2192926f;
-    let t66 = t64 - t65;
-    let t67 = t55 * 0.001345867f;
-    let t68 = t56 * 4.2192926f;
-    let t69 = t67 + t68;
-    let t70 = t56 * (-4.0014715e-5f);
-    let t71 = t55 * 1.3458668e-7f;
-    let t72 = t70 - t71;
-    let t73 = t55 * (-4.0014715e-5f);
-    let t74 = t56 * 1.3458668e-7f;
-    let t75 = t73 + t74;
-    let t76 = 0.35f * t69;
-    let t77 = 1.0f + t76;
-    let t90 = t56 * 0.00047001019f;
-    let t91 = t55 * (-5.5580906e-5f);
-    let t92 = t90 - t91;
-    let t93 = t56 * (-5.5580906e-5f);
-    let t94 = t55 * 0.026413875f;
+    let t53 = gg_sin(t52);
+    let t54 = gg_cos(t52);
+    let t55 = 4.8965888e-12f * t53;
+    let t56 = 4.8965888e-12f * t54;
+    let t58 = gg_sin(t57);
+    let t59 = gg_cos(t57);
+    let t60 = 0.1104774f * t59;
+    let t61 = (-3.524e-5f) * t58;
+    let t62 = t60 - t61;
+    let t63 = 0.1104774f * t58;
+    let t64 = (-3.524e-5f) * t59;
+    let t65 = t63 + t64;
+    let t66 = 0.0004700102f * t59;
+    let t67 = (-5.5580906e-5f) * t58;
+    let t68 = t66 - t67;
+    let t69 = 0.0004700102f * t58;
+    let t70 = (-5.5580906e-5f) * t59;
+    let t71 = t69 + t70;
+    let t72 = 0.026413875f * t58;
+    let t73 = t70 - t72;
+    let t74 = 0.026413875f * t59;
+    let t75 = t67 + t74;
+    let t76 = (-1.04774e-6f) * t59;
+    let t77 = 3.524e-9f * t58;
+    let t78 = t76 - t77;
+    let t79 = (-1.04774e-6f) * t58;
+    let t80 = 3.524e-9f * t59;
+    let t81 = t79 + t80;
+    let t82 = 0.35f * t62;
+    let t84 = t82 * 2.0f;
+    let t85 = t59 * t68;
+    let t86 = t58 * t73;
+    let t87 = t85 - t86;
+    let t88 = t82 + t82;
+    let t89 = t87 - t88;
+    let t90 = t84 + t89;
+    let t91 = t59 * t71;
+    let t92 = t58 * t75;
+    let t93 = t91 - t92;
+    let t94 = 0.35f * t65;
     let t95 = t93 - t94;
-    let t96 = t56 * 1.4101186e-9f;
-    let t97 = t55 * 8.8099994e-5f;
-    let t98 = t56 * (-8.3679275e-5f);
-    let t99 = t55 * (-1.4868787e-8f);
-    let t100 = (-3.524e-5f) * t56;
-    let t101 = t55 * (-0.1104774f);
-    let t102 = t100 - t101;
-    let t103 = t56 * t92;
-    let t104 = t55 * t95;
-    let t105 = t103 - t104;
-    let t106 = t55 * 0.00047001019f;
-    let t107 = t93 + t106;
-    let t109 = t107 + 1.2334e-5f;
-    let t110 = t56 * 0.026413875f;
-    let t111 = t91 + t110;
-    let t113 = t111 + 0.03866709f;
-    let t114 = t55 * 1.4101186e-9f;
-    let t115 = t56 * 8.8099994e-5f;
-    let t116 = t55 * (-8.3679275e-5f);
-    let t117 = t56 * (-1.4868787e-8f);
-    let t118 = (-3.524e-5f) * t55;
-    let t119 = t56 * (-0.1104774f);
-    let t120 = t118 + t119;
-    let t122 = t120 + (-0.30835f);
-    let t123 = t56 * t109;
-    let t124 = t55 * t113;
-    let t125 = t123 - t124;
-    let t126 = t55 * t109;
-    let t127 = t56 * t113;
-    let t128 = t126 + t127;
-    let t129 = 0.35f * t122;
-    let t130 = t128 - t129;
-    let t131 = 0.35f * t55;
-    let t132 = 0.35f * t56;
-    let t133 = 1.4101186e-9f * t131;
-    let t134 = 2.1175824e-22f + t133;
-    let t135 = (-8.3679275e-5f) * t132;
+    let t97 = t78 - 3.0835e-5f;
+    let t98 = t58 * t71;
+    let t99 = t59 * t75;
+    let t100 = t98 + t99;
+    let t102 = t100 + 0.1079225f;
+    let t103 = t84 + t102;
+    let t105 = t84 + 0.13410637f;
+    let t107 = t62 + 0.30835f;
+    let t108 = 0.005497747f + t90;
+    let t109 = (-0.007418368f) + t95;
+    let t110 = (-0.0001f) + t97;
+    let t111 = 0.08713208f + t103;
+    let t112 = 2e-5f + t81;
+    let t113 = 0.08986983f + t105;
+    let t114 = 0.39765212f + t107;
+    let t115 = 0.0692475f + t65;
+    let t116 = t54 * t114;
+    let t117 = t53 * t115;
+    let t118 = t116 - t117;
+    let t119 = t53 * t109;
+    let t120 = -(t119);
+    let t121 = t53 * t108;
+    let t122 = -(t121);
+    let t123 = t54 * t109;
+    let t124 = t122 - t123;
+    let t125 = 4.8965888e-12f * t110;
+    let t126 = t124 + t125;
+    let t127 = t54 * t111;
+    let t128 = t120 - t127;
+    let t129 = 4.8965888e-12f * t112;
+    let t130 = t128 + t129;
+    let t131 = t53 * t110;
+    let t132 = -(t131);
+    let t133 = t54 * t112;
+    let t134 = t132 - t133;
+    let t135 = 4.8965888e-12f * t113;
     let t136 = t134 + t135;
-    let t137 = 8.8099994e-5f * t131;
-    let t138 = (-1.4868787e-8f) * t132;
-    let t139 = t137 + t138;
-    let t140 = 0.881f * t131;
-    let t141 = (-0.00014868788f) * t132;
-    let t142 = t140 + t141;
-    let t143 = (-0.00014868788f) * t131;
-    let t144 = 0.41486353f * t132;
+    let t137 = 0.08f * t118;
+    let t138 = 2.0f * t137;
+    let t140 = t53 * t126;
+    let t141 = -(t140);
+    let t142 = t54 * t130;
+    let t143 = t141 - t142;
+    let t144 = 4.8965888e-12f * t136;
     let t145 = t143 + t144;
-    let t146 = t55 * t142;
-    let t147 = t56 * t145;
-    let t148 = t146 + t147;
-    let t149 = t56 * t136;
-    let t150 = t55 * t139;
+    let t146 = 0.0225216f + t145;
+    let t147 = t138 + t146;
+    let t148 = 0.011034738f + t147;
+    let t149 = 0.1104774f * t51;
+    let t150 = 3.524e-5f * t50;
     let t151 = t149 - t150;
-    let t152 = t55 * t136;
-    let t153 = t56 * t139;
+    let t152 = 0.1104774f * t50;
+    let t153 = 3.524e-5f * t51;
     let t154 = t152 + t153;
-    let t155 = 0.35f * t148;
-    let t156 = t96 - t116;
-    let t157 = t115 - t99;
-    let t158 = t56 * 0.881f;
-    let t159 = t55 * (-0.00014868788f);
-    let t160 = t158 - t159;
-    let t161 = t56 * (-0.00014868788f);
-    let t162 = t55 * 0.41486353f;
-    let t163 = t161 - t162;
-    let t164 = t56 * t160;
-    let t165 = t55 * t163;
-    let t166 = t164 - t165;
-    let t167 = t55 * t160;
-    let t168 = t56 * t163;
-    let t169 = t167 + t168;
-    let t170 = t56 * t156;
-    let t171 = t55 * t157;
-    let t172 = t170 - t171;
-    let t173 = t55 * t156;
-    let t174 = t56 * t157;
-    let t175 = t173 + t174;
-    let t176 = 0.35f * t169;
-    let t177 = t98 + t114;
-    let t178 = t97 + t117;
-    let t179 = t55 * 0.881f;
-    let t180 = t161 + t179;
-    let t181 = t56 * 0.41486353f;
-    let t182 = t159 + t181;
-    let t183 = t56 * t180;
-    let t184 = t55 * t182;
-    let t185 = t183 - t184;
-    let t186 = t55 * t180;
-    let t187 = t56 * t182;
+    let t155 = 0.0004700102f * t51;
+    let t156 = 5.5580906e-5f * t50;
+    let t157 = t155 - t156;
+    let t158 = 0.0004700102f * t50;
+    let t159 = 5.5580906e-5f * t51;
+    let t160 = t158 + t159;
+    let t161 = 0.026413875f * t50;
+    let t162 = t159 - t161;
+    let t163 = 0.026413875f * t51;
+    let t164 = t156 + t163;
+    let t165 = 1.04774e-6f * t51;
+    let t166 = 3.524e-9f * t50;
+    let t167 = t165 - t166;
+    let t168 = 1.04774e-6f * t50;
+    let t169 = 3.524e-9f * t51;
+    let t170 = t168 + t169;
+    let t171 = 0.35f * t151;
+    let t172 = 2.0f * t171;
+    let t173 = t51 * t157;
+    let t174 = t50 * t162;
+    let t175 = t173 - t174;
+    let t176 = t171 + t171;
+    let t177 = t175 - t176;
+    let t178 = t172 + t177;
+    let t179 = t51 * t160;
+    let t180 = t50 * t164;
+    let t181 = t179 - t180;
+    let t182 = 0.35f * t154;
+    let t183 = t181 - t182;
+    let t185 = t167 - (-3.0835e-5f);
+    let t186 = t50 * t160;
+    let t187 = t51 * t164;
     let t188 = t186 + t187;
-    let t189 = t56 * t177;
-    let t190 = t55 * t178;
-    let t191 = t189 - t190;
-    let t192 = t55 * t177;
-    let t193 = t56 * t178;
-    let t194 = t192 + t193;
-    let t195 = 0.35f * t188;
-    let t196 = 0.005497747f + t105;
-    let t197 = (-0.007418368f) + t125;
-    let t198 = (-0.0001f) + t151;
-    let t199 = 0.0692475f + t102;
-    let t200 = 0.08713208f + t130;
-    let t201 = 2e-5f + t154;
-    let t202 = (-0.39765212f) + t122;
-    let t203 = 0.08986983f + t155;
-    let t204 = (-0.0692475f) + t176;
-    let t205 = 0.39765212f + t195;
-    let t206 = 2.638f + t166;
-    let t207 = 2.638f + t188;
-    let t208 = 1.0f / t203;
-    let t209 = t77 * t208;
-    let t210 = -(t209);
-    let t211 = t198 * t208;
-    let t212 = t201 * t208;
-    let t213 = t203 * t208;
-    let t214 = t204 * t208;
-    let t215 = t205 * t208;
-    let t216 = t52 * t214;
-    let t217 = t53 * t215;
-    let t218 = t216 + t217;
-    let t219 = t50 * t211;
-    let t220 = -(t219);
-    let t221 = t51 * t212;
-    let t222 = t220 - t221;
-    let t223 = 4.8965888e-12f * t213;
-    let t224 = t222 + t223;
-    let t225 = 0.08f * t218;
-    let t226 = t224 + t225;
-    let t227 = t198 * t209;
-    let t228 = t201 * t209;
-    let t229 = t203 * t209;
-    let t230 = t204 * t209;
-    let t231 = t205 * t209;
-    let t232 = t72 - t227;
-    let t233 = t75 - t228;
-    let t234 = t77 - t229;
-    let t235 = t66 - t230;
-    let t236 = t69 - t231;
-    let t237 = t52 * t235;
-    let t238 = t53 * t236;
-    let t239 = t237 + t238;
-    let t240 = t50 * t232;
-    let t241 = -(t240);
-    let t242 = t51 * t233;
-    let t243 = t241 - t242;
-    let t244 = 4.8965888e-12f * t234;
-    let t245 = t243 + t244;
-    let t246 = 0.08f * t239;
-    let t247 = t245 + t246;
-    let t248 = t198 * t211;
-    let t249 = t196 - t248;
-    let t250 = t201 * t211;
-    let t251 = t197 - t250;
-    let t252 = t203 * t211;
-    let t253 = t198 - t252;
-    let t254 = t204 * t211;
-    let t255 = t172 - t254;
-    let t256 = t205 * t211;
-    let t257 = t191 - t256;
-    let t258 = t201 * t212;
-    let t259 = t200 - t258;
-    let t260 = t203 * t212;
-    let t261 = t201 - t260;
-    let t262 = t204 * t212;
-    let t263 = t175 - t262;
-    let t264 = t205 * t212;
-    let t265 = t194 - t264;
-    let t266 = t203 * t213;
-    let t267 = t203 - t266;
-    let t268 = t204 * t213;
-    let t269 = t204 - t268;
-    let t270 = t205 * t213;
-    let t271 = t205 - t270;
-    let t272 = t204 * t214;
-    let t273 = t206 - t272;
-    let t274 = t205 * t214;
-    let t275 = t185 - t274;
-    let t276 = t205 * t215;
-    let t277 = t207 - t276;
-    let t278 = t50 * t251;
-    let t279 = -(t278);
-    let t280 = t51 * t251;
-    let t282 = 0.08f * t52;
-    let t283 = 0.08f * t53;
-    let t284 = t50 * t249;
-    let t285 = -(t284);
-    let t286 = t285 - t280;
-    let t287 = 4.8965888e-12f * t253;
-    let t288 = t286 + t287;
-    let t289 = t255 * t282;
+    let t189 = 0.1079225f + t188;
+    let t190 = t172 + t189;
+    let t191 = 0.13410637f + t172;
+    let t192 = 0.30835f + t151;
+    let t193 = 0.005497747f + t178;
+    let t194 = 0.007418368f + t183;
+    let t195 = 0.0001f + t185;
+    let t196 = 0.08713208f + t190;
+    let t197 = 2e-5f + t170;
+    let t198 = 0.08986983f + t191;
+    let t199 = 0.39765212f + t192;
+    let t200 = (-0.0692475f) + t154;
+    let t201 = t46 * t199;
+    let t202 = t45 * t200;
+    let t203 = t201 - t202;
+    let t204 = t45 * t194;
+    let t205 = -(t204);
+    let t206 = t45 * t193;
+    let t207 = -(t206);
+    let t208 = t46 * t194;
+    let t209 = t207 - t208;
+    let t210 = 4.8965888e-12f * t195;
+    let t211 = t209 + t210;
+    let t212 = t46 * t196;
+    let t213 = t205 - t212;
+    let t214 = 4.8965888e-12f * t197;
+    let t215 = t213 + t214;
+    let t216 = t45 * t195;
+    let t217 = -(t216);
+    let t218 = t46 * t197;
+    let t219 = t217 - t218;
+    let t220 = 4.8965888e-12f * t198;
+    let t221 = t219 + t220;
+    let t222 = 0.08f * t203;
+    let t223 = 2.0f * t222;
+    let t224 = t45 * t211;
+    let t225 = -(t224);
+    let t226 = t46 * t215;
+    let t227 = t225 - t226;
+    let t228 = 4.8965888e-12f * t221;
+    let t229 = t227 + t228;
+    let t230 = 0.0225216f + t229;
+    let t231 = t223 + t230;
+    let t232 = 0.011034738f + t231;
+    let t233 = 0.1104774f * t40;
+    let t234 = t39 * (-3.524e-5f);
+    let t235 = t233 - t234;
+    let t236 = 0.1104774f * t39;
+    let t237 = t40 * (-3.524e-5f);
+    let t238 = t236 + t237;
+    let t239 = 0.0004700102f * t40;
+    let t240 = t39 * (-5.5580906e-5f);
+    let t241 = t239 - t240;
+    let t242 = 0.0004700102f * t39;
+    let t243 = t40 * (-5.5580906e-5f);
+    let t244 = t242 + t243;
+    let t245 = 0.026413875f * t39;
+    let t246 = t243 - t245;
+    let t247 = 0.026413875f * t40;
+    let t248 = t240 + t247;
+    let t249 = t40 * (-1.04774e-6f);
+    let t250 = 3.524e-9f * t39;
+    let t251 = t249 - t250;
+    let t252 = t39 * (-1.04774e-6f);
+    let t253 = 3.524e-9f * t40;
+    let t254 = t252 + t253;
+    let t255 = 0.35f * t235;
+    let t256 = 2.0f * t255;
+    let t257 = t40 * t241;
+    let t258 = t39 * t246;
+    let t259 = t257 - t258;
+    let t260 = t255 + t255;
+    let t261 = t259 - t260;
+    let t262 = t256 + t261;
+    let t263 = t40 * t244;
+    let t264 = t39 * t248;
+    let t265 = t263 - t264;
+    let t266 = 0.35f * t238;
+    let t267 = t265 - t266;
+    let t268 = t251 - 3.0835e-5f;
+    let t269 = t39 * t244;
+    let t270 = t40 * t248;
+    let t271 = t269 + t270;
+    let t272 = 0.1079225f + t271;
+    let t273 = t256 + t272;
+    let t274 = 0.13410637f + t256;
+    let t275 = 0.30835f + t235;
+    let t276 = 0.005497747f + t262;
+    let t277 = (-0.007418368f) + t267;
+    let t278 = (-0.0001f) + t268;
+    let t279 = 0.08713208f + t273;
+    let t280 = 2e-5f + t254;
+    let t281 = 0.08986983f + t274;
+    let t282 = 0.39765212f + t275;
+    let t283 = 0.0692475f + t238;
+    let t284 = t32 * t282;
+    let t285 = t31 * t283;
+    let t286 = t284 - t285;
+    let t287 = t31 * t277;
+    let t288 = t31 * t276;
+    let t289 = t32 * t277;
     let t290 = t288 + t289;
-    let t291 = t257 * t283;
+    let t291 = 4.8965888e-12f * t278;
     let t292 = t290 + t291;
-    let t293 = 0.08f * t199;
-    let t294 = t292 + t293;
-    let t295 = t51 * t259;
-    let t296 = t279 - t295;
-    let t297 = 4.8965888e-12f * t261;
-    let t298 = t296 + t297;
-    let t299 = t263 * t282;
-    let t300 = t298 + t299;
-    let t301 = t265 * t283;
-    let t302 = t300 + t301;
-    let t303 = 0.08f * t202;
-    let t304 = t302 + t303;
-    let t305 = t50 * t253;
-    let t306 = -(t305);
-    let t307 = t51 * t261;
-    let t308 = t306 - t307;
-    let t309 = 4.8965888e-12f * t267;
-    let t310 = t308 + t309;
-    let t311 = t269 * t282;
-    let t312 = t310 + t311;
-    let t313 = t271 * t283;
-    let t314 = t312 + t313;
-    let t315 = t50 * t255;
-    let t316 = -(t315);
-    let t317 = t51 * t263;
-    let t318 = t316 - t317;
-    let t319 = 4.8965888e-12f * t269;
-    let t320 = t318 + t319;
-    let t321 = t273 * t282;
-    let t322 = t320 + t321;
-    let t323 = t275 * t283;
-    let t324 = t322 + t323;
-    let t325 = t50 * t257;
-    let t326 = -(t325);
-    let t327 = t51 * t265;
-    let t328 = t326 - t327;
-    let t329 = 4.8965888e-12f * t271;
-    let t330 = t328 + t329;
-    let t331 = t275 * t282;
-    let t332 = t330 + t331;
-    let t333 = t277 * t283;
-    let t334 = t332 + t333;
-    let t335 = t50 * t199;
-    let t336 = -(t335);
-    let t337 = t51 * t202;
+    let t293 = t32 * t279;
+    let t294 = t287 + t293;
+    let t295 = 4.8965888e-12f * t280;
+    let t296 = t294 + t295;
+    let t297 = t31 * t278;
+    let t298 = t32 * t280;
+    let t299 = t297 + t298;
+    let t300 = 4.8965888e-12f * t281;
+    let t301 = t299 + t300;
+    let t302 = 0.08f * t286;
+    let t303 = 2.0f * t302;
+    let t304 = t31 * t292;
+    let t305 = t32 * t296;
+    let t306 = t304 + t305;
+    let t307 = 4.8965888e-12f * t301;
+    let t308 = t306 + t307;
+    let t309 = 0.0225216f + t308;
+    let t310 = t303 + t309;
+    let t311 = 0.011034738f + t310;
+    let t312 = t21 * 0.1104774f;
+    let t313 = t20 * 3.524e-5f;
+    let t314 = t312 - t313;
+    let t315 = t20 * 0.1104774f;
+    let t316 = t21 * 3.524e-5f;
+    let t317 = t315 + t316;
+    let t318 = t21 * 0.0004700102f;
+    let t319 = t20 * 5.5580906e-5f;
+    let t320 = t318 - t319;
+    let t321 = t20 * 0.0004700102f;
+    let t322 = t21 * 5.5580906e-5f;
+    let t323 = t321 + t322;
+    let t324 = t20 * 0.026413875f;
+    let t325 = t322 - t324;
+    let t326 = t21 * 0.026413875f;
+    let t327 = t319 + t326;
+    let t328 = t21 * 1.04774e-6f;
+    let t329 = t20 * 3.524e-9f;
+    let t330 = t328 - t329;
+    let t331 = t20 * 1.04774e-6f;
+    let t332 = t21 * 3.524e-9f;
+    let t333 = t331 + t332;
+    let t334 = 0.35f * t314;
+    let t335 = 2.0f * t334;
+    let t336 = t21 * t320;
+    let t337 = t20 * t325;
     let t338 = t336 - t337;
-    let t340 = t338 + 0.28152f;
-    let t341 = t52 * t324;
-    let t342 = t53 * t334;
-    let t343 = t341 + t342;
-    let t344 = t340 + t343;
-    let t345 = t50 * t294;
-    let t346 = -(t345);
-    let t347 = t51 * t304;
-    let t348 = t346 - t347;
-    let t349 = 4.8965888e-12f * t314;
+    let t339 = t334 + t334;
+    let t340 = t338 - t339;
+    let t341 = t335 + t340;
+    let t342 = t21 * t323;
+    let t343 = t20 * t327;
+    let t344 = t342 - t343;
+    let t345 = 0.35f * t317;
+    let t346 = t344 - t345;
+    let t347 = t330 - (-3.0835e-5f);
+    let t348 = t20 * t323;
+    let t349 = t21 * t327;
     let t350 = t348 + t349;
-    let t351 = 0.08f * t344;
-    let t352 = t350 + t351;
-    let t353 = 0.011034738f + t352;
-    let t354 = 1.0f / t353;
-    let t355 = t226 * t354;
-    let t356 = -(t355);
-    let t357 = t247 * t354;
-    let t358 = -(t357);
-    let t361 = t48 * (-0.001345867f);
-    let t362 = t47 * 4.2192926f;
-    let t363 = t361 - t362;
-    let t364 = t47 * (-0.001345867f);
-    let t365 = t48 * 4.2192926f;
-    let t366 = t364 + t365;
-    let t367 = t48 * 4.0014715e-5f;
-    let t368 = t47 * 1.3458668e-7f;
-    let t369 = t367 - t368;
-    let t370 = t47 * 4.0014715e-5f;
-    let t371 = t48 * 1.3458668e-7f;
-    let t372 = t370 + t371;
-    let t373 = 0.35f * t366;
-    let t374 = 1.0f + t373;
-    let t379 = t48 * 0.00047001019f;
-    let t380 = t47 * 5.5580906e-5f;
-    let t381 = t379 - t380;
-    let t382 = t48 * 5.5580906e-5f;
-    let t383 = t47 * 0.026413875f;
-    let t384 = t382 - t383;
-    let t385 = t48 * 1.4101186e-9f;
-    let t386 = t47 * (-8.8099994e-5f);
-    let t387 = t48 * 8.3679275e-5f;
-    let t388 = t47 * (-1.4868787e-8f);
-    let t389 = 3.524e-5f * t48;
-    let t390 = t47 * (-0.1104774f);
-    let t391 = t389 - t390;
-    let t392 = t48 * t381;
-    let t393 = t47 * t384;
-    let t394 = t392 - t393;
-    let t395 = t47 * 0.00047001019f;
-    let t396 = t382 + t395;
-    let t398 = t396 + (-1.2334e-5f);
-    let t399 = t48 * 0.026413875f;
-    let t400 = t380 + t399;
-    let t401 = 0.03866709f + t400;
-    let t402 = t47 * 1.4101186e-9f;
-    let t403 = t48 * (-8.8099994e-5f);
-    let t404 = t47 * 8.3679275e-5f;
-    let t405 = t48 * (-1.4868787e-8f);
-    let t406 = 3.524e-5f * t47;
-    let t407 = t48 * (-0.1104774f);
-    let t408 = t406 + t407;
-    let t409 = (-0.30835f) + t408;
-    let t410 = t48 * t398;
-    let t411 = t47 * t401;
-    let t412 = t410 - t411;
-    let t413 = t47 * t398;
-    let t414 = t48 * t401;
-    let t415 = t413 + t414;
-    let t416 = 0.35f * t409;
-    let t417 = t415 - t416;
-    let t418 = 0.35f * t47;
-    let t419 = 0.35f * t48;
-    let t420 = 1.4101186e-9f * t418;
-    let t421 = (-2.1175824e-22f) + t420;
-    let t422 = 8.3679275e-5f * t419;
-    let t423 = t421 + t422;
-    let t424 = (-8.8099994e-5f) * t418;
-    let t425 = (-1.4868787e-8f) * t419;
-    let t426 = t424 + t425;
-    let t427 = 0.881f * t418;
-    let t428 = 0.00014868788f * t419;
-    let t429 = t427 + t428;
-    let t430 = 0.00014868788f * t418;
-    let t431 = 0.41486353f * t419;
+    let t351 = 0.1079225f + t350;
+    let t352 = t335 + t351;
+    let t353 = 0.13410637f + t335;
+    let t354 = 0.30835f + t314;
+    let t355 = 0.005497747f + t341;
+    let t356 = 0.007418368f + t346;
+    let t357 = 0.0001f + t347;
+    let t358 = 0.08713208f + t352;
+    let t359 = 2e-5f + t333;
+    let t360 = 0.08986983f + t353;
+    let t361 = 0.39765212f + t354;
+    let t362 = (-0.0692475f) + t317;
+    let t363 = t7 * t361;
+    let t364 = t6 * t362;
+    let t365 = t363 - t364;
+    let t366 = t6 * t356;
+    let t367 = t6 * t355;
+    let t368 = t7 * t356;
+    let t369 = t367 + t368;
+    let t370 = 4.8965888e-12f * t357;
+    let t371 = t369 + t370;
+    let t372 = t7 * t358;
+    let t373 = t366 + t372;
+    let t374 = 4.8965888e-12f * t359;
+    let t375 = t373 + t374;
+    let t376 = t6 * t357;
+    let t377 = t7 * t359;
+    let t378 = t376 + t377;
+    let t379 = 4.8965888e-12f * t360;
+    let t380 = t378 + t379;
+    let t381 = 0.08f * t365;
+    let t382 = 2.0f * t381;
+    let t383 = t6 * t371;
+    let t384 = t7 * t375;
+    let t385 = t383 + t384;
+    let t386 = 4.8965888e-12f * t380;
+    let t387 = t385 + t386;
+    let t388 = 0.0225216f + t387;
+    let t389 = t382 + t388;
+    let t390 = 0.011034738f + t389;
+    let t391 = t8 * t362;
+    let t392 = t9 * t361;
+    let t393 = t392 - t391;
+    let t394 = 0.08f * t393;
+    let t395 = t380 + t394;
+    let t396 = t21 * (-3.524e-5f);
+    let t397 = t396 - t315;
+    let t398 = t20 * (-3.524e-5f);
+    let t399 = t312 + t398;
+    let t400 = 0.35f * t399;
+    let t401 = 0.026183868f + t400;
+    let t402 = t8 * t397;
+    let t403 = t9 * t399;
+    let t404 = t402 + t403;
+    let t405 = t6 * t330;
+    let t406 = t7 * t333;
+    let t407 = t405 + t406;
+    let t408 = 4.8965888e-12f * t401;
+    let t409 = t407 + t408;
+    let t410 = 0.08f * t404;
+    let t411 = t409 + t410;
+    let t412 = t33 * t283;
+    let t413 = t34 * t282;
+    let t414 = t413 - t412;
+    let t415 = 0.08f * t414;
+    let t416 = t301 + t415;
+    let t417 = 3.524e-5f * t40;
+    let t418 = t417 - t236;
+    let t419 = 3.524e-5f * t39;
+    let t420 = t233 + t419;
+    let t421 = 0.35f * t420;
+    let t422 = 0.026183868f + t421;
+    let t423 = t33 * t418;
+    let t424 = t34 * t420;
+    let t425 = t423 + t424;
+    let t426 = t31 * t251;
+    let t427 = t32 * t254;
+    let t428 = t426 + t427;
+    let t429 = 4.8965888e-12f * t422;
+    let t430 = t428 + t429;
+    let t431 = 0.08f * t425;
     let t432 = t430 + t431;
-    let t433 = t47 * t429;
-    let t434 = t48 * t432;
-    let t435 = t433 + t434;
-    let t436 = t48 * t423;
-    let t437 = t47 * t426;
-    let t438 = t436 - t437;
-    let t439 = t47 * t423;
-    let t440 = t48 * t426;
-    let t441 = t439 + t440;
-    let t442 = 0.35f * t435;
-    let t443 = t385 - t404;
-    let t444 = t403 - t388;
-    let t445 = t48 * 0.881f;
-    let t446 = t47 * 0.00014868788f;
-    let t447 = t445 - t446;
-    let t448 = t48 * 0.00014868788f;
-    let t449 = t47 * 0.41486353f;
+    let t433 = t47 * t200;
+    let t434 = t48 * t199;
+    let t435 = t434 - t433;
+    let t436 = 0.08f * t435;
+    let t437 = t221 + t436;
+    let t438 = (-3.524e-5f) * t51;
+    let t439 = t438 - t152;
+    let t440 = (-3.524e-5f) * t50;
+    let t441 = t149 + t440;
+    let t442 = 0.35f * t441;
+    let t443 = 0.026183868f + t442;
+    let t444 = t47 * t439;
+    let t445 = t48 * t441;
+    let t446 = t444 + t445;
+    let t447 = t45 * t167;
+    let t448 = -(t447);
+    let t449 = t46 * t170;
     let t450 = t448 - t449;
-    let t451 = t48 * t447;
-    let t452 = t47 * t450;
-    let t453 = t451 - t452;
-    let t454 = t47 * t447;
-    let t455 = t48 * t450;
-    let t456 = t454 + t455;
-    let t457 = t48 * t443;
-    let t458 = t47 * t444;
-    let t459 = t457 - t458;
-    let t460 = t47 * t443;
-    let t461 = t48 * t444;
-    let t462 = t460 + t461;
-    let t463 = 0.35f * t456;
-    let t464 = t387 + t402;
-    let t465 = t386 + t405;
-    let t466 = t47 * 0.881f;
-    let t467 = t448 + t466;
-    let t468 = t48 * 0.41486353f;
-    let t469 = t446 + t468;
-    let t470 = t48 * t467;
-    let t471 = t47 * t469;
+    let t451 = 4.8965888e-12f * t443;
+    let t452 = t450 + t451;
+    let t453 = 0.08f * t446;
+    let t454 = t452 + t453;
+    let t455 = t55 * t115;
+    let t456 = t56 * t114;
+    let t457 = t456 - t455;
+    let t458 = 0.08f * t457;
+    let t459 = t136 + t458;
+    let t460 = 3.524e-5f * t59;
+    let t461 = t460 - t63;
+    let t462 = 3.524e-5f * t58;
+    let t463 = t60 + t462;
+    let t464 = 0.35f * t463;
+    let t465 = 0.026183868f + t464;
+    let t466 = t55 * t461;
+    let t467 = t56 * t463;
+    let t468 = t466 + t467;
+    let t469 = t53 * t78;
+    let t470 = -(t469);
+    let t471 = t54 * t81;
     let t472 = t470 - t471;
-    let t473 = t47 * t467;
-    let t474 = t48 * t469;
-    let t475 = t473 + t474;
-    let t476 = t48 * t464;
-    let t477 = t47 * t465;
-    let t478 = t476 - t477;
-    let t479 = t47 * t464;
-    let t480 = t48 * t465;
-    let t481 = t479 + t480;
-    let t482 = 0.35f * t475;
-    let t483 = 0.005497747f + t394;
-    let t484 = 0.007418368f + t412;
-    let t485 = 0.0001f + t438;
-    let t486 = (-0.0692475f) + t391;
-    let t487 = 0.08713208f + t417;
-    let t488 = 2e-5f + t441;
-    let t489 = (-0.39765212f) + t409;
-    let t490 = 0.08986983f + t442;
-    let t491 = 0.0692475f + t463;
-    let t492 = 0.39765212f + t482;
-    let t493 = 2.638f + t453;
-    let t494 = 2.638f + t475;
-    let t495 = 1.0f / t490;
-    let t496 = t374 * t495;
-    let t497 = -(t496);
-    let t498 = t485 * t495;
-    let t499 = t488 * t495;
-    let t500 = t490 * t495;
-    let t501 = t491 * t495;
-    let t502 = t492 * t495;
-    let t503 = t44 * t501;
-    let t504 = t45 * t502;
-    let t505 = t503 + t504;
-    let t506 = t42 * t498;
-    let t507 = -(t506);
-    let t508 = t43 * t499;
-    let t509 = t507 - t508;
-    let t510 = 4.8965888e-12f * t500;
-    let t511 = t509 + t510;
-    let t512 = 0.08f * t505;
-    let t513 = t511 + t512;
-    let t514 = t485 * t496;
-    let t515 = t488 * t496;
-    let t516 = t490 * t496;
-    let t517 = t491 * t496;
-    let t518 = t492 * t496;
-    let t519 = t369 - t514;
-    let t520 = t372 - t515;
-    let t521 = t374 - t516;
-    let t522 = t363 - t517;
-    let t523 = t366 - t518;
-    let t524 = t44 * t522;
-    let t525 = t45 * t523;
-    let t526 = t524 + t525;
-    let t527 = t42 * t519;
-    let t528 = -(t527);
-    let t529 = t43 * t520;
-    let t530 = t528 - t529;
-    let t531 = 4.8965888e-12f * t521;
-    let t532 = t530 + t531;
-    let t533 = 0.08f * t526;
-    let t534 = t532 + t533;
-    let t535 = t485 * t498;
-    let t536 = t483 - t535;
-    let t537 = t488 * t498;
-    let t538 = t484 - t537;
-    let t539 = t490 * t498;
-    let t540 = t485 - t539;
-    let t541 = t491 * t498;
-    let t542 = t459 - t541;
-    let t543 = t492 * t498;
-    let t544 = t478 - t543;
-    let t545 = t488 * t499;
-    let t546 = t487 - t545;
-    let t547 = t490 * t499;
-    let t548 = t488 - t547;
-    let t549 = t491 * t499;
-    let t550 = t462 - t549;
-    let t551 = t492 * t499;
-    let t552 = t481 - t551;
-    let t553 = t490 * t500;
-    let t554 = t490 - t553;
-    let t555 = t491 * t500;
-    let t556 = t491 - t555;
-    let t557 = t492 * t500;
-    let t558 = t492 - t557;
-    let t559 = t491 * t501;
-    let t560 = t493 - t559;
-    let t561 = t492 * t501;
-    let t562 = t472 - t561;
-    let t563 = t492 * t502;
-    let t564 = t494 - t563;
-    let t565 = t42 * t538;
-    let t566 = -(t565);
-    let t567 = t43 * t538;
-    let t568 = 0.08f * t44;
-    let t569 = 0.08f * t45;
-    let t570 = t42 * t536;
-    let t571 = -(t570);
-    let t572 = t571 - t567;
-    let t573 = 4.8965888e-12f * t540;
-    let t574 = t572 + t573;
-    let t575 = t542 * t568;
-    let t576 = t574 + t575;
-    let t577 = t544 * t569;
-    let t578 = t576 + t577;
-    let t579 = 0.08f * t486;
+    let t473 = 4.8965888e-12f * t465;
+    let t474 = t472 + t473;
+    let t475 = 0.08f * t468;
+    let t476 = t474 + t475;
+    let t478 = t465 * (-38.191456f);
+    let t479 = t465 * t478;
+    let t480 = t113 + t479;
+    let t481 = t476 * t478;
+    let t482 = t459 + t481;
+    let t483 = t476 * (-38.191456f);
+    let t484 = -(t483);
+    let t485 = t476 * t483;
+    let t486 = t148 + t485;
+    let t487 = (-1.0f) / t480;
+    let t488 = t482 * t487;
+    let t489 = t482 * t488;
+    let t490 = t486 + t489;
+    let t491 = (-1.0f) / t490;
+    let t492 = t443 * (-38.191456f);
+    let t493 = t443 * t492;
+    let t494 = t198 + t493;
+    let t495 = t454 * t492;
+    let t496 = t437 + t495;
+    let t497 = t454 * (-38.191456f);
+    let t498 = -(t497);
+    let t499 = t454 * t497;
+    let t500 = t232 + t499;
+    let t501 = (-1.0f) / t494;
+    let t502 = t496 * t501;
+    let t503 = t496 * t502;
+    let t504 = t500 + t503;
+    let t505 = (-1.0f) / t504;
+    let t506 = t422 * (-38.191456f);
+    let t507 = t422 * t506;
+    let t508 = t281 + t507;
+    let t509 = t432 * t506;
+    let t510 = t416 + t509;
+    let t511 = t432 * (-38.191456f);
+    let t512 = -(t511);
+    let t513 = t432 * t511;
+    let t514 = t311 + t513;
+    let t515 = (-1.0f) / t508;
+    let t516 = t510 * t515;
+    let t517 = t510 * t516;
+    let t518 = t514 + t517;
+    let t519 = (-1.0f) / t518;
+    let t520 = t401 * (-38.191456f);
+    let t521 = t401 * t520;
+    let t522 = t360 + t521;
+    let t523 = t411 * t520;
+    let t524 = t395 + t523;
+    let t525 = t411 * (-38.191456f);
+    let t526 = -(t525);
+    let t527 = t411 * t525;
+    let t528 = t390 + t527;
+    let t529 = (-1.0f) / t522;
+    let t530 = t524 * t529;
+    let t531 = t524 * t530;
+    let t532 = t528 + t531;
+    let t533 = (-1.0f) / t532;
+    let t534 = -(t533);
+    let t535 = t530 * t533;
+    let t536 = -(t535);
+    let t537 = t520 * t535;
+    let t538 = -(t537);
+    let t539 = t525 * t533;
+    let t540 = t538 - t539;
+    let t541 = -(t529);
+    let t542 = t530 * t535;
+    let t543 = t541 - t542;
+    let t544 = t520 * t543;
+    let t545 = t525 * t535;
+    let t546 = t544 - t545;
+    let t547 = t520 * t530;
+    let t548 = t526 - t547;
+    let t549 = t533 * t548;
+    let t550 = t520 * t529;
+    let t552 = t530 * t549;
+    let t553 = t552 - t550;
+    let t554 = t520 * t553;
+    let t555 = 38.191456f + t554;
+    let t556 = t525 * t549;
+    let t557 = t555 + t556;
+    let t558 = -(t519);
+    let t559 = t516 * t519;
+    let t560 = -(t559);
+    let t561 = t506 * t559;
+    let t562 = -(t561);
+    let t563 = t511 * t519;
+    let t564 = t562 - t563;
+    let t565 = -(t515);
+    let t566 = t516 * t559;
+    let t567 = t565 - t566;
+    let t568 = t506 * t567;
+    let t569 = t511 * t559;
+    let t570 = t568 - t569;
+    let t571 = t506 * t516;
+    let t572 = t512 - t571;
+    let t573 = t519 * t572;
+    let t574 = t506 * t515;
+    let t575 = t516 * t573;
+    let t576 = t575 - t574;
+    let t577 = t506 * t576;
+    let t578 = 38.191456f + t577;
+    let t579 = t511 * t573;
     let t580 = t578 + t579;
-    let t581 = t43 * t546;
-    let t582 = t566 - t581;
-    let t583 = 4.8965888e-12f * t548;
-    let t584 = t582 + t583;
-    let t585 = t550 * t568;
-    let t586 = t584 + t585;
-    let t587 = t552 * t569;
-    let t588 = t586 + t587;
-    let t589 = 0.08f * t489;
-    let t590 = t588 + t589;
-    let t591 = t42 * t540;
-    let t592 = -(t591);
-    let t593 = t43 * t548;
-    let t594 = t592 - t593;
-    let t595 = 4.8965888e-12f * t554;
-    let t596 = t594 + t595;
-    let t597 = t556 * t568;
-    let t598 = t596 + t597;
-    let t599 = t558 * t569;
-    let t600 = t598 + t599;
-    let t601 = t42 * t542;
-    let t602 = -(t601);
-    let t603 = t43 * t550;
-    let t604 = t602 - t603;
-    let t605 = 4.8965888e-12f * t556;
-    let t606 = t604 + t605;
-    let t607 = t560 * t568;
-    let t608 = t606 + t607;
-    let t609 = t562 * t569;
-    let t610 = t608 + t609;
-    let t611 = t42 * t544;
-    let t612 = -(t611);
-    let t613 = t43 * t552;
-    let t614 = t612 - t613;
-    let t615 = 4.8965888e-12f * t558;
-    let t616 = t614 + t615;
-    let t617 = t562 * t568;
-    let t618 = t616 + t617;
-    let t619 = t564 * t569;
-    let t620 = t618 + t619;
-    let t621 = t42 * t486;
-    let t622 = -(t621);
-    let t623 = t43 * t489;
-    let t624 = t622 - t623;
-    let t625 = 0.28152f + t624;
-    let t626 = t44 * t610;
-    let t627 = t45 * t620;
-    let t628 = t626 + t627;
-    let t629 = t625 + t628;
-    let t630 = t42 * t580;
-    let t631 = -(t630);
-    let t632 = t43 * t590;
-    let t633 = t631 - t632;
-    let t634 = 4.8965888e-12f * t600;
-    let t635 = t633 + t634;
-    let t636 = 0.08f * t629;
-    let t637 = t635 + t636;
-    let t638 = 0.011034738f + t637;
-    let t639 = 1.0f / t638;
-    let t640 = t513 * t639;
-    let t641 = -(t640);
-    let t642 = t534 * t639;
-    let t643 = -(t642);
-    let t644 = t38 * 0.001345867f;
-    let t645 = t37 * 4.2192926f;
-    let t646 = t644 - t645;
-    let t647 = t37 * 0.001345867f;
-    let t648 = t38 * 4.2192926f;
-    let t649 = t647 + t648;
-    let t650 = t38 * (-4.0014715e-5f);
-    let t651 = t37 * 1.3458668e-7f;
-    let t652 = t650 - t651;
-    let t653 = t37 * (-4.0014715e-5f);
-    let t654 = t38 * 1.3458668e-7f;
-    let t655 = t653 + t654;
-    let t656 = 0.35f * t649;
-    let t657 = 1.0f + t656;
-    let t658 = t38 * 0.00047001019f;
-    let t659 = t37 * (-5.5580906e-5f);
-    let t660 = t658 - t659;
-    let t661 = t38 * (-5.5580906e-5f);
-    let t662 = t37 * 0.026413875f;
-    let t663 = t661 - t662;
-    let t664 = t38 * 1.4101186e-9f;
-    let t665 = t37 * 8.8099994e-5f;
-    let t666 = t38 * (-8.3679275e-5f);
-    let t667 = t37 * (-1.4868787e-8f);
-    let t668 = t38 * (-3.524e-5f);
-    let t669 = t37 * (-0.1104774f);
-    let t670 = t668 - t669;
-    let t671 = t38 * t660;
-    let t672 = t37 * t663;
-    let t673 = t671 - t672;
-    let t674 = t37 * 0.00047001019f;
-    let t675 = t661 + t674;
-    let t676 = 1.2334e-5f + t675;
-    let t677 = t38 * 0.026413875f;
-    let t678 = t659 + t677;
-    let t679 = 0.03866709f + t678;
-    let t680 = t37 * 1.4101186e-9f;
-    let t681 = t38 * 8.8099994e-5f;
-    let t682 = t37 * (-8.3679275e-5f);
-    let t683 = t38 * (-1.4868787e-8f);
-    let t684 = t37 * (-3.524e-5f);
-    let t685 = t38 * (-0.1104774f);
-    let t686 = t684 + t685;
-    let t687 = (-0.30835f) + t686;
-    let t688 = t38 * t676;
-    let t689 = t37 * t679;
-    let t690 = t688 - t689;
-    let t691 = t37 * t676;
-    let t692 = t38 * t679;
-    let t693 = t691 + t692;
-    let t694 = 0.35f * t687;
-    let t695 = t693 - t694;
-    let t696 = 0.35f * t37;
-    let t697 = 0.35f * t38;
-    let t698 = 1.4101186e-9f * t696;
-    let t699 = 2.1175824e-22f + t698;
-    let t700 = (-8.3679275e-5f) * t697;
-    let t701 = t699 + t700;
-    let t702 = 8.8099994e-5f * t696;
-    let t703 = (-1.4868787e-8f) * t697;
-    let t704 = t702 + t703;
-    let t705 = 0.881f * t696;
-    let t706 = (-0.00014868788f) * t697;
-    let t707 = t705 + t706;
-    let t708 = (-0.00014868788f) * t696;
-    let t709 = 0.41486353f * t697;
-    let t710 = t708 + t709;
-    let t711 = t37 * t707;
-    let t712 = t38 * t710;
-    let t713 = t711 + t712;
-    let t714 = t38 * t701;
-    let t715 = t37 * t704;
-    let t716 = t714 - t715;
-    let t717 = t37 * t701;
-    let t718 = t38 * t704;
-    let t719 = t717 + t718;
-    let t720 = 0.35f * t713;
-    let t721 = t664 - t682;
-    let t722 = t681 - t667;
-    let t723 = t38 * 0.881f;
-    let t724 = t37 * (-0.00014868788f);
-    let t725 = t723 - t724;
-    let t726 = t38 * (-0.00014868788f);
-    let t727 = t37 * 0.41486353f;
-    let t728 = t726 - t727;
-    let t729 = t38 * t725;
-    let t730 = t37 * t728;
-    let t731 = t729 - t730;
-    let t732 = t37 * t725;
-    let t733 = t38 * t728;
-    let t734 = t732 + t733;
-    let t735 = t38 * t721;
-    let t736 = t37 * t722;
-    let t737 = t735 - t736;
-    let t738 = t37 * t721;
-    let t739 = t38 * t722;
-    let t740 = t738 + t739;
-    let t741 = 0.35f * t734;
-    let t742 = t666 + t680;
-    let t743 = t665 + t683;
-    let t744 = t37 * 0.881f;
-    let t745 = t726 + t744;
-    let t746 = t38 * 0.41486353f;
-    let t747 = t724 + t746;
-    let t748 = t38 * t745;
-    let t749 = t37 * t747;
-    let t750 = t748 - t749;
-    let t751 = t37 * t745;
-    let t752 = t38 * t747;
-    let t753 = t751 + t752;
-    let t754 = t38 * t742;
-    let t755 = t37 * t743;
-    let t756 = t754 - t755;
-    let t757 = t37 * t742;
-    let t758 = t38 * t743;
-    let t759 = t757 + t758;
-    let t760 = 0.35f * t753;
-    let t761 = 0.005497747f + t673;
-    let t762 = (-0.007418368f) + t690;
-    let t763 = (-0.0001f) + t716;
-    let t764 = 0.0692475f + t670;
-    let t765 = 0.08713208f + t695;
-    let t766 = 2e-5f + t719;
-    let t767 = (-0.39765212f) + t687;
-    let t768 = 0.08986983f + t720;
-    let t769 = (-0.0692475f) + t741;
-    let t770 = 0.39765212f + t760;
-    let t771 = 2.638f + t731;
-    let t772 = 2.638f + t753;
-    let t773 = 1.0f / t768;
-    let t774 = t657 * t773;
-    let t775 = -(t774);
-    let t776 = t763 * t773;
-    let t777 = t766 * t773;
-    let t778 = t768 * t773;
-    let t779 = t769 * t773;
-    let t780 = t770 * t773;
-    let t781 = t31 * t779;
-    let t782 = t32 * t780;
-    let t783 = t781 + t782;
-    let t784 = t29 * t776;
-    let t785 = t30 * t777;
-    let t786 = t784 + t785;
-    let t787 = 4.8965888e-12f * t778;
-    let t788 = t786 + t787;
-    let t789 = 0.08f * t783;
-    let t790 = t788 + t789;
-    let t791 = t763 * t774;
-    let t792 = t766 * t774;
-    let t793 = t768 * t774;
-    let t794 = t769 * t774;
-    let t795 = t770 * t774;
-    let t796 = t652 - t791;
-    let t797 = t655 - t792;
-    let t798 = t657 - t793;
-    let t799 = t646 - t794;
-    let t800 = t649 - t795;
-    let t801 = t31 * t799;
-    let t802 = t32 * t800;
-    let t803 = t801 + t802;
-    let t804 = t29 * t796;
-    let t805 = t30 * t797;
-    let t806 = t804 + t805;
-    let t807 = 4.8965888e-12f * t798;
-    let t808 = t806 + t807;
-    let t809 = 0.08f * t803;
-    let t810 = t808 + t809;
-    let t811 = t763 * t776;
-    let t812 = t761 - t811;
-    let t813 = t766 * t776;
-    let t814 = t762 - t813;
-    let t815 = t768 * t776;
-    let t816 = t763 - t815;
-    let t817 = t769 * t776;
-    let t818 = t737 - t817;
-    let t819 = t770 * t776;
-    let t820 = t756 - t819;
-    let t821 = t766 * t777;
-    let t822 = t765 - t821;
-    let t823 = t768 * t777;
-    let t824 = t766 - t823;
-    let t825 = t769 * t777;
-    let t826 = t740 - t825;
-    let t827 = t770 * t777;
-    let t828 = t759 - t827;
-    let t829 = t768 * t778;
-    let t830 = t768 - t829;
-    let t831 = t769 * t778;
-    let t832 = t769 - t831;
-    let t833 = t770 * t778;
-    let t834 = t770 - t833;
-    let t835 = t769 * t779;
-    let t836 = t771 - t835;
-    let t837 = t770 * t779;
-    let t838 = t750 - t837;
-    let t839 = t770 * t780;
-    let t840 = t772 - t839;
-    let t841 = t29 * t814;
-    let t842 = t30 * t814;
-    let t843 = 0.08f * t31;
-    let t844 = 0.08f * t32;
-    let t845 = t29 * t812;
-    let t846 = t842 + t845;
-    let t847 = 4.8965888e-12f * t816;
-    let t848 = t846 + t847;
-    let t849 = t818 * t843;
-    let t850 = t848 + t849;
-    let t851 = t820 * t844;
-    let t852 = t850 + t851;
-    let t853 = (-0.08f) * t764;
-    let t854 = t852 + t853;
-    let t855 = t30 * t822;
-    let t856 = t841 + t855;
-    let t857 = 4.8965888e-12f * t824;
-    let t858 = t856 + t857;
-    let t859 = t826 * t843;
-    let t860 = t858 + t859;
-    let t861 = t828 * t844;
-    let t862 = t860 + t861;
-    let t863 = (-0.08f) * t767;
-    let t864 = t862 + t863;
-    let t865 = t29 * t816;
-    let t866 = t30 * t824;
-    let t867 = t865 + t866;
-    let t868 = 4.8965888e-12f * t830;
-    let t869 = t867 + t868;
-    let t870 = t832 * t843;
-    let t871 = t869 + t870;
-    let t872 = t834 * t844;
-    let t873 = t871 + t872;
-    let t874 = t29 * t818;
-    let t875 = t30 * t826;
-    let t876 = t874 + t875;
-    let t877 = 4.8965888e-12f * t832;
-    let t878 = t876 + t877;
-    let t879 = t836 * t843;
-    let t880 = t878 + t879;
-    let t881 = t838 * t844;
-    let t882 = t880 + t881;
-    let t883 = t29 * t820;
-    let t884 = t30 * t828;
-    let t885 = t883 + t884;
-    let t886 = 4.8965888e-12f * t834;
-    let t887 = t885 + t886;
-    let t888 = t838 * t843;
-    let t889 = t887 + t888;
-    let t890 = t840 * t844;
-    let t891 = t889 + t890;
-    let t892 = t29 * t764;
-    let t893 = t30 * t767;
-    let t894 = t892 + t893;
-    let t896 = t894 + (-0.28152f);
-    let t897 = t31 * t882;
-    let t898 = t32 * t891;
-    let t899 = t897 + t898;
-    let t900 = t899 - t896;
-    let t901 = t29 * t854;
-    let t902 = t30 * t864;
-    let t903 = t901 + t902;
-    let t904 = 4.8965888e-12f * t873;
-    let t905 = t903 + t904;
-    let t906 = 0.08f * t900;
-    let t907 = t905 + t906;
-    let t908 = 0.011034738f + t907;
-    let t909 = 1.0f / t908;
-    let t910 = t790 * t909;
-    let t911 = -(t910);
-    let t912 = t810 * t909;
-    let t913 = -(t912);
-    let t914 = t22 * (-0.001345867f);
-    let t915 = t21 * 4.2192926f;
-    let t916 = t914 - t915;
-    let t917 = t21 * (-0.001345867f);
-    let t918 = t22 * 4.2192926f;
-    let t919 = t917 + t918;
-    let t920 = t22 * 4.0014715e-5f;
-    let t921 = t21 * 1.3458668e-7f;
-    let t922 = t920 - t921;
-    let t923 = t21 * 4.0014715e-5f;
-    let t924 = t22 * 1.3458668e-7f;
-    let t925 = t923 + t924;
-    let t926 = 0.35f * t919;
-    let t927 = 1.0f + t926;
-    let t928 = t22 * 0.00047001019f;
-    let t929 = t21 * 5.5580906e-5f;
-    let t930 = t928 - t929;
-    let t931 = t22 * 5.5580906e-5f;
-    let t932 = t21 * 0.026413875f;
-    let t933 = t931 - t932;
-    let t934 = t22 * 1.4101186e-9f;
-    let t935 = t21 * (-8.8099994e-5f);
-    let t936 = t22 * 8.3679275e-5f;
-    let t937 = t21 * (-1.4868787e-8f);
-    let t938 = t22 * 3.524e-5f;
-    let t939 = t21 * (-0.1104774f);
-    let t940 = t938 - t939;
-    let t941 = t22 * t930;
-    let t942 = t21 * t933;
-    let t943 = t941 - t942;
-    let t944 = t21 * 0.00047001019f;
-    let t945 = t931 + t944;
-    let t946 = (-1.2334e-5f) + t945;
-    let t947 = t22 * 0.026413875f;
-    let t948 = t929 + t947;
-    let t949 = 0.03866709f + t948;
-    let t950 = t21 * 1.4101186e-9f;
-    let t951 = t22 * (-8.8099994e-5f);
-    let t952 = t21 * 8.3679275e-5f;
-    let t953 = t22 * (-1.4868787e-8f);
-    let t954 = t21 * 3.524e-5f;
-    let t955 = t22 * (-0.1104774f);
-    let t956 = t954 + t955;
-    let t957 = (-0.30835f) + t956;
-    let t958 = t22 * t946;
-    let t959 = t21 * t949;
-    let t960 = t958 - t959;
-    let t961 = t21 * t946;
-    let t962 = t22 * t949;
-    let t963 = t961 + t962;
-    let t964 = 0.35f * t957;
-    let t965 = t963 - t964;
-    let t966 = 0.35f * t21;
-    let t967 = 0.35f * t22;
-    let t968 = 1.4101186e-9f * t966;
-    let t969 = (-2.1175824e-22f) + t968;
-    let t970 = 8.3679275e-5f * t967;
-    let t971 = t969 + t970;
-    let t972 = (-8.8099994e-5f) * t966;
-    let t973 = (-1.4868787e-8f) * t967;
-    let t974 = t972 + t973;
-    let t975 = 0.881f * t966;
-    let t976 = 0.00014868788f * t967;
-    let t977 = t975 + t976;
-    let t978 = 0.00014868788f * t966;
-    let t979 = 0.41486353f * t967;
-    let t980 = t978 + t979;
-    let t981 = t21 * t977;
-    let t982 = t22 * t980;
-    let t983 = t981 + t982;
-    let t984 = t22 * t971;
-    let t985 = t21 * t974;
-    let t986 = t984 - t985;
-    let t987 = t21 * t971;
-    let t988 = t22 * t974;
-    let t989 = t987 + t988;
-    let t990 = 0.35f * t983;
-    let t991 = t934 - t952;
-    let t992 = t951 - t937;
-    let t993 = t22 * 0.881f;
-    let t994 = t21 * 0.00014868788f;
-    let t995 = t993 - t994;
-    let t996 = t22 * 0.00014868788f;
-    let t997 = t21 * 0.41486353f;
-    let t998 = t996 - t997;
-    let t999 = t22 * t995;
-    let t1000 = t21 * t998;
-    let t1001 = t999 - t1000;
-    let t1002 = t21 * t995;
-    let t1003 = t22 * t998;
-    let t1004 = t1002 + t1003;
-    let t1005 = t22 * t991;
-    let t1006 = t21 * t992;
-    let t1007 = t1005 - t1006;
-    let t1008 = t21 * t991;
-    let t1009 = t22 * t992;
-    let t1010 = t1008 + t1009;
-    let t1011 = 0.35f * t1004;
-    let t1012 = t936 + t950;
-    let t1013 = t935 + t953;
-    let t1014 = t21 * 0.881f;
-    let t1015 = t996 + t1014;
-    let t1016 = t22 * 0.41486353f;
-    let t1017 = t994 + t1016;
-    let t1018 = t22 * t1015;
-    let t1019 = t21 * t1017;
-    let t1020 = t1018 - t1019;
-    let t1021 = t21 * t1015;
-    let t1022 = t22 * t1017;
-    let t1023 = t1021 + t1022;
-    let t1024 = t22 * t1012;
-    let t1025 = t21 * t1013;
-    let t1026 = t1024 - t1025;
-    let t1027 = t21 * t1012;
-    let t1028 = t22 * t1013;
-    let t1029 = t1027 + t1028;
-    let t1030 = 0.35f * t1023;
-    let t1031 = 0.005497747f + t943;
-    let t1032 = 0.007418368f + t960;
-    let t1033 = 0.0001f + t986;
-    let t1034 = (-0.0692475f) + t940;
-    let t1035 = 0.08713208f + t965;
-    let t1036 = 2e-5f + t989;
-    let t1037 = (-0.39765212f) + t957;
-    let t1038 = 0.08986983f + t990;
-    let t1039 = 0.0692475f + t1011;
-    let t1040 = 0.39765212f + t1030;
-    let t1041 = 2.638f + t1001;
-    let t1042 = 2.638f + t1023;
-    let t1043 = 1.0f / t1038;
-    let t1044 = t927 * t1043;
-    let t1045 = -(t1044);
-    let t1046 = t1033 * t1043;
-    let t1047 = t1036 * t1043;
-    let t1048 = t1038 * t1043;
-    let t1049 = t1039 * t1043;
-    let t1050 = t1040 * t1043;
-    let t1051 = t8 * t1049;
-    let t1052 = t9 * t1050;
-    let t1053 = t1051 + t1052;
-    let t1054 = t6 * t1046;
-    let t1055 = t7 * t1047;
-    let t1056 = t1054 + t1055;
-    let t1057 = 4.8965888e-12f * t1048;
-    let t1058 = t1056 + t1057;
-    let t1059 = 0.08f * t1053;
-    let t1060 = t1058 + t1059;
-    let t1061 = t1033 * t1044;
-    let t1062 = t1036 * t1044;
-    let t1063 = t1038 * t1044;
-    let t1064 = t1039 * t1044;
+    let t581 = -(t505);
+    let t582 = t502 * t505;
+    let t583 = -(t582);
+    let t584 = t492 * t582;
+    let t585 = -(t584);
+    let t586 = t497 * t505;
+    let t587 = t585 - t586;
+    let t588 = -(t501);
+    let t589 = t502 * t582;
+    let t590 = t588 - t589;
+    let t591 = t492 * t590;
+    let t592 = t497 * t582;
+    let t593 = t591 - t592;
+    let t594 = t492 * t502;
+    let t595 = t498 - t594;
+    let t596 = t505 * t595;
+    let t597 = t492 * t501;
+    let t598 = t502 * t596;
+    let t599 = t598 - t597;
+    let t600 = t492 * t599;
+    let t601 = 38.191456f + t600;
+    let t602 = t497 * t596;
+    let t603 = t601 + t602;
+    let t604 = -(t491);
+    let t605 = t488 * t491;
+    let t606 = -(t605);
+    let t607 = t478 * t605;
+    let t608 = -(t607);
+    let t609 = t483 * t491;
+    let t610 = t608 - t609;
+    let t611 = -(t487);
+    let t612 = t488 * t605;
+    let t613 = t611 - t612;
+    let t614 = t478 * t613;
+    let t615 = t483 * t605;
+    let t616 = t614 - t615;
+    let t617 = t478 * t488;
+    let t618 = t484 - t617;
+    let t619 = t491 * t618;
+    let t620 = t478 * t487;
+    let t621 = t488 * t619;
+    let t622 = t621 - t620;
+    let t623 = t478 * t622;
+    let t624 = 38.191456f + t623;
+    let t625 = t483 * t619;
+    let t626 = t624 + t625;
     out[3u * n + s] = 0.0f;
     out[4u * n + s] = 0.0f;
     out[5u * n + s] = 0.0f;
@@ -9547,585 +9129,46 @@ fn minv_part0(s: u32, n: u32) {
     out[138u * n + s] = 0.0f;
     out[139u * n + s] = 0.0f;
     out[140u * n + s] = 0.0f;
-    scratch[0u * n + s] = t6;
-    scratch[1u * n + s] = t7;
-    scratch[2u * n + s] = t8;
-    scratch[3u * n + s] = t9;
-    scratch[4u * n + s] = t21;
-    scratch[5u * n + s] = t22;
-    scratch[6u * n + s] = t29;
-    scratch[7u * n + s] = t30;
-    scratch[8u * n + s] = t31;
-    scratch[9u * n + s] = t32;
-    scratch[10u * n + s] = t37;
-    scratch[11u * n + s] = t38;
-    scratch[12u * n + s] = t42;
-    scratch[13u * n + s] = t43;
-    scratch[14u * n + s] = t44;
-    scratch[15u * n + s] = t45;
-    scratch[16u * n + s] = t47;
-    scratch[17u * n + s] = t48;
-    scratch[18u * n + s] = t50;
-    scratch[19u * n + s] = t51;
-    scratch[20u * n + s] = t52;
-    scratch[21u * n + s] = t53;
-    scratch[22u * n + s] = t55;
-    scratch[23u * n + s] = t56;
-    scratch[24u * n + s] = t198;
-    scratch[25u * n + s] = t201;
-    scratch[26u * n + s] = t203;
-    scratch[27u * n + s] = t204;
-    scratch[28u * n + s] = t205;
-    scratch[29u * n + s] = t208;
-    scratch[30u * n + s] = t210;
-    out[117u * n + s] = t354;
-    scratch[31u * n + s] = t355;
-    out[118u * n + s] = t356;
-    out[129u * n + s] = t356;
-    scratch[32u * n + s] = t357;
-    out[119u * n + s] = t358;
-    out[141u * n + s] = t358;
-    scratch[33u * n + s] = t485;
-    scratch[34u * n + s] = t488;
-    scratch[35u * n + s] = t490;
-    scratch[36u * n + s] = t491;
-    scratch[37u * n + s] = t492;
-    scratch[38u * n + s] = t495;
-    scratch[39u * n + s] = t497;
-    out[78u * n + s] = t639;
-    scratch[40u * n + s] = t640;
-    out[79u * n + s] = t641;
-    out[90u * n + s] = t641;
-    scratch[41u * n + s] = t642;
-    out[80u * n + s] = t643;
-    out[102u * n + s] = t643;
-    scratch[42u * n + s] = t763;
-    scratch[43u * n + s] = t766;
-    scratch[44u * n + s] = t768;
-    scratch[45u * n + s] = t769;
-    scratch[46u * n + s] = t770;
-    scratch[47u * n + s] = t773;
-    scratch[48u * n + s] = t775;
-    out[39u * n + s] = t909;
-    scratch[49u * n + s] = t910;
-    out[40u * n + s] = t911;
-    out[51u * n + s] = t911;
-    scratch[50u * n + s] = t912;
-    out[41u * n + s] = t913;
-    out[63u * n + s] = t913;
-    scratch[51u * n + s] = t916;
-    scratch[52u * n + s] = t919;
-    scratch[53u * n + s] = t922;
-    scratch[54u * n + s] = t925;
-    scratch[55u * n + s] = t927;
-    scratch[56u * n + s] = t1007;
-    scratch[57u * n + s] = t1010;
-    scratch[58u * n + s] = t1020;
-    scratch[59u * n + s] = t1026;
-    scratch[60u * n + s] = t1029;
-    scratch[61u * n + s] = t1031;
-    scratch[62u * n + s] = t1032;
-    scratch[63u * n + s] = t1033;
-    scratch[64u * n + s] = t1034;
-    scratch[65u * n + s] = t1035;
-    scratch[66u * n + s] = t1036;
-    scratch[67u * n + s] = t1037;
-    scratch[68u * n + s] = t1038;
-    scratch[69u * n + s] = t1039;
-    scratch[70u * n + s] = t1040;
-    scratch[71u * n + s] = t1041;
-    scratch[72u * n + s] = t1042;
-    scratch[73u * n + s] = t1043;
-    scratch[74u * n + s] = t1044;
-    scratch[75u * n + s] = t1045;
-    scratch[76u * n + s] = t1046;
-    scratch[77u * n + s] = t1047;
-    scratch[78u * n + s] = t1048;
-    scratch[79u * n + s] = t1049;
-    scratch[80u * n + s] = t1050;
-    scratch[81u * n + s] = t1060;
-    scratch[82u * n + s] = t1061;
-    scratch[83u * n + s] = t1062;
-    scratch[84u * n + s] = t1063;
-    scratch[85u * n + s] = t1064;
-}
-
-fn minv_part1(s: u32, n: u32) {
-    let t1040 = scratch[70u * n + s];
-    let t1044 = scratch[74u * n + s];
-    let t922 = scratch[53u * n + s];
-    let t1061 = scratch[82u * n + s];
-    let t925 = scratch[54u * n + s];
-    let t1062 = scratch[83u * n + s];
-    let t927 = scratch[55u * n + s];
-    let t1063 = scratch[84u * n + s];
-    let t916 = scratch[51u * n + s];
-    let t1064 = scratch[85u * n + s];
-    let t919 = scratch[52u * n + s];
-    let t8 = scratch[2u * n + s];
-    let t9 = scratch[3u * n + s];
-    let t6 = scratch[0u * n + s];
-    let t7 = scratch[1u * n + s];
-    let t1033 = scratch[63u * n + s];
-    let t1046 = scratch[76u * n + s];
-    let t1031 = scratch[61u * n + s];
-    let t1036 = scratch[66u * n + s];
-    let t1032 = scratch[62u * n + s];
-    let t1038 = scratch[68u * n + s];
-    let t1039 = scratch[69u * n + s];
-    let t1007 = scratch[56u * n + s];
-    let t1026 = scratch[59u * n + s];
-    let t1047 = scratch[77u * n + s];
-    let t1035 = scratch[65u * n + s];
-    let t1010 = scratch[57u * n + s];
-    let t1029 = scratch[60u * n + s];
-    let t1048 = scratch[78u * n + s];
-    let t1049 = scratch[79u * n + s];
-    let t1041 = scratch[71u * n + s];
-    let t1020 = scratch[58u * n + s];
-    let t1050 = scratch[80u * n + s];
-    let t1042 = scratch[72u * n + s];
-    let t1034 = scratch[64u * n + s];
-    let t1037 = scratch[67u * n + s];
-    let t1060 = scratch[81u * n + s];
-    let t1043 = scratch[73u * n + s];
-    let t1045 = scratch[75u * n + s];
-    let t22 = scratch[5u * n + s];
-    let t21 = scratch[4u * n + s];
-    let t910 = scratch[49u * n + s];
-    let t29 = scratch[6u * n + s];
-    let t30 = scratch[7u * n + s];
-    let t31 = scratch[8u * n + s];
-    let t32 = scratch[9u * n + s];
-    let t763 = scratch[42u * n + s];
-    let t766 = scratch[43u * n + s];
-    let t768 = scratch[44u * n + s];
-    let t769 = scratch[45u * n + s];
-    let t770 = scratch[46u * n + s];
-    let t773 = scratch[47u * n + s];
-    let t912 = scratch[50u * n + s];
-    let t775 = scratch[48u * n + s];
-    let t38 = scratch[11u * n + s];
-    let t37 = scratch[10u * n + s];
-    let t640 = scratch[40u * n + s];
-    let t42 = scratch[12u * n + s];
-    let t43 = scratch[13u * n + s];
-    let t44 = scratch[14u * n + s];
-    let t45 = scratch[15u * n + s];
-    let t485 = scratch[33u * n + s];
-    let t488 = scratch[34u * n + s];
-    let t490 = scratch[35u * n + s];
-    let t491 = scratch[36u * n + s];
-    let t492 = scratch[37u * n + s];
-    let t495 = scratch[38u * n + s];
-    let t642 = scratch[41u * n + s];
-    let t497 = scratch[39u * n + s];
-    let t48 = scratch[17u * n + s];
-    let t47 = scratch[16u * n + s];
-    let t355 = scratch[31u * n + s];
-    let t50 = scratch[18u * n + s];
-    let t51 = scratch[19u * n + s];
-    let t52 = scratch[20u * n + s];
-    let t53 = scratch[21u * n + s];
-    let t198 = scratch[24u * n + s];
-    let t201 = scratch[25u * n + s];
-    let t203 = scratch[26u * n + s];
-    let t204 = scratch[27u * n + s];
-    let t205 = scratch[28u * n + s];
-    let t208 = scratch[29u * n + s];
-    let t357 = scratch[32u * n + s];
-    let t210 = scratch[30u * n + s];
-    let t56 = scratch[23u * n + s];
-    let t55 = scratch[22u * n + s];
-    let t1065 = t1040 * t1044;
-    let t1066 = t922 - t1061;
-    let t1067 = t925 - t1062;
-    let t1068 = t927 - t1063;
-    let t1069 = t916 - t1064;
-    let t1070 = t919 - t1065;
-    let t1071 = t8 * t1069;
-    let t1072 = t9 * t1070;
-    let t1073 = t1071 + t1072;
-    let t1074 = t6 * t1066;
-    let t1075 = t7 * t1067;
-    let t1076 = t1074 + t1075;
-    let t1077 = 4.8965888e-12f * t1068;
-    let t1078 = t1076 + t1077;
-    let t1079 = 0.08f * t1073;
-    let t1080 = t1078 + t1079;
-    let t1081 = t1033 * t1046;
-    let t1082 = t1031 - t1081;
-    let t1083 = t1036 * t1046;
-    let t1084 = t1032 - t1083;
-    let t1085 = t1038 * t1046;
-    let t1086 = t1033 - t1085;
-    let t1087 = t1039 * t1046;
-    let t1088 = t1007 - t1087;
-    let t1089 = t1040 * t1046;
-    let t1090 = t1026 - t1089;
-    let t1091 = t1036 * t1047;
-    let t1092 = t1035 - t1091;
-    let t1093 = t1038 * t1047;
-    let t1094 = t1036 - t1093;
-    let t1095 = t1039 * t1047;
-    let t1096 = t1010 - t1095;
-    let t1097 = t1040 * t1047;
-    let t1098 = t1029 - t1097;
-    let t1099 = t1038 * t1048;
-    let t1100 = t1038 - t1099;
-    let t1101 = t1039 * t1048;
-    let t1102 = t1039 - t1101;
-    let t1103 = t1040 * t1048;
-    let t1104 = t1040 - t1103;
-    let t1105 = t1039 * t1049;
-    let t1106 = t1041 - t1105;
-    let t1107 = t1040 * t1049;
-    let t1108 = t1020 - t1107;
-    let t1109 = t1040 * t1050;
-    let t1110 = t1042 - t1109;
-    let t1111 = t6 * t1084;
-    let t1112 = t7 * t1084;
-    let t1113 = 0.08f * t8;
-    let t1114 = 0.08f * t9;
-    let t1115 = t6 * t1082;
-    let t1116 = t1112 + t1115;
-    let t1117 = 4.8965888e-12f * t1086;
-    let t1118 = t1116 + t1117;
-    let t1119 = t1088 * t1113;
-    let t1120 = t1118 + t1119;
-    let t1121 = t1090 * t1114;
-    let t1122 = t1120 + t1121;
-    let t1123 = (-0.08f) * t1034;
-    let t1124 = t1122 + t1123;
-    let t1125 = t7 * t1092;
-    let t1126 = t1111 + t1125;
-    let t1127 = 4.8965888e-12f * t1094;
-    let t1128 = t1126 + t1127;
-    let t1129 = t1096 * t1113;
-    let t1130 = t1128 + t1129;
-    let t1131 = t1098 * t1114;
-    let t1132 = t1130 + t1131;
-    let t1133 = (-0.08f) * t1037;
-    let t1134 = t1132 + t1133;
-    let t1135 = t6 * t1086;
-    let t1136 = t7 * t1094;
-    let t1137 = t1135 + t1136;
-    let t1138 = 4.8965888e-12f * t1100;
-    let t1139 = t1137 + t1138;
-    let t1140 = t1102 * t1113;
-    let t1141 = t1139 + t1140;
-    let t1142 = t1104 * t1114;
-    let t1143 = t1141 + t1142;
-    let t1144 = t6 * t1088;
-    let t1145 = t7 * t1096;
-    let t1146 = t1144 + t1145;
-    let t1147 = 4.8965888e-12f * t1102;
-    let t1148 = t1146 + t1147;
-    let t1149 = t1106 * t1113;
-    let t1150 = t1148 + t1149;
-    let t1151 = t1108 * t1114;
-    let t1152 = t1150 + t1151;
-    let t1153 = t6 * t1090;
-    let t1154 = t7 * t1098;
-    let t1155 = t1153 + t1154;
-    let t1156 = 4.8965888e-12f * t1104;
-    let t1157 = t1155 + t1156;
-    let t1158 = t1108 * t1113;
-    let t1159 = t1157 + t1158;
-    let t1160 = t1110 * t1114;
-    let t1161 = t1159 + t1160;
-    let t1162 = t6 * t1034;
-    let t1163 = t7 * t1037;
-    let t1164 = t1162 + t1163;
-    let t1165 = (-0.28152f) + t1164;
-    let t1166 = t8 * t1152;
-    let t1167 = t9 * t1161;
-    let t1168 = t1166 + t1167;
-    let t1169 = t1168 - t1165;
-    let t1170 = t6 * t1124;
-    let t1171 = t7 * t1134;
-    let t1172 = t1170 + t1171;
-    let t1173 = 4.8965888e-12f * t1143;
-    let t1174 = t1172 + t1173;
-    let t1175 = 0.08f * t1169;
-    let t1176 = t1174 + t1175;
-    let t1177 = 0.011034738f + t1176;
-    let t1178 = 1.0f / t1177;
-    let t1179 = t1060 * t1178;
-    let t1180 = -(t1179);
-    let t1181 = t1080 * t1178;
-    let t1182 = -(t1181);
-    let t1183 = 0.08f * t1179;
-    let t1184 = t6 * t1179;
-    let t1185 = t7 * t1179;
-    let t1186 = 4.8965888e-12f * t1179;
-    let t1187 = t8 * t1183;
-    let t1188 = t9 * t1183;
-    let t1189 = t1033 * t1184;
-    let t1190 = -(t1189);
-    let t1191 = t1036 * t1185;
-    let t1192 = t1190 - t1191;
-    let t1193 = t1038 * t1186;
-    let t1194 = t1192 - t1193;
-    let t1195 = t1039 * t1187;
-    let t1196 = t1194 - t1195;
-    let t1197 = t1040 * t1188;
-    let t1198 = t1196 - t1197;
-    let t1199 = t1043 * t1198;
-    let t1200 = t1043 - t1199;
-    let t1201 = 0.08f * t1181;
-    let t1202 = t6 * t1181;
-    let t1203 = t7 * t1181;
-    let t1204 = 4.8965888e-12f * t1181;
-    let t1205 = t8 * t1201;
-    let t1206 = t9 * t1201;
-    let t1207 = t1033 * t1202;
-    let t1208 = -(t1207);
-    let t1209 = t1036 * t1203;
-    let t1210 = t1208 - t1209;
-    let t1211 = t1038 * t1204;
-    let t1212 = t1210 - t1211;
-    let t1213 = t1039 * t1205;
-    let t1214 = t1212 - t1213;
-    let t1215 = t1040 * t1206;
-    let t1216 = t1214 - t1215;
-    let t1217 = t1043 * t1216;
-    let t1218 = t1045 - t1217;
-    let t1219 = t1218 - t1204;
-    let t1220 = 0.35f * t1219;
-    let t1221 = t1220 - t1206;
-    let t1222 = t22 * t1202;
-    let t1223 = -(t1222);
-    let t1224 = t21 * t1203;
-    let t1225 = t1223 - t1224;
-    let t1226 = t21 * t1202;
-    let t1227 = t22 * t1203;
-    let t1228 = t1226 - t1227;
-    let t1229 = t22 * t1205;
-    let t1230 = t21 * t1221;
-    let t1231 = t1230 - t1229;
-    let t1232 = t21 * t1205;
-    let t1233 = t22 * t1221;
-    let t1234 = t1232 + t1233;
-    let t1235 = 1.04774e-6f * t1225;
-    let t1236 = 3.524e-9f * t1228;
-    let t1237 = t1235 + t1236;
-    let t1238 = 0.026183868f * t1219;
-    let t1239 = t1237 + t1238;
-    let t1240 = (-3.524e-5f) * t1231;
-    let t1241 = t1239 + t1240;
-    let t1242 = 0.1104774f * t1234;
-    let t1243 = t1241 + t1242;
-    let t1244 = 38.191456f * t1243;
-    let t1245 = 38.191456f - t1244;
-    let t1246 = 0.08f * t910;
-    let t1247 = t29 * t910;
-    let t1248 = t30 * t910;
-    let t1249 = 4.8965888e-12f * t910;
-    let t1250 = t31 * t1246;
-    let t1251 = t32 * t1246;
-    let t1252 = t763 * t1247;
-    let t1253 = -(t1252);
-    let t1254 = t766 * t1248;
-    let t1255 = t1253 - t1254;
-    let t1256 = t768 * t1249;
-    let t1257 = t1255 - t1256;
-    let t1258 = t769 * t1250;
-    let t1259 = t1257 - t1258;
-    let t1260 = t770 * t1251;
-    let t1261 = t1259 - t1260;
-    let t1262 = t773 * t1261;
-    let t1263 = t773 - t1262;
-    let t1264 = 0.08f * t912;
-    let t1265 = t29 * t912;
-    let t1266 = t30 * t912;
-    let t1267 = 4.8965888e-12f * t912;
-    let t1268 = t31 * t1264;
-    let t1269 = t32 * t1264;
-    let t1270 = t763 * t1265;
-    let t1271 = -(t1270);
-    let t1272 = t766 * t1266;
-    let t1273 = t1271 - t1272;
-    let t1274 = t768 * t1267;
-    let t1275 = t1273 - t1274;
-    let t1276 = t769 * t1268;
-    let t1277 = t1275 - t1276;
-    let t1278 = t770 * t1269;
-    let t1279 = t1277 - t1278;
-    let t1280 = t773 * t1279;
-    let t1281 = t775 - t1280;
-    let t1282 = t1281 - t1267;
-    let t1283 = 0.35f * t1282;
-    let t1284 = t1283 - t1269;
-    let t1285 = t38 * t1265;
-    let t1286 = -(t1285);
-    let t1287 = t37 * t1266;
-    let t1288 = t1286 - t1287;
-    let t1289 = t37 * t1265;
-    let t1290 = t38 * t1266;
-    let t1291 = t1289 - t1290;
-    let t1292 = t38 * t1268;
-    let t1293 = t37 * t1284;
-    let t1294 = t1293 - t1292;
-    let t1295 = t37 * t1268;
-    let t1296 = t38 * t1284;
-    let t1297 = t1295 + t1296;
-    let t1298 = (-1.04774e-6f) * t1288;
-    let t1299 = 3.524e-9f * t1291;
-    let t1300 = t1298 + t1299;
-    let t1301 = 0.026183868f * t1282;
-    let t1302 = t1300 + t1301;
-    let t1303 = 3.524e-5f * t1294;
-    let t1304 = t1302 + t1303;
-    let t1305 = 0.1104774f * t1297;
-    let t1306 = t1304 + t1305;
-    let t1307 = 38.191456f * t1306;
-    let t1308 = 38.191456f - t1307;
-    let t1309 = 0.08f * t640;
-    let t1310 = t42 * t640;
-    let t1311 = t43 * t640;
-    let t1312 = 4.8965888e-12f * t640;
-    let t1313 = t44 * t1309;
-    let t1314 = t45 * t1309;
-    let t1315 = t485 * t1310;
-    let t1316 = t488 * t1311;
-    let t1317 = t1315 + t1316;
-    let t1318 = t490 * t1312;
-    let t1319 = t1317 - t1318;
-    let t1320 = t491 * t1313;
-    let t1321 = t1319 - t1320;
-    let t1322 = t492 * t1314;
-    let t1323 = t1321 - t1322;
-    let t1324 = t495 * t1323;
-    let t1325 = t495 - t1324;
-    let t1326 = 0.08f * t642;
-    let t1327 = t42 * t642;
-    let t1328 = t43 * t642;
-    let t1329 = 4.8965888e-12f * t642;
-    let t1330 = t44 * t1326;
-    let t1331 = t45 * t1326;
-    let t1332 = t485 * t1327;
-    let t1333 = t488 * t1328;
-    let t1334 = t1332 + t1333;
-    let t1335 = t490 * t1329;
-    let t1336 = t1334 - t1335;
-    let t1337 = t491 * t1330;
-    let t1338 = t1336 - t1337;
-    let t1339 = t492 * t1331;
-    let t1340 = t1338 - t1339;
-    let t1341 = t495 * t1340;
-    let t1342 = t497 - t1341;
-    let t1343 = t1342 - t1329;
-    let t1344 = 0.35f * t1343;
-    let t1345 = t1344 - t1331;
-    let t1346 = t48 * t1327;
-    let t1347 = t47 * t1328;
-    let t1348 = t1346 + t1347;
-    let t1349 = t47 * t1327;
-    let t1350 = t48 * t1328;
-    let t1351 = t1350 - t1349;
-    let t1352 = t48 * t1330;
-    let t1353 = t47 * t1345;
-    let t1354 = t1353 - t1352;
-    let t1355 = t47 * t1330;
-    let t1356 = t48 * t1345;
-    let t1357 = t1355 + t1356;
-    let t1358 = 1.04774e-6f * t1348;
-    let t1359 = 3.524e-9f * t1351;
-    let t1360 = t1358 + t1359;
-    let t1361 = 0.026183868f * t1343;
-    let t1362 = t1360 + t1361;
-    let t1363 = (-3.524e-5f) * t1354;
-    let t1364 = t1362 + t1363;
-    let t1365 = 0.1104774f * t1357;
-    let t1366 = t1364 + t1365;
-    let t1367 = 38.191456f * t1366;
-    let t1368 = 38.191456f - t1367;
-    let t1369 = 0.08f * t355;
-    let t1370 = t50 * t355;
-    let t1371 = t51 * t355;
-    let t1372 = 4.8965888e-12f * t355;
-    let t1373 = t52 * t1369;
-    let t1374 = t53 * t1369;
-    let t1375 = t198 * t1370;
-    let t1376 = t201 * t1371;
-    let t1377 = t1375 + t1376;
-    let t1378 = t203 * t1372;
-    let t1379 = t1377 - t1378;
-    let t1380 = t204 * t1373;
-    let t1381 = t1379 - t1380;
-    let t1382 = t205 * t1374;
-    let t1383 = t1381 - t1382;
-    let t1384 = t208 * t1383;
-    let t1385 = t208 - t1384;
-    let t1386 = 0.08f * t357;
-    let t1387 = t50 * t357;
-    let t1388 = t51 * t357;
-    let t1389 = 4.8965888e-12f * t357;
-    let t1390 = t52 * t1386;
-    let t1391 = t53 * t1386;
-    let t1392 = t198 * t1387;
-    let t1393 = t201 * t1388;
-    let t1394 = t1392 + t1393;
-    let t1395 = t203 * t1389;
-    let t1396 = t1394 - t1395;
-    let t1397 = t204 * t1390;
-    let t1398 = t1396 - t1397;
-    let t1399 = t205 * t1391;
-    let t1400 = t1398 - t1399;
-    let t1401 = t208 * t1400;
-    let t1402 = t210 - t1401;
-    let t1403 = t1402 - t1389;
-    let t1404 = 0.35f * t1403;
-    let t1405 = t1404 - t1391;
-    let t1406 = t56 * t1387;
-    let t1407 = t55 * t1388;
-    let t1408 = t1406 + t1407;
-    let t1409 = t55 * t1387;
-    let t1410 = t56 * t1388;
-    let t1411 = t1410 - t1409;
-    let t1412 = t56 * t1390;
-    let t1413 = t55 * t1405;
-    let t1414 = t1413 - t1412;
-    let t1415 = t55 * t1390;
-    let t1416 = t56 * t1405;
-    let t1417 = t1415 + t1416;
-    let t1418 = (-1.04774e-6f) * t1408;
-    let t1419 = 3.524e-9f * t1411;
-    let t1420 = t1418 + t1419;
-    let t1421 = 0.026183868f * t1403;
-    let t1422 = t1420 + t1421;
-    let t1423 = 3.524e-5f * t1414;
-    let t1424 = t1422 + t1423;
-    let t1425 = 0.1104774f * t1417;
-    let t1426 = t1424 + t1425;
-    let t1427 = 38.191456f * t1426;
-    let t1428 = 38.191456f - t1427;
-    out[0u * n + s] = t1178;
-    out[1u * n + s] = t1180;
-    out[12u * n + s] = t1180;
-    out[2u * n + s] = t1182;
-    out[24u * n + s] = t1182;
-    out[13u * n + s] = t1200;
-    out[14u * n + s] = t1218;
-    out[25u * n + s] = t1218;
-    out[26u * n + s] = t1245;
-    out[52u * n + s] = t1263;
-    out[53u * n + s] = t1281;
-    out[64u * n + s] = t1281;
-    out[65u * n + s] = t1308;
-    out[91u * n + s] = t1325;
-    out[92u * n + s] = t1342;
-    out[103u * n + s] = t1342;
-    out[104u * n + s] = t1368;
-    out[130u * n + s] = t1385;
-    out[131u * n + s] = t1402;
-    out[142u * n + s] = t1402;
-    out[143u * n + s] = t1428;
+    out[0u * n + s] = t534;
+    out[1u * n + s] = t536;
+    out[12u * n + s] = t536;
+    out[2u * n + s] = t540;
+    out[24u * n + s] = t540;
+    out[13u * n + s] = t543;
+    out[14u * n + s] = t546;
+    out[25u * n + s] = t546;
+    out[26u * n + s] = t557;
+    out[39u * n + s] = t558;
+    out[40u * n + s] = t560;
+    out[51u * n + s] = t560;
+    out[41u * n + s] = t564;
+    out[63u * n + s] = t564;
+    out[52u * n + s] = t567;
+    out[53u * n + s] = t570;
+    out[64u * n + s] = t570;
+    out[65u * n + s] = t580;
+    out[78u * n + s] = t581;
+    out[79u * n + s] = t583;
+    out[90u * n + s] = t583;
+    out[80u * n + s] = t587;
+    out[102u * n + s] = t587;
+    out[91u * n + s] = t590;
+    out[92u * n + s] = t593;
+    out[103u * n + s] = t593;
+    out[104u * n + s] = t603;
+    out[117u * n + s] = t604;
+    out[118u * n + s] = t606;
+    out[129u * n + s] = t606;
+    out[119u * n + s] = t610;
+    out[141u * n + s] = t610;
+    out[130u * n + s] = t613;
+    out[131u * n + s] = t616;
+    out[142u * n + s] = t616;
+    out[143u * n + s] = t626;
 }
 
 @compute @workgroup_size(64)
-fn minv_stage0(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn minv(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n = params.n;
     let s = gid.x;
     if (s >= n) {
@@ -10134,18 +9177,8 @@ fn minv_stage0(@builtin(global_invocation_id) gid: vec3<u32>) {
     minv_part0(s, n);
 }
 
-@compute @workgroup_size(64)
-fn minv_stage1(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let n = params.n;
-    let s = gid.x;
-    if (s >= n) {
-        return;
-    }
-    minv_part1(s, n);
-}
-
-// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted. One workgroup of 64 invocations per state, 46 phases; its 1508 operations are a table at prog[28566..39218] (phase p's block starts at prog[28566 + 2 * p] and has prog[28566 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
-var<workgroup> minv_coop_wg: array<real, 320>;
+// M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity. One workgroup of 64 invocations per state, 29 phases; its 726 operations are a table at prog[28566..34768] (phase p's block starts at prog[28566 + 2 * p] and has prog[28566 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> minv_coop_wg: array<real, 140>;
 
 fn minv_coop_read(a: u32, s: u32, n: u32) -> real {
     let i = a & 268435455u;
@@ -10180,10 +9213,10 @@ fn minv_coop_step(k: u32, s: u32, n: u32) {
         }
         default: { return; }
     }
-    if (d < 320u) {
+    if (d < 140u) {
         minv_coop_wg[d] = v;
     } else {
-        scratch[(d - 320u) * n + s] = v;
+        scratch[(d - 140u) * n + s] = v;
     }
 }
 
@@ -10194,7 +9227,7 @@ fn minv_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_in
     if (s >= n) {
         return;
     }
-    for (var p = 0u; p < 46u; p++) {
+    for (var p = 0u; p < 29u; p++) {
         let at = prog[28566u + 2u * p] + 3u * w;
         let steps = prog[28566u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
@@ -13466,7 +12499,7 @@ fn fd_stage2(@builtin(global_invocation_id) gid: vec3<u32>) {
     fd_part2(s, n);
 }
 
-// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed). One workgroup of 64 invocations per state, 56 phases; its 2790 operations are a table at prog[39218..55074] (phase p's block starts at prog[39218 + 2 * p] and has prog[39218 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed). One workgroup of 64 invocations per state, 56 phases; its 2790 operations are a table at prog[34768..50624] (phase p's block starts at prog[34768 + 2 * p] and has prog[34768 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> fd_coop_wg: array<real, 562>;
 
 fn fd_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -13517,8 +12550,8 @@ fn fd_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_inde
         return;
     }
     for (var p = 0u; p < 56u; p++) {
-        let at = prog[39218u + 2u * p] + 3u * w;
-        let steps = prog[39218u + 2u * p + 1u];
+        let at = prog[34768u + 2u * p] + 3u * w;
+        let steps = prog[34768u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             fd_coop_step(at + k * 192u, s, n);
         }
@@ -21226,7 +20259,7 @@ fn fd_grad_stage5(@builtin(global_invocation_id) gid: vec3<u32>) {
     fd_grad_part5(s, n);
 }
 
-// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass). One workgroup of 64 invocations per state, 59 phases; its 5788 operations are a table at prog[55074..78616] (phase p's block starts at prog[55074 + 2 * p] and has prog[55074 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass). One workgroup of 64 invocations per state, 59 phases; its 5788 operations are a table at prog[50624..74166] (phase p's block starts at prog[50624 + 2 * p] and has prog[50624 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> fd_grad_coop_wg: array<real, 1106>;
 
 fn fd_grad_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -21277,8 +20310,8 @@ fn fd_grad_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         return;
     }
     for (var p = 0u; p < 59u; p++) {
-        let at = prog[55074u + 2u * p] + 3u * w;
-        let steps = prog[55074u + 2u * p + 1u];
+        let at = prog[50624u + 2u * p] + 3u * w;
+        let steps = prog[50624u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             fd_grad_coop_step(at + k * 192u, s, n);
         }
@@ -21348,7 +20381,7 @@ fn integrate(@builtin(global_invocation_id) gid: vec3<u32>) {
     integrate_part0(s, n);
 }
 
-// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order. One workgroup of 64 invocations per state, 2 phases; its 24 operations are a table at prog[78616..79004] (phase p's block starts at prog[78616 + 2 * p] and has prog[78616 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order. One workgroup of 64 invocations per state, 2 phases; its 24 operations are a table at prog[74166..74554] (phase p's block starts at prog[74166 + 2 * p] and has prog[74166 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> integrate_coop_wg: array<real, 12>;
 
 fn integrate_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -21399,8 +20432,8 @@ fn integrate_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocati
         return;
     }
     for (var p = 0u; p < 2u; p++) {
-        let at = prog[78616u + 2u * p] + 3u * w;
-        let steps = prog[78616u + 2u * p + 1u];
+        let at = prog[74166u + 2u * p] + 3u * w;
+        let steps = prog[74166u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             integrate_coop_step(at + k * 192u, s, n);
         }
@@ -21710,7 +20743,7 @@ fn dintegrate(@builtin(global_invocation_id) gid: vec3<u32>) {
     dintegrate_part0(s, n);
 }
 
-// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 288 operations are a table at prog[79004..79966] (phase p's block starts at prog[79004 + 2 * p] and has prog[79004 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 288 operations are a table at prog[74554..75516] (phase p's block starts at prog[74554 + 2 * p] and has prog[74554 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> dintegrate_coop_wg: array<real, 1>;
 
 fn dintegrate_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -21761,8 +20794,8 @@ fn dintegrate_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocat
         return;
     }
     for (var p = 0u; p < 1u; p++) {
-        let at = prog[79004u + 2u * p] + 3u * w;
-        let steps = prog[79004u + 2u * p + 1u];
+        let at = prog[74554u + 2u * p] + 3u * w;
+        let steps = prog[74554u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             dintegrate_coop_step(at + k * 192u, s, n);
         }
@@ -21832,7 +20865,7 @@ fn difference(@builtin(global_invocation_id) gid: vec3<u32>) {
     difference_part0(s, n);
 }
 
-// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`). One workgroup of 64 invocations per state, 2 phases; its 24 operations are a table at prog[79966..80354] (phase p's block starts at prog[79966 + 2 * p] and has prog[79966 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`). One workgroup of 64 invocations per state, 2 phases; its 24 operations are a table at prog[75516..75904] (phase p's block starts at prog[75516 + 2 * p] and has prog[75516 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> difference_coop_wg: array<real, 12>;
 
 fn difference_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -21883,8 +20916,8 @@ fn difference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocat
         return;
     }
     for (var p = 0u; p < 2u; p++) {
-        let at = prog[79966u + 2u * p] + 3u * w;
-        let steps = prog[79966u + 2u * p + 1u];
+        let at = prog[75516u + 2u * p] + 3u * w;
+        let steps = prog[75516u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             difference_coop_step(at + k * 192u, s, n);
         }
@@ -22194,7 +21227,7 @@ fn ddifference(@builtin(global_invocation_id) gid: vec3<u32>) {
     ddifference_part0(s, n);
 }
 
-// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 288 operations are a table at prog[80354..81316] (phase p's block starts at prog[80354 + 2 * p] and has prog[80354 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 288 operations are a table at prog[75904..76866] (phase p's block starts at prog[75904 + 2 * p] and has prog[75904 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> ddifference_coop_wg: array<real, 1>;
 
 fn ddifference_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -22245,8 +21278,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
         return;
     }
     for (var p = 0u; p < 1u; p++) {
-        let at = prog[80354u + 2u * p] + 3u * w;
-        let steps = prog[80354u + 2u * p + 1u];
+        let at = prog[75904u + 2u * p] + 3u * w;
+        let steps = prog[75904u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             ddifference_coop_step(at + k * 192u, s, n);
         }
@@ -24040,181 +23073,87 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 6ff2 2 7172 3 73b2 2 7532 2 76b2 2
-// prog: 7832 1 78f2 1 79b2 1 7a72 1 7b32 1 7bf2 2 7d72 2 7ef2 2
-// prog: 8072 1 8132 1 81f2 1 82b2 1 8372 1 8432 1 84f2 1 85b2 1
-// prog: 8672 1 8732 1 87f2 1 88b2 1 8972 1 8a32 1 8af2 1 8bb2 1
-// prog: 8c72 1 8d32 1 8df2 1 8eb2 1 8f72 1 9032 1 90f2 1 91b2 1
-// prog: 9272 1 9332 1 93f2 1 94b2 1 9572 1 9632 1 96f2 1 97b2 1
-// prog: 9872 1 5000000 30000001 30000001 5000002 30000002 30000002 5000004 30000004 30000004 5000006 30000005 30000005 5000008 30000007
-// prog: 30000007 500000a 30000008 30000008 500000c 3000000a 3000000a 500000e 3000000b 3000000b 6000001 30000001 30000001 6000003 30000002 30000002
-// prog: 6000005 30000004 30000004 6000007 30000005 30000005 6000009 30000007 30000007 600000b 30000008 30000008 600000d 3000000a 3000000a 600000f
-// prog: 3000000b 3000000b 7000003 2000002a 2000002a 7000004 2000002a 2000002a 7000005 2000002a 2000002a 7000006 2000002a 2000002a 7000007 2000002a
-// prog: 2000002a 7000008 2000002a 2000002a 7000009 2000002a 2000002a 700000a 2000002a 2000002a 700000b 2000002a 2000002a 700000f 2000002a 2000002a
-// prog: 7000010 2000002a 2000002a 7000011 2000002a 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a 7000014 2000002a 2000002a 7000015
-// prog: 2000002a 2000002a 7000016 2000002a 2000002a 7000017 2000002a 2000002a 700001b 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a
-// prog: 2000002a 700001e 2000002a 2000002a 700001f 2000002a 2000002a 7000020 2000002a 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a
-// prog: 7000023 2000002a 2000002a 7000024 2000002a 2000002a 7000025 2000002a 2000002a 7000026 2000002a 2000002a 700002a 2000002a 2000002a 700002b
-// prog: 2000002a 2000002a 700002c 2000002a 2000002a 700002d 2000002a 2000002a 700002e 2000002a 2000002a 700002f 2000002a 2000002a 7000030 2000002a
-// prog: 2000002a 7000031 2000002a 2000002a 7000032 2000002a 2000002a 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a
-// prog: 7000039 2000002a 2000002a 700003a 2000002a 2000002a 700003b 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e
-// prog: 2000002a 2000002a 7000042 2000002a 2000002a 7000043 2000002a 2000002a 7000044 2000002a 2000002a 7000045 2000002a 2000002a 7000046 2000002a
-// prog: 2000002a 7000047 2000002a 2000002a 7000048 2000002a 2000002a 7000049 2000002a 2000002a 700004a 2000002a 2000002a 700004b 2000002a 2000002a
-// prog: 700004c 2000002a 2000002a 700004d 2000002a 2000002a 7000051 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a 7000054
-// prog: 2000002a 2000002a 7000055 2000002a 2000002a 7000056 2000002a 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059 2000002a
-// prog: 2000002a 700005d 2000002a 2000002a 700005e 2000002a 2000002a 700005f 2000002a 2000002a 7000060 2000002a 2000002a 7000061 2000002a 2000002a
-// prog: 7000062 2000002a 2000002a 7000063 2000002a 2000002a 7000064 2000002a 2000002a 7000065 2000002a 2000002a 7000069 2000002a 2000002a 700006a
-// prog: 2000002a 2000002a 700006b 2000002a 2000002a 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a 2000002a 700006f 2000002a
-// prog: 2000002a 7000070 2000002a 2000002a 7000071 2000002a 2000002a 7000072 2000002a 2000002a 7000073 2000002a 2000002a 7000074 2000002a 2000002a
-// prog: 7000078 2000002a 2000002a 7000079 2000002a 2000002a 700007a 2000002a 2000002a 700007b 2000002a 2000002a 700007c 2000002a 2000002a 700007d
-// prog: 2000002a 2000002a 700007e 2000002a 2000002a 700007f 2000002a 2000002a 7000080 2000002a 2000002a 7000084 2000002a 2000002a 7000085 2000002a
-// prog: 2000002a 7000086 2000002a 2000002a 7000087 2000002a 2000002a 7000088 2000002a 2000002a 7000089 2000002a 2000002a 700008a 2000002a 2000002a
-// prog: 700008b 2000002a 2000002a 700008c 2000002a 2000002a 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000010 20000000 0 2000011 20000000 1 2000012 20000000 4 2000013 20000000 5 2000014 20000000
-// prog: 8 2000015 20000000 9 2000016 20000000 c 2000017 20000000 d 2000018 f 2000002c 2000019 e 2000002d
-// prog: 200001a e 2000002c 200001b f 2000002d 200001c f 2000002e 200001d e 2000002f 200001e e 2000002e 200001f
-// prog: f 2000002f 2000020 f 20000031 2000021 e 2000001e 2000022 f 2000001e 2000023 e 20000014 2000024 f
-// prog: 20000032 2000025 e 20000033 2000026 f 20000034 2000027 e 20000035 2000028 20000020 f 2000029 e 20000036
-// prog: 200002a e 20000031 200002b f 20000014 200002c e 20000032 200002d f 20000033 200002e e 20000034 200002f
-// prog: f 20000035 2000030 20000020 e 2000031 f 20000036 2000032 20000010 e 2000033 20000010 f 2000034 f
-// prog: 2000001a 2000035 e 2000003b 2000036 f 2000003b 2000037 e 2000003c 2000038 e 2000001a 2000039 f 2000003c
-// prog: 200003a b 2000003e 200003b a 2000002d 200003c a 2000003e 200003d b 2000002d 200003e b 2000003f 200003f
-// prog: a 2000002f 2000040 a 2000003f 2000041 b 2000002f 2000042 b 20000031 2000043 a 20000012 2000044 b
-// prog: 20000012 2000045 a 20000014 2000046 b 20000032 2000047 a 20000040 2000048 b 20000041 2000049 a 20000035
-// prog: 200004a 20000017 b 200004b a 20000036 200004c a 20000031 200004d b 20000014 200004e a 20000032 200004f
-// prog: b 20000040 2000050 a 20000041 2000051 b 20000035 2000052 20000017 a 2000053 b 20000036 2000054 20000010
-// prog: a 2000055 20000010 b 2000056 b 2000001a 2000057 a 20000044 2000058 b 20000044 2000059 a 2000003c
-// prog: 200005a a 2000001a 200005b b 2000003c 200005c 7 2000002c 200005d 6 2000002d 200005e 6 2000002c 200005f
-// prog: 7 2000002d 2000060 7 2000002e 2000061 6 2000002f 2000062 6 2000002e 2000063 7 2000002f 2000064 7
-// prog: 20000031 2000065 6 2000001e 2000066 7 2000001e 2000067 6 20000014 2000068 7 20000032 2000069 6 20000033
-// prog: 200006a 7 20000034 200006b 6 20000035 200006c 7 20000020 200006d 6 20000036 200006e 6 20000031 200006f
-// prog: 7 20000014 2000070 6 20000032 2000071 7 20000033 2000072 6 20000034 2000073 7 20000035 2000074 6
-// prog: 20000020 2000075 7 20000036 2000076 20000010 6 2000077 20000010 7 2000078 7 2000001a 2000079 6 2000003b
-// prog: 200007a 7 2000003b 200007b 6 2000003c 200007c 6 2000001a 200007d 7 2000003c 200007e 3 2000003e 200007f
-// prog: 2 2000002d 2000080 2 2000003e 2000081 3 2000002d 2000082 3 2000003f 2000083 2 2000002f 2000084 2
-// prog: 2000003f 2000085 3 2000002f 2000086 3 20000031 2000087 2 20000012 2000088 3 20000012 2000089 2 20000014
-// prog: 200008a 3 20000032 200008b 2 20000040 200008c 3 20000041 200008d 2 20000035 200008e 3 20000017 200008f
-// prog: 2 20000036 2000090 2 20000031 2000091 3 20000014 2000092 2 20000032 2000093 3 20000040 2000094 2
-// prog: 20000041 2000095 3 20000035 2000096 2 20000017 2000097 3 20000036 2000098 20000010 2 2000099 20000010 3
-// prog: 200009a 3 2000001a 200009b 2 20000044 200009c 3 20000044 200009d 2 2000003c 200009e 2 2000001a 200009f
-// prog: 3 2000003c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 a1 1a 1b a3 1e 1f a7 22 2a a8 21 2b a9 30
-// prog: 31 b6 26 2c b7 25 2f b8 36 38 b9 35 39 bd 3c 3d
-// prog: bf 40 41 c3 44 4c c4 43 4d c5 52 53 d2 48 4e d3
-// prog: 47 51 d4 58 5a d5 57 5b d9 5e 5f db 62 63 df 66
-// prog: 6e e0 65 6f e1 74 75 ee 6a 70 ef 69 73 f0 7a 7c
-// prog: f1 79 7d f5 80 81 f7 84 85 fb 88 90 fc 87 91 fd
-// prog: 96 97 10a 8c 92 10b 8b 95 10c 9c 9e 10d 9b 9f 10000a0 18
-// prog: 19 10000a2 1c 1d 10000a4 20 21 10000a5 22 23 10000a6 28 29 10000b2 24 2e
-// prog: 10000b3 2d 27 10000b4 34 35 10000b5 36 37 10000bc 3a 3b 10000be 3e 3f 10000c0
-// prog: 42 43 10000c1 44 45 10000c2 4a 4b 10000ce 46 50 10000cf 4f 49 10000d0 56
-// prog: 57 10000d1 58 59 10000d8 5c 5d 10000da 60 61 10000dc 64 65 10000dd 66 67
-// prog: 10000de 6c 6d 10000ea 68 72 10000eb 71 6b 10000ec 78 79 10000ed 7a 7b 10000f4
-// prog: 7e 7f 10000f6 82 83 10000f8 86 87 10000f9 88 89 10000fa 8e 8f 1000106 8a
-// prog: 94 1000107 93 8d 1000108 9a 9b 1000109 9c 9d 20000aa 20000032 32 20000ab 20000034 33
-// prog: 20000ac 20000033 32 20000ad 20000035 33 20000ae 2000001a 32 20000af 2000003b 33 20000b0 2000003b 32 20000b1
-// prog: 2000003c 33 20000ba 20000004 16 20000bb 20000004 17 20000c6 20000032 54 20000c7 20000041 55 20000c8 20000040
-// prog: 54 20000c9 20000035 55 20000ca 2000001a 54 20000cb 20000044 55 20000cc 20000044 54 20000cd 2000003c 55
-// prog: 20000d6 20000004 14 20000d7 20000004 15 20000e2 20000032 76 20000e3 20000034 77 20000e4 20000033 76 20000e5
-// prog: 20000035 77 20000e6 2000001a 76 20000e7 2000003b 77 20000e8 2000003b 76 20000e9 2000003c 77 20000f2 20000004
-// prog: 12 20000f3 20000004 13 20000fe 20000032 98 20000ff 20000041 99 2000100 20000040 98 2000101 20000035 99
-// prog: 2000102 2000001a 98 2000103 20000044 99 2000104 20000044 98 2000105 2000003c 99 200010e 20000004 10 200010f
-// prog: 20000004 11 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1b a7 20000037 1c a8 20000038 1d a9 20000039 1e 2000003a aa 1f ac
-// prog: ad 20 ae af 21 b0 b1 32 2000001d a6 36 c3 20000042 37 20000038 c4
-// prog: 38 20000039 c5 39 20000043 c6 3a c8 c9 3b ca cb 3c cc cd 4d
-// prog: 2000000d c2 51 20000037 df 52 20000038 e0 53 20000039 e1 54 2000003a e2 55 e4
-// prog: e5 56 e6 e7 57 e8 e9 68 2000001d de 6c 20000042 fb 6d 20000038 fc
-// prog: 6e 20000039 fd 6f 20000043 fe 70 100 101 71 102 103 72 104 105 83
-// prog: 2000000d fa 2000018 20000010 a1 2000019 f a4 200001a e a5 2000022 f b4 2000023 e
-// prog: b5 2000024 e b4 2000025 f b5 2000026 f b2 2000027 e b3 2000028 e b2
-// prog: 2000029 f b3 200002a f b8 200002b e b9 200002c e b8 200002d f b9 200002e
-// prog: f b6 200002f e b7 2000030 e b6 2000031 f b7 2000033 20000010 bd 2000034 b
-// prog: c0 2000035 a c1 200003d b d0 200003e a d1 200003f a d0 2000040 b d1
-// prog: 2000041 b ce 2000042 a cf 2000043 a ce 2000044 b cf 2000045 b d4 2000046
-// prog: a d5 2000047 a d4 2000048 b d5 2000049 b d2 200004a a d3 200004b a
-// prog: d2 200004c b d3 200004e 20000010 d9 200004f 7 dc 2000050 6 dd 2000058 7 ec
-// prog: 2000059 6 ed 200005a 6 ec 200005b 7 ed 200005c 7 ea 200005d 6 eb 200005e
-// prog: 6 ea 200005f 7 eb 2000060 7 f0 2000061 6 f1 2000062 6 f0 2000063 7
-// prog: f1 2000064 7 ee 2000065 6 ef 2000066 6 ee 2000067 7 ef 2000069 20000010 f5
-// prog: 200006a 3 f8 200006b 2 f9 2000073 3 108 2000074 2 109 2000075 2 108 2000076
-// prog: 3 109 2000077 3 106 2000078 2 107 2000079 2 106 200007a 3 107 200007b 3
-// prog: 10c 200007c 2 10d 200007d 2 10c 200007e 3 10d 200007f 3 10a 2000080 2 10b
-// prog: 2000081 2 10a 2000082 3 10b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 6fd0 2 7150 2 72d0 1 7390 2 7510 1
+// prog: 75d0 1 7690 1 7750 1 7810 1 78d0 1 7990 1 7a50 1 7b10 1
+// prog: 7bd0 1 7c90 1 7d50 1 7e10 1 7ed0 1 7f90 1 8050 1 8110 1
+// prog: 81d0 1 8290 1 8350 1 8410 1 84d0 1 8590 1 8650 1 8710 1
+// prog: 5000000 30000001 30000001 5000002 30000002 30000002 5000004 30000004 30000004 5000006 30000005 30000005 5000008 30000007 30000007 500000a
+// prog: 30000008 30000008 500000c 3000000a 3000000a 500000e 3000000b 3000000b 6000001 30000001 30000001 6000003 30000002 30000002 6000005 30000004
+// prog: 30000004 6000007 30000005 30000005 6000009 30000007 30000007 600000b 30000008 30000008 600000d 3000000a 3000000a 600000f 3000000b 3000000b
+// prog: 7000003 2000002a 2000002a 7000004 2000002a 2000002a 7000005 2000002a 2000002a 7000006 2000002a 2000002a 7000007 2000002a 2000002a 7000008
+// prog: 2000002a 2000002a 7000009 2000002a 2000002a 700000a 2000002a 2000002a 700000b 2000002a 2000002a 700000f 2000002a 2000002a 7000010 2000002a
+// prog: 2000002a 7000011 2000002a 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a 7000014 2000002a 2000002a 7000015 2000002a 2000002a
+// prog: 7000016 2000002a 2000002a 7000017 2000002a 2000002a 700001b 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e
+// prog: 2000002a 2000002a 700001f 2000002a 2000002a 7000020 2000002a 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a
+// prog: 2000002a 7000024 2000002a 2000002a 7000025 2000002a 2000002a 7000026 2000002a 2000002a 700002a 2000002a 2000002a 700002b 2000002a 2000002a
+// prog: 700002c 2000002a 2000002a 700002d 2000002a 2000002a 700002e 2000002a 2000002a 700002f 2000002a 2000002a 7000030 2000002a 2000002a 7000031
+// prog: 2000002a 2000002a 7000032 2000002a 2000002a 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039 2000002a
+// prog: 2000002a 700003a 2000002a 2000002a 700003b 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a 2000002a
+// prog: 7000042 2000002a 2000002a 7000043 2000002a 2000002a 7000044 2000002a 2000002a 7000045 2000002a 2000002a 7000046 2000002a 2000002a 7000047
+// prog: 2000002a 2000002a 7000048 2000002a 2000002a 7000049 2000002a 2000002a 700004a 2000002a 2000002a 700004b 2000002a 2000002a 700004c 2000002a
+// prog: 2000002a 700004d 2000002a 2000002a 7000051 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a 7000054 2000002a 2000002a
+// prog: 7000055 2000002a 2000002a 7000056 2000002a 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059 2000002a 2000002a 700005d
+// prog: 2000002a 2000002a 700005e 2000002a 2000002a 700005f 2000002a 2000002a 7000060 2000002a 2000002a 7000061 2000002a 2000002a 7000062 2000002a
+// prog: 2000002a 7000063 2000002a 2000002a 7000064 2000002a 2000002a 7000065 2000002a 2000002a 7000069 2000002a 2000002a 700006a 2000002a 2000002a
+// prog: 700006b 2000002a 2000002a 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a 2000002a 700006f 2000002a 2000002a 7000070
+// prog: 2000002a 2000002a 7000071 2000002a 2000002a 7000072 2000002a 2000002a 7000073 2000002a 2000002a 7000074 2000002a 2000002a 7000078 2000002a
+// prog: 2000002a 7000079 2000002a 2000002a 700007a 2000002a 2000002a 700007b 2000002a 2000002a 700007c 2000002a 2000002a 700007d 2000002a 2000002a
+// prog: 700007e 2000002a 2000002a 700007f 2000002a 2000002a 7000080 2000002a 2000002a 7000084 2000002a 2000002a 7000085 2000002a 2000002a 7000086
+// prog: 2000002a 2000002a 7000087 2000002a 2000002a 7000088 2000002a 2000002a 7000089 2000002a 2000002a 700008a 2000002a 2000002a 700008b 2000002a
+// prog: 2000002a 700008c 2000002a 2000002a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 2000010 20000000 0 2000011 20000000 1 2000012 20000000 4 2000013 20000000 5 2000014 20000000 8 2000015
+// prog: 20000000 9 2000016 20000000 c 2000017 20000000 d 2000018 20000019 f 2000019 20000020 e 200001a 20000019
+// prog: e 200001b 20000020 f 200001c 20000011 f 200001d 2000001e e 200001e 20000011 e 200001f 2000001e f
+// prog: 2000020 20000014 e 2000021 20000014 f 2000022 2000001f f 2000023 20000015 e 2000024 2000001f e 2000025
+// prog: 20000015 f 2000026 20000019 b 2000027 20000017 a 2000028 20000019 a 2000029 20000017 b 200002a 20000011
+// prog: b 200002b 20000012 a 200002c 20000011 a 200002d 20000012 b 200002e 20000014 a 200002f 20000014 b
+// prog: 2000030 20000013 b 2000031 20000015 a 2000032 20000013 a 2000033 20000015 b 2000034 20000019 7 2000035
+// prog: 6 20000020 2000036 20000019 6 2000037 7 20000020 2000038 20000011 7 2000039 6 2000001e 200003a 20000011
+// prog: 6 200003b 7 2000001e 200003c 20000014 6 200003d 20000014 7 200003e 7 2000001f 200003f 20000015 6
+// prog: 2000040 6 2000001f 2000041 20000015 7 2000042 3 20000019 2000043 2 20000017 2000044 2 20000019 2000045
+// prog: 3 20000017 2000046 3 20000011 2000047 2 20000012 2000048 2 20000011 2000049 3 20000012 200004a 2
+// prog: 20000014 200004b 3 20000014 200004c 3 20000013 200004d 2 20000015 200004e 2 20000013 200004f 3 20000015
+// prog: 2000050 3 20000020 2000051 2 20000020 2000052 20000017 7 2000053 20000017 6 2000054 20000020 b 2000055
+// prog: 20000020 a 2000056 20000017 f 2000057 20000017 e 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 84 20000030 18 8b 1e ab 91 24 25 93 28 29 95 2c
-// prog: 2d 97 30 31 98 2000003d 1d 9b 20000030 33 a6 39 c7 ad 3f 40
-// prog: af 43 44 b1 47 48 b3 4b 4c b4 2000003d 38 b7 20000030 4e c4
-// prog: 54 e3 cb 5a 5b cd 5e 5f cf 62 63 d1 66 67 d2 2000003d
-// prog: 53 d5 20000030 69 e2 6f ff e9 75 76 eb 79 7a ed 7d 7e
-// prog: ef 81 82 f0 2000003d 6e 1000085 19 1a 1000090 22 23 1000092 26 27 1000094
-// prog: 2a 2b 1000096 2e 2f 100009c 34 35 10000ac 3d 3e 10000ae 41 42 10000b0 45
-// prog: 46 10000b2 49 4a 10000b8 4f 50 10000ca 58 59 10000cc 5c 5d 10000ce 60 61
-// prog: 10000d0 64 65 10000dc 6a 6b 10000e8 73 74 10000ea 77 78 10000ec 7b 7c 10000ee
-// prog: 7f 80 2000086 f 1b 2000087 e 1c 2000088 e 1b 2000089 f 1c 200008a 20000010
-// prog: 1d 200008c e 20 200008d f 21 200008e e 1f 200008f f 1f 2000099 20000004 32
-// prog: 200009a c 32 200009d b 36 200009e a 37 200009f a 36 20000a4 b 37 20000a5
-// prog: 20000010 38 20000a7 a 3b 20000a8 b 3c 20000a9 a 3a 20000aa b 3a 20000b5 20000004
-// prog: 4d 20000b6 8 4d 20000b9 7 51 20000c0 6 52 20000c1 6 51 20000c2 7 52
-// prog: 20000c3 20000010 53 20000c5 6 56 20000c6 7 57 20000c8 6 55 20000c9 7 55 20000d3
-// prog: 20000045 68 20000d4 4 68 20000dd 3 6c 20000de 2 6d 20000df 2 6c 20000e0 3
-// prog: 6d 20000e1 20000010 6e 20000e4 2 71 20000e5 3 72 20000e6 2 70 20000e7 3 70
-// prog: 20000f1 20000045 83 20000f8 0 83 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 19 88 89 1a 8c 8d 1f 20000007 85 20 2000000f 90 21 2000000f
-// prog: 95 26 9f a4 27 a7 a8 2c 20000007 9c 2d 2000000f ac 2e 2000000f b1
-// prog: 33 c1 c2 34 c5 c6 39 20000007 b8 3a 2000000f ca 3b 2000000f cf 3f
-// prog: df e0 40 e4 e5 45 20000007 dc 46 2000000f e8 47 2000000f ed 1000018 86
-// prog: 87 1000025 9d 9e 1000032 b9 c0 100003e dd de 200001b f 8b 200001c e 8b
-// prog: 200001d 20000010 91 200001e 20000010 95 2000022 20000004 98 2000024 d 98 2000028 b a6 2000029
-// prog: a a6 200002a 20000010 ad 200002b 20000010 b1 200002f 20000004 b4 2000031 9 b4 2000035 7
-// prog: c4 2000036 6 c4 2000037 20000010 cb 2000038 20000010 cf 200003c 20000045 d2 200003d 5 d2
-// prog: 2000041 3 e2 2000042 2 e2 2000043 20000010 e9 2000044 20000010 ed 2000048 20000045 f0 2000049
-// prog: 1 f0 4000023 9a 9a 4000030 b6 b6 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 4c 1c 8f 4e 2000001b 18 4f 2000000d 1d 50 2000000e 1e 54 29
-// prog: aa 56 20000008 25 57 2000001d 2a 58 2000000e 2b 5c 36 c9 5e 2000001b 32
-// prog: 5f 2000000d 37 60 2000000e 38 61 d4 3d 64 42 e7 66 20000008 3e 67
-// prog: 2000001d 43 68 2000000e 44 69 f8 49 100004a 19 8a 100004b 1b 8e 1000051 23
-// prog: 24 1000052 26 a5 1000053 28 a9 1000059 30 31 100005a 33 c3 100005b 35 c8
-// prog: 1000062 3f e1 1000063 41 e6 200004d 20000010 1a 2000055 20000010 27 200005d 20000010 34 2000065
-// prog: 20000010 40 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 18 2000001c 4b 19 2000000a 4a 1a 2000000b 4c 1b 2000000c 4d 1c 51
-// prog: 20000028 1d 20000009 53 1e 2000000a 52 23 2000000b 54 24 2000000c 55 25 20000028 59
-// prog: 26 2000001c 5b 27 2000000a 5a 28 2000000b 5c 29 2000000c 5d 2a 61 20000046 2b
-// prog: 20000009 63 30 2000000a 62 31 2000000b 64 32 2000000c 65 33 20000046 69 8000000 0
+// prog: 59 1a 1b 5b 1e 1f 5d 1d 21 5f 24 25 61 28 29 63
+// prog: 2c 2d 65 2b 2f 67 32 33 69 36 37 6b 3a 3b 6d 39
+// prog: 3d 6f 40 41 71 44 45 73 48 49 75 47 4b 77 4e 4f
+// prog: 79 42 51 7b 34 53 7d 26 55 7f 18 57 1000058 18 19 100005a
+// prog: 1c 1d 100005c 1f 20 100005e 22 23 1000060 26 27 1000062 2a 2b 1000064 2d
+// prog: 2e 1000066 30 31 1000068 34 35 100006a 38 39 100006c 3b 3c 100006e 3e 3f
+// prog: 1000070 42 43 1000072 46 47 1000074 49 4a 1000076 4c 4d 1000078 50 44 100007a
+// prog: 52 36 100007c 54 28 100007e 56 1a 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 21 58 20000026 22 2000000b 5f 23 2000001d 59 2d 20000026 60 2e 2000000b 67 2f
+// prog: 2000000d 61 39 20000026 68 3a 2000000b 6f 3b 2000001d 69 45 20000026 70 46 2000000b
+// prog: 77 47 2000000d 71 100001e 5e 20000023 100002a 66 20000029 1000036 6e 20000023 1000042 76 20000029
+// prog: 2000018 20000010 58 2000019 f 5a 200001a e 5c 200001b f 5b 200001c e 5d 200001d
+// prog: 20000010 59 200001f e 5b 2000020 f 5d 2000024 20000010 60 2000025 b 62 2000026 a
+// prog: 64 2000027 b 63 2000028 a 65 2000029 20000010 61 200002b a 63 200002c b 65
+// prog: 2000030 20000010 68 2000031 7 6a 2000032 6 6c 2000033 7 6b 2000034 6 6d 2000035
+// prog: 20000010 69 2000037 6 6b 2000038 7 6d 200003c 20000010 70 200003d 3 72 200003e 2
+// prog: 74 200003f 3 73 2000040 2 75 2000041 20000010 71 2000043 2 73 2000044 3 75
+// prog: 2000048 20000010 79 2000049 10 78 200004a 11 79 200004b 0 76 200004c 1 77 200004d
+// prog: 20000010 7b 200004e 12 7a 200004f 13 7b 2000050 4 6e 2000051 5 6f 2000052 20000010
+// prog: 7d 2000053 14 7c 2000054 15 7d 2000055 8 66 2000056 9 67 2000057 20000010 7f
+// prog: 2000080 16 7e 2000081 17 7f 2000082 c 5e 2000083 d 5f 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 3000034 20000030 1b 3000035 20000030 24 3000036 20000030 29 3000037 20000030 32 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -24222,146 +23161,107 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 6 18 18 a 1f 20 b 2000001c 1e e 2000000e 21 5c 24 24 5e
+// prog: 2b 2c 5f 20000009 2a 60 2000000e 2d 66 30 30 68 37 38 69 2000001c
+// prog: 36 6a 2000000e 39 70 3c 3c 72 43 44 73 20000009 42 74 2000000e 45
+// prog: 79 20000016 48 7a 49 4a 7b 4b 4c 7d 20000016 4d 7e 4e 4f 7f
+// prog: 50 51 85 20000016 52 86 53 54 89 20000016 57 8a 80 81 1000003 19
+// prog: 1a 1000007 1b 1c 100005b 25 26 100005d 27 28 1000065 31 32 1000067 33 34
+// prog: 100006f 3d 3e 1000071 3f 40 2000002 18 20000022 200000f c 23 2000058 20000000 22 2000059
+// prog: d 22 200005a 20000022 24 2000061 8 2f 2000062 20000000 2e 2000063 9 2e 2000064 20000022
+// prog: 30 200006b 4 3b 200006c 20000000 3a 200006d 5 3a 200006e 20000022 3c 2000075 0 47
+// prog: 2000076 20000000 46 2000077 1 46 2000078 10 47 200007c 12 3b 2000084 14 2f 2000088
+// prog: 16 23 4000087 55 55 400008b 82 82 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 14 a 20000024 16 2 20000025 1e 20000024 5e 1f 20000025 5a 25 20000024 68 26
+// prog: 20000025 64 2d 20000024 72 2e 20000025 6e 1000010 3 6 1000012 7 1d 100001b 5b
+// prog: 5c 100001c 5d 29 1000023 65 66 1000024 67 35 100002b 6f 70 100002c 71 41
+// prog: 100003a 87 56 100003e 8b 83 2000018 d e 2000019 20000000 b 200001a c b 2000020
+// prog: 9 60 2000021 20000000 5f 2000022 8 5f 2000027 5 6a 2000028 20000000 69 200002a 4
+// prog: 69 200002f 1 74 2000030 20000000 73 2000031 0 73 2000032 11 74 2000033 20000000 79
+// prog: 2000034 20000004 7a 2000036 13 6a 2000037 20000000 7d 2000038 20000004 7e 2000039 15 60 200003b
+// prog: 20000000 85 200003c 20000004 86 200003d 17 e 200003f 20000000 89 2000040 20000004 8a 2000042 89
+// prog: 2000002c 2000043 85 2000002c 2000044 7d 2000002c 2000045 79 2000002c 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000038 84 34 200003d 18 34 200003e 1a 34 200003f 1b 34 2000040 4f
-// prog: 34 2000041 50 34 2000042 9b 35 2000043 1d 35 2000044 23 35 2000049 24 35
-// prog: 200004a 57 35 200004b 58 35 200004c b7 36 200004d 26 36 2000051 28 36 2000052
-// prog: 29 36 2000053 5f 36 2000054 60 36 2000055 d5 37 2000059 2b 37 200005a 31
-// prog: 37 200005b 32 37 200005c 67 37 200005d 68 37 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 3 2 10 6 2 14 7 2000001b 12 a 2000000c 16 11 5a 1b 13
+// prog: 5a 1e 15 20000008 1c 17 2000000c 1f 35 64 23 41 64 25 46 2000001b
+// prog: 24 47 2000000c 26 49 2a 6d 4a 6e 2b 4b 6e 2d 4c 20000008 2c
+// prog: 4d 2000000c 2e 4f 31 77 51 7b 33 53 7f 37 55 3a 3b 57
+// prog: 3e 3f 100000b 18 f 100001d 20 61 1000048 27 6b 100004e 2f 75 1000050 32
+// prog: 78 1000052 36 7c 1000054 39 84 1000056 3d 88 200005b 89 42 200005c 85 43
+// prog: 200005d 7d 44 200005e 79 45 400000e 1a 1a 4000029 22 22 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000062 16 40 2000063 17 41 2000064 c 3d 2000065 d 3e 2000069 20000000
-// prog: 3f 200006a 18 38 200006b 1a 38 200006c 1b 38 200006d 4f 38 200006e 50 38
-// prog: 200006f 18 3d 2000070 1a 3d 2000071 1b 3d 2000072 4f 3d 2000073 50 3d 2000074
-// prog: 1a 3e 2000075 1b 3e 2000076 4f 3e 2000077 50 3e 2000078 1b 3f 2000079 4f
-// prog: 3f 200007a 50 3f 200007b 4f 40 200007c 50 40 200007d 50 41 200007f 14 4a
-// prog: 2000080 15 4b 2000081 8 43 2000082 9 44 2000083 20000000 49 2000085 1d 42 2000086
-// prog: 23 42 2000087 24 42 2000088 57 42 2000089 58 42 200008a 1d 43 200008b 23
-// prog: 43 200008c 24 43 200008d 57 43 200008e 58 43 200008f 23 44 2000090 24 44
-// prog: 2000091 57 44 2000095 58 44 2000098 24 49 200009a 57 49 200009c 58 49 200009d
-// prog: 57 4a 200009e 58 4a 200009f 58 4b 20000a5 12 53 20000a6 13 54 20000a7 4
-// prog: 4d 20000a8 5 51 20000a9 20000000 52 20000aa 26 4c 20000ab 28 4c 20000ac 29 4c
-// prog: 20000ad 5f 4c 20000b1 60 4c 20000b4 26 4d 20000b6 28 4d 20000b8 29 4d 20000b9
-// prog: 5f 4d 20000c0 60 4d 20000c1 28 51 20000c2 29 51 20000c3 5f 51 20000c4 60
-// prog: 51 20000c5 29 52 20000c6 5f 52 20000c7 60 52 20000c8 5f 53 20000c9 60 53
-// prog: 20000ca 60 54 20000cf 10 5c 20000d2 11 5d 20000d4 0 59 20000dc 1 5a 20000dd
-// prog: 20000000 5b 20000de 2b 55 20000df 31 55 20000e0 32 55 20000e1 67 55 20000e2 68
-// prog: 55 20000e3 2b 59 20000e4 31 59 20000e5 32 59 20000e6 67 59 20000e7 68 59
-// prog: 20000e8 31 5a 20000e9 32 5a 20000ed 67 5a 20000f0 68 5a 20000f8 32 5b 20000f9
-// prog: 67 5b 20000fa 68 5b 20000fb 67 5c 20000fc 68 5c 20000fd 68 5d 4000061 38
-// prog: 38 400007e 42 42 40000a4 4c 4c 40000cb 55 55 8000000 0 0 8000000 0 0
+// prog: 2 20000007 3 f 2000000a 6 1a 20000007 11 1b 2000000a 13 23 20000007 35 24
+// prog: 2000000a 41 2b 20000007 4a 2c 2000000a 4b 33 51 34 37 53 38 3a 55
+// prog: 3c 3d 57 40 3e a 5b 3f 17 5c 5a 47 5d 5f 4d 5e
+// prog: 1000014 e 59 100001f 29 63 2000010 c 7 2000012 d 7 2000016 20000000 a 2000018
+// prog: 20000004 b 200001c 8 15 200001e 9 15 2000020 20000000 17 2000022 20000004 1d 2000025 4
+// prog: 46 2000026 5 46 2000027 20000000 47 200002a 20000004 48 200002d 0 4c 200002e 1 4c
+// prog: 200002f 20000000 4d 2000031 20000004 4e 2000032 20000004 50 2000036 20000004 52 2000039 20000004 54 200003b
+// prog: 20000004 56 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: a 14 16 15 1f 20 34 49 27 40 4f 2f 2000006 c 2 2000007
+// prog: d f 200000b 20000022 18 2000011 8 1a 2000013 9 1b 2000017 20000022 22 200001d 4
+// prog: 23 2000029 5 24 2000035 20000022 2a 2000038 0 2b 200003c 1 2c 2000041 20000022 31
+// prog: 2000046 3d 42 2000047 3d 2000002c 200004a 3a 43 200004b 3a 2000002c 200004d 37 44 200004e
+// prog: 37 2000002c 2000051 33 45 2000052 33 2000002c 3000048 2000002d 3e 300004c 2000002d 3f 3000050 2000002d
+// prog: 5a 3000053 2000002d 5f 4000003 10 10 400000e 1c 1c 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 38 62 63 5c 7f 80 114 a5 a6 115 a7 a8 12a cf
-// prog: d2 12b d4 dc 100003e a2 6a 100003f a3 6b 1000040 84 6c 1000041 a0 6d
-// prog: 1000042 a1 6e 1000043 1f 6f 1000044 4e 70 1000049 18 71 100004a 92 72 100004b
-// prog: 96 73 100004c 19 74 100004d 1a 75 1000051 93 76 1000052 97 77 1000053 1b
-// prog: 78 1000054 4f 79 1000055 50 7a 1000059 20 7b 100005a 94 7c 100005b 21 7d
-// prog: 10000fe be 85 10000ff bf 86 1000100 9b 87 1000101 bc 88 1000102 bd 89 1000103
-// prog: 2c 8a 1000104 56 8b 1000105 1d 8c 1000106 ae 8d 1000107 b2 8e 1000108 1e
-// prog: 8f 1000109 23 90 100010a af 91 100010b b3 95 100010c 24 98 100010d 57 9a
-// prog: 1000110 58 9c 1000111 2d 9d 1000112 b0 9e 1000113 2e 9f 1000116 da aa 1000117
-// prog: db ab 1000118 b7 ac 1000119 d8 ad 100011a d9 b1 100011b 39 b4 100011c 5e
-// prog: b6 100011d 26 b8 100011e cc b9 100011f d0 c0 1000120 27 c1 1000121 28 c2
-// prog: 1000122 cd c3 1000123 d1 c4 1000124 29 c5 1000125 5f c6 1000126 60 c7 1000127
-// prog: 3a c8 1000128 ce c9 1000129 3b ca 100012c f6 de 100012d f7 df 100012e d5
-// prog: e0 100012f f4 e1 1000130 f5 e2 1000131 45 e3 1000132 66 e4 1000133 2b e5
-// prog: 1000134 ea e6 1000135 ee e7 1000136 30 e8 1000137 31 e9 1000138 eb ed 1000139
-// prog: ef f0 100013a 32 f8 100013b 67 f9 100013c 68 fa 100013d 46 fb 100013e ec
-// prog: fc 100013f 47 fd 400003d 64 64 400005d 81 81 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 1a 1d 26 1b 25 29 1f 38 2e 20 2d 3c 23 40 32 24
+// prog: 34 36 27 15 39 2a a 3b 100000f 3 7 1000016 e 13 2000010 20000000
+// prog: a 2000018 20000000 15 200001c 20000000 34 2000022 20000000 40 200002c 3d 47 2000031 3a 4b
+// prog: 200003f 37 4e 200004f 33 52 2000055 45 53 2000057 44 50 200005a 43 4c 200005c
+// prog: 42 48 4000002 6 6 4000014 11 11 400002b 47 47 400002f 4b 4b 400003e 4e
+// prog: 4e 4000049 52 52 4000054 53 53 4000056 50 50 4000059 4c 4c 400005b 48 48
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 96 115 a9 bc 12b dd 1000019 3d 65 1000073 5d 82 200001e 20000004
-// prog: 38 200001f 16 41 2000020 17 42 2000021 c 3e 2000027 d 3f 200002c 20000000 40
-// prog: 200002d c 44 200002e d 44 2000030 c 43 2000039 20000000 49 200003a 4a ba 200003b
-// prog: 4b bb 2000045 d 4c 2000046 20000000 4d 2000047 51 ba 200004e 52 bb 2000056 c
-// prog: 49 200005e d 4d 2000062 20000000 53 2000063 54 ba 2000064 55 bb 2000066 c 4a
-// prog: 200006a d 51 200006b 20000000 54 200006c 59 ba 200006d 5a bb 200006e c 4b 200006f
-// prog: d 52 2000070 20000000 55 2000071 5a ba 2000072 5b bb 2000074 20000004 5c 2000075 14
-// prog: 101 2000076 15 102 2000077 8 fe 2000078 9 ff 2000079 20000000 100 200007a 8 104
-// prog: 200007b 9 104 200007c 8 103 200007d 20000000 105 200007f 106 d6 2000080 107 d7 2000081
-// prog: 9 108 2000084 20000000 109 2000085 10a d6 2000086 10b d7 2000087 8 105 2000088 9
-// prog: 109 2000089 20000000 10c 200008a 10d d6 200008b 110 d7 200008c 8 106 200008d 9 10a
-// prog: 200008e 20000000 10d 200008f 111 d6 2000090 112 d7 2000091 8 107 2000092 9 10b 2000093
-// prog: 20000000 110 2000094 112 d6 2000095 113 d7 2000097 20000004 114 2000098 12 119 200009a 13
-// prog: 11a 200009b 4 116 200009c 5 117 200009d 20000000 118 200009e 4 11c 200009f 5 11c
-// prog: 20000a0 4 11b 20000a1 20000000 11d 20000a2 11e f2 20000a3 11f f3 20000a5 5 120 20000a6
-// prog: 20000000 121 20000a7 122 f2 20000a8 123 f3 20000aa 4 11d 20000ab 5 121 20000ac 20000000
-// prog: 124 20000ad 125 f2 20000ae 126 f3 20000af 4 11e 20000b0 5 122 20000b1 20000000 125
-// prog: 20000b2 127 f2 20000b3 128 f3 20000b4 4 11f 20000b6 5 123 20000b7 20000000 126 20000b8
-// prog: 128 f2 20000b9 129 f3 20000bd 20000004 12a 20000be 10 12f 20000bf 11 130 20000c0 0
-// prog: 12c 20000c1 1 12d 20000c2 20000000 12e 20000c3 0 132 20000c4 1 132 20000c5 0 131
-// prog: 20000c6 20000000 133 20000c7 134 10e 20000c8 135 10f 20000c9 1 136 20000ca 20000000 137 20000cc
-// prog: 138 10e 20000cd 139 10f 20000ce 0 133 20000cf 1 137 20000d0 20000000 13a 20000d1 13b
-// prog: 10e 20000d2 13c 10f 20000d4 0 134 20000d5 1 138 20000d8 20000000 13b 20000d9 13d 10e
-// prog: 20000da 13e 10f 20000db 0 135 20000dc 1 139 20000de 20000000 13c 20000df 13e 10e 20000e0
-// prog: 13f 10f 38 19 69 3d 1f 20 44 73 83 49 75 76 53 96
-// prog: 97 54 98 9a 55 9b 9c 59 9f a0 5a 9e a5 5b aa ab
-// prog: 5c af b0 5d b4 b6 65 bc bd 82 be bf a9 c0 c1 ba
-// prog: c4 c5 bb c3 c9 d6 ce cf d7 d4 d5 dd db dc 400003e 21
-// prog: 21 400003f 2d 2d 4000040 30 30 4000041 56 56 4000042 66 66 4000043 6e 6e
-// prog: 400004a 77 77 400004b 7a 7a 400004c 7c 7c 400004d 87 87 4000051 8c 8c 4000052
-// prog: 91 91 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 6 f 58 a 16 62 e 1a 28 11 1b 6c 13 1f 30 15
+// prog: 20 76 1d 2a 46 25 27 4a 26 24 4d 29 23 51 1000003 2
+// prog: 12 1000007 14 1e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 19 38 1e 69 44 74 83 55 9d 8c 59 a1 91 5a
-// prog: a6 96 5b ac 97 5c b1 98 5d b7 9a a9 c2 9c ba c6
-// prog: 9e bb ca 9f d6 d0 a0 d7 d8 a5 dd de 100001f 3e 27 1000021
-// prog: 40 2e 100002d 3f 45 1000030 41 5e 1000056 42 6a 1000066 43 6f 100006e 4a
-// prog: 78 1000075 4c 7b 1000076 4b 81 1000077 4d 88 100007a 51 8d 100007c 52 92
-// prog: 2000020 20000004 3d 2000073 20000004 49 2000087 20000004 54 200009b 20000004 82 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1e 1f 2c 27 21 39 2e 2d 46 38 30 62 3d 56
-// prog: 6b 3e 66 70 3f 6e 79 40 75 7d 41 76 84 42 77 89
-// prog: 43 7a 8e 44 7c 93 45 83 87 49 8c a2 4a 91 a7 4b
-// prog: 96 ad 4c 97 b2 4d 98 b8 51 9a 9b 52 9c c7 54 9e
-// prog: cc 55 9f d1 59 a0 d9 5a a5 df 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 2 3 19 12 7 21 200000f d 6 2000014 9 a 2000016 4 e 200001a
+// prog: 5 11 200001b 0 13 200001e 1 15 200001f 1d 48 2000020 25 4c 2000023 26
+// prog: 50 2000024 29 53 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1f 1e 20 21 27 3a 2c 2e 47 2d 38 63 30 3d
-// prog: 6c 39 3e 71 46 3f 73 56 40 7f 5b 41 85 5c 42 8a
-// prog: 5d 43 8f 5e 44 94 62 49 a3 66 4a a8 6a 4b ae 6b
-// prog: 4c b3 6e 4d b9 6f 52 c8 70 54 cd 74 55 d2 75 59
-// prog: da 76 5a e0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 3 16 1a 4 1b 1e 2000000 c 2 2000001 8 12 2000005 1d 1f 2000006
+// prog: 25 20 2000007 26 23 2000009 29 24 200000a 45 24 200000d 44 23 200000e 43
+// prog: 20 2000011 42 1f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1e 21 3b 20 2c 4e 27 2d 64 2e 30 6d 38 39
-// prog: 72 3a 56 80 3d 5b 86 3e 5c 8b 3f 5d 90 40 5e 95
-// prog: 41 62 d3 42 66 3c 49 6f f1 4a 70 48 2000043 12 6b 2000044
-// prog: 13 6e 2000047 20000000 6a 200004b 10 75 200004c 11 76 200004d 20000000 74 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -24369,11 +23269,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 21 1e 99 2c 20 22 3b 3a b5 3c 3d 2f 54 43
-// prog: 44 59 4b 4c 200002d 16 2e 2000030 17 38 2000039 20000000 27 2000048 14 3f
-// prog: 200004e 15 40 2000052 20000000 3e 2000055 4 41 2000056 5 42 200005a 0 49 200005b
-// prog: 1 4a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: c 3 1c 12 4 22 1000013 49 a 1000015 3e d 1000016 2f e 1000019
+// prog: 2b 11 4000002 0 0 4000008 1 1 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -24382,33 +23279,24 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1e 2d 30 27 48 4e 3a 55 56 3e 5a 5b 1000038 54
-// prog: 2a 100003d 59 33 2000020 c 21 2000022 d 2c 200002e 8 3b 200002f 9 3c
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 3 2000002b c 4 2000002b 12 1000000 2 f 1000001 8 14 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 21 1c 1e 2c 25 27 30 3a 47 3b 3e 4d 2000033 20000004
-// prog: 38 200003c 20000004 3d 400002a 20 20 400002d 2e 2e 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 2 0 10 8 1 18 a 35 3 c 41 4 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 27 30 33 2e 3b 3c 100001c 2a 22 1000020 2d 2f 200001e 20000004
-// prog: 21 2000025 20000004 2c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -24416,11 +23304,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 21 1c 39 22 20 52 2a 20000002 27 2c 20000002 2e 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 2000002b 2 1 2000002b 8 3 20000002 a 4 20000002 c 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -24430,9 +23315,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1c 21 1e 20 22 25 3000027 20000030 2a 300002d 20000030 2c 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 2 b 0 8 17 1 a 3 3f c 4 4f 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -24442,131 +23327,95 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1e 20000002 1c 21 20000002 20 2000022 53 27 2000025 45 27 200002a 65
-// prog: 2d 200002c 51 2d 7000027 27 27 7000000 2d 2d 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 20000002 2 1 20000002 8 3 a 7 4 c 9 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000030 20000004 2a 2000033 0 2a 2000038 1 2a 2000039 20000000 2a 200003a 20000004
-// prog: 2c 200003b 0 2c 200003c 1 2c 200003d 20000000 2c 200003e 20000004 22 200003f 4 22
-// prog: 2000040 5 22 2000041 20000000 22 2000042 20000004 25 2000043 4 25 2000044 5 25 2000045
-// prog: 20000000 25 300001c 20000030 1e 3000020 20000030 21 4000027 22 22 400002d 25 25 400002e 2a
-// prog: 2a 400002f 2c 2c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000000 19 1c 2000001 1f 1c 2000004 69 20 2000005 46 20 200001e 10
-// prog: 30 2000021 11 30 2000022 2b 33 2000025 31 38 200002a 32 39 200002c 10 3a
-// prog: 2000047 11 3a 2000048 2b 3b 2000049 31 3c 200004a 32 3d 200004b 3 3b 200004c
-// prog: 2 3c 200004d 2 3b 200004e 3 3c 2000051 12 3e 2000052 13 3e 2000053 26
-// prog: 3f 2000054 28 40 2000055 29 41 2000056 12 42 2000059 13 42 200005a 26 43
-// prog: 200005b 28 44 200005c 29 45 200005d 7 43 200005e 6 44 2000062 6 43 2000063
-// prog: 7 44 7000075 1c 1c 700004e 20 20 7000028 27 27 7000033 27 27 7000029 2d
-// prog: 2d 700003f 2d 2d 7000001 2e 2e 700000c 2e 2e 7000002 2f 2f 7000018 2f 2f
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 2 0 2c 7 1 31 3000008 2000002d 3 3000009 2000002d 4 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000029 4d 4e 1000039 62 63 200001c 67 1e 200001f 68 21 2000026 67
-// prog: 2c 2000027 68 47 200002b 3 2c 200002d 2 2c 200002f 5f 51 2000030 60 52
-// prog: 2000032 5f 56 2000033 60 59 200003a 7 56 200003b 6 56 200003c 20000004 4 200003e
-// prog: 8 4 200003f 9 4 2000040 20000000 4 2000041 20000004 5 2000042 8 5 2000043 9
-// prog: 5 2000044 20000000 5 2000046 20000004 0 2000064 c 0 2000065 d 0 2000066 20000000 0
-// prog: 2000069 20000004 1 200006a c 1 200006b d 1 200006c 20000000 1 4000010 0 0 4000011
-// prog: 1 1 4000012 4 4 4000013 5 5 4000019 22 22 4000020 48 48 4000028 4b
-// prog: 4b 400002e 53 53 4000031 5a 5a 4000038 5d 5d 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000000 19 25 1000001 20 49 1000004 28 4c 1000008 2e 54 1000009 31
-// prog: 5b 100000c 38 5e 2000005 20000015 29 200000d 20000015 39 200001e 14 3c 2000021 15 3c
-// prog: 2000022 1d 3e 200002c 23 3f 2000048 24 40 200004b 14 41 200004d 15 41 200004e
-// prog: 1d 42 2000051 23 43 2000052 24 44 2000053 b 42 2000056 a 43 200005a a
-// prog: 42 200005d b 43 200005f 16 46 2000060 17 46 2000062 18 64 2000063 1a 65
-// prog: 2000067 1b 66 2000068 16 69 200006d 17 69 200006e 18 6a 200006f 1a 6b 2000070
-// prog: 1b 6c 2000071 f 6a 2000072 e 6b 2000073 e 6a 2000074 f 6b 7000076 10
-// prog: 10 7000081 10 10 7000077 11 11 700008d 11 11 700004f 12 12 700005a 12 12
-// prog: 7000050 13 13 7000066 13 13 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 16 22 2c 19 4e 51 1d 53 56 25 62 63 2e 6e
-// prog: 6f 39 71 72 1000010 0 2a 1000011 1 4a 1000013 8 55 1000014 9 5c
-// prog: 1000020 5d 5a 100003c 74 73 2000012 20000013 4 2000015 2000001f c 2000017 57 1e 2000018
-// prog: 58 21 200001a 57 4b 200001b 58 4d 2000023 b 4b 2000024 a 4b 2000028 4f
-// prog: 5f 2000029 50 60 2000031 4f 68 2000038 50 6d 200003e f 68 200003f e 68
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 2 5 1 7 6 2000004 24 9 200000a 52 9 200000b 9 13 200000d
+// prog: 23 8 200000e 4e 8 200000f 8 15 4000003 9 9 400000c 8 8 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 4 12 5 c 15 d 1000000 10 1c 1000001 11 26 1000008 13
-// prog: 2f 1000009 14 32 100001e 16 48 1000021 19 52 100002c 25 67 1000040 2e 70
-// prog: 2000022 20000013 1d 200002a 20000015 20 2000041 2000001f 39 2000042 20000015 3c 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 2000007 45 4 2000008 24 4 2000009 52 4 2000010 24 b 2000011 52 b 2000013
+// prog: 44 d 2000014 23 d 2000015 4e d 2000017 23 f 2000018 4e f 3000002 2000002d
+// prog: 0 3000005 2000002d 1 4000006 4 4 4000012 d d 7000000 3 3 7000027 c c
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 14 22 2a 19 41 42 1000005 0 1f 100000d 1 27 1000010 8
-// prog: 30 1000011 9 33 1000012 1e 17 1000013 21 1a 1000015 2c 28 1000016 40 31
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 1000001 54 8 1000003 10 55 100000b 56 14 100000c 17 57 200000f 20 5 200001a
+// prog: 4b 5 200001b 5 16 200001d 1f 2 200001e 47 2 2000021 2 19 4000000 7
+// prog: 7 4000004 13 13 400000d 5 5 400001c 2 2 7000001 6 6 700000c 6 6
+// prog: 7000028 12 12 7000033 12 12 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000017 12 18 100001a 13 1b 100001c 15 29 100001d 16 38 2000000 37
-// prog: 5 2000001 37 d 2000008 36 10 2000009 36 11 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 1000002 0 a 1000007 4 e 2000005 45 1 2000006 45 3 2000008 44 b 2000010
+// prog: 44 c 2000013 43 f 2000014 20 f 2000016 4b f 2000017 20 1b 2000019 4b
+// prog: 1b 2000023 42 1d 2000024 1f 1d 2000025 47 1d 2000026 1f 21 2000027 47 21
+// prog: 4000012 f f 4000022 1d 1d 700000d 1 1 7000034 b b 700004e d d 7000075
+// prog: 1c 1c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000005 37 0 100000d cb 1 1000010 36 8 1000011 a4 9 2000012 35
-// prog: 17 2000013 35 1a 2000015 34 1c 2000016 34 1d 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 1 2000002e 6 4 2000002e 10 1000000 5 9 1000003 8 15 100000b 59 14 100000c
+// prog: 17 5a 100000e 5b 24 100000f 26 5c 400000a 13 13 400000d 23 23 7000002 2
+// prog: 2 7000018 2 2 7000029 7 7 700003f 7 7 700004f 12 12 700005a 12 12
+// prog: 7000076 22 22 7000081 22 22 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000000 d 3d 1000001 11 45 1000008 35 12 1000009 7e 13 1000017 34
-// prog: 15 1000018 61 16 700000d 5 5 700000e d d 7000019 d d 7000034 10 10
-// prog: 7000035 11 11 7000040 11 11 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 2 1 11 5 4 18 1000006 a 1a 1000009 d 1e 2000007 43 b 2000008
+// prog: 43 c 2000010 42 e 2000012 42 f 700000e 0 0 7000019 0 0 7000035 3
+// prog: 3 7000040 3 3 700005b b b 7000082 e e 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -24574,23 +23423,23 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000012 9 44 1000013 18 6c 2000005 20000010 0 200000d 20000016 0 2000010 20000010
-// prog: 1 2000011 20000016 1 700005b 8 8 700005c 9 9 7000067 9 9 7000082 17 17
-// prog: 7000083 18 18 700008e 18 18 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 1 2000002e 8 4 2000002e 12 1000000 7 16 1000003 10 25 700001a 2 2 7000041
+// prog: 5 5 7000050 6 6 7000066 6 6 7000077 9 9 700008d 9 9 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 4 d 9 c 11 1000000 5 47 1000008 10 59 2000015 20000010
-// prog: 12 2000016 20000016 12 2000017 20000010 13 2000018 20000016 13 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 2 1 19 5 4 27 700005c 0 0 7000067 0 0 7000083 3 3 700008e
+// prog: 3 3 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -24598,44 +23447,114 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 11 14 16 13 19 18 1000010 15 4d 1000012 17 6d 2000004 2
-// prog: 0 2000005 3 0 200000c 6 8 200000d 7 8 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 7000068 2 2 700008f 5 5 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2 2d 5 6 3b d 1000000 4 2b 1000003 c 3a 2000007 a
-// prog: 10 2000008 b 10 2000014 e 12 2000015 f 12 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8840 1 8900 3 8b40 4 8e40 3 9080 3 92c0 3 9500 3 9740 2
+// prog: 98c0 2 9a40 2 9bc0 2 9d40 2 9ec0 5 a280 2 a400 2 a580 2
+// prog: a700 2 a880 1 a940 1 aa00 1 aac0 1 ab80 1 ac40 1 ad00 1
+// prog: adc0 1 ae80 1 af40 1 b000 1 b0c0 1 b180 1 b240 1 b300 1
+// prog: b3c0 1 b480 1 b540 1 b600 1 b6c0 1 b780 1 b840 1 b900 1
+// prog: b9c0 1 ba80 1 bb40 1 bc00 1 bcc0 1 bd80 1 be40 1 bf00 1
+// prog: bfc0 1 c080 1 c140 1 c200 1 c2c0 1 c380 1 c440 1 c500 1
+// prog: 2000018 20000004 40000000 2000019 20000000 40000000 200001a 20000004 40000003 200001b 20000000 40000003 200001c 20000004 40000006 200001d
+// prog: 20000000 40000006 200001e 20000004 40000009 200001f 20000000 40000009 5000000 30000000 30000000 5000002 30000001 30000001 5000004 30000002
+// prog: 30000002 5000006 30000003 30000003 5000008 30000004 30000004 500000a 30000005 30000005 500000c 30000006 30000006 500000e 30000007 30000007
+// prog: 5000010 30000008 30000008 5000012 30000009 30000009 5000014 3000000a 3000000a 5000016 3000000b 3000000b 6000001 30000000 30000000 6000003
+// prog: 30000001 30000001 6000005 30000002 30000002 6000007 30000003 30000003 6000009 30000004 30000004 600000b 30000005 30000005 600000d 30000006
+// prog: 30000006 600000f 30000007 30000007 6000011 30000008 30000008 6000013 30000009 30000009 6000015 3000000a 3000000a 6000017 3000000b 3000000b
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 d 24 8 f 3f 15 100000c 7 23 100000e 14 3e 2000004 20000020
-// prog: 0 2000005 20000019 2 200000a 20000017 3 200000b 20000019 6 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 2b 40000001 19 32 40000004 1b 38 40000007 1d 3e 4000000a 1f 2000020 20000000 2 2000021
+// prog: 20000000 3 2000022 20000000 8 2000023 20000000 9 2000024 20000000 e 2000025 20000000 f 2000026 20000000
+// prog: 14 2000027 20000000 15 2000029 2 40000000 200002a 3 40000000 200002c 2000000d 18 200002d 2000000e 18
+// prog: 200002e 2000000f 18 2000030 8 40000003 2000031 9 40000003 2000033 2000001d 1a 2000034 2000000e 1a 2000035
+// prog: 2000000f 1a 2000036 e 40000006 2000037 f 40000006 2000039 2000000d 1c 200003a 2000000e 1c 200003b 2000000f
+// prog: 1c 200003c 14 40000009 200003d 15 40000009 200003f 2000001d 1e 2000040 2000000e 1e 2000041 2000000f 1e
+// prog: 2000042 17 2000002f 2000043 16 2000001e 2000044 17 2000001e 2000045 16 20000014 2000046 17 20000030 2000047
+// prog: 16 20000032 2000048 17 20000031 2000049 16 20000033 200004a 20000020 17 200004b 16 20000037 200004c 16
+// prog: 2000002f 200004d 17 20000014 200004e 16 20000030 200004f 17 20000032 2000050 16 20000031 2000051 17 20000033
+// prog: 2000052 20000020 16 2000053 17 20000037 2000054 20000010 16 2000055 20000010 17 2000056 17 2000001a 2000057
+// prog: 16 20000035 2000058 17 20000035 2000059 16 20000036 200005a 16 2000001a 200005b 17 20000036 200005c 11
+// prog: 2000002f 200005d 10 20000012 200005e 11 20000012 200005f 10 20000014 2000060 11 20000030 2000061 10 2000003f
+// prog: 2000062 11 2000003e 2000063 10 20000033 2000064 20000017 11 2000065 10 20000037 2000066 10 2000002f 2000067
+// prog: 11 20000014 2000068 10 20000030 2000069 11 2000003f 200006a 10 2000003e 200006b 11 20000033 200006c 20000017
+// prog: 10 200006d 11 20000037 200006e 20000010 10 200006f 20000010 11 2000070 11 2000001a 2000071 10 20000041
+// prog: 2000072 11 20000041 2000073 10 20000036 2000074 10 2000001a 2000075 11 20000036 2000076 b 2000002f 2000077
+// prog: a 2000001e 2000078 b 2000001e 2000079 a 20000014 200007a b 20000030 200007b a 20000032 200007c b
+// prog: 20000031 200007d a 20000033 200007e b 20000020 200007f a 20000037 2000080 a 2000002f 2000081 b 20000014
+// prog: 2000082 a 20000030 2000083 b 20000032 2000084 a 20000031 2000085 b 20000033 2000086 a 20000020 2000087
+// prog: b 20000037 2000088 20000010 a 2000089 20000010 b 200008a b 2000001a 200008b a 20000035 200008c b
+// prog: 20000035 200008d a 20000036 200008e a 2000001a 200008f b 20000036 2000090 5 2000002f 2000091 4 20000012
+// prog: 2000092 5 20000012 2000093 4 20000014 2000094 5 20000030 2000095 4 2000003f 2000096 5 2000003e 2000097
+// prog: 4 20000033 2000098 5 20000017 2000099 4 20000037 200009a 4 2000002f 200009b 5 20000014 200009c 4
+// prog: 20000030 200009d 5 2000003f 200009e 4 2000003e 200009f 5 20000033 20000a0 4 20000017 20000a1 5 20000037
+// prog: 20000a2 20000010 4 20000a3 20000010 5 20000a4 5 2000001a 20000a5 4 20000041 20000a6 5 20000041 20000a7
+// prog: 4 20000036 20000a8 4 2000001a 20000a9 5 20000036 20000aa 1 20000001 20000ab 0 20000001 20000ac 2
+// prog: 20000005 20000ad 3 20000005 20000ae 7 20000001 20000af 6 20000001 20000b0 8 20000005 20000b1 9 20000005
+// prog: 20000b2 d 20000001 20000b3 c 20000001 20000b4 e 20000005 20000b5 f 20000005 20000b6 13 20000001 20000b7
+// prog: 12 20000001 20000b8 14 20000005 20000b9 15 20000005 4000028 18 18 400002f 1a 1a 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 0 1 4 2 9 a 2000003 20000020 c 2000006 20000019 d 2000007 20000017
-// prog: e 2000008 20000019 f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: c6 40000002 2b df 40000005 32 f7 40000008 38 10f 4000000b 3e 113 44 4c 114
+// prog: 43 4d 115 52 53 122 48 4e 123 47 51 124 58 5a 125 57
+// prog: 5b 12b 5e 66 12c 5d 67 12d 6c 6d 13a 62 68 13b 61 6b
+// prog: 13c 72 74 13d 71 75 143 78 80 144 77 81 145 86 87 152
+// prog: 7c 82 153 7b 85 154 8c 8e 155 8b 8f 15b 92 9a 15c 91
+// prog: 9b 15d a0 a1 16a 96 9c 16b 95 9f 16c a6 a8 16d a5 a9
+// prog: 1000110 42 43 1000111 44 45 1000112 4a 4b 100011e 46 50 100011f 4f 49 1000120
+// prog: 56 57 1000121 58 59 1000128 5c 5d 1000129 5e 5f 100012a 64 65 1000136 60
+// prog: 6a 1000137 69 63 1000138 70 71 1000139 72 73 1000140 76 77 1000141 78 79
+// prog: 1000142 7e 7f 100014e 7a 84 100014f 83 7d 1000150 8a 8b 1000151 8c 8d 1000158
+// prog: 90 91 1000159 92 93 100015a 98 99 1000166 94 9e 1000167 9d 97 1000168 a4
+// prog: a5 1000169 a6 a7 2000000 20 18 2000001 21 18 2000006 40000001 2a 2000007 40000001 29
+// prog: 200000c 20000007 29 200000d 20000008 2a 2000012 20000009 2b 2000013 20000008 29 2000019 2000000a 2a 200001b
+// prog: 2000000b 2b 200001d 20000009 29 200001f 2000000b 2a 20000ba 2000000c 2b 20000bb 2000000d 2b 20000bc 2000000e
+// prog: 2b 20000bd 2000000e 2a 20000be 2000000d 29 20000c0 20000010 2b 20000c1 20000010 2a 20000c2 5 29
+// prog: 20000c3 4 2a 20000c4 4 29 20000c5 5 2a 20000c7 22 1a 20000c8 23 1a 20000c9
+// prog: 40000004 31 20000ca 40000004 30 20000cb 20000007 30 20000cc 2000001b 31 20000cd 2000001c 32 20000ce 2000001b
+// prog: 30 20000cf 2000000a 31 20000d0 2000000b 32 20000d1 2000001c 30 20000d2 2000000b 31 20000d3 2000000c 32
+// prog: 20000d4 2000001d 32 20000d5 2000000e 32 20000d6 2000000e 31 20000d7 2000001d 30 20000d9 20000010 32 20000da
+// prog: 20000010 31 20000db b 30 20000dc a 31 20000dd a 30 20000de b 31 20000e0 24
+// prog: 1c 20000e1 25 1c 20000e2 40000007 37 20000e3 40000007 36 20000e4 20000007 36 20000e5 20000008 37
+// prog: 20000e6 20000009 38 20000e7 20000008 36 20000e8 2000000a 37 20000e9 2000000b 38 20000ea 20000009 36 20000eb
+// prog: 2000000b 37 20000ec 2000000c 38 20000ed 2000000d 38 20000ee 2000000e 38 20000ef 2000000e 37 20000f0 2000000d
+// prog: 36 20000f1 20000010 38 20000f2 20000010 37 20000f3 11 36 20000f4 10 37 20000f5 10 36
+// prog: 20000f6 11 37 20000f8 26 1e 20000f9 27 1e 20000fa 4000000a 3d 20000fb 4000000a 3c 20000fc
+// prog: 20000007 3c 20000fd 2000001b 3d 20000fe 2000001c 3e 20000ff 2000001b 3c 2000100 2000000a 3d 2000101 2000000b
+// prog: 3e 2000102 2000001c 3c 2000103 2000000b 3d 2000104 2000000c 3e 2000105 2000001d 3e 2000106 2000000e 3e
+// prog: 2000107 2000000e 3d 2000108 2000001d 3c 2000109 20000010 3e 200010a 20000010 3d 200010b 17 3c 200010c
+// prog: 16 3d 200010d 16 3c 200010e 17 3d 2000116 20000030 54 2000117 20000031 55 2000118 20000032
+// prog: 54 2000119 20000033 55 200011a 2000001a 54 200011b 20000035 55 200011c 20000035 54 200011d 20000036 55
+// prog: 2000126 20000004 26 2000127 20000004 27 200012e 20000030 6e 200012f 2000003e 6f 2000130 2000003f 6e 2000131
+// prog: 20000033 6f 2000132 2000001a 6e 2000133 20000041 6f 2000134 20000041 6e 2000135 20000036 6f 200013e 20000004
+// prog: 24 200013f 20000004 25 2000146 20000030 88 2000147 20000031 89 2000148 20000032 88 2000149 20000033 89
+// prog: 200014a 2000001a 88 200014b 20000035 89 200014c 20000035 88 200014d 20000036 89 2000156 20000004 22 2000157
+// prog: 20000004 23 200015e 20000030 a2 200015f 2000003e a3 2000160 2000003f a2 2000161 20000033 a3 2000162 2000001a
+// prog: a2 2000163 20000041 a3 2000164 20000041 a2 2000165 20000036 a3 200016e 20000004 20 200016f 20000004 21
+// prog: 2000170 3 aa 2000171 2 aa 2000172 9 ae 2000173 8 ae 2000174 f b2 2000175
+// prog: e b2 2000176 15 b6 2000177 14 b6 40000bf 2e 2e 40000d8 35 35 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -24645,10 +23564,142 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 0 5 4 2 b 9 11 3 a 13 7 8000000 0
+// prog: 42 c d 43 13 19 44 1d 1f 4a 1 c0 4c c2 c3 57
+// prog: cb cc 58 ce cf 59 d1 d2 5f c8 d9 61 db dc 74 e1
+// prog: f1 75 1c f2 89 f9 109 8a 1e 10a 96 113 20000038 97 114 20000039
+// prog: 98 115 2000003a 99 20000034 116 9a 118 119 9b 11a 11b 9c 11c 11d 17b
+// prog: 2000001d 112 17e 12b 20000042 17f 20000039 12c 180 2000003a 12d 181 20000040 12e 182 130
+// prog: 131 183 132 133 184 134 135 195 2000000d 12a 198 20000038 143 199 20000039 144
+// prog: 19a 2000003a 145 19b 20000034 146 19c 148 149 19d 14a 14b 19e 14c 14d 1af
+// prog: 2000001d 142 1b2 20000042 15b 1b3 20000039 15c 1b4 2000003a 15d 1b5 20000040 15e 1b6 160
+// prog: 161 1b7 162 163 1b8 164 165 1c9 2000000d 15a 1000047 bd be 100004b 28 c1
+// prog: 100004d c5 c4 100005c d6 d7 1000060 2f da 1000062 de dd 1000071 f0 ef 1000077
+// prog: f5 f6 1000086 108 107 100008c 10d 10e 200002e 40000001 1 2000035 40000001 0 2000045 2000000e
+// prog: 1 2000046 2000000d 0 2000048 2000000f 0 2000049 2000000f 1 200004e 5 0 200004f 4 0
+// prog: 2000050 20000013 c6 2000051 20000015 c6 2000052 20000016 c6 2000053 20000017 c6 2000054 20000019 c6 2000055
+// prog: 40000004 c8 2000056 40000004 c7 200005a 2000000e c8 200005b 2000001d c7 200005d 2000000f c7 200005e 2000000f
+// prog: c8 2000063 b c7 2000064 a c7 2000065 2000001f df 2000066 20000015 df 2000067 20000016 df
+// prog: 2000068 20000020 df 2000069 20000019 df 200006a 40000007 e1 200006b 40000007 e0 200006f 2000000e e1 2000070
+// prog: 2000000d e0 2000072 2000000f e0 2000073 2000000f e1 2000078 11 e0 2000079 10 e0 200007a 20000013
+// prog: f7 200007b 20000015 f7 200007c 20000016 f7 200007d 20000017 f7 200007e 20000019 f7 200007f 4000000a f9
+// prog: 2000080 4000000a f8 2000084 2000000e f9 2000085 2000001d f8 2000087 2000000f f8 2000088 2000000f f9 200008d
+// prog: 17 f8 200008e 16 f8 200008f 2000001f 10f 2000090 20000015 10f 2000091 20000016 10f 2000092 20000020
+// prog: 10f 2000093 20000019 10f 2000094 17 110 2000095 16 111 200009d 17 120 200009e 16 121
+// prog: 200009f 16 120 20000a0 17 121 20000a1 17 11e 20000a2 16 11f 20000a3 16 11e 20000a4
+// prog: 17 11f 20000a5 17 124 20000a6 16 125 20000a7 16 124 20000a8 17 125 20000a9 17
+// prog: 122 2000178 16 123 2000179 16 122 200017a 17 123 200017c 11 128 200017d 10 129
+// prog: 2000185 11 138 2000186 10 139 2000187 10 138 2000188 11 139 2000189 11 136 200018a
+// prog: 10 137 200018b 10 136 200018c 11 137 200018d 11 13c 200018e 10 13d 200018f 10
+// prog: 13c 2000190 11 13d 2000191 11 13a 2000192 10 13b 2000193 10 13a 2000194 11 13b
+// prog: 2000196 b 140 2000197 a 141 200019f b 150 20001a0 a 151 20001a1 a 150 20001a2
+// prog: b 151 20001a3 b 14e 20001a4 a 14f 20001a5 a 14e 20001a6 b 14f 20001a7 b
+// prog: 154 20001a8 a 155 20001a9 a 154 20001aa b 155 20001ab b 152 20001ac a 153
+// prog: 20001ad a 152 20001ae b 153 20001b0 5 158 20001b1 4 159 20001b9 5 168 20001ba
+// prog: 4 169 20001bb 4 168 20001bc 5 169 20001bd 5 166 20001be 4 167 20001bf 4
+// prog: 166 20001c0 5 167 20001c1 5 16c 20001c2 4 16d 20001c3 4 16c 20001c4 5 16d
+// prog: 20001c5 5 16a 20001c6 4 16b 20001c7 4 16a 20001c8 5 16b 400006c e4 e4 400006d
+// prog: e7 e7 400006e ea ea 4000076 f3 f3 4000081 fc fc 4000082 ff ff 4000083 102
+// prog: 102 400008b 10b 10b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: c 42 12 d 43 1b 13 44 ba 1f bc 49 d9 57 cd da
+// prog: 58 d0 db 59 d3 de d5 5e 113 ee 73 129 106 88 140 99
+// prog: 117 146 9f a0 149 a3 a4 14b a7 a8 14d 179 17a 14e 2000003b 98
+// prog: 15b 181 12f 162 187 188 164 18b 18c 166 18f 190 168 193 194 169
+// prog: 2000003b 180 1d0 19b 147 1d6 1a1 1a2 1d8 1a5 1a6 1da 1a9 1aa 1dc 1ad
+// prog: 1ae 1dd 2000003b 19a 1e8 1b5 15f 1ee 1bb 1bc 1f0 1bf 1c0 1f2 1c3 1c4
+// prog: 1f4 1c7 1c8 1f5 2000003b 1b4 1000019 45 46 100001d 48 bb 1000028 bf 47 10000dc
+// prog: 5a 5b 10000dd 5d d4 10000e4 d8 5c 100010d 6c e5 100010e 6d e8 1000110 6e
+// prog: eb 1000111 6f 70 1000112 72 ed 1000114 3b 71 1000115 76 f4 1000122 81 fd
+// prog: 1000123 82 100 1000124 83 103 1000125 84 85 1000128 87 105 100012a 41 86 100012b
+// prog: 8b 10c 1000138 94 95 1000145 9d 9e 1000148 a1 a2 100014a a5 a6 100014c a9
+// prog: 178 1000153 17c 17d 1000161 185 186 1000163 189 18a 1000165 18d 18e 1000167 191 192
+// prog: 10001ca 196 197 10001d5 19f 1a0 10001d7 1a3 1a4 10001d9 1a7 1a8 10001db 1ab 1ac 10001e2
+// prog: 1b0 1b1 10001ed 1b9 1ba 10001ef 1bd 1be 10001f1 1c1 1c2 10001f3 1c5 1c6 200002f 4
+// prog: 4a 20000bd 5 4a 20000be 40000002 4d 20000c0 40000002 4c 20000c1 20000011 4c 20000c2 20000012 4d
+// prog: 20000c3 20000012 4c 20000c4 20000014 4d 20000c5 20000013 4c 20000cb 20000015 4d 20000cc 20000017 4b 20000ce
+// prog: 20000019 4b 20000cf 20000018 4d 20000d1 20000018 4c 20000d2 20000019 4d 20000d6 20000017 4c 20000d7 2000001a
+// prog: 4b 20000e7 a 5f 20000ea b 5f 20000ef 40000005 62 20000f0 40000005 61 20000f1 20000011 61
+// prog: 20000f2 2000001e 62 20000f3 2000001e 61 20000f5 20000014 62 20000f6 2000001f 61 20000fc 20000015 62 20000ff
+// prog: 20000020 60 2000102 20000019 60 2000107 20000021 62 2000108 20000021 61 2000109 20000019 62 200010a 20000020
+// prog: 61 200010b 2000001a 60 2000116 10 74 2000118 11 74 2000119 40000008 77 200011a 20000012 77
+// prog: 200011b 20000014 77 200011c 20000015 77 200011d 20000017 75 200011e 20000019 75 200011f 20000018 77 2000120
+// prog: 20000019 77 2000121 2000001a 75 200012c 16 89 200012d 17 89 200012e 4000000b 8c 2000130 2000001e
+// prog: 8c 2000131 20000014 8c 2000132 20000015 8c 2000133 20000020 8a 2000134 20000019 8a 2000135 20000021 8c
+// prog: 2000136 20000019 8c 2000137 2000001a 8a 2000139 17 96 200013a 16 97 200013b 16 96 200013c
+// prog: 17 97 200013d 20000010 98 2000141 16 9b 2000142 17 9c 2000143 16 9a 2000144 17
+// prog: 9a 200014f fa 17b 2000150 20000004 17b 2000151 14 17b 2000152 20000000 17b 2000154 11 17e
+// prog: 2000155 10 17f 2000158 10 17e 2000159 11 17f 200015a 20000010 180 200015c 10 183 200015d
+// prog: 11 184 200015e 10 182 2000160 11 182 200016a e2 195 200016b 20000004 195 200016c e
+// prog: 195 200016d 20000000 195 20001cb b 198 20001cc a 199 20001cd a 198 20001ce b 199
+// prog: 20001cf 20000010 19a 20001d1 a 19d 20001d2 b 19e 20001d3 a 19c 20001d4 b 19c 20001de
+// prog: c9 1af 20001df 20000043 1af 20001e0 8 1af 20001e1 20000000 1af 20001e3 5 1b2 20001e4 4
+// prog: 1b3 20001e5 4 1b2 20001e6 5 1b3 20001e7 20000010 1b4 20001e9 4 1b7 20001ea 5 1b8
+// prog: 20001eb 4 1b6 20001ec 5 1b6 20001f6 6 1c9 20001f7 20000043 1c9 20001f8 2 1c9 20001f9
+// prog: 20000000 1c9 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 1b d 2d 3b 13 19 59 4e 2f 5b c1 c2 5c c3 c4 5d
+// prog: c5 cb 6e da 34 6f db dc 87 63 e7 89 f1 f2 8b f3
+// prog: f5 94 f6 fc 98 10d e6 99 10e e9 9a 110 ec a7 78 116
+// prog: d3 122 fe d4 123 101 d5 124 104 10c 8d 12c 184 13b 13c 185
+// prog: 141 142 18a 20000007 138 18b 2000000f 145 18c 2000000f 14b 19a 158 159 19b 15c
+// prog: 15d 1a0 20000007 153 1a1 2000000f 161 1a2 2000000f 166 1b5 1cd 1ce 1b6 1d1 1d2
+// prog: 1bb 20000007 1ca 1bc 2000000f 1d5 1bd 2000000f 1da 1ff 1e5 1e6 200 1e9 1ea 205
+// prog: 20000007 1e2 206 2000000f 1ed 207 2000000f 1f2 1000012 c 2c 100005a bd 4f 100005e 53
+// prog: cf 100005f d1 54 100006c d2 d6 100006d d9 33 1000088 ea 64 1000095 68 107
+// prog: 1000096 108 69 1000097 109 10a 10000a8 118 79 10000bf 7d 11f 1000117 12d 8e 1000179
+// prog: 92 135 1000183 139 13a 1000199 154 155 10001b4 1cb 1cc 10001fe 1e3 1e4 2000041 1
+// prog: 28 2000042 18 1f 2000043 18 1d 2000044 0 28 2000045 0 1f 2000046 1 1d
+// prog: 2000047 2a 28 2000048 2b 1f 2000049 2b 1d 200004a 29 28 2000057 29 1f 2000058
+// prog: 2a 1d 2000070 c8 e4 2000071 1a de 2000072 1a dd 2000073 c7 e4 2000074 c7
+// prog: de 2000076 c8 dd 2000081 31 e4 2000082 32 de 2000083 32 dd 2000084 30 e4
+// prog: 2000085 30 de 2000086 31 dd 200009b e1 114 200009c 1c 113 200009d 1c 112 200009e
+// prog: e0 114 200009f e0 113 20000a0 e1 112 20000a1 37 114 20000a2 38 113 20000a3 38
+// prog: 112 20000a4 36 114 20000a5 36 113 20000a6 37 112 20000a9 40000008 115 20000ba 20000011 115
+// prog: 20000bb 20000012 115 20000bc 20000013 115 20000cd 20000018 115 20000d0 20000017 115 20000d8 f9 12a 20000e5
+// prog: 1e 129 20000e8 1e 128 20000eb f8 12a 20000ed f8 129 20000ee f9 128 20000f4 3d
+// prog: 12a 20000fd 3e 129 2000100 3e 128 2000103 3c 12a 2000105 3c 129 2000106 3d 128
+// prog: 200012f 4000000b 12b 2000147 20000011 12b 200015f 2000001e 12b 2000178 2000001f 12b 200017a 20000021 12b 200017c
+// prog: 20000020 12b 200017d 12e 2000002f 200017e 12e 2000001e 200017f 12e 20000034 2000180 12e 20000030 2000181 12e
+// prog: 20000031 2000182 20000020 12e 2000186 17 140 2000187 16 140 2000188 20000010 146 2000189 20000010 14b
+// prog: 200018d fb 14e 200018e 20000004 14e 2000190 15 14e 2000191 20000000 14e 2000192 119 2000002f 2000193
+// prog: 119 20000012 2000194 119 20000040 2000196 119 20000030 2000197 119 2000003e 2000198 20000017 119 200019c 11
+// prog: 15b 200019d 10 15b 200019e 20000010 162 200019f 20000010 166 20001a3 e3 169 20001a4 20000004 169
+// prog: 20001a6 f 169 20001a7 20000000 169 20001a8 ef 2000002f 20001a9 f0 2000001e 20001aa ef 2000001e 20001ab
+// prog: f0 20000014 20001ac ef 20000034 20001ad ef 20000030 20001ae f0 20000032 20001b0 ef 20000031 20001b1 f0
+// prog: 20000033 20001b2 20000020 ef 20001b3 f0 20000037 20001b7 b 1d0 20001b8 a 1d0 20001b9 20000010 1d6
+// prog: 20001ba 20000010 1da 20001be ca 1dd 20001bf 20000043 1dd 20001c0 9 1dd 20001c1 20000000 1dd 20001c2
+// prog: be 2000002f 20001c3 c0 20000012 20001c4 be 20000012 20001c5 c0 20000014 20001c6 be 20000040 20001c7 be
+// prog: 20000030 20001c8 c0 2000003f 20001fa be 2000003e 20001fb c0 20000033 20001fc 20000017 be 20001fd c0 20000037
+// prog: 2000201 5 1e8 2000202 4 1e8 2000203 20000010 1ee 2000204 20000010 1f2 2000208 7 1f5 2000209
+// prog: 20000043 1f5 200020a 3 1f5 200020b 20000000 1f5 400018f 151 151 40001a5 16c 16c 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 19 41 42 2d 5b 50 2f 5c 51 33 5d 52 8e 70 71 c7
+// prog: 89 65 c8 8b 66 cb 94 67 dc 98 39 de 9a 111 e7 a3
+// prog: a4 f1 ba 11a f2 bb 11b f3 bc 11c 107 d3 3f 109 d5 125
+// prog: 112 100 103 118 147 130 11f 15f 131 122 178 132 142 187 144 146
+// prog: 2000001b 183 14b 2000000d 188 151 2000000e 189 162 19d 160 16c 20000008 199 1ca 2000001d
+// prog: 19e 1cb 2000000e 19f 1e2 1b8 1d4 1e4 2000001b 1b4 1e5 2000000d 1b9 1e6 2000000e 1ba
+// prog: 1e9 1e0 1c0 20f 202 1ec 211 20000008 1fe 212 2000001d 203 213 2000000e 204 215
+// prog: 1f8 20a 100001c 45 46 100001d 47 48 100001e 49 4a 100001f 57 58 1000064 d7
+// prog: 6c 10000bd 74 76 10000c1 81 82 10000c2 83 84 10000c3 85 86 10000db 10b 97
+// prog: 10000dd 99 3a 10000e0 9b 9c 10000e1 9d 9e 10000e4 9f a0 10000e9 a6 a5 10000fc
+// prog: cd 7e 10000fe 120 d0 1000108 d4 40 100010a d8 e5 100010d e8 eb 100010e ed
+// prog: ee 1000113 106 105 100012a 17a 93 100012c 136 17c 1000140 184 13d 1000141 186 143
+// prog: 1000153 18d 14f 1000154 18f 190 100015d 19a 15a 1000161 19c 15e 10001cc 1a3 16a 10001cd
+// prog: 1a5 1a6 10001ce 1a8 1a9 10001d0 1aa 1ab 10001d1 1ad 1ae 10001d2 1b0 1b1 10001d5 1b2
+// prog: 1b3 10001d6 1b5 1cf 10001da 1b7 1d3 10001e8 1de 1be 10001ea 1c2 1c3 10001ed 1c4 1c5
+// prog: 10001ee 1c7 1c8 10001f2 1fa 1fb 100020c 1fc 1fd 100020d 1ff 1e7 100020e 201 1eb 1000214
+// prog: 1f6 208 2000000 2a 3b 2000001 2b 1b 200000c 2b 12 200000d 29 3b 2000013 29
+// prog: 1b 2000018 2a 12 2000028 40000002 5a 200002c 40000002 59 2000034 20000018 5a 200004e 20000018 59
+// prog: 200004f 20000019 5a 2000053 20000017 59 2000054 2000001a 59 2000063 2000001a 5a 2000068 31 6f 2000069
+// prog: 32 6e 2000078 32 6d 2000079 30 6f 200007d 30 6e 200008d 31 6d 20000c4 40000005
+// prog: 88 20000c5 40000005 87 20000cf 20000021 88 20000d1 20000021 87 20000d2 20000019 88 20000d6 20000020 87
+// prog: 20000d9 2000001a 87 20000da 2000001a 88 20000ea 40000008 a8 20000ec 40000008 a7 20000f5 20000018 a8 20000f6
+// prog: 20000018 a7 20000f8 20000019 a8 20000f9 20000017 a7 2000101 2000001a a7 2000104 2000001a a8 2000114 4000000b
+// prog: 117 2000116 4000000b 10c 2000123 20000021 117 2000124 20000021 10c 2000128 20000019 117 2000129 20000020 10c
+// prog: 200012d 2000001a 10c 2000135 2000001a 117 2000138 12f 2000001e 2000139 12f 20000014 200013a 12f 20000032 200013b
+// prog: 12f 20000033 200013c 12f 20000037 2000145 20000010 185 2000155 a9 20000012 2000158 a9 20000014 2000159 a9
+// prog: 2000003f 200015b a9 20000033 200015c a9 20000037 2000166 20000010 19b 20001e3 20000010 1b6 2000210 20000010 200
+// prog: 400001a 43 43 4000092 72 72 40000e6 a1 a1 4000110 f4 f4 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -24657,10 +23708,46 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 3 9 6 5 a 8 2000000 20000047 1 2000002 20000047 4 8000000 0
+// prog: 6c f1 7a 6d f2 7b 6e f3 7c 89 118 8f 8b 11f 90 93
+// prog: 122 91 cd 2000001c 141 d0 2000000a 140 d3 2000000b 142 d4 2000000c 145 d5 154
+// prog: 20000028 111 20000009 161 11a 2000000a 15d 11b 2000000b 162 11c 2000000c 166 120 20000028 1cd
+// prog: 147 2000001c 1da 14f 2000000a 1d6 15a 2000000b 1e2 15e 2000000c 1e3 15f 1e9 20000044 186
+// prog: 20000009 20e 187 2000000a 20d 188 2000000b 20f 189 2000000c 210 18d 20000044 215 1000012 0
+// prog: 1 100001b c d 1000029 13 18 100002a 1a 44 100002b cc 34 1000030 4e ce
+// prog: 1000031 4f 53 1000032 54 5e 1000039 63 5f 1000041 68 69 1000042 78 79 1000043
+// prog: 7d 8d 1000045 92 73 1000046 ff cf 1000047 d1 102 1000048 d2 d6 1000049 d9
+// prog: 95 100004a da 96 1000067 e6 a2 100006f 11d f5 1000070 f6 11e 1000071 f8 f9
+// prog: 1000072 101 bf 1000074 104 fc 1000076 121 fe 1000086 110 fd 1000094 133 123 1000097
+// prog: 124 134 1000098 128 129 1000099 12d 179 100009a 135 12a 100009b 137 12c 100009c 17d
+// prog: 138 100009f 17e 139 10000a3 180 13a 10000a6 181 13b 10000bc 182 13c 10000d7 192 155
+// prog: 10000e8 193 158 10000ee 196 159 1000103 197 15b 100010b 198 15c 200003a 5a 64 200003b
+// prog: 59 64 200003f 4d 64 2000040 4c 64 2000050 88 db 2000051 87 db 2000052 62
+// prog: db 2000057 61 db 2000058 37 de 200005b 38 dd 200005c 38 dc 200005d 36 de
+// prog: 2000065 36 dd 2000066 37 dc 200007e 3d 109 2000081 3e 108 2000082 3e 107 2000083
+// prog: 3c 109 2000084 3c 108 2000085 3d 107 200009d 114 20000030 200009e 116 20000031 20000a0 114
+// prog: 20000032 20000a1 116 20000033 20000a4 114 2000001a 20000a5 116 20000035 20000ba 114 20000035 20000bb 116 20000036
+// prog: 20000d8 ea 20000030 20000e5 ec 2000003e 20000eb ea 2000003f 20000ed ec 20000033 20000f4 ea 2000001a 2000100
+// prog: ec 20000041 2000105 ea 20000041 2000106 ec 20000036 2000125 c4 20000030 2000130 c5 20000031 2000131 c4
+// prog: 20000032 2000132 c5 20000033 2000136 c4 2000001a 200013d c5 20000035 2000143 c4 20000035 2000144 c5 20000036
+// prog: 2000160 28 20000030 200016a 2c 2000003e 2000178 28 2000003f 200017a 2c 20000033 200017c 28 2000001a 2000183
+// prog: 2c 20000041 2000184 28 20000041 2000185 2c 20000036 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 12 19 1 1b 2a c 29 1c d 2d 2b 13 2f 30 18
+// prog: 33 31 44 41 8e 4e 42 45 4f 43 bd 53 c7 46 54 c8
+// prog: 47 5e cb 48 7b 5c 5d 7d 6c 6f 8d 6d 70 8f 6e 71
+// prog: d9 82 83 db 89 94 dc 8b 97 dd 93 98 ff 9c 9d 101
+// prog: 9f a0 102 a3 a4 104 a6 ba 108 d7 d8 109 e8 eb 110 ee
+// prog: f4 118 103 105 11e 1ce 125 11f 1d0 131 121 1d1 136 122 1d2 143
+// prog: 124 1ea 160 128 1ed 178 129 1ee 17c 12a 1f2 184 100007c 66 65 10000da
+// prog: 85 84 200001a 4b 39 2000034 4b 32 2000036 59 39 2000037 5a 32 2000038 c6
+// prog: 39 200003c c6 32 200003d 4c 39 200003e 4d 32 200005f 60 4a 2000063 60 49
+// prog: 2000064 87 4a 2000068 88 49 2000069 df 4a 2000073 df 49 2000078 61 4a 2000079
+// prog: 62 49 2000090 a8 76 2000091 75 74 2000092 75 72 2000095 a7 76 2000096 a7
+// prog: 74 20000a2 a8 72 20000bf 77 76 20000cc f7 74 20000ce f7 72 20000cf 115 76
+// prog: 20000d1 115 74 20000d2 77 72 20000de 117 9b 20000e6 8a 9a 20000f1 8a 99 20000f2
+// prog: 10c 9b 20000f3 10c 9a 20000f5 117 99 20000f6 8c 9b 20000f8 10f 9a 20000f9 10f
+// prog: 99 20000fc 12b 9b 20000fd 12b 9a 20000fe 8c 99 3000107 2000003c d4 300011d 2000003c 11c
+// prog: 3000123 2000003c 15e 300012c 2000003c 189 400007a 58 58 40000d6 7e 7e 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -24669,8 +23756,23 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000001 20000047 0 1000004 20000047 2 2000006 20000047 3 2000007 20000047 5 8000000 0
+// prog: 59 7b e1 5a 7c e4 75 d9 10d 76 da 10e 100002b 3a 1a 100002d
+// prog: 34 3b 100002f 36 37 1000030 3f 38 1000031 3c 40 1000032 3d 3e 1000046 50
+// prog: 5f 1000047 63 51 1000048 64 68 1000049 52 69 100004a 73 57 100004b 78 79
+// prog: 1000058 7a 5b 100006d 90 91 100006e 92 95 100006f 96 a2 1000070 bf cc 1000071
+// prog: ce cf 1000072 d1 d2 1000074 d6 81 1000088 de e6 1000089 f1 f2 100008a f3
+// prog: f5 100008b f6 f8 100008e f9 fc 1000093 fd fe 1000094 ff 9e 1000097 101 a1
+// prog: 1000098 102 a5 1000099 104 bb 10000a0 108 e5 10000a3 109 ed 10000a4 110 100 10000a6
+// prog: 118 106 10000c8 11e 130 10000cb 11f 132 10000d7 121 13d 10000d8 122 144 1000105 124
+// prog: 16a 100010c 128 17a 1000117 129 183 1000125 12a 185 2000012 4d 18 2000019 c6 13
+// prog: 200001b c6 d 200001c 4c 18 2000029 4c 13 200002a 4d d 2000033 62 5e 2000039
+// prog: df 54 2000041 df 53 2000042 61 5e 2000043 61 54 2000045 62 53 200005c 77
+// prog: 8f 200005d f7 8d 2000060 f7 7d 2000065 115 8f 2000066 115 8d 200006c 77 7d
+// prog: 200007e 8c dd 2000082 10f dc 2000083 10f db 2000084 12b dd 2000085 12b dc 2000087
+// prog: 8c db 200009a cd 107 200009b d3 107 200009c d4 107 200009d 14b 107 200009f 151
+// prog: 107 20000a7 111 11d 20000a8 11b 11d 20000ba 11c 11d 20000bd 1ca 11d 20000c7 1cb 11d
+// prog: 20000e8 147 123 20000eb 15a 123 20000ee 15e 123 20000f4 1e5 123 2000103 1e6 123 200012d
+// prog: 186 12c 2000131 188 12c 2000133 189 12c 2000134 212 12c 2000135 213 12c 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -24678,12 +23780,45 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 37 58 e0 3c 74 10a 40 8b 98 4c 8e 99 4d 93 bc 73
+// prog: 70 a4 77 71 a6 78 72 10b a1 49 d7 a2 4a d8 a5 4b
+// prog: 1d5 df 30 117 e1 31 125 e4 32 20c 100000d 12 19 1000013 1b 1c
+// prog: 1000018 29 2a 100001a 33 39 1000034 41 42 1000036 43 45 1000038 5c 5d 100003a
+// prog: 60 65 100003b 66 6c 100003d 7e 82 100003e 83 84 100003f 85 87 2000050 cd
+// prog: 9a 2000051 d3 9a 2000052 d4 9a 2000053 14b 9a 2000054 151 9a 2000057 d3 9b
+// prog: 200005b d4 9b 200005e 14b 9b 200005f 151 9b 2000061 d4 9c 2000062 14b 9c 2000063
+// prog: 151 9c 2000064 14b 9d 2000068 151 9d 2000069 151 9f 2000079 111 a7 200007a 11b
+// prog: a7 200007b 11c a7 200007c 1ca a7 200007d 1cb a7 2000081 11b a8 200008c 11c a8
+// prog: 200008d 1ca a8 200008f 1cb a8 2000090 11c ba 2000091 1ca ba 2000092 1cb ba 2000095
+// prog: 1ca bd 2000096 1cb bd 200009e 1cb c7 20000bb 147 e8 20000bf 15a e8 20000c6 15e
+// prog: e8 20000cc 1e5 e8 20000ce 1e6 e8 20000cf 15a eb 20000d1 15e eb 20000d2 1e5 eb
+// prog: 20000d6 1e6 eb 20000d9 15e ee 20000da 1e5 ee 20000db 1e6 ee 20000dc 1e5 f4 20000dd
+// prog: 1e6 f4 20000de 1e6 103 20000e5 186 12d 20000e6 188 12d 20000ed 189 12d 20000f1 212
+// prog: 12d 20000f2 213 12d 20000f3 188 131 20000f5 189 131 20000f6 212 131 20000f7 213 131
+// prog: 20000f8 189 133 20000f9 212 133 20000fc 213 133 20000fd 212 134 20000fe 213 134 20000ff
+// prog: 213 135 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000000 20000047 6 1000002 20000047 7 700001a 1 1 7000041 4 4 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 12 d 2b 19 13 2d 1b 18 2f 1c 1a 46 29 34 47 2a
+// prog: 36 48 30 38 6d 31 3a 6e 32 3b 6f 33 3d 88 39 3e
+// prog: 89 41 3f 8a 43 113 4d 82 e9 78 a7 c3 a5 104 1f e4
+// prog: 1000045 18a 50 1000049 146 51 100004a cd 52 100004b 148 53 1000058 14c 54 100005c
+// prog: d0 57 100005d d3 5b 1000060 149 5e 1000065 14d 5f 1000066 d4 61 100006c 14b
+// prog: 62 1000070 151 63 1000071 18b 64 1000072 14a 68 1000074 18c 69 1000083 1a0 79
+// prog: 1000084 16c 7a 1000085 111 7b 1000087 163 7c 100008b 167 7d 100008e 11a 81 1000093
+// prog: 11b 8c 1000098 164 8d 1000099 168 8f 100009a 11c 90 100009b 1ca 91 100009c 1cb
+// prog: 92 100009d 1a1 95 100009f 165 96 10000a4 1a2 9e 10000a8 1bb bb 10000ba 1e4 bf
+// prog: 10000bc 147 c6 10000bd 1d7 cc 10000c7 1db ce 10000d7 14f cf 10000d8 15a d1 10000e0
+// prog: 1d8 d2 10000e8 1dc d6 10000eb 15e d9 10000ee 1e5 da 10000f4 1e6 db 1000100 1bc
+// prog: dc 1000101 1d9 dd 1000102 1bd de 1000106 205 e5 1000108 211 e6 1000109 186 ed
+// prog: 100010a 1ef f1 100010b 1f3 f2 100010d 187 f3 100010e 188 f5 100010f 1f0 f6 1000110
+// prog: 1f4 f7 1000115 189 f8 1000117 212 f9 1000118 213 fc 100011e 206 fd 100011f 1f1
+// prog: fe 1000121 207 ff 2000042 20000010 4d 200007e 20000010 78 20000a6 20000010 a5 2000103 20000010 e4
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -24693,378 +23828,239 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 7000068 0 0 700008f 2 2 8000000 0 0 8000000 0 0 8000000 0
+// prog: 13 33 94 18 39 97 1a 41 17f 54 43 153 e4 30 a0 e5
+// prog: 31 a3 e6 32 194 129 82 1cc 17a 1c c8 17c 29 cb 17d 2a
+// prog: 1ac 19b a7 1e8 1d9 12 105 1da 19 10c 1db 1b 1c6 1f8 104 214
+// prog: 100000d 5000000b 41 10000de 50000008 32 1000179 50000005 2a 10001d8 50000002 1b 200001f fa 45 200002b
+// prog: fb 49 200002d 7f 4b 200002f 80 58 2000034 fa 49 2000036 fb 5c 2000038 7f
+// prog: 60 200003a 80 65 200003b fa 4a 200003d fb 5d 200003e 7f 6c 200003f 80 70
+// prog: 2000046 fa 4b 2000047 fb 60 2000048 7f 71 200004d 80 72 2000050 fa 58 2000051
+// prog: fb 65 2000052 7f 72 2000053 80 74 2000057 14 49 200005b 15 49 200005e 15
+// prog: 4b 200005f 14 60 2000061 15 58 2000062 14 65 2000063 26 4b 2000064 27 65
+// prog: 2000068 14 45 2000069 20000000 4a 200006d 4b 126 200006e 58 127 200006f 15 5c 2000078
+// prog: 20000000 5d 2000079 60 126 200007a 65 127 200007b 14 4a 200007c 15 5d 200007d 20000000
+// prog: 66 2000081 6c 126 2000088 70 127 2000089 14 4b 200008a 15 60 200008c 20000000 6c
+// prog: 200008d 71 126 200008f 72 127 2000090 14 58 2000091 15 65 2000092 20000000 70 2000095
+// prog: 72 126 2000096 74 127 200009e 15 6c 20000a5 14 70 20000bb 15 71 20000bf 14
+// prog: 72 20000c3 15 72 20000c6 14 74 20000cc 27 58 20000ce 26 60 20000cf 26 6c
+// prog: 20000d0 27 70 20000d1 26 71 20000d2 27 72 20000d6 26 72 20000d9 27 74 20000da
+// prog: 14 6c 20000db 15 70 20000dc 14 71 20000dd 15 74 20000e9 e2 83 20000ed e3
+// prog: 84 20000f1 6a 87 20000f2 6b 8b 20000f3 e2 84 20000f5 e3 8e 20000f6 6a 98
+// prog: 20000f7 6b 99 20000f8 e2 85 20000f9 e3 93 20000fc 6a 9b 20000fd 6b 9c 20000fe
+// prog: e2 87 20000ff e3 98 2000113 6a 9d 200011a 6b 9f 2000122 e2 8b 2000124 e3
+// prog: 99 2000125 6a 9f 2000128 6b a4 200012a e 84 200012b f 84 200012d f 87
+// prog: 2000130 e 98 2000131 f 8b 2000132 e 99 2000133 24 87 2000134 25 99 2000135
+// prog: e 83 2000136 20000000 85 2000137 87 13e 2000138 8b 13f 2000139 f 8e 200013a 20000000
+// prog: 93 200013b 98 13e 200013c 99 13f 200013d e 85 2000140 f 93 2000141 20000000 9a
+// prog: 2000142 9b 13e 2000143 9c 13f 2000144 e 87 2000145 f 98 2000146 20000000 9b 2000148
+// prog: 9d 13e 2000149 9f 13f 200014a e 8b 200014c f 99 200014d 20000000 9c 200014f 9f
+// prog: 13e 2000154 a4 13f 2000155 f 9b 2000158 e 9c 2000159 f 9d 200015b e 9f
+// prog: 200015c f 9f 200015d e a4 2000160 25 8b 2000161 24 98 2000162 24 9b 2000163
+// prog: 25 9c 2000164 24 9d 2000165 25 9f 2000166 24 9f 2000167 25 a4 2000168 e
+// prog: 9b 200016a f 9c 200016c e 9d 2000178 f a4 200017e c9 a8 2000180 ca ba
+// prog: 2000181 55 bd 2000182 56 c7 2000183 c9 ba 2000184 ca d7 2000185 55 e0 2000187
+// prog: 56 e8 200018a c9 bc 200018b ca d8 200018c 55 ee 200018f 56 f4 2000190 c9
+// prog: bd 2000192 ca e0 2000193 55 100 2000196 56 101 2000197 c9 c7 2000198 ca e8
+// prog: 2000199 55 101 200019a 56 102 200019c 8 ba 200019d 9 ba 200019e 9 bd 200019f
+// prog: 8 e0 20001a0 9 c7 20001a1 8 e8 20001a2 22 bd 20001a3 23 e8 20001a5 8
+// prog: a8 20001a6 20000000 bc 20001a8 bd 156 20001a9 c7 157 20001aa 9 d7 20001ab 20000000 d8
+// prog: 20001ad e0 156 20001ae e8 157 20001b0 8 bc 20001b1 9 d8 20001b2 20000000 eb 20001b3
+// prog: ee 156 20001b4 f4 157 20001b5 8 bd 20001b6 9 e0 20001b7 20000000 ee 20001b8 100
+// prog: 156 20001b9 101 157 20001ba 8 c7 20001bb 9 e8 20001bc 20000000 f4 20001bd 101 156
+// prog: 20001be 102 157 20001c0 9 ee 20001c2 8 f4 20001c3 9 100 20001c4 8 101 20001c5
+// prog: 9 101 20001c7 8 102 20001c8 23 c7 20001cd 22 e0 20001ce 22 ee 20001cf 23
+// prog: f4 20001d0 22 100 20001d1 23 101 20001d2 22 101 20001d3 23 102 20001d4 8 ee
+// prog: 20001d5 9 f4 20001d6 8 100 20001d7 9 102 20001dc 6 106 20001de 7 108 20001e0
+// prog: 2e 10a 20001e2 35 10b 20001e3 6 108 20001e4 7 10d 20001e7 2e 10f 20001e9 35
+// prog: 110 20001ea 6 109 20001eb 7 10e 20001ec 2e 117 20001ed 35 118 20001ee 6 10a
+// prog: 20001ef 7 10f 20001f0 2e 11e 20001f1 35 11f 20001f2 6 10b 20001f3 7 110 20001f4
+// prog: 2e 11f 20001f6 35 121 20001fa 2 108 20001fb 3 108 20001fc 3 10a 20001fd 2
+// prog: 10f 20001fe 3 10b 20001ff 2 110 2000200 20 10a 2000201 21 110 2000202 2 106
+// prog: 2000203 20000000 109 2000204 10a 16e 2000205 10b 16f 2000206 3 10d 2000207 20000000 10e 2000208
+// prog: 10f 16e 200020a 110 16f 200020c 2 109 200020d 3 10e 200020e 20000000 115 200020f 117
+// prog: 16e 2000210 118 16f 2000211 2 10a 2000215 3 10f 2000216 20000000 117 2000217 11e 16e
+// prog: 2000218 11f 16f 2000219 2 10b 200021a 3 110 200021b 20000000 118 200021c 11f 16e 200021d
+// prog: 121 16f 200021e 3 117 200021f 2 118 2000220 3 11e 2000221 2 11f 2000222 3
+// prog: 11f 2000223 2 121 2000224 21 10b 2000225 20 10f 2000226 20 117 2000227 21 118
+// prog: 2000228 20 11e 2000229 21 11f 200022a 20 11f 200022b 21 121 200022c 2 117 200022d
+// prog: 3 118 200022e 2 11e 200022f 3 121 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 5c 63 cc 5d 64 ce 60 cf d0 65 d1 d2 66 d6 d9 9d
+// prog: 133 160 9f 134 161 a0 162 163 a3 164 165 a4 166 167 d7 19d
+// prog: 1a5 d8 19c 1aa e0 1b0 1b1 e8 1b5 1b6 eb 1ba 1bb 104 1a2 1c8
+// prog: 105 1a3 1cd 106 1ce 1cf 108 1d0 1d1 109 1d2 1d3 10a 1a0 1b5 10b
+// prog: 19f 1bb 10c 1d4 1d5 10d 1c5 1d6 10e 1c4 1d7 11f 1fb 202 121 1fa
+// prog: 206 126 20c 20d 127 211 215 13e 219 21a 16f 200 224 17f 201 225
+// prog: 194 226 227 1ac 228 229 1c6 22a 22b 1cc 1fe 211 1e8 1fd 21a 214
+// prog: 22c 22d 230 222 22e 231 221 22f 1000019 2b 1f 100001b 36 34 100001c 3d
+// prog: 3b 1000029 47 46 100002a 51 50 1000043 5e 90 1000045 8a 62 1000049 9e a5
+// prog: 100004b bb bf 1000058 c3 c6 1000072 ed e9 1000074 f5 f3 1000082 f9 f8 1000083
+// prog: ff fe 1000084 124 122 1000097 12d 14a 1000098 145 132 1000099 155 158 100009b 159
+// prog: 15b 100009c 15c 15d 10000bc 17e 180 10000bd 183 184 10000c7 18a 18b 10000c8 190 192
+// prog: 10000cb 197 198 10000ee 19e 1ba 10000f4 1b6 1a1 1000100 1c0 1c2 1000101 1c3 1c4 1000102
+// prog: 1c5 1c7 1000110 1dc 1de 1000115 1e3 1e4 1000117 1ea 1eb 1000118 1ee 1ef 100011e 1f2
+// prog: 1f3 100013f 1fc 219 1000153 215 1ff 1000156 21e 21f 1000157 220 221 100016e 222 223
+// prog: 2000012 2000002e d 2000071 2000002e de 20000ba 2000002e 179 200010f 2000002e 1d8 4000030 57 57 4000031
+// prog: 5f 5f 4000032 68 68 4000033 7b 7b 4000039 89 89 4000041 90 90 400004a bf
+// prog: bf 400006c da da 4000070 dc dc 4000085 12a 12a 4000087 130 130 400008b 135 135
+// prog: 400008e 13d 13d 4000093 144 144 4000094 14a 14a 400009a 15b 15b 40000a7 168 168 40000a8
+// prog: 16c 16c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 99a2 1 9a62 3 9ca2 4 9fa2 3 a1e2 3 a422 3 a662 3
-// prog: a8a2 2 aa22 2 aba2 2 ad22 2 aea2 2 b022 5 b3e2 2 b562 2
-// prog: b6e2 2 b862 2 b9e2 1 baa2 1 bb62 1 bc22 1 bce2 1 bda2 1
-// prog: be62 1 bf22 1 bfe2 1 c0a2 1 c162 1 c222 1 c2e2 1 c3a2 1
-// prog: c462 1 c522 1 c5e2 1 c6a2 1 c762 1 c822 1 c8e2 1 c9a2 1
-// prog: ca62 1 cb22 1 cbe2 1 cca2 1 cd62 1 ce22 1 cee2 1 cfa2 1
-// prog: d062 1 d122 1 d1e2 1 d2a2 1 d362 1 d422 1 d4e2 1 d5a2 1
-// prog: d662 1 2000018 20000004 40000000 2000019 20000000 40000000 200001a 20000004 40000003 200001b 20000000 40000003 200001c 20000004
-// prog: 40000006 200001d 20000000 40000006 200001e 20000004 40000009 200001f 20000000 40000009 5000000 30000000 30000000 5000002 30000001 30000001
-// prog: 5000004 30000002 30000002 5000006 30000003 30000003 5000008 30000004 30000004 500000a 30000005 30000005 500000c 30000006 30000006 500000e
-// prog: 30000007 30000007 5000010 30000008 30000008 5000012 30000009 30000009 5000014 3000000a 3000000a 5000016 3000000b 3000000b 6000001 30000000
-// prog: 30000000 6000003 30000001 30000001 6000005 30000002 30000002 6000007 30000003 30000003 6000009 30000004 30000004 600000b 30000005 30000005
-// prog: 600000d 30000006 30000006 600000f 30000007 30000007 6000011 30000008 30000008 6000013 30000009 30000009 6000015 3000000a 3000000a 6000017
-// prog: 3000000b 3000000b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 3d 19 2d 46 1b 38 47 1c 3e 50 29 48 51 2a 52 9e
+// prog: 17b 5c a5 14e 5d e9 72 f1 ed 74 f6 f3 82 fc f5 83
+// prog: 113 f8 84 125 134 195 9d 135 169 9f 165 bc 181 166 bd 185
+// prog: 167 c7 18c 168 c8 193 16c cb 199 17e d7 1a6 180 d8 1ab 183
+// prog: e0 1b2 184 e8 1b7 18a eb 1bc 1a1 10a 1e1 1a2 10b 1c1 1bb 110
+// prog: 1e0 1c0 115 1e7 1c2 117 1ec 1c3 118 1f0 1c4 11e 1f4 1c5 11f 203
+// prog: 1c7 121 207 1c8 126 20e 1cd 127 216 1ce 13e 21b 1de 1cc 1f9 1e3
+// prog: 1e8 20b 1000057 32 5b 100005e 30 6f 100005f 33 7c 1000062 39 8a 1000063 41
+// prog: 91 10000cc 39 61 10000ce 31 91 10000cf 6c db 10000d0 70 c3 10000d1 4a dd
+// prog: 10000f9 8b 12b 10000fe 85 139 10000ff 8e 140 1000122 93 145 1000124 94 14c 1000155
+// prog: 93 131 1000158 87 14c 1000159 a7 16a 100015b a8 15c 100015d 9a 178 100019c 104
+// prog: 1af 100019d 105 1dd 10001d4 16f 1c9 10001d5 17f 1f5 200001f 2000001f 12 200002b 20000015 12
+// prog: 2000034 20000016 12 2000036 20000017 12 200003b 20000019 12 2000064 26 4b 2000068 27 58 200007b
+// prog: 14 43 2000089 15 45 2000090 20000000 49 20000bb 26 65 20000bf 27 66 20000c6 20000000
+// prog: 60 20000d2 20000013 71 20000d6 20000015 71 20000d9 20000016 71 20000da 20000020 71 20000dc 20000019 71
+// prog: 200012a 24 9b 200012d 25 9c 2000130 e 97 2000132 f 98 2000133 20000000 99 200013d
+// prog: 24 a3 2000144 25 a4 200014a 20000000 a0 2000160 2000001f ba 2000161 20000015 ba 2000162 20000016
+// prog: ba 2000163 20000017 ba 2000164 20000019 ba 200018b 22 101 2000190 23 102 2000192 8 ee
+// prog: 2000197 9 f4 2000198 20000000 100 200019e 22 108 200019f 23 109 20001a0 20000000 106 20001a3
+// prog: 22 10d 20001a5 23 10e 20001aa 20000000 10c 20001b0 20000013 10f 20001b1 20000015 10f 20001b5 20000016
+// prog: 10f 20001b6 20000020 10f 20001ba 20000019 10f 20001cf 20 157 20001d0 21 16e 20001d1 2 13f
+// prog: 20001d2 3 153 20001d3 20000000 156 20001d6 20 1ac 20001d7 21 1c6 20001dc 20000000 194 20001e4
+// prog: 20 230 20001ea 21 231 20001eb 20000000 214 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 12 1f 13 19 2b 18 1b 34 1a 1c 36 40 29 3b 4c 33
+// prog: 57 69 38 5e 78 39 5f 7d 3e 62 8c 41 63 92 43 64
+// prog: 68 48 bb bf 4b cc 152 52 ce 191 5d d2 e4 60 d6 e5
+// prog: 61 d9 e6 65 da 73 66 dc 77 74 f9 136 7c fe 13a 82
+// prog: ff 141 83 122 146 84 124 14d 85 12a 12d 8a 13d 144 91 155
+// prog: 16d 93 158 1a7 99 160 17a 9a 161 17c 9b 162 17d 9c 163 a1
+// prog: 9d 164 a2 a8 17e 1a8 ba 180 1ad bc 183 1b3 bd 184 1b8 c3
+// prog: 18a 1bd c7 18b 190 c8 192 197 cb 19e 19f db 1a3 1a5 e8 1b0
+// prog: 1d9 eb 1b1 1da ee 1b5 1db f1 1b6 df f4 1ba e1 104 1c5 204
+// prog: 105 1c7 208 106 1c8 20f 108 1cd 217 109 1ce 21c 10a 1cf 1d0 10b
+// prog: 1d1 1d2 10c 1d6 1d7 10f 1e4 1ea 100002a 3d 2f 100002d 46 3a 1000030 47
+// prog: 3f 1000031 50 4d 1000032 51 53 100006c e9 f2 100006f ed f7 1000070 f3 fd
+// prog: 1000071 f5 11a 1000072 f8 128 100009f 165 182 10000a0 166 187 10000a3 167 18f 10000a4
+// prog: 168 196 10000a7 16c 19a 10000f6 1bb 1e2 10000fc 1c0 1e9 1000100 1c2 1ed 1000101 1c3
+// prog: 1f1 1000102 1c4 1f6 2000049 14 9e 200004a 15 a5 2000058 26 d0 200005b 27 d1
+// prog: 200005c 20000000 cf 200008b e 134 200008e f 135 2000094 24 15b 2000097 25 15d 2000098
+// prog: 20000000 159 20000d7 8 19c 20000d8 9 19d 20000dd 8 1a1 20000e0 9 1a2 200010d 2
+// prog: 1d4 200010e 3 1d5 2000110 2 1de 2000113 3 1e3 4000045 7b 7b 4000087 130 130
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2b 40000001 19 32 40000004 1b 38 40000007 1d 3e 4000000a 1f 2000020 20000000
-// prog: 2 2000021 20000000 3 2000022 20000000 8 2000023 20000000 9 2000024 20000000 e 2000025 20000000 f
-// prog: 2000026 20000000 14 2000027 20000000 15 2000029 2 40000000 200002a 3 40000000 200002c 2000000d 18 200002d
-// prog: 2000000e 18 200002e 2000000f 18 2000030 8 40000003 2000031 9 40000003 2000033 2000001d 1a 2000034 2000000e
-// prog: 1a 2000035 2000000f 1a 2000036 e 40000006 2000037 f 40000006 2000039 2000000d 1c 200003a 2000000e 1c
-// prog: 200003b 2000000f 1c 200003c 14 40000009 200003d 15 40000009 200003f 2000001d 1e 2000040 2000000e 1e 2000041
-// prog: 2000000f 1e 2000042 17 20000031 2000043 16 2000001e 2000044 17 2000001e 2000045 16 20000014 2000046 17
-// prog: 20000032 2000047 16 20000033 2000048 17 20000034 2000049 16 20000035 200004a 20000020 17 200004b 16 20000036
-// prog: 200004c 16 20000031 200004d 17 20000014 200004e 16 20000032 200004f 17 20000033 2000050 16 20000034 2000051
-// prog: 17 20000035 2000052 20000020 16 2000053 17 20000036 2000054 20000010 16 2000055 20000010 17 2000056 17
-// prog: 2000001a 2000057 16 2000003b 2000058 17 2000003b 2000059 16 2000003c 200005a 16 2000001a 200005b 17 2000003c
-// prog: 200005c 11 20000031 200005d 10 20000012 200005e 11 20000012 200005f 10 20000014 2000060 11 20000032 2000061
-// prog: 10 20000040 2000062 11 20000041 2000063 10 20000035 2000064 20000017 11 2000065 10 20000036 2000066 10
-// prog: 20000031 2000067 11 20000014 2000068 10 20000032 2000069 11 20000040 200006a 10 20000041 200006b 11 20000035
-// prog: 200006c 20000017 10 200006d 11 20000036 200006e 20000010 10 200006f 20000010 11 2000070 11 2000001a 2000071
-// prog: 10 20000044 2000072 11 20000044 2000073 10 2000003c 2000074 10 2000001a 2000075 11 2000003c 2000076 b
-// prog: 20000031 2000077 a 2000001e 2000078 b 2000001e 2000079 a 20000014 200007a b 20000032 200007b a 20000033
-// prog: 200007c b 20000034 200007d a 20000035 200007e b 20000020 200007f a 20000036 2000080 a 20000031 2000081
-// prog: b 20000014 2000082 a 20000032 2000083 b 20000033 2000084 a 20000034 2000085 b 20000035 2000086 a
-// prog: 20000020 2000087 b 20000036 2000088 20000010 a 2000089 20000010 b 200008a b 2000001a 200008b a 2000003b
-// prog: 200008c b 2000003b 200008d a 2000003c 200008e a 2000001a 200008f b 2000003c 2000090 5 20000031 2000091
-// prog: 4 20000012 2000092 5 20000012 2000093 4 20000014 2000094 5 20000032 2000095 4 20000040 2000096 5
-// prog: 20000041 2000097 4 20000035 2000098 5 20000017 2000099 4 20000036 200009a 4 20000031 200009b 5 20000014
-// prog: 200009c 4 20000032 200009d 5 20000040 200009e 4 20000041 200009f 5 20000035 20000a0 4 20000017 20000a1
-// prog: 5 20000036 20000a2 20000010 4 20000a3 20000010 5 20000a4 5 2000001a 20000a5 4 20000044 20000a6 5
-// prog: 20000044 20000a7 4 2000003c 20000a8 4 2000001a 20000a9 5 2000003c 20000aa 1 20000001 20000ab 0 20000001
-// prog: 20000ac 2 20000005 20000ad 3 20000005 20000ae 7 20000001 20000af 6 20000001 20000b0 8 20000005 20000b1
-// prog: 9 20000005 20000b2 d 20000001 20000b3 c 20000001 20000b4 e 20000005 20000b5 f 20000005 20000b6 13
-// prog: 20000001 20000b7 12 20000001 20000b8 14 20000005 20000b9 15 20000005 4000028 18 18 400002f 1a 1a
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 3a 33 6d 3b 38 79 3d 39 81 3f 3e 8d 40 41 95 4c
+// prog: 20000027 48 50 58 5b 73 74 137 77 7c 13b 78 82 142 7b 83
+// prog: 148 7d 84 14f 9e 20000027 8a a2 94 97 d9 a8 1a9 da ba 1ae
+// prog: dc bc 1b4 df bd 1b9 e1 c3 1be e4 c8 198 e6 20000027 cb e9
+// prog: d7 d8 ed 20000045 db f2 dd e0 115 104 205 117 105 20a 118 106
+// prog: 210 11a 108 218 11e 109 21d 11f 10b 1d3 122 20000027 10c 124 10d 10e
+// prog: 125 20000045 10f 126 110 113 1000046 45 89 100008c 87 132 2000013 17 1c 2000018
+// prog: 16 29 200001a 16 1c 200001f 17 29 200002b 17 12 200002f 16 19 2000034 16
+// prog: 12 2000036 17 19 2000047 20000004 43 2000051 14 4b 2000053 15 52 2000057 11 65
+// prog: 200005e 10 66 200005f 10 65 2000062 11 66 2000063 11 5d 2000064 10 60 2000068
+// prog: 10 5d 2000069 11 60 2000092 20000004 85 20000a5 e 91 20000bb f 93 20000bf b
+// prog: 9c 20000cc a 9d 20000ce a 9c 20000cf b 9d 20000d0 b 99 20000d1 a 9a
+// prog: 20000d2 a 99 20000d6 b 9a 20000e5 20000004 c7 20000f3 5 f1 20000f5 4 f4 20000f7
+// prog: 4 f1 20000f8 5 f4 20000f9 5 e8 20000fd 4 eb 20000fe 4 e8 20000ff 5
+// prog: eb 2000121 20000004 10a 400004d 49 49 40000a1 8b 8b 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 c6 40000002 2b df 40000005 32 f7 40000008 38 10f 4000000b 3e 113 44
-// prog: 4c 114 43 4d 115 52 53 122 48 4e 123 47 51 124 58 5a
-// prog: 125 57 5b 12b 5e 66 12c 5d 67 12d 6c 6d 13a 62 68 13b
-// prog: 61 6b 13c 72 74 13d 71 75 143 78 80 144 77 81 145 86
-// prog: 87 152 7c 82 153 7b 85 154 8c 8e 155 8b 8f 15b 92 9a
-// prog: 15c 91 9b 15d a0 a1 16a 96 9c 16b 95 9f 16c a6 a8 16d
-// prog: a5 a9 1000110 42 43 1000111 44 45 1000112 4a 4b 100011e 46 50 100011f 4f
-// prog: 49 1000120 56 57 1000121 58 59 1000128 5c 5d 1000129 5e 5f 100012a 64 65
-// prog: 1000136 60 6a 1000137 69 63 1000138 70 71 1000139 72 73 1000140 76 77 1000141
-// prog: 78 79 1000142 7e 7f 100014e 7a 84 100014f 83 7d 1000150 8a 8b 1000151 8c
-// prog: 8d 1000158 90 91 1000159 92 93 100015a 98 99 1000166 94 9e 1000167 9d 97
-// prog: 1000168 a4 a5 1000169 a6 a7 2000000 20 18 2000001 21 18 2000006 40000001 2a 2000007
-// prog: 40000001 29 200000c 20000007 29 200000d 20000008 2a 2000012 20000009 2b 2000013 20000008 29 2000019 2000000a
-// prog: 2a 200001b 2000000b 2b 200001d 20000009 29 200001f 2000000b 2a 20000ba 2000000c 2b 20000bb 2000000d 2b
-// prog: 20000bc 2000000e 2b 20000bd 2000000e 2a 20000be 2000000d 29 20000c0 20000010 2b 20000c1 20000010 2a 20000c2
-// prog: 5 29 20000c3 4 2a 20000c4 4 29 20000c5 5 2a 20000c7 22 1a 20000c8 23
-// prog: 1a 20000c9 40000004 31 20000ca 40000004 30 20000cb 20000007 30 20000cc 2000001b 31 20000cd 2000001c 32
-// prog: 20000ce 2000001b 30 20000cf 2000000a 31 20000d0 2000000b 32 20000d1 2000001c 30 20000d2 2000000b 31 20000d3
-// prog: 2000000c 32 20000d4 2000001d 32 20000d5 2000000e 32 20000d6 2000000e 31 20000d7 2000001d 30 20000d9 20000010
-// prog: 32 20000da 20000010 31 20000db b 30 20000dc a 31 20000dd a 30 20000de b 31
-// prog: 20000e0 24 1c 20000e1 25 1c 20000e2 40000007 37 20000e3 40000007 36 20000e4 20000007 36 20000e5
-// prog: 20000008 37 20000e6 20000009 38 20000e7 20000008 36 20000e8 2000000a 37 20000e9 2000000b 38 20000ea 20000009
-// prog: 36 20000eb 2000000b 37 20000ec 2000000c 38 20000ed 2000000d 38 20000ee 2000000e 38 20000ef 2000000e 37
-// prog: 20000f0 2000000d 36 20000f1 20000010 38 20000f2 20000010 37 20000f3 11 36 20000f4 10 37 20000f5
-// prog: 10 36 20000f6 11 37 20000f8 26 1e 20000f9 27 1e 20000fa 4000000a 3d 20000fb 4000000a
-// prog: 3c 20000fc 20000007 3c 20000fd 2000001b 3d 20000fe 2000001c 3e 20000ff 2000001b 3c 2000100 2000000a 3d
-// prog: 2000101 2000000b 3e 2000102 2000001c 3c 2000103 2000000b 3d 2000104 2000000c 3e 2000105 2000001d 3e 2000106
-// prog: 2000000e 3e 2000107 2000000e 3d 2000108 2000001d 3c 2000109 20000010 3e 200010a 20000010 3d 200010b 17
-// prog: 3c 200010c 16 3d 200010d 16 3c 200010e 17 3d 2000116 20000032 54 2000117 20000034 55
-// prog: 2000118 20000033 54 2000119 20000035 55 200011a 2000001a 54 200011b 2000003b 55 200011c 2000003b 54 200011d
-// prog: 2000003c 55 2000126 20000004 26 2000127 20000004 27 200012e 20000032 6e 200012f 20000041 6f 2000130 20000040
-// prog: 6e 2000131 20000035 6f 2000132 2000001a 6e 2000133 20000044 6f 2000134 20000044 6e 2000135 2000003c 6f
-// prog: 200013e 20000004 24 200013f 20000004 25 2000146 20000032 88 2000147 20000034 89 2000148 20000033 88 2000149
-// prog: 20000035 89 200014a 2000001a 88 200014b 2000003b 89 200014c 2000003b 88 200014d 2000003c 89 2000156 20000004
-// prog: 22 2000157 20000004 23 200015e 20000032 a2 200015f 20000041 a3 2000160 20000040 a2 2000161 20000035 a3
-// prog: 2000162 2000001a a2 2000163 20000044 a3 2000164 20000044 a2 2000165 2000003c a3 200016e 20000004 20 200016f
-// prog: 20000004 21 2000170 3 aa 2000171 2 aa 2000172 9 ae 2000173 8 ae 2000174 f
-// prog: b2 2000175 e b2 2000176 15 b6 2000177 14 b6 40000bf 2e 2e 40000d8 35 35
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 19 1a 1f 29 34 36 33 3a 6e 38 3b 7a 39 3d 88 3e
+// prog: 3f 8f 41 40 96 43 46 90 49 2000003d 50 58 5f 62 5d 68
+// prog: 69 60 73 138 65 77 13c 66 78 143 6d 7b 149 74 7d 154
+// prog: 79 8c 133 82 2000003d a2 85 ce cf 89 d2 d6 8a d9 1df 8b
+// prog: da 1bf 94 e4 e5 95 e9 1a0 99 f2 1aa 9d f7 f8 ba fe
+// prog: ff bc 115 1f7 bd 117 209 cb 11f 121 d7 124 1dc db 126 1eb
+// prog: 1000012 13 18 100001c 2b 2f 1000045 4d 4a 1000052 57 5e 100005b 63 64 100007c
+// prog: a1 8e 1000084 bf cc 1000087 d0 d1 100009c f3 f5 10000a8 f9 fd 2000048 20000004
+// prog: 4c 2000081 20000004 9e 200008d 22 df 2000091 23 e1 2000093 20000000 dc 2000097 20000004 e6
+// prog: 200009a 20000004 ed 20000c3 20 11a 20000c7 21 11e 20000c8 20000000 118 20000d8 20000004 122 20000dd
+// prog: 20000004 125 400004b 51 51 4000083 a5 a5 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 1a 3c 1c 1f 86 12 2b 112 19 2f 33 150 34 38 18e 3d
+// prog: 43 47 3f 45 c6 4d 37 5b 50 67 52 51 e7 58 57 60
+// prog: 16b 5e 65 1a4 64 79 92 68 7c 14a 78 44 87 7a c1 84
+// prog: 7b c2 85 7d 8d 91 8e 95 97 8f 99 9a 9e 0 a8 a1
+// prog: 1d 9c a2 1e 9d a5 c3 c7 ce d7 d8 cf db dd 1000018 29
+// prog: 42 1000040 4b 53 100004c 5d 7e 1000069 83 bb 1000077 89 a6 1000096 ba 103
+// prog: 2000013 20000010 19 2000036 26 3e 200003a 27 41 200003b 20000000 39 2000046 20000004 49 200004a
+// prog: 20000010 58 200005f 24 6d 2000062 25 74 2000063 20000000 66 200006e 20000004 82 2000073 20000010
+// prog: 85 2000088 8 8a 200008c 9 8b 2000090 20000010 9d 20000bf 2 bc 20000cc 3 bd
+// prog: 20000d0 cb aa 20000d1 94 ae 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 42 c d 43 13 19 44 1d 1f 4a 1 c0 4c c2
-// prog: c3 57 cb cc 58 ce cf 59 d1 d2 5f c8 d9 61 db dc
-// prog: 74 e1 f1 75 1c f2 89 f9 109 8a 1e 10a 96 113 20000037 97
-// prog: 114 20000038 98 115 20000039 99 2000003a 116 9a 118 119 9b 11a 11b 9c 11c
-// prog: 11d 17b 2000001d 112 17e 12b 20000042 17f 20000038 12c 180 20000039 12d 181 20000043 12e
-// prog: 182 130 131 183 132 133 184 134 135 195 2000000d 12a 198 20000037 143 199
-// prog: 20000038 144 19a 20000039 145 19b 2000003a 146 19c 148 149 19d 14a 14b 19e 14c
-// prog: 14d 1af 2000001d 142 1b2 20000042 15b 1b3 20000038 15c 1b4 20000039 15d 1b5 20000043 15e
-// prog: 1b6 160 161 1b7 162 163 1b8 164 165 1c9 2000000d 15a 1000047 bd be 100004b
-// prog: 28 c1 100004d c5 c4 100005c d6 d7 1000060 2f da 1000062 de dd 1000071 f0
-// prog: ef 1000077 f5 f6 1000086 108 107 100008c 10d 10e 200002e 40000001 1 2000035 40000001 0
-// prog: 2000045 2000000e 1 2000046 2000000d 0 2000048 2000000f 0 2000049 2000000f 1 200004e 5 0 200004f
-// prog: 4 0 2000050 20000013 c6 2000051 20000015 c6 2000052 20000016 c6 2000053 20000017 c6 2000054 20000019
-// prog: c6 2000055 40000004 c8 2000056 40000004 c7 200005a 2000000e c8 200005b 2000001d c7 200005d 2000000f c7
-// prog: 200005e 2000000f c8 2000063 b c7 2000064 a c7 2000065 2000001f df 2000066 20000015 df 2000067
-// prog: 20000016 df 2000068 20000020 df 2000069 20000019 df 200006a 40000007 e1 200006b 40000007 e0 200006f 2000000e
-// prog: e1 2000070 2000000d e0 2000072 2000000f e0 2000073 2000000f e1 2000078 11 e0 2000079 10 e0
-// prog: 200007a 20000013 f7 200007b 20000015 f7 200007c 20000016 f7 200007d 20000017 f7 200007e 20000019 f7 200007f
-// prog: 4000000a f9 2000080 4000000a f8 2000084 2000000e f9 2000085 2000001d f8 2000087 2000000f f8 2000088 2000000f
-// prog: f9 200008d 17 f8 200008e 16 f8 200008f 2000001f 10f 2000090 20000015 10f 2000091 20000016 10f
-// prog: 2000092 20000020 10f 2000093 20000019 10f 2000094 17 110 2000095 16 111 200009d 17 120 200009e
-// prog: 16 121 200009f 16 120 20000a0 17 121 20000a1 17 11e 20000a2 16 11f 20000a3 16
-// prog: 11e 20000a4 17 11f 20000a5 17 124 20000a6 16 125 20000a7 16 124 20000a8 17 125
-// prog: 20000a9 17 122 2000178 16 123 2000179 16 122 200017a 17 123 200017c 11 128 200017d
-// prog: 10 129 2000185 11 138 2000186 10 139 2000187 10 138 2000188 11 139 2000189 11
-// prog: 136 200018a 10 137 200018b 10 136 200018c 11 137 200018d 11 13c 200018e 10 13d
-// prog: 200018f 10 13c 2000190 11 13d 2000191 11 13a 2000192 10 13b 2000193 10 13a 2000194
-// prog: 11 13b 2000196 b 140 2000197 a 141 200019f b 150 20001a0 a 151 20001a1 a
-// prog: 150 20001a2 b 151 20001a3 b 14e 20001a4 a 14f 20001a5 a 14e 20001a6 b 14f
-// prog: 20001a7 b 154 20001a8 a 155 20001a9 a 154 20001aa b 155 20001ab b 152 20001ac
-// prog: a 153 20001ad a 152 20001ae b 153 20001b0 5 158 20001b1 4 159 20001b9 5
-// prog: 168 20001ba 4 169 20001bb 4 168 20001bc 5 169 20001bd 5 166 20001be 4 167
-// prog: 20001bf 4 166 20001c0 5 167 20001c1 5 16c 20001c2 4 16d 20001c3 4 16c 20001c4
-// prog: 5 16d 20001c5 5 16a 20001c6 4 16b 20001c7 4 16a 20001c8 5 16b 400006c e4
-// prog: e4 400006d e7 e7 400006e ea ea 4000076 f3 f3 4000081 fc fc 4000082 ff ff
-// prog: 4000083 102 102 400008b 10b 10b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 c 42 12 d 43 1b 13 44 ba 1f bc 49 d9 57
-// prog: cd da 58 d0 db 59 d3 de d5 5e 113 ee 73 129 106 88
-// prog: 140 99 117 146 9f a0 149 a3 a4 14b a7 a8 14d 179 17a 14e
-// prog: 2000003d 98 15b 181 12f 162 187 188 164 18b 18c 166 18f 190 168 193
-// prog: 194 169 2000003d 180 1d0 19b 147 1d6 1a1 1a2 1d8 1a5 1a6 1da 1a9 1aa
-// prog: 1dc 1ad 1ae 1dd 2000003d 19a 1e8 1b5 15f 1ee 1bb 1bc 1f0 1bf 1c0 1f2
-// prog: 1c3 1c4 1f4 1c7 1c8 1f5 2000003d 1b4 1000019 45 46 100001d 48 bb 1000028 bf
-// prog: 47 10000dc 5a 5b 10000dd 5d d4 10000e4 d8 5c 100010d 6c e5 100010e 6d e8
-// prog: 1000110 6e eb 1000111 6f 70 1000112 72 ed 1000114 3b 71 1000115 76 f4 1000122
-// prog: 81 fd 1000123 82 100 1000124 83 103 1000125 84 85 1000128 87 105 100012a 41
-// prog: 86 100012b 8b 10c 1000138 94 95 1000145 9d 9e 1000148 a1 a2 100014a a5 a6
-// prog: 100014c a9 178 1000153 17c 17d 1000161 185 186 1000163 189 18a 1000165 18d 18e 1000167
-// prog: 191 192 10001ca 196 197 10001d5 19f 1a0 10001d7 1a3 1a4 10001d9 1a7 1a8 10001db 1ab
-// prog: 1ac 10001e2 1b0 1b1 10001ed 1b9 1ba 10001ef 1bd 1be 10001f1 1c1 1c2 10001f3 1c5 1c6
-// prog: 200002f 4 4a 20000bd 5 4a 20000be 40000002 4d 20000c0 40000002 4c 20000c1 20000011 4c 20000c2
-// prog: 20000012 4d 20000c3 20000012 4c 20000c4 20000014 4d 20000c5 20000013 4c 20000cb 20000015 4d 20000cc 20000017
-// prog: 4b 20000ce 20000019 4b 20000cf 20000018 4d 20000d1 20000018 4c 20000d2 20000019 4d 20000d6 20000017 4c
-// prog: 20000d7 2000001a 4b 20000e7 a 5f 20000ea b 5f 20000ef 40000005 62 20000f0 40000005 61 20000f1
-// prog: 20000011 61 20000f2 2000001e 62 20000f3 2000001e 61 20000f5 20000014 62 20000f6 2000001f 61 20000fc 20000015
-// prog: 62 20000ff 20000020 60 2000102 20000019 60 2000107 20000021 62 2000108 20000021 61 2000109 20000019 62
-// prog: 200010a 20000020 61 200010b 2000001a 60 2000116 10 74 2000118 11 74 2000119 40000008 77 200011a
-// prog: 20000012 77 200011b 20000014 77 200011c 20000015 77 200011d 20000017 75 200011e 20000019 75 200011f 20000018
-// prog: 77 2000120 20000019 77 2000121 2000001a 75 200012c 16 89 200012d 17 89 200012e 4000000b 8c
-// prog: 2000130 2000001e 8c 2000131 20000014 8c 2000132 20000015 8c 2000133 20000020 8a 2000134 20000019 8a 2000135
-// prog: 20000021 8c 2000136 20000019 8c 2000137 2000001a 8a 2000139 17 96 200013a 16 97 200013b 16
-// prog: 96 200013c 17 97 200013d 20000010 98 2000141 16 9b 2000142 17 9c 2000143 16 9a
-// prog: 2000144 17 9a 200014f fa 17b 2000150 20000004 17b 2000151 14 17b 2000152 20000000 17b 2000154
-// prog: 11 17e 2000155 10 17f 2000158 10 17e 2000159 11 17f 200015a 20000010 180 200015c 10
-// prog: 183 200015d 11 184 200015e 10 182 2000160 11 182 200016a e2 195 200016b 20000004 195
-// prog: 200016c e 195 200016d 20000000 195 20001cb b 198 20001cc a 199 20001cd a 198 20001ce
-// prog: b 199 20001cf 20000010 19a 20001d1 a 19d 20001d2 b 19e 20001d3 a 19c 20001d4 b
-// prog: 19c 20001de c9 1af 20001df 20000045 1af 20001e0 8 1af 20001e1 20000000 1af 20001e3 5 1b2
-// prog: 20001e4 4 1b3 20001e5 4 1b2 20001e6 5 1b3 20001e7 20000010 1b4 20001e9 4 1b7 20001ea
-// prog: 5 1b8 20001eb 4 1b6 20001ec 5 1b6 20001f6 6 1c9 20001f7 20000045 1c9 20001f8 2
-// prog: 1c9 20001f9 20000000 1c9 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1b d 2d 3b 13 19 59 4e 2f 5b c1 c2 5c c3
-// prog: c4 5d c5 cb 6e da 34 6f db dc 87 63 e7 89 f1 f2
-// prog: 8b f3 f5 94 f6 fc 98 10d e6 99 10e e9 9a 110 ec a7
-// prog: 78 116 d3 122 fe d4 123 101 d5 124 104 10c 8d 12c 184 13b
-// prog: 13c 185 141 142 18a 20000007 138 18b 2000000f 145 18c 2000000f 14b 19a 158 159
-// prog: 19b 15c 15d 1a0 20000007 153 1a1 2000000f 161 1a2 2000000f 166 1b5 1cd 1ce 1b6
-// prog: 1d1 1d2 1bb 20000007 1ca 1bc 2000000f 1d5 1bd 2000000f 1da 1ff 1e5 1e6 200 1e9
-// prog: 1ea 205 20000007 1e2 206 2000000f 1ed 207 2000000f 1f2 1000012 c 2c 100005a bd 4f
-// prog: 100005e 53 cf 100005f d1 54 100006c d2 d6 100006d d9 33 1000088 ea 64 1000095
-// prog: 68 107 1000096 108 69 1000097 109 10a 10000a8 118 79 10000bf 7d 11f 1000117 12d
-// prog: 8e 1000179 92 135 1000183 139 13a 1000199 154 155 10001b4 1cb 1cc 10001fe 1e3 1e4
-// prog: 2000041 1 28 2000042 18 1f 2000043 18 1d 2000044 0 28 2000045 0 1f 2000046
-// prog: 1 1d 2000047 2a 28 2000048 2b 1f 2000049 2b 1d 200004a 29 28 2000057 29
-// prog: 1f 2000058 2a 1d 2000070 c8 e4 2000071 1a de 2000072 1a dd 2000073 c7 e4
-// prog: 2000074 c7 de 2000076 c8 dd 2000081 31 e4 2000082 32 de 2000083 32 dd 2000084
-// prog: 30 e4 2000085 30 de 2000086 31 dd 200009b e1 114 200009c 1c 113 200009d 1c
-// prog: 112 200009e e0 114 200009f e0 113 20000a0 e1 112 20000a1 37 114 20000a2 38 113
-// prog: 20000a3 38 112 20000a4 36 114 20000a5 36 113 20000a6 37 112 20000a9 40000008 115 20000ba
-// prog: 20000011 115 20000bb 20000012 115 20000bc 20000013 115 20000cd 20000018 115 20000d0 20000017 115 20000d8 f9
-// prog: 12a 20000e5 1e 129 20000e8 1e 128 20000eb f8 12a 20000ed f8 129 20000ee f9 128
-// prog: 20000f4 3d 12a 20000fd 3e 129 2000100 3e 128 2000103 3c 12a 2000105 3c 129 2000106
-// prog: 3d 128 200012f 4000000b 12b 2000147 20000011 12b 200015f 2000001e 12b 2000178 2000001f 12b 200017a 20000021
-// prog: 12b 200017c 20000020 12b 200017d 12e 20000031 200017e 12e 2000001e 200017f 12e 2000003a 2000180 12e 20000032
-// prog: 2000181 12e 20000034 2000182 20000020 12e 2000186 17 140 2000187 16 140 2000188 20000010 146 2000189
-// prog: 20000010 14b 200018d fb 14e 200018e 20000004 14e 2000190 15 14e 2000191 20000000 14e 2000192 119
-// prog: 20000031 2000193 119 20000012 2000194 119 20000043 2000196 119 20000032 2000197 119 20000041 2000198 20000017 119
-// prog: 200019c 11 15b 200019d 10 15b 200019e 20000010 162 200019f 20000010 166 20001a3 e3 169 20001a4
-// prog: 20000004 169 20001a6 f 169 20001a7 20000000 169 20001a8 ef 20000031 20001a9 f0 2000001e 20001aa ef
-// prog: 2000001e 20001ab f0 20000014 20001ac ef 2000003a 20001ad ef 20000032 20001ae f0 20000033 20001b0 ef 20000034
-// prog: 20001b1 f0 20000035 20001b2 20000020 ef 20001b3 f0 20000036 20001b7 b 1d0 20001b8 a 1d0 20001b9
-// prog: 20000010 1d6 20001ba 20000010 1da 20001be ca 1dd 20001bf 20000045 1dd 20001c0 9 1dd 20001c1 20000000
-// prog: 1dd 20001c2 be 20000031 20001c3 c0 20000012 20001c4 be 20000012 20001c5 c0 20000014 20001c6 be 20000043
-// prog: 20001c7 be 20000032 20001c8 c0 20000040 20001fa be 20000041 20001fb c0 20000035 20001fc 20000017 be 20001fd
-// prog: c0 20000036 2000201 5 1e8 2000202 4 1e8 2000203 20000010 1ee 2000204 20000010 1f2 2000208 7
-// prog: 1f5 2000209 20000045 1f5 200020a 3 1f5 200020b 20000000 1f5 400018f 151 151 40001a5 16c 16c
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 19 41 42 2d 5b 50 2f 5c 51 33 5d 52 8e 70
-// prog: 71 c7 89 65 c8 8b 66 cb 94 67 dc 98 39 de 9a 111
-// prog: e7 a3 a4 f1 ba 11a f2 bb 11b f3 bc 11c 107 d3 3f 109
-// prog: d5 125 112 100 103 118 147 130 11f 15f 131 122 178 132 142 187
-// prog: 144 146 2000001b 183 14b 2000000d 188 151 2000000e 189 162 19d 160 16c 20000008 199
-// prog: 1ca 2000001d 19e 1cb 2000000e 19f 1e2 1b8 1d4 1e4 2000001b 1b4 1e5 2000000d 1b9 1e6
-// prog: 2000000e 1ba 1e9 1e0 1c0 20f 202 1ec 211 20000008 1fe 212 2000001d 203 213 2000000e
-// prog: 204 215 1f8 20a 100001c 45 46 100001d 47 48 100001e 49 4a 100001f 57 58
-// prog: 1000064 d7 6c 10000bd 74 76 10000c1 81 82 10000c2 83 84 10000c3 85 86 10000db
-// prog: 10b 97 10000dd 99 3a 10000e0 9b 9c 10000e1 9d 9e 10000e4 9f a0 10000e9 a6
-// prog: a5 10000fc cd 7e 10000fe 120 d0 1000108 d4 40 100010a d8 e5 100010d e8 eb
-// prog: 100010e ed ee 1000113 106 105 100012a 17a 93 100012c 136 17c 1000140 184 13d 1000141
-// prog: 186 143 1000153 18d 14f 1000154 18f 190 100015d 19a 15a 1000161 19c 15e 10001cc 1a3
-// prog: 16a 10001cd 1a5 1a6 10001ce 1a8 1a9 10001d0 1aa 1ab 10001d1 1ad 1ae 10001d2 1b0 1b1
-// prog: 10001d5 1b2 1b3 10001d6 1b5 1cf 10001da 1b7 1d3 10001e8 1de 1be 10001ea 1c2 1c3 10001ed
-// prog: 1c4 1c5 10001ee 1c7 1c8 10001f2 1fa 1fb 100020c 1fc 1fd 100020d 1ff 1e7 100020e 201
-// prog: 1eb 1000214 1f6 208 2000000 2a 3b 2000001 2b 1b 200000c 2b 12 200000d 29 3b
-// prog: 2000013 29 1b 2000018 2a 12 2000028 40000002 5a 200002c 40000002 59 2000034 20000018 5a 200004e
-// prog: 20000018 59 200004f 20000019 5a 2000053 20000017 59 2000054 2000001a 59 2000063 2000001a 5a 2000068 31
-// prog: 6f 2000069 32 6e 2000078 32 6d 2000079 30 6f 200007d 30 6e 200008d 31 6d
-// prog: 20000c4 40000005 88 20000c5 40000005 87 20000cf 20000021 88 20000d1 20000021 87 20000d2 20000019 88 20000d6
-// prog: 20000020 87 20000d9 2000001a 87 20000da 2000001a 88 20000ea 40000008 a8 20000ec 40000008 a7 20000f5 20000018
-// prog: a8 20000f6 20000018 a7 20000f8 20000019 a8 20000f9 20000017 a7 2000101 2000001a a7 2000104 2000001a a8
-// prog: 2000114 4000000b 117 2000116 4000000b 10c 2000123 20000021 117 2000124 20000021 10c 2000128 20000019 117 2000129
-// prog: 20000020 10c 200012d 2000001a 10c 2000135 2000001a 117 2000138 12f 2000001e 2000139 12f 20000014 200013a 12f
-// prog: 20000033 200013b 12f 20000035 200013c 12f 20000036 2000145 20000010 185 2000155 a9 20000012 2000158 a9 20000014
-// prog: 2000159 a9 20000040 200015b a9 20000035 200015c a9 20000036 2000166 20000010 19b 20001e3 20000010 1b6 2000210
-// prog: 20000010 200 400001a 43 43 4000092 72 72 40000e6 a1 a1 4000110 f4 f4 8000000 0
+// prog: 0 1b 13 12 75 18 19 1a 2a 1c 1f 31 1d 2b 32 1e
+// prog: 36 3a 37 3f 48 38 40 5c 39 61 4a 3c 59 4c 3e 4d
+// prog: 6c 41 50 71 42 51 72 43 5f 62 47 68 81 49 69 98
+// prog: 4b 9b 73 52 4e 77 53 78 9f 58 7a a4 5b 7b a7 60
+// prog: 88 8c 65 20000003 8e 66 ee 90 67 1 96 6d 9e f6 74 a1
+// prog: 101 79 a2 102 7e bf cc 82 20000003 ce 100005d 7d 15f 100007c a5 18d
+// prog: 2000029 14 2f 2000033 15 34 2000044 e 57 2000045 f 5e 2000083 cf 20000005 2000084
+// prog: 8f 20000005 2000085 64 b2 2000086 3d b6 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 1 76 0 13 12 2d 18 d5 1e 1b 38 46 1f 20000003 37 2a
+// prog: 5a 39 2b 3c 6f 2f 120 43 32 49 6e 34 20000003 47 36 4f
+// prog: 4b 3a 52 a0 3d 60 93 40 c 66 48 67 fc 4a 7e c8
+// prog: 200003f 20000004 5d 200004c 20000004 7c 200004d 82 ab 200004e 65 af 400001a 29 29 4000031
+// prog: 44 44 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 6c f1 7a 6d f2 7b 6e f3 7c 89 118 8f 8b 11f
-// prog: 90 93 122 91 cd 2000001c 141 d0 2000000a 140 d3 2000000b 142 d4 2000000c 145
-// prog: d5 154 20000028 111 20000009 161 11a 2000000a 15d 11b 2000000b 162 11c 2000000c 166 120
-// prog: 20000028 1cd 147 2000001c 1da 14f 2000000a 1d6 15a 2000000b 1e2 15e 2000000c 1e3 15f 1e9
-// prog: 20000046 186 20000009 20e 187 2000000a 20d 188 2000000b 20f 189 2000000c 210 18d 20000046 215
-// prog: 1000012 0 1 100001b c d 1000029 13 18 100002a 1a 44 100002b cc 34 1000030
-// prog: 4e ce 1000031 4f 53 1000032 54 5e 1000039 63 5f 1000041 68 69 1000042 78
-// prog: 79 1000043 7d 8d 1000045 92 73 1000046 ff cf 1000047 d1 102 1000048 d2 d6
-// prog: 1000049 d9 95 100004a da 96 1000067 e6 a2 100006f 11d f5 1000070 f6 11e 1000071
-// prog: f8 f9 1000072 101 bf 1000074 104 fc 1000076 121 fe 1000086 110 fd 1000094 133
-// prog: 123 1000097 124 134 1000098 128 129 1000099 12d 179 100009a 135 12a 100009b 137 12c
-// prog: 100009c 17d 138 100009f 17e 139 10000a3 180 13a 10000a6 181 13b 10000bc 182 13c 10000d7
-// prog: 192 155 10000e8 193 158 10000ee 196 159 1000103 197 15b 100010b 198 15c 200003a 5a
-// prog: 64 200003b 59 64 200003f 4d 64 2000040 4c 64 2000050 88 db 2000051 87 db
-// prog: 2000052 62 db 2000057 61 db 2000058 37 de 200005b 38 dd 200005c 38 dc 200005d
-// prog: 36 de 2000065 36 dd 2000066 37 dc 200007e 3d 109 2000081 3e 108 2000082 3e
-// prog: 107 2000083 3c 109 2000084 3c 108 2000085 3d 107 200009d 114 20000032 200009e 116 20000034
-// prog: 20000a0 114 20000033 20000a1 116 20000035 20000a4 114 2000001a 20000a5 116 2000003b 20000ba 114 2000003b 20000bb
-// prog: 116 2000003c 20000d8 ea 20000032 20000e5 ec 20000041 20000eb ea 20000040 20000ed ec 20000035 20000f4 ea
-// prog: 2000001a 2000100 ec 20000044 2000105 ea 20000044 2000106 ec 2000003c 2000125 c4 20000032 2000130 c5 20000034
-// prog: 2000131 c4 20000033 2000132 c5 20000035 2000136 c4 2000001a 200013d c5 2000003b 2000143 c4 2000003b 2000144
-// prog: c5 2000003c 2000160 28 20000032 200016a 2c 20000041 2000178 28 20000040 200017a 2c 20000035 200017c 28
-// prog: 2000001a 2000183 2c 20000044 2000184 28 20000044 2000185 2c 2000003c 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 0 12 19 1 1b 2a c 29 1c d 2d 2b 13 2f
-// prog: 30 18 33 31 44 41 8e 4e 42 45 4f 43 bd 53 c7 46
-// prog: 54 c8 47 5e cb 48 7b 5c 5d 7d 6c 6f 8d 6d 70 8f
-// prog: 6e 71 d9 82 83 db 89 94 dc 8b 97 dd 93 98 ff 9c
-// prog: 9d 101 9f a0 102 a3 a4 104 a6 ba 108 d7 d8 109 e8 eb
-// prog: 110 ee f4 118 103 105 11e 1ce 125 11f 1d0 131 121 1d1 136 122
-// prog: 1d2 143 124 1ea 160 128 1ed 178 129 1ee 17c 12a 1f2 184 100007c 66
-// prog: 65 10000da 85 84 200001a 4b 39 2000034 4b 32 2000036 59 39 2000037 5a 32
-// prog: 2000038 c6 39 200003c c6 32 200003d 4c 39 200003e 4d 32 200005f 60 4a 2000063
-// prog: 60 49 2000064 87 4a 2000068 88 49 2000069 df 4a 2000073 df 49 2000078 61
-// prog: 4a 2000079 62 49 2000090 a8 76 2000091 75 74 2000092 75 72 2000095 a7 76
-// prog: 2000096 a7 74 20000a2 a8 72 20000bf 77 76 20000cc f7 74 20000ce f7 72 20000cf
-// prog: 115 76 20000d1 115 74 20000d2 77 72 20000de 117 9b 20000e6 8a 9a 20000f1 8a
-// prog: 99 20000f2 10c 9b 20000f3 10c 9a 20000f5 117 99 20000f6 8c 9b 20000f8 10f 9a
-// prog: 20000f9 10f 99 20000fc 12b 9b 20000fd 12b 9a 20000fe 8c 99 3000107 20000030 d4 300011d
-// prog: 20000030 11c 3000123 20000030 15e 300012c 20000030 189 400007a 58 58 40000d6 7e 7e 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: c 1 30 2d 2a 70 3c 36 a3 43 3d 3f 46 40 100 47
+// prog: 4a 4c 1000000 5000000a 1 1000012 1a 33 1000029 50000007 2a 1000037 31 45 1000039 50000004
+// prog: 36 1000044 50000001 40 1000049 4d d0 100004b 4e d1 200001e 20000004 18 2000038 20000004 2f
+// prog: 200004f 34 b3 2000050 32 20000005 2000051 1f b7 2000052 1b 20000005 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 59 7b e1 5a 7c e4 75 d9 10d 76 da 10e 100002b 3a
-// prog: 1a 100002d 34 3b 100002f 36 37 1000030 3f 38 1000031 3c 40 1000032 3d 3e
-// prog: 1000046 50 5f 1000047 63 51 1000048 64 68 1000049 52 69 100004a 73 57 100004b
-// prog: 78 79 1000058 7a 5b 100006d 90 91 100006e 92 95 100006f 96 a2 1000070 bf
-// prog: cc 1000071 ce cf 1000072 d1 d2 1000074 d6 81 1000088 de e6 1000089 f1 f2
-// prog: 100008a f3 f5 100008b f6 f8 100008e f9 fc 1000093 fd fe 1000094 ff 9e 1000097
-// prog: 101 a1 1000098 102 a5 1000099 104 bb 10000a0 108 e5 10000a3 109 ed 10000a4 110
-// prog: 100 10000a6 118 106 10000c8 11e 130 10000cb 11f 132 10000d7 121 13d 10000d8 122 144
-// prog: 1000105 124 16a 100010c 128 17a 1000117 129 183 1000125 12a 185 2000012 4d 18 2000019
-// prog: c6 13 200001b c6 d 200001c 4c 18 2000029 4c 13 200002a 4d d 2000033 62
-// prog: 5e 2000039 df 54 2000041 df 53 2000042 61 5e 2000043 61 54 2000045 62 53
-// prog: 200005c 77 8f 200005d f7 8d 2000060 f7 7d 2000065 115 8f 2000066 115 8d 200006c
-// prog: 77 7d 200007e 8c dd 2000082 10f dc 2000083 10f db 2000084 12b dd 2000085 12b
-// prog: dc 2000087 8c db 200009a cd 107 200009b d3 107 200009c d4 107 200009d 14b 107
-// prog: 200009f 151 107 20000a7 111 11d 20000a8 11b 11d 20000ba 11c 11d 20000bd 1ca 11d 20000c7
-// prog: 1cb 11d 20000e8 147 123 20000eb 15a 123 20000ee 15e 123 20000f4 1e5 123 2000103 1e6
-// prog: 123 200012d 186 12c 2000131 188 12c 2000133 189 12c 2000134 212 12c 2000135 213 12c
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 18 12 3b 1b 37 63 2a 20000002 43 30 20000002 47 31 49 83 32
+// prog: 4b 84 1000033 4f 85 1000034 51 86 2000001 107 0 200001a 11d 29 200001f 123
+// prog: 39 200002f 12c 44 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 37 58 e0 3c 74 10a 40 8b 98 4c 8e 99 4d 93
-// prog: bc 73 70 a4 77 71 a6 78 72 10b a1 49 d7 a2 4a d8
-// prog: a5 4b 1d5 df 30 117 e1 31 125 e4 32 20c 100000d 12 19 1000013
-// prog: 1b 1c 1000018 29 2a 100001a 33 39 1000034 41 42 1000036 43 45 1000038 5c
-// prog: 5d 100003a 60 65 100003b 66 6c 100003d 7e 82 100003e 83 84 100003f 85 87
-// prog: 2000050 cd 9a 2000051 d3 9a 2000052 d4 9a 2000053 14b 9a 2000054 151 9a 2000057
-// prog: d3 9b 200005b d4 9b 200005e 14b 9b 200005f 151 9b 2000061 d4 9c 2000062 14b
-// prog: 9c 2000063 151 9c 2000064 14b 9d 2000068 151 9d 2000069 151 9f 2000079 111 a7
-// prog: 200007a 11b a7 200007b 11c a7 200007c 1ca a7 200007d 1cb a7 2000081 11b a8 200008c
-// prog: 11c a8 200008d 1ca a8 200008f 1cb a8 2000090 11c ba 2000091 1ca ba 2000092 1cb
-// prog: ba 2000095 1ca bd 2000096 1cb bd 200009e 1cb c7 20000bb 147 e8 20000bf 15a e8
-// prog: 20000c6 15e e8 20000cc 1e5 e8 20000ce 1e6 e8 20000cf 15a eb 20000d1 15e eb 20000d2
-// prog: 1e5 eb 20000d6 1e6 eb 20000d9 15e ee 20000da 1e5 ee 20000db 1e6 ee 20000dc 1e5
-// prog: f4 20000dd 1e6 f4 20000de 1e6 103 20000e5 186 12d 20000e6 188 12d 20000ed 189 12d
-// prog: 20000f1 212 12d 20000f2 213 12d 20000f3 188 131 20000f5 189 131 20000f6 212 131 20000f7
-// prog: 213 131 20000f8 189 133 20000f9 212 133 20000fc 213 133 20000fd 212 134 20000fe 213
-// prog: 134 20000ff 213 135 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 12 d 2b 19 13 2d 1b 18 2f 1c 1a 46 29 34
-// prog: 47 2a 36 48 30 38 6d 31 3a 6e 32 3b 6f 33 3d 88
-// prog: 39 3e 89 41 3f 8a 43 113 4d 82 e9 78 a7 c3 a5 104
-// prog: 1f e4 1000045 18a 50 1000049 146 51 100004a cd 52 100004b 148 53 1000058 14c
-// prog: 54 100005c d0 57 100005d d3 5b 1000060 149 5e 1000065 14d 5f 1000066 d4 61
-// prog: 100006c 14b 62 1000070 151 63 1000071 18b 64 1000072 14a 68 1000074 18c 69 1000083
-// prog: 1a0 79 1000084 16c 7a 1000085 111 7b 1000087 163 7c 100008b 167 7d 100008e 11a
-// prog: 81 1000093 11b 8c 1000098 164 8d 1000099 168 8f 100009a 11c 90 100009b 1ca 91
-// prog: 100009c 1cb 92 100009d 1a1 95 100009f 165 96 10000a4 1a2 9e 10000a8 1bb bb 10000ba
-// prog: 1e4 bf 10000bc 147 c6 10000bd 1d7 cc 10000c7 1db ce 10000d7 14f cf 10000d8 15a
-// prog: d1 10000e0 1d8 d2 10000e8 1dc d6 10000eb 15e d9 10000ee 1e5 da 10000f4 1e6 db
-// prog: 1000100 1bc dc 1000101 1d9 dd 1000102 1bd de 1000106 205 e5 1000108 211 e6 1000109
-// prog: 186 ed 100010a 1ef f1 100010b 1f3 f2 100010d 187 f3 100010e 188 f5 100010f 1f0
-// prog: f6 1000110 1f4 f7 1000115 189 f8 1000117 212 f9 1000118 213 fc 100011e 206 fd
-// prog: 100011f 1f1 fe 1000121 207 ff 2000042 20000010 4d 200007e 20000010 78 20000a6 20000010 a5 2000103
-// prog: 20000010 e4 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 3f 18 1e 4a 1b 38 5f 33 50 60 34 52 2000012 cd 1 2000036
+// prog: d3 1 2000037 d4 1 200003b 14b 1 200003d 151 1 2000040 111 1a 2000043 11b
+// prog: 1a 2000045 11c 1a 2000047 1ca 1a 2000049 1cb 1a 200004b 147 1f 200004c 15a 1f
+// prog: 200004d 15e 1f 200004e 1e5 1f 200004f 1e6 1f 2000057 186 2f 2000059 188 2f 200005a
+// prog: 189 2f 200005c 212 2f 200005d 213 2f 3000051 2000003c 2a 300005e 2000003c 30 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25072,215 +24068,56 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 13 33 94 18 39 97 1a 41 17f 54 43 153 e4 30
-// prog: a0 e5 31 a3 e6 32 194 129 82 1cc 17a 1c c8 17c 29 cb
-// prog: 17d 2a 1ac 19b a7 1e8 1d9 12 105 1da 19 10c 1db 1b 1c6 1f8
-// prog: 104 214 100000d 5000000b 41 10000de 50000008 32 1000179 50000005 2a 10001d8 50000002 1b 200001f fa
-// prog: 45 200002b fb 49 200002d 7f 4b 200002f 80 58 2000034 fa 49 2000036 fb 5c
-// prog: 2000038 7f 60 200003a 80 65 200003b fa 4a 200003d fb 5d 200003e 7f 6c 200003f
-// prog: 80 70 2000046 fa 4b 2000047 fb 60 2000048 7f 71 200004d 80 72 2000050 fa
-// prog: 58 2000051 fb 65 2000052 7f 72 2000053 80 74 2000057 14 49 200005b 15 49
-// prog: 200005e 15 4b 200005f 14 60 2000061 15 58 2000062 14 65 2000063 26 4b 2000064
-// prog: 27 65 2000068 14 45 2000069 20000000 4a 200006d 4b 126 200006e 58 127 200006f 15
-// prog: 5c 2000078 20000000 5d 2000079 60 126 200007a 65 127 200007b 14 4a 200007c 15 5d
-// prog: 200007d 20000000 66 2000081 6c 126 2000088 70 127 2000089 14 4b 200008a 15 60 200008c
-// prog: 20000000 6c 200008d 71 126 200008f 72 127 2000090 14 58 2000091 15 65 2000092 20000000
-// prog: 70 2000095 72 126 2000096 74 127 200009e 15 6c 20000a5 14 70 20000bb 15 71
-// prog: 20000bf 14 72 20000c3 15 72 20000c6 14 74 20000cc 27 58 20000ce 26 60 20000cf
-// prog: 26 6c 20000d0 27 70 20000d1 26 71 20000d2 27 72 20000d6 26 72 20000d9 27
-// prog: 74 20000da 14 6c 20000db 15 70 20000dc 14 71 20000dd 15 74 20000e9 e2 83
-// prog: 20000ed e3 84 20000f1 6a 87 20000f2 6b 8b 20000f3 e2 84 20000f5 e3 8e 20000f6
-// prog: 6a 98 20000f7 6b 99 20000f8 e2 85 20000f9 e3 93 20000fc 6a 9b 20000fd 6b
-// prog: 9c 20000fe e2 87 20000ff e3 98 2000113 6a 9d 200011a 6b 9f 2000122 e2 8b
-// prog: 2000124 e3 99 2000125 6a 9f 2000128 6b a4 200012a e 84 200012b f 84 200012d
-// prog: f 87 2000130 e 98 2000131 f 8b 2000132 e 99 2000133 24 87 2000134 25
-// prog: 99 2000135 e 83 2000136 20000000 85 2000137 87 13e 2000138 8b 13f 2000139 f 8e
-// prog: 200013a 20000000 93 200013b 98 13e 200013c 99 13f 200013d e 85 2000140 f 93 2000141
-// prog: 20000000 9a 2000142 9b 13e 2000143 9c 13f 2000144 e 87 2000145 f 98 2000146 20000000
-// prog: 9b 2000148 9d 13e 2000149 9f 13f 200014a e 8b 200014c f 99 200014d 20000000 9c
-// prog: 200014f 9f 13e 2000154 a4 13f 2000155 f 9b 2000158 e 9c 2000159 f 9d 200015b
-// prog: e 9f 200015c f 9f 200015d e a4 2000160 25 8b 2000161 24 98 2000162 24
-// prog: 9b 2000163 25 9c 2000164 24 9d 2000165 25 9f 2000166 24 9f 2000167 25 a4
-// prog: 2000168 e 9b 200016a f 9c 200016c e 9d 2000178 f a4 200017e c9 a8 2000180
-// prog: ca ba 2000181 55 bd 2000182 56 c7 2000183 c9 ba 2000184 ca d7 2000185 55
-// prog: e0 2000187 56 e8 200018a c9 bc 200018b ca d8 200018c 55 ee 200018f 56 f4
-// prog: 2000190 c9 bd 2000192 ca e0 2000193 55 100 2000196 56 101 2000197 c9 c7 2000198
-// prog: ca e8 2000199 55 101 200019a 56 102 200019c 8 ba 200019d 9 ba 200019e 9
-// prog: bd 200019f 8 e0 20001a0 9 c7 20001a1 8 e8 20001a2 22 bd 20001a3 23 e8
-// prog: 20001a5 8 a8 20001a6 20000000 bc 20001a8 bd 156 20001a9 c7 157 20001aa 9 d7 20001ab
-// prog: 20000000 d8 20001ad e0 156 20001ae e8 157 20001b0 8 bc 20001b1 9 d8 20001b2 20000000
-// prog: eb 20001b3 ee 156 20001b4 f4 157 20001b5 8 bd 20001b6 9 e0 20001b7 20000000 ee
-// prog: 20001b8 100 156 20001b9 101 157 20001ba 8 c7 20001bb 9 e8 20001bc 20000000 f4 20001bd
-// prog: 101 156 20001be 102 157 20001c0 9 ee 20001c2 8 f4 20001c3 9 100 20001c4 8
-// prog: 101 20001c5 9 101 20001c7 8 102 20001c8 23 c7 20001cd 22 e0 20001ce 22 ee
-// prog: 20001cf 23 f4 20001d0 22 100 20001d1 23 101 20001d2 22 101 20001d3 23 102 20001d4
-// prog: 8 ee 20001d5 9 f4 20001d6 8 100 20001d7 9 102 20001dc 6 106 20001de 7
-// prog: 108 20001e0 2e 10a 20001e2 35 10b 20001e3 6 108 20001e4 7 10d 20001e7 2e 10f
-// prog: 20001e9 35 110 20001ea 6 109 20001eb 7 10e 20001ec 2e 117 20001ed 35 118 20001ee
-// prog: 6 10a 20001ef 7 10f 20001f0 2e 11e 20001f1 35 11f 20001f2 6 10b 20001f3 7
-// prog: 110 20001f4 2e 11f 20001f6 35 121 20001fa 2 108 20001fb 3 108 20001fc 3 10a
-// prog: 20001fd 2 10f 20001fe 3 10b 20001ff 2 110 2000200 20 10a 2000201 21 110 2000202
-// prog: 2 106 2000203 20000000 109 2000204 10a 16e 2000205 10b 16f 2000206 3 10d 2000207 20000000
-// prog: 10e 2000208 10f 16e 200020a 110 16f 200020c 2 109 200020d 3 10e 200020e 20000000 115
-// prog: 200020f 117 16e 2000210 118 16f 2000211 2 10a 2000215 3 10f 2000216 20000000 117 2000217
-// prog: 11e 16e 2000218 11f 16f 2000219 2 10b 200021a 3 110 200021b 20000000 118 200021c 11f
-// prog: 16e 200021d 121 16f 200021e 3 117 200021f 2 118 2000220 3 11e 2000221 2 11f
-// prog: 2000222 3 11f 2000223 2 121 2000224 21 10b 2000225 20 10f 2000226 20 117 2000227
-// prog: 21 118 2000228 20 11e 2000229 21 11f 200022a 20 11f 200022b 21 121 200022c 2
-// prog: 117 200022d 3 118 200022e 2 11e 200022f 3 121 8000000 0 0 8000000 0 0
+// prog: 1 12 19 18 36 13 1a 37 c 1b 3b 1c 1e 3d 1d 1f
+// prog: 20000002 3f 2a 40 3e 2f 43 2b 30 45 2d 33 47 41 34 49
+// prog: 42 38 20000002 4a 50 4b 53 52 4c 3a 61 4d 3c 62 4e 58
+// prog: 63 4f 5b 64 57 6d 65 59 48 66 5a 46 67 5c 74 68
+// prog: 5d 79 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 5c 63 cc 5d 64 ce 60 cf d0 65 d1 d2 66 d6
-// prog: d9 9d 133 160 9f 134 161 a0 162 163 a3 164 165 a4 166 167
-// prog: d7 19d 1a5 d8 19c 1aa e0 1b0 1b1 e8 1b5 1b6 eb 1ba 1bb 104
-// prog: 1a2 1c8 105 1a3 1cd 106 1ce 1cf 108 1d0 1d1 109 1d2 1d3 10a 1a0
-// prog: 1b5 10b 19f 1bb 10c 1d4 1d5 10d 1c5 1d6 10e 1c4 1d7 11f 1fb 202
-// prog: 121 1fa 206 126 20c 20d 127 211 215 13e 219 21a 16f 200 224 17f
-// prog: 201 225 194 226 227 1ac 228 229 1c6 22a 22b 1cc 1fe 211 1e8 1fd
-// prog: 21a 214 22c 22d 230 222 22e 231 221 22f 1000019 2b 1f 100001b 36 34
-// prog: 100001c 3d 3b 1000029 47 46 100002a 51 50 1000043 5e 90 1000045 8a 62 1000049
-// prog: 9e a5 100004b bb bf 1000058 c3 c6 1000072 ed e9 1000074 f5 f3 1000082 f9
-// prog: f8 1000083 ff fe 1000084 124 122 1000097 12d 14a 1000098 145 132 1000099 155 158
-// prog: 100009b 159 15b 100009c 15c 15d 10000bc 17e 180 10000bd 183 184 10000c7 18a 18b 10000c8
-// prog: 190 192 10000cb 197 198 10000ee 19e 1ba 10000f4 1b6 1a1 1000100 1c0 1c2 1000101 1c3
-// prog: 1c4 1000102 1c5 1c7 1000110 1dc 1de 1000115 1e3 1e4 1000117 1ea 1eb 1000118 1ee 1ef
-// prog: 100011e 1f2 1f3 100013f 1fc 219 1000153 215 1ff 1000156 21e 21f 1000157 220 221 100016e
-// prog: 222 223 2000012 20000047 d 2000071 20000047 de 20000ba 20000047 179 200010f 20000047 1d8 4000030 57
-// prog: 57 4000031 5f 5f 4000032 68 68 4000033 7b 7b 4000039 89 89 4000041 90 90
-// prog: 400004a bf bf 400006c da da 4000070 dc dc 4000085 12a 12a 4000087 130 130 400008b
-// prog: 135 135 400008e 13d 13d 4000093 144 144 4000094 14a 14a 400009a 15b 15b 40000a7 168
-// prog: 168 40000a8 16c 16c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 3d 19 2d 46 1b 38 47 1c 3e 50 29 48 51 2a
-// prog: 52 9e 17b 5c a5 14e 5d e9 72 f1 ed 74 f6 f3 82 fc
-// prog: f5 83 113 f8 84 125 134 195 9d 135 169 9f 165 bc 181 166
-// prog: bd 185 167 c7 18c 168 c8 193 16c cb 199 17e d7 1a6 180 d8
-// prog: 1ab 183 e0 1b2 184 e8 1b7 18a eb 1bc 1a1 10a 1e1 1a2 10b 1c1
-// prog: 1bb 110 1e0 1c0 115 1e7 1c2 117 1ec 1c3 118 1f0 1c4 11e 1f4 1c5
-// prog: 11f 203 1c7 121 207 1c8 126 20e 1cd 127 216 1ce 13e 21b 1de 1cc
-// prog: 1f9 1e3 1e8 20b 1000057 32 5b 100005e 30 6f 100005f 33 7c 1000062 39 8a
-// prog: 1000063 41 91 10000cc 39 61 10000ce 31 91 10000cf 6c db 10000d0 70 c3 10000d1
-// prog: 4a dd 10000f9 8b 12b 10000fe 85 139 10000ff 8e 140 1000122 93 145 1000124 94
-// prog: 14c 1000155 93 131 1000158 87 14c 1000159 a7 16a 100015b a8 15c 100015d 9a 178
-// prog: 100019c 104 1af 100019d 105 1dd 10001d4 16f 1c9 10001d5 17f 1f5 200001f 2000001f 12 200002b
-// prog: 20000015 12 2000034 20000016 12 2000036 20000017 12 200003b 20000019 12 2000064 26 4b 2000068 27
-// prog: 58 200007b 14 43 2000089 15 45 2000090 20000000 49 20000bb 26 65 20000bf 27 66
-// prog: 20000c6 20000000 60 20000d2 20000013 71 20000d6 20000015 71 20000d9 20000016 71 20000da 20000020 71 20000dc
-// prog: 20000019 71 200012a 24 9b 200012d 25 9c 2000130 e 97 2000132 f 98 2000133 20000000
-// prog: 99 200013d 24 a3 2000144 25 a4 200014a 20000000 a0 2000160 2000001f ba 2000161 20000015 ba
-// prog: 2000162 20000016 ba 2000163 20000017 ba 2000164 20000019 ba 200018b 22 101 2000190 23 102 2000192
-// prog: 8 ee 2000197 9 f4 2000198 20000000 100 200019e 22 108 200019f 23 109 20001a0 20000000
-// prog: 106 20001a3 22 10d 20001a5 23 10e 20001aa 20000000 10c 20001b0 20000013 10f 20001b1 20000015 10f
-// prog: 20001b5 20000016 10f 20001b6 20000020 10f 20001ba 20000019 10f 20001cf 20 157 20001d0 21 16e 20001d1
-// prog: 2 13f 20001d2 3 153 20001d3 20000000 156 20001d6 20 1ac 20001d7 21 1c6 20001dc 20000000
-// prog: 194 20001e4 20 230 20001ea 21 231 20001eb 20000000 214 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 12 1f 13 19 2b 18 1b 34 1a 1c 36 40 29 3b
-// prog: 4c 33 57 69 38 5e 78 39 5f 7d 3e 62 8c 41 63 92
-// prog: 43 64 68 48 bb bf 4b cc 152 52 ce 191 5d d2 e4 60
-// prog: d6 e5 61 d9 e6 65 da 73 66 dc 77 74 f9 136 7c fe
-// prog: 13a 82 ff 141 83 122 146 84 124 14d 85 12a 12d 8a 13d 144
-// prog: 91 155 16d 93 158 1a7 99 160 17a 9a 161 17c 9b 162 17d 9c
-// prog: 163 a1 9d 164 a2 a8 17e 1a8 ba 180 1ad bc 183 1b3 bd 184
-// prog: 1b8 c3 18a 1bd c7 18b 190 c8 192 197 cb 19e 19f db 1a3 1a5
-// prog: e8 1b0 1d9 eb 1b1 1da ee 1b5 1db f1 1b6 df f4 1ba e1 104
-// prog: 1c5 204 105 1c7 208 106 1c8 20f 108 1cd 217 109 1ce 21c 10a 1cf
-// prog: 1d0 10b 1d1 1d2 10c 1d6 1d7 10f 1e4 1ea 100002a 3d 2f 100002d 46 3a
-// prog: 1000030 47 3f 1000031 50 4d 1000032 51 53 100006c e9 f2 100006f ed f7 1000070
-// prog: f3 fd 1000071 f5 11a 1000072 f8 128 100009f 165 182 10000a0 166 187 10000a3 167
-// prog: 18f 10000a4 168 196 10000a7 16c 19a 10000f6 1bb 1e2 10000fc 1c0 1e9 1000100 1c2 1ed
-// prog: 1000101 1c3 1f1 1000102 1c4 1f6 2000049 14 9e 200004a 15 a5 2000058 26 d0 200005b
-// prog: 27 d1 200005c 20000000 cf 200008b e 134 200008e f 135 2000094 24 15b 2000097 25
-// prog: 15d 2000098 20000000 159 20000d7 8 19c 20000d8 9 19d 20000dd 8 1a1 20000e0 9 1a2
-// prog: 200010d 2 1d4 200010e 3 1d5 2000110 2 1de 2000113 3 1e3 4000045 7b 7b 4000087
-// prog: 130 130 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 200000c 26 1b 2000012 27 1e 2000013 14 1 2000019 15 18 200001c 20000000 1a 200002b
+// prog: 24 33 200002d 25 34 2000036 e 2a 2000037 f 2f 200003a 20000000 30 200003c 22
+// prog: 62 200003d 23 63 200003e 8 50 200003f 9 52 2000040 20000000 61 2000041 20 67
+// prog: 2000042 21 68 2000043 2 64 2000045 3 65 2000046 20000000 66 300001d 2000003c 1f 300003b
+// prog: 2000003c 38 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 3a 33 6d 3b 38 79 3d 39 81 3f 3e 8d 40 41
-// prog: 95 4c 20000027 48 50 58 5b 73 74 137 77 7c 13b 78 82 142
-// prog: 7b 83 148 7d 84 14f 9e 20000027 8a a2 94 97 d9 a8 1a9 da
-// prog: ba 1ae dc bc 1b4 df bd 1b9 e1 c3 1be e4 c8 198 e6 20000027
-// prog: cb e9 d7 d8 ed 20000049 db f2 dd e0 115 104 205 117 105 20a
-// prog: 118 106 210 11a 108 218 11e 109 21d 11f 10b 1d3 122 20000027 10c 124
-// prog: 10d 10e 125 20000049 10f 126 110 113 1000046 45 89 100008c 87 132 2000013 17
-// prog: 1c 2000018 16 29 200001a 16 1c 200001f 17 29 200002b 17 12 200002f 16 19
-// prog: 2000034 16 12 2000036 17 19 2000047 20000004 43 2000051 14 4b 2000053 15 52 2000057
-// prog: 11 65 200005e 10 66 200005f 10 65 2000062 11 66 2000063 11 5d 2000064 10
-// prog: 60 2000068 10 5d 2000069 11 60 2000092 20000004 85 20000a5 e 91 20000bb f 93
-// prog: 20000bf b 9c 20000cc a 9d 20000ce a 9c 20000cf b 9d 20000d0 b 99 20000d1
-// prog: a 9a 20000d2 a 99 20000d6 b 9a 20000e5 20000004 c7 20000f3 5 f1 20000f5 4
-// prog: f4 20000f7 4 f1 20000f8 5 f4 20000f9 5 e8 20000fd 4 eb 20000fe 4 e8
-// prog: 20000ff 5 eb 2000121 20000004 10a 400004d 49 49 40000a1 8b 8b 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 1 c 12 1a 2b 2d 1e 3c 3d 1f 3e 3f 2a 41 42 2f
+// prog: 43 45 4000018 13 13 400001b 36 36 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 19 1a 1f 29 34 36 33 3a 6e 38 3b 7a 39 3d
-// prog: 88 3e 3f 8f 41 40 96 43 46 90 49 20000048 50 58 5f 62
-// prog: 5d 68 69 60 73 138 65 77 13c 66 78 143 6d 7b 149 74
-// prog: 7d 154 79 8c 133 82 20000048 a2 85 ce cf 89 d2 d6 8a d9
-// prog: 1df 8b da 1bf 94 e4 e5 95 e9 1a0 99 f2 1aa 9d f7 f8
-// prog: ba fe ff bc 115 1f7 bd 117 209 cb 11f 121 d7 124 1dc db
-// prog: 126 1eb 1000012 13 18 100001c 2b 2f 1000045 4d 4a 1000052 57 5e 100005b 63
-// prog: 64 100007c a1 8e 1000084 bf cc 1000087 d0 d1 100009c f3 f5 10000a8 f9 fd
-// prog: 2000048 20000004 4c 2000081 20000004 9e 200008d 22 df 2000091 23 e1 2000093 20000000 dc 2000097
-// prog: 20000004 e6 200009a 20000004 ed 20000c3 20 11a 20000c7 21 11e 20000c8 20000000 118 20000d8 20000004
-// prog: 122 20000dd 20000004 125 400004b 51 51 4000083 a5 a5 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1a 3c 1c 1f 86 12 2b 112 19 2f 33 150 34 38
-// prog: 18e 3d 43 47 3f 45 c6 4d 37 5b 50 67 52 51 e7 58
-// prog: 57 60 16b 5e 65 1a4 64 79 92 68 7c 14a 78 44 87 7a
-// prog: c1 84 7b c2 85 7d 8d 91 8e 95 97 8f 99 9a 9e 0
-// prog: a8 a1 1d 9c a2 1e 9d a5 c3 c7 ce d7 d8 cf db dd
-// prog: 1000018 29 42 1000040 4b 53 100004c 5d 7e 1000069 83 bb 1000077 89 a6 1000096
-// prog: ba 103 2000013 20000010 19 2000036 26 3e 200003a 27 41 200003b 20000000 39 2000046 20000004
-// prog: 49 200004a 20000010 58 200005f 24 6d 2000062 25 74 2000063 20000000 66 200006e 20000004 82
-// prog: 2000073 20000010 85 2000088 8 8a 200008c 9 8b 2000090 20000010 9d 20000bf 2 bc 20000cc
-// prog: 3 bd 20000d0 cb aa 20000d1 94 ae 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 0 1b 13 12 75 18 19 1a 2a 1c 1f 31 1d 2b
-// prog: 32 1e 36 3a 37 3f 48 38 40 5c 39 61 4a 3c 59 4c
-// prog: 3e 4d 6c 41 50 71 42 51 72 43 5f 62 47 68 81 49
-// prog: 69 98 4b 9b 73 52 4e 77 53 78 9f 58 7a a4 5b 7b
-// prog: a7 60 88 8c 65 20000003 8e 66 ee 90 67 1 96 6d 9e f6
-// prog: 74 a1 101 79 a2 102 7e bf cc 82 20000003 ce 100005d 7d 15f 100007c
-// prog: a5 18d 2000029 14 2f 2000033 15 34 2000044 e 57 2000045 f 5e 2000083 cf
-// prog: 20000005 2000084 8f 20000005 2000085 64 b2 2000086 3d b6 8000000 0 0 8000000 0 0
+// prog: c 54 1 13 129 1a 30 1f 40 34 2f 46 1000012 18 19 100002b
+// prog: 1b 37 100002d 1e 19b 1000033 2a 1f8 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 76 0 13 12 2d 18 d5 1e 1b 38 46 1f 20000003
-// prog: 37 2a 5a 39 2b 3c 6f 2f 120 43 32 49 6e 34 20000003 47
-// prog: 36 4f 4b 3a 52 a0 3d 60 93 40 c 66 48 67 fc 4a
-// prog: 7e c8 200003f 20000004 5d 200004c 20000004 7c 200004d 82 ab 200004e 65 af 400001a 29
-// prog: 29 4000031 44 44 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 c 1 30 2d 2a 70 3c 36 a3 43 3d 3f 46 40
-// prog: 100 47 4a 4c 1000000 5000000a 1 1000012 1a 33 1000029 50000007 2a 1000037 31 45
-// prog: 1000039 50000004 36 1000044 50000001 40 1000049 4d d0 100004b 4e d1 200001e 20000004 18 2000038
-// prog: 20000004 2f 200004f 34 b3 2000050 32 20000005 2000051 1f b7 2000052 1b 20000005 8000000 0
+// prog: 1 12 1c 19 2b 3a 2000018 20000004 c 200001a 20000004 13 200001b 20000004 2d 200001e
+// prog: 20000004 33 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25289,57 +24126,33 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 18 12 3b 1b 37 63 2a 20000002 43 30 20000002 47 31 49
-// prog: 83 32 4b 84 1000033 4f 85 1000034 51 86 2000001 107 0 200001a 11d 29
-// prog: 200001f 123 39 200002f 12c 44 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: c 1 18 12 19 1a 13 30 1b 1c 34 1e 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 3f 18 1e 4a 1b 38 5f 33 50 60 34 52 2000012 cd
-// prog: 1 2000036 d3 1 2000037 d4 1 200003b 14b 1 200003d 151 1 2000040 111 1a
-// prog: 2000043 11b 1a 2000045 11c 1a 2000047 1ca 1a 2000049 1cb 1a 200004b 147 1f 200004c
-// prog: 15a 1f 200004d 15e 1f 200004e 1e5 1f 200004f 1e6 1f 2000057 186 2f 2000059 188
-// prog: 2f 200005a 189 2f 200005c 212 2f 200005d 213 2f 3000051 20000030 2a 300005e 20000030 30
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 12 19 18 36 13 1a 37 c 1b 3b 1c 1e 3d
-// prog: 1d 1f 20000002 3f 2a 40 3e 2f 43 2b 30 45 2d 33 47 41
-// prog: 34 49 42 38 20000002 4a 50 4b 53 52 4c 3a 61 4d 3c 62
-// prog: 4e 58 63 4f 5b 64 57 6d 65 59 48 66 5a 46 67 5c
-// prog: 74 68 5d 79 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 1000001 50000009 c 1000018 50000006 12 1000019 50000003 13 100001a 50000000 1c 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 200000c 26 1b 2000012 27 1e 2000013 14 1 2000019 15 18 200001c 20000000
-// prog: 1a 200002b 24 33 200002d 25 34 2000036 e 2a 2000037 f 2f 200003a 20000000 30
-// prog: 200003c 22 62 200003d 23 63 200003e 8 50 200003f 9 52 2000040 20000000 61 2000041
-// prog: 20 67 2000042 21 68 2000043 2 64 2000045 3 65 2000046 20000000 66 300001d 20000030
-// prog: 1f 300003b 20000030 38 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 c 12 1a 2b 2d 1e 3c 3d 1f 3e 3f 2a 41
-// prog: 42 2f 43 45 4000018 13 13 400001b 36 36 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 100000c 1a 31 1000012 19 32 1000013 18 5f 100001b 1 60 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -25349,35 +24162,35 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 c 54 1 13 129 1a 30 1f 40 34 2f 46 1000012 18
-// prog: 19 100002b 1b 37 100002d 1e 19b 1000033 2a 1f8 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 2000001 5e c 2000018 51 12 2000019 3b 13 200001a 1d 1b 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 12 1c 19 2b 3a 2000018 20000004 c 200001a 20000004 13 200001b 20000004
-// prog: 2d 200001e 20000004 33 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 200000c 20000004 1 2000012 2 1 2000013 3 1 200001b 20000000 1 200001c 20000004 18 200001d
+// prog: 8 18 200001e 9 18 200001f 20000000 18 200002a 20000004 19 200002b e 19 200002d f
+// prog: 19 200002f 20000000 19 2000030 20000004 1a 2000031 14 1a 2000032 15 1a 2000033 20000000 1a
+// prog: 7000000 1 1 7000003 18 18 7000006 19 19 7000009 1a 1a 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 c 1 18 12 19 1a 13 30 1b 1c 34 1e 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 1 ab c 2 6 12 9 af 1c e c9 1d 15 b3 2a 34
+// prog: b7 30 1000003 13 7 100000f 1e ca 1000019 e3 2d 1000037 fb 32 2000008 189
+// prog: 1b 2000014 15e 1f 200001a 11c 2f 2000038 d4 33 4000018 2b 2b 4000036 31 31
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -25385,33 +24198,48 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000001 50000009 c 1000018 50000006 12 1000019 50000003 13 100001a 50000000 1c 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 100003e 18 e2 1000045 36 fa 2000006 20 1 2000007 21 1 200000c 186 2 2000012
+// prog: 188 3 2000013 5 2 200001c 4 3 200001d 4 2 200001e 5 3 200002a 22
+// prog: 9 200002b 23 9 200002d 147 e 2000030 15a f 2000031 b e 2000032 a f
+// prog: 200003a a e 200003b b f 200003c 24 15 200003d 25 15 200003f 11b 19 2000040
+// prog: 10 19 2000041 11 19 2000042 26 34 2000043 27 34 2000046 d3 37 2000047 16
+// prog: 37 2000048 17 37 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 2 171 7 3 c 12 9 13 1c 15 173 2b 18 2d 30 19
+// prog: 31 32 22 175 3d 27 177 43 1000001 6 170 100000e 1e 1d 100000f 2a
+// prog: 172 1000020 3b 3a 1000021 3c 174 1000026 42 176 2000023 111 3e 2000024 11 3e
+// prog: 2000025 10 3e 2000034 cd 45 2000036 17 45 2000037 16 45 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 100000c 1a 31 1000012 19 32 1000013 18 5f 100001b 1 60 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 6 1 ac 7 2 ad c 3 8 12 be 9 1c f b0 1d
+// prog: 15 b1 1e 18 14 2a ef 19 31 23 3f 32 24 40 3d 34
+// prog: 46 3e 36 47 1000013 e c0 100002b 20 f0 100002d 21 b4 1000030 22 b5
+// prog: 100003a 41 25 100003b 26 b8 100003c 27 b9 1000042 48 37 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000001 5e c 2000018 51 12 2000019 3b 13 200001a 1d 1b 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 1 2e 6 9 55 1c 15 6a 2d 19 31 1a 20 119 32 22
+// prog: 7f 3b 24 3d 38 25 12e 3e 1000002 7 35 100000e 1d 56 1000018 30
+// prog: 6b 1000021 3a a9 1000023 3c 80 1000026 42 12f 2000003 20000013 12 2000008 20000015 13
+// prog: 200000f 2000001f 2a 2000014 20000015 2b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -25420,11 +24248,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 200000c 20000004 1 2000012 2 1 2000013 3 1 200001b 20000000 1 200001c 20000004
-// prog: 18 200001d 8 18 200001e 9 18 200001f 20000000 18 200002a 20000004 19 200002b e 19
-// prog: 200002d f 19 200002f 20000000 19 2000030 20000004 1a 2000031 14 1a 2000032 15 1a 2000033
-// prog: 20000000 1a 7000000 1 1 7000003 18 18 7000006 19 19 7000009 1a 1a 8000000 0
+// prog: 1a 3 8 2b f 14 2000006 212 1 2000007 213 2 2000012 5 1 2000013
+// prog: 4 1 200001c 1e5 9 200001d 1e6 e 2000027 b 9 200002a a 9 200002d 1ca
+// prog: 15 200002e 1cb 18 2000030 11 15 2000031 10 15 2000032 20000013 20 2000034 20000015 21
+// prog: 2000035 14b 22 2000036 151 23 2000037 17 22 2000038 16 22 200003a 2000001f 25 200003b
+// prog: 20000015 26 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25432,11 +24260,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 ab c 2 6 12 9 af 1c e c9 1d 15 b3
-// prog: 2a 34 b7 30 1000003 13 7 100000f 1e ca 1000019 e3 2d 1000037 fb 32
-// prog: 2000008 189 1b 2000014 15e 1f 200001a 11c 2f 2000038 d4 33 4000018 2b 2b 4000036
-// prog: 31 31 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 1 c 6 3 1e 1c 8 19 2d 9 32 34 f 24 35 14
+// prog: 3a 3b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25445,22 +24270,13 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 100003e 18 e2 1000045 36 fa 2000006 20 1 2000007 21 1 200000c 186
-// prog: 2 2000012 188 3 2000013 5 2 200001c 4 3 200001d 4 2 200001e 5 3
-// prog: 200002a 22 9 200002b 23 9 200002d 147 e 2000030 15a f 2000031 b e 2000032
-// prog: a f 200003a a e 200003b b f 200003c 24 15 200003d 25 15 200003f 11b
-// prog: 19 2000040 10 19 2000041 11 19 2000042 26 34 2000043 27 34 2000046 d3 37
-// prog: 2000047 16 37 2000048 17 37 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 6 1 7 c 3 1d 15 8 2e 19 f 36 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2 171 7 3 c 12 9 13 1c 15 173 2b 18 2d
-// prog: 30 19 31 32 22 175 3d 27 177 43 1000001 6 170 100000e 1e 1d
-// prog: 100000f 2a 172 1000020 3b 3a 1000021 3c 174 1000026 42 176 2000023 111 3e 2000024
-// prog: 11 3e 2000025 10 3e 2000034 cd 45 2000036 17 45 2000037 16 45 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25468,11 +24284,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 6 1 ac 7 2 ad c 3 8 12 be 9 1c f
-// prog: b0 1d 15 b1 1e 18 14 2a ef 19 31 23 3f 32 24 40
-// prog: 3d 34 46 3e 36 47 1000013 e c0 100002b 20 f0 100002d 21 b4 1000030
-// prog: 22 b5 100003a 41 25 100003b 26 b8 100003c 27 b9 1000042 48 37 8000000 0
+// prog: 1000001 44 6 1000003 39 c 1000007 29 15 1000008 0 19 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25481,32 +24294,23 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 2e 6 9 55 1c 15 6a 2d 19 31 1a 20 119
-// prog: 32 22 7f 3b 24 3d 38 25 12e 3e 1000002 7 35 100000e 1d 56
-// prog: 1000018 30 6b 1000021 3a a9 1000023 3c 80 1000026 42 12f 2000003 20000013 12 2000008
-// prog: 20000015 13 200000f 2000001f 2a 2000014 20000015 2b 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 2000000 12c 1 2000006 123 3 200000c 11d 7 200000f 107 8 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1a 3 8 2b f 14 2000006 212 1 2000007 213 2 2000012 5
-// prog: 1 2000013 4 1 200001c 1e5 9 200001d 1e6 e 2000027 b 9 200002a a 9
-// prog: 200002d 1ca 15 200002e 1cb 18 2000030 11 15 2000031 10 15 2000032 20000013 20 2000034
-// prog: 20000015 21 2000035 14b 22 2000036 151 23 2000037 17 22 2000038 16 22 200003a 2000001f
-// prog: 25 200003b 20000015 26 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 c 6 3 1e 1c 8 19 2d 9 32 34 f 24
-// prog: 35 14 3a 3b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 1 1b 0 3 1f 6 7 2f c 8 33 f 7000001 0 0 7000004
+// prog: 6 6 7000007 c c 700000a f f 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -25516,8 +24320,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 6 1 7 c 3 1d 15 8 2e 19 f 36 8000000 0
+// prog: 2000000 20000010 1 2000006 20000016 1 200000c 20000010 3 200000f 20000016 3 2000015 20000010 7 2000019
+// prog: 20000016 7 200001b 20000010 8 200001c 20000016 8 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25528,8 +24332,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000001 44 6 1000003 39 c 1000007 29 15 1000008 0 19 8000000 0
+// prog: 1 2 0 3 1a 6 7 e c 8 2b f 1d 18 15 1e
+// prog: 9 19 1f 23 1b 20 14 1c 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25540,8 +24344,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000000 12c 1 2000006 123 3 200000c 11d 7 200000f 107 8 8000000 0
+// prog: 2000000 4 1 2000002 5 1 2000006 a 7 2000009 b 7 200000c 10 1d 200000e
+// prog: 11 1d 200000f 16 1f 2000014 17 1f 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25552,9 +24356,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 1b 0 3 1f 6 7 2f c 8 33 f 7000001 0
-// prog: 0 7000004 6 6 7000007 c c 700000a f f 8000000 0 0 8000000 0 0
+// prog: 1 12 0 5 27 6 a 30 c 10 37 f 1000004 2 13 1000007
+// prog: 9 2a 100000b e 31 1000011 14 38 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -25564,9 +24368,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000000 20000010 1 2000006 20000016 1 200000c 20000010 3 200000f 20000016 3 2000015 20000010
-// prog: 7 2000019 20000016 7 200001b 20000010 8 200001c 20000016 8 8000000 0 0 8000000 0 0
+// prog: 0 28 1 6 c4 5 c ea a f 114 10 1000002 4 2c 1000009
+// prog: 7 c5 100000e b ec 1000012 11 116 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -25576,9 +24380,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 2 0 3 1a 6 7 e c 8 2b f 1d 18
-// prog: 15 1e 9 19 1f 23 1b 20 14 1c 8000000 0 0 8000000 0 0
+// prog: 2000001 20000020 0 2000004 20000019 2 2000005 20000017 6 2000007 20000019 9 200000a 20000020 c 200000b
+// prog: 20000019 e 2000010 20000017 f 2000011 20000019 12 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -25588,10 +24392,7 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000000 4 1 2000002 5 1 2000006 a 7 2000009 b 7 200000c 10
-// prog: 1d 200000e 11 1d 200000f 16 1f 2000014 17 1f 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 3 1 2 8 5 6 1e a 9 20 10 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -25601,32 +24402,23 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 12 0 5 27 6 a 30 c 10 37 f 1000004 2
-// prog: 13 1000007 9 2a 100000b e 31 1000011 14 38 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 1 0 4 3 2 7 5 6 b 8 9 11 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 0 28 1 6 c4 5 c ea a f 114 10 1000002 4
-// prog: 2c 1000009 7 c5 100000e b ec 1000012 11 116 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 1000000 1d8 1 1000002 179 3 1000004 de 5 1000006 d 8 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000001 20000020 0 2000004 20000019 2 2000005 20000017 6 2000007 20000019 9 200000a 20000020
-// prog: c 200000b 20000019 e 2000010 20000017 f 2000011 20000019 12 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -25636,8 +24428,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 0 3 1 2 8 5 6 1e a 9 20 10 8000000 0
+// prog: 2000001 2000002e 0 2000003 2000002e 2 2000005 2000002e 4 2000007 2000002e 6 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25648,8 +24440,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1 0 4 3 2 7 5 6 b 8 9 11 8000000 0
+// prog: 7000002 1 1 7000005 3 3 7000008 5 5 700000b 7 7 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25660,20 +24452,198 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 1000000 1d8 1 1000002 179 3 1000004 de 5 1000006 d 8 8000000 0
+// prog: c636 4 c936 2 cab6 4 cdb6 6 d236 5 d5f6 6 da76 5 de36 5
+// prog: e1f6 6 e676 6 eaf6 4 edf6 5 f1b6 4 f4b6 3 f6f6 3 f936 2
+// prog: fab6 2 fc36 2 fdb6 1 fe76 1 ff36 1 fff6 1 100b6 1 10176 1
+// prog: 10236 1 102f6 1 103b6 1 10476 1 10536 2 106b6 2 10836 2 109b6 2
+// prog: 10b36 3 10d76 2 10ef6 1 10fb6 1 11076 1 11136 1 111f6 1 112b6 1
+// prog: 11376 1 11436 1 114f6 1 115b6 1 11676 1 11736 1 117f6 1 118b6 1
+// prog: 11976 1 11a36 1 11af6 1 11bb6 1 11c76 1 11d36 1 11df6 1 11eb6 1
+// prog: 11f76 1 12036 1 120f6 1 2000018 20000004 40000000 2000019 20000000 40000000 200001a 20000004 40000003 200001b
+// prog: 20000000 40000003 200001c 20000004 40000006 200001d 20000000 40000006 200001e 20000004 40000009 200001f 20000000 40000009 5000000 30000000
+// prog: 30000000 5000002 30000001 30000001 5000004 30000002 30000002 5000006 30000003 30000003 5000008 30000004 30000004 500000a 30000005 30000005
+// prog: 500000c 30000006 30000006 500000e 30000007 30000007 5000010 30000008 30000008 5000012 30000009 30000009 5000014 3000000a 3000000a 5000016
+// prog: 3000000b 3000000b 6000001 30000000 30000000 6000003 30000001 30000001 6000005 30000002 30000002 6000007 30000003 30000003 6000009 30000004
+// prog: 30000004 600000b 30000005 30000005 600000d 30000006 30000006 600000f 30000007 30000007 6000011 30000008 30000008 6000013 30000009 30000009
+// prog: 6000015 3000000a 3000000a 6000017 3000000b 3000000b 700000f 2000002a 2000002a 7000010 2000002a 2000002a 7000011 2000002a 2000002a 7000012
+// prog: 2000002a 2000002a 7000013 2000002a 2000002a 7000014 2000002a 2000002a 7000015 2000002a 2000002a 7000016 2000002a 2000002a 7000017 2000002a
+// prog: 2000002a 700001b 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e 2000002a 2000002a 700001f 2000002a 2000002a
+// prog: 7000020 2000002a 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a 2000002a 7000027 2000002a 2000002a 7000028
+// prog: 2000002a 2000002a 7000029 2000002a 2000002a 700002a 2000002a 2000002a 700002b 2000002a 2000002a 700002c 2000002a 2000002a 700002d 2000002a
+// prog: 2000002a 700002e 2000002a 2000002a 700002f 2000002a 2000002a 7000030 2000002a 2000002a 7000031 2000002a 2000002a 7000032 2000002a 2000002a
+// prog: 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039 2000002a 2000002a 700003a 2000002a 2000002a 700003b
+// prog: 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a 2000002a 7000042 2000002a 2000002a 7000043 2000002a
+// prog: 2000002a 7000044 2000002a 2000002a 7000045 2000002a 2000002a 7000046 2000002a 2000002a 7000047 2000002a 2000002a 7000048 2000002a 2000002a
+// prog: 7000049 2000002a 2000002a 700004a 2000002a 2000002a 700004e 2000002a 2000002a 700004f 2000002a 2000002a 7000050 2000002a 2000002a 7000051
+// prog: 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a 7000054 2000002a 2000002a 7000055 2000002a 2000002a 7000056 2000002a
+// prog: 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059 2000002a 2000002a 700005d 2000002a 2000002a 700005e 2000002a 2000002a
+// prog: 700005f 2000002a 2000002a 7000060 2000002a 2000002a 7000061 2000002a 2000002a 7000062 2000002a 2000002a 7000063 2000002a 2000002a 7000064
+// prog: 2000002a 2000002a 7000065 2000002a 2000002a 7000069 2000002a 2000002a 700006a 2000002a 2000002a 700006b 2000002a 2000002a 700006c 2000002a
+// prog: 2000002a 700006d 2000002a 2000002a 700006e 2000002a 2000002a 700006f 2000002a 2000002a 7000070 2000002a 2000002a 7000071 2000002a 2000002a
+// prog: 7000075 2000002a 2000002a 7000076 2000002a 2000002a 7000077 2000002a 2000002a 7000078 2000002a 2000002a 7000079 2000002a 2000002a 700007a
+// prog: 2000002a 2000002a 700007b 2000002a 2000002a 700007c 2000002a 2000002a 700007d 2000002a 2000002a 700007e 2000002a 2000002a 700007f 2000002a
+// prog: 2000002a 7000080 2000002a 2000002a 7000084 2000002a 2000002a 7000085 2000002a 2000002a 7000086 2000002a 2000002a 7000087 2000002a 2000002a
+// prog: 7000088 2000002a 2000002a 7000089 2000002a 2000002a 700008a 2000002a 2000002a 700008b 2000002a 2000002a 700008c 2000002a 2000002a 7000090
+// prog: 2000002a 2000002a 7000091 2000002a 2000002a 7000092 2000002a 2000002a 7000093 2000002a 2000002a 7000094 2000002a 2000002a 7000095 2000002a
+// prog: 2000002a 7000096 2000002a 2000002a 7000097 2000002a 2000002a 7000098 2000002a 2000002a 700009f 2000002a 2000002a 70000a0 2000002a 2000002a
+// prog: 70000a1 2000002a 2000002a 70000a2 2000002a 2000002a 70000a3 2000002a 2000002a 70000a4 2000002a 2000002a 70000a5 2000002a 2000002a 70000a6
+// prog: 2000002a 2000002a 70000a7 2000002a 2000002a 70000ab 2000002a 2000002a 70000ac 2000002a 2000002a 70000ad 2000002a 2000002a 70000ae 2000002a
+// prog: 2000002a 70000af 2000002a 2000002a 70000b0 2000002a 2000002a 70000b1 2000002a 2000002a 70000b2 2000002a 2000002a 70000b3 2000002a 2000002a
+// prog: 70000b7 2000002a 2000002a 70000b8 2000002a 2000002a 70000b9 2000002a 2000002a 70000ba 2000002a 2000002a 70000bb 2000002a 2000002a 70000bc
+// prog: 2000002a 2000002a 70000bd 2000002a 2000002a 70000be 2000002a 2000002a 70000bf 2000002a 2000002a 70000c0 2000002a 2000002a 70000c1 2000002a
+// prog: 2000002a 70000c2 2000002a 2000002a 70000c6 2000002a 2000002a 70000c7 2000002a 2000002a 70000c8 2000002a 2000002a 70000c9 2000002a 2000002a
+// prog: 70000ca 2000002a 2000002a 70000cb 2000002a 2000002a 70000cc 2000002a 2000002a 70000cd 2000002a 2000002a 70000ce 2000002a 2000002a 70000d2
+// prog: 2000002a 2000002a 70000d3 2000002a 2000002a 70000d4 2000002a 2000002a 70000d5 2000002a 2000002a 70000d6 2000002a 2000002a 70000d7 2000002a
+// prog: 2000002a 70000d8 2000002a 2000002a 70000d9 2000002a 2000002a 70000da 2000002a 2000002a 70000de 2000002a 2000002a 70000df 2000002a 2000002a
+// prog: 70000e0 2000002a 2000002a 70000e1 2000002a 2000002a 70000e2 2000002a 2000002a 70000e3 2000002a 2000002a 70000e4 2000002a 2000002a 70000e5
+// prog: 2000002a 2000002a 70000e6 2000002a 2000002a 70000e7 2000002a 2000002a 70000e8 2000002a 2000002a 70000e9 2000002a 2000002a 70000ed 2000002a
+// prog: 2000002a 70000ee 2000002a 2000002a 70000ef 2000002a 2000002a 70000f0 2000002a 2000002a 70000f1 2000002a 2000002a 70000f2 2000002a 2000002a
+// prog: 70000f3 2000002a 2000002a 70000f4 2000002a 2000002a 70000f5 2000002a 2000002a 70000f9 2000002a 2000002a 70000fa 2000002a 2000002a 70000fb
+// prog: 2000002a 2000002a 70000fc 2000002a 2000002a 70000fd 2000002a 2000002a 70000fe 2000002a 2000002a 70000ff 2000002a 2000002a 7000100 2000002a
+// prog: 2000002a 7000101 2000002a 2000002a 7000105 2000002a 2000002a 7000106 2000002a 2000002a 7000107 2000002a 2000002a 7000108 2000002a 2000002a
+// prog: 7000109 2000002a 2000002a 700010a 2000002a 2000002a 700010b 2000002a 2000002a 700010c 2000002a 2000002a 700010d 2000002a 2000002a 700010e
+// prog: 2000002a 2000002a 700010f 2000002a 2000002a 7000110 2000002a 2000002a 7000114 2000002a 2000002a 7000115 2000002a 2000002a 7000116 2000002a
+// prog: 2000002a 7000117 2000002a 2000002a 7000118 2000002a 2000002a 7000119 2000002a 2000002a 700011a 2000002a 2000002a 700011b 2000002a 2000002a
+// prog: 700011c 2000002a 2000002a 7000120 2000002a 2000002a 7000121 2000002a 2000002a 7000122 2000002a 2000002a 7000123 2000002a 2000002a 7000124
+// prog: 2000002a 2000002a 7000125 2000002a 2000002a 7000126 2000002a 2000002a 7000127 2000002a 2000002a 7000128 2000002a 2000002a 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 6f 40000001 19 7a 40000004 1b 84 40000007 1d 8e
+// prog: 4000000a 1f 2000020 20000000 2 2000021 20000000 3 2000022 20000000 8 2000023 20000000 9 2000024 20000000
+// prog: e 2000025 20000000 f 2000026 20000000 14 2000027 20000000 15 2000028 20000019 17 2000029 20000020 16
+// prog: 200002a 20000019 16 200002b 20000020 17 200002c 20000011 17 200002d 2000001e 16 200002e 20000011 16 200002f
+// prog: 2000001e 17 2000030 20000014 16 2000031 20000014 17 2000032 2000001f 17 2000033 20000015 16 2000034 2000001f
+// prog: 16 2000035 20000015 17 2000036 20000019 11 2000037 20000017 10 2000038 20000019 10 2000039 20000017 11
+// prog: 200003a 20000011 11 200003b 20000012 10 200003c 20000011 10 200003d 20000012 11 200003e 20000014 10 200003f
+// prog: 20000014 11 2000040 20000013 11 2000041 20000015 10 2000042 20000013 10 2000043 20000015 11 2000044 20000019
+// prog: b 2000045 a 20000020 2000046 20000019 a 2000047 b 20000020 2000048 20000011 b 2000049 a 2000001e
+// prog: 200004a 20000011 a 200004b b 2000001e 200004c 20000014 a 200004d 20000014 b 200004e b 2000001f 200004f
+// prog: 20000015 a 2000050 a 2000001f 2000051 20000015 b 2000052 5 20000019 2000053 4 20000017 2000054 4
+// prog: 20000019 2000055 5 20000017 2000056 5 20000011 2000057 4 20000012 2000058 4 20000011 2000059 5 20000012
+// prog: 200005a 4 20000014 200005b 5 20000014 200005c 5 20000013 200005d 4 20000015 200005e 4 20000013 200005f
+// prog: 5 20000015 2000060 5 20000020 2000061 4 20000020 2000062 20000017 b 2000063 20000017 a 2000064 20000020
+// prog: 11 2000065 20000020 10 2000066 20000017 17 2000067 20000017 16 2000068 1 20000001 2000069 0 20000001
+// prog: 200006b 2 40000000 200006c 3 40000000 200006d 2 20000005 200006e 3 20000005 2000070 2000000d 18 2000071
+// prog: 2000000e 18 2000072 2000000f 18 2000073 7 20000001 2000074 6 20000001 2000076 8 40000003 2000077 9
+// prog: 40000003 2000078 8 20000005 2000079 9 20000005 200007b 2000001d 1a 200007c 2000000e 1a 200007d 2000000f 1a
+// prog: 200007e d 20000001 200007f c 20000001 2000080 e 40000006 2000081 f 40000006 2000082 e 20000005 2000083
+// prog: f 20000005 2000085 2000000d 1c 2000086 2000000e 1c 2000087 2000000f 1c 2000088 13 20000001 2000089 12
+// prog: 20000001 200008a 14 40000009 200008b 15 40000009 200008c 14 20000005 200008d 15 20000005 200008f 2000001d 1e
+// prog: 2000090 2000000e 1e 2000091 2000000f 1e 400006a 18 18 4000075 1a 1a 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 1 2a 2b 7 2e 2f d 2d 31 13
+// prog: 34 35 93 38 39 95 3c 3d 97 3b 3f 99 42 43 9b 46
+// prog: 47 9d 4a 4b 9f 49 4d a1 50 51 a3 54 55 a5 58 59
+// prog: a7 57 5b a9 5e 5f ab 52 61 ad 44 63 af 36 65 b1
+// prog: 28 67 d0 40000002 6f ef 40000005 7a f7 20000006 7f 10d 40000008 84 115 20000006
+// prog: 89 12b 4000000b 8e 1000000 28 29 1000006 2c 2d 100000c 2f 30 1000012 32 33
+// prog: 1000092 36 37 1000094 3a 3b 1000096 3d 3e 1000098 40 41 100009a 44 45 100009c
+// prog: 48 49 100009e 4b 4c 10000a0 4e 4f 10000a2 52 53 10000a4 56 57 10000a6 59
+// prog: 5a 10000a8 5c 5d 10000aa 60 54 10000ac 62 46 10000ae 64 38 10000b0 66 2a
+// prog: 10000b9 20000006 69 10000d8 20000006 74 20000b2 20000003 69 20000b3 20 18 20000b4 21 18 20000b5
+// prog: 3 68 20000b6 20 69 20000b7 2 68 20000b8 21 69 20000ba 40000001 6c 20000bb 40000001
+// prog: 6b 20000bc 20000007 6b 20000bd 20000008 6c 20000be 20000009 6f 20000bf 20000008 6b 20000c0 2000000a 6c
+// prog: 20000c1 2000000b 6f 20000c2 20000009 6b 20000c3 2000000b 6c 20000c4 2000000c 6f 20000c5 2000000d 6f 20000c6
+// prog: 2000000e 6f 20000c7 2000000e 6c 20000c8 2000000d 6b 20000ca 20000010 6f 20000cb 20000010 6c 20000cc 5
+// prog: 6b 20000cd 4 6c 20000ce 4 6b 20000cf 5 6c 20000d1 20000003 74 20000d2 22 1a
+// prog: 20000d3 23 1a 20000d4 9 73 20000d5 22 74 20000d6 8 73 20000d7 23 74 20000d9
+// prog: 40000004 77 20000da 40000004 76 20000db 20000007 76 20000dc 2000001b 77 20000dd 2000001c 7a 20000de 2000001b
+// prog: 76 20000df 2000000a 77 20000e0 2000000b 7a 20000e1 2000001c 76 20000e2 2000000b 77 20000e3 2000000c 7a
+// prog: 20000e4 2000001d 7a 20000e5 2000000e 7a 20000e6 2000000e 77 20000e7 2000001d 76 20000e9 20000010 7a 20000ea
+// prog: 20000010 77 20000eb b 76 20000ec a 77 20000ed a 76 20000ee b 77 20000f0 20000003
+// prog: 7f 20000f1 24 1c 20000f2 25 1c 20000f3 f 7e 20000f4 24 7f 20000f5 e 7e
+// prog: 20000f6 25 7f 20000f8 40000007 81 20000f9 40000007 80 20000fa 20000007 80 20000fb 20000008 81 20000fc
+// prog: 20000009 84 20000fd 20000008 80 20000fe 2000000a 81 20000ff 2000000b 84 2000100 20000009 80 2000101 2000000b
+// prog: 81 2000102 2000000c 84 2000103 2000000d 84 2000104 2000000e 84 2000105 2000000e 81 2000106 2000000d 80
+// prog: 2000107 20000010 84 2000108 20000010 81 2000109 11 80 200010a 10 81 200010b 10 80 200010c
+// prog: 11 81 200010e 20000003 89 200010f 26 1e 2000110 27 1e 2000111 15 88 2000112 26
+// prog: 89 2000113 14 88 2000114 27 89 2000116 4000000a 8b 2000117 4000000a 8a 2000118 20000007 8a
+// prog: 2000119 2000001b 8b 200011a 2000001c 8e 200011b 2000001b 8a 200011c 2000000a 8b 200011d 2000000b 8e 200011e
+// prog: 2000001c 8a 200011f 2000000b 8b 2000120 2000000c 8e 2000121 2000001d 8e 2000122 2000000e 8e 2000123 2000000e
+// prog: 8b 2000124 2000001d 8a 2000125 20000010 8e 2000126 20000010 8b 2000127 17 8a 2000128 16 8b
+// prog: 2000129 16 8a 200012a 17 8b 200012c 6b 19 200012d 6c 19 200012e 6b 6b 200012f
+// prog: 6c 6c 2000130 18 6b 2000131 18 6c 2000132 76 1b 2000133 77 1b 2000134 76
+// prog: 76 2000135 77 77 2000136 1a 76 2000137 1a 77 2000138 80 1d 2000139 81 1d
+// prog: 200013a 80 80 200013b 81 81 200013c 1c 80 200013d 1c 81 200013e 8a 1f 200013f
+// prog: 8b 1f 2000140 8a 8a 2000141 8b 8b 2000142 1e 8a 2000143 1e 8b 2000144 20000008
+// prog: 6f 2000145 20000009 6c 2000146 2000000a 6f 2000147 2000000c 6c 2000148 20000007 6f 2000149 2000000b 6b
+// prog: 200014a 2000000c 6b 200014b 20000007 6c 200014c 2000000a 6b 200014d 2000001b 7a 200014e 2000001c 77 200014f
+// prog: 2000000a 7a 2000150 2000000c 77 2000151 20000007 7a 2000152 2000000b 76 2000153 2000000c 76 2000154 20000007
+// prog: 77 2000155 2000000a 76 2000156 20000008 84 2000157 20000009 81 2000158 2000000a 84 2000159 2000000c 81
+// prog: 200015a 20000007 84 200015b 2000000b 80 200015c 2000000c 80 200015d 20000007 81 200015e 2000000a 80 200015f
+// prog: 2000001b 8e 2000160 2000001c 8b 2000161 2000000a 8e 2000162 2000000c 8b 2000163 20000007 8e 2000164 2000000b
+// prog: 8a 2000165 2000000c 8a 2000166 20000007 8b 2000167 2000000a 8a 2000168 20000021 8a 2000169 20000021 8b
+// prog: 200016a 20000018 80 200016b 20000018 81 200016c 20000021 76 200016d 20000021 77 200016e 20000018 6b 200016f
+// prog: 20000018 6c 40000c9 72 72 40000e8 7d 7d 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 2000001 20000047 0 2000003 20000047 2 2000005 20000047 4 2000007 20000047 6 8000000 0
+// prog: 8000000 0 0 8000000 0 0 31 0 20000026 32 2000000b 13 33 2000001d 1 3d
+// prog: 20000026 92 3e 2000000b 99 3f 2000000d 93 49 20000026 9a 4a 2000000b a1 4b 2000001d
+// prog: 9b 55 20000026 a2 56 2000000b a9 57 2000000d a3 17d b7 b8 180 bc bd
+// prog: 181 bf c0 182 c2 c3 193 b4 ca 195 cc cd 1a4 d6 d7 1a7
+// prog: db dc 1a8 de df 1a9 e1 e2 1ba d3 e9 1bc eb ec 1cb f5
+// prog: f6 1e1 f2 107 1e2 1c 108 1f2 113 114 208 110 125 209 1e 126
+// prog: 24e 100 15a 24f 156 15b 250 fc 15c 25d 11e 163 25e 15f 164 25f
+// prog: 11a 165 100002e 12 20000023 100003a 98 20000029 1000046 a0 20000023 1000052 a8 20000029 100017c b6
+// prog: b5 1000185 c7 c8 1000194 6a cb 1000196 cf ce 10001a3 d5 d4 10001ac e6 e7
+// prog: 10001bb 75 ea 10001bd ee ed 10001ca f4 f3 10001d3 106 105 10001e4 10b 10c 10001f1
+// prog: 112 111 10001fa 124 123 100020b 129 12a 100022c c8 c7 100022d 145 144 100022e c3
+// prog: 146 100022f 147 c1 1000230 148 c2 1000231 144 149 1000232 be 14a 1000233 bf 14b
+// prog: 1000234 14c bd 1000235 149 145 100023b e7 e6 100023c 14e 14d 100023d e2 14f 100023e
+// prog: 150 e0 100023f 151 e1 1000240 14d 152 1000241 dd 153 1000242 de 154 1000243 155
+// prog: dc 1000244 152 14e 100024a 105 106 1000251 15d fd 1000252 fb 15e 1000253 157 15b
+// prog: 1000259 123 124 1000260 166 11b 1000261 119 167 1000262 160 164 2000028 20000010 0 2000029
+// prog: 17 6 200002a 16 c 200002b 17 7 200002c 16 d 200002d 20000010 1 200002f 16
+// prog: 7 2000030 17 d 2000034 20000010 92 2000035 11 94 2000036 10 96 2000037 11 95
+// prog: 2000038 10 97 2000039 20000010 93 200003b 10 95 200003c 11 97 2000040 20000010 9a 2000041
+// prog: b 9c 2000042 a 9e 2000043 b 9d 2000044 a 9f 2000045 20000010 9b 2000047 a
+// prog: 9d 2000048 b 9f 200004c 20000010 a2 200004d 5 a4 200004e 4 a6 200004f 5 a5
+// prog: 2000050 4 a7 2000051 20000010 a3 2000053 4 a5 2000054 5 a7 2000058 20000010 ab 2000059
+// prog: 3 aa 200005a 2 ab 200005b 20 aa 200005c 21 ab 200005d 2 a8 200005e 3
+// prog: a9 200005f 20000010 ad 2000060 9 ac 2000061 8 ad 2000062 22 ac 2000063 23 ad
+// prog: 2000064 8 a0 2000065 9 a1 2000066 20000010 af 2000067 f ae 2000170 e af 2000171
+// prog: 24 ae 2000172 25 af 2000173 e 98 2000174 f 99 2000175 20000010 b1 2000176 15
+// prog: b0 2000177 14 b1 2000178 26 b0 2000179 27 b1 200017a 14 12 200017b 15 13
+// prog: 200017e 40000001 b4 200017f 40000001 b3 2000183 2000000e b4 2000184 2000000d b3 2000186 2000000f b3 2000187
+// prog: 2000000f b4 2000188 20000007 ba 2000189 20000008 bb 200018a 20000008 ba 200018b 2000000a bb 200018c 20000009
+// prog: ba 200018d 2000000b bb 200018e 2000000d b9 200018f 2000000e b9 2000190 2000000e bb 2000191 2000000d ba
+// prog: 2000192 2000000f b9 2000197 5 b3 2000198 4 b3 2000199 20000010 bb 200019a 5 ba 200019b
+// prog: 4 bb 200019c 4 ba 200019d 5 bb 200019e 20000013 d0 200019f 20000015 d0 20001a0 20000016
+// prog: d0 20001a1 20000017 d0 20001a2 20000019 d0 20001a5 40000004 d3 20001a6 40000004 d2 20001aa 2000000e d3
+// prog: 20001ab 2000001d d2 20001ad 2000000f d2 20001ae 2000000f d3 20001af 20000007 d9 20001b0 2000001b da 20001b1
+// prog: 2000001b d9 20001b2 2000000a da 20001b3 2000001c d9 20001b4 2000000b da 20001b5 2000001d d8 20001b6 2000000e
+// prog: d8 20001b7 2000000e da 20001b8 2000001d d9 20001b9 2000000f d8 20001be b d2 20001bf a d2
+// prog: 20001c0 20000010 da 20001c1 b d9 20001c2 a da 20001c3 a d9 20001c4 b da 20001c5
+// prog: 2000001f ef 20001c6 20000015 ef 20001c7 20000016 ef 20001c8 20000020 ef 20001c9 20000019 ef 20001cc 40000007
+// prog: f2 20001cd 40000007 f1 20001d1 2000000e f2 20001d2 2000000d f1 20001d4 2000000f f1 20001d5 2000000f f2
+// prog: 20001d6 20000007 f8 20001d7 20000008 f9 20001d8 20000008 f8 20001d9 2000000a f9 20001da 20000009 f8 20001db
+// prog: 2000000b f9 20001dc 2000000d f7 20001dd 2000000e f7 20001de 2000000e f9 20001df 2000000d f8 20001e0 2000000f
+// prog: f7 20001e5 11 f1 20001e6 10 f1 20001e7 20000010 f9 20001e8 11 f8 20001e9 10 f9
+// prog: 20001ea 10 f8 20001eb 11 f9 20001ec 20000013 10d 20001ed 20000015 10d 20001ee 20000016 10d 20001ef
+// prog: 20000017 10d 20001f0 20000019 10d 20001f3 4000000a 110 20001f4 4000000a 10f 20001f8 2000000e 110 20001f9 2000001d
+// prog: 10f 20001fb 2000000f 10f 20001fc 2000000f 110 20001fd 20000007 116 20001fe 2000001b 117 20001ff 2000001b 116
+// prog: 2000200 2000000a 117 2000201 2000001c 116 2000202 2000000b 117 2000203 2000001d 115 2000204 2000000e 115 2000205
+// prog: 2000000e 117 2000206 2000001d 116 2000207 2000000f 115 200020c 17 10f 200020d 16 10f 200020e 20000010
+// prog: 117 200020f 17 116 2000210 16 117 2000211 16 116 2000212 17 117 2000213 2000001f 12b
+// prog: 2000214 20000015 12b 2000215 20000016 12b 2000216 20000020 12b 2000217 20000019 12b 2000219 19 b3 200021a
+// prog: 19 b4 200021b 6b b3 200021c 6c b4 200021e 1b d2 200021f 1b d3 2000220 76
+// prog: d2 2000221 77 d3 2000223 1d f1 2000224 1d f2 2000225 80 f1 2000226 81 f2
+// prog: 2000228 1f 10f 2000229 1f 110 200022a 8a 10f 200022b 8b 110 2000236 2000000e b3 2000237
+// prog: 2000000d b4 2000238 20000012 d0 2000239 20000014 d0 200023a 20000011 d0 2000245 2000000e d2 2000246 2000001d
+// prog: d3 2000247 2000001e ef 2000248 20000014 ef 2000249 20000011 ef 2000254 2000000e f1 2000255 2000000d f2
+// prog: 2000256 20000012 10d 2000257 20000014 10d 2000258 20000011 10d 2000263 2000000e 10f 2000264 2000001d 110 2000265
+// prog: 2000001e 12b 2000266 20000014 12b 2000267 20000011 12b 2000268 20000021 10f 2000269 20000021 110 200026a 20000027
+// prog: 110 200026b 20000027 10f 200026c 12 8b 200026d 13 8a 200026e b0 110 200026f b1 10f
+// prog: 2000270 20000018 f1 2000271 20000018 f2 2000272 20000027 f2 2000273 20000027 f1 2000274 98 81 2000275
+// prog: 99 80 2000276 ae f2 2000277 af f1 2000278 20000021 d2 2000279 20000021 d3 200027a 20000027
+// prog: d3 200027b 20000027 d2 200027c a0 77 200027d a1 76 200027e ac d3 200027f ad d2
+// prog: 2000280 20000018 b3 2000281 20000018 b4 2000282 20000027 b4 2000283 20000027 b3 2000284 a8 6c 2000285
+// prog: a9 6b 2000286 aa b4 2000287 ab b3 40001ce fa fa 40001cf fd fd 40001d0 100
+// prog: 100 40001e3 109 109 40001f5 118 118 40001f6 11b 11b 40001f7 11e 11e 400020a 127 127
+// prog: 4000218 12e 12e 400021d 134 134 4000222 13a 13a 4000227 140 140 400024b 156 156 400024c
+// prog: 158 158 400024d ff ff 400025a 15f 15f 400025b 161 161 400025c 11d 11d 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25681,11 +24651,131 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 6 28 28 c 2f 30 d 2000001c 2e 19
+// prog: 2000000e 31 94 34 34 96 3b 3c 97 20000009 3a 9a 2000000e 3d a4 40
+// prog: 40 a6 47 48 a7 2000001c 46 b6 2000000e 49 c7 4c 4c ca 53 54
+// prog: cb 20000009 52 cc 2000000e 55 dc 20000016 58 df 5b 5c e1 5d 5e e6
+// prog: 20000016 5f e9 62 63 ea 64 65 ec 20000016 66 ee 171 172 fa 20000016
+// prog: 175 100 178 179 106 17c 6d 107 17d 6e 108 180 be 109 181 c1
+// prog: 10b 182 c4 114 c6 187 127 b9 199 14f 1a3 78 150 1a4 79 151
+// prog: 1a7 dd 152 1a8 e0 153 1a9 e3 156 e5 1ae 161 d8 1c0 29b 104
+// prog: 1d5 2a0 1de 1df 2a6 1ea 1eb 2b7 122 1fc 2bc 205 206 2c2 211 212
+// prog: 2e1 225 226 2e8 22a 22b 2ef 236 237 2f0 22d 22d 2f1 236 236 2f2
+// prog: 22e 230 2f3 183 184 2f4 22f 233 2f5 231 231 2f6 237 237 2f7 232
+// prog: 234 2f8 235 235 301 245 246 302 23c 23c 303 245 245 304 23d 23f
+// prog: 305 1aa 1ab 306 23e 242 307 240 240 308 246 246 309 241 243 30a
+// prog: 244 244 312 87 24a 316 254 255 317 254 254 318 1d1 1d2 319 24f
+// prog: 24f 31a 255 255 31b 250 252 31c 253 253 321 91 259 325 263 264
+// prog: 326 263 263 327 1f8 1f9 328 25e 25e 329 264 264 32a 25f 261 32b
+// prog: 262 262 334 168 26a 33b 16a 272 1000001 29 2a 1000007 2b 2c 1000093 35
+// prog: 36 1000095 37 38 10000a3 41 42 10000a5 43 44 10000c3 4d 4e 10000c8 4f 50
+// prog: 10000de 59 5a 10000e7 60 61 10000ed 67 170 10000fd 176 177 100010c 183 184 1000112
+// prog: 186 c5 1000118 c9 185 100011b 188 189 100011e 18a 18b 1000123 18c 18d 1000129 19a
+// prog: 19b 1000154 1aa 1ab 1000155 1ad e4 1000158 e8 1ac 100015a 1af 1b0 100015b 1b1 1b2
+// prog: 100015c 1b3 1b4 1000163 1c1 1c2 1000294 1ca 82 1000295 1cb 83 1000296 1ce fb 1000297
+// prog: 1cf fe 1000298 1d0 101 1000299 1d1 1d2 100029a 1d4 103 100029c 87 1d3 100029d 1d7
+// prog: 1d6 100029e 1d9 1d8 100029f 1db 1da 10002a1 1e3 10a 10002a4 f7 1e7 10002a5 1e9 1e8
+// prog: 10002b0 1f1 8c 10002b1 1f2 8d 10002b2 1f5 119 10002b3 1f6 11c 10002b4 1f7 11f 10002b5
+// prog: 1f8 1f9 10002b6 1fb 121 10002b8 91 1fa 10002b9 1fe 1fd 10002ba 200 1ff 10002bb 202
+// prog: 201 10002bd 20a 128 10002c0 115 20e 10002c1 210 20f 10002cc 218 12f 10002ce 219 130
+// prog: 10002cf 21a 131 10002d6 21d 135 10002d8 21e 136 10002d9 21f 137 10002e0 222 13b 10002e2
+// prog: 223 13c 10002e3 224 13d 10002e7 227 141 10002e9 228 142 10002ea 229 143 10002ee 22c
+// prog: 72 1000300 23b 7d 1000313 24b 157 1000314 24c 101 1000315 24d 159 1000322 25a 160
+// prog: 1000323 25b 11f 1000324 25c 162 1000335 169 26b 1000336 26d 26c 100033c 16b 273 100033d
+// prog: 275 274 1000344 27a 16c 1000345 27c 27d 100034c 282 16e 100034d 284 285 2000000 28
+// prog: 20000022 200001b 14 33 200001d 27 33 200001f 15 33 200006a 20000000 32 2000075 15 32
+// prog: 2000092 20000022 34 200009b e 3f 200009c 25 3f 200009d f 3f 200009e 20000000 3e 200009f
+// prog: f 3e 20000a2 20000022 40 20000b8 8 4b 20000bc 23 4b 20000bd 9 4b 20000bf 20000000
+// prog: 4a 20000c0 9 4a 20000c2 20000022 4c 20000cd 2 57 20000ce 21 57 20000cf 3 57
+// prog: 20000d5 20000000 56 20000d7 3 56 20000db 20 57 20000e2 22 4b 20000eb 24 3f 20000f6
+// prog: 26 33 2000125 4 193 2000126 5 193 200012e 40000002 196 2000134 40000002 195 200013a 20000011
+// prog: 195 2000140 20000012 196 2000144 20000012 195 2000145 20000014 196 2000146 20000013 195 2000147 20000015 196
+// prog: 2000148 20000017 194 2000149 20000019 194 200014a 20000018 196 200014b 20000018 195 200014c 20000019 196 200014d
+// prog: 20000017 195 200014e 2000001a 194 200015e a 1ba 200015f b 1ba 2000165 40000005 1bd 2000166 40000005
+// prog: 1bc 2000167 20000011 1bc 2000288 2000001e 1bd 2000289 2000001e 1bc 200028a 20000014 1bd 200028b 2000001f 1bc
+// prog: 200028c 20000015 1bd 200028d 20000020 1bb 200028e 20000019 1bb 200028f 20000021 1bd 2000290 20000021 1bc 2000291
+// prog: 20000019 1bd 2000292 20000020 1bc 2000293 2000001a 1bb 20002a2 10 1e1 20002a3 11 1e1 20002a7 40000008
+// prog: 1e4 20002a8 20000012 1e4 20002a9 20000014 1e4 20002aa 20000015 1e4 20002ab 20000017 1e2 20002ac 20000019 1e2
+// prog: 20002ad 20000018 1e4 20002ae 20000019 1e4 20002af 2000001a 1e2 20002be 16 208 20002bf 17 208 20002c3
+// prog: 4000000b 20b 20002c4 2000001e 20b 20002c5 20000014 20b 20002c6 20000015 20b 20002c7 20000020 209 20002c8 20000019
+// prog: 209 20002c9 20000021 20b 20002ca 20000019 20b 20002cb 2000001a 209 20002d0 6f 195 20002d1 6f 196
+// prog: 20002d2 195 195 20002d3 196 196 20002d4 194 195 20002d5 194 196 20002da 7a 1bc 20002db
+// prog: 7a 1bd 20002dc 1bc 1bc 20002dd 1bd 1bd 20002de 1bb 1bc 20002df 1bb 1bd 20002e4 84
+// prog: 1e4 20002e5 1e4 1e4 20002e6 1e2 1e4 20002eb 8e 20b 20002ec 20b 20b 20002ed 209 20b
+// prog: 20002f9 20000013 196 20002fa 20000016 196 20002fb 20000015 195 20002fc 20000016 195 20002fd 20000011 196 20002fe
+// prog: 20000014 195 20002ff 20000018 194 200030b 2000001f 1bd 200030c 20000016 1bd 200030d 20000015 1bc 200030e 20000016
+// prog: 1bc 200030f 20000011 1bd 2000310 20000014 1bc 2000311 20000021 1bb 200031d 20000013 1e4 200031e 20000016 1e4
+// prog: 200031f 20000011 1e4 2000320 20000018 1e2 200032c 2000001f 20b 200032d 20000016 20b 200032e 20000011 20b 200032f
+// prog: 20000021 209 2000330 20000020 20b 2000331 32 8a 2000332 33 110 2000333 33 8b 2000337 20000017
+// prog: 1e4 2000338 3e 80 2000339 3f f2 200033a 3f 81 200033e 20000019 1bc 200033f 20000020 1bd
+// prog: 2000340 4a 76 2000341 4b d3 2000342 4b 77 2000346 20000019 195 2000347 20000017 196 2000348
+// prog: 56 6b 2000349 57 b4 200034a 57 6c 40000f4 173 173 4000105 17a 17a 4000124 190
+// prog: 190 400012a 19c 19c 400015d 1b7 1b7 4000164 1c3 1c3 40002cd 21b 21b 40002d7 220 220
+// prog: 4000343 27b 27b 400034b 283 283 2a c 20000024 2b 0 20000025 37 20000024 96 38
+// prog: 20000025 92 44 20000024 a6 46 20000025 a2 50 20000024 ca 52 20000025 c2 87 106
+// prog: 17e be 109 71 c1 10b 10c c5 11b 18e 103 197 125 115 129 12e
+// prog: 119 13a 140 11c 144 145 11f 146 147 135 14f 1a5 13b 152 7c 13c
+// prog: 153 154 141 15a 1b5 171 1be 15e 175 163 165 176 167 288 177 289
+// prog: 28a 178 28b 28c 182 294 1cc 184 296 fc 185 297 ff 186 298 102
+// prog: 187 29d 1dc 1a7 1e5 2a2 1aa 2a5 2a7 1b4 2b0 1f3 1ba 2b2 11a 1c0
+// prog: 2b3 11d 1c1 2b4 120 1c2 2b9 203 1d9 20c 2be 1de 2c1 2c3 1fc 2e1
+// prog: 2e1 200 2e8 2e8 20e 71 2f4 210 70 2f7 224 2ff 2ff 228 7c 306
+// prog: 22a 7b 309 237 311 311 23c 313 313 23d 314 24e 23e 315 251 24b
+// prog: 320 320 24d 322 322 24f 323 25d 250 324 260 25f 32f 32f 272 334
+// prog: 334 273 335 335 275 336 26e 350 33b 33b 351 33c 33c 353 33d 276
+// prog: 362 344 344 364 345 27e 373 34c 34c 375 34d 286 1000028 1 6 1000029
+// prog: 7 2d 1000035 93 94 1000036 95 39 1000042 a3 a4 1000043 a5 45 100004e c3
+// prog: c7 100004f c8 51 1000063 f4 174 1000067 105 17b 1000091 107 17f 10000b9 108 70
+// prog: 10000c4 124 191 10000c6 11e 18f 1000104 126 198 100010a 12a 19d 1000121 1a1 14a 1000122
+// prog: 14b 1a2 1000128 14c 14d 1000136 150 1a6 1000137 151 7b 100013d 15d 1b8 1000142 15b
+// prog: 1b6 1000172 15f 1bf 1000173 164 1c4 1000179 1c8 28f 100017a 290 1c9 100017c 291 292
+// prog: 1000183 295 1cd 1000188 29e 1dd 1000189 1e0 2a0 10001a8 2a3 1e6 10001ae 1ef 2ad 10001b7
+// prog: 2b1 1f4 10001c3 2ba 204 10001ca 207 2bc 10001da 2bf 20d 10001e7 216 2c9 10001f8 2cd
+// prog: 21c 10001fa 2d7 221 1000208 2f0 2f1 100020a 2f2 2f3 100020f 2f5 2f6 1000211 14a 1a1
+// prog: 1000212 1a2 14b 1000218 14d 14c 1000219 2f9 238 100021a 147 239 100021b 2fa 19f 100021d
+// prog: 23a 146 100021e 238 2fb 100021f 19e 2fc 1000220 144 2fd 1000222 2fe 140 1000223 2fb
+// prog: 2f9 1000226 302 303 1000227 304 305 1000229 307 308 100022b 28f 1c8 100022c 1c9 290
+// prog: 100022d 292 291 100022e 30b 247 100022f 28c 248 1000230 30c 1c6 1000231 249 28b 1000232
+// prog: 247 30d 1000233 1c5 30e 1000234 289 30f 1000235 310 288 1000236 30d 30b 100023f 319
+// prog: 31a 1000240 31b 85 1000241 2ad 1ef 1000242 31d 256 1000243 2aa 257 1000244 31e 1ed
+// prog: 1000252 328 329 1000253 32a 8f 1000254 2c9 216 1000255 32c 265 1000259 2c6 266 100025a
+// prog: 32d 214 1000356 30f 289 1000357 288 310 1000358 30b 30d 100035d 343 16d 1000367 2fd
+// prog: 144 1000368 140 2fe 1000369 2f9 2fb 100036e 34b 16f 200002c 15 19 200002e 26 19
+// prog: 200002f 14 19 2000031 20000000 d 2000034 14 d 200003a f 9a 200003b 24 9a 200003c
+// prog: e 9a 2000040 20000000 97 2000041 e 97 2000047 9 b6 2000048 22 b6 2000049 8
+// prog: b6 200004c 20000000 a7 200004d 8 a7 2000053 3 cc 2000054 20 cc 2000055 2 cc
+// prog: 2000058 20000000 cb 2000059 2 cb 200005b 21 cc 200005c 20000000 dc 200005d 20000004 df 200005f
+// prog: 23 b6 2000060 20000000 e6 2000061 20000004 e9 2000062 25 9a 2000064 20000000 ec 2000065 20000004
+// prog: ee 2000066 27 19 2000072 20000000 fa 200007d 20000004 100 20000c9 b4 118 20000d8 18 114
+// prog: 20000dd 18 112 20000e0 b3 118 20000e3 b3 114 20000e4 b4 112 20000e5 6c 118 20000e8
+// prog: 6f 114 20000f7 6f 112 20000fb 6b 118 20000fe 6b 114 2000101 6c 112 200012f 20000017
+// prog: 127 2000130 20000019 127 2000131 2000001a 127 2000143 d3 158 2000157 1a 156 2000159 1a 155
+// prog: 2000160 d2 158 2000162 d2 156 2000168 d3 155 2000169 77 158 200016a 7a 156 200016b
+// prog: 7a 155 200016c 76 158 200016e 76 156 2000170 77 155 200017d 20000020 161 2000180 20000019
+// prog: 161 2000181 2000001a 161 200018a f2 29c 200018b 1c 29b 200018c 1c 29a 200018d f1 29c
+// prog: 2000190 f1 29b 2000193 f2 29a 2000199 81 29c 200019a 84 29b 200019b 84 29a 200019c
+// prog: 80 29c 20001a3 80 29b 20001a4 81 29a 20001a9 40000008 2a1 20001ab 20000011 2a1 20001ac 20000012
+// prog: 2a1 20001ad 20000013 2a1 20001af 20000018 2a1 20001b0 20000017 2a1 20001b1 20000017 2a4 20001b2 20000019 2a4
+// prog: 20001b3 2000001a 2a4 20001cb 110 2b8 20001ce 1e 2b7 20001cf 1e 2b6 20001d0 10f 2b8 20001d1
+// prog: 10f 2b7 20001d2 110 2b6 20001d3 8b 2b8 20001d4 8e 2b7 20001d5 8e 2b6 20001d6 8a
+// prog: 2b8 20001d7 8a 2b7 20001d8 8b 2b6 20001db 4000000b 2bd 20001df 20000011 2bd 20001e1 2000001e 2bd
+// prog: 20001e3 2000001f 2bd 20001e8 20000021 2bd 20001e9 20000020 2bd 20001ea 20000020 2c0 20001eb 20000019 2c0 20001f1
+// prog: 2000001a 2c0 20001f2 fa 2000002c 20001f5 ec 2000002c 20001f6 e6 2000002c 20001f7 dc 2000002c 20001fd 84
+// prog: 2a1 20001fe 2a1 2a1 20001ff 1e2 2a1 2000201 8e 2bd 2000202 2bd 2bd 2000205 209 2bd
+// prog: 2000206 20000022 2ef 2000225 20000022 301 200023b 20000022 316 2000245 20000015 2a1 2000246 20000016 2a1 200024a
+// prog: 20000014 2a1 200024c 20000022 325 200025b 20000015 2bd 200025c 20000016 2bd 200025e 20000014 2bd 2000261 20000019
+// prog: 2bd 2000262 d 8b 2000263 19 10f 2000264 19 8a 200026a d 2e7 200026b 32 2e7
+// prog: 200026c 33 2e7 200026d 19 2e7 2000274 fa 2e7 200027a fd 89 200027b 100 88 200027c
+// prog: 20000019 2a1 200027d 97 81 2000282 9a f1 2000283 9a 80 2000284 97 2e0 2000285 3e
+// prog: 2e0 200034e 3f 2e0 200034f 9a 2e0 2000352 ec 2e0 2000354 ed 7f 2000355 ee 7e
+// prog: 200035a a7 77 200035b b6 d2 200035c b6 76 200035e a7 2d6 200035f 4a 2d6 2000360
+// prog: 4b 2d6 2000361 b6 2d6 2000363 e6 2d6 2000365 e7 74 2000366 e9 73 200036b cb
+// prog: 6c 200036c cc b3 200036d cc 6b 200036f cb 2cc 2000370 56 2cc 2000371 57 2cc
+// prog: 2000372 cc 2cc 2000374 dc 2cc 2000376 de 69 2000377 df 68 4000030 1f 1f 400003d
+// prog: 9d 9d 400005a cf cf 400005e bd bd 40001f9 2d2 2d2 40001fb 2dc 2dc 4000359 33e
+// prog: 33e 400036a 346 346 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 7000002 1 1 7000005 3 3 7000008 5 5 700000b 7 7 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -25693,753 +24783,539 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 1 0 28 6 0 2a 7 2000001b 29 c
+// prog: 2000000c 2b 1a 2e 1d 1e 92 35 1f 92 37 2d 20000008 36 39 2000000c
+// prog: 38 51 3b 9c 71 a2 42 7b a2 44 7c 2000001b 43 93 2000000c 46
+// prog: 95 48 bc 96 4d c0 9d c2 4e a3 c2 50 a4 20000008 4f a5
+// prog: 2000000c 52 bd 54 ce c3 59 d7 ca e1 5c df ea 60 ed 63
+// prog: 64 fc 67 72 11a c9 d8 144 119 19e 145 11c 19f 146 11f 1a0
+// prog: 18f 143 157 1c8 176 1c5 1c9 177 1c6 1dc 178 1c7 221 184 85 239
+// prog: 186 299 260 19b 19c 28b 1ab 2a8 28c 1ac 2a9 291 1ad 2aa 2b0 1ba
+// prog: 8f 2b2 1c1 2b5 2c1 1d5 1d6 2f1 1df 2c4 2f2 1e1 2c5 2f3 1e3 2c6
+// prog: 308 1f8 1f8 30f 1fa 1fa 32a 206 208 32d 206 20f 334 206 2f8 335
+// prog: 14e 218 33c 219 219 33d 21a 21d 33e 21b 220 343 21e 21e 344 21f
+// prog: 222 345 223 223 346 225 226 34b 225 229 34c 225 30a 34d 293 22d
+// prog: 37a 22e 22e 37b 22f 231 37c 230 234 37d 232 232 37e 233 235 37f
+// prog: 236 236 383 23b 23f 384 23b 31c 38f 242 242 393 24c 252 394 24c
+// prog: 32b 39f 255 255 3a7 264 333 3ac 27a 27b 3b4 283 33a 3b9 354 355
+// prog: 3bf 35d 35d 3c1 365 366 3c7 36e 36e 3c9 376 377 1000018 2c 1b 1000045
+// prog: 3a 9b 1000094 47 b8 10000a6 53 cd 10000c7 5a 55 10000c8 5b db 10000cf 5e
+// prog: 49 10000de 5f e2 10000e7 3d 3c 10000e9 62 eb 10000ee 30 2f 10000f4 66 f6
+// prog: 1000105 192 c4 100011d e3 e4 100011e e5 e8 1000120 f7 fb 1000124 fe 101 1000140
+// prog: 10a 134 1000152 14e 128 1000164 1b9 13d 1000197 162 168 1000198 169 16a 100019d 16b
+// prog: 16c 10001a1 16e 170 10001c4 173 166 1000204 293 17c 1000238 185 86 100024e 18a 18b
+// prog: 1000251 18c 18d 1000257 190 193 1000266 1a4 1a3 100028a 2a6 1a9 1000297 1af 1f0 1000298
+// prog: 2ae 1b0 10002b1 1c0 90 10002bc 1cb 1ce 10002be 1cf 1d0 10002bf 1d1 1d2 10002cd 1d8
+// prog: 1d7 10002f0 2c2 1db 10002f9 1e8 217 10002fa 2ca 1e9 1000309 1f9 2d3 1000310 1fb 2dd
+// prog: 1000380 23c 317 1000381 23d 318 1000382 23e 86 1000385 1f0 1af 1000386 1b0 2ae 1000387
+// prog: 258 1ad 1000388 256 245 1000389 1ec 246 100038a 1ac 31f 100038b 24a 2a8 100038c 245
+// prog: 31d 1000390 24d 326 1000391 24f 327 1000392 250 90 1000395 217 1e8 1000396 1e9 2ca
+// prog: 1000397 267 1e3 1000398 265 25b 1000399 213 25c 100039a 1e1 32e 100039b 25e 2c4 100039c
+// prog: 25b 32c 10003a0 32e 1e1 10003a1 2c4 25e 10003a2 32c 25b 10003a5 331 262 10003ab 275
+// prog: 26f 10003ad 31f 1ac 10003ae 2a8 24a 10003af 31d 245 10003b2 338 27d 10003b8 353 277
+// prog: 10003ba 359 33f 10003bc 35a 340 10003c0 364 27f 10003c2 36a 347 10003c4 36b 348 10003c8
+// prog: 375 287 20000fd 2000000e 91 20000ff 2000000d 87 2000100 2000000f 87 2000102 2000000f 91 2000106 6c
+// prog: c1 2000107 6f be 2000108 6f b9 2000109 6b c1 200010b 6b be 200010c 6c b9
+// prog: 2000125 5 87 2000126 4 91 2000127 4 87 2000129 5 91 200012a 40000002 104 200013a
+// prog: 40000002 103 2000147 20000018 104 200014c 20000018 103 200014d 20000019 104 200014f 20000017 103 2000150 2000001a
+// prog: 103 2000151 2000001a 104 2000153 20000011 115 2000154 20000012 115 200015a 20000013 115 200015b 20000018 115
+// prog: 200015d 20000017 115 200015e 2000000e 136 200015f 2000001d 135 2000161 2000000f 135 2000163 2000000f 136 2000167
+// prog: 77 13c 200016d 7a 13b 200016f 7a 137 2000174 76 13c 200017b 76 13b 200018e 77
+// prog: 137 20001a2 b 135 20001b5 a 136 20001b6 a 135 20001b8 b 136 20001be 40000005 172
+// prog: 20001bf 40000005 171 20001dd 20000021 172 20001e0 20000021 171 20001e5 20000019 172 20001e6 20000020 171 20001ef
+// prog: 2000001a 171 2000203 2000001a 172 2000207 20000011 175 200020c 2000001e 175 200020d 2000001f 175 2000216 20000021
+// prog: 175 200021c 20000020 175 200023a 2000000e 183 2000247 2000000d 182 2000248 2000000f 182 2000249 2000000f 183
+// prog: 200026e 11 182 2000276 10 183 200027e 10 182 2000286 11 183 2000288 40000008 1a8 2000289
+// prog: 40000008 1a7 2000292 20000018 1a8 2000294 20000018 1a7 2000295 20000019 1a8 2000296 20000017 1a7 200029d 2000001a
+// prog: 1a7 200029e 2000001a 1a8 20002a0 20000011 1aa 20002a2 20000012 1aa 20002a3 20000013 1aa 20002a4 20000018 1aa
+// prog: 20002a5 20000017 1aa 20002b3 2000000e 1b7 20002b4 2000001d 1b4 20002b9 2000000f 1b4 20002ba 2000000f 1b7 20002d2
+// prog: 17 1b4 20002d7 16 1b7 20002dc 16 1b4 20002e1 17 1b7 20002e8 4000000b 1da 20002ef 4000000b
+// prog: 1d9 20002f4 20000021 1da 20002f5 20000021 1d9 20002f6 20000019 1da 20002f7 20000020 1d9 20002fb 2000001a 1d9
+// prog: 20002fc 2000001a 1da 20002fd 20000011 1de 20002fe 2000001e 1de 2000301 2000001f 1de 2000302 20000021 1de 2000303
+// prog: 20000020 1de 2000304 fa 1f2 2000305 ec 1f5 2000306 e6 1f6 2000307 dc 1f7 200030b 6f
+// prog: 103 200030c 6f 104 200030d 195 103 200030e 196 104 2000313 7a 171 2000314 7a 172
+// prog: 2000315 1bc 171 2000316 1bd 172 200031a 84 1a7 200031b 84 1a8 200031e 2a1 1a7 2000322
+// prog: 1e4 1a8 2000324 8e 1d9 2000325 8e 1da 2000328 2bd 1d9 2000329 20b 1da 2000336 20000019
+// prog: 103 200033b 20000017 104 2000378 20000019 171 2000379 20000020 172 200038d 20000019 1a7 200038e 20000017 1a8
+// prog: 200039d 20000019 1d9 200039e 20000020 1da 20003a4 20000017 1da 20003a8 33 200 20003a9 19 200 20003aa
+// prog: 20000027 200 20003b1 20000020 1a8 20003b5 3f 1fc 20003b6 9a 1fc 20003b7 20000027 1fc 20003bb 20000017
+// prog: 172 20003c3 20000020 104 400001c 34 34 4000070 41 41 400011b dd dd 4000191 159 159
+// prog: 400025d 199 199 40002c0 1d3 1d3 4000319 1fe 1fe 4000323 202 202 40003a3 261 261 40003a6
+// prog: 263 263 40003b0 27c 27c 40003b3 282 282 40003bd 35b 35b 40003be 35c 35c 40003c5 36c
+// prog: 36c 40003c6 36d 36d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 20000007 1 1b 2000000a 6 1d 20000021 1a 2e
+// prog: 18 20000028 2f 20000007 1e 30 2000000a 1f 34 20000018 51 3b 20000028 45 3c 20000007
+// prog: 71 3d 2000000a 7b 41 20000018 95 47 20000028 94 48 20000007 9d 49 2000000a a3
+// prog: 4d 20000021 bd 53 20000028 a6 55 ca 5d 5a df 61 5c ed 65 5f
+// prog: fc 7d 67 100 11e 6f 102 120 72 105 124 7a 125 126 db 161
+// prog: 198 dc 163 19d dd 164 1a1 e1 1a2 1b5 13d 249 260 143 189 266
+// prog: 14e 26e 276 159 28b 1ec 162 28c 1ed 168 291 1ee 18c 2ba 2c1 18d
+// prog: 1ca 2cd 190 2d2 2d7 193 2f1 213 199 2f2 214 19b 2f3 215 1b4 c
+// prog: 304 1b7 39 305 1b9 93 306 1ba a5 307 1c1 30b 2d4 1c5 30c 2d5
+// prog: 1c7 313 2de 1cb 314 2df 1d0 31a 1ff 1d1 31b 2e6 1d5 324 205 1d6
+// prog: 325 2ed 1d7 150 211 1d8 151 212 1de 336 33b 1df 336 336 1e1 14d
+// prog: 14f 1e3 14c 149 1e9 33b 33b 1f0 148 147 1f9 1ef 22b 1fa 203 22c
+// prog: 1fb 378 379 1fc 378 378 1fe 1e5 1e6 200 1e0 28e 202 379 379 206
+// prog: 28d 1dd 20f 23b 380 217 29d 241 218 29e 385 219 2af 386 21a 38d
+// prog: 38e 21b 38d 38d 21d 243 387 21e 295 296 21f 244 38a 220 294 2ac
+// prog: 222 388 388 223 38e 38e 225 389 38b 226 2ab 292 229 38c 38c 22d
+// prog: 24c 390 22e 2fb 254 22f 2fc 395 230 2cb 396 231 39d 39e 232 39d
+// prog: 39d 233 259 397 234 2f6 2f7 235 25a 39a 236 2f5 2c8 23c 398 398
+// prog: 23d 39e 39e 23e 399 39b 23f 2c7 2f4 242 39c 39c 24d 2f5 3a0 24f
+// prog: 2f4 3a1 252 3a2 3a4 261 3ab 3ab 275 294 3ad 277 292 3ae 27b 3af
+// prog: 3b1 299 3b8 3b8 2ae 1e0 356 2b5 1dd 357 31c 358 3bb 31f 300 34d
+// prog: 327 158 204 347 3c0 3c0 359 14c 367 35a 147 368 377 369 3c3 3cb
+// prog: 2ee 335 3cd 118 152 3d7 3c8 3c8 100002a 1c 75 1000037 70 9f 1000060 fd
+// prog: ff 1000062 106 107 1000063 108 109 1000064 10b 10c 1000066 11b e0 1000085 129 127
+// prog: 1000086 148 147 1000087 14c 149 100008f 14d 14f 1000090 150 121 1000091 151 122 10000c9
+// prog: 15e 15f 10000cd 167 16d 10000ce 16f 174 10000d7 17b 18e 10000d8 191 160 10000e2 1b8
+// prog: 1b6 10000e3 28d 1dd 10000e4 1e0 28e 10000e5 1e5 1e6 10000e6 1ef 179 10000e8 203 17a
+// prog: 100010a 23a 247 1000136 25d 19a 1000157 286 27e 1000169 2ab 292 100016a 294 2ac 100016b
+// prog: 295 296 100016c 29d 1ae 100016e 29e 297 1000170 2af 298 100017c 2b3 2b4 100018b 2c0
+// prog: 1d4 1000192 2e1 2dc 100019c 2c7 2f4 100019e 2f5 2c8 100019f 2f6 2f7 10001a0 2fb 1e7
+// prog: 10001a3 2fc 2f9 10001a4 2cb 2fa 10001ce 319 2e5 10001d2 323 2ec 10001f8 345 224 1000208
+// prog: 37f 237 1000246 3a3 330 1000250 2fc 1e8 1000258 3a6 332 100025e 3a5 332 1000267 3b0
+// prog: 337 100027a 29e 1af 100027f 3b3 339 1000293 3b2 339 10002c2 203 290 100032e 3bd 341
+// prog: 1000331 3be 342 1000340 3bc 341 100035c 151 14b 10003d0 3c5 349 10003d1 3c6 34a 10003d6
+// prog: 3c4 349 2000028 14 7 2000029 15 7 200002b 20000000 c 200002c 20000004 18 2000035 e
+// prog: 2d 2000036 f 2d 2000038 20000000 39 200003a 20000004 45 2000042 8 7c 2000043 9 7c
+// prog: 2000044 20000000 93 2000046 20000004 94 200004e 2 a4 200004f 3 a4 2000050 20000000 a5 2000052
+// prog: 20000004 a6 2000054 20000004 c8 2000059 20000004 de 200005b 20000004 e9 200005e 20000004 f4 2000092 20000012
+// prog: 140 200009b 20000014 140 200009c 20000015 140 20000a2 20000018 140 20000b8 20000019 140 20000bc 104 152
+// prog: 20000c0 103 152 20000c2 196 152 20000c4 195 152 20000ea 2000001e 1c4 20000eb 20000014 1c4 20000ec
+// prog: 20000015 1c4 20000f6 20000021 1c4 20000f7 20000019 1c4 20000fa 172 204 20000fb 171 204 20000fe 1bd
+// prog: 204 2000101 1bc 204 2000115 81 239 2000119 84 238 200011c 84 221 200011f 80 239
+// prog: 2000128 80 238 2000135 81 221 2000173 20000012 28a 2000175 20000014 28a 2000176 20000015 28a 2000177
+// prog: 20000018 28a 2000178 20000019 28a 2000182 8b 2b2 2000183 8e 2b1 2000184 8e 2b0 2000185 8a
+// prog: 2b2 2000186 8a 2b1 200018a 8b 2b0 20001aa 2000001e 2f0 20001ab 20000014 2f0 20001ac 20000015 2f0
+// prog: 20001ad 20000021 2f0 20001b0 20000019 2f0 2000255 7 8a 2000256 7 8b 200025c c 2e7 2000262
+// prog: ee 89 2000264 f4 88 200027c 2d 80 200027d 2d 81 2000287 39 2e0 20002a6 e7
+// prog: 7f 20002a8 e9 7e 20002c5 2000001f 310 20002c6 20000015 310 20002ca 20000016 310 20002d3 20000020 310
+// prog: 20002dd 20000019 310 20002f8 171 34d 200030a 172 34d 2000317 1bc 34d 2000318 1bd 34d 200031d
+// prog: 20000010 34d 2000326 20000010 204 200032b 7c 76 200032c 7c 77 2000333 93 2d6 2000338 4b
+// prog: 30f 200033a b6 30f 200033f 20000027 30f 2000348 cf 74 2000353 de 73 2000364 20000013 309
+// prog: 2000365 20000015 309 2000366 20000016 309 200036a 20000017 309 200036b 20000019 309 200036d 103 335 200036e
+// prog: 104 335 2000375 195 335 2000376 196 335 20003ca 20000010 335 20003cc 20000010 152 20003ce a4
+// prog: 6b 20003cf a4 6c 20003d2 a5 2cc 20003d3 57 308 20003d4 cc 308 20003d5 20000027 308
+// prog: 20003d8 c7 69 20003d9 c8 68 20003da 1f7 3c9 20003db 2000002c 3c9 20003dc 1f6 3c1 20003dd
+// prog: 2000002c 3c1 20003de 1f5 3b9 20003df 2000002c 3b9 20003e0 1f2 3ac 20003e1 2000002c 3ac 40001c0 30d
+// prog: 30d 40001c6 315 315 40001cf 31e 31e 40001d3 328 328 4000245 39d 39d 400024a 2fb 2fb
+// prog: 400025b 3a7 3a7 4000265 38d 38d 400026f 29d 29d 4000283 3b4 3b4 40002a9 378 378 40002aa
+// prog: 1ef 1ef 40002c4 3ba 3ba 4000354 336 336 4000355 150 150 400035d 3c2 3c2 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 d798 4 da98 2 dc18 4 df18 6 e398 5 e758 6 ebd8 5
-// prog: ef98 5 f358 6 f7d8 6 fc58 4 ff58 5 10318 4 10618 3 10858 3
-// prog: 10a98 2 10c18 2 10d98 2 10f18 1 10fd8 1 11098 1 11158 1 11218 1
-// prog: 112d8 1 11398 1 11458 1 11518 1 115d8 1 11698 2 11818 2 11998 2
-// prog: 11b18 2 11c98 3 11ed8 2 12058 1 12118 1 121d8 1 12298 1 12358 1
-// prog: 12418 1 124d8 1 12598 1 12658 1 12718 1 127d8 1 12898 1 12958 1
-// prog: 12a18 1 12ad8 1 12b98 1 12c58 1 12d18 1 12dd8 1 12e98 1 12f58 1
-// prog: 13018 1 130d8 1 13198 1 13258 1 2000018 20000004 40000000 2000019 20000000 40000000 200001a 20000004
-// prog: 40000003 200001b 20000000 40000003 200001c 20000004 40000006 200001d 20000000 40000006 200001e 20000004 40000009 200001f 20000000 40000009
-// prog: 5000000 30000000 30000000 5000002 30000001 30000001 5000004 30000002 30000002 5000006 30000003 30000003 5000008 30000004 30000004 500000a
-// prog: 30000005 30000005 500000c 30000006 30000006 500000e 30000007 30000007 5000010 30000008 30000008 5000012 30000009 30000009 5000014 3000000a
-// prog: 3000000a 5000016 3000000b 3000000b 6000001 30000000 30000000 6000003 30000001 30000001 6000005 30000002 30000002 6000007 30000003 30000003
-// prog: 6000009 30000004 30000004 600000b 30000005 30000005 600000d 30000006 30000006 600000f 30000007 30000007 6000011 30000008 30000008 6000013
-// prog: 30000009 30000009 6000015 3000000a 3000000a 6000017 3000000b 3000000b 700000f 2000002a 2000002a 7000010 2000002a 2000002a 7000011 2000002a
-// prog: 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a 7000014 2000002a 2000002a 7000015 2000002a 2000002a 7000016 2000002a 2000002a
-// prog: 7000017 2000002a 2000002a 700001b 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e 2000002a 2000002a 700001f
-// prog: 2000002a 2000002a 7000020 2000002a 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a 2000002a 7000027 2000002a
-// prog: 2000002a 7000028 2000002a 2000002a 7000029 2000002a 2000002a 700002a 2000002a 2000002a 700002b 2000002a 2000002a 700002c 2000002a 2000002a
-// prog: 700002d 2000002a 2000002a 700002e 2000002a 2000002a 700002f 2000002a 2000002a 7000030 2000002a 2000002a 7000031 2000002a 2000002a 7000032
-// prog: 2000002a 2000002a 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039 2000002a 2000002a 700003a 2000002a
-// prog: 2000002a 700003b 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a 2000002a 7000042 2000002a 2000002a
-// prog: 7000043 2000002a 2000002a 7000044 2000002a 2000002a 7000045 2000002a 2000002a 7000046 2000002a 2000002a 7000047 2000002a 2000002a 7000048
-// prog: 2000002a 2000002a 7000049 2000002a 2000002a 700004a 2000002a 2000002a 700004e 2000002a 2000002a 700004f 2000002a 2000002a 7000050 2000002a
-// prog: 2000002a 7000051 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a 7000054 2000002a 2000002a 7000055 2000002a 2000002a
-// prog: 7000056 2000002a 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059 2000002a 2000002a 700005d 2000002a 2000002a 700005e
-// prog: 2000002a 2000002a 700005f 2000002a 2000002a 7000060 2000002a 2000002a 7000061 2000002a 2000002a 7000062 2000002a 2000002a 7000063 2000002a
-// prog: 2000002a 7000064 2000002a 2000002a 7000065 2000002a 2000002a 7000069 2000002a 2000002a 700006a 2000002a 2000002a 700006b 2000002a 2000002a
-// prog: 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a 2000002a 700006f 2000002a 2000002a 7000070 2000002a 2000002a 7000071
-// prog: 2000002a 2000002a 7000075 2000002a 2000002a 7000076 2000002a 2000002a 7000077 2000002a 2000002a 7000078 2000002a 2000002a 7000079 2000002a
-// prog: 2000002a 700007a 2000002a 2000002a 700007b 2000002a 2000002a 700007c 2000002a 2000002a 700007d 2000002a 2000002a 700007e 2000002a 2000002a
-// prog: 700007f 2000002a 2000002a 7000080 2000002a 2000002a 7000084 2000002a 2000002a 7000085 2000002a 2000002a 7000086 2000002a 2000002a 7000087
-// prog: 2000002a 2000002a 7000088 2000002a 2000002a 7000089 2000002a 2000002a 700008a 2000002a 2000002a 700008b 2000002a 2000002a 700008c 2000002a
-// prog: 2000002a 7000090 2000002a 2000002a 7000091 2000002a 2000002a 7000092 2000002a 2000002a 7000093 2000002a 2000002a 7000094 2000002a 2000002a
-// prog: 7000095 2000002a 2000002a 7000096 2000002a 2000002a 7000097 2000002a 2000002a 7000098 2000002a 2000002a 700009f 2000002a 2000002a 70000a0
-// prog: 2000002a 2000002a 70000a1 2000002a 2000002a 70000a2 2000002a 2000002a 70000a3 2000002a 2000002a 70000a4 2000002a 2000002a 70000a5 2000002a
-// prog: 2000002a 70000a6 2000002a 2000002a 70000a7 2000002a 2000002a 70000ab 2000002a 2000002a 70000ac 2000002a 2000002a 70000ad 2000002a 2000002a
-// prog: 70000ae 2000002a 2000002a 70000af 2000002a 2000002a 70000b0 2000002a 2000002a 70000b1 2000002a 2000002a 70000b2 2000002a 2000002a 70000b3
-// prog: 2000002a 2000002a 70000b7 2000002a 2000002a 70000b8 2000002a 2000002a 70000b9 2000002a 2000002a 70000ba 2000002a 2000002a 70000bb 2000002a
-// prog: 2000002a 70000bc 2000002a 2000002a 70000bd 2000002a 2000002a 70000be 2000002a 2000002a 70000bf 2000002a 2000002a 70000c0 2000002a 2000002a
-// prog: 70000c1 2000002a 2000002a 70000c2 2000002a 2000002a 70000c6 2000002a 2000002a 70000c7 2000002a 2000002a 70000c8 2000002a 2000002a 70000c9
-// prog: 2000002a 2000002a 70000ca 2000002a 2000002a 70000cb 2000002a 2000002a 70000cc 2000002a 2000002a 70000cd 2000002a 2000002a 70000ce 2000002a
-// prog: 2000002a 70000d2 2000002a 2000002a 70000d3 2000002a 2000002a 70000d4 2000002a 2000002a 70000d5 2000002a 2000002a 70000d6 2000002a 2000002a
-// prog: 70000d7 2000002a 2000002a 70000d8 2000002a 2000002a 70000d9 2000002a 2000002a 70000da 2000002a 2000002a 70000de 2000002a 2000002a 70000df
-// prog: 2000002a 2000002a 70000e0 2000002a 2000002a 70000e1 2000002a 2000002a 70000e2 2000002a 2000002a 70000e3 2000002a 2000002a 70000e4 2000002a
-// prog: 2000002a 70000e5 2000002a 2000002a 70000e6 2000002a 2000002a 70000e7 2000002a 2000002a 70000e8 2000002a 2000002a 70000e9 2000002a 2000002a
-// prog: 70000ed 2000002a 2000002a 70000ee 2000002a 2000002a 70000ef 2000002a 2000002a 70000f0 2000002a 2000002a 70000f1 2000002a 2000002a 70000f2
-// prog: 2000002a 2000002a 70000f3 2000002a 2000002a 70000f4 2000002a 2000002a 70000f5 2000002a 2000002a 70000f9 2000002a 2000002a 70000fa 2000002a
-// prog: 2000002a 70000fb 2000002a 2000002a 70000fc 2000002a 2000002a 70000fd 2000002a 2000002a 70000fe 2000002a 2000002a 70000ff 2000002a 2000002a
-// prog: 7000100 2000002a 2000002a 7000101 2000002a 2000002a 7000105 2000002a 2000002a 7000106 2000002a 2000002a 7000107 2000002a 2000002a 7000108
-// prog: 2000002a 2000002a 7000109 2000002a 2000002a 700010a 2000002a 2000002a 700010b 2000002a 2000002a 700010c 2000002a 2000002a 700010d 2000002a
-// prog: 2000002a 700010e 2000002a 2000002a 700010f 2000002a 2000002a 7000110 2000002a 2000002a 7000114 2000002a 2000002a 7000115 2000002a 2000002a
-// prog: 7000116 2000002a 2000002a 7000117 2000002a 2000002a 7000118 2000002a 2000002a 7000119 2000002a 2000002a 700011a 2000002a 2000002a 700011b
-// prog: 2000002a 2000002a 700011c 2000002a 2000002a 7000120 2000002a 2000002a 7000121 2000002a 2000002a 7000122 2000002a 2000002a 7000123 2000002a
-// prog: 2000002a 7000124 2000002a 2000002a 7000125 2000002a 2000002a 7000126 2000002a 2000002a 7000127 2000002a 2000002a 7000128 2000002a 2000002a
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 6f 40000001 19 7a 40000004 1b 84 40000007
-// prog: 1d 8e 4000000a 1f 2000020 20000000 2 2000021 20000000 3 2000022 20000000 8 2000023 20000000 9
-// prog: 2000024 20000000 e 2000025 20000000 f 2000026 20000000 14 2000027 20000000 15 2000028 20000019 17 2000029
-// prog: 20000020 16 200002a 20000019 16 200002b 20000020 17 200002c 20000011 17 200002d 2000001e 16 200002e 20000011
-// prog: 16 200002f 2000001e 17 2000030 20000014 16 2000031 20000014 17 2000032 2000001f 17 2000033 20000015 16
-// prog: 2000034 2000001f 16 2000035 20000015 17 2000036 20000019 11 2000037 20000017 10 2000038 20000019 10 2000039
-// prog: 20000017 11 200003a 20000011 11 200003b 20000012 10 200003c 20000011 10 200003d 20000012 11 200003e 20000014
-// prog: 10 200003f 20000014 11 2000040 20000013 11 2000041 20000015 10 2000042 20000013 10 2000043 20000015 11
-// prog: 2000044 20000019 b 2000045 a 20000020 2000046 20000019 a 2000047 b 20000020 2000048 20000011 b 2000049
-// prog: a 2000001e 200004a 20000011 a 200004b b 2000001e 200004c 20000014 a 200004d 20000014 b 200004e b
-// prog: 2000001f 200004f 20000015 a 2000050 a 2000001f 2000051 20000015 b 2000052 5 20000019 2000053 4 20000017
-// prog: 2000054 4 20000019 2000055 5 20000017 2000056 5 20000011 2000057 4 20000012 2000058 4 20000011 2000059
-// prog: 5 20000012 200005a 4 20000014 200005b 5 20000014 200005c 5 20000013 200005d 4 20000015 200005e 4
-// prog: 20000013 200005f 5 20000015 2000060 5 20000020 2000061 4 20000020 2000062 20000017 b 2000063 20000017 a
-// prog: 2000064 20000020 11 2000065 20000020 10 2000066 20000017 17 2000067 20000017 16 2000068 1 20000001 2000069
-// prog: 0 20000001 200006b 2 40000000 200006c 3 40000000 200006d 2 20000005 200006e 3 20000005 2000070 2000000d
-// prog: 18 2000071 2000000e 18 2000072 2000000f 18 2000073 7 20000001 2000074 6 20000001 2000076 8 40000003
-// prog: 2000077 9 40000003 2000078 8 20000005 2000079 9 20000005 200007b 2000001d 1a 200007c 2000000e 1a 200007d
-// prog: 2000000f 1a 200007e d 20000001 200007f c 20000001 2000080 e 40000006 2000081 f 40000006 2000082 e
-// prog: 20000005 2000083 f 20000005 2000085 2000000d 1c 2000086 2000000e 1c 2000087 2000000f 1c 2000088 13 20000001
-// prog: 2000089 12 20000001 200008a 14 40000009 200008b 15 40000009 200008c 14 20000005 200008d 15 20000005 200008f
-// prog: 2000001d 1e 2000090 2000000e 1e 2000091 2000000f 1e 400006a 18 18 4000075 1a 1a 8000000 0
+// prog: 8000000 0 0 8000000 0 0 18 2a 2b 1c 20000003 2e 45 37 38 5d
+// prog: 20000003 3b 70 96 44 75 20000003 47 84 c3 50 93 20000003 53 94 123
+// prog: 60 95 62 11a 9d 63 66 9f 64 11d a3 7a 12a a6 144 86
+// prog: bd 145 87 c7 146 8f c8 153 92 ca 154 9b cf 15a 9c fd
+// prog: 15c c9 ff cd 18f 100 ce d8 102 d7 197 105 e1 1be 107 1c8
+// prog: e3 108 1c9 e4 109 1dc e5 10b 207 ea 10c 20c eb 118 20d ec
+// prog: 147 29f 10a 149 11c 11f 14c 248 136 14d 14e 288 150 159 169 151
+// prog: 162 16a 152 168 16b 158 2a0 173 15e 2a2 175 15f 2a3 176 191 2bb
+// prog: 17c 1a1 184 185 1ae 2b9 18b 1af 190 2e8 1b6 193 19c 1b8 199 19e
+// prog: 1c4 19b 19f 1ca 2fd 1aa 1d4 2fe 1ab 1dd 301 1ac 24c 1de 2ff 26e
+// prog: 1fb 311 28c 21a 320 295 231 32f 2e5 24d 24d 2e6 24f 24f 2e7 250
+// prog: 250 2ec 1a0 22e 2f6 321 230 300 2b8 1a4 306 3a5 258 30b 262 264
+// prog: 342 275 275 345 277 277 349 27a 27a 34a 16c 217 386 312 219 38c
+// prog: 29c 170 396 3b2 27f 39a 2a6 2a8 3b8 2ae 2ae 3bb 2b5 2b5 3bd 2c2
+// prog: 2c2 3c0 e6 1f9 3eb 3bc 32e 3f7 348 353 405 359 359 406 35a 35a
+// prog: 407 35c 35c 409 90 1d7 417 3c4 3d0 423 3d8 3d9 10000a5 85 13a 10000de
+// prog: b8 15d 1000106 e2 1bf 100011b f7 21c 100014b 135 128 100014f 157 289 1000160 178
+// prog: 2a5 10001a2 18a 186 10001b5 192 2ef 10001e0 1b0 303 1000243 1c0 30e 1000244 1c6 316
+// prog: 1000247 1cf 322 1000249 1d3 329 1000254 33c 1df 1000259 33d 1e1 100025a 33e 1e3 100025d
+// prog: 343 1e9 1000266 344 1f0 1000276 37a 1fc 100027e 37b 1fe 1000286 37c 200 100028a 37d
+// prog: 202 100028b 37e 206 100028d 38f 21b 100028e 21d 21e 1000290 21f 220 1000291 222 223
+// prog: 1000292 225 226 1000294 229 24b 1000296 39f 232 1000297 233 234 1000298 235 236 100029d
+// prog: 23c 23d 100029e 23e 23f 10002ab 242 25f 10002ac 245 39e 10002af 24a 2c9 10002ed 1a3
+// prog: 22f 10002ee 22e 1a0 10002f0 252 39d 1000307 25b 3a7 1000308 25e 263 100030c 265 38e
+// prog: 100030d 26f 2ad 100034d 16e 218 1000356 217 16c 1000357 27b 38d 1000397 283 3b4 1000398
+// prog: 293 282 100039b 2a9 379 100039c 2aa 28f 10003be 2c4 3ba 10003c3 e8 1fa 10003c5 1f9
+// prog: e6 10003c6 31c 378 10003f5 340 35b 10003f8 354 33b 10003f9 355 14a 1000408 35d 3c2
+// prog: 100040a 91 1d8 100040b 1d7 90 100040c 377 336 1000421 3d6 36c 2000006 14 0 200000c
+// prog: 15 1b 200001a 20000022 2c 200001f e 2f 2000039 f 30 2000051 20000022 3a 2000061 8
+// prog: 3c 2000065 9 3d 2000071 20000022 46 200007b 2 48 200007d 3 49 200008e 20000022 52
+// prog: 20000df 194 91 20000e0 194 90 20000e7 103 91 20000e9 104 90 20000ed d0 91 20000ee
+// prog: d0 90 20000f4 195 91 20000fc 196 90 2000121 1bb e8 2000122 1bb e6 2000124 171
+// prog: e8 2000125 172 e6 2000126 ef e8 2000127 ef e6 2000129 1bc e8 2000140 1bd e6
+// prog: 2000161 1a8 170 2000163 1e2 16e 2000164 1e2 16c 2000167 1a7 170 200016d 1a7 16e 200016f
+// prog: 1a8 16c 2000174 1e4 170 2000179 10d 16e 200017a 10d 16c 200017b 2a1 170 2000189 2a1
+// prog: 16e 200018e 1e4 16c 20001e5 1da 1a4 20001e6 209 1a3 20001e7 209 1a0 20001e8 1d9 1a4
+// prog: 20001ec 1d9 1a3 20001ed 1da 1a0 20001ee 20b 1a4 20001ef 12b 1a3 20001ff 12b 1a0 2000203
+// prog: 2bd 1a4 2000204 2bd 1a3 2000205 20b 1a0 2000211 5f 1f2 2000212 5f 2000002c 2000214 5c
+// prog: 1f5 2000215 5c 2000002c 200022b 5a 1f6 200022c 5a 2000002c 200023a 55 1f7 200023b 55 2000002c
+// prog: 20002b4 2000001f 1d2 20002ba 20000015 1d2 20002c0 20000016 1d2 20002c7 20000020 1d2 20002c8 20000019 1d2 20002cc
+// prog: 1d9 230 20002cd 1da 230 20002d2 1d9 22e 20002d4 1da 22f 20002d5 2bd 230 20002d6 20b
+// prog: 230 20002d7 2bd 22e 20002dc 20b 22f 20002de 1da 1a3 20002df 1d9 1a0 20002e0 20b 1a3
+// prog: 20002e1 2bd 1a0 20002f1 17 22e 20002f2 16 22f 20002f3 16 22e 20002f4 17 22f 20002f5
+// prog: 20000010 230 20002f7 17 1a0 20002f9 16 1a3 20002fa 16 1a0 20002fb 17 1a3 20002fc 20000010
+// prog: 1a4 2000304 0 8b 2000305 1b 8a 2000309 1d 89 2000310 20000013 1ce 2000313 20000015 1ce
+// prog: 2000314 20000016 1ce 2000315 20000017 1ce 2000319 20000019 1ce 200031b 1a7 219 200031e 1a8 219 2000323
+// prog: 1a7 217 2000324 1a8 218 2000325 2a1 219 2000328 1e4 219 2000330 2a1 217 2000332 1e4
+// prog: 218 2000335 1a8 16e 2000337 1a7 16c 2000339 1e4 16e 2000341 2a1 16c 2000367 11 217
+// prog: 2000368 10 218 200037f 10 217 2000380 11 218 2000385 20000010 219 2000387 11 16c 2000388
+// prog: 10 16e 2000389 10 16c 200038a 11 16e 200038b 20000010 170 2000390 2f 81 2000395 30
+// prog: 80 2000399 34 7f 20003a1 171 1f9 20003a3 172 1fa 20003a6 1bc 1f9 20003ab 1bd 1fa
+// prog: 20003ae 172 e8 20003b0 171 e6 20003b1 1bd e8 20003b3 1bc e6 20003c8 b 1f9 20003e2
+// prog: a 1fa 20003e3 a 1f9 20003e4 b 1fa 20003e5 b e6 20003e6 a e8 20003e7 a
+// prog: e6 20003e8 b e8 20003e9 3c 77 20003ea 3d 76 20003ed d2 31f 20003ee d3 31f
+// prog: 20003ef 76 31f 20003f0 77 31f 20003f1 d2 327 20003f2 d3 327 20003f3 76 327 20003f4
+// prog: 77 327 20003f6 41 74 20003fb 103 1d7 20003fc 104 1d8 20003fe 195 1d7 20003ff 196
+// prog: 1d8 2000401 104 91 2000402 103 90 2000403 196 91 2000404 195 90 200040d 5 1d7
+// prog: 200040e 4 1d8 200040f 4 1d7 2000410 5 1d8 2000411 5 90 2000412 4 91 2000413
+// prog: 4 90 2000414 5 91 2000415 48 6c 2000416 49 6b 2000419 b3 3cb 200041a b4
+// prog: 3cb 200041b 6b 3cb 200041c 6c 3cb 200041d b3 3cd 200041e b4 3cd 200041f 6b 3cd
+// prog: 2000420 6c 3cd 2000422 4d 69 3000213 2000002d 1b4 3000224 2000002d 1b7 3000237 2000002d 1b9 3000241
+// prog: 2000002d 1ba 4000001 28 28 400001e 35 35 4000148 115 115 400019a 182 182 40002b3 246
+// prog: 246 40002cb 22f 22f 400030f 267 267 400031a 218 218 40003a0 1fa 1fa 40003a4 317 317
+// prog: 40003ad 318 318 40003ec 331 331 40003fa 1d8 1d8 40003fd 375 375 4000400 376 376 4000418
+// prog: 3d1 3d1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 2a 2b 7 2e 2f d 2d
-// prog: 31 13 34 35 93 38 39 95 3c 3d 97 3b 3f 99 42 43
-// prog: 9b 46 47 9d 4a 4b 9f 49 4d a1 50 51 a3 54 55 a5
-// prog: 58 59 a7 57 5b a9 5e 5f ab 52 61 ad 44 63 af 36
-// prog: 65 b1 28 67 d0 40000002 6f ef 40000005 7a f7 20000006 7f 10d 40000008 84
-// prog: 115 20000006 89 12b 4000000b 8e 1000000 28 29 1000006 2c 2d 100000c 2f 30 1000012
-// prog: 32 33 1000092 36 37 1000094 3a 3b 1000096 3d 3e 1000098 40 41 100009a 44
-// prog: 45 100009c 48 49 100009e 4b 4c 10000a0 4e 4f 10000a2 52 53 10000a4 56 57
-// prog: 10000a6 59 5a 10000a8 5c 5d 10000aa 60 54 10000ac 62 46 10000ae 64 38 10000b0
-// prog: 66 2a 10000b9 20000006 69 10000d8 20000006 74 20000b2 20000003 69 20000b3 20 18 20000b4 21
-// prog: 18 20000b5 3 68 20000b6 20 69 20000b7 2 68 20000b8 21 69 20000ba 40000001 6c
-// prog: 20000bb 40000001 6b 20000bc 20000007 6b 20000bd 20000008 6c 20000be 20000009 6f 20000bf 20000008 6b 20000c0
-// prog: 2000000a 6c 20000c1 2000000b 6f 20000c2 20000009 6b 20000c3 2000000b 6c 20000c4 2000000c 6f 20000c5 2000000d
-// prog: 6f 20000c6 2000000e 6f 20000c7 2000000e 6c 20000c8 2000000d 6b 20000ca 20000010 6f 20000cb 20000010 6c
-// prog: 20000cc 5 6b 20000cd 4 6c 20000ce 4 6b 20000cf 5 6c 20000d1 20000003 74 20000d2
-// prog: 22 1a 20000d3 23 1a 20000d4 9 73 20000d5 22 74 20000d6 8 73 20000d7 23
-// prog: 74 20000d9 40000004 77 20000da 40000004 76 20000db 20000007 76 20000dc 2000001b 77 20000dd 2000001c 7a
-// prog: 20000de 2000001b 76 20000df 2000000a 77 20000e0 2000000b 7a 20000e1 2000001c 76 20000e2 2000000b 77 20000e3
-// prog: 2000000c 7a 20000e4 2000001d 7a 20000e5 2000000e 7a 20000e6 2000000e 77 20000e7 2000001d 76 20000e9 20000010
-// prog: 7a 20000ea 20000010 77 20000eb b 76 20000ec a 77 20000ed a 76 20000ee b 77
-// prog: 20000f0 20000003 7f 20000f1 24 1c 20000f2 25 1c 20000f3 f 7e 20000f4 24 7f 20000f5
-// prog: e 7e 20000f6 25 7f 20000f8 40000007 81 20000f9 40000007 80 20000fa 20000007 80 20000fb 20000008
-// prog: 81 20000fc 20000009 84 20000fd 20000008 80 20000fe 2000000a 81 20000ff 2000000b 84 2000100 20000009 80
-// prog: 2000101 2000000b 81 2000102 2000000c 84 2000103 2000000d 84 2000104 2000000e 84 2000105 2000000e 81 2000106
-// prog: 2000000d 80 2000107 20000010 84 2000108 20000010 81 2000109 11 80 200010a 10 81 200010b 10
-// prog: 80 200010c 11 81 200010e 20000003 89 200010f 26 1e 2000110 27 1e 2000111 15 88
-// prog: 2000112 26 89 2000113 14 88 2000114 27 89 2000116 4000000a 8b 2000117 4000000a 8a 2000118
-// prog: 20000007 8a 2000119 2000001b 8b 200011a 2000001c 8e 200011b 2000001b 8a 200011c 2000000a 8b 200011d 2000000b
-// prog: 8e 200011e 2000001c 8a 200011f 2000000b 8b 2000120 2000000c 8e 2000121 2000001d 8e 2000122 2000000e 8e
-// prog: 2000123 2000000e 8b 2000124 2000001d 8a 2000125 20000010 8e 2000126 20000010 8b 2000127 17 8a 2000128
-// prog: 16 8b 2000129 16 8a 200012a 17 8b 200012c 6b 19 200012d 6c 19 200012e 6b
-// prog: 6b 200012f 6c 6c 2000130 18 6b 2000131 18 6c 2000132 76 1b 2000133 77 1b
-// prog: 2000134 76 76 2000135 77 77 2000136 1a 76 2000137 1a 77 2000138 80 1d 2000139
-// prog: 81 1d 200013a 80 80 200013b 81 81 200013c 1c 80 200013d 1c 81 200013e 8a
-// prog: 1f 200013f 8b 1f 2000140 8a 8a 2000141 8b 8b 2000142 1e 8a 2000143 1e 8b
-// prog: 2000144 20000008 6f 2000145 20000009 6c 2000146 2000000a 6f 2000147 2000000c 6c 2000148 20000007 6f 2000149
-// prog: 2000000b 6b 200014a 2000000c 6b 200014b 20000007 6c 200014c 2000000a 6b 200014d 2000001b 7a 200014e 2000001c
-// prog: 77 200014f 2000000a 7a 2000150 2000000c 77 2000151 20000007 7a 2000152 2000000b 76 2000153 2000000c 76
-// prog: 2000154 20000007 77 2000155 2000000a 76 2000156 20000008 84 2000157 20000009 81 2000158 2000000a 84 2000159
-// prog: 2000000c 81 200015a 20000007 84 200015b 2000000b 80 200015c 2000000c 80 200015d 20000007 81 200015e 2000000a
-// prog: 80 200015f 2000001b 8e 2000160 2000001c 8b 2000161 2000000a 8e 2000162 2000000c 8b 2000163 20000007 8e
-// prog: 2000164 2000000b 8a 2000165 2000000c 8a 2000166 20000007 8b 2000167 2000000a 8a 2000168 20000021 8a 2000169
-// prog: 20000021 8b 200016a 20000018 80 200016b 20000018 81 200016c 20000021 76 200016d 20000021 77 200016e 20000018
-// prog: 6b 200016f 20000018 6c 40000c9 72 72 40000e8 7d 7d 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 31 0 20000026 32 2000000b 13 33 2000001d
-// prog: 1 3d 20000026 92 3e 2000000b 99 3f 2000000d 93 49 20000026 9a 4a 2000000b a1
-// prog: 4b 2000001d 9b 55 20000026 a2 56 2000000b a9 57 2000000d a3 17d b7 b8 180
-// prog: bc bd 181 bf c0 182 c2 c3 193 b4 ca 195 cc cd 1a4 d6
-// prog: d7 1a7 db dc 1a8 de df 1a9 e1 e2 1ba d3 e9 1bc eb ec
-// prog: 1cb f5 f6 1e1 f2 107 1e2 1c 108 1f2 113 114 208 110 125 209
-// prog: 1e 126 24e 100 15a 24f 156 15b 250 fc 15c 25d 11e 163 25e 15f
-// prog: 164 25f 11a 165 100002e 12 20000023 100003a 98 20000029 1000046 a0 20000023 1000052 a8 20000029
-// prog: 100017c b6 b5 1000185 c7 c8 1000194 6a cb 1000196 cf ce 10001a3 d5 d4 10001ac
-// prog: e6 e7 10001bb 75 ea 10001bd ee ed 10001ca f4 f3 10001d3 106 105 10001e4 10b
-// prog: 10c 10001f1 112 111 10001fa 124 123 100020b 129 12a 100022c c8 c7 100022d 145 144
-// prog: 100022e c3 146 100022f 147 c1 1000230 148 c2 1000231 144 149 1000232 be 14a 1000233
-// prog: bf 14b 1000234 14c bd 1000235 149 145 100023b e7 e6 100023c 14e 14d 100023d e2
-// prog: 14f 100023e 150 e0 100023f 151 e1 1000240 14d 152 1000241 dd 153 1000242 de 154
-// prog: 1000243 155 dc 1000244 152 14e 100024a 105 106 1000251 15d fd 1000252 fb 15e 1000253
-// prog: 157 15b 1000259 123 124 1000260 166 11b 1000261 119 167 1000262 160 164 2000028 20000010
-// prog: 0 2000029 17 6 200002a 16 c 200002b 17 7 200002c 16 d 200002d 20000010 1
-// prog: 200002f 16 7 2000030 17 d 2000034 20000010 92 2000035 11 94 2000036 10 96 2000037
-// prog: 11 95 2000038 10 97 2000039 20000010 93 200003b 10 95 200003c 11 97 2000040 20000010
-// prog: 9a 2000041 b 9c 2000042 a 9e 2000043 b 9d 2000044 a 9f 2000045 20000010 9b
-// prog: 2000047 a 9d 2000048 b 9f 200004c 20000010 a2 200004d 5 a4 200004e 4 a6 200004f
-// prog: 5 a5 2000050 4 a7 2000051 20000010 a3 2000053 4 a5 2000054 5 a7 2000058 20000010
-// prog: ab 2000059 3 aa 200005a 2 ab 200005b 20 aa 200005c 21 ab 200005d 2 a8
-// prog: 200005e 3 a9 200005f 20000010 ad 2000060 9 ac 2000061 8 ad 2000062 22 ac 2000063
-// prog: 23 ad 2000064 8 a0 2000065 9 a1 2000066 20000010 af 2000067 f ae 2000170 e
-// prog: af 2000171 24 ae 2000172 25 af 2000173 e 98 2000174 f 99 2000175 20000010 b1
-// prog: 2000176 15 b0 2000177 14 b1 2000178 26 b0 2000179 27 b1 200017a 14 12 200017b
-// prog: 15 13 200017e 40000001 b4 200017f 40000001 b3 2000183 2000000e b4 2000184 2000000d b3 2000186 2000000f
-// prog: b3 2000187 2000000f b4 2000188 20000007 ba 2000189 20000008 bb 200018a 20000008 ba 200018b 2000000a bb
-// prog: 200018c 20000009 ba 200018d 2000000b bb 200018e 2000000d b9 200018f 2000000e b9 2000190 2000000e bb 2000191
-// prog: 2000000d ba 2000192 2000000f b9 2000197 5 b3 2000198 4 b3 2000199 20000010 bb 200019a 5
-// prog: ba 200019b 4 bb 200019c 4 ba 200019d 5 bb 200019e 20000013 d0 200019f 20000015 d0
-// prog: 20001a0 20000016 d0 20001a1 20000017 d0 20001a2 20000019 d0 20001a5 40000004 d3 20001a6 40000004 d2 20001aa
-// prog: 2000000e d3 20001ab 2000001d d2 20001ad 2000000f d2 20001ae 2000000f d3 20001af 20000007 d9 20001b0 2000001b
-// prog: da 20001b1 2000001b d9 20001b2 2000000a da 20001b3 2000001c d9 20001b4 2000000b da 20001b5 2000001d d8
-// prog: 20001b6 2000000e d8 20001b7 2000000e da 20001b8 2000001d d9 20001b9 2000000f d8 20001be b d2 20001bf
-// prog: a d2 20001c0 20000010 da 20001c1 b d9 20001c2 a da 20001c3 a d9 20001c4 b
-// prog: da 20001c5 2000001f ef 20001c6 20000015 ef 20001c7 20000016 ef 20001c8 20000020 ef 20001c9 20000019 ef
-// prog: 20001cc 40000007 f2 20001cd 40000007 f1 20001d1 2000000e f2 20001d2 2000000d f1 20001d4 2000000f f1 20001d5
-// prog: 2000000f f2 20001d6 20000007 f8 20001d7 20000008 f9 20001d8 20000008 f8 20001d9 2000000a f9 20001da 20000009
-// prog: f8 20001db 2000000b f9 20001dc 2000000d f7 20001dd 2000000e f7 20001de 2000000e f9 20001df 2000000d f8
-// prog: 20001e0 2000000f f7 20001e5 11 f1 20001e6 10 f1 20001e7 20000010 f9 20001e8 11 f8 20001e9
-// prog: 10 f9 20001ea 10 f8 20001eb 11 f9 20001ec 20000013 10d 20001ed 20000015 10d 20001ee 20000016
-// prog: 10d 20001ef 20000017 10d 20001f0 20000019 10d 20001f3 4000000a 110 20001f4 4000000a 10f 20001f8 2000000e 110
-// prog: 20001f9 2000001d 10f 20001fb 2000000f 10f 20001fc 2000000f 110 20001fd 20000007 116 20001fe 2000001b 117 20001ff
-// prog: 2000001b 116 2000200 2000000a 117 2000201 2000001c 116 2000202 2000000b 117 2000203 2000001d 115 2000204 2000000e
-// prog: 115 2000205 2000000e 117 2000206 2000001d 116 2000207 2000000f 115 200020c 17 10f 200020d 16 10f
-// prog: 200020e 20000010 117 200020f 17 116 2000210 16 117 2000211 16 116 2000212 17 117 2000213
-// prog: 2000001f 12b 2000214 20000015 12b 2000215 20000016 12b 2000216 20000020 12b 2000217 20000019 12b 2000219 19
-// prog: b3 200021a 19 b4 200021b 6b b3 200021c 6c b4 200021e 1b d2 200021f 1b d3
-// prog: 2000220 76 d2 2000221 77 d3 2000223 1d f1 2000224 1d f2 2000225 80 f1 2000226
-// prog: 81 f2 2000228 1f 10f 2000229 1f 110 200022a 8a 10f 200022b 8b 110 2000236 2000000e
-// prog: b3 2000237 2000000d b4 2000238 20000012 d0 2000239 20000014 d0 200023a 20000011 d0 2000245 2000000e d2
-// prog: 2000246 2000001d d3 2000247 2000001e ef 2000248 20000014 ef 2000249 20000011 ef 2000254 2000000e f1 2000255
-// prog: 2000000d f2 2000256 20000012 10d 2000257 20000014 10d 2000258 20000011 10d 2000263 2000000e 10f 2000264 2000001d
-// prog: 110 2000265 2000001e 12b 2000266 20000014 12b 2000267 20000011 12b 2000268 20000021 10f 2000269 20000021 110
-// prog: 200026a 20000027 110 200026b 20000027 10f 200026c 12 8b 200026d 13 8a 200026e b0 110 200026f
-// prog: b1 10f 2000270 20000018 f1 2000271 20000018 f2 2000272 20000027 f2 2000273 20000027 f1 2000274 98
-// prog: 81 2000275 99 80 2000276 ae f2 2000277 af f1 2000278 20000021 d2 2000279 20000021 d3
-// prog: 200027a 20000027 d3 200027b 20000027 d2 200027c a0 77 200027d a1 76 200027e ac d3 200027f
-// prog: ad d2 2000280 20000018 b3 2000281 20000018 b4 2000282 20000027 b4 2000283 20000027 b3 2000284 a8
-// prog: 6c 2000285 a9 6b 2000286 aa b4 2000287 ab b3 40001ce fa fa 40001cf fd fd
-// prog: 40001d0 100 100 40001e3 109 109 40001f5 118 118 40001f6 11b 11b 40001f7 11e 11e 400020a
-// prog: 127 127 4000218 12e 12e 400021d 134 134 4000222 13a 13a 4000227 140 140 400024b 156
-// prog: 156 400024c 158 158 400024d ff ff 400025a 15f 15f 400025b 161 161 400025c 11d 11d
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 34 61 43 35 42 65 38 7b 4f 3a
+// prog: 4e 7d 41 84 54 44 70 59 46 45 5b 47 18 5e 4d c5
+// prog: 95 50 c6 9d 52 94 9f cd 141 ff ce 142 100 d7 fd 102
+// prog: 144 149 251 145 14b 257 178 1a1 2be 17c 1a2 2bf 1b7 243 243 1b9
+// prog: 244 244 1ba 247 247 1bb 249 249 1ce 3a2 2ac 1e3 2de 2df 1e9 2e0
+// prog: 2e1 1f0 2af 2af 1fb 1b6 29e 1fe 1b8 298 207 2f0 2f0 219 2f3 2f4
+// prog: 222 2fa 2fb 23d 306 306 23e 308 308 242 3af 30c 25e 335 337 25f
+// prog: 339 341 262 30d 30d 265 150 292 275 151 290 27f 357 357 29f 37f
+// prog: 380 2aa 389 38a 30e 396 396 311 398 398 316 358 39b 329 3ae 3b0
+// prog: 32e 3b1 3b3 32f 39c 39c 33b 107 28b 340 108 286 353 3c6 3c6 35d
+// prog: 3e3 3e4 37b 3e7 3e8 39f 3eb 3eb 3a7 3f5 3f5 3b4 369 3f8 3d8 401
+// prog: 402 3d9 403 404 424 3f9 3f9 426 a6 266 42a bd 25a 42e 40c 40c
+// prog: 435 40f 410 43d 413 414 446 417 417 448 421 421 44a 423 3da 44c
+// prog: 3f7 3dc 44e 39a 3de 450 30b 3e0 1000028 1 c 100002c 1e 39 100007a 131
+// prog: de 1000096 bc df 100009b e0 c0 100009c e7 e9 10000b8 c2 ed 10000c3 ee c4
+// prog: 10000c9 f4 fc 10000e6 181 11b 100011a fa 121 100011c 122 fb 100011d 124 125 100011f
+// prog: fe 126 1000123 127 101 1000128 129 140 1000135 148 119 1000159 1b3 160 100016a 161
+// prog: 163 100016b 164 167 100016c 16d 16f 1000170 174 179 1000173 17a 17b 1000175 189 18e
+// prog: 1000176 19a 183 1000190 1f1 1e0 100019c 1e5 1e6 100019e 1e7 1e8 100019f 1ec 1ed 10001a0
+// prog: 1ee 1ef 10001a4 1ff 203 10001aa 204 205 10001f9 2b3 246 10001fa 298 1b8 10001fc 2cb
+// prog: 1a3 1000200 29e 1b6 1000218 2f1 2f2 1000220 2f7 2f9 100022e 255 304 100022f 305 256
+// prog: 1000263 30f 267 1000264 290 151 100026f 31a 16e 1000277 292 150 100029c 367 368 10002a9
+// prog: 387 388 10002b9 27c 390 10002bb 395 27d 1000336 286 108 100033c 3a0 e8 100033d 3a4
+// prog: 101 100033e 3ad fe 1000343 28b 107 100035c 3c8 3e2 100037a 3e5 3e6 100038e 3e9 32b
+// prog: 100038f 32c 3ea 10003a5 3ec 331 1000425 25a bd 1000427 3fa 91 1000428 3fd c4 1000429
+// prog: 400 c2 100042b 266 a6 1000434 40d 40e 100043c 411 412 1000442 415 3ce 1000443 3cf
+// prog: 416 1000447 418 3d1 200002a 20000000 18 200002e 20000000 45 2000037 20000000 70 200003b 20000000 84
+// prog: 2000053 20000018 a5 2000060 20000018 a3 2000062 20000019 a5 2000063 20000017 a3 2000064 2000001a a3 2000066
+// prog: 2000001a a5 2000085 196 c7 2000086 d0 bd 2000087 d0 a6 200008f 195 c7 2000090 195
+// prog: bd 2000092 196 a6 20000d8 20000021 106 20000e1 20000021 105 20000e2 20000019 106 20000e3 20000020 105
+// prog: 20000e4 2000001a 105 20000e5 2000001a 106 20000ea 1bd 109 20000eb ef 108 20000ec ef 107 20000f7
+// prog: 1bc 109 200010a 1bc 108 2000115 1bd 107 2000146 20000018 14f 200014a 20000018 14d 200014e 20000019
+// prog: 14f 2000153 20000017 14d 2000154 2000001a 14d 2000157 2000001a 14f 200015a 1e4 152 200015c 10d 151
+// prog: 200015d 10d 150 2000162 2a1 152 2000168 2a1 151 2000169 1e4 150 2000182 20000021 1b5 2000184
+// prog: 20000021 1af 2000185 20000019 1b5 2000186 20000020 1af 200018a 2000001a 1af 200018f 2000001a 1b5 2000192 20b
+// prog: 1c4 2000193 12b 1b8 2000194 12b 1b6 2000197 2bd 1c4 2000199 2bd 1b8 200019b 20b 1b6
+// prog: 20001ab 5f 212 20001ac 5c 215 20001b0 5a 22c 20001b4 55 23b 20001c0 20000022 24c 20001c6
+// prog: 20000022 26e 20001c8 20000022 28c 20001c9 20000022 295 20001cf 2bd 297 20001d2 20b 297 20001d3 20b
+// prog: 298 20001d7 2bd 29e 20001e1 20b 1b8 20001e2 2bd 1b6 2000202 1da 2ed 2000206 1d9 2ee
+// prog: 2000209 17 2ed 200020c 16 2ee 200020d 16 2ed 2000217 17 2ee 200021a 16 297 200021b
+// prog: 17 297 200021c 17 298 200021d 16 29e 200021e 16 298 200021f 17 29e 2000223 17
+// prog: 1b6 2000225 16 1b8 2000226 16 1b6 2000229 17 1b8 2000230 10f 2f6 2000231 110 2f6
+// prog: 2000232 8a 2f6 2000233 8b 2f6 2000234 10f 300 2000235 110 300 2000236 8a 300 200023c
+// prog: 8b 300 200023f 1c 88 2000245 2a1 28e 2000248 1e4 28e 200024a 1e4 290 200024b 2a1
+// prog: 292 2000258 1e4 151 200025b 2a1 150 200027a 1a8 34d 200027b 1a7 356 2000282 11 34d
+// prog: 2000283 10 356 200028f 10 34d 2000293 11 356 20002a0 10 28e 20002a2 11 28e 20002a3
+// prog: 11 290 20002a5 10 292 20002a6 10 290 20002a8 11 292 20002ad 11 150 20002ae 10
+// prog: 151 20002b5 10 150 20002b8 11 151 20002c2 f1 386 20002c4 f2 386 20002c9 80 386
+// prog: 20002fd 81 386 20002fe f1 38c 20002ff f2 38c 2000301 80 38c 2000303 81 38c 2000312
+// prog: 5d 7e 2000317 1bc 27e 2000318 1bd 27e 200031c 1bd 286 200031f 1bc 28b 2000322 1bd
+// prog: 108 2000327 1bc 107 2000344 172 3c3 2000348 171 3c5 2000354 20000010 3be 2000355 b 3c3
+// prog: 2000359 a 3c5 200035a a 3c3 200035b b 3c5 200036c a 27e 2000375 b 27e 2000376
+// prog: b 286 2000377 a 28b 2000378 a 286 2000379 b 28b 200037c b 107 200037d a
+// prog: 108 200037e a 107 200038d b 108 20003b2 75 73 20003ba 195 259 20003bc 196 259
+// prog: 20003c2 196 25a 20003c4 195 266 20003d0 196 bd 20003d6 195 a6 200042c 104 40a 200042d
+// prog: 103 40b 200042f 20000010 408 2000430 5 40a 2000431 4 40b 2000432 4 40a 2000433 5
+// prog: 40b 2000436 4 259 2000437 5 259 2000438 5 25a 2000439 4 266 200043a 4 25a
+// prog: 200043b 5 266 200043e 5 a6 200043f 4 bd 2000440 4 a6 2000441 5 bd 2000449
+// prog: 93 68 200044b 23b 3c9 200044d 22c 3c1 200044f 215 3b9 2000451 212 3ac 400001d 6
+// prog: 6 400002b 1f 1f 40001d8 2d2 2d2 40001dc 2d5 2d5 40001de 2d7 2d7 40001df 2d6 2d6
+// prog: 400024d 323 323 400024f 325 325 4000250 330 330 4000252 328 328 4000320 3a1 3a1 4000321
+// prog: 3a6 3a6 400039d 3ef 3ef 400039e 3f0 3f0 40003cb 3fb 3fb 40003cd 3fe 3fe 4000444 41b
+// prog: 41b 4000445 41c 41c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 6 28 28 c 2f 30 d 2000001c
-// prog: 2e 19 2000000e 31 94 34 34 96 3b 3c 97 20000009 3a 9a 2000000e 3d
-// prog: a4 40 40 a6 47 48 a7 2000001c 46 b6 2000000e 49 c7 4c 4c ca
-// prog: 53 54 cb 20000009 52 cc 2000000e 55 dc 20000016 58 df 5b 5c e1 5d
-// prog: 5e e6 20000016 5f e9 62 63 ea 64 65 ec 20000016 66 ee 171 172
-// prog: fa 20000016 175 100 178 179 106 17c 6d 107 17d 6e 108 180 be 109
-// prog: 181 c1 10b 182 c4 114 c6 187 127 b9 199 14f 1a3 78 150 1a4
-// prog: 79 151 1a7 dd 152 1a8 e0 153 1a9 e3 156 e5 1ae 161 d8 1c0
-// prog: 29b 104 1d5 2a0 1de 1df 2a6 1ea 1eb 2b7 122 1fc 2bc 205 206 2c2
-// prog: 211 212 2e1 225 226 2e8 22a 22b 2ef 236 237 2f0 22d 22d 2f1 236
-// prog: 236 2f2 22e 230 2f3 183 184 2f4 22f 233 2f5 231 231 2f6 237 237
-// prog: 2f7 232 234 2f8 235 235 301 245 246 302 23c 23c 303 245 245 304
-// prog: 23d 23f 305 1aa 1ab 306 23e 242 307 240 240 308 246 246 309 241
-// prog: 243 30a 244 244 312 87 24a 316 254 255 317 254 254 318 1d1 1d2
-// prog: 319 24f 24f 31a 255 255 31b 250 252 31c 253 253 321 91 259 325
-// prog: 263 264 326 263 263 327 1f8 1f9 328 25e 25e 329 264 264 32a 25f
-// prog: 261 32b 262 262 334 168 26a 33b 16a 272 1000001 29 2a 1000007 2b 2c
-// prog: 1000093 35 36 1000095 37 38 10000a3 41 42 10000a5 43 44 10000c3 4d 4e 10000c8
-// prog: 4f 50 10000de 59 5a 10000e7 60 61 10000ed 67 170 10000fd 176 177 100010c 183
-// prog: 184 1000112 186 c5 1000118 c9 185 100011b 188 189 100011e 18a 18b 1000123 18c 18d
-// prog: 1000129 19a 19b 1000154 1aa 1ab 1000155 1ad e4 1000158 e8 1ac 100015a 1af 1b0 100015b
-// prog: 1b1 1b2 100015c 1b3 1b4 1000163 1c1 1c2 1000294 1ca 82 1000295 1cb 83 1000296 1ce
-// prog: fb 1000297 1cf fe 1000298 1d0 101 1000299 1d1 1d2 100029a 1d4 103 100029c 87 1d3
-// prog: 100029d 1d7 1d6 100029e 1d9 1d8 100029f 1db 1da 10002a1 1e3 10a 10002a4 f7 1e7 10002a5
-// prog: 1e9 1e8 10002b0 1f1 8c 10002b1 1f2 8d 10002b2 1f5 119 10002b3 1f6 11c 10002b4 1f7
-// prog: 11f 10002b5 1f8 1f9 10002b6 1fb 121 10002b8 91 1fa 10002b9 1fe 1fd 10002ba 200 1ff
-// prog: 10002bb 202 201 10002bd 20a 128 10002c0 115 20e 10002c1 210 20f 10002cc 218 12f 10002ce
-// prog: 219 130 10002cf 21a 131 10002d6 21d 135 10002d8 21e 136 10002d9 21f 137 10002e0 222
-// prog: 13b 10002e2 223 13c 10002e3 224 13d 10002e7 227 141 10002e9 228 142 10002ea 229 143
-// prog: 10002ee 22c 72 1000300 23b 7d 1000313 24b 157 1000314 24c 101 1000315 24d 159 1000322
-// prog: 25a 160 1000323 25b 11f 1000324 25c 162 1000335 169 26b 1000336 26d 26c 100033c 16b
-// prog: 273 100033d 275 274 1000344 27a 16c 1000345 27c 27d 100034c 282 16e 100034d 284 285
-// prog: 2000000 28 20000022 200001b 14 33 200001d 27 33 200001f 15 33 200006a 20000000 32 2000075
-// prog: 15 32 2000092 20000022 34 200009b e 3f 200009c 25 3f 200009d f 3f 200009e 20000000
-// prog: 3e 200009f f 3e 20000a2 20000022 40 20000b8 8 4b 20000bc 23 4b 20000bd 9 4b
-// prog: 20000bf 20000000 4a 20000c0 9 4a 20000c2 20000022 4c 20000cd 2 57 20000ce 21 57 20000cf
-// prog: 3 57 20000d5 20000000 56 20000d7 3 56 20000db 20 57 20000e2 22 4b 20000eb 24
-// prog: 3f 20000f6 26 33 2000125 4 193 2000126 5 193 200012e 40000002 196 2000134 40000002 195
-// prog: 200013a 20000011 195 2000140 20000012 196 2000144 20000012 195 2000145 20000014 196 2000146 20000013 195 2000147
-// prog: 20000015 196 2000148 20000017 194 2000149 20000019 194 200014a 20000018 196 200014b 20000018 195 200014c 20000019
-// prog: 196 200014d 20000017 195 200014e 2000001a 194 200015e a 1ba 200015f b 1ba 2000165 40000005 1bd
-// prog: 2000166 40000005 1bc 2000167 20000011 1bc 2000288 2000001e 1bd 2000289 2000001e 1bc 200028a 20000014 1bd 200028b
-// prog: 2000001f 1bc 200028c 20000015 1bd 200028d 20000020 1bb 200028e 20000019 1bb 200028f 20000021 1bd 2000290 20000021
-// prog: 1bc 2000291 20000019 1bd 2000292 20000020 1bc 2000293 2000001a 1bb 20002a2 10 1e1 20002a3 11 1e1
-// prog: 20002a7 40000008 1e4 20002a8 20000012 1e4 20002a9 20000014 1e4 20002aa 20000015 1e4 20002ab 20000017 1e2 20002ac
-// prog: 20000019 1e2 20002ad 20000018 1e4 20002ae 20000019 1e4 20002af 2000001a 1e2 20002be 16 208 20002bf 17
-// prog: 208 20002c3 4000000b 20b 20002c4 2000001e 20b 20002c5 20000014 20b 20002c6 20000015 20b 20002c7 20000020 209
-// prog: 20002c8 20000019 209 20002c9 20000021 20b 20002ca 20000019 20b 20002cb 2000001a 209 20002d0 6f 195 20002d1
-// prog: 6f 196 20002d2 195 195 20002d3 196 196 20002d4 194 195 20002d5 194 196 20002da 7a
-// prog: 1bc 20002db 7a 1bd 20002dc 1bc 1bc 20002dd 1bd 1bd 20002de 1bb 1bc 20002df 1bb 1bd
-// prog: 20002e4 84 1e4 20002e5 1e4 1e4 20002e6 1e2 1e4 20002eb 8e 20b 20002ec 20b 20b 20002ed
-// prog: 209 20b 20002f9 20000013 196 20002fa 20000016 196 20002fb 20000015 195 20002fc 20000016 195 20002fd 20000011
-// prog: 196 20002fe 20000014 195 20002ff 20000018 194 200030b 2000001f 1bd 200030c 20000016 1bd 200030d 20000015 1bc
-// prog: 200030e 20000016 1bc 200030f 20000011 1bd 2000310 20000014 1bc 2000311 20000021 1bb 200031d 20000013 1e4 200031e
-// prog: 20000016 1e4 200031f 20000011 1e4 2000320 20000018 1e2 200032c 2000001f 20b 200032d 20000016 20b 200032e 20000011
-// prog: 20b 200032f 20000021 209 2000330 20000020 20b 2000331 32 8a 2000332 33 110 2000333 33 8b
-// prog: 2000337 20000017 1e4 2000338 3e 80 2000339 3f f2 200033a 3f 81 200033e 20000019 1bc 200033f
-// prog: 20000020 1bd 2000340 4a 76 2000341 4b d3 2000342 4b 77 2000346 20000019 195 2000347 20000017
-// prog: 196 2000348 56 6b 2000349 57 b4 200034a 57 6c 40000f4 173 173 4000105 17a 17a
-// prog: 4000124 190 190 400012a 19c 19c 400015d 1b7 1b7 4000164 1c3 1c3 40002cd 21b 21b 40002d7
-// prog: 220 220 4000343 27b 27b 400034b 283 283 2a c 20000024 2b 0 20000025 37 20000024
-// prog: 96 38 20000025 92 44 20000024 a6 46 20000025 a2 50 20000024 ca 52 20000025 c2
-// prog: 87 106 17e be 109 71 c1 10b 10c c5 11b 18e 103 197 125 115
-// prog: 129 12e 119 13a 140 11c 144 145 11f 146 147 135 14f 1a5 13b 152
-// prog: 7c 13c 153 154 141 15a 1b5 171 1be 15e 175 163 165 176 167 288
-// prog: 177 289 28a 178 28b 28c 182 294 1cc 184 296 fc 185 297 ff 186
-// prog: 298 102 187 29d 1dc 1a7 1e5 2a2 1aa 2a5 2a7 1b4 2b0 1f3 1ba 2b2
-// prog: 11a 1c0 2b3 11d 1c1 2b4 120 1c2 2b9 203 1d9 20c 2be 1de 2c1 2c3
-// prog: 1fc 2e1 2e1 200 2e8 2e8 20e 71 2f4 210 70 2f7 224 2ff 2ff 228
-// prog: 7c 306 22a 7b 309 237 311 311 23c 313 313 23d 314 24e 23e 315
-// prog: 251 24b 320 320 24d 322 322 24f 323 25d 250 324 260 25f 32f 32f
-// prog: 272 334 334 273 335 335 275 336 26e 350 33b 33b 351 33c 33c 353
-// prog: 33d 276 362 344 344 364 345 27e 373 34c 34c 375 34d 286 1000028 1
-// prog: 6 1000029 7 2d 1000035 93 94 1000036 95 39 1000042 a3 a4 1000043 a5 45
-// prog: 100004e c3 c7 100004f c8 51 1000063 f4 174 1000067 105 17b 1000091 107 17f 10000b9
-// prog: 108 70 10000c4 124 191 10000c6 11e 18f 1000104 126 198 100010a 12a 19d 1000121 1a1
-// prog: 14a 1000122 14b 1a2 1000128 14c 14d 1000136 150 1a6 1000137 151 7b 100013d 15d 1b8
-// prog: 1000142 15b 1b6 1000172 15f 1bf 1000173 164 1c4 1000179 1c8 28f 100017a 290 1c9 100017c
-// prog: 291 292 1000183 295 1cd 1000188 29e 1dd 1000189 1e0 2a0 10001a8 2a3 1e6 10001ae 1ef
-// prog: 2ad 10001b7 2b1 1f4 10001c3 2ba 204 10001ca 207 2bc 10001da 2bf 20d 10001e7 216 2c9
-// prog: 10001f8 2cd 21c 10001fa 2d7 221 1000208 2f0 2f1 100020a 2f2 2f3 100020f 2f5 2f6 1000211
-// prog: 14a 1a1 1000212 1a2 14b 1000218 14d 14c 1000219 2f9 238 100021a 147 239 100021b 2fa
-// prog: 19f 100021d 23a 146 100021e 238 2fb 100021f 19e 2fc 1000220 144 2fd 1000222 2fe 140
-// prog: 1000223 2fb 2f9 1000226 302 303 1000227 304 305 1000229 307 308 100022b 28f 1c8 100022c
-// prog: 1c9 290 100022d 292 291 100022e 30b 247 100022f 28c 248 1000230 30c 1c6 1000231 249
-// prog: 28b 1000232 247 30d 1000233 1c5 30e 1000234 289 30f 1000235 310 288 1000236 30d 30b
-// prog: 100023f 319 31a 1000240 31b 85 1000241 2ad 1ef 1000242 31d 256 1000243 2aa 257 1000244
-// prog: 31e 1ed 1000252 328 329 1000253 32a 8f 1000254 2c9 216 1000255 32c 265 1000259 2c6
-// prog: 266 100025a 32d 214 1000356 30f 289 1000357 288 310 1000358 30b 30d 100035d 343 16d
-// prog: 1000367 2fd 144 1000368 140 2fe 1000369 2f9 2fb 100036e 34b 16f 200002c 15 19 200002e
-// prog: 26 19 200002f 14 19 2000031 20000000 d 2000034 14 d 200003a f 9a 200003b 24
-// prog: 9a 200003c e 9a 2000040 20000000 97 2000041 e 97 2000047 9 b6 2000048 22 b6
-// prog: 2000049 8 b6 200004c 20000000 a7 200004d 8 a7 2000053 3 cc 2000054 20 cc 2000055
-// prog: 2 cc 2000058 20000000 cb 2000059 2 cb 200005b 21 cc 200005c 20000000 dc 200005d 20000004
-// prog: df 200005f 23 b6 2000060 20000000 e6 2000061 20000004 e9 2000062 25 9a 2000064 20000000 ec
-// prog: 2000065 20000004 ee 2000066 27 19 2000072 20000000 fa 200007d 20000004 100 20000c9 b4 118 20000d8
-// prog: 18 114 20000dd 18 112 20000e0 b3 118 20000e3 b3 114 20000e4 b4 112 20000e5 6c
-// prog: 118 20000e8 6f 114 20000f7 6f 112 20000fb 6b 118 20000fe 6b 114 2000101 6c 112
-// prog: 200012f 20000017 127 2000130 20000019 127 2000131 2000001a 127 2000143 d3 158 2000157 1a 156 2000159
-// prog: 1a 155 2000160 d2 158 2000162 d2 156 2000168 d3 155 2000169 77 158 200016a 7a
-// prog: 156 200016b 7a 155 200016c 76 158 200016e 76 156 2000170 77 155 200017d 20000020 161
-// prog: 2000180 20000019 161 2000181 2000001a 161 200018a f2 29c 200018b 1c 29b 200018c 1c 29a 200018d
-// prog: f1 29c 2000190 f1 29b 2000193 f2 29a 2000199 81 29c 200019a 84 29b 200019b 84
-// prog: 29a 200019c 80 29c 20001a3 80 29b 20001a4 81 29a 20001a9 40000008 2a1 20001ab 20000011 2a1
-// prog: 20001ac 20000012 2a1 20001ad 20000013 2a1 20001af 20000018 2a1 20001b0 20000017 2a1 20001b1 20000017 2a4 20001b2
-// prog: 20000019 2a4 20001b3 2000001a 2a4 20001cb 110 2b8 20001ce 1e 2b7 20001cf 1e 2b6 20001d0 10f
-// prog: 2b8 20001d1 10f 2b7 20001d2 110 2b6 20001d3 8b 2b8 20001d4 8e 2b7 20001d5 8e 2b6
-// prog: 20001d6 8a 2b8 20001d7 8a 2b7 20001d8 8b 2b6 20001db 4000000b 2bd 20001df 20000011 2bd 20001e1
-// prog: 2000001e 2bd 20001e3 2000001f 2bd 20001e8 20000021 2bd 20001e9 20000020 2bd 20001ea 20000020 2c0 20001eb 20000019
-// prog: 2c0 20001f1 2000001a 2c0 20001f2 fa 2000004a 20001f5 ec 2000004a 20001f6 e6 2000004a 20001f7 dc 2000004a
-// prog: 20001fd 84 2a1 20001fe 2a1 2a1 20001ff 1e2 2a1 2000201 8e 2bd 2000202 2bd 2bd 2000205
-// prog: 209 2bd 2000206 20000022 2ef 2000225 20000022 301 200023b 20000022 316 2000245 20000015 2a1 2000246 20000016
-// prog: 2a1 200024a 20000014 2a1 200024c 20000022 325 200025b 20000015 2bd 200025c 20000016 2bd 200025e 20000014 2bd
-// prog: 2000261 20000019 2bd 2000262 d 8b 2000263 19 10f 2000264 19 8a 200026a d 2e7 200026b
-// prog: 32 2e7 200026c 33 2e7 200026d 19 2e7 2000274 fa 2e7 200027a fd 89 200027b 100
-// prog: 88 200027c 20000019 2a1 200027d 97 81 2000282 9a f1 2000283 9a 80 2000284 97 2e0
-// prog: 2000285 3e 2e0 200034e 3f 2e0 200034f 9a 2e0 2000352 ec 2e0 2000354 ed 7f 2000355
-// prog: ee 7e 200035a a7 77 200035b b6 d2 200035c b6 76 200035e a7 2d6 200035f 4a
-// prog: 2d6 2000360 4b 2d6 2000361 b6 2d6 2000363 e6 2d6 2000365 e7 74 2000366 e9 73
-// prog: 200036b cb 6c 200036c cc b3 200036d cc 6b 200036f cb 2cc 2000370 56 2cc 2000371
-// prog: 57 2cc 2000372 cc 2cc 2000374 dc 2cc 2000376 de 69 2000377 df 68 4000030 1f
-// prog: 1f 400003d 9d 9d 400005a cf cf 400005e bd bd 40001f9 2d2 2d2 40001fb 2dc 2dc
-// prog: 4000359 33e 33e 400036a 346 346 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 6 28 6a 18 2c 9e 1c 34 4c 1e
+// prog: 35 bf 1f 38 58 39 3a d5 4e a2 64 5a 7a c9 5e f6
+// prog: e4 70 e6 128 73 135 24e 75 188 144 7b 147 145 88 177 154
+// prog: a3 159 175 a5 176 2bc a6 1c3 178 bd 191 17c c6 1ad 18a e7
+// prog: 190 1aa e8 47 211 e9 46 214 ed 44 22b ee 41 23a ef 1c0
+// prog: 254 f4 1c0 25d fc 1c0 1f8 fd 1c6 276 fe 1c6 28a 101 1c6 208
+// prog: 102 1c8 28d 103 1c8 291 104 1c8 294 105 1c9 296 106 1c9 29d 107
+// prog: 1c9 2ab 126 1e1 1e2 127 1ce 1ce 129 2e5 1fa 12b 2e6 1fb 131 2e7
+// prog: 1fc 140 1f0 2ec 14f 20d 217 16d 21e 21f 171 2b6 218 172 2b7 219
+// prog: 17a 226 229 183 2b6 220 189 2b7 222 18e 22e 268 19a 22f 269 1a1
+// prog: 232 236 1a2 233 23c 1da 258 25b 1e0 242 242 1e6 342 264 1e7 345
+// prog: 265 1ec 349 26f 1ed 262 34a 244 28f 293 255 2a6 2a8 259 29a 29c
+// prog: 25a 29b 29f 267 2b5 2b8 27c 29a 2a9 27d 29b 2aa 27e 2b9 270 286
+// prog: 2bb 271 28b 2c9 301 28c 2fd 303 2b3 322 327 2be 316 316 2bf 3b8
+// prog: 336 2cb 3bb 33b 2d2 3bd 33c 2d5 32f 3c0 2df 35a 35b 2f1 378 379
+// prog: 2f4 155 35c 2f6 156 35d 2f9 37e 38d 2fb 155 37a 300 156 37b 304
+// prog: 38e 278 305 38f 279 32c 3d0 3d6 330 3b4 3b4 331 405 425 335 406
+// prog: 426 337 407 427 339 424 409 357 432 433 380 43a 43b 388 112 434
+// prog: 389 114 435 38c 440 441 395 112 43c 396 114 43d 398 442 280 39a
+// prog: 443 281 1000001 1d 29 100000c 2b 36 1000042 12f 53 1000043 60 130 1000045 62
+// prog: 63 100004f 66 15b 1000054 85 86 1000055 87 8f 1000059 90 92 100005b 17d d8
+// prog: 100005c e1 180 100005d e2 e3 100005f e5 216 1000061 ea eb 1000065 ec f7 1000068
+// prog: 10a 115 100007d 1b1 146 100007e 14a 1b2 1000084 14e 153 1000091 157 2a4 1000093 15a
+// prog: 15c 1000094 15d 162 100009f 168 169 10000c2 1ea 182 10000c4 184 1eb 10000c5 185 186
+// prog: 10000d0 18f 302 10000de 192 193 10000df 194 197 10000e0 199 19b 100011b 1d3 1d7 1000121
+// prog: 1d8 2d4 1000122 1de 2dc 1000141 1dc 203 1000142 1df 1ee 100014d 209 20c 1000164 21c
+// prog: 21d 1000179 223 225 10001a3 23f 309 10001b3 24a 24b 10001b5 24d 324 10001b6 250 332
+// prog: 10001ef 24f 17b 10001f1 252 174 1000243 282 283 1000251 2a3 2a5 1000266 2ad 2ae 100028e
+// prog: 312 399 1000297 31c 31f 1000298 320 3a3 100029e 321 3ab 10002de 355 359 10002f0 376
+// prog: 377 10002f7 37c 37d 1000306 39d 3f3 1000308 39e 3f4 100030b 3b2 3f6 100031a 3c2 3c4
+// prog: 1000323 3cb 3fc 1000325 3cd 3ff 1000356 430 431 100037f 438 439 100038a 43e 43f 100039b
+// prog: 444 41f 100039c 445 420 10003a0 449 422 2000108 20000020 1bb 200010d 20000019 1bb 2000119 2000001a
+// prog: 1bb 2000148 20b 1fe 2000149 2bd 200 200014b 20000010 1f9 2000150 17 1fe 2000151 16 200
+// prog: 2000160 16 1fe 2000163 17 200 200016e 20000010 218 200016f 20000010 219 2000181 20000010 222 20001a7
+// prog: 20000017 1ba 20001a8 20000019 1ba 20001af 2000001a 1ba 20001ff 1e4 275 2000204 2a1 277 2000205 20000010
+// prog: 263 2000246 11 275 2000247 10 277 2000249 10 275 200024c 11 277 2000256 20000010 29c
+// prog: 2000257 20000010 29f 200026e 20000010 2aa 2000290 20000020 1b9 2000292 20000019 1b9 2000295 2000001a 1b9 20002d6
+// prog: 1bd 340 20002d7 1bc 343 20002e0 b 340 20002e1 a 343 20002ed a 340 20002ee b
+// prog: 343 20002f2 20000010 35c 20002f3 20000010 35d 20002fa 20000010 37b 200030c 20000017 1b7 200030d 20000019 1b7
+// prog: 200030f 2000001a 1b7 2000341 196 42a 200034d 195 42b 2000358 5 42a 2000367 4 42b 2000368
+// prog: 4 42a 2000369 5 42b 2000386 20000010 434 2000387 20000010 435 2000390 20000010 43d 20003a1 241
+// prog: 44a 20003a2 237 44c 20003a4 224 44e 20003a6 213 450 4000124 197 197 4000125 192 192
+// prog: 40001b8 162 162 40001d9 15a 15a 40002ac f7 f7 40002af ea ea 4000328 8f 8f 400032b
+// prog: 85 85 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 0 28 6 0 2a 7 2000001b
-// prog: 29 c 2000000c 2b 1a 2e 1d 1e 92 35 1f 92 37 2d 20000008 36
-// prog: 39 2000000c 38 51 3b 9c 71 a2 42 7b a2 44 7c 2000001b 43 93
-// prog: 2000000c 46 95 48 bc 96 4d c0 9d c2 4e a3 c2 50 a4 20000008
-// prog: 4f a5 2000000c 52 bd 54 ce c3 59 d7 ca e1 5c df ea 60
-// prog: ed 63 64 fc 67 72 11a c9 d8 144 119 19e 145 11c 19f 146
-// prog: 11f 1a0 18f 143 157 1c8 176 1c5 1c9 177 1c6 1dc 178 1c7 221 184
-// prog: 85 239 186 299 260 19b 19c 28b 1ab 2a8 28c 1ac 2a9 291 1ad 2aa
-// prog: 2b0 1ba 8f 2b2 1c1 2b5 2c1 1d5 1d6 2f1 1df 2c4 2f2 1e1 2c5 2f3
-// prog: 1e3 2c6 308 1f8 1f8 30f 1fa 1fa 32a 206 208 32d 206 20f 334 206
-// prog: 2f8 335 14e 218 33c 219 219 33d 21a 21d 33e 21b 220 343 21e 21e
-// prog: 344 21f 222 345 223 223 346 225 226 34b 225 229 34c 225 30a 34d
-// prog: 293 22d 37a 22e 22e 37b 22f 231 37c 230 234 37d 232 232 37e 233
-// prog: 235 37f 236 236 383 23b 23f 384 23b 31c 38f 242 242 393 24c 252
-// prog: 394 24c 32b 39f 255 255 3a7 264 333 3ac 27a 27b 3b4 283 33a 3b9
-// prog: 354 355 3bf 35d 35d 3c1 365 366 3c7 36e 36e 3c9 376 377 1000018 2c
-// prog: 1b 1000045 3a 9b 1000094 47 b8 10000a6 53 cd 10000c7 5a 55 10000c8 5b db
-// prog: 10000cf 5e 49 10000de 5f e2 10000e7 3d 3c 10000e9 62 eb 10000ee 30 2f 10000f4
-// prog: 66 f6 1000105 192 c4 100011d e3 e4 100011e e5 e8 1000120 f7 fb 1000124 fe
-// prog: 101 1000140 10a 134 1000152 14e 128 1000164 1b9 13d 1000197 162 168 1000198 169 16a
-// prog: 100019d 16b 16c 10001a1 16e 170 10001c4 173 166 1000204 293 17c 1000238 185 86 100024e
-// prog: 18a 18b 1000251 18c 18d 1000257 190 193 1000266 1a4 1a3 100028a 2a6 1a9 1000297 1af
-// prog: 1f0 1000298 2ae 1b0 10002b1 1c0 90 10002bc 1cb 1ce 10002be 1cf 1d0 10002bf 1d1 1d2
-// prog: 10002cd 1d8 1d7 10002f0 2c2 1db 10002f9 1e8 217 10002fa 2ca 1e9 1000309 1f9 2d3 1000310
-// prog: 1fb 2dd 1000380 23c 317 1000381 23d 318 1000382 23e 86 1000385 1f0 1af 1000386 1b0
-// prog: 2ae 1000387 258 1ad 1000388 256 245 1000389 1ec 246 100038a 1ac 31f 100038b 24a 2a8
-// prog: 100038c 245 31d 1000390 24d 326 1000391 24f 327 1000392 250 90 1000395 217 1e8 1000396
-// prog: 1e9 2ca 1000397 267 1e3 1000398 265 25b 1000399 213 25c 100039a 1e1 32e 100039b 25e
-// prog: 2c4 100039c 25b 32c 10003a0 32e 1e1 10003a1 2c4 25e 10003a2 32c 25b 10003a5 331 262
-// prog: 10003ab 275 26f 10003ad 31f 1ac 10003ae 2a8 24a 10003af 31d 245 10003b2 338 27d 10003b8
-// prog: 353 277 10003ba 359 33f 10003bc 35a 340 10003c0 364 27f 10003c2 36a 347 10003c4 36b
-// prog: 348 10003c8 375 287 20000fd 2000000e 91 20000ff 2000000d 87 2000100 2000000f 87 2000102 2000000f 91
-// prog: 2000106 6c c1 2000107 6f be 2000108 6f b9 2000109 6b c1 200010b 6b be 200010c
-// prog: 6c b9 2000125 5 87 2000126 4 91 2000127 4 87 2000129 5 91 200012a 40000002
-// prog: 104 200013a 40000002 103 2000147 20000018 104 200014c 20000018 103 200014d 20000019 104 200014f 20000017 103
-// prog: 2000150 2000001a 103 2000151 2000001a 104 2000153 20000011 115 2000154 20000012 115 200015a 20000013 115 200015b
-// prog: 20000018 115 200015d 20000017 115 200015e 2000000e 136 200015f 2000001d 135 2000161 2000000f 135 2000163 2000000f
-// prog: 136 2000167 77 13c 200016d 7a 13b 200016f 7a 137 2000174 76 13c 200017b 76 13b
-// prog: 200018e 77 137 20001a2 b 135 20001b5 a 136 20001b6 a 135 20001b8 b 136 20001be
-// prog: 40000005 172 20001bf 40000005 171 20001dd 20000021 172 20001e0 20000021 171 20001e5 20000019 172 20001e6 20000020
-// prog: 171 20001ef 2000001a 171 2000203 2000001a 172 2000207 20000011 175 200020c 2000001e 175 200020d 2000001f 175
-// prog: 2000216 20000021 175 200021c 20000020 175 200023a 2000000e 183 2000247 2000000d 182 2000248 2000000f 182 2000249
-// prog: 2000000f 183 200026e 11 182 2000276 10 183 200027e 10 182 2000286 11 183 2000288 40000008
-// prog: 1a8 2000289 40000008 1a7 2000292 20000018 1a8 2000294 20000018 1a7 2000295 20000019 1a8 2000296 20000017 1a7
-// prog: 200029d 2000001a 1a7 200029e 2000001a 1a8 20002a0 20000011 1aa 20002a2 20000012 1aa 20002a3 20000013 1aa 20002a4
-// prog: 20000018 1aa 20002a5 20000017 1aa 20002b3 2000000e 1b7 20002b4 2000001d 1b4 20002b9 2000000f 1b4 20002ba 2000000f
-// prog: 1b7 20002d2 17 1b4 20002d7 16 1b7 20002dc 16 1b4 20002e1 17 1b7 20002e8 4000000b 1da
-// prog: 20002ef 4000000b 1d9 20002f4 20000021 1da 20002f5 20000021 1d9 20002f6 20000019 1da 20002f7 20000020 1d9 20002fb
-// prog: 2000001a 1d9 20002fc 2000001a 1da 20002fd 20000011 1de 20002fe 2000001e 1de 2000301 2000001f 1de 2000302 20000021
-// prog: 1de 2000303 20000020 1de 2000304 fa 1f2 2000305 ec 1f5 2000306 e6 1f6 2000307 dc 1f7
-// prog: 200030b 6f 103 200030c 6f 104 200030d 195 103 200030e 196 104 2000313 7a 171 2000314
-// prog: 7a 172 2000315 1bc 171 2000316 1bd 172 200031a 84 1a7 200031b 84 1a8 200031e 2a1
-// prog: 1a7 2000322 1e4 1a8 2000324 8e 1d9 2000325 8e 1da 2000328 2bd 1d9 2000329 20b 1da
-// prog: 2000336 20000019 103 200033b 20000017 104 2000378 20000019 171 2000379 20000020 172 200038d 20000019 1a7 200038e
-// prog: 20000017 1a8 200039d 20000019 1d9 200039e 20000020 1da 20003a4 20000017 1da 20003a8 33 200 20003a9 19
-// prog: 200 20003aa 20000027 200 20003b1 20000020 1a8 20003b5 3f 1fc 20003b6 9a 1fc 20003b7 20000027 1fc
-// prog: 20003bb 20000017 172 20003c3 20000020 104 400001c 34 34 4000070 41 41 400011b dd dd 4000191
-// prog: 159 159 400025d 199 199 40002c0 1d3 1d3 4000319 1fe 1fe 4000323 202 202 40003a3 261
-// prog: 261 40003a6 263 263 40003b0 27c 27c 40003b3 282 282 40003bd 35b 35b 40003be 35c 35c
-// prog: 40003c5 36c 36c 40003c6 36d 36d 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 0 20000007 1 1b 2000000a 6 1d 20000021
-// prog: 1a 2e 18 20000028 2f 20000007 1e 30 2000000a 1f 34 20000018 51 3b 20000028 45
-// prog: 3c 20000007 71 3d 2000000a 7b 41 20000018 95 47 20000028 94 48 20000007 9d 49
-// prog: 2000000a a3 4d 20000021 bd 53 20000028 a6 55 ca 5d 5a df 61 5c ed
-// prog: 65 5f fc 7d 67 100 11e 6f 102 120 72 105 124 7a 125 126
-// prog: db 161 198 dc 163 19d dd 164 1a1 e1 1a2 1b5 13d 249 260 143
-// prog: 189 266 14e 26e 276 159 28b 1ec 162 28c 1ed 168 291 1ee 18c 2ba
-// prog: 2c1 18d 1ca 2cd 190 2d2 2d7 193 2f1 213 199 2f2 214 19b 2f3 215
-// prog: 1b4 c 304 1b7 39 305 1b9 93 306 1ba a5 307 1c1 30b 2d4 1c5
-// prog: 30c 2d5 1c7 313 2de 1cb 314 2df 1d0 31a 1ff 1d1 31b 2e6 1d5 324
-// prog: 205 1d6 325 2ed 1d7 150 211 1d8 151 212 1de 336 33b 1df 336 336
-// prog: 1e1 14d 14f 1e3 14c 149 1e9 33b 33b 1f0 148 147 1f9 1ef 22b 1fa
-// prog: 203 22c 1fb 378 379 1fc 378 378 1fe 1e5 1e6 200 1e0 28e 202 379
-// prog: 379 206 28d 1dd 20f 23b 380 217 29d 241 218 29e 385 219 2af 386
-// prog: 21a 38d 38e 21b 38d 38d 21d 243 387 21e 295 296 21f 244 38a 220
-// prog: 294 2ac 222 388 388 223 38e 38e 225 389 38b 226 2ab 292 229 38c
-// prog: 38c 22d 24c 390 22e 2fb 254 22f 2fc 395 230 2cb 396 231 39d 39e
-// prog: 232 39d 39d 233 259 397 234 2f6 2f7 235 25a 39a 236 2f5 2c8 23c
-// prog: 398 398 23d 39e 39e 23e 399 39b 23f 2c7 2f4 242 39c 39c 24d 2f5
-// prog: 3a0 24f 2f4 3a1 252 3a2 3a4 261 3ab 3ab 275 294 3ad 277 292 3ae
-// prog: 27b 3af 3b1 299 3b8 3b8 2ae 1e0 356 2b5 1dd 357 31c 358 3bb 31f
-// prog: 300 34d 327 158 204 347 3c0 3c0 359 14c 367 35a 147 368 377 369
-// prog: 3c3 3cb 2ee 335 3cd 118 152 3d7 3c8 3c8 100002a 1c 75 1000037 70 9f
-// prog: 1000060 fd ff 1000062 106 107 1000063 108 109 1000064 10b 10c 1000066 11b e0 1000085
-// prog: 129 127 1000086 148 147 1000087 14c 149 100008f 14d 14f 1000090 150 121 1000091 151
-// prog: 122 10000c9 15e 15f 10000cd 167 16d 10000ce 16f 174 10000d7 17b 18e 10000d8 191 160
-// prog: 10000e2 1b8 1b6 10000e3 28d 1dd 10000e4 1e0 28e 10000e5 1e5 1e6 10000e6 1ef 179 10000e8
-// prog: 203 17a 100010a 23a 247 1000136 25d 19a 1000157 286 27e 1000169 2ab 292 100016a 294
-// prog: 2ac 100016b 295 296 100016c 29d 1ae 100016e 29e 297 1000170 2af 298 100017c 2b3 2b4
-// prog: 100018b 2c0 1d4 1000192 2e1 2dc 100019c 2c7 2f4 100019e 2f5 2c8 100019f 2f6 2f7 10001a0
-// prog: 2fb 1e7 10001a3 2fc 2f9 10001a4 2cb 2fa 10001ce 319 2e5 10001d2 323 2ec 10001f8 345
-// prog: 224 1000208 37f 237 1000246 3a3 330 1000250 2fc 1e8 1000258 3a6 332 100025e 3a5 332
-// prog: 1000267 3b0 337 100027a 29e 1af 100027f 3b3 339 1000293 3b2 339 10002c2 203 290 100032e
-// prog: 3bd 341 1000331 3be 342 1000340 3bc 341 100035c 151 14b 10003d0 3c5 349 10003d1 3c6
-// prog: 34a 10003d6 3c4 349 2000028 14 7 2000029 15 7 200002b 20000000 c 200002c 20000004 18
-// prog: 2000035 e 2d 2000036 f 2d 2000038 20000000 39 200003a 20000004 45 2000042 8 7c 2000043
-// prog: 9 7c 2000044 20000000 93 2000046 20000004 94 200004e 2 a4 200004f 3 a4 2000050 20000000
-// prog: a5 2000052 20000004 a6 2000054 20000004 c8 2000059 20000004 de 200005b 20000004 e9 200005e 20000004 f4
-// prog: 2000092 20000012 140 200009b 20000014 140 200009c 20000015 140 20000a2 20000018 140 20000b8 20000019 140 20000bc
-// prog: 104 152 20000c0 103 152 20000c2 196 152 20000c4 195 152 20000ea 2000001e 1c4 20000eb 20000014
-// prog: 1c4 20000ec 20000015 1c4 20000f6 20000021 1c4 20000f7 20000019 1c4 20000fa 172 204 20000fb 171 204
-// prog: 20000fe 1bd 204 2000101 1bc 204 2000115 81 239 2000119 84 238 200011c 84 221 200011f
-// prog: 80 239 2000128 80 238 2000135 81 221 2000173 20000012 28a 2000175 20000014 28a 2000176 20000015
-// prog: 28a 2000177 20000018 28a 2000178 20000019 28a 2000182 8b 2b2 2000183 8e 2b1 2000184 8e 2b0
-// prog: 2000185 8a 2b2 2000186 8a 2b1 200018a 8b 2b0 20001aa 2000001e 2f0 20001ab 20000014 2f0 20001ac
-// prog: 20000015 2f0 20001ad 20000021 2f0 20001b0 20000019 2f0 2000255 7 8a 2000256 7 8b 200025c c
-// prog: 2e7 2000262 ee 89 2000264 f4 88 200027c 2d 80 200027d 2d 81 2000287 39 2e0
-// prog: 20002a6 e7 7f 20002a8 e9 7e 20002c5 2000001f 310 20002c6 20000015 310 20002ca 20000016 310 20002d3
-// prog: 20000020 310 20002dd 20000019 310 20002f8 171 34d 200030a 172 34d 2000317 1bc 34d 2000318 1bd
-// prog: 34d 200031d 20000010 34d 2000326 20000010 204 200032b 7c 76 200032c 7c 77 2000333 93 2d6
-// prog: 2000338 4b 30f 200033a b6 30f 200033f 20000027 30f 2000348 cf 74 2000353 de 73 2000364
-// prog: 20000013 309 2000365 20000015 309 2000366 20000016 309 200036a 20000017 309 200036b 20000019 309 200036d 103
-// prog: 335 200036e 104 335 2000375 195 335 2000376 196 335 20003ca 20000010 335 20003cc 20000010 152
-// prog: 20003ce a4 6b 20003cf a4 6c 20003d2 a5 2cc 20003d3 57 308 20003d4 cc 308 20003d5
-// prog: 20000027 308 20003d8 c7 69 20003d9 c8 68 20003da 1f7 3c9 20003db 2000004a 3c9 20003dc 1f6
-// prog: 3c1 20003dd 2000004a 3c1 20003de 1f5 3b9 20003df 2000004a 3b9 20003e0 1f2 3ac 20003e1 2000004a 3ac
-// prog: 40001c0 30d 30d 40001c6 315 315 40001cf 31e 31e 40001d3 328 328 4000245 39d 39d 400024a
-// prog: 2fb 2fb 400025b 3a7 3a7 4000265 38d 38d 400026f 29d 29d 4000283 3b4 3b4 40002a9 378
-// prog: 378 40002aa 1ef 1ef 40002c4 3ba 3ba 4000354 336 336 4000355 150 150 400035d 3c2 3c2
+// prog: 8000000 0 0 8000000 0 0 1d 1 31 29 c 40 38 c8 42 3a
+// prog: ca 43 41 cf 45 44 54 96 46 55 9b 47 59 9c 4c 4e
+// prog: b8 53 4f c3 58 10b 5b 60 10c 5c 62 118 5d 63 61 11a
+// prog: 64 65 11c 66 68 11d 6a 5e 11f 7a 5f 123 85 187 73 86
+// prog: 158 7d 87 15e 7e 8f 15f 84 90 93 16a 92 94 16b 9e 9f
+// prog: 16c a2 88 170 bf 91 173 d5 1c2 a5 d8 1ca c2 e1 1d4 c4
+// prog: e2 1dd c5 e3 de 19c e4 df 19e e5 e0 19f e6 c6 1a0 ea
+// prog: d0 1a4 ec 18d e7 f7 143 a3 112 dd 70 115 72 5a 14a 11b
+// prog: 121 154 126 1e3 155 107 127 159 107 207 177 160 163 185 16e 16e
+// prog: 188 253 16d 18f 1c4 181 190 2b0 179 1b2 18e 18e 1b7 19a 19a 1b9
+// prog: 171 183 1d8 1b3 1b5 1df 1da 25e 1e1 104 1e0 1eb 104 27f 208 249
+// prog: 24c 217 256 256 219 240 255 21d 152 26e 21e 221 266 22f 27e 27e
+// prog: 232 286 286 233 259 27c 250 297 298 258 2b3 329 25b 101 2be 264
+// prog: 101 353 278 2ed 2ee 28d 2f2 2f2 291 22a 2f1 294 109 2fa 296 137
+// prog: 2f7 2a8 304 304 2a9 305 305 2aa 2f4 2fb 2c9 31a 323 2e5 32c 3d8
+// prog: 2e6 fc 330 2fd fc 42e 321 368 369 33b 386 386 340 210 380 343
+// prog: c7 390 345 b9 38a 377 398 398 378 39a 39a 379 388 395 399 3a0
+// prog: 44b 39d 30b 44d 39e 28e 44f 3a3 1a3 451 100014e 124 1e8 1000153 125 1e5
+// prog: 1000156 1e9 122 1000157 148 149 1000176 150 151 1000186 164 2f5 100018a 17a 2fc 10001ba
+// prog: 189 172 10001bb 171 183 10001dc 1b8 167 10001de 1d9 161 10001e2 25f 1b6 10001ea 1ff
+// prog: 204 1000203 246 247 1000218 251 385 100021c 267 38b 1000236 27d 25a 100023a 259 27c
+// prog: 1000252 2ac fb 1000254 2af fa 100025d 32e 29e 1000262 2d6 2d7 1000277 2e0 2e1 100028f
+// prog: 2f0 31d 1000293 2f9 326 10002ab 300 2f6 10002ad 2f4 2fb 10002d4 328 c0 10002dc 32b
+// prog: bc 10002e7 3d9 325 10002ec 341 34d 1000320 358 367 100033c 37f 3ca 1000342 38c 3cc
+// prog: 100037a 396 389 100037b 388 395 2000028 15 6 200002b f 18 200002c 8 1c 2000034
+// prog: 9 1e 2000035 2 1f 2000036 3 39 20000eb 20000010 e7 20000f6 20000010 a3 200010a 20000010
+// prog: 70 2000114 20000010 5a 200012f e8 213 2000130 e9 224 2000135 ed 237 2000145 ee 241
+// prog: 2000146 20b 105 2000147 2bd 106 200015a 17 131 200015b 16 140 200015c 16 131 200015d
+// prog: 17 140 2000162 17 129 2000168 16 12b 2000169 16 129 2000174 17 12b 200017b 20000010
+// prog: 14f 200017c 17 105 200017d 16 105 2000180 16 106 2000182 17 106 2000184 20000022 16e
+// prog: 2000192 10f 171 2000193 110 172 2000194 8a 171 2000197 8b 172 2000199 110 189 200019b
+// prog: 10f 183 20001ad 8b 189 20001b1 8a 183 20001c0 110 14d 20001c3 10f 14f 20001c6 26
+// prog: 14d 20001c8 27 14f 20001c9 15 171 20001ce 14 172 20001d3 1e4 102 20001d7 2a1 103
+// prog: 20001ee 11 1ec 20001f0 10 1ed 20001f8 10 1ec 20001fa 11 1ed 20001fb 11 1e6 20001fc
+// prog: 10 1e7 20001fe 10 1e6 2000200 11 1e7 2000209 20000010 244 200020c 11 102 200020d 10
+// prog: 102 2000211 10 103 2000214 11 103 2000216 20000022 256 2000220 f1 259 2000222 f2 25a
+// prog: 2000223 80 259 2000225 81 25a 2000226 f2 27d 2000229 f1 27c 200022b 81 27d 200022e
+// prog: 80 27c 200023c f2 243 200023f f1 244 2000242 24 243 200024a 25 244 200024b f
+// prog: 259 200024d e 25a 200024e 1bd fd 200024f 1bc fe 2000265 b 2d2 2000268 a 2d5
+// prog: 2000269 a 2d2 200026f b 2d5 2000270 b 2bf 2000271 a 2cb 2000275 a 2bf 2000276
+// prog: b 2cb 2000279 20000010 2df 2000280 b fd 2000281 a fd 2000282 a fe 2000283 b
+// prog: fe 200028a 20000022 2f2 200029b d2 2f4 200029c d3 2f6 200029d 76 2f4 200029f 77 2f6
+// prog: 20002a3 d3 300 20002a4 d2 2fb 20002a5 77 300 20002a6 76 2fb 20002ae d3 2de 20002b5
+// prog: d2 2df 20002b6 22 2de 20002b7 23 2df 20002b8 9 2f4 20002b9 8 2f6 20002bb 196
+// prog: ef 20002bc 195 f4 2000301 5 337 2000302 4 339 2000303 4 337 2000309 5 339
+// prog: 2000312 5 331 2000316 4 335 200031c 4 331 200031f 5 335 2000322 20000010 357 2000324
+// prog: 5 ef 2000327 4 ef 200032f 4 f4 2000332 5 f4 2000336 20000022 386 200034a b3
+// prog: 388 2000355 b4 389 2000359 6b 388 200035a 6c 389 200035b b4 396 200035c b3 395
+// prog: 200035d 6c 396 2000376 6b 395 200037c b4 356 200037d b3 357 200037e 20 356 200038d
+// prog: 21 357 200038e 3 388 200038f 2 389 4000191 172 172 400021f 25a 25a 400029a 2f6
+// prog: 2f6 4000349 389 389 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 18 2a 2b 1c 20000003 2e 45 37
-// prog: 38 5d 20000003 3b 70 96 44 75 20000003 47 84 c3 50 93 20000003 53
-// prog: 94 123 60 95 62 11a 9d 63 66 9f 64 11d a3 7a 12a a6
-// prog: 144 86 bd 145 87 c7 146 8f c8 153 92 ca 154 9b cf 15a
-// prog: 9c fd 15c c9 ff cd 18f 100 ce d8 102 d7 197 105 e1 1be
-// prog: 107 1c8 e3 108 1c9 e4 109 1dc e5 10b 207 ea 10c 20c eb 118
-// prog: 20d ec 147 29f 10a 149 11c 11f 14c 248 136 14d 14e 288 150 159
-// prog: 169 151 162 16a 152 168 16b 158 2a0 173 15e 2a2 175 15f 2a3 176
-// prog: 191 2bb 17c 1a1 184 185 1ae 2b9 18b 1af 190 2e8 1b6 193 19c 1b8
-// prog: 199 19e 1c4 19b 19f 1ca 2fd 1aa 1d4 2fe 1ab 1dd 301 1ac 24c 1de
-// prog: 2ff 26e 1fb 311 28c 21a 320 295 231 32f 2e5 24d 24d 2e6 24f 24f
-// prog: 2e7 250 250 2ec 1a0 22e 2f6 321 230 300 2b8 1a4 306 3a5 258 30b
-// prog: 262 264 342 275 275 345 277 277 349 27a 27a 34a 16c 217 386 312
-// prog: 219 38c 29c 170 396 3b2 27f 39a 2a6 2a8 3b8 2ae 2ae 3bb 2b5 2b5
-// prog: 3bd 2c2 2c2 3c0 e6 1f9 3eb 3bc 32e 3f7 348 353 405 359 359 406
-// prog: 35a 35a 407 35c 35c 409 90 1d7 417 3c4 3d0 423 3d8 3d9 10000a5 85
-// prog: 13a 10000de b8 15d 1000106 e2 1bf 100011b f7 21c 100014b 135 128 100014f 157 289
-// prog: 1000160 178 2a5 10001a2 18a 186 10001b5 192 2ef 10001e0 1b0 303 1000243 1c0 30e 1000244
-// prog: 1c6 316 1000247 1cf 322 1000249 1d3 329 1000254 33c 1df 1000259 33d 1e1 100025a 33e
-// prog: 1e3 100025d 343 1e9 1000266 344 1f0 1000276 37a 1fc 100027e 37b 1fe 1000286 37c 200
-// prog: 100028a 37d 202 100028b 37e 206 100028d 38f 21b 100028e 21d 21e 1000290 21f 220 1000291
-// prog: 222 223 1000292 225 226 1000294 229 24b 1000296 39f 232 1000297 233 234 1000298 235
-// prog: 236 100029d 23c 23d 100029e 23e 23f 10002ab 242 25f 10002ac 245 39e 10002af 24a 2c9
-// prog: 10002ed 1a3 22f 10002ee 22e 1a0 10002f0 252 39d 1000307 25b 3a7 1000308 25e 263 100030c
-// prog: 265 38e 100030d 26f 2ad 100034d 16e 218 1000356 217 16c 1000357 27b 38d 1000397 283
-// prog: 3b4 1000398 293 282 100039b 2a9 379 100039c 2aa 28f 10003be 2c4 3ba 10003c3 e8 1fa
-// prog: 10003c5 1f9 e6 10003c6 31c 378 10003f5 340 35b 10003f8 354 33b 10003f9 355 14a 1000408
-// prog: 35d 3c2 100040a 91 1d8 100040b 1d7 90 100040c 377 336 1000421 3d6 36c 2000006 14
-// prog: 0 200000c 15 1b 200001a 20000022 2c 200001f e 2f 2000039 f 30 2000051 20000022 3a
-// prog: 2000061 8 3c 2000065 9 3d 2000071 20000022 46 200007b 2 48 200007d 3 49 200008e
-// prog: 20000022 52 20000df 194 91 20000e0 194 90 20000e7 103 91 20000e9 104 90 20000ed d0
-// prog: 91 20000ee d0 90 20000f4 195 91 20000fc 196 90 2000121 1bb e8 2000122 1bb e6
-// prog: 2000124 171 e8 2000125 172 e6 2000126 ef e8 2000127 ef e6 2000129 1bc e8 2000140
-// prog: 1bd e6 2000161 1a8 170 2000163 1e2 16e 2000164 1e2 16c 2000167 1a7 170 200016d 1a7
-// prog: 16e 200016f 1a8 16c 2000174 1e4 170 2000179 10d 16e 200017a 10d 16c 200017b 2a1 170
-// prog: 2000189 2a1 16e 200018e 1e4 16c 20001e5 1da 1a4 20001e6 209 1a3 20001e7 209 1a0 20001e8
-// prog: 1d9 1a4 20001ec 1d9 1a3 20001ed 1da 1a0 20001ee 20b 1a4 20001ef 12b 1a3 20001ff 12b
-// prog: 1a0 2000203 2bd 1a4 2000204 2bd 1a3 2000205 20b 1a0 2000211 5f 1f2 2000212 5f 2000004a
-// prog: 2000214 5c 1f5 2000215 5c 2000004a 200022b 5a 1f6 200022c 5a 2000004a 200023a 55 1f7 200023b
-// prog: 55 2000004a 20002b4 2000001f 1d2 20002ba 20000015 1d2 20002c0 20000016 1d2 20002c7 20000020 1d2 20002c8 20000019
-// prog: 1d2 20002cc 1d9 230 20002cd 1da 230 20002d2 1d9 22e 20002d4 1da 22f 20002d5 2bd 230
-// prog: 20002d6 20b 230 20002d7 2bd 22e 20002dc 20b 22f 20002de 1da 1a3 20002df 1d9 1a0 20002e0
-// prog: 20b 1a3 20002e1 2bd 1a0 20002f1 17 22e 20002f2 16 22f 20002f3 16 22e 20002f4 17
-// prog: 22f 20002f5 20000010 230 20002f7 17 1a0 20002f9 16 1a3 20002fa 16 1a0 20002fb 17 1a3
-// prog: 20002fc 20000010 1a4 2000304 0 8b 2000305 1b 8a 2000309 1d 89 2000310 20000013 1ce 2000313
-// prog: 20000015 1ce 2000314 20000016 1ce 2000315 20000017 1ce 2000319 20000019 1ce 200031b 1a7 219 200031e 1a8
-// prog: 219 2000323 1a7 217 2000324 1a8 218 2000325 2a1 219 2000328 1e4 219 2000330 2a1 217
-// prog: 2000332 1e4 218 2000335 1a8 16e 2000337 1a7 16c 2000339 1e4 16e 2000341 2a1 16c 2000367
-// prog: 11 217 2000368 10 218 200037f 10 217 2000380 11 218 2000385 20000010 219 2000387 11
-// prog: 16c 2000388 10 16e 2000389 10 16c 200038a 11 16e 200038b 20000010 170 2000390 2f 81
-// prog: 2000395 30 80 2000399 34 7f 20003a1 171 1f9 20003a3 172 1fa 20003a6 1bc 1f9 20003ab
-// prog: 1bd 1fa 20003ae 172 e8 20003b0 171 e6 20003b1 1bd e8 20003b3 1bc e6 20003c8 b
-// prog: 1f9 20003e2 a 1fa 20003e3 a 1f9 20003e4 b 1fa 20003e5 b e6 20003e6 a e8
-// prog: 20003e7 a e6 20003e8 b e8 20003e9 3c 77 20003ea 3d 76 20003ed d2 31f 20003ee
-// prog: d3 31f 20003ef 76 31f 20003f0 77 31f 20003f1 d2 327 20003f2 d3 327 20003f3 76
-// prog: 327 20003f4 77 327 20003f6 41 74 20003fb 103 1d7 20003fc 104 1d8 20003fe 195 1d7
-// prog: 20003ff 196 1d8 2000401 104 91 2000402 103 90 2000403 196 91 2000404 195 90 200040d
-// prog: 5 1d7 200040e 4 1d8 200040f 4 1d7 2000410 5 1d8 2000411 5 90 2000412 4
-// prog: 91 2000413 4 90 2000414 5 91 2000415 48 6c 2000416 49 6b 2000419 b3 3cb
-// prog: 200041a b4 3cb 200041b 6b 3cb 200041c 6c 3cb 200041d b3 3cd 200041e b4 3cd 200041f
-// prog: 6b 3cd 2000420 6c 3cd 2000422 4d 69 3000213 2000004b 1b4 3000224 2000004b 1b7 3000237 2000004b
-// prog: 1b9 3000241 2000004b 1ba 4000001 28 28 400001e 35 35 4000148 115 115 400019a 182 182
-// prog: 40002b3 246 246 40002cb 22f 22f 400030f 267 267 400031a 218 218 40003a0 1fa 1fa 40003a4
-// prog: 317 317 40003ad 318 318 40003ec 331 331 40003fa 1d8 1d8 40003fd 375 375 4000400 376
-// prog: 376 4000418 3d1 3d1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 34 61 43 35 42 65 38 7b
-// prog: 4f 3a 4e 7d 41 84 54 44 70 59 46 45 5b 47 18 5e
-// prog: 4d c5 95 50 c6 9d 52 94 9f cd 141 ff ce 142 100 d7
-// prog: fd 102 144 149 251 145 14b 257 178 1a1 2be 17c 1a2 2bf 1b7 243
-// prog: 243 1b9 244 244 1ba 247 247 1bb 249 249 1ce 3a2 2ac 1e3 2de 2df
-// prog: 1e9 2e0 2e1 1f0 2af 2af 1fb 1b6 29e 1fe 1b8 298 207 2f0 2f0 219
-// prog: 2f3 2f4 222 2fa 2fb 23d 306 306 23e 308 308 242 3af 30c 25e 335
-// prog: 337 25f 339 341 262 30d 30d 265 150 292 275 151 290 27f 357 357
-// prog: 29f 37f 380 2aa 389 38a 30e 396 396 311 398 398 316 358 39b 329
-// prog: 3ae 3b0 32e 3b1 3b3 32f 39c 39c 33b 107 28b 340 108 286 353 3c6
-// prog: 3c6 35d 3e3 3e4 37b 3e7 3e8 39f 3eb 3eb 3a7 3f5 3f5 3b4 369 3f8
-// prog: 3d8 401 402 3d9 403 404 424 3f9 3f9 426 a6 266 42a bd 25a 42e
-// prog: 40c 40c 435 40f 410 43d 413 414 446 417 417 448 421 421 44a 423
-// prog: 3da 44c 3f7 3dc 44e 39a 3de 450 30b 3e0 1000028 1 c 100002c 1e 39
-// prog: 100007a 131 de 1000096 bc df 100009b e0 c0 100009c e7 e9 10000b8 c2 ed 10000c3
-// prog: ee c4 10000c9 f4 fc 10000e6 181 11b 100011a fa 121 100011c 122 fb 100011d 124
-// prog: 125 100011f fe 126 1000123 127 101 1000128 129 140 1000135 148 119 1000159 1b3 160
-// prog: 100016a 161 163 100016b 164 167 100016c 16d 16f 1000170 174 179 1000173 17a 17b 1000175
-// prog: 189 18e 1000176 19a 183 1000190 1f1 1e0 100019c 1e5 1e6 100019e 1e7 1e8 100019f 1ec
-// prog: 1ed 10001a0 1ee 1ef 10001a4 1ff 203 10001aa 204 205 10001f9 2b3 246 10001fa 298 1b8
-// prog: 10001fc 2cb 1a3 1000200 29e 1b6 1000218 2f1 2f2 1000220 2f7 2f9 100022e 255 304 100022f
-// prog: 305 256 1000263 30f 267 1000264 290 151 100026f 31a 16e 1000277 292 150 100029c 367
-// prog: 368 10002a9 387 388 10002b9 27c 390 10002bb 395 27d 1000336 286 108 100033c 3a0 e8
-// prog: 100033d 3a4 101 100033e 3ad fe 1000343 28b 107 100035c 3c8 3e2 100037a 3e5 3e6 100038e
-// prog: 3e9 32b 100038f 32c 3ea 10003a5 3ec 331 1000425 25a bd 1000427 3fa 91 1000428 3fd
-// prog: c4 1000429 400 c2 100042b 266 a6 1000434 40d 40e 100043c 411 412 1000442 415 3ce
-// prog: 1000443 3cf 416 1000447 418 3d1 200002a 20000000 18 200002e 20000000 45 2000037 20000000 70 200003b
-// prog: 20000000 84 2000053 20000018 a5 2000060 20000018 a3 2000062 20000019 a5 2000063 20000017 a3 2000064 2000001a
-// prog: a3 2000066 2000001a a5 2000085 196 c7 2000086 d0 bd 2000087 d0 a6 200008f 195 c7
-// prog: 2000090 195 bd 2000092 196 a6 20000d8 20000021 106 20000e1 20000021 105 20000e2 20000019 106 20000e3
-// prog: 20000020 105 20000e4 2000001a 105 20000e5 2000001a 106 20000ea 1bd 109 20000eb ef 108 20000ec ef
-// prog: 107 20000f7 1bc 109 200010a 1bc 108 2000115 1bd 107 2000146 20000018 14f 200014a 20000018 14d
-// prog: 200014e 20000019 14f 2000153 20000017 14d 2000154 2000001a 14d 2000157 2000001a 14f 200015a 1e4 152 200015c
-// prog: 10d 151 200015d 10d 150 2000162 2a1 152 2000168 2a1 151 2000169 1e4 150 2000182 20000021
-// prog: 1b5 2000184 20000021 1af 2000185 20000019 1b5 2000186 20000020 1af 200018a 2000001a 1af 200018f 2000001a 1b5
-// prog: 2000192 20b 1c4 2000193 12b 1b8 2000194 12b 1b6 2000197 2bd 1c4 2000199 2bd 1b8 200019b
-// prog: 20b 1b6 20001ab 5f 212 20001ac 5c 215 20001b0 5a 22c 20001b4 55 23b 20001c0 20000022
-// prog: 24c 20001c6 20000022 26e 20001c8 20000022 28c 20001c9 20000022 295 20001cf 2bd 297 20001d2 20b 297
-// prog: 20001d3 20b 298 20001d7 2bd 29e 20001e1 20b 1b8 20001e2 2bd 1b6 2000202 1da 2ed 2000206
-// prog: 1d9 2ee 2000209 17 2ed 200020c 16 2ee 200020d 16 2ed 2000217 17 2ee 200021a 16
-// prog: 297 200021b 17 297 200021c 17 298 200021d 16 29e 200021e 16 298 200021f 17 29e
-// prog: 2000223 17 1b6 2000225 16 1b8 2000226 16 1b6 2000229 17 1b8 2000230 10f 2f6 2000231
-// prog: 110 2f6 2000232 8a 2f6 2000233 8b 2f6 2000234 10f 300 2000235 110 300 2000236 8a
-// prog: 300 200023c 8b 300 200023f 1c 88 2000245 2a1 28e 2000248 1e4 28e 200024a 1e4 290
-// prog: 200024b 2a1 292 2000258 1e4 151 200025b 2a1 150 200027a 1a8 34d 200027b 1a7 356 2000282
-// prog: 11 34d 2000283 10 356 200028f 10 34d 2000293 11 356 20002a0 10 28e 20002a2 11
-// prog: 28e 20002a3 11 290 20002a5 10 292 20002a6 10 290 20002a8 11 292 20002ad 11 150
-// prog: 20002ae 10 151 20002b5 10 150 20002b8 11 151 20002c2 f1 386 20002c4 f2 386 20002c9
-// prog: 80 386 20002fd 81 386 20002fe f1 38c 20002ff f2 38c 2000301 80 38c 2000303 81
-// prog: 38c 2000312 5d 7e 2000317 1bc 27e 2000318 1bd 27e 200031c 1bd 286 200031f 1bc 28b
-// prog: 2000322 1bd 108 2000327 1bc 107 2000344 172 3c3 2000348 171 3c5 2000354 20000010 3be 2000355
-// prog: b 3c3 2000359 a 3c5 200035a a 3c3 200035b b 3c5 200036c a 27e 2000375 b
-// prog: 27e 2000376 b 286 2000377 a 28b 2000378 a 286 2000379 b 28b 200037c b 107
-// prog: 200037d a 108 200037e a 107 200038d b 108 20003b2 75 73 20003ba 195 259 20003bc
-// prog: 196 259 20003c2 196 25a 20003c4 195 266 20003d0 196 bd 20003d6 195 a6 200042c 104
-// prog: 40a 200042d 103 40b 200042f 20000010 408 2000430 5 40a 2000431 4 40b 2000432 4 40a
-// prog: 2000433 5 40b 2000436 4 259 2000437 5 259 2000438 5 25a 2000439 4 266 200043a
-// prog: 4 25a 200043b 5 266 200043e 5 a6 200043f 4 bd 2000440 4 a6 2000441 5
-// prog: bd 2000449 93 68 200044b 23b 3c9 200044d 22c 3c1 200044f 215 3b9 2000451 212 3ac
-// prog: 400001d 6 6 400002b 1f 1f 40001d8 2d2 2d2 40001dc 2d5 2d5 40001de 2d7 2d7 40001df
-// prog: 2d6 2d6 400024d 323 323 400024f 325 325 4000250 330 330 4000252 328 328 4000320 3a1
-// prog: 3a1 4000321 3a6 3a6 400039d 3ef 3ef 400039e 3f0 3f0 40003cb 3fb 3fb 40003cd 3fe 3fe
-// prog: 4000444 41b 41b 4000445 41c 41c 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 c 2c 34 18 35 36 1c 38 44 1e
+// prog: 3a 46 1f 41 47 31 58 63 39 60 64 40 62 66 42 86
+// prog: 90 43 87 92 45 8f 9e 4e d8 e3 4f e1 e4 54 e2 e5
+// prog: 9c 14a 154 9f 157 202 b9 15c 15d c0 169 174 c2 107 17b c5
+// prog: 17d 21b c7 21a 182 c8 107 184 ca 392 186 cf 2b1 18a d0 2b2
+// prog: 18f df 194 197 e7 199 19b f4 188 190 fb 273 1b9 10b 1c6 1c8
+// prog: 122 1d8 1df 124 1ea 27a 126 1f8 1fa 129 1fe 200 12b 104 209 137
+// prog: 20d 2a2 143 2a0 214 148 104 216 149 382 218 14d 238 21c 14f 239
+// prog: 21d 152 223 225 15e 226 229 160 219 21e 163 351 233 171 242 24a
+// prog: 18e 250 258 195 262 344 19a 269 26f 19e 275 276 19f 101 279 1b3
+// prog: 281 375 1b6 36c 283 1b8 101 28a 1bc 228 28f 1bd 13b 293 1c2 13c
+// prog: 294 1da 2a3 2a4 1dd 2a5 2a6 1e0 291 296 1e4 3bf 2aa 1ff 2b6 2b7
+// prog: 243 2c9 2e5 244 2ec 42c 247 303 309 24c 31c 31f 251 fc 322 255
+// prog: 327 437 259 436 332 25a fc 336 25e 20e 33c 25f be 342 266 c1
+// prog: 343 27f 35b 35c 286 35d 376 28e 340 345 298 3c7 379 2be 37e 38d
+// prog: 1000096 146 1cf 100009b 1d2 147 10000a3 15a 15b 10000bc 162 168 10000c4 17c 21a 10000c6
+// prog: 21b 180 10000fa 191 189 10000fd 188 190 100011a 1c9 1ce 100011d 1d3 245 1000121 248
+// prog: 1d7 1000125 1ee 1f0 1000127 1fb 1fc 1000131 20c 2a0 1000140 2a2 211 1000161 21f 27d
+// prog: 1000164 219 21e 100017a 24b 24d 1000187 24e 317 100018d 318 24f 1000196 265 268 100019c
+// prog: 270 271 10001a3 280 36c 10001b5 375 282 10001e3 29a 300 10001e5 291 296 100020b 2b8
+// prog: 2b9 100022a 2bb 3ba 1000240 3bc 2bc 1000246 301 302 1000249 312 316 1000253 324 436
+// prog: 1000256 437 32f 1000297 349 396 100029e 340 345 10002d2 38e 38f 2000001 14 1d 2000006
+// prog: e 29 2000055 17 e6 2000059 16 ea 200005a 16 e6 200005b 17 ea 200005c 11
+// prog: a2 200005d 10 bf 200005e 10 a2 200005f 11 bf 2000061 b 6a 2000065 a 7a
+// prog: 2000068 a 6a 2000070 b 7a 2000072 5 4c 200007d 4 53 200007e 4 4c 2000084
+// prog: 5 53 2000088 e8 12f 2000091 e9 130 2000093 ed 135 2000094 ee 145 20000dd 8a
+// prog: 188 20000e0 8a 190 20000fe 110 1ba 2000102 10f 1bb 2000103 8b 176 2000105 8a 177
+// prog: 2000106 26 1ba 2000109 27 1bb 200010c 14 176 2000118 15 177 200011b 20000000 188 200011c
+// prog: 15 188 2000150 80 219 2000158 80 21e 2000167 f2 236 200016a f1 23a 200016b 81
+// prog: 203 200016c 80 208 200016d 24 236 200016e 25 23a 2000172 e 203 2000179 f 208
+// prog: 2000181 20000000 219 2000183 f 219 20001c4 76 291 20001d9 76 296 20001e6 d3 2ab 20001e7
+// prog: d2 2ad 20001e8 77 277 20001e9 76 278 20001ec 22 2ab 20001ed 23 2ad 2000204 8
+// prog: 277 2000207 9 278 2000210 20000000 291 2000221 9 291 2000267 6b 340 200027e 6b 345
+// prog: 20002a1 b4 37a 20002ac b3 37b 20002af 6c 320 20002b0 6b 321 20002b3 20 37a 20002bd
+// prog: 21 37b 20002bf 2 320 20002cb 3 321 20002d5 20000000 340 20002d6 3 340 20002d7 145
+// prog: 44a 20002de 135 44c 20002df 130 44e 20002e0 12f 450 20002e1 1f7 2fd 20002ed 23b 2fd
+// prog: 20002ee 2000002c 2fd 20002f0 1f6 264 20002f1 22c 264 20002f2 2000002c 264 20002f4 1f5 1eb 20002f5
+// prog: 215 1eb 20002f6 2000002c 1eb 20002f7 1f2 159 20002f9 212 159 20002fa 2000002c 159 40000de 192
+// prog: 192 40000ef 1ad 1ad 4000151 220 220 400015f 22b 22b 40001ca 29b 29b 40001d4 29d 29d
+// prog: 400026e 34a 34a 400027c 359 359 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 6 28 6a 18 2c 9e 1c 34
-// prog: 4c 1e 35 bf 1f 38 58 39 3a d5 4e a2 64 5a 7a c9
-// prog: 5e f6 e4 70 e6 128 73 135 24e 75 188 144 7b 147 145 88
-// prog: 177 154 a3 159 175 a5 176 2bc a6 1c3 178 bd 191 17c c6 1ad
-// prog: 18a e7 190 1aa e8 47 211 e9 46 214 ed 44 22b ee 41 23a
-// prog: ef 1c0 254 f4 1c0 25d fc 1c0 1f8 fd 1c6 276 fe 1c6 28a 101
-// prog: 1c6 208 102 1c8 28d 103 1c8 291 104 1c8 294 105 1c9 296 106 1c9
-// prog: 29d 107 1c9 2ab 126 1e1 1e2 127 1ce 1ce 129 2e5 1fa 12b 2e6 1fb
-// prog: 131 2e7 1fc 140 1f0 2ec 14f 20d 217 16d 21e 21f 171 2b6 218 172
-// prog: 2b7 219 17a 226 229 183 2b6 220 189 2b7 222 18e 22e 268 19a 22f
-// prog: 269 1a1 232 236 1a2 233 23c 1da 258 25b 1e0 242 242 1e6 342 264
-// prog: 1e7 345 265 1ec 349 26f 1ed 262 34a 244 28f 293 255 2a6 2a8 259
-// prog: 29a 29c 25a 29b 29f 267 2b5 2b8 27c 29a 2a9 27d 29b 2aa 27e 2b9
-// prog: 270 286 2bb 271 28b 2c9 301 28c 2fd 303 2b3 322 327 2be 316 316
-// prog: 2bf 3b8 336 2cb 3bb 33b 2d2 3bd 33c 2d5 32f 3c0 2df 35a 35b 2f1
-// prog: 378 379 2f4 155 35c 2f6 156 35d 2f9 37e 38d 2fb 155 37a 300 156
-// prog: 37b 304 38e 278 305 38f 279 32c 3d0 3d6 330 3b4 3b4 331 405 425
-// prog: 335 406 426 337 407 427 339 424 409 357 432 433 380 43a 43b 388
-// prog: 112 434 389 114 435 38c 440 441 395 112 43c 396 114 43d 398 442
-// prog: 280 39a 443 281 1000001 1d 29 100000c 2b 36 1000042 12f 53 1000043 60 130
-// prog: 1000045 62 63 100004f 66 15b 1000054 85 86 1000055 87 8f 1000059 90 92 100005b
-// prog: 17d d8 100005c e1 180 100005d e2 e3 100005f e5 216 1000061 ea eb 1000065 ec
-// prog: f7 1000068 10a 115 100007d 1b1 146 100007e 14a 1b2 1000084 14e 153 1000091 157 2a4
-// prog: 1000093 15a 15c 1000094 15d 162 100009f 168 169 10000c2 1ea 182 10000c4 184 1eb 10000c5
-// prog: 185 186 10000d0 18f 302 10000de 192 193 10000df 194 197 10000e0 199 19b 100011b 1d3
-// prog: 1d7 1000121 1d8 2d4 1000122 1de 2dc 1000141 1dc 203 1000142 1df 1ee 100014d 209 20c
-// prog: 1000164 21c 21d 1000179 223 225 10001a3 23f 309 10001b3 24a 24b 10001b5 24d 324 10001b6
-// prog: 250 332 10001ef 24f 17b 10001f1 252 174 1000243 282 283 1000251 2a3 2a5 1000266 2ad
-// prog: 2ae 100028e 312 399 1000297 31c 31f 1000298 320 3a3 100029e 321 3ab 10002de 355 359
-// prog: 10002f0 376 377 10002f7 37c 37d 1000306 39d 3f3 1000308 39e 3f4 100030b 3b2 3f6 100031a
-// prog: 3c2 3c4 1000323 3cb 3fc 1000325 3cd 3ff 1000356 430 431 100037f 438 439 100038a 43e
-// prog: 43f 100039b 444 41f 100039c 445 420 10003a0 449 422 2000108 20000020 1bb 200010d 20000019 1bb
-// prog: 2000119 2000001a 1bb 2000148 20b 1fe 2000149 2bd 200 200014b 20000010 1f9 2000150 17 1fe 2000151
-// prog: 16 200 2000160 16 1fe 2000163 17 200 200016e 20000010 218 200016f 20000010 219 2000181 20000010
-// prog: 222 20001a7 20000017 1ba 20001a8 20000019 1ba 20001af 2000001a 1ba 20001ff 1e4 275 2000204 2a1 277
-// prog: 2000205 20000010 263 2000246 11 275 2000247 10 277 2000249 10 275 200024c 11 277 2000256
-// prog: 20000010 29c 2000257 20000010 29f 200026e 20000010 2aa 2000290 20000020 1b9 2000292 20000019 1b9 2000295 2000001a
-// prog: 1b9 20002d6 1bd 340 20002d7 1bc 343 20002e0 b 340 20002e1 a 343 20002ed a 340
-// prog: 20002ee b 343 20002f2 20000010 35c 20002f3 20000010 35d 20002fa 20000010 37b 200030c 20000017 1b7 200030d
-// prog: 20000019 1b7 200030f 2000001a 1b7 2000341 196 42a 200034d 195 42b 2000358 5 42a 2000367 4
-// prog: 42b 2000368 4 42a 2000369 5 42b 2000386 20000010 434 2000387 20000010 435 2000390 20000010 43d
-// prog: 20003a1 241 44a 20003a2 237 44c 20003a4 224 44e 20003a6 213 450 4000124 197 197 4000125
-// prog: 192 192 40001b8 162 162 40001d9 15a 15a 40002ac f7 f7 40002af ea ea 4000328 8f
-// prog: 8f 400032b 85 85 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2c c 37 34 18 3b 36 5a 5b 53
+// prog: 5e 5f 7a 68 70 b3 7e 84 e2 96 2cc e5 9b 2cd 101 394
+// prog: c8 147 1b7 f4 14a 272 fa 154 ca cf 15a c2 261 15c 106 109
+// prog: 180 11d 31b 182 121 31e 197 384 148 1c8 232 160 1c9 350 161 1ce
+// prog: 149 14d 1d3 12b 299 1d8 16d 16e 200 187 2f8 202 18d 30a 219 34c
+// prog: 1b8 223 2a9 1e0 225 362 1e3 226 1bc 1bd 22b 19f 347 236 1ec 1ed
+// prog: 245 204 207 24f 22a 36d 250 240 36e 273 334 25a 280 378 28e 281
+// prog: 373 297 282 25e 25f 291 251 3d7 294 2b3 2bd 2a0 2bf 2cb 2aa 399
+// prog: 2d7 2ab 39d 2de 2ad 39e 2df 2b1 3a3 2e0 1000035 55 59 100004c 5c 5d
+// prog: 100006a 61 65 10000a2 72 7d 10000d2 1f 50000002 10000d3 40 50000005 10000d8 45 50000008 10000e1
+// prog: 54 5000000b 10000e6 9f 206 10000e9 c0 14b 1000107 de 193 100013c ef 1b1 1000146 ca
+// prog: cf 1000159 105 103 1000186 124 27b 1000189 129 205 100019b 151 222 10001bb 15f 22e
+// prog: 10001c6 149 14d 10001d2 16c 16b 1000203 195 348 1000209 19e 354 100021b 1ca 29c 100021c
+// prog: 1d4 29f 1000220 1bc 1bd 1000229 1e8 1e9 1000258 244 42d 1000264 24c 42f 1000276 26e
+// prog: 355 1000277 27c 35a 100027d 25e 25f 100028f 2af 2b0 2000038 17 4e 200003a 16 4f
+// prog: 2000041 16 4e 2000047 17 4f 2000058 11 42 2000060 10 43 2000062 10 42 2000066
+// prog: 11 43 2000086 b 31 2000087 a 39 200008f a 31 200009e b 39 20000b4 5
+// prog: 1c 20000be 4 1e 20000bf 4 1c 20000c1 5 1e 20000e8 20000010 b9 20000ea 17 c4
+// prog: 20000ed 16 c6 20000ee 17 c5 20000f1 16 c7 20000f2 16 c5 20000fc 17 c7 2000104
+// prog: 8b ca 200010f 8a d0 2000110 8b d0 200013b 8b cf 2000157 8a fd 200015b 27
+// prog: fb 200015d 15 fd 2000162 26 a3 2000168 27 b9 2000169 14 bc 2000176 20000000 c2
+// prog: 2000177 20000004 10b 200017b 20000000 ca 200017c 14 ca 200017d 20000004 11a 2000188 20000010 126 200018a
+// prog: 11 131 200018f 10 140 2000190 11 137 2000191 10 143 2000192 10 137 2000194 11
+// prog: 143 2000199 81 149 20001ad 80 14f 20001b9 81 14f 20001ba 81 14d 20001cf 80 164
+// prog: 20001d7 25 163 20001df f 164 20001ea 24 125 20001eb 25 126 20001ee e 127 20001f8
+// prog: 20000000 12b 20001fa 20000004 171 20001fb 20000000 149 20001fc e 149 20001fe 20000004 17a 2000208 20000010
+// prog: 19a 200020c b 1a3 200020d a 1b5 200020e b 1b3 2000211 a 1b6 2000214 a 1b3
+// prog: 2000218 b 1b6 200021a 77 1bc 200021d 76 1c2 200021e 77 1c2 200021f 77 1bd 2000228
+// prog: 76 1e5 2000233 23 1e4 2000238 9 1e5 2000239 22 196 200023a 23 19a 2000242 8
+// prog: 19c 2000248 20000000 19f 200024a 20000004 1ff 200024b 20000000 1bc 200024d 8 1bc 200024e 20000004 20b
+// prog: 2000262 20000010 247 2000265 5 253 2000268 4 256 2000269 5 255 200026f 4 259 2000270
+// prog: 4 255 2000271 5 259 2000275 6c 25e 2000278 6b 266 2000279 6c 266 200027a 6c
+// prog: 25f 2000283 6b 29e 2000293 21 298 2000296 3 29e 200029a 20 246 200029b 21 247
+// prog: 200029d 2 249 20002a2 20000000 251 20002a3 20000004 2be 20002a4 20000000 25e 20002a5 2 25e 20002a6
+// prog: 20000004 2d2 400001d 1 1 4000029 6 6 4000174 10c 10c 40001f0 172 172 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 c 2000002b 2c 18 2000002b 34 1e 41 47 37
+// prog: 1ae 35 39 18c 36 42 62 66 4e 14c 4c 4f 13d 53 59 8f
+// prog: 9e 5b db 6a 5c dc 7a 5e bf c1 61 67 a2 65 6f b3
+// prog: c0 e2 14e c2 e5 153 c4 155 e8 c7 f2 fc de 1b2 146 ef
+// prog: 101 23d fb 101 23e fd 159 1c0 10c 162 168 126 180 1dc 127 182
+// prog: 1de 129 1e1 188 137 192 194 14b 22f 1c6 14d 197 30e 15f 197 311
+// prog: 160 1d2 23c 16d 1ea 1eb 18d 200 252 193 202 254 195 25b 208 19c
+// prog: 214 218 1b1 21f 1d9 1b3 2a8 220 1b5 219 39f 1b8 219 3a7 1bc 229
+// prog: 2ae 1e3 239 23a 1e5 245 248 1e8 24d 221 1ec 24f 2d4 1ed 250 2dc
+// prog: 1ff 2e6 262 206 270 271 22a 27a 27e 22e 377 27d 232 273 446 246
+// prog: 273 448 247 28f 37c 256 29a 29b 25a 2a0 2a2 25e 2a5 2d6 1000001 1d
+// prog: 28 1000006 29 2b 100001c 38 3a 100003b 58 60 1000055 86 87 100005d b4 be
+// prog: 10000c5 ea ed 10000c6 ee f1 10000c8 dd 104 10000cf 10f 234 10000d0 110 235 10000f4
+// prog: 13c df 1000121 174 118 100012b 18a 18f 1000131 190 191 1000140 150 199 1000148 1ad
+// prog: 2fe 1000149 1b9 2ff 100014f 1bb 152 1000172 1f0 179 1000196 20c 20d 100019a 20e 211
+// prog: 100019e 21a 1c4 10001b6 1dd 21c 1000204 265 268 1000205 269 26f 1000207 275 267 1000240
+// prog: 286 277 2000031 20000010 36 2000043 20000010 53 200005a 20000010 7a 200005f 20000010 b3 2000068 1f2
+// prog: e1 2000070 212 e1 2000072 1f5 d8 200007d 215 d8 200007e 1f6 d3 2000084 22c d3
+// prog: 2000096 1f7 d2 200009b 23b d2 200009f 2000002c d2 20000a3 2000002c d3 20000b9 2000002c d8 20000bc
+// prog: 2000002c e1 20000fa 8b 154 2000103 26 14a 2000105 15 147 2000106 14 154 2000109 20000000
+// prog: 101 200010b 20000004 15c 200011d 15 e9 2000125 20000022 17d 2000151 81 1ce 2000161 24 1c9
+// prog: 2000163 f 1c8 2000164 e 1ce 200016b 20000000 197 200016c 20000004 1d8 2000171 f 189 2000187
+// prog: 20000022 1fe 20001b7 77 226 20001bd 22 225 20001c2 9 223 20001ca 8 226 20001d4 20000000
+// prog: 219 20001e0 20000004 236 20001e4 9 209 20001e9 20000022 24e 2000244 6c 282 2000249 20 281
+// prog: 200024c 3 280 2000251 2 282 2000253 20000000 273 2000255 20000004 294 2000259 3 264 200025f
+// prog: 20000022 2a6 2000261 1f7 291 2000266 23b 291 200026e 2000002c 291 2000272 1f6 22b 200027b 22c
+// prog: 22b 200027c 2000002c 22b 200028e 1f5 1d3 2000297 215 1d3 2000298 2000002c 1d3 2000299 1f2 15a
+// prog: 200029c 212 15a 200029e 2000002c 15a 40000ca 13b 13b 400011a 169 169 4000124 17c 17c 4000143
+// prog: 1ba 1ba 400016e 1ee 1ee 400017a 1fc 1fc 400019f 21d 21d 40001a3 21e 21e 400020b 278
+// prog: 278 4000222 279 279 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1d 1 31 29 c 40 38 c8
-// prog: 42 3a ca 43 41 cf 45 44 54 96 46 55 9b 47 59 9c
-// prog: 4c 4e b8 53 4f c3 58 10b 5b 60 10c 5c 62 118 5d 63
-// prog: 61 11a 64 65 11c 66 68 11d 6a 5e 11f 7a 5f 123 85 187
-// prog: 73 86 158 7d 87 15e 7e 8f 15f 84 90 93 16a 92 94 16b
-// prog: 9e 9f 16c a2 88 170 bf 91 173 d5 1c2 a5 d8 1ca c2 e1
-// prog: 1d4 c4 e2 1dd c5 e3 de 19c e4 df 19e e5 e0 19f e6 c6
-// prog: 1a0 ea d0 1a4 ec 18d e7 f7 143 a3 112 dd 70 115 72 5a
-// prog: 14a 11b 121 154 126 1e3 155 107 127 159 107 207 177 160 163 185
-// prog: 16e 16e 188 253 16d 18f 1c4 181 190 2b0 179 1b2 18e 18e 1b7 19a
-// prog: 19a 1b9 171 183 1d8 1b3 1b5 1df 1da 25e 1e1 104 1e0 1eb 104 27f
-// prog: 208 249 24c 217 256 256 219 240 255 21d 152 26e 21e 221 266 22f
-// prog: 27e 27e 232 286 286 233 259 27c 250 297 298 258 2b3 329 25b 101
-// prog: 2be 264 101 353 278 2ed 2ee 28d 2f2 2f2 291 22a 2f1 294 109 2fa
-// prog: 296 137 2f7 2a8 304 304 2a9 305 305 2aa 2f4 2fb 2c9 31a 323 2e5
-// prog: 32c 3d8 2e6 fc 330 2fd fc 42e 321 368 369 33b 386 386 340 210
-// prog: 380 343 c7 390 345 b9 38a 377 398 398 378 39a 39a 379 388 395
-// prog: 399 3a0 44b 39d 30b 44d 39e 28e 44f 3a3 1a3 451 100014e 124 1e8 1000153
-// prog: 125 1e5 1000156 1e9 122 1000157 148 149 1000176 150 151 1000186 164 2f5 100018a 17a
-// prog: 2fc 10001ba 189 172 10001bb 171 183 10001dc 1b8 167 10001de 1d9 161 10001e2 25f 1b6
-// prog: 10001ea 1ff 204 1000203 246 247 1000218 251 385 100021c 267 38b 1000236 27d 25a 100023a
-// prog: 259 27c 1000252 2ac fb 1000254 2af fa 100025d 32e 29e 1000262 2d6 2d7 1000277 2e0
-// prog: 2e1 100028f 2f0 31d 1000293 2f9 326 10002ab 300 2f6 10002ad 2f4 2fb 10002d4 328 c0
-// prog: 10002dc 32b bc 10002e7 3d9 325 10002ec 341 34d 1000320 358 367 100033c 37f 3ca 1000342
-// prog: 38c 3cc 100037a 396 389 100037b 388 395 2000028 15 6 200002b f 18 200002c 8
-// prog: 1c 2000034 9 1e 2000035 2 1f 2000036 3 39 20000eb 20000010 e7 20000f6 20000010 a3
-// prog: 200010a 20000010 70 2000114 20000010 5a 200012f e8 213 2000130 e9 224 2000135 ed 237 2000145
-// prog: ee 241 2000146 20b 105 2000147 2bd 106 200015a 17 131 200015b 16 140 200015c 16
-// prog: 131 200015d 17 140 2000162 17 129 2000168 16 12b 2000169 16 129 2000174 17 12b
-// prog: 200017b 20000010 14f 200017c 17 105 200017d 16 105 2000180 16 106 2000182 17 106 2000184
-// prog: 20000022 16e 2000192 10f 171 2000193 110 172 2000194 8a 171 2000197 8b 172 2000199 110
-// prog: 189 200019b 10f 183 20001ad 8b 189 20001b1 8a 183 20001c0 110 14d 20001c3 10f 14f
-// prog: 20001c6 26 14d 20001c8 27 14f 20001c9 15 171 20001ce 14 172 20001d3 1e4 102 20001d7
-// prog: 2a1 103 20001ee 11 1ec 20001f0 10 1ed 20001f8 10 1ec 20001fa 11 1ed 20001fb 11
-// prog: 1e6 20001fc 10 1e7 20001fe 10 1e6 2000200 11 1e7 2000209 20000010 244 200020c 11 102
-// prog: 200020d 10 102 2000211 10 103 2000214 11 103 2000216 20000022 256 2000220 f1 259 2000222
-// prog: f2 25a 2000223 80 259 2000225 81 25a 2000226 f2 27d 2000229 f1 27c 200022b 81
-// prog: 27d 200022e 80 27c 200023c f2 243 200023f f1 244 2000242 24 243 200024a 25 244
-// prog: 200024b f 259 200024d e 25a 200024e 1bd fd 200024f 1bc fe 2000265 b 2d2 2000268
-// prog: a 2d5 2000269 a 2d2 200026f b 2d5 2000270 b 2bf 2000271 a 2cb 2000275 a
-// prog: 2bf 2000276 b 2cb 2000279 20000010 2df 2000280 b fd 2000281 a fd 2000282 a fe
-// prog: 2000283 b fe 200028a 20000022 2f2 200029b d2 2f4 200029c d3 2f6 200029d 76 2f4 200029f
-// prog: 77 2f6 20002a3 d3 300 20002a4 d2 2fb 20002a5 77 300 20002a6 76 2fb 20002ae d3
-// prog: 2de 20002b5 d2 2df 20002b6 22 2de 20002b7 23 2df 20002b8 9 2f4 20002b9 8 2f6
-// prog: 20002bb 196 ef 20002bc 195 f4 2000301 5 337 2000302 4 339 2000303 4 337 2000309
-// prog: 5 339 2000312 5 331 2000316 4 335 200031c 4 331 200031f 5 335 2000322 20000010
-// prog: 357 2000324 5 ef 2000327 4 ef 200032f 4 f4 2000332 5 f4 2000336 20000022 386
-// prog: 200034a b3 388 2000355 b4 389 2000359 6b 388 200035a 6c 389 200035b b4 396 200035c
-// prog: b3 395 200035d 6c 396 2000376 6b 395 200037c b4 356 200037d b3 357 200037e 20
-// prog: 356 200038d 21 357 200038e 3 388 200038f 2 389 4000191 172 172 400021f 25a 25a
-// prog: 400029a 2f6 2f6 4000349 389 389 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1d 1 2a 28 6 2e 29 71 c 2b
+// prog: 8e 18 34 54 31 35 d5 1c 41 45 43 47 85 3b 60 40
+// prog: 5a 62 cd 55 6f 1f 5f 7a 4d 5d a2 184 c7 b3 c8 107
+// prog: c1 103 15b db 1f9 10c df 121 176 e8 216 137 e9 140 19b f1
+// prog: 161 1d7 104 263 16d 118 172 1f8 146 28a 19c 147 19e 21b 14e 1b1
+// prog: 1da 153 1bd 233 159 1ca 238 15c 242 1e4 168 1e5 24a 169 1d4 1e8
+// prog: 17c 336 206 17d 207 276 188 22a 27f 18c 249 293 191 251 296 194
+// prog: 29d 259 199 25a 2a3 1ad 253 25e 1ae 246 261 1b2 1ff 2e1 1b9 1b8
+// prog: 272 1ba 195 2f0 1bb 15f 28e 1c0 129 2f4 1c4 fb 299 1c6 c4 2f7
+// prog: 100002c 1e eb 100003a 42 f6 1000058 59 10a 100006a 5e 114 100008f c5 185 100009e
+// prog: c6 16f 10000b4 ca e0 10000be 157 fa 10000bf fd 1c3 10000dc 11a 11d 10000e1 124
+// prog: 11c 10000e2 12b 217 10000e5 131 257 10000ea 143 158 10000ed 1cf 151 10000ee 160 23f
+// prog: 100010f 16e 171 100013b 17a 183 100013c 196 28d 100013d 19a 2f3 100014a 19f 3f1 100014c
+// prog: 1a3 3f2 1000150 1b7 228 1000152 1bc 2b5 100015a 1e3 3be 1000174 204 33b 1000179 205
+// prog: 387 1000180 20b 41d 1000182 222 41e 1000189 244 283 100018a 247 37d 1000192 256 408
+// prog: 2000036 26 37 2000038 27 39 200004c 24 4e 2000053 25 4f 2000066 22 5b 2000067
+// prog: 23 5c 2000086 20 61 2000087 21 65 20000d2 14 de 20000d3 20000000 ef 20000dd 20000000
+// prog: c4 20000f2 e 14b 20000fc 20000000 14d 2000110 20000000 129 2000154 8 1b3 2000155 20000000 1b5
+// prog: 2000162 20000000 195 200018f 2 22e 2000190 20000000 232 2000197 20000000 1ff 40000d8 106 106 4000101
+// prog: 164 164 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 c 2c 34 18 35 36 1c 38
-// prog: 44 1e 3a 46 1f 41 47 31 58 63 39 60 64 40 62 66
-// prog: 42 86 90 43 87 92 45 8f 9e 4e d8 e3 4f e1 e4 54
-// prog: e2 e5 9c 14a 154 9f 157 202 b9 15c 15d c0 169 174 c2 107
-// prog: 17b c5 17d 21b c7 21a 182 c8 107 184 ca 392 186 cf 2b1 18a
-// prog: d0 2b2 18f df 194 197 e7 199 19b f4 188 190 fb 273 1b9 10b
-// prog: 1c6 1c8 122 1d8 1df 124 1ea 27a 126 1f8 1fa 129 1fe 200 12b 104
-// prog: 209 137 20d 2a2 143 2a0 214 148 104 216 149 382 218 14d 238 21c
-// prog: 14f 239 21d 152 223 225 15e 226 229 160 219 21e 163 351 233 171
-// prog: 242 24a 18e 250 258 195 262 344 19a 269 26f 19e 275 276 19f 101
-// prog: 279 1b3 281 375 1b6 36c 283 1b8 101 28a 1bc 228 28f 1bd 13b 293
-// prog: 1c2 13c 294 1da 2a3 2a4 1dd 2a5 2a6 1e0 291 296 1e4 3bf 2aa 1ff
-// prog: 2b6 2b7 243 2c9 2e5 244 2ec 42c 247 303 309 24c 31c 31f 251 fc
-// prog: 322 255 327 437 259 436 332 25a fc 336 25e 20e 33c 25f be 342
-// prog: 266 c1 343 27f 35b 35c 286 35d 376 28e 340 345 298 3c7 379 2be
-// prog: 37e 38d 1000096 146 1cf 100009b 1d2 147 10000a3 15a 15b 10000bc 162 168 10000c4 17c
-// prog: 21a 10000c6 21b 180 10000fa 191 189 10000fd 188 190 100011a 1c9 1ce 100011d 1d3 245
-// prog: 1000121 248 1d7 1000125 1ee 1f0 1000127 1fb 1fc 1000131 20c 2a0 1000140 2a2 211 1000161
-// prog: 21f 27d 1000164 219 21e 100017a 24b 24d 1000187 24e 317 100018d 318 24f 1000196 265
-// prog: 268 100019c 270 271 10001a3 280 36c 10001b5 375 282 10001e3 29a 300 10001e5 291 296
-// prog: 100020b 2b8 2b9 100022a 2bb 3ba 1000240 3bc 2bc 1000246 301 302 1000249 312 316 1000253
-// prog: 324 436 1000256 437 32f 1000297 349 396 100029e 340 345 10002d2 38e 38f 2000001 14
-// prog: 1d 2000006 e 29 2000055 17 e6 2000059 16 ea 200005a 16 e6 200005b 17 ea
-// prog: 200005c 11 a2 200005d 10 bf 200005e 10 a2 200005f 11 bf 2000061 b 6a 2000065
-// prog: a 7a 2000068 a 6a 2000070 b 7a 2000072 5 4c 200007d 4 53 200007e 4
-// prog: 4c 2000084 5 53 2000088 e8 12f 2000091 e9 130 2000093 ed 135 2000094 ee 145
-// prog: 20000dd 8a 188 20000e0 8a 190 20000fe 110 1ba 2000102 10f 1bb 2000103 8b 176 2000105
-// prog: 8a 177 2000106 26 1ba 2000109 27 1bb 200010c 14 176 2000118 15 177 200011b 20000000
-// prog: 188 200011c 15 188 2000150 80 219 2000158 80 21e 2000167 f2 236 200016a f1 23a
-// prog: 200016b 81 203 200016c 80 208 200016d 24 236 200016e 25 23a 2000172 e 203 2000179
-// prog: f 208 2000181 20000000 219 2000183 f 219 20001c4 76 291 20001d9 76 296 20001e6 d3
-// prog: 2ab 20001e7 d2 2ad 20001e8 77 277 20001e9 76 278 20001ec 22 2ab 20001ed 23 2ad
-// prog: 2000204 8 277 2000207 9 278 2000210 20000000 291 2000221 9 291 2000267 6b 340 200027e
-// prog: 6b 345 20002a1 b4 37a 20002ac b3 37b 20002af 6c 320 20002b0 6b 321 20002b3 20
-// prog: 37a 20002bd 21 37b 20002bf 2 320 20002cb 3 321 20002d5 20000000 340 20002d6 3 340
-// prog: 20002d7 145 44a 20002de 135 44c 20002df 130 44e 20002e0 12f 450 20002e1 1f7 2fd 20002ed
-// prog: 23b 2fd 20002ee 2000004a 2fd 20002f0 1f6 264 20002f1 22c 264 20002f2 2000004a 264 20002f4 1f5
-// prog: 1eb 20002f5 215 1eb 20002f6 2000004a 1eb 20002f7 1f2 159 20002f9 212 159 20002fa 2000004a 159
-// prog: 40000de 192 192 40000ef 1ad 1ad 4000151 220 220 400015f 22b 22b 40001ca 29b 29b 40001d4
-// prog: 29d 29d 400026e 34a 34a 400027c 359 359 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 1 2000002b 1d 6 2000002b 28 c 20000002 29 18
+// prog: 20000002 2b 1c a6 2c 1e bd 34 1f 36 38 2e 75 3a 31 7b
+// prog: 41 37 4c 53 3b ce 58 40 d7 60 42 66 67 45 50 6a
+// prog: 4d 52 6f 4e 86 87 54 184 8f 55 391 9e 59 393 a2 5a
+// prog: b4 e7 5b be fe 5c 307 c1 5f dc dd 65 df 177 71 109
+// prog: e1 85 216 e2 8e 381 e5 c4 383 e8 c5 ea 15e c6 ed 167
+// prog: c7 397 f1 cd 10f 110 de 118 1fa e0 16b 13b eb 28a 13c ef
+// prog: 227 13d f6 34b 146 fa 147 14e fb 150 1e6 103 154 1c2 106 159
+// prog: 1d4 107 15c 162 114 336 174 11a 20a 179 11c 32d 17c 11d 17d 188
+// prog: 121 189 2a1 129 18f 24c 12b 191 253 131 194 197 100005e d8 15d 10000ca
+// prog: 101 1df 10000fd 153 3a5 1000124 18c 447 200002a 14 35 2000039 e 47 2000043 8
+// prog: 62 200004f 2 7a 2000061 20000004 db 20000d5 20000004 104 200010a 20000004 15a 200010c 20000000 169
+// prog: 2000137 20000004 192 2000140 20000000 1ad 2000143 1f7 199 200014b 23b 199 200014d 2000002c 199 2000151
+// prog: 145 1ae 2000157 241 1ae 2000158 145 1b2 200015b 241 1b2 200015f 1f6 168 2000160 22c
+// prog: 168 2000161 2000002c 168 2000164 135 1b9 200016d 237 1b9 200016e 135 1ba 200016f 237 1ba
+// prog: 2000171 130 1bb 2000172 224 1bb 2000176 130 1c0 200017a 224 1c0 2000183 12f 1c4 2000185
+// prog: 213 1c4 2000195 12f 1c6 2000196 213 1c6 400005d d2 d2 40000c8 f2 f2 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -26447,574 +25323,454 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 2c c 37 34 18 3b 36 5a
-// prog: 5b 53 5e 5f 7a 68 70 b3 7e 84 e2 96 2cc e5 9b 2cd
-// prog: 101 394 c8 147 1b7 f4 14a 272 fa 154 ca cf 15a c2 261 15c
-// prog: 106 109 180 11d 31b 182 121 31e 197 384 148 1c8 232 160 1c9 350
-// prog: 161 1ce 149 14d 1d3 12b 299 1d8 16d 16e 200 187 2f8 202 18d 30a
-// prog: 219 34c 1b8 223 2a9 1e0 225 362 1e3 226 1bc 1bd 22b 19f 347 236
-// prog: 1ec 1ed 245 204 207 24f 22a 36d 250 240 36e 273 334 25a 280 378
-// prog: 28e 281 373 297 282 25e 25f 291 251 3d7 294 2b3 2bd 2a0 2bf 2cb
-// prog: 2aa 399 2d7 2ab 39d 2de 2ad 39e 2df 2b1 3a3 2e0 1000035 55 59 100004c
-// prog: 5c 5d 100006a 61 65 10000a2 72 7d 10000d2 1f 50000002 10000d3 40 50000005 10000d8 45
-// prog: 50000008 10000e1 54 5000000b 10000e6 9f 206 10000e9 c0 14b 1000107 de 193 100013c ef 1b1
-// prog: 1000146 ca cf 1000159 105 103 1000186 124 27b 1000189 129 205 100019b 151 222 10001bb
-// prog: 15f 22e 10001c6 149 14d 10001d2 16c 16b 1000203 195 348 1000209 19e 354 100021b 1ca
-// prog: 29c 100021c 1d4 29f 1000220 1bc 1bd 1000229 1e8 1e9 1000258 244 42d 1000264 24c 42f
-// prog: 1000276 26e 355 1000277 27c 35a 100027d 25e 25f 100028f 2af 2b0 2000038 17 4e 200003a
-// prog: 16 4f 2000041 16 4e 2000047 17 4f 2000058 11 42 2000060 10 43 2000062 10
-// prog: 42 2000066 11 43 2000086 b 31 2000087 a 39 200008f a 31 200009e b 39
-// prog: 20000b4 5 1c 20000be 4 1e 20000bf 4 1c 20000c1 5 1e 20000e8 20000010 b9 20000ea
-// prog: 17 c4 20000ed 16 c6 20000ee 17 c5 20000f1 16 c7 20000f2 16 c5 20000fc 17
-// prog: c7 2000104 8b ca 200010f 8a d0 2000110 8b d0 200013b 8b cf 2000157 8a fd
-// prog: 200015b 27 fb 200015d 15 fd 2000162 26 a3 2000168 27 b9 2000169 14 bc 2000176
-// prog: 20000000 c2 2000177 20000004 10b 200017b 20000000 ca 200017c 14 ca 200017d 20000004 11a 2000188 20000010
-// prog: 126 200018a 11 131 200018f 10 140 2000190 11 137 2000191 10 143 2000192 10 137
-// prog: 2000194 11 143 2000199 81 149 20001ad 80 14f 20001b9 81 14f 20001ba 81 14d 20001cf
-// prog: 80 164 20001d7 25 163 20001df f 164 20001ea 24 125 20001eb 25 126 20001ee e
-// prog: 127 20001f8 20000000 12b 20001fa 20000004 171 20001fb 20000000 149 20001fc e 149 20001fe 20000004 17a
-// prog: 2000208 20000010 19a 200020c b 1a3 200020d a 1b5 200020e b 1b3 2000211 a 1b6 2000214
-// prog: a 1b3 2000218 b 1b6 200021a 77 1bc 200021d 76 1c2 200021e 77 1c2 200021f 77
-// prog: 1bd 2000228 76 1e5 2000233 23 1e4 2000238 9 1e5 2000239 22 196 200023a 23 19a
-// prog: 2000242 8 19c 2000248 20000000 19f 200024a 20000004 1ff 200024b 20000000 1bc 200024d 8 1bc 200024e
-// prog: 20000004 20b 2000262 20000010 247 2000265 5 253 2000268 4 256 2000269 5 255 200026f 4
-// prog: 259 2000270 4 255 2000271 5 259 2000275 6c 25e 2000278 6b 266 2000279 6c 266
-// prog: 200027a 6c 25f 2000283 6b 29e 2000293 21 298 2000296 3 29e 200029a 20 246 200029b
-// prog: 21 247 200029d 2 249 20002a2 20000000 251 20002a3 20000004 2be 20002a4 20000000 25e 20002a5 2
-// prog: 25e 20002a6 20000004 2d2 400001d 1 1 4000029 6 6 4000174 10c 10c 40001f0 172 172
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 c 2000002b 2c 18 2000002b 34 1e 41
-// prog: 47 37 1ae 35 39 18c 36 42 62 66 4e 14c 4c 4f 13d 53
-// prog: 59 8f 9e 5b db 6a 5c dc 7a 5e bf c1 61 67 a2 65
-// prog: 6f b3 c0 e2 14e c2 e5 153 c4 155 e8 c7 f2 fc de 1b2
-// prog: 146 ef 101 23d fb 101 23e fd 159 1c0 10c 162 168 126 180 1dc
-// prog: 127 182 1de 129 1e1 188 137 192 194 14b 22f 1c6 14d 197 30e 15f
-// prog: 197 311 160 1d2 23c 16d 1ea 1eb 18d 200 252 193 202 254 195 25b
-// prog: 208 19c 214 218 1b1 21f 1d9 1b3 2a8 220 1b5 219 39f 1b8 219 3a7
-// prog: 1bc 229 2ae 1e3 239 23a 1e5 245 248 1e8 24d 221 1ec 24f 2d4 1ed
-// prog: 250 2dc 1ff 2e6 262 206 270 271 22a 27a 27e 22e 377 27d 232 273
-// prog: 446 246 273 448 247 28f 37c 256 29a 29b 25a 2a0 2a2 25e 2a5 2d6
-// prog: 1000001 1d 28 1000006 29 2b 100001c 38 3a 100003b 58 60 1000055 86 87 100005d
-// prog: b4 be 10000c5 ea ed 10000c6 ee f1 10000c8 dd 104 10000cf 10f 234 10000d0 110
-// prog: 235 10000f4 13c df 1000121 174 118 100012b 18a 18f 1000131 190 191 1000140 150 199
-// prog: 1000148 1ad 2fe 1000149 1b9 2ff 100014f 1bb 152 1000172 1f0 179 1000196 20c 20d 100019a
-// prog: 20e 211 100019e 21a 1c4 10001b6 1dd 21c 1000204 265 268 1000205 269 26f 1000207 275
-// prog: 267 1000240 286 277 2000031 20000010 36 2000043 20000010 53 200005a 20000010 7a 200005f 20000010 b3
-// prog: 2000068 1f2 e1 2000070 212 e1 2000072 1f5 d8 200007d 215 d8 200007e 1f6 d3 2000084
-// prog: 22c d3 2000096 1f7 d2 200009b 23b d2 200009f 2000004a d2 20000a3 2000004a d3 20000b9 2000004a
-// prog: d8 20000bc 2000004a e1 20000fa 8b 154 2000103 26 14a 2000105 15 147 2000106 14 154
-// prog: 2000109 20000000 101 200010b 20000004 15c 200011d 15 e9 2000125 20000022 17d 2000151 81 1ce 2000161
-// prog: 24 1c9 2000163 f 1c8 2000164 e 1ce 200016b 20000000 197 200016c 20000004 1d8 2000171 f
-// prog: 189 2000187 20000022 1fe 20001b7 77 226 20001bd 22 225 20001c2 9 223 20001ca 8 226
-// prog: 20001d4 20000000 219 20001e0 20000004 236 20001e4 9 209 20001e9 20000022 24e 2000244 6c 282 2000249
-// prog: 20 281 200024c 3 280 2000251 2 282 2000253 20000000 273 2000255 20000004 294 2000259 3
-// prog: 264 200025f 20000022 2a6 2000261 1f7 291 2000266 23b 291 200026e 2000004a 291 2000272 1f6 22b
-// prog: 200027b 22c 22b 200027c 2000004a 22b 200028e 1f5 1d3 2000297 215 1d3 2000298 2000004a 1d3 2000299
-// prog: 1f2 15a 200029c 212 15a 200029e 2000004a 15a 40000ca 13b 13b 400011a 169 169 4000124 17c
-// prog: 17c 4000143 1ba 1ba 400016e 1ee 1ee 400017a 1fc 1fc 400019f 21d 21d 40001a3 21e 21e
-// prog: 400020b 278 278 4000222 279 279 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 1d 1a 1 28 51 6 29 ec 1f 35
+// prog: f7 37 58 c 1b0 60 18 1b4 6f 22d 54 86 b3 5a a2 5e
+// prog: 109 a6 5f 61 ce 20f 85 db e9 c5 e1 ca 16b e2 cd d5
+// prog: ed 346 eb 104 103 155 110 106 1e0 118 107 10a 146 32a 114 154
+// prog: 129 190 15a 12b 255 15c 131 137 1000041 42 112 1000050 4e 115 1000062 4d
+// prog: 50000001 1000066 40 50000004 1000067 31 50000007 100006a 1e 5000000a 1000087 5b 102 100008f 5d 105
+// prog: 10000dc c6 16a 10000dd c8 163 1000101 fb 1e7 1000153 121 2ac 200002c 15 1c 2000034
+// prog: 20000000 1e 2000038 f 2e 200003a 20000000 31 2000047 9 3b 200004c 20000000 40 2000052 3
+// prog: 45 2000053 20000000 4d 2000075 8a 55 200007a 8b 55 200007b 8a 59 200009e 20000004 5c
+// prog: 20000b4 14 55 20000bd 15 55 20000be 15 59 20000c1 20000000 71 20000d2 80 8e 20000d7
+// prog: 81 8e 20000d8 80 c4 20000df 20000004 c7 20000e5 e 8e 20000e7 f 8e 20000e8 f
+// prog: c4 20000ea 20000000 e0 20000f1 76 ef 20000f2 77 ef 20000fe 76 f6 200010f 20000004 fd
+// prog: 200013b 8 ef 200013c 9 ef 200013d 9 f6 2000147 6b 11a 200014e 6c 11a 2000150
+// prog: 6b 11c 2000159 20000004 124 200015d 2 11a 200015e 3 11a 2000162 3 11c 2000167 1f5
+// prog: de 2000168 215 de 2000169 2000002c de 2000174 1f2 65 2000177 212 65 2000179 2000002c 65
+// prog: 400002b 2a 2a 4000036 39 39 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1d 1 2a 28 6 2e 29 71
-// prog: c 2b 8e 18 34 54 31 35 d5 1c 41 45 43 47 85 3b
-// prog: 60 40 5a 62 cd 55 6f 1f 5f 7a 4d 5d a2 184 c7 b3
-// prog: c8 107 c1 103 15b db 1f9 10c df 121 176 e8 216 137 e9 140
-// prog: 19b f1 161 1d7 104 263 16d 118 172 1f8 146 28a 19c 147 19e 21b
-// prog: 14e 1b1 1da 153 1bd 233 159 1ca 238 15c 242 1e4 168 1e5 24a 169
-// prog: 1d4 1e8 17c 336 206 17d 207 276 188 22a 27f 18c 249 293 191 251
-// prog: 296 194 29d 259 199 25a 2a3 1ad 253 25e 1ae 246 261 1b2 1ff 2e1
-// prog: 1b9 1b8 272 1ba 195 2f0 1bb 15f 28e 1c0 129 2f4 1c4 fb 299 1c6
-// prog: c4 2f7 100002c 1e eb 100003a 42 f6 1000058 59 10a 100006a 5e 114 100008f c5
-// prog: 185 100009e c6 16f 10000b4 ca e0 10000be 157 fa 10000bf fd 1c3 10000dc 11a 11d
-// prog: 10000e1 124 11c 10000e2 12b 217 10000e5 131 257 10000ea 143 158 10000ed 1cf 151 10000ee
-// prog: 160 23f 100010f 16e 171 100013b 17a 183 100013c 196 28d 100013d 19a 2f3 100014a 19f
-// prog: 3f1 100014c 1a3 3f2 1000150 1b7 228 1000152 1bc 2b5 100015a 1e3 3be 1000174 204 33b
-// prog: 1000179 205 387 1000180 20b 41d 1000182 222 41e 1000189 244 283 100018a 247 37d 1000192
-// prog: 256 408 2000036 26 37 2000038 27 39 200004c 24 4e 2000053 25 4f 2000066 22
-// prog: 5b 2000067 23 5c 2000086 20 61 2000087 21 65 20000d2 14 de 20000d3 20000000 ef
-// prog: 20000dd 20000000 c4 20000f2 e 14b 20000fc 20000000 14d 2000110 20000000 129 2000154 8 1b3 2000155
-// prog: 20000000 1b5 2000162 20000000 195 200018f 2 22e 2000190 20000000 232 2000197 20000000 1ff 40000d8 106
-// prog: 106 4000101 164 164 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 20000002 1d 6 20000002 28 1e 43 47 2a
+// prog: 4f 52 31 58 93 37 60 94 39 6a 68 3b 67 72 40 66
+// prog: 7e 42 62 96 4e 8f d3 51 a2 10b 5b dd fc 5c e1 16c
+// prog: 65 104 10f 71 13b 13d 85 154 159 8e 15d 162 b3 15a 143 c4
+// prog: 15c 2ed c5 110 15f c6 118 2f1 c7 e2 2f5 c8 a6 2f9 100000c 2b
+// prog: 2c 100001a 36 38 100004d 7b 7a 100005a d8 d7 1000061 f2 fe 1000080 14e 150
+// prog: 2000018 20000004 29 200001c 20000004 35 200001f 20000004 41 200002e 20000004 50 2000045 8b 6f 2000055
+// prog: 14 6f 2000059 81 ce 200005e e ce 200005f 77 ed 200006b 8 ed 2000076 6c
+// prog: 146 200008a 2 146 4000054 b4 b4 400005d e5 e5 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 2000002b 1d 6 2000002b 28 c 20000002
-// prog: 29 18 20000002 2b 1c a6 2c 1e bd 34 1f 36 38 2e 75 3a
-// prog: 31 7b 41 37 4c 53 3b ce 58 40 d7 60 42 66 67 45
-// prog: 50 6a 4d 52 6f 4e 86 87 54 184 8f 55 391 9e 59 393
-// prog: a2 5a b4 e7 5b be fe 5c 307 c1 5f dc dd 65 df 177
-// prog: 71 109 e1 85 216 e2 8e 381 e5 c4 383 e8 c5 ea 15e c6
-// prog: ed 167 c7 397 f1 cd 10f 110 de 118 1fa e0 16b 13b eb 28a
-// prog: 13c ef 227 13d f6 34b 146 fa 147 14e fb 150 1e6 103 154 1c2
-// prog: 106 159 1d4 107 15c 162 114 336 174 11a 20a 179 11c 32d 17c 11d
-// prog: 17d 188 121 189 2a1 129 18f 24c 12b 191 253 131 194 197 100005e d8
-// prog: 15d 10000ca 101 1df 10000fd 153 3a5 1000124 18c 447 200002a 14 35 2000039 e 47
-// prog: 2000043 8 62 200004f 2 7a 2000061 20000004 db 20000d5 20000004 104 200010a 20000004 15a 200010c
-// prog: 20000000 169 2000137 20000004 192 2000140 20000000 1ad 2000143 1f7 199 200014b 23b 199 200014d 2000004a
-// prog: 199 2000151 145 1ae 2000157 241 1ae 2000158 145 1b2 200015b 241 1b2 200015f 1f6 168
-// prog: 2000160 22c 168 2000161 2000004a 168 2000164 135 1b9 200016d 237 1b9 200016e 135 1ba 200016f
-// prog: 237 1ba 2000171 130 1bb 2000172 224 1bb 2000176 130 1c0 200017a 224 1c0 2000183 12f
-// prog: 1c4 2000185 213 1c4 2000195 12f 1c6 2000196 213 1c6 400005d d2 d2 40000c8 f2 f2
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1d c 34 28 1a 3a 29 1e 4c 2b
+// prog: 2a 53 2c 1 1ab 35 6 1ac 66 4d 231 67 4e 9e 6f 5a
+// prog: 2c4 72 5b df 7e 61 3ee 81 6b 13c 8b 71 210 93 80 41a
+// prog: 94 8a 15e 96 8e 2d5 b4 85 266 ca c4 158 d3 65 27b d5
+// prog: c6 16e d7 5c 167 d8 c7 176 dd 51 174 de c8 195 1000062 75
+// prog: 45 100006a 54 be 100006c d2 59 100007a 5d e8 100007b 5f f1 100008f 76 147
+// prog: 2000041 12f 39 2000043 130 3b 2000047 135 40 200004f 145 42 2000050 241 42 2000052
+// prog: 237 40 2000058 224 3b 2000060 213 39 20000a2 145 b3 20000a6 241 b3 20000cd 135
+// prog: c5 20000ce 237 c5 3000036 2000002d 31 3000038 2000002d 37 4000068 55 55 4000077 5e 5e
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1d 1a 1 28 51 6 29 ec
-// prog: 1f 35 f7 37 58 c 1b0 60 18 1b4 6f 22d 54 86 b3 5a
-// prog: a2 5e 109 a6 5f 61 ce 20f 85 db e9 c5 e1 ca 16b e2
-// prog: cd d5 ed 346 eb 104 103 155 110 106 1e0 118 107 10a 146 32a
-// prog: 114 154 129 190 15a 12b 255 15c 131 137 1000041 42 112 1000050 4e 115
-// prog: 1000062 4d 50000001 1000066 40 50000004 1000067 31 50000007 100006a 1e 5000000a 1000087 5b 102 100008f
-// prog: 5d 105 10000dc c6 16a 10000dd c8 163 1000101 fb 1e7 1000153 121 2ac 200002c 15
-// prog: 1c 2000034 20000000 1e 2000038 f 2e 200003a 20000000 31 2000047 9 3b 200004c 20000000 40
-// prog: 2000052 3 45 2000053 20000000 4d 2000075 8a 55 200007a 8b 55 200007b 8a 59 200009e
-// prog: 20000004 5c 20000b4 14 55 20000bd 15 55 20000be 15 59 20000c1 20000000 71 20000d2 80
-// prog: 8e 20000d7 81 8e 20000d8 80 c4 20000df 20000004 c7 20000e5 e 8e 20000e7 f 8e
-// prog: 20000e8 f c4 20000ea 20000000 e0 20000f1 76 ef 20000f2 77 ef 20000fe 76 f6 200010f
-// prog: 20000004 fd 200013b 8 ef 200013c 9 ef 200013d 9 f6 2000147 6b 11a 200014e 6c
-// prog: 11a 2000150 6b 11c 2000159 20000004 124 200015d 2 11a 200015e 3 11a 2000162 3 11c
-// prog: 2000167 1f5 de 2000168 215 de 2000169 2000004a de 2000174 1f2 65 2000177 212 65 2000179
-// prog: 2000004a 65 400002b 2a 2a 4000036 39 39 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 1 1d 18 6 28 1c c 29 1f 1a
+// prog: 2b 2e 1e 2c 88 2a 35 91 31 62 230 34 66 d0 39 6a
+// prog: 11b 3a 6c 2c2 3b 6f 149 42 7a 181 45 7b 3ed 4c 7e 14c
+// prog: 4d 81 24b 51 8f 419 53 93 182 54 94 2a4 5b b4 151 5d
+// prog: d3 164 65 72 297 75 67 29c 1000037 68 bd 1000040 77 e7 200004e 9
+// prog: 8b 2000055 3 96 2000059 38 2aa 200005a 36 2ab 200005c 38 ca 200005e 36 d5
+// prog: 200005f 130 d7 2000061 224 d7 200006b 12f dd 2000071 213 dd 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 18 10e 1 1c f0 6 1d d1 c 1f
+// prog: b2 1a 2b 31 cf 2c 37 17b 35 3a 148 62 40 1fb 67 45
+// prog: 14a 6a 51 180 88 65 171 8a 75 183 200002e 15 39 2000066 f 42
+// prog: 2000068 8 4d 200006c 2 54 200006f 145 59 2000072 23b 59 2000076 135 5a 2000077
+// prog: 22c 5a 200007a 38 5b 200007b 145 5c 200007e 23b 5c 2000080 36 5d 2000081 135
+// prog: 5e 2000085 22c 5e 3000028 2000002d 1e 3000029 2000002d 2a 700000c 59 59 7000033 5a 5a
+// prog: 700009e 5c 5c 70000c5 5e 5e 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 31 68 4e 37 6c 55 39 3a1 6f 3a
+// prog: 3a2 76 51 15b 7b 5a 16f 81 1000001 1f 50000000 1000006 1d 50000003 100000c 1c
+// prog: 50000006 100001a 18 50000009 200001e 14 2c 200002a e 62 2000040 29 2ad 2000042 28 2b1
+// prog: 2000045 145 7a 200004d 23b 7a 2000054 135 80 2000059 22c 80 200005b 29 88 200005c
+// prog: 29 d8 200005d 28 8a 200005e 28 de 700009d 7a 7a 70000c4 80 80 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 20000002 1d 6 20000002 28 1e 43
-// prog: 47 2a 4f 52 31 58 93 37 60 94 39 6a 68 3b 67 72
-// prog: 40 66 7e 42 62 96 4e 8f d3 51 a2 10b 5b dd fc 5c
-// prog: e1 16c 65 104 10f 71 13b 13d 85 154 159 8e 15d 162 b3 15a
-// prog: 143 c4 15c 2ed c5 110 15f c6 118 2f1 c7 e2 2f5 c8 a6 2f9
-// prog: 100000c 2b 2c 100001a 36 38 100004d 7b 7a 100005a d8 d7 1000061 f2 fe 1000080
-// prog: 14e 150 2000018 20000004 29 200001c 20000004 35 200001f 20000004 41 200002e 20000004 50 2000045 8b
-// prog: 6f 2000055 14 6f 2000059 81 ce 200005e e ce 200005f 77 ed 200006b 8 ed
-// prog: 2000076 6c 146 200008a 2 146 4000054 b4 b4 400005d e5 e5 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1d c 34 28 1a 3a 29 1e
-// prog: 4c 2b 2a 53 2c 1 1ab 35 6 1ac 66 4d 231 67 4e 9e
-// prog: 6f 5a 2c4 72 5b df 7e 61 3ee 81 6b 13c 8b 71 210 93
-// prog: 80 41a 94 8a 15e 96 8e 2d5 b4 85 266 ca c4 158 d3 65
-// prog: 27b d5 c6 16e d7 5c 167 d8 c7 176 dd 51 174 de c8 195
-// prog: 1000062 75 45 100006a 54 be 100006c d2 59 100007a 5d e8 100007b 5f f1 100008f
-// prog: 76 147 2000041 12f 39 2000043 130 3b 2000047 135 40 200004f 145 42 2000050 241
-// prog: 42 2000052 237 40 2000058 224 3b 2000060 213 39 20000a2 145 b3 20000a6 241 b3
-// prog: 20000cd 135 c5 20000ce 237 c5 3000036 2000004b 31 3000038 2000004b 37 4000068 55 55 4000077
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 18 1a 70 1c c 7d 1d 6 84 1f
+// prog: 1 9b 55 31 10c 62 37 140 7a 157 45 80 16d 54 2000065 1f7
+// prog: 39 2000068 1f6 3a 200006c 130 40 200006f 215 40 2000075 12f 42 2000076 212 42
+// prog: 200007b 1f7 51 2000081 1f6 5a 2000088 130 5b 200008a 215 5b 200008b 130 5c 200008e
+// prog: 215 5c 200008f 12f 5d 2000091 212 5d 2000093 12f 5e 2000094 212 5e 400002c 1e
+// prog: 1e 400004e 2a 2a 7000018 39 39 700003f 3a 3a 700005a 40 40 7000081 42 42
+// prog: 70000aa 51 51 70000d1 5a 5a 70000eb 5b 5b 70000ec 5c 5c 7000112 5d 5d 7000113
 // prog: 5e 5e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 1d 18 6 28 1c c 29
-// prog: 1f 1a 2b 2e 1e 2c 88 2a 35 91 31 62 230 34 66 d0
-// prog: 39 6a 11b 3a 6c 2c2 3b 6f 149 42 7a 181 45 7b 3ed 4c
-// prog: 7e 14c 4d 81 24b 51 8f 419 53 93 182 54 94 2a4 5b b4
-// prog: 151 5d d3 164 65 72 297 75 67 29c 1000037 68 bd 1000040 77 e7
-// prog: 200004e 9 8b 2000055 3 96 2000059 38 2aa 200005a 36 2ab 200005c 38 ca 200005e
-// prog: 36 d5 200005f 130 d7 2000061 224 d7 200006b 12f dd 2000071 213 dd 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 18 41 6 1c 43 c 1d 47 1a
+// prog: 1f 4f 31 1e9 55 37 25f 62 39 3db 65 3a 3dd 68 40 3a4
+// prog: 6c 42 3a6 75 51 2ee 7b 5a 2f2 81 5b 172 88 5c 17a 8b
+// prog: 5d 185 8f 5e 196 93 100001e 2c 2e 100002a 4e 66 2000045 1f7 7a 2000054
+// prog: 1f6 80 70000a9 7a 7a 70000d0 80 80 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 18 10e 1 1c f0 6 1d d1
-// prog: c 1f b2 1a 2b 31 cf 2c 37 17b 35 3a 148 62 40 1fb
-// prog: 67 45 14a 6a 51 180 88 65 171 8a 75 183 200002e 15 39 2000066
-// prog: f 42 2000068 8 4d 200006c 2 54 200006f 145 59 2000072 23b 59 2000076 135
-// prog: 5a 2000077 22c 5a 200007a 38 5b 200007b 145 5c 200007e 23b 5c 2000080 36 5d
-// prog: 2000081 135 5e 2000085 22c 5e 3000028 2000004b 1e 3000029 2000004b 2a 700000c 59 59 7000033
-// prog: 5a 5a 700009e 5c 5c 70000c5 5e 5e 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2c 1e c1 2e 2a ea 41 39 72 43
+// prog: 3a 77 4f 37 14b 55 26e 45 62 51 7e 65 31 160 66 27c
+// prog: 54 68 5a 85 2000018 38 1a 200001c 36 c 200001d 29 6 200001f 28 1
+// prog: 2000047 1f5 40 200004e 1f2 42 200006c 1f5 5b 2000070 1f5 5c 2000075 1f2 5d 200007a
+// prog: 1f2 5e 7000066 40 40 700008d 42 42 70000f7 5b 5b 70000f8 5c 5c 700011e 5d
+// prog: 5d 700011f 5e 5e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 31 68 4e 37 6c 55 39 3a1
-// prog: 6f 3a 3a2 76 51 15b 7b 5a 16f 81 1000001 1f 50000000 1000006 1d 50000003
-// prog: 100000c 1c 50000006 100001a 18 50000009 200001e 14 2c 200002a e 62 2000040 29 2ad 2000042
-// prog: 28 2b1 2000045 145 7a 200004d 23b 7a 2000054 135 80 2000059 22c 80 200005b 29
-// prog: 88 200005c 29 d8 200005d 28 8a 200005e 28 de 700009d 7a 7a 70000c4 80 80
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 7e 125 2c 80 187 2e 81 3df 47 84
+// prog: 3e1 4e 85 4f a2 88 55 4d 8b 65 cd 8f 66 59 93 298
+// prog: 6c 96 2f6 70 9b 29e 75 9e 2fa 7a 2000001 145 18 2000006 23b 18
+// prog: 200000c 135 1c 200001a 22c 1c 200001e 130 1d 200002a 215 1d 2000031 12f 1f 2000037
+// prog: 212 1f 2000039 20000004 18 200003a 2 18 2000040 3 18 2000042 20000000 18 2000045 20000004
+// prog: 1c 2000051 8 1c 2000054 9 1c 200005a 20000000 1c 200005b 20000004 1d 200005c e 1d
+// prog: 200005d f 1d 200005e 20000000 1d 2000072 20000004 1f 2000077 14 1f 200007b 15 1f 200007d
+// prog: 20000000 1f 7000000 18 18 7000003 1c 1c 7000006 1d 1d 7000009 1f 1f 7000024 41
+// prog: 41 700004b 43 43 70000b6 62 62 70000dd 68 68 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 18 1a 70 1c c 7d 1d 6
-// prog: 84 1f 1 9b 55 31 10c 62 37 140 7a 157 45 80 16d 54
-// prog: 2000065 1f7 39 2000068 1f6 3a 200006c 130 40 200006f 215 40 2000075 12f 42 2000076
-// prog: 212 42 200007b 1f7 51 2000081 1f6 5a 2000088 130 5b 200008a 215 5b 200008b 130
-// prog: 5c 200008e 215 5c 200008f 12f 5d 2000091 212 5d 2000093 12f 5e 2000094 212 5e
-// prog: 400002c 1e 1e 400004e 2a 2a 7000018 39 39 700003f 3a 3a 700005a 40 40 7000081
-// prog: 42 42 70000aa 51 51 70000d1 5a 5a 70000eb 5b 5b 70000ec 5c 5c 7000112 5d
-// prog: 5d 7000113 5e 5e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 18 50 1 1c 52 c 1d 58 1e 1f
+// prog: 60 31 2c 69 39 2e ba 3a 43 74 45 47 d9 51 4e 7f
+// prog: 5b 62 89 72 6c 40 12c 75 54 132 b3 81 6f b4 84 76
+// prog: c1 80 168 c4 93 8a c5 96 8e c6 7e 177 c7 9b 91 c8
+// prog: 9e 94 1000041 40 bb 100004d 54 da 1000059 f9 5d 1000068 117 7b 1000070 12d
+// prog: 3a 100007a 133 51 10000a2 5c 139 10000b2 77 13f 20000bd 38 85 20000be 36 8b
+// prog: 400004f 5c 5c 4000055 5d 5d 4000065 77 77 4000066 7b 7b 70000b5 88 88 70000dc
+// prog: 8f 8f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 45 18 42 74 1c 5a 8a 20000006 4e 8b
+// prog: 1d 5e ba 20000006 62 bb 1f 7d 10f c1 5f 110 c6 6b 1000040 20000006
+// prog: 2c 1000072 20000006 43 100008e 4f f8 10000ca 65 116 10000d3 55 138 10000d5 66 13e
+// prog: 2000001 1f7 18 200000c 1f6 1c 200001e 1f5 1d 2000031 1f2 1f 2000039 20 2c 200003a
+// prog: 21 2c 2000050 20000007 2e 2000051 20000008 41 2000052 20000008 2e 2000054 2000000a 41 2000058 20000010
+// prog: 41 200005b 5 2e 200005c 4 41 200005d 4 2e 2000060 5 41 2000069 22 43
+// prog: 200006f 23 43 2000076 20000007 47 2000077 2000001b 4d 200007b 2000001b 47 200007e 2000000a 4d 200007f
+// prog: 20000010 4d 2000080 b 47 2000081 a 4d 2000084 a 47 2000085 b 4d 2000088 24
+// prog: 4e 2000089 25 4e 200008f 20000008 59 2000091 2000000a 59 2000093 20000010 59 2000094 10 59
+// prog: 2000096 11 59 200009b 26 62 200009e 27 62 20000cd 2000001b 68 20000cf 2000000a 68 20000d0
+// prog: 20000010 68 20000d1 16 68 20000d2 17 68 20000d7 7 b2 20000d8 1b b2 20000d9 32
+// prog: b2 20000da 20000021 b2 20000dd 19 b2 20000de 13 b2 20000df 2d a2 20000e0 30 a2
+// prog: 20000e1 3e a2 20000e2 20000018 a2 20000e5 9a a2 20000e7 99 a2 20000e8 3c 75 20000e9
+// prog: 7c 7a 20000ea 7c 75 20000eb 3d 7a 20000ec a7 75 20000ed 4a 7a 20000ef 20000021
+// prog: 7a 20000f0 20000021 75 20000f1 b6 7a 20000f2 4b 75 20000f6 a0 75 20000f7 a1 7a
+// prog: 20000f9 48 6c 20000fb a4 70 20000fc a4 6c 20000fd 49 70 20000fe cb 6c 2000102
+// prog: 56 70 2000103 20000018 70 2000104 20000018 6c 2000105 cc 70 2000106 57 6c 2000107 a8
+// prog: 6c 2000109 a9 70 200010a 145 bd 200010b 23b bd 200010c 135 be 200010e 22c be
+// prog: 7000001 18 18 7000004 1c 1c 7000007 1d 1d 700000a 1f 1f 7000072 b3 b3 7000099
+// prog: b4 b4 700009c bd bd 70000c3 be be 7000103 c4 c4 7000104 c5 c5 700012a c7
+// prog: c7 700012b c8 c8 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 18 41 6 1c 43 c 1d
-// prog: 47 1a 1f 4f 31 1e9 55 37 25f 62 39 3db 65 3a 3dd 68
-// prog: 40 3a4 6c 42 3a6 75 51 2ee 7b 5a 2f2 81 5b 172 88 5c
-// prog: 17a 8b 5d 185 8f 5e 196 93 100001e 2c 2e 100002a 4e 66 2000045 1f7
-// prog: 7a 2000054 1f6 80 70000a9 7a 7a 70000d0 80 80 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 13 9f 1 18 a3 c 1b b9 1e 1c
+// prog: bc 31 1f b7 3a 2c 50 51 30 52 54 47 5b 5c 4a d6
+// prog: 6f 4d 76 77 4f 7b 7e 65 80 81 6b f5 89 a9 113 9e
+// prog: 12b e8 e9 12c ea eb 12d ec ed 137 f6 f7 138 f9 fb 139
+// prog: fc fd 13b fe 102 13f 107 109 140 a6 10a 143 ce 10c 100001d 39
+// prog: b5 1000043 40 58 1000048 60 5d 1000049 69 d4 1000062 72 7f 1000066 85 84
+// prog: 1000068 88 f3 10000a2 8a 93 10000a8 9b 111 10000c7 ba d0 1000115 26c da 1000121
+// prog: 34e e2 1000131 360 ef 1000132 f0 361 1000133 f1 f2 100013c 371 103 100013d 104
+// prog: 372 100013e 105 106 200002e 20000009 45 2000032 2000000b 45 200003c 2000000d 40 200003d 2000000e 40
+// prog: 200003e 2000000d 45 2000041 2000000e 45 2000042 20000010 45 200004e 2000001c 74 2000055 2000000b 74 2000056
+// prog: 2000001d 72 2000059 2000000e 72 200005a 2000001d 74 200005e 2000000e 74 200005f 20000010 74 200006c 20000007
+// prog: 8e 2000070 20000009 8b 2000075 20000008 8e 200007a 2000000b 8b 200007c 2000000d 8a 200007d 2000000e 8a
+// prog: 2000099 2000000d 8b 20000a0 2000000e 8b 20000a1 20000010 8b 20000a4 11 8e 20000a7 10 8e 20000b2
+// prog: 20000007 ca 20000b3 2000001c bb 20000b4 2000001b ca 20000bd 2000000b bb 20000be 2000001d ba 20000c1 2000000e
+// prog: ba 20000c4 2000001d bb 20000c5 2000000e bb 20000c6 20000010 bb 20000c8 17 ca 20000cb 16 ca
+// prog: 20000f8 0 d5 2000112 7 d5 2000114 d d5 2000116 20000021 d5 2000117 33 d5 2000118
+// prog: 12 d5 200011a 2f d3 200011b 2d d3 200011c 97 d3 2000124 20000018 d3 2000125 3f
+// prog: d3 2000129 98 d3 2000146 29 10f 2000147 28 110 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 2c 1e c1 2e 2a ea 41 39
-// prog: 72 43 3a 77 4f 37 14b 55 26e 45 62 51 7e 65 31 160
-// prog: 66 27c 54 68 5a 85 2000018 38 1a 200001c 36 c 200001d 29 6 200001f
-// prog: 28 1 2000047 1f5 40 200004e 1f2 42 200006c 1f5 5b 2000070 1f5 5c 2000075 1f2
-// prog: 5d 200007a 1f2 5e 7000066 40 40 700008d 42 42 70000f7 5b 5b 70000f8 5c 5c
-// prog: 700011e 5d 5d 700011f 5e 5e 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 13 6 1 18 1a 7 1b 2a c
+// prog: 1c 37 d 6d 1d 12 6e 1f 1e 2c 2e 2d 30 32 2f 12e
+// prog: 47 50 78 49 51 79 4a 52 4d 4e 54 4f 55 58 165 65
+// prog: 72 6c 8f 76 75 91 77 a4 94 85 b2 cd 88 b4 cf 89
+// prog: c8 d1 98 48 2d0 9e 66 2da a3 f8 d7 a6 112 d8 b5 114
+// prog: d9 ba 118 de bc 11a df ca 11b e0 ce 11c e1 d4 129 e7
+// prog: d5 12b 35e d6 12c 35f da 12d 333 e8 137 363 e9 138 36f ea
+// prog: 139 370 eb 13b 3d2 ed 13f 374 1000031 48 134 100005b 66 166 1000069 68
+// prog: 82 100006f 6b 83 100007b 96 a7 1000081 a8 8c 1000084 a9 8d 100008a d2 cb
+// prog: 100009b 2d1 47 100009f 2db 65 10000b7 116 26d 10000b9 dd 117 10000d0 124 34f 10000d3
+// prog: e5 125 10000e2 33f 133 10000ec 3d5 13e 2000039 20000017 43 200003a 20000019 43 2000040 2000001a
+// prog: 43 200005c 20000020 62 200005d 20000019 62 2000060 2000001a 62 200007e 20000017 a2 200007f 20000019 a2
+// prog: 2000080 2000001a a2 200008e 20000020 c7 2000093 20000019 c7 2000097 2000001a c7 20000ef 1f7 140 20000f0
+// prog: 1f6 143 20000f1 130 146 20000f2 215 146 20000f3 12f 147 20000f5 212 147 70000a8 140
+// prog: 140 70000cf 143 143 70000ea 146 146 7000111 147 147 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 7e 125 2c 80 187 2e 81 3df
-// prog: 47 84 3e1 4e 85 4f a2 88 55 4d 8b 65 cd 8f 66 59
-// prog: 93 298 6c 96 2f6 70 9b 29e 75 9e 2fa 7a 2000001 145 18 2000006
-// prog: 23b 18 200000c 135 1c 200001a 22c 1c 200001e 130 1d 200002a 215 1d 2000031 12f
-// prog: 1f 2000037 212 1f 2000039 20000004 18 200003a 2 18 2000040 3 18 2000042 20000000 18
-// prog: 2000045 20000004 1c 2000051 8 1c 2000054 9 1c 200005a 20000000 1c 200005b 20000004 1d 200005c
-// prog: e 1d 200005d f 1d 200005e 20000000 1d 2000072 20000004 1f 2000077 14 1f 200007b 15
-// prog: 1f 200007d 20000000 1f 7000000 18 18 7000003 1c 1c 7000006 1d 1d 7000009 1f 1f
-// prog: 7000024 41 41 700004b 43 43 70000b6 62 62 70000dd 68 68 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 18 50 1 1c 52 c 1d 58
-// prog: 1e 1f 60 31 2c 69 39 2e ba 3a 43 74 45 47 d9 51
-// prog: 4e 7f 5b 62 89 72 6c 40 12c 75 54 132 b3 81 6f b4
-// prog: 84 76 c1 80 168 c4 93 8a c5 96 8e c6 7e 177 c7 9b
-// prog: 91 c8 9e 94 1000041 40 bb 100004d 54 da 1000059 f9 5d 1000068 117 7b
-// prog: 1000070 12d 3a 100007a 133 51 10000a2 5c 139 10000b2 77 13f 20000bd 38 85 20000be
-// prog: 36 8b 400004f 5c 5c 4000055 5d 5d 4000065 77 77 4000066 7b 7b 70000b5 88
-// prog: 88 70000dc 8f 8f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 6 17e d 18 1e 3c 1b 0 45 37
+// prog: 1a5 50 47 52 56 49 1 74 68 1cc 69 6c 72 70 6d 76
+// prog: 7a 6e 7 8b 75 2a7 77 79 1f3 81 83 85 b3 8c 88 bd
+// prog: 8d c bb 8f 2c3 89 94 12 2ce a2 51 2d8 a7 6f 2e2 a9
+// prog: 7b 1fd b4 84 2e9 c8 8a 201 cd a3 26a cf a6 26b d1 b5
+// prog: 25c d7 ba 274 d8 bc 284 d9 ca 285 dd ce 287 df d4 352
+// prog: fd e2 1b6 10f ec 240 110 14d ef 111 161 f0 112 61 f1 113
+// prog: 71 f3 1000013 12 17f 100001a 2d 3d 1000043 51 1a6 1000048 54 59 100006b 6f
+// prog: 1cd 1000078 7b 1a9 1000082 84 1f4 1000091 8a 1db 1000096 2cf d 10000a4 2d9 50
+// prog: 10000a8 2e3 69 10000b2 2e4 77 10000c7 2ea 81 10000cb 2eb 89 10000d2 3aa b9 10000de
+// prog: 3b7 d3 200001c 20000011 2f 200001d 20000012 31 200001f 20000012 2f 200002a 20000014 31 200002c 20000018
+// prog: 31 200002e 20000018 2f 2000030 20000019 31 2000032 20000017 2f 200004a 20000011 58 200004d 2000001e 5b
+// prog: 200004e 2000001e 58 200004f 20000014 5b 2000055 20000021 5b 2000062 20000021 58 2000065 20000019 5b 2000066
+// prog: 20000020 58 20000e0 20000011 9e 20000e1 2000001e 9f 20000e5 2000001e 9e 20000e7 20000014 9f 20000f6 2000001f
+// prog: 9e 20000f7 20000015 9f 20000f8 20000021 9f 20000f9 20000021 9e 20000fb 20000019 9f 20000fc 20000020 9e
+// prog: 20000fe 20000011 98 2000102 20000012 9b 2000103 20000012 98 2000104 20000014 9b 2000105 20000013 98 2000106
+// prog: 20000015 9b 2000107 20000018 9b 2000109 20000018 98 200010a 20000019 9b 200010c 20000017 98 7000002 0
+// prog: 0 7000005 1 1 7000008 7 7 700000b c c 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 7 95 18 c 9d 1a d 13 42 2d
+// prog: 1c 1d 31 1f 2a 54 ff 47 56 100 48 58 43 5f 61 4a
+// prog: 4d 6f 4e 4f 7a 6c 7c 81 6b a1 bb 83 be bd 82 c6
+// prog: 13e d2 f4 159 de 14f 15c e0 e1 15d e5 e7 15e f6 f7 16b
+// prog: fe 102 16c 103 104 16d 105 106 17e 110 10b 17f 111 10e 1000050 30
+// prog: 32 1000074 65 66 100007b 6d 7d 10000bc 8c c1 100015f 2d3 f8 1000160 f9 2dd
+// prog: 1000161 fb fc 100016e 36a 107 100016f 109 36b 1000171 10a 10c 2000000 2000000f 6 2000001
+// prog: 2000000f 13 2000012 5 6 200001e 4 6 200002f 20000013 1b 200003c 20000015 1b 200003d 20000017
+// prog: 1b 2000045 20000019 1b 2000051 2000000f 37 2000052 2000000f 43 2000059 b 37 200005b a 37
+// prog: 2000069 2000001f 49 2000070 20000015 49 2000071 20000020 49 2000072 20000019 49 2000076 2000000f 68 2000077
+// prog: 2000000f 6b 2000084 11 68 2000085 10 68 2000088 20000011 75 2000089 20000012 78 200008a 20000013
+// prog: 6e 200008b 20000012 75 2000098 20000014 78 200009b 20000015 6e 200009e 20000017 6e 200009f 20000018 78
+// prog: 20000a3 20000018 75 20000a6 20000019 6e 20000b3 20000019 78 20000b5 20000017 75 20000b9 2000000f 79 20000ba
+// prog: 2000000f 82 20000ca 17 79 20000ce 16 79 20000d3 20000011 8f 20000d4 2000001e 91 20000e2 2000001f
+// prog: 8d 20000ec 2000001e 8f 20000ef 20000014 91 20000f0 20000015 8d 20000f1 20000020 8d 20000f3 20000021 91
+// prog: 2000114 20000021 8f 2000116 20000019 8d 2000117 20000019 91 2000118 20000020 8f 200011a 20000011 c8 200011b
+// prog: 2000001e cb 200011c 2000001e c8 2000124 20000014 cb 2000125 2000001f c8 2000129 20000015 cb 200012b 20000021
+// prog: cb 200012c 20000021 c8 200012d 20000019 cb 200012e 20000020 c8 2000133 20000021 c7 2000134 20000021 b4
+// prog: 2000137 19 c7 2000138 33 b4 2000139 20000027 b4 200013b 20000027 c7 200013f b0 b4 2000140
+// prog: b1 c7 2000143 20000011 a9 2000146 20000012 b2 2000147 20000012 a9 2000148 20000014 b2 2000149 20000013
+// prog: a9 200014a 20000015 b2 200014b 20000018 b2 200014c 20000018 a9 200014d 20000019 b2 200014e 20000017 a9
+// prog: 2000150 20000018 a8 2000151 20000018 a7 2000154 9a a8 2000155 3f a7 2000157 20000027 a7 2000158
+// prog: 20000027 a8 200015a ae a7 200015b af a8 2000162 20000021 a4 2000163 20000021 a2 2000164 b6
+// prog: a4 2000165 4b a2 2000166 20000027 a2 2000167 20000027 a4 2000168 ac a2 200016a ad a4
+// prog: 2000172 20000018 96 2000174 20000018 94 2000176 cc 96 2000177 57 94 200017a 20000027 94 200017b
+// prog: 20000027 96 200017c aa 94 200017d ab 96 2000180 1f5 112 2000181 1f2 113 70000f6 112
+// prog: 112 700011d 113 113 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 13 41 1 1a 2d 2f 1b 31 3c 30
+// prog: 5e 52 37 61 69 3f 6f 70 49 a0 77 4a 73 7a 4b 144
+// prog: 7b 4f 88 89 57 8b 98 6b c5 ba 6c a5 bb 6d 178 bc
+// prog: 78 d3 d4 79 ec ef 83 11a 11b 8c 11c 124 8d 125 129 a4
+// prog: d7 13f a7 143 146 a8 147 148 a9 149 14a b4 df 15a b6 15c
+// prog: 2c5 be 15d 2c6 c1 15e 2ca e0 e8 168 e1 16b 364 e5 16c 365
+// prog: e7 16d 366 fe ed 17c ff 169 180 100 179 181 1000006 0 3e 100001c
+// prog: 3d 2c 100001d 2e 45 100001f 40 50 100002a 51 5a 1000042 71 55 1000043 62
+// prog: 72 1000047 60 74 1000048 76 99 100005f 9e 9f 1000065 a3 a6 1000066 b3 b5
+// prog: 1000068 b9 c4 100007c f1 f3 100007d 114 116 1000082 117 118 100008f 2c7 12b 1000091
+// prog: 12c 2c8 1000094 12d 12e 1000095 3a8 133 1000096 134 3a9 100009a 137 138 100009d 139
+// prog: 115 10000a1 13b b7 10000a2 d1 138 10000aa 315 14b 10000ab 14c 319 10000ac 14d 14e
+// prog: 10000ad 3b5 150 10000ae 151 3b6 10000af 154 155 10000b0 157 121 10000b1 158 d0 10000b2
+// prog: dd 155 10000c6 295 161 10000c7 338 162 10000c8 163 33a 10000cb 164 165 10000cc 166
+// prog: 131 10000d2 167 132 10000de da 165 10000f4 30f 171 10000f6 3d3 172 10000f7 174 3d4
+// prog: 10000f8 176 177 10000f9 17a 13c 10000fb 17b 13d 10000fc eb 177 2000018 4 d 2000019
+// prog: 5 d 2000032 a 58 2000033 b 58 200004d 10 81 200004e 11 81 200006e 16
+// prog: bd 2000075 17 bd 70000b4 17e 17e 70000db 17f 17f 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 11e 6 1 120 13 d 12 18 2d
+// prog: c9 1f 2e 198 2a 2f 19d 30 31 59 32 3d 128 47 3e 136
+// prog: 48 40 260 49 41 84 4d 50 4f 8a 51 57 9b 55 18b 68
+// prog: 58 2c1 6b 5a ca 6e 60 78 e2 61 79 f0 69 83 2b4 6f
+// prog: 8c 2ba 70 8d 2c0 72 cd 95 73 cf 96 74 d1 9a 76 9d
+// prog: 1a1 77 a1 1a2 7a 137 a2 7b a4 140 81 a7 310 88 a8 313
+// prog: 89 a9 314 98 d8 ad 99 d9 ae 9e dd af 9f b0 28b a0
+// prog: b1 28c a3 154 b2 a5 b4 15b a6 c6 25d b3 d5 c7 b5 d6
+// prog: c8 b7 da cb b9 cc 306 ba d2 308 bb 164 de bc e0 16a
+// prog: bd f4 2e7 c4 e9 f6 c5 ea f7 d0 eb f8 d3 f9 39b d4
+// prog: fb 39c d7 176 fc df fe 17d e8 ff f2 ec 100 f5 100002c 19
+// prog: 1e 100003c 33 5b 1000045 4e 85 1000052 80 66 100005e 75 ce 1000062 97 82
+// prog: 1000071 119 94 100008b 1af ac 6 12a d 13 1be 31 19 288 41 1f
+// prog: 175 52 2a 2e8 5a 32 1aa 62 48 2c 1c1 4d 3c 1c7 4f 45
+// prog: 1d0 59 5e 1d5 66 71 156 68 72 2b 6b 73 34 6e 74 86
+// prog: 75 7a 87 78 7b bf 79 8b 1e2 80 98 35 82 99 3b 83
+// prog: 9e db 84 a3 dc 85 a5 ee 8c b3 67 8d b5 4c 94 b7
+// prog: fa 95 bb 101 96 bc 152 9a c4 6a 9b c5 53 9d d0 11d
+// prog: a1 d7 153 a2 df 18a 1000012 2c 13a 1000018 3c 1bf 100001e 45 289 1000030
+// prog: 5e 2ef 1000049 1c5 d 100004e 1cb 31 1000057 1d1 41 100005b 1d6 5a 2000033 20000010
+// prog: 3d 2000047 20000010 2d 200008a 20000010 a6 2000097 20000010 bd 7000102 e8 e8 7000129 ec ec
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 200000d 20000018 12 200002b 20000018 6 200002c 2000001a 6 200002d
+// prog: 2000001a 12 2000031 20000021 18 2000034 20000021 13 2000035 2000001a 13 200003b 2000001a 18 200003c 20000018
+// prog: 1e 200003d 20000018 19 2000041 2000001a 19 2000045 2000001a 1e 200004c 20000021 30 2000052 20000021 2a
+// prog: 2000053 2000001a 2a 200005a 2000001a 30 200005e 20000010 32 2000062 20000010 1f 2000067 20000021 5b 200006a
+// prog: 20000021 59 2000071 20000019 5b 2000072 20000020 59 2000073 2000001a 59 2000074 2000001a 5b 200007a 20000017
+// prog: 59 200007b 20000010 66 2000086 20000000 6e 2000087 20000018 57 200008b 20000018 4f 2000098 20000019 57
+// prog: 2000099 20000017 4f 200009e 2000001a 4f 20000a3 2000001a 57 20000a4 20000020 4f 20000a5 20000010 79 20000a7
+// prog: 20000000 83 20000a8 20000021 4e 20000a9 20000021 4d 20000ac 20000019 4e 20000ad 20000020 4d 20000ae 2000001a
+// prog: 4d 20000af 2000001a 4e 20000b0 20000017 4d 20000b1 20000000 94 20000b2 20000018 49 20000b3 20000018 48
+// prog: 20000b4 20000019 49 20000b5 20000017 48 20000b7 2000001a 48 20000bb 2000001a 49 20000bc 20000020 48 20000bf
+// prog: 20000000 9d 20000c4 1f7 a2 20000c5 23b a2 20000c6 2000002c a2 20000c7 1f6 96 20000c8 22c
+// prog: 96 20000c9 2000002c 96 20000ca 1f5 85 20000cb 215 85 20000cc 2000002c 85 20000cd 1f2 78
+// prog: 20000ce 212 78 20000cf 2000002c 78 85 70 7a d1 89 a4 d9 c1 b0 df
+// prog: e7 bc e0 a1 c4 e2 95 c7 e8 84 ca e9 75 cd 1000006 39
+// prog: d 1000012 2b 3a 1000013 2c 1c 1000018 2d 1d 1000019 5c 31 100001e 34 5d
+// prog: 100001f 35 42 100002a 3b 43 1000030 7e 3c 1000032 3d 7f 1000048 41 5f 1000049
+// prog: 45 65 100004d 8e 4c 100004e 52 93 100004f 53 7c 1000057 5a 7d 1000059 108
+// prog: 67 100005b 6a 10d 100006e 71 72 1000078 73 8f 1000083 74 91 1000094 1a7 87
+// prog: 1000096 8b 1a8 100009d 98 99 10000a2 9e aa 10000d0 a3 ab 10000d2 290 a8 10000d5
+// prog: a9 292 10000d6 ac ad 10000d7 ae 15f 10000d8 af 160 10000da 30c b2 10000db b3
+// prog: 30d 10000dc b4 b5 10000dd b7 16e 10000de bb 16f 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 45 18 42 74 1c 5a 8a 20000006
-// prog: 4e 8b 1d 5e ba 20000006 62 bb 1f 7d 10f c1 5f 110 c6 6b
-// prog: 1000040 20000006 2c 1000072 20000006 43 100008e 4f f8 10000ca 65 116 10000d3 55 138 10000d5
-// prog: 66 13e 2000001 1f7 18 200000c 1f6 1c 200001e 1f5 1d 2000031 1f2 1f 2000039 20
-// prog: 2c 200003a 21 2c 2000050 20000007 2e 2000051 20000008 41 2000052 20000008 2e 2000054 2000000a 41
-// prog: 2000058 20000010 41 200005b 5 2e 200005c 4 41 200005d 4 2e 2000060 5 41 2000069
-// prog: 22 43 200006f 23 43 2000076 20000007 47 2000077 2000001b 4d 200007b 2000001b 47 200007e 2000000a
-// prog: 4d 200007f 20000010 4d 2000080 b 47 2000081 a 4d 2000084 a 47 2000085 b 4d
-// prog: 2000088 24 4e 2000089 25 4e 200008f 20000008 59 2000091 2000000a 59 2000093 20000010 59 2000094
-// prog: 10 59 2000096 11 59 200009b 26 62 200009e 27 62 20000cd 2000001b 68 20000cf 2000000a
-// prog: 68 20000d0 20000010 68 20000d1 16 68 20000d2 17 68 20000d7 7 b2 20000d8 1b b2
-// prog: 20000d9 32 b2 20000da 20000021 b2 20000dd 19 b2 20000de 13 b2 20000df 2d a2 20000e0
-// prog: 30 a2 20000e1 3e a2 20000e2 20000018 a2 20000e5 9a a2 20000e7 99 a2 20000e8 3c
-// prog: 75 20000e9 7c 7a 20000ea 7c 75 20000eb 3d 7a 20000ec a7 75 20000ed 4a 7a
-// prog: 20000ef 20000021 7a 20000f0 20000021 75 20000f1 b6 7a 20000f2 4b 75 20000f6 a0 75 20000f7
-// prog: a1 7a 20000f9 48 6c 20000fb a4 70 20000fc a4 6c 20000fd 49 70 20000fe cb
-// prog: 6c 2000102 56 70 2000103 20000018 70 2000104 20000018 6c 2000105 cc 70 2000106 57 6c
-// prog: 2000107 a8 6c 2000109 a9 70 200010a 145 bd 200010b 23b bd 200010c 135 be 200010e
-// prog: 22c be 7000001 18 18 7000004 1c 1c 7000007 1d 1d 700000a 1f 1f 7000072 b3
-// prog: b3 7000099 b4 b4 700009c bd bd 70000c3 be be 7000103 c4 c4 7000104 c5 c5
-// prog: 700012a c7 c7 700012b c8 c8 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 13 9f 1 18 a3 c 1b b9
-// prog: 1e 1c bc 31 1f b7 3a 2c 50 51 30 52 54 47 5b 5c
-// prog: 4a d6 6f 4d 76 77 4f 7b 7e 65 80 81 6b f5 89 a9
-// prog: 113 9e 12b e8 e9 12c ea eb 12d ec ed 137 f6 f7 138 f9
-// prog: fb 139 fc fd 13b fe 102 13f 107 109 140 a6 10a 143 ce 10c
-// prog: 100001d 39 b5 1000043 40 58 1000048 60 5d 1000049 69 d4 1000062 72 7f 1000066
-// prog: 85 84 1000068 88 f3 10000a2 8a 93 10000a8 9b 111 10000c7 ba d0 1000115 26c
-// prog: da 1000121 34e e2 1000131 360 ef 1000132 f0 361 1000133 f1 f2 100013c 371 103
-// prog: 100013d 104 372 100013e 105 106 200002e 20000009 45 2000032 2000000b 45 200003c 2000000d 40 200003d
-// prog: 2000000e 40 200003e 2000000d 45 2000041 2000000e 45 2000042 20000010 45 200004e 2000001c 74 2000055 2000000b
-// prog: 74 2000056 2000001d 72 2000059 2000000e 72 200005a 2000001d 74 200005e 2000000e 74 200005f 20000010 74
-// prog: 200006c 20000007 8e 2000070 20000009 8b 2000075 20000008 8e 200007a 2000000b 8b 200007c 2000000d 8a 200007d
-// prog: 2000000e 8a 2000099 2000000d 8b 20000a0 2000000e 8b 20000a1 20000010 8b 20000a4 11 8e 20000a7 10
-// prog: 8e 20000b2 20000007 ca 20000b3 2000001c bb 20000b4 2000001b ca 20000bd 2000000b bb 20000be 2000001d ba
-// prog: 20000c1 2000000e ba 20000c4 2000001d bb 20000c5 2000000e bb 20000c6 20000010 bb 20000c8 17 ca 20000cb
-// prog: 16 ca 20000f8 0 d5 2000112 7 d5 2000114 d d5 2000116 20000021 d5 2000117 33
-// prog: d5 2000118 12 d5 200011a 2f d3 200011b 2d d3 200011c 97 d3 2000124 20000018 d3
-// prog: 2000125 3f d3 2000129 98 d3 2000146 29 10f 2000147 28 110 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 0 13 6 1 18 1a 7 1b
-// prog: 2a c 1c 37 d 6d 1d 12 6e 1f 1e 2c 2e 2d 30 32
-// prog: 2f 12e 47 50 78 49 51 79 4a 52 4d 4e 54 4f 55 58
-// prog: 165 65 72 6c 8f 76 75 91 77 a4 94 85 b2 cd 88 b4
-// prog: cf 89 c8 d1 98 48 2d0 9e 66 2da a3 f8 d7 a6 112 d8
-// prog: b5 114 d9 ba 118 de bc 11a df ca 11b e0 ce 11c e1 d4
-// prog: 129 e7 d5 12b 35e d6 12c 35f da 12d 333 e8 137 363 e9 138
-// prog: 36f ea 139 370 eb 13b 3d2 ed 13f 374 1000031 48 134 100005b 66 166
-// prog: 1000069 68 82 100006f 6b 83 100007b 96 a7 1000081 a8 8c 1000084 a9 8d 100008a
-// prog: d2 cb 100009b 2d1 47 100009f 2db 65 10000b7 116 26d 10000b9 dd 117 10000d0 124
-// prog: 34f 10000d3 e5 125 10000e2 33f 133 10000ec 3d5 13e 2000039 20000017 43 200003a 20000019 43
-// prog: 2000040 2000001a 43 200005c 20000020 62 200005d 20000019 62 2000060 2000001a 62 200007e 20000017 a2 200007f
-// prog: 20000019 a2 2000080 2000001a a2 200008e 20000020 c7 2000093 20000019 c7 2000097 2000001a c7 20000ef 1f7
-// prog: 140 20000f0 1f6 143 20000f1 130 146 20000f2 215 146 20000f3 12f 147 20000f5 212 147
-// prog: 70000a8 140 140 70000cf 143 143 70000ea 146 146 7000111 147 147 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 6 17e d 18 1e 3c 1b 0
-// prog: 45 37 1a5 50 47 52 56 49 1 74 68 1cc 69 6c 72 70
-// prog: 6d 76 7a 6e 7 8b 75 2a7 77 79 1f3 81 83 85 b3 8c
-// prog: 88 bd 8d c bb 8f 2c3 89 94 12 2ce a2 51 2d8 a7 6f
-// prog: 2e2 a9 7b 1fd b4 84 2e9 c8 8a 201 cd a3 26a cf a6 26b
-// prog: d1 b5 25c d7 ba 274 d8 bc 284 d9 ca 285 dd ce 287 df
-// prog: d4 352 fd e2 1b6 10f ec 240 110 14d ef 111 161 f0 112 61
-// prog: f1 113 71 f3 1000013 12 17f 100001a 2d 3d 1000043 51 1a6 1000048 54 59
-// prog: 100006b 6f 1cd 1000078 7b 1a9 1000082 84 1f4 1000091 8a 1db 1000096 2cf d 10000a4
-// prog: 2d9 50 10000a8 2e3 69 10000b2 2e4 77 10000c7 2ea 81 10000cb 2eb 89 10000d2 3aa
-// prog: b9 10000de 3b7 d3 200001c 20000011 2f 200001d 20000012 31 200001f 20000012 2f 200002a 20000014 31
-// prog: 200002c 20000018 31 200002e 20000018 2f 2000030 20000019 31 2000032 20000017 2f 200004a 20000011 58 200004d
-// prog: 2000001e 5b 200004e 2000001e 58 200004f 20000014 5b 2000055 20000021 5b 2000062 20000021 58 2000065 20000019
-// prog: 5b 2000066 20000020 58 20000e0 20000011 9e 20000e1 2000001e 9f 20000e5 2000001e 9e 20000e7 20000014 9f
-// prog: 20000f6 2000001f 9e 20000f7 20000015 9f 20000f8 20000021 9f 20000f9 20000021 9e 20000fb 20000019 9f 20000fc
-// prog: 20000020 9e 20000fe 20000011 98 2000102 20000012 9b 2000103 20000012 98 2000104 20000014 9b 2000105 20000013
-// prog: 98 2000106 20000015 9b 2000107 20000018 9b 2000109 20000018 98 200010a 20000019 9b 200010c 20000017 98
-// prog: 7000002 0 0 7000005 1 1 7000008 7 7 700000b c c 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 7 95 18 c 9d 1a d 13
-// prog: 42 2d 1c 1d 31 1f 2a 54 ff 47 56 100 48 58 43 5f
-// prog: 61 4a 4d 6f 4e 4f 7a 6c 7c 81 6b a1 bb 83 be bd
-// prog: 82 c6 13e d2 f4 159 de 14f 15c e0 e1 15d e5 e7 15e f6
-// prog: f7 16b fe 102 16c 103 104 16d 105 106 17e 110 10b 17f 111 10e
-// prog: 1000050 30 32 1000074 65 66 100007b 6d 7d 10000bc 8c c1 100015f 2d3 f8 1000160
-// prog: f9 2dd 1000161 fb fc 100016e 36a 107 100016f 109 36b 1000171 10a 10c 2000000 2000000f
-// prog: 6 2000001 2000000f 13 2000012 5 6 200001e 4 6 200002f 20000013 1b 200003c 20000015 1b
-// prog: 200003d 20000017 1b 2000045 20000019 1b 2000051 2000000f 37 2000052 2000000f 43 2000059 b 37 200005b
-// prog: a 37 2000069 2000001f 49 2000070 20000015 49 2000071 20000020 49 2000072 20000019 49 2000076 2000000f
-// prog: 68 2000077 2000000f 6b 2000084 11 68 2000085 10 68 2000088 20000011 75 2000089 20000012 78
-// prog: 200008a 20000013 6e 200008b 20000012 75 2000098 20000014 78 200009b 20000015 6e 200009e 20000017 6e 200009f
-// prog: 20000018 78 20000a3 20000018 75 20000a6 20000019 6e 20000b3 20000019 78 20000b5 20000017 75 20000b9 2000000f
-// prog: 79 20000ba 2000000f 82 20000ca 17 79 20000ce 16 79 20000d3 20000011 8f 20000d4 2000001e 91
-// prog: 20000e2 2000001f 8d 20000ec 2000001e 8f 20000ef 20000014 91 20000f0 20000015 8d 20000f1 20000020 8d 20000f3
-// prog: 20000021 91 2000114 20000021 8f 2000116 20000019 8d 2000117 20000019 91 2000118 20000020 8f 200011a 20000011
-// prog: c8 200011b 2000001e cb 200011c 2000001e c8 2000124 20000014 cb 2000125 2000001f c8 2000129 20000015 cb
-// prog: 200012b 20000021 cb 200012c 20000021 c8 200012d 20000019 cb 200012e 20000020 c8 2000133 20000021 c7 2000134
-// prog: 20000021 b4 2000137 19 c7 2000138 33 b4 2000139 20000027 b4 200013b 20000027 c7 200013f b0
-// prog: b4 2000140 b1 c7 2000143 20000011 a9 2000146 20000012 b2 2000147 20000012 a9 2000148 20000014 b2
-// prog: 2000149 20000013 a9 200014a 20000015 b2 200014b 20000018 b2 200014c 20000018 a9 200014d 20000019 b2 200014e
-// prog: 20000017 a9 2000150 20000018 a8 2000151 20000018 a7 2000154 9a a8 2000155 3f a7 2000157 20000027
-// prog: a7 2000158 20000027 a8 200015a ae a7 200015b af a8 2000162 20000021 a4 2000163 20000021 a2
-// prog: 2000164 b6 a4 2000165 4b a2 2000166 20000027 a2 2000167 20000027 a4 2000168 ac a2 200016a
-// prog: ad a4 2000172 20000018 96 2000174 20000018 94 2000176 cc 96 2000177 57 94 200017a 20000027
-// prog: 94 200017b 20000027 96 200017c aa 94 200017d ab 96 2000180 1f5 112 2000181 1f2 113
-// prog: 70000f6 112 112 700011d 113 113 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 13 41 1 1a 2d 2f 1b 31
-// prog: 3c 30 5e 52 37 61 69 3f 6f 70 49 a0 77 4a 73 7a
-// prog: 4b 144 7b 4f 88 89 57 8b 98 6b c5 ba 6c a5 bb 6d
-// prog: 178 bc 78 d3 d4 79 ec ef 83 11a 11b 8c 11c 124 8d 125
-// prog: 129 a4 d7 13f a7 143 146 a8 147 148 a9 149 14a b4 df 15a
-// prog: b6 15c 2c5 be 15d 2c6 c1 15e 2ca e0 e8 168 e1 16b 364 e5
-// prog: 16c 365 e7 16d 366 fe ed 17c ff 169 180 100 179 181 1000006 0
-// prog: 3e 100001c 3d 2c 100001d 2e 45 100001f 40 50 100002a 51 5a 1000042 71 55
-// prog: 1000043 62 72 1000047 60 74 1000048 76 99 100005f 9e 9f 1000065 a3 a6 1000066
-// prog: b3 b5 1000068 b9 c4 100007c f1 f3 100007d 114 116 1000082 117 118 100008f 2c7
-// prog: 12b 1000091 12c 2c8 1000094 12d 12e 1000095 3a8 133 1000096 134 3a9 100009a 137 138
-// prog: 100009d 139 115 10000a1 13b b7 10000a2 d1 138 10000aa 315 14b 10000ab 14c 319 10000ac
-// prog: 14d 14e 10000ad 3b5 150 10000ae 151 3b6 10000af 154 155 10000b0 157 121 10000b1 158
-// prog: d0 10000b2 dd 155 10000c6 295 161 10000c7 338 162 10000c8 163 33a 10000cb 164 165
-// prog: 10000cc 166 131 10000d2 167 132 10000de da 165 10000f4 30f 171 10000f6 3d3 172 10000f7
-// prog: 174 3d4 10000f8 176 177 10000f9 17a 13c 10000fb 17b 13d 10000fc eb 177 2000018 4
-// prog: d 2000019 5 d 2000032 a 58 2000033 b 58 200004d 10 81 200004e 11 81
-// prog: 200006e 16 bd 2000075 17 bd 70000b4 17e 17e 70000db 17f 17f 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 0 11e 6 1 120 13 d 12
-// prog: 18 2d c9 1f 2e 198 2a 2f 19d 30 31 59 32 3d 128 47
-// prog: 3e 136 48 40 260 49 41 84 4d 50 4f 8a 51 57 9b 55
-// prog: 18b 68 58 2c1 6b 5a ca 6e 60 78 e2 61 79 f0 69 83
-// prog: 2b4 6f 8c 2ba 70 8d 2c0 72 cd 95 73 cf 96 74 d1 9a
-// prog: 76 9d 1a1 77 a1 1a2 7a 137 a2 7b a4 140 81 a7 310 88
-// prog: a8 313 89 a9 314 98 d8 ad 99 d9 ae 9e dd af 9f b0
-// prog: 28b a0 b1 28c a3 154 b2 a5 b4 15b a6 c6 25d b3 d5 c7
-// prog: b5 d6 c8 b7 da cb b9 cc 306 ba d2 308 bb 164 de bc
-// prog: e0 16a bd f4 2e7 c4 e9 f6 c5 ea f7 d0 eb f8 d3 f9
-// prog: 39b d4 fb 39c d7 176 fc df fe 17d e8 ff f2 ec 100 f5
-// prog: 100002c 19 1e 100003c 33 5b 1000045 4e 85 1000052 80 66 100005e 75 ce 1000062
-// prog: 97 82 1000071 119 94 100008b 1af ac 6 12a d 13 1be 31 19 288
-// prog: 41 1f 175 52 2a 2e8 5a 32 1aa 62 48 2c 1c1 4d 3c 1c7
-// prog: 4f 45 1d0 59 5e 1d5 66 71 156 68 72 2b 6b 73 34 6e
-// prog: 74 86 75 7a 87 78 7b bf 79 8b 1e2 80 98 35 82 99
-// prog: 3b 83 9e db 84 a3 dc 85 a5 ee 8c b3 67 8d b5 4c
-// prog: 94 b7 fa 95 bb 101 96 bc 152 9a c4 6a 9b c5 53 9d
-// prog: d0 11d a1 d7 153 a2 df 18a 1000012 2c 13a 1000018 3c 1bf 100001e 45
-// prog: 289 1000030 5e 2ef 1000049 1c5 d 100004e 1cb 31 1000057 1d1 41 100005b 1d6 5a
-// prog: 2000033 20000010 3d 2000047 20000010 2d 200008a 20000010 a6 2000097 20000010 bd 7000102 e8 e8 7000129
-// prog: ec ec 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 200000d 20000018 12 200002b 20000018 6 200002c 2000001a
-// prog: 6 200002d 2000001a 12 2000031 20000021 18 2000034 20000021 13 2000035 2000001a 13 200003b 2000001a 18
-// prog: 200003c 20000018 1e 200003d 20000018 19 2000041 2000001a 19 2000045 2000001a 1e 200004c 20000021 30 2000052
-// prog: 20000021 2a 2000053 2000001a 2a 200005a 2000001a 30 200005e 20000010 32 2000062 20000010 1f 2000067 20000021
-// prog: 5b 200006a 20000021 59 2000071 20000019 5b 2000072 20000020 59 2000073 2000001a 59 2000074 2000001a 5b
-// prog: 200007a 20000017 59 200007b 20000010 66 2000086 20000000 6e 2000087 20000018 57 200008b 20000018 4f 2000098
-// prog: 20000019 57 2000099 20000017 4f 200009e 2000001a 4f 20000a3 2000001a 57 20000a4 20000020 4f 20000a5 20000010
-// prog: 79 20000a7 20000000 83 20000a8 20000021 4e 20000a9 20000021 4d 20000ac 20000019 4e 20000ad 20000020 4d
-// prog: 20000ae 2000001a 4d 20000af 2000001a 4e 20000b0 20000017 4d 20000b1 20000000 94 20000b2 20000018 49 20000b3
-// prog: 20000018 48 20000b4 20000019 49 20000b5 20000017 48 20000b7 2000001a 48 20000bb 2000001a 49 20000bc 20000020
-// prog: 48 20000bf 20000000 9d 20000c4 1f7 a2 20000c5 23b a2 20000c6 2000004a a2 20000c7 1f6 96
-// prog: 20000c8 22c 96 20000c9 2000004a 96 20000ca 1f5 85 20000cb 215 85 20000cc 2000004a 85 20000cd
-// prog: 1f2 78 20000ce 212 78 20000cf 2000004a 78 85 70 7a d1 89 a4 d9 c1
-// prog: b0 df e7 bc e0 a1 c4 e2 95 c7 e8 84 ca e9 75 cd
-// prog: 1000006 39 d 1000012 2b 3a 1000013 2c 1c 1000018 2d 1d 1000019 5c 31 100001e
-// prog: 34 5d 100001f 35 42 100002a 3b 43 1000030 7e 3c 1000032 3d 7f 1000048 41
-// prog: 5f 1000049 45 65 100004d 8e 4c 100004e 52 93 100004f 53 7c 1000057 5a 7d
-// prog: 1000059 108 67 100005b 6a 10d 100006e 71 72 1000078 73 8f 1000083 74 91 1000094
-// prog: 1a7 87 1000096 8b 1a8 100009d 98 99 10000a2 9e aa 10000d0 a3 ab 10000d2 290
-// prog: a8 10000d5 a9 292 10000d6 ac ad 10000d7 ae 15f 10000d8 af 160 10000da 30c b2
-// prog: 10000db b3 30d 10000dc b4 b5 10000dd b7 16e 10000de bb 16f 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 d 1a 6 1c 1b 12 1d b8
-// prog: 13 2b c3 18 2c 37 19 2d 3f 1e 31 11f 1f 34 123 2a
-// prog: 35 50 30 39 51 32 3a 170 48 3b 173 49 3c 60 4d 3d
-// prog: 61 4e 41 1a0 4f 42 1a4 57 43 69 59 45 6f 5b 4c 70
-// prog: 6e 52 78 141 53 83 142 5a 71 85 5c 81 94 5d 88 96
-// prog: 5f 89 9d 65 a2 1ef 67 d0 1f1 6a 98 d1 72 b6 d2 73
-// prog: be d5 74 c1 d6 75 d7 33d 7a d8 33e 7c ac d9 7d e1
-// prog: da 7e e5 db 7f e7 dc 84 dd 428 87 de 429 8b b4 df
-// prog: 200008e 145 e0 200008f 241 e0 2000091 135 e2 2000093 237 e2 2000095 130 e8 2000099
-// prog: 224 e8 200009e 12f e9 20000a1 213 e9 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 d 1a 6 1c 1b 12 1d b8 13 2b
+// prog: c3 18 2c 37 19 2d 3f 1e 31 11f 1f 34 123 2a 35 50
+// prog: 30 39 51 32 3a 170 48 3b 173 49 3c 60 4d 3d 61 4e
+// prog: 41 1a0 4f 42 1a4 57 43 69 59 45 6f 5b 4c 70 6e 52
+// prog: 78 141 53 83 142 5a 71 85 5c 81 94 5d 88 96 5f 89
+// prog: 9d 65 a2 1ef 67 d0 1f1 6a 98 d1 72 b6 d2 73 be d5
+// prog: 74 c1 d6 75 d7 33d 7a d8 33e 7c ac d9 7d e1 da 7e
+// prog: e5 db 7f e7 dc 84 dd 428 87 de 429 8b b4 df 200008e 145
+// prog: e0 200008f 241 e0 2000091 135 e2 2000093 237 e2 2000095 130 e8 2000099 224 e8
+// prog: 200009e 12f e9 20000a1 213 e9 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 6 44 d 12 46 1c 13 63
-// prog: 2c 18 64 2d 19 90 35 1a 92 39 1b e3 3c 1e e4 3d
-// prog: 60 43 c0 61 45 c2 69 4c 9c 6f 41 53 70 5a e6 71
-// prog: 5c 126 78 5d 127 81 5f 122 85 3a 67 88 6a 186 89 72
-// prog: 18d 94 73 193 96 74 18e 9d 31 7a a2 7c 203 a3 7d 1ec
-// prog: a4 7e 1ed a8 7f 243 aa 1d 87 ab 8b 258 100006e 52 42 1000083
-// prog: 65 3b 1000098 75 34 10000a9 84 2b 200001f 17 41 200002a 16 42 2000030 16
-// prog: 41 2000032 17 42 2000037 11 3a 200003f 10 3b 2000048 10 3a 2000049 11 3b
-// prog: 200004d b 31 200004e a 34 200004f a 31 2000050 b 34 2000051 5 1d 2000057
-// prog: 4 2b 2000059 4 1d 200005b 5 2b 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 6 44 d 12 46 1c 13 63 2c 18
+// prog: 64 2d 19 90 35 1a 92 39 1b e3 3c 1e e4 3d 60 43
+// prog: c0 61 45 c2 69 4c 9c 6f 41 53 70 5a e6 71 5c 126
+// prog: 78 5d 127 81 5f 122 85 3a 67 88 6a 186 89 72 18d 94
+// prog: 73 193 96 74 18e 9d 31 7a a2 7c 203 a3 7d 1ec a4 7e
+// prog: 1ed a8 7f 243 aa 1d 87 ab 8b 258 100006e 52 42 1000083 65 3b
+// prog: 1000098 75 34 10000a9 84 2b 200001f 17 41 200002a 16 42 2000030 16 41 2000032
+// prog: 17 42 2000037 11 3a 200003f 10 3b 2000048 10 3a 2000049 11 3b 200004d b
+// prog: 31 200004e a 34 200004f a 31 2000050 b 34 2000051 5 1d 2000057 4 2b
+// prog: 2000059 4 1d 200005b 5 2b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1c 30 32 34 48 49 3d 4f
-// prog: 50 46 59 5b 5d 1b 61 6a 19 78 7c 13 94 8b 6 a4
-// prog: 100000d 1f 2a 1000031 37 3f 100003c 4d 4e 1000045 51 57 100005c 60 1e 1000067
-// prog: 71 1a 100007a 89 18 1000087 a3 12 200001d 17 1b 200002b 16 1e 200002c 16
-// prog: 1b 200002d 17 1e 2000035 11 19 2000039 10 1a 200003a 10 19 200003b 11 1a
-// prog: 2000041 b 13 2000042 a 18 2000043 a 13 2000044 b 18 200004c 5 6 2000052
-// prog: 4 12 2000053 4 6 200005a 5 12 200005f 17 6e 2000063 16 6f 2000064 16
-// prog: 6e 2000065 17 6f 2000072 11 83 2000073 10 85 2000074 10 83 2000075 11 85
-// prog: 200007d b 98 200007e a 9d 200007f a 98 2000084 b 9d 2000090 5 a9 2000092
-// prog: 4 aa 200009c 4 a9 20000ac 5 aa 20000ad 1f7 ab 20000ae 23b ab 20000af 2000004a
-// prog: ab 20000b0 1f6 a2 20000b2 22c a2 20000b3 2000004a a2 20000b4 1f5 88 20000b5 215 88
-// prog: 20000b6 2000004a 88 20000b7 1f2 70 20000b8 212 70 20000bb 2000004a 70 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 12 2c 2d 13 55 d 18 58
-// prog: 1c 1a 3a 3b 1b 3e 31 1e 40 34 2a 43 44 30 2e 3c
-// prog: 32 2f 3d 3f 53 5a 48 0 45 49 1 46 4e 64 65 5b
-// prog: 74 75 71 7f 84 94 9c ac 1000006 1d 2b 1000019 35 39 100001f 41
-// prog: 42 1000037 4c 52 100004d 5f 63 1000059 72 73 1000070 7d 7e 1000089 90 92
-// prog: 200004f 17 5c 2000050 16 5d 2000051 16 5c 2000057 17 5d 2000060 11 67 2000061
-// prog: 10 6a 200006e 10 67 200006f 11 6a 2000078 b 7a 2000083 a 7c 2000085 a
-// prog: 7a 2000088 b 7c 2000098 5 87 200009d 4 8b 20000a2 4 87 20000a3 5 8b
+// prog: 8000000 0 0 8000000 0 0 1c 30 32 34 48 49 3d 4f 50 46
+// prog: 59 5b 5d 1b 61 6a 19 78 7c 13 94 8b 6 a4 100000d 1f
+// prog: 2a 1000031 37 3f 100003c 4d 4e 1000045 51 57 100005c 60 1e 1000067 71 1a
+// prog: 100007a 89 18 1000087 a3 12 200001d 17 1b 200002b 16 1e 200002c 16 1b 200002d
+// prog: 17 1e 2000035 11 19 2000039 10 1a 200003a 10 19 200003b 11 1a 2000041 b
+// prog: 13 2000042 a 18 2000043 a 13 2000044 b 18 200004c 5 6 2000052 4 12
+// prog: 2000053 4 6 200005a 5 12 200005f 17 6e 2000063 16 6f 2000064 16 6e 2000065
+// prog: 17 6f 2000072 11 83 2000073 10 85 2000074 10 83 2000075 11 85 200007d b
+// prog: 98 200007e a 9d 200007f a 98 2000084 b 9d 2000090 5 a9 2000092 4 aa
+// prog: 200009c 4 a9 20000ac 5 aa 20000ad 1f7 ab 20000ae 23b ab 20000af 2000002c ab 20000b0
+// prog: 1f6 a2 20000b2 22c a2 20000b3 2000002c a2 20000b4 1f5 88 20000b5 215 88 20000b6 2000002c
+// prog: 88 20000b7 1f2 70 20000b8 212 70 20000bb 2000002c 70 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 12 2c 2d 13 55 d 18 58 1c 1a
+// prog: 3a 3b 1b 3e 31 1e 40 34 2a 43 44 30 2e 3c 32 2f
+// prog: 3d 3f 53 5a 48 0 45 49 1 46 4e 64 65 5b 74 75
+// prog: 71 7f 84 94 9c ac 1000006 1d 2b 1000019 35 39 100001f 41 42 1000037
+// prog: 4c 52 100004d 5f 63 1000059 72 73 1000070 7d 7e 1000089 90 92 200004f 17
+// prog: 5c 2000050 16 5d 2000051 16 5c 2000057 17 5d 2000060 11 67 2000061 10 6a
+// prog: 200006e 10 67 200006f 11 6a 2000078 b 7a 2000083 a 7c 2000085 a 7a 2000088
+// prog: b 7c 2000098 5 87 200009d 4 8b 20000a2 4 87 20000a3 5 8b 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 6c 6 5 4a 19 b 54
-// prog: 1f 10 7 37 16 51 57 1d 13 77 2e 6e 6f 34 1b a0
-// prog: 3b 85 88 3e 30 ba 43 a2 a3 46 48 d4 1000000 12 5e 1000004
-// prog: 1a 62 100000a 2a 33 100000d 3f 47 1000011 4f 50 100001c 76 18 100002d 60
-// prog: 61 1000031 9f 1e 100003a 78 83 100003d b9 32 1000042 98 9d 1000045 d3 49
-// prog: 2000017 20000010 4e 200002b 26 4d 200002c 27 4e 200002f 20000010 5b 2000035 24 59 2000039
-// prog: 25 5b 200003c 20000010 71 2000040 22 70 2000041 23 71 2000044 20000010 94 200004c 20
-// prog: 89 2000052 21 94 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 6c 6 5 4a 19 b 54 1f 10
+// prog: 7 37 16 51 57 1d 13 77 2e 6e 6f 34 1b a0 3b 85
+// prog: 88 3e 30 ba 43 a2 a3 46 48 d4 1000000 12 5e 1000004 1a 62
+// prog: 100000a 2a 33 100000d 3f 47 1000011 4f 50 100001c 76 18 100002d 60 61 1000031
+// prog: 9f 1e 100003a 78 83 100003d b9 32 1000042 98 9d 1000045 d3 49 2000017 20000010
+// prog: 4e 200002b 26 4d 200002c 27 4e 200002f 20000010 5b 2000035 24 59 2000039 25 5b
+// prog: 200003c 20000010 71 2000040 22 70 2000041 23 71 2000044 20000010 94 200004c 20 89 2000052
+// prog: 21 94 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 6 6d 0 7 4b 4 12 56
-// prog: a 13 c d 19 69 17 1a 1 6b 1f 2b 2c 32 81 2f
-// prog: 33 5 82 47 35 39 4a 96 3c 4d b 8d 50 40 41 54
-// prog: a8 44 55 10 9b 59 4c 52 1000018 16 7b 1000030 2e a5 1000049 3b
-// prog: 8a 1000053 43 97 200001b 26 1c 200001e 27 1d 200002a 14 11 2000037 24 31
-// prog: 200003f 25 34 2000048 e 2d 200004e 22 3d 200004f 23 3e 2000051 8 3a 2000057
-// prog: 20 45 2000058 21 46 200005a 2 42 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 6 6d 0 7 4b 4 12 56 a 13
+// prog: c d 19 69 17 1a 1 6b 1f 2b 2c 32 81 2f 33 5
+// prog: 82 47 35 39 4a 96 3c 4d b 8d 50 40 41 54 a8 44
+// prog: 55 10 9b 59 4c 52 1000018 16 7b 1000030 2e a5 1000049 3b 8a 1000053
+// prog: 43 97 200001b 26 1c 200001e 27 1d 200002a 14 11 2000037 24 31 200003f 25
+// prog: 34 2000048 e 2d 200004e 22 3d 200004f 23 3e 2000051 8 3a 2000057 20 45
+// prog: 2000058 21 46 200005a 2 42 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 1b 1e 5 66 1f 10 37 3f 16
+// prog: 79 47 21 4e 4f 27 57 58 2f 54 ad 31 4a b0 34 32
+// prog: b4 35 19 b7 1000000 68 6 100000d 80 7 1000020 8c 12 1000023 50 a6
+// prog: 1000026 9a 13 100002c 59 bd 2000004 15 1a 200000b 15 18 200000c 20000000 19 2000011
+// prog: f 33 200001c f 30 200001d 20000000 32 2000022 9 4d 2000024 9 49 2000025 20000000
+// prog: 4a 200002b 3 55 200002d 3 53 200002e 20000000 54 400000a 2a 2a 4000017 48 48
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 1b 1e 5 66 1f 10 37
-// prog: 3f 16 79 47 21 4e 4f 27 57 58 2f 54 ad 31 4a b0
-// prog: 34 32 b4 35 19 b7 1000000 68 6 100000d 80 7 1000020 8c 12 1000023
-// prog: 50 a6 1000026 9a 13 100002c 59 bd 2000004 15 1a 200000b 15 18 200000c 20000000
-// prog: 19 2000011 f 33 200001c f 30 200001d 20000000 32 2000022 9 4d 2000024 9 49
-// prog: 2000025 20000000 4a 200002b 3 55 200002d 3 53 200002e 20000000 54 400000a 2a 2a 4000017
-// prog: 48 48 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 3 13e 1 f 159 10 1a 51
-// prog: 24 2a 5a 2d 1000007 a b 1000013 17 1c 1000018 21 fd 100001e 27 10f
-// prog: 2000006 14 0 2000009 20000004 5 2000012 e d 2000015 20000004 16 2000019 8 20 200001b
-// prog: 20000004 23 200001f 2 26 2000030 20000004 2c 2000032 145 2f 2000033 241 2f 2000037 135
-// prog: 31 2000039 237 31 200003a 130 34 200003b 224 34 200003c 12f 35 200003d 213 35
+// prog: 8000000 0 0 8000000 0 0 3 13e 1 f 159 10 1a 51 24 2a
+// prog: 5a 2d 1000007 a b 1000013 17 1c 1000018 21 fd 100001e 27 10f 2000006 14
+// prog: 0 2000009 20000004 5 2000012 e d 2000015 20000004 16 2000019 8 20 200001b 20000004 23
+// prog: 200001f 2 26 2000030 20000004 2c 2000032 145 2f 2000033 241 2f 2000037 135 31 2000039
+// prog: 237 31 200003a 130 34 200003b 224 34 200003c 12f 35 200003d 213 35 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 7 c a 13 1d b 19 22 e
+// prog: 1a 25 10 1f 2b 16 2a 2e 2000001 20000004 3 2000008 20000004 f 200000d 20000004
+// prog: 18 2000014 20000004 1e 4000000 6 6 4000005 12 12 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 2 7 c a 13 1d b 19
-// prog: 22 e 1a 25 10 1f 2b 16 2a 2e 2000001 20000004 3 2000008 20000004 f
-// prog: 200000d 20000004 18 2000014 20000004 1e 4000000 6 6 4000005 12 12 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -27023,9 +25779,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 6 2 9 c a 15 f b
-// prog: b1 12 e 1b 13 10 bf 17 16 30 1000003 0 4 1000007 5 11
+// prog: 8000000 0 0 8000000 0 0 6 2 9 c a 15 f b b1 12
+// prog: e 1b 13 10 bf 17 16 30 1000003 0 4 1000007 5 11 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -27035,9 +25791,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 0 3 86 2 7 a7 4 f
-// prog: d 5 13 14 9 17 ae a 12 b2 b c b5 e 6 b8
+// prog: 8000000 0 0 8000000 0 0 0 3 86 2 7 a7 4 f d 5
+// prog: 13 14 9 17 ae a 12 b2 b c b5 e 6 b8 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -27047,9 +25803,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 3 0 1 6 2 8 7 5
-// prog: c5 c 9 32 d 4 c8 f a 37 10 b 3a 11 e 3c
+// prog: 8000000 0 0 8000000 0 0 3 0 1 6 2 8 7 5 c5 c
+// prog: 9 32 d 4 c8 f a 37 10 b 3a 11 e 3c 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -27059,9 +25815,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 0 7 8e 2 d 91 5 6
-// prog: cb 9 3 ce 2000001 38 c 2000004 36 f 2000008 29 10 200000a 28 11
+// prog: 8000000 0 0 8000000 0 0 0 7 8e 2 d 91 5 6 cb 9
+// prog: 3 ce 2000001 38 c 2000004 36 f 2000008 29 10 200000a 28 11 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -27071,11 +25827,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 e 5 95 11 9 9e 2000003 38
-// prog: 0 2000006 145 1 2000007 23b 1 200000b 36 2 200000c 135 4 200000d 22c 4
-// prog: 200000f 130 8 2000010 215 8 2000012 12f a 2000013 212 a 700000e 1 1 7000035
-// prog: 4 4 700005c 8 8 7000083 a a 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 e 5 95 11 9 9e 2000003 38 0 2000006
+// prog: 145 1 2000007 23b 1 200000b 36 2 200000c 135 4 200000d 22c 4 200000f 130
+// prog: 8 2000010 215 8 2000012 12f a 2000013 212 a 700000e 1 1 7000035 4 4
+// prog: 700005c 8 8 7000083 a a 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -27083,10 +25839,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 33 6 8 39 c a 3b f 15
+// prog: 3d 12 2000000 145 3 2000001 23b 3 2000004 135 b 2000005 22c b 2000009 29
+// prog: e 2000014 28 11 700000d 3 3 7000034 b b 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 2 33 6 8 39 c a 3b
-// prog: f 15 3d 12 2000000 145 3 2000001 23b 3 2000004 135 b 2000005 22c b
-// prog: 2000009 29 e 2000014 28 11 700000d 3 3 7000034 b b 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -27095,11 +25851,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 3 8f 0 b 93 4 2000006 1f7
-// prog: 2 200000c 1f6 8 200000e 130 9 200000f 215 9 2000011 1f5 a 2000012 12f 14
-// prog: 2000016 212 14 2000017 1f2 15 700001a 2 2 7000041 8 8 700005b 9 9 7000068
-// prog: a a 7000082 14 14 700008f 15 15 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 3 8f 0 b 93 4 2000006 1f7 2 200000c
+// prog: 1f6 8 200000e 130 9 200000f 215 9 2000011 1f5 a 2000012 12f 14 2000016 212
+// prog: 14 2000017 1f2 15 700001a 2 2 7000041 8 8 700005b 9 9 7000068 a a
+// prog: 7000082 14 14 700008f 15 15 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -27107,10 +25863,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 af 6 8 b3 c 9 99 e a
+// prog: b6 11 14 a1 12 15 bb 17 2000000 1f7 3 2000004 1f6 b 7000019 3
+// prog: 3 7000040 b b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 2 af 6 8 b3 c 9 99
-// prog: e a b6 11 14 a1 12 15 bb 17 2000000 1f7 3 2000004 1f6 b
-// prog: 7000019 3 3 7000040 b b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -27119,10 +25875,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 3 c6 0 6 2 7 b c9 4 c
+// prog: 8 d 11 a 10 17 15 13 200000e 1f5 9 2000012 1f2 14 7000067 9
+// prog: 9 700008e 14 14 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 3 c6 0 6 2 7 b c9
-// prog: 4 c 8 d 11 a 10 17 15 13 200000e 1f5 9 2000012 1f2 14
-// prog: 7000067 9 9 700008e 14 14 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -27131,9 +25887,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 0 3 1 2 b 5 4 cc
-// prog: e 7 cf 12 7000026 6 6 700004d c c 7000074 11 11 700009b 17 17
+// prog: 8000000 0 0 8000000 0 0 0 3 1 2 b 5 4 cc e 7
+// prog: cf 12 7000026 6 6 700004d c c 7000074 11 11 700009b 17 17 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -27143,9 +25899,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1 4 f 3 7 16 7000025 0
-// prog: 0 700004c 2 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 4 f 3 7 16 7000025 0 0 700004c
+// prog: 2 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -27155,8 +25911,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 7000073 1 1 700009a 3 3 8000000 0
+// prog: 8000000 0 0 8000000 0 0 7000073 1 1 700009a 3 3 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -27167,10 +25923,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1331c 1 133dc 1 0 30000000 40000000 1
-// prog: 30000001 40000001 2 30000002 40000002 3 30000003 40000003 4 30000004 40000004 5 30000005 40000005 6 30000006
-// prog: 40000006 7 30000007 40000007 8 30000008 40000008 9 30000009 40000009 a 3000000a 4000000a b 3000000b 4000000b
+// prog: 8000000 0 0 8000000 0 0 121ba 1 1227a 1 0 30000000 40000000 1 30000001 40000001
+// prog: 2 30000002 40000002 3 30000003 40000003 4 30000004 40000004 5 30000005 40000005 6 30000006 40000006 7
+// prog: 30000007 40000007 8 30000008 40000008 9 30000009 40000009 a 3000000a 4000000a b 3000000b 4000000b 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -27179,10 +25935,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 7000000 0 0 7000001 1 1
+// prog: 7000002 2 2 7000003 3 3 7000004 4 4 7000005 5 5 7000006 6 6 7000007
+// prog: 7 7 7000008 8 8 7000009 9 9 700000a a a 700000b b b 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 7000000 0 0 7000001
-// prog: 1 1 7000002 2 2 7000003 3 3 7000004 4 4 7000005 5 5 7000006 6
-// prog: 6 7000007 7 7 7000008 8 8 7000009 9 9 700000a a a 700000b b b
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -27191,71 +25947,71 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1349e 5 7000000 20000030
-// prog: 20000030 7000001 2000002a 2000002a 7000002 2000002a 2000002a 7000003 2000002a 2000002a 7000004 2000002a 2000002a 7000005 2000002a 2000002a
-// prog: 7000006 2000002a 2000002a 7000007 2000002a 2000002a 7000008 2000002a 2000002a 7000009 2000002a 2000002a 700000a 2000002a 2000002a 700000b
-// prog: 2000002a 2000002a 700000c 2000002a 2000002a 700000d 20000030 20000030 700000e 2000002a 2000002a 700000f 2000002a 2000002a 7000010 2000002a
-// prog: 2000002a 7000011 2000002a 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a 7000014 2000002a 2000002a 7000015 2000002a 2000002a
-// prog: 7000016 2000002a 2000002a 7000017 2000002a 2000002a 7000018 2000002a 2000002a 7000019 2000002a 2000002a 700001a 20000030 20000030 700001b
-// prog: 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e 2000002a 2000002a 700001f 2000002a 2000002a 7000020 2000002a
-// prog: 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a 2000002a 7000024 2000002a 2000002a 7000025 2000002a 2000002a
-// prog: 7000026 2000002a 2000002a 7000027 20000030 20000030 7000028 2000002a 2000002a 7000029 2000002a 2000002a 700002a 2000002a 2000002a 700002b
-// prog: 2000002a 2000002a 700002c 2000002a 2000002a 700002d 2000002a 2000002a 700002e 2000002a 2000002a 700002f 2000002a 2000002a 7000030 2000002a
-// prog: 2000002a 7000031 2000002a 2000002a 7000032 2000002a 2000002a 7000033 2000002a 2000002a 7000034 20000030 20000030 7000035 2000002a 2000002a
-// prog: 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039 2000002a 2000002a 700003a 2000002a 2000002a 700003b
-// prog: 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a 2000002a 700003f 2000002a 2000002a 7000040 2000002a
-// prog: 2000002a 7000041 20000030 20000030 7000042 2000002a 2000002a 7000043 2000002a 2000002a 7000044 2000002a 2000002a 7000045 2000002a 2000002a
-// prog: 7000046 2000002a 2000002a 7000047 2000002a 2000002a 7000048 2000002a 2000002a 7000049 2000002a 2000002a 700004a 2000002a 2000002a 700004b
-// prog: 2000002a 2000002a 700004c 2000002a 2000002a 700004d 2000002a 2000002a 700004e 20000030 20000030 700004f 2000002a 2000002a 7000050 2000002a
-// prog: 2000002a 7000051 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a 7000054 2000002a 2000002a 7000055 2000002a 2000002a
-// prog: 7000056 2000002a 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059 2000002a 2000002a 700005a 2000002a 2000002a 700005b
-// prog: 20000030 20000030 700005c 2000002a 2000002a 700005d 2000002a 2000002a 700005e 2000002a 2000002a 700005f 2000002a 2000002a 7000060 2000002a
-// prog: 2000002a 7000061 2000002a 2000002a 7000062 2000002a 2000002a 7000063 2000002a 2000002a 7000064 2000002a 2000002a 7000065 2000002a 2000002a
-// prog: 7000066 2000002a 2000002a 7000067 2000002a 2000002a 7000068 20000030 20000030 7000069 2000002a 2000002a 700006a 2000002a 2000002a 700006b
-// prog: 2000002a 2000002a 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a 2000002a 700006f 2000002a 2000002a 7000070 2000002a
-// prog: 2000002a 7000071 2000002a 2000002a 7000072 2000002a 2000002a 7000073 2000002a 2000002a 7000074 2000002a 2000002a 7000075 20000030 20000030
-// prog: 7000076 2000002a 2000002a 7000077 2000002a 2000002a 7000078 2000002a 2000002a 7000079 2000002a 2000002a 700007a 2000002a 2000002a 700007b
-// prog: 2000002a 2000002a 700007c 2000002a 2000002a 700007d 2000002a 2000002a 700007e 2000002a 2000002a 700007f 2000002a 2000002a 7000080 2000002a
-// prog: 2000002a 7000081 2000002a 2000002a 7000082 20000030 20000030 7000083 2000002a 2000002a 7000084 2000002a 2000002a 7000085 2000002a 2000002a
-// prog: 7000086 2000002a 2000002a 7000087 2000002a 2000002a 7000088 2000002a 2000002a 7000089 2000002a 2000002a 700008a 2000002a 2000002a 700008b
-// prog: 2000002a 2000002a 700008c 2000002a 2000002a 700008d 2000002a 2000002a 700008e 2000002a 2000002a 700008f 20000030 20000030 7000090 20000030
-// prog: 20000030 7000091 2000002a 2000002a 7000092 2000002a 2000002a 7000093 2000002a 2000002a 7000094 2000002a 2000002a 7000095 2000002a 2000002a
-// prog: 7000096 2000002a 2000002a 7000097 2000002a 2000002a 7000098 2000002a 2000002a 7000099 2000002a 2000002a 700009a 2000002a 2000002a 700009b
-// prog: 2000002a 2000002a 700009c 2000002a 2000002a 700009d 20000030 20000030 700009e 2000002a 2000002a 700009f 2000002a 2000002a 70000a0 2000002a
-// prog: 2000002a 70000a1 2000002a 2000002a 70000a2 2000002a 2000002a 70000a3 2000002a 2000002a 70000a4 2000002a 2000002a 70000a5 2000002a 2000002a
-// prog: 70000a6 2000002a 2000002a 70000a7 2000002a 2000002a 70000a8 2000002a 2000002a 70000a9 2000002a 2000002a 70000aa 20000030 20000030 70000ab
-// prog: 2000002a 2000002a 70000ac 2000002a 2000002a 70000ad 2000002a 2000002a 70000ae 2000002a 2000002a 70000af 2000002a 2000002a 70000b0 2000002a
-// prog: 2000002a 70000b1 2000002a 2000002a 70000b2 2000002a 2000002a 70000b3 2000002a 2000002a 70000b4 2000002a 2000002a 70000b5 2000002a 2000002a
-// prog: 70000b6 2000002a 2000002a 70000b7 20000030 20000030 70000b8 2000002a 2000002a 70000b9 2000002a 2000002a 70000ba 2000002a 2000002a 70000bb
-// prog: 2000002a 2000002a 70000bc 2000002a 2000002a 70000bd 2000002a 2000002a 70000be 2000002a 2000002a 70000bf 2000002a 2000002a 70000c0 2000002a
-// prog: 2000002a 70000c1 2000002a 2000002a 70000c2 2000002a 2000002a 70000c3 2000002a 2000002a 70000c4 20000030 20000030 70000c5 2000002a 2000002a
-// prog: 70000c6 2000002a 2000002a 70000c7 2000002a 2000002a 70000c8 2000002a 2000002a 70000c9 2000002a 2000002a 70000ca 2000002a 2000002a 70000cb
-// prog: 2000002a 2000002a 70000cc 2000002a 2000002a 70000cd 2000002a 2000002a 70000ce 2000002a 2000002a 70000cf 2000002a 2000002a 70000d0 2000002a
-// prog: 2000002a 70000d1 20000030 20000030 70000d2 2000002a 2000002a 70000d3 2000002a 2000002a 70000d4 2000002a 2000002a 70000d5 2000002a 2000002a
-// prog: 70000d6 2000002a 2000002a 70000d7 2000002a 2000002a 70000d8 2000002a 2000002a 70000d9 2000002a 2000002a 70000da 2000002a 2000002a 70000db
-// prog: 2000002a 2000002a 70000dc 2000002a 2000002a 70000dd 2000002a 2000002a 70000de 20000030 20000030 70000df 2000002a 2000002a 70000e0 2000002a
-// prog: 2000002a 70000e1 2000002a 2000002a 70000e2 2000002a 2000002a 70000e3 2000002a 2000002a 70000e4 2000002a 2000002a 70000e5 2000002a 2000002a
-// prog: 70000e6 2000002a 2000002a 70000e7 2000002a 2000002a 70000e8 2000002a 2000002a 70000e9 2000002a 2000002a 70000ea 2000002a 2000002a 70000eb
-// prog: 20000030 20000030 70000ec 2000002a 2000002a 70000ed 2000002a 2000002a 70000ee 2000002a 2000002a 70000ef 2000002a 2000002a 70000f0 2000002a
-// prog: 2000002a 70000f1 2000002a 2000002a 70000f2 2000002a 2000002a 70000f3 2000002a 2000002a 70000f4 2000002a 2000002a 70000f5 2000002a 2000002a
-// prog: 70000f6 2000002a 2000002a 70000f7 2000002a 2000002a 70000f8 20000030 20000030 70000f9 2000002a 2000002a 70000fa 2000002a 2000002a 70000fb
-// prog: 2000002a 2000002a 70000fc 2000002a 2000002a 70000fd 2000002a 2000002a 70000fe 2000002a 2000002a 70000ff 2000002a 2000002a 7000100 2000002a
-// prog: 2000002a 7000101 2000002a 2000002a 7000102 2000002a 2000002a 7000103 2000002a 2000002a 7000104 2000002a 2000002a 7000105 20000030 20000030
-// prog: 7000106 2000002a 2000002a 7000107 2000002a 2000002a 7000108 2000002a 2000002a 7000109 2000002a 2000002a 700010a 2000002a 2000002a 700010b
-// prog: 2000002a 2000002a 700010c 2000002a 2000002a 700010d 2000002a 2000002a 700010e 2000002a 2000002a 700010f 2000002a 2000002a 7000110 2000002a
-// prog: 2000002a 7000111 2000002a 2000002a 7000112 20000030 20000030 7000113 2000002a 2000002a 7000114 2000002a 2000002a 7000115 2000002a 2000002a
-// prog: 7000116 2000002a 2000002a 7000117 2000002a 2000002a 7000118 2000002a 2000002a 7000119 2000002a 2000002a 700011a 2000002a 2000002a 700011b
-// prog: 2000002a 2000002a 700011c 2000002a 2000002a 700011d 2000002a 2000002a 700011e 2000002a 2000002a 700011f 20000030 20000030 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1233c 5 7000000 2000003c 2000003c 7000001
+// prog: 2000002a 2000002a 7000002 2000002a 2000002a 7000003 2000002a 2000002a 7000004 2000002a 2000002a 7000005 2000002a 2000002a 7000006 2000002a
+// prog: 2000002a 7000007 2000002a 2000002a 7000008 2000002a 2000002a 7000009 2000002a 2000002a 700000a 2000002a 2000002a 700000b 2000002a 2000002a
+// prog: 700000c 2000002a 2000002a 700000d 2000003c 2000003c 700000e 2000002a 2000002a 700000f 2000002a 2000002a 7000010 2000002a 2000002a 7000011
+// prog: 2000002a 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a 7000014 2000002a 2000002a 7000015 2000002a 2000002a 7000016 2000002a
+// prog: 2000002a 7000017 2000002a 2000002a 7000018 2000002a 2000002a 7000019 2000002a 2000002a 700001a 2000003c 2000003c 700001b 2000002a 2000002a
+// prog: 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e 2000002a 2000002a 700001f 2000002a 2000002a 7000020 2000002a 2000002a 7000021
+// prog: 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a 2000002a 7000024 2000002a 2000002a 7000025 2000002a 2000002a 7000026 2000002a
+// prog: 2000002a 7000027 2000003c 2000003c 7000028 2000002a 2000002a 7000029 2000002a 2000002a 700002a 2000002a 2000002a 700002b 2000002a 2000002a
+// prog: 700002c 2000002a 2000002a 700002d 2000002a 2000002a 700002e 2000002a 2000002a 700002f 2000002a 2000002a 7000030 2000002a 2000002a 7000031
+// prog: 2000002a 2000002a 7000032 2000002a 2000002a 7000033 2000002a 2000002a 7000034 2000003c 2000003c 7000035 2000002a 2000002a 7000036 2000002a
+// prog: 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039 2000002a 2000002a 700003a 2000002a 2000002a 700003b 2000002a 2000002a
+// prog: 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a 2000002a 700003f 2000002a 2000002a 7000040 2000002a 2000002a 7000041
+// prog: 2000003c 2000003c 7000042 2000002a 2000002a 7000043 2000002a 2000002a 7000044 2000002a 2000002a 7000045 2000002a 2000002a 7000046 2000002a
+// prog: 2000002a 7000047 2000002a 2000002a 7000048 2000002a 2000002a 7000049 2000002a 2000002a 700004a 2000002a 2000002a 700004b 2000002a 2000002a
+// prog: 700004c 2000002a 2000002a 700004d 2000002a 2000002a 700004e 2000003c 2000003c 700004f 2000002a 2000002a 7000050 2000002a 2000002a 7000051
+// prog: 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a 7000054 2000002a 2000002a 7000055 2000002a 2000002a 7000056 2000002a
+// prog: 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059 2000002a 2000002a 700005a 2000002a 2000002a 700005b 2000003c 2000003c
+// prog: 700005c 2000002a 2000002a 700005d 2000002a 2000002a 700005e 2000002a 2000002a 700005f 2000002a 2000002a 7000060 2000002a 2000002a 7000061
+// prog: 2000002a 2000002a 7000062 2000002a 2000002a 7000063 2000002a 2000002a 7000064 2000002a 2000002a 7000065 2000002a 2000002a 7000066 2000002a
+// prog: 2000002a 7000067 2000002a 2000002a 7000068 2000003c 2000003c 7000069 2000002a 2000002a 700006a 2000002a 2000002a 700006b 2000002a 2000002a
+// prog: 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a 2000002a 700006f 2000002a 2000002a 7000070 2000002a 2000002a 7000071
+// prog: 2000002a 2000002a 7000072 2000002a 2000002a 7000073 2000002a 2000002a 7000074 2000002a 2000002a 7000075 2000003c 2000003c 7000076 2000002a
+// prog: 2000002a 7000077 2000002a 2000002a 7000078 2000002a 2000002a 7000079 2000002a 2000002a 700007a 2000002a 2000002a 700007b 2000002a 2000002a
+// prog: 700007c 2000002a 2000002a 700007d 2000002a 2000002a 700007e 2000002a 2000002a 700007f 2000002a 2000002a 7000080 2000002a 2000002a 7000081
+// prog: 2000002a 2000002a 7000082 2000003c 2000003c 7000083 2000002a 2000002a 7000084 2000002a 2000002a 7000085 2000002a 2000002a 7000086 2000002a
+// prog: 2000002a 7000087 2000002a 2000002a 7000088 2000002a 2000002a 7000089 2000002a 2000002a 700008a 2000002a 2000002a 700008b 2000002a 2000002a
+// prog: 700008c 2000002a 2000002a 700008d 2000002a 2000002a 700008e 2000002a 2000002a 700008f 2000003c 2000003c 7000090 2000003c 2000003c 7000091
+// prog: 2000002a 2000002a 7000092 2000002a 2000002a 7000093 2000002a 2000002a 7000094 2000002a 2000002a 7000095 2000002a 2000002a 7000096 2000002a
+// prog: 2000002a 7000097 2000002a 2000002a 7000098 2000002a 2000002a 7000099 2000002a 2000002a 700009a 2000002a 2000002a 700009b 2000002a 2000002a
+// prog: 700009c 2000002a 2000002a 700009d 2000003c 2000003c 700009e 2000002a 2000002a 700009f 2000002a 2000002a 70000a0 2000002a 2000002a 70000a1
+// prog: 2000002a 2000002a 70000a2 2000002a 2000002a 70000a3 2000002a 2000002a 70000a4 2000002a 2000002a 70000a5 2000002a 2000002a 70000a6 2000002a
+// prog: 2000002a 70000a7 2000002a 2000002a 70000a8 2000002a 2000002a 70000a9 2000002a 2000002a 70000aa 2000003c 2000003c 70000ab 2000002a 2000002a
+// prog: 70000ac 2000002a 2000002a 70000ad 2000002a 2000002a 70000ae 2000002a 2000002a 70000af 2000002a 2000002a 70000b0 2000002a 2000002a 70000b1
+// prog: 2000002a 2000002a 70000b2 2000002a 2000002a 70000b3 2000002a 2000002a 70000b4 2000002a 2000002a 70000b5 2000002a 2000002a 70000b6 2000002a
+// prog: 2000002a 70000b7 2000003c 2000003c 70000b8 2000002a 2000002a 70000b9 2000002a 2000002a 70000ba 2000002a 2000002a 70000bb 2000002a 2000002a
+// prog: 70000bc 2000002a 2000002a 70000bd 2000002a 2000002a 70000be 2000002a 2000002a 70000bf 2000002a 2000002a 70000c0 2000002a 2000002a 70000c1
+// prog: 2000002a 2000002a 70000c2 2000002a 2000002a 70000c3 2000002a 2000002a 70000c4 2000003c 2000003c 70000c5 2000002a 2000002a 70000c6 2000002a
+// prog: 2000002a 70000c7 2000002a 2000002a 70000c8 2000002a 2000002a 70000c9 2000002a 2000002a 70000ca 2000002a 2000002a 70000cb 2000002a 2000002a
+// prog: 70000cc 2000002a 2000002a 70000cd 2000002a 2000002a 70000ce 2000002a 2000002a 70000cf 2000002a 2000002a 70000d0 2000002a 2000002a 70000d1
+// prog: 2000003c 2000003c 70000d2 2000002a 2000002a 70000d3 2000002a 2000002a 70000d4 2000002a 2000002a 70000d5 2000002a 2000002a 70000d6 2000002a
+// prog: 2000002a 70000d7 2000002a 2000002a 70000d8 2000002a 2000002a 70000d9 2000002a 2000002a 70000da 2000002a 2000002a 70000db 2000002a 2000002a
+// prog: 70000dc 2000002a 2000002a 70000dd 2000002a 2000002a 70000de 2000003c 2000003c 70000df 2000002a 2000002a 70000e0 2000002a 2000002a 70000e1
+// prog: 2000002a 2000002a 70000e2 2000002a 2000002a 70000e3 2000002a 2000002a 70000e4 2000002a 2000002a 70000e5 2000002a 2000002a 70000e6 2000002a
+// prog: 2000002a 70000e7 2000002a 2000002a 70000e8 2000002a 2000002a 70000e9 2000002a 2000002a 70000ea 2000002a 2000002a 70000eb 2000003c 2000003c
+// prog: 70000ec 2000002a 2000002a 70000ed 2000002a 2000002a 70000ee 2000002a 2000002a 70000ef 2000002a 2000002a 70000f0 2000002a 2000002a 70000f1
+// prog: 2000002a 2000002a 70000f2 2000002a 2000002a 70000f3 2000002a 2000002a 70000f4 2000002a 2000002a 70000f5 2000002a 2000002a 70000f6 2000002a
+// prog: 2000002a 70000f7 2000002a 2000002a 70000f8 2000003c 2000003c 70000f9 2000002a 2000002a 70000fa 2000002a 2000002a 70000fb 2000002a 2000002a
+// prog: 70000fc 2000002a 2000002a 70000fd 2000002a 2000002a 70000fe 2000002a 2000002a 70000ff 2000002a 2000002a 7000100 2000002a 2000002a 7000101
+// prog: 2000002a 2000002a 7000102 2000002a 2000002a 7000103 2000002a 2000002a 7000104 2000002a 2000002a 7000105 2000003c 2000003c 7000106 2000002a
+// prog: 2000002a 7000107 2000002a 2000002a 7000108 2000002a 2000002a 7000109 2000002a 2000002a 700010a 2000002a 2000002a 700010b 2000002a 2000002a
+// prog: 700010c 2000002a 2000002a 700010d 2000002a 2000002a 700010e 2000002a 2000002a 700010f 2000002a 2000002a 7000110 2000002a 2000002a 7000111
+// prog: 2000002a 2000002a 7000112 2000003c 2000003c 7000113 2000002a 2000002a 7000114 2000002a 2000002a 7000115 2000002a 2000002a 7000116 2000002a
+// prog: 2000002a 7000117 2000002a 2000002a 7000118 2000002a 2000002a 7000119 2000002a 2000002a 700011a 2000002a 2000002a 700011b 2000002a 2000002a
+// prog: 700011c 2000002a 2000002a 700011d 2000002a 2000002a 700011e 2000002a 2000002a 700011f 2000003c 2000003c 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 12700 1 127c0 1
+// prog: 1000000 50000000 30000000 1000001 50000001 30000001 1000002 50000002 30000002 1000003 50000003 30000003 1000004 50000004 30000004 1000005
+// prog: 50000005 30000005 1000006 50000006 30000006 1000007 50000007 30000007 1000008 50000008 30000008 1000009 50000009 30000009 100000a 5000000a
+// prog: 3000000a 100000b 5000000b 3000000b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 13862 1
-// prog: 13922 1 1000000 50000000 30000000 1000001 50000001 30000001 1000002 50000002 30000002 1000003 50000003 30000003 1000004 50000004
-// prog: 30000004 1000005 50000005 30000005 1000006 50000006 30000006 1000007 50000007 30000007 1000008 50000008 30000008 1000009 50000009 30000009
-// prog: 100000a 5000000a 3000000a 100000b 5000000b 3000000b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -27264,10 +26020,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 7000000 0 0 7000001 1 1 7000002 2 2 7000003 3 3 7000004 4 4 7000005
+// prog: 5 5 7000006 6 6 7000007 7 7 7000008 8 8 7000009 9 9 700000a a
+// prog: a 700000b b b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 7000000 0 0 7000001 1 1 7000002 2 2 7000003 3 3 7000004 4
-// prog: 4 7000005 5 5 7000006 6 6 7000007 7 7 7000008 8 8 7000009 9 9
-// prog: 700000a a a 700000b b b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -27276,75 +26032,73 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 139e4 5 7000000 2000004b 2000004b 7000001 2000002a 2000002a 7000002 2000002a 2000002a 7000003 2000002a 2000002a
-// prog: 7000004 2000002a 2000002a 7000005 2000002a 2000002a 7000006 2000002a 2000002a 7000007 2000002a 2000002a 7000008 2000002a 2000002a 7000009
-// prog: 2000002a 2000002a 700000a 2000002a 2000002a 700000b 2000002a 2000002a 700000c 2000002a 2000002a 700000d 2000004b 2000004b 700000e 2000002a
-// prog: 2000002a 700000f 2000002a 2000002a 7000010 2000002a 2000002a 7000011 2000002a 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a
-// prog: 7000014 2000002a 2000002a 7000015 2000002a 2000002a 7000016 2000002a 2000002a 7000017 2000002a 2000002a 7000018 2000002a 2000002a 7000019
-// prog: 2000002a 2000002a 700001a 2000004b 2000004b 700001b 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e 2000002a
-// prog: 2000002a 700001f 2000002a 2000002a 7000020 2000002a 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a 2000002a
-// prog: 7000024 2000002a 2000002a 7000025 2000002a 2000002a 7000026 2000002a 2000002a 7000027 2000004b 2000004b 7000028 2000002a 2000002a 7000029
-// prog: 2000002a 2000002a 700002a 2000002a 2000002a 700002b 2000002a 2000002a 700002c 2000002a 2000002a 700002d 2000002a 2000002a 700002e 2000002a
-// prog: 2000002a 700002f 2000002a 2000002a 7000030 2000002a 2000002a 7000031 2000002a 2000002a 7000032 2000002a 2000002a 7000033 2000002a 2000002a
-// prog: 7000034 2000004b 2000004b 7000035 2000002a 2000002a 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039
-// prog: 2000002a 2000002a 700003a 2000002a 2000002a 700003b 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a
-// prog: 2000002a 700003f 2000002a 2000002a 7000040 2000002a 2000002a 7000041 2000004b 2000004b 7000042 2000002a 2000002a 7000043 2000002a 2000002a
-// prog: 7000044 2000002a 2000002a 7000045 2000002a 2000002a 7000046 2000002a 2000002a 7000047 2000002a 2000002a 7000048 2000002a 2000002a 7000049
-// prog: 2000002a 2000002a 700004a 2000002a 2000002a 700004b 2000002a 2000002a 700004c 2000002a 2000002a 700004d 2000002a 2000002a 700004e 2000004b
-// prog: 2000004b 700004f 2000002a 2000002a 7000050 2000002a 2000002a 7000051 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a
-// prog: 7000054 2000002a 2000002a 7000055 2000002a 2000002a 7000056 2000002a 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059
-// prog: 2000002a 2000002a 700005a 2000002a 2000002a 700005b 2000004b 2000004b 700005c 2000002a 2000002a 700005d 2000002a 2000002a 700005e 2000002a
-// prog: 2000002a 700005f 2000002a 2000002a 7000060 2000002a 2000002a 7000061 2000002a 2000002a 7000062 2000002a 2000002a 7000063 2000002a 2000002a
-// prog: 7000064 2000002a 2000002a 7000065 2000002a 2000002a 7000066 2000002a 2000002a 7000067 2000002a 2000002a 7000068 2000004b 2000004b 7000069
-// prog: 2000002a 2000002a 700006a 2000002a 2000002a 700006b 2000002a 2000002a 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a
-// prog: 2000002a 700006f 2000002a 2000002a 7000070 2000002a 2000002a 7000071 2000002a 2000002a 7000072 2000002a 2000002a 7000073 2000002a 2000002a
-// prog: 7000074 2000002a 2000002a 7000075 2000004b 2000004b 7000076 2000002a 2000002a 7000077 2000002a 2000002a 7000078 2000002a 2000002a 7000079
-// prog: 2000002a 2000002a 700007a 2000002a 2000002a 700007b 2000002a 2000002a 700007c 2000002a 2000002a 700007d 2000002a 2000002a 700007e 2000002a
-// prog: 2000002a 700007f 2000002a 2000002a 7000080 2000002a 2000002a 7000081 2000002a 2000002a 7000082 2000004b 2000004b 7000083 2000002a 2000002a
-// prog: 7000084 2000002a 2000002a 7000085 2000002a 2000002a 7000086 2000002a 2000002a 7000087 2000002a 2000002a 7000088 2000002a 2000002a 7000089
-// prog: 2000002a 2000002a 700008a 2000002a 2000002a 700008b 2000002a 2000002a 700008c 2000002a 2000002a 700008d 2000002a 2000002a 700008e 2000002a
-// prog: 2000002a 700008f 2000004b 2000004b 7000090 20000030 20000030 7000091 2000002a 2000002a 7000092 2000002a 2000002a 7000093 2000002a 2000002a
-// prog: 7000094 2000002a 2000002a 7000095 2000002a 2000002a 7000096 2000002a 2000002a 7000097 2000002a 2000002a 7000098 2000002a 2000002a 7000099
-// prog: 2000002a 2000002a 700009a 2000002a 2000002a 700009b 2000002a 2000002a 700009c 2000002a 2000002a 700009d 20000030 20000030 700009e 2000002a
-// prog: 2000002a 700009f 2000002a 2000002a 70000a0 2000002a 2000002a 70000a1 2000002a 2000002a 70000a2 2000002a 2000002a 70000a3 2000002a 2000002a
-// prog: 70000a4 2000002a 2000002a 70000a5 2000002a 2000002a 70000a6 2000002a 2000002a 70000a7 2000002a 2000002a 70000a8 2000002a 2000002a 70000a9
-// prog: 2000002a 2000002a 70000aa 20000030 20000030 70000ab 2000002a 2000002a 70000ac 2000002a 2000002a 70000ad 2000002a 2000002a 70000ae 2000002a
-// prog: 2000002a 70000af 2000002a 2000002a 70000b0 2000002a 2000002a 70000b1 2000002a 2000002a 70000b2 2000002a 2000002a 70000b3 2000002a 2000002a
-// prog: 70000b4 2000002a 2000002a 70000b5 2000002a 2000002a 70000b6 2000002a 2000002a 70000b7 20000030 20000030 70000b8 2000002a 2000002a 70000b9
-// prog: 2000002a 2000002a 70000ba 2000002a 2000002a 70000bb 2000002a 2000002a 70000bc 2000002a 2000002a 70000bd 2000002a 2000002a 70000be 2000002a
-// prog: 2000002a 70000bf 2000002a 2000002a 70000c0 2000002a 2000002a 70000c1 2000002a 2000002a 70000c2 2000002a 2000002a 70000c3 2000002a 2000002a
-// prog: 70000c4 20000030 20000030 70000c5 2000002a 2000002a 70000c6 2000002a 2000002a 70000c7 2000002a 2000002a 70000c8 2000002a 2000002a 70000c9
-// prog: 2000002a 2000002a 70000ca 2000002a 2000002a 70000cb 2000002a 2000002a 70000cc 2000002a 2000002a 70000cd 2000002a 2000002a 70000ce 2000002a
-// prog: 2000002a 70000cf 2000002a 2000002a 70000d0 2000002a 2000002a 70000d1 20000030 20000030 70000d2 2000002a 2000002a 70000d3 2000002a 2000002a
-// prog: 70000d4 2000002a 2000002a 70000d5 2000002a 2000002a 70000d6 2000002a 2000002a 70000d7 2000002a 2000002a 70000d8 2000002a 2000002a 70000d9
-// prog: 2000002a 2000002a 70000da 2000002a 2000002a 70000db 2000002a 2000002a 70000dc 2000002a 2000002a 70000dd 2000002a 2000002a 70000de 20000030
-// prog: 20000030 70000df 2000002a 2000002a 70000e0 2000002a 2000002a 70000e1 2000002a 2000002a 70000e2 2000002a 2000002a 70000e3 2000002a 2000002a
-// prog: 70000e4 2000002a 2000002a 70000e5 2000002a 2000002a 70000e6 2000002a 2000002a 70000e7 2000002a 2000002a 70000e8 2000002a 2000002a 70000e9
-// prog: 2000002a 2000002a 70000ea 2000002a 2000002a 70000eb 20000030 20000030 70000ec 2000002a 2000002a 70000ed 2000002a 2000002a 70000ee 2000002a
-// prog: 2000002a 70000ef 2000002a 2000002a 70000f0 2000002a 2000002a 70000f1 2000002a 2000002a 70000f2 2000002a 2000002a 70000f3 2000002a 2000002a
-// prog: 70000f4 2000002a 2000002a 70000f5 2000002a 2000002a 70000f6 2000002a 2000002a 70000f7 2000002a 2000002a 70000f8 20000030 20000030 70000f9
-// prog: 2000002a 2000002a 70000fa 2000002a 2000002a 70000fb 2000002a 2000002a 70000fc 2000002a 2000002a 70000fd 2000002a 2000002a 70000fe 2000002a
-// prog: 2000002a 70000ff 2000002a 2000002a 7000100 2000002a 2000002a 7000101 2000002a 2000002a 7000102 2000002a 2000002a 7000103 2000002a 2000002a
-// prog: 7000104 2000002a 2000002a 7000105 20000030 20000030 7000106 2000002a 2000002a 7000107 2000002a 2000002a 7000108 2000002a 2000002a 7000109
-// prog: 2000002a 2000002a 700010a 2000002a 2000002a 700010b 2000002a 2000002a 700010c 2000002a 2000002a 700010d 2000002a 2000002a 700010e 2000002a
-// prog: 2000002a 700010f 2000002a 2000002a 7000110 2000002a 2000002a 7000111 2000002a 2000002a 7000112 20000030 20000030 7000113 2000002a 2000002a
-// prog: 7000114 2000002a 2000002a 7000115 2000002a 2000002a 7000116 2000002a 2000002a 7000117 2000002a 2000002a 7000118 2000002a 2000002a 7000119
-// prog: 2000002a 2000002a 700011a 2000002a 2000002a 700011b 2000002a 2000002a 700011c 2000002a 2000002a 700011d 2000002a 2000002a 700011e 2000002a
-// prog: 2000002a 700011f 20000030 20000030 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 12882 5 7000000 2000002d 2000002d 7000001 2000002a 2000002a 7000002 2000002a 2000002a 7000003 2000002a 2000002a 7000004 2000002a
+// prog: 2000002a 7000005 2000002a 2000002a 7000006 2000002a 2000002a 7000007 2000002a 2000002a 7000008 2000002a 2000002a 7000009 2000002a 2000002a
+// prog: 700000a 2000002a 2000002a 700000b 2000002a 2000002a 700000c 2000002a 2000002a 700000d 2000002d 2000002d 700000e 2000002a 2000002a 700000f
+// prog: 2000002a 2000002a 7000010 2000002a 2000002a 7000011 2000002a 2000002a 7000012 2000002a 2000002a 7000013 2000002a 2000002a 7000014 2000002a
+// prog: 2000002a 7000015 2000002a 2000002a 7000016 2000002a 2000002a 7000017 2000002a 2000002a 7000018 2000002a 2000002a 7000019 2000002a 2000002a
+// prog: 700001a 2000002d 2000002d 700001b 2000002a 2000002a 700001c 2000002a 2000002a 700001d 2000002a 2000002a 700001e 2000002a 2000002a 700001f
+// prog: 2000002a 2000002a 7000020 2000002a 2000002a 7000021 2000002a 2000002a 7000022 2000002a 2000002a 7000023 2000002a 2000002a 7000024 2000002a
+// prog: 2000002a 7000025 2000002a 2000002a 7000026 2000002a 2000002a 7000027 2000002d 2000002d 7000028 2000002a 2000002a 7000029 2000002a 2000002a
+// prog: 700002a 2000002a 2000002a 700002b 2000002a 2000002a 700002c 2000002a 2000002a 700002d 2000002a 2000002a 700002e 2000002a 2000002a 700002f
+// prog: 2000002a 2000002a 7000030 2000002a 2000002a 7000031 2000002a 2000002a 7000032 2000002a 2000002a 7000033 2000002a 2000002a 7000034 2000002d
+// prog: 2000002d 7000035 2000002a 2000002a 7000036 2000002a 2000002a 7000037 2000002a 2000002a 7000038 2000002a 2000002a 7000039 2000002a 2000002a
+// prog: 700003a 2000002a 2000002a 700003b 2000002a 2000002a 700003c 2000002a 2000002a 700003d 2000002a 2000002a 700003e 2000002a 2000002a 700003f
+// prog: 2000002a 2000002a 7000040 2000002a 2000002a 7000041 2000002d 2000002d 7000042 2000002a 2000002a 7000043 2000002a 2000002a 7000044 2000002a
+// prog: 2000002a 7000045 2000002a 2000002a 7000046 2000002a 2000002a 7000047 2000002a 2000002a 7000048 2000002a 2000002a 7000049 2000002a 2000002a
+// prog: 700004a 2000002a 2000002a 700004b 2000002a 2000002a 700004c 2000002a 2000002a 700004d 2000002a 2000002a 700004e 2000002d 2000002d 700004f
+// prog: 2000002a 2000002a 7000050 2000002a 2000002a 7000051 2000002a 2000002a 7000052 2000002a 2000002a 7000053 2000002a 2000002a 7000054 2000002a
+// prog: 2000002a 7000055 2000002a 2000002a 7000056 2000002a 2000002a 7000057 2000002a 2000002a 7000058 2000002a 2000002a 7000059 2000002a 2000002a
+// prog: 700005a 2000002a 2000002a 700005b 2000002d 2000002d 700005c 2000002a 2000002a 700005d 2000002a 2000002a 700005e 2000002a 2000002a 700005f
+// prog: 2000002a 2000002a 7000060 2000002a 2000002a 7000061 2000002a 2000002a 7000062 2000002a 2000002a 7000063 2000002a 2000002a 7000064 2000002a
+// prog: 2000002a 7000065 2000002a 2000002a 7000066 2000002a 2000002a 7000067 2000002a 2000002a 7000068 2000002d 2000002d 7000069 2000002a 2000002a
+// prog: 700006a 2000002a 2000002a 700006b 2000002a 2000002a 700006c 2000002a 2000002a 700006d 2000002a 2000002a 700006e 2000002a 2000002a 700006f
+// prog: 2000002a 2000002a 7000070 2000002a 2000002a 7000071 2000002a 2000002a 7000072 2000002a 2000002a 7000073 2000002a 2000002a 7000074 2000002a
+// prog: 2000002a 7000075 2000002d 2000002d 7000076 2000002a 2000002a 7000077 2000002a 2000002a 7000078 2000002a 2000002a 7000079 2000002a 2000002a
+// prog: 700007a 2000002a 2000002a 700007b 2000002a 2000002a 700007c 2000002a 2000002a 700007d 2000002a 2000002a 700007e 2000002a 2000002a 700007f
+// prog: 2000002a 2000002a 7000080 2000002a 2000002a 7000081 2000002a 2000002a 7000082 2000002d 2000002d 7000083 2000002a 2000002a 7000084 2000002a
+// prog: 2000002a 7000085 2000002a 2000002a 7000086 2000002a 2000002a 7000087 2000002a 2000002a 7000088 2000002a 2000002a 7000089 2000002a 2000002a
+// prog: 700008a 2000002a 2000002a 700008b 2000002a 2000002a 700008c 2000002a 2000002a 700008d 2000002a 2000002a 700008e 2000002a 2000002a 700008f
+// prog: 2000002d 2000002d 7000090 2000003c 2000003c 7000091 2000002a 2000002a 7000092 2000002a 2000002a 7000093 2000002a 2000002a 7000094 2000002a
+// prog: 2000002a 7000095 2000002a 2000002a 7000096 2000002a 2000002a 7000097 2000002a 2000002a 7000098 2000002a 2000002a 7000099 2000002a 2000002a
+// prog: 700009a 2000002a 2000002a 700009b 2000002a 2000002a 700009c 2000002a 2000002a 700009d 2000003c 2000003c 700009e 2000002a 2000002a 700009f
+// prog: 2000002a 2000002a 70000a0 2000002a 2000002a 70000a1 2000002a 2000002a 70000a2 2000002a 2000002a 70000a3 2000002a 2000002a 70000a4 2000002a
+// prog: 2000002a 70000a5 2000002a 2000002a 70000a6 2000002a 2000002a 70000a7 2000002a 2000002a 70000a8 2000002a 2000002a 70000a9 2000002a 2000002a
+// prog: 70000aa 2000003c 2000003c 70000ab 2000002a 2000002a 70000ac 2000002a 2000002a 70000ad 2000002a 2000002a 70000ae 2000002a 2000002a 70000af
+// prog: 2000002a 2000002a 70000b0 2000002a 2000002a 70000b1 2000002a 2000002a 70000b2 2000002a 2000002a 70000b3 2000002a 2000002a 70000b4 2000002a
+// prog: 2000002a 70000b5 2000002a 2000002a 70000b6 2000002a 2000002a 70000b7 2000003c 2000003c 70000b8 2000002a 2000002a 70000b9 2000002a 2000002a
+// prog: 70000ba 2000002a 2000002a 70000bb 2000002a 2000002a 70000bc 2000002a 2000002a 70000bd 2000002a 2000002a 70000be 2000002a 2000002a 70000bf
+// prog: 2000002a 2000002a 70000c0 2000002a 2000002a 70000c1 2000002a 2000002a 70000c2 2000002a 2000002a 70000c3 2000002a 2000002a 70000c4 2000003c
+// prog: 2000003c 70000c5 2000002a 2000002a 70000c6 2000002a 2000002a 70000c7 2000002a 2000002a 70000c8 2000002a 2000002a 70000c9 2000002a 2000002a
+// prog: 70000ca 2000002a 2000002a 70000cb 2000002a 2000002a 70000cc 2000002a 2000002a 70000cd 2000002a 2000002a 70000ce 2000002a 2000002a 70000cf
+// prog: 2000002a 2000002a 70000d0 2000002a 2000002a 70000d1 2000003c 2000003c 70000d2 2000002a 2000002a 70000d3 2000002a 2000002a 70000d4 2000002a
+// prog: 2000002a 70000d5 2000002a 2000002a 70000d6 2000002a 2000002a 70000d7 2000002a 2000002a 70000d8 2000002a 2000002a 70000d9 2000002a 2000002a
+// prog: 70000da 2000002a 2000002a 70000db 2000002a 2000002a 70000dc 2000002a 2000002a 70000dd 2000002a 2000002a 70000de 2000003c 2000003c 70000df
+// prog: 2000002a 2000002a 70000e0 2000002a 2000002a 70000e1 2000002a 2000002a 70000e2 2000002a 2000002a 70000e3 2000002a 2000002a 70000e4 2000002a
+// prog: 2000002a 70000e5 2000002a 2000002a 70000e6 2000002a 2000002a 70000e7 2000002a 2000002a 70000e8 2000002a 2000002a 70000e9 2000002a 2000002a
+// prog: 70000ea 2000002a 2000002a 70000eb 2000003c 2000003c 70000ec 2000002a 2000002a 70000ed 2000002a 2000002a 70000ee 2000002a 2000002a 70000ef
+// prog: 2000002a 2000002a 70000f0 2000002a 2000002a 70000f1 2000002a 2000002a 70000f2 2000002a 2000002a 70000f3 2000002a 2000002a 70000f4 2000002a
+// prog: 2000002a 70000f5 2000002a 2000002a 70000f6 2000002a 2000002a 70000f7 2000002a 2000002a 70000f8 2000003c 2000003c 70000f9 2000002a 2000002a
+// prog: 70000fa 2000002a 2000002a 70000fb 2000002a 2000002a 70000fc 2000002a 2000002a 70000fd 2000002a 2000002a 70000fe 2000002a 2000002a 70000ff
+// prog: 2000002a 2000002a 7000100 2000002a 2000002a 7000101 2000002a 2000002a 7000102 2000002a 2000002a 7000103 2000002a 2000002a 7000104 2000002a
+// prog: 2000002a 7000105 2000003c 2000003c 7000106 2000002a 2000002a 7000107 2000002a 2000002a 7000108 2000002a 2000002a 7000109 2000002a 2000002a
+// prog: 700010a 2000002a 2000002a 700010b 2000002a 2000002a 700010c 2000002a 2000002a 700010d 2000002a 2000002a 700010e 2000002a 2000002a 700010f
+// prog: 2000002a 2000002a 7000110 2000002a 2000002a 7000111 2000002a 2000002a 7000112 2000003c 2000003c 7000113 2000002a 2000002a 7000114 2000002a
+// prog: 2000002a 7000115 2000002a 2000002a 7000116 2000002a 2000002a 7000117 2000002a 2000002a 7000118 2000002a 2000002a 7000119 2000002a 2000002a
+// prog: 700011a 2000002a 2000002a 700011b 2000002a 2000002a 700011c 2000002a 2000002a 700011d 2000002a 2000002a 700011e 2000002a 2000002a 700011f
+// prog: 2000003c 2000003c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0
+// prog: 0 0
 // konst: 4.8965888e-12 9.81 0.011034738 0.1249059 0.08 4.8035537e-11 2.3521028e-22 0.005497747
 // konst: 0.007418368 0.0001 0.08713208 2e-5 0.08986983 -0.0692475 0.39765212 2.638
 // konst: 0.35 0.0004700102 5.5580906e-5 1.04774e-6 0.026413875 3.524e-9 0.026183868 3.524e-5
 // konst: -8.81e-5 0.1104774 0.881 -0.007418368 -0.0001 0.0692475 -5.5580906e-5 -1.04774e-6
 // konst: -3.524e-5 8.81e-5 2.0 3.0835e-5 0.1079225 0.13410637 0.30835 3.519
-// konst: 0.28152 -3.0835e-5 0.0 0.0225216 0.001345867 4.2192926 -4.0014715e-5 1.3458668e-7
-// konst: 1.0 0.00047001019 1.4101186e-9 8.8099994e-5 -8.3679275e-5 -1.4868787e-8 -0.1104774 1.2334e-5
-// konst: 0.03866709 -0.30835 2.1175824e-22 -0.00014868788 0.41486353 -0.39765212 -0.001345867 4.0014715e-5
-// konst: -8.8099994e-5 8.3679275e-5 -1.2334e-5 -2.1175824e-22 0.00014868788 -0.08 -0.28152 38.191456
-// konst: 1.7231097e-11 -1.7231097e-11 -38.191456 -1.0
+// konst: 0.28152 -3.0835e-5 0.0 0.0225216 -38.191456 -1.0 38.191456 0.00047001019
+// konst: 1.4101186e-9 -8.3679275e-5 8.8099994e-5 -1.4868787e-8 2.1175824e-22 -0.00014868788 0.41486353 -0.1104774
+// konst: 1.2334e-5 0.03866709 -0.30835 -0.39765212 1.0 1.7231097e-11 8.3679275e-5 -8.8099994e-5
+// konst: -2.1175824e-22 0.00014868788 -1.2334e-5 -0.08 -0.28152 -1.7231097e-11

@@ -72,7 +72,7 @@ int32_t iiwa14_mass_matrix_batch_f64(size_t n, const double *q, double *m);
 int32_t iiwa14_mass_matrix_f32(const float *q, float *m);
 int32_t iiwa14_mass_matrix_batch_f32(size_t n, const float *q, float *m);
 
-/* minv: M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted.
+/* minv: M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity.
  * Per state, in: q[IIWA14_NV].
  * Per state, out: minv[IIWA14_NV][IIWA14_NV]. */
 int32_t iiwa14_minv_f64(const double *q, double *minv);

@@ -49,15 +49,15 @@
 // nv: 7
 // precision: f32
 // trig: accurate
-// tables: prog=115872 konst=89
+// tables: prog=106954 konst=89
 // entry: rnea kernel=rnea strategy=thread outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=842 functions=2
 // entry: rnea_coop kernel=rnea strategy=cooperative outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=612 phases=52 stages=1 statements=822 functions=3
 // entry: rnea_grad kernel=rnea_grad strategy=thread outputs=98 scratch=277 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=4 statements=4357 functions=8
 // entry: rnea_grad_coop kernel=rnea_grad strategy=cooperative outputs=98 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=1908 phases=55 stages=1 statements=3585 functions=3
 // entry: mass_matrix kernel=mass_matrix strategy=thread outputs=49 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=435 functions=2
 // entry: mass_matrix_coop kernel=mass_matrix strategy=cooperative outputs=49 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=296 phases=42 stages=1 statements=429 functions=3
-// entry: minv kernel=minv strategy=thread outputs=49 scratch=73 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=2 statements=1827 functions=4
-// entry: minv_coop kernel=minv strategy=cooperative outputs=49 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=652 phases=113 stages=1 statements=1675 functions=3
+// entry: minv kernel=minv strategy=thread outputs=49 scratch=0 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=1 statements=905 functions=2
+// entry: minv_coop kernel=minv strategy=cooperative outputs=49 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=416 phases=70 stages=1 statements=899 functions=3
 // entry: fd kernel=fd strategy=thread outputs=7 scratch=85 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=2 statements=2043 functions=4
 // entry: fd_coop kernel=fd strategy=cooperative outputs=7 scratch=0 workgroup_size=64 states_per_workgroup=1 workgroup_bytes=876 phases=122 stages=1 statements=1853 functions=3
 // entry: fd_grad kernel=fd_grad strategy=thread outputs=105 scratch=439 workgroup_size=64 states_per_workgroup=64 workgroup_bytes=0 phases=1 stages=6 statements=6759 functions=12
@@ -6011,1842 +6011,917 @@ fn mass_matrix_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
     }
 }
 
-// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted. One invocation per state.
+// M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity. One invocation per state.
 fn minv_part0(s: u32, n: u32) {
-    let t2 = q[1u * n + s];
-    let t12 = q[2u * n + s];
-    let t22 = q[3u * n + s];
-    let t32 = q[4u * n + s];
-    let t43 = q[5u * n + s];
-    let t55 = q[6u * n + s];
-    let t3 = gg_sin(t2);
-    let t4 = gg_cos(t2);
-    let t13 = gg_sin(t12);
-    let t14 = gg_cos(t12);
-    let t23 = gg_sin(t22);
-    let t24 = gg_cos(t22);
-    let t33 = gg_sin(t32);
-    let t34 = gg_cos(t32);
-    let t44 = gg_sin(t43);
-    let t45 = gg_cos(t43);
-    let t46 = -(t44);
-    let t56 = gg_sin(t55);
-    let t57 = gg_cos(t55);
-    let t74 = 0.081f * t56;
-    let t75 = 0.081f * t57;
-    let t76 = t57 * 0.00598f;
-    let t77 = (-0.024f) * t75;
-    let t78 = t77 - t76;
-    let t79 = t56 * 0.00598f;
-    let t80 = 0.024f * t74;
-    let t81 = t79 + t80;
-    let t82 = t56 * 0.024f;
-    let t83 = 1.2f * t74;
-    let t84 = t82 + t83;
-    let t85 = t57 * (-0.024f);
-    let t86 = 1.2f * t75;
-    let t87 = t86 - t85;
-    let t88 = t56 * t84;
-    let t89 = t57 * t87;
+    let t3 = q[1u * n + s];
+    let t15 = q[2u * n + s];
+    let t25 = q[3u * n + s];
+    let t35 = q[4u * n + s];
+    let t45 = q[5u * n + s];
+    let t51 = q[6u * n + s];
+    let t4 = gg_sin(t3);
+    let t5 = gg_cos(t3);
+    let t16 = gg_sin(t15);
+    let t17 = gg_cos(t15);
+    let t26 = gg_sin(t25);
+    let t27 = gg_cos(t25);
+    let t36 = gg_sin(t35);
+    let t37 = gg_cos(t35);
+    let t46 = gg_sin(t45);
+    let t47 = gg_cos(t45);
+    let t52 = gg_sin(t51);
+    let t53 = gg_cos(t51);
+    let t56 = t53 * 0.00598f;
+    let t57 = t52 * 0.00598f;
+    let t60 = t53 * t56;
+    let t61 = t52 * t57;
+    let t62 = t60 + t61;
+    let t64 = t62 + 0.0078732f;
+    let t65 = 0.003888f + t64;
+    let t66 = t53 * t57;
+    let t67 = t52 * t56;
+    let t68 = t67 - t66;
+    let t69 = 0.004900936f + t65;
+    let t71 = 0.003600648f + t65;
+    let t73 = t46 * 0.12228f;
+    let t74 = t47 * 0.12228f;
+    let t75 = t47 * t69;
+    let t76 = t46 * t69;
+    let t77 = t46 * 0.009700288f;
+    let t79 = t47 * 0.009700288f;
+    let t80 = t47 * t68;
+    let t81 = t46 * (-4.32e-7f);
+    let t82 = t80 - t81;
+    let t83 = t46 * t68;
+    let t84 = t47 * (-4.32e-7f);
+    let t85 = t83 + t84;
+    let t86 = 0.2155f * t74;
+    let t87 = 2.0f * t86;
+    let t88 = t47 * t75;
+    let t89 = t46 * t77;
     let t90 = t88 + t89;
-    let t91 = t57 * t78;
-    let t92 = t56 * t81;
-    let t93 = t92 - t91;
-    let t94 = 0.081f * t90;
-    let t95 = t93 + t94;
-    let t96 = t57 * (-0.081f);
-    let t97 = t56 * (-0.081f);
-    let t98 = (-0.024f) * t97;
-    let t99 = t79 + t98;
-    let t100 = 0.024f * t96;
-    let t101 = t76 - t100;
-    let t102 = t57 * 0.024f;
-    let t103 = 1.2f * t96;
-    let t104 = t102 - t103;
-    let t105 = t56 * (-0.024f);
-    let t106 = 1.2f * t97;
-    let t107 = t105 + t106;
-    let t108 = t57 * t104;
-    let t109 = t56 * t107;
-    let t110 = t109 - t108;
-    let t111 = t56 * t104;
-    let t112 = t57 * t107;
-    let t113 = t111 + t112;
-    let t114 = t57 * t99;
-    let t115 = t56 * t101;
-    let t116 = t115 - t114;
-    let t117 = t56 * t99;
-    let t118 = t57 * t101;
-    let t119 = t117 + t118;
-    let t120 = 0.081f * t113;
-    let t121 = 0.081f * t110;
-    let t122 = t116 + t120;
-    let t123 = t119 - t121;
-    let t124 = t57 * 1.2f;
-    let t125 = t56 * 1.2f;
-    let t126 = t57 * t124;
-    let t127 = t56 * t125;
+    let t92 = t90 + 0.13932075f;
+    let t93 = t87 + t92;
+    let t94 = -(t80);
+    let t95 = t46 * 4.32e-7f;
+    let t96 = t94 - t95;
+    let t97 = t47 * t76;
+    let t98 = t46 * t79;
+    let t99 = t97 - t98;
+    let t100 = 0.2155f * t73;
+    let t101 = t99 + t100;
+    let t102 = t71 + 0.13932075f;
+    let t103 = t87 + t102;
+    let t104 = -(t85);
+    let t106 = t104 - (-0.00015516f);
+    let t107 = t46 * t76;
+    let t108 = t47 * t79;
+    let t109 = t107 + t108;
+    let t110 = t86 + t86;
+    let t111 = t109 - t110;
+    let t112 = t87 + t111;
+    let t114 = t74 + 0.6465f;
+    let t115 = 0.0535595f + t93;
+    let t116 = (-3.5e-7f) + t96;
+    let t117 = 4e-7f + t101;
+    let t118 = 0.049132034f + t103;
+    let t119 = 0.007543535f + t112;
+    let t120 = 0.00035f - t73;
+    let t122 = 0.266f + t114;
+    let t123 = t37 * t120;
+    let t124 = t36 * 0.07278f;
+    let t125 = t124 - t123;
+    let t126 = t36 * t120;
+    let t127 = t37 * 0.07278f;
     let t128 = t126 + t127;
-    let t129 = t56 * t124;
-    let t130 = t57 * t125;
+    let t129 = t37 * t115;
+    let t130 = t36 * t116;
     let t131 = t130 - t129;
-    let t132 = t57 * t105;
-    let t133 = -(t132);
-    let t134 = t56 * t102;
-    let t135 = t133 - t134;
-    let t136 = t56 * t105;
-    let t137 = t57 * t102;
-    let t138 = t136 - t137;
-    let t139 = 0.081f * t131;
-    let t140 = 0.081f * t128;
-    let t141 = t135 + t139;
-    let t142 = t138 - t140;
-    let t143 = t129 - t130;
-    let t144 = t57 * t85;
-    let t145 = t56 * t82;
-    let t146 = t145 - t144;
-    let t147 = t56 * t85;
-    let t148 = t57 * t82;
-    let t149 = t147 + t148;
-    let t150 = 0.081f * t143;
-    let t151 = t140 + t146;
-    let t152 = t149 - t150;
-    let t153 = 0.004900936f + t95;
-    let t154 = 0.00108f + t151;
-    let t155 = 0.003600648f + t123;
-    let t156 = (-0.00108f) + t142;
-    let t157 = 1.8f + t128;
-    let t159 = 1.0f / t155;
-    let t160 = t122 * t159;
-    let t161 = (-4.32e-7f) * t159;
-    let t162 = t155 * t159;
-    let t163 = t156 * t159;
-    let t164 = t152 * t159;
-    let t165 = t45 * t163;
-    let t166 = -(t164);
-    let t167 = t44 * t163;
-    let t168 = t45 * t160;
-    let t169 = t44 * t161;
-    let t170 = t168 - t169;
-    let t171 = t44 * t160;
-    let t172 = t45 * t161;
-    let t173 = t171 + t172;
-    let t174 = 0.2155f * t164;
-    let t175 = 0.2155f * t165;
-    let t176 = t170 + t174;
-    let t177 = t175 - t162;
-    let t178 = t122 * t160;
-    let t179 = t153 - t178;
-    let t180 = (-4.32e-7f) * t160;
-    let t181 = t155 * t160;
-    let t182 = t122 - t181;
-    let t183 = t156 * t160;
-    let t184 = t141 - t183;
-    let t185 = t152 * t160;
-    let t186 = t154 - t185;
-    let t187 = (-4.32e-7f) * t161;
-    let t188 = 0.004700288f - t187;
-    let t189 = t155 * t161;
-    let t190 = (-4.32e-7f) - t189;
-    let t191 = t156 * t161;
-    let t192 = 0.00072f - t191;
-    let t193 = t152 * t161;
-    let t194 = t155 * t162;
-    let t195 = t155 - t194;
-    let t196 = t156 * t162;
-    let t197 = t156 - t196;
-    let t198 = t152 * t162;
-    let t199 = t152 - t198;
-    let t200 = t156 * t163;
-    let t201 = t157 - t200;
-    let t202 = t152 * t163;
-    let t203 = t143 - t202;
-    let t204 = t152 * t164;
-    let t205 = t157 - t204;
-    let t206 = t45 * t179;
-    let t207 = t44 * t180;
-    let t208 = t206 + t207;
-    let t209 = 0.2155f * t186;
-    let t210 = t208 + t209;
-    let t211 = t45 * t180;
-    let t212 = -(t211);
-    let t213 = t44 * t188;
-    let t214 = t212 - t213;
-    let t215 = 0.2155f * t193;
-    let t216 = t214 - t215;
-    let t217 = t45 * t184;
-    let t218 = t44 * t192;
-    let t219 = t45 * (-0.00072f);
-    let t220 = t45 * t186;
-    let t221 = t44 * t193;
-    let t222 = t220 + t221;
-    let t223 = 0.2155f * t205;
-    let t224 = t222 + t223;
-    let t225 = t45 * t210;
-    let t226 = t44 * t216;
-    let t227 = t225 - t226;
-    let t228 = 0.2155f * t224;
-    let t229 = t227 + t228;
-    let t230 = 0.2155f * t45;
-    let t231 = 0.2155f * t44;
-    let t232 = t184 * t230;
-    let t233 = t232 - t182;
-    let t234 = (-0.00072f) * t231;
-    let t235 = t233 - t234;
-    let t236 = t192 * t230;
-    let t237 = t236 - t190;
-    let t238 = t197 * t230;
-    let t239 = t238 - t195;
-    let t240 = t201 * t230;
-    let t241 = t240 - t197;
-    let t242 = 3.0f * t231;
-    let t243 = t203 * t230;
-    let t244 = t243 - t199;
-    let t245 = t45 * t241;
-    let t246 = t44 * t242;
-    let t247 = t245 + t246;
-    let t248 = t45 * t235;
-    let t249 = t44 * t237;
-    let t250 = t248 - t249;
-    let t251 = 0.2155f * t244;
-    let t252 = 0.2155f * t247;
-    let t253 = t250 + t251;
-    let t254 = t252 - t239;
-    let t255 = t44 * t179;
-    let t256 = t255 - t211;
-    let t257 = t45 * t188;
-    let t258 = t257 - t207;
-    let t259 = t44 * t182;
-    let t260 = t45 * t190;
-    let t261 = t259 + t260;
-    let t262 = t44 * t184;
-    let t263 = t45 * t192;
-    let t264 = t262 + t263;
-    let t265 = t44 * (-0.00072f);
-    let t266 = t44 * t186;
-    let t267 = t45 * t193;
-    let t268 = t266 - t267;
-    let t269 = t45 * t264;
-    let t270 = t44 * t265;
-    let t271 = t269 - t270;
-    let t272 = t45 * t256;
-    let t273 = t44 * t258;
-    let t274 = t272 - t273;
-    let t275 = t44 * t256;
-    let t276 = t45 * t258;
-    let t277 = t275 + t276;
-    let t278 = 0.2155f * t268;
-    let t279 = 0.2155f * t271;
-    let t280 = t274 + t278;
-    let t281 = t279 - t261;
-    let t282 = t217 - t265;
-    let t283 = t45 * t197;
-    let t284 = t45 * t201;
-    let t285 = t44 * 3.0f;
-    let t286 = t45 * t203;
-    let t287 = t45 * t284;
-    let t288 = t44 * t285;
-    let t289 = t287 + t288;
-    let t290 = -(t286);
-    let t291 = t45 * t282;
-    let t292 = t44 * t263;
-    let t293 = t291 - t292;
-    let t294 = t44 * t282;
-    let t295 = t45 * t263;
+    let t132 = t36 * t115;
+    let t133 = t37 * t116;
+    let t134 = t132 + t133;
+    let t135 = t36 * t118;
+    let t136 = t135 - t133;
+    let t137 = t37 * t118;
+    let t138 = t130 + t137;
+    let t139 = t37 * t117;
+    let t140 = t36 * t106;
+    let t141 = t140 - t139;
+    let t142 = t36 * t117;
+    let t143 = t37 * t106;
+    let t144 = t142 + t143;
+    let t145 = 0.1845f * t122;
+    let t146 = 2.0f * t145;
+    let t147 = t37 * t131;
+    let t148 = t36 * t136;
+    let t149 = t148 - t147;
+    let t151 = t149 + 0.22126162f;
+    let t152 = t146 + t151;
+    let t153 = 0.1845f * t125;
+    let t154 = t141 - t153;
+    let t155 = t37 * t134;
+    let t156 = t36 * t138;
+    let t157 = t156 - t155;
+    let t158 = t145 + t145;
+    let t159 = t119 - t158;
+    let t160 = t146 + t159;
+    let t161 = 0.1845f * t128;
+    let t162 = t144 - t161;
+    let t163 = t36 * t134;
+    let t164 = t37 * t138;
+    let t165 = t163 + t164;
+    let t166 = 0.22126162f + t165;
+    let t167 = t146 + t166;
+    let t169 = t122 + 1.19925f;
+    let t170 = 0.0565575f + t152;
+    let t171 = 0.024496f + t160;
+    let t172 = 2.7e-5f + t162;
+    let t173 = 0.0374215f + t167;
+    let t174 = 0.2345f + t169;
+    let t175 = 0.119f + t128;
+    let t176 = t27 * t125;
+    let t177 = t26 * t174;
+    let t178 = t176 - t177;
+    let t179 = t26 * t125;
+    let t180 = t27 * t174;
+    let t181 = t179 + t180;
+    let t182 = t27 * t170;
+    let t183 = t26 * t154;
+    let t184 = t182 - t183;
+    let t185 = t26 * t170;
+    let t186 = t27 * t154;
+    let t187 = t185 + t186;
+    let t188 = t26 * t171;
+    let t189 = t186 - t188;
+    let t190 = t27 * t171;
+    let t191 = t183 + t190;
+    let t192 = t27 * t157;
+    let t193 = t26 * t172;
+    let t194 = t192 - t193;
+    let t195 = t26 * t157;
+    let t196 = t27 * t172;
+    let t197 = t195 + t196;
+    let t198 = 0.2155f * t181;
+    let t199 = 2.0f * t198;
+    let t200 = t27 * t184;
+    let t201 = t26 * t189;
+    let t202 = t200 - t201;
+    let t204 = t202 + 0.4644025f;
+    let t205 = t199 + t204;
+    let t206 = t193 - t192;
+    let t207 = t27 * t187;
+    let t208 = t26 * t191;
+    let t209 = t207 - t208;
+    let t210 = 0.2155f * t178;
+    let t211 = t209 - t210;
+    let t212 = t173 + 0.4644025f;
+    let t213 = t199 + t212;
+    let t214 = 0.2155f * t175;
+    let t215 = t214 - t197;
+    let t216 = t26 * t187;
+    let t217 = t27 * t191;
+    let t218 = t216 + t217;
+    let t219 = t198 + t198;
+    let t220 = t218 - t219;
+    let t221 = t199 + t220;
+    let t223 = t181 + 2.155f;
+    let t224 = 0.1496f + t205;
+    let t225 = 0.14215f + t213;
+    let t226 = 0.00035f + t215;
+    let t227 = 0.01395f + t221;
+    let t228 = 0.105f - t175;
+    let t229 = 0.455f + t223;
+    let t230 = t17 * t178;
+    let t231 = t16 * t228;
+    let t232 = t231 - t230;
+    let t233 = t16 * t178;
+    let t234 = t17 * t228;
+    let t235 = t233 + t234;
+    let t236 = t17 * t224;
+    let t237 = t16 * t206;
+    let t238 = t237 - t236;
+    let t239 = t16 * t224;
+    let t240 = t17 * t206;
+    let t241 = t239 + t240;
+    let t242 = t16 * t225;
+    let t243 = t242 - t240;
+    let t244 = t17 * t225;
+    let t245 = t237 + t244;
+    let t246 = t17 * t211;
+    let t247 = t16 * t226;
+    let t248 = t247 - t246;
+    let t249 = t16 * t211;
+    let t250 = t17 * t226;
+    let t251 = t249 + t250;
+    let t252 = 0.2045f * t229;
+    let t253 = 2.0f * t252;
+    let t254 = t17 * t238;
+    let t255 = t16 * t243;
+    let t256 = t255 - t254;
+    let t258 = t256 + 0.56457335f;
+    let t259 = t253 + t258;
+    let t260 = 0.2045f * t232;
+    let t261 = t248 - t260;
+    let t262 = t17 * t241;
+    let t263 = t16 * t245;
+    let t264 = t263 - t262;
+    let t265 = t252 + t252;
+    let t266 = t227 - t265;
+    let t267 = t253 + t266;
+    let t268 = 0.2045f * t235;
+    let t269 = t251 - t268;
+    let t270 = t16 * t241;
+    let t271 = t17 * t245;
+    let t272 = t270 + t271;
+    let t273 = 0.56457335f + t272;
+    let t274 = t253 + t273;
+    let t276 = t229 + 2.76075f;
+    let t277 = 0.09710575f + t259;
+    let t278 = (-1.2395e-5f) + t261;
+    let t279 = (-1e-8f) + t264;
+    let t280 = 0.05280197f + t267;
+    let t281 = (-3.53e-5f) + t269;
+    let t282 = 0.05520492f + t274;
+    let t283 = 0.001905f + t232;
+    let t284 = 0.37465f + t276;
+    let t285 = t4 * t283;
+    let t286 = t5 * t284;
+    let t287 = t285 + t286;
+    let t288 = t4 * t278;
+    let t289 = t4 * t277;
+    let t290 = t5 * t278;
+    let t291 = t289 + t290;
+    let t292 = t5 * t280;
+    let t293 = t288 + t292;
+    let t294 = t4 * t279;
+    let t295 = t5 * t281;
     let t296 = t294 + t295;
-    let t297 = 0.2155f * t286;
-    let t298 = 0.2155f * t289;
-    let t299 = t293 + t297;
-    let t300 = t298 - t283;
-    let t301 = t44 * t203;
-    let t302 = -(t301);
-    let t303 = -(t220);
-    let t304 = t303 - t221;
-    let t305 = t267 - t266;
-    let t306 = t304 - t223;
-    let t307 = t199 - t297;
-    let t308 = t219 + t262;
-    let t309 = t44 * t197;
-    let t310 = t44 * t201;
-    let t311 = t45 * 3.0f;
-    let t312 = t45 * t310;
-    let t313 = t44 * t311;
-    let t314 = t312 - t313;
-    let t315 = t44 * t310;
-    let t316 = t45 * t311;
-    let t317 = t315 + t316;
-    let t318 = t45 * t308;
-    let t319 = t44 * t218;
-    let t320 = t318 - t319;
-    let t321 = t44 * t308;
-    let t322 = t45 * t218;
+    let t297 = 0.2025f * t287;
+    let t298 = 2.0f * t297;
+    let t299 = t4 * t291;
+    let t300 = t5 * t293;
+    let t301 = t299 + t300;
+    let t302 = t297 + t297;
+    let t303 = t301 - t302;
+    let t304 = t298 + t303;
+    let t305 = 0.022684f + t304;
+    let t306 = t230 - t231;
+    let t307 = 0.2045f * t306;
+    let t308 = t248 + t307;
+    let t309 = t4 * t308;
+    let t310 = t5 * t227;
+    let t311 = t309 + t310;
+    let t312 = -(t180);
+    let t313 = t312 - t179;
+    let t314 = 0.2155f * t313;
+    let t315 = t314 - t173;
+    let t316 = t17 * t313;
+    let t317 = t16 * t313;
+    let t318 = t17 * t194;
+    let t319 = t16 * t315;
+    let t320 = t319 - t318;
+    let t321 = t16 * t194;
+    let t322 = t17 * t315;
     let t323 = t321 + t322;
-    let t324 = 0.2155f * t301;
-    let t325 = 0.2155f * t314;
+    let t324 = 0.2045f * t317;
+    let t325 = 0.2045f * t316;
     let t326 = t320 + t324;
-    let t327 = t325 - t309;
-    let t328 = 0.0535595f + t229;
-    let t329 = (-3.5e-7f) + t253;
-    let t330 = 4e-7f + t280;
-    let t331 = (-0.266f) + t306;
-    let t332 = 0.0735f + t326;
-    let t333 = 0.049132034f + t254;
-    let t334 = 0.266f + t300;
-    let t335 = (-0.00035f) + t327;
-    let t336 = 0.007543535f + t277;
-    let t337 = (-0.0735f) + t296;
-    let t338 = 0.00035f + t305;
-    let t339 = 3.5f + t289;
-    let t340 = 3.5f + t205;
-    let t341 = 3.5f + t317;
-    let t342 = 1.0f / t336;
-    let t343 = t173 * t342;
-    let t344 = -(t343);
-    let t345 = t45 * t342;
-    let t346 = -(t345);
-    let t347 = t330 * t342;
-    let t348 = t281 * t342;
-    let t349 = t336 * t342;
-    let t350 = t337 * t342;
-    let t351 = t338 * t342;
-    let t352 = t323 * t342;
-    let t353 = t34 * t350;
-    let t354 = t33 * t351;
-    let t355 = t354 - t353;
-    let t356 = t33 * t350;
-    let t357 = t34 * t351;
-    let t358 = t356 + t357;
-    let t359 = t34 * t347;
-    let t360 = t33 * t348;
-    let t361 = t360 - t359;
-    let t362 = t33 * t347;
-    let t363 = t34 * t348;
-    let t364 = t362 + t363;
-    let t365 = 0.1845f * t358;
-    let t366 = 0.1845f * t355;
-    let t367 = t361 + t365;
-    let t368 = t364 - t366;
-    let t369 = t330 * t343;
-    let t370 = t281 * t343;
-    let t371 = t336 * t343;
-    let t372 = t337 * t343;
-    let t373 = t338 * t343;
-    let t374 = t323 * t343;
-    let t375 = t176 - t369;
-    let t376 = t177 - t370;
-    let t377 = t173 - t371;
-    let t378 = t165 - t372;
-    let t379 = t166 - t373;
-    let t380 = t167 - t374;
-    let t381 = t34 * t378;
-    let t382 = t33 * t379;
-    let t383 = t382 - t381;
-    let t384 = t33 * t378;
-    let t385 = t34 * t379;
-    let t386 = t384 + t385;
-    let t387 = t34 * t375;
-    let t388 = t33 * t376;
-    let t389 = t388 - t387;
-    let t390 = t33 * t375;
-    let t391 = t34 * t376;
-    let t392 = t390 + t391;
-    let t393 = 0.1845f * t386;
-    let t394 = 0.1845f * t383;
-    let t395 = t389 + t393;
-    let t396 = t392 - t394;
-    let t397 = t330 * t345;
-    let t398 = t281 * t345;
-    let t399 = t336 * t345;
-    let t400 = t337 * t345;
-    let t401 = t338 * t345;
-    let t402 = t323 * t345;
+    let t327 = t323 + t325;
+    let t328 = t4 * t326;
+    let t329 = t5 * t197;
+    let t330 = t328 + t329;
+    let t332 = t37 * (-0.07278f);
+    let t333 = t126 - t332;
+    let t334 = t36 * (-0.07278f);
+    let t335 = t123 + t334;
+    let t336 = 0.1845f * t335;
+    let t337 = 0.1845f * t333;
+    let t338 = t141 + t336;
+    let t339 = t144 - t337;
+    let t340 = t27 * t333;
+    let t341 = t27 * t338;
+    let t342 = t26 * t119;
+    let t343 = t341 - t342;
+    let t344 = t26 * t338;
+    let t345 = t27 * t119;
+    let t346 = t344 + t345;
+    let t347 = 0.2155f * t335;
+    let t348 = 0.2155f * t340;
+    let t349 = t343 + t347;
+    let t350 = t348 - t339;
+    let t351 = t17 * t340;
+    let t352 = -(t351);
+    let t353 = t16 * t335;
+    let t354 = t352 - t353;
+    let t355 = t16 * t340;
+    let t356 = t17 * t335;
+    let t357 = t355 - t356;
+    let t358 = t17 * t349;
+    let t359 = t16 * t350;
+    let t360 = t359 - t358;
+    let t361 = t16 * t349;
+    let t362 = t17 * t350;
+    let t363 = t361 + t362;
+    let t364 = 0.2045f * t357;
+    let t365 = 0.2045f * t354;
+    let t366 = t360 + t364;
+    let t367 = t363 - t365;
+    let t368 = t4 * t366;
+    let t369 = t5 * t346;
+    let t370 = t368 + t369;
+    let t372 = t47 * (-0.12228f);
+    let t373 = t46 * (-0.12228f);
+    let t374 = 0.2155f * t372;
+    let t375 = t374 - t71;
+    let t376 = t37 * t372;
+    let t377 = t36 * t372;
+    let t378 = t37 * t82;
+    let t379 = t36 * t375;
+    let t380 = t379 - t378;
+    let t381 = t36 * t82;
+    let t382 = t37 * t375;
+    let t383 = t381 + t382;
+    let t384 = 0.1845f * t377;
+    let t385 = 0.1845f * t376;
+    let t386 = t380 + t384;
+    let t387 = t383 + t385;
+    let t388 = t27 * t376;
+    let t389 = -(t388);
+    let t390 = t26 * t373;
+    let t391 = t389 - t390;
+    let t392 = t27 * t386;
+    let t393 = t26 * t85;
+    let t394 = t392 - t393;
+    let t395 = t26 * t386;
+    let t396 = t27 * t85;
+    let t397 = t395 + t396;
+    let t398 = 0.2155f * t377;
+    let t399 = 0.2155f * t391;
+    let t400 = t394 + t398;
+    let t401 = t399 - t387;
+    let t402 = t17 * t391;
     let t403 = -(t402);
-    let t404 = t46 - t397;
-    let t405 = t45 - t399;
-    let t406 = t34 * t400;
-    let t407 = t33 * t401;
+    let t404 = t16 * t377;
+    let t405 = t403 - t404;
+    let t406 = t16 * t391;
+    let t407 = t17 * t377;
     let t408 = t406 - t407;
-    let t409 = t33 * t400;
-    let t410 = -(t409);
-    let t411 = t34 * t401;
-    let t412 = t410 - t411;
-    let t413 = t34 * t404;
-    let t414 = -(t413);
-    let t415 = t33 * t398;
-    let t416 = t414 - t415;
-    let t417 = t33 * t404;
-    let t418 = t34 * t398;
-    let t419 = t417 - t418;
-    let t420 = 0.1845f * t412;
-    let t421 = 0.1845f * t408;
-    let t422 = t416 + t420;
-    let t423 = t419 - t421;
-    let t424 = t330 * t347;
-    let t425 = t328 - t424;
-    let t426 = t281 * t347;
-    let t427 = t329 - t426;
-    let t428 = t336 * t347;
-    let t429 = t330 - t428;
-    let t430 = t337 * t347;
-    let t431 = t299 - t430;
-    let t432 = t338 * t347;
-    let t433 = t331 - t432;
-    let t434 = t323 * t347;
-    let t435 = t332 - t434;
-    let t436 = t281 * t348;
-    let t437 = t333 - t436;
-    let t438 = t336 * t348;
-    let t439 = t281 - t438;
-    let t440 = t337 * t348;
-    let t441 = t334 - t440;
-    let t442 = t338 * t348;
-    let t443 = t307 - t442;
-    let t444 = t323 * t348;
-    let t445 = t335 - t444;
-    let t446 = t336 * t349;
-    let t447 = t336 - t446;
-    let t448 = t337 * t349;
-    let t449 = t337 - t448;
-    let t450 = t338 * t349;
-    let t451 = t338 - t450;
-    let t452 = t323 * t349;
-    let t453 = t323 - t452;
-    let t454 = t337 * t350;
-    let t455 = t339 - t454;
-    let t456 = t338 * t350;
-    let t457 = t290 - t456;
-    let t458 = t323 * t350;
-    let t459 = t314 - t458;
-    let t460 = t338 * t351;
-    let t461 = t340 - t460;
-    let t462 = t323 * t351;
-    let t463 = t302 - t462;
-    let t464 = t323 * t352;
-    let t465 = t341 - t464;
-    let t467 = 0.1845f * t33;
-    let t468 = 0.1845f * t34;
-    let t469 = t34 * t425;
-    let t470 = t33 * t427;
-    let t471 = t470 - t469;
-    let t472 = t431 * t467;
-    let t473 = t471 + t472;
-    let t474 = t433 * t468;
-    let t475 = t473 + t474;
-    let t476 = t34 * t427;
-    let t477 = t33 * t437;
-    let t478 = t477 - t476;
-    let t479 = t441 * t467;
-    let t480 = t478 + t479;
-    let t481 = t443 * t468;
-    let t482 = t480 + t481;
-    let t483 = t34 * t429;
-    let t484 = t33 * t439;
-    let t485 = t484 - t483;
-    let t486 = t34 * t431;
-    let t487 = t33 * t441;
-    let t488 = t487 - t486;
-    let t489 = t455 * t467;
-    let t490 = t488 + t489;
-    let t491 = t457 * t468;
-    let t492 = t490 + t491;
-    let t493 = t34 * t433;
-    let t494 = t33 * t443;
-    let t495 = t494 - t493;
-    let t496 = t457 * t467;
-    let t497 = t495 + t496;
-    let t498 = t461 * t468;
-    let t499 = t497 + t498;
-    let t500 = t34 * t435;
-    let t501 = t33 * t445;
-    let t502 = t501 - t500;
-    let t503 = t33 * t492;
-    let t504 = t34 * t499;
-    let t505 = t503 + t504;
-    let t506 = t34 * t475;
-    let t507 = t33 * t482;
-    let t508 = t507 - t506;
-    let t509 = 0.1845f * t505;
-    let t510 = t508 + t509;
-    let t511 = t34 * t449;
-    let t512 = t33 * t451;
-    let t513 = t512 - t511;
-    let t514 = t33 * t449;
-    let t515 = t34 * t451;
-    let t516 = t514 + t515;
-    let t517 = t33 * t429;
-    let t518 = t34 * t439;
-    let t519 = t517 + t518;
-    let t520 = 0.1845f * t516;
-    let t521 = t485 + t520;
-    let t522 = t34 * (-0.1845f);
-    let t523 = t33 * (-0.1845f);
-    let t524 = t33 * t425;
-    let t525 = t476 + t524;
-    let t526 = t431 * t522;
-    let t527 = t525 - t526;
-    let t528 = t433 * t523;
-    let t529 = t527 + t528;
-    let t530 = t34 * t437;
-    let t531 = t470 + t530;
-    let t532 = t441 * t522;
-    let t533 = t531 - t532;
-    let t534 = t443 * t523;
-    let t535 = t533 + t534;
-    let t536 = t449 * t522;
-    let t537 = t519 - t536;
-    let t538 = t451 * t523;
-    let t539 = t537 + t538;
-    let t540 = t33 * t431;
-    let t541 = t34 * t441;
-    let t542 = t540 + t541;
-    let t543 = t455 * t522;
-    let t544 = t542 - t543;
-    let t545 = t457 * t523;
-    let t546 = t544 + t545;
-    let t547 = t33 * t433;
-    let t548 = t34 * t443;
-    let t549 = t547 + t548;
-    let t550 = t457 * t522;
-    let t551 = t549 - t550;
-    let t552 = t461 * t523;
-    let t553 = t551 + t552;
-    let t554 = t33 * t435;
-    let t555 = t34 * t445;
-    let t556 = t554 + t555;
-    let t557 = t34 * t546;
-    let t558 = t33 * t553;
-    let t559 = t558 - t557;
-    let t560 = t33 * t546;
-    let t561 = t34 * t553;
-    let t562 = t560 + t561;
-    let t563 = t34 * t529;
-    let t564 = t33 * t535;
-    let t565 = t564 - t563;
-    let t566 = t33 * t529;
-    let t567 = t34 * t535;
-    let t568 = t566 + t567;
-    let t569 = 0.1845f * t562;
-    let t570 = 0.1845f * t559;
-    let t571 = t565 + t569;
-    let t572 = t568 - t570;
-    let t573 = t547 - t486;
-    let t574 = t494 - t541;
-    let t575 = t34 * t455;
-    let t576 = t33 * t457;
-    let t577 = t576 - t575;
-    let t578 = t34 * t457;
-    let t579 = t33 * t461;
-    let t580 = t579 - t578;
-    let t581 = t34 * t459;
-    let t582 = t33 * t463;
-    let t583 = t582 - t581;
-    let t584 = t34 * t577;
-    let t585 = t33 * t580;
-    let t586 = t585 - t584;
-    let t587 = t33 * t577;
-    let t588 = t34 * t580;
-    let t589 = t587 + t588;
-    let t590 = t34 * t573;
-    let t591 = t33 * t574;
-    let t592 = t591 - t590;
-    let t593 = t33 * t573;
-    let t594 = t34 * t574;
+    let t409 = t17 * t400;
+    let t410 = t16 * t401;
+    let t411 = t410 - t409;
+    let t412 = t16 * t400;
+    let t413 = t17 * t401;
+    let t414 = t412 + t413;
+    let t415 = 0.2045f * t408;
+    let t416 = 0.2045f * t405;
+    let t417 = t411 + t415;
+    let t418 = t414 - t416;
+    let t419 = t4 * t417;
+    let t420 = t5 * t397;
+    let t421 = t419 + t420;
+    let t422 = t46 * 0.005f;
+    let t423 = t47 * 0.005f;
+    let t424 = t37 * t422;
+    let t425 = t36 * t422;
+    let t426 = t27 * t424;
+    let t427 = t26 * t423;
+    let t428 = t426 - t427;
+    let t429 = t26 * t424;
+    let t430 = t27 * t423;
+    let t431 = t429 + t430;
+    let t432 = t17 * t428;
+    let t433 = t16 * t425;
+    let t434 = t433 - t432;
+    let t435 = t16 * t428;
+    let t436 = t17 * t425;
+    let t437 = t435 + t436;
+    let t438 = t4 * t434;
+    let t439 = t5 * t431;
+    let t440 = t438 + t439;
+    let t442 = t423 * (-200.0f);
+    let t443 = t423 * t442;
+    let t444 = t119 + t443;
+    let t445 = t425 * t442;
+    let t446 = t339 - t445;
+    let t447 = t431 * t442;
+    let t448 = t346 + t447;
+    let t449 = t437 * t442;
+    let t450 = t367 + t449;
+    let t451 = t440 * t442;
+    let t452 = t370 + t451;
+    let t453 = t425 * (-200.0f);
+    let t454 = t425 * t453;
+    let t455 = t173 + t454;
+    let t456 = t431 * t453;
+    let t457 = t197 - t456;
+    let t458 = t437 * t453;
+    let t459 = t327 - t458;
+    let t460 = t440 * t453;
+    let t461 = t330 - t460;
+    let t462 = t431 * (-200.0f);
+    let t463 = -(t462);
+    let t464 = t431 * t462;
+    let t465 = t227 + t464;
+    let t466 = t437 * t462;
+    let t467 = t269 + t466;
+    let t468 = t440 * t462;
+    let t469 = t311 + t468;
+    let t470 = t437 * (-200.0f);
+    let t471 = -(t470);
+    let t472 = t437 * t470;
+    let t473 = t282 + t472;
+    let t474 = t440 * t470;
+    let t475 = t296 + t474;
+    let t476 = t440 * (-200.0f);
+    let t477 = -(t476);
+    let t478 = t440 * t476;
+    let t479 = t305 + t478;
+    let t480 = (-1.0f) / t71;
+    let t481 = t85 * t480;
+    let t482 = t85 * t481;
+    let t483 = t444 + t482;
+    let t484 = t387 * t481;
+    let t485 = t446 + t484;
+    let t486 = t397 * t481;
+    let t487 = t448 + t486;
+    let t488 = t418 * t481;
+    let t489 = t450 + t488;
+    let t490 = t421 * t481;
+    let t491 = t452 + t490;
+    let t492 = t387 * t480;
+    let t493 = -(t492);
+    let t494 = t387 * t492;
+    let t495 = t455 + t494;
+    let t496 = t397 * t492;
+    let t497 = t457 + t496;
+    let t498 = t418 * t492;
+    let t499 = t459 + t498;
+    let t500 = t421 * t492;
+    let t501 = t461 + t500;
+    let t502 = t397 * t480;
+    let t503 = -(t502);
+    let t504 = t397 * t502;
+    let t505 = t465 + t504;
+    let t506 = t418 * t502;
+    let t507 = t467 + t506;
+    let t508 = t421 * t502;
+    let t509 = t469 + t508;
+    let t510 = t418 * t480;
+    let t511 = -(t510);
+    let t512 = t418 * t510;
+    let t513 = t473 + t512;
+    let t514 = t421 * t510;
+    let t515 = t475 + t514;
+    let t516 = t421 * t480;
+    let t517 = -(t516);
+    let t518 = t421 * t516;
+    let t519 = t479 + t518;
+    let t520 = (-1.0f) / t483;
+    let t521 = t485 * t520;
+    let t522 = t485 * t521;
+    let t523 = t495 + t522;
+    let t524 = t487 * t521;
+    let t525 = t497 + t524;
+    let t526 = t489 * t521;
+    let t527 = t499 + t526;
+    let t528 = t491 * t521;
+    let t529 = t501 + t528;
+    let t530 = t487 * t520;
+    let t531 = -(t530);
+    let t532 = t487 * t530;
+    let t533 = t505 + t532;
+    let t534 = t489 * t530;
+    let t535 = t507 + t534;
+    let t536 = t491 * t530;
+    let t537 = t509 + t536;
+    let t538 = t489 * t520;
+    let t539 = -(t538);
+    let t540 = t489 * t538;
+    let t541 = t513 + t540;
+    let t542 = t491 * t538;
+    let t543 = t515 + t542;
+    let t544 = t491 * t520;
+    let t545 = -(t544);
+    let t546 = t491 * t544;
+    let t547 = t519 + t546;
+    let t548 = (-1.0f) / t523;
+    let t549 = t525 * t548;
+    let t550 = t525 * t549;
+    let t551 = t533 + t550;
+    let t552 = t527 * t549;
+    let t553 = t535 + t552;
+    let t554 = t529 * t549;
+    let t555 = t537 + t554;
+    let t556 = t527 * t548;
+    let t557 = -(t556);
+    let t558 = t527 * t556;
+    let t559 = t541 + t558;
+    let t560 = t529 * t556;
+    let t561 = t543 + t560;
+    let t562 = t529 * t548;
+    let t563 = -(t562);
+    let t564 = t529 * t562;
+    let t565 = t547 + t564;
+    let t566 = (-1.0f) / t551;
+    let t567 = t553 * t566;
+    let t568 = t553 * t567;
+    let t569 = t559 + t568;
+    let t570 = t555 * t567;
+    let t571 = t561 + t570;
+    let t572 = t555 * t566;
+    let t573 = -(t572);
+    let t574 = t555 * t572;
+    let t575 = t565 + t574;
+    let t576 = (-1.0f) / t569;
+    let t577 = t571 * t576;
+    let t578 = t571 * t577;
+    let t579 = t575 + t578;
+    let t580 = (-1.0f) / t579;
+    let t581 = -(t580);
+    let t582 = t577 * t580;
+    let t583 = -(t582);
+    let t584 = t567 * t582;
+    let t585 = -(t584);
+    let t586 = t572 * t580;
+    let t587 = t585 - t586;
+    let t588 = t549 * t587;
+    let t589 = t556 * t582;
+    let t590 = t588 - t589;
+    let t591 = t562 * t580;
+    let t592 = t590 - t591;
+    let t593 = t521 * t592;
+    let t594 = t530 * t587;
     let t595 = t593 + t594;
-    let t596 = 0.1845f * t589;
-    let t597 = 0.1845f * t586;
-    let t598 = t592 + t596;
-    let t599 = t595 - t597;
-    let t600 = t33 * t459;
-    let t601 = t34 * t463;
+    let t596 = t538 * t582;
+    let t597 = t595 - t596;
+    let t598 = t544 * t580;
+    let t599 = t597 - t598;
+    let t600 = t481 * t599;
+    let t601 = t492 * t592;
     let t602 = t600 + t601;
-    let t603 = 0.1845f * t602;
-    let t604 = 0.1845f * t583;
-    let t605 = t502 + t603;
-    let t606 = t556 - t604;
-    let t607 = t493 + t540;
-    let t608 = t487 + t548;
-    let t609 = t33 * t455;
-    let t610 = t578 + t609;
-    let t611 = t34 * t461;
-    let t612 = t576 + t611;
-    let t613 = t34 * t610;
-    let t614 = t33 * t612;
-    let t615 = t614 - t613;
-    let t616 = t33 * t610;
-    let t617 = t34 * t612;
-    let t618 = t616 + t617;
-    let t619 = t34 * t607;
-    let t620 = t33 * t608;
-    let t621 = t620 - t619;
-    let t622 = t33 * t607;
-    let t623 = t34 * t608;
-    let t624 = t622 + t623;
-    let t625 = 0.1845f * t618;
-    let t626 = 0.1845f * t615;
-    let t627 = t621 + t625;
-    let t628 = t624 - t626;
-    let t629 = 0.0565575f + t510;
-    let t630 = (-0.119f) + t605;
-    let t631 = 0.2345f + t627;
-    let t632 = 0.024496f + t447;
-    let t633 = 2.7e-5f + t539;
-    let t634 = 0.119f + t513;
-    let t635 = 0.0374215f + t572;
-    let t636 = (-0.2345f) + t599;
-    let t637 = 3.5f + t586;
-    let t638 = 3.5f + t465;
-    let t639 = 3.5f + t618;
-    let t640 = 1.0f / t635;
-    let t641 = t368 * t640;
-    let t642 = -(t641);
-    let t643 = t396 * t640;
-    let t644 = -(t643);
-    let t645 = t423 * t640;
-    let t646 = -(t645);
-    let t647 = t571 * t640;
-    let t648 = t633 * t640;
-    let t649 = t635 * t640;
-    let t650 = t636 * t640;
-    let t651 = t606 * t640;
-    let t652 = t628 * t640;
-    let t653 = t24 * t650;
-    let t654 = t23 * t651;
-    let t655 = t653 - t654;
-    let t656 = -(t652);
-    let t657 = t24 * t647;
-    let t658 = t23 * t648;
-    let t659 = t657 - t658;
-    let t660 = t23 * t647;
-    let t661 = t24 * t648;
-    let t662 = t660 + t661;
-    let t663 = 0.2155f * t652;
-    let t664 = 0.2155f * t655;
-    let t665 = t659 + t663;
-    let t666 = t664 - t649;
-    let t667 = t571 * t641;
-    let t668 = t633 * t641;
-    let t669 = t635 * t641;
-    let t670 = t636 * t641;
-    let t671 = t606 * t641;
-    let t672 = t628 * t641;
-    let t673 = t367 - t667;
-    let t674 = t349 - t668;
-    let t675 = t368 - t669;
-    let t676 = t355 - t670;
-    let t677 = t352 - t671;
-    let t678 = t358 - t672;
-    let t679 = t24 * t676;
-    let t680 = t23 * t677;
-    let t681 = t679 - t680;
-    let t682 = -(t678);
-    let t683 = t24 * t673;
-    let t684 = t23 * t674;
-    let t685 = t683 - t684;
-    let t686 = t23 * t673;
-    let t687 = t24 * t674;
-    let t688 = t686 + t687;
-    let t689 = 0.2155f * t678;
-    let t690 = 0.2155f * t681;
-    let t691 = t685 + t689;
-    let t692 = t690 - t675;
-    let t693 = t571 * t643;
-    let t694 = t633 * t643;
-    let t695 = t635 * t643;
-    let t696 = t636 * t643;
-    let t697 = t606 * t643;
-    let t698 = t628 * t643;
-    let t699 = t395 - t693;
-    let t700 = t377 - t694;
-    let t701 = t396 - t695;
-    let t702 = t383 - t696;
-    let t703 = t380 - t697;
-    let t704 = t386 - t698;
-    let t705 = t24 * t702;
-    let t706 = t23 * t703;
-    let t707 = t705 - t706;
-    let t708 = -(t704);
-    let t709 = t24 * t699;
-    let t710 = t23 * t700;
-    let t711 = t709 - t710;
-    let t712 = t23 * t699;
-    let t713 = t24 * t700;
+    let t603 = t502 * t587;
+    let t604 = t602 + t603;
+    let t605 = t510 * t582;
+    let t606 = t604 - t605;
+    let t607 = t516 * t580;
+    let t608 = t606 - t607;
+    let t609 = t442 * t599;
+    let t610 = t453 * t592;
+    let t611 = t609 - t610;
+    let t612 = t462 * t587;
+    let t613 = t611 + t612;
+    let t614 = t470 * t582;
+    let t615 = t613 - t614;
+    let t616 = t476 * t580;
+    let t617 = t615 - t616;
+    let t618 = -(t576);
+    let t619 = t577 * t582;
+    let t620 = t618 - t619;
+    let t621 = t567 * t620;
+    let t622 = t572 * t582;
+    let t623 = t621 - t622;
+    let t624 = t549 * t623;
+    let t625 = t556 * t620;
+    let t626 = t624 + t625;
+    let t627 = t562 * t582;
+    let t628 = t626 - t627;
+    let t629 = t521 * t628;
+    let t630 = t530 * t623;
+    let t631 = t629 + t630;
+    let t632 = t538 * t620;
+    let t633 = t631 + t632;
+    let t634 = t544 * t582;
+    let t635 = t633 - t634;
+    let t636 = t481 * t635;
+    let t637 = t492 * t628;
+    let t638 = t636 + t637;
+    let t639 = t502 * t623;
+    let t640 = t638 + t639;
+    let t641 = t510 * t620;
+    let t642 = t640 + t641;
+    let t643 = t516 * t582;
+    let t644 = t642 - t643;
+    let t645 = t442 * t635;
+    let t646 = t453 * t628;
+    let t647 = t645 - t646;
+    let t648 = t462 * t623;
+    let t649 = t647 + t648;
+    let t650 = t470 * t620;
+    let t651 = t649 + t650;
+    let t652 = t476 * t582;
+    let t653 = t651 - t652;
+    let t654 = t567 * t577;
+    let t655 = t573 - t654;
+    let t656 = t580 * t655;
+    let t657 = t567 * t576;
+    let t658 = t577 * t656;
+    let t659 = t658 - t657;
+    let t660 = t567 * t659;
+    let t661 = t660 - t566;
+    let t662 = t572 * t656;
+    let t663 = t661 + t662;
+    let t664 = t549 * t663;
+    let t665 = t556 * t659;
+    let t666 = t664 + t665;
+    let t667 = t562 * t656;
+    let t668 = t666 + t667;
+    let t669 = t521 * t668;
+    let t670 = t530 * t663;
+    let t671 = t669 + t670;
+    let t672 = t538 * t659;
+    let t673 = t671 + t672;
+    let t674 = t544 * t656;
+    let t675 = t673 + t674;
+    let t676 = t481 * t675;
+    let t677 = t492 * t668;
+    let t678 = t676 + t677;
+    let t679 = t502 * t663;
+    let t680 = t678 + t679;
+    let t681 = t510 * t659;
+    let t682 = t680 + t681;
+    let t683 = t516 * t656;
+    let t684 = t682 + t683;
+    let t685 = t442 * t675;
+    let t686 = t453 * t668;
+    let t687 = t685 - t686;
+    let t688 = t462 * t663;
+    let t689 = t687 + t688;
+    let t690 = t470 * t659;
+    let t691 = t689 + t690;
+    let t692 = t476 * t656;
+    let t693 = t691 + t692;
+    let t694 = t549 * t567;
+    let t695 = t557 - t694;
+    let t696 = t549 * t572;
+    let t697 = t563 - t696;
+    let t698 = t577 * t695;
+    let t699 = t697 + t698;
+    let t700 = t580 * t699;
+    let t701 = t576 * t695;
+    let t702 = t549 * t566;
+    let t703 = t577 * t700;
+    let t704 = t701 + t703;
+    let t705 = t567 * t704;
+    let t706 = t705 - t702;
+    let t707 = t572 * t700;
+    let t708 = t706 + t707;
+    let t709 = t549 * t708;
+    let t710 = t709 - t548;
+    let t711 = t556 * t704;
+    let t712 = t710 + t711;
+    let t713 = t562 * t700;
     let t714 = t712 + t713;
-    let t715 = 0.2155f * t704;
-    let t716 = 0.2155f * t707;
-    let t717 = t711 + t715;
-    let t718 = t716 - t701;
-    let t719 = t571 * t645;
-    let t720 = t633 * t645;
-    let t721 = t635 * t645;
-    let t722 = t636 * t645;
-    let t723 = t606 * t645;
-    let t724 = t628 * t645;
-    let t725 = t422 - t719;
-    let t726 = t405 - t720;
-    let t727 = t423 - t721;
-    let t728 = t408 - t722;
-    let t729 = t403 - t723;
-    let t730 = t412 - t724;
-    let t731 = t24 * t728;
-    let t732 = t23 * t729;
+    let t715 = t521 * t714;
+    let t716 = t530 * t708;
+    let t717 = t715 + t716;
+    let t718 = t538 * t704;
+    let t719 = t717 + t718;
+    let t720 = t544 * t700;
+    let t721 = t719 + t720;
+    let t722 = t481 * t721;
+    let t723 = t492 * t714;
+    let t724 = t722 + t723;
+    let t725 = t502 * t708;
+    let t726 = t724 + t725;
+    let t727 = t510 * t704;
+    let t728 = t726 + t727;
+    let t729 = t516 * t700;
+    let t730 = t728 + t729;
+    let t731 = t442 * t721;
+    let t732 = t453 * t714;
     let t733 = t731 - t732;
-    let t734 = -(t730);
-    let t735 = t24 * t725;
-    let t736 = t23 * t726;
-    let t737 = t735 - t736;
-    let t738 = t23 * t725;
-    let t739 = t24 * t726;
-    let t740 = t738 + t739;
-    let t741 = 0.2155f * t730;
-    let t742 = 0.2155f * t733;
-    let t743 = t737 + t741;
-    let t744 = t742 - t727;
-    let t745 = t571 * t647;
-    let t746 = t629 - t745;
-    let t747 = t633 * t647;
-    let t748 = t521 - t747;
-    let t749 = t635 * t647;
-    let t750 = t571 - t749;
-    let t751 = t636 * t647;
-    let t752 = t598 - t751;
-    let t753 = t606 * t647;
-    let t754 = t630 - t753;
-    let t755 = t628 * t647;
-    let t756 = t631 - t755;
-    let t757 = t633 * t648;
-    let t758 = t632 - t757;
-    let t759 = t635 * t648;
-    let t760 = t633 - t759;
-    let t761 = t636 * t648;
-    let t762 = t634 - t761;
-    let t763 = t606 * t648;
-    let t764 = t453 - t763;
-    let t765 = t628 * t648;
-    let t766 = t516 - t765;
-    let t767 = t635 * t649;
-    let t768 = t635 - t767;
-    let t769 = t636 * t649;
-    let t770 = t636 - t769;
-    let t771 = t606 * t649;
-    let t772 = t606 - t771;
-    let t773 = t628 * t649;
-    let t774 = t628 - t773;
-    let t775 = t636 * t650;
-    let t776 = t637 - t775;
-    let t777 = t606 * t650;
-    let t778 = t583 - t777;
-    let t779 = t628 * t650;
-    let t780 = t615 - t779;
-    let t781 = t606 * t651;
-    let t782 = t638 - t781;
-    let t783 = t628 * t651;
-    let t784 = t602 - t783;
-    let t785 = t628 * t652;
-    let t786 = t639 - t785;
-    let t787 = t24 * t746;
-    let t788 = t23 * t748;
-    let t789 = t787 - t788;
-    let t790 = 0.2155f * t756;
+    let t734 = t462 * t708;
+    let t735 = t733 + t734;
+    let t736 = t470 * t704;
+    let t737 = t735 + t736;
+    let t738 = t476 * t700;
+    let t739 = t737 + t738;
+    let t740 = t521 * t549;
+    let t741 = t531 - t740;
+    let t742 = t521 * t556;
+    let t743 = t539 - t742;
+    let t744 = t521 * t562;
+    let t745 = t545 - t744;
+    let t746 = t567 * t741;
+    let t747 = t743 + t746;
+    let t748 = t572 * t741;
+    let t749 = t745 + t748;
+    let t750 = t577 * t747;
+    let t751 = t749 + t750;
+    let t752 = t580 * t751;
+    let t753 = t576 * t747;
+    let t754 = t566 * t741;
+    let t755 = t521 * t548;
+    let t756 = t577 * t752;
+    let t757 = t753 + t756;
+    let t758 = t567 * t757;
+    let t759 = t754 + t758;
+    let t760 = t572 * t752;
+    let t761 = t759 + t760;
+    let t762 = t549 * t761;
+    let t763 = t762 - t755;
+    let t764 = t556 * t757;
+    let t765 = t763 + t764;
+    let t766 = t562 * t752;
+    let t767 = t765 + t766;
+    let t768 = t521 * t767;
+    let t769 = t768 - t520;
+    let t770 = t530 * t761;
+    let t771 = t769 + t770;
+    let t772 = t538 * t757;
+    let t773 = t771 + t772;
+    let t774 = t544 * t752;
+    let t775 = t773 + t774;
+    let t776 = t481 * t775;
+    let t777 = t492 * t767;
+    let t778 = t776 + t777;
+    let t779 = t502 * t761;
+    let t780 = t778 + t779;
+    let t781 = t510 * t757;
+    let t782 = t780 + t781;
+    let t783 = t516 * t752;
+    let t784 = t782 + t783;
+    let t785 = t442 * t775;
+    let t786 = t453 * t767;
+    let t787 = t785 - t786;
+    let t788 = t462 * t761;
+    let t789 = t787 + t788;
+    let t790 = t470 * t757;
     let t791 = t789 + t790;
-    let t792 = t24 * t748;
-    let t793 = t23 * t758;
-    let t794 = t792 - t793;
-    let t795 = 0.2155f * t766;
-    let t796 = t794 + t795;
-    let t797 = t24 * t752;
-    let t798 = t23 * t764;
-    let t799 = t24 * t756;
-    let t800 = t23 * t766;
-    let t801 = t799 - t800;
-    let t802 = 0.2155f * t786;
-    let t803 = t801 + t802;
-    let t804 = t24 * t791;
-    let t805 = t23 * t796;
-    let t806 = t804 - t805;
-    let t807 = 0.2155f * t803;
-    let t808 = t806 + t807;
-    let t809 = 0.2155f * t24;
-    let t810 = 0.2155f * t23;
-    let t811 = t752 * t809;
-    let t812 = t811 - t750;
-    let t813 = t754 * t810;
-    let t814 = t812 - t813;
-    let t815 = t762 * t809;
-    let t816 = t815 - t760;
-    let t817 = t764 * t810;
-    let t818 = t816 - t817;
-    let t819 = t770 * t809;
-    let t820 = t819 - t768;
-    let t821 = t772 * t810;
-    let t822 = t820 - t821;
-    let t823 = t776 * t809;
-    let t824 = t823 - t770;
-    let t825 = t778 * t810;
-    let t826 = t824 - t825;
-    let t827 = t778 * t809;
-    let t828 = t827 - t772;
-    let t829 = t782 * t810;
-    let t830 = t828 - t829;
-    let t831 = t780 * t809;
-    let t832 = t831 - t774;
-    let t833 = t784 * t810;
-    let t834 = t832 - t833;
-    let t835 = t24 * t826;
-    let t836 = t23 * t830;
-    let t837 = t835 - t836;
-    let t838 = t24 * t814;
-    let t839 = t23 * t818;
-    let t840 = t838 - t839;
-    let t841 = 0.2155f * t834;
-    let t842 = 0.2155f * t837;
-    let t843 = t840 + t841;
-    let t844 = t842 - t822;
-    let t845 = t23 * t746;
-    let t846 = t792 + t845;
-    let t847 = t24 * t758;
-    let t848 = t788 + t847;
-    let t849 = t23 * t750;
-    let t850 = t24 * t760;
-    let t851 = t849 + t850;
-    let t852 = t23 * t752;
-    let t853 = t24 * t762;
-    let t854 = t852 + t853;
-    let t855 = t23 * t754;
-    let t856 = t24 * t764;
+    let t792 = t476 * t752;
+    let t793 = t791 + t792;
+    let t794 = t481 * t521;
+    let t795 = t493 - t794;
+    let t796 = t481 * t530;
+    let t797 = t503 - t796;
+    let t798 = t481 * t538;
+    let t799 = t511 - t798;
+    let t800 = t481 * t544;
+    let t801 = t517 - t800;
+    let t802 = t549 * t795;
+    let t803 = t797 + t802;
+    let t804 = t556 * t795;
+    let t805 = t799 + t804;
+    let t806 = t562 * t795;
+    let t807 = t801 + t806;
+    let t808 = t567 * t803;
+    let t809 = t805 + t808;
+    let t810 = t572 * t803;
+    let t811 = t807 + t810;
+    let t812 = t577 * t809;
+    let t813 = t811 + t812;
+    let t814 = t580 * t813;
+    let t815 = t576 * t809;
+    let t816 = t566 * t803;
+    let t817 = t548 * t795;
+    let t818 = t481 * t520;
+    let t819 = t577 * t814;
+    let t820 = t815 + t819;
+    let t821 = t567 * t820;
+    let t822 = t816 + t821;
+    let t823 = t572 * t814;
+    let t824 = t822 + t823;
+    let t825 = t549 * t824;
+    let t826 = t817 + t825;
+    let t827 = t556 * t820;
+    let t828 = t826 + t827;
+    let t829 = t562 * t814;
+    let t830 = t828 + t829;
+    let t831 = t521 * t830;
+    let t832 = t831 - t818;
+    let t833 = t530 * t824;
+    let t834 = t832 + t833;
+    let t835 = t538 * t820;
+    let t836 = t834 + t835;
+    let t837 = t544 * t814;
+    let t838 = t836 + t837;
+    let t839 = t481 * t838;
+    let t840 = t839 - t480;
+    let t841 = t492 * t830;
+    let t842 = t840 + t841;
+    let t843 = t502 * t824;
+    let t844 = t842 + t843;
+    let t845 = t510 * t820;
+    let t846 = t844 + t845;
+    let t847 = t516 * t814;
+    let t848 = t846 + t847;
+    let t849 = t442 * t838;
+    let t850 = t453 * t830;
+    let t851 = t849 - t850;
+    let t852 = t462 * t824;
+    let t853 = t851 + t852;
+    let t854 = t470 * t820;
+    let t855 = t853 + t854;
+    let t856 = t476 * t814;
     let t857 = t855 + t856;
-    let t858 = t23 * t756;
-    let t859 = t24 * t766;
-    let t860 = t858 + t859;
-    let t861 = t24 * t854;
-    let t862 = t23 * t857;
-    let t863 = t861 - t862;
-    let t864 = t24 * t846;
-    let t865 = t23 * t848;
-    let t866 = t864 - t865;
-    let t867 = t23 * t846;
-    let t868 = t24 * t848;
-    let t869 = t867 + t868;
-    let t870 = 0.2155f * t860;
-    let t871 = 0.2155f * t863;
-    let t872 = t866 + t870;
-    let t873 = t871 - t851;
-    let t874 = t797 - t855;
-    let t875 = t853 - t798;
-    let t876 = t24 * t770;
-    let t877 = t23 * t772;
-    let t878 = t876 - t877;
-    let t879 = t24 * t776;
-    let t880 = t23 * t778;
-    let t881 = t879 - t880;
-    let t882 = t24 * t778;
-    let t883 = t23 * t782;
-    let t884 = t882 - t883;
-    let t885 = t24 * t780;
-    let t886 = t23 * t784;
-    let t887 = t885 - t886;
-    let t888 = t24 * t881;
-    let t889 = t23 * t884;
-    let t890 = t888 - t889;
-    let t891 = t24 * t874;
-    let t892 = t23 * t875;
-    let t893 = t891 - t892;
-    let t894 = t23 * t874;
-    let t895 = t24 * t875;
-    let t896 = t894 + t895;
-    let t897 = 0.2155f * t887;
-    let t898 = 0.2155f * t890;
-    let t899 = t893 + t897;
-    let t900 = t898 - t878;
-    let t901 = t886 - t885;
-    let t902 = t800 - t799;
-    let t903 = -(t858);
-    let t904 = t903 - t859;
-    let t905 = 0.2155f * t901;
-    let t906 = t902 - t802;
-    let t907 = t774 + t905;
-    let t908 = 0.1496f + t808;
-    let t909 = (-0.455f) + t906;
-    let t910 = 0.14215f + t844;
-    let t911 = 0.00035f + t873;
-    let t912 = 0.455f + t900;
-    let t913 = 0.01395f + t869;
-    let t914 = (-0.105f) + t896;
-    let t915 = 3.5f + t890;
-    let t916 = 3.5f + t786;
-    let t917 = 1.0f / t913;
-    let t918 = t662 * t917;
-    let t919 = -(t918);
-    let t920 = t688 * t917;
-    let t921 = -(t920);
-    let t922 = t714 * t917;
-    let t923 = -(t922);
-    let t924 = t740 * t917;
-    let t925 = -(t924);
-    let t926 = t872 * t917;
-    let t927 = t911 * t917;
-    let t928 = t913 * t917;
-    let t929 = t914 * t917;
-    let t930 = t904 * t917;
-    let t931 = t14 * t929;
-    let t932 = t13 * t930;
-    let t933 = t932 - t931;
-    let t934 = t13 * t929;
-    let t935 = t14 * t930;
-    let t936 = t934 + t935;
-    let t937 = t14 * t926;
-    let t938 = t13 * t927;
-    let t939 = t938 - t937;
-    let t940 = t13 * t926;
-    let t941 = t14 * t927;
-    let t942 = t940 + t941;
-    let t943 = 0.2045f * t936;
-    let t944 = 0.2045f * t933;
-    let t945 = t939 + t943;
-    let t946 = t942 - t944;
-    let t947 = t872 * t918;
-    let t948 = t911 * t918;
-    let t949 = t913 * t918;
-    let t950 = t914 * t918;
-    let t951 = t904 * t918;
-    let t952 = t665 - t947;
-    let t953 = t666 - t948;
-    let t954 = t662 - t949;
-    let t955 = t655 - t950;
-    let t956 = t656 - t951;
-    let t957 = t14 * t955;
-    let t958 = t13 * t956;
-    let t959 = t958 - t957;
-    let t960 = t13 * t955;
-    let t961 = t14 * t956;
-    let t962 = t960 + t961;
-    let t963 = t14 * t952;
-    let t964 = t13 * t953;
-    let t965 = t964 - t963;
-    let t966 = t13 * t952;
-    let t967 = t14 * t953;
-    let t968 = t966 + t967;
-    let t969 = 0.2045f * t962;
-    let t970 = 0.2045f * t959;
-    let t971 = t965 + t969;
-    let t972 = t968 - t970;
-    let t973 = t872 * t920;
-    let t974 = t911 * t920;
-    let t975 = t913 * t920;
-    let t976 = t914 * t920;
-    let t977 = t904 * t920;
-    let t978 = t691 - t973;
-    let t979 = t692 - t974;
-    let t980 = t688 - t975;
-    let t981 = t681 - t976;
-    let t982 = t682 - t977;
-    let t983 = t14 * t981;
-    let t984 = t13 * t982;
-    let t985 = t984 - t983;
-    let t986 = t13 * t981;
-    let t987 = t14 * t982;
-    let t988 = t986 + t987;
-    let t989 = t14 * t978;
-    let t990 = t13 * t979;
-    let t991 = t990 - t989;
-    let t992 = t13 * t978;
-    let t993 = t14 * t979;
-    let t994 = t992 + t993;
-    let t995 = 0.2045f * t988;
-    let t996 = 0.2045f * t985;
-    let t997 = t991 + t995;
-    let t998 = t994 - t996;
-    let t999 = t872 * t922;
-    let t1000 = t911 * t922;
-    let t1001 = t913 * t922;
-    let t1002 = t914 * t922;
-    let t1003 = t904 * t922;
-    let t1004 = t717 - t999;
-    let t1005 = t718 - t1000;
-    let t1006 = t714 - t1001;
-    let t1007 = t707 - t1002;
-    let t1008 = t708 - t1003;
-    let t1009 = t14 * t1007;
-    let t1010 = t13 * t1008;
-    let t1011 = t1010 - t1009;
-    let t1012 = t13 * t1007;
-    let t1013 = t14 * t1008;
-    let t1014 = t1012 + t1013;
-    let t1015 = t14 * t1004;
-    let t1016 = t13 * t1005;
-    let t1017 = t1016 - t1015;
-    let t1018 = t13 * t1004;
-    let t1019 = t14 * t1005;
-    let t1020 = t1018 + t1019;
-    let t1021 = 0.2045f * t1014;
-    let t1022 = 0.2045f * t1011;
-    let t1023 = t1017 + t1021;
-    let t1024 = t1020 - t1022;
-    let t1025 = t872 * t924;
-    let t1026 = t911 * t924;
-    let t1027 = t913 * t924;
-    let t1028 = t914 * t924;
-    let t1029 = t904 * t924;
-    let t1030 = t743 - t1025;
-    let t1031 = t744 - t1026;
-    let t1032 = t740 - t1027;
-    let t1033 = t733 - t1028;
-    let t1034 = t734 - t1029;
-    let t1035 = t14 * t1033;
-    let t1036 = t13 * t1034;
-    let t1037 = t1036 - t1035;
-    let t1038 = t13 * t1033;
-    let t1039 = t14 * t1034;
-    let t1040 = t1038 + t1039;
-    let t1041 = t14 * t1030;
-    let t1042 = t13 * t1031;
-    let t1043 = t1042 - t1041;
-    let t1044 = t13 * t1030;
-    let t1045 = t14 * t1031;
-    let t1046 = t1044 + t1045;
-    let t1047 = 0.2045f * t1040;
-    let t1048 = 0.2045f * t1037;
-    let t1049 = t1043 + t1047;
-    let t1050 = t1046 - t1048;
-    let t1051 = t872 * t926;
-    let t1052 = t908 - t1051;
-    let t1053 = t911 * t926;
-    let t1054 = t843 - t1053;
-    let t1055 = t913 * t926;
-    let t1056 = t872 - t1055;
-    let t1057 = t914 * t926;
-    let t1058 = t899 - t1057;
-    let t1059 = t904 * t926;
-    let t1060 = t909 - t1059;
-    let t1061 = t911 * t927;
-    let t1062 = t910 - t1061;
-    scratch[0u * n + s] = t3;
-    scratch[1u * n + s] = t4;
-    scratch[2u * n + s] = t13;
-    scratch[3u * n + s] = t14;
-    scratch[4u * n + s] = t23;
-    scratch[5u * n + s] = t24;
-    scratch[6u * n + s] = t33;
-    scratch[7u * n + s] = t34;
-    scratch[8u * n + s] = t44;
-    scratch[9u * n + s] = t45;
-    scratch[10u * n + s] = t122;
-    scratch[11u * n + s] = t152;
-    scratch[12u * n + s] = t155;
-    scratch[13u * n + s] = t156;
-    scratch[14u * n + s] = t159;
-    scratch[15u * n + s] = t281;
-    scratch[16u * n + s] = t323;
-    scratch[17u * n + s] = t330;
-    scratch[18u * n + s] = t336;
-    scratch[19u * n + s] = t337;
-    scratch[20u * n + s] = t338;
-    scratch[21u * n + s] = t342;
-    scratch[22u * n + s] = t344;
-    scratch[23u * n + s] = t346;
-    scratch[24u * n + s] = t571;
-    scratch[25u * n + s] = t606;
-    scratch[26u * n + s] = t628;
-    scratch[27u * n + s] = t633;
-    scratch[28u * n + s] = t635;
-    scratch[29u * n + s] = t636;
-    scratch[30u * n + s] = t640;
-    scratch[31u * n + s] = t642;
-    scratch[32u * n + s] = t644;
-    scratch[33u * n + s] = t646;
-    scratch[34u * n + s] = t872;
-    scratch[35u * n + s] = t901;
-    scratch[36u * n + s] = t904;
-    scratch[37u * n + s] = t907;
-    scratch[38u * n + s] = t911;
-    scratch[39u * n + s] = t912;
-    scratch[40u * n + s] = t913;
-    scratch[41u * n + s] = t914;
-    scratch[42u * n + s] = t915;
-    scratch[43u * n + s] = t916;
-    scratch[44u * n + s] = t917;
-    scratch[45u * n + s] = t919;
-    scratch[46u * n + s] = t921;
-    scratch[47u * n + s] = t923;
-    scratch[48u * n + s] = t925;
-    scratch[49u * n + s] = t927;
-    scratch[50u * n + s] = t928;
-    scratch[51u * n + s] = t929;
-    scratch[52u * n + s] = t930;
-    scratch[53u * n + s] = t945;
-    scratch[54u * n + s] = t946;
-    scratch[55u * n + s] = t954;
-    scratch[56u * n + s] = t971;
-    scratch[57u * n + s] = t972;
-    scratch[58u * n + s] = t980;
-    scratch[59u * n + s] = t997;
-    scratch[60u * n + s] = t998;
-    scratch[61u * n + s] = t1006;
-    scratch[62u * n + s] = t1023;
-    scratch[63u * n + s] = t1024;
-    scratch[64u * n + s] = t1032;
-    scratch[65u * n + s] = t1049;
-    scratch[66u * n + s] = t1050;
-    scratch[67u * n + s] = t1052;
-    scratch[68u * n + s] = t1054;
-    scratch[69u * n + s] = t1056;
-    scratch[70u * n + s] = t1058;
-    scratch[71u * n + s] = t1060;
-    scratch[72u * n + s] = t1062;
-}
-
-fn minv_part1(s: u32, n: u32) {
-    let t913 = scratch[40u * n + s];
-    let t927 = scratch[49u * n + s];
-    let t911 = scratch[38u * n + s];
-    let t914 = scratch[41u * n + s];
-    let t912 = scratch[39u * n + s];
-    let t904 = scratch[36u * n + s];
-    let t907 = scratch[37u * n + s];
-    let t928 = scratch[50u * n + s];
-    let t929 = scratch[51u * n + s];
-    let t915 = scratch[42u * n + s];
-    let t901 = scratch[35u * n + s];
-    let t930 = scratch[52u * n + s];
-    let t916 = scratch[43u * n + s];
-    let t13 = scratch[2u * n + s];
-    let t14 = scratch[3u * n + s];
-    let t1052 = scratch[67u * n + s];
-    let t1054 = scratch[68u * n + s];
-    let t1058 = scratch[70u * n + s];
-    let t1060 = scratch[71u * n + s];
-    let t1062 = scratch[72u * n + s];
-    let t1056 = scratch[69u * n + s];
-    let t946 = scratch[54u * n + s];
-    let t972 = scratch[57u * n + s];
-    let t998 = scratch[60u * n + s];
-    let t1024 = scratch[63u * n + s];
-    let t1050 = scratch[66u * n + s];
-    let t3 = scratch[0u * n + s];
-    let t4 = scratch[1u * n + s];
-    let t945 = scratch[53u * n + s];
-    let t971 = scratch[56u * n + s];
-    let t954 = scratch[55u * n + s];
-    let t997 = scratch[59u * n + s];
-    let t980 = scratch[58u * n + s];
-    let t1023 = scratch[62u * n + s];
-    let t1006 = scratch[61u * n + s];
-    let t1049 = scratch[65u * n + s];
-    let t1032 = scratch[64u * n + s];
-    let t872 = scratch[34u * n + s];
-    let t917 = scratch[44u * n + s];
-    let t919 = scratch[45u * n + s];
-    let t921 = scratch[46u * n + s];
-    let t923 = scratch[47u * n + s];
-    let t925 = scratch[48u * n + s];
-    let t24 = scratch[5u * n + s];
-    let t23 = scratch[4u * n + s];
-    let t571 = scratch[24u * n + s];
-    let t633 = scratch[27u * n + s];
-    let t635 = scratch[28u * n + s];
-    let t636 = scratch[29u * n + s];
-    let t606 = scratch[25u * n + s];
-    let t628 = scratch[26u * n + s];
-    let t640 = scratch[30u * n + s];
-    let t642 = scratch[31u * n + s];
-    let t644 = scratch[32u * n + s];
-    let t646 = scratch[33u * n + s];
-    let t34 = scratch[7u * n + s];
-    let t33 = scratch[6u * n + s];
-    let t330 = scratch[17u * n + s];
-    let t281 = scratch[15u * n + s];
-    let t336 = scratch[18u * n + s];
-    let t337 = scratch[19u * n + s];
-    let t338 = scratch[20u * n + s];
-    let t323 = scratch[16u * n + s];
-    let t342 = scratch[21u * n + s];
-    let t344 = scratch[22u * n + s];
-    let t346 = scratch[23u * n + s];
-    let t45 = scratch[9u * n + s];
-    let t44 = scratch[8u * n + s];
-    let t122 = scratch[10u * n + s];
-    let t155 = scratch[12u * n + s];
-    let t156 = scratch[13u * n + s];
-    let t152 = scratch[11u * n + s];
-    let t159 = scratch[14u * n + s];
-    let t1063 = t913 * t927;
-    let t1064 = t911 - t1063;
-    let t1065 = t914 * t927;
-    let t1066 = t912 - t1065;
-    let t1067 = t904 * t927;
-    let t1068 = t907 - t1067;
-    let t1069 = t913 * t928;
-    let t1070 = t913 - t1069;
-    let t1071 = t914 * t928;
-    let t1072 = t914 - t1071;
-    let t1073 = t904 * t928;
-    let t1074 = t904 - t1073;
-    let t1075 = t914 * t929;
-    let t1076 = t915 - t1075;
-    let t1077 = t904 * t929;
-    let t1078 = t901 - t1077;
-    let t1079 = t904 * t930;
-    let t1080 = t916 - t1079;
-    let t1082 = 0.2045f * t13;
-    let t1083 = 0.2045f * t14;
-    let t1084 = t14 * t1052;
-    let t1085 = t13 * t1054;
-    let t1086 = t1085 - t1084;
-    let t1087 = t1058 * t1082;
-    let t1088 = t1086 + t1087;
-    let t1089 = t1060 * t1083;
-    let t1090 = t1088 + t1089;
-    let t1091 = t14 * t1054;
-    let t1092 = t13 * t1062;
-    let t1093 = t1092 - t1091;
-    let t1094 = t1066 * t1082;
-    let t1095 = t1093 + t1094;
-    let t1096 = t1068 * t1083;
-    let t1097 = t1095 + t1096;
-    let t1098 = t14 * t1056;
-    let t1099 = t13 * t1064;
-    let t1100 = t1099 - t1098;
-    let t1101 = t14 * t1058;
-    let t1102 = t13 * t1066;
-    let t1103 = t1102 - t1101;
-    let t1104 = t1076 * t1082;
-    let t1105 = t1103 + t1104;
-    let t1106 = t1078 * t1083;
-    let t1107 = t1105 + t1106;
-    let t1108 = t14 * t1060;
-    let t1109 = t13 * t1068;
-    let t1110 = t1109 - t1108;
-    let t1111 = t1078 * t1082;
-    let t1112 = t1110 + t1111;
-    let t1113 = t1080 * t1083;
-    let t1114 = t1112 + t1113;
-    let t1115 = t13 * t1107;
-    let t1116 = t14 * t1114;
-    let t1117 = t1115 + t1116;
-    let t1118 = t14 * t1090;
-    let t1119 = t13 * t1097;
-    let t1120 = t1119 - t1118;
-    let t1121 = 0.2045f * t1117;
-    let t1122 = t1120 + t1121;
-    let t1123 = t13 * t1072;
-    let t1124 = t14 * t1074;
-    let t1125 = t1123 + t1124;
-    let t1126 = t13 * t1056;
-    let t1127 = t14 * t1064;
-    let t1128 = t1126 + t1127;
-    let t1129 = 0.2045f * t1125;
-    let t1130 = t1100 + t1129;
-    let t1131 = t14 * (-0.2045f);
-    let t1132 = t13 * (-0.2045f);
-    let t1133 = t13 * t1052;
-    let t1134 = t1091 + t1133;
-    let t1135 = t1058 * t1131;
-    let t1136 = t1134 - t1135;
-    let t1137 = t1060 * t1132;
-    let t1138 = t1136 + t1137;
-    let t1139 = t14 * t1062;
-    let t1140 = t1085 + t1139;
-    let t1141 = t1066 * t1131;
-    let t1142 = t1140 - t1141;
-    let t1143 = t1068 * t1132;
-    let t1144 = t1142 + t1143;
-    let t1145 = t1072 * t1131;
-    let t1146 = t1128 - t1145;
-    let t1147 = t1074 * t1132;
-    let t1148 = t1146 + t1147;
-    let t1149 = t13 * t1058;
-    let t1150 = t14 * t1066;
-    let t1151 = t1149 + t1150;
-    let t1152 = t1076 * t1131;
-    let t1153 = t1151 - t1152;
-    let t1154 = t1078 * t1132;
-    let t1155 = t1153 + t1154;
-    let t1156 = t13 * t1060;
-    let t1157 = t14 * t1068;
-    let t1158 = t1156 + t1157;
-    let t1159 = t1078 * t1131;
-    let t1160 = t1158 - t1159;
-    let t1161 = t1080 * t1132;
-    let t1162 = t1160 + t1161;
-    let t1163 = t14 * t1155;
-    let t1164 = t13 * t1162;
-    let t1165 = t1164 - t1163;
-    let t1166 = t13 * t1155;
-    let t1167 = t14 * t1162;
-    let t1168 = t1166 + t1167;
-    let t1169 = t14 * t1138;
-    let t1170 = t13 * t1144;
-    let t1171 = t1170 - t1169;
-    let t1172 = t13 * t1138;
-    let t1173 = t14 * t1144;
-    let t1174 = t1172 + t1173;
-    let t1175 = 0.2045f * t1168;
-    let t1176 = 0.2045f * t1165;
-    let t1177 = t1171 + t1175;
-    let t1178 = t1174 - t1176;
-    let t1179 = 0.09710575f + t1122;
-    let t1180 = (-1.2395e-5f) + t1130;
-    let t1181 = (-1e-8f) + t1177;
-    let t1182 = 0.05280197f + t1070;
-    let t1183 = (-3.53e-5f) + t1148;
-    let t1184 = 0.05520492f + t1178;
-    let t1185 = 1.0f / t1184;
-    let t1186 = t946 * t1185;
-    let t1187 = -(t1186);
-    let t1188 = t972 * t1185;
-    let t1189 = -(t1188);
-    let t1190 = t998 * t1185;
-    let t1191 = -(t1190);
-    let t1192 = t1024 * t1185;
-    let t1193 = -(t1192);
-    let t1194 = t1050 * t1185;
-    let t1195 = -(t1194);
-    let t1196 = t1181 * t1185;
-    let t1197 = t1183 * t1185;
-    let t1198 = t3 * t1196;
-    let t1199 = t4 * t1197;
-    let t1200 = t1198 + t1199;
-    let t1201 = t1181 * t1186;
-    let t1202 = t1183 * t1186;
-    let t1203 = t945 - t1201;
-    let t1204 = t928 - t1202;
-    let t1205 = t3 * t1203;
-    let t1206 = t4 * t1204;
-    let t1207 = t1205 + t1206;
-    let t1208 = t1181 * t1188;
-    let t1209 = t1183 * t1188;
-    let t1210 = t971 - t1208;
-    let t1211 = t954 - t1209;
-    let t1212 = t3 * t1210;
-    let t1213 = t4 * t1211;
-    let t1214 = t1212 + t1213;
-    let t1215 = t1181 * t1190;
-    let t1216 = t1183 * t1190;
-    let t1217 = t997 - t1215;
-    let t1218 = t980 - t1216;
-    let t1219 = t3 * t1217;
-    let t1220 = t4 * t1218;
-    let t1221 = t1219 + t1220;
-    let t1222 = t1181 * t1192;
-    let t1223 = t1183 * t1192;
-    let t1224 = t1023 - t1222;
-    let t1225 = t1006 - t1223;
-    let t1226 = t3 * t1224;
-    let t1227 = t4 * t1225;
-    let t1228 = t1226 + t1227;
-    let t1229 = t1181 * t1194;
-    let t1230 = t1183 * t1194;
-    let t1231 = t1049 - t1229;
-    let t1232 = t1032 - t1230;
-    let t1233 = t3 * t1231;
-    let t1234 = t4 * t1232;
-    let t1235 = t1233 + t1234;
-    let t1236 = t1181 * t1196;
-    let t1237 = t1179 - t1236;
-    let t1238 = t1183 * t1196;
-    let t1239 = t1180 - t1238;
-    let t1240 = t1183 * t1197;
-    let t1241 = t1182 - t1240;
-    let t1242 = t3 * t1239;
-    let t1243 = t4 * t1239;
-    let t1244 = t3 * t1237;
-    let t1245 = t1243 + t1244;
-    let t1246 = t4 * t1241;
-    let t1247 = t1242 + t1246;
-    let t1248 = t3 * t1245;
-    let t1249 = t4 * t1247;
-    let t1250 = t1248 + t1249;
-    let t1251 = 0.022684f + t1250;
-    let t1252 = 1.0f / t1251;
-    let t1253 = t1200 * t1252;
-    let t1254 = -(t1253);
-    let t1255 = t1207 * t1252;
-    let t1256 = -(t1255);
-    let t1257 = t1214 * t1252;
-    let t1258 = -(t1257);
-    let t1259 = t1221 * t1252;
-    let t1260 = -(t1259);
-    let t1261 = t1228 * t1252;
-    let t1262 = -(t1261);
-    let t1263 = t1235 * t1252;
-    let t1264 = -(t1263);
-    let t1265 = t3 * t1253;
-    let t1266 = t4 * t1253;
-    let t1267 = t1181 * t1265;
-    let t1268 = -(t1267);
-    let t1269 = t1183 * t1266;
-    let t1270 = t1268 - t1269;
-    let t1271 = t1185 * t1270;
-    let t1272 = t1185 - t1271;
-    let t1273 = t3 * t1255;
-    let t1274 = t4 * t1255;
-    let t1275 = t1181 * t1273;
-    let t1276 = -(t1275);
-    let t1277 = t1183 * t1274;
-    let t1278 = t1276 - t1277;
-    let t1279 = t1185 * t1278;
-    let t1280 = t1187 - t1279;
-    let t1281 = t3 * t1257;
-    let t1282 = t4 * t1257;
-    let t1283 = t1181 * t1281;
-    let t1284 = -(t1283);
-    let t1285 = t1183 * t1282;
-    let t1286 = t1284 - t1285;
-    let t1287 = t1185 * t1286;
-    let t1288 = t1189 - t1287;
-    let t1289 = t3 * t1259;
-    let t1290 = t4 * t1259;
-    let t1291 = t1181 * t1289;
-    let t1292 = -(t1291);
-    let t1293 = t1183 * t1290;
-    let t1294 = t1292 - t1293;
-    let t1295 = t1185 * t1294;
-    let t1296 = t1191 - t1295;
-    let t1297 = t3 * t1261;
-    let t1298 = t4 * t1261;
-    let t1299 = t1181 * t1297;
-    let t1300 = -(t1299);
-    let t1301 = t1183 * t1298;
-    let t1302 = t1300 - t1301;
-    let t1303 = t1185 * t1302;
-    let t1304 = t1193 - t1303;
-    let t1305 = t3 * t1263;
-    let t1306 = t4 * t1263;
-    let t1307 = t1181 * t1305;
-    let t1308 = -(t1307);
-    let t1309 = t1183 * t1306;
-    let t1310 = t1308 - t1309;
-    let t1311 = t1185 * t1310;
-    let t1312 = t1195 - t1311;
-    let t1313 = 0.2045f * t1280;
-    let t1314 = 0.2045f * t1273;
-    let t1315 = t14 * t1273;
-    let t1316 = t13 * t1280;
-    let t1317 = t1315 + t1316;
-    let t1318 = t13 * t1273;
-    let t1319 = t14 * t1280;
-    let t1320 = t1319 - t1318;
-    let t1321 = t14 * t1313;
-    let t1322 = t13 * t1314;
-    let t1323 = t1321 - t1322;
-    let t1324 = t13 * t1313;
-    let t1325 = -(t1324);
-    let t1326 = t14 * t1314;
-    let t1327 = t1325 - t1326;
-    let t1328 = t872 * t1317;
-    let t1329 = t911 * t1320;
-    let t1330 = t1328 + t1329;
-    let t1331 = t913 * t1274;
-    let t1332 = t1330 - t1331;
-    let t1333 = t914 * t1323;
-    let t1334 = t1332 + t1333;
-    let t1335 = t904 * t1327;
-    let t1336 = t1334 + t1335;
-    let t1337 = t917 * t1336;
-    let t1338 = t917 - t1337;
-    let t1339 = 0.2045f * t1288;
-    let t1340 = 0.2045f * t1281;
-    let t1341 = t14 * t1281;
-    let t1342 = t13 * t1288;
-    let t1343 = t1341 + t1342;
-    let t1344 = t13 * t1281;
-    let t1345 = t14 * t1288;
-    let t1346 = t1345 - t1344;
-    let t1347 = t14 * t1339;
-    let t1348 = t13 * t1340;
-    let t1349 = t1347 - t1348;
-    let t1350 = t13 * t1339;
-    let t1351 = -(t1350);
-    let t1352 = t14 * t1340;
-    let t1353 = t1351 - t1352;
-    let t1354 = t872 * t1343;
-    let t1355 = t911 * t1346;
-    let t1356 = t1354 + t1355;
-    let t1357 = t913 * t1282;
-    let t1358 = t1356 - t1357;
-    let t1359 = t914 * t1349;
-    let t1360 = t1358 + t1359;
-    let t1361 = t904 * t1353;
-    let t1362 = t1360 + t1361;
-    let t1363 = t917 * t1362;
-    let t1364 = t919 - t1363;
-    let t1365 = t1364 - t1282;
-    let t1366 = 0.2045f * t1296;
-    let t1367 = 0.2045f * t1289;
-    let t1368 = t14 * t1289;
-    let t1369 = t13 * t1296;
-    let t1370 = t1368 + t1369;
-    let t1371 = t13 * t1289;
-    let t1372 = t14 * t1296;
-    let t1373 = t1372 - t1371;
-    let t1374 = t14 * t1366;
-    let t1375 = t13 * t1367;
-    let t1376 = t1374 - t1375;
-    let t1377 = t13 * t1366;
-    let t1378 = -(t1377);
-    let t1379 = t14 * t1367;
-    let t1380 = t1378 - t1379;
-    let t1381 = t872 * t1370;
-    let t1382 = t911 * t1373;
-    let t1383 = t1381 + t1382;
-    let t1384 = t913 * t1290;
-    let t1385 = t1383 - t1384;
-    let t1386 = t914 * t1376;
-    let t1387 = t1385 + t1386;
-    let t1388 = t904 * t1380;
-    let t1389 = t1387 + t1388;
-    let t1390 = t917 * t1389;
-    let t1391 = t921 - t1390;
-    let t1392 = t1391 - t1290;
-    let t1393 = 0.2045f * t1304;
-    let t1394 = 0.2045f * t1297;
-    let t1395 = t14 * t1297;
-    let t1396 = t13 * t1304;
-    let t1397 = t1395 + t1396;
-    let t1398 = t13 * t1297;
-    let t1399 = t14 * t1304;
-    let t1400 = t1399 - t1398;
-    let t1401 = t14 * t1393;
-    let t1402 = t13 * t1394;
-    let t1403 = t1401 - t1402;
-    let t1404 = t13 * t1393;
-    let t1405 = -(t1404);
-    let t1406 = t14 * t1394;
-    let t1407 = t1405 - t1406;
-    let t1408 = t872 * t1397;
-    let t1409 = t911 * t1400;
-    let t1410 = t1408 + t1409;
-    let t1411 = t913 * t1298;
-    let t1412 = t1410 - t1411;
-    let t1413 = t914 * t1403;
-    let t1414 = t1412 + t1413;
-    let t1415 = t904 * t1407;
-    let t1416 = t1414 + t1415;
-    let t1417 = t917 * t1416;
-    let t1418 = t923 - t1417;
-    let t1419 = t1418 - t1298;
-    let t1420 = 0.2045f * t1312;
-    let t1421 = 0.2045f * t1305;
-    let t1422 = t14 * t1305;
-    let t1423 = t13 * t1312;
-    let t1424 = t1422 + t1423;
-    let t1425 = t13 * t1305;
-    let t1426 = t14 * t1312;
-    let t1427 = t1426 - t1425;
-    let t1428 = t14 * t1420;
-    let t1429 = t13 * t1421;
-    let t1430 = t1428 - t1429;
-    let t1431 = t13 * t1420;
-    let t1432 = -(t1431);
-    let t1433 = t14 * t1421;
-    let t1434 = t1432 - t1433;
-    let t1435 = t872 * t1424;
-    let t1436 = t911 * t1427;
-    let t1437 = t1435 + t1436;
-    let t1438 = t913 * t1306;
-    let t1439 = t1437 - t1438;
-    let t1440 = t914 * t1430;
-    let t1441 = t1439 + t1440;
-    let t1442 = t904 * t1434;
-    let t1443 = t1441 + t1442;
-    let t1444 = t917 * t1443;
-    let t1445 = t925 - t1444;
-    let t1446 = t1445 - t1306;
-    let t1447 = 0.2155f * t1346;
-    let t1448 = 0.2155f * t1343;
-    let t1449 = t1349 + t1447;
-    let t1450 = t1353 - t1448;
-    let t1451 = t24 * t1343;
-    let t1452 = t23 * t1365;
-    let t1453 = t1451 + t1452;
-    let t1454 = t23 * t1343;
-    let t1455 = t24 * t1365;
-    let t1456 = t1455 - t1454;
-    let t1457 = t24 * t1449;
-    let t1458 = t23 * t1449;
-    let t1459 = t571 * t1453;
-    let t1460 = t633 * t1456;
-    let t1461 = t1459 + t1460;
-    let t1462 = t635 * t1346;
-    let t1463 = t1461 - t1462;
-    let t1464 = t636 * t1457;
-    let t1465 = t1463 + t1464;
-    let t1466 = t606 * t1458;
-    let t1467 = t1465 - t1466;
-    let t1468 = t628 * t1450;
-    let t1469 = t1467 - t1468;
-    let t1470 = t640 * t1469;
-    let t1471 = t640 - t1470;
-    let t1472 = 0.2155f * t1373;
-    let t1473 = 0.2155f * t1370;
-    let t1474 = t1376 + t1472;
-    let t1475 = t1380 - t1473;
-    let t1476 = t24 * t1370;
-    let t1477 = t23 * t1392;
-    let t1478 = t1476 + t1477;
-    let t1479 = t23 * t1370;
-    let t1480 = t24 * t1392;
-    let t1481 = t1480 - t1479;
-    let t1482 = t24 * t1474;
-    let t1483 = t23 * t1474;
-    let t1484 = t571 * t1478;
-    let t1485 = t633 * t1481;
-    let t1486 = t1484 + t1485;
-    let t1487 = t635 * t1373;
-    let t1488 = t1486 - t1487;
-    let t1489 = t636 * t1482;
-    let t1490 = t1488 + t1489;
-    let t1491 = t606 * t1483;
-    let t1492 = t1490 - t1491;
-    let t1493 = t628 * t1475;
-    let t1494 = t1492 - t1493;
-    let t1495 = t640 * t1494;
-    let t1496 = t642 - t1495;
-    let t1497 = t1496 - t1373;
-    let t1498 = 0.2155f * t1400;
-    let t1499 = 0.2155f * t1397;
-    let t1500 = t1403 + t1498;
-    let t1501 = t1407 - t1499;
-    let t1502 = t24 * t1397;
-    let t1503 = t23 * t1419;
-    let t1504 = t1502 + t1503;
-    let t1505 = t23 * t1397;
-    let t1506 = t24 * t1419;
-    let t1507 = t1506 - t1505;
-    let t1508 = t24 * t1500;
-    let t1509 = t23 * t1500;
-    let t1510 = t571 * t1504;
-    let t1511 = t633 * t1507;
-    let t1512 = t1510 + t1511;
-    let t1513 = t635 * t1400;
-    let t1514 = t1512 - t1513;
-    let t1515 = t636 * t1508;
-    let t1516 = t1514 + t1515;
-    let t1517 = t606 * t1509;
-    let t1518 = t1516 - t1517;
-    let t1519 = t628 * t1501;
-    let t1520 = t1518 - t1519;
-    let t1521 = t640 * t1520;
-    let t1522 = t644 - t1521;
-    let t1523 = t1522 - t1400;
-    let t1524 = 0.2155f * t1427;
-    let t1525 = 0.2155f * t1424;
-    let t1526 = t1430 + t1524;
-    let t1527 = t1434 - t1525;
-    let t1528 = t24 * t1424;
-    let t1529 = t23 * t1446;
-    let t1530 = t1528 + t1529;
-    let t1531 = t23 * t1424;
-    let t1532 = t24 * t1446;
-    let t1533 = t1532 - t1531;
-    let t1534 = t24 * t1526;
-    let t1535 = t23 * t1526;
-    let t1536 = t571 * t1530;
-    let t1537 = t633 * t1533;
-    let t1538 = t1536 + t1537;
-    let t1539 = t635 * t1427;
-    let t1540 = t1538 - t1539;
-    let t1541 = t636 * t1534;
-    let t1542 = t1540 + t1541;
-    let t1543 = t606 * t1535;
-    let t1544 = t1542 - t1543;
-    let t1545 = t628 * t1527;
-    let t1546 = t1544 - t1545;
-    let t1547 = t640 * t1546;
-    let t1548 = t646 - t1547;
-    let t1549 = t1548 - t1427;
-    let t1550 = 0.1845f * t1497;
-    let t1551 = 0.1845f * t1478;
-    let t1552 = t1482 - t1550;
-    let t1553 = t1551 - t1475;
-    let t1554 = t34 * t1478;
-    let t1555 = t33 * t1497;
-    let t1556 = t1555 - t1554;
-    let t1557 = t33 * t1478;
-    let t1558 = t34 * t1497;
-    let t1559 = t1557 + t1558;
-    let t1560 = t34 * t1552;
-    let t1561 = t33 * t1553;
-    let t1562 = t1561 - t1560;
-    let t1563 = t33 * t1552;
-    let t1564 = t34 * t1553;
-    let t1565 = t1563 + t1564;
-    let t1566 = t330 * t1556;
-    let t1567 = t281 * t1559;
-    let t1568 = t1566 + t1567;
-    let t1569 = t336 * t1481;
-    let t1570 = t1568 + t1569;
-    let t1571 = t337 * t1562;
-    let t1572 = t1570 + t1571;
-    let t1573 = t338 * t1565;
-    let t1574 = t1572 + t1573;
-    let t1575 = t323 * t1483;
-    let t1576 = t1574 - t1575;
-    let t1577 = t342 * t1576;
-    let t1578 = t342 - t1577;
-    let t1579 = 0.1845f * t1523;
-    let t1580 = 0.1845f * t1504;
-    let t1581 = t1508 - t1579;
-    let t1582 = t1580 - t1501;
-    let t1583 = t34 * t1504;
-    let t1584 = t33 * t1523;
-    let t1585 = t1584 - t1583;
-    let t1586 = t33 * t1504;
-    let t1587 = t34 * t1523;
-    let t1588 = t1586 + t1587;
-    let t1589 = t34 * t1581;
-    let t1590 = t33 * t1582;
-    let t1591 = t1590 - t1589;
-    let t1592 = t33 * t1581;
-    let t1593 = t34 * t1582;
-    let t1594 = t1592 + t1593;
-    let t1595 = t330 * t1585;
-    let t1596 = t281 * t1588;
-    let t1597 = t1595 + t1596;
-    let t1598 = t336 * t1507;
-    let t1599 = t1597 + t1598;
-    let t1600 = t337 * t1591;
-    let t1601 = t1599 + t1600;
-    let t1602 = t338 * t1594;
-    let t1603 = t1601 + t1602;
-    let t1604 = t323 * t1509;
-    let t1605 = t1603 - t1604;
-    let t1606 = t342 * t1605;
-    let t1607 = t344 - t1606;
-    let t1608 = t1507 + t1607;
-    let t1609 = 0.1845f * t1549;
-    let t1610 = 0.1845f * t1530;
-    let t1611 = t1534 - t1609;
-    let t1612 = t1610 - t1527;
-    let t1613 = t34 * t1530;
-    let t1614 = t33 * t1549;
-    let t1615 = t1614 - t1613;
-    let t1616 = t33 * t1530;
-    let t1617 = t34 * t1549;
-    let t1618 = t1616 + t1617;
-    let t1619 = t34 * t1611;
-    let t1620 = t33 * t1612;
-    let t1621 = t1620 - t1619;
-    let t1622 = t33 * t1611;
-    let t1623 = t34 * t1612;
-    let t1624 = t1622 + t1623;
-    let t1625 = t330 * t1615;
-    let t1626 = t281 * t1618;
-    let t1627 = t1625 + t1626;
-    let t1628 = t336 * t1533;
-    let t1629 = t1627 + t1628;
-    let t1630 = t337 * t1621;
-    let t1631 = t1629 + t1630;
-    let t1632 = t338 * t1624;
-    let t1633 = t1631 + t1632;
-    let t1634 = t323 * t1535;
-    let t1635 = t1633 - t1634;
-    let t1636 = t342 * t1635;
-    let t1637 = t346 - t1636;
-    let t1638 = t1533 + t1637;
-    let t1639 = 0.2155f * t1588;
-    let t1640 = 0.2155f * t1585;
-    let t1641 = t1591 + t1639;
-    let t1642 = t1594 - t1640;
-    let t1643 = t45 * t1585;
-    let t1644 = t44 * t1608;
-    let t1645 = t1643 + t1644;
-    let t1646 = t44 * t1585;
-    let t1647 = t45 * t1608;
-    let t1648 = t1647 - t1646;
-    let t1649 = t45 * t1641;
-    let t1650 = t44 * t1509;
-    let t1651 = t1649 - t1650;
-    let t1652 = t122 * t1645;
-    let t1653 = (-4.32e-7f) * t1648;
-    let t1654 = t1652 + t1653;
-    let t1655 = t155 * t1588;
-    let t1656 = t1654 - t1655;
-    let t1657 = t156 * t1651;
-    let t1658 = t1656 + t1657;
-    let t1659 = t152 * t1642;
-    let t1660 = t1658 - t1659;
-    let t1661 = t159 * t1660;
-    let t1662 = t159 - t1661;
-    let t1663 = 0.2155f * t1618;
-    let t1664 = 0.2155f * t1615;
-    let t1665 = t1621 + t1663;
-    let t1666 = t1624 - t1664;
-    let t1667 = t45 * t1615;
-    let t1668 = t44 * t1638;
-    let t1669 = t1667 + t1668;
-    let t1670 = t44 * t1615;
-    let t1671 = t45 * t1638;
-    let t1672 = t1671 - t1670;
-    let t1673 = t45 * t1665;
-    let t1674 = t44 * t1535;
-    let t1675 = t1673 - t1674;
-    let t1676 = t122 * t1669;
-    let t1677 = (-4.32e-7f) * t1672;
-    let t1678 = t1676 + t1677;
-    let t1679 = t155 * t1618;
-    let t1680 = t1678 - t1679;
-    let t1681 = t156 * t1675;
-    let t1682 = t1680 + t1681;
-    let t1683 = t152 * t1666;
-    let t1684 = t1682 - t1683;
-    let t1685 = t159 * t1684;
-    let t1686 = -(t1685);
-    let t1687 = 0.005f * t1672;
-    let t1688 = 200.0f * t1687;
-    let t1689 = 200.0f - t1688;
-    out[0u * n + s] = t1252;
-    out[1u * n + s] = t1254;
-    out[7u * n + s] = t1254;
-    out[2u * n + s] = t1256;
-    out[14u * n + s] = t1256;
-    out[3u * n + s] = t1258;
-    out[21u * n + s] = t1258;
-    out[4u * n + s] = t1260;
-    out[28u * n + s] = t1260;
-    out[5u * n + s] = t1262;
-    out[35u * n + s] = t1262;
-    out[6u * n + s] = t1264;
-    out[42u * n + s] = t1264;
-    out[8u * n + s] = t1272;
-    out[9u * n + s] = t1280;
-    out[15u * n + s] = t1280;
-    out[10u * n + s] = t1288;
-    out[22u * n + s] = t1288;
-    out[11u * n + s] = t1296;
-    out[29u * n + s] = t1296;
-    out[12u * n + s] = t1304;
-    out[36u * n + s] = t1304;
-    out[13u * n + s] = t1312;
-    out[43u * n + s] = t1312;
-    out[16u * n + s] = t1338;
-    out[17u * n + s] = t1364;
-    out[23u * n + s] = t1364;
-    out[18u * n + s] = t1391;
-    out[30u * n + s] = t1391;
-    out[19u * n + s] = t1418;
-    out[37u * n + s] = t1418;
-    out[20u * n + s] = t1445;
-    out[44u * n + s] = t1445;
-    out[24u * n + s] = t1471;
-    out[25u * n + s] = t1496;
-    out[31u * n + s] = t1496;
-    out[26u * n + s] = t1522;
-    out[38u * n + s] = t1522;
-    out[27u * n + s] = t1548;
-    out[45u * n + s] = t1548;
-    out[32u * n + s] = t1578;
-    out[33u * n + s] = t1607;
-    out[39u * n + s] = t1607;
-    out[34u * n + s] = t1637;
-    out[46u * n + s] = t1637;
-    out[40u * n + s] = t1662;
-    out[41u * n + s] = t1686;
-    out[47u * n + s] = t1686;
-    out[48u * n + s] = t1689;
+    let t858 = t442 * t521;
+    let t859 = t453 - t858;
+    let t860 = t442 * t530;
+    let t861 = t463 - t860;
+    let t862 = t442 * t538;
+    let t863 = t471 - t862;
+    let t864 = t442 * t544;
+    let t865 = t477 - t864;
+    let t866 = t549 * t859;
+    let t867 = t861 + t866;
+    let t868 = t556 * t859;
+    let t869 = t863 + t868;
+    let t870 = t562 * t859;
+    let t871 = t865 + t870;
+    let t872 = t567 * t867;
+    let t873 = t869 + t872;
+    let t874 = t572 * t867;
+    let t875 = t871 + t874;
+    let t876 = t577 * t873;
+    let t877 = t875 + t876;
+    let t878 = t580 * t877;
+    let t879 = t576 * t873;
+    let t880 = t566 * t867;
+    let t881 = t548 * t859;
+    let t882 = t442 * t520;
+    let t884 = t577 * t878;
+    let t885 = t879 + t884;
+    let t886 = t567 * t885;
+    let t887 = t880 + t886;
+    let t888 = t572 * t878;
+    let t889 = t887 + t888;
+    let t890 = t549 * t889;
+    let t891 = t881 + t890;
+    let t892 = t556 * t885;
+    let t893 = t891 + t892;
+    let t894 = t562 * t878;
+    let t895 = t893 + t894;
+    let t896 = t521 * t895;
+    let t897 = t896 - t882;
+    let t898 = t530 * t889;
+    let t899 = t897 + t898;
+    let t900 = t538 * t885;
+    let t901 = t899 + t900;
+    let t902 = t544 * t878;
+    let t903 = t901 + t902;
+    let t904 = t442 * t903;
+    let t905 = 200.0f + t904;
+    let t906 = t453 * t895;
+    let t907 = t905 - t906;
+    let t908 = t462 * t889;
+    let t909 = t907 + t908;
+    let t910 = t470 * t885;
+    let t911 = t909 + t910;
+    let t912 = t476 * t878;
+    let t913 = t911 + t912;
+    out[0u * n + s] = t581;
+    out[1u * n + s] = t583;
+    out[7u * n + s] = t583;
+    out[2u * n + s] = t587;
+    out[14u * n + s] = t587;
+    out[3u * n + s] = t592;
+    out[21u * n + s] = t592;
+    out[4u * n + s] = t599;
+    out[28u * n + s] = t599;
+    out[5u * n + s] = t608;
+    out[35u * n + s] = t608;
+    out[6u * n + s] = t617;
+    out[42u * n + s] = t617;
+    out[8u * n + s] = t620;
+    out[9u * n + s] = t623;
+    out[15u * n + s] = t623;
+    out[10u * n + s] = t628;
+    out[22u * n + s] = t628;
+    out[11u * n + s] = t635;
+    out[29u * n + s] = t635;
+    out[12u * n + s] = t644;
+    out[36u * n + s] = t644;
+    out[13u * n + s] = t653;
+    out[43u * n + s] = t653;
+    out[16u * n + s] = t663;
+    out[17u * n + s] = t668;
+    out[23u * n + s] = t668;
+    out[18u * n + s] = t675;
+    out[30u * n + s] = t675;
+    out[19u * n + s] = t684;
+    out[37u * n + s] = t684;
+    out[20u * n + s] = t693;
+    out[44u * n + s] = t693;
+    out[24u * n + s] = t714;
+    out[25u * n + s] = t721;
+    out[31u * n + s] = t721;
+    out[26u * n + s] = t730;
+    out[38u * n + s] = t730;
+    out[27u * n + s] = t739;
+    out[45u * n + s] = t739;
+    out[32u * n + s] = t775;
+    out[33u * n + s] = t784;
+    out[39u * n + s] = t784;
+    out[34u * n + s] = t793;
+    out[46u * n + s] = t793;
+    out[40u * n + s] = t848;
+    out[41u * n + s] = t857;
+    out[47u * n + s] = t857;
+    out[48u * n + s] = t913;
 }
 
 @compute @workgroup_size(64)
-fn minv_stage0(@builtin(global_invocation_id) gid: vec3<u32>) {
+fn minv(@builtin(global_invocation_id) gid: vec3<u32>) {
     let n = params.n;
     let s = gid.x;
     if (s >= n) {
@@ -7855,18 +6930,8 @@ fn minv_stage0(@builtin(global_invocation_id) gid: vec3<u32>) {
     minv_part0(s, n);
 }
 
-@compute @workgroup_size(64)
-fn minv_stage1(@builtin(global_invocation_id) gid: vec3<u32>) {
-    let n = params.n;
-    let s = gid.x;
-    if (s >= n) {
-        return;
-    }
-    minv_part1(s, n);
-}
-
-// M(q)^-1 by the direct O(nv^2) recursion; M is never formed or inverted. One workgroup of 64 invocations per state, 113 phases; its 1675 operations are a table at prog[35050..57548] (phase p's block starts at prog[35050 + 2 * p] and has prog[35050 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
-var<workgroup> minv_coop_wg: array<real, 163>;
+// M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity. One workgroup of 64 invocations per state, 70 phases; its 899 operations are a table at prog[35050..48630] (phase p's block starts at prog[35050 + 2 * p] and has prog[35050 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+var<workgroup> minv_coop_wg: array<real, 104>;
 
 fn minv_coop_read(a: u32, s: u32, n: u32) -> real {
     let i = a & 268435455u;
@@ -7901,10 +6966,10 @@ fn minv_coop_step(k: u32, s: u32, n: u32) {
         }
         default: { return; }
     }
-    if (d < 163u) {
+    if (d < 104u) {
         minv_coop_wg[d] = v;
     } else {
-        scratch[(d - 163u) * n + s] = v;
+        scratch[(d - 104u) * n + s] = v;
     }
 }
 
@@ -7915,7 +6980,7 @@ fn minv_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_in
     if (s >= n) {
         return;
     }
-    for (var p = 0u; p < 113u; p++) {
+    for (var p = 0u; p < 70u; p++) {
         let at = prog[35050u + 2u * p] + 3u * w;
         let steps = prog[35050u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
@@ -9995,7 +9060,7 @@ fn fd_stage1(@builtin(global_invocation_id) gid: vec3<u32>) {
     fd_part1(s, n);
 }
 
-// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed). One workgroup of 64 invocations per state, 122 phases; its 1853 operations are a table at prog[57548..81600] (phase p's block starts at prog[57548 + 2 * p] and has prog[57548 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed). One workgroup of 64 invocations per state, 122 phases; its 1853 operations are a table at prog[48630..72682] (phase p's block starts at prog[48630 + 2 * p] and has prog[48630 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> fd_coop_wg: array<real, 219>;
 
 fn fd_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -10046,8 +9111,8 @@ fn fd_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation_inde
         return;
     }
     for (var p = 0u; p < 122u; p++) {
-        let at = prog[57548u + 2u * p] + 3u * w;
-        let steps = prog[57548u + 2u * p + 1u];
+        let at = prog[48630u + 2u * p] + 3u * w;
+        let steps = prog[48630u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             fd_coop_step(at + k * 192u, s, n);
         }
@@ -16893,7 +15958,7 @@ fn fd_grad_stage5(@builtin(global_invocation_id) gid: vec3<u32>) {
     fd_grad_part5(s, n);
 }
 
-// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass). One workgroup of 64 invocations per state, 138 phases; its 5359 operations are a table at prog[81600..114324] (phase p's block starts at prog[81600 + 2 * p] and has prog[81600 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass). One workgroup of 64 invocations per state, 138 phases; its 5359 operations are a table at prog[72682..105406] (phase p's block starts at prog[72682 + 2 * p] and has prog[72682 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> fd_grad_coop_wg: array<real, 679>;
 
 fn fd_grad_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -16944,8 +16009,8 @@ fn fd_grad_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocation
         return;
     }
     for (var p = 0u; p < 138u; p++) {
-        let at = prog[81600u + 2u * p] + 3u * w;
-        let steps = prog[81600u + 2u * p + 1u];
+        let at = prog[72682u + 2u * p] + 3u * w;
+        let steps = prog[72682u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             fd_grad_coop_step(at + k * 192u, s, n);
         }
@@ -16995,7 +16060,7 @@ fn integrate(@builtin(global_invocation_id) gid: vec3<u32>) {
     integrate_part0(s, n);
 }
 
-// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order. One workgroup of 64 invocations per state, 2 phases; its 14 operations are a table at prog[114324..114712] (phase p's block starts at prog[114324 + 2 * p] and has prog[114324 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order. One workgroup of 64 invocations per state, 2 phases; its 14 operations are a table at prog[105406..105794] (phase p's block starts at prog[105406 + 2 * p] and has prog[105406 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> integrate_coop_wg: array<real, 7>;
 
 fn integrate_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -17046,8 +16111,8 @@ fn integrate_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocati
         return;
     }
     for (var p = 0u; p < 2u; p++) {
-        let at = prog[114324u + 2u * p] + 3u * w;
-        let steps = prog[114324u + 2u * p + 1u];
+        let at = prog[105406u + 2u * p] + 3u * w;
+        let steps = prog[105406u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             integrate_coop_step(at + k * 192u, s, n);
         }
@@ -17167,7 +16232,7 @@ fn dintegrate(@builtin(global_invocation_id) gid: vec3<u32>) {
     dintegrate_part0(s, n);
 }
 
-// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 98 operations are a table at prog[114712..115098] (phase p's block starts at prog[114712 + 2 * p] and has prog[114712 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 98 operations are a table at prog[105794..106180] (phase p's block starts at prog[105794 + 2 * p] and has prog[105794 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> dintegrate_coop_wg: array<real, 1>;
 
 fn dintegrate_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -17218,8 +16283,8 @@ fn dintegrate_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocat
         return;
     }
     for (var p = 0u; p < 1u; p++) {
-        let at = prog[114712u + 2u * p] + 3u * w;
-        let steps = prog[114712u + 2u * p + 1u];
+        let at = prog[105794u + 2u * p] + 3u * w;
+        let steps = prog[105794u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             dintegrate_coop_step(at + k * 192u, s, n);
         }
@@ -17269,7 +16334,7 @@ fn difference(@builtin(global_invocation_id) gid: vec3<u32>) {
     difference_part0(s, n);
 }
 
-// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`). One workgroup of 64 invocations per state, 2 phases; its 14 operations are a table at prog[115098..115486] (phase p's block starts at prog[115098 + 2 * p] and has prog[115098 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`). One workgroup of 64 invocations per state, 2 phases; its 14 operations are a table at prog[106180..106568] (phase p's block starts at prog[106180 + 2 * p] and has prog[106180 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> difference_coop_wg: array<real, 7>;
 
 fn difference_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -17320,8 +16385,8 @@ fn difference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invocat
         return;
     }
     for (var p = 0u; p < 2u; p++) {
-        let at = prog[115098u + 2u * p] + 3u * w;
-        let steps = prog[115098u + 2u * p + 1u];
+        let at = prog[106180u + 2u * p] + 3u * w;
+        let steps = prog[106180u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             difference_coop_step(at + k * 192u, s, n);
         }
@@ -17441,7 +16506,7 @@ fn ddifference(@builtin(global_invocation_id) gid: vec3<u32>) {
     ddifference_part0(s, n);
 }
 
-// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 98 operations are a table at prog[115486..115872] (phase p's block starts at prog[115486 + 2 * p] and has prog[115486 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
+// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`). One workgroup of 64 invocations per state, 1 phases; its 98 operations are a table at prog[106568..106954] (phase p's block starts at prog[106568 + 2 * p] and has prog[106568 + 2 * p + 1] steps of 64 instructions of 3 words, invocation w's at (step * 64 + w) * 3).
 var<workgroup> ddifference_coop_wg: array<real, 1>;
 
 fn ddifference_coop_read(a: u32, s: u32, n: u32) -> real {
@@ -17492,8 +16557,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
         return;
     }
     for (var p = 0u; p < 1u; p++) {
-        let at = prog[115486u + 2u * p] + 3u * w;
-        let steps = prog[115486u + 2u * p + 1u];
+        let at = prog[106568u + 2u * p] + 3u * w;
+        let steps = prog[106568u + 2u * p + 1u];
         for (var k = 0u; k < steps; k++) {
             ddifference_coop_step(at + k * 192u, s, n);
         }
@@ -19692,23 +18757,18 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 89cc 1 8a8c 1 8b4c 1
-// prog: 8c0c 1 8ccc 1 8d8c 1 8e4c 1 8f0c 1 8fcc 1 908c 1 914c 1
-// prog: 920c 1 92cc 1 938c 1 944c 1 950c 1 95cc 1 968c 1 974c 1
-// prog: 980c 1 98cc 1 998c 1 9a4c 2 9bcc 1 9c8c 1 9d4c 1 9e0c 1
-// prog: 9ecc 1 9f8c 1 a04c 1 a10c 1 a1cc 1 a28c 1 a34c 1 a40c 1
-// prog: a4cc 2 a64c 1 a70c 1 a7cc 1 a88c 1 a94c 1 aa0c 1 aacc 1
-// prog: ab8c 1 ac4c 2 adcc 1 ae8c 1 af4c 1 b00c 1 b0cc 1 b18c 1
-// prog: b24c 1 b30c 1 b3cc 1 b48c 1 b54c 1 b60c 1 b6cc 1 b78c 1
-// prog: b84c 1 b90c 1 b9cc 1 ba8c 1 bb4c 1 bc0c 1 bccc 1 bd8c 1
-// prog: be4c 1 bf0c 1 bfcc 1 c08c 1 c14c 1 c20c 1 c2cc 1 c38c 1
-// prog: c44c 1 c50c 1 c5cc 1 c68c 1 c74c 1 c80c 1 c8cc 1 c98c 1
-// prog: ca4c 1 cb0c 1 cbcc 1 cc8c 1 cd4c 1 ce0c 1 cecc 1 cf8c 1
-// prog: d04c 1 d10c 1 d1cc 1 d28c 1 d34c 1 d40c 1 d4cc 1 d58c 1
-// prog: d64c 1 d70c 1 d7cc 1 d88c 1 d94c 1 da0c 1 dacc 1 db8c 1
-// prog: dc4c 1 dd0c 1 ddcc 1 de8c 1 df4c 1 e00c 1 5000000 30000001 30000001 5000002
-// prog: 30000002 30000002 5000004 30000003 30000003 5000006 30000004 30000004 5000008 30000005 30000005 500000a 30000006 30000006 6000001 30000001
-// prog: 30000001 6000003 30000002 30000002 6000005 30000003 30000003 6000007 30000004 30000004 6000009 30000005 30000005 600000b 30000006 30000006
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8976 1 8a36 1 8af6 1
+// prog: 8bb6 1 8c76 1 8d36 1 8df6 1 8eb6 1 8f76 1 9036 1 90f6 1
+// prog: 91b6 1 9276 1 9336 1 93f6 1 94b6 1 9576 1 9636 1 96f6 1
+// prog: 97b6 1 9876 1 9936 1 99f6 1 9ab6 1 9b76 1 9c36 1 9cf6 1
+// prog: 9db6 1 9e76 1 9f36 1 9ff6 1 a0b6 1 a176 1 a236 1 a2f6 1
+// prog: a3b6 1 a476 1 a536 1 a5f6 1 a6b6 1 a776 1 a836 1 a8f6 1
+// prog: a9b6 1 aa76 1 ab36 1 abf6 1 acb6 1 ad76 1 ae36 1 aef6 1
+// prog: afb6 1 b076 1 b136 1 b1f6 1 b2b6 1 b376 1 b436 1 b4f6 1
+// prog: b5b6 1 b676 1 b736 1 b7f6 1 b8b6 1 b976 1 ba36 1 baf6 1
+// prog: bbb6 1 bc76 1 bd36 1 5000000 30000001 30000001 5000002 30000002 30000002 5000004 30000003 30000003 5000006
+// prog: 30000004 30000004 5000008 30000005 30000005 500000a 30000006 30000006 6000001 30000001 30000001 6000003 30000002 30000002 6000005 30000003
+// prog: 30000003 6000007 30000004 30000004 6000009 30000005 30000005 600000b 30000006 30000006 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -19718,442 +18778,118 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 200000d 20000029 a 200000e
-// prog: 20000029 b 200000f b 2000002a 2000010 a 2000002a 2000011 a 2000002c 2000012 b 20000046 2000013 b
-// prog: 20000047 2000014 a 20000047 2000015 b 2000002c 2000016 a 20000046 2000017 b 2000002d 2000018 a 2000002d
-// prog: 2000019 9 2000004a 200001a 20000013 9 200001b 20000013 8 200001c 8 2000004a 200001d 8 20000033 200001e
-// prog: 9 20000033 200001f 2000001a 6 2000020 2000001a 7 2000021 7 2000004e 2000022 6 2000004e 2000023 20000013
-// prog: 5 2000024 20000013 4 2000025 2000000b 2 2000026 2000000b 3 2000027 3 20000053 2000028 2 20000053
-// prog: 400000c 8 8 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 200000c b 2000002a 200000d a 2000002a 200000e 8 20000032 200000f
+// prog: 9 20000032 2000010 8 20000031 2000011 9 20000031 2000012 8 20000024 2000013 9 20000024 2000014 8
+// prog: 20000036 2000015 6 20000039 2000016 7 20000039 2000017 7 2000003b 2000018 6 2000003b 2000019 9 20000034
+// prog: 200001a 8 20000034 200001b 8 2000002b 200001c 9 2000002b 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000029 20000046 e 200002a
-// prog: 2000002c d 200002b 2000002d d 200002c 2000002d e 200002d 20000046 14 200002e 2000002c 13 200002f 2000002d
-// prog: 13 2000030 2000002d 14 2000031 b 17 2000032 a 18 2000033 a 17 2000034 b 18
-// prog: 2000035 b 16 2000036 a 15 2000037 a 16 2000038 b 15 2000039 b 12 200003a
-// prog: a 11 200003b a 12 200003c b 11 200003d 2000004a 1b 200003e 20000033 1b 200003f 8
-// prog: 1c 2000040 8 1d 2000041 8 1e 2000042 9 1e 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e 10 2a 13
-// prog: 11 2b 17 10 2d 1d 16 30 1e 31 32 48 3b 3c 100000d 29
-// prog: f 1000014 2c 12 1000018 f 2e 100001b 15 2f 1000043 34 33 1000045 37 38
-// prog: 1000046 33 34 1000047 3a 39 2000049 8 3e 4000044 35 35 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 33 20000028 1e 100002f
-// prog: 44 36 200000f a 13 2000010 b 14 2000011 b d 2000012 a e 2000015 b
-// prog: 1b 2000016 a 1d 2000029 a 1b 200002a b 1d 200002b b 17 200002c a 18
-// prog: 200002d a 17 200002e b 18 2000030 20000029 43 2000031 20000029 1e 2000032 20000029 46 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 a f 10 e
-// prog: 29 2a 14 2d 2e 17 2f 30 1b 31 47 100000b 12 11 100000d 16
-// prog: 15 1000013 2c 2b 1000018 45 31 100001d 48 32 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 12 20000026 1b 15
-// prog: 20000048 18 200000f 20000029 a 2000010 20000029 e 2000011 20000029 d 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 a b f d
-// prog: 13 10 100000e 14 11 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b 20000022 a f
-// prog: 20000025 e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 300000a 20000049 f 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 200000e d a 2000010
-// prog: 20000024 a 2000011 f a 2000013 15 a 2000014 1d a 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000016 9 13 200001b
-// prog: 8 13 200001e 9 e 2000029 8 10 200002a 8 e 200002b 9 10 200002c 20000013
-// prog: 14 200002d d e 200002e 20000024 e 200002f f e 2000030 15 e 2000031 1d e
-// prog: 2000032 20000024 10 2000034 f 10 2000035 15 10 2000036 1d 10 2000037 f 11 2000038
-// prog: 15 11 2000039 1d 11 200003a 15 13 200003b 1d 13 200003c 1d 14 4000018 14
-// prog: 14 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 10 2a 2b 100000e
-// prog: 1e 29 1000014 b 2d 100003e d 2f 1000043 17 30 1000044 12 31 1000045 20000023
-// prog: 32 1000047 20000024 34 1000048 20000027 35 100004a f 37 100004b 15 38 100004c 1d 39
-// prog: 100004d 33 3a 100004e 46 3b 100004f 33 3c 2000013 20000013 16 2000050 8 2e 2000051
-// prog: 9 2e 2000052 20000013 36 2000053 8 36 2000054 9 36 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b e 2c 59
-// prog: 20000012 4f 1000012 13 11 2000017 9 14 200001e 20000013 44 200002a 8 45 200002b 9
-// prog: 43 200002d 8 48 200002e 9 44 200002f 20000013 4f 2000030 43 1a 2000031 48 1a
-// prog: 2000032 4b 1a 2000033 4d 1a 2000034 4e 1a 2000035 8 14 2000036 9 45 2000037
-// prog: 8 3e 2000038 9 47 2000039 8 43 200003a 9 48 200003b 8 44 200003c 9
-// prog: 4b 2000046 9 4d 2000055 9 4e 2000056 8 4e 2000057 8 4b 2000058 8 4d
-// prog: 4000029 51 51 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e 17 50 13
-// prog: 2e 53 4d 37 38 4e 39 3a 63 19 39 1000011 29 2a 1000014 30
-// prog: 3e 100001a 31 47 100002c 32 4a 1000043 33 4b 1000044 34 4c 1000045 35 51
-// prog: 1000048 36 50 100004f 3b 54 100005a 2b 1c 1000062 54 3b 200005b 9 46 200005d
-// prog: 8 3a 200005e 9 3a 200005f 20000013 55 2000064 9 58 2000065 8 58 2000066 8
-// prog: 2d 2000067 9 2d 2000068 20000013 56 400005c 55 55 4000060 56 56 4000061 2e 2e
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 17 e 1e 1c
-// prog: 13 2f 35 5b 40 3b 65 42 47 2000000e 62 1000019 11 52 1000029 14
-// prog: 3d 1000038 61 53 1000039 4c 5f 100003a 64 41 200002a 9 43 200002b 8 1a
-// prog: 200002d 20000013 44 200002e 9 4e 2000030 9 45 2000031 8 48 2000032 8 45 2000033
-// prog: 9 48 2000034 20000013 4f 2000036 9 5a 2000037 8 5a 200003e 9 63 2000046 8
-// prog: 63 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 14 2a 49 40
-// prog: 32 33 42 37 5e 48 46 67 4b 20000012 35 4c 20000012 3b 100001e 2e
-// prog: 3f 100003d 30 31 1000041 36 5d 1000044 38 2f 1000045 3e 66 200000e 9 17
-// prog: 2000011 8 19 2000013 20000013 1c 200001a 9 29 2000043 20000013 35 200004a 20000013 3a 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2a 3d 34 2e
-// prog: 41 5f 30 45 68 32 2000004b 44 33 2000001f 40 35 2000004d 42 1000017 e
-// prog: 11 1000019 1a 2b 100002f 43 3c 1000031 4a 57 200001c 20000013 14 2000029 20000013 1e
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e 17 13 11
-// prog: 19 2d 1e 2000001d 2a 2b 20000020 30 34 20000021 2f 36 2000004c 31 1000014 1c
-// prog: 2c 100001a 29 4d 3000037 20000049 33 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 13 2000001b e 17
-// prog: 2000001c 11 19 2000001e 14 200001c 10 37 2000029 9 37 200002a 1e 37 200002c 1a
-// prog: 37 200002d 33 37 200002f 35 37 2000030 47 37 2000031 48 37 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000014 7 2f 2000038
-// prog: 6 30 200003b 6 2f 200003c 7 30 200003d 7 2a 200003e 6 2c 200003f 6
-// prog: 2a 2000040 7 2c 2000041 1e 1c 2000042 1a 1c 2000043 33 1c 2000044 35 1c
-// prog: 2000045 47 1c 2000046 48 1c 2000049 1e 29 200004a 1a 29 200004d 33 29 200004e
-// prog: 35 29 200004f 47 29 2000050 48 29 2000051 1e 2a 2000052 1a 2a 2000053 33
-// prog: 2a 2000054 35 2a 2000055 47 2a 2000056 48 2a 2000057 1a 2c 2000058 33 2c
-// prog: 200005a 35 2c 200005b 47 2c 200005d 48 2c 200005e 33 2d 200005f 35 2d 2000061
-// prog: 47 2d 2000062 48 2d 2000063 35 2f 2000064 47 2f 2000065 48 2f 2000066 47
-// prog: 30 2000067 48 30 2000068 48 31 400000e 1c 1c 4000011 29 29 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 29 3b 3c 2c
-// prog: 3f 40 100001c 38 14 100002a 3e 3d 100002f b 41 1000030 12 42 1000069 10
-// prog: 43 100006a 16 44 100006b 18 45 100006c 1b 46 100006e c 49 100006f 9 4d
-// prog: 1000076 13 51 1000077 17 52 1000078 1e 53 1000079 2e 54 100007a 32 55 100007b
-// prog: 2b 56 100007c 19 57 100007d 1a 58 100007e 34 5a 100007f 39 5b 1000080 36
-// prog: 5d 1000081 33 5e 1000082 35 5f 1000083 47 61 1000084 48 62 1000085 4b 63
-// prog: 1000086 5c 64 1000087 3a 65 1000088 59 66 1000089 60 67 100008a 4c 68 2000070
-// prog: 7 4e 2000071 6 4f 2000072 6 4e 2000073 7 4f 2000074 6 4a 2000075 7
-// prog: 4a 400006d 50 50 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 90 20000015 81 91
-// prog: 20000012 8a 100001b 70 71 200000b 2000001a 29 200000c 2000001a 1c 2000010 7 6a 2000012 6
-// prog: 6b 2000013 6 6a 2000014 7 6b 2000016 7 2f 2000017 6 30 2000018 6 2f
-// prog: 2000019 7 30 200002e 7 6e 2000032 6 6e 2000034 7 76 2000036 6 77 2000038
-// prog: 79 1f 2000039 7a 20 200003a 7 77 200003b 6 7c 200003c 7e 1f 200003d 7f
-// prog: 20 200003e 7 78 200003f 6 7d 2000040 7 79 2000041 6 7e 2000042 85 1f
-// prog: 2000043 86 20 2000044 7 7a 2000045 6 7f 2000046 86 1f 2000049 88 20 200004a
-// prog: 7 7b 200004b 6 80 200004c 7 82 200004d 6 83 200004e 6 82 200004f 7
-// prog: 83 2000050 6 78 2000051 7 7d 2000052 6 76 2000053 79 21 2000054 7a 22
-// prog: 2000055 7 7c 2000056 7e 21 2000057 7f 22 2000058 82 21 2000059 83 22 200005a
-// prog: 6 79 200005b 7 7e 200005c 85 21 200005d 86 22 200005e 6 7a 200005f 7
-// prog: 7f 2000060 86 21 2000061 88 22 2000062 6 7b 2000063 7 80 2000064 7 85
-// prog: 2000065 6 86 2000066 7 86 2000067 6 88 2000068 7 87 200008b 6 89 200008c
-// prog: 6 87 200008d 7 89 200008e 6 85 200008f 7 88 400002b 72 72 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1f 2a b 22
-// prog: 13 14 30 18 19 7b 4e 4f 7c 50 51 7d 3a 52 7e 36
-// prog: 55 7f 5a 5b 80 5e 5f 81 62 63 88 8c 8d 89 44 5a
-// prog: 8a 41 5f 92 66 8e 93 65 8f 1000020 2c c 1000021 12 10 100002f
-// prog: 17 16 100006a 2b 73 100006e 32 75 1000071 36 34 1000072 3b 3a 1000076 3f
-// prog: 3e 1000077 41 40 1000078 45 44 1000079 4b 4a 100007a 4d 4c 1000082 5e 40
-// prog: 1000083 45 5b 1000085 65 64 1000086 67 66 1000087 8b 68 2000070 2000001a 1b 400006b
-// prog: 2e 2e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 14 71 38 16
-// prog: 72 3c 17 77 42 18 78 46 52 20000019 7a 1000010 6b 74 1000013 6e
-// prog: 70 100002a 7d 53 100002b 7e 56 100002c 7c 58 100002e 7f 5c 1000032 80 60
-// prog: 200000b 2000001a 22 200000c 2000001a 21 2000012 2000001a 6a 2000019 2000001a 7b 2000034 7 85 2000036
-// prog: 6 86 200003a 6 85 200003b 7 86 200003e 7 82 200003f 6 83 2000040 6
-// prog: 82 2000041 7 83 2000044 2000001a 88 2000045 2000001a 87 200004a 7 92 200004b 6 93
-// prog: 200004c 6 92 200004d 7 93 200004e 7 89 200004f 6 8a 2000050 6 89 2000051
-// prog: 7 8a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 38 2f b 42
-// prog: 10 12 46 14 39 53 16 3d 55 17 43 56 18 49 58 76
-// prog: 19 5a 2a 54 5b 2b 57 5c 2c 59 5e 2e 5d 5f 32 61
-// prog: 62 3a 3b 64 40 41 65 79 44 68 4c 4d 6e 50 51 100003c
-// prog: 30 c 1000060 36 34 1000063 3f 3e 1000066 81 45 1000067 4b 4a 100006b 4f
-// prog: 4e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 26 f 20000038 1000027 2000000e e 200001d b c 200001e
+// prog: a d 200001f b d 2000020 a c 2000021 20000013 f 2000022 8 10 2000023 8
+// prog: 11 2000024 20000013 e 2000025 9 11 2000028 20000013 19 2000029 7 19 200002a 6 19
+// prog: 200002b 4 1a 200002c 7 1b 200002d 6 1b 200002e 4 1c 200002f 5 1c 2000030
+// prog: 1c 20000046 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 34 2000004f 65 36
-// prog: 20000016 5c 39 20000012 60 3a 20000012 68 200000b 6 55 200000c 7 56 2000010 7
-// prog: 46 2000012 6 53 2000014 7 5e 2000016 6 5f 2000017 6 5e 2000018 7 5f
-// prog: 2000019 7 5a 200002a 6 5b 200002b 6 5a 200002c 7 5b 200002e 2000001a 62 200002f
-// prog: 2000001a 60 2000030 2000001a 68 2000032 2000001a 67 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 a 1d 1e d 21 21 e 20000021 26 100000b
+// prog: 20 1f 200000c 2000002e 21 200000f 7 27 2000010 6 27 2000011 2000001a 2a 2000019 2000001a
+// prog: 29 200001a 5 29 200001b 20000013 2a 2000031 2 2a 2000032 3 2a 2000033 5 2c
+// prog: 2000034 4 2c 2000035 2 2d 2000036 3 2d 2000037 1c 30 2000038 2d 30 2000039
+// prog: 2d 20000046 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 3b b c 3f
-// prog: 17 18 41 2b 2c 43 63 2e 45 6b 30 100003d 12 10 100003e 16
-// prog: 14 1000040 2a 19 1000044 64 2f 1000046 6e 32 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1c a 2000002f 20 10 16 26 e 2000003d 29
+// prog: f 18 3a 34 2f 100001f 15 f 1000027 10 17 100002c 33 2e 200001d 9
+// prog: b 200001e 8 b 2000021 2000001a e 200003b 2d 39 400002a 1a 1a 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 12 20000018 45 14
-// prog: 20000050 44 200000b 2000001a 3b 200000c 2000001a 3f 2000010 2000001a 3e 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 a 20000030 1c e 1e 13 16 21 21 18
+// prog: 20000018 26 1a 20000019 20 100000b 1d 12 100003f 2a 2b 2000010 2000002e 21 2000015 2000001a
+// prog: 1f 2000017 2000001a 20 200002d 5 1f 200002e 4 1f 200002f 2000001a 29 2000033 2000001a 27
+// prog: 2000034 5 27 200003c 20000013 29 200003d 2 29 200003e 3 29 2000040 3 2c 2000041
+// prog: 2 2c 2000042 1 3a 2000043 3a 30 2000044 3a 39 2000045 3a 20000046 400000f 1d
+// prog: 1d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 16 3d b 17
-// prog: 40 c 1000018 41 10 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 12 20000022 a 13 20000025 a 4b 41 36 100001c
+// prog: f 14 1000021 20000011 1a 100004a 35 40 200001e 4 18 200001f 5 18 2000020 20000013
+// prog: 1a 2000026 20000013 34 2000027 3 34 2000029 2 34 200002a 7 b 200002b 6 b
+// prog: 200002c 4 e 2000046 5 e 2000047 20000013 3f 2000048 3 3f 2000049 2 3f 200004d
+// prog: 3a 45 400001d e e 400004c 45 45 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b 20000014 16 c
-// prog: 20000017 18 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 f 13 20000035 18 2000001c 1c 34 2e 1f 1000014
+// prog: 1d 20000037 100001a 2d 1e 1000040 29 3e 1000041 28 13 100004f 49 32 200000a 9
+// prog: 12 200000b 8 12 2000035 2 21 2000036 3 21 2000050 0 4a 2000051 4b 30
+// prog: 2000052 4b 39 2000053 4b 45 2000054 4b 20000046 3000055 20000047 13 400003a 1f 1f 400003f
+// prog: 27 27 400004e 48 48 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 3000010 20000049 c 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 1c c f 2d 34 20000040 5a 50 42 1000048
+// prog: 3a 2e 1000049 3f 3d 1000058 4e 31 2000012 9 a 2000013 9 b 200001d 8
+// prog: b 200001e 6 18 200001f 7 18 2000021 6 14 2000027 7 14 2000028 20000013 34
+// prog: 2000029 20000013 1a 2000032 3 1a 200003e 2 1a 200004a 2000000b 40 2000056 6 41 2000057
+// prog: 7 41 2000059 2000000b 4f 200005c 4b 54 200005d e 55 400005b 54 54 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000016 20 10 2000018
-// prog: 3c 10 2000019 13 10 200002a 17 10 200002b 36 10 200002c c 10 200002e 14
-// prog: 10 200002f 66 10 2000030 46 10 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8 12 22 a 1d 25 b 2000001e 1c 14
+// prog: 28 28 18 20000010 2d 2e 3e 36 41 2b 57 1000009 13 23 100001a 35
+// prog: 32 1000031 32 35 1000040 56 2a 200000f 2000002e 28 2000034 20000013 48 200003a 3 48
+// prog: 200003d 2 48 200003f 2000000b 49 2000042 2000000b 58 200004b 5a 30 200004e 5a 39 200004f
+// prog: 5a 45 2000050 5a 54 200005e 5a 20000046 200005f e 5d 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 200003e 5 2e 200003f
-// prog: 4 2f 2000041 5 2a 2000044 4 2b 2000045 4 2a 2000049 5 2b 200004a 20000013
-// prog: 30 200004b 17 16 200004c 36 16 200004d c 16 200004e 14 16 200004f 66 16
-// prog: 2000050 46 16 2000051 17 18 2000053 36 18 2000054 c 18 2000055 14 18 2000056
-// prog: 66 18 2000057 46 18 2000059 17 19 200005a 36 19 200005b c 19 200005c 14
-// prog: 19 200005d 66 19 200005e 46 19 200005f 17 2a 2000060 36 2a 2000061 c 2a
-// prog: 2000062 14 2a 2000063 66 2a 2000064 46 2a 2000065 36 2b 2000068 c 2b 200006b
-// prog: 14 2b 200006e 66 2b 2000070 46 2b 2000071 c 2c 2000072 14 2c 2000073 66
-// prog: 2c 2000074 46 2c 2000075 14 2e 2000076 66 2e 2000077 46 2e 2000078 66 2f
-// prog: 2000079 46 2f 200007a 46 30 4000032 16 16 400003b 18 18 400003d 19 19 4000040
-// prog: 30 30 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 19 45 49 1000016
-// prog: 3e 3f 1000018 41 44 100002a 1f 4b 100002b 2d 4c 100002e 20 4d 100002f 1c
-// prog: 4e 1000030 31 4f 100007c 29 50 100007d 38 51 100007e 69 53 100007f 3c 54
-// prog: 1000080 21 55 1000081 6c 56 1000082 22 57 1000083 42 59 1000085 6f 5a 1000086
-// prog: 13 5b 1000089 1b 5c 100008a 6d 5d 100008b 6a 5e 100008c b 5f 100008d 58
-// prog: 60 100008e 17 61 100008f 43 62 1000092 34 63 1000093 12 64 1000094 90 65
-// prog: 1000095 36 68 1000096 52 6b 1000097 84 6e 1000098 7b 70 1000099 c 71 100009a
-// prog: 14 72 100009b 66 73 100009c 46 74 100009d 39 75 100009e 87 76 100009f 67
-// prog: 77 10000a0 91 78 10000a1 88 79 10000a2 3a 7a 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 12 18 4a 76
-// prog: 20000012 a2 200000b 20000013 16 2000013 5 2f 200001b 4 30 200001f 5 2a 2000020 4
-// prog: 2b 2000021 4 2a 2000022 5 2b 2000029 20000013 7c 200002d 5 80 2000031 4 81
-// prog: 2000038 5 7d 2000039 4 7e 200003a 4 7d 200003c 5 7e 200003e 20000013 82 200003f
-// prog: 5 89 2000041 4 8a 2000043 5 83 2000044 4 85 2000045 4 83 2000049 5
-// prog: 85 200004b 20000013 8b 200004c 5 8c 200004d 4 8d 200004e 20000013 93 200004f 5 8d
-// prog: 2000050 4 94 2000051 20000013 98 2000052 5 8f 2000053 4 97 2000054 5 93 2000055
-// prog: 4 98 2000056 20000013 a2 2000057 8f 23 2000058 92 24 2000059 96 23 200005a 97
-// prog: 24 200005b 9a 23 200005c 9b 24 200005d 9d 23 200005e 9e 24 200005f 9e 23
-// prog: 2000060 a0 24 2000061 9f 23 2000062 a1 24 2000063 4 8c 2000064 5 94 2000065
-// prog: 4 8e 2000067 5 95 2000068 4 8f 2000069 5 96 200006a 4 92 200006b 5
-// prog: 97 200006c 4 93 200006d 5 98 200006e 5 9a 200006f 4 9b 2000070 5 9d
-// prog: 2000071 4 9e 2000072 5 9e 2000073 4 a0 2000074 5 9f 2000075 4 a1 400001c
-// prog: 7c 7c 4000034 82 82 4000042 8b 8b 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 e 8 20000035 12 9 24 28 18 20000043 2a
+// prog: 20000009 1a 35 40 11 36 41 19 1000013 a d 200001c 6 b 200001d 7
+// prog: b 2000022 2000000b 18 2000023 2000000b 1a 2000025 2000000b 2e 200002b 2000000b 31 200002d 2000000b 3d
+// prog: 2000032 2000000b 3a 2000048 5a 5e 400003e 5e 5e 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -20162,56 +18898,35 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2a 21 22 30
-// prog: 3a 3c 78 45 49 83 4f 63 84 4d 64 85 65 67 87 68
-// prog: 69 88 6a 6b 89 6c 6d 1000018 b 2c 1000023 13 1b 1000024 1f 20
-// prog: 100002b 2d 31 100002f 38 39 100004a 3f 41 1000077 43 44 1000079 4c 4d 100007a
-// prog: 4f 50 100007b 54 55 100007c 57 8e 100007d 59 95 100007e 5b 99 1000080 5d
-// prog: 9a 1000081 5f 9b 1000082 61 9c 100008a 52 6a 100008b 69 53 100008c 6e 6f
-// prog: 100008d 70 71 100008f 72 73 1000090 74 75 1000091 75 74 1000092 55 54 4000093
-// prog: 6c 6c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8 c e 9 c 13 a 2000001d 12 d
+// prog: 1e 1d 18 22 22 19 2000000a 28 100000b 1c 1f 1000031 47 36 2000011 2000002e
+// prog: 22 200001a 0 2a 2000024 5 35 200002e 4 35 200003a 36 5d 200003d 36 55
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 13 24 29 1f
-// prog: 2f 3e 21 77 4b 22 79 4e 2c 7a 51 2d 7b 56 1000031 7c
-// prog: 58 1000038 7d 5a 1000039 7e 5c 100003a 80 5e 100003c 81 60 100003f 82 62
-// prog: 1000059 93 6d 100005d 92 56 200000b 20000013 23 200001b 20000013 2b 2000020 20000013 4a 2000041
-// prog: 5 87 2000043 4 88 2000044 5 83 2000045 4 84 2000049 4 83 200004c 5
-// prog: 84 200004d 20000013 89 200004f 5 8d 2000050 4 8f 2000052 5 8a 2000053 4 8b
-// prog: 2000054 4 8a 2000055 5 8b 2000057 20000013 90 200005b 20000013 91 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 60 49 4c 63
-// prog: 54 55 64 9c 5b 65 20000051 5d 1000024 b 2e 1000029 1b 7f 100002f 20
-// prog: 86 100005e 41 43 100005f 44 45 1000061 4f 50 1000062 52 53 200003e 5 22
-// prog: 200004b 4 2c 200004e 20000013 2d 2000051 5 3a 2000056 4 3c 2000058 5 31 200005a
-// prog: 4 38 200005c 20000013 3f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 c 2000001b 8 e 2000001f 9 35 2e 46 100002a
+// prog: 24 2c 2000012 7 a 2000013 6 a 200001c 6 b 200001d 6 d 2000022 7
+// prog: d 2000028 1 19 2000040 2 31 2000041 3 31 2000049 36 3d 4000047 3d 3d
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2c 5f 4d 2e
-// prog: 62 57 31 2000000f 60 38 20000052 63 3a 20000012 61 100000b 3e 4b 100001b 51
-// prog: 56 1000020 58 5a 2000022 20000013 5e 200002d 20000013 61 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 b 13 27 19 1a 28 2e 2a 1b 36
+// prog: e 37 100000a 21 12 100000d e 16 2000008 7 c 2000009 6 c 2000024 4
+// prog: e 200002c 5 e 2000031 1 35 2000046 35 5d 2000056 35 3d 2000057 35 55
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 3c b 4e 3f
-// prog: 20 5c 1000041 22 85 1000043 2d 8c 200003e 20000013 1b 3000044 20000049 31 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -20219,61 +18934,34 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 e 9 1f 13 10 d 1b a 2f 2a
+// prog: 36 5f 100000c 1e 8 1000012 a 15 1000016 b 17 1000021 b 33 200001a 20000044
+// prog: 19 2000027 3 2e 2000028 2 2e 2000058 35 57 4000037 57 57 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1b 2000000c 3c 20
-// prog: 2000000e 41 22 20000010 43 100000b 3e 39 200002d 19 44 2000045 2a 44 2000049 30
-// prog: 44 200004b 78 44 200004c 2c 44 200004d 31 44 200004e 38 44 200004f 59 44
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 b 20000015 13 d 20000016 16 1e 1a 1a 35
+// prog: 28 41 100002f 26 21 1000033 40 27 1000036 21 38 2000008 7 c 2000009 7
+// prog: e 200000a 6 e 2000015 4 12 2000017 5 12 2000019 2000002e 1a 200001f 5 1b
+// prog: 200002e 4 1b 300005a 20000047 2a 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 39 2000000d b 2000050
-// prog: 20 44 2000051 3 4e 2000052 2 4f 2000053 2 4e 2000054 3 4f 2000055 3
-// prog: 4c 2000056 2 4c 2000057 2c 2d 2000058 20 2d 200005a 31 2d 200005b 38 2d
-// prog: 200005c 59 2d 200005d 2c 45 200005e 20 45 200005f 31 45 2000060 38 45 2000061
-// prog: 59 45 2000062 2c 49 2000063 20 49 2000067 31 49 2000068 38 49 2000069 59
-// prog: 49 200006a 2c 4b 200006b 20 4b 200006c 31 4b 200006d 38 4b 200006e 59 4b
-// prog: 200006f 2c 4c 2000070 20 4c 2000071 31 4c 2000072 38 4c 2000073 59 4c 2000074
-// prog: 31 4d 2000075 38 4d 2000077 59 4d 2000079 38 4e 200007a 59 4e 200007b 59
-// prog: 4f 400003c 2d 2d 400003e 45 45 4000041 49 49 4000043 4b 4b 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2d 53 54 100000b
-// prog: 52 51 100004b 12 57 100004c 18 58 100004e 19 5a 100004f 16 5b 100007c 40
-// prog: 5c 100007d 13 5d 100007e 24 5e 100007f 2a 5f 1000080 23 60 1000081 1c 61
-// prog: 1000082 1f 62 1000083 29 63 1000084 30 67 1000085 2b 68 1000086 34 69 1000087
-// prog: 21 6a 1000088 2f 6b 1000089 78 6c 100008a 4a 6d 100008b 42 6e 100008c 1b
-// prog: 6f 100008d 3f 70 100008e 2c 71 100008f 2e 72 1000090 65 73 1000096 31 74
-// prog: 1000097 38 75 1000098 59 77 1000099 3a 79 100009a 91 7a 100009b 76 7b 2000045
-// prog: 2 50 2000049 3 50 2000092 20 50 2000093 31 50 2000094 38 50 2000095 59
-// prog: 50 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 13 56 49 9f
-// prog: 20000005 96 1000012 45 55 1000060 39 92 1000061 20 93 1000062 22 94 1000063 64
-// prog: 95 2000016 2000000b 2d 2000018 2000000b b 2000019 3 4f 200001b 2 7c 200001c 2 4f
-// prog: 200001f 3 7c 2000021 3 4b 2000023 2 4c 2000024 2 4b 2000029 3 4c 200002a
-// prog: 3 80 200002b 2 81 200002e 2 80 200002f 3 81 2000030 3 7d 2000034 2
-// prog: 7e 200003a 2 7d 200003f 3 7e 2000040 3 85 2000042 2 86 200004a 2 85
-// prog: 2000050 3 86 2000051 3 82 2000052 2 83 2000053 2 82 2000054 3 83 2000057
-// prog: 3 8a 2000058 2 8b 200005a 2 8a 200005b 3 8b 200005c 3 87 200005d 2
-// prog: 88 200005e 2 87 200005f 3 88 2000065 3 8c 2000067 2 8d 2000068 8f 25
-// prog: 2000069 90 26 200006a 3 8d 200006b 3 8e 200006c 3 8f 200006d 99 25 200006e
-// prog: 9a 26 200006f 3 90 2000070 9a 25 2000071 9b 26 2000072 2 97 2000073 3
-// prog: 98 2000074 2 8e 2000075 2 8c 2000076 8f 27 2000077 90 28 2000078 97 27
-// prog: 2000079 98 28 200007a 2 8f 200007b 99 27 2000091 9a 28 200009c 2 90 200009d
-// prog: 9a 27 200009e 9b 28 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 c a 22 1b 2e 2c 27 33 59 2a
+// prog: 36 3a 1000006 1c 8 1000007 1d 9 100001a 1f 24 1000028 35 42 200000e 4
+// prog: b 2000012 5 b 2000013 4 d 2000016 5 d 2000021 2 2f 2000026 3 2f
+// prog: 2000038 5d 5a 2000040 30 5a 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -20282,47 +18970,35 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b 12 16 39
-// prog: 1c 1f 49 24 29 4c 2e 2f 55 3a 3f 64 4a 50 7d 53
-// prog: 54 80 5a 5b 82 5e 5f 8c 72 73 8e 6a 75 1000022 13 18
-// prog: 100002d 1b 19 1000045 23 21 100004b 2b 2a 100004f 34 30 1000056 42 40 100007c
-// prog: 52 51 100007e 58 57 1000081 5d 5c 1000083 67 65 2000085 2 60 2000086 62
-// prog: 25 2000087 63 26 2000088 2 61 200008a 2 62 200008b 2 63 200008d 3 61
-// prog: 200008f 3 60 2000090 62 27 2000092 63 28 2000093 3 62 2000094 3 63 8000000
+// prog: 8000000 0 0 8000000 0 0 8 6 2000003c 9 2000003c c b 15 12 1d
+// prog: 1a 3c 24 1b 43 100000a 17 e 200000d 5 7 200001c 4 7 200001f 1
+// prog: 1b 2000022 0 27 200002c 28 5d 200002e 28 3d 200002f 28 57 2000033 28 55
+// prog: 2000035 2a 5a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 21 83 68 27
-// prog: 74 8d 2a 67 8f 2b 7a 93 2e 9c 94 1000023 85 6a 1000024 88
-// prog: 6b 1000025 8a 6c 1000026 8b 6f 1000029 8e 76 2000012 2000000b 39 2000013 2000000b 2d
-// prog: 2000016 2000000b 4c 2000018 2000000b 4b 2000019 2000000b 64 200001b 2000000b 56 200001c 2000000b 80 200001f
-// prog: 2000000b 7e 2000028 2000000b 8c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 6 10 8 7 10 9 e 1c 16 3c
+// prog: 22 31 41 24 46 100000c d 13 100001a 13 d 2000012 4 a 200001b 4
+// prog: b 2000027 5 b 2000036 3 1d 200003a 2 1d 2000043 28 33 2000059 2a 35
+// prog: 200005f 5d 35 2000060 30 35 4000042 33 33 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2d 45 12 30
-// prog: 4f 16 39 7c 19 3f 81 1c 42 21 69 4a 23 86 4b 25
-// prog: 6d 4c 26 70 50 24 28 51 29 77 100002f 49 13 1000034 55 18
-// prog: 100003a 7d 1b 1000040 82 1f 1000052 2a 90 1000053 27 78 1000054 2b 7b 1000056
-// prog: 2e 9d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 12 4a 87 13
-// prog: 4b 6e 16 4c 71 19 52 92 1b 53 79 1c 54 91 1f 56
-// prog: 9e 24 20000003 50 2000018 3 42 2000021 3 51 2000023 2 51 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8 20000014 6 9 20000017 7 1d 3a 26 100000a
+// prog: 20 e 100001c 21 36 1000022 e 44 1000063 47 5f 1000064 39 60 200000b 2
+// prog: 1a 200000d 3 1a 2000010 3 c 2000013 2 c 2000016 1 e 2000024 3c 5d
+// prog: 2000028 3c 3d 200002a 3c 57 2000031 3c 33 2000046 3c 55 2000061 41 35 2000062
+// prog: 41 5a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -20330,10 +19006,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 45 20000006 1b 2000025
-// prog: 2 13 2000026 3 16 2000027 2 12 2000028 3 1c 2000029 2 1f 200002a 2
-// prog: 1c 200002b 3 1f 200002e 2 19 2000042 3 19 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 c 9 2000003f e 2000000e a 20 1c 4a 26
+// prog: 9 3b 36 22 56 100001a 34 9 1000021 1d 3f 2000006 5 8 2000007 4
+// prog: 8 2000044 3c 46 200005f 41 62 2000060 5d 62 2000065 30 62 400003a 46 46
+// prog: 4000047 62 62 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -20342,9 +19018,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 12 25 26 19
-// prog: 2a 2b 1c 23 42 1000013 27 18 1000016 29 28 100001b 2e 21 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 9 7 17 a f c 3c 21 51 3f
+// prog: 26 49 41 36 61 1000008 6 15 100004a 37 60 1000056 4c 65 200001c 2
+// prog: e 200001d 3 e 2000022 2 1a 2000034 3 1a 200003b 0 20 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20354,9 +19030,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000018 2000000b 12 200001f
-// prog: 2000000b 19 2000021 2000000b 16 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 e 2000000d a 17 13 34 1a 3b 1f 20
+// prog: 3c 2c 21 3f 59 1000015 22 10 2000006 5 8 2000007 5 9 200000c 4
+// prog: 9 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20365,10 +19041,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 12 13 18 16
-// prog: 1b 1f 1000019 1c 21 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8 c 27 10 15 2d 13 17 32 1f
+// prog: 1a 4b 1000004 6 12 1000005 7 1b 2000009 2 e 200000a 3 e 2000022 20
+// prog: 35 2000026 20 62 200002c 20 5a 3000034 20000047 21 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20378,22 +19054,22 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 13 20000002 12 18
-// prog: 20000004 16 1b 20000007 19 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 6 4 2000003f 12 b a 1a 1f 24 1000007
+// prog: 5 29 100000c 8 14 100000e 9 d 1000017 13 52 2000015 0 10 2000021 20
+// prog: 2c 2000027 41 34 200002d 35 34 2000032 5d 2c 2000036 34 63 2000037 30 2c
+// prog: 200003b 34 64 400001b 2c 2c 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 3000012 20000049 1b 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 4 f 6 5 f c 14 15 16 1f
+// prog: 17 2e 100004b 42 32 1000051 5b 37 2000008 3 7 2000009 2 7 200000a 2
+// prog: e 2000010 2 12 2000013 3 12 2000020 1a 35 2000024 1a 62 2000029 1a 2c
+// prog: 200003c 1a 5a 200003f 41 27 2000049 35 27 200004c 27 63 2000052 27 64 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -20402,9 +19078,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000016 22 12 2000019
-// prog: 2f 12 200001b 34 12 200001c 3a 12 200001f 40 12 2000021 18 12 2000023 45
-// prog: 12 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 6 2000000c 4 7 2000000f 5 e 9 1d 12
+// prog: 1f 22 32 4a 4c 41 56 52 100000c 1c 8 100000f 14 4e 1000017 47
+// prog: 49 2000016 1a 3c 200002e 5d 3c 2000037 30 3c 4000015 3c 3c 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20414,34 +19090,22 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000029 0 21 200002a
-// prog: 1 23 200002b 18 16 200002e 45 16 200002f 18 19 2000034 45 19 200003a 18
-// prog: 1b 2000040 45 1b 2000042 18 1c 2000049 45 1c 200004a 18 1f 200004b 45 1f
-// prog: 200004c 18 21 200004f 45 21 2000050 45 23 4000022 16 16 4000025 19 19 4000026
-// prog: 1b 1b 4000027 1c 1c 4000028 1f 1f 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1a c 2b 1d 7 4d 1f f 28 1000008
+// prog: c 23 1000009 7 18 1000014 e 25 1000047 3a 2e 1000049 3e 37 2000004 3
+// prog: 6 2000005 2 6 200001c 1 7 2000022 12 27 2000042 12 34 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 16 29 2a 1000019
-// prog: b 2b 100001b 4d 2e 100001c 2d 2f 100001f 4e 34 1000021 30 3a 1000023 7f
-// prog: 40 1000051 39 42 1000052 84 49 1000053 3f 4a 1000054 89 4b 1000055 13 4c
-// prog: 1000056 24 4f 1000057 9f 50 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 7 5 d c 11 9 e 20000003 8 f
+// prog: 20000006 14 23 14 53 25 1d 58 28 1f 20 1000006 b 4 2000018 0
+// prog: 1a 200002e 12 42 2000037 35 42 200003a 42 63 200003e 42 64 400002b 42 42
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 200000b 0 19 2000013
-// prog: 1 1b 2000024 0 1c 2000029 1 1f 200002a 0 21 200002b 1 23 200002d 0
-// prog: 51 200002e 1 52 200002f 0 53 2000030 1 54 2000034 0 56 2000039 1 56
-// prog: 200003a 0 55 200003f 1 57 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -20450,10 +19114,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 19 b 13 1b
-// prog: 24 29 1c 2a 2b 1f 2d 2e 21 2f 30 23 39 3a 40 34
-// prog: 3f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 9 20000005 c 14 18 1c 1a 23 2f 1d
+// prog: 25 5f 4d 4b 3a 4e 51 3e 100004c 1b 37 2000004 3 6 2000005 3
+// prog: 7 2000008 2 7 200000b 0 e 200000d 1 e 2000012 1 f 200001f 28 27
+// prog: 2000020 28 42 200004a 28 34 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -20462,9 +19126,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 200000b 0 23 2000013
-// prog: 1 40 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 6 8 13 c 14 4f e 1a 26 f
+// prog: 1d 3f 1000002 a 4 1000003 10 5 2000007 1 9 200001b 28 4a 200001c 35
+// prog: 4a 2000023 4a 63 2000025 4a 64 4000018 4a 4a 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20472,11 +19136,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 23 b 13 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 4 2 20000042 5 20000042 6 8 20000004 3 9
+// prog: b 7 a c 2a 10 e 22 1a 47 23 1d 49 25 1000014 15
+// prog: 1c 3000013 20000047 f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20486,9 +19150,9 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b 20000000 23 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 11 4 3 11 5 b a 24 2000006
+// prog: 0 8 2000007 1 9 200000c 10 13 200000e 27 13 200000f 13 17 2000015 13
+// prog: 32 200001c 13 41 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20496,11 +19160,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 3000013 20000049 b 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 20000002 2 4 20000007 3 5 6 12 8
+// prog: b 1f 2000009 10 c 200000a 27 c 2000011 c 17 2000022 c 32 2000023 c
+// prog: 41 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20510,8 +19174,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 200000b 16 13 2000023
-// prog: 19 13 2000024 1b 13 2000029 1c 13 200002a 1f 13 200002b 21 13 7000000 13
+// prog: 8000000 0 0 8000000 0 0 3 4 5c 6 5 50 1f 4c 11 24
+// prog: 4d 22 25 4e 23 1000012 2b a 2000002 0 1 200000b 8 c 2000010 8
 // prog: 13 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -20522,165 +19186,3295 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000021 0 b 200002d
-// prog: 1 b 200002e 0 23 200002f 1 23 2000030 0 24 2000034 1 24 2000039 0
-// prog: 29 200003a 1 29 200003f 0 2a 2000040 1 2a 2000042 0 2b 2000049 1 2b
-// prog: 4000013 b b 4000016 23 23 4000019 24 24 400001b 29 29 400001c 2a 2a 400001f
-// prog: 2b 2b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 1 2 d 4 3 43 5 6 31 2000011
+// prog: 8 10 2000022 27 10 2000023 10 17 2000026 10 32 2000028 10 41 400000a 10
+// prog: 10 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 3 4 21 6 5 29 d 14 23 17
+// prog: 1a 26 2a 1d 28 1000008 18 22 2000002 0 1 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 2 7 1 3 2e 4 6 20 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 3 1 9 5 4 b 1000002 0 1e 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 19 2 3000001 20000047 3 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 20000000 0 2000003 5 1 2000006 c 1 2000007
+// prog: 1 12 2000009 1 1f 200000b 1 24 2000014 1 25 4000004 1 1 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 2 48 2000001 5 3 2000018 c 3 2000019
+// prog: 3 12 200001a 3 1f 200001d 3 24 200001e 3 25 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 0 44 12 8 19 1f d 1a 20
+// prog: 17 1d 21 2a 1e 1000005 a 18 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 2 16 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 0 1b 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 2 11 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 0 1 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 3000000 20000047 2 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2000002 3 0 2000008 10 0 200000a 4a 0 200000d
+// prog: 3c 0 2000011 46 0 2000016 5e 0 2000017 0 5 2000018 0 12 2000019 0
+// prog: 1f 200001a 0 20 200001b 0 21 4000001 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2000005 c 2 2000012 42 2 200001d 2c 2 200001e
+// prog: 33 2 200001f 54 2 2000020 3 2 2000021 10 2 2000022 4a 2 2000023 3c
+// prog: 2 2000024 46 2 2000025 5e 2 2000026 3 17 2000028 10 17 2000029 4a 17
+// prog: 200002a 3c 17 200002b 46 17 200002e 5e 17 200002f 3 18 2000031 10 18 2000032
+// prog: 4a 18 2000037 3c 18 200003a 46 18 200003e 5e 18 200003f 3 19 2000041 10
+// prog: 19 2000043 4a 19 2000044 3c 19 2000047 46 19 2000048 5e 19 2000049 3 1a
+// prog: 200004b 10 1a 200004c 4a 1a 200004d 3c 1a 200004e 46 1a 200004f 5e 1a 2000050
+// prog: 3 1b 2000051 10 1b 2000052 4a 1b 2000053 3c 1b 2000056 5e 1b 4000000 2
+// prog: 2 7000000 1 1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 10 7 2f 17 9 3f 18 b 49 19
+// prog: 14 50 1000002 4 20 1000003 26 6 4000001 5 5 7000001 0 0 7000007 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1000000 1 8 2000004 c 2 2000005 42 2 2000006
+// prog: 2c 2 2000007 33 2 2000009 54 2 200000b c 3 2000014 42 3 200001a 2c
+// prog: 3 200001b 33 3 2000020 54 3 2000026 c 10 200002f 42 10 200003c 2c 10
+// prog: 200003f 33 10 2000046 54 10 2000049 c 17 200004a 42 17 2000050 2c 17 2000058
+// prog: 33 17 2000059 54 17 200005b c 18 200005c 42 18 200005e 2c 18 200005f 33
+// prog: 18 2000060 54 18 2000061 c 19 2000063 42 19 2000064 2c 19 2000065 54 19
+// prog: 7000008 2 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 18 f 49 19 15 5b 2c 1c 61 100000c
+// prog: 4 21 1000010 b 13 1000017 26 e 2000001 27 0 2000002 62 0 2000003 57
+// prog: 0 2000008 45 0 7000002 0 0 700000e 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 13 10 28 15 17 31 1c 18 41 21
+// prog: 19 4b 26 2c 51 1000000 1 12 2000004 27 c 200000b 62 c 200000e 57
+// prog: c 200000f 45 c 7000009 c c 700000f c c 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 c 4 5 1000001 0 a 2000010 27 13 2000012
+// prog: 62 13 2000017 57 13 2000018 45 13 2000019 27 15 2000028 62 15 200002c 57
+// prog: 15 2000031 45 15 2000033 27 1c 2000041 62 1c 2000042 57 1c 2000049 45 1c
+// prog: 200004b 27 21 2000051 62 21 2000054 57 21 200005b 45 21 2000061 27 26 2000066
+// prog: 62 26 2000067 45 26 7000010 13 13 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 13 10 14 21 36 4b 26 3b 61 100000a
+// prog: c 22 1000015 19 34 100001c 33 2d 2000000 35 1 2000004 3d 1 2000005 39
+// prog: 1 7000003 1 1 7000015 1 1 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 0 2 19 13 29 22 15 2f 27
+// prog: 1c 4a 2d 21 5c 33 26 63 200000c 35 a 2000010 3d a 2000014 39
+// prog: a 700000a a a 7000016 a a 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 2 c b 1c 22 32 21 27 43 26
+// prog: 2d 4c 29 33 52 1000000 1 1d 200000a 35 19 2000013 3d 19 2000015 39
+// prog: 19 7000011 19 19 7000017 19 19 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 b 2 6 c a 12 1000001 0 d 2000019
+// prog: 35 1c 200001d 3d 1c 2000022 39 1c 2000027 35 21 200002d 3d 21 200002f 39
+// prog: 21 2000032 35 26 2000033 3d 26 2000034 39 26 2000036 35 29 200003b 39 29
+// prog: 7000018 1c 1c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 a c 1a d 19 28 1000006 b 23 1000012
+// prog: 27 5a 100001c 32 38 1000021 36 40 2000000 5d 1 2000002 30 1 7000004 1
+// prog: 1 700001c 1 1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 0 4 1a a 2a 23 d 3c 26
+// prog: 12 41 27 1c 51 28 21 66 100000b 2 5 200000c 5d 6 2000019 30
+// prog: 6 700000b 6 6 700001d 6 6 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 1 3 2 b 8 4 c 10 d
+// prog: 23 37 12 26 50 1c 27 5e 21 28 64 1000005 19 14 2000006 5d
+// prog: 1a 200000a 30 1a 7000012 1a 1a 700001e 1a 1a 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8 4 e b 5 f c 6 13 1a
+// prog: 12 44 23 1c 4d 26 21 53 1000001 0 1e 1000003 2 1f 1000010 a
+// prog: 15 2000014 5d d 2000019 30 d 7000019 d d 700001f d d 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 4 8 7 5 b 9 6 c 17 a
+// prog: 10 18 d 14 1d 1000000 1 11 1000002 3 16 100000e 19 22 200000f 5d
+// prog: 1a 2000012 30 1a 2000013 5d 23 2000015 30 23 200001c 30 26 7000020 1a 1a
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 7 6 1b 8 a 20 9 d 2c b
+// prog: e 31 c f 2d 16 20000048 1c 1000001 4 24 1000003 5 25 1000010 12
+// prog: 2f 1000011 13 55 1000014 15 34 7000005 0 0 7000023 0 0 7000006 2 2
+// prog: 700002a 2 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 7 2b 2 8 2e 4 9 3f 5
+// prog: b 46 6 c 42 a 10 49 d 11 33 e 14 5b 100000f 16
+// prog: 3b 700000c 1 1 7000024 1 1 700000d 3 3 700002b 3 3 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 4 3a 3 5 3e 7 6 58 8
+// prog: a 59 9 d 54 b e 60 c f 67 7000013 0 0 7000025 0
+// prog: 0 7000014 2 2 700002c 2 2 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 0 7 47 2 8 48 4 9 5f 5
+// prog: b 4f 6 c 65 700001a 1 1 7000026 1 1 700001b 3 3 700002d 3
+// prog: 3 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 1 4 4e 3 6 56 7000021 0 0 7000027
+// prog: 0 0 7000022 2 2 700002e 2 2 7000029 5 5 700002f 5 5 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 7000028 1 1 7000030 3 3 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 beea 1 bfaa 1 c06a 1 c12a 1 c1ea 1
+// prog: c2aa 1 c36a 1 c42a 1 c4ea 1 c5aa 1 c66a 1 c72a 1 c7ea 1
+// prog: c8aa 1 c96a 1 ca2a 1 caea 1 cbaa 1 cc6a 1 cd2a 1 cdea 1
+// prog: ceaa 1 cf6a 2 d0ea 1 d1aa 1 d26a 1 d32a 1 d3ea 1 d4aa 1
+// prog: d56a 1 d62a 1 d6ea 1 d7aa 1 d86a 1 d92a 1 d9ea 2 db6a 1
+// prog: dc2a 1 dcea 1 ddaa 1 de6a 1 df2a 1 dfea 1 e0aa 1 e16a 1
+// prog: e22a 1 e2ea 1 e3aa 1 e46a 1 e52a 1 e5ea 1 e6aa 1 e76a 1
+// prog: e82a 1 e8ea 1 e9aa 1 ea6a 1 eb2a 1 ebea 1 ecaa 1 ed6a 1
+// prog: ee2a 1 eeea 1 efaa 1 f06a 1 f12a 1 f1ea 1 f2aa 1 f36a 1
+// prog: f42a 1 f4ea 1 f5aa 1 f66a 1 f72a 1 f7ea 1 f8aa 1 f96a 1
+// prog: fa2a 1 faea 1 fbaa 1 fc6a 1 fd2a 1 fdea 1 feaa 1 ff6a 1
+// prog: 1002a 1 100ea 1 101aa 1 1026a 1 1032a 1 103ea 1 104aa 1 1056a 1
+// prog: 1062a 1 106ea 1 107aa 1 1086a 1 1092a 1 109ea 1 10aaa 1 10b6a 1
+// prog: 10c2a 1 10cea 1 10daa 1 10e6a 1 10f2a 1 10fea 1 110aa 1 1116a 1
+// prog: 1122a 1 112ea 1 113aa 1 1146a 1 1152a 1 115ea 1 116aa 1 1176a 1
+// prog: 1182a 1 118ea 1 119aa 1 11a6a 1 11b2a 1 200000c 20000004 40000001 200000d 20000006 40000001
+// prog: 200000e 20000007 40000001 200000f 2000000b 40000001 5000000 30000001 30000001 5000002 30000002 30000002 5000004 30000003 30000003 5000006
+// prog: 30000004 30000004 5000008 30000005 30000005 500000a 30000006 30000006 6000001 30000001 30000001 6000003 30000002 30000002 6000005 30000003
+// prog: 30000003 6000007 30000004 30000004 6000009 30000005 30000005 600000b 30000006 30000006 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000010 0 40000000 2000011 1 40000000
+// prog: 2000012 2 40000001 2000013 3 40000001 2000014 3 f 2000015 2 f 2000016 20000029 a 2000017
+// prog: 20000029 b 2000018 b 2000002a 2000019 a 2000002a 200001a a 2000002c 200001b b 20000049 200001c b
+// prog: 2000004a 200001d a 2000004a 200001e b 2000002c 200001f a 20000049 2000020 b 2000002d 2000021 a 2000002d
+// prog: 2000022 9 2000004d 2000023 20000013 9 2000024 20000013 8 2000025 8 2000004d 2000026 8 20000033 2000027
+// prog: 9 20000033 2000028 2000001a 6 2000029 2000001a 7 200002a 7 20000051 200002b 6 20000051 200002c 20000013
+// prog: 5 200002d 20000013 4 200002e 2000000b 2 200002f 2000000b 3 2000030 3 20000056 2000031 2 20000056
+// prog: 2000032 0 20000001 2000033 1 20000001 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 3e 40000002 11 200000f 40000001 11
+// prog: 2000034 40000001 10 2000035 20000002 10 2000036 20000003 11 2000037 20000003 10 2000038 20000005 11 2000039
+// prog: 20000004 10 200003a 20000006 11 200003b 2000000b 10 200003c 3 10 200003d 2 10 200003f 20000049
+// prog: 17 2000040 2000002c 16 2000041 2000002d 16 2000042 2000002d 17 2000043 20000049 1d 2000044 2000002c 1c
+// prog: 2000045 2000002d 1c 2000046 2000002d 1d 2000047 b 20 2000048 a 21 2000049 a 20 200004a
+// prog: b 21 200004b b 1f 200004c a 1e 200004d a 1f 200004e b 1e 200004f b
+// prog: 1b 2000050 a 1a 2000051 a 1b 2000052 b 1a 2000053 2000004d 24 2000054 20000033 24
+// prog: 2000055 8 25 2000056 8 26 2000057 8 27 2000058 9 27 2000059 4 33 200005a
+// prog: 5 33 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 16 35 36 17 37 38
+// prog: 1c 39 3a 20 3d 13 5f 19 40 60 1a 41 62 19 43 65
+// prog: 1f 46 66 47 48 6c 51 52 100001d 12 3c 100005e 3f 18 1000061 42
+// prog: 1b 1000063 18 44 1000064 1e 45 1000067 4a 49 1000069 4d 4e 100006a 49 4a
+// prog: 100006b 50 4f 2000021 2 3b 2000024 3 3b 2000026 2000000e 3e 2000027 2000000f 3e 200005b
+// prog: 20000011 3e 200005c 4 3e 200005d 5 3e 200006d 8 54 4000068 4b 4b 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 12 16 c 13 17 d
+// prog: 18 1c e 19 14 21 51 20000028 66 100001a 24 15 100003f 40000003 20 100004d
+// prog: 68 4c 200001b 40000002 20 200001e 40000002 1d 200001f 2000000c 1d 2000035 2000000d 20 2000036 2000000e
+// prog: 20 2000037 20000010 20 2000038 20000010 1d 2000039 20000011 1d 200003a 20000013 20 200003b 20000013 1d
+// prog: 200003c 5 1d 200003d 4 1d 2000040 a 60 2000041 b 61 2000042 b 5e 2000043
+// prog: a 5f 2000044 b 64 2000045 a 65 2000046 a 64 2000047 b 65 2000048 b
+// prog: 62 2000049 a 63 200004a a 62 200004b b 63 200004e 20000029 67 200004f 20000029 66
+// prog: 2000050 20000029 6a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 21 35 26 24 36 27
+// prog: 65 19 3a 67 3c 5c 74 40 41 77 46 47 79 4a 4b 7a
+// prog: 4d 4e 7c 4f 6b 100005e 5b 37 1000066 1a 3b 1000068 5d 3d 1000075 43
+// prog: 42 1000076 45 44 1000078 49 48 100007b 69 4f 100007d 6c 50 200000c 11 18
+// prog: 200000d 40000001 13 200000e 40000001 12 2000014 10 18 2000015 10 13 2000016 11 12 2000017
+// prog: 40000002 1a 200001c 40000002 19 200004c 20000010 1a 2000052 20000010 19 2000054 20000011 19 200005f 20000012
+// prog: 19 2000060 20000012 1a 2000061 1a 39 2000062 19 39 2000063 20 39 2000064 1d 39
+// prog: 200006e 20000016 3f 200006f 20000017 3f 2000070 20000018 3f 2000071 2000001a 3f 2000072 6 3f 2000073
+// prog: 7 3f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 18 21 52 48 40000004 68
+// prog: 4d 20000026 7c 4e 2000004b 7b 1000010 c d 1000011 e 14 1000012 15 16 1000013
+// prog: 1f 4c 1000026 24 54 1000027 5f 5e 1000035 60 38 2000036 5 65 2000037 4
+// prog: 65 2000039 40000003 68 200003a 40000003 67 200003b 20000014 67 200003c 20000015 68 200003d 20000016 68
+// prog: 2000040 20000018 66 2000041 20000019 68 2000042 20000019 67 2000043 20000018 67 2000044 20000012 66 2000045
+// prog: 2000001a 67 2000046 7 67 2000047 6 67 2000049 20000029 74 200004a 20000029 77 200004b 20000029
+// prog: 76 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 50 3c 6e 52 3d 6f
+// prog: 6c 47 73 83 75 49 84 78 4a 100005d 70 41 1000060 43 44 1000065
+// prog: 36 71 1000069 45 66 100006b 72 46 1000085 79 4b 200000c 20 26 200000d 3e
+// prog: 18 200000e 3e 13 2000014 1d 26 2000015 1d 18 2000016 20 13 200001f 19 35
+// prog: 2000021 1a 27 2000024 3e 35 2000038 3e 27 200004c 40000003 37 200004f 40000003 36 2000054
+// prog: 20000019 37 200005b 20000019 36 200005c 20000018 36 200005e 20000012 36 200005f 20000012 37 2000074 2000001d
+// prog: 48 2000076 2000001f 48 2000077 20000020 37 200007b 2000000e 37 200007c 20000020 48 200007e 2000000e 48
+// prog: 200007f 8 48 2000080 9 48 2000081 8 37 2000082 9 37 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 35 50 5b 8c 20000022 83
+// prog: 8d 20000025 85 1000013 c d 1000018 e 14 1000019 15 16 100001a 1f 21 100001d
+// prog: 63 24 1000020 38 64 1000026 54 40 100003c 52 5c 100003d 5e 5d 100008b 40000005
+// prog: 6c 200003e 37 60 2000041 36 60 2000043 68 60 2000044 67 60 2000045 7 65
+// prog: 2000046 6 69 2000047 6 65 2000049 7 69 200004a 40000004 6c 200004b 40000004 6b 200006e
+// prog: 2000001b 6b 200006f 2000001c 6c 2000070 2000001c 6b 2000071 2000001e 6c 2000072 2000001d 6b 2000075 20000021
+// prog: 6c 2000078 20000021 6b 2000079 2000000e 6c 2000086 20000020 6b 2000087 20000013 6c 2000088 20000013 6b
+// prog: 2000089 9 6b 200008a 8 6b 4000027 5f 5f 4000073 77 77 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 c 13 61 e 19 1a
+// prog: 14 3b 26 5b 47 49 5c 6e 6f 5d 70 71 5e 72 76 64
+// prog: 89 7f 100000d 18 62 1000015 27 42 1000054 46 45 100005f 7c 75 1000060 78
+// prog: 7e 1000063 79 86 1000065 80 8a 2000016 68 3c 200001f 3f 35 2000021 67 3c
+// prog: 2000024 67 35 2000038 66 3d 2000040 37 3d 2000050 3f 3d 2000052 68 3d 2000069
+// prog: 20000024 8b 2000077 20000025 8b 2000083 20000026 8b 2000085 20000029 8b 200008e a 8b 200008f b
+// prog: 8b 3000090 2000004c 8d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 46 5c 74 71 54 87
+// prog: 91 40000006 65 1000013 16 1f 100003c 50 44 1000070 27 63 1000072 5b 88 2000018
+// prog: 3f 14 2000019 68 14 200001a 66 15 2000035 36 15 200003b 3f 15 200003d 67
+// prog: 15 2000042 40000004 5b 2000045 40000004 54 2000047 20000021 5b 2000049 20000021 54 2000061 2000000e 5b
+// prog: 2000062 20000020 54 200006e 20000012 54 200006f 20000012 5b 2000075 40000005 65 2000076 40000005 64 2000078
+// prog: 20000022 64 2000079 20000023 65 200007c 20000024 65 200007e 20000027 65 200007f 20000027 64 2000080 20000026
+// prog: 64 2000086 20000029 64 2000089 b 64 200008a a 64 2000092 84 90 2000093 20000024 90
+// prog: 2000094 8d 90 2000095 4e 90 2000096 7d 90 4000026 38 38 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 27 35 40 44 49 7b
+// prog: 97 79 69 98 7c 77 9e 8a 8f 1000014 18 21 1000015 24 19 1000016
+// prog: 1a 3e 100001f 26 41 1000036 43 3b 1000038 3d 52 100003f 73 47 1000050 61
+// prog: 62 100005c 6e 5f 1000063 6f 60 100009a 83 7e 100009c 86 72 100009d 8e 89
+// prog: 2000066 5b 70 2000067 54 70 2000068 6c 70 2000074 6b 70 2000087 9 71 2000088
+// prog: 8 71 2000099 20000026 72 200009b 20000028 72 200009f 2000002b 91 20000a0 84 92 20000a1 20000024
+// prog: 92 20000a2 8d 92 20000a3 4e 92 20000a4 7d 92 20000a5 20000024 93 20000a6 8d 93
+// prog: 20000a7 4e 93 20000a8 7d 93 20000a9 8d 94 20000aa 4e 94 20000ab 7d 94 20000ac
+// prog: 4e 95 20000ad 7d 95 20000ae 7d 96 20000af 75 2000004d 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 18 13 16 19 14 1f
+// prog: 1a 15 27 21 46 3f 24 5d 44 26 5e 50 1000049 87 81 1000060
+// prog: 80 9b 100007b 8c a0 100007c 84 a2 100007e 7a a3 1000083 4d a4 1000086 20000023
+// prog: a5 1000089 20000024 a6 100008a 20000027 a7 100008e 8d a9 100008f 4e aa 1000092 7d ab
+// prog: 1000093 51 ac 1000094 6a ad 1000095 51 ae 2000035 37 63 200003b 37 5c 200003d
+// prog: 54 63 200003e 5b 5c 2000040 48 63 2000041 48 5c 2000043 6b 63 2000047 6c
+// prog: 5c 2000061 a 9c 2000062 b 9c 2000069 40000006 9e 200006e 40000006 9d 200006f 2000002a 9d
+// prog: 2000070 2000002a 9e 2000071 2000002c 9e 2000073 2000002c 9d 2000077 9e 9f 2000079 9d 9f 2000096
+// prog: 76 a1 20000b0 75 a1 20000b1 76 a8 20000b2 8 a1 20000b3 9 a1 20000b4 20000013
+// prog: a8 20000b5 8 a8 20000b6 9 a8 4000052 88 88 400005f 99 99 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 37 66 35 c5 20000012 95
+// prog: 1000044 3d 3e 1000046 68 40 100004d 41 74 1000050 43 47 1000051 52 82 100007a
+// prog: 49 85 2000013 6c 26 2000014 48 24 2000015 48 21 2000016 6b 26 200001f 6b
+// prog: 24 2000027 6c 21 2000054 40000005 49 200005b 20000027 49 200005c 20000026 49 200005d 20000028 49
+// prog: 200005e 49 60 2000063 65 60 200006a 64 60 2000080 2000002a 69 2000081 2000002a 6e 2000087
+// prog: 2000002c 6e 2000088 69 20000049 200008c 75 7b 200009b 76 86 200009c 75 7c 200009f 76
+// prog: 89 20000a0 75 7e 20000a1 76 8a 20000a2 75 83 20000a3 9 7b 20000a4 20000013 83
+// prog: 20000a6 8 86 20000a7 9 7e 20000a8 8 8a 20000a9 9 83 20000aa 20000013 95 20000ab
+// prog: 7e 23 20000ac 8a 23 20000ad 8f 23 20000ae 93 23 20000b7 94 23 20000b8 8
+// prog: 7b 20000b9 9 86 20000ba 8 7c 20000bb 9 89 20000bc 8 7e 20000bd 9 8a
+// prog: 20000be 8 83 20000bf 9 8f 20000c0 9 93 20000c1 9 94 20000c2 8 94 20000c3
+// prog: 8 8f 20000c4 8 93 400003f 3b 3b 4000099 b0 b0 40000a5 b3 b3 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 3e 97 5b 66 8c 96
+// prog: 74 a2 b1 7b a3 b2 83 a9 b5 c9 ba bb ca bc bd d5
+// prog: 22 bc 1000021 13 14 1000023 15 16 1000024 1f 27 1000026 3f 67 1000040 98
+// prog: 5c 1000041 5d 9a 1000069 99 9b 100006b 9c 9f 100006c a0 a1 1000082 a5 a6
+// prog: 1000085 ab 7c 1000086 ac 89 1000095 ad 8e 10000b0 ae 8f 10000c6 b7 92 10000c7
+// prog: b8 b3 10000c8 b9 b2 10000cb be b6 10000cc a7 25 10000d4 b6 be 2000035 40000005
+// prog: 51 200003b 20000027 51 200003d 20000028 51 2000043 51 60 2000047 b 7a 2000048 a 7a
+// prog: 2000052 2000002d 51 2000068 54 2000004d 200006e 54 20000033 20000cd 9 c0 20000cf 8 bd 20000d0
+// prog: 9 bd 20000d1 20000013 c1 20000d6 9 c4 20000d7 8 c4 20000d8 8 a8 20000d9 9
+// prog: a8 20000da 20000013 c2 40000ce c1 c1 40000d2 c2 c2 40000d3 a9 a9 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 13 21 37 14 23 26
+// prog: 15 24 44 67 48 62 99 7b a4 9b 83 aa a9 cd 56 b2
+// prog: d7 58 b7 2000000e d4 1000016 5f 3b 100001f 3d 7f 1000060 61 47 1000097 af
+// prog: 6e 100009a 82 b4 100009c 85 53 10000ad d3 b5 10000ae 92 d1 10000b1 d6 57
+// prog: 2000022 65 40 2000025 8b 3e 2000027 64 40 200003f 64 3e 2000054 72 41 200005b
+// prog: 51 41 200005c 8b 41 200005d 65 41 200007a 9e 52 200007c 9d 52 2000089 35
+// prog: 7e 200008c 35 8a 200008e 35 8f 2000096 35 93 2000098 35 94 200009f 9 b0
+// prog: 20000a0 8 86 20000a1 20000013 c6 20000a2 9 ca 20000a3 9 c7 20000a5 8 c8 20000a6
+// prog: 8 c7 20000a7 9 c8 20000a8 20000013 cb 20000ab 9 cc 20000ac 8 cc 20000b3 9
+// prog: d5 20000b6 8 d5 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 21 78 16 58 66 89
+// prog: 5f 69 8c 61 6b 8e 62 6c 96 6e 74 98 82 9f 6d 8a
+// prog: a6 a7 92 ac d0 af b6 d9 b4 20000012 a9 b5 20000012 b2 1000023 22
+// prog: 25 100003d 5c 6a 1000085 a2 55 1000086 a3 a5 100008f ab cf 1000094 ad aa
+// prog: 10000a4 b3 d8 2000024 72 1f 2000037 49 1f 200003b 8b 1f 200003e 64 1f 2000040
+// prog: 40000006 67 2000041 40000006 60 2000044 2000002c 67 2000047 2000002c 60 2000048 2000002d 60 2000053 2000002d
+// prog: 67 2000056 67 52 2000057 60 52 200007b 9 99 200007e 8 9a 200007f 20000013 9b
+// prog: 2000083 9 9c 2000093 20000013 a9 20000b0 20000013 b1 4000026 54 54 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 22 43 24 5c 70 47
+// prog: 64 71 48 8c 86 a8 8e 8f d1 98 a4 da 9a 2000004e 94 9b
+// prog: 2000001f 8a 9c 20000050 92 1000025 26 5e 1000049 37 5b 1000052 63 3b 1000054 3e
+// prog: 5d 1000055 6f 44 1000066 53 73 100006d 58 68 1000072 7b 7e 1000074 83 a0
+// prog: 1000096 93 bf 1000099 b0 c3 2000016 8b 21 200001f 65 21 2000069 41 20000049 200006a
+// prog: 2000002c 40 200006b 2000002d 40 200006c 2000002d 41 2000078 20000013 82 2000089 20000013 85 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 26 23 22 68 72 7f
+// prog: 6f 74 a1 73 2000001d 8c 7b 20000020 98 7e 20000021 96 82 2000004f 99 1000021
+// prog: 16 27 1000024 3f 1f 100005d 80 69 100005e 6a 81 1000063 6b 87 1000065 88
+// prog: 6c 1000070 78 95 1000071 89 c9 2000037 91 5c 200003b 91 55 200003e 9d 5c
+// prog: 2000040 9e 55 2000041 51 66 2000043 51 64 2000044 60 66 2000047 67 64 2000048
+// prog: 91 66 2000053 91 64 2000058 9d 66 200005b 9e 64 3000083 2000004c 9b 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 16 21 25 1f 24 49
+// prog: 66 2000001b 68 67 2000001c 6f 69 2000001e 70 1000022 77 37 1000023 3b 79 1000027
+// prog: 3e 40 100003f 56 41 1000051 43 57 1000055 44 47 100005c 7a 48 1000060 53
+// prog: 7c 1000064 58 5b 200006a 73 83 200006b 71 83 200006c 9b 83 2000072 9c 83
+// prog: 2000074 b7 83 2000078 af 83 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 21 22 3f 24 23 51
+// prog: 25 27 55 37 5c 63 3b 60 65 3e 3d 64 2000040 73 6a 2000041
+// prog: 71 6a 2000043 9b 6a 2000044 9c 6a 2000047 b7 6a 2000048 af 6a 2000049 71
+// prog: 6b 2000053 9b 6b 2000056 9c 6b 2000057 b7 6b 2000058 af 6b 200005b 9b 6c
+// prog: 2000068 9c 6c 200006f b7 6c 2000070 af 6c 2000077 9c 72 2000079 b7 72 200007a
+// prog: af 72 200007c b7 74 200007f af 74 2000080 af 78 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 23 21 5d 27 24 5e
+// prog: 5c 3e 97 1000022 50000006 25 1000060 66 40 1000063 67 41 1000064 73 43 1000065
+// prog: 8e 44 100006a 9a 47 100006b 7b 48 100006c 69 49 1000072 71 53 1000074 7e
+// prog: 56 1000078 ae 57 1000081 82 58 1000085 9b 5b 1000086 9c 68 1000087 b7 6f
+// prog: 1000088 af 70 1000089 b4 77 100008a ce 79 100008b b1 7a 100008c c5 7c 100008f
+// prog: d2 7f 1000091 b5 80 200003d b 37 200003f a 3b 2000051 a 37 2000055 b
+// prog: 3b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 37 51 55 ca 20000015 85
+// prog: cb 20000012 91 1000024 3f 3d 2000021 20000048 22 200003b b 23 200003e a 27 2000040
+// prog: a 23 2000041 b 27 2000043 8 5c 2000044 9 5c 2000047 4a 60 2000048 4b
+// prog: 63 2000049 42 65 2000053 45 6a 2000056 4a 63 2000057 4b 6c 2000058 42 74
+// prog: 200005b 45 78 200005d 4a 64 200005e 4b 72 2000066 42 86 2000067 45 87 2000068
+// prog: 4a 65 2000069 4b 74 200006f 42 89 2000070 45 8a 2000077 4a 6a 2000079 4b
+// prog: 78 200007a 42 8a 200007b 45 8c 200007c 4a 6b 200007e 4b 81 200007f 42 8b
+// prog: 2000080 45 8f 2000082 7 60 200008e 6 63 2000092 65 28 2000093 6a 29 2000094
+// prog: 7 63 2000095 6 6c 2000096 74 28 2000097 78 29 2000098 7 64 2000099 6
+// prog: 72 200009a 7 65 200009d 6 74 200009e 89 28 200009f 8a 29 20000a0 7 6a
+// prog: 20000a1 6 78 20000a2 8a 28 20000a3 8c 29 20000a4 7 6b 20000a5 6 81 20000a6
+// prog: 7 86 20000a7 6 87 20000a8 6 86 20000a9 7 87 20000aa 6 64 20000ab 7
+// prog: 72 20000ac 6 60 20000ad 65 2a 20000ae 6a 2b 20000b0 7 6c 20000b1 74 2a
+// prog: 20000b2 78 2b 20000b3 86 2a 20000b4 87 2b 20000b5 6 65 20000b6 7 74 20000b8
+// prog: 89 2a 20000b9 8a 2b 20000ba 6 6a 20000bb 7 78 20000bc 8a 2a 20000bd 8c
+// prog: 2b 20000be 6 6b 20000bf 7 81 20000c0 7 89 20000c1 6 8a 20000c2 7 8a
+// prog: 20000c3 6 8c 20000c4 7 8b 20000c5 6 8f 20000c6 6 8b 20000c7 7 8f 20000c8
+// prog: 6 89 20000c9 7 8c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 23 40 41 29 52 24
+// prog: 2a 54 37 72 a8 a9 74 aa ab 78 94 ac 81 8e b0 85
+// prog: b5 b6 86 ba bb 87 be bf 91 c6 c7 cc a0 b5 cd 9d
+// prog: bb ce c2 c8 cf c1 c9 100000b 3e 3b 100002b 47 48 100003d 56 57
+// prog: 100003f 5d 5e 1000051 68 69 1000055 77 79 100005c 7c 7e 1000060 8e 82 1000063
+// prog: 95 94 1000064 99 98 1000065 9d 9a 100006a a1 a0 100006b a5 a4 100006c a7
+// prog: a6 1000089 ba 9a 100008a a1 b6 100008b c1 c0 100008c c3 c2 100008f c5 c4
+// prog: 200000a 2000002b 21 2000027 20000029 37 2000028 20000029 24 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 21 25 a 24 b 27
+// prog: 3b 29 62 3e 2a 6e 40 2b 49 41 3d 58 47 3f 66 48
+// prog: 51 6f 52 55 7a 54 5c 7f 56 60 92 57 63 96 5d 65
+// prog: 9e 5e 6a a2 ac 20000019 6c 1000037 23 28 1000069 78 ad 1000077 81 b1
+// prog: 1000079 74 b3 100007c 85 b8 100007e 86 bc 2000068 2000001a 72 2000082 7 8b 200008e
+// prog: 6 8c 2000094 6 8b 2000095 7 8c 2000098 7 89 2000099 6 8a 200009a 6
+// prog: 89 200009d 7 8a 20000a0 2000001a 91 20000a1 2000001a 8f 20000a4 7 ce 20000a5 6 cf
+// prog: 20000a6 6 ce 20000a7 7 cf 20000a8 7 cc 20000a9 6 cd 20000aa 6 cc 20000ab
+// prog: 7 cd 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 26 24 b 16 21
+// prog: 23 1f 37 3d 56 93 3f 57 97 49 5d 9f 51 5e a3 55
+// prog: 64 68 58 69 ae 5c 77 b2 60 79 b4 62 7c b9 63 7e
+// prog: bd 66 94 95 6c 9a 9d 6e 6b a0 78 a6 a7 7f aa ab
+// prog: 1000025 40 53 1000027 41 5b 1000028 47 67 1000029 48 70 100002a 52 7b 100002b
+// prog: 54 80 1000065 8e 82 100006a 99 98 100006f 87 a1 1000074 a5 a4 100007a a9
+// prog: a8 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1f a 6d 21 b 5f
+// prog: 24 23 61 68 20000052 6e 69 20000016 60 6b 20000012 65 70 20000012 78 1000016
+// prog: 50000005 23 2000026 6 49 2000037 7 51 2000040 7 3d 2000041 6 3f 2000047 7
+// prog: 62 2000048 6 63 2000052 6 62 2000053 7 63 2000054 7 58 2000056 6 5c
+// prog: 2000057 6 58 200005b 7 5c 200005d 2000001a 66 200005e 2000001a 65 2000064 2000001a 78 2000067
+// prog: 2000001a 74 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 b 26 37 3f 52 53
+// prog: 51 57 5b 58 6a 5d 5f 7a 64 1000023 41 40 100003d 48 47 1000049
+// prog: 56 54 100005c 6c 5e 1000060 7f 67 200000a 90 16 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 54 20000018 5f 56 20000053 5c
+// prog: 2000026 84 a 2000037 20000024 a 2000040 8d a 2000041 4e a 2000047 7d a 2000048
+// prog: 2000001a b 2000052 2000001a 3f 2000053 2000001a 3d 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 26 1f b 37 21
+// prog: 3d 40 24 3f 41 3b 57 47 3e 5b 23 48 5c 49 52 100005d
+// prog: 51 53 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 40 20000014 5b 41 20000017 5d
+// prog: 100003e 4d 57 200001f 9 3f 2000021 8 3f 2000023 9 a 2000024 8 b 2000026
+// prog: 8 a 2000037 9 b 200003b 20000013 57 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 b 21 44 47 26 37
+// prog: 48 3e 2a 100000a 1f 43 100003f 23 24 3000049 2000004c 41 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 21 3f 3b 23 15 47
+// prog: 24 46 a 26 50 b 200001f 20000013 a 200002a 5c 49 2000037 69 49 200003e
+// prog: 41 49 2000043 56 49 2000044 6f 49 200004d 60 49 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 b 13 21 3b 23 28
+// prog: 3f 24 29 46 26 2b 100000a 1f 3d 1000015 50000004 23 2000047 5c 2a 2000050
+// prog: 69 2a 2000051 41 2a 2000052 56 2a 2000053 6f 2a 2000057 60 2a 200005b 69
+// prog: 37 200005d 41 37 200005e 56 37 200005f 6f 37 2000061 60 37 2000062 41 3e
+// prog: 2000063 56 3e 2000064 6f 3e 2000065 60 3e 2000066 56 43 2000067 6f 43 200006a
+// prog: 60 43 200006c 6f 44 200006d 60 44 200006e 60 4d 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 13 14 a 21 b 25
+// prog: 1000023 40 47 1000024 55 50 1000026 5c 51 1000028 58 52 1000029 68 53 100002a
+// prog: 54 57 100002b ca 5b 1000037 69 5d 100003d ac 5e 100003e 88 5f 1000043 72
+// prog: 61 1000044 41 62 100004d 56 63 1000077 6f 64 1000078 60 65 1000079 6b 66
+// prog: 100007a 8f 67 100007b 74 6a 100007c cb 6c 100007e 91 6d 100007f 70 6e 200001f
+// prog: 83 15 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 50 13 27 b5 20000012 7f
+// prog: 200000a 73 1f 200000b 71 1f 2000014 9b 1f 2000025 9c 1f 2000040 b7 1f 2000047
+// prog: af 1f 2000051 39 23 2000052 3a 24 2000053 4c 28 2000054 4f 29 2000055 39
+// prog: 24 2000057 3a 2b 2000058 4c 3d 200005b 4f 3e 200005d 39 26 200005e 3a 37
+// prog: 200005f 4c 4d 2000061 4f 77 2000062 39 28 2000063 3a 3d 2000064 4c 79 2000065
+// prog: 4f 7a 2000066 39 29 2000067 3a 3e 2000068 4c 7a 200006a 4f 7c 200006b 39
+// prog: 2a 200006c 3a 43 200006d 4c 7b 200006e 4f 7e 2000070 5 23 2000072 4 24
+// prog: 2000074 20000013 2a 2000080 5 24 2000081 4 2b 2000082 20000013 43 2000085 5 28 2000086
+// prog: 4 3d 2000087 5 29 2000088 4 3e 2000089 5 2a 200008a 4 43 200008b 20000013
+// prog: 7f 200008c 28 2c 200008e 29 2d 200008f 3d 2c 2000091 3e 2d 2000092 4d 2c
+// prog: 2000093 77 2d 2000094 79 2c 2000095 7a 2d 2000096 7a 2c 2000097 7c 2d 2000098
+// prog: 7b 2c 2000099 7e 2d 200009a 4 23 200009d 5 2b 200009e 4 26 200009f 5
+// prog: 37 20000a0 4 28 20000a1 5 3d 20000a2 4 29 20000a3 5 3e 20000a4 4 2a
+// prog: 20000a5 5 43 20000a6 5 4d 20000a7 4 77 20000a8 5 79 20000a9 4 7a 20000aa
+// prog: 5 7a 20000ab 4 7c 20000ac 5 7b 20000ad 4 7e 20000ae 4 7b 20000b0 5
+// prog: 7e 20000b1 4 4d 20000b2 5 77 20000b3 4 79 20000b4 5 7c 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 13 a 21 1f b 50
+// prog: 23 14 3b 24 25 3f 27 40 48 28 47 46 b8 80 9a b9
+// prog: 72 9d ba 9e 9f bb a0 a1 bc a2 a3 bd a4 a5 c7 87
+// prog: a0 c8 86 a3 c9 b1 b2 ca aa b3 cb a9 b4 cc ae b0
+// prog: 1000029 51 52 100002a 55 57 100002b 5d 5e 100002c 62 63 100002d 66 67 100003d
+// prog: 6b 6c 100003e 70 72 1000043 80 81 1000079 89 8a 100007a 8c 26 100007b 8f
+// prog: 37 100007c 92 44 100007e 94 4d 100007f 96 77 10000b6 98 78 10000be 85 a2
+// prog: 10000bf a1 88 10000c0 a6 a7 10000c1 a8 a9 10000c2 aa ab 10000c3 ac ad 10000c4
+// prog: ad ac 10000c5 8a 89 40000c6 a4 a4 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 3f 19 23 40 3c 28
+// prog: 51 3e 74 52 43 82 55 79 8b 1000044 29 53 1000046 2a 58 1000047
+// prog: 2b 5f 1000048 2c 64 100004d 2d 68 1000050 3d 6d 1000057 7a 8e 100005d 7b
+// prog: 91 100005e 7c 93 1000062 7e 95 1000063 7f 97 1000066 b6 99 100008c c6 a5
+// prog: 1000092 c5 8b 200000a 7 24 200000b 6 27 2000014 6 24 2000021 7 27 2000025
+// prog: 7 13 2000026 6 1f 2000037 6 13 200003b 7 1f 2000067 5 bb 200006b 4
+// prog: bc 200006c 5 b8 2000070 4 b9 2000072 4 b8 2000077 5 b9 2000080 20000013 bd
+// prog: 2000081 5 c1 2000085 4 c2 2000086 5 be 2000087 4 bf 2000088 4 be 2000089
+// prog: 5 bf 200008a 20000013 c3 200008f 20000013 c4 2000094 5 ca 2000096 4 cb 200009a 5
+// prog: c7 200009d 4 c8 200009e 4 c7 200009f 5 c8 20000a0 20000013 cc 4000098 cc cc
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 19 14 21 23 37 3b
+// prog: 68 72 77 79 88 89 7a 78 8f 7e 9e 9f 7f 20000054 92 1000013
+// prog: b a 100001f 26 25 1000024 44 54 1000027 46 5b 1000028 47 61 1000029 48
+// prog: 65 100002a 4d 6a 100002b 50 6e 100005f 67 6b 1000064 6c 70 100006d 81 85
+// prog: 1000074 86 87 100007b 94 96 100007c 9a 9d 200002c 5 51 200002d 4 52 200003c
+// prog: 20000013 55 200003d 5 62 200003e 4 63 2000043 5 57 2000053 4 5d 2000058 20000013
+// prog: 66 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 14 36 13 21 38 19
+// prog: 25 3f 27 26 40 2a 47 64 80 4d 74 8a 51 7c a0 52
+// prog: 2000000f 68 54 20000055 79 55 20000012 6d 1000037 2c 2d 100003b 3d 3e 1000044 43
+// prog: 53 200000a 2000001a 19 200000b 2000001a 13 2000046 20000013 5f 2000048 20000013 6d 2000050 20000013 7b
+// prog: 2000057 7e 33 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 13 1f a 27 14 29
+// prog: 2a 21 2b 2c 37 3c 36 44 58 3f 20000011 51 1000019 23 b 1000038
+// prog: 46 ba 100003d 48 c0 100003e 50 c9 200002d 20000013 3b 3000040 2000004c 52 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 18 13 b 1a 19
+// prog: 1f 2000000c 2c 21 2000000e 38 23 20000010 3d 1000014 2d 5e 2000029 47 40 200002b
+// prog: 52 40 2000037 54 40 200003b 8c 40 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 18 a 24 19 b 28
+// prog: 1a 2000000d 14 1000013 50000003 b 200002c 47 29 200002d 21 29 2000038 52 29 200003c
+// prog: 54 29 200003d 8c 29 2000043 7e 29 2000044 21 40 2000046 52 2b 2000048 54
+// prog: 2b 2000050 8c 2b 2000051 7e 2b 2000053 54 37 2000058 8c 37 200005b 7e 37
+// prog: 200005d 8c 3b 200005e 7e 3b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 100000b 1f 2c 1000014 36 2d
+// prog: 1000024 47 38 1000028 4d 3c 1000029 7f 3d 100002b 3f 43 1000063 52 46 1000064
+// prog: 54 48 1000065 8c 50 1000066 7e 51 1000067 55 53 1000068 c4 58 100006a 7b
+// prog: 5b 100006b b5 5d 100006c 98 5e 200000a 49 13 2000037 21 44 200003b 52 44
+// prog: 200005f 54 44 2000061 8c 44 2000062 7e 44 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a5 20000005 63 100003d 1a 37
+// prog: 100003f 21 3b 1000043 23 5f 1000044 7a 61 1000046 3e 62 200001f 5c a 200002c
+// prog: 69 a 200002d 41 a 2000036 56 a 2000038 6f a 200003c 60 a 2000048 1b
+// prog: b 200004d 1e 14 2000050 17 28 2000051 1c 29 2000053 1b 14 2000055 1b 24
+// prog: 2000058 17 64 200005b 1c 65 200005d 1b 28 200005e 17 67 200006d 1c 68 200006e
+// prog: 1b 29 2000070 17 68 2000072 1c 6b 2000074 3 b 2000077 2 14 2000078 28
+// prog: 2e 2000079 29 2f 200007b 3 14 200007c 3 24 200007e 3 28 200007f 67 2e
+// prog: 2000080 68 2f 2000081 3 29 2000082 68 2e 2000085 6b 2f 2000086 3 2b 2000087
+// prog: 3 64 2000088 2 65 2000089 2 64 200008a 3 65 200008b 2 24 200008e 2
+// prog: b 200008f 28 30 2000091 29 31 2000092 64 30 2000093 65 31 2000094 2 28
+// prog: 2000095 67 30 2000096 68 31 2000097 2 29 2000098 68 30 2000099 6b 31 200009a
+// prog: 2 2b 200009d 3 67 200009e 2 68 200009f 3 68 20000a0 2 6b 20000a1 3
+// prog: 6a 20000a2 2 6c 20000a3 2 6a 20000a4 3 6c a 1f 18 b 2c 25
+// prog: 14 2d 19 1a 36 27 23 38 26 24 3c 2a 6c 89 8a a6
+// prog: 7b 8e b2 a3 a4 1000028 48 4d 1000061 77 74 100006b 88 87 10000ad 97
+// prog: 7e 10000ae 9e 9d 10000b0 a0 9f 10000b1 a2 a1 2000029 1e 3d 200002b 17 43
+// prog: 2000037 1c 44 200003b 1e 3f 200003e 1e 43 200005f 1e 44 2000062 2 3d 2000063
+// prog: 43 2e 2000064 44 2f 2000065 2 3f 2000067 2 43 2000068 2 44 200006a 2
+// prog: 46 200007a 3 3f 20000a7 3 3d 20000a8 43 30 20000a9 44 31 20000aa 3 43
+// prog: 20000ab 3 44 20000ac 3 46 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2d 28 50 36 61 78
+// prog: 44 8b 7a 4d 77 a7 74 94 aa 87 97 ab 88 9a ac a3
+// prog: 20000008 6b 100002c 20 24 100002e 53 29 100002f 55 3b 1000030 5d 3e 1000031 6e
+// prog: 5f 1000038 62 7b 100003c 65 7c 100003d 67 7e 100003f 68 81 1000043 6a 86
+// prog: 1000048 a6 8f 1000089 68 aa 2000018 5 1a 2000019 4 23 200001f 5 a 2000025
+// prog: 4 b 2000026 4 a 2000027 5 b 200002a 20000013 24 2000046 2000000b 6c 200008a 3
+// prog: ae 200008e 2 b0 200009d 2 ae 200009e 3 b0 200009f 3 ad 20000a0 2 ad
+// prog: 20000a1 2000000b b2 20000a2 2000000b b1 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 26 27 23 2e 2b
+// prog: 24 2f 58 28 30 5e 29 31 70 3b 36 79 3e 38 63 50
+// prog: 3d 7f 53 3f 82 55 3c 46 5d 48 91 68 9d 9e 6c 43
+// prog: a1 100000a 18 19 100000b 1f 25 1000020 2d 51 100005f 4d a8 1000061 44 92
+// prog: 1000062 74 95 1000065 87 98 1000067 8e 8a 100006e 88 a2 200006a 2 89 200006b
+// prog: 3 89 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 19 b 2a 1f e 1a
+// prog: 25 1d a 2e 3e 64 2f 50 80 30 53 85 36 5f a9 38
+// prog: 61 93 3c 62 96 3d 65 99 46 a0 6b 51 20000003 55 58 20000057
+// prog: 6c 5e 20000009 6e 1000026 23 37 1000027 24 5b 100002b 28 6d 100002d 29 72
+// prog: 1000044 6a 9f 2000018 20000013 a 2000031 3 3b 200003f 3 5d 2000043 2 5d 2000048
+// prog: 2000000b 68 200004d 2000000b 67 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 b c 19 1a 1f 27
+// prog: 1d 25 2b 23 2c 2d 55 44 48 5d 20000006 38 100000a 18 14 100000e
+// prog: 50000002 1f 100005b 46 4d 2000024 2 2f 2000028 3 30 2000029 2 2e 200002a 3
+// prog: 3c 2000037 2 3d 200003b 2 3c 200003e 3 3d 2000050 2 36 2000053 3 36
+// prog: 200005f 5e 33 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 c d a 18 b 20
+// prog: 19 24 28 27 3b 3e 2c 43 53 2d 20000058 5b 100001f 29 31 1000025
+// prog: 37 2a 100002b 50 3f 2000014 40 e 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 28 c 26 200000a 47 14
+// prog: 200000b 21 14 200000d 52 14 2000020 54 14 2000024 8c 14 2000029 2000000b 19 200002a
+// prog: 2000000b 27 200002e 2000000b 25 200002f 2d 32 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 c a 18 14 b 28
+// prog: 19 d 1a 25 20 1d 26 24 23 27 1f 29 30 2b 2a 1000031
+// prog: 2c 2e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 23 11 19 24 20000002 27
+// prog: 28 20000004 30 29 20000007 31 200000a 3 25 200000b 2 26 200000d 2 25 2000018
+// prog: 3 26 200001a 3 c 200001d 2 14 200001f 2 c 2000020 3 14 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 11 d 18 19 1f 20
+// prog: 100000c b a 1000014 1d 1a 3000025 2000004c 29 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 200000a 2000000b 11 200000b 2000000b c
+// prog: 200000d 28 25 2000018 5d 25 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 c 14 a 1000011 19 b
+// prog: 200001a 28 d 200001d 5d d 200001f 2d d 2000020 5e d 2000026 5d 18 2000027
+// prog: 2d 18 2000029 5e 18 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 10 c b 12 11
+// prog: 100000d 24 1a 1000014 51 1d 1000018 55 1f 1000019 58 20 100002a a5 26 100002b
+// prog: a3 27 100002c 66 29 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 100000c 50000001 b 2000010 f d
+// prog: 2000011 34 14 2000012 f 14 200001a 34 2a 200001d 0 14 200001f 1 14 2000020
+// prog: 0 2b 2000024 1 19 2000026 0 d 2000027 1 2a 2000029 0 18 200002d 1
+// prog: 2c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 18 1f 26 19 1d 27
+// prog: 2a 24 29 2b 20 2d 100000b 10 11 100000d 12 1a 2000014 25 c 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 12 a b 1a 23 d
+// prog: 2000010 28 14 2000011 5d 14 200001d 0 18 200001f 1 19 2000020 0 2a 2000024
+// prog: 1 2b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 10 12 b 11 1a
+// prog: d 1d 1f 14 20 24 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 12 20000000 d 2000010 0 a
+// prog: 2000011 1 b 2000018 14 20000001 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 10 11 300000b 2000004c 12
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 100000d 50000000 a 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 100000a d 18 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 200000d b a 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 200000a 0 d 200000b 1 d
+// prog: 7000000 d d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 f a 1000001 b 34
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 200000a 28 0 200000b 5d 1
+// prog: 200000d 2000000b 0 200000f 3 0 2000010 2 0 2000011 52 1 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 a b 2000012 2 d
+// prog: 2000014 3 d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 0 2f 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 a 5f 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 100000a c 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 25 a 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 200000a 2000000b 0 200000b 2 0
+// prog: 200000c 3 0 7000001 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 18 10 c 1000000 32 a
+// prog: 100000d b f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 c 1b d 100000f 18 1e
+// prog: 200000a 3 0 200000b 2 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2 b 14 1000000 12 a
+// prog: 2000003 47 c 200000d 21 f 2000010 20000013 f 2000018 20000013 c 2000019 5 c 200001a
+// prog: 4 c 200001b 41 f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 17 0 c 3 d
+// prog: 100000b 2 1c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 c 11 d a 10
+// prog: 1000012 b 18 2000002 54 a 2000003 8c b 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 0 2 200000b 5 d
+// prog: 200000c 4 d 2000010 60 12 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 a 3 2 b 59
+// prog: 100000d 5a c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 3 0 57 100000a 2 4c
+// prog: 100000b d 4f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 e 3 2000002 56 a
+// prog: 200000c 6f b 200000d af b 2000011 8 b 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000003 40 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 3 7000002 3 3
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 4 0 2000003 5 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 19 1 1000004 3 1a
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 39 0 1000003 4 3a
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 5c 1 2000004 69 3
+// prog: 2000005 2000001a 1 200000b 7 1 200000e 6 1 2000014 9b 3 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0 4 1000017 5 12
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 1 1b 2000004 6 17
+// prog: 2000005 7 17 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0 2 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 c 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 0 10 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 13 1 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 49 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 1 f 7000003 1 1
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 2000001a 0 2000002 6 0
+// prog: 200000c 7 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 10 e c 1000000 a 1
+// prog: 100000f 2 b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 a 4a f 100000b 10 4b
+// prog: 2000001 7 0 2000002 6 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 6 2 5 1000000 4 1
+// prog: 2000007 73 a 200000c 71 b 200000e 20000013 b 200000f 20000013 a 2000010 9 a 2000012
+// prog: 8 a 2000013 8d b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 42 0 4 7 c
+// prog: 1000002 6 45 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 4 14 7 1 e
+// prog: 100000a 2 f 2000005 9c 1 2000006 b7 2 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0 5 2000002 9 7
+// prog: 2000004 7d a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 6 5 2 11
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0 d 2 35 5
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 15 1 2000005 4e 2
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 83 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 3 1 7000004 1 1
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 8 0 2000002 9 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 0 10 1 1000003 2 12
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 75 0 1000002 3 76
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 84 1 2000003 20000024 2
+// prog: 2000006 2000002b 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0 3 1000002 22 6
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 1 13 2000003 20000048 2
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0 5 7000006 3 3
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 1 4 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 16 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 90 1 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 7000005 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 11cfe 1 11dbe 1 11e7e 1
+// prog: 11f3e 1 11ffe 1 120be 2 1223e 2 123be 2 1253e 2 126be 2 1283e 2
+// prog: 129be 2 12b3e 2 12cbe 2 12e3e 2 12fbe 2 1313e 2 132be 2 1343e 2
+// prog: 135be 2 1373e 1 137fe 2 1397e 2 13afe 2 13c7e 2 13dfe 2 13f7e 2
+// prog: 140fe 2 1427e 2 143fe 2 1457e 2 146fe 2 1487e 2 149fe 2 14b7e 2
+// prog: 14cfe 1 14dbe 1 14e7e 2 14ffe 1 150be 1 1517e 1 1523e 1 152fe 1
+// prog: 153be 1 1547e 1 1553e 1 155fe 1 156be 1 1577e 1 1583e 1 158fe 1
+// prog: 159be 1 15a7e 1 15b3e 1 15bfe 1 15cbe 1 15d7e 1 15e3e 1 15efe 1
+// prog: 15fbe 1 1607e 1 1613e 1 161fe 1 162be 1 1637e 1 1643e 1 164fe 2
+// prog: 1667e 1 1673e 1 167fe 1 168be 1 1697e 1 16a3e 1 16afe 1 16bbe 1
+// prog: 16c7e 1 16d3e 1 16dfe 1 16ebe 1 16f7e 1 1703e 1 170fe 1 171be 1
+// prog: 1727e 1 1733e 1 173fe 1 174be 1 1757e 1 1763e 1 176fe 1 177be 1
+// prog: 1787e 1 1793e 1 179fe 1 17abe 1 17b7e 1 17c3e 1 17cfe 1 17dbe 1
+// prog: 17e7e 1 17f3e 1 17ffe 1 180be 1 1817e 1 1823e 1 182fe 1 183be 1
+// prog: 1847e 1 1853e 1 185fe 1 186be 1 1877e 1 1883e 1 188fe 1 189be 1
+// prog: 18a7e 1 18b3e 1 18bfe 1 18cbe 1 18d7e 1 18e3e 1 18efe 1 18fbe 1
+// prog: 1907e 1 1913e 1 191fe 1 192be 1 1937e 1 1943e 1 194fe 1 195be 1
+// prog: 1967e 1 1973e 1 197fe 1 198be 1 1997e 1 19a3e 1 19afe 1 200000c 20000004
+// prog: 40000001 200000d 20000006 40000001 200000e 20000007 40000001 200000f 2000000a 40000001 2000010 20000009 40000001 2000011 2000000b 40000001
+// prog: 2000012 20000003 40000001 2000013 20000005 40000001 2000014 20000002 40000001 5000000 30000001 30000001 5000002 30000002 30000002 5000004
+// prog: 30000003 30000003 5000006 30000004 30000004 5000008 30000005 30000005 500000a 30000006 30000006 6000001 30000001 30000001 6000003 30000002
+// prog: 30000002 6000005 30000003 30000003 6000007 30000004 30000004 6000009 30000005 30000005 600000b 30000006 30000006 7000007 20000045 20000045
+// prog: 700000e 20000045 20000045 7000015 20000045 20000045 700001c 20000045 20000045 7000023 20000045 20000045 700002a 20000045 20000045 7000031
+// prog: 20000045 20000045 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000015 b
+// prog: 2000002a 2000016 a 2000002a 2000017 8 20000032 2000018 9 20000032 2000019 8 20000031 200001a 9 20000031
+// prog: 200001b 8 20000024 200001c 9 20000024 200001d 8 20000036 200001e 6 20000039 200001f 7 20000039 2000020
+// prog: 7 2000003b 2000021 6 2000003b 2000022 9 20000034 2000023 8 20000034 2000024 8 2000002b 2000025 9
+// prog: 2000002b 2000026 0 40000000 2000027 1 40000000 2000028 0 20000001 2000029 1 20000001 200002a 2 40000001
+// prog: 200002b 3 40000001 200002c 3 11 200002d 2 11 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 36 18
+// prog: 20000038 54 40000002 27 1000037 2000000e 17 2000011 b 15 200002e a 16 200002f b 16
+// prog: 2000030 a 15 2000031 20000013 18 2000032 8 19 2000033 8 1a 2000034 20000013 17 2000035
+// prog: 9 1a 2000038 20000013 22 2000039 7 22 200003a 6 22 200003b 4 23 200003c 5
+// prog: 23 200003d 7 24 200003e 6 24 200003f 4 25 2000040 5 25 2000041 40000001 27
+// prog: 2000042 40000001 26 2000043 20000002 26 2000044 20000003 27 2000045 20000003 26 2000046 20000005 27 2000047
+// prog: 20000004 26 2000048 20000006 27 2000049 20000008 27 200004a 20000008 26 200004b 20000008 29 200004c 20000008
+// prog: 28 200004d 20000009 29 200004e 2000000a 28 200004f 2000000b 26 2000050 3 26 2000051 2 26
+// prog: 2000052 3 28 2000053 2 28 2000055 20000011 29 2000056 4 29 2000057 5 29 2000058
+// prog: 25 20000046 2000059 26 26 200005a 27 27 200005b 20000004 27 200005c 20000007 27 200005d 20000006
+// prog: 26 200005e 20000007 26 200005f 20000002 27 2000060 20000005 26 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 15 11
+// prog: 2e 18 31 31 19 20000021 36 6d 43 44 6e 45 46 6f 47 48
+// prog: 78 51 2b 1000016 30 2f 1000076 4d 4e 1000077 2a 50 100008c 49 f 100008d
+// prog: 10 4a 100008e 5b 12 100008f 48 13 1000090 5c d 1000091 14 47 1000092 12
+// prog: 5d 1000093 c 5e 1000094 45 5f 1000095 60 44 1000096 5d 5b 2000017 2000002e 31
+// prog: 200001a 7 37 2000061 6 37 2000062 2000001a 3a 2000063 2000001a 39 2000064 5 39 2000065
+// prog: 4 39 2000066 20000013 3a 2000067 2 3a 2000068 3 3a 2000069 5 3d 200006a 4
+// prog: 3d 200006b 2 3e 200006c 3 3e 2000070 20000002 41 2000071 20000003 42 2000072 20000003 41
+// prog: 2000073 20000005 42 2000074 20000004 41 2000075 20000006 42 2000079 2 4f 200007a 3 4f 200007b
+// prog: 2000000b 41 200007c 3 41 200007d 2 41 200007e 2000000e 54 200007f 2000000f 54 2000080 20000011
+// prog: 54 2000081 2000000e 42 2000082 2000000f 42 2000083 20000011 42 2000084 4 54 2000085 5 54
+// prog: 2000086 4 42 2000087 5 42 2000088 25 58 2000089 3e 58 200008a 3e 20000046 2000097
+// prog: 2000000d 54 2000098 2000000c 54 400008b 59 59 8000000 0 0 8000000 0 0 f 15
+// prog: 2000002f 13 61 1f 2a 19 2000003d 2e 1a 21 36 6a 40 43 6d c
+// prog: 44 6e d 45 6f e 49 2c 79 a3 8e 8e a4 8f 91 a5
+// prog: 90 94 a6 92 92 a7 93 95 a8 96 96 1000012 1e 1a 100002b 61
+// prog: 20 1000030 3c 65 1000031 69 3f 1000046 70 71 1000047 72 73 1000048 74 75
+// prog: 100004a 7a 2d 100009c 40000003 78 100009e 8b 5a 2000010 9 16 2000011 8 16 2000014
+// prog: 2000001a 19 200004d 2 7b 200004e 3 7b 200004f 40000002 78 2000050 40000002 77 2000051 2000000c
+// prog: 77 2000059 2000000d 78 200005b 2000000e 78 200005c 20000010 78 200005d 20000010 77 200005e 20000011 77
+// prog: 2000060 20000013 78 2000099 20000013 77 200009a 5 77 200009b 4 77 200009d 3e 8a 200009f
+// prog: 27 77 20000a0 27 78 20000a1 77 77 20000a2 78 78 20000a9 2000000f 78 20000aa 2000000e
+// prog: 77 20000ab 2000000f 77 20000ac 2000000c 78 20000ad 2000000d 77 20000ae 3e 77 400002f 64 64
+// prog: 400005f 83 83 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 20000030
+// prog: f e 11 1c 1f 14 14 21 20000018 2a 2c 20000019 13 71 47 4c
+// prog: 72 48 76 8b 53 4e 92 59 7e 93 5b 7f b6 49 60 b8
+// prog: 9a 84 ce aa aa 100000d 10 1b 100006a 2f 3b 1000070 46 4b 1000083 4d
+// prog: 52 1000090 4f 7c 1000091 7d 50 10000af 80 5c 10000b7 4a 99 10000b9 85 9b
+// prog: 10000c8 5c 80 10000c9 5b 97 10000ca a9 7e 10000cd ad ab 200001a 2000002e 14 200001e
+// prog: 2000001a 12 2000020 2000001a 13 200002d 5 12 200003c 4 12 200003f 2000001a 2e 2000040 2000001a
+// prog: 2b 200005a 5 2b 2000061 4 2b 2000064 20000013 2e 2000065 2 2e 2000069 3 2e
+// prog: 200006d 3 31 200006e 2 31 200006f 1 36 2000073 27 45 2000074 40000001 44 2000075
+// prog: 40000001 43 2000079 26 45 200007a 26 44 200007b 27 43 200008e 40000002 4a 200008f 40000002
+// prog: 49 2000094 20000010 4a 2000095 20000010 49 2000096 20000011 49 20000b0 20000012 49 20000b1 20000012 4a
+// prog: 20000b2 4a 5e 20000b3 49 5e 20000b4 78 5e 20000b5 77 5e 20000ba 20000016 9c 20000bb
+// prog: 20000017 9c 20000bc 20000018 9c 20000bd 2000001a 9c 20000be 6 9c 20000bf 7 9c 20000c0 36
+// prog: 58 20000c1 36 8a 20000c2 36 20000046 20000c4 27 49 20000c5 27 4a 20000c6 77 49
+// prog: 20000c7 78 4a 20000cc 20000011 4a 20000cf 20000015 9c 20000d0 20000014 9c 20000d1 20000041 4a 20000d2
+// prog: 20000041 49 20000d3 2e 49 20000d4 3a 49 20000d5 31 78 20000d6 30 28 20000d7 36
+// prog: 26 4000015 10 10 40000c3 a1 a1 40000cb aa aa 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 f 20000022
+// prog: c 10 20000025 c 5c 6e 6c 7d 83 8e 80 92 95 ef 40000004 b9
+// prog: f9 b0 c8 fb c9 98 fe cc cc 1000011 15 1d 100002a 20000011 2c 100005b
+// prog: 6b 6d 1000060 73 74 1000076 75 79 100007c 7a 7b 100007e 8b 8f 100007f 51
+// prog: 94 1000084 93 96 1000085 b0 af 1000097 b1 5d 10000f1 c3 a2 10000fc ca ac
+// prog: 10000fd cb aa 10000ff cd 94 1000110 d5 ae 2000014 4 21 200001b 5 21 200001c
+// prog: 20000013 2c 200002f 20000013 5a 200003b 3 5a 2000046 2 5a 2000047 7 d 2000048 6
+// prog: d 200004d 4 e 200004e 5 e 2000052 20000013 6a 2000053 3 6a 2000059 2 6a
+// prog: 2000099 2000000c 90 200009a 2000000d 91 200009b 2000000e 91 20000a1 20000010 91 20000a9 20000010 90 20000ab
+// prog: 5 b6 20000ad 4 b6 20000d8 20000013 91 20000d9 20000013 90 20000da 5 90 20000db 4
+// prog: 90 20000dc 40000003 b9 20000dd 40000003 b8 20000de 20000014 b8 20000df 20000015 b9 20000e0 20000016 b9
+// prog: 20000e1 20000018 b7 20000e2 20000019 b9 20000e3 20000019 b8 20000e4 20000018 b8 20000e5 20000012 b7 20000e6
+// prog: 20000016 91 20000e7 20000017 91 20000e8 20000018 91 20000e9 2000001a b8 20000ea 7 b8 20000eb 6
+// prog: b8 20000ec 2000001a 91 20000ed 6 91 20000ee 7 91 20000f0 36 c2 20000f3 78 b8
+// prog: 20000f4 78 b9 20000f5 b8 b8 20000f6 b9 b9 20000f7 b7 b8 20000f8 b7 b9 20000fa
+// prog: 2000002e cc 2000100 20000017 b9 2000101 20000016 b8 2000102 20000017 b8 2000103 20000014 b9 2000104 20000015
+// prog: b8 2000105 20000019 b7 2000106 2c b8 2000107 2c b9 2000108 12 b8 2000109 21 b9
+// prog: 200010a e b8 200010b 3d b9 200010c 25 b8 200010e 5a 4a 200010f 6a 4a 2000111
+// prog: 61 28 4000013 e e 40000f2 c6 c6 400010d d2 d2 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1d 10
+// prog: 20000035 5d 2000001c 11 6c 3c 1b 8b 70 60 90 71 76 91 72 7c
+// prog: cc 7d d8 114 df ba 115 e0 bb 122 eb bf 13b fa ce 144
+// prog: 101 101 157 110 110 1000051 13 20000037 100006b 2d 14 1000075 46 69 1000079 38
+// prog: 10 100007b 59 68 1000092 9a 81 1000093 9b 82 10000aa 5f a1 10000cd 7e d9
+// prog: 10000d2 da 86 100011a bc e2 100011d e4 e5 100011f ab bd 1000120 e9 b7 1000121
+// prog: be ea 1000132 f2 c7 1000138 fb 96 1000139 fc 95 100013a fd fe 100013c e2
+// prog: bc 100013e e0 cf 100013f 100 ba 1000143 104 102 1000153 10b 10c 200000c 9 f
+// prog: 2000015 8 f 200006d 2 2a 200006e 3 2a 2000083 0 5b 2000094 20000010 7e 2000098
+// prog: 20000010 7d 20000a2 20000011 7d 20000ac 20000012 7d 20000ae 20000012 7e 20000af 78 84 20000b0 54
+// prog: 80 20000b1 54 7f 20000b6 77 84 20000c3 77 80 20000c6 78 7f 20000c8 49 97
+// prog: 20000c9 4a 85 20000ca 54 97 20000cb 54 85 2000112 40000003 ad 2000113 40000003 ab 2000117
+// prog: 20000019 ad 2000118 20000019 ab 2000119 20000018 ab 200011b 20000012 ab 200011c 20000012 ad 2000123 2000001d
+// prog: ef 2000124 2000001f ef 2000125 20000020 ad 2000126 2000000e ad 2000127 20000020 ef 2000128 2000000e ef
+// prog: 2000129 8 ef 200012a 9 ef 200012b 8 ad 200012c 9 ad 200012d 5c 58 200012e
+// prog: 5c 8a 200012f 5c c2 2000130 5c 20000046 2000134 78 ab 2000135 78 ad 2000136 b8
+// prog: ab 2000137 b9 ad 2000141 20000018 ad 2000145 2000001c ef 2000146 2000001e ef 2000147 2000001b ef
+// prog: 2000148 20000021 ad 2000149 2c ab 200014a 2c ad 200014b 12 ab 200014c 21 ad 200014e
+// prog: 2000003e ad 200014f 2000003e ab 2000150 2b ad 2000151 39 ad 2000152 23 ab 2000154 2a
+// prog: 4a 2000155 2a f1 2000156 36 f1 2000158 5c 9e 2000159 5b 27 3000131 20000047 10
+// prog: 4000073 1b 1b 4000074 3b 3b 400007a 53 53 40000d5 db db 4000116 e1 e1 400011e
+// prog: e8 e8 4000133 f5 f5 400013d e3 e3 4000140 101 101 4000142 105 105 400014d 108
+// prog: 108 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 14 17
+// prog: 1d 59 6c 20000040 81 83 6f 86 92 98 ce d2 dc d9 114 118
+// prog: 161 132 132 16c fa 13a 16d 11b 13c 170 13e d0 17b 145 145 18a
+// prog: 153 153 1000069 73 3c 1000070 74 65 100007d 7a 67 1000082 55 94 1000095 93
+// prog: a2 1000096 ac aa 100009a ae a9 100009b af b0 10000a1 b1 b6 10000ba c3 c6
+// prog: 10000bb c8 c9 10000bc b4 ca 10000bd cb b5 10000be d5 87 10000cf 117 e1 10000da
+// prog: 115 119 10000db 11b 11a 100015e 40000005 122 1000162 133 f6 1000164 137 136 1000165 135
+// prog: f8 100016e 13d 11c 1000171 13f 103 1000172 140 101 1000173 116 117 1000174 142 105
+// prog: 1000186 14c 14b 1000187 14d 109 100018e 159 d7 2000011 9 c 2000013 9 15 200001b
+// prog: 8 15 200002d 6 5d 2000038 7 5d 200003b 6 51 2000046 7 51 2000053 20000013
+// prog: 6c 2000054 20000013 6b 200005f 3 6b 2000068 2 6b 2000071 2000000b 75 2000072 6 79
+// prog: 200007c 7 79 200007e 2000000b 7b 20000bf 5 cc 20000c7 4 cc 20000df 20000018 cd 20000e0
+// prog: 20000012 cd 20000e2 ad 11d 20000e4 ab 11d 20000e5 b9 11d 20000e8 b8 11d 20000e9 7
+// prog: 11f 20000ea 6 120 20000eb 6 11f 20000f2 7 120 20000f5 40000004 122 20000fb 40000004 121
+// prog: 20000fc 2000001b 121 20000fd 2000001c 122 20000fe 2000001c 121 2000100 2000001e 122 2000102 2000001d 121 2000108
+// prog: 20000021 122 200010b 20000021 121 200010c 2000000e 122 2000110 20000020 121 200015a 20000013 122 200015b 20000013
+// prog: 121 200015c 9 121 200015d 8 121 200015f 5c 130 2000160 e 131 2000166 b9 121
+// prog: 2000167 b9 122 2000168 121 121 2000169 122 122 200016a ad 121 200016b ad 122 2000175
+// prog: 2000001d 122 2000176 2000001f 122 2000177 2000001f 121 2000178 2000001b 122 2000179 2000001e 121 200017c 5d
+// prog: 121 200017d 5d 122 200017e 51 121 200017f 19 121 2000180 19 122 2000181 37 121
+// prog: 2000182 20000039 122 2000183 d 122 2000184 79 121 2000185 24 122 200018b 6b 49 200018c
+// prog: 6b f1 200018d 6b 28 40000d8 11c 11c 4000104 125 125 4000163 134 134 400016f 141
+// prog: 141 400017a 148 148 4000188 14e 14e 4000189 14f 14f 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 11
+// prog: 32 1d 1b 35 3c 2000001e 14 65 53 53 67 20000010 59 6f 68 6e
+// prog: 87 48 7c 93 99 82 94 9b b2 a2 ba bb a9 96 bc aa
+// prog: 9a bd ac bf 56 b0 de cf d7 eb f2 101 fc fd 103 fe
+// prog: 100 109 102 124 117 15c 129 13f 164 164 1ac 18e 18e 1000015 13 33
+// prog: 100006c 6d 5f 1000073 5f 6d 1000083 72 47 1000098 a1 b3 10000ae 57 c7 10000af
+// prog: be dd 10000b1 d8 e3 10000d5 ea e9 1000114 127 108 1000115 10b 128 1000116 10c
+// prog: 110 100011a 12a 15d 100013e 163 f7 1000142 16f 105 100014d 170 119 100014e 171 118
+// prog: 100014f 16f 141 1000153 143 173 1000159 144 174 100018f 108 127 1000190 128 10b 1000191
+// prog: 110 10c 1000192 175 145 1000193 147 102 1000194 123 177 1000195 fe 178 1000196 179
+// prog: fd 1000198 17a 148 100019c 183 184 100019e 188 106 100019f 189 107 200005c 2000002e 53
+// prog: 2000074 20000013 69 2000075 3 69 200007a 2 69 200007b 2000000b 70 2000092 2000000b 7d 20000b4
+// prog: 20000014 ce 20000b6 20000019 ce 20000c3 20000018 ce 20000c6 b9 da 20000c8 9c d9 20000c9 b8
+// prog: da 20000ca b8 d9 20000cb b7 db 20000cc ad db 20000d0 9c db 20000d2 b9 db
+// prog: 20000e1 2000001a ce 20000f6 7 ce 20000f8 6 ce 200011b 20000024 15e 200011f 20000025 15e 2000120
+// prog: 20000026 15e 2000132 20000029 15e 2000133 a 15e 2000134 b 15e 2000135 81 58 2000136 81
+// prog: 8a 2000137 81 c2 200013a 81 130 200013c 81 20000046 200013d e 160 2000199 20000023 15e
+// prog: 200019a 20000022 15e 20001a1 21 162 20001a2 12 162 20001a3 3e 162 20001a5 2a 161 20001a6
+// prog: 6b 161 20001a7 69 4a 20001a8 61 161 20001a9 30 161 20001aa 70 29 20001ab 7d
+// prog: 29 40000b5 df df 4000140 168 168 4000197 175 175 400019b 181 181 400019d 185 185
+// prog: 40001a0 187 187 40001a4 18b 18b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 11 c
+// prog: 20000035 13 15 34 47 67 20000043 48 20000009 6c 53 20000008 6f 68 83 62
+// prog: 6d 87 63 6e 93 94 70 86 98 72 95 a2 e9 101 123 107
+// prog: d5 15a 145 40000006 11a 17a 192 192 183 176 195 184 194 196 1c3 19e
+// prog: 19e 1c4 19f 19f 1000014 1d 18 100007c ac 112 100007d ae 113 100009a c3 e0
+// prog: 100009b c6 c8 10000bf d0 e8 10000ce e1 cd 10000de f8 ee 10000fe d8 116 1000108
+// prog: d7 15b 100015c 140 169 1000174 172 14f 1000177 191 11c 1000181 193 146 1000188 197
+// prog: 175 10001ba 19b 182 10001bf 19d 185 10001c5 1a0 187 10001ca 1a4 154 200001b 6 3c
+// prog: 2000030 7 3c 2000032 2000000b 67 2000033 2000000b 6c 2000035 2000000b 6f 2000059 2000000b 73 200005f
+// prog: 2000000b 7a 2000061 2000000b 75 2000082 20000015 af 2000096 20000016 af 2000099 20000019 af 20000a1 9c
+// prog: b0 20000b2 b9 b0 20000b3 b7 b1 20000bb ab b1 20000be 9c b1 20000c7 b8 b1
+// prog: 20000df 40000004 d7 20000e3 40000004 d5 20000ea 20000021 d7 20000eb 20000021 d5 20000f2 2000000e d7 20000f7
+// prog: 20000020 d5 20000fc 20000012 d5 20000fd 20000012 d7 2000100 2000001d af 2000102 2000001f af 2000105 20000020
+// prog: af 2000106 2000000e af 200010b 8 af 200010c 9 af 2000110 40000005 11a 2000118 40000005 117
+// prog: 2000119 20000022 117 2000124 20000023 11a 2000127 20000024 11a 2000128 20000027 11a 2000129 20000027 117 200012a
+// prog: 20000026 117 2000141 20000029 117 2000143 b 117 2000144 a 117 2000147 81 13c 200015d b9
+// prog: d5 2000161 b9 d7 2000163 121 d5 2000164 122 d7 2000168 122 117 200016f 122 11a
+// prog: 2000170 117 117 2000171 11a 11a 2000173 2000002e 142 2000178 2000000e d5 2000179 20000020 d7 2000189
+// prog: 20000025 11a 200018e 20000024 117 20001ad 20000025 117 20001ae 20000022 11a 20001af 20000023 117 20001b0 f
+// prog: 11a 20001b1 20000031 117 20001b2 16 11a 20001b3 20000032 11a 20001b4 2000002b 117 20001b5 3c 121
+// prog: 20001b6 19 d5 20001b7 19 d7 20001b8 37 d5 20001b9 20000039 d7 20001bb 2000003a d7 20001bc
+// prog: 2000003a d5 20001bd 2000003b d7 20001be 22 d7 20001c0 21 13f 20001c1 12 13f 20001c2 2000003e
+// prog: 13f 20001c6 2e 13f 20001c7 3a 13f 20001c8 67 49 20001c9 67 4a 20001cb 67 77
+// prog: 20001cc 67 78 20001cd 6f 29 20001ce 75 29 40000ba cb cb 40000cf f6 f6 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 17
+// prog: 11 15 17 14 18 2000001d 13 34 2d 30 63 32 32 6c 2000000a 47
+// prog: c6 bb cc cd 7c ec ee eb 126 169 124 11b 172 127 11f 191
+// prog: 144 134 19f 173 174 1a0 173 159 1a4 fc 18f 1cf fd 190 1d0 178
+// prog: 179 1d1 178 178 1d2 f2 f7 1d4 179 179 1dd 18e 18e 1df 1b3 1b3
+// prog: 1ea 19c 1be 100001d 1b 38 100007a 52 6d 1000081 82 e6 1000083 96 e7 1000095
+// prog: 11e 99 10000ae a1 c9 10000af ca b2 10000b7 b3 e2 10000c3 ba e4 10000c8 e5
+// prog: be 10000cb c7 d2 10000d0 cf ed 10000e1 de fb 10000e8 104 ea 10000f6 f2 f7
+// prog: 10000f8 fc 114 1000101 fd 115 1000176 120 128 1000185 141 108 1000187 133 143 1000196
+// prog: 15d 16a 1000197 161 16b 10001d3 eb 126 10001d5 ea 125 10001d6 188 198 10001d7 128
+// prog: 120 10001d8 127 199 10001d9 189 11b 10001dc 1af 1ad 10001de 1b2 18e 10001e1 17d 1b5
+// prog: 10001e4 1bb 17f 10001ef d1 1cb 10001f0 10d 1cc 2000062 2000002e 32 200006f 0 48 2000073
+// prog: 5 68 2000075 4 68 2000086 20000019 7d 2000087 20000019 7c 2000093 20000018 7c 200009c 20000012
+// prog: 7c 20000ac 20000012 7d 20000d8 6 ce 20000e0 7 ce 2000116 20000020 7d 200011c 2000000e 7d
+// prog: 2000123 d7 fe 200013f d5 fe 2000140 122 fe 2000142 121 fe 2000146 9 107 200014f
+// prog: 8 107 200015a 8 7d 200015b 9 7d 2000175 20000026 108 2000182 20000028 108 2000192 2000002b
+// prog: 145 2000193 6d 160 2000194 6d 131 200019d 108 117 200019e 108 11a 20001db 20000027 108
+// prog: 20001e6 51 15c 20001e7 20000039 15c 20001e8 37 15c 20001e9 e 15c 20001eb 25 15c 20001ec
+// prog: 6d 162 20001ed 68 b9 20001ee 20000013 1c5 20001f1 2 1c5 20001f2 3 1c5 20001f3 53
+// prog: 28 20001f4 53 29 20001f5 48 28 4000195 163 163 400019b 170 170 40001da 18e 18e
+// prog: 40001e0 1b4 1b4 40001e2 1b8 1b8 40001e3 1bc 1bc 40001e5 1ba 1ba 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 11 2000001b
+// prog: c 13 2000001f 15 52 75 4e 82 81 87 b2 9b b7 b3 ae c3
+// prog: ba af c6 bb 9a cb c9 d0 f5 ca e9 e8 cc 103 ee ce
+// prog: 109 f6 188 1d8 19a 1b2 1e1 1b7 1bb 1e4 1e4 1be 1ea 1ea 1f6 1ef
+// prog: 1ef 1f7 1f0 1f0 1000048 73 4d 100007d b5 86 1000096 83 93 1000099 9c 95
+// prog: 10000a1 ac b6 10000ed 146 12b 10000fd 12a 182 1000144 195 164 1000159 19b 171 100016b
+// prog: 1d0 148 1000170 17a 1d1 1000174 181 1d2 1000178 183 1d3 1000179 17b 1d4 100017d 184
+// prog: 1d5 1000189 1d9 1ae 100018f 1da 18e 1000199 1e0 1b4 10001af 1e2 1b9 10001b3 1e3 180
+// prog: 10001bc 1e5 1ba 10001cc 1ed 10a 2000014 7 18 2000017 6 18 200001b 6 1d 2000030
+// prog: 6 34 2000032 7 34 2000047 1 6c 2000053 2 7a 200007c 3 7a 20000be 7
+// prog: cd 20000c7 6 cd 20000cf 2000001c e1 20000d1 2000001e e1 20000d2 20000021 e1 20000de 2000000e e1
+// prog: 20000e2 ad 101 20000e4 ad f8 20000e5 d5 101 20000e6 d7 f8 20000e7 ef 101 20000ea
+// prog: ef f8 20000eb 121 101 20000ec 122 f8 20000f7 20000013 e1 2000104 20000024 e1 2000107 20000025
+// prog: e1 200010d 20000026 e1 2000114 a 185 2000115 b 185 200011b 20000029 e1 200011e a e1
+// prog: 200011f b e1 2000120 40000006 191 2000124 40000006 187 2000125 2000002a 187 2000126 2000002a 191 2000127
+// prog: 2000002c 191 2000133 2000002c 187 2000134 191 192 2000141 187 192 2000143 6d 194 200015d 11a
+// prog: 187 2000161 11a 191 2000163 187 187 200016a 191 191 2000190 2000002b 191 2000198 2000002b 187
+// prog: 200019c 20000013 1df 20001ad 18 122 20001b5 18 15c 20001c5 6 1df 20001cb 7 1df 20001f8
+// prog: 7a 77 20001f9 6c 29 40000f2 14f 14f 40000fc 175 175 400017f 1db 1db 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 29 17
+// prog: 46 4d 6f 47 6d 48 66 75 b4 7d 81 82 b3 83 96 ba
+// prog: 86 99 c8 87 a1 bf 95 c7 e0 e1 123 e2 182 13 88 18e
+// prog: 144 144 1df 1b2 1b2 1e0 1b3 1b3 1e2 1cc 151 100001d 3b 14 1000034 13
+// prog: 1f 1000093 d8 be 10000ae 105 d2 10000e9 e5 e6 10000ee 140 e7 10000f6 ea 142
+// prog: 1000103 eb ec 1000109 f2 12c 1000181 ed 132 10001b4 17f 1db 10001b7 190 126 10001b9
+// prog: 125 198 10001d9 1ad 17e 200000c 7 11 2000015 6 11 200004e 4 13 200006c 5
+// prog: 13 2000073 1 52 200009a 2000001b c9 200009b 2000001c c9 200009c 2000001d c9 20000af 20000021 c9
+// prog: 20000b5 20000020 c9 20000b6 122 ce 20000b7 ef cc 20000c3 ef ca 20000c6 121 ce 20000cd
+// prog: 121 cc 20000d0 122 ca 200010a 20000013 c9 200012a 9 c9 200012b 8 c9 2000146 40000005
+// prog: ed 2000148 20000027 ed 200014f 20000026 ed 2000164 20000028 ed 200017a ed fd 200017b 11a fd
+// prog: 2000180 117 fd 2000183 52 160 2000184 52 194 2000185 52 131 2000195 122 ed 200019a
+// prog: 117 ed 20001ae 2000002e 16b 20001d1 20000033 ed 20001d2 16 159 20001d3 20000024 159 20001d4 10
+// prog: 159 20001d5 20000032 159 20001d8 11 122 20001da 13 15c 20001e1 13 b8 20001e3 4 1bc
+// prog: 20001e4 52 f1 20001e5 52 26 40000e8 e4 e4 4000171 10d 10d 400019b 163 163 40001ba
+// prog: 141 141 40001d0 134 134 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 14 15
+// prog: 38 1f 1a 34 47 1d 3f 7d 75 b2 82 93 df 96 9a cf
+// prog: 99 9b d1 a1 9c 102 e0 12a 10b e7 169 148 10d 182 13d 15c
+// prog: 1ae 170 163 1ae 179 16b 1ae 1d6 17e 164 1d7 1ea 148 1b0 1f0 1d9
+// prog: 1af 1fd 1d9 1bd 1000010 2d c 1000017 1d 1e 100003b 29 20 1000048 29 40
+// prog: 1000088 95 e3 10000b4 af 106 10000be de b5 10000c7 b6 b7 10000c9 c3 c6 10000d2
+// prog: cd d0 10000d8 e8 13f 10000e2 10c 12b 10000ea 172 14f 10000eb 164 176 1000144 19b
+// prog: 16a 1000190 188 14f 1000198 189 148 10001ad 1dd 1b4 10001ef 1d8 17c 10001ff 1e2 152
+// prog: 2000046 20000044 4d 2000066 3 6d 200006f 2 6d 20000e4 40000005 109 20000e5 20000027 109 20000e6
+// prog: 20000028 109 20000ec 109 fd 20000ef b 181 20000f2 a 181 2000105 2000002d 109 2000123 52
+// prog: 185 2000132 122 109 2000142 11a 109 2000151 109 187 2000159 109 191 200017f 20000026 109
+// prog: 20001b2 2000002c 109 20001b3 20000032 109 20001bc 20000033 109 20001ed 20000034 109 20001fa 20000039 18e 20001fb
+// prog: 37 18e 20001fc 2000003a 18e 20001fe 23 18e 2000200 6d 78 400012c 195 195 4000140 19a
+// prog: 19a 40001cc 1d1 1d1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1e 20000015
+// prog: 1f 20 20000016 3b 38 46 46 93 6f 7c 95 96 100 c3 c7 e1
+// prog: c6 c9 d8 cd d2 e9 cf 82 f7 d1 e0 110 152 f2 115 181
+// prog: 17f 17f 189 1b2 1b2 19a e7 192 1b4 1ea 1ea 1bd 1de 1ed 1d1 1ef
+// prog: 1b6 1d6 1f0 1f0 201 1ff 1ff 100004d 2f 48 1000075 53 66 10000b7 ac be
+// prog: 10000d0 88 10a 10000de e2 118 10000e8 fc e5 1000102 e6 129 100014f 114 ef 100016a
+// prog: 48 89 1000176 140 142 1000179 12c 19d 100017c 17f 1db 1000182 e5 175 100019b e5
+// prog: 1b1 10001ae 1de 1b3 10001af 1bc 129 10001b0 1cc 128 10001d7 1fd 1b8 1000202 200 1f8
+// prog: 200000c 7 10 2000015 7 14 200001d 6 14 2000029 4 17 200002d 5 17 2000034
+// prog: 2000002e 46 200003f 5 47 2000040 4 47 200009a 20000021 88 200009b 20000021 82 200009c 2000000e
+// prog: 88 20000af 20000020 82 20000b5 20000012 82 20000b6 20000012 88 2000106 11a ea 200010b 15e e7
+// prog: 200010c 117 ea 200012a 117 e7 200012b 108 eb 200013d 109 eb 200013f 15e eb 2000148
+// prog: 11a eb 2000164 191 105 2000169 187 105 2000188 2000002e 1b2 200018e 2000002b 144 2000195 20000029
+// prog: 105 20001d8 17 b8 20001d9 17 b9 20001dd 48 162 20001e2 47 b9 3000170 20000047 10d
+// prog: 4000172 132 132 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1f 1d
+// prog: 32 66 40 6c 82 75 7e c9 b7 103 e0 119 e8 1b2 16a 193
+// prog: 1b6 176 176 205 195 195 206 102 105 208 19b 19b 209 1ae 1ae 20a
+// prog: 1af 1af 20b 1b0 1b0 20c 1bd 1bd 20f 1d1 1d1 210 1d7 1d7 216 202
+// prog: 10f 1000010 1b c 1000014 30 15 1000053 3f 4e 1000088 93 92 1000089 116 9a
+// prog: 1000096 9b 11c 10000ac 9c af 10000be b5 ae 10000c7 b6 b4 10000f7 106 10b 1000114
+// prog: 13f 180 10001b3 172 19e 10001ea 18f 181 10001ed 1dc 182 10001ef 188 189 1000214 1e2
+// prog: 1e1 200002f 4 1e 200003b 5 1e 2000046 4 20 2000048 5 20 200006f 2 4d
+// prog: 200007c 3 4d 20000d2 9 cf 20000d8 8 cf 20000e1 20000022 d1 20000e2 20000023 de 20000e5
+// prog: 20000024 de 20000e6 20000026 d0 20000e7 20000027 de 20000e9 20000027 d1 20000ef 20000026 d1 20000f2 20000028
+// prog: d0 20000fc 108 102 200010a ed 102 200010d 15e 102 2000115 117 102 2000128 20000029 d1
+// prog: 2000129 b d1 200012c a d1 2000132 40000006 152 2000140 40000006 14f 2000142 2000002c 152 2000144
+// prog: 2000002c 14f 2000175 2000002d 14f 200017f 2000002d 152 2000192 2000002b de 200019d 152 105 20001b1 14f
+// prog: 105 20001b8 11a 14f 20001bc 11a 152 20001cc 187 14f 20001db 191 152 20001de 2000002e 17c
+// prog: 20001f0 191 188 20001f8 187 188 2000200 b 188 2000203 a 188 2000204 2000002e 195 2000207
+// prog: 11a 19a 200020d 8 19a 200020e 9 19a 2000211 1e b8 2000212 20 b8 2000213 20
+// prog: 162 2000215 4d 77 4000100 12b 12b 40001fd 169 169 40001ff 164 164 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 10
+// prog: 2000003c 15 2000003c 1f 1d 29 3b 3f 53 64 6c 95 89 75 99 96
+// prog: 7e a1 ac 92 be ee 93 c7 f6 9a d2 15a cf ec fc 10f
+// prog: 126 144 116 127 175 11c 66 c0 180 1b8 151 181 1bc 159 182 1de
+// prog: 1ea 188 1de 1ad 19b 1b1 1f0 225 216 d4 100001b 2d 2f 100009b 15b d8
+// prog: 100009c e2 104 10000ae e5 107 10000b4 171 e7 10000b5 ef f2 10000d1 100 17a 10000de
+// prog: 10a 13d 10000e8 17b 10d 1000102 115 148 1000105 128 d0 1000108 12c 11f 100010b 125
+// prog: 142 1000119 17f 133 1000189 1b7 144 100018f 1b9 142 1000195 142 125 100019e 19d 1f8
+// prog: 10001ae 1ba 1b1 10001af 1d0 19d 10001b0 1fd 169 10001bd 1ff 164 10001e2 1ef 205 1000220
+// prog: 1d9 211 1000223 214 150 2000030 5 14 2000032 4 14 2000040 1 66 200004e 0
+// prog: 82 20000b6 15e e0 20000b7 11a e0 200012b 88 160 200013f 88 194 200016a 88 185
+// prog: 2000172 88 131 2000176 1b2 170 20001d1 b 200 20001d7 a 203 20001dc b 203 20001e1
+// prog: a 200 2000202 20000032 1b6 2000217 20000033 1b6 2000219 109 206 200021a 11a 206 200021b 117
+// prog: 1ef 200021c 8 1ef 200021d 9 1ef 200021e 8 206 200021f 9 206 2000221 14 b9
+// prog: 2000222 14 162 2000224 66 f1 2000226 66 26 2000227 88 9e 2000228 82 27 2000229
+// prog: 58 1ef 200022a 8a 1ef 200022b c2 1ef 200022c 130 1ef 200022d 13c 1ef 200022e 20000046
+// prog: 1ef 40000af e6 e6 4000106 129 129 400017c 1cc 1cc 4000193 175 175 4000218 206 206
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 10 1a
+// prog: c 1f 1a 15 3b 32 48 a1 4e 73 ac 6c c3 be 75 c6
+// prog: c0 7e cd c7 9a e4 d8 f7 cf e2 b5 102 128 11c 183 171
+// prog: 10f 10f 175 195 195 17a 119 119 17f 10b 18f 1ad 116 116 1b6 19b
+// prog: 1ae 1b7 19e 1af 1b8 10f 189 1f8 1d1 1d7 1ff 204 1e2 230 223 223
+// prog: 232 225 225 100002f 30 46 1000064 46 30 10000d0 9b 146 10000d2 b6 10c 10000d4
+// prog: 12a b7 10000e5 106 11e 10000ec 108 124 1000133 17c 1db 100013d 193 127 100017b 189
+// prog: 10f 10001b9 18f 10b 10001fd 1e1 1dc 1000214 218 206 1000216 221 212 100022f 220 14a
+// prog: 1000233 228 1e5 2000053 4 1b 2000089 4 1d 2000095 5 1d 2000096 3 3f 2000099
+// prog: 2 3f 20000e6 a 105 20000e7 b 105 20000ef 145 10f 20000f2 145 10b 20000fc 187
+// prog: 10f 2000100 191 10b 2000104 109 119 2000107 109 116 200010a 14f 119 200010d 152 116
+// prog: 2000115 145 119 200011f 145 116 2000125 187 119 2000126 191 116 2000129 88 172 200012c
+// prog: 1b2 176 2000144 191 189 2000148 187 18f 2000150 14f 116 2000151 152 119 2000159 187
+// prog: 116 200015a 191 119 200015b 191 10f 200015e 187 10b 20001ba b 116 20001bc a 119
+// prog: 20001cc a 116 20001d0 b 119 20001d9 b 189 20001ea a 18f 20001ef a 189 20001f0
+// prog: b 18f 2000200 b 10b 2000203 a 10f 2000205 a 10b 2000211 b 10f 2000231 3f
+// prog: 78 4000142 119 119 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 20000014
+// prog: 10 15 20000017 1f 4e 99 7c 9a d2 d1 9b d4 de b5 c7 11b
+// prog: b6 e5 120 189 133 133 19b 15b 15e 19e 150 151 1ae 159 15a 1af
+// prog: 13d 13d 1d1 171 17b 1d7 175 17f 218 1cc 1d0 221 1ef 1f0 223 204
+// prog: 1f8 225 198 1fd 228 182 1ff 235 205 211 236 20a 214 237 216 186
+// prog: 238 22f 22f 239 216 14c 240 233 233 100001a 1c 3b 1000048 6f 96 1000105
+// prog: 134 ef 1000106 f2 141 1000108 fc 100 100010b 19d 104 100010c 107 1b1 100010f 10a
+// prog: 10d 1000116 164 115 100011c 11f 169 100011e 125 126 1000127 3b c1 100018f 144 148
+// prog: 10001b2 142 119 1000212 1bc 1ba 1000220 1ea 1d9 1000234 203 200 100023e 231 215 200001b
+// prog: 2 64 200001d 3 64 2000030 3 2f 2000032 2 2f 2000046 1 3b 200006c 20000027
+// prog: d0 2000073 20000027 c7 2000075 20000026 c7 200007e 20000028 c7 2000088 20000028 d0 20000b7 2000002a ec
+// prog: 20000cf 2000002c ec 20000f7 2000002d d0 200012a a1 160 2000145 a1 194 200014a a1 185 200014f
+// prog: a1 172 2000152 a1 131 200017c 128 176 2000183 128 170 20001db 191 1b8 20001dc 187
+// prog: 1b9 20001e1 b 1b8 20001e2 a 1b9 20001e5 a 1b8 2000206 b 1b9 200023a 64 77
+// prog: 200023b 64 78 200023c 3b f1 200023d 2f 78 200023f 3b 26 4000193 150 150 4000195
+// prog: 159 159 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1f 15
+// prog: 2000003f 6f 2000000e 1a 96 48 71 c7 9c 73 ef 105 10b f2 106 10c
+// prog: fc 108 10f 100 f7 11e 104 15 9d 107 127 184 11f 19b 19e 125
+// prog: 17a 1b2 126 1af 1ad 148 1e5 206 159 1de 223 15b 188 223 15e 17e
+// prog: 212 164 fd 218 169 eb 212 17f 225 19a 1b9 237 237 1bc 23e 10e
+// prog: 100007c 74 15 1000099 4e 7b 10000c1 af 6c 10000d0 ae 75 10000d1 7e b4 10000d2
+// prog: 88 e9 1000119 193 151 100011b 195 15a 1000133 1db 1dc 1000144 1e2 1e1 100017b 225
+// prog: 19a 10001ba 239 14b 2000010 5 c 200001c 4 c 20000d4 b b5 20000de a b5
+// prog: 20000e5 2000002a b6 20000ec 2000002c b6 200010a a1 152 200010d 128 183 2000115 2000002d 189 2000134
+// prog: b 1d1 200013d a 1d7 2000141 a 1d1 2000142 b 1d7 200014c 20000029 212 2000150 20000029
+// prog: 218 2000171 117 228 2000175 11a 225 2000182 9 236 2000186 8 236 2000187 8 228
+// prog: 2000191 9 228 2000198 9 225 200019d 8 225 20001b1 c b9 20001b8 15 162 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 1c
+// prog: 2d 48 5c 1f 75 e1 c1 7b c7 9a 7e d0 9b 88 d1 e8
+// prog: 9c d2 114 a1 de e7 ae 192 fc af 99 12d b4 104 143 b5
+// prog: 107 17c b6 18f 119 eb 18e 133 10b 141 142 10f 150 234 189 15e
+// prog: 169 193 1b4 17b 195 15b 209 19e 15b 20c 1af 148 199 200 1ba 1ba
+// prog: 206 1bc d3 1000015 10 29 100009d e6 d4 10000e9 1ae 11b 1000108 13d 134 100010c
+// prog: 220 14c 100010e 221 150 1000127 235 14c 100019a 15e 169 10001e2 1cf 164 10001ef 101
+// prog: 164 10001ff 1b1 1d8 200004e 2 6f 200006c 3 6f 2000071 2 7c 2000073 3 7c
+// prog: 2000074 0 96 20000f7 b 125 20000fd a 126 2000105 a 125 2000106 b 126 2000128
+// prog: 11a 159 200014b ed 164 2000151 109 164 200015a ed 15e 2000162 117 164 200017a 11a
+// prog: 164 200017e 117 15e 2000184 ed 169 2000188 117 169 200019b 11a 17f 20001ad 11a 144
+// prog: 20001b2 9 17f 20001d0 8 17f 20001d1 9 144 20001d7 8 144 20001d9 9 15e 20001db
+// prog: 8 15e 20001dc 9 159 20001de 8 159 20001e1 20000013 164 20001e5 9 169 20001ea 8
+// prog: 169 20001f0 121 148 20001f8 6 148 20001fd 7 148 2000203 6f 77 2000204 6f f1
+// prog: 2000205 7c 77 200020a 99 9e 2000211 96 27 40001cc 15b 15b 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 29 2000000d
+// prog: 48 99 32 73 c1 74 40 c7 75 d8 d0 9d 132 d2 7b ae
+// prog: d3 9c 100 d4 af 12b de b4 12c e6 b6 11f e7 115 e9 104
+// prog: 105 106 107 190 10c 109 1ed 10e 119 e0 10f 11b ea 127 134 219
+// prog: 184 13d 21a 188 141 20b 189 15e 21d 1d7 169 1db 21f 17c 21f 1ea
+// prog: 1d8 1ff 149 20c 206 206 100002d 71 30 10000d1 a1 140 10000e1 ae 50000006 1000101
+// prog: fd f7 1000143 1ad 21b 1000159 1d1 21c 1000164 1d9 21e 100017b 1e5 21e 10001b1 1ef
+// prog: 1e2 1000209 23d 205 1000212 211 226 2000010 5 15 200001c 5 1a 200001f 4 1a
+// prog: 2000142 ed 19a 2000144 9 193 2000148 8 193 200014c 8 19a 2000150 9 19a 200018f
+// prog: d7 1e2 2000192 122 1e2 2000199 d7 1ef 20001ae 122 1ef 20001b4 6 1e2 20001ba 7
+// prog: 1e2 20001bc 6 1ef 20001cf 7 1ef 2000214 58 eb 2000215 8a eb 2000216 c2 eb
+// prog: 2000218 130 eb 2000220 13c eb 2000221 20000046 eb 2000223 58 1af 2000225 8a 1af 2000228
+// prog: c2 1af 200022f 130 1af 2000231 13c 1af 2000233 160 19e 2000234 194 19e 2000235 185
+// prog: 19e 2000236 172 19e 2000237 152 19e 2000239 131 19e 200023e 20000046 1af 4000125 15a 15a
+// prog: 4000126 162 162 400012d 17e 17e 4000133 17a 17a 400017f 1e2 1e2 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 30 1f
+// prog: 95 48 2d 5f 71 99 61 af c1 135 105 18e e6 15a 109 119
+// prog: 1ed 1a4 164 1ff 177 169 211 f8 17b 21b fe 17c 241 15e 1bf 24a
+// prog: 1d8 1d8 251 209 1a7 252 212 212 1000015 10 53 100001a 1c 89 100011f 125
+// prog: 219 1000127 12d 21a 100017e 126 162 1000184 133 17a 1000188 109 119 100021e 17f 1ef
+// prog: 2000032 2 29 2000040 3 29 2000073 2000002c d1 2000074 2000002c d0 2000075 2000002d d0 200007b
+// prog: 2000002d d1 200009c 8 d3 200009d 9 d3 20000a1 8 d2 20000ae 9 d2 20000b4 d4
+// prog: 176 20000b6 d4 183 20000e0 d4 170 20000ea 58 e1 20000eb 8a e1 20000ed c2 e1
+// prog: 20000f7 130 e1 20000fd 13c e1 2000100 20000046 e1 2000106 20000029 104 200010c 20000029 101 200010e
+// prog: 117 107 200010f 11a 107 2000115 117 109 200012b 117 11b 200012c 11a 11b 2000149 117
+// prog: 119 2000189 8 141 2000190 9 141 2000193 20000013 14c 200019a 9 101 200019e 8 101
+// prog: 20001ad 20000013 104 20001af 8 e7 20001d1 9 e7 20001d7 8 107 20001d9 9 107 20001db
+// prog: 8 109 20001e2 9 109 20001e5 20000013 169 20001ea 20000013 164 2000205 9 119 2000206 8
+// prog: 119 200020b 20000013 17b 200021f d7 1b1 2000226 d7 14c 200023d 122 159 2000242 7 1b1
+// prog: 2000243 6 1b1 2000244 7 14c 2000245 6 14c 2000246 6 104 2000247 7 104 2000248
+// prog: 7 159 2000249 6 159 200024b ab 150 200024c b8 15e 200024d 4 150 200024e 4
+// prog: 15e 200024f 5 15e 2000250 29 77 30000e9 20000047 de 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 10 15
+// prog: 2000003f 53 1b 40 89 b7 74 95 cf 75 d0 af 12a d3 108 106
+// prog: 101 207 149 104 208 15a 11a 186 190 150 1de 1d9 15e 1d7 191 162
+// prog: 19d 1e2 177 1e5 1e5 17b 206 20e 253 1ed 211 254 1bb 21e 256 23d
+// prog: 1f0 260 16e 1ff 263 b1 21b 269 251 251 100001c 1a 54 100001f 30 65
+// prog: 100002d 32 1d 1000061 e5 73 1000099 7b ec 10000c1 71 12e 10000de 10b 10c 10000e1
+// prog: 128 10e 10000e6 10f 171 10000e7 175 115 1000107 13d 127 1000119 182 189 100012d 1cc
+// prog: 193 100014c 1dc 1d7 1000159 1d9 187 1000169 1db 198 100017a 205 20d 100017c 20b 11b
+// prog: 1000255 1ed 211 100025c 249 1fd 1000268 23b 250 200005f 0 48 20000d1 d4 e0 20000d2
+// prog: b5 e9 2000109 117 188 2000125 8 188 2000126 9 188 2000133 20000013 19a 2000135 8
+// prog: 105 2000141 9 105 2000164 2000002e 1e5 200017f d5 1ff 200018e d7 1ff 20001a4 d5 1ed
+// prog: 20001a7 121 1ff 20001b1 122 1ff 20001bf 121 1ed 20001d8 d5 21b 20001ef d7 21b 2000209
+// prog: d5 211 2000212 121 21b 2000219 122 21b 200021a 121 211 2000257 2000001a 245 2000258 2000001a
+// prog: 244 2000259 7 19a 200025a 6 19a 200025d 7 1ed 200025e 6 1ed 200025f 2000001a 1ff
+// prog: 2000261 7 211 2000262 6 211 2000264 ad 244 2000265 5 244 2000266 20000013 245 2000267
+// prog: 4 19e 200026a 49 245 200026b 2 245 200026c 3 245 200026d 71 9e 200026e 48
+// prog: 27 200026f 58 241 2000270 8a 241 2000271 c2 241 2000272 130 241 2000273 13c 241
+// prog: 2000274 20000046 241 40000f8 12b 12b 40000fe 12c 12c 400025b 248 248 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 15 5c
+// prog: 10 1a 5c 1f 71 5f 46 73 61 ef 74 89 f2 75 95 116
+// prog: 7b 99 11c af c1 13f e5 e1 14b ec e6 151 105 e7 11f 10b
+// prog: 101 134 11b 1d0 126 149 15b 164 175 174 169 182 1e1 17a 186 cc
+// prog: 17c 187 ce 17b 193 199 209 198 1ae 21a 19a 1e0 253 1ff 25e 1ba
+// prog: 206 25f 25f 208 262 1cf 23b 25c 18a 251 268 1c9 1000106 f8 14b 1000108
+// prog: fe 151 100010c 19b 109 1000117 1b2 125 100012a 133 de 100015a 1e1 162 10001ed 25a
+// prog: 247 10001f0 25b 1f8 10001fd 1b4 25d 1000207 1bc 261 100021e 263 260 1000241 265 24d
+// prog: 1000279 26e 23f 2000030 3 1c 2000032 2 1c 2000040 2 2d 2000054 2 53 2000065
+// prog: 3 53 20000b1 d0 176 20000b7 d0 183 20000cf d0 e0 20000d4 d0 170 20000d7 b5
+// prog: d2 200010e 8 104 200010f 9 104 2000115 20000013 119 2000127 9 d3 2000128 8 d3
+// prog: 200012b 9 14c 200012c 8 159 200012e 9 150 200013d 8 15e 200016e 8 150 2000171
+// prog: 9 15e 200019d d5 255 200019e 121 12d 20001bb 7 254 20001cc 6 254 20001d7 6
+// prog: 255 20001d9 7 255 20001db 7 119 20001dc 6 119 20001de 6 12d 20001e2 7 12d
+// prog: 2000205 2000002e 25f 200020d ad 260 200020e b9 260 2000211 ad 263 200021b b9 263 200023d
+// prog: 4 11a 2000244 4 260 2000245 5 260 2000248 4 263 2000249 5 263 2000250 1c
+// prog: 78 2000275 1c f1 2000276 77 25c 2000277 2 25c 2000278 3 25c 200027a 160 de
+// prog: 200027b 194 de 200027c 185 de 200027d 172 de 200027e 152 de 200027f 131 de 4000188
+// prog: 1a4 1a4 4000189 1a7 1a7 4000190 1bf 1bf 4000191 1b1 1b1 40001e5 259 259 400020b 260
+// prog: 260 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 10 2000000c
+// prog: 15 1f 2000000f 1a 46 32 6c cc af b4 d3 e5 106 d5 ec 108
+// prog: de 105 10b e7 148 10f 101 128 21d 119 16e 171 11a 163 149 11f
+// prog: 17d 15a 125 ca 182 15b 11b 1be 174 243 1d9 1ba 16d 1fd 1bc 11d
+// prog: 1ff 1e0 d9 187 1e1 db 207 1f8 11d 208 25d 251 251 265 279 279
+// prog: 100002d 4e 30 10000c1 71 136 10000e1 10c 142 10000e6 144 10e 10000f8 115 195 10000fe
+// prog: 127 21c 1000104 12b 12c 1000109 12e 13d 1000133 188 18f 1000134 190 192 1000150 189
+// prog: 212 1000151 191 219 1000169 1d7 242 100017b 1dc 1cb 1000199 1e5 246 1000209 20b 263
+// prog: 100025c 250 203 2000053 b 75 200005c a 7b 200005f a 75 2000061 b 7b 2000089
+// prog: b 73 2000095 a 74 2000099 a 73 20000b5 b 74 20000ce d0 d4 2000126 121
+// prog: 175 200012d 122 175 200013f 121 187 200014b 122 187 200014c 122 186 2000159 122 117
+// prog: 200015e 6 19a 2000162 7 19a 200017c 7 117 200018a 6 117 200019b 6 12a 20001a4
+// prog: 7 12a 20001a7 2000001a 1ed 20001ae 6 175 20001b1 7 175 20001b2 2000001a 1fd 20001b4 2000001a
+// prog: 1ff 20001bf 6 186 20001c9 7 186 20001cf 2000001a 208 20001d0 2000001a 207 200021a ad 21e
+// prog: 200023f b8 11b 2000247 b9 1f0 200024d 5 21e 2000253 4 11b 2000254 5 11b 2000255
+// prog: 20000013 241 2000259 20000013 1ed 200025a 5 1f0 200025b 4 1f0 200025e 4a 241 200025f 3
+// prog: 241 2000260 2 241 2000261 2 1ed 2000262 3 1ed 2000268 58 23b 200026e 8a 23b
+// prog: 2000280 c2 23b 2000281 130 23b 2000282 13c 23b 2000283 20000046 23b 400017a 1db 1db 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 6c 2d
+// prog: 59 74 5f 61 7b 99 b5 af 1f f0 b4 c1 145 d9 e6 19c
+// prog: db fe 1ad e5 164 104 10f 11f 125 127 1cc 162 142 18a 1e2 1be
+// prog: 1ba 1e1 1cb 1c3 209 20b 25b 24f 251 25c 1ca 28a 260 26c 292 e7
+// prog: 223 293 101 229 1000030 2d 33 1000032 1f 63 100004e 46 35 1000073 5c 53
+// prog: 1000075 95 89 10000ec 109 1ea 1000105 119 177 1000115 198 134 1000117 11f 125 100011b
+// prog: 159 19e 100011d 15e 1bb 100012b 17a 1c5 100013d 1de 17c 10001d7 1ba 1e1 10001db 247
+// prog: 24c 1000208 25a 24e 100021d 97 1bc 1000246 97 1f8 1000279 25c 154 1000289 26b 25f
+// prog: 2000015 3 10 200001a 2 10 2000071 1 1f 20000ca cc d2 20000d0 cc e9 2000106
+// prog: 121 11a 2000108 121 11f 200010e 121 125 2000128 2000001a 174 200012a 2000001a 169 200012c 6
+// prog: f8 200012e 7 f8 2000136 2000001a 17b 2000144 2000001a 199 2000148 6 11a 2000149 7 11a
+// prog: 200015a 6 11f 2000163 7 11f 200016d 7 125 200016e 6 125 2000171 ab 1bc 2000175
+// prog: ad 1bc 200017d ab 1ba 2000182 b8 1bc 2000187 b9 1bc 2000188 b8 1ba 2000189 b9
+// prog: 1e0 200018f ab 1f8 2000190 ad 1f8 2000191 ab 1e1 2000192 b8 1f8 2000195 b9 1f8
+// prog: 200019a b8 1e1 20001d9 ad 169 20001dc 5 169 20001e5 20000013 174 20001ed 4 e7 20001f0
+// prog: 5 e7 20001fd 20000013 17b 20001ff 5 199 2000203 4 101 2000207 5 101 2000212 5
+// prog: 1ba 2000219 4 1ba 200021c 20000013 1bc 200021e 5 1e1 200023b 4 1e1 2000241 4 1e0
+// prog: 2000242 5 1e0 2000243 20000013 1f8 2000250 10 78 2000263 1f f1 2000284 49 174 2000285
+// prog: 2 174 2000286 3 174 2000287 2 17b 2000288 3 17b 200028b 1f 26 200028c 160
+// prog: 15b 200028d 194 15b 200028e 185 15b 200028f 172 15b 2000290 152 15b 2000291 131 15b
+// prog: 400010b 13f 13f 400010c 14b 14b 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 33 1a
+// prog: 1d 35 62 32 46 20000003 30 53 20000006 4e 61 88 73 63 e2 74
+// prog: 89 4e 12f 95 af 123 97 b4 b1 ad 164 105 b5 15c e5 c1
+// prog: 178 ec e7 14c 10e f8 1df 10f 15b 1ae 149 162 16e 1c9 17c 21b
+// prog: 19a 18a 1c4 1be 1c5 219 245 1cc 23b 249 1f8 251 251 24c 20b 157
+// prog: 29b 292 233 29c 293 27a 100002d 1b 15 10000e6 12d 106 10000f0 10b 1d8 10000f1
+// prog: 10c 1ef 1000101 11b 226 100013f 13d 257 1000145 142 258 1000159 148 1b1 100015e 1bf
+// prog: 16d 1000169 20d 17d 100017b 191 211 10001bc 1ff 267 10001c3 212 244 10001ca 21e 248
+// prog: 10001de 250 23a 1000209 246 21d 1000223 279 18b 2000059 0 6c 200005c 20000029 74 200005f
+// prog: 20000029 73 2000099 cc d0 20000fe 121 117 2000104 2000001a 127 2000109 2000001a 11d 2000119 6
+// prog: 117 200011a 7 117 200011f 7 d9 2000125 6 d9 2000134 2000001a 12b 200014b 7 db
+// prog: 2000154 6 db 2000198 ab 1d7 2000199 5 1cb 200019c 4 1d7 200019e 5 11d 20001ad
+// prog: 20000013 127 20001ba 20000013 1dc 20001bb 5 12b 20001e2 4a 21d 20001ea 4a 246 2000229 4a
+// prog: 1dc 2000247 78 208 200024e 2 127 200024f 3 127 200025a 3 1dc 200025b 2 1dc
+// prog: 200025c 2000000b 28a 200025f 2000000b 289 2000260 3 208 200026b 2 208 200026c 2 21d 2000294
+// prog: 3 21d 2000295 2 246 2000296 3 246 2000297 4e 9e 2000298 6c 27 2000299 26
+// prog: 20b 200029a 1 20b 4000174 182 182 4000177 188 188 400017a 187 187 40001e1 21d 21d
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1d 20000005
+// prog: 35 73 59 71 74 75 5c cc 89 16a d9 95 10d ec 16b ad
+// prog: 10b e6 18e 10c e7 193 10f c1 186 121 125 12e 127 154 1a4 14c
+// prog: 15e 1cf 178 145 201 1c9 f9 1c3 1cb 5e 1c5 1d8 85 1ca 1dc 5e
+// prog: 1cc 1df 1de 1c8 208 223 223 20b 247 276 1000088 7b 5f 10000b4 93 63
+// prog: 100010e c1 186 100011d 12c 11f 1000123 19b 14b 1000157 162 1d0 100015c 177 20e 1000164
+// prog: 174 192 100016d 17a 195 1000182 24d 19c 1000187 19e 1e3 1000188 1bb 23d 100019a 255
+// prog: 145 10001ef 1e1 246 1000219 25b 286 1000226 26b 278 1000245 298 28b 2000015 3 2d
+// prog: 200001a 3 33 200001b 2 33 2000030 0 46 2000032 1 46 200004e 1 53 20000ab
+// prog: 9 61 20000af 8 61 20000b1 20000013 63 20000db 97 d2 20000e2 97 d0 20000e5 97
+// prog: e9 2000105 122 b5 2000106 122 c1 2000117 6 f8 200011b 7 f8 200012b 7 b5
+// prog: 200012d 6 b5 200012f 7 c1 200013d 6 c1 2000142 6 159 2000148 6 15b 2000149
+// prog: 7 15b 200016e b9 13f 200017d 4 18a 200018b 5 13f 2000191 4 13f 20001be 20000013
+// prog: 1bc 20001bf 20000013 1c5 20001c4 20000013 1c3 20001d7 20000013 1ca 20001ff 4a 209 200020d 3 209
+// prog: 2000211 2 209 200021b 3 1bc 200021d 2 1bc 2000233 46 26 200023a 46 27 200023b
+// prog: 53 26 2000244 53 9e 2000248 58 24c 2000249 8a 24c 2000250 c2 24c 2000251 130
+// prog: 24c 2000257 13c 24c 2000258 20000046 24c 2000267 176 29b 2000279 183 29b 200027a e0 29b
+// prog: 2000289 d4 29b 200028a 170 29b 2000292 176 29c 2000293 183 29c 200029d e0 29c 200029e
+// prog: d4 29c 200029f 170 29c 4000212 25a 25a 400021e 260 260 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 35 1b
+// prog: 65 5c c7 74 5e 7e 88 61 af 9d 75 73 137 7b cc b6
+// prog: 85 d9 d7 ad 20f 10e b5 ec 1d6 c1 10b f1 e7 ec 210 10d
+// prog: 11d 136 125 123 1a7 13f 12d 1b1 14b 13d 163 159 b0 14c 15b da
+// prog: 157 192 191 254 195 1bf 1bf 1cc 1df 1df 1cf 1c9 1d8 1d0 1f6 1ef
+// prog: 286 8d 1cb 29c 245 245 2a0 226 1ac 100002d 40 15 1000033 54 1a 100005f
+// prog: ab 9c 1000093 105 126 1000095 106 108 100011f 121 134 100012c 127 144 100012e 1ae
+// prog: 12b 1000145 15a 12f 1000154 ec 206 100015e 17c 15c 100016a 16e 23f 100016b 199 17d
+// prog: 100018e 18b 253 10001de 1c9 1d8 100023d 212 285 100025b 21d 262 1000260 21e 277 2000059
+// prog: 1 1d 2000063 6 b4 2000071 7 b4 2000089 97 e5 20000e6 122 10f 20000f8 7
+// prog: 10f 20000f9 6 10f 2000162 b8 ec 2000174 20000013 182 2000177 20000013 187 200017a 4 ec
+// prog: 2000186 5 ec 200018a 20000013 188 2000193 2000002e 1bf 200019b 49 1cb 200019c 4a 1cb 200019e
+// prog: 49 1c9 20001a4 77 1cb 20001bb 78 1cb 20001bc 49 1dc 20001c3 4a 1dc 20001c5 49
+// prog: 1d8 20001c8 77 1dc 20001ca 78 1dc 20001e1 4a 182 20001e3 77 19a 2000201 3 182
+// prog: 2000209 2 182 200020e 3 187 2000223 2 187 2000246 2000000b 219 2000247 3 188 200024c
+// prog: 2 188 200024d 2 19a 2000255 3 19a 200026b 3 1c9 2000276 2 1c9 2000278 2000000b
+// prog: 1cb 200028b 3 1d8 2000298 2 1d8 200029b 1d 26 20002a1 160 178 20002a2 194 178
+// prog: 20002a3 185 178 20002a4 172 178 20002a5 152 178 20002a6 131 178 400025a 21b 21b 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 15 2d
+// prog: 20000042 1a 20000042 35 1b 20000004 33 40 30 59 73 92 5f 74 c9 61
+// prog: 7e 75 14a 88 7b ca 9c 93 17f 9d 95 133 b6 f9 11a d9
+// prog: 205 154 144 1ea 1c5 14c 1f7 1cf 15a 192 232 1b1 276 294 1c9 278
+// prog: 278 1d6 298 296 21e e7 26f 1000097 5e 50000005 10000ab e6 fe 10000b4 119 f8
+// prog: 10000cc 145 1b2 10000da 14b 1b4 1000108 16a 264 1000122 18a 11f 1000123 18e 266 100012b
+// prog: 1be 12c 1000134 1d7 15b 100018b 223 24f 100019a 24c 288 10001a7 25a 261 10001ae 26c
+// prog: 26b 10001cb 295 28b 10001d8 23a 29b 1000226 11f 225 100023f 12c 22a 200004a 9 5c
+// prog: 2000054 8 5c 2000065 20000013 5f 20000af 7 ad 20000b0 6 ad 20000c7 7 12e 20000d7
+// prog: 7 13f 20000ec 6 13f 20000f1 b8 15b 2000105 b9 15b 2000106 b8 159 200010b 20000013
+// prog: 16b 200010e 4 b5 200010f 5 b5 200011d 5 10d 2000121 4 10d 2000126 5 125
+// prog: 2000127 4 125 200012d 5 159 200012f 4 159 2000157 49 1de 200015c 3 1d0 2000163
+// prog: 2 1d0 200016e 2 1de 2000178 3 1de 200017c 3 16b 200017d 2 16b 2000182 2000000b
+// prog: 209 2000187 2000000b 201 2000191 2000000b 23d 20001ac 2000000b 25b 20001bf 2000002e 278 20001dc 26 192
+// prog: 20001df 27 260 20001ef 1 192 20001f6 0 260 2000206 1 286 200020f 58 2a0 2000210
+// prog: 8a 2a0 2000212 c2 2a0 2000219 130 2a0 200021b 13c 2a0 200021d 20000046 2a0 300008d 20000047
+// prog: 85 4000136 19e 19e 4000137 1a4 1a4 400013d 1bb 1bb 4000188 20e 20e 4000199 247 247
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2d 62
+// prog: 15 30 62 1a 59 54 ae 75 87 74 7b 7e b7 ca 9c f0
+// prog: e6 9d 10c e7 ab 21f f9 b0 11b fe b4 128 11f ec 149 125
+// prog: 14d cc 12c 19f d9 12e 153 da 13f 189 106 154 121 1f0 16a 127
+// prog: 207 17f 12f 242 18a 80 134 1be 211 178 23d 8c 1ae 253 1d8 1d8
+// prog: 25a 1f6 29a 26b 21e 28c 26c 226 234 26f 23f 27b 1000049 4a a1 100005c
+// prog: 65 5e 10000f8 117 af 100010d b6 12a 1000119 142 c7 100011a 148 d7 1000145 190
+// prog: 105 100014a 108 24b 100014b 11d 1ed 100015b 126 203 100016b 12d 241 100018e 136 1e2
+// prog: 1000192 137 1c8 100019e 13d 1ca 10001bb 16e 20d 10001cf 17d 1f2 10001d0 188 24e 10001de
+// prog: 199 287 1000254 1df 299 2000033 0 1b 2000035 1 40 200005f 7 73 2000061 6
+// prog: 73 2000085 88 8d 2000092 160 97 2000093 194 97 2000095 185 97 20000ad 172 97
+// prog: 20000b5 152 97 20000c9 131 97 20001a4 78 123 20001b2 2 14c 20001b4 3 14c 20001d7
+// prog: 2000000b 18b 20001ea 2 122 20001f7 3 122 2000201 2000000b 19a 2000209 3 123 200020e 2
+// prog: 123 2000223 2 12b 2000225 3 12b 200022a 2000000b 1a7 2000232 2000000b 1ae 200023a 2000000b 1b1
+// prog: 2000245 2000000b 1d6 2000247 2000000b 1cb 200024c 1b 27 200024f 1b 9e 200025b 160 15a 2000260
+// prog: 194 15a 2000261 185 15a 2000262 172 15a 2000264 152 15a 2000266 131 15a 4000133 f1
+// prog: f1 40001c5 17c 17c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 15 20000002
+// prog: 2d 1a 20000007 30 40 33 4e 4a 49 b1 54 be 5c 5e c0 59
+// prog: 65 61 71 74 7b db 87 f8 104 97 205 119 9c 205 11f 9d
+// prog: 14e 11a b4 13f 17b b6 12e 159 cc 10d 230 ec 14b 1fd f0 15b
+// prog: 259 11b 16b 243 11d 84 17f 126 163 1b4 136 20e 255 199 154 228
+// prog: 19a 26c 267 19f 16a 22b 1a7 26f 292 1000062 63 5f 1000080 e7 19d 100008c
+// prog: f9 109 10000b0 133 18f 10000b7 12e 159 10000da 1ba 10d 1000122 1a4 1e3 1000123 1b2
+// prog: 15c 100012a 1c5 1f1 1000134 24d 209 1000142 24c 23b 2000073 4 75 200007e 88 85
+// prog: 20000a1 b8 125 20000ab b9 125 20000ae b8 12c 20000af b8 12e 20000c7 b9 fe 20000d7
+// prog: 5 fe 20000d9 4 fe 20000f1 4 125 2000105 5 125 2000106 4 12c 2000108 5
+// prog: 12c 200010c 4 12e 2000117 5 12e 2000121 78 18a 2000127 2000000b 1be 2000128 2000000b 1bb
+// prog: 200012b 2000000b 1cf 200012d 2000000b 1d0 200012f 2000000b 1de 2000137 2 18a 200013d 3 18a 2000148
+// prog: 1 154 2000149 1 16a 200014c 0 23d 200014d 58 25a 2000153 8a 25a 200015a c2
+// prog: 25a 200016e 130 25a 2000178 13c 25a 200017c 20000046 25a 200017d 176 26b 2000188 183 26b
+// prog: 2000189 e0 26b 200018b d4 26b 2000190 170 26b 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 30 ac
+// prog: 4a 5c 81 5e 5f 86 62 61 bb 65 63 1a 15f 71 40 13a
+// prog: 88 173 97 b1 1a0 9c e7 238 b6 f8 9d 1e0 125 d9 186 12e
+// prog: f1 108 14b 7f 11b 15b 122 25e 19d 134 25c 1b2 44 11d 1bb 142
+// prog: 142 1be 14c 206 1c5 cc 268 1ca 199 235 1d8 19f 27c 1000084 5e 50000004
+// prog: 10000be ab ae 10000db 9d 1e0 10000fe c7 162 100011a 177 8c 100011f d7 17a 100012c
+// prog: 105 106 10001a4 136 25f 10001c8 8c 270 200002d 0 15 2000033 6 54 2000049 7
+// prog: 54 200004e 2000001a 65 2000059 2000001a 62 2000075 74 85 200007b 74 8d 20000c0 b9 9d
+// prog: 20000f9 b8 b7 2000104 4 b7 2000109 5 b7 200010d 5 87 2000119 4 87 2000133
+// prog: 5 9d 200013f 4 9d 200014e 77 11d 2000154 78 11d 2000159 77 da 200015c 2000000b
+// prog: 126 2000163 2000000b 123 200016a 2000000b 12a 200016b 2 da 200017b 3 da 200017f 3 ec
+// prog: 200018f 2 ec 20001ae 3 f0 20001b1 2 f0 20001b4 15 27 20001ba 1a 9e 20001cb
+// prog: d2 19a 20001cf d0 19a 20001d0 e5 19a 20001d6 e9 19a 20001de d2 1a7 20001df d0
+// prog: 1a7 20001e2 e5 1a7 20001e3 e9 1a7 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 2d
+// prog: 32 7f 63 129 81 71 14f 87 84 ea 9d 24a db 9e b1 1b9
+// prog: ac b1 200 d7 119 10f d9 11f 1e5 f0 13f 117 11d b1 193 134
+// prog: 125 20c 15f 18f 1f7 173 1b1 225 19f 1a4 240 1ed 1c5 2a1 1f0 1c8
+// prog: 28d 1f1 1ca 279 1f2 1d8 293 1000065 aa 61 1000097 c0 af 100009c be 175
+// prog: 10000ae fe 1d9 10000c7 174 b1 10000cc 10d 10e 1000108 10c 133 1000136 15b 26a 100014c
+// prog: 1ea 17f 1000162 223 1ae 1000186 1b4 233 2000040 7 30 2000044 6 30 200004a 5
+// prog: 5f 2000054 4 5c 200005e 5 5c 2000062 20000013 61 2000086 74 7b 200008c b9 88
+// prog: 20000ab b9 f8 20000b6 4 e7 20000b7 5 e7 20000b8 5 f8 20000bb 4 f8 20000da
+// prog: 5 88 20000ec 4 88 2000106 4 12c 200011b 4 12e 2000122 5 12e 200012a 77
+// prog: 14b 200013a 2 11a 2000142 3 11a 2000177 3 14b 200017a 2 14b 2000199 26 125
+// prog: 200019a 27 19d 20001a0 1 125 20001a7 0 19d 20001e0 20000044 1be 4000123 14e 14e 4000126
+// prog: 154 154 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 32 44
+// prog: 49 63 7f d1 71 81 cf 74 87 92 88 97 169 aa 9c 145
+// prog: db bb 109 e7 cc 1ad f8 ec 105 10c 138 108 10d 16c 11d 10e
+// prog: 121 12a 12e 14c 201 13f 162 1ac 154 17a 13d 15b 186 186 17f 1a7
+// prog: 1ef 19d 1e0 1e0 1c5 134 248 1f6 d7 271 1f7 1f0 17d 1fd 1f1 1cb
+// prog: 200 1f2 1de 1000030 33 40 100005c 4a 73 1000084 8c a1 10000af ab f9 10000be
+// prog: 10b 9e 10000c0 b8 104 10000ea da f1 10000fe 21c f0 100010f 123 1bc 1000117 126
+// prog: 1c3 1000133 15f 12f 100014e 173 22a 100014f 137 177 1000174 19a 1dc 10001c8 ac 26e
+// prog: 200002d 0 1a 200005f 2 65 2000061 3 65 20000b1 5 9d 20000b9 4 9d 2000119
+// prog: 77 c7 200011a 78 d9 200011f 2 c7 2000125 3 c7 2000129 3 d9 200012c 2
+// prog: d9 2000175 1 d7 200018f 2000002e 1e0 20001a4 160 19f 20001ae 194 19f 20001b1 185 19f
+// prog: 20001b4 172 19f 20001b9 152 19f 20001be 131 19f 20001ca 176 1ed 20001d8 183 1ed 20001d9
+// prog: e0 1ed 20001e5 d4 1ed 20001ea 170 1ed 8000000 0 0 8000000 0 0 1a 2d
+// prog: 35 33 30 4e 49 a9 5c 4a 63 99 65 71 e2 92 84 171
+// prog: 97 88 b4 9e b9 b7 b8 ff fe cf 10e 144 d7 db 269 108
+// prog: 12c 17b 123 14f 245 169 1c5 25b 16c 1c8 2a2 173 1f6 28e 19a 133
+// prog: 22f 1ad 14e 22c 1000040 32 59 100009c af 21a 100009d b1 b6 10000d9 11a 159
+// prog: 1000105 16b 129 1000126 154 247 2000044 20000013 5c 2000073 176 74 200007f 183 74 2000081
+// prog: e0 74 2000087 d4 74 200008c 170 74 20000a1 5 ea 20000ab 5 f8 20000ac 4
+// prog: f8 20000bb 77 10c 20000c7 78 10c 20000cc 77 10d 20000d1 78 c0 20000da 2 be
+// prog: 20000ec 3 be 20000f0 3 c0 20000f1 2 c0 20000f9 3 e7 2000104 2 e7 2000109
+// prog: 2 10c 200010b 3 10c 200011d 2 10d 2000121 3 10d 200012a 26 db 200012f 1
+// prog: db 2000134 0 12e 2000137 0 13f 2000138 160 17f 200013d 194 17f 2000145 185 17f
+// prog: 200014c 172 17f 200015f 152 17f 2000162 131 17f 2000177 d2 1f7 200017a d0 1f7 200017d
+// prog: e5 1f7 2000186 e9 1f7 200019f 85 1fd 20001a7 7b 1fd 20001ac 8d 1fd 20001bc 85
+// prog: 200 20001c3 7b 200 20001cb 8d 200 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 30 7d
+// prog: 33 32 83 40 59 4a 7e 5c 65 75 63 92 b0 74 9d 1ee
+// prog: 99 ac 122 b1 b8 14b b7 d9 229 be f1 125 db 104 142 e2
+// prog: 105 246 f8 109 121 10c 43 123 10d 45 126 11a 134 148 129 137
+// prog: 149 14f 9e 280 154 16c 1ca 159 173 188 16b 19a 236 171 1ad 27d
+// prog: 100002d 1a 38 1000071 9c 198 1000084 a1 106 1000088 ab 11b 10000a9 c7 cc 10000b4
+// prog: b8 14b 10000b6 d1 119 10000b9 11f f0 10000c0 13a f9 10000e7 108 191 10000ea 11d
+// prog: 10b 100012c d7 249 2000035 3 49 200004e 2 49 20000af 77 b8 20000fe 2 b8
+// prog: 20000ff 3 b8 200010e 1 9e 200012e 176 169 2000133 183 169 200013f e0 169 2000144
+// prog: d4 169 200014e 170 169 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 34
+// prog: 2d 45 4e 61 65 193 84 7e a9 19c 83 25d b1 9c b6 1e1
+// prog: 9d b7 284 b0 b9 182 b8 be 187 c7 c0 1d7 104 e7 252 106
+// prog: 12c 260 108 14f 2a3 121 159 177 122 11a 231 123 16b 27a 125 129
+// prog: 22d 126 171 29d 1000040 44 32 1000043 5f 35 100004a 32 50000003 1000075 88 1c4
+// prog: 100007d 99 195 10000cc db 12d 2000033 5 30 2000038 4 30 2000092 77 b4 200009e
+// prog: 2 b4 20000a1 3 b4 20000ab 3 74 20000ac 2 74 20000d1 2 ea 20000d7 2
+// prog: f8 20000d9 3 f8 20000f0 26 10d 20000f1 27 10d 20000f9 27 e2 2000105 0 e2
+// prog: 2000119 d2 154 200011b d0 154 200011d e5 154 200011f e9 154 3000049 20000047 59 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2d 20000000
+// prog: 1a 32 38 5e 34 70 40 5f 193 7d 61 fa 65 74 139 75
+// prog: 77 7e 117 a9 ac ec b4 b8 265 be 105 1a0 c0 104 20f db
+// prog: 106 12e e2 108 1d8 e7 cc 272 11a 122 237 129 123 1cf 12c 125
+// prog: 27e 12d 126 1df 1000030 33 54 1000059 4a eb 1000099 da ab 10000b6 f9 199
+// prog: 2000035 2000000b 45 2000044 2000000b 43 200004e 5c 49 2000084 2 83 2000088 3 83 20000b1
+// prog: 27 b0 20000b7 0 b0 20000b9 0 c7 20000ea 85 121 20000f8 7b 121 200010d 8d
+// prog: 121 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 30
+// prog: 62 33 72 32 43 2d 147 4a 59 93 54 13b 5f 75 74 18a
+// prog: 7d 99 12b c7 b7 12f cc b9 175 da be 14d ec c0 1a4 106
+// prog: e2 119 108 e7 28f 117 11a 289 121 129 19f 122 12c 29e 123 12d
+// prog: 1bc 1000070 74 18a 100007e a9 16a 10000b8 b1 12a 10000eb b4 210 2000038 2 34
+// prog: 2000040 3 34 2000045 5c 4e 200005e 78 61 2000065 78 74 2000083 3 61 20000ab
+// prog: 2 61 20000ac 3 74 20000b0 2 74 20000f9 d2 db 20000fa d0 db 2000104 e5
+// prog: db 2000105 e9 db 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2d 6e
+// prog: 1a 30 90 33 32 43 10a 59 4a 73 61 1cc 70 62 54 1f8
+// prog: 74 54 208 b1 ab 10b b7 b0 ff e7 da 138 119 eb 1ae 12b
+// prog: 7e 281 12f cc 273 134 108 189 137 117 1d0 13b 122 1e2 1000034 33
+// prog: 50000002 100005c 5e bb 100005f 65 af 10000a9 109 83 10000b4 fe ac 10000b9 54 1c9
+// prog: 10000e2 c7 153 2000072 78 75 2000093 3 75 2000099 2 75 20000be 26 54 20000c0
+// prog: 1 54 20000db 0 7d 200011a 176 ec 2000125 183 ec 2000126 e0 ec 2000129 d4
+// prog: ec 200012a 170 ec 200012c 85 106 200012d 7b 106 200012e 8d 106 2000139 4e 121
+// prog: 200013a 49 121 2000142 4e 123 2000147 49 123 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 4a 32
+// prog: ce 54 34 ed 73 5c 19b 75 5f 18e 90 99 a1 b0 1bf b9
+// prog: da db 10e eb e2 13d 109 119 11a 10a 74 250 10b 12b 2a4 117
+// prog: 12f 290 121 134 17a 122 137 1a7 123 13b 1c3 1000078 72 92 1000083 9e
+// prog: 93 10000ac b4 232 10000bb b7 23a 200001a 3 2d 2000033 2 2d 2000043 1 30
+// prog: 200005e d2 59 2000065 d0 59 200006e e5 59 2000070 e9 59 200007d 3 61 200007e
+// prog: 2 61 20000ab 3 a9 20000af 3 b1 20000c7 2 b1 20000cc 1 62 20000ec 176
+// prog: e7 20000fe 183 e7 20000ff e0 e7 2000106 d4 e7 2000108 170 e7 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 30 33
+// prog: 40 32 4a 89 34 54 95 59 73 10f 5c 75 cf 5f 78 1ff
+// prog: 62 7e 88 72 83 127 99 c7 d9 9e a4 ac a1 a6 b0 a9
+// prog: a7 bb b1 eb ec db 10a 261 e2 da 282 e7 10b 1d9 ed 117
+// prog: 18b 10e 121 ea 119 122 139 11a 123 142 100002d 38 1a 1000061 84 7d
+// prog: 1000074 90 128 1000092 d1 ab 1000093 d7 af 20000b4 d2 109 20000b7 d0 109 20000b9
+// prog: e5 109 20000ce e9 109 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 2d
+// prog: 35 38 32 86 40 34 7f 54 61 15c 75 1bf 92 78 1bf 99
+// prog: 7d a5 93 88 a9 10c 95 74 29c c7 db 133 cf e2 2a5 d1
+// prog: e7 11b d7 ed 17d 1000033 30 44 100004a 5f 157 1000073 62 163 1000089 a9
+// prog: 10c 200007e 26 9e 2000083 27 9e 2000084 26 a1 2000090 27 72 20000a4 0 72
+// prog: 20000a6 0 9e 20000a7 1 9e 20000ab 1 a1 20000ac d2 b1 20000af d0 b1 20000b0
+// prog: e5 b1 20000bb e9 b1 20000d9 4e 10e 20000da 49 10e 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2d 8b
+// prog: 1a 30 91 33 32 38 45 34 40 5e 35 a3 75 44 a8 78
+// prog: 62 253 88 72 7d 1b2 93 a4 c0 99 a6 ab 9e 95 212 a1
+// prog: 73 251 a5 c7 f9 a9 cf 1e5 b1 d1 12c db d7 f8 100005f 83
+// prog: 84 1000061 7d 1b2 100007f 90 be 2000074 26 89 2000086 1 89 2000092 0 54
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 5e 15b
+// prog: 61 73 44 1bb 84 92 cc 8b 93 15a 90 9e 1b1 91 a1 262
+// prog: a6 a9 11d be db d9 1000033 30 50000001 1000075 5f f1 200001a 0 2d 2000038
+// prog: 85 34 2000040 7b 34 2000045 8d 34 2000054 27 35 2000078 27 72 200007d 1
+// prog: 62 2000083 0 72 2000088 0 35 2000089 1 99 2000095 85 a5 20000a3 7b a5
+// prog: 20000a4 8d a5 20000a8 4e b1 20000ab 49 b1 3000026 20000047 32 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 27 1a
+// prog: 43 2d 33 f7 35 83 86 44 88 a7 5f 8b 145 61 73 219
+// prog: 62 90 125 72 84 257 92 91 13f 93 a6 12d 1000030 54 7e 1000032
+// prog: 78 74 2000034 0 5e 2000099 26 be 200009e 26 119 20000a1 26 11a 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 33 2d
+// prog: ad 54 34 7d 73 35 16e 74 5f fe 78 61 1b4 7e 62 b4
+// prog: 83 72 264 84 92 fa 86 93 a8 100001a 27 50000000 1000043 30 f0 200005e
+// prog: 0 44 2000088 4e 99 200008b 7b 99 2000090 e5 99 2000091 d4 99 20000a5 152
+// prog: 99 20000a6 13c 99 20000a7 4e 9e 20000a9 7b 9e 20000b1 e5 9e 20000be d4 9e
+// prog: 20000c0 152 9e 20000c7 13c 9e 20000cc 4e a1 20000cf 7b a1 20000d1 e5 a1 20000d7
+// prog: d4 a1 20000d9 152 a1 20000db 13c a1 700003c 99 99 700003d 9e 9e 700003e a1
+// prog: a1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 27 1a
+// prog: fd 2d 33 81 30 5e 89 34 73 14c 35 74 ac 44 54 21b
+// prog: 5f 78 126 7d 83 144 92 84 95 99 da 88 9e 13a a7 a1
+// prog: 147 cc 2000061 85 7e 2000062 7b 7e 2000072 8d 7e 2000093 26 86 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 18 21 2000001
-// prog: 45 2d 200000b 18 2e 2000023 45 2f 2000024 18 30 2000029 45 34 200002a 18
-// prog: 39 200002b 45 3a 200004a 18 3f 200004b 45 40 200004c 18 42 200004d 45 49
-// prog: 200004e 2000000b 2e 200004f 3 2e 2000050 2 2e 2000051 31 2f 2000052 2000000b 30 2000053
-// prog: 3 30 2000054 2 30 2000055 31 34 2000056 2000000b 39 2000057 3 39 2000058 2
-// prog: 39 200005a 31 3a 200005b 2000000b 3f 200005c 3 3f 200005d 2 3f 200005e 31 40
-// prog: 200005f 2000000b 42 2000060 3 42 2000061 2 42 2000062 31 49 7000001 13 13 7000007
-// prog: 13 13 7000002 16 16 700000e 16 16 7000003 19 19 7000015 19 19 7000004 1b
-// prog: 1b 700001c 1b 1b 7000005 1c 1c 7000023 1c 1c 7000006 1f 1f 700002a 1f 1f
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 200001f 2 4e 2000021
-// prog: 3 4e 200002d 2 52 200002e 3 52 200002f 2 56 2000030 3 56 2000031 2
-// prog: 5b 2000039 3 5b 200003f 2 5f 2000042 3 5f 4000013 0 0 4000016 b b
-// prog: 4000018 24 24 4000019 2a 2a 400001b 4a 4a 400001c 4c 4c 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 27
+// prog: b5 33 2d 65 5e 34 ff 7e 44 1b9 81 5f b7 83 7d 104
+// prog: 1000054 30 19d 2000073 85 35 2000074 7b 35 2000078 8d 35 2000084 4e 92 2000086
+// prog: 49 92 2000088 4e 93 2000089 7b 93 2000095 e5 93 20000a7 d4 93 20000a8 152
+// prog: 93 20000ac 13c 93 20000ad 85 99 20000b4 d0 99 20000cc e0 99 20000da 172 99
+// prog: 20000e2 130 99 20000e7 85 9e 20000ea d0 9e 20000eb e0 9e 20000ec 172 9e 20000ed
+// prog: 130 9e 20000f0 85 a1 20000f1 d0 a1 20000f7 e0 a1 20000f8 172 a1 20000f9 130
+// prog: a1 700003b 93 93 7000043 99 99 7000044 9e 9e 7000045 a1 a1 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 27 1a
+// prog: 87 2d 33 38 30 18f 54 34 5e af 35 7e 129 44 81 61
+// prog: 5f 83 a3 65 ab 88 7d 10d ad 92 1ac e7 93 1cb f0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 27
+// prog: 6e 54 30 178 5e 34 73 61 35 b9 83 5f 84 a3 7d 8b
+// prog: ab 92 a9 ad 93 cf 2000033 4e 2d 2000038 49 2d 200007e 4e 44 2000081
+// prog: 49 44 2000087 85 65 2000088 d0 65 2000099 e0 65 200009e 172 65 20000a1 130
+// prog: 65 7000042 65 65 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 13 1 100000b
-// prog: 16 23 1000024 18 29 100002a 19 2b 1000045 1b 4b 100004a 1c 4d 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 27 1a
+// prog: 40 2d 54 15f 35 61 62 5f 12e 87 2000030 4e 5e 2000034 49 5e
+// prog: 2000044 26 83 2000065 d2 a3 200006e 183 a3 2000073 185 a3 200007d c2 a3 2000084
+// prog: d2 ab 200008b 183 ab 2000092 185 ab 2000093 c2 ab 20000a9 d2 ad 20000af 183
+// prog: ad 20000b5 185 ad 20000b7 c2 ad 700004a a3 a3 700004b ab ab 700004c ad ad
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 27
+// prog: 33 40 2d 106 54 35 7e ab 5f 89 ad 186 65 b9 1d6 84
+// prog: cf 1e3 a9 200005e 4e 44 2000061 7b 44 2000062 e5 44 2000083 d4 44 2000087
+// prog: 152 44 20000a3 13c 44 700003a 44 44 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2d 40
+// prog: b0 35 86 5e 84 ad b4 89 b9 ea a9 cf f1 2000027 26 1a
+// prog: 2000033 26 54 2000044 d2 ab 200005f 183 ab 2000065 185 ab 200007e c2 ab 7000049
+// prog: ab ab 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 12 0 2000013
-// prog: 12 b 2000016 12 24 2000018 12 2a 2000019 12 45 200001b 12 4a 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b4 2d
+// prog: 74 106 11f 44 109 84 90 10a 89 b1 10b a9 d1 200001a 4e 27
+// prog: 2000040 7b 27 2000054 e5 27 200005e d4 27 2000086 152 27 20000ab 13c 27 20000ad
+// prog: 0 27 20000b0 1 27 20000b9 4e 33 20000cf 7b 33 20000e7 e5 33 20000ea d4
+// prog: 33 20000f0 152 33 20000f1 13c 33 20000fa 85 35 20000fd d0 35 20000fe e0 35
+// prog: 20000ff 172 35 2000104 130 35 7000000 27 27 7000039 33 33 7000041 35 35 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 12 1 100000b
-// prog: 22 13 100001c 25 16 1000023 26 18 1000024 27 19 1000029 28 1b 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 27 38
+// prog: 1a 2d 41 ad 11b b4 30 11d 81 b9 11f a4 fa 121 106 88
+// prog: 1000033 b0 42 2000035 15 b0 2000044 46 ad 2000074 46 b0 2000084 1d ad 2000089
+// prog: 1b b0 2000090 53 ad 20000a9 6c b0 20000b1 1f ad 20000d1 48 b0 200010c 3b
+// prog: ad 200010d 96 b0 200010e 66 ad 200010f 82 b0 2000117 52 ad 2000119 5b b0
+// prog: 200011a 36 ad 2000122 176 109 2000123 194 109 2000125 8a 109 2000126 176 10a 2000127
+// prog: 194 10a 2000128 8a 10a 2000129 176 10b 200012b 194 10b 200012c 8a 10b 7000051 109
+// prog: 109 7000052 10a 10a 7000053 10b 10b 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 10b 11f
+// prog: 61 12d 121 95 12e 190 122 12f 28a 126 133 29f 129 100006c 35 44
+// prog: 1000081 74 84 1000082 89 90 1000088 a9 b1 1000096 d1 10c 10000a4 10d 10e 10000ad
+// prog: 10f 117 10000b0 119 11a 2000015 85 27 200001a d0 27 200001b e0 27 200001d 172
+// prog: 27 200001f 130 27 2000030 20000002 2d 2000036 20000003 33 2000038 20000004 27 200003b 20000003 2d
+// prog: 2000041 20000005 33 2000042 20000006 27 2000046 2000000b 27 2000048 2000000b 2d 2000052 3 2d 2000053
+// prog: 2 27 200005b 2 2d 2000066 3 27 20000b4 26 11b 20000b9 85 11d 20000fa d0
+// prog: 11d 2000106 e0 11d 2000109 172 11d 200010a 130 11d 7000001 27 27 7000040 11d 11d
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 27 45
+// prog: 15 2d 30 36 35 3b 41 74 5b 66 90 6c 24f 95 81 244
+// prog: a9 82 1ba b1 88 297 d1 96 26d 10c a4 20a 10d ad 227 10e
+// prog: b0 158 11f 72 b9 139 12e 6e 13a 12f 8b 13b 133 af 1000044 28
+// prog: 46 1000061 53 52 2000084 2 48 2000089 3 48 200010f 4e b4 2000117 7b b4
+// prog: 2000119 e5 b4 200011a d4 b4 200011b 152 b4 200011d 13c b4 2000121 d2 10b 2000122
+// prog: 183 10b 2000126 185 10b 2000129 c2 10b 2000134 176 12d 2000137 194 12d 2000138 8a
+// prog: 12d 7000038 b4 b4 7000048 10b 10b 7000050 12d 12d 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 15 27
+// prog: 40 28 2d 38 30 35 42 41 4f 61 46 74 9f 52 90 1f3
+// prog: 53 95 1f4 66 b1 1cd 6e 10c 1aa 72 10d 1ab 81 10e 254 82
+// prog: 34 10f 88 11f cf 8b 105 121 96 1ea 134 a4 139 cc ad 13a
+// prog: eb af 13b f7 1000045 74 50 1000048 a0 61 100005b a9 1f9 100006c d1 1ce
+// prog: 2000036 3 44 200003b 2 44 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 2000000b b 2000012
-// prog: 2 b 2000013 3 b 2000016 2000000b 1c 2000018 2 1c 2000019 3 1c 200001b 2000000b
-// prog: 23 2000022 2 23 2000025 3 23 2000026 2000000b 24 2000027 2 24 2000028 3 24
-// prog: 200002a 2000000b 29 200002b 2 29 2000045 3 29 7000008 0 0 7000009 b b 700000f
-// prog: b b 700000a 1c 1c 7000016 1c 1c 700000b 23 23 700001d 23 23 700000c 24
-// prog: 24 7000024 24 24 700000d 29 29 700002b 29 29 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 40 4c
+// prog: 30 44 3b 89 4f 15 33 12d 52 43 12e 53 75 133 66 7f
+// prog: 157 8b fd 158 96 5f 159 a4 91 15a ad be 15b af d7 1000038
+// prog: 28 4b 1000042 84 36 100012f 5b 1f5 1000134 6c 18d 1000139 6e 111 100013a 72
+// prog: d6 2000027 d2 15 200002d 183 15 2000034 185 15 2000035 c2 15 2000050 2000000c 41
+// prog: 2000061 2000000d 45 2000074 2000000e 45 2000090 20000010 45 2000095 20000010 41 200009f 20000013 45 20000a0
+// prog: 20000013 41 20000a9 5 41 20000b0 4 41 20000b1 10 46 20000b4 64 48 20000b9 64
+// prog: 46 20000cc 29 48 20000cf 1c 46 20000d1 6f 48 20000eb 67 48 20000f7 67 46
+// prog: 2000105 2f 46 200010b 7c 48 200010c 3f 46 200010d 4d 48 200010e 6d 46 200010f
+// prog: 7a 48 200011f 31 46 2000121 3e 48 200013b 58 81 200013d 8a 81 200013f c2
+// prog: 81 2000142 130 81 2000144 13c 81 2000145 20000046 81 2000147 85 82 2000148 d0 82
+// prog: 2000149 e0 82 200014b 172 82 200014c 130 82 200014d d2 88 200014f 183 88 2000153
+// prog: 185 88 2000154 c2 88 7000002 15 15 700003f 82 82 7000047 88 88 10 70
+// prog: 27 15 60 38 1c 76 40 28 8e 42 3b 44 c4 3f b1 b4
+// prog: 41 b9 cc 43 cf d1 4b 105 10b 4c 10c 10d 4d 10e 10f 52
+// prog: 11f 121 53 12f 32 5b 134 b8 5f 139 b6 64 13a 174 66 133
+// prog: 13f 6c 78 147 6d ce 14d 6e 157 62 6f 158 99 1000029 44 8f
+// prog: 100003e c5 42 1000046 155 eb 1000048 f7 18c 200002f 2000000e 4f 2000030 2000000f 4f 2000031
+// prog: 20000011 4f 2000033 4 4f 2000036 5 4f 2000072 160 159 2000075 58 159 200007a 160
+// prog: 15a 200007c 58 15a 200007f 160 15b 2000081 58 15b 7000058 159 159 7000059 15a 15a
+// prog: 700005a 15b 15b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 4f 12 24
-// prog: 53 18 4c 57 22 56 5c 27 64 60 2b 100000b 13 50 1000029 19
-// prog: 54 100004d 25 58 100005b 28 5d 1000065 45 61 200001c 3 1 2000023 2 1
-// prog: 200004a 3 16 200004b 2 16 200004e 3 1b 2000052 2 1b 200005f 3 26 2000063
-// prog: 2 26 2000067 3 2a 2000068 2 2a 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 27 10
+// prog: 1a 32 61 2f 38 74 30 70 28 9f 78 a9 33 84 3f 275
+// prog: 88 41 204 89 43 263 a4 4b 23c af 4c 224 b6 4d 1e4 be
+// prog: 52 156 c4 5f 13b cc 53 142 f7 6c 117 fd 6d fa 10d 6f
+// prog: a7 10e 291 72 10f 274 75 111 239 7a 11f 23e 7c 121 27f 7f
+// prog: 12f 22e 81 100004f 31 90 1000076 29 a0 1000082 36 b0 10000c5 5b 13d 2000040
+// prog: 20000010 29 2000042 20000010 28 2000044 20000011 28 2000060 20000012 28 2000062 20000012 29 200008b 67
+// prog: 3e 200008e 67 3b 200008f 6b 3e 2000091 2a 3b 2000096 20000041 3b 2000099 20000041 3e
+// prog: 20000ad 69 3b 20000b1 5a 3b 20000b4 2e 3e 20000b8 6a 3b 20000b9 3a 3e 20000ce
+// prog: 160 64 20000cf 194 64 20000d1 185 64 20000d6 172 64 20000d7 152 64 20000eb 131
+// prog: 64 2000105 176 6e 200010b 194 6e 200010c 8a 6e 700004f 6e 6e 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 10 27
+// prog: 54 28 32 42 31 dc 78 52 a4 ad 53 af b1 5a b6 b8
+// prog: 5b be 20b 5f c4 ce 61 c5 cf 64 66 d1 67 cc d6 6d
+// prog: fd e7 6e 14e 105 74 10e 123 7a 111 127 7f 121 12b 100001a 55
+// prog: 40 1000029 38 44 100002a 60 4f 100002e 62 95 1000033 82 dd 100003e 82 f3
+// prog: 100003f 1a5 8b 1000041 8e 1a6 1000043 8f 91 100004b 96 46 100004c 99 48 100004d
+// prog: 89 91 1000075 10f 125 100007c 11f 128 1000081 12f 12c 200002f 5 70 2000030 4
+// prog: 70 2000036 20000018 76 200003a 20000012 76 2000069 d2 f7 200006a 183 f7 200006b 185 f7
+// prog: 200006c c2 f7 200006f 160 10d 2000072 58 10d 400003b 78 78 7000046 f7 f7 7000057
+// prog: 10d 10d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 40 50
+// prog: 1a 42 98 28 44 a2 29 46 bc 2a 48 bd 2e 4f 56 2f
+// prog: af 84 3f b0 88 41 b1 89 43 b6 4b 192 b8 4c 19e be
+// prog: 8f 4d c4 1a6 52 105 bb 69 111 6e 122 117 2a6 6f 11f 283
+// prog: 72 121 74 73 123 75 7d 125 7a 92 127 7c 93 128 7f b5
+// prog: 12b 81 b7 1000054 57 30 1000055 10 45 1000095 3b f4 10000c5 53 b4 10000cc
+// prog: 5a b9 2000027 176 10 2000032 194 10 2000038 8a 10 2000060 20000014 31 2000062 20000015
+// prog: 33 2000066 20000016 33 2000078 20000019 33 2000082 20000019 31 200008b 20000018 31 200008e 2000001a 31
+// prog: 2000090 7 31 2000091 6 31 2000096 c 3e 2000099 17 3e 200009f 14 3e 20000a0
+// prog: 2c 3e 20000a4 21 3e 20000a7 47 3e 20000a9 68 3e 20000ad 3d 3e 20000ce 176
+// prog: 5f 20000cf 183 5f 20000d1 e0 5f 20000d6 d4 5f 20000dc 170 5f 20000dd 58 5b
+// prog: 20000e7 8a 5b 20000f3 c2 5b 20000f7 130 5b 20000fa 13c 5b 20000fd 20000046 5b 200010d
+// prog: 176 6d 200010e 194 6d 200010f 8a 6d 4000070 36 36 7000003 10 10 700004e 6d
+// prog: 6d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 1c 1f 1000013
-// prog: 4a 2d 100001b 4e 2f 1000027 5f 31 1000045 67 3f 2000003 2c 0 2000012 20
-// prog: b 2000018 2c 24 2000019 20 29 2000025 2c 4c 2000026 20 4d 200002a 2c 56
-// prog: 200002b 20 5b 2000050 2c 64 2000053 20 65 2000054 20000013 29 2000057 20000013 24 2000058
-// prog: 5 24 200005c 4 24 200005d c 29 2000060 20000013 4d 2000061 20000013 4c 2000069 5
-// prog: 4c 200006a 4 4c 200006b c 4d 200006c 20000013 5b 200006d 20000013 56 200006e 5 56
-// prog: 200006f 4 56 2000070 c 5b 2000071 20000013 65 2000072 20000013 64 2000073 5 64 2000074
-// prog: 4 64 2000075 c 65 4000002 23 23 4000016 4b 4b 4000022 52 52 4000028 63
-// prog: 63 400004f 68 68 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b 3 12 1f
-// prog: 18 19 24 25 26 2d 2a 2b 3f 50 53 4b 13 54 4c 1b
-// prog: 60 4e 27 6c 52 45 71 1000000 2 21 100001c 16 2e 1000023 22 30
-// prog: 100002c 28 39 1000031 4f 42 200000c 38 1 2000020 38 13 2000029 38 1b 200002f
-// prog: 38 27 200004a 38 45 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 8c
+// prog: 27 10 94 40 3b 54 13e 50 af 59 52 b0 77 53 b1 5c
+// prog: 56 be 4a 57 c4 9c 5a c5 1a8 5b cc 1a9 5f 61 ce 68
+// prog: 64 cf 69 67 d1 6d 105 148 6e 12a 10d 6f 111 fe 72 117
+// prog: 137 74 121 da 75 123 e2 7a 125 ec 7c 127 ed 7d 128 f8
+// prog: 7f 12b f9 1000014 4f 112 100001a 54 113 100002e 8b 3a 1000030 8e 76 100003d
+// prog: 165 4f 1000045 a0 1a2 1000073 11f 138 2000028 20000016 55 2000029 20000017 55 200002a 20000018
+// prog: 55 200002f 2000001a 55 2000031 6 55 2000036 7 55 200003e 17 95 200003f 1e 95
+// prog: 2000041 20 95 2000043 2c 95 2000047 12 95 200004b 13 95 200004c e 95 200004d
+// prog: 25 95 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e c
+// prog: 2d 13 62 28 17 66 29 4a cb 2e 55 91 36 77 96 3e
+// prog: 81 99 3f 84 9f 41 94 a7 4b 98 a9 4c a2 ad 4d af
+// prog: 5a 9d b0 5b 136 bc 56 f3 bd 6d 119 be 6e 14f c4 6f
+// prog: 83 c5 72 65 cc 73 7e ce 74 a5 cf 75 a6 d1 7a c0
+// prog: da 7c c7 e2 7d d9 ec 7f db 1000027 2a 78 100004f 14 2f 1000054
+// prog: 31 90 100008e 1a1 43 100008f 47 a4 10000bb 57 e7 200001e 20000019 1a 2000020 20000019
+// prog: 14 2000025 20000018 14 200003a 20000012 14 2000040 20000012 1a 2000059 6 30 200005c 7 30
+// prog: 2000061 20000020 1a 2000064 2000000e 1a 2000067 8 1a 2000076 9 1a 2000088 2c 3d 2000089
+// prog: 2c 3b 200008b 12 3d 200008c 21 3b 2000092 2000003e 3b 2000093 2000003e 3d 2000095 2b
+// prog: 3b 200009c 39 3b 20000a0 23 3d 20000b1 1 53 20000b4 d2 5f 20000b5 d0 5f
+// prog: 20000b7 e5 5f 20000b9 e9 5f 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c e
+// prog: 1b 14 13 20 2a f5 54 2c 55 166 2e 77 222 2f 81 213
+// prog: 30 84 1b8 3f 94 1dd 41 98 1ec 47 68 b4 4b 69 b5 4c
+// prog: af dd 66 be 106 6f c5 9e 72 cc a1 1000012 70 1e 100001a 17
+// prog: 25 1000021 3a 27 1000023 40 82 100002b 55 fb 100002d 167 54 1000031 1c0 88
+// prog: 1000036 89 1c1 1000039 8b 8c 100003b 92 8e 100003d 93 45 100003e 1c2 8f 1000043
+// prog: a2 1a3 2000028 7 4f 2000029 6 4f 200004d 160 b0 2000053 194 b0 2000056 185
+// prog: b0 2000057 172 b0 200005a 152 b0 200005b 131 b0 200005f 176 bd 2000062 194 bd
+// prog: 2000065 8a bd 200006d 160 c4 200006e 58 c4 700004d bd bd 7000056 c4 c4 700005f
+// prog: ce ce 7000066 cf cf 7000060 d1 d1 7000067 da da 7000061 e2 e2 7000068 ec
+// prog: ec 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e c
+// prog: 5e 13 60 12 17 b3 14 1b ba 1a 1e c8 21 20 bf 23
+// prog: 27 29 5c 90 2e 31 91 2f 36 92 30 39 93 3b 164 94
+// prog: 3d 16d 96 3e 15e 99 3f 95 9e 43 1db a4 4c 4d a5 bb
+// prog: 53 a6 bc 56 a7 108 5f a9 66 ea ad 266 6d af 258 6e
+// prog: b0 6f a8 b4 72 ac 1000025 59 28 1000098 30 8c 100009d 41 9c 200003a
+// prog: 2000001b 2a 2000045 2000001c 2b 200004f 2000001c 2a 2000054 2000001e 2b 2000055 2000001d 2a 2000068 20000021
+// prog: 2b 2000069 20000021 2a 2000070 2000000e 2b 2000073 20000020 2a 2000074 20000013 2b 2000075 20000013 2a
+// prog: 2000077 9 2a 2000078 8 2a 200007a 11 2c 200007c 5d 2d 200007d 5d 2c 200007e
+// prog: 3c 2d 200007f 18 2c 2000081 51 2d 2000082 19 2d 2000083 19 2c 2000084 37
+// prog: 2d 2000088 20000039 2c 2000089 d 2c 200008e 79 2d 200008f 24 2c 200009f 85 47
+// prog: 20000a1 7b 47 20000a2 8d 47 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 11 b2
+// prog: 13 12 e 33 14 df 25 1a 3a 45 21 4f 54 24 27 196
+// prog: 29 7a 7c 2a 7d 7e 2c 7f 81 30 89 8e 36 90 63 39
+// prog: 91 aa 3b 92 97 3c 8b 98 3d 99 1c6 3e 9d a0 47 4b
+// prog: 9f 66 a7 6a 6f ad 10b 1000018 27 e3 1000023 70 73 1000028 197 25
+// prog: 100002d 1e7 82 100002e 83 1e8 100002f 84 88 1000031 1eb 8f 1000072 af 10c 200000c
+// prog: 160 e 200000d 58 e 200003f 20000013 96 2000041 2 96 2000043 3 96 200004c 176
+// prog: a4 200004d 183 a4 2000051 e0 a4 2000053 d4 a4 2000056 170 a4 2000059 58 9e
+// prog: 200005c 8a 9e 200005d c2 9e 200005e 130 9e 200005f 13c 9e 2000060 20000046 9e 200006d
+// prog: 160 a9 200006e 58 a9 7000004 e e 7000055 a9 a9 700005e b0 b0 7000065 b4
+// prog: b4 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e c9
+// prog: c 13 100 d 73 14 74 7d 29 1b5 7e 2a 1e6 7f 2c 1da
+// prog: 8e 30 1e9 90 31 256 91 3c 71 92 3d ae 95 3e 1c7 98
+// prog: a5 4c 99 a6 4d 9c 66 149 9d 1be 6d 9e 21d 6e 9f 6f
+// prog: 126 a0 72 129 1000070 40 23 1000079 18 75 100008b 1fc 2f 2000025 2000001d 12
+// prog: 2000027 2000001f 12 2000033 20000021 18 200003a 20000021 14 2000045 2000000e 18 200004b 20000020 14 200004f
+// prog: 20000020 12 2000054 2000000e 12 2000063 20000012 14 200006a 20000012 18 200007a 8 12 200007c 9
+// prog: 12 2000081 19 28 2000082 19 24 2000083 37 28 2000084 20000039 24 2000088 2000003a 24
+// prog: 2000089 2000003a 28 200008c 2000003b 24 200008f 22 24 2000096 4e 47 2000097 49 47 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c e
+// prog: 32 12 1a 25 14 55 27 28 103 70 29 77 7a 47 8b 115
+// prog: 4c 7f 8c 4d 8e 8f 66 95 14a 72 92 59 a9 9c 11a aa
+// prog: 9d 10e ad 9f ff ae a0 104 100000d 13 38 1000018 61 33 1000019 3a
+// prog: 64 1000022 45 4b 1000023 4f 68 1000024 69 54 100002a 7c 78 1000037 1fa 81
+// prog: 100003c 82 1fb 100003d 83 84 100003e 88 2d 1000040 89 2e 1000074 91 5c 10000ac
+// prog: 9e 10f 200002c 9 73 200002f 8 73 2000030 20000026 79 2000031 20000028 79 200006d d2
+// prog: 98 200006e d0 98 200006f e5 98 2000071 e9 98 2000075 58 90 20000a4 8a 90
+// prog: 20000a5 c2 90 20000a6 130 90 20000a7 13c 90 20000a8 20000046 90 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 b 51 1000003
-// prog: 1f 55 1000013 24 5a 1000018 2d 5e 100001b 3f 62 1000022 1c 57 1000027 23
-// prog: 61 100002b 2c 6d 1000038 31 72 2000002 59 0 2000012 59 1c 2000016 59 23
-// prog: 2000019 59 2c 2000021 59 31 2000025 5 4b 2000026 4 4b 2000028 5 4c 200002a
-// prog: 4 4c 200002e 5 4e 2000030 4 4e 2000039 5 52 2000042 4 52 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e c
+// prog: 34 13 d 35 1a 12 18 25 21 19 27 14 22 32 2c 67
+// prog: 38 110 29 54 7d 37 55 7e 3c 59 7f 3d 5c 3e 150 61
+// prog: 40 151 64 83 4c 68 4d 1fe 70 99 6d 88 aa 153 89 ac
+// prog: 154 8b ad 87 8c ae a3 100002d 63 23 100002e 6a 24 1000033 76 2f
+// prog: 100003a 2a 118 100004f 2a 168 2000069 4 47 2000073 160 66 2000077 194 66 2000078
+// prog: 185 66 200007a 172 66 200007c 152 66 2000081 131 66 2000082 160 a9 2000084 58
+// prog: a9 4000045 30 30 400004b 29 29 7000054 a9 a9 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c e
+// prog: 1d d 13 1f 12 c3 1a 14 c6 25 18 cd 27 19 ee 2d
+// prog: 21 f6 2e 22 e4 32 3d 33 179 63 54 ca 66 55 c1 67
+// prog: 59 e6 6a 64 80 6d 68 101 7f 72 73 83 74 77 87 162
+// prog: 82 8e 17c 84 8f 88 109 90 89 10a 1000023 33 146 100003c 4b 16f
+// prog: 100003e 1b3 32 2000024 20000022 38 2000029 20000023 3a 200002a 20000024 3a 200002c 20000027 3a 200002f
+// prog: 20000027 38 2000030 20000026 38 2000034 20000029 38 2000035 b 38 2000037 a 38 2000040 f
+// prog: 4f 2000047 16 4f 200004c 20000027 4f 200004d 20000032 4f 2000076 85 70 200007d 7b 70
+// prog: 200007e 8d 70 700005d 8b 8b 7000064 8c 8c 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e c
+// prog: 86 f d ab 2e 40 1d2 64 4d 217 88 6a 75 98 87 62
+// prog: 9c 8f f0 9d 90 f1 1000025 30 31 1000027 34 79 1000099 8e 65 2000013
+// prog: 20000027 23 2000016 20000027 22 200001a 20000026 22 200001d 20000028 22 200001f 20000028 23 200002d 2000002d
+// prog: 23 2000032 20000031 3c 2000033 20000024 3c 2000038 20000027 3e 200004b 20000027 3d 200004f 20000032 3d
+// prog: 2000054 20000027 3c 2000055 20000033 3d 2000059 20000033 3e 2000068 20000034 3d 2000070 2000002b 3c 2000072
+// prog: 4 67 2000073 5 67 2000074 176 7f 2000077 183 7f 2000080 e0 7f 2000082 d4
+// prog: 7f 2000084 170 7f 2000089 160 6d 200008b 194 6d 200008c 185 6d 2000091 172 6d
+// prog: 2000092 152 6d 2000095 131 6d 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 c b
-// prog: 3 20 1c 13 29 1f 18 2f 23 1b 4a 2000024 14 25 200002c 66
-// prog: 26 200002d 46 22 2000031 14 28 200003f 66 2a 2000045 46 27 200004b 14 2e
-// prog: 200004c 66 30 200004e 46 2b 200004f 14 39 2000050 66 42 2000051 46 38 2000052
-// prog: 48 2a 2000053 48 30 2000054 48 42 2000055 8 30 2000056 8 42 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 30 102
+// prog: 25 3c f 3a 3d 11e 2d 3e 32 1d3 40 47 33 67 64 107
+// prog: 6a 70 143 6d 83 74 75 88 89 79 98 6b 7f 99 6c 100000c
+// prog: e 2b 100000d 45 13 1000023 1f 2f 100004d 202 38 1000062 1d5 54 1000065 59
+// prog: 4c 2000031 a 27 2000034 b 27 7000005 e e 7000006 f f 700005c 9c 9c
+// prog: 7000063 9d 9d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1f 24
+// prog: d 25 114 23 32 40 1d4 33 2e 4d 38 3e 4b 45 65 184
+// prog: 99 79 14b 9c 7f 14c 100003a 55 62 200000e 20000024 c 200000f 20000025 c 2000013
+// prog: 20000026 c 2000027 20000029 c 200002b a c 200002d b c 200002f 2000002b 3c 2000047 20000013
+// prog: 67 200004c 6 67 2000054 7 67 2000059 d2 6d 2000064 d0 6d 200006b e5 6d
+// prog: 200006c e9 6d 2000070 176 75 2000074 183 75 2000083 e0 75 2000086 d4 75 2000087
+// prog: 170 75 2000088 58 6a 2000089 8a 6a 200008e c2 6a 200008f 130 6a 2000090 13c
+// prog: 6a 2000098 20000046 6a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0 2 3
-// prog: b 12 c 1c 16 13 1f 19 14 23 21 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 29
+// prog: e d 2a f 24 d8 1f 3e 37 2d 40 fc 2f 4b 25 3d
+// prog: 55 33 d3 62 38 d5 65 3a 17e 67 32 68 6a 99 11b 6d
+// prog: 9c 11d 1000023 13 2c 100002e 22 27 100003c 2b 35 100004d 32 4f 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e c
+// prog: 16 25 120 3c 2b 3e 15d 2d 4d de 32 67 e1 100000f d 1a
+// prog: 1000013 1d 23 1000027 3e 124 100002c 161 3c 100002f 65 4b 200001f b 2e 2000022
+// prog: a 2e 2000029 8 4b 200002a 9 4b 700005b 6a 6a 7000062 6d 6d 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 44 1 2000002
-// prog: 44 3 200000b 44 c 2000012 44 13 2000016 44 14 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 9a
+// prog: e d 9b f 16 e8 13 1d 22 34 100001a 31 1f 2000023 2000002a 25
+// prog: 200002e 2000002a 27 2000033 2000002c 27 2000035 2000002c 25 2000037 2000002a 2b 2000038 2000002a 2c 200003a
+// prog: 2000002c 2c 200003c 2000002c 2b 200003d 9 2f 200003e 8 2f 200004b 160 32 200004d 194
+// prog: 32 200004f 185 32 2000065 172 32 2000067 152 32 2000068 131 32 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20688,61 +22482,70 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e 132
+// prog: 1a 13 c 40 1f 1d 180 100000f 1d 140 1000022 181 1a 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 44 0 1000003
-// prog: 3c 2 100000c 3e b 1000013 41 12 1000014 43 16 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000034 55
+// prog: 13 200000c 2000002c f 200001a 2000002c e 200001d 2000002d e 2000025 2000002d f 2000027 8 13
+// prog: 200002b 9 13 200002c 2000002c 22 200002f 2000002c 1f 2000031 2000002d 1f 2000032 2000002d 22 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 3 34 1000002
-// prog: c 3a 100000b 13 40 1000012 14 49 7000010 1 1 7000011 3 3 7000017 3
-// prog: 3 7000012 c c 700001e c c 7000013 13 13 7000025 13 13 7000014 14 14
-// prog: 700002c 14 14 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 f 2e
+// prog: 1a 13 33 1d 40 38 2f 55 3a 31 100000e 23 c 100001f 25 35
+// prog: 1000022 37 2c 100006a 32 3c 200006d 9 34 2000075 8 34 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 4 0 2000003
-// prog: 5 0 200000c 4 2 2000013 5 2 2000014 4 b 2000016 5 b 2000018 4
-// prog: 12 2000019 5 12 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c ef
+// prog: e 1a f2 f 1d 116 13 23 11c 1f 25 22 1b6 2c 40 1b7
+// prog: 2e 55 1b0 2f 6a 1bd 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 58 1 4
-// prog: 69 c b 6e 14 1b 73 18 1000002 3 5c 1000005 13 6a 1000012 16
-// prog: 6f 100001c 19 74 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 35 c
+// prog: 2c 38 1d 2f 1000034 25 1a 1000037 2e 23 200000e b 1d 200000f a 23
+// prog: 2000013 a 1d 200001f b 23 2000022 b c 2000031 a 1a 2000032 a c 2000033
+// prog: b 1a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 17 0 2000003
-// prog: 36 2 200000c 17 4 2000013 36 5 2000014 17 b 2000016 36 12 2000018 17
-// prog: 1b 2000019 36 1c 200001f 2000001a 4 2000020 7 4 2000021 6 4 2000022 33 5
-// prog: 2000023 2000001a b 2000025 7 b 2000026 6 b 2000029 33 12 200002a 2000001a 1b 200002f
-// prog: 7 1b 2000030 6 1b 2000034 33 1c 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 13
+// prog: 1f 23 32 33 100000c f e 100001d 31 22 2000025 b 37 200002c a 38
+// prog: 200002e a 37 200002f b 38 200003a b 34 200003c a 35 2000040 a 34 2000055
+// prog: b 35 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -20750,10 +22553,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 3 2
-// prog: c 13 4 14 16 5 18 19 100000b 1f 27 1000017 23 2b 100001b 2a
-// prog: 38 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e 16
+// prog: c f 30 1a 1f 2e 2f 31 40 55 1000013 2c 25 1000022 3c 3a
+// prog: 200000a 20000029 1a 200000b 20000029 c 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -20761,22 +22564,37 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 c 1d
+// prog: a 32 e 45 1000016 23 b 100002e 21 f 200001a 9 e 2000025 8 e
+// prog: 200002c 20000013 f 200002f 20000029 1f 2000030 20000029 13 2000033 9 13 2000034 8 13 2000035
+// prog: 20000013 1f 2000037 6 1f 2000038 7 1f 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 0 5d 1000003
-// prog: 2 6b 100000c 4 70 1000013 5 75 2000014 6 b 2000016 7 b 2000018 6
-// prog: 17 2000019 7 17 200001f 6 1b 2000023 7 1b 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 a 24
+// prog: c b d 16 f 25 2a 1f 22 2f 40 34 1d1 100000e 1a 29
+// prog: 1000021 31 30 100003c 33 1af 1000045 5c 2e 2000013 6 2e 200001d 7 2e 2000023
+// prog: 8 32 200003a 9 32 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 24 2
-// prog: 3 31 4 c 4b 5 13 4f 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 19
+// prog: e 22 28 f 24 a 62 29 3e 3a 1000025 3d 23 200000c 9 a
+// prog: 200000d 8 a 2000016 20000013 e 200002a 9 1f 200002e 8 1f 200002f 20000013 3c 2000030
+// prog: 7 45 2000031 6 45 2000032 7 3c 2000033 6 3c 2000034 4 40 2000055 160
+// prog: 21 200005c 194 21 200006a 185 21 2000079 172 21 200007f 152 21 2000099 131 21
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -20784,144 +22602,237 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e d
+// prog: 2b 23 20 22 3e 2e 141 45 1a 61 100000a c 27 100000f 16 b
+// prog: 100003d 2a 135 1000040 2f 21 100009c 33 38 2000019 7 1a 200001f 6 1a 2000028
+// prog: 8 24 200003a 9 24 200003c 20000013 25 2000062 7 25 200009a 6 25 200009d 4
+// prog: 29 400009b 32 32 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 0 2c 1000003
-// prog: 2 3f 100000b 4 4c 100000c 5 50 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8 a
+// prog: 2c 9 14 f b 18 e d 1f 1d 20 75 3a 22 3d 35
+// prog: a0 3e 214 100000c 13 19 100001a 6d 28 1000021 3c 2d 1000029 9a 54 100002a
+// prog: 9b 37 1000032 93 23 2000016 4 23 2000024 6 45 2000025 7 45 200002b 6
+// prog: 40 200002e 7 40 200002f 2000001a 9c 2000033 4 3e 2000038 5 3e 2000061 20000013 9c
+// prog: 200009e 2 9c 200009f 3 9c 4000027 62 62 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 a 12
+// prog: 8 18 17 b 19 1e c 1d 4a d 1f 1a 47 2c 31 25
+// prog: 9a 20 88 9b a0 55 1000023 63 9 1000028 24 30 100002d 27 4c 200000e
+// prog: 6 9 200000f 7 9 2000013 2000001a d 2000014 2000001a c 2000035 6 21 2000037 7
+// prog: 21 200003a 2000001a 29 200003c 7 22 200003d 6 22 200003e 2000001a 2a 2000040 5 32
+// prog: 2000045 4 20 2000054 5 20 2000062 20000013 29 200006d 5 2a 2000075 2 29 2000093
+// prog: 3 29 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 1 2d 1000002
-// prog: 3 45 1000004 b 4e 1000005 c 51 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a a
+// prog: 66 2a 3d 2e 31 19 94 88 9a 4b 1000017 48 1d 1000029 2b 3c
+// prog: 1000030 36 18 100004c 6d 34 2000008 7 a 2000009 6 a 200000b 5 19 200000c
+// prog: 4 18 200000d 5 18 2000012 20000013 1d 200001e 7 23 2000020 6 23 2000021 2000001a
+// prog: 2c 2000022 2000001a 28 2000024 7 1f 2000025 6 1f 2000027 2000001a 2d 2000032 5 28
+// prog: 2000047 20000013 2c 200004a 5 2d 2000055 2 2c 2000063 3 2c 200009c 176 9b 20000a0
+// prog: 183 9b 20000a3 e0 9b 20000a9 d4 9b 20000aa 170 9b 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 18 9
+// prog: f 2b 25 37 2c 29 2f 100000a e 8 1000019 b 16 1000028 35 24
+// prog: 100002d 2a 3e 100003c 32 69 100003d 4a 9d 100004b b6 17 200001d 3 17 200001f
+// prog: 6 1a 2000023 7 1a 200002e 4 31 2000034 5 30 2000036 4 30 2000048 20000013
+// prog: 4c 2000066 3 4c 200006d 2 4c 2000094 176 88 200009a 183 88 200009b e0 88
+// prog: 20000ab d4 88 20000ac 170 88 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 10 0 2000003
-// prog: 10 2 200000b 10 4 200000c 10 5 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 6 a
+// prog: 13 9 46 19 e 20 23 f 28 3a 1000007 18 14 100000b 1f 1e
+// prog: 1000016 2b 27 1000017 40 2e 100002a 48 2d 100004a 6d 9f 100004c 2d 215 2000008
+// prog: 20000013 19 200001a 20000013 3c 2000024 20000013 3d 2000025 5 2c 2000029 4 2c 200002f 3
+// prog: 4b 2000030 2 4b 2000031 3 3c 2000032 2 3c 2000035 3 3d 2000037 2 3d
+// prog: 400003e 66 66 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 a 11
+// prog: 6 13 1b 7 18 b 21 28 29 38 2b 9 b8 69 4c 5c
+// prog: 1000019 e 22 1000023 24 16 1000027 25 33 100003a 32 63 100003d 37 93 1000040
+// prog: 3e 9e 1000066 16 89 2000014 2 9 200001e 20000013 17 200001f 5 f 2000020 4
+// prog: f 200002c 3 17 200002d 2 17 2000046 2 2a 2000048 3 2a 200004b 2000000b 4a
+// prog: 400002e 31 31 400003c 35 35 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000000 10 1 1000002
-// prog: 32 3 1000004 3b b 1000005 3d c 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b 14
+// prog: 1d e a 39 21 20 54 22 27 61 5c 66 4d 63 28 216
+// prog: 6d 69 9c 1000009 8 13 100000f 1e 3b 1000017 1a 19 100001b 1f 45 100002a
+// prog: 2d 43 1000031 2e 55 1000033 3c 75 100004c 19 a4 2000006 5 a 2000007 4
+// prog: a 2000011 5 18 2000016 4 18 2000024 2 2b 2000025 3 2b 2000032 2000000b 3a
+// prog: 2000035 2 23 2000037 3 23 2000038 2000000b 3d 200003e 2000000b 40 200004a 1 28 4000029
+// prog: 2c 2c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 a 7
+// prog: d 13 42 9 1d 16 73 1e 1b 62 20 30 25 3d 4c 8b
+// prog: 40 21 8e 43 5c 94 45 63 6a 1000008 6 c 100001a 11 72 100001f
+// prog: 24 2f 1000023 29 41 2000014 2000000b b 2000018 4 e 2000019 5 e 2000027 2
+// prog: f 2000028 3 f 200002b 2000000b 2a 200002c 2 17 200002d 3 17 200002e 2000000b 31
+// prog: 2000039 2000000b 33 200003a 3 22 200003b 2 22 200003c 1 21 200004d d2 6d 2000054
+// prog: d0 6d 2000055 e5 6d 2000061 e9 6d 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 4 8
+// prog: 12 5 44 a 9 36 19 b 1a 47 1b 3b 48 22 1d a5
+// prog: 24 3d 70 25 40 4f 31 45 a0 1000007 34 18 100000c 50 13 1000017
+// prog: 46 3a 2000006 2 13 200000d 2000000b 20 200000e 2000000b 1f 200000f 2000000b 23 2000011 3
+// prog: 1e 2000016 2 1e 2000021 1 1d 2000029 d2 43 200002a d0 43 200002f e5 43
+// prog: 2000030 e9 43 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 2 4d 1000003
-// prog: 4 5b 100000b 5 65 7000018 0 0 7000019 2 2 700001f 2 2 700001a 4
-// prog: 4 7000026 4 4 700001b 5 5 700002d 5 5 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8 10
+// prog: 4 a 1c 5 12 7 3f 1e 16 37 1f 17 4b 33 9 5d
+// prog: 34 22 8c 40 25 9a 41 31 4d 100001d 35 11 1000020 1b 3e 2000013
+// prog: 3 c 2000018 2 c 2000019 3 b 200001a 2 b 2000023 1 9 2000036 d2
+// prog: 24 200003a d0 24 200003b e5 24 200003d e9 24 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 2000001a 1 2000002
-// prog: 6 1 2000004 7 1 2000005 2000001a 3 200000c 6 3 2000010 7 3 2000013 2000001a
-// prog: b 2000017 6 b 200001b 7 b 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 5 8
+// prog: 52 c 1a 2d 10 1d 38 1b 33 78 1c 34 74 22 40 29
+// prog: 24 20 218 100000b 2c 19 1000011 1e 39 1000016 12d a 2000004 3 8 2000007
+// prog: 3 12 2000009 2 12 2000017 0 1f 2000025 85 41 2000031 7b 41 2000035 8d
+// prog: 41 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1a 9
+// prog: 28 1d b 32 29 17 4a 2c 1b 77 2d 1c 36 33 11 8f
+// prog: 39 24 79 1000008 6 4 1000019 27 7 100001e c 2e 200000a 2 5 2000012
+// prog: 3 5 200001f 0 16 2000020 0 10 2000034 85 22 2000037 7b 22 2000038 8d
+// prog: 22 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 b 21 4 2a
-// prog: 26 10 2d 30 1b 1000001 28 0 1000003 2 20 1000024 2e 5 1000027 c
-// prog: 25 100002b 39 13 100002c 17 2f 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2 8
+// prog: 14 4 18 12 5 19 2b 9 20 3c b 2c 59 c 1e a6
+// prog: 17 33 65 1b 29 220 1c 39 a3 1000003 a 13 1000006 1a f 2000007
+// prog: 0 1d 2000010 85 2d 2000011 7b 2d 2000016 8d 2d 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8 15
+// prog: 2 a 3 d 13 7 21 14 6 5e 1d c 91 1e 9 90
+// prog: 20 17 9b 22 1b 7f 24 1c 54 100000f 4 e 2000012 0 5 2000018
+// prog: 85 b 2000019 7b b 200001a 8d b 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 7 1 2000002
-// prog: 6 1 2000004 1e 3 2000005 1a b 200000c 7 24 2000010 6 24 2000013 1e
-// prog: 27 2000017 1a 2a 200001b 7 2b 2000020 6 2b 2000021 1e 2c 2000025 1a 2d
-// prog: 2000026 20000013 2a 2000028 20000013 27 200002e 9 27 200002f 8 27 2000030 f 2a 2000031
-// prog: 20000013 2d 2000032 20000013 2c 2000033 9 2c 2000036 8 2c 2000038 f 2d 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2 8
+// prog: 12e 4 12 23 5 f f7 6 14 7a 7 13 a7 9 1d 83
+// prog: b 1e 67 c 20 2a d 22 a9 e 24 25 2000003 0 a 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 3 2 16 6
-// prog: 4 5 b 10 19 f 13 17 1e 20 23 24 21 25 1000001 14
-// prog: 0 1000007 18 c 100001a 1f 1b 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8 3
+// prog: b1 a 5 57 f 4 5f 12 6 80 13 7 92 14 9 3a
+// prog: 15 b ab 17 c 34 1b d 55 2000000 1 2 200001c 4e e 200001d
+// prog: 49 e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 6 22 5
-// prog: f 29 13 24 34 17 7 26 19 1a 31 1000018 b 28 100001b 1e
-// prog: 32 2000002 35 1 2000004 47 3 200000c 35 7 2000010 47 b 2000014 35 1a
-// prog: 2000016 47 1e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 1f
+// prog: 0 2 8 fa 3 a 51 4 f 7c 5 12 64 6 13 86
+// prog: 7 14 10 9 15 2f d 1b 31 200000b 4e 17 200000c 49 17 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0 2 3
-// prog: 5 c 6 13 14 2000007 9 17 200000b 1d 18 200000f 9 19 200001a 1d
-// prog: 1b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1
+// prog: 144 8 2 5a a 3 6e e 4 82 f 5 18 10 6 3b
+// prog: 14 9 37 15 d 1c 2000012 4e 7 2000013 49 7 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 4 2
-// prog: 3 10 5 6 16 100000c 7 55 1000013 f 56 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0
+// prog: d7 2 8 53 3 a 76 4 e 6b 7 10 11 9 14 b
+// prog: 2000005 4e f 2000006 49 f 200000d 26 15 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -20930,8 +22841,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 0 52 1000003
-// prog: 2 53 1000004 5 54 2000006 15 c 2000007 15 13 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1
+// prog: d6 8 2 6f e 4 19 f 7 12 200000a 4e 3 200000b 49 3
+// prog: 2000010 26 9 2000011 4e d 2000014 7b d 2000015 e5 d 2000017 d4 d 2000018
+// prog: 152 d 200001b 13c d 700000d d d 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -20940,37 +22854,70 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0
+// prog: b7 2 8 7d 3 e 5 1e 1d 11 2000004 26 f 2000007 4e 10
+// prog: 2000009 7b 10 200000d e5 10 2000012 d4 10 2000019 152 10 200001c 13c 10 700000c
+// prog: 10 10 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 37 1 2000002
-// prog: 37 3 2000005 37 4 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1
+// prog: a1 5 2 a 20 c 7 2000008 26 3 200000e 4e 4 200000f 7b 4
+// prog: 2000010 e5 4 2000011 d4 4 200001d 152 4 200001f 13c 4 2000021 85 1e 2000022
+// prog: d0 1e 2000023 e0 1e 2000024 172 1e 2000025 130 1e 700000b 4 4 7000014 1e
+// prog: 1e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0
+// prog: 96 27 13 e 2d 35 21 2000002 26 5 2000003 4e 8 2000004 7b 8
+// prog: 2000007 e5 8 200000a d4 8 200000c 152 8 200001e 13c 8 2000028 85 20 2000029
+// prog: d0 20 200002a e0 20 200002b 172 20 200002c 130 20 700000a 8 8 7000013 20
+// prog: 20 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 37 0 1000003
-// prog: e 2 1000004 11 5 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2e 6
+// prog: 3 35 38 28 36 2d 14 2000000 26 1 2000005 4e 2 2000008 7b 2
+// prog: 200000e e5 2 2000013 d4 2 2000020 152 2 2000021 13c 2 200002f 85 27 2000031
+// prog: d0 27 2000032 e0 27 2000033 172 27 2000034 130 27 7000009 2 2 7000012 27
+// prog: 27 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 27 b
+// prog: 5 3a 16 2f 3b 35 9 2000001 4e 0 2000002 7b 0 2000003 e5 0
+// prog: 2000006 d4 0 2000014 152 0 2000026 13c 0 2000028 85 2e 200002d d0 2e 2000037
+// prog: e0 2e 2000038 172 2e 2000039 130 2e 200003c d2 36 200003e 183 36 200003f 185
+// prog: 36 2000040 c2 36 7000008 0 0 7000011 2e 2e 700001b 36 36 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 12 3 2
-// prog: 1c 4 7000020 1 1 7000021 3 3 7000027 3 3 7000022 4 4 700002e 4
-// prog: 4 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 97
+// prog: 1 2f 1a 28 35 3a f 44 61 3c 2000005 85 27 2000009 d0 27
+// prog: 200000b e0 27 2000016 172 27 200002e 130 27 2000036 d2 3b 2000041 183 3b 2000042
+// prog: 185 3b 2000043 c2 3b 7000010 27 27 700001a 3b 3b 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -20978,8 +22925,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 8 0 2000003
-// prog: 9 0 2000004 8 2 2000005 9 2 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 3a 7e
+// prog: 5 3b 2f 4 48 30 36 49 44 22 2000001 85 0 200000f d0 0
+// prog: 200001a e0 0 2000027 172 0 2000028 130 0 200003c d2 35 2000045 183 35 2000046
+// prog: 185 35 2000047 c2 35 700000f 0 0 7000019 35 35 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -20988,13 +22938,22 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 a2
+// prog: 1 4 3a 8 35 3d 3c 36 48 29 44 49 15 2000005 d2 3b
+// prog: 2000022 183 3b 200002f 185 3b 2000030 c2 3b 7000018 3b 3b 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 2e 1 8
-// prog: 33 4 1000002 3 2f 1000009 5 36 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0
+// prog: 2 3b 6c 5 3c 35 31 3d 36 d 2000008 d2 4 2000015 183 4
+// prog: 2000029 185 4 200003a c2 4 2000048 176 44 2000049 194 44 200004a 8a 44 7000017
+// prog: 4 4 7000022 44 44 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -21002,8 +22961,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000001 d 0 2000003
-// prog: 20000024 2 2000004 d 8 2000005 20000024 9 200000c 2000002b 9 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 d 71
+// prog: 8 31 3b 2d 35 3c 10 4c aa 48 2000000 d2 1 2000002 183 1
+// prog: 2000004 185 1 2000005 c2 1 2000036 176 3d 2000044 194 3d 200004b 8a 3d 7000016
+// prog: 1 1 7000021 3d 3d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -21012,24 +22974,33 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 b9
+// prog: 0 8 d 9 10 31 7 3d ac 36 48 4c 3e 200002d 176 35
+// prog: 200003b 194 35 200003c 8a 35 7000020 35 35 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 3 2
-// prog: 4 5 2000008 20000054 c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1
+// prog: f 7 8 e 35 87 2d 36 3d 41 3e 48 23 2000009 176 10
+// prog: 200000d 194 10 2000031 8a 10 700001f 10 10 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 0 30 1000003
-// prog: 2 38 1000004 20000054 8 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0
+// prog: 3 10 84 9 23 35 45 2d 36 2a 3d 3e 17 2000008 176 7
+// prog: 200000e 194 7 200000f 8a 7 700001e 7 7 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -21038,8 +23009,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1 6 2
-// prog: 3 7 7000030 4 4 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 9 56
+// prog: 8 17 10 22 2a 23 32 35 2d 12 2000000 176 1 2000003 194 1
+// prog: 2000007 8a 1 2000036 160 3d 200003e 58 3d 700001d 1 1 7000029 3d 3d 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -21048,24 +23022,33 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 dc
+// prog: 0 8 9 15 10 17 37 12 2a 11 2d 99 36 32 221 3e
+// prog: 2000022 160 35 2000023 58 35 7000028 35 35 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 0 b 1000003
-// prog: 2 1a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1
+// prog: 2 9 8 b 11 10 a 2a 68 22 35 98 23 36 2d 49
+// prog: 1000037 32 4a 2000015 160 12 2000017 58 12 7000027 12 12 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 2000000 a 1 2000002
-// prog: a 3 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0
+// prog: 1a 2 9 13 b 95 15 10 a8 17 12 2a 44 23 36 3f
+// prog: 2d 37 40 1000022 35 4b 2000008 160 11 200000a 58 11 7000026 11 11 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -21074,7 +23057,10 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1000001 a 0 4000003
+// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1
+// prog: 6 13 81 8 15 60 a 17 b 3b 2a 12 42 32 22 43
+// prog: 35 23 24 36 2d 25 100001a 10 3c 2000009 160 2 2000011 58 2 7000025
 // prog: 2 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -21084,3454 +23070,33 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 7000028 1 1 7000029
-// prog: 3 3 700002f 3 3 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 e1c0 1 e280 1
-// prog: e340 1 e400 1 e4c0 1 e580 1 e640 1 e700 1 e7c0 1 e880 1
-// prog: e940 1 ea00 1 eac0 1 eb80 1 ec40 1 ed00 1 edc0 1 ee80 1
-// prog: ef40 1 f000 1 f0c0 1 f180 1 f240 2 f3c0 1 f480 1 f540 1
-// prog: f600 1 f6c0 1 f780 1 f840 1 f900 1 f9c0 1 fa80 1 fb40 1
-// prog: fc00 1 fcc0 2 fe40 1 ff00 1 ffc0 1 10080 1 10140 1 10200 1
-// prog: 102c0 1 10380 1 10440 1 10500 1 105c0 1 10680 1 10740 1 10800 1
-// prog: 108c0 1 10980 1 10a40 1 10b00 1 10bc0 1 10c80 1 10d40 1 10e00 1
-// prog: 10ec0 1 10f80 1 11040 1 11100 1 111c0 1 11280 1 11340 1 11400 1
-// prog: 114c0 1 11580 1 11640 1 11700 1 117c0 1 11880 1 11940 1 11a00 1
-// prog: 11ac0 1 11b80 1 11c40 1 11d00 1 11dc0 1 11e80 1 11f40 1 12000 1
-// prog: 120c0 1 12180 1 12240 1 12300 1 123c0 1 12480 1 12540 1 12600 1
-// prog: 126c0 1 12780 1 12840 1 12900 1 129c0 1 12a80 1 12b40 1 12c00 1
-// prog: 12cc0 1 12d80 1 12e40 1 12f00 1 12fc0 1 13080 1 13140 1 13200 1
-// prog: 132c0 1 13380 1 13440 1 13500 1 135c0 1 13680 1 13740 1 13800 1
-// prog: 138c0 1 13980 1 13a40 1 13b00 1 13bc0 1 13c80 1 13d40 1 13e00 1
-// prog: 200000c 20000004 40000001 200000d 20000006 40000001 200000e 20000007 40000001 200000f 2000000b 40000001 5000000 30000001 30000001 5000002
-// prog: 30000002 30000002 5000004 30000003 30000003 5000006 30000004 30000004 5000008 30000005 30000005 500000a 30000006 30000006 6000001 30000001
-// prog: 30000001 6000003 30000002 30000002 6000005 30000003 30000003 6000007 30000004 30000004 6000009 30000005 30000005 600000b 30000006 30000006
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000010 0 40000000 2000011 1 40000000 2000012 2 40000001 2000013 3 40000001 2000014 3 f 2000015
-// prog: 2 f 2000016 20000029 a 2000017 20000029 b 2000018 b 2000002a 2000019 a 2000002a 200001a a
-// prog: 2000002c 200001b b 20000046 200001c b 20000047 200001d a 20000047 200001e b 2000002c 200001f a 20000046
-// prog: 2000020 b 2000002d 2000021 a 2000002d 2000022 9 2000004a 2000023 20000013 9 2000024 20000013 8 2000025
-// prog: 8 2000004a 2000026 8 20000033 2000027 9 20000033 2000028 2000001a 6 2000029 2000001a 7 200002a 7
-// prog: 2000004e 200002b 6 2000004e 200002c 20000013 5 200002d 20000013 4 200002e 2000000b 2 200002f 2000000b 3
-// prog: 2000030 3 20000053 2000031 2 20000053 2000032 0 20000001 2000033 1 20000001 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 3e 40000002 11 200000f 40000001 11 2000034 40000001 10 2000035 20000002 10 2000036 20000003 11 2000037
-// prog: 20000003 10 2000038 20000005 11 2000039 20000004 10 200003a 20000006 11 200003b 2000000b 10 200003c 3
-// prog: 10 200003d 2 10 200003f 20000046 17 2000040 2000002c 16 2000041 2000002d 16 2000042 2000002d 17
-// prog: 2000043 20000046 1d 2000044 2000002c 1c 2000045 2000002d 1c 2000046 2000002d 1d 2000047 b 20 2000048
-// prog: a 21 2000049 a 20 200004a b 21 200004b b 1f 200004c a 1e 200004d a
-// prog: 1f 200004e b 1e 200004f b 1b 2000050 a 1a 2000051 a 1b 2000052 b 1a
-// prog: 2000053 2000004a 24 2000054 20000033 24 2000055 8 25 2000056 8 26 2000057 8 27 2000058
-// prog: 9 27 2000059 4 33 200005a 5 33 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 16 35 36 17 37 38 1c 39 3a 20 3d 13 5f 19 40 60
-// prog: 1a 41 62 19 43 65 1f 46 66 47 48 6c 51 52 100001d 12
-// prog: 3c 100005e 3f 18 1000061 42 1b 1000063 18 44 1000064 1e 45 1000067 4a 49
-// prog: 1000069 4d 4e 100006a 49 4a 100006b 50 4f 2000021 2 3b 2000024 3 3b 2000026
-// prog: 2000000e 3e 2000027 2000000f 3e 200005b 20000011 3e 200005c 4 3e 200005d 5 3e 200006d 8
-// prog: 54 4000068 4b 4b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 12 16 c 13 17 d 18 1c e 19 14 21 51 20000028 66 100001a
-// prog: 24 15 100003f 40000003 20 100004d 68 4c 200001b 40000002 20 200001e 40000002 1d 200001f 2000000c
-// prog: 1d 2000035 2000000d 20 2000036 2000000e 20 2000037 20000010 20 2000038 20000010 1d 2000039 20000011 1d
-// prog: 200003a 20000013 20 200003b 20000013 1d 200003c 5 1d 200003d 4 1d 2000040 a 60 2000041
-// prog: b 61 2000042 b 5e 2000043 a 5f 2000044 b 64 2000045 a 65 2000046 a
-// prog: 64 2000047 b 65 2000048 b 62 2000049 a 63 200004a a 62 200004b b 63
-// prog: 200004e 20000029 67 200004f 20000029 66 2000050 20000029 6a 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 21 35 26 24 36 27 65 19 3a 67 3c 5c 74 40 41 77
-// prog: 46 47 79 4a 4b 7a 4d 4e 7c 4f 6b 100005e 5b 37 1000066 1a
-// prog: 3b 1000068 5d 3d 1000075 43 42 1000076 45 44 1000078 49 48 100007b 69 4f
-// prog: 100007d 6c 50 200000c 11 18 200000d 40000001 13 200000e 40000001 12 2000014 10 18 2000015
-// prog: 10 13 2000016 11 12 2000017 40000002 1a 200001c 40000002 19 200004c 20000010 1a 2000052 20000010
-// prog: 19 2000054 20000011 19 200005f 20000012 19 2000060 20000012 1a 2000061 1a 39 2000062 19 39
-// prog: 2000063 20 39 2000064 1d 39 200006e 20000016 3f 200006f 20000017 3f 2000070 20000018 3f 2000071
-// prog: 2000001a 3f 2000072 6 3f 2000073 7 3f 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 18 21 52 48 40000004 68 4d 20000026 7c 4e 20000048 7b 1000010 c d 1000011
-// prog: e 14 1000012 15 16 1000013 1f 4c 1000026 24 54 1000027 5f 5e 1000035 60
-// prog: 38 2000036 5 65 2000037 4 65 2000039 40000003 68 200003a 40000003 67 200003b 20000014 67
-// prog: 200003c 20000015 68 200003d 20000016 68 2000040 20000018 66 2000041 20000019 68 2000042 20000019 67 2000043
-// prog: 20000018 67 2000044 20000012 66 2000045 2000001a 67 2000046 7 67 2000047 6 67 2000049 20000029
-// prog: 74 200004a 20000029 77 200004b 20000029 76 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 50 3c 6e 52 3d 6f 6c 47 73 83 75 49 84 78 4a 100005d
-// prog: 70 41 1000060 43 44 1000065 36 71 1000069 45 66 100006b 72 46 1000085 79
-// prog: 4b 200000c 20 26 200000d 3e 18 200000e 3e 13 2000014 1d 26 2000015 1d 18
-// prog: 2000016 20 13 200001f 19 35 2000021 1a 27 2000024 3e 35 2000038 3e 27 200004c
-// prog: 40000003 37 200004f 40000003 36 2000054 20000019 37 200005b 20000019 36 200005c 20000018 36 200005e 20000012
-// prog: 36 200005f 20000012 37 2000074 2000001d 48 2000076 2000001f 48 2000077 20000020 37 200007b 2000000e 37
-// prog: 200007c 20000020 48 200007e 2000000e 48 200007f 8 48 2000080 9 48 2000081 8 37 2000082
-// prog: 9 37 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 35 50 5b 8c 20000022 83 8d 20000025 85 1000013 c d 1000018 e 14 1000019
-// prog: 15 16 100001a 1f 21 100001d 63 24 1000020 38 64 1000026 54 40 100003c 52
-// prog: 5c 100003d 5e 5d 100008b 40000005 6c 200003e 37 60 2000041 36 60 2000043 68 60
-// prog: 2000044 67 60 2000045 7 65 2000046 6 69 2000047 6 65 2000049 7 69 200004a
-// prog: 40000004 6c 200004b 40000004 6b 200006e 2000001b 6b 200006f 2000001c 6c 2000070 2000001c 6b 2000071 2000001e
-// prog: 6c 2000072 2000001d 6b 2000075 20000021 6c 2000078 20000021 6b 2000079 2000000e 6c 2000086 20000020 6b
-// prog: 2000087 20000013 6c 2000088 20000013 6b 2000089 9 6b 200008a 8 6b 4000027 5f 5f 4000073
-// prog: 77 77 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: c 13 61 e 19 1a 14 3b 26 5b 47 49 5c 6e 6f 5d
-// prog: 70 71 5e 72 76 64 89 7f 100000d 18 62 1000015 27 42 1000054 46
-// prog: 45 100005f 7c 75 1000060 78 7e 1000063 79 86 1000065 80 8a 2000016 68 3c
-// prog: 200001f 3f 35 2000021 67 3c 2000024 67 35 2000038 66 3d 2000040 37 3d 2000050
-// prog: 3f 3d 2000052 68 3d 2000069 20000024 8b 2000077 20000025 8b 2000083 20000026 8b 2000085 20000029
-// prog: 8b 200008e a 8b 200008f b 8b 3000090 20000049 8d 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 46 5c 74 71 54 87 91 40000006 65 1000013 16 1f 100003c 50 44 1000070
-// prog: 27 63 1000072 5b 88 2000018 3f 14 2000019 68 14 200001a 66 15 2000035 36
-// prog: 15 200003b 3f 15 200003d 67 15 2000042 40000004 5b 2000045 40000004 54 2000047 20000021 5b
-// prog: 2000049 20000021 54 2000061 2000000e 5b 2000062 20000020 54 200006e 20000012 54 200006f 20000012 5b 2000075
-// prog: 40000005 65 2000076 40000005 64 2000078 20000022 64 2000079 20000023 65 200007c 20000024 65 200007e 20000027
-// prog: 65 200007f 20000027 64 2000080 20000026 64 2000086 20000029 64 2000089 b 64 200008a a 64
-// prog: 2000092 84 90 2000093 20000024 90 2000094 8d 90 2000095 4e 90 2000096 7d 90 4000026
-// prog: 38 38 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 27 35 40 44 49 7b 97 79 69 98 7c 77 9e 8a 8f 1000014
-// prog: 18 21 1000015 24 19 1000016 1a 3e 100001f 26 41 1000036 43 3b 1000038 3d
-// prog: 52 100003f 73 47 1000050 61 62 100005c 6e 5f 1000063 6f 60 100009a 83 7e
-// prog: 100009c 86 72 100009d 8e 89 2000066 5b 70 2000067 54 70 2000068 6c 70 2000074
-// prog: 6b 70 2000087 9 71 2000088 8 71 2000099 20000026 72 200009b 20000028 72 200009f 2000002b
-// prog: 91 20000a0 84 92 20000a1 20000024 92 20000a2 8d 92 20000a3 4e 92 20000a4 7d 92
-// prog: 20000a5 20000024 93 20000a6 8d 93 20000a7 4e 93 20000a8 7d 93 20000a9 8d 94 20000aa
-// prog: 4e 94 20000ab 7d 94 20000ac 4e 95 20000ad 7d 95 20000ae 7d 96 20000af 75
-// prog: 2000004a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 18 13 16 19 14 1f 1a 15 27 21 46 3f 24 5d 44 26
-// prog: 5e 50 1000049 87 81 1000060 80 9b 100007b 8c a0 100007c 84 a2 100007e 7a
-// prog: a3 1000083 4d a4 1000086 20000023 a5 1000089 20000024 a6 100008a 20000027 a7 100008e 8d a9
-// prog: 100008f 4e aa 1000092 7d ab 1000093 51 ac 1000094 6a ad 1000095 51 ae 2000035
-// prog: 37 63 200003b 37 5c 200003d 54 63 200003e 5b 5c 2000040 48 63 2000041 48
-// prog: 5c 2000043 6b 63 2000047 6c 5c 2000061 a 9c 2000062 b 9c 2000069 40000006 9e
-// prog: 200006e 40000006 9d 200006f 2000002a 9d 2000070 2000002a 9e 2000071 2000002c 9e 2000073 2000002c 9d 2000077
-// prog: 9e 9f 2000079 9d 9f 2000096 76 a1 20000b0 75 a1 20000b1 76 a8 20000b2 8
-// prog: a1 20000b3 9 a1 20000b4 20000013 a8 20000b5 8 a8 20000b6 9 a8 4000052 88 88
-// prog: 400005f 99 99 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 37 66 35 c5 20000012 95 1000044 3d 3e 1000046 68 40 100004d 41 74 1000050
-// prog: 43 47 1000051 52 82 100007a 49 85 2000013 6c 26 2000014 48 24 2000015 48
-// prog: 21 2000016 6b 26 200001f 6b 24 2000027 6c 21 2000054 40000005 49 200005b 20000027 49
-// prog: 200005c 20000026 49 200005d 20000028 49 200005e 49 60 2000063 65 60 200006a 64 60 2000080
-// prog: 2000002a 69 2000081 2000002a 6e 2000087 2000002c 6e 2000088 69 20000046 200008c 75 7b 200009b 76
-// prog: 86 200009c 75 7c 200009f 76 89 20000a0 75 7e 20000a1 76 8a 20000a2 75 83
-// prog: 20000a3 9 7b 20000a4 20000013 83 20000a6 8 86 20000a7 9 7e 20000a8 8 8a 20000a9
-// prog: 9 83 20000aa 20000013 95 20000ab 7e 23 20000ac 8a 23 20000ad 8f 23 20000ae 93
-// prog: 23 20000b7 94 23 20000b8 8 7b 20000b9 9 86 20000ba 8 7c 20000bb 9 89
-// prog: 20000bc 8 7e 20000bd 9 8a 20000be 8 83 20000bf 9 8f 20000c0 9 93 20000c1
-// prog: 9 94 20000c2 8 94 20000c3 8 8f 20000c4 8 93 400003f 3b 3b 4000099 b0
-// prog: b0 40000a5 b3 b3 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 3e 97 5b 66 8c 96 74 a2 b1 7b a3 b2 83 a9 b5 c9
-// prog: ba bb ca bc bd d5 22 bc 1000021 13 14 1000023 15 16 1000024 1f
-// prog: 27 1000026 3f 67 1000040 98 5c 1000041 5d 9a 1000069 99 9b 100006b 9c 9f
-// prog: 100006c a0 a1 1000082 a5 a6 1000085 ab 7c 1000086 ac 89 1000095 ad 8e 10000b0
-// prog: ae 8f 10000c6 b7 92 10000c7 b8 b3 10000c8 b9 b2 10000cb be b6 10000cc a7
-// prog: 25 10000d4 b6 be 2000035 40000005 51 200003b 20000027 51 200003d 20000028 51 2000043 51 60
-// prog: 2000047 b 7a 2000048 a 7a 2000052 2000002d 51 2000068 54 2000004a 200006e 54 20000033 20000cd
-// prog: 9 c0 20000cf 8 bd 20000d0 9 bd 20000d1 20000013 c1 20000d6 9 c4 20000d7 8
-// prog: c4 20000d8 8 a8 20000d9 9 a8 20000da 20000013 c2 40000ce c1 c1 40000d2 c2 c2
-// prog: 40000d3 a9 a9 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 13 21 37 14 23 26 15 24 44 67 48 62 99 7b a4 9b
-// prog: 83 aa a9 cd 56 b2 d7 58 b7 2000000e d4 1000016 5f 3b 100001f 3d
-// prog: 7f 1000060 61 47 1000097 af 6e 100009a 82 b4 100009c 85 53 10000ad d3 b5
-// prog: 10000ae 92 d1 10000b1 d6 57 2000022 65 40 2000025 8b 3e 2000027 64 40 200003f
-// prog: 64 3e 2000054 72 41 200005b 51 41 200005c 8b 41 200005d 65 41 200007a 9e
-// prog: 52 200007c 9d 52 2000089 35 7e 200008c 35 8a 200008e 35 8f 2000096 35 93
-// prog: 2000098 35 94 200009f 9 b0 20000a0 8 86 20000a1 20000013 c6 20000a2 9 ca 20000a3
-// prog: 9 c7 20000a5 8 c8 20000a6 8 c7 20000a7 9 c8 20000a8 20000013 cb 20000ab 9
-// prog: cc 20000ac 8 cc 20000b3 9 d5 20000b6 8 d5 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 21 78 16 58 66 89 5f 69 8c 61 6b 8e 62 6c 96 6e
-// prog: 74 98 82 9f 6d 8a a6 a7 92 ac d0 af b6 d9 b4 20000012
-// prog: a9 b5 20000012 b2 1000023 22 25 100003d 5c 6a 1000085 a2 55 1000086 a3 a5
-// prog: 100008f ab cf 1000094 ad aa 10000a4 b3 d8 2000024 72 1f 2000037 49 1f 200003b
-// prog: 8b 1f 200003e 64 1f 2000040 40000006 67 2000041 40000006 60 2000044 2000002c 67 2000047 2000002c
-// prog: 60 2000048 2000002d 60 2000053 2000002d 67 2000056 67 52 2000057 60 52 200007b 9 99
-// prog: 200007e 8 9a 200007f 20000013 9b 2000083 9 9c 2000093 20000013 a9 20000b0 20000013 b1 4000026
-// prog: 54 54 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 22 43 24 5c 70 47 64 71 48 8c 86 a8 8e 8f d1 98
-// prog: a4 da 9a 2000004b 94 9b 2000001f 8a 9c 2000004d 92 1000025 26 5e 1000049 37
-// prog: 5b 1000052 63 3b 1000054 3e 5d 1000055 6f 44 1000066 53 73 100006d 58 68
-// prog: 1000072 7b 7e 1000074 83 a0 1000096 93 bf 1000099 b0 c3 2000016 8b 21 200001f
-// prog: 65 21 2000069 41 20000046 200006a 2000002c 40 200006b 2000002d 40 200006c 2000002d 41 2000078 20000013
-// prog: 82 2000089 20000013 85 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 26 23 22 68 72 7f 6f 74 a1 73 2000001d 8c 7b 20000020 98 7e
-// prog: 20000021 96 82 2000004c 99 1000021 16 27 1000024 3f 1f 100005d 80 69 100005e 6a
-// prog: 81 1000063 6b 87 1000065 88 6c 1000070 78 95 1000071 89 c9 2000037 91 5c
-// prog: 200003b 91 55 200003e 9d 5c 2000040 9e 55 2000041 51 66 2000043 51 64 2000044
-// prog: 60 66 2000047 67 64 2000048 91 66 2000053 91 64 2000058 9d 66 200005b 9e
-// prog: 64 3000083 20000049 9b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 16 21 25 1f 24 49 66 2000001b 68 67 2000001c 6f 69 2000001e 70 1000022
-// prog: 77 37 1000023 3b 79 1000027 3e 40 100003f 56 41 1000051 43 57 1000055 44
-// prog: 47 100005c 7a 48 1000060 53 7c 1000064 58 5b 200006a 73 83 200006b 71 83
-// prog: 200006c 9b 83 2000072 9c 83 2000074 b7 83 2000078 af 83 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 21 22 3f 24 23 51 25 27 55 37 5c 63 3b 60 65 3e
-// prog: 3d 64 2000040 73 6a 2000041 71 6a 2000043 9b 6a 2000044 9c 6a 2000047 b7
-// prog: 6a 2000048 af 6a 2000049 71 6b 2000053 9b 6b 2000056 9c 6b 2000057 b7 6b
-// prog: 2000058 af 6b 200005b 9b 6c 2000068 9c 6c 200006f b7 6c 2000070 af 6c 2000077
-// prog: 9c 72 2000079 b7 72 200007a af 72 200007c b7 74 200007f af 74 2000080 af
-// prog: 78 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 23 21 5d 27 24 5e 5c 3e 97 1000022 50000006 25 1000060 66 40 1000063
-// prog: 67 41 1000064 73 43 1000065 8e 44 100006a 9a 47 100006b 7b 48 100006c 69
-// prog: 49 1000072 71 53 1000074 7e 56 1000078 ae 57 1000081 82 58 1000085 9b 5b
-// prog: 1000086 9c 68 1000087 b7 6f 1000088 af 70 1000089 b4 77 100008a ce 79 100008b
-// prog: b1 7a 100008c c5 7c 100008f d2 7f 1000091 b5 80 200003d b 37 200003f a
-// prog: 3b 2000051 a 37 2000055 b 3b 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 37 51 55 ca 20000015 85 cb 20000012 91 1000024 3f 3d 2000021 20000054 22 200003b
-// prog: b 23 200003e a 27 2000040 a 23 2000041 b 27 2000043 8 5c 2000044 9
-// prog: 5c 2000047 4a 60 2000048 4b 63 2000049 42 65 2000053 45 6a 2000056 4a 63
-// prog: 2000057 4b 6c 2000058 42 74 200005b 45 78 200005d 4a 64 200005e 4b 72 2000066
-// prog: 42 86 2000067 45 87 2000068 4a 65 2000069 4b 74 200006f 42 89 2000070 45
-// prog: 8a 2000077 4a 6a 2000079 4b 78 200007a 42 8a 200007b 45 8c 200007c 4a 6b
-// prog: 200007e 4b 81 200007f 42 8b 2000080 45 8f 2000082 7 60 200008e 6 63 2000092
-// prog: 65 28 2000093 6a 29 2000094 7 63 2000095 6 6c 2000096 74 28 2000097 78
-// prog: 29 2000098 7 64 2000099 6 72 200009a 7 65 200009d 6 74 200009e 89 28
-// prog: 200009f 8a 29 20000a0 7 6a 20000a1 6 78 20000a2 8a 28 20000a3 8c 29 20000a4
-// prog: 7 6b 20000a5 6 81 20000a6 7 86 20000a7 6 87 20000a8 6 86 20000a9 7
-// prog: 87 20000aa 6 64 20000ab 7 72 20000ac 6 60 20000ad 65 2a 20000ae 6a 2b
-// prog: 20000b0 7 6c 20000b1 74 2a 20000b2 78 2b 20000b3 86 2a 20000b4 87 2b 20000b5
-// prog: 6 65 20000b6 7 74 20000b8 89 2a 20000b9 8a 2b 20000ba 6 6a 20000bb 7
-// prog: 78 20000bc 8a 2a 20000bd 8c 2b 20000be 6 6b 20000bf 7 81 20000c0 7 89
-// prog: 20000c1 6 8a 20000c2 7 8a 20000c3 6 8c 20000c4 7 8b 20000c5 6 8f 20000c6
-// prog: 6 8b 20000c7 7 8f 20000c8 6 89 20000c9 7 8c 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 23 40 41 29 52 24 2a 54 37 72 a8 a9 74 aa ab 78
-// prog: 94 ac 81 8e b0 85 b5 b6 86 ba bb 87 be bf 91 c6
-// prog: c7 cc a0 b5 cd 9d bb ce c2 c8 cf c1 c9 100000b 3e 3b
-// prog: 100002b 47 48 100003d 56 57 100003f 5d 5e 1000051 68 69 1000055 77 79 100005c
-// prog: 7c 7e 1000060 8e 82 1000063 95 94 1000064 99 98 1000065 9d 9a 100006a a1
-// prog: a0 100006b a5 a4 100006c a7 a6 1000089 ba 9a 100008a a1 b6 100008b c1 c0
-// prog: 100008c c3 c2 100008f c5 c4 200000a 2000002b 21 2000027 20000029 37 2000028 20000029 24 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 21 25 a 24 b 27 3b 29 62 3e 2a 6e 40 2b 49 41
-// prog: 3d 58 47 3f 66 48 51 6f 52 55 7a 54 5c 7f 56 60
-// prog: 92 57 63 96 5d 65 9e 5e 6a a2 ac 20000019 6c 1000037 23 28
-// prog: 1000069 78 ad 1000077 81 b1 1000079 74 b3 100007c 85 b8 100007e 86 bc 2000068
-// prog: 2000001a 72 2000082 7 8b 200008e 6 8c 2000094 6 8b 2000095 7 8c 2000098 7
-// prog: 89 2000099 6 8a 200009a 6 89 200009d 7 8a 20000a0 2000001a 91 20000a1 2000001a 8f
-// prog: 20000a4 7 ce 20000a5 6 cf 20000a6 6 ce 20000a7 7 cf 20000a8 7 cc 20000a9
-// prog: 6 cd 20000aa 6 cc 20000ab 7 cd 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 26 24 b 16 21 23 1f 37 3d 56 93 3f 57 97 49
-// prog: 5d 9f 51 5e a3 55 64 68 58 69 ae 5c 77 b2 60 79
-// prog: b4 62 7c b9 63 7e bd 66 94 95 6c 9a 9d 6e 6b a0
-// prog: 78 a6 a7 7f aa ab 1000025 40 53 1000027 41 5b 1000028 47 67 1000029
-// prog: 48 70 100002a 52 7b 100002b 54 80 1000065 8e 82 100006a 99 98 100006f 87
-// prog: a1 1000074 a5 a4 100007a a9 a8 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1f a 6d 21 b 5f 24 23 61 68 2000004f 6e 69 20000016 60 6b
-// prog: 20000012 65 70 20000012 78 1000016 50000005 23 2000026 6 49 2000037 7 51 2000040 7
-// prog: 3d 2000041 6 3f 2000047 7 62 2000048 6 63 2000052 6 62 2000053 7 63
-// prog: 2000054 7 58 2000056 6 5c 2000057 6 58 200005b 7 5c 200005d 2000001a 66 200005e
-// prog: 2000001a 65 2000064 2000001a 78 2000067 2000001a 74 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: b 26 37 3f 52 53 51 57 5b 58 6a 5d 5f 7a 64 1000023
-// prog: 41 40 100003d 48 47 1000049 56 54 100005c 6c 5e 1000060 7f 67 200000a 90
-// prog: 16 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 54 20000018 5f 56 20000050 5c 2000026 84 a 2000037 20000024 a 2000040 8d a 2000041
-// prog: 4e a 2000047 7d a 2000048 2000001a b 2000052 2000001a 3f 2000053 2000001a 3d 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 26 1f b 37 21 3d 40 24 3f 41 3b 57 47 3e 5b
-// prog: 23 48 5c 49 52 100005d 51 53 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 40 20000014 5b 41 20000017 5d 100003e 4d 57 200001f 9 3f 2000021 8 3f 2000023
-// prog: 9 a 2000024 8 b 2000026 8 a 2000037 9 b 200003b 20000013 57 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: b 21 44 47 26 37 48 3e 2a 100000a 1f 43 100003f 23 24 3000049
-// prog: 20000049 41 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 21 3f 3b 23 15 47 24 46 a 26 50 b 200001f 20000013 a 200002a
-// prog: 5c 49 2000037 69 49 200003e 41 49 2000043 56 49 2000044 6f 49 200004d 60
-// prog: 49 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: b 13 21 3b 23 28 3f 24 29 46 26 2b 100000a 1f 3d 1000015
-// prog: 50000004 23 2000047 5c 2a 2000050 69 2a 2000051 41 2a 2000052 56 2a 2000053 6f
-// prog: 2a 2000057 60 2a 200005b 69 37 200005d 41 37 200005e 56 37 200005f 6f 37
-// prog: 2000061 60 37 2000062 41 3e 2000063 56 3e 2000064 6f 3e 2000065 60 3e 2000066
-// prog: 56 43 2000067 6f 43 200006a 60 43 200006c 6f 44 200006d 60 44 200006e 60
-// prog: 4d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 13 14 a 21 b 25 1000023 40 47 1000024 55 50 1000026 5c 51 1000028
-// prog: 58 52 1000029 68 53 100002a 54 57 100002b ca 5b 1000037 69 5d 100003d ac
-// prog: 5e 100003e 88 5f 1000043 72 61 1000044 41 62 100004d 56 63 1000077 6f 64
-// prog: 1000078 60 65 1000079 6b 66 100007a 8f 67 100007b 74 6a 100007c cb 6c 100007e
-// prog: 91 6d 100007f 70 6e 200001f 83 15 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 50 13 27 b5 20000012 7f 200000a 73 1f 200000b 71 1f 2000014 9b 1f 2000025
-// prog: 9c 1f 2000040 b7 1f 2000047 af 1f 2000051 39 23 2000052 3a 24 2000053 4c
-// prog: 28 2000054 4f 29 2000055 39 24 2000057 3a 2b 2000058 4c 3d 200005b 4f 3e
-// prog: 200005d 39 26 200005e 3a 37 200005f 4c 4d 2000061 4f 77 2000062 39 28 2000063
-// prog: 3a 3d 2000064 4c 79 2000065 4f 7a 2000066 39 29 2000067 3a 3e 2000068 4c
-// prog: 7a 200006a 4f 7c 200006b 39 2a 200006c 3a 43 200006d 4c 7b 200006e 4f 7e
-// prog: 2000070 5 23 2000072 4 24 2000074 20000013 2a 2000080 5 24 2000081 4 2b 2000082
-// prog: 20000013 43 2000085 5 28 2000086 4 3d 2000087 5 29 2000088 4 3e 2000089 5
-// prog: 2a 200008a 4 43 200008b 20000013 7f 200008c 28 2c 200008e 29 2d 200008f 3d 2c
-// prog: 2000091 3e 2d 2000092 4d 2c 2000093 77 2d 2000094 79 2c 2000095 7a 2d 2000096
-// prog: 7a 2c 2000097 7c 2d 2000098 7b 2c 2000099 7e 2d 200009a 4 23 200009d 5
-// prog: 2b 200009e 4 26 200009f 5 37 20000a0 4 28 20000a1 5 3d 20000a2 4 29
-// prog: 20000a3 5 3e 20000a4 4 2a 20000a5 5 43 20000a6 5 4d 20000a7 4 77 20000a8
-// prog: 5 79 20000a9 4 7a 20000aa 5 7a 20000ab 4 7c 20000ac 5 7b 20000ad 4
-// prog: 7e 20000ae 4 7b 20000b0 5 7e 20000b1 4 4d 20000b2 5 77 20000b3 4 79
-// prog: 20000b4 5 7c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 13 a 21 1f b 50 23 14 3b 24 25 3f 27 40 48 28
-// prog: 47 46 b8 80 9a b9 72 9d ba 9e 9f bb a0 a1 bc a2
-// prog: a3 bd a4 a5 c7 87 a0 c8 86 a3 c9 b1 b2 ca aa b3
-// prog: cb a9 b4 cc ae b0 1000029 51 52 100002a 55 57 100002b 5d 5e 100002c
-// prog: 62 63 100002d 66 67 100003d 6b 6c 100003e 70 72 1000043 80 81 1000079 89
-// prog: 8a 100007a 8c 26 100007b 8f 37 100007c 92 44 100007e 94 4d 100007f 96 77
-// prog: 10000b6 98 78 10000be 85 a2 10000bf a1 88 10000c0 a6 a7 10000c1 a8 a9 10000c2
-// prog: aa ab 10000c3 ac ad 10000c4 ad ac 10000c5 8a 89 40000c6 a4 a4 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 3f 19 23 40 3c 28 51 3e 74 52 43 82 55 79 8b 1000044
-// prog: 29 53 1000046 2a 58 1000047 2b 5f 1000048 2c 64 100004d 2d 68 1000050 3d
-// prog: 6d 1000057 7a 8e 100005d 7b 91 100005e 7c 93 1000062 7e 95 1000063 7f 97
-// prog: 1000066 b6 99 100008c c6 a5 1000092 c5 8b 200000a 7 24 200000b 6 27 2000014
-// prog: 6 24 2000021 7 27 2000025 7 13 2000026 6 1f 2000037 6 13 200003b 7
-// prog: 1f 2000067 5 bb 200006b 4 bc 200006c 5 b8 2000070 4 b9 2000072 4 b8
-// prog: 2000077 5 b9 2000080 20000013 bd 2000081 5 c1 2000085 4 c2 2000086 5 be 2000087
-// prog: 4 bf 2000088 4 be 2000089 5 bf 200008a 20000013 c3 200008f 20000013 c4 2000094 5
-// prog: ca 2000096 4 cb 200009a 5 c7 200009d 4 c8 200009e 4 c7 200009f 5 c8
-// prog: 20000a0 20000013 cc 4000098 cc cc 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 19 14 21 23 37 3b 68 72 77 79 88 89 7a 78 8f 7e
-// prog: 9e 9f 7f 20000051 92 1000013 b a 100001f 26 25 1000024 44 54 1000027 46
-// prog: 5b 1000028 47 61 1000029 48 65 100002a 4d 6a 100002b 50 6e 100005f 67 6b
-// prog: 1000064 6c 70 100006d 81 85 1000074 86 87 100007b 94 96 100007c 9a 9d 200002c
-// prog: 5 51 200002d 4 52 200003c 20000013 55 200003d 5 62 200003e 4 63 2000043 5
-// prog: 57 2000053 4 5d 2000058 20000013 66 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 14 36 13 21 38 19 25 3f 27 26 40 2a 47 64 80 4d
-// prog: 74 8a 51 7c a0 52 2000000f 68 54 20000052 79 55 20000012 6d 1000037 2c
-// prog: 2d 100003b 3d 3e 1000044 43 53 200000a 2000001a 19 200000b 2000001a 13 2000046 20000013 5f
-// prog: 2000048 20000013 6d 2000050 20000013 7b 2000057 7e 33 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 13 1f a 27 14 29 2a 21 2b 2c 37 3c 36 44 58 3f
-// prog: 20000011 51 1000019 23 b 1000038 46 ba 100003d 48 c0 100003e 50 c9 200002d 20000013
-// prog: 3b 3000040 20000049 52 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 18 13 b 1a 19 1f 2000000c 2c 21 2000000e 38 23 20000010 3d 1000014
-// prog: 2d 5e 2000029 47 40 200002b 52 40 2000037 54 40 200003b 8c 40 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 18 a 24 19 b 28 1a 2000000d 14 1000013 50000003 b 200002c 47 29 200002d
-// prog: 21 29 2000038 52 29 200003c 54 29 200003d 8c 29 2000043 7e 29 2000044 21
-// prog: 40 2000046 52 2b 2000048 54 2b 2000050 8c 2b 2000051 7e 2b 2000053 54 37
-// prog: 2000058 8c 37 200005b 7e 37 200005d 8c 3b 200005e 7e 3b 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 100000b 1f 2c 1000014 36 2d 1000024 47 38 1000028 4d 3c 1000029 7f 3d 100002b
-// prog: 3f 43 1000063 52 46 1000064 54 48 1000065 8c 50 1000066 7e 51 1000067 55
-// prog: 53 1000068 c4 58 100006a 7b 5b 100006b b5 5d 100006c 98 5e 200000a 49 13
-// prog: 2000037 21 44 200003b 52 44 200005f 54 44 2000061 8c 44 2000062 7e 44 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a5 20000005 63 100003d 1a 37 100003f 21 3b 1000043 23 5f 1000044 7a 61 1000046
-// prog: 3e 62 200001f 5c a 200002c 69 a 200002d 41 a 2000036 56 a 2000038 6f
-// prog: a 200003c 60 a 2000048 1b b 200004d 1e 14 2000050 17 28 2000051 1c 29
-// prog: 2000053 1b 14 2000055 1b 24 2000058 17 64 200005b 1c 65 200005d 1b 28 200005e
-// prog: 17 67 200006d 1c 68 200006e 1b 29 2000070 17 68 2000072 1c 6b 2000074 3
-// prog: b 2000077 2 14 2000078 28 2e 2000079 29 2f 200007b 3 14 200007c 3 24
-// prog: 200007e 3 28 200007f 67 2e 2000080 68 2f 2000081 3 29 2000082 68 2e 2000085
-// prog: 6b 2f 2000086 3 2b 2000087 3 64 2000088 2 65 2000089 2 64 200008a 3
-// prog: 65 200008b 2 24 200008e 2 b 200008f 28 30 2000091 29 31 2000092 64 30
-// prog: 2000093 65 31 2000094 2 28 2000095 67 30 2000096 68 31 2000097 2 29 2000098
-// prog: 68 30 2000099 6b 31 200009a 2 2b 200009d 3 67 200009e 2 68 200009f 3
-// prog: 68 20000a0 2 6b 20000a1 3 6a 20000a2 2 6c 20000a3 2 6a 20000a4 3 6c
-// prog: a 1f 18 b 2c 25 14 2d 19 1a 36 27 23 38 26 24
-// prog: 3c 2a 6c 89 8a a6 7b 8e b2 a3 a4 1000028 48 4d 1000061 77
-// prog: 74 100006b 88 87 10000ad 97 7e 10000ae 9e 9d 10000b0 a0 9f 10000b1 a2 a1
-// prog: 2000029 1e 3d 200002b 17 43 2000037 1c 44 200003b 1e 3f 200003e 1e 43 200005f
-// prog: 1e 44 2000062 2 3d 2000063 43 2e 2000064 44 2f 2000065 2 3f 2000067 2
-// prog: 43 2000068 2 44 200006a 2 46 200007a 3 3f 20000a7 3 3d 20000a8 43 30
-// prog: 20000a9 44 31 20000aa 3 43 20000ab 3 44 20000ac 3 46 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2d 28 50 36 61 78 44 8b 7a 4d 77 a7 74 94 aa 87
-// prog: 97 ab 88 9a ac a3 20000008 6b 100002c 20 24 100002e 53 29 100002f 55
-// prog: 3b 1000030 5d 3e 1000031 6e 5f 1000038 62 7b 100003c 65 7c 100003d 67 7e
-// prog: 100003f 68 81 1000043 6a 86 1000048 a6 8f 1000089 68 aa 2000018 5 1a 2000019
-// prog: 4 23 200001f 5 a 2000025 4 b 2000026 4 a 2000027 5 b 200002a 20000013
-// prog: 24 2000046 2000000b 6c 200008a 3 ae 200008e 2 b0 200009d 2 ae 200009e 3 b0
-// prog: 200009f 3 ad 20000a0 2 ad 20000a1 2000000b b2 20000a2 2000000b b1 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1a 26 27 23 2e 2b 24 2f 58 28 30 5e 29 31 70 3b
-// prog: 36 79 3e 38 63 50 3d 7f 53 3f 82 55 3c 46 5d 48
-// prog: 91 68 9d 9e 6c 43 a1 100000a 18 19 100000b 1f 25 1000020 2d 51
-// prog: 100005f 4d a8 1000061 44 92 1000062 74 95 1000065 87 98 1000067 8e 8a 100006e
-// prog: 88 a2 200006a 2 89 200006b 3 89 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 19 b 2a 1f e 1a 25 1d a 2e 3e 64 2f 50 80 30
-// prog: 53 85 36 5f a9 38 61 93 3c 62 96 3d 65 99 46 a0
-// prog: 6b 51 20000003 55 58 20000055 6c 5e 20000009 6e 1000026 23 37 1000027 24 5b
-// prog: 100002b 28 6d 100002d 29 72 1000044 6a 9f 2000018 20000013 a 2000031 3 3b 200003f
-// prog: 3 5d 2000043 2 5d 2000048 2000000b 68 200004d 2000000b 67 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: b c 19 1a 1f 27 1d 25 2b 23 2c 2d 55 44 48 5d
-// prog: 20000006 38 100000a 18 14 100000e 50000002 1f 100005b 46 4d 2000024 2 2f 2000028 3
-// prog: 30 2000029 2 2e 200002a 3 3c 2000037 2 3d 200003b 2 3c 200003e 3 3d
-// prog: 2000050 2 36 2000053 3 36 200005f 5e 33 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: c d a 18 b 20 19 24 28 27 3b 3e 2c 43 53 2d
-// prog: 20000056 5b 100001f 29 31 1000025 37 2a 100002b 50 3f 2000014 40 e 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 28 c 26 200000a 47 14 200000b 21 14 200000d 52 14 2000020 54 14 2000024
-// prog: 8c 14 2000029 2000000b 19 200002a 2000000b 27 200002e 2000000b 25 200002f 2d 32 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: c a 18 14 b 28 19 d 1a 25 20 1d 26 24 23 27
-// prog: 1f 29 30 2b 2a 1000031 2c 2e 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 23 11 19 24 20000002 27 28 20000004 30 29 20000007 31 200000a 3 25 200000b
-// prog: 2 26 200000d 2 25 2000018 3 26 200001a 3 c 200001d 2 14 200001f 2
-// prog: c 2000020 3 14 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 11 d 18 19 1f 20 100000c b a 1000014 1d 1a 3000025 20000049 29 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 200000a 2000000b 11 200000b 2000000b c 200000d 28 25 2000018 5d 25 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: c 14 a 1000011 19 b 200001a 28 d 200001d 5d d 200001f 2d d 2000020
-// prog: 5e d 2000026 5d 18 2000027 2d 18 2000029 5e 18 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 10 c b 12 11 100000d 24 1a 1000014 51 1d 1000018 55 1f 1000019
-// prog: 58 20 100002a a5 26 100002b a3 27 100002c 66 29 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 100000c 50000001 b 2000010 f d 2000011 34 14 2000012 f 14 200001a 34 2a 200001d
-// prog: 0 14 200001f 1 14 2000020 0 2b 2000024 1 19 2000026 0 d 2000027 1
-// prog: 2a 2000029 0 18 200002d 1 2c 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 18 1f 26 19 1d 27 2a 24 29 2b 20 2d 100000b 10 11 100000d
-// prog: 12 1a 2000014 25 c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 12 a b 1a 23 d 2000010 28 14 2000011 5d 14 200001d 0 18 200001f
-// prog: 1 19 2000020 0 2a 2000024 1 2b 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 10 12 b 11 1a d 1d 1f 14 20 24 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 12 20000000 d 2000010 0 a 2000011 1 b 2000018 14 20000001 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 10 11 300000b 20000049 12 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 100000d 50000000 a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 100000a d 18 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 200000d b a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 200000a 0 d 200000b 1 d 7000000 d d 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 f a 1000001 b 34 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 200000a 28 0 200000b 5d 1 200000d 2000000b 0 200000f 3 0 2000010 2 0 2000011
-// prog: 52 1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 a b 2000012 2 d 2000014 3 d 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 0 2f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 a 5f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 100000a c 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000000 25 a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 200000a 2000000b 0 200000b 2 0 200000c 3 0 7000001 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 18 10 c 1000000 32 a 100000d b f 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: c 1b d 100000f 18 1e 200000a 3 0 200000b 2 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2 b 14 1000000 12 a 2000003 47 c 200000d 21 f 2000010 20000013 f 2000018
-// prog: 20000013 c 2000019 5 c 200001a 4 c 200001b 41 f 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 17 0 c 3 d 100000b 2 1c 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 c 11 d a 10 1000012 b 18 2000002 54 a 2000003 8c b 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 0 2 200000b 5 d 200000c 4 d 2000010 60 12 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 a 3 2 b 59 100000d 5a c 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 3 0 57 100000a 2 4c 100000b d 4f 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000000 e 3 2000002 56 a 200000c 6f b 200000d af b 2000011 8 b 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000003 40 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 1 3 7000002 3 3 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000001 4 0 2000003 5 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 19 1 1000004 3 1a 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 39 0 1000003 4 3a 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000000 5c 1 2000004 69 3 2000005 2000001a 1 200000b 7 1 200000e 6 1 2000014
-// prog: 9b 3 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 0 4 1000017 5 12 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000000 1 1b 2000004 6 17 2000005 7 17 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 0 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 1 c 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000001 0 10 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000000 13 1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000001 49 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000000 1 f 7000003 1 1 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000001 2000001a 0 2000002 6 0 200000c 7 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 10 e c 1000000 a 1 100000f 2 b 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: a 4a f 100000b 10 4b 2000001 7 0 2000002 6 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 6 2 5 1000000 4 1 2000007 73 a 200000c 71 b 200000e 20000013 b 200000f
-// prog: 20000013 a 2000010 9 a 2000012 8 a 2000013 8d b 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 42 0 4 7 c 1000002 6 45 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 4 14 7 1 e 100000a 2 f 2000005 9c 1 2000006 b7 2 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 0 5 2000002 9 7 2000004 7d a 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 1 6 5 2 11 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 0 d 2 35 5 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000000 15 1 2000005 4e 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000001 83 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 3 1 7000004 1 1 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000001 8 0 2000002 9 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 0 10 1 1000003 2 12 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 75 0 1000002 3 76 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000000 84 1 2000003 20000024 2 2000006 2000002b 2 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 0 3 1000002 22 6 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000000 1 13 2000003 20000054 2 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1 0 5 7000006 3 3 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000000 1 4 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 1000001 16 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 2000000 90 1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 7000005 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 13fd4 1 14094 1 14154 1 14214 1 142d4 1 14394 2 14514 2 14694 2
-// prog: 14814 2 14994 2 14b14 2 14c94 2 14e14 2 14f94 2 15114 2 15294 2
-// prog: 15414 2 15594 2 15714 2 15894 2 15a14 1 15ad4 2 15c54 2 15dd4 2
-// prog: 15f54 2 160d4 2 16254 2 163d4 2 16554 2 166d4 2 16854 2 169d4 2
-// prog: 16b54 2 16cd4 2 16e54 2 16fd4 1 17094 1 17154 2 172d4 1 17394 1
-// prog: 17454 1 17514 1 175d4 1 17694 1 17754 1 17814 1 178d4 1 17994 1
-// prog: 17a54 1 17b14 1 17bd4 1 17c94 1 17d54 1 17e14 1 17ed4 1 17f94 1
-// prog: 18054 1 18114 1 181d4 1 18294 1 18354 1 18414 1 184d4 1 18594 1
-// prog: 18654 1 18714 1 187d4 2 18954 1 18a14 1 18ad4 1 18b94 1 18c54 1
-// prog: 18d14 1 18dd4 1 18e94 1 18f54 1 19014 1 190d4 1 19194 1 19254 1
-// prog: 19314 1 193d4 1 19494 1 19554 1 19614 1 196d4 1 19794 1 19854 1
-// prog: 19914 1 199d4 1 19a94 1 19b54 1 19c14 1 19cd4 1 19d94 1 19e54 1
-// prog: 19f14 1 19fd4 1 1a094 1 1a154 1 1a214 1 1a2d4 1 1a394 1 1a454 1
-// prog: 1a514 1 1a5d4 1 1a694 1 1a754 1 1a814 1 1a8d4 1 1a994 1 1aa54 1
-// prog: 1ab14 1 1abd4 1 1ac94 1 1ad54 1 1ae14 1 1aed4 1 1af94 1 1b054 1
-// prog: 1b114 1 1b1d4 1 1b294 1 1b354 1 1b414 1 1b4d4 1 1b594 1 1b654 1
-// prog: 1b714 1 1b7d4 1 1b894 1 1b954 1 1ba14 1 1bad4 1 1bb94 1 1bc54 1
-// prog: 1bd14 1 1bdd4 1 200000c 20000004 40000001 200000d 20000006 40000001 200000e 20000007 40000001 200000f 2000000a 40000001
-// prog: 2000010 20000009 40000001 2000011 2000000b 40000001 2000012 20000003 40000001 2000013 20000005 40000001 2000014 20000002 40000001 5000000
-// prog: 30000001 30000001 5000002 30000002 30000002 5000004 30000003 30000003 5000006 30000004 30000004 5000008 30000005 30000005 500000a 30000006
-// prog: 30000006 6000001 30000001 30000001 6000003 30000002 30000002 6000005 30000003 30000003 6000007 30000004 30000004 6000009 30000005 30000005
-// prog: 600000b 30000006 30000006 7000007 20000045 20000045 700000e 20000045 20000045 7000015 20000045 20000045 700001c 20000045 20000045 7000023
-// prog: 20000045 20000045 700002a 20000045 20000045 7000031 20000045 20000045 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2000015 b 2000002a 2000016 a 2000002a 2000017 8 20000032 2000018 9 20000032
-// prog: 2000019 8 20000031 200001a 9 20000031 200001b 8 20000024 200001c 9 20000024 200001d 8 20000036 200001e
-// prog: 6 20000039 200001f 7 20000039 2000020 7 2000003b 2000021 6 2000003b 2000022 9 20000034 2000023 8
-// prog: 20000034 2000024 8 2000002b 2000025 9 2000002b 2000026 0 40000000 2000027 1 40000000 2000028 0 20000001
-// prog: 2000029 1 20000001 200002a 2 40000001 200002b 3 40000001 200002c 3 11 200002d 2 11 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 36 18 20000038 54 40000002 27 1000037 2000000e 17 2000011 b 15
-// prog: 200002e a 16 200002f b 16 2000030 a 15 2000031 20000013 18 2000032 8 19 2000033
-// prog: 8 1a 2000034 20000013 17 2000035 9 1a 2000038 20000013 22 2000039 7 22 200003a 6
-// prog: 22 200003b 4 23 200003c 5 23 200003d 7 24 200003e 6 24 200003f 4 25
-// prog: 2000040 5 25 2000041 40000001 27 2000042 40000001 26 2000043 20000002 26 2000044 20000003 27 2000045
-// prog: 20000003 26 2000046 20000005 27 2000047 20000004 26 2000048 20000006 27 2000049 20000008 27 200004a 20000008
-// prog: 26 200004b 20000008 29 200004c 20000008 28 200004d 20000009 29 200004e 2000000a 28 200004f 2000000b 26
-// prog: 2000050 3 26 2000051 2 26 2000052 3 28 2000053 2 28 2000055 20000011 29 2000056
-// prog: 4 29 2000057 5 29 2000058 25 20000057 2000059 26 26 200005a 27 27 200005b 20000004
-// prog: 27 200005c 20000007 27 200005d 20000006 26 200005e 20000007 26 200005f 20000002 27 2000060 20000005 26
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 15 11 2e 18 31 31 19 20000021 36 6d 43 44
-// prog: 6e 45 46 6f 47 48 78 51 2b 1000016 30 2f 1000076 4d 4e 1000077
-// prog: 2a 50 100008c 49 f 100008d 10 4a 100008e 5b 12 100008f 48 13 1000090 5c
-// prog: d 1000091 14 47 1000092 12 5d 1000093 c 5e 1000094 45 5f 1000095 60 44
-// prog: 1000096 5d 5b 2000017 2000002e 31 200001a 7 37 2000061 6 37 2000062 2000001a 3a 2000063
-// prog: 2000001a 39 2000064 5 39 2000065 4 39 2000066 20000013 3a 2000067 2 3a 2000068 3
-// prog: 3a 2000069 5 3d 200006a 4 3d 200006b 2 3e 200006c 3 3e 2000070 20000002 41
-// prog: 2000071 20000003 42 2000072 20000003 41 2000073 20000005 42 2000074 20000004 41 2000075 20000006 42 2000079
-// prog: 2 4f 200007a 3 4f 200007b 2000000b 41 200007c 3 41 200007d 2 41 200007e 2000000e
-// prog: 54 200007f 2000000f 54 2000080 20000011 54 2000081 2000000e 42 2000082 2000000f 42 2000083 20000011 42
-// prog: 2000084 4 54 2000085 5 54 2000086 4 42 2000087 5 42 2000088 25 58 2000089
-// prog: 3e 58 200008a 3e 20000057 2000097 2000000d 54 2000098 2000000c 54 400008b 59 59 8000000 0
-// prog: 0 8000000 0 0 f 15 2000002f 13 61 1f 2a 19 2000003d 2e 1a 21
-// prog: 36 6a 40 43 6d c 44 6e d 45 6f e 49 2c 79 a3
-// prog: 8e 8e a4 8f 91 a5 90 94 a6 92 92 a7 93 95 a8 96
-// prog: 96 1000012 1e 1a 100002b 61 20 1000030 3c 65 1000031 69 3f 1000046 70 71
-// prog: 1000047 72 73 1000048 74 75 100004a 7a 2d 100009c 40000003 78 100009e 8b 5a 2000010
-// prog: 9 16 2000011 8 16 2000014 2000001a 19 200004d 2 7b 200004e 3 7b 200004f 40000002
-// prog: 78 2000050 40000002 77 2000051 2000000c 77 2000059 2000000d 78 200005b 2000000e 78 200005c 20000010 78
-// prog: 200005d 20000010 77 200005e 20000011 77 2000060 20000013 78 2000099 20000013 77 200009a 5 77 200009b
-// prog: 4 77 200009d 3e 8a 200009f 27 77 20000a0 27 78 20000a1 77 77 20000a2 78
-// prog: 78 20000a9 2000000f 78 20000aa 2000000e 77 20000ab 2000000f 77 20000ac 2000000c 78 20000ad 2000000d 77
-// prog: 20000ae 3e 77 400002f 64 64 400005f 83 83 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 20000030 f e 11 1c 1f 14 14 21 20000018 2a
-// prog: 2c 20000019 13 71 47 4c 72 48 76 8b 53 4e 92 59 7e 93
-// prog: 5b 7f b6 49 60 b8 9a 84 ce aa aa 100000d 10 1b 100006a 2f
-// prog: 3b 1000070 46 4b 1000083 4d 52 1000090 4f 7c 1000091 7d 50 10000af 80 5c
-// prog: 10000b7 4a 99 10000b9 85 9b 10000c8 5c 80 10000c9 5b 97 10000ca a9 7e 10000cd
-// prog: ad ab 200001a 2000002e 14 200001e 2000001a 12 2000020 2000001a 13 200002d 5 12 200003c 4
-// prog: 12 200003f 2000001a 2e 2000040 2000001a 2b 200005a 5 2b 2000061 4 2b 2000064 20000013 2e
-// prog: 2000065 2 2e 2000069 3 2e 200006d 3 31 200006e 2 31 200006f 1 36 2000073
-// prog: 27 45 2000074 40000001 44 2000075 40000001 43 2000079 26 45 200007a 26 44 200007b 27
-// prog: 43 200008e 40000002 4a 200008f 40000002 49 2000094 20000010 4a 2000095 20000010 49 2000096 20000011 49
-// prog: 20000b0 20000012 49 20000b1 20000012 4a 20000b2 4a 5e 20000b3 49 5e 20000b4 78 5e 20000b5
-// prog: 77 5e 20000ba 20000016 9c 20000bb 20000017 9c 20000bc 20000018 9c 20000bd 2000001a 9c 20000be 6
-// prog: 9c 20000bf 7 9c 20000c0 36 58 20000c1 36 8a 20000c2 36 20000057 20000c4 27 49
-// prog: 20000c5 27 4a 20000c6 77 49 20000c7 78 4a 20000cc 20000011 4a 20000cf 20000015 9c 20000d0
-// prog: 20000014 9c 20000d1 20000041 4a 20000d2 20000041 49 20000d3 2e 49 20000d4 3a 49 20000d5 31
-// prog: 78 20000d6 30 28 20000d7 36 26 4000015 10 10 40000c3 a1 a1 40000cb aa aa
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 f 20000022 c 10 20000025 c 5c 6e 6c 7d 83 8e
-// prog: 80 92 95 ef 40000004 b9 f9 b0 c8 fb c9 98 fe cc cc 1000011
-// prog: 15 1d 100002a 20000011 2c 100005b 6b 6d 1000060 73 74 1000076 75 79 100007c 7a
-// prog: 7b 100007e 8b 8f 100007f 51 94 1000084 93 96 1000085 b0 af 1000097 b1 5d
-// prog: 10000f1 c3 a2 10000fc ca ac 10000fd cb aa 10000ff cd 94 1000110 d5 ae 2000014
-// prog: 4 21 200001b 5 21 200001c 20000013 2c 200002f 20000013 5a 200003b 3 5a 2000046 2
-// prog: 5a 2000047 7 d 2000048 6 d 200004d 4 e 200004e 5 e 2000052 20000013 6a
-// prog: 2000053 3 6a 2000059 2 6a 2000099 2000000c 90 200009a 2000000d 91 200009b 2000000e 91 20000a1
-// prog: 20000010 91 20000a9 20000010 90 20000ab 5 b6 20000ad 4 b6 20000d8 20000013 91 20000d9 20000013
-// prog: 90 20000da 5 90 20000db 4 90 20000dc 40000003 b9 20000dd 40000003 b8 20000de 20000014 b8
-// prog: 20000df 20000015 b9 20000e0 20000016 b9 20000e1 20000018 b7 20000e2 20000019 b9 20000e3 20000019 b8 20000e4
-// prog: 20000018 b8 20000e5 20000012 b7 20000e6 20000016 91 20000e7 20000017 91 20000e8 20000018 91 20000e9 2000001a
-// prog: b8 20000ea 7 b8 20000eb 6 b8 20000ec 2000001a 91 20000ed 6 91 20000ee 7 91
-// prog: 20000f0 36 c2 20000f3 78 b8 20000f4 78 b9 20000f5 b8 b8 20000f6 b9 b9 20000f7
-// prog: b7 b8 20000f8 b7 b9 20000fa 2000002e cc 2000100 20000017 b9 2000101 20000016 b8 2000102 20000017
-// prog: b8 2000103 20000014 b9 2000104 20000015 b8 2000105 20000019 b7 2000106 2c b8 2000107 2c b9
-// prog: 2000108 12 b8 2000109 21 b9 200010a e b8 200010b 3d b9 200010c 25 b8 200010e
-// prog: 5a 4a 200010f 6a 4a 2000111 61 28 4000013 e e 40000f2 c6 c6 400010d d2
-// prog: d2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1d 10 20000035 5d 2000001c 11 6c 3c 1b 8b 70 60
-// prog: 90 71 76 91 72 7c cc 7d d8 114 df ba 115 e0 bb 122
-// prog: eb bf 13b fa ce 144 101 101 157 110 110 1000051 13 20000037 100006b 2d
-// prog: 14 1000075 46 69 1000079 38 10 100007b 59 68 1000092 9a 81 1000093 9b 82
-// prog: 10000aa 5f a1 10000cd 7e d9 10000d2 da 86 100011a bc e2 100011d e4 e5 100011f
-// prog: ab bd 1000120 e9 b7 1000121 be ea 1000132 f2 c7 1000138 fb 96 1000139 fc
-// prog: 95 100013a fd fe 100013c e2 bc 100013e e0 cf 100013f 100 ba 1000143 104 102
-// prog: 1000153 10b 10c 200000c 9 f 2000015 8 f 200006d 2 2a 200006e 3 2a 2000083
-// prog: 0 5b 2000094 20000010 7e 2000098 20000010 7d 20000a2 20000011 7d 20000ac 20000012 7d 20000ae 20000012
-// prog: 7e 20000af 78 84 20000b0 54 80 20000b1 54 7f 20000b6 77 84 20000c3 77 80
-// prog: 20000c6 78 7f 20000c8 49 97 20000c9 4a 85 20000ca 54 97 20000cb 54 85 2000112
-// prog: 40000003 ad 2000113 40000003 ab 2000117 20000019 ad 2000118 20000019 ab 2000119 20000018 ab 200011b 20000012
-// prog: ab 200011c 20000012 ad 2000123 2000001d ef 2000124 2000001f ef 2000125 20000020 ad 2000126 2000000e ad
-// prog: 2000127 20000020 ef 2000128 2000000e ef 2000129 8 ef 200012a 9 ef 200012b 8 ad 200012c
-// prog: 9 ad 200012d 5c 58 200012e 5c 8a 200012f 5c c2 2000130 5c 20000057 2000134 78
-// prog: ab 2000135 78 ad 2000136 b8 ab 2000137 b9 ad 2000141 20000018 ad 2000145 2000001c ef
-// prog: 2000146 2000001e ef 2000147 2000001b ef 2000148 20000021 ad 2000149 2c ab 200014a 2c ad 200014b
-// prog: 12 ab 200014c 21 ad 200014e 2000003e ad 200014f 2000003e ab 2000150 2b ad 2000151 39
-// prog: ad 2000152 23 ab 2000154 2a 4a 2000155 2a f1 2000156 36 f1 2000158 5c 9e
-// prog: 2000159 5b 27 3000131 20000058 10 4000073 1b 1b 4000074 3b 3b 400007a 53 53 40000d5
-// prog: db db 4000116 e1 e1 400011e e8 e8 4000133 f5 f5 400013d e3 e3 4000140 101
-// prog: 101 4000142 105 105 400014d 108 108 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 14 17 1d 59 6c 20000040 81 83 6f 86 92 98
-// prog: ce d2 dc d9 114 118 161 132 132 16c fa 13a 16d 11b 13c 170
-// prog: 13e d0 17b 145 145 18a 153 153 1000069 73 3c 1000070 74 65 100007d 7a
-// prog: 67 1000082 55 94 1000095 93 a2 1000096 ac aa 100009a ae a9 100009b af b0
-// prog: 10000a1 b1 b6 10000ba c3 c6 10000bb c8 c9 10000bc b4 ca 10000bd cb b5 10000be
-// prog: d5 87 10000cf 117 e1 10000da 115 119 10000db 11b 11a 100015e 40000005 122 1000162 133
-// prog: f6 1000164 137 136 1000165 135 f8 100016e 13d 11c 1000171 13f 103 1000172 140 101
-// prog: 1000173 116 117 1000174 142 105 1000186 14c 14b 1000187 14d 109 100018e 159 d7 2000011
-// prog: 9 c 2000013 9 15 200001b 8 15 200002d 6 5d 2000038 7 5d 200003b 6
-// prog: 51 2000046 7 51 2000053 20000013 6c 2000054 20000013 6b 200005f 3 6b 2000068 2 6b
-// prog: 2000071 2000000b 75 2000072 6 79 200007c 7 79 200007e 2000000b 7b 20000bf 5 cc 20000c7
-// prog: 4 cc 20000df 20000018 cd 20000e0 20000012 cd 20000e2 ad 11d 20000e4 ab 11d 20000e5 b9
-// prog: 11d 20000e8 b8 11d 20000e9 7 11f 20000ea 6 120 20000eb 6 11f 20000f2 7 120
-// prog: 20000f5 40000004 122 20000fb 40000004 121 20000fc 2000001b 121 20000fd 2000001c 122 20000fe 2000001c 121 2000100
-// prog: 2000001e 122 2000102 2000001d 121 2000108 20000021 122 200010b 20000021 121 200010c 2000000e 122 2000110 20000020
-// prog: 121 200015a 20000013 122 200015b 20000013 121 200015c 9 121 200015d 8 121 200015f 5c 130
-// prog: 2000160 e 131 2000166 b9 121 2000167 b9 122 2000168 121 121 2000169 122 122 200016a
-// prog: ad 121 200016b ad 122 2000175 2000001d 122 2000176 2000001f 122 2000177 2000001f 121 2000178 2000001b
-// prog: 122 2000179 2000001e 121 200017c 5d 121 200017d 5d 122 200017e 51 121 200017f 19 121
-// prog: 2000180 19 122 2000181 37 121 2000182 20000039 122 2000183 d 122 2000184 79 121 2000185
-// prog: 24 122 200018b 6b 49 200018c 6b f1 200018d 6b 28 40000d8 11c 11c 4000104 125
-// prog: 125 4000163 134 134 400016f 141 141 400017a 148 148 4000188 14e 14e 4000189 14f 14f
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 11 32 1d 1b 35 3c 2000001e 14 65 53 53
-// prog: 67 20000010 59 6f 68 6e 87 48 7c 93 99 82 94 9b b2 a2
-// prog: ba bb a9 96 bc aa 9a bd ac bf 56 b0 de cf d7 eb
-// prog: f2 101 fc fd 103 fe 100 109 102 124 117 15c 129 13f 164 164
-// prog: 1ac 18e 18e 1000015 13 33 100006c 6d 5f 1000073 5f 6d 1000083 72 47 1000098
-// prog: a1 b3 10000ae 57 c7 10000af be dd 10000b1 d8 e3 10000d5 ea e9 1000114 127
-// prog: 108 1000115 10b 128 1000116 10c 110 100011a 12a 15d 100013e 163 f7 1000142 16f 105
-// prog: 100014d 170 119 100014e 171 118 100014f 16f 141 1000153 143 173 1000159 144 174 100018f
-// prog: 108 127 1000190 128 10b 1000191 110 10c 1000192 175 145 1000193 147 102 1000194 123
-// prog: 177 1000195 fe 178 1000196 179 fd 1000198 17a 148 100019c 183 184 100019e 188 106
-// prog: 100019f 189 107 200005c 2000002e 53 2000074 20000013 69 2000075 3 69 200007a 2 69 200007b
-// prog: 2000000b 70 2000092 2000000b 7d 20000b4 20000014 ce 20000b6 20000019 ce 20000c3 20000018 ce 20000c6 b9
-// prog: da 20000c8 9c d9 20000c9 b8 da 20000ca b8 d9 20000cb b7 db 20000cc ad db
-// prog: 20000d0 9c db 20000d2 b9 db 20000e1 2000001a ce 20000f6 7 ce 20000f8 6 ce 200011b
-// prog: 20000024 15e 200011f 20000025 15e 2000120 20000026 15e 2000132 20000029 15e 2000133 a 15e 2000134 b
-// prog: 15e 2000135 81 58 2000136 81 8a 2000137 81 c2 200013a 81 130 200013c 81 20000057
-// prog: 200013d e 160 2000199 20000023 15e 200019a 20000022 15e 20001a1 21 162 20001a2 12 162 20001a3
-// prog: 3e 162 20001a5 2a 161 20001a6 6b 161 20001a7 69 4a 20001a8 61 161 20001a9 30
-// prog: 161 20001aa 70 29 20001ab 7d 29 40000b5 df df 4000140 168 168 4000197 175 175
-// prog: 400019b 181 181 400019d 185 185 40001a0 187 187 40001a4 18b 18b 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 11 c 20000035 13 15 34 47 67 20000043 48 20000009 6c
-// prog: 53 20000008 6f 68 83 62 6d 87 63 6e 93 94 70 86 98 72
-// prog: 95 a2 e9 101 123 107 d5 15a 145 40000006 11a 17a 192 192 183 176
-// prog: 195 184 194 196 1c3 19e 19e 1c4 19f 19f 1000014 1d 18 100007c ac 112
-// prog: 100007d ae 113 100009a c3 e0 100009b c6 c8 10000bf d0 e8 10000ce e1 cd 10000de
-// prog: f8 ee 10000fe d8 116 1000108 d7 15b 100015c 140 169 1000174 172 14f 1000177 191
-// prog: 11c 1000181 193 146 1000188 197 175 10001ba 19b 182 10001bf 19d 185 10001c5 1a0 187
-// prog: 10001ca 1a4 154 200001b 6 3c 2000030 7 3c 2000032 2000000b 67 2000033 2000000b 6c 2000035
-// prog: 2000000b 6f 2000059 2000000b 73 200005f 2000000b 7a 2000061 2000000b 75 2000082 20000015 af 2000096 20000016
-// prog: af 2000099 20000019 af 20000a1 9c b0 20000b2 b9 b0 20000b3 b7 b1 20000bb ab b1
-// prog: 20000be 9c b1 20000c7 b8 b1 20000df 40000004 d7 20000e3 40000004 d5 20000ea 20000021 d7 20000eb
-// prog: 20000021 d5 20000f2 2000000e d7 20000f7 20000020 d5 20000fc 20000012 d5 20000fd 20000012 d7 2000100 2000001d
-// prog: af 2000102 2000001f af 2000105 20000020 af 2000106 2000000e af 200010b 8 af 200010c 9 af
-// prog: 2000110 40000005 11a 2000118 40000005 117 2000119 20000022 117 2000124 20000023 11a 2000127 20000024 11a 2000128
-// prog: 20000027 11a 2000129 20000027 117 200012a 20000026 117 2000141 20000029 117 2000143 b 117 2000144 a
-// prog: 117 2000147 81 13c 200015d b9 d5 2000161 b9 d7 2000163 121 d5 2000164 122 d7
-// prog: 2000168 122 117 200016f 122 11a 2000170 117 117 2000171 11a 11a 2000173 2000002e 142 2000178
-// prog: 2000000e d5 2000179 20000020 d7 2000189 20000025 11a 200018e 20000024 117 20001ad 20000025 117 20001ae 20000022
-// prog: 11a 20001af 20000023 117 20001b0 f 11a 20001b1 20000031 117 20001b2 16 11a 20001b3 20000032 11a
-// prog: 20001b4 2000002b 117 20001b5 3c 121 20001b6 19 d5 20001b7 19 d7 20001b8 37 d5 20001b9
-// prog: 20000039 d7 20001bb 2000003a d7 20001bc 2000003a d5 20001bd 2000003b d7 20001be 22 d7 20001c0 21
-// prog: 13f 20001c1 12 13f 20001c2 2000003e 13f 20001c6 2e 13f 20001c7 3a 13f 20001c8 67 49
-// prog: 20001c9 67 4a 20001cb 67 77 20001cc 67 78 20001cd 6f 29 20001ce 75 29 40000ba
-// prog: cb cb 40000cf f6 f6 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 17 11 15 17 14 18 2000001d 13 34 2d 30
-// prog: 63 32 32 6c 2000000a 47 c6 bb cc cd 7c ec ee eb 126 169
-// prog: 124 11b 172 127 11f 191 144 134 19f 173 174 1a0 173 159 1a4 fc
-// prog: 18f 1cf fd 190 1d0 178 179 1d1 178 178 1d2 f2 f7 1d4 179 179
-// prog: 1dd 18e 18e 1df 1b3 1b3 1ea 19c 1be 100001d 1b 38 100007a 52 6d 1000081
-// prog: 82 e6 1000083 96 e7 1000095 11e 99 10000ae a1 c9 10000af ca b2 10000b7 b3
-// prog: e2 10000c3 ba e4 10000c8 e5 be 10000cb c7 d2 10000d0 cf ed 10000e1 de fb
-// prog: 10000e8 104 ea 10000f6 f2 f7 10000f8 fc 114 1000101 fd 115 1000176 120 128 1000185
-// prog: 141 108 1000187 133 143 1000196 15d 16a 1000197 161 16b 10001d3 eb 126 10001d5 ea
-// prog: 125 10001d6 188 198 10001d7 128 120 10001d8 127 199 10001d9 189 11b 10001dc 1af 1ad
-// prog: 10001de 1b2 18e 10001e1 17d 1b5 10001e4 1bb 17f 10001ef d1 1cb 10001f0 10d 1cc 2000062
-// prog: 2000002e 32 200006f 0 48 2000073 5 68 2000075 4 68 2000086 20000019 7d 2000087 20000019
-// prog: 7c 2000093 20000018 7c 200009c 20000012 7c 20000ac 20000012 7d 20000d8 6 ce 20000e0 7 ce
-// prog: 2000116 20000020 7d 200011c 2000000e 7d 2000123 d7 fe 200013f d5 fe 2000140 122 fe 2000142
-// prog: 121 fe 2000146 9 107 200014f 8 107 200015a 8 7d 200015b 9 7d 2000175 20000026
-// prog: 108 2000182 20000028 108 2000192 2000002b 145 2000193 6d 160 2000194 6d 131 200019d 108 117
-// prog: 200019e 108 11a 20001db 20000027 108 20001e6 51 15c 20001e7 20000039 15c 20001e8 37 15c 20001e9
-// prog: e 15c 20001eb 25 15c 20001ec 6d 162 20001ed 68 b9 20001ee 20000013 1c5 20001f1 2
-// prog: 1c5 20001f2 3 1c5 20001f3 53 28 20001f4 53 29 20001f5 48 28 4000195 163 163
-// prog: 400019b 170 170 40001da 18e 18e 40001e0 1b4 1b4 40001e2 1b8 1b8 40001e3 1bc 1bc 40001e5
-// prog: 1ba 1ba 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 11 2000001b c 13 2000001f 15 52 75 4e 82 81 87
-// prog: b2 9b b7 b3 ae c3 ba af c6 bb 9a cb c9 d0 f5 ca
-// prog: e9 e8 cc 103 ee ce 109 f6 188 1d8 19a 1b2 1e1 1b7 1bb 1e4
-// prog: 1e4 1be 1ea 1ea 1f6 1ef 1ef 1f7 1f0 1f0 1000048 73 4d 100007d b5 86
-// prog: 1000096 83 93 1000099 9c 95 10000a1 ac b6 10000ed 146 12b 10000fd 12a 182 1000144
-// prog: 195 164 1000159 19b 171 100016b 1d0 148 1000170 17a 1d1 1000174 181 1d2 1000178 183
-// prog: 1d3 1000179 17b 1d4 100017d 184 1d5 1000189 1d9 1ae 100018f 1da 18e 1000199 1e0 1b4
-// prog: 10001af 1e2 1b9 10001b3 1e3 180 10001bc 1e5 1ba 10001cc 1ed 10a 2000014 7 18 2000017
-// prog: 6 18 200001b 6 1d 2000030 6 34 2000032 7 34 2000047 1 6c 2000053 2
-// prog: 7a 200007c 3 7a 20000be 7 cd 20000c7 6 cd 20000cf 2000001c e1 20000d1 2000001e e1
-// prog: 20000d2 20000021 e1 20000de 2000000e e1 20000e2 ad 101 20000e4 ad f8 20000e5 d5 101 20000e6
-// prog: d7 f8 20000e7 ef 101 20000ea ef f8 20000eb 121 101 20000ec 122 f8 20000f7 20000013
-// prog: e1 2000104 20000024 e1 2000107 20000025 e1 200010d 20000026 e1 2000114 a 185 2000115 b 185
-// prog: 200011b 20000029 e1 200011e a e1 200011f b e1 2000120 40000006 191 2000124 40000006 187 2000125
-// prog: 2000002a 187 2000126 2000002a 191 2000127 2000002c 191 2000133 2000002c 187 2000134 191 192 2000141 187
-// prog: 192 2000143 6d 194 200015d 11a 187 2000161 11a 191 2000163 187 187 200016a 191 191
-// prog: 2000190 2000002b 191 2000198 2000002b 187 200019c 20000013 1df 20001ad 18 122 20001b5 18 15c 20001c5
-// prog: 6 1df 20001cb 7 1df 20001f8 7a 77 20001f9 6c 29 40000f2 14f 14f 40000fc 175
-// prog: 175 400017f 1db 1db 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 29 17 46 4d 6f 47 6d 48 66 75 b4 7d
-// prog: 81 82 b3 83 96 ba 86 99 c8 87 a1 bf 95 c7 e0 e1
-// prog: 123 e2 182 13 88 18e 144 144 1df 1b2 1b2 1e0 1b3 1b3 1e2 1cc
-// prog: 151 100001d 3b 14 1000034 13 1f 1000093 d8 be 10000ae 105 d2 10000e9 e5 e6
-// prog: 10000ee 140 e7 10000f6 ea 142 1000103 eb ec 1000109 f2 12c 1000181 ed 132 10001b4
-// prog: 17f 1db 10001b7 190 126 10001b9 125 198 10001d9 1ad 17e 200000c 7 11 2000015 6
-// prog: 11 200004e 4 13 200006c 5 13 2000073 1 52 200009a 2000001b c9 200009b 2000001c c9
-// prog: 200009c 2000001d c9 20000af 20000021 c9 20000b5 20000020 c9 20000b6 122 ce 20000b7 ef cc 20000c3
-// prog: ef ca 20000c6 121 ce 20000cd 121 cc 20000d0 122 ca 200010a 20000013 c9 200012a 9
-// prog: c9 200012b 8 c9 2000146 40000005 ed 2000148 20000027 ed 200014f 20000026 ed 2000164 20000028 ed
-// prog: 200017a ed fd 200017b 11a fd 2000180 117 fd 2000183 52 160 2000184 52 194 2000185
-// prog: 52 131 2000195 122 ed 200019a 117 ed 20001ae 2000002e 16b 20001d1 20000033 ed 20001d2 16
-// prog: 159 20001d3 20000024 159 20001d4 10 159 20001d5 20000032 159 20001d8 11 122 20001da 13 15c
-// prog: 20001e1 13 b8 20001e3 4 1bc 20001e4 52 f1 20001e5 52 26 40000e8 e4 e4 4000171
-// prog: 10d 10d 400019b 163 163 40001ba 141 141 40001d0 134 134 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 14 15 38 1f 1a 34 47 1d 3f 7d 75 b2
-// prog: 82 93 df 96 9a cf 99 9b d1 a1 9c 102 e0 12a 10b e7
-// prog: 169 148 10d 182 13d 15c 1ae 170 163 1ae 179 16b 1ae 1d6 17e 164
-// prog: 1d7 1ea 148 1b0 1f0 1d9 1af 1fd 1d9 1bd 1000010 2d c 1000017 1d 1e
-// prog: 100003b 29 20 1000048 29 40 1000088 95 e3 10000b4 af 106 10000be de b5 10000c7
-// prog: b6 b7 10000c9 c3 c6 10000d2 cd d0 10000d8 e8 13f 10000e2 10c 12b 10000ea 172
-// prog: 14f 10000eb 164 176 1000144 19b 16a 1000190 188 14f 1000198 189 148 10001ad 1dd 1b4
-// prog: 10001ef 1d8 17c 10001ff 1e2 152 2000046 20000044 4d 2000066 3 6d 200006f 2 6d 20000e4
-// prog: 40000005 109 20000e5 20000027 109 20000e6 20000028 109 20000ec 109 fd 20000ef b 181 20000f2 a
-// prog: 181 2000105 2000002d 109 2000123 52 185 2000132 122 109 2000142 11a 109 2000151 109 187
-// prog: 2000159 109 191 200017f 20000026 109 20001b2 2000002c 109 20001b3 20000032 109 20001bc 20000033 109 20001ed
-// prog: 20000034 109 20001fa 20000039 18e 20001fb 37 18e 20001fc 2000003a 18e 20001fe 23 18e 2000200 6d
-// prog: 78 400012c 195 195 4000140 19a 19a 40001cc 1d1 1d1 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1e 20000015 1f 20 20000016 3b 38 46 46 93 6f 7c
-// prog: 95 96 100 c3 c7 e1 c6 c9 d8 cd d2 e9 cf 82 f7 d1
-// prog: e0 110 152 f2 115 181 17f 17f 189 1b2 1b2 19a e7 192 1b4 1ea
-// prog: 1ea 1bd 1de 1ed 1d1 1ef 1b6 1d6 1f0 1f0 201 1ff 1ff 100004d 2f 48
-// prog: 1000075 53 66 10000b7 ac be 10000d0 88 10a 10000de e2 118 10000e8 fc e5 1000102
-// prog: e6 129 100014f 114 ef 100016a 48 89 1000176 140 142 1000179 12c 19d 100017c 17f
-// prog: 1db 1000182 e5 175 100019b e5 1b1 10001ae 1de 1b3 10001af 1bc 129 10001b0 1cc 128
-// prog: 10001d7 1fd 1b8 1000202 200 1f8 200000c 7 10 2000015 7 14 200001d 6 14 2000029
-// prog: 4 17 200002d 5 17 2000034 2000002e 46 200003f 5 47 2000040 4 47 200009a 20000021
-// prog: 88 200009b 20000021 82 200009c 2000000e 88 20000af 20000020 82 20000b5 20000012 82 20000b6 20000012 88
-// prog: 2000106 11a ea 200010b 15e e7 200010c 117 ea 200012a 117 e7 200012b 108 eb 200013d
-// prog: 109 eb 200013f 15e eb 2000148 11a eb 2000164 191 105 2000169 187 105 2000188 2000002e
-// prog: 1b2 200018e 2000002b 144 2000195 20000029 105 20001d8 17 b8 20001d9 17 b9 20001dd 48 162
-// prog: 20001e2 47 b9 3000170 20000058 10d 4000172 132 132 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1f 1d 32 66 40 6c 82 75 7e c9 b7 103
-// prog: e0 119 e8 1b2 16a 193 1b6 176 176 205 195 195 206 102 105 208
-// prog: 19b 19b 209 1ae 1ae 20a 1af 1af 20b 1b0 1b0 20c 1bd 1bd 20f 1d1
-// prog: 1d1 210 1d7 1d7 216 202 10f 1000010 1b c 1000014 30 15 1000053 3f 4e
-// prog: 1000088 93 92 1000089 116 9a 1000096 9b 11c 10000ac 9c af 10000be b5 ae 10000c7
-// prog: b6 b4 10000f7 106 10b 1000114 13f 180 10001b3 172 19e 10001ea 18f 181 10001ed 1dc
-// prog: 182 10001ef 188 189 1000214 1e2 1e1 200002f 4 1e 200003b 5 1e 2000046 4 20
-// prog: 2000048 5 20 200006f 2 4d 200007c 3 4d 20000d2 9 cf 20000d8 8 cf 20000e1
-// prog: 20000022 d1 20000e2 20000023 de 20000e5 20000024 de 20000e6 20000026 d0 20000e7 20000027 de 20000e9 20000027
-// prog: d1 20000ef 20000026 d1 20000f2 20000028 d0 20000fc 108 102 200010a ed 102 200010d 15e 102
-// prog: 2000115 117 102 2000128 20000029 d1 2000129 b d1 200012c a d1 2000132 40000006 152 2000140
-// prog: 40000006 14f 2000142 2000002c 152 2000144 2000002c 14f 2000175 2000002d 14f 200017f 2000002d 152 2000192 2000002b
-// prog: de 200019d 152 105 20001b1 14f 105 20001b8 11a 14f 20001bc 11a 152 20001cc 187 14f
-// prog: 20001db 191 152 20001de 2000002e 17c 20001f0 191 188 20001f8 187 188 2000200 b 188 2000203
-// prog: a 188 2000204 2000002e 195 2000207 11a 19a 200020d 8 19a 200020e 9 19a 2000211 1e
-// prog: b8 2000212 20 b8 2000213 20 162 2000215 4d 77 4000100 12b 12b 40001fd 169 169
-// prog: 40001ff 164 164 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 10 2000003c 15 2000003c 1f 1d 29 3b 3f 53 64
-// prog: 6c 95 89 75 99 96 7e a1 ac 92 be ee 93 c7 f6 9a
-// prog: d2 15a cf ec fc 10f 126 144 116 127 175 11c 66 c0 180 1b8
-// prog: 151 181 1bc 159 182 1de 1ea 188 1de 1ad 19b 1b1 1f0 225 216 d4
-// prog: 100001b 2d 2f 100009b 15b d8 100009c e2 104 10000ae e5 107 10000b4 171 e7 10000b5
-// prog: ef f2 10000d1 100 17a 10000de 10a 13d 10000e8 17b 10d 1000102 115 148 1000105 128
-// prog: d0 1000108 12c 11f 100010b 125 142 1000119 17f 133 1000189 1b7 144 100018f 1b9 142
-// prog: 1000195 142 125 100019e 19d 1f8 10001ae 1ba 1b1 10001af 1d0 19d 10001b0 1fd 169 10001bd
-// prog: 1ff 164 10001e2 1ef 205 1000220 1d9 211 1000223 214 150 2000030 5 14 2000032 4
-// prog: 14 2000040 1 66 200004e 0 82 20000b6 15e e0 20000b7 11a e0 200012b 88 160
-// prog: 200013f 88 194 200016a 88 185 2000172 88 131 2000176 1b2 170 20001d1 b 200 20001d7
-// prog: a 203 20001dc b 203 20001e1 a 200 2000202 20000032 1b6 2000217 20000033 1b6 2000219 109
-// prog: 206 200021a 11a 206 200021b 117 1ef 200021c 8 1ef 200021d 9 1ef 200021e 8 206
-// prog: 200021f 9 206 2000221 14 b9 2000222 14 162 2000224 66 f1 2000226 66 26 2000227
-// prog: 88 9e 2000228 82 27 2000229 58 1ef 200022a 8a 1ef 200022b c2 1ef 200022c 130
-// prog: 1ef 200022d 13c 1ef 200022e 20000057 1ef 40000af e6 e6 4000106 129 129 400017c 1cc 1cc
-// prog: 4000193 175 175 4000218 206 206 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 10 1a c 1f 1a 15 3b 32 48 a1 4e 73
-// prog: ac 6c c3 be 75 c6 c0 7e cd c7 9a e4 d8 f7 cf e2
-// prog: b5 102 128 11c 183 171 10f 10f 175 195 195 17a 119 119 17f 10b
-// prog: 18f 1ad 116 116 1b6 19b 1ae 1b7 19e 1af 1b8 10f 189 1f8 1d1 1d7
-// prog: 1ff 204 1e2 230 223 223 232 225 225 100002f 30 46 1000064 46 30 10000d0
-// prog: 9b 146 10000d2 b6 10c 10000d4 12a b7 10000e5 106 11e 10000ec 108 124 1000133 17c
-// prog: 1db 100013d 193 127 100017b 189 10f 10001b9 18f 10b 10001fd 1e1 1dc 1000214 218 206
-// prog: 1000216 221 212 100022f 220 14a 1000233 228 1e5 2000053 4 1b 2000089 4 1d 2000095
-// prog: 5 1d 2000096 3 3f 2000099 2 3f 20000e6 a 105 20000e7 b 105 20000ef 145
-// prog: 10f 20000f2 145 10b 20000fc 187 10f 2000100 191 10b 2000104 109 119 2000107 109 116
-// prog: 200010a 14f 119 200010d 152 116 2000115 145 119 200011f 145 116 2000125 187 119 2000126
-// prog: 191 116 2000129 88 172 200012c 1b2 176 2000144 191 189 2000148 187 18f 2000150 14f
-// prog: 116 2000151 152 119 2000159 187 116 200015a 191 119 200015b 191 10f 200015e 187 10b
-// prog: 20001ba b 116 20001bc a 119 20001cc a 116 20001d0 b 119 20001d9 b 189 20001ea
-// prog: a 18f 20001ef a 189 20001f0 b 18f 2000200 b 10b 2000203 a 10f 2000205 a
-// prog: 10b 2000211 b 10f 2000231 3f 78 4000142 119 119 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 20000014 10 15 20000017 1f 4e 99 7c 9a d2 d1
-// prog: 9b d4 de b5 c7 11b b6 e5 120 189 133 133 19b 15b 15e 19e
-// prog: 150 151 1ae 159 15a 1af 13d 13d 1d1 171 17b 1d7 175 17f 218 1cc
-// prog: 1d0 221 1ef 1f0 223 204 1f8 225 198 1fd 228 182 1ff 235 205 211
-// prog: 236 20a 214 237 216 186 238 22f 22f 239 216 14c 240 233 233 100001a
-// prog: 1c 3b 1000048 6f 96 1000105 134 ef 1000106 f2 141 1000108 fc 100 100010b 19d
-// prog: 104 100010c 107 1b1 100010f 10a 10d 1000116 164 115 100011c 11f 169 100011e 125 126
-// prog: 1000127 3b c1 100018f 144 148 10001b2 142 119 1000212 1bc 1ba 1000220 1ea 1d9 1000234
-// prog: 203 200 100023e 231 215 200001b 2 64 200001d 3 64 2000030 3 2f 2000032 2
-// prog: 2f 2000046 1 3b 200006c 20000027 d0 2000073 20000027 c7 2000075 20000026 c7 200007e 20000028 c7
-// prog: 2000088 20000028 d0 20000b7 2000002a ec 20000cf 2000002c ec 20000f7 2000002d d0 200012a a1 160 2000145
-// prog: a1 194 200014a a1 185 200014f a1 172 2000152 a1 131 200017c 128 176 2000183 128
-// prog: 170 20001db 191 1b8 20001dc 187 1b9 20001e1 b 1b8 20001e2 a 1b9 20001e5 a 1b8
-// prog: 2000206 b 1b9 200023a 64 77 200023b 64 78 200023c 3b f1 200023d 2f 78 200023f
-// prog: 3b 26 4000193 150 150 4000195 159 159 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1f 15 2000003f 6f 2000000e 1a 96 48 71 c7 9c 73
-// prog: ef 105 10b f2 106 10c fc 108 10f 100 f7 11e 104 15 9d 107
-// prog: 127 184 11f 19b 19e 125 17a 1b2 126 1af 1ad 148 1e5 206 159 1de
-// prog: 223 15b 188 223 15e 17e 212 164 fd 218 169 eb 212 17f 225 19a
-// prog: 1b9 237 237 1bc 23e 10e 100007c 74 15 1000099 4e 7b 10000c1 af 6c 10000d0
-// prog: ae 75 10000d1 7e b4 10000d2 88 e9 1000119 193 151 100011b 195 15a 1000133 1db
-// prog: 1dc 1000144 1e2 1e1 100017b 225 19a 10001ba 239 14b 2000010 5 c 200001c 4 c
-// prog: 20000d4 b b5 20000de a b5 20000e5 2000002a b6 20000ec 2000002c b6 200010a a1 152 200010d
-// prog: 128 183 2000115 2000002d 189 2000134 b 1d1 200013d a 1d7 2000141 a 1d1 2000142 b
-// prog: 1d7 200014c 20000029 212 2000150 20000029 218 2000171 117 228 2000175 11a 225 2000182 9 236
-// prog: 2000186 8 236 2000187 8 228 2000191 9 228 2000198 9 225 200019d 8 225 20001b1
-// prog: c b9 20001b8 15 162 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 1c 2d 48 5c 1f 75 e1 c1 7b c7 9a
-// prog: 7e d0 9b 88 d1 e8 9c d2 114 a1 de e7 ae 192 fc af
-// prog: 99 12d b4 104 143 b5 107 17c b6 18f 119 eb 18e 133 10b 141
-// prog: 142 10f 150 234 189 15e 169 193 1b4 17b 195 15b 209 19e 15b 20c
-// prog: 1af 148 199 200 1ba 1ba 206 1bc d3 1000015 10 29 100009d e6 d4 10000e9
-// prog: 1ae 11b 1000108 13d 134 100010c 220 14c 100010e 221 150 1000127 235 14c 100019a 15e
-// prog: 169 10001e2 1cf 164 10001ef 101 164 10001ff 1b1 1d8 200004e 2 6f 200006c 3 6f
-// prog: 2000071 2 7c 2000073 3 7c 2000074 0 96 20000f7 b 125 20000fd a 126 2000105
-// prog: a 125 2000106 b 126 2000128 11a 159 200014b ed 164 2000151 109 164 200015a ed
-// prog: 15e 2000162 117 164 200017a 11a 164 200017e 117 15e 2000184 ed 169 2000188 117 169
-// prog: 200019b 11a 17f 20001ad 11a 144 20001b2 9 17f 20001d0 8 17f 20001d1 9 144 20001d7
-// prog: 8 144 20001d9 9 15e 20001db 8 15e 20001dc 9 159 20001de 8 159 20001e1 20000013
-// prog: 164 20001e5 9 169 20001ea 8 169 20001f0 121 148 20001f8 6 148 20001fd 7 148
-// prog: 2000203 6f 77 2000204 6f f1 2000205 7c 77 200020a 99 9e 2000211 96 27 40001cc
-// prog: 15b 15b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 29 2000000d 48 99 32 73 c1 74 40 c7 75 d8
-// prog: d0 9d 132 d2 7b ae d3 9c 100 d4 af 12b de b4 12c e6
-// prog: b6 11f e7 115 e9 104 105 106 107 190 10c 109 1ed 10e 119 e0
-// prog: 10f 11b ea 127 134 219 184 13d 21a 188 141 20b 189 15e 21d 1d7
-// prog: 169 1db 21f 17c 21f 1ea 1d8 1ff 149 20c 206 206 100002d 71 30 10000d1
-// prog: a1 140 10000e1 ae 50000006 1000101 fd f7 1000143 1ad 21b 1000159 1d1 21c 1000164 1d9
-// prog: 21e 100017b 1e5 21e 10001b1 1ef 1e2 1000209 23d 205 1000212 211 226 2000010 5 15
-// prog: 200001c 5 1a 200001f 4 1a 2000142 ed 19a 2000144 9 193 2000148 8 193 200014c
-// prog: 8 19a 2000150 9 19a 200018f d7 1e2 2000192 122 1e2 2000199 d7 1ef 20001ae 122
-// prog: 1ef 20001b4 6 1e2 20001ba 7 1e2 20001bc 6 1ef 20001cf 7 1ef 2000214 58 eb
-// prog: 2000215 8a eb 2000216 c2 eb 2000218 130 eb 2000220 13c eb 2000221 20000057 eb 2000223
-// prog: 58 1af 2000225 8a 1af 2000228 c2 1af 200022f 130 1af 2000231 13c 1af 2000233 160
-// prog: 19e 2000234 194 19e 2000235 185 19e 2000236 172 19e 2000237 152 19e 2000239 131 19e
-// prog: 200023e 20000057 1af 4000125 15a 15a 4000126 162 162 400012d 17e 17e 4000133 17a 17a 400017f
-// prog: 1e2 1e2 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 30 1f 95 48 2d 5f 71 99 61 af c1 135
-// prog: 105 18e e6 15a 109 119 1ed 1a4 164 1ff 177 169 211 f8 17b 21b
-// prog: fe 17c 241 15e 1bf 24a 1d8 1d8 251 209 1a7 252 212 212 1000015 10
-// prog: 53 100001a 1c 89 100011f 125 219 1000127 12d 21a 100017e 126 162 1000184 133 17a
-// prog: 1000188 109 119 100021e 17f 1ef 2000032 2 29 2000040 3 29 2000073 2000002c d1 2000074
-// prog: 2000002c d0 2000075 2000002d d0 200007b 2000002d d1 200009c 8 d3 200009d 9 d3 20000a1 8
-// prog: d2 20000ae 9 d2 20000b4 d4 176 20000b6 d4 183 20000e0 d4 170 20000ea 58 e1
-// prog: 20000eb 8a e1 20000ed c2 e1 20000f7 130 e1 20000fd 13c e1 2000100 20000057 e1 2000106
-// prog: 20000029 104 200010c 20000029 101 200010e 117 107 200010f 11a 107 2000115 117 109 200012b 117
-// prog: 11b 200012c 11a 11b 2000149 117 119 2000189 8 141 2000190 9 141 2000193 20000013 14c
-// prog: 200019a 9 101 200019e 8 101 20001ad 20000013 104 20001af 8 e7 20001d1 9 e7 20001d7
-// prog: 8 107 20001d9 9 107 20001db 8 109 20001e2 9 109 20001e5 20000013 169 20001ea 20000013
-// prog: 164 2000205 9 119 2000206 8 119 200020b 20000013 17b 200021f d7 1b1 2000226 d7 14c
-// prog: 200023d 122 159 2000242 7 1b1 2000243 6 1b1 2000244 7 14c 2000245 6 14c 2000246
-// prog: 6 104 2000247 7 104 2000248 7 159 2000249 6 159 200024b ab 150 200024c b8
-// prog: 15e 200024d 4 150 200024e 4 15e 200024f 5 15e 2000250 29 77 30000e9 20000058 de
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 10 15 2000003f 53 1b 40 89 b7 74 95 cf 75
-// prog: d0 af 12a d3 108 106 101 207 149 104 208 15a 11a 186 190 150
-// prog: 1de 1d9 15e 1d7 191 162 19d 1e2 177 1e5 1e5 17b 206 20e 253 1ed
-// prog: 211 254 1bb 21e 256 23d 1f0 260 16e 1ff 263 b1 21b 269 251 251
-// prog: 100001c 1a 54 100001f 30 65 100002d 32 1d 1000061 e5 73 1000099 7b ec 10000c1
-// prog: 71 12e 10000de 10b 10c 10000e1 128 10e 10000e6 10f 171 10000e7 175 115 1000107 13d
-// prog: 127 1000119 182 189 100012d 1cc 193 100014c 1dc 1d7 1000159 1d9 187 1000169 1db 198
-// prog: 100017a 205 20d 100017c 20b 11b 1000255 1ed 211 100025c 249 1fd 1000268 23b 250 200005f
-// prog: 0 48 20000d1 d4 e0 20000d2 b5 e9 2000109 117 188 2000125 8 188 2000126 9
-// prog: 188 2000133 20000013 19a 2000135 8 105 2000141 9 105 2000164 2000002e 1e5 200017f d5 1ff
-// prog: 200018e d7 1ff 20001a4 d5 1ed 20001a7 121 1ff 20001b1 122 1ff 20001bf 121 1ed 20001d8
-// prog: d5 21b 20001ef d7 21b 2000209 d5 211 2000212 121 21b 2000219 122 21b 200021a 121
-// prog: 211 2000257 2000001a 245 2000258 2000001a 244 2000259 7 19a 200025a 6 19a 200025d 7 1ed
-// prog: 200025e 6 1ed 200025f 2000001a 1ff 2000261 7 211 2000262 6 211 2000264 ad 244 2000265
-// prog: 5 244 2000266 20000013 245 2000267 4 19e 200026a 49 245 200026b 2 245 200026c 3
-// prog: 245 200026d 71 9e 200026e 48 27 200026f 58 241 2000270 8a 241 2000271 c2 241
-// prog: 2000272 130 241 2000273 13c 241 2000274 20000057 241 40000f8 12b 12b 40000fe 12c 12c 400025b
-// prog: 248 248 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 15 5c 10 1a 5c 1f 71 5f 46 73 61 ef
-// prog: 74 89 f2 75 95 116 7b 99 11c af c1 13f e5 e1 14b ec
-// prog: e6 151 105 e7 11f 10b 101 134 11b 1d0 126 149 15b 164 175 174
-// prog: 169 182 1e1 17a 186 cc 17c 187 ce 17b 193 199 209 198 1ae 21a
-// prog: 19a 1e0 253 1ff 25e 1ba 206 25f 25f 208 262 1cf 23b 25c 18a 251
-// prog: 268 1c9 1000106 f8 14b 1000108 fe 151 100010c 19b 109 1000117 1b2 125 100012a 133
-// prog: de 100015a 1e1 162 10001ed 25a 247 10001f0 25b 1f8 10001fd 1b4 25d 1000207 1bc 261
-// prog: 100021e 263 260 1000241 265 24d 1000279 26e 23f 2000030 3 1c 2000032 2 1c 2000040
-// prog: 2 2d 2000054 2 53 2000065 3 53 20000b1 d0 176 20000b7 d0 183 20000cf d0
-// prog: e0 20000d4 d0 170 20000d7 b5 d2 200010e 8 104 200010f 9 104 2000115 20000013 119
-// prog: 2000127 9 d3 2000128 8 d3 200012b 9 14c 200012c 8 159 200012e 9 150 200013d
-// prog: 8 15e 200016e 8 150 2000171 9 15e 200019d d5 255 200019e 121 12d 20001bb 7
-// prog: 254 20001cc 6 254 20001d7 6 255 20001d9 7 255 20001db 7 119 20001dc 6 119
-// prog: 20001de 6 12d 20001e2 7 12d 2000205 2000002e 25f 200020d ad 260 200020e b9 260 2000211
-// prog: ad 263 200021b b9 263 200023d 4 11a 2000244 4 260 2000245 5 260 2000248 4
-// prog: 263 2000249 5 263 2000250 1c 78 2000275 1c f1 2000276 77 25c 2000277 2 25c
-// prog: 2000278 3 25c 200027a 160 de 200027b 194 de 200027c 185 de 200027d 172 de 200027e
-// prog: 152 de 200027f 131 de 4000188 1a4 1a4 4000189 1a7 1a7 4000190 1bf 1bf 4000191 1b1
-// prog: 1b1 40001e5 259 259 400020b 260 260 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 10 2000000c 15 1f 2000000f 1a 46 32 6c cc af b4
-// prog: d3 e5 106 d5 ec 108 de 105 10b e7 148 10f 101 128 21d 119
-// prog: 16e 171 11a 163 149 11f 17d 15a 125 ca 182 15b 11b 1be 174 243
-// prog: 1d9 1ba 16d 1fd 1bc 11d 1ff 1e0 d9 187 1e1 db 207 1f8 11d 208
-// prog: 25d 251 251 265 279 279 100002d 4e 30 10000c1 71 136 10000e1 10c 142 10000e6
-// prog: 144 10e 10000f8 115 195 10000fe 127 21c 1000104 12b 12c 1000109 12e 13d 1000133 188
-// prog: 18f 1000134 190 192 1000150 189 212 1000151 191 219 1000169 1d7 242 100017b 1dc 1cb
-// prog: 1000199 1e5 246 1000209 20b 263 100025c 250 203 2000053 b 75 200005c a 7b 200005f
-// prog: a 75 2000061 b 7b 2000089 b 73 2000095 a 74 2000099 a 73 20000b5 b
-// prog: 74 20000ce d0 d4 2000126 121 175 200012d 122 175 200013f 121 187 200014b 122 187
-// prog: 200014c 122 186 2000159 122 117 200015e 6 19a 2000162 7 19a 200017c 7 117 200018a
-// prog: 6 117 200019b 6 12a 20001a4 7 12a 20001a7 2000001a 1ed 20001ae 6 175 20001b1 7
-// prog: 175 20001b2 2000001a 1fd 20001b4 2000001a 1ff 20001bf 6 186 20001c9 7 186 20001cf 2000001a 208
-// prog: 20001d0 2000001a 207 200021a ad 21e 200023f b8 11b 2000247 b9 1f0 200024d 5 21e 2000253
-// prog: 4 11b 2000254 5 11b 2000255 20000013 241 2000259 20000013 1ed 200025a 5 1f0 200025b 4
-// prog: 1f0 200025e 4a 241 200025f 3 241 2000260 2 241 2000261 2 1ed 2000262 3 1ed
-// prog: 2000268 58 23b 200026e 8a 23b 2000280 c2 23b 2000281 130 23b 2000282 13c 23b 2000283
-// prog: 20000057 23b 400017a 1db 1db 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 6c 2d 59 74 5f 61 7b 99 b5 af 1f f0
-// prog: b4 c1 145 d9 e6 19c db fe 1ad e5 164 104 10f 11f 125 127
-// prog: 1cc 162 142 18a 1e2 1be 1ba 1e1 1cb 1c3 209 20b 25b 24f 251 25c
-// prog: 1ca 28a 260 26c 292 e7 223 293 101 229 1000030 2d 33 1000032 1f 63
-// prog: 100004e 46 35 1000073 5c 53 1000075 95 89 10000ec 109 1ea 1000105 119 177 1000115
-// prog: 198 134 1000117 11f 125 100011b 159 19e 100011d 15e 1bb 100012b 17a 1c5 100013d 1de
-// prog: 17c 10001d7 1ba 1e1 10001db 247 24c 1000208 25a 24e 100021d 97 1bc 1000246 97 1f8
-// prog: 1000279 25c 154 1000289 26b 25f 2000015 3 10 200001a 2 10 2000071 1 1f 20000ca
-// prog: cc d2 20000d0 cc e9 2000106 121 11a 2000108 121 11f 200010e 121 125 2000128 2000001a
-// prog: 174 200012a 2000001a 169 200012c 6 f8 200012e 7 f8 2000136 2000001a 17b 2000144 2000001a 199
-// prog: 2000148 6 11a 2000149 7 11a 200015a 6 11f 2000163 7 11f 200016d 7 125 200016e
-// prog: 6 125 2000171 ab 1bc 2000175 ad 1bc 200017d ab 1ba 2000182 b8 1bc 2000187 b9
-// prog: 1bc 2000188 b8 1ba 2000189 b9 1e0 200018f ab 1f8 2000190 ad 1f8 2000191 ab 1e1
-// prog: 2000192 b8 1f8 2000195 b9 1f8 200019a b8 1e1 20001d9 ad 169 20001dc 5 169 20001e5
-// prog: 20000013 174 20001ed 4 e7 20001f0 5 e7 20001fd 20000013 17b 20001ff 5 199 2000203 4
-// prog: 101 2000207 5 101 2000212 5 1ba 2000219 4 1ba 200021c 20000013 1bc 200021e 5 1e1
-// prog: 200023b 4 1e1 2000241 4 1e0 2000242 5 1e0 2000243 20000013 1f8 2000250 10 78 2000263
-// prog: 1f f1 2000284 49 174 2000285 2 174 2000286 3 174 2000287 2 17b 2000288 3
-// prog: 17b 200028b 1f 26 200028c 160 15b 200028d 194 15b 200028e 185 15b 200028f 172 15b
-// prog: 2000290 152 15b 2000291 131 15b 400010b 13f 13f 400010c 14b 14b 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 33 1a 1d 35 62 32 46 20000003 30 53 20000006 4e
-// prog: 61 88 73 63 e2 74 89 4e 12f 95 af 123 97 b4 b1 ad
-// prog: 164 105 b5 15c e5 c1 178 ec e7 14c 10e f8 1df 10f 15b 1ae
-// prog: 149 162 16e 1c9 17c 21b 19a 18a 1c4 1be 1c5 219 245 1cc 23b 249
-// prog: 1f8 251 251 24c 20b 157 29b 292 233 29c 293 27a 100002d 1b 15 10000e6
-// prog: 12d 106 10000f0 10b 1d8 10000f1 10c 1ef 1000101 11b 226 100013f 13d 257 1000145 142
-// prog: 258 1000159 148 1b1 100015e 1bf 16d 1000169 20d 17d 100017b 191 211 10001bc 1ff 267
-// prog: 10001c3 212 244 10001ca 21e 248 10001de 250 23a 1000209 246 21d 1000223 279 18b 2000059
-// prog: 0 6c 200005c 20000029 74 200005f 20000029 73 2000099 cc d0 20000fe 121 117 2000104 2000001a
-// prog: 127 2000109 2000001a 11d 2000119 6 117 200011a 7 117 200011f 7 d9 2000125 6 d9
-// prog: 2000134 2000001a 12b 200014b 7 db 2000154 6 db 2000198 ab 1d7 2000199 5 1cb 200019c
-// prog: 4 1d7 200019e 5 11d 20001ad 20000013 127 20001ba 20000013 1dc 20001bb 5 12b 20001e2 4a
-// prog: 21d 20001ea 4a 246 2000229 4a 1dc 2000247 78 208 200024e 2 127 200024f 3 127
-// prog: 200025a 3 1dc 200025b 2 1dc 200025c 2000000b 28a 200025f 2000000b 289 2000260 3 208 200026b
-// prog: 2 208 200026c 2 21d 2000294 3 21d 2000295 2 246 2000296 3 246 2000297 4e
-// prog: 9e 2000298 6c 27 2000299 26 20b 200029a 1 20b 4000174 182 182 4000177 188 188
-// prog: 400017a 187 187 40001e1 21d 21d 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1d 20000005 35 73 59 71 74 75 5c cc 89 16a
-// prog: d9 95 10d ec 16b ad 10b e6 18e 10c e7 193 10f c1 186 121
-// prog: 125 12e 127 154 1a4 14c 15e 1cf 178 145 201 1c9 f9 1c3 1cb 5e
-// prog: 1c5 1d8 85 1ca 1dc 5e 1cc 1df 1de 1c8 208 223 223 20b 247 276
-// prog: 1000088 7b 5f 10000b4 93 63 100010e c1 186 100011d 12c 11f 1000123 19b 14b 1000157
-// prog: 162 1d0 100015c 177 20e 1000164 174 192 100016d 17a 195 1000182 24d 19c 1000187 19e
-// prog: 1e3 1000188 1bb 23d 100019a 255 145 10001ef 1e1 246 1000219 25b 286 1000226 26b 278
-// prog: 1000245 298 28b 2000015 3 2d 200001a 3 33 200001b 2 33 2000030 0 46 2000032
-// prog: 1 46 200004e 1 53 20000ab 9 61 20000af 8 61 20000b1 20000013 63 20000db 97
-// prog: d2 20000e2 97 d0 20000e5 97 e9 2000105 122 b5 2000106 122 c1 2000117 6 f8
-// prog: 200011b 7 f8 200012b 7 b5 200012d 6 b5 200012f 7 c1 200013d 6 c1 2000142
-// prog: 6 159 2000148 6 15b 2000149 7 15b 200016e b9 13f 200017d 4 18a 200018b 5
-// prog: 13f 2000191 4 13f 20001be 20000013 1bc 20001bf 20000013 1c5 20001c4 20000013 1c3 20001d7 20000013 1ca
-// prog: 20001ff 4a 209 200020d 3 209 2000211 2 209 200021b 3 1bc 200021d 2 1bc 2000233
-// prog: 46 26 200023a 46 27 200023b 53 26 2000244 53 9e 2000248 58 24c 2000249 8a
-// prog: 24c 2000250 c2 24c 2000251 130 24c 2000257 13c 24c 2000258 20000057 24c 2000267 176 29b
-// prog: 2000279 183 29b 200027a e0 29b 2000289 d4 29b 200028a 170 29b 2000292 176 29c 2000293
-// prog: 183 29c 200029d e0 29c 200029e d4 29c 200029f 170 29c 4000212 25a 25a 400021e 260
-// prog: 260 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 35 1b 65 5c c7 74 5e 7e 88 61 af 9d
-// prog: 75 73 137 7b cc b6 85 d9 d7 ad 20f 10e b5 ec 1d6 c1
-// prog: 10b f1 e7 ec 210 10d 11d 136 125 123 1a7 13f 12d 1b1 14b 13d
-// prog: 163 159 b0 14c 15b da 157 192 191 254 195 1bf 1bf 1cc 1df 1df
-// prog: 1cf 1c9 1d8 1d0 1f6 1ef 286 8d 1cb 29c 245 245 2a0 226 1ac 100002d
-// prog: 40 15 1000033 54 1a 100005f ab 9c 1000093 105 126 1000095 106 108 100011f 121
-// prog: 134 100012c 127 144 100012e 1ae 12b 1000145 15a 12f 1000154 ec 206 100015e 17c 15c
-// prog: 100016a 16e 23f 100016b 199 17d 100018e 18b 253 10001de 1c9 1d8 100023d 212 285 100025b
-// prog: 21d 262 1000260 21e 277 2000059 1 1d 2000063 6 b4 2000071 7 b4 2000089 97
-// prog: e5 20000e6 122 10f 20000f8 7 10f 20000f9 6 10f 2000162 b8 ec 2000174 20000013 182
-// prog: 2000177 20000013 187 200017a 4 ec 2000186 5 ec 200018a 20000013 188 2000193 2000002e 1bf 200019b
-// prog: 49 1cb 200019c 4a 1cb 200019e 49 1c9 20001a4 77 1cb 20001bb 78 1cb 20001bc 49
-// prog: 1dc 20001c3 4a 1dc 20001c5 49 1d8 20001c8 77 1dc 20001ca 78 1dc 20001e1 4a 182
-// prog: 20001e3 77 19a 2000201 3 182 2000209 2 182 200020e 3 187 2000223 2 187 2000246
-// prog: 2000000b 219 2000247 3 188 200024c 2 188 200024d 2 19a 2000255 3 19a 200026b 3
-// prog: 1c9 2000276 2 1c9 2000278 2000000b 1cb 200028b 3 1d8 2000298 2 1d8 200029b 1d 26
-// prog: 20002a1 160 178 20002a2 194 178 20002a3 185 178 20002a4 172 178 20002a5 152 178 20002a6
-// prog: 131 178 400025a 21b 21b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 15 2d 20000042 1a 20000042 35 1b 20000004 33 40 30 59
-// prog: 73 92 5f 74 c9 61 7e 75 14a 88 7b ca 9c 93 17f 9d
-// prog: 95 133 b6 f9 11a d9 205 154 144 1ea 1c5 14c 1f7 1cf 15a 192
-// prog: 232 1b1 276 294 1c9 278 278 1d6 298 296 21e e7 26f 1000097 5e 50000005
-// prog: 10000ab e6 fe 10000b4 119 f8 10000cc 145 1b2 10000da 14b 1b4 1000108 16a 264 1000122
-// prog: 18a 11f 1000123 18e 266 100012b 1be 12c 1000134 1d7 15b 100018b 223 24f 100019a 24c
-// prog: 288 10001a7 25a 261 10001ae 26c 26b 10001cb 295 28b 10001d8 23a 29b 1000226 11f 225
-// prog: 100023f 12c 22a 200004a 9 5c 2000054 8 5c 2000065 20000013 5f 20000af 7 ad 20000b0
-// prog: 6 ad 20000c7 7 12e 20000d7 7 13f 20000ec 6 13f 20000f1 b8 15b 2000105 b9
-// prog: 15b 2000106 b8 159 200010b 20000013 16b 200010e 4 b5 200010f 5 b5 200011d 5 10d
-// prog: 2000121 4 10d 2000126 5 125 2000127 4 125 200012d 5 159 200012f 4 159 2000157
-// prog: 49 1de 200015c 3 1d0 2000163 2 1d0 200016e 2 1de 2000178 3 1de 200017c 3
-// prog: 16b 200017d 2 16b 2000182 2000000b 209 2000187 2000000b 201 2000191 2000000b 23d 20001ac 2000000b 25b
-// prog: 20001bf 2000002e 278 20001dc 26 192 20001df 27 260 20001ef 1 192 20001f6 0 260 2000206
-// prog: 1 286 200020f 58 2a0 2000210 8a 2a0 2000212 c2 2a0 2000219 130 2a0 200021b 13c
-// prog: 2a0 200021d 20000057 2a0 300008d 20000058 85 4000136 19e 19e 4000137 1a4 1a4 400013d 1bb 1bb
-// prog: 4000188 20e 20e 4000199 247 247 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2d 62 15 30 62 1a 59 54 ae 75 87 74
-// prog: 7b 7e b7 ca 9c f0 e6 9d 10c e7 ab 21f f9 b0 11b fe
-// prog: b4 128 11f ec 149 125 14d cc 12c 19f d9 12e 153 da 13f 189
-// prog: 106 154 121 1f0 16a 127 207 17f 12f 242 18a 80 134 1be 211 178
-// prog: 23d 8c 1ae 253 1d8 1d8 25a 1f6 29a 26b 21e 28c 26c 226 234 26f
-// prog: 23f 27b 1000049 4a a1 100005c 65 5e 10000f8 117 af 100010d b6 12a 1000119 142
-// prog: c7 100011a 148 d7 1000145 190 105 100014a 108 24b 100014b 11d 1ed 100015b 126 203
-// prog: 100016b 12d 241 100018e 136 1e2 1000192 137 1c8 100019e 13d 1ca 10001bb 16e 20d 10001cf
-// prog: 17d 1f2 10001d0 188 24e 10001de 199 287 1000254 1df 299 2000033 0 1b 2000035 1
-// prog: 40 200005f 7 73 2000061 6 73 2000085 88 8d 2000092 160 97 2000093 194 97
-// prog: 2000095 185 97 20000ad 172 97 20000b5 152 97 20000c9 131 97 20001a4 78 123 20001b2
-// prog: 2 14c 20001b4 3 14c 20001d7 2000000b 18b 20001ea 2 122 20001f7 3 122 2000201 2000000b
-// prog: 19a 2000209 3 123 200020e 2 123 2000223 2 12b 2000225 3 12b 200022a 2000000b 1a7
-// prog: 2000232 2000000b 1ae 200023a 2000000b 1b1 2000245 2000000b 1d6 2000247 2000000b 1cb 200024c 1b 27 200024f
-// prog: 1b 9e 200025b 160 15a 2000260 194 15a 2000261 185 15a 2000262 172 15a 2000264 152
-// prog: 15a 2000266 131 15a 4000133 f1 f1 40001c5 17c 17c 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 15 20000002 2d 1a 20000007 30 40 33 4e 4a 49 b1
-// prog: 54 be 5c 5e c0 59 65 61 71 74 7b db 87 f8 104 97
-// prog: 205 119 9c 205 11f 9d 14e 11a b4 13f 17b b6 12e 159 cc 10d
-// prog: 230 ec 14b 1fd f0 15b 259 11b 16b 243 11d 84 17f 126 163 1b4
-// prog: 136 20e 255 199 154 228 19a 26c 267 19f 16a 22b 1a7 26f 292 1000062
-// prog: 63 5f 1000080 e7 19d 100008c f9 109 10000b0 133 18f 10000b7 12e 159 10000da 1ba
-// prog: 10d 1000122 1a4 1e3 1000123 1b2 15c 100012a 1c5 1f1 1000134 24d 209 1000142 24c 23b
-// prog: 2000073 4 75 200007e 88 85 20000a1 b8 125 20000ab b9 125 20000ae b8 12c 20000af
-// prog: b8 12e 20000c7 b9 fe 20000d7 5 fe 20000d9 4 fe 20000f1 4 125 2000105 5
-// prog: 125 2000106 4 12c 2000108 5 12c 200010c 4 12e 2000117 5 12e 2000121 78 18a
-// prog: 2000127 2000000b 1be 2000128 2000000b 1bb 200012b 2000000b 1cf 200012d 2000000b 1d0 200012f 2000000b 1de 2000137
-// prog: 2 18a 200013d 3 18a 2000148 1 154 2000149 1 16a 200014c 0 23d 200014d 58
-// prog: 25a 2000153 8a 25a 200015a c2 25a 200016e 130 25a 2000178 13c 25a 200017c 20000057 25a
-// prog: 200017d 176 26b 2000188 183 26b 2000189 e0 26b 200018b d4 26b 2000190 170 26b 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 30 ac 4a 5c 81 5e 5f 86 62 61 bb 65
-// prog: 63 1a 15f 71 40 13a 88 173 97 b1 1a0 9c e7 238 b6 f8
-// prog: 9d 1e0 125 d9 186 12e f1 108 14b 7f 11b 15b 122 25e 19d 134
-// prog: 25c 1b2 44 11d 1bb 142 142 1be 14c 206 1c5 cc 268 1ca 199 235
-// prog: 1d8 19f 27c 1000084 5e 50000004 10000be ab ae 10000db 9d 1e0 10000fe c7 162 100011a
-// prog: 177 8c 100011f d7 17a 100012c 105 106 10001a4 136 25f 10001c8 8c 270 200002d 0
-// prog: 15 2000033 6 54 2000049 7 54 200004e 2000001a 65 2000059 2000001a 62 2000075 74 85
-// prog: 200007b 74 8d 20000c0 b9 9d 20000f9 b8 b7 2000104 4 b7 2000109 5 b7 200010d
-// prog: 5 87 2000119 4 87 2000133 5 9d 200013f 4 9d 200014e 77 11d 2000154 78
-// prog: 11d 2000159 77 da 200015c 2000000b 126 2000163 2000000b 123 200016a 2000000b 12a 200016b 2 da
-// prog: 200017b 3 da 200017f 3 ec 200018f 2 ec 20001ae 3 f0 20001b1 2 f0 20001b4
-// prog: 15 27 20001ba 1a 9e 20001cb d2 19a 20001cf d0 19a 20001d0 e5 19a 20001d6 e9
-// prog: 19a 20001de d2 1a7 20001df d0 1a7 20001e2 e5 1a7 20001e3 e9 1a7 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 2d 32 7f 63 129 81 71 14f 87 84 ea
-// prog: 9d 24a db 9e b1 1b9 ac b1 200 d7 119 10f d9 11f 1e5 f0
-// prog: 13f 117 11d b1 193 134 125 20c 15f 18f 1f7 173 1b1 225 19f 1a4
-// prog: 240 1ed 1c5 2a1 1f0 1c8 28d 1f1 1ca 279 1f2 1d8 293 1000065 aa 61
-// prog: 1000097 c0 af 100009c be 175 10000ae fe 1d9 10000c7 174 b1 10000cc 10d 10e 1000108
-// prog: 10c 133 1000136 15b 26a 100014c 1ea 17f 1000162 223 1ae 1000186 1b4 233 2000040 7
-// prog: 30 2000044 6 30 200004a 5 5f 2000054 4 5c 200005e 5 5c 2000062 20000013 61
-// prog: 2000086 74 7b 200008c b9 88 20000ab b9 f8 20000b6 4 e7 20000b7 5 e7 20000b8
-// prog: 5 f8 20000bb 4 f8 20000da 5 88 20000ec 4 88 2000106 4 12c 200011b 4
-// prog: 12e 2000122 5 12e 200012a 77 14b 200013a 2 11a 2000142 3 11a 2000177 3 14b
-// prog: 200017a 2 14b 2000199 26 125 200019a 27 19d 20001a0 1 125 20001a7 0 19d 20001e0
-// prog: 20000044 1be 4000123 14e 14e 4000126 154 154 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 32 44 49 63 7f d1 71 81 cf 74 87 92
-// prog: 88 97 169 aa 9c 145 db bb 109 e7 cc 1ad f8 ec 105 10c
-// prog: 138 108 10d 16c 11d 10e 121 12a 12e 14c 201 13f 162 1ac 154 17a
-// prog: 13d 15b 186 186 17f 1a7 1ef 19d 1e0 1e0 1c5 134 248 1f6 d7 271
-// prog: 1f7 1f0 17d 1fd 1f1 1cb 200 1f2 1de 1000030 33 40 100005c 4a 73 1000084
-// prog: 8c a1 10000af ab f9 10000be 10b 9e 10000c0 b8 104 10000ea da f1 10000fe 21c
-// prog: f0 100010f 123 1bc 1000117 126 1c3 1000133 15f 12f 100014e 173 22a 100014f 137 177
-// prog: 1000174 19a 1dc 10001c8 ac 26e 200002d 0 1a 200005f 2 65 2000061 3 65 20000b1
-// prog: 5 9d 20000b9 4 9d 2000119 77 c7 200011a 78 d9 200011f 2 c7 2000125 3
-// prog: c7 2000129 3 d9 200012c 2 d9 2000175 1 d7 200018f 2000002e 1e0 20001a4 160 19f
-// prog: 20001ae 194 19f 20001b1 185 19f 20001b4 172 19f 20001b9 152 19f 20001be 131 19f 20001ca
-// prog: 176 1ed 20001d8 183 1ed 20001d9 e0 1ed 20001e5 d4 1ed 20001ea 170 1ed 8000000 0
-// prog: 0 8000000 0 0 1a 2d 35 33 30 4e 49 a9 5c 4a 63 99
-// prog: 65 71 e2 92 84 171 97 88 b4 9e b9 b7 b8 ff fe cf
-// prog: 10e 144 d7 db 269 108 12c 17b 123 14f 245 169 1c5 25b 16c 1c8
-// prog: 2a2 173 1f6 28e 19a 133 22f 1ad 14e 22c 1000040 32 59 100009c af 21a
-// prog: 100009d b1 b6 10000d9 11a 159 1000105 16b 129 1000126 154 247 2000044 20000013 5c 2000073
-// prog: 176 74 200007f 183 74 2000081 e0 74 2000087 d4 74 200008c 170 74 20000a1 5
-// prog: ea 20000ab 5 f8 20000ac 4 f8 20000bb 77 10c 20000c7 78 10c 20000cc 77 10d
-// prog: 20000d1 78 c0 20000da 2 be 20000ec 3 be 20000f0 3 c0 20000f1 2 c0 20000f9
-// prog: 3 e7 2000104 2 e7 2000109 2 10c 200010b 3 10c 200011d 2 10d 2000121 3
-// prog: 10d 200012a 26 db 200012f 1 db 2000134 0 12e 2000137 0 13f 2000138 160 17f
-// prog: 200013d 194 17f 2000145 185 17f 200014c 172 17f 200015f 152 17f 2000162 131 17f 2000177
-// prog: d2 1f7 200017a d0 1f7 200017d e5 1f7 2000186 e9 1f7 200019f 85 1fd 20001a7 7b
-// prog: 1fd 20001ac 8d 1fd 20001bc 85 200 20001c3 7b 200 20001cb 8d 200 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 30 7d 33 32 83 40 59 4a 7e 5c 65 75
-// prog: 63 92 b0 74 9d 1ee 99 ac 122 b1 b8 14b b7 d9 229 be
-// prog: f1 125 db 104 142 e2 105 246 f8 109 121 10c 43 123 10d 45
-// prog: 126 11a 134 148 129 137 149 14f 9e 280 154 16c 1ca 159 173 188
-// prog: 16b 19a 236 171 1ad 27d 100002d 1a 38 1000071 9c 198 1000084 a1 106 1000088
-// prog: ab 11b 10000a9 c7 cc 10000b4 b8 14b 10000b6 d1 119 10000b9 11f f0 10000c0 13a
-// prog: f9 10000e7 108 191 10000ea 11d 10b 100012c d7 249 2000035 3 49 200004e 2 49
-// prog: 20000af 77 b8 20000fe 2 b8 20000ff 3 b8 200010e 1 9e 200012e 176 169 2000133
-// prog: 183 169 200013f e0 169 2000144 d4 169 200014e 170 169 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 34 2d 45 4e 61 65 193 84 7e a9 19c
-// prog: 83 25d b1 9c b6 1e1 9d b7 284 b0 b9 182 b8 be 187 c7
-// prog: c0 1d7 104 e7 252 106 12c 260 108 14f 2a3 121 159 177 122 11a
-// prog: 231 123 16b 27a 125 129 22d 126 171 29d 1000040 44 32 1000043 5f 35
-// prog: 100004a 32 50000003 1000075 88 1c4 100007d 99 195 10000cc db 12d 2000033 5 30 2000038
-// prog: 4 30 2000092 77 b4 200009e 2 b4 20000a1 3 b4 20000ab 3 74 20000ac 2
-// prog: 74 20000d1 2 ea 20000d7 2 f8 20000d9 3 f8 20000f0 26 10d 20000f1 27 10d
-// prog: 20000f9 27 e2 2000105 0 e2 2000119 d2 154 200011b d0 154 200011d e5 154 200011f
-// prog: e9 154 3000049 20000058 59 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2d 20000000 1a 32 38 5e 34 70 40 5f 193 7d
-// prog: 61 fa 65 74 139 75 77 7e 117 a9 ac ec b4 b8 265 be
-// prog: 105 1a0 c0 104 20f db 106 12e e2 108 1d8 e7 cc 272 11a 122
-// prog: 237 129 123 1cf 12c 125 27e 12d 126 1df 1000030 33 54 1000059 4a eb
-// prog: 1000099 da ab 10000b6 f9 199 2000035 2000000b 45 2000044 2000000b 43 200004e 5c 49 2000084
-// prog: 2 83 2000088 3 83 20000b1 27 b0 20000b7 0 b0 20000b9 0 c7 20000ea 85
-// prog: 121 20000f8 7b 121 200010d 8d 121 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 30 62 33 72 32 43 2d 147 4a 59 93
-// prog: 54 13b 5f 75 74 18a 7d 99 12b c7 b7 12f cc b9 175 da
-// prog: be 14d ec c0 1a4 106 e2 119 108 e7 28f 117 11a 289 121 129
-// prog: 19f 122 12c 29e 123 12d 1bc 1000070 74 18a 100007e a9 16a 10000b8 b1 12a
-// prog: 10000eb b4 210 2000038 2 34 2000040 3 34 2000045 5c 4e 200005e 78 61 2000065
-// prog: 78 74 2000083 3 61 20000ab 2 61 20000ac 3 74 20000b0 2 74 20000f9 d2
-// prog: db 20000fa d0 db 2000104 e5 db 2000105 e9 db 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2d 6e 1a 30 90 33 32 43 10a 59 4a 73
-// prog: 61 1cc 70 62 54 1f8 74 54 208 b1 ab 10b b7 b0 ff e7
-// prog: da 138 119 eb 1ae 12b 7e 281 12f cc 273 134 108 189 137 117
-// prog: 1d0 13b 122 1e2 1000034 33 50000002 100005c 5e bb 100005f 65 af 10000a9 109 83
-// prog: 10000b4 fe ac 10000b9 54 1c9 10000e2 c7 153 2000072 78 75 2000093 3 75 2000099
-// prog: 2 75 20000be 26 54 20000c0 1 54 20000db 0 7d 200011a 176 ec 2000125 183
-// prog: ec 2000126 e0 ec 2000129 d4 ec 200012a 170 ec 200012c 85 106 200012d 7b 106
-// prog: 200012e 8d 106 2000139 4e 121 200013a 49 121 2000142 4e 123 2000147 49 123 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 4a 32 ce 54 34 ed 73 5c 19b 75 5f 18e
-// prog: 90 99 a1 b0 1bf b9 da db 10e eb e2 13d 109 119 11a 10a
-// prog: 74 250 10b 12b 2a4 117 12f 290 121 134 17a 122 137 1a7 123 13b
-// prog: 1c3 1000078 72 92 1000083 9e 93 10000ac b4 232 10000bb b7 23a 200001a 3 2d
-// prog: 2000033 2 2d 2000043 1 30 200005e d2 59 2000065 d0 59 200006e e5 59 2000070
-// prog: e9 59 200007d 3 61 200007e 2 61 20000ab 3 a9 20000af 3 b1 20000c7 2
-// prog: b1 20000cc 1 62 20000ec 176 e7 20000fe 183 e7 20000ff e0 e7 2000106 d4 e7
-// prog: 2000108 170 e7 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 30 33 40 32 4a 89 34 54 95 59 73 10f
-// prog: 5c 75 cf 5f 78 1ff 62 7e 88 72 83 127 99 c7 d9 9e
-// prog: a4 ac a1 a6 b0 a9 a7 bb b1 eb ec db 10a 261 e2 da
-// prog: 282 e7 10b 1d9 ed 117 18b 10e 121 ea 119 122 139 11a 123 142
-// prog: 100002d 38 1a 1000061 84 7d 1000074 90 128 1000092 d1 ab 1000093 d7 af 20000b4
-// prog: d2 109 20000b7 d0 109 20000b9 e5 109 20000ce e9 109 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 2d 35 38 32 86 40 34 7f 54 61 15c
-// prog: 75 1bf 92 78 1bf 99 7d a5 93 88 a9 10c 95 74 29c c7
-// prog: db 133 cf e2 2a5 d1 e7 11b d7 ed 17d 1000033 30 44 100004a 5f
-// prog: 157 1000073 62 163 1000089 a9 10c 200007e 26 9e 2000083 27 9e 2000084 26 a1
-// prog: 2000090 27 72 20000a4 0 72 20000a6 0 9e 20000a7 1 9e 20000ab 1 a1 20000ac
-// prog: d2 b1 20000af d0 b1 20000b0 e5 b1 20000bb e9 b1 20000d9 4e 10e 20000da 49
-// prog: 10e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2d 8b 1a 30 91 33 32 38 45 34 40 5e
-// prog: 35 a3 75 44 a8 78 62 253 88 72 7d 1b2 93 a4 c0 99
-// prog: a6 ab 9e 95 212 a1 73 251 a5 c7 f9 a9 cf 1e5 b1 d1
-// prog: 12c db d7 f8 100005f 83 84 1000061 7d 1b2 100007f 90 be 2000074 26 89
-// prog: 2000086 1 89 2000092 0 54 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 5e 15b 61 73 44 1bb 84 92 cc 8b 93 15a
-// prog: 90 9e 1b1 91 a1 262 a6 a9 11d be db d9 1000033 30 50000001 1000075
-// prog: 5f f1 200001a 0 2d 2000038 85 34 2000040 7b 34 2000045 8d 34 2000054 27
-// prog: 35 2000078 27 72 200007d 1 62 2000083 0 72 2000088 0 35 2000089 1 99
-// prog: 2000095 85 a5 20000a3 7b a5 20000a4 8d a5 20000a8 4e b1 20000ab 49 b1 3000026
-// prog: 20000058 32 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 27 1a 43 2d 33 f7 35 83 86 44 88 a7
-// prog: 5f 8b 145 61 73 219 62 90 125 72 84 257 92 91 13f 93
-// prog: a6 12d 1000030 54 7e 1000032 78 74 2000034 0 5e 2000099 26 be 200009e 26
-// prog: 119 20000a1 26 11a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 33 2d ad 54 34 7d 73 35 16e 74 5f fe
-// prog: 78 61 1b4 7e 62 b4 83 72 264 84 92 fa 86 93 a8 100001a
-// prog: 27 50000000 1000043 30 f0 200005e 0 44 2000088 4e 99 200008b 7b 99 2000090 e5
-// prog: 99 2000091 d4 99 20000a5 152 99 20000a6 13c 99 20000a7 4e 9e 20000a9 7b 9e
-// prog: 20000b1 e5 9e 20000be d4 9e 20000c0 152 9e 20000c7 13c 9e 20000cc 4e a1 20000cf
-// prog: 7b a1 20000d1 e5 a1 20000d7 d4 a1 20000d9 152 a1 20000db 13c a1 700003c 99
-// prog: 99 700003d 9e 9e 700003e a1 a1 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 27 1a fd 2d 33 81 30 5e 89 34 73 14c
-// prog: 35 74 ac 44 54 21b 5f 78 126 7d 83 144 92 84 95 99
-// prog: da 88 9e 13a a7 a1 147 cc 2000061 85 7e 2000062 7b 7e 2000072 8d
-// prog: 7e 2000093 26 86 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 27 b5 33 2d 65 5e 34 ff 7e 44 1b9
-// prog: 81 5f b7 83 7d 104 1000054 30 19d 2000073 85 35 2000074 7b 35 2000078
-// prog: 8d 35 2000084 4e 92 2000086 49 92 2000088 4e 93 2000089 7b 93 2000095 e5
-// prog: 93 20000a7 d4 93 20000a8 152 93 20000ac 13c 93 20000ad 85 99 20000b4 d0 99
-// prog: 20000cc e0 99 20000da 172 99 20000e2 130 99 20000e7 85 9e 20000ea d0 9e 20000eb
-// prog: e0 9e 20000ec 172 9e 20000ed 130 9e 20000f0 85 a1 20000f1 d0 a1 20000f7 e0
-// prog: a1 20000f8 172 a1 20000f9 130 a1 700003b 93 93 7000043 99 99 7000044 9e 9e
-// prog: 7000045 a1 a1 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 27 1a 87 2d 33 38 30 18f 54 34 5e af
-// prog: 35 7e 129 44 81 61 5f 83 a3 65 ab 88 7d 10d ad 92
-// prog: 1ac e7 93 1cb f0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 27 6e 54 30 178 5e 34 73 61 35 b9
-// prog: 83 5f 84 a3 7d 8b ab 92 a9 ad 93 cf 2000033 4e 2d 2000038
-// prog: 49 2d 200007e 4e 44 2000081 49 44 2000087 85 65 2000088 d0 65 2000099 e0
-// prog: 65 200009e 172 65 20000a1 130 65 7000042 65 65 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 27 1a 40 2d 54 15f 35 61 62 5f 12e 87
-// prog: 2000030 4e 5e 2000034 49 5e 2000044 26 83 2000065 d2 a3 200006e 183 a3 2000073
-// prog: 185 a3 200007d c2 a3 2000084 d2 ab 200008b 183 ab 2000092 185 ab 2000093 c2
-// prog: ab 20000a9 d2 ad 20000af 183 ad 20000b5 185 ad 20000b7 c2 ad 700004a a3 a3
-// prog: 700004b ab ab 700004c ad ad 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 27 33 40 2d 106 54 35 7e ab 5f 89
-// prog: ad 186 65 b9 1d6 84 cf 1e3 a9 200005e 4e 44 2000061 7b 44 2000062
-// prog: e5 44 2000083 d4 44 2000087 152 44 20000a3 13c 44 700003a 44 44 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2d 40 b0 35 86 5e 84 ad b4 89 b9 ea
-// prog: a9 cf f1 2000027 26 1a 2000033 26 54 2000044 d2 ab 200005f 183 ab 2000065
-// prog: 185 ab 200007e c2 ab 7000049 ab ab 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 b4 2d 74 106 11f 44 109 84 90 10a 89 b1
-// prog: 10b a9 d1 200001a 4e 27 2000040 7b 27 2000054 e5 27 200005e d4 27 2000086
-// prog: 152 27 20000ab 13c 27 20000ad 0 27 20000b0 1 27 20000b9 4e 33 20000cf 7b
-// prog: 33 20000e7 e5 33 20000ea d4 33 20000f0 152 33 20000f1 13c 33 20000fa 85 35
-// prog: 20000fd d0 35 20000fe e0 35 20000ff 172 35 2000104 130 35 7000000 27 27 7000039
-// prog: 33 33 7000041 35 35 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 27 38 1a 2d 41 ad 11b b4 30 11d 81 b9
-// prog: 11f a4 fa 121 106 88 1000033 b0 42 2000035 15 b0 2000044 46 ad 2000074
-// prog: 46 b0 2000084 1d ad 2000089 1b b0 2000090 53 ad 20000a9 6c b0 20000b1 1f
-// prog: ad 20000d1 48 b0 200010c 3b ad 200010d 96 b0 200010e 66 ad 200010f 82 b0
-// prog: 2000117 52 ad 2000119 5b b0 200011a 36 ad 2000122 176 109 2000123 194 109 2000125
-// prog: 8a 109 2000126 176 10a 2000127 194 10a 2000128 8a 10a 2000129 176 10b 200012b 194
-// prog: 10b 200012c 8a 10b 7000051 109 109 7000052 10a 10a 7000053 10b 10b 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 10b 11f 61 12d 121 95 12e 190 122 12f 28a 126
-// prog: 133 29f 129 100006c 35 44 1000081 74 84 1000082 89 90 1000088 a9 b1 1000096
-// prog: d1 10c 10000a4 10d 10e 10000ad 10f 117 10000b0 119 11a 2000015 85 27 200001a d0
-// prog: 27 200001b e0 27 200001d 172 27 200001f 130 27 2000030 20000002 2d 2000036 20000003 33
-// prog: 2000038 20000004 27 200003b 20000003 2d 2000041 20000005 33 2000042 20000006 27 2000046 2000000b 27 2000048
-// prog: 2000000b 2d 2000052 3 2d 2000053 2 27 200005b 2 2d 2000066 3 27 20000b4 26
-// prog: 11b 20000b9 85 11d 20000fa d0 11d 2000106 e0 11d 2000109 172 11d 200010a 130 11d
-// prog: 7000001 27 27 7000040 11d 11d 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 27 45 15 2d 30 36 35 3b 41 74 5b 66
-// prog: 90 6c 24f 95 81 244 a9 82 1ba b1 88 297 d1 96 26d 10c
-// prog: a4 20a 10d ad 227 10e b0 158 11f 72 b9 139 12e 6e 13a 12f
-// prog: 8b 13b 133 af 1000044 28 46 1000061 53 52 2000084 2 48 2000089 3 48
-// prog: 200010f 4e b4 2000117 7b b4 2000119 e5 b4 200011a d4 b4 200011b 152 b4 200011d
-// prog: 13c b4 2000121 d2 10b 2000122 183 10b 2000126 185 10b 2000129 c2 10b 2000134 176
-// prog: 12d 2000137 194 12d 2000138 8a 12d 7000038 b4 b4 7000048 10b 10b 7000050 12d 12d
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 15 27 40 28 2d 38 30 35 42 41 4f 61
-// prog: 46 74 9f 52 90 1f3 53 95 1f4 66 b1 1cd 6e 10c 1aa 72
-// prog: 10d 1ab 81 10e 254 82 34 10f 88 11f cf 8b 105 121 96 1ea
-// prog: 134 a4 139 cc ad 13a eb af 13b f7 1000045 74 50 1000048 a0 61
-// prog: 100005b a9 1f9 100006c d1 1ce 2000036 3 44 200003b 2 44 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 40 4c 30 44 3b 89 4f 15 33 12d 52 43
-// prog: 12e 53 75 133 66 7f 157 8b fd 158 96 5f 159 a4 91 15a
-// prog: ad be 15b af d7 1000038 28 4b 1000042 84 36 100012f 5b 1f5 1000134 6c
-// prog: 18d 1000139 6e 111 100013a 72 d6 2000027 d2 15 200002d 183 15 2000034 185 15
-// prog: 2000035 c2 15 2000050 2000000c 41 2000061 2000000d 45 2000074 2000000e 45 2000090 20000010 45 2000095
-// prog: 20000010 41 200009f 20000013 45 20000a0 20000013 41 20000a9 5 41 20000b0 4 41 20000b1 10
-// prog: 46 20000b4 64 48 20000b9 64 46 20000cc 29 48 20000cf 1c 46 20000d1 6f 48
-// prog: 20000eb 67 48 20000f7 67 46 2000105 2f 46 200010b 7c 48 200010c 3f 46 200010d
-// prog: 4d 48 200010e 6d 46 200010f 7a 48 200011f 31 46 2000121 3e 48 200013b 58
-// prog: 81 200013d 8a 81 200013f c2 81 2000142 130 81 2000144 13c 81 2000145 20000057 81
-// prog: 2000147 85 82 2000148 d0 82 2000149 e0 82 200014b 172 82 200014c 130 82 200014d
-// prog: d2 88 200014f 183 88 2000153 185 88 2000154 c2 88 7000002 15 15 700003f 82
-// prog: 82 7000047 88 88 10 70 27 15 60 38 1c 76 40 28 8e 42
-// prog: 3b 44 c4 3f b1 b4 41 b9 cc 43 cf d1 4b 105 10b 4c
-// prog: 10c 10d 4d 10e 10f 52 11f 121 53 12f 32 5b 134 b8 5f 139
-// prog: b6 64 13a 174 66 133 13f 6c 78 147 6d ce 14d 6e 157 62
-// prog: 6f 158 99 1000029 44 8f 100003e c5 42 1000046 155 eb 1000048 f7 18c 200002f
-// prog: 2000000e 4f 2000030 2000000f 4f 2000031 20000011 4f 2000033 4 4f 2000036 5 4f 2000072 160
-// prog: 159 2000075 58 159 200007a 160 15a 200007c 58 15a 200007f 160 15b 2000081 58 15b
-// prog: 7000058 159 159 7000059 15a 15a 700005a 15b 15b 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 27 10 1a 32 61 2f 38 74 30 70 28 9f
-// prog: 78 a9 33 84 3f 275 88 41 204 89 43 263 a4 4b 23c af
-// prog: 4c 224 b6 4d 1e4 be 52 156 c4 5f 13b cc 53 142 f7 6c
-// prog: 117 fd 6d fa 10d 6f a7 10e 291 72 10f 274 75 111 239 7a
-// prog: 11f 23e 7c 121 27f 7f 12f 22e 81 100004f 31 90 1000076 29 a0 1000082
-// prog: 36 b0 10000c5 5b 13d 2000040 20000010 29 2000042 20000010 28 2000044 20000011 28 2000060 20000012
-// prog: 28 2000062 20000012 29 200008b 67 3e 200008e 67 3b 200008f 6b 3e 2000091 2a 3b
-// prog: 2000096 20000041 3b 2000099 20000041 3e 20000ad 69 3b 20000b1 5a 3b 20000b4 2e 3e 20000b8
-// prog: 6a 3b 20000b9 3a 3e 20000ce 160 64 20000cf 194 64 20000d1 185 64 20000d6 172
-// prog: 64 20000d7 152 64 20000eb 131 64 2000105 176 6e 200010b 194 6e 200010c 8a 6e
-// prog: 700004f 6e 6e 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 10 27 54 28 32 42 31 dc 78 52 a4 ad
-// prog: 53 af b1 5a b6 b8 5b be 20b 5f c4 ce 61 c5 cf 64
-// prog: 66 d1 67 cc d6 6d fd e7 6e 14e 105 74 10e 123 7a 111
-// prog: 127 7f 121 12b 100001a 55 40 1000029 38 44 100002a 60 4f 100002e 62 95
-// prog: 1000033 82 dd 100003e 82 f3 100003f 1a5 8b 1000041 8e 1a6 1000043 8f 91 100004b
-// prog: 96 46 100004c 99 48 100004d 89 91 1000075 10f 125 100007c 11f 128 1000081 12f
-// prog: 12c 200002f 5 70 2000030 4 70 2000036 20000018 76 200003a 20000012 76 2000069 d2 f7
-// prog: 200006a 183 f7 200006b 185 f7 200006c c2 f7 200006f 160 10d 2000072 58 10d 400003b
-// prog: 78 78 7000046 f7 f7 7000057 10d 10d 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 40 50 1a 42 98 28 44 a2 29 46 bc 2a
-// prog: 48 bd 2e 4f 56 2f af 84 3f b0 88 41 b1 89 43 b6
-// prog: 4b 192 b8 4c 19e be 8f 4d c4 1a6 52 105 bb 69 111 6e
-// prog: 122 117 2a6 6f 11f 283 72 121 74 73 123 75 7d 125 7a 92
-// prog: 127 7c 93 128 7f b5 12b 81 b7 1000054 57 30 1000055 10 45 1000095
-// prog: 3b f4 10000c5 53 b4 10000cc 5a b9 2000027 176 10 2000032 194 10 2000038 8a
-// prog: 10 2000060 20000014 31 2000062 20000015 33 2000066 20000016 33 2000078 20000019 33 2000082 20000019 31
-// prog: 200008b 20000018 31 200008e 2000001a 31 2000090 7 31 2000091 6 31 2000096 c 3e 2000099
-// prog: 17 3e 200009f 14 3e 20000a0 2c 3e 20000a4 21 3e 20000a7 47 3e 20000a9 68
-// prog: 3e 20000ad 3d 3e 20000ce 176 5f 20000cf 183 5f 20000d1 e0 5f 20000d6 d4 5f
-// prog: 20000dc 170 5f 20000dd 58 5b 20000e7 8a 5b 20000f3 c2 5b 20000f7 130 5b 20000fa
-// prog: 13c 5b 20000fd 20000057 5b 200010d 176 6d 200010e 194 6d 200010f 8a 6d 4000070 36
-// prog: 36 7000003 10 10 700004e 6d 6d 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 8c 27 10 94 40 3b 54 13e 50 af 59
-// prog: 52 b0 77 53 b1 5c 56 be 4a 57 c4 9c 5a c5 1a8 5b
-// prog: cc 1a9 5f 61 ce 68 64 cf 69 67 d1 6d 105 148 6e 12a
-// prog: 10d 6f 111 fe 72 117 137 74 121 da 75 123 e2 7a 125 ec
-// prog: 7c 127 ed 7d 128 f8 7f 12b f9 1000014 4f 112 100001a 54 113 100002e
-// prog: 8b 3a 1000030 8e 76 100003d 165 4f 1000045 a0 1a2 1000073 11f 138 2000028 20000016
-// prog: 55 2000029 20000017 55 200002a 20000018 55 200002f 2000001a 55 2000031 6 55 2000036 7 55
-// prog: 200003e 17 95 200003f 1e 95 2000041 20 95 2000043 2c 95 2000047 12 95 200004b
-// prog: 13 95 200004c e 95 200004d 25 95 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e c 2d 13 62 28 17 66 29 4a cb 2e
-// prog: 55 91 36 77 96 3e 81 99 3f 84 9f 41 94 a7 4b 98
-// prog: a9 4c a2 ad 4d af 5a 9d b0 5b 136 bc 56 f3 bd 6d
-// prog: 119 be 6e 14f c4 6f 83 c5 72 65 cc 73 7e ce 74 a5
-// prog: cf 75 a6 d1 7a c0 da 7c c7 e2 7d d9 ec 7f db 1000027
-// prog: 2a 78 100004f 14 2f 1000054 31 90 100008e 1a1 43 100008f 47 a4 10000bb 57
-// prog: e7 200001e 20000019 1a 2000020 20000019 14 2000025 20000018 14 200003a 20000012 14 2000040 20000012 1a
-// prog: 2000059 6 30 200005c 7 30 2000061 20000020 1a 2000064 2000000e 1a 2000067 8 1a 2000076
-// prog: 9 1a 2000088 2c 3d 2000089 2c 3b 200008b 12 3d 200008c 21 3b 2000092 2000003e
-// prog: 3b 2000093 2000003e 3d 2000095 2b 3b 200009c 39 3b 20000a0 23 3d 20000b1 1 53
-// prog: 20000b4 d2 5f 20000b5 d0 5f 20000b7 e5 5f 20000b9 e9 5f 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c e 1b 14 13 20 2a f5 54 2c 55 166
-// prog: 2e 77 222 2f 81 213 30 84 1b8 3f 94 1dd 41 98 1ec 47
-// prog: 68 b4 4b 69 b5 4c af dd 66 be 106 6f c5 9e 72 cc
-// prog: a1 1000012 70 1e 100001a 17 25 1000021 3a 27 1000023 40 82 100002b 55 fb
-// prog: 100002d 167 54 1000031 1c0 88 1000036 89 1c1 1000039 8b 8c 100003b 92 8e 100003d
-// prog: 93 45 100003e 1c2 8f 1000043 a2 1a3 2000028 7 4f 2000029 6 4f 200004d 160
-// prog: b0 2000053 194 b0 2000056 185 b0 2000057 172 b0 200005a 152 b0 200005b 131 b0
-// prog: 200005f 176 bd 2000062 194 bd 2000065 8a bd 200006d 160 c4 200006e 58 c4 700004d
-// prog: bd bd 7000056 c4 c4 700005f ce ce 7000066 cf cf 7000060 d1 d1 7000067 da
-// prog: da 7000061 e2 e2 7000068 ec ec 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e c 5e 13 60 12 17 b3 14 1b ba 1a
-// prog: 1e c8 21 20 bf 23 27 29 5c 90 2e 31 91 2f 36 92
-// prog: 30 39 93 3b 164 94 3d 16d 96 3e 15e 99 3f 95 9e 43
-// prog: 1db a4 4c 4d a5 bb 53 a6 bc 56 a7 108 5f a9 66 ea
-// prog: ad 266 6d af 258 6e b0 6f a8 b4 72 ac 1000025 59 28 1000098
-// prog: 30 8c 100009d 41 9c 200003a 2000001b 2a 2000045 2000001c 2b 200004f 2000001c 2a 2000054 2000001e
-// prog: 2b 2000055 2000001d 2a 2000068 20000021 2b 2000069 20000021 2a 2000070 2000000e 2b 2000073 20000020 2a
-// prog: 2000074 20000013 2b 2000075 20000013 2a 2000077 9 2a 2000078 8 2a 200007a 11 2c 200007c
-// prog: 5d 2d 200007d 5d 2c 200007e 3c 2d 200007f 18 2c 2000081 51 2d 2000082 19
-// prog: 2d 2000083 19 2c 2000084 37 2d 2000088 20000039 2c 2000089 d 2c 200008e 79 2d
-// prog: 200008f 24 2c 200009f 85 47 20000a1 7b 47 20000a2 8d 47 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 11 b2 13 12 e 33 14 df 25 1a 3a 45
-// prog: 21 4f 54 24 27 196 29 7a 7c 2a 7d 7e 2c 7f 81 30
-// prog: 89 8e 36 90 63 39 91 aa 3b 92 97 3c 8b 98 3d 99
-// prog: 1c6 3e 9d a0 47 4b 9f 66 a7 6a 6f ad 10b 1000018 27 e3
-// prog: 1000023 70 73 1000028 197 25 100002d 1e7 82 100002e 83 1e8 100002f 84 88 1000031
-// prog: 1eb 8f 1000072 af 10c 200000c 160 e 200000d 58 e 200003f 20000013 96 2000041 2
-// prog: 96 2000043 3 96 200004c 176 a4 200004d 183 a4 2000051 e0 a4 2000053 d4 a4
-// prog: 2000056 170 a4 2000059 58 9e 200005c 8a 9e 200005d c2 9e 200005e 130 9e 200005f
-// prog: 13c 9e 2000060 20000057 9e 200006d 160 a9 200006e 58 a9 7000004 e e 7000055 a9
-// prog: a9 700005e b0 b0 7000065 b4 b4 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e c9 c 13 100 d 73 14 74 7d 29 1b5
-// prog: 7e 2a 1e6 7f 2c 1da 8e 30 1e9 90 31 256 91 3c 71 92
-// prog: 3d ae 95 3e 1c7 98 a5 4c 99 a6 4d 9c 66 149 9d 1be
-// prog: 6d 9e 21d 6e 9f 6f 126 a0 72 129 1000070 40 23 1000079 18 75
-// prog: 100008b 1fc 2f 2000025 2000001d 12 2000027 2000001f 12 2000033 20000021 18 200003a 20000021 14 2000045
-// prog: 2000000e 18 200004b 20000020 14 200004f 20000020 12 2000054 2000000e 12 2000063 20000012 14 200006a 20000012
-// prog: 18 200007a 8 12 200007c 9 12 2000081 19 28 2000082 19 24 2000083 37 28
-// prog: 2000084 20000039 24 2000088 2000003a 24 2000089 2000003a 28 200008c 2000003b 24 200008f 22 24 2000096
-// prog: 4e 47 2000097 49 47 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c e 32 12 1a 25 14 55 27 28 103 70
-// prog: 29 77 7a 47 8b 115 4c 7f 8c 4d 8e 8f 66 95 14a 72
-// prog: 92 59 a9 9c 11a aa 9d 10e ad 9f ff ae a0 104 100000d 13
-// prog: 38 1000018 61 33 1000019 3a 64 1000022 45 4b 1000023 4f 68 1000024 69 54
-// prog: 100002a 7c 78 1000037 1fa 81 100003c 82 1fb 100003d 83 84 100003e 88 2d 1000040
-// prog: 89 2e 1000074 91 5c 10000ac 9e 10f 200002c 9 73 200002f 8 73 2000030 20000026
-// prog: 79 2000031 20000028 79 200006d d2 98 200006e d0 98 200006f e5 98 2000071 e9 98
-// prog: 2000075 58 90 20000a4 8a 90 20000a5 c2 90 20000a6 130 90 20000a7 13c 90 20000a8
-// prog: 20000057 90 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e c 34 13 d 35 1a 12 18 25 21 19
-// prog: 27 14 22 32 2c 67 38 110 29 54 7d 37 55 7e 3c 59
-// prog: 7f 3d 5c 3e 150 61 40 151 64 83 4c 68 4d 1fe 70 99
-// prog: 6d 88 aa 153 89 ac 154 8b ad 87 8c ae a3 100002d 63 23
-// prog: 100002e 6a 24 1000033 76 2f 100003a 2a 118 100004f 2a 168 2000069 4 47 2000073
-// prog: 160 66 2000077 194 66 2000078 185 66 200007a 172 66 200007c 152 66 2000081 131
-// prog: 66 2000082 160 a9 2000084 58 a9 4000045 30 30 400004b 29 29 7000054 a9 a9
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c e 1d d 13 1f 12 c3 1a 14 c6 25
-// prog: 18 cd 27 19 ee 2d 21 f6 2e 22 e4 32 3d 33 179 63
-// prog: 54 ca 66 55 c1 67 59 e6 6a 64 80 6d 68 101 7f 72
-// prog: 73 83 74 77 87 162 82 8e 17c 84 8f 88 109 90 89 10a
-// prog: 1000023 33 146 100003c 4b 16f 100003e 1b3 32 2000024 20000022 38 2000029 20000023 3a 200002a
-// prog: 20000024 3a 200002c 20000027 3a 200002f 20000027 38 2000030 20000026 38 2000034 20000029 38 2000035 b
-// prog: 38 2000037 a 38 2000040 f 4f 2000047 16 4f 200004c 20000027 4f 200004d 20000032 4f
-// prog: 2000076 85 70 200007d 7b 70 200007e 8d 70 700005d 8b 8b 7000064 8c 8c 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e c 86 f d ab 2e 40 1d2 64 4d 217
-// prog: 88 6a 75 98 87 62 9c 8f f0 9d 90 f1 1000025 30 31 1000027
-// prog: 34 79 1000099 8e 65 2000013 20000027 23 2000016 20000027 22 200001a 20000026 22 200001d 20000028
-// prog: 22 200001f 20000028 23 200002d 2000002d 23 2000032 20000031 3c 2000033 20000024 3c 2000038 20000027 3e
-// prog: 200004b 20000027 3d 200004f 20000032 3d 2000054 20000027 3c 2000055 20000033 3d 2000059 20000033 3e 2000068
-// prog: 20000034 3d 2000070 2000002b 3c 2000072 4 67 2000073 5 67 2000074 176 7f 2000077 183
-// prog: 7f 2000080 e0 7f 2000082 d4 7f 2000084 170 7f 2000089 160 6d 200008b 194 6d
-// prog: 200008c 185 6d 2000091 172 6d 2000092 152 6d 2000095 131 6d 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 30 102 25 3c f 3a 3d 11e 2d 3e 32 1d3
-// prog: 40 47 33 67 64 107 6a 70 143 6d 83 74 75 88 89 79
-// prog: 98 6b 7f 99 6c 100000c e 2b 100000d 45 13 1000023 1f 2f 100004d 202
-// prog: 38 1000062 1d5 54 1000065 59 4c 2000031 a 27 2000034 b 27 7000005 e e
-// prog: 7000006 f f 700005c 9c 9c 7000063 9d 9d 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1f 24 d 25 114 23 32 40 1d4 33 2e 4d
-// prog: 38 3e 4b 45 65 184 99 79 14b 9c 7f 14c 100003a 55 62 200000e
-// prog: 20000024 c 200000f 20000025 c 2000013 20000026 c 2000027 20000029 c 200002b a c 200002d b
-// prog: c 200002f 2000002b 3c 2000047 20000013 67 200004c 6 67 2000054 7 67 2000059 d2 6d
-// prog: 2000064 d0 6d 200006b e5 6d 200006c e9 6d 2000070 176 75 2000074 183 75 2000083
-// prog: e0 75 2000086 d4 75 2000087 170 75 2000088 58 6a 2000089 8a 6a 200008e c2
-// prog: 6a 200008f 130 6a 2000090 13c 6a 2000098 20000057 6a 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 29 e d 2a f 24 d8 1f 3e 37 2d
-// prog: 40 fc 2f 4b 25 3d 55 33 d3 62 38 d5 65 3a 17e 67
-// prog: 32 68 6a 99 11b 6d 9c 11d 1000023 13 2c 100002e 22 27 100003c 2b
-// prog: 35 100004d 32 4f 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e c 16 25 120 3c 2b 3e 15d 2d 4d de
-// prog: 32 67 e1 100000f d 1a 1000013 1d 23 1000027 3e 124 100002c 161 3c 100002f
-// prog: 65 4b 200001f b 2e 2000022 a 2e 2000029 8 4b 200002a 9 4b 700005b 6a
-// prog: 6a 7000062 6d 6d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 9a e d 9b f 16 e8 13 1d 22 34
-// prog: 100001a 31 1f 2000023 2000002a 25 200002e 2000002a 27 2000033 2000002c 27 2000035 2000002c 25 2000037
-// prog: 2000002a 2b 2000038 2000002a 2c 200003a 2000002c 2c 200003c 2000002c 2b 200003d 9 2f 200003e 8
-// prog: 2f 200004b 160 32 200004d 194 32 200004f 185 32 2000065 172 32 2000067 152 32
-// prog: 2000068 131 32 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e 132 1a 13 c 40 1f 1d 180 100000f 1d 140
-// prog: 1000022 181 1a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1000034 55 13 200000c 2000002c f 200001a 2000002c e 200001d 2000002d e
-// prog: 2000025 2000002d f 2000027 8 13 200002b 9 13 200002c 2000002c 22 200002f 2000002c 1f 2000031
-// prog: 2000002d 1f 2000032 2000002d 22 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 f 2e 1a 13 33 1d 40 38 2f 55 3a 31
-// prog: 100000e 23 c 100001f 25 35 1000022 37 2c 100006a 32 3c 200006d 9 34 2000075
-// prog: 8 34 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c ef e 1a f2 f 1d 116 13 23 11c 1f
-// prog: 25 22 1b6 2c 40 1b7 2e 55 1b0 2f 6a 1bd 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 35 c 2c 38 1d 2f 1000034 25 1a 1000037 2e 23
-// prog: 200000e b 1d 200000f a 23 2000013 a 1d 200001f b 23 2000022 b c 2000031
-// prog: a 1a 2000032 a c 2000033 b 1a 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 13 1f 23 32 33 100000c f e 100001d 31 22
-// prog: 2000025 b 37 200002c a 38 200002e a 37 200002f b 38 200003a b 34 200003c
-// prog: a 35 2000040 a 34 2000055 b 35 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e 16 c f 30 1a 1f 2e 2f 31 40 55
-// prog: 1000013 2c 25 1000022 3c 3a 200000a 20000029 1a 200000b 20000029 c 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 c 1d a 32 e 45 1000016 23 b 100002e 21 f
-// prog: 200001a 9 e 2000025 8 e 200002c 20000013 f 200002f 20000029 1f 2000030 20000029 13 2000033
-// prog: 9 13 2000034 8 13 2000035 20000013 1f 2000037 6 1f 2000038 7 1f 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 a 24 c b d 16 f 25 2a 1f 22 2f
-// prog: 40 34 1d1 100000e 1a 29 1000021 31 30 100003c 33 1af 1000045 5c 2e 2000013
-// prog: 6 2e 200001d 7 2e 2000023 8 32 200003a 9 32 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 19 e 22 28 f 24 a 62 29 3e 3a
-// prog: 1000025 3d 23 200000c 9 a 200000d 8 a 2000016 20000013 e 200002a 9 1f 200002e
-// prog: 8 1f 200002f 20000013 3c 2000030 7 45 2000031 6 45 2000032 7 3c 2000033 6
-// prog: 3c 2000034 4 40 2000055 160 21 200005c 194 21 200006a 185 21 2000079 172 21
-// prog: 200007f 152 21 2000099 131 21 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 e d 2b 23 20 22 3e 2e 141 45 1a 61
-// prog: 100000a c 27 100000f 16 b 100003d 2a 135 1000040 2f 21 100009c 33 38 2000019
-// prog: 7 1a 200001f 6 1a 2000028 8 24 200003a 9 24 200003c 20000013 25 2000062 7
-// prog: 25 200009a 6 25 200009d 4 29 400009b 32 32 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8 a 2c 9 14 f b 18 e d 1f 1d
-// prog: 20 75 3a 22 3d 35 a0 3e 214 100000c 13 19 100001a 6d 28 1000021
-// prog: 3c 2d 1000029 9a 54 100002a 9b 37 1000032 93 23 2000016 4 23 2000024 6
-// prog: 45 2000025 7 45 200002b 6 40 200002e 7 40 200002f 2000001a 9c 2000033 4 3e
-// prog: 2000038 5 3e 2000061 20000013 9c 200009e 2 9c 200009f 3 9c 4000027 62 62 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 a 12 8 18 17 b 19 1e c 1d 4a d
-// prog: 1f 1a 47 2c 31 25 9a 20 88 9b a0 55 1000023 63 9 1000028
-// prog: 24 30 100002d 27 4c 200000e 6 9 200000f 7 9 2000013 2000001a d 2000014 2000001a
-// prog: c 2000035 6 21 2000037 7 21 200003a 2000001a 29 200003c 7 22 200003d 6 22
-// prog: 200003e 2000001a 2a 2000040 5 32 2000045 4 20 2000054 5 20 2000062 20000013 29 200006d
-// prog: 5 2a 2000075 2 29 2000093 3 29 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a a 66 2a 3d 2e 31 19 94 88 9a 4b
-// prog: 1000017 48 1d 1000029 2b 3c 1000030 36 18 100004c 6d 34 2000008 7 a 2000009
-// prog: 6 a 200000b 5 19 200000c 4 18 200000d 5 18 2000012 20000013 1d 200001e 7
-// prog: 23 2000020 6 23 2000021 2000001a 2c 2000022 2000001a 28 2000024 7 1f 2000025 6 1f
-// prog: 2000027 2000001a 2d 2000032 5 28 2000047 20000013 2c 200004a 5 2d 2000055 2 2c 2000063
-// prog: 3 2c 200009c 176 9b 20000a0 183 9b 20000a3 e0 9b 20000a9 d4 9b 20000aa 170
-// prog: 9b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 18 9 f 2b 25 37 2c 29 2f 100000a e 8
-// prog: 1000019 b 16 1000028 35 24 100002d 2a 3e 100003c 32 69 100003d 4a 9d 100004b
-// prog: b6 17 200001d 3 17 200001f 6 1a 2000023 7 1a 200002e 4 31 2000034 5
-// prog: 30 2000036 4 30 2000048 20000013 4c 2000066 3 4c 200006d 2 4c 2000094 176 88
-// prog: 200009a 183 88 200009b e0 88 20000ab d4 88 20000ac 170 88 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 6 a 13 9 46 19 e 20 23 f 28 3a
-// prog: 1000007 18 14 100000b 1f 1e 1000016 2b 27 1000017 40 2e 100002a 48 2d 100004a
-// prog: 6d 9f 100004c 2d 215 2000008 20000013 19 200001a 20000013 3c 2000024 20000013 3d 2000025 5
-// prog: 2c 2000029 4 2c 200002f 3 4b 2000030 2 4b 2000031 3 3c 2000032 2 3c
-// prog: 2000035 3 3d 2000037 2 3d 400003e 66 66 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 a 11 6 13 1b 7 18 b 21 28 29 38
-// prog: 2b 9 b8 69 4c 5c 1000019 e 22 1000023 24 16 1000027 25 33 100003a
-// prog: 32 63 100003d 37 93 1000040 3e 9e 1000066 16 89 2000014 2 9 200001e 20000013
-// prog: 17 200001f 5 f 2000020 4 f 200002c 3 17 200002d 2 17 2000046 2 2a
-// prog: 2000048 3 2a 200004b 2000000b 4a 400002e 31 31 400003c 35 35 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 6 5b
+// prog: 9 8 fd 11 a 13 d 10 17 46 12 1a 47 22 2a 2b
+// prog: 23 32 2c 24 35 18 25 36 1b 100000b 15 31 2000001 160 0 2000002
+// prog: 58 0 7000024 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 b 14 1d e a 39 21 20 54 22 27 61
-// prog: 5c 66 4d 63 28 216 6d 69 9c 1000009 8 13 100000f 1e 3b 1000017
-// prog: 1a 19 100001b 1f 45 100002a 2d 43 1000031 2e 55 1000033 3c 75 100004c 19
-// prog: a4 2000006 5 a 2000007 4 a 2000011 5 18 2000016 4 18 2000024 2 2b
-// prog: 2000025 3 2b 2000032 2000000b 3a 2000035 2 23 2000037 3 23 2000038 2000000b 3d 200003e
-// prog: 2000000b 40 200004a 1 28 4000029 2c 2c 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 a 7 d 13 42 9 1d 16 73 1e 1b 62
-// prog: 20 30 25 3d 4c 8b 40 21 8e 43 5c 94 45 63 6a 1000008
-// prog: 6 c 100001a 11 72 100001f 24 2f 1000023 29 41 2000014 2000000b b 2000018 4
-// prog: e 2000019 5 e 2000027 2 f 2000028 3 f 200002b 2000000b 2a 200002c 2 17
-// prog: 200002d 3 17 200002e 2000000b 31 2000039 2000000b 33 200003a 3 22 200003b 2 22 200003c
-// prog: 1 21 200004d d2 6d 2000054 d0 6d 2000055 e5 6d 2000061 e9 6d 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 4 8 12 5 44 a 9 36 19 b 1a 47
-// prog: 1b 3b 48 22 1d a5 24 3d 70 25 40 4f 31 45 a0 1000007
-// prog: 34 18 100000c 50 13 1000017 46 3a 2000006 2 13 200000d 2000000b 20 200000e 2000000b
-// prog: 1f 200000f 2000000b 23 2000011 3 1e 2000016 2 1e 2000021 1 1d 2000029 d2 43
-// prog: 200002a d0 43 200002f e5 43 2000030 e9 43 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8 10 4 a 1c 5 12 7 3f 1e 16 37
-// prog: 1f 17 4b 33 9 5d 34 22 8c 40 25 9a 41 31 4d 100001d
-// prog: 35 11 1000020 1b 3e 2000013 3 c 2000018 2 c 2000019 3 b 200001a 2
-// prog: b 2000023 1 9 2000036 d2 24 200003a d0 24 200003b e5 24 200003d e9 24
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 5 8 52 c 1a 2d 10 1d 38 1b 33 78
-// prog: 1c 34 74 22 40 29 24 20 218 100000b 2c 19 1000011 1e 39 1000016
-// prog: 12d a 2000004 3 8 2000007 3 12 2000009 2 12 2000017 0 1f 2000025 85
-// prog: 41 2000031 7b 41 2000035 8d 41 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1a 9 28 1d b 32 29 17 4a 2c 1b 77
-// prog: 2d 1c 36 33 11 8f 39 24 79 1000008 6 4 1000019 27 7 100001e
-// prog: c 2e 200000a 2 5 2000012 3 5 200001f 0 16 2000020 0 10 2000034 85
-// prog: 22 2000037 7b 22 2000038 8d 22 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2 8 14 4 18 12 5 19 2b 9 20 3c
-// prog: b 2c 59 c 1e a6 17 33 65 1b 29 220 1c 39 a3 1000003
-// prog: a 13 1000006 1a f 2000007 0 1d 2000010 85 2d 2000011 7b 2d 2000016 8d
-// prog: 2d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8 15 2 a 3 d 13 7 21 14 6 5e
-// prog: 1d c 91 1e 9 90 20 17 9b 22 1b 7f 24 1c 54 100000f
-// prog: 4 e 2000012 0 5 2000018 85 b 2000019 7b b 200001a 8d b 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2 8 12e 4 12 23 5 f f7 6 14 7a
-// prog: 7 13 a7 9 1d 83 b 1e 67 c 20 2a d 22 a9 e
-// prog: 24 25 2000003 0 a 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8 3 b1 a 5 57 f 4 5f 12 6 80
-// prog: 13 7 92 14 9 3a 15 b ab 17 c 34 1b d 55 2000000
-// prog: 1 2 200001c 4e e 200001d 49 e 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 1f 0 2 8 fa 3 a 51 4 f 7c
-// prog: 5 12 64 6 13 86 7 14 10 9 15 2f d 1b 31 200000b
-// prog: 4e 17 200000c 49 17 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 1 144 8 2 5a a 3 6e e 4 82
-// prog: f 5 18 10 6 3b 14 9 37 15 d 1c 2000012 4e 7 2000013
-// prog: 49 7 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 0 d7 2 8 53 3 a 76 4 e 6b
-// prog: 7 10 11 9 14 b 2000005 4e f 2000006 49 f 200000d 26 15 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 1 d6 8 2 6f e 4 19 f 7 12
-// prog: 200000a 4e 3 200000b 49 3 2000010 26 9 2000011 4e d 2000014 7b d 2000015
-// prog: e5 d 2000017 d4 d 2000018 152 d 200001b 13c d 700000d d d 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 0 b7 2 8 7d 3 e 5 1e 1d 11
-// prog: 2000004 26 f 2000007 4e 10 2000009 7b 10 200000d e5 10 2000012 d4 10 2000019
-// prog: 152 10 200001c 13c 10 700000c 10 10 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 1 a1 5 2 a 20 c 7 2000008 26 3
-// prog: 200000e 4e 4 200000f 7b 4 2000010 e5 4 2000011 d4 4 200001d 152 4 200001f
-// prog: 13c 4 2000021 85 1e 2000022 d0 1e 2000023 e0 1e 2000024 172 1e 2000025 130
-// prog: 1e 700000b 4 4 7000014 1e 1e 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 0 96 27 13 e 2d 35 21 2000002 26 5
-// prog: 2000003 4e 8 2000004 7b 8 2000007 e5 8 200000a d4 8 200000c 152 8 200001e
-// prog: 13c 8 2000028 85 20 2000029 d0 20 200002a e0 20 200002b 172 20 200002c 130
-// prog: 20 700000a 8 8 7000013 20 20 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 2e 6 3 35 38 28 36 2d 14 2000000 26 1
-// prog: 2000005 4e 2 2000008 7b 2 200000e e5 2 2000013 d4 2 2000020 152 2 2000021
-// prog: 13c 2 200002f 85 27 2000031 d0 27 2000032 e0 27 2000033 172 27 2000034 130
-// prog: 27 7000009 2 2 7000012 27 27 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 27 b 5 3a 16 2f 3b 35 9 2000001 4e 0
-// prog: 2000002 7b 0 2000003 e5 0 2000006 d4 0 2000014 152 0 2000026 13c 0 2000028
-// prog: 85 2e 200002d d0 2e 2000037 e0 2e 2000038 172 2e 2000039 130 2e 200003c d2
-// prog: 36 200003e 183 36 200003f 185 36 2000040 c2 36 7000008 0 0 7000011 2e 2e
-// prog: 700001b 36 36 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 97 1 2f 1a 28 35 3a f 44 61 3c
-// prog: 2000005 85 27 2000009 d0 27 200000b e0 27 2000016 172 27 200002e 130 27 2000036
-// prog: d2 3b 2000041 183 3b 2000042 185 3b 2000043 c2 3b 7000010 27 27 700001a 3b
-// prog: 3b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 3a 7e 5 3b 2f 4 48 30 36 49 44 22
-// prog: 2000001 85 0 200000f d0 0 200001a e0 0 2000027 172 0 2000028 130 0 200003c
-// prog: d2 35 2000045 183 35 2000046 185 35 2000047 c2 35 700000f 0 0 7000019 35
-// prog: 35 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 a2 1 4 3a 8 35 3d 3c 36 48 29
-// prog: 44 49 15 2000005 d2 3b 2000022 183 3b 200002f 185 3b 2000030 c2 3b 7000018
-// prog: 3b 3b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 0 2 3b 6c 5 3c 35 31 3d 36 d
-// prog: 2000008 d2 4 2000015 183 4 2000029 185 4 200003a c2 4 2000048 176 44 2000049
-// prog: 194 44 200004a 8a 44 7000017 4 4 7000022 44 44 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 d 71 8 31 3b 2d 35 3c 10 4c aa 48
-// prog: 2000000 d2 1 2000002 183 1 2000004 185 1 2000005 c2 1 2000036 176 3d 2000044
-// prog: 194 3d 200004b 8a 3d 7000016 1 1 7000021 3d 3d 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 b9 0 8 d 9 10 31 7 3d ac 36
-// prog: 48 4c 3e 200002d 176 35 200003b 194 35 200003c 8a 35 7000020 35 35 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 1 f 7 8 e 35 87 2d 36 3d 41
-// prog: 3e 48 23 2000009 176 10 200000d 194 10 2000031 8a 10 700001f 10 10 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 0 3 10 84 9 23 35 45 2d 36 2a
-// prog: 3d 3e 17 2000008 176 7 200000e 194 7 200000f 8a 7 700001e 7 7 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 9 56 8 17 10 22 2a 23 32 35 2d 12
-// prog: 2000000 176 1 2000003 194 1 2000007 8a 1 2000036 160 3d 200003e 58 3d 700001d
-// prog: 1 1 7000029 3d 3d 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 dc 0 8 9 15 10 17 37 12 2a 11
-// prog: 2d 99 36 32 221 3e 2000022 160 35 2000023 58 35 7000028 35 35 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 eb
+// prog: 1 9 145 2 d 6 e 13 a 2f 15 b 30 17 10 33
+// prog: 18 12 34 1a 22 19 1b 23 1c 1000011 8 f 7000030 24 24 7000037
+// prog: 25 25 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 1 2 9 8 b 11 10 a 2a 68 22
-// prog: 35 98 23 36 2d 49 1000037 32 4a 2000015 160 12 2000017 58 12 7000027
-// prog: 12 12 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0
+// prog: 3 6 d 29 8 11 3a a 13 38 b 15 39 e 17 1d
+// prog: f 18 1f 1000002 9 7 700002f 1a 1a 7000036 1b 1b 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -24539,11 +23104,11 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 0 1a 2 9 13 b 95 15 10 a8 17
-// prog: 12 2a 44 23 36 3f 2d 37 40 1000022 35 4b 2000008 160 11 200000a
-// prog: 58 11 7000026 11 11 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1
+// prog: 4 3 2 5 7 6 16 9 8 2e d a c 10 b 1e
+// prog: 700002e e e 7000035 f f 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
@@ -24551,21 +23116,12 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 1 6 13 81 8 15 60 a 17 b 3b
-// prog: 2a 12 42 32 22 43 35 23 24 36 2d 25 100001a 10 3c 2000009
-// prog: 160 2 2000011 58 2 7000025 2 2 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1 0
+// prog: 27 2 3 28 4 7 20 5 9 21 700002d d d 7000034 10 10
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 6 5b 9 8 fd 11 a 13 d 10 17 46
-// prog: 12 1a 47 22 2a 2b 23 32 2c 24 35 18 25 36 1b 100000b
-// prog: 15 31 2000001 160 0 2000002 58 0 7000024 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -24574,11 +23130,8 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 eb 1 9 145 2 d 6 e 13 a 2f
-// prog: 15 b 30 17 10 33 18 12 34 1a 22 19 1b 23 1c 1000011
-// prog: 8 f 7000030 24 24 7000037 25 25 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 0 1
+// prog: 14 3 2 26 700002c 4 4 7000033 5 5 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -24587,33 +23140,25 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 0 3 6 d 29 8 11 3a a 13 38
-// prog: b 15 39 e 17 1d f 18 1f 1000002 9 7 700002f 1a 1a 7000036
-// prog: 1b 1b 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 700002b 0
+// prog: 0 7000032 3 3 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 1 4 3 2 5 7 6 16 9 8 2e
-// prog: d a c 10 b 1e 700002e e e 7000035 f f 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 19bc2 1
+// prog: 19c82 1 0 30000000 40000000 1 30000001 40000001 2 30000002 40000002 3 30000003 40000003 4 30000004
+// prog: 40000004 5 30000005 40000005 6 30000006 40000006 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1 0 27 2 3 28 4 7 20 5 9 21
-// prog: 700002d d d 7000034 10 10 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
@@ -24621,34 +23166,45 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 0 1 14 3 2 26 700002c 4 4 7000033 5 5
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 0 7000000 0 0 7000001 1 1 7000002 2 2 7000003 3 3 7000004 4
+// prog: 4 7000005 5 5 7000006 6 6 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 700002b 0 0 7000032 3 3 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 0 19d44 2 7000000 2000004c 2000004c 7000001 20000045 20000045 7000002 20000045 20000045 7000003 20000045 20000045
+// prog: 7000004 20000045 20000045 7000005 20000045 20000045 7000006 20000045 20000045 7000007 20000045 20000045 7000008 2000004c 2000004c 7000009
+// prog: 20000045 20000045 700000a 20000045 20000045 700000b 20000045 20000045 700000c 20000045 20000045 700000d 20000045 20000045 700000e 20000045
+// prog: 20000045 700000f 20000045 20000045 7000010 2000004c 2000004c 7000011 20000045 20000045 7000012 20000045 20000045 7000013 20000045 20000045
+// prog: 7000014 20000045 20000045 7000015 20000045 20000045 7000016 20000045 20000045 7000017 20000045 20000045 7000018 2000004c 2000004c 7000019
+// prog: 20000045 20000045 700001a 20000045 20000045 700001b 20000045 20000045 700001c 20000045 20000045 700001d 20000045 20000045 700001e 20000045
+// prog: 20000045 700001f 20000045 20000045 7000020 2000004c 2000004c 7000021 20000045 20000045 7000022 20000045 20000045 7000023 20000045 20000045
+// prog: 7000024 20000045 20000045 7000025 20000045 20000045 7000026 20000045 20000045 7000027 20000045 20000045 7000028 2000004c 2000004c 7000029
+// prog: 20000045 20000045 700002a 20000045 20000045 700002b 20000045 20000045 700002c 20000045 20000045 700002d 20000045 20000045 700002e 20000045
+// prog: 20000045 700002f 20000045 20000045 7000030 2000004c 2000004c 7000031 2000004c 2000004c 7000032 20000045 20000045 7000033 20000045 20000045
+// prog: 7000034 20000045 20000045 7000035 20000045 20000045 7000036 20000045 20000045 7000037 20000045 20000045 7000038 20000045 20000045 7000039
+// prog: 2000004c 2000004c 700003a 20000045 20000045 700003b 20000045 20000045 700003c 20000045 20000045 700003d 20000045 20000045 700003e 20000045
+// prog: 20000045 700003f 20000045 20000045 7000040 20000045 20000045 7000041 2000004c 2000004c 7000042 20000045 20000045 7000043 20000045 20000045
+// prog: 7000044 20000045 20000045 7000045 20000045 20000045 7000046 20000045 20000045 7000047 20000045 20000045 7000048 20000045 20000045 7000049
+// prog: 2000004c 2000004c 700004a 20000045 20000045 700004b 20000045 20000045 700004c 20000045 20000045 700004d 20000045 20000045 700004e 20000045
+// prog: 20000045 700004f 20000045 20000045 7000050 20000045 20000045 7000051 2000004c 2000004c 7000052 20000045 20000045 7000053 20000045 20000045
+// prog: 7000054 20000045 20000045 7000055 20000045 20000045 7000056 20000045 20000045 7000057 20000045 20000045 7000058 20000045 20000045 7000059
+// prog: 2000004c 2000004c 700005a 20000045 20000045 700005b 20000045 20000045 700005c 20000045 20000045 700005d 20000045 20000045 700005e 20000045
+// prog: 20000045 700005f 20000045 20000045 7000060 20000045 20000045 7000061 2000004c 2000004c 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 1be98 1 1bf58 1 0 30000000 40000000 1 30000001 40000001 2 30000002
-// prog: 40000002 3 30000003 40000003 4 30000004 40000004 5 30000005 40000005 6 30000006 40000006 8000000 0 0
+// prog: 0 8000000 0 0 19ec8 1 19f88 1 1000000 50000000 30000000 1000001 50000001 30000001 1000002 50000002
+// prog: 30000002 1000003 50000003 30000003 1000004 50000004 30000004 1000005 50000005 30000005 1000006 50000006 30000006 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
@@ -24671,79 +23227,31 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 1c01a 2 7000000 20000049 20000049 7000001 20000045 20000045
+// prog: 0 0 8000000 0 0 8000000 0 0 1a04a 2 7000000 20000047 20000047 7000001 20000045 20000045
 // prog: 7000002 20000045 20000045 7000003 20000045 20000045 7000004 20000045 20000045 7000005 20000045 20000045 7000006 20000045 20000045 7000007
-// prog: 20000045 20000045 7000008 20000049 20000049 7000009 20000045 20000045 700000a 20000045 20000045 700000b 20000045 20000045 700000c 20000045
-// prog: 20000045 700000d 20000045 20000045 700000e 20000045 20000045 700000f 20000045 20000045 7000010 20000049 20000049 7000011 20000045 20000045
+// prog: 20000045 20000045 7000008 20000047 20000047 7000009 20000045 20000045 700000a 20000045 20000045 700000b 20000045 20000045 700000c 20000045
+// prog: 20000045 700000d 20000045 20000045 700000e 20000045 20000045 700000f 20000045 20000045 7000010 20000047 20000047 7000011 20000045 20000045
 // prog: 7000012 20000045 20000045 7000013 20000045 20000045 7000014 20000045 20000045 7000015 20000045 20000045 7000016 20000045 20000045 7000017
-// prog: 20000045 20000045 7000018 20000049 20000049 7000019 20000045 20000045 700001a 20000045 20000045 700001b 20000045 20000045 700001c 20000045
-// prog: 20000045 700001d 20000045 20000045 700001e 20000045 20000045 700001f 20000045 20000045 7000020 20000049 20000049 7000021 20000045 20000045
+// prog: 20000045 20000045 7000018 20000047 20000047 7000019 20000045 20000045 700001a 20000045 20000045 700001b 20000045 20000045 700001c 20000045
+// prog: 20000045 700001d 20000045 20000045 700001e 20000045 20000045 700001f 20000045 20000045 7000020 20000047 20000047 7000021 20000045 20000045
 // prog: 7000022 20000045 20000045 7000023 20000045 20000045 7000024 20000045 20000045 7000025 20000045 20000045 7000026 20000045 20000045 7000027
-// prog: 20000045 20000045 7000028 20000049 20000049 7000029 20000045 20000045 700002a 20000045 20000045 700002b 20000045 20000045 700002c 20000045
-// prog: 20000045 700002d 20000045 20000045 700002e 20000045 20000045 700002f 20000045 20000045 7000030 20000049 20000049 7000031 20000049 20000049
+// prog: 20000045 20000045 7000028 20000047 20000047 7000029 20000045 20000045 700002a 20000045 20000045 700002b 20000045 20000045 700002c 20000045
+// prog: 20000045 700002d 20000045 20000045 700002e 20000045 20000045 700002f 20000045 20000045 7000030 20000047 20000047 7000031 2000004c 2000004c
 // prog: 7000032 20000045 20000045 7000033 20000045 20000045 7000034 20000045 20000045 7000035 20000045 20000045 7000036 20000045 20000045 7000037
-// prog: 20000045 20000045 7000038 20000045 20000045 7000039 20000049 20000049 700003a 20000045 20000045 700003b 20000045 20000045 700003c 20000045
-// prog: 20000045 700003d 20000045 20000045 700003e 20000045 20000045 700003f 20000045 20000045 7000040 20000045 20000045 7000041 20000049 20000049
+// prog: 20000045 20000045 7000038 20000045 20000045 7000039 2000004c 2000004c 700003a 20000045 20000045 700003b 20000045 20000045 700003c 20000045
+// prog: 20000045 700003d 20000045 20000045 700003e 20000045 20000045 700003f 20000045 20000045 7000040 20000045 20000045 7000041 2000004c 2000004c
 // prog: 7000042 20000045 20000045 7000043 20000045 20000045 7000044 20000045 20000045 7000045 20000045 20000045 7000046 20000045 20000045 7000047
-// prog: 20000045 20000045 7000048 20000045 20000045 7000049 20000049 20000049 700004a 20000045 20000045 700004b 20000045 20000045 700004c 20000045
-// prog: 20000045 700004d 20000045 20000045 700004e 20000045 20000045 700004f 20000045 20000045 7000050 20000045 20000045 7000051 20000049 20000049
+// prog: 20000045 20000045 7000048 20000045 20000045 7000049 2000004c 2000004c 700004a 20000045 20000045 700004b 20000045 20000045 700004c 20000045
+// prog: 20000045 700004d 20000045 20000045 700004e 20000045 20000045 700004f 20000045 20000045 7000050 20000045 20000045 7000051 2000004c 2000004c
 // prog: 7000052 20000045 20000045 7000053 20000045 20000045 7000054 20000045 20000045 7000055 20000045 20000045 7000056 20000045 20000045 7000057
-// prog: 20000045 20000045 7000058 20000045 20000045 7000059 20000049 20000049 700005a 20000045 20000045 700005b 20000045 20000045 700005c 20000045
-// prog: 20000045 700005d 20000045 20000045 700005e 20000045 20000045 700005f 20000045 20000045 7000060 20000045 20000045 7000061 20000049 20000049
+// prog: 20000045 20000045 7000058 20000045 20000045 7000059 2000004c 2000004c 700005a 20000045 20000045 700005b 20000045 20000045 700005c 20000045
+// prog: 20000045 700005d 20000045 20000045 700005e 20000045 20000045 700005f 20000045 20000045 7000060 20000045 20000045 7000061 2000004c 2000004c
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
 // prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
 // prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
 // prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 1c19e 1 1c25e 1 1000000 50000000
-// prog: 30000000 1000001 50000001 30000001 1000002 50000002 30000002 1000003 50000003 30000003 1000004 50000004 30000004 1000005 50000005 30000005
-// prog: 1000006 50000006 30000006 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 7000000 0
-// prog: 0 7000001 1 1 7000002 2 2 7000003 3 3 7000004 4 4 7000005 5 5
-// prog: 7000006 6 6 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 1c320 2
-// prog: 7000000 20000058 20000058 7000001 20000045 20000045 7000002 20000045 20000045 7000003 20000045 20000045 7000004 20000045 20000045 7000005
-// prog: 20000045 20000045 7000006 20000045 20000045 7000007 20000045 20000045 7000008 20000058 20000058 7000009 20000045 20000045 700000a 20000045
-// prog: 20000045 700000b 20000045 20000045 700000c 20000045 20000045 700000d 20000045 20000045 700000e 20000045 20000045 700000f 20000045 20000045
-// prog: 7000010 20000058 20000058 7000011 20000045 20000045 7000012 20000045 20000045 7000013 20000045 20000045 7000014 20000045 20000045 7000015
-// prog: 20000045 20000045 7000016 20000045 20000045 7000017 20000045 20000045 7000018 20000058 20000058 7000019 20000045 20000045 700001a 20000045
-// prog: 20000045 700001b 20000045 20000045 700001c 20000045 20000045 700001d 20000045 20000045 700001e 20000045 20000045 700001f 20000045 20000045
-// prog: 7000020 20000058 20000058 7000021 20000045 20000045 7000022 20000045 20000045 7000023 20000045 20000045 7000024 20000045 20000045 7000025
-// prog: 20000045 20000045 7000026 20000045 20000045 7000027 20000045 20000045 7000028 20000058 20000058 7000029 20000045 20000045 700002a 20000045
-// prog: 20000045 700002b 20000045 20000045 700002c 20000045 20000045 700002d 20000045 20000045 700002e 20000045 20000045 700002f 20000045 20000045
-// prog: 7000030 20000058 20000058 7000031 20000049 20000049 7000032 20000045 20000045 7000033 20000045 20000045 7000034 20000045 20000045 7000035
-// prog: 20000045 20000045 7000036 20000045 20000045 7000037 20000045 20000045 7000038 20000045 20000045 7000039 20000049 20000049 700003a 20000045
-// prog: 20000045 700003b 20000045 20000045 700003c 20000045 20000045 700003d 20000045 20000045 700003e 20000045 20000045 700003f 20000045 20000045
-// prog: 7000040 20000045 20000045 7000041 20000049 20000049 7000042 20000045 20000045 7000043 20000045 20000045 7000044 20000045 20000045 7000045
-// prog: 20000045 20000045 7000046 20000045 20000045 7000047 20000045 20000045 7000048 20000045 20000045 7000049 20000049 20000049 700004a 20000045
-// prog: 20000045 700004b 20000045 20000045 700004c 20000045 20000045 700004d 20000045 20000045 700004e 20000045 20000045 700004f 20000045 20000045
-// prog: 7000050 20000045 20000045 7000051 20000049 20000049 7000052 20000045 20000045 7000053 20000045 20000045 7000054 20000045 20000045 7000055
-// prog: 20000045 20000045 7000056 20000045 20000045 7000057 20000045 20000045 7000058 20000045 20000045 7000059 20000049 20000049 700005a 20000045
-// prog: 20000045 700005b 20000045 20000045 700005c 20000045 20000045 700005d 20000045 20000045 700005e 20000045 20000045 700005f 20000045 20000045
-// prog: 7000060 20000045 20000045 7000061 20000049 20000049 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
-// prog: 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000
-// prog: 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0
-// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0 8000000 0 0
+// prog: 0 8000000 0 0 8000000 0 0 8000000 0 0
 // konst: 0.022684 9.81 0.09710575 -1.2395e-5 -1e-8 0.05280197 -3.53e-5 0.05520492
 // konst: 0.2667 0.001905 0.37465 0.2045 0.1496 0.14215 0.00035 0.01395
 // konst: 0.455 0.105 3.5 0.2155 0.0565575 0.024496 2.7e-5 0.0374215
@@ -24752,7 +23260,7 @@ fn ddifference_coop(@builtin(workgroup_id) wid: vec3<u32>, @builtin(local_invoca
 // konst: 1.8 0.081 0.00598 0.005 0.024 1.2 2.0 0.0078732
 // konst: 0.003888 0.009700288 0.12228 3.0 -0.12228 0.13932075 4.32e-7 -0.00015516
 // konst: 0.6465 0.07278 6.5 -0.07278 0.22126162 1.19925 10.0 0.4644025
-// konst: 2.155 13.5 0.56457335 2.76075 0.2025 0.0 -0.024 -0.081
-// konst: -0.00108 1.0 -0.00072 -0.266 -0.00035 -0.0735 -0.1845 -0.119
-// konst: -0.2345 -0.455 -0.105 -0.2045 200.0 -0.2667 -0.37465 -200.0
-// konst: -1.0
+// konst: 2.155 13.5 0.56457335 2.76075 0.2025 0.0 -200.0 -1.0
+// konst: 200.0 -0.024 -0.081 -0.00108 1.0 -0.00072 -0.266 -0.00035
+// konst: -0.0735 -0.1845 -0.119 -0.2345 -0.455 -0.105 -0.2045 -0.2667
+// konst: -0.37465

@@ -257,9 +257,9 @@ struct ModelArgs {
         hide_possible_values = true
     )]
     gradient: grid_gen::ir::Gradient,
-    /// How fd_grad applies M^-1: `minv` (Pinocchio's), `ltdl` (M's sparse factorisation),
-    /// `crba` (q̈ from it too), or `auto`, the one with fewer operations (`info` says
-    /// which; the book, Speed).
+    /// How fd_grad applies M^-1 and minv forms it: `minv` (Pinocchio's), `ltdl` (M's sparse
+    /// factorisation), `crba` (fd_grad's q̈ from it too), or `auto`, the one with fewer
+    /// operations (`info` says which; the book, Speed).
     #[arg(
         long,
         value_name = "SOLVE",

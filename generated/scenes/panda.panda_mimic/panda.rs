@@ -14,7 +14,7 @@
 // - `rnea(q, qd, qdd) -> c`: inverse dynamics `c = M(q) qdd + C(q, qd) qd + g(q)`.
 // - `rnea_grad(q, qd, qdd) -> (dc_dq, dc_dqd)`: its analytical gradient.
 // - `mass_matrix(q) -> m`: the joint-space inertia matrix M(q).
-// - `minv(q) -> minv`: M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).
+// - `minv(q) -> minv`: M(q)^-1 (the function's doc says how it is formed).
 // - `fd(q, qd, tau) -> qdd`: forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`,
 //   by the O(nv) articulated-body algorithm.
 // - `fd_grad(q, qd, tau) -> (qdd, dqdd_dq, dqdd_dqd)`: forward dynamics and its gradient `-M^-1 dc/du`

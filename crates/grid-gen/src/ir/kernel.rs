@@ -183,7 +183,8 @@ impl Gradient {
     }
 }
 
-/// How `fd_grad` gets q̈ and forms `−M⁻¹ ∂c/∂u`.
+/// How `fd_grad` gets q̈ and forms `−M⁻¹ ∂c/∂u`, and how `minv` forms M⁻¹ (`Minv`, or
+/// `Ltdl` and `Crba` alike: M's factorisation solved for each column of the identity).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
@@ -599,7 +600,7 @@ impl KernelKind {
             KernelKind::Rnea => "inverse dynamics `c = M(q) qdd + C(q, qd) qd + g(q)`.",
             KernelKind::RneaGrad => "its analytical gradient.",
             KernelKind::MassMatrix => "the joint-space inertia matrix M(q).",
-            KernelKind::Minv => "M(q)^-1, by the direct O(nv^2) recursion (M is never inverted).",
+            KernelKind::Minv => "M(q)^-1 (the function's doc says how it is formed).",
             KernelKind::Fd => "forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))`,\n  by the O(nv) articulated-body algorithm.",
             KernelKind::FdGrad => "forward dynamics and its gradient `-M^-1 dc/du`\n  at that qdd (the function's doc says how qdd and M^-1 are formed).",
             KernelKind::FramePlacement => "each frame's world translation and rotation.",

@@ -216,6 +216,17 @@ impl Dynamics<'_> {
             let blocks = blocks.into();
             self.program = Some(ColumnProgram { rows: n, blocks, replaces: Some(straight) });
         }
+        let picked = self.minv_columns(&fs, columns);
+        let solved = rhs.iter().map(|b| f.solve(&mut self.g, self.model, b.clone())).collect();
+        (qdd, dq, dqd, picked, solved)
+    }
+
+    /// Columns `columns` of `s M⁻¹` from its factorisation scaled by `s` (`fs`, see
+    /// [`Ltdl::scaled`]), one solve per column; rows of a later column that are also an
+    /// earlier column are that column's entries (M⁻¹ is symmetric).
+    pub(super) fn minv_columns(&mut self, fs: &Ltdl, columns: &[usize]) -> Mat {
+        let n = self.n();
+        let zero = self.g.constant(0.0);
         // M⁻¹ e_c = −M⁻¹ (−e_c): no negation is left to store.
         let mut picked = vec![vec![zero; columns.len()]; n];
         for (at, &c) in columns.iter().enumerate() {
@@ -236,8 +247,7 @@ impl Dynamics<'_> {
                 }
             }
         }
-        let solved = rhs.iter().map(|b| f.solve(&mut self.g, self.model, b.clone())).collect();
-        (qdd, dq, dqd, picked, solved)
+        picked
     }
 
     /// LTDL (Featherstone 2005, table 2): M's lower triangle becomes L (unit diagonal

@@ -1,7 +1,9 @@
-//! The direct M⁻¹ (no M, no factorisation), recorded: articulated inertias and one
-//! backward and one forward sweep, per joint and per coordinate.
+//! M⁻¹, recorded: the direct recursion (no M, no factorisation: articulated inertias and
+//! one backward and one forward sweep, per joint and per coordinate), or M's sparse
+//! factorisation's solves.
 
 use super::super::graph::{Id, Stage};
+use super::super::kernel::Solve;
 use super::super::spatial::{self as sp, Sv};
 use super::{add6, articulated, pivot, Dynamics, Mat};
 
@@ -77,8 +79,19 @@ impl Dynamics<'_> {
     }
 
     /// M⁻¹ per coordinate: [`Self::minv`], projected onto the mimic constraints when
-    /// some joint is coupled.
+    /// some joint is coupled; or, with [`Solve::Ltdl`] and no coupled joint, CRBA's M
+    /// factorised (`M = Lᵀ D L`, [`Self::ltdl`]) and solved for each column of the
+    /// identity, whose work follows each joint's depth where the direct recursion's
+    /// follows the pairs of joints on one path.
     pub fn minv_coordinates(&mut self) -> Mat {
+        if self.solve == Solve::Ltdl && !self.coupled() {
+            let m = self.mass_matrix();
+            let f = self.ltdl(m);
+            let all: Vec<usize> = (0..self.n()).collect();
+            return self.minv_columns(&f, &all);
+        }
+        // The constrained M⁻¹ of coupled mimic joints comes from the direct route.
+        self.solve = Solve::Minv;
         let mi = self.minv();
         if !self.coupled() {
             return mi;
