@@ -818,11 +818,12 @@ pub const LTDL_MAX_DEPTH: usize = 50;
 /// [`Solve::Auto`] (then the route with fewer operations is kept): on a fixed base at most
 /// [`LTDL_MAX_DEPTH`] joints deep. Measured in one process, the two routes interleaved
 /// (fma copy, 2-core Intel Xeon, 2026-11-30), time per call of the factorisation's against
-/// the direct recursion's: on a fixed base 0.71x iiwa, 0.65x Panda, 0.64x HyQ, 0.55x to
-/// 0.62x Atlas (their operations 0.48x to 0.66x); on a floating base, where the
-/// free-flyer's six rows are in every column's solves, 0.8x HyQ, 1.03x Go2, 1.12x UR5 and
-/// 1.3x to 1.6x Atlas, with 0.67x to 0.93x the operations (`scripts/solve_ab.py`; the
-/// book, Operations, "M⁻¹ from M's factorisation").
+/// the direct recursion's: on a fixed base 0.68x to 0.74x iiwa, 0.63x to 0.67x Panda,
+/// 0.62x to 0.65x HyQ, 0.55x to 0.62x Atlas (their operations 0.43x to 0.66x); on a
+/// floating base, where the free-flyer's six rows are in every column's solves, 0.8x HyQ,
+/// 1.03x Go2, 1.12x UR5 and 1.27x to 1.59x Atlas, with 0.67x to 0.93x the operations
+/// (`scripts/solve_ab.py --routes minv,ltdl`; the book, Operations, "M⁻¹ from M's
+/// factorisation").
 fn minv_may_factorise(model: &Model, depth: usize) -> bool {
     depth <= LTDL_MAX_DEPTH && !model.floating
 }
