@@ -623,7 +623,7 @@ pub fn lower_function(
         // `minv` by the direct recursion, or by M's factorisation where that may be faster
         // and has fewer operations; `crba` has no q̈ to take from it here.
         _ if kind == KernelKind::Minv => match options.solve {
-            Solve::Auto if minv_may_factorise(model, depth) => &[Solve::Minv, Solve::Ltdl],
+            Solve::Auto if minv_may_factorise(depth) => &[Solve::Minv, Solve::Ltdl],
             Solve::Auto | Solve::Minv => &[Solve::Minv],
             Solve::Ltdl | Solve::Crba => &[Solve::Ltdl],
         },
@@ -815,17 +815,19 @@ fn ahead_of_call(
 pub const LTDL_MAX_DEPTH: usize = 50;
 
 /// Whether `minv` may be formed by M's factorisation ([`Solve::Ltdl`]) under
-/// [`Solve::Auto`] (then the route with fewer operations is kept): on a fixed base at most
+/// [`Solve::Auto`] (then the route with fewer operations is kept): at most
 /// [`LTDL_MAX_DEPTH`] joints deep. Measured in one process, the two routes interleaved
 /// (fma copy, 2-core Intel Xeon, 2026-11-30), time per call of the factorisation's against
 /// the direct recursion's: on a fixed base 0.68x to 0.74x iiwa, 0.63x to 0.67x Panda,
-/// 0.62x to 0.65x HyQ, 0.55x to 0.62x Atlas (their operations 0.43x to 0.66x); on a
-/// floating base, where the free-flyer's six rows are in every column's solves, 0.8x HyQ,
-/// 1.03x Go2, 1.12x UR5 and 1.27x to 1.59x Atlas, with 0.67x to 0.93x the operations
-/// (`scripts/solve_ab.py --routes minv,ltdl`; the book, Operations, "M⁻¹ from M's
-/// factorisation").
-fn minv_may_factorise(model: &Model, depth: usize) -> bool {
-    depth <= LTDL_MAX_DEPTH && !model.floating
+/// 0.62x to 0.65x HyQ, 0.55x to 0.62x Atlas (their operations 0.43x to 0.66x). On a
+/// floating base every column's last solve fills every row, and the columns run as one
+/// loop (`Dynamics::minv_program`): 0.84x to 0.91x UR5, 0.63x to 0.66x HyQ, 0.77x to 0.82x
+/// Go2, 0.69x to 0.79x Atlas, where the operations are 0.88x to 0.95x the direct
+/// recursion's; iiwa's are 1.03x, so it keeps the direct recursion (1.02x to 1.11x as a
+/// loop). `scripts/solve_ab.py --routes minv,ltdl`; the book, Operations, "M⁻¹ from M's
+/// factorisation".
+fn minv_may_factorise(depth: usize) -> bool {
+    depth <= LTDL_MAX_DEPTH
 }
 
 /// The most joints on one path from the root for which `fd_grad` may take q̈ from M's

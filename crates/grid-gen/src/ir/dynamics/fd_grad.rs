@@ -281,7 +281,7 @@ impl Dynamics<'_> {
 /// M = Lᵀ D L, as [`Dynamics::ltdl`] leaves it: L below the diagonal (row k, the
 /// ancestors of k), and −1/D.
 #[derive(Clone)]
-pub(super) struct Ltdl {
+pub(crate) struct Ltdl {
     l: Mat,
     neg_dinv: Vec<Id>,
 }
@@ -295,27 +295,14 @@ impl Ltdl {
 
     /// −M⁻¹ b: [`Self::steps`] on b's nodes. Zero entries of b fold away, so a column
     /// touches only the joints it can reach.
-    pub(super) fn solve(&self, g: &mut Graph, model: &Model, mut b: Vec<Id>) -> Vec<Id> {
-        let node = |o: Operand| match o {
-            Operand::Node(id) => id,
-            _ => unreachable!("Ltdl::steps reads nodes"),
-        };
-        for step in self.steps(model) {
-            match step {
-                ColumnStep::Sub { dst, coef, src } => {
-                    let t = g.mul(node(coef), b[src]);
-                    b[dst] = g.sub(b[dst], t);
-                }
-                ColumnStep::Mul { dst, coef } => b[dst] = g.mul(b[dst], node(coef)),
-            }
-        }
-        b
+    pub(super) fn solve(&self, g: &mut Graph, model: &Model, b: Vec<Id>) -> Vec<Id> {
+        run_steps(g, &self.steps(model), b)
     }
 
     /// The solve `−M⁻¹ b` as steps on b's rows: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`,
     /// `L x = z` root first. [`Self::solve`] runs them on graph nodes, [`solve_block`] on
     /// many columns at once.
-    fn steps(&self, model: &Model) -> Vec<ColumnStep> {
+    pub(super) fn steps(&self, model: &Model) -> Vec<ColumnStep> {
         let n = self.neg_dinv.len();
         let l = |k: usize, j: usize| Operand::Node(self.l[k][j]);
         let mut steps = Vec::new();
@@ -334,6 +321,24 @@ impl Ltdl {
         }
         steps
     }
+}
+
+/// `steps` (of [`Ltdl::steps`]) run on b's nodes.
+pub(super) fn run_steps(g: &mut Graph, steps: &[ColumnStep], mut b: Vec<Id>) -> Vec<Id> {
+    let node = |o: Operand| match o {
+        Operand::Node(id) => id,
+        _ => unreachable!("Ltdl::steps reads nodes"),
+    };
+    for &step in steps {
+        match step {
+            ColumnStep::Sub { dst, coef, src } => {
+                let t = g.mul(node(coef), b[src]);
+                b[dst] = g.sub(b[dst], t);
+            }
+            ColumnStep::Mul { dst, coef } => b[dst] = g.mul(b[dst], node(coef)),
+        }
+    }
+    b
 }
 
 /// The solves of [`Dynamics::fd_grad_ltdl`] for the columns of `dc` that are not `known`,

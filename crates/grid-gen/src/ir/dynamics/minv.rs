@@ -1,10 +1,13 @@
 //! M⁻¹, recorded: the direct recursion (no M, no factorisation: articulated inertias and
 //! one backward and one forward sweep, per joint and per coordinate), or M's sparse
-//! factorisation's solves.
+//! factorisation's solves (on a floating base, as a program over the columns).
 
 use super::super::graph::{Id, Stage};
 use super::super::kernel::Solve;
+use super::super::module::ColumnStep;
+use super::super::module::{ColumnBlock, ColumnProgram, ColumnStore, Operand};
 use super::super::spatial::{self as sp, Sv};
+use super::fd_grad::{run_steps, Ltdl};
 use super::{add6, articulated, pivot, Dynamics, Mat};
 
 impl Dynamics<'_> {
@@ -82,11 +85,15 @@ impl Dynamics<'_> {
     /// some joint is coupled; or, with [`Solve::Ltdl`] and no coupled joint, CRBA's M
     /// factorised (`M = Lᵀ D L`, [`Self::ltdl`]) and solved for each column of the
     /// identity, whose work follows each joint's depth where the direct recursion's
-    /// follows the pairs of joints on one path.
+    /// follows the pairs of joints on one path; on a floating base, the solves as one
+    /// program over the columns ([`Self::minv_program`]).
     pub fn minv_coordinates(&mut self) -> Mat {
         if self.solve == Solve::Ltdl && !self.coupled() {
             let m = self.mass_matrix();
             let f = self.ltdl(m);
+            if self.model.floating {
+                return self.minv_program(&f);
+            }
             let all: Vec<usize> = (0..self.n()).collect();
             return self.minv_columns(&f, &all);
         }
@@ -99,5 +106,50 @@ impl Dynamics<'_> {
         self.g.at(None, Stage::Combine, 0);
         let k = self.constraints(&mi);
         self.project_minv(&mi, &k)
+    }
+}
+
+impl Dynamics<'_> {
+    /// M⁻¹ from its factorisation `f`, each column solved whole (no entry taken from
+    /// another column, as [`Self::minv_columns`] takes the mirrored ones), and the solves'
+    /// last pass as a program over the columns. On a floating base the free-flyer is an
+    /// ancestor of every joint, so that pass (`L x = z`, root first) fills every row of
+    /// every column: the program does no work the straight-line solves would skip, and the
+    /// Rust backend runs it with the columns innermost, four or eight per instruction. The
+    /// passes before it touch only a column's joint and its ancestors, and stay
+    /// straight-line (the program's initial rows). M⁻¹ is then symmetric to round-off, not
+    /// entry for entry.
+    fn minv_program(&mut self, f: &Ltdl) -> Mat {
+        let n = self.n();
+        let zero = self.g.constant(0.0);
+        let minus_one = self.g.constant(-1.0);
+        let steps = f.steps(self.model);
+        let last =
+            steps.iter().rposition(|s| matches!(s, ColumnStep::Mul { .. })).map_or(0, |i| i + 1);
+        let (head, tail) = steps.split_at(last);
+        let mut init = vec![Vec::with_capacity(n); n];
+        let mut out = vec![vec![zero; n]; n];
+        for c in 0..n {
+            let mut e = vec![zero; n];
+            e[c] = minus_one;
+            let z = run_steps(&mut self.g, head, e);
+            for (row, &x) in z.iter().enumerate() {
+                init[row].push(Operand::Node(x));
+            }
+            for (row, x) in run_steps(&mut self.g, tail, z).into_iter().enumerate() {
+                out[row][c] = x;
+            }
+        }
+        let stores = (0..n)
+            .map(|row| ColumnStore {
+                row,
+                output: "minv",
+                flat: (0..n).map(|c| row * n + c).collect(),
+                negate: false,
+            })
+            .collect();
+        let block = ColumnBlock { init, steps: tail.to_vec(), stores };
+        self.program = Some(ColumnProgram { rows: n, blocks: vec![block], replaces: None });
+        out
     }
 }
