@@ -821,8 +821,8 @@ pub const LTDL_MAX_DEPTH: usize = 50;
 /// the direct recursion's: on a fixed base 0.68x to 0.74x iiwa, 0.63x to 0.67x Panda,
 /// 0.62x to 0.65x HyQ, 0.55x to 0.62x Atlas (their operations 0.43x to 0.66x). On a
 /// floating base every column's last solve fills every row, and the columns run as one
-/// loop (`Dynamics::minv_program`): 0.84x to 0.91x UR5, 0.63x to 0.66x HyQ, 0.77x to 0.82x
-/// Go2, 0.69x to 0.79x Atlas, where the operations are 0.88x to 0.95x the direct
+/// loop (`Dynamics::minv_program`): 0.82x to 0.92x UR5, 0.63x to 0.70x HyQ, 0.75x to 0.82x
+/// Go2, 0.62x to 0.80x Atlas, where the operations are 0.88x to 0.95x the direct
 /// recursion's; iiwa's are 1.03x, so it keeps the direct recursion (1.02x to 1.11x as a
 /// loop). `scripts/solve_ab.py --routes minv,ltdl`; the book, Operations, "M⁻¹ from M's
 /// factorisation".
