@@ -299,10 +299,20 @@ impl Ltdl {
         run_steps(g, &self.steps(model), b)
     }
 
+    /// [`Self::steps`] as the passes before the last (`Lᵀ y = b`, `z = −D⁻¹ y`) and the
+    /// last (`L x = z`, root first), which on a floating base fills every row.
+    pub(super) fn split_steps(&self, model: &Model) -> (Vec<ColumnStep>, Vec<ColumnStep>) {
+        let mut head = self.steps(model);
+        let last =
+            head.iter().rposition(|s| matches!(s, ColumnStep::Mul { .. })).map_or(0, |i| i + 1);
+        let tail = head.split_off(last);
+        (head, tail)
+    }
+
     /// The solve `−M⁻¹ b` as steps on b's rows: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`,
     /// `L x = z` root first. [`Self::solve`] runs them on graph nodes, [`solve_block`] on
     /// many columns at once.
-    pub(super) fn steps(&self, model: &Model) -> Vec<ColumnStep> {
+    fn steps(&self, model: &Model) -> Vec<ColumnStep> {
         let n = self.neg_dinv.len();
         let l = |k: usize, j: usize| Operand::Node(self.l[k][j]);
         let mut steps = Vec::new();

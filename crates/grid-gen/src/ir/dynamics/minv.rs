@@ -4,7 +4,6 @@
 
 use super::super::graph::{Id, Stage};
 use super::super::kernel::Solve;
-use super::super::module::ColumnStep;
 use super::super::module::{ColumnBlock, ColumnProgram, ColumnStore, Operand};
 use super::super::spatial::{self as sp, Sv};
 use super::fd_grad::{run_steps, Ltdl};
@@ -123,20 +122,17 @@ impl Dynamics<'_> {
         let n = self.n();
         let zero = self.g.constant(0.0);
         let minus_one = self.g.constant(-1.0);
-        let steps = f.steps(self.model);
-        let last =
-            steps.iter().rposition(|s| matches!(s, ColumnStep::Mul { .. })).map_or(0, |i| i + 1);
-        let (head, tail) = steps.split_at(last);
+        let (head, tail) = f.split_steps(self.model);
         let mut init = vec![Vec::with_capacity(n); n];
         let mut out = vec![vec![zero; n]; n];
         for c in 0..n {
             let mut e = vec![zero; n];
             e[c] = minus_one;
-            let z = run_steps(&mut self.g, head, e);
+            let z = run_steps(&mut self.g, &head, e);
             for (row, &x) in z.iter().enumerate() {
                 init[row].push(Operand::Node(x));
             }
-            for (row, x) in run_steps(&mut self.g, tail, z).into_iter().enumerate() {
+            for (row, x) in run_steps(&mut self.g, &tail, z).into_iter().enumerate() {
                 out[row][c] = x;
             }
         }
@@ -148,7 +144,7 @@ impl Dynamics<'_> {
                 negate: false,
             })
             .collect();
-        let block = ColumnBlock { init, steps: tail.to_vec(), stores };
+        let block = ColumnBlock { init, steps: tail, stores };
         self.program = Some(ColumnProgram { rows: n, blocks: vec![block], replaces: None });
         out
     }
