@@ -281,7 +281,7 @@ impl Dynamics<'_> {
 /// M = Lᵀ D L, as [`Dynamics::ltdl`] leaves it: L below the diagonal (row k, the
 /// ancestors of k), and −1/D.
 #[derive(Clone)]
-pub(crate) struct Ltdl {
+pub(super) struct Ltdl {
     l: Mat,
     neg_dinv: Vec<Id>,
 }
