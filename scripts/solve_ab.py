@@ -6,7 +6,7 @@ that they agree, and times them interleaved (30 rounds of 200 calls each, the fi
 dropped; medians). Prints one line per robot: both times, their ratio, the largest
 difference and the largest entry.
 
-Usage: python3 scripts/solve_ab.py [--kernel minv] [--routes minv,auto] [CASE ...], a CASE
+Usage: python3 scripts/solve_ab.py [--kernel minv|fd_grad] [--routes minv,auto] [CASE ...], a CASE
 being `URDF` or `URDF:floating` (default: the cases of the book's table, Operations,
 "M⁻¹ from M's factorisation"). Needs the CLI (`cargo build --release -p grid-gen-cli
 --no-default-features`; `$GRID_GEN` overrides its path) and rustc. A benchmark, not a
@@ -41,9 +41,12 @@ TIMING = """{{
         let n = (q[3] * q[3] + q[4] * q[4] + q[5] * q[5] + q[6] * q[6]).sqrt();
         for k in 3..7 {{ q[k] /= n; }}
     }}
-    let (x, y) = ({a}::{kernel}(&q), {b}::{kernel}(&q));
+    let mut qd = [0.0f64; {a}::NV];
+    let mut tau = [0.0f64; {a}::NV];
+    for x in qd.iter_mut().chain(tau.iter_mut()) {{ *x = lcg(&mut s); }}
+    let (x, y) = ({a}::{kernel}({args}), {b}::{kernel}({args}));
     let (mut diff, mut big) = (0.0f64, 0.0f64);
-    for (r, t) in x.iter().flatten().zip(y.iter().flatten()) {{
+    for (r, t) in {flat_x}.zip({flat_y}) {{
         diff = diff.max((r - t).abs());
         big = big.max(r.abs());
     }}
@@ -54,8 +57,8 @@ TIMING = """{{
             let t0 = Instant::now();
             for _ in 0..200 {{
                 q[last] += 1e-9;
-                let m = if which == 0 {{ {a}::{kernel}(black_box(&q)) }} else {{ {b}::{kernel}(black_box(&q)) }};
-                acc += m[0][0];
+                let m = if which == 0 {{ {a}::{kernel}({bargs}) }} else {{ {b}::{kernel}({bargs}) }};
+                acc += {first};
             }}
             let ns = t0.elapsed().as_nanos() as f64 / 200.0;
             if round >= 2 {{ if which == 0 {{ ta.push(ns) }} else {{ tb.push(ns) }} }}
@@ -69,9 +72,21 @@ TIMING = """{{
 }}"""
 
 
+# How each kernel is called, and the entries compared between the routes.
+KERNELS = {
+    "minv": ("&q", "black_box(&q)", "m[0][0]", "{v}.iter().flatten()"),
+    "fd_grad": (
+        "&q, &qd, &tau",
+        "black_box(&q), black_box(&qd), black_box(&tau)",
+        "m.1[0][0]",
+        "{v}.0.iter().chain({v}.1.iter().flatten()).chain({v}.2.iter().flatten())",
+    ),
+}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--kernel", default="minv")
+    ap.add_argument("--kernel", default="minv", choices=sorted(KERNELS))
     ap.add_argument("--routes", default="minv,auto")
     ap.add_argument("cases", nargs="*", default=CASES)
     args = ap.parse_args()
@@ -101,7 +116,20 @@ def main() -> None:
                 rs = next(f for f in os.listdir(out) if f.endswith(".rs"))
                 lines.append(f'mod m{i}_{route} {{ include!("{os.path.join(out, rs)}"); }}')
                 mods.append(f"m{i}_{route}")
-            timings.append(TIMING.format(a=mods[0], b=mods[1], kernel=args.kernel, case=case))
+            call, bcall, first, flat = KERNELS[args.kernel]
+            timings.append(
+                TIMING.format(
+                    a=mods[0],
+                    b=mods[1],
+                    kernel=args.kernel,
+                    case=case,
+                    args=call,
+                    bargs=bcall,
+                    first=first,
+                    flat_x=flat.format(v="x"),
+                    flat_y=flat.format(v="y"),
+                )
+            )
         lines.append("fn main() {")
         lines.extend(timings)
         lines.append("}")

@@ -329,10 +329,10 @@ impl Info {
             rust_size: Vec::new(),
             calls,
         }
-        .with_ops(ir::stats(model, gravity, gradient, solve, ir::STATS_MAX_NODES))
+        .with_ops(ir::stats(model, gravity, gradient, solve, calls, ir::STATS_MAX_NODES))
         .with_gradient_costs(model, gravity)
-        .with_verilog(model, gravity, gradient, solve, stage_depth, format)
-        .with_wgsl(model, gravity, gradient, solve)
+        .with_verilog(model, gravity, gradient, solve, calls, stage_depth, format)
+        .with_wgsl(model, gravity, gradient, solve, calls)
         .with_rust_size(model, gravity, gradient, solve, calls)
     }
 
@@ -399,6 +399,7 @@ impl Info {
         gravity: [f64; 3],
         gradient: ir::Gradient,
         solve: ir::Solve,
+        calls: ir::Calls,
     ) -> Self {
         // Kernels whose general graph is over the node limit are larger still.
         let (kernels, large): (Vec<&KernelStats>, Vec<&KernelStats>) =
@@ -428,6 +429,7 @@ impl Info {
             max_nodes: ir::STATS_MAX_NODES,
             gradient,
             solve,
+            calls,
             ..ir::LowerOptions::default()
         };
         let result =
@@ -449,6 +451,7 @@ impl Info {
         gravity: [f64; 3],
         gradient: ir::Gradient,
         solve: ir::Solve,
+        calls: ir::Calls,
         stage_depth: u32,
         format: FormatChoice,
     ) -> Self {
@@ -473,6 +476,7 @@ impl Info {
             max_nodes: ir::STATS_MAX_NODES,
             gradient,
             solve,
+            calls,
             ..ir::LowerOptions::default()
         };
         let mut fd_grad_skipped = None;

@@ -103,6 +103,7 @@ fn specialisation_removes_work_and_keeps_depth_bounded() {
         reference::DEFAULT_GRAVITY,
         ir::Gradient::Auto,
         ir::Solve::Auto,
+        ir::Calls::Auto,
         ir::STATS_MAX_NODES,
     );
     assert!(stats.skipped.is_empty(), "Atlas fits the op-count limit: {:?}", stats.skipped);

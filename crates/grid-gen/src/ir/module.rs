@@ -628,7 +628,9 @@ pub fn lower_function(
             Solve::Ltdl | Solve::Crba => &[Solve::Ltdl],
         },
         _ if !kind.holds_fd_grad() => &[Solve::Minv],
-        Solve::Auto if depth <= CRBA_MAX_DEPTH => &[Solve::Minv, Solve::Ltdl, Solve::Crba],
+        Solve::Auto if crba_depth(model, options.calls) <= CRBA_MAX_DEPTH => {
+            &[Solve::Minv, Solve::Ltdl, Solve::Crba]
+        }
         Solve::Auto if depth <= LTDL_MAX_DEPTH => &[Solve::Minv, Solve::Ltdl],
         Solve::Auto | Solve::Minv => &[Solve::Minv],
         Solve::Ltdl => &[Solve::Ltdl],
@@ -830,8 +832,8 @@ fn minv_may_factorise(depth: usize) -> bool {
     depth <= LTDL_MAX_DEPTH
 }
 
-/// The most joints on one path from the root for which `fd_grad` may take q̈ from M's
-/// factorisation ([`Solve::Crba`]) instead of ABA. `M⁻¹ (τ − c)` loses accuracy with
+/// The most joints on one path from the root ([`crba_depth`]) for which `fd_grad` may take
+/// q̈ from M's factorisation ([`Solve::Crba`]) instead of ABA. `M⁻¹ (τ − c)` loses accuracy with
 /// cond(M), ABA does not: measured against double-double values of the same graphs (the
 /// worst of 10 random states, relative max-abs), q̈'s error is ABA's on iiwa (4.4e-16),
 /// 2.6x to 4x it on HyQ, Atlas and Panda (6.4e-16, 2.8e-15, 2.0e-15), 11x on a 12-link
@@ -839,6 +841,30 @@ fn minv_may_factorise(depth: usize) -> bool {
 /// the gradient's error grows less (Atlas ∂q̈/∂q 6.9e-14 against 1.5e-14). At 12 the
 /// cost stays at 1e-14, a hundredth of the f64 tolerance.
 pub const CRBA_MAX_DEPTH: usize = 12;
+
+/// The depth [`CRBA_MAX_DEPTH`] bounds: the joints on the longest path from the root, a
+/// free-flyer's six coordinates and a spherical joint's three each counted as one joint,
+/// as the algorithms treat them (Pinocchio's `JointModelFreeFlyer` and
+/// `JointModelSpherical`; [`Model::group`]). What `M⁻¹ (τ − c)` loses grows with the joints
+/// in series, not with a base's coordinates: measured against double-double values of the
+/// same graphs (`accuracy::random_states`, 20 states, seed 1, q̈'s relative max-abs
+/// error, 2026-11-30), `crba` against ABA on a floating base: Atlas 2.0e-12 against
+/// 3.6e-12, iiwa 6.1e-14 against 6.4e-14, UR5 8.3e-14 against 1.4e-13, Panda 1.9e-13
+/// against 7.4e-14, HyQ 1.4e-14 against 1.3e-14; `chain_urdf` with a 2 kg base on a
+/// floating base, 1.4x at 11 links (6.1e-14) and 2.6x at 12 (9.2e-14), as on a fixed base
+/// (the gradients' errors the same to two digits). With [`Calls::All`] or
+/// [`Calls::RneaGrad`] every coordinate counts, as it did for every kernel before: those
+/// calls apply only where q̈ is ABA's ([`shared_call`]), so a floating humanoid whose user
+/// asks for them keeps them.
+fn crba_depth(model: &Model, calls: Calls) -> usize {
+    let mut depth = vec![0usize; model.joints.len()];
+    for (i, j) in model.joints.iter().enumerate() {
+        let above = j.parent.map_or(0, |p| depth[p]);
+        let member = calls == Calls::Auto && model.group(i).is_some_and(|g| g.start != i);
+        depth[i] = above + usize::from(!member);
+    }
+    depth.into_iter().max().unwrap_or(0)
+}
 
 /// Runs one kernel's algorithm with one gradient formulation and M⁻¹ route and freezes
 /// its graph.

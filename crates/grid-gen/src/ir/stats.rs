@@ -5,7 +5,7 @@ use serde::Serialize;
 
 use super::graph::Op;
 use super::kernel::{Gradient, KernelKind, Solve};
-use super::module::{lower_function, Function, LowerError, LowerOptions};
+use super::module::{lower_function, Calls, Function, LowerError, LowerOptions};
 use crate::model::Model;
 
 /// Arithmetic operations of a kernel.
@@ -90,12 +90,14 @@ pub const STATS_MAX_NODES: usize = 2_000_000;
 /// `max_nodes`. A kernel whose graph would be larger is listed as skipped, and so is
 /// every kernel that contains it, without building them: time and memory stay bounded
 /// whatever the robot. `gradient` picks the specialised graphs' RNEA-gradient formulation
-/// (the general count is always the column formulation, as a library runs it).
+/// (the general count is always the column formulation, as a library runs it), and `calls`
+/// the routes that `solve`'s `auto` may pick (as generation's `--calls`).
 pub fn stats(
     model: &Model,
     gravity: [f64; 3],
     gradient: Gradient,
     solve: Solve,
+    calls: Calls,
     max_nodes: usize,
 ) -> Stats {
     let mut out = Stats { ops: Vec::new(), skipped: Vec::new() };
@@ -111,7 +113,8 @@ pub fn stats(
         // The specialised graph first: a kernel over the limit there is skipped (and so is
         // every kernel that holds it); the general graph over the limit only leaves its
         // "before" count out.
-        let specialised = LowerOptions { gradient, solve, max_nodes, ..LowerOptions::default() };
+        let specialised =
+            LowerOptions { gradient, solve, calls, max_nodes, ..LowerOptions::default() };
         let f = match lower_function(model, gravity, kind, &specialised) {
             Ok(f) => f,
             Err(e) => {
