@@ -1,14 +1,17 @@
 #!/usr/bin/env python3
 """One kernel's two `--solve` routes side by side: for each robot, the CLI generates the
-kernel alone under `--solve A` and `--solve B`, one program includes both modules
+kernel alone under `--solve A` and `--solve B` (B by a second CLI with `--cli-b`, to
+compare two commits), one program includes both modules
 (`rustc -C opt-level=3 -C target-cpu=native`, so the dispatcher runs the fma copy), checks
 that they agree, and times them interleaved (30 rounds of 200 calls each, the first two
 dropped; medians). Prints one line per robot: both times, their ratio, the largest
 difference and the largest entry.
 
-Usage: python3 scripts/solve_ab.py [--kernel minv|fd_grad] [--routes minv,auto] [CASE ...], a CASE
-being `URDF` or `URDF:floating` (default: the cases of the book's table, Operations,
-"M⁻¹ from M's factorisation"). Needs the CLI (`cargo build --release -p grid-gen-cli
+Usage: python3 scripts/solve_ab.py [--kernel minv|fd_grad|contact_fd|contact_fd_grad]
+[--routes minv,auto] [--cli-b PATH] [CASE ...], a CASE being `URDF`, `URDF:floating` or
+`URDF:SCENE.toml` (the scene's own `outputs` dropped; every candidate contact active where
+it has `contact_mask`; default: the cases of the book's table, Operations, "M⁻¹ from M's
+factorisation"). Needs the CLI (`cargo build --release -p grid-gen-cli
 --no-default-features`; `$GRID_GEN` overrides its path) and rustc. A benchmark, not a
 test: run it on an idle machine.
 """
@@ -44,6 +47,7 @@ TIMING = """{{
     let mut qd = [0.0f64; {a}::NV];
     let mut tau = [0.0f64; {a}::NV];
     for x in qd.iter_mut().chain(tau.iter_mut()) {{ *x = lcg(&mut s); }}
+    let active = [1.0f64; {ncontacts}];
     let (x, y) = ({a}::{kernel}({args}), {b}::{kernel}({args}));
     let (mut diff, mut big) = (0.0f64, 0.0f64);
     for (r, t) in {flat_x}.zip({flat_y}) {{
@@ -73,13 +77,20 @@ TIMING = """{{
 
 
 # How each kernel is called, and the entries compared between the routes.
+STATE = ("&q, &qd, &tau", "black_box(&q), black_box(&qd), black_box(&tau)")
 KERNELS = {
     "minv": ("&q", "black_box(&q)", "m[0][0]", "{v}.iter().flatten()"),
     "fd_grad": (
-        "&q, &qd, &tau",
-        "black_box(&q), black_box(&qd), black_box(&tau)",
+        *STATE,
         "m.1[0][0]",
         "{v}.0.iter().chain({v}.1.iter().flatten()).chain({v}.2.iter().flatten())",
+    ),
+    "contact_fd": (*STATE, "m.0[0]", "{v}.0.iter().chain({v}.1.iter())"),
+    "contact_fd_grad": (
+        *STATE,
+        "m.2[0][0]",
+        "{v}.0.iter().chain({v}.1.iter())"
+        + "".join(f".chain({{v}}.{k}.iter().flatten())" for k in range(2, 8)),
     ),
 }
 
@@ -88,6 +99,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--kernel", default="minv", choices=sorted(KERNELS))
     ap.add_argument("--routes", default="minv,auto")
+    ap.add_argument("--cli-b", default=CLI, help="the CLI that generates B (default: the one of A)")
     ap.add_argument("cases", nargs="*", default=CASES)
     args = ap.parse_args()
     routes = args.routes.split(",")
@@ -96,27 +108,35 @@ def main() -> None:
     if not os.access(CLI, os.X_OK):
         sys.exit(f"error: {CLI} is missing: cargo build --release -p grid-gen-cli --no-default-features")
     with tempfile.TemporaryDirectory() as tmp:
-        scene = os.path.join(tmp, "kernel.toml")
-        with open(scene, "w") as f:
-            f.write(f'outputs = ["{args.kernel}"]\n')
         lines = ["#![allow(warnings)]", "use std::hint::black_box;", "use std::time::Instant;"]
         lines.append(
             "fn lcg(s: &mut u64) -> f64 { *s = s.wrapping_mul(6364136223846793005).wrapping_add(1442695040888963407); ((*s >> 11) as f64 / (1u64 << 53) as f64) * 2.0 - 1.0 }"
         )
         timings = []
         for i, case in enumerate(args.cases):
-            urdf, _, floating = case.partition(":")
+            urdf, _, extra = case.partition(":")
+            text = ""
+            if extra.endswith(".toml"):
+                with open(os.path.join(ROOT, extra)) as f:
+                    text = "".join(l for l in f if not l.startswith("outputs"))
+            scene = os.path.join(tmp, f"kernel{i}.toml")
+            with open(scene, "w") as f:
+                f.write(f'outputs = ["{args.kernel}"]\n' + text)
+            masked = "contact_mask = true" in text
             mods = []
-            for route in routes:
-                out = os.path.join(tmp, f"m{i}_{route}")
-                cmd = [CLI, os.path.join(ROOT, urdf), "--scene", scene, "--solve", route, "-o", out]
-                if floating == "floating":
+            for cli, route in zip([CLI, args.cli_b], routes):
+                out = os.path.join(tmp, f"m{i}_{len(mods)}_{route}")
+                cmd = [cli, os.path.join(ROOT, urdf), "--scene", scene, "--solve", route, "-o", out]
+                if extra == "floating":
                     cmd.append("--floating-base")
                 subprocess.run(cmd, check=True, capture_output=True)
                 rs = next(f for f in os.listdir(out) if f.endswith(".rs"))
-                lines.append(f'mod m{i}_{route} {{ include!("{os.path.join(out, rs)}"); }}')
-                mods.append(f"m{i}_{route}")
+                name = os.path.basename(out)
+                lines.append(f'mod {name} {{ include!("{os.path.join(out, rs)}"); }}')
+                mods.append(name)
             call, bcall, first, flat = KERNELS[args.kernel]
+            if masked:
+                call, bcall = call + ", &active", bcall + ", black_box(&active)"
             timings.append(
                 TIMING.format(
                     a=mods[0],
@@ -128,6 +148,7 @@ def main() -> None:
                     first=first,
                     flat_x=flat.format(v="x"),
                     flat_y=flat.format(v="y"),
+                    ncontacts=f"{mods[0]}::NCONTACTS" if masked else "0",
                 )
             )
         lines.append("fn main() {")

@@ -9,6 +9,11 @@
 //! - `λ = −K⁻¹ (J a₀ + γ)`, with `J a₀ + γ` the contacts' acceleration at q̈ = a₀,
 //! - `q̈ = a₀ + G λ`.
 //!
+//! Where M is factorised as `Lᵀ D L`, `contact_fd` forms K as `Yᵀ D⁻¹ Y` with
+//! `Y = L⁻ᵀ Jᵀ` (each column's first pass, which reaches only its contact's joints and
+//! their ancestors) and `G λ` as one last pass of `D⁻¹ Y λ`, so G itself is solved only by
+//! `contact_fd_grad`, whose columns read it.
+//!
 //! Differentiating `M q̈ + c − τ − Jᵀλ = 0` and `acc(q, q̇, q̈) = 0` (Carpentier & Budhiraja,
 //! "Analytical derivatives of rigid body dynamics with constraints", 2021): with
 //! `F_u = ∂q̈/∂u` at fixed λ (held in world axes, `fd_grad`'s with the contacts' forces as
@@ -90,7 +95,9 @@ pub(crate) struct ContactSolution {
     pub lambda: Vec<Id>,
     /// `−Jᵀ`, one column (nv entries) per entry of λ.
     neg_jt: Vec<Vec<Id>>,
-    /// `G = M⁻¹ Jᵀ`, one column per entry of λ.
+    /// `G = M⁻¹ Jᵀ`, one column per entry of λ; empty where [`Dynamics::contact_fd`]
+    /// factorised M and needed only each column's first passes
+    /// ([`Dynamics::contact_fd_grad`] then solves it).
     g: Vec<Vec<Id>>,
     k: Ldl,
 }
@@ -244,20 +251,40 @@ impl Dynamics<'_> {
     /// Rigid-contact forward dynamics: q̈ and λ (see the module's documentation). The
     /// kernel's forces must be loaded with [`LambdaSource::Unknown`].
     pub fn contact_fd(&mut self, qd: &[Id], tau: &[Id]) -> ContactSolution {
+        let model = self.model;
         let a0 = self.free_acceleration(qd, tau);
         let neg_jt = self.lambda_columns();
-        let g_cols: Vec<Vec<Id>> = self.neg_minv_times(&neg_jt);
+        // With M factorised as Lᵀ D L, K = J M⁻¹ Jᵀ = (L⁻ᵀ Jᵀ)ᵀ D⁻¹ (L⁻ᵀ Jᵀ) takes each
+        // column's first passes only, which reach just its contact's joints and their
+        // ancestors; G's last passes, which fill every row on a floating base, are left to
+        // the gradient, and q̈ takes one.
+        let factor =
+            (matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled()).then(|| {
+                let m = self.mass_matrix();
+                self.ltdl(m)
+            });
+        let (halves, g_cols) = match &factor {
+            Some(f) => {
+                let halves: Vec<(Vec<Id>, Vec<Id>)> =
+                    neg_jt.iter().map(|b| f.first_passes(&mut self.g, model, b.clone())).collect();
+                (halves, Vec::new())
+            }
+            None => (Vec::new(), self.neg_minv_times(&neg_jt)),
+        };
         let (xqd, xa0) = (self.expand(qd), self.expand(&a0));
         let bias = self.contact_accelerations(&xqd, &xa0);
         self.g.at(None, Stage::Combine, 0);
         let nl = neg_jt.len();
         let g = &mut self.g;
         let zero = g.constant(0.0);
-        // K = J G = −(−Jᵀ)ᵀ G, its lower triangle.
+        // K = J G = −(−Jᵀ)ᵀ G, its lower triangle; by the halves, −yᵀ z of −Jᵀ's columns.
         let mut kmat = vec![vec![zero; nl]; nl];
         for r in 0..nl {
             for s in 0..=r {
-                let d = g.dot(&neg_jt[r], &g_cols[s]);
+                let d = match factor {
+                    Some(_) => g.dot(&halves[r].0, &halves[s].1),
+                    None => g.dot(&neg_jt[r], &g_cols[s]),
+                };
                 kmat[r][s] = g.neg(d);
                 kmat[s][r] = kmat[r][s];
             }
@@ -275,13 +302,28 @@ impl Dynamics<'_> {
         }
         let x = k.solve(g, bias);
         let lambda: Vec<Id> = x.into_iter().map(|x| g.neg(x)).collect();
-        let qdd = (0..a0.len())
-            .map(|i| {
-                let col: Vec<Id> = g_cols.iter().map(|c| c[i]).collect();
-                let t = g.dot(&col, &lambda);
-                g.add(a0[i], t)
-            })
-            .collect();
+        let n = a0.len();
+        let qdd = match &factor {
+            // G λ = Σ λ_s G_s, and G_s is the last pass of z_s: the passes are linear, so
+            // one last pass of Σ λ_s z_s.
+            Some(f) => {
+                let z: Vec<Id> = (0..n)
+                    .map(|i| {
+                        let row: Vec<Id> = halves.iter().map(|h| h.1[i]).collect();
+                        g.dot(&row, &lambda)
+                    })
+                    .collect();
+                let x = f.last_pass(g, model, z);
+                (0..n).map(|i| g.add(a0[i], x[i])).collect()
+            }
+            None => (0..n)
+                .map(|i| {
+                    let col: Vec<Id> = g_cols.iter().map(|c| c[i]).collect();
+                    let t = g.dot(&col, &lambda);
+                    g.add(a0[i], t)
+                })
+                .collect(),
+        };
         ContactSolution { qdd, lambda, neg_jt, g: g_cols, k }
     }
 
@@ -290,6 +332,10 @@ impl Dynamics<'_> {
     /// column per coordinate of `tau_cols` (the step kernels need only the actuated ones).
     pub fn contact_fd_grad(&mut self, qd: &[Id], tau: &[Id], tau_cols: &[usize]) -> Vec<Mat> {
         let mut sol = self.contact_fd(qd, tau);
+        if sol.g.is_empty() {
+            // Each column's first passes are contact_fd's nodes (hash-consing shares them).
+            sol.g = self.neg_minv_times(&sol.neg_jt);
+        }
         if self.called && !self.own_qdd {
             // A rest: q̈ and λ from the call to `contact_fd` (the free acceleration, the
             // contacts' bias and the last solves drop out when the graph is frozen); J, G and

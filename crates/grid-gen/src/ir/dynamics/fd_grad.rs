@@ -309,6 +309,28 @@ impl Ltdl {
         (head, tail)
     }
 
+    /// [`Self::solve`] up to its last pass, in two halves: `y = L⁻ᵀ b` and `z = −D⁻¹ y`.
+    /// Both touch only b's joints and their ancestors, and `bᵀ M⁻¹ b′ = −yᵀ z′` needs no
+    /// more (`contact_fd`'s K, without each column's last pass).
+    pub(super) fn first_passes(
+        &self,
+        g: &mut Graph,
+        model: &Model,
+        b: Vec<Id>,
+    ) -> (Vec<Id>, Vec<Id>) {
+        let (head, _) = self.split_steps(model);
+        let (diagonal, first): (Vec<ColumnStep>, Vec<ColumnStep>) =
+            head.into_iter().partition(|s| matches!(s, ColumnStep::Mul { .. }));
+        let y = run_steps(g, &first, b);
+        let z = run_steps(g, &diagonal, y.clone());
+        (y, z)
+    }
+
+    /// The last pass of [`Self::solve`] on the z of [`Self::first_passes`]: `−M⁻¹ b`.
+    pub(super) fn last_pass(&self, g: &mut Graph, model: &Model, z: Vec<Id>) -> Vec<Id> {
+        run_steps(g, &self.split_steps(model).1, z)
+    }
+
     /// The solve `−M⁻¹ b` as steps on b's rows: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`,
     /// `L x = z` root first. [`Self::solve`] runs them on graph nodes, [`solve_block`] on
     /// many columns at once.
