@@ -331,7 +331,7 @@ impl Info {
         }
         .with_ops(ir::stats(model, gravity, gradient, solve, calls, ir::STATS_MAX_NODES))
         .with_gradient_costs(model, gravity)
-        .with_verilog(model, gravity, gradient, solve, calls, stage_depth, format)
+        .with_verilog(model, gravity, (gradient, solve, calls), stage_depth, format)
         .with_wgsl(model, gravity, gradient, solve, calls)
         .with_rust_size(model, gravity, gradient, solve, calls)
     }
@@ -449,9 +449,7 @@ impl Info {
         mut self,
         model: &Model,
         gravity: [f64; 3],
-        gradient: ir::Gradient,
-        solve: ir::Solve,
-        calls: ir::Calls,
+        (gradient, solve, calls): (ir::Gradient, ir::Solve, ir::Calls),
         stage_depth: u32,
         format: FormatChoice,
     ) -> Self {
