@@ -373,6 +373,33 @@ fn run_fd_grad_copies(name: &str, text: &str) -> String {
     )
 }
 
+/// `CRBA_MAX_DEPTH` (12) counts a free-flyer as one joint: a floating 9-link chain is 10
+/// deep, and `fd_grad` and `contact_fd` take q̈ from M's factorisation when it has fewer
+/// operations (it does here), as a fixed chain of 10 would; with `calls` set the six
+/// coordinates count (15), so q̈ stays ABA's and the calls apply; a floating 14-link chain
+/// (15 deep) keeps ABA's q̈ either way.
+#[test]
+fn the_crba_solve_counts_a_free_flyer_as_one_joint() {
+    use grid_gen::ir::{self, Calls, KernelKind, LowerOptions, Solve};
+    use grid_gen::model::ContactKind;
+    let path = std::env::temp_dir().join(format!("grid-gen-chain9-{}.urdf", std::process::id()));
+    let body = "<link name=\"l0\"><inertial><mass value=\"2\"/><inertia ixx=\"0.02\" ixy=\"0\" ixz=\"0\" iyy=\"0.02\" iyz=\"0\" izz=\"0.02\"/></inertial></link>";
+    std::fs::write(&path, chain_urdf(9).replacen("<link name=\"l0\"/>", body, 1)).unwrap();
+    let chain9 = with_forces(&load_urdf(&path, true), &[], &[("l9", ContactKind::Point)]);
+    let _ = std::fs::remove_file(&path);
+    let chain14 = with_forces(&floating_chain14(), &[], &[("l14", ContactKind::Point)]);
+    let g = reference::DEFAULT_GRAVITY;
+    let solve = |model: &Model, kind: KernelKind, calls: Calls| {
+        let options = LowerOptions { kernels: vec![kind], calls, ..LowerOptions::default() };
+        ir::lower_function(model, g, kind, &options).unwrap().solve
+    };
+    for kind in [KernelKind::FdGrad, KernelKind::ContactFd] {
+        assert_eq!(solve(&chain9, kind, Calls::Auto), Some(Solve::Crba), "{kind:?}");
+        assert_eq!(solve(&chain9, kind, Calls::RneaGrad), Some(Solve::Ltdl), "{kind:?}");
+        assert_eq!(solve(&chain14, kind, Calls::Auto), Some(Solve::Ltdl), "{kind:?}");
+    }
+}
+
 /// A 14-link chain on a floating base, deeper than `CRBA_MAX_DEPTH`. The base link carries
 /// a body: a free-flyer under the chain's massless l0 would turn it about j1's axis as j1
 /// does (a singular M).
