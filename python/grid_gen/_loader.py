@@ -130,7 +130,7 @@ def load(
     calls: which kernels call other kernels of the library instead of holding their work:
     "auto" (where it costs no speed: the step calls its contact kernel), "rnea_grad" (also
     fd_grad and contact_fd_grad call rnea_grad at their own q-ddot on trees deeper than 12
-    joints: a humanoid loads in about 32 s instead of 37 s to 43 s, those two 1.07x to
+    coordinates, a free-flyer counting six: a humanoid loads in about 32 s instead of 37 s to 43 s, those two 1.07x to
     1.12x slower, step_grad as fast) or "all" (they call fd or contact_fd for q-ddot too:
     30 s, fd_grad 1.13x and step_grad 1.2x slower; the book, Compile time).
 
