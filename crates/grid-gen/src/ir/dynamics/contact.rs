@@ -11,8 +11,8 @@
 //!
 //! Where M is factorised as `Lᵀ D L`, `contact_fd` forms K as `Yᵀ D⁻¹ Y` with
 //! `Y = L⁻ᵀ Jᵀ` (each column's first pass, which reaches only its contact's joints and
-//! their ancestors) and `G λ` as one last pass of `D⁻¹ Y λ`, so G itself is solved only by
-//! `contact_fd_grad`, whose columns read it.
+//! their ancestors) and `G λ` as one last pass of `D⁻¹ Y λ`. `contact_fd_grad`, whose
+//! columns read G, solves it in full and keeps `K = J G` and `q̈ = a₀ + G λ`.
 //!
 //! Differentiating `M q̈ + c − τ − Jᵀλ = 0` and `acc(q, q̇, q̈) = 0` (Carpentier & Budhiraja,
 //! "Analytical derivatives of rigid body dynamics with constraints", 2021): with
@@ -96,8 +96,7 @@ pub(crate) struct ContactSolution {
     /// `−Jᵀ`, one column (nv entries) per entry of λ.
     neg_jt: Vec<Vec<Id>>,
     /// `G = M⁻¹ Jᵀ`, one column per entry of λ; empty where [`Dynamics::contact_fd`]
-    /// factorised M and needed only each column's first passes
-    /// ([`Dynamics::contact_fd_grad`] then solves it).
+    /// factorised M and needed only each column's first passes (the gradient solves it).
     g: Vec<Vec<Id>>,
     k: Ldl,
 }
@@ -251,6 +250,15 @@ impl Dynamics<'_> {
     /// Rigid-contact forward dynamics: q̈ and λ (see the module's documentation). The
     /// kernel's forces must be loaded with [`LambdaSource::Unknown`].
     pub fn contact_fd(&mut self, qd: &[Id], tau: &[Id]) -> ContactSolution {
+        self.contact_fd_solving_g(qd, tau, false)
+    }
+
+    /// [`Self::contact_fd`], with G solved in full where `with_g` (the gradient's columns
+    /// read it): then K is `J G` and q̈ `a₀ + G λ`, as before 2026-11-30. Held to the
+    /// reference at 1e-12 on lavapipe's f64 (`grid-gen-wgpu`'s stabilised contacts), the
+    /// gradient formed from `Yᵀ D⁻¹ Y`'s K came to 1.0e-12 to 1.4e-12 on floating HyQ, so
+    /// the gradient keeps its K.
+    fn contact_fd_solving_g(&mut self, qd: &[Id], tau: &[Id], with_g: bool) -> ContactSolution {
         let model = self.model;
         let a0 = self.free_acceleration(qd, tau);
         let neg_jt = self.lambda_columns();
@@ -258,11 +266,13 @@ impl Dynamics<'_> {
         // column's first passes only, which reach just its contact's joints and their
         // ancestors; G's last passes, which fill every row on a floating base, are left to
         // the gradient, and q̈ takes one.
-        let factor =
-            (matches!(self.solve, Solve::Ltdl | Solve::Crba) && !self.coupled()).then(|| {
-                let m = self.mass_matrix();
-                self.ltdl(m)
-            });
+        let factor = (!with_g
+            && matches!(self.solve, Solve::Ltdl | Solve::Crba)
+            && !self.coupled())
+        .then(|| {
+            let m = self.mass_matrix();
+            self.ltdl(m)
+        });
         let (halves, g_cols) = match &factor {
             Some(f) => {
                 let halves: Vec<(Vec<Id>, Vec<Id>)> =
@@ -331,11 +341,7 @@ impl Dynamics<'_> {
     /// ∂λ/∂q̇, ∂λ/∂τ)`, each as rows (one row for the vectors); the τ derivatives have one
     /// column per coordinate of `tau_cols` (the step kernels need only the actuated ones).
     pub fn contact_fd_grad(&mut self, qd: &[Id], tau: &[Id], tau_cols: &[usize]) -> Vec<Mat> {
-        let mut sol = self.contact_fd(qd, tau);
-        if sol.g.is_empty() {
-            // Each column's first passes are contact_fd's nodes (hash-consing shares them).
-            sol.g = self.neg_minv_times(&sol.neg_jt);
-        }
+        let mut sol = self.contact_fd_solving_g(qd, tau, true);
         if self.called && !self.own_qdd {
             // A rest: q̈ and λ from the call to `contact_fd` (the free acceleration, the
             // contacts' bias and the last solves drop out when the graph is frozen); J, G and
