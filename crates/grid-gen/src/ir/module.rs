@@ -627,7 +627,7 @@ pub fn lower_function(
             Solve::Auto | Solve::Minv => &[Solve::Minv],
             Solve::Ltdl | Solve::Crba => &[Solve::Ltdl],
         },
-        _ if !kind.holds_fd_grad() => &[Solve::Minv],
+        _ if !picks_solve(kind, &model.specialisation) => &[Solve::Minv],
         Solve::Auto if crba_depth(model, options.calls) <= CRBA_MAX_DEPTH => {
             &[Solve::Minv, Solve::Ltdl, Solve::Crba]
         }
@@ -669,6 +669,16 @@ pub fn lower_function(
     let mut f = f;
     f.call = shared_call(model, gravity, &f, options)?.map(Box::new);
     Ok(f)
+}
+
+/// Whether `kind` records a route per [`Solve`] and keeps the one with the fewest
+/// operations: the kernels that hold `fd_grad`'s graph, and a step under contacts, whose
+/// graph holds `contact_fd`'s. The step's Rust code calls `contact_fd` (which picks its
+/// own route), while WGSL, `eval` and `info`'s counts read the step's whole graph; until
+/// 2026-11-30 that graph kept the direct M⁻¹ (the humanoid's `step`: 49,445 operations,
+/// where its `contact_fd` takes 23,095 by M's factorisation).
+fn picks_solve(kind: KernelKind, spec: &crate::model::Specialisation) -> bool {
+    kind.holds_fd_grad() || (kind == KernelKind::Step && !spec.contacts.is_empty())
 }
 
 /// The [`Call`] of a kernel whose callees the module holds too, with the rest folded and
@@ -912,7 +922,7 @@ fn record(
     f.gradient = Gradient::applies_to(kind).then_some(gradient);
     f.solve = match kind {
         KernelKind::Minv => (d.solve == Solve::Ltdl).then_some(Solve::Ltdl),
-        _ => kind.holds_fd_grad().then_some(d.solve),
+        _ => picks_solve(kind, spec).then_some(d.solve),
     };
     debug_assert_ne!(f.solve, Some(Solve::Auto));
     Ok(f)
