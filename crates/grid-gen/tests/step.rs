@@ -499,25 +499,38 @@ fn humanoid_contact_step_kernels_match_the_reference() {
     );
 }
 
-/// A step under contacts records `contact_fd`'s route choice (`solve`): its Rust code calls
-/// `contact_fd`, and its whole graph, which WGSL, `eval` and `info` read, holds the same
-/// solve instead of the direct M⁻¹ (the humanoid's step: 49,445 operations before,
-/// 23,500 after, with `contact_fd` at 23,095). A step without contacts has no solve.
+/// A step under contacts records its contact kernel's routes: `step` `contact_fd`'s solve,
+/// `step_grad` `contact_fd_grad`'s gradient formulation and solve. Their Rust code calls
+/// those kernels, and their whole graphs, which WGSL, `eval` and `info` read, hold the
+/// same routes (the humanoid's step took the direct M⁻¹ before: 49,445 operations, 23,500
+/// now, with `contact_fd` at 23,095). A step without contacts has no solve.
 #[test]
-fn a_contact_step_takes_its_contact_kernels_solve() {
+fn a_contact_step_takes_its_contact_kernels_routes() {
     let g = reference::DEFAULT_GRAVITY;
     let feet = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
         .map(|l| (l, ContactKind::Point));
     let floating = load_floating("grid_hyq");
     let standing = with_step(&with_forces(&floating, &[], &feet), Scheme::SemiImplicitEuler, 0.01);
-    let kernels = vec![KernelKind::Step, KernelKind::ContactFd];
+    let order =
+        [KernelKind::Step, KernelKind::StepGrad, KernelKind::ContactFd, KernelKind::ContactFdGrad];
+    let kernels = order.to_vec();
     let module = ir::lower(&standing, g, &LowerOptions { kernels, ..Default::default() }).unwrap();
+    let kinds: Vec<KernelKind> = module.functions.iter().map(|f| f.kind).collect();
+    assert_eq!(kinds, order, "the module keeps its order");
     let (step, contact) = (
         module.function(KernelKind::Step).unwrap(),
         module.function(KernelKind::ContactFd).unwrap(),
     );
     assert_eq!(step.solve, Some(ir::Solve::Crba), "floating HyQ is 4 joints deep");
     assert_eq!(step.solve, contact.solve);
+    let (step_grad, contact_grad) = (
+        module.function(KernelKind::StepGrad).unwrap(),
+        module.function(KernelKind::ContactFdGrad).unwrap(),
+    );
+    assert!(contact_grad.gradient.is_some() && contact_grad.solve.is_some());
+    let routes = |f: &ir::Function| (f.gradient, f.solve);
+    assert_eq!(routes(step_grad), routes(contact_grad));
+    assert!(step_grad.call.is_some(), "step_grad calls contact_fd_grad");
     let minv = LowerOptions {
         kernels: vec![KernelKind::Step],
         solve: ir::Solve::Minv,

@@ -328,6 +328,11 @@ impl KernelKind {
         )
     }
 
+    /// The kernel's place in [`Self::ALL`], the order of a module's functions.
+    pub fn position(self) -> usize {
+        Self::ALL.iter().position(|&k| k == self).expect("every kernel is in ALL")
+    }
+
     /// Whether the kernel takes a discrete step (and so exists only when one is asked for).
     pub fn is_step(self) -> bool {
         matches!(self, KernelKind::Step | KernelKind::StepGrad)

@@ -572,22 +572,28 @@ pub fn lower(
     options: &LowerOptions,
 ) -> Result<Module, LowerError> {
     let robot = Robot::of(model);
-    let mut functions = Vec::new();
+    let mut functions: Vec<Function> = Vec::new();
     // No frames asked, no frame kernels; no step, no step kernels.
     // One kernel at a time: lowering on every core measured 10 % faster on a humanoid
     // (2.8 s against 3.1 s) but held two graphs of up to `max_nodes` at once, which a
     // 1000-link chain under 2 GiB cannot afford (cli.rs, huge_chains_stay_within_two_gib).
-    for kind in KernelKind::ALL
+    let mut kinds: Vec<KernelKind> = KernelKind::ALL
         .into_iter()
         .filter(|k| options.kernels.contains(k) && k.exists_for(&model.specialisation))
-    {
-        match lower_function(model, gravity, kind, options) {
+        .collect();
+    lowering_order(&mut kinds);
+    for kind in kinds {
+        let routes =
+            |c: KernelKind| functions.iter().find(|f| f.kind == c).map(|f| (f.gradient, f.solve));
+        let pinned = options_after_callee(model, kind, options, routes);
+        match lower_function(model, gravity, kind, pinned.as_ref().unwrap_or(options)) {
             Ok(f) => functions.push(f),
             // A singular M leaves out the kernels that need M⁻¹ (the load warning says so).
             Err(LowerError::Singular { .. }) => {}
             Err(e) => return Err(e),
         }
     }
+    functions.sort_by_key(|f| f.kind.position());
     Ok(Module { robot, gravity, functions })
 }
 
@@ -636,26 +642,28 @@ pub fn lower_function(
         Solve::Ltdl => &[Solve::Ltdl],
         Solve::Crba => &[Solve::Crba],
     };
-    let mut best: Option<Function> = None;
-    let mut first_error = None;
-    for &gradient in gradients {
-        for &solve in solves {
-            match record(model, gravity, kind, options, gradient, solve) {
-                Ok(f) => {
-                    if best.as_ref().is_none_or(|b| f.nodes.len() < b.nodes.len()) {
-                        best = Some(f);
-                    }
-                }
-                Err(e) => {
-                    first_error.get_or_insert(e);
-                }
-            }
-        }
-    }
-    let f = match (best, first_error) {
-        (Some(f), _) => f,
-        (None, Some(e)) => return Err(e),
-        (None, None) => unreachable!("at least one candidate is recorded"),
+    let candidates: Vec<(Gradient, Solve)> =
+        gradients.iter().flat_map(|&g| solves.iter().map(move |&s| (g, s))).collect();
+    let record = |&(gradient, solve): &(Gradient, Solve)| {
+        record(model, gravity, kind, options, gradient, solve)
+    };
+    // The first candidate alone: where its graph came near the node limit (a chain of
+    // hundreds of links), the others follow one at a time, so that two such graphs are
+    // never held at once (cli.rs, huge_chains_stay_within_two_gib); else they are recorded
+    // on every core. Which is kept does not depend on timing: the fewest nodes, the first
+    // candidate on a tie.
+    let mut pick = Pick::default();
+    let first = candidates.first().map(record).expect("at least one candidate");
+    let small = matches!(&first, Ok((_, graph)) if *graph <= options.max_nodes / 4);
+    pick.merge(0, first);
+    let threads = if small { crate::parallel::cores() } else { 1 };
+    let rest = &candidates[1..];
+    let pick =
+        crate::parallel::fold_in_parallel(rest, threads, pick, record, |p, i, r| p.merge(i + 1, r));
+    let f = match pick {
+        Pick { best: Some((_, f)), .. } => f,
+        Pick { best: None, error: Some((_, e)) } => return Err(e),
+        Pick { best: None, error: None } => unreachable!("at least one candidate is recorded"),
     };
     for node in &f.nodes {
         if let Op::Const(c) = node.op {
@@ -701,23 +709,10 @@ fn shared_call(
     let holds = |k: &KernelKind| options.kernels.contains(k) && k.exists_for(spec);
     let common = options.fold && options.sparse && !spec.selects();
     let callees = match kind {
-        KernelKind::Step | KernelKind::StepGrad => {
-            let callee = if kind == KernelKind::Step {
-                KernelKind::ContactFd
-            } else {
-                KernelKind::ContactFdGrad
-            };
-            let scheme = spec.step.map(|s| s.scheme);
-            if spec.contacts.is_empty()
-                || scheme.is_none_or(|s| s == crate::model::Scheme::Rk4)
-                || !common
-                || !holds(&callee)
-                || nv * nv.max(Robot::of(model).nlambda()) > usize::from(u16::MAX)
-            {
-                return Ok(None);
-            }
-            vec![callee]
-        }
+        KernelKind::Step | KernelKind::StepGrad => match contact_callee(model, kind, options) {
+            Some(callee) => vec![callee],
+            None => return Ok(None),
+        },
         KernelKind::FdGrad | KernelKind::ContactFdGrad => {
             let first =
                 if kind == KernelKind::FdGrad { KernelKind::Fd } else { KernelKind::ContactFd };
@@ -773,6 +768,62 @@ fn shared_call(
         return Ok(None);
     }
     Ok(Some(Call { callees, rest, ahead }))
+}
+
+/// Puts kernels in the order [`lower`] (and [`super::stats`]) lowers them: a module's
+/// ([`KernelKind::ALL`]), but a step kernel after the contact kernel it may call, whose
+/// routes it takes ([`options_after_callee`]).
+pub(crate) fn lowering_order(kinds: &mut [KernelKind]) {
+    let order = |k: &KernelKind| match k {
+        KernelKind::Step => KernelKind::ContactFd.position(),
+        KernelKind::StepGrad => KernelKind::ContactFdGrad.position(),
+        _ => k.position(),
+    };
+    kinds.sort_by_key(|k| (order(k), k.is_step()));
+}
+
+/// `options` for a step kernel that calls its contact kernel ([`contact_callee`]), with
+/// the callee's routes (`routes`: its gradient formulation and solve, where it was
+/// lowered) in place of `auto`; `None` for every other kernel.
+pub(crate) fn options_after_callee(
+    model: &Model,
+    kind: KernelKind,
+    options: &LowerOptions,
+    routes: impl Fn(KernelKind) -> Option<(Option<Gradient>, Option<Solve>)>,
+) -> Option<LowerOptions> {
+    let (gradient, solve) = routes(contact_callee(model, kind, options)?)?;
+    Some(LowerOptions {
+        gradient: gradient.unwrap_or(options.gradient),
+        solve: solve.unwrap_or(options.solve),
+        ..options.clone()
+    })
+}
+
+/// The contact kernel a step kernel calls (`step` calls `contact_fd`, `step_grad`
+/// `contact_fd_grad`): with contacts, a scheme other than RK4 (whose stages run at other
+/// states), graphs that are folded, sparse and whole, the callee in the module, and callee
+/// outputs that input indices can address. The step kernel then records the callee's
+/// routes (its gradient formulation and solve; [`lower`]): its Rust code runs them, and
+/// its whole graph, which the other backends read, holds the same; on the humanoid that
+/// also takes `step_grad`'s lowering from nine candidates to one.
+fn contact_callee(model: &Model, kind: KernelKind, options: &LowerOptions) -> Option<KernelKind> {
+    let spec = &model.specialisation;
+    let callee = match kind {
+        KernelKind::Step => KernelKind::ContactFd,
+        KernelKind::StepGrad => KernelKind::ContactFdGrad,
+        _ => return None,
+    };
+    let nv = model.nv();
+    let scheme = spec.step.map(|s| s.scheme);
+    let calls = !spec.contacts.is_empty()
+        && scheme.is_some_and(|s| s != crate::model::Scheme::Rk4)
+        && options.fold
+        && options.sparse
+        && !spec.selects()
+        && options.kernels.contains(&callee)
+        && callee.exists_for(spec)
+        && nv * nv.max(Robot::of(model).nlambda()) <= usize::from(u16::MAX);
+    calls.then_some(callee)
 }
 
 /// The nodes of `rest` that the callees' arguments among its outputs depend on (what
@@ -876,8 +927,34 @@ fn crba_depth(model: &Model, calls: Calls) -> usize {
     depth.into_iter().max().unwrap_or(0)
 }
 
+/// The candidate a kernel keeps: the frozen graph with the fewest nodes (the first
+/// candidate on a tie), and the first candidate's error where none recorded.
+#[derive(Default)]
+struct Pick {
+    best: Option<(usize, Function)>,
+    error: Option<(usize, LowerError)>,
+}
+
+impl Pick {
+    fn merge(&mut self, i: usize, r: Result<(Function, usize), LowerError>) {
+        match r {
+            Ok((f, _)) => {
+                let key = (f.nodes.len(), i);
+                if self.best.as_ref().is_none_or(|(j, b)| key < (b.nodes.len(), *j)) {
+                    self.best = Some((i, f));
+                }
+            }
+            Err(e) => {
+                if self.error.as_ref().is_none_or(|(j, _)| i < *j) {
+                    self.error = Some((i, e));
+                }
+            }
+        }
+    }
+}
+
 /// Runs one kernel's algorithm with one gradient formulation and M⁻¹ route and freezes
-/// its graph.
+/// its graph; with the nodes its graph held before freezing.
 fn record(
     model: &Model,
     gravity: [f64; 3],
@@ -885,7 +962,7 @@ fn record(
     options: &LowerOptions,
     gradient: Gradient,
     solve: Solve,
-) -> Result<Function, LowerError> {
+) -> Result<(Function, usize), LowerError> {
     let mut d = Dynamics::new(model, gravity, options.fold, options.sparse, options.max_nodes);
     d.gradient = gradient;
     d.solve = solve;
@@ -925,7 +1002,7 @@ fn record(
         _ => picks_solve(kind, spec).then_some(d.solve),
     };
     debug_assert_ne!(f.solve, Some(Solve::Auto));
-    Ok(f)
+    Ok((f, d.g.nodes.len()))
 }
 
 /// Keeps the nodes that reach an output, renumbered in their original order.

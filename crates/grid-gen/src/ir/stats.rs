@@ -102,7 +102,9 @@ pub fn stats(
 ) -> Stats {
     let mut out = Stats { ops: Vec::new(), skipped: Vec::new() };
     let mut too_large: Vec<(KernelKind, KernelKind)> = Vec::new();
-    for kind in KernelKind::for_model(model) {
+    let mut kinds = KernelKind::for_model(model);
+    super::module::lowering_order(&mut kinds);
+    for kind in kinds {
         if let Some((_, inner)) = too_large.iter().find(|(k, _)| *k == kind) {
             out.skipped.push(Skipped {
                 kernel: kind,
@@ -115,7 +117,11 @@ pub fn stats(
         // "before" count out.
         let specialised =
             LowerOptions { gradient, solve, calls, max_nodes, ..LowerOptions::default() };
-        let f = match lower_function(model, gravity, kind, &specialised) {
+        let routes =
+            |c: KernelKind| out.ops.iter().find(|k| k.kernel == c).map(|k| (k.gradient, k.solve));
+        let pinned = super::module::options_after_callee(model, kind, &specialised, routes);
+        let f = match lower_function(model, gravity, kind, pinned.as_ref().unwrap_or(&specialised))
+        {
             Ok(f) => f,
             Err(e) => {
                 let reason = match e {
@@ -146,5 +152,7 @@ pub fn stats(
             solve: f.solve,
         });
     }
+    out.ops.sort_by_key(|k| k.kernel.position());
+    out.skipped.sort_by_key(|k| k.kernel.position());
     out
 }
