@@ -402,6 +402,10 @@ mod tests {
 
     #[test]
     fn outputs_written_from_blocks_land_in_place() {
+        // One batch at a time, as the other tests: a batch published beside
+        // `a_panic_on_a_helper_reaches_the_caller`'s took the helper that test counted on
+        // (CI, 2026-11-30: its caller ran all 64 states and the panic never came).
+        let _one_at_a_time = serial();
         let mut out = vec![0usize; 777];
         let p = Out(out.as_mut_ptr());
         for_each(out.len(), |r| {
