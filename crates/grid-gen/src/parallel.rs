@@ -7,28 +7,11 @@ use std::sync::Mutex;
 /// `f` of each of `items`, in order, computed on up to every core (the next free thread
 /// takes the next item, so one large item does not hold back the rest).
 pub(crate) fn in_parallel<T: Sync, R: Send>(items: &[T], f: impl Fn(&T) -> R + Sync) -> Vec<R> {
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get()).min(items.len());
-    if threads <= 1 {
-        return items.iter().map(f).collect();
-    }
-    let next = AtomicUsize::new(0);
-    let results: Vec<Mutex<Option<R>>> = items.iter().map(|_| Mutex::new(None)).collect();
-    std::thread::scope(|s| {
-        for _ in 0..threads {
-            s.spawn(|| loop {
-                let i = next.fetch_add(1, Ordering::Relaxed);
-                let Some(item) = items.get(i) else { break };
-                let r = f(item);
-                *results[i].lock().unwrap_or_else(|e| e.into_inner()) = Some(r);
-            });
-        }
-    });
+    let slots: Vec<Option<R>> = items.iter().map(|_| None).collect();
+    let slots = fold_in_parallel(items, cores(), slots, f, |slots, i, r| slots[i] = Some(r));
     // Every index was taken by a thread, and a thread that panicked has re-raised its
     // panic at the end of the scope, so every slot holds its result.
-    results
-        .into_iter()
-        .map(|m| m.into_inner().unwrap_or_else(|e| e.into_inner()).expect("every item ran"))
-        .collect()
+    slots.into_iter().map(|r| r.expect("every item ran")).collect()
 }
 
 /// Folds `f` of each of `items` into `acc` on up to `threads` threads (the next free thread

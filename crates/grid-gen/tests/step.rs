@@ -550,6 +550,46 @@ fn a_contact_step_takes_its_contact_kernels_routes() {
     assert_eq!(module.function(KernelKind::Step).unwrap().solve, None, "no contacts, no solve");
 }
 
+/// `info`'s counts skip a step kernel whose contact kernel is over the node limit without
+/// building it: the step's graph holds its contact kernel's. The limit is found by
+/// raising it until `contact_fd` fits, keeping the last one at which `fd` fit and
+/// `contact_fd` did not.
+#[test]
+fn info_skips_a_step_whose_contact_kernel_is_too_large() {
+    let g = reference::DEFAULT_GRAVITY;
+    let feet = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+        .map(|l| (l, ContactKind::Point));
+    let standing = with_step(
+        &with_forces(&load_floating("grid_hyq"), &[], &feet),
+        Scheme::SemiImplicitEuler,
+        0.01,
+    );
+    let stats = |limit| {
+        ir::stats(&standing, g, ir::Gradient::Auto, ir::Solve::Auto, ir::Calls::Auto, limit)
+    };
+    let counted = |s: &ir::Stats, k| s.ops.iter().any(|o| o.kernel == k);
+    let mut limit = 1_000usize;
+    let mut found = None;
+    loop {
+        let s = stats(limit);
+        if counted(&s, KernelKind::ContactFd) {
+            break;
+        }
+        if counted(&s, KernelKind::Fd) {
+            found = Some(s);
+        }
+        limit += limit / 4;
+    }
+    let s = found.expect("a limit between fd's graph and contact_fd's");
+    let reason = |k| s.skipped.iter().find(|x| x.kernel == k).map(|x| x.reason.clone());
+    assert!(reason(KernelKind::ContactFd).unwrap().contains("over"), "{:?}", s.skipped);
+    assert_eq!(
+        reason(KernelKind::Step).as_deref(),
+        Some("contains `contact_fd`, which is over the node limit")
+    );
+    assert!(reason(KernelKind::StepGrad).unwrap().starts_with("contains `"), "{:?}", s.skipped);
+}
+
 /// A scene's `[step]` and `[actuation]` mistakes are errors that say what is wrong.
 #[test]
 fn bad_steps_are_errors() {

@@ -648,17 +648,19 @@ impl KernelKind {
             Fd => &[FdGrad, Step, StepGrad, ContactFd, ContactFdGrad],
             FdGrad => &[StepGrad, ContactFdGrad],
             Step => &[StepGrad],
-            ContactFd => &[ContactFdGrad],
+            // A step under contacts holds its contact kernel's graph (the only step that
+            // exists beside a contact kernel is one under those contacts).
+            ContactFd => &[ContactFdGrad, Step, StepGrad],
             Integrate => &[DIntegrate],
             Difference => &[DDifference],
             DIntegrate | DDifference => &[],
+            ContactFdGrad => &[StepGrad],
             StepGrad
             | FramePlacement
             | FrameJacobian
             | FrameVelocity
             | FrameAcceleration
-            | FrameAccelerationGrad
-            | ContactFdGrad => &[],
+            | FrameAccelerationGrad => &[],
         }
     }
 

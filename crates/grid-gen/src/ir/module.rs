@@ -722,7 +722,6 @@ fn shared_call(
                 Calls::All => vec![first, KernelKind::RneaGrad],
             };
             if f.solve != Some(Solve::Ltdl)
-                || f.solve != Some(Solve::Ltdl)
                 || !common
                 || model.has_coupled()
                 || !callees.iter().all(holds)
