@@ -279,10 +279,10 @@ def test_batches_without_lanes_give_the_same_bits(iiwa):
 
 
 def y_tree_urdf() -> str:
-    """Two arms of seven links on a base with mass: on a floating base, 13 coordinates
-    deep, so under calls="all" or "rnea_grad" fd_grad factorises M with q̈ by ABA (the LTDL
-    solve), where those calls apply. Under calls="auto" the free-flyer counts as one joint
-    (8 deep), and q̈ comes from the same factorisation (the crba solve)."""
+    """Two arms of seven links on a base with mass: on a floating base, 8 joints deep (the
+    free-flyer counting as one), so fd_grad takes q̈ from M's factorisation (the crba
+    solve), where calls="all" and "rnea_grad" apply (since 2026-12-01; before, they
+    counted the free-flyer's six coordinates, 13 deep, and took q̈ by ABA)."""
     links = ['<link name="base"><inertial><mass value="4"/><inertia ixx="0.05" ixy="0" ixz="0" iyy="0.06" iyz="0" izz="0.07"/></inertial></link>']
     joints = []
     for arm, side in (("a", "0.2"), ("b", "-0.2")):
@@ -306,8 +306,8 @@ def test_calls_all_runs_fd_grad_through_its_callees(tmp_path):
     # calls="all" makes fd_grad call fd and rnea_grad, calls="rnea_grad" compute q̈ and
     # call rnea_grad there (less to compile, a little slower; the book, Compile time):
     # the module holds fd_grad's rest, or fd_grad calls rnea_grad between its parts, and
-    # the values are the whole kernel's to round-off (the whole kernel takes q̈ from M's
-    # factorisation, the called ones from ABA: two accurate routes; the Rust tests measure
+    # the values are the whole kernel's to round-off (calls="all" takes q̈ from `fd`, by
+    # ABA, the others from M's factorisation: two accurate routes; the Rust tests measure
     # 5e-14 against the reference).
     urdf = tmp_path / "y_tree.urdf"
     urdf.write_text(y_tree_urdf())

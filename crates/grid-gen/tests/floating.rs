@@ -228,26 +228,39 @@ fn large_floating_fd_grad_solves_run_as_column_loops() {
     }
 }
 
-/// With `calls = all`, an `fd_grad` that factorises M with q̈ by ABA calls `fd` and
-/// `rnea_grad` and keeps the rest ([`grid_gen::ir::Call`]); with `calls = rnea_grad` it
-/// computes q̈ itself and calls `rnea_grad` there, between its parts: a floating 14-link
-/// chain with the LTDL solve. The rest fed the callees' values gives the whole graph's
+/// The calls and solves [`fd_grad_calls_fd_and_rnea_grad_when_asked`] and
+/// [`contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked`] run: each call under M's
+/// factorisation with q̈ by ABA (`ltdl`) and with q̈ from the factorisation (`crba`, a
+/// floating humanoid's route since 2026-11-30).
+const ROUTES: [(grid_gen::ir::Calls, grid_gen::ir::Solve); 4] = {
+    use grid_gen::ir::{Calls, Solve};
+    [
+        (Calls::All, Solve::Ltdl),
+        (Calls::RneaGrad, Solve::Ltdl),
+        (Calls::All, Solve::Crba),
+        (Calls::RneaGrad, Solve::Crba),
+    ]
+};
+
+/// With `calls = all`, an `fd_grad` that factorises M calls `fd` and `rnea_grad` and
+/// keeps the rest ([`grid_gen::ir::Call`]); with `calls = rnea_grad` it computes q̈
+/// itself and calls `rnea_grad` there, between its parts: a floating 14-link chain with
+/// each solve of [`ROUTES`]. The rest fed the callees' values gives the whole graph's
 /// (two roundings of the same operations, 1e-12 as every f64 bound); the module, compiled
 /// by rustc and run on three states in both copies, gives the reference's at 1e-12; the
 /// default (`auto`) keeps `fd_grad` whole.
 #[test]
 fn fd_grad_calls_fd_and_rnea_grad_when_asked() {
     use grid_gen::generate::{generate, Options, Target};
-    use grid_gen::ir::{self, Calls, KernelKind, LowerOptions, Solve};
+    use grid_gen::ir::{self, Calls, KernelKind, LowerOptions};
     let model = floating_chain14();
     let g = reference::DEFAULT_GRAVITY;
     let kernels = vec![KernelKind::RneaGrad, KernelKind::Fd, KernelKind::FdGrad];
-    let whole =
-        LowerOptions { kernels: kernels.clone(), solve: Solve::Ltdl, ..LowerOptions::default() };
-    let by_default = ir::lower(&model, g, &whole).unwrap();
-    assert!(by_default.functions.iter().all(|f| f.call.is_none()), "auto keeps fd_grad whole");
     let (nv, nq) = (model.nv(), model.nq());
-    for calls in [Calls::All, Calls::RneaGrad] {
+    for (calls, solve) in ROUTES {
+        let whole = LowerOptions { kernels: kernels.clone(), solve, ..LowerOptions::default() };
+        let by_default = ir::lower(&model, g, &whole).unwrap();
+        assert!(by_default.functions.iter().all(|f| f.call.is_none()), "auto keeps it whole");
         let lower = LowerOptions { calls, ..whole.clone() };
         let lowered = ir::lower(&model, g, &lower).unwrap();
         let f = lowered.function(KernelKind::FdGrad).unwrap();
@@ -287,7 +300,7 @@ fn fd_grad_calls_fd_and_rnea_grad_when_asked() {
                 worst = worst.max(rel_err(&col(a), &col(b)));
             }
         }
-        let name = calls.name();
+        let name = format!("{}_{}", calls.name(), solve.name());
         assert!(worst < 1e-12, "{name}: rest after its callees: {worst:.2e} from the whole graph");
         println!("calls={name}: fd_grad's rest with its callees' values: worst {worst:.2e} from the whole graph (bound 1e-12)");
         let file =
@@ -375,9 +388,9 @@ fn run_fd_grad_copies(name: &str, text: &str) -> String {
 
 /// `CRBA_MAX_DEPTH` (12) counts a free-flyer as one joint: a floating 9-link chain is 10
 /// deep, and `fd_grad` and `contact_fd` take q̈ from M's factorisation when it has fewer
-/// operations (it does here), as a fixed chain of 10 would; with `calls` set the six
-/// coordinates count (15), so q̈ stays ABA's and the calls apply; a floating 14-link chain
-/// (15 deep) keeps ABA's q̈ either way.
+/// operations (it does here), as a fixed chain of 10 would, with `calls` set or not (until
+/// 2026-12-01 the six coordinates counted under `calls`, whose calls applied only with
+/// ABA's q̈); a floating 14-link chain (15 deep) keeps ABA's q̈.
 #[test]
 fn the_crba_solve_counts_a_free_flyer_as_one_joint() {
     use grid_gen::ir::{self, Calls, KernelKind, LowerOptions, Solve};
@@ -395,7 +408,7 @@ fn the_crba_solve_counts_a_free_flyer_as_one_joint() {
     };
     for kind in [KernelKind::FdGrad, KernelKind::ContactFd] {
         assert_eq!(solve(&chain9, kind, Calls::Auto), Some(Solve::Crba), "{kind:?}");
-        assert_eq!(solve(&chain9, kind, Calls::RneaGrad), Some(Solve::Ltdl), "{kind:?}");
+        assert_eq!(solve(&chain9, kind, Calls::RneaGrad), Some(Solve::Crba), "{kind:?}");
         assert_eq!(solve(&chain14, kind, Calls::Auto), Some(Solve::Ltdl), "{kind:?}");
     }
 }
@@ -415,14 +428,14 @@ fn floating_chain14() -> Model {
 /// With `calls = all`, `contact_fd_grad` calls `contact_fd` and `rnea_grad` (at its q̈ and
 /// λ) and keeps J, K and the columns; with `calls = rnea_grad` it computes q̈ and λ and
 /// calls `rnea_grad` there, between its parts: the floating 14-link chain holding its tip (6-D) and
-/// its seventh link (a point), the LTDL solve. The rest fed the callees' values gives the
+/// its seventh link (a point), each solve of [`ROUTES`]. The rest fed the callees' values gives the
 /// whole graph's, and so does the module, compiled and run on three states in both copies
 /// (1e-12, two roundings of the same operations; the whole graph is held to Pinocchio by
 /// the contact suites).
 #[test]
 fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
     use grid_gen::generate::{generate, Options, Target};
-    use grid_gen::ir::{self, Calls, KernelKind, LowerOptions, Solve};
+    use grid_gen::ir::{self, Calls, KernelKind, LowerOptions};
     use grid_gen::model::ContactKind;
     let plain = with_forces(
         &floating_chain14(),
@@ -431,7 +444,6 @@ fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
     );
     let g = reference::DEFAULT_GRAVITY;
     let kernels = vec![KernelKind::RneaGrad, KernelKind::ContactFd, KernelKind::ContactFdGrad];
-    let whole = LowerOptions { kernels, solve: Solve::Ltdl, ..LowerOptions::default() };
     let (nv, nq) = (plain.nv(), plain.nq());
     let state = |k: usize| -> (Vec<f64>, Vec<Vec<f64>>) {
         let mut q: Vec<f64> = (0..nq).map(|i| seeded_state(k, i, 0)).collect();
@@ -447,10 +459,11 @@ fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
     masked.specialisation.baumgarte = true;
     let (gains, refs) =
         ([20.0, 5.0, 30.0, 8.0], [0.1, 0.2, 1.3, 0.5, -0.5, 0.5, 0.5, -0.1, 0.3, 0.7]);
-    for calls in [Calls::All, Calls::RneaGrad] {
+    for (calls, solve) in ROUTES {
+        let whole = LowerOptions { kernels: kernels.clone(), solve, ..LowerOptions::default() };
         let lower = LowerOptions { calls, ..whole.clone() };
         let own = calls == Calls::RneaGrad;
-        let name = calls.name();
+        let name = format!("{}_{}", calls.name(), solve.name());
         let mut worst: f64 = 0.0;
         for model in [&plain, &masked] {
             let by_default = ir::lower(model, g, &whole).unwrap();

@@ -47,16 +47,16 @@ pub enum Calls {
     #[default]
     Auto,
     /// Also `fd_grad` calls `fd` and `rnea_grad`, and `contact_fd_grad` `contact_fd` and
-    /// `rnea_grad`, where they factorise M with q̈ by ABA (trees deeper than
-    /// [`CRBA_MAX_DEPTH`]): a humanoid's library loaded in 30 s instead of 42 s, with its
-    /// `fd_grad` 1.13x and `step_grad` 1.29x slower (the book, Compile time).
+    /// `rnea_grad`, where they factorise M ([`Solve::Ltdl`] or [`Solve::Crba`]): a
+    /// humanoid's library loaded in 30 s instead of 42 s, with its `fd_grad` 1.13x and
+    /// `step_grad` 1.29x slower (2026-11-29, with q̈ by ABA; the book, Compile time).
     All,
     /// `fd_grad` and `contact_fd_grad` compute q̈ (and λ) themselves and call `rnea_grad`
     /// at them, where [`Calls::All`] would call: their work before the call and after it
-    /// share their values, and only the sharing with `rnea_grad`'s is lost (M's composite
-    /// inertias, the IDSVA gradient's own nodes): the humanoid's library loaded in about
-    /// 32 s, its `fd_grad` and `contact_fd_grad` 1.07x to 1.12x slower, `step_grad` as fast
-    /// (the book, Compile time).
+    /// share their values, and only the sharing with `rnea_grad`'s is lost (the transforms,
+    /// velocities and M's composite inertias): the humanoid's library loads in 0.65x to
+    /// 0.71x the time of [`Calls::Auto`]'s, its `fd_grad` 1.07x to 1.08x slower,
+    /// `contact_fd_grad` and `step_grad` 1.02x to 1.04x (2026-12-01; the book, Compile time).
     #[cfg_attr(feature = "clap", value(name = "rnea_grad"))]
     RneaGrad,
 }
@@ -634,7 +634,7 @@ pub fn lower_function(
             Solve::Ltdl | Solve::Crba => &[Solve::Ltdl],
         },
         _ if !picks_solve(kind, &model.specialisation) => &[Solve::Minv],
-        Solve::Auto if crba_depth(model, options.calls) <= CRBA_MAX_DEPTH => {
+        Solve::Auto if crba_depth(model) <= CRBA_MAX_DEPTH => {
             &[Solve::Minv, Solve::Ltdl, Solve::Crba]
         }
         Solve::Auto if depth <= LTDL_MAX_DEPTH => &[Solve::Minv, Solve::Ltdl],
@@ -695,8 +695,8 @@ fn picks_solve(kind: KernelKind, spec: &crate::model::Specialisation) -> bool {
 ///   stages run at other states), and callee outputs that input indices can address.
 /// - With [`Calls::All`], `fd_grad` calls `fd` and `rnea_grad`, and `contact_fd_grad`
 ///   `contact_fd` and `rnea_grad`; with [`Calls::RneaGrad`] both call `rnea_grad` alone;
-///   where they factorised M with q̈ by ABA ([`Solve::Ltdl`])
-///   and have no coupled mimic joints.
+///   where they factorise M, with q̈ by ABA ([`Solve::Ltdl`]) or from the factorisation
+///   ([`Solve::Crba`]), and have no coupled mimic joints.
 fn shared_call(
     model: &Model,
     gravity: [f64; 3],
@@ -721,7 +721,7 @@ fn shared_call(
                 Calls::RneaGrad => vec![KernelKind::RneaGrad],
                 Calls::All => vec![first, KernelKind::RneaGrad],
             };
-            if f.solve != Some(Solve::Ltdl)
+            if !matches!(f.solve, Some(Solve::Ltdl | Solve::Crba))
                 || !common
                 || model.has_coupled()
                 || !callees.iter().all(holds)
@@ -912,15 +912,14 @@ pub const CRBA_MAX_DEPTH: usize = 12;
 /// 3.6e-12, iiwa 6.1e-14 against 6.4e-14, UR5 8.3e-14 against 1.4e-13, Panda 1.9e-13
 /// against 7.4e-14, HyQ 1.4e-14 against 1.3e-14; `chain_urdf` with a 2 kg base on a
 /// floating base, 1.4x at 11 links (6.1e-14) and 2.6x at 12 (9.2e-14), as on a fixed base
-/// (the gradients' errors the same to two digits). With [`Calls::All`] or
-/// [`Calls::RneaGrad`] every coordinate counts, as it did for every kernel before: those
-/// calls apply only where q̈ is ABA's ([`shared_call`]), so a floating humanoid whose user
-/// asks for them keeps them.
-fn crba_depth(model: &Model, calls: Calls) -> usize {
+/// (the gradients' errors the same to two digits). Until 2026-12-01 every coordinate
+/// counted under [`Calls::All`] and [`Calls::RneaGrad`], whose calls applied only where q̈
+/// was ABA's; they now apply under either factorisation ([`shared_call`]).
+fn crba_depth(model: &Model) -> usize {
     let mut depth = vec![0usize; model.joints.len()];
     for (i, j) in model.joints.iter().enumerate() {
         let above = j.parent.map_or(0, |p| depth[p]);
-        let member = calls == Calls::Auto && model.group(i).is_some_and(|g| g.start != i);
+        let member = model.group(i).is_some_and(|g| g.start != i);
         depth[i] = above + usize::from(!member);
     }
     depth.into_iter().max().unwrap_or(0)
