@@ -48,8 +48,9 @@ pub enum Calls {
     Auto,
     /// Also `fd_grad` calls `fd` and `rnea_grad`, and `contact_fd_grad` `contact_fd` and
     /// `rnea_grad`, where they factorise M ([`Solve::Ltdl`] or [`Solve::Crba`]): a
-    /// humanoid's library loaded in 30 s instead of 42 s, with its `fd_grad` 1.13x and
-    /// `step_grad` 1.29x slower (2026-11-29, with q̈ by ABA; the book, Compile time).
+    /// humanoid's library loaded in 30 s instead of 42 s (2026-11-29), with its `fd_grad`
+    /// 1.12x to 1.14x and its contact gradients 1.08x to 1.11x slower (2026-12-01; the
+    /// book, Compile time).
     All,
     /// `fd_grad` and `contact_fd_grad` compute q̈ (and λ) themselves and call `rnea_grad`
     /// at them, where [`Calls::All`] would call: their work before the call and after it
