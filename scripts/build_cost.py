@@ -4,7 +4,8 @@ generation of its Rust module (wall time and peak memory) and `grid_gen.load` in
 cache after the cache's first robot (wall time and the peak of the whole process tree:
 Python, cargo, rustc and its threads), with the generated module's lines and megabytes.
 Prints a markdown table; the first row is the cache's first robot, which also builds the
-runtime.
+runtime. Every later case loads in a copy of that cache without its robots, so a case given
+twice is built twice (alternated pairs in one run: `A B A B`).
 
 Usage: target/python/bin/python scripts/build_cost.py [CASE ...], a CASE being
 `URDF[:SCENE[:floating[:LANES[:CALLS]]]]`, LANES one of `grid_gen.load`'s `batch_lanes`
@@ -18,6 +19,7 @@ book, Compile time, "A crate per core").
 """
 
 import os
+import shutil
 import subprocess
 import sys
 import tempfile
@@ -85,12 +87,20 @@ def main():
     if not os.access(CLI, os.X_OK):
         sys.exit("build the CLI first: cargo build --release -p grid-gen-cli")
     cases = sys.argv[1:] or CASES
-    cache = tempfile.mkdtemp(prefix="grid-gen-build-cost-")
-    env = dict(os.environ, GRID_GEN_CACHE=cache)
+    first = tempfile.mkdtemp(prefix="grid-gen-build-cost-")
     mib = 1 << 20
     print("| robot | scene | lines | MB | generate (s) | generate peak (MiB) | `grid_gen.load` (s) | load peak (MiB) |")
     print("|---|---|---|---|---|---|---|---|")
-    for case in cases:
+    for i, case in enumerate(cases):
+        # The first case builds the runtime in `first`; each later one loads in a copy of
+        # that cache without its robots (their libraries, crates and cargo's artifacts), so
+        # that no case finds a library built before it, its own included.
+        cache = first if i == 0 else tempfile.mkdtemp(prefix="grid-gen-build-cost-case-")
+        if i > 0:
+            robots = lambda d, names: [n for n in names if "grid_gen_robot_" in n
+                                       or (d == first and n in ("robots", "build"))]
+            shutil.copytree(first, cache, symlinks=True, dirs_exist_ok=True, ignore=robots)
+        env = dict(os.environ, GRID_GEN_CACHE=cache)
         urdf, scene, floating, lanes, calls = (case.split(":") + ["", "", "", ""])[:5]
         lanes, calls = lanes or "auto", calls or "auto"
         out = tempfile.mkdtemp(prefix="grid-gen-build-cost-gen-")
@@ -113,6 +123,10 @@ def main():
             f"{gen_s:.1f} | {gen_peak / mib:.0f} | {load_s:.1f} | {load_peak / mib:.0f} |",
             flush=True,
         )
+        shutil.rmtree(out, ignore_errors=True)
+        if i > 0:
+            shutil.rmtree(cache, ignore_errors=True)
+    shutil.rmtree(first, ignore_errors=True)
 
 
 if __name__ == "__main__":
