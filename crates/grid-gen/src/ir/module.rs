@@ -56,7 +56,7 @@ pub enum Calls {
     /// at them, where [`Calls::All`] would call: their work before the call and after it
     /// share their values, and only the sharing with `rnea_grad`'s is lost (the transforms,
     /// velocities and M's composite inertias): the humanoid's library loads in 0.65x to
-    /// 0.71x the time of [`Calls::Auto`]'s, its `fd_grad` 1.07x to 1.08x slower,
+    /// 0.81x the time of [`Calls::Auto`]'s, its `fd_grad` 1.07x to 1.08x slower,
     /// `contact_fd_grad` and `step_grad` 1.02x to 1.04x (2026-12-01; the book, Compile time).
     #[cfg_attr(feature = "clap", value(name = "rnea_grad"))]
     RneaGrad,
