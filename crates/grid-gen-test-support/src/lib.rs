@@ -431,6 +431,15 @@ pub fn with_step(model: &Model, scheme: grid_gen::model::Scheme, dt: f64) -> Mod
     m
 }
 
+/// Floating HyQ standing on its four lower legs as point contacts, with the semi-implicit
+/// step over 10 ms folded in: the contact step the tests lower, count and run on wgpu.
+pub fn hyq_standing_step() -> Model {
+    use grid_gen::model::{ContactKind, Scheme};
+    let feet = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
+        .map(|l| (l, ContactKind::Point));
+    with_step(&with_forces(&load_floating("grid_hyq"), &[], &feet), Scheme::SemiImplicitEuler, 0.01)
+}
+
 /// A model whose step kernels take their time step at run time.
 pub fn with_runtime_step(model: &Model, scheme: grid_gen::model::Scheme) -> Model {
     let mut m = model.clone();

@@ -657,16 +657,9 @@ fn step_kernels_match_the_reference() {
 /// `masked_contacts_match_the_reference`.
 #[test]
 fn contact_step_matches_the_reference() {
-    use grid_gen::model::{ContactKind, Scheme};
     let Some((_serial, gpu)) = gpu_f64() else { return };
     let mut rng = Rng(67);
-    let feet = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
-        .map(|l| (l, ContactKind::Point));
-    let model = with_step(
-        &with_forces(&load_floating("grid_hyq"), &[], &feet),
-        Scheme::SemiImplicitEuler,
-        0.01,
-    );
+    let model = hyq_standing_step();
     let options = WgslOptions {
         precision: Precision::F64,
         strategies: vec![Strategy::Cooperative],

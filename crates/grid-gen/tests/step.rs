@@ -507,10 +507,7 @@ fn humanoid_contact_step_kernels_match_the_reference() {
 #[test]
 fn a_contact_step_takes_its_contact_kernels_routes() {
     let g = reference::DEFAULT_GRAVITY;
-    let feet = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
-        .map(|l| (l, ContactKind::Point));
-    let floating = load_floating("grid_hyq");
-    let standing = with_step(&with_forces(&floating, &[], &feet), Scheme::SemiImplicitEuler, 0.01);
+    let standing = hyq_standing_step();
     let order =
         [KernelKind::Step, KernelKind::StepGrad, KernelKind::ContactFd, KernelKind::ContactFdGrad];
     let kernels = order.to_vec();
@@ -544,7 +541,7 @@ fn a_contact_step_takes_its_contact_kernels_routes() {
         step.nodes.len(),
         by_minv.nodes.len()
     );
-    let free = with_step(&floating, Scheme::SemiImplicitEuler, 0.01);
+    let free = with_step(&load_floating("grid_hyq"), Scheme::SemiImplicitEuler, 0.01);
     let kernels = vec![KernelKind::Step];
     let module = ir::lower(&free, g, &LowerOptions { kernels, ..Default::default() }).unwrap();
     assert_eq!(module.function(KernelKind::Step).unwrap().solve, None, "no contacts, no solve");
@@ -557,13 +554,7 @@ fn a_contact_step_takes_its_contact_kernels_routes() {
 #[test]
 fn info_skips_a_step_whose_contact_kernel_is_too_large() {
     let g = reference::DEFAULT_GRAVITY;
-    let feet = ["lf_lowerleg", "rf_lowerleg", "lh_lowerleg", "rh_lowerleg"]
-        .map(|l| (l, ContactKind::Point));
-    let standing = with_step(
-        &with_forces(&load_floating("grid_hyq"), &[], &feet),
-        Scheme::SemiImplicitEuler,
-        0.01,
-    );
+    let standing = hyq_standing_step();
     let stats = |limit| {
         ir::stats(&standing, g, ir::Gradient::Auto, ir::Solve::Auto, ir::Calls::Auto, limit)
     };
