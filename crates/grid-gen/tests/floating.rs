@@ -310,7 +310,11 @@ fn fd_grad_calls_fd_and_rnea_grad_when_asked() {
         let text = &file.contents;
         assert_eq!(text.contains("fn fd_grad_rest<"), !own, "a rest of its own unless split");
         if own {
-            assert!(text.contains("= rnea_grad(q, qd, &qdd)"), "fd_grad calls rnea_grad at its q̈");
+            // It runs rnea_grad's parts around its own, and reads the transforms, velocities
+            // and composite inertias that rnea_grad's first parts keep.
+            assert!(!call.shared.is_empty(), "the rest reads what rnea_grad computes before q̈");
+            assert!(text.contains("rnea_grad_part0(q, qd, &qdd, sc,"), "fd_grad calls rnea_grad");
+            assert!(text.contains("sc: &rnea_grad_slots<T>"), "its parts read rnea_grad's slots");
         }
         let said = run_fd_grad_copies(&format!("fd_grad_calls_{name}"), text);
         for (copy_name, worst) in worst_per_copy(&said, nq, 1e-12, fd_grad_reference(&model, g)) {
@@ -443,7 +447,14 @@ fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
         &[("l14", ContactKind::Wrench), ("l7", ContactKind::Point)],
     );
     let g = reference::DEFAULT_GRAVITY;
-    let kernels = vec![KernelKind::RneaGrad, KernelKind::ContactFd, KernelKind::ContactFdGrad];
+    // `fd_grad` calls `rnea_grad` too, taking λ as its input where `contact_fd_grad` computes
+    // it: what both read of `rnea_grad` must not depend on λ.
+    let kernels = vec![
+        KernelKind::RneaGrad,
+        KernelKind::FdGrad,
+        KernelKind::ContactFd,
+        KernelKind::ContactFdGrad,
+    ];
     let (nv, nq) = (plain.nv(), plain.nq());
     let state = |k: usize| -> (Vec<f64>, Vec<Vec<f64>>) {
         let mut q: Vec<f64> = (0..nq).map(|i| seeded_state(k, i, 0)).collect();
@@ -478,6 +489,7 @@ fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
                 vec![KernelKind::ContactFd, KernelKind::RneaGrad]
             };
             assert_eq!(call.callees, callees);
+            assert_eq!(!call.shared.is_empty(), own, "a split rest reads rnea_grad's first values");
             let corr = reference::Baumgarte { gains: &gains, refs: &refs };
             for k in 0..3 {
                 let (q, x) = state(k);
@@ -513,6 +525,14 @@ fn contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked() {
                 assert_eq!(rest_args.len(), call.rest.inputs().len());
                 for (a, b) in all.iter().zip(&call.rest.eval(&rest_args)) {
                     worst = worst.max(rel_err(&col(a), &col(b)));
+                }
+                // Each value the rest reads from `rnea_grad`'s first parts is the value the
+                // rest would compute (the same operations: equal to the bit).
+                let callee_args = kernel_args_with(rg.inputs(), &q, &x[0], &sol[0], ext);
+                let (mine, theirs) =
+                    (call.rest.eval_nodes(&rest_args), rg.eval_nodes(&callee_args));
+                for &(at, from) in &call.shared {
+                    assert_eq!(mine[at.0 as usize], theirs[from.0 as usize], "{name}: {at:?}");
                 }
             }
         }

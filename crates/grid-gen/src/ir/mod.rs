@@ -10,6 +10,7 @@ mod graph;
 mod kernel;
 mod module;
 pub mod schedule;
+mod share;
 mod spatial;
 mod stats;
 mod tangent;
@@ -22,6 +23,7 @@ pub use module::{
     Contact, CoupledJoint, DenseProduct, EvalNumber, Function, LowerError, LowerOptions, Module,
     Operand, Output, Robot, SphericalJoint, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
 };
+pub(crate) use share::live_through;
 pub use spatial::SNAP;
 pub use stats::{stats, KernelStats, OpCounts, Skipped, Stats, STATS_MAX_NODES};
 pub use validate::{validate, ValidationError};

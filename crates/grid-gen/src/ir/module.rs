@@ -54,10 +54,11 @@ pub enum Calls {
     All,
     /// `fd_grad` and `contact_fd_grad` compute q̈ (and λ) themselves and call `rnea_grad`
     /// at them, where [`Calls::All`] would call: their work before the call and after it
-    /// share their values, and only the sharing with `rnea_grad`'s is lost (the transforms,
-    /// velocities and M's composite inertias): the humanoid's library loads in 0.65x to
-    /// 0.81x the time of [`Calls::Auto`]'s, its `fd_grad` 1.07x to 1.08x slower,
-    /// `contact_fd_grad` and `step_grad` 1.02x to 1.04x (2026-12-01; the book, Compile time).
+    /// share their values, and they read the transforms, velocities and composite inertias
+    /// that `rnea_grad`'s first parts compute ([`Call::shared`]): the humanoid's library
+    /// loads in 0.65x to 0.81x the time of [`Calls::Auto`]'s, its `fd_grad` 0.97x to 1.06x
+    /// the time, `contact_fd_grad` and `step_grad` 1.00x to 1.02x (2026-12-01; the book,
+    /// Compile time).
     #[cfg_attr(feature = "clap", value(name = "rnea_grad"))]
     RneaGrad,
 }
@@ -407,6 +408,12 @@ pub struct Call {
     /// marks, per node of the rest, the nodes those depend on: they run, then the callees,
     /// then the other nodes, which read both ([`Calls::RneaGrad`]).
     pub ahead: Vec<bool>,
+    /// Where the rest calls `rnea_grad` between its parts: each node of the rest that
+    /// `rnea_grad` computes too before q̈ enters (a transform, a velocity, a composite
+    /// inertia), paired with the callee's node, where the rest reads it. The callee computes
+    /// these first and keeps them, and the rest reads them instead of computing them again
+    /// (`ir::share`). The rest's graph still holds them. Empty elsewhere.
+    pub shared: Vec<(Id, Id)>,
 }
 
 /// A program over a small register file of rows, run over many columns at once: each
@@ -595,6 +602,7 @@ pub fn lower(
         }
     }
     functions.sort_by_key(|f| f.kind.position());
+    super::share::share_callee_values(&mut functions);
     Ok(Module { robot, gravity, functions })
 }
 
@@ -767,7 +775,7 @@ fn shared_call(
     if own && ahead.is_empty() {
         return Ok(None);
     }
-    Ok(Some(Call { callees, rest, ahead }))
+    Ok(Some(Call { callees, rest, ahead, shared: Vec::new() }))
 }
 
 /// Puts kernels in the order [`lower`] (and [`super::stats`]) lowers them: a module's

@@ -23,6 +23,10 @@ pub struct Chunks {
     /// chunk reading its value has run.
     pub slot: Vec<Option<u32>>,
     pub slots: usize,
+    /// Per node, where it is a value the kernel's callee computed and keeps
+    /// ([`crate::ir::Call::shared`]): the callee's slot that holds it. Empty until a backend
+    /// sets it.
+    pub provided: Vec<Option<u32>>,
 }
 
 impl Chunks {
@@ -34,6 +38,17 @@ impl Chunks {
     /// operands, as [`crate::ir::Call::ahead`]), so that a call can run between them and
     /// the others; returns the number of those first chunks. No marks: [`Chunks::new`].
     pub fn split(f: &Function, size: usize, ahead: &[bool]) -> (Chunks, usize) {
+        Chunks::split_keeping(f, size, ahead, &[])
+    }
+
+    /// [`Chunks::split`], with a slot of its own, never reused, for each node marked `keep`
+    /// (the values a caller reads after the chunks have run, [`crate::ir::Call::shared`]).
+    pub fn split_keeping(
+        f: &Function,
+        size: usize,
+        ahead: &[bool],
+        keep: &[bool],
+    ) -> (Chunks, usize) {
         let size = size.max(1);
         let mut chunks: Vec<Vec<Id>> = vec![Vec::new()];
         let mut chunk_of = vec![None; f.nodes.len()];
@@ -62,8 +77,8 @@ impl Chunks {
                 chunk_of[i] = Some((chunks.len() - 1) as u32);
             }
         }
-        let (slot, slots) = assign_slots(f, &chunk_of, &chunks);
-        (Chunks { chunks, chunk_of, slot, slots }, first)
+        let (slot, slots) = assign_slots(f, &chunk_of, &chunks, keep);
+        (Chunks { chunks, chunk_of, slot, slots, provided: Vec::new() }, first)
     }
 }
 
@@ -71,13 +86,18 @@ impl Chunks {
 /// node's step (`None`: constants and inputs) and the nodes of each step in order. A slot
 /// is reused only by a value written in a step after the last step that reads its
 /// previous value, so no step both reads and overwrites a slot; free slots are taken
-/// lowest first, for stable, compact numbering. Returns each node's slot and the count.
+/// lowest first, for stable, compact numbering. A node marked in `keep` holds its slot to
+/// the end. Returns each node's slot and the count.
 fn assign_slots(
     f: &Function,
     step_of: &[Option<u32>],
     steps: &[Vec<Id>],
+    keep: &[bool],
 ) -> (Vec<Option<u32>>, usize) {
     let mut last_read: Vec<Option<u32>> = vec![None; f.nodes.len()];
+    for (i, _) in keep.iter().enumerate().filter(|(_, &k)| k) {
+        last_read[i] = Some(u32::MAX);
+    }
     for (i, node) in f.nodes.iter().enumerate() {
         let Some(si) = step_of[i] else { continue };
         for o in node.op.operands() {
@@ -239,7 +259,7 @@ impl Phases {
         let phase_of: Vec<Option<u32>> = place.iter().map(|p| p.map(|p| p.phase)).collect();
         let in_phase: Vec<Vec<Id>> =
             phases.iter().map(|lists| lists.iter().flatten().copied().collect()).collect();
-        let (slot, slots) = assign_slots(f, &phase_of, &in_phase);
+        let (slot, slots) = assign_slots(f, &phase_of, &in_phase, &[]);
         if slots > max_slots {
             return Err(ScheduleError::OverBudget {
                 kernel: f.kind.name(),

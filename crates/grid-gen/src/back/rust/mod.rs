@@ -4,6 +4,7 @@
 
 mod format;
 mod mixed;
+mod split;
 
 use std::collections::HashMap;
 use std::fmt::Write;
@@ -121,6 +122,10 @@ fn operand(k: &Function, names: &Chunks, here: usize, id: Id) -> String {
     match k.op(id) {
         Op::Const(c) => format!("lit::<T>({})", literal(c)),
         Op::Input(which, j) => input_place(k, which, j),
+        // A value the callee keeps in its slots (`ir::Call::shared`).
+        _ if names.provided.get(id.0 as usize).is_some_and(Option::is_some) => {
+            format!("sc.{}", names.provided[id.0 as usize].unwrap_or_default())
+        }
         _ if names.chunk_of[id.0 as usize] == Some(here as u32) => format!("t{}", id.0),
         _ => format!(
             "s.{}",
@@ -416,11 +421,14 @@ fn out_index(k: &Function, name: &str) -> usize {
 }
 
 /// A kernel whose rest computes its callees' arguments ([`crate::ir::Call::ahead`]): the
-/// kernel, its call and its robot.
-type Within<'a> = (&'a Function, &'a crate::ir::Call, &'a crate::ir::Robot);
+/// kernel, its call, its robot, and its callee where the rest reads values the callee keeps
+/// ([`crate::ir::Call::shared`]).
+type Within<'a> =
+    (&'a Function, &'a crate::ir::Call, &'a crate::ir::Robot, Option<&'a split::SplitCallee<'a>>);
 
 /// Writes one copy of kernel `k` as the function `name`. With `within`, `k` is that kernel's
 /// rest, written as the kernel itself: its parts before the call, the call, the others.
+/// `exports`: the nodes of `k` that its callers' rests read ([`split::exports`]).
 #[allow(clippy::too_many_arguments)]
 fn emit_kernel(
     out: &mut String,
@@ -431,11 +439,17 @@ fn emit_kernel(
     options: &RustOptions,
     copy: Copy,
     within: Option<Within>,
+    exports: &[Id],
 ) {
-    let (names, first_after) = match within {
-        Some((_, call, _)) => Chunks::split(k, options.chunk, &call.ahead),
-        None => (Chunks::new(k, options.chunk), 0),
+    let (mut names, first_after) = match within {
+        Some((_, call, _, _)) => Chunks::split(k, options.chunk, &call.ahead),
+        None => split::chunks(k, options.chunk, exports),
     };
+    let callee = within.and_then(|w| w.3);
+    if let (Some((_, call, _, _)), Some(callee)) = (within, callee) {
+        names.provided = callee.provided(call);
+    }
+    let provided: Vec<bool> = names.provided.iter().map(Option::is_some).collect();
     let looped = looped_product(k, nv, copy);
     // Every copy runs a program as loops: the portable one too, since on a target without
     // the SIMD copies (aarch64, or x86-64 without FMA) its straight-line form is the
@@ -451,8 +465,18 @@ fn emit_kernel(
     if let Some(p) = program {
         skip = program_skip(k, p);
     }
+    // What the callee provides is read, not computed, and so is what only it reads.
+    if !provided.is_empty() {
+        let live = crate::ir::live_through(k, &provided);
+        for (i, s) in skip.iter_mut().enumerate() {
+            *s |= !live[i] || provided[i];
+        }
+    }
     let mut fuse =
         if copy != Copy::Portable { fusable(k, &names) } else { vec![false; k.nodes.len()] };
+    for (f, _) in fuse.iter_mut().zip(&provided).filter(|(_, &p)| p) {
+        *f = false;
+    }
     // The operands are stored into the loops' matrices, so they must exist.
     let product_operands =
         looped.into_iter().flat_map(|p| p.minv.iter().chain(p.dc.iter().flatten()).copied());
@@ -584,7 +608,7 @@ fn emit_kernel(
         }
     }
     // In a part, the arrays are views with one field per entry (see `arrays`).
-    let parted = chunks.len() > 1 || within.is_some();
+    let parted = chunks.len() > 1 || within.is_some() || !exports.is_empty();
     // A part before the call takes no callee's output.
     let takes = |c: usize, i: usize| {
         within.is_none()
@@ -596,13 +620,23 @@ fn emit_kernel(
         let mut b = String::new();
         // Within a kernel, the entries that copy a callee's outputs wait for the call.
         let called = |id: Id| matches!(k.op(id), Op::Input(crate::ir::Input::Called(_), _));
+        // A callee that runs its first parts before its caller has set q̈ and λ writes the
+        // entries that copy an input after them ([`split::chunks`]).
+        let input = |id: Id| matches!(k.op(id), Op::Input(..));
         for (place, id) in &inline_outputs {
-            let due = if within.is_some() && called(*id) { first_after } else { 0 };
+            let waits = (within.is_some() && called(*id)) || (!exports.is_empty() && input(*id));
+            let due = if waits { first_after } else { 0 };
             if c == due {
                 let _ = writeln!(b, "{} = {};", at(place), operand(k, &names, c, *id));
             }
         }
         for &id in ids {
+            if provided.get(id.0 as usize).is_some_and(|&p| p) {
+                for place in sinks.get(&id).into_iter().flatten() {
+                    let _ = writeln!(b, "{} = {};", at(place), operand(k, &names, c, id));
+                }
+                continue;
+            }
             if dropped[id.0 as usize] || skip[id.0 as usize] {
                 continue;
             }
@@ -620,7 +654,7 @@ fn emit_kernel(
     };
 
     let attr = copy.attribute();
-    let doc = if let Some((_, call, _)) = within {
+    let doc = if let Some((_, call, _, _)) = within {
         let calls: Vec<String> = call.callees.iter().map(|c| format!("[`{c}`]")).collect();
         format!(
             "{}\n///\n/// Computes its q̈ (and λ), runs {} there, then the rest of its work.",
@@ -660,9 +694,21 @@ fn emit_kernel(
             .map(|o| if into { o.name.to_string() } else { format!("&mut {}", o.name) })
             .chain(locals.iter().map(|(m, _)| format!("&mut {m}")))
             .collect();
+        // The callee's parts that compute what the rest reads of it run first.
+        let sc = match (within, callee) {
+            (Some((outer, ..)), Some(callee)) => Some(open_split_callee(out, outer, callee, into)),
+            _ => None,
+        };
         for c in 0..chunks.len() {
-            if let Some((outer, call, robot)) = within.filter(|_| c == first_after) {
-                write_callee_calls(out, outer, &call.callees, robot, into, true);
+            if let Some((outer, call, robot, _)) = within.filter(|_| c == first_after) {
+                match (&sc, callee) {
+                    (Some(parts), Some(callee)) => {
+                        for part in callee.first..callee.names.chunks.len() {
+                            let _ = writeln!(out, "{}", parts.call(part));
+                        }
+                    }
+                    _ => write_callee_calls(out, outer, &call.callees, robot, into, true),
+                }
             }
             // Within a kernel, the callees' outputs are its locals.
             let passed: Vec<String> = (0..arg_names.len())
@@ -672,7 +718,13 @@ fn emit_kernel(
                     _ => arg_names[i].to_string(),
                 })
                 .collect();
-            let _ = writeln!(out, "{name}_part{c}({}, s, {});", passed.join(", "), outs.join(", "));
+            let sc_arg = if callee.is_some() { "sc, " } else { "" };
+            let _ = writeln!(
+                out,
+                "{name}_part{c}({}, s, {sc_arg}{});",
+                passed.join(", "),
+                outs.join(", ")
+            );
         }
     }
     if let Some(p) = looped {
@@ -835,9 +887,12 @@ fn emit_kernel(
                 "mod {name}_part{c} {{\nuse super::*;\n\
                  #[inline(never)]\n{attr}#[allow(clippy::all, unused_variables, unused_mut)]"
             );
+            let sc = callee
+                .map(|callee| format!("sc: &{}_slots<T>, ", callee.f.kind.name()))
+                .unwrap_or_default();
             let _ = writeln!(
                 out,
-                "pub(super) fn {name}_part{c}<T: Real>({}, s: &mut {name}_slots<T>, {}) {{",
+                "pub(super) fn {name}_part{c}<T: Real>({}, s: &mut {name}_slots<T>, {sc}{}) {{",
                 (0..args.len())
                     .filter(|&i| takes(c, i))
                     .map(|i| args[i].as_str())
@@ -888,28 +943,7 @@ fn write_callee_calls(
         let args: Vec<String> = callee
             .inputs_for(spec)
             .iter()
-            .map(|i| match *i {
-                Input::Tau if spread => "&called_tau".to_string(),
-                _ if k.inputs().contains(i) => i.name().to_string(),
-                // An output of the kernel's: a reference in `_into` already.
-                _ if own => {
-                    let o = k.outputs.iter().find(|o| o.name == i.name());
-                    let o = o.expect("a kernel that computes its callees' arguments outputs them");
-                    if into {
-                        format!("&*{}", o.name)
-                    } else {
-                        format!("&{}", o.name)
-                    }
-                }
-                // q̈ or λ from an earlier callee.
-                _ => {
-                    let from = callees[..at]
-                        .iter()
-                        .find_map(|c| Input::called(*c, i.name()))
-                        .expect("an earlier callee gives what the kernel does not take");
-                    format!("&{}", from.name())
-                }
-            })
+            .map(|&i| callee_arg(k, i, &callees[..at], spread, into, own))
             .collect();
         // Each output under its `CALLED` name where the rest may read it.
         let bound: Vec<(String, crate::ir::Shape)> = callee
@@ -942,6 +976,92 @@ fn write_callee_calls(
             let _ = writeln!(body, "let {pattern} = {callee_name}({});", args.join(", "));
         }
     }
+}
+
+/// What a callee takes for its input `i` in kernel `k`: the kernel's input of the same name,
+/// a step's actuated τ spread over the coordinates (`spread`), and what the kernel does not
+/// take (`qdd`, `lambda`) from an earlier callee, or, with `own`, from the kernel's outputs of
+/// that name, which its parts before the call have set (references already in `_into`).
+fn callee_arg(
+    k: &Function,
+    i: crate::ir::Input,
+    earlier: &[crate::ir::KernelKind],
+    spread: bool,
+    into: bool,
+    own: bool,
+) -> String {
+    use crate::ir::Input;
+    match i {
+        Input::Tau if spread => "&called_tau".to_string(),
+        _ if k.inputs().contains(&i) => i.name().to_string(),
+        _ if own => {
+            let o = k.outputs.iter().find(|o| o.name == i.name());
+            let o = o.expect("a kernel that computes its callees' arguments outputs them");
+            if into {
+                format!("&*{}", o.name)
+            } else {
+                format!("&{}", o.name)
+            }
+        }
+        _ => {
+            let from = earlier
+                .iter()
+                .find_map(|c| Input::called(*c, i.name()))
+                .expect("an earlier callee gives what the kernel does not take");
+            format!("&{}", from.name())
+        }
+    }
+}
+
+/// A callee run as its parts within a kernel ([`split::SplitCallee`]): the calls to its parts.
+struct SplitParts {
+    name: &'static str,
+    args: String,
+}
+
+impl SplitParts {
+    /// The statement that runs the callee's part `part`.
+    fn call(&self, part: usize) -> String {
+        format!("{}_part{part}({});", self.name, self.args)
+    }
+}
+
+/// Opens `callee` within kernel `k` (whose rest reads values it keeps): its outputs and its
+/// slots (`sc`) as locals, and its first parts, which compute those values. Its outputs are
+/// named as [`write_callee_calls`] names them, for the rest's parts after the call.
+fn open_split_callee(
+    out: &mut String,
+    k: &Function,
+    callee: &split::SplitCallee,
+    into: bool,
+) -> SplitParts {
+    use crate::ir::Input;
+    let f = callee.f;
+    let name = f.kind.name();
+    let spread = k.inputs().contains(&Input::TauActuated);
+    let mut args: Vec<String> =
+        f.inputs().iter().map(|&i| callee_arg(k, i, &[], spread, into, true)).collect();
+    args.push("sc".to_string());
+    for (j, o) in f.outputs.iter().enumerate() {
+        let local = match Input::called(f.kind, o.name) {
+            Some(c) => c.name().to_string(),
+            None => format!("unread_{j}"),
+        };
+        let _ = writeln!(out, "let mut {local} = {};", array_of(o.shape, "lit::<T>(0.0)"));
+        args.push(format!("&mut {local}"));
+    }
+    let _ = writeln!(
+        out,
+        "let mut sc = [lit::<T>(0.0); {n}];\n\
+         // SAFETY: `{name}_slots` is `repr(C)` with {n} fields of type T: the array's layout.\n\
+         let sc = unsafe {{ &mut *(&mut sc as *mut [T; {n}] as *mut {name}_slots<T>) }};",
+        n = callee.names.slots
+    );
+    let parts = SplitParts { name, args: args.join(", ") };
+    for part in 0..callee.first {
+        let _ = writeln!(out, "{}", parts.call(part));
+    }
+    parts
 }
 
 /// A kernel that runs its callees and then its rest ([`crate::ir::Call`]): the callees'
@@ -2004,7 +2124,8 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
             let mut item = String::new();
             match &k.call {
                 Some(call) if !call.ahead.is_empty() => {
-                    let within = Some((k, &**call, robot));
+                    let callee = split::SplitCallee::of(module, call, options.chunk);
+                    let within = Some((k, &**call, robot, callee.as_ref()));
                     let name = k.kind.name();
                     emit_kernel(
                         &mut item,
@@ -2015,6 +2136,7 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
                         options,
                         copy,
                         within,
+                        &[],
                     );
                 }
                 Some(call) => {
@@ -2028,12 +2150,14 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
                         options,
                         copy,
                         None,
+                        &[],
                     );
                     emit_call(&mut item, k, call, robot, copy);
                 }
                 None => {
                     let name = k.kind.name();
-                    emit_kernel(&mut item, k, name, nv, q_len(robot), options, copy, None)
+                    let exports = split::exports(module, k.kind);
+                    emit_kernel(&mut item, k, name, nv, q_len(robot), options, copy, None, &exports)
                 }
             }
             let feature = options.kernel_features.then(|| k.kind.name());

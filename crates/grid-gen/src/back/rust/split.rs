@@ -1,0 +1,76 @@
+//! A callee whose parts run around its caller's ([`crate::ir::Call::shared`]): the callee's
+//! first parts compute what the caller's rest reads of it and keep it in their slots, the
+//! rest's parts before the call read those slots, the callee's other parts follow.
+
+use crate::ir::schedule::Chunks;
+use crate::ir::{Function, Id, KernelKind, Module};
+
+/// A callee's chunks as its callers run them: the first `first` compute its exported values
+/// (and what they read), each in a slot of its own.
+pub(super) struct SplitCallee<'a> {
+    pub f: &'a Function,
+    pub names: Chunks,
+    pub first: usize,
+}
+
+/// The nodes of `callee` that some rest of `module` reads ([`crate::ir::Call::shared`]), in
+/// order.
+pub(super) fn exports(module: &Module, callee: KernelKind) -> Vec<Id> {
+    let mut ids: Vec<Id> = module
+        .functions
+        .iter()
+        .filter_map(|f| f.call.as_deref())
+        .filter(|c| c.callees.contains(&callee))
+        .flat_map(|c| c.shared.iter().map(|&(_, at)| at))
+        .collect();
+    ids.sort_unstable();
+    ids.dedup();
+    ids
+}
+
+/// `f`'s chunks: with `exports`, the exported values and what they read first, each export
+/// in a slot that is never reused; else [`Chunks::new`].
+pub(super) fn chunks(f: &Function, size: usize, exports: &[Id]) -> (Chunks, usize) {
+    if exports.is_empty() {
+        return (Chunks::new(f, size), 0);
+    }
+    let mut keep = vec![false; f.nodes.len()];
+    for id in exports {
+        keep[id.0 as usize] = true;
+    }
+    let mut head = keep.clone();
+    for i in (0..f.nodes.len()).rev() {
+        if head[i] {
+            for o in f.nodes[i].op.operands() {
+                head[o.0 as usize] = true;
+            }
+        }
+    }
+    Chunks::split_keeping(f, size, &head, &keep)
+}
+
+impl<'a> SplitCallee<'a> {
+    /// The callee of `call` as its callers run it, where the rest shares values with it.
+    pub(super) fn of(
+        module: &'a Module,
+        call: &crate::ir::Call,
+        size: usize,
+    ) -> Option<SplitCallee<'a>> {
+        let &[callee] = call.callees.as_slice() else { return None };
+        if call.shared.is_empty() {
+            return None;
+        }
+        let f = module.function(callee)?;
+        let (names, first) = chunks(f, size, &exports(module, callee));
+        Some(SplitCallee { f, names, first })
+    }
+
+    /// The rest's node → the callee's slot that holds its value.
+    pub(super) fn provided(&self, call: &crate::ir::Call) -> Vec<Option<u32>> {
+        let mut provided = vec![None; call.rest.nodes.len()];
+        for &(at, from) in &call.shared {
+            provided[at.0 as usize] = self.names.slot[from.0 as usize];
+        }
+        provided
+    }
+}
