@@ -130,7 +130,7 @@ def load(
     calls: which kernels call other kernels of the library instead of holding their work:
     "auto" (where it costs no speed: the step calls its contact kernel), "rnea_grad" (also
     fd_grad and contact_fd_grad call rnea_grad at their own q-ddot where they factorise M,
-    and read the transforms it computes first: a floating humanoid loads in 0.65x to 0.81x
+    and read the transforms it computes first: a floating humanoid loads in 0.57x to 0.81x
     the time, fd_grad up to 1.06x slower, contact_fd_grad and step_grad up to 1.02x) or
     "all" (they call fd or contact_fd for q-ddot too: less still to compile, fd_grad 1.13x
     and the contact gradients 1.1x slower; the book, Compile time).

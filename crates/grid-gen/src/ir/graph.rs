@@ -172,6 +172,19 @@ impl Op {
     }
 }
 
+/// Marks every operand, transitively, of the nodes marked in `marked`, except the operands
+/// of a node for which `stop` holds (its value comes from elsewhere). One pass from the last
+/// node suffices because every node comes after its operands.
+pub(crate) fn mark_ancestors(nodes: &[Node], marked: &mut [bool], stop: impl Fn(usize) -> bool) {
+    for i in (0..nodes.len()).rev() {
+        if marked[i] && !stop(i) {
+            for o in nodes[i].op.operands() {
+                marked[o.0 as usize] = true;
+            }
+        }
+    }
+}
+
 /// Which step of which algorithm a node belongs to, for scheduling and op counts.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, PartialOrd, Ord)]
 pub enum Stage {

@@ -16,6 +16,7 @@ mod stats;
 mod tangent;
 mod validate;
 
+pub(crate) use graph::mark_ancestors;
 pub use graph::{Buffer, Id, Input, Node, Op, Stage};
 pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve, UPacking};
 pub use module::{

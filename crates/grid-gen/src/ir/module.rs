@@ -56,7 +56,7 @@ pub enum Calls {
     /// at them, where [`Calls::All`] would call: their work before the call and after it
     /// share their values, and they read the transforms, velocities and composite inertias
     /// that `rnea_grad`'s first parts compute ([`Call::shared`]): the humanoid's library
-    /// loads in 0.65x to 0.81x the time of [`Calls::Auto`]'s, its `fd_grad` 0.97x to 1.06x
+    /// loads in 0.57x to 0.81x the time of [`Calls::Auto`]'s, its `fd_grad` 0.97x to 1.06x
     /// the time, `contact_fd_grad` and `step_grad` 1.00x to 1.02x (2026-12-01; the book,
     /// Compile time).
     #[cfg_attr(feature = "clap", value(name = "rnea_grad"))]
@@ -856,14 +856,7 @@ fn ahead_of_call(
             }
         }
     }
-    // Nodes come after their operands: one pass from the last marks every ancestor.
-    for i in (0..rest.nodes.len()).rev() {
-        if ahead[i] {
-            for o in rest.nodes[i].op.operands() {
-                ahead[o.0 as usize] = true;
-            }
-        }
-    }
+    crate::ir::mark_ancestors(&rest.nodes, &mut ahead, |_| false);
     let reads_callee = rest
         .nodes
         .iter()
@@ -1025,13 +1018,7 @@ fn freeze(
     for id in outputs.iter().flatten() {
         live[id.0 as usize] = true;
     }
-    for i in (0..g.nodes.len()).rev() {
-        if live[i] {
-            for operand in g.nodes[i].op.operands() {
-                live[operand.0 as usize] = true;
-            }
-        }
-    }
+    crate::ir::mark_ancestors(&g.nodes, &mut live, |_| false);
     let mut new_id = vec![Id(u32::MAX); g.nodes.len()];
     let mut nodes = Vec::with_capacity(live.iter().filter(|&&l| l).count());
     for (i, node) in g.nodes.iter().enumerate() {

@@ -70,13 +70,7 @@ pub(crate) fn live_through(f: &Function, provided: &[bool]) -> Vec<bool> {
             live[id.0 as usize] = true;
         }
     }
-    for i in (0..f.nodes.len()).rev() {
-        if live[i] && !provided.get(i).copied().unwrap_or(false) {
-            for o in f.nodes[i].op.operands() {
-                live[o.0 as usize] = true;
-            }
-        }
-    }
+    crate::ir::mark_ancestors(&f.nodes, &mut live, |i| provided.get(i).copied().unwrap_or(false));
     live
 }
 

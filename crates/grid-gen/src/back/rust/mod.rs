@@ -1348,13 +1348,7 @@ fn program_skip(k: &Function, p: &ColumnProgram) -> Vec<bool> {
             live[id.0 as usize] = true;
         }
     }
-    for i in (0..k.nodes.len()).rev() {
-        if live[i] {
-            for operand in k.nodes[i].op.operands() {
-                live[operand.0 as usize] = true;
-            }
-        }
-    }
+    crate::ir::mark_ancestors(&k.nodes, &mut live, |_| false);
     live.into_iter().map(|l| !l).collect()
 }
 

@@ -2,6 +2,7 @@
 //! first parts compute what the caller's rest reads of it and keep it in their slots, the
 //! rest's parts before the call read those slots, the callee's other parts follow.
 
+use crate::ir::mark_ancestors;
 use crate::ir::schedule::Chunks;
 use crate::ir::{Function, Id, KernelKind, Module};
 
@@ -39,13 +40,7 @@ pub(super) fn chunks(f: &Function, size: usize, exports: &[Id]) -> (Chunks, usiz
         keep[id.0 as usize] = true;
     }
     let mut head = keep.clone();
-    for i in (0..f.nodes.len()).rev() {
-        if head[i] {
-            for o in f.nodes[i].op.operands() {
-                head[o.0 as usize] = true;
-            }
-        }
-    }
+    mark_ancestors(&f.nodes, &mut head, |_| false);
     Chunks::split_keeping(f, size, &head, &keep)
 }
 
