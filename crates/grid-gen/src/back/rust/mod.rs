@@ -428,7 +428,7 @@ type Within<'a> =
 
 /// Writes one copy of kernel `k` as the function `name`. With `within`, `k` is that kernel's
 /// rest, written as the kernel itself: its parts before the call, the call, the others.
-/// `exports`: the nodes of `k` that its callers' rests read ([`split::exports`]).
+/// `own`: `k` as its callers run it, where their rests read values it keeps.
 #[allow(clippy::too_many_arguments)]
 fn emit_kernel(
     out: &mut String,
@@ -439,11 +439,14 @@ fn emit_kernel(
     options: &RustOptions,
     copy: Copy,
     within: Option<Within>,
-    exports: &[Id],
+    own: Option<&split::SplitCallee>,
 ) {
     let (mut names, first_after) = match within {
         Some((_, call, _, _)) => Chunks::split(k, options.chunk, &call.ahead),
-        None => split::chunks(k, options.chunk, exports),
+        None => match own {
+            Some(own) => (own.names.clone(), own.first),
+            None => (Chunks::new(k, options.chunk), 0),
+        },
     };
     let callee = within.and_then(|w| w.3);
     if let (Some((_, call, _, _)), Some(callee)) = (within, callee) {
@@ -608,7 +611,7 @@ fn emit_kernel(
         }
     }
     // In a part, the arrays are views with one field per entry (see `arrays`).
-    let parted = chunks.len() > 1 || within.is_some() || !exports.is_empty();
+    let parted = chunks.len() > 1 || within.is_some() || own.is_some();
     // A part before the call takes no callee's output.
     let takes = |c: usize, i: usize| {
         within.is_none()
@@ -624,7 +627,7 @@ fn emit_kernel(
         // entries that copy an input after them ([`split::chunks`]).
         let input = |id: Id| matches!(k.op(id), Op::Input(..));
         for (place, id) in &inline_outputs {
-            let waits = (within.is_some() && called(*id)) || (!exports.is_empty() && input(*id));
+            let waits = (within.is_some() && called(*id)) || (own.is_some() && input(*id));
             let due = if waits { first_after } else { 0 };
             if c == due {
                 let _ = writeln!(b, "{} = {};", at(place), operand(k, &names, c, *id));
@@ -2101,6 +2104,7 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
         Kernel(&'a Function, Copy),
         Runner(Copy),
     }
+    let splits = split::split_callees(module, options.chunk);
     let mut pieces = vec![Piece::Head];
     for (wanted, copy, header) in copies {
         if wanted {
@@ -2118,8 +2122,8 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
             let mut item = String::new();
             match &k.call {
                 Some(call) if !call.ahead.is_empty() => {
-                    let callee = split::SplitCallee::of(module, call, options.chunk);
-                    let within = Some((k, &**call, robot, callee.as_ref()));
+                    let callee = split::SplitCallee::of(&splits, call);
+                    let within = Some((k, &**call, robot, callee));
                     let name = k.kind.name();
                     emit_kernel(
                         &mut item,
@@ -2130,7 +2134,7 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
                         options,
                         copy,
                         within,
-                        &[],
+                        None,
                     );
                 }
                 Some(call) => {
@@ -2144,14 +2148,14 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
                         options,
                         copy,
                         None,
-                        &[],
+                        None,
                     );
                     emit_call(&mut item, k, call, robot, copy);
                 }
                 None => {
                     let name = k.kind.name();
-                    let exports = split::exports(module, k.kind);
-                    emit_kernel(&mut item, k, name, nv, q_len(robot), options, copy, None, &exports)
+                    let own = splits.iter().find(|s| s.f.kind == k.kind);
+                    emit_kernel(&mut item, k, name, nv, q_len(robot), options, copy, None, own)
                 }
             }
             let feature = options.kernel_features.then(|| k.kind.name());

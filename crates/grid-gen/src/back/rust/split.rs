@@ -16,7 +16,7 @@ pub(super) struct SplitCallee<'a> {
 
 /// The nodes of `callee` that some rest of `module` reads ([`crate::ir::Call::shared`]), in
 /// order.
-pub(super) fn exports(module: &Module, callee: KernelKind) -> Vec<Id> {
+fn exports(module: &Module, callee: KernelKind) -> Vec<Id> {
     let mut ids: Vec<Id> = module
         .functions
         .iter()
@@ -29,12 +29,9 @@ pub(super) fn exports(module: &Module, callee: KernelKind) -> Vec<Id> {
     ids
 }
 
-/// `f`'s chunks: with `exports`, the exported values and what they read first, each export
-/// in a slot that is never reused; else [`Chunks::new`].
-pub(super) fn chunks(f: &Function, size: usize, exports: &[Id]) -> (Chunks, usize) {
-    if exports.is_empty() {
-        return (Chunks::new(f, size), 0);
-    }
+/// `f`'s chunks: the exported values and what they read first, each export in a slot that
+/// is never reused.
+fn chunks(f: &Function, size: usize, exports: &[Id]) -> (Chunks, usize) {
     let mut keep = vec![false; f.nodes.len()];
     for id in exports {
         keep[id.0 as usize] = true;
@@ -44,20 +41,34 @@ pub(super) fn chunks(f: &Function, size: usize, exports: &[Id]) -> (Chunks, usiz
     Chunks::split_keeping(f, size, &head, &keep)
 }
 
+/// Every kernel of `module` whose values some rest reads, as it runs: computed once, so that
+/// the kernel's own code and its callers' agree on its slots.
+pub(super) fn split_callees(module: &Module, size: usize) -> Vec<SplitCallee<'_>> {
+    module
+        .functions
+        .iter()
+        .filter(|f| f.call.is_none())
+        .filter_map(|f| {
+            let exports = exports(module, f.kind);
+            (!exports.is_empty()).then(|| {
+                let (names, first) = chunks(f, size, &exports);
+                SplitCallee { f, names, first }
+            })
+        })
+        .collect()
+}
+
 impl<'a> SplitCallee<'a> {
-    /// The callee of `call` as its callers run it, where the rest shares values with it.
-    pub(super) fn of(
-        module: &'a Module,
+    /// The callee of `call` among `splits`, where the rest shares values with it.
+    pub(super) fn of<'s>(
+        splits: &'s [SplitCallee<'a>],
         call: &crate::ir::Call,
-        size: usize,
-    ) -> Option<SplitCallee<'a>> {
+    ) -> Option<&'s SplitCallee<'a>> {
         let &[callee] = call.callees.as_slice() else { return None };
         if call.shared.is_empty() {
             return None;
         }
-        let f = module.function(callee)?;
-        let (names, first) = chunks(f, size, &exports(module, callee));
-        Some(SplitCallee { f, names, first })
+        splits.iter().find(|s| s.f.kind == callee)
     }
 
     /// The rest's node → the callee's slot that holds its value.
