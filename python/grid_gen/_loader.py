@@ -128,7 +128,9 @@ def load(
     kernel with lanes is compiled twice: "none" halves a humanoid's compile time, and its
     mid-sized kernels' batches run 1.4x to 3x slower per state (the book, Compile time).
     calls: which kernels call other kernels of the library instead of holding their work:
-    "auto" (where it costs no speed: the step calls its contact kernel), "rnea_grad" (also
+    "auto" (where it costs no speed: the step calls its contact kernel; and where the
+    library holds a contact_fd_grad of 150,000 operations or more, a humanoid on its feet,
+    what "rnea_grad" does, so that it loads in 30 s or so), "rnea_grad" (also
     fd_grad and contact_fd_grad call rnea_grad at their own q-ddot where they factorise M,
     and read the transforms it computes first: a floating humanoid loads in 0.57x to 0.81x
     the time, fd_grad up to 1.06x slower, contact_fd_grad and step_grad up to 1.02x) or

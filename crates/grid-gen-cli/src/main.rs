@@ -269,10 +269,13 @@ struct ModelArgs {
     )]
     solve: grid_gen::ir::Solve,
     /// Which kernels call other kernels of their module instead of holding their work:
-    /// `auto` (where it costs no speed: a step kernel calls its contact kernel),
-    /// `rnea_grad` (also `fd_grad` and `contact_fd_grad` call `rnea_grad` at their own q̈
-    /// on trees deeper than 12 joints: a humanoid's library compiles in 0.8x the time,
-    /// those two 1.07x to 1.12x slower, `step_grad` as fast) or `all` (they call `fd` or
+    /// `auto` (where it costs no speed: a step kernel calls its contact kernel; and what
+    /// `rnea_grad` does where the module's `contact_fd_grad` has at least 150,000
+    /// operations, a humanoid on its feet), `rnea_grad` (also `fd_grad` and
+    /// `contact_fd_grad` call `rnea_grad` at their own q̈ where they factorise M and read
+    /// the transforms it computes first: a humanoid's library loads in 0.57x to 0.81x the
+    /// time, `fd_grad` 0.97x to 1.06x the time, the contact gradients 1.00x to 1.02x) or
+    /// `all` (they call `fd` or
     /// `contact_fd` for q̈ too: 0.7x the time, `fd_grad` 1.13x and `step_grad` 1.2x slower;
     /// the book, Compile time).
     #[arg(long, value_name = "WHICH", default_value = "auto", global = true)]

@@ -499,6 +499,67 @@ fn humanoid_contact_step_kernels_match_the_reference() {
     );
 }
 
+/// Under `calls = auto`, a module whose `contact_fd_grad` has at least
+/// `CALLS_RNEA_GRAD_MIN_OPS` operations (the humanoid on its feet) does what
+/// `calls = rnea_grad` does: `fd_grad` and `contact_fd_grad` call `rnea_grad`, with the same
+/// rests and the same values read from it; below it (the standing HyQ) they keep their
+/// work whole. The called kernels' values are `fd_grad_calls_fd_and_rnea_grad_when_asked`'s
+/// and `contact_fd_grad_calls_contact_fd_and_rnea_grad_when_asked`'s to check (floating.rs).
+#[test]
+fn auto_calls_rnea_grad_where_the_contact_gradient_is_large() {
+    let g = reference::DEFAULT_GRAVITY;
+    let feet = [("l_foot", ContactKind::Wrench), ("r_foot", ContactKind::Wrench)];
+    let humanoid = with_forces(&load_floating("grid_atlas"), &[], &feet);
+    let kernels = vec![KernelKind::RneaGrad, KernelKind::FdGrad, KernelKind::ContactFdGrad];
+    let lower = |m: &Model, calls: ir::Calls| {
+        let options = LowerOptions { kernels: kernels.clone(), calls, ..Default::default() };
+        ir::lower(m, g, &options).unwrap()
+    };
+    let ops =
+        |module: &ir::Module| module.function(KernelKind::ContactFdGrad).unwrap().counts().total();
+    let calls = |module: &ir::Module, kind: KernelKind| {
+        module
+            .function(kind)
+            .unwrap()
+            .call
+            .as_ref()
+            .map(|c| (c.callees.clone(), c.rest.nodes.len(), c.shared.len()))
+    };
+    let auto = lower(&humanoid, ir::Calls::Auto);
+    let asked = lower(&humanoid, ir::Calls::RneaGrad);
+    assert!(
+        ops(&auto) >= ir::CALLS_RNEA_GRAD_MIN_OPS,
+        "the humanoid's contact_fd_grad: {}",
+        ops(&auto)
+    );
+    for kind in [KernelKind::FdGrad, KernelKind::ContactFdGrad] {
+        let call = calls(&auto, kind);
+        assert_eq!(
+            call.as_ref().map(|c| c.0.clone()),
+            Some(vec![KernelKind::RneaGrad]),
+            "{kind:?}"
+        );
+        assert!(call.as_ref().is_some_and(|c| c.2 > 0), "{kind:?} reads rnea_grad's first values");
+        assert_eq!(call, calls(&asked, kind), "{kind:?}: auto against calls = rnea_grad");
+    }
+    let standing = hyq_standing_step();
+    let hyq = lower(&standing, ir::Calls::Auto);
+    assert!(
+        ops(&hyq) < ir::CALLS_RNEA_GRAD_MIN_OPS,
+        "the standing HyQ's contact_fd_grad: {}",
+        ops(&hyq)
+    );
+    for kind in [KernelKind::FdGrad, KernelKind::ContactFdGrad] {
+        assert_eq!(calls(&hyq, kind), None, "{kind:?} on the standing HyQ");
+    }
+    println!(
+        "contact_fd_grad operations: humanoid {}, standing HyQ {}; the bound {}",
+        ops(&auto),
+        ops(&hyq),
+        ir::CALLS_RNEA_GRAD_MIN_OPS
+    );
+}
+
 /// A step under contacts records its contact kernel's routes: `step` `contact_fd`'s solve,
 /// `step_grad` `contact_fd_grad`'s gradient formulation and solve. Their Rust code calls
 /// those kernels, and their whole graphs, which WGSL, `eval` and `info` read, hold the

@@ -22,7 +22,8 @@ pub use kernel::{Dims, Gradient, KernelKind, OutputSpec, Shape, Solve, UPacking}
 pub use module::{
     lower, lower_function, Call, Calls, ColumnBlock, ColumnProgram, ColumnStep, ColumnStore,
     Contact, CoupledJoint, DenseProduct, EvalNumber, Function, LowerError, LowerOptions, Module,
-    Operand, Output, Robot, SphericalJoint, DEFAULT_MAX_NODES, LTDL_MAX_DEPTH,
+    Operand, Output, Robot, SphericalJoint, CALLS_RNEA_GRAD_MIN_OPS, DEFAULT_MAX_NODES,
+    LTDL_MAX_DEPTH,
 };
 pub(crate) use share::live_through;
 pub use spatial::SNAP;

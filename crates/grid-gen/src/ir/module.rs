@@ -43,7 +43,10 @@ pub struct LowerOptions {
 #[serde(rename_all = "snake_case")]
 #[cfg_attr(feature = "clap", derive(clap::ValueEnum))]
 pub enum Calls {
-    /// Where calling costs no speed: a step kernel calls its contact kernel.
+    /// Where calling costs no speed: a step kernel calls its contact kernel. And where a
+    /// module is too large to load in 30 s whole (its `contact_fd_grad` has at least
+    /// [`CALLS_RNEA_GRAD_MIN_OPS`] operations: a humanoid on its feet), what
+    /// [`Calls::RneaGrad`] does, for a few per cent on `fd_grad`.
     #[default]
     Auto,
     /// Also `fd_grad` calls `fd` and `rnea_grad`, and `contact_fd_grad` `contact_fd` and
@@ -602,8 +605,38 @@ pub fn lower(
         }
     }
     functions.sort_by_key(|f| f.kind.position());
+    if calls_rnea_grad_by_size(&functions, options) {
+        let options = LowerOptions { calls: Calls::RneaGrad, ..options.clone() };
+        for f in functions.iter_mut().filter(|f| {
+            matches!(f.kind, KernelKind::FdGrad | KernelKind::ContactFdGrad) && f.call.is_none()
+        }) {
+            f.call = shared_call(model, gravity, f, &options)?.map(Box::new);
+        }
+    }
     super::share::share_callee_values(&mut functions);
     Ok(Module { robot, gravity, functions })
+}
+
+/// The fewest operations of a module's `contact_fd_grad` from which [`Calls::Auto`] does
+/// what [`Calls::RneaGrad`] does: `fd_grad` and `contact_fd_grad` call `rnea_grad`. Such a
+/// module is a humanoid's on its feet (floating Atlas on two 6-D feet: 268,592), whose
+/// library took 35 to 71 s to load with both gradients whole, over the 30 s a user should
+/// wait, and 0.57x to 0.81x that time with the calls (`scripts/build_cost.py`, 2026-12-01),
+/// for `fd_grad` at 0.98x to 1.05x its time and the contact gradients at 1.00x to 1.02x
+/// (`scripts/compare_libraries.py`; the book, Compile time). Below it (a standing HyQ's
+/// 80,027, whose `contact_fd_grad` is in the README's speed table and loads within the
+/// budget; every fixed base; a floating base without contacts, such as floating Atlas,
+/// whose `fd_grad` is in the table too) a kernel keeps its work whole. The bound lies
+/// between the two measured modules, at about their geometric mean.
+pub const CALLS_RNEA_GRAD_MIN_OPS: usize = 150_000;
+
+/// Whether [`Calls::Auto`] calls `rnea_grad` from the gradients of these functions
+/// ([`CALLS_RNEA_GRAD_MIN_OPS`]).
+fn calls_rnea_grad_by_size(functions: &[Function], options: &LowerOptions) -> bool {
+    options.calls == Calls::Auto
+        && functions.iter().any(|f| {
+            f.kind == KernelKind::ContactFdGrad && f.counts().total() >= CALLS_RNEA_GRAD_MIN_OPS
+        })
 }
 
 /// Lowers one kernel.
