@@ -619,7 +619,7 @@ pub fn lower(
 
 /// The fewest operations of a module's `contact_fd_grad` from which [`Calls::Auto`] does
 /// what [`Calls::RneaGrad`] does: `fd_grad` and `contact_fd_grad` call `rnea_grad`. Such a
-/// module is a humanoid's on its feet (floating Atlas on two 6-D feet: 268,592), whose
+/// module is a humanoid's on its feet (floating Atlas on two 6-D feet: 268,497), whose
 /// library took 35 to 71 s to load with both gradients whole, over the 30 s a user should
 /// wait, and 0.57x to 0.81x that time with the calls (`scripts/build_cost.py`, 2026-12-01),
 /// for `fd_grad` at 0.98x to 1.05x its time and the contact gradients at 1.00x to 1.02x
