@@ -111,7 +111,17 @@ fi
 CLIPPY_PID=$!
 
 say "cargo test (workspace): run"
-cargo test "${TARGETS[@]}"
+# cargo-nextest (on this project's machines) runs each test as a process and the tests of
+# every binary side by side, two at a time on two cores; `cargo test` runs one binary after
+# another, and a binary's slowest test (lavapipe compiling a shader, Icarus simulating a
+# netlist) leaves the other core idle. .config/nextest.toml keeps lavapipe's tests one at a
+# time and starts them first. Both run every test; without nextest it is `cargo test`.
+if cargo nextest --version >/dev/null 2>&1; then
+    cargo nextest run "${TARGETS[@]}"
+else
+    echo "cargo-nextest is not installed: cargo test runs the same tests, one binary at a time (cargo install cargo-nextest --locked for the faster run)"
+    cargo test "${TARGETS[@]}"
+fi
 
 say "lints: cargo clippy -D warnings, the workspace and the CLI without wgpu"
 wait "$CLIPPY_PID" || { cat target/tools/clippy.log; die "cargo clippy reports warnings (listed above): fix them, or allow one with a reason"; }
@@ -141,4 +151,5 @@ say "fixtures are what Pinocchio and yourdfpy compute"
 
 say "all tests passed"
 echo "Tests print their measured figures (errors against their tolerances, sizes, timings);"
-echo "cargo hides them for passing tests: add -- --nocapture to a cargo test command to see them."
+echo "the runner hides them for passing tests: add --no-capture to a cargo nextest run command"
+echo "(or -- --nocapture to a cargo test command) to see them."
