@@ -77,6 +77,11 @@ say "cargo test (workspace): build"
 # Every target (--all-targets would also build the libraries that declare `test = false`,
 # such as grid-gen-kernels, whose modules have no unit tests and take minutes to build again).
 TARGETS=(--workspace --tests --benches --examples)
+# A clean clone (CI) compiles everything once, so incremental compilation's bookkeeping is
+# all cost there (it writes a dependency graph for every unrolled kernel); locally it stays
+# on, so that a rerun after an edit rebuilds little. Every cargo command below sees it, so
+# none rebuilds what this one built.
+if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
 cargo test "${TARGETS[@]}" --no-run
 
 # While the tests run (lavapipe and the simulators leave a core idle much of the time), the
