@@ -132,7 +132,10 @@ say "lints: cargo clippy -D warnings, the workspace and the CLI without wgpu"
 wait "$CLIPPY_PID" || { cat target/tools/clippy.log; die "cargo clippy reports warnings (listed above): fix them, or allow one with a reason"; }
 
 say "the step example: 64 knots of floating HyQ rolled out and linearised"
-cargo run -q -p grid-gen-kernels --example hyq_rollout
+# Without -p: cargo then resolves features over the whole workspace, as the test build did,
+# so only the example itself compiles (with -p grid-gen-kernels its dependencies built
+# again, a minute of the test command).
+cargo run -q --example hyq_rollout
 
 say "the Python package: pip install ./python, then its tests against Pinocchio"
 wait "$PYTHON_PID" || { cat target/tools/python-install.log; die "pip install ./python (with pytest and jax for its tests) failed: it needs cargo, and PyPI for maturin"; }
