@@ -84,8 +84,8 @@ TARGETS=(--workspace --tests --benches --examples)
 if [ -n "${CI:-}" ]; then export CARGO_INCREMENTAL=0; fi
 cargo test "${TARGETS[@]}" --no-run
 
-# While the tests run (lavapipe and the simulators leave a core idle much of the time), the
-# tools of the later steps build in the background: mdBook, and the Python package (the
+# While the tests run, the tools of the later steps build in the background (lavapipe's tests
+# start after the other tests, by when these builds have ended; see .config/nextest.toml): mdBook, and the Python package (the
 # README's one install command, `pip install ./python`: maturin, downloaded by pip, builds
 # the native generator with cargo). Each logs to target/ and is waited for below.
 mkdir -p target/tools
@@ -119,8 +119,8 @@ say "cargo test (workspace): run"
 # cargo-nextest (on this project's machines) runs each test as a process and the tests of
 # every binary side by side, two at a time on two cores; `cargo test` runs one binary after
 # another, and a binary's slowest test (lavapipe compiling a shader, Icarus simulating a
-# netlist) leaves the other core idle. .config/nextest.toml keeps lavapipe's tests one at a
-# time and starts them first. Both run every test; without nextest it is `cargo test`.
+# netlist) leaves the other core idle. .config/nextest.toml runs lavapipe's tests alone and
+# last. Both run every test; without nextest it is `cargo test`.
 if cargo nextest --version >/dev/null 2>&1; then
     cargo nextest run "${TARGETS[@]}"
 else
