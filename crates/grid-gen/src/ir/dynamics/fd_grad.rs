@@ -203,7 +203,7 @@ impl Dynamics<'_> {
         let dq = solve(&dc_q, &known_q);
         let dqd = solve(&dc_qd, &known_qd);
         self.fd_solves = Some(FdSolves {
-            steps: fs.steps(self.model),
+            steps: fs.program_steps(self.model),
             dc: [dc_q.clone(), dc_qd.clone()],
             known: [known_q.clone(), known_qd.clone()],
         });
@@ -331,9 +331,37 @@ impl Ltdl {
         run_steps(g, &self.split_steps(model).1, z)
     }
 
+    /// [`Self::steps`] with the first pass gathered: row j of `Lᵀ y = b` takes every term
+    /// from its descendants k in one run (k descending, the order in which the scattered
+    /// pass subtracts them), so each row's value is the same to the bit. A program runs
+    /// a run of terms into one row in registers, where the scattered pass loads and stores
+    /// the row once per term (the base's rows once per joint on a floating base).
+    pub(super) fn program_steps(&self, model: &Model) -> Vec<ColumnStep> {
+        let n = self.neg_dinv.len();
+        let mut below = vec![Vec::new(); n];
+        for k in (0..n).rev() {
+            for j in strict_ancestors(model, k) {
+                below[j].push(k);
+            }
+        }
+        let mut steps = self.steps(model);
+        let first = steps.iter().position(|s| matches!(s, ColumnStep::Mul { .. })).unwrap_or(0);
+        let gathered = (0..n).rev().flat_map(|j| {
+            below[j].iter().map(move |&k| ColumnStep::Sub {
+                dst: j,
+                coef: Operand::Node(self.l[k][j]),
+                src: k,
+            })
+        });
+        let gathered: Vec<ColumnStep> = gathered.collect();
+        debug_assert_eq!(gathered.len(), first);
+        steps.splice(..first, gathered);
+        steps
+    }
+
     /// The solve `−M⁻¹ b` as steps on b's rows: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`,
     /// `L x = z` root first. [`Self::solve`] runs them on graph nodes, [`solve_block`] on
-    /// many columns at once.
+    /// many columns at once (as [`Self::program_steps`]).
     fn steps(&self, model: &Model) -> Vec<ColumnStep> {
         let n = self.neg_dinv.len();
         let l = |k: usize, j: usize| Operand::Node(self.l[k][j]);
@@ -391,7 +419,7 @@ fn solve_block(
     let cols: Vec<usize> = (0..n).filter(|&c| known[c].is_none()).collect();
     let init =
         (0..n).map(|row| cols.iter().map(|&c| Operand::Node(dc[row][c])).collect()).collect();
-    let steps = f.steps(model);
+    let steps = f.program_steps(model);
     let stores = (0..n)
         .map(|row| ColumnStore {
             row,
