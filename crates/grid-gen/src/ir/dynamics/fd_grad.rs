@@ -337,40 +337,33 @@ impl Ltdl {
     /// a run of terms into one row in registers, where the scattered pass loads and stores
     /// the row once per term (the base's rows once per joint on a floating base).
     pub(super) fn program_steps(&self, model: &Model) -> Vec<ColumnStep> {
-        let n = self.neg_dinv.len();
-        let mut below = vec![Vec::new(); n];
-        for k in (0..n).rev() {
-            for j in strict_ancestors(model, k) {
-                below[j].push(k);
-            }
-        }
-        let mut steps = self.steps(model);
-        let first = steps.iter().position(|s| matches!(s, ColumnStep::Mul { .. })).unwrap_or(0);
-        let gathered = (0..n).rev().flat_map(|j| {
-            below[j].iter().map(move |&k| ColumnStep::Sub {
-                dst: j,
-                coef: Operand::Node(self.l[k][j]),
-                src: k,
-            })
-        });
-        let gathered: Vec<ColumnStep> = gathered.collect();
-        debug_assert_eq!(gathered.len(), first);
-        steps.splice(..first, gathered);
-        steps
+        self.passes(model, true)
     }
 
     /// The solve `−M⁻¹ b` as steps on b's rows: `Lᵀ y = b` leaves first, `z = −D⁻¹ y`,
     /// `L x = z` root first. [`Self::solve`] runs them on graph nodes, [`solve_block`] on
     /// many columns at once (as [`Self::program_steps`]).
     fn steps(&self, model: &Model) -> Vec<ColumnStep> {
+        self.passes(model, false)
+    }
+
+    /// [`Self::steps`], with the first pass scattered (each row k, once final, subtracted
+    /// from its ancestors) or `gathered` ([`Self::program_steps`]).
+    fn passes(&self, model: &Model, gathered: bool) -> Vec<ColumnStep> {
         let n = self.neg_dinv.len();
         let l = |k: usize, j: usize| Operand::Node(self.l[k][j]);
-        let mut steps = Vec::new();
-        for k in (0..n).rev() {
-            for j in strict_ancestors(model, k) {
-                steps.push(ColumnStep::Sub { dst: j, coef: l(k, j), src: k });
-            }
+        let mut first: Vec<(usize, usize)> = (0..n)
+            .rev()
+            .flat_map(|k| strict_ancestors(model, k).into_iter().map(move |j| (k, j)))
+            .collect();
+        if gathered {
+            // Stable: each row keeps its terms in the scattered order, k descending.
+            first.sort_by_key(|&(_, j)| std::cmp::Reverse(j));
         }
+        let mut steps: Vec<ColumnStep> = first
+            .into_iter()
+            .map(|(k, j)| ColumnStep::Sub { dst: j, coef: l(k, j), src: k })
+            .collect();
         steps.extend(
             (0..n).map(|k| ColumnStep::Mul { dst: k, coef: Operand::Node(self.neg_dinv[k]) }),
         );
