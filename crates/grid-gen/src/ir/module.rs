@@ -451,6 +451,15 @@ pub enum ColumnStep {
     Mul { dst: usize, coef: Operand },
 }
 
+impl ColumnStep {
+    /// The row the step writes.
+    pub fn dst(&self) -> usize {
+        match *self {
+            ColumnStep::Sub { dst, .. } | ColumnStep::Mul { dst, .. } => dst,
+        }
+    }
+}
+
 /// Row `row` of every column of a block goes to output `output` at `flat[column]`
 /// (negated when `negate`).
 #[derive(Clone, Debug, PartialEq)]

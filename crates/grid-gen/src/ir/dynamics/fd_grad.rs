@@ -436,6 +436,19 @@ pub(super) struct FdSolves {
     pub known: [KnownColumns; 2],
 }
 
+impl FdSolves {
+    /// `steps` as the passes before the last (`Lᵀ y = b`, then `z = −D⁻¹ y`) and the last
+    /// (`L x = z`, root first, row by row).
+    pub fn split(&self) -> (&[ColumnStep], &[ColumnStep]) {
+        let last = self
+            .steps
+            .iter()
+            .rposition(|s| matches!(s, ColumnStep::Mul { .. }))
+            .map_or(0, |i| i + 1);
+        self.steps.split_at(last)
+    }
+}
+
 impl Dynamics<'_> {
     /// Columns of ∂q̈/∂q and ∂q̈/∂q̇ that a free-flyer base's invariances give without a
     /// solve (`None` for the others, and for every column without a floating base).
