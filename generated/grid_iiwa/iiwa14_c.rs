@@ -163,10 +163,14 @@ pub mod iiwa14_batch {
                     }
                 }
                 for i in i..range.end {
-                    let r0 = super::iiwa14::rnea(&q[i], &qd[i], &qdd[i]);
                     unsafe {
-                        o0.write(i, r0);
-                    }
+                        super::iiwa14::rnea_into(
+                            &q[i],
+                            &qd[i],
+                            &qdd[i],
+                            &mut *{ o0 }.0.add(i),
+                        )
+                    };
                 }
             },
         );
@@ -330,11 +334,15 @@ pub mod iiwa14_batch {
                     }
                 }
                 for i in i..range.end {
-                    let (r0, r1) = super::iiwa14::rnea_grad(&q[i], &qd[i], &qdd[i]);
                     unsafe {
-                        o0.write(i, r0);
-                        o1.write(i, r1);
-                    }
+                        super::iiwa14::rnea_grad_into(
+                            &q[i],
+                            &qd[i],
+                            &qdd[i],
+                            &mut *{ o0 }.0.add(i),
+                            &mut *{ o1 }.0.add(i),
+                        )
+                    };
                 }
             },
         );
@@ -507,10 +515,9 @@ pub mod iiwa14_batch {
                     }
                 }
                 for i in i..range.end {
-                    let r0 = super::iiwa14::mass_matrix(&q[i]);
                     unsafe {
-                        o0.write(i, r0);
-                    }
+                        super::iiwa14::mass_matrix_into(&q[i], &mut *{ o0 }.0.add(i))
+                    };
                 }
             },
         );
@@ -643,10 +650,7 @@ pub mod iiwa14_batch {
                     }
                 }
                 for i in i..range.end {
-                    let r0 = super::iiwa14::minv(&q[i]);
-                    unsafe {
-                        o0.write(i, r0);
-                    }
+                    unsafe { super::iiwa14::minv_into(&q[i], &mut *{ o0 }.0.add(i)) };
                 }
             },
         );
@@ -794,10 +798,14 @@ pub mod iiwa14_batch {
                     }
                 }
                 for i in i..range.end {
-                    let r0 = super::iiwa14::fd(&q[i], &qd[i], &tau[i]);
                     unsafe {
-                        o0.write(i, r0);
-                    }
+                        super::iiwa14::fd_into(
+                            &q[i],
+                            &qd[i],
+                            &tau[i],
+                            &mut *{ o0 }.0.add(i),
+                        )
+                    };
                 }
             },
         );
@@ -965,12 +973,16 @@ pub mod iiwa14_batch {
                     }
                 }
                 for i in i..range.end {
-                    let (r0, r1, r2) = super::iiwa14::fd_grad(&q[i], &qd[i], &tau[i]);
                     unsafe {
-                        o0.write(i, r0);
-                        o1.write(i, r1);
-                        o2.write(i, r2);
-                    }
+                        super::iiwa14::fd_grad_into(
+                            &q[i],
+                            &qd[i],
+                            &tau[i],
+                            &mut *{ o0 }.0.add(i),
+                            &mut *{ o1 }.0.add(i),
+                            &mut *{ o2 }.0.add(i),
+                        )
+                    };
                 }
             },
         );
@@ -1113,10 +1125,13 @@ pub mod iiwa14_batch {
                 #[allow(unused_mut)]
                 let mut i = range.start;
                 for i in i..range.end {
-                    let r0 = super::iiwa14::integrate(&q[i], &v[i]);
                     unsafe {
-                        o0.write(i, r0);
-                    }
+                        super::iiwa14::integrate_into(
+                            &q[i],
+                            &v[i],
+                            &mut *{ o0 }.0.add(i),
+                        )
+                    };
                 }
             },
         );
@@ -1227,11 +1242,14 @@ pub mod iiwa14_batch {
                 #[allow(unused_mut)]
                 let mut i = range.start;
                 for i in i..range.end {
-                    let (r0, r1) = super::iiwa14::dintegrate(&q[i], &v[i]);
                     unsafe {
-                        o0.write(i, r0);
-                        o1.write(i, r1);
-                    }
+                        super::iiwa14::dintegrate_into(
+                            &q[i],
+                            &v[i],
+                            &mut *{ o0 }.0.add(i),
+                            &mut *{ o1 }.0.add(i),
+                        )
+                    };
                 }
             },
         );
@@ -1346,10 +1364,13 @@ pub mod iiwa14_batch {
                 #[allow(unused_mut)]
                 let mut i = range.start;
                 for i in i..range.end {
-                    let r0 = super::iiwa14::difference(&q[i], &q1[i]);
                     unsafe {
-                        o0.write(i, r0);
-                    }
+                        super::iiwa14::difference_into(
+                            &q[i],
+                            &q1[i],
+                            &mut *{ o0 }.0.add(i),
+                        )
+                    };
                 }
             },
         );
@@ -1460,11 +1481,14 @@ pub mod iiwa14_batch {
                 #[allow(unused_mut)]
                 let mut i = range.start;
                 for i in i..range.end {
-                    let (r0, r1) = super::iiwa14::ddifference(&q[i], &q1[i]);
                     unsafe {
-                        o0.write(i, r0);
-                        o1.write(i, r1);
-                    }
+                        super::iiwa14::ddifference_into(
+                            &q[i],
+                            &q1[i],
+                            &mut *{ o0 }.0.add(i),
+                            &mut *{ o1 }.0.add(i),
+                        )
+                    };
                 }
             },
         );

@@ -478,6 +478,20 @@ pub fn rnea<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV]) -> [T; NV] {
     }
     portable::rnea(q, qd, qdd)
 }
+/// [`rnea`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn rnea_into<T: Real>(q: &[T; NV], qd: &[T; NV], qdd: &[T; NV], c: &mut [T; NV]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *c = [T::k(0.0); NV];
+        unsafe { fma::rnea_into(q, qd, qdd, c) };
+        return;
+    }
+    let r0 = portable::rnea(q, qd, qdd);
+    *c = r0;
+}
 /// Analytical gradient of RNEA: `(dc/dq, dc/dqd)`, row-major `[i][j] = dc_i/du_j`.
 ///
 /// Runs [`fma::rnea_grad`] where [`has_fma`], else [`portable::rnea_grad`].
@@ -497,6 +511,28 @@ pub fn rnea_grad<T: Real>(
     }
     portable::rnea_grad(q, qd, qdd)
 }
+/// [`rnea_grad`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn rnea_grad_into<T: Real>(
+    q: &[T; NV],
+    qd: &[T; NV],
+    qdd: &[T; NV],
+    dc_dq: &mut [[T; NV]; NV],
+    dc_dqd: &mut [[T; NV]; NV],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *dc_dq = [[T::k(0.0); NV]; NV];
+        *dc_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::rnea_grad_into(q, qd, qdd, dc_dq, dc_dqd) };
+        return;
+    }
+    let (r0, r1) = portable::rnea_grad(q, qd, qdd);
+    *dc_dq = r0;
+    *dc_dqd = r1;
+}
 /// The joint-space inertia matrix M(q) (CRBA).
 ///
 /// Runs [`fma::mass_matrix`] where [`has_fma`], else [`portable::mass_matrix`].
@@ -510,6 +546,20 @@ pub fn mass_matrix<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
         return m;
     }
     portable::mass_matrix(q)
+}
+/// [`mass_matrix`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn mass_matrix_into<T: Real>(q: &[T; NV], m: &mut [[T; NV]; NV]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *m = [[T::k(0.0); NV]; NV];
+        unsafe { fma::mass_matrix_into(q, m) };
+        return;
+    }
+    let r0 = portable::mass_matrix(q);
+    *m = r0;
 }
 /// M(q)^-1 from M's sparse factorisation `M = L^T D L` (CRBA), one pair of sparse triangular solves per column of the identity.
 ///
@@ -525,6 +575,20 @@ pub fn minv<T: Real>(q: &[T; NV]) -> [[T; NV]; NV] {
     }
     portable::minv(q)
 }
+/// [`minv`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn minv_into<T: Real>(q: &[T; NV], minv: &mut [[T; NV]; NV]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *minv = [[T::k(0.0); NV]; NV];
+        unsafe { fma::minv_into(q, minv) };
+        return;
+    }
+    let r0 = portable::minv(q);
+    *minv = r0;
+}
 /// Forward dynamics `qdd = M^-1 (tau - c(q, qd, 0))` by the O(nv) articulated-body algorithm (M^-1 is never formed).
 ///
 /// Runs [`fma::fd`] where [`has_fma`], else [`portable::fd`].
@@ -538,6 +602,20 @@ pub fn fd<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV]) -> [T; NV] {
         return qdd;
     }
     portable::fd(q, qd, tau)
+}
+/// [`fd`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn fd_into<T: Real>(q: &[T; NV], qd: &[T; NV], tau: &[T; NV], qdd: &mut [T; NV]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *qdd = [T::k(0.0); NV];
+        unsafe { fma::fd_into(q, qd, tau, qdd) };
+        return;
+    }
+    let r0 = portable::fd(q, qd, tau);
+    *qdd = r0;
 }
 /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
 ///
@@ -559,6 +637,31 @@ pub fn fd_grad<T: Real>(
     }
     portable::fd_grad(q, qd, tau)
 }
+/// [`fd_grad`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn fd_grad_into<T: Real>(
+    q: &[T; NV],
+    qd: &[T; NV],
+    tau: &[T; NV],
+    qdd: &mut [T; NV],
+    dqdd_dq: &mut [[T; NV]; NV],
+    dqdd_dqd: &mut [[T; NV]; NV],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *qdd = [T::k(0.0); NV];
+        *dqdd_dq = [[T::k(0.0); NV]; NV];
+        *dqdd_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::fd_grad_into(q, qd, tau, qdd, dqdd_dq, dqdd_dqd) };
+        return;
+    }
+    let (r0, r1, r2) = portable::fd_grad(q, qd, tau);
+    *qdd = r0;
+    *dqdd_dq = r1;
+    *dqdd_dqd = r2;
+}
 /// The configuration `q (+) v` reached from q along the tangent v in unit time (Pinocchio's `integrate`): scalar coordinates add, a spherical joint turns by `exp3`, a free-flyer moves by `exp6` in its own frame; quaternions renormalised to first order.
 ///
 /// Runs [`fma::integrate`] where [`has_fma`], else [`portable::integrate`].
@@ -572,6 +675,20 @@ pub fn integrate<T: Real>(q: &[T; NV], v: &[T; NV]) -> [T; NQ] {
         return q_next;
     }
     portable::integrate(q, v)
+}
+/// [`integrate`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn integrate_into<T: Real>(q: &[T; NV], v: &[T; NV], q_next: &mut [T; NQ]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *q_next = [T::k(0.0); NQ];
+        unsafe { fma::integrate_into(q, v, q_next) };
+        return;
+    }
+    let r0 = portable::integrate(q, v);
+    *q_next = r0;
 }
 /// The Jacobians of `integrate` in the tangent space: `(d(q (+) v)/dq, d(q (+) v)/dv)`, NV x NV each, row-major (Pinocchio's `dIntegrate` with `ARG0`, `ARG1`).
 ///
@@ -588,6 +705,27 @@ pub fn dintegrate<T: Real>(q: &[T; NV], v: &[T; NV]) -> ([[T; NV]; NV], [[T; NV]
     }
     portable::dintegrate(q, v)
 }
+/// [`dintegrate`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn dintegrate_into<T: Real>(
+    q: &[T; NV],
+    v: &[T; NV],
+    dq: &mut [[T; NV]; NV],
+    dv: &mut [[T; NV]; NV],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *dq = [[T::k(0.0); NV]; NV];
+        *dv = [[T::k(0.0); NV]; NV];
+        unsafe { fma::dintegrate_into(q, v, dq, dv) };
+        return;
+    }
+    let (r0, r1) = portable::dintegrate(q, v);
+    *dq = r0;
+    *dv = r1;
+}
 /// The tangent v with `q (+) v = q1` (Pinocchio's `difference(q0 = q, q1)`): `q1 - q` on scalar coordinates, the logarithm of `q^-1 q1` on a spherical joint (`log3`, angle at most pi) and a free-flyer (`log6`).
 ///
 /// Runs [`fma::difference`] where [`has_fma`], else [`portable::difference`].
@@ -601,6 +739,20 @@ pub fn difference<T: Real>(q: &[T; NV], q1: &[T; NV]) -> [T; NV] {
         return v;
     }
     portable::difference(q, q1)
+}
+/// [`difference`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn difference_into<T: Real>(q: &[T; NV], q1: &[T; NV], v: &mut [T; NV]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *v = [T::k(0.0); NV];
+        unsafe { fma::difference_into(q, q1, v) };
+        return;
+    }
+    let r0 = portable::difference(q, q1);
+    *v = r0;
 }
 /// The Jacobians of `difference` in the tangent space: `(dv/dq, dv/dq1)`, NV x NV each, row-major (Pinocchio's `dDifference` with `ARG0`, `ARG1`).
 ///
@@ -619,6 +771,27 @@ pub fn ddifference<T: Real>(
         return (dq, dq1);
     }
     portable::ddifference(q, q1)
+}
+/// [`ddifference`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn ddifference_into<T: Real>(
+    q: &[T; NV],
+    q1: &[T; NV],
+    dq: &mut [[T; NV]; NV],
+    dq1: &mut [[T; NV]; NV],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *dq = [[T::k(0.0); NV]; NV];
+        *dq1 = [[T::k(0.0); NV]; NV];
+        unsafe { fma::ddifference_into(q, q1, dq, dq1) };
+        return;
+    }
+    let (r0, r1) = portable::ddifference(q, q1);
+    *dq = r0;
+    *dq1 = r1;
 }
 /// The kernels for any target: separate multiplies and adds.
 pub mod portable {

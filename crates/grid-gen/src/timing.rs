@@ -25,7 +25,8 @@ pub struct KernelTime {
     pub scalar: String,
     /// `portable` (no FMA; what `accuracy` measures bit for bit), `dispatch` (the public
     /// function: the `avx512` copy where the CPU has AVX-512, else the `fma` copy where it
-    /// has AVX2 and FMA), or `fma` (timed only where `dispatch` is the `avx512` copy).
+    /// has AVX2 and FMA), `into` (the public `{kernel}_into`: the same copy, into outputs
+    /// kept from call to call), or `fma` (timed only where `dispatch` is the `avx512` copy).
     pub copy: &'static str,
     pub ns_per_call: f64,
 }
@@ -122,6 +123,18 @@ fn program(kernels: &[KernelKind], mixed: &[MixedKernel], model: &Model) -> Stri
                 let _ =
                     writeln!(calls, "    println!(\"{name} {scalar} {copy} {{}}\", time(|j| {{ let x = &{states}[j]; black_box({path}{name}({args})); }}));");
             }
+            // The public `{name}_into`, into outputs the program keeps from call to call (as
+            // Pinocchio's benchmark keeps its `Data`): the first call's outputs, by value.
+            let n_out = k.outputs_for(&model.specialisation).len();
+            let outs: Vec<String> = match n_out {
+                1 => vec!["&mut o".to_string()],
+                n => (0..n).map(|i| format!("&mut o.{i}")).collect(),
+            };
+            let _ = writeln!(
+                calls,
+                "    {{ let x = &{states}[0]; let mut o = robot::{name}({args}); println!(\"{name} {scalar} into {{}}\", time(|j| {{ let x = &{states}[j]; robot::{name}_into({args}, {}); black_box(&mut o); }})); }}",
+                outs.join(", ")
+            );
             // Where the dispatcher picks the avx512 copy, the fma copy beside it shows what
             // AVX-512 buys.
             let _ = writeln!(
@@ -271,6 +284,7 @@ pub fn time_rust_kernels_with_mixed(
                     copy: match *c {
                         "portable" => "portable",
                         "fma" => "fma",
+                        "into" => "into",
                         _ => "dispatch",
                     },
                     ns_per_call: ns,
@@ -287,7 +301,7 @@ pub fn time_rust_kernels_with_mixed(
 /// each scalar type and machine-code copy in `times` ("-" where one was not timed).
 pub fn table(times: &[KernelTime], kinds: &[KernelKind]) -> String {
     let mut out = format!(
-        "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}   (ns per call, one state, median of 15; dispatch runs the {} copy here)\n",
+        "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}   (ns per call, one state, median of 15; dispatch runs the {} copy here, returning its outputs; into is `{{kernel}}_into`, the same copy into kept outputs)\n",
         "kernel",
         "f64 portable",
         "f64 fma",
@@ -295,6 +309,8 @@ pub fn table(times: &[KernelTime], kinds: &[KernelKind]) -> String {
         "f32 portable",
         "f32 fma",
         "f32 dispatch",
+        "f64 into",
+        "f32 into",
         dispatched_copy()
     );
     for &kind in kinds {
@@ -306,14 +322,16 @@ pub fn table(times: &[KernelTime], kinds: &[KernelKind]) -> String {
         };
         let _ = writeln!(
             out,
-            "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}",
+            "{:<12} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14} {:>14}",
             kind.name(),
             cell("f64", "portable"),
             cell("f64", "fma"),
             cell("f64", "dispatch"),
             cell("f32", "portable"),
             cell("f32", "fma"),
-            cell("f32", "dispatch")
+            cell("f32", "dispatch"),
+            cell("f64", "into"),
+            cell("f32", "into")
         );
     }
     out

@@ -517,6 +517,26 @@ pub fn frame_placement<T: Real>(q: &[T; NQ]) -> ([[T; 3]; NF], [[T; 9]; NF]) {
     }
     portable::frame_placement(q)
 }
+/// [`frame_placement`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn frame_placement_into<T: Real>(
+    q: &[T; NQ],
+    translation: &mut [[T; 3]; NF],
+    rotation: &mut [[T; 9]; NF],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *translation = [[T::k(0.0); 3]; NF];
+        *rotation = [[T::k(0.0); 9]; NF];
+        unsafe { fma::frame_placement_into(q, translation, rotation) };
+        return;
+    }
+    let (r0, r1) = portable::frame_placement(q);
+    *translation = r0;
+    *rotation = r1;
+}
 /// Each frame's Jacobian, 6 x nv, rows [linear; angular], in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameJacobian`).
 ///
 /// Runs [`fma::frame_jacobian`] where [`has_fma`], else [`portable::frame_jacobian`].
@@ -531,6 +551,20 @@ pub fn frame_jacobian<T: Real>(q: &[T; NQ]) -> [[[T; NV]; 6]; NF] {
     }
     portable::frame_jacobian(q)
 }
+/// [`frame_jacobian`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn frame_jacobian_into<T: Real>(q: &[T; NQ], jacobian: &mut [[[T; NV]; 6]; NF]) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *jacobian = [[[T::k(0.0); NV]; 6]; NF];
+        unsafe { fma::frame_jacobian_into(q, jacobian) };
+        return;
+    }
+    let r0 = portable::frame_jacobian(q);
+    *jacobian = r0;
+}
 /// Each frame's spatial velocity [linear; angular] in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameVelocity`).
 ///
 /// Runs [`fma::frame_velocity`] where [`has_fma`], else [`portable::frame_velocity`].
@@ -544,6 +578,24 @@ pub fn frame_velocity<T: Real>(q: &[T; NQ], qd: &[T; NV]) -> [[T; 6]; NF] {
         return velocity;
     }
     portable::frame_velocity(q, qd)
+}
+/// [`frame_velocity`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn frame_velocity_into<T: Real>(
+    q: &[T; NQ],
+    qd: &[T; NV],
+    velocity: &mut [[T; 6]; NF],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *velocity = [[T::k(0.0); 6]; NF];
+        unsafe { fma::frame_velocity_into(q, qd, velocity) };
+        return;
+    }
+    let r0 = portable::frame_velocity(q, qd);
+    *velocity = r0;
 }
 /// Each frame's classical acceleration (linear, with `w x v`) in the module's `REFERENCE_FRAME` (Pinocchio's `getFrameClassicalAcceleration`); at qdd = 0, the drift `dJ/dt qd`.
 ///
@@ -562,6 +614,25 @@ pub fn frame_acceleration<T: Real>(
         return acceleration;
     }
     portable::frame_acceleration(q, qd, qdd)
+}
+/// [`frame_acceleration`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn frame_acceleration_into<T: Real>(
+    q: &[T; NQ],
+    qd: &[T; NV],
+    qdd: &[T; NV],
+    acceleration: &mut [[T; 3]; NF],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *acceleration = [[T::k(0.0); 3]; NF];
+        unsafe { fma::frame_acceleration_into(q, qd, qdd, acceleration) };
+        return;
+    }
+    let r0 = portable::frame_acceleration(q, qd, qdd);
+    *acceleration = r0;
 }
 /// The classical acceleration's derivatives `(dacc/dq, dacc/dqd, dacc/dqdd)`, 3 x nv per frame, row-major, `dq` in the tangent space (forward-mode differentiation of `frame_acceleration`'s graph).
 ///
@@ -591,6 +662,33 @@ pub fn frame_acceleration_grad<T: Real>(
         return (dacc_dq, dacc_dqd, dacc_dqdd);
     }
     portable::frame_acceleration_grad(q, qd, qdd)
+}
+/// [`frame_acceleration_grad`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn frame_acceleration_grad_into<T: Real>(
+    q: &[T; NQ],
+    qd: &[T; NV],
+    qdd: &[T; NV],
+    dacc_dq: &mut [[[T; NV]; 3]; NF],
+    dacc_dqd: &mut [[[T; NV]; 3]; NF],
+    dacc_dqdd: &mut [[[T; NV]; 3]; NF],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *dacc_dq = [[[T::k(0.0); NV]; 3]; NF];
+        *dacc_dqd = [[[T::k(0.0); NV]; 3]; NF];
+        *dacc_dqdd = [[[T::k(0.0); NV]; 3]; NF];
+        unsafe {
+            fma::frame_acceleration_grad_into(q, qd, qdd, dacc_dq, dacc_dqd, dacc_dqdd)
+        };
+        return;
+    }
+    let (r0, r1, r2) = portable::frame_acceleration_grad(q, qd, qdd);
+    *dacc_dq = r0;
+    *dacc_dqd = r1;
+    *dacc_dqdd = r2;
 }
 /// The kernels for any target: separate multiplies and adds.
 pub mod portable {

@@ -488,6 +488,28 @@ pub fn rnea_grad<T: Real>(
     }
     portable::rnea_grad(q, qd, qdd)
 }
+/// [`rnea_grad`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn rnea_grad_into<T: Real>(
+    q: &[T; NV],
+    qd: &[T; NV],
+    qdd: &[T; NV],
+    dc_dq: &mut [[T; NV]; NV],
+    dc_dqd: &mut [[T; NV]; NV],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *dc_dq = [[T::k(0.0); NV]; NV];
+        *dc_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::rnea_grad_into(q, qd, qdd, dc_dq, dc_dqd) };
+        return;
+    }
+    let (r0, r1) = portable::rnea_grad(q, qd, qdd);
+    *dc_dq = r0;
+    *dc_dqd = r1;
+}
 /// Forward dynamics and its gradient: `(qdd, dqdd/dq, dqdd/dqd)`, `dqdd/du = -M^-1 dc/du` at that qdd. qdd and M^-1 both from M's sparse factorisation `M = L^T D L` (CRBA; no articulated-body pass).
 ///
 /// Runs [`fma::fd_grad`] where [`has_fma`], else [`portable::fd_grad`].
@@ -507,6 +529,31 @@ pub fn fd_grad<T: Real>(
         return (qdd, dqdd_dq, dqdd_dqd);
     }
     portable::fd_grad(q, qd, tau)
+}
+/// [`fd_grad`] into the caller's outputs, every entry of which it overwrites (the SIMD
+/// copies write there directly: no output is returned by value, then copied).
+#[inline]
+#[allow(dead_code, clippy::type_complexity, clippy::too_many_arguments)]
+pub fn fd_grad_into<T: Real>(
+    q: &[T; NV],
+    qd: &[T; NV],
+    tau: &[T; NV],
+    qdd: &mut [T; NV],
+    dqdd_dq: &mut [[T; NV]; NV],
+    dqdd_dqd: &mut [[T; NV]; NV],
+) {
+    #[cfg(target_arch = "x86_64")]
+    if has_fma() {
+        *qdd = [T::k(0.0); NV];
+        *dqdd_dq = [[T::k(0.0); NV]; NV];
+        *dqdd_dqd = [[T::k(0.0); NV]; NV];
+        unsafe { fma::fd_grad_into(q, qd, tau, qdd, dqdd_dq, dqdd_dqd) };
+        return;
+    }
+    let (r0, r1, r2) = portable::fd_grad(q, qd, tau);
+    *qdd = r0;
+    *dqdd_dq = r1;
+    *dqdd_dqd = r2;
 }
 /// The kernels for any target: separate multiplies and adds.
 pub mod portable {

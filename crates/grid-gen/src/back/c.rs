@@ -365,8 +365,11 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
             format!("({})", results.join(", "))
         };
         let call: Vec<String> = inputs.iter().map(|i| format!("&{}[i]", i.name())).collect();
-        let writes: String =
-            (0..k.outputs.len()).map(|j| format!("o{j}.write(i, r{j});")).collect();
+        // One state at a time, the kernel writes into state i's outputs in place
+        // (`{name}_into`): no output is returned by value, then copied. `{ o }` copies the
+        // whole `Out`, so that the closure captures it (which is `Sync`), not its pointer.
+        let in_place: Vec<String> =
+            (0..k.outputs.len()).map(|j| format!("&mut *{{ o{j} }}.0.add(i)")).collect();
         // Groups of states in one SIMD value where T is f64 or f32 and the CPU runs it: the
         // same operations lane by lane (bit-identical to one call per state), two to three
         // times fewer instructions per state (Speed). The constant `T::IS_F64` comes first:
@@ -418,9 +421,10 @@ let n2: f64 = s[at..at + 4].iter().map(|&v| v.into() * v.into()).sum();
             "let lanes = {group};\n\
              grid_gen_runtime::for_each_lanes(n, lanes, |range| {{\n#[allow(unused_mut)]\nlet mut i = range.start;\n\
              {simd_code}\
-             for i in i..range.end {{\nlet {pattern} = super::{stem}::{name}({});\n\
-             // SAFETY: i < n, every output's length, and no two ranges meet.\nunsafe {{ {writes} }}\n}}\n}});\n}}\n",
-            call.join(", ")
+             for i in i..range.end {{\n\
+             // SAFETY: i < n, every output's length, and no two ranges meet.\nunsafe {{ super::{stem}::{name}_into({}, {}) }};\n}}\n}});\n}}\n",
+            call.join(", "),
+            in_place.join(", ")
         );
         // The C entry points.
         for (rt, _) in precisions(options) {

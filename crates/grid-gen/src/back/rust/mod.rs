@@ -1632,6 +1632,64 @@ fn emit_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool, co
     }
 }
 
+/// The public kernel into its caller's outputs (`{name}_into`): what a caller that keeps
+/// its outputs from call to call (an MPC's knots, the C ABI's batches) runs, as Pinocchio
+/// writes into its `Data`. The by-value kernel returns its outputs, a copy of every one
+/// (42 kB for a humanoid's `contact_fd_grad`, 6 % of its time in `perf`); here the SIMD
+/// copies write into the caller's, set to zero first (a kernel stores only the entries
+/// that are not structurally zero).
+fn emit_into_dispatcher(out: &mut String, k: &Function, q_len: &str, avx512: bool, copies: Copies) {
+    let name = k.kind.name();
+    let Signature { args, arg_names, .. } = Signature::of(k, q_len);
+    let call = arg_names.join(", ");
+    let params: Vec<String> =
+        k.outputs.iter().map(|o| format!("{}: &mut {}", o.name, output_type(o.shape))).collect();
+    let _ = writeln!(
+        out,
+        "/// [`{name}`] into the caller's outputs, every entry of which it overwrites (the SIMD\n\
+         /// copies write there directly: no output is returned by value, then copied).\n\
+         #[inline]\n#[allow(dead_code, {}clippy::type_complexity, clippy::too_many_arguments)]\n\
+         pub fn {name}_into<T: Real>({}, {}) {{",
+        if copies == Copies::Fma { "unused_variables, " } else { "" },
+        args.join(", "),
+        params.join(", ")
+    );
+    if copies != Copies::Portable {
+        let _ = writeln!(out, "#[cfg(target_arch = \"x86_64\")]\nif has_fma() {{");
+        // `T::k` first, as in the by-value kernel: the CPU check for the SIMD types.
+        for o in &k.outputs {
+            let _ = writeln!(out, "*{} = {};", o.name, array_of(o.shape, "T::k(0.0)"));
+        }
+        let refs: Vec<&str> = k.outputs.iter().map(|o| o.name).collect();
+        let into_call = format!("{call}, {}", refs.join(", "));
+        if avx512 {
+            let _ = writeln!(
+                out,
+                "if has_avx512() {{\n// SAFETY: the CPU has AVX-512 F and VL, AVX2 and FMA (checked just above).\nunsafe {{ avx512::{name}_into({into_call}) }};\nreturn;\n}}"
+            );
+        }
+        let _ = writeln!(
+            out,
+            "// SAFETY: the CPU has AVX2 and FMA (checked just above).\nunsafe {{ fma::{name}_into({into_call}) }};\nreturn;\n}}"
+        );
+    }
+    if copies == Copies::Fma {
+        let _ = writeln!(
+            out,
+            "panic!(\"this module holds only the kernels for x86-64 with AVX2 and FMA (generated with copies = fma), and this CPU lacks them\")\n}}\n"
+        );
+        return;
+    }
+    let results: Vec<String> = (0..k.outputs.len()).map(|j| format!("r{j}")).collect();
+    let pattern = match results.len() {
+        1 => results[0].clone(),
+        _ => format!("({})", results.join(", ")),
+    };
+    let writes: String =
+        k.outputs.iter().enumerate().map(|(j, o)| format!("*{} = r{j};\n", o.name)).collect();
+    let _ = writeln!(out, "let {pattern} = portable::{name}({call});\n{writes}}}\n");
+}
+
 /// `&mut out1, &mut out2, ...`: the outputs passed to a copy's `{name}_into`.
 fn output_refs(k: &Function) -> String {
     k.outputs.iter().map(|o| format!("&mut {}", o.name)).collect::<Vec<_>>().join(", ")
@@ -2070,6 +2128,10 @@ pub fn emit(module: &Module, options: &RustOptions) -> Result<GeneratedFile, Rus
             out.push_str(&super::feature_gate(k.kind.name()));
         }
         emit_dispatcher(&mut out, k, q_len(robot), avx512, options.copies);
+        if options.kernel_features {
+            out.push_str(&super::feature_gate(k.kind.name()));
+        }
+        emit_into_dispatcher(&mut out, k, q_len(robot), avx512, options.copies);
     }
     let copies = [
         (
