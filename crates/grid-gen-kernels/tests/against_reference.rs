@@ -1083,3 +1083,92 @@ fn rounded_angle_kernels_match_the_rounded_reference_and_stay_near_the_literal()
     check!(grid_hyq_round_angles, "hyq_round_angles", "");
     check!(grid_hyq_floating_round_angles, "hyq_floating_round_angles", "hyq_floating");
 }
+
+/// `{kernel}_into` overwrites every entry of its outputs: filled with NaN beforehand, they
+/// hold bit for bit what the returning kernel gives (the dispatcher's copy, so the `avx512`
+/// or `fma` copy where the CPU runs it, else the portable one). iiwa's kernels in f64 and
+/// f32, and floating HyQ standing on its feet's contact kernels, whose outputs have
+/// structural zeros that the kernels never store.
+#[test]
+fn into_kernels_overwrite_their_outputs_as_the_returning_ones_give_them() {
+    fn same<T: Copy + Into<f64>>(label: &str, into: &[T], returned: &[T]) {
+        assert_eq!(into.len(), returned.len());
+        for (i, (&a, &b)) in into.iter().zip(returned).enumerate() {
+            let (a, b): (f64, f64) = (a.into(), b.into());
+            assert_eq!(a.to_bits(), b.to_bits(), "{label}: entry {i}, into {a}, returned {b}");
+        }
+    }
+    let mut rng = Rng(91);
+    let model = load("grid_iiwa");
+    macro_rules! iiwa {
+        ($t:ty) => {{
+            use grid_gen_kernels::grid_iiwa as k;
+            for (_, q, qd, u) in states(&model, &mut rng).into_iter().take(4) {
+                let a = |v: &[f64]| -> [$t; k::NV] { std::array::from_fn(|i| v[i] as $t) };
+                let (q, qd, u) = (a(&q), a(&qd), a(&u));
+                let nan = <$t>::NAN;
+                let (mut v, mut m1, mut m2) =
+                    ([nan; k::NV], [[nan; k::NV]; k::NV], [[nan; k::NV]; k::NV]);
+                k::rnea_into(&q, &qd, &u, &mut v);
+                same("rnea", &v, &k::rnea(&q, &qd, &u));
+                k::rnea_grad_into(&q, &qd, &u, &mut m1, &mut m2);
+                let (dq, dqd) = k::rnea_grad(&q, &qd, &u);
+                same("rnea_grad dq", m1.as_flattened(), dq.as_flattened());
+                same("rnea_grad dqd", m2.as_flattened(), dqd.as_flattened());
+                (m1, m2, v) = ([[nan; k::NV]; k::NV], [[nan; k::NV]; k::NV], [nan; k::NV]);
+                k::mass_matrix_into(&q, &mut m1);
+                same("mass_matrix", m1.as_flattened(), k::mass_matrix(&q).as_flattened());
+                k::minv_into(&q, &mut m2);
+                same("minv", m2.as_flattened(), k::minv(&q).as_flattened());
+                k::fd_into(&q, &qd, &u, &mut v);
+                same("fd", &v, &k::fd(&q, &qd, &u));
+                (m1, m2, v) = ([[nan; k::NV]; k::NV], [[nan; k::NV]; k::NV], [nan; k::NV]);
+                k::fd_grad_into(&q, &qd, &u, &mut v, &mut m1, &mut m2);
+                let (qdd, fq, fqd) = k::fd_grad(&q, &qd, &u);
+                same("fd_grad qdd", &v, &qdd);
+                same("fd_grad dq", m1.as_flattened(), fq.as_flattened());
+                same("fd_grad dqd", m2.as_flattened(), fqd.as_flattened());
+            }
+        }};
+    }
+    iiwa!(f64);
+    iiwa!(f32);
+    use grid_gen_kernels::scenes::grid_hyq_standing_floating as k;
+    let (model, _) = grid_gen_test_support::load_in_scene("grid_hyq", "hyq_standing_floating");
+    let mut stood = 0;
+    for (_, per_joint, qd, tau) in states(&model, &mut rng) {
+        let q = model.q_from_joints(&per_joint, rng.base_pose());
+        let q: [f64; k::NQ] = std::array::from_fn(|i| q[i]);
+        let qd: [f64; k::NV] = std::array::from_fn(|i| qd[i]);
+        let u: [f64; k::NV] = std::array::from_fn(|i| 10.0 * tau[i]);
+        let n = f64::NAN;
+        let (mut a, mut l) = ([n; k::NV], [n; k::NLAMBDA]);
+        k::contact_fd_into(&q, &qd, &u, &mut a, &mut l);
+        let (ra, rl) = k::contact_fd(&q, &qd, &u);
+        same("contact_fd qdd", &a, &ra);
+        same("contact_fd lambda", &l, &rl);
+        let (mut a, mut l) = ([n; k::NV], [n; k::NLAMBDA]);
+        let (mut aq, mut aqd, mut at) =
+            ([[n; k::NV]; k::NV], [[n; k::NV]; k::NV], [[n; k::NV]; k::NV]);
+        let (mut lq, mut lqd, mut lt) =
+            ([[n; k::NV]; k::NLAMBDA], [[n; k::NV]; k::NLAMBDA], [[n; k::NV]; k::NLAMBDA]);
+        k::contact_fd_grad_into(
+            &q, &qd, &u, &mut a, &mut l, &mut aq, &mut aqd, &mut at, &mut lq, &mut lqd, &mut lt,
+        );
+        let r = k::contact_fd_grad(&q, &qd, &u);
+        same("contact_fd_grad qdd", &a, &r.0);
+        same("contact_fd_grad lambda", &l, &r.1);
+        for (name, into, returned) in [
+            ("dqdd_dq", aq.as_flattened(), r.2.as_flattened()),
+            ("dqdd_dqd", aqd.as_flattened(), r.3.as_flattened()),
+            ("dqdd_dtau", at.as_flattened(), r.4.as_flattened()),
+            ("dlambda_dq", lq.as_flattened(), r.5.as_flattened()),
+            ("dlambda_dqd", lqd.as_flattened(), r.6.as_flattened()),
+            ("dlambda_dtau", lt.as_flattened(), r.7.as_flattened()),
+        ] {
+            same(&format!("contact_fd_grad {name}"), into, returned);
+        }
+        stood += 1;
+    }
+    assert!(stood >= 4, "{stood} states");
+}
